@@ -1,0 +1,56 @@
+"""TOML load/dump of `sosmatch.plugin.params.Params`, with file-naming errors."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from ..plugin.errors import InputError
+from ..plugin.params import Params, params_from_dict, params_to_dict, with_overrides
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+def load_params(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Params:
+    """Defaults, then the TOML file (if any), then dotted overrides. Unknown keys are an error."""
+    params = Params()
+    if path is not None:
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise InputError("config file not found", path) from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"cannot read config: {exc}", path) from None
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"invalid TOML: {exc}", path) from None
+        try:
+            params = params_from_dict(data)
+        except InputError as exc:
+            raise InputError(exc.problem, path) from None
+    if overrides:
+        params = with_overrides(params, overrides)
+    return params
+
+
+def dump_params(params: Params) -> str:
+    """TOML text of the parameters (round-trips through `load_params`)."""
+    return tomli_w.dumps(params_to_dict(params))
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """Parse one `section.key=value` flag; the value is read as a TOML literal, else kept as a string."""
+    if "=" not in text:
+        raise InputError(f"--set expects section.key=value, got {text!r}")
+    key, raw = (part.strip() for part in text.split("=", 1))
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key, value

@@ -1,0 +1,120 @@
+"""Every parameter of the method, with the paper's defaults, in one frozen dataclass tree.
+
+Field comments give the symbol used in SOS-Match (Thomas et al., IROS 2024) and `../shared/spec/method.md`.
+Values marked *(ours)* are not fixed by the paper; the module that uses them documents how they were chosen.
+Parameters are plain data: `params_from_dict` / `params_to_dict` convert to and from nested dicts (TOML lives in
+`sosmatch.database.config_io`), and unknown keys are rejected rather than silently ignored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class KeyframeParams:
+    interval_m: float = 2.0  # theta_T: camera travel between keyframes
+
+
+@dataclass(frozen=True)
+class SegmentationParams:
+    backend: str = "classical"  # registry name in sosmatch.plugin.segmentation
+    min_mask_area_px: int = 3  # the paper keeps masks "larger than 2 px"
+    max_sift_per_mask: int = 64  # SIFT features kept per mask A_k (ours; tracking only, never stored)
+
+
+@dataclass(frozen=True)
+class TrackingParams:
+    max_track_age_keyframes: int = 3  # theta_t (ours): tracks whose last observation is older are not candidates
+    epipolar_margin_px: float = 12.0  # theta_a (ours): max centroid distance to the epipolar line
+    motion_gate_sigmas: float = 4.0  # theta_v: | |m_i - m_j| - mu_p | / sigma_p must stay below this
+    min_score: float = 0.2  # theta_q: minimum q = sqrt(q_s * q_f)
+    size_tolerance: float = 0.2  # theta_h: relative size difference at which q_s reaches 0
+    sift_ratio: float = 0.8  # Lowe's ratio test for q_f (ours; the paper does not state it)
+
+
+@dataclass(frozen=True)
+class TriangulationParams:
+    min_observations: int = 5  # theta_n: tracks with MORE than this many observations become landmarks
+    pixel_sigma_px: float = 3.0  # sigma: centroid noise used in triangulation and bundle adjustment
+    max_reprojection_error_px: float = 10.0  # (ours) landmarks above this mean error are dropped
+    min_triangulation_angle_deg: float = 1.0  # (ours) landmarks seen under a smaller ray angle are dropped
+
+
+@dataclass(frozen=True)
+class AssociationParams:
+    window_length: int = 50  # theta_WL: landmarks per window
+    window_stride: int = 10  # theta_SL: stride between windows
+    max_size_difference: float = 0.2  # theta_r: putative pairs need r(h_i, h_j) <= this
+    distance_tolerance_m: float = 2.0  # theta_eps: pairwise distance mismatch still called consistent
+    affinity_sigma_m: float = 1.0  # sigma (ours) of the CLIPPER affinity exp(-c^2 / 2 sigma^2)
+    max_gravity_angle_deg: float = 22.5  # theta_alpha: max roll/pitch difference of an accepted transform
+    min_associations: int = 6  # theta_S (ours default; swept for precision-recall): accept if |S| > this
+    transform: str = "rigid"  # "rigid" (Arun/Umeyama) or "similarity"
+
+
+@dataclass(frozen=True)
+class Params:
+    keyframes: KeyframeParams = field(default_factory=KeyframeParams)
+    segmentation: SegmentationParams = field(default_factory=SegmentationParams)
+    tracking: TrackingParams = field(default_factory=TrackingParams)
+    triangulation: TriangulationParams = field(default_factory=TriangulationParams)
+    association: AssociationParams = field(default_factory=AssociationParams)
+    seed: int = 0  # every random choice in the pipeline derives from this
+
+
+def params_to_dict(params: Any) -> dict[str, Any]:
+    """Nested plain dict of a params dataclass (sections become sub-dicts)."""
+    return dataclasses.asdict(params)
+
+
+def _coerce(value: Any, annotation: Any, where: str) -> Any:
+    """Check a config value against the field type; ints are accepted where floats are expected."""
+    kind = {"float": float, "int": int, "str": str, "bool": bool}.get(annotation, annotation)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if kind in (float, int, str, bool) and (type(value) is not kind):
+        raise InputError(f"{where} must be {kind.__name__}, got {value!r}")
+    return value
+
+
+def params_from_dict(data: dict[str, Any], cls: type = Params, where: str = "") -> Any:
+    """Build a params dataclass from a nested dict; missing keys keep defaults, unknown keys are an error."""
+    if not isinstance(data, dict):
+        raise InputError(f"{where or 'config'} must be a table, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        name = f"[{where}]" if where else "top level"
+        raise InputError(f"unknown key(s) {', '.join(unknown)} in {name}; known: {', '.join(fields)}")
+    kwargs = {}
+    for key, value in data.items():
+        path = f"{where}.{key}" if where else key
+        hint = hints[key]
+        if dataclasses.is_dataclass(hint):
+            kwargs[key] = params_from_dict(value, hint, path)
+        else:
+            kwargs[key] = _coerce(value, hint, path)
+    return cls(**kwargs)
+
+
+def with_overrides(params: Params, overrides: dict[str, Any]) -> Params:
+    """Apply dotted-key overrides such as {"tracking.epipolar_margin_px": 8.0}."""
+    data = params_to_dict(params)
+    for dotted, value in overrides.items():
+        *sections, key = dotted.split(".")
+        node = data
+        for section in sections:
+            if not isinstance(node.get(section), dict):
+                raise InputError(f"unknown parameter section {section!r} in {dotted!r}")
+            node = node[section]
+        if key not in node or isinstance(node[key], dict):
+            raise InputError(f"unknown parameter {dotted!r}")
+        node[key] = value
+    return params_from_dict(data)

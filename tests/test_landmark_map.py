@@ -1,0 +1,64 @@
+"""The compact landmark map: round trip, size bound, and a reader that never crashes or lies."""
+
+import numpy as np
+import pytest
+
+from sosmatch.database.landmark_map import (
+    BYTES_PER_LANDMARK,
+    LandmarkMap,
+    decode_landmark_map,
+    encode_landmark_map,
+    read_landmark_map,
+    write_landmark_map,
+)
+from sosmatch.plugin.errors import InputError
+
+
+def _map(n=200, seed=0):
+    rng = np.random.default_rng(seed)
+    origin = np.array([480_000.0, 5_200_000.0, 300.0])
+    return LandmarkMap(origin + rng.uniform(-500, 500, (n, 3)), rng.uniform(0.5, 10, n), origin, epsg=32614)
+
+
+def test_round_trip_and_bytes_per_landmark(tmp_path):
+    lmap = _map()
+    path = tmp_path / "m.sosmap"
+    nbytes = write_landmark_map(path, lmap)
+    assert nbytes == path.stat().st_size == 52 + BYTES_PER_LANDMARK * len(lmap)
+    assert BYTES_PER_LANDMARK <= 16
+    back = read_landmark_map(path)
+    assert back.epsg == 32614 and np.array_equal(back.origin, lmap.origin)
+    assert np.abs(back.positions - lmap.positions).max() < 1e-4  # float32 offsets within 500 m: sub-mm
+    assert np.allclose(back.sizes, lmap.sizes, rtol=1e-3)
+
+
+def test_map_without_sizes_and_empty_map():
+    lmap = LandmarkMap(np.zeros((3, 3)), np.full(3, np.nan))
+    back = decode_landmark_map(encode_landmark_map(lmap))
+    assert not back.has_sizes and len(back) == 3
+    empty = decode_landmark_map(encode_landmark_map(LandmarkMap(np.zeros((0, 3)), np.zeros(0))))
+    assert len(empty) == 0
+
+
+def test_fuzzed_inputs_always_give_the_clear_error():
+    good = encode_landmark_map(_map(50))
+    rng = np.random.default_rng(1)
+    cases = [good[:k] for k in (0, 7, 47, 48, 100, len(good) - 1)]
+    for _ in range(300):  # single and multiple flipped bits anywhere
+        buf = bytearray(good)
+        for pos in rng.integers(0, len(buf), rng.integers(1, 4)):
+            buf[pos] ^= 1 << int(rng.integers(0, 8))
+        cases.append(bytes(buf))
+    cases += [rng.bytes(int(n)) for n in rng.integers(0, 2000, 100)]
+    wrong_version = bytearray(good)
+    wrong_version[8] = 2
+    cases.append(bytes(wrong_version))
+    for data in cases:
+        with pytest.raises(InputError) as exc:
+            decode_landmark_map(data, "fuzz.sosmap")
+        assert str(exc.value).startswith("fuzz.sosmap: ")
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        read_landmark_map(tmp_path / "none.sosmap")

@@ -1,0 +1,61 @@
+"""The package installs under one namespace and the command line behaves."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import sosmatch.database
+import sosmatch.plugin
+import sosmatch.tools
+import sosmatch.workflows
+from sosmatch.tools.cli import build_parser, main
+
+SOSMATCH = str(Path(sys.executable).parent / "sosmatch")
+
+
+def test_subpackages_live_under_one_namespace(tmp_path):
+    # From a neutral directory (not the checkout), only the namespaced names may import.
+    code = (
+        "import importlib.util, sosmatch.plugin, sosmatch.database, sosmatch.workflows, sosmatch.tools\n"
+        "bare = [n for n in ('plugin', 'database', 'workflows', 'tools') if importlib.util.find_spec(n)]\n"
+        "assert not bare, bare\n"
+    )
+    subprocess.run([sys.executable, "-c", code], cwd=tmp_path, check=True)
+    assert sosmatch.plugin.__version__
+    for mod in (sosmatch.plugin, sosmatch.database, sosmatch.workflows, sosmatch.tools):
+        assert mod.__name__.startswith("sosmatch.")
+
+
+def test_console_script_version_and_help():
+    out = subprocess.run([SOSMATCH, "--version"], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == f"sosmatch {sosmatch.plugin.__version__}"
+    out = subprocess.run([SOSMATCH, "--help"], capture_output=True, text=True, check=True)
+    assert "config" in out.stdout
+
+
+def test_every_subcommand_has_help(capsys):
+    parser = build_parser()
+    names = [a for a in parser._subparsers._group_actions[0].choices]
+    assert "config" in names
+    for name in names:
+        with pytest.raises(SystemExit) as exc:
+            main([name, "--help"])
+        assert exc.value.code == 0
+        assert "usage: sosmatch" in capsys.readouterr().out
+
+
+def test_user_error_is_one_line_exit_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[tracking]\nno_such_key = 1\n")
+    out = subprocess.run(
+        [sys.executable, "-m", "sosmatch.tools.cli", "config", "check", "--config", str(bad)],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1, out.stderr
+    assert str(bad) in lines[0] and "no_such_key" in lines[0]
+    assert "Traceback" not in out.stderr

@@ -1,0 +1,81 @@
+"""The `sosmatch` command line: parse, call a documented Python function, print. Nothing else lives here.
+
+Subcommands are the modules of `sosmatch.tools.commands`, discovered at start-up. Each module defines
+`NAME`, `HELP`, `add_arguments(parser)` and `run(args) -> int`, and imports heavy libraries only inside `run`
+so that `sosmatch --help` stays instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from ..plugin import __version__
+from ..plugin.errors import InputError
+from . import commands
+
+EXIT_USER_ERROR = 2
+log = logging.getLogger("sosmatch")
+
+
+def _command_modules() -> list:
+    modules = []
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
+        if info.name.startswith("_"):
+            continue
+        modules.append(importlib.import_module(f"{commands.__name__}.{info.name}"))
+    return modules
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="sosmatch",
+        description="Open-set segment landmark maps and cross-session correspondence search (SOS-Match).",
+    )
+    parser.add_argument("--version", action="version", version=f"sosmatch {__version__}")
+    verbosity = argparse.ArgumentParser(add_help=False)
+    verbosity.add_argument("-v", "--verbose", action="count", default=0, help="more logging (twice: debug)")
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for module in _command_modules():
+        cmd = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP, parents=[verbosity])
+        module.add_arguments(cmd)
+        cmd.set_defaults(_run=module.run)
+    return parser
+
+
+def _setup_logging(verbose: int, quiet: bool) -> None:
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.getLogger("sosmatch").setLevel(level)
+    try:  # silence COLMAP's C++ log unless asked for debug output
+        if verbose < 2 and "pycolmap" in sys.modules:
+            sys.modules["pycolmap"].logging.minloglevel = 2
+    except AttributeError:  # pragma: no cover
+        pass
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `sosmatch` console script. Returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    _setup_logging(args.verbose, args.quiet)
+    try:
+        code = args._run(args)
+    except InputError as exc:
+        if args.verbose:
+            log.exception("user error")
+        print(f"sosmatch {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print(f"sosmatch {args.command}: interrupted (re-run the same command to resume)", file=sys.stderr)
+        return 130
+    return int(code or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
