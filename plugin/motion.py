@@ -1,0 +1,91 @@
+"""Image-motion statistics between consecutive keyframes (method.md 1.4).
+
+SOS-Match gates track candidates on how far a mask centroid moved compared with how far the image moved:
+`| |m_i - m_j| - mu_p | / sigma_p < theta_v`. `mu_p` and `sigma_p` are the mean and standard deviation of the
+pixel displacement of generic feature tracks between the two keyframes, as a visual-inertial front end would
+provide. Here: Shi-Tomasi corners in the previous keyframe, pyramidal Lucas-Kanade into the current one, kept only
+if tracking back lands within `_FB_MAX_PX` of the start (forward-backward check), which removes the tracks that
+slid along edges or off occlusions. Everything is deterministic (no RANSAC, no random sampling).
+
+Fallback when fewer than `MIN_TRACKS` tracks survive (water, fog, snow, motion blur): the global shift from
+phase correlation gives `mu_p`, and `sigma_p` is set wide (`max(FALLBACK_MIN_SIGMA_PX, 0.5 mu_p)`) because a blind
+front end should loosen the motion gate rather than reject every candidate.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+MIN_TRACKS = 8  # below this the LK statistics are too noisy to gate on; use the fallback
+FALLBACK_MIN_SIGMA_PX = 2.0
+_FB_MAX_PX = 1.0  # forward-backward consistency for a kept LK track (px at the working resolution)
+_WORK_MAX_DIM = 1024  # larger images are downscaled for speed; displacements are scaled back
+
+
+def _to_gray_u8(img: np.ndarray) -> np.ndarray:
+    img = np.asarray(img)
+    if img.ndim == 3:
+        img = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2GRAY)
+    if img.ndim != 2:
+        raise ValueError(f"expected a 2-D grayscale (or HxWx3) image, got shape {img.shape}")
+    if img.dtype != np.uint8:
+        img = img.astype(np.float64)
+        if img.max(initial=0.0) <= 1.0:  # float images in [0, 1]
+            img = img * 255.0
+        img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(img)
+
+
+def lk_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int = 400) -> np.ndarray:
+    """Displacement vectors (N,2) in px (full resolution) of forward-backward-consistent LK corner tracks."""
+    prev = _to_gray_u8(prev_gray)
+    cur = _to_gray_u8(cur_gray)
+    if prev.shape != cur.shape:
+        raise ValueError(f"keyframes differ in size: {prev.shape} vs {cur.shape}")
+    scale = min(1.0, _WORK_MAX_DIM / max(prev.shape))
+    if scale < 1.0:
+        size = (max(1, round(prev.shape[1] * scale)), max(1, round(prev.shape[0] * scale)))
+        prev = cv2.resize(prev, size, interpolation=cv2.INTER_AREA)
+        cur = cv2.resize(cur, size, interpolation=cv2.INTER_AREA)
+    min_distance = max(5.0, min(prev.shape) / 40.0)  # spread corners over the image, not on one textured patch
+    corners = cv2.goodFeaturesToTrack(prev, maxCorners=int(max_corners), qualityLevel=0.01,
+                                      minDistance=min_distance, blockSize=7)
+    if corners is None or len(corners) == 0:
+        return np.zeros((0, 2))
+    p0 = corners.astype(np.float32).reshape(-1, 1, 2)
+    lk = dict(winSize=(21, 21), maxLevel=4, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, **lk)
+    if p1 is None:
+        return np.zeros((0, 2))
+    p0r, st2, _ = cv2.calcOpticalFlowPyrLK(cur, prev, p1, None, **lk)
+    fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
+    h, w = prev.shape
+    end = p1.reshape(-1, 2)
+    inside = (end[:, 0] >= 0) & (end[:, 0] < w) & (end[:, 1] >= 0) & (end[:, 1] < h)
+    keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < _FB_MAX_PX) & inside
+    return (end[keep] - p0.reshape(-1, 2)[keep]).astype(np.float64) / scale
+
+
+def image_motion_stats(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int = 400) -> tuple[float, float]:
+    """Mean and standard deviation (px) of the image motion between two consecutive keyframes.
+
+    `mu_p`, `sigma_p` are the mean and (population) standard deviation of the displacement magnitudes of LK corner
+    tracks. Deterministic. With fewer than `MIN_TRACKS` tracks, falls back to phase correlation (module docstring).
+    """
+    disp = lk_displacements(prev_gray, cur_gray, max_corners)
+    if len(disp) >= MIN_TRACKS:
+        mag = np.linalg.norm(disp, axis=1)
+        return float(mag.mean()), float(mag.std())
+    prev = _to_gray_u8(prev_gray).astype(np.float64)
+    cur = _to_gray_u8(cur_gray).astype(np.float64)
+    window = cv2.createHanningWindow(prev.shape[::-1], cv2.CV_64F)
+    (dx, dy), response = cv2.phaseCorrelate(prev, cur, window)
+    mu = float(np.hypot(dx, dy))
+    sigma = max(FALLBACK_MIN_SIGMA_PX, 0.5 * mu)
+    logger.debug("only %d LK tracks; phase correlation shift %.1f px (response %.2f)", len(disp), mu, response)
+    return mu, float(sigma)

@@ -1,0 +1,74 @@
+"""Image-motion statistics: known shifts of a real textured image, rotation spread, few-track fallback."""
+
+import cv2
+import numpy as np
+import pytest
+
+from sosmatch.plugin.motion import FALLBACK_MIN_SIGMA_PX, image_motion_stats, lk_displacements
+
+
+def _texture(seed: int, shape=(360, 480)) -> np.ndarray:
+    """A natural-looking texture: multi-scale blurred noise (corners everywhere, like vegetation from 100 m)."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros(shape)
+    for sigma, weight in [(1.0, 0.5), (3.0, 1.0), (9.0, 1.5)]:
+        img += weight * cv2.GaussianBlur(rng.standard_normal(shape), (0, 0), sigma) * sigma
+    img = (img - img.min()) / (img.max() - img.min())
+    return (img * 255).astype(np.uint8)
+
+
+def _warp(img: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    return cv2.warpAffine(img, matrix, img.shape[::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+
+
+@pytest.mark.parametrize("shift", [(7.0, 0.0), (-12.5, 9.0), (0.0, 31.0)])
+def test_known_translation(shift):
+    img = _texture(1)
+    moved = _warp(img, np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]]))
+    mu, sigma = image_motion_stats(img, moved)
+    assert mu == pytest.approx(np.hypot(*shift), abs=0.3)
+    assert sigma < 0.5
+    disp = lk_displacements(img, moved)
+    assert len(disp) > 100
+    assert np.median(disp, axis=0) == pytest.approx(shift, abs=0.2)
+
+
+def test_rotation_spreads_displacements():
+    img = _texture(2)
+    centre = (img.shape[1] / 2, img.shape[0] / 2)
+    moved = _warp(img, cv2.getRotationMatrix2D(centre, 3.0, 1.0))
+    mu, sigma = image_motion_stats(img, moved)
+    # a 3 degree rotation moves a pixel at radius r by 2 r sin(1.5 deg): from 0 at the centre to ~15 px at corners
+    assert 3.0 < mu < 12.0 and sigma > 1.5
+
+
+def test_deterministic_and_accepts_color_and_float():
+    img = _texture(3)
+    moved = _warp(img, np.array([[1.0, 0.0, 5.0], [0.0, 1.0, -4.0]]))
+    a = image_motion_stats(img, moved)
+    assert a == image_motion_stats(img, moved)
+    rgb = np.repeat(img[..., None], 3, axis=2)
+    assert image_motion_stats(rgb, np.repeat(moved[..., None], 3, axis=2)) == pytest.approx(a, abs=1e-6)
+    assert image_motion_stats(img / 255.0, moved / 255.0) == pytest.approx(a, abs=0.05)
+
+
+def test_few_tracks_falls_back_to_phase_correlation():
+    # a smooth blob and a front end allowed only 5 corners: too few tracks, phase correlation still sees the shift
+    yy, xx = np.mgrid[0:256, 0:256]
+    blob = 200.0 * np.exp(-((xx - 120.0) ** 2 + (yy - 130.0) ** 2) / (2 * 25.0**2))
+    moved = 200.0 * np.exp(-((xx - 126.0) ** 2 + (yy - 138.0) ** 2) / (2 * 25.0**2))
+    img, img2 = blob.astype(np.uint8), moved.astype(np.uint8)
+    assert len(lk_displacements(img, img2, max_corners=5)) < 8
+    mu, sigma = image_motion_stats(img, img2, max_corners=5)
+    assert mu == pytest.approx(10.0, abs=1.0)
+    assert sigma >= FALLBACK_MIN_SIGMA_PX and sigma >= 0.5 * mu - 1e-9
+    # a blank pair gives finite numbers, not an exception
+    blank = np.zeros((64, 64), np.uint8)
+    assert all(np.isfinite(image_motion_stats(blank, blank)))
+
+
+def test_large_images_are_downscaled_but_shift_is_in_full_resolution_px():
+    img = _texture(4, shape=(1200, 1600))
+    moved = _warp(img, np.array([[1.0, 0.0, 20.0], [0.0, 1.0, 0.0]]))
+    mu, _ = image_motion_stats(img, moved)
+    assert mu == pytest.approx(20.0, abs=0.6)
