@@ -1,0 +1,238 @@
+"""Per-mask description (SOS-Match step 3): centroid, covariance, size, area and SIFT features inside each mask.
+
+Pixel convention: COLMAP's, the centre of the top-left pixel is (0.5, 0.5); OpenCV keypoints (centre at 0, 0)
+are shifted by +0.5 on the way out.
+
+SIFT: one OpenCV SIFT pass per image (on the union of the masks, optionally on a downscaled copy for speed, see
+`SegmentationParams.sift_max_side`), then each keypoint is assigned to every mask that contains its pixel and
+each mask keeps its `max_sift_per_mask` strongest keypoints. Descriptors are RootSIFT (L1-normalise, square
+root; the result has unit L2 norm), so Euclidean distances and Lowe's ratio test behave like the Hellinger kernel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+
+from .params import SegmentationParams
+from .segmentation.base import MaskSet
+
+
+@dataclass
+class MaskFeatures:
+    """Description of the K masks of one image (all arrays indexed by mask, or by keypoint for `sift_*`)."""
+
+    centroids: np.ndarray  # (K, 2) float64, COLMAP pixel convention
+    covariances: np.ndarray  # (K, 2, 2) float64 pixel covariance of the mask (population, in px^2)
+    sizes: np.ndarray  # (K,) float64, h = sqrt(lambda_max(covariance))
+    areas: np.ndarray  # (K,) int64 pixel count
+    scores: np.ndarray  # (K,) float32 backend confidence (1.0 if the backend has none)
+    sift_xy: np.ndarray  # (M, 2) float32 keypoint positions, COLMAP convention
+    sift_desc: np.ndarray  # (M, 128) float32 RootSIFT descriptors (unit L2 norm)
+    sift_mask: np.ndarray  # (M,) int32 index of the owning mask (a keypoint in two masks appears twice)
+    mask_ids: np.ndarray | None = None  # (K,) int64 index of each described mask in the input MaskSet
+
+    def __post_init__(self) -> None:
+        if self.mask_ids is None:
+            self.mask_ids = np.arange(len(self.centroids), dtype=np.int64)
+
+    def __len__(self) -> int:
+        return len(self.centroids)
+
+    @classmethod
+    def empty(cls) -> MaskFeatures:
+        return cls(
+            np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.float32),
+            np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), np.zeros(0, np.int32),
+        )
+
+    def sift_of(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(xy (m, 2), desc (m, 128)) of mask k."""
+        sel = self.sift_mask == k
+        return self.sift_xy[sel], self.sift_desc[sel]
+
+    def to_npz_dict(self) -> dict[str, np.ndarray]:
+        """Plain arrays for `np.savez` (one file per keyframe caches the description)."""
+        return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
+
+    @classmethod
+    def from_npz_dict(cls, data: object) -> MaskFeatures:
+        """Inverse of `to_npz_dict`; accepts a dict or an `np.load` result. Dtypes are restored."""
+        dtypes = {
+            "centroids": np.float64, "covariances": np.float64, "sizes": np.float64, "areas": np.int64,
+            "scores": np.float32, "sift_xy": np.float32, "sift_desc": np.float32, "sift_mask": np.int32,
+            "mask_ids": np.int64,
+        }
+        kwargs = {}
+        for name, dtype in dtypes.items():
+            if name in data:
+                kwargs[name] = np.asarray(data[name], dtype=dtype)
+            elif name != "mask_ids":
+                raise KeyError(f"mask features lack {name!r}")
+        kwargs["centroids"] = kwargs["centroids"].reshape(-1, 2)
+        kwargs["covariances"] = kwargs["covariances"].reshape(-1, 2, 2)
+        kwargs["sift_xy"] = kwargs["sift_xy"].reshape(-1, 2)
+        kwargs["sift_desc"] = kwargs["sift_desc"].reshape(-1, 128)
+        return cls(**kwargs)
+
+    def subset(self, indices: np.ndarray) -> MaskFeatures:
+        """The masks `indices` (in that order) with their keypoints; `sift_mask` is renumbered to match."""
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        lut = np.full(len(self), -1, np.int64)
+        lut[indices] = np.arange(len(indices))
+        new_owner = lut[self.sift_mask] if len(self.sift_mask) else np.zeros(0, np.int64)
+        keep = new_owner >= 0
+        order = np.argsort(new_owner[keep], kind="stable")
+        sel = np.flatnonzero(keep)[order]
+        return MaskFeatures(
+            self.centroids[indices], self.covariances[indices], self.sizes[indices], self.areas[indices],
+            self.scores[indices], self.sift_xy[sel], self.sift_desc[sel],
+            new_owner[sel].astype(np.int32), self.mask_ids[indices],
+        )
+
+
+def to_gray_u8(image: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 gray of an (H, W) or (H, W, 3) uint8 RGB image."""
+    if image.ndim == 2:
+        return np.ascontiguousarray(image, dtype=np.uint8)
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(np.ascontiguousarray(image, dtype=np.uint8), cv2.COLOR_RGB2GRAY)
+    raise ValueError(f"expected (H, W) or (H, W, 3) image, got {image.shape}")
+
+
+def mask_moments(masks: MaskSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(areas (K,) int64, centroids (K, 2) COLMAP convention, covariances (K, 2, 2)) of every mask."""
+    k = len(masks)
+    if k == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
+    if masks.labels is not None:
+        # Label image: every moment is one bincount over the labelled pixels, all masks at once.
+        ys, xs = np.nonzero(masks.labels >= 0)
+        ids = masks.labels[ys, xs]
+        n = np.bincount(ids, minlength=k).astype(np.float64)
+        safe = np.maximum(n, 1)
+        mx = np.bincount(ids, xs, k) / safe
+        my = np.bincount(ids, ys, k) / safe
+        dx = xs - mx[ids]
+        dy = ys - my[ids]
+        sxx = np.bincount(ids, dx * dx, k) / safe
+        sxy = np.bincount(ids, dx * dy, k) / safe
+        syy = np.bincount(ids, dy * dy, k) / safe
+    else:
+        # Crops: OpenCV's C moments per crop (a crop is tiny next to the image; K is a few hundred).
+        m = np.array([_crop_moments(c) for c in masks.crops], np.float64).reshape(-1, 6)
+        n, m10, m01, mu20, mu11, mu02 = m.T
+        safe = np.maximum(n, 1)
+        boxes = masks.boxes.astype(np.float64)
+        mx = m10 / safe + boxes[:, 0]
+        my = m01 / safe + boxes[:, 1]
+        sxx, sxy, syy = mu20 / safe, mu11 / safe, mu02 / safe
+    cent = np.stack([mx + 0.5, my + 0.5], axis=1)
+    cov = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
+    return n.astype(np.int64), cent, cov
+
+
+def _crop_moments(crop: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    mo = cv2.moments(crop.view(np.uint8), binaryImage=True)
+    return mo["m00"], mo["m10"], mo["m01"], mo["mu20"], mo["mu11"], mo["mu02"]
+
+
+def covariance_size(cov: np.ndarray) -> np.ndarray:
+    """h = sqrt(largest eigenvalue) of (K, 2, 2) symmetric matrices, in closed form."""
+    a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    lam = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    return np.sqrt(np.maximum(lam, 0.0))
+
+
+def _sift(
+    gray: np.ndarray, union: np.ndarray, params: SegmentationParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keypoints (COLMAP convention, full-image pixels), RootSIFT descriptors and responses of one SIFT pass."""
+    h, w = gray.shape
+    scale = min(1.0, params.sift_max_side / max(h, w)) if params.sift_max_side > 0 else 1.0
+    mask = union.view(np.uint8) * np.uint8(255)
+    if scale < 1.0:
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+        mask = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST)
+    sift = cv2.SIFT_create(contrastThreshold=params.sift_contrast_threshold)
+    kps, desc = sift.detectAndCompute(gray, mask)
+    if not kps:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), np.zeros(0, np.float32)
+    pts = np.array([kp.pt for kp in kps], np.float64)
+    resp = np.array([kp.response for kp in kps], np.float32)
+    sx, sy = w / gray.shape[1], h / gray.shape[0]
+    xy = np.stack([(pts[:, 0] + 0.5) * sx, (pts[:, 1] + 0.5) * sy], axis=1)  # OpenCV -> COLMAP, full res
+    desc = desc.astype(np.float32)
+    desc /= np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)
+    np.sqrt(desc, out=desc)
+    return xy.astype(np.float32), desc, resp
+
+
+def _assign_keypoints(xy: np.ndarray, masks: MaskSet) -> tuple[np.ndarray, np.ndarray]:
+    """(keypoint index, mask index) for every (keypoint, containing mask) pair."""
+    h, w = masks.shape
+    col = np.clip(np.floor(xy[:, 0]).astype(np.int64), 0, w - 1)
+    row = np.clip(np.floor(xy[:, 1]).astype(np.int64), 0, h - 1)
+    if masks.labels is not None:
+        owner = masks.labels[row, col]
+        kp = np.flatnonzero(owner >= 0)
+        return kp, owner[kp].astype(np.int64)
+    kp_list, mask_list = [], []
+    boxes = masks.boxes
+    for k, crop in enumerate(masks.crops):
+        x0, y0, x1, y1 = boxes[k]
+        cand = np.flatnonzero((col >= x0) & (col < x1) & (row >= y0) & (row < y1))
+        inside = cand[crop[row[cand] - y0, col[cand] - x0]]
+        kp_list.append(inside)
+        mask_list.append(np.full(len(inside), k, np.int64))
+    if not kp_list:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(kp_list), np.concatenate(mask_list)
+
+
+def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams) -> MaskFeatures:
+    """Describe every mask of `masks` with at least `params.min_mask_area_px` pixels.
+
+    Args:
+        image: (H, W, 3) uint8 RGB or (H, W) uint8 gray, the image the masks were computed on.
+        masks: the backend's masks (same H, W).
+        params: segmentation parameters (`min_mask_area_px`, `max_sift_per_mask`, `sift_*`).
+
+    Returns:
+        MaskFeatures of the kept masks, in MaskSet order; `mask_ids` maps them back to `masks`.
+    """
+    if image.shape[:2] != masks.shape:
+        raise ValueError(f"image shape {image.shape[:2]} != mask shape {masks.shape}")
+    areas, cent, cov = mask_moments(masks)
+    keep = np.flatnonzero(areas >= max(1, params.min_mask_area_px))
+    if len(keep) == 0:
+        return MaskFeatures.empty()
+    if len(keep) < len(masks):
+        masks = masks.subset(keep)
+        areas, cent, cov = areas[keep], cent[keep], cov[keep]
+    sizes = covariance_size(cov)
+
+    xy, desc, resp = _sift(to_gray_u8(image), masks.union(), params)
+    kp, owner = _assign_keypoints(xy, masks) if len(xy) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    # Cap per mask: sort by (mask, -response) and keep the first max_sift_per_mask of each group.
+    order = np.lexsort((-resp[kp], owner))
+    kp, owner = kp[order], owner[order]
+    if len(owner):
+        first = np.searchsorted(owner, owner, side="left")
+        rank = np.arange(len(owner)) - first
+        sel = rank < params.max_sift_per_mask
+        kp, owner = kp[sel], owner[sel]
+    return MaskFeatures(
+        centroids=cent,
+        covariances=cov,
+        sizes=sizes,
+        areas=areas.astype(np.int64),
+        scores=masks.scores.astype(np.float32),
+        sift_xy=xy[kp].reshape(-1, 2),
+        sift_desc=desc[kp].reshape(-1, 128),
+        sift_mask=owner.astype(np.int32),
+        mask_ids=keep.astype(np.int64),
+    )
