@@ -1,0 +1,278 @@
+"""The COLMAP database of a mapped session: segment centroids as features, track associations as matches.
+
+Layout written (pycolmap 4.2.1, the order COLMAP itself uses): one PINHOLE camera (id 1), one rig (id 1) with
+that camera as reference sensor, images with ids 1..N in keyframe order, one frame per image (frame id = image
+id), keypoints with 6 columns (x, y, a11, a12, a21, a22: the centroid and the affine shape A = sqrt(Sigma) of
+the mask's pixel covariance), raw `matches` and `two_view_geometries` with config CALIBRATED whose inlier
+matches are the track associations. Descriptors are not written: triangulation does not need them.
+
+COLMAP 3.8 (Debian's `colmap`) prepares an INSERT into `images` with seven prior_* columns that 4.x dropped;
+`write_colmap_database` adds them (NULL) so `colmap point_triangulator` runs on the file and pycolmap still
+reads it (checked facts: /work/shared/notes/pycolmap-4.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import sqlite3
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..plugin.errors import InputError
+from ..plugin.geometry import Camera, Poses
+from .atomic import atomic_path
+
+log = logging.getLogger(__name__)
+
+PRIOR_COLUMNS_38 = ("prior_qw", "prior_qx", "prior_qy", "prior_qz", "prior_tx", "prior_ty", "prior_tz")
+CAMERA_ID = 1
+RIG_ID = 1
+# Variance of a uniform pixel: the smallest honest covariance eigenvalue of a mask, so tiny or line-shaped
+# masks still get a non-degenerate affine shape (COLMAP derives scale and orientation from it).
+MIN_PIXEL_VARIANCE = 1.0 / 12.0
+
+
+def affine_keypoints(centroids: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """(K, 6) float32 COLMAP keypoints: centroid (COLMAP pixel convention) and A = sqrt(Sigma), row-major.
+
+    A is the symmetric square root of the covariance, so A maps the unit circle onto the mask's 1-sigma
+    ellipse; eigenvalues are clamped at 1/12 px^2 to keep A invertible.
+    """
+    centroids = np.asarray(centroids, dtype=np.float64).reshape(-1, 2)
+    covariances = np.asarray(covariances, dtype=np.float64).reshape(-1, 2, 2)
+    if len(centroids) != len(covariances):
+        raise ValueError(f"{len(centroids)} centroids but {len(covariances)} covariances")
+    out = np.zeros((len(centroids), 6), dtype=np.float32)
+    if not len(centroids):
+        return out
+    sym = 0.5 * (covariances + np.transpose(covariances, (0, 2, 1)))
+    evals, evecs = np.linalg.eigh(sym)
+    roots = np.sqrt(np.maximum(evals, MIN_PIXEL_VARIANCE))
+    affine = np.einsum("kij,kj,klj->kil", evecs, roots, evecs)
+    out[:, :2] = centroids
+    out[:, 2:] = affine.reshape(-1, 4)
+    return out
+
+
+def track_associations(
+    track_ids: Sequence[np.ndarray], mode: str = "all", min_observations: int = 0
+) -> dict[tuple[int, int], np.ndarray]:
+    """Match lists implied by per-keyframe track ids.
+
+    Args:
+        track_ids: per keyframe, the track id of every mask (-1 = no track).
+        mode: "consecutive" links each observation to the next one of the same track; "all" links every pair
+            of observations of a track (a clique, so one bad link cannot split a track in COLMAP's graph).
+        min_observations: tracks with this many observations or fewer produce no matches (they could never
+            become landmarks, and leaving them out keeps triangulation fast).
+
+    Returns:
+        {(a, b): (M, 2) uint32 mask indices} for keyframe pairs a < b, rows sorted by the first column.
+    """
+    frames, masks, tracks = [], [], []
+    for k, ids in enumerate(track_ids):
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        keep = np.flatnonzero(ids >= 0)
+        frames.append(np.full(len(keep), k, dtype=np.int64))
+        masks.append(keep)
+        tracks.append(ids[keep])
+    if not frames:
+        return {}
+    frame = np.concatenate(frames)
+    mask = np.concatenate(masks)
+    track = np.concatenate(tracks)
+    if not len(track):
+        return {}
+    # Group observations by track, in keyframe order inside each track.
+    order = np.lexsort((frame, track))
+    frame, mask, track = frame[order], mask[order], track[order]
+    starts = np.flatnonzero(np.r_[True, track[1:] != track[:-1]])
+    counts = np.diff(np.r_[starts, len(track)])
+    if np.any(np.diff(frame)[track[1:] == track[:-1]] == 0):
+        raise ValueError("a track holds two masks of the same keyframe")
+    keep_group = counts > min_observations
+    pairs_a: list[np.ndarray] = []
+    pairs_b: list[np.ndarray] = []
+    if mode == "consecutive":
+        same = track[1:] == track[:-1]
+        long_obs = np.repeat(keep_group, counts)
+        sel = np.flatnonzero(same & long_obs[1:])
+        pairs_a.append(sel)
+        pairs_b.append(sel + 1)
+    elif mode == "all":
+        # Vectorised per track length: every (i, j) with i < j inside each group.
+        for length in np.unique(counts[keep_group]):
+            group_starts = starts[keep_group & (counts == length)]
+            ii, jj = np.triu_indices(int(length), k=1)
+            pairs_a.append((group_starts[:, None] + ii[None, :]).ravel())
+            pairs_b.append((group_starts[:, None] + jj[None, :]).ravel())
+    else:
+        raise ValueError(f"mode must be 'consecutive' or 'all', got {mode!r}")
+    if not pairs_a:
+        return {}
+    a = np.concatenate(pairs_a)
+    b = np.concatenate(pairs_b)
+    fa, fb, ma, mb = frame[a], frame[b], mask[a], mask[b]
+    result: dict[tuple[int, int], np.ndarray] = {}
+    order = np.lexsort((ma, fb, fa))
+    fa, fb, ma, mb = fa[order], fb[order], ma[order], mb[order]
+    bounds = np.flatnonzero(np.r_[True, (fa[1:] != fa[:-1]) | (fb[1:] != fb[:-1]), True])
+    for s, e in zip(bounds[:-1], bounds[1:]):
+        result[(int(fa[s]), int(fb[s]))] = np.stack([ma[s:e], mb[s:e]], 1).astype(np.uint32)
+    return result
+
+
+def epipolar_errors_px(
+    camera: Camera, poses: Poses, a: int, b: int, xy_a: np.ndarray, xy_b: np.ndarray
+) -> np.ndarray:
+    """Sampson distance in pixels of point pairs between keyframes a and b under the known poses.
+
+    Uses pycolmap.essential_matrix_from_pose (cam_b_from_cam_a) and compute_squared_sampson_error on the
+    fundamental matrix F = K^-T E K^-1, so the result is in pixels (about the distance to the epipolar line).
+    """
+    import pycolmap
+
+    r_cw, t_cw = poses.cam_from_world()
+    r_ba = r_cw[b] @ r_cw[a].T
+    t_ba = t_cw[b] - r_ba @ t_cw[a]
+    rel = pycolmap.Rigid3d(pycolmap.Rotation3d(r_ba), t_ba)
+    e_mat = pycolmap.essential_matrix_from_pose(rel)
+    k_inv = np.linalg.inv(camera.K)
+    f_mat = k_inv.T @ e_mat @ k_inv
+    if not len(xy_a):
+        return np.zeros(0)
+    sq = pycolmap.compute_squared_sampson_error(
+        np.asarray(xy_a, dtype=np.float64), np.asarray(xy_b, dtype=np.float64), f_mat
+    )
+    return np.sqrt(np.asarray(sq, dtype=np.float64))
+
+
+def verify_associations(
+    camera: Camera,
+    poses: Poses,
+    centroids: Sequence[np.ndarray],
+    pairs: dict[tuple[int, int], np.ndarray],
+    max_error_px: float,
+) -> tuple[dict[tuple[int, int], np.ndarray], int]:
+    """Drop associations whose centroids violate the epipolar geometry of the known poses.
+
+    Unverified outliers written as inliers make wrong COLMAP tracks (shared notes), so every pair is checked
+    with the Sampson distance against `max_error_px`. Returns the kept pairs (empty ones dropped) and the
+    number of associations removed.
+    """
+    kept: dict[tuple[int, int], np.ndarray] = {}
+    removed = 0
+    for (a, b), m in pairs.items():
+        err = epipolar_errors_px(camera, poses, a, b, centroids[a][m[:, 0]], centroids[b][m[:, 1]])
+        ok = err <= max_error_px
+        removed += int(np.count_nonzero(~ok))
+        if np.any(ok):
+            kept[(a, b)] = m[ok]
+    return kept, removed
+
+
+@dataclass(frozen=True)
+class DatabaseSummary:
+    """Counts of what `write_colmap_database` wrote."""
+
+    num_images: int
+    num_keypoints: int
+    num_pairs: int
+    num_matches: int
+
+
+def _add_colmap38_columns(path: Path) -> None:
+    con = sqlite3.connect(path)
+    try:
+        have = {row[1] for row in con.execute("PRAGMA table_info(images)")}
+        for col in PRIOR_COLUMNS_38:
+            if col not in have:
+                con.execute(f"ALTER TABLE images ADD COLUMN {col} REAL")
+        con.commit()
+    finally:
+        con.close()
+
+
+def write_colmap_database(
+    path: str | Path,
+    camera: Camera,
+    image_names: Sequence[str],
+    keypoints: Sequence[np.ndarray],
+    pairs: dict[tuple[int, int], np.ndarray],
+) -> DatabaseSummary:
+    """Write a new COLMAP database atomically (the file appears complete or not at all).
+
+    Args:
+        path: database file to create (replaced if it exists).
+        camera: the one pinhole camera of the session (COLMAP camera id 1).
+        image_names: keyframe image names; image i gets COLMAP image id and frame id i + 1.
+        keypoints: per image, (K, 2|4|6) float32 keypoints in the COLMAP pixel convention (row = point2D index).
+        pairs: {(a, b): (M, 2) mask index pairs} with a < b (0-based image positions); written both as raw
+            matches and as CALIBRATED two-view geometries whose inliers are these matches.
+    """
+    import pycolmap
+
+    path = Path(path)
+    if len(keypoints) != len(image_names):
+        raise ValueError(f"{len(image_names)} images but {len(keypoints)} keypoint arrays")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create output directory: {exc.strerror}", path.parent) from None
+    num_matches = 0
+    with atomic_path(path) as tmp:
+        db = pycolmap.Database.open(str(tmp))
+        try:
+            with pycolmap.DatabaseTransaction(db):
+                cam = pycolmap.Camera(
+                    camera_id=CAMERA_ID, model="PINHOLE", width=int(camera.width), height=int(camera.height),
+                    params=[camera.fx, camera.fy, camera.cx, camera.cy],
+                )
+                db.write_camera(cam, use_camera_id=True)
+                rig = pycolmap.Rig(rig_id=RIG_ID)
+                rig.add_ref_sensor(cam.sensor_id)
+                db.write_rig(rig, use_rig_id=True)
+                for i, name in enumerate(image_names):
+                    img = pycolmap.Image(name=str(name), camera_id=CAMERA_ID, image_id=i + 1)
+                    db.write_image(img, use_image_id=True)
+                    frame = pycolmap.Frame(frame_id=i + 1, rig_id=RIG_ID)
+                    frame.add_data_id(img.data_id)
+                    db.write_frame(frame, use_frame_id=True)
+                    db.write_keypoints(i + 1, np.ascontiguousarray(keypoints[i], dtype=np.float32))
+                for (a, b), m in sorted(pairs.items()):
+                    if not a < b:
+                        raise ValueError(f"pair ({a}, {b}) must have a < b")
+                    m = np.ascontiguousarray(m, dtype=np.uint32).reshape(-1, 2)
+                    db.write_matches(a + 1, b + 1, m)
+                    tvg = pycolmap.TwoViewGeometry()
+                    tvg.config = pycolmap.TwoViewGeometryConfiguration.CALIBRATED
+                    tvg.inlier_matches = m
+                    db.write_two_view_geometry(a + 1, b + 1, tvg)
+                    num_matches += len(m)
+        finally:
+            db.close()
+        _add_colmap38_columns(tmp)
+    return DatabaseSummary(
+        num_images=len(image_names),
+        num_keypoints=int(sum(len(k) for k in keypoints)),
+        num_pairs=len(pairs),
+        num_matches=num_matches,
+    )
+
+
+def check_database_writable(path: str | Path) -> None:
+    """Raise InputError if an existing database is locked by another process (e.g. COLMAP's GUI)."""
+    path = Path(path)
+    if not path.exists():
+        return
+    con = sqlite3.connect(path, timeout=0.5)
+    try:
+        con.execute("BEGIN EXCLUSIVE")
+        con.execute("ROLLBACK")
+    except sqlite3.OperationalError as exc:
+        raise InputError(f"database is locked by another process ({exc})", path) from None
+    finally:
+        con.close()

@@ -1,0 +1,201 @@
+"""COLMAP models in and out: poses and intrinsics from a model, the session's sparse/ model and landmarks.ply.
+
+Reading accepts a model directory (or its images.bin / images.txt / cameras.* file). Binary or complete models
+go through `pycolmap.Reconstruction`; a text model with only cameras.txt + images.txt (no points3D.txt, as
+pose exports often are) is parsed here with the same validation as the pose CSV (file and line in every error).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..plugin.errors import InputError
+from ..plugin.geometry import Camera, Poses, quat_to_rotmat
+from .atomic import atomic_path, write_bytes_atomic
+from .cameras import read_cameras_txt
+from .poses import UNIT_QUAT_TOLERANCE
+
+if TYPE_CHECKING:
+    import pycolmap
+
+MODEL_FILES = ("cameras", "images", "points3D")
+
+
+def model_dir_of(path: str | Path) -> Path:
+    """The model directory of a path that is a model directory or one of its files."""
+    path = Path(path)
+    if path.is_file() and path.stem in ("cameras", "images", "points3D", "rigs", "frames"):
+        return path.parent
+    return path
+
+
+def is_colmap_model(path: str | Path) -> bool:
+    """True if `path` is (a file of) a COLMAP model directory holding images.bin or images.txt."""
+    d = model_dir_of(path)
+    return d.is_dir() and ((d / "images.bin").is_file() or (d / "images.txt").is_file())
+
+
+def _camera_from_pycolmap(cam: pycolmap.Camera, source: Path) -> Camera:
+    model = cam.model.name if hasattr(cam.model, "name") else str(cam.model)
+    p = [float(v) for v in cam.params]
+    if model == "PINHOLE":
+        fx, fy, cx, cy = p
+    elif model == "SIMPLE_PINHOLE":
+        fx, cx, cy = p
+        fy = fx
+    else:
+        raise InputError(f"camera model {model} is not supported (use PINHOLE or SIMPLE_PINHOLE on undistorted "
+                         "images)", source)
+    return Camera(int(cam.width), int(cam.height), fx, fy, cx, cy)
+
+
+def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, list[int]]:
+    """Parse images.txt -> names, quaternions (w,x,y,z) cam_from_world, translations, camera ids."""
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read images file: {exc}", path) from None
+    names: list[str] = []
+    quats: list[list[float]] = []
+    trans: list[list[float]] = []
+    cam_ids: list[int] = []
+    expect_pose = True
+    for lineno, line in enumerate(lines, start=1):
+        if line.startswith("#"):
+            continue
+        if not expect_pose:  # the POINTS2D line that follows every pose line (may be empty)
+            expect_pose = True
+            continue
+        parts = line.split()
+        if not parts:
+            continue
+        if len(parts) < 10:
+            raise InputError(f"expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, got {len(parts)} fields",
+                             path, lineno)
+        try:
+            values = [float(v) for v in parts[1:8]]
+            cam_id = int(parts[8])
+        except ValueError:
+            raise InputError(f"non-numeric pose value in {parts[1:9]}", path, lineno) from None
+        if not all(math.isfinite(v) for v in values):
+            raise InputError("NaN or infinite pose value", path, lineno)
+        norm = math.sqrt(sum(v * v for v in values[:4]))
+        if abs(norm - 1.0) > UNIT_QUAT_TOLERANCE:
+            raise InputError(f"quaternion is not unit length (norm {norm:.6f})", path, lineno)
+        name = " ".join(parts[9:])
+        if name in names:
+            raise InputError(f"duplicate image name {name!r}", path, lineno)
+        names.append(name)
+        quats.append(values[:4])
+        trans.append(values[4:])
+        cam_ids.append(cam_id)
+        expect_pose = False
+    return names, np.array(quats).reshape(-1, 4), np.array(trans).reshape(-1, 3), cam_ids
+
+
+def read_colmap_model_poses(path: str | Path) -> tuple[Poses, dict[int, Camera], dict[str, int]]:
+    """Poses and cameras of a COLMAP model.
+
+    Returns (Poses in world_from_camera form, sorted by image name; {camera_id: Camera}; {image name:
+    camera_id}). Only registered images with a pose are returned.
+    """
+    d = model_dir_of(path)
+    if not is_colmap_model(d):
+        raise InputError("not a COLMAP model directory (no images.bin or images.txt)", d)
+    complete = all((d / f"{n}.bin").is_file() for n in MODEL_FILES) or all(
+        (d / f"{n}.txt").is_file() for n in MODEL_FILES
+    )
+    if not complete and (d / "images.txt").is_file() and (d / "cameras.txt").is_file():
+        names, quats, trans, cam_ids = _read_images_txt(d / "images.txt")
+        cameras = read_cameras_txt(d / "cameras.txt")
+        missing = sorted(set(cam_ids) - set(cameras))
+        if missing:
+            raise InputError(f"images refer to camera id(s) {missing} missing from cameras.txt", d / "images.txt")
+        r_cw = quat_to_rotmat(quats) if len(quats) else np.zeros((0, 3, 3))
+        order = np.argsort(names, kind="stable")
+        poses = Poses.from_cam_from_world([names[i] for i in order], r_cw[order], trans[order])
+        return poses, cameras, dict(zip(names, cam_ids))
+    if not complete:
+        raise InputError("incomplete COLMAP model: need cameras, images and points3D (.bin or .txt), or "
+                         "cameras.txt + images.txt", d)
+    import pycolmap
+
+    try:
+        rec = pycolmap.Reconstruction(str(d))
+    except Exception as exc:  # pycolmap raises plain RuntimeError / ValueError on corrupt files
+        raise InputError(f"cannot read COLMAP model: {str(exc).splitlines()[0] if str(exc) else exc!r}", d) \
+            from None
+    cameras = {int(cid): _camera_from_pycolmap(cam, d) for cid, cam in rec.cameras.items()}
+    items = sorted(((img.name, iid) for iid, img in rec.images.items() if img.has_pose), key=lambda t: t[0])
+    names, r_list, t_list, cam_of = [], [], [], {}
+    for name, iid in items:
+        img = rec.images[iid]
+        pose = img.cam_from_world()
+        r = np.asarray(pose.rotation.matrix(), dtype=np.float64)
+        t = np.asarray(pose.translation, dtype=np.float64)
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(t))):
+            raise InputError(f"NaN or infinite pose value for image {name!r}", d)
+        names.append(name)
+        r_list.append(r)
+        t_list.append(t)
+        cam_of[name] = int(img.camera_id)
+    poses = Poses.from_cam_from_world(names, np.array(r_list).reshape(-1, 3, 3), np.array(t_list).reshape(-1, 3))
+    return poses, cameras, cam_of
+
+
+def read_camera_file(path: str | Path) -> Camera:
+    """The one camera of a cameras.txt / cameras.bin file or a COLMAP model directory."""
+    path = Path(path)
+    if path.is_dir() or path.suffix == ".bin":
+        d = path if path.is_dir() else path.parent
+        if (d / "cameras.txt").is_file() and not (d / "cameras.bin").is_file():
+            cameras = read_cameras_txt(d / "cameras.txt")
+        else:
+            _, cameras, _ = read_colmap_model_poses(d)
+    else:
+        cameras = read_cameras_txt(path)
+    if len(cameras) != 1:
+        raise InputError(f"expected exactly one camera, found {len(cameras)} (ids {sorted(cameras)})", path)
+    return next(iter(cameras.values()))
+
+
+def write_model(rec: pycolmap.Reconstruction, out_dir: str | Path, text: bool = False) -> None:
+    """Write a pycolmap Reconstruction atomically as a COLMAP model directory (binary, or text if asked)."""
+    with atomic_path(out_dir) as tmp:
+        tmp.mkdir(parents=True)
+        if text:
+            rec.write_text(str(tmp))
+        else:
+            rec.write_binary(str(tmp))
+
+
+def encode_ply(points_local: np.ndarray, sizes: np.ndarray, origin: np.ndarray, epsg: int = 0) -> bytes:
+    """Binary little-endian PLY of landmarks: float32 x, y, z (relative to `origin`), float32 size_m.
+
+    The origin and CRS are recorded as header comments so the world coordinates can be restored exactly.
+    """
+    pts = np.asarray(points_local, dtype=np.float64).reshape(-1, 3)
+    sizes = np.asarray(sizes, dtype=np.float64).reshape(-1)
+    origin = np.asarray(origin, dtype=np.float64).reshape(3)
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"comment sosmatch landmarks; world = vertex + origin\n"
+        f"comment origin {float(origin[0])!r} {float(origin[1])!r} {float(origin[2])!r}\n"
+        f"comment crs {f'EPSG:{epsg}' if epsg else 'local'}\n"
+        f"element vertex {len(pts)}\n"
+        "property float x\nproperty float y\nproperty float z\nproperty float size_m\nend_header\n"
+    )
+    rec = np.zeros(len(pts), dtype=[("xyz", "<f4", (3,)), ("size", "<f4")])
+    rec["xyz"] = pts
+    rec["size"] = sizes
+    return header.encode("ascii") + rec.tobytes()
+
+
+def write_ply(path: str | Path, points_local: np.ndarray, sizes: np.ndarray, origin: np.ndarray,
+              epsg: int = 0) -> None:
+    """Write `encode_ply(...)` atomically."""
+    write_bytes_atomic(path, encode_ply(points_local, sizes, origin, epsg))

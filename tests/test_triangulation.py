@@ -1,0 +1,142 @@
+"""Fixed-pose triangulation through pycolmap, the landmark filters, metric sizes, and COLMAP model I/O."""
+
+import numpy as np
+import pytest
+
+from sosmatch.database.colmap_db import affine_keypoints, track_associations, write_colmap_database
+from sosmatch.database.colmap_model import (
+    encode_ply,
+    read_camera_file,
+    read_colmap_model_poses,
+    write_model,
+)
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.geometry import Camera, Poses, project
+from sosmatch.plugin.params import TriangulationParams
+from sosmatch.workflows.triangulation import build_reconstruction, triangulate_landmarks
+
+pycolmap = pytest.importorskip("pycolmap")
+pycolmap.logging.minloglevel = 2
+OBJECT_SIZE_M = 2.0
+
+
+def scene(n_frames=30, n_points=100, noise_px=3.0, seed=0):
+    """Nadir flight at 100 m, 2 m between keyframes; tracks = true point ids; mask size of a 2 m object."""
+    rng = np.random.default_rng(seed)
+    cam = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
+    r_wc = np.diag([1.0, -1.0, -1.0])
+    centers = np.stack([np.arange(n_frames) * 2.0, rng.normal(0, 1, n_frames), np.full(n_frames, 100.0)], 1)
+    poses = Poses([f"f{i:03d}.jpg" for i in range(n_frames)], np.repeat(r_wc[None], n_frames, 0), centers)
+    pts = np.stack([rng.uniform(-30, 2 * n_frames + 30, n_points), rng.uniform(-40, 40, n_points),
+                    rng.uniform(0, 10, n_points)], 1)
+    cents, tids, sizes = [], [], []
+    for k in range(n_frames):
+        uv, d = project(cam, r_wc, centers[k], pts)
+        vis = np.flatnonzero((uv[:, 0] > 0) & (uv[:, 0] < 640) & (uv[:, 1] > 0) & (uv[:, 1] < 480) & (d > 0))
+        perm = rng.permutation(vis)
+        cents.append(uv[perm] + rng.normal(0, noise_px, (len(perm), 2)))
+        tids.append(perm.astype(np.int64))
+        sizes.append(OBJECT_SIZE_M * cam.fx / d[perm])
+    return cam, poses, pts, cents, tids, sizes
+
+
+def run(tmp_path, cam, poses, cents, tids, sizes, params=None, mode="all"):
+    params = params or TriangulationParams()
+    kps = [affine_keypoints(c, np.repeat(np.eye(2)[None] * 9, len(c), 0)) for c in cents]
+    pairs = track_associations(tids, mode, params.min_observations)
+    write_colmap_database(tmp_path / "database.db", cam, poses.names, kps, pairs)
+    return triangulate_landmarks(tmp_path / "database.db", cam, poses, sizes, tids, params)
+
+
+def test_landmarks_are_accurate_ordered_and_sized(tmp_path):
+    cam, poses, pts, cents, tids, sizes = scene()
+    lm = run(tmp_path, cam, poses, cents, tids, sizes)
+    seen = np.bincount(np.concatenate(tids), minlength=len(pts))
+    assert len(lm) >= 0.9 * np.count_nonzero(seen > 5)
+    assert np.all(lm.num_observations > 5) and np.all(np.diff(lm.track_ids) > 0)  # map order = track order
+    err = lm.positions - pts[lm.track_ids]
+    assert np.median(np.linalg.norm(err[:, :2], axis=1)) < 0.5 and np.median(np.abs(err[:, 2])) < 1.5
+    assert abs(np.median(lm.sizes_m) - OBJECT_SIZE_M) < 0.1
+    assert np.all(lm.errors_px <= TriangulationParams().max_reprojection_error_px)
+    # Observations are (keyframe, mask) rows that really belong to the landmark's track.
+    for t, obs in zip(lm.track_ids, lm.observations):
+        assert all(tids[k][i] == t for k, i in obs)
+    rec = lm.reconstruction
+    assert set(rec.point3D_ids()) == set(lm.point3d_ids.tolist())
+    assert lm.counts["kept"] == len(lm)
+
+
+def test_consecutive_links_also_triangulate(tmp_path):
+    cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
+    lm = run(tmp_path, cam, poses, cents, tids, sizes, mode="consecutive")
+    assert len(lm) > 20
+    assert np.median(np.linalg.norm(lm.positions - pts[lm.track_ids], axis=1)) < 0.5
+
+
+def test_short_tracks_and_small_angles_are_dropped(tmp_path):
+    cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
+    strict = TriangulationParams(min_observations=20)
+    lm = run(tmp_path, cam, poses, cents, tids, sizes, params=strict)
+    assert len(lm) > 0 and np.all(lm.num_observations > 20)
+    wide = TriangulationParams(min_triangulation_angle_deg=60.0)  # more than any ray pair here spans
+    kps = [affine_keypoints(c, np.repeat(np.eye(2)[None], len(c), 0)) for c in cents]
+    write_colmap_database(tmp_path / "d2.db", cam, poses.names, kps, track_associations(tids, "all", 5))
+    none = triangulate_landmarks(tmp_path / "d2.db", cam, poses, sizes, tids, wide)
+    assert len(none) == 0 and none.reconstruction.num_points3D() == 0
+
+
+def test_wrong_track_is_not_a_landmark_at_its_false_position(tmp_path):
+    cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
+    # Corrupt: in the second half of the flight, point A's observations take point B's track id.
+    counts = np.bincount(np.concatenate(tids))
+    a, b = np.argsort(counts)[-2:]
+    for k in range(15, len(tids)):
+        ids = tids[k]
+        if a in ids and b not in ids:
+            ids[ids == a] = b
+    lm = run(tmp_path, cam, poses, cents, tids, sizes)
+    err = np.linalg.norm(lm.positions - pts[lm.track_ids], axis=1)
+    # The merged track either splits into two correct points or is dropped; it never averages into a bad one.
+    bad = err > 3.0
+    assert not np.any(bad & np.isin(lm.track_ids, [b])) or np.all(
+        np.min(np.linalg.norm(lm.positions[bad][:, None] - pts[[a, b]][None], axis=2), 1) < 3.0)
+
+
+def test_model_write_and_pose_read_back(tmp_path):
+    cam, poses, *_ = scene(n_frames=5, n_points=10)
+    rec = build_reconstruction(cam, poses)
+    for text in (False, True):
+        d = tmp_path / ("text" if text else "bin")
+        write_model(rec, d, text=text)
+        back, cameras, cam_of = read_colmap_model_poses(d / ("images.txt" if text else "images.bin"))
+        assert back.names == poses.names and set(cam_of.values()) == {1}
+        assert np.allclose(back.centers, poses.centers) and np.allclose(back.rotations, poses.rotations)
+        assert read_camera_file(d) == cam
+    # A pose-only text export (no points3D.txt) is read by our own parser.
+    (tmp_path / "text" / "points3D.txt").unlink()
+    back, _, _ = read_colmap_model_poses(tmp_path / "text")
+    assert np.allclose(back.centers, poses.centers)
+
+
+@pytest.mark.parametrize("edit, fragment", [
+    (lambda f: f.replace("\n2 ", "\n2 nan-x ", 1), "non-numeric"),
+    (lambda f: f.replace("\n2 0", "\n2 3", 1), "unit length"),
+])
+def test_bad_images_txt_names_file_and_line(tmp_path, edit, fragment):
+    cam, poses, *_ = scene(n_frames=3, n_points=5)
+    write_model(build_reconstruction(cam, poses), tmp_path / "m", text=True)
+    (tmp_path / "m" / "points3D.txt").unlink()
+    images = tmp_path / "m" / "images.txt"
+    images.write_text(edit(images.read_text()))
+    with pytest.raises(InputError, match=fragment) as exc:
+        read_colmap_model_poses(tmp_path / "m")
+    assert str(exc.value).startswith(f"{images}:")
+
+
+def test_ply_is_float32_local_with_origin_comment():
+    origin = np.array([500000.0, 6000000.0, 50.0])
+    data = encode_ply(np.array([[1.25, -2.5, 3.0]]), np.array([1.5]), origin, epsg=32633)
+    header, _, body = data.partition(b"end_header\n")
+    assert b"element vertex 1" in header and b"comment origin 500000.0 6000000.0 50.0" in header
+    assert b"EPSG:32633" in header
+    assert np.allclose(np.frombuffer(body, "<f4"), [1.25, -2.5, 3.0, 1.5])

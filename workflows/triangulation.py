@@ -1,0 +1,193 @@
+"""Landmarks from a session's COLMAP database with fixed poses (SOS-Match step 6), through pycolmap.
+
+pycolmap objects are I/O-ish (they read the database and write models), so this lives in workflows/, not in
+plugin/. Steps:
+1. a `pycolmap.Reconstruction` with the one camera and every keyframe registered at its known pose
+   (cam_from_world; frame ids equal the database's image ids);
+2. `pycolmap.triangulate_points` from the verified pairs (frames and intrinsics held fixed), with reprojection
+   thresholds raised from COLMAP's 4 px to `max_reprojection_error_px` because centroid noise is ~3 px;
+3. a points-only bundle adjustment: every pose and intrinsic constant, Huber loss at 2 x `pixel_sigma_px`;
+4. filtering: a landmark needs more than `min_observations` observations (theta_n), a mean reprojection error
+   within `max_reprojection_error_px`, positive depth in every observing camera and a largest ray angle of at
+   least `min_triangulation_angle_deg`. Dropped points are deleted from the reconstruction too, so sparse/
+   and the landmark map agree;
+5. metric size per landmark: mask size h_px x depth / f, averaged over the observations.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..plugin.geometry import Camera, Poses
+from ..plugin.params import TriangulationParams
+
+if TYPE_CHECKING:
+    import pycolmap
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Landmarks:
+    """Triangulated landmarks in map order (majority track id, then point id), plus what was dropped."""
+
+    positions: np.ndarray  # (L, 3) world frame
+    sizes_m: np.ndarray  # (L,) metric size h_S
+    num_observations: np.ndarray  # (L,)
+    point3d_ids: np.ndarray  # (L,) ids in the pycolmap reconstruction / sparse model
+    track_ids: np.ndarray  # (L,) majority tracker track id of the observations
+    errors_px: np.ndarray  # (L,) mean reprojection error after the points-only BA
+    observations: list[np.ndarray]  # per landmark: (n, 2) int (keyframe index, mask index), keyframe order
+    counts: dict[str, int] = field(default_factory=dict)  # triangulated / dropped_* / kept
+    reconstruction: Any = field(default=None, repr=False)  # pycolmap.Reconstruction holding exactly these points
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+
+def build_reconstruction(camera: Camera, poses: Poses) -> pycolmap.Reconstruction:
+    """A pycolmap Reconstruction with camera id 1 and image/frame ids 1..N registered at the given poses."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction()
+    cam = pycolmap.Camera(camera_id=1, model="PINHOLE", width=int(camera.width), height=int(camera.height),
+                          params=[camera.fx, camera.fy, camera.cx, camera.cy])
+    rec.add_camera_with_trivial_rig(cam)
+    r_cw, t_cw = poses.cam_from_world()
+    for i, name in enumerate(poses.names):
+        image = pycolmap.Image(name=str(name), camera_id=1, image_id=i + 1)
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(r_cw[i]), t_cw[i]))
+    return rec
+
+
+def refine_points_only(rec: pycolmap.Reconstruction, pixel_sigma_px: float) -> None:
+    """Bundle adjustment of the 3D points alone (poses and intrinsics constant), Huber loss at 2 sigma."""
+    import pycolmap
+
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.reg_image_ids():
+        config.add_image(image_id)
+    for frame_id in rec.reg_frame_ids():
+        config.set_constant_rig_from_world_pose(frame_id)
+    for camera_id in rec.cameras:
+        config.set_constant_cam_intrinsics(camera_id)
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = False
+    options.refine_principal_point = False
+    options.refine_extra_params = False
+    options.refine_rig_from_world = False
+    options.refine_sensor_from_rig = False
+    options.refine_points3D = True
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.HUBER
+    options.ceres.loss_function_scale = 2.0 * pixel_sigma_px
+    options.ceres.solver_options.num_threads = 1  # determinism; these problems are small
+    pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    rec.update_point_3d_errors()
+
+
+def _max_ray_angles_deg(centers: np.ndarray, point: np.ndarray) -> float:
+    rays = point[None, :] - centers
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    cos = np.clip(rays @ rays.T, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos.min())))
+
+
+def triangulate_landmarks(
+    db_path: str | Path,
+    camera: Camera,
+    poses: Poses,
+    sizes_px: list[np.ndarray],
+    track_ids: list[np.ndarray],
+    params: TriangulationParams,
+    seed: int = 0,
+) -> Landmarks:
+    """Triangulate the landmarks of a session database written by `write_colmap_database`.
+
+    Args:
+        db_path: the COLMAP database (image i of `poses` has image id i + 1).
+        camera: the pinhole camera.
+        poses: keyframe poses, in database image order (world_from_camera).
+        sizes_px: per keyframe, the pixel size h = sqrt(lambda_max(Sigma)) of every mask (keypoint row order).
+        track_ids: per keyframe, the tracker's track id of every mask (-1: none); used to order the landmarks.
+        params: triangulation parameters (theta_n, sigma, filters).
+        seed: random seed for COLMAP's RANSAC triangulation.
+    """
+    import pycolmap
+
+    rec = build_reconstruction(camera, poses)
+    options = pycolmap.IncrementalPipelineOptions()
+    options.triangulation.merge_max_reproj_error = params.max_reprojection_error_px
+    options.triangulation.complete_max_reproj_error = params.max_reprojection_error_px
+    options.triangulation.min_angle = params.min_triangulation_angle_deg
+    options.triangulation.ignore_two_view_tracks = True
+    options.triangulation.random_seed = seed
+    options.mapper.filter_max_reproj_error = params.max_reprojection_error_px
+    options.mapper.filter_min_tri_angle = params.min_triangulation_angle_deg
+    options.mapper.random_seed = seed
+    options.random_seed = seed
+    options.extract_colors = False
+    options.num_threads = 1  # same points on every run (resume must reproduce an uninterrupted run)
+    options.mapper.num_threads = 1
+    with tempfile.TemporaryDirectory(prefix="sosmatch-tri-") as tmp:
+        image_dir = Path(tmp) / "images"  # never read: colours are not extracted
+        out_dir = Path(tmp) / "model"
+        image_dir.mkdir()
+        out_dir.mkdir()
+        rec = pycolmap.triangulate_points(rec, str(db_path), str(image_dir), str(out_dir), clear_points=True,
+                                          options=options, refine_intrinsics=False)
+    counts = {"triangulated": int(rec.num_points3D())}
+    if rec.num_points3D():
+        refine_points_only(rec, params.pixel_sigma_px)
+
+    r_cw, t_cw = poses.cam_from_world()
+    focal = float(np.sqrt(camera.fx * camera.fy))
+    drop = {"few_observations": 0, "reprojection": 0, "behind_camera": 0, "small_angle": 0}
+    rows = []
+    for pid in sorted(rec.point3D_ids()):
+        point = rec.points3D[pid]
+        obs = np.array([(el.image_id - 1, el.point2D_idx) for el in point.track.elements], dtype=np.int64)
+        obs = obs[np.argsort(obs[:, 0], kind="stable")]
+        xyz = np.asarray(point.xyz, dtype=np.float64)
+        depth = np.einsum("nj,nj->n", r_cw[obs[:, 0], 2, :], np.broadcast_to(xyz, (len(obs), 3))) + t_cw[obs[:, 0], 2]
+        reason = None
+        if len(obs) <= params.min_observations:
+            reason = "few_observations"
+        elif not np.isfinite(point.error) or point.error > params.max_reprojection_error_px:
+            reason = "reprojection"
+        elif np.any(depth <= 0):
+            reason = "behind_camera"
+        elif _max_ray_angles_deg(poses.centers[obs[:, 0]], xyz) < params.min_triangulation_angle_deg:
+            reason = "small_angle"
+        if reason is not None:
+            drop[reason] += 1
+            rec.delete_point3D(pid)
+            continue
+        tids = np.array([track_ids[k][i] for k, i in obs])
+        tids = tids[tids >= 0]
+        track = int(np.bincount(tids - tids.min()).argmax() + tids.min()) if len(tids) else -1
+        h_px = np.array([sizes_px[k][i] for k, i in obs], dtype=np.float64)
+        size_m = float(np.mean(h_px * depth / focal))
+        rows.append((track, pid, xyz, size_m, len(obs), float(point.error), obs))
+    # Map order: by track id (roughly time of first sighting), then point id (untracked last).
+    rows.sort(key=lambda r: (r[0] < 0, r[0], r[1]))
+    counts.update({f"dropped_{k}": v for k, v in drop.items()})
+    counts["kept"] = len(rows)
+    counts["tracks_split"] = len(rows) - len({r[0] for r in rows})
+    return Landmarks(
+        positions=np.array([r[2] for r in rows], dtype=np.float64).reshape(-1, 3),
+        sizes_m=np.array([r[3] for r in rows], dtype=np.float64),
+        num_observations=np.array([r[4] for r in rows], dtype=np.int64),
+        point3d_ids=np.array([r[1] for r in rows], dtype=np.int64),
+        track_ids=np.array([r[0] for r in rows], dtype=np.int64),
+        errors_px=np.array([r[5] for r in rows], dtype=np.float64),
+        observations=[r[6] for r in rows],
+        counts=counts,
+        reconstruction=rec,
+    )
