@@ -4,9 +4,16 @@ Format (docs/ARCHITECTURE.md):
     # sosmatch poses v1
     # convention: world_from_camera        (or camera_from_world)
     # crs: local                            (or EPSG:<code>)
-    name,x,y,z,qw,qx,qy,qz
+    name,x,y,z,qw,qx,qy,qz              (or name,x,y,z,yaw_deg,pitch_deg,roll_deg)
 Comment lines start with '#'; `key: value` comments set the convention and CRS. Every defect raises
 InputError naming the file and line.
+
+Yaw/pitch/roll (`ypr_to_rotmat`): aerospace angles of the camera body in degrees, as drone gimbals report
+them. Body axes x forward (the optical axis), y right, z down; the angles rotate a local-level NED frame
+(north, east, down) into the body, intrinsic Z-Y-X: yaw clockwise from north, pitch positive nose up
+(-90 = looking straight down, image top towards the yaw heading), roll positive right side down. The world
+frame stays ENU (x east, y north, z up). With `convention: camera_from_world` the matrix from the angles is
+taken as the camera_from_world rotation, exactly as a quaternion would be.
 """
 
 from __future__ import annotations
@@ -23,6 +30,10 @@ from ..plugin.geometry import Poses, quat_to_rotmat, rotmat_to_quat
 from .atomic import write_text_atomic
 
 QUAT_COLUMNS = ["name", "x", "y", "z", "qw", "qx", "qy", "qz"]
+YPR_COLUMNS = ["name", "x", "y", "z", "yaw_deg", "pitch_deg", "roll_deg"]
+# ENU world from NED (swap x/y, flip z) and aerospace body (x fwd, y right, z down) from OpenCV camera axes.
+_ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_BODY_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 CONVENTIONS = ("world_from_camera", "camera_from_world")
 UNIT_QUAT_TOLERANCE = 1e-3
 
@@ -34,6 +45,28 @@ def _parse_crs(text: str, path: Path, line: int) -> int:
     if text.upper().startswith("EPSG:") and text[5:].isdigit():
         return int(text[5:])
     raise InputError(f"crs must be 'local' or 'EPSG:<code>', got {text!r}", path, line)
+
+
+def ypr_to_rotmat(yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
+    """(N,) aerospace yaw, pitch, roll of the camera body in degrees -> (N,3,3) world_from_camera (ENU world)."""
+    y, p, r = (np.radians(np.asarray(a, dtype=np.float64)).reshape(-1) for a in (yaw_deg, pitch_deg, roll_deg))
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    # ned_from_body = Rz(yaw) Ry(pitch) Rx(roll), written out to stay vectorised.
+    ned_from_body = np.stack([
+        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+        np.stack([-sp, cp * sr, cp * cr], -1),
+    ], -2)
+    return _ENU_FROM_NED @ ned_from_body @ _BODY_FROM_CAM
+
+
+def rotmat_to_ypr(rotations: np.ndarray) -> np.ndarray:
+    """(N,3,3) world_from_camera -> (N,3) yaw, pitch, roll in degrees (inverse of `ypr_to_rotmat`)."""
+    ned_from_body = _ENU_FROM_NED.T @ np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3) @ _BODY_FROM_CAM.T
+    yaw = np.arctan2(ned_from_body[:, 1, 0], ned_from_body[:, 0, 0])
+    pitch = np.arcsin(np.clip(-ned_from_body[:, 2, 0], -1.0, 1.0))
+    roll = np.arctan2(ned_from_body[:, 2, 1], ned_from_body[:, 2, 2])
+    return np.degrees(np.stack([yaw, pitch, roll], 1))
 
 
 def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Poses, int]:
@@ -67,11 +100,12 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
             continue
         if header is None:
             header = [c.strip().lower() for c in row]
-            if header != QUAT_COLUMNS:
-                raise InputError(f"header must be {','.join(QUAT_COLUMNS)}, got {','.join(header)}", path, lineno)
+            if header not in (QUAT_COLUMNS, YPR_COLUMNS):
+                raise InputError(f"header must be {','.join(QUAT_COLUMNS)} or {','.join(YPR_COLUMNS)}, "
+                                 f"got {','.join(header)}", path, lineno)
             continue
-        if len(row) != len(QUAT_COLUMNS):
-            raise InputError(f"expected {len(QUAT_COLUMNS)} columns, got {len(row)}", path, lineno)
+        if len(row) != len(header):
+            raise InputError(f"expected {len(header)} columns, got {len(row)}", path, lineno)
         try:
             values = [float(v) for v in row[1:]]
         except ValueError:
@@ -79,7 +113,7 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
         if not all(math.isfinite(v) for v in values):
             raise InputError("NaN or infinite pose value", path, lineno)
         norm = math.sqrt(sum(v * v for v in values[3:]))
-        if abs(norm - 1.0) > UNIT_QUAT_TOLERANCE:
+        if header == QUAT_COLUMNS and abs(norm - 1.0) > UNIT_QUAT_TOLERANCE:
             raise InputError(f"quaternion is not unit length (norm {norm:.6f})", path, lineno)
         name = row[0].strip()
         if name in names:
@@ -90,8 +124,13 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
         raise InputError("no header line (expected " + ",".join(QUAT_COLUMNS) + ")", path)
     if convention is not None:
         file_convention = convention
-    data = np.array(rows, dtype=np.float64).reshape(-1, 7)
-    rot = quat_to_rotmat(data[:, 3:]) if len(data) else np.zeros((0, 3, 3))
+    data = np.array(rows, dtype=np.float64).reshape(-1, len(header) - 1)
+    if not len(data):
+        rot = np.zeros((0, 3, 3))
+    elif header == QUAT_COLUMNS:
+        rot = quat_to_rotmat(data[:, 3:])
+    else:
+        rot = ypr_to_rotmat(data[:, 3], data[:, 4], data[:, 5])
     if file_convention == "world_from_camera":
         return Poses(names, rot, data[:, :3]), epsg
     return Poses.from_cam_from_world(names, rot, data[:, :3]), epsg

@@ -1,0 +1,53 @@
+"""Pose CSV with yaw/pitch/roll columns (aerospace angles of the camera body)."""
+
+import numpy as np
+import pytest
+
+from sosmatch.database.poses import read_poses_csv, rotmat_to_ypr, ypr_to_rotmat
+from sosmatch.plugin.errors import InputError
+
+
+def test_nadir_and_heading_conventions():
+    nadir = ypr_to_rotmat([0.0], [-90.0], [0.0])[0]
+    # Optical axis down, image right = east, image down = south (image top towards the heading, north).
+    assert np.allclose(nadir[:, 2], [0, 0, -1]) and np.allclose(nadir[:, 0], [1, 0, 0])
+    assert np.allclose(nadir[:, 1], [0, -1, 0])
+    east = ypr_to_rotmat([90.0], [0.0], [0.0])[0]
+    assert np.allclose(east[:, 2], [1, 0, 0]) and np.allclose(east[:, 1], [0, 0, -1])
+    rolled = ypr_to_rotmat([0.0], [0.0], [30.0])[0]  # right side down: image right tilts below the horizon
+    assert rolled[2, 0] < -0.4
+
+
+def test_angles_round_trip():
+    rng = np.random.default_rng(0)
+    ypr = np.stack([rng.uniform(-179, 179, 40), rng.uniform(-89, 89, 40), rng.uniform(-179, 179, 40)], 1)
+    rot = ypr_to_rotmat(*ypr.T)
+    assert np.allclose(np.einsum("nji,njk->nik", rot, rot), np.eye(3), atol=1e-12)
+    assert np.allclose(rotmat_to_ypr(rot), ypr, atol=1e-9)
+
+
+def test_ypr_csv_matches_the_quaternion_csv(tmp_path):
+    ypr = tmp_path / "ypr.csv"
+    ypr.write_text("# convention: world_from_camera\nname,x,y,z,yaw_deg,pitch_deg,roll_deg\n"
+                   "a.jpg,1,2,100,0,-90,0\nb.jpg,3,4,100,90,0,0\n")
+    poses, epsg = read_poses_csv(ypr)
+    assert epsg == 0 and poses.names == ["a.jpg", "b.jpg"]
+    quat = tmp_path / "q.csv"
+    quat.write_text("name,x,y,z,qw,qx,qy,qz\na.jpg,1,2,100,0,1,0,0\n")
+    q_poses, _ = read_poses_csv(quat)
+    assert np.allclose(poses.rotations[0], q_poses.rotations[0]) and np.allclose(poses.centers[0], [1, 2, 100])
+    inverted, _ = read_poses_csv(ypr, convention="camera_from_world")
+    assert np.allclose(inverted.rotations, np.transpose(poses.rotations, (0, 2, 1)))
+
+
+@pytest.mark.parametrize("row, fragment", [
+    ("a.jpg,1,2,3,inf,0,0", "NaN or infinite"),
+    ("a.jpg,1,2,3,0,0", "columns"),
+    ("a.jpg,1,2,3,north,0,0", "non-numeric"),
+])
+def test_bad_ypr_rows_name_file_and_line(tmp_path, row, fragment):
+    path = tmp_path / "p.csv"
+    path.write_text("name,x,y,z,yaw_deg,pitch_deg,roll_deg\nok.jpg,0,0,0,0,-90,0\n" + row + "\n")
+    with pytest.raises(InputError, match=fragment) as exc:
+        read_poses_csv(path)
+    assert str(exc.value).startswith(f"{path}:3: ")
