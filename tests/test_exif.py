@@ -1,0 +1,194 @@
+"""EXIF GPS + XMP attitude -> poses and intrinsics, on small JPEGs written here (no shared data)."""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from PIL.TiffImagePlugin import IFDRational
+
+from sosmatch.database.cameras import read_cameras_txt
+from sosmatch.database.exif import read_image_metadata
+from sosmatch.database.poses import read_poses_csv
+from sosmatch.plugin.errors import InputError
+from sosmatch.tools.cli import main
+from sosmatch.workflows import poses_from_exif as pfe
+
+
+def _dms(deg: float) -> tuple:
+    deg = abs(deg)
+    d = int(deg)
+    m = int((deg - d) * 60)
+    s = (deg - d - m / 60) * 3600
+    return (IFDRational(d, 1), IFDRational(m, 1), IFDRational(round(s * 10000), 10000))
+
+
+def write_jpeg(path: Path, lat: float | None, lon: float | None, alt: float = 300.0, xmp: dict | None = None,
+               size: tuple = (400, 300), focal: float = 4.3, fp_res: float = 16393.44, exif_size: tuple = (4000, 3000),
+               xmp_as_elements: bool = False) -> None:
+    img = Image.fromarray(np.random.default_rng(0).integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
+    exif = Image.Exif()
+    exif[0x010F] = "TestMake"
+    exif[0x0110] = "TestMake Cam"
+    sub = exif.get_ifd(0x8769)
+    sub[0x920A] = IFDRational(round(focal * 100), 100)
+    sub[0xA20E] = IFDRational(round(fp_res * 100), 100)
+    sub[0xA20F] = IFDRational(round(fp_res * 100), 100)
+    sub[0xA210] = 2
+    sub[0xA002], sub[0xA003] = exif_size
+    if lat is not None:
+        gps = exif.get_ifd(0x8825)
+        gps[1] = "N" if lat >= 0 else "S"
+        gps[2] = _dms(lat)
+        gps[3] = "E" if lon >= 0 else "W"
+        gps[4] = _dms(lon)
+        gps[5] = 0
+        gps[6] = IFDRational(round(alt * 1000), 1000)
+    buf = io.BytesIO()
+    img.save(buf, "JPEG", exif=exif.tobytes(), quality=80)
+    data = buf.getvalue()
+    if xmp:
+        if xmp_as_elements:
+            body = "".join(f"<drone-dji:{k}>{v}</drone-dji:{k}>" for k, v in xmp.items())
+            desc = f"<rdf:Description rdf:about='' xmlns:drone-dji='http://www.dji.com/drone-dji/1.0/'>{body}"
+            desc += "</rdf:Description>"
+        else:
+            attrs = " ".join(f'Camera:{k}="{v}"' for k, v in xmp.items())
+            desc = f"<rdf:Description rdf:about='' xmlns:Camera='http://pix4d.com/camera/1.0/' {attrs}/>"
+        packet = ("<?xpacket begin='' id='W5M0MpCehiHzreSzNTczkc9d'?><x:xmpmeta xmlns:x='adobe:ns:meta/'>"
+                  "<rdf:RDF xmlns:rdf='http://www.w3.org/1999/02/22-rdf-syntax-ns#'>" + desc +
+                  "</rdf:RDF></x:xmpmeta><?xpacket end='w'?>").encode()
+        payload = b"http://ns.adobe.com/xap/1.0/\x00" + packet
+        seg = b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload
+        data = data[:2] + seg + data[2:]
+    path.write_bytes(data)
+
+
+def test_metadata_gps_focal_and_xmp(tmp_path):
+    p = tmp_path / "a.jpg"
+    write_jpeg(p, 41.0346708, -83.3057253, 281.69, {"Heading": "70.5", "PitchAngle": "2.5", "RollAngle": "-3.0"})
+    m = read_image_metadata(p)
+    assert m.latitude == pytest.approx(41.0346708, abs=1e-7)
+    assert m.longitude == pytest.approx(-83.3057253, abs=1e-7)
+    assert m.altitude == pytest.approx(281.69, abs=1e-3)
+    assert m.focal_mm == pytest.approx(4.3)
+    assert m.exif_size == (4000, 3000)
+    assert m.focal_plane_px_per_mm[0] == pytest.approx(16393.44 / 25.4)
+    assert m.xmp_float("Heading") == (70.5, "Heading")
+    assert m.xmp_float("RollAngle")[0] == -3.0
+
+
+def test_intrinsics_scaled_to_file_size(tmp_path):
+    p = tmp_path / "a.jpg"
+    write_jpeg(p, 41.0, -83.0, size=(400, 300))
+    cam, source = pfe.camera_from_metadata(read_image_metadata(p))
+    # 4.3 mm on a 4000 px / (16393.44 px/inch) = 6.198 mm sensor, file 400 px wide.
+    assert cam.fx == pytest.approx(4.3 / (4000 / 16393.44 * 25.4) * 400, rel=1e-4)
+    assert (cam.cx, cam.cy) == (200.0, 150.0)
+    assert "FocalPlane" in source
+
+
+def _camera_dirs(R):  # noqa: N803
+    return R[:, 0], R[:, 1], R[:, 2]  # image x, image y (down), optical axis in world
+
+
+def test_attitude_conventions_basic_directions():
+    # Level aircraft heading east, camera fixed looking down, image top towards the nose.
+    R = pfe.camera_rotations([90.0], [0.0], [0.0], "top_forward")[0]
+    x, y, z = _camera_dirs(R)
+    np.testing.assert_allclose(z, [0, 0, -1], atol=1e-12)  # looks down
+    np.testing.assert_allclose(-y, [1, 0, 0], atol=1e-12)  # image top points east (the nose)
+    np.testing.assert_allclose(x, [0, -1, 0], atol=1e-12)  # image right = right wing = south
+    # Nose up by 10 degrees swings the downward optical axis forwards (east when heading east).
+    z_up = pfe.camera_rotations([90.0], [10.0], [0.0], "top_forward")[0][:, 2]
+    assert z_up[0] > 0.17 and z_up[2] < -0.98
+    # Right wing down (positive roll) tilts the optical axis to the left (north when heading east).
+    z_roll = pfe.camera_rotations([90.0], [0.0], [10.0], "top_forward")[0][:, 2]
+    assert z_roll[1] > 0.17
+    # DJI gimbal: pitch -90 is nadir, yaw 0 puts the image top north.
+    Rg = pfe.camera_rotations([0.0], [-90.0], [0.0], "gimbal")[0]
+    np.testing.assert_allclose(Rg[:, 2], [0, 0, -1], atol=1e-12)
+    np.testing.assert_allclose(-Rg[:, 1], [0, 1, 0], atol=1e-12)
+    for name in pfe.FIXED_MOUNTS:
+        Rm = pfe.camera_rotations([33.0], [4.0], [-7.0], name)[0]
+        np.testing.assert_allclose(Rm @ Rm.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(Rm) == pytest.approx(1.0)
+
+
+def test_meridian_convergence_is_measured():
+    # West of the central meridian (northern hemisphere) true north leans east of grid north (meridians converge).
+    e, n, az = pfe.geographic_to_grid(np.array([41.0]), np.array([-83.3]), 32617)
+    assert 300000 < e[0] < 310000 and 4.54e6 < n[0] < 4.55e6
+    assert az[0] == pytest.approx((-81.0 - -83.3) * math.sin(math.radians(41.0)), abs=0.05)
+
+
+def test_poses_from_images_dji_gimbal_and_files(tmp_path):
+    img = tmp_path / "images"
+    img.mkdir()
+    lats = 47.0 + np.arange(4) * 1e-4  # flying north, ~11 m apart
+    for k, lat in enumerate(lats):
+        write_jpeg(img / f"f{k}.jpg", lat, -99.0 + 1e-6, 500.0 + k,
+                   {"GimbalYawDegree": "+0.0", "GimbalPitchDegree": "-90.0", "GimbalRollDegree": "0.0",
+                    "FlightYawDegree": "1.0", "FlightPitchDegree": "0", "FlightRollDegree": "0"},
+                   xmp_as_elements=True)
+    out = tmp_path / "out" / "poses.csv"
+    res = pfe.run(img, out)
+    poses, epsg = read_poses_csv(out)
+    assert epsg == 32614 and res.summary["crs"] == "EPSG:32614"
+    assert poses.names == [f"f{k}.jpg" for k in range(4)]
+    steps = np.diff(poses.centers, axis=0)
+    np.testing.assert_allclose(np.linalg.norm(steps[:, :2], axis=1), 11.12, atol=0.1)
+    np.testing.assert_allclose(steps[:, 2], 1.0, atol=1e-6)
+    # Nadir; image top = true north, which in the grid is rotated by the meridian convergence.
+    np.testing.assert_allclose(poses.rotations[:, :, 2], [[0, 0, -1]] * 4, atol=1e-9)
+    top = -poses.rotations[0][:, 1]
+    conv = res.summary["meridian_convergence_deg"]
+    assert math.degrees(math.atan2(top[0], top[1])) == pytest.approx(conv, abs=1e-6)
+    assert res.summary["attitude_sources"] == {"XMP GimbalYaw/Pitch/RollDegree": 4}
+    cams = read_cameras_txt(out.parent / "cameras.txt")
+    assert cams[1].width == 400 and cams[1].fx == pytest.approx(277.5, rel=1e-2)
+
+
+def test_telemetry_and_course_fallbacks(tmp_path):
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(3):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)  # flying east, no XMP
+    res = pfe.poses_from_images(img)
+    assert res.summary["attitude_sources"] == {"course from neighbours (level, nadir)": 3}
+    top = -res.poses.rotations[:, :, 1]
+    np.testing.assert_allclose(top[:, 0], 1.0, atol=1e-6)  # image top along the flight direction (east)
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,90,0,10\n" for k in range(3)))
+    res2 = pfe.poses_from_images(img, telemetry=tele)
+    assert res2.summary["attitude_sources"] == {"telemetry CSV": 3}
+    assert res2.poses.rotations[0][1, 2] > 0.17  # rolled right: optical axis tilts north (left of east)
+
+
+def test_missing_gps_is_a_clear_error(tmp_path, capsys):
+    img = tmp_path / "images"
+    img.mkdir()
+    write_jpeg(img / "a.jpg", 47.0, -99.0)
+    write_jpeg(img / "b.jpg", None, None)
+    with pytest.raises(InputError, match="1 of 2 images have no GPS"):
+        pfe.poses_from_images(img)
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p.csv")]) == 2
+    assert "no GPS position" in capsys.readouterr().err
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_cli_writes_files(tmp_path, capsys):
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(2):
+        write_jpeg(img / f"f{k}.jpg", -33.0 - k * 1e-4, 151.0, 50.0,
+                   {"Heading": "180", "PitchAngle": "0", "RollAngle": "0"})
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "s" / "poses.csv")]) == 0
+    poses, epsg = read_poses_csv(tmp_path / "s" / "poses.csv")
+    assert epsg == 32756  # southern hemisphere, zone 56
+    assert (tmp_path / "s" / "cameras.txt").exists()
+    assert '"telemetry CSV"' not in capsys.readouterr().out

@@ -1,0 +1,40 @@
+"""`sosmatch poses-from-exif IMAGES --out poses.csv`: poses (UTM) and intrinsics from EXIF GPS and XMP attitude."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "poses-from-exif"
+HELP = "derive poses.csv (UTM, EPSG recorded) and cameras.txt from the images' EXIF GPS and XMP attitude tags"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("images", type=Path, help="image directory (or one image)")
+    parser.add_argument("--out", type=Path, required=True, help="pose CSV to write; cameras.txt goes beside it")
+    parser.add_argument("--cameras", type=Path, help="where to write cameras.txt (default: beside --out)")
+    parser.add_argument("--telemetry", type=Path,
+                        help="CSV with FileName,Heading,PitchAngle,RollAngle[,GPSLatitude,...] for images "
+                             "whose XMP lacks attitude (e.g. Seneca's telemetry.csv)")
+    parser.add_argument("--mount", default=None,
+                        help="body-to-camera mounting of a fixed camera: top_forward (default), right_forward, "
+                             "top_backward, left_forward")
+    parser.add_argument("--pitch-sign", type=float, default=None, choices=[-1.0, 1.0])
+    parser.add_argument("--roll-sign", type=float, default=None, choices=[-1.0, 1.0])
+    parser.add_argument("--sensor-width-mm", type=float, help="sensor width when EXIF has no focal-plane resolution")
+    parser.add_argument("--epsg", type=int, help="projected CRS for the poses (default: the UTM zone of image 1)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ...workflows import poses_from_exif as wf
+
+    result = wf.run(
+        args.images, args.out, telemetry=args.telemetry,
+        mount=args.mount or wf.DEFAULT_MOUNT,
+        pitch_sign=args.pitch_sign if args.pitch_sign is not None else wf.DEFAULT_PITCH_SIGN,
+        roll_sign=args.roll_sign if args.roll_sign is not None else wf.DEFAULT_ROLL_SIGN,
+        sensor_width_mm=args.sensor_width_mm, epsg=args.epsg, cameras_out=args.cameras,
+    )
+    print(json.dumps(result.summary, indent=2))
+    return 0
