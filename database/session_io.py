@@ -1,0 +1,126 @@
+"""Mapped session directories as the multi-session stages see them: the COLMAP model, the landmark map and
+the landmark -> COLMAP 3D point table (landmarks.csv), read with validation; landmarks.csv written atomically.
+
+A mapped session (docs/ARCHITECTURE.md) holds `sparse/`, `landmarks.sosmap` and `landmarks.csv`
+(index,point3d_id,x,y,z,size_m,num_observations,image_names). A merged model written by `sosmatch merge` has the
+same three, so it can itself be matched and merged again.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..plugin.errors import InputError
+from .atomic import write_text_atomic
+from .landmark_map import LandmarkMap, read_landmark_map
+
+LANDMARK_CSV_COLUMNS = ["index", "point3d_id", "x", "y", "z", "size_m", "num_observations", "image_names"]
+
+
+@dataclass
+class SessionFiles:
+    """The parts of a mapped session that merging needs (the reconstruction is loaded separately, on demand)."""
+
+    path: Path
+    name: str
+    landmarks: LandmarkMap
+    point3d_ids: np.ndarray  # (N,) COLMAP point3D id of landmark i (-1 when the landmark has no 3D point)
+
+    @property
+    def sparse_dir(self) -> Path:
+        return self.path / "sparse"
+
+
+def read_landmark_point_ids(path: str | Path, count: int | None = None) -> np.ndarray:
+    """Read landmarks.csv and return the point3d_id column, ordered by landmark index.
+
+    Indices must be 0..N-1 (any order); with `count`, N must equal it (the landmark map's size).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError("landmark table not found", path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read landmark table: {exc}", path) from None
+    reader = csv.reader(io.StringIO(text))
+    header = None
+    index: list[int] = []
+    ids: list[int] = []
+    for lineno, row in enumerate(reader, start=1):
+        if not row or row[0].lstrip().startswith("#"):
+            continue
+        if header is None:
+            header = [c.strip() for c in row]
+            missing = [c for c in ("index", "point3d_id") if c not in header]
+            if missing:
+                raise InputError(f"landmark table lacks column(s) {', '.join(missing)}", path, lineno)
+            i_col, p_col = header.index("index"), header.index("point3d_id")
+            continue
+        try:
+            index.append(int(row[i_col]))
+            ids.append(int(row[p_col]))
+        except (ValueError, IndexError):
+            raise InputError("landmark table row needs integer index and point3d_id", path, lineno) from None
+    if header is None:
+        raise InputError("landmark table is empty (no header)", path)
+    n = len(index)
+    if sorted(index) != list(range(n)):
+        raise InputError("landmark indices must be 0..N-1 without gaps or repeats", path)
+    if count is not None and n != count:
+        raise InputError(f"landmark table has {n} rows but the landmark map has {count} landmarks", path)
+    out = np.full(n, -1, dtype=np.int64)
+    out[np.asarray(index, dtype=np.int64)] = ids
+    return out
+
+
+def read_session(path: str | Path, name: str | None = None) -> SessionFiles:
+    """Open a mapped (or merged) session directory; raises InputError naming what is missing."""
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError("session directory not found", path)
+    sparse = path / "sparse"
+    if not (sparse / "images.bin").exists() and not (sparse / "images.txt").exists():
+        raise InputError("session has no COLMAP model in sparse/ (was it mapped?)", path)
+    lmap = read_landmark_map(path / "landmarks.sosmap")
+    ids = read_landmark_point_ids(path / "landmarks.csv", len(lmap))
+    return SessionFiles(path=path, name=name or path.resolve().name, landmarks=lmap, point3d_ids=ids)
+
+
+def format_landmarks_csv(
+    lmap: LandmarkMap, point3d_ids: np.ndarray, num_observations: np.ndarray, image_names: list[list[str]]
+) -> str:
+    """The landmarks.csv text (columns LANDMARK_CSV_COLUMNS; image names space separated)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(LANDMARK_CSV_COLUMNS)
+    for i, (xyz, size) in enumerate(zip(lmap.positions, lmap.sizes)):
+        writer.writerow(
+            [
+                i,
+                int(point3d_ids[i]),
+                f"{xyz[0]:.4f}",
+                f"{xyz[1]:.4f}",
+                f"{xyz[2]:.4f}",
+                "nan" if not np.isfinite(size) else f"{float(size):.3f}",
+                int(num_observations[i]),
+                " ".join(image_names[i]),
+            ]
+        )
+    return buf.getvalue()
+
+
+def write_landmarks_csv(
+    path: str | Path,
+    lmap: LandmarkMap,
+    point3d_ids: np.ndarray,
+    num_observations: np.ndarray,
+    image_names: list[list[str]],
+) -> None:
+    """Write landmarks.csv atomically."""
+    write_text_atomic(path, format_landmarks_csv(lmap, point3d_ids, num_observations, image_names))

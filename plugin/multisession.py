@@ -1,0 +1,228 @@
+"""Multi-session geometry and graph algorithms (pure numpy): similarity transforms, Umeyama alignment,
+the session graph (connected groups, spanning-tree transforms into one reference frame), landmark fusion groups
+and nearest-session pairs.
+
+Transform convention: a `Sim3` maps points of a *source* frame into a *target* frame, x_t = s R x_s + t.
+For a session pair (A, B) the stored transform is `a_from_b` (B's landmarks into A's frame), as in match.json.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Sim3:
+    """A similarity transform x -> scale * rotation @ x + translation (scale 1: a rigid transform)."""
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=np.float64).reshape(3, 3))
+        object.__setattr__(self, "translation", np.asarray(self.translation, dtype=np.float64).reshape(3))
+        object.__setattr__(self, "scale", float(self.scale))
+
+    @classmethod
+    def identity(cls) -> Sim3:
+        return cls(np.eye(3), np.zeros(3), 1.0)
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Transform (N,3) points (or one point (3,))."""
+        return self.scale * np.asarray(points, dtype=np.float64) @ self.rotation.T + self.translation
+
+    def compose(self, other: Sim3) -> Sim3:
+        """self ∘ other: first `other`, then `self` (target_from_mid ∘ mid_from_source)."""
+        return Sim3(
+            self.rotation @ other.rotation,
+            self.scale * self.rotation @ other.translation + self.translation,
+            self.scale * other.scale,
+        )
+
+    def inverse(self) -> Sim3:
+        r_inv = self.rotation.T
+        return Sim3(r_inv, -(r_inv @ self.translation) / self.scale, 1.0 / self.scale)
+
+    def matrix(self) -> np.ndarray:
+        """The 3x4 matrix [sR | t] (pycolmap.Sim3d accepts it)."""
+        return np.hstack([self.scale * self.rotation, self.translation[:, None]])
+
+    def to_dict(self) -> dict:
+        return {"rotation": self.rotation.tolist(), "translation": self.translation.tolist(), "scale": self.scale}
+
+
+def rotation_angle_deg(rotation: np.ndarray) -> float:
+    """The angle of a rotation matrix, in degrees (0 for the identity)."""
+    cos = (np.trace(np.asarray(rotation, dtype=np.float64)) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def transform_error(estimate: Sim3, truth: Sim3, points: np.ndarray | None = None) -> tuple[float, float]:
+    """(translation error m, rotation error deg) of `estimate` against `truth`.
+
+    With `points` (source frame), the translation error is the RMS displacement of those points between the two
+    transforms, which is what matters for a map (a small rotation error far from the origin is not a metre
+    of error at the data); without them it is the distance between the translations.
+    """
+    rot = rotation_angle_deg(estimate.rotation @ truth.rotation.T)
+    if points is None or len(points) == 0:
+        return float(np.linalg.norm(estimate.translation - truth.translation)), rot
+    diff = estimate.apply(points) - truth.apply(points)
+    return float(np.sqrt(np.mean(np.sum(diff**2, axis=1)))), rot
+
+
+def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = False) -> Sim3:
+    """Least-squares transform with target ≈ s R source + t (Umeyama 1991; Arun et al. when rigid).
+
+    Needs at least 3 non-collinear correspondences; raises ValueError otherwise.
+    """
+    src = np.asarray(source, dtype=np.float64).reshape(-1, 3)
+    dst = np.asarray(target, dtype=np.float64).reshape(-1, 3)
+    if len(src) != len(dst) or len(src) < 3:
+        raise ValueError(f"need >= 3 correspondences of equal count, got {len(src)} and {len(dst)}")
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    u, d, vt = np.linalg.svd(cov)
+    if d[1] < 1e-12 * max(d[0], 1e-300):
+        raise ValueError("correspondences are collinear; the rotation is not determined")
+    sign = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:  # reflection: flip the weakest axis
+        sign[2, 2] = -1.0
+    rot = u @ sign @ vt
+    scale = 1.0
+    if with_scale:
+        var_s = np.mean(np.sum(xs**2, axis=1))
+        scale = float(np.trace(np.diag(d) @ sign) / var_s)
+    return Sim3(rot, mu_d - scale * rot @ mu_s, scale)
+
+
+@dataclass(frozen=True)
+class Edge:
+    """An accepted session pair: `a_from_b` maps session b's frame into session a's; weight ranks reliability."""
+
+    a: int
+    b: int
+    a_from_b: Sim3
+    weight: float
+
+
+def connected_groups(num_nodes: int, edges: Iterable[Edge]) -> list[list[int]]:
+    """Connected components of the session graph, each sorted, ordered by their smallest node."""
+    parent = list(range(num_nodes))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for e in edges:
+        ra, rb = find(e.a), find(e.b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    groups: dict[int, list[int]] = {}
+    for i in range(num_nodes):
+        groups.setdefault(find(i), []).append(i)
+    return sorted(groups.values(), key=lambda g: g[0])
+
+
+def spanning_transforms(group: Sequence[int], edges: Sequence[Edge]) -> tuple[int, dict[int, Sim3], list[Edge]]:
+    """Bring every session of a connected group into one reference frame along a maximum spanning tree.
+
+    The reference is the session with the largest total edge weight (ties: the smallest index), so the frame
+    that most sessions agree with directly anchors the group. The tree keeps the heaviest edges (most
+    associations), because a composed transform is only as good as its weakest link.
+    Returns (reference, {session: reference_from_session}, tree edges).
+    """
+    members = set(group)
+    inner = [e for e in edges if e.a in members and e.b in members]
+    strength = {i: 0.0 for i in group}
+    for e in inner:
+        strength[e.a] += e.weight
+        strength[e.b] += e.weight
+    reference = min(group, key=lambda i: (-strength[i], i))
+    adjacency: dict[int, list[tuple[int, Edge]]] = {i: [] for i in group}
+    for k, e in enumerate(inner):
+        adjacency[e.a].append((k, e))
+        adjacency[e.b].append((k, e))
+    ref_from = {reference: Sim3.identity()}
+    tree: list[Edge] = []
+    heap: list[tuple[float, int, int, int]] = []  # (-weight, edge order, from node, edge index) for determinism
+
+    def push(node: int) -> None:
+        for k, e in adjacency[node]:
+            heapq.heappush(heap, (-e.weight, k, node, k))
+
+    push(reference)
+    while heap:
+        _, _, node, k = heapq.heappop(heap)
+        e = inner[k]
+        other = e.b if node == e.a else e.a
+        if other in ref_from:
+            continue
+        # node is in the tree: ref_from[other] = ref_from[node] ∘ node_from_other
+        node_from_other = e.a_from_b if node == e.a else e.a_from_b.inverse()
+        ref_from[other] = ref_from[node].compose(node_from_other)
+        tree.append(e)
+        push(other)
+    if len(ref_from) != len(members):
+        raise ValueError("group is not connected by the given edges")
+    return reference, ref_from, tree
+
+
+def fusion_groups(pairs: Iterable[tuple[int, int, np.ndarray]]) -> list[list[tuple[int, int]]]:
+    """Group landmarks that associations say are the same object.
+
+    `pairs`: (session a, session b, (K,2) int array of landmark index pairs (index in a, index in b)).
+    Returns groups of (session, landmark index) with more than one member, each sorted, in sorted order.
+    A group never holds two landmarks of one session when the pairs come from a spanning tree with one-to-one
+    associations; for other inputs such groups are split off (the later landmark of that session is dropped
+    from the group) so that a fused point never merges two observations of the same object within a session.
+    """
+    parent: dict[tuple[int, int], tuple[int, int]] = {}
+
+    def find(x: tuple[int, int]) -> tuple[int, int]:
+        parent.setdefault(x, x)
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for a, b, assoc in pairs:
+        for ia, ib in np.asarray(assoc, dtype=np.int64).reshape(-1, 2):
+            ra, rb = find((a, int(ia))), find((b, int(ib)))
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+    groups: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for x in parent:
+        groups.setdefault(find(x), []).append(x)
+    out = []
+    for members in groups.values():
+        seen: set[int] = set()
+        kept = []
+        for s, i in sorted(members):
+            if s not in seen:
+                seen.add(s)
+                kept.append((s, i))
+        if len(kept) > 1:
+            out.append(kept)
+    return sorted(out)
+
+
+def nearest_pairs(centers: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """Pairs (i < j) where j is among the k nearest sessions of i or i among those of j (by centre distance)."""
+    c = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    n = len(c)
+    if n < 2 or k <= 0:
+        return []
+    dist = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2)
+    np.fill_diagonal(dist, np.inf)
+    order = np.argsort(dist, axis=1, kind="stable")[:, : min(k, n - 1)]
+    pairs = {(min(i, int(j)), max(i, int(j))) for i in range(n) for j in order[i]}
+    return sorted(pairs)

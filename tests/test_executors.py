@@ -1,0 +1,75 @@
+"""Executors: the same tasks give the same results locally (inline and in worker processes) and on a real
+Dask LocalCluster with process workers on loopback; a failing task is captured, the others still run."""
+
+import math
+import operator
+
+import pytest
+
+from sosmatch.workflows.executors import DaskExecutor, LocalExecutor, call_task, make_executor
+
+pytest.importorskip("dask.distributed")
+
+TASKS = {f"t{i}": (i, 7) for i in range(12)}
+EXPECTED = {k: a * b for k, (a, b) in TASKS.items()}
+
+
+@pytest.fixture(scope="module")
+def dask_executor():
+    ex = DaskExecutor(workers=2)  # one LocalCluster for the whole module: starting one costs seconds
+    yield ex
+    ex.close()
+
+
+def _values(results):
+    return {k: r.value for k, r in results.items()}
+
+
+def test_call_task_captures_errors():
+    ok = call_task("a", operator.add, (2, 3))
+    bad = call_task("b", math.sqrt, (-1.0,))
+    assert ok.ok and ok.value == 5 and ok.error == ""
+    assert not bad.ok and bad.value is None and "ValueError" in bad.error and "Traceback" in bad.traceback
+
+
+def test_local_inline_and_processes_agree():
+    inline = LocalExecutor(0).run(operator.mul, TASKS, progress=False)
+    with LocalExecutor(2) as ex:
+        procs = ex.run(operator.mul, TASKS, progress=False)
+        again = ex.run(operator.mul, {"x": (3, 4)}, progress=False)  # the pool is reused between runs
+    assert list(inline) == list(TASKS) == list(procs)  # results come back in task order
+    assert _values(inline) == _values(procs) == EXPECTED
+    assert again["x"].value == 12
+
+
+def test_dask_local_cluster_matches_local(dask_executor):
+    assert dask_executor.client.scheduler_info()["workers"], "LocalCluster has no workers"
+    results = dask_executor.run(operator.mul, TASKS, progress=False)
+    assert list(results) == list(TASKS)
+    assert _values(results) == EXPECTED
+    # The tasks really ran in other processes (the worker processes of the cluster).
+    pids = dask_executor.run(_getpid_task, {i: () for i in range(4)}, progress=False)
+    import os
+
+    assert all(r.ok for r in pids.values()) and os.getpid() not in {r.value for r in pids.values()}
+
+
+def _getpid_task():
+    import os
+
+    return os.getpid()
+
+
+def test_failures_are_per_task_on_every_executor(dask_executor):
+    tasks = {"good": (4.0,), "bad": (-4.0,), "good2": (9.0,)}
+    for ex in (LocalExecutor(0), dask_executor):
+        res = ex.run(math.sqrt, tasks, progress=False)
+        assert res["good"].ok and res["good"].value == 2.0 and res["good2"].value == 3.0
+        assert not res["bad"].ok and "math domain error" in res["bad"].error
+
+
+def test_make_executor_choices():
+    assert isinstance(make_executor(workers=0), LocalExecutor)
+    assert make_executor(workers=3).describe() == "local (3 worker processes)"
+    with pytest.raises(ValueError):
+        LocalExecutor(-1)

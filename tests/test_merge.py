@@ -1,0 +1,149 @@
+"""Merging two sessions: B lands in A's frame, ids and names stay unique, associated landmarks become one
+3D point with both sessions' observations, refinement recovers a perturbed transform, and the merged model
+opens in pycolmap and in COLMAP 3.8."""
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pycolmap
+import pytest
+
+from sosmatch.database.landmark_map import read_landmark_map
+from sosmatch.database.match_io import read_match
+from sosmatch.database.session_io import read_landmark_point_ids, read_session
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.multisession import Sim3, fusion_groups, transform_error, umeyama
+from sosmatch.tools.cli import main
+from sosmatch.tools.toy_sessions import (
+    lawnmower,
+    make_world,
+    toy_match_json,
+    true_associations,
+    write_toy_session,
+    yaw_transform,
+)
+from sosmatch.workflows import merge
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    root = tmp_path_factory.mktemp("pair")
+    world = make_world(260, seed=11)
+    a = write_toy_session(root / "A", world, lawnmower(20, 140, 20, 140, 60, 40, 10), Sim3.identity(), seed=1)
+    b = write_toy_session(
+        root / "B", world, lawnmower(90, 220, 90, 220, 60, 40, 10), yaw_transform(40, (15, -8, 3)), seed=2
+    )
+    return root, world, a, b
+
+
+def test_umeyama_recovers_similarity():
+    rng = np.random.default_rng(0)
+    truth = Sim3(yaw_transform(70, (0, 0, 0)).rotation @ yaw_transform(0, (0, 0, 0)).rotation, [3, -2, 5], 1.7)
+    src = rng.normal(0, 10, (40, 3))
+    est = umeyama(src, truth.apply(src), with_scale=True)
+    assert np.allclose(est.matrix(), truth.matrix(), atol=1e-9)
+    assert np.allclose(truth.compose(truth.inverse()).matrix(), Sim3.identity().matrix(), atol=1e-12)
+    with pytest.raises(ValueError):
+        umeyama(src[:2], src[:2])
+
+
+def test_fusion_groups_chain_and_no_same_session_pairs():
+    groups = fusion_groups([(0, 1, np.array([[0, 5], [1, 6]])), (1, 2, np.array([[5, 9]]))])
+    assert groups == [[(0, 0), (1, 5), (2, 9)], [(0, 1), (1, 6)]]
+    # a cycle that would put two landmarks of session 0 in one group keeps only the first
+    cyc = fusion_groups([(0, 1, np.array([[0, 0]])), (1, 2, np.array([[0, 0]])), (2, 0, np.array([[0, 3]]))])
+    assert cyc == [[(0, 0), (1, 0), (2, 0)]]
+
+
+def test_merge_pair(pair, tmp_path):
+    root, world, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    res = merge.run(a.path, b.path, match, tmp_path / "M")
+    rec_a, rec_b = pycolmap.Reconstruction(str(a.path / "sparse")), pycolmap.Reconstruction(str(b.path / "sparse"))
+    rec = pycolmap.Reconstruction(str(tmp_path / "M" / "sparse"))
+    n_assoc = len(true_associations(a, b))
+    assert n_assoc > 20
+    assert rec.num_images() == rec_a.num_images() + rec_b.num_images()
+    assert rec.num_cameras() == 2
+    assert rec.num_points3D() == rec_a.num_points3D() + rec_b.num_points3D() - n_assoc
+    assert res.num_fused == n_assoc and res.num_rejected == 0
+    assert rec.compute_num_observations() == rec_a.compute_num_observations() + rec_b.compute_num_observations()
+    names = [img.name for img in rec.images.values()]
+    assert len(set(names)) == len(names) and {n.split("/")[0] for n in names} == {"A", "B"}
+    # Every camera centre of B now sits where A's frame (= world here) puts it.
+    truth_world_from_b = b.session_from_world.inverse()
+    for img in rec_b.images.values():
+        merged = rec.find_image_with_name(f"B/{img.name}")
+        assert np.allclose(merged.projection_center(), truth_world_from_b.apply(img.projection_center()), atol=1e-6)
+    # Fused points hold observations from both sessions and sit near the true object.
+    lm = read_landmark_map(tmp_path / "M" / "landmarks.sosmap")
+    ids = read_landmark_point_ids(tmp_path / "M" / "landmarks.csv", len(lm))
+    assert len(lm) == rec.num_points3D() and set(ids.tolist()) == set(rec.points3D)
+    both = 0
+    for i, pid in enumerate(ids):
+        labels = {img_name.split("/")[0] for img_name in
+                  (rec.images[e.image_id].name for e in rec.points3D[pid].track.elements)}
+        both += labels == {"A", "B"}
+        assert np.allclose(lm.positions[i], rec.points3D[pid].xyz, atol=1e-3)
+    assert both == n_assoc
+    assert rec.compute_mean_reprojection_error() < 3.0
+    record = json.loads((tmp_path / "M" / "merge.json").read_text())
+    assert record["counts"]["fused"] == n_assoc and record["labels"] == ["A", "B"]
+
+
+def test_refine_recovers_perturbed_transform_and_rejects_outliers(pair, tmp_path):
+    root, world, a, b = pair
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    # 0.8 degrees about the data's centre and 0.6 m off: within the fusion gate, but visibly wrong
+    centre = read_session(a.path).landmarks.positions.mean(0)
+    about = Sim3(np.eye(3), centre).compose(yaw_transform(0.8, (0.4, -0.4, 0.2))).compose(Sim3(np.eye(3), -centre))
+    bad = about.compose(truth)
+    match = toy_match_json(a, b, tmp_path / "match.json", transform=bad, num_outliers=5, seed=3)
+    pts = read_session(b.path).landmarks.positions
+    err_before = transform_error(bad, truth, pts)
+    plain = merge.run(a.path, b.path, match, tmp_path / "plain")
+    refined = merge.run(a.path, b.path, match, tmp_path / "refined", refine=True)
+    err_after = transform_error(refined.transforms[1], truth, pts)
+    assert err_before[0] > 0.5 and err_before[1] > 0.5
+    assert err_after[0] < 0.1 and err_after[1] < 0.1 and refined.refined
+    assert refined.num_rejected >= 5  # the random wrong associations are too far apart to fuse
+    assert refined.num_fused >= plain.num_fused
+
+
+def test_merged_model_passes_colmap_38_model_analyzer(pair, tmp_path):
+    colmap = shutil.which("colmap")
+    if colmap is None:
+        pytest.skip("COLMAP command line not installed")
+    root, world, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    res = merge.run(a.path, b.path, match, tmp_path / "M")
+    out = subprocess.run([colmap, "model_analyzer", "--path", str(tmp_path / "M" / "sparse")],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    stats = dict(line.split(":", 1) for line in out.stdout.splitlines() if ":" in line)
+    assert int(stats["Registered images"]) == res.num_images
+    assert int(stats["Points"]) == res.num_points3d
+
+
+def test_cli_merge_and_user_errors(pair, tmp_path, capsys):
+    root, world, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "M"),
+                 "--refine"]) == 0
+    assert (tmp_path / "M" / "merge.json").exists()
+    # A match without an accepted hypothesis is a user error, not a traceback.
+    data = json.loads(match.read_text())
+    data["hypotheses"][0]["accepted"] = False
+    (tmp_path / "rej.json").write_text(json.dumps(data))
+    assert not read_match(tmp_path / "rej.json").accepted
+    assert main(["merge", str(a.path), str(b.path), "--match", str(tmp_path / "rej.json"),
+                 "--out", str(tmp_path / "M2")]) == 2
+    assert "no accepted hypothesis" in capsys.readouterr().err
+    assert not (tmp_path / "M2").exists()
+    with pytest.raises(InputError, match="sparse"):
+        read_session(tmp_path)
+    (tmp_path / "broken.json").write_text("{not json")
+    assert main(["merge", str(a.path), str(b.path), "--match", str(tmp_path / "broken.json"),
+                 "--out", str(tmp_path / "M3")]) == 2

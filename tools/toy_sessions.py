@@ -1,0 +1,184 @@
+"""Toy mapped sessions without images: COLMAP models, landmark maps and landmarks.csv built directly from a
+random world of objects seen by a downward camera, plus the ground truth needed to check merge and batch.
+
+This is a fixture generator for tests and quick experiments of the multi-session stages (merge, batch,
+executors). It skips segmentation and triangulation entirely: observations are exact projections plus pixel
+noise, landmark positions are the true object positions (in the session's frame) plus noise. For the real
+pipeline use `sosmatch synth` + `sosmatch map`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..database.atomic import atomic_path, write_text_atomic
+from ..database.landmark_map import LandmarkMap, write_landmark_map
+from ..database.poses import write_poses_csv
+from ..database.session_io import write_landmarks_csv
+from ..plugin.geometry import Camera, Poses, project
+from ..plugin.multisession import Sim3
+
+TOY_CAMERA = Camera(640, 480, 400.0, 400.0, 320.0, 240.0)
+
+
+@dataclass
+class ToyWorld:
+    """Objects (N,3) positions and (N,) sizes in the world frame."""
+
+    positions: np.ndarray
+    sizes: np.ndarray
+
+
+@dataclass
+class ToySession:
+    """A written toy session: its directory, session_from_world transform and the world object of each landmark."""
+
+    path: Path
+    session_from_world: Sim3
+    object_ids: np.ndarray  # (L,) world object index of landmark i
+
+
+def make_world(num_objects: int = 300, extent_m: float = 240.0, seed: int = 0) -> ToyWorld:
+    """Objects scattered over a square area, a few metres of relief, sizes 0.5-6 m."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0.0, extent_m, (num_objects, 2))
+    z = rng.uniform(0.0, 6.0, (num_objects, 1))
+    return ToyWorld(np.hstack([xy, z]), rng.uniform(0.5, 6.0, num_objects))
+
+
+def lawnmower(x0: float, x1: float, y0: float, y1: float, altitude: float, spacing: float, step: float) -> np.ndarray:
+    """Camera centres along back-and-forth lines (east-west legs, `spacing` apart, a frame every `step` m)."""
+    centers = []
+    for k, y in enumerate(np.arange(y0, y1 + 1e-9, spacing)):
+        xs = np.arange(x0, x1 + 1e-9, step)
+        for x in xs if k % 2 == 0 else xs[::-1]:
+            centers.append((x, y, altitude))
+    return np.asarray(centers, dtype=np.float64)
+
+
+def write_toy_session(
+    path: str | Path,
+    world: ToyWorld,
+    centers_world: np.ndarray,
+    session_from_world: Sim3,
+    seed: int = 0,
+    pixel_noise_px: float = 1.0,
+    landmark_noise_m: float = 0.05,
+    min_observations: int = 3,
+) -> ToySession:
+    """Write a mapped-session directory (sparse/, landmarks.sosmap, landmarks.csv, poses.csv, truth.json).
+
+    Cameras look straight down (image x = world x, image y = -world y). Every object seen in at least
+    `min_observations` frames becomes a COLMAP 3D point and a landmark. The whole session lives in the frame
+    `session_from_world` (what a vehicle with its own odometry frame would see).
+    """
+    import pycolmap
+
+    path = Path(path)
+    rng = np.random.default_rng(seed)
+    cam = TOY_CAMERA
+    r_wc_world = np.diag([1.0, -1.0, -1.0])  # camera looking down
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(
+        pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,
+                        params=[cam.fx, cam.fy, cam.cx, cam.cy], camera_id=1)
+    )
+    obs: dict[int, list[tuple[int, int]]] = {}
+    names = []
+    # Poses in the session frame: rotate the camera with the frame (scale moves only the centre).
+    r_wc = session_from_world.rotation @ r_wc_world
+    centers = session_from_world.apply(centers_world)
+    for i, c in enumerate(centers_world):
+        uv, depth = project(cam, r_wc_world, c, world.positions)
+        inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        ids = np.flatnonzero(inside)
+        kp = uv[ids] + rng.normal(0.0, pixel_noise_px, (len(ids), 2))
+        name = f"frame_{i:05d}.jpg"
+        names.append(name)
+        image = pycolmap.Image(name=name, keypoints=kp, camera_id=1, image_id=i + 1)
+        r_cw = r_wc.T
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(r_cw), -r_cw @ centers[i]))
+        for k, oid in enumerate(ids):
+            obs.setdefault(int(oid), []).append((i + 1, k))
+    object_ids, point_ids = [], []
+    for oid in sorted(obs, key=lambda o: (obs[o][0][0], o)):  # landmark order: first sighting, like tracks
+        if len(obs[oid]) < min_observations:
+            continue
+        track = pycolmap.Track()
+        for iid, k in obs[oid]:
+            track.add_element(iid, k)
+        xyz = session_from_world.apply(world.positions[oid]) + rng.normal(0.0, landmark_noise_m, 3)
+        point_ids.append(rec.add_point3D(xyz, track))
+        object_ids.append(oid)
+    rec.update_point_3d_errors()
+    object_ids_arr = np.asarray(object_ids, dtype=np.int64)
+    positions = np.array([rec.points3D[p].xyz for p in point_ids]).reshape(-1, 3)
+    sizes = world.sizes[object_ids_arr] * session_from_world.scale * rng.uniform(0.95, 1.05, len(object_ids_arr))
+    origin = np.round(positions.mean(0)) if len(positions) else np.zeros(3)
+    lmap = LandmarkMap(positions, sizes, origin)
+    path.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path / "sparse") as tmp:
+        tmp.mkdir()
+        rec.write_binary(str(tmp))
+    write_landmark_map(path / "landmarks.sosmap", lmap)
+    image_names = [sorted({names[e.image_id - 1] for e in rec.points3D[p].track.elements}) for p in point_ids]
+    write_landmarks_csv(
+        path / "landmarks.csv", lmap, np.asarray(point_ids), np.array([len(n) for n in image_names]), image_names
+    )
+    rot = np.broadcast_to(r_wc, (len(centers), 3, 3))
+    write_poses_csv(path / "poses.csv", Poses(names, rot, centers))
+    truth = {"session_from_world": session_from_world.to_dict(), "object_ids": object_ids_arr.tolist()}
+    write_text_atomic(path / "truth.json", json.dumps(truth) + "\n")
+    return ToySession(path, session_from_world, object_ids_arr)
+
+
+def yaw_transform(yaw_deg: float, translation: tuple[float, float, float], scale: float = 1.0) -> Sim3:
+    """A frame rotated about z (gravity stays vertical, as between two vehicles' odometry frames)."""
+    a = np.radians(yaw_deg)
+    rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    return Sim3(rot, np.asarray(translation, dtype=np.float64), scale)
+
+
+def true_associations(a: ToySession, b: ToySession) -> np.ndarray:
+    """(K,2) landmark index pairs (in A, in B) of landmarks that are the same world object."""
+    index_b = {int(o): j for j, o in enumerate(b.object_ids)}
+    return np.array(
+        [(i, index_b[int(o)]) for i, o in enumerate(a.object_ids) if int(o) in index_b], dtype=np.int64
+    ).reshape(-1, 2)
+
+
+def toy_match_json(
+    a: ToySession,
+    b: ToySession,
+    path: str | Path,
+    transform: Sim3 | None = None,
+    num_outliers: int = 0,
+    seed: int = 0,
+) -> Path:
+    """Write a match.json for (A, B) as the association stage would: true associations (plus optional wrong
+    ones) and the transform a_from_b (the truth unless given)."""
+    rng = np.random.default_rng(seed)
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    assoc = true_associations(a, b)
+    if num_outliers:
+        wrong = np.stack([rng.integers(0, len(a.object_ids), num_outliers),
+                          rng.integers(0, len(b.object_ids), num_outliers)], 1)
+        assoc = np.vstack([assoc, wrong])
+    transform = transform or truth
+    accepted = len(assoc) > 6
+    hyp = {"associations": assoc.tolist(), "transform": transform.to_dict(), "accepted": accepted}
+    data = {
+        "format": "sosmatch match v1",
+        "session_a": str(a.path),
+        "session_b": str(b.path),
+        "transform_kind": "similarity" if not np.isclose(transform.scale, 1.0) else "rigid",
+        "hypotheses": [hyp],
+        "best": 0,
+    }
+    path = Path(path)
+    write_text_atomic(path, json.dumps(data) + "\n")
+    return path

@@ -1,0 +1,186 @@
+"""Where batch tasks run: local worker processes, or a Dask distributed cluster. One small interface.
+
+    with make_executor(workers=2) as ex:                     # LocalExecutor (ProcessPoolExecutor)
+    with make_executor(scheduler="tcp://host:8786") as ex:   # DaskExecutor on an existing cluster
+    with make_executor(dask_local=True, workers=2) as ex:    # DaskExecutor on a LocalCluster it starts
+        results = ex.run(fn, {"key": (arg1, arg2), ...}, desc="pairs")
+
+Tasks are plain top-level functions with picklable arguments. Every task runs inside `call_task`, which catches
+its exception and returns a `TaskResult` (ok or the error text and traceback): one failing flight never stops
+the others, and no exception object has to survive pickling between machines. `run` returns results in the
+order of the task dict, whatever the order of completion, so outputs do not depend on the executor.
+Worker processes are started with "spawn" (like Dask's nannies): forking a parent that already runs
+OpenMP/Ceres threads (pycolmap) can deadlock.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import time
+import traceback
+from collections.abc import Callable, Hashable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Any
+
+from tqdm import tqdm
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TaskResult:
+    """The outcome of one task: its value when ok, else the error message and traceback."""
+
+    key: Hashable
+    ok: bool
+    value: Any = None
+    error: str = ""
+    traceback: str = ""
+    seconds: float = 0.0
+
+
+def call_task(key: Hashable, fn: Callable[..., Any], args: tuple) -> TaskResult:
+    """Run fn(*args) and capture the outcome (this is what executes on the worker)."""
+    t0 = time.perf_counter()
+    try:
+        value = fn(*args)
+    except Exception as exc:  # noqa: BLE001 (a task's failure is data, reported per task)
+        return TaskResult(key, False, None, f"{type(exc).__name__}: {exc}", traceback.format_exc(),
+                          time.perf_counter() - t0)
+    return TaskResult(key, True, value, "", "", time.perf_counter() - t0)
+
+
+class Executor:
+    """Runs a dict of independent tasks and returns {key: TaskResult} in the dict's order."""
+
+    name = "executor"
+
+    def run(
+        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True
+    ) -> dict[Hashable, TaskResult]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release workers (idempotent)."""
+
+    def describe(self) -> str:
+        return self.name
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class LocalExecutor(Executor):
+    """Local worker processes (concurrent.futures.ProcessPoolExecutor). workers=0 runs tasks inline, in this
+    process, one after the other (for debugging; exceptions are still captured per task)."""
+
+    name = "local"
+
+    def __init__(self, workers: int = 1) -> None:
+        if workers < 0:
+            raise ValueError("workers must be >= 0")
+        self.workers = workers
+        self._pool: ProcessPoolExecutor | None = None
+
+    def _get_pool(self) -> ProcessPoolExecutor:
+        if self._pool is None:  # started lazily: a fully resumed batch needs no workers at all
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        return self._pool
+
+    def run(
+        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True
+    ) -> dict[Hashable, TaskResult]:
+        results: dict[Hashable, TaskResult] = {}
+        if not tasks:
+            return results
+        with tqdm(total=len(tasks), desc=desc, unit="task", disable=not progress, leave=False) as bar:
+            if self.workers == 0:
+                for key, args in tasks.items():
+                    results[key] = call_task(key, fn, args)
+                    bar.update(1)
+            else:
+                pool = self._get_pool()
+                pending = {pool.submit(call_task, key, fn, args) for key, args in tasks.items()}
+                while pending:
+                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        res = fut.result()  # call_task never raises; a dead worker (BrokenProcessPool) does
+                        results[res.key] = res
+                        bar.update(1)
+        return {key: results[key] for key in tasks}
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def describe(self) -> str:
+        return f"local ({self.workers} worker processes)" if self.workers else "local (inline)"
+
+
+class DaskExecutor(Executor):
+    """Tasks on a Dask distributed cluster: an existing scheduler (`address`, e.g. tcp://host:8786) or, without
+    one, a LocalCluster of `workers` single-threaded worker processes on loopback that this object owns."""
+
+    name = "dask"
+
+    def __init__(self, address: str | None = None, workers: int = 2) -> None:
+        from dask.distributed import Client, LocalCluster
+
+        self.address = address
+        self._cluster = None
+        if address is None:
+            self._cluster = LocalCluster(
+                n_workers=max(1, workers),
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                dashboard_address=None,
+            )
+            self.client = Client(self._cluster)
+        else:
+            self.client = Client(address)
+
+    def run(
+        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True
+    ) -> dict[Hashable, TaskResult]:
+        from dask.distributed import as_completed
+
+        results: dict[Hashable, TaskResult] = {}
+        if not tasks:
+            return results
+        # pure=False: a re-run of the same task after a fix must run again, not return a cached result.
+        futures = [self.client.submit(call_task, key, fn, args, pure=False) for key, args in tasks.items()]
+        with tqdm(total=len(tasks), desc=desc, unit="task", disable=not progress, leave=False) as bar:
+            for fut in as_completed(futures):
+                res = fut.result()
+                results[res.key] = res
+                bar.update(1)
+        return {key: results[key] for key in tasks}
+
+    def close(self) -> None:
+        if getattr(self, "client", None) is not None:
+            self.client.close()
+            self.client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+
+    def describe(self) -> str:
+        if self.address:
+            return f"dask ({self.address})"
+        return "dask (LocalCluster)"
+
+
+def make_executor(workers: int = 1, scheduler: str | None = None, dask_local: bool = False) -> Executor:
+    """The executor the command line asks for: --scheduler ADDRESS or --dask-local, else local processes."""
+    if scheduler:
+        return DaskExecutor(address=scheduler)
+    if dask_local:
+        return DaskExecutor(address=None, workers=max(1, workers))
+    return LocalExecutor(workers)

@@ -1,0 +1,347 @@
+"""Merge mapped sessions into one COLMAP model in one frame (`sosmatch merge`, and the merge stage of batch).
+
+`run(session_a, session_b, match_json, out_dir)` brings session B into A's frame with the accepted transform of
+match.json (rigid or similarity, applied with `pycolmap.Reconstruction.transform(pycolmap.Sim3d)`), optionally
+refines that transform on all associations, and writes one model. `merge_sessions(...)` is the general case used
+by batch: N sessions, each with its reference_from_session transform, and fusion groups of landmarks.
+
+How models are combined: every session's cameras, images and 3D points are copied into a new
+`pycolmap.Reconstruction` with fresh, dense ids (cameras, then images, in session order, each in id order),
+image names are prefixed with the session label (`LABEL/frame_00000.jpg`) so they stay unique, and each group
+of associated landmarks becomes ONE 3D point whose track holds every session's observations
+(`Reconstruction.merge_points3D`: the position is the track-length-weighted mean). Associations whose landmarks
+are still farther apart than `max_fuse_distance_m` after alignment are not fused (an outlier association would
+otherwise drag two distinct objects into one point); they are counted in merge.json.
+
+Output directory (a "merged session", readable by match/merge again):
+    sparse/            COLMAP binary model (opens in pycolmap 4.x and COLMAP 3.8)
+    landmarks.sosmap   merged landmark map: the reference session's landmarks in order (fused ones at the
+                       reference's index), then each other session's unfused landmarks in order
+    landmarks.csv      index,point3d_id,x,y,z,size_m,num_observations,image_names
+    merge.json         sessions, transforms, counts (written last: its presence means the merge finished)
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..database.atomic import atomic_path, write_text_atomic
+from ..database.landmark_map import LandmarkMap, write_landmark_map
+from ..database.match_io import read_match
+from ..database.session_io import SessionFiles, read_session, write_landmarks_csv
+from ..plugin.errors import InputError
+from ..plugin.multisession import Sim3, fusion_groups, umeyama
+from ..plugin.params import Params
+
+log = logging.getLogger(__name__)
+
+MERGE_FORMAT = "sosmatch merge v1"
+
+
+@dataclass
+class MergeResult:
+    """What a merge produced (also written to merge.json)."""
+
+    out_dir: Path
+    sessions: list[str]
+    labels: list[str]
+    transforms: list[Sim3]  # reference_from_session, per session
+    num_cameras: int = 0
+    num_images: int = 0
+    num_points3d: int = 0
+    num_landmarks: int = 0
+    num_fused: int = 0  # fusion groups that became one 3D point
+    num_rejected: int = 0  # associations not fused (too far apart after alignment, or without a 3D point)
+    refined: bool = False
+    seconds: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": MERGE_FORMAT,
+            "sessions": self.sessions,
+            "labels": self.labels,
+            "reference": self.sessions[0] if self.sessions else None,
+            "reference_from_session": [t.to_dict() for t in self.transforms],
+            "counts": {
+                "cameras": self.num_cameras,
+                "images": self.num_images,
+                "points3D": self.num_points3d,
+                "landmarks": self.num_landmarks,
+                "fused": self.num_fused,
+                "rejected_associations": self.num_rejected,
+            },
+            "refined": self.refined,
+            "seconds": round(self.seconds, 3),
+            **self.extra,
+        }
+
+
+def _labels(sessions: list[SessionFiles], labels: list[str] | None) -> list[str]:
+    if labels is None:
+        labels = [s.name for s in sessions]
+        if len(set(labels)) != len(labels):  # two sessions with the same folder name: fall back to positions
+            labels = [f"s{i}" for i in range(len(sessions))]
+    if len(labels) != len(sessions) or len(set(labels)) != len(labels) or any(not lb for lb in labels):
+        raise InputError(f"session labels must be unique and non-empty, got {labels}")
+    return list(labels)
+
+
+def _filter_associations(
+    sessions: list[SessionFiles], transforms: list[Sim3], pairs: list[tuple[int, int, np.ndarray]], max_dist: float
+) -> tuple[list[tuple[int, int, np.ndarray]], int]:
+    """Keep associations whose two landmarks are within max_dist in the reference frame and have 3D points."""
+    kept, rejected = [], 0
+    for a, b, assoc in pairs:
+        assoc = np.asarray(assoc, dtype=np.int64).reshape(-1, 2)
+        na, nb = len(sessions[a].landmarks), len(sessions[b].landmarks)
+        valid = (assoc[:, 0] < na) & (assoc[:, 1] < nb)
+        if not np.all(valid):
+            raise InputError(
+                f"associations refer to landmarks beyond the maps ({na} in {sessions[a].name}, "
+                f"{nb} in {sessions[b].name}); was match.json computed on these sessions?"
+            )
+        pa = transforms[a].apply(sessions[a].landmarks.positions[assoc[:, 0]])
+        pb = transforms[b].apply(sessions[b].landmarks.positions[assoc[:, 1]])
+        ok = np.linalg.norm(pa - pb, axis=1) <= max_dist
+        ok &= (sessions[a].point3d_ids[assoc[:, 0]] >= 0) & (sessions[b].point3d_ids[assoc[:, 1]] >= 0)
+        rejected += int(np.count_nonzero(~ok))
+        kept.append((a, b, assoc[ok]))
+    return kept, rejected
+
+
+def merge_sessions(
+    sessions: list[SessionFiles],
+    transforms: list[Sim3],
+    pairs: list[tuple[int, int, np.ndarray]],
+    out_dir: str | Path,
+    labels: list[str] | None = None,
+    max_fuse_distance_m: float = 2.0,
+) -> MergeResult:
+    """Combine sessions into one COLMAP model in the frame of `transforms` (reference_from_session each).
+
+    `pairs`: (session index a, session index b, (K,2) landmark index pairs) whose landmarks are fused. Writes
+    out_dir/{sparse/, landmarks.sosmap, landmarks.csv, merge.json}; returns the counts.
+    """
+    import pycolmap
+
+    t0 = time.perf_counter()
+    if len(sessions) != len(transforms) or not sessions:
+        raise ValueError("need one transform per session and at least one session")
+    labels = _labels(sessions, labels)
+    out_dir = Path(out_dir)
+    pairs, rejected = _filter_associations(sessions, transforms, pairs, max_fuse_distance_m)
+    groups = fusion_groups(pairs)
+
+    merged = pycolmap.Reconstruction()
+    point_map: list[dict[int, int]] = []  # per session: old point3D id -> new id
+    image_names: dict[int, str] = {}
+    next_camera, next_image = 1, 1
+    for session, transform, label in zip(sessions, transforms, labels):
+        rec = pycolmap.Reconstruction(str(session.sparse_dir))
+        if not np.allclose(transform.matrix(), Sim3.identity().matrix()):
+            rec.transform(pycolmap.Sim3d(transform.matrix()))
+        camera_map: dict[int, int] = {}
+        for cid in sorted(rec.cameras):
+            cam = rec.cameras[cid]
+            merged.add_camera_with_trivial_rig(
+                pycolmap.Camera(
+                    model=cam.model, width=cam.width, height=cam.height, params=cam.params, camera_id=next_camera
+                )
+            )
+            camera_map[cid] = next_camera
+            next_camera += 1
+        image_map: dict[int, int] = {}
+        skipped = 0
+        for iid in sorted(rec.images):
+            img = rec.images[iid]
+            if not img.has_pose:
+                skipped += 1  # an unregistered image carries no observation worth keeping in a merged model
+                continue
+            keypoints = np.array([p.xy for p in img.points2D], dtype=np.float64).reshape(-1, 2)
+            name = f"{label}/{img.name}"
+            new = pycolmap.Image(
+                name=name, keypoints=keypoints, camera_id=camera_map[img.camera_id], image_id=next_image
+            )
+            merged.add_image_with_trivial_frame(new, img.cam_from_world())
+            image_map[iid] = next_image
+            image_names[next_image] = name
+            next_image += 1
+        if skipped:
+            log.info("%s: %d unregistered images left out", session.name, skipped)
+        pmap: dict[int, int] = {}
+        for pid in sorted(rec.points3D):
+            pt = rec.points3D[pid]
+            track = pycolmap.Track()
+            for el in pt.track.elements:
+                if el.image_id in image_map:
+                    track.add_element(image_map[el.image_id], el.point2D_idx)
+            if track.length() == 0:
+                continue
+            pmap[pid] = merged.add_point3D(pt.xyz, track, pt.color)
+        point_map.append(pmap)
+
+    # Fuse: each group of associated landmarks becomes one point; remember where every member landed.
+    fused_pid: dict[tuple[int, int], int] = {}
+    members_of: dict[int, list[tuple[int, int]]] = {}
+    num_fused = 0
+    for group in groups:
+        pids = []
+        for s, lm in group:
+            pid = point_map[s].get(int(sessions[s].point3d_ids[lm]))
+            if pid is not None:
+                pids.append(pid)
+        if len(pids) < 2:
+            continue
+        current = pids[0]
+        for other in pids[1:]:
+            current = merged.merge_points3D(current, other)
+        for member in group:
+            fused_pid[member] = current
+        members_of[current] = list(group)
+        num_fused += 1
+    merged.update_point_3d_errors()
+
+    # Merged landmark map: session order, fused landmarks once (at their first member's place).
+    positions, sizes, pids_out, nobs, names = [], [], [], [], []
+    emitted: set[int] = set()
+    for s, session in enumerate(sessions):
+        lm_pos = transforms[s].apply(session.landmarks.positions)
+        lm_size = session.landmarks.sizes.astype(np.float64) * transforms[s].scale
+        for i in range(len(session.landmarks)):
+            pid = fused_pid.get((s, i))
+            if pid is None:
+                old = int(session.point3d_ids[i])
+                pid = point_map[s].get(old, -1) if old >= 0 else -1
+                pos, size = lm_pos[i], lm_size[i]
+            else:
+                if pid in emitted:
+                    continue
+                members = members_of[pid]
+                pos = np.asarray(merged.points3D[pid].xyz)
+                msizes = [sessions[m].landmarks.sizes[mi] * transforms[m].scale for m, mi in members]
+                size = float(np.nanmean(msizes)) if np.any(np.isfinite(msizes)) else np.nan
+            if pid >= 0:
+                emitted.add(pid)
+                els = merged.points3D[pid].track.elements
+                nobs.append(len(els))
+                names.append(sorted({image_names[e.image_id] for e in els}))
+            else:
+                nobs.append(0)
+                names.append([])
+            positions.append(pos)
+            sizes.append(size)
+            pids_out.append(pid)
+    ref = sessions[0].landmarks
+    lmap = LandmarkMap(np.asarray(positions).reshape(-1, 3), np.asarray(sizes), ref.origin, ref.epsg)
+
+    with atomic_path(out_dir / "sparse") as tmp:
+        tmp.mkdir()
+        merged.write_binary(str(tmp))
+    write_landmark_map(out_dir / "landmarks.sosmap", lmap)
+    write_landmarks_csv(out_dir / "landmarks.csv", lmap, np.asarray(pids_out), np.asarray(nobs), names)
+    result = MergeResult(
+        out_dir=out_dir,
+        sessions=[str(s.path) for s in sessions],
+        labels=labels,
+        transforms=list(transforms),
+        num_cameras=merged.num_cameras(),
+        num_images=merged.num_images(),
+        num_points3d=merged.num_points3D(),
+        num_landmarks=len(lmap),
+        num_fused=num_fused,
+        num_rejected=rejected,
+    )
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def write_merge_record(result: MergeResult, extra: dict[str, Any] | None = None) -> None:
+    """Write merge.json last, so that its presence means the whole merge finished."""
+    import pycolmap
+
+    from ..plugin import __version__
+
+    data = result.to_dict()
+    data["versions"] = {"sosmatch": __version__, "pycolmap": pycolmap.__version__, "numpy": np.__version__}
+    data.update(extra or {})
+    write_text_atomic(result.out_dir / "merge.json", json.dumps(data, indent=2) + "\n")
+
+
+def refine_transform(
+    a: SessionFiles, b: SessionFiles, associations: np.ndarray, initial: Sim3, with_scale: bool, gate_m: float
+) -> tuple[Sim3, int]:
+    """Re-estimate a_from_b by least squares on every association that `initial` already explains within gate_m.
+
+    Returns (transform, number of associations used); keeps `initial` when fewer than 3 survive the gate.
+    """
+    assoc = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
+    pa = a.landmarks.positions[assoc[:, 0]]
+    pb = b.landmarks.positions[assoc[:, 1]]
+    inliers = np.linalg.norm(initial.apply(pb) - pa, axis=1) <= gate_m
+    if np.count_nonzero(inliers) < 3:
+        return initial, 0
+    try:
+        return umeyama(pb[inliers], pa[inliers], with_scale=with_scale), int(np.count_nonzero(inliers))
+    except ValueError:  # collinear inliers: the initial transform is all we have
+        return initial, 0
+
+
+def run(
+    session_a: str | Path,
+    session_b: str | Path,
+    match_json: str | Path,
+    out_dir: str | Path,
+    params: Params | None = None,
+    refine: bool = False,
+    labels: tuple[str, str] | None = None,
+) -> MergeResult:
+    """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
+
+    With `refine`, the transform is re-estimated on all of the hypothesis' associations that it already
+    explains within `params.association.distance_tolerance_m` (rigid, or similarity when the match used one).
+    Raises InputError when match.json has no accepted hypothesis.
+    """
+    params = params or Params()
+    t0 = time.perf_counter()
+    a, b = read_session(session_a), read_session(session_b)
+    match = read_match(match_json)
+    if not match.accepted or match.transform is None:
+        raise InputError("match has no accepted hypothesis: the sessions cannot be merged", match_json)
+    transform = match.transform
+    used = 0
+    if refine:
+        with_scale = match.transform_kind == "similarity" or not np.isclose(transform.scale, 1.0)
+        transform, used = refine_transform(
+            a, b, match.associations, transform, with_scale, params.association.distance_tolerance_m
+        )
+    result = merge_sessions(
+        [a, b],
+        [Sim3.identity(), transform],
+        [(0, 1, match.associations)],
+        out_dir,
+        labels=list(labels) if labels else None,
+        max_fuse_distance_m=params.association.distance_tolerance_m,
+    )
+    result.refined = bool(refine and used)
+    result.seconds = time.perf_counter() - t0
+    write_merge_record(
+        result,
+        {
+            "match": str(match_json),
+            "match_transform": match.transform.to_dict(),
+            "refine": {"requested": refine, "associations_used": used},
+        },
+    )
+    log.info(
+        "merged %s + %s: %d images, %d points, %d fused landmarks",
+        a.name, b.name, result.num_images, result.num_points3d, result.num_fused,
+    )
+    return result
