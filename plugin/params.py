@@ -41,6 +41,8 @@ class TrackingParams:
     min_score: float = 0.2  # theta_q: minimum q = sqrt(q_s * q_f)
     size_tolerance: float = 0.2  # theta_h: relative size difference at which q_s reaches 0
     sift_ratio: float = 0.8  # Lowe's ratio test for q_f (ours; the paper does not state it)
+    centroid_sigma_px: float = 3.0  # (ours) centroid noise added in quadrature to sigma_p in the motion gate
+    cheirality_check: bool = True  # (ours) reject pairs whose centroid lies behind camera s along the epipolar line
 
 
 @dataclass(frozen=True)

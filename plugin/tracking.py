@@ -1,0 +1,371 @@
+"""Segment tracking across keyframes (SOS-Match method.md 1.5): gates, pair score, one-to-one assignment.
+
+For each keyframe t, the candidate tracks are those whose latest observation (mask i at keyframe s) is at most
+`theta_t` keyframes old. A (track, mask j of keyframe t) pair is feasible only if every gate holds:
+
+- **Epipolar** (`theta_a`): the centroid pair lies within `epipolar_margin_px` of each other's epipolar line.
+  Fundamental matrix from the two fixed poses and K; the distance is the larger of the two point-to-line distances
+  (in image s and image t), so the gate means "within theta_a px in both images". With a (near) zero baseline the
+  epipolar geometry is undefined and the transfer distance through the rotation homography K R K^-1 is used.
+- **Cheirality** *(ours, `cheirality_check`)*: the position of m_j along the epipolar line must correspond to a
+  point in front of camera s, up to `epipolar_margin_px` of slack around the vanishing point of the ray (zero
+  parallax). The paper's motion gate only compares magnitudes, so it accepts both the true partner and its mirror
+  image on the other side of the ray's vanishing point; this removes the mirror at no cost.
+- **Motion** (`theta_v`): `| |m_i - m_j| - mu | / sigma < theta_v`. For a gap of g = t - s keyframes, mu is the
+  sum of the g consecutive `mu_p` (survey legs are straight, so displacements add up) and sigma combines the g
+  `sigma_p` and the centroid noise of both masks in quadrature:
+  `sigma = sqrt(sum sigma_p^2 + 2 centroid_sigma_px^2)` *(ours)*. Without the centroid term a pure translation
+  over flat ground gives sigma_p ~ 0.1 px and the gate would reject every segment whose centroid jitters by 1 px.
+- **Score** (`theta_q`): `q = sqrt(q_s q_f) >= min_score`, with the size score
+  `q_s = 1 + cos(pi r / theta_h)` if `r = 2|h_i - h_j| / (h_i + h_j) < theta_h` else 0 (in [0, 2] as in the
+  paper) and the feature score q_f defined below.
+
+**q_f** *(ours, the paper says "fraction of SIFT features of A_i and A_j that survive Lowe's ratio test")*: match
+A_i against A_j with the ratio test in both directions (nearest / second-nearest descriptor distance within the
+other mask's set < `sift_ratio`; a set with a single descriptor has no second neighbour and passes the ratio test
+trivially) and keep mutual nearest neighbours; every kept match makes one feature of A_i and one of A_j survive, so
+`q_f = 2 |matches| / (|A_i| + |A_j|)` (a Dice coefficient, in [0, 1]; 0 when either mask has no SIFT feature).
+Descriptors are L2-normalised first, so the ratio test is scale-free.
+
+Feasible pairs are assigned one-to-one by the Hungarian algorithm maximising the sum of q over all candidate tracks
+(of every age) at once; unmatched masks start new tracks. Only pairs that pass the cheap matrix gates get SIFT
+matching, batched as one padded matrix product per chunk of pairs. Deterministic: no randomness anywhere.
+
+Defaults of `theta_a` and `theta_t` were chosen on synthetic sessions (see `TrackingParams` and BENCHMARKS.md,
+"Tracking parameters"; `tools/benchmarks/bench_tracking.py` regenerates the table).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .geometry import Camera, Poses
+from .mask_features import MaskFeatures
+from .params import TrackingParams
+
+logger = logging.getLogger(__name__)
+
+_MIN_BASELINE_M = 1e-6  # below this the two poses share a centre; fall back to the rotation homography
+_PAIR_CHUNK_ELEMS = 4_000_000  # padded pairs x rows x cols per batched descriptor product (~16 MB float32)
+
+
+@dataclass
+class TrackingResult:
+    """Track id of every mask of every keyframe.
+
+    `track_ids[t][k]` is the track of mask k of keyframe t. Ids start at 0 and increase with first sighting
+    (keyframe, then mask index). Every mask has a track; a track holds at most one mask per keyframe.
+    """
+
+    track_ids: list[np.ndarray]
+    num_tracks: int
+    _obs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    def _index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(order-by-track keyframe idx, mask idx, start offset per track, count per track), cached."""
+        if self._obs is None:
+            tid = np.concatenate([np.asarray(t, np.int64) for t in self.track_ids] + [np.zeros(0, np.int64)])
+            kf = np.concatenate([np.full(len(t), i, np.int64) for i, t in enumerate(self.track_ids)]
+                                + [np.zeros(0, np.int64)])
+            mk = np.concatenate([np.arange(len(t), dtype=np.int64) for t in self.track_ids]
+                                + [np.zeros(0, np.int64)])
+            order = np.argsort(tid, kind="stable")  # stable: observations stay in keyframe order
+            counts = np.bincount(tid, minlength=self.num_tracks).astype(np.int64)
+            starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+            self._obs = (kf[order], mk[order], starts, counts)
+        return self._obs
+
+    def observations(self, track_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """(keyframe indices, mask indices) of one track, in keyframe order."""
+        kf, mk, starts, counts = self._index()
+        if not 0 <= track_id < self.num_tracks:
+            raise IndexError(f"track {track_id} out of range [0, {self.num_tracks})")
+        sl = slice(starts[track_id], starts[track_id] + counts[track_id])
+        return kf[sl], mk[sl]
+
+    def track_lengths(self) -> np.ndarray:
+        """(num_tracks,) number of observations of every track."""
+        return self._index()[3].copy()
+
+    def tracks_longer_than(self, n: int) -> np.ndarray:
+        """Ids of the tracks with MORE than n observations (theta_n semantics), ascending."""
+        return np.flatnonzero(self._index()[3] > n).astype(np.int64)
+
+
+def fundamental_matrix(camera: Camera, poses: Poses, s: int, t: int) -> np.ndarray:
+    """F with x_t^T F x_s = 0 for pixels (COLMAP convention) of keyframes s and t of `poses`."""
+    r_cw, t_cw = poses.cam_from_world()
+    r_rel = r_cw[t] @ r_cw[s].T
+    t_rel = t_cw[t] - r_rel @ t_cw[s]
+    tx = np.array([[0.0, -t_rel[2], t_rel[1]], [t_rel[2], 0.0, -t_rel[0]], [-t_rel[1], t_rel[0], 0.0]])
+    k_inv = np.linalg.inv(camera.K)
+    f = k_inv.T @ tx @ r_rel @ k_inv
+    return f / max(np.linalg.norm(f), 1e-300)
+
+
+def _homog(xy: np.ndarray) -> np.ndarray:
+    return np.concatenate([np.asarray(xy, np.float64).reshape(-1, 2), np.ones((len(xy), 1))], axis=1)
+
+
+def epipolar_distances(camera: Camera, poses: Poses, s: int, t: int, xy_s: np.ndarray, xy_t: np.ndarray) -> np.ndarray:
+    """(n, m) symmetric epipolar distance (px, max of the two point-to-line distances) of all centroid pairs."""
+    hs, ht = _homog(xy_s), _homog(xy_t)
+    baseline = np.linalg.norm(poses.centers[t] - poses.centers[s])
+    if baseline < _MIN_BASELINE_M:
+        r_cw, _ = poses.cam_from_world()
+        h = camera.K @ r_cw[t] @ r_cw[s].T @ np.linalg.inv(camera.K)
+        p = hs @ h.T
+        p = p[:, :2] / p[:, 2:3]
+        return np.linalg.norm(p[:, None, :] - ht[None, :, :2], axis=2)
+    f = fundamental_matrix(camera, poses, s, t)
+    lines_t = hs @ f.T  # (n, 3): epipolar lines in image t of the s points
+    lines_s = ht @ f  # (m, 3): epipolar lines in image s of the t points
+    alg = hs @ f.T @ ht.T  # (n, m): x_t^T F x_s, the shared numerator
+    alg = np.abs(alg)
+    d_t = alg / np.maximum(np.linalg.norm(lines_t[:, :2], axis=1), 1e-300)[:, None]
+    d_s = alg / np.maximum(np.linalg.norm(lines_s[:, :2], axis=1), 1e-300)[None, :]
+    return np.maximum(d_t, d_s)
+
+
+def behind_camera(
+    camera: Camera, poses: Poses, s: int, t: int, xy_s: np.ndarray, xy_t: np.ndarray, slack_px: float
+) -> np.ndarray:
+    """(n, m) True where m_j lies beyond the vanishing point of the ray of m_i, i.e. at negative depth.
+
+    The ray of pixel x_i from camera s is X(Z) = C_s + Z d (Z > 0: in front of camera s). In image t it projects
+    to pi(e + Z v), with e the epipole (image of C_s) and v the image of the direction d (its vanishing point).
+    pi(e + Z v) - pi(v) = w / (v_2 (e_2 + Z v_2)) with w = v_2 e_xy - e_2 v_xy, so points at positive depth that are
+    visible in t (e_2 + Z v_2 > 0) lie on the sign(v_2) w side of the vanishing point, negative depths on the other.
+    The test is made in pixels along that direction; `slack_px` absorbs centroid and pose noise near zero parallax.
+    """
+    r_cw, t_cw = poses.cam_from_world()
+    k = camera.K
+    rays_s = _homog(xy_s) @ np.linalg.inv(k).T  # camera-s directions with unit depth
+    v = rays_s @ (k @ r_cw[t] @ r_cw[s].T).T  # (n, 3) vanishing points in image t (homogeneous)
+    e = k @ (r_cw[t] @ poses.centers[s] + t_cw[t])  # (3,) epipole in image t (homogeneous)
+    w = v[:, 2:3] * e[None, :2] - e[2] * v[:, :2]  # (n, 2) direction of positive depth from the vanishing point
+    w *= np.sign(v[:, 2:3])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vp = v[:, :2] / v[:, 2:3]
+        w_unit = w / np.linalg.norm(w, axis=1, keepdims=True)
+        along = np.einsum("nmk,nk->nm", np.asarray(xy_t, np.float64)[None, :, :] - vp[:, None, :], w_unit)
+    return np.isfinite(along) & (along < -slack_px)
+
+
+def _desc_index(feat: MaskFeatures) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(unit-norm descriptors sorted by owner mask, start offset per mask, count per mask)."""
+    k = len(feat)
+    owner = np.asarray(feat.sift_mask, np.int64).reshape(-1)
+    desc = np.asarray(feat.sift_desc, np.float32).reshape(-1, 128)
+    ok = (owner >= 0) & (owner < k)
+    owner, desc = owner[ok], desc[ok]
+    order = np.argsort(owner, kind="stable")
+    desc = desc[order]
+    desc = desc / np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
+    counts = np.bincount(owner, minlength=k).astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    return desc.astype(np.float32), starts, counts
+
+
+def feature_scores(
+    desc_a: tuple[np.ndarray, np.ndarray, np.ndarray],
+    desc_b: tuple[np.ndarray, np.ndarray, np.ndarray],
+    pairs_a: np.ndarray,
+    pairs_b: np.ndarray,
+    ratio: float,
+) -> np.ndarray:
+    """q_f of mask pairs (pairs_a[p] in set a, pairs_b[p] in set b): Dice fraction of mutual ratio-test matches.
+
+    `desc_*` come from `_desc_index`. All pairs are evaluated together as padded (P, n, m) distance tensors,
+    chunked to bound memory.
+    """
+    da, sa, ca = desc_a
+    db, sb, cb = desc_b
+    n_a, n_b = ca[pairs_a], cb[pairs_b]
+    out = np.zeros(len(pairs_a))
+    live = np.flatnonzero((n_a > 0) & (n_b > 0))
+    if len(live) == 0:
+        return out
+    # Chunk pairs of similar size together so padding stays small.
+    live = live[np.argsort(n_a[live] * n_b[live], kind="stable")]
+    i = 0
+    while i < len(live):
+        nmax, mmax = n_a[live[i]], n_b[live[i]]
+        j = i + 1
+        while j < len(live):
+            nn, mm = max(nmax, n_a[live[j]]), max(mmax, n_b[live[j]])
+            if (j - i + 1) * nn * mm > _PAIR_CHUNK_ELEMS:
+                break
+            nmax, mmax, j = nn, mm, j + 1
+        chunk = live[i:j]
+        out[chunk] = _feature_scores_padded(
+            da, sa[pairs_a[chunk]], n_a[chunk], db, sb[pairs_b[chunk]], n_b[chunk], int(nmax), int(mmax), ratio
+        )
+        i = j
+    return out
+
+
+def _feature_scores_padded(
+    da: np.ndarray, start_a: np.ndarray, n_a: np.ndarray, db: np.ndarray, start_b: np.ndarray, n_b: np.ndarray,
+    nmax: int, mmax: int, ratio: float,
+) -> np.ndarray:
+    ra, rb = np.arange(nmax), np.arange(mmax)
+    valid_a = ra[None, :] < n_a[:, None]  # (P, nmax)
+    valid_b = rb[None, :] < n_b[:, None]
+    ia = np.where(valid_a, start_a[:, None] + ra[None, :], 0)
+    ib = np.where(valid_b, start_b[:, None] + rb[None, :], 0)
+    a, b = da[ia], db[ib]  # (P, nmax, 128), (P, mmax, 128)
+    dot = np.matmul(a, b.transpose(0, 2, 1))
+    dist = np.sqrt(np.maximum(2.0 - 2.0 * dot, 0.0))
+    dist[~(valid_a[:, :, None] & valid_b[:, None, :])] = np.inf
+
+    def nn_ratio(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest index along the last axis, and whether it passes the ratio test."""
+        nn = np.argmin(d, axis=-1)
+        if d.shape[-1] >= 2:
+            two = np.partition(d, 1, axis=-1)
+            d1, d2 = two[..., 0], two[..., 1]
+        else:
+            d1, d2 = d[..., 0], np.full(d.shape[:-1], np.inf)
+        return nn, np.isfinite(d1) & ((d1 < ratio * d2) | ~np.isfinite(d2))
+
+    nn_ab, ok_ab = nn_ratio(dist)  # (P, nmax): for each feature of A, its partner in B
+    nn_ba, ok_ba = nn_ratio(dist.transpose(0, 2, 1))  # (P, mmax)
+    back = np.take_along_axis(nn_ba, nn_ab, axis=1)  # partner's partner
+    ok_back = np.take_along_axis(ok_ba, nn_ab, axis=1)
+    mutual = ok_ab & ok_back & (back == ra[None, :]) & valid_a
+    return 2.0 * mutual.sum(axis=1) / (n_a + n_b)
+
+
+def size_scores(h_i: np.ndarray, h_j: np.ndarray, theta_h: float) -> np.ndarray:
+    """(n, m) q_s = 1 + cos(pi r / theta_h) for r < theta_h else 0, r = 2|h_i - h_j| / (h_i + h_j)."""
+    hi = np.asarray(h_i, np.float64)[:, None]
+    hj = np.asarray(h_j, np.float64)[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = 2.0 * np.abs(hi - hj) / (hi + hj)
+    r = np.where(np.isfinite(r), r, np.inf)
+    return np.where(r < theta_h, 1.0 + np.cos(np.pi * np.minimum(r, theta_h) / theta_h), 0.0)
+
+
+def pair_scores(
+    feat_s: MaskFeatures, masks_s: np.ndarray, feat_t: MaskFeatures, camera: Camera, poses: Poses, s: int, t: int,
+    mu: float, sigma: float, params: TrackingParams,
+    desc_s: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    desc_t: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """(n, m) score q of masks `masks_s` of keyframe s against all masks of keyframe t; 0 where infeasible.
+
+    `mu`, `sigma` are the expected centroid displacement and its standard deviation for this keyframe gap (the
+    centroid-noise term is already included by the caller).
+    """
+    n, m = len(masks_s), len(feat_t)
+    q = np.zeros((n, m))
+    if n == 0 or m == 0:
+        return q
+    xy_s = np.asarray(feat_s.centroids, np.float64)[masks_s]
+    xy_t = np.asarray(feat_t.centroids, np.float64)
+    qs = size_scores(np.asarray(feat_s.sizes)[masks_s], feat_t.sizes, params.size_tolerance)
+    disp = np.linalg.norm(xy_s[:, None, :] - xy_t[None, :, :], axis=2)
+    ok = (qs > 0) & (np.abs(disp - mu) < params.motion_gate_sigmas * max(sigma, 1e-9))
+    if not ok.any():
+        return q
+    ok &= epipolar_distances(camera, poses, s, t, xy_s, xy_t) <= params.epipolar_margin_px
+    if params.cheirality_check and ok.any():
+        ok &= ~behind_camera(camera, poses, s, t, xy_s, xy_t, params.epipolar_margin_px)
+    ii, jj = np.nonzero(ok)
+    if len(ii) == 0:
+        return q
+    desc_s = desc_s if desc_s is not None else _desc_index(feat_s)
+    desc_t = desc_t if desc_t is not None else _desc_index(feat_t)
+    qf = feature_scores(desc_s, desc_t, np.asarray(masks_s)[ii], jj, params.sift_ratio)
+    qq = np.sqrt(qs[ii, jj] * qf)
+    keep = qq >= params.min_score
+    q[ii[keep], jj[keep]] = qq[keep]
+    return q
+
+
+def gap_motion(
+    motion_stats: Sequence[tuple[float, float]], s: int, t: int, centroid_sigma_px: float
+) -> tuple[float, float]:
+    """Expected centroid displacement and its sigma between keyframes s < t (module docstring, motion gate)."""
+    stats = np.asarray([motion_stats[k] for k in range(s + 1, t + 1)], np.float64).reshape(-1, 2)
+    mu = float(np.sum(stats[:, 0]))
+    sigma = float(np.sqrt(np.sum(stats[:, 1] ** 2) + 2.0 * centroid_sigma_px**2))
+    return mu, sigma
+
+
+def track_masks(
+    features: Sequence[MaskFeatures],
+    camera: Camera,
+    keyframe_poses: Poses,
+    motion_stats: Sequence[tuple[float, float]],
+    params: TrackingParams,
+) -> TrackingResult:
+    """Track the masks of a keyframe sequence (method.md 1.5).
+
+    Args:
+        features: per keyframe, its mask description (centroids, sizes, SIFT sets).
+        camera: intrinsics of every keyframe (pixels in COLMAP convention, as the centroids).
+        keyframe_poses: pose of every keyframe, same order as `features`.
+        motion_stats: motion_stats[t] = (mu_p, sigma_p) between keyframes t-1 and t (entry 0 unused), e.g. from
+            `sosmatch.plugin.motion.image_motion_stats`.
+        params: tracking parameters.
+
+    Returns:
+        TrackingResult with a track id for every mask.
+    """
+    n_kf = len(features)
+    if len(keyframe_poses) != n_kf or len(motion_stats) != n_kf:
+        raise ValueError(
+            f"features ({n_kf}), keyframe_poses ({len(keyframe_poses)}) and motion_stats ({len(motion_stats)}) "
+            "must have one entry per keyframe"
+        )
+    max_age = max(1, int(params.max_track_age_keyframes))
+    last_kf = np.zeros(0, np.int64)  # per track: keyframe of its latest observation
+    last_mask = np.zeros(0, np.int64)  # per track: mask index of its latest observation
+    track_ids: list[np.ndarray] = []
+    desc_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    n_matched = 0
+    for t in range(n_kf):
+        feat_t = features[t]
+        m = len(feat_t)
+        ids = np.full(m, -1, np.int64)
+        cand = np.flatnonzero(last_kf >= t - max_age) if m else np.zeros(0, np.int64)
+        if len(cand):
+            desc_cache[t] = _desc_index(feat_t)
+            q = np.zeros((len(cand), m))
+            for s in np.unique(last_kf[cand]):
+                rows = np.flatnonzero(last_kf[cand] == s)
+                if s not in desc_cache:
+                    desc_cache[s] = _desc_index(features[s])
+                mu, sigma = gap_motion(motion_stats, int(s), t, params.centroid_sigma_px)
+                q[rows] = pair_scores(
+                    features[s], last_mask[cand[rows]], feat_t, camera, keyframe_poses, int(s), t, mu, sigma,
+                    params, desc_cache[s], desc_cache[t],
+                )
+            r_any = np.flatnonzero(q.max(axis=1) > 0)
+            c_any = np.flatnonzero(q.max(axis=0) > 0)
+            if len(r_any) and len(c_any):
+                sub = q[np.ix_(r_any, c_any)]
+                rr, cc = linear_sum_assignment(sub, maximize=True)
+                good = sub[rr, cc] > 0  # infeasible pairs (0) fill the assignment but are not matches
+                rows, cols = r_any[rr[good]], c_any[cc[good]]
+                ids[cols] = cand[rows]
+                n_matched += len(rows)
+        new = np.flatnonzero(ids < 0)
+        ids[new] = len(last_kf) + np.arange(len(new))
+        last_kf = np.concatenate([last_kf, np.full(len(new), t, np.int64)])
+        last_mask = np.concatenate([last_mask, np.zeros(len(new), np.int64)])
+        last_kf[ids] = t
+        last_mask[ids] = np.arange(m)
+        track_ids.append(ids)
+        for old in [k for k in desc_cache if k < t - max_age]:  # descriptors older than theta_t are never needed
+            del desc_cache[old]
+    logger.info("tracked %d masks over %d keyframes into %d tracks (%d matches)",
+                sum(len(x) for x in track_ids), n_kf, len(last_kf), n_matched)
+    return TrackingResult(track_ids=track_ids, num_tracks=len(last_kf))
