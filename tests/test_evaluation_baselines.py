@@ -42,7 +42,7 @@ def test_baseline_separates_overlap_from_unrelated(name):
     assert fa.nbytes == sum(k.nbytes + d.nbytes for k, d in zip(fa.keypoints, fa.descriptors)) > 0
     counts, seconds = backend.match_all(fa, fb, config)
     assert counts.shape == (2, 2) and seconds >= 0
-    assert counts[0, 0] >= 30  # the warped copy
+    assert counts[0, 0] >= 20  # the warped copy
     assert counts[0, 0] > 2 * max(counts[0, 1], counts[1, 0], counts[1, 1])
     again, _ = backend.match_all(fa, fb, config)
     np.testing.assert_array_equal(counts, again)  # deterministic

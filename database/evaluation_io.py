@@ -1,0 +1,206 @@
+"""Inputs of the evaluation read with validation: terrain, landmark observers, match.json hypotheses.
+
+Only these functions know the layouts, so a schema change elsewhere is one edit here.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..plugin.errors import InputError
+from ..plugin.evaluation.footprints import FlatGround, HeightField
+
+# Key names accepted in terrain.npz for the height grid and its georeferencing.
+_Z_KEYS = ("z", "height", "heights", "elevation", "dem")
+
+
+def read_terrain_npz(path: str | Path) -> HeightField:
+    """A height field from terrain.npz.
+
+    Accepted layouts: a 2-D grid (`z`, `height`, `heights`, `elevation` or `dem`, indexed [row=y, col=x]) with
+    either axis vectors `x`, `y` (regular spacing) or scalars `x0`, `y0`, `dx`, `dy` (`cell`/`resolution` for a
+    square cell; `origin` as [x0, y0]).
+    """
+    path = Path(path)
+    try:
+        data = dict(np.load(path, allow_pickle=False))
+    except FileNotFoundError:
+        raise InputError("terrain file not found", path) from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot read terrain file: {exc}", path) from None
+    key = next((k for k in _Z_KEYS if k in data), None)
+    if key is None:
+        raise InputError(f"no height grid (one of {', '.join(_Z_KEYS)}) in {sorted(data)}", path)
+    z = np.asarray(data[key], dtype=np.float64)
+    if z.ndim != 2:
+        raise InputError(f"height grid must be 2-D, got shape {z.shape}", path)
+
+    def scalar(*names: str) -> float | None:
+        for n in names:
+            if n in data:
+                return float(np.asarray(data[n]).reshape(-1)[0])
+        return None
+
+    if "x" in data and "y" in data and np.asarray(data["x"]).ndim == 1:
+        xs, ys = np.asarray(data["x"], float), np.asarray(data["y"], float)
+        if len(xs) != z.shape[1] or len(ys) != z.shape[0]:
+            raise InputError(f"axis lengths {len(xs)}, {len(ys)} do not fit grid {z.shape}", path)
+        x0, y0, dx, dy = xs[0], ys[0], xs[1] - xs[0], ys[1] - ys[0]
+    else:
+        x0, y0 = scalar("x0", "x_min", "xmin"), scalar("y0", "y_min", "ymin")
+        if (x0 is None or y0 is None) and "origin" in data:
+            x0, y0 = (float(v) for v in np.asarray(data["origin"], float).reshape(-1)[:2])
+        cell = scalar("cell", "cell_m", "resolution", "spacing")
+        dx, dy = scalar("dx") or cell, scalar("dy") or cell
+        if None in (x0, y0, dx, dy):
+            raise InputError(f"cannot find the grid origin and spacing in {sorted(data)}", path)
+    try:
+        return HeightField(z, float(x0), float(y0), float(dx), float(dy))
+    except ValueError as exc:
+        raise InputError(str(exc), path) from None
+
+
+def read_dem(path: str | Path) -> HeightField:
+    """A north-up elevation raster (GeoTIFF etc., via rasterio) as a height field in the raster's CRS."""
+    import rasterio
+
+    path = Path(path)
+    try:
+        with rasterio.open(path) as src:
+            z = src.read(1).astype(np.float64)
+            tr = src.transform
+            nodata = src.nodata
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"cannot read elevation raster: {exc}", path) from None
+    if tr.b != 0 or tr.d != 0:
+        raise InputError("rotated rasters are not supported", path)
+    if nodata is not None:
+        z[z == nodata] = np.nan
+    if np.isnan(z).all():
+        raise InputError("elevation raster holds no data", path)
+    z = np.where(np.isnan(z), np.nanmedian(z), z)
+    # Pixel centres: x = c + a (col + 0.5), y = f + e (row + 0.5).
+    return HeightField(z, tr.c + 0.5 * tr.a, tr.f + 0.5 * tr.e, tr.a, tr.e)
+
+
+def terrain_of_session(session: Path, dem: str | Path | None = None, ground_height: float = 0.0
+                       ) -> FlatGround | HeightField:
+    """The terrain for ground truth: `dem` if given, else SESSION/terrain.npz if present, else a flat ground."""
+    if dem is not None:
+        return read_dem(dem)
+    npz = Path(session) / "terrain.npz"
+    if npz.exists():
+        return read_terrain_npz(npz)
+    return FlatGround(ground_height)
+
+
+@dataclass
+class LandmarkTable:
+    """landmarks.csv of a mapped session: positions (N, 3), sizes (N,), observer image names per landmark."""
+
+    positions: np.ndarray
+    sizes: np.ndarray
+    image_names: list[list[str]]
+
+
+def read_landmark_table(path: str | Path) -> LandmarkTable:
+    """Read landmarks.csv (index,point3d_id,x,y,z,size_m,num_observations,image_names space-separated)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError("landmark table not found", path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read landmark table: {exc}", path) from None
+    header = None
+    rows: dict[int, tuple[list[float], list[str]]] = {}
+    for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):
+        if not row or row[0].lstrip().startswith("#"):
+            continue
+        if header is None:
+            header = [c.strip() for c in row]
+            missing = [c for c in ("index", "x", "y", "z", "size_m", "image_names") if c not in header]
+            if missing:
+                raise InputError(f"landmark table lacks column(s) {', '.join(missing)}", path, lineno)
+            col = {c: header.index(c) for c in header}
+            continue
+        try:
+            idx = int(row[col["index"]])
+            vals = [float(row[col[c]]) if row[col[c]].strip() else float("nan") for c in ("x", "y", "z", "size_m")]
+            names = row[col["image_names"]].split()
+        except (ValueError, IndexError):
+            raise InputError("malformed landmark row", path, lineno) from None
+        if idx in rows:
+            raise InputError(f"duplicate landmark index {idx}", path, lineno)
+        rows[idx] = (vals, names)
+    if header is None:
+        raise InputError("landmark table is empty (no header)", path)
+    if sorted(rows) != list(range(len(rows))):
+        raise InputError("landmark indices must be 0..N-1 without gaps", path)
+    vals = np.array([rows[i][0] for i in range(len(rows))], dtype=np.float64).reshape(-1, 4)
+    return LandmarkTable(vals[:, :3], vals[:, 3], [rows[i][1] for i in range(len(rows))])
+
+
+@dataclass
+class MatchHypotheses:
+    """Every window-pair hypothesis of a match.json: associations, |S|, whether it passed the gravity check."""
+
+    associations: list[np.ndarray]
+    sizes: np.ndarray
+    gravity_ok: np.ndarray
+    accepted: np.ndarray
+    seconds: float | None
+    min_associations: int | None
+    raw: dict
+
+
+def read_match_hypotheses(path: str | Path, max_gravity_angle_deg: float = 22.5) -> MatchHypotheses:
+    """Read match.json's `hypotheses` (each with `associations`, optional `accepted`, `tilt_deg`, `transform`).
+
+    A hypothesis passes the gravity check when its transform exists and its tilt (or max |roll|, |pitch|) is
+    at most `max_gravity_angle_deg`; without those fields, `accepted` or a present transform decides.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "match.json"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("match file not found", path) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read match file: {exc}", path) from None
+    hyps = data.get("hypotheses") if isinstance(data, dict) else None
+    if not isinstance(hyps, list):
+        raise InputError("match file needs a 'hypotheses' list", path)
+    assoc, sizes, ok, acc = [], [], [], []
+    for k, h in enumerate(hyps):
+        try:
+            a = np.asarray(h.get("associations") or [], dtype=np.int64).reshape(-1, 2)
+        except (AttributeError, TypeError, ValueError):
+            raise InputError(f"hypothesis {k}: associations must be [[index_a, index_b], ...]", path) from None
+        tilt = h.get("tilt_deg")
+        if tilt is None and h.get("roll_deg") is not None and h.get("pitch_deg") is not None:
+            tilt = max(abs(float(h["roll_deg"])), abs(float(h["pitch_deg"])))
+        has_t = h.get("transform") is not None
+        if tilt is not None:
+            good = has_t and tilt is not None and np.isfinite(float(tilt)) and float(tilt) <= max_gravity_angle_deg
+        else:
+            good = bool(h.get("accepted", has_t))
+        assoc.append(a)
+        sizes.append(len(a))
+        ok.append(bool(good))
+        acc.append(bool(h.get("accepted", False)))
+    timings = data.get("timings") or {}
+    seconds = data.get("search_seconds", timings.get("total_s") if isinstance(timings, dict) else None)
+    params = data.get("params") or {}
+    theta = None
+    if isinstance(params, dict):
+        theta = (params.get("association") or {}).get("min_associations", params.get("min_associations"))
+    return MatchHypotheses(assoc, np.asarray(sizes, dtype=np.int64), np.asarray(ok, bool), np.asarray(acc, bool),
+                           None if seconds is None else float(seconds), theta, data)

@@ -1,0 +1,47 @@
+"""`sosmatch evaluate A B --out DIR`: the paper's table and PR figure for one session pair, baselines beside."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ._common import add_params_arguments, params_from_args
+
+NAME = "evaluate"
+HELP = "score SOS-Match and the ORB/SIFT+RANSAC baselines against footprint-IoU ground truth (table + PR plot)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("session_a", type=Path, help="session directory with poses.csv (ground truth), cameras.txt, "
+                        "images/ and optionally terrain.npz")
+    parser.add_argument("session_b", type=Path, help="the other session directory")
+    parser.add_argument("--out", type=Path, required=True, help="output directory (evaluation.md/.json, pr.png, "
+                        "overlay.png)")
+    parser.add_argument("--map-a", type=Path, help="mapped session of A (default: SESSION_A if it holds landmarks)")
+    parser.add_argument("--map-b", type=Path, help="mapped session of B (default: SESSION_B if it holds landmarks)")
+    parser.add_argument("--match", type=Path, help="score this `sosmatch match` output instead of searching here")
+    parser.add_argument("--methods", default="sosmatch,orb_ransac,sift_ransac",
+                        help="comma-separated subset of sosmatch,orb_ransac,sift_ransac")
+    parser.add_argument("--case", help="case name for the table")
+    parser.add_argument("--dem", type=Path, help="elevation raster for the footprints (default: terrain.npz or "
+                        "flat ground)")
+    parser.add_argument("--ground-height", type=float, default=0.0, help="height of the flat ground (m)")
+    parser.add_argument("--sweep-floor", type=int, default=2, help="theta_S floor of the precision-recall sweep")
+    parser.add_argument("--repeats", type=int, default=3, help="timing repeats of the search (median)")
+    parser.add_argument("--max-observers", type=int, help="claims use only the N observers nearest each landmark")
+    parser.add_argument("--baseline-threads", type=int, default=0, help="cv2.setNumThreads (0: OpenCV default)")
+    add_params_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ...workflows.evaluate import run as evaluate
+
+    params = params_from_args(args)
+    result = evaluate(
+        params, args.session_a, args.session_b, args.out, map_a=args.map_a, map_b=args.map_b, match_dir=args.match,
+        methods=[m.strip() for m in args.methods.split(",") if m.strip()], case=args.case, dem=args.dem,
+        ground_height=args.ground_height, sweep_floor=args.sweep_floor, repeats=args.repeats,
+        max_observers=args.max_observers, baseline_threads=args.baseline_threads,
+    )
+    print((Path(args.out) / "evaluation.md").read_text(encoding="utf-8"), end="")
+    return 0 if result["rows"] is not None else 1

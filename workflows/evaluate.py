@@ -1,0 +1,361 @@
+"""Evaluate cross-session matching like the paper (`sosmatch evaluate`): Table I and the precision-recall figure.
+
+`run(params, session_a, session_b, out_dir, ...)`:
+  1. ground truth: keyframes every `keyframes.interval_m` on the ground-truth poses (poses.csv) of each
+     session, their ground footprints on the terrain (SESSION/terrain.npz, an elevation raster, or a flat
+     ground) and the IoU of every cross-session keyframe pair (plugin/evaluation);
+  2. SOS-Match: the windowed search between the two landmark maps (in-process, or the hypotheses of a given
+     match.json), its hypotheses turned into keyframe-pair claims scored by |S| (plugin/evaluation/claims.py);
+  3. baselines (tools/baselines): ORB+RANSAC and SIFT+RANSAC on the same keyframe images, scored by inliers;
+  4. the PR curve of every method, recall at precision >= 0.99, average F1, mean search time, map size;
+  5. writes evaluation.json, evaluation.md (the table), pr.png and overlay.png into `out_dir`, each atomically.
+
+Search time of SOS-Match is the median of `repeats` runs of the search at the configured theta_S (the
+operating point); the curve comes from one run with theta_S lowered to `sweep_floor` so that hypotheses with
+small |S| are kept (the solver only runs where a set larger than theta_S can exist). Map size is the mean of the
+two sessions' maps: landmarks.sosmap bytes for SOS-Match, keypoints + descriptors bytes for the baselines.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import statistics
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..database.atomic import atomic_path, write_text_atomic
+from ..database.cameras import read_cameras_txt
+from ..database.evaluation_io import read_landmark_table, read_match_hypotheses, terrain_of_session
+from ..database.landmark_map import read_landmark_map
+from ..database.poses import read_poses_csv
+from ..plugin.errors import InputError
+from ..plugin.evaluation.claims import Hypothesis, claim_scores, observer_matrix
+from ..plugin.evaluation.footprints import footprint_polygons
+from ..plugin.evaluation.iou import iou_matrix
+from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, pr_curve
+from ..plugin.keyframes import select_keyframes
+from ..plugin.params import Params
+
+log = logging.getLogger(__name__)
+
+METHODS = ("sosmatch", "orb_ransac", "sift_ransac")
+LABELS = {"sosmatch": "SOS-Match (ours)", "orb_ransac": "ORB+RANSAC", "sift_ransac": "SIFT+RANSAC"}
+
+
+@dataclasses.dataclass
+class GroundTruthSession:
+    """Keyframes of one session with ground-truth poses and footprints."""
+
+    path: Path
+    names: list[str]  # keyframe image names
+    frame_index: np.ndarray  # keyframe -> row of poses.csv
+    centers: np.ndarray  # (K, 3) ground-truth camera centres of the keyframes
+    all_names: list[str]
+    all_centers: np.ndarray
+    footprints: np.ndarray  # (K,) shapely polygons
+
+
+def load_ground_truth(params: Params, session: str | Path, dem: str | Path | None = None,
+                      ground_height: float = 0.0, poses_file: str = "poses.csv") -> GroundTruthSession:
+    """Keyframes (by travel on the ground-truth poses) and their footprints for one session directory."""
+    session = Path(session)
+    poses, _ = read_poses_csv(session / poses_file)
+    if len(poses) == 0:
+        raise InputError("no poses", session / poses_file)
+    cameras = read_cameras_txt(session / "cameras.txt")
+    camera = cameras[min(cameras)]
+    keys = select_keyframes(poses.centers, params.keyframes.interval_m)
+    terrain = terrain_of_session(session, dem, ground_height)
+    polys = footprint_polygons(camera, poses.rotations[keys], poses.centers[keys], terrain)
+    return GroundTruthSession(session, [poses.names[k] for k in keys], keys, poses.centers[keys],
+                              list(poses.names), poses.centers, polys)
+
+
+def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path) -> np.ndarray:
+    """Evaluation keyframe index of each image name: the keyframe nearest to the image's ground-truth centre.
+
+    Mapping may pick its keyframes on noisy (EKF) poses, so its images need not be the evaluation keyframes;
+    at 2 m keyframe spacing against footprints ~100 m wide, snapping to the nearest one changes IoU by ~2 %.
+    """
+    from scipy.spatial import cKDTree
+
+    row = {n: i for i, n in enumerate(gt.all_names)}
+    missing = [n for n in names if n not in row]
+    if missing:
+        raise InputError(f"{len(missing)} image name(s) not in {gt.path / 'poses.csv'}, e.g. {missing[0]!r}", where)
+    idx = np.fromiter((row[n] for n in names), dtype=np.int64, count=len(names))
+    _, kf = cKDTree(gt.centers).query(gt.all_centers[idx]) if len(idx) else (None, np.zeros(0, np.int64))
+    return np.asarray(kf, dtype=np.int64)
+
+
+def _observers(gt: GroundTruthSession, map_dir: Path, max_observers: int | None) -> tuple[Any, Any]:
+    table = read_landmark_table(map_dir / "landmarks.csv")
+    flat = [n for names in table.image_names for n in names]
+    kf = _keyframe_of_names(gt, flat, map_dir / "landmarks.csv")
+    splits = np.cumsum([len(n) for n in table.image_names])[:-1]
+    obs = np.split(kf, splits) if len(table.image_names) else []
+    return observer_matrix(obs, len(gt.names), table.positions[:, :2], gt.centers[:, :2], max_observers), table
+
+
+def _map_arrays(map_dir: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """Landmark positions, sizes and the map's byte size (landmarks.sosmap if present, else the csv)."""
+    sosmap = map_dir / "landmarks.sosmap"
+    if sosmap.exists():
+        lmap = read_landmark_map(sosmap)
+        return lmap.positions, lmap.sizes.astype(np.float64), sosmap.stat().st_size
+    table = read_landmark_table(map_dir / "landmarks.csv")
+    return table.positions, table.sizes, 52 + 14 * len(table.positions)
+
+
+def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSession, map_a: Path, map_b: Path,
+                  match_dir: Path | None, sweep_floor: int, repeats: int, max_observers: int | None) -> dict:
+    from ..plugin.association.windowed_search import search
+
+    obs_a, _ = _observers(gt_a, map_a, max_observers)
+    obs_b, _ = _observers(gt_b, map_b, max_observers)
+    pa, ha, bytes_a = _map_arrays(map_a)
+    pb, hb, bytes_b = _map_arrays(map_b)
+    if obs_a.shape[0] != len(pa) or obs_b.shape[0] != len(pb):
+        raise InputError("landmarks.csv and landmarks.sosmap disagree on the number of landmarks", map_a)
+    assoc_params = params.association
+    out: dict[str, Any] = {"map_bytes": [bytes_a, bytes_b], "landmarks": [len(pa), len(pb)]}
+    best = None
+    if match_dir is not None:
+        hyps = read_match_hypotheses(match_dir, assoc_params.max_gravity_angle_deg)
+        hypotheses = [Hypothesis(a, float(s), bool(ok)) for a, s, ok in zip(hyps.associations, hyps.sizes,
+                                                                           hyps.gravity_ok)]
+        out["search_seconds"] = hyps.seconds
+        out["search_seconds_runs"] = [hyps.seconds]
+        out["curve_floor_theta_S"] = hyps.min_associations
+        accepted = np.flatnonzero(hyps.accepted)
+        if len(accepted):
+            k = accepted[np.argmax(hyps.sizes[accepted])]
+            best = {"associations": hyps.associations[k].tolist(), "transform": None}
+    else:
+        times = []
+        result = None
+        for _ in range(max(1, repeats)):
+            t0 = time.perf_counter()
+            result = search(pa, ha, pb, hb, assoc_params)
+            times.append(time.perf_counter() - t0)
+        out["search_seconds"] = statistics.median(times)
+        out["search_seconds_runs"] = times
+        floor = min(sweep_floor, assoc_params.min_associations)
+        sweep = search(pa, ha, pb, hb, dataclasses.replace(assoc_params, min_associations=floor))
+        out["curve_floor_theta_S"] = floor
+        hypotheses = [
+            Hypothesis(h.associations, float(h.size),
+                       h.transform is not None and bool(h.tilt_deg <= assoc_params.max_gravity_angle_deg))
+            for h in sweep.hypotheses
+        ]
+        if result is not None and result.best is not None:
+            h = result.hypotheses[result.best]
+            best = {"associations": h.associations.tolist(), "transform": h.transform.to_matrix().tolist()}
+        out["accepted_hypotheses"] = 0 if result is None else len(result.accepted)
+        out["window_pairs"] = 0 if result is None else result.num_window_pairs
+    out["num_hypotheses"] = len(hypotheses)
+    out["scores"] = claim_scores(hypotheses, obs_a, obs_b)
+    out["best"] = best
+    out["positions"] = (pa, pb)
+    return out
+
+
+def _load_images(gt: GroundTruthSession, image_dir: Path) -> list[np.ndarray]:
+    import cv2
+
+    images = []
+    for name in gt.names:
+        img = cv2.imread(str(image_dir / name), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise InputError("cannot read keyframe image", image_dir / name)
+        images.append(img)
+    return images
+
+
+def _run_baseline(name: str, gt_a: GroundTruthSession, gt_b: GroundTruthSession, images_a: list[np.ndarray],
+                  images_b: list[np.ndarray], config: Any) -> dict:
+    from ..tools.baselines import get_backend
+
+    backend = get_backend(name)
+    fa, fb = backend.extract(images_a, config), backend.extract(images_b, config)
+    counts, seconds = backend.match_all(fa, fb, config)
+    scores = counts.astype(np.float64)
+    scores[counts <= 0] = np.nan  # no (or too few) matches: no claim at any threshold
+    return {"search_seconds": seconds, "search_seconds_runs": [seconds], "extract_seconds": fa.seconds + fb.seconds,
+            "map_bytes": [fa.nbytes, fb.nbytes], "scores": scores}
+
+
+def _row(case: str, method: str, res: dict) -> dict:
+    s = res["curve"].summary
+    return {"case": case, "method": LABELS.get(method, method), "search_s": res["search_seconds"],
+            "map_mb": float(np.mean(res["map_bytes"])) / 1e6, "average_f1": s["average_f1"],
+            "recall_at_p99": s["recall_at_p99"], "f1_at_p99": s["f1_at_p99"], "f1_at_r99": s["f1_at_r99"],
+            "recall_reached": s["recall_reached"]}
+
+
+def format_table(rows: Sequence[dict]) -> str:
+    """Markdown table: case, method, search time, map size, average F1, recall at P >= 0.99."""
+    lines = ["| case | method | search time (s) | map size (MB) | average F1 | recall at P >= 0.99 |",
+             "|---|---|---:|---:|---:|---:|"]
+    for r in rows:
+        t = "n/a" if r["search_s"] is None else f"{r['search_s']:.3g}"
+        lines.append(f"| {r['case']} | {r['method']} | {t} | {r['map_mb']:.4g} | {r['average_f1']:.3f} "
+                     f"| {r['recall_at_p99']:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_pr(curves: dict[str, PRCurve], path: Path, title: str) -> None:
+    """Precision-recall curves of every method into a PNG (written atomically)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.2), dpi=110)
+    for method, c in curves.items():
+        if len(c.recall):
+            ax.step(np.r_[0.0, c.recall], np.r_[1.0, c.precision], where="post", label=LABELS.get(method, method))
+        else:
+            ax.plot([], [], label=f"{LABELS.get(method, method)} (no claims)")
+    ax.axhline(0.99, color="grey", lw=0.6, ls=":")
+    ax.set(xlabel="recall", ylabel="precision", xlim=(0, 1.02), ylim=(0, 1.02), title=title)
+    ax.legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict | None, path: Path, title: str) -> None:
+    """Both flights' keyframe footprints and paths, both landmark maps, and the best hypothesis' associations."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import shapely
+
+    fig, ax = plt.subplots(figsize=(6.5, 6), dpi=110)
+    for gt, color, label in ((gt_a, "tab:blue", "A"), (gt_b, "tab:orange", "B")):
+        step = max(1, len(gt.footprints) // 40)
+        for poly in gt.footprints[::step]:
+            if not poly.is_empty and isinstance(poly, shapely.Polygon):
+                x, y = poly.exterior.xy
+                ax.plot(x, y, color=color, lw=0.3, alpha=0.35)
+        ax.plot(gt.centers[:, 0], gt.centers[:, 1], color=color, lw=1.2, label=f"session {label} keyframes")
+    if sos is not None:
+        pa, pb = sos["positions"]
+        ax.scatter(pa[:, 0], pa[:, 1], s=6, color="tab:blue", marker="o", label=f"landmarks A ({len(pa)})")
+        ax.scatter(pb[:, 0], pb[:, 1], s=6, color="tab:orange", marker="x", label=f"landmarks B ({len(pb)})")
+        best = sos.get("best")
+        if best:
+            assoc = np.asarray(best["associations"], dtype=int).reshape(-1, 2)
+            seg_a, seg_b = pa[assoc[:, 0]], pb[assoc[:, 1]]
+            for a, b in zip(seg_a, seg_b):
+                ax.plot([a[0], b[0]], [a[1], b[1]], color="green", lw=0.8)
+            ax.plot([], [], color="green", label=f"best hypothesis |S|={len(assoc)}")
+    ax.set_aspect("equal")
+    ax.set(xlabel="x (m)", ylabel="y (m)", title=title)
+    ax.legend(loc="best", fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def _jsonable(res: dict) -> dict:
+    c: PRCurve = res["curve"]
+    keep = {k: v for k, v in res.items() if k not in ("scores", "curve", "positions")}
+    keep["summary"] = c.summary
+    keep["curve"] = {"thresholds": c.thresholds.tolist(), "precision": c.precision.tolist(),
+                     "recall": c.recall.tolist(), "tp": c.tp.tolist(), "fp": c.fp.tolist()}
+    keep["claimed_pairs"] = int(np.isfinite(res["scores"]).sum())
+    return keep
+
+
+def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: str | Path,
+        map_a: str | Path | None = None, map_b: str | Path | None = None, match_dir: str | Path | None = None,
+        methods: Sequence[str] = METHODS, case: str | None = None, dem: str | Path | None = None,
+        ground_height: float = 0.0, sweep_floor: int = 2, repeats: int = 3, max_observers: int | None = None,
+        baseline_threads: int = 0) -> dict:
+    """Evaluate SOS-Match and the baselines on one session pair; returns the evaluation dict (also written).
+
+    Args:
+        params: method parameters (keyframe interval, association parameters, seed).
+        session_a, session_b: session directories with ground truth: poses.csv (ground-truth poses),
+            cameras.txt, images/ (for the baselines) and optionally terrain.npz.
+        out_dir: receives evaluation.json, evaluation.md, pr.png, overlay.png.
+        map_a, map_b: mapped session directories (landmarks.sosmap, landmarks.csv); default: the session
+            directory itself when it holds landmarks.csv. Needed for "sosmatch".
+        match_dir: a `sosmatch match` output (match.json) to score instead of searching in-process.
+        methods: any of "sosmatch", "orb_ransac", "sift_ransac".
+        case: the case name for the table (default "A vs B" from the directory names).
+        dem: an elevation raster for the footprints (instead of terrain.npz / flat ground at `ground_height`).
+        sweep_floor: theta_S used to collect hypotheses for the curve; repeats: timing repeats of our search.
+        max_observers: per landmark, keep only this many observers (nearest) when forming claims.
+        baseline_threads: cv2.setNumThreads for the baselines (0: OpenCV's default).
+    """
+    from ..tools.baselines.base import BaselineConfig
+
+    session_a, session_b, out_dir = Path(session_a), Path(session_b), Path(out_dir)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
+    case = case or f"{session_a.name} vs {session_b.name}"
+    t0 = time.perf_counter()
+    gt_a = load_ground_truth(params, session_a, dem, ground_height)
+    gt_b = load_ground_truth(params, session_b, dem, ground_height)
+    iou = iou_matrix(gt_a.footprints, gt_b.footprints)
+    log.info("%s: %d x %d keyframes, %d positive pairs (IoU > %.3f), ground truth in %.1f s", case, len(gt_a.names),
+             len(gt_b.names), int((iou > TP_IOU).sum()), TP_IOU, time.perf_counter() - t0)
+    results: dict[str, dict] = {}
+    if "sosmatch" in methods:
+        ma = Path(map_a) if map_a is not None else session_a
+        mb = Path(map_b) if map_b is not None else session_b
+        for m in (ma, mb):
+            if not (m / "landmarks.csv").exists():
+                raise InputError("not a mapped session (no landmarks.csv); run `sosmatch map` first", m)
+        results["sosmatch"] = _run_sosmatch(params, gt_a, gt_b, ma, mb, Path(match_dir) if match_dir else None,
+                                            sweep_floor, repeats, max_observers)
+    baselines = [m for m in methods if m != "sosmatch"]
+    if baselines:
+        images_a, images_b = _load_images(gt_a, session_a / "images"), _load_images(gt_b, session_b / "images")
+        config = BaselineConfig(seed=params.seed, threads=baseline_threads)
+        for m in baselines:
+            log.info("%s: %s on %d x %d keyframe pairs", case, m, len(images_a), len(images_b))
+            results[m] = _run_baseline(m, gt_a, gt_b, images_a, images_b, config)
+    for res in results.values():
+        res["curve"] = pr_curve(res["scores"], iou)
+    rows = [_row(case, m, res) for m, res in results.items()]
+    evaluation = {
+        "case": case,
+        "sessions": [str(session_a), str(session_b)],
+        "keyframes": [len(gt_a.names), len(gt_b.names)],
+        "protocol": {"tp_iou": TP_IOU, "fp_iou": FP_IOU, "keyframe_interval_m": params.keyframes.interval_m,
+                     "positive_pairs": int((iou > TP_IOU).sum()), "negative_pairs": int((iou < FP_IOU).sum())},
+        "rows": rows,
+        "methods": {m: _jsonable(res) for m, res in results.items()},
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plot_pr({m: r["curve"] for m, r in results.items()}, out_dir / "pr.png", case)
+    plot_overlay(gt_a, gt_b, results.get("sosmatch"), out_dir / "overlay.png", case)
+    md = f"# Evaluation: {case}\n\n" + format_table(rows) + (
+        f"\nKeyframes {len(gt_a.names)} x {len(gt_b.names)}; {evaluation['protocol']['positive_pairs']} pairs with "
+        f"IoU > {TP_IOU}, {evaluation['protocol']['negative_pairs']} with IoU < {FP_IOU}.\n\n"
+        "![precision-recall](pr.png)\n\n![map overlay](overlay.png)\n")
+    write_text_atomic(out_dir / "evaluation.md", md)
+    write_text_atomic(out_dir / "evaluation.json", json.dumps(evaluation, indent=1, default=_json_default) + "\n")
+    return evaluation
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serialisable: {type(obj)}")
