@@ -25,7 +25,7 @@ def read_terrain_npz(path: str | Path) -> HeightField:
 
     Accepted layouts: a 2-D grid (`z`, `height`, `heights`, `elevation` or `dem`, indexed [row=y, col=x]) with
     either axis vectors `x`, `y` (regular spacing) or scalars `x0`, `y0`, `dx`, `dy` (`cell`/`resolution` for a
-    square cell; `origin` as [x0, y0]).
+    square cell, `resolution_m` as `sosmatch synth` writes it; `origin` as [x0, y0]).
     """
     path = Path(path)
     try:
@@ -56,7 +56,7 @@ def read_terrain_npz(path: str | Path) -> HeightField:
         x0, y0 = scalar("x0", "x_min", "xmin"), scalar("y0", "y_min", "ymin")
         if (x0 is None or y0 is None) and "origin" in data:
             x0, y0 = (float(v) for v in np.asarray(data["origin"], float).reshape(-1)[:2])
-        cell = scalar("cell", "cell_m", "resolution", "spacing")
+        cell = scalar("resolution_m", "cell", "cell_m", "resolution", "spacing")
         dx, dy = scalar("dx") or cell, scalar("dy") or cell
         if None in (x0, y0, dx, dy):
             raise InputError(f"cannot find the grid origin and spacing in {sorted(data)}", path)

@@ -1,0 +1,57 @@
+"""Evaluation inputs: terrain.npz layouts, landmarks.csv observers, match.json hypotheses."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sosmatch.database.evaluation_io import (
+    read_landmark_table,
+    read_match_hypotheses,
+    read_terrain_npz,
+    terrain_of_session,
+)
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.evaluation.footprints import FlatGround
+
+
+def test_synth_terrain_layout(tmp_path):
+    heights = np.arange(12, dtype=np.float32).reshape(3, 4)  # rows north (+y), columns east (+x)
+    np.savez(tmp_path / "terrain.npz", heights=heights, x0=np.float64(-10), y0=np.float64(5),
+             resolution_m=np.float64(2.0))
+    t = read_terrain_npz(tmp_path / "terrain.npz")
+    assert np.isclose(t(np.array([-10.0 + 2 * 3]), np.array([5.0 + 2 * 2]))[0], heights[2, 3])
+    assert np.isclose(t(np.array([-9.0]), np.array([5.0]))[0], 0.5)
+    assert terrain_of_session(tmp_path).z_range == (0.0, 11.0)
+    assert isinstance(terrain_of_session(tmp_path / "none", ground_height=4.0), FlatGround)
+    np.savez(tmp_path / "bad.npz", nothing=np.zeros(3))
+    with pytest.raises(InputError, match="no height grid"):
+        read_terrain_npz(tmp_path / "bad.npz")
+
+
+def test_landmark_table(tmp_path):
+    p = tmp_path / "landmarks.csv"
+    p.write_text("index,point3d_id,x,y,z,size_m,num_observations,image_names\n"
+                 "1,7,1,2,3,,2,b.jpg c.jpg\n0,5,4,5,6,1.5,1,a.jpg\n")
+    t = read_landmark_table(p)
+    assert t.image_names == [["a.jpg"], ["b.jpg", "c.jpg"]]
+    assert np.allclose(t.positions, [[4, 5, 6], [1, 2, 3]]) and t.sizes[0] == 1.5 and np.isnan(t.sizes[1])
+    p.write_text("index,x,y,z,size_m,image_names\n0,1,2,3,1,a\n2,1,2,3,1,a\n")
+    with pytest.raises(InputError, match="without gaps"):
+        read_landmark_table(p)
+
+
+def test_match_hypotheses_gravity_and_sizes(tmp_path):
+    tf = {"rotation": np.eye(3).tolist(), "translation": [0, 0, 0], "scale": 1.0}
+    data = {"hypotheses": [
+        {"associations": [[0, 1], [2, 3], [4, 5]], "tilt_deg": 1.0, "transform": tf, "accepted": False},
+        {"associations": [[0, 1], [2, 3], [4, 5], [6, 7]], "tilt_deg": 40.0, "transform": tf, "accepted": False},
+        {"associations": [[1, 1]], "transform": None},
+    ], "timings": {"total_s": 1.25}, "params": {"association": {"min_associations": 2}}}
+    (tmp_path / "match.json").write_text(json.dumps(data))
+    h = read_match_hypotheses(tmp_path)
+    assert h.sizes.tolist() == [3, 4, 1] and h.gravity_ok.tolist() == [True, False, False]
+    assert h.seconds == 1.25 and h.min_associations == 2
+    (tmp_path / "match.json").write_text("{}")
+    with pytest.raises(InputError, match="hypotheses"):
+        read_match_hypotheses(tmp_path / "match.json")
