@@ -1,0 +1,198 @@
+"""`sosmatch map` end to end on a tiny rendered session: outputs, accuracy, resume, and bad input via the CLI."""
+
+import json
+import os
+import sqlite3
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from sosmatch.database.cameras import write_cameras_txt
+from sosmatch.database.landmark_map import read_landmark_map
+from sosmatch.database.poses import write_poses_csv
+from sosmatch.database.session_io import read_session
+from sosmatch.plugin.geometry import Camera, Poses
+from sosmatch.plugin.params import Params
+from sosmatch.tools.cli import main
+from sosmatch.workflows import map as map_workflow
+
+pycolmap = pytest.importorskip("pycolmap")
+OUTPUT_NAMES = {"database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "run.json"}
+
+
+def render_session(root: Path, n_frames=25, width=320, height=240, altitude=60.0, n_objects=40, seed=0):
+    """Nadir flight (2 m steps along x) over a flat textured field with coloured discs: images/, poses.csv,
+    cameras.txt. Returns the camera, poses and objects (x, y, radius) on the ground plane z = 0."""
+    rng = np.random.default_rng(seed)
+    cam = Camera(width, height, 0.8 * width, 0.8 * width, width / 2, height / 2)
+    gsd, x0, x1, y0, y1 = 0.1, -40.0, n_frames * 2.0 + 40.0, -35.0, 35.0
+    w, h = int((x1 - x0) / gsd), int((y1 - y0) / gsd)
+    noise = cv2.GaussianBlur(rng.normal(0, 25, (h, w, 3)), (0, 0), 2)
+    ortho = np.clip(rng.integers(70, 110, 3) + noise, 0, 255).astype(np.uint8)
+    objs = np.stack([rng.uniform(x0 + 10, x1 - 10, n_objects), rng.uniform(y0 + 8, y1 - 8, n_objects),
+                     rng.uniform(1.5, 4.0, n_objects)], 1)
+    for x, y, r in objs:
+        color = tuple(int(c) for c in rng.integers(0, 255, 3))
+        cv2.circle(ortho, (int((x - x0) / gsd), int((y1 - y) / gsd)), int(r / gsd), color, -1, cv2.LINE_AA)
+    centers = np.stack([np.arange(n_frames) * 2.0, np.zeros(n_frames), np.full(n_frames, altitude)], 1)
+    names = [f"frame_{i:05d}.jpg" for i in range(n_frames)]
+    (root / "images").mkdir(parents=True)
+    s = altitude / cam.fx / gsd  # ortho pixels per image pixel
+    for name, c in zip(names, centers):
+        # image pixel index i (centre at COLMAP u = i + 0.5) -> ground -> ortho pixel index
+        a = np.array([[s, 0, (c[0] - x0) / gsd - 0.5 + s * (0.5 - cam.cx)],
+                      [0, s, (y1 - c[1]) / gsd - 0.5 + s * (0.5 - cam.cy)]])
+        img = cv2.warpAffine(ortho, a, (width, height), flags=cv2.WARP_INVERSE_MAP | cv2.INTER_AREA)
+        cv2.imwrite(str(root / "images" / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    poses = Poses(names, np.repeat(np.diag([1.0, -1.0, -1.0])[None], n_frames, 0), centers)
+    write_poses_csv(root / "poses.csv", poses)
+    write_cameras_txt(root / "cameras.txt", {1: cam})
+    return cam, poses, objs
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synthetic")
+    cam, poses, objs = render_session(root)
+    out = root / "mapped"
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    summary = map_workflow.run(Params(), inputs, out, progress=False)
+    return root, objs, out, summary
+
+
+def _cli(capsys, *args):
+    code = main(["map", "--no-progress", *map(str, args)])
+    return code, capsys.readouterr()
+
+
+def test_outputs_are_complete_and_consistent(session):
+    root, objs, out, summary = session
+    assert {p.name for p in out.iterdir()} == OUTPUT_NAMES  # no .partial, no temporaries
+    lmap = read_landmark_map(out / "landmarks.sosmap")
+    assert len(lmap) == summary.num_landmarks >= 10
+    assert summary.map_bytes == (out / "landmarks.sosmap").stat().st_size == 52 + 14 * len(lmap)
+    assert np.abs(lmap.origin - np.median(lmap.positions, 0)).max() <= 0.5  # origin near the data
+    # Landmarks sit on the discs: horizontal error to the nearest disc centre, height near the ground.
+    d = np.linalg.norm(lmap.positions[:, None, :2] - objs[None, :, :2], axis=2).min(1)
+    assert np.median(d) < 0.5 and np.median(np.abs(lmap.positions[:, 2])) < 1.5
+    sess = read_session(out)  # the multi-session stages' reader agrees with the map
+    rec = pycolmap.Reconstruction(str(out / "sparse"))
+    assert rec.num_points3D() == len(lmap) and rec.num_reg_images() == summary.num_keyframes
+    for i, pid in enumerate(sess.point3d_ids):
+        assert np.allclose(rec.points3D[int(pid)].xyz, lmap.positions[i], atol=1e-3)
+    ply = (out / "landmarks.ply").read_bytes()
+    assert f"element vertex {len(lmap)}\n".encode() in ply
+    run = json.loads((out / "run.json").read_text())
+    assert run["counts"]["landmarks"] == len(lmap) and run["params"]["triangulation"]["min_observations"] == 5
+    assert set(run["versions"]) >= {"pycolmap", "numpy", "sosmatch"} and len(run["fingerprints"]["inputs"]) == 64
+    db = pycolmap.Database.open(str(out / "database.db"))
+    try:
+        assert db.num_images() == summary.num_keyframes and db.num_keypoints() == summary.num_masks
+    finally:
+        db.close()
+    line = summary.line()
+    assert f"{summary.num_landmarks} landmarks" in line and "\n" not in line
+
+
+def test_interrupted_run_resumes_to_identical_outputs(session, tmp_path):
+    root, _, out_ref, _ = session
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_8(k):
+        if k == 8:
+            raise Stop
+
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    out = tmp_path / "resumed"
+    with pytest.raises(Stop):
+        map_workflow.run(Params(), inputs, out, progress=False, on_keyframe=stop_after_8)
+    assert {p.name for p in out.iterdir()} == {".partial"}  # nothing half-written in the session itself
+    assert len(list((out / ".partial" / "cache").glob("*.npz"))) == 9
+    summary = map_workflow.run(Params(), inputs, out, progress=False)
+    assert summary.keyframes_from_cache == 9
+    for name in ("landmarks.sosmap", "landmarks.csv", "landmarks.ply"):
+        assert (out / name).read_bytes() == (out_ref / name).read_bytes(), name
+    ref, new = pycolmap.Reconstruction(str(out_ref / "sparse")), pycolmap.Reconstruction(str(out / "sparse"))
+    assert sorted(ref.point3D_ids()) == sorted(new.point3D_ids())
+
+
+def test_same_command_again_and_changed_inputs_are_refused(session, tmp_path, capsys):
+    root, _, out, _ = session
+    poses = root / "poses.csv"
+    moved = tmp_path / "poses.csv"
+    moved.write_text(poses.read_text().replace("60.0,", "61.0,"))
+    before = (out / "run.json").read_bytes()
+    code, cap = _cli(capsys, "--images", root / "images", "--poses", moved, "--camera", root / "cameras.txt",
+                     "--out", out)
+    assert code == 2 and "other inputs" in cap.err and len(cap.err.strip().splitlines()) == 1
+    assert (out / "run.json").read_bytes() == before
+
+
+@pytest.mark.parametrize("row, fragment", [
+    ("frame_00003.jpg,6,0,nan,0,1,0,0", "NaN"),
+    ("frame_00003.jpg,6,0,60,0.5,1,0,0", "unit length"),
+    ("frame_00003.jpg,6,0,60,0,1,0", "columns"),
+])
+def test_bad_pose_rows_exit_2_without_output(session, tmp_path, capsys, row, fragment):
+    root = session[0]
+    lines = (root / "poses.csv").read_text().splitlines()
+    idx = next(i for i, line in enumerate(lines) if line.startswith("frame_00003.jpg"))
+    lines[idx] = row
+    bad = tmp_path / "poses.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    code, cap = _cli(capsys, "--images", root / "images", "--poses", bad, "--camera", root / "cameras.txt",
+                     "--out", out)
+    assert code == 2 and fragment in cap.err and f"{bad}:{idx + 1}:" in cap.err
+    assert len(cap.err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_missing_pose_is_skipped_or_strict_error(session, tmp_path, capsys):
+    root = session[0]
+    lines = (root / "poses.csv").read_text().splitlines()
+    short = tmp_path / "poses.csv"
+    short.write_text("\n".join(line for line in lines if not line.startswith("frame_00024")) + "\n")
+    out = tmp_path / "out"
+    args = ["--images", root / "images", "--poses", short, "--camera", root / "cameras.txt", "--out", out]
+    code, cap = _cli(capsys, *args, "--strict")
+    assert code == 2 and "without a pose: frame_00024.jpg" in cap.err and not out.exists()
+    inputs = map_workflow.load_inputs(root / "images", short, root / "cameras.txt")
+    assert len(inputs.image_paths) == 24 and "frame_00024.jpg" not in inputs.poses.names
+
+
+def test_unwritable_output_and_locked_database(session, tmp_path, capsys):
+    root = session[0]
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    args = ["--images", root / "images", "--poses", root / "poses.csv", "--camera", root / "cameras.txt"]
+    code, cap = _cli(capsys, *args, "--out", blocker / "session")
+    assert code == 2 and "cannot write" in cap.err and len(cap.err.strip().splitlines()) == 1
+    out = tmp_path / "locked"
+    out.mkdir()
+    db = out / "database.db"
+    con = sqlite3.connect(db)
+    con.execute("CREATE TABLE t (x)")
+    con.commit()
+    con.execute("BEGIN EXCLUSIVE")
+    try:
+        code, cap = _cli(capsys, *args, "--out", out, "--overwrite")
+    finally:
+        con.rollback()
+        con.close()
+    assert code == 2 and "locked" in cap.err
+    assert {p.name for p in out.iterdir()} == {"database.db"}
+
+
+def test_foreign_directory_needs_overwrite(session, tmp_path, capsys):
+    root = session[0]
+    out = tmp_path / "photos"
+    out.mkdir()
+    (out / "holiday.jpg").write_bytes(b"x")
+    code, cap = _cli(capsys, "--images", root / "images", "--poses", root / "poses.csv", "--camera",
+                     root / "cameras.txt", "--out", out)
+    assert code == 2 and "not a sosmatch session" in cap.err
+    assert os.listdir(out) == ["holiday.jpg"]

@@ -1,0 +1,45 @@
+"""`sosmatch map`: images + fixed poses -> a mapped session (COLMAP database, sparse model, landmark map)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ._common import add_params_arguments, params_from_args
+
+NAME = "map"
+HELP = "build a session's landmark map from images and fixed poses (segments -> tracks -> COLMAP -> landmarks)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--images", type=Path, help="image directory (default: the synth session's images/)")
+    parser.add_argument("--poses", type=Path, required=True,
+                        help="pose CSV (quaternion or yaw/pitch/roll), COLMAP model (dir or images.bin/.txt), "
+                             "or a `sosmatch synth` session directory")
+    parser.add_argument("--camera", type=Path,
+                        help="intrinsics: cameras.txt, cameras.bin or a COLMAP model (default: from --poses)")
+    parser.add_argument("--out", type=Path, required=True, help="session directory to write")
+    parser.add_argument("--convention", choices=["world_from_camera", "camera_from_world"],
+                        help="pose convention of the CSV (overrides its '# convention:' comment)")
+    parser.add_argument("--ekf", action="store_true", help="synth session: use the noisy poses_ekf.csv")
+    parser.add_argument("--strict", action="store_true",
+                        help="images without a pose or poses without an image are an error, not a warning")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a session made from other inputs / write into a non-empty directory")
+    parser.add_argument("--text", action="store_true", help="write sparse/ as a COLMAP text model")
+    parser.add_argument("--keep-cache", action="store_true",
+                        help="keep the per-keyframe cache (OUT/.partial/cache) after a successful run")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_params_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ...workflows import map as map_workflow
+
+    params = params_from_args(args)
+    inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention, args.ekf, args.strict)
+    summary = map_workflow.run(params, inputs, args.out, overwrite=args.overwrite, text_model=args.text,
+                               keep_cache=args.keep_cache, progress=not args.no_progress and sys.stderr.isatty())
+    print(summary.line())
+    return 0
