@@ -1,0 +1,110 @@
+"""Sessions rendered from an orthophoto: a small GeoTIFF written here, exact projection of known marks."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import rasterio
+
+from sosmatch.database.cameras import read_cameras_txt
+from sosmatch.database.poses import read_poses_csv
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.geometry import project
+from sosmatch.tools.cli import main
+from sosmatch.tools.ortho_session import footprint, plan_path
+from sosmatch.workflows.synth_from_ortho import read_orthophoto
+from sosmatch.workflows.synth_from_ortho import run as synth_from_ortho
+
+X0, Y0, RES = 500000.0, 5200000.0, 5.0
+MARKS = [(120, 80), (300, 150), (200, 220), (60, 250), (330, 40)]  # (col, row) of bright squares
+
+
+def write_geotiff(path, crs="EPSG:32614", w=400, h=300):
+    rng = np.random.default_rng(1)
+    img = (rng.integers(40, 90, (3, h, w))).astype(np.uint8)  # dim texture
+    for k, (c, r) in enumerate(MARKS):
+        img[:, r - 2:r + 3, c - 2:c + 3] = 0
+        img[k % 3, r - 2:r + 3, c - 2:c + 3] = 255  # a 25 m square of one pure colour
+    with rasterio.open(path, "w", driver="GTiff", width=w, height=h, count=3, dtype="uint8", crs=crs,
+                       transform=rasterio.Affine(RES, 0.0, X0, 0.0, -RES, Y0)) as dst:
+        dst.write(img)
+    return path
+
+
+def mark_world(c, r):
+    return np.array([X0 + RES * (c + 0.5), Y0 - RES * (r + 0.5), 0.0])
+
+
+def test_rendered_marks_land_where_the_poses_project_them(tmp_path):
+    tif = write_geotiff(tmp_path / "o.tif")
+    out = tmp_path / "s"
+    summary = synth_from_ortho(tif, out, path="lawnmower", gsd_m=2.0, width=320, height=240, hfov_deg=60,
+                               max_tilt_deg=4.0, seed=3)
+    poses, epsg = read_poses_csv(out / "poses.csv")
+    cam = read_cameras_txt(out / "cameras.txt")[1]
+    assert epsg == 32614 and summary["frames"] == len(poses) >= 6
+    assert cam.width == 320 and cam.fx == pytest.approx(160 / np.tan(np.radians(30)))
+    frames = json.loads((out / "frames.json").read_text())["frames"]
+    assert [f["name"] for f in frames] == poses.names
+    hits = 0
+    for i, name in enumerate(poses.names):
+        img = cv2.imread(str(out / "images" / name))[:, :, ::-1].astype(int)
+        for k, (c, r) in enumerate(MARKS):
+            uv, depth = project(cam, poses.rotations[i], poses.centers[i], mark_world(c, r)[None])
+            u, v = uv[0]
+            if depth[0] <= 0 or not (8 <= u < cam.width - 8 and 8 <= v < cam.height - 8):
+                continue
+            # The brightest pixel of the mark's colour near the predicted spot is within 1.5 px of it.
+            chan = img[:, :, k % 3] - img.sum(axis=2) / 3
+            y0, x0 = int(v) - 8, int(u) - 8
+            win = chan[y0:y0 + 17, x0:x0 + 17]
+            yy, xx = np.nonzero(win > 0.6 * win.max())
+            centre = np.array([xx.mean() + x0 + 0.5, yy.mean() + y0 + 0.5])
+            assert np.linalg.norm(centre - uv[0]) < 1.5, (name, k, centre, uv[0])
+            hits += 1
+            # The footprint polygon contains the mark.
+            from shapely.geometry import Point, Polygon
+            assert Polygon(frames[i]["footprint"]).buffer(1.0).contains(Point(mark_world(c, r)[:2]))
+    assert hits >= 10
+    session = json.loads((out / "session.json").read_text())
+    assert session["epsg"] == 32614 and session["ground_z"] == 0.0
+
+
+def test_same_arguments_give_the_same_poses_and_two_dates_share_them(tmp_path):
+    a = synth_from_ortho(write_geotiff(tmp_path / "a.tif"), tmp_path / "sa", path="line", gsd_m=2.0,
+                         width=160, height=120, frames=5)
+    b = synth_from_ortho(write_geotiff(tmp_path / "b.tif"), tmp_path / "sb", path="line", gsd_m=2.0,
+                         width=160, height=120, frames=5)
+    assert a["frames"] == b["frames"] == 5
+    assert (tmp_path / "sa" / "poses.csv").read_text() == (tmp_path / "sb" / "poses.csv").read_text()
+
+
+def test_plan_keeps_footprints_inside_and_overlapping():
+    from sosmatch.tools.ortho_session import camera_for, make_poses
+    cam = camera_for(640, 480, 60.0)
+    bounds = (0.0, 0.0, 4670.0, 3620.0)
+    centers, heads = plan_path(bounds, cam, 2.5 * cam.fx, "lawnmower")
+    poses = make_poses(centers, heads)
+    for i in range(len(poses)):
+        fp = footprint(cam, poses.rotations[i], poses.centers[i])
+        assert fp[:, 0].min() >= -1e-6 and fp[:, 0].max() <= 4670 + 1e-6
+        assert fp[:, 1].min() >= -1e-6 and fp[:, 1].max() <= 3620 + 1e-6
+    # A point in the middle is seen by at least 6 frames.
+    mid = np.array([[2335.0, 1810.0, 0.0]])
+    seen = sum(
+        bool(np.all((uv := project(cam, poses.rotations[i], poses.centers[i], mid)[0][0]) >= 0)
+             and uv[0] < cam.width and uv[1] < cam.height) for i in range(len(poses)))
+    assert seen >= 6
+
+
+def test_errors_are_user_errors(tmp_path, capsys):
+    tif = write_geotiff(tmp_path / "geo.tif", crs="EPSG:4326")
+    with pytest.raises(InputError, match="projected CRS"):
+        read_orthophoto(tif)
+    small = write_geotiff(tmp_path / "small.tif", w=40, h=30)
+    assert main(["synth-from-ortho", str(small), "--out", str(tmp_path / "x"), "--gsd", "5"]) == 2
+    assert "smaller than one footprint" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

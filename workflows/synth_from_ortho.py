@@ -1,0 +1,147 @@
+"""`sosmatch synth-from-ortho`: a session of nadir views with exact poses rendered from a georeferenced orthophoto.
+
+The output has the layout of a synthetic session (docs/ARCHITECTURE.md) without segmentation ground truth:
+    SESSION/session.json   source raster, CRS, flight plan, camera
+    SESSION/cameras.txt    one PINHOLE camera, id 1
+    SESSION/images/        frame_00000.jpg ...
+    SESSION/poses.csv      exact world_from_camera poses, `# crs: EPSG:<the raster's code>`, ground at z = 0
+    SESSION/frames.json    per image: name, visible_object_ids (empty), footprint (ground polygon, world)
+so mapping, matching and evaluation (flat ground at z = 0) consume it unchanged. The same arguments on two
+orthophotos of one area (e.g. NAIP 2009 and 2015) give two sessions flown along the same path with exact,
+shared ground truth.
+
+Scale. NAIP is 5 m/px, so views are rendered at a ground sampling distance of a few m/px (default 2.5 m/px;
+upsampling a 5 m raster 2x keeps every orthophoto pixel visible without inventing detail). With the default
+640x480 camera and 60 degree horizontal field of view that is an altitude of ~1390 m, a footprint of
+1600 x 1200 m, frames every 150 m (each ground point in ~8 consecutive frames of a line) and lines every 800 m
+(50% sidelap), so a pond, tree belt or farmstead is seen in >= 8 and typically ~16 keyframes.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ..database.atomic import atomic_path
+from ..database.cameras import format_cameras_txt
+from ..database.poses import format_poses_csv
+from ..plugin.errors import InputError
+from ..tools import ortho_session as osess
+
+log = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+
+
+def read_orthophoto(path: str | Path) -> osess.Orthophoto:
+    """Read the first three bands of a north-up GeoTIFF in a projected CRS as RGB (pixels equal to the raster's
+    nodata value in every band are invalid; a 4th band is not taken as alpha, since NAIP's 4th band is NIR)."""
+    import rasterio
+
+    path = Path(path)
+    try:
+        with rasterio.open(path) as src:
+            data = src.read()
+            tr, crs, nodata = src.transform, src.crs, src.nodata
+            mask = src.dataset_mask()
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"cannot read orthophoto: {exc}", path) from None
+    if crs is None or not crs.is_projected or crs.to_epsg() is None:
+        raise InputError(f"orthophoto must be in a projected CRS with an EPSG code (metres), got {crs}", path)
+    if tr.b != 0 or tr.d != 0 or tr.a <= 0 or tr.e >= 0:
+        raise InputError("orthophoto must be north-up without rotation", path)
+    if data.dtype != np.uint8:
+        lo, hi = np.percentile(data[:3], [1, 99])
+        data = np.clip((data.astype(np.float64) - lo) / max(hi - lo, 1e-9) * 255, 0, 255).astype(np.uint8)
+    bands = data[:3] if len(data) >= 3 else np.repeat(data[:1], 3, axis=0)
+    rgb = np.ascontiguousarray(np.moveaxis(bands, 0, -1))
+    valid = mask > 0
+    if nodata is not None:
+        valid &= ~np.all(data == nodata, axis=0)
+    if not valid.any():
+        raise InputError("orthophoto holds no valid pixels", path)
+    return osess.Orthophoto(rgb, tr.c, tr.f, tr.a, tr.e, int(crs.to_epsg()), valid)
+
+
+def run(
+    geotiff: str | Path,
+    out: str | Path,
+    path: str = "lawnmower",
+    altitude_m: float | None = None,
+    gsd_m: float = 2.5,
+    width: int = 640,
+    height: int = 480,
+    hfov_deg: float = 60.0,
+    frame_spacing_m: float | None = None,
+    line_spacing_m: float | None = None,
+    heading_deg: float | None = None,
+    offset_m: float = 0.0,
+    frames: int | None = None,
+    max_tilt_deg: float = 0.0,
+    seed: int = 0,
+    jpeg_quality: int = 95,
+) -> dict:
+    """Render the session into `out` (written whole, atomically) and return a summary.
+
+    `altitude_m` wins over `gsd_m` (GSD = altitude / focal length in px). `frames` caps the number of frames
+    (the first ones along the path). `max_tilt_deg` adds a seeded random tilt to every view (poses stay exact).
+    """
+    import cv2
+
+    ortho = read_orthophoto(geotiff)
+    camera = osess.camera_for(width, height, hfov_deg)
+    if altitude_m is None:
+        altitude_m = gsd_m * camera.fx
+    if altitude_m <= 0 or width <= 0 or height <= 0 or not 1.0 < hfov_deg < 170.0:
+        raise InputError("altitude, image size must be positive and the field of view within (1, 170) degrees")
+    try:
+        centers, headings = osess.plan_path(ortho.bounds(), camera, altitude_m, path, frame_spacing_m,
+                                            line_spacing_m, heading_deg, offset_m, frames)
+    except ValueError as exc:
+        raise InputError(str(exc), geotiff) from None
+    if len(centers) == 0:
+        raise InputError("the flight plan has no frames", geotiff)
+    poses = osess.make_poses(centers, headings, max_tilt_deg, seed)
+    out = Path(out)
+    records = []
+    blank = 0
+    with atomic_path(out) as tmp:
+        (tmp / "images").mkdir(parents=True)
+        for i, name in enumerate(poses.names):
+            img = osess.render_view(ortho, camera, poses.rotations[i], poses.centers[i])
+            blank += int(np.mean(np.all(img == 0, axis=2)) > 0.05)
+            ok = cv2.imwrite(str(tmp / "images" / name), img[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
+            if not ok:
+                raise OSError(f"could not write {name}")
+            fp = osess.footprint(camera, poses.rotations[i], poses.centers[i])
+            records.append({"name": name, "visible_object_ids": [], "footprint": fp.round(3).tolist()})
+        (tmp / "cameras.txt").write_text(format_cameras_txt({1: camera}), encoding="utf-8")
+        (tmp / "poses.csv").write_text(format_poses_csv(poses, ortho.epsg), encoding="utf-8")
+        (tmp / "frames.json").write_text(json.dumps({"version": FORMAT_VERSION, "frames": records}), encoding="utf-8")
+        session = {
+            "format": "sosmatch-session", "version": FORMAT_VERSION, "source": "orthophoto",
+            "orthophoto": str(Path(geotiff).resolve()), "epsg": ortho.epsg, "ground_z": 0.0,
+            "orthophoto_gsd_m": abs(ortho.dx),
+            "flight": {"path": path, "altitude_m": float(altitude_m), "gsd_m": float(altitude_m / camera.fx),
+                       "frame_spacing_m": frame_spacing_m, "line_spacing_m": line_spacing_m,
+                       "heading_deg": heading_deg, "offset_m": offset_m, "frames": len(poses),
+                       "max_tilt_deg": max_tilt_deg, "seed": seed},
+            "camera": asdict(camera), "hfov_deg": hfov_deg,
+        }
+        (tmp / "session.json").write_text(json.dumps(session, indent=2), encoding="utf-8")
+    along = height * altitude_m / camera.fx
+    spacing = float(np.median(np.linalg.norm(np.diff(centers[:, :2], axis=0), axis=1))) if len(centers) > 1 else 0.0
+    summary = {"session": str(out), "frames": len(poses), "epsg": ortho.epsg, "altitude_m": float(altitude_m),
+               "gsd_m": float(altitude_m / camera.fx), "footprint_m": [width * altitude_m / camera.fx, along],
+               "frame_spacing_m": spacing,
+               "views_per_point_along_track": math.floor(along / spacing) if spacing else 1,
+               "frames_with_blank_border": blank}
+    if blank:
+        log.warning("%d frames see more than 5%% outside the orthophoto", blank)
+    log.info("rendered %d frames from %s into %s", len(poses), geotiff, out)
+    return summary
