@@ -196,3 +196,24 @@ def test_foreign_directory_needs_overwrite(session, tmp_path, capsys):
                      root / "cameras.txt", "--out", out)
     assert code == 2 and "not a sosmatch session" in cap.err
     assert os.listdir(out) == ["holiday.jpg"]
+
+
+def test_poses_from_a_colmap_model_and_a_synth_session(session, tmp_path):
+    root, _, out, _ = session
+    from_csv = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    from_model = map_workflow.load_inputs(root / "images", out / "sparse" / "images.bin")  # camera from the model
+    assert from_model.poses.names == from_csv.poses.names and from_model.camera == from_csv.camera
+    assert np.allclose(from_model.poses.centers, from_csv.poses.centers, atol=1e-9)
+    assert map_workflow.input_fingerprints(from_model)["images"] == map_workflow.input_fingerprints(from_csv)["images"]
+    # A synth session directory: images/, cameras.txt and poses.csv (or poses_ekf.csv) found inside.
+    synth = tmp_path / "S1"
+    synth.mkdir()
+    (synth / "images").symlink_to(root / "images")
+    for name in ("cameras.txt", "poses.csv"):
+        (synth / name).write_bytes((root / name).read_bytes())
+    (synth / "poses_ekf.csv").write_text((root / "poses.csv").read_text().replace(",60.0,", ",60.5,"))
+    (synth / "session.json").write_text("{}")
+    gt = map_workflow.load_inputs(None, synth)
+    ekf = map_workflow.load_inputs(None, synth, ekf=True)
+    assert gt.camera == from_csv.camera and np.allclose(gt.poses.centers, from_csv.poses.centers)
+    assert np.allclose(ekf.poses.centers[:, 2], 60.5)

@@ -420,9 +420,14 @@ def run(
                                                   progress, on_keyframe)
     timings["keyframes"] = time.perf_counter() - t
 
+    from tqdm import tqdm
+
+    stages = tqdm(total=4, desc="tracking", unit="stage", disable=not progress, leave=False)
     t = time.perf_counter()
     tracking = track_masks(features, inputs.camera, kf_poses, motion, params.tracking)
     timings["tracking"] = time.perf_counter() - t
+    stages.update()
+    stages.set_description("database")
 
     t = time.perf_counter()
     tri = params.triangulation
@@ -433,12 +438,16 @@ def run(
     keypoints = [affine_keypoints(f.centroids, f.covariances) for f in features]
     db_summary = write_colmap_database(partial / "database.db", inputs.camera, kf_poses.names, keypoints, pairs)
     timings["database"] = time.perf_counter() - t
+    stages.update()
+    stages.set_description("triangulation")
 
     t = time.perf_counter()
     pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1 if log.isEnabledFor(logging.DEBUG) else 2)
     landmarks = triangulate_landmarks(partial / "database.db", inputs.camera, kf_poses,
                                       [f.sizes for f in features], tracking.track_ids, tri, seed=params.seed)
     timings["triangulation"] = time.perf_counter() - t
+    stages.update()
+    stages.set_description("outputs")
 
     t = time.perf_counter()
     write_model(landmarks.reconstruction, partial / "sparse", text=text_model)
@@ -450,6 +459,8 @@ def run(
     write_text_atomic(partial / "landmarks.csv",
                       format_landmarks_csv(lmap, landmarks.point3d_ids, landmarks.num_observations, image_names))
     timings["outputs"] = time.perf_counter() - t
+    stages.update()
+    stages.close()
     timings["total"] = time.perf_counter() - t_start
 
     counts = {
