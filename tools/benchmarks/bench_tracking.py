@@ -1,0 +1,228 @@
+"""Tracking parameter sweep: epipolar margin `theta_a` x max track age `theta_t`, with exact and EKF poses.
+
+On a synthetic session (`sosmatch synth`): keyframes by travel (theta_T) on the ground-truth poses (so both pose
+sets see the same keyframes), masks either from the ground-truth label images (`--masks gt`: one mask per visible
+object, the tracker's own errors only) or from a segmentation backend (`--masks classical`), described by the real
+front end (`describe_masks`: centroids, sizes, RootSIFT), image motion from `image_motion_stats`. The mask
+description and motion statistics are computed once; then every (poses, theta_a, theta_t) runs the tracker.
+
+Measured per run, with the object id of a mask = the label at its centroid pixel (0 = background: every such
+observation counts as an object of its own):
+- purity: observation-weighted share of the majority object in tracks with >= 2 observations;
+- mean length of tracks with >= 2 observations;
+- tracked: fraction of the objects seen in >= 6 keyframes that own a track with more than theta_n = 5
+  observations (the ones that can become landmarks);
+- tracks/object: landmark-eligible tracks per tracked object (> 1 means fragmentation into duplicates);
+- time of the tracker alone (median of --repeats).
+
+    .venv/bin/python -m sosmatch.tools.benchmarks.bench_tracking SESSION [--frames 100] [--masks gt]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ...plugin.params import SegmentationParams, TrackingParams
+from .machine import machine_summary
+
+
+def _load_labels(path: Path) -> np.ndarray:
+    import cv2
+
+    lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if lab is None:
+        raise FileNotFoundError(path)
+    return lab.astype(np.int64)
+
+
+def prepare(session: Path, frames: int, masks: str, seg: SegmentationParams) -> dict:
+    """Keyframes, per-keyframe MaskFeatures + object id per mask, motion stats, camera and both pose sets."""
+    from ...database.cameras import read_cameras_txt
+    from ...database.images import read_image
+    from ...database.poses import read_poses_csv
+    from ...plugin.keyframes import select_keyframes
+    from ...plugin.mask_features import describe_masks, to_gray_u8
+    from ...plugin.motion import image_motion_stats
+    from ...plugin.segmentation import MaskSet, get_backend
+
+    camera = next(iter(read_cameras_txt(session / "cameras.txt").values()))
+    exact, _ = read_poses_csv(session / "poses.csv")
+    ekf, _ = read_poses_csv(session / "poses_ekf.csv")
+    n = min(frames, len(exact)) if frames > 0 else len(exact)
+    keys = select_keyframes(exact.centers[:n], 2.0)
+    backend = get_backend(masks, seg) if masks != "gt" else None
+    feats, objs, motion, grays = [], [], [(0.0, 0.0)], []
+    t0 = time.perf_counter()
+    for k in keys:
+        name = exact.names[k]
+        image = read_image(session / "images" / name)
+        labels = _load_labels(session / "labels" / (Path(name).stem + ".png"))
+        mset = MaskSet.from_labels(np.where(labels > 0, labels, -1)) if backend is None else backend(image)
+        f = describe_masks(image, mset, seg)
+        col = np.clip(np.floor(f.centroids[:, 0]).astype(int), 0, labels.shape[1] - 1)
+        row = np.clip(np.floor(f.centroids[:, 1]).astype(int), 0, labels.shape[0] - 1)
+        feats.append(f)
+        objs.append(labels[row, col])
+        grays.append(to_gray_u8(image))
+        if len(grays) > 1:
+            motion.append(image_motion_stats(grays[-2], grays[-1]))
+            grays.pop(0)
+    ekf_names = {nm: i for i, nm in enumerate(ekf.names)}
+    ekf_idx = [ekf_names[exact.names[k]] for k in keys]
+    return {
+        "camera": camera, "exact": exact.subset(keys), "ekf": ekf.subset(ekf_idx), "features": feats,
+        "objects": objs, "motion": motion, "prep_s": time.perf_counter() - t0, "keyframes": len(keys),
+    }
+
+
+def prepare_toy(seed: int, frames: int, attitude_deg: float = 0.5, position_m: float = 0.5) -> dict:
+    """A geometric stand-in for a synthetic session (no images): 600 objects with relief on a lawnmower survey at
+    100 m (two legs joined by a turn), centroids projected with 3 px noise, sizes radius * f / depth with 5 %
+    noise, SIFT sets as noisy re-detections of per-object random descriptors, 15 clutter masks per keyframe.
+    EKF poses: white attitude noise (`attitude_deg` per axis) plus a random-walk position drift (`position_m`
+    per 100 m)."""
+    from ...plugin.geometry import Camera, Poses, project
+    from ...plugin.mask_features import MaskFeatures
+
+    rng = np.random.default_rng(seed)
+    cam = Camera(1200, 900, 1000.0, 1000.0, 600.0, 450.0)
+    n_obj = 600
+    centres = np.column_stack([rng.uniform(-60, 220, n_obj), rng.uniform(-60, 120, n_obj), rng.uniform(0, 8, n_obj)])
+    radii = rng.uniform(0.7, 4.0, n_obj)
+    words = rng.standard_normal((n_obj, 24, 128))
+    leg = frames // 2
+    xs = np.concatenate([np.arange(leg) * 2.0, (leg - 1) * 2.0 - np.arange(frames - leg) * 2.0])
+    ys = np.concatenate([np.zeros(leg), np.full(frames - leg, 60.0)])
+    yaw = np.concatenate([np.zeros(leg), np.full(frames - leg, np.pi)])
+    nadir = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+
+    def rz(a: float) -> np.ndarray:
+        return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+
+    def small_rot(v: np.ndarray) -> np.ndarray:
+        import cv2
+        return cv2.Rodrigues(v.reshape(3, 1))[0]
+
+    rots = np.stack([rz(a) @ nadir @ small_rot(rng.normal(0, np.radians(1.0), 3)) for a in yaw])  # true jitter
+    centers = np.column_stack([xs, ys, 100.0 + rng.normal(0, 0.5, frames)])
+    exact = Poses([f"kf{i}" for i in range(frames)], rots, centers)
+    drift = np.cumsum(rng.normal(0, position_m * np.sqrt(2.0 / 100.0), (frames, 3)), axis=0)
+    ekf_rots = np.stack([r @ small_rot(rng.normal(0, np.radians(attitude_deg), 3)) for r in rots])
+    ekf = Poses(exact.names, ekf_rots, centers + drift + rng.normal(0, 0.05, (frames, 3)))
+    feats, objs = [], []
+    for t in range(frames):
+        uv, depth = project(cam, rots[t], centers[t], centres)
+        vis = np.flatnonzero((uv[:, 0] > 10) & (uv[:, 0] < cam.width - 10) & (uv[:, 1] > 10)
+                            & (uv[:, 1] < cam.height - 10) & (depth > 0) & (rng.random(n_obj) < 0.9))
+        xy = np.concatenate([uv[vis] + rng.normal(0, 3.0, (len(vis), 2)),
+                             rng.uniform([0, 0], [cam.width, cam.height], (15, 2))])
+        size = np.concatenate([radii[vis] * cam.fx / depth[vis] * (1 + rng.normal(0, 0.05, len(vis))),
+                               rng.uniform(5, 40, 15)])
+        descs = [words[o, rng.choice(24, 12, replace=False)] + rng.normal(0, 0.35, (12, 128)) for o in vis]
+        descs += [rng.standard_normal((8, 128)) for _ in range(15)]
+        desc = np.concatenate(descs).astype(np.float32)
+        desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+        owner = np.repeat(np.arange(len(descs)), [len(d) for d in descs]).astype(np.int32)
+        k = len(xy)
+        cov = np.zeros((k, 2, 2))
+        cov[:, 0, 0] = cov[:, 1, 1] = size**2
+        feats.append(MaskFeatures(xy, cov, size, np.ones(k, np.int64), np.ones(k, np.float32),
+                                  xy[owner].astype(np.float32), desc, owner))
+        objs.append(np.concatenate([vis + 1, np.zeros(15, np.int64)]))
+    # image motion as a feature tracker would see it: displacements of ground points seen in both keyframes
+    ground = np.column_stack([rng.uniform(-60, 220, 3000), rng.uniform(-60, 120, 3000), rng.uniform(0, 8, 3000)])
+    motion = [(0.0, 0.0)]
+    for t in range(1, frames):
+        a, da = project(cam, rots[t - 1], centers[t - 1], ground)
+        b, db = project(cam, rots[t], centers[t], ground)
+        ok = ((a >= 0) & (a < [cam.width, cam.height]) & (b >= 0) & (b < [cam.width, cam.height])).all(1)
+        ok &= (da > 0) & (db > 0)
+        mag = np.linalg.norm(b[ok] - a[ok], axis=1)
+        motion.append((float(mag.mean()), float(mag.std())) if ok.sum() >= 8 else (0.0, 100.0))
+    return {"camera": cam, "exact": exact, "ekf": ekf, "features": feats, "objects": objs, "motion": motion,
+            "prep_s": 0.0, "keyframes": frames}
+
+
+def evaluate(result: object, objects: list[np.ndarray], min_seen: int = 6, theta_n: int = 5) -> dict:
+    """Purity, mean track length, tracked fraction and duplicate rate of one tracking result."""
+    tid = np.concatenate(result.track_ids)
+    kf = np.concatenate([np.full(len(t), i) for i, t in enumerate(result.track_ids)])
+    obj = np.concatenate(objects).astype(np.int64)
+    # background observations: a unique negative id each, so they can never make a track pure by agreement
+    obj = np.where(obj > 0, obj, -1 - np.arange(len(obj)))
+    lengths = np.bincount(tid, minlength=result.num_tracks)
+    multi = lengths[tid] >= 2
+    # majority object per track: count (track, object) pairs
+    pairs, counts = np.unique(np.stack([tid[multi], obj[multi]], 1), axis=0, return_counts=True)
+    major = {}
+    for (t, o), c in zip(pairs.tolist(), counts.tolist()):
+        if c > major.get(t, (0, 0))[1]:
+            major[t] = (o, c)
+    purity = sum(c for _, c in major.values()) / max(int(multi.sum()), 1)
+    # objects seen in >= min_seen keyframes (as the centroid label of some mask)
+    vis = np.unique(np.stack([obj[obj > 0], kf[obj > 0]], 1), axis=0)
+    ids, seen = np.unique(vis[:, 0], return_counts=True)
+    well = set(ids[seen >= min_seen].tolist())
+    owners: dict[int, int] = {}
+    for t, (o, _) in major.items():
+        if lengths[t] > theta_n and o in well:
+            owners[o] = owners.get(o, 0) + 1
+    return {
+        "purity": purity,
+        "mean_len": float(lengths[lengths >= 2].mean()) if (lengths >= 2).any() else 0.0,
+        "tracked": len(owners) / max(len(well), 1),
+        "dup": float(np.mean(list(owners.values()))) if owners else 0.0,
+        "well_seen": len(well),
+        "landmark_tracks": int((lengths > theta_n).sum()),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("session", type=Path, nargs="?", help="synthetic session directory (omit with --toy)")
+    ap.add_argument("--toy", type=int, default=None, metavar="SEED", help="geometric stand-in world (no images)")
+    ap.add_argument("--frames", type=int, default=100, help="first N frames of the session (0 = all)")
+    ap.add_argument("--masks", default="gt", help="'gt' (label images) or a segmentation backend name")
+    ap.add_argument("--margins", default="4,8,12,16,24,32", help="theta_a values (px)")
+    ap.add_argument("--ages", default="1,2,3,5", help="theta_t values (keyframes)")
+    ap.add_argument("--poses", default="exact,ekf")
+    ap.add_argument("--repeats", type=int, default=1)
+    args = ap.parse_args(argv)
+
+    from ...plugin.tracking import track_masks
+
+    print(machine_summary())
+    if args.toy is not None:
+        data = prepare_toy(args.toy, args.frames or 100)
+        args.masks = "toy"
+    else:
+        data = prepare(args.session, args.frames, args.masks, SegmentationParams())
+    mus = np.array(data["motion"][1:])
+    print(f"session {args.session}: {data['keyframes']} keyframes, masks={args.masks}, "
+          f"{sum(len(f) for f in data['features'])} masks, mu_p median {np.median(mus[:, 0]):.1f} px, "
+          f"sigma_p median {np.median(mus[:, 1]):.2f} px; preparation {data['prep_s']:.1f} s")
+    print("| poses | theta_a px | theta_t | purity | mean track len | tracked >=6 kf objects | tracks/object | "
+          "tracker s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for pose_set, margin, age in itertools.product(
+        args.poses.split(","), [float(x) for x in args.margins.split(",")], [int(x) for x in args.ages.split(",")]
+    ):
+        params = TrackingParams(epipolar_margin_px=margin, max_track_age_keyframes=age)
+        times = []
+        for _ in range(max(1, args.repeats)):
+            t0 = time.perf_counter()
+            res = track_masks(data["features"], data["camera"], data[pose_set], data["motion"], params)
+            times.append(time.perf_counter() - t0)
+        m = evaluate(res, data["objects"])
+        print(f"| {pose_set} | {margin:g} | {age} | {m['purity']:.3f} | {m['mean_len']:.1f} | "
+              f"{m['tracked']:.2f} (of {m['well_seen']}) | {m['dup']:.2f} | {np.median(times):.2f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
