@@ -298,7 +298,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         dem: an elevation raster for the footprints (instead of terrain.npz / flat ground at `ground_height`).
         sweep_floor: theta_S used to collect hypotheses for the curve; repeats: timing repeats of our search.
         max_observers: per landmark, keep only this many observers (nearest) when forming claims.
-        baseline_threads: cv2.setNumThreads for the baselines (0: OpenCV's default).
+        baseline_threads: worker threads of the baselines over keyframe pairs (0: one per core).
     """
     from ..tools.baselines.base import BaselineConfig
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -31,7 +32,7 @@ class BaselineConfig:
     ransac_iterations: int = 2000
     ransac_confidence: float = 0.995
     seed: int = 0
-    threads: int = 0  # cv2.setNumThreads; 0 keeps OpenCV's default (all cores)
+    threads: int = 0  # worker threads over keyframe pairs; 0: one per core
 
 
 @dataclass
@@ -92,15 +93,24 @@ def match_pair(fa: Features, i: int, fb: Features, j: int, config: BaselineConfi
 
 
 def match_all(fa: Features, fb: Features, config: BaselineConfig | None = None) -> tuple[np.ndarray, float]:
-    """Inlier-count matrix (K_a, K_b) int32 of every cross-session keyframe pair, and the search seconds."""
+    """Inlier-count matrix (K_a, K_b) int32 of every cross-session keyframe pair, and the search seconds.
+
+    Rows are spread over `config.threads` worker threads (0: one per core): OpenCV releases the GIL in matching
+    and RANSAC, and each pair reseeds the RNG, so the counts do not depend on the number of threads.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
     config = config or BaselineConfig()
-    if config.threads:
-        cv2.setNumThreads(config.threads)
-    matcher = cv2.BFMatcher(fa.norm, crossCheck=True)
+    workers = config.threads or os.cpu_count() or 1
     out = np.zeros((len(fa.descriptors), len(fb.descriptors)), dtype=np.int32)
-    t0 = time.perf_counter()
-    for i in tqdm(range(len(fa.descriptors)), desc="baseline pairs", unit="row", leave=False,
-                  disable=out.size < 5000):
+
+    def row(i: int) -> None:
+        matcher = cv2.BFMatcher(fa.norm, crossCheck=True)
         for j in range(len(fb.descriptors)):
             out[i, j] = match_pair(fa, i, fb, j, config, matcher)
+
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        list(tqdm(pool.map(row, range(len(fa.descriptors))), total=len(fa.descriptors), desc="baseline pairs",
+                  unit="row", leave=False, disable=out.size < 5000))
     return out, time.perf_counter() - t0
