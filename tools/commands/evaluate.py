@@ -29,7 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sweep-floor", type=int, default=2, help="theta_S floor of the precision-recall sweep")
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats of the search (median)")
     parser.add_argument("--max-observers", type=int, help="claims use only the N observers nearest each landmark")
-    parser.add_argument("--baseline-threads", type=int, default=0, help="worker threads of the baselines (0: one per core)")
+    parser.add_argument("--baseline-threads", type=int, default=0,
+                        help="worker threads of the baselines (0: one per core)")
     add_params_arguments(parser)
 
 
