@@ -1,0 +1,88 @@
+"""Landmarks as GeoJSON (RFC 7946: WGS84 longitude/latitude) for QGIS and web maps, written atomically.
+
+Each landmark is a Feature: a Point (longitude, latitude, height) or, with `geometry="circle"`, a Polygon of the
+landmark's metric size (diameter) drawn in the map's projected CRS and then transformed, so it has the right
+size on the ground. Properties: index, size_m, x, y, z (the map's CRS), plus any per-landmark extras given
+(e.g. num_observations). The FeatureCollection's properties carry the source CRS and origin.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..plugin.errors import InputError
+from .atomic import write_text_atomic
+from .landmark_map import LandmarkMap
+
+
+def to_wgs84(xy: np.ndarray, epsg: int) -> np.ndarray:
+    """(N, 2) coordinates of a CRS (EPSG code) -> (N, 2) WGS84 longitude, latitude in degrees."""
+    from pyproj import CRS, Transformer
+    from pyproj.exceptions import CRSError
+
+    try:
+        tf = Transformer.from_crs(CRS.from_epsg(int(epsg)), CRS.from_epsg(4326), always_xy=True)
+    except CRSError:
+        raise InputError(f"unknown EPSG code {epsg}") from None
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    lon, lat = tf.transform(xy[:, 0], xy[:, 1])
+    return np.column_stack([lon, lat])
+
+
+def landmarks_feature_collection(
+    lmap: LandmarkMap,
+    epsg: int | None = None,
+    geometry: str = "point",
+    extras: dict[str, np.ndarray] | None = None,
+    circle_vertices: int = 24,
+) -> dict:
+    """A GeoJSON FeatureCollection (dict) of the landmarks. `epsg` overrides the map's own (needed when the map
+    says 0, a local frame). Coordinates are rounded to 1e-8 degrees (~1 mm)."""
+    epsg = int(epsg or lmap.epsg)
+    if not epsg:
+        raise InputError("the landmark map has no geographic reference (EPSG 0, a local frame): "
+                         "give the EPSG code of its world frame if it has one")
+    if geometry not in ("point", "circle"):
+        raise ValueError(f"geometry must be 'point' or 'circle', got {geometry!r}")
+    n = len(lmap)
+    lonlat = to_wgs84(lmap.positions[:, :2], epsg) if n else np.zeros((0, 2))
+    rings: list[np.ndarray] = []
+    if geometry == "circle" and n:
+        t = np.linspace(0.0, 2.0 * math.pi, circle_vertices, endpoint=False)
+        unit = np.column_stack([np.cos(t), np.sin(t)])
+        radius = np.where(np.isfinite(lmap.sizes), lmap.sizes / 2.0, 0.5).astype(np.float64)
+        ring_xy = lmap.positions[:, None, :2] + radius[:, None, None] * unit[None]
+        ring_ll = to_wgs84(ring_xy.reshape(-1, 2), epsg).reshape(n, circle_vertices, 2)
+        rings = [np.vstack([r, r[:1]]) for r in ring_ll]
+    extras = extras or {}
+    features = []
+    for i in range(n):
+        x, y, z = (float(v) for v in lmap.positions[i])
+        size = float(lmap.sizes[i])
+        props: dict = {"index": i, "size_m": round(size, 3) if math.isfinite(size) else None,
+                       "x": round(x, 3), "y": round(y, 3), "z": round(z, 3)}
+        for key, values in extras.items():
+            value = values[i]
+            props[key] = value.item() if hasattr(value, "item") else value
+        if geometry == "point":
+            geom = {"type": "Point", "coordinates": [round(float(lonlat[i, 0]), 8), round(float(lonlat[i, 1]), 8),
+                                                     round(z, 3)]}
+        else:
+            geom = {"type": "Polygon", "coordinates": [np.round(rings[i], 8).tolist()]}
+        features.append({"type": "Feature", "id": i, "geometry": geom, "properties": props})
+    return {"type": "FeatureCollection",
+            "properties": {"source_crs": f"EPSG:{epsg}", "origin": [float(v) for v in lmap.origin],
+                           "landmarks": n},
+            "features": features}
+
+
+def write_landmarks_geojson(path: str | Path, lmap: LandmarkMap, epsg: int | None = None, geometry: str = "point",
+                            extras: dict[str, np.ndarray] | None = None) -> int:
+    """Write the FeatureCollection atomically; returns the number of features."""
+    fc = landmarks_feature_collection(lmap, epsg, geometry, extras)
+    write_text_atomic(path, json.dumps(fc, separators=(",", ":")) + "\n")
+    return len(fc["features"])

@@ -1,0 +1,84 @@
+"""GeoJSON / PLY / CSV export of landmark maps."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from pyproj import Transformer
+from shapely.geometry import Polygon
+
+from sosmatch.database.geojson import landmarks_feature_collection
+from sosmatch.database.landmark_map import LandmarkMap, read_landmark_map, write_landmark_map
+from sosmatch.plugin.errors import InputError
+from sosmatch.tools.cli import main
+from sosmatch.workflows.export import run as export
+
+
+def _map(epsg=32614):
+    rng = np.random.default_rng(0)
+    pos = np.column_stack([486000 + rng.uniform(0, 3000, 20), 5206000 + rng.uniform(0, 3000, 20),
+                           rng.uniform(0, 5, 20)])
+    sizes = rng.uniform(5, 60, 20).astype(np.float32)
+    sizes[3] = np.nan
+    return LandmarkMap(pos, sizes, origin=pos.mean(0).round(), epsg=epsg)
+
+
+def test_points_round_trip_to_the_map_crs():
+    lmap = _map()
+    fc = landmarks_feature_collection(lmap)
+    assert fc["type"] == "FeatureCollection" and len(fc["features"]) == 20
+    ll = np.array([f["geometry"]["coordinates"][:2] for f in fc["features"]])
+    assert np.all((ll[:, 0] > -100) & (ll[:, 0] < -98) & (ll[:, 1] > 46) & (ll[:, 1] < 48))  # North Dakota
+    back = np.column_stack(Transformer.from_crs("EPSG:4326", "EPSG:32614", always_xy=True).transform(ll[:, 0],
+                                                                                                    ll[:, 1]))
+    np.testing.assert_allclose(back, lmap.positions[:, :2], atol=0.01)
+    assert fc["features"][3]["properties"]["size_m"] is None
+    assert fc["features"][0]["properties"]["size_m"] == pytest.approx(float(lmap.sizes[0]), abs=1e-3)
+    assert fc["properties"]["source_crs"] == "EPSG:32614"
+
+
+def test_circles_have_the_landmark_size_on_the_ground():
+    lmap = _map()
+    fc = landmarks_feature_collection(lmap, geometry="circle")
+    tf = Transformer.from_crs("EPSG:4326", "EPSG:32614", always_xy=True)
+    ring = np.array(fc["features"][0]["geometry"]["coordinates"][0])
+    xy = np.column_stack(tf.transform(ring[:, 0], ring[:, 1]))
+    poly = Polygon(xy)
+    r = lmap.sizes[0] / 2
+    assert poly.area == pytest.approx(np.pi * r * r, rel=0.03)  # 24-gon
+    np.testing.assert_allclose(np.array(poly.centroid.coords)[0], lmap.positions[0, :2], atol=0.05)
+
+
+def test_local_map_needs_an_epsg(tmp_path):
+    lmap = _map(epsg=0)
+    with pytest.raises(InputError, match="no geographic reference"):
+        landmarks_feature_collection(lmap)
+    assert len(landmarks_feature_collection(lmap, epsg=32614)["features"]) == 20
+
+
+def test_cli_session_dir_geojson_ply_csv(tmp_path, capsys):
+    lmap = _map()
+    sess = tmp_path / "sess"
+    sess.mkdir()
+    write_landmark_map(sess / "landmarks.sosmap", lmap)
+    rows = ["index,point3d_id,x,y,z,size_m,num_observations,image_names"]
+    rows += [f"{i},{i + 1},0,0,0,1,{7 + i},a.jpg b.jpg" for i in range(20)]
+    (sess / "landmarks.csv").write_text("\n".join(rows) + "\n")
+    assert main(["export", "--geojson", str(sess), "--out", str(tmp_path / "l.geojson")]) == 0
+    fc = json.loads((tmp_path / "l.geojson").read_text())
+    assert [f["properties"]["num_observations"] for f in fc["features"]] == list(range(7, 27))
+    # PLY: parse the binary body back.
+    export(sess / "landmarks.sosmap", ply=tmp_path / "l.ply", csv_out=tmp_path / "l.csv")
+    data = (tmp_path / "l.ply").read_bytes()
+    body = data[data.index(b"end_header\n") + len(b"end_header\n"):]
+    rec = np.frombuffer(body, dtype=[("xyz", "<f8", (3,)), ("size", "<f4")])
+    np.testing.assert_array_equal(rec["xyz"], read_landmark_map(sess / "landmarks.sosmap").positions)
+    np.testing.assert_allclose(rec["xyz"], lmap.positions, atol=1e-3)  # float32 offsets in the .sosmap
+    assert b"EPSG:32614" in data[:200]
+    lines = (tmp_path / "l.csv").read_text().splitlines()
+    assert lines[0] == "index,x,y,z,size_m,lon,lat" and len(lines) == 21
+    capsys.readouterr()
+    assert main(["export", "--geojson", str(tmp_path / "missing"), "--out", str(tmp_path / "m.geojson")]) == 2
+    assert "not found" in capsys.readouterr().err

@@ -1,0 +1,104 @@
+"""`sosmatch export`: a landmark map (or a mapped session) as GeoJSON (WGS84), PLY or CSV for other tools.
+
+- GeoJSON: see `sosmatch.database.geojson` (points or size circles, lon/lat/height, the map's CRS in the
+  properties); needs a georeferenced map (EPSG != 0) or `epsg=`.
+- PLY: binary little-endian vertices with double x, y, z in the map's world frame (UTM-sized coordinates keep
+  millimetres, unlike float32) and a float size; the CRS and origin are in the header comments.
+- CSV: index,x,y,z,size_m (+ lon,lat when georeferenced).
+A session directory is read through its landmarks.sosmap; its landmarks.csv, when present, adds the
+observation counts to the GeoJSON properties.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from ..database.atomic import write_bytes_atomic, write_text_atomic
+from ..database.geojson import to_wgs84, write_landmarks_geojson
+from ..database.landmark_map import LandmarkMap, read_landmark_map
+from ..plugin.errors import InputError
+
+log = logging.getLogger(__name__)
+
+
+def load_map(source: str | Path) -> tuple[LandmarkMap, dict[str, np.ndarray]]:
+    """The landmark map of a .sosmap file or a session directory, and per-landmark extras from landmarks.csv."""
+    source = Path(source)
+    if source.is_dir():
+        lmap = read_landmark_map(source / "landmarks.sosmap")
+        extras: dict[str, np.ndarray] = {}
+        table = source / "landmarks.csv"
+        if table.exists():
+            with open(table, encoding="utf-8", newline="") as f:
+                rows = [r for r in csv.DictReader(f)]
+            if len(rows) == len(lmap) and rows and "num_observations" in rows[0]:
+                order = np.array([int(r["index"]) for r in rows])
+                counts = np.zeros(len(lmap), dtype=np.int64)
+                counts[order] = [int(r["num_observations"]) for r in rows]
+                extras["num_observations"] = counts
+        return lmap, extras
+    if not source.exists():
+        raise InputError("landmark map or session directory not found", source)
+    return read_landmark_map(source), {}
+
+
+def ply_bytes(lmap: LandmarkMap, epsg: int) -> bytes:
+    """Binary PLY of the landmarks: double x, y, z (world frame) and float size_m."""
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"comment sosmatch landmarks, crs {'EPSG:' + str(epsg) if epsg else 'local'}\n"
+              f"comment origin {lmap.origin[0]!r} {lmap.origin[1]!r} {lmap.origin[2]!r}\n"
+              f"element vertex {len(lmap)}\nproperty double x\nproperty double y\nproperty double z\n"
+              "property float size_m\nend_header\n").encode("ascii")
+    rec = np.zeros(len(lmap), dtype=[("xyz", "<f8", (3,)), ("size", "<f4")])
+    rec["xyz"] = lmap.positions
+    rec["size"] = lmap.sizes
+    return header + rec.tobytes()
+
+
+def csv_text(lmap: LandmarkMap, epsg: int) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    lonlat = to_wgs84(lmap.positions[:, :2], epsg) if epsg and len(lmap) else None
+    w.writerow(["index", "x", "y", "z", "size_m"] + (["lon", "lat"] if lonlat is not None else []))
+    for i, (p, s) in enumerate(zip(lmap.positions, lmap.sizes)):
+        row = [i, f"{p[0]:.4f}", f"{p[1]:.4f}", f"{p[2]:.4f}", "nan" if not np.isfinite(s) else f"{float(s):.3f}"]
+        if lonlat is not None:
+            row += [f"{lonlat[i, 0]:.9f}", f"{lonlat[i, 1]:.9f}"]
+        w.writerow(row)
+    return buf.getvalue()
+
+
+def run(
+    source: str | Path,
+    geojson: str | Path | None = None,
+    ply: str | Path | None = None,
+    csv_out: str | Path | None = None,
+    epsg: int | None = None,
+    geometry: str = "point",
+) -> dict:
+    """Export the landmarks of `source` (a .sosmap or a session directory) to the requested files (atomic).
+
+    `epsg` overrides the map's CRS code (for maps saved with 0 whose frame is in fact that CRS).
+    Returns {"landmarks": N, "epsg": code, "written": [paths]}.
+    """
+    if geojson is None and ply is None and csv_out is None:
+        raise InputError("nothing to export: give --geojson, --ply and/or --csv")
+    lmap, extras = load_map(source)
+    code = int(epsg or lmap.epsg)
+    written = []
+    if geojson is not None:
+        write_landmarks_geojson(geojson, lmap, code, geometry, extras)
+        written.append(str(geojson))
+    if ply is not None:
+        write_bytes_atomic(ply, ply_bytes(lmap, code))
+        written.append(str(ply))
+    if csv_out is not None:
+        write_text_atomic(csv_out, csv_text(lmap, code))
+        written.append(str(csv_out))
+    log.info("exported %d landmarks to %s", len(lmap), ", ".join(written))
+    return {"landmarks": len(lmap), "epsg": code, "written": written}
