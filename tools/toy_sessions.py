@@ -182,3 +182,23 @@ def toy_match_json(
     path = Path(path)
     write_text_atomic(path, json.dumps(data) + "\n")
     return path
+
+
+def load_toy_session(path: str | Path) -> ToySession:
+    """Re-open a toy session written by `write_toy_session` (its truth.json)."""
+    path = Path(path)
+    truth = json.loads((path / "truth.json").read_text(encoding="utf-8"))
+    t = truth["session_from_world"]
+    return ToySession(path, Sim3(t["rotation"], t["translation"], t["scale"]),
+                      np.asarray(truth["object_ids"], dtype=np.int64))
+
+
+def oracle_pair_task(session_a: str, session_b: str, pair_dir: str, params: object = None) -> dict:
+    """A ground-truth matcher for toy sessions with the signature of `sosmatch.workflows.batch.pair_task`:
+    writes pair_dir/match.json with the true associations and transform (accepted when there are more than
+    6), so the graph and merge stages can be checked in isolation from the association search."""
+    from ..workflows.batch import summarise_match
+
+    a, b = load_toy_session(session_a), load_toy_session(session_b)
+    path = toy_match_json(a, b, Path(pair_dir) / "match.json")
+    return summarise_match(path)

@@ -1,0 +1,166 @@
+"""Batch: discovery, map/match/merge stages over several flights, failures reported per flight, resume,
+the session graph (groups, spanning-tree transforms) and identical results on a Dask LocalCluster."""
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pycolmap
+import pytest
+
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.multisession import Edge, Sim3, connected_groups, nearest_pairs, spanning_transforms
+from sosmatch.tools.cli import main
+from sosmatch.tools.toy_sessions import lawnmower, make_world, oracle_pair_task, write_toy_session, yaw_transform
+from sosmatch.workflows import batch
+from sosmatch.workflows.executors import DaskExecutor, LocalExecutor
+
+# A, B and C overlap in a chain (A-B, B-C; A-C too little to accept): C reaches A's frame only through B.
+# D is far away. Groups: {A, B, C} and {D}.
+FLIGHTS = {
+    "A": ((20, 120, 20, 120), yaw_transform(0, (0, 0, 0))),
+    "B": ((80, 180, 40, 140), yaw_transform(35, (12, -4, 1))),
+    "C": ((150, 250, 60, 160), yaw_transform(-60, (-30, 25, -2))),
+    "D": ((600, 700, 600, 700), yaw_transform(90, (5, 5, 0))),
+}
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    root = tmp_path_factory.mktemp("flights")
+    world = make_world(700, extent_m=720, seed=5)
+    truth = {}
+    for k, (name, (box, tf)) in enumerate(FLIGHTS.items()):
+        s = write_toy_session(root / name, world, lawnmower(*box, 60, 35, 10), tf, seed=10 + k)
+        truth[name] = s.session_from_world
+    broken = root / "E_broken"
+    (broken / "images").mkdir(parents=True)
+    (broken / "images" / "frame_00000.jpg").write_bytes(b"\xff\xd8 not really a jpeg")
+    (broken / "poses.csv").write_text("name,x,y,z\nframe_00000.jpg,1,2\n")
+    (root / "notes").mkdir()  # not a flight: ignored
+    return root, truth
+
+
+def _normalised(report_path, out_dir):
+    """report.json without what legitimately differs between runs: timings, executor, out dir, resumed flags."""
+    text = report_path.read_text().replace(str(out_dir), "OUT")
+    data = json.loads(text)
+    data.pop("executor"), data.pop("seconds")
+    for item in data["sessions"] + data["pairs"] + data["groups"]:
+        item.pop("seconds", None), item.pop("resumed", None)
+    return data
+
+
+def _run(flights_root, out, executor):
+    return batch.run(flights_root, out, executor=executor, options=batch.BatchOptions(progress=False),
+                     pair_fn=oracle_pair_task)
+
+
+@pytest.fixture(scope="module")
+def local_run(flights, tmp_path_factory):
+    root, truth = flights
+    out = tmp_path_factory.mktemp("out_local")
+    with LocalExecutor(2) as ex:
+        report = _run(root, out, ex)
+    return out, report
+
+
+def test_discovery(flights, tmp_path):
+    root, _ = flights
+    found = batch.discover_flights(root)
+    assert [(f.name, f.kind) for f in found] == [("A", "mapped"), ("B", "mapped"), ("C", "mapped"),
+                                                 ("D", "mapped"), ("E_broken", "poses")]
+    with pytest.raises(InputError, match="no flights"):
+        batch.discover_flights(tmp_path)
+    assert main(["batch", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_batch_stages_failures_and_groups(flights, local_run):
+    root, truth = flights
+    out, report = local_run
+    status = {s["name"]: s["status"] for s in report.sessions}
+    assert status == {"A": "done", "B": "done", "C": "done", "D": "done", "E_broken": "failed"}
+    assert not report.ok and len(report.failures) == 1 and "E_broken" in report.failures[0]
+    assert (out / "logs" / "map-E_broken.log").exists()
+    done = {p["pair"]: p for p in report.pairs if p["status"] == "done"}
+    assert sorted(done) == ["A__B", "A__C", "A__D", "B__C", "B__D", "C__D"]
+    assert sum(p["status"] == "skipped" for p in report.pairs) == 4  # every pair with the failed flight
+    assert {k for k, p in done.items() if p["accepted"]} == {"A__B", "B__C"}
+    groups = {g["reference"]: g for g in report.groups}
+    big = next(g for g in report.groups if len(g["members"]) == 3)
+    assert sorted(big["members"]) == ["A", "B", "C"] and big["status"] == "done"
+    assert groups["D"]["status"] == "single"
+    # Every member lands where the truth puts it in the reference frame.
+    ref = truth[big["reference"]]
+    for name, t in big["reference_from_session"].items():
+        est = Sim3(t["rotation"], t["translation"], t["scale"])
+        want = ref.compose(truth[name].inverse())
+        assert np.allclose(est.apply(np.array([[100.0, 100.0, 5.0]])), want.apply(np.array([[100.0, 100.0, 5.0]])),
+                           atol=0.2)
+    rec = pycolmap.Reconstruction(str(out / "merged" / big["reference"] / "sparse"))
+    n_images = sum(pycolmap.Reconstruction(str(root / n / "sparse")).num_images() for n in "ABC")
+    assert rec.num_images() == big["images"] == n_images and big["fused"] > 20
+    for name in ("report.md", "report.json", "sessions.csv", "pairs.csv", "session_graph.png"):
+        assert (out / name).stat().st_size > 0
+    assert "| A__B | done | True |" in (out / "report.md").read_text()
+
+
+def test_resume_skips_finished_tasks(flights, local_run, tmp_path):
+    root, _ = flights
+    out, first = local_run
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    # State files hold absolute paths (a moved OUT simply re-runs its tasks): point them at the copy.
+    for f in (copy / "state").rglob("*.json"):
+        f.write_text(f.read_text().replace(str(out), str(copy)))
+    (copy / "state" / "match" / "A__B.json").unlink()  # as if the run had been killed before this pair finished
+    again = _run(root, copy, LocalExecutor(0))
+    resumed = {p["pair"]: p.get("resumed", False) for p in again.pairs if p["status"] == "done"}
+    assert resumed.pop("A__B") is False and all(resumed.values())
+    assert all(s.get("resumed") for s in again.sessions if s["status"] == "done")
+    assert _normalised(copy / "report.json", copy) == _normalised(out / "report.json", out)
+
+
+def test_dask_local_cluster_gives_identical_results(flights, local_run, tmp_path):
+    pytest.importorskip("dask.distributed")
+    root, _ = flights
+    out, _ = local_run
+    with DaskExecutor(workers=2) as ex:
+        report = _run(root, tmp_path / "out", ex)
+    assert report.executor == "dask (LocalCluster)"
+    assert _normalised(tmp_path / "out" / "report.json", tmp_path / "out") == _normalised(out / "report.json", out)
+    big = next(g for g in report.groups if len(g["members"]) == 3)["reference"]
+    r1 = pycolmap.Reconstruction(str(out / "merged" / big / "sparse"))
+    r2 = pycolmap.Reconstruction(str(tmp_path / "out" / "merged" / big / "sparse"))
+    xyz1 = np.array([r1.points3D[i].xyz for i in sorted(r1.points3D)])
+    xyz2 = np.array([r2.points3D[i].xyz for i in sorted(r2.points3D)])
+    assert np.array_equal(xyz1, xyz2)
+    assert (tmp_path / "out" / "merged" / big / "landmarks.sosmap").read_bytes() == \
+        (out / "merged" / big / "landmarks.sosmap").read_bytes()
+
+
+def test_merged_group_passes_colmap_38(local_run):
+    colmap = shutil.which("colmap")
+    if colmap is None:
+        pytest.skip("COLMAP command line not installed")
+    out, report = local_run
+    big = next(g for g in report.groups if len(g["members"]) == 3)
+    res = subprocess.run([colmap, "model_analyzer", "--path", str(out / "merged" / big["reference"] / "sparse")],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0 and f"Points: {big['points3D']}" in res.stdout
+
+
+def test_graph_helpers():
+    t = yaw_transform(90, (1, 0, 0))
+    edges = [Edge(0, 1, t, 10), Edge(1, 2, t, 3), Edge(0, 2, t.compose(t), 1), Edge(3, 4, t, 5)]
+    assert connected_groups(6, edges) == [[0, 1, 2], [3, 4], [5]]
+    ref, ref_from, tree = spanning_transforms([0, 1, 2], edges)
+    assert ref == 1 and len(tree) == 2 and Edge(0, 2, t.compose(t), 1) not in tree  # heaviest edges kept
+    x = np.array([[3.0, -2.0, 1.0]])
+    assert np.allclose(ref_from[1].apply(x), x)
+    assert np.allclose(ref_from[0].apply(x), t.inverse().apply(x))  # 1_from_0 = (0_from_1)^-1
+    assert np.allclose(ref_from[2].apply(x), t.apply(x))  # 1_from_2
+    centres = np.array([[0, 0, 0], [1, 0, 0], [10, 0, 0], [11, 0, 0]], float)
+    assert nearest_pairs(centres, 1) == [(0, 1), (2, 3)]
+    assert len(nearest_pairs(centres, 3)) == 6

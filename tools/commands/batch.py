@@ -1,0 +1,51 @@
+"""`sosmatch batch FLIGHTS_DIR --out OUT`: map every flight, match pairs, merge connected groups, report."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ._common import add_params_arguments, params_from_args
+
+NAME = "batch"
+HELP = "map a folder of flights, match session pairs, merge each connected group into one model (resumable)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("flights_dir", type=Path, help="one sub-folder per flight (images + poses.csv, geotagged "
+                        "images, a synth session or an already mapped session)")
+    parser.add_argument("--out", type=Path, required=True, help="output directory (re-run the same command to resume)")
+    parser.add_argument("--workers", type=int, default=1, help="local worker processes (0: run in this process)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the tasks on this Dask cluster")
+    where.add_argument("--dask-local", action="store_true", help="start a Dask LocalCluster of --workers processes")
+    parser.add_argument("--nearest", type=int, metavar="K",
+                        help="match only pairs among the K nearest sessions (by camera positions in a common frame)")
+    parser.add_argument("--ekf", action="store_true", help="synth flights: map with poses_ekf.csv (noisy poses)")
+    parser.add_argument("--refine", action="store_true", help="refit each accepted transform on all associations")
+    parser.add_argument("--no-merge", action="store_true", help="stop after the session graph")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_params_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ...plugin.errors import InputError
+    from ...workflows import batch
+    from ...workflows.executors import make_executor
+
+    if args.workers < 0:
+        raise InputError(f"--workers must be >= 0, got {args.workers}")
+    if args.nearest is not None and args.nearest < 1:
+        raise InputError(f"--nearest must be >= 1, got {args.nearest}")
+    params = params_from_args(args)
+    options = batch.BatchOptions(nearest=args.nearest, ekf=args.ekf, merge=not args.no_merge, refine=args.refine,
+                                 progress=not args.no_progress)
+    with make_executor(args.workers, args.scheduler, args.dask_local) as executor:
+        report = batch.run(args.flights_dir, args.out, params, executor, options)
+    done = sum(s["status"] == "done" for s in report.sessions)
+    accepted = sum(bool(p.get("accepted")) for p in report.pairs)
+    print(f"{args.out}: {done}/{len(report.sessions)} sessions mapped, {len(report.pairs)} pairs "
+          f"({accepted} accepted), {len(report.groups)} groups; report {args.out / 'report.md'}")
+    for line in report.failures:
+        print(f"FAILED {line}")
+    return 0 if report.ok else 1
