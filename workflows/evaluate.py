@@ -335,6 +335,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     evaluation = {
         "case": case,
         "sessions": [str(session_a), str(session_b)],
+        "out_dir": str(out_dir),
         "keyframes": [len(gt_a.names), len(gt_b.names)],
         "protocol": {"tp_iou": TP_IOU, "fp_iou": FP_IOU, "keyframe_interval_m": params.keyframes.interval_m,
                      "positive_pairs": int((iou > TP_IOU).sum()), "negative_pairs": int((iou < FP_IOU).sum())},
