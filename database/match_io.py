@@ -59,7 +59,12 @@ def _associations(data: Any, path: Path) -> np.ndarray:
 
 
 def read_match(path: str | Path) -> MatchSummary:
-    """Read match.json and return its chosen hypothesis: the best accepted one if any, else the best one."""
+    """Read match.json and return the hypothesis to merge with.
+
+    That is the consensus (the transform refitted on the associations of every accepted window pair that
+    agrees with the best one; written only when a hypothesis was accepted), else the best accepted hypothesis,
+    else the largest one (then `accepted` is False).
+    """
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -70,21 +75,22 @@ def read_match(path: str | Path) -> MatchSummary:
     if not isinstance(data, dict):
         raise InputError("match file must hold a JSON object", path)
     hyps = data.get("hypotheses") or []
-    if not isinstance(hyps, list):
-        raise InputError("'hypotheses' must be a list", path)
+    if not isinstance(hyps, list) or not all(isinstance(h, dict) for h in hyps):
+        raise InputError("'hypotheses' must be a list of objects", path)
+    kind = str(data.get("transform_kind", "rigid"))
+    consensus = data.get("consensus")
+    if isinstance(consensus, dict) and consensus.get("transform") is not None:
+        return MatchSummary(True, _sim3(consensus["transform"], path),
+                            _associations(consensus.get("associations"), path), kind, len(hyps))
     best = data.get("best")
     chosen: dict | None = None
-    if isinstance(best, int) and 0 <= best < len(hyps):
+    if isinstance(best, int) and not isinstance(best, bool) and 0 <= best < len(hyps):
         chosen = hyps[best]
-    elif isinstance(best, dict):
-        chosen = best
     if chosen is None or not chosen.get("accepted", False):
-        accepted = [h for h in hyps if isinstance(h, dict) and h.get("accepted")]
-        if accepted:
-            chosen = max(accepted, key=lambda h: len(h.get("associations") or []))
-        elif chosen is None and hyps:
-            chosen = max(hyps, key=lambda h: len(h.get("associations") or []))
-    kind = str(data.get("transform_kind", data.get("transform_type", "rigid")))
+        accepted = [h for h in hyps if h.get("accepted")]
+        pool = accepted or hyps
+        if pool:
+            chosen = max(pool, key=lambda h: len(h.get("associations") or []))
     if chosen is None:
         return MatchSummary(False, None, np.zeros((0, 2), np.int64), kind, len(hyps))
     transform = _sim3(chosen["transform"], path) if chosen.get("transform") is not None else None

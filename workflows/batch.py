@@ -160,7 +160,8 @@ def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params) -> 
     """Match two mapped sessions into pair_dir/match.json and summarise the chosen hypothesis."""
     from . import match as match_workflow
 
-    match_workflow.run(session_a, session_b, pair_dir, params=params, progress=False)
+    # workers=1: the task already runs in a worker process; nested pools would oversubscribe the cores
+    match_workflow.run(params, session_a, session_b, pair_dir, workers=1)
     return summarise_match(Path(pair_dir) / "match.json")
 
 
