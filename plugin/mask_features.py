@@ -107,28 +107,14 @@ def mask_moments(masks: MaskSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     k = len(masks)
     if k == 0:
         return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
-    if masks.labels is not None:
-        # Label image: every moment is one bincount over the labelled pixels, all masks at once.
-        ys, xs = np.nonzero(masks.labels >= 0)
-        ids = masks.labels[ys, xs]
-        n = np.bincount(ids, minlength=k).astype(np.float64)
-        safe = np.maximum(n, 1)
-        mx = np.bincount(ids, xs, k) / safe
-        my = np.bincount(ids, ys, k) / safe
-        dx = xs - mx[ids]
-        dy = ys - my[ids]
-        sxx = np.bincount(ids, dx * dx, k) / safe
-        sxy = np.bincount(ids, dx * dy, k) / safe
-        syy = np.bincount(ids, dy * dy, k) / safe
-    else:
-        # Crops: OpenCV's C moments per crop (a crop is tiny next to the image; K is a few hundred).
-        m = np.array([_crop_moments(c) for c in masks.crops], np.float64).reshape(-1, 6)
-        n, m10, m01, mu20, mu11, mu02 = m.T
-        safe = np.maximum(n, 1)
-        boxes = masks.boxes.astype(np.float64)
-        mx = m10 / safe + boxes[:, 0]
-        my = m01 / safe + boxes[:, 1]
-        sxx, sxy, syy = mu20 / safe, mu11 / safe, mu02 / safe
+    # OpenCV's C moments per bounding-box crop: the work is the total box area, not K passes over the image.
+    m = np.array([_crop_moments(masks.crop(i)[1]) for i in range(k)], np.float64).reshape(-1, 6)
+    n, m10, m01, mu20, mu11, mu02 = m.T
+    safe = np.maximum(n, 1)
+    boxes = masks.bboxes.astype(np.float64)
+    mx = m10 / safe + boxes[:, 0]
+    my = m01 / safe + boxes[:, 1]
+    sxx, sxy, syy = mu20 / safe, mu11 / safe, mu02 / safe
     cent = np.stack([mx + 0.5, my + 0.5], axis=1)
     cov = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
     return n.astype(np.int64), cent, cov
@@ -146,10 +132,13 @@ def covariance_size(cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(lam, 0.0))
 
 
-def _sift(
+def _sift_detect(
     gray: np.ndarray, union: np.ndarray, params: SegmentationParams
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Keypoints (COLMAP convention, full-image pixels), RootSIFT descriptors and responses of one SIFT pass."""
+) -> tuple[np.ndarray, np.ndarray, list, np.ndarray, cv2.SIFT]:
+    """SIFT detection only (descriptors come later, for the kept keypoints only).
+
+    Returns (xy (M, 2) COLMAP convention full-image pixels, responses (M,), OpenCV keypoints, working gray
+    image, the SIFT object)."""
     h, w = gray.shape
     scale = min(1.0, params.sift_max_side / max(h, w)) if params.sift_max_side > 0 else 1.0
     mask = union.view(np.uint8) * np.uint8(255)
@@ -158,17 +147,24 @@ def _sift(
         gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
         mask = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST)
     sift = cv2.SIFT_create(contrastThreshold=params.sift_contrast_threshold)
-    kps, desc = sift.detectAndCompute(gray, mask)
-    if not kps:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), np.zeros(0, np.float32)
-    pts = np.array([kp.pt for kp in kps], np.float64)
+    kps = sift.detect(gray, mask)
+    xy = _keypoint_xy(kps, w / gray.shape[1], h / gray.shape[0])
     resp = np.array([kp.response for kp in kps], np.float32)
-    sx, sy = w / gray.shape[1], h / gray.shape[0]
-    xy = np.stack([(pts[:, 0] + 0.5) * sx, (pts[:, 1] + 0.5) * sy], axis=1)  # OpenCV -> COLMAP, full res
+    return xy, resp, list(kps), gray, sift
+
+
+def _keypoint_xy(kps: list, sx: float, sy: float) -> np.ndarray:
+    """OpenCV keypoints at a working scale -> (M, 2) float32 COLMAP-convention full-resolution positions."""
+    if not kps:
+        return np.zeros((0, 2), np.float32)
+    pts = np.array([kp.pt for kp in kps], np.float64)
+    return np.stack([(pts[:, 0] + 0.5) * sx, (pts[:, 1] + 0.5) * sy], axis=1).astype(np.float32)
+
+
+def _root_sift(desc: np.ndarray) -> np.ndarray:
     desc = desc.astype(np.float32)
     desc /= np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)
-    np.sqrt(desc, out=desc)
-    return xy.astype(np.float32), desc, resp
+    return np.sqrt(desc, out=desc)
 
 
 def _assign_keypoints(xy: np.ndarray, masks: MaskSet) -> tuple[np.ndarray, np.ndarray]:
@@ -215,7 +211,8 @@ def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams
         areas, cent, cov = areas[keep], cent[keep], cov[keep]
     sizes = covariance_size(cov)
 
-    xy, desc, resp = _sift(to_gray_u8(image), masks.union(), params)
+    gray = to_gray_u8(image)
+    xy, resp, kps, work, sift = _sift_detect(gray, masks.union(), params)
     kp, owner = _assign_keypoints(xy, masks) if len(xy) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     # Cap per mask: sort by (mask, -response) and keep the first max_sift_per_mask of each group.
     order = np.lexsort((-resp[kp], owner))
@@ -225,6 +222,15 @@ def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams
         rank = np.arange(len(owner)) - first
         sel = rank < params.max_sift_per_mask
         kp, owner = kp[sel], owner[sel]
+    # Descriptors only for keypoints some mask kept (one compute call; shared keypoints computed once).
+    uniq, inverse = np.unique(kp, return_inverse=True)
+    desc = np.zeros((len(uniq), 128), np.float32)
+    if len(uniq):
+        chosen = [kps[int(i)] for i in uniq]
+        out_kps, raw = sift.compute(work, chosen)
+        if raw is None or len(out_kps) != len(chosen):  # OpenCV keeps provided keypoints; guard anyway
+            raise RuntimeError("OpenCV SIFT dropped provided keypoints")
+        desc = _root_sift(raw)
     return MaskFeatures(
         centroids=cent,
         covariances=cov,
@@ -232,7 +238,7 @@ def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams
         areas=areas.astype(np.int64),
         scores=masks.scores.astype(np.float32),
         sift_xy=xy[kp].reshape(-1, 2),
-        sift_desc=desc[kp].reshape(-1, 128),
+        sift_desc=desc[inverse].reshape(-1, 128),
         sift_mask=owner.astype(np.int32),
         mask_ids=keep.astype(np.int64),
     )

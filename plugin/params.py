@@ -27,10 +27,31 @@ class SegmentationParams:
     min_mask_area_px: int = 3  # the paper keeps masks "larger than 2 px"
     max_sift_per_mask: int = 64  # SIFT features kept per mask A_k (ours; tracking only, never stored)
     # SIFT runs once per image on a copy whose longer side is at most this (0 = full resolution). (ours) OpenCV
-    # doubles the image first, so 1200x900 at full size costs ~0.3 s; 640 px keeps it ~0.05 s and still gives
-    # hundreds of keypoints on segment-sized regions.
-    sift_max_side: int = 640
+    # doubles the image first, so 1200x900 at full size costs ~0.3 s; 480 px detects in ~0.04 s and still
+    # gives thousands of keypoints; descriptors are computed only for the ones masks keep.
+    sift_max_side: int = 480
     sift_contrast_threshold: float = 0.01  # (ours) OpenCV's 0.04 finds ~100 keypoints on low-contrast NIR frames
+    # -- backend `classical` (sosmatch.plugin.segmentation.classical; all ours, tuned on synthetic + Seneca) --
+    classical_max_side: int = 400  # working resolution (longer side, px); masks are mapped back to full size
+    classical_median_ksize: int = 5  # median filter (working px) that removes leaf / furrow texture
+    classical_smooth_sigma_color: float = 40.0  # bilateral filter colour sigma (0..255 units)
+    classical_flat_percentile: float = 40.0  # gradient percentile below which pixels seed watershed regions
+    classical_merge_delta_e: float = 8.0  # adjacent regions closer than this (CIELAB Delta E) are merged
+    classical_max_area_frac: float = 0.08  # larger regions are background (fields, lawns) and dropped
+    classical_min_area_px: int = 100  # smaller regions (full-resolution px) are dropped
+    classical_max_elongation: float = 5.0  # sqrt(lambda_max / lambda_min) above this: sliver (road, hedge edge)
+    classical_min_contrast: float = 6.0  # mean Delta E to the neighbours below this: not an object
+    # -- backend `sam-onnx` (sosmatch.plugin.segmentation.sam_onnx) --
+    sam_encoder: str = ""  # image-encoder ONNX path ("" = $SOSMATCH_SAM_ENCODER)
+    sam_decoder: str = ""  # prompt-decoder ONNX path ("" = $SOSMATCH_SAM_DECODER)
+    sam_points_per_side: int = 16  # grid of point prompts (SAM's automatic generator uses 32)
+    sam_points_per_batch: int = 64  # prompts per decoder call
+    sam_pred_iou_thresh: float = 0.86  # keep masks whose predicted IoU is at least this (SAM's default 0.88)
+    sam_stability_score_thresh: float = 0.92  # keep masks at least this stable (SAM's default 0.95)
+    sam_stability_score_offset: float = 1.0  # logit offset of the stability score (SAM's default)
+    sam_box_nms_thresh: float = 0.7  # duplicate removal: mask IoU above this suppresses the lower-scored mask
+    sam_max_area_frac: float = 0.5  # masks covering more of the image are background and dropped
+    sam_threads: int = 2  # onnxruntime intra-op threads
 
 
 @dataclass(frozen=True)

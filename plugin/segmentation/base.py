@@ -55,15 +55,26 @@ class MaskSet:
     # -- construction --------------------------------------------------------------------------------------
     @classmethod
     def from_labels(cls, labels: np.ndarray, scores: np.ndarray | None = None) -> MaskSet:
-        """From a label image (-1 or any negative = background; labels need not be consecutive: they are
-        renumbered 0..K-1 in increasing order of the original value)."""
+        """From a label image (negative = background). Labels need not be consecutive: present labels are
+        renumbered 0..K-1 in increasing order of their value; `scores`, if given, is indexed by the ORIGINAL
+        label value (length > max label) or already has one entry per present label."""
         labels = np.asarray(labels)
-        valid = labels >= 0
-        uniq, inverse = np.unique(labels[valid], return_inverse=True)
-        out = np.full(labels.shape, -1, np.int32)
-        out[valid] = inverse
+        top = int(labels.max(initial=-1))
+        if top < 0:
+            return cls(labels.shape, np.zeros(0, np.float32), labels=np.full(labels.shape, -1, np.int32))
+        # bincount + lookup table instead of np.unique: no sort over millions of pixels
+        shifted = labels.astype(np.int64, copy=False).ravel() + 1
+        shifted[shifted < 0] = 0
+        present = np.flatnonzero(np.bincount(shifted, minlength=top + 2)[1:])
+        lut = np.full(top + 2, -1, np.int32)
+        lut[present + 1] = np.arange(len(present), dtype=np.int32)
+        out = lut[shifted].reshape(labels.shape)
         if scores is None:
-            scores = np.ones(len(uniq), np.float32)
+            scores = np.ones(len(present), np.float32)
+        else:
+            scores = np.asarray(scores, np.float32)
+            if len(scores) != len(present):
+                scores = scores[present]
         return cls(labels.shape, scores, labels=out)
 
     @classmethod
@@ -103,20 +114,14 @@ class MaskSet:
         return self.labels is None
 
     def _bbox_from_labels(self) -> None:
-        lab = self.labels
-        k = int(lab.max()) + 1 if lab.size and lab.max() >= 0 else 0
-        ys, xs = np.nonzero(lab >= 0)
-        ids = lab[ys, xs]
-        boxes = np.zeros((k, 4), np.int32)
-        if k:
-            boxes[:, 0] = np.iinfo(np.int32).max
-            boxes[:, 1] = np.iinfo(np.int32).max
-            np.minimum.at(boxes[:, 0], ids, xs)
-            np.minimum.at(boxes[:, 1], ids, ys)
-            np.maximum.at(boxes[:, 2], ids, xs + 1)
-            np.maximum.at(boxes[:, 3], ids, ys + 1)
-            empty = np.bincount(ids, minlength=k) == 0
-            boxes[empty] = 0
+        from scipy.ndimage import find_objects
+
+        # find_objects: one C pass over the image, slices per label 1..K (background -1 -> 0 is ignored)
+        slices = find_objects(self.labels + 1)
+        boxes = np.zeros((len(slices), 4), np.int32)
+        for k, sl in enumerate(slices):
+            if sl is not None:
+                boxes[k] = (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop)
         self._label_boxes = boxes
 
     @property

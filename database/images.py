@@ -1,0 +1,144 @@
+"""Robust image reading: every image the pipeline touches comes in here as (H, W, 3) uint8 RGB.
+
+Handled: 8-bit and 16-bit, gray, gray+alpha, RGB, RGBA, palette, CMYK, 32-bit float; the alpha channel is
+dropped (survey frames carry none that matters). Missing, unreadable, truncated or corrupt files raise
+`InputError` naming the file. EXIF orientation is deliberately NOT applied: COLMAP does not apply it either,
+and the poses and intrinsics refer to the stored pixel grid.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from ..plugin.errors import InputError
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+
+
+def to_rgb_u8(array: np.ndarray) -> np.ndarray:
+    """Convert a decoded pixel array (H, W), (H, W, 1|2|3|4) of uint8/uint16/float to (H, W, 3) uint8 RGB.
+
+    Channel order is taken as RGB(A). 16-bit data is scaled by 1/257 (full range), or by 1/16 when the maximum
+    is below 4096 (12-bit sensor data stored in 16 bits would otherwise be nearly black). Floats are taken as
+    0..1 when their maximum is <= 1, else as 0..255.
+    """
+    a = np.asarray(array)
+    if a.ndim == 3 and a.shape[2] in (2, 4):  # drop alpha
+        a = a[:, :, : a.shape[2] - 1]
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] != 3):
+        raise ValueError(f"unsupported pixel array shape {a.shape}")
+    if a.dtype == np.uint8:
+        out = a
+    elif a.dtype in (np.uint16, np.int32, np.uint32, np.int64):
+        a = a.astype(np.int64)
+        if a.max(initial=0) < 4096:
+            out = np.clip(a // 16, 0, 255).astype(np.uint8)
+        else:
+            out = np.clip((a + 128) // 257, 0, 255).astype(np.uint8)
+    elif a.dtype == bool:
+        out = a.astype(np.uint8) * 255
+    elif np.issubdtype(a.dtype, np.floating):
+        a = np.nan_to_num(a.astype(np.float64))
+        scale = 255.0 if a.max(initial=0) <= 1.0 else 1.0
+        out = np.clip(np.rint(a * scale), 0, 255).astype(np.uint8)
+    else:
+        raise ValueError(f"unsupported pixel type {a.dtype}")
+    if out.ndim == 2:
+        out = np.repeat(out[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(out)
+
+
+def _read_pil(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", Image.DecompressionBombWarning)
+        with Image.open(path) as img:
+            img.load()  # decodes everything now: truncated files raise here
+            mode = img.mode
+            if mode in ("P", "PA"):
+                img = img.convert("RGBA" if "transparency" in img.info or mode == "PA" else "RGB")
+            elif mode == "CMYK" or mode == "YCbCr" or mode == "LAB" or mode == "HSV":
+                img = img.convert("RGB")
+            elif mode == "1":
+                img = img.convert("L")
+            return np.asarray(img)
+
+
+def _read_cv2(path: Path) -> np.ndarray | None:
+    import cv2
+
+    data = np.fromfile(path, dtype=np.uint8)
+    if data.size == 0:
+        return None
+    try:
+        arr = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        return None
+    if arr is None:
+        return None
+    if arr.ndim == 3 and arr.shape[2] == 3:
+        arr = cv2.cvtColor(arr, cv2.COLOR_BGR2RGB)
+    elif arr.ndim == 3 and arr.shape[2] == 4:
+        arr = cv2.cvtColor(arr, cv2.COLOR_BGRA2RGBA)
+    return arr
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image file as (H, W, 3) uint8 RGB; raise InputError naming the file if it cannot be read."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("image file not found" if not path.exists() else "not a file", path)
+    if path.stat().st_size == 0:
+        raise InputError("empty file", path)
+    try:
+        arr = _read_pil(path)
+    except (OSError, SyntaxError, ValueError, Warning) as exc:  # PIL: unknown format, truncated, corrupt
+        pil_error = exc
+        arr = None
+    else:
+        pil_error = None
+    if arr is None or arr.dtype == object or arr.size == 0:
+        # PIL cannot do some valid files (e.g. 16-bit multi-channel TIFF); OpenCV can. Only for formats PIL
+        # did not recognise: a truncated JPEG that PIL rejected must stay an error, not be half-decoded.
+        from PIL import UnidentifiedImageError
+
+        if pil_error is not None and not isinstance(pil_error, UnidentifiedImageError):
+            raise InputError(f"corrupt or truncated image ({pil_error})", path) from None
+        arr = _read_cv2(path)
+        if arr is None:
+            raise InputError("unreadable image (not a supported image format, or corrupt)", path)
+    try:
+        out = to_rgb_u8(arr)
+    except ValueError as exc:
+        raise InputError(f"unsupported image: {exc}", path) from None
+    if out.shape[0] == 0 or out.shape[1] == 0:
+        raise InputError("empty image", path)
+    return out
+
+
+def list_images(paths: Iterable[str | Path]) -> list[Path]:
+    """Expand files and directories (not recursive) into a sorted list of image files.
+
+    Files given explicitly are kept whatever their extension (read_image decides); directories contribute
+    their files with an image extension, sorted by name. A missing path raises InputError.
+    """
+    out: list[Path] = []
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            out.extend(sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_EXTENSIONS))
+        elif p.exists():
+            out.append(p)
+        else:
+            raise InputError("no such file or directory", p)
+    return out

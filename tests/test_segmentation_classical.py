@@ -1,0 +1,83 @@
+"""The `classical` backend on generated scenes: finds object-like blobs, drops background and slivers."""
+
+import cv2
+import numpy as np
+import pytest
+
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.params import SegmentationParams
+from sosmatch.plugin.segmentation import MaskSet, get_backend, mask_iou_matrix
+
+
+def blob_scene(h=480, w=640, n=12, seed=0, radius=(10, 40)):
+    """Textured field with n separated discs of random colour; returns image and uint16 ground-truth ids."""
+    rng = np.random.default_rng(seed)
+    noise = cv2.GaussianBlur(rng.normal(0, 12, (h, w)).astype(np.float32), (0, 0), 1.0)
+    img = np.array([150, 90, 80], np.float32)[None, None] + noise[..., None]
+    gt = np.zeros((h, w), np.uint16)
+    k = 0
+    while k < n:
+        r = rng.uniform(*radius)
+        cx, cy = rng.uniform(r + 2, [w - r - 2, h - r - 2])
+        m = np.zeros((h, w), np.uint8)
+        cv2.circle(m, (int(cx), int(cy)), int(r), 1, -1)
+        if (cv2.dilate(m, np.ones((9, 9), np.uint8)) & (gt > 0)).any():
+            continue
+        k += 1
+        img[m > 0] = rng.uniform(20, 235, 3) + noise[m > 0, None] * 0.5
+        gt[m > 0] = k
+    return np.clip(img, 0, 255).astype(np.uint8), gt
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_finds_blobs_and_drops_background(seed):
+    img, gt = blob_scene(seed=seed)
+    backend = get_backend("classical", SegmentationParams())
+    masks = backend(img)
+    assert not masks.overlapping and masks.labels.shape == img.shape[:2]
+    iou = mask_iou_matrix(MaskSet.from_labels(gt.astype(np.int32) - 1), masks)
+    recall = np.mean(iou.max(axis=1) >= 0.5)
+    assert recall >= 0.9, iou.max(axis=1)
+    # the field is not a mask: no mask covers more than 8 % of the image, and most field pixels are unlabelled
+    assert masks.areas().max() <= 0.08 * img.shape[0] * img.shape[1] * 1.05
+    assert np.mean(masks.labels[gt == 0] < 0) > 0.9
+    assert np.all((masks.scores >= 0) & (masks.scores < 1))
+    # deterministic
+    again = backend(img)
+    assert np.array_equal(again.labels, masks.labels) and np.array_equal(again.scores, masks.scores)
+
+
+def test_slivers_dropped_and_empty_images_fine():
+    img = np.full((300, 400, 3), 120, np.uint8)
+    img[140:146, 20:380] = (250, 250, 250)  # a road-like sliver
+    cv2.circle(img, (200, 60), 25, (30, 160, 40), -1)
+    masks = get_backend("classical", SegmentationParams())(img)
+    assert len(masks) == 1
+    box = masks.bboxes[0]
+    assert abs((box[0] + box[2]) / 2 - 200) < 4 and abs((box[1] + box[3]) / 2 - 60) < 4
+    flat = get_backend("classical", SegmentationParams())(np.zeros((240, 320, 3), np.uint8))
+    assert len(flat) == 0 and flat.labels.shape == (240, 320)
+
+
+def test_large_image_is_segmented_at_working_resolution():
+    img, gt = blob_scene(h=900, w=1200, n=10, seed=3, radius=(20, 60))
+    masks = get_backend("classical", SegmentationParams())(img)  # works at 400 x 300
+    iou = mask_iou_matrix(MaskSet.from_labels(gt.astype(np.int32) - 1), masks)
+    assert np.mean(iou.max(axis=1) >= 0.5) >= 0.8
+
+
+def test_unknown_backend_is_a_user_error():
+    with pytest.raises(InputError, match="unknown segmentation backend"):
+        get_backend("nope", SegmentationParams())
+
+
+def test_maskset_representations_agree():
+    img, gt = blob_scene(h=200, w=260, n=5, seed=5)
+    labels = gt.astype(np.int32) - 1
+    a = MaskSet.from_labels(labels)
+    b = MaskSet.from_masks([labels == k for k in range(5)])
+    assert np.array_equal(a.areas(), b.areas()) and np.array_equal(a.bboxes, b.bboxes)
+    assert np.array_equal(a.rasterise(), b.rasterise())
+    assert np.allclose(mask_iou_matrix(a, b), np.eye(5))
+    sub = b.subset([3, 1])
+    assert np.array_equal(sub.mask(0), labels == 3) and np.array_equal(a.subset([3, 1]).mask(1), labels == 1)
