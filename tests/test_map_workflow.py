@@ -217,3 +217,12 @@ def test_poses_from_a_colmap_model_and_a_synth_session(session, tmp_path):
     ekf = map_workflow.load_inputs(None, synth, ekf=True)
     assert gt.camera == from_csv.camera and np.allclose(gt.poses.centers, from_csv.poses.centers)
     assert np.allclose(ekf.poses.centers[:, 2], 60.5)
+
+
+def test_two_workers_give_the_same_map(session, tmp_path):
+    root, _, out_ref, _ = session
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    out = tmp_path / "parallel"
+    map_workflow.run(Params(), inputs, out, progress=False, workers=2)
+    for name in ("landmarks.sosmap", "landmarks.csv"):
+        assert (out / name).read_bytes() == (out_ref / name).read_bytes(), name

@@ -272,6 +272,46 @@ def _save_cached(path: Path, key: str, feats: Any, motion: tuple[float, float]) 
             np.savez(f, cache_key=np.array(key), motion=np.array(motion, dtype=np.float64), **arrays)
 
 
+_WORKER_BACKEND: dict[str, Any] = {}  # per process: the segmentation backend, built once
+
+
+def _describe_one(
+    path: Path, prev_path: Path | None, size: tuple[int, int], params: Params, entry: Path, key: str,
+    prev_gray: np.ndarray | None = None,
+) -> tuple[Any, tuple[float, float], np.ndarray]:
+    """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
+
+    Returns (MaskFeatures, (mu_p, sigma_p), gray image). Runs in the main process or a worker process.
+    """
+    from ..database.images import read_image
+    from ..plugin.mask_features import describe_masks, to_gray_u8
+    from ..plugin.motion import image_motion_stats
+    from ..plugin.segmentation import get_backend
+
+    image = read_image(path)
+    if image.shape[:2] != size:
+        raise InputError(f"image is {image.shape[1]}x{image.shape[0]} but the camera is {size[1]}x{size[0]}", path)
+    gray = to_gray_u8(image)
+    if prev_path is not None and prev_gray is None:
+        prev_gray = to_gray_u8(read_image(prev_path))
+    mu_sigma = image_motion_stats(prev_gray, gray) if prev_path is not None else (0.0, 0.0)
+    mu_sigma = (float(mu_sigma[0]), float(mu_sigma[1]))
+    seg = params.segmentation
+    cache_name = json.dumps(params_to_dict(seg), sort_keys=True)
+    if cache_name not in _WORKER_BACKEND:
+        _WORKER_BACKEND.clear()
+        _WORKER_BACKEND[cache_name] = get_backend(seg.backend, seg)
+    feats = describe_masks(image, _WORKER_BACKEND[cache_name](image), seg)
+    _save_cached(entry, key, feats, mu_sigma)
+    return feats, mu_sigma, gray
+
+
+def _worker_init() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # one process per core already; OpenCV's own threads would oversubscribe
+
+
 def describe_keyframes(
     inputs: MapInputs,
     keyframes: np.ndarray,
@@ -280,57 +320,69 @@ def describe_keyframes(
     cache_key: str,
     progress: bool = True,
     on_keyframe: Callable[[int], None] | None = None,
+    workers: int = 1,
 ) -> tuple[list[Any], list[tuple[float, float]], int]:
     """Segmentation + mask description + motion statistics per keyframe, resumed from the cache.
 
+    Keyframes are independent given their image and the previous keyframe's image, so with `workers` > 1 they
+    run in a process pool; results are identical to a sequential run.
+
     Returns (MaskFeatures per keyframe, (mu_p, sigma_p) per keyframe (entry 0 is (0, 0)), number of keyframes
-    taken from the cache). `on_keyframe(k)` is called after keyframe k is stored (tests interrupt there).
+    taken from the cache). `on_keyframe(k)` is called, in keyframe order, after keyframe k is stored (tests
+    interrupt there).
     """
     from tqdm import tqdm
 
-    from ..database.images import read_image
-    from ..plugin.mask_features import describe_masks, to_gray_u8
-    from ..plugin.motion import image_motion_stats
-    from ..plugin.segmentation import get_backend
-
     cache_dir.mkdir(parents=True, exist_ok=True)
-    backend = None
-    features: list[Any] = []
-    motion: list[tuple[float, float]] = []
-    cached = 0
-    prev_gray: np.ndarray | None = None
-    bar = tqdm(keyframes, desc="keyframes", unit="kf", disable=not progress, leave=False)
-    for k, idx in enumerate(bar):
-        path = inputs.image_paths[idx]
+    size = (inputs.camera.height, inputs.camera.width)
+    results: list[tuple[Any, tuple[float, float]] | None] = [None] * len(keyframes)
+    todo = []
+    for k, idx in enumerate(keyframes):
         name = inputs.poses.names[idx]
         prev_name = inputs.poses.names[keyframes[k - 1]] if k else ""
         key = f"{cache_key}:{k}:{name}:{prev_name}"
         entry = _cache_path(cache_dir, k, name)
         hit = _load_cached(entry, key) if entry.exists() else None
         if hit is not None:
-            features.append(hit[0])
-            motion.append(hit[1])
-            cached += 1
-            prev_gray = None
-            continue
-        image = read_image(path)
-        if image.shape[:2] != (inputs.camera.height, inputs.camera.width):
-            raise InputError(f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
-                             f"{inputs.camera.width}x{inputs.camera.height}", path)
-        gray = to_gray_u8(image)
-        if k and prev_gray is None:  # previous keyframe came from the cache: read its image again
-            prev_gray = to_gray_u8(read_image(inputs.image_paths[keyframes[k - 1]]))
-        mu_sigma = image_motion_stats(prev_gray, gray) if k else (0.0, 0.0)
-        if backend is None:
-            backend = get_backend(params.segmentation.backend, params.segmentation)
-        feats = describe_masks(image, backend(image), params.segmentation)
-        _save_cached(entry, key, feats, mu_sigma)
-        features.append(feats)
-        motion.append((float(mu_sigma[0]), float(mu_sigma[1])))
-        prev_gray = gray
-        if on_keyframe is not None:
-            on_keyframe(k)
+            results[k] = hit
+        else:
+            prev_path = inputs.image_paths[keyframes[k - 1]] if k else None
+            todo.append((k, inputs.image_paths[idx], prev_path, entry, key))
+    cached = len(keyframes) - len(todo)
+    bar = tqdm(total=len(keyframes), initial=cached, desc="keyframes", unit="kf", disable=not progress,
+               leave=False)
+    if workers <= 1 or len(todo) <= 1:
+        prev_gray, prev_k = None, -2
+        for k, path, prev_path, entry, key in todo:
+            feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
+                                                  prev_gray if prev_k == k - 1 else None)
+            results[k] = (feats, mu_sigma)
+            prev_gray, prev_k = gray, k
+            bar.update()
+            if on_keyframe is not None:
+                on_keyframe(k)
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process holding pycolmap/OpenCV threads
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+            futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key))
+                       for k, path, prev_path, entry, key in todo]
+            try:
+                for k, fut in futures:
+                    feats, mu_sigma, _ = fut.result()
+                    results[k] = (feats, mu_sigma)
+                    bar.update()
+                    if on_keyframe is not None:
+                        on_keyframe(k)
+            except BaseException:
+                for _, fut in futures:
+                    fut.cancel()
+                raise
     bar.close()
+    features = [r[0] for r in results]  # type: ignore[index]
+    motion = [r[1] for r in results]  # type: ignore[index]
     return features, motion, cached
 
 
@@ -383,6 +435,7 @@ def run(
     keep_cache: bool = False,
     progress: bool = True,
     on_keyframe: Callable[[int], None] | None = None,
+    workers: int = 1,
 ) -> MapSummary:
     """Map one session: `inputs` (from `load_inputs`) -> SESSION_DIR with the outputs listed in the module doc.
 
@@ -395,6 +448,7 @@ def run(
         keep_cache: keep the per-keyframe cache (SESSION_DIR/.partial/cache) after success (default: delete).
         progress: show tqdm progress bars.
         on_keyframe: callback after each newly computed keyframe (tests use it to interrupt a run).
+        workers: processes for the per-keyframe stage (segmentation dominates the run time).
     """
     import pycolmap
 
@@ -417,7 +471,7 @@ def run(
     keyframes = select_keyframes(inputs.poses.centers, params.keyframes.interval_m)
     kf_poses = inputs.poses.subset(keyframes)
     features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
-                                                  progress, on_keyframe)
+                                                  progress, on_keyframe, workers)
     timings["keyframes"] = time.perf_counter() - t
 
     from tqdm import tqdm

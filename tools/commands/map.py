@@ -30,6 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--text", action="store_true", help="write sparse/ as a COLMAP text model")
     parser.add_argument("--keep-cache", action="store_true",
                         help="keep the per-keyframe cache (OUT/.partial/cache) after a successful run")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="processes for segmentation and description (spawn costs ~3 s; pays off on long runs)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_params_arguments(parser)
 
@@ -40,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     params = params_from_args(args)
     inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention, args.ekf, args.strict)
     summary = map_workflow.run(params, inputs, args.out, overwrite=args.overwrite, text_model=args.text,
-                               keep_cache=args.keep_cache, progress=not args.no_progress and sys.stderr.isatty())
+                               keep_cache=args.keep_cache, progress=not args.no_progress and sys.stderr.isatty(),
+                               workers=args.workers)
     print(summary.line())
     return 0

@@ -1,0 +1,170 @@
+"""Benchmark of `sosmatch map` on a synthetic session (`sosmatch synth`), with exact and with EKF poses.
+
+Runs the real command line (`sosmatch map`, a subprocess, timed as a whole: imports, segmentation, tracking,
+database, triangulation, outputs) on the first `--frames` frames and scores the result against the session's
+ground truth:
+- object of a landmark: the object id under each observed centroid in labels/ (uint16 per pixel, 0 =
+  background), majority vote; observations are read back from the sparse/ model (keypoints = mask centroids);
+- position error: landmark against its object's visible-top centre (objects.csv x, y, z), median horizontal
+  and median vertical, over landmarks whose majority id is an object;
+- purity: fraction of landmark tracks whose observations all hit one id (background counts as an id);
+- coverage: of the objects visible in >= 6 keyframes (frames.json), the fraction that became a landmark;
+- map bytes per landmark (landmarks.sosmap size / count, header included) and the run's wall time.
+
+    .venv/bin/python -m sosmatch.tools.benchmarks.bench_map SESSION [--frames 100] [--repeats 1] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .machine import machine_summary
+
+MIN_KEYFRAMES_SEEN = 6
+
+
+def _labels(path: Path) -> np.ndarray:
+    import cv2
+
+    lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if lab is None:
+        raise FileNotFoundError(path)
+    return lab
+
+
+def score_session(session_dir: Path, mapped: Path) -> dict[str, float]:
+    """Ground-truth figures of a mapped session (see the module docstring)."""
+    import pycolmap
+
+    from ...database.landmark_map import read_landmark_map
+    from ...database.session_io import read_landmark_point_ids
+    from ...database.synth_session import load_synth_session
+
+    synth = load_synth_session(session_dir)
+    lmap = read_landmark_map(mapped / "landmarks.sosmap")
+    pids = read_landmark_point_ids(mapped / "landmarks.csv", len(lmap))
+    rec = pycolmap.Reconstruction(str(mapped / "sparse"))
+    run = json.loads((mapped / "run.json").read_text())
+    objects = {int(o["id"]): o for o in synth.objects}
+    label_cache: dict[str, np.ndarray] = {}
+    majority, pure = [], []
+    for pid in pids:
+        ids = []
+        for el in rec.points3D[int(pid)].track.elements:
+            image = rec.images[el.image_id]
+            if image.name not in label_cache:
+                label_cache[image.name] = _labels(synth.label_path(image.name))
+            lab = label_cache[image.name]
+            u, v = np.asarray(image.points2D[el.point2D_idx].xy, dtype=np.float64)
+            col = int(np.clip(np.floor(u), 0, lab.shape[1] - 1))  # COLMAP: pixel i spans [i, i + 1)
+            row = int(np.clip(np.floor(v), 0, lab.shape[0] - 1))
+            ids.append(int(lab[row, col]))
+        values, counts = np.unique(ids, return_counts=True)
+        majority.append(int(values[np.argmax(counts)]))
+        pure.append(len(values) == 1)
+    majority_arr = np.array(majority, dtype=np.int64)
+    on_object = np.flatnonzero(majority_arr > 0)
+    err_h, err_v = [], []
+    for i in on_object:
+        o = objects[int(majority_arr[i])]
+        d = lmap.positions[i] - np.array([o["x"], o["y"], o["z"]])
+        err_h.append(float(np.hypot(d[0], d[1])))
+        err_v.append(float(abs(d[2])))
+    keyframes = set(run["keyframes"])
+    seen: dict[int, int] = {}
+    for frame in synth.frames:
+        if frame["name"] in keyframes:
+            for oid in frame["visible_object_ids"]:
+                seen[int(oid)] = seen.get(int(oid), 0) + 1
+    eligible = {oid for oid, n in seen.items() if n >= MIN_KEYFRAMES_SEEN}
+    mapped_objects = set(majority_arr[on_object].tolist())
+    size = (mapped / "landmarks.sosmap").stat().st_size
+    return {
+        "keyframes": len(keyframes),
+        "landmarks": len(lmap),
+        "on_object": len(on_object),
+        "median_h_m": float(np.median(err_h)) if err_h else float("nan"),
+        "median_v_m": float(np.median(err_v)) if err_v else float("nan"),
+        "purity": float(np.mean(pure)) if pure else float("nan"),
+        "coverage": len(eligible & mapped_objects) / len(eligible) if eligible else float("nan"),
+        "eligible_objects": len(eligible),
+        "bytes_per_landmark": size / len(lmap) if len(lmap) else float("nan"),
+    }
+
+
+def _pose_subset(session: Path, frames: int, ekf: bool, work: Path) -> Path:
+    """A pose CSV holding the first `frames` rows of the session's (EKF) poses."""
+    src = session / ("poses_ekf.csv" if ekf else "poses.csv")
+    out_lines, rows = [], 0
+    for line in src.read_text().splitlines():
+        is_row = line and not line.startswith("#") and not line.startswith("name,")
+        if is_row:
+            if rows >= frames:
+                continue
+            rows += 1
+        out_lines.append(line)
+    path = work / ("poses_ekf.csv" if ekf else "poses.csv")
+    path.write_text("\n".join(out_lines) + "\n")
+    return path
+
+
+def run_map(session: Path, frames: int, ekf: bool, out: Path, extra: list[str]) -> float:
+    """Run `sosmatch map` on the first `frames` frames; returns its wall time in seconds."""
+    with tempfile.TemporaryDirectory(prefix="bench-map-") as tmp:
+        poses = _pose_subset(session, frames, ekf, Path(tmp))
+        shutil.rmtree(out, ignore_errors=True)
+        cmd = [sys.executable, "-m", "sosmatch.tools.cli", "map", "-q", "--no-progress",
+               "--images", str(session / "images"), "--poses", str(poses),
+               "--camera", str(session / "cameras.txt"), "--out", str(out), *extra]
+        t = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        seconds = time.perf_counter() - t
+    if proc.returncode != 0:
+        raise SystemExit(f"sosmatch map failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+    print("   ", proc.stdout.strip())
+    return seconds
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("session", type=Path, help="a `sosmatch synth` session directory")
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--repeats", type=int, default=1, help="runs per pose set; the median time is reported")
+    ap.add_argument("--out", type=Path, help="keep the mapped sessions here (default: a temporary directory)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], help="passed to sosmatch map")
+    args = ap.parse_args(argv)
+    extra = [a for o in args.overrides for a in ("--set", o)]
+    print(machine_summary())
+    print(f"session {args.session}, first {args.frames} frames")
+    header = ("| poses | keyframes | landmarks | median horiz. error m | median vert. error m | purity | "
+              "objects seen in >= 6 kf mapped | bytes/landmark | run s |")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench-map-out-") as tmp:
+        root = args.out or Path(tmp)
+        for ekf in (False, True):
+            out = root / ("map_ekf" if ekf else "map_exact")
+            times = [run_map(args.session, args.frames, ekf, out, extra) for _ in range(args.repeats)]
+            s = score_session(args.session, out)
+            rows.append(
+                f"| {'EKF' if ekf else 'exact'} | {s['keyframes']} | {s['landmarks']} | {s['median_h_m']:.2f} | "
+                f"{s['median_v_m']:.2f} | {s['purity']:.3f} | {s['coverage']:.2f} ({s['eligible_objects']}) | "
+                f"{s['bytes_per_landmark']:.1f} | {statistics.median(times):.1f} |"
+            )
+    print(header)
+    print("|" + "---|" * 9)
+    print("\n".join(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
