@@ -1,0 +1,120 @@
+"""Pose refinement with priors on a synthetic reconstruction built here (real pycolmap objects)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pycolmap
+import pytest
+
+from sosmatch.plugin.geometry import Camera, Poses, project
+from sosmatch.workflows.pose_refinement import (
+    _rotvec_to_matrix,
+    poses_of_reconstruction,
+    refine_poses_with_priors,
+    rotation_angle_deg,
+)
+
+CAM = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
+ORIGIN = np.array([486000.0, 5207000.0, 0.0])  # UTM-sized coordinates, as in a georeferenced session
+
+
+def _nadir(heading_deg):
+    h = np.radians(heading_deg)
+    top = np.array([np.sin(h), np.cos(h), 0.0])
+    y, z = -top, np.array([0.0, 0.0, -1.0])
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def _scene(seed=0):
+    rng = np.random.default_rng(seed)
+    centers, rots = [], []
+    for line, north in enumerate([0.0, 40.0]):
+        for k in range(12):
+            centers.append([k * 12.0, north, 80.0 + rng.normal(0, 1)])
+            rots.append(_rotvec_to_matrix(rng.normal(0, np.radians(3), (1, 3)))[0] @ _nadir(90 if line == 0 else 270))
+    truth = Poses([f"f{i:03d}.jpg" for i in range(24)], np.array(rots), np.array(centers) + ORIGIN)
+    pts = np.column_stack([rng.uniform(-30, 160, 400), rng.uniform(-40, 80, 400), rng.uniform(0, 8, 400)]) + ORIGIN
+    return truth, pts, rng
+
+
+def _build(truth, pts, poses, rng, pixel_noise=1.0):
+    """Reconstruction with `poses`, observations of the true points by the true cameras, and points triangulated
+    (linear, from the given poses) as a mapping run would have them."""
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=CAM.width, height=CAM.height,
+                                                    params=[CAM.fx, CAM.fy, CAM.cx, CAM.cy], camera_id=1))
+    obs = {}
+    for i in range(len(truth)):
+        uv, depth = project(CAM, truth.rotations[i], truth.centers[i], pts)
+        ok = (depth > 0) & (uv[:, 0] > 0) & (uv[:, 0] < CAM.width) & (uv[:, 1] > 0) & (uv[:, 1] < CAM.height)
+        idx = np.flatnonzero(ok)
+        uvn = uv[idx] + rng.normal(0, pixel_noise, (len(idx), 2))
+        im = pycolmap.Image(name=truth.names[i], camera_id=1, image_id=i + 1,
+                            points2D=pycolmap.Point2DList([pycolmap.Point2D(p) for p in uvn]))
+        r_cw = poses.rotations[i].T
+        rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(pycolmap.Rotation3d(r_cw), -r_cw @ poses.centers[i]))
+        for k, j in enumerate(idx):
+            obs.setdefault(j, []).append((i, k, uvn[k]))
+    kinv = np.linalg.inv(CAM.K)
+    for track_obs in obs.values():
+        if len(track_obs) < 3:
+            continue
+        # Least-squares intersection of the rays (from the given, possibly wrong, poses).
+        a, b = np.zeros((3, 3)), np.zeros(3)
+        for i, _, uv in track_obs:
+            d = poses.rotations[i] @ kinv @ np.array([uv[0], uv[1], 1.0])
+            d /= np.linalg.norm(d)
+            m = np.eye(3) - np.outer(d, d)
+            a += m
+            b += m @ (poses.centers[i] - ORIGIN)
+        track = pycolmap.Track()
+        for i, k, _ in track_obs:
+            track.add_element(i + 1, k)
+        rec.add_point3D(np.linalg.solve(a, b) + ORIGIN, track)
+    return rec
+
+
+def _errors(rec, truth):
+    est = poses_of_reconstruction(rec)
+    order = [truth.names.index(n) for n in est.names]
+    dpos = np.linalg.norm(est.centers - truth.centers[order], axis=1)
+    drot = rotation_angle_deg(est.rotations, truth.rotations[order])
+    return float(np.sqrt(np.mean(dpos**2))), float(np.sqrt(np.mean(drot**2)))
+
+
+def test_refinement_reduces_reprojection_and_pose_error_and_stays_near_priors():
+    truth, pts, rng = _scene()
+    pos_sigma, att_sigma = 2.0, 2.0
+    noisy = Poses(truth.names, _rotvec_to_matrix(rng.normal(0, np.radians(att_sigma), (24, 3))) @ truth.rotations,
+                  truth.centers + rng.normal(0, pos_sigma, (24, 3)))
+    rec = _build(truth, pts, noisy, rng)
+    pos_before, rot_before = _errors(rec, truth)
+    stats = refine_poses_with_priors(rec, noisy, position_sigma_m=pos_sigma, attitude_sigma_deg=att_sigma,
+                                     pixel_sigma_px=1.0)
+    pos_after, rot_after = _errors(rec, truth)
+    assert stats.images == 24 and stats.points > 200
+    assert stats.reprojection_rmse_before_px > 10.0
+    assert stats.reprojection_rmse_after_px < 1.6  # ~ the 1 px noise (sqrt(2) for two components)
+    assert pos_after < 0.6 * pos_before and rot_after < 0.6 * rot_before
+    # Still in the GPS frame: no image moved far beyond its prior's uncertainty.
+    assert stats.position_change_max_m < 4 * pos_sigma * np.sqrt(3)
+    assert stats.rotation_change_max_deg < 4 * att_sigma * np.sqrt(3)
+    # The reconstruction itself was updated (points and errors).
+    errs = np.array([p.error for p in rec.points3D.values()])
+    assert np.median(errs) < 1.5
+
+
+def test_exact_poses_barely_move_and_tight_priors_hold_them():
+    truth, pts, rng = _scene(1)
+    rec = _build(truth, pts, truth, rng, pixel_noise=0.5)
+    stats = refine_poses_with_priors(rec, truth, position_sigma_m=0.05, attitude_sigma_deg=0.05, pixel_sigma_px=0.5)
+    assert stats.position_change_max_m < 0.1 and stats.rotation_change_max_deg < 0.1
+    assert stats.reprojection_rmse_after_px <= stats.reprojection_rmse_before_px + 1e-6
+
+
+def test_deterministic():
+    truth, pts, rng = _scene(2)
+    noisy = Poses(truth.names, truth.rotations, truth.centers + np.random.default_rng(5).normal(0, 1, (24, 3)))
+    a = refine_poses_with_priors(_build(truth, pts, noisy, np.random.default_rng(3)), noisy)
+    b = refine_poses_with_priors(_build(truth, pts, noisy, np.random.default_rng(3)), noisy)
+    assert a.reprojection_rmse_after_px == pytest.approx(b.reprojection_rmse_after_px, rel=1e-12)
