@@ -1,0 +1,211 @@
+"""`sam-onnx` with tiny ONNX models built here (same input/output names and shapes as SAM's exports).
+
+The fake decoder answers a point prompt with concentric discs around the point (in SAM's 1024 frame), so the
+real preprocessing, coordinate transforms, batching, filtering, upsampling and NMS all run and can be checked.
+"""
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.params import SegmentationParams
+from sosmatch.plugin.segmentation import MaskSet, get_backend
+from sosmatch.plugin.segmentation.sam_onnx import mask_nms, point_grid, stability_score
+
+OPSET = [helper.make_opsetid("", 17)]
+# channel 0 = single-mask token (dropped), 1: r=40 sharp, 2: r=80 sharp, 3: r=200 but unstable (soft logits)
+RADII = np.array([60.0, 40.0, 80.0, 200.0], np.float32)
+SLOPES = np.array([100.0, 100.0, 100.0, 0.5], np.float32)  # stability (1-1/s)/(1+1/s)
+IOUS = np.array([0.99, 0.95, 0.80, 0.97], np.float32)
+
+
+def _const(name, array):
+    return helper.make_node("Constant", [], [name], value=numpy_helper.from_array(np.asarray(array), name + "_v"))
+
+
+def _save(graph, path):
+    model = helper.make_model(graph, opset_imports=OPSET)
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
+def make_encoder(path, kind="hwc", out_channels=256):
+    if kind == "hwc":
+        inp = helper.make_tensor_value_info("input_image", TensorProto.FLOAT, ["h", "w", 3])
+    elif kind == "nchw":
+        inp = helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, 1024, 1024])
+    else:
+        inp = helper.make_tensor_value_info("batched_images", TensorProto.FLOAT, [1, 3, "H", "W"])
+    out = helper.make_tensor_value_info("image_embeddings", TensorProto.FLOAT, [1, out_channels, 64, 64])
+    nodes = [
+        helper.make_node("ReduceMean", [inp.name], ["m"], keepdims=0),
+        _const("shape", np.array([1, out_channels, 64, 64], np.int64)),
+        helper.make_node("Expand", ["m", "shape"], ["image_embeddings"]),
+    ]
+    return _save(helper.make_graph(nodes, "enc", [inp], [out]), path)
+
+
+def make_decoder(path, batch="B", mask_size=256, names=None, with_low_res=True):
+    f = TensorProto.FLOAT
+    inputs = [
+        helper.make_tensor_value_info("image_embeddings", f, [1, 256, 64, 64]),
+        helper.make_tensor_value_info("point_coords", f, [batch, "N", 2]),
+        helper.make_tensor_value_info("point_labels", f, [batch, "N"]),
+        helper.make_tensor_value_info("mask_input", f, [1, 1, mask_size, mask_size]),
+        helper.make_tensor_value_info("has_mask_input", f, [1]),
+        helper.make_tensor_value_info("orig_im_size", f, [2]),
+    ]
+    if names:
+        for vi, name in zip(inputs, names):
+            vi.name = name
+    n = [i.name for i in inputs]
+    grid = (np.arange(256, dtype=np.float32) + 0.5) * 4.0
+    nodes = [
+        _const("gx", grid[None, None, None, :]),
+        _const("gy", grid[None, None, :, None]),
+        _const("r2", (RADII**2)[None, :, None, None]),
+        _const("slope", SLOPES[None, :, None, None]),
+        _const("iou0", IOUS[None, :]),
+        _const("zero", np.array(0.0, np.float32)),
+        _const("s0", np.array([0, 0], np.int64)), _const("e1", np.array([1, 1], np.int64)),
+        _const("s1", np.array([0, 1], np.int64)), _const("e2", np.array([1, 2], np.int64)),
+        _const("ax", np.array([1, 2], np.int64)), _const("ax3", np.array([3], np.int64)),
+        helper.make_node("Slice", [n[1], "s0", "e1", "ax"], ["px3"]),
+        helper.make_node("Slice", [n[1], "s1", "e2", "ax"], ["py3"]),
+        helper.make_node("Unsqueeze", ["px3", "ax3"], ["px"]),
+        helper.make_node("Unsqueeze", ["py3", "ax3"], ["py"]),
+        helper.make_node("Sub", ["gx", "px"], ["dx"]),
+        helper.make_node("Sub", ["gy", "py"], ["dy"]),
+        helper.make_node("Mul", ["dx", "dx"], ["dx2"]),
+        helper.make_node("Mul", ["dy", "dy"], ["dy2"]),
+        helper.make_node("Add", ["dx2", "dy2"], ["d2"]),
+        helper.make_node("Sub", ["r2", "d2"], ["inside"]),
+        helper.make_node("Div", ["inside", "r2"], ["rel"]),
+        helper.make_node("Mul", ["rel", "slope"], ["low_res_masks"]),
+    ]
+    # every other input takes part (times zero), so the graph really consumes what it declares
+    nodes += [
+        _const("ax12", np.array([1, 2], np.int64)),
+        helper.make_node("ReduceSum", [n[1], "ax12"], ["b3"], keepdims=1),  # (B, 1, 1)
+        _const("shape_b1", np.array([-1, 1], np.int64)),
+        helper.make_node("Reshape", ["b3", "shape_b1"], ["b1"]),  # (B, 1)
+        helper.make_node("ReduceSum", [n[0]], ["e_s"], keepdims=0),
+        helper.make_node("ReduceSum", [n[2]], ["l_s"], keepdims=0),
+        helper.make_node("ReduceSum", [n[3]], ["m_s"], keepdims=0),
+        helper.make_node("ReduceSum", [n[4]], ["h_s"], keepdims=0),
+        helper.make_node("ReduceSum", [n[5]], ["o_s"], keepdims=0),
+        helper.make_node("Sum", ["e_s", "l_s", "m_s", "h_s", "o_s"], ["all_s"]),
+        helper.make_node("Add", ["b1", "all_s"], ["tot"]),
+        helper.make_node("Mul", ["tot", "zero"], ["z"]),
+        helper.make_node("Add", ["iou0", "z"], ["iou_predictions"]),
+        helper.make_node("Identity", ["low_res_masks"], ["masks"]),
+    ]
+    outputs = [helper.make_tensor_value_info("masks", f, [batch, 4, None, None]),
+               helper.make_tensor_value_info("iou_predictions", f, [batch, 4])]
+    if with_low_res:
+        outputs.append(helper.make_tensor_value_info("low_res_masks", f, [batch, 4, 256, 256]))
+    return _save(helper.make_graph(nodes, "dec", inputs, outputs), path)
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sam")
+    return {
+        "enc_hwc": make_encoder(d / "enc_hwc.onnx", "hwc"),
+        "enc_nchw": make_encoder(d / "enc_nchw.onnx", "nchw"),
+        "dec": make_decoder(d / "dec.onnx"),
+        "dec_b1": make_decoder(d / "dec_b1.onnx", batch=1),
+        "bad_names": make_decoder(d / "bad_names.onnx", names=["image_embeddings", "coords"]),
+        "bad_shape": make_decoder(d / "bad_shape.onnx", mask_size=128),
+        "enc_bad": make_encoder(d / "enc_bad.onnx", "hwc", out_channels=128),
+        "dir": d,
+    }
+
+
+def _params(models, enc="enc_hwc", dec="dec", **kw):
+    kw.setdefault("sam_points_per_side", 4)
+    return SegmentationParams(backend="sam-onnx", sam_encoder=str(models[enc]), sam_decoder=str(models[dec]), **kw)
+
+
+def _expected_discs(h, w, pps, radius_1024):
+    pts = point_grid(pps, h, w)
+    r = radius_1024 * max(h, w) / 1024.0
+    return pts, r
+
+
+@pytest.mark.parametrize("enc", ["enc_hwc", "enc_nchw"])
+def test_segment_everything_recovers_discs_in_original_pixels(models, enc):
+    h, w = 300, 400  # not square: exercises resize, the padded low-res crop and the upsampling
+    image = np.random.default_rng(0).integers(0, 255, (h, w, 3), dtype=np.uint8)
+    backend = get_backend("sam-onnx", _params(models, enc))
+    masks = backend(image)
+    assert masks.overlapping
+    pts, r = _expected_discs(h, w, 4, 40.0)
+    # channel 2 (iou 0.80 < 0.86) and channel 3 (unstable) are filtered; channel 0 is the single-mask token
+    assert len(masks) == len(pts)
+    assert np.allclose(masks.scores, 0.95)
+    areas = masks.areas()
+    assert np.allclose(areas, np.pi * r * r, rtol=0.12)
+    boxes = masks.bboxes
+    centers = np.stack([(boxes[:, 0] + boxes[:, 2]) / 2, (boxes[:, 1] + boxes[:, 3]) / 2], 1)
+    d = np.linalg.norm(centers[:, None] - pts[None], axis=2)
+    assert np.all(d.min(axis=1) < 2.0) and len(set(d.argmin(axis=1))) == len(pts)
+
+
+def test_filters_batching_and_nms(models):
+    h, w = 240, 320
+    image = np.full((h, w, 3), 90, np.uint8)
+    loose = get_backend("sam-onnx", _params(models, sam_pred_iou_thresh=0.75))(image)
+    assert len(loose) == 2 * 16  # r=40 and r=80 discs at every grid point (concentric IoU 0.25 < 0.7)
+    pts, r80 = _expected_discs(h, w, 4, 80.0)
+    assert np.isclose(loose.areas().max(), np.pi * r80 * r80, rtol=0.12)
+    unbatched = get_backend("sam-onnx", _params(models, dec="dec_b1", sam_pred_iou_thresh=0.75))(image)
+    assert np.array_equal(unbatched.rasterise(), loose.rasterise())
+    assert np.array_equal(unbatched.scores, loose.scores)
+    strict_nms = get_backend("sam-onnx", _params(models, sam_pred_iou_thresh=0.75, sam_box_nms_thresh=0.2))(image)
+    assert len(strict_nms) == 16 and np.allclose(strict_nms.scores, 0.95)  # r=80 discs suppressed by r=40
+    big = get_backend("sam-onnx", _params(models, sam_pred_iou_thresh=0.75, sam_max_area_frac=0.02))(image)
+    assert len(big) == 16  # r=80 discs are 2.6 % of the image, r=40 ones 0.6 %
+
+
+def test_mask_nms_and_stability_helpers():
+    a = np.zeros((50, 50), bool)
+    a[10:30, 10:30] = True
+    b = np.zeros((50, 50), bool)
+    b[11:31, 10:30] = True
+    c = np.zeros((50, 50), bool)
+    c[35:45, 35:45] = True
+    ms = MaskSet.from_masks([a, b, c], scores=[0.8, 0.9, 0.7])
+    assert mask_nms(ms, ms.scores, 0.7).tolist() == [1, 2]
+    logits = np.stack([np.full((8, 8), 5.0), np.linspace(-2, 2, 64).reshape(8, 8)])
+    s = stability_score(logits, 1.0)
+    assert s[0] == 1.0 and 0.2 < s[1] < 0.5
+
+
+def test_model_errors_name_the_file(models, monkeypatch):
+    monkeypatch.delenv("SOSMATCH_SAM_ENCODER", raising=False)
+    monkeypatch.delenv("SOSMATCH_SAM_DECODER", raising=False)
+    with pytest.raises(InputError, match="SOSMATCH_SAM_ENCODER"):
+        get_backend("sam-onnx", SegmentationParams())
+    missing = models["dir"] / "nope.onnx"
+    with pytest.raises(InputError, match="nope.onnx.*not found"):
+        get_backend("sam-onnx", SegmentationParams(sam_encoder=str(missing), sam_decoder=str(models["dec"])))
+    with pytest.raises(InputError, match="bad_names.onnx.*match neither"):
+        get_backend("sam-onnx", _params(models, dec="bad_names"))
+    with pytest.raises(InputError, match="bad_shape.onnx.*mask_input"):
+        get_backend("sam-onnx", _params(models, dec="bad_shape"))
+    with pytest.raises(InputError, match="enc_bad.onnx.*image_embeddings"):
+        get_backend("sam-onnx", _params(models, enc="enc_bad"))
+    junk = models["dir"] / "junk.onnx"
+    junk.write_bytes(b"this is not a protobuf")
+    with pytest.raises(InputError, match="junk.onnx.*not a loadable ONNX"):
+        get_backend("sam-onnx", SegmentationParams(sam_encoder=str(junk), sam_decoder=str(models["dec"])))
+    # the environment variables are honoured
+    monkeypatch.setenv("SOSMATCH_SAM_ENCODER", str(models["enc_hwc"]))
+    monkeypatch.setenv("SOSMATCH_SAM_DECODER", str(models["dec"]))
+    masks = get_backend("sam-onnx", SegmentationParams(sam_points_per_side=2))(np.zeros((64, 64, 3), np.uint8))
+    assert len(masks) == 4
