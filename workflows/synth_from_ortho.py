@@ -1,11 +1,15 @@
 """`sosmatch synth-from-ortho`: a session of nadir views with exact poses rendered from a georeferenced orthophoto.
 
-The output has the layout of a synthetic session (docs/ARCHITECTURE.md) without segmentation ground truth:
-    SESSION/session.json   source raster, CRS, flight plan, camera
+The output has the layout of a synthetic session (docs/ARCHITECTURE.md; `load_synth_session` reads it) without
+segmentation ground truth:
+    SESSION/session.json   format sosmatch-synth-session v1, source "orthophoto", raster, CRS, flight plan, camera
     SESSION/cameras.txt    one PINHOLE camera, id 1
     SESSION/images/        frame_00000.jpg ...
     SESSION/poses.csv      exact world_from_camera poses, `# crs: EPSG:<the raster's code>`, ground at z = 0
+    SESSION/poses_ekf.csv  the same poses (or with `ekf_position_sigma_m` / `ekf_attitude_sigma_deg` noise)
+    SESSION/objects.csv    header only (no object ground truth)
     SESSION/frames.json    per image: name, visible_object_ids (empty), footprint (ground polygon, world)
+    SESSION/terrain.npz    a flat 2x2 grid at z = 0 over the raster
 so mapping, matching and evaluation (flat ground at z = 0) consume it unchanged. The same arguments on two
 orthophotos of one area (e.g. NAIP 2009 and 2015) give two sessions flown along the same path with exact,
 shared ground truth.
@@ -31,11 +35,28 @@ from ..database.atomic import atomic_path
 from ..database.cameras import format_cameras_txt
 from ..database.poses import format_poses_csv
 from ..plugin.errors import InputError
+from ..plugin.geometry import Poses
 from ..tools import ortho_session as osess
 
 log = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
+
+# The synthetic session's format (sosmatch.database.synth_session), repeated so this module has no dependency on
+# the synthetic world; tests/test_synth_from_ortho.py checks the synthetic reader accepts the result.
+SESSION_FORMAT = "sosmatch-synth-session"
+SESSION_VERSION = 1
+OBJECT_COLUMNS = ["id", "kind", "x", "y", "z", "radius", "height", "present"]
+
+
+def noisy_poses(poses: Poses, position_sigma_m: float, attitude_sigma_deg: float, seed: int) -> Poses:
+    """The poses with seeded independent Gaussian position and small-rotation noise (the exact ones if both 0)."""
+    from .pose_refinement import _rotvec_to_matrix
+
+    rng = np.random.default_rng(seed)
+    dc = rng.normal(0.0, position_sigma_m, poses.centers.shape) if position_sigma_m > 0 else 0.0
+    dr = _rotvec_to_matrix(rng.normal(0.0, np.radians(attitude_sigma_deg), (len(poses), 3))) \
+        if attitude_sigma_deg > 0 else np.eye(3)
+    return Poses(list(poses.names), dr @ poses.rotations, poses.centers + dc)
 
 
 def read_orthophoto(path: str | Path) -> osess.Orthophoto:
@@ -85,11 +106,14 @@ def run(
     max_tilt_deg: float = 0.0,
     seed: int = 0,
     jpeg_quality: int = 95,
+    ekf_position_sigma_m: float = 0.0,
+    ekf_attitude_sigma_deg: float = 0.0,
 ) -> dict:
     """Render the session into `out` (written whole, atomically) and return a summary.
 
     `altitude_m` wins over `gsd_m` (GSD = altitude / focal length in px). `frames` caps the number of frames
     (the first ones along the path). `max_tilt_deg` adds a seeded random tilt to every view (poses stay exact).
+    `ekf_*_sigma` put seeded Gaussian noise on poses_ekf.csv (independent per frame; poses.csv stays exact).
     """
     import cv2
 
@@ -122,9 +146,15 @@ def run(
             records.append({"name": name, "visible_object_ids": [], "footprint": fp.round(3).tolist()})
         (tmp / "cameras.txt").write_text(format_cameras_txt({1: camera}), encoding="utf-8")
         (tmp / "poses.csv").write_text(format_poses_csv(poses, ortho.epsg), encoding="utf-8")
-        (tmp / "frames.json").write_text(json.dumps({"version": FORMAT_VERSION, "frames": records}), encoding="utf-8")
+        ekf = noisy_poses(poses, ekf_position_sigma_m, ekf_attitude_sigma_deg, seed + 1)
+        (tmp / "poses_ekf.csv").write_text(format_poses_csv(ekf, ortho.epsg), encoding="utf-8")
+        (tmp / "objects.csv").write_text(",".join(OBJECT_COLUMNS) + "\n", encoding="utf-8")
+        (tmp / "frames.json").write_text(json.dumps(records, indent=1) + "\n", encoding="utf-8")
+        e0, n0, e1, n1 = ortho.bounds()
+        with open(tmp / "terrain.npz", "wb") as f:
+            np.savez(f, heights=np.zeros((2, 2), np.float32), x0=e0, y0=n0, resolution_m=max(e1 - e0, n1 - n0))
         session = {
-            "format": "sosmatch-session", "version": FORMAT_VERSION, "source": "orthophoto",
+            "format": SESSION_FORMAT, "version": SESSION_VERSION, "source": "orthophoto",
             "orthophoto": str(Path(geotiff).resolve()), "epsg": ortho.epsg, "ground_z": 0.0,
             "orthophoto_gsd_m": abs(ortho.dx),
             "flight": {"path": path, "altitude_m": float(altitude_m), "gsd_m": float(altitude_m / camera.fx),
@@ -132,6 +162,7 @@ def run(
                        "heading_deg": heading_deg, "offset_m": offset_m, "frames": len(poses),
                        "max_tilt_deg": max_tilt_deg, "seed": seed},
             "camera": asdict(camera), "hfov_deg": hfov_deg,
+            "ekf": {"position_sigma_m": ekf_position_sigma_m, "attitude_sigma_deg": ekf_attitude_sigma_deg},
         }
         (tmp / "session.json").write_text(json.dumps(session, indent=2), encoding="utf-8")
     along = height * altitude_m / camera.fx

@@ -26,6 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, help="at most this many frames (the first along the path)")
     parser.add_argument("--max-tilt", type=float, default=0.0, help="random tilt of each view, degrees (exact)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--ekf-position-sigma", type=float, default=0.0, help="noise of poses_ekf.csv, metres")
+    parser.add_argument("--ekf-attitude-sigma", type=float, default=0.0, help="noise of poses_ekf.csv, degrees")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     summary = render(args.geotiff, args.out, path=args.path, altitude_m=args.altitude, gsd_m=args.gsd,
                      width=args.width, height=args.height, hfov_deg=args.hfov, frame_spacing_m=args.frame_spacing,
                      line_spacing_m=args.line_spacing, heading_deg=args.heading, offset_m=args.offset,
-                     frames=args.frames, max_tilt_deg=args.max_tilt, seed=args.seed)
+                     frames=args.frames, max_tilt_deg=args.max_tilt, seed=args.seed,
+                     ekf_position_sigma_m=args.ekf_position_sigma, ekf_attitude_sigma_deg=args.ekf_attitude_sigma)
     print(json.dumps(summary, indent=2))
     return 0
