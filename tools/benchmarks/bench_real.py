@@ -1,5 +1,11 @@
-"""Real-data checks. `attitude` (default): which body-to-camera convention makes the Seneca telemetry predict
-how image content actually moves between consecutive frames.
+"""Real-data checks.
+
+`attitude` (default): which body-to-camera convention makes the Seneca telemetry predict how image content
+actually moves between consecutive frames.
+`refine SESSION --poses poses.csv`: pose refinement with priors on a mapped real session (e.g. Seneca mapped
+from `sosmatch poses-from-exif` poses): reprojection error of the landmarks before/after, how far poses moved.
+`naip`: two sessions rendered from the NAIP 2009 and 2015 orthophotos along one path, mapped and matched;
+scored against the exact shared ground truth (the true A_from_B transform is the identity).
 
 For each pair of consecutive frames on one flight line, ORB features are matched and filtered by a RANSAC
 homography (image evidence only, no telemetry). For each candidate convention (mount x sign of pitch x sign of
@@ -9,6 +15,8 @@ the distance to where the feature was actually seen. A wrong sign of a 10-degree
 ~25 m on the ground (~300 px at 70 m); metre-level GPS error is ~12 px per metre.
 
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_real attitude [--seneca /work/shared/data/seneca]
+    .venv/bin/python -m sosmatch.tools.benchmarks.bench_real refine SESSION --poses poses.csv
+    .venv/bin/python -m sosmatch.tools.benchmarks.bench_real naip --work DIR [--naip /work/shared/data/naip]
 """
 
 from __future__ import annotations
@@ -139,13 +147,110 @@ def _column(path: Path, column: str) -> dict[str, float]:
         return {row["FileName"]: float(row[column]) for row in csv.DictReader(f)}
 
 
+def refine_check(session: Path, poses_csv: Path, position_sigma_m: float, attitude_sigma_deg: float,
+                 pixel_sigma_px: float, out: Path | None = None) -> dict:
+    """Refine a mapped session's model with pose priors; report errors before/after (model written to `out`)."""
+    import pycolmap
+
+    from ...database.poses import read_poses_csv
+    from ...workflows.pose_refinement import refine_poses_with_priors
+
+    rec = pycolmap.Reconstruction(str(session / "sparse"))
+    rec.update_point_3d_errors()
+    before = np.array([p.error for p in rec.points3D.values()])
+    priors, _ = read_poses_csv(poses_csv)
+    stats = refine_poses_with_priors(rec, priors, position_sigma_m, attitude_sigma_deg, pixel_sigma_px)
+    after = np.array([p.error for p in rec.points3D.values()])
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        rec.write_binary(str(out))
+    return {"stats": stats.to_dict(), "point_error_median_before_px": float(np.median(before)),
+            "point_error_median_after_px": float(np.median(after))}
+
+
+def naip_check(naip: Path, work: Path, extra_args: list[str]) -> dict:
+    """Render both NAIP dates along one path, map both, match; score against the identity ground truth."""
+    import json
+
+    from ..cli import main as cli
+
+    tifs = sorted(naip.glob("*.tif"))
+    if len(tifs) != 2:
+        raise SystemExit(f"expected two GeoTIFFs in {naip}")
+    times = {}
+    sessions = []
+    for tif in tifs:
+        name = tif.stem.rsplit("_", 1)[-1]
+        sess, mapped = work / f"naip_{name}", work / f"naip_{name}_map"
+        t0 = time.perf_counter()
+        if not (sess / "session.json").exists():
+            assert cli(["synth-from-ortho", str(tif), "--out", str(sess), "--max-tilt", "3", *extra_args]) == 0
+        times[f"render_{name}_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        if not (mapped / "run.json").exists():
+            assert cli(["map", "--poses", str(sess), "--out", str(mapped), "--no-progress"]) == 0
+        times[f"map_{name}_s"] = time.perf_counter() - t0
+        sessions.append((sess, mapped))
+    t0 = time.perf_counter()
+    match_dir = work / "naip_match"
+    assert cli(["match", str(sessions[0][1]), str(sessions[1][1]), "--out", str(match_dir), "--no-plot"]) == 0
+    times["match_s"] = time.perf_counter() - t0
+    from ...database.landmark_map import read_landmark_map
+
+    a = read_landmark_map(sessions[0][1] / "landmarks.sosmap")
+    b = read_landmark_map(sessions[1][1] / "landmarks.sosmap")
+    result = json.loads((match_dir / "match.json").read_text())
+    out = {"landmarks": [len(a), len(b)], "accepted": result.get("num_accepted"), **times}
+    best = result.get("consensus") or (result["hypotheses"][result["best"]] if result.get("best") is not None
+                                       else None)
+    if best:
+        t = best["transform"]
+        rot = np.array(t["rotation"])
+        out["transform_error_m"] = float(np.linalg.norm(t["translation"]))
+        out["transform_error_deg"] = float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))))
+        assoc = np.array(best["associations"]).reshape(-1, 2)
+        d = np.linalg.norm(a.positions[assoc[:, 0], :2] - b.positions[assoc[:, 1], :2], axis=1)
+        out["associations"] = len(assoc)
+        out["associations_within_10m"] = int(np.sum(d < 10.0))
+        out["association_distance_median_m"] = float(np.median(d)) if len(d) else float("nan")
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("check", nargs="?", default="attitude", choices=["attitude"])
+    parser.add_argument("check", nargs="?", default="attitude", choices=["attitude", "refine", "naip"])
+    parser.add_argument("session", nargs="?", type=Path, help="refine: the mapped session")
     parser.add_argument("--seneca", type=Path, default=Path("/work/shared/data/seneca"))
     parser.add_argument("--pairs", type=int, default=60)
-    args = parser.parse_args()
+    parser.add_argument("--poses", type=Path, help="refine: the prior poses (pose CSV)")
+    parser.add_argument("--position-sigma", type=float, default=3.0)
+    parser.add_argument("--attitude-sigma", type=float, default=5.0)
+    parser.add_argument("--pixel-sigma", type=float, default=3.0)
+    parser.add_argument("--out", type=Path, help="refine: write the refined model here")
+    parser.add_argument("--naip", type=Path, default=Path("/work/shared/data/naip"))
+    parser.add_argument("--work", type=Path, default=Path("naip_work"))
+    args, extra = parser.parse_known_args()
     print(machine_summary())
+    if args.check == "refine":
+        if args.session is None or args.poses is None:
+            parser.error("refine needs SESSION and --poses")
+        r = refine_check(args.session, args.poses, args.position_sigma, args.attitude_sigma, args.pixel_sigma,
+                         args.out)
+        st = r["stats"]
+        print(f"{st['images']} images, {st['points']} points, {st['observations']} observations; sigmas: position "
+              f"{args.position_sigma} m, attitude {args.attitude_sigma} deg, pixel {args.pixel_sigma} px")
+        print(f"reprojection RMSE {st['reprojection_rmse_before_px']:.2f} -> {st['reprojection_rmse_after_px']:.2f}"
+              f" px, median {st['reprojection_median_before_px']:.2f} -> {st['reprojection_median_after_px']:.2f} px;"
+              f" point error median {r['point_error_median_before_px']:.2f} -> {r['point_error_median_after_px']:.2f}"
+              f" px; poses moved {st['position_change_mean_m']:.2f} m (max {st['position_change_max_m']:.2f}),"
+              f" {st['rotation_change_mean_deg']:.2f} deg (max {st['rotation_change_max_deg']:.2f});"
+              f" {st['iterations']} evaluations, {st['seconds']:.1f} s")
+        return
+    if args.check == "naip":
+        r = naip_check(args.naip, args.work, extra)
+        for k, v in r.items():
+            print(f"{k}: {v}")
+        return
     out = attitude_check(args.seneca, args.pairs)
     print(f"{out['pairs']} consecutive same-line pairs, median {out['median_inliers']:.0f} ORB inliers, "
           f"median image motion {out['median_speed_px']:.0f} px, matching {out['match_seconds']:.1f} s")
