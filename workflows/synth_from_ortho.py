@@ -124,7 +124,11 @@ def run(
     if altitude_m <= 0 or width <= 0 or height <= 0 or not 1.0 < hfov_deg < 170.0:
         raise InputError("altitude, image size must be positive and the field of view within (1, 170) degrees")
     try:
-        centers, headings = osess.plan_path(ortho.bounds(), camera, altitude_m, path, frame_spacing_m,
+        # Tilted views shift their footprint by up to altitude * tan(tilt) per axis: keep that margin too.
+        margin = altitude_m * math.tan(math.radians(max(max_tilt_deg, 0.0))) * math.sqrt(2.0)
+        e0, n0, e1, n1 = ortho.bounds()
+        centers, headings = osess.plan_path((e0 + margin, n0 + margin, e1 - margin, n1 - margin), camera,
+                                            altitude_m, path, frame_spacing_m,
                                             line_spacing_m, heading_deg, offset_m, frames)
     except ValueError as exc:
         raise InputError(str(exc), geotiff) from None
