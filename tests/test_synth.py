@@ -1,0 +1,260 @@
+"""The synthetic survey world: determinism, geometric ground truth, seasons, files and the command line."""
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from sosmatch.database.synth_session import TerrainSampler, load_synth_session
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.geometry import project
+from sosmatch.tools.synth.appearance import cast_shadow, lighting
+from sosmatch.tools.synth.render import render_view
+from sosmatch.tools.synth.world import build_scene, get_world
+from sosmatch.workflows.synth import SynthConfig, run, session_poses, session_presence
+
+SOSMATCH = str(Path(sys.executable).parent / "sosmatch")
+# A small world and small images keep the tests fast; the geometry is the same as at full size.
+SMALL = dict(world_seed=3, world_size_m=240.0, frames=8, spacing_m=8.0, width=320, height=240,
+             line_length_m=40.0, line_spacing_m=25.0)
+
+
+@pytest.fixture(scope="module")
+def session_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("synth") / "S1"
+    run(out, SynthConfig(**SMALL))
+    return out
+
+
+def test_same_seed_gives_byte_identical_session(session_dir, tmp_path):
+    again = tmp_path / "again"
+    run(again, SynthConfig(**SMALL))
+    files = sorted(p.relative_to(session_dir) for p in session_dir.rglob("*") if p.is_file())
+    assert len(files) == 2 * 8 + 7
+    for rel in files:
+        assert (session_dir / rel).read_bytes() == (again / rel).read_bytes(), rel
+    # ... and another session seed changes the pixels but not the world.
+    other = tmp_path / "other"
+    run(other, SynthConfig(**{**SMALL, "session_seed": 5}))
+    a = cv2.imread(str(session_dir / "images" / "frame_00000.jpg")).astype(int)
+    b = cv2.imread(str(other / "images" / "frame_00000.jpg")).astype(int)
+    assert np.abs(a - b).mean() > 1.0
+    assert (session_dir / "terrain.npz").read_bytes() == (other / "terrain.npz").read_bytes()
+
+
+def test_reader_returns_consistent_session(session_dir):
+    s = load_synth_session(session_dir)
+    assert len(s.poses) == len(s.ekf_poses) == len(s.frames) == 8
+    assert s.camera.width == 320 and s.camera.height == 240
+    assert math.isclose(2 * math.degrees(math.atan(160 / s.camera.fx)), 65.0, rel_tol=1e-6)
+    assert s.meta["config"]["world_seed"] == 3
+    # Roughly 100 m above the ground, looking down.
+    agl = s.poses.centers[:, 2] - s.terrain.height_at(s.poses.centers[:, 0], s.poses.centers[:, 1])
+    assert np.all(np.abs(agl - 100) < 6)
+    assert np.all(s.poses.rotations[:, 2, 2] < -0.99)  # camera z axis (forward) points down
+    # The EKF poses are noisy but close.
+    err = np.linalg.norm(s.ekf_poses.centers - s.poses.centers, axis=1)
+    assert 0 < err.mean() < 3.0
+    kinds = set(s.objects["kind"])
+    assert {"deciduous", "conifer", "building"} <= kinds
+    assert np.all(s.objects["radius"] > 0) and np.all(s.objects["height"][s.objects["kind"] != "pond"] > 0)
+    # visible ids are exactly the ids in the label images, and only present objects appear.
+    present = set(s.objects["id"][s.objects["present"]].tolist())
+    for f in s.frames:
+        labels = cv2.imread(str(s.label_path(f["name"])), cv2.IMREAD_UNCHANGED)
+        assert labels.dtype == np.uint16 and labels.shape == (240, 320)
+        ids = set(np.unique(labels).tolist()) - {0}
+        assert ids == set(f["visible_object_ids"])
+        assert ids <= present
+
+
+def test_object_top_projects_inside_its_blob(session_dir):
+    s = load_synth_session(session_dir)
+    by_id = {int(o["id"]): o for o in s.objects}
+    checked, inside = 0, 0
+    for i, f in enumerate(s.frames):
+        labels = cv2.imread(str(s.label_path(f["name"])), cv2.IMREAD_UNCHANGED)
+        for oid in f["visible_object_ids"]:
+            o = by_id[oid]
+            if (labels == oid).sum() < 40:  # cut by the image border or mostly hidden
+                continue
+            uv, depth = project(s.camera, s.poses.rotations[i], s.poses.centers[i],
+                                np.array([[o["x"], o["y"], o["z"]]]))
+            col, row = int(uv[0, 0]), int(uv[0, 1])  # pixel centres are at +0.5
+            if not (1 <= col < 319 and 1 <= row < 239):
+                continue
+            checked += 1
+            inside += int(np.any(labels[row - 1:row + 2, col - 1:col + 2] == oid))
+    assert checked >= 20
+    assert inside / checked >= 0.97, (inside, checked)
+
+
+def test_footprints_are_the_image_corners_on_the_terrain(session_dir):
+    s = load_synth_session(session_dir)
+    w, h = s.camera.width, s.camera.height
+    for i, f in enumerate(s.frames):
+        fp = np.array(f["footprint"])
+        assert fp.shape == (4, 2)
+        pts = np.column_stack([fp, s.terrain.height_at(fp[:, 0], fp[:, 1])])
+        uv, depth = project(s.camera, s.poses.rotations[i], s.poses.centers[i], pts)
+        assert np.all(depth > 0)
+        # footprints are stored with mm precision: at 100 m that is < 0.01 px
+        assert np.allclose(uv, [[0, 0], [w, 0], [w, h], [0, h]], atol=0.02), uv
+        # a nadir image covers about 127 m x 95 m at 100 m
+        assert 100 < np.linalg.norm(fp[1] - fp[0]) < 160 and 75 < np.linalg.norm(fp[3] - fp[0]) < 120
+
+
+def test_renderer_ground_agrees_with_terrain_file(session_dir):
+    s = load_synth_session(session_dir)
+    world = get_world(SynthConfig(**SMALL).world_config())
+    cfg = SynthConfig(**SMALL)
+    scene = build_scene(world, "summer", session_presence(world, cfg))
+    light = np.ones_like(scene.dsm)
+    res = render_view(scene, light, s.camera, s.poses.rotations[0], s.poses.centers[0])
+    ground = res.labels == 0
+    hit = res.hit[ground].astype(np.float64)
+    z_file = s.terrain.height_at(hit[:, 0], hit[:, 1])
+    assert np.percentile(np.abs(hit[:, 2] - z_file), 99) < 0.05
+    # and every hit reprojects onto its own pixel (real perspective, not a crop of a flat map)
+    rows, cols = np.nonzero(np.ones(res.labels.shape, bool))
+    pts = res.hit.reshape(-1, 3).astype(np.float64)
+    uv, _ = project(s.camera, s.poses.rotations[0], s.poses.centers[0], pts)
+    assert np.percentile(np.abs(uv - np.column_stack([cols + 0.5, rows + 0.5])), 99) < 0.1
+
+
+def test_tall_objects_lean_outward_off_nadir():
+    cfg = SynthConfig(**SMALL)
+    world = get_world(cfg.world_config())
+    present = session_presence(world, cfg)
+    scene = build_scene(world, "summer", present)
+    poses = session_poses(world, cfg)
+    cam = cfg.camera()
+    tall = [o for o, p in zip(world.objects, present) if p and o.height > 8]
+    checked = 0
+    for i in range(len(poses)):
+        r_wc, c = poses.rotations[i], poses.centers[i]
+        res = render_view(scene, np.ones_like(scene.dsm), cam, r_wc, c)
+        for o in tall:
+            if (res.labels == o.id).sum() < 60:
+                continue
+            (top, base, nadir), _ = project(cam, r_wc, c, np.array([[o.x, o.y, o.top_z], [o.x, o.y, o.ground_z],
+                                                                    [c[0], c[1], o.ground_z]]))
+            off = base - nadir  # vertical lines radiate from the nadir point of the image
+            if np.linalg.norm(off) < 50 or not (0 <= top[0] < cam.width and 0 <= top[1] < cam.height):
+                continue
+            lean = top - base
+            cos = np.dot(lean, off) / (np.linalg.norm(lean) * np.linalg.norm(off))
+            assert cos > 0.995  # the top is displaced straight away from the nadir ...
+            expected = np.linalg.norm(off) * o.height / (c[2] - o.top_z)  # ... by about r h / (H - h)
+            assert abs(np.linalg.norm(lean) - expected) < 0.1 * expected + 0.5
+            # and the rendered blob covers the top (a conifer tip may be thinner than a pixel)
+            r, q = int(top[1]), int(top[0])
+            assert np.any(res.labels[max(r - 1, 0):r + 2, max(q - 1, 0):q + 2] == o.id)
+            checked += 1
+    assert checked >= 1
+
+
+def test_winter_and_summer_differ_in_look_but_not_in_geometry():
+    cfg = SynthConfig(**SMALL)
+    world = get_world(cfg.world_config())
+    present = session_presence(world, cfg)
+    poses = session_poses(world, cfg)
+    cam = cfg.camera()
+    out = {}
+    for season, az, el in (("summer", 150, 55), ("winter", 200, 20)):
+        scene = build_scene(world, season, present)
+        light = lighting(scene.dsm, world.res, az, el, 0.5)
+        out[season] = render_view(scene, light, cam, poses.rotations[3], poses.centers[3])
+    s, w = out["summer"], out["winter"]
+    assert np.array_equal(s.labels, w.labels)  # same objects at the same pixels
+    assert np.allclose(s.hit, w.hit)
+    assert (s.labels > 0).sum() > 500
+    # snow: the winter frame is much brighter on the ground, and the colours differ everywhere
+    ground = s.labels == 0
+    assert w.linear[ground].mean() > 2.5 * s.linear[ground].mean()
+    assert np.abs(w.linear - s.linear).mean() > 0.1
+    # summer vegetation is green, leaf-off winter trees are not
+    trees = np.isin(s.labels, [o.id for o in world.objects if o.kind == "deciduous"])
+    if trees.sum() > 50:
+        sg = s.linear[trees]
+        wg = w.linear[trees]
+        assert (sg[:, 1] > sg[:, 0]).mean() > 0.8
+        assert (wg[:, 1] > wg[:, 0]).mean() < 0.8
+
+
+def test_objects_change_between_sessions():
+    world = get_world(SynthConfig(**SMALL).world_config())
+    a = session_presence(world, SynthConfig(**SMALL, session_seed=1))
+    b = session_presence(world, SynthConfig(**SMALL, session_seed=2))
+    default = np.array([o.default_present for o in world.objects])
+    assert 0 < (a != b).sum() < 0.2 * len(a)
+    assert (a & ~default).any() or (b & ~default).any()  # some extras added
+    assert (default & ~a).any() and (default & ~b).any()  # some removed
+    assert np.array_equal(session_presence(world, SynthConfig(**SMALL, session_seed=1, changed_fraction=0.0)),
+                          default)
+
+
+def test_cast_shadow_length_and_direction():
+    res = 0.2
+    dsm = np.zeros((400, 400), np.float32)
+    dsm[195:205, 195:205] = 10.0  # a 2 m x 2 m, 10 m tall tower
+    el = 45.0
+    sh = cast_shadow(dsm, res, azimuth_deg=90.0, elevation_deg=el)  # sun in the east: shadow to the west
+    row = sh[200]
+    west = np.nonzero(row[:195] > 0.5)[0]
+    assert len(west) and not (row[206:] > 0.5).any()
+    length_m = (195 - west.min()) * res
+    assert abs(length_m - 10.0 / math.tan(math.radians(el))) < 0.6
+    assert sh[100:150, 100:150].max() == 0  # no shadow elsewhere
+
+
+def test_terrain_sampler_rays():
+    h = np.add.outer(np.arange(50.0), np.arange(60.0)).astype(np.float32) * 0.1  # a plane
+    ts = TerrainSampler(h, 10.0, 20.0, 2.0)
+    assert math.isclose(float(ts.height_at(10.0 + 2 * 3.5, 20.0 + 2 * 4.0)), 0.1 * (3.5 + 4.0), rel_tol=1e-6)
+    o = np.array([[40.0, 50.0, 80.0], [70.0, 60.0, 90.0]])
+    d = np.array([[0.1, 0.2, -1.0], [-0.3, 0.0, -1.0]])
+    p = ts.intersect_rays(o, d)
+    assert np.allclose(p[:, 2], ts.height_at(p[:, 0], p[:, 1]), atol=1e-3)
+    assert np.allclose(np.cross(p - o, d), 0, atol=1e-6)
+
+
+def test_reader_errors(session_dir, tmp_path):
+    import shutil
+
+    with pytest.raises(InputError, match="not found"):
+        load_synth_session(tmp_path / "nope")
+    broken = tmp_path / "broken"
+    shutil.copytree(session_dir, broken)
+    (broken / "terrain.npz").write_bytes(b"garbage")
+    with pytest.raises(InputError, match="terrain.npz"):
+        load_synth_session(broken)
+    shutil.copy(session_dir / "terrain.npz", broken / "terrain.npz")
+    frames = json.loads((broken / "frames.json").read_text())
+    (broken / "frames.json").write_text(json.dumps(frames[:-1]))
+    with pytest.raises(InputError, match="frames.json"):
+        load_synth_session(broken)
+    shutil.copy(session_dir / "frames.json", broken / "frames.json")
+    (broken / "objects.csv").write_text("id,kind,x,y,z,radius,height,present\n1,tree,1,2,x,1,1,1\n")
+    with pytest.raises(InputError, match="objects.csv:2"):
+        load_synth_session(broken)
+
+
+def test_cli_runs_and_rejects_a_flight_outside_the_world(tmp_path):
+    out = subprocess.run(
+        [SOSMATCH, "synth", "--out", str(tmp_path / "S"), "--world-seed", "3", "--world-size", "240",
+         "--frames", "3", "--width", "160", "--height", "120", "--season", "winter", "--flight", "freeform",
+         "--line-length", "40", "--shift", "2,-3", "--reverse", "-q"],
+        capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert len(list((tmp_path / "S" / "images").glob("*.jpg"))) == 3
+    bad = subprocess.run(
+        [SOSMATCH, "synth", "--out", str(tmp_path / "T"), "--world-seed", "3", "--world-size", "240",
+         "--frames", "3", "--shift", "500,0"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "world" in bad.stderr and "Traceback" not in bad.stderr
+    assert not (tmp_path / "T").exists()

@@ -1,0 +1,152 @@
+"""All settings of one synthetic session, with the defaults and the reasons for them.
+
+Defaults (100 m above ground, 640x480, 65 deg horizontal field of view):
+- focal length 502 px -> ground sampling distance ~0.20 m; one image covers ~127 m x 95 m.
+- a frame every 7 m along track: consecutive frames overlap by 93 %, a point on the ground stays in view for
+  ~13 consecutive frames of one pass (mapping keeps a keyframe every 2 m of travel, so every frame is one).
+- lawnmower lines 160 m long, 30 m apart: 76 % side overlap, so an object is seen from 2-4 passes and in
+  >= 6 frames (typically 15-40); 100 frames fly ~4 lines and cover ~220 m x 250 m.
+- the world is 600 m x 600 m so shifted, rotated or free-form flights still stay inside it.
+- EKF noise: 0.3 m / 0.3 deg white noise and a random-walk drift of 0.05 m per sqrt(m) flown (~1.3 m after
+  700 m), a consumer drone's GNSS/INS class.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from ...plugin.errors import InputError
+
+if TYPE_CHECKING:  # the heavy modules (cv2) are imported when used, so that `sosmatch --help` stays fast
+    from ...plugin.geometry import Camera
+    from .flights import EkfNoise, FlightConfig
+    from .world import WorldConfig
+
+SEASON_NAMES = ("summer", "autumn", "winter", "spring")
+FLIGHT_KINDS = ("lawnmower", "freeform")
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    # world (sessions with equal world settings share the world exactly)
+    world_seed: int = 0
+    world_size_m: float = 600.0
+    world_resolution_m: float = 0.15
+    # session
+    session_seed: int = 0
+    season: str = "summer"
+    sun_azimuth_deg: float | None = None  # None: the season's default (clockwise from north)
+    sun_elevation_deg: float | None = None
+    changed_fraction: float = 0.04  # share of objects removed in this session (as many extras are added)
+    # flight
+    flight: str = "lawnmower"
+    frames: int = 100
+    spacing_m: float = 7.0
+    altitude_m: float = 100.0
+    line_length_m: float = 160.0
+    line_spacing_m: float = 30.0
+    flight_seed: int = 0
+    shift_m: tuple[float, float] = (0.0, 0.0)
+    reverse: bool = False
+    rotate_deg: float = 0.0
+    attitude_jitter_deg: float = 1.5
+    # camera
+    width: int = 640
+    height: int = 480
+    hfov_deg: float = 65.0
+    exposure_ev: float | None = None  # None: season bias + a random session offset
+    noise_sigma: float = 1.5  # read noise, 8-bit digital numbers
+    blur_sigma_px: float = 0.6
+    jpeg_quality: int = 88
+    # EKF pose noise
+    ekf_position_sigma_m: float = 0.3
+    ekf_attitude_sigma_deg: float = 0.3
+    ekf_drift_m_per_sqrt_m: float = 0.05
+    ekf_attitude_drift_deg_per_sqrt_m: float = 0.01
+
+    def world_config(self) -> WorldConfig:
+        from .world import WorldConfig
+
+        return WorldConfig(seed=self.world_seed, size_m=self.world_size_m, resolution_m=self.world_resolution_m)
+
+    def flight_config(self) -> FlightConfig:
+        from .flights import FlightConfig
+
+        return FlightConfig(kind=self.flight, frames=self.frames, spacing_m=self.spacing_m,
+                            altitude_m=self.altitude_m, line_length_m=self.line_length_m,
+                            line_spacing_m=self.line_spacing_m, seed=self.flight_seed,
+                            shift_m=tuple(self.shift_m), reverse=self.reverse, rotate_deg=self.rotate_deg,
+                            attitude_jitter_deg=self.attitude_jitter_deg)
+
+    def ekf_noise(self) -> EkfNoise:
+        from .flights import EkfNoise
+
+        return EkfNoise(self.ekf_position_sigma_m, self.ekf_attitude_sigma_deg, self.ekf_drift_m_per_sqrt_m,
+                        self.ekf_attitude_drift_deg_per_sqrt_m)
+
+    def camera(self) -> Camera:
+        from ...plugin.geometry import Camera
+
+        f = (self.width / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
+        return Camera(self.width, self.height, f, f, self.width / 2.0, self.height / 2.0)
+
+    def sun(self) -> tuple[float, float]:
+        from .appearance import SEASON_LOOKS
+
+        look = SEASON_LOOKS[self.season]
+        az = look.sun_azimuth_deg if self.sun_azimuth_deg is None else self.sun_azimuth_deg
+        el = look.sun_elevation_deg if self.sun_elevation_deg is None else self.sun_elevation_deg
+        return float(az) % 360.0, float(el)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["shift_m"] = list(self.shift_m)
+        return d
+
+    def validate(self) -> None:
+        """Raise InputError for values that cannot make a session."""
+        def bad(msg: str) -> None:
+            raise InputError(msg)
+
+        if self.season not in SEASON_NAMES:
+            bad(f"season must be one of {', '.join(SEASON_NAMES)}, got {self.season!r}")
+        if self.flight not in FLIGHT_KINDS:
+            bad(f"flight must be one of {', '.join(FLIGHT_KINDS)}, got {self.flight!r}")
+        for name in ("world_seed", "session_seed", "flight_seed"):
+            if getattr(self, name) < 0:
+                bad(f"{name} must be >= 0")
+        if not 1 <= self.frames <= 100_000:
+            bad("frames must be between 1 and 100000")
+        if not 16 <= self.width <= 8192 or not 16 <= self.height <= 8192:
+            bad("image width and height must be between 16 and 8192 pixels")
+        if not 10.0 <= self.hfov_deg <= 120.0:
+            bad("hfov_deg must be between 10 and 120 degrees")
+        if not self.spacing_m > 0 or not self.line_length_m > 0 or not self.line_spacing_m > 0:
+            bad("spacing_m, line_length_m and line_spacing_m must be positive")
+        if not 40.0 <= self.altitude_m <= 1000.0:
+            bad("altitude_m must be between 40 and 1000 m (objects are up to 25 m tall)")
+        if not 50.0 <= self.world_size_m <= 3000.0:
+            bad("world_size_m must be between 50 and 3000 m")
+        if not 0.05 <= self.world_resolution_m <= 1.0:
+            bad("world_resolution_m must be between 0.05 and 1.0 m")
+        if self.world_size_m / self.world_resolution_m > 30000:
+            bad("world_size_m / world_resolution_m must stay below 30000 cells")
+        if not 0.0 <= self.changed_fraction <= 0.1:
+            bad("changed_fraction must be between 0 and 0.1")
+        el = self.sun()[1]
+        if not 5.0 <= el <= 90.0:
+            bad("sun elevation must be between 5 and 90 degrees")
+        if not 1 <= self.jpeg_quality <= 100:
+            bad("jpeg_quality must be between 1 and 100")
+        if self.noise_sigma < 0 or self.blur_sigma_px < 0 or self.attitude_jitter_deg < 0:
+            bad("noise, blur and jitter must be >= 0")
+        if self.attitude_jitter_deg > 10:
+            bad("attitude_jitter_deg must be <= 10 (the camera is nadir)")
+        if min(self.ekf_position_sigma_m, self.ekf_attitude_sigma_deg, self.ekf_drift_m_per_sqrt_m,
+               self.ekf_attitude_drift_deg_per_sqrt_m) < 0:
+            bad("EKF noise settings must be >= 0")
+        if self.exposure_ev is not None and abs(self.exposure_ev) > 4:
+            bad("exposure_ev must be within +-4")

@@ -1,0 +1,179 @@
+"""Write one synthetic survey session (images, labels, poses, objects, footprints, terrain) to a directory.
+
+    from sosmatch.workflows.synth import SynthConfig, run
+    run("S1", SynthConfig(world_seed=7, season="summer", frames=100))
+    run("S2", SynthConfig(world_seed=7, season="winter", shift_m=(20, 10), reverse=True,
+                          sun_azimuth_deg=200, session_seed=3))
+
+The session directory (docs/ARCHITECTURE.md, "Synthetic session directory") is built in a temporary sibling
+and renamed into place at the end, so an interrupted run leaves no partial session; re-running the same call
+produces byte-identical files. Read it back with `sosmatch.database.synth_session.load_synth_session`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..database.atomic import atomic_path
+from ..database.cameras import write_cameras_txt
+from ..database.poses import write_poses_csv
+from ..database.synth_session import (
+    OBJECT_DTYPE,
+    SESSION_FORMAT,
+    SESSION_VERSION,
+    TerrainSampler,
+    format_objects_csv,
+)
+from ..plugin import __version__
+from ..plugin.errors import InputError
+from ..plugin.geometry import Camera, Poses
+from ..tools.synth.appearance import SEASON_LOOKS, CameraLook, encode_jpeg, finish_image, lighting
+from ..tools.synth.config import SynthConfig
+from ..tools.synth.flights import ekf_poses, flight_poses
+from ..tools.synth.noise import rng_for
+from ..tools.synth.render import ViewOutsideWorld, render_view
+from ..tools.synth.world import EXTRA_FRACTION, World, build_scene, get_world
+
+__all__ = ["SynthConfig", "run", "session_presence", "session_poses", "session_look", "objects_table"]
+log = logging.getLogger(__name__)
+_T_PRESENCE, _T_LOOK, _T_FRAME = 21, 22, 23
+
+
+def session_presence(world: World, config: SynthConfig) -> np.ndarray:
+    """Which world objects exist in this session: each default object is removed with probability
+    `changed_fraction`, each extra object added with the probability that adds as many as are removed."""
+    rng = rng_for(_T_PRESENCE, config.world_seed, config.session_seed)
+    default = np.array([o.default_present for o in world.objects], bool)
+    draw = rng.random(len(default))
+    p_add = min(1.0, config.changed_fraction / EXTRA_FRACTION)
+    return np.where(default, draw >= config.changed_fraction, draw < p_add)
+
+
+def session_poses(world: World, config: SynthConfig) -> Poses:
+    """Ground-truth poses of the session's flight (centred on the world)."""
+    centre = (world.config.size_m / 2.0, world.config.size_m / 2.0)
+    ground = float(world.terrain_sampler.heights.mean())
+    return flight_poses(config.flight_config(), centre, ground, config.session_seed, config.world_seed)
+
+
+def session_look(config: SynthConfig) -> CameraLook:
+    """The session's photometric settings (random parts drawn from the session seed)."""
+    rng = rng_for(_T_LOOK, config.world_seed, config.session_seed)
+    offset = float(rng.normal(0.0, 0.15))
+    wb = 1.0 + rng.normal(0.0, 0.035, 3)
+    wb = wb / wb[1]
+    vignetting = float(rng.uniform(0.15, 0.35))
+    ev = SEASON_LOOKS[config.season].exposure_ev + offset if config.exposure_ev is None else config.exposure_ev
+    return CameraLook(ev, tuple(float(v) for v in wb), vignetting, config.blur_sigma_px, config.noise_sigma,
+                      config.jpeg_quality)
+
+
+def objects_table(world: World, present: np.ndarray) -> np.ndarray:
+    """objects.csv rows (OBJECT_DTYPE): the visible top centre, footprint-equivalent radius, height."""
+    rows = [(o.id, o.kind, o.x, o.y, o.top_z, o.radius, o.height, bool(p)) for o, p in zip(world.objects, present)]
+    return np.array(rows, dtype=OBJECT_DTYPE)
+
+
+def _check_inside(world: World, camera: Camera, poses: Poses) -> None:
+    """Every image must see only the world: test the corner rays at the lowest terrain height."""
+    size = world.config.size_m
+    flat = TerrainSampler(np.full((2, 2), float(world.terrain.min()) - 0.5, np.float32), 0.0, 0.0, size)
+    for name, r, c in zip(poses.names, poses.rotations, poses.centers):
+        corners = flat.footprint(camera, r, c)
+        if corners.min() < 1.0 or corners.max() > size - 1.0:
+            raise InputError(
+                f"image {name} would see beyond the {size:g} m world (footprint {corners.min():.0f}.."
+                f"{corners.max():.0f} m): reduce --shift/--frames/--line-length or enlarge --world-size")
+
+
+def _encode_png16(labels: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", labels.astype(np.uint16), [cv2.IMWRITE_PNG_COMPRESSION, 3])
+    if not ok:  # pragma: no cover
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def run(out: str | Path, config: SynthConfig, progress: bool = False) -> dict[str, Any]:
+    """Render one session into directory `out` (replaced atomically if it exists). Returns a summary."""
+    config.validate()
+    out = Path(out)
+    t0 = time.perf_counter()
+    world = get_world(config.world_config())
+    t_world = time.perf_counter() - t0
+    camera = config.camera()
+    poses = session_poses(world, config)
+    _check_inside(world, camera, poses)
+    present = session_presence(world, config)
+    t1 = time.perf_counter()
+    scene = build_scene(world, config.season, present)
+    az, el = config.sun()
+    light = lighting(scene.dsm, world.res, az, el, SEASON_LOOKS[config.season].ambient)
+    t_scene = time.perf_counter() - t1
+    look = session_look(config)
+    frames: list[dict[str, Any]] = []
+    t2 = time.perf_counter()
+    iterator = range(len(poses))
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc=f"synth {out.name}", unit="frame")
+    with atomic_path(out) as tmp:
+        (tmp / "images").mkdir(parents=True)
+        (tmp / "labels").mkdir()
+        for i in iterator:
+            name, r_wc, centre = poses.names[i], poses.rotations[i], poses.centers[i]
+            try:
+                res = render_view(scene, light, camera, r_wc, centre)
+            except ViewOutsideWorld as exc:
+                raise InputError(f"image {name}: {exc}") from None
+            rgb = finish_image(res.linear, look, rng_for(_T_FRAME, config.world_seed, config.session_seed, i))
+            (tmp / "images" / name).write_bytes(encode_jpeg(rgb, look.jpeg_quality))
+            (tmp / "labels" / (Path(name).stem + ".png")).write_bytes(_encode_png16(res.labels))
+            visible = np.unique(res.labels)
+            footprint = world.terrain_sampler.footprint(camera, r_wc, centre)
+            frames.append({
+                "name": name,
+                "visible_object_ids": [int(v) for v in visible if v != 0],
+                "footprint": [[round(float(x), 3), round(float(y), 3)] for x, y in footprint],
+            })
+        t_render = time.perf_counter() - t2
+        write_cameras_txt(tmp / "cameras.txt", {1: camera})
+        write_poses_csv(tmp / "poses.csv", poses)
+        write_poses_csv(tmp / "poses_ekf.csv", ekf_poses(poses, config.ekf_noise(), config.session_seed,
+                                                         config.world_seed))
+        objects = objects_table(world, present)
+        (tmp / "objects.csv").write_text(format_objects_csv(objects), encoding="utf-8")
+        (tmp / "frames.json").write_text(json.dumps(frames, indent=1) + "\n", encoding="utf-8")
+        ts = world.terrain_sampler
+        with open(tmp / "terrain.npz", "wb") as f:
+            np.savez_compressed(f, heights=ts.heights, x0=np.float64(ts.x0), y0=np.float64(ts.y0),
+                                resolution_m=np.float64(ts.resolution_m))
+        meta = {
+            "format": SESSION_FORMAT,
+            "version": SESSION_VERSION,
+            "generator": f"sosmatch {__version__}",
+            "config": config.to_dict(),
+            "sun": {"azimuth_deg": az, "elevation_deg": el},
+            "camera": {"width": camera.width, "height": camera.height, "fx": camera.fx, "fy": camera.fy,
+                       "cx": camera.cx, "cy": camera.cy, "hfov_deg": config.hfov_deg},
+            "look": {"exposure_ev": look.exposure_ev, "white_balance": list(look.white_balance),
+                     "vignetting": look.vignetting, "blur_sigma_px": look.blur_sigma_px,
+                     "noise_sigma": look.noise_sigma, "jpeg_quality": look.jpeg_quality},
+            "world": {"size_m": world.config.size_m, "resolution_m": world.res,
+                      "objects": len(world.objects), "objects_present": int(present.sum())},
+            "frames": len(poses),
+        }
+        (tmp / "session.json").write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
+    summary = {"out": str(out), "frames": len(poses), "objects_present": int(present.sum()),
+               "seconds_world": round(t_world, 2), "seconds_scene": round(t_scene, 2),
+               "seconds_render": round(t_render, 2), "seconds_total": round(time.perf_counter() - t0, 2)}
+    log.info("synth %s: %d frames, world %.1fs, scene %.1fs, render %.1fs", out, len(poses), t_world, t_scene,
+             t_render)
+    return summary
