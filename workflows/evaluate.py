@@ -137,6 +137,12 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         if len(accepted):
             k = accepted[np.argmax(hyps.sizes[accepted])]
             best = {"associations": hyps.associations[k].tolist(), "transform": None}
+    elif min(len(pa), len(pb)) < 3:
+        # Too few landmarks for any transform: the method claims nothing (an honest zero, not an error).
+        log.warning("maps have %d and %d landmarks: SOS-Match can claim nothing", len(pa), len(pb))
+        hypotheses = []
+        out.update(search_seconds=0.0, search_seconds_runs=[0.0], curve_floor_theta_S=None, accepted_hypotheses=0,
+                   window_pairs=0, note=f"maps have {len(pa)} and {len(pb)} landmarks")
     else:
         times = []
         result = None
