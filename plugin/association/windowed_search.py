@@ -23,6 +23,8 @@ faster because it never recomputes what overlapping windows share:
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -139,11 +141,10 @@ def core_mask(graph: ConsistencyGraph, k: int) -> np.ndarray:
 
 
 def _hypothesis(points_a: np.ndarray, points_b: np.ndarray, params: AssociationParams, wa: np.ndarray,
-                wb: np.ndarray, pairs: np.ndarray, graph: ConsistencyGraph, core: np.ndarray) -> WindowHypothesis:
-    """Solve one window pair on the core of its graph and check the transform."""
-    sub, old = graph.subgraph(core)
-    res = solve(sub)
-    assoc = pairs[old[res.selected]]
+                wb: np.ndarray, num_putative: int, pairs: np.ndarray, graph: ConsistencyGraph) -> WindowHypothesis:
+    """Solve one window pair on the core of its graph (`pairs` in (i, j) order, `graph` over them)."""
+    res = solve(graph)
+    assoc = pairs[res.selected]
     transform, roll, pitch, tilt = None, np.nan, np.nan, np.nan
     if len(assoc) >= 3:
         try:
@@ -156,7 +157,7 @@ def _hypothesis(points_a: np.ndarray, points_b: np.ndarray, params: AssociationP
         tilt = tilt_deg(transform.rotation)
     accepted = bool(len(assoc) > params.min_associations and transform is not None
                     and tilt <= params.max_gravity_angle_deg)
-    return WindowHypothesis((int(wa[0]), int(wa[1])), (int(wb[0]), int(wb[1])), len(pairs), int(core.sum()),
+    return WindowHypothesis((int(wa[0]), int(wa[1])), (int(wb[0]), int(wb[1])), num_putative, len(pairs),
                             assoc, res.score, transform, roll, pitch, tilt, accepted)
 
 
@@ -214,7 +215,8 @@ def search_reference(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b:
             graph = affinity_graph(pa, pb, pairs, w, params.distance_tolerance_m, params.affinity_sigma_m)
             core = core_mask(graph, params.min_associations)
             if core.sum() > params.min_associations:
-                hyps.append(_hypothesis(pa, pb, params, wa, wb, pairs, graph, core))
+                sub, old = graph.subgraph(core)
+                hyps.append(_hypothesis(pa, pb, params, wa, wb, len(pairs), pairs[old], sub))
     return _finish(pa, pb, params, hyps, wins_a, wins_b, {"total_s": time.perf_counter() - t0})
 
 
@@ -313,7 +315,8 @@ def _consistent_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.nda
             ok = (size_ratio(ha[pp], hb[jj]) <= theta_r) & (size_ratio(ha[qq], hb[ll]) <= theta_r)
             for name, arr in (("v1a", pp), ("v1b", jj), ("v2a", qq), ("v2b", ll), ("c", c)):
                 out[name].append(arr[ok])
-    return tuple(np.concatenate(out[k]) if out[k] else np.zeros(0) for k in ("v1a", "v1b", "v2a", "v2b", "c"))
+    return tuple(np.concatenate(out[k]) if out[k] else np.zeros(0, np.float64 if k == "c" else np.int64)
+                 for k in ("v1a", "v1b", "v2a", "v2b", "c"))
 
 
 def _compact_ids(v1: np.ndarray, v2: np.ndarray, space: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -342,16 +345,20 @@ def _peel_global(v1: np.ndarray, v2: np.ndarray, nv: int, k: int) -> np.ndarray:
 
 
 def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
-           params: AssociationParams) -> SearchResult:
+           params: AssociationParams, workers: int | None = None) -> SearchResult:
     """Windowed search between maps A and B; same hypotheses as `search_reference`, without the redundant work.
 
     points_*: (N, 3) landmark positions (world z up), sizes_*: (N,) metric sizes or None/NaN when unknown.
     Returns every solved window pair, the best accepted hypothesis, the consensus and stage timings.
+    `workers`: processes for the solve stage (None: 2 when there are at least PARALLEL_MIN_TASKS window pairs
+    to solve and 2 cores, else 1); the result does not depend on it.
     """
     _check_params(params)
     pa, ha = _check_inputs(points_a, sizes_a, "A")
     pb, hb = _check_inputs(points_b, sizes_b, "B")
     k = params.min_associations  # a set of more than k associations lives in the k-core
+    if k < 1:  # every window pair is solved, isolated associations included: nothing to share or prune
+        return search_reference(pa, ha, pb, hb, params)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     wins_a = make_windows(len(pa), params.window_length, params.window_stride)
@@ -390,58 +397,83 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
     # window-aware peel: a node is (vertex, window pair); iterate on shrinking arrays
     t0 = time.perf_counter()
     nw = len(wins_a) * nwb
-    n1 = e1[inc_e] * nw + wpair
-    n2 = e2[inc_e] * nw + wpair
+    _, ninv = np.unique(np.concatenate([e1[inc_e] * nw + wpair, e2[inc_e] * nw + wpair]), return_inverse=True)
+    n1, n2 = ninv[: len(inc_e)], ninv[len(inc_e):]
+    num_nodes = int(ninv.max()) + 1 if len(ninv) else 0
+    # rounds stop once they remove little: each window pair finishes its own peel before solving (exact either way)
     while len(n1):
-        nodes, ninv = np.unique(np.concatenate([n1, n2]), return_inverse=True)
-        deg = np.bincount(ninv, minlength=len(nodes))
-        low = deg < k
-        keep = ~(low[ninv[: len(n1)]] | low[ninv[len(n1):]])
-        if keep.all():
+        deg = np.bincount(n1, minlength=num_nodes) + np.bincount(n2, minlength=num_nodes)
+        keep = (deg[n1] >= k) & (deg[n2] >= k)
+        if keep.sum() > 0.98 * len(keep):
+            n1, n2, inc_e, wpair = n1[keep], n2[keep], inc_e[keep], wpair[keep]
             break
         n1, n2, inc_e, wpair = n1[keep], n2[keep], inc_e[keep], wpair[keep]
     timings["peel_s"] = time.perf_counter() - t0
 
     # solve the surviving window pairs exactly as the reference does, from the shared edges
     t0 = time.perf_counter()
-    hyps = []
     order = np.argsort(wpair, kind="stable")
     wp_sorted = wpair[order]
-    bounds = np.flatnonzero(np.diff(wp_sorted)) + 1
-    starts = np.concatenate([[0], bounds]) if len(wp_sorted) else np.zeros(0, np.int64)
-    ends = np.concatenate([bounds, [len(wp_sorted)]]) if len(wp_sorted) else np.zeros(0, np.int64)
-    eps, sigma, theta_r = params.distance_tolerance_m, params.affinity_sigma_m, params.max_size_difference
-    for s, e in zip(starts, ends):
-        w = int(wp_sorted[s])
-        wa, wb = wins_a[w // nwb], wins_b[w % nwb]
-        ge = inc_e[order[s:e]]
-        vid = np.concatenate([e1[ge], e2[ge]])
-        core_v, cinv = np.unique(vid, return_inverse=True)
-        if len(core_v) <= k:
-            continue
-        # the full putative set of the window pair (for |putative| and the vertex order), core from the peel
-        pairs, wts = putative_pairs(ha, hb, np.arange(*wa), np.arange(*wb), theta_r)
-        pid = pairs[:, 0] * nb + pairs[:, 1]
-        pos = np.searchsorted(pid, verts[core_v])
-        r1, r2 = cinv[: len(ge)], cinv[len(ge):]
-        lo_, hi_ = np.minimum(r1, r2), np.maximum(r1, r2)
-        cc = c[ge]
-        graph_core = ConsistencyGraph(len(core_v), lo_, hi_, np.exp(-(cc * cc) / (2.0 * sigma * sigma)), wts[pos])
-        # reorder the core's vertices into the reference's (i, j) order; core_v is sorted, as pid is
-        core = np.zeros(len(pairs), dtype=bool)
-        core[pos] = True
-        full = _embed(graph_core, pos, len(pairs), wts)
-        hyps.append(_hypothesis(pa, pb, params, wa, wb, pairs, full, core))
+    cut = np.flatnonzero(np.diff(wp_sorted)) + 1
+    starts = np.concatenate([[0], cut]).astype(np.int64)
+    ends = np.concatenate([cut, [len(wp_sorted)]]).astype(np.int64)
+    tasks = [(int(wp_sorted[a]), inc_e[order[a:b]]) for a, b in zip(starts, ends) if b > a]
+    shared = (pa, ha, pb, hb, params, wins_a, wins_b, verts, e1, e2, c)
+    if workers is None:
+        workers = 2 if len(tasks) >= PARALLEL_MIN_TASKS and (os.cpu_count() or 1) >= 2 else 1
+    if workers > 1 and len(tasks) > 1:
+        chunks = [tasks[w::workers] for w in range(workers)]  # interleaved: similar work per process
+        ctx = multiprocessing.get_context("fork")
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(shared,)) as pool:
+            parts = pool.map(_solve_chunk, chunks)
+        hyps = [h for _, h in sorted((x for part in parts for x in part), key=lambda t: t[0])]
+    else:
+        _init_worker(shared)
+        hyps = [h for _, h in _solve_chunk(tasks)]
     timings["solve_s"] = time.perf_counter() - t0
     timings["window_pairs_solved"] = float(len(hyps))
+    timings["workers"] = float(workers)
     timings["total_s"] = sum(v for key, v in timings.items() if key.endswith("_s"))
-    del eps
     return _finish(pa, pb, params, hyps, wins_a, wins_b, timings)
 
 
-def _embed(core_graph: ConsistencyGraph, pos: np.ndarray, n: int, weights: np.ndarray) -> ConsistencyGraph:
-    """The core's graph with vertex ids of the full putative list (only core edges; the rest is never used)."""
-    return ConsistencyGraph(n, pos[core_graph.rows], pos[core_graph.cols], core_graph.values, weights)
+PARALLEL_MIN_TASKS = 1000  # below this many window pairs to solve, starting a second process costs more than it saves
+_WORKER: tuple = ()
+
+
+def _init_worker(shared: tuple) -> None:
+    global _WORKER
+    _WORKER = shared
+
+
+def _solve_chunk(tasks: list[tuple[int, np.ndarray]]) -> list[tuple[int, WindowHypothesis]]:
+    """Solve window pairs from their surviving consistent pairs (global edge indices); returns (pair id, hyp)."""
+    pa, ha, pb, hb, params, wins_a, wins_b, verts, e1, e2, c = _WORKER
+    k = params.min_associations
+    nb, nwb = len(pb), len(wins_b)
+    sigma, theta_r = params.affinity_sigma_m, params.max_size_difference
+    out = []
+    for w, ge in tasks:
+        wa, wb = wins_a[w // nwb], wins_b[w % nwb]
+        core_v, cinv = np.unique(np.concatenate([e1[ge], e2[ge]]), return_inverse=True)
+        if len(core_v) <= k:
+            continue
+        vid = verts[core_v]  # sorted, i.e. in the reference's (i, j) order
+        pairs = np.column_stack([vid // nb, vid % nb])
+        r = size_ratio(ha[pairs[:, 0]], hb[pairs[:, 1]])
+        r1, r2 = cinv[: len(ge)], cinv[len(ge):]
+        cc = c[ge]
+        graph = ConsistencyGraph(len(core_v), np.minimum(r1, r2), np.maximum(r1, r2),
+                                 np.exp(-(cc * cc) / (2.0 * sigma * sigma)), size_score(r, theta_r))
+        core = core_mask(graph, k)  # finish the peel inside this window pair
+        if core.sum() <= k:
+            continue
+        if not core.all():
+            graph, old = graph.subgraph(core)
+            pairs = pairs[old]
+        num_putative = int(np.count_nonzero(size_ratio(ha[wa[0]:wa[1], None], hb[None, wb[0]:wb[1]]) <= theta_r))
+        out.append((w, _hypothesis(pa, pb, params, wa, wb, num_putative, pairs, graph)))
+    return out
 
 
 # --- hypotheses that agree -----------------------------------------------------------------------------------

@@ -1,0 +1,152 @@
+"""CLIPPER: planted problems with known answers, agreement with an exhaustive maximum clique, invariances, bad input."""
+
+import numpy as np
+import pytest
+
+from sosmatch.plugin.association import (
+    affinity_graph,
+    clipper,
+    fit_transform,
+    max_clique_exact,
+    rotation_from_rpy_deg,
+    solve,
+    tilt_deg,
+)
+from sosmatch.plugin.association.clipper import ConsistencyGraph, core_numbers
+from sosmatch.plugin.errors import InputError
+
+
+def planted(n_true, n_out, noise=0.1, seed=0, box=100.0, n_extra=0):
+    """n_true true associations of a rigid copy plus n_out random wrong pairs (shuffled)."""
+    rng = np.random.default_rng(seed)
+    n = n_true + n_extra
+    a = rng.uniform(0, box, (n, 3)) * [1, 1, 0.2]
+    r = rotation_from_rpy_deg(*rng.uniform(-3, 3, 2), rng.uniform(-180, 180))
+    t = rng.uniform(-500, 500, 3)
+    b = a @ r.T + t + rng.normal(0, noise, a.shape)
+    true = np.stack([np.arange(n_true)] * 2, 1)
+    wrong = set()
+    while len(wrong) < n_out:
+        i, j = rng.integers(0, n, 2)
+        if i != j:
+            wrong.add((int(i), int(j)))
+    pairs = np.concatenate([true, np.array(sorted(wrong), dtype=np.int64).reshape(-1, 2)])
+    perm = rng.permutation(len(pairs))
+    return a, b, pairs[perm], perm < n_true, r, t
+
+
+@pytest.mark.parametrize("outlier_ratio", [0.0, 0.5, 0.8, 0.9, 0.95])
+@pytest.mark.parametrize("noise", [0.0, 0.1, 0.3])
+def test_planted_inliers_recovered(outlier_ratio, noise):
+    n_true = 20
+    n_out = int(round(n_true * outlier_ratio / (1 - outlier_ratio)))
+    a, b, pairs, is_true, r, t = planted(n_true, n_out, noise, seed=int(100 * outlier_ratio + 10 * noise))
+    res = clipper(a, b, pairs, eps=2.0, sigma=1.0)
+    sel = res.selected
+    assert is_true[sel].sum() >= 0.95 * n_true
+    assert not (~is_true[sel]).any()
+    # the selected set is consistent by construction: every pair within eps
+    da = np.linalg.norm(a[pairs[sel, 0]][:, None] - a[pairs[sel, 0]][None], axis=-1)
+    db = np.linalg.norm(b[pairs[sel, 1]][:, None] - b[pairs[sel, 1]][None], axis=-1)
+    assert np.abs(da - db).max() <= 2.0
+    fit = fit_transform(b[pairs[sel, 1]], a[pairs[sel, 0]])
+    # the truth maps a to b (b = R a + t); the fit maps b back to a
+    assert np.allclose(fit.rotation, r.T, atol=0.02)
+    assert np.allclose(fit.apply(b[:n_true]), a[:n_true], atol=6 * noise + 1e-6)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_agrees_with_exhaustive_maximum_clique(seed):
+    rng = np.random.default_rng(seed)
+    n_true = int(rng.integers(4, 10))
+    n_out = int(rng.integers(5, 30))
+    a, b, pairs, _, _, _ = planted(n_true, n_out, noise=0.2, seed=seed, box=30.0, n_extra=3)
+    graph = affinity_graph(a, b, pairs, eps=2.0, sigma=1e6)  # flat affinities: the densest set is the largest
+    exact = max_clique_exact(graph)
+    res = solve(graph)
+    assert len(res.selected) == len(exact)
+    assert _is_clique(graph, res.selected)
+
+
+def _is_clique(graph, sel):
+    edges = set(zip(graph.rows.tolist(), graph.cols.tolist()))
+    s = sorted(sel.tolist())
+    return all((i, j) in edges for k, i in enumerate(s) for j in s[k + 1:])
+
+
+def test_exhaustive_reference_is_correct_on_a_known_graph():
+    # two triangles joined by an edge plus a 4-clique {5, 6, 7, 8}
+    edges = [(0, 1), (1, 2), (0, 2), (2, 3), (3, 4), (5, 6), (5, 7), (5, 8), (6, 7), (6, 8), (7, 8), (4, 5)]
+    r, c = np.array(edges).T
+    g = ConsistencyGraph(9, r, c, np.ones(len(r)), np.ones(9))
+    assert max_clique_exact(g).tolist() == [5, 6, 7, 8]
+    assert sorted(solve(g).selected.tolist()) == [5, 6, 7, 8]
+    assert core_numbers(g).tolist() == [2, 2, 2, 2, 2, 3, 3, 3, 3]
+
+
+def test_permutation_invariance():
+    a, b, pairs, is_true, _, _ = planted(25, 100, seed=5)
+    res = clipper(a, b, pairs)
+    rng = np.random.default_rng(1)
+    perm = rng.permutation(len(pairs))
+    res_p = clipper(a, b, pairs[perm])
+    chosen = {tuple(p) for p in pairs[res.selected].tolist()}
+    chosen_p = {tuple(p) for p in pairs[perm][res_p.selected].tolist()}
+    assert chosen == chosen_p
+    assert res.score == pytest.approx(res_p.score, rel=1e-9)
+    # relabelling the landmarks of either map does not matter either
+    pa_perm = rng.permutation(len(a))
+    inv = np.argsort(pa_perm)
+    res_l = clipper(a[pa_perm], b, np.column_stack([inv[pairs[:, 0]], pairs[:, 1]]))
+    assert {tuple(p) for p in np.column_stack([pa_perm[inv[pairs[res_l.selected, 0]]],
+                                               pairs[res_l.selected, 1]]).tolist()} == chosen
+
+
+def test_shared_landmarks_are_inconsistent_and_weights_break_ties():
+    a = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 0]], float)
+    b = a.copy()
+    # two candidates for landmark 3 of A (to 3 and to a duplicate 4 of B at the same spot)
+    b = np.vstack([b, b[3]])
+    pairs = np.array([[0, 0], [1, 1], [2, 2], [3, 3], [3, 4]])
+    g = affinity_graph(a, b, pairs)
+    assert (3, 4) not in set(zip(g.rows.tolist(), g.cols.tolist()))
+    for heavier in (3, 4):
+        w = np.ones(5)
+        w[heavier] = 2.0
+        sel = clipper(a, b, pairs, weights=w).selected
+        assert sel.tolist() == [0, 1, 2, heavier]
+
+
+def test_degenerate_inputs():
+    a, b, pairs, _, _, _ = planted(10, 10)
+    assert len(clipper(a, b, np.zeros((0, 2), int)).selected) == 0
+    bad = a.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        clipper(bad, b, pairs)
+    with pytest.raises(InputError, match="does not exist"):
+        clipper(a, b, np.array([[0, 99]]))
+    with pytest.raises(InputError, match="weights"):
+        clipper(a, b, pairs, weights=np.ones(3))
+    with pytest.raises(InputError):
+        clipper(a[:, :2], b, pairs)
+    # all landmarks at one spot: every distance is 0, nothing crashes, the answer is one consistent set
+    same = np.zeros((5, 3))
+    res = clipper(same, same, np.array([[i, i] for i in range(5)]))
+    assert len(res.selected) == 5
+
+
+def test_fit_transform_and_gravity_angles():
+    rng = np.random.default_rng(3)
+    src = rng.uniform(-50, 50, (30, 3))
+    r = rotation_from_rpy_deg(4.0, -3.0, 120.0)
+    dst = src @ r.T + [5, -7, 2]
+    fit = fit_transform(src, dst)
+    assert np.allclose(fit.rotation, r, atol=1e-9) and np.allclose(fit.translation, [5, -7, 2], atol=1e-9)
+    assert tilt_deg(fit.rotation) == pytest.approx(np.degrees(np.arccos(np.cos(np.radians(4)) * np.cos(np.radians(3)))))
+    sim = fit_transform(src, 2.5 * dst, similarity=True)
+    assert sim.scale == pytest.approx(2.5)
+    with pytest.raises(InputError, match="colinear"):
+        fit_transform(np.outer(np.arange(5.0), [1, 2, 0]), np.outer(np.arange(5.0), [1, 2, 0]))
+    with pytest.raises(InputError, match="at least 3"):
+        fit_transform(src[:2], dst[:2])

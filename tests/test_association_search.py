@@ -1,0 +1,137 @@
+"""Windowed search: same hypotheses as the straightforward computation, the transform recovered, gravity check,
+degenerate maps."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sosmatch.plugin.association import make_windows, putative_pairs, search, search_reference, size_ratio, size_score
+from sosmatch.plugin.association.rigid import rotation_angle_deg, rotation_from_rpy_deg
+from sosmatch.plugin.association.synthetic import survey_map_pair
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.params import AssociationParams
+
+P = AssociationParams()
+
+
+def _key(res):
+    return {(h.window_a, h.window_b): h for h in res.hypotheses}
+
+
+def _assert_same(fast, ref):
+    kf, kr = _key(fast), _key(ref)
+    assert set(kf) == set(kr)
+    for k, h in kr.items():
+        g = kf[k]
+        assert np.array_equal(g.associations, h.associations)
+        assert g.accepted == h.accepted and g.num_core == h.num_core and g.num_putative == h.num_putative
+        assert g.score == pytest.approx(h.score, rel=1e-9)
+        if h.transform is not None:
+            assert np.allclose(g.transform.to_matrix(), h.transform.to_matrix(), atol=1e-9)
+    assert [fast.hypotheses[i].window_a for i in fast.accepted] == [ref.hypotheses[i].window_a for i in ref.accepted]
+    if ref.best is None:
+        assert fast.best is None
+    else:
+        assert (fast.hypotheses[fast.best].window_a, fast.hypotheses[fast.best].window_b) == (
+            ref.hypotheses[ref.best].window_a, ref.hypotheses[ref.best].window_b)
+
+
+@pytest.mark.parametrize("seed,n,params", [
+    (1, 180, P),
+    (2, 150, dataclasses.replace(P, window_length=30, window_stride=7, min_associations=4)),
+    (4, 120, dataclasses.replace(P, min_associations=2)),
+])
+def test_fast_search_equals_reference(seed, n, params):
+    s = survey_map_pair(n, seed=seed)
+    fast = search(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, workers=1)
+    ref = search_reference(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params)
+    assert len(ref.accepted) > 0
+    _assert_same(fast, ref)
+
+
+def test_fast_search_equals_reference_without_sizes_and_with_two_workers():
+    s = survey_map_pair(100, seed=7)
+    params = dataclasses.replace(P, window_length=25, window_stride=8)
+    fast = search(s.points_a, None, s.points_b, None, params, workers=2)
+    ref = search_reference(s.points_a, None, s.points_b, None, params)
+    _assert_same(fast, ref)
+
+
+def test_transform_recovered_and_associations_correct():
+    s = survey_map_pair(400, seed=11)
+    res = search(s.points_a, s.sizes_a, s.points_b, s.sizes_b, P)
+    assert res.consensus is not None and res.best is not None
+    c = res.consensus
+    assert rotation_angle_deg(c.transform.rotation, s.rotation) < 0.5
+    assert np.linalg.norm(c.transform.translation - s.translation) < 2.0
+    truth = set(map(tuple, s.truth.tolist()))
+    found = set(map(tuple, c.associations.tolist()))
+    assert len(found - truth) <= 0.02 * len(found)
+    assert len(found & truth) >= 0.5 * len(truth)
+    for k in res.accepted:  # every accepted window pair agrees with the truth
+        h = res.hypotheses[k]
+        assert rotation_angle_deg(h.transform.rotation, s.rotation) < 22.5
+
+
+def test_gravity_check_rejects_tilted_transforms():
+    for tilt, accepted in ((10.0, True), (35.0, False)):
+        s = survey_map_pair(150, seed=5, tilt_deg=tilt)
+        res = search(s.points_a, s.sizes_a, s.points_b, s.sizes_b, P)
+        big = [h for h in res.hypotheses if h.size > P.min_associations and h.transform is not None]
+        assert big, "the solver should still find the consistent sets"
+        if accepted:
+            assert res.best is not None
+        else:
+            assert res.best is None and not res.accepted
+            assert all(h.tilt_deg > P.max_gravity_angle_deg for h in big)
+            assert all(abs(h.tilt_deg - tilt) < 10.0 for h in big)
+
+
+def test_rotated_and_permuted_maps_same_result():
+    s = survey_map_pair(150, seed=8)
+    res = search(s.points_a, s.sizes_a, s.points_b, s.sizes_b, P)
+    # rotating and shifting map B changes only the transform
+    r = rotation_from_rpy_deg(0.0, 0.0, 77.0)
+    pb2 = s.points_b @ r.T + [1000.0, -300.0, 5.0]
+    res2 = search(s.points_a, s.sizes_a, pb2, s.sizes_b, P)
+    assert [h.associations.tolist() for h in res.hypotheses] == [h.associations.tolist() for h in res2.hypotheses]
+    assert rotation_angle_deg(res2.consensus.transform.rotation, res.consensus.transform.rotation @ r.T) < 1e-6
+
+
+def test_windows_and_size_gate():
+    assert make_windows(120, 50, 10).tolist()[-1] == [70, 120]
+    assert make_windows(125, 50, 10).tolist()[-2:] == [[70, 120], [75, 125]]
+    assert make_windows(30, 50, 10).tolist() == [[0, 30]]
+    r = size_ratio(np.array([1.0, 2.0, np.nan]), np.array([1.1, 3.0, 4.0]))
+    assert r[0] == pytest.approx(2 * 0.1 / 2.1) and r[2] == 0.0
+    assert size_score(np.array([0.0, 0.1, 0.2, 0.3]), 0.2).tolist() == pytest.approx([2.0, 1.0, 0.0, 0.0])
+    pairs, w = putative_pairs(np.array([1.0, 5.0]), np.array([1.05, 9.0, 5.2]), np.arange(2), np.arange(3), 0.2)
+    assert pairs.tolist() == [[0, 0], [1, 2]] and np.all(w > 1.5)
+
+
+def test_degenerate_maps():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 100, (40, 3))
+    with pytest.raises(InputError, match="at least 3"):
+        search(pts[:2], None, pts, None, P)
+    bad = pts.copy()
+    bad[5, 0] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        search(pts, None, bad, None, P)
+    with pytest.raises(InputError, match="negative"):
+        search(pts, -np.ones(40), pts, None, P)
+    # colinear landmarks: consistent sets exist but no transform is determined, nothing is accepted
+    line = np.outer(np.arange(40.0), [3.0, 1.0, 0.0])
+    res = search(line, None, line + 5.0, None, P)
+    assert res.best is None and all(h.transform is None for h in res.hypotheses)
+    assert any(h.size > P.min_associations for h in res.hypotheses)
+    # duplicated landmarks: no crash, the copy is recovered
+    dup = np.vstack([pts, pts[:10]])
+    res = search(dup, None, dup + [10.0, 0, 0], None, P)
+    assert res.best is not None
+    assert np.allclose(res.consensus.transform.translation, [-10.0, 0, 0], atol=1e-6)
+    # nothing in common: an empty result, not an error
+    far = rng.uniform(0, 5000, (60, 3))
+    res = search(pts, np.full(40, 2.0), far, np.full(60, 7.0), P)
+    assert res.best is None and res.hypotheses == []

@@ -1,0 +1,95 @@
+"""`sosmatch match` end to end on small synthetic maps, and bad input."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
+from sosmatch.database.match_io import read_match
+from sosmatch.plugin.association.rigid import rotation_angle_deg
+from sosmatch.plugin.association.synthetic import survey_map_pair
+from sosmatch.tools.cli import main
+
+SOSMATCH = str(Path(sys.executable).parent / "sosmatch")
+
+
+@pytest.fixture(scope="module")
+def maps(tmp_path_factory):
+    d = tmp_path_factory.mktemp("maps")
+    s = survey_map_pair(200, seed=21)
+    write_landmark_map(d / "a.sosmap", LandmarkMap(s.points_a, s.sizes_a, s.points_a.mean(0).round()))
+    session = d / "session_b"
+    session.mkdir()
+    write_landmark_map(session / "landmarks.sosmap", LandmarkMap(s.points_b, s.sizes_b, s.points_b.mean(0).round()))
+    return d, s
+
+
+def test_match_end_to_end(maps, tmp_path, capsys):
+    d, s = maps
+    out = tmp_path / "out"
+    assert main(["match", str(d / "a.sosmap"), str(d / "session_b"), "--out", str(out)]) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("match: ") and "\n" not in line and "accepted" in line
+    doc = json.loads((out / "match.json").read_text())
+    assert doc["format"] == "sosmatch match v1" and doc["num_accepted"] > 0
+    best = doc["hypotheses"][doc["best"]]
+    assert best["accepted"] and best["size"] > doc["params"]["association"]["min_associations"]
+    rot = np.array(doc["consensus"]["transform"]["rotation"])
+    assert rotation_angle_deg(rot, s.rotation) < 0.5
+    # the merge stage's reader understands the file
+    summary = read_match(out / "match.json")
+    assert summary.accepted and len(summary.associations) in (best["size"], doc["consensus"]["num_associations"])
+    rows = (out / "associations.csv").read_text().splitlines()
+    assert rows[0].startswith("index_a,index_b") and len(rows) - 1 == doc["consensus"]["num_associations"]
+    truth = set(map(tuple, s.truth.tolist()))
+    pairs = {(int(r.split(",")[0]), int(r.split(",")[1])) for r in rows[1:]}
+    assert len(pairs - truth) <= 1
+    assert (out / "match.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # determinism: the same inputs give the same hypotheses
+    out2 = tmp_path / "out2"
+    assert main(["match", str(d / "a.sosmap"), str(d / "session_b"), "--out", str(out2), "--no-plot"]) == 0
+    doc2 = json.loads((out2 / "match.json").read_text())
+    assert doc2["hypotheses"] == doc["hypotheses"] and doc2["consensus"] == doc["consensus"]
+    assert not (out2 / "match.png").exists()
+
+
+def test_match_colmap_model_without_sizes(maps, tmp_path):
+    pycolmap = pytest.importorskip("pycolmap")
+    d, s = maps
+    model = tmp_path / "model"
+    model.mkdir()
+    rec = pycolmap.Reconstruction()
+    small = s.points_b[:70]  # without sizes every landmark pair is putative: keep the problem small
+    for p in small:
+        rec.add_point3D(p, pycolmap.Track())
+    rec.write(str(model))
+    out = tmp_path / "out"
+    assert main(["match", str(d / "a.sosmap"), str(model), "--out", str(out), "--no-plot",
+                 "--set", "association.window_length=25"]) == 0
+    doc = json.loads((out / "match.json").read_text())
+    assert doc["map_b"]["kind"] == "colmap" and doc["map_b"]["has_sizes"] is False
+    assert doc["num_accepted"] > 0
+
+
+def test_bad_input_one_line_exit_2(maps, tmp_path):
+    d, _ = maps
+    r = subprocess.run([SOSMATCH, "match", str(tmp_path / "missing.sosmap"), str(d / "a.sosmap"), "--out",
+                        str(tmp_path / "o")], capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and "missing.sosmap" in r.stderr and "Traceback" not in r.stderr
+    junk = tmp_path / "junk.sosmap"
+    junk.write_bytes(b"not a map at all, sorry")
+    assert main(["match", str(junk), str(d / "a.sosmap"), "--out", str(tmp_path / "o")]) == 2
+    empty = tmp_path / "emptydir"
+    empty.mkdir()
+    assert main(["match", str(empty), str(d / "a.sosmap"), "--out", str(tmp_path / "o")]) == 2
+    tiny = tmp_path / "tiny.sosmap"
+    write_landmark_map(tiny, LandmarkMap(np.zeros((2, 3)), np.ones(2)))
+    assert main(["match", str(tiny), str(d / "a.sosmap"), "--out", str(tmp_path / "o")]) == 2
+    assert main(["match", str(d / "a.sosmap"), str(d / "a.sosmap"), "--out", str(tmp_path / "o"),
+                 "--set", "association.transform=affine"]) == 2
+    assert not (tmp_path / "o").exists()

@@ -1,0 +1,199 @@
+"""Associate two landmark maps (`sosmatch match A B --out DIR`): the windowed CLIPPER search of SOS-Match.
+
+`run(params, a, b, out_dir)` loads both maps (session directory, .sosmap file or COLMAP model; see
+`sosmatch.database.map_loading`), runs `sosmatch.plugin.association.search` and writes, atomically:
+    match.json          every solved window pair (hypothesis), the best accepted one, the consensus, timings
+                        (schema in README.md, section "Matching maps")
+    associations.csv    the final associations: the consensus' if any hypothesis was accepted, else none
+    match.png           both maps in A's frame (B moved by the consensus transform), associations drawn, the best
+                        hypothesis highlighted
+Transforms map B into A's frame: x_A = scale * R @ x_B + t, in the maps' world coordinates.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..database.atomic import write_bytes_atomic, write_text_atomic
+from ..database.map_loading import LoadedMap, load_map
+from ..plugin import __version__
+from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg, search
+from ..plugin.association.windowed_search import search_reference
+from ..plugin.params import Params, params_to_dict
+
+MATCH_FORMAT = "sosmatch match v1"
+
+
+@dataclass
+class MatchResult:
+    """What `run` computed and wrote."""
+
+    out_dir: Path
+    map_a: LoadedMap
+    map_b: LoadedMap
+    search: SearchResult
+    associations: np.ndarray  # (K, 2) final associations (consensus), empty if nothing was accepted
+    transform: Transform | None  # consensus A_from_B, None if nothing was accepted
+    seconds: float
+
+    def summary(self) -> str:
+        """The one-line summary the command prints."""
+        s = self.search
+        head = (f"{len(self.map_a.lmap)} x {len(self.map_b.lmap)} landmarks, {len(s.hypotheses)}/{s.num_window_pairs}"
+                f" window pairs solved, {len(s.accepted)} accepted")
+        if self.transform is None:
+            return f"{head}, no match ({self.seconds:.2f} s) -> {self.out_dir / 'match.json'}"
+        best = s.hypotheses[s.best]
+        _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
+        return (f"{head}, best |S|={best.size}, consensus {len(self.associations)} associations "
+                f"(rms {s.consensus.rms_m:.2f} m, yaw {yaw:.1f} deg) ({self.seconds:.2f} s) -> "
+                f"{self.out_dir / 'match.json'}")
+
+
+def _num(x: float) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def transform_to_json(t: Transform | None) -> dict[str, Any] | None:
+    """{"rotation": 3x3 rows, "translation": [x, y, z], "scale": s, "roll_deg", "pitch_deg", "yaw_deg"}."""
+    if t is None:
+        return None
+    roll, pitch, yaw = roll_pitch_yaw_deg(t.rotation)
+    return {"rotation": t.rotation.tolist(), "translation": t.translation.tolist(), "scale": float(t.scale),
+            "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw}
+
+
+def hypothesis_to_json(h: WindowHypothesis) -> dict[str, Any]:
+    """One window pair of match.json."""
+    return {
+        "window_a": list(h.window_a), "window_b": list(h.window_b),
+        "num_putative": h.num_putative, "num_core": h.num_core, "size": h.size, "score": _num(h.score),
+        "associations": h.associations.tolist(), "transform": transform_to_json(h.transform),
+        "roll_deg": _num(h.roll_deg), "pitch_deg": _num(h.pitch_deg), "tilt_deg": _num(h.tilt_deg),
+        "accepted": h.accepted,
+    }
+
+
+def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
+    """The match.json document (see README.md for the schema)."""
+    s = result.search
+
+    def source(m: LoadedMap) -> dict[str, Any]:
+        return {"path": str(m.path), "kind": m.kind, "landmarks": len(m.lmap), "has_sizes": m.lmap.has_sizes,
+                "epsg": m.lmap.epsg}
+
+    consensus = None
+    if s.consensus is not None:
+        consensus = {"members": s.consensus.members, "transform": transform_to_json(s.consensus.transform),
+                     "num_associations": len(s.consensus.associations), "rms_m": _num(s.consensus.rms_m),
+                     "associations": s.consensus.associations.tolist()}
+    return {
+        "format": MATCH_FORMAT,
+        "version": __version__,
+        "map_a": source(result.map_a),
+        "map_b": source(result.map_b),
+        "params": {"association": params_to_dict(params.association), "seed": params.seed},
+        "transform_kind": params.association.transform,
+        "transform_convention": "x_A = scale * R @ x_B + t (A_from_B, world coordinates of the maps)",
+        "num_windows": [len(s.windows_a), len(s.windows_b)],
+        "num_window_pairs": s.num_window_pairs,
+        "num_solved": len(s.hypotheses),
+        "num_accepted": len(s.accepted),
+        "best": s.best,
+        "accepted": s.accepted,
+        "consensus": consensus,
+        "hypotheses": [hypothesis_to_json(h) for h in s.hypotheses],
+        "search_seconds": s.timings.get("total_s"),
+        "timings": {k: float(v) for k, v in s.timings.items()},
+    }
+
+
+def associations_csv(result: MatchResult) -> str:
+    """index_a,index_b,x_a,y_a,z_a,x_b,y_b,z_b,size_a,size_b,residual_m (residual after the consensus transform)."""
+    a, b = result.map_a.lmap, result.map_b.lmap
+    lines = ["index_a,index_b,x_a,y_a,z_a,x_b,y_b,z_b,size_a,size_b,residual_m"]
+    if len(result.associations):
+        ia, ib = result.associations[:, 0], result.associations[:, 1]
+        res = np.linalg.norm(result.transform.apply(b.positions[ib]) - a.positions[ia], axis=1)
+        for k in range(len(ia)):
+            pa, pb = a.positions[ia[k]], b.positions[ib[k]]
+            lines.append(f"{ia[k]},{ib[k]},{pa[0]:.3f},{pa[1]:.3f},{pa[2]:.3f},{pb[0]:.3f},{pb[1]:.3f},{pb[2]:.3f},"
+                         f"{a.sizes[ia[k]]:.2f},{b.sizes[ib[k]]:.2f},{res[k]:.3f}")
+    return "\n".join(lines) + "\n"
+
+
+def alignment_png(result: MatchResult) -> bytes:
+    """Both maps in A's frame (top view), associations as segments, the best hypothesis highlighted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    a, b = result.map_a.lmap.positions, result.map_b.lmap.positions
+    s = result.search
+    transform = result.transform
+    fig, ax = plt.subplots(figsize=(8, 8), dpi=100)
+    ax.scatter(a[:, 0], a[:, 1], s=6, c="#1f77b4", label=f"map A ({len(a)})", linewidths=0)
+    if transform is not None:
+        bt = transform.apply(b)
+        ax.scatter(bt[:, 0], bt[:, 1], s=6, c="#ff7f0e", label=f"map B in A's frame ({len(b)})", linewidths=0)
+        assoc = result.associations
+        segs = np.stack([a[assoc[:, 0], :2], bt[assoc[:, 1], :2]], axis=1)
+        ax.add_collection(LineCollection(segs, colors="#2ca02c", linewidths=1.0,
+                                         label=f"consensus associations ({len(assoc)})"))
+        best = s.hypotheses[s.best]
+        ax.scatter(a[best.associations[:, 0], 0], a[best.associations[:, 0], 1], s=40, facecolors="none",
+                   edgecolors="#d62728", linewidths=1.2, label=f"best hypothesis |S|={best.size}")
+        title = f"{len(s.accepted)} accepted of {len(s.hypotheses)} solved window pairs"
+    else:
+        ax.scatter(b[:, 0], b[:, 1], s=6, c="#ff7f0e", label=f"map B, own frame ({len(b)})", linewidths=0)
+        title = "no accepted hypothesis (map B shown in its own frame)"
+    ax.set_title(title)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(loc="upper right", fontsize=8)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
+        exhaustive: bool = False, plot: bool = True) -> MatchResult:
+    """Match map `b` against map `a` and write match.json, associations.csv and match.png into `out_dir`.
+
+    a, b: session directories, .sosmap files or COLMAP models. workers: processes for the solve stage (None:
+    automatic). exhaustive: use the straightforward reference search (every window pair from scratch; slow,
+    same result). Raises InputError for unreadable or unusable maps.
+    """
+    t0 = time.perf_counter()
+    out_dir = Path(out_dir)
+    map_a, map_b = load_map(a), load_map(b)
+    la, lb = map_a.lmap, map_b.lmap
+    if exhaustive:
+        res = search_reference(la.positions, la.sizes, lb.positions, lb.sizes, params.association)
+    else:
+        res = search(la.positions, la.sizes, lb.positions, lb.sizes, params.association, workers=workers)
+    if res.consensus is not None:
+        assoc, transform = res.consensus.associations, res.consensus.transform
+    else:
+        assoc, transform = np.zeros((0, 2), np.int64), None
+    result = MatchResult(out_dir, map_a, map_b, res, assoc, transform, 0.0)
+    write_text_atomic(out_dir / "associations.csv", associations_csv(result))
+    if plot:
+        write_bytes_atomic(out_dir / "match.png", alignment_png(result))
+    result.seconds = time.perf_counter() - t0
+    doc = match_to_json(result, params)
+    doc["seconds_total"] = result.seconds
+    write_text_atomic(out_dir / "match.json", json.dumps(doc, indent=1) + "\n")  # last: its presence = done
+    return result
