@@ -72,22 +72,21 @@ def sessions(tmp_path_factory):
     ortho = _ortho()
     landmarks = np.column_stack([rng.uniform(20, 330, 120), rng.uniform(60, 200, 120), np.zeros(120)])
     sizes = rng.uniform(1.0, 6.0, 120)
-    xs = np.arange(60.0, 290.0, 8.0)
+    xs = np.arange(60.0, 290.0, 11.0)
     a = _session(root, "A", ortho, xs, 120.0, False, landmarks, sizes, 1)
     b = _session(root, "B", ortho, xs + 3.0, 135.0, True, landmarks, sizes, 2)  # shifted and reversed
-    return root, a, b
+    ev = run(Params(), a, b, root / "out", case="planar", repeats=1)
+    return root, a, b, ev
 
 
 def test_workflow_writes_table_plots_and_sane_scores(sessions):
-    root, a, b = sessions
+    root, a, b, ev = sessions
     out = root / "out"
-    params = Params()
-    ev = run(params, a, b, out, case="planar", repeats=1)
     for f in ("evaluation.md", "evaluation.json", "pr.png", "overlay.png"):
         assert (out / f).stat().st_size > 0
     rows = {r["method"]: r for r in ev["rows"]}
     assert set(rows) == {"SOS-Match (ours)", "ORB+RANSAC", "SIFT+RANSAC"}
-    assert ev["protocol"]["positive_pairs"] > 50 and ev["protocol"]["negative_pairs"] > 50
+    assert ev["protocol"]["positive_pairs"] > 30 and ev["protocol"]["negative_pairs"] > 30
     ours = ev["methods"]["sosmatch"]
     assert ours["accepted_hypotheses"] >= 1
     # Correct landmark associations: the claimed pairs really overlap, so precision is high and recall real.
@@ -102,11 +101,10 @@ def test_workflow_writes_table_plots_and_sane_scores(sessions):
 
 
 def test_workflow_is_deterministic_and_cli_reports_user_errors(sessions, capsys):
-    root, a, b = sessions
-    e1 = run(Params(), a, b, root / "d1", methods=["sosmatch", "orb_ransac"], repeats=1)
-    e2 = run(Params(), a, b, root / "d2", methods=["sosmatch", "orb_ransac"], repeats=1)
+    root, a, b, ev = sessions
+    again = run(Params(), a, b, root / "d1", methods=["sosmatch", "orb_ransac"], repeats=1)
     for m in ("sosmatch", "orb_ransac"):
-        assert e1["methods"][m]["curve"] == e2["methods"][m]["curve"]
+        assert again["methods"][m]["curve"] == ev["methods"][m]["curve"]
     code = main(["evaluate", str(a), str(root / "nowhere"), "--out", str(root / "d3"), "--methods", "sosmatch"])
     assert code == 2 and "pose file not found" in capsys.readouterr().err
     code = main(["evaluate", str(a), str(b), "--out", str(root / "d4"), "--methods", "sosmatch", "--repeats", "1",
