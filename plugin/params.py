@@ -80,9 +80,14 @@ class AssociationParams:
     window_stride: int = 10  # theta_SL: stride between windows
     max_size_difference: float = 0.2  # theta_r: putative pairs need r(h_i, h_j) <= this
     distance_tolerance_m: float = 2.0  # theta_eps: pairwise distance mismatch still called consistent
-    affinity_sigma_m: float = 1.0  # sigma (ours) of the CLIPPER affinity exp(-c^2 / 2 sigma^2)
+    # sigma (ours) of the CLIPPER affinity exp(-c^2 / 2 sigma^2): the spread of the distance mismatch c of a true
+    # pair (four landmarks with ~0.3-0.5 m noise each give ~1 m); affinity at the gate eps = 2 m is exp(-2) = 0.14
+    affinity_sigma_m: float = 1.0
     max_gravity_angle_deg: float = 22.5  # theta_alpha: max roll/pitch difference of an accepted transform
-    min_associations: int = 6  # theta_S (ours default; swept for precision-recall): accept if |S| > this
+    # theta_S (ours default; swept for precision-recall): accept if |S| > this. On synthetic 1000-landmark survey
+    # maps (tools/benchmarks/bench_match.py) theta_S = 4 accepts wrong window pairs, 5 and 6 none: 6 keeps a margin,
+    # and a larger theta_S also makes the search faster (only theta_S-cores are solved)
+    min_associations: int = 6
     transform: str = "rigid"  # "rigid" (Arun/Umeyama) or "similarity"
 
 

@@ -505,7 +505,8 @@ def consensus_transform(points_a: np.ndarray, points_b: np.ndarray, hyps: list[W
     def distinct(g: list[int]) -> np.ndarray:
         return np.unique(np.concatenate([hyps[k].associations for k in g]), axis=0)
 
-    best = max(groups, key=lambda g: (len(distinct(g)), -g[0]))
+    sizes = [len(distinct(g)) if len(g) > 1 else hyps[g[0]].size for g in groups]
+    best = groups[max(range(len(groups)), key=lambda i: (sizes[i], -groups[i][0]))]
     assoc = distinct(best)
     transform = hyps[best[0]].transform
     for _ in range(3):  # refit on the associations that fit the current transform
