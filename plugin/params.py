@@ -36,11 +36,17 @@ class SegmentationParams:
     classical_median_ksize: int = 5  # median filter (working px) that removes leaf / furrow texture
     classical_smooth_sigma_color: float = 40.0  # bilateral filter colour sigma (0..255 units)
     classical_flat_percentile: float = 40.0  # gradient percentile below which pixels seed watershed regions
-    classical_merge_delta_e: float = 8.0  # adjacent regions closer than this (CIELAB Delta E) are merged
+    classical_merge_cost: float = 2000.0  # Ward merge cost of the finest level (working px x Delta E^2)
+    classical_merge_levels: int = 4  # levels of the merge hierarchy whose object-like regions become masks
+    classical_merge_level_factor: float = 3.0  # cost ratio between consecutive levels
+    classical_edge_weight: float = 0.15  # weight of the mean gradient along a shared boundary in the merge cost
+    classical_dedup_iou: float = 0.8  # nested masks of two levels more alike than this: keep the more contrasted
     classical_max_area_frac: float = 0.08  # larger regions are background (fields, lawns) and dropped
     classical_min_area_px: int = 100  # smaller regions (full-resolution px) are dropped
     classical_max_elongation: float = 5.0  # sqrt(lambda_max / lambda_min) above this: sliver (road, hedge edge)
     classical_min_contrast: float = 6.0  # mean Delta E to the neighbours below this: not an object
+    classical_texture_weight: float = 1.0  # weight of local lightness std (texture) next to L, a, b (0 = off)
+    classical_texture_window: int = 5  # window (working px) of the texture measure
     # -- backend `sam-onnx` (sosmatch.plugin.segmentation.sam_onnx) --
     sam_encoder: str = ""  # image-encoder ONNX path ("" = $SOSMATCH_SAM_ENCODER)
     sam_decoder: str = ""  # prompt-decoder ONNX path ("" = $SOSMATCH_SAM_DECODER)

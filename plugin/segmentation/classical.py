@@ -1,19 +1,21 @@
-"""`classical`: an open-set region segmenter from well-kept libraries (scikit-image, OpenCV, SciPy); no weights.
+"""`classical`: an open-set region segmenter from well-kept libraries (OpenCV, NumPy, SciPy); no weights.
 
-Pipeline, at a reduced working resolution (`classical_max_side`):
-1. edge-preserving smoothing (bilateral filter) so field texture (crop rows, furrows) does not fragment regions;
-2. Felzenszwalb-Huttenlocher graph segmentation (over-segments on purpose: no object is left merged into a
-   field at this stage);
-3. region merging: adjacent regions whose mean CIELAB colours differ by less than `classical_merge_delta_e`
-   are joined (connected components of the region adjacency graph), which rebuilds fields, roads and lawns
-   as single large regions while a crown or a roof, distinct from everything around it, stays on its own;
-4. filtering: regions larger than `classical_max_area_frac` of the image (background), smaller than
-   `classical_min_area_px` (at full resolution), elongated slivers (`classical_max_elongation`: sqrt of the
-   covariance eigenvalue ratio; roads, hedgerows, field edges) and regions that differ little from their
-   neighbours (`classical_min_contrast`) are dropped;
-5. the label image is mapped back to full resolution (nearest neighbour).
+Pipeline, at a reduced working resolution (`classical_max_side`, 400 px):
+1. smoothing: median filter (removes leaf / furrow texture finer than the kernel) then a bilateral filter;
+2. over-segmentation: marker-controlled watershed (OpenCV) seeded by the flat zones of the CIELAB gradient;
+3. a merge hierarchy: greedy Ward linkage on the region adjacency graph over colour (CIELAB), texture (local
+   lightness std) and the mean gradient along the shared boundary (`classical_edge_weight`); the partitions at
+   `classical_merge_levels` cost levels are kept. Size-aware merging rebuilds crowns from their lit and
+   shaded fragments and fields from their patches before a crown joins the lawn around it;
+4. object-like regions of every level: not larger than `classical_max_area_frac` of the image (background),
+   not smaller than `classical_min_area_px`, not elongated (`classical_max_elongation`: roads, hedgerows,
+   field edges), contrasted to their neighbours (`classical_min_contrast`); nested near-duplicates across
+   levels (IoU > `classical_dedup_iou`) keep the more contrasted one. Like SAM's multimask output the masks
+   may overlap (a crown and the pair of crowns it belongs to), so they are returned as bbox crops;
+5. masks are mapped back to full resolution window by window (nearest neighbour).
 
-The score of a mask is its colour contrast to its neighbours, squashed to [0, 1). Deterministic; CPU only.
+The score of a mask is its contrast to its neighbours squashed to [0, 1). Deterministic; CPU only.
+Tuned on synthetic summer / winter sessions (tools/benchmarks/bench_segment.py) and checked on Seneca frames.
 """
 
 from __future__ import annotations
@@ -22,8 +24,6 @@ import dataclasses
 
 import cv2
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ..params import SegmentationParams
 from .base import Backend, MaskSet
@@ -41,31 +41,51 @@ def conf_from_params(params: SegmentationParams) -> dict:
     return {key: getattr(params, f"classical_{key}", value) for key, value in default_conf.items()}
 
 
-def _region_stats(labels: np.ndarray, n: int, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(area (n,), mean colour (n, 3), covariance terms (n, 3) = sxx, sxy, syy) of every label, via bincount."""
+def _region_moments(labels: np.ndarray, n: int, feats: np.ndarray) -> np.ndarray:
+    """(n, 6 + F) raw moments of every label: area, sum x, sum y, sum xx, sum xy, sum yy, sum of each feature.
+
+    Raw sums add up under merging, so every coarser level's statistics come from these without a pixel pass."""
     flat = labels.ravel()
-    area = np.bincount(flat, minlength=n).astype(np.float64)
-    safe = np.maximum(area, 1)
-    color = np.stack([np.bincount(flat, lab[..., c].ravel(), n) for c in range(3)], 1) / safe[:, None]
     h, w = labels.shape
-    ys, xs = np.divmod(np.arange(h * w), w)
-    mx = np.bincount(flat, xs, n) / safe
-    my = np.bincount(flat, ys, n) / safe
-    dx = xs - mx[flat]
-    dy = ys - my[flat]
-    cov = np.stack([np.bincount(flat, dx * dx, n), np.bincount(flat, dx * dy, n), np.bincount(flat, dy * dy, n)], 1)
-    return area, color, cov / safe[:, None]
+    xs = np.tile(np.arange(w, dtype=np.float64), h)
+    ys = np.repeat(np.arange(h, dtype=np.float64), w)
+    cols = [np.ones(h * w), xs, ys, xs * xs, xs * ys, ys * ys]
+    cols += [feats[..., c].ravel().astype(np.float64) for c in range(feats.shape[2])]
+    return np.stack([np.bincount(flat, col, n) for col in cols], 1)
 
 
-def _adjacency(labels: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Adjacent label pairs (a < b) and their shared boundary length in pixel edges (4-neighbourhood)."""
+def _stats_from_moments(mom: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(area, mean features (n, F), elongation sqrt(lambda_max / lambda_min)) from raw moments."""
+    area = mom[:, 0]
+    safe = np.maximum(area, 1)
+    mx, my = mom[:, 1] / safe, mom[:, 2] / safe
+    sxx = mom[:, 3] / safe - mx * mx
+    sxy = mom[:, 4] / safe - mx * my
+    syy = mom[:, 5] / safe - my * my
+    tr = sxx + syy
+    disc = np.sqrt(np.maximum(0.25 * (sxx - syy) ** 2 + sxy**2, 0))
+    lam_max, lam_min = 0.5 * tr + disc, np.maximum(0.5 * tr - disc, 1.0 / 12.0)  # 1/12: one pixel's own spread
+    return area, mom[:, 6:] / safe[:, None], np.sqrt(np.maximum(lam_max, 1.0 / 12.0) / lam_min)
+
+
+def _adjacency(
+    labels: np.ndarray, n: int, strength: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Adjacent label pairs (a < b), their shared boundary length in pixel edges (4-neighbourhood) and the sum
+    of `strength` (e.g. gradient magnitude; the larger of the two pixels) along that boundary."""
     a = np.concatenate([labels[:, :-1].ravel(), labels[:-1, :].ravel()])
     b = np.concatenate([labels[:, 1:].ravel(), labels[1:, :].ravel()])
     diff = a != b
     a, b = a[diff], b[diff]
     lo, hi = np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
-    code, count = np.unique(lo * n + hi, return_counts=True)
-    return code // n, code % n, count
+    code, inv, count = np.unique(lo * n + hi, return_inverse=True, return_counts=True)
+    if strength is None:
+        sums = np.zeros(len(code))
+    else:
+        sa = np.concatenate([strength[:, :-1].ravel(), strength[:-1, :].ravel()])[diff]
+        sb = np.concatenate([strength[:, 1:].ravel(), strength[1:, :].ravel()])[diff]
+        sums = np.bincount(inv, np.maximum(sa, sb), len(code))
+    return code // n, code % n, count, sums
 
 
 def _relabel(labels: np.ndarray, mapping: np.ndarray) -> tuple[np.ndarray, int]:
@@ -73,7 +93,9 @@ def _relabel(labels: np.ndarray, mapping: np.ndarray) -> tuple[np.ndarray, int]:
     return inv[labels].astype(np.int32), len(uniq)
 
 
-def _watershed_regions(smooth: np.ndarray, lab: np.ndarray, flat_percentile: float) -> tuple[np.ndarray, int]:
+def _watershed_regions(
+    smooth: np.ndarray, lab: np.ndarray, flat_percentile: float
+) -> tuple[np.ndarray, int, np.ndarray]:
     """Over-segmentation by marker-controlled watershed: every flat zone (colour gradient below the
     `flat_percentile` percentile) seeds a region, OpenCV floods the rest. Boundary pixels (-1) join the
     neighbouring region with the highest label (a deterministic choice; they are 1 px wide)."""
@@ -84,7 +106,7 @@ def _watershed_regions(smooth: np.ndarray, lab: np.ndarray, flat_percentile: flo
     _, markers = cv2.connectedComponents(flat, connectivity=4)
     markers = markers.astype(np.int32)
     if markers.max() == 0:  # a uniform image: one region
-        return np.zeros(grad.shape, np.int32), 1
+        return np.zeros(grad.shape, np.int32), 1, grad
     ws = cv2.watershed(np.ascontiguousarray(smooth), markers)
     ws[0, :] = ws[1, :]  # cv2.watershed marks the image border as boundary
     ws[-1, :] = ws[-2, :]
@@ -97,7 +119,99 @@ def _watershed_regions(smooth: np.ndarray, lab: np.ndarray, flat_percentile: flo
         grown = cv2.dilate(ws.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
         ws[edge] = grown[edge]
     ws[ws < 1] = 1
-    return _relabel(ws, np.arange(ws.max() + 1))
+    return (*_relabel(ws, np.arange(ws.max() + 1)), grad)
+
+
+def _ward_merge(
+    area: np.ndarray, mean: np.ndarray, a: np.ndarray, b: np.ndarray, thresholds: list[float],
+    length: np.ndarray | None = None, edge: np.ndarray | None = None, edge_weight: float = 0.0,
+) -> list[np.ndarray]:
+    """Greedy Ward merging of adjacent regions: repeatedly join the adjacent pair with the smallest increase of
+    the within-region sum of squares, n_a n_b / (n_a + n_b) * |mean_a - mean_b|^2, until it exceeds `threshold`.
+
+    Size-aware where single linkage is not: the lit and shaded fragments of one crown (small, different) join
+    each other before a crown (small) joins the lawn around it (large, different), and big field patches of
+    nearly the same colour join at once. Ward costs never decrease along the merge sequence, so one pass gives
+    every level: returns, per threshold (ascending), the root region of every input region. Deterministic
+    (ties are broken by region index). Plain Python on a heap: a few thousand regions take a few tens of ms.
+    """
+    import heapq
+
+    n = len(area)
+    cnt = area.astype(float).tolist()
+    sums = (mean * area[:, None]).tolist()
+    nbrs: list[set[int]] = [set() for _ in range(n)]
+    for i, j in zip(a.tolist(), b.tolist()):
+        nbrs[i].add(j)
+        nbrs[j].add(i)
+    version = [0] * n
+    alive = [True] * n
+    parent = list(range(n))
+
+    # boundary (length, strength sum) per pair, kept up to date under merging (both add up)
+    bnd: dict[tuple[int, int], list[float]] = {}
+    if edge_weight > 0 and length is not None and edge is not None:
+        for i, j, ln, e in zip(a.tolist(), b.tolist(), length.tolist(), edge.tolist()):
+            bnd[(i, j)] = [ln, e]
+
+    def cost(i: int, j: int) -> float:
+        ci, cj = cnt[i], cnt[j]
+        if ci <= 0 or cj <= 0:
+            return 0.0
+        si, sj = sums[i], sums[j]
+        d2 = 0.0
+        for x, y in zip(si, sj):
+            d = x / ci - y / cj
+            d2 += d * d
+        if bnd:
+            ln, e = bnd[(i, j) if i < j else (j, i)]
+            g = edge_weight * e / ln  # mean edge strength along the shared boundary
+            d2 += g * g
+        return ci * cj / (ci + cj) * d2
+
+    heap = [(cost(i, j), i, j, 0, 0) for i, j in zip(a.tolist(), b.tolist())]
+    heapq.heapify(heap)
+    levels = sorted(thresholds)
+    snapshots: list[list[int]] = []
+    while heap:
+        c, i, j, vi, vj = heapq.heappop(heap)
+        while len(snapshots) < len(levels) and c > levels[len(snapshots)]:
+            snapshots.append(list(parent))
+        if len(snapshots) == len(levels):
+            break
+        if not (alive[i] and alive[j]) or version[i] != vi or version[j] != vj:
+            continue
+        cnt[i] += cnt[j]
+        sums[i] = [x + y for x, y in zip(sums[i], sums[j])]
+        alive[j] = False
+        parent[j] = i
+        for k in nbrs[j]:
+            if k != i:
+                nbrs[k].discard(j)
+                nbrs[k].add(i)
+                nbrs[i].add(k)
+                if bnd:
+                    jk = bnd.pop((j, k) if j < k else (k, j))
+                    ik = bnd.setdefault((i, k) if i < k else (k, i), [0.0, 0.0])
+                    ik[0] += jk[0]
+                    ik[1] += jk[1]
+        nbrs[i].discard(j)
+        nbrs[j] = set()
+        version[i] += 1
+        for k in nbrs[i]:
+            heapq.heappush(heap, (cost(i, k), i, k, version[i], version[k]))
+    while len(snapshots) < len(levels):
+        snapshots.append(list(parent))
+    roots = []
+    for snap in snapshots:
+        root = np.asarray(snap)
+        while True:  # path compression, vectorised (chains are short)
+            nxt = root[root]
+            if np.array_equal(nxt, root):
+                break
+            root = nxt
+        roots.append(root)
+    return roots
 
 
 def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
@@ -117,45 +231,103 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
         smooth = cv2.medianBlur(smooth, int(c["median_ksize"]) | 1)
     smooth = cv2.bilateralFilter(smooth, 5, c["smooth_sigma_color"], 3)
     lab = cv2.cvtColor(smooth.astype(np.float32) / 255.0, cv2.COLOR_RGB2Lab)
-
-    labels, n = _watershed_regions(smooth, lab, c["flat_percentile"])
-
-    # Merge adjacent regions of nearly the same mean colour (single linkage over the adjacency graph).
-    area, color, _ = _region_stats(labels, n, lab)
-    a, b, _ = _adjacency(labels, n)
-    de = np.linalg.norm(color[a] - color[b], axis=1)
-    join = de < c["merge_delta_e"]
-    graph = coo_matrix((np.ones(int(join.sum())), (a[join], b[join])), shape=(n, n))
-    _, comp = connected_components(graph, directed=False)
-    labels, n = _relabel(labels, comp)
-
-    area, color, cov = _region_stats(labels, n, lab)
-    a, b, length = _adjacency(labels, n)
-    de = np.linalg.norm(color[a] - color[b], axis=1)
-    # Contrast of a region: boundary-length-weighted mean colour difference to its neighbours.
-    wsum = np.bincount(a, length, n) + np.bincount(b, length, n)
-    contrast = (np.bincount(a, length * de, n) + np.bincount(b, length * de, n)) / np.maximum(wsum, 1)
-    tr = cov[:, 0] + cov[:, 2]
-    disc = np.sqrt(np.maximum(0.25 * (cov[:, 0] - cov[:, 2]) ** 2 + cov[:, 1] ** 2, 0))
-    lam_max, lam_min = 0.5 * tr + disc, np.maximum(0.5 * tr - disc, 1e-3)
-    elongation = np.sqrt(lam_max / lam_min)
-
-    full_area = area * px_area
-    keep = (
-        (full_area >= c["min_area_px"])
-        & (area <= c["max_area_frac"] * sh * sw)
-        & (elongation <= c["max_elongation"])
-        & (contrast >= c["min_contrast"])
-    )
-    mapping = np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int32)
-    small_labels = mapping[labels]
-    scores = (1.0 - np.exp(-contrast[keep] / 20.0)).astype(np.float32)
-    if scale < 1.0:
-        full = cv2.resize(small_labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
+    if c["texture_weight"] > 0:
+        # Texture as a fourth feature: local standard deviation of the (unsmoothed) lightness. Crowns and bare
+        # winter trees are rough, their cast shadows, snow, water and lawns smooth: colour alone merges them.
+        light = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY).astype(np.float32) * (100.0 / 255.0)
+        k = (int(c["texture_window"]) | 1,) * 2
+        mean = cv2.blur(light, k)
+        tex = np.sqrt(np.maximum(cv2.blur(light * light, k) - mean * mean, 0.0))
+        feats = np.concatenate([lab, (c["texture_weight"] * tex)[..., None]], axis=2)
     else:
-        full = small_labels
-    masks = MaskSet.from_labels(full, scores)  # labels lost in resizing (tiny) drop their score
-    return masks
+        feats = lab
+
+    labels, n, grad = _watershed_regions(smooth, lab, c["flat_percentile"])
+    mom = _region_moments(labels, n, feats)
+    a0, b0, len0, edge0 = _adjacency(labels, n, grad)
+    area0, mean0, _ = _stats_from_moments(mom)
+    costs = [c["merge_cost"] * c["merge_level_factor"] ** k for k in range(max(1, c["merge_levels"]))]
+    roots = _ward_merge(area0, mean0, a0, b0, costs, len0, edge0, c["edge_weight"])
+
+    # Object-like regions at every level of the merge hierarchy (a crown may be complete at one level and
+    # split, or fused with its neighbour, at another: SAM's multimask output has the same nesting).
+    cand: list[tuple[float, int, int, float]] = []  # (contrast, level, root id, area)
+    parent_of: list[np.ndarray] = []
+    for lvl, root in enumerate(roots):
+        # rows of non-root regions stay zero (a root's id is one of its own members)
+        lm = np.stack([np.bincount(root, mom[:, k], n) for k in range(mom.shape[1])], 1)
+        area, mean, elong = _stats_from_moments(lm)
+        ra, rb = root[a0], root[b0]
+        cross = ra != rb
+        ra, rb, ln = ra[cross], rb[cross], len0[cross]
+        de = np.linalg.norm(mean[ra] - mean[rb], axis=1)
+        wsum = np.bincount(ra, ln, n) + np.bincount(rb, ln, n)
+        # contrast: boundary-length-weighted mean feature difference to the neighbours
+        contrast = (np.bincount(ra, ln * de, n) + np.bincount(rb, ln * de, n)) / np.maximum(wsum, 1)
+        keep = (
+            (area * px_area >= c["min_area_px"])
+            & (area <= c["max_area_frac"] * sh * sw)
+            & (elong <= c["max_elongation"])
+            & (contrast >= c["min_contrast"])
+        )
+        for r in np.flatnonzero(keep):
+            cand.append((float(contrast[r]), lvl, int(r), float(area[r])))
+        parent_of.append(root)
+
+    # Near-duplicates across levels (a region that only gained a sliver): the nested pair with IoU above
+    # `dedup_iou` keeps the member with the higher contrast. Nested masks: IoU = small area / large area.
+    cand.sort(key=lambda t: (-t[0], t[1], t[2]))
+    levels = len(parent_of)
+    chosen: list[tuple[float, int, int, float]] = []
+    chosen_at: set[tuple[int, int]] = set()
+    areas_of: dict[tuple[int, int], float] = {}
+    finer_areas: dict[tuple[int, int], list[float]] = {}  # (level, root) -> areas of chosen masks nested inside
+    for con, lvl, r, ar in cand:
+        # a root id is one of its own member regions, so parent_of[L][r] is r's ancestor at level L
+        dup = any(
+            (L, int(parent_of[L][r])) in chosen_at and ar / areas_of[(L, int(parent_of[L][r]))] > c["dedup_iou"]
+            for L in range(lvl + 1, levels)
+        ) or any(a2 / ar > c["dedup_iou"] for a2 in finer_areas.get((lvl, r), ()))
+        if dup:
+            continue
+        chosen.append((con, lvl, r, ar))
+        chosen_at.add((lvl, r))
+        areas_of[(lvl, r)] = ar
+        for L in range(lvl + 1, levels):
+            finer_areas.setdefault((L, int(parent_of[L][r])), []).append(ar)
+    if not chosen:
+        return MaskSet.empty((h, w))
+    chosen.sort(key=lambda t: (t[1], t[2]))
+
+    from scipy.ndimage import find_objects
+
+    boxes, crops, scores = [], [], []
+    by_level: dict[int, tuple[np.ndarray, list]] = {}
+    fy, fx = h / sh, w / sw
+    for con, lvl, r, _ in chosen:
+        if lvl not in by_level:
+            lab_l = parent_of[lvl][labels].astype(np.int32)
+            by_level[lvl] = (lab_l, find_objects(lab_l + 1))
+        lab_l, slices = by_level[lvl]
+        sy, sx = slices[r]
+        if scale < 1.0:
+            # map only the region's window back to full size (nearest neighbour, as for the whole image)
+            y0, y1 = int(sy.start * fy), min(h, int(np.ceil(sy.stop * fy)))
+            x0, x1 = int(sx.start * fx), min(w, int(np.ceil(sx.stop * fx)))
+            src_y = np.minimum(((np.arange(y0, y1) + 0.5) / fy).astype(np.int64), sh - 1)
+            src_x = np.minimum(((np.arange(x0, x1) + 0.5) / fx).astype(np.int64), sw - 1)
+            m = lab_l[src_y[:, None], src_x[None, :]] == r
+        else:
+            y0, y1, x0, x1 = sy.start, sy.stop, sx.start, sx.stop
+            m = lab_l[y0:y1, x0:x1] == r
+        rows = np.flatnonzero(m.any(axis=1))
+        if len(rows) == 0:
+            continue
+        cols = np.flatnonzero(m.any(axis=0))
+        boxes.append((x0 + int(cols[0]), y0 + int(rows[0]), x0 + int(cols[-1]) + 1, y0 + int(rows[-1]) + 1))
+        crops.append(m[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1])
+        scores.append(1.0 - np.exp(-con / 20.0))
+    return MaskSet((h, w), np.asarray(scores, np.float32), boxes=np.asarray(boxes, np.int32), crops=crops)
 
 
 def make(params: SegmentationParams) -> Backend:
