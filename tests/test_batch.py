@@ -164,3 +164,32 @@ def test_graph_helpers():
     centres = np.array([[0, 0, 0], [1, 0, 0], [10, 0, 0], [11, 0, 0]], float)
     assert nearest_pairs(centres, 1) == [(0, 1), (2, 3)]
     assert len(nearest_pairs(centres, 3)) == 6
+
+
+def test_cli_batch_with_the_real_association_search(tmp_path):
+    """`sosmatch batch` end to end on three toy flights with the real matcher; exit code 0, then resumed."""
+    world = make_world(260, seed=11)
+    boxes = {"F1": (20, 140, 20, 140), "F2": (90, 220, 90, 220), "F3": (20, 140, 20, 140)}
+    frames = {"F1": yaw_transform(0, (0, 0, 0)), "F2": yaw_transform(40, (15, -8, 3)),
+              "F3": yaw_transform(-25, (-5, 9, 0))}
+    truth = {}
+    for k, name in enumerate(boxes):
+        truth[name] = write_toy_session(tmp_path / "flights" / name, world, lawnmower(*boxes[name], 60, 40, 10),
+                                        frames[name], seed=k).session_from_world
+    out = tmp_path / "out"
+    args = ["batch", str(tmp_path / "flights"), "--out", str(out), "--workers", "0", "--no-progress", "--refine",
+            "--set", "association.window_stride=25"]  # fewer window pairs: a quicker test, same code
+    assert main(args) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["ok"] and [p["accepted"] for p in report["pairs"]] == [True, True, True]
+    for p in report["pairs"]:
+        t = p["transform"]
+        est = Sim3(t["rotation"], t["translation"], t["scale"])
+        want = truth[p["a"]].compose(truth[p["b"]].inverse())
+        probe = np.array([[80.0, 80.0, 3.0], [150.0, 120.0, 0.0]])
+        assert np.abs(est.apply(probe) - want.apply(probe)).max() < 0.5
+    (group,) = report["groups"]
+    assert sorted(group["members"]) == ["F1", "F2", "F3"] and group["status"] == "done"
+    assert main(args) == 0  # resumed: nothing left to do
+    again = json.loads((out / "report.json").read_text())
+    assert all(p.get("resumed") for p in again["pairs"]) and again["groups"][0].get("resumed")

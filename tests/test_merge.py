@@ -147,3 +147,21 @@ def test_cli_merge_and_user_errors(pair, tmp_path, capsys):
     (tmp_path / "broken.json").write_text("{not json")
     assert main(["merge", str(a.path), str(b.path), "--match", str(tmp_path / "broken.json"),
                  "--out", str(tmp_path / "M3")]) == 2
+
+
+def test_merge_with_the_real_association_search(pair, tmp_path):
+    """match.json from `sosmatch match` (windowed CLIPPER search) is what merge reads: its consensus."""
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows import match
+
+    root, world, a, b = pair
+    match.run(Params(), a.path, b.path, tmp_path / "m", workers=1, plot=False)
+    m = read_match(tmp_path / "m" / "match.json")
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    err_m, err_deg = transform_error(m.transform, truth, read_session(b.path).landmarks.positions)
+    assert m.accepted and err_m < 0.3 and err_deg < 0.3
+    true_pairs = {tuple(p) for p in true_associations(a, b).tolist()}
+    found = {tuple(p) for p in m.associations.tolist()}
+    assert len(found & true_pairs) >= 0.8 * len(true_pairs) and len(found - true_pairs) <= 2
+    res = merge.run(a.path, b.path, tmp_path / "m" / "match.json", tmp_path / "M", refine=True)
+    assert res.num_fused >= len(found & true_pairs) - 2

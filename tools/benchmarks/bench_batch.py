@@ -83,7 +83,7 @@ def synth_footprints(flight: Path) -> object:
 def toy_flights(root: Path) -> dict[str, Path]:
     from ..toy_sessions import lawnmower, make_world, write_toy_session, yaw_transform
 
-    world = make_world(1500, extent_m=400, seed=WORLD_SEED)
+    world = make_world(600, extent_m=400, seed=WORLD_SEED)
     out = {}
     for k, name in enumerate(FLIGHTS):
         path2 = FLIGHTS[name][1]
