@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -100,8 +102,11 @@ def _encode_png16(labels: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def run(out: str | Path, config: SynthConfig, progress: bool = False) -> dict[str, Any]:
-    """Render one session into directory `out` (replaced atomically if it exists). Returns a summary."""
+def run(out: str | Path, config: SynthConfig, progress: bool = False, workers: int | None = None) -> dict[str, Any]:
+    """Render one session into directory `out` (replaced atomically if it exists). Returns a summary.
+
+    `workers` threads render frames concurrently (default: the number of CPU cores, at most 4); the files
+    do not depend on it."""
     config.validate()
     out = Path(out)
     t0 = time.perf_counter()
@@ -117,17 +122,19 @@ def run(out: str | Path, config: SynthConfig, progress: bool = False) -> dict[st
     light = lighting(scene.dsm, world.res, az, el, SEASON_LOOKS[config.season].ambient)
     t_scene = time.perf_counter() - t1
     look = session_look(config)
-    frames: list[dict[str, Any]] = []
     t2 = time.perf_counter()
-    iterator = range(len(poses))
-    if progress:
+
+    def tracked(results: Any) -> Any:
+        if not progress:
+            return results
         from tqdm import tqdm
 
-        iterator = tqdm(iterator, desc=f"synth {out.name}", unit="frame")
+        return tqdm(results, total=len(poses), desc=f"synth {out.name}", unit="frame")
     with atomic_path(out) as tmp:
         (tmp / "images").mkdir(parents=True)
         (tmp / "labels").mkdir()
-        for i in iterator:
+
+        def render_frame(i: int) -> dict[str, Any]:
             name, r_wc, centre = poses.names[i], poses.rotations[i], poses.centers[i]
             try:
                 res = render_view(scene, light, camera, r_wc, centre)
@@ -138,11 +145,20 @@ def run(out: str | Path, config: SynthConfig, progress: bool = False) -> dict[st
             (tmp / "labels" / (Path(name).stem + ".png")).write_bytes(_encode_png16(res.labels))
             visible = np.unique(res.labels)
             footprint = world.terrain_sampler.footprint(camera, r_wc, centre)
-            frames.append({
+            return {
                 "name": name,
                 "visible_object_ids": [int(v) for v in visible if v != 0],
                 "footprint": [[round(float(x), 3), round(float(y), 3)] for x, y in footprint],
-            })
+            }
+
+        # Frames are independent (each has its own random stream), so threads render them in any order and
+        # the output is the same; OpenCV and numpy release the GIL in the heavy parts.
+        n_workers = max(1, min(workers if workers else (os.cpu_count() or 1), 4))
+        if n_workers == 1:
+            frames = list(tracked(render_frame(i) for i in range(len(poses))))
+        else:
+            with ThreadPoolExecutor(n_workers) as pool:
+                frames = list(tracked(pool.map(render_frame, range(len(poses)))))
         t_render = time.perf_counter() - t2
         write_cameras_txt(tmp / "cameras.txt", {1: camera})
         write_poses_csv(tmp / "poses.csv", poses)

@@ -115,7 +115,12 @@ def lighting(dsm: np.ndarray, resolution_m: float, azimuth_deg: float, elevation
     gy = cv2.Sobel(dsm, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / (8.0 * resolution_m))
     cos_i = (s[2] - gx * s[0] - gy * s[1]) / np.sqrt(gx * gx + gy * gy + np.float32(1.0))
     np.maximum(cos_i, 0.0, out=cos_i)
-    shadow = cast_shadow(dsm, resolution_m, azimuth_deg, elevation_deg)
+    # Shadows at half resolution (0.3 m by default): they are soft-edged anyway (the sun is 0.5 deg wide and
+    # the shadow is upsampled bilinearly), and this is the most expensive part of a session's set-up.
+    rows, cols = dsm.shape
+    half = cv2.resize(dsm, ((cols + 1) // 2, (rows + 1) // 2), interpolation=cv2.INTER_AREA)
+    shadow = cv2.resize(cast_shadow(half, resolution_m * cols / half.shape[1], azimuth_deg, elevation_deg),
+                        (cols, rows), interpolation=cv2.INTER_LINEAR)
     direct = cos_i * (np.float32(1.0) - shadow)
     norm = np.float32(1.0 / (ambient + s[2]))
     return (np.float32(ambient) + direct) * norm

@@ -44,8 +44,9 @@ def fractal_noise(
         out += np.float32(amp) * value_noise(rng, shape, cells)
         amp *= persistence
         wl /= 2.0
-    out -= out.mean(dtype=np.float64)
-    std = float(out.std(dtype=np.float64))
+    sample = out[::7, ::7]  # statistics of a subsample are accurate enough and 50x cheaper
+    out -= np.float32(sample.mean(dtype=np.float64))
+    std = float(sample.std(dtype=np.float64))
     if std > 0:
         out *= np.float32(1.0 / std)
     return out

@@ -22,8 +22,11 @@ from .world import Scene
 
 MAX_STEP_M = 0.3  # horizontal distance a ray moves between two levels at most (thin objects are >= 1 m)
 MAX_LEVEL_STEP_M = 0.6
-REFINE_ITERATIONS = 3
+REFINE_ITERATIONS = 2
 WALL_PUSH_M = 0.2  # how far behind a hit to look for a wall of the DSM
+COARSE_LEVEL_STEP_M = 2.0  # vertical step of the first, conservative pass
+COARSE_BLOCK = 4  # cells per block of the conservative DSM
+COARSE_PIXELS = 4  # the first pass traces one ray per COARSE_PIXELS x COARSE_PIXELS pixels
 
 
 @dataclass
@@ -37,11 +40,15 @@ class ViewOutsideWorld(ValueError):
     """The camera sees beyond the edge of the world rasters."""
 
 
-def _level_maps(camera: Camera, r_wc: np.ndarray, center: np.ndarray, scene: Scene) -> tuple:
-    """Per-pixel (A, B) with raster coordinates (col, row) = A + h * B for the ray at height h."""
+def _level_maps(camera: Camera, r_wc: np.ndarray, center: np.ndarray, scene: Scene,
+                step_px: int = 1) -> tuple:
+    """Per-pixel (A, B) with raster coordinates (col, row) = A + h * B for the ray at height h.
+
+    With step_px > 1, the rays through the centres of step_px x step_px pixel blocks instead."""
     w, h = camera.width, camera.height
-    u = ((np.arange(w) + 0.5 - camera.cx) / camera.fx)[None, :]
-    v = ((np.arange(h) + 0.5 - camera.cy) / camera.fy)[:, None]
+    half = step_px / 2.0
+    u = ((np.arange(0, w, step_px) + half - camera.cx) / camera.fx)[None, :]
+    v = ((np.arange(0, h, step_px) + half - camera.cy) / camera.fy)[:, None]
     r = np.asarray(r_wc, dtype=np.float64)
     dx = r[0, 0] * u + r[0, 1] * v + r[0, 2]
     dy = r[1, 0] * u + r[1, 1] * v + r[1, 2]
@@ -51,8 +58,9 @@ def _level_maps(camera: Camera, r_wc: np.ndarray, center: np.ndarray, scene: Sce
     rx, ry = dx / dz, dy / dz  # horizontal displacement per metre of height along the ray (sign: dz < 0)
     res = scene.world.res
     cx, cy, cz = (float(c) for c in center)
-    a = np.empty((h, w, 2), np.float32)
-    b = np.empty((h, w, 2), np.float32)
+    shape = (v.shape[0], u.shape[1], 2)
+    a = np.empty(shape, np.float32)
+    b = np.empty(shape, np.float32)
     a[..., 0] = (cx - cz * rx) / res - 0.5
     a[..., 1] = (cy - cz * ry) / res - 0.5
     b[..., 0] = rx / res
@@ -76,30 +84,96 @@ def view_height_range(scene: Scene, a: np.ndarray, b: np.ndarray) -> tuple[float
     return float(world.terrain[region].min()), float(scene.dsm[region].max())
 
 
+def conservative_dsm(scene: Scene, radius_m: float) -> tuple[np.ndarray, int]:
+    """A coarse DSM whose bilinear value at any point is >= the true DSM anywhere within `radius_m` of it.
+
+    Max-pooled by `block` cells, then dilated by enough blocks to cover the radius plus the bilinear footprint.
+    Cached on the scene per radius."""
+    cache = scene.__dict__.setdefault("_conservative", {})
+    block = COARSE_BLOCK
+    key = int(math.ceil(radius_m / (block * scene.world.res))) + 1  # dilation in blocks
+    if key not in cache:
+        n = scene.dsm.shape[0]
+        m = -(-n // block)
+        pad = np.full((m * block, m * block), -1e6, np.float32)
+        pad[:n, :n] = scene.dsm
+        pooled = pad.reshape(m, block, m, block).max(axis=(1, 3))
+        k = 2 * key + 1
+        cache[key] = cv2.dilate(pooled, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    return cache[key], block
+
+
+def _remap_points(src: np.ndarray, maps: np.ndarray) -> np.ndarray:
+    """Bilinear samples of `src` at N raster points (N, 2), laid out as rows of 512 for cv2's threads."""
+    n = len(maps)
+    width = 512
+    rows = -(-n // width)
+    padded = np.empty((rows * width, 2), np.float32)
+    padded[:n] = maps
+    padded[n:] = maps[-1] if n else 0
+    out = cv2.remap(src, padded.reshape(rows, width, 2), None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1)[:n]
+
+
+def _first_crossing(surface: np.ndarray, a: np.ndarray, b: np.ndarray, start: np.ndarray, step: float,
+                    bottom: float, max_levels: int) -> np.ndarray:
+    """Per ray, the index j >= 1 of the first level `start - j * step` at which the ray is at or below
+    `surface` (sampled bilinearly at raster coordinates a + h * b), or below `bottom`. Rays leave the work
+    arrays once they hit, so the levels after most rays have hit the ground cost little."""
+    n = start.size
+    j_hit = np.full(n, max_levels, np.int32)
+    idx = np.arange(n)
+    a_f = a.reshape(-1, 2)
+    b_f = b.reshape(-1, 2)
+    s_f = start.reshape(-1)
+    active = np.ones(n, bool)
+    for j in range(1, max_levels + 1):
+        h = s_f - np.float32(j * step)
+        surf = _remap_points(surface, a_f + h[:, None] * b_f)
+        hit = active & ((surf >= h) | (h <= bottom))
+        j_hit[idx[hit]] = j
+        active &= ~hit
+        n_active = int(np.count_nonzero(active))
+        if n_active == 0:
+            break
+        if n_active < 0.6 * len(active):
+            idx, a_f, b_f, s_f = idx[active], a_f[active], b_f[active], s_f[active]
+            active = np.ones(n_active, bool)
+    return j_hit.reshape(start.shape)
+
+
 def render_view(scene: Scene, light: np.ndarray, camera: Camera, r_wc: np.ndarray,
                 center: np.ndarray) -> RenderResult:
     """Render one camera (world_from_camera rotation r_wc, centre) of a scene lit by `light`."""
     a, b, tan_max = _level_maps(camera, r_wc, np.asarray(center, dtype=np.float64), scene)
     dsm = scene.dsm
+    res = scene.world.res
     h_low, h_high = view_height_range(scene, a, b)
     top, bottom = h_high + 0.01, h_low - 0.01
-    step = min(MAX_LEVEL_STEP_M, MAX_STEP_M / max(tan_max, 1e-6))
-    n_levels = int(math.ceil((top - bottom) / step)) + 1
-    step = (top - bottom) / (n_levels - 1)
     shape = (camera.height, camera.width)
-    first = np.full(shape, n_levels, np.int32)
-    maps = np.empty_like(a)
-    for k in range(1, n_levels):  # level 0 is above every surface: no ray can be below it
-        hk = np.float32(top - k * step)
-        np.multiply(b, hk, out=maps)
-        maps += a
-        surf = cv2.remap(dsm, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        newly = (surf >= hk) & (first == n_levels)
-        first[newly] = k
-        if k % 8 == 0 and not (first == n_levels).any():
-            break
-    first = np.minimum(first, n_levels - 1)
-    h_b = (top - first * step).astype(np.float32)  # first level below the surface
+    # Stage 1, on rays through the centres of COARSE_PIXELS x COARSE_PIXELS pixel blocks: coarse levels
+    # against a conservative (max-filtered) DSM give, per block, a height at which every ray of the block is
+    # still above the true surface. The filter radius covers the horizontal travel between two coarse
+    # levels plus the spread of the block's rays at the lowest height.
+    cp = COARSE_PIXELS
+    a_cp, b_cp, tan_cp = _level_maps(camera, r_wc, np.asarray(center, dtype=np.float64), scene, cp)
+    coarse_step = COARSE_LEVEL_STEP_M
+    spread = (cp * 0.75) * (float(center[2]) - bottom) / min(camera.fx, camera.fy) * (1.0 + tan_max * tan_max)
+    cons, block = conservative_dsm(scene, coarse_step * max(tan_max, tan_cp) + spread)
+    scale = np.float32(1.0 / block)
+    a_c = (a_cp + np.float32(0.5)) * scale - np.float32(0.5)
+    b_c = b_cp * scale
+    n_coarse = int(math.ceil((top - bottom) / coarse_step)) + 1
+    start_top = np.full(a_c.shape[:2], np.float32(top))
+    k1 = _first_crossing(cons, a_c, b_c, start_top, coarse_step, bottom, n_coarse)
+    start_c = (top - (k1 - 1) * coarse_step).astype(np.float32)
+    start = np.repeat(np.repeat(start_c, cp, axis=0), cp, axis=1)[:shape[0], :shape[1]]
+    start = np.ascontiguousarray(start)
+    # Stage 2: fine levels against the true DSM from there.
+    step = min(MAX_LEVEL_STEP_M, MAX_STEP_M / max(tan_max, 1e-6))
+    n_fine = int(math.ceil((top - bottom) / step)) + 2
+    j = _first_crossing(dsm, a, b, start, step, bottom - step, n_fine)
+    h_b = (start - j * np.float32(step)).astype(np.float32)  # first level below the surface
     h_a = h_b + np.float32(step)  # last level above it
 
     def gap(hh: np.ndarray) -> np.ndarray:
@@ -119,7 +193,6 @@ def render_view(scene: Scene, light: np.ndarray, camera: Camera, r_wc: np.ndarra
         h_b = np.where(above, h_b, h_hit)
         f_b = np.where(above, f_b, f_m)
     hit_maps = a + h_hit[..., None] * b
-    res = scene.world.res
     # A ray that hits a wall (the DSM rises sharply just behind the hit) sees the object's side: take the
     # object's colour and id from just behind the hit instead of the ground at the wall's foot.
     horiz = b / np.maximum(np.linalg.norm(b, axis=2, keepdims=True), 1e-9)

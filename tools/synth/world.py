@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -260,58 +261,72 @@ def _ground_cover(cfg: WorldConfig, n: int) -> tuple:
 
 
 def _ground_albedo(world: World, season: str) -> np.ndarray:
-    cfg = world.config
-    nz = world.noise()
-    n, res = world.n, world.res
-    cover = world.cover
+    """Albedo of the bare ground, computed in blocks of rows so that the temporaries stay in cache."""
+    n = world.n
+    out = np.empty((n, n, 3), np.uint8)
+    rows = 192
+    world.noise()  # build the shared noise before the threads use it
+
+    def block(r0: int) -> None:
+        out[r0:min(n, r0 + rows)] = _ground_block(world, season, r0, min(n, r0 + rows))
+
+    # numpy releases the GIL in its loops: two threads keep two cores busy; blocks are independent.
+    with ThreadPoolExecutor(2) as pool:
+        list(pool.map(block, range(0, n, rows)))
+    return out
+
+
+def _ground_block(world: World, season: str, r0: int, r1: int) -> np.ndarray:
+    nz = {k: v[r0:r1] for k, v in world.noise().items()}
+    res = world.res
+    cover = world.cover[r0:r1]
     snow = season == "winter"
-    out = np.empty((n, n, 3), np.float32)
+    calm = np.float32(0.3 if snow else 1.0)  # snow hides most of the texture below it
 
     def col(name: str) -> np.ndarray:
         return np.asarray(GROUND[name][season], np.float32)
 
     # Grass everywhere first: two grass tones mixed by patch noise, modulated by low/mid/fine noise.
     t = np.clip(0.5 + 0.45 * nz["patch"], 0.0, 1.0)[..., None]
-    texture = 1.0 + (0.10 * nz["low"] + 0.07 * nz["mid"] + 0.09 * nz["fine"]) * (0.3 if snow else 1.0)
-    out[:] = (col("grass") * (1 - t) + col("grass2") * t) * texture[..., None]
+    texture = 1.0 + (0.10 * nz["low"] + 0.07 * nz["mid"] + 0.09 * nz["fine"]) * calm
+    out = (col("grass") + (col("grass2") - col("grass")) * t) * texture[..., None]
     # Other uniform classes.
     for cls_id, name, amp in ((SOIL, "soil", 0.12), (MARGIN, "margin", 0.14), (BANK, "bank", 0.12),
                               (ASPHALT, "asphalt", 0.05), (GRAVEL, "gravel", 0.08), (WATER, "water", 0.04)):
         mask = cover == cls_id
         if not mask.any():
             continue
-        tex = 1.0 + amp * (0.5 * nz["mid"][mask] + nz["fine"][mask]) * (0.3 if snow and name != "asphalt" else 1.0)
+        tex = 1.0 + amp * (0.5 * nz["mid"][mask] + nz["fine"][mask]) * (calm if name != "asphalt" else 1.0)
         out[mask] = col(name) * tex[:, None]
-    # Fields: crop rows along each cell's direction.
+    # Fields: crop rows along each cell's direction, tramlines every 18 m.
     field = cover == FIELD
     if field.any():
         rows_idx, cols_idx = np.nonzero(field)
-        cell = world.cell[rows_idx, cols_idx]
+        cell = world.cell[r0:r1][rows_idx, cols_idx]
         p = world.cell_params
         xs = (cols_idx.astype(np.float32) + 0.5) * np.float32(res)
-        ys = (rows_idx.astype(np.float32) + 0.5) * np.float32(res)
-        th = p.theta[cell].astype(np.float32)
+        ys = (rows_idx.astype(np.float32) + np.float32(r0 + 0.5)) * np.float32(res)
+        th = p.theta.astype(np.float32)[cell]
         u = xs * np.cos(th) + ys * np.sin(th)
-        rowpat = 0.5 + 0.5 * np.cos(2 * np.pi * (u / p.period[cell].astype(np.float32) + p.phase[cell]))
-        # Tramlines every 18 m (tractor wheel tracks), visible in all crops.
-        tram = np.abs(((u / 18.0 + p.phase[cell]) % 1.0) - 0.5) < (0.5 / 18.0)
+        phase = p.phase.astype(np.float32)[cell]
+        rowpat = 0.5 + 0.5 * np.cos(np.float32(2 * np.pi) * (u / p.period.astype(np.float32)[cell] + phase))
+        tram = np.abs(((u * np.float32(1 / 18.0) + phase) % 1.0) - 0.5) < (0.5 / 18.0)
         crop_row = np.array([CROP_COLOURS[c][season][0] for c in CROPS], np.float32)
         crop_gap = np.array([CROP_COLOURS[c][season][1] for c in CROPS], np.float32)
         ci = p.crop[cell]
-        a = rowpat[:, None] ** 1.5
-        colour = crop_gap[ci] * (1 - a) + crop_row[ci] * a
+        a = (rowpat * np.sqrt(rowpat))[:, None]
+        colour = crop_gap[ci] + (crop_row[ci] - crop_gap[ci]) * a
         colour[tram] = crop_gap[ci[tram]] * 0.92
-        tex = (1.0 + (0.07 * nz["low"][field] + 0.05 * nz["mid"][field] + 0.06 * nz["fine"][field])
-               * (0.4 if snow else 1.0))
-        colour *= (tex * p.bright[cell].astype(np.float32))[:, None]
+        tex = 1.0 + (0.07 * nz["low"][field] + 0.05 * nz["mid"][field] + 0.06 * nz["fine"][field]) * (
+            np.float32(0.4) if snow else np.float32(1.0))
+        colour *= (tex * p.bright.astype(np.float32)[cell])[:, None]
         out[field] = colour
     if snow:
-        # Snow drifts: broad, faint bluish undulations; roads keep their wet dark tracks.
-        drift = (1.0 - 0.03 * np.abs(nz["low"]))[..., None]
-        keep = (cover == ASPHALT) | (cover == GRAVEL)
-        out[~keep] *= drift[~keep]
+        # Snow drifts: broad, faint undulations; roads keep their wet dark tracks.
+        drift = 1.0 - 0.03 * np.abs(nz["low"])
+        drift[(cover == ASPHALT) | (cover == GRAVEL)] = 1.0
+        out *= drift[..., None]
     np.clip(out, 0, 255, out=out)
-    del cfg
     return out.astype(np.uint8)
 
 
