@@ -165,3 +165,28 @@ def test_merge_with_the_real_association_search(pair, tmp_path):
     assert len(found & true_pairs) >= 0.8 * len(true_pairs) and len(found - true_pairs) <= 2
     res = merge.run(a.path, b.path, tmp_path / "m" / "match.json", tmp_path / "M", refine=True)
     assert res.num_fused >= len(found & true_pairs) - 2
+
+
+def test_merge_with_a_similarity_transform(tmp_path):
+    """A session mapped at the wrong scale (monocular-like) is brought in with a Sim3: centres and sizes scale."""
+    world = make_world(200, seed=4)
+    a = write_toy_session(tmp_path / "A", world, lawnmower(20, 140, 20, 140, 60, 40, 12), Sim3.identity(), seed=1)
+    b = write_toy_session(tmp_path / "B", world, lawnmower(60, 180, 20, 140, 60, 40, 12),
+                          yaw_transform(-20, (4, 2, 0), scale=0.8), seed=2)
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    assert read_match(match).transform.scale == pytest.approx(1.25)
+    res = merge.run(a.path, b.path, match, tmp_path / "M")
+    rec = pycolmap.Reconstruction(str(tmp_path / "M" / "sparse"))
+    rec_b = pycolmap.Reconstruction(str(b.path / "sparse"))
+    for img in rec_b.images.values():
+        c = rec.find_image_with_name(f"B/{img.name}").projection_center()
+        assert np.allclose(c, b.session_from_world.inverse().apply(img.projection_center()), atol=1e-6)
+    assert rec.compute_mean_reprojection_error() < 3.0 and res.num_fused == len(true_associations(a, b))
+    lm = read_landmark_map(tmp_path / "M" / "landmarks.sosmap")
+    # The merged map lists A's landmarks, then B's unfused ones in order, with B's sizes times the scale.
+    lb = read_session(b.path).landmarks
+    unfused = np.setdiff1d(np.arange(len(lb)), true_associations(a, b)[:, 1])
+    n_a = len(read_session(a.path).landmarks)
+    assert len(lm) == n_a + len(unfused)
+    assert np.allclose(lm.sizes[n_a:], lb.sizes[unfused] * 1.25, rtol=2e-3)
+    assert np.allclose(lm.positions[n_a:], b.session_from_world.inverse().apply(lb.positions[unfused]), atol=1e-3)
