@@ -49,8 +49,8 @@ def fit_transform(src: np.ndarray, dst: np.ndarray, similarity: bool = False) ->
     mu_s, mu_d = src.mean(0), dst.mean(0)
     xs, xd = src - mu_s, dst - mu_d
     for x in (xs, xd):
-        sv = np.linalg.svd(x, compute_uv=False)
-        if sv[0] == 0 or sv[1] < 1e-6 * sv[0]:
+        ev = np.linalg.eigvalsh(x.T @ x)  # squared singular values, ascending (3x3: cheaper than an n x 3 SVD)
+        if ev[2] <= 0 or ev[1] < 1e-12 * ev[2]:
             raise InputError("associated landmarks are colinear or coincident: the rotation is not determined")
     cov = xd.T @ xs / len(src)
     u, s, vt = np.linalg.svd(cov)

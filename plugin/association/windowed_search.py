@@ -312,7 +312,13 @@ def _consistent_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.nda
             ea_idx, eb_idx, c = ea_idx[ok], eb_idx[ok], c[ok]
             pp, qq = p[ea_idx], q[ea_idx]
             jj, ll = ib[eb_idx], kb[eb_idx]
-            ok = (size_ratio(ha[pp], hb[jj]) <= theta_r) & (size_ratio(ha[qq], hb[ll]) <= theta_r)
+            if sized:  # same arithmetic as size_ratio, without its NaN handling (no NaN here)
+                x, y = ha[pp], hb[jj]
+                ok = 2.0 * np.abs(x - y) / (x + y) <= theta_r
+                x, y = ha[qq], hb[ll]
+                ok &= 2.0 * np.abs(x - y) / (x + y) <= theta_r
+            else:
+                ok = (size_ratio(ha[pp], hb[jj]) <= theta_r) & (size_ratio(ha[qq], hb[ll]) <= theta_r)
             for name, arr in (("v1a", pp), ("v1b", jj), ("v2a", qq), ("v2b", ll), ("c", c)):
                 out[name].append(arr[ok])
     return tuple(np.concatenate(out[k]) if out[k] else np.zeros(0, np.float64 if k == "c" else np.int64)
