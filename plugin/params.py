@@ -44,6 +44,7 @@ class SegmentationParams:
     classical_max_area_frac: float = 0.08  # larger regions are background (fields, lawns) and dropped
     classical_min_area_px: int = 100  # smaller regions (full-resolution px) are dropped
     classical_max_elongation: float = 5.0  # sqrt(lambda_max / lambda_min) above this: sliver (road, hedge edge)
+    classical_min_fill: float = 0.75  # area / area of the moment ellipse below this: branchy or ring-shaped region
     classical_min_contrast: float = 6.0  # mean Delta E to the neighbours below this: not an object
     classical_texture_weight: float = 1.0  # weight of local lightness std (texture) next to L, a, b (0 = off)
     classical_texture_window: int = 5  # window (working px) of the texture measure

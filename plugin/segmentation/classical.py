@@ -55,7 +55,7 @@ def _region_moments(labels: np.ndarray, n: int, feats: np.ndarray) -> np.ndarray
 
 
 def _stats_from_moments(mom: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(area, mean features (n, F), elongation sqrt(lambda_max / lambda_min)) from raw moments."""
+    """(area, mean features (n, F), elongation sqrt(lambda_max / lambda_min), fill) from raw moments."""
     area = mom[:, 0]
     safe = np.maximum(area, 1)
     mx, my = mom[:, 1] / safe, mom[:, 2] / safe
@@ -65,7 +65,11 @@ def _stats_from_moments(mom: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     tr = sxx + syy
     disc = np.sqrt(np.maximum(0.25 * (sxx - syy) ** 2 + sxy**2, 0))
     lam_max, lam_min = 0.5 * tr + disc, np.maximum(0.5 * tr - disc, 1.0 / 12.0)  # 1/12: one pixel's own spread
-    return area, mom[:, 6:] / safe[:, None], np.sqrt(np.maximum(lam_max, 1.0 / 12.0) / lam_min)
+    lam_max = np.maximum(lam_max, 1.0 / 12.0)
+    # fill: area over the area of the ellipse with the same second moments (1 for a solid ellipse; branchy or
+    # ring-shaped regions such as field margins and hedgerow networks score low)
+    fill = area / (4.0 * np.pi * np.sqrt(lam_max * lam_min))
+    return area, mom[:, 6:] / safe[:, None], np.sqrt(lam_max / lam_min), fill
 
 
 def _adjacency(
@@ -245,7 +249,7 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
     labels, n, grad = _watershed_regions(smooth, lab, c["flat_percentile"])
     mom = _region_moments(labels, n, feats)
     a0, b0, len0, edge0 = _adjacency(labels, n, grad)
-    area0, mean0, _ = _stats_from_moments(mom)
+    area0, mean0, _, _ = _stats_from_moments(mom)
     costs = [c["merge_cost"] * c["merge_level_factor"] ** k for k in range(max(1, c["merge_levels"]))]
     roots = _ward_merge(area0, mean0, a0, b0, costs, len0, edge0, c["edge_weight"])
 
@@ -256,7 +260,7 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
     for lvl, root in enumerate(roots):
         # rows of non-root regions stay zero (a root's id is one of its own members)
         lm = np.stack([np.bincount(root, mom[:, k], n) for k in range(mom.shape[1])], 1)
-        area, mean, elong = _stats_from_moments(lm)
+        area, mean, elong, fill = _stats_from_moments(lm)
         ra, rb = root[a0], root[b0]
         cross = ra != rb
         ra, rb, ln = ra[cross], rb[cross], len0[cross]
@@ -268,6 +272,7 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
             (area * px_area >= c["min_area_px"])
             & (area <= c["max_area_frac"] * sh * sw)
             & (elong <= c["max_elongation"])
+            & (fill >= c["min_fill"])
             & (contrast >= c["min_contrast"])
         )
         for r in np.flatnonzero(keep):
