@@ -12,6 +12,8 @@ Steps so far:
 2. synth-winter: the same path in winter (low sun from the south-south-west, other camera noise and objects
    changed, session seed 2).
 3. contact-sheet: frames of both sessions side by side (contact_sheet.png).
+4. map-summer, map-winter: `sosmatch map` of both sessions (true poses) into maps/summer, maps/winter; each
+   prints its one-line summary.
 """
 
 from __future__ import annotations
@@ -121,12 +123,32 @@ def _sheet(ctx: DemoContext) -> object:
                          ctx.contact_sheet)
 
 
+def map_dir(ctx: DemoContext, which: str) -> Path:
+    """Mapped session directory of the demo's `which` ("summer" / "winter") session."""
+    return ctx.out / "maps" / which
+
+
+def _map(which: str) -> Callable[[DemoContext], object]:
+    def step(ctx: DemoContext) -> object:
+        from ..plugin.params import Params
+        from . import map as map_workflow
+
+        inputs = map_workflow.load_inputs(None, getattr(ctx, f"{which}_dir"))
+        summary = map_workflow.run(Params(), inputs, map_dir(ctx, which), overwrite=True)
+        print(f"map {which}: {summary.line()}")
+        return summary
+
+    return step
+
+
 def demo_steps(ctx: DemoContext) -> list[DemoStep]:
     """The demo, in order. Later stages append their steps here."""
     return [
         DemoStep("synth-summer", [ctx.summer_dir / "session.json"], _synth("summer")),
         DemoStep("synth-winter", [ctx.winter_dir / "session.json"], _synth("winter")),
         DemoStep("contact-sheet", [ctx.contact_sheet], _sheet),
+        DemoStep("map-summer", [map_dir(ctx, "summer") / "run.json"], _map("summer")),
+        DemoStep("map-winter", [map_dir(ctx, "winter") / "run.json"], _map("winter")),
     ]
 
 
