@@ -2,19 +2,24 @@
 
 Accepted: a `.sosmap` file; a mapped session directory (holding `landmarks.sosmap`); a COLMAP sparse model
 directory (cameras/images/points3D, .bin or .txt) or a directory whose `sparse/` (or `sparse/0/`) is one. A COLMAP
-model has no sizes: its points become landmarks ordered by point3D id (roughly the order of triangulation), the
-sizes are NaN and the size gate is off for them. Every problem raises InputError naming the path.
+model's points become landmarks ordered by point3D id (roughly the order of triangulation); their sizes are
+estimated from the tracks when a COLMAP database with affine keypoints (as `sosmatch map` writes) lies beside the
+model, else they are NaN and the size gate is off for them. Every problem raises InputError naming the path.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..plugin.errors import InputError
 from .landmark_map import LandmarkMap, read_landmark_map
+
+if TYPE_CHECKING:
+    import pycolmap
 
 
 @dataclass(frozen=True)
@@ -31,8 +36,61 @@ def _model_dir(path: Path) -> Path | None:
     return None
 
 
-def read_colmap_points(model_dir: str | Path) -> LandmarkMap:
-    """Points of a COLMAP model as a size-less landmark map (positions ordered by point3D id)."""
+def database_beside(model_dir: Path) -> Path | None:
+    """The session's database.db next to a model (model/, its parent, or the parent of sparse/0)."""
+    for d in (model_dir, model_dir.parent, model_dir.parent.parent):
+        if (d / "database.db").is_file():
+            return d / "database.db"
+    return None
+
+
+def track_sizes(rec: pycolmap.Reconstruction, ids: list[int], database: Path) -> np.ndarray:
+    """Metric size of each point from its track: mean over observations of h_px * depth / f.
+
+    h_px = sqrt(lambda_max(Sigma)) of the observing keypoint's affine shape A = sqrt(Sigma) (6-column keypoints,
+    as `sosmatch map` writes them), depth from the image pose, f = sqrt(fx fy). Points whose keypoints carry no
+    shape (2 or 4 columns) get NaN, so the size gate is off for them.
+    """
+    import pycolmap
+
+    try:
+        db = pycolmap.Database.open(str(database))
+    except Exception as exc:  # not a COLMAP database
+        raise InputError(f"cannot open COLMAP database: {exc}".splitlines()[0], database) from None
+    h_px: dict[int, np.ndarray] = {}
+    try:
+        for iid in rec.images:
+            kp = db.read_keypoints(iid) if db.exists_keypoints(iid) else np.zeros((0, 2), np.float32)
+            if kp.shape[1] == 6:
+                a = kp[:, 2:].astype(np.float64).reshape(-1, 2, 2)
+                h_px[iid] = np.linalg.svd(a, compute_uv=False)[:, 0]  # sigma_max(A) = sqrt(lambda_max(A A^T))
+    finally:
+        db.close()
+    poses = {iid: img.cam_from_world().matrix() for iid, img in rec.images.items() if img.has_pose}
+    focal = {cid: float(np.sqrt(cam.focal_length_x * cam.focal_length_y))
+             for cid, cam in rec.cameras.items()}
+    sizes = np.full(len(ids), np.nan, dtype=np.float32)
+    for n, pid in enumerate(ids):
+        point = rec.point3D(pid)
+        vals = []
+        for el in point.track.elements:
+            h = h_px.get(el.image_id)
+            m = poses.get(el.image_id)
+            if h is None or m is None or el.point2D_idx >= len(h):
+                continue
+            depth = m[2, :3] @ point.xyz + m[2, 3]
+            if depth > 0:
+                vals.append(h[el.point2D_idx] * depth / focal[rec.images[el.image_id].camera_id])
+        if vals:
+            sizes[n] = np.mean(vals)
+    return sizes
+
+
+def read_colmap_points(model_dir: str | Path, database: str | Path | None = None) -> LandmarkMap:
+    """Points of a COLMAP model as a landmark map (positions ordered by point3D id).
+
+    Sizes come from the tracks (`track_sizes`) when a database is given or found beside the model, else NaN.
+    """
     import pycolmap
 
     model_dir = Path(model_dir)
@@ -45,8 +103,13 @@ def read_colmap_points(model_dir: str | Path) -> LandmarkMap:
         xyz = np.array([rec.point3D(i).xyz for i in ids], dtype=np.float64).reshape(-1, 3)
     else:
         xyz = np.zeros((0, 3))
+    database = Path(database) if database is not None else database_beside(model_dir)
+    if database is not None and ids:
+        sizes = track_sizes(rec, ids, database)
+    else:
+        sizes = np.full(len(xyz), np.nan, dtype=np.float32)
     origin = xyz.mean(0) if len(xyz) else np.zeros(3)
-    return LandmarkMap(xyz, np.full(len(xyz), np.nan, dtype=np.float32), origin, epsg=0)
+    return LandmarkMap(xyz, sizes, origin, epsg=0)
 
 
 def load_map(path: str | Path) -> LoadedMap:

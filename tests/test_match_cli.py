@@ -93,3 +93,47 @@ def test_bad_input_one_line_exit_2(maps, tmp_path):
     assert main(["match", str(d / "a.sosmap"), str(d / "a.sosmap"), "--out", str(tmp_path / "o"),
                  "--set", "association.transform=affine"]) == 2
     assert not (tmp_path / "o").exists()
+
+
+def test_colmap_model_sizes_from_tracks(tmp_path):
+    pycolmap = pytest.importorskip("pycolmap")
+    from sosmatch.database.colmap_db import write_colmap_database
+    from sosmatch.database.map_loading import load_map
+    from sosmatch.plugin.geometry import Camera
+
+    rng = np.random.default_rng(0)
+    f = 800.0
+    cam = Camera(1000, 800, f, f, 500.0, 400.0)
+    pts = rng.uniform([-30, -30, 0], [30, 30, 10], (6, 3))
+    true_size = rng.uniform(1.0, 8.0, 6)
+    rot = np.diag([1.0, -1.0, -1.0])  # nadir camera
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(camera_id=1, model="PINHOLE", width=1000, height=800,
+                                                    params=[f, f, 500.0, 400.0]))
+    keypoints = []
+    for i in range(3):
+        centre = np.array([5.0 * i, 0.0, 120.0])
+        t = -rot @ centre
+        depth = (pts @ rot.T + t)[:, 2]
+        uv = (pts @ rot.T + t)[:, :2] / depth[:, None] * f + [500.0, 400.0]
+        h_px = true_size * f / depth
+        kp = np.zeros((6, 6), np.float32)
+        kp[:, :2] = uv
+        kp[:, 2], kp[:, 5] = h_px, 0.5 * h_px  # A = sqrt(Sigma), largest axis h_px
+        keypoints.append(kp)
+        img = pycolmap.Image(name=f"f{i}.jpg", camera_id=1, image_id=i + 1)
+        img.points2D = pycolmap.Point2DList([pycolmap.Point2D(p) for p in uv.astype(np.float64)])
+        rec.add_image_with_trivial_frame(img, pycolmap.Rigid3d(pycolmap.Rotation3d(rot), t))
+    for k in range(6):
+        track = pycolmap.Track()
+        for i in range(3):
+            track.add_element(i + 1, k)
+        rec.add_point3D(pts[k], track)
+    session = tmp_path / "session"
+    (session / "sparse").mkdir(parents=True)
+    rec.write(str(session / "sparse"))
+    write_colmap_database(session / "database.db", cam, [f"f{i}.jpg" for i in range(3)], keypoints, {})
+    loaded = load_map(session)
+    assert loaded.kind == "colmap" and loaded.lmap.has_sizes
+    assert np.allclose(loaded.lmap.positions, pts)
+    assert np.allclose(loaded.lmap.sizes, true_size, rtol=1e-3)
