@@ -209,3 +209,82 @@ def test_model_errors_name_the_file(models, monkeypatch):
     monkeypatch.setenv("SOSMATCH_SAM_DECODER", str(models["dec"]))
     masks = get_backend("sam-onnx", SegmentationParams(sam_points_per_side=2))(np.zeros((64, 64, 3), np.uint8))
     assert len(masks) == 4
+
+
+def make_efficientsam_decoder(path):
+    """EfficientSAM-style decoder: masks (1, Q, 3, H, W) at the original size, IoU (1, Q, 3), pixel coordinates."""
+    f = TensorProto.FLOAT
+    inputs = [
+        helper.make_tensor_value_info("image_embeddings", f, [1, 256, 64, 64]),
+        helper.make_tensor_value_info("batched_point_coords", f, [1, "Q", "N", 2]),
+        helper.make_tensor_value_info("batched_point_labels", f, [1, "Q", "N"]),
+        helper.make_tensor_value_info("orig_im_size", TensorProto.INT64, [2]),
+    ]
+    radii = np.array([10.0, 20.0, 40.0], np.float32)
+    nodes = [
+        _const("i0", np.array([0], np.int64)), _const("i1", np.array([1], np.int64)),
+        _const("half", np.array(0.5, np.float32)), _const("one", np.array(1.0, np.float32)),
+        helper.make_node("Gather", ["orig_im_size", "i0"], ["h64"]),
+        helper.make_node("Gather", ["orig_im_size", "i1"], ["w64"]),
+        helper.make_node("Cast", ["h64"], ["hf1"], to=TensorProto.FLOAT),
+        helper.make_node("Cast", ["w64"], ["wf1"], to=TensorProto.FLOAT),
+        _const("scalar", np.zeros(0, np.int64)),
+        helper.make_node("Reshape", ["hf1", "scalar"], ["hf"]),
+        helper.make_node("Reshape", ["wf1", "scalar"], ["wf"]),
+        helper.make_node("Range", ["half", "hf", "one"], ["ys"]),
+        helper.make_node("Range", ["half", "wf", "one"], ["xs"]),
+        _const("shx", np.array([1, 1, 1, 1, -1], np.int64)), _const("shy", np.array([1, 1, 1, -1, 1], np.int64)),
+        helper.make_node("Reshape", ["xs", "shx"], ["gx"]),
+        helper.make_node("Reshape", ["ys", "shy"], ["gy"]),
+        # point (1, Q, 1, 2) -> px, py (1, Q, 1, 1, 1)
+        _const("s0", np.array([0], np.int64)), _const("e1", np.array([1], np.int64)),
+        _const("e2", np.array([2], np.int64)), _const("ax3", np.array([3], np.int64)),
+        helper.make_node("Slice", ["batched_point_coords", "s0", "e1", "ax3"], ["px4"]),
+        helper.make_node("Slice", ["batched_point_coords", "e1", "e2", "ax3"], ["py4"]),
+        _const("sh5", np.array([1, -1, 1, 1, 1], np.int64)),
+        helper.make_node("Reshape", ["px4", "sh5"], ["px"]),
+        helper.make_node("Reshape", ["py4", "sh5"], ["py"]),
+        helper.make_node("Sub", ["gx", "px"], ["dx"]), helper.make_node("Sub", ["gy", "py"], ["dy"]),
+        helper.make_node("Mul", ["dx", "dx"], ["dx2"]), helper.make_node("Mul", ["dy", "dy"], ["dy2"]),
+        helper.make_node("Add", ["dx2", "dy2"], ["d2"]),
+        _const("r2", (radii**2)[None, None, :, None, None]),
+        helper.make_node("Sub", ["r2", "d2"], ["inside"]),
+        helper.make_node("Div", ["inside", "r2"], ["rel"]),
+        _const("slope", np.array(100.0, np.float32)),
+        helper.make_node("Mul", ["rel", "slope"], ["output_masks"]),
+        # IoU (1, Q, 3): constants, tied to the inputs by a zero factor
+        _const("iou0", np.array([[[0.9, 0.95, 0.7]]], np.float32)),
+        _const("ax23", np.array([2, 3], np.int64)),
+        helper.make_node("ReduceSum", ["batched_point_coords", "ax23"], ["q_s"], keepdims=0),  # (1, Q)
+        helper.make_node("ReduceSum", ["batched_point_labels"], ["l_s"], keepdims=0),
+        helper.make_node("ReduceSum", ["image_embeddings"], ["e_s"], keepdims=0),
+        helper.make_node("Add", ["l_s", "e_s"], ["le"]),
+        helper.make_node("Add", ["q_s", "le"], ["qle"]),
+        _const("sh13", np.array([1, -1, 1], np.int64)),
+        helper.make_node("Reshape", ["qle", "sh13"], ["q3"]),
+        _const("zero", np.array(0.0, np.float32)),
+        helper.make_node("Mul", ["q3", "zero"], ["z"]),
+        helper.make_node("Add", ["iou0", "z"], ["iou_predictions"]),
+    ]
+    outputs = [helper.make_tensor_value_info("output_masks", f, [1, "Q", 3, None, None]),
+               helper.make_tensor_value_info("iou_predictions", f, [1, "Q", 3])]
+    return _save(helper.make_graph(nodes, "effsam_dec", inputs, outputs), path)
+
+
+def test_efficientsam_variant(models):
+    enc = make_encoder(models["dir"] / "effsam_enc.onnx", "efficientsam")
+    dec = make_efficientsam_decoder(models["dir"] / "effsam_dec.onnx")
+    params = SegmentationParams(sam_encoder=str(enc), sam_decoder=str(dec), sam_points_per_side=3)
+    h, w = 150, 210
+    masks = get_backend("sam-onnx", params)(np.zeros((h, w, 3), np.uint8))
+    # candidates r=10 (iou 0.9) and r=20 (0.95) pass, r=40 (0.7) fails; coordinates are original pixels
+    assert len(masks) == 18
+    assert sorted(set(np.round(masks.scores, 2))) == [0.9, 0.95]
+    pts = point_grid(3, h, w)
+    big = masks.subset(np.flatnonzero(np.isclose(masks.scores, 0.95)))
+    assert np.allclose(np.sort(big.areas()), np.pi * 400, rtol=0.05)
+    centers = np.stack([(big.bboxes[:, 0] + big.bboxes[:, 2]) / 2, (big.bboxes[:, 1] + big.bboxes[:, 3]) / 2], 1)
+    assert np.linalg.norm(centers[:, None] - pts[None], axis=2).min(axis=1).max() < 1.5
+    # an EfficientSAM encoder with SAM's decoder is refused
+    with pytest.raises(InputError, match="different model families"):
+        get_backend("sam-onnx", SegmentationParams(sam_encoder=str(enc), sam_decoder=str(models["dec"])))
