@@ -141,6 +141,13 @@ def _map(which: str) -> Callable[[DemoContext], object]:
     return step
 
 
+def _evaluate(ctx: DemoContext) -> object:
+    from .evaluate import demo_step
+
+    return demo_step(ctx.summer_dir, ctx.winter_dir, map_dir(ctx, "summer"), map_dir(ctx, "winter"),
+                     ctx.out / "evaluation")
+
+
 def demo_steps(ctx: DemoContext) -> list[DemoStep]:
     """The demo, in order. Later stages append their steps here."""
     return [
@@ -149,6 +156,7 @@ def demo_steps(ctx: DemoContext) -> list[DemoStep]:
         DemoStep("contact-sheet", [ctx.contact_sheet], _sheet),
         DemoStep("map-summer", [map_dir(ctx, "summer") / "run.json"], _map("summer")),
         DemoStep("map-winter", [map_dir(ctx, "winter") / "run.json"], _map("winter")),
+        DemoStep("evaluate", [ctx.out / "evaluation" / "evaluation.json"], _evaluate),  # keep last: the table
     ]
 
 

@@ -366,3 +366,13 @@ def _json_default(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     raise TypeError(f"not JSON serialisable: {type(obj)}")
+
+
+def demo_step(session_a: str | Path, session_b: str | Path, map_a: str | Path, map_b: str | Path,
+              out_dir: str | Path, case: str = "demo: summer vs winter") -> dict:
+    """The demo's last step: evaluate its two sessions with both baselines and print the table."""
+    evaluation = run(Params(), session_a, session_b, out_dir, map_a=map_a, map_b=map_b, case=case, repeats=1)
+    out_dir = Path(out_dir)
+    print((out_dir / "evaluation.md").read_text(encoding="utf-8"), end="")
+    print(f"precision-recall plot: {out_dir / 'pr.png'}\nmap overlay: {out_dir / 'overlay.png'}")
+    return evaluation
