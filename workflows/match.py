@@ -148,8 +148,10 @@ def alignment_png(result: MatchResult) -> bytes:
         ax.scatter(bt[:, 0], bt[:, 1], s=6, c="#ff7f0e", label=f"map B in A's frame ({len(b)})", linewidths=0)
         assoc = result.associations
         segs = np.stack([a[assoc[:, 0], :2], bt[assoc[:, 1], :2]], axis=1)
-        ax.add_collection(LineCollection(segs, colors="#2ca02c", linewidths=1.0,
-                                         label=f"consensus associations ({len(assoc)})"))
+        ax.add_collection(LineCollection(segs, colors="#2ca02c", linewidths=1.0))
+        # at map scale the segments are sub-metre: mark the associated landmarks too
+        ax.scatter(a[assoc[:, 0], 0], a[assoc[:, 0], 1], s=14, marker="+", c="#2ca02c", linewidths=0.8,
+                   label=f"consensus associations ({len(assoc)})")
         best = s.hypotheses[s.best]
         ax.scatter(a[best.associations[:, 0], 0], a[best.associations[:, 0], 1], s=40, facecolors="none",
                    edgecolors="#d62728", linewidths=1.2, label=f"best hypothesis |S|={best.size}")
