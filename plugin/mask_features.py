@@ -192,6 +192,9 @@ def _assign_keypoints(xy: np.ndarray, masks: MaskSet) -> tuple[np.ndarray, np.nd
 def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams) -> MaskFeatures:
     """Describe every mask of `masks` with at least `params.min_mask_area_px` pixels.
 
+    Each mask keeps its strongest `max_sift_per_mask` SIFT keypoints; if the image would then have more than
+    `sift_max_keypoints` distinct keypoints, the per-mask cap is lowered for all masks alike.
+
     Args:
         image: (H, W, 3) uint8 RGB or (H, W) uint8 gray, the image the masks were computed on.
         masks: the backend's masks (same H, W).
@@ -220,7 +223,19 @@ def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams
     if len(owner):
         first = np.searchsorted(owner, owner, side="left")
         rank = np.arange(len(owner)) - first
-        sel = rank < params.max_sift_per_mask
+        cap = params.max_sift_per_mask
+        if params.sift_max_keypoints > 0:
+            # Bound the descriptor work per image fairly: lower the per-mask cap (the same for every mask)
+            # until at most sift_max_keypoints distinct keypoints remain.
+            lo, hi = 0, cap
+            while lo < hi:
+                mid = (lo + hi + 1) // 2
+                if len(np.unique(kp[rank < mid])) <= params.sift_max_keypoints:
+                    lo = mid
+                else:
+                    hi = mid - 1
+            cap = max(lo, 1)
+        sel = rank < cap
         kp, owner = kp[sel], owner[sel]
     # Descriptors only for keypoints some mask kept (one compute call; shared keypoints computed once).
     uniq, inverse = np.unique(kp, return_inverse=True)

@@ -30,6 +30,7 @@ class SegmentationParams:
     # doubles the image first, so 1200x900 at full size costs ~0.3 s; 480 px detects in ~0.04 s and still
     # gives thousands of keypoints; descriptors are computed only for the ones masks keep.
     sift_max_side: int = 480
+    sift_max_keypoints: int = 2000  # (ours) distinct keypoints per image at most (0 = no limit): bounds descriptor time
     sift_contrast_threshold: float = 0.01  # (ours) OpenCV's 0.04 finds ~100 keypoints on low-contrast NIR frames
     # -- backend `classical` (sosmatch.plugin.segmentation.classical; all ours, tuned on synthetic + Seneca) --
     classical_max_side: int = 400  # working resolution (longer side, px); masks are mapped back to full size

@@ -81,6 +81,10 @@ def test_sift_inside_masks_capped_and_overlaps_duplicate():
     assert sm <= bg
     capped = describe_masks(_texture(*shape), masks, SegmentationParams(max_sift_per_mask=7, sift_max_side=0))
     assert np.bincount(capped.sift_mask, minlength=2).tolist() == [7, 7]
+    # the image-wide cap lowers the per-mask cap for every mask alike
+    few = describe_masks(_texture(*shape), masks, SegmentationParams(sift_max_keypoints=20, sift_max_side=0))
+    counts = np.bincount(few.sift_mask, minlength=2)
+    assert len(np.unique(few.sift_xy, axis=0)) <= 20 and counts[0] == counts[1] >= 10
 
 
 def test_downscaled_sift_lands_at_the_same_places():
