@@ -104,7 +104,7 @@ def refine_poses_with_priors(
     """
     import pycolmap
     from scipy.optimize import least_squares
-    from scipy.sparse import lil_matrix
+    from scipy.sparse import coo_matrix
 
     t0 = time.perf_counter()
     rec = reconstruction
@@ -174,22 +174,26 @@ def refine_poses_with_priors(
         datt = (_matrix_to_rotvec(np.einsum("nij,nkj->nik", r_wc[prior_rows], r_prior[prior_rows])) / att_sigma).ravel()
         return np.concatenate([rep, dpos, datt])
 
-    # Block sparsity of the Jacobian.
+    # Block sparsity of the Jacobian (built as COO index arrays: lil item assignment is slow at 1e5 rows).
     n_par = 6 * n_img + 3 * n_pts
     n_res = 2 * n_obs + 6 * len(prior_rows)
-    sp = lil_matrix((n_res, n_par), dtype=np.int8)
-    rows = np.arange(n_obs)
-    for comp in range(2):
-        rr = 2 * rows + comp
-        for j in range(3):
-            sp[rr, 3 * obs_img_a + j] = 1
-            sp[rr, 3 * n_img + 3 * obs_img_a + j] = 1
-            sp[rr, 6 * n_img + 3 * obs_pt_a + j] = 1
+    rep_rows = (2 * np.arange(n_obs)[:, None] + np.arange(2)[None, :]).ravel()  # (2 n_obs,)
+    rep_img = np.repeat(obs_img_a, 2)
+    rep_pt = np.repeat(obs_pt_a, 2)
+    j3 = np.arange(3)
+    rows_list = [np.repeat(rep_rows, 9)]
+    cols_list = [np.concatenate([(3 * rep_img[:, None] + j3), (3 * n_img + 3 * rep_img[:, None] + j3),
+                                 (6 * n_img + 3 * rep_pt[:, None] + j3)], axis=1).ravel()]
     base = 2 * n_obs
-    for q, i in enumerate(prior_rows):
-        for j in range(3):
-            sp[base + 3 * q + j, 3 * n_img + 3 * i + j] = 1
-            sp[base + 3 * len(prior_rows) + 3 * q + j, 3 * i: 3 * i + 3] = 1
+    q = np.arange(len(prior_rows))
+    rows_list.append((base + 3 * q[:, None] + j3).ravel())  # position prior: one centre coordinate each
+    cols_list.append((3 * n_img + 3 * prior_rows[:, None] + j3).ravel())
+    att_rows = base + 3 * len(prior_rows) + 3 * q[:, None] + j3  # attitude prior: the image's 3 rotation params
+    rows_list.append(np.repeat(att_rows.ravel(), 3))
+    cols_list.append(np.repeat(3 * prior_rows[:, None] + j3, 3, axis=0).reshape(-1, 3).ravel()
+                     if len(prior_rows) else np.zeros(0, dtype=int))
+    sp = coo_matrix((np.ones(sum(len(r) for r in rows_list), dtype=np.int8),
+                     (np.concatenate(rows_list), np.concatenate(cols_list))), shape=(n_res, n_par))
 
     x0 = np.concatenate([np.zeros(3 * n_img), (c0 - origin).ravel(), x0_pts.ravel()])
     before = np.linalg.norm(reprojection(r_wc0, c0 - origin, x0_pts), axis=1) if n_obs else np.zeros(0)
@@ -247,3 +251,149 @@ def poses_of_reconstruction(reconstruction: object) -> Poses:
         r_cw.append(np.asarray(cfw.rotation.matrix()))
         t_cw.append(np.asarray(cfw.translation))
     return Poses.from_cam_from_world(names, np.array(r_cw).reshape(-1, 3, 3), np.array(t_cw).reshape(-1, 3))
+
+
+def _orb_matches(desc_a: np.ndarray, desc_b: np.ndarray, kp_a: np.ndarray, kp_b: np.ndarray,
+                 ransac_px: float) -> np.ndarray:
+    """Indices (M, 2) of ORB matches between two images that pass Lowe's ratio test and a RANSAC homography
+    (the ground is nearly flat, so a homography is the right image-only model; parallax outliers are dropped)."""
+    import cv2
+
+    if desc_a is None or desc_b is None or len(desc_a) < 8 or len(desc_b) < 8:
+        return np.zeros((0, 2), dtype=int)
+    knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(desc_a, desc_b, k=2)
+    good = np.array([(m[0].queryIdx, m[0].trainIdx) for m in knn
+                     if len(m) == 2 and m[0].distance < 0.8 * m[1].distance], dtype=int).reshape(-1, 2)
+    if len(good) < 12:
+        return np.zeros((0, 2), dtype=int)
+    _, inl = cv2.findHomography(kp_a[good[:, 0]], kp_b[good[:, 1]], cv2.RANSAC, ransac_px)
+    if inl is None or inl.sum() < 12:
+        return np.zeros((0, 2), dtype=int)
+    return good[inl.ravel().astype(bool)]
+
+
+def tie_point_reconstruction(
+    image_paths: list,
+    poses: Poses,
+    camera: object,
+    max_features: int = 3000,
+    neighbour_fraction: float = 0.6,
+    ransac_px: float = 6.0,
+    min_track_length: int = 3,
+) -> object:
+    """A pycolmap Reconstruction of ORB tie points with the given (prior) poses (changed by nothing here).
+
+    Features per image (ORB, `max_features`); matches (ratio test + RANSAC homography at `ransac_px`) between
+    each image and the next two, and between any two images whose centres are closer than
+    `neighbour_fraction` x 4 x the median spacing of consecutive images (a typical 75% forward overlap puts
+    ~4 spacings in a footprint), which links neighbouring flight lines; tracks by union-find (tracks with two
+    features in one image are dropped); points by least-squares intersection of the rays from the prior poses.
+    `camera` is a sosmatch Camera (PINHOLE), image order = pose order.
+    """
+    import cv2
+    import pycolmap
+
+    n = len(poses)
+    orb = cv2.ORB_create(max_features)
+    kps, descs = [], []
+    for path in image_paths:
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            from ..plugin.errors import InputError
+
+            raise InputError("cannot read image", path)
+        if img.shape[1] != camera.width:
+            raise ValueError(f"{path}: image width {img.shape[1]} differs from the camera's {camera.width}")
+        k, d = orb.detectAndCompute(img, None)
+        kps.append(np.array([p.pt for p in k], dtype=np.float64).reshape(-1, 2) + 0.5)  # COLMAP pixel centres
+        descs.append(d)
+    spacing = np.median(np.linalg.norm(np.diff(poses.centers[:, :2], axis=0), axis=1)) if n > 1 else 1.0
+    radius = neighbour_fraction * 4.0 * spacing
+    d2 = np.linalg.norm(poses.centers[:, None, :2] - poses.centers[None, :, :2], axis=2)
+    pairs = {(i, j) for i in range(n) for j in range(i + 1, min(n, i + 3))}
+    pairs |= {(int(i), int(j)) for i, j in zip(*np.nonzero(np.triu(d2 < radius, 1)))}
+    offsets = np.concatenate([[0], np.cumsum([len(k) for k in kps])])
+    parent = np.arange(offsets[-1])
+
+    def find(a: int) -> int:
+        root = a
+        while parent[root] != root:
+            root = parent[root]
+        while parent[a] != root:
+            parent[a], a = root, parent[a]
+        return root
+
+    n_pairs_ok = 0
+    for i, j in sorted(pairs):
+        m = _orb_matches(descs[i], descs[j], kps[i], kps[j], ransac_px)
+        if len(m):
+            n_pairs_ok += 1
+        for a, b in m:
+            ra, rb = find(offsets[i] + a), find(offsets[j] + b)
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+    roots = np.array([find(a) for a in range(offsets[-1])])
+    img_of = np.repeat(np.arange(n), np.diff(offsets))
+    order = np.argsort(roots, kind="stable")
+    groups = np.split(order, np.flatnonzero(np.diff(roots[order])) + 1)
+    tracks = [g for g in groups if len(g) >= min_track_length and len(np.unique(img_of[g])) == len(g)]
+    log.info("tie points: %d image pairs matched of %d tried, %d tracks of >= %d images", n_pairs_ok, len(pairs),
+             len(tracks), min_track_length)
+
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=camera.width, height=camera.height,
+                                                    params=[camera.fx, camera.fy, camera.cx, camera.cy],
+                                                    camera_id=1))
+    used = np.zeros(offsets[-1], dtype=bool)
+    for g in tracks:
+        used[g] = True
+    local_index = np.full(offsets[-1], -1)
+    for i in range(n):
+        sel = np.flatnonzero(used[offsets[i]:offsets[i + 1]])
+        local_index[offsets[i] + sel] = np.arange(len(sel))
+        pts = [pycolmap.Point2D(kps[i][s]) for s in sel]
+        im = pycolmap.Image(name=poses.names[i], camera_id=1, image_id=i + 1, points2D=pycolmap.Point2DList(pts))
+        r_cw = poses.rotations[i].T
+        rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(pycolmap.Rotation3d(r_cw), -r_cw @ poses.centers[i]))
+    kinv = np.linalg.inv(camera.K)
+    origin = poses.centers.mean(axis=0)
+    for g in tracks:
+        imgs = img_of[g]
+        uv = np.concatenate([np.stack([kps[i][a - offsets[i]] for i, a in zip(imgs, g)]), np.ones((len(g), 1))], 1)
+        d = np.einsum("nij,nj->ni", poses.rotations[imgs], uv @ kinv.T)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        m = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+        a_mat = m.sum(0)
+        b_vec = np.einsum("nij,nj->i", m, poses.centers[imgs] - origin)
+        try:
+            x = np.linalg.solve(a_mat, b_vec) + origin
+        except np.linalg.LinAlgError:
+            continue
+        depth = np.einsum("nj,nj->n", x - poses.centers[imgs], poses.rotations[imgs][:, :, 2])
+        if np.any(depth <= 0):
+            continue
+        track = pycolmap.Track()
+        for i, a in zip(imgs, g):
+            track.add_element(int(i) + 1, int(local_index[a]))
+        rec.add_point3D(x, track)
+    return rec
+
+
+def refine_poses_from_images(
+    image_paths: list,
+    poses: Poses,
+    camera: object,
+    position_sigma_m: float | tuple[float, float, float] = 3.0,
+    attitude_sigma_deg: float = 5.0,
+    pixel_sigma_px: float = 2.0,
+    max_features: int = 3000,
+) -> tuple[Poses, RefinementStats]:
+    """Refine GPS/telemetry poses BEFORE mapping, with ORB tie points between overlapping images and the pose
+    priors (`tie_point_reconstruction` + `refine_poses_with_priors`). Returns the refined poses (same names and
+    order, same world frame) and the statistics. Use it when the poses are far from EKF quality: the mapping's
+    epipolar gate (a few pixels) cannot track segments across frames whose poses are 100+ px off."""
+    rec = tie_point_reconstruction(image_paths, poses, camera, max_features)
+    stats = refine_poses_with_priors(rec, poses, position_sigma_m, attitude_sigma_deg, pixel_sigma_px)
+    refined = poses_of_reconstruction(rec)
+    order = [refined.names.index(nm) for nm in poses.names]
+    return refined.subset(order), stats
