@@ -84,3 +84,18 @@ def test_maskset_representations_agree():
     assert np.allclose(mask_iou_matrix(a, b), np.eye(5))
     sub = b.subset([3, 1])
     assert np.array_equal(sub.mask(0), labels == 3) and np.array_equal(a.subset([3, 1]).mask(1), labels == 1)
+
+
+def test_touching_discs_are_split_when_asked():
+    img = np.full((300, 400, 3), (150, 100, 90), np.uint8)
+    cv2.circle(img, (170, 150), 25, (40, 140, 50), -1)
+    cv2.circle(img, (216, 150), 25, (40, 140, 50), -1)  # overlapping: one region of two blobs
+    gt = [np.zeros((300, 400), np.uint8) for _ in range(2)]
+    cv2.circle(gt[0], (170, 150), 25, 1, -1)
+    cv2.circle(gt[1], (216, 150), 25, 1, -1)
+    gt = MaskSet.from_masks([gt[0] & ~gt[1], gt[1]])
+    plain = get_backend("classical", SegmentationParams())(img)
+    split = get_backend("classical", SegmentationParams(classical_split_solidity=0.96))(img)
+    assert len(split) > len(plain)
+    best = mask_iou_matrix(gt, split).max(axis=1)
+    assert np.all(best >= 0.7), best

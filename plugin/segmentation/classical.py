@@ -306,33 +306,85 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
 
     from scipy.ndimage import find_objects
 
-    boxes, crops, scores = [], [], []
+    # Working-resolution crops of the chosen regions: (y0, x0, bool crop, contrast).
+    small_masks: list[tuple[int, int, np.ndarray, float]] = []
     by_level: dict[int, tuple[np.ndarray, list]] = {}
-    fy, fx = h / sh, w / sw
     for con, lvl, r, _ in chosen:
         if lvl not in by_level:
             lab_l = parent_of[lvl][labels].astype(np.int32)
             by_level[lvl] = (lab_l, find_objects(lab_l + 1))
         lab_l, slices = by_level[lvl]
         sy, sx = slices[r]
+        small_masks.append((sy.start, sx.start, lab_l[sy, sx] == r, con))
+    if c["split_solidity"] > 0:
+        min_small = c["min_area_px"] / px_area
+        small_masks += [
+            part for m in small_masks for part in _split_touching(m, c["split_solidity"], min_small, c["min_fill"])
+        ]
+
+    boxes, crops, scores = [], [], []
+    fy, fx = h / sh, w / sw
+    for sy0, sx0, sm, con in small_masks:
         if scale < 1.0:
             # map only the region's window back to full size (nearest neighbour, as for the whole image)
-            y0, y1 = int(sy.start * fy), min(h, int(np.ceil(sy.stop * fy)))
-            x0, x1 = int(sx.start * fx), min(w, int(np.ceil(sx.stop * fx)))
-            src_y = np.minimum(((np.arange(y0, y1) + 0.5) / fy).astype(np.int64), sh - 1)
-            src_x = np.minimum(((np.arange(x0, x1) + 0.5) / fx).astype(np.int64), sw - 1)
-            m = lab_l[src_y[:, None], src_x[None, :]] == r
+            y0, y1 = int(sy0 * fy), min(h, int(np.ceil((sy0 + sm.shape[0]) * fy)))
+            x0, x1 = int(sx0 * fx), min(w, int(np.ceil((sx0 + sm.shape[1]) * fx)))
+            src_y = np.clip(((np.arange(y0, y1) + 0.5) / fy).astype(np.int64) - sy0, 0, sm.shape[0] - 1)
+            src_x = np.clip(((np.arange(x0, x1) + 0.5) / fx).astype(np.int64) - sx0, 0, sm.shape[1] - 1)
+            m = sm[src_y[:, None], src_x[None, :]]
         else:
-            y0, y1, x0, x1 = sy.start, sy.stop, sx.start, sx.stop
-            m = lab_l[y0:y1, x0:x1] == r
+            y0, x0, m = sy0, sx0, sm
         rows = np.flatnonzero(m.any(axis=1))
         if len(rows) == 0:
             continue
         cols = np.flatnonzero(m.any(axis=0))
         boxes.append((x0 + int(cols[0]), y0 + int(rows[0]), x0 + int(cols[-1]) + 1, y0 + int(rows[-1]) + 1))
-        crops.append(m[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1])
+        crops.append(np.ascontiguousarray(m[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]))
         scores.append(1.0 - np.exp(-con / 20.0))
     return MaskSet((h, w), np.asarray(scores, np.float32), boxes=np.asarray(boxes, np.int32), crops=crops)
+
+
+def _split_touching(
+    region: tuple[int, int, np.ndarray, float], max_solidity: float, min_area: float, min_fill: float
+) -> list[tuple[int, int, np.ndarray, float]]:
+    """Parts of a non-convex region (solidity = area / convex hull area below `max_solidity`): touching crowns
+    or a crown fused with its shadow. Classic separation of touching blobs: a watershed of the distance
+    transform from its well-separated maxima. The parts are extra masks (the region itself stays)."""
+    y0, x0, crop, con = region
+    area = int(crop.sum())
+    if area < 2 * min_area:
+        return []
+    mask8 = np.pad(crop, 1).astype(np.uint8)
+    contours, _ = cv2.findContours(mask8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        return []
+    hull = cv2.contourArea(cv2.convexHull(np.concatenate(contours)))
+    if hull <= 0 or area / hull >= max_solidity:
+        return []
+    dist = cv2.distanceTransform(mask8, cv2.DIST_L2, 3)
+    # maxima: pixels equal to the max of their neighbourhood (size ~ the typical part radius), clearly inside
+    k = max(3, int(0.5 * dist.max()) | 1)
+    peaks = (dist >= cv2.dilate(dist, np.ones((k, k), np.uint8))) & (dist >= 0.5 * dist.max()) & (mask8 > 0)
+    n, markers = cv2.connectedComponents(peaks.astype(np.uint8), connectivity=8)
+    if n <= 2:  # one maximum (plus background): nothing to split
+        return []
+    from skimage.segmentation import watershed
+
+    parts = watershed(-dist, markers, mask=mask8 > 0)[1:-1, 1:-1]
+    out = []
+    for p in range(1, n):
+        part = parts == p
+        pa = int(part.sum())
+        if pa < min_area:
+            continue
+        ys, xs = np.nonzero(part)
+        cov = np.cov(np.stack([xs, ys]).astype(np.float64), bias=True) + np.eye(2) / 12.0
+        fill = pa / (4.0 * np.pi * np.sqrt(max(np.linalg.det(cov), 1e-9)))
+        if fill < min_fill:
+            continue
+        ry0, ry1, rx0, rx1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        out.append((y0 + int(ry0), x0 + int(rx0), part[ry0:ry1, rx0:rx1], con * 0.9))
+    return out if len(out) >= 2 else []
 
 
 def make(params: SegmentationParams) -> Backend:
