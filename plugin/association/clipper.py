@@ -151,20 +151,19 @@ class _Operator:
             self.c[np.arange(n), np.arange(n)] = 1.0
             self.a = self.m
         else:
+            # symmetric CSR assembled directly (one sort of row * n + col); M and C share the pattern
             idx = np.arange(n)
             r = np.concatenate([g.rows, g.cols, idx])
             c = np.concatenate([g.cols, g.rows, idx])
             v = np.concatenate([g.values, g.values, g.diag])
-            mat = sp.csr_matrix((v, (r, c)), shape=(n, n))
-            mat.sum_duplicates()
-            mat.sort_indices()
-            self.mdata = mat.data.copy()
-            self.msp = mat
-            self.a = mat.copy()
-            ones = sp.csr_matrix((np.ones_like(v), (r, c)), shape=(n, n))
-            ones.sum_duplicates()
-            ones.sort_indices()
-            self.c = ones
+            order = np.argsort(r * n + c, kind="stable")
+            indices = c[order].astype(np.int32)
+            indptr = np.zeros(n + 1, dtype=np.int32)
+            np.cumsum(np.bincount(r, minlength=n), out=indptr[1:])
+            self.mdata = v[order]
+            self.msp = sp.csr_matrix((self.mdata, indices, indptr), shape=(n, n))
+            self.a = sp.csr_matrix((self.mdata.copy(), indices, indptr), shape=(n, n))
+            self.c = sp.csr_matrix((np.ones(len(v)), indices, indptr), shape=(n, n))
 
     def set_penalty(self, d: float) -> None:
         if self.dense:
@@ -258,12 +257,13 @@ def _round(op: _Operator, u: np.ndarray, graph: ConsistencyGraph) -> np.ndarray:
     rank[order] = np.arange(n)
     compat = np.ones(n, dtype=bool)
     chosen = []
-    if op.dense:  # usual case: the converged support is already a clique; take it in one step
-        sup = np.flatnonzero(u > 1e-6 * u.max())
-        if len(sup) and op.c[np.ix_(sup, sup)].all():
-            chosen = sup.tolist()
-            compat = op.c[sup].all(axis=0)
-            compat[sup] = False
+    # usual case: the converged support is already a clique; take it in one step (the greedy walk below would
+    # take exactly these first, as they lead the order and are pairwise consistent)
+    insup = u > 1e-6 * u.max()
+    ns = int(insup.sum())
+    if ns and 2 * int(np.count_nonzero(insup[graph.rows] & insup[graph.cols])) == ns * (ns - 1):
+        chosen = np.flatnonzero(insup).tolist()
+        compat = (op.c_matvec(insup.astype(np.float64)) > ns - 0.5) & ~insup  # consistent with all of them
     while True:
         cand = np.flatnonzero(compat)
         if len(cand) == 0:

@@ -427,6 +427,8 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
     shared = (pa, ha, pb, hb, params, wins_a, wins_b, verts, e1, e2, c)
     if workers is None:
         workers = 2 if len(tasks) >= PARALLEL_MIN_TASKS and (os.cpu_count() or 1) >= 2 else 1
+    if "fork" not in multiprocessing.get_all_start_methods():  # the workers inherit the shared arrays by fork
+        workers = 1
     if workers > 1 and len(tasks) > 1:
         chunks = [tasks[w::workers] for w in range(workers)]  # interleaved: similar work per process
         ctx = multiprocessing.get_context("fork")
