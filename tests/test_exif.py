@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import math
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +31,8 @@ def _dms(deg: float) -> tuple:
 def write_jpeg(path: Path, lat: float | None, lon: float | None, alt: float = 300.0, xmp: dict | None = None,
                size: tuple = (400, 300), focal: float = 4.3, fp_res: float = 16393.44, exif_size: tuple = (4000, 3000),
                xmp_as_elements: bool = False) -> None:
-    img = Image.fromarray(np.random.default_rng(0).integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
+    rng = np.random.default_rng(zlib.crc32(path.name.encode()))  # different content per file name
+    img = Image.fromarray(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
     exif = Image.Exif()
     exif[0x010F] = "TestMake"
     exif[0x0110] = "TestMake Cam"
@@ -192,3 +194,18 @@ def test_cli_writes_files(tmp_path, capsys):
     assert epsg == 32756  # southern hemisphere, zone 56
     assert (tmp_path / "s" / "cameras.txt").exists()
     assert '"telemetry CSV"' not in capsys.readouterr().out
+
+
+def test_refine_option_runs_and_keeps_poses_without_tie_points(tmp_path):
+    # Independent noise images share no tie points: refinement must leave the EXIF poses where they are.
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(3):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0,
+                   {"Heading": "90", "PitchAngle": "1", "RollAngle": "-2"})
+    plain = pfe.poses_from_images(img)
+    res = pfe.run(img, tmp_path / "poses.csv", refine=True)
+    assert res.summary["refinement"]["images"] == 3 and res.summary["refinement"]["points"] == 0
+    np.testing.assert_allclose(res.poses.centers, plain.poses.centers, atol=1e-6)
+    poses, _ = read_poses_csv(tmp_path / "poses.csv")
+    np.testing.assert_allclose(poses.rotations, plain.poses.rotations, atol=1e-9)

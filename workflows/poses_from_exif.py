@@ -373,12 +373,27 @@ def run(
     sensor_width_mm: float | None = None,
     epsg: int | None = None,
     cameras_out: str | Path | None = None,
+    refine: bool = False,
+    position_sigma_m: float = 3.0,
+    attitude_sigma_deg: float = 5.0,
 ) -> ExifPoses:
     """Write `out` (pose CSV, `# crs: EPSG:<utm>`) and cameras.txt beside it (or at `cameras_out`).
 
-    Both files are written atomically; the return value carries the poses, camera and the source summary.
+    With `refine`, the EXIF poses are refined with ORB tie points between overlapping images and the EXIF poses
+    as priors (`pose_refinement.refine_poses_from_images`, sigmas as given) before they are written; the
+    summary then holds the refinement statistics. Both files are written atomically; the return value carries
+    the poses, camera and the source summary.
     """
     result = poses_from_images(images, telemetry, mount, pitch_sign, roll_sign, sensor_width_mm, epsg)
+    if refine:
+        from .pose_refinement import refine_poses_from_images
+
+        paths = {p.name: p for p in list_images(images)}
+        refined, stats = refine_poses_from_images([paths[n] for n in result.poses.names], result.poses,
+                                                  result.camera, position_sigma_m, attitude_sigma_deg)
+        result.poses = refined
+        result.summary["refinement"] = {"position_sigma_m": position_sigma_m,
+                                        "attitude_sigma_deg": attitude_sigma_deg, **stats.to_dict()}
     out = Path(out)
     cameras_path = Path(cameras_out) if cameras_out is not None else out.parent / "cameras.txt"
     write_text_atomic(out, format_poses_csv(result.poses, result.epsg))

@@ -24,6 +24,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--roll-sign", type=float, default=None, choices=[-1.0, 1.0])
     parser.add_argument("--sensor-width-mm", type=float, help="sensor width when EXIF has no focal-plane resolution")
     parser.add_argument("--epsg", type=int, help="projected CRS for the poses (default: the UTM zone of image 1)")
+    parser.add_argument("--refine", action="store_true",
+                        help="refine the poses with ORB tie points between overlapping images, the EXIF poses "
+                             "acting as priors (for consumer GPS / autopilot attitude)")
+    parser.add_argument("--position-sigma", type=float, default=3.0, help="--refine: GPS sigma, metres")
+    parser.add_argument("--attitude-sigma", type=float, default=5.0, help="--refine: attitude sigma, degrees")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
         pitch_sign=args.pitch_sign if args.pitch_sign is not None else wf.DEFAULT_PITCH_SIGN,
         roll_sign=args.roll_sign if args.roll_sign is not None else wf.DEFAULT_ROLL_SIGN,
         sensor_width_mm=args.sensor_width_mm, epsg=args.epsg, cameras_out=args.cameras,
+        refine=args.refine, position_sigma_m=args.position_sigma, attitude_sigma_deg=args.attitude_sigma,
     )
     print(json.dumps(result.summary, indent=2))
     return 0
