@@ -261,6 +261,8 @@ def _consistent_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.nda
                       params: AssociationParams) -> tuple[np.ndarray, ...]:
     """All consistent pairs of size-gated associations {(p, j), (q, l)}: A edge (p, q) ~ B edge (j, l).
 
+    Returns (v1, v2, c): association ids p * N_B + j and q * N_B + l, and the distance mismatch c.
+
     Sort-merge join: B edges are sorted by (size cell of j, size cell of l, length) where a size cell is
     delta wide in log size, delta = ln((2 + theta_r) / (2 - theta_r)) the log-width of the gate
     (r <= theta_r  <=>  |ln h_a - ln h_b| <= delta). For each directed A edge and each of the 3 x 3 neighbouring
@@ -294,7 +296,8 @@ def _consistent_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.nda
     order = np.argsort(key_b, kind="stable")
     key_sorted = key_b[order]
     slack = 1e-9 * span * ns * ns  # rounding of the composite key; the exact check below decides
-    out = {k: [] for k in ("v1a", "v1b", "v2a", "v2b", "c")}
+    nb = len(hb)
+    out: dict[str, list] = {"v1": [], "v2": [], "c": []}
     key_a = (sa[p] * ns + sa[q]) * span + dA
     a_order = np.argsort(key_a, kind="stable")  # sorted queries make the binary searches cache-friendly
     p, q, dA, key_a = p[a_order], q[a_order], dA[a_order], key_a[a_order]
@@ -319,10 +322,11 @@ def _consistent_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.nda
                 ok &= 2.0 * np.abs(x - y) / (x + y) <= theta_r
             else:
                 ok = (size_ratio(ha[pp], hb[jj]) <= theta_r) & (size_ratio(ha[qq], hb[ll]) <= theta_r)
-            for name, arr in (("v1a", pp), ("v1b", jj), ("v2a", qq), ("v2b", ll), ("c", c)):
-                out[name].append(arr[ok])
+            out["v1"].append(pp[ok] * nb + jj[ok])  # association (p, j) as one id
+            out["v2"].append(qq[ok] * nb + ll[ok])
+            out["c"].append(c[ok])
     return tuple(np.concatenate(out[k]) if out[k] else np.zeros(0, np.float64 if k == "c" else np.int64)
-                 for k in ("v1a", "v1b", "v2a", "v2b", "c"))
+                 for k in ("v1", "v2", "c"))
 
 
 def _compact_ids(v1: np.ndarray, v2: np.ndarray, space: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -376,21 +380,21 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
     timings["edges_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    v1a, v1b, v2a, v2b, c = _consistent_pairs(pa, ha, pb, hb, ea, eb, params)
+    v1, v2, c = _consistent_pairs(pa, ha, pb, hb, ea, eb, params)
     timings["join_s"] = time.perf_counter() - t0
     timings["consistent_pairs"] = float(len(c))
 
     t0 = time.perf_counter()
     nb = len(pb)
-    v1 = v1a * nb + v1b
-    v2 = v2a * nb + v2b
     verts, e1, e2 = _compact_ids(v1, v2, len(pa) * nb)
     sel = _peel_global(e1, e2, len(verts), k)
     # window-pair rectangle of each surviving edge: windows holding both A landmarks x both B landmarks
-    a_lo = fa[np.maximum(v1a[sel], v2a[sel])]
-    a_hi = la[np.minimum(v1a[sel], v2a[sel])]
-    b_lo = fb[np.maximum(v1b[sel], v2b[sel])]
-    b_hi = lb[np.minimum(v1b[sel], v2b[sel])]
+    v1a, v1b = np.divmod(v1[sel], nb)
+    v2a, v2b = np.divmod(v2[sel], nb)
+    a_lo = fa[np.maximum(v1a, v2a)]
+    a_hi = la[np.minimum(v1a, v2a)]
+    b_lo = fb[np.maximum(v1b, v2b)]
+    b_hi = lb[np.minimum(v1b, v2b)]
     nwb = len(wins_b)
     na_e = a_hi - a_lo + 1
     nb_e = b_hi - b_lo + 1
