@@ -137,3 +137,16 @@ def test_colmap_model_sizes_from_tracks(tmp_path):
     assert loaded.kind == "colmap" and loaded.lmap.has_sizes
     assert np.allclose(loaded.lmap.positions, pts)
     assert np.allclose(loaded.lmap.sizes, true_size, rtol=1e-3)
+
+
+def test_exhaustive_flag_gives_the_same_file(maps, tmp_path):
+    d, _ = maps
+    docs = []
+    for name, extra in (("fast", ["--workers", "2"]), ("ref", ["--exhaustive"])):
+        out = tmp_path / name
+        assert main(["match", str(d / "a.sosmap"), str(d / "session_b"), "--out", str(out), "--no-plot",
+                     "--set", "association.window_length=30", *extra]) == 0
+        docs.append(json.loads((out / "match.json").read_text()))
+    assert docs[0]["num_accepted"] > 0
+    for key in ("hypotheses", "best", "accepted", "consensus"):
+        assert docs[0][key] == docs[1][key]
