@@ -34,7 +34,7 @@ class SeasonLook:
 SEASON_LOOKS: dict[str, SeasonLook] = {
     "summer": SeasonLook(150.0, 55.0, 0.45, 0.0),
     "autumn": SeasonLook(165.0, 32.0, 0.55, 0.0),
-    "winter": SeasonLook(190.0, 20.0, 0.70, 0.35),
+    "winter": SeasonLook(190.0, 20.0, 0.80, 0.6),
     "spring": SeasonLook(140.0, 42.0, 0.50, 0.0),
 }
 
@@ -106,10 +106,24 @@ def cast_shadow(dsm: np.ndarray, resolution_m: float, azimuth_deg: float, elevat
     return back
 
 
+def sky_occlusion(dsm: np.ndarray, terrain: np.ndarray, resolution_m: float) -> np.ndarray:
+    """Fraction of the sky light that reaches each cell (float32, 0.45..1): ground next to trees and houses
+    and the lower parts of crowns see less sky (a cheap ambient occlusion from the height above ground)."""
+    rows, cols = dsm.shape
+    small = (max(1, cols // 4), max(1, rows // 4))
+    hag = cv2.resize(dsm - terrain, small, interpolation=cv2.INTER_AREA)
+    sigma = 2.5 / (resolution_m * 4)  # a 2.5 m neighbourhood
+    around = cv2.GaussianBlur(hag, (0, 0), sigma)
+    occ = np.clip((around - hag) / np.float32(4.0), 0.0, 1.0)
+    occ = cv2.resize(occ, (cols, rows), interpolation=cv2.INTER_LINEAR)
+    return np.float32(1.0) - np.float32(0.55) * occ
+
+
 def lighting(dsm: np.ndarray, resolution_m: float, azimuth_deg: float, elevation_deg: float,
-             ambient: float) -> np.ndarray:
+             ambient: float, terrain: np.ndarray | None = None) -> np.ndarray:
     """Linear light multiplier per DSM cell (float32): 1.0 on flat sunlit ground, `ambient/(ambient+sin el)` in
-    shadow; Lambert shading from the DSM normals in between."""
+    open shadow; Lambert shading from the DSM normals in between; with `terrain`, the sky light is reduced
+    next to tall objects (`sky_occlusion`)."""
     s = sun_vector(azimuth_deg, elevation_deg).astype(np.float32)
     gx = cv2.Sobel(dsm, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / (8.0 * resolution_m))
     gy = cv2.Sobel(dsm, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / (8.0 * resolution_m))
@@ -123,7 +137,8 @@ def lighting(dsm: np.ndarray, resolution_m: float, azimuth_deg: float, elevation
                         (cols, rows), interpolation=cv2.INTER_LINEAR)
     direct = cos_i * (np.float32(1.0) - shadow)
     norm = np.float32(1.0 / (ambient + s[2]))
-    return (np.float32(ambient) + direct) * norm
+    sky = np.float32(ambient) if terrain is None else np.float32(ambient) * sky_occlusion(dsm, terrain, resolution_m)
+    return (sky + direct) * norm
 
 
 # ----------------------------------------------------------------------------------------------- camera pipeline

@@ -467,6 +467,7 @@ class Scene:
     ids: np.ndarray  # uint16 object id of the surface (0 = ground)
     ids_dilated: np.ndarray  # ids grown by one cell (for rays that hit object walls at a cell edge)
     albedo: np.ndarray  # uint8 (n, n, 3) sRGB
+    wall_colour: np.ndarray  # uint8 (max id + 1, 3): wall albedo of buildings by id, 0 for other objects
 
 
 def build_scene(world: World, season: str, present: np.ndarray) -> Scene:
@@ -483,7 +484,12 @@ def build_scene(world: World, season: str, present: np.ndarray) -> Scene:
     # Anti-aliasing: a pixel of the camera integrates ~0.2 m of ground; blur the albedo by about a cell.
     albedo = cv2.GaussianBlur(albedo, (0, 0), 0.6)
     ids_dilated = cv2.dilate(ids, np.ones((3, 3), np.uint8))
-    return Scene(world, season, present, dsm, ids, ids_dilated, albedo)
+    walls = np.zeros((len(world.objects) + 1, 3), np.uint8)
+    plaster = [(206, 200, 188), (188, 176, 160), (160, 96, 76), (128, 104, 84), (214, 212, 206)]
+    for o in world.objects:
+        if o.kind == "building":
+            walls[o.id] = plaster[int(rng_for(world.config.seed, _T_OBJECT, o.id).random(9)[8] * len(plaster))]
+    return Scene(world, season, present, dsm, ids, ids_dilated, albedo, walls)
 
 
 def _outline(rng: np.random.Generator, ang: np.ndarray, amp: float) -> np.ndarray:
