@@ -200,6 +200,44 @@ def evaluate(result: object, objects: list[np.ndarray], visible: list[np.ndarray
     }
 
 
+def true_pair_gates(data: dict, pose_set: str, params: TrackingParams) -> dict:
+    """Gate statistics of the TRUE links: consecutive keyframes, objects with exactly one mask in each.
+
+    Returns percentiles (50, 95, 99) of the epipolar distance (px) and the motion z-score, and the fraction of
+    true links each gate would cut at `params`: the evidence for choosing theta_a against pose noise.
+    """
+    from ...plugin.tracking import _desc_index, epipolar_distances, feature_scores, gap_motion, size_scores
+
+    feats, objs, cam, poses = data["features"], data["objects"], data["camera"], data[pose_set]
+    epi, mot, qs, qf = [], [], [], []
+    for t in range(1, len(feats)):
+        a, b = objs[t - 1], objs[t]
+        ids, ca = np.unique(a[a > 0], return_counts=True)
+        idb, cb = np.unique(b[b > 0], return_counts=True)
+        common = np.intersect1d(ids[ca == 1], idb[cb == 1])
+        if len(common) == 0:
+            continue
+        i = np.array([np.flatnonzero(a == o)[0] for o in common])
+        j = np.array([np.flatnonzero(b == o)[0] for o in common])
+        xs, xt = feats[t - 1].centroids[i], feats[t].centroids[j]
+        epi.append(np.diag(epipolar_distances(cam, poses, t - 1, t, xs, xt)))
+        mu, sigma = gap_motion(data["motion"], t - 1, t, params.centroid_sigma_px)
+        mot.append(np.abs(np.linalg.norm(xs - xt, axis=1) - mu) / sigma)
+        qs.append(np.diag(size_scores(feats[t - 1].sizes[i], feats[t].sizes[j], params.size_tolerance)))
+        qf.append(feature_scores(_desc_index(feats[t - 1]), _desc_index(feats[t]), i, j, params.sift_ratio))
+    epi, mot, qs, qf = (np.concatenate(x) if x else np.zeros(0) for x in (epi, mot, qs, qf))
+    q = np.sqrt(qs * qf)
+    return {
+        "links": len(epi),
+        "epi_pct": np.percentile(epi, [50, 95, 99]) if len(epi) else np.full(3, np.nan),
+        "motion_pct": np.percentile(mot, [50, 95, 99]) if len(mot) else np.full(3, np.nan),
+        "cut_epipolar": float(np.mean(epi > params.epipolar_margin_px)) if len(epi) else np.nan,
+        "cut_motion": float(np.mean(mot >= params.motion_gate_sigmas)) if len(mot) else np.nan,
+        "cut_size": float(np.mean(qs == 0)) if len(qs) else np.nan,
+        "cut_score": float(np.mean(q < params.min_score)) if len(q) else np.nan,
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("session", type=Path, nargs="?", help="synthetic session directory (omit with --toy)")
@@ -229,6 +267,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"session {args.session}: {data['keyframes']} keyframes, masks={args.masks}, "
           f"{sum(len(f) for f in data['features'])} masks, mu_p median {np.median(mus[:, 0]):.1f} px, "
           f"sigma_p median {np.median(mus[:, 1]):.2f} px; preparation {data['prep_s']:.1f} s")
+    for pose_set in args.poses.split(","):
+        g = true_pair_gates(data, pose_set, TrackingParams())
+        print(f"true links ({pose_set} poses, {g['links']}): epipolar px p50/p95/p99 "
+              f"{'/'.join(f'{x:.1f}' for x in g['epi_pct'])}, motion z p50/p95/p99 "
+              f"{'/'.join(f'{x:.2f}' for x in g['motion_pct'])}; cut at defaults by epipolar "
+              f"{g['cut_epipolar']:.3f}, motion {g['cut_motion']:.3f}, size {g['cut_size']:.3f}, "
+              f"score (size or SIFT) {g['cut_score']:.3f}")
     print("| poses | theta_a px | theta_t | purity (obs.) | pure tracks >5 obs | mean track len | "
           "objects >=6 kf with a track >5 obs | tracks/object | tracker s |")
     print("|---|---|---|---|---|---|---|---|---|")
