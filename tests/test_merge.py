@@ -151,11 +151,12 @@ def test_cli_merge_and_user_errors(pair, tmp_path, capsys):
 
 def test_merge_with_the_real_association_search(pair, tmp_path):
     """match.json from `sosmatch match` (windowed CLIPPER search) is what merge reads: its consensus."""
-    from sosmatch.plugin.params import Params
+    from sosmatch.plugin.params import Params, with_overrides
     from sosmatch.workflows import match
 
     root, world, a, b = pair
-    match.run(Params(), a.path, b.path, tmp_path / "m", workers=1, plot=False)
+    params = with_overrides(Params(), {"association.window_stride": 25})  # fewer window pairs: a quicker test
+    match.run(params, a.path, b.path, tmp_path / "m", workers=1, plot=False)
     m = read_match(tmp_path / "m" / "match.json")
     truth = a.session_from_world.compose(b.session_from_world.inverse())
     err_m, err_deg = transform_error(m.transform, truth, read_session(b.path).landmarks.positions)
