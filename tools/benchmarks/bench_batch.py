@@ -16,7 +16,7 @@ for synthetic flights, each session's frame is its EKF frame, so world_from_sess
 fit of its EKF camera centres to the true ones (the EKF drift that remains is part of the error budget); for toy
 flights it is exact. Then `colmap model_analyzer` (COLMAP 3.8) on every merged model, and whether the Dask run's
 report and merged models equal the local run's. `--write` puts the table into BENCHMARKS.md between
-`<!-- section:multi-session -->` and `<!-- end:multi-session -->`.
+`<!-- section:multi-session -->` and `<!-- end:multi-session -->` (one block per mode).
 """
 
 from __future__ import annotations
@@ -173,6 +173,21 @@ def evaluate(report: dict, flights: dict[str, Path], truth_fn: object, footprint
     return rows
 
 
+def write_benchmarks(path: Path, mode: str, text: str) -> None:
+    """Put `text` into BENCHMARKS.md inside the multi-session section, in this mode's own block (toy and synth
+    results live side by side; re-running one mode replaces only its block)."""
+    doc = path.read_text()
+    begin, end = f"<!-- multi-session:{mode} -->", f"<!-- end multi-session:{mode} -->"
+    block = f"{begin}\n### Batch of 4 {mode} flights\n\n{text}\n{end}"
+    if begin in doc and end in doc:
+        doc = doc[: doc.index(begin)] + block + doc[doc.index(end) + len(end):]
+    elif END_MARKER in doc:
+        doc = doc.replace(END_MARKER, f"{block}\n{END_MARKER}")
+    else:
+        doc = doc.replace(MARKER, f"{MARKER}\n## Multi-session: merge and batch\n\n{block}\n{END_MARKER}")
+    path.write_text(doc)
+
+
 def _fmt(v: object, nd: int = 2) -> str:
     if v is None:
         return "-"
@@ -255,15 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines)
     print(text)
     if args.write:
-        bench = Path(__file__).resolve().parents[2] / "BENCHMARKS.md"
-        doc = bench.read_text()
-        block = f"{MARKER}\n## Multi-session batch ({mode})\n\n{text}\n{END_MARKER}"
-        if END_MARKER in doc:
-            start, end = doc.index(MARKER), doc.index(END_MARKER) + len(END_MARKER)
-            doc = doc[:start] + block + doc[end:]
-        else:
-            doc = doc.replace(MARKER, block)
-        bench.write_text(doc)
+        write_benchmarks(Path(__file__).resolve().parents[2] / "BENCHMARKS.md", mode, text)
     ok = matched == 6 and len(aligned) == len(overlapping) and all(v.startswith("ok") for v in analyzer.values())
     return 0 if ok and identical is not False else 1
 
