@@ -38,8 +38,8 @@ class SegmentationParams:
     classical_smooth_sigma_color: float = 40.0  # bilateral filter colour sigma (0..255 units)
     classical_flat_percentile: float = 40.0  # gradient percentile below which pixels seed watershed regions
     classical_merge_cost: float = 2000.0  # Ward merge cost of the finest level (working px x Delta E^2)
-    classical_merge_levels: int = 4  # levels of the merge hierarchy whose object-like regions become masks
-    classical_merge_level_factor: float = 3.0  # cost ratio between consecutive levels
+    classical_merge_levels: int = 7  # levels of the merge hierarchy whose object-like regions become masks
+    classical_merge_level_factor: float = 2.5  # cost ratio between consecutive levels
     classical_edge_weight: float = 0.15  # weight of the mean gradient along a shared boundary in the merge cost
     classical_dedup_iou: float = 0.8  # nested masks of two levels more alike than this: keep the more contrasted
     classical_max_area_frac: float = 0.08  # larger regions are background (fields, lawns) and dropped

@@ -5,7 +5,7 @@ Pipeline, at a reduced working resolution (`classical_max_side`, 400 px):
 2. over-segmentation: marker-controlled watershed (OpenCV) seeded by the flat zones of the CIELAB gradient;
 3. a merge hierarchy: greedy Ward linkage on the region adjacency graph over colour (CIELAB), texture (local
    lightness std) and the mean gradient along the shared boundary (`classical_edge_weight`); the partitions at
-   `classical_merge_levels` cost levels are kept. Size-aware merging rebuilds crowns from their lit and
+   `classical_merge_levels` (7) cost levels are kept. Size-aware merging rebuilds crowns from their lit and
    shaded fragments and fields from their patches before a crown joins the lawn around it;
 4. object-like regions of every level: not larger than `classical_max_area_frac` of the image (background),
    not smaller than `classical_min_area_px`, not elongated (`classical_max_elongation`: roads, hedgerows,
