@@ -258,3 +258,14 @@ def test_cli_runs_and_rejects_a_flight_outside_the_world(tmp_path):
          "--frames", "3", "--shift", "500,0"], capture_output=True, text=True)
     assert bad.returncode == 2 and "world" in bad.stderr and "Traceback" not in bad.stderr
     assert not (tmp_path / "T").exists()
+
+
+def test_contact_sheet_places_frames_side_by_side(session_dir, tmp_path):
+    from sosmatch.workflows.demo import contact_sheet
+
+    out = contact_sheet([session_dir, session_dir], ["a", "b"], tmp_path / "sheet.png", rows=3, scale=0.5)
+    sheet = cv2.imread(str(out), cv2.IMREAD_COLOR)
+    assert sheet.shape == (28 + 3 * 120 + 2 * 4, 2 * 160 + 4, 3)
+    # the two columns show the same frames here, so they are identical below the header
+    left, right = sheet[28:, :160].astype(int), sheet[28:, 164:].astype(int)
+    assert np.abs(left - right).mean() < 1.0 and left.std() > 5
