@@ -193,3 +193,12 @@ def test_cli_batch_with_the_real_association_search(tmp_path):
     assert main(args) == 0  # resumed: nothing left to do
     again = json.loads((out / "report.json").read_text())
     assert all(p.get("resumed") for p in again["pairs"]) and again["groups"][0].get("resumed")
+
+
+def test_nearest_pairs_need_one_frame():
+    sessions = {n: {"center": [x, 0.0, 50.0], "epsg": 0} for n, x in zip("ABCD", (0.0, 10.0, 100.0, 110.0))}
+    assert batch._choose_pairs(list("ABCD"), sessions, None) == [tuple(p) for p in
+                                                                ("AB", "AC", "AD", "BC", "BD", "CD")]
+    assert batch._choose_pairs(list("ABCD"), sessions, 1) == [("A", "B"), ("C", "D")]
+    sessions["D"]["epsg"] = 32617  # not one frame: positions say nothing, so every pair is matched
+    assert len(batch._choose_pairs(list("ABCD"), sessions, 1)) == 6
