@@ -278,6 +278,7 @@ _WORKER_BACKEND: dict[str, Any] = {}  # per process: the segmentation backend, b
 def _describe_one(
     path: Path, prev_path: Path | None, size: tuple[int, int], params: Params, entry: Path, key: str,
     prev_gray: np.ndarray | None = None,
+    masks_for: Callable[[str, np.ndarray], Any] | None = None,
 ) -> tuple[Any, tuple[float, float], np.ndarray]:
     """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
 
@@ -297,11 +298,15 @@ def _describe_one(
     mu_sigma = image_motion_stats(prev_gray, gray) if prev_path is not None else (0.0, 0.0)
     mu_sigma = (float(mu_sigma[0]), float(mu_sigma[1]))
     seg = params.segmentation
-    cache_name = json.dumps(params_to_dict(seg), sort_keys=True)
-    if cache_name not in _WORKER_BACKEND:
-        _WORKER_BACKEND.clear()
-        _WORKER_BACKEND[cache_name] = get_backend(seg.backend, seg)
-    feats = describe_masks(image, _WORKER_BACKEND[cache_name](image), seg)
+    if masks_for is not None:
+        masks = masks_for(path.name, image)
+    else:
+        cache_name = json.dumps(params_to_dict(seg), sort_keys=True)
+        if cache_name not in _WORKER_BACKEND:
+            _WORKER_BACKEND.clear()
+            _WORKER_BACKEND[cache_name] = get_backend(seg.backend, seg)
+        masks = _WORKER_BACKEND[cache_name](image)
+    feats = describe_masks(image, masks, seg)
     _save_cached(entry, key, feats, mu_sigma)
     return feats, mu_sigma, gray
 
@@ -321,6 +326,7 @@ def describe_keyframes(
     progress: bool = True,
     on_keyframe: Callable[[int], None] | None = None,
     workers: int = 1,
+    masks_for: Callable[[str, np.ndarray], Any] | None = None,
 ) -> tuple[list[Any], list[tuple[float, float]], int]:
     """Segmentation + mask description + motion statistics per keyframe, resumed from the cache.
 
@@ -329,7 +335,8 @@ def describe_keyframes(
 
     Returns (MaskFeatures per keyframe, (mu_p, sigma_p) per keyframe (entry 0 is (0, 0)), number of keyframes
     taken from the cache). `on_keyframe(k)` is called, in keyframe order, after keyframe k is stored (tests
-    interrupt there).
+    interrupt there). `masks_for(image_name, image) -> MaskSet` replaces the segmentation backend (benchmarks
+    use ground-truth label masks; it must be picklable when `workers` > 1).
     """
     from tqdm import tqdm
 
@@ -355,7 +362,7 @@ def describe_keyframes(
         prev_gray, prev_k = None, -2
         for k, path, prev_path, entry, key in todo:
             feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
-                                                  prev_gray if prev_k == k - 1 else None)
+                                                  prev_gray if prev_k == k - 1 else None, masks_for)
             results[k] = (feats, mu_sigma)
             prev_gray, prev_k = gray, k
             bar.update()
@@ -367,7 +374,7 @@ def describe_keyframes(
 
         ctx = multiprocessing.get_context("spawn")  # no fork of a process holding pycolmap/OpenCV threads
         with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
-            futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key))
+            futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for))
                        for k, path, prev_path, entry, key in todo]
             try:
                 for k, fut in futures:
@@ -436,6 +443,7 @@ def run(
     progress: bool = True,
     on_keyframe: Callable[[int], None] | None = None,
     workers: int = 1,
+    masks_for: Callable[[str, np.ndarray], Any] | None = None,
 ) -> MapSummary:
     """Map one session: `inputs` (from `load_inputs`) -> SESSION_DIR with the outputs listed in the module doc.
 
@@ -449,6 +457,8 @@ def run(
         progress: show tqdm progress bars.
         on_keyframe: callback after each newly computed keyframe (tests use it to interrupt a run).
         workers: processes for the per-keyframe stage (segmentation dominates the run time).
+        masks_for: `(image_name, image) -> MaskSet` instead of the segmentation backend (benchmarks: ground
+            truth masks). Recorded in run.json; the cache is kept apart from backend results.
     """
     import pycolmap
 
@@ -464,14 +474,15 @@ def run(
     partial = prepare_output_dir(out_dir, fps["inputs"], overwrite)
     timings["inputs"] = time.perf_counter() - t_start
     pdict = params_to_dict(params)
+    masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
     cache_key = _hash_json({"v": CACHE_VERSION, "inputs": fps["inputs"], "seg": pdict["segmentation"],
-                            "kf": pdict["keyframes"]})
+                            "kf": pdict["keyframes"], "masks": masks_source})
 
     t = time.perf_counter()
     keyframes = select_keyframes(inputs.poses.centers, params.keyframes.interval_m)
     kf_poses = inputs.poses.subset(keyframes)
     features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
-                                                  progress, on_keyframe, workers)
+                                                  progress, on_keyframe, workers, masks_for)
     timings["keyframes"] = time.perf_counter() - t
 
     from tqdm import tqdm
@@ -534,7 +545,7 @@ def run(
         "inputs": inputs.sources, "fingerprints": fps,
         "camera": {"width": inputs.camera.width, "height": inputs.camera.height, "fx": inputs.camera.fx,
                    "fy": inputs.camera.fy, "cx": inputs.camera.cx, "cy": inputs.camera.cy},
-        "epsg": inputs.epsg, "map_origin": origin.tolist(),
+        "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         "counts": counts, "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }

@@ -9,7 +9,7 @@ ground truth:
   and median vertical, over landmarks whose majority id is an object;
 - purity: fraction of landmark tracks whose observations all hit one id (background counts as an id);
 - coverage: of the objects visible in >= 6 keyframes (frames.json), the fraction that became a landmark;
-- map bytes per landmark (landmarks.sosmap size / count, header included) and the run's wall time.
+- map bytes per landmark (landmarks.sosmap size / count, header included) and the run's wall and CPU time.
 - pipeline error: the same medians against the object's *centroid point*, the least-squares intersection of the
   rays through the object's ground-truth label centroids in the keyframes (masks >= 30 px that do not touch the
   image border, exact poses). A mask centroid of a tall object is not its top: in a perspective view the visible
@@ -17,13 +17,18 @@ ground truth:
   top (measured on the synth sessions: about -h/2 to -h). The centroid point is what a perfect segmenter +
   tracker + triangulator would return, so the distance to it is the error the pipeline adds.
 
+With `--gt-masks` the back end (tracking, database, triangulation) is also run in-process on the ground-truth
+label masks instead of the segmentation backend: what the mapping stage does with perfect segments.
+
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_map SESSION [--frames 100] [--repeats 1] [--out DIR]
+        [--gt-masks]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import resource
 import shutil
 import statistics
 import subprocess
@@ -151,6 +156,35 @@ def score_session(session_dir: Path, mapped: Path) -> dict[str, float]:
     }
 
 
+class LabelMasks:
+    """`masks_for` of the map workflow: the session's label image as masks (one per object id, no background)."""
+
+    def __init__(self, session: Path) -> None:
+        self.labels = Path(session) / "labels"
+
+    def __call__(self, name: str, image: np.ndarray) -> object:
+        from ...plugin.segmentation import MaskSet
+
+        lab = _labels(self.labels / (Path(name).stem + ".png")).astype(np.int64)
+        return MaskSet.from_labels(np.where(lab > 0, lab, -1))
+
+
+def run_map_gt_masks(session: Path, frames: int, ekf: bool, out: Path) -> tuple[float, float]:
+    """The map workflow in-process with ground-truth masks; returns (wall s, CPU s of this process)."""
+    from ...plugin.params import Params
+    from ...workflows import map as map_workflow
+
+    with tempfile.TemporaryDirectory(prefix="bench-map-") as tmp:
+        poses = _pose_subset(session, frames, ekf, Path(tmp))
+        shutil.rmtree(out, ignore_errors=True)
+        inputs = map_workflow.load_inputs(session / "images", poses, session / "cameras.txt")
+        t, c = time.perf_counter(), time.process_time()
+        summary = map_workflow.run(Params(), inputs, out, progress=False, masks_for=LabelMasks(session))
+        seconds, cpu = time.perf_counter() - t, time.process_time() - c
+    print("   ", summary.line(), f"(wall {seconds:.1f} s, CPU {cpu:.1f} s)")
+    return seconds, cpu
+
+
 def _pose_subset(session: Path, frames: int, ekf: bool, work: Path) -> Path:
     """A pose CSV holding the first `frames` rows of the session's (EKF) poses."""
     src = session / ("poses_ekf.csv" if ekf else "poses.csv")
@@ -167,21 +201,26 @@ def _pose_subset(session: Path, frames: int, ekf: bool, work: Path) -> Path:
     return path
 
 
-def run_map(session: Path, frames: int, ekf: bool, out: Path, extra: list[str]) -> float:
-    """Run `sosmatch map` on the first `frames` frames; returns its wall time in seconds."""
+def run_map(session: Path, frames: int, ekf: bool, out: Path, extra: list[str]) -> tuple[float, float]:
+    """Run `sosmatch map` on the first `frames` frames; returns (wall seconds, CPU seconds user + system).
+
+    CPU time is reported because the wall time on a shared machine mostly measures the other processes."""
     with tempfile.TemporaryDirectory(prefix="bench-map-") as tmp:
         poses = _pose_subset(session, frames, ekf, Path(tmp))
         shutil.rmtree(out, ignore_errors=True)
         cmd = [sys.executable, "-m", "sosmatch.tools.cli", "map", "-q", "--no-progress",
                "--images", str(session / "images"), "--poses", str(poses),
                "--camera", str(session / "cameras.txt"), "--out", str(out), *extra]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True)
         seconds = time.perf_counter() - t
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if proc.returncode != 0:
         raise SystemExit(f"sosmatch map failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
-    print("   ", proc.stdout.strip())
-    return seconds
+    print("   ", proc.stdout.strip(), f"(wall {seconds:.1f} s, CPU {cpu:.1f} s)")
+    return seconds, cpu
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -190,6 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=1, help="runs per pose set; the median time is reported")
     ap.add_argument("--out", type=Path, help="keep the mapped sessions here (default: a temporary directory)")
+    ap.add_argument("--gt-masks", action="store_true", help="also run with ground-truth label masks")
     ap.add_argument("--score-only", action="store_true", help="score the sessions already mapped in --out")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="passed to sosmatch map")
     args = ap.parse_args(argv)
@@ -198,22 +238,26 @@ def main(argv: list[str] | None = None) -> int:
     print(f"session {args.session}, first {args.frames} frames")
     header = ("| poses | keyframes | landmarks (on objects) | median horiz. / vert. error to visible top m | "
               "median horiz. / vert. error to centroid point m | purity | objects seen in >= 6 kf mapped | "
-              "bytes/landmark | run s |")
+              "bytes/landmark | run s wall / CPU |")
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-map-out-") as tmp:
         root = args.out or Path(tmp)
-        for ekf in (False, True):
-            out = root / ("map_ekf" if ekf else "map_exact")
+        variants = [(False, False), (True, False)] + ([(False, True), (True, True)] if args.gt_masks else [])
+        for ekf, gt in variants:
+            out = root / (("map_ekf" if ekf else "map_exact") + ("_gtmasks" if gt else ""))
             if args.score_only:
-                times = [json.loads((out / "run.json").read_text())["timings_s"]["total"]]
+                times = [(json.loads((out / "run.json").read_text())["timings_s"]["total"], float("nan"))]
             else:
-                times = [run_map(args.session, args.frames, ekf, out, extra) for _ in range(args.repeats)]
+                times = [run_map_gt_masks(args.session, args.frames, ekf, out) if gt
+                         else run_map(args.session, args.frames, ekf, out, extra) for _ in range(args.repeats)]
             s = score_session(args.session, out)
             rows.append(
-                f"| {'EKF' if ekf else 'exact'} | {s['keyframes']} | {s['landmarks']} ({s['on_object']}) | "
+                f"| {'EKF' if ekf else 'exact'}{', GT masks' if gt else ''} | {s['keyframes']} | "
+                f"{s['landmarks']} ({s['on_object']}) | "
                 f"{s['median_h_m']:.2f} / {s['median_v_m']:.2f} | {s['pipe_h_m']:.2f} / {s['pipe_v_m']:.2f} | "
                 f"{s['purity']:.3f} | {s['coverage']:.2f} of {s['eligible_objects']} | "
-                f"{s['bytes_per_landmark']:.1f} | {statistics.median(times):.1f} |"
+                f"{s['bytes_per_landmark']:.1f} | {statistics.median(t[0] for t in times):.1f} / "
+                f"{statistics.median(t[1] for t in times):.1f} |"
             )
     print(header)
     print("|" + "---|" * 9)
