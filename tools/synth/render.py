@@ -24,7 +24,7 @@ MAX_STEP_M = 0.3  # horizontal distance a ray moves between two levels at most (
 MAX_LEVEL_STEP_M = 0.6
 REFINE_ITERATIONS = 2
 WALL_PUSH_M = 0.2  # how far behind a hit to look for a wall of the DSM
-COARSE_LEVEL_STEP_M = 2.0  # vertical step of the first, conservative pass
+COARSE_LEVEL_STEP_M = 1.0  # vertical step of the first, conservative pass
 COARSE_BLOCK = 4  # cells per block of the conservative DSM
 COARSE_PIXELS = 4  # the first pass traces one ray per COARSE_PIXELS x COARSE_PIXELS pixels
 
@@ -47,41 +47,68 @@ def _level_maps(camera: Camera, r_wc: np.ndarray, center: np.ndarray, scene: Sce
     With step_px > 1, the rays through the centres of step_px x step_px pixel blocks instead."""
     w, h = camera.width, camera.height
     half = step_px / 2.0
-    u = ((np.arange(0, w, step_px) + half - camera.cx) / camera.fx)[None, :]
-    v = ((np.arange(0, h, step_px) + half - camera.cy) / camera.fy)[:, None]
+    u = ((np.arange(0, w, step_px) + half - camera.cx) / camera.fx).astype(np.float32)[None, :]
+    v = ((np.arange(0, h, step_px) + half - camera.cy) / camera.fy).astype(np.float32)[:, None]
     r = np.asarray(r_wc, dtype=np.float64)
-    dx = r[0, 0] * u + r[0, 1] * v + r[0, 2]
-    dy = r[1, 0] * u + r[1, 1] * v + r[1, 2]
-    dz = r[2, 0] * u + r[2, 1] * v + r[2, 2]
-    if np.any(dz >= -1e-6):
+    corners_dz = [r[2, 0] * uu + r[2, 1] * vv + r[2, 2] for uu in (u[0, 0], u[0, -1]) for vv in (v[0, 0], v[-1, 0])]
+    if max(corners_dz) >= -1e-3:  # dz is affine in (u, v): its maximum is at a corner
         raise ViewOutsideWorld("some camera rays do not point down (camera too tilted)")
-    rx, ry = dx / dz, dy / dz  # horizontal displacement per metre of height along the ray (sign: dz < 0)
-    res = scene.world.res
-    cx, cy, cz = (float(c) for c in center)
+    r32 = r.astype(np.float32)
+    inv_dz = np.float32(1.0) / (r32[2, 0] * u + r32[2, 1] * v + r32[2, 2])
+    res = np.float32(scene.world.res)
+    cx, cy, cz = (np.float32(c) for c in center)
     shape = (v.shape[0], u.shape[1], 2)
     a = np.empty(shape, np.float32)
     b = np.empty(shape, np.float32)
-    a[..., 0] = (cx - cz * rx) / res - 0.5
-    a[..., 1] = (cy - cz * ry) / res - 0.5
-    b[..., 0] = rx / res
-    b[..., 1] = ry / res
-    tan_max = float(np.sqrt(rx * rx + ry * ry).max())
+    for k in (0, 1):  # b = (d_xy / d_z) / res: raster cells moved per metre of height; a = position at h = 0
+        np.multiply(r32[k, 0] * u + r32[k, 1] * v + r32[k, 2], inv_dz / res, out=b[..., k])
+        a[..., k] = (cx if k == 0 else cy) / res - np.float32(0.5) - cz * b[..., k]
+    # |d_xy / d_z| is largest at a corner of the image (the level sets are conics around the nadir point)
+    tan_max = float(np.hypot(b[[0, 0, -1, -1], [0, -1, 0, -1], 0], b[[0, 0, -1, -1], [0, -1, 0, -1], 1]).max()
+                    * scene.world.res)
     return a, b, tan_max
+
+
+def _scene_stats(scene: Scene) -> dict:
+    """Per-scene constants the renderer needs every frame (computed once)."""
+    stats = scene.__dict__.get("_render_stats")
+    if stats is None:
+        block = COARSE_BLOCK
+        n = scene.dsm.shape[0]
+        m = -(-n // block)
+        pad = np.full((m * block, m * block), -1e6, np.float32)
+        pad[:n, :n] = scene.dsm
+        stats = {
+            "zmin": float(scene.world.terrain.min()),
+            "zmax": float(scene.dsm.max()),
+            "pooled_max": pad.reshape(m, block, m, block).max(axis=(1, 3)),  # DSM max per block
+            "terrain_min_grid": scene.world.terrain_sampler,
+            "conservative": {},
+        }
+        scene.__dict__["_render_stats"] = stats
+    return stats
 
 
 def view_height_range(scene: Scene, a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """(lowest terrain, highest surface) in the part of the world the view can see; raises if outside."""
     world = scene.world
     n = world.n
-    zmin, zmax = float(world.terrain.min()) - 0.5, float(scene.dsm.max()) + 0.5
+    st = _scene_stats(scene)
+    zmin, zmax = st["zmin"] - 0.5, st["zmax"] + 0.5
     corners = np.stack([a[[0, 0, -1, -1], [0, -1, 0, -1]], b[[0, 0, -1, -1], [0, -1, 0, -1]]])
     pts = np.concatenate([corners[0] + z * corners[1] for z in (zmin, zmax)])
     lo = np.floor(pts.min(axis=0)).astype(int) - 2
     hi = np.ceil(pts.max(axis=0)).astype(int) + 3
     if lo.min() < 0 or hi.max() > n:
         raise ViewOutsideWorld("the view extends beyond the world")
-    region = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
-    return float(world.terrain[region].min()), float(scene.dsm[region].max())
+    blk = COARSE_BLOCK
+    top = float(st["pooled_max"][lo[1] // blk:-(-hi[1] // blk), lo[0] // blk:-(-hi[0] // blk)].max())
+    ts = world.terrain_sampler  # the fine terrain interpolates this grid: its minimum bounds the fine one
+    f = world.res / ts.resolution_m
+    r0, c0 = int(max(0, (lo[1] + 0.5) * f - 1)), int(max(0, (lo[0] + 0.5) * f - 1))
+    r1, c1 = int((hi[1] + 0.5) * f + 2), int((hi[0] + 0.5) * f + 2)
+    low = float(ts.heights[r0:r1, c0:c1].min())
+    return low, top
 
 
 def conservative_dsm(scene: Scene, radius_m: float) -> tuple[np.ndarray, int]:
@@ -89,57 +116,71 @@ def conservative_dsm(scene: Scene, radius_m: float) -> tuple[np.ndarray, int]:
 
     Max-pooled by `block` cells, then dilated by enough blocks to cover the radius plus the bilinear footprint.
     Cached on the scene per radius."""
-    cache = scene.__dict__.setdefault("_conservative", {})
+    st = _scene_stats(scene)
+    cache = st["conservative"]
     block = COARSE_BLOCK
     key = int(math.ceil(radius_m / (block * scene.world.res))) + 1  # dilation in blocks
     if key not in cache:
-        n = scene.dsm.shape[0]
-        m = -(-n // block)
-        pad = np.full((m * block, m * block), -1e6, np.float32)
-        pad[:n, :n] = scene.dsm
-        pooled = pad.reshape(m, block, m, block).max(axis=(1, 3))
         k = 2 * key + 1
-        cache[key] = cv2.dilate(pooled, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        cache[key] = cv2.dilate(st["pooled_max"], np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
     return cache[key], block
 
 
 def _remap_points(src: np.ndarray, maps: np.ndarray) -> np.ndarray:
-    """Bilinear samples of `src` at N raster points (N, 2), laid out as rows of 512 for cv2's threads."""
-    n = len(maps)
-    width = 512
-    rows = -(-n // width)
-    padded = np.empty((rows * width, 2), np.float32)
-    padded[:n] = maps
-    padded[n:] = maps[-1] if n else 0
-    out = cv2.remap(src, padded.reshape(rows, width, 2), None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1)[:n]
+    """Bilinear samples of `src` at N raster points given as a (rows * 512, 2) buffer whose first N rows are
+    used (rows of 512 points keep cv2's threads busy)."""
+    rows = len(maps) // 512
+    out = cv2.remap(src, maps.reshape(rows, 512, 2), None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1)
 
 
 def _first_crossing(surface: np.ndarray, a: np.ndarray, b: np.ndarray, start: np.ndarray, step: float,
-                    bottom: float, max_levels: int) -> np.ndarray:
+                    bottom: float, max_levels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per ray, the index j >= 1 of the first level `start - j * step` at which the ray is at or below
-    `surface` (sampled bilinearly at raster coordinates a + h * b), or below `bottom`. Rays leave the work
-    arrays once they hit, so the levels after most rays have hit the ground cost little."""
+    `surface` (sampled bilinearly at raster coordinates a + h * b), or below `bottom`; with the ray's height
+    above the surface at that level (<= 0) and at the level before (> 0; approximated at j = 1).
+
+    Rays leave the work arrays once they hit, so the levels after most rays have hit the ground cost little."""
     n = start.size
     j_hit = np.full(n, max_levels, np.int32)
+    gap_below = np.zeros(n, np.float32)
+    gap_above = np.full(n, np.float32(step), np.float32)
     idx = np.arange(n)
     a_f = a.reshape(-1, 2)
     b_f = b.reshape(-1, 2)
     s_f = start.reshape(-1)
+    prev = np.full(n, np.nan, np.float32)  # surface under the ray at the previous level
     active = np.ones(n, bool)
+    buf = np.zeros((-(-n // 512) * 512, 2), np.float32)
+    j_bottom = int((float(s_f.min()) - bottom) / step)  # before this level no ray can be below `bottom`
     for j in range(1, max_levels + 1):
+        m = len(s_f)
         h = s_f - np.float32(j * step)
-        surf = _remap_points(surface, a_f + h[:, None] * b_f)
-        hit = active & ((surf >= h) | (h <= bottom))
-        j_hit[idx[hit]] = j
-        active &= ~hit
+        maps = buf[:m]
+        np.multiply(b_f, h[:, None], out=maps)
+        maps += a_f
+        surf = _remap_points(surface, buf[:-(-m // 512) * 512])[:m]
+        hit = surf >= h
+        if j >= j_bottom:
+            hit |= h <= bottom
+        hit &= active
+        if hit.any():
+            where = idx[hit]
+            j_hit[where] = j
+            below = h[hit] - surf[hit]
+            gap_below[where] = below
+            above = (h[hit] + np.float32(step)) - prev[hit]
+            gap_above[where] = np.where(np.isnan(above), below + np.float32(step), above)
+            active &= ~hit
+        prev = surf
         n_active = int(np.count_nonzero(active))
         if n_active == 0:
             break
-        if n_active < 0.6 * len(active):
-            idx, a_f, b_f, s_f = idx[active], a_f[active], b_f[active], s_f[active]
+        if n_active < 0.6 * m:
+            idx, a_f, b_f, s_f, prev = idx[active], a_f[active], b_f[active], s_f[active], prev[active]
             active = np.ones(n_active, bool)
-    return j_hit.reshape(start.shape)
+    shape = start.shape
+    return j_hit.reshape(shape), gap_above.reshape(shape), gap_below.reshape(shape)
 
 
 def render_view(scene: Scene, light: np.ndarray, camera: Camera, r_wc: np.ndarray,
@@ -165,14 +206,14 @@ def render_view(scene: Scene, light: np.ndarray, camera: Camera, r_wc: np.ndarra
     b_c = b_cp * scale
     n_coarse = int(math.ceil((top - bottom) / coarse_step)) + 1
     start_top = np.full(a_c.shape[:2], np.float32(top))
-    k1 = _first_crossing(cons, a_c, b_c, start_top, coarse_step, bottom, n_coarse)
+    k1, _, _ = _first_crossing(cons, a_c, b_c, start_top, coarse_step, bottom, n_coarse)
     start_c = (top - (k1 - 1) * coarse_step).astype(np.float32)
     start = np.repeat(np.repeat(start_c, cp, axis=0), cp, axis=1)[:shape[0], :shape[1]]
     start = np.ascontiguousarray(start)
     # Stage 2: fine levels against the true DSM from there.
     step = min(MAX_LEVEL_STEP_M, MAX_STEP_M / max(tan_max, 1e-6))
     n_fine = int(math.ceil((top - bottom) / step)) + 2
-    j = _first_crossing(dsm, a, b, start, step, bottom - step, n_fine)
+    j, f_a, f_b = _first_crossing(dsm, a, b, start, step, bottom - step, n_fine)
     h_b = (start - j * np.float32(step)).astype(np.float32)  # first level below the surface
     h_a = h_b + np.float32(step)  # last level above it
 
@@ -180,7 +221,6 @@ def render_view(scene: Scene, light: np.ndarray, camera: Camera, r_wc: np.ndarra
         m = a + hh[..., None] * b
         return hh - cv2.remap(dsm, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
-    f_a, f_b = gap(h_a), gap(h_b)
     h_hit = h_b
     for _ in range(REFINE_ITERATIONS):  # regula falsi inside [h_b, h_a]
         denom = f_a - f_b
@@ -194,39 +234,49 @@ def render_view(scene: Scene, light: np.ndarray, camera: Camera, r_wc: np.ndarra
         f_b = np.where(above, f_b, f_m)
     hit_maps = a + h_hit[..., None] * b
     # A ray that hits a wall (the DSM rises sharply just behind the hit) sees the object's side: take the
-    # object's colour and id from just behind the hit instead of the ground at the wall's foot.
-    horiz = b / np.maximum(np.linalg.norm(b, axis=2, keepdims=True), 1e-9)
-    push = hit_maps + horiz * np.float32(-WALL_PUSH_M / res)  # b points back toward the camera as h grows
+    # object's id from just behind the hit instead of the ground at the wall's foot. b points back toward the
+    # camera as h grows, so "behind" is along -b.
+    inv_len = np.float32(1.0) / np.maximum(np.hypot(b[..., 0], b[..., 1]), np.float32(1e-9))
+    push = hit_maps - b * (inv_len * np.float32(WALL_PUSH_M / res))[..., None]
     behind = cv2.remap(dsm, push, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     ground = cv2.remap(scene.world.terrain, hit_maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    wall = behind - h_hit > 0.3
+    depth = behind - h_hit  # on a wall: how far below the object's top edge the ray hits its side
+    wall_idx = np.flatnonzero(depth > 0.3)
     above_ground = (h_hit - ground) > 0.15
-    id_maps = np.where(wall[..., None], push, hit_maps)
-    # Texture the side: look further into the object the deeper below its top edge the ray hits, so a crown's
-    # side shows leaves rather than one colour smeared down; lower parts of a side are darker (self-shading).
-    # The sample point wanders over ~1 m of the top as the depth changes (a sawtooth inward and a sine sideways),
-    # which gives the side a leafy, unstreaked texture made of the object's own colours.
-    depth = np.clip(behind - h_hit, 0.0, None)
-    inward = np.float32(WALL_PUSH_M) + np.float32(0.9) * ((depth * np.float32(1.7)) % np.float32(1.0))
-    sideways = np.float32(0.45) * np.sin(depth * np.float32(2.3))
-    side = np.stack([-horiz[..., 1], horiz[..., 0]], axis=-1)
-    deeper = (side * sideways[..., None] - horiz * inward[..., None]) * np.float32(1.0 / res)
-    colour_maps = np.where(wall[..., None], hit_maps + deeper, hit_maps)
+    id_maps, colour_maps = hit_maps, hit_maps
+    if wall_idx.size:
+        flat_hit = hit_maps.reshape(-1, 2)
+        id_maps = flat_hit.copy()
+        id_maps[wall_idx] = push.reshape(-1, 2)[wall_idx]
+        id_maps = id_maps.reshape(hit_maps.shape)
+        # Texture the side with the object's own colours: the sample point wanders over ~1 m of the top as the
+        # depth changes (a sawtooth inward, a sine sideways), so a crown's side shows leaves, not streaks.
+        d_w = depth.reshape(-1)[wall_idx]
+        dirs = (b.reshape(-1, 2)[wall_idx] * inv_len.reshape(-1)[wall_idx, None])  # unit, toward the camera
+        inward = np.float32(WALL_PUSH_M) + np.float32(0.9) * ((d_w * np.float32(1.7)) % np.float32(1.0))
+        sideways = np.float32(0.45) * np.sin(d_w * np.float32(2.3))
+        side = np.stack([-dirs[:, 1], dirs[:, 0]], axis=1)
+        colour_maps = flat_hit.copy()
+        colour_maps[wall_idx] += (side * sideways[:, None] - dirs * inward[:, None]) * np.float32(1.0 / res)
+        colour_maps = colour_maps.reshape(hit_maps.shape)
     albedo = cv2.remap(scene.albedo, colour_maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     lit = cv2.remap(light, hit_maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     ids = cv2.remap(scene.ids, id_maps, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     ids_grown = cv2.remap(scene.ids_dilated, id_maps, None, cv2.INTER_NEAREST,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     labels = np.where(above_ground & (ids == 0), ids_grown, ids).astype(np.uint16)
-    if wall.any():
+    if wall_idx.size:
         # Buildings have walls of their own colour (plaster, brick, timber), not their roof's.
-        wall_rgb = scene.wall_colour[labels]
-        own = wall & (wall_rgb.max(axis=2) > 0)
-        albedo[own] = wall_rgb[own]
-    linear = srgb_to_linear_lut()[albedo] * lit[..., None]
-    if wall.any():
-        linear *= np.where(wall, np.float32(1.0) - np.float32(0.4) * np.clip(depth / np.float32(6.0), 0.0, 1.0),
-                           np.float32(1.0))[..., None]
+        flat_albedo = albedo.reshape(-1, 3)
+        wall_rgb = scene.wall_colour[labels.reshape(-1)[wall_idx]]
+        own = wall_rgb.max(axis=1) > 0
+        flat_albedo[wall_idx[own]] = wall_rgb[own]
+    linear = cv2.LUT(albedo, srgb_to_linear_lut().reshape(1, 256))
+    linear *= lit[..., None]
+    if wall_idx.size:  # lower parts of a side are darker (self-shading)
+        flat_linear = linear.reshape(-1, 3)
+        shade = np.float32(1.0) - np.float32(0.4) * np.minimum(d_w / np.float32(6.0), np.float32(1.0))
+        flat_linear[wall_idx] *= shade[:, None]
     hit = np.empty(shape + (3,), np.float32)
     hit[..., 0] = (hit_maps[..., 0] + 0.5) * res
     hit[..., 1] = (hit_maps[..., 1] + 0.5) * res
