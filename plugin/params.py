@@ -42,7 +42,7 @@ class SegmentationParams:
     classical_merge_level_factor: float = 2.5  # cost ratio between consecutive levels
     classical_edge_weight: float = 0.15  # weight of the mean gradient along a shared boundary in the merge cost
     classical_dedup_iou: float = 0.8  # nested masks of two levels more alike than this: keep the more contrasted
-    classical_max_area_frac: float = 0.04  # larger regions are background (fields, lawns) and dropped
+    classical_max_area_frac: float = 0.08  # larger regions are background (fields, lawns) and dropped
     classical_min_area_px: int = 100  # smaller regions (full-resolution px) are dropped
     classical_max_elongation: float = 5.0  # sqrt(lambda_max / lambda_min) above this: sliver (road, hedge edge)
     classical_min_fill: float = 0.75  # area / area of the moment ellipse below this: branchy or ring-shaped region
