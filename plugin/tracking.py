@@ -272,7 +272,9 @@ def pair_scores(
     xy_t = np.asarray(feat_t.centroids, np.float64)
     qs = size_scores(np.asarray(feat_s.sizes)[masks_s], feat_t.sizes, params.size_tolerance)
     disp = np.linalg.norm(xy_s[:, None, :] - xy_t[None, :, :], axis=2)
-    ok = (qs > 0) & (np.abs(disp - mu) < params.motion_gate_sigmas * max(sigma, 1e-9))
+    ok = qs > 0
+    if np.isfinite(mu) and np.isfinite(sigma):  # unknown image motion (NaN from a caller): no motion gate
+        ok &= np.abs(disp - mu) < params.motion_gate_sigmas * max(sigma, 1e-9)
     if not ok.any():
         return q
     ok &= epipolar_distances(camera, poses, s, t, xy_s, xy_t) <= params.epipolar_margin_px

@@ -208,6 +208,8 @@ def test_motion_gate():
     assert track_masks(feats, CAM, poses, motion, params).num_tracks == 1
     feats, poses = _pair_world(-21.0, 15.0)  # 5 sigma too far
     assert track_masks(feats, CAM, poses, motion, params).num_tracks == 2
+    # unknown image motion (NaN) disables the motion gate instead of rejecting everything
+    assert track_masks(feats, CAM, poses, [(0.0, 0.0), (np.nan, np.nan)], params).num_tracks == 1
     feats, poses = _pair_world(-19.5, 15.0)  # 3.5 sigma: inside theta_v = 4
     assert track_masks(feats, CAM, poses, motion, params).num_tracks == 1
     # the centroid-noise term widens the gate: 5 px off is fine with the default 3 px centroid sigma
