@@ -135,3 +135,13 @@ def test_degenerate_maps():
     far = rng.uniform(0, 5000, (60, 3))
     res = search(pts, np.full(40, 2.0), far, np.full(60, 7.0), P)
     assert res.best is None and res.hypotheses == []
+
+
+def test_dense_maps_take_the_direct_path_with_the_same_result():
+    # landmarks far denser than the window span: the shared join prunes little, window pairs are computed directly
+    s = survey_map_pair(150, seed=3, density_per_km2=10000, strip_width_m=30)
+    fast = search(s.points_a, s.sizes_a, s.points_b, s.sizes_b, P, workers=1)
+    assert fast.timings.get("mode_direct") == 1.0
+    ref = search_reference(s.points_a, s.sizes_a, s.points_b, s.sizes_b, P)
+    assert len(ref.accepted) > 0
+    _assert_same(fast, ref)

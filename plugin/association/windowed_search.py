@@ -398,6 +398,21 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
     nwb = len(wins_b)
     na_e = a_hi - a_lo + 1
     nb_e = b_hi - b_lo + 1
+    num_inc = int((na_e * nb_e).sum())
+    if num_inc > DIRECT_MIN_INCIDENCES * len(wins_a) * nwb:
+        # dense maps (landmarks much closer than the window span): almost nothing is pruned, and bookkeeping
+        # the incidences would cost more than computing each remaining window pair directly
+        timings["expand_s"] = time.perf_counter() - t0
+        timings["incidences"] = float(num_inc)
+        timings["mode_direct"] = 1.0
+        alive = np.zeros(len(verts), dtype=bool)
+        alive[e1[sel]] = True
+        alive[e2[sel]] = True
+        va, vb = np.divmod(verts[alive], nb)
+        count = _window_pair_counts(fa[va], la[va], fb[vb], lb[vb], len(wins_a), nwb)
+        tasks = [(int(w), None) for w in np.flatnonzero(count.ravel() > k)]  # fewer cannot hold k + 1
+        shared = (pa, ha, pb, hb, params, wins_a, wins_b)
+        return _solve_all(tasks, shared, _solve_direct_chunk, workers, timings, pa, pb, params, wins_a, wins_b)
     owner, kk = _expand_ranges(np.zeros(len(sel), np.int64), na_e * nb_e)
     wpair = (a_lo[owner] + kk // nb_e[owner]) * nwb + b_lo[owner] + kk % nb_e[owner]
     inc_e = sel[owner]  # global edge index of every (edge, window pair) incidence
@@ -429,6 +444,24 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
     ends = np.concatenate([cut, [len(wp_sorted)]]).astype(np.int64)
     tasks = [(int(wp_sorted[a]), inc_e[order[a:b]]) for a, b in zip(starts, ends) if b > a]
     shared = (pa, ha, pb, hb, params, wins_a, wins_b, verts, e1, e2, c)
+    timings["solve_s"] = time.perf_counter() - t0  # grouping; _solve_all adds the solving
+    return _solve_all(tasks, shared, _solve_chunk, workers, timings, pa, pb, params, wins_a, wins_b)
+
+
+def _window_pair_counts(a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray, b_hi: np.ndarray, nwa: int,
+                        nwb: int) -> np.ndarray:
+    """(nwa, nwb) number of items whose window rectangle [a_lo, a_hi] x [b_lo, b_hi] covers each window pair."""
+    diff = np.zeros((nwa + 1) * (nwb + 1), dtype=np.int64)
+    for ra, rb, sign in ((a_lo, b_lo, 1), (a_hi + 1, b_lo, -1), (a_lo, b_hi + 1, -1), (a_hi + 1, b_hi + 1, 1)):
+        diff += sign * np.bincount(ra * (nwb + 1) + rb, minlength=len(diff))
+    return diff.reshape(nwa + 1, nwb + 1).cumsum(0).cumsum(1)[:nwa, :nwb]
+
+
+def _solve_all(tasks: list, shared: tuple, chunk_fn: object, workers: int | None, timings: dict[str, float],
+               pa: np.ndarray, pb: np.ndarray, params: AssociationParams, wins_a: np.ndarray,
+               wins_b: np.ndarray) -> SearchResult:
+    """Run `chunk_fn` over the window-pair tasks, in 1 or 2 processes, and assemble the result."""
+    t0 = time.perf_counter()
     if workers is None:
         workers = 2 if len(tasks) >= PARALLEL_MIN_TASKS and (os.cpu_count() or 1) >= 2 else 1
     if "fork" not in multiprocessing.get_all_start_methods():  # the workers inherit the shared arrays by fork
@@ -437,12 +470,12 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
         chunks = [tasks[w::workers] for w in range(workers)]  # interleaved: similar work per process
         ctx = multiprocessing.get_context("fork")
         with ctx.Pool(workers, initializer=_init_worker, initargs=(shared,)) as pool:
-            parts = pool.map(_solve_chunk, chunks)
+            parts = pool.map(chunk_fn, chunks)
         hyps = [h for _, h in sorted((x for part in parts for x in part), key=lambda t: t[0])]
     else:
         _init_worker(shared)
-        hyps = [h for _, h in _solve_chunk(tasks)]
-    timings["solve_s"] = time.perf_counter() - t0
+        hyps = [h for _, h in chunk_fn(tasks)]
+    timings["solve_s"] = timings.get("solve_s", 0.0) + time.perf_counter() - t0
     timings["window_pairs_solved"] = float(len(hyps))
     timings["workers"] = float(workers)
     timings["total_s"] = sum(v for key, v in timings.items() if key.endswith("_s"))
@@ -450,12 +483,30 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
 
 
 PARALLEL_MIN_TASKS = 1000  # below this many window pairs to solve, starting a second process costs more than it saves
+DIRECT_MIN_INCIDENCES = 300  # mean consistent pairs per window pair above which window pairs are computed directly
 _WORKER: tuple = ()
 
 
 def _init_worker(shared: tuple) -> None:
     global _WORKER
     _WORKER = shared
+
+
+def _solve_direct_chunk(tasks: list[tuple[int, None]]) -> list[tuple[int, WindowHypothesis]]:
+    """Window pairs computed from scratch, exactly as `search_reference` does (dense maps)."""
+    pa, ha, pb, hb, params, wins_a, wins_b = _WORKER[:7]
+    k = params.min_associations
+    nwb = len(wins_b)
+    out = []
+    for w, _ in tasks:
+        wa, wb = wins_a[w // nwb], wins_b[w % nwb]
+        pairs, wts = putative_pairs(ha, hb, np.arange(*wa), np.arange(*wb), params.max_size_difference)
+        graph = affinity_graph(pa, pb, pairs, wts, params.distance_tolerance_m, params.affinity_sigma_m)
+        core = core_mask(graph, k)
+        if core.sum() > k:
+            sub, old = graph.subgraph(core)
+            out.append((w, _hypothesis(pa, pb, params, wa, wb, len(pairs), pairs[old], sub)))
+    return out
 
 
 def _solve_chunk(tasks: list[tuple[int, np.ndarray]]) -> list[tuple[int, WindowHypothesis]]:
