@@ -76,7 +76,7 @@ def predict_flow(camera: Camera, r1: np.ndarray, c1: np.ndarray, r2: np.ndarray,
         return np.stack([camera.fx * p[:, 0] / p[:, 2] + camera.cx, camera.fy * p[:, 1] / p[:, 2] + camera.cy], 1)
 
 
-def attitude_check(seneca: Path, max_pairs: int = 60) -> dict:
+def attitude_check(seneca: Path, max_pairs: int = 60, extra_poses: Path | None = None) -> dict:
     import cv2
 
     images = seneca / "images"
@@ -124,10 +124,27 @@ def attitude_check(seneca: Path, max_pairs: int = 60) -> dict:
                         "p90_px": float(np.percentile(per_pair, 90)),
                         "median_px_after_shift": float(np.median(shifts)), "mount": mount, "pitch_sign": ps,
                         "roll_sign": rs}
+    if extra_poses is not None:  # e.g. refined poses: the same flow test, one more row
+        from ...database.poses import read_poses_csv
+
+        ext, _ = read_poses_csv(extra_poses)
+        idx = [ext.names.index(n) for n in names]
+        rot_e, cen_e = ext.rotations[idx], ext.centers[idx]
+        per_pair = []
+        for i, j, p1, p2 in obs:
+            g = 0.5 * (ground[i] + ground[j]) + 0.5 * ((cen_e[i, 2] - centers[i, 2]) + (cen_e[j, 2] - centers[j, 2]))
+            pred = predict_flow(cam, rot_e[i], cen_e[i], rot_e[j], cen_e[j], g, p1)
+            per_pair.append(float(np.median(np.linalg.norm(p2 - pred, axis=1))))
+        extra = {"per_pair": per_pair, "median_px": float(np.median(per_pair)),
+                 "p90_px": float(np.percentile(per_pair, 90)), "median_px_after_shift": float("nan"),
+                 "mount": "file", "pitch_sign": 1.0, "roll_sign": 1.0}
     table = np.array([r["per_pair"] for r in results.values()])
     best = np.argmin(table[:-1], axis=0)  # the level baseline does not compete for wins
     for k, r in enumerate(results.values()):
         r["pairs_won"] = int(np.sum(best == k)) if k < len(table) - 1 else 0
+    if extra_poses is not None:
+        extra["pairs_won"] = 0
+        results[f"poses from {extra_poses.name}"] = extra
     return {"pairs": len(obs), "match_seconds": t_match, "results": results,
             "median_inliers": float(np.median([len(o[2]) for o in obs])) if obs else 0.0,
             "median_speed_px": float(np.median([np.median(np.linalg.norm(o[3] - o[2], axis=1)) for o in obs]))}
@@ -251,7 +268,7 @@ def main() -> None:
         for k, v in r.items():
             print(f"{k}: {v}")
         return
-    out = attitude_check(args.seneca, args.pairs)
+    out = attitude_check(args.seneca, args.pairs, args.poses)
     print(f"{out['pairs']} consecutive same-line pairs, median {out['median_inliers']:.0f} ORB inliers, "
           f"median image motion {out['median_speed_px']:.0f} px, matching {out['match_seconds']:.1f} s")
     print("| convention | median error px | p90 px | median after removing the pair's mean shift px | pairs best |")
