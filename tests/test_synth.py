@@ -33,7 +33,7 @@ def session_dir(tmp_path_factory):
 
 def test_same_seed_gives_byte_identical_session(session_dir, tmp_path):
     again = tmp_path / "again"
-    run(again, SynthConfig(**SMALL))
+    run(again, SynthConfig(**SMALL), workers=1)  # the fixture used one thread per core: same bytes
     files = sorted(p.relative_to(session_dir) for p in session_dir.rglob("*") if p.is_file())
     assert len(files) == 2 * 8 + 7
     for rel in files:
@@ -269,3 +269,22 @@ def test_contact_sheet_places_frames_side_by_side(session_dir, tmp_path):
     # the two columns show the same frames here, so they are identical below the header
     left, right = sheet[28:, :160].astype(int), sheet[28:, 164:].astype(int)
     assert np.abs(left - right).mean() < 1.0 and left.std() > 5
+
+
+def test_two_pass_march_matches_a_plain_march(monkeypatch):
+    """The conservative first pass only skips empty space: a plain march from the top sees the same surface."""
+    from sosmatch.tools.synth import render
+
+    cfg = SynthConfig(**SMALL)
+    world = get_world(cfg.world_config())
+    scene = build_scene(world, "summer", session_presence(world, cfg))
+    poses = session_poses(world, cfg)
+    cam = cfg.camera()
+    light = np.ones_like(scene.dsm)
+    fast = [render_view(scene, light, cam, poses.rotations[i], poses.centers[i]) for i in (0, 5)]
+    # an "infinitely high" conservative surface makes every ray start its fine march at the top of the view
+    monkeypatch.setattr(render, "conservative_dsm", lambda sc, r: (np.full((4, 4), 1e6, np.float32), 4))
+    plain = [render_view(scene, light, cam, poses.rotations[i], poses.centers[i]) for i in (0, 5)]
+    for f, p in zip(fast, plain):
+        assert (f.labels == p.labels).mean() > 0.998
+        assert np.percentile(np.abs(f.hit[..., 2] - p.hit[..., 2]), 99.5) < 0.05
