@@ -233,3 +233,34 @@ def test_two_workers_describe_keyframes_identically(session, tmp_path):
     assert m1 == m2
     for a, b in zip(f1, f2):
         assert np.array_equal(a.centroids, b.centroids) and np.array_equal(a.sift_desc, b.sift_desc)
+
+
+def test_run_killed_while_publishing_resumes(session, tmp_path):
+    root, _, out_ref, _ = session
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    out = tmp_path / "killed"
+    real_replace = os.replace
+    calls = []
+
+    def dying_replace(src, dst):
+        if Path(dst).parent == out:  # moves into the session itself (os is one module: atomic writes come here too)
+            calls.append(dst)
+            if len(calls) == 3:  # two outputs moved into place, then the process "dies"
+                raise KeyboardInterrupt
+        return real_replace(src, dst)
+
+    os.replace = dying_replace
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            map_workflow.run(Params(), inputs, out, progress=False)
+    finally:
+        os.replace = real_replace
+    assert not (out / "run.json").exists() and (out / "database.db").exists()
+    other = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    other.poses.centers[:, 2] += 1.0
+    with pytest.raises(map_workflow.InputError, match="interrupted run from other inputs"):
+        map_workflow.run(Params(), other, out, progress=False)
+    summary = map_workflow.run(Params(), inputs, out, progress=False)
+    assert summary.keyframes_from_cache == summary.num_keyframes
+    assert (out / "landmarks.sosmap").read_bytes() == (out_ref / "landmarks.sosmap").read_bytes()
+    assert {p.name for p in out.iterdir()} == OUTPUT_NAMES

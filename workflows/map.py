@@ -211,16 +211,21 @@ def prepare_output_dir(out_dir: Path, fingerprint: str, overwrite: bool) -> Path
                                  "replace it)", out_dir)
         else:
             others = [p.name for p in out_dir.iterdir() if p.name != PARTIAL]
-            if others:
+            try:  # an interrupted run (possibly killed while moving its outputs into place) left its inputs here
+                started = json.loads((out_dir / PARTIAL / "inputs.json").read_text(encoding="utf-8"))["inputs"]
+            except (OSError, ValueError, KeyError, TypeError):
+                started = None
+            if started is not None and started != fingerprint:
+                raise InputError("output directory holds an interrupted run from other inputs (use --overwrite to "
+                                 "replace it)", out_dir)
+            if others and started is None:
                 raise InputError(f"output directory is not empty and is not a sosmatch session ({others[0]}, ...);"
                                  " use --overwrite to write into it anyway", out_dir)
     check_database_writable(out_dir / "database.db")
     partial = out_dir / PARTIAL
     try:
         partial.mkdir(parents=True, exist_ok=True)
-        probe = partial / ".write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
+        write_text_atomic(partial / "inputs.json", json.dumps({"inputs": fingerprint}) + "\n")
     except OSError as exc:
         raise InputError(f"cannot write output directory: {exc.strerror or exc}", out_dir) from None
     return partial
