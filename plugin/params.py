@@ -50,6 +50,7 @@ class SegmentationParams:
     # >0: non-convex masks (area / convex hull below this) also give their distance-transform parts. Off: on the
     # synthetic sessions 0.95 doubled the masks per frame for +0.03 recall in winter and none in summer.
     classical_split_solidity: float = 0.0
+    classical_lightness_weight: float = 0.7  # weight of CIELAB L in merging (lit / shaded halves of a crown join)
     classical_texture_weight: float = 1.0  # weight of local lightness std (texture) next to L, a, b (0 = off)
     classical_texture_window: int = 5  # window (working px) of the texture measure
     # -- backend `sam-onnx` (sosmatch.plugin.segmentation.sam_onnx) --

@@ -245,6 +245,11 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
         feats = np.concatenate([lab, (c["texture_weight"] * tex)[..., None]], axis=2)
     else:
         feats = lab
+    if c["lightness_weight"] != 1.0:
+        # Lit and shaded halves of one crown differ mostly in lightness, a crown and the lawn in chroma and
+        # texture: a lighter weight on L lets the halves join first.
+        feats = feats.copy()
+        feats[..., 0] *= c["lightness_weight"]
 
     labels, n, grad = _watershed_regions(smooth, lab, c["flat_percentile"])
     mom = _region_moments(labels, n, feats)
