@@ -69,7 +69,7 @@ class SegmentationParams:
 @dataclass(frozen=True)
 class TrackingParams:
     # theta_t (ours): tracks whose last observation is older are not candidates. On synthetic sessions 1 -> 2 -> 3
-    # bridges segmentation misses (mean track length +25 %), beyond 3 gains little and adds duplicates/impurity.
+    # bridges segmentation misses (mean track length +17-22 %); beyond 3 gains little and adds duplicates/impurity.
     max_track_age_keyframes: int = 3
     # theta_a (ours): max centroid distance to the epipolar line (px, both images). EKF-noisy poses put 95 % of
     # true pairs within ~8 px (exact poses: ~4 px); 12 keeps >99 % of them while purity falls for wider margins.
