@@ -154,6 +154,10 @@ def bench_scaling(repeats: int, plot: str | None, reference_up_to: int) -> None:
         if ref:
             ax.loglog(*zip(*ref), "s--", label="reference: every window pair from scratch")
         ax.axhline(SEARCH_BAR_S, color="gray", lw=0.8, ls=":", label=f"bar at 1000 landmarks ({SEARCH_BAR_S} s)")
+        from matplotlib.ticker import NullFormatter
+
+        ax.set_xticks(ns, [str(n) for n in ns])
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("landmarks per map")
         ax.set_ylabel("seconds")
         ax.set_title(f"sosmatch match: windowed search time ({machine_summary().rsplit(', ', 1)[-1]})")
