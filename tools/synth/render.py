@@ -82,7 +82,6 @@ def _scene_stats(scene: Scene) -> dict:
             "zmin": float(scene.world.terrain.min()),
             "zmax": float(scene.dsm.max()),
             "pooled_max": pad.reshape(m, block, m, block).max(axis=(1, 3)),  # DSM max per block
-            "terrain_min_grid": scene.world.terrain_sampler,
             "conservative": {},
         }
         scene.__dict__["_render_stats"] = stats

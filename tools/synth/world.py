@@ -113,7 +113,7 @@ class World:
             ext = (cfg.size_m, cfg.size_m)
             fine = rng.standard_normal(shape, dtype=np.float32)
             fine = cv2.GaussianBlur(fine, (0, 0), 0.8)
-            fine *= np.float32(1.0 / max(float(fine.std()), 1e-6))
+            fine *= np.float32(1.0 / max(float(fine[::7, ::7].std()), 1e-6))
             self._noise = {
                 "low": fractal_noise(rng, shape, ext, 60.0, octaves=3),
                 "patch": fractal_noise(rng, shape, ext, 22.0, octaves=3),
@@ -221,7 +221,6 @@ def _ground_cover(cfg: WorldConfig, n: int) -> tuple:
     lut[label_of_site] = np.arange(n_sites, dtype=np.uint16)
     cell = lut[labels]
     # Slightly wavy boundaries: warp the cell map with smooth 2 m noise.
-    ext = (cfg.size_m, cfg.size_m)
     wx = value_noise(rng, (n, n), (cfg.size_m / 40.0, cfg.size_m / 40.0)) * np.float32(2.0 / res)
     wy = value_noise(rng, (n, n), (cfg.size_m / 40.0, cfg.size_m / 40.0)) * np.float32(2.0 / res)
     gx = np.arange(n, dtype=np.float32)
@@ -256,7 +255,6 @@ def _ground_cover(cfg: WorldConfig, n: int) -> tuple:
     _draw_polyline(cover, stream, res, 7.0, BANK)
     _draw_polyline(cover, stream, res, 3.5, WATER)
     roads.append(("stream", 3.5, stream))
-    del ext
     return cover, cell, params, roads
 
 
