@@ -226,3 +226,64 @@ def nearest_pairs(centers: np.ndarray, k: int) -> list[tuple[int, int]]:
     order = np.argsort(dist, axis=1, kind="stable")[:, : min(k, n - 1)]
     pairs = {(min(i, int(j)), max(i, int(j))) for i in range(n) for j in order[i]}
     return sorted(pairs)
+
+
+def consistent_edges(
+    num_nodes: int, edges: Sequence[Edge], probes: Sequence[np.ndarray], tolerance_m: float
+) -> tuple[list[Edge], list[Edge]]:
+    """Keep the edges of the session graph that agree with each other; drop the ones that contradict.
+
+    One wrong accepted pair is enough to put a session in the wrong place, and the spanning tree alone cannot
+    tell: it trusts the heaviest edge. So components are joined greedily (heaviest edge between two components
+    first), and when several edges connect the same two components, each proposes where the second component
+    lies in the first one's frame; two proposals agree when they place every probe point of the second component
+    (e.g. its sessions' mean camera positions) within `tolerance_m` of each other. A lone edge is taken as it is
+    (nothing contradicts it). Otherwise the proposal agreed by the most edges (then the most weight) wins if at
+    least two edges agree on it and no disagreeing proposal is agreed by as many; its agreeing edges are kept,
+    the rest rejected. Wrong pairs rarely agree with each other, so corroboration, not |S|, decides. Without a
+    winner the components are not joined and all those edges are rejected: two sessions left apart are better
+    than a merged model that is wrong.
+    `probes[i]`: (P,3) points in session i's frame. Returns (kept, rejected).
+    """
+    comp = list(range(num_nodes))
+    members = {i: [i] for i in range(num_nodes)}
+    root_from = [Sim3.identity() for _ in range(num_nodes)]  # component root from node
+    kept: list[Edge] = []
+    rejected: list[Edge] = []
+    remaining = sorted(edges, key=lambda e: (-e.weight, e.a, e.b))
+    while remaining:
+        first = remaining[0]
+        c1, c2 = comp[first.a], comp[first.b]
+        if c1 == c2:  # cannot happen (edges inside a component are settled when it forms); stay safe
+            remaining.pop(0)
+            kept.append(first)
+            continue
+        between = [e for e in remaining if {comp[e.a], comp[e.b]} == {c1, c2}]
+        taken = {id(e) for e in between}  # identity: Edge equality would compare numpy arrays
+        remaining = [e for e in remaining if id(e) not in taken]
+        proposals = []
+        for e in between:
+            if comp[e.a] == c1:  # r1_from_r2 = r1_from_a ∘ a_from_b ∘ b_from_r2
+                prop = root_from[e.a].compose(e.a_from_b).compose(root_from[e.b].inverse())
+            else:
+                prop = root_from[e.b].compose(e.a_from_b.inverse()).compose(root_from[e.a].inverse())
+            proposals.append(prop)
+        pts = np.vstack([root_from[n].apply(np.asarray(probes[n], dtype=np.float64).reshape(-1, 3))
+                         for n in members[c2]])
+        placed = [p.apply(pts) for p in proposals]
+        agree = np.array([[np.max(np.linalg.norm(pi - pj, axis=1)) <= tolerance_m for pj in placed] for pi in placed])
+        weights = np.array([e.weight for e in between])
+        count = agree.sum(axis=1)
+        best = max(range(len(between)), key=lambda k: (count[k], agree[k] @ weights, -k))
+        rivals = [k for k in range(len(between)) if not agree[best, k] and count[k] >= count[best]]
+        if (count[best] == 1 and len(between) > 1) or rivals:  # contradicted and not corroborated: keep apart
+            rejected.extend(between)
+            continue
+        kept.extend(e for e, ok in zip(between, agree[best]) if ok)
+        rejected.extend(e for e, ok in zip(between, agree[best]) if not ok)
+        r1_from_r2 = proposals[best]
+        for n in members[c2]:
+            root_from[n] = r1_from_r2.compose(root_from[n])
+            comp[n] = c1
+        members[c1].extend(members.pop(c2))
+    return kept, rejected

@@ -202,3 +202,31 @@ def test_nearest_pairs_need_one_frame():
     assert batch._choose_pairs(list("ABCD"), sessions, 1) == [("A", "B"), ("C", "D")]
     sessions["D"]["epsg"] = 32617  # not one frame: positions say nothing, so every pair is matched
     assert len(batch._choose_pairs(list("ABCD"), sessions, 1)) == 6
+
+
+def test_contradicting_pairs_are_left_out_of_the_graph():
+    from sosmatch.plugin.multisession import consistent_edges
+
+    frames = [yaw_transform(30 * i, (10 * i, -5 * i, 0)) for i in range(4)]  # session_from_world
+
+    def edge(a, b, w, wrong=False):
+        t = frames[a].compose(frames[b].inverse())
+        if wrong:  # a wrong accepted pair: B placed 40 m off and turned
+            t = yaw_transform(60, (40, 0, 0)).compose(t)
+        return Edge(a, b, t, w)
+
+    probes = [np.array([[50.0, 50.0, 0.0], [150.0, 80.0, 0.0]])] * 4
+    good = [edge(0, 1, 100), edge(2, 3, 80), edge(0, 2, 6), edge(1, 3, 5)]
+    wrong = edge(0, 3, 9, wrong=True)
+    kept, dropped = consistent_edges(4, good + [wrong], probes, 5.0)
+    assert dropped == [wrong] and len(kept) == 4
+    ref, ref_from, _ = spanning_transforms([0, 1, 2, 3], kept)
+    for i in range(4):  # every session lands where the truth puts it
+        want = frames[ref].compose(frames[i].inverse())
+        assert np.allclose(ref_from[i].apply(probes[0]), want.apply(probes[0]), atol=1e-6)
+    # Only contradicting links between two groups: the groups stay apart.
+    kept, dropped = consistent_edges(4, good[:2] + [edge(0, 2, 6, wrong=True), edge(1, 3, 5)], probes, 5.0)
+    assert len(dropped) == 2 and connected_groups(4, kept) == [[0, 1], [2, 3]]
+    # A single edge between two groups has nothing to contradict it.
+    kept, dropped = consistent_edges(3, [edge(0, 1, 10), edge(1, 2, 3)], probes, 5.0)
+    assert not dropped and len(kept) == 2

@@ -12,7 +12,8 @@ processes, or a Dask cluster):
 3. match: every pair of mapped sessions, or with `nearest=k` only pairs where one session is among the k
    nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the
    same local frame) -> OUT/pairs/A__B/match.json;
-4. session graph: sessions are nodes, accepted pairs are edges carrying a_from_b and |S|; each connected
+4. session graph: sessions are nodes, accepted pairs are edges carrying a_from_b and |S|; accepted pairs
+   that contradict others linking the same groups are left out (`plugin.multisession.consistent_edges`); each connected
    group is brought into the frame of its best-connected session along a maximum spanning tree
    (`sosmatch.plugin.multisession.spanning_transforms`) and merged (`sosmatch.workflows.merge.merge_sessions`)
    -> OUT/merged/REFERENCE/;
@@ -43,7 +44,14 @@ import numpy as np
 
 from ..database.atomic import write_text_atomic
 from ..plugin.errors import InputError
-from ..plugin.multisession import Edge, Sim3, connected_groups, nearest_pairs, spanning_transforms
+from ..plugin.multisession import (
+    Edge,
+    Sim3,
+    connected_groups,
+    consistent_edges,
+    nearest_pairs,
+    spanning_transforms,
+)
 from ..plugin.params import Params, params_to_dict
 from .executors import Executor, LocalExecutor, TaskResult
 
@@ -246,6 +254,7 @@ class BatchOptions:
     ekf: bool = False  # synth flights: map with the noisy poses_ekf.csv instead of the ground truth
     merge: bool = True
     refine: bool = False  # pairwise transforms re-fitted on all their associations before building the graph
+    edge_tolerance_m: float = 5.0  # (ours) two accepted pairs agree if they place sessions within this distance
     progress: bool = True
 
 
@@ -423,6 +432,16 @@ def _graph_and_merge(
         edge = Edge(index[a], index[b], sim, float(rec["num_associations"]))
         edges.append(edge)
         edge_keys[(edge.a, edge.b)] = key
+    # Accepted pairs that contradict the others are dropped before the graph is used (see consistent_edges).
+    probes = [np.asarray(sessions[n].get("center") or [0.0, 0.0, 0.0]) for n in names]
+    edges, dropped = consistent_edges(len(names), edges, probes, options.edge_tolerance_m)
+    for rec in pairs.values():
+        if rec["status"] == "done" and rec["accepted"]:
+            rec["in_graph"] = True
+    for e in dropped:
+        pairs[edge_keys[(e.a, e.b)]]["in_graph"] = False
+        log.warning("pair %s contradicts the other accepted pairs; left out of the session graph",
+                    edge_keys[(e.a, e.b)])
     groups = []
     merge_tasks, merge_fps = {}, {}
     for members in connected_groups(len(names), edges):
@@ -498,7 +517,8 @@ def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
 
 
 SESSION_COLUMNS = ["name", "kind", "status", "images", "points3D", "landmarks", "seconds", "error"]
-PAIR_COLUMNS = ["pair", "status", "accepted", "num_associations", "yaw_deg", "shift_m", "scale", "seconds", "error"]
+PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "yaw_deg", "shift_m", "scale", "seconds",
+                "error"]
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]
 
 
@@ -560,7 +580,9 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
         if p["a"] not in pos or p["b"] not in pos:
             continue
         (x0, y0), (x1, y1) = pos[p["a"]], pos[p["b"]]
-        if p["status"] == "done" and p.get("accepted"):
+        if p["status"] == "done" and p.get("accepted") and p.get("in_graph") is False:
+            ax.plot([x0, x1], [y0, y1], "-.", color="tab:orange", lw=1.5, zorder=1)
+        elif p["status"] == "done" and p.get("accepted"):
             ax.plot([x0, x1], [y0, y1], "-", color="tab:green", lw=2, zorder=1)
             ax.annotate(str(p.get("num_associations", "")), ((x0 + x1) / 2, (y0 + y1) / 2), fontsize=8,
                         ha="center", color="tab:green")
@@ -574,7 +596,8 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
         color = "tab:red" if s["status"] != "done" else cmap(group_of.get(s["name"], 0) % 10)
         ax.scatter([x], [y], s=200, color=color, zorder=2, edgecolors="k")
         ax.annotate(s["name"], (x, y), textcoords="offset points", xytext=(8, 8), fontsize=9)
-    ax.set_title("session graph: accepted (solid, |S|), rejected (dashed), failed (dotted)", fontsize=9)
+    ax.set_title("session graph: accepted (solid, |S|), contradicted (orange), rejected (dashed), failed (dotted)",
+                 fontsize=8)
     ax.set_aspect("equal", adjustable="datalim")
     ax.margins(0.2)
     with atomic_path(path) as tmp:
