@@ -65,8 +65,14 @@ def _cli(args: list[str]) -> None:
 
     log.info("sosmatch %s", " ".join(args))
     code = main(args)
+    logging.getLogger("sosmatch").setLevel(logging.INFO)  # the CLI's -q lowered it for the whole process
     if code != 0:
         raise RuntimeError(f"`sosmatch {' '.join(args)}` failed with exit code {code}")
+
+
+def _slug(args: tuple[str, ...]) -> str:
+    """A directory name for a session's arguments: equal arguments, equal session."""
+    return "_".join(a.lstrip("-").replace(",", "x") for a in args)
 
 
 def synth_session(args: tuple[str, ...], out: Path) -> Path:
@@ -92,12 +98,13 @@ def run_case(case: Case, work: Path, methods: list[str], repeats: int = 3, reuse
     if reuse and done.exists():
         return json.loads(done.read_text(encoding="utf-8"))
 
-    a = synth_session(case.synth_a, work / case.name / "synth_a")
-    b = synth_session(case.synth_b, work / case.name / "synth_b")
+    # Sessions (and their maps) are shared between cases with the same arguments (the summer reference).
+    a = synth_session(case.synth_a, work / "sessions" / _slug(case.synth_a))
+    b = synth_session(case.synth_b, work / "sessions" / _slug(case.synth_b))
     map_a = map_b = None
     if "sosmatch" in methods:
-        map_a = map_session(a, work / case.name / "map_a")
-        map_b = map_session(b, work / case.name / "map_b")
+        map_a = map_session(a, work / "maps" / _slug(case.synth_a))
+        map_b = map_session(b, work / "maps" / _slug(case.synth_b))
     return evaluate(Params(), a, b, work / case.name / "eval", map_a=map_a, map_b=map_b, methods=methods,
                     case=case.name, repeats=repeats)
 
