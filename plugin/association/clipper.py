@@ -197,7 +197,8 @@ def solve(graph: ConsistencyGraph, tol_u: float = 1e-6, max_outer: int = 60, max
     Deterministic: u starts at the weighted degree vector M 1 (normalised), which favours well-connected
     associations exactly as the first power iteration of the unpenalised problem would. `max_inner` caps the
     gradient steps per penalty value: the penalty keeps growing, so full convergence at an intermediate d is not
-    needed (100 instead of 300 steps saved a third of the time on dense window pairs with the same results).
+    needed (100 instead of 300 steps saved a third of the time on dense window pairs; |S| changed by 1-2 on 25 of
+    3835 window pairs of the demo maps, all borderline spurious sets).
     """
     n = graph.n
     if n == 0:
