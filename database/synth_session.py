@@ -30,10 +30,15 @@ from .poses import read_poses_csv
 
 SESSION_FORMAT = "sosmatch-synth-session"
 SESSION_VERSION = 1
-OBJECT_COLUMNS = ["id", "kind", "x", "y", "z", "radius", "height", "present"]
+# objects.csv: x, y, z is the centre of the object's visible top surface (the mean over its footprint seen from
+# straight above, where triangulated mask centroids land); apex_z the highest point (tree tip, roof ridge, water
+# level of a pond), ground_z the terrain under the object's centre, height = apex_z - ground_z (0 for ponds).
+OBJECT_COLUMNS = ["id", "kind", "x", "y", "z", "radius", "height", "present", "apex_z", "ground_z"]
+# Files written before apex_z / ground_z existed (z was the apex then); still read, see read_objects_csv.
+LEGACY_OBJECT_COLUMNS = OBJECT_COLUMNS[:8]
 OBJECT_DTYPE = np.dtype([
     ("id", "<i4"), ("kind", "U16"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
-    ("radius", "<f8"), ("height", "<f8"), ("present", "?"),
+    ("radius", "<f8"), ("height", "<f8"), ("present", "?"), ("apex_z", "<f8"), ("ground_z", "<f8"),
 ])
 
 
@@ -149,7 +154,9 @@ def _read_json(path: Path) -> Any:
 
 
 def read_objects_csv(path: str | Path) -> np.ndarray:
-    """objects.csv -> structured array (OBJECT_DTYPE)."""
+    """objects.csv -> structured array (OBJECT_DTYPE).
+
+    A legacy file (the first 8 columns only, z = apex) is read with apex_z = z and ground_z = z - height."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -164,18 +171,20 @@ def read_objects_csv(path: str | Path) -> np.ndarray:
             continue
         if header is None:
             header = [c.strip() for c in row]
-            if header != OBJECT_COLUMNS:
+            if header not in (OBJECT_COLUMNS, LEGACY_OBJECT_COLUMNS):
                 raise InputError(f"header must be {','.join(OBJECT_COLUMNS)}", path, lineno)
             continue
-        if len(row) != len(OBJECT_COLUMNS):
-            raise InputError(f"expected {len(OBJECT_COLUMNS)} columns, got {len(row)}", path, lineno)
+        if len(row) != len(header):
+            raise InputError(f"expected {len(header)} columns, got {len(row)}", path, lineno)
         try:
-            values = (int(row[0]), row[1].strip(), *(float(v) for v in row[2:7]), int(row[7]))
+            values = (int(row[0]), row[1].strip(), *(float(v) for v in row[2:7]), int(row[7]),
+                      *(float(v) for v in row[8:]))
         except ValueError:
             raise InputError("malformed object row", path, lineno) from None
-        if values[-1] not in (0, 1) or not all(math.isfinite(v) for v in values[2:7]):
+        if values[7] not in (0, 1) or not all(math.isfinite(v) for v in values[2:7] + values[8:]):
             raise InputError("present must be 0 or 1 and coordinates finite", path, lineno)
-        rows.append(values[:-1] + (bool(values[-1]),))
+        extra = values[8:] if len(values) > 8 else (values[4], values[4] - values[6])
+        rows.append(values[:7] + (bool(values[7]),) + extra)
     if header is None:
         raise InputError("no header line", path)
     return np.array(rows, dtype=OBJECT_DTYPE)
@@ -187,7 +196,8 @@ def format_objects_csv(objects: np.ndarray) -> str:
     out.write(",".join(OBJECT_COLUMNS) + "\n")
     for o in objects:
         out.write(f"{int(o['id'])},{o['kind']},{o['x']:.3f},{o['y']:.3f},{o['z']:.3f},"
-                  f"{o['radius']:.3f},{o['height']:.3f},{int(bool(o['present']))}\n")
+                  f"{o['radius']:.3f},{o['height']:.3f},{int(bool(o['present']))},{o['apex_z']:.3f},"
+                  f"{o['ground_z']:.3f}\n")
     return out.getvalue()
 
 

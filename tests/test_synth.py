@@ -12,7 +12,7 @@ import pytest
 
 from sosmatch.database.synth_session import TerrainSampler, load_synth_session
 from sosmatch.plugin.errors import InputError
-from sosmatch.plugin.geometry import project
+from sosmatch.plugin.geometry import pixel_rays, project
 from sosmatch.tools.synth.appearance import cast_shadow, lighting
 from sosmatch.tools.synth.render import render_view
 from sosmatch.tools.synth.world import build_scene, get_world
@@ -288,3 +288,39 @@ def test_two_pass_march_matches_a_plain_march(monkeypatch):
     for f, p in zip(fast, plain):
         assert (f.labels == p.labels).mean() > 0.998
         assert np.percentile(np.abs(f.hit[..., 2] - p.hit[..., 2]), 99.5) < 0.05
+
+
+def test_ground_truth_is_the_visible_top_centre(session_dir):
+    """objects.csv x, y, z: the centre of the top surface seen from above (where mask centroids triangulate),
+    below the apex of trees, at the water level of ponds, and on the ray through a nadir mask's centroid."""
+    cfg = SynthConfig(**SMALL)
+    world = get_world(cfg.world_config())
+    scene = build_scene(world, "summer", session_presence(world, cfg))
+    objects = load_synth_session(session_dir).objects
+    assert np.array_equal(objects["id"], [o.id for o in world.objects])
+    trees = np.isin(objects["kind"], ["deciduous", "conifer"])
+    assert trees.sum() >= 10
+    assert np.all(objects["z"][trees] < objects["apex_z"][trees] - 0.2)
+    assert np.all(objects["z"][trees] > objects["ground_z"][trees] + 1.0)
+    ponds = objects["kind"] == "pond"
+    assert np.allclose((objects["apex_z"] - objects["ground_z"])[~ponds], objects["height"][~ponds], atol=2e-3)
+    assert ponds.any() and np.allclose(objects["z"][ponds], objects["apex_z"][ponds], atol=1e-3)
+    # A nadir camera 100 m above each present, unoccluded tree or building: the ray through the centroid of
+    # its mask passes within a few decimetres of the ground-truth centre.
+    cam = cfg.camera()
+    r_wc = np.diag([1.0, -1.0, -1.0])  # camera x east, y south (image down), z down
+    checked = 0
+    inner = np.all(np.abs(np.column_stack([objects["x"], objects["y"]]) - 120.0) < 50.0, axis=1)  # view inside
+    for o in objects[objects["present"] & inner & np.isin(objects["kind"], ["deciduous", "conifer", "building"])][:12]:
+        centre = np.array([o["x"], o["y"], o["z"]])
+        c = np.array([o["x"] + 3.0, o["y"] - 2.0, o["ground_z"] + 100.0])  # slightly off the object's axis
+        res = render_view(scene, np.ones_like(scene.dsm), cam, r_wc, c)
+        rows, cols = np.nonzero(res.labels == o["id"])
+        if len(rows) < 30:
+            continue
+        d = pixel_rays(cam, np.array([[cols.mean() + 0.5, rows.mean() + 0.5]]), r_wc)[0]
+        d /= np.linalg.norm(d)
+        miss = np.linalg.norm(np.cross(centre - c, d))
+        assert miss < 0.3, (o["id"], o["kind"], miss)
+        checked += 1
+    assert checked >= 5

@@ -41,7 +41,7 @@ from ..tools.synth.config import SynthConfig
 from ..tools.synth.flights import ekf_poses, flight_poses
 from ..tools.synth.noise import rng_for
 from ..tools.synth.render import ViewOutsideWorld, render_view
-from ..tools.synth.world import EXTRA_FRACTION, World, build_scene, get_world
+from ..tools.synth.world import EXTRA_FRACTION, Scene, World, build_scene, get_world, visible_top_centres
 
 __all__ = ["SynthConfig", "run", "session_presence", "session_poses", "session_look", "objects_table"]
 log = logging.getLogger(__name__)
@@ -77,9 +77,12 @@ def session_look(config: SynthConfig) -> CameraLook:
                       config.jpeg_quality)
 
 
-def objects_table(world: World, present: np.ndarray) -> np.ndarray:
-    """objects.csv rows (OBJECT_DTYPE): the visible top centre, footprint-equivalent radius, height."""
-    rows = [(o.id, o.kind, o.x, o.y, o.top_z, o.radius, o.height, bool(p)) for o, p in zip(world.objects, present)]
+def objects_table(scene: Scene) -> np.ndarray:
+    """objects.csv rows (OBJECT_DTYPE) of a session's scene: the centre of the visible top surface
+    (`visible_top_centres`), footprint-equivalent radius, height, presence, apex and ground heights."""
+    centres = visible_top_centres(scene)
+    rows = [(o.id, o.kind, *centres[o.id - 1], o.radius, o.height, bool(p), o.top_z, o.ground_z)
+            for o, p in zip(scene.world.objects, scene.present)]
     return np.array(rows, dtype=OBJECT_DTYPE)
 
 
@@ -164,7 +167,7 @@ def run(out: str | Path, config: SynthConfig, progress: bool = False, workers: i
         write_poses_csv(tmp / "poses.csv", poses)
         write_poses_csv(tmp / "poses_ekf.csv", ekf_poses(poses, config.ekf_noise(), config.session_seed,
                                                          config.world_seed))
-        objects = objects_table(world, present)
+        objects = objects_table(scene)
         (tmp / "objects.csv").write_text(format_objects_csv(objects), encoding="utf-8")
         (tmp / "frames.json").write_text(json.dumps(frames, indent=1) + "\n", encoding="utf-8")
         ts = world.terrain_sampler

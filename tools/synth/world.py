@@ -645,3 +645,50 @@ def _vegetation_colour(kind: str, season: str, u: np.ndarray, rn: np.ndarray, an
         cap = (rn < 0.72)[..., None]
         colour = np.where(cap, _SNOW, colour)
     return colour
+
+
+# ------------------------------------------------------------------------------------------- ground truth
+
+def visible_top_centres(scene: Scene) -> np.ndarray:
+    """Ground truth of every world object's position: the 3D centre of its visible top surface (float64, one
+    row x, y, z per object, index = id - 1).
+
+    The centre is the mean over the object's cells in the scene's object-id raster (its footprint as a nadir
+    camera sees it: other objects covering part of it are excluded) of the cell centres' x, y and the DSM
+    height: the area-weighted mean of the top surface seen from straight above. A mask centroid triangulated
+    from several views lands about there, not at the apex (a tree's crown centre is metres below its tip).
+    Objects absent from the scene or entirely hidden by others get the centre they would have alone (each
+    stamped on the bare terrain); an object too small to cover any cell keeps (x, y, top_z).
+    """
+    world = scene.world
+    out = np.array([(o.x, o.y, o.top_z) for o in world.objects], np.float64).reshape(-1, 3)
+    counts = _footprint_means(world, scene.ids, scene.dsm, out)
+    missing = [o for o in world.objects if counts[o.id] == 0]
+    if missing:
+        # Alone on the bare terrain, in the order build_scene stamps (ponds first, then by height).
+        dsm = world.terrain.copy()
+        ids = np.zeros(dsm.shape, np.uint16)
+        albedo = np.zeros(dsm.shape + (3,), np.uint8)  # needed by _stamp, discarded
+        for obj in sorted(missing, key=lambda o: (o.kind != "pond", o.top_z)):
+            _stamp(world, obj, scene.season, dsm, ids, albedo)
+        alone = out.copy()
+        _footprint_means(world, ids, dsm, alone)
+        idx = np.array([o.id - 1 for o in missing])
+        out[idx] = alone[idx]
+    return out
+
+
+def _footprint_means(world: World, ids: np.ndarray, dsm: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Write into `out` (rows id - 1) the mean cell-centre x, y and DSM height of every id present in `ids`;
+    return the cell count per id (index = id)."""
+    rows, cols = np.nonzero(ids)  # objects cover a few % of the world: index them, not the whole raster
+    lab = ids[rows, cols].astype(np.int64)
+    m = len(world.objects) + 1
+    count = np.bincount(lab, minlength=m)
+    seen = np.nonzero(count)[0]
+    seen = seen[seen > 0]
+    for axis, values in enumerate(((cols + 0.5) * world.res, (rows + 0.5) * world.res,
+                                   dsm[rows, cols].astype(np.float64))):
+        sums = np.bincount(lab, weights=values, minlength=m)
+        out[seen - 1, axis] = sums[seen] / count[seen]
+    return count
