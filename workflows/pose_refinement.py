@@ -242,7 +242,10 @@ def refine_poses_with_priors(
     # or attitude glitch, but started from poses 30+ sigma off (every reprojection residual in Huber's linear
     # part) it settles in a poor minimum (synthetic test: 52 px instead of 1.2 px). A plain least-squares stage
     # first brings the inliers inside the quadratic zone; the robust stage then discounts the outliers.
-    common = {"jac": jacobian, "method": "trf", "x_scale": "jac", "tr_solver": "lsmr", "xtol": 1e-8, "ftol": 1e-6}
+    # LSMR is capped: an inexact (truncated) step is fine inside a trust region, and uncapped LSMR runs up to
+    # min(m, n) inner iterations per step, minutes each on a 167-image, 9000-track survey.
+    common = {"jac": jacobian, "method": "trf", "x_scale": "jac", "tr_solver": "lsmr", "xtol": 1e-8, "ftol": 1e-6,
+              "tr_options": {"maxiter": 300}}
     first = least_squares(residuals, x0, loss="linear", max_nfev=max(1, max_iterations // 2), **common)
     result = least_squares(residuals, first.x, loss="huber", f_scale=huber_sigmas, max_nfev=max_iterations,
                            **common)
