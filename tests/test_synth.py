@@ -13,15 +13,24 @@ import pytest
 from sosmatch.database.synth_session import TerrainSampler, load_synth_session
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import pixel_rays, project
+from sosmatch.tools.synth import world_cache
 from sosmatch.tools.synth.appearance import cast_shadow, lighting
 from sosmatch.tools.synth.render import render_view
-from sosmatch.tools.synth.world import build_scene, get_world
+from sosmatch.tools.synth.world import WorldConfig, build_scene, get_world
 from sosmatch.workflows.synth import SynthConfig, run, session_poses, session_presence
 
 SOSMATCH = str(Path(sys.executable).parent / "sosmatch")
 # A small world and small images keep the tests fast; the geometry is the same as at full size.
 SMALL = dict(world_seed=3, world_size_m=240.0, frames=8, spacing_m=8.0, width=320, height=240,
              line_length_m=40.0, line_spacing_m=25.0)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _private_world_cache(tmp_path_factory):
+    """The tests' worlds are cached in a temporary directory, not in the user's cache."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SOSMATCH_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -324,3 +333,47 @@ def test_ground_truth_is_the_visible_top_centre(session_dir):
         assert miss < 0.3, (o["id"], o["kind"], miss)
         checked += 1
     assert checked >= 5
+
+
+def _same_files(a: Path, b: Path) -> None:
+    files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    for rel in files:
+        assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
+
+
+def test_world_cache_is_transparent_and_rebuilds_corrupt_entries(tmp_path, monkeypatch):
+    cfg = SynthConfig(**{**SMALL, "frames": 3})
+    wcfg = cfg.world_config()
+    monkeypatch.setenv("SOSMATCH_CACHE_DIR", str(tmp_path / "cache"))
+    get_world.cache_clear()
+    run(tmp_path / "cold", cfg)  # builds the world and writes the entry
+    entry = world_cache.entry_dir(wcfg)
+    assert entry.parent.parent == tmp_path / "cache"
+    assert (entry / "world.json").exists() and (entry / "albedo_summer.json").exists()
+    assert world_cache.load_world(wcfg) is not None
+    get_world.cache_clear()
+    run(tmp_path / "warm", cfg)  # loads it
+    _same_files(tmp_path / "cold", tmp_path / "warm")
+    # Corrupt entries: a flipped byte in the terrain, a truncated albedo: both rebuilt, same session.
+    terrain = bytearray((entry / "terrain.npy").read_bytes())
+    terrain[-5] ^= 0x40
+    (entry / "terrain.npy").write_bytes(bytes(terrain))
+    (entry / "albedo_summer.npy").write_bytes((entry / "albedo_summer.npy").read_bytes()[:1000])
+    assert world_cache.load_world(wcfg) is None
+    get_world.cache_clear()
+    run(tmp_path / "rebuilt", cfg)
+    _same_files(tmp_path / "cold", tmp_path / "rebuilt")
+    assert world_cache.load_world(wcfg) is not None  # rewritten
+    assert world_cache.load_albedo(entry, "summer", (wcfg.cells, wcfg.cells)) is not None
+    # Without a cache: the same bytes again.
+    monkeypatch.setenv("SOSMATCH_CACHE_DIR", "off")
+    assert world_cache.entry_dir(wcfg) is None
+    get_world.cache_clear()
+    run(tmp_path / "uncached", cfg)
+    _same_files(tmp_path / "cold", tmp_path / "uncached")
+    get_world.cache_clear()
+    # Every world setting is part of the key.
+    keys = {world_cache.world_key(c) for c in (wcfg, WorldConfig(seed=4, size_m=240.0), WorldConfig(seed=3),
+                                               WorldConfig(seed=3, size_m=240.0, relief_m=4.0))}
+    assert len(keys) == 4
