@@ -11,9 +11,11 @@
   5. writes evaluation.json, evaluation.md (the table), pr.png and overlay.png into `out_dir`, each atomically.
 
 Search time of SOS-Match is the median of `repeats` runs of the search at the configured theta_S (the
-operating point); the curve comes from one run with theta_S lowered to `sweep_floor` so that hypotheses with
-small |S| are kept (the solver only runs where a set larger than theta_S can exist). Map size is the mean of the
-two sessions' maps: landmarks.sosmap bytes for SOS-Match, keypoints + descriptors bytes for the baselines.
+operating point); the curve sweeps the score threshold over those runs' hypotheses (|S| > theta_S), or, with
+`sweep_floor` below theta_S, over one extra run at that lower floor (the solver only runs where a set larger
+than theta_S can exist, so lower floors collect more, smaller hypotheses, at a much higher cost).
+Map size is the mean of the two sessions' maps: landmarks.sosmap bytes for SOS-Match, keypoints + descriptors
+bytes for the baselines.
 """
 
 from __future__ import annotations
@@ -114,7 +116,7 @@ def _map_arrays(map_dir: Path) -> tuple[np.ndarray, np.ndarray, int]:
 
 
 def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSession, map_a: Path, map_b: Path,
-                  match_dir: Path | None, sweep_floor: int, repeats: int, max_observers: int | None) -> dict:
+                  match_dir: Path | None, sweep_floor: int | None, repeats: int, max_observers: int | None) -> dict:
     from ..plugin.association.windowed_search import search
 
     obs_a, _ = _observers(gt_a, map_a, max_observers)
@@ -152,8 +154,11 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
             times.append(time.perf_counter() - t0)
         out["search_seconds"] = statistics.median(times)
         out["search_seconds_runs"] = times
-        floor = min(sweep_floor, assoc_params.min_associations)
-        sweep = search(pa, ha, pb, hb, dataclasses.replace(assoc_params, min_associations=floor))
+        if sweep_floor is None or sweep_floor >= assoc_params.min_associations:
+            floor, sweep = assoc_params.min_associations, result  # the curve starts at the operating point
+        else:  # a lower floor keeps hypotheses with small |S| (costly: the solver runs on far more window pairs)
+            floor = sweep_floor
+            sweep = search(pa, ha, pb, hb, dataclasses.replace(assoc_params, min_associations=floor))
         out["curve_floor_theta_S"] = floor
         hypotheses = [
             Hypothesis(h.associations, float(h.size),
@@ -287,7 +292,7 @@ def _jsonable(res: dict) -> dict:
 def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: str | Path,
         map_a: str | Path | None = None, map_b: str | Path | None = None, match_dir: str | Path | None = None,
         methods: Sequence[str] = METHODS, case: str | None = None, dem: str | Path | None = None,
-        ground_height: float = 0.0, sweep_floor: int = 2, repeats: int = 3, max_observers: int | None = None,
+        ground_height: float = 0.0, sweep_floor: int | None = None, repeats: int = 3, max_observers: int | None = None,
         baseline_threads: int = 0) -> dict:
     """Evaluate SOS-Match and the baselines on one session pair; returns the evaluation dict (also written).
 
@@ -302,7 +307,9 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         methods: any of "sosmatch", "orb_ransac", "sift_ransac".
         case: the case name for the table (default "A vs B" from the directory names).
         dem: an elevation raster for the footprints (instead of terrain.npz / flat ground at `ground_height`).
-        sweep_floor: theta_S used to collect hypotheses for the curve; repeats: timing repeats of our search.
+        sweep_floor: theta_S used to collect hypotheses for the curve (None: the configured theta_S, i.e. the
+            timed search's own hypotheses; lower values extend the curve but can cost many times the search);
+            repeats: timing repeats of our search.
         max_observers: per landmark, keep only this many observers (nearest) when forming claims.
         baseline_threads: worker threads of the baselines over keyframe pairs (0: one per core).
     """

@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--work", type=Path, default=Path("bench_work"), help="sessions, maps and evaluations")
     parser.add_argument("--cases", default=",".join(c.name for c in CASES))
     parser.add_argument("--methods", default="sosmatch,orb_ransac,sift_ransac")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=3, help="timing repeats of our search (median)")
     parser.add_argument("--real", action="store_true", help="also run the real-data cases (needs --data)")
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
     parser.add_argument("--reuse", action="store_true", help="read finished evaluations instead of re-running them")

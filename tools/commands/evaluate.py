@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dem", type=Path, help="elevation raster for the footprints (default: terrain.npz or "
                         "flat ground)")
     parser.add_argument("--ground-height", type=float, default=0.0, help="height of the flat ground (m)")
-    parser.add_argument("--sweep-floor", type=int, default=2, help="theta_S floor of the precision-recall sweep")
+    parser.add_argument("--sweep-floor", type=int, help="theta_S floor of the precision-recall sweep (default: the "
+                        "configured theta_S; lower extends the curve at a much higher cost)")
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats of the search (median)")
     parser.add_argument("--max-observers", type=int, help="claims use only the N observers nearest each landmark")
     parser.add_argument("--baseline-threads", type=int, default=0,
