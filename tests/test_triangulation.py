@@ -41,7 +41,9 @@ def scene(n_frames=30, n_points=100, noise_px=3.0, seed=0):
 
 
 def run(tmp_path, cam, poses, cents, tids, sizes, params=None, mode="all"):
-    params = params or TriangulationParams()
+    # the scene's points are random, many closer than their footprints (size 2 m = 8 m across), so duplicate
+    # suppression is off here (tests/test_landmark_fusion.py covers it)
+    params = params or TriangulationParams(duplicate_radius_factor=0.0)
     kps = [affine_keypoints(c, np.repeat(np.eye(2)[None] * 9, len(c), 0)) for c in cents]
     pairs = track_associations(tids, mode, params.min_observations)
     write_colmap_database(tmp_path / "database.db", cam, poses.names, kps, pairs)

@@ -11,7 +11,10 @@ plugin/. Steps:
    within `max_reprojection_error_px`, positive depth in every observing camera and a largest ray angle of at
    least `min_triangulation_angle_deg`. Dropped points are deleted from the reconstruction too, so sparse/
    and the landmark map agree;
-5. metric size per landmark: mask size h_px x depth / f, averaged over the observations.
+5. metric size per landmark: mask size h_px x depth / f, averaged over the observations;
+6. duplicate suppression (`duplicate_radius_factor`, see `suppress_duplicates`): landmarks of nested or
+   partial masks of one object are dropped in favour of the best-supported one (deleted from the
+   reconstruction too).
 """
 
 from __future__ import annotations
@@ -99,6 +102,55 @@ def _max_ray_angles_deg(centers: np.ndarray, point: np.ndarray) -> float:
     return float(np.degrees(np.arccos(cos.min())))
 
 
+def suppress_duplicates(
+    positions: np.ndarray, sizes_m: np.ndarray, num_observations: np.ndarray, errors_px: np.ndarray,
+    radius_factor: float,
+) -> np.ndarray:
+    """Which landmarks survive duplicate suppression: a boolean (L,) keep mask.
+
+    A segmenter that keeps several levels of a merge hierarchy (or SAM's multimask output) returns nested and
+    partial masks of one object in the same frames: a crown part, the crown, the clump it belongs to. Each is
+    tracked on its own and becomes its own landmark a metre or two from the others. Landmarks i, j are called
+    duplicates when their ground-plane (x, y) distance is at most `radius_factor` x max(h_i, h_j) (metric sizes):
+    h = sqrt(lambda_max) is half the radius of a disc, so at the default factor 2 a landmark is a duplicate when
+    it lies inside the other's footprint. The centroid of a part of a disc lies within ~0.85 h of the disc's and a
+    two-crown clump's within ~0.9 h of each crown, while two touching distinct discs are 2 (h_i + h_j) apart,
+    more than 2 max(h_i, h_j) (elongated objects have less margin across their short axis). The vertical is
+    left out because it is the noisy direction of a nadir survey (a few metres at 100 m AGL), larger than the
+    offsets between nested masks.
+
+    Greedy non-maximum suppression in order of support (most observations, then lowest reprojection error,
+    then index): a landmark is dropped when a kept one is its duplicate, so every dropped landmark has a kept
+    better-supported one within the radius, and two kept landmarks are never duplicates. Deterministic.
+    """
+    n = len(positions)
+    keep = np.ones(n, dtype=bool)
+    if n < 2 or radius_factor <= 0:
+        return keep
+    from scipy.spatial import cKDTree
+
+    xy = np.asarray(positions, dtype=np.float64)[:, :2]
+    sizes = np.asarray(sizes_m, dtype=np.float64)
+    pairs = cKDTree(xy).query_pairs(radius_factor * float(sizes.max()), output_type="ndarray")
+    if len(pairs) == 0:
+        return keep
+    i, j = pairs[:, 0], pairs[:, 1]
+    dup = np.linalg.norm(xy[i] - xy[j], axis=1) <= radius_factor * np.maximum(sizes[i], sizes[j])
+    i, j = i[dup], j[dup]
+    order = np.lexsort((np.arange(n), np.asarray(errors_px, np.float64), -np.asarray(num_observations)))
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    # orient every duplicate pair (better, worse); visit landmarks best first
+    better = np.where(rank[i] < rank[j], i, j)
+    worse = np.where(rank[i] < rank[j], j, i)
+    by_better = np.argsort(better, kind="stable")
+    starts = np.searchsorted(better[by_better], np.arange(n + 1))
+    for k in order:
+        if keep[k]:
+            keep[worse[by_better[starts[k]:starts[k + 1]]]] = False
+    return keep
+
+
 def triangulate_landmarks(
     db_path: str | Path,
     camera: Camera,
@@ -148,7 +200,7 @@ def triangulate_landmarks(
 
     r_cw, t_cw = poses.cam_from_world()
     focal = float(np.sqrt(camera.fx * camera.fy))
-    drop = {"few_observations": 0, "reprojection": 0, "behind_camera": 0, "small_angle": 0}
+    drop = {"few_observations": 0, "reprojection": 0, "behind_camera": 0, "small_angle": 0, "duplicate": 0}
     rows = []
     for pid in sorted(rec.point3D_ids()):
         point = rec.points3D[pid]
@@ -175,6 +227,14 @@ def triangulate_landmarks(
         h_px = np.array([sizes_px[k][i] for k, i in obs], dtype=np.float64)
         size_m = float(np.mean(h_px * depth / focal))
         rows.append((track, pid, xyz, size_m, len(obs), float(point.error), obs))
+    if rows and params.duplicate_radius_factor > 0:
+        keep = suppress_duplicates(np.array([r[2] for r in rows]), np.array([r[3] for r in rows]),
+                                   np.array([r[4] for r in rows]), np.array([r[5] for r in rows]),
+                                   params.duplicate_radius_factor)
+        for r in (r for r, k in zip(rows, keep) if not k):
+            rec.delete_point3D(r[1])
+        drop["duplicate"] = int(np.count_nonzero(~keep))
+        rows = [r for r, k in zip(rows, keep) if k]
     # Map order: by track id (roughly time of first sighting), then point id (untracked last).
     rows.sort(key=lambda r: (r[0] < 0, r[0], r[1]))
     counts.update({f"dropped_{k}": v for k, v in drop.items()})
