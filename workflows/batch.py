@@ -397,15 +397,15 @@ def run(
         pairs = _run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                            options.progress, _valid_match)
         failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
+
+        # 4: session graph (marks each pair's in_graph) and merged groups
+        report.groups = _graph_and_merge(report, mapped, sessions, pairs, pair_fps, state, executor, options,
+                                         params, out_dir)
         report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
                         for key, rec in pairs.items()]
         report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
                           "error": "a session failed to map"}
                          for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
-
-        # 4: session graph and merged groups
-        report.groups = _graph_and_merge(report, mapped, sessions, pairs, pair_fps, state, executor, options,
-                                         params, out_dir)
     finally:
         if own_executor:
             executor.close()
