@@ -73,3 +73,13 @@ def test_make_executor_choices():
     assert make_executor(workers=3).describe() == "local (3 worker processes)"
     with pytest.raises(ValueError):
         LocalExecutor(-1)
+
+
+def test_dask_executor_on_an_existing_scheduler_address(dask_executor):
+    """--scheduler tcp://HOST:PORT: connect to a running cluster (here the module's LocalCluster) and leave it up."""
+    address = dask_executor._cluster.scheduler_address
+    assert address.startswith("tcp://127.0.0.1:")
+    with DaskExecutor(address=address) as ex:
+        assert ex.describe() == f"dask ({address})"
+        assert _values(ex.run(operator.mul, TASKS, progress=False)) == EXPECTED
+    assert dask_executor.run(operator.add, {"k": (1, 2)}, progress=False)["k"].value == 3  # cluster still up
