@@ -231,3 +231,23 @@ def test_contradicting_pairs_are_left_out_of_the_graph():
     # A single edge between two groups has nothing to contradict it.
     kept, dropped = consistent_edges(3, [edge(0, 1, 10), edge(1, 2, 3)], probes, 5.0)
     assert not dropped and len(kept) == 2
+
+
+def test_cli_batch_exit_code_says_a_flight_failed(tmp_path):
+    world = make_world(200, seed=3)
+    for k, name in enumerate(("F1", "F2")):
+        write_toy_session(tmp_path / "flights" / name, world, lawnmower(20, 140, 20, 140, 60, 40, 12),
+                          yaw_transform(20 * k, (3 * k, 0, 0)), seed=k)
+    bad = tmp_path / "flights" / "F3"
+    (bad / "images").mkdir(parents=True)
+    (bad / "images" / "a.jpg").write_bytes(b"not an image")
+    (bad / "poses.csv").write_text("nonsense\n")
+    out = tmp_path / "out"
+    args = ["batch", str(tmp_path / "flights"), "--out", str(out), "--workers", "0", "--no-progress",
+            "--set", "association.window_stride=25"]
+    assert main(args) == 1
+    report = json.loads((out / "report.json").read_text())
+    assert not report["ok"] and report["failures"][0].startswith("session F3")
+    assert [(p["pair"], p["status"]) for p in report["pairs"]] == [("F1__F2", "done"), ("F1__F3", "skipped"),
+                                                                   ("F2__F3", "skipped")]
+    assert report["groups"][0]["status"] == "done"  # the flights that worked were still merged
