@@ -140,10 +140,12 @@ def _ward_merge(
     (ties are broken by region index). Plain Python on a heap: a few thousand regions take a few tens of ms.
     """
     import heapq
+    from math import dist
 
     n = len(area)
     cnt = area.astype(float).tolist()
     sums = (mean * area[:, None]).tolist()
+    mu = [tuple(m) for m in mean.tolist()]  # current means, kept up to date (the cost is evaluated ~100k times)
     nbrs: list[set[int]] = [set() for _ in range(n)]
     for i, j in zip(a.tolist(), b.tolist()):
         nbrs[i].add(j)
@@ -162,11 +164,7 @@ def _ward_merge(
         ci, cj = cnt[i], cnt[j]
         if ci <= 0 or cj <= 0:
             return 0.0
-        si, sj = sums[i], sums[j]
-        d2 = 0.0
-        for x, y in zip(si, sj):
-            d = x / ci - y / cj
-            d2 += d * d
+        d2 = dist(mu[i], mu[j]) ** 2  # math.dist: one C call instead of a Python loop over the features
         if bnd:
             ln, e = bnd[(i, j) if i < j else (j, i)]
             g = edge_weight * e / ln  # mean edge strength along the shared boundary
@@ -187,6 +185,7 @@ def _ward_merge(
             continue
         cnt[i] += cnt[j]
         sums[i] = [x + y for x, y in zip(sums[i], sums[j])]
+        mu[i] = tuple(x / cnt[i] for x in sums[i]) if cnt[i] > 0 else mu[i]
         alive[j] = False
         parent[j] = i
         for k in nbrs[j]:
@@ -311,16 +310,26 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
 
     from scipy.ndimage import find_objects
 
-    # Working-resolution crops of the chosen regions: (y0, x0, bool crop, contrast).
+    # Working-resolution crops of the chosen regions: (y0, x0, bool crop, contrast). The box of a merged region
+    # is the union of its watershed regions' boxes: one find_objects pass instead of one per level.
+    big = np.iinfo(np.int64).max
+    base = np.tile(np.array([big, -1, big, -1], dtype=np.int64), (n, 1))  # empty labels: an empty box
+    for k, sl in enumerate(find_objects(labels + 1)):
+        if sl is not None:
+            base[k] = (sl[0].start, sl[0].stop, sl[1].start, sl[1].stop)
     small_masks: list[tuple[int, int, np.ndarray, float]] = []
-    by_level: dict[int, tuple[np.ndarray, list]] = {}
+    by_level: dict[int, np.ndarray] = {}
     for con, lvl, r, _ in chosen:
         if lvl not in by_level:
-            lab_l = parent_of[lvl][labels].astype(np.int32)
-            by_level[lvl] = (lab_l, find_objects(lab_l + 1))
-        lab_l, slices = by_level[lvl]
-        sy, sx = slices[r]
-        small_masks.append((sy.start, sx.start, lab_l[sy, sx] == r, con))
+            root = parent_of[lvl]
+            box = np.empty((n, 4), dtype=np.int64)
+            box[:, 0::2] = big
+            box[:, 1::2] = -1
+            for col, red in ((0, np.minimum), (2, np.minimum), (1, np.maximum), (3, np.maximum)):
+                red.at(box[:, col], root, base[:, col])
+            by_level[lvl] = box
+        y0, y1, x0, x1 = by_level[lvl][r]
+        small_masks.append((int(y0), int(x0), parent_of[lvl][labels[y0:y1, x0:x1]] == r, con))
     if c["split_solidity"] > 0:
         min_small = c["min_area_px"] / px_area
         small_masks += [
@@ -329,13 +338,16 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
 
     boxes, crops, scores = [], [], []
     fy, fx = h / sh, w / sw
+    # working-resolution row / column of every full-resolution row / column (nearest neighbour), computed once
+    all_src_y = ((np.arange(h) + 0.5) / fy).astype(np.int64)
+    all_src_x = ((np.arange(w) + 0.5) / fx).astype(np.int64)
     for sy0, sx0, sm, con in small_masks:
         if scale < 1.0:
             # map only the region's window back to full size (nearest neighbour, as for the whole image)
             y0, y1 = int(sy0 * fy), min(h, int(np.ceil((sy0 + sm.shape[0]) * fy)))
             x0, x1 = int(sx0 * fx), min(w, int(np.ceil((sx0 + sm.shape[1]) * fx)))
-            src_y = np.clip(((np.arange(y0, y1) + 0.5) / fy).astype(np.int64) - sy0, 0, sm.shape[0] - 1)
-            src_x = np.clip(((np.arange(x0, x1) + 0.5) / fx).astype(np.int64) - sx0, 0, sm.shape[1] - 1)
+            src_y = np.clip(all_src_y[y0:y1] - sy0, 0, sm.shape[0] - 1)
+            src_x = np.clip(all_src_x[x0:x1] - sx0, 0, sm.shape[1] - 1)
             m = sm[src_y[:, None], src_x[None, :]]
         else:
             y0, x0, m = sy0, sx0, sm
