@@ -377,3 +377,16 @@ def test_world_cache_is_transparent_and_rebuilds_corrupt_entries(tmp_path, monke
     keys = {world_cache.world_key(c) for c in (wcfg, WorldConfig(seed=4, size_m=240.0), WorldConfig(seed=3),
                                                WorldConfig(seed=3, size_m=240.0, relief_m=4.0))}
     assert len(keys) == 4
+
+
+def test_world_cache_keeps_the_most_recently_used_entries(tmp_path):
+    import os
+
+    for i in range(5):
+        (tmp_path / f"w{i}").mkdir()
+        (tmp_path / f"w{i}" / "world.json").write_text("{}")
+        os.utime(tmp_path / f"w{i}" / "world.json", (1000 + i, 1000 + (i * 7) % 5))  # used order: w0 w3 w1 w4 w2
+    (tmp_path / "broken").mkdir()  # no world.json: oldest
+    removed = world_cache.prune(tmp_path, keep=3)
+    assert sorted(p.name for p in removed) == ["broken", "w0", "w3"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["w1", "w2", "w4"]

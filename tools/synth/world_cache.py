@@ -10,7 +10,8 @@ it the first time that season is rendered (`albedo_<season>.npy` + `albedo_<seas
   generation changes in a way the source digest would not see (e.g. a dependency's behaviour).
 - location: `$SOSMATCH_CACHE_DIR` if set (empty, `0` or `off` disables the cache), else
   `$XDG_CACHE_HOME/sosmatch`, else `~/.cache/sosmatch`. ~110 MB per world at the default 600 m / 0.15 m,
-  plus 48 MB per season. Delete the directory at any time.
+  plus 48 MB per season. At most `MAX_WORLDS` entries are kept (the least recently used are removed when a new
+  one is written), so code edits and setting changes do not fill the disk. Delete the directory at any time.
 - safety: entries are written atomically (temporary sibling + rename); an entry that fails to load or whose
   CRC does not match is rebuilt and rewritten; a cache that cannot be written only logs a warning. A cached
   world is bit-identical to a freshly built one, so sessions do not depend on the cache.
@@ -39,6 +40,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 WORLD_CODE_VERSION = 1
+MAX_WORLDS = 6
 _SOURCES = ("world.py", "appearance.py", "noise.py")
 _CORE_ARRAYS = ("terrain_coarse", "terrain", "cover", "cell", "cp_cls", "cp_crop", "cp_theta", "cp_period",
                 "cp_phase", "cp_bright")
@@ -117,7 +119,29 @@ def load_world(config: WorldConfig) -> World | None:
         log.warning("world cache entry %s is unusable (%s): rebuilding it", entry, exc)
         return None
     world.cache_entry = entry
+    try:
+        os.utime(entry / "world.json")  # mark as recently used for `prune`
+    except OSError:
+        pass
     return world
+
+
+def prune(worlds_dir: Path, keep: int = MAX_WORLDS) -> list[Path]:
+    """Remove all but the `keep` most recently used entries of `worlds_dir` (by world.json's mtime; entries
+    without one count as oldest). Returns the removed directories."""
+    import shutil
+
+    def used(d: Path) -> float:
+        try:
+            return (d / "world.json").stat().st_mtime
+        except OSError:
+            return float("-inf")
+
+    entries = sorted((d for d in worlds_dir.iterdir() if d.is_dir() and not d.name.startswith(".")), key=used,
+                     reverse=True)
+    for d in entries[keep:]:
+        shutil.rmtree(d, ignore_errors=True)
+    return entries[keep:]
 
 
 def save_world(world: World) -> None:
@@ -141,6 +165,7 @@ def save_world(world: World) -> None:
                     "roads": [[k, float(w), np.asarray(pts, np.float64).tolist()] for k, w, pts in world.roads],
                     "objects": [_object_dict(o) for o in world.objects]}
             (tmp / "world.json").write_text(json.dumps(meta), encoding="utf-8")
+        prune(entry.parent)
     except OSError as exc:
         log.warning("cannot write the world cache %s: %s", entry, exc)
         return
