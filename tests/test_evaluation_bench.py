@@ -12,7 +12,7 @@ def _ev(case, ours_s, orb_s, ours_f1, orb_f1):
         {"case": case, "method": "SIFT+RANSAC", "search_s": orb_s, "map_mb": 50.0, "average_f1": 0.1,
          "recall_at_p99": 0.1},
     ]
-    return {"case": case, "rows": rows, "keyframes": [10, 12],
+    return {"case": case, "rows": rows, "keyframes": [10, 12], "methods": {"sosmatch": {"search_seconds_runs": [1, 2]}},
             "protocol": {"positive_pairs": 5, "negative_pairs": 50, "tp_iou": 0.333, "fp_iou": 0.01}}
 
 
@@ -33,3 +33,4 @@ def test_section_replaced_in_place_and_idempotent():
     twice = replace_section(once, sec)
     assert twice == once
     assert "| summer-winter | SOS-Match (ours) | 1 | 0.01 | 0.700 | 0.500 |" in once
+    assert "median of 2 windowed search(es)" in once
