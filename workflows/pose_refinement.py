@@ -5,10 +5,9 @@ gimbal; on Seneca the telemetry mispredicts image motion by ~140 px, see BENCHMA
 landmark tracks triangulate badly. `refine_poses_with_priors` jointly adjusts every registered image's pose and
 every 3D point of a pycolmap Reconstruction, minimising
 
-    sum_obs rho((project(R_i, C_i, X_j) - x_ij) / sigma_px)                  (reprojection)
-  + sum_i rho((C_i - C_i^prior) / sigma_pos)                                 (GPS position prior)
-  + sum_i rho(Log(R_i R_i^prior^T) / sigma_att)                              (attitude prior)
-(rho: Huber at `huber_sigmas` per residual component, quadratic inside)
+    sum_obs rho(|project(R_i, C_i, X_j) - x_ij| / sigma_px)                  (reprojection, Huber)
+  + sum_i |C_i - C_i^prior|^2 / sigma_pos^2                                  (GPS position prior)
+  + sum_i |Log(R_i R_i^prior^T)|^2 / sigma_att^2                             (attitude prior)
 
 so the map stays georeferenced (no gauge freedom: the priors fix position, orientation and scale) but becomes
 self-consistent. Intrinsics are held fixed.
@@ -18,7 +17,7 @@ Why not COLMAP's own pose-prior adjuster: pycolmap 4.2.1 exposes `create_pose_pr
 re-aligns the model to the priors with a RANSAC Sim3, and no Ceres cost functions are exposed to Python to add
 attitude priors. A fixed-wing survey over flat ground needs the attitude prior (a tilt and a shift of a nadir
 camera are nearly interchangeable over a plane), so the problem is solved here with scipy's sparse
-trust-region least squares (TRF + LSMR, Huber loss) and a closed-form sparse Jacobian: rotations are
+trust-region least squares (TRF + LSMR, Huber by reweighting) and a closed-form sparse Jacobian: rotations are
 parametrised as R_cw = exp(w) R_prior_cw, so the attitude prior is w / sigma and the reprojection blocks are
 -duv/dp [p]x J_l(w), -duv/dp R_cw and duv/dp R_cw.
 """
@@ -181,9 +180,21 @@ def refine_poses_with_priors(
                       1)
         return uv - obs_uv_a
 
+    robust = {"on": False}
+
+    def huber_scale(rep: np.ndarray) -> np.ndarray:
+        """Per-observation factor that turns the squared whitened error into Huber's cost (IRLS-style)."""
+        norm = np.linalg.norm(rep.reshape(-1, 2), axis=1)
+        if not robust["on"]:
+            return np.ones(len(norm))
+        return np.where(norm > huber_sigmas,
+                        np.sqrt(np.maximum(2 * huber_sigmas * norm - huber_sigmas**2, 0.0)) / np.maximum(norm, 1e-12),
+                        1.0)
+
     def residuals(x: np.ndarray) -> np.ndarray:
         r_wc, c, p = unpack(x)
         rep = reprojection(r_wc, c, p).ravel() / pixel_sigma_px
+        rep = (rep.reshape(-1, 2) * huber_scale(rep)[:, None]).ravel()
         dpos = ((c - (c_prior - origin))[prior_rows] / pos_sigma).ravel()
         datt = (x[: 3 * n_img].reshape(n_img, 3)[prior_rows] / att_sigma).ravel()
         return np.concatenate([rep, dpos, datt])
@@ -210,6 +221,8 @@ def refine_poses_with_priors(
         j_l = np.eye(3)[None] + a[:, None, None] * wx + b[:, None, None] * (wx @ wx)
         d_p_d_w = -_skew(pc) @ j_l
         blocks = np.concatenate([d_uv_d_p @ d_p_d_w, d_uv_d_p @ -r_cw, d_uv_d_p @ r_cw], axis=2)  # (n_obs, 2, 9)
+        rep = reprojection(r_wc, c, p) / pixel_sigma_px
+        blocks *= huber_scale(rep)[:, None, None]  # the robust weight, held constant in the derivative
         data = np.concatenate([blocks.ravel(), np.tile(1.0 / pos_sigma, len(prior_rows)),
                                np.tile(np.eye(3).ravel() / att_sigma, len(prior_rows))])
         return csr_matrix((data, (jac_rows, jac_cols)), shape=(n_res, n_par))
@@ -238,17 +251,18 @@ def refine_poses_with_priors(
     x0 = np.concatenate([w0.ravel(), (c0 - origin).ravel(), x0_pts.ravel()])
     before = np.linalg.norm(reprojection(r_wc0, c0 - origin, x0_pts), axis=1) if n_obs else np.zeros(0)
 
-    # Two stages. Huber at `huber_sigmas` on every whitened residual is robust to wrong tie points and to a GPS
-    # or attitude glitch, but started from poses 30+ sigma off (every reprojection residual in Huber's linear
-    # part) it settles in a poor minimum (synthetic test: 52 px instead of 1.2 px). A plain least-squares stage
-    # first brings the inliers inside the quadratic zone; the robust stage then discounts the outliers.
+    # Two stages. The robust weight (Huber at `huber_sigmas`, reprojection terms only: the priors stay Gaussian
+    # so no pose can wander off its GPS/attitude prior, which a Huber on the priors allowed on Seneca: poses
+    # moved 34 m / 33 degrees on average) is applied IRLS-style. Started from poses 30+ sigma off, every
+    # residual would be in Huber's linear part and the solve settles in a poor minimum, so a plain
+    # least-squares stage comes first and brings the inliers inside the quadratic zone.
     # LSMR is capped: an inexact (truncated) step is fine inside a trust region, and uncapped LSMR runs up to
     # min(m, n) inner iterations per step, minutes each on a 167-image, 9000-track survey.
     common = {"jac": jacobian, "method": "trf", "x_scale": "jac", "tr_solver": "lsmr", "xtol": 1e-8, "ftol": 1e-6,
               "tr_options": {"maxiter": 300}}
-    first = least_squares(residuals, x0, loss="linear", max_nfev=max(1, max_iterations // 2), **common)
-    result = least_squares(residuals, first.x, loss="huber", f_scale=huber_sigmas, max_nfev=max_iterations,
-                           **common)
+    first = least_squares(residuals, x0, max_nfev=max(1, max_iterations // 2), **common)
+    robust["on"] = True
+    result = least_squares(residuals, first.x, max_nfev=max_iterations, **common)
     result.nfev += first.nfev
     r_wc, c, p = unpack(result.x)
     after = np.linalg.norm(reprojection(r_wc, c, p), axis=1) if n_obs else np.zeros(0)
