@@ -150,7 +150,8 @@ def _runs(evaluations: list[dict]) -> str:
     return "/".join(str(c) for c in counts) or "0"
 
 
-def section_text(evaluations: list[dict], machine: str, command: str, img_prefix: str = "docs/img/eval_") -> str:
+def section_text(evaluations: list[dict], machine: str, command: str, notes: list[str] | None = None,
+                 img_prefix: str = "docs/img/eval_") -> str:
     """The BENCHMARKS.md section: machine, command, one table, the bars, the figures."""
     from ...workflows.evaluate import format_table
 
@@ -162,6 +163,8 @@ def section_text(evaluations: list[dict], machine: str, command: str, img_prefix
              "processes); baselines = matching + RANSAC of all keyframe pairs (one thread per core), feature "
              "extraction excluded. Map size: mean of the two sessions.", "",
              format_table(rows)]
+    for note in notes or []:
+        lines += [note, ""]
     for e in evaluations:
         p = e["protocol"]
         lines.append(f"- {e['case']}: {e['keyframes'][0]} x {e['keyframes'][1]} keyframes, {p['positive_pairs']} "
@@ -198,6 +201,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--real", action="store_true", help="also run the real-data cases (needs --data)")
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
     parser.add_argument("--reuse", action="store_true", help="read finished evaluations instead of re-running them")
+    parser.add_argument("--note", action="append", default=[], help="a paragraph for the section (repeatable)")
     parser.add_argument("--no-write", action="store_true", help="print only; leave BENCHMARKS.md and docs/img alone")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
@@ -219,9 +223,17 @@ def main(argv: list[str] | None = None) -> None:
                                         map_a=rc.get("map_a"), map_b=rc.get("map_b"), methods=methods,
                                         case=rc["case"], dem=rc.get("dem"), ground_height=rc.get("ground_height", 0.0),
                                         repeats=args.repeats))
-    command = "python -m sosmatch.tools.benchmarks.bench_evaluate " + " ".join(argv or [])
+    import sys
+
+    shown, skip = [], False
+    for a in sys.argv[1:] if argv is None else argv:  # the notes are printed as paragraphs, not in the command
+        if skip or a == "--note":
+            skip = not skip
+            continue
+        shown.append(a)
+    command = "python -m sosmatch.tools.benchmarks.bench_evaluate " + " ".join(shown)
     end_load = machine_summary().rsplit("load ", 1)[-1]
-    section = section_text(evaluations, f"{machine} (load at the end: {end_load})", command.strip())
+    section = section_text(evaluations, f"{machine} (load at the end: {end_load})", command.strip(), args.note)
     print(section)
     if args.no_write:
         return
