@@ -231,7 +231,7 @@ def plot_pr(curves: dict[str, PRCurve], path: Path, title: str) -> None:
     fig, ax = plt.subplots(figsize=(5.5, 4.2), dpi=110)
     for method, c in curves.items():
         if len(c.recall):
-            ax.step(np.r_[0.0, c.recall], np.r_[1.0, c.precision], where="post", label=LABELS.get(method, method))
+            ax.step(np.r_[0.0, c.recall], np.r_[1.0, c.precision], where="pre", label=LABELS.get(method, method))
         else:
             ax.plot([], [], label=f"{LABELS.get(method, method)} (no claims)")
     ax.axhline(0.99, color="grey", lw=0.6, ls=":")
