@@ -14,6 +14,9 @@ Steps so far:
 3. contact-sheet: frames of both sessions side by side (contact_sheet.png).
 4. map-summer, map-winter: `sosmatch map` of both sessions (true poses) into maps/summer, maps/winter; each
    prints its one-line summary.
+5. match: `sosmatch match` of the two maps into match/ (match.json, associations.csv, match.png).
+6. evaluate: footprint-IoU ground truth, our precision-recall against ORB+RANSAC and SIFT+RANSAC, the table
+   and plots in evaluation/.
 """
 
 from __future__ import annotations
@@ -141,6 +144,15 @@ def _map(which: str) -> Callable[[DemoContext], object]:
     return step
 
 
+def _match(ctx: DemoContext) -> object:
+    from ..plugin.params import Params
+    from . import match as match_workflow
+
+    result = match_workflow.run(Params(), map_dir(ctx, "summer"), map_dir(ctx, "winter"), ctx.out / "match")
+    print(f"match summer vs winter: {result.summary()}  (alignment plot: {ctx.out / 'match' / 'match.png'})")
+    return result
+
+
 def _evaluate(ctx: DemoContext) -> object:
     from .evaluate import demo_step
 
@@ -156,6 +168,7 @@ def demo_steps(ctx: DemoContext) -> list[DemoStep]:
         DemoStep("contact-sheet", [ctx.contact_sheet], _sheet),
         DemoStep("map-summer", [map_dir(ctx, "summer") / "run.json"], _map("summer")),
         DemoStep("map-winter", [map_dir(ctx, "winter") / "run.json"], _map("winter")),
+        DemoStep("match", [ctx.out / "match" / "match.json"], _match),
         DemoStep("evaluate", [ctx.out / "evaluation" / "evaluation.json"], _evaluate),  # keep last: the table
     ]
 
