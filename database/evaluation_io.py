@@ -5,8 +5,6 @@ Only these functions know the layouts, so a schema change elsewhere is one edit 
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +13,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.evaluation.footprints import FlatGround, HeightField
+from .session_io import LandmarkTable, read_landmark_table  # noqa: F401 (re-exported for the evaluation)
 
 # Key names accepted in terrain.npz for the height grid and its georeferencing.
 _Z_KEYS = ("z", "height", "heights", "elevation", "dem")
@@ -98,53 +97,6 @@ def terrain_of_session(session: Path, dem: str | Path | None = None, ground_heig
     if npz.exists():
         return read_terrain_npz(npz)
     return FlatGround(ground_height)
-
-
-@dataclass
-class LandmarkTable:
-    """landmarks.csv of a mapped session: positions (N, 3), sizes (N,), observer image names per landmark."""
-
-    positions: np.ndarray
-    sizes: np.ndarray
-    image_names: list[list[str]]
-
-
-def read_landmark_table(path: str | Path) -> LandmarkTable:
-    """Read landmarks.csv (index,point3d_id,x,y,z,size_m,num_observations,image_names space-separated)."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("landmark table not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read landmark table: {exc}", path) from None
-    header = None
-    rows: dict[int, tuple[list[float], list[str]]] = {}
-    for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):
-        if not row or row[0].lstrip().startswith("#"):
-            continue
-        if header is None:
-            header = [c.strip() for c in row]
-            missing = [c for c in ("index", "x", "y", "z", "size_m", "image_names") if c not in header]
-            if missing:
-                raise InputError(f"landmark table lacks column(s) {', '.join(missing)}", path, lineno)
-            col = {c: header.index(c) for c in header}
-            continue
-        try:
-            idx = int(row[col["index"]])
-            vals = [float(row[col[c]]) if row[col[c]].strip() else float("nan") for c in ("x", "y", "z", "size_m")]
-            names = row[col["image_names"]].split()
-        except (ValueError, IndexError):
-            raise InputError("malformed landmark row", path, lineno) from None
-        if idx in rows:
-            raise InputError(f"duplicate landmark index {idx}", path, lineno)
-        rows[idx] = (vals, names)
-    if header is None:
-        raise InputError("landmark table is empty (no header)", path)
-    if sorted(rows) != list(range(len(rows))):
-        raise InputError("landmark indices must be 0..N-1 without gaps", path)
-    vals = np.array([rows[i][0] for i in range(len(rows))], dtype=np.float64).reshape(-1, 4)
-    return LandmarkTable(vals[:, :3], vals[:, 3], [rows[i][1] for i in range(len(rows))])
 
 
 @dataclass

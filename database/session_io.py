@@ -36,10 +36,20 @@ class SessionFiles:
         return self.path / "sparse"
 
 
-def read_landmark_point_ids(path: str | Path, count: int | None = None) -> np.ndarray:
-    """Read landmarks.csv and return the point3d_id column, ordered by landmark index.
+@dataclass
+class LandmarkTable:
+    """landmarks.csv of a mapped session, ordered by landmark index."""
 
-    Indices must be 0..N-1 (any order); with `count`, N must equal it (the landmark map's size).
+    positions: np.ndarray  # (N, 3)
+    sizes: np.ndarray  # (N,) metres, NaN where unknown
+    image_names: list[list[str]]  # observing keyframes per landmark
+    point3d_ids: np.ndarray  # (N,) COLMAP point3D id (-1 when absent or not recorded)
+
+
+def read_landmark_table(path: str | Path) -> LandmarkTable:
+    """Read landmarks.csv (LANDMARK_CSV_COLUMNS; point3d_id and num_observations may be absent).
+
+    Rows may come in any order but their indices must be 0..N-1 without gaps or repeats.
     """
     path = Path(path)
     try:
@@ -48,35 +58,45 @@ def read_landmark_point_ids(path: str | Path, count: int | None = None) -> np.nd
         raise InputError("landmark table not found", path) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read landmark table: {exc}", path) from None
-    reader = csv.reader(io.StringIO(text))
     header = None
-    index: list[int] = []
-    ids: list[int] = []
-    for lineno, row in enumerate(reader, start=1):
+    rows: dict[int, tuple[list[float], list[str], int]] = {}
+    for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):
         if not row or row[0].lstrip().startswith("#"):
             continue
         if header is None:
             header = [c.strip() for c in row]
-            missing = [c for c in ("index", "point3d_id") if c not in header]
+            missing = [c for c in ("index", "x", "y", "z", "size_m", "image_names") if c not in header]
             if missing:
                 raise InputError(f"landmark table lacks column(s) {', '.join(missing)}", path, lineno)
-            i_col, p_col = header.index("index"), header.index("point3d_id")
+            col = {c: header.index(c) for c in header}
             continue
         try:
-            index.append(int(row[i_col]))
-            ids.append(int(row[p_col]))
+            idx = int(row[col["index"]])
+            vals = [float(row[col[c]]) if row[col[c]].strip() else float("nan") for c in ("x", "y", "z", "size_m")]
+            names = row[col["image_names"]].split()
+            pid = int(row[col["point3d_id"]]) if "point3d_id" in col else -1
         except (ValueError, IndexError):
-            raise InputError("landmark table row needs integer index and point3d_id", path, lineno) from None
+            raise InputError("malformed landmark row", path, lineno) from None
+        if idx in rows:
+            raise InputError(f"duplicate landmark index {idx}", path, lineno)
+        rows[idx] = (vals, names, pid)
     if header is None:
         raise InputError("landmark table is empty (no header)", path)
-    n = len(index)
-    if sorted(index) != list(range(n)):
-        raise InputError("landmark indices must be 0..N-1 without gaps or repeats", path)
+    n = len(rows)
+    if sorted(rows) != list(range(n)):
+        raise InputError("landmark indices must be 0..N-1 without gaps", path)
+    vals = np.array([rows[i][0] for i in range(n)], dtype=np.float64).reshape(-1, 4)
+    ids = np.array([rows[i][2] for i in range(n)], dtype=np.int64)
+    return LandmarkTable(vals[:, :3], vals[:, 3], [rows[i][1] for i in range(n)], ids)
+
+
+def read_landmark_point_ids(path: str | Path, count: int | None = None) -> np.ndarray:
+    """The point3d_id column of landmarks.csv by landmark index; with `count`, N must equal the map's size."""
+    table = read_landmark_table(path)
+    n = len(table.point3d_ids)
     if count is not None and n != count:
         raise InputError(f"landmark table has {n} rows but the landmark map has {count} landmarks", path)
-    out = np.full(n, -1, dtype=np.int64)
-    out[np.asarray(index, dtype=np.int64)] = ids
-    return out
+    return table.point3d_ids
 
 
 def read_session(path: str | Path, name: str | None = None) -> SessionFiles:
