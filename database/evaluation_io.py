@@ -5,7 +5,6 @@ Only these functions know the layouts, so a schema change elsewhere is one edit 
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.evaluation.footprints import FlatGround, HeightField
+from .match_io import read_match_json
 from .session_io import LandmarkTable, read_landmark_table  # noqa: F401 (re-exported for the evaluation)
 
 # Key names accepted in terrain.npz for the height grid and its georeferencing.
@@ -121,13 +121,8 @@ def read_match_hypotheses(path: str | Path, max_gravity_angle_deg: float = 22.5)
     path = Path(path)
     if path.is_dir():
         path = path / "match.json"
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("match file not found", path) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read match file: {exc}", path) from None
-    hyps = data.get("hypotheses") if isinstance(data, dict) else None
+    data = read_match_json(path)
+    hyps = data.get("hypotheses")
     if not isinstance(hyps, list):
         raise InputError("match file needs a 'hypotheses' list", path)
     assoc, sizes, ok, acc = [], [], [], []

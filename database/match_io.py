@@ -58,14 +58,11 @@ def _associations(data: Any, path: Path) -> np.ndarray:
     return arr
 
 
-def read_match(path: str | Path) -> MatchSummary:
-    """Read match.json and return the hypothesis to merge with.
-
-    That is the consensus (the transform refitted on the associations of every accepted window pair that
-    agrees with the best one; written only when a hypothesis was accepted), else the best accepted hypothesis,
-    else the largest one (then `accepted` is False).
-    """
+def read_match_json(path: str | Path) -> dict[str, Any]:
+    """The parsed match.json (a directory means its match.json); InputError if unreadable or not an object."""
     path = Path(path)
+    if path.is_dir():
+        path = path / "match.json"
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -74,6 +71,18 @@ def read_match(path: str | Path) -> MatchSummary:
         raise InputError(f"cannot read match file: {exc}", path) from None
     if not isinstance(data, dict):
         raise InputError("match file must hold a JSON object", path)
+    return data
+
+
+def read_match(path: str | Path) -> MatchSummary:
+    """Read match.json and return the hypothesis to merge with.
+
+    That is the consensus (the transform refitted on the associations of every accepted window pair that
+    agrees with the best one; written only when a hypothesis was accepted), else the best accepted hypothesis,
+    else the largest one (then `accepted` is False).
+    """
+    path = Path(path)
+    data = read_match_json(path)
     hyps = data.get("hypotheses") or []
     if not isinstance(hyps, list) or not all(isinstance(h, dict) for h in hyps):
         raise InputError("'hypotheses' must be a list of objects", path)
