@@ -5,7 +5,7 @@ import pytest
 
 from sosmatch.plugin.association import (
     affinity_graph,
-    clipper,
+    associate,
     fit_transform,
     max_clique_exact,
     rotation_from_rpy_deg,
@@ -41,7 +41,7 @@ def test_planted_inliers_recovered(outlier_ratio, noise):
     n_true = 20
     n_out = int(round(n_true * outlier_ratio / (1 - outlier_ratio)))
     a, b, pairs, is_true, r, t = planted(n_true, n_out, noise, seed=int(100 * outlier_ratio + 10 * noise))
-    res = clipper(a, b, pairs, eps=2.0, sigma=1.0)
+    res = associate(a, b, pairs, eps=2.0, sigma=1.0)
     sel = res.selected
     assert is_true[sel].sum() >= 0.95 * n_true
     assert not (~is_true[sel]).any()
@@ -86,10 +86,10 @@ def test_exhaustive_reference_is_correct_on_a_known_graph():
 
 def test_permutation_invariance():
     a, b, pairs, is_true, _, _ = planted(25, 100, seed=5)
-    res = clipper(a, b, pairs)
+    res = associate(a, b, pairs)
     rng = np.random.default_rng(1)
     perm = rng.permutation(len(pairs))
-    res_p = clipper(a, b, pairs[perm])
+    res_p = associate(a, b, pairs[perm])
     chosen = {tuple(p) for p in pairs[res.selected].tolist()}
     chosen_p = {tuple(p) for p in pairs[perm][res_p.selected].tolist()}
     assert chosen == chosen_p
@@ -97,7 +97,7 @@ def test_permutation_invariance():
     # relabelling the landmarks of either map does not matter either
     pa_perm = rng.permutation(len(a))
     inv = np.argsort(pa_perm)
-    res_l = clipper(a[pa_perm], b, np.column_stack([inv[pairs[:, 0]], pairs[:, 1]]))
+    res_l = associate(a[pa_perm], b, np.column_stack([inv[pairs[:, 0]], pairs[:, 1]]))
     assert {tuple(p) for p in np.column_stack([pa_perm[inv[pairs[res_l.selected, 0]]],
                                                pairs[res_l.selected, 1]]).tolist()} == chosen
 
@@ -113,26 +113,26 @@ def test_shared_landmarks_are_inconsistent_and_weights_break_ties():
     for heavier in (3, 4):
         w = np.ones(5)
         w[heavier] = 2.0
-        sel = clipper(a, b, pairs, weights=w).selected
+        sel = associate(a, b, pairs, weights=w).selected
         assert sel.tolist() == [0, 1, 2, heavier]
 
 
 def test_degenerate_inputs():
     a, b, pairs, _, _, _ = planted(10, 10)
-    assert len(clipper(a, b, np.zeros((0, 2), int)).selected) == 0
+    assert len(associate(a, b, np.zeros((0, 2), int)).selected) == 0
     bad = a.copy()
     bad[2, 1] = np.nan
     with pytest.raises(InputError, match="NaN"):
-        clipper(bad, b, pairs)
+        associate(bad, b, pairs)
     with pytest.raises(InputError, match="does not exist"):
-        clipper(a, b, np.array([[0, 99]]))
+        associate(a, b, np.array([[0, 99]]))
     with pytest.raises(InputError, match="weights"):
-        clipper(a, b, pairs, weights=np.ones(3))
+        associate(a, b, pairs, weights=np.ones(3))
     with pytest.raises(InputError):
-        clipper(a[:, :2], b, pairs)
+        associate(a[:, :2], b, pairs)
     # all landmarks at one spot: every distance is 0, nothing crashes, the answer is one consistent set
     same = np.zeros((5, 3))
-    res = clipper(same, same, np.array([[i, i] for i in range(5)]))
+    res = associate(same, same, np.array([[i, i] for i in range(5)]))
     assert len(res.selected) == 5
 
 

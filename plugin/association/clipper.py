@@ -288,8 +288,8 @@ def _score(graph: ConsistencyGraph, selected: np.ndarray) -> float:
     return float((2.0 * np.sort(graph.values[e]).sum() + graph.diag[selected].sum()) / len(selected))
 
 
-def clipper(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray, weights: np.ndarray | None = None,
-            eps: float = 2.0, sigma: float = 1.0) -> ClipperResult:
+def associate(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray, weights: np.ndarray | None = None,
+              eps: float = 2.0, sigma: float = 1.0) -> ClipperResult:
     """Affinity + solve in one call: returns the selected association indices (into `pairs`) and the score."""
     return solve(affinity_graph(points_a, points_b, pairs, weights, eps, sigma))
 
