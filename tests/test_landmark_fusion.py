@@ -69,7 +69,7 @@ def test_triangulation_fuses_nested_mask_landmarks(tmp_path):
         tids.append(idx.astype(np.int64))
         h = np.where(idx < n_obj, SIZE_M, 0.6 * SIZE_M)  # a part is smaller than its object
         sizes.append(h * cam.fx / d[idx])
-    params = TriangulationParams()
+    params = TriangulationParams(duplicate_radius_factor=2.0)
     kps = [affine_keypoints(c, np.repeat(np.eye(2)[None] * 4, len(c), 0)) for c in cents]
     write_colmap_database(tmp_path / "database.db", cam, poses.names, kps,
                           track_associations(tids, "all", params.min_observations))
