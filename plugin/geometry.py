@@ -77,6 +77,15 @@ def rotmat_to_quat(R: np.ndarray) -> np.ndarray:  # noqa: N803
     return q.reshape(R.shape[:-2] + (4,))
 
 
+def rotation_angle_deg(r_a: np.ndarray, r_b: np.ndarray) -> np.ndarray | float:
+    """Geodesic angle (degrees) between rotations r_a and r_b: (3,3) pairs give a float, (N,3,3) stacks an array."""
+    r_a = np.asarray(r_a, dtype=np.float64)
+    r_b = np.asarray(r_b, dtype=np.float64)
+    trace = np.einsum("...ij,...ij->...", r_a, r_b)  # = trace(r_a r_b^T)
+    angle = np.degrees(np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0)))
+    return float(angle) if angle.ndim == 0 else angle
+
+
 @dataclass
 class Poses:
     """Camera poses of a session: names, world_from_camera rotations (N,3,3), camera centres (N,3)."""

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import rotation_angle_deg
+
 
 @dataclass(frozen=True)
 class Sim3:
@@ -56,12 +58,6 @@ class Sim3:
         return {"rotation": self.rotation.tolist(), "translation": self.translation.tolist(), "scale": self.scale}
 
 
-def rotation_angle_deg(rotation: np.ndarray) -> float:
-    """The angle of a rotation matrix, in degrees (0 for the identity)."""
-    cos = (np.trace(np.asarray(rotation, dtype=np.float64)) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-
-
 def transform_error(estimate: Sim3, truth: Sim3, points: np.ndarray | None = None) -> tuple[float, float]:
     """(translation error m, rotation error deg) of `estimate` against `truth`.
 
@@ -69,7 +65,7 @@ def transform_error(estimate: Sim3, truth: Sim3, points: np.ndarray | None = Non
     transforms, which is what matters for a map (a small rotation error far from the origin is not a metre
     of error at the data); without them it is the distance between the translations.
     """
-    rot = rotation_angle_deg(estimate.rotation @ truth.rotation.T)
+    rot = rotation_angle_deg(estimate.rotation, truth.rotation)
     if points is None or len(points) == 0:
         return float(np.linalg.norm(estimate.translation - truth.translation)), rot
     diff = estimate.apply(points) - truth.apply(points)

@@ -67,3 +67,14 @@ def test_cameras_txt_round_trip_and_refusal(tmp_path):
     path.write_text("1 OPENCV 640 480 500 500 320 240 0.1 0 0 0\n")
     with pytest.raises(InputError, match="OPENCV"):
         read_cameras_txt(path)
+
+
+def test_rotation_angle_scalar_and_batched():
+    from sosmatch.plugin.geometry import rotation_angle_deg
+
+    poses = _random_poses(5)
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    assert np.isclose(rotation_angle_deg(rz, np.eye(3)), 30.0)
+    batched = rotation_angle_deg(poses.rotations @ rz, poses.rotations)
+    assert batched.shape == (5,) and np.allclose(batched, 30.0)

@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..plugin.geometry import Poses
+from ..plugin.geometry import Poses, rotation_angle_deg
 
 log = logging.getLogger(__name__)
 
@@ -83,13 +83,6 @@ def _matrix_to_rotvec(r: np.ndarray) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     return Rotation.from_matrix(r).as_rotvec()
-
-
-def rotation_angle_deg(r_a: np.ndarray, r_b: np.ndarray) -> np.ndarray:
-    """Angles (degrees) of the relative rotations between two stacks of rotation matrices."""
-    rel = np.einsum("nij,nkj->nik", r_a, r_b)
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    return np.degrees(np.arccos(cos))
 
 
 def refine_poses_with_priors(

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..geometry import rotation_angle_deg  # noqa: F401 (the association API re-exports it)
 
 
 @dataclass(frozen=True)
@@ -87,7 +88,3 @@ def rotation_from_rpy_deg(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return rz @ ry @ rx
 
 
-def rotation_angle_deg(r1: np.ndarray, r2: np.ndarray) -> float:
-    """Geodesic angle between two rotations, degrees."""
-    c = (np.trace(r1.T @ r2) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
