@@ -191,3 +191,85 @@ def test_merge_with_a_similarity_transform(tmp_path):
     assert len(lm) == n_a + len(unfused)
     assert np.allclose(lm.sizes[n_a:], lb.sizes[unfused] * 1.25, rtol=2e-3)
     assert np.allclose(lm.positions[n_a:], b.session_from_world.inverse().apply(lb.positions[unfused]), atol=1e-3)
+
+
+# --- full-map verification and refinement of a pair (plugin.multisession) -------------------------------------
+
+
+def _toy_maps(seed=0, n=300, noise=0.3):
+    """Map A: landmarks over 200 x 200 m; map B: 70 % of them in a frame rotated 50 deg (yaw) and shifted,
+    with noise (z noisier), plus 60 landmarks B alone has. Returns a, sizes_a, b, sizes_b, a_from_b, ids."""
+    rng = np.random.default_rng(seed)
+    a = np.column_stack([rng.uniform(0, 200, (n, 2)), rng.normal(0, 3, n)])
+    sizes_a = rng.uniform(1, 6, n)
+    ids = np.sort(rng.choice(n, int(0.7 * n), replace=False))
+    a_from_b = yaw_transform(50, (20, -10, 2))
+    b_only = np.column_stack([rng.uniform(0, 200, (60, 2)), rng.normal(0, 3, 60)])
+    world = np.vstack([a[ids], b_only]) + rng.normal(0, noise, (len(ids) + 60, 3)) * [1, 1, 3]
+    b = a_from_b.inverse().apply(world)
+    sizes_b = np.concatenate([sizes_a[ids] * rng.uniform(0.95, 1.05, len(ids)), rng.uniform(1, 6, 60)])
+    return a, sizes_a, b, sizes_b, a_from_b, ids
+
+
+def test_fit_yaw_translation_is_exact_and_ignores_height_noise():
+    from sosmatch.plugin.multisession import fit_yaw_translation
+
+    rng = np.random.default_rng(1)
+    truth = yaw_transform(-130, (4, 5, -6))
+    src = rng.normal(0, 30, (30, 3))
+    est = fit_yaw_translation(src, truth.apply(src))
+    assert np.allclose(est.matrix(), truth.matrix(), atol=1e-9)
+    # height noise moves only the z translation, never the rotation (a 6-DOF fit tilts)
+    noisy = truth.apply(src) + np.column_stack([np.zeros((30, 2)), rng.normal(0, 2, 30)])
+    assert transform_error(fit_yaw_translation(src, noisy), truth)[1] < 1e-9
+    assert transform_error(umeyama(src, noisy), truth)[1] > 0.2
+    with pytest.raises(ValueError):
+        fit_yaw_translation(np.zeros((3, 3)), np.zeros((3, 3)))
+
+
+def test_mutual_nearest_gates_distance_size_and_mutuality():
+    from sosmatch.plugin.multisession import mutual_nearest
+
+    a = np.array([[0, 0, 0], [10, 0, 0], [20, 0, 0], [30, 0, 0]], float)
+    b = np.array([[0.5, 0, 0], [10.2, 0, 3.0], [20.3, 0, 0], [20.6, 0, 0], [33, 0, 0]], float)
+    sa, sb = np.array([2, 2, 2, 2.0]), np.array([2, 2, 2, 2, 2.0])
+    pairs, dist = mutual_nearest(a, sa, b, sb, gate_m=2.0, max_size_difference=0.2, z_weight=0.5)
+    # 1 <-> 1: dz 3 m weighs 1.5 m; 2 <-> 2 (the nearer of two); 3 <-> 4 is beyond the gate
+    assert pairs.tolist() == [[0, 0], [1, 1], [2, 2]] and np.allclose(dist, [0.5, np.hypot(0.2, 1.5), 0.3])
+    sb2 = sb.copy()
+    sb2[0] = 3.0  # r = 0.4 > 0.2: the size gate drops it
+    assert mutual_nearest(a, sa, b, sb2, 2.0, 0.2)[0].tolist() == [[1, 1], [2, 2]]
+
+
+def test_refine_alignment_recovers_a_perturbed_transform():
+    from sosmatch.plugin.multisession import refine_alignment
+
+    a, sa, b, sb, truth, ids = _toy_maps()
+    start = yaw_transform(2.0, (1.0, -0.8, 0.5)).compose(truth)  # 2 deg and ~1.4 m off
+    for dof in (4, 6):
+        al = refine_alignment(a, sa, b, sb, start, gate_m=2.0, max_size_difference=0.2, dof=dof)
+        err_m, err_deg = transform_error(al.transform, truth, b)
+        assert err_m < 0.25 and err_deg < 0.2 and al.iterations >= 2
+        assert len(al.associations) > 0.9 * len(ids)
+        # supporting pairs are the true ones (B's first len(ids) landmarks are A's ids, in order)
+        assert np.mean(ids[al.associations[:, 1].clip(max=len(ids) - 1)] == al.associations[:, 0]) > 0.95
+
+
+def test_verify_alignments_picks_the_supported_candidate_and_rejects_ties():
+    from sosmatch.plugin.multisession import verify_alignments
+
+    a, sa, b, sb, truth, ids = _toy_maps(seed=3)
+    wrong = [yaw_transform(ang, (dx, dy, 0)).compose(truth) for ang, dx, dy in ((90, 40, 0), (-70, 0, 30))]
+    near = yaw_transform(3, (1.5, 0, 0)).compose(truth)
+    cands = [(wrong[0], np.arange(8)), (near, np.arange(10, 18)), (wrong[1], np.arange(20, 28))]
+    v = verify_alignments(a, sa, b, sb, cands, 2.0, 0.2, min_support=6)
+    assert v.accepted and v.num_refined == 3 and len(v.best.associations) > 3 * v.runner_up_support
+    assert transform_error(v.best.transform, truth, b)[0] < 0.25
+    # the same candidate twice is refined once; two equally supported, disagreeing alignments: no decision
+    assert verify_alignments(a, sa, b, sb, [cands[1], cands[1]], 2.0, 0.2, 6).num_refined == 1
+    # A holds the area twice (a repeated pattern 500 m apart): two disagreeing alignments, equally supported
+    shift = Sim3(np.eye(3), [500.0, 0.0, 0.0])
+    a2, sa2 = np.vstack([a, shift.apply(a)]), np.concatenate([sa, sa])
+    v2 = verify_alignments(a2, sa2, b, sb, [(near, np.arange(10, 18)), (shift.compose(near), np.arange(10, 18))],
+                           2.0, 0.2, 6)
+    assert not v2.accepted and v2.runner_up_support > 0

@@ -51,6 +51,7 @@ from ..plugin.multisession import (
     consistent_edges,
     nearest_pairs,
     spanning_transforms,
+    verify_alignments,
 )
 from ..plugin.params import Params, params_to_dict
 from .executors import Executor, LocalExecutor, TaskResult
@@ -58,7 +59,7 @@ from .executors import Executor, LocalExecutor, TaskResult
 log = logging.getLogger(__name__)
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
-STATE_VERSION = 1
+STATE_VERSION = 2  # 2: paths relative to OUT
 PAIR_SEP = "__"
 
 
@@ -164,13 +165,81 @@ def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params
     return _session_summary(name, kind, out)
 
 
-def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params) -> dict[str, Any]:
-    """Match two mapped sessions into pair_dir/match.json and summarise the chosen hypothesis."""
+def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params,
+              verify: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Match two mapped sessions into pair_dir/match.json and summarise the chosen hypothesis.
+
+    With `verify` (keyword arguments of `verify_pair`; batch passes them unless BatchOptions.verify is off),
+    every window hypothesis is then checked and refined on the full maps, the result is written to
+    pair_dir/alignment.json, and the summary's `accepted`, `transform` and `num_associations` are the verified
+    alignment's (the match's own are kept as `match_accepted`, `match_transform`, `match_associations`).
+    """
     from . import match as match_workflow
 
     # workers=1: the task already runs in a worker process; nested pools would oversubscribe the cores
-    match_workflow.run(params, session_a, session_b, pair_dir, workers=1)
-    return summarise_match(Path(pair_dir) / "match.json")
+    res = match_workflow.run(params, session_a, session_b, pair_dir, workers=1)
+    summary = summarise_match(Path(pair_dir) / "match.json")
+    if verify is None:
+        return summary
+    cands = [(h.transform, h.associations[:, 1]) for h in sorted(res.search.hypotheses, key=lambda h: -h.size)
+             if h.transform is not None and h.tilt_deg <= params.association.max_gravity_angle_deg]
+    return {**summary, **verify_pair(res.map_a.lmap, res.map_b.lmap, cands, Path(pair_dir), params, **verify)}
+
+
+def verify_pair(map_a: Any, map_b: Any, candidates: list[tuple[Any, np.ndarray]], pair_dir: Path,
+                params: Params, dof: int = 4, min_ratio: float = 1.2, z_weight: float = 0.5,
+                max_candidates: int = 400) -> dict[str, Any]:
+    """Verify a pair's window hypotheses on the full landmark maps (`plugin.multisession.verify_alignments`:
+    mutual nearest neighbours within theta_eps that pass the size gate theta_r, ICP-refined with `dof` 4 =
+    yaw + translation), write pair_dir/alignment.json and return the summary fields it overrides.
+
+    `max_candidates` bounds the work on dense same-season maps (the largest hypotheses are tried first).
+    """
+    from ..database.match_io import read_match
+
+    a_p, b_p = np.asarray(map_a.positions, np.float64), np.asarray(map_b.positions, np.float64)
+    ap = params.association
+    sims = [(Sim3(t.rotation, t.translation, t.scale), idx) for t, idx in candidates[:max_candidates]]
+    v = verify_alignments(a_p, map_a.sizes, b_p, map_b.sizes, sims, ap.distance_tolerance_m, ap.max_size_difference,
+                          ap.min_associations, min_ratio=min_ratio, dof=dof, z_weight=z_weight)
+    match = read_match(pair_dir / "match.json")
+    out = {
+        "match_accepted": bool(match.accepted),
+        "match_transform": match.transform.to_dict() if match.transform is not None else None,
+        "match_associations": int(len(match.associations)),
+        "accepted": bool(v.accepted),
+        "transform": v.best.transform.to_dict() if v.best is not None else None,
+        "num_associations": int(len(v.best.associations)) if v.best is not None else 0,
+        "runner_up_support": int(v.runner_up_support),
+        "alignment": str(pair_dir / "alignment.json"),
+    }
+    doc = {
+        "format": "sosmatch alignment v1",
+        "method": {"dof": dof, "gate_m": ap.distance_tolerance_m, "max_size_difference": ap.max_size_difference,
+                   "min_support": ap.min_associations, "min_ratio": min_ratio, "z_weight": z_weight,
+                   "candidates": len(sims), "refined": v.num_refined},
+        "accepted": out["accepted"], "transform": out["transform"],
+        "support": out["num_associations"], "runner_up_support": out["runner_up_support"],
+        "rms_m": v.best.rms_m if v.best is not None and np.isfinite(v.best.rms_m) else None,
+        "associations": v.best.associations.tolist() if v.best is not None else [],
+        "match_transform": out["match_transform"],
+    }
+    write_text_atomic(pair_dir / "alignment.json", json.dumps(doc, indent=1) + "\n")
+    return out
+
+
+def read_associations(path: str | Path) -> np.ndarray:
+    """(K,2) landmark associations of a pair: alignment.json's (verified) or match.json's."""
+    from ..database.match_io import read_match
+
+    path = Path(path)
+    if path.name == "alignment.json":
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            return np.asarray(data["associations"], dtype=np.int64).reshape(-1, 2)
+        except (OSError, KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+            raise InputError(f"cannot read alignment file: {exc}", path) from None
+    return read_match(path).associations
 
 
 def summarise_match(match_json: Path) -> dict[str, Any]:
@@ -196,14 +265,13 @@ def merge_task(
     max_fuse_distance_m: float,
 ) -> dict[str, Any]:
     """Merge one connected group: sessions in the reference frame, landmarks fused along the tree edges
-    (a, b, match.json path); writes out_dir (see `sosmatch.workflows.merge`)."""
-    from ..database.match_io import read_match
+    (a, b, alignment.json or match.json path); writes out_dir (see `sosmatch.workflows.merge`)."""
     from ..database.session_io import read_session
     from .merge import merge_sessions, write_merge_record
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3(t["rotation"], t["translation"], t["scale"]) for t in transforms]
-    pairs = [(a, b, read_match(m).associations) for a, b, m in edges]
+    pairs = [(a, b, read_associations(m)) for a, b, m in edges]
     res = merge_sessions(sessions, sims, pairs, out_dir, labels=labels, max_fuse_distance_m=max_fuse_distance_m)
     write_merge_record(res, {"tree_edges": [[labels[a], labels[b], m] for a, b, m in edges]})
     return {
@@ -219,11 +287,37 @@ def _fingerprint(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-class StateStore:
-    """OUT/state/STAGE/KEY.json: the fingerprint and result of every finished task, written atomically."""
+PATH_KEYS = ("session", "match", "alignment", "merged")  # result fields that hold paths
 
-    def __init__(self, root: Path) -> None:
+
+class StateStore:
+    """OUT/state/STAGE/KEY.json: the fingerprint and result of every finished task, written atomically.
+
+    Paths inside OUT are stored relative to OUT (`base`), so a moved or copied OUT directory still resumes;
+    paths outside it (an already mapped flight adopted as it is) stay as they are.
+    """
+
+    def __init__(self, root: Path, base: Path | None = None) -> None:
         self.root = root
+        self.base = base if base is not None else root.parent
+
+    def _relative(self, result: dict[str, Any]) -> dict[str, Any]:
+        out = dict(result)
+        base = self.base.resolve()
+        for key in PATH_KEYS:
+            if isinstance(out.get(key), str):
+                try:
+                    out[key] = Path(out[key]).resolve().relative_to(base).as_posix()
+                except ValueError:
+                    pass  # outside OUT: keep it absolute
+        return out
+
+    def _absolute(self, result: dict[str, Any]) -> dict[str, Any]:
+        out = dict(result)
+        for key in PATH_KEYS:
+            if isinstance(out.get(key), str) and not Path(out[key]).is_absolute():
+                out[key] = str(self.base / out[key])
+        return out
 
     def _path(self, stage: str, key: str) -> Path:
         return self.root / stage / f"{key}.json"
@@ -236,10 +330,11 @@ class StateStore:
             return None
         if data.get("version") != STATE_VERSION or data.get("fingerprint") != fingerprint:
             return None
-        return data.get("result")
+        result = data.get("result")
+        return self._absolute(result) if isinstance(result, dict) else None
 
     def put(self, stage: str, key: str, fingerprint: str, result: dict[str, Any]) -> None:
-        data = {"version": STATE_VERSION, "fingerprint": fingerprint, "result": result}
+        data = {"version": STATE_VERSION, "fingerprint": fingerprint, "result": self._relative(result)}
         write_text_atomic(self._path(stage, key), json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
@@ -253,7 +348,12 @@ class BatchOptions:
     nearest: int | None = None  # match only the k nearest pairs (None: every pair)
     ekf: bool = False  # synth flights: map with the noisy poses_ekf.csv instead of the ground truth
     merge: bool = True
-    refine: bool = False  # pairwise transforms re-fitted on all their associations before building the graph
+    refine: bool = False  # (legacy, without verify) consensus transforms re-fitted on their own associations
+    # Verify every pair's window hypotheses on the full maps and refine the winner (`verify_pair`); off = the
+    # match's consensus as it is. BENCHMARKS.md, Multi-session, has what each step does to the errors.
+    verify: bool = True
+    verify_dof: int = 4  # 4: yaw + translation (gravity-aligned maps); 6: rigid
+    verify_min_ratio: float = 1.2  # (ours) the winner's support over the best disagreeing alignment's
     edge_tolerance_m: float = 5.0  # (ours) two accepted pairs agree if they place sessions within this distance
     progress: bool = True
 
@@ -330,7 +430,12 @@ def _valid_session(done: dict[str, Any]) -> bool:
 
 
 def _valid_match(done: dict[str, Any]) -> bool:
-    return Path(done.get("match", "")).is_file()
+    return Path(done.get("match", "")).is_file() and ("alignment" not in done or Path(done["alignment"]).is_file())
+
+
+def _associations_file(rec: dict[str, Any]) -> str:
+    """The file whose associations a merge fuses: the verified alignment's, else the match's."""
+    return rec.get("alignment") or rec["match"]
 
 
 def _valid_merge(done: dict[str, Any]) -> bool:
@@ -370,7 +475,7 @@ def run(
     executor = executor or LocalExecutor(1)
     flights = discover_flights(flights_dir, exclude=(out_dir,))
     out_dir.mkdir(parents=True, exist_ok=True)
-    state = StateStore(out_dir / "state")
+    state = StateStore(out_dir / "state", out_dir)
     pdict = params_to_dict(params)
     report = BatchReport(out_dir, executor=executor.describe())
     try:
@@ -388,12 +493,18 @@ def run(
         # 3: match
         chosen = _choose_pairs(mapped, sessions, options.nearest)
         matcher = pair_fn or pair_task
+        # a custom matcher (pair_fn) returns its own summary; only the default one verifies
+        verify = ({"dof": options.verify_dof, "min_ratio": options.verify_min_ratio}
+                  if options.verify and matcher is pair_task else None)
         pair_fps, pair_tasks = {}, {}
         for a, b in chosen:
             key = f"{a}{PAIR_SEP}{b}"
             pair_fps[key] = _fingerprint({"a": fps[a], "b": fps[b], "association": pdict["association"],
-                                          "seed": pdict["seed"], "matcher": matcher.__qualname__})
+                                          "seed": pdict["seed"], "matcher": matcher.__qualname__,
+                                          "verify": verify})
             pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
+            if verify is not None:
+                pair_tasks[key] += (verify,)
         pairs = _run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                            options.progress, _valid_match)
         failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
@@ -427,7 +538,7 @@ def _graph_and_merge(
         a, b = key.split(PAIR_SEP)
         t = rec["transform"]
         sim = Sim3(t["rotation"], t["translation"], t["scale"])
-        if options.refine:
+        if options.refine and "alignment" not in rec:
             sim = _refined(sessions[a]["session"], sessions[b]["session"], rec["match"], sim, params)
         edge = Edge(index[a], index[b], sim, float(rec["num_associations"]))
         edges.append(edge)
@@ -458,9 +569,9 @@ def _graph_and_merge(
             group["status"] = "single" if len(members) < 2 else "not merged"
             continue
         pos = {m: k for k, m in enumerate(order)}
-        tree_edges = [(pos[e.a], pos[e.b], pairs[edge_keys[(e.a, e.b)]]["match"]) for e in tree]
+        tree_edges = [(pos[e.a], pos[e.b], _associations_file(pairs[edge_keys[(e.a, e.b)]])) for e in tree]
         key = names[ref]
-        merge_fps[key] = _fingerprint({"members": [sessions[names[m]].get("session") for m in order],
+        merge_fps[key] = _fingerprint({"members": [names[m] for m in order],  # contents: in the pair fps
                                        "pairs": [pair_fps[edge_keys[(e.a, e.b)]] for e in tree],
                                        "transforms": [ref_from[m].to_dict() for m in order],
                                        "eps": params.association.distance_tolerance_m})
