@@ -4,7 +4,12 @@ import cv2
 import numpy as np
 import pytest
 
-from sosmatch.plugin.motion import FALLBACK_MIN_SIGMA_PX, image_motion_stats, lk_displacements
+from sosmatch.plugin.motion import (
+    FALLBACK_MIN_SIGMA_PX,
+    homography_displacements,
+    image_motion_stats,
+    lk_displacements,
+)
 
 
 def _texture(seed: int, shape=(360, 480)) -> np.ndarray:
@@ -72,3 +77,30 @@ def test_large_images_are_downscaled_but_shift_is_in_full_resolution_px():
     moved = _warp(img, np.array([[1.0, 0.0, 20.0], [0.0, 1.0, 0.0]]))
     mu, _ = image_motion_stats(img, moved)
     assert mu == pytest.approx(20.0, abs=0.6)
+
+
+def test_survey_sized_motion_uses_the_homography_fallback():
+    # a survey camera triggered every ~35 m moves the image by ~40 % of its height and turns a little: LK loses the
+    # corners, ORB + one RANSAC homography still measures the motion
+    img = _texture(5, shape=(600, 800))
+    matrix = cv2.getRotationMatrix2D((400.0, 300.0), 4.0, 1.0)
+    matrix[:, 2] += (30.0, 240.0)
+    moved = _warp(img, matrix)
+    truth = np.linalg.norm(_grid_motion(matrix), axis=1)
+    assert len(lk_displacements(img, moved)) < 0.1 * 400  # LK has lost (nearly) all of its 400 corners
+    disp = homography_displacements(img, moved)
+    assert len(disp) >= 16
+    mu, sigma = image_motion_stats(img, moved)
+    # the matches cover the overlap only, so compare with the motion of points that stay inside the frame
+    assert abs(mu - truth.mean()) < 0.1 * truth.mean()
+    assert sigma < 3.0 * truth.std() + 5.0
+    assert (mu, sigma) == image_motion_stats(img, moved)  # deterministic (OpenCV's RANSAC has a fixed seed)
+
+
+def _grid_motion(matrix: np.ndarray, shape=(600, 800)) -> np.ndarray:
+    """Displacements of a pixel grid under an affine warp, for the grid points that stay inside the image."""
+    yy, xx = np.mgrid[0:shape[0]:10, 0:shape[1]:10]
+    pts = np.stack([xx.ravel(), yy.ravel()], 1).astype(float)
+    moved = pts @ matrix[:, :2].T + matrix[:, 2]
+    inside = (moved[:, 0] >= 0) & (moved[:, 0] < shape[1]) & (moved[:, 1] >= 0) & (moved[:, 1] < shape[0])
+    return (moved - pts)[inside]
