@@ -10,6 +10,7 @@ from sosmatch.plugin.geometry import Camera, Poses, project
 from sosmatch.workflows.pose_refinement import (
     _rotvec_to_matrix,
     poses_of_reconstruction,
+    refine_poses_with_colmap,
     refine_poses_with_priors,
     rotation_angle_deg,
 )
@@ -120,7 +121,38 @@ def test_deterministic():
     assert a.reprojection_rmse_after_px == pytest.approx(b.reprojection_rmse_after_px, rel=1e-12)
 
 
-def test_refine_from_images_with_tie_points(tmp_path):
+def test_colmap_pose_prior_ba_reduces_errors_drops_outliers_and_is_deterministic():
+    truth, pts, rng = _scene(4)
+    noisy = Poses(truth.names, _rotvec_to_matrix(rng.normal(0, np.radians(3.0), (24, 3))) @ truth.rotations,
+                  truth.centers + rng.normal(0, 2.0, (24, 3)))
+
+    def build():
+        rec = _build(truth, pts, noisy, np.random.default_rng(9))
+        # wrong tie points, as ORB + RANSAC lets through: 20 observations moved by 40-80 px
+        bad = np.random.default_rng(1)
+        for pid in sorted(rec.points3D)[:20]:
+            el = rec.points3D[pid].track.elements[0]
+            p2d = rec.images[el.image_id].points2D[el.point2D_idx]
+            p2d.xy = p2d.xy + bad.uniform(40, 80, 2)
+        return rec
+
+    rec = build()
+    pos_before, rot_before = _errors(rec, truth)
+    stats = refine_poses_with_colmap(rec, noisy, position_sigma_m=2.0, pixel_sigma_px=1.0)
+    pos_after, rot_after = _errors(rec, truth)
+    assert stats.images == 24 and stats.reprojection_median_before_px > 10.0
+    assert stats.reprojection_median_after_px < 1.5 and stats.reprojection_rmse_after_px < 2.5  # outliers gone
+    assert rot_after < 0.5 * rot_before and pos_after < pos_before
+    assert stats.position_change_max_m < 4 * 2.0 * np.sqrt(3)  # still in the GPS frame
+    again = build()
+    stats2 = refine_poses_with_colmap(again, noisy, position_sigma_m=2.0, pixel_sigma_px=1.0)
+    assert stats2.reprojection_rmse_after_px == stats.reprojection_rmse_after_px
+    a, b = poses_of_reconstruction(rec), poses_of_reconstruction(again)
+    assert np.array_equal(a.centers, b.centers) and np.array_equal(a.rotations, b.rotations)
+
+
+@pytest.mark.parametrize("method", ["colmap", "scipy"])
+def test_refine_from_images_with_tie_points(tmp_path, method):
     """Views of a textured plane rendered from true poses; the priors are perturbed; ORB tie points + priors
     bring the poses back towards the truth."""
     import cv2
@@ -146,7 +178,7 @@ def test_refine_from_images_with_tie_points(tmp_path):
     noisy = Poses(truth.names, _rotvec_to_matrix(rng.normal(0, np.radians(2.0), (16, 3))) @ truth.rotations,
                   truth.centers + rng.normal(0, 2.0, (16, 3)))
     refined, stats = refine_poses_from_images(paths, noisy, cam, position_sigma_m=2.0, attitude_sigma_deg=2.0,
-                                              pixel_sigma_px=1.0, max_features=1500)
+                                              pixel_sigma_px=1.0, max_features=1500, method=method)
     assert refined.names == truth.names and stats.points > 100
     assert stats.reprojection_median_after_px < 1.5 < stats.reprojection_median_before_px
     rot_before = rotation_angle_deg(noisy.rotations, truth.rotations)

@@ -287,6 +287,130 @@ def refine_poses_with_priors(
     return stats
 
 
+def refine_poses_with_colmap(
+    reconstruction: object,
+    prior_poses: Poses,
+    position_sigma_m: float = 3.0,
+    pixel_sigma_px: float = 2.0,
+    outlier_px: float = 4.0,
+    rounds: int = 2,
+) -> RefinementStats:
+    """Refine poses and points of `reconstruction` (changed in place; intrinsics fixed) with COLMAP's pose-prior
+    bundle adjustment (`pycolmap.create_pose_prior_bundle_adjuster`, Ceres): reprojection residuals with a Cauchy
+    loss at `pixel_sigma_px`, and a Gaussian prior of `position_sigma_m` on every camera centre (the prior
+    positions come from `prior_poses`, matched by image name). The priors fix the gauge (position, orientation and
+    scale of the block), so the result stays in the GPS frame; the attitude is free and follows from the tie points.
+    After the first solve, observations with a reprojection error above `outlier_px` are removed (the wrong tie
+    points a prior-pose triangulation cannot tell from the right ones) and the problem is solved again, `rounds`
+    times in all. Fast: Seneca (167 images, ~9000 points) takes ~15 s where `refine_poses_with_priors` takes
+    ~12 min; use that one when attitude priors matter (few images, weak geometry).
+    """
+    import pycolmap
+
+    t0 = time.perf_counter()
+    rec = reconstruction
+    image_ids = sorted(i for i, im in rec.images.items() if im.has_pose)
+    if not image_ids:
+        raise ValueError("the reconstruction has no registered image")
+    prior_index = {name: k for k, name in enumerate(prior_poses.names)}
+    before_poses = poses_of_reconstruction(rec)
+    rec.update_point_3d_errors()
+    err0 = _observation_errors(rec)
+    # Work near the origin: Ceres' relative tolerances and float math behave better than at UTM magnitudes.
+    origin = prior_poses.centers.mean(axis=0)
+    rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(np.eye(3)), -origin))
+    priors = []
+    for iid in image_ids:
+        im = rec.images[iid]
+        if im.name not in prior_index:
+            continue
+        prior = pycolmap.PosePrior(position=prior_poses.centers[prior_index[im.name]] - origin,
+                                   position_covariance=np.eye(3) * float(position_sigma_m) ** 2,
+                                   coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN)
+        prior.corr_data_id = im.data_id
+        priors.append(prior)
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = False
+    options.refine_principal_point = False
+    options.refine_extra_params = False
+    options.refine_sensor_from_rig = False
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = float(pixel_sigma_px)
+    options.ceres.solver_options.num_threads = 1  # determinism: the same poses on every run
+    prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
+    converged, iterations = False, 0
+    for round_ in range(max(1, int(rounds))):
+        if round_:
+            _drop_outlier_observations(rec, outlier_px)
+        config = pycolmap.BundleAdjustmentConfig()
+        for iid in image_ids:
+            config.add_image(iid)
+        summary = pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec).solve()
+        converged = summary.termination_type == pycolmap.BundleAdjustmentTerminationType.CONVERGENCE
+        iterations += 1
+    _drop_outlier_observations(rec, outlier_px)
+    rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(np.eye(3)), origin))
+    rec.update_point_3d_errors()
+    err1 = _observation_errors(rec)
+    after = poses_of_reconstruction(rec)
+    before = before_poses.subset([before_poses.names.index(n) for n in after.names])
+    dpos = np.linalg.norm(after.centers - before.centers, axis=1)
+    drot = np.array([rotation_angle_deg(a, b) for a, b in zip(before.rotations, after.rotations)])
+    stats = RefinementStats(
+        images=len(image_ids), points=rec.num_points3D(), observations=len(err1),
+        reprojection_rmse_before_px=float(np.sqrt(np.mean(err0**2))) if len(err0) else float("nan"),
+        reprojection_rmse_after_px=float(np.sqrt(np.mean(err1**2))) if len(err1) else float("nan"),
+        reprojection_median_before_px=float(np.median(err0)) if len(err0) else float("nan"),
+        reprojection_median_after_px=float(np.median(err1)) if len(err1) else float("nan"),
+        position_change_mean_m=float(dpos.mean()), position_change_max_m=float(dpos.max()),
+        rotation_change_mean_deg=float(drot.mean()), rotation_change_max_deg=float(drot.max()),
+        iterations=iterations, seconds=time.perf_counter() - t0, converged=converged,
+    )
+    log.info("COLMAP pose-prior BA: median reprojection %.2f -> %.2f px, poses moved %.2f m / %.2f deg on average",
+             stats.reprojection_median_before_px, stats.reprojection_median_after_px,
+             stats.position_change_mean_m, stats.rotation_change_mean_deg)
+    return stats
+
+
+def _observation_errors(rec: object) -> np.ndarray:
+    """Reprojection error (px) of every observation of every 3D point."""
+    errors = []
+    for point in rec.points3D.values():
+        for el in point.track.elements:
+            image = rec.images[el.image_id]
+            uv = image.project_point(point.xyz)
+            if uv is None:
+                errors.append(np.inf)
+            else:
+                errors.append(float(np.linalg.norm(np.asarray(uv) - image.points2D[el.point2D_idx].xy)))
+    return np.asarray(errors, dtype=np.float64)
+
+
+def _drop_outlier_observations(rec: object, max_px: float) -> int:
+    """Remove observations reprojecting worse than `max_px` (and points left with fewer than 2); returns how many
+    observations were removed."""
+    removed = 0
+    for pid in list(rec.points3D):
+        point = rec.points3D[pid]
+        bad = []
+        for el in point.track.elements:
+            image = rec.images[el.image_id]
+            uv = image.project_point(point.xyz)
+            if uv is None or np.linalg.norm(np.asarray(uv) - image.points2D[el.point2D_idx].xy) > max_px:
+                bad.append((el.image_id, el.point2D_idx))
+        if not bad:
+            continue
+        if point.track.length() - len(bad) < 2:
+            removed += point.track.length()
+            rec.delete_point3D(pid)
+            continue
+        for image_id, idx in bad:
+            rec.delete_observation(image_id, idx)
+            removed += 1
+    return removed
+
+
 def poses_of_reconstruction(reconstruction: object) -> Poses:
     """world_from_camera poses of the registered images of a pycolmap Reconstruction, by image id order."""
     ids = sorted(i for i, im in reconstruction.images.items() if im.has_pose)
@@ -326,14 +450,15 @@ def tie_point_reconstruction(
     neighbour_fraction: float = 0.6,
     ransac_px: float = 6.0,
     min_track_length: int = 3,
+    max_neighbours: int = 8,
 ) -> object:
     """A pycolmap Reconstruction of ORB tie points with the given (prior) poses (changed by nothing here).
 
-    Features per image (ORB, `max_features`); matches (ratio test + RANSAC homography at `ransac_px`) between
-    each image and the next two, and between any two images whose centres are closer than
-    `neighbour_fraction` x 4 x the median spacing of consecutive images (a typical 75% forward overlap puts
-    ~4 spacings in a footprint), which links neighbouring flight lines; tracks by union-find (tracks with two
-    features in one image are dropped); points by least-squares intersection of the rays from the prior poses.
+    Features per image (ORB, `max_features`); matches (ratio test + RANSAC homography at `ransac_px`) between each
+    image and the next two, and between any two images whose centres are closer than `neighbour_fraction` x 4 x the
+    median spacing of consecutive images (a typical 75% forward overlap puts ~4 spacings in a footprint; at most its
+    `max_neighbours` nearest), which links neighbouring flight lines; tracks by union-find (tracks with two features
+    in one image are dropped); points by least-squares intersection of the rays from the prior poses.
     `camera` is a sosmatch Camera (PINHOLE), image order = pose order.
     """
     import cv2
@@ -357,7 +482,10 @@ def tie_point_reconstruction(
     radius = neighbour_fraction * 4.0 * spacing
     d2 = np.linalg.norm(poses.centers[:, None, :2] - poses.centers[None, :, :2], axis=2)
     pairs = {(i, j) for i in range(n) for j in range(i + 1, min(n, i + 3))}
-    pairs |= {(int(i), int(j)) for i, j in zip(*np.nonzero(np.triu(d2 < radius, 1)))}
+    # each image with its `max_neighbours` nearest within the radius: enough to tie neighbouring flight lines
+    # together, and matching cost stays linear in the number of images (all pairs in the radius: 2x the time)
+    near = np.argsort(d2, axis=1, kind="stable")[:, 1:max_neighbours + 1]
+    pairs |= {(min(i, int(j)), max(i, int(j))) for i in range(n) for j in near[i] if d2[i, j] < radius}
     offsets = np.concatenate([[0], np.cumsum([len(k) for k in kps])])
     parent = np.arange(offsets[-1])
 
@@ -433,13 +561,25 @@ def refine_poses_from_images(
     attitude_sigma_deg: float = 5.0,
     pixel_sigma_px: float = 2.0,
     max_features: int = 3000,
+    method: str = "colmap",
 ) -> tuple[Poses, RefinementStats]:
     """Refine GPS/telemetry poses BEFORE mapping, with ORB tie points between overlapping images and the pose
-    priors (`tie_point_reconstruction` + `refine_poses_with_priors`). Returns the refined poses (same names and
-    order, same world frame) and the statistics. Use it when the poses are far from EKF quality: the mapping's
-    epipolar gate (a few pixels) cannot track segments across frames whose poses are 100+ px off."""
+    priors (`tie_point_reconstruction`, then `refine_poses_with_colmap` (method "colmap", the default: COLMAP's
+    pose-prior bundle adjustment, position priors only, seconds) or `refine_poses_with_priors` (method "scipy":
+    position and attitude priors, minutes)). Returns the refined poses (same names and order, same world frame)
+    and the statistics. Use it when the poses are far from EKF quality: the mapping's epipolar gate (a few
+    pixels) cannot track segments across frames whose poses are 100+ px off."""
+    if method not in ("colmap", "scipy"):
+        raise ValueError(f"unknown refinement method {method!r} (colmap or scipy)")
     rec = tie_point_reconstruction(image_paths, poses, camera, max_features)
-    stats = refine_poses_with_priors(rec, poses, position_sigma_m, attitude_sigma_deg, pixel_sigma_px)
+    if method == "colmap":
+        sigma = float(np.max(np.atleast_1d(position_sigma_m)))
+        stats = refine_poses_with_colmap(rec, poses, sigma, pixel_sigma_px)
+    else:
+        stats = refine_poses_with_priors(rec, poses, position_sigma_m, attitude_sigma_deg, pixel_sigma_px)
     refined = poses_of_reconstruction(rec)
+    missing = [nm for nm in poses.names if nm not in refined.names]
+    if missing:
+        raise ValueError(f"{len(missing)} images lost their pose in the refinement (e.g. {missing[0]})")
     order = [refined.names.index(nm) for nm in poses.names]
     return refined.subset(order), stats

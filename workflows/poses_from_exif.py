@@ -376,11 +376,14 @@ def run(
     refine: bool = False,
     position_sigma_m: float = 3.0,
     attitude_sigma_deg: float = 5.0,
+    refine_method: str = "colmap",
 ) -> ExifPoses:
     """Write `out` (pose CSV, `# crs: EPSG:<utm>`) and cameras.txt beside it (or at `cameras_out`).
 
     With `refine`, the EXIF poses are refined with ORB tie points between overlapping images and the EXIF poses
-    as priors (`pose_refinement.refine_poses_from_images`, sigmas as given) before they are written; the
+    as priors (`pose_refinement.refine_poses_from_images`, sigmas as given; `refine_method` "colmap" = COLMAP's
+    pose-prior bundle adjustment with position priors, "scipy" = position and attitude priors) before they are
+    written; the
     summary then holds the refinement statistics. Both files are written atomically; the return value carries
     the poses, camera and the source summary.
     """
@@ -390,9 +393,10 @@ def run(
 
         paths = {p.name: p for p in list_images(images)}
         refined, stats = refine_poses_from_images([paths[n] for n in result.poses.names], result.poses,
-                                                  result.camera, position_sigma_m, attitude_sigma_deg)
+                                                  result.camera, position_sigma_m, attitude_sigma_deg,
+                                                  method=refine_method)
         result.poses = refined
-        result.summary["refinement"] = {"position_sigma_m": position_sigma_m,
+        result.summary["refinement"] = {"method": refine_method, "position_sigma_m": position_sigma_m,
                                         "attitude_sigma_deg": attitude_sigma_deg, **stats.to_dict()}
     out = Path(out)
     cameras_path = Path(cameras_out) if cameras_out is not None else out.parent / "cameras.txt"
