@@ -246,6 +246,36 @@ def evaluate(report: dict, flights: dict[str, Path], pair_truth: object, footpri
     return rows
 
 
+def step_errors(report: dict, pair_truth: object) -> list[str]:
+    """Table rows: what each refinement step does to the match's consensus transform, per pair (errors as in the
+    main table: m / deg, then horizontal m / yaw deg). Steps: the consensus (one group of agreeing windows);
+    `merge.refine_transform` (one 6-DOF refit on the consensus' associations within theta_eps);
+    `refine_alignment` 6-DOF and 4-DOF (iterated mutual nearest neighbours on the full maps, size-gated, Huber)."""
+    from ...database.match_io import read_match
+    from ...database.session_io import read_session
+    from ...plugin.multisession import refine_alignment
+    from ...plugin.params import Params
+    from ...workflows.merge import refine_transform
+
+    ap = Params().association
+    sessions = {s["name"]: s["session"] for s in report["sessions"]}
+    rows = []
+    for p in report["pairs"]:
+        if p["status"] != "done" or not p.get("match_transform"):
+            continue
+        truth, pts, _ = pair_truth(p["a"], p["b"])
+        a, b = read_session(sessions[p["a"]]), read_session(sessions[p["b"]])
+        m = read_match(p["match"])
+        la, lb = a.landmarks, b.landmarks
+        one, _ = refine_transform(a, b, m.associations, m.transform, False, ap.distance_tolerance_m)
+        steps = [m.transform, one] + [
+            refine_alignment(la.positions, la.sizes, lb.positions, lb.sizes, m.transform, ap.distance_tolerance_m,
+                             ap.max_size_difference, dof=dof).transform for dof in (6, 4)]
+        cells = [f"{e[0]:.2f} / {e[1]:.2f} ({e[2]:.2f} / {e[3]:.2f})" for e in (_errors(t, truth, pts) for t in steps)]
+        rows.append(f"| {p['pair']} | {p['match_associations']} | " + " | ".join(cells) + " |")
+    return rows
+
+
 def write_benchmarks(path: Path, mode: str, text: str) -> None:
     """Put `text` into BENCHMARKS.md inside the multi-session section, in this mode's own block (toy and synth
     results live side by side; re-running one mode replaces only its block)."""
@@ -363,6 +393,14 @@ def main(argv: list[str] | None = None) -> int:
         + (f", Dask LocalCluster ({args.workers} workers) {runs['dask'][2]:.1f} s; Dask results identical to "
            f"local (report and merged models byte for byte): {identical}." if "dask" in runs else "."),
     ]
+    steps = step_errors(report, pair_truth)
+    if steps:
+        lines += [
+            "", "Each refinement step applied to the match's consensus transform (error m / deg, in brackets "
+            "horizontal m / yaw deg; right only where the consensus was right):", "",
+            "| pair | consensus \\|S\\| | consensus | one 6-DOF refit (merge.refine_transform) | "
+            "full-map ICP 6-DOF | full-map ICP 4-DOF |", "|---|---|---|---|---|---|", *steps,
+        ]
     text = "\n".join(lines)
     print(text)
     if args.write:
