@@ -185,6 +185,10 @@ def triangulate_landmarks(
     options.mapper.random_seed = seed
     options.random_seed = seed
     options.extract_colors = False
+    # COLMAP ignores image pairs with fewer than 15 verified matches (min_num_matches) when it builds the
+    # correspondence graph: right for SIFT, wrong for segments, where two keyframes share a handful of tracks
+    # (Seneca: ~3 per pair, so 7 of ~60 consistent tracks became points). Every association counts here.
+    options.min_num_matches = 1
     options.num_threads = 1  # same points on every run (resume must reproduce an uninterrupted run)
     options.mapper.num_threads = 1
     with tempfile.TemporaryDirectory(prefix="sosmatch-tri-") as tmp:
