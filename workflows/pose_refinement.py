@@ -340,6 +340,8 @@ def refine_poses_with_colmap(
     options.ceres.solver_options.num_threads = 1  # determinism: the same poses on every run
     prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
     converged, iterations = False, 0
+    log_level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = max(int(log_level), 2)  # Ceres' per-step warnings would flood the console
     for round_ in range(max(1, int(rounds))):
         if round_:
             _drop_outlier_observations(rec, outlier_px)
@@ -349,6 +351,7 @@ def refine_poses_with_colmap(
         summary = pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec).solve()
         converged = summary.termination_type == pycolmap.BundleAdjustmentTerminationType.CONVERGENCE
         iterations += 1
+    pycolmap.logging.minloglevel = log_level
     _drop_outlier_observations(rec, outlier_px)
     rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(np.eye(3)), origin))
     rec.update_point_3d_errors()
@@ -451,6 +454,7 @@ def tie_point_reconstruction(
     ransac_px: float = 6.0,
     min_track_length: int = 3,
     max_neighbours: int = 8,
+    min_ray_angle_deg: float = 2.0,
 ) -> object:
     """A pycolmap Reconstruction of ORB tie points with the given (prior) poses (changed by nothing here).
 
@@ -458,7 +462,8 @@ def tie_point_reconstruction(
     image and the next two, and between any two images whose centres are closer than `neighbour_fraction` x 4 x the
     median spacing of consecutive images (a typical 75% forward overlap puts ~4 spacings in a footprint; at most its
     `max_neighbours` nearest), which links neighbouring flight lines; tracks by union-find (tracks with two features
-    in one image are dropped); points by least-squares intersection of the rays from the prior poses.
+    in one image are dropped); points by least-squares intersection of the rays from the prior poses, dropped when
+    the rays meet under less than `min_ray_angle_deg`.
     `camera` is a sosmatch Camera (PINHOLE), image order = pose order.
     """
     import cv2
@@ -545,6 +550,10 @@ def tie_point_reconstruction(
             continue
         depth = np.einsum("nj,nj->n", x - poses.centers[imgs], poses.rotations[imgs][:, :, 2])
         if np.any(depth <= 0):
+            continue
+        # Nearly parallel rays leave the depth unconstrained: such points make the bundle adjustment's normal
+        # equations indefinite (Ceres: "Matrix not positive definite") and teach the poses nothing.
+        if np.degrees(np.arccos(np.clip(np.min(d @ d.T), -1.0, 1.0))) < min_ray_angle_deg:
             continue
         track = pycolmap.Track()
         for i, a in zip(imgs, g):
