@@ -11,7 +11,12 @@ processes, or a Dask cluster):
 2. map: each flight -> OUT/sessions/NAME (`sosmatch.workflows.map`);
 3. match: every pair of mapped sessions, or with `nearest=k` only pairs where one session is among the k
    nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the
-   same local frame) -> OUT/pairs/A__B/match.json;
+   same local frame) -> OUT/pairs/A__B/match.json; then (BatchOptions.verify, on by default) every window
+   hypothesis is checked on the FULL maps and the best supported one is refined there (`verify_pair`: size-gated
+   mutual nearest neighbours within theta_eps, iterated 4-DOF fit) -> OUT/pairs/A__B/alignment.json, whose
+   decision, transform and associations the graph and the merge use. Why: across seasons one window pair's |S|
+   is no larger for a true hypothesis than for chance ones, and one window's 8-20 inliers give a noisy rotation;
+   see BENCHMARKS.md, Multi-session;
 4. session graph: sessions are nodes, accepted pairs are edges carrying a_from_b and |S|; accepted pairs
    that contradict others linking the same groups are left out (`plugin.multisession.consistent_edges`); each connected
    group is brought into the frame of its best-connected session along a maximum spanning tree
@@ -20,11 +25,11 @@ processes, or a Dask cluster):
 5. report: OUT/report.json, OUT/report.md (a table per session and per pair), OUT/session_graph.png.
 
 Resume: every finished task writes OUT/state/STAGE/KEY.json atomically, holding a fingerprint of its inputs
-(flight, parameters, upstream fingerprints) and its result. A re-run skips tasks whose state matches and whose
-outputs still exist, so an interrupted batch continues where it stopped; changing parameters redoes what they
-affect. A failing task is reported with its error (traceback in OUT/logs/), the tasks that need its output
-are reported as skipped, and every other task goes on. `BatchReport.ok` (and the command's exit code) says
-whether anything failed.
+(flight, parameters, upstream fingerprints) and its result (paths relative to OUT, so a moved OUT resumes).
+A re-run skips tasks whose state matches and whose outputs still exist, so an interrupted batch continues
+where it stopped; changing parameters redoes what they affect. A failing task is reported with its error
+(traceback in OUT/logs/), the tasks that need its output are reported as skipped, and every other task goes
+on. `BatchReport.ok` (and the command's exit code) says whether anything failed.
 """
 
 from __future__ import annotations

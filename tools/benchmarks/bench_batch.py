@@ -213,14 +213,16 @@ def _model_analyzer(sparse: Path) -> str:
     return f"ok ({stats['Registered images'].strip()} images, {stats['Points'].strip()} points)"
 
 
-def _errors(est: Sim3, truth: Sim3, pts: np.ndarray) -> tuple[float, float, float, float]:
-    """(RMS displacement m, rotation deg, horizontal RMS displacement m, yaw difference deg) at `pts`."""
+def _errors(est: Sim3, truth: Sim3, pts: np.ndarray) -> tuple[float, float, float, float, float]:
+    """(RMS displacement m, rotation deg, horizontal RMS displacement m, yaw difference deg, mean vertical
+    displacement m) at `pts`."""
     from ...plugin.association.rigid import roll_pitch_yaw_deg
 
     err_m, err_deg = transform_error(est, truth, pts)
     d = est.apply(pts) - truth.apply(pts)
     yaw = roll_pitch_yaw_deg(est.rotation)[2] - roll_pitch_yaw_deg(truth.rotation)[2]
-    return err_m, err_deg, float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1)))), abs((yaw + 180.0) % 360.0 - 180.0)
+    return (err_m, err_deg, float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1)))),
+            abs((yaw + 180.0) % 360.0 - 180.0), float(np.mean(d[:, 2])))
 
 
 def evaluate(report: dict, flights: dict[str, Path], pair_truth: object, footprint_fn: object) -> list[dict]:
@@ -369,8 +371,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{'mapped on EKF poses' if not args.toy else 'toy mapped sessions, each in its own frame'}).",
         f"Machine: {machine}.", "",
         "| pair | overlap | truth fit RMS m | match: accepted, error m / deg | verified: accepted, support "
-        "(runner-up) | error m / deg (RMS at the overlap) | horizontal m / yaw deg |",
-        "|---|---|---|---|---|---|---|",
+        "(runner-up) | error m / deg (RMS at the overlap) | horizontal m / yaw deg | mean vertical offset m |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     def pair_cell(e: tuple | None, k: int) -> str:
         return "-" if e is None else f"{e[k]:.2f} / {e[k + 1]:.2f}"
@@ -378,7 +380,8 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         lines.append(f"| {r['pair']} | {r['overlap']:.2f} | {r['fit_rms']:.2f} | {_fmt(r['match_accepted'])}, "
                      f"{pair_cell(r['before'], 0)} | {_fmt(r['accepted'])}, {_fmt(r['S'])} ({_fmt(r['runner_up'])}) "
-                     f"| {pair_cell(r['err'], 0)} | {pair_cell(r['err'], 2)} |")
+                     f"| {pair_cell(r['err'], 0)} | {pair_cell(r['err'], 2)} | "
+                     f"{'-' if r['err'] is None else format(r['err'][4], '.2f')} |")
     sessions = ", ".join(f"{s['name']} {s.get('landmarks', '-')}" for s in report["sessions"])
     lines += [
         "",
