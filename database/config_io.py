@@ -9,7 +9,7 @@ from typing import Any
 import tomli_w
 
 from ..plugin.errors import InputError
-from ..plugin.params import Params, params_from_dict, params_to_dict, with_overrides
+from ..plugin.params import Params, params_from_dict, params_to_dict, preset_params, with_overrides
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -17,9 +17,12 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 
-def load_params(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Params:
-    """Defaults, then the TOML file (if any), then dotted overrides. Unknown keys are an error."""
-    params = Params()
+def load_params(
+    path: str | Path | None = None, overrides: dict[str, Any] | None = None, preset: str | None = None
+) -> Params:
+    """Defaults (or the named preset, see `sosmatch.plugin.params.PRESETS`), then the TOML file (if any), then
+    dotted overrides. Unknown keys are an error."""
+    params = preset_params(preset) if preset else Params()
     if path is not None:
         path = Path(path)
         try:
@@ -31,12 +34,23 @@ def load_params(path: str | Path | None = None, overrides: dict[str, Any] | None
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"invalid TOML: {exc}", path) from None
         try:
-            params = params_from_dict(data)
+            params = params_from_dict(data) if not preset else with_overrides(params, _dotted(data))
         except InputError as exc:
             raise InputError(exc.problem, path) from None
     if overrides:
         params = with_overrides(params, overrides)
     return params
+
+
+def _dotted(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """{"tracking": {"min_score": 0.3}} -> {"tracking.min_score": 0.3} (a config file on top of a preset)."""
+    flat: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            flat.update(_dotted(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
 
 
 def dump_params(params: Params) -> str:

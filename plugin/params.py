@@ -81,6 +81,12 @@ class TrackingParams:
     sift_ratio: float = 0.8  # Lowe's ratio test for q_f (ours; the paper does not state it)
     centroid_sigma_px: float = 3.0  # (ours) centroid noise added in quadrature to sigma_p in the motion gate
     cheirality_check: bool = True  # (ours) reject pairs whose centroid lies behind camera s along the epipolar line
+    # (ours) a track whose observations already triangulate (rays meeting at >= point_gate_min_ray_angle_deg) is
+    # gated by where its point projects into the new keyframe (within epipolar_margin_px) instead of by the
+    # epipolar line of its last observation and the motion gate: the line lets every segment along it through,
+    # the point picks one spot, and across flight lines the motion gate's summed image motion means nothing.
+    point_transfer_gate: bool = True
+    point_gate_min_ray_angle_deg: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -162,6 +168,33 @@ def params_from_dict(data: dict[str, Any], cls: type = Params, where: str = "") 
         else:
             kwargs[key] = _coerce(value, hint, path)
     return cls(**kwargs)
+
+
+# Named parameter presets (hloc-style `confs`): dotted overrides applied on top of the paper's defaults, before a
+# config file and `--set`. "paper" is the method as published (keyframes every 2 m, EKF poses, 640x480).
+PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    # Photogrammetric survey flights: one frame every 30-40 m (55-75 % forward overlap), ~1200 px images, poses
+    # from GPS + autopilot refined by `poses-from-exif --refine`. Measured on Seneca (BENCHMARKS.md, "Seneca end
+    # to end"). An object is in only 2-3 frames of a flight line, so a landmark needs 3 observations (theta_n = 2)
+    # and a track may wait 24 keyframes for the neighbouring line (the point transfer gate, not the motion gate,
+    # decides there). The classical backend segments at 400 px, a third of the image, so centroid noise, the
+    # epipolar margin and the triangulation sigma scale by ~2-3; segments change more between views 300-500 px
+    # apart, so sizes may differ more and the motion gate is wider.
+    "survey": {
+        "tracking.epipolar_margin_px": 24.0, "tracking.centroid_sigma_px": 9.0, "tracking.size_tolerance": 0.5,
+        "tracking.motion_gate_sigmas": 8.0, "tracking.max_track_age_keyframes": 24,
+        "triangulation.min_observations": 2, "triangulation.pixel_sigma_px": 6.0,
+        "triangulation.max_reprojection_error_px": 10.0,
+    },
+}
+
+
+def preset_params(name: str) -> Params:
+    """The named preset (see PRESETS) as parameters; an unknown name is an InputError listing the known ones."""
+    if name not in PRESETS:
+        raise InputError(f"unknown preset {name!r} (known: {', '.join(sorted(PRESETS))})")
+    return with_overrides(Params(), PRESETS[name])
 
 
 def with_overrides(params: Params, overrides: dict[str, Any]) -> Params:

@@ -262,11 +262,14 @@ def pair_scores(
     mu: float, sigma: float, params: TrackingParams,
     desc_s: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     desc_t: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    predicted_xy: np.ndarray | None = None,
 ) -> np.ndarray:
     """(n, m) score q of masks `masks_s` of keyframe s against all masks of keyframe t; 0 where infeasible.
 
     `mu`, `sigma` are the expected centroid displacement and its standard deviation for this keyframe gap (the
-    centroid-noise term is already included by the caller).
+    centroid-noise term is already included by the caller). `predicted_xy` (n, 2), optional: where the row's
+    track point projects in keyframe t (NaN: no point yet); such rows are gated by the distance to it (point
+    transfer gate, module docstring) instead of the motion, epipolar and cheirality gates.
     """
     n, m = len(masks_s), len(feat_t)
     q = np.zeros((n, m))
@@ -275,15 +278,19 @@ def pair_scores(
     xy_s = np.asarray(feat_s.centroids, np.float64)[masks_s]
     xy_t = np.asarray(feat_t.centroids, np.float64)
     qs = size_scores(np.asarray(feat_s.sizes)[masks_s], feat_t.sizes, params.size_tolerance)
-    disp = np.linalg.norm(xy_s[:, None, :] - xy_t[None, :, :], axis=2)
+    has_point = (np.isfinite(predicted_xy[:, 0]) if predicted_xy is not None else np.zeros(n, bool))[:, None]
     ok = qs > 0
+    if has_point.any():
+        transfer = np.linalg.norm(np.where(has_point, predicted_xy, 0.0)[:, None, :] - xy_t[None, :, :], axis=2)
+        ok &= ~has_point | (transfer <= params.epipolar_margin_px)
+    disp = np.linalg.norm(xy_s[:, None, :] - xy_t[None, :, :], axis=2)
     if np.isfinite(mu) and np.isfinite(sigma):  # unknown image motion (NaN from a caller): no motion gate
-        ok &= np.abs(disp - mu) < params.motion_gate_sigmas * max(sigma, 1e-9)
+        ok &= has_point | (np.abs(disp - mu) < params.motion_gate_sigmas * max(sigma, 1e-9))
     if not ok.any():
         return q
-    ok &= epipolar_distances(camera, poses, s, t, xy_s, xy_t) <= params.epipolar_margin_px
+    ok &= has_point | (epipolar_distances(camera, poses, s, t, xy_s, xy_t) <= params.epipolar_margin_px)
     if params.cheirality_check and ok.any():
-        ok &= ~behind_camera(camera, poses, s, t, xy_s, xy_t, params.epipolar_margin_px)
+        ok &= has_point | ~behind_camera(camera, poses, s, t, xy_s, xy_t, params.epipolar_margin_px)
     ii, jj = np.nonzero(ok)
     if len(ii) == 0:
         return q
@@ -304,6 +311,27 @@ def gap_motion(
     mu = float(np.sum(stats[:, 0]))
     sigma = float(np.sqrt(np.sum(stats[:, 1] ** 2) + 2.0 * centroid_sigma_px**2))
     return mu, sigma
+
+
+def _predict_track_points(
+    ray_a: np.ndarray, ray_b: np.ndarray, origin: np.ndarray, camera: Camera, poses: Poses, t: int, min_eig: float
+) -> np.ndarray:
+    """(n, 2) projection into keyframe t of each track's least-squares ray intersection; NaN where the rays are
+    too close to parallel (smallest eigenvalue of sum(I - d d^T) below `min_eig`) or the point is not in front
+    of camera t."""
+    out = np.full((len(ray_a), 2), np.nan)
+    if not len(ray_a):
+        return out
+    eig_min = np.linalg.eigvalsh(ray_a)[:, 0]
+    good = np.flatnonzero(eig_min >= min_eig)
+    if not len(good):
+        return out
+    x = np.linalg.solve(ray_a[good], ray_b[good][:, :, None])[:, :, 0] + origin
+    cam = (x - poses.centers[t]) @ poses.rotations[t]  # camera-t coordinates (R_wc^T (X - C))
+    front = cam[:, 2] > 1e-9
+    uv = cam[front] @ camera.K.T
+    out[good[front]] = uv[:, :2] / uv[:, 2:3]
+    return out
 
 
 def track_masks(
@@ -333,6 +361,14 @@ def track_masks(
             "must have one entry per keyframe"
         )
     max_age = max(1, int(params.max_track_age_keyframes))
+    point_gate = bool(params.point_transfer_gate)
+    # Per track, the normal equations of the least-squares intersection of its observation rays,
+    # sum (I - d d^T) X = sum (I - d d^T) C (centres relative to `origin` for precision): the track's point.
+    origin = keyframe_poses.centers.mean(axis=0) if n_kf else np.zeros(3)
+    ray_a = np.zeros((0, 3, 3))
+    ray_b = np.zeros((0, 3))
+    min_eig = 1.0 - np.cos(np.radians(params.point_gate_min_ray_angle_deg))  # 2 rays at angle a: 1 - cos a
+    kinv = np.linalg.inv(camera.K)
     last_kf = np.zeros(0, np.int64)  # per track: keyframe of its latest observation
     last_mask = np.zeros(0, np.int64)  # per track: mask index of its latest observation
     track_ids: list[np.ndarray] = []
@@ -343,6 +379,8 @@ def track_masks(
         m = len(feat_t)
         ids = np.full(m, -1, np.int64)
         cand = np.flatnonzero(last_kf >= t - max_age) if m else np.zeros(0, np.int64)
+        predicted = _predict_track_points(ray_a[cand], ray_b[cand], origin, camera, keyframe_poses, t, min_eig) \
+            if point_gate and len(cand) else None
         if len(cand):
             desc_cache[t] = _desc_index(feat_t)
             q = np.zeros((len(cand), m))
@@ -353,7 +391,7 @@ def track_masks(
                 mu, sigma = gap_motion(motion_stats, int(s), t, params.centroid_sigma_px)
                 q[rows] = pair_scores(
                     features[s], last_mask[cand[rows]], feat_t, camera, keyframe_poses, int(s), t, mu, sigma,
-                    params, desc_cache[s], desc_cache[t],
+                    params, desc_cache[s], desc_cache[t], None if predicted is None else predicted[rows],
                 )
             r_any = np.flatnonzero(q.max(axis=1) > 0)
             c_any = np.flatnonzero(q.max(axis=0) > 0)
@@ -368,6 +406,15 @@ def track_masks(
         ids[new] = len(last_kf) + np.arange(len(new))
         last_kf = np.concatenate([last_kf, np.full(len(new), t, np.int64)])
         last_mask = np.concatenate([last_mask, np.zeros(len(new), np.int64)])
+        if point_gate and m:
+            ray_a = np.concatenate([ray_a, np.zeros((len(new), 3, 3))])
+            ray_b = np.concatenate([ray_b, np.zeros((len(new), 3))])
+            d = np.asarray(feat_t.centroids, np.float64) @ kinv[:, :2].T + kinv[:, 2]
+            d = d @ keyframe_poses.rotations[t].T
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+            np.add.at(ray_a, ids, proj)
+            np.add.at(ray_b, ids, proj @ (keyframe_poses.centers[t] - origin))
         last_kf[ids] = t
         last_mask[ids] = np.arange(m)
         track_ids.append(ids)

@@ -58,3 +58,29 @@ def test_override_parsing_and_rejection():
         load_params(None, {"tracking.nope": 1})
     with pytest.raises(InputError):
         parse_override("no-equals-sign")
+
+
+def test_presets_layer_under_config_file_and_set(tmp_path):
+    from sosmatch.plugin.params import PRESETS, preset_params
+
+    assert preset_params("paper") == Params()
+    survey = preset_params("survey")
+    for dotted, value in PRESETS["survey"].items():
+        section, key = dotted.split(".")
+        assert getattr(getattr(survey, section), key) == value
+    assert survey.association == Params().association  # a preset changes only what it names
+    # a config file on top of a preset changes only its own keys; --set wins over both
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[tracking]\nmin_score = 0.35\n")
+    p = load_params(cfg, {"tracking.epipolar_margin_px": 30.0}, preset="survey")
+    assert p.tracking.min_score == 0.35 and p.tracking.epipolar_margin_px == 30.0
+    assert p.triangulation.min_observations == survey.triangulation.min_observations
+    with pytest.raises(InputError, match="unknown preset 'nope'.*paper, survey"):
+        load_params(None, None, preset="nope")
+
+
+def test_config_dump_with_preset_cli(capsys):
+    from sosmatch.tools.cli import main
+
+    assert main(["config", "dump", "--preset", "survey"]) == 0
+    assert "min_observations = 2" in capsys.readouterr().out

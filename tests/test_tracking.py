@@ -284,3 +284,39 @@ def test_empty_keyframes_and_input_checks():
     assert res.num_tracks == 0 and len(res.track_lengths()) == 0 and len(res.tracks_longer_than(0)) == 0
     with pytest.raises(ValueError):
         track_masks([MaskFeatures.empty()], CAM, poses, [(0, 0), (1, 1)], TrackingParams())
+
+
+def _three_views(decoy_dx_px: float, seed: int = 5):
+    """One ground object seen from three nadir keyframes 20 m apart (rays meet at ~11 degrees); in keyframe 2 a
+    decoy with the object's exact descriptors sits `decoy_dx_px` further along the epipolar line than the true
+    (noisier) observation."""
+    rng = np.random.default_rng(seed)
+    desc = _unit(rng.standard_normal((10, 128)))
+    centers = np.array([[0.0, 0, 100], [20.0, 0, 100], [40.0, 0, 100]])
+    poses = Poses(["a", "b", "c"], np.stack([NADIR] * 3), centers)
+    obj = np.array([[30.0, 5.0, 0.0]])
+    uv = [project(CAM, NADIR, c, obj)[0][0] for c in centers]
+    noisy = lambda: _unit(desc + rng.normal(0, 0.08, desc.shape))  # noqa: E731
+    f0 = _features([uv[0]], [15.0], [noisy()])
+    f1 = _features([uv[1]], [15.0], [noisy()])
+    f2 = _features([uv[2], uv[2] + [decoy_dx_px, 0.0]], [15.0, 15.0], [noisy(), desc])
+    return [f0, f1, f2], poses
+
+
+def test_point_transfer_gate_picks_the_observation_where_the_track_point_projects():
+    feats, poses = _three_views(-25.0)
+    unknown_motion = [(0.0, 0.0), (np.nan, np.nan), (np.nan, np.nan)]
+    params = TrackingParams(epipolar_margin_px=12.0)
+    with_gate = track_masks(feats, CAM, poses, unknown_motion, params)
+    without = track_masks(feats, CAM, poses, unknown_motion, dataclasses.replace(params, point_transfer_gate=False))
+    track = with_gate.track_ids[0][0]
+    assert with_gate.track_ids[1][0] == track
+    # the epipolar line of the last observation lets the better-scoring decoy in; the track's point does not
+    assert without.track_ids[2][1] == without.track_ids[0][0] and without.track_ids[2][0] != without.track_ids[0][0]
+    assert with_gate.track_ids[2][0] == track and with_gate.track_ids[2][1] != track
+    # a track with a point ignores the motion gate (across flight lines the summed image motion means nothing) ...
+    wrong_motion = [(0.0, 0.0), (np.nan, np.nan), (500.0, 1.0)]
+    assert track_masks(feats, CAM, poses, wrong_motion, params).track_ids[2][0] == track
+    # ... and rays closer than point_gate_min_ray_angle_deg leave the track on the epipolar and motion gates
+    near_parallel = dataclasses.replace(params, point_gate_min_ray_angle_deg=20.0)
+    assert track_masks(feats, CAM, poses, wrong_motion, near_parallel).track_ids[2][0] != track

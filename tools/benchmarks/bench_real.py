@@ -233,9 +233,56 @@ def naip_check(naip: Path, work: Path, extra_args: list[str]) -> dict:
     return out
 
 
+def seneca_end_to_end(seneca: Path, work: Path) -> dict:
+    """Seneca from the folder of JPEGs: poses from EXIF + telemetry, pose refinement (COLMAP pose-prior BA on ORB
+    tie points), the image-motion check with the refined poses, then `sosmatch map` with the telemetry poses and
+    with the refined poses (paper defaults and the "survey" preset). Returns the figures."""
+    import json
+
+    import pycolmap
+
+    from sosmatch.database.config_io import load_params
+    from sosmatch.workflows import map as map_wf
+    from sosmatch.workflows import poses_from_exif
+
+    work.mkdir(parents=True, exist_ok=True)
+    out: dict = {}
+    t = time.perf_counter()
+    poses_from_exif.run(seneca / "images", work / "poses.csv", telemetry=seneca / "telemetry.csv")
+    out["exif_seconds"] = time.perf_counter() - t
+    t = time.perf_counter()
+    res = poses_from_exif.run(seneca / "images", work / "poses_refined.csv", telemetry=seneca / "telemetry.csv",
+                              refine=True)
+    out["refine_seconds"] = time.perf_counter() - t
+    out["refinement"] = res.summary["refinement"]
+    check = attitude_check(seneca, 60, work / "poses_refined.csv")
+    telemetry_rows = {k: v for k, v in check["results"].items() if not k.startswith("poses from")}
+    best = min(telemetry_rows, key=lambda k: telemetry_rows[k]["median_px"])
+    row = telemetry_rows[best]
+    out["motion_check_px"] = {f"telemetry ({best})": (row["median_px"], row["p90_px"])}
+    out["motion_check_px"].update({k: (v["median_px"], v["p90_px"]) for k, v in check["results"].items()
+                                   if k.startswith("poses from")})
+    for label, poses_csv, preset in [("telemetry, paper defaults", "poses.csv", "paper"),
+                                     ("refined, paper defaults", "poses_refined.csv", "paper"),
+                                     ("telemetry, survey preset", "poses.csv", "survey"),
+                                     ("refined, survey preset", "poses_refined.csv", "survey")]:
+        session = work / ("map_" + label.replace(", ", "_").replace(" ", "_"))
+        inputs = map_wf.load_inputs(seneca / "images", work / poses_csv, work / "cameras.txt")
+        t = time.perf_counter()
+        summary = map_wf.run(load_params(preset=preset), inputs, session, overwrite=True, progress=False)
+        wall = time.perf_counter() - t
+        run = json.loads((session / "run.json").read_text())
+        errors = np.array([p.error for p in pycolmap.Reconstruction(session / "sparse").points3D.values()])
+        out[label] = {"landmarks": summary.num_landmarks,
+                      "tracks_long": run["counts"]["tracks_long"], "masks": run["counts"]["masks"],
+                      "mean_reprojection_px": float(errors.mean()) if len(errors) else float("nan"),
+                      "map_bytes": run["counts"]["map_bytes"], "seconds": wall}
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("check", nargs="?", default="attitude", choices=["attitude", "refine", "naip"])
+    parser.add_argument("check", nargs="?", default="attitude", choices=["attitude", "refine", "naip", "seneca"])
     parser.add_argument("session", nargs="?", type=Path, help="refine: the mapped session")
     parser.add_argument("--seneca", type=Path, default=Path("/work/shared/data/seneca"))
     parser.add_argument("--pairs", type=int, default=60)
@@ -262,6 +309,10 @@ def main() -> None:
               f" px; poses moved {st['position_change_mean_m']:.2f} m (max {st['position_change_max_m']:.2f}),"
               f" {st['rotation_change_mean_deg']:.2f} deg (max {st['rotation_change_max_deg']:.2f});"
               f" {st['iterations']} evaluations, {st['seconds']:.1f} s")
+        return
+    if args.check == "seneca":
+        for k, v in seneca_end_to_end(args.seneca, args.work).items():
+            print(f"{k}: {v}")
         return
     if args.check == "naip":
         r = naip_check(args.naip, args.work, extra)

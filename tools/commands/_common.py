@@ -9,7 +9,13 @@ from ...plugin.params import Params
 
 
 def add_params_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--config FILE` and repeatable `--set section.key=value` for commands that use method parameters."""
+    """`--preset NAME`, `--config FILE` and repeatable `--set section.key=value` for commands that use method
+    parameters (applied in that order)."""
+    from ...plugin.params import PRESETS
+
+    parser.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                        help="named parameter preset: paper (the defaults) or survey (photogrammetric flights, "
+                             "frames 30-40 m apart; see README)")
     parser.add_argument("--config", type=Path, help="TOML file of parameters (see `sosmatch config dump`)")
     parser.add_argument(
         "--set",
@@ -25,4 +31,4 @@ def params_from_args(args: argparse.Namespace) -> Params:
     from ...database.config_io import load_params, parse_override
 
     overrides = dict(parse_override(text) for text in args.overrides)
-    return load_params(args.config, overrides)
+    return load_params(args.config, overrides, getattr(args, "preset", None))
