@@ -100,3 +100,51 @@ def test_touching_discs_are_split_when_asked():
     assert len(split) > len(plain)
     best = mask_iou_matrix(gt, split).max(axis=1)
     assert np.all(best >= 0.7), best
+
+
+def shaded_crown_scene(h=480, w=640, n=10, seed=0):
+    """Textured lawn with n textured crowns lit from the upper left: the lower-right half of each crown is shaded
+    and each casts a shadow on the lawn (both multiplicative, as sunlight is). Returns image and crown ids."""
+    rng = np.random.default_rng(seed)
+    noise = cv2.GaussianBlur(rng.normal(0, 10, (h, w)).astype(np.float32), (0, 0), 1.0)
+    img = np.array([95, 140, 60], np.float32)[None, None] + noise[..., None] * 0.6
+    light = np.ones((h, w), np.float32)
+    gt = np.zeros((h, w), np.uint16)
+    crowns = []
+    while len(crowns) < n:
+        r = rng.uniform(18, 32)
+        cx, cy = rng.uniform(2 * r + 2, [w - 2 * r - 2, h - 2 * r - 2])
+        if any(np.hypot(cx - x, cy - y) < 2.6 * (r + q) for x, y, q in crowns):
+            continue
+        crowns.append((cx, cy, r))
+    yy, xx = np.mgrid[0:h, 0:w]
+    for cx, cy, r in crowns:
+        shadow = np.hypot(xx - cx - 0.9 * r, yy - cy - 0.9 * r) < r
+        light[shadow] = 0.55
+    for k, (cx, cy, r) in enumerate(crowns, 1):
+        disc = np.hypot(xx - cx, yy - cy) < r
+        img[disc] = np.array([40, 75, 30], np.float32) + noise[disc, None] * 1.5
+        light[disc] = np.where((xx[disc] - cx) + (yy[disc] - cy) > 0, 0.55, 1.0)
+        gt[disc] = k
+    img *= light[..., None]
+    return np.clip(img, 0, 255).astype(np.uint8), gt
+
+
+def test_shaded_crowns_are_whole_masks_without_fragments():
+    """Chromaticity features join a crown's lit and shaded halves and keep the cast shadow out (CIELAB alone
+    returns halves or crown + shadow); masks that are a large part of a whole crown's mask are dropped."""
+    img, gt = shaded_crown_scene()
+    gt_masks = MaskSet.from_labels(gt.astype(np.int32) - 1)
+
+    def run(**kw):
+        masks = get_backend("classical", SegmentationParams(**kw))(img)
+        return masks, mask_iou_matrix(gt_masks, masks).max(axis=1)
+
+    masks, best = run()
+    _, best_lab = run(classical_chroma_weight=0.0, classical_fragment_ratio=0.0)
+    masks_all, best_all = run(classical_fragment_ratio=0.0)
+    assert np.median(best) >= 0.85, best
+    assert np.median(best_lab) < np.median(best) - 0.15, best_lab
+    # the fragment rule removes masks but never the whole crowns
+    assert len(masks) < len(masks_all)
+    assert np.array_equal(best, best_all)

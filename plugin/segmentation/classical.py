@@ -3,14 +3,16 @@
 Pipeline, at a reduced working resolution (`classical_max_side`, 400 px):
 1. smoothing: median filter (removes leaf / furrow texture finer than the kernel) then a bilateral filter;
 2. over-segmentation: marker-controlled watershed (OpenCV) seeded by the flat zones of the CIELAB gradient;
-3. a merge hierarchy: greedy Ward linkage on the region adjacency graph over colour (CIELAB), texture (local
-   lightness std) and the mean gradient along the shared boundary (`classical_edge_weight`); the partitions at
+3. a merge hierarchy: greedy Ward linkage on the region adjacency graph over colour (CIELAB and the
+   shading-invariant normalised r, g chromaticity, `classical_chroma_weight`), texture (local lightness std) and
+   the mean gradient along the shared boundary (`classical_edge_weight`); the partitions at
    `classical_merge_levels` (7) cost levels are kept. Size-aware merging rebuilds crowns from their lit and
    shaded fragments and fields from their patches before a crown joins the lawn around it;
 4. object-like regions of every level: not larger than `classical_max_area_frac` of the image (background),
    not smaller than `classical_min_area_px`, not elongated (`classical_max_elongation`: roads, hedgerows,
    field edges), contrasted to their neighbours (`classical_min_contrast`); nested near-duplicates across
-   levels (IoU > `classical_dedup_iou`) keep the more contrasted one. Like SAM's multimask output the masks
+   levels (IoU > `classical_dedup_iou`) keep the more contrasted one, and parts of an elliptic whole
+   (`classical_fragment_ratio`) are dropped. Like SAM's multimask output the masks
    may overlap (a crown and the pair of crowns it belongs to), so they are returned as bbox crops;
 5. masks are mapped back to full resolution window by window (nearest neighbour).
 
@@ -244,6 +246,13 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
         feats = np.concatenate([lab, (c["texture_weight"] * tex)[..., None]], axis=2)
     else:
         feats = lab
+    if c["chroma_weight"] > 0:
+        # Illumination-invariant chromaticity (normalised r, g): a cast shadow on the lawn keeps the lawn's
+        # chromaticity and a crown's shaded half its lit half's, while CIELAB a, b shrink with the light.
+        s3 = smooth.astype(np.float32)
+        tot = s3.sum(axis=2, keepdims=True) + 3.0
+        chroma = (c["chroma_weight"] * 300.0) * s3[..., :2] / tot
+        feats = np.concatenate([feats, chroma], axis=2)
     if c["lightness_weight"] != 1.0:
         # Lit and shaded halves of one crown differ mostly in lightness, a crown and the lawn in chroma and
         # texture: a lighter weight on L lets the halves join first.
@@ -261,6 +270,9 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
     # split, or fused with its neighbour, at another: SAM's multimask output has the same nesting).
     cand: list[tuple[float, int, int, float]] = []  # (contrast, level, root id, area)
     parent_of: list[np.ndarray] = []
+    area_at: list[np.ndarray] = []
+    keep_at: list[np.ndarray] = []
+    contrast_at: list[np.ndarray] = []
     for lvl, root in enumerate(roots):
         # rows of non-root regions stay zero (a root's id is one of its own members)
         lm = np.stack([np.bincount(root, mom[:, k], n) for k in range(mom.shape[1])], 1)
@@ -282,6 +294,26 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
         for r in np.flatnonzero(keep):
             cand.append((float(contrast[r]), lvl, int(r), float(area[r])))
         parent_of.append(root)
+        area_at.append(area)
+        contrast_at.append(contrast)
+        keep_at.append(keep & (fill >= c["fragment_parent_fill"]))
+
+    if c["fragment_ratio"] > 0:
+        # Parts of a whole: a candidate that is at least `fragment_ratio` of a coarser candidate containing it,
+        # when that one is elliptic (fill >= `fragment_parent_fill`: one crown, not a clump of two) and at least
+        # as contrasted. Such parts (a third of a crown, its lit side) are tracked like objects but their
+        # centroids sit a metre or two off the object's: on the 100-frame summer session they made 45 % of the
+        # landmarks on objects and doubled the median landmark error (BENCHMARKS, Mapping).
+        def is_fragment(con: float, lvl: int, r: int, ar: float) -> bool:
+            for L in range(lvl + 1, len(parent_of)):
+                anc = parent_of[L][r]
+                if ar < c["fragment_ratio"] * area_at[L][anc]:
+                    return False
+                if area_at[L][anc] > ar and keep_at[L][anc] and contrast_at[L][anc] >= con:
+                    return True
+            return False
+
+        cand = [t for t in cand if not is_fragment(*t)]
 
     # Near-duplicates across levels (a region that only gained a sliver): the nested pair with IoU above
     # `dedup_iou` keeps the member with the higher contrast. Nested masks: IoU = small area / large area.

@@ -232,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gt-masks", action="store_true", help="also run with ground-truth label masks")
     ap.add_argument("--score-only", action="store_true", help="score the sessions already mapped in --out")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="passed to sosmatch map")
+    ap.add_argument("--poses", choices=("both", "exact", "ekf"), default="both", help="pose sets to run")
     args = ap.parse_args(argv)
     extra = [a for o in args.overrides for a in ("--set", o)]
     print(machine_summary())
@@ -243,6 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bench-map-out-") as tmp:
         root = args.out or Path(tmp)
         variants = [(False, False), (True, False)] + ([(False, True), (True, True)] if args.gt_masks else [])
+        if args.poses != "both":
+            variants = [v for v in variants if v[0] == (args.poses == "ekf")]
         for ekf, gt in variants:
             out = root / (("map_ekf" if ekf else "map_exact") + ("_gtmasks" if gt else ""))
             if args.score_only:
