@@ -3,14 +3,17 @@
 Pixel convention: COLMAP's, the centre of the top-left pixel is (0.5, 0.5); OpenCV keypoints (centre at 0, 0)
 are shifted by +0.5 on the way out.
 
-SIFT: one OpenCV SIFT pass per image (on the union of the masks, optionally on a downscaled copy for speed, see
-`SegmentationParams.sift_max_side`), then each keypoint is assigned to every mask that contains its pixel and
-each mask keeps its `max_sift_per_mask` strongest keypoints. Descriptors are RootSIFT (L1-normalise, square
-root; the result has unit L2 norm), so Euclidean distances and Lowe's ratio test behave like the Hellinger kernel.
+SIFT: one OpenCV SIFT pass per image on a downscaled copy (`SegmentationParams.sift_max_side`), keypoints kept
+inside the union of the masks (`segment_and_describe` runs the detection beside the backend); each keypoint is
+assigned to every mask that contains its pixel and each mask keeps its `max_sift_per_mask` strongest keypoints.
+Descriptors are RootSIFT (L1-normalise, square root; the result has unit L2 norm), so Euclidean distances and
+Lowe's ratio test behave like the Hellinger kernel.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 
 import cv2
@@ -132,25 +135,68 @@ def covariance_size(cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(lam, 0.0))
 
 
-def _sift_detect(
-    gray: np.ndarray, union: np.ndarray, params: SegmentationParams
-) -> tuple[np.ndarray, np.ndarray, list, np.ndarray, cv2.SIFT]:
-    """SIFT detection only (descriptors come later, for the kept keypoints only).
+@dataclass
+class SiftDetection:
+    """SIFT keypoints of a whole image, before any mask is known (see `detect_sift`)."""
 
-    Returns (xy (M, 2) COLMAP convention full-image pixels, responses (M,), OpenCV keypoints, working gray
-    image, the SIFT object)."""
+    shape: tuple[int, int]  # (H, W) of the full-resolution image
+    work: np.ndarray  # the (possibly downscaled) gray image SIFT ran on
+    keypoints: list  # OpenCV keypoints at the working scale
+    sift: cv2.SIFT
+
+
+def detect_sift(image: np.ndarray, params: SegmentationParams) -> SiftDetection:
+    """SIFT detection on the whole image at `params.sift_max_side` (no mask needed).
+
+    OpenCV applies a detection mask only after detection (KeyPointsFilter::runByPixelsMask), so detecting
+    without one and filtering later gives the same keypoints; this lets detection run while the segmentation
+    backend works (`segment_and_describe`)."""
+    gray = to_gray_u8(image)
     h, w = gray.shape
     scale = min(1.0, params.sift_max_side / max(h, w)) if params.sift_max_side > 0 else 1.0
-    mask = union.view(np.uint8) * np.uint8(255)
     if scale < 1.0:
         size = (max(1, round(w * scale)), max(1, round(h * scale)))
         gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
-        mask = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST)
     sift = cv2.SIFT_create(contrastThreshold=params.sift_contrast_threshold)
-    kps = sift.detect(gray, mask)
-    xy = _keypoint_xy(kps, w / gray.shape[1], h / gray.shape[0])
+    return SiftDetection((h, w), gray, list(sift.detect(gray, None)), sift)
+
+
+def _sift_in_union(
+    det: SiftDetection, union: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, list, np.ndarray, cv2.SIFT]:
+    """The detection's keypoints inside the union of the masks, filtered exactly as OpenCV's detection mask
+    does (mask at the working scale by nearest neighbour, keypoint pixel (int)(pt + 0.5)).
+
+    Returns (xy (M, 2) COLMAP convention full-image pixels, responses (M,), OpenCV keypoints, working gray
+    image, the SIFT object)."""
+    h, w = det.shape
+    wh, ww = det.work.shape
+    mask = union
+    if (wh, ww) != (h, w):
+        mask = cv2.resize(union.view(np.uint8), (ww, wh), interpolation=cv2.INTER_NEAREST) > 0
+    kps = det.keypoints
+    if kps:
+        pts = np.array([kp.pt for kp in kps], np.float32)
+        col = np.clip((pts[:, 0] + np.float32(0.5)).astype(np.int64), 0, ww - 1)
+        row = np.clip((pts[:, 1] + np.float32(0.5)).astype(np.int64), 0, wh - 1)
+        kps = [kps[i] for i in np.flatnonzero(mask[row, col])]
+    xy = _keypoint_xy(kps, w / ww, h / wh)
     resp = np.array([kp.response for kp in kps], np.float32)
-    return xy, resp, list(kps), gray, sift
+    return xy, resp, kps, det.work, det.sift
+
+
+def segment_and_describe(
+    image: np.ndarray, backend: Callable[[np.ndarray], MaskSet], params: SegmentationParams
+) -> tuple[MaskSet, MaskFeatures]:
+    """`backend(image)` and `describe_masks` with the SIFT detection running in a second thread meanwhile.
+
+    Same result as calling them one after the other; on two cores the detection's time is hidden behind the
+    segmentation's (OpenCV releases the GIL)."""
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        future = pool.submit(detect_sift, image, params)
+        masks = backend(image)
+        detection = future.result()
+    return masks, describe_masks(image, masks, params, detection)
 
 
 def _keypoint_xy(kps: list, sx: float, sy: float) -> np.ndarray:
@@ -189,7 +235,9 @@ def _assign_keypoints(xy: np.ndarray, masks: MaskSet) -> tuple[np.ndarray, np.nd
     return np.concatenate(kp_list), np.concatenate(mask_list)
 
 
-def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams) -> MaskFeatures:
+def describe_masks(
+    image: np.ndarray, masks: MaskSet, params: SegmentationParams, detection: SiftDetection | None = None
+) -> MaskFeatures:
     """Describe every mask of `masks` with at least `params.min_mask_area_px` pixels.
 
     Each mask keeps its strongest `max_sift_per_mask` SIFT keypoints; if the image would then have more than
@@ -199,6 +247,7 @@ def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams
         image: (H, W, 3) uint8 RGB or (H, W) uint8 gray, the image the masks were computed on.
         masks: the backend's masks (same H, W).
         params: segmentation parameters (`min_mask_area_px`, `max_sift_per_mask`, `sift_*`).
+        detection: `detect_sift(image, params)` if already computed (e.g. while the backend ran).
 
     Returns:
         MaskFeatures of the kept masks, in MaskSet order; `mask_ids` maps them back to `masks`.
@@ -214,8 +263,11 @@ def describe_masks(image: np.ndarray, masks: MaskSet, params: SegmentationParams
         areas, cent, cov = areas[keep], cent[keep], cov[keep]
     sizes = covariance_size(cov)
 
-    gray = to_gray_u8(image)
-    xy, resp, kps, work, sift = _sift_detect(gray, masks.union(), params)
+    if detection is None:
+        detection = detect_sift(image, params)
+    elif detection.shape != masks.shape:
+        raise ValueError(f"SIFT detection of a {detection.shape} image for masks of {masks.shape}")
+    xy, resp, kps, work, sift = _sift_in_union(detection, masks.union())
     kp, owner = _assign_keypoints(xy, masks) if len(xy) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     # Cap per mask: sort by (mask, -response) and keep the first max_sift_per_mask of each group.
     order = np.lexsort((-resp[kp], owner))

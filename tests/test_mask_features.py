@@ -120,3 +120,29 @@ def test_npz_round_trip_subset_and_empty(tmp_path):
     empty = describe_masks(_texture(*shape), MaskSet.empty(shape), SegmentationParams())
     assert len(empty) == 0 and empty.sift_desc.shape == (0, 128)
     assert len(MaskFeatures.from_npz_dict(empty.to_npz_dict())) == 0
+
+
+def test_detection_beside_the_backend_gives_the_same_description():
+    """`segment_and_describe` (SIFT detection in a thread, mask applied afterwards) == backend + describe_masks
+    (both at full size and at a downscaled SIFT resolution); a detection of another image size is refused."""
+    import pytest
+
+    from sosmatch.plugin.mask_features import detect_sift, segment_and_describe
+
+    image = _texture(300, 400, seed=3)
+    labels = np.full(image.shape[:2], -1, np.int32)
+    labels[_ellipse_mask(labels.shape, (120, 140), (70, 40), 20)] = 0
+    labels[_ellipse_mask(labels.shape, (290, 160), (50, 60), -10)] = 1
+    masks = MaskSet.from_labels(labels)
+    for side in (0, 240):
+        params = SegmentationParams(sift_max_side=side, max_sift_per_mask=40)
+        ref = describe_masks(image, masks, params)
+        got_masks, got = segment_and_describe(image, lambda im: masks, params)
+        assert got_masks is masks
+        assert len(ref.sift_xy) > 20
+        for name in ("centroids", "sift_xy", "sift_desc", "sift_mask", "mask_ids"):
+            assert np.array_equal(getattr(ref, name), getattr(got, name)), name
+        # keypoints outside both masks were found by the whole-image detection but are not described
+        assert len(detect_sift(image, params).keypoints) > len(np.unique(ref.sift_xy, axis=0))
+    with pytest.raises(ValueError, match="SIFT detection"):
+        describe_masks(image, masks, params, detect_sift(image[:200], params))

@@ -290,7 +290,7 @@ def _describe_one(
     Returns (MaskFeatures, (mu_p, sigma_p), gray image). Runs in the main process or a worker process.
     """
     from ..database.images import read_image
-    from ..plugin.mask_features import describe_masks, to_gray_u8
+    from ..plugin.mask_features import describe_masks, segment_and_describe, to_gray_u8
     from ..plugin.motion import image_motion_stats
     from ..plugin.segmentation import get_backend
 
@@ -304,14 +304,14 @@ def _describe_one(
     mu_sigma = (float(mu_sigma[0]), float(mu_sigma[1]))
     seg = params.segmentation
     if masks_for is not None:
-        masks = masks_for(path.name, image)
+        feats = describe_masks(image, masks_for(path.name, image), seg)
     else:
         cache_name = json.dumps(params_to_dict(seg), sort_keys=True)
         if cache_name not in _WORKER_BACKEND:
             _WORKER_BACKEND.clear()
             _WORKER_BACKEND[cache_name] = get_backend(seg.backend, seg)
-        masks = _WORKER_BACKEND[cache_name](image)
-    feats = describe_masks(image, masks, seg)
+        # the SIFT detection runs in a second thread while the backend segments (same features)
+        _, feats = segment_and_describe(image, _WORKER_BACKEND[cache_name], seg)
     _save_cached(entry, key, feats, mu_sigma)
     return feats, mu_sigma, gray
 

@@ -24,7 +24,7 @@ import numpy as np
 from ..database.atomic import atomic_path, write_text_atomic
 from ..database.images import list_images, read_image
 from ..plugin.errors import InputError
-from ..plugin.mask_features import MaskFeatures, describe_masks
+from ..plugin.mask_features import MaskFeatures, describe_masks, segment_and_describe
 from ..plugin.params import Params
 from ..plugin.segmentation import MaskSet, get_backend
 
@@ -119,8 +119,7 @@ def segment_image(image: np.ndarray, params: Params, backend: object = None) -> 
     """Segment and describe one (H, W, 3) uint8 RGB image (the backend is built from `params` if not given)."""
     seg = params.segmentation
     backend = backend or get_backend(seg.backend, seg)
-    masks = backend(image)
-    return masks, describe_masks(image, masks, seg)
+    return segment_and_describe(image, backend, seg)  # SIFT detection runs beside the backend
 
 
 def run(

@@ -177,34 +177,55 @@ def _ward_merge(
     heapq.heapify(heap)
     levels = sorted(thresholds)
     snapshots: list[list[int]] = []
+    # The loop below runs ~100k times per frame: locals instead of attribute look-ups, the next threshold in a
+    # variable, and the cost inlined (same arithmetic, in the same order, as `cost`).
+    heappop, heappush = heapq.heappop, heapq.heappush
+    next_level = levels[0] if levels else float("inf")
     while heap:
-        c, i, j, vi, vj = heapq.heappop(heap)
-        while len(snapshots) < len(levels) and c > levels[len(snapshots)]:
-            snapshots.append(list(parent))
-        if len(snapshots) == len(levels):
-            break
-        if not (alive[i] and alive[j]) or version[i] != vi or version[j] != vj:
+        c, i, j, vi, vj = heappop(heap)
+        if c > next_level:
+            while len(snapshots) < len(levels) and c > levels[len(snapshots)]:
+                snapshots.append(list(parent))
+            if len(snapshots) == len(levels):
+                break
+            next_level = levels[len(snapshots)]
+        if version[i] != vi or version[j] != vj or not (alive[i] and alive[j]):
             continue
-        cnt[i] += cnt[j]
-        sums[i] = [x + y for x, y in zip(sums[i], sums[j])]
-        mu[i] = tuple(x / cnt[i] for x in sums[i]) if cnt[i] > 0 else mu[i]
+        ci = cnt[i] + cnt[j]
+        cnt[i] = ci
+        si = [x + y for x, y in zip(sums[i], sums[j])]
+        sums[i] = si
+        mu_i = tuple(x / ci for x in si) if ci > 0 else mu[i]
+        mu[i] = mu_i
         alive[j] = False
         parent[j] = i
+        nb_i = nbrs[i]
         for k in nbrs[j]:
             if k != i:
                 nbrs[k].discard(j)
                 nbrs[k].add(i)
-                nbrs[i].add(k)
+                nb_i.add(k)
                 if bnd:
                     jk = bnd.pop((j, k) if j < k else (k, j))
                     ik = bnd.setdefault((i, k) if i < k else (k, i), [0.0, 0.0])
                     ik[0] += jk[0]
                     ik[1] += jk[1]
-        nbrs[i].discard(j)
+        nb_i.discard(j)
         nbrs[j] = set()
-        version[i] += 1
-        for k in nbrs[i]:
-            heapq.heappush(heap, (cost(i, k), i, k, version[i], version[k]))
+        vi = version[i] + 1
+        version[i] = vi
+        for k in nb_i:
+            ck = cnt[k]
+            if ci <= 0 or ck <= 0:
+                ckost = 0.0
+            else:
+                d2 = dist(mu_i, mu[k]) ** 2
+                if bnd:
+                    ln, e = bnd[(i, k) if i < k else (k, i)]
+                    g = edge_weight * e / ln
+                    d2 += g * g
+                ckost = ci * ck / (ci + ck) * d2
+            heappush(heap, (ckost, i, k, vi, version[k]))
     while len(snapshots) < len(levels):
         snapshots.append(list(parent))
     roots = []

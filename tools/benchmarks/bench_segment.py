@@ -3,8 +3,9 @@
     python -m sosmatch.tools.benchmarks.bench_segment --seneca /work/shared/data/seneca/images \
         --synth summer=SESSION_DIR --synth winter=SESSION_DIR [--backend classical] [--frames 20]
 
-Speed: median seconds per frame of backend + describe_masks (image decoding excluded), on Seneca 1200x900
-frames and on synthetic 640x480 frames. Quality (synthetic sessions only): recall of ground-truth objects whose
+Speed: median seconds per frame of backend + describe_masks (`segment_and_describe`: the SIFT detection runs in a
+second thread; image decoding excluded), on Seneca 1200x900 frames and on synthetic 640x480 frames.
+Quality (synthetic sessions only): recall of ground-truth objects whose
 projected radius (radius * focal / depth) is >= 8 px, by a mask with IoU >= 0.5 against the object's rendered
 region (labels == id), per season and per object kind; also masks per frame and the precision-like share of
 masks that match any object (IoU >= 0.5).
@@ -29,7 +30,7 @@ import numpy as np
 from ...database.cameras import read_cameras_txt
 from ...database.images import list_images, read_image
 from ...database.poses import read_poses_csv
-from ...plugin.mask_features import describe_masks
+from ...plugin.mask_features import segment_and_describe
 from ...plugin.params import SegmentationParams
 from ...plugin.segmentation import MaskSet, get_backend, mask_iou_matrix
 from .machine import machine_summary
@@ -51,8 +52,7 @@ def time_frames(paths: list[Path], params: SegmentationParams, repeats: int = 1)
         best_w = best_c = float("inf")
         for _ in range(repeats):
             t0, c0 = time.perf_counter(), time.process_time()
-            masks = backend(image)
-            describe_masks(image, masks, params)
+            segment_and_describe(image, backend, params)
             best_w = min(best_w, time.perf_counter() - t0)
             best_c = min(best_c, time.process_time() - c0)
         wall.append(best_w)
@@ -89,8 +89,7 @@ def evaluate_session(session: Path, params: SegmentationParams, max_frames: int)
         image = read_image(session / "images" / names[i])
         labels = cv2.imread(str(session / "labels" / (Path(names[i]).stem + ".png")), cv2.IMREAD_UNCHANGED)
         t0 = time.perf_counter()
-        masks = backend(image)
-        describe_masks(image, masks, params)
+        masks, _ = segment_and_describe(image, backend, params)
         times.append(time.perf_counter() - t0)
         masks_per_frame.append(len(masks))
         ids = np.unique(labels[labels > 0]).astype(int)
