@@ -273,3 +273,22 @@ def test_verify_alignments_picks_the_supported_candidate_and_rejects_ties():
     v2 = verify_alignments(a2, sa2, b, sb, [(near, np.arange(10, 18)), (shift.compose(near), np.arange(10, 18))],
                            2.0, 0.2, 6)
     assert not v2.accepted and v2.runner_up_support > 0
+
+
+def test_merge_refine_iterates_where_one_refit_cannot(pair, tmp_path):
+    """3 deg and ~1.7 m off: far landmarks are beyond the fusion gate, so one refit on the associations the
+    start explains sees only part of the map; the iterated full-map refinement recovers the transform."""
+    root, world, a, b = pair
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    centre = read_session(a.path).landmarks.positions.mean(0)
+    about = Sim3(np.eye(3), centre).compose(yaw_transform(3.0, (1.2, -1.2, 0.3))).compose(Sim3(np.eye(3), -centre))
+    bad = about.compose(truth)
+    match = toy_match_json(a, b, tmp_path / "match.json", transform=bad)
+    pts = read_session(b.path).landmarks.positions
+    one, _ = merge.refine_transform(read_session(a.path), read_session(b.path), read_match(match).associations, bad,
+                                    False, 2.0)
+    refined = merge.run(a.path, b.path, match, tmp_path / "refined", refine=True)
+    err_one, err_iter = transform_error(one, truth, pts), transform_error(refined.transforms[1], truth, pts)
+    assert err_iter[0] < 0.1 and err_iter[1] < 0.1
+    assert err_one[0] > 2 * err_iter[0]
+    assert json.loads((tmp_path / "refined" / "merge.json").read_text())["refine"]["dof"] == 4

@@ -36,8 +36,9 @@ from ..database.atomic import atomic_path, write_text_atomic
 from ..database.landmark_map import LandmarkMap, write_landmark_map
 from ..database.match_io import read_match
 from ..database.session_io import SessionFiles, read_session, write_landmarks_csv
+from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
-from ..plugin.multisession import Sim3, fusion_groups, umeyama
+from ..plugin.multisession import Sim3, fusion_groups, refine_alignment, umeyama
 from ..plugin.params import Params
 
 log = logging.getLogger(__name__)
@@ -305,8 +306,10 @@ def run(
 ) -> MergeResult:
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
-    With `refine`, the transform is re-estimated on all of the hypothesis' associations that it already
-    explains within `params.association.distance_tolerance_m` (rigid, or similarity when the match used one).
+    With `refine`, the transform is re-estimated on the full maps (`plugin.multisession.refine_alignment`:
+    size-gated mutual nearest neighbours within `params.association.distance_tolerance_m`, refitted until they
+    stop changing; yaw + translation for gravity-aligned rigid matches, else rigid / similarity). The
+    hypothesis' associations are still the ones fused (those the refined transform explains within the gate).
     Raises InputError when match.json has no accepted hypothesis.
     """
     params = params or Params()
@@ -316,12 +319,18 @@ def run(
     if not match.accepted or match.transform is None:
         raise InputError("match has no accepted hypothesis: the sessions cannot be merged", match_json)
     transform = match.transform
-    used = 0
+    used, dof = 0, 0
     if refine:
+        ap = params.association
         with_scale = match.transform_kind == "similarity" or not np.isclose(transform.scale, 1.0)
-        transform, used = refine_transform(
-            a, b, match.associations, transform, with_scale, params.association.distance_tolerance_m
-        )
+        # gravity-aligned maps (the match's own gravity check): yaw + translation only, which keeps the
+        # landmarks' metre-level height noise out of the rotation; otherwise a full rigid / similarity fit
+        dof = 4 if not with_scale and tilt_deg(transform.rotation) <= ap.max_gravity_angle_deg else 6
+        la, lb = a.landmarks, b.landmarks
+        aligned = refine_alignment(la.positions, la.sizes, lb.positions, lb.sizes, transform,
+                                   ap.distance_tolerance_m, ap.max_size_difference, dof=dof, with_scale=with_scale)
+        if len(aligned.associations) >= 3:
+            transform, used = aligned.transform, len(aligned.associations)
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],
@@ -337,7 +346,7 @@ def run(
         {
             "match": str(match_json),
             "match_transform": match.transform.to_dict(),
-            "refine": {"requested": refine, "associations_used": used},
+            "refine": {"requested": refine, "associations_used": used, "dof": dof},
         },
     )
     log.info(
