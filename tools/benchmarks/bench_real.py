@@ -6,6 +6,10 @@ actually moves between consecutive frames.
 from `sosmatch poses-from-exif` poses): reprojection error of the landmarks before/after, how far poses moved.
 `naip`: two sessions rendered from the NAIP 2009 and 2015 orthophotos along one path, mapped and matched;
 scored against the exact shared ground truth (the true A_from_B transform is the identity).
+`seneca --work DIR`: Seneca end to end from the folder of JPEGs (poses from EXIF + telemetry, pose refinement,
+`sosmatch map` with telemetry and refined poses under the paper
+defaults and the "survey" preset), then `seneca-cross`: the ~55 degree flight lines against the ~237 degree
+ones, each mapped alone with the refined poses and matched (true transform: the identity).
 
 For each pair of consecutive frames on one flight line, ORB features are matched and filtered by a RANSAC
 homography (image evidence only, no telemetry). For each candidate convention (mount x sign of pitch x sign of
@@ -17,6 +21,7 @@ the distance to where the feature was actually seen. A wrong sign of a 10-degree
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_real attitude [--seneca /work/shared/data/seneca]
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_real refine SESSION --poses poses.csv
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_real naip --work DIR [--naip /work/shared/data/naip]
+    .venv/bin/python -m sosmatch.tools.benchmarks.bench_real seneca --work DIR [--seneca /work/shared/data/seneca]
 """
 
 from __future__ import annotations
@@ -235,7 +240,7 @@ def naip_check(naip: Path, work: Path, extra_args: list[str]) -> dict:
 
 def seneca_end_to_end(seneca: Path, work: Path) -> dict:
     """Seneca from the folder of JPEGs: poses from EXIF + telemetry, pose refinement (COLMAP pose-prior BA on ORB
-    tie points), the image-motion check with the refined poses, then `sosmatch map` with the telemetry poses and
+    tie points), then `sosmatch map` with the telemetry poses and
     with the refined poses (paper defaults and the "survey" preset). Returns the figures."""
     import json
 
@@ -255,13 +260,6 @@ def seneca_end_to_end(seneca: Path, work: Path) -> dict:
                               refine=True)
     out["refine_seconds"] = time.perf_counter() - t
     out["refinement"] = res.summary["refinement"]
-    check = attitude_check(seneca, 60, work / "poses_refined.csv")
-    telemetry_rows = {k: v for k, v in check["results"].items() if not k.startswith("poses from")}
-    best = min(telemetry_rows, key=lambda k: telemetry_rows[k]["median_px"])
-    row = telemetry_rows[best]
-    out["motion_check_px"] = {f"telemetry ({best})": (row["median_px"], row["p90_px"])}
-    out["motion_check_px"].update({k: (v["median_px"], v["p90_px"]) for k, v in check["results"].items()
-                                   if k.startswith("poses from")})
     for label, poses_csv, preset in [("telemetry, paper defaults", "poses.csv", "paper"),
                                      ("refined, paper defaults", "poses_refined.csv", "paper"),
                                      ("telemetry, survey preset", "poses.csv", "survey"),
@@ -277,12 +275,95 @@ def seneca_end_to_end(seneca: Path, work: Path) -> dict:
                       "tracks_long": run["counts"]["tracks_long"], "masks": run["counts"]["masks"],
                       "mean_reprojection_px": float(errors.mean()) if len(errors) else float("nan"),
                       "map_bytes": run["counts"]["map_bytes"], "seconds": wall}
+    draw_landmarks(work / "map_refined_survey_preset", seneca / "images", ["IMG_0468.jpg", "IMG_0530.jpg",
+                   "IMG_0605.jpg"], work / "seneca_landmarks.jpg")
     return out
+
+
+def seneca_cross_session(seneca: Path, work: Path, poses_csv: Path) -> dict:
+    """A cross-session test inside the Seneca flight: the frames flown north-east-wards (course over ground 0-150
+    degrees: the ~55 degree lines and the cross lines) against those flown south-west-wards (150-360: the ~237
+    degree lines), each mapped on its own with the "survey" preset from `poses_csv` (one frame for both, so the
+    true transform is the identity), then `sosmatch match`. The course comes from consecutive GPS positions: the
+    telemetry heading is off by a crab angle of up to tens of degrees."""
+    from sosmatch.database.config_io import load_params
+    from sosmatch.database.poses import read_poses_csv, write_poses_csv
+    from sosmatch.plugin.geometry import rotation_angle_deg
+    from sosmatch.workflows import map as map_wf
+    from sosmatch.workflows import match as match_wf
+
+    poses, epsg = read_poses_csv(poses_csv)
+    step = np.gradient(poses.centers[:, :2], axis=0)  # images in capture order (file names)
+    course = np.degrees(np.arctan2(step[:, 0], step[:, 1])) % 360.0
+    out: dict = {}
+    sessions = []
+    for label, lo, hi in [("course_0-150", 0.0, 150.0), ("course_150-360", 150.0, 360.0)]:
+        keep = [i for i in range(len(poses)) if lo <= course[i] < hi]
+        subset_csv = work / f"poses_{label}.csv"
+        write_poses_csv(subset_csv, poses.subset(keep), epsg)
+        inputs = map_wf.load_inputs(seneca / "images", subset_csv, work / "cameras.txt")
+        session = work / f"map_{label}"
+        summary = map_wf.run(load_params(preset="survey"), inputs, session, overwrite=True, progress=False)
+        out[label] = {"frames": len(keep), "landmarks": summary.num_landmarks}
+        sessions.append(session)
+    t = time.perf_counter()
+    res = match_wf.run(load_params(preset="survey"), sessions[0], sessions[1], work / "match_headings", plot=True)
+    out["match_seconds"] = time.perf_counter() - t
+    out["accepted"] = res.transform is not None
+    if res.transform is not None:
+        out["translation_error_m"] = float(np.linalg.norm(res.transform.translation))
+        out["rotation_error_deg"] = float(rotation_angle_deg(res.transform.rotation, np.eye(3)))
+        pa = res.map_a.lmap.positions[res.associations[:, 0]]
+        pb = res.map_b.lmap.positions[res.associations[:, 1]]
+        d = np.linalg.norm(pa[:, :2] - pb[:, :2], axis=1)
+        out["associations"] = len(d)
+        out["associations_within_5m"] = int(np.sum(d < 5.0))
+    return out
+
+
+def draw_landmarks(session: Path, images_dir: Path, names: list[str], out: Path, width: int = 600) -> None:
+    """A figure: the named images of a mapped session, side by side, each landmark observation drawn as a circle of
+    the landmark's metric size at its observed centroid (yellow) with a line to where the landmark reprojects (red
+    dot)."""
+    import cv2
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(session / "sparse"))
+    by_name = {im.name: im for im in rec.images.values()}
+    sizes = {}
+    for row in (session / "landmarks.csv").read_text().splitlines()[1:]:
+        cols = row.split(",")
+        sizes[int(cols[1])] = float(cols[5])
+    tiles = []
+    for name in names:
+        img = cv2.imread(str(images_dir / name))
+        image = by_name.get(name)
+        if img is None or image is None:
+            continue
+        fx = image.camera.params[0]
+        for p2d in image.points2D:
+            if not p2d.has_point3D() or p2d.point3D_id not in rec.points3D:
+                continue
+            xyz = rec.points3D[p2d.point3D_id].xyz
+            depth = (image.cam_from_world() * xyz)[2]
+            radius = max(3, int(round(sizes.get(p2d.point3D_id, 1.0) * fx / max(depth, 1e-6))))
+            obs = tuple(int(round(v - 0.5)) for v in p2d.xy)
+            proj = image.project_point(xyz)
+            cv2.circle(img, obs, radius, (0, 255, 255), 3)
+            if proj is not None:
+                pr = tuple(int(round(v - 0.5)) for v in proj)
+                cv2.line(img, obs, pr, (0, 0, 255), 2)
+                cv2.circle(img, pr, 4, (0, 0, 255), -1)
+        scale = width / img.shape[1]
+        tiles.append(cv2.resize(img, (width, int(round(img.shape[0] * scale))), interpolation=cv2.INTER_AREA))
+    if tiles:
+        cv2.imwrite(str(out), np.hstack(tiles), [cv2.IMWRITE_JPEG_QUALITY, 85])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("check", nargs="?", default="attitude", choices=["attitude", "refine", "naip", "seneca"])
+    parser.add_argument("check", nargs="?", default="attitude",
+                        choices=["attitude", "refine", "naip", "seneca", "seneca-cross"])
     parser.add_argument("session", nargs="?", type=Path, help="refine: the mapped session")
     parser.add_argument("--seneca", type=Path, default=Path("/work/shared/data/seneca"))
     parser.add_argument("--pairs", type=int, default=60)
@@ -313,6 +394,12 @@ def main() -> None:
     if args.check == "seneca":
         for k, v in seneca_end_to_end(args.seneca, args.work).items():
             print(f"{k}: {v}")
+        for k, v in seneca_cross_session(args.seneca, args.work, args.work / "poses_refined.csv").items():
+            print(f"cross-session {k}: {v}")
+        return
+    if args.check == "seneca-cross":
+        for k, v in seneca_cross_session(args.seneca, args.work, args.work / "poses_refined.csv").items():
+            print(f"cross-session {k}: {v}")
         return
     if args.check == "naip":
         r = naip_check(args.naip, args.work, extra)
