@@ -190,10 +190,9 @@ def refine_check(session: Path, poses_csv: Path, position_sigma_m: float, attitu
             "point_error_median_after_px": float(np.median(after))}
 
 
-def naip_check(naip: Path, work: Path, extra_args: list[str]) -> dict:
-    """Render both NAIP dates along one path, map both, match; score against the identity ground truth."""
-    import json
-
+def naip_sessions(naip: Path, work: Path, extra_args: list[str]) -> tuple[list[tuple[Path, Path]], dict]:
+    """Render both NAIP dates along one path (`synth-from-ortho`, extra_args passed on) and map them; existing
+    sessions and maps in `work` are reused. Returns [(session, mapped session)] oldest first, and the timings."""
     from ..cli import main as cli
 
     tifs = sorted(naip.glob("*.tif"))
@@ -213,6 +212,28 @@ def naip_check(naip: Path, work: Path, extra_args: list[str]) -> dict:
             assert cli(["map", "--poses", str(sess), "--out", str(mapped), "--no-progress"]) == 0
         times[f"map_{name}_s"] = time.perf_counter() - t0
         sessions.append((sess, mapped))
+    return sessions, times
+
+
+def evaluation_cases(data_root: Path, work: Path) -> list[dict]:
+    """Real-data cases for `bench_evaluate --real`: NAIP 2009 vs 2015 rendered along one path (frames every 75 m)
+    and mapped; the sessions carry exact poses, footprints and a flat terrain at z = 0, so the paper's evaluation
+    (footprint IoU ground truth, PR curves against ORB/SIFT + RANSAC) runs unchanged."""
+    naip = Path(data_root) / "naip"
+    if not naip.is_dir():
+        return []
+    (a, map_a), (b, map_b) = naip_sessions(naip, Path(work), ["--frame-spacing", "75"])[0]
+    return [{"case": "naip-2009-2015", "session_a": a, "session_b": b, "map_a": map_a, "map_b": map_b,
+             "ground_height": 0.0}]
+
+
+def naip_check(naip: Path, work: Path, extra_args: list[str]) -> dict:
+    """Render both NAIP dates along one path, map both, match; score against the identity ground truth."""
+    import json
+
+    from ..cli import main as cli
+
+    sessions, times = naip_sessions(naip, work, extra_args)
     t0 = time.perf_counter()
     match_dir = work / "naip_match"
     assert cli(["match", str(sessions[0][1]), str(sessions[1][1]), "--out", str(match_dir), "--no-plot"]) == 0
