@@ -449,7 +449,7 @@ def _agree(t1: Sim3, t2: Sim3, points: np.ndarray, tolerance_m: float) -> bool:
 def verify_alignments(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
     candidates: Sequence[tuple[Sim3, np.ndarray]], gate_m: float, max_size_difference: float,
-    min_support: int, min_ratio: float = 1.2, dof: int = 4, z_weight: float = 0.5,
+    min_support: int, min_ratio: float = 1.2, dof: int = 4, z_weight: float = 0.5, final_dof: int | None = 6,
 ) -> Verification:
     """Choose among a pair's window hypotheses by their support on the FULL maps, and refine the winner.
 
@@ -462,6 +462,10 @@ def verify_alignments(
     alignment with the most mutual-nearest-neighbour support wins; it is accepted when that support exceeds
     `min_support` and is at least `min_ratio` times the support of the best rival (an alignment that moves some
     of the winner's supporting B landmarks more than 2 gate_m away from where the winner puts them).
+    `final_dof` 6: the winner's transform is finally refitted rigidly (6-DOF, Huber-weighted) on its supporting
+    pairs. The 4-DOF search finds the pairs robustly; with tens to hundreds of pairs over the whole overlap the
+    small tilt between two EKF frames (~1 deg on the synthetic winter flights) is then observable, which one
+    window's 8-20 inliers could not resolve. None: keep the `dof` fit.
     """
     pb_all = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
     refined: list[Alignment] = []
@@ -486,5 +490,22 @@ def verify_alignments(
               if not _agree(best.transform, refined[k].transform, probe, 2.0 * gate_m)]
     runner_up = max(rivals, default=0)
     support = len(best.associations)
+    if final_dof == 6 and dof != 6 and support >= 3:
+        best = _final_rigid_fit(np.asarray(points_a, dtype=np.float64).reshape(-1, 3), pb_all, best, gate_m, z_weight)
     accepted = support > min_support and support >= min_ratio * runner_up
     return Verification(best, runner_up, len(refined), accepted)
+
+
+def _final_rigid_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, gate_m: float, z_weight: float) -> Alignment:
+    """One Huber-weighted 6-DOF fit on an alignment's supporting pairs (kept as they are)."""
+    assoc = aligned.associations
+    scale = np.array([1.0, 1.0, z_weight])
+    dist = np.linalg.norm((aligned.transform.apply(pb[assoc[:, 1]]) - pa[assoc[:, 0]]) * scale, axis=1)
+    huber = gate_m / 2.0
+    w = np.where(dist <= huber, 1.0, huber / np.maximum(dist, 1e-12))
+    try:
+        rigid = _weighted_umeyama(pb[assoc[:, 1]], pa[assoc[:, 0]], w, with_scale=False)
+    except ValueError:
+        return aligned
+    res = np.linalg.norm((rigid.apply(pb[assoc[:, 1]]) - pa[assoc[:, 0]]) * scale, axis=1)
+    return Alignment(rigid, assoc, float(np.sqrt(np.mean(res**2))), aligned.iterations)

@@ -193,10 +193,11 @@ def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params,
 
 def verify_pair(map_a: Any, map_b: Any, candidates: list[tuple[Any, np.ndarray]], pair_dir: Path,
                 params: Params, dof: int = 4, min_ratio: float = 1.2, z_weight: float = 0.5,
-                max_candidates: int = 400) -> dict[str, Any]:
+                max_candidates: int = 400, final_dof: int | None = 6) -> dict[str, Any]:
     """Verify a pair's window hypotheses on the full landmark maps (`plugin.multisession.verify_alignments`:
     mutual nearest neighbours within theta_eps that pass the size gate theta_r, ICP-refined with `dof` 4 =
-    yaw + translation), write pair_dir/alignment.json and return the summary fields it overrides.
+    yaw + translation, the winner finally refitted with `final_dof` 6 on its pairs), write
+    pair_dir/alignment.json and return the summary fields it overrides.
 
     `max_candidates` bounds the work on dense same-season maps (the largest hypotheses are tried first).
     """
@@ -206,7 +207,7 @@ def verify_pair(map_a: Any, map_b: Any, candidates: list[tuple[Any, np.ndarray]]
     ap = params.association
     sims = [(Sim3(t.rotation, t.translation, t.scale), idx) for t, idx in candidates[:max_candidates]]
     v = verify_alignments(a_p, map_a.sizes, b_p, map_b.sizes, sims, ap.distance_tolerance_m, ap.max_size_difference,
-                          ap.min_associations, min_ratio=min_ratio, dof=dof, z_weight=z_weight)
+                          ap.min_associations, min_ratio=min_ratio, dof=dof, z_weight=z_weight, final_dof=final_dof)
     match = read_match(pair_dir / "match.json")
     out = {
         "match_accepted": bool(match.accepted),
@@ -220,8 +221,9 @@ def verify_pair(map_a: Any, map_b: Any, candidates: list[tuple[Any, np.ndarray]]
     }
     doc = {
         "format": "sosmatch alignment v1",
-        "method": {"dof": dof, "gate_m": ap.distance_tolerance_m, "max_size_difference": ap.max_size_difference,
-                   "min_support": ap.min_associations, "min_ratio": min_ratio, "z_weight": z_weight,
+        "method": {"dof": dof, "final_dof": final_dof, "gate_m": ap.distance_tolerance_m,
+                   "max_size_difference": ap.max_size_difference, "min_support": ap.min_associations,
+                   "min_ratio": min_ratio, "z_weight": z_weight,
                    "candidates": len(sims), "refined": v.num_refined},
         "accepted": out["accepted"], "transform": out["transform"],
         "support": out["num_associations"], "runner_up_support": out["runner_up_support"],
@@ -358,6 +360,7 @@ class BatchOptions:
     # match's consensus as it is. BENCHMARKS.md, Multi-session, has what each step does to the errors.
     verify: bool = True
     verify_dof: int = 4  # 4: yaw + translation (gravity-aligned maps); 6: rigid
+    verify_final_dof: int | None = 6  # the winner refitted 6-DOF on its pairs (None: keep the verify_dof fit)
     verify_min_ratio: float = 1.2  # (ours) the winner's support over the best disagreeing alignment's
     edge_tolerance_m: float = 5.0  # (ours) two accepted pairs agree if they place sessions within this distance
     progress: bool = True
@@ -499,7 +502,8 @@ def run(
         chosen = _choose_pairs(mapped, sessions, options.nearest)
         matcher = pair_fn or pair_task
         # a custom matcher (pair_fn) returns its own summary; only the default one verifies
-        verify = ({"dof": options.verify_dof, "min_ratio": options.verify_min_ratio}
+        verify = ({"dof": options.verify_dof, "min_ratio": options.verify_min_ratio,
+                   "final_dof": options.verify_final_dof}
                   if options.verify and matcher is pair_task else None)
         pair_fps, pair_tasks = {}, {}
         for a, b in chosen:
