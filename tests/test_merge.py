@@ -196,14 +196,14 @@ def test_merge_with_a_similarity_transform(tmp_path):
 # --- full-map verification and refinement of a pair (plugin.multisession) -------------------------------------
 
 
-def _toy_maps(seed=0, n=300, noise=0.3):
+def _toy_maps(seed=0, n=300, noise=0.3, a_from_b=None):
     """Map A: landmarks over 200 x 200 m; map B: 70 % of them in a frame rotated 50 deg (yaw) and shifted,
     with noise (z noisier), plus 60 landmarks B alone has. Returns a, sizes_a, b, sizes_b, a_from_b, ids."""
     rng = np.random.default_rng(seed)
     a = np.column_stack([rng.uniform(0, 200, (n, 2)), rng.normal(0, 3, n)])
     sizes_a = rng.uniform(1, 6, n)
     ids = np.sort(rng.choice(n, int(0.7 * n), replace=False))
-    a_from_b = yaw_transform(50, (20, -10, 2))
+    a_from_b = a_from_b or yaw_transform(50, (20, -10, 2))
     b_only = np.column_stack([rng.uniform(0, 200, (60, 2)), rng.normal(0, 3, 60)])
     world = np.vstack([a[ids], b_only]) + rng.normal(0, noise, (len(ids) + 60, 3)) * [1, 1, 3]
     b = a_from_b.inverse().apply(world)
@@ -292,3 +292,20 @@ def test_merge_refine_iterates_where_one_refit_cannot(pair, tmp_path):
     assert err_iter[0] < 0.1 and err_iter[1] < 0.1
     assert err_one[0] > 2 * err_iter[0]
     assert json.loads((tmp_path / "refined" / "merge.json").read_text())["refine"]["dof"] == 4
+
+
+def test_verify_final_rigid_fit_recovers_a_small_tilt():
+    """Two EKF frames tilted 1.5 deg against each other: the 4-DOF search finds the pairs, the final 6-DOF fit on
+    them recovers the tilt the 4-DOF fit cannot express."""
+    from sosmatch.plugin.association.rigid import rotation_from_rpy_deg
+    from sosmatch.plugin.multisession import verify_alignments
+
+    truth = Sim3(rotation_from_rpy_deg(1.5, 0.0, 50.0), [20.0, -10.0, 2.0])
+    a, sa, b, sb, _, _ = _toy_maps(seed=5, a_from_b=truth)
+    start = [(yaw_transform(50, (20, -10, 2)), np.arange(10))]
+    flat = verify_alignments(a, sa, b, sb, start, 2.0, 0.2, 6, final_dof=None)
+    tilted = verify_alignments(a, sa, b, sb, start, 2.0, 0.2, 6)
+    assert flat.accepted and tilted.accepted
+    assert transform_error(flat.best.transform, truth, b)[1] > 1.2
+    assert transform_error(tilted.best.transform, truth, b)[1] < 0.3
+    assert np.array_equal(flat.best.associations, tilted.best.associations)
