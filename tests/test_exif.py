@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import json
 import math
 import zlib
 from pathlib import Path
@@ -209,3 +210,24 @@ def test_refine_option_runs_and_keeps_poses_without_tie_points(tmp_path):
     np.testing.assert_allclose(res.poses.centers, plain.poses.centers, atol=1e-6)
     poses, _ = read_poses_csv(tmp_path / "poses.csv")
     np.testing.assert_allclose(poses.rotations, plain.poses.rotations, atol=1e-9)
+
+
+def test_map_without_poses_reads_them_from_exif(tmp_path, capsys):
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(3):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 3e-4, 500.0,
+                   {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"})
+    assert main(["map", "--images", str(img), "--out", str(tmp_path / "s"), "--no-progress"]) == 0
+    run = json.loads((tmp_path / "s" / "run.json").read_text())
+    assert run["inputs"]["poses"].startswith("EXIF/XMP of") and run["epsg"] == 32614
+    assert run["counts"]["keyframes"] == 3
+    # the same poses through a pose CSV give the same keyframes and the same georeference
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p" / "poses.csv")]) == 0
+    assert main(["map", "--images", str(img), "--poses", str(tmp_path / "p" / "poses.csv"), "--out",
+                 str(tmp_path / "s2"), "--no-progress"]) == 0
+    run2 = json.loads((tmp_path / "s2" / "run.json").read_text())
+    assert run2["keyframes"] == run["keyframes"] and run2["map_origin"] == run["map_origin"]
+    capsys.readouterr()
+    assert main(["map", "--out", str(tmp_path / "s3")]) == 2
+    assert "give --poses, or --images" in capsys.readouterr().err

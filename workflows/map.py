@@ -90,7 +90,8 @@ def load_inputs(
     Args:
         images: image directory (optional when `poses` is a synth session: its images/ is used).
         poses: a pose CSV, a COLMAP model directory (or its images.bin/.txt), or a `sosmatch synth` session.
-        camera: cameras.txt / cameras.bin / model directory; optional when `poses` provides the intrinsics.
+        camera: cameras.txt / cameras.bin / model directory; optional when `poses` provides the intrinsics (a
+            synth session, a COLMAP model, or a pose CSV with a one-camera cameras.txt beside it).
         convention: overrides the pose CSV's `# convention:` comment.
         ekf: with a synth session, use its noisy poses_ekf.csv instead of the ground truth.
         strict: images without a pose or poses without an image are an error instead of a warning.
@@ -119,12 +120,18 @@ def load_inputs(
             raise InputError("--ekf needs a synth session directory as --poses", poses)
         pose_list, epsg = read_poses_csv(poses, convention)
         sources["poses"] = str(poses)
+        beside = poses.parent / "cameras.txt"  # where `sosmatch poses-from-exif` puts the intrinsics
+        if camera is None and beside.is_file():
+            cams = read_cameras_txt(beside)
+            if len(cams) == 1:
+                cam_from_poses = next(iter(cams.values()))
+                sources["camera"] = str(beside)
     if camera is not None:
         cam = read_camera_file(camera)
         sources["camera"] = str(camera)
     elif cam_from_poses is not None:
         cam = cam_from_poses
-        sources["camera"] = sources["poses"]
+        sources.setdefault("camera", sources["poses"])
     else:
         raise InputError("no camera intrinsics: give --camera (cameras.txt, cameras.bin or a COLMAP model)", poses)
     if images is None:

@@ -406,3 +406,27 @@ def run(
     result.summary["cameras_txt"] = str(cameras_path)
     log.info("wrote %s (%d poses, %s) and %s", out, len(result.poses), result.summary["crs"], cameras_path)
     return result
+
+
+def map_inputs_from_images(
+    images: str | Path,
+    telemetry: str | Path | None = None,
+    refine: bool = False,
+    position_sigma_m: float = 3.0,
+) -> object:
+    """`sosmatch map --images DIR` without `--poses`: the images' EXIF/XMP (and `telemetry`) poses and camera as
+    `workflows.map.MapInputs`, refined from tie points first when `refine` (see `run`). Nothing is written; the
+    map's fingerprint covers the poses as used, so a re-run resumes."""
+    from .map import MapInputs
+
+    result = poses_from_images(images, telemetry)
+    paths = {p.name: p for p in list_images(images)}
+    source = f"EXIF/XMP of {images}" + (f" + {telemetry}" if telemetry else "")
+    if refine:
+        from .pose_refinement import refine_poses_from_images
+
+        result.poses, _ = refine_poses_from_images([paths[n] for n in result.poses.names], result.poses,
+                                                   result.camera, position_sigma_m)
+        source += ", refined from tie points"
+    return MapInputs([paths[n] for n in result.poses.names], result.poses, result.camera, result.epsg,
+                     {"poses": source, "camera": f"EXIF of {images}", "images": str(images)})

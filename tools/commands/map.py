@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ...plugin.errors import InputError
 from ._common import add_params_arguments, params_from_args
 
 NAME = "map"
@@ -14,9 +15,14 @@ HELP = "build a session's landmark map from images and fixed poses (segments -> 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--images", type=Path, help="image directory (default: the synth session's images/)")
-    parser.add_argument("--poses", type=Path, required=True,
+    parser.add_argument("--poses", type=Path,
                         help="pose CSV (quaternion or yaw/pitch/roll), COLMAP model (dir or images.bin/.txt), "
-                             "or a `sosmatch synth` session directory")
+                             "or a `sosmatch synth` session directory (default: from the images' EXIF/XMP, as "
+                             "`sosmatch poses-from-exif`)")
+    parser.add_argument("--telemetry", type=Path,
+                        help="without --poses: attitude CSV for images whose XMP lacks it (see poses-from-exif)")
+    parser.add_argument("--refine", action="store_true",
+                        help="without --poses: refine the EXIF poses from tie points first (poses-from-exif --refine)")
     parser.add_argument("--camera", type=Path,
                         help="intrinsics: cameras.txt, cameras.bin or a COLMAP model (default: from --poses)")
     parser.add_argument("--out", type=Path, required=True, help="session directory to write")
@@ -40,7 +46,15 @@ def run(args: argparse.Namespace) -> int:
     from ...workflows import map as map_workflow
 
     params = params_from_args(args)
-    inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention, args.ekf, args.strict)
+    if args.poses is None:
+        if args.images is None:
+            raise InputError("give --poses, or --images with geotagged images (poses from EXIF/XMP)")
+        from ...workflows.poses_from_exif import map_inputs_from_images
+
+        inputs = map_inputs_from_images(args.images, args.telemetry, args.refine)
+    else:
+        inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention, args.ekf,
+                                          args.strict)
     summary = map_workflow.run(params, inputs, args.out, overwrite=args.overwrite, text_model=args.text,
                                keep_cache=args.keep_cache, progress=not args.no_progress and sys.stderr.isatty(),
                                workers=args.workers)
