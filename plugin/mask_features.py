@@ -143,14 +143,17 @@ class SiftDetection:
     work: np.ndarray  # the (possibly downscaled) gray image SIFT ran on
     keypoints: list  # OpenCV keypoints at the working scale
     sift: cv2.SIFT
+    descriptors: np.ndarray | None = None  # raw SIFT descriptors of every keypoint, when computed with them
 
 
-def detect_sift(image: np.ndarray, params: SegmentationParams) -> SiftDetection:
+def detect_sift(image: np.ndarray, params: SegmentationParams, with_descriptors: bool = False) -> SiftDetection:
     """SIFT detection on the whole image at `params.sift_max_side` (no mask needed).
 
     OpenCV applies a detection mask only after detection (KeyPointsFilter::runByPixelsMask), so detecting
     without one and filtering later gives the same keypoints; this lets detection run while the segmentation
-    backend works (`segment_and_describe`)."""
+    backend works (`segment_and_describe`). `with_descriptors`: describe every keypoint in the same pass (one
+    scale-space pyramid instead of two; OpenCV gives bit-identical descriptors either way), worth it when the
+    detection runs beside the segmentation anyway."""
     gray = to_gray_u8(image)
     h, w = gray.shape
     scale = min(1.0, params.sift_max_side / max(h, w)) if params.sift_max_side > 0 else 1.0
@@ -158,31 +161,34 @@ def detect_sift(image: np.ndarray, params: SegmentationParams) -> SiftDetection:
         size = (max(1, round(w * scale)), max(1, round(h * scale)))
         gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
     sift = cv2.SIFT_create(contrastThreshold=params.sift_contrast_threshold)
+    if with_descriptors:
+        kps, desc = sift.detectAndCompute(gray, None)
+        return SiftDetection((h, w), gray, list(kps), sift, desc)
     return SiftDetection((h, w), gray, list(sift.detect(gray, None)), sift)
 
 
-def _sift_in_union(
-    det: SiftDetection, union: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, list, np.ndarray, cv2.SIFT]:
+def _sift_in_union(det: SiftDetection, union: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
     """The detection's keypoints inside the union of the masks, filtered exactly as OpenCV's detection mask
     does (mask at the working scale by nearest neighbour, keypoint pixel (int)(pt + 0.5)).
 
-    Returns (xy (M, 2) COLMAP convention full-image pixels, responses (M,), OpenCV keypoints, working gray
-    image, the SIFT object)."""
+    Returns (xy (M, 2) COLMAP convention full-image pixels, responses (M,), OpenCV keypoints, their indices in
+    `det.keypoints`)."""
     h, w = det.shape
     wh, ww = det.work.shape
     mask = union
     if (wh, ww) != (h, w):
         mask = cv2.resize(union.view(np.uint8), (ww, wh), interpolation=cv2.INTER_NEAREST) > 0
     kps = det.keypoints
+    index = np.arange(len(kps))
     if kps:
         pts = np.array([kp.pt for kp in kps], np.float32)
         col = np.clip((pts[:, 0] + np.float32(0.5)).astype(np.int64), 0, ww - 1)
         row = np.clip((pts[:, 1] + np.float32(0.5)).astype(np.int64), 0, wh - 1)
-        kps = [kps[i] for i in np.flatnonzero(mask[row, col])]
+        index = np.flatnonzero(mask[row, col])
+        kps = [kps[i] for i in index]
     xy = _keypoint_xy(kps, w / ww, h / wh)
     resp = np.array([kp.response for kp in kps], np.float32)
-    return xy, resp, kps, det.work, det.sift
+    return xy, resp, kps, index
 
 
 def segment_and_describe(
@@ -193,7 +199,7 @@ def segment_and_describe(
     Same result as calling them one after the other; on two cores the detection's time is hidden behind the
     segmentation's (OpenCV releases the GIL)."""
     with ThreadPoolExecutor(max_workers=1) as pool:
-        future = pool.submit(detect_sift, image, params)
+        future = pool.submit(detect_sift, image, params, True)
         masks = backend(image)
         detection = future.result()
     return masks, describe_masks(image, masks, params, detection)
@@ -267,7 +273,7 @@ def describe_masks(
         detection = detect_sift(image, params)
     elif detection.shape != masks.shape:
         raise ValueError(f"SIFT detection of a {detection.shape} image for masks of {masks.shape}")
-    xy, resp, kps, work, sift = _sift_in_union(detection, masks.union())
+    xy, resp, kps, det_index = _sift_in_union(detection, masks.union())
     kp, owner = _assign_keypoints(xy, masks) if len(xy) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     # Cap per mask: sort by (mask, -response) and keep the first max_sift_per_mask of each group.
     order = np.lexsort((-resp[kp], owner))
@@ -292,9 +298,11 @@ def describe_masks(
     # Descriptors only for keypoints some mask kept (one compute call; shared keypoints computed once).
     uniq, inverse = np.unique(kp, return_inverse=True)
     desc = np.zeros((len(uniq), 128), np.float32)
-    if len(uniq):
+    if len(uniq) and detection.descriptors is not None:
+        desc = _root_sift(detection.descriptors[det_index[uniq]])
+    elif len(uniq):
         chosen = [kps[int(i)] for i in uniq]
-        out_kps, raw = sift.compute(work, chosen)
+        out_kps, raw = detection.sift.compute(detection.work, chosen)
         if raw is None or len(out_kps) != len(chosen):  # OpenCV keeps provided keypoints; guard anyway
             raise RuntimeError("OpenCV SIFT dropped provided keypoints")
         desc = _root_sift(raw)
