@@ -178,7 +178,7 @@ def test_cli_batch_with_the_real_association_search(tmp_path):
         truth[name] = write_toy_session(tmp_path / "flights" / name, world, lawnmower(*boxes[name], 60, 40, 10),
                                         frames[name], seed=k).session_from_world
     out = tmp_path / "out"
-    args = ["batch", str(tmp_path / "flights"), "--out", str(out), "--workers", "0", "--no-progress", "--refine",
+    args = ["batch", str(tmp_path / "flights"), "--out", str(out), "--workers", "0", "--no-progress",
             "--set", "association.window_stride=25"]  # fewer window pairs: a quicker test, same code
     assert main(args) == 0
     report = json.loads((out / "report.json").read_text())
@@ -254,3 +254,9 @@ def test_cli_batch_exit_code_says_a_flight_failed(tmp_path):
     assert [(p["pair"], p["status"]) for p in report["pairs"]] == [("F1__F2", "done"), ("F1__F3", "skipped"),
                                                                    ("F2__F3", "skipped")]
     assert report["groups"][0]["status"] == "done"  # the flights that worked were still merged
+
+
+def test_refine_needs_no_verify(tmp_path, capsys):
+    (tmp_path / "flights").mkdir()
+    assert main(["batch", str(tmp_path / "flights"), "--out", str(tmp_path / "o"), "--refine"]) == 2
+    assert "--refine only applies with --no-verify" in capsys.readouterr().err

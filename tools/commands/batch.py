@@ -22,7 +22,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--nearest", type=int, metavar="K",
                         help="match only pairs among the K nearest sessions (by camera positions in a common frame)")
     parser.add_argument("--ekf", action="store_true", help="synth flights: map with poses_ekf.csv (noisy poses)")
-    parser.add_argument("--refine", action="store_true", help="refit each accepted transform on all associations")
+    parser.add_argument("--no-verify", action="store_true",
+                        help="take each pair's match consensus as is instead of verifying every window hypothesis "
+                             "on the full maps (the default; see README)")
+    parser.add_argument("--refine", action="store_true",
+                        help="with --no-verify: refit each accepted transform on all associations (verification "
+                             "already refines its winner)")
     parser.add_argument("--no-merge", action="store_true", help="stop after the session graph")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_params_arguments(parser)
@@ -38,8 +43,10 @@ def run(args: argparse.Namespace) -> int:
     if args.nearest is not None and args.nearest < 1:
         raise InputError(f"--nearest must be >= 1, got {args.nearest}")
     params = params_from_args(args)
+    if args.refine and not args.no_verify:
+        raise InputError("--refine only applies with --no-verify (verification already refines its winner)")
     options = batch.BatchOptions(nearest=args.nearest, ekf=args.ekf, merge=not args.no_merge, refine=args.refine,
-                                 progress=not args.no_progress)
+                                 verify=not args.no_verify, progress=not args.no_progress)
     with make_executor(args.workers, args.scheduler, args.dask_local) as executor:
         report = batch.run(args.flights_dir, args.out, params, executor, options)
     done = sum(s["status"] == "done" for s in report.sessions)
