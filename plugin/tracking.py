@@ -16,6 +16,12 @@ For each keyframe t, the candidate tracks are those whose latest observation (ma
   `sigma_p` and the centroid noise of both masks in quadrature:
   `sigma = sqrt(sum sigma_p^2 + 2 centroid_sigma_px^2)` *(ours)*. Without the centroid term a pure translation
   over flat ground gives sigma_p ~ 0.1 px and the gate would reject every segment whose centroid jitters by 1 px.
+- **Point transfer** *(ours, `point_transfer_gate`)*: once a track's observation rays meet at
+  `point_gate_min_ray_angle_deg` or more (smallest eigenvalue of sum(I - d d^T) >= 1 - cos of that angle), its
+  least-squares point is projected into keyframe t and the candidate must lie within `epipolar_margin_px` of it;
+  this replaces the epipolar, cheirality and motion gates for that track. The epipolar line admits every segment
+  along it (Seneca: 54 of 338 three-view tracks were consistent; 113 of 213 with this gate), and across flight
+  lines the summed image motion of the motion gate is meaningless.
 - **Score** (`theta_q`): `q = sqrt(q_s q_f) >= min_score`, with the size score
   `q_s = 1 + cos(pi r / theta_h)` if `r = 2|h_i - h_j| / (h_i + h_j) < theta_h` else 0 (in [0, 2] as in the
   paper) and the feature score q_f defined below.
