@@ -192,3 +192,26 @@ def test_refine_from_images_with_tie_points(tmp_path, method):
     # Over a plane a small tilt and a shift of altitude x tilt look alike, so positions improve less.
     assert pos_after < 0.75 * pos_before
     assert np.sqrt(np.mean(rot_after**2)) < 0.6 * np.sqrt(np.mean(rot_before**2))
+
+
+def test_tie_point_pairs_never_pair_an_image_with_itself(tmp_path, caplog):
+    """Two images at the same centre (a hover): the stable nearest-neighbour sort once put image 3's twin first
+    and paired image 3 with itself, which unions features of one image (and drops their tracks)."""
+    import logging
+
+    import cv2
+
+    from sosmatch.workflows.pose_refinement import tie_point_reconstruction
+
+    rng = np.random.default_rng(3)
+    cam = Camera(160, 120, 150.0, 150.0, 80.0, 60.0)
+    paths = []
+    for i in range(4):
+        paths.append(tmp_path / f"{i}.png")
+        cv2.imwrite(str(paths[-1]), rng.integers(0, 255, (120, 160), dtype=np.uint8))
+    centers = np.array([[0.0, 0, 100], [100.0, 0, 100], [200.0, 0, 100], [200.0, 0, 100]])
+    poses = Poses([p.name for p in paths], np.stack([_nadir(90.0)] * 4), centers)
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.pose_refinement"):
+        tie_point_reconstruction(paths, poses, cam, max_features=200)
+    # consecutive (0,1) (0,2) (1,2) (1,3) (2,3) and, within 2.4 median spacings, (0,3): six distinct pairs
+    assert any("of 6 tried" in r.getMessage() for r in caplog.records), [r.getMessage() for r in caplog.records]

@@ -342,18 +342,20 @@ def refine_poses_with_colmap(
     converged, iterations = False, 0
     log_level = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = max(int(log_level), 2)  # Ceres' per-step warnings would flood the console
-    for round_ in range(max(1, int(rounds))):
-        if round_:
-            _drop_outlier_observations(rec, outlier_px)
-        config = pycolmap.BundleAdjustmentConfig()
-        for iid in image_ids:
-            config.add_image(iid)
-        summary = pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec).solve()
-        converged = summary.termination_type == pycolmap.BundleAdjustmentTerminationType.CONVERGENCE
-        iterations += 1
-    pycolmap.logging.minloglevel = log_level
-    _drop_outlier_observations(rec, outlier_px)
-    rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(np.eye(3)), origin))
+    try:
+        for round_ in range(max(1, int(rounds))):
+            if round_:
+                _drop_outlier_observations(rec, outlier_px)
+            config = pycolmap.BundleAdjustmentConfig()
+            for iid in image_ids:
+                config.add_image(iid)
+            summary = pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec).solve()
+            converged = summary.termination_type == pycolmap.BundleAdjustmentTerminationType.CONVERGENCE
+            iterations += 1
+        _drop_outlier_observations(rec, outlier_px)
+    finally:  # a failed solve must not leave the caller's log level changed nor its model shifted
+        pycolmap.logging.minloglevel = log_level
+        rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(np.eye(3)), origin))
     rec.update_point_3d_errors()
     err1 = _observation_errors(rec)
     after = poses_of_reconstruction(rec)
@@ -489,8 +491,10 @@ def tie_point_reconstruction(
     pairs = {(i, j) for i in range(n) for j in range(i + 1, min(n, i + 3))}
     # each image with its `max_neighbours` nearest within the radius: enough to tie neighbouring flight lines
     # together, and matching cost stays linear in the number of images (all pairs in the radius: 2x the time)
-    near = np.argsort(d2, axis=1, kind="stable")[:, 1:max_neighbours + 1]
-    pairs |= {(min(i, int(j)), max(i, int(j))) for i in range(n) for j in near[i] if d2[i, j] < radius}
+    # self excluded explicitly: with two images at the same centre (hovering, quantised GPS) a stable argsort can
+    # put the other one first, and the pair (i, i) would union features of one image and drop their tracks
+    near = np.argsort(np.where(np.eye(n, dtype=bool), np.inf, d2), axis=1, kind="stable")[:, :max_neighbours]
+    pairs |= {(min(i, int(j)), max(i, int(j))) for i in range(n) for j in near[i] if i != j and d2[i, j] < radius}
     offsets = np.concatenate([[0], np.cumsum([len(k) for k in kps])])
     parent = np.arange(offsets[-1])
 
