@@ -231,3 +231,10 @@ def test_map_without_poses_reads_them_from_exif(tmp_path, capsys):
     capsys.readouterr()
     assert main(["map", "--out", str(tmp_path / "s3")]) == 2
     assert "give --poses, or --images" in capsys.readouterr().err
+    # options of the other pose source are refused, not silently ignored
+    assert main(["map", "--images", str(img), "--poses", str(tmp_path / "p" / "poses.csv"), "--refine",
+                 "--out", str(tmp_path / "s4")]) == 2
+    assert "apply only without --poses" in capsys.readouterr().err
+    assert main(["map", "--images", str(img), "--camera", str(tmp_path / "p" / "cameras.txt"),
+                 "--out", str(tmp_path / "s5")]) == 2
+    assert "need --poses" in capsys.readouterr().err and not (tmp_path / "s5").exists()

@@ -46,6 +46,11 @@ def run(args: argparse.Namespace) -> int:
     from ...workflows import map as map_workflow
 
     params = params_from_args(args)
+    # options of the other pose source would be silently ignored: say so instead
+    if args.poses is not None and (args.telemetry is not None or args.refine):
+        raise InputError("--telemetry and --refine apply only without --poses (poses from EXIF/XMP)")
+    if args.poses is None and (args.camera is not None or args.convention is not None or args.ekf):
+        raise InputError("--camera, --convention and --ekf need --poses (without it, EXIF gives the camera)")
     if args.poses is None:
         if args.images is None:
             raise InputError("give --poses, or --images with geotagged images (poses from EXIF/XMP)")
