@@ -152,8 +152,10 @@ def detect_sift(image: np.ndarray, params: SegmentationParams, with_descriptors:
     OpenCV applies a detection mask only after detection (KeyPointsFilter::runByPixelsMask), so detecting
     without one and filtering later gives the same keypoints; this lets detection run while the segmentation
     backend works (`segment_and_describe`). `with_descriptors`: describe every keypoint in the same pass (one
-    scale-space pyramid instead of two; OpenCV gives bit-identical descriptors either way), worth it when the
-    detection runs beside the segmentation anyway."""
+    scale-space pyramid instead of two), worth it when the detection runs beside the segmentation anyway. The
+    descriptors equal a later `compute()` on the same keypoints whenever that pyramid also starts at octave -1,
+    i.e. some chosen keypoint comes from it (checked bit for bit on 16 synthetic frames); otherwise they may
+    differ in the last bits."""
     gray = to_gray_u8(image)
     h, w = gray.shape
     scale = min(1.0, params.sift_max_side / max(h, w)) if params.sift_max_side > 0 else 1.0

@@ -30,7 +30,7 @@ logger = logging.getLogger(__name__)
 MIN_TRACKS = 8  # below this the LK statistics are too noisy to gate on; use the fallback
 # LK on a motion beyond its pyramid's reach loses nearly every corner, and the few forward-backward-consistent
 # survivors are chance locks on repeated texture (measured: 17 of 400 on a 240 px shift, all wrong). A healthy pair
-# keeps most corners, so fewer than this fraction of the requested corners means "LK failed".
+# keeps most corners, so fewer than this fraction of the corners found means "LK failed".
 MIN_LK_FRACTION = 0.1
 FALLBACK_MIN_SIGMA_PX = 2.0
 _FB_MAX_PX = 1.0  # forward-backward consistency for a kept LK track (px at the working resolution)
@@ -53,6 +53,11 @@ def _to_gray_u8(img: np.ndarray) -> np.ndarray:
 
 def lk_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int = 400) -> np.ndarray:
     """Displacement vectors (N,2) in px (full resolution) of forward-backward-consistent LK corner tracks."""
+    return _lk_tracks(prev_gray, cur_gray, max_corners)[0]
+
+
+def _lk_tracks(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int) -> tuple[np.ndarray, int]:
+    """`lk_displacements` and the number of corners it started from."""
     prev = _to_gray_u8(prev_gray)
     cur = _to_gray_u8(cur_gray)
     if prev.shape != cur.shape:
@@ -66,19 +71,19 @@ def lk_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: i
     corners = cv2.goodFeaturesToTrack(prev, maxCorners=int(max_corners), qualityLevel=0.01,
                                       minDistance=min_distance, blockSize=7)
     if corners is None or len(corners) == 0:
-        return np.zeros((0, 2))
+        return np.zeros((0, 2)), 0
     p0 = corners.astype(np.float32).reshape(-1, 1, 2)
     lk = dict(winSize=(21, 21), maxLevel=4, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, **lk)
     if p1 is None:
-        return np.zeros((0, 2))
+        return np.zeros((0, 2)), len(corners)
     p0r, st2, _ = cv2.calcOpticalFlowPyrLK(cur, prev, p1, None, **lk)
     fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
     h, w = prev.shape
     end = p1.reshape(-1, 2)
     inside = (end[:, 0] >= 0) & (end[:, 0] < w) & (end[:, 1] >= 0) & (end[:, 1] < h)
     keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < _FB_MAX_PX) & inside
-    return (end[keep] - p0.reshape(-1, 2)[keep]).astype(np.float64) / scale
+    return (end[keep] - p0.reshape(-1, 2)[keep]).astype(np.float64) / scale, len(corners)
 
 
 def homography_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_features: int = 1500,
@@ -116,8 +121,8 @@ def image_motion_stats(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners:
     tracks. Deterministic. With fewer than `MIN_TRACKS` tracks, falls back to ORB + homography, then to phase
     correlation (module docstring).
     """
-    disp = lk_displacements(prev_gray, cur_gray, max_corners)
-    if len(disp) < max(MIN_TRACKS, MIN_LK_FRACTION * max_corners):
+    disp, n_corners = _lk_tracks(prev_gray, cur_gray, max_corners)
+    if len(disp) < max(MIN_TRACKS, MIN_LK_FRACTION * n_corners):
         disp = homography_displacements(prev_gray, cur_gray)
     if len(disp) >= MIN_TRACKS:
         mag = np.linalg.norm(disp, axis=1)

@@ -373,7 +373,9 @@ def track_masks(
     origin = keyframe_poses.centers.mean(axis=0) if n_kf else np.zeros(3)
     ray_a = np.zeros((0, 3, 3))
     ray_b = np.zeros((0, 3))
-    min_eig = 1.0 - np.cos(np.radians(params.point_gate_min_ray_angle_deg))  # 2 rays at angle a: 1 - cos a
+    # Two rays at angle a give a smallest eigenvalue of exactly 1 - cos a; more rays raise it (n rays spread over
+    # a: ~n a^2 / 12), so long tracks qualify at smaller spreads, as their points are pinned better too.
+    min_eig = 1.0 - np.cos(np.radians(params.point_gate_min_ray_angle_deg))
     kinv = np.linalg.inv(camera.K)
     last_kf = np.zeros(0, np.int64)  # per track: keyframe of its latest observation
     last_mask = np.zeros(0, np.int64)  # per track: mask index of its latest observation
