@@ -227,29 +227,34 @@ def evaluation_cases(data_root: Path, work: Path) -> list[dict]:
              "ground_height": 0.0}]
 
 
-def naip_check(naip: Path, work: Path, extra_args: list[str]) -> dict:
-    """Render both NAIP dates along one path, map both, match; score against the identity ground truth."""
+def naip_check(naip: Path, work: Path, extra_args: list[str], preset: str = "paper") -> dict:
+    """Render both NAIP dates along one path, map both, match (parameters: `preset`); score against the identity
+    ground truth. The transform is in world (UTM) coordinates, so its error is taken where the data is: the
+    displacement of B's landmark centroid, and the rotation angle."""
     import json
 
     from ..cli import main as cli
 
     sessions, times = naip_sessions(naip, work, extra_args)
     t0 = time.perf_counter()
-    match_dir = work / "naip_match"
-    assert cli(["match", str(sessions[0][1]), str(sessions[1][1]), "--out", str(match_dir), "--no-plot"]) == 0
+    match_dir = work / f"naip_match_{preset}"
+    assert cli(["match", str(sessions[0][1]), str(sessions[1][1]), "--out", str(match_dir), "--no-plot",
+                "--preset", preset]) == 0
     times["match_s"] = time.perf_counter() - t0
     from ...database.landmark_map import read_landmark_map
 
     a = read_landmark_map(sessions[0][1] / "landmarks.sosmap")
     b = read_landmark_map(sessions[1][1] / "landmarks.sosmap")
     result = json.loads((match_dir / "match.json").read_text())
-    out = {"landmarks": [len(a), len(b)], "accepted": result.get("num_accepted"), **times}
+    out = {"preset": preset, "landmarks": [len(a), len(b)], "accepted": result.get("num_accepted"), **times}
     best = result.get("consensus") or (result["hypotheses"][result["best"]] if result.get("best") is not None
                                        else None)
     if best:
         t = best["transform"]
         rot = np.array(t["rotation"])
-        out["transform_error_m"] = float(np.linalg.norm(t["translation"]))
+        centre = b.positions.mean(axis=0)
+        moved = float(t.get("scale", 1.0)) * rot @ centre + np.array(t["translation"])
+        out["transform_error_m"] = float(np.linalg.norm(moved - centre))
         out["transform_error_deg"] = float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))))
         assoc = np.array(best["associations"]).reshape(-1, 2)
         d = np.linalg.norm(a.positions[assoc[:, 0], :2] - b.positions[assoc[:, 1], :2], axis=1)
@@ -394,6 +399,7 @@ def main() -> None:
     parser.add_argument("--pixel-sigma", type=float, default=3.0)
     parser.add_argument("--out", type=Path, help="refine: write the refined model here")
     parser.add_argument("--naip", type=Path, default=Path("/work/shared/data/naip"))
+    parser.add_argument("--preset", default="paper", help="naip: parameter preset of the match")
     parser.add_argument("--work", type=Path, default=Path("naip_work"))
     args, extra = parser.parse_known_args()
     print(machine_summary())
@@ -423,7 +429,7 @@ def main() -> None:
             print(f"cross-session {k}: {v}")
         return
     if args.check == "naip":
-        r = naip_check(args.naip, args.work, extra)
+        r = naip_check(args.naip, args.work, extra, args.preset)
         for k, v in r.items():
             print(f"{k}: {v}")
         return
