@@ -51,6 +51,22 @@ def _to_gray_u8(img: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+def _working_pair(prev_gray: np.ndarray, cur_gray: np.ndarray,
+                  same_size: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """Both keyframes as uint8 gray, downscaled by one factor (from `prev`) so the larger side is at most
+    `_WORK_MAX_DIM`; returns (prev, cur, scale). Displacements measured on them divide by `scale`."""
+    prev = _to_gray_u8(prev_gray)
+    cur = _to_gray_u8(cur_gray)
+    if same_size and prev.shape != cur.shape:
+        raise ValueError(f"keyframes differ in size: {prev.shape} vs {cur.shape}")
+    scale = min(1.0, _WORK_MAX_DIM / max(prev.shape))
+    if scale < 1.0:
+        size = (max(1, round(prev.shape[1] * scale)), max(1, round(prev.shape[0] * scale)))
+        prev = cv2.resize(prev, size, interpolation=cv2.INTER_AREA)
+        cur = cv2.resize(cur, size, interpolation=cv2.INTER_AREA)
+    return prev, cur, scale
+
+
 def lk_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int = 400) -> np.ndarray:
     """Displacement vectors (N,2) in px (full resolution) of forward-backward-consistent LK corner tracks."""
     return _lk_tracks(prev_gray, cur_gray, max_corners)[0]
@@ -58,15 +74,7 @@ def lk_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: i
 
 def _lk_tracks(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int) -> tuple[np.ndarray, int]:
     """`lk_displacements` and the number of corners it started from."""
-    prev = _to_gray_u8(prev_gray)
-    cur = _to_gray_u8(cur_gray)
-    if prev.shape != cur.shape:
-        raise ValueError(f"keyframes differ in size: {prev.shape} vs {cur.shape}")
-    scale = min(1.0, _WORK_MAX_DIM / max(prev.shape))
-    if scale < 1.0:
-        size = (max(1, round(prev.shape[1] * scale)), max(1, round(prev.shape[0] * scale)))
-        prev = cv2.resize(prev, size, interpolation=cv2.INTER_AREA)
-        cur = cv2.resize(cur, size, interpolation=cv2.INTER_AREA)
+    prev, cur, scale = _working_pair(prev_gray, cur_gray, same_size=True)
     min_distance = max(5.0, min(prev.shape) / 40.0)  # spread corners over the image, not on one textured patch
     corners = cv2.goodFeaturesToTrack(prev, maxCorners=int(max_corners), qualityLevel=0.01,
                                       minDistance=min_distance, blockSize=7)
@@ -90,13 +98,7 @@ def homography_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_fe
                              ransac_px: float = 3.0) -> np.ndarray:
     """Displacement vectors (N,2) in px (full resolution) of cross-checked ORB matches that agree with one RANSAC
     homography (large-motion fallback for `lk_displacements`). Empty when fewer than `MIN_TRACKS` agree."""
-    prev = _to_gray_u8(prev_gray)
-    cur = _to_gray_u8(cur_gray)
-    scale = min(1.0, _WORK_MAX_DIM / max(prev.shape))
-    if scale < 1.0:
-        size = (max(1, round(prev.shape[1] * scale)), max(1, round(prev.shape[0] * scale)))
-        prev = cv2.resize(prev, size, interpolation=cv2.INTER_AREA)
-        cur = cv2.resize(cur, size, interpolation=cv2.INTER_AREA)
+    prev, cur, scale = _working_pair(prev_gray, cur_gray)
     orb = cv2.ORB_create(int(max_features))
     kp0, d0 = orb.detectAndCompute(prev, None)
     kp1, d1 = orb.detectAndCompute(cur, None)
