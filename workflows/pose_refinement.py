@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..plugin.geometry import Poses, rotation_angle_deg
+from .triangulation import fixed_camera_ba_options
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +86,14 @@ def _matrix_to_rotvec(r: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(r).as_rotvec()
 
 
+def _registered_image_ids(rec: object) -> list[int]:
+    """Sorted ids of the images with a pose; a reconstruction without any cannot be refined."""
+    image_ids = sorted(i for i, im in rec.images.items() if im.has_pose)
+    if not image_ids:
+        raise ValueError("the reconstruction has no registered image")
+    return image_ids
+
+
 def refine_poses_with_priors(
     reconstruction: object,
     prior_poses: Poses,
@@ -110,9 +119,7 @@ def refine_poses_with_priors(
 
     t0 = time.perf_counter()
     rec = reconstruction
-    image_ids = sorted(i for i, im in rec.images.items() if im.has_pose)
-    if not image_ids:
-        raise ValueError("the reconstruction has no registered image")
+    image_ids = _registered_image_ids(rec)
     prior_index = {name: k for k, name in enumerate(prior_poses.names)}
     n_img = len(image_ids)
     img_pos = {iid: k for k, iid in enumerate(image_ids)}
@@ -309,12 +316,9 @@ def refine_poses_with_colmap(
 
     t0 = time.perf_counter()
     rec = reconstruction
-    image_ids = sorted(i for i, im in rec.images.items() if im.has_pose)
-    if not image_ids:
-        raise ValueError("the reconstruction has no registered image")
+    image_ids = _registered_image_ids(rec)
     prior_index = {name: k for k, name in enumerate(prior_poses.names)}
     before_poses = poses_of_reconstruction(rec)
-    rec.update_point_3d_errors()
     err0 = _observation_errors(rec)
     # Work near the origin: Ceres' relative tolerances and float math behave better than at UTM magnitudes.
     origin = prior_poses.centers.mean(axis=0)
@@ -329,15 +333,7 @@ def refine_poses_with_colmap(
                                    coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN)
         prior.corr_data_id = im.data_id
         priors.append(prior)
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = False
-    options.refine_principal_point = False
-    options.refine_extra_params = False
-    options.refine_sensor_from_rig = False
-    options.print_summary = False
-    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
-    options.ceres.loss_function_scale = float(pixel_sigma_px)
-    options.ceres.solver_options.num_threads = 1  # determinism: the same poses on every run
+    options = fixed_camera_ba_options(pycolmap.LossFunctionType.CAUCHY, pixel_sigma_px, refine_poses=True)
     prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
     converged, iterations = False, 0
     log_level = pycolmap.logging.minloglevel
@@ -378,18 +374,21 @@ def refine_poses_with_colmap(
     return stats
 
 
+def _point_errors(rec: object, point: object) -> list[tuple[int, int, float]]:
+    """(image id, point2D index, reprojection error px; inf behind the camera) of each observation of `point`."""
+    out = []
+    for el in point.track.elements:
+        image = rec.images[el.image_id]
+        uv = image.project_point(point.xyz)
+        err = np.inf if uv is None else float(np.linalg.norm(np.asarray(uv) - image.points2D[el.point2D_idx].xy))
+        out.append((el.image_id, el.point2D_idx, err))
+    return out
+
+
 def _observation_errors(rec: object) -> np.ndarray:
     """Reprojection error (px) of every observation of every 3D point."""
-    errors = []
-    for point in rec.points3D.values():
-        for el in point.track.elements:
-            image = rec.images[el.image_id]
-            uv = image.project_point(point.xyz)
-            if uv is None:
-                errors.append(np.inf)
-            else:
-                errors.append(float(np.linalg.norm(np.asarray(uv) - image.points2D[el.point2D_idx].xy)))
-    return np.asarray(errors, dtype=np.float64)
+    return np.asarray([e for point in rec.points3D.values() for _, _, e in _point_errors(rec, point)],
+                      dtype=np.float64)
 
 
 def _drop_outlier_observations(rec: object, max_px: float) -> int:
@@ -398,12 +397,7 @@ def _drop_outlier_observations(rec: object, max_px: float) -> int:
     removed = 0
     for pid in list(rec.points3D):
         point = rec.points3D[pid]
-        bad = []
-        for el in point.track.elements:
-            image = rec.images[el.image_id]
-            uv = image.project_point(point.xyz)
-            if uv is None or np.linalg.norm(np.asarray(uv) - image.points2D[el.point2D_idx].xy) > max_px:
-                bad.append((el.image_id, el.point2D_idx))
+        bad = [(image_id, idx) for image_id, idx, err in _point_errors(rec, point) if err > max_px]
         if not bad:
             continue
         if point.track.length() - len(bad) < 2:

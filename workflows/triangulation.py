@@ -69,6 +69,25 @@ def build_reconstruction(camera: Camera, poses: Poses) -> pycolmap.Reconstructio
     return rec
 
 
+def fixed_camera_ba_options(loss: Any, loss_scale_px: float, refine_poses: bool) -> Any:
+    """pycolmap BundleAdjustmentOptions with the intrinsics and rig held fixed, points refined, poses refined only
+    with `refine_poses`, the given robust loss, quiet and single-threaded (the same result on every run)."""
+    import pycolmap
+
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = False
+    options.refine_principal_point = False
+    options.refine_extra_params = False
+    options.refine_sensor_from_rig = False
+    options.refine_rig_from_world = bool(refine_poses)
+    options.refine_points3D = True
+    options.print_summary = False
+    options.ceres.loss_function_type = loss
+    options.ceres.loss_function_scale = float(loss_scale_px)
+    options.ceres.solver_options.num_threads = 1
+    return options
+
+
 def refine_points_only(rec: pycolmap.Reconstruction, pixel_sigma_px: float) -> None:
     """Bundle adjustment of the 3D points alone (poses and intrinsics constant), Huber loss at 2 sigma."""
     import pycolmap
@@ -80,17 +99,7 @@ def refine_points_only(rec: pycolmap.Reconstruction, pixel_sigma_px: float) -> N
         config.set_constant_rig_from_world_pose(frame_id)
     for camera_id in rec.cameras:
         config.set_constant_cam_intrinsics(camera_id)
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = False
-    options.refine_principal_point = False
-    options.refine_extra_params = False
-    options.refine_rig_from_world = False
-    options.refine_sensor_from_rig = False
-    options.refine_points3D = True
-    options.print_summary = False
-    options.ceres.loss_function_type = pycolmap.LossFunctionType.HUBER
-    options.ceres.loss_function_scale = 2.0 * pixel_sigma_px
-    options.ceres.solver_options.num_threads = 1  # determinism; these problems are small
+    options = fixed_camera_ba_options(pycolmap.LossFunctionType.HUBER, 2.0 * pixel_sigma_px, refine_poses=False)
     pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
     rec.update_point_3d_errors()
 
