@@ -354,12 +354,12 @@ def draw_landmarks(session: Path, images_dir: Path, names: list[str], out: Path,
     import cv2
     import pycolmap
 
+    from sosmatch.database.session_io import read_landmark_table
+
     rec = pycolmap.Reconstruction(str(session / "sparse"))
     by_name = {im.name: im for im in rec.images.values()}
-    sizes = {}
-    for row in (session / "landmarks.csv").read_text().splitlines()[1:]:
-        cols = row.split(",")
-        sizes[int(cols[1])] = float(cols[5])
+    table = read_landmark_table(session / "landmarks.csv")
+    sizes = dict(zip(table.point3d_ids.tolist(), table.sizes.tolist()))
     tiles = []
     for name in names:
         img = cv2.imread(str(images_dir / name))
