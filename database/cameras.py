@@ -7,17 +7,13 @@ from pathlib import Path
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera
 from .atomic import write_text_atomic
+from .text_input import read_user_text
 
 
 def read_cameras_txt(path: str | Path) -> dict[int, Camera]:
     """Cameras of a COLMAP cameras.txt (PINHOLE and SIMPLE_PINHOLE; distortion models are refused)."""
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise InputError("cameras file not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read cameras file: {exc}", path) from None
+    lines = read_user_text(path, "cameras file").splitlines()
     cameras: dict[int, Camera] = {}
     for lineno, line in enumerate(lines, start=1):
         parts = line.split()

@@ -28,6 +28,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.geometry import Poses, quat_to_rotmat, rotmat_to_quat
 from .atomic import write_text_atomic
+from .text_input import read_user_text
 
 QUAT_COLUMNS = ["name", "x", "y", "z", "qw", "qx", "qy", "qz"]
 YPR_COLUMNS = ["name", "x", "y", "z", "yaw_deg", "pitch_deg", "roll_deg"]
@@ -75,12 +76,7 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
     `convention` overrides the file's `# convention:` comment (a flag wins over the header).
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("pose file not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read pose file: {exc}", path) from None
+    text = read_user_text(path, "pose file")
     file_convention, epsg = "world_from_camera", 0
     header: list[str] | None = None
     names: list[str] = []

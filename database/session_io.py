@@ -18,6 +18,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from .atomic import write_text_atomic
 from .landmark_map import LandmarkMap, read_landmark_map
+from .text_input import read_user_text
 
 LANDMARK_CSV_COLUMNS = ["index", "point3d_id", "x", "y", "z", "size_m", "num_observations", "image_names"]
 
@@ -52,12 +53,7 @@ def read_landmark_table(path: str | Path) -> LandmarkTable:
     Rows may come in any order but their indices must be 0..N-1 without gaps or repeats.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("landmark table not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read landmark table: {exc}", path) from None
+    text = read_user_text(path, "landmark table")
     header = None
     rows: dict[int, tuple[list[float], list[str], int]] = {}
     for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):

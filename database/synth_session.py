@@ -27,6 +27,7 @@ from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses, pixel_rays
 from .cameras import read_cameras_txt
 from .poses import read_poses_csv
+from .text_input import read_user_text
 
 SESSION_FORMAT = "sosmatch-synth-session"
 SESSION_VERSION = 1
@@ -158,12 +159,7 @@ def read_objects_csv(path: str | Path) -> np.ndarray:
 
     A legacy file (the first 8 columns only, z = apex) is read with apex_z = z and ground_z = z - height."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("objects file not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read objects file: {exc}", path) from None
+    text = read_user_text(path, "objects file")
     rows = []
     header = None
     for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):

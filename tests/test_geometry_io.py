@@ -78,3 +78,12 @@ def test_rotation_angle_scalar_and_batched():
     assert np.isclose(rotation_angle_deg(rz, np.eye(3)), 30.0)
     batched = rotation_angle_deg(poses.rotations @ rz, poses.rotations)
     assert batched.shape == (5,) and np.allclose(batched, 30.0)
+
+
+def test_unreadable_inputs_name_the_file_and_its_role(tmp_path):
+    with pytest.raises(InputError, match=r"missing\.csv: pose file not found"):
+        read_poses_csv(tmp_path / "missing.csv")
+    latin1 = tmp_path / "cameras.txt"
+    latin1.write_bytes("# caméra\n".encode("latin-1"))
+    with pytest.raises(InputError, match=r"cameras\.txt: cannot read cameras file: .*utf-8"):
+        read_cameras_txt(latin1)

@@ -56,6 +56,7 @@ from ..database.atomic import write_text_atomic
 from ..database.cameras import format_cameras_txt
 from ..database.exif import ImageMetadata, read_image_metadata
 from ..database.poses import format_poses_csv
+from ..database.text_input import read_user_text
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 
@@ -183,12 +184,7 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
     """Per image name: yaw/pitch/roll (and lat/lon/alt where present) from a telemetry CSV (header names as in
     Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...; case-insensitive)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("telemetry file not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read telemetry file: {exc}", path) from None
+    text = read_user_text(path, "telemetry file")
     rows = list(csv.reader(text.splitlines()))
     if not rows:
         raise InputError("empty telemetry file", path)
