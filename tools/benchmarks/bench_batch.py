@@ -1,7 +1,7 @@
 """The multi-session bar: a batch of 4 flights (2 seasons x 2 paths over one area), locally and on Dask.
 
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_batch [--work bench_batch] [--workers 2] [--no-dask]
-        [--toy] [--write]
+        [--toy] [--poses ekf|exact] [--write]
 
 Synthetic mode (default): `sosmatch synth` renders summer/winter x path 1/path 2 (path 2 shifted and flown in
 reverse) over world seed 11 into WORK/flights (kept between runs), then `batch.run` maps them on their EKF poses,
@@ -19,7 +19,9 @@ yaw difference). Truth: for synthetic flights, each session's frame is its EKF f
 maps onto the world (drift and attitude error bend it by 1-2 m, mostly in height); the truth of a pair is the
 rigid fit of B's to A's EKF-frame images of a 4 m ground grid (`ekf_frame_points`: what a perfect front end would
 triangulate), over the points both sessions see in >= 6 frames; its residual is printed as the "truth fit RMS".
-For toy flights the truth is exact. Then `colmap model_analyzer` (COLMAP 3.8) on every merged model, and whether
+With `--poses exact` the flights are mapped on their exact poses, every map is a rigid image of the world and the truth
+is exact (the identity; `OUT` is WORK/synth-exact, the rendered flights are shared). For toy flights the truth is
+exact. Then `colmap model_analyzer` (COLMAP 3.8) on every merged model, and whether
 the Dask run's report and merged models equal the local run's. `--write` puts the table into BENCHMARKS.md
 between `<!-- section:multi-session -->` and `<!-- end:multi-session -->` (one block per mode).
 """
