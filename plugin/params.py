@@ -199,6 +199,23 @@ PRESETS: dict[str, dict[str, Any]] = {
         # (Seneca: 7 px -> 194 landmarks at 3.1 px mean, 8 px -> see BENCHMARKS, 10 px -> 256 at 4.2 px)
         "triangulation.max_reprojection_error_px": 8.0,
     },
+    # Aerial maps of a whole district (km^2) from coarse imagery (airborne or orthophoto, 1-5 m/px): hundreds of
+    # landmarks tens of metres across, of which only ~10 % are segmented alike on two dates (ponds grow and merge,
+    # fields change). Association only; measured on NAIP 2009 vs 2015 (BENCHMARKS.md, "Real data").
+    "aerial": {
+        # theta_WL / theta_SL: a window must hold enough of the ~10 % common landmarks (>= 11 for theta_S = 10):
+        # 200 landmarks span ~1.5 km of flight here, 50 hold only ~5 common ones; half-overlapping windows
+        # still contain every stretch of flight whole, at a third of the window pairs of stride 50
+        "association.window_length": 200, "association.window_stride": 100,
+        # theta_eps: a landmark is a segment centroid at 2.5 m/px of an object that changed shape: common
+        # landmarks are 5-7 m apart horizontally across dates, pairwise distances differ by 5 m (median) to 12 m
+        # (90 %), vs ~1 m for the paper's 0.3-0.5 m drone landmarks; sigma keeps the paper's ratio eps / 2
+        "association.distance_tolerance_m": 10.0, "association.affinity_sigma_m": 5.0,
+        # theta_r: a re-segmented pond's size differs by r = 0.21 (median) to 0.40 (75 %) between dates
+        "association.max_size_difference": 0.4,
+        # theta_S: with eps 5x wider, chance-consistent sets grow (up to 8 on NAIP windows) : accept only > 10
+        "association.min_associations": 10,
+    },
 }
 
 

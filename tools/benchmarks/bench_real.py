@@ -4,8 +4,11 @@
 actually moves between consecutive frames.
 `refine SESSION --poses poses.csv`: pose refinement with priors on a mapped real session (e.g. Seneca mapped
 from `sosmatch poses-from-exif` poses): reprojection error of the landmarks before/after, how far poses moved.
-`naip`: two sessions rendered from the NAIP 2009 and 2015 orthophotos along one path, mapped and matched;
-scored against the exact shared ground truth (the true A_from_B transform is the identity).
+`naip`: two sessions rendered from the NAIP 2009 and 2015 orthophotos along one path, mapped and matched in both
+orders; scored against the exact shared ground truth (the true A_from_B transform is the identity); negative
+control: maps of opposite halves of the area must accept nothing. Rendering options after the known ones go to
+`synth-from-ortho`; the shipped setting (BENCHMARKS.md, "Real data"):
+    bench_real naip --work DIR --hfov 90 --frame-spacing 75 --preset aerial
 `seneca --work DIR`: Seneca end to end from the folder of JPEGs (poses from EXIF + telemetry, pose refinement,
 `sosmatch map` with telemetry and refined poses under the paper
 defaults and the "survey" preset), then `seneca-cross`: the ~55 degree flight lines against the ~237 degree
@@ -21,6 +24,7 @@ the distance to where the feature was actually seen. A wrong sign of a 10-degree
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_real attitude [--seneca /work/shared/data/seneca]
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_real refine SESSION --poses poses.csv
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_real naip --work DIR [--naip /work/shared/data/naip]
+        [--preset P] [--map-preset P] [--map-set K=V] [--one-order] [--no-control] [synth-from-ortho options]
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_real seneca --work DIR [--seneca /work/shared/data/seneca]
 """
 
@@ -190,12 +194,15 @@ def refine_check(session: Path, poses_csv: Path, position_sigma_m: float, attitu
             "point_error_median_after_px": float(np.median(after))}
 
 
-def naip_sessions(naip: Path, work: Path, extra_args: list[str]) -> tuple[list[tuple[Path, Path]], dict]:
-    """Render both NAIP dates along one path (`synth-from-ortho`, extra_args passed on) and map them; existing
-    sessions and maps in `work` are reused. Returns [(session, mapped session)] oldest first, and the timings."""
+def naip_sessions(naip: Path, work: Path, extra_args: list[str], map_args: list[str] | None = None,
+                  tifs: list[Path] | None = None) -> tuple[list[tuple[Path, Path]], dict]:
+    """Render both NAIP dates (or the given `tifs`) along one path (`synth-from-ortho`, extra_args passed on) and
+    map them (`sosmatch map`, map_args passed on, e.g. ["--preset", "aerial"]); existing sessions and maps in
+    `work` are reused. Returns [(session, mapped session)] in the order of `tifs` (default: file-name order, oldest
+    first), and the timings."""
     from ..cli import main as cli
 
-    tifs = sorted(naip.glob("*.tif"))
+    tifs = sorted(naip.glob("*.tif")) if tifs is None else list(tifs)
     if len(tifs) != 2:
         raise SystemExit(f"expected two GeoTIFFs in {naip}")
     times = {}
@@ -209,10 +216,50 @@ def naip_sessions(naip: Path, work: Path, extra_args: list[str]) -> tuple[list[t
         times[f"render_{name}_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         if not (mapped / "run.json").exists():
-            assert cli(["map", "--poses", str(sess), "--out", str(mapped), "--no-progress"]) == 0
+            assert cli(["map", "--poses", str(sess), "--out", str(mapped), "--no-progress", *(map_args or [])]) == 0
         times[f"map_{name}_s"] = time.perf_counter() - t0
         sessions.append((sess, mapped))
     return sessions, times
+
+
+def half_orthophoto(tif: Path, side: str, out: Path) -> Path:
+    """The west or east half (`side`) of `tif`, georeferenced, written once to `out`: a negative control of
+    `naip_check`. Two halves share no ground, so a match between maps of opposite halves must accept nothing."""
+    import rasterio
+    from rasterio.windows import Window
+
+    if not out.exists():
+        with rasterio.open(tif) as src:
+            half = src.width // 2
+            win = Window(0, 0, half, src.height) if side == "west" else \
+                Window(half, 0, src.width - half, src.height)
+            profile = src.profile.copy()
+            profile.update(width=win.width, height=win.height, transform=src.window_transform(win))
+            data = src.read(window=win)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(out.stem + ".tmp.tif")
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(data)
+        tmp.replace(out)
+    return out
+
+
+def mirrored_orthophoto(tif: Path, out: Path) -> Path:
+    """`tif` flipped east-west under the same georeference, written once to `out`: the full-size negative control
+    of `naip_check` (same ponds, sizes and density as the real date, at mirrored places). A mirrored flat map is
+    the original turned upside down, so that set is rejected only by the gravity gate (theta_alpha); what the
+    control tests is that no upright chance set is accepted."""
+    import rasterio
+
+    if not out.exists():
+        with rasterio.open(tif) as src:
+            data, profile = src.read()[:, :, ::-1], src.profile
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(out.stem + ".tmp.tif")
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(data)
+        tmp.replace(out)
+    return out
 
 
 def evaluation_cases(data_root: Path, work: Path) -> list[dict]:
@@ -227,26 +274,23 @@ def evaluation_cases(data_root: Path, work: Path) -> list[dict]:
              "ground_height": 0.0}]
 
 
-def naip_check(naip: Path, work: Path, extra_args: list[str], preset: str = "paper") -> dict:
-    """Render both NAIP dates along one path, map both, match (parameters: `preset`); score against the identity
-    ground truth. The transform is in world (UTM) coordinates, so its error is taken where the data is: the
-    displacement of B's landmark centroid, and the rotation angle."""
+def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
+    """Accepted count and, if a hypothesis was accepted, its error against the identity (see `naip_check`)."""
     import json
 
-    from ..cli import main as cli
-
-    sessions, times = naip_sessions(naip, work, extra_args)
-    t0 = time.perf_counter()
-    match_dir = work / f"naip_match_{preset}"
-    assert cli(["match", str(sessions[0][1]), str(sessions[1][1]), "--out", str(match_dir), "--no-plot",
-                "--preset", preset]) == 0
-    times["match_s"] = time.perf_counter() - t0
     from ...database.landmark_map import read_landmark_map
 
-    a = read_landmark_map(sessions[0][1] / "landmarks.sosmap")
-    b = read_landmark_map(sessions[1][1] / "landmarks.sosmap")
+    a = read_landmark_map(map_a / "landmarks.sosmap")
+    b = read_landmark_map(map_b / "landmarks.sosmap")
     result = json.loads((match_dir / "match.json").read_text())
-    out = {"preset": preset, "landmarks": [len(a), len(b)], "accepted": result.get("num_accepted"), **times}
+    out = {"landmarks": [len(a), len(b)], "window_pairs_solved": result.get("num_solved"),
+           "accepted": result.get("num_accepted"), "match_s": result.get("seconds_total")}
+    upright = [h["size"] for h in result["hypotheses"] if h.get("tilt_deg") is not None
+               and h["tilt_deg"] <= result["params"]["association"]["max_gravity_angle_deg"]]
+    out["largest_upright_hypothesis"] = max(upright, default=0)
+    out["largest_upright_rejected"] = max((h["size"] for h in result["hypotheses"] if not h["accepted"]
+                                           and h.get("tilt_deg") is not None and h["tilt_deg"]
+                                           <= result["params"]["association"]["max_gravity_angle_deg"]), default=0)
     best = result.get("consensus") or (result["hypotheses"][result["best"]] if result.get("best") is not None
                                        else None)
     if best:
@@ -261,6 +305,41 @@ def naip_check(naip: Path, work: Path, extra_args: list[str], preset: str = "pap
         out["associations"] = len(assoc)
         out["associations_within_10m"] = int(np.sum(d < 10.0))
         out["association_distance_median_m"] = float(np.median(d)) if len(d) else float("nan")
+    return out
+
+
+def naip_check(naip: Path, work: Path, extra_args: list[str], preset: str = "paper",
+               map_args: list[str] | None = None, both_orders: bool = True, control: bool = True) -> dict:
+    """Render both NAIP dates along one path, map both (`map_args`), match (parameters: `preset`); score against
+    the identity ground truth. The transform is in world (UTM) coordinates, so its error is taken where the data
+    is: the displacement of B's landmark centroid, and the rotation angle. `both_orders`: also match 2009 into
+    2015. `control`: the negative control, maps of the west half of one date against the east half of the other
+    (`half_orthophoto`; rendered and mapped alike), both ways round, and of 2009's two halves: they share no
+    ground, so nothing may be accepted; and 2009 against the 2015 orthophoto mirrored (`mirrored_orthophoto`).
+    Each match reports the largest upright (tilt <= theta_alpha) hypothesis: the margin to theta_S."""
+    from ..cli import main as cli
+
+    sessions, times = naip_sessions(naip, work, extra_args, map_args)
+    out: dict = {"preset": preset, **times}
+    runs = [("2015_into_2009", sessions[0][1], sessions[1][1])]
+    if both_orders:
+        runs.append(("2009_into_2015", sessions[1][1], sessions[0][1]))
+    if control:
+        old, new = sorted(naip.glob("*.tif"))
+        halves = {(t, side): half_orthophoto(t, side, work / "control" / f"{t.stem}{side}.tif")
+                  for t in (old, new) for side in ("west", "east")}
+        for a, b in (((old, "west"), (new, "east")), ((old, "east"), (new, "west")), ((old, "west"), (old, "east"))):
+            ctrl, ctrl_times = naip_sessions(naip, work, extra_args, map_args, tifs=[halves[a], halves[b]])
+            out.update({f"control_{k}": v for k, v in ctrl_times.items()})
+            runs.append((f"control_{a[1]}{a[0].stem[-8:-4]}_{b[1]}{b[0].stem[-8:-4]}", ctrl[0][1], ctrl[1][1]))
+        mirror = mirrored_orthophoto(new, work / "control" / f"{new.stem}mirrored.tif")
+        ctrl, ctrl_times = naip_sessions(naip, work, extra_args, map_args, tifs=[old, mirror])
+        out.update({f"control_{k}": v for k, v in ctrl_times.items() if "mirrored" in k})
+        runs.append(("control_2009_mirrored2015", ctrl[0][1], ctrl[1][1]))
+    for label, map_a, map_b in runs:
+        match_dir = work / f"naip_match_{preset}_{label}"
+        assert cli(["match", str(map_a), str(map_b), "--out", str(match_dir), "--no-plot", "--preset", preset]) == 0
+        out[label] = _score_match(map_a, map_b, match_dir)
     return out
 
 
@@ -400,6 +479,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="refine: write the refined model here")
     parser.add_argument("--naip", type=Path, default=Path("/work/shared/data/naip"))
     parser.add_argument("--preset", default="paper", help="naip: parameter preset of the match")
+    parser.add_argument("--map-preset", help="naip: parameter preset of `sosmatch map` (default: the defaults)")
+    parser.add_argument("--map-set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="naip: override of `sosmatch map` (repeatable)")
+    parser.add_argument("--one-order", action="store_true", help="naip: match 2015 into 2009 only")
+    parser.add_argument("--no-control", action="store_true", help="naip: skip the negative control (opposite halves)")
     parser.add_argument("--work", type=Path, default=Path("naip_work"))
     args, extra = parser.parse_known_args()
     print(machine_summary())
@@ -429,7 +513,9 @@ def main() -> None:
             print(f"cross-session {k}: {v}")
         return
     if args.check == "naip":
-        r = naip_check(args.naip, args.work, extra, args.preset)
+        map_args = (["--preset", args.map_preset] if args.map_preset else []) + \
+            [x for kv in args.map_set for x in ("--set", kv)]
+        r = naip_check(args.naip, args.work, extra, args.preset, map_args, not args.one_order, not args.no_control)
         for k, v in r.items():
             print(f"{k}: {v}")
         return
