@@ -203,9 +203,9 @@ PRESETS: dict[str, dict[str, Any]] = {
     # landmarks tens of metres across, of which only ~10 % are segmented alike on two dates (ponds grow and merge,
     # fields change). Association only; measured on NAIP 2009 vs 2015 (BENCHMARKS.md, "Real data").
     "aerial": {
-        # theta_WL / theta_SL: a window must hold enough of the ~10 % common landmarks (>= 11 for theta_S = 10):
-        # 200 landmarks span ~1.5 km of flight here, 50 hold only ~5 common ones; half-overlapping windows
-        # still contain every stretch of flight whole, at a third of the window pairs of stride 50
+        # theta_WL / theta_SL: a window pair must hold more than theta_S of the ~10 % common landmarks: on NAIP
+        # 200-landmark windows (~50 frames of flight) hold up to 18-21, 50-landmark ones at most 8; windows
+        # overlapping by half still hold every stretch of flight whole, at a third of the pairs of stride 50
         "association.window_length": 200, "association.window_stride": 100,
         # theta_eps: a landmark is a segment centroid at 2.5 m/px of an object that changed shape: common
         # landmarks are 5-7 m apart horizontally across dates, pairwise distances differ by 5 m (median) to 12 m
@@ -213,7 +213,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "association.distance_tolerance_m": 10.0, "association.affinity_sigma_m": 5.0,
         # theta_r: a re-segmented pond's size differs by r = 0.21 (median) to 0.40 (75 %) between dates
         "association.max_size_difference": 0.4,
-        # theta_S: with eps 5x wider, chance-consistent sets grow (up to 8 on NAIP windows) : accept only > 10
+        # theta_S: with eps 5x wider, chance-consistent sets grow (up to 8 on NAIP windows): accept only > 10
         "association.min_associations": 10,
     },
 }

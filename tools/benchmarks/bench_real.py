@@ -274,6 +274,14 @@ def evaluation_cases(data_root: Path, work: Path) -> list[dict]:
              "ground_height": 0.0}]
 
 
+def _identity_error(transform: dict, centre: np.ndarray) -> tuple[float, float]:
+    """How far a match.json transform (A_from_B) is from the identity: displacement of `centre` (m), angle (deg)."""
+    rot = np.array(transform["rotation"])
+    moved = float(transform.get("scale", 1.0)) * rot @ centre + np.array(transform["translation"])
+    return (float(np.linalg.norm(moved - centre)),
+            float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1)))))
+
+
 def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
     """Accepted count and, if a hypothesis was accepted, its error against the identity (see `naip_check`)."""
     import json
@@ -285,21 +293,21 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
     result = json.loads((match_dir / "match.json").read_text())
     out = {"landmarks": [len(a), len(b)], "window_pairs_solved": result.get("num_solved"),
            "accepted": result.get("num_accepted"), "match_s": result.get("seconds_total")}
-    upright = [h["size"] for h in result["hypotheses"] if h.get("tilt_deg") is not None
-               and h["tilt_deg"] <= result["params"]["association"]["max_gravity_angle_deg"]]
-    out["largest_upright_hypothesis"] = max(upright, default=0)
-    out["largest_upright_rejected"] = max((h["size"] for h in result["hypotheses"] if not h["accepted"]
-                                           and h.get("tilt_deg") is not None and h["tilt_deg"]
-                                           <= result["params"]["association"]["max_gravity_angle_deg"]), default=0)
+    # the margin to theta_S: the largest upright (tilt <= theta_alpha) hypothesis that is wrong, i.e. off the
+    # identity by more than the bar (15 m at B's landmark centroid or 2 degrees); every one is, for the controls
+    centre = b.positions.mean(axis=0)
+    max_tilt = result["params"]["association"]["max_gravity_angle_deg"]
+    wrong = [0]
+    for h in result["hypotheses"]:
+        if h.get("transform") and h.get("tilt_deg") is not None and h["tilt_deg"] <= max_tilt:
+            err_m, err_deg = _identity_error(h["transform"], centre)
+            if err_m > 15.0 or err_deg > 2.0:
+                wrong.append(h["size"])
+    out["largest_wrong_upright_hypothesis"] = max(wrong)
     best = result.get("consensus") or (result["hypotheses"][result["best"]] if result.get("best") is not None
                                        else None)
     if best:
-        t = best["transform"]
-        rot = np.array(t["rotation"])
-        centre = b.positions.mean(axis=0)
-        moved = float(t.get("scale", 1.0)) * rot @ centre + np.array(t["translation"])
-        out["transform_error_m"] = float(np.linalg.norm(moved - centre))
-        out["transform_error_deg"] = float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))))
+        out["transform_error_m"], out["transform_error_deg"] = _identity_error(best["transform"], centre)
         assoc = np.array(best["associations"]).reshape(-1, 2)
         d = np.linalg.norm(a.positions[assoc[:, 0], :2] - b.positions[assoc[:, 1], :2], axis=1)
         out["associations"] = len(assoc)
