@@ -316,6 +316,53 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
     return out
 
 
+def draw_naip_match(tif: Path, map_a: Path, map_b: Path, match_dir: Path, out: Path, width: int = 934) -> None:
+    """A figure: both maps' landmarks on the orthophoto `tif` (A red, B cyan, circles of the landmarks' metric
+    size), the accepted consensus' associations as yellow lines from A's landmark to B's, B's landmarks moved
+    by the accepted transform (the truth is the identity, so a line's length is the pair's disagreement)."""
+    import json
+
+    import cv2
+    import rasterio
+
+    from ...database.landmark_map import read_landmark_map
+
+    with rasterio.open(tif) as src:
+        rgb = np.moveaxis(src.read([1, 2, 3]), 0, -1)
+        inverse, gsd = ~src.transform, abs(src.transform.a)
+    img = np.ascontiguousarray(rgb[:, :, ::-1])
+    scale = width / img.shape[1]
+    img = cv2.resize(img, (width, int(round(img.shape[0] * scale))), interpolation=cv2.INTER_AREA)
+
+    def pixels(xy: np.ndarray) -> np.ndarray:
+        cols, rows = inverse * (xy[:, 0], xy[:, 1])
+        return np.round(np.column_stack([cols, rows]) * scale).astype(int)
+
+    a = read_landmark_map(map_a / "landmarks.sosmap")
+    b = read_landmark_map(map_b / "landmarks.sosmap")
+    result = json.loads((match_dir / "match.json").read_text())
+    best = result.get("consensus")
+    pb = b.positions
+    if best:
+        t = best["transform"]
+        pb = float(t.get("scale", 1.0)) * pb @ np.array(t["rotation"]).T + np.array(t["translation"])
+    for pos, sizes, colour in ((a.positions, a.sizes, (0, 0, 255)), (pb, b.sizes, (255, 255, 0))):
+        for (u, v), size in zip(pixels(pos), sizes):
+            cv2.circle(img, (int(u), int(v)), max(2, int(round(size / gsd * scale))), colour, 1, cv2.LINE_AA)
+    if best:
+        assoc = np.array(best["associations"]).reshape(-1, 2)
+        for (ua, va), (ub, vb) in zip(pixels(a.positions[assoc[:, 0]]), pixels(pb[assoc[:, 1]])):
+            cv2.line(img, (int(ua), int(va)), (int(ub), int(vb)), (0, 255, 255), 3, cv2.LINE_AA)
+            cv2.circle(img, (int(ua), int(va)), 9, (0, 255, 255), 2, cv2.LINE_AA)
+    labels = [f"A: {len(a)} landmarks (red); B: {len(b)} (cyan), moved by the accepted transform",
+              f"{0 if not best else len(best['associations'])} consensus associations (yellow)"]
+    cv2.rectangle(img, (0, 0), (600, 48), (0, 0, 0), -1)
+    for row, label in enumerate(labels):
+        cv2.putText(img, label, (8, 18 + 20 * row), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out), img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+
+
 def naip_check(naip: Path, work: Path, extra_args: list[str], preset: str = "paper",
                map_args: list[str] | None = None, both_orders: bool = True, control: bool = True) -> dict:
     """Render both NAIP dates along one path, map both (`map_args`), match (parameters: `preset`); score against
@@ -348,6 +395,9 @@ def naip_check(naip: Path, work: Path, extra_args: list[str], preset: str = "pap
         match_dir = work / f"naip_match_{preset}_{label}"
         assert cli(["match", str(map_a), str(map_b), "--out", str(match_dir), "--no-plot", "--preset", preset]) == 0
         out[label] = _score_match(map_a, map_b, match_dir)
+    draw_naip_match(sorted(naip.glob("*.tif"))[0], sessions[0][1], sessions[1][1],
+                    work / f"naip_match_{preset}_2015_into_2009", work / "naip_match.jpg")
+    out["figure"] = str(work / "naip_match.jpg")
     return out
 
 
