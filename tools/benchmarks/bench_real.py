@@ -236,11 +236,7 @@ def half_orthophoto(tif: Path, side: str, out: Path) -> Path:
             profile = src.profile.copy()
             profile.update(width=win.width, height=win.height, transform=src.window_transform(win))
             data = src.read(window=win)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.stem + ".tmp.tif")
-        with rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(data)
-        tmp.replace(out)
+        _write_raster(out, data, profile)
     return out
 
 
@@ -254,12 +250,20 @@ def mirrored_orthophoto(tif: Path, out: Path) -> Path:
     if not out.exists():
         with rasterio.open(tif) as src:
             data, profile = src.read()[:, :, ::-1], src.profile
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.stem + ".tmp.tif")
-        with rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(data)
-        tmp.replace(out)
+        _write_raster(out, data, profile)
     return out
+
+
+def _write_raster(out: Path, data: np.ndarray, profile: dict) -> None:
+    """Write a GeoTIFF atomically (a temporary sibling, then rename): a killed run leaves no half raster that the
+    next run would take as done."""
+    import rasterio
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.stem + ".tmp.tif")
+    with rasterio.open(tmp, "w", **profile) as dst:
+        dst.write(data)
+    tmp.replace(out)
 
 
 def evaluation_cases(data_root: Path, work: Path) -> list[dict]:
