@@ -452,7 +452,16 @@ def seneca_cross_session(seneca: Path, work: Path, poses_csv: Path) -> dict:
     degrees: the ~55 degree lines and the cross lines) against those flown south-west-wards (150-360: the ~237
     degree lines), each mapped on its own with the "survey" preset from `poses_csv` (one frame for both, so the
     true transform is the identity), then `sosmatch match`. The course comes from consecutive GPS positions: the
-    telemetry heading is off by a crab angle of up to tens of degrees."""
+    telemetry heading is off by a crab angle of up to tens of degrees.
+
+    Also reported, against the known identity: `common_within_4m` / `_5m`, landmark pairs that are mutual nearest
+    neighbours horizontally within 4 / 5 m (`common_landmarks`), and per half `off_ground`, landmarks more than
+    20 m above or below the north-east map's median height (the ground; it is flat here to a few metres).
+    The association settings stay the survey preset's: no setting tried separated the right alignment from
+    chance (issue 7, BENCHMARKS.md "Seneca cross-session inside the flight"): the halves share at most 9-10
+    mutually consistent landmarks (theta_eps 3-4 m, theta_r 0.4, 2-view landmarks allowed), while the densest
+    set CLIPPER finds in the true pair is a flipped one of 9-10, and the negative controls (the south-west half
+    mirrored; disjoint along-track halves) give upright wrong sets of 5-10 under the same settings."""
     from sosmatch.database.config_io import load_params
     from sosmatch.database.poses import read_poses_csv, write_poses_csv
     from sosmatch.plugin.geometry import rotation_angle_deg
@@ -485,7 +494,26 @@ def seneca_cross_session(seneca: Path, work: Path, poses_csv: Path) -> dict:
         d = np.linalg.norm(pa[:, :2] - pb[:, :2], axis=1)
         out["associations"] = len(d)
         out["associations_within_5m"] = int(np.sum(d < 5.0))
+    pos_a, pos_b = res.map_a.lmap.positions, res.map_b.lmap.positions
+    for radius in (4.0, 5.0):
+        out[f"common_within_{radius:.0f}m"] = len(common_landmarks(pos_a, pos_b, radius))
+    ground = float(np.median(pos_a[:, 2]))
+    for label, pos in (("course_0-150", pos_a), ("course_150-360", pos_b)):
+        out[label]["off_ground"] = int(np.sum(np.abs(pos[:, 2] - ground) > 20.0))
     return out
+
+
+def common_landmarks(pos_a: np.ndarray, pos_b: np.ndarray, radius_m: float) -> np.ndarray:
+    """(K, 2) index pairs (A, B) of landmarks that are each other's nearest neighbour in the ground plane (x, y)
+    and less than `radius_m` apart there: the landmarks two maps share when their true transform is the identity.
+    Heights are left out because 3-view landmarks can be tens of metres off in height (BENCHMARKS.md)."""
+    if len(pos_a) == 0 or len(pos_b) == 0:
+        return np.zeros((0, 2), np.int64)
+    d = np.linalg.norm(pos_a[:, None, :2] - pos_b[None, :, :2], axis=2)
+    nearest_a, nearest_b = d.argmin(axis=0), d.argmin(axis=1)  # for each B its A, for each A its B
+    j = np.arange(len(pos_b))
+    keep = (nearest_b[nearest_a] == j) & (d[nearest_a, j] < radius_m)
+    return np.column_stack([nearest_a[keep], j[keep]]).astype(np.int64)
 
 
 def draw_landmarks(session: Path, images_dir: Path, names: list[str], out: Path, width: int = 600) -> None:
