@@ -115,6 +115,13 @@ class TriangulationParams:
     # suppression and matching") 2.0 cut cross-season average F1 from 0.58 to 0.33 (summer-winter) and from
     # 0.76 to 0.30 (spring-autumn): the parts of an object that both seasons segment alike are evidence too.
     duplicate_radius_factor: float = 0.0
+    # (ours) height outliers (`plugin.landmark_filters.height_outliers`): a landmark whose height differs from the
+    # median of its `height_outlier_neighbours` nearest landmarks (horizontally) by more than this many robust
+    # standard deviations of that difference is a wrong track triangulated along a straight flight line, where
+    # collinear views cannot fix the depth; 0 = off (the paper's EKF keyframes every 2 m see an object from many
+    # views). On in the "survey" preset.
+    height_outlier_sigmas: float = 0.0
+    height_outlier_neighbours: int = 8
 
 
 @dataclass(frozen=True)
@@ -198,6 +205,9 @@ PRESETS: dict[str, dict[str, Any]] = {
         # 3-observation landmarks cannot vote out a bad observation: a tighter cut than the paper's 10 px
         # (Seneca: 7 px -> 194 landmarks at 3.1 px mean, 8 px -> see BENCHMARKS, 10 px -> 256 at 4.2 px)
         "triangulation.max_reprojection_error_px": 8.0,
+        # 3 views along one line leave depth free along the epipolar line: wrong tracks land tens to hundreds of
+        # metres below the ground at a few px (Seneca: 30 of 237 landmarks > 20 m off; neighbour spread 1.1 m)
+        "triangulation.height_outlier_sigmas": 6.0,
     },
     # Aerial maps of a whole district (km^2) from coarse imagery (airborne or orthophoto, 1-5 m/px): hundreds of
     # landmarks tens of metres across, of which only ~10 % are segmented alike on two dates (ponds grow and merge,

@@ -142,3 +142,25 @@ def test_ply_is_float32_local_with_origin_comment():
     assert b"element vertex 1" in header and b"comment origin 500000.0 6000000.0 50.0" in header
     assert b"EPSG:32633" in header
     assert np.allclose(np.frombuffer(body, "<f4"), [1.25, -2.5, 3.0, 1.5])
+
+
+def test_wrong_tracks_far_below_the_ground_are_dropped_as_height_outliers(tmp_path):
+    # consistent observations of "objects" 300 m below a 0-10 m high scene: what a wrong track along a straight
+    # flight line triangulates to; they pass every per-point check and only the neighbours' heights betray them
+    cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
+    below = np.array([[20.0, 5.0, -300.0], [40.0, -10.0, -250.0]])
+    ids = len(pts) + np.arange(len(below))
+    for k in range(len(poses)):
+        uv, d = project(cam, poses.rotations[k], poses.centers[k], below)
+        vis = (uv[:, 0] > 0) & (uv[:, 0] < 640) & (uv[:, 1] > 0) & (uv[:, 1] < 480) & (d > 0)
+        cents[k] = np.vstack([cents[k], uv[vis]])
+        tids[k] = np.concatenate([tids[k], ids[vis]])
+        sizes[k] = np.concatenate([sizes[k], OBJECT_SIZE_M * cam.fx / d[vis]])
+    off = run(tmp_path / "off", cam, poses, cents, tids, sizes)
+    assert set(ids) <= set(off.track_ids.tolist())  # without the filter they are landmarks
+    params = TriangulationParams(duplicate_radius_factor=0.0, height_outlier_sigmas=6.0)
+    on = run(tmp_path / "on", cam, poses, cents, tids, sizes, params)
+    assert not set(ids) & set(on.track_ids.tolist())
+    assert on.counts["dropped_height_outlier"] == len(off) - len(on) >= len(ids)
+    assert len(on) >= len(off) - len(ids) - 2  # the scene's own landmarks stay (at most a stray one or two)
+    assert set(on.reconstruction.point3D_ids()) == set(on.point3d_ids.tolist())

@@ -15,6 +15,8 @@ plugin/. Steps:
 6. duplicate suppression (`duplicate_radius_factor`, see `suppress_duplicates`): landmarks of nested or
    partial masks of one object are dropped in favour of the best-supported one (deleted from the
    reconstruction too).
+7. height outliers (`height_outlier_sigmas`, see `plugin.landmark_filters.height_outliers`): wrong tracks
+   that straight-line views triangulated far off the ground of their neighbours are dropped (deleted too).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..plugin.geometry import Camera, Poses
+from ..plugin.landmark_filters import height_outliers
 from ..plugin.params import TriangulationParams
 
 if TYPE_CHECKING:
@@ -213,7 +216,8 @@ def triangulate_landmarks(
 
     r_cw, t_cw = poses.cam_from_world()
     focal = float(np.sqrt(camera.fx * camera.fy))
-    drop = {"few_observations": 0, "reprojection": 0, "behind_camera": 0, "small_angle": 0, "duplicate": 0}
+    drop = {"few_observations": 0, "reprojection": 0, "behind_camera": 0, "small_angle": 0, "duplicate": 0,
+            "height_outlier": 0}
     rows = []
     for pid in sorted(rec.point3D_ids()):
         point = rec.points3D[pid]
@@ -248,6 +252,13 @@ def triangulate_landmarks(
             rec.delete_point3D(r[1])
         drop["duplicate"] = int(np.count_nonzero(~keep))
         rows = [r for r, k in zip(rows, keep) if k]
+    if rows and params.height_outlier_sigmas > 0:
+        bad = height_outliers(np.array([r[2] for r in rows]), params.height_outlier_neighbours,
+                              params.height_outlier_sigmas)
+        for r in (r for r, b in zip(rows, bad) if b):
+            rec.delete_point3D(r[1])
+        drop["height_outlier"] = int(np.count_nonzero(bad))
+        rows = [r for r, b in zip(rows, bad) if not b]
     # Map order: by track id (roughly time of first sighting), then point id (untracked last).
     rows.sort(key=lambda r: (r[0] < 0, r[0], r[1]))
     counts.update({f"dropped_{k}": v for k, v in drop.items()})
