@@ -163,6 +163,14 @@ def suppress_duplicates(
     return keep
 
 
+def _drop_rows(rec: pycolmap.Reconstruction, rows: list, keep: np.ndarray) -> tuple[list, int]:
+    """Keep the landmark rows where `keep` (row[1] = point id); the others are deleted from `rec` too, so
+    sparse/ and the landmark map agree. Returns (kept rows, number dropped)."""
+    for r in (r for r, k in zip(rows, keep) if not k):
+        rec.delete_point3D(r[1])
+    return [r for r, k in zip(rows, keep) if k], int(np.count_nonzero(~keep))
+
+
 def triangulate_landmarks(
     db_path: str | Path,
     camera: Camera,
@@ -248,17 +256,11 @@ def triangulate_landmarks(
         keep = suppress_duplicates(np.array([r[2] for r in rows]), np.array([r[3] for r in rows]),
                                    np.array([r[4] for r in rows]), np.array([r[5] for r in rows]),
                                    params.duplicate_radius_factor)
-        for r in (r for r, k in zip(rows, keep) if not k):
-            rec.delete_point3D(r[1])
-        drop["duplicate"] = int(np.count_nonzero(~keep))
-        rows = [r for r, k in zip(rows, keep) if k]
+        rows, drop["duplicate"] = _drop_rows(rec, rows, keep)
     if rows and params.height_outlier_sigmas > 0:
         bad = height_outliers(np.array([r[2] for r in rows]), params.height_outlier_neighbours,
                               params.height_outlier_sigmas)
-        for r in (r for r, b in zip(rows, bad) if b):
-            rec.delete_point3D(r[1])
-        drop["height_outlier"] = int(np.count_nonzero(bad))
-        rows = [r for r, b in zip(rows, bad) if not b]
+        rows, drop["height_outlier"] = _drop_rows(rec, rows, ~bad)
     # Map order: by track id (roughly time of first sighting), then point id (untracked last).
     rows.sort(key=lambda r: (r[0] < 0, r[0], r[1]))
     counts.update({f"dropped_{k}": v for k, v in drop.items()})
