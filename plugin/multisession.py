@@ -57,6 +57,11 @@ class Sim3:
     def to_dict(self) -> dict:
         return {"rotation": self.rotation.tolist(), "translation": self.translation.tolist(), "scale": self.scale}
 
+    @classmethod
+    def from_dict(cls, data: dict) -> Sim3:
+        """The inverse of `to_dict` (a missing scale is 1: a rigid transform)."""
+        return cls(data["rotation"], data["translation"], data.get("scale", 1.0))
+
 
 def transform_error(estimate: Sim3, truth: Sim3, points: np.ndarray | None = None) -> tuple[float, float]:
     """(translation error m, rotation error deg) of `estimate` against `truth`.

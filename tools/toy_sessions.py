@@ -188,8 +188,7 @@ def load_toy_session(path: str | Path) -> ToySession:
     """Re-open a toy session written by `write_toy_session` (its truth.json)."""
     path = Path(path)
     truth = json.loads((path / "truth.json").read_text(encoding="utf-8"))
-    t = truth["session_from_world"]
-    return ToySession(path, Sim3(t["rotation"], t["translation"], t["scale"]),
+    return ToySession(path, Sim3.from_dict(truth["session_from_world"]),
                       np.asarray(truth["object_ids"], dtype=np.int64))
 
 

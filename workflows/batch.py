@@ -277,7 +277,7 @@ def merge_task(
     from .merge import merge_sessions, write_merge_record
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
-    sims = [Sim3(t["rotation"], t["translation"], t["scale"]) for t in transforms]
+    sims = [Sim3.from_dict(t) for t in transforms]
     pairs = [(a, b, read_associations(m)) for a, b, m in edges]
     res = merge_sessions(sessions, sims, pairs, out_dir, labels=labels, max_fuse_distance_m=max_fuse_distance_m)
     write_merge_record(res, {"tree_edges": [[labels[a], labels[b], m] for a, b, m in edges]})
@@ -545,8 +545,7 @@ def _graph_and_merge(
         if rec["status"] != "done" or not rec["accepted"] or rec["transform"] is None:
             continue
         a, b = key.split(PAIR_SEP)
-        t = rec["transform"]
-        sim = Sim3(t["rotation"], t["translation"], t["scale"])
+        sim = Sim3.from_dict(rec["transform"])
         if options.refine and "alignment" not in rec:
             sim = _refined(sessions[a]["session"], sessions[b]["session"], rec["match"], sim, params)
         edge = Edge(index[a], index[b], sim, float(rec["num_associations"]))

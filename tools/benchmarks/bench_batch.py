@@ -241,11 +241,10 @@ def evaluate(report: dict, flights: dict[str, Path], pair_truth: object, footpri
                "S": p.get("num_associations"), "err": None, "before": None, "fit_rms": fit_rms,
                "match_accepted": p.get("match_accepted", p.get("accepted")), "runner_up": p.get("runner_up_support")}
         if p["status"] == "done" and p.get("transform"):
-            t = p["transform"]
-            row["err"] = _errors(Sim3(t["rotation"], t["translation"], t["scale"]), truth, pts)
+            row["err"] = _errors(Sim3.from_dict(p["transform"]), truth, pts)
         before = p.get("match_transform", p.get("transform") if "match_transform" not in p else None)
         if p["status"] == "done" and before:
-            row["before"] = _errors(Sim3(before["rotation"], before["translation"], before["scale"]), truth, pts)
+            row["before"] = _errors(Sim3.from_dict(before), truth, pts)
         rows.append(row)
     return rows
 
@@ -343,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
         def pair_truth(a: str, b: str) -> tuple[Sim3, np.ndarray, float]:
             if args.poses == "exact":  # both maps are in the world frame: the truth is the identity
                 seen = np.isfinite(ekf[a][:, 0]) & np.isfinite(ekf[b][:, 0])
-                return Sim3(np.eye(3), np.zeros(3), 1.0), grid[seen], 0.0
+                return Sim3.identity(), grid[seen], 0.0
             return synth_pair_truth(ekf[a], ekf[b])
     options = batch.BatchOptions(ekf=args.poses == "ekf", progress=True)
     runs = {}

@@ -280,10 +280,11 @@ def evaluation_cases(data_root: Path, work: Path) -> list[dict]:
 
 def _identity_error(transform: dict, centre: np.ndarray) -> tuple[float, float]:
     """How far a match.json transform (A_from_B) is from the identity: displacement of `centre` (m), angle (deg)."""
-    rot = np.array(transform["rotation"])
-    moved = float(transform.get("scale", 1.0)) * rot @ centre + np.array(transform["translation"])
-    return (float(np.linalg.norm(moved - centre)),
-            float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1)))))
+    from ...plugin.geometry import rotation_angle_deg
+    from ...plugin.multisession import Sim3
+
+    sim = Sim3.from_dict(transform)
+    return float(np.linalg.norm(sim.apply(centre) - centre)), rotation_angle_deg(sim.rotation, np.eye(3))
 
 
 def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
@@ -330,6 +331,7 @@ def draw_naip_match(tif: Path, map_a: Path, map_b: Path, match_dir: Path, out: P
     import rasterio
 
     from ...database.landmark_map import read_landmark_map
+    from ...plugin.multisession import Sim3
 
     with rasterio.open(tif) as src:
         rgb = np.moveaxis(src.read([1, 2, 3]), 0, -1)
@@ -346,10 +348,7 @@ def draw_naip_match(tif: Path, map_a: Path, map_b: Path, match_dir: Path, out: P
     b = read_landmark_map(map_b / "landmarks.sosmap")
     result = json.loads((match_dir / "match.json").read_text())
     best = result.get("consensus")
-    pb = b.positions
-    if best:
-        t = best["transform"]
-        pb = float(t.get("scale", 1.0)) * pb @ np.array(t["rotation"]).T + np.array(t["translation"])
+    pb = Sim3.from_dict(best["transform"]).apply(b.positions) if best else b.positions
     for pos, sizes, colour in ((a.positions, a.sizes, (0, 0, 255)), (pb, b.sizes, (255, 255, 0))):
         for (u, v), size in zip(pixels(pos), sizes):
             cv2.circle(img, (int(u), int(v)), max(2, int(round(size / gsd * scale))), colour, 1, cv2.LINE_AA)
@@ -507,13 +506,9 @@ def common_landmarks(pos_a: np.ndarray, pos_b: np.ndarray, radius_m: float) -> n
     """(K, 2) index pairs (A, B) of landmarks that are each other's nearest neighbour in the ground plane (x, y)
     and less than `radius_m` apart there: the landmarks two maps share when their true transform is the identity.
     Heights are left out because 3-view landmarks can be tens of metres off in height (BENCHMARKS.md)."""
-    if len(pos_a) == 0 or len(pos_b) == 0:
-        return np.zeros((0, 2), np.int64)
-    d = np.linalg.norm(pos_a[:, None, :2] - pos_b[None, :, :2], axis=2)
-    nearest_a, nearest_b = d.argmin(axis=0), d.argmin(axis=1)  # for each B its A, for each A its B
-    j = np.arange(len(pos_b))
-    keep = (nearest_b[nearest_a] == j) & (d[nearest_a, j] < radius_m)
-    return np.column_stack([nearest_a[keep], j[keep]]).astype(np.int64)
+    from ...plugin.multisession import mutual_nearest
+
+    return mutual_nearest(pos_a, None, pos_b, None, radius_m, np.inf, z_weight=0.0)[0]
 
 
 def draw_landmarks(session: Path, images_dir: Path, names: list[str], out: Path, width: int = 600) -> None:
