@@ -16,6 +16,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
+from .text_input import read_user_text
 
 
 @dataclass
@@ -63,11 +64,10 @@ def read_match_json(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if path.is_dir():
         path = path / "match.json"
+    text = read_user_text(path, "match file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("match file not found", path) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
         raise InputError(f"cannot read match file: {exc}", path) from None
     if not isinstance(data, dict):
         raise InputError("match file must hold a JSON object", path)
