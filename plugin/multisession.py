@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .association.windowed_search import size_ratio
 from .geometry import rotation_angle_deg
 
 
@@ -319,13 +320,6 @@ def fit_yaw_translation(source: np.ndarray, target: np.ndarray, weights: np.ndar
     return Sim3(rot, mu_d - rot @ mu_s, 1.0)
 
 
-def _size_ratio(h_a: np.ndarray, h_b: np.ndarray) -> np.ndarray:
-    """r = 2 |h_a - h_b| / (h_a + h_b), 0 where a size is unknown (the association module's definition)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r = 2.0 * np.abs(h_a - h_b) / (h_a + h_b)
-    return np.where(np.isfinite(r), r, 0.0)
-
-
 def mutual_nearest(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
     gate_m: float, max_size_difference: float, z_weight: float = 0.5,
@@ -348,7 +342,7 @@ def mutual_nearest(
     pairs = cKDTree(pa).sparse_distance_matrix(cKDTree(pb), gate_m, output_type="ndarray")
     i, j, d = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64), pairs["v"]
     if sizes_a is not None and sizes_b is not None:
-        ok = _size_ratio(np.asarray(sizes_a, np.float64)[i], np.asarray(sizes_b, np.float64)[j]) <= max_size_difference
+        ok = size_ratio(np.asarray(sizes_a, np.float64)[i], np.asarray(sizes_b, np.float64)[j]) <= max_size_difference
         i, j, d = i[ok], j[ok], d[ok]
     if not len(i):
         return empty
@@ -398,8 +392,7 @@ def refine_alignment(
     iterations = 0
     while iterations < max_iterations and len(assoc) >= 3:
         iterations += 1
-        huber = gate_m / 2.0
-        w = np.where(dist <= huber, 1.0, huber / np.maximum(dist, 1e-12))
+        w = _huber_weights(dist, gate_m)
         try:
             if dof == 4:
                 new = fit_yaw_translation(pb[assoc[:, 1]], pa[assoc[:, 0]], w)
@@ -504,13 +497,19 @@ def verify_alignments(
 def _final_rigid_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, gate_m: float, z_weight: float) -> Alignment:
     """One Huber-weighted 6-DOF fit on an alignment's supporting pairs (kept as they are)."""
     assoc = aligned.associations
-    scale = np.array([1.0, 1.0, z_weight])
-    dist = np.linalg.norm((aligned.transform.apply(pb[assoc[:, 1]]) - pa[assoc[:, 0]]) * scale, axis=1)
-    huber = gate_m / 2.0
-    w = np.where(dist <= huber, 1.0, huber / np.maximum(dist, 1e-12))
+    src, dst = pb[assoc[:, 1]], pa[assoc[:, 0]]
+    scale = np.array([1.0, 1.0, z_weight])  # the distance `mutual_nearest` pairs by
+    w = _huber_weights(np.linalg.norm((aligned.transform.apply(src) - dst) * scale, axis=1), gate_m)
     try:
-        rigid = _weighted_umeyama(pb[assoc[:, 1]], pa[assoc[:, 0]], w, with_scale=False)
+        rigid = _weighted_umeyama(src, dst, w, with_scale=False)
     except ValueError:
         return aligned
-    res = np.linalg.norm((rigid.apply(pb[assoc[:, 1]]) - pa[assoc[:, 0]]) * scale, axis=1)
+    res = np.linalg.norm((rigid.apply(src) - dst) * scale, axis=1)
     return Alignment(rigid, assoc, float(np.sqrt(np.mean(res**2))), aligned.iterations)
+
+
+def _huber_weights(dist: np.ndarray, gate_m: float) -> np.ndarray:
+    """IRLS weights of a Huber loss at half the gate: 1 inside, falling as 1/distance beyond (a wrong pair near
+    the gate pulls little)."""
+    huber = gate_m / 2.0
+    return np.where(dist <= huber, 1.0, huber / np.maximum(dist, 1e-12))
