@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .geometry import Camera, Poses
+from .geometry import Camera, Poses, pixel_rays, project
 from .mask_features import MaskFeatures
 from .params import TrackingParams
 
@@ -333,10 +333,9 @@ def _predict_track_points(
     if not len(good):
         return out
     x = np.linalg.solve(ray_a[good], ray_b[good][:, :, None])[:, :, 0] + origin
-    cam = (x - poses.centers[t]) @ poses.rotations[t]  # camera-t coordinates (R_wc^T (X - C))
-    front = cam[:, 2] > 1e-9
-    uv = cam[front] @ camera.K.T
-    out[good[front]] = uv[:, :2] / uv[:, 2:3]
+    uv, depth = project(camera, poses.rotations[t], poses.centers[t], x)
+    front = depth > 1e-9
+    out[good[front]] = uv[front]
     return out
 
 
@@ -376,7 +375,6 @@ def track_masks(
     # Two rays at angle a give a smallest eigenvalue of exactly 1 - cos a; more rays raise it (n rays spread over
     # a: ~n a^2 / 12), so long tracks qualify at smaller spreads, as their points are pinned better too.
     min_eig = 1.0 - np.cos(np.radians(params.point_gate_min_ray_angle_deg))
-    kinv = np.linalg.inv(camera.K)
     last_kf = np.zeros(0, np.int64)  # per track: keyframe of its latest observation
     last_mask = np.zeros(0, np.int64)  # per track: mask index of its latest observation
     track_ids: list[np.ndarray] = []
@@ -417,8 +415,7 @@ def track_masks(
         if point_gate and m:
             ray_a = np.concatenate([ray_a, np.zeros((len(new), 3, 3))])
             ray_b = np.concatenate([ray_b, np.zeros((len(new), 3))])
-            d = np.asarray(feat_t.centroids, np.float64) @ kinv[:, :2].T + kinv[:, 2]
-            d = d @ keyframe_poses.rotations[t].T
+            d = pixel_rays(camera, feat_t.centroids, keyframe_poses.rotations[t])
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
             np.add.at(ray_a, ids, proj)
