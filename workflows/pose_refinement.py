@@ -357,7 +357,7 @@ def refine_poses_with_colmap(
     after = poses_of_reconstruction(rec)
     before = before_poses.subset([before_poses.names.index(n) for n in after.names])
     dpos = np.linalg.norm(after.centers - before.centers, axis=1)
-    drot = np.array([rotation_angle_deg(a, b) for a, b in zip(before.rotations, after.rotations)])
+    drot = rotation_angle_deg(before.rotations, after.rotations)
     stats = RefinementStats(
         images=len(image_ids), points=rec.num_points3D(), observations=len(err1),
         reprojection_rmse_before_px=float(np.sqrt(np.mean(err0**2))) if len(err0) else float("nan"),

@@ -379,19 +379,12 @@ def run(
     With `refine`, the EXIF poses are refined with ORB tie points between overlapping images and the EXIF poses
     as priors (`pose_refinement.refine_poses_from_images`, sigmas as given; `refine_method` "colmap" = COLMAP's
     pose-prior bundle adjustment with position priors, "scipy" = position and attitude priors) before they are
-    written; the
-    summary then holds the refinement statistics. Both files are written atomically; the return value carries
-    the poses, camera and the source summary.
+    written; the summary then holds the refinement statistics. Both files are written atomically; the return
+    value carries the poses, camera and the source summary.
     """
     result = poses_from_images(images, telemetry, mount, pitch_sign, roll_sign, sensor_width_mm, epsg)
     if refine:
-        from .pose_refinement import refine_poses_from_images
-
-        paths = {p.name: p for p in list_images(images)}
-        refined, stats = refine_poses_from_images([paths[n] for n in result.poses.names], result.poses,
-                                                  result.camera, position_sigma_m, attitude_sigma_deg,
-                                                  method=refine_method)
-        result.poses = refined
+        stats = _refine(result, images, position_sigma_m, attitude_sigma_deg, refine_method)
         result.summary["refinement"] = {"method": refine_method, "position_sigma_m": position_sigma_m,
                                         "attitude_sigma_deg": attitude_sigma_deg, **stats.to_dict()}
     out = Path(out)
@@ -416,13 +409,26 @@ def map_inputs_from_images(
     from .map import MapInputs
 
     result = poses_from_images(images, telemetry)
-    paths = {p.name: p for p in list_images(images)}
     source = f"EXIF/XMP of {images}" + (f" + {telemetry}" if telemetry else "")
     if refine:
-        from .pose_refinement import refine_poses_from_images
-
-        result.poses, _ = refine_poses_from_images([paths[n] for n in result.poses.names], result.poses,
-                                                   result.camera, position_sigma_m)
+        _refine(result, images, position_sigma_m)
         source += ", refined from tie points"
-    return MapInputs([paths[n] for n in result.poses.names], result.poses, result.camera, result.epsg,
+    return MapInputs(_image_paths(images, result.poses), result.poses, result.camera, result.epsg,
                      {"poses": source, "camera": f"EXIF of {images}", "images": str(images)})
+
+
+def _image_paths(images: str | Path, poses: Poses) -> list[Path]:
+    """The image files of `images` in the order of `poses`."""
+    paths = {p.name: p for p in list_images(images)}
+    return [paths[n] for n in poses.names]
+
+
+def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, attitude_sigma_deg: float = 5.0,
+            method: str = "colmap") -> object:
+    """Refine `result.poses` in place from tie points between the images (`refine_poses_from_images`); returns the
+    refinement statistics."""
+    from .pose_refinement import refine_poses_from_images
+
+    result.poses, stats = refine_poses_from_images(_image_paths(images, result.poses), result.poses, result.camera,
+                                                   position_sigma_m, attitude_sigma_deg, method=method)
+    return stats
