@@ -201,11 +201,11 @@ def test_cli_batch_with_the_real_association_search(tmp_path):
 
 def test_nearest_pairs_need_one_frame():
     sessions = {n: {"center": [x, 0.0, 50.0], "epsg": 0} for n, x in zip("ABCD", (0.0, 10.0, 100.0, 110.0))}
-    assert batch._choose_pairs(list("ABCD"), sessions, None) == [tuple(p) for p in
+    assert batch.workflow._choose_pairs(list("ABCD"), sessions, None) == [tuple(p) for p in
                                                                 ("AB", "AC", "AD", "BC", "BD", "CD")]
-    assert batch._choose_pairs(list("ABCD"), sessions, 1) == [("A", "B"), ("C", "D")]
+    assert batch.workflow._choose_pairs(list("ABCD"), sessions, 1) == [("A", "B"), ("C", "D")]
     sessions["D"]["epsg"] = 32617  # not one frame: positions say nothing, so every pair is matched
-    assert len(batch._choose_pairs(list("ABCD"), sessions, 1)) == 6
+    assert len(batch.workflow._choose_pairs(list("ABCD"), sessions, 1)) == 6
 
 
 def test_contradicting_pairs_are_left_out_of_the_graph():

@@ -1,0 +1,47 @@
+"""`sosmatch batch FLIGHTS_DIR --out OUT`: map every flight, match session pairs, merge connected groups.
+
+Stages, each a set of independent tasks run by an executor (`sosmatch.workflows.executors`: local worker
+processes, or a Dask cluster):
+1. discovery: one sub-folder of FLIGHTS_DIR per flight (`discover_flights`), recognised as
+   - "mapped": already a mapped session (sparse/, landmarks.sosmap, landmarks.csv): used as it is;
+   - "synth": a `sosmatch synth` session (session.json, poses.csv, images/, cameras.txt);
+   - "poses": images (in images/ or the folder itself) with a pose file poses.csv (and cameras.txt);
+   - "exif": geotagged images and no pose file: poses and intrinsics come from EXIF
+     (`sosmatch.workflows.poses_from_exif`).
+2. map: each flight -> OUT/sessions/NAME (`sosmatch.workflows.map`);
+3. match: every pair of mapped sessions, or with `nearest=k` only pairs where one session is among the k
+   nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the
+   same local frame) -> OUT/pairs/A__B/match.json; then (BatchOptions.verify, on by default) every window
+   hypothesis is checked on the FULL maps and the best supported one is refined there (`verify_pair`: size-gated
+   mutual nearest neighbours within theta_eps, iterated 4-DOF fit) -> OUT/pairs/A__B/alignment.json, whose
+   decision, transform and associations the graph and the merge use. Why: across seasons one window pair's |S|
+   is no larger for a true hypothesis than for chance ones, and one window's 8-20 inliers give a noisy rotation;
+   see BENCHMARKS.md, Multi-session;
+4. session graph: sessions are nodes, accepted pairs are edges carrying a_from_b and |S|; accepted pairs
+   that contradict others linking the same groups are left out (`plugin.multisession.consistent_edges`); each connected
+   group is brought into the frame of its best-connected session along a maximum spanning tree
+   (`sosmatch.plugin.multisession.spanning_transforms`) and merged (`sosmatch.workflows.merge.merge_sessions`)
+   -> OUT/merged/REFERENCE/;
+5. report: OUT/report.json, OUT/report.md (a table per session and per pair), OUT/session_graph.png.
+
+Resume: every finished task writes OUT/state/STAGE/KEY.json atomically, holding a fingerprint of its inputs
+(flight, parameters, upstream fingerprints) and its result (paths relative to OUT, so a moved OUT resumes).
+A re-run skips tasks whose state matches and whose outputs still exist, so an interrupted batch continues
+where it stopped; changing parameters redoes what they affect. A failing task is reported with its error
+(traceback in OUT/logs/), the tasks that need its output are reported as skipped, and every other task goes
+on. `BatchReport.ok` (and the command's exit code) says whether anything failed.
+"""
+
+from __future__ import annotations
+
+from .discovery import PAIR_SEP, Flight, classify_flight, discover_flights
+from .report import BatchReport, plot_session_graph, write_report
+from .state import StateStore
+from .tasks import map_task, merge_task, pair_task, read_associations, summarise_match, verify_pair
+from .workflow import BatchOptions, run
+
+__all__ = [
+    "PAIR_SEP", "BatchOptions", "BatchReport", "Flight", "StateStore", "classify_flight", "discover_flights",
+    "map_task", "merge_task", "pair_task", "plot_session_graph", "read_associations", "run", "summarise_match",
+    "verify_pair", "write_report",
+]

@@ -1,0 +1,64 @@
+"""Batch stage 1, discovery: which sub-folders of FLIGHTS_DIR are flights, and of what kind (see the package doc)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+from ...plugin.errors import InputError
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+PAIR_SEP = "__"
+
+
+@dataclass(frozen=True)
+class Flight:
+    """One flight folder and how it will be mapped."""
+
+    name: str
+    path: Path
+    kind: str  # "mapped" | "synth" | "poses" | "exif"
+
+
+def images_dir(folder: Path) -> Path | None:
+    for cand in (folder / "images", folder):
+        if cand.is_dir() and any(f.suffix.lower() in IMAGE_EXTENSIONS for f in cand.iterdir() if f.is_file()):
+            return cand
+    return None
+
+
+def classify_flight(folder: Path) -> str | None:
+    """The kind of a flight folder (see the module doc), or None when it is not a flight."""
+    if (folder / "sparse").is_dir() and all((folder / f).is_file() for f in ("landmarks.sosmap", "landmarks.csv")):
+        return "mapped"
+    if (folder / "session.json").is_file() and (folder / "poses.csv").is_file():
+        return "synth"
+    if images_dir(folder) is None:
+        return None
+    return "poses" if (folder / "poses.csv").is_file() else "exif"
+
+
+def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) -> list[Flight]:
+    """Flights in the sub-folders of `flights_dir`, sorted by name; hidden folders and `exclude` are skipped."""
+    root = Path(flights_dir)
+    if not root.is_dir():
+        raise InputError("flights directory not found", root)
+    excluded = {p.resolve() for p in exclude}
+    flights = []
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        if folder.name.startswith((".", "_")) or folder.resolve() in excluded:
+            continue
+        if PAIR_SEP in folder.name:
+            raise InputError(f"flight folder names may not contain {PAIR_SEP!r} (used for pair names)", folder)
+        kind = classify_flight(folder)
+        if kind is None:
+            log.info("%s: no images, pose file or mapped session; not a flight", folder)
+            continue
+        flights.append(Flight(folder.name, folder, kind))
+    if not flights:
+        raise InputError("no flights found (one folder per flight: images with poses.csv, geotagged images, "
+                         "a synth session or a mapped session)", root)
+    return flights

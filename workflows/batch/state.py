@@ -1,0 +1,103 @@
+"""Batch resume: the state store (OUT/state/STAGE/KEY.json) and the stage runner that skips finished tasks."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from ...database.atomic import write_text_atomic
+from ..executors import Executor, TaskResult
+
+log = logging.getLogger(__name__)
+
+STATE_VERSION = 2  # 2: paths relative to OUT
+
+
+def fingerprint(obj: Any) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+PATH_KEYS = ("session", "match", "alignment", "merged")  # result fields that hold paths
+
+
+class StateStore:
+    """OUT/state/STAGE/KEY.json: the fingerprint and result of every finished task, written atomically.
+
+    Paths inside OUT are stored relative to OUT (`base`), so a moved or copied OUT directory still resumes;
+    paths outside it (an already mapped flight adopted as it is) stay as they are.
+    """
+
+    def __init__(self, root: Path, base: Path | None = None) -> None:
+        self.root = root
+        self.base = base if base is not None else root.parent
+
+    def _relative(self, result: dict[str, Any]) -> dict[str, Any]:
+        out = dict(result)
+        base = self.base.resolve()
+        for key in PATH_KEYS:
+            if isinstance(out.get(key), str):
+                try:
+                    out[key] = Path(out[key]).resolve().relative_to(base).as_posix()
+                except ValueError:
+                    pass  # outside OUT: keep it absolute
+        return out
+
+    def _absolute(self, result: dict[str, Any]) -> dict[str, Any]:
+        out = dict(result)
+        for key in PATH_KEYS:
+            if isinstance(out.get(key), str) and not Path(out[key]).is_absolute():
+                out[key] = str(self.base / out[key])
+        return out
+
+    def _path(self, stage: str, key: str) -> Path:
+        return self.root / stage / f"{key}.json"
+
+    def get(self, stage: str, key: str, fingerprint: str) -> dict[str, Any] | None:
+        path = self._path(stage, key)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError):
+            return None
+        if data.get("version") != STATE_VERSION or data.get("fingerprint") != fingerprint:
+            return None
+        result = data.get("result")
+        return self._absolute(result) if isinstance(result, dict) else None
+
+    def put(self, stage: str, key: str, fingerprint: str, result: dict[str, Any]) -> None:
+        data = {"version": STATE_VERSION, "fingerprint": fingerprint, "result": self._relative(result)}
+        write_text_atomic(self._path(stage, key), json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+def record_result(result: TaskResult, log_dir: Path, stage: str, key: str) -> dict[str, Any]:
+    if result.ok:
+        return {"status": "done", "seconds": round(result.seconds, 3), **result.value}
+    write_text_atomic(log_dir / f"{stage}-{key}.log", result.traceback or result.error)
+    log.warning("%s %s failed: %s", stage, key, result.error)
+    return {"status": "failed", "error": result.error.splitlines()[0] if result.error else "failed",
+            "seconds": round(result.seconds, 3)}
+
+
+def run_stage(
+    executor: Executor, fn: Any, tasks: dict[str, tuple], fingerprints: dict[str, str], state: StateStore,
+    stage: str, out_dir: Path, desc: str, progress: bool, still_valid: Any = None,
+) -> dict[str, dict[str, Any]]:
+    """Skip tasks whose state matches, run the rest, save the state of those that succeed."""
+    records: dict[str, dict[str, Any]] = {}
+    todo = {}
+    for key, args in tasks.items():
+        done = state.get(stage, key, fingerprints[key])
+        if done is not None and (still_valid is None or still_valid(done)):
+            records[key] = {**done, "status": "done", "resumed": True}
+        else:
+            todo[key] = args
+    if todo:
+        results = executor.run(fn, todo, desc=desc, progress=progress)
+        for key, res in results.items():
+            rec = record_result(res, out_dir / "logs", stage, key)
+            if res.ok:
+                state.put(stage, key, fingerprints[key], {k: v for k, v in rec.items() if k != "status"})
+            records[key] = rec
+    return {key: records[key] for key in tasks}

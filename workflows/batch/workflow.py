@@ -1,0 +1,222 @@
+"""The batch run: its stages (map, match, session graph + merge, report) as named calls; see the package doc."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from itertools import combinations
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...plugin.multisession import (
+    Edge,
+    Sim3,
+    connected_groups,
+    consistent_edges,
+    nearest_pairs,
+    spanning_transforms,
+)
+from ...plugin.params import Params, params_to_dict
+from ..executors import Executor, LocalExecutor
+from .discovery import PAIR_SEP, discover_flights
+from .report import BatchReport, write_report
+from .state import StateStore, fingerprint, run_stage
+from .tasks import map_task, merge_task, pair_task
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class BatchOptions:
+    """How to run a batch (parameters of the method live in Params)."""
+
+    nearest: int | None = None  # match only the k nearest pairs (None: every pair)
+    ekf: bool = False  # synth flights: map with the noisy poses_ekf.csv instead of the ground truth
+    merge: bool = True
+    refine: bool = False  # (legacy, without verify) consensus transforms re-fitted on their own associations
+    # Verify every pair's window hypotheses on the full maps and refine the winner (`verify_pair`); off = the
+    # match's consensus as it is. BENCHMARKS.md, Multi-session, has what each step does to the errors.
+    verify: bool = True
+    verify_dof: int = 4  # 4: yaw + translation (gravity-aligned maps); 6: rigid
+    verify_final_dof: int | None = 6  # the winner refitted 6-DOF on its pairs (None: keep the verify_dof fit)
+    verify_min_ratio: float = 1.2  # (ours) the winner's support over the best disagreeing alignment's
+    edge_tolerance_m: float = 5.0  # (ours) two accepted pairs agree if they place sessions within this distance
+    progress: bool = True
+
+
+def _valid_session(done: dict[str, Any]) -> bool:
+    p = Path(done.get("session", ""))
+    return (p / "landmarks.sosmap").is_file() and (p / "sparse").is_dir()
+
+
+def _valid_match(done: dict[str, Any]) -> bool:
+    return Path(done.get("match", "")).is_file() and ("alignment" not in done or Path(done["alignment"]).is_file())
+
+
+def _associations_file(rec: dict[str, Any]) -> str:
+    """The file whose associations a merge fuses: the verified alignment's, else the match's."""
+    return rec.get("alignment") or rec["match"]
+
+
+def _valid_merge(done: dict[str, Any]) -> bool:
+    return (Path(done.get("merged", "")) / "merge.json").is_file()
+
+
+def _choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None) -> list[tuple[str, str]]:
+    all_pairs = list(combinations(names, 2))
+    if nearest is None:
+        return all_pairs
+    centres = [sessions[n].get("center") for n in names]
+    epsgs = {sessions[n].get("epsg") for n in names}
+    if any(c is None for c in centres) or len(epsgs) > 1:
+        log.warning("--nearest needs every session's position in one frame; matching all %d pairs", len(all_pairs))
+        return all_pairs
+    return [(names[i], names[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)]
+
+
+def run(
+    flights_dir: str | Path,
+    out_dir: str | Path,
+    params: Params | None = None,
+    executor: Executor | None = None,
+    options: BatchOptions | None = None,
+    pair_fn: Any = None,
+) -> BatchReport:
+    """Run (or resume) a batch; see the module doc. Returns the report (also written under out_dir).
+
+    `pair_fn` replaces the matching task (default `pair_task`); it must be a top-level function with the same
+    signature, e.g. `sosmatch.tools.toy_sessions.oracle_pair_task` to test the later stages on toy sessions.
+    """
+    t0 = time.perf_counter()
+    params = params or Params()
+    options = options or BatchOptions()
+    out_dir = Path(out_dir)
+    own_executor = executor is None
+    executor = executor or LocalExecutor(1)
+    flights = discover_flights(flights_dir, exclude=(out_dir,))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    state = StateStore(out_dir / "state", out_dir)
+    pdict = params_to_dict(params)
+    report = BatchReport(out_dir, executor=executor.describe())
+    try:
+        # 1-2: map
+        fps, tasks = {}, {}
+        for f in flights:
+            fps[f.name] = fingerprint({"flight": str(f.path.resolve()), "kind": f.kind, "params": pdict,
+                                        "ekf": options.ekf})
+            tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf)
+        sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
+                              options.progress, _valid_session)
+        report.sessions = [{"name": f.name, "kind": f.kind, **sessions[f.name]} for f in flights]
+        mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
+
+        # 3: match
+        chosen = _choose_pairs(mapped, sessions, options.nearest)
+        matcher = pair_fn or pair_task
+        # a custom matcher (pair_fn) returns its own summary; only the default one verifies
+        verify = ({"dof": options.verify_dof, "min_ratio": options.verify_min_ratio,
+                   "final_dof": options.verify_final_dof}
+                  if options.verify and matcher is pair_task else None)
+        pair_fps, pair_tasks = {}, {}
+        for a, b in chosen:
+            key = f"{a}{PAIR_SEP}{b}"
+            pair_fps[key] = fingerprint({"a": fps[a], "b": fps[b], "association": pdict["association"],
+                                          "seed": pdict["seed"], "matcher": matcher.__qualname__,
+                                          "verify": verify})
+            pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
+            if verify is not None:
+                pair_tasks[key] += (verify,)
+        pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
+                           options.progress, _valid_match)
+        failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
+
+        # 4: session graph (marks each pair's in_graph) and merged groups
+        report.groups = _graph_and_merge(report, mapped, sessions, pairs, pair_fps, state, executor, options,
+                                         params, out_dir)
+        report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
+                        for key, rec in pairs.items()]
+        report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
+                          "error": "a session failed to map"}
+                         for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
+    finally:
+        if own_executor:
+            executor.close()
+    report.seconds = time.perf_counter() - t0
+    write_report(report)
+    return report
+
+
+def _graph_and_merge(
+    report: BatchReport, names: list[str], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
+    pair_fps: dict[str, str], state: StateStore, executor: Executor, options: BatchOptions, params: Params,
+    out_dir: Path,
+) -> list[dict[str, Any]]:
+    index = {n: i for i, n in enumerate(names)}
+    edges, edge_keys = [], {}
+    for key, rec in pairs.items():
+        if rec["status"] != "done" or not rec["accepted"] or rec["transform"] is None:
+            continue
+        a, b = key.split(PAIR_SEP)
+        sim = Sim3.from_dict(rec["transform"])
+        if options.refine and "alignment" not in rec:
+            sim = _refined(sessions[a]["session"], sessions[b]["session"], rec["match"], sim, params)
+        edge = Edge(index[a], index[b], sim, float(rec["num_associations"]))
+        edges.append(edge)
+        edge_keys[(edge.a, edge.b)] = key
+    # Accepted pairs that contradict the others are dropped before the graph is used (see consistent_edges).
+    probes = [np.asarray(sessions[n].get("center") or [0.0, 0.0, 0.0]) for n in names]
+    edges, dropped = consistent_edges(len(names), edges, probes, options.edge_tolerance_m)
+    for rec in pairs.values():
+        if rec["status"] == "done" and rec["accepted"]:
+            rec["in_graph"] = True
+    for e in dropped:
+        pairs[edge_keys[(e.a, e.b)]]["in_graph"] = False
+        log.warning("pair %s contradicts the other accepted pairs; left out of the session graph",
+                    edge_keys[(e.a, e.b)])
+    groups = []
+    merge_tasks, merge_fps = {}, {}
+    for members in connected_groups(len(names), edges):
+        ref, ref_from, tree = spanning_transforms(members, edges)
+        order = [ref] + [m for m in members if m != ref]
+        group = {
+            "reference": names[ref],
+            "members": [names[m] for m in order],
+            "tree": [edge_keys[(e.a, e.b)] for e in tree],
+            "reference_from_session": {names[m]: ref_from[m].to_dict() for m in order},
+        }
+        groups.append(group)
+        if len(members) < 2 or not options.merge:
+            group["status"] = "single" if len(members) < 2 else "not merged"
+            continue
+        pos = {m: k for k, m in enumerate(order)}
+        tree_edges = [(pos[e.a], pos[e.b], _associations_file(pairs[edge_keys[(e.a, e.b)]])) for e in tree]
+        key = names[ref]
+        merge_fps[key] = fingerprint({"members": [names[m] for m in order],  # contents: in the pair fps
+                                       "pairs": [pair_fps[edge_keys[(e.a, e.b)]] for e in tree],
+                                       "transforms": [ref_from[m].to_dict() for m in order],
+                                       "eps": params.association.distance_tolerance_m})
+        merge_tasks[key] = (
+            [sessions[names[m]]["session"] for m in order], [names[m] for m in order],
+            [ref_from[m].to_dict() for m in order], tree_edges, str(out_dir / "merged" / key),
+            params.association.distance_tolerance_m,
+        )
+    merged = run_stage(executor, merge_task, merge_tasks, merge_fps, state, "merge", out_dir, "merge groups",
+                        options.progress, _valid_merge)
+    for group in groups:
+        if group["reference"] in merged:
+            group.update(merged[group["reference"]])
+    return groups
+
+
+def _refined(session_a: str, session_b: str, match_json: str, sim: Sim3, params: Params) -> Sim3:
+    from ...database.match_io import read_match
+    from ...database.session_io import read_session
+    from ..merge import refine_transform
+
+    m = read_match(match_json)
+    refined, _ = refine_transform(read_session(session_a), read_session(session_b), m.associations, sim,
+                                  params.association.transform == "similarity", params.association.distance_tolerance_m)
+    return refined

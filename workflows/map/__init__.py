@@ -1,0 +1,30 @@
+"""`sosmatch map`: images + fixed poses -> a mapped session directory (SOS-Match section 1).
+
+Stages (docs/ARCHITECTURE.md, "The data walk"):
+1. inputs: poses from a pose CSV (quaternion or yaw/pitch/roll), a COLMAP model or a `sosmatch synth` session;
+   intrinsics from a cameras file, the COLMAP model or the synth session; images matched to poses by name;
+2. keyframes every `keyframes.interval_m` of travel;
+3. per keyframe (cached): segmentation, mask description, image-motion statistics to the previous keyframe;
+4. tracking (method.md 1.5);
+5. COLMAP database: mask centroids as keypoints, every pair of observations of a long-enough track as a
+   verified match (checked against the known poses with the Sampson distance);
+6. pycolmap triangulation with the fixed poses, points-only BA, landmark filters, metric sizes
+   (`sosmatch.workflows.triangulation`);
+7. outputs: database.db, sparse/, landmarks.sosmap, landmarks.ply, landmarks.csv, run.json.
+
+Robustness: everything is built in SESSION_DIR/.partial and moved into place at the end (run.json last, so a
+directory with run.json is complete). The per-keyframe results live in SESSION_DIR/.partial/cache/, each
+written atomically, so a killed run resumes where it stopped and ends with the same outputs. An existing
+session made from other inputs is refused unless `overwrite=True`.
+"""
+
+from ...plugin.errors import InputError
+from .inputs import IMAGE_EXTENSIONS, MapInputs, input_fingerprints, load_inputs
+from .keyframes import describe_keyframes
+from .output_dir import OUTPUTS, PARTIAL, prepare_output_dir
+from .workflow import MapSummary, map_origin, run
+
+__all__ = [
+    "IMAGE_EXTENSIONS", "OUTPUTS", "PARTIAL", "InputError", "MapInputs", "MapSummary", "describe_keyframes",
+    "input_fingerprints", "load_inputs", "map_origin", "prepare_output_dir", "run",
+]

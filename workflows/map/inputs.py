@@ -1,0 +1,156 @@
+"""Map stage 1, inputs: poses, intrinsics and the image list read, validated and paired by name; their
+fingerprints."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...database.cameras import read_cameras_txt
+from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
+from ...database.poses import read_poses_csv
+from ...plugin.errors import InputError
+from ...plugin.geometry import Camera, Poses
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+
+
+@dataclass
+class MapInputs:
+    """Resolved inputs: images in acquisition order with their poses, the camera, and where each came from."""
+
+    image_paths: list[Path]
+    poses: Poses  # same order as image_paths; names are the image names stored in the database
+    camera: Camera
+    epsg: int = 0
+    sources: dict[str, str] = field(default_factory=dict)
+
+
+def _is_synth_session(path: Path) -> bool:
+    return path.is_dir() and (path / "session.json").is_file() and (path / "poses.csv").is_file()
+
+
+def load_inputs(
+    images: str | Path | None,
+    poses: str | Path,
+    camera: str | Path | None = None,
+    convention: str | None = None,
+    ekf: bool = False,
+    strict: bool = False,
+) -> MapInputs:
+    """Read and validate poses, intrinsics and the image list; pair images with poses by name.
+
+    Args:
+        images: image directory (optional when `poses` is a synth session: its images/ is used).
+        poses: a pose CSV, a COLMAP model directory (or its images.bin/.txt), or a `sosmatch synth` session.
+        camera: cameras.txt / cameras.bin / model directory; optional when `poses` provides the intrinsics (a
+            synth session, a COLMAP model, or a pose CSV with a one-camera cameras.txt beside it).
+        convention: overrides the pose CSV's `# convention:` comment.
+        ekf: with a synth session, use its noisy poses_ekf.csv instead of the ground truth.
+        strict: images without a pose or poses without an image are an error instead of a warning.
+    """
+    poses = Path(poses)
+    sources: dict[str, str] = {}
+    cam_from_poses: Camera | None = None
+    epsg = 0
+    if not poses.exists():
+        raise InputError("pose file not found", poses)
+    if _is_synth_session(poses):
+        pose_file = poses / ("poses_ekf.csv" if ekf else "poses.csv")
+        pose_list, epsg = read_poses_csv(pose_file, convention)
+        sources["poses"] = str(pose_file)
+        cams = read_cameras_txt(poses / "cameras.txt")
+        cam_from_poses = next(iter(cams.values())) if len(cams) == 1 else None
+        if images is None:
+            images = poses / "images"
+    elif is_colmap_model(poses):
+        pose_list, cams, _ = read_colmap_model_poses(poses)
+        sources["poses"] = str(poses)
+        if len(cams) == 1:
+            cam_from_poses = next(iter(cams.values()))
+    else:
+        if ekf:
+            raise InputError("--ekf needs a synth session directory as --poses", poses)
+        pose_list, epsg = read_poses_csv(poses, convention)
+        sources["poses"] = str(poses)
+        beside = poses.parent / "cameras.txt"  # where `sosmatch poses-from-exif` puts the intrinsics
+        if camera is None and beside.is_file():
+            cams = read_cameras_txt(beside)
+            if len(cams) == 1:
+                cam_from_poses = next(iter(cams.values()))
+                sources["camera"] = str(beside)
+    if camera is not None:
+        cam = read_camera_file(camera)
+        sources["camera"] = str(camera)
+    elif cam_from_poses is not None:
+        cam = cam_from_poses
+        sources.setdefault("camera", sources["poses"])
+    else:
+        raise InputError("no camera intrinsics: give --camera (cameras.txt, cameras.bin or a COLMAP model)", poses)
+    if images is None:
+        raise InputError("no image directory: give --images", poses)
+    images = Path(images)
+    if not images.is_dir():
+        raise InputError("image directory not found", images)
+    sources["images"] = str(images)
+    files = {f.name: f for f in images.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_EXTENSIONS}
+    keep = []
+    missing = []
+    for i, name in enumerate(pose_list.names):
+        path = images / name
+        if path.is_file():
+            keep.append((i, path))
+        elif Path(name).name in files:  # poses may carry a sub-path ("images/x.jpg"); match by file name
+            keep.append((i, files[Path(name).name]))
+        else:
+            missing.append(name)
+    used = {p.name for _, p in keep}
+    unposed = sorted(n for n in files if n not in used)
+    for what, names in (("pose(s) without an image", missing), ("image(s) without a pose", unposed)):
+        if names:
+            listing = ", ".join(names[:8]) + (f" ... ({len(names)} in all)" if len(names) > 8 else "")
+            if strict:
+                raise InputError(f"{len(names)} {what}: {listing}", images)
+            log.warning("skipping %d %s: %s", len(names), what, listing)
+    if len(keep) < 2:
+        raise InputError(f"only {len(keep)} image(s) have a pose; need at least 2", images)
+    sub = pose_list.subset([i for i, _ in keep])
+    sub.names = [p.name for _, p in keep]
+    return MapInputs([p for _, p in keep], sub, cam, epsg, sources)
+
+
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def input_fingerprints(inputs: MapInputs) -> dict[str, str]:
+    """sha256 of the images (names + contents), the poses (as used, full precision) and the camera."""
+    h_img = hashlib.sha256()
+    for p in inputs.image_paths:
+        h_img.update(p.name.encode() + b"\0" + _sha256_file(p).encode() + b"\n")
+    h_pose = hashlib.sha256()
+    h_pose.update("\n".join(inputs.poses.names).encode())
+    h_pose.update(np.ascontiguousarray(inputs.poses.rotations).tobytes())
+    h_pose.update(np.ascontiguousarray(inputs.poses.centers).tobytes())
+    h_pose.update(str(inputs.epsg).encode())
+    c = inputs.camera
+    h_cam = hashlib.sha256(repr((c.width, c.height, c.fx, c.fy, c.cx, c.cy)).encode())
+    combined = hashlib.sha256((h_img.hexdigest() + h_pose.hexdigest() + h_cam.hexdigest()).encode())
+    return {"images": h_img.hexdigest(), "poses": h_pose.hexdigest(), "camera": h_cam.hexdigest(),
+            "inputs": combined.hexdigest()}
+
+
+def hash_json(obj: Any) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()

@@ -1,0 +1,169 @@
+"""Map stage 3, per keyframe: segmentation, mask description and image motion, cached and resumable, in
+worker processes when asked."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...database.atomic import atomic_path
+from ...plugin.errors import InputError
+from ...plugin.params import Params, params_to_dict
+from .inputs import MapInputs
+
+log = logging.getLogger(__name__)
+
+CACHE_VERSION = 1
+
+
+def _cache_path(cache_dir: Path, k: int, name: str) -> Path:
+    return cache_dir / f"{k:05d}_{Path(name).stem}.npz"
+
+
+def _load_cached(path: Path, key: str) -> tuple[Any, tuple[float, float]] | None:
+    from ...plugin.mask_features import MaskFeatures
+
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["cache_key"]) != key:
+                return None
+            motion = (float(data["motion"][0]), float(data["motion"][1]))
+            feats = MaskFeatures.from_npz_dict({k[5:]: data[k] for k in data.files if k.startswith("feat_")})
+            return feats, motion
+    except (OSError, KeyError, ValueError, EOFError) as exc:  # a damaged entry is recomputed, never trusted
+        log.debug("cache entry %s unusable (%s); recomputing", path, exc)
+        return None
+
+
+def _save_cached(path: Path, key: str, feats: Any, motion: tuple[float, float]) -> None:
+    # Optional fields that are None become object arrays, which np.load refuses without pickle: leave them out.
+    arrays = {"feat_" + k: v for k, v in feats.to_npz_dict().items() if v.dtype != object}
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, cache_key=np.array(key), motion=np.array(motion, dtype=np.float64), **arrays)
+
+
+_WORKER_BACKEND: dict[str, Any] = {}  # per process: the segmentation backend, built once
+
+
+def _describe_one(
+    path: Path, prev_path: Path | None, size: tuple[int, int], params: Params, entry: Path, key: str,
+    prev_gray: np.ndarray | None = None,
+    masks_for: Callable[[str, np.ndarray], Any] | None = None,
+) -> tuple[Any, tuple[float, float], np.ndarray]:
+    """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
+
+    Returns (MaskFeatures, (mu_p, sigma_p), gray image). Runs in the main process or a worker process.
+    """
+    from ...database.images import read_image
+    from ...plugin.mask_features import describe_masks, segment_and_describe, to_gray_u8
+    from ...plugin.motion import image_motion_stats
+    from ...plugin.segmentation import get_backend
+
+    image = read_image(path)
+    if image.shape[:2] != size:
+        raise InputError(f"image is {image.shape[1]}x{image.shape[0]} but the camera is {size[1]}x{size[0]}", path)
+    gray = to_gray_u8(image)
+    if prev_path is not None and prev_gray is None:
+        prev_gray = to_gray_u8(read_image(prev_path))
+    mu_sigma = image_motion_stats(prev_gray, gray) if prev_path is not None else (0.0, 0.0)
+    mu_sigma = (float(mu_sigma[0]), float(mu_sigma[1]))
+    seg = params.segmentation
+    if masks_for is not None:
+        feats = describe_masks(image, masks_for(path.name, image), seg)
+    else:
+        cache_name = json.dumps(params_to_dict(seg), sort_keys=True)
+        if cache_name not in _WORKER_BACKEND:
+            _WORKER_BACKEND.clear()
+            _WORKER_BACKEND[cache_name] = get_backend(seg.backend, seg)
+        # the SIFT detection runs in a second thread while the backend segments (same features)
+        _, feats = segment_and_describe(image, _WORKER_BACKEND[cache_name], seg)
+    _save_cached(entry, key, feats, mu_sigma)
+    return feats, mu_sigma, gray
+
+
+def _worker_init() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # one process per core already; OpenCV's own threads would oversubscribe
+
+
+def describe_keyframes(
+    inputs: MapInputs,
+    keyframes: np.ndarray,
+    params: Params,
+    cache_dir: Path,
+    cache_key: str,
+    progress: bool = True,
+    on_keyframe: Callable[[int], None] | None = None,
+    workers: int = 1,
+    masks_for: Callable[[str, np.ndarray], Any] | None = None,
+) -> tuple[list[Any], list[tuple[float, float]], int]:
+    """Segmentation + mask description + motion statistics per keyframe, resumed from the cache.
+
+    Keyframes are independent given their image and the previous keyframe's image, so with `workers` > 1 they
+    run in a process pool; results are identical to a sequential run.
+
+    Returns (MaskFeatures per keyframe, (mu_p, sigma_p) per keyframe (entry 0 is (0, 0)), number of keyframes
+    taken from the cache). `on_keyframe(k)` is called, in keyframe order, after keyframe k is stored (tests
+    interrupt there). `masks_for(image_name, image) -> MaskSet` replaces the segmentation backend (benchmarks
+    use ground-truth label masks; it must be picklable when `workers` > 1).
+    """
+    from tqdm import tqdm
+
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    size = (inputs.camera.height, inputs.camera.width)
+    results: list[tuple[Any, tuple[float, float]] | None] = [None] * len(keyframes)
+    todo = []
+    for k, idx in enumerate(keyframes):
+        name = inputs.poses.names[idx]
+        prev_name = inputs.poses.names[keyframes[k - 1]] if k else ""
+        key = f"{cache_key}:{k}:{name}:{prev_name}"
+        entry = _cache_path(cache_dir, k, name)
+        hit = _load_cached(entry, key) if entry.exists() else None
+        if hit is not None:
+            results[k] = hit
+        else:
+            prev_path = inputs.image_paths[keyframes[k - 1]] if k else None
+            todo.append((k, inputs.image_paths[idx], prev_path, entry, key))
+    cached = len(keyframes) - len(todo)
+    bar = tqdm(total=len(keyframes), initial=cached, desc="keyframes", unit="kf", disable=not progress,
+               leave=False)
+    if workers <= 1 or len(todo) <= 1:
+        prev_gray, prev_k = None, -2
+        for k, path, prev_path, entry, key in todo:
+            feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
+                                                  prev_gray if prev_k == k - 1 else None, masks_for)
+            results[k] = (feats, mu_sigma)
+            prev_gray, prev_k = gray, k
+            bar.update()
+            if on_keyframe is not None:
+                on_keyframe(k)
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process holding pycolmap/OpenCV threads
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+            futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for))
+                       for k, path, prev_path, entry, key in todo]
+            try:
+                for k, fut in futures:
+                    feats, mu_sigma, _ = fut.result()
+                    results[k] = (feats, mu_sigma)
+                    bar.update()
+                    if on_keyframe is not None:
+                        on_keyframe(k)
+            except BaseException:
+                for _, fut in futures:
+                    fut.cancel()
+                raise
+    bar.close()
+    features = [r[0] for r in results]  # type: ignore[index]
+    motion = [r[1] for r in results]  # type: ignore[index]
+    return features, motion, cached

@@ -1,0 +1,194 @@
+"""The map run: its stages as named calls and the run record (run.json); see the package doc."""
+
+from __future__ import annotations
+
+import json
+import logging
+import platform
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...database.atomic import write_text_atomic
+from ...database.colmap_db import (
+    affine_keypoints,
+    track_associations,
+    verify_associations,
+    write_colmap_database,
+)
+from ...database.colmap_model import write_model, write_ply
+from ...database.landmark_map import LandmarkMap, write_landmark_map
+from ...plugin import __version__
+from ...plugin.params import Params, params_to_dict
+from .inputs import MapInputs, hash_json, input_fingerprints
+from .keyframes import CACHE_VERSION, describe_keyframes
+from .output_dir import OUTPUTS, prepare_output_dir, publish
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class MapSummary:
+    """What `run` produced (also written to run.json)."""
+
+    out_dir: Path
+    num_images: int
+    num_keyframes: int
+    num_masks: int
+    num_tracks: int
+    num_landmarks: int
+    map_bytes: int
+    seconds: float
+    keyframes_from_cache: int = 0
+    counts: dict[str, int] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def line(self) -> str:
+        """The one-line summary printed at the end of `sosmatch map`."""
+        return (f"{self.out_dir}: {self.num_keyframes} keyframes, {self.num_masks} masks, {self.num_tracks} tracks, "
+                f"{self.num_landmarks} landmarks, map {self.map_bytes} bytes, {self.seconds:.1f} s")
+
+
+def _versions() -> dict[str, str]:
+    import cv2
+    import pycolmap
+    import scipy
+
+    return {"sosmatch": __version__, "python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "opencv": cv2.__version__, "pycolmap": pycolmap.__version__}
+
+
+def map_origin(positions: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
+    """A round-numbered origin near the data (median of the landmarks, else of the cameras; whole metres)."""
+    pts = positions if len(positions) else camera_centers
+    return np.round(np.median(pts, axis=0)) if len(pts) else np.zeros(3)
+
+
+def run(
+    params: Params,
+    inputs: MapInputs,
+    out_dir: str | Path,
+    overwrite: bool = False,
+    text_model: bool = False,
+    keep_cache: bool = False,
+    progress: bool = True,
+    on_keyframe: Callable[[int], None] | None = None,
+    workers: int = 1,
+    masks_for: Callable[[str, np.ndarray], Any] | None = None,
+) -> MapSummary:
+    """Map one session: `inputs` (from `load_inputs`) -> SESSION_DIR with the outputs listed in the module doc.
+
+    Args:
+        params: method parameters.
+        inputs: images, poses and camera.
+        out_dir: the session directory (created; see the module doc for resume and refusal rules).
+        overwrite: replace a session made from other inputs, or write into a foreign non-empty directory.
+        text_model: write sparse/ as a text model instead of binary.
+        keep_cache: keep the per-keyframe cache (SESSION_DIR/.partial/cache) after success (default: delete).
+        progress: show tqdm progress bars.
+        on_keyframe: callback after each newly computed keyframe (tests use it to interrupt a run).
+        workers: processes for the per-keyframe stage (segmentation dominates the run time).
+        masks_for: `(image_name, image) -> MaskSet` instead of the segmentation backend (benchmarks: ground
+            truth masks). Recorded in run.json; the cache is kept apart from backend results.
+    """
+    import pycolmap
+
+    from ...database.session_io import format_landmarks_csv
+    from ...plugin.keyframes import select_keyframes
+    from ...plugin.tracking import track_masks
+    from ..triangulation import triangulate_landmarks
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    out_dir = Path(out_dir)
+    fps = input_fingerprints(inputs)
+    partial = prepare_output_dir(out_dir, fps["inputs"], overwrite)
+    timings["inputs"] = time.perf_counter() - t_start
+    pdict = params_to_dict(params)
+    masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
+    cache_key = hash_json({"v": CACHE_VERSION, "inputs": fps["inputs"], "seg": pdict["segmentation"],
+                            "kf": pdict["keyframes"], "masks": masks_source})
+
+    t = time.perf_counter()
+    keyframes = select_keyframes(inputs.poses.centers, params.keyframes.interval_m)
+    kf_poses = inputs.poses.subset(keyframes)
+    features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
+                                                  progress, on_keyframe, workers, masks_for)
+    timings["keyframes"] = time.perf_counter() - t
+
+    from tqdm import tqdm
+
+    stages = tqdm(total=4, desc="tracking", unit="stage", disable=not progress, leave=False)
+    t = time.perf_counter()
+    tracking = track_masks(features, inputs.camera, kf_poses, motion, params.tracking)
+    timings["tracking"] = time.perf_counter() - t
+    stages.update()
+    stages.set_description("database")
+
+    t = time.perf_counter()
+    tri = params.triangulation
+    centroids = [f.centroids for f in features]
+    pairs = track_associations(tracking.track_ids, "all", tri.min_observations)
+    pairs, rejected = verify_associations(inputs.camera, kf_poses, centroids, pairs,
+                                          params.tracking.epipolar_margin_px)
+    keypoints = [affine_keypoints(f.centroids, f.covariances) for f in features]
+    db_summary = write_colmap_database(partial / "database.db", inputs.camera, kf_poses.names, keypoints, pairs)
+    timings["database"] = time.perf_counter() - t
+    stages.update()
+    stages.set_description("triangulation")
+
+    t = time.perf_counter()
+    pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1 if log.isEnabledFor(logging.DEBUG) else 2)
+    landmarks = triangulate_landmarks(partial / "database.db", inputs.camera, kf_poses,
+                                      [f.sizes for f in features], tracking.track_ids, tri, seed=params.seed)
+    timings["triangulation"] = time.perf_counter() - t
+    stages.update()
+    stages.set_description("outputs")
+
+    t = time.perf_counter()
+    write_model(landmarks.reconstruction, partial / "sparse", text=text_model)
+    origin = map_origin(landmarks.positions, kf_poses.centers)
+    lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg)
+    map_bytes = write_landmark_map(partial / "landmarks.sosmap", lmap)
+    write_ply(partial / "landmarks.ply", landmarks.positions - origin, landmarks.sizes_m, origin, inputs.epsg)
+    image_names = [[kf_poses.names[k] for k in obs[:, 0]] for obs in landmarks.observations]
+    write_text_atomic(partial / "landmarks.csv",
+                      format_landmarks_csv(lmap, landmarks.point3d_ids, landmarks.num_observations, image_names))
+    timings["outputs"] = time.perf_counter() - t
+    stages.update()
+    stages.close()
+    timings["total"] = time.perf_counter() - t_start
+
+    counts = {
+        "images": len(inputs.image_paths), "keyframes": len(keyframes),
+        "masks": int(sum(len(f) for f in features)), "tracks": int(tracking.num_tracks),
+        "tracks_long": int(np.count_nonzero(tracking.track_lengths() > tri.min_observations)),
+        "database_pairs": db_summary.num_pairs, "database_matches": db_summary.num_matches,
+        "matches_rejected_epipolar": rejected, "landmarks": len(landmarks), "map_bytes": map_bytes,
+        "keyframes_from_cache": cached,
+        **{f"points_{k}": v for k, v in landmarks.counts.items()},
+    }
+    summary = MapSummary(out_dir, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
+                         len(landmarks), map_bytes, timings["total"], cached, counts, timings)
+    record = {
+        "format": "sosmatch-map-run", "version": 1,
+        "params": pdict, "versions": _versions(),
+        "inputs": inputs.sources, "fingerprints": fps,
+        "camera": {"width": inputs.camera.width, "height": inputs.camera.height, "fx": inputs.camera.fx,
+                   "fy": inputs.camera.fy, "cx": inputs.camera.cx, "cy": inputs.camera.cy},
+        "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
+        "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
+        "counts": counts, "timings_s": {k: round(v, 3) for k, v in timings.items()},
+    }
+    write_text_atomic(partial / "run.json", json.dumps(record, indent=2) + "\n")
+    publish(partial, out_dir, OUTPUTS)
+    if keep_cache:
+        log.info("per-keyframe cache kept in %s", partial / "cache")
+    else:
+        shutil.rmtree(partial, ignore_errors=True)
+    return summary
