@@ -1,17 +1,42 @@
-"""COLMAP text cameras files (`cameras.txt`): read one pinhole camera, write one."""
+"""Cameras in and out: COLMAP text cameras files (`cameras.txt`) and pycolmap cameras, any COLMAP model.
+
+One validation (`camera_from_colmap`) serves the text reader, the pycolmap reader (cameras.bin, models) and
+every writer's input: a known perspective or fisheye model (`plugin.camera_models`; the spherical EQUIRECTANGULAR
+is refused), COLMAP's parameter count, positive size and focal lengths, finite parameters.
+"""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera
 from .atomic import write_text_atomic
 from .text_input import read_user_text
 
+if TYPE_CHECKING:
+    import pycolmap
+
+
+def camera_from_colmap(model: str, width: int, height: int, params: Sequence[float],
+                       source: str | Path | None = None, line: int | None = None) -> Camera:
+    """A Camera from COLMAP's model name, size and parameter list; InputError (naming `source`) if invalid."""
+    try:
+        camera = Camera.from_colmap(model, width, height, params)
+    except ValueError as exc:
+        raise InputError(str(exc), source, line) from None
+    if camera.width <= 0 or camera.height <= 0 or camera.fx <= 0 or camera.fy <= 0:
+        raise InputError("camera size and focal length must be positive", source, line)
+    if not all(math.isfinite(p) for p in camera.params):
+        raise InputError("NaN or infinite camera parameter", source, line)
+    return camera
+
 
 def read_cameras_txt(path: str | Path) -> dict[int, Camera]:
-    """Cameras of a COLMAP cameras.txt (PINHOLE and SIMPLE_PINHOLE; distortion models are refused)."""
+    """Cameras of a COLMAP cameras.txt: {camera_id: Camera}, any perspective or fisheye COLMAP model."""
     path = Path(path)
     lines = read_user_text(path, "cameras file").splitlines()
     cameras: dict[int, Camera] = {}
@@ -24,17 +49,9 @@ def read_cameras_txt(path: str | Path) -> dict[int, Camera]:
             params = [float(p) for p in parts[4:]]
         except (ValueError, IndexError):
             raise InputError("malformed camera line", path, lineno) from None
-        if model == "PINHOLE" and len(params) == 4:
-            fx, fy, cx, cy = params
-        elif model == "SIMPLE_PINHOLE" and len(params) == 3:
-            fx, cx, cy = params
-            fy = fx
-        else:
-            raise InputError(f"camera model {model} with {len(params)} parameters is not supported "
-                             "(use PINHOLE or SIMPLE_PINHOLE on undistorted images)", path, lineno)
-        if width <= 0 or height <= 0 or fx <= 0 or fy <= 0:
-            raise InputError("camera size and focal length must be positive", path, lineno)
-        cameras[cam_id] = Camera(width, height, fx, fy, cx, cy)
+        if cam_id in cameras:
+            raise InputError(f"duplicate camera id {cam_id}", path, lineno)
+        cameras[cam_id] = camera_from_colmap(model, width, height, params, path, lineno)
     if not cameras:
         raise InputError("no camera in file", path)
     return cameras
@@ -44,9 +61,23 @@ def format_cameras_txt(cameras: dict[int, Camera]) -> str:
     lines = ["# Camera list with one line of data per camera:",
              "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]", f"# Number of cameras: {len(cameras)}"]
     for cam_id, c in sorted(cameras.items()):
-        lines.append(f"{cam_id} PINHOLE {c.width} {c.height} {c.fx!r} {c.fy!r} {c.cx!r} {c.cy!r}")
+        lines.append(f"{cam_id} {c.model} {c.width} {c.height} " + " ".join(repr(p) for p in c.params))
     return "\n".join(lines) + "\n"
 
 
 def write_cameras_txt(path: str | Path, cameras: dict[int, Camera]) -> None:
     write_text_atomic(path, format_cameras_txt(cameras))
+
+
+def pycolmap_camera(camera: Camera, camera_id: int = 1) -> pycolmap.Camera:
+    """The pycolmap Camera of the same model and parameters (for databases and reconstructions)."""
+    import pycolmap
+
+    return pycolmap.Camera(camera_id=int(camera_id), model=camera.model, width=int(camera.width),
+                           height=int(camera.height), params=camera.params)
+
+
+def camera_from_pycolmap(cam: pycolmap.Camera, source: str | Path | None = None) -> Camera:
+    """A Camera from a pycolmap Camera (cameras.bin, a model), validated like a cameras.txt line."""
+    model = cam.model.name if hasattr(cam.model, "name") else str(cam.model)
+    return camera_from_colmap(model, int(cam.width), int(cam.height), [float(v) for v in cam.params], source)

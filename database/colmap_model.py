@@ -16,7 +16,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses, quat_to_rotmat
 from .atomic import atomic_path, write_bytes_atomic
-from .cameras import read_cameras_txt
+from .cameras import camera_from_pycolmap, read_cameras_txt
 from .poses import UNIT_QUAT_TOLERANCE
 
 if TYPE_CHECKING:
@@ -37,20 +37,6 @@ def is_colmap_model(path: str | Path) -> bool:
     """True if `path` is (a file of) a COLMAP model directory holding images.bin or images.txt."""
     d = model_dir_of(path)
     return d.is_dir() and ((d / "images.bin").is_file() or (d / "images.txt").is_file())
-
-
-def _camera_from_pycolmap(cam: pycolmap.Camera, source: Path) -> Camera:
-    model = cam.model.name if hasattr(cam.model, "name") else str(cam.model)
-    p = [float(v) for v in cam.params]
-    if model == "PINHOLE":
-        fx, fy, cx, cy = p
-    elif model == "SIMPLE_PINHOLE":
-        fx, cx, cy = p
-        fy = fx
-    else:
-        raise InputError(f"camera model {model} is not supported (use PINHOLE or SIMPLE_PINHOLE on undistorted "
-                         "images)", source)
-    return Camera(int(cam.width), int(cam.height), fx, fy, cx, cy)
 
 
 def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, list[int]]:
@@ -129,7 +115,7 @@ def read_colmap_model_poses(path: str | Path) -> tuple[Poses, dict[int, Camera],
     except Exception as exc:  # pycolmap raises plain RuntimeError / ValueError on corrupt files
         raise InputError(f"cannot read COLMAP model: {str(exc).splitlines()[0] if str(exc) else exc!r}", d) \
             from None
-    cameras = {int(cid): _camera_from_pycolmap(cam, d) for cid, cam in rec.cameras.items()}
+    cameras = {int(cid): camera_from_pycolmap(cam, d) for cid, cam in rec.cameras.items()}
     items = sorted(((img.name, iid) for iid, img in rec.images.items() if img.has_pose), key=lambda t: t[0])
     names, r_list, t_list, cam_of = [], [], [], {}
     for name, iid in items:

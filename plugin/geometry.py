@@ -7,14 +7,24 @@ COLMAP convention (centre of the top-left pixel at (0.5, 0.5)); quaternions as (
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from .camera_models import camera_model, img_from_normalized, normalized_from_img
+
 
 @dataclass(frozen=True)
 class Camera:
-    """A pinhole camera (COLMAP PINHOLE; SIMPLE_PINHOLE reads into it with fx == fy)."""
+    """A camera of any COLMAP perspective or fisheye model (`plugin.camera_models`); PINHOLE by default.
+
+    `fx, fy, cx, cy` are the model's focal lengths and principal point (fx == fy for the one-focal SIMPLE_* /
+    RADIAL* / *DIVISION / SIMPLE_FISHEYE models) and `extra` its distortion parameters in COLMAP's order, so
+    `params` is COLMAP's parameter list. `pinhole()` is the ideal camera with the same K: distortion-free
+    ("undistorted") pixels, `undistort_points`, live in it, and the pinhole math of tracking and the gates runs
+    there, while the COLMAP database and model keep this camera and the real, distorted keypoints.
+    """
 
     width: int
     height: int
@@ -22,17 +32,115 @@ class Camera:
     fy: float
     cx: float
     cy: float
+    model: str = "PINHOLE"
+    extra: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        spec = camera_model(self.model)
+        extra = tuple(float(e) for e in self.extra)
+        object.__setattr__(self, "extra", extra)
+        if len(extra) != len(spec.extra_names):
+            raise ValueError(f"camera model {self.model} takes {len(spec.extra_names)} extra parameter(s) "
+                             f"({', '.join(spec.extra_names) or 'none'}), got {len(extra)}")
+        if spec.num_focal == 1 and self.fx != self.fy:
+            raise ValueError(f"camera model {self.model} has one focal length, got fx={self.fx} fy={self.fy}")
+
+    @classmethod
+    def from_colmap(cls, model: str, width: int, height: int, params: Sequence[float]) -> Camera:
+        """From COLMAP's model name and parameter list (ValueError on an unknown model or a wrong count)."""
+        spec = camera_model(model)
+        p = [float(v) for v in params]
+        if len(p) != spec.num_params:
+            raise ValueError(f"camera model {model} takes {spec.num_params} parameters "
+                             f"({', '.join(spec.param_names)}), got {len(p)}")
+        if spec.num_focal == 1:
+            fx = fy = p[0]
+        else:
+            fx, fy = p[0], p[1]
+        cx, cy = p[spec.num_focal], p[spec.num_focal + 1]
+        return cls(int(width), int(height), fx, fy, cx, cy, model, tuple(p[spec.num_focal + 2:]))
+
+    @property
+    def params(self) -> list[float]:
+        """COLMAP's parameter list of this model."""
+        focal = [self.fx] if camera_model(self.model).num_focal == 1 else [self.fx, self.fy]
+        return [float(v) for v in focal + [self.cx, self.cy, *self.extra]]
+
+    @property
+    def is_pinhole(self) -> bool:
+        """True when pixels are ideal pinhole pixels (PINHOLE, SIMPLE_PINHOLE, or a model with zero distortion)."""
+        return camera_model(self.model).is_identity(self.extra)
 
     @property
     def K(self) -> np.ndarray:  # noqa: N802 (the usual name)
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    def pinhole(self) -> Camera:
+        """The ideal PINHOLE camera with this camera's size, focal lengths and principal point."""
+        return Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
+
     def scaled(self, factor: float) -> Camera:
-        """The same camera for an image resized by `factor` (COLMAP convention keeps cx = factor * cx)."""
+        """The same camera for an image resized by `factor` (COLMAP convention keeps cx = factor * cx; distortion
+        parameters act on normalised coordinates and do not change)."""
         return Camera(
             round(self.width * factor), round(self.height * factor),
-            self.fx * factor, self.fy * factor, self.cx * factor, self.cy * factor,
+            self.fx * factor, self.fy * factor, self.cx * factor, self.cy * factor, self.model, self.extra,
         )
+
+    def cropped(self, left: float, top: float, width: int, height: int) -> Camera:
+        """The camera of the `width` x `height` crop whose top-left corner is at pixel (left, top)."""
+        return Camera(int(width), int(height), self.fx, self.fy, self.cx - left, self.cy - top, self.model,
+                      self.extra)
+
+    def img_from_cam(self, points: np.ndarray) -> np.ndarray:
+        """Pixels (M, 2) of camera-frame points (M, 3), or of normalised coordinates (M, 2) = (X/Z, Y/Z)."""
+        p = np.asarray(points, dtype=np.float64)
+        if p.shape[-1] == 3:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                p = p[..., :2] / p[..., 2:3]
+        u, v = img_from_normalized(camera_model(self.model), (self.fx, self.fy), (self.cx, self.cy), self.extra,
+                                   p[..., 0], p[..., 1])
+        return np.stack([u, v], -1)
+
+    def cam_from_img(self, uv: np.ndarray) -> np.ndarray:
+        """Normalised camera coordinates (M, 2) of pixels (M, 2); NaN where the model cannot lift a pixel."""
+        uv = np.asarray(uv, dtype=np.float64)
+        u, v = normalized_from_img(camera_model(self.model), (self.fx, self.fy), (self.cx, self.cy), self.extra,
+                                   uv[..., 0], uv[..., 1])
+        return np.stack([u, v], -1)
+
+    def undistort_points(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels of `pinhole()` seeing the same rays as pixels `uv` (M, 2) of this camera (a copy if pinhole)."""
+        uv = np.array(uv, dtype=np.float64)
+        if self.is_pinhole or not uv.size:
+            return uv
+        return self.pinhole().img_from_cam(self.cam_from_img(uv))
+
+    def distort_points(self, uv: np.ndarray) -> np.ndarray:
+        """Inverse of `undistort_points`: pixels of this camera for pixels `uv` (M, 2) of `pinhole()`."""
+        uv = np.array(uv, dtype=np.float64)
+        if self.is_pinhole or not uv.size:
+            return uv
+        return self.img_from_cam(self.pinhole().cam_from_img(uv))
+
+    def undistortion_jacobians(self, uv: np.ndarray, step_px: float = 0.5) -> np.ndarray:
+        """(M, 2, 2) Jacobians of `undistort_points` at pixels `uv` (central differences, `step_px` apart)."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        if self.is_pinhole:
+            return np.broadcast_to(np.eye(2), (len(uv), 2, 2)).copy()
+        offsets = np.array([[step_px, 0.0], [-step_px, 0.0], [0.0, step_px], [0.0, -step_px]])
+        moved = self.undistort_points((uv[:, None, :] + offsets[None]).reshape(-1, 2)).reshape(-1, 4, 2)
+        d_dx = (moved[:, 0] - moved[:, 1]) / (2.0 * step_px)
+        d_dy = (moved[:, 2] - moved[:, 3]) / (2.0 * step_px)
+        return np.stack([d_dx, d_dy], axis=-1)
+
+    def undistort_covariances(self, uv: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+        """Pixel covariances (M, 2, 2) at pixels `uv` carried into `pinhole()` to first order: J Sigma J^T."""
+        cov = np.asarray(covariances, dtype=np.float64).reshape(-1, 2, 2)
+        if self.is_pinhole:
+            return cov.copy()
+        jac = self.undistortion_jacobians(uv)
+        return np.einsum("kij,kjl,kml->kim", jac, cov, jac)
 
 
 def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
@@ -121,9 +229,12 @@ class Poses:
 
 
 def project(camera: Camera, r_wc: np.ndarray, center: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Project world points (M,3) into one camera; returns pixels (M,2) (COLMAP convention) and depths (M,)."""
+    """Project world points (M,3) into one camera (through its lens model); returns pixels (M,2) (COLMAP convention)
+    and depths (M,)."""
     p_cam = (np.asarray(points, dtype=np.float64) - center) @ r_wc  # = R_wc^T (X - C)
     depth = p_cam[:, 2]
+    if not camera.is_pinhole:
+        return camera.img_from_cam(p_cam), depth
     with np.errstate(divide="ignore", invalid="ignore"):
         uv = np.stack(
             [camera.fx * p_cam[:, 0] / depth + camera.cx, camera.fy * p_cam[:, 1] / depth + camera.cy], 1
@@ -132,7 +243,11 @@ def project(camera: Camera, r_wc: np.ndarray, center: np.ndarray, points: np.nda
 
 
 def pixel_rays(camera: Camera, uv: np.ndarray, r_wc: np.ndarray) -> np.ndarray:
-    """World-frame ray directions (M,3), not normalised, with unit camera depth, through pixels uv (M,2)."""
+    """World-frame ray directions (M,3), not normalised, with unit camera depth, through pixels uv (M,2) of `camera`
+    (through its lens model)."""
     uv = np.asarray(uv, dtype=np.float64)
-    d_cam = np.stack([(uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy, np.ones(len(uv))], 1)
+    if camera.is_pinhole:
+        d_cam = np.stack([(uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy, np.ones(len(uv))], 1)
+    else:  # through the lens model; NaN rows where it cannot lift the pixel
+        d_cam = np.concatenate([camera.cam_from_img(uv).reshape(-1, 2), np.ones((len(uv), 1))], 1)
     return d_cam @ r_wc.T
