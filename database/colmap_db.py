@@ -1,10 +1,11 @@
 """The COLMAP database of a mapped session: segment centroids as features, track associations as matches.
 
-Layout written (pycolmap 4.2.1, the order COLMAP itself uses): one PINHOLE camera (id 1), one rig (id 1) with
-that camera as reference sensor, images with ids 1..N in keyframe order, one frame per image (frame id = image
-id), keypoints with 6 columns (x, y, a11, a12, a21, a22: the centroid and the affine shape A = sqrt(Sigma) of
-the mask's pixel covariance), raw `matches` and `two_view_geometries` with config CALIBRATED whose inlier
-matches are the track associations. Descriptors are not written: triangulation does not need them.
+Layout written (pycolmap 4.2.1, the order COLMAP itself uses): one camera (id 1, in its own COLMAP model), one
+rig (id 1) with that camera as reference sensor, images with ids 1..N in keyframe order, one frame per image
+(frame id = image id), keypoints with 6 columns (x, y, a11, a12, a21, a22: the centroid and the affine shape
+A = sqrt(Sigma) of the mask's pixel covariance, both in the real, distorted image), raw `matches` and
+`two_view_geometries` with config CALIBRATED whose inlier matches are the track associations. Descriptors are
+not written: triangulation does not need them.
 
 COLMAP 3.8 (Debian's `colmap`) prepares an INSERT into `images` with seven prior_* columns that 4.x dropped;
 `write_colmap_database` adds them (NULL) so `colmap point_triangulator` runs on the file and pycolmap still
@@ -24,6 +25,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from .atomic import atomic_path
+from .cameras import pycolmap_camera
 
 log = logging.getLogger(__name__)
 
@@ -207,7 +209,8 @@ def write_colmap_database(
 
     Args:
         path: database file to create (replaced if it exists).
-        camera: the one pinhole camera of the session (COLMAP camera id 1).
+        camera: the one camera of the session (COLMAP camera id 1), the real lens model: keypoints are
+            the real (distorted) pixels.
         image_names: keyframe image names; image i gets COLMAP image id and frame id i + 1.
         keypoints: per image, (K, 2|4|6) float32 keypoints in the COLMAP pixel convention (row = point2D index).
         pairs: {(a, b): (M, 2) mask index pairs} with a < b (0-based image positions); written both as raw
@@ -227,10 +230,7 @@ def write_colmap_database(
         db = pycolmap.Database.open(str(tmp))
         try:
             with pycolmap.DatabaseTransaction(db):
-                cam = pycolmap.Camera(
-                    camera_id=CAMERA_ID, model="PINHOLE", width=int(camera.width), height=int(camera.height),
-                    params=[camera.fx, camera.fy, camera.cx, camera.cy],
-                )
+                cam = pycolmap_camera(camera, CAMERA_ID)
                 db.write_camera(cam, use_camera_id=True)
                 rig = pycolmap.Rig(rig_id=RIG_ID)
                 rig.add_ref_sensor(cam.sensor_id)

@@ -14,11 +14,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import cv2
 import numpy as np
 
+from .geometry import Camera
 from .params import SegmentationParams
 from .segmentation.base import MaskSet
 
@@ -319,3 +320,15 @@ def describe_masks(
         sift_mask=owner.astype(np.int32),
         mask_ids=keep.astype(np.int64),
     )
+
+
+def undistort_features(features: MaskFeatures, camera: Camera) -> MaskFeatures:
+    """The masks as `camera.pinhole()` sees them: centroids through the lens model, covariances carried by its
+    Jacobian (J Sigma J^T), sizes from those; SIFT sets unchanged (tracking compares only their descriptors).
+    The same object when `camera` is already a pinhole. Tracking and the geometric gates use this; the COLMAP
+    database keeps the real, distorted centroids and shapes."""
+    if camera.is_pinhole or not len(features):
+        return features
+    centroids = camera.undistort_points(features.centroids)
+    covariances = camera.undistort_covariances(features.centroids, features.covariances)
+    return replace(features, centroids=centroids, covariances=covariances, sizes=covariance_size(covariances))

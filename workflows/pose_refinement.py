@@ -460,10 +460,12 @@ def tie_point_reconstruction(
     `max_neighbours` nearest), which links neighbouring flight lines; tracks by union-find (tracks with two features
     in one image are dropped); points by least-squares intersection of the rays from the prior poses, dropped when
     the rays meet under less than `min_ray_angle_deg`.
-    `camera` is a sosmatch Camera (PINHOLE), image order = pose order.
+    `camera` is a sosmatch Camera (any lens model: rays and the model go through it), image order = pose order.
     """
     import cv2
     import pycolmap
+
+    from ..database.cameras import pycolmap_camera
 
     n = len(poses)
     orb = cv2.ORB_create(max_features)
@@ -518,9 +520,7 @@ def tie_point_reconstruction(
              len(tracks), min_track_length)
 
     rec = pycolmap.Reconstruction()
-    rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=camera.width, height=camera.height,
-                                                    params=[camera.fx, camera.fy, camera.cx, camera.cy],
-                                                    camera_id=1))
+    rec.add_camera_with_trivial_rig(pycolmap_camera(camera, 1))
     used = np.zeros(offsets[-1], dtype=bool)
     for g in tracks:
         used[g] = True
@@ -532,12 +532,12 @@ def tie_point_reconstruction(
         im = pycolmap.Image(name=poses.names[i], camera_id=1, image_id=i + 1, points2D=pycolmap.Point2DList(pts))
         r_cw = poses.rotations[i].T
         rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(pycolmap.Rotation3d(r_cw), -r_cw @ poses.centers[i]))
-    kinv = np.linalg.inv(camera.K)
     origin = poses.centers.mean(axis=0)
     for g in tracks:
         imgs = img_of[g]
-        uv = np.concatenate([np.stack([kps[i][a - offsets[i]] for i, a in zip(imgs, g)]), np.ones((len(g), 1))], 1)
-        d = np.einsum("nij,nj->ni", poses.rotations[imgs], uv @ kinv.T)
+        uv = np.stack([kps[i][a - offsets[i]] for i, a in zip(imgs, g)])
+        d_cam = np.concatenate([camera.cam_from_img(uv), np.ones((len(uv), 1))], 1)  # through the lens model
+        d = np.einsum("nij,nj->ni", poses.rotations[imgs], d_cam)
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         m = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
         a_mat = m.sum(0)

@@ -58,13 +58,14 @@ class Landmarks:
 
 
 def build_reconstruction(camera: Camera, poses: Poses) -> pycolmap.Reconstruction:
-    """A pycolmap Reconstruction with camera id 1 and image/frame ids 1..N registered at the given poses."""
+    """A pycolmap Reconstruction with camera id 1 (the camera's own model: pycolmap projects through its
+    distortion) and image/frame ids 1..N registered at the given poses."""
     import pycolmap
 
+    from ..database.cameras import pycolmap_camera
+
     rec = pycolmap.Reconstruction()
-    cam = pycolmap.Camera(camera_id=1, model="PINHOLE", width=int(camera.width), height=int(camera.height),
-                          params=[camera.fx, camera.fy, camera.cx, camera.cy])
-    rec.add_camera_with_trivial_rig(cam)
+    rec.add_camera_with_trivial_rig(pycolmap_camera(camera, 1))
     r_cw, t_cw = poses.cam_from_world()
     for i, name in enumerate(poses.names):
         image = pycolmap.Image(name=str(name), camera_id=1, image_id=i + 1)

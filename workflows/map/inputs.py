@@ -146,7 +146,9 @@ def input_fingerprints(inputs: MapInputs) -> dict[str, str]:
     h_pose.update(np.ascontiguousarray(inputs.poses.centers).tobytes())
     h_pose.update(str(inputs.epsg).encode())
     c = inputs.camera
-    h_cam = hashlib.sha256(repr((c.width, c.height, c.fx, c.fy, c.cx, c.cy)).encode())
+    # a pinhole camera keeps the fingerprint it had before lens models existed (sessions resume across versions)
+    cam_key = (c.width, c.height, c.fx, c.fy, c.cx, c.cy) + (() if c.is_pinhole else (c.model, c.extra))
+    h_cam = hashlib.sha256(repr(cam_key).encode())
     combined = hashlib.sha256((h_img.hexdigest() + h_pose.hexdigest() + h_cam.hexdigest()).encode())
     return {"images": h_img.hexdigest(), "poses": h_pose.hexdigest(), "camera": h_cam.hexdigest(),
             "inputs": combined.hexdigest()}

@@ -100,6 +100,7 @@ def run(
 
     from ...database.session_io import format_landmarks_csv
     from ...plugin.keyframes import select_keyframes
+    from ...plugin.mask_features import undistort_features
     from ...plugin.tracking import track_masks
     from ..triangulation import triangulate_landmarks
 
@@ -125,27 +126,32 @@ def run(
 
     stages = tqdm(total=4, desc="tracking", unit="stage", disable=not progress, leave=False)
     t = time.perf_counter()
-    tracking = track_masks(features, inputs.camera, kf_poses, motion, params.tracking)
+    # Tracking and the epipolar check are pinhole geometry: they see undistorted centroids and covariances through
+    # the equivalent pinhole camera; the database and the model keep the real camera and the real keypoints.
+    camera = inputs.camera
+    gate_camera = camera.pinhole()
+    gate_features = [undistort_features(f, camera) for f in features]
+    tracking = track_masks(gate_features, gate_camera, kf_poses, motion, params.tracking)
     timings["tracking"] = time.perf_counter() - t
     stages.update()
     stages.set_description("database")
 
     t = time.perf_counter()
     tri = params.triangulation
-    centroids = [f.centroids for f in features]
+    centroids = [f.centroids for f in gate_features]
     pairs = track_associations(tracking.track_ids, "all", tri.min_observations)
-    pairs, rejected = verify_associations(inputs.camera, kf_poses, centroids, pairs,
+    pairs, rejected = verify_associations(gate_camera, kf_poses, centroids, pairs,
                                           params.tracking.epipolar_margin_px)
     keypoints = [affine_keypoints(f.centroids, f.covariances) for f in features]
-    db_summary = write_colmap_database(partial / "database.db", inputs.camera, kf_poses.names, keypoints, pairs)
+    db_summary = write_colmap_database(partial / "database.db", camera, kf_poses.names, keypoints, pairs)
     timings["database"] = time.perf_counter() - t
     stages.update()
     stages.set_description("triangulation")
 
     t = time.perf_counter()
     pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1 if log.isEnabledFor(logging.DEBUG) else 2)
-    landmarks = triangulate_landmarks(partial / "database.db", inputs.camera, kf_poses,
-                                      [f.sizes for f in features], tracking.track_ids, tri, seed=params.seed)
+    landmarks = triangulate_landmarks(partial / "database.db", camera, kf_poses,
+                                      [f.sizes for f in gate_features], tracking.track_ids, tri, seed=params.seed)
     timings["triangulation"] = time.perf_counter() - t
     stages.update()
     stages.set_description("outputs")
@@ -179,8 +185,8 @@ def run(
         "format": "sosmatch-map-run", "version": 1,
         "params": pdict, "versions": _versions(),
         "inputs": inputs.sources, "fingerprints": fps,
-        "camera": {"width": inputs.camera.width, "height": inputs.camera.height, "fx": inputs.camera.fx,
-                   "fy": inputs.camera.fy, "cx": inputs.camera.cx, "cy": inputs.camera.cy},
+        "camera": {"model": camera.model, "width": camera.width, "height": camera.height, "params": camera.params,
+                   "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         "counts": counts, "timings_s": {k: round(v, 3) for k, v in timings.items()},
