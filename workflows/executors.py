@@ -10,13 +10,15 @@ its exception and returns a `TaskResult` (ok or the error text and traceback): o
 the others, and no exception object has to survive pickling between machines. `run` returns results in the
 order of the task dict, whatever the order of completion, so outputs do not depend on the executor.
 Worker processes are started with "spawn" (like Dask's nannies): forking a parent that already runs
-OpenMP/Ceres threads (pycolmap) can deadlock.
+OpenMP/Ceres threads (pycolmap) can deadlock. Every local worker dies with its parent (`process_pool`): a
+killed batch or map leaves no worker (and so no multiprocessing resource tracker) behind.
 """
 
 from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import time
 import traceback
 from collections.abc import Callable, Hashable
@@ -26,7 +28,22 @@ from typing import Any
 
 from tqdm import tqdm
 
+from ..plugin.processes import exit_with_parent
+
 log = logging.getLogger(__name__)
+
+
+def _init_worker(parent_pid: int, initializer: Callable[[], None] | None) -> None:
+    exit_with_parent(parent_pid)
+    if initializer is not None:
+        initializer()
+
+
+def process_pool(workers: int, initializer: Callable[[], None] | None = None) -> ProcessPoolExecutor:
+    """A "spawn" ProcessPoolExecutor whose workers die with this process (then run `initializer`, a top-level
+    function). Every local process pool of sosmatch is made here."""
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_init_worker,
+                               initargs=(os.getpid(), initializer))
 
 
 @dataclass
@@ -89,7 +106,7 @@ class LocalExecutor(Executor):
 
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:  # started lazily: a fully resumed batch needs no workers at all
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = process_pool(self.workers)
         return self._pool
 
     def run(
@@ -144,7 +161,13 @@ class DaskExecutor(Executor):
             )
             self.client = Client(self._cluster)
         else:
-            self.client = Client(address)
+            try:
+                self.client = Client(address)
+            except (OSError, TimeoutError, ValueError) as exc:
+                from ..plugin.errors import InputError
+
+                first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                raise InputError(f"cannot reach the Dask scheduler {address}: {first}") from None
 
     def run(
         self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import AssociationParams
+from ..processes import exit_with_parent
 from .clipper import ConsistencyGraph, affinity_graph, solve
 from .rigid import Transform, fit_transform, roll_pitch_yaw_deg, rotation_angle_deg, tilt_deg
 
@@ -469,7 +470,7 @@ def _solve_all(tasks: list, shared: tuple, chunk_fn: object, workers: int | None
     if workers > 1 and len(tasks) > 1:
         chunks = [tasks[w::workers] for w in range(workers)]  # interleaved: similar work per process
         ctx = multiprocessing.get_context("fork")
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(shared,)) as pool:
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(shared, os.getpid())) as pool:
             parts = pool.map(chunk_fn, chunks)
         hyps = [h for _, h in sorted((x for part in parts for x in part), key=lambda t: t[0])]
     else:
@@ -487,8 +488,10 @@ DIRECT_MIN_INCIDENCES = 300  # mean consistent pairs per window pair above which
 _WORKER: tuple = ()
 
 
-def _init_worker(shared: tuple) -> None:
+def _init_worker(shared: tuple, parent_pid: int | None = None) -> None:
     global _WORKER
+    if parent_pid is not None:  # a worker process: it must not outlive the search's process
+        exit_with_parent(parent_pid)
     _WORKER = shared
 
 
