@@ -264,15 +264,24 @@ def write_colmap_database(
 
 
 def check_database_writable(path: str | Path) -> None:
-    """Raise InputError if an existing database is locked by another process (e.g. COLMAP's GUI)."""
+    """Raise InputError if an existing database is locked by another process (e.g. COLMAP's GUI) or is not a
+    file. A file that is not a database (corrupt) is no obstacle: it is an output about to be replaced."""
     path = Path(path)
     if not path.exists():
         return
-    con = sqlite3.connect(path, timeout=0.5)
+    if not path.is_file():
+        raise InputError("is not a file where the COLMAP database goes; not replaced", path)
+    try:
+        con = sqlite3.connect(path, timeout=0.5)
+    except sqlite3.Error:
+        return
     try:
         con.execute("BEGIN EXCLUSIVE")
         con.execute("ROLLBACK")
     except sqlite3.OperationalError as exc:
-        raise InputError(f"database is locked by another process ({exc})", path) from None
+        if "locked" in str(exc) or "busy" in str(exc):
+            raise InputError(f"database is locked by another process ({exc})", path) from None
+    except sqlite3.DatabaseError:
+        pass  # not a database (corrupt): replaced by this run
     finally:
         con.close()

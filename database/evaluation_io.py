@@ -12,7 +12,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.evaluation.footprints import FlatGround, HeightField
-from .match_io import read_match_json
+from .match_io import MatchSummary, read_match
 from .session_io import LandmarkTable, read_landmark_table  # noqa: F401 (re-exported for the evaluation)
 
 # Key names accepted in terrain.npz for the height grid and its georeferencing.
@@ -109,45 +109,23 @@ class MatchHypotheses:
     accepted: np.ndarray
     seconds: float | None
     min_associations: int | None
-    raw: dict
+    match: MatchSummary
 
 
 def read_match_hypotheses(path: str | Path, max_gravity_angle_deg: float = 22.5) -> MatchHypotheses:
-    """Read match.json's `hypotheses` (each with `associations`, optional `accepted`, `tilt_deg`, `transform`).
+    """match.json's `hypotheses` (read and validated by `match_io.read_match`) as the evaluation scores them.
 
     A hypothesis passes the gravity check when its transform exists and its tilt (or max |roll|, |pitch|) is
     at most `max_gravity_angle_deg`; without those fields, `accepted` or a present transform decides.
     """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "match.json"
-    data = read_match_json(path)
-    hyps = data.get("hypotheses")
-    if not isinstance(hyps, list):
-        raise InputError("match file needs a 'hypotheses' list", path)
-    assoc, sizes, ok, acc = [], [], [], []
-    for k, h in enumerate(hyps):
-        try:
-            a = np.asarray(h.get("associations") or [], dtype=np.int64).reshape(-1, 2)
-        except (AttributeError, TypeError, ValueError):
-            raise InputError(f"hypothesis {k}: associations must be [[index_a, index_b], ...]", path) from None
-        tilt = h.get("tilt_deg")
-        if tilt is None and h.get("roll_deg") is not None and h.get("pitch_deg") is not None:
-            tilt = max(abs(float(h["roll_deg"])), abs(float(h["pitch_deg"])))
-        has_t = h.get("transform") is not None
-        if tilt is not None:
-            good = has_t and tilt is not None and np.isfinite(float(tilt)) and float(tilt) <= max_gravity_angle_deg
+    match = read_match(path)
+    ok = []
+    for h in match.hypotheses:
+        if h.tilt_deg is not None:
+            ok.append(h.transform is not None and h.tilt_deg <= max_gravity_angle_deg)
         else:
-            good = bool(h.get("accepted", has_t))
-        assoc.append(a)
-        sizes.append(len(a))
-        ok.append(bool(good))
-        acc.append(bool(h.get("accepted", False)))
-    timings = data.get("timings") or {}
-    seconds = data.get("search_seconds", timings.get("total_s") if isinstance(timings, dict) else None)
-    params = data.get("params") or {}
-    theta = None
-    if isinstance(params, dict):
-        theta = (params.get("association") or {}).get("min_associations", params.get("min_associations"))
-    return MatchHypotheses(assoc, np.asarray(sizes, dtype=np.int64), np.asarray(ok, bool), np.asarray(acc, bool),
-                           None if seconds is None else float(seconds), theta, data)
+            ok.append(h.accepted if h.accepted is not None else h.transform is not None)
+    return MatchHypotheses([h.associations for h in match.hypotheses],
+                           np.array([len(h.associations) for h in match.hypotheses], dtype=np.int64),
+                           np.asarray(ok, bool), np.array([bool(h.accepted) for h in match.hypotheses], bool),
+                           match.seconds, match.min_associations, match)

@@ -19,15 +19,29 @@ from .atomic import write_text_atomic
 from .landmark_map import LandmarkMap
 
 
-def to_wgs84(xy: np.ndarray, epsg: int) -> np.ndarray:
-    """(N, 2) coordinates of a CRS (EPSG code) -> (N, 2) WGS84 longitude, latitude in degrees."""
-    from pyproj import CRS, Transformer
+def check_projected_crs(epsg: int, source: str | Path | None = None) -> None:
+    """Refuse (InputError naming `source`, the file that gave the code) an EPSG code that is unknown or not a
+    projected CRS: a landmark map's world frame is metric, so EPSG:4326 (degrees) would turn metres into
+    degrees."""
+    from pyproj import CRS
     from pyproj.exceptions import CRSError
 
+    where = "the map's" if source is not None else "the given"
     try:
-        tf = Transformer.from_crs(CRS.from_epsg(int(epsg)), CRS.from_epsg(4326), always_xy=True)
-    except CRSError:
-        raise InputError(f"unknown EPSG code {epsg}") from None
+        crs = CRS.from_epsg(int(epsg))
+    except (CRSError, ValueError, OverflowError):
+        raise InputError(f"unknown EPSG code {epsg} ({where} CRS)", source) from None
+    if not crs.is_projected:
+        raise InputError(f"EPSG:{epsg} ({crs.name}) is not a projected CRS in metres, as a landmark map's world "
+                         f"frame must be ({where} CRS)", source)
+
+
+def to_wgs84(xy: np.ndarray, epsg: int) -> np.ndarray:
+    """(N, 2) coordinates of a projected CRS (EPSG code) -> (N, 2) WGS84 longitude, latitude in degrees."""
+    from pyproj import CRS, Transformer
+
+    check_projected_crs(epsg)
+    tf = Transformer.from_crs(CRS.from_epsg(int(epsg)), CRS.from_epsg(4326), always_xy=True)
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     lon, lat = tf.transform(xy[:, 0], xy[:, 1])
     return np.column_stack([lon, lat])
@@ -80,9 +94,14 @@ def landmarks_feature_collection(
             "features": features}
 
 
+def geojson_text(lmap: LandmarkMap, epsg: int | None = None, geometry: str = "point",
+                 extras: dict[str, np.ndarray] | None = None) -> str:
+    """The FeatureCollection as compact GeoJSON text."""
+    return json.dumps(landmarks_feature_collection(lmap, epsg, geometry, extras), separators=(",", ":")) + "\n"
+
+
 def write_landmarks_geojson(path: str | Path, lmap: LandmarkMap, epsg: int | None = None, geometry: str = "point",
                             extras: dict[str, np.ndarray] | None = None) -> int:
-    """Write the FeatureCollection atomically; returns the number of features."""
-    fc = landmarks_feature_collection(lmap, epsg, geometry, extras)
-    write_text_atomic(path, json.dumps(fc, separators=(",", ":")) + "\n")
-    return len(fc["features"])
+    """Write the FeatureCollection atomically; returns the number of landmarks."""
+    write_text_atomic(path, geojson_text(lmap, epsg, geometry, extras))
+    return len(lmap)

@@ -53,17 +53,67 @@ class LandmarkMap:
         return bool(len(self.sizes)) and not bool(np.all(np.isnan(self.sizes)))
 
 
-def encode_landmark_map(lmap: LandmarkMap) -> bytes:
-    """Serialise a map. Positions are stored as float32 offsets from `origin` (choose it near the data)."""
-    if not np.all(np.isfinite(lmap.positions)) or not np.all(np.isfinite(lmap.origin)):
-        raise ValueError("landmark positions and origin must be finite")
-    offsets = lmap.positions - lmap.origin
+MAX_ORIGIN_M = 1.0e8  # no world frame on Earth (projected CRS, ECEF, local) has coordinates beyond 100,000 km
+MAX_SIZE_M = 65504.0  # the largest float16: a larger size would be stored as infinity
+EPSG_RANGE = (1024, 32767)  # the EPSG dataset's codes (0 = local frame)
+
+
+def landmark_map_problem(origin: np.ndarray, offsets: np.ndarray, stored_sizes: np.ndarray, epsg: int,
+                         flags: int) -> str | None:
+    """What makes a map unwritable / unreadable, or None: the one validation of the format, shared by
+    `encode_landmark_map` (which refuses to write it) and `decode_landmark_map` (which refuses to read it).
+
+    `offsets` are positions minus origin, `stored_sizes` the sizes as float16 (as the file holds them)."""
+    if not np.all(np.isfinite(origin)) or not np.all(np.isfinite(offsets)):
+        return "landmark map holds non-finite coordinates"
+    if np.abs(origin).max() > MAX_ORIGIN_M:
+        return f"landmark map origin is beyond {MAX_ORIGIN_M:g} m (not a coordinate on Earth)"
     if len(offsets) and np.abs(offsets).max() > MAX_OFFSET_M:
-        raise ValueError("landmarks are too far from the map origin for float32 offsets; choose a closer origin")
-    records = np.zeros(len(lmap), dtype=_RECORD)
-    records["xyz"] = offsets
-    records["size"] = lmap.sizes
+        return (f"landmark map holds landmarks more than {MAX_OFFSET_M:g} m from its origin (float32 offsets would "
+                "lose centimetres; choose a closer origin)")
+    if epsg != 0 and not EPSG_RANGE[0] <= epsg <= EPSG_RANGE[1]:
+        lo, hi = EPSG_RANGE
+        return f"landmark map has EPSG code {epsg}, not an EPSG code (0 = local frame, else {lo}..{hi})"
+    known = stored_sizes[np.isfinite(stored_sizes)]
+    if np.any(np.isinf(stored_sizes)) or np.any(known <= 0):
+        return f"landmark map holds sizes that are not positive metres up to {MAX_SIZE_M:g} (zero, negative, infinite)"
+    if flags & ~FLAG_SIZES:
+        return f"landmark map has unknown flags {flags:#x}"
+    if bool(flags & FLAG_SIZES) != bool(len(known)):
+        return "landmark map's size flag disagrees with its sizes"
+    return None
+
+
+def landmark_map_fingerprint(lmap: LandmarkMap) -> str:
+    """A content fingerprint of a map: sha256 of its world positions, sizes and EPSG code ("sha256:...").
+
+    Two maps with this fingerprint have the same landmarks in the same order, whatever file they came from;
+    match.json names its maps by it, so a consumer can check that a match is about its maps."""
+    import hashlib
+
+    sizes = np.where(np.isnan(lmap.sizes), np.float32(np.nan), lmap.sizes).astype("<f4")  # one NaN pattern
+    h = hashlib.sha256(b"sosmatch landmarks v1\0")
+    h.update(struct.pack("<QI", len(lmap), int(lmap.epsg) & 0xFFFFFFFF))
+    h.update(np.ascontiguousarray(lmap.positions, dtype="<f8").tobytes())
+    h.update(sizes.tobytes())
+    return "sha256:" + h.hexdigest()
+
+
+def encode_landmark_map(lmap: LandmarkMap) -> bytes:
+    """Serialise a map. Positions are stored as float32 offsets from `origin` (choose it near the data).
+
+    Raises ValueError for a map the format cannot hold (`landmark_map_problem`)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        offsets = lmap.positions - lmap.origin
+        records = np.zeros(len(lmap), dtype=_RECORD)
+        records["xyz"] = offsets
+        records["size"] = lmap.sizes
     flags = FLAG_SIZES if lmap.has_sizes else 0
+    problem = landmark_map_problem(lmap.origin, offsets, records["size"].astype(np.float32), int(lmap.epsg), flags)
+    if problem is None and not np.all(np.isfinite(records["xyz"])):
+        problem = "landmark map holds non-finite coordinates"
+    if problem is not None:
+        raise ValueError(problem)
     header = _HEADER.pack(MAGIC, VERSION, flags, len(lmap), *lmap.origin, int(lmap.epsg), 0)
     body = header + records.tobytes()
     return body + struct.pack("<I", zlib.crc32(body))
@@ -84,19 +134,18 @@ def decode_landmark_map(data: bytes, source: str | Path = "<bytes>") -> Landmark
     (crc,) = struct.unpack_from("<I", data, expected - 4)
     if zlib.crc32(data[: expected - 4]) != crc:
         raise InputError("landmark map checksum mismatch (file is corrupt)", source)
-    if flags & ~FLAG_SIZES or reserved != 0:
-        raise InputError(f"landmark map has unknown flags {flags:#x}", source)
+    if reserved != 0:
+        raise InputError(f"landmark map has a non-zero reserved field ({reserved:#x})", source)
     origin = np.array([ox, oy, oz])
     records = np.frombuffer(data, dtype=_RECORD, count=count, offset=_HEADER.size)
-    if not np.all(np.isfinite(origin)) or not np.all(np.isfinite(records["xyz"])):
-        raise InputError("landmark map holds non-finite coordinates", source)
+    offsets = records["xyz"].astype(np.float64)
     sizes = records["size"].astype(np.float32)
+    problem = landmark_map_problem(origin, offsets, sizes, int(epsg), flags)
+    if problem is not None:
+        raise InputError(problem, source)
     if not flags & FLAG_SIZES:
         sizes[:] = np.nan
-    elif np.any(sizes[np.isfinite(sizes)] < 0) or np.any(np.isinf(sizes)):
-        raise InputError("landmark map holds negative or infinite sizes", source)
-    positions = records["xyz"].astype(np.float64) + origin
-    return LandmarkMap(positions=positions, sizes=sizes, origin=origin, epsg=int(epsg))
+    return LandmarkMap(positions=offsets + origin, sizes=sizes, origin=origin, epsg=int(epsg))
 
 
 def write_landmark_map(path: str | Path, lmap: LandmarkMap) -> int:

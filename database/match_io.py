@@ -1,13 +1,19 @@
-"""Reading the association result (match.json, written by `sosmatch match`) for merge and batch.
+"""match.json (written by `sosmatch match`): its one validation, its one reader, and the one check that a match
+belongs to the maps a consumer holds.
 
-Only `read_match` knows the file's layout, so a schema change is one edit here. What merge and batch need is
-the accepted hypothesis: its landmark associations (index in A, index in B) and its transform a_from_b
-(x_A = s R x_B + t).
+`parse_match` validates a parsed document: every field merge, batch, evaluate (and the later stages) read has
+its type and range checked, so a damaged or hand-edited file is a one-line InputError, never a traceback or a
+silently wrong value (a float index is not truncated, an infinite scale is refused). The writer
+(`workflows.match`) runs the same validation on what it is about to write, so the reader accepts exactly what
+the writer writes. `read_match` reads and validates a file. `check_match_maps` is how every consumer makes sure
+the match was computed for its maps: match.json names each map by a content fingerprint
+(`landmark_map.landmark_map_fingerprint`), compared here, with a clear message for maps given in swapped order.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,12 +22,35 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
+from .landmark_map import LandmarkMap, landmark_map_fingerprint
 from .text_input import read_user_text
+
+MATCH_FORMAT = "sosmatch match v1"
+MAX_INDEX = 2**31 - 1  # landmark indices are int32-sized (a map of 2^31 landmarks would be 30 GB)
+
+
+@dataclass
+class MatchHypothesis:
+    """One solved window pair of match.json."""
+
+    associations: np.ndarray  # (K,2) int64 landmark index pairs (A, B)
+    transform: Sim3 | None  # a_from_b; None when the window pair gave none
+    accepted: bool | None  # None: not recorded
+    tilt_deg: float | None  # the transform's roll/pitch angle to gravity, when recorded
+
+
+@dataclass
+class MapRef:
+    """How match.json names one of its maps."""
+
+    path: str | None
+    fingerprint: str | None  # content fingerprint (None: written by an older sosmatch)
+    landmarks: int | None
 
 
 @dataclass
 class MatchSummary:
-    """The hypothesis of a match.json that merging uses, and whether it was accepted."""
+    """A validated match.json: the hypothesis merging uses, and everything else consumers read."""
 
     accepted: bool
     transform: Sim3 | None  # a_from_b; None when no hypothesis exists
@@ -29,84 +58,222 @@ class MatchSummary:
     transform_kind: str = "rigid"
     num_hypotheses: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
+    hypotheses: list[MatchHypothesis] = field(default_factory=list)
+    map_a: MapRef = field(default_factory=lambda: MapRef(None, None, None))
+    map_b: MapRef = field(default_factory=lambda: MapRef(None, None, None))
+    seconds: float | None = None  # the search's time
+    min_associations: int | None = None  # theta_S of the search
 
 
-def _sim3(data: Any, path: Path) -> Sim3:
-    try:
-        rot = np.asarray(data["rotation"], dtype=np.float64)
-        if rot.shape == (4,):  # quaternion (w, x, y, z)
-            from ..plugin.geometry import quat_to_rotmat
-
-            rot = quat_to_rotmat(rot)
-        t = np.asarray(data["translation"], dtype=np.float64).reshape(3)
-        scale = float(data.get("scale", 1.0))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"transform needs rotation (3x3), translation (3) and scale: {exc}", path) from None
-    if rot.shape != (3, 3) or not np.all(np.isfinite(rot)) or not np.all(np.isfinite(t)) or not scale > 0:
-        raise InputError("transform is not a finite 3x3 rotation, 3-vector translation and positive scale", path)
-    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-5) or np.linalg.det(rot) < 0:
-        raise InputError("transform rotation is not a rotation matrix", path)
-    return Sim3(rot, t, scale)
+# --- field validation (each raises InputError naming the file and the field) -----------------------------------
 
 
-def _associations(data: Any, path: Path) -> np.ndarray:
-    try:
-        arr = np.asarray(data if data is not None else [], dtype=np.int64).reshape(-1, 2)
-    except (TypeError, ValueError):
-        raise InputError("associations must be a list of [index_a, index_b] integer pairs", path) from None
-    if np.any(arr < 0):
-        raise InputError("associations hold negative landmark indices", path)
-    return arr
+def _where(field_name: str) -> str:
+    return f"match file field {field_name}"
+
+
+def _int(value: Any, name: str, path: Path, lo: int = 0, hi: int = MAX_INDEX) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InputError(f"{_where(name)} must be an integer, got {_short(value)}", path)
+    if not lo <= value <= hi:
+        raise InputError(f"{_where(name)} must be within [{lo}, {hi}], got {_short(value)}", path)
+    return value
+
+
+def _float(value: Any, name: str, path: Path, allow_none: bool = False) -> float | None:
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(f"{_where(name)} must be a finite number, got {_short(value)}", path)
+    return float(value)
+
+
+def _bool(value: Any, name: str, path: Path) -> bool:
+    if not isinstance(value, bool):
+        raise InputError(f"{_where(name)} must be true or false, got {_short(value)}", path)
+    return value
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _sim3(data: Any, name: str, path: Path) -> Sim3:
+    if not isinstance(data, dict):
+        raise InputError(f"{_where(name)} must be an object with rotation, translation and scale", path)
+    rot = data.get("rotation")
+    if isinstance(rot, list) and len(rot) == 4:  # quaternion (w, x, y, z)
+        from ..plugin.geometry import quat_to_rotmat
+
+        q = np.array([_float(v, f"{name}.rotation", path) for v in rot])
+        if abs(np.linalg.norm(q) - 1.0) > 1e-3:
+            raise InputError(f"{_where(name)}.rotation quaternion is not unit length", path)
+        r = quat_to_rotmat(q)
+    elif isinstance(rot, list) and len(rot) == 3 and all(isinstance(row, list) and len(row) == 3 for row in rot):
+        r = np.array([[_float(v, f"{name}.rotation", path) for v in row] for row in rot])
+    else:
+        raise InputError(f"{_where(name)}.rotation must be a 3x3 matrix (rows) or a quaternion [w, x, y, z]", path)
+    t = data.get("translation")
+    if not (isinstance(t, list) and len(t) == 3):
+        raise InputError(f"{_where(name)}.translation must be [x, y, z]", path)
+    t = np.array([_float(v, f"{name}.translation", path) for v in t])
+    scale = _float(data.get("scale", 1.0), f"{name}.scale", path)
+    if not 1e-6 <= scale <= 1e6:
+        raise InputError(f"{_where(name)}.scale must be within [1e-6, 1e6], got {scale!r}", path)
+    if np.abs(t).max() > 1e9:
+        raise InputError(f"{_where(name)}.translation is beyond 1e9 m", path)
+    if not np.allclose(r @ r.T, np.eye(3), atol=1e-5) or np.linalg.det(r) < 0:
+        raise InputError(f"{_where(name)}.rotation is not a rotation matrix", path)
+    return Sim3(r, t, scale)
+
+
+def parse_associations(data: Any, name: str, path: Path) -> np.ndarray:
+    """A validated (K,2) int64 array of [index_a, index_b] pairs (JSON integers only: 1.7 is refused, not 1)."""
+    if data is None:
+        return np.zeros((0, 2), np.int64)
+    if not isinstance(data, list):
+        raise InputError(f"{_where(name)} must be a list of [index_a, index_b] integer pairs", path)
+    out = np.empty((len(data), 2), np.int64)
+    for k, pair in enumerate(data):
+        if not (isinstance(pair, list) and len(pair) == 2):
+            raise InputError(f"{_where(name)} must be a list of [index_a, index_b] integer pairs", path)
+        out[k, 0] = _int(pair[0], name, path)
+        out[k, 1] = _int(pair[1], name, path)
+    return out
+
+
+def _map_ref(data: Any, name: str, path: Path) -> MapRef:
+    if data is None:
+        return MapRef(None, None, None)
+    if not isinstance(data, dict):
+        raise InputError(f"{_where(name)} must be an object", path)
+    fp = data.get("fingerprint")
+    if fp is not None and not (isinstance(fp, str) and 0 < len(fp) <= 128):
+        raise InputError(f"{_where(name)}.fingerprint must be a string", path)
+    count = data.get("landmarks")
+    p = data.get("path")
+    return MapRef(p if isinstance(p, str) else None, fp,
+                  None if count is None else _int(count, f"{name}.landmarks", path))
+
+
+def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
+    """Validate a parsed match.json document and return what consumers read (see `read_match`)."""
+    path = Path(path)
+    if not isinstance(data, dict):
+        raise InputError("match file must hold a JSON object", path)
+    fmt = data.get("format", MATCH_FORMAT)
+    if not isinstance(fmt, str) or not fmt.startswith("sosmatch match"):
+        raise InputError(f"not a sosmatch match file (format {_short(fmt)})", path)
+    raw_hyps = data.get("hypotheses")
+    if raw_hyps is None:
+        raise InputError("match file needs a 'hypotheses' list", path)
+    if not isinstance(raw_hyps, list) or not all(isinstance(h, dict) for h in raw_hyps):
+        raise InputError("match file field hypotheses must be a list of objects", path)
+    hyps = []
+    for k, h in enumerate(raw_hyps):
+        name = f"hypotheses[{k}]"
+        transform = None if h.get("transform") is None else _sim3(h["transform"], f"{name}.transform", path)
+        tilt = _float(h.get("tilt_deg"), f"{name}.tilt_deg", path, allow_none=True)
+        if tilt is None and h.get("roll_deg") is not None and h.get("pitch_deg") is not None:
+            tilt = max(abs(_float(h["roll_deg"], f"{name}.roll_deg", path)),
+                       abs(_float(h["pitch_deg"], f"{name}.pitch_deg", path)))
+        accepted = None if h.get("accepted") is None else _bool(h["accepted"], f"{name}.accepted", path)
+        assoc = parse_associations(h.get("associations"), f"{name}.associations", path)
+        hyps.append(MatchHypothesis(assoc, transform, accepted, tilt))
+    kind = data.get("transform_kind", "rigid")
+    if kind not in ("rigid", "similarity"):
+        raise InputError(f"match file field transform_kind must be 'rigid' or 'similarity', got {_short(kind)}", path)
+    best = data.get("best")
+    if best is not None:
+        best = _int(best, "best", path, 0, max(len(hyps) - 1, 0))
+        if not hyps:
+            raise InputError("match file field best refers to a hypothesis but there are none", path)
+    consensus = data.get("consensus")
+    if consensus is not None and not isinstance(consensus, dict):
+        raise InputError("match file field consensus must be an object", path)
+    timings = data.get("timings")
+    seconds = data.get("search_seconds", timings.get("total_s") if isinstance(timings, dict) else None)
+    seconds = _float(seconds, "search_seconds", path, allow_none=True)
+    params = data.get("params")
+    theta = None
+    if isinstance(params, dict):
+        assoc = params.get("association")
+        theta = assoc.get("min_associations") if isinstance(assoc, dict) else params.get("min_associations")
+        theta = None if theta is None else _int(theta, "params.association.min_associations", path, 0, 10**6)
+    summary = MatchSummary(False, None, np.zeros((0, 2), np.int64), kind, len(hyps), hypotheses=hyps,
+                           map_a=_map_ref(data.get("map_a"), "map_a", path),
+                           map_b=_map_ref(data.get("map_b"), "map_b", path), seconds=seconds, min_associations=theta)
+    # The hypothesis to merge with: the consensus (the transform refitted on the associations of every accepted
+    # window pair that agrees with the best one; written only when one was accepted), else the best accepted
+    # hypothesis, else the largest one (then `accepted` is False).
+    if consensus is not None and consensus.get("transform") is not None:
+        summary.accepted = True
+        summary.transform = _sim3(consensus["transform"], "consensus.transform", path)
+        summary.associations = parse_associations(consensus.get("associations"), "consensus.associations", path)
+        return summary
+    chosen = hyps[best] if best is not None else None
+    if chosen is None or not chosen.accepted:
+        pool = [h for h in hyps if h.accepted] or hyps
+        if pool:
+            chosen = max(pool, key=lambda h: len(h.associations))
+    if chosen is not None:
+        summary.accepted = bool(chosen.accepted) and chosen.transform is not None
+        summary.transform = chosen.transform
+        summary.associations = chosen.associations
+    return summary
 
 
 def read_match_json(path: str | Path) -> dict[str, Any]:
-    """The parsed match.json (a directory means its match.json); InputError if unreadable or not an object."""
+    """The parsed (not yet validated) match.json (a directory means its match.json); InputError if unreadable."""
     path = Path(path)
     if path.is_dir():
         path = path / "match.json"
     text = read_user_text(path, "match file")
     try:
         data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"cannot read match file: {exc}", path) from None
+    except RecursionError:
+        raise InputError("cannot read match file: nested too deeply", path) from None
+    except ValueError as exc:  # JSONDecodeError, and integers of more than 4300 digits
+        raise InputError(f"cannot read match file: {str(exc).splitlines()[0]}", path) from None
     if not isinstance(data, dict):
         raise InputError("match file must hold a JSON object", path)
     return data
 
 
 def read_match(path: str | Path) -> MatchSummary:
-    """Read match.json and return the hypothesis to merge with.
-
-    That is the consensus (the transform refitted on the associations of every accepted window pair that
-    agrees with the best one; written only when a hypothesis was accepted), else the best accepted hypothesis,
-    else the largest one (then `accepted` is False).
-    """
+    """Read and validate match.json (or a directory holding it): the hypothesis to merge with, every hypothesis,
+    the maps it was computed for. Use `check_match_maps` before trusting its indices for your maps."""
     path = Path(path)
-    data = read_match_json(path)
-    hyps = data.get("hypotheses") or []
-    if not isinstance(hyps, list) or not all(isinstance(h, dict) for h in hyps):
-        raise InputError("'hypotheses' must be a list of objects", path)
-    kind = str(data.get("transform_kind", "rigid"))
-    consensus = data.get("consensus")
-    if isinstance(consensus, dict) and consensus.get("transform") is not None:
-        return MatchSummary(True, _sim3(consensus["transform"], path),
-                            _associations(consensus.get("associations"), path), kind, len(hyps))
-    best = data.get("best")
-    chosen: dict | None = None
-    if isinstance(best, int) and not isinstance(best, bool) and 0 <= best < len(hyps):
-        chosen = hyps[best]
-    if chosen is None or not chosen.get("accepted", False):
-        accepted = [h for h in hyps if h.get("accepted")]
-        pool = accepted or hyps
-        if pool:
-            chosen = max(pool, key=lambda h: len(h.get("associations") or []))
-    if chosen is None:
-        return MatchSummary(False, None, np.zeros((0, 2), np.int64), kind, len(hyps))
-    transform = _sim3(chosen["transform"], path) if chosen.get("transform") is not None else None
-    return MatchSummary(
-        accepted=bool(chosen.get("accepted", False)) and transform is not None,
-        transform=transform,
-        associations=_associations(chosen.get("associations"), path),
-        transform_kind=kind,
-        num_hypotheses=len(hyps),
-    )
+    if path.is_dir():
+        path = path / "match.json"
+    return parse_match(read_match_json(path), path)
+
+
+def check_match_maps(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap, path: str | Path,
+                     names: tuple[str, str] = ("A", "B")) -> None:
+    """Refuse (InputError naming `path`) a match that was not computed for exactly these two maps, in this order.
+
+    Every consumer of a match.json (merge, evaluate, batch, changes) calls this before using its indices."""
+    path = Path(path)
+    fa, fb = landmark_map_fingerprint(map_a), landmark_map_fingerprint(map_b)
+    ref_a, ref_b = match.map_a.fingerprint, match.map_b.fingerprint
+    if ref_a is None or ref_b is None:
+        raise InputError("match file does not identify its maps (no map fingerprints: written by an older sosmatch "
+                         "or by hand); re-run `sosmatch match`", path)
+    if (ref_a, ref_b) == (fa, fb):
+        for ref, lmap, name in ((match.map_a, map_a, names[0]), (match.map_b, map_b, names[1])):
+            if ref.landmarks is not None and ref.landmarks != len(lmap):  # a fingerprint collision or a hand edit
+                raise InputError(f"match file says map {name} has {ref.landmarks} landmarks, it has {len(lmap)}", path)
+        too_far = [h for h in [match.associations, *(h.associations for h in match.hypotheses)] if len(h) and (
+            h[:, 0].max() >= len(map_a) or h[:, 1].max() >= len(map_b))]
+        if too_far:
+            raise InputError("match file holds landmark indices beyond its maps", path)
+        return
+    if (ref_a, ref_b) == (fb, fa):
+        raise InputError(f"match file was computed for these maps in the other order (its map A is {names[1]}); "
+                         "give them as the match had them", path)
+    which = [n for n, ref, fp in ((names[0], ref_a, fa), (names[1], ref_b, fb)) if ref != fp]
+    verb = "differs" if len(which) == 1 else "differ"
+    raise InputError(f"match file was computed for other maps (map {' and '.join(which)} {verb} from the ones "
+                     "given); re-run `sosmatch match` on these", path)

@@ -20,6 +20,7 @@ from .atomic import write_text_atomic
 from .landmark_map import LandmarkMap, read_landmark_map
 from .text_input import read_user_text
 
+MAX_ROWS = 2**31 - 1
 LANDMARK_CSV_COLUMNS = ["index", "point3d_id", "x", "y", "z", "size_m", "num_observations", "image_names"]
 
 
@@ -45,6 +46,7 @@ class LandmarkTable:
     sizes: np.ndarray  # (N,) metres, NaN where unknown
     image_names: list[list[str]]  # observing keyframes per landmark
     point3d_ids: np.ndarray  # (N,) COLMAP point3D id (-1 when absent or not recorded)
+    num_observations: np.ndarray | None = None  # (N,) when the table has the column
 
 
 def read_landmark_table(path: str | Path) -> LandmarkTable:
@@ -55,7 +57,7 @@ def read_landmark_table(path: str | Path) -> LandmarkTable:
     path = Path(path)
     text = read_user_text(path, "landmark table")
     header = None
-    rows: dict[int, tuple[list[float], list[str], int]] = {}
+    rows: dict[int, tuple[list[float], list[str], int, int]] = {}
     for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):
         if not row or row[0].lstrip().startswith("#"):
             continue
@@ -71,11 +73,14 @@ def read_landmark_table(path: str | Path) -> LandmarkTable:
             vals = [float(row[col[c]]) if row[col[c]].strip() else float("nan") for c in ("x", "y", "z", "size_m")]
             names = row[col["image_names"]].split()
             pid = int(row[col["point3d_id"]]) if "point3d_id" in col else -1
+            nobs = int(row[col["num_observations"]]) if "num_observations" in col else 0
         except (ValueError, IndexError):
             raise InputError("malformed landmark row", path, lineno) from None
+        if not (0 <= idx < MAX_ROWS and -1 <= pid < 2**63 and 0 <= nobs < 2**31):
+            raise InputError("landmark row holds an index, point3d_id or num_observations out of range", path, lineno)
         if idx in rows:
             raise InputError(f"duplicate landmark index {idx}", path, lineno)
-        rows[idx] = (vals, names, pid)
+        rows[idx] = (vals, names, pid, nobs)
     if header is None:
         raise InputError("landmark table is empty (no header)", path)
     n = len(rows)
@@ -83,7 +88,8 @@ def read_landmark_table(path: str | Path) -> LandmarkTable:
         raise InputError("landmark indices must be 0..N-1 without gaps", path)
     vals = np.array([rows[i][0] for i in range(n)], dtype=np.float64).reshape(-1, 4)
     ids = np.array([rows[i][2] for i in range(n)], dtype=np.int64)
-    return LandmarkTable(vals[:, :3], vals[:, 3], [rows[i][1] for i in range(n)], ids)
+    nobs = np.array([rows[i][3] for i in range(n)], dtype=np.int64) if "num_observations" in col else None
+    return LandmarkTable(vals[:, :3], vals[:, 3], [rows[i][1] for i in range(n)], ids, nobs)
 
 
 def read_landmark_point_ids(path: str | Path, count: int | None = None) -> np.ndarray:

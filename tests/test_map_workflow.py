@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import sqlite3
 from pathlib import Path
 
@@ -19,7 +20,8 @@ from sosmatch.tools.cli import main
 from sosmatch.workflows import map as map_workflow
 
 pycolmap = pytest.importorskip("pycolmap")
-OUTPUT_NAMES = {"database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "run.json"}
+OUTPUT_NAMES = {"database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "run.json",
+                ".sosmatch-output.json"}  # the last: the output marker (sosmatch.database.outputs)
 
 
 def render_session(root: Path, n_frames=25, width=320, height=240, altitude=60.0, n_objects=40, seed=0):
@@ -110,7 +112,8 @@ def test_interrupted_run_resumes_to_identical_outputs(session, tmp_path):
     out = tmp_path / "resumed"
     with pytest.raises(Stop):
         map_workflow.run(Params(), inputs, out, progress=False, on_keyframe=stop_after_8)
-    assert {p.name for p in out.iterdir()} == {".partial"}  # nothing half-written in the session itself
+    # nothing half-written in the session itself
+    assert {p.name for p in out.iterdir()} == {".partial", ".sosmatch-output.json"}
     assert len(list((out / ".partial" / "cache").glob("*.npz"))) == 9
     summary = map_workflow.run(Params(), inputs, out, progress=False)
     assert summary.keyframes_from_cache == 9
@@ -170,32 +173,30 @@ def test_unwritable_output_and_locked_database(session, tmp_path, capsys):
     blocker.write_text("x")
     args = ["--images", root / "images", "--poses", root / "poses.csv", "--camera", root / "cameras.txt"]
     code, cap = _cli(capsys, *args, "--out", blocker / "session")
-    assert code == 2 and "cannot write" in cap.err and len(cap.err.strip().splitlines()) == 1
+    assert code == 2 and "cannot create output directory" in cap.err and len(cap.err.strip().splitlines()) == 1
     out = tmp_path / "locked"
-    out.mkdir()
-    db = out / "database.db"
-    con = sqlite3.connect(db)
-    con.execute("CREATE TABLE t (x)")
-    con.commit()
+    shutil.copytree(session[2], out)  # this very session (same inputs and parameters), its database held open
+    con = sqlite3.connect(out / "database.db")
     con.execute("BEGIN EXCLUSIVE")
     try:
-        code, cap = _cli(capsys, *args, "--out", out, "--overwrite")
+        code, cap = _cli(capsys, *args, "--out", out)
     finally:
         con.rollback()
         con.close()
     assert code == 2 and "locked" in cap.err
-    assert {p.name for p in out.iterdir()} == {"database.db"}
+    assert {p.name for p in out.iterdir()} == OUTPUT_NAMES
 
 
-def test_foreign_directory_needs_overwrite(session, tmp_path, capsys):
+def test_foreign_directory_is_refused_even_with_overwrite(session, tmp_path, capsys):
     root = session[0]
     out = tmp_path / "photos"
     out.mkdir()
     (out / "holiday.jpg").write_bytes(b"x")
-    code, cap = _cli(capsys, "--images", root / "images", "--poses", root / "poses.csv", "--camera",
-                     root / "cameras.txt", "--out", out)
-    assert code == 2 and "not a sosmatch session" in cap.err
-    assert os.listdir(out) == ["holiday.jpg"]
+    for extra in ((), ("--overwrite",)):
+        code, cap = _cli(capsys, "--images", root / "images", "--poses", root / "poses.csv", "--camera",
+                         root / "cameras.txt", "--out", out, *extra)
+        assert code == 2 and "is not a `sosmatch map` output" in cap.err
+        assert os.listdir(out) == ["holiday.jpg"]
 
 
 def test_poses_from_a_colmap_model_and_a_synth_session(session, tmp_path):
@@ -245,7 +246,7 @@ def test_run_killed_while_publishing_resumes(session, tmp_path):
     def dying_replace(src, dst):
         if Path(dst).parent == out:  # moves into the session itself (os is one module: atomic writes come here too)
             calls.append(dst)
-            if len(calls) == 3:  # two outputs moved into place, then the process "dies"
+            if len(calls) == 4:  # the output marker and two outputs moved into place, then the process "dies"
                 raise KeyboardInterrupt
         return real_replace(src, dst)
 
@@ -256,10 +257,6 @@ def test_run_killed_while_publishing_resumes(session, tmp_path):
     finally:
         os.replace = real_replace
     assert not (out / "run.json").exists() and (out / "database.db").exists()
-    other = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
-    other.poses.centers[:, 2] += 1.0
-    with pytest.raises(map_workflow.InputError, match="interrupted run from other inputs"):
-        map_workflow.run(Params(), other, out, progress=False)
     summary = map_workflow.run(Params(), inputs, out, progress=False)
     assert summary.keyframes_from_cache == summary.num_keyframes
     assert (out / "landmarks.sosmap").read_bytes() == (out_ref / "landmarks.sosmap").read_bytes()

@@ -82,7 +82,10 @@ def test_cli_directory_run_skips_bad_files_and_exits_nonzero(tmp_path, capsys):
     assert len(rows) == 5 and "d_corrupt.jpg" in rows[-1]
     overlay = cv2.imread(str(out / "a.png"))
     assert overlay.shape == (240, 320, 3) and not np.array_equal(overlay[..., ::-1], _scene(seed=1))
-    # only good files: exit 0; a missing input is a one-line user error
-    assert main(["segment", str(src / "a.png"), "--out", str(out), "-q"]) == 0
+    # only good files: exit 0 (another set of images over a complete output needs --overwrite); a missing input is
+    # a one-line user error
+    assert main(["segment", str(src / "a.png"), "--out", str(out), "-q"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(["segment", str(src / "a.png"), "--out", str(out), "-q", "--overwrite"]) == 0
     assert main(["segment", str(tmp_path / "nothing"), "--out", str(out), "-q"]) == 2
     assert main(["segment", str(src / "a.png"), "--out", str(out), "--backend", "nope", "-q"]) == 2

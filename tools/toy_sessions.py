@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..database.atomic import atomic_path, write_text_atomic
-from ..database.landmark_map import LandmarkMap, write_landmark_map
+from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
 from ..database.poses import write_poses_csv
 from ..database.session_io import write_landmarks_csv
 from ..plugin.geometry import Camera, Poses, project
@@ -170,11 +170,16 @@ def toy_match_json(
         assoc = np.vstack([assoc, wrong])
     transform = transform or truth
     accepted = len(assoc) > 6
-    hyp = {"associations": assoc.tolist(), "transform": transform.to_dict(), "accepted": accepted}
+    hyp = {"associations": assoc.tolist(), "transform": transform.to_dict(), "accepted": bool(accepted)}
+
+    def ref(s: ToySession) -> dict:
+        lmap = read_landmark_map(s.path / "landmarks.sosmap")
+        return {"path": str(s.path), "landmarks": len(lmap), "fingerprint": landmark_map_fingerprint(lmap)}
+
     data = {
         "format": "sosmatch match v1",
-        "session_a": str(a.path),
-        "session_b": str(b.path),
+        "map_a": ref(a),
+        "map_b": ref(b),
         "transform_kind": "similarity" if not np.isclose(transform.scale, 1.0) else "rigid",
         "hypotheses": [hyp],
         "best": 0,

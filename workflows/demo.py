@@ -44,6 +44,7 @@ class DemoContext:
 
     out: Path
     frames: int = DEMO_FRAMES
+    overwrite: bool = False  # the steps replace their earlier outputs (--force, or the demo's settings changed)
     summer: SynthConfig = field(init=False)
     winter: SynthConfig = field(init=False)
 
@@ -77,7 +78,7 @@ def _synth(which: str) -> Callable[[DemoContext], object]:
     def step(ctx: DemoContext) -> object:
         from .synth import run
 
-        return run(getattr(ctx, f"{which}_dir"), getattr(ctx, which), progress=True)
+        return run(getattr(ctx, f"{which}_dir"), getattr(ctx, which), progress=True, overwrite=ctx.overwrite)
 
     return step
 
@@ -137,7 +138,7 @@ def _map(which: str) -> Callable[[DemoContext], object]:
         from . import map as map_workflow
 
         inputs = map_workflow.load_inputs(None, getattr(ctx, f"{which}_dir"))
-        summary = map_workflow.run(Params(), inputs, map_dir(ctx, which), overwrite=True)
+        summary = map_workflow.run(Params(), inputs, map_dir(ctx, which), overwrite=ctx.overwrite)
         print(f"map {which}: {summary.line()}")
         return summary
 
@@ -148,7 +149,8 @@ def _match(ctx: DemoContext) -> object:
     from ..plugin.params import Params
     from . import match as match_workflow
 
-    result = match_workflow.run(Params(), map_dir(ctx, "summer"), map_dir(ctx, "winter"), ctx.out / "match")
+    result = match_workflow.run(Params(), map_dir(ctx, "summer"), map_dir(ctx, "winter"), ctx.out / "match",
+                                overwrite=ctx.overwrite)
     print(f"match summer vs winter: {result.summary()}  (alignment plot: {ctx.out / 'match' / 'match.png'})")
     return result
 
@@ -157,7 +159,7 @@ def _evaluate(ctx: DemoContext) -> object:
     from .evaluate import demo_step
 
     return demo_step(ctx.summer_dir, ctx.winter_dir, map_dir(ctx, "summer"), map_dir(ctx, "winter"),
-                     ctx.out / "evaluation")
+                     ctx.out / "evaluation", overwrite=ctx.overwrite)
 
 
 def demo_steps(ctx: DemoContext) -> list[DemoStep]:
@@ -174,17 +176,26 @@ def demo_steps(ctx: DemoContext) -> list[DemoStep]:
 
 
 def run_demo(out: str | Path, frames: int = DEMO_FRAMES, force: bool = False) -> list[tuple[str, str, float]]:
-    """Run every demo step into `out`; returns (step, "done" | "skipped", seconds) per step."""
-    ctx = DemoContext(Path(out), frames)
-    ctx.out.mkdir(parents=True, exist_ok=True)
-    report = []
-    for step in demo_steps(ctx):
-        if not force and step.outputs and all(p.exists() for p in step.outputs):
-            log.info("demo step %s: outputs exist, skipped", step.name)
-            report.append((step.name, "skipped", 0.0))
-            continue
-        t0 = time.perf_counter()
-        log.info("demo step %s ...", step.name)
-        step.run(ctx)
-        report.append((step.name, "done", time.perf_counter() - t0))
+    """Run every demo step into `out`; returns (step, "done" | "skipped", seconds) per step.
+
+    `out` is taken through `sosmatch.database.outputs`; a demo made with another frame count is redone only
+    with `force` (which also re-runs every step)."""
+    from ..database.outputs import fingerprint, open_output_dir
+
+    identity = fingerprint({"frames": frames})
+    with open_output_dir(out, "demo", identity, overwrite=force,
+                         legacy_record="sessions/summer/session.json") as taken:
+        redo = force or (taken.previous.state != "new" and taken.previous.identity != identity)
+        ctx = DemoContext(taken.path, frames, overwrite=redo)
+        report = []
+        for step in demo_steps(ctx):
+            if not redo and step.outputs and all(p.exists() for p in step.outputs):
+                log.info("demo step %s: outputs exist, skipped", step.name)
+                report.append((step.name, "skipped", 0.0))
+                continue
+            t0 = time.perf_counter()
+            log.info("demo step %s ...", step.name)
+            step.run(ctx)
+            report.append((step.name, "done", time.perf_counter() - t0))
+        taken.finish()
     return report

@@ -34,7 +34,9 @@ import numpy as np
 from ..database.atomic import atomic_path, write_text_atomic
 from ..database.cameras import read_cameras_txt
 from ..database.evaluation_io import read_landmark_table, read_match_hypotheses, terrain_of_session
-from ..database.landmark_map import read_landmark_map
+from ..database.landmark_map import LandmarkMap, read_landmark_map
+from ..database.match_io import check_match_maps
+from ..database.outputs import fingerprint, open_output_dir
 from ..database.poses import read_poses_csv
 from ..plugin.errors import InputError
 from ..plugin.evaluation.claims import Hypothesis, claim_scores, observer_matrix
@@ -42,7 +44,7 @@ from ..plugin.evaluation.footprints import footprint_polygons
 from ..plugin.evaluation.iou import iou_matrix
 from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, pr_curve
 from ..plugin.keyframes import select_keyframes
-from ..plugin.params import Params
+from ..plugin.params import Params, params_to_dict
 
 log = logging.getLogger(__name__)
 
@@ -105,14 +107,15 @@ def _observers(gt: GroundTruthSession, map_dir: Path, max_observers: int | None)
     return observer_matrix(obs, len(gt.names), table.positions[:, :2], gt.centers[:, :2], max_observers), table
 
 
-def _map_arrays(map_dir: Path) -> tuple[np.ndarray, np.ndarray, int]:
-    """Landmark positions, sizes and the map's byte size (landmarks.sosmap if present, else the csv)."""
+def _map_arrays(map_dir: Path) -> tuple[np.ndarray, np.ndarray, int, LandmarkMap | None]:
+    """Landmark positions, sizes and the map's byte size (landmarks.sosmap if present, else the csv), and the
+    landmark map itself (None without landmarks.sosmap)."""
     sosmap = map_dir / "landmarks.sosmap"
     if sosmap.exists():
         lmap = read_landmark_map(sosmap)
-        return lmap.positions, lmap.sizes.astype(np.float64), sosmap.stat().st_size
+        return lmap.positions, lmap.sizes.astype(np.float64), sosmap.stat().st_size, lmap
     table = read_landmark_table(map_dir / "landmarks.csv")
-    return table.positions, table.sizes, 52 + 14 * len(table.positions)
+    return table.positions, table.sizes, 52 + 14 * len(table.positions), None
 
 
 def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSession, map_a: Path, map_b: Path,
@@ -121,8 +124,8 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
 
     obs_a, _ = _observers(gt_a, map_a, max_observers)
     obs_b, _ = _observers(gt_b, map_b, max_observers)
-    pa, ha, bytes_a = _map_arrays(map_a)
-    pb, hb, bytes_b = _map_arrays(map_b)
+    pa, ha, bytes_a, lmap_a = _map_arrays(map_a)
+    pb, hb, bytes_b, lmap_b = _map_arrays(map_b)
     if obs_a.shape[0] != len(pa) or obs_b.shape[0] != len(pb):
         raise InputError("landmarks.csv and landmarks.sosmap disagree on the number of landmarks", map_a)
     assoc_params = params.association
@@ -130,6 +133,11 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
     best = None
     if match_dir is not None:
         hyps = read_match_hypotheses(match_dir, assoc_params.max_gravity_angle_deg)
+        match_json = match_dir / "match.json" if match_dir.is_dir() else match_dir
+        if lmap_a is None or lmap_b is None:
+            raise InputError("scoring a match file needs both maps' landmarks.sosmap (to check that the match is "
+                             "about them)", map_a if lmap_a is None else map_b)
+        check_match_maps(hyps.match, lmap_a, lmap_b, match_json, names=(str(map_a), str(map_b)))
         hypotheses = [Hypothesis(a, float(s), bool(ok)) for a, s, ok in zip(hyps.associations, hyps.sizes,
                                                                            hyps.gravity_ok)]
         out["search_seconds"] = hyps.seconds
@@ -293,7 +301,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         map_a: str | Path | None = None, map_b: str | Path | None = None, match_dir: str | Path | None = None,
         methods: Sequence[str] = METHODS, case: str | None = None, dem: str | Path | None = None,
         ground_height: float = 0.0, sweep_floor: int | None = None, repeats: int = 3, max_observers: int | None = None,
-        baseline_threads: int = 0) -> dict:
+        baseline_threads: int = 0, overwrite: bool = False) -> dict:
     """Evaluate SOS-Match and the baselines on one session pair; returns the evaluation dict (also written).
 
     Args:
@@ -312,14 +320,34 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
             repeats: timing repeats of our search.
         max_observers: per landmark, keep only this many observers (nearest) when forming claims.
         baseline_threads: worker threads of the baselines over keyframe pairs (0: one per core).
+        overwrite: replace a complete evaluation of other inputs or settings in `out_dir` (taken through
+            `sosmatch.database.outputs`).
     """
-    from ..tools.baselines.base import BaselineConfig
-
     session_a, session_b, out_dir = Path(session_a), Path(session_b), Path(out_dir)
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
     case = case or f"{session_a.name} vs {session_b.name}"
+    inputs = [session_a, session_b, map_a, map_b, match_dir, dem]
+    identity = fingerprint({"inputs": [None if p is None else str(Path(p).resolve()) for p in inputs],
+                            "params": params_to_dict(params), "methods": list(methods), "case": case,
+                            "ground_height": ground_height, "sweep_floor": sweep_floor, "repeats": repeats,
+                            "max_observers": max_observers})
+    with open_output_dir(out_dir, "evaluate", identity, inputs=inputs, overwrite=overwrite,
+                         legacy_record="evaluation.json") as taken:
+        evaluation = _evaluate(params, session_a, session_b, out_dir, map_a, map_b, match_dir, methods, case, dem,
+                               ground_height, sweep_floor, repeats, max_observers, baseline_threads)
+        taken.finish()
+    return evaluation
+
+
+def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, map_a: str | Path | None,
+              map_b: str | Path | None, match_dir: str | Path | None, methods: Sequence[str], case: str,
+              dem: str | Path | None, ground_height: float, sweep_floor: int | None, repeats: int,
+              max_observers: int | None, baseline_threads: int) -> dict:
+    """`run` inside its taken output directory."""
+    from ..tools.baselines.base import BaselineConfig
+
     t0 = time.perf_counter()
     gt_a = load_ground_truth(params, session_a, dem, ground_height)
     gt_b = load_ground_truth(params, session_b, dem, ground_height)
@@ -355,7 +383,6 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         "rows": rows,
         "methods": {m: _jsonable(res) for m, res in results.items()},
     }
-    out_dir.mkdir(parents=True, exist_ok=True)
     plot_pr({m: r["curve"] for m, r in results.items()}, out_dir / "pr.png", case)
     plot_overlay(gt_a, gt_b, results.get("sosmatch"), out_dir / "overlay.png", case)
     md = f"# Evaluation: {case}\n\n" + format_table(rows) + (
@@ -376,9 +403,10 @@ def _json_default(obj: Any) -> Any:
 
 
 def demo_step(session_a: str | Path, session_b: str | Path, map_a: str | Path, map_b: str | Path,
-              out_dir: str | Path, case: str = "demo: summer vs winter") -> dict:
+              out_dir: str | Path, case: str = "demo: summer vs winter", overwrite: bool = False) -> dict:
     """The demo's last step: evaluate its two sessions with both baselines and print the table."""
-    evaluation = run(Params(), session_a, session_b, out_dir, map_a=map_a, map_b=map_b, case=case, repeats=1)
+    evaluation = run(Params(), session_a, session_b, out_dir, map_a=map_a, map_b=map_b, case=case, repeats=1,
+                     overwrite=overwrite)
     out_dir = Path(out_dir)
     print((out_dir / "evaluation.md").read_text(encoding="utf-8"), end="")
     print(f"precision-recall plot: {out_dir / 'pr.png'}\nmap overlay: {out_dir / 'overlay.png'}")

@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..database.atomic import write_bytes_atomic, write_text_atomic
-from ..database.geojson import to_wgs84, write_landmarks_geojson
-from ..database.landmark_map import LandmarkMap, read_landmark_map
+from ..database.geojson import check_projected_crs, geojson_text, to_wgs84
+from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map
+from ..database.outputs import OutputFiles, fingerprint
+from ..database.session_io import read_landmark_table
 from ..plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -32,15 +33,11 @@ def load_map(source: str | Path) -> tuple[LandmarkMap, dict[str, np.ndarray]]:
     if source.is_dir():
         lmap = read_landmark_map(source / "landmarks.sosmap")
         extras: dict[str, np.ndarray] = {}
-        table = source / "landmarks.csv"
-        if table.exists():
-            with open(table, encoding="utf-8", newline="") as f:
-                rows = [r for r in csv.DictReader(f)]
-            if len(rows) == len(lmap) and rows and "num_observations" in rows[0]:
-                order = np.array([int(r["index"]) for r in rows])
-                counts = np.zeros(len(lmap), dtype=np.int64)
-                counts[order] = [int(r["num_observations"]) for r in rows]
-                extras["num_observations"] = counts
+        table_path = source / "landmarks.csv"
+        if table_path.exists():
+            table = read_landmark_table(table_path)
+            if len(table.positions) == len(lmap) and table.num_observations is not None:
+                extras["num_observations"] = table.num_observations
         return lmap, extras
     if not source.exists():
         raise InputError("landmark map or session directory not found", source)
@@ -80,25 +77,35 @@ def run(
     csv_out: str | Path | None = None,
     epsg: int | None = None,
     geometry: str = "point",
+    overwrite: bool = False,
 ) -> dict:
     """Export the landmarks of `source` (a .sosmap or a session directory) to the requested files (atomic).
 
-    `epsg` overrides the map's CRS code (for maps saved with 0 whose frame is in fact that CRS).
-    Returns {"landmarks": N, "epsg": code, "written": [paths]}.
+    `epsg` overrides the map's CRS code (for maps saved with 0 whose frame is in fact that CRS); a code must
+    be a projected CRS (the map's coordinates are metres). Output files go through
+    `sosmatch.database.outputs.OutputFiles`: a file that exists is replaced only when this command wrote it
+    (and `overwrite` when it came from another map or options). Returns {"landmarks": N, "epsg": code,
+    "written": [paths]}.
     """
     if geojson is None and ply is None and csv_out is None:
         raise InputError("nothing to export: give --geojson, --ply and/or --csv")
+    targets = {name: Path(p) for name, p in (("geojson", geojson), ("ply", ply), ("csv", csv_out)) if p is not None}
     lmap, extras = load_map(source)
     code = int(epsg or lmap.epsg)
-    written = []
-    if geojson is not None:
-        write_landmarks_geojson(geojson, lmap, code, geometry, extras)
-        written.append(str(geojson))
-    if ply is not None:
-        write_bytes_atomic(ply, ply_bytes(lmap, code))
-        written.append(str(ply))
-    if csv_out is not None:
-        write_text_atomic(csv_out, csv_text(lmap, code))
-        written.append(str(csv_out))
+    if code:
+        check_projected_crs(code, source if not epsg else None)
+    identity = fingerprint({"map": landmark_map_fingerprint(lmap), "epsg": code, "geometry": geometry,
+                            "formats": sorted(targets), "extras": sorted(extras)})
+    files = OutputFiles(targets.values(), "export", identity, inputs=[source], overwrite=overwrite)
+    texts: dict[str, bytes | str] = {}
+    if "geojson" in targets:
+        texts["geojson"] = geojson_text(lmap, code, geometry, extras)
+    if "ply" in targets:
+        texts["ply"] = ply_bytes(lmap, code)
+    if "csv" in targets:
+        texts["csv"] = csv_text(lmap, code)
+    for name, data in texts.items():
+        files.write(targets[name], data)
+    written = [str(targets[name]) for name in texts]
     log.info("exported %d landmarks to %s", len(lmap), ", ".join(written))
     return {"landmarks": len(lmap), "epsg": code, "written": written}

@@ -23,13 +23,14 @@ from typing import Any
 import numpy as np
 
 from ..database.atomic import write_bytes_atomic, write_text_atomic
+from ..database.landmark_map import landmark_map_fingerprint
 from ..database.map_loading import LoadedMap, load_map
+from ..database.match_io import MATCH_FORMAT, parse_match
+from ..database.outputs import fingerprint, open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg, search
 from ..plugin.association.windowed_search import search_reference
 from ..plugin.params import Params, params_to_dict
-
-MATCH_FORMAT = "sosmatch match v1"
 
 
 @dataclass
@@ -88,7 +89,7 @@ def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
 
     def source(m: LoadedMap) -> dict[str, Any]:
         return {"path": str(m.path), "kind": m.kind, "landmarks": len(m.lmap), "has_sizes": m.lmap.has_sizes,
-                "epsg": m.lmap.epsg}
+                "epsg": m.lmap.epsg, "fingerprint": landmark_map_fingerprint(m.lmap)}
 
     consensus = None
     if s.consensus is not None:
@@ -171,31 +172,39 @@ def alignment_png(result: MatchResult) -> bytes:
 
 
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
-        exhaustive: bool = False, plot: bool = True) -> MatchResult:
+        exhaustive: bool = False, plot: bool = True, overwrite: bool = False) -> MatchResult:
     """Match map `b` against map `a` and write match.json, associations.csv and match.png into `out_dir`.
 
     a, b: session directories, .sosmap files or COLMAP models. workers: processes for the solve stage (None:
     automatic). exhaustive: use the straightforward reference search (every window pair from scratch; slow,
-    same result). Raises InputError for unreadable or unusable maps.
+    same result). overwrite: replace a complete match of other maps or settings in `out_dir` (see
+    `sosmatch.database.outputs` for what is never replaced). Raises InputError for unreadable or unusable maps.
     """
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
     map_a, map_b = load_map(a), load_map(b)
     la, lb = map_a.lmap, map_b.lmap
-    if exhaustive:
-        res = search_reference(la.positions, la.sizes, lb.positions, lb.sizes, params.association)
-    else:
-        res = search(la.positions, la.sizes, lb.positions, lb.sizes, params.association, workers=workers)
-    if res.consensus is not None:
-        assoc, transform = res.consensus.associations, res.consensus.transform
-    else:
-        assoc, transform = np.zeros((0, 2), np.int64), None
-    result = MatchResult(out_dir, map_a, map_b, res, assoc, transform, 0.0)
-    write_text_atomic(out_dir / "associations.csv", associations_csv(result))
-    if plot:
-        write_bytes_atomic(out_dir / "match.png", alignment_png(result))
-    result.seconds = time.perf_counter() - t0
-    doc = match_to_json(result, params)
-    doc["seconds_total"] = result.seconds
-    write_text_atomic(out_dir / "match.json", json.dumps(doc, indent=1) + "\n")  # last: its presence = done
+    identity = fingerprint({"a": landmark_map_fingerprint(la), "b": landmark_map_fingerprint(lb),
+                            "association": params_to_dict(params.association), "seed": params.seed,
+                            "exhaustive": exhaustive, "plot": plot})
+    with open_output_dir(out_dir, "match", identity, inputs=[a, b], overwrite=overwrite,
+                         legacy_record="match.json") as out:
+        if exhaustive:
+            res = search_reference(la.positions, la.sizes, lb.positions, lb.sizes, params.association)
+        else:
+            res = search(la.positions, la.sizes, lb.positions, lb.sizes, params.association, workers=workers)
+        if res.consensus is not None:
+            assoc, transform = res.consensus.associations, res.consensus.transform
+        else:
+            assoc, transform = np.zeros((0, 2), np.int64), None
+        result = MatchResult(out_dir, map_a, map_b, res, assoc, transform, 0.0)
+        result.seconds = time.perf_counter() - t0
+        doc = match_to_json(result, params)
+        doc["seconds_total"] = result.seconds
+        parse_match(doc, out_dir / "match.json")  # the reader's validation: never write what it would refuse
+        write_text_atomic(out_dir / "associations.csv", associations_csv(result))
+        if plot:
+            write_bytes_atomic(out_dir / "match.png", alignment_png(result))
+        write_text_atomic(out_dir / "match.json", json.dumps(doc, indent=1) + "\n")  # last: its presence = done
+        out.finish()
     return result

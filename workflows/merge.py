@@ -23,18 +23,21 @@ Output directory (a "merged session", readable by match/merge again):
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..database.atomic import atomic_path, write_text_atomic
-from ..database.landmark_map import LandmarkMap, write_landmark_map
-from ..database.match_io import read_match
+from ..database.atomic import write_text_atomic
+from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, write_landmark_map
+from ..database.match_io import check_match_maps, read_match
+from ..database.outputs import OutputDir, fingerprint, open_output_dir, sha256_file
 from ..database.session_io import SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
@@ -44,6 +47,7 @@ from ..plugin.params import Params
 log = logging.getLogger(__name__)
 
 MERGE_FORMAT = "sosmatch merge v1"
+MERGE_RECORD = "merge.json"
 
 
 @dataclass
@@ -125,19 +129,41 @@ def merge_sessions(
     out_dir: str | Path,
     labels: list[str] | None = None,
     max_fuse_distance_m: float = 2.0,
+    record: dict[str, Any] | None = None,
+    overwrite: bool = False,
+    inputs: Sequence[str | Path] = (),
 ) -> MergeResult:
     """Combine sessions into one COLMAP model in the frame of `transforms` (reference_from_session each).
 
     `pairs`: (session index a, session index b, (K,2) landmark index pairs) whose landmarks are fused. Writes
-    out_dir/{sparse/, landmarks.sosmap, landmarks.csv, merge.json}; returns the counts.
+    out_dir/{sparse/, landmarks.sosmap, landmarks.csv, merge.json} (built in out_dir/.partial, published
+    together, merge.json last, `record` added to it); returns the counts. `out_dir` is taken through
+    `sosmatch.database.outputs` (`overwrite`: replace a complete merge of other inputs; `inputs`: further input
+    paths besides the sessions, e.g. the match file).
     """
-    import pycolmap
-
     t0 = time.perf_counter()
     if len(sessions) != len(transforms) or not sessions:
         raise ValueError("need one transform per session and at least one session")
     labels = _labels(sessions, labels)
-    out_dir = Path(out_dir)
+    identity = fingerprint({
+        "sessions": [session_fingerprint(s) for s in sessions], "labels": labels,
+        "transforms": [t.to_dict() for t in transforms], "eps": max_fuse_distance_m, "record": record,
+        "pairs": [[a, b, hashlib.sha256(np.ascontiguousarray(assoc, dtype="<i8").tobytes()).hexdigest()]
+                  for a, b, assoc in pairs]})
+    with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
+                         overwrite=overwrite, legacy_record=MERGE_RECORD) as out:
+        result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m, record or {}, t0)
+        out.finish()
+    return result
+
+
+def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[Sim3],
+                pairs: list[tuple[int, int, np.ndarray]], labels: list[str], max_fuse_distance_m: float,
+                record: dict[str, Any], t0: float) -> MergeResult:
+    """`merge_sessions` inside its taken output directory: build in the staging area, then publish."""
+    import pycolmap
+
+    out_dir = out.path
     pairs, rejected = _filter_associations(sessions, transforms, pairs, max_fuse_distance_m)
     groups = fusion_groups(pairs)
 
@@ -243,11 +269,11 @@ def merge_sessions(
     ref = sessions[0].landmarks
     lmap = LandmarkMap(np.asarray(positions).reshape(-1, 3), np.asarray(sizes), ref.origin, ref.epsg)
 
-    with atomic_path(out_dir / "sparse") as tmp:
-        tmp.mkdir()
-        merged.write_binary(str(tmp))
-    write_landmark_map(out_dir / "landmarks.sosmap", lmap)
-    write_landmarks_csv(out_dir / "landmarks.csv", lmap, np.asarray(pids_out), np.asarray(nobs), names)
+    sparse = out.staged("sparse")
+    sparse.mkdir()
+    merged.write_binary(str(sparse))
+    write_landmark_map(out.staged("landmarks.sosmap"), lmap)
+    write_landmarks_csv(out.staged("landmarks.csv"), lmap, np.asarray(pids_out), np.asarray(nobs), names)
     result = MergeResult(
         out_dir=out_dir,
         sessions=[str(s.path) for s in sessions],
@@ -260,20 +286,32 @@ def merge_sessions(
         num_fused=num_fused,
         num_rejected=rejected,
     )
+    record = dict(record)
+    result.refined = bool(record.pop("refined", False))
     result.seconds = time.perf_counter() - t0
+    _write_merge_record(out.staged(MERGE_RECORD), result, record)
+    out.publish(["sparse", "landmarks.sosmap", "landmarks.csv"], last=MERGE_RECORD)
     return result
 
 
-def write_merge_record(result: MergeResult, extra: dict[str, Any] | None = None) -> None:
-    """Write merge.json last, so that its presence means the whole merge finished."""
+def _write_merge_record(path: Path, result: MergeResult, extra: dict[str, Any]) -> None:
+    """merge.json (published last, so that its presence means the whole merge finished)."""
     import pycolmap
 
     from ..plugin import __version__
 
     data = result.to_dict()
     data["versions"] = {"sosmatch": __version__, "pycolmap": pycolmap.__version__, "numpy": np.__version__}
-    data.update(extra or {})
-    write_text_atomic(result.out_dir / "merge.json", json.dumps(data, indent=2) + "\n")
+    data.update(extra)
+    write_text_atomic(path, json.dumps(data, indent=2) + "\n")
+
+
+def session_fingerprint(session: SessionFiles) -> str:
+    """What a merge of `session` depends on: its landmarks (content fingerprint), landmark table and model."""
+    files = sorted(p for p in session.sparse_dir.iterdir() if p.is_file())
+    return fingerprint({"landmarks": landmark_map_fingerprint(session.landmarks),
+                        "point3d_ids": hashlib.sha256(np.ascontiguousarray(session.point3d_ids, "<i8")).hexdigest(),
+                        "sparse": {p.name: sha256_file(p) for p in files}})
 
 
 def refine_transform(
@@ -303,6 +341,7 @@ def run(
     params: Params | None = None,
     refine: bool = False,
     labels: tuple[str, str] | None = None,
+    overwrite: bool = False,
 ) -> MergeResult:
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
@@ -310,12 +349,13 @@ def run(
     size-gated mutual nearest neighbours within `params.association.distance_tolerance_m`, refitted until they
     stop changing; yaw + translation for gravity-aligned rigid matches, else rigid / similarity). The
     hypothesis' associations are still the ones fused (those the refined transform explains within the gate).
-    Raises InputError when match.json has no accepted hypothesis.
+    Raises InputError when match.json was computed for other maps (`match_io.check_match_maps`) or has no
+    accepted hypothesis. `overwrite`: replace a complete merge of other inputs in `out_dir`.
     """
     params = params or Params()
-    t0 = time.perf_counter()
     a, b = read_session(session_a), read_session(session_b)
     match = read_match(match_json)
+    check_match_maps(match, a.landmarks, b.landmarks, match_json, names=(str(session_a), str(session_b)))
     if not match.accepted or match.transform is None:
         raise InputError("match has no accepted hypothesis: the sessions cannot be merged", match_json)
     transform = match.transform
@@ -338,16 +378,11 @@ def run(
         out_dir,
         labels=list(labels) if labels else None,
         max_fuse_distance_m=params.association.distance_tolerance_m,
-    )
-    result.refined = bool(refine and used)
-    result.seconds = time.perf_counter() - t0
-    write_merge_record(
-        result,
-        {
-            "match": str(match_json),
-            "match_transform": match.transform.to_dict(),
-            "refine": {"requested": refine, "associations_used": used, "dof": dof},
-        },
+        record={"refined": bool(refine and used), "match": str(match_json),
+                "match_transform": match.transform.to_dict(),
+                "refine": {"requested": refine, "associations_used": used, "dof": dof}},
+        overwrite=overwrite,
+        inputs=[match_json],
     )
     log.info(
         "merged %s + %s: %d images, %d points, %d fused landmarks",

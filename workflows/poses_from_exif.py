@@ -52,9 +52,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..database.atomic import write_text_atomic
 from ..database.cameras import format_cameras_txt
 from ..database.exif import ImageMetadata, read_image_metadata
+from ..database.outputs import OutputFiles, fingerprint
 from ..database.poses import format_poses_csv
 from ..database.text_input import read_user_text
 from ..plugin.errors import InputError
@@ -373,6 +373,7 @@ def run(
     position_sigma_m: float = 3.0,
     attitude_sigma_deg: float = 5.0,
     refine_method: str = "colmap",
+    overwrite: bool = False,
 ) -> ExifPoses:
     """Write `out` (pose CSV, `# crs: EPSG:<utm>`) and cameras.txt beside it (or at `cameras_out`).
 
@@ -380,21 +381,38 @@ def run(
     as priors (`pose_refinement.refine_poses_from_images`, sigmas as given; `refine_method` "colmap" = COLMAP's
     pose-prior bundle adjustment with position priors, "scipy" = position and attitude priors) before they are
     written; the summary then holds the refinement statistics. Both files are written atomically; the return
-    value carries the poses, camera and the source summary.
+    value carries the poses, camera and the source summary. The two files go through
+    `sosmatch.database.outputs.OutputFiles`, checked before any work: an existing file is replaced only when
+    this command wrote it (from other images or options: only with `overwrite`).
     """
+    out = Path(out)
+    cameras_path = Path(cameras_out) if cameras_out is not None else out.parent / "cameras.txt"
+    sources = [Path(p) for p in ([images] if isinstance(images, (str, Path)) else images)]
+    identity = fingerprint({"images": [[str(p.resolve()), *_stat(p)] for p in list_images(images)],
+                            "telemetry": _stat(telemetry) if telemetry else None,
+                            "options": [mount, pitch_sign, roll_sign, sensor_width_mm, epsg, refine, position_sigma_m,
+                                        attitude_sigma_deg, refine_method]})
+    files = OutputFiles([out, cameras_path], "poses-from-exif", identity, inputs=[*sources, telemetry],
+                        overwrite=overwrite)
     result = poses_from_images(images, telemetry, mount, pitch_sign, roll_sign, sensor_width_mm, epsg)
     if refine:
         stats = _refine(result, images, position_sigma_m, attitude_sigma_deg, refine_method)
         result.summary["refinement"] = {"method": refine_method, "position_sigma_m": position_sigma_m,
                                         "attitude_sigma_deg": attitude_sigma_deg, **stats.to_dict()}
-    out = Path(out)
-    cameras_path = Path(cameras_out) if cameras_out is not None else out.parent / "cameras.txt"
-    write_text_atomic(out, format_poses_csv(result.poses, result.epsg))
-    write_text_atomic(cameras_path, format_cameras_txt({1: result.camera}))
+    files.write(out, format_poses_csv(result.poses, result.epsg))
+    files.write(cameras_path, format_cameras_txt({1: result.camera}))
     result.summary["poses_csv"] = str(out)
     result.summary["cameras_txt"] = str(cameras_path)
     log.info("wrote %s (%d poses, %s) and %s", out, len(result.poses), result.summary["crs"], cameras_path)
     return result
+
+
+def _stat(path: str | Path) -> list[int]:
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return []
+    return [st.st_size, st.st_mtime_ns]
 
 
 def map_inputs_from_images(

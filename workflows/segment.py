@@ -7,7 +7,8 @@ report = segment.run(["frames/"], "out/", backend="classical")
 ```
 Writes, per image `NAME.EXT`: `OUT/NAME.png` (overlay: masks coloured, boundaries, centroids, 2-sigma
 covariance ellipses) and `OUT/NAME.json` (per-mask centroid, covariance, size, area, score, SIFT count),
-plus `OUT/summary.csv` (one line per image). Every file is written atomically; a re-run overwrites.
+plus `OUT/summary.csv` (one line per image). Every file is written atomically; a re-run of the same images and
+settings replaces them (other ones need `overwrite`).
 """
 
 from __future__ import annotations
@@ -17,15 +18,17 @@ import logging
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from ..database.atomic import atomic_path, write_text_atomic
 from ..database.images import list_images, read_image
+from ..database.outputs import fingerprint, open_output_dir
 from ..plugin.errors import InputError
 from ..plugin.mask_features import MaskFeatures, describe_masks, segment_and_describe
-from ..plugin.params import Params
+from ..plugin.params import Params, params_to_dict
 from ..plugin.segmentation import MaskSet, get_backend
 
 log = logging.getLogger(__name__)
@@ -128,12 +131,14 @@ def run(
     params: Params | None = None,
     backend: str | None = None,
     write_overlays: bool = True,
+    overwrite: bool = False,
 ) -> SegmentReport:
     """Segment every image of `inputs` (files and/or directories) and write overlays and summaries to `out_dir`.
 
     A bad image (unreadable, corrupt) is logged and recorded in the report; the others continue. The caller
     decides the exit code from `report.failed`. Raises InputError if `inputs` names nothing that exists or
-    contains no image at all.
+    contains no image at all. `out_dir` is taken through `sosmatch.database.outputs` (`overwrite`: replace a
+    complete segmentation of other images or settings there).
     """
     params = params or Params()
     if backend is not None:
@@ -142,8 +147,23 @@ def run(
     if not paths:
         raise InputError(f"no images found in {', '.join(str(p) for p in inputs)}")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    identity = fingerprint({"images": [[str(p.resolve()), *_stat(p)] for p in paths], "overlays": write_overlays,
+                            "segmentation": params_to_dict(params.segmentation)})
     seg_backend = get_backend(params.segmentation.backend, params.segmentation)
+    with open_output_dir(out_dir, "segment", identity, inputs=inputs, overwrite=overwrite) as taken:
+        report = _segment_into(taken.path, paths, params, seg_backend, write_overlays)
+        taken.finish()
+    return report
+
+
+def _stat(path: Path) -> list[int]:
+    st = path.stat()
+    return [st.st_size, st.st_mtime_ns]
+
+
+def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend: Any,
+                  write_overlays: bool) -> SegmentReport:
+    """`run` inside its taken output directory."""
     report = SegmentReport()
     from tqdm import tqdm
 

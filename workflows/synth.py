@@ -5,9 +5,10 @@
     run("S2", SynthConfig(world_seed=7, season="winter", shift_m=(20, 10), reverse=True,
                           sun_azimuth_deg=200, session_seed=3))
 
-The session directory (docs/ARCHITECTURE.md, "Synthetic session directory") is built in a temporary sibling
-and renamed into place at the end, so an interrupted run leaves no partial session; re-running the same call
-produces byte-identical files. Read it back with `sosmatch.database.synth_session.load_synth_session`.
+The session directory (docs/ARCHITECTURE.md, "Synthetic session directory") is built in OUT/.partial and
+published at the end (`sosmatch.database.outputs`), so an interrupted run leaves no partial session (its
+staging area is cleared by the re-run); re-running the same call produces byte-identical files. Read it back
+with `sosmatch.database.synth_session.load_synth_session`.
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..database.atomic import atomic_path
 from ..database.cameras import write_cameras_txt
+from ..database.outputs import OutputDir, fingerprint, open_output_dir
 from ..database.poses import write_poses_csv
 from ..database.synth_session import (
     OBJECT_DTYPE,
@@ -105,13 +106,31 @@ def _encode_png16(labels: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def run(out: str | Path, config: SynthConfig, progress: bool = False, workers: int | None = None) -> dict[str, Any]:
-    """Render one session into directory `out` (replaced atomically if it exists). Returns a summary.
+SESSION_FILES = ("images", "labels", "cameras.txt", "poses.csv", "poses_ekf.csv", "objects.csv", "frames.json",
+                 "terrain.npz")
+SESSION_RECORD = "session.json"  # published last
 
-    `workers` threads render frames concurrently (default: the number of CPU cores, at most 4); the files
-    do not depend on it."""
+
+def run(out: str | Path, config: SynthConfig, progress: bool = False, workers: int | None = None,
+        overwrite: bool = False) -> dict[str, Any]:
+    """Render one session into directory `out`. Returns a summary.
+
+    The session is built in OUT/.partial and published at the end (session.json last); `out` is taken through
+    `sosmatch.database.outputs`: a session rendered with another configuration is replaced only with
+    `overwrite`, anything not made by `sosmatch synth` never. `workers` threads render frames concurrently
+    (default: the number of CPU cores, at most 4); the files do not depend on it."""
     config.validate()
     out = Path(out)
+    with open_output_dir(out, "synth", fingerprint(config.to_dict()), overwrite=overwrite,
+                         legacy_record=SESSION_RECORD) as taken:
+        taken.clear_staging()  # a killed render is redone from scratch (it is deterministic)
+        summary = _render(taken, out, config, progress, workers)
+        taken.finish()
+    return summary
+
+
+def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, workers: int | None) -> dict[str, Any]:
+    """`run` inside the taken output directory: render into its staging area, then publish."""
     t0 = time.perf_counter()
     world = get_world(config.world_config())
     t_world = time.perf_counter() - t0
@@ -133,63 +152,64 @@ def run(out: str | Path, config: SynthConfig, progress: bool = False, workers: i
         from tqdm import tqdm
 
         return tqdm(results, total=len(poses), desc=f"synth {out.name}", unit="frame")
-    with atomic_path(out) as tmp:
-        (tmp / "images").mkdir(parents=True)
-        (tmp / "labels").mkdir()
+    tmp = taken.staging
+    (tmp / "images").mkdir(parents=True)
+    (tmp / "labels").mkdir()
 
-        def render_frame(i: int) -> dict[str, Any]:
-            name, r_wc, centre = poses.names[i], poses.rotations[i], poses.centers[i]
-            try:
-                res = render_view(scene, light, camera, r_wc, centre)
-            except ViewOutsideWorld as exc:
-                raise InputError(f"image {name}: {exc}") from None
-            rgb = finish_image(res.linear, look, rng_for(_T_FRAME, config.world_seed, config.session_seed, i))
-            (tmp / "images" / name).write_bytes(encode_jpeg(rgb, look.jpeg_quality))
-            (tmp / "labels" / (Path(name).stem + ".png")).write_bytes(_encode_png16(res.labels))
-            visible = np.unique(res.labels)
-            footprint = world.terrain_sampler.footprint(camera, r_wc, centre)
-            return {
-                "name": name,
-                "visible_object_ids": [int(v) for v in visible if v != 0],
-                "footprint": [[round(float(x), 3), round(float(y), 3)] for x, y in footprint],
-            }
-
-        # Frames are independent (each has its own random stream), so threads render them in any order and
-        # the output is the same; OpenCV and numpy release the GIL in the heavy parts.
-        n_workers = max(1, min(workers if workers else (os.cpu_count() or 1), 4))
-        if n_workers == 1:
-            frames = list(tracked(render_frame(i) for i in range(len(poses))))
-        else:
-            with ThreadPoolExecutor(n_workers) as pool:
-                frames = list(tracked(pool.map(render_frame, range(len(poses)))))
-        t_render = time.perf_counter() - t2
-        write_cameras_txt(tmp / "cameras.txt", {1: camera})
-        write_poses_csv(tmp / "poses.csv", poses)
-        write_poses_csv(tmp / "poses_ekf.csv", ekf_poses(poses, config.ekf_noise(), config.session_seed,
-                                                         config.world_seed))
-        objects = objects_table(scene)
-        (tmp / "objects.csv").write_text(format_objects_csv(objects), encoding="utf-8")
-        (tmp / "frames.json").write_text(json.dumps(frames, indent=1) + "\n", encoding="utf-8")
-        ts = world.terrain_sampler
-        with open(tmp / "terrain.npz", "wb") as f:
-            np.savez_compressed(f, heights=ts.heights, x0=np.float64(ts.x0), y0=np.float64(ts.y0),
-                                resolution_m=np.float64(ts.resolution_m))
-        meta = {
-            "format": SESSION_FORMAT,
-            "version": SESSION_VERSION,
-            "generator": f"sosmatch {__version__}",
-            "config": config.to_dict(),
-            "sun": {"azimuth_deg": az, "elevation_deg": el},
-            "camera": {"width": camera.width, "height": camera.height, "fx": camera.fx, "fy": camera.fy,
-                       "cx": camera.cx, "cy": camera.cy, "hfov_deg": config.hfov_deg},
-            "look": {"exposure_ev": look.exposure_ev, "white_balance": list(look.white_balance),
-                     "vignetting": look.vignetting, "blur_sigma_px": look.blur_sigma_px,
-                     "noise_sigma": look.noise_sigma, "jpeg_quality": look.jpeg_quality},
-            "world": {"size_m": world.config.size_m, "resolution_m": world.res,
-                      "objects": len(world.objects), "objects_present": int(present.sum())},
-            "frames": len(poses),
+    def render_frame(i: int) -> dict[str, Any]:
+        name, r_wc, centre = poses.names[i], poses.rotations[i], poses.centers[i]
+        try:
+            res = render_view(scene, light, camera, r_wc, centre)
+        except ViewOutsideWorld as exc:
+            raise InputError(f"image {name}: {exc}") from None
+        rgb = finish_image(res.linear, look, rng_for(_T_FRAME, config.world_seed, config.session_seed, i))
+        (tmp / "images" / name).write_bytes(encode_jpeg(rgb, look.jpeg_quality))
+        (tmp / "labels" / (Path(name).stem + ".png")).write_bytes(_encode_png16(res.labels))
+        visible = np.unique(res.labels)
+        footprint = world.terrain_sampler.footprint(camera, r_wc, centre)
+        return {
+            "name": name,
+            "visible_object_ids": [int(v) for v in visible if v != 0],
+            "footprint": [[round(float(x), 3), round(float(y), 3)] for x, y in footprint],
         }
-        (tmp / "session.json").write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
+
+    # Frames are independent (each has its own random stream), so threads render them in any order and
+    # the output is the same; OpenCV and numpy release the GIL in the heavy parts.
+    n_workers = max(1, min(workers if workers else (os.cpu_count() or 1), 4))
+    if n_workers == 1:
+        frames = list(tracked(render_frame(i) for i in range(len(poses))))
+    else:
+        with ThreadPoolExecutor(n_workers) as pool:
+            frames = list(tracked(pool.map(render_frame, range(len(poses)))))
+    t_render = time.perf_counter() - t2
+    write_cameras_txt(tmp / "cameras.txt", {1: camera})
+    write_poses_csv(tmp / "poses.csv", poses)
+    write_poses_csv(tmp / "poses_ekf.csv", ekf_poses(poses, config.ekf_noise(), config.session_seed,
+                                                     config.world_seed))
+    objects = objects_table(scene)
+    (tmp / "objects.csv").write_text(format_objects_csv(objects), encoding="utf-8")
+    (tmp / "frames.json").write_text(json.dumps(frames, indent=1) + "\n", encoding="utf-8")
+    ts = world.terrain_sampler
+    with open(tmp / "terrain.npz", "wb") as f:
+        np.savez_compressed(f, heights=ts.heights, x0=np.float64(ts.x0), y0=np.float64(ts.y0),
+                            resolution_m=np.float64(ts.resolution_m))
+    meta = {
+        "format": SESSION_FORMAT,
+        "version": SESSION_VERSION,
+        "generator": f"sosmatch {__version__}",
+        "config": config.to_dict(),
+        "sun": {"azimuth_deg": az, "elevation_deg": el},
+        "camera": {"width": camera.width, "height": camera.height, "fx": camera.fx, "fy": camera.fy,
+                   "cx": camera.cx, "cy": camera.cy, "hfov_deg": config.hfov_deg},
+        "look": {"exposure_ev": look.exposure_ev, "white_balance": list(look.white_balance),
+                 "vignetting": look.vignetting, "blur_sigma_px": look.blur_sigma_px,
+                 "noise_sigma": look.noise_sigma, "jpeg_quality": look.jpeg_quality},
+        "world": {"size_m": world.config.size_m, "resolution_m": world.res,
+                  "objects": len(world.objects), "objects_present": int(present.sum())},
+        "frames": len(poses),
+    }
+    (tmp / SESSION_RECORD).write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
+    taken.publish(SESSION_FILES, last=SESSION_RECORD)
     summary = {"out": str(out), "frames": len(poses), "objects_present": int(present.sum()),
                "seconds_world": round(t_world, 2), "seconds_scene": round(t_scene, 2),
                "seconds_render": round(t_render, 2), "seconds_total": round(time.perf_counter() - t0, 2)}

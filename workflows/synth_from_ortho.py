@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..database.atomic import atomic_path
 from ..database.cameras import format_cameras_txt
+from ..database.outputs import fingerprint, open_output_dir
 from ..database.poses import format_poses_csv
 from ..plugin.errors import InputError
 from ..plugin.geometry import Poses
@@ -89,6 +89,14 @@ def read_orthophoto(path: str | Path) -> osess.Orthophoto:
     return osess.Orthophoto(rgb, tr.c, tr.f, tr.a, tr.e, int(crs.to_epsg()), valid)
 
 
+def _stat(path: str | Path) -> list[int]:
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return []
+    return [st.st_size, st.st_mtime_ns]
+
+
 def run(
     geotiff: str | Path,
     out: str | Path,
@@ -108,8 +116,10 @@ def run(
     jpeg_quality: int = 95,
     ekf_position_sigma_m: float = 0.0,
     ekf_attitude_sigma_deg: float = 0.0,
+    overwrite: bool = False,
 ) -> dict:
-    """Render the session into `out` (written whole, atomically) and return a summary.
+    """Render the session into `out` (built in OUT/.partial, published at the end; `overwrite` replaces a session
+    this command rendered with other settings, see `sosmatch.database.outputs`) and return a summary.
 
     `altitude_m` wins over `gsd_m` (GSD = altitude / focal length in px). `frames` caps the number of frames
     (the first ones along the path). `max_tilt_deg` adds a seeded random tilt to every view (poses stay exact).
@@ -136,9 +146,18 @@ def run(
         raise InputError("the flight plan has no frames", geotiff)
     poses = osess.make_poses(centers, headings, max_tilt_deg, seed)
     out = Path(out)
-    records = []
-    blank = 0
-    with atomic_path(out) as tmp:
+    identity = fingerprint({"geotiff": str(Path(geotiff).resolve()), "stat": _stat(geotiff), "path": path,
+                            "altitude_m": altitude_m, "width": width, "height": height, "hfov_deg": hfov_deg,
+                            "frame_spacing_m": frame_spacing_m, "line_spacing_m": line_spacing_m,
+                            "heading_deg": heading_deg, "offset_m": offset_m, "frames": frames,
+                            "max_tilt_deg": max_tilt_deg, "seed": seed, "jpeg_quality": jpeg_quality,
+                            "ekf": [ekf_position_sigma_m, ekf_attitude_sigma_deg]})
+    with open_output_dir(out, "synth-from-ortho", identity, inputs=[geotiff], overwrite=overwrite,
+                         legacy_record="session.json") as taken:
+        taken.clear_staging()
+        tmp = taken.staging
+        records = []
+        blank = 0
         (tmp / "images").mkdir(parents=True)
         for i, name in enumerate(poses.names):
             img = osess.render_view(ortho, camera, poses.rotations[i], poses.centers[i])
@@ -169,6 +188,9 @@ def run(
             "ekf": {"position_sigma_m": ekf_position_sigma_m, "attitude_sigma_deg": ekf_attitude_sigma_deg},
         }
         (tmp / "session.json").write_text(json.dumps(session, indent=2), encoding="utf-8")
+        taken.publish(["images", "cameras.txt", "poses.csv", "poses_ekf.csv", "objects.csv", "frames.json",
+                       "terrain.npz"], last="session.json")
+        taken.finish()
     along = height * altitude_m / camera.fx
     spacing = float(np.median(np.linalg.norm(np.diff(centers[:, :2], axis=0), axis=1))) if len(centers) > 1 else 0.0
     summary = {"session": str(out), "frames": len(poses), "epsg": ortho.epsg, "altitude_m": float(altitude_m),

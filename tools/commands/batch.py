@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "already refines its winner)")
     parser.add_argument("--no-merge", action="store_true", help="stop after the session graph")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace outputs in --out made with other parameters or from changed flights (without "
+                             "it such a re-run is refused)")
     add_params_arguments(parser)
 
 
@@ -46,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     if args.refine and not args.no_verify:
         raise InputError("--refine only applies with --no-verify (verification already refines its winner)")
     options = batch.BatchOptions(nearest=args.nearest, ekf=args.ekf, merge=not args.no_merge, refine=args.refine,
-                                 verify=not args.no_verify, progress=not args.no_progress)
+                                 verify=not args.no_verify, progress=not args.no_progress,
+                                 overwrite=args.overwrite)
     with make_executor(args.workers, args.scheduler, args.dask_local) as executor:
         report = batch.run(args.flights_dir, args.out, params, executor, options)
     done = sum(s["status"] == "done" for s in report.sessions)

@@ -12,7 +12,9 @@ HELP = "run the end-to-end demo (summer and winter sessions, contact sheet, then
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("demo_out"), help="output directory (default demo_out)")
     parser.add_argument("--frames", type=int, default=80, help="frames per synthetic session (default 80)")
-    parser.add_argument("--force", action="store_true", help="re-run steps whose outputs already exist")
+    parser.add_argument("--force", action="store_true",
+                        help="re-run steps whose outputs already exist, replacing them (also needed to redo a demo "
+                             "made with another --frames)")
 
 
 def run(args: argparse.Namespace) -> int:

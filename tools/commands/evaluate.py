@@ -32,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-observers", type=int, help="claims use only the N observers nearest each landmark")
     parser.add_argument("--baseline-threads", type=int, default=0,
                         help="worker threads of the baselines (0: one per core)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a complete `sosmatch evaluate` output of other inputs or settings in --out")
     add_params_arguments(parser)
 
 
@@ -44,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
         methods=[m.strip() for m in args.methods.split(",") if m.strip()], case=args.case, dem=args.dem,
         ground_height=args.ground_height, sweep_floor=args.sweep_floor, repeats=args.repeats,
         max_observers=args.max_observers, baseline_threads=args.baseline_threads,
+        overwrite=args.overwrite,
     )
     print((Path(args.out) / "evaluation.md").read_text(encoding="utf-8"), end="")
     return 0 if result["rows"] is not None else 1

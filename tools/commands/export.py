@@ -20,6 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="file to write")
     parser.add_argument("--epsg", type=int, help="EPSG code of the map's world frame (overrides the map's own)")
     parser.add_argument("--circles", action="store_true", help="GeoJSON polygons of each landmark's size")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a file this command exported before from another map or with other options")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -27,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
 
     kwargs = {"geojson": None, "ply": None, "csv_out": None}
     kwargs[{"geojson": "geojson", "ply": "ply", "csv": "csv_out"}[args.format]] = args.out
-    result = export(args.source, epsg=args.epsg, geometry="circle" if args.circles else "point", **kwargs)
+    result = export(args.source, epsg=args.epsg, geometry="circle" if args.circles else "point",
+                    overwrite=args.overwrite, **kwargs)
     print(json.dumps(result))
     return 0

@@ -21,6 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--exhaustive", action="store_true",
                         help="straightforward reference search of every window pair (slow; same result)")
     parser.add_argument("--no-plot", action="store_true", help="skip match.png")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a complete `sosmatch match` output of other maps or settings in --out")
     add_params_arguments(parser)
 
 
@@ -32,6 +34,6 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     params = params_from_args(args)
     result = run_match(params, args.a, args.b, args.out, workers=args.workers, exhaustive=args.exhaustive,
-                       plot=not args.no_plot)
+                       plot=not args.no_plot, overwrite=args.overwrite)
     print(f"match: {result.summary()}")
     return 0

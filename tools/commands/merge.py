@@ -18,13 +18,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory (sparse/, landmarks, merge.json)")
     parser.add_argument("--refine", action="store_true",
                         help="re-estimate the transform on all associations it explains (least squares)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a complete `sosmatch merge` output of other inputs in --out")
     add_params_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from ...workflows import merge
 
-    res = merge.run(args.session_a, args.session_b, args.match, args.out, params_from_args(args), refine=args.refine)
+    res = merge.run(args.session_a, args.session_b, args.match, args.out, params_from_args(args), refine=args.refine,
+                    overwrite=args.overwrite)
     print(
         f"{args.out}: {res.num_images} images, {res.num_points3d} points, {res.num_landmarks} landmarks "
         f"({res.num_fused} fused, {res.num_rejected} associations not fused){' [refined]' if res.refined else ''}"

@@ -30,6 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--position-sigma", type=float, default=3.0, help="--refine: GPS sigma, metres")
     parser.add_argument("--attitude-sigma", type=float, default=5.0,
                         help="--refine with --refine-method scipy: attitude sigma, degrees")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace pose/camera files this command wrote before from other images or options")
     parser.add_argument("--refine-method", choices=["colmap", "scipy"], default="colmap",
                         help="--refine: colmap = COLMAP's pose-prior bundle adjustment (GPS position priors, "
                              "seconds; default), scipy = position and attitude priors (minutes)")
@@ -45,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         roll_sign=args.roll_sign if args.roll_sign is not None else wf.DEFAULT_ROLL_SIGN,
         sensor_width_mm=args.sensor_width_mm, epsg=args.epsg, cameras_out=args.cameras,
         refine=args.refine, position_sigma_m=args.position_sigma, attitude_sigma_deg=args.attitude_sigma,
-        refine_method=args.refine_method,
+        refine_method=args.refine_method, overwrite=args.overwrite,
     )
     print(json.dumps(result.summary, indent=2))
     return 0

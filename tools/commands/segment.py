@@ -17,6 +17,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output folder (created)")
     parser.add_argument("--backend", help="segmentation backend (default: segmentation.backend, 'classical')")
     parser.add_argument("--no-overlays", action="store_true", help="write only the JSON summaries")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a complete `sosmatch segment` output of other images or settings in --out")
     add_params_arguments(parser)
 
 
@@ -24,7 +26,8 @@ def run(args: argparse.Namespace) -> int:
     from ...workflows import segment
 
     params = params_from_args(args)
-    report = segment.run(args.inputs, args.out, params, backend=args.backend, write_overlays=not args.no_overlays)
+    report = segment.run(args.inputs, args.out, params, backend=args.backend, write_overlays=not args.no_overlays,
+                         overwrite=args.overwrite)
     ok = [r for r in report.images if r.error is None]
     masks = sum(r.num_masks for r in ok)
     print(f"{len(ok)} image(s) segmented, {masks} masks; overlays and summary.csv in {args.out}")

@@ -21,7 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..synth.config import SynthConfig  # light module: dataclass defaults only
 
     d = SynthConfig()
-    parser.add_argument("--out", type=Path, required=True, help="session directory to write (replaced)")
+    parser.add_argument("--out", type=Path, required=True, help="session directory to write")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a session that `sosmatch synth` rendered there with other settings")
     g = parser.add_argument_group("world (equal settings give the same world)")
     g.add_argument("--world-seed", type=int, default=d.world_seed)
     g.add_argument("--world-size", type=float, default=d.world_size_m, help="side of the square world, m")
@@ -83,7 +85,7 @@ def config_from_args(args: argparse.Namespace):  # noqa: ANN201 (SynthConfig, im
 def run(args: argparse.Namespace) -> int:
     from ...workflows.synth import run as run_synth
 
-    summary = run_synth(args.out, config_from_args(args), progress=not args.quiet)
+    summary = run_synth(args.out, config_from_args(args), progress=not args.quiet, overwrite=args.overwrite)
     print(f"{summary['out']}: {summary['frames']} frames, {summary['objects_present']} objects present, "
           f"{summary['seconds_total']:.1f} s")
     return 0

@@ -13,6 +13,8 @@ HELP = "render a session (images, exact poses, footprints) of nadir views from a
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("geotiff", type=Path, help="north-up orthophoto in a projected CRS (GeoTIFF)")
     parser.add_argument("--out", type=Path, required=True, help="session directory to write")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a session this command rendered there with other settings")
     parser.add_argument("--path", default="lawnmower", choices=["lawnmower", "line", "cross"])
     parser.add_argument("--altitude", type=float, help="metres above the ground (default: from --gsd)")
     parser.add_argument("--gsd", type=float, default=2.5, help="ground sampling distance in m/px (default 2.5)")
@@ -37,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
                      width=args.width, height=args.height, hfov_deg=args.hfov, frame_spacing_m=args.frame_spacing,
                      line_spacing_m=args.line_spacing, heading_deg=args.heading, offset_m=args.offset,
                      frames=args.frames, max_tilt_deg=args.max_tilt, seed=args.seed,
-                     ekf_position_sigma_m=args.ekf_position_sigma, ekf_attitude_sigma_deg=args.ekf_attitude_sigma)
+                     ekf_position_sigma_m=args.ekf_position_sigma, ekf_attitude_sigma_deg=args.ekf_attitude_sigma,
+                     overwrite=args.overwrite)
     print(json.dumps(summary, indent=2))
     return 0

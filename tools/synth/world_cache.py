@@ -26,6 +26,7 @@ import io
 import json
 import logging
 import os
+import shutil
 import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -129,7 +130,6 @@ def load_world(config: WorldConfig) -> World | None:
 def prune(worlds_dir: Path, keep: int = MAX_WORLDS) -> list[Path]:
     """Remove all but the `keep` most recently used entries of `worlds_dir` (by world.json's mtime; entries
     without one count as oldest). Returns the removed directories."""
-    import shutil
 
     def used(d: Path) -> float:
         try:
@@ -154,6 +154,8 @@ def save_world(world: World) -> None:
               "cell": world.cell, "cp_cls": p.cls, "cp_crop": p.crop, "cp_theta": p.theta, "cp_period": p.period,
               "cp_phase": p.phase, "cp_bright": p.bright}
     try:
+        if entry.exists():  # an entry `load_world` found unusable: the cache's own, so it removes it
+            shutil.rmtree(entry, ignore_errors=True)
         with atomic_path(entry) as tmp:
             tmp.mkdir()
             crc = {}

@@ -51,6 +51,11 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
         if folder.name.startswith((".", "_")) or folder.resolve() in excluded:
             continue
+        try:  # names go into JSON state, reports and pair names: they must be text
+            folder.name.encode("utf-8")
+        except UnicodeEncodeError:
+            raise InputError(f"flight folder name {folder.name!r} is not valid UTF-8; rename the folder",
+                             root) from None
         if PAIR_SEP in folder.name:
             raise InputError(f"flight folder names may not contain {PAIR_SEP!r} (used for pair names)", folder)
         kind = classify_flight(folder)

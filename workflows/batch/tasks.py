@@ -42,8 +42,11 @@ def _session_summary(name: str, kind: str, session_dir: Path) -> dict[str, Any]:
     }
 
 
-def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params, ekf: bool) -> dict[str, Any]:
-    """Map one flight into `session_dir` (or adopt an already mapped one) and summarise the session."""
+def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params, ekf: bool,
+             overwrite: bool = False) -> dict[str, Any]:
+    """Map one flight into `session_dir` (or adopt an already mapped one) and summarise the session.
+
+    `overwrite`: replace a complete session of other inputs or parameters there (BatchOptions.overwrite)."""
     from .. import map as map_workflow
 
     flight_path, out = Path(flight), Path(session_dir)
@@ -60,27 +63,28 @@ def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params
 
         images = images_dir(flight_path)
         exif_dir = out.parent / f".{name}.exif"
-        poses_from_exif.run(images, exif_dir / "poses.csv")
+        poses_from_exif.run(images, exif_dir / "poses.csv", overwrite=overwrite)
         inputs = map_workflow.load_inputs(images, exif_dir / "poses.csv", exif_dir / "cameras.txt")
     else:
         raise ValueError(f"unknown flight kind {kind!r}")
-    map_workflow.run(params, inputs, out, overwrite=True, progress=False)
+    map_workflow.run(params, inputs, out, overwrite=overwrite, progress=False)
     return _session_summary(name, kind, out)
 
 
 def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params,
-              verify: dict[str, Any] | None = None) -> dict[str, Any]:
+              verify: dict[str, Any] | None = None, overwrite: bool = False) -> dict[str, Any]:
     """Match two mapped sessions into pair_dir/match.json and summarise the chosen hypothesis.
 
     With `verify` (keyword arguments of `verify_pair`; batch passes them unless BatchOptions.verify is off),
     every window hypothesis is then checked and refined on the full maps, the result is written to
     pair_dir/alignment.json, and the summary's `accepted`, `transform` and `num_associations` are the verified
     alignment's (the match's own are kept as `match_accepted`, `match_transform`, `match_associations`).
+    `overwrite`: replace a complete match of other maps or settings in pair_dir (BatchOptions.overwrite).
     """
     from .. import match as match_workflow
 
     # workers=1: the task already runs in a worker process; nested pools would oversubscribe the cores
-    res = match_workflow.run(params, session_a, session_b, pair_dir, workers=1)
+    res = match_workflow.run(params, session_a, session_b, pair_dir, workers=1, overwrite=overwrite)
     summary = summarise_match(Path(pair_dir) / "match.json")
     if verify is None:
         return summary
@@ -135,15 +139,17 @@ def verify_pair(map_a: Any, map_b: Any, candidates: list[tuple[Any, np.ndarray]]
 
 def read_associations(path: str | Path) -> np.ndarray:
     """(K,2) landmark associations of a pair: alignment.json's (verified) or match.json's."""
-    from ...database.match_io import read_match
+    from ...database.match_io import parse_associations, read_match
 
     path = Path(path)
     if path.name == "alignment.json":
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
-            return np.asarray(data["associations"], dtype=np.int64).reshape(-1, 2)
-        except (OSError, KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:
             raise InputError(f"cannot read alignment file: {exc}", path) from None
+        if not isinstance(data, dict):
+            raise InputError("alignment file must hold a JSON object", path)
+        return parse_associations(data.get("associations"), "associations", path)
     return read_match(path).associations
 
 
@@ -168,17 +174,24 @@ def merge_task(
     edges: list[tuple[int, int, str]],
     out_dir: str,
     max_fuse_distance_m: float,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Merge one connected group: sessions in the reference frame, landmarks fused along the tree edges
     (a, b, alignment.json or match.json path); writes out_dir (see `sosmatch.workflows.merge`)."""
+    from ...database.match_io import check_match_maps, read_match
     from ...database.session_io import read_session
-    from ..merge import merge_sessions, write_merge_record
+    from ..merge import merge_sessions
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3.from_dict(t) for t in transforms]
+    for a, b, m in edges:  # the pair's match (beside its alignment) must be about these two sessions
+        match_json = Path(m).parent / "match.json"
+        check_match_maps(read_match(match_json), sessions[a].landmarks, sessions[b].landmarks, match_json,
+                         names=(labels[a], labels[b]))
     pairs = [(a, b, read_associations(m)) for a, b, m in edges]
-    res = merge_sessions(sessions, sims, pairs, out_dir, labels=labels, max_fuse_distance_m=max_fuse_distance_m)
-    write_merge_record(res, {"tree_edges": [[labels[a], labels[b], m] for a, b, m in edges]})
+    res = merge_sessions(sessions, sims, pairs, out_dir, labels=labels, max_fuse_distance_m=max_fuse_distance_m,
+                         record={"tree_edges": [[labels[a], labels[b], m] for a, b, m in edges]},
+                         inputs=[m for _, _, m in edges], overwrite=overwrite)
     return {
         "merged": out_dir, "images": res.num_images, "points3D": res.num_points3d,
         "landmarks": res.num_landmarks, "fused": res.num_fused, "rejected_associations": res.num_rejected,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -11,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ...database.outputs import open_output_dir
 from ...plugin.multisession import (
     Edge,
     Sim3,
@@ -45,6 +47,9 @@ class BatchOptions:
     verify_min_ratio: float = 1.2  # (ours) the winner's support over the best disagreeing alignment's
     edge_tolerance_m: float = 5.0  # (ours) two accepted pairs agree if they place sessions within this distance
     progress: bool = True
+    # replace complete outputs made with other parameters or options (OUT itself, and each session, pair and merged
+    # model whose inputs changed); without it such a run is refused (sosmatch.database.outputs)
+    overwrite: bool = False
 
 
 def _valid_session(done: dict[str, Any]) -> bool:
@@ -97,55 +102,67 @@ def run(
     own_executor = executor is None
     executor = executor or LocalExecutor(1)
     flights = discover_flights(flights_dir, exclude=(out_dir,))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    state = StateStore(out_dir / "state", out_dir)
     pdict = params_to_dict(params)
-    report = BatchReport(out_dir, executor=executor.describe())
+    identity = fingerprint({"params": pdict, "matcher": (pair_fn or pair_task).__qualname__, **{
+        k: v for k, v in dataclasses.asdict(options).items() if k not in ("progress", "overwrite")}})
     try:
-        # 1-2: map
-        fps, tasks = {}, {}
-        for f in flights:
-            fps[f.name] = fingerprint({"flight": str(f.path.resolve()), "kind": f.kind, "params": pdict,
-                                        "ekf": options.ekf})
-            tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf)
-        sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
-                              options.progress, _valid_session)
-        report.sessions = [{"name": f.name, "kind": f.kind, **sessions[f.name]} for f in flights]
-        mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
-
-        # 3: match
-        chosen = _choose_pairs(mapped, sessions, options.nearest)
-        matcher = pair_fn or pair_task
-        # a custom matcher (pair_fn) returns its own summary; only the default one verifies
-        verify = ({"dof": options.verify_dof, "min_ratio": options.verify_min_ratio,
-                   "final_dof": options.verify_final_dof}
-                  if options.verify and matcher is pair_task else None)
-        pair_fps, pair_tasks = {}, {}
-        for a, b in chosen:
-            key = f"{a}{PAIR_SEP}{b}"
-            pair_fps[key] = fingerprint({"a": fps[a], "b": fps[b], "association": pdict["association"],
-                                          "seed": pdict["seed"], "matcher": matcher.__qualname__,
-                                          "verify": verify})
-            pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
-            if verify is not None:
-                pair_tasks[key] += (verify,)
-        pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
-                           options.progress, _valid_match)
-        failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
-
-        # 4: session graph (marks each pair's in_graph) and merged groups
-        report.groups = _graph_and_merge(report, mapped, sessions, pairs, pair_fps, state, executor, options,
-                                         params, out_dir)
-        report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
-                        for key, rec in pairs.items()]
-        report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
-                          "error": "a session failed to map"}
-                         for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
+        with open_output_dir(out_dir, "batch", identity, inputs=[f.path for f in flights],
+                             overwrite=options.overwrite, legacy_record="report.json") as taken:
+            report = _run_batch(flights, out_dir, params, pdict, executor, options, pair_fn)
+            report.seconds = time.perf_counter() - t0
+            write_report(report)
+            taken.finish()
     finally:
         if own_executor:
             executor.close()
-    report.seconds = time.perf_counter() - t0
-    write_report(report)
+    return report
+
+
+def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, Any], executor: Executor,
+               options: BatchOptions, pair_fn: Any) -> BatchReport:
+    """The stages of `run` inside its taken output directory."""
+    state = StateStore(out_dir / "state", out_dir)
+    report = BatchReport(out_dir, executor=executor.describe())
+    # 1-2: map
+    fps, tasks = {}, {}
+    for f in flights:
+        fps[f.name] = fingerprint({"flight": str(f.path.resolve()), "kind": f.kind, "params": pdict,
+                                    "ekf": options.ekf})
+        tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf,
+                         options.overwrite)
+    sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
+                          options.progress, _valid_session)
+    report.sessions = [{"name": f.name, "kind": f.kind, **sessions[f.name]} for f in flights]
+    mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
+
+    # 3: match
+    chosen = _choose_pairs(mapped, sessions, options.nearest)
+    matcher = pair_fn or pair_task
+    # a custom matcher (pair_fn) returns its own summary; only the default one verifies
+    verify = ({"dof": options.verify_dof, "min_ratio": options.verify_min_ratio,
+               "final_dof": options.verify_final_dof}
+              if options.verify and matcher is pair_task else None)
+    pair_fps, pair_tasks = {}, {}
+    for a, b in chosen:
+        key = f"{a}{PAIR_SEP}{b}"
+        pair_fps[key] = fingerprint({"a": fps[a], "b": fps[b], "association": pdict["association"],
+                                      "seed": pdict["seed"], "matcher": matcher.__qualname__,
+                                      "verify": verify})
+        pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
+        if matcher is pair_task:
+            pair_tasks[key] += (verify, options.overwrite)
+    pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
+                       options.progress, _valid_match)
+    failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
+
+    # 4: session graph (marks each pair's in_graph) and merged groups
+    report.groups = _graph_and_merge(report, mapped, sessions, pairs, pair_fps, state, executor, options,
+                                     params, out_dir)
+    report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
+                    for key, rec in pairs.items()]
+    report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
+                      "error": "a session failed to map"}
+                     for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
     return report
 
 
@@ -201,7 +218,7 @@ def _graph_and_merge(
         merge_tasks[key] = (
             [sessions[names[m]]["session"] for m in order], [names[m] for m in order],
             [ref_from[m].to_dict() for m in order], tree_edges, str(out_dir / "merged" / key),
-            params.association.distance_tolerance_m,
+            params.association.distance_tolerance_m, options.overwrite,
         )
     merged = run_stage(executor, merge_task, merge_tasks, merge_fps, state, "merge", out_dir, "merge groups",
                         options.progress, _valid_merge)

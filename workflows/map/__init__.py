@@ -12,19 +12,21 @@ Stages (docs/ARCHITECTURE.md, "The data walk"):
    (`sosmatch.workflows.triangulation`);
 7. outputs: database.db, sparse/, landmarks.sosmap, landmarks.ply, landmarks.csv, run.json.
 
-Robustness: everything is built in SESSION_DIR/.partial and moved into place at the end (run.json last, so a
-directory with run.json is complete). The per-keyframe results live in SESSION_DIR/.partial/cache/, each
-written atomically, so a killed run resumes where it stopped and ends with the same outputs. An existing
-session made from other inputs is refused unless `overwrite=True`.
+Robustness: SESSION_DIR is taken through `sosmatch.database.outputs` (refusals, lock, marker). Everything is
+built in SESSION_DIR/.partial and moved into place at the end (run.json last, so a directory with run.json is
+complete). The per-keyframe results live in SESSION_DIR/.partial/cache/, each written atomically and valid
+while its image (and the previous keyframe's) is unchanged, so a killed or failed run resumes where it stopped
+and ends with the same outputs. A complete session made from other inputs or parameters is replaced only with
+`overwrite=True`.
 """
 
 from ...plugin.errors import InputError
 from .inputs import IMAGE_EXTENSIONS, MapInputs, input_fingerprints, load_inputs
 from .keyframes import describe_keyframes
-from .output_dir import OUTPUTS, PARTIAL, prepare_output_dir
+from .output_dir import OUTPUTS, PARTIAL
 from .workflow import MapSummary, map_origin, run
 
 __all__ = [
     "IMAGE_EXTENSIONS", "OUTPUTS", "PARTIAL", "InputError", "MapInputs", "MapSummary", "describe_keyframes",
-    "input_fingerprints", "load_inputs", "map_origin", "prepare_output_dir", "run",
+    "input_fingerprints", "load_inputs", "map_origin", "run",
 ]

@@ -14,6 +14,7 @@ import numpy as np
 
 from ...database.cameras import read_cameras_txt
 from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
+from ...database.outputs import sha256_file
 from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
@@ -127,19 +128,24 @@ def load_inputs(
     return MapInputs([p for _, p in keep], sub, cam, epsg, sources)
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def input_fingerprints(inputs: MapInputs) -> dict[str, str]:
-    """sha256 of the images (names + contents), the poses (as used, full precision) and the camera."""
-    h_img = hashlib.sha256()
+def image_digests(inputs: MapInputs) -> list[str]:
+    """sha256 of every image's contents, in the order of `inputs.image_paths` (an unreadable one: InputError)."""
+    digests = []
     for p in inputs.image_paths:
-        h_img.update(p.name.encode() + b"\0" + _sha256_file(p).encode() + b"\n")
+        try:
+            digests.append(sha256_file(p))
+        except OSError as exc:
+            raise InputError(f"cannot read image: {exc.strerror or exc}", p) from None
+    return digests
+
+
+def input_fingerprints(inputs: MapInputs, digests: list[str] | None = None) -> dict[str, str]:
+    """sha256 of the images (names + contents), the poses (as used, full precision) and the camera.
+
+    `digests`: the images' `image_digests`, when the caller has them already."""
+    h_img = hashlib.sha256()
+    for p, d in zip(inputs.image_paths, digests if digests is not None else image_digests(inputs)):
+        h_img.update(p.name.encode() + b"\0" + d.encode() + b"\n")
     h_pose = hashlib.sha256()
     h_pose.update("\n".join(inputs.poses.names).encode())
     h_pose.update(np.ascontiguousarray(inputs.poses.rotations).tobytes())
@@ -152,6 +158,13 @@ def input_fingerprints(inputs: MapInputs) -> dict[str, str]:
     combined = hashlib.sha256((h_img.hexdigest() + h_pose.hexdigest() + h_cam.hexdigest()).encode())
     return {"images": h_img.hexdigest(), "poses": h_pose.hexdigest(), "camera": h_cam.hexdigest(),
             "inputs": combined.hexdigest()}
+
+
+def input_paths(inputs: MapInputs) -> list[Path]:
+    """The files and folders a map reads (for the output-is-not-an-input check)."""
+    paths = {p.parent for p in inputs.image_paths}
+    paths |= {Path(s) for s in inputs.sources.values() if Path(s).exists()}
+    return sorted(paths)
 
 
 def hash_json(obj: Any) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +103,7 @@ def describe_keyframes(
     on_keyframe: Callable[[int], None] | None = None,
     workers: int = 1,
     masks_for: Callable[[str, np.ndarray], Any] | None = None,
+    digests: Sequence[str] | None = None,
 ) -> tuple[list[Any], list[tuple[float, float]], int]:
     """Segmentation + mask description + motion statistics per keyframe, resumed from the cache.
 
@@ -112,7 +113,9 @@ def describe_keyframes(
     Returns (MaskFeatures per keyframe, (mu_p, sigma_p) per keyframe (entry 0 is (0, 0)), number of keyframes
     taken from the cache). `on_keyframe(k)` is called, in keyframe order, after keyframe k is stored (tests
     interrupt there). `masks_for(image_name, image) -> MaskSet` replaces the segmentation backend (benchmarks
-    use ground-truth label masks; it must be picklable when `workers` > 1).
+    use ground-truth label masks; it must be picklable when `workers` > 1). `digests`: the images' contents
+    (`inputs.image_digests`); with them, an entry is valid exactly while its image and the previous keyframe's
+    are unchanged, so a run that failed on one bad image resumes every other keyframe once it is fixed.
     """
     from tqdm import tqdm
 
@@ -124,6 +127,8 @@ def describe_keyframes(
         name = inputs.poses.names[idx]
         prev_name = inputs.poses.names[keyframes[k - 1]] if k else ""
         key = f"{cache_key}:{k}:{name}:{prev_name}"
+        if digests is not None:
+            key += f":{digests[idx]}:{digests[keyframes[k - 1]] if k else ''}"
         entry = _cache_path(cache_dir, k, name)
         hit = _load_cached(entry, key) if entry.exists() else None
         if hit is not None:
@@ -145,11 +150,10 @@ def describe_keyframes(
             if on_keyframe is not None:
                 on_keyframe(k)
     else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
+        from ..executors import process_pool
 
-        ctx = multiprocessing.get_context("spawn")  # no fork of a process holding pycolmap/OpenCV threads
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+        # spawn (no fork of a process holding pycolmap/OpenCV threads); the workers die with this process
+        with process_pool(workers, _worker_init) as pool:
             futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for))
                        for k, path, prev_path, entry, key in todo]
             try:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import logging
 import platform
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,11 +22,12 @@ from ...database.colmap_db import (
 )
 from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, write_landmark_map
+from ...database.outputs import OutputDir, fingerprint
 from ...plugin import __version__
 from ...plugin.params import Params, params_to_dict
-from .inputs import MapInputs, hash_json, input_fingerprints
+from .inputs import MapInputs, hash_json, image_digests, input_fingerprints, input_paths
 from .keyframes import CACHE_VERSION, describe_keyframes
-from .output_dir import OUTPUTS, prepare_output_dir, publish
+from .output_dir import OUTPUTS, PARTIAL, RECORD, take_output_dir
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ def run(
         params: method parameters.
         inputs: images, poses and camera.
         out_dir: the session directory (created; see the module doc for resume and refusal rules).
-        overwrite: replace a session made from other inputs, or write into a foreign non-empty directory.
+        overwrite: replace a complete session made from other inputs or parameters.
         text_model: write sparse/ as a text model instead of binary.
         keep_cache: keep the per-keyframe cache (SESSION_DIR/.partial/cache) after success (default: delete).
         progress: show tqdm progress bars.
@@ -96,6 +96,31 @@ def run(
         masks_for: `(image_name, image) -> MaskSet` instead of the segmentation backend (benchmarks: ground
             truth masks). Recorded in run.json; the cache is kept apart from backend results.
     """
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    out_dir = Path(out_dir)
+    digests = image_digests(inputs)
+    fps = input_fingerprints(inputs, digests)
+    pdict = params_to_dict(params)
+    masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
+    # what the outputs depend on: a complete session of another identity is replaced only with `overwrite`
+    identity = fingerprint({"inputs": fps["inputs"], "params": pdict, "text_model": text_model, "masks": masks_source})
+    with take_output_dir(out_dir, identity, input_paths(inputs), overwrite) as out:
+        timings["inputs"] = time.perf_counter() - t_start
+        summary = _map_into(out, params, inputs, fps, digests, pdict, masks_source, text_model, progress,
+                            on_keyframe, workers, masks_for, timings, t_start)
+        out.finish(keep_staging=keep_cache)
+    if keep_cache:
+        log.info("per-keyframe cache kept in %s", out_dir / PARTIAL / "cache")
+    return summary
+
+
+def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, str], digests: list[str],
+              pdict: dict[str, Any], masks_source: str, text_model: bool, progress: bool,
+              on_keyframe: Callable[[int], None] | None, workers: int,
+              masks_for: Callable[[str, np.ndarray], Any] | None, timings: dict[str, float],
+              t_start: float) -> MapSummary:
+    """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
     import pycolmap
 
     from ...database.session_io import format_landmarks_csv
@@ -104,22 +129,16 @@ def run(
     from ...plugin.tracking import track_masks
     from ..triangulation import triangulate_landmarks
 
-    t_start = time.perf_counter()
-    timings: dict[str, float] = {}
-    out_dir = Path(out_dir)
-    fps = input_fingerprints(inputs)
-    partial = prepare_output_dir(out_dir, fps["inputs"], overwrite)
-    timings["inputs"] = time.perf_counter() - t_start
-    pdict = params_to_dict(params)
-    masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
-    cache_key = hash_json({"v": CACHE_VERSION, "inputs": fps["inputs"], "seg": pdict["segmentation"],
-                            "kf": pdict["keyframes"], "masks": masks_source})
+    partial = out.staging
+    camera = inputs.camera
+    cache_key = hash_json({"v": CACHE_VERSION, "seg": pdict["segmentation"], "kf": pdict["keyframes"],
+                           "masks": masks_source, "size": [camera.width, camera.height]})
 
     t = time.perf_counter()
     keyframes = select_keyframes(inputs.poses.centers, params.keyframes.interval_m)
     kf_poses = inputs.poses.subset(keyframes)
     features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
-                                                  progress, on_keyframe, workers, masks_for)
+                                                  progress, on_keyframe, workers, masks_for, digests)
     timings["keyframes"] = time.perf_counter() - t
 
     from tqdm import tqdm
@@ -128,7 +147,6 @@ def run(
     t = time.perf_counter()
     # Tracking and the epipolar check are pinhole geometry: they see undistorted centroids and covariances through
     # the equivalent pinhole camera; the database and the model keep the real camera and the real keypoints.
-    camera = inputs.camera
     gate_camera = camera.pinhole()
     gate_features = [undistort_features(f, camera) for f in features]
     tracking = track_masks(gate_features, gate_camera, kf_poses, motion, params.tracking)
@@ -143,7 +161,7 @@ def run(
     pairs, rejected = verify_associations(gate_camera, kf_poses, centroids, pairs,
                                           params.tracking.epipolar_margin_px)
     keypoints = [affine_keypoints(f.centroids, f.covariances) for f in features]
-    db_summary = write_colmap_database(partial / "database.db", camera, kf_poses.names, keypoints, pairs)
+    db_summary = write_colmap_database(out.staged("database.db"), camera, kf_poses.names, keypoints, pairs)
     timings["database"] = time.perf_counter() - t
     stages.update()
     stages.set_description("triangulation")
@@ -157,13 +175,13 @@ def run(
     stages.set_description("outputs")
 
     t = time.perf_counter()
-    write_model(landmarks.reconstruction, partial / "sparse", text=text_model)
+    write_model(landmarks.reconstruction, out.staged("sparse"), text=text_model)
     origin = map_origin(landmarks.positions, kf_poses.centers)
     lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg)
-    map_bytes = write_landmark_map(partial / "landmarks.sosmap", lmap)
-    write_ply(partial / "landmarks.ply", landmarks.positions - origin, landmarks.sizes_m, origin, inputs.epsg)
+    map_bytes = write_landmark_map(out.staged("landmarks.sosmap"), lmap)
+    write_ply(out.staged("landmarks.ply"), landmarks.positions - origin, landmarks.sizes_m, origin, inputs.epsg)
     image_names = [[kf_poses.names[k] for k in obs[:, 0]] for obs in landmarks.observations]
-    write_text_atomic(partial / "landmarks.csv",
+    write_text_atomic(out.staged("landmarks.csv"),
                       format_landmarks_csv(lmap, landmarks.point3d_ids, landmarks.num_observations, image_names))
     timings["outputs"] = time.perf_counter() - t
     stages.update()
@@ -179,7 +197,7 @@ def run(
         "keyframes_from_cache": cached,
         **{f"points_{k}": v for k, v in landmarks.counts.items()},
     }
-    summary = MapSummary(out_dir, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
+    summary = MapSummary(out.path, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
                          len(landmarks), map_bytes, timings["total"], cached, counts, timings)
     record = {
         "format": "sosmatch-map-run", "version": 1,
@@ -191,10 +209,7 @@ def run(
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         "counts": counts, "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
-    write_text_atomic(partial / "run.json", json.dumps(record, indent=2) + "\n")
-    publish(partial, out_dir, OUTPUTS)
-    if keep_cache:
-        log.info("per-keyframe cache kept in %s", partial / "cache")
-    else:
-        shutil.rmtree(partial, ignore_errors=True)
+    write_text_atomic(out.staged(RECORD), json.dumps(record, indent=2) + "\n")
+    (out.path / RECORD).unlink(missing_ok=True)  # published last: present = the outputs beside it are complete
+    out.publish(OUTPUTS, last=RECORD)
     return summary

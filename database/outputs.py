@@ -1,0 +1,425 @@
+"""Where every command's output goes: one mechanism, so that nothing is ever lost.
+
+The rules (README "Errors"; tests/test_outputs.py keeps them):
+1. A command never deletes or replaces anything it did not create. An output directory is new, empty, or a
+   previous output of the same command: its marker file `.sosmatch-output.json`, written by sosmatch when it
+   takes the directory, names the command. An output file is new, or a file the same command wrote before
+   and nobody changed since: the directory's registry `.sosmatch-files.json` lists it with its sha256.
+2. An output is never an input, never inside an input, and never holds one (compared as resolved paths).
+3. Replacing a previous *complete* output of the same command made from other inputs or settings (another
+   `identity`) needs `overwrite=True` (`--overwrite`). An incomplete one (a killed or failed run) is resumed or
+   restarted without it: a failed run never blocks its own retry. The same identity replaces freely: the
+   outputs are deterministic, so nothing is lost.
+4. One run at a time per output directory: an exclusive lock (flock on `.sosmatch-output.lock`, present while
+   a run holds it; the kernel releases it when the process dies) refuses a second concurrent run.
+5. Files are written atomically (`sosmatch.database.atomic`); the one place where a directory is replaced is
+   here (`OutputDir.replace_dir`, `OutputDir.publish`), and only inside a directory the command owns.
+   Temporaries of killed runs are removed by the next run.
+
+Python:
+
+    with open_output_dir(out, "match", identity, inputs=[a, b], overwrite=False) as out_dir:
+        write_text_atomic(out_dir.path / "match.json", text)
+        out_dir.finish()                       # the output is complete (until then it is resumable)
+
+    files = OutputFiles([geojson], "export", identity, inputs=[source])   # checked before any work
+    files.write(geojson, text)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..plugin.errors import InputError
+from .atomic import atomic_path, clean_stale_temporaries, locked_temp_dir, write_text_atomic
+
+MARKER = ".sosmatch-output.json"
+LOCK = ".sosmatch-output.lock"
+STAGING = ".partial"
+FILES_REGISTRY = ".sosmatch-files.json"
+FILES_LOCK = ".sosmatch-files.lock"
+MARKER_FORMAT = "sosmatch output v1"
+FILES_FORMAT = "sosmatch output files v1"
+_OURS = {MARKER, LOCK}  # present in a directory that is otherwise empty: still empty
+
+
+def fingerprint(obj: Any) -> str:
+    """sha256 of the canonical JSON of `obj` (keys sorted; other objects by str): an output's identity."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def sha256_file(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _resolved(path: str | Path) -> Path:
+    return Path(os.path.realpath(os.path.expanduser(str(path))))
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return path == folder or folder in path.parents
+
+
+def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
+    """Refuse an output that is an input, lies inside an input directory or holds an input (resolved paths)."""
+    out = _resolved(output)
+    for inp in inputs:
+        if inp is None:
+            continue
+        src = _resolved(inp)
+        if out == src:
+            raise InputError("output is also an input; write it elsewhere", output)
+        if src.is_dir() and _inside(out, src):
+            raise InputError(f"output is inside the input {inp}; write it elsewhere", output)
+        if _inside(src, out):
+            raise InputError(f"output would hold the input {inp}; write it elsewhere", output)
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError, RecursionError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+@dataclass(frozen=True)
+class PreviousOutput:
+    """What an output directory held when a run took it."""
+
+    state: str  # "new" (absent or empty), "incomplete" (ours, unfinished), "complete" (ours, finished)
+    identity: str | None = None  # the identity of the complete output (None: unknown, from an older sosmatch)
+
+
+def _previous(path: Path, command: str, legacy_record: str | None) -> PreviousOutput:
+    """Classify `path` for `command` without changing anything; InputError when it is not ours to write."""
+    if not path.exists():
+        return PreviousOutput("new")
+    if not path.is_dir():
+        raise InputError("output path exists and is not a directory", path)
+    marker = _read_json(path / MARKER)
+    if marker is None:
+        try:
+            names = sorted(p.name for p in path.iterdir() if p.name not in _OURS)
+        except OSError as exc:
+            raise InputError(f"cannot read output directory: {exc.strerror or exc}", path) from None
+        if not names:
+            return PreviousOutput("new")
+        if legacy_record is not None:
+            record = _read_json(path / legacy_record)
+            if record and str(record.get("format", "")).startswith("sosmatch"):
+                return PreviousOutput("complete", None)  # written before markers existed: complete, identity unknown
+        raise InputError(f"output directory is not empty and is not a `sosmatch {command}` output ({names[0]}, ...);"
+                         " sosmatch never replaces what it did not create: choose a new or empty directory", path)
+    if marker.get("format") != MARKER_FORMAT or not isinstance(marker.get("command"), str):
+        raise InputError(f"unreadable output marker {MARKER}; choose a new or empty directory", path)
+    if marker["command"] != command:
+        raise InputError(f"output directory holds a `sosmatch {marker['command']}` output; `sosmatch {command}` "
+                         "never replaces it: choose a new or empty directory", path)
+    if marker.get("complete"):
+        return PreviousOutput("complete", marker.get("identity"))
+    return PreviousOutput("incomplete", marker.get("identity"))
+
+
+def _lock_holder(lock_path: Path) -> str:
+    try:
+        return lock_path.read_text(encoding="utf-8").strip() or "another process"
+    except OSError:
+        return "another process"
+
+
+def _acquire_lock(lock_path: Path, what: str) -> int:
+    """flock `lock_path` exclusively without waiting; InputError naming the holder if another run has it.
+
+    The lock file is removed when released (`_release_lock`); a lock taken on a file that was removed
+    meanwhile is not a lock, so the inode is checked after locking and the attempt repeated."""
+    while True:
+        try:
+            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise InputError(f"cannot write output directory: {exc.strerror or exc}", lock_path.parent) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = _lock_holder(lock_path)
+            os.close(fd)
+            raise InputError(f"output directory is in use by {holder}; wait for it to finish (or stop it)",
+                             lock_path.parent) from None
+        try:
+            same = os.stat(lock_path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.write(fd, f"sosmatch {what} (pid {os.getpid()})\n".encode())
+    return fd
+
+
+def _release_lock(lock_path: Path, fd: int) -> None:
+    try:
+        os.unlink(lock_path)  # while still held: a waiting run then finds the file gone and retries
+    except OSError:
+        pass
+    os.close(fd)
+
+
+class OutputDir:
+    """An output directory taken by one run of one command (see the module doc); use `open_output_dir`."""
+
+    def __init__(self, path: Path, command: str, identity: str, previous: PreviousOutput, lock_fd: int,
+                 created: Sequence[Path] = ()) -> None:
+        self.path = path
+        self.command = command
+        self.identity = identity
+        self.previous = previous
+        self._lock_fd: int | None = lock_fd
+        self._created = list(created)  # directories this run created, outermost first
+
+    @property
+    def resumed(self) -> bool:
+        """True when an unfinished run of this command left the directory (its staging area may be reused)."""
+        return self.previous.state == "incomplete"
+
+    @property
+    def was_complete(self) -> bool:
+        """True when the directory already held this very output (same identity), complete."""
+        return self.previous.state == "complete" and self.previous.identity == self.identity
+
+    @property
+    def staging(self) -> Path:
+        """OUT/.partial: where a command builds what it publishes at the end (kept across a killed run)."""
+        d = self.path / STAGING
+        d.mkdir(exist_ok=True)
+        return d
+
+    def staged(self, name: str) -> Path:
+        """OUT/.partial/NAME, with whatever a killed run left there removed (the staging area is ours)."""
+        p = self.staging / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+        return p
+
+    def clear_staging(self) -> None:
+        shutil.rmtree(self.path / STAGING, ignore_errors=True)
+
+    def _write_marker(self, complete: bool) -> None:
+        from ..plugin import __version__
+
+        write_text_atomic(self.path / MARKER, json.dumps(
+            {"format": MARKER_FORMAT, "command": self.command, "identity": self.identity, "complete": complete,
+             "sosmatch": __version__}, indent=1) + "\n")
+
+    def _replace_entry(self, src: Path, name: str) -> None:
+        """Move `src` onto OUT/NAME; an existing directory there (ours: this is our output) is swapped out.
+
+        An entry of the other kind (a directory where the command writes a file, or a file where it writes a
+        directory) was not made by this command and is refused."""
+        dst = self.path / name
+        exists = dst.exists() or dst.is_symlink()
+        if exists and (dst.is_dir() and not dst.is_symlink()) != src.is_dir():
+            found, wanted = ("a directory", "a file") if dst.is_dir() else ("a file", "a directory")
+            raise InputError(f"is {found} where `sosmatch {self.command}` writes {wanted}; not replaced (remove it "
+                             "or choose another output directory)", dst)
+        if exists and src.is_dir():
+            old, fd = locked_temp_dir(dst)
+            try:
+                os.replace(dst, old / name)
+                os.replace(src, dst)
+            finally:
+                shutil.rmtree(old, ignore_errors=True)
+                os.close(fd)
+        else:
+            os.replace(src, dst)
+
+    @contextlib.contextmanager
+    def replace_dir(self, name: str) -> Iterator[Path]:
+        """Yield a new, empty directory; on success it replaces OUT/NAME (a previous one is deleted)."""
+        tmp, fd = locked_temp_dir(self.path / name)
+        try:
+            target = tmp / name
+            target.mkdir()
+            yield target
+            self._replace_entry(target, name)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+            os.close(fd)
+
+    def publish(self, names: Sequence[str], last: str | None = None) -> None:
+        """Move the staged entries NAMES (then `last`, the record whose presence means complete) into OUT."""
+        staging = self.path / STAGING
+        for name in [*names, *([last] if last else [])]:
+            self._replace_entry(staging / name, name)
+
+    def finish(self, keep_staging: bool = False) -> None:
+        """Mark the output complete (a later run with another identity then needs overwrite)."""
+        if not keep_staging:
+            self.clear_staging()
+        self._write_marker(complete=True)
+
+    def close(self) -> None:
+        """Release the directory (idempotent)."""
+        if self._lock_fd is not None:
+            _release_lock(self.path / LOCK, self._lock_fd)
+            self._lock_fd = None
+
+    def _discard_if_untouched(self) -> None:
+        """After a failed run: remove what this run created if it wrote nothing else (a bad input then leaves
+        no trace); a directory holding anything more (e.g. a resumable cache) stays."""
+        if not self._created:
+            return
+        with contextlib.suppress(OSError):
+            (self.path / STAGING).rmdir()
+        try:
+            left = {p.name for p in self.path.iterdir()}
+        except OSError:
+            return
+        if left <= _OURS:
+            (self.path / MARKER).unlink(missing_ok=True)
+            self.close()
+            for d in reversed(self._created):
+                with contextlib.suppress(OSError):
+                    d.rmdir()
+
+    def __enter__(self) -> OutputDir:
+        return self
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is not None:
+            self._discard_if_untouched()
+        self.close()
+
+
+def open_output_dir(
+    path: str | Path,
+    command: str,
+    identity: str,
+    *,
+    inputs: Iterable[str | Path | None] = (),
+    overwrite: bool = False,
+    legacy_record: str | None = None,
+) -> OutputDir:
+    """Take directory `path` for one run of `command` producing the output `identity` (see the module doc).
+
+    Refuses (InputError, nothing changed): a path that is a file or cannot be created, an input (or inside
+    one, or holding one), a non-empty directory that is not this command's output, a complete output of
+    another identity unless `overwrite`, and a directory another run is using. `legacy_record`: the name of
+    the command's JSON record (format "sosmatch ...") that marks an output written before markers existed.
+    Cleans the stale temporaries of killed runs. Returns the taken directory (a context manager that releases
+    the lock).
+    """
+    path = Path(path)
+    check_not_input(path, list(inputs))
+    previous = _previous(path, command, legacy_record)
+    if previous.state == "complete" and previous.identity != identity and not overwrite:
+        raise InputError(f"output directory holds a complete `sosmatch {command}` output made from other inputs or "
+                         "settings; use --overwrite to replace it (or choose another directory)", path)
+    created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create output directory: {exc.strerror or exc}", path) from None
+    fd = _acquire_lock(path / LOCK, command)
+    try:
+        again = _previous(path, command, legacy_record)  # under the lock: a run that just finished counts
+        if again != previous and again.state == "complete" and again.identity != identity and not overwrite:
+            raise InputError(f"output directory now holds a complete `sosmatch {command}` output made from other "
+                             "inputs or settings; use --overwrite to replace it", path)
+        out = OutputDir(path, command, identity, again, fd, created)
+        clean_stale_temporaries(path)
+        if (path / STAGING).is_dir():
+            clean_stale_temporaries(path / STAGING, recursive=True)
+        out._write_marker(complete=out.was_complete)
+    except OSError as exc:
+        _release_lock(path / LOCK, fd)
+        raise InputError(f"cannot write output directory: {exc.strerror or exc}", path) from None
+    except BaseException:
+        _release_lock(path / LOCK, fd)
+        raise
+    return out
+
+
+class OutputFiles:
+    """Output files of one run of one command (see the module doc, rule 1): checked when made, before any work,
+    and again when each is written."""
+
+    def __init__(self, paths: Iterable[str | Path], command: str, identity: str, *,
+                 inputs: Iterable[str | Path | None] = (), overwrite: bool = False) -> None:
+        self.paths = [Path(p) for p in paths]
+        self.command = command
+        self.identity = identity
+        self.inputs = list(inputs)
+        self.overwrite = overwrite
+        if len({_resolved(p) for p in self.paths}) != len(self.paths):
+            raise InputError("the same file is given for two outputs", self.paths[0])
+        for p in self.paths:
+            self._check(p, _read_json(p.parent / FILES_REGISTRY) or {})
+
+    def _check(self, path: Path, registry: Mapping[str, Any]) -> None:
+        check_not_input(path, self.inputs)
+        if path.is_dir():
+            raise InputError("output path is a directory; give a file name", path)
+        if not (path.exists() or path.is_symlink()):
+            return
+        entry = (registry.get("files") or {}).get(path.name) if isinstance(registry.get("files"), dict) else None
+        ours = (isinstance(entry, dict) and entry.get("command") == self.command and not path.is_symlink()
+                and entry.get("sha256") == _sha256_or_none(path))
+        if not ours:
+            raise InputError(f"output file exists and was not written by `sosmatch {self.command}` (or was changed "
+                             "since); sosmatch never replaces what it did not create: remove it or choose another "
+                             "name", path)
+        if entry.get("identity") != self.identity and not self.overwrite:
+            raise InputError(f"output file holds a `sosmatch {self.command}` output made from other inputs or "
+                             "settings; use --overwrite to replace it", path)
+
+    def write(self, path: str | Path, data: bytes | str) -> None:
+        """Write one of the output files atomically and record it in its directory's registry."""
+        path = Path(path)
+        if path not in self.paths:
+            raise ValueError(f"{path} is not one of this run's output files")
+        payload = data.encode("utf-8") if isinstance(data, str) else data
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(path.parent / FILES_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise InputError(f"cannot write output: {exc.strerror or exc}", path) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # short: other writers of this directory wait
+            registry = _read_json(path.parent / FILES_REGISTRY) or {}
+            self._check(path, registry)
+            with atomic_path(path) as tmp:
+                tmp.write_bytes(payload)
+            files = registry.get("files") if isinstance(registry.get("files"), dict) else {}
+            files[path.name] = {"command": self.command, "identity": self.identity,
+                                "sha256": hashlib.sha256(payload).hexdigest()}
+            write_text_atomic(path.parent / FILES_REGISTRY,
+                              json.dumps({"format": FILES_FORMAT, "files": files}, indent=1, sort_keys=True) + "\n")
+        except OSError as exc:
+            raise InputError(f"cannot write output: {exc.strerror or exc}", path) from None
+        finally:
+            os.close(fd)
+
+
+def _sha256_or_none(path: Path) -> str | None:
+    try:
+        return sha256_file(path)
+    except OSError:
+        return None

@@ -1,0 +1,336 @@
+"""Nothing lost, ever: the shared output mechanism (`sosmatch.database.outputs`) and every command through it.
+
+Each test is one rule of README "Errors": no command deletes or replaces what it did not create, an output is
+never an input, a complete output of other inputs needs --overwrite, an unfinished one never blocks its retry,
+one run at a time per output directory, killed runs leave nothing that the next run does not clean.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sosmatch.database.atomic import TMP_LOCK, atomic_path, write_text_atomic
+from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
+from sosmatch.database.outputs import MARKER, OutputFiles, open_output_dir
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.multisession import Sim3
+from sosmatch.tools.cli import main
+from sosmatch.tools.toy_sessions import lawnmower, make_world, toy_match_json, write_toy_session, yaw_transform
+
+SOSMATCH = str(Path(sys.executable).parent / "sosmatch")
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    """Every file below root with its bytes (what a refused command must leave untouched)."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _one_line_error(capsys, *argv: object) -> str:
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    root = tmp_path_factory.mktemp("toy")
+    world = make_world(200, seed=5)
+    a = write_toy_session(root / "A", world, lawnmower(20, 120, 20, 120, 60, 40, 10), Sim3.identity(), seed=1)
+    b = write_toy_session(root / "B", world, lawnmower(70, 180, 70, 180, 60, 40, 10), yaw_transform(30, (5, 2, 0)),
+                          seed=2)
+    match = toy_match_json(a, b, root / "AB" / "match.json")
+    return root, a.path, b.path, match
+
+
+# --- rule 1: never delete or replace what the command did not create -------------------------------------------
+
+
+def test_export_never_replaces_its_input_or_a_directory(toy, tmp_path, capsys):
+    root, a, _, _ = toy
+    before = _tree(a)
+    assert "is also an input" in _one_line_error(capsys, "export", "--csv", a, "--out", a)
+    assert "inside the input" in _one_line_error(capsys, "export", "--csv", a, "--out", a / "landmarks.csv")
+    other = tmp_path / "d"
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    assert "is a directory" in _one_line_error(capsys, "export", "--ply", a, "--out", other)
+    assert _tree(a) == before and _tree(other) == {"keep.txt": b"mine"}
+
+
+def test_export_replaces_only_its_own_unchanged_files(toy, tmp_path, capsys):
+    _, a, b, _ = toy
+    out = tmp_path / "l.csv"
+    out.write_text("somebody else's table\n")
+    for extra in ((), ("--overwrite",)):
+        assert "not written by `sosmatch export`" in _one_line_error(capsys, "export", "--csv", a, "--out", out,
+                                                                     *extra)
+    assert out.read_text() == "somebody else's table\n"
+    out.unlink()
+    assert main(["export", "--csv", str(a), "--out", str(out)]) == 0
+    first = out.read_bytes()
+    assert main(["export", "--csv", str(a), "--out", str(out)]) == 0  # the same export again: replaced freely
+    assert out.read_bytes() == first
+    capsys.readouterr()
+    assert "--overwrite" in _one_line_error(capsys, "export", "--csv", b, "--out", out)  # another map
+    assert main(["export", "--csv", str(b), "--out", str(out), "--overwrite"]) == 0 and out.read_bytes() != first
+    out.write_text(out.read_text() + "# my note\n")  # edited by the user: no longer ours to replace
+    assert "changed since" in _one_line_error(capsys, "export", "--csv", a, "--out", out, "--overwrite")
+
+
+def test_merge_never_writes_into_an_input_or_another_commands_output(toy, tmp_path, capsys):
+    root, a, b, match = toy
+    before = _tree(a)
+    assert "also an input" in _one_line_error(capsys, "merge", a, b, "--match", match, "--out", a)
+    assert "inside the input" in _one_line_error(capsys, "merge", a, b, "--match", match, "--out", a / "merged")
+    mapped = tmp_path / "mapped"
+    with open_output_dir(mapped, "map", "some map") as taken:  # a `sosmatch map` session
+        write_text_atomic(mapped / "run.json", "{}")
+        taken.finish()
+    assert "holds a `sosmatch map` output" in _one_line_error(capsys, "merge", a, b, "--match", match, "--out",
+                                                              mapped, "--overwrite")
+    foreign = tmp_path / "photos"
+    foreign.mkdir()
+    (foreign / "holiday.jpg").write_bytes(b"jpeg")
+    assert "never replaces what it did not create" in _one_line_error(capsys, "merge", a, b, "--match", match,
+                                                                      "--out", foreign, "--overwrite")
+    assert _tree(a) == before and _tree(foreign) == {"holiday.jpg": b"jpeg"}
+    assert (mapped / "run.json").read_text() == "{}"
+
+
+def test_a_directory_entry_of_the_other_kind_is_not_replaced(toy, tmp_path, capsys):
+    _, a, b, match = toy
+    out = tmp_path / "M"
+    assert main(["merge", str(a), str(b), "--match", str(match), "--out", str(out)]) == 0
+    (out / "landmarks.csv").unlink()
+    (out / "landmarks.csv").mkdir()  # a user's folder where merge writes a file
+    (out / "landmarks.csv" / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert "is a directory where `sosmatch merge` writes a file" in _one_line_error(
+        capsys, "merge", a, b, "--match", match, "--out", out)
+    assert (out / "landmarks.csv" / "notes.txt").read_text() == "mine"
+
+
+# --- rule 3: a complete output of other inputs needs --overwrite; the same one is re-made freely ----------------
+
+
+def test_complete_output_of_other_inputs_needs_overwrite(toy, tmp_path, capsys):
+    _, a, b, match = toy
+    out = tmp_path / "M"
+    assert main(["merge", str(a), str(b), "--match", str(match), "--out", str(out)]) == 0
+    first = _tree(out)
+    assert main(["merge", str(a), str(b), "--match", str(match), "--out", str(out)]) == 0  # same inputs: fine
+    capsys.readouterr()
+    err = _one_line_error(capsys, "merge", a, b, "--match", match, "--out", out, "--set",
+                          "association.distance_tolerance_m=3")
+    assert "use --overwrite" in err
+    assert _tree(out).keys() == first.keys() and (out / "landmarks.sosmap").read_bytes() == first[
+        "landmarks.sosmap"]
+    assert main(["merge", str(a), str(b), "--match", str(match), "--out", str(out), "--overwrite", "--set",
+                 "association.distance_tolerance_m=3"]) == 0
+
+
+def test_unfinished_output_is_resumed_without_overwrite(tmp_path):
+    out = tmp_path / "o"
+    with pytest.raises(RuntimeError):
+        with open_output_dir(out, "match", "first settings") as taken:
+            write_text_atomic(out / "associations.csv", "half\n")
+            raise RuntimeError("killed")
+    assert json.loads((out / MARKER).read_text())["complete"] is False
+    with open_output_dir(out, "match", "other settings") as taken:  # no overwrite needed: nothing was complete
+        assert taken.resumed
+        taken.finish()
+    with pytest.raises(InputError, match="use --overwrite"):
+        open_output_dir(out, "match", "third settings")
+
+
+def test_a_failed_run_that_wrote_nothing_leaves_nothing(tmp_path):
+    out = tmp_path / "a" / "b"
+    with pytest.raises(InputError):
+        with open_output_dir(out, "match", "x"):
+            raise InputError("bad input")
+    assert not (tmp_path / "a").exists()
+
+
+# --- rule 4: one run at a time ------------------------------------------------------------------------------------
+
+HOLDER = textwrap.dedent("""
+    import sys
+    from sosmatch.database.outputs import open_output_dir
+    with open_output_dir(sys.argv[1], "merge", "x"):
+        print("held", flush=True)
+        sys.stdin.read()
+""")
+
+
+def test_second_concurrent_run_is_refused_and_a_killed_holder_releases(toy, tmp_path, capsys):
+    _, a, b, match = toy
+    out = tmp_path / "merged"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(out)], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        err = _one_line_error(capsys, "merge", a, b, "--match", match, "--out", out)
+        assert f"in use by sosmatch merge (pid {holder.pid})" in err
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    assert main(["merge", str(a), str(b), "--match", str(match), "--out", str(out)]) == 0  # the kernel released it
+
+
+# --- rule 5: killed writers' temporaries are cleaned by the next write ------------------------------------------
+
+
+def test_stale_temporaries_are_cleaned_and_live_ones_kept(tmp_path):
+    import fcntl
+
+    target = tmp_path / "x.json"
+    stale, live = tmp_path / ".x.json.dead.tmp", tmp_path / ".x.json.live.tmp"
+    for d in (stale, live):
+        d.mkdir()
+        (d / TMP_LOCK).touch()
+        (d / "x.json").write_text("half")
+    fd = os.open(live / TMP_LOCK, os.O_RDWR)
+    fcntl.flock(fd, fcntl.LOCK_EX)  # a writer still at work
+    try:
+        foreign = tmp_path / ".x.json.mine.tmp"
+        foreign.mkdir()
+        (foreign / "data").write_text("not a sosmatch temporary")
+        write_text_atomic(target, "{}")
+        assert not stale.exists() and live.exists() and (foreign / "data").exists()
+    finally:
+        os.close(fd)
+    with pytest.raises(InputError, match="is a directory"):
+        with atomic_path(tmp_path) as tmp:
+            tmp.write_text("never over a directory")
+
+
+def test_killed_synth_leaves_nothing_the_rerun_does_not_clean(tmp_path, monkeypatch):
+    monkeypatch.setenv("SOSMATCH_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "s"
+    args = [SOSMATCH, "synth", "--out", str(out), "--frames", "40", "--world-size", "240", "--line-length", "60",
+            "--width", "160", "--height", "120", "-q"]
+    proc = subprocess.Popen(args, env={**os.environ, "SOSMATCH_CACHE_DIR": str(tmp_path / "cache")})
+    deadline = time.monotonic() + 120
+    while not any((out / ".partial" / "images").glob("*.jpg")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert (out / ".partial").exists()  # killed while rendering
+    assert subprocess.run(args, capture_output=True).returncode == 0
+    left = [p for p in tmp_path.rglob("*") if p.name.endswith(".tmp") or p.name == ".partial"]
+    assert not left, left
+    assert (out / "session.json").is_file() and len(list((out / "images").glob("*.jpg"))) == 40
+
+
+# --- outputs that are files where directories go, or cannot be made (one-line errors) ---------------------------
+
+
+def test_output_path_that_is_a_file_or_cannot_be_made(toy, tmp_path, capsys):
+    _, a, b, match = toy
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    for out, problem in ((blocker, "not a directory"), (blocker / "sub", "cannot create output directory")):
+        _one_line_error(capsys, "match", a, b, "--out", out)
+        assert problem in _one_line_error(capsys, "merge", a, b, "--match", match, "--out", out)
+        assert problem in _one_line_error(capsys, "synth", "--out", out, "--frames", "2")
+        assert problem in _one_line_error(capsys, "batch", a.parent, "--out", out)
+    assert blocker.read_text() == "x"
+
+
+def test_output_files_check_everything_before_any_work(tmp_path):
+    taken = tmp_path / "cameras.txt"
+    taken.write_text("a user's cameras\n")
+    with pytest.raises(InputError, match="not written by"):
+        OutputFiles([tmp_path / "poses.csv", taken], "poses-from-exif", "id")
+    with pytest.raises(InputError, match="same file"):
+        OutputFiles([tmp_path / "p.csv", tmp_path / "." / "p.csv"], "export", "id")
+    assert not (tmp_path / "poses.csv").exists()
+
+
+def test_map_output_marker_and_identity(tmp_path):
+    lmap = LandmarkMap(np.zeros((3, 3)), np.ones(3))
+    out = tmp_path / "o"
+    with open_output_dir(out, "export-test", "id1") as taken:
+        write_landmark_map(out / "m.sosmap", lmap)
+        taken.finish()
+    marker = json.loads((out / MARKER).read_text())
+    assert marker["command"] == "export-test" and marker["identity"] == "id1" and marker["complete"] is True
+    assert not (out / ".sosmatch-output.lock").exists()  # released and removed
+
+
+# --- killed parents leave no workers ----------------------------------------------------------------------------
+
+POOLS = {
+    # the batch's executor (and map --workers, which uses the same `process_pool`)
+    "batch executor": textwrap.dedent("""
+        import time
+        from sosmatch.workflows.executors import LocalExecutor
+        ex = LocalExecutor(2)
+        pool = ex._get_pool()
+        futs = [pool.submit(time.sleep, 600) for _ in range(2)]
+        time.sleep(1.0)
+        print("ready", flush=True)
+        time.sleep(600)
+    """),
+    # the association search's fork pool
+    "search fork pool": textwrap.dedent("""
+        import multiprocessing, os, time
+        from sosmatch.plugin.association import windowed_search
+        pool = multiprocessing.get_context("fork").Pool(2, initializer=windowed_search._init_worker,
+                                                        initargs=((), os.getpid()))
+        pool.map_async(time.sleep, [600, 600])
+        time.sleep(1.0)
+        print("ready", flush=True)
+        time.sleep(600)
+    """),
+}
+
+
+def _descendants(pid: int) -> set[int]:
+    out, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                kids = [int(k) for k in (task / "children").read_text().split()]
+            except OSError:
+                continue
+            out.update(kids)
+            todo.extend(kids)
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("kind", sorted(POOLS))
+def test_workers_die_with_a_killed_parent(kind):
+    parent = subprocess.Popen([sys.executable, "-c", POOLS[kind]], stdout=subprocess.PIPE, text=True)
+    try:
+        assert parent.stdout.readline().strip() == "ready"
+        workers = _descendants(parent.pid)
+        assert len(workers) >= 2  # the workers (and, with spawn, the resource tracker)
+    finally:
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+    deadline = time.monotonic() + 10
+    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [p for p in workers if _alive(p)]
