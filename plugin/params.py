@@ -9,6 +9,7 @@ Parameters are plain data: `params_from_dict` / `params_to_dict` convert to and 
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from dataclasses import dataclass, field
 from typing import Any
@@ -16,95 +17,207 @@ from typing import Any
 from .errors import InputError
 
 
+# ---------------------------------------------------------------------------------------------------------------
+# Valid values: every field declares its range or choices (metadata "valid"); `params_from_dict` (and so every
+# config file, --set and `config check`) refuses a value outside it. tests/test_params.py fails for a field
+# without a declaration, so a field added later must declare one.
+# ---------------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class KeyframeParams:
-    interval_m: float = 2.0  # theta_T: camera travel between keyframes
+class Valid:
+    """The values a parameter may take: a closed or open numeric range, odd integers, a set of choices, text."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    odd: bool = False
+    choices: tuple[Any, ...] | None = None
+
+    def describe(self) -> str:
+        if self.choices is not None:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.lo is None and self.hi is None:
+            return "any value"
+        lo = "-inf" if self.lo is None else f"{self.lo:g}"
+        hi = "inf" if self.hi is None else f"{self.hi:g}"
+        text = f"within {'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open or self.hi is None else ']'}"
+        return text + (", odd" if self.odd else "")
+
+    def accepts(self, value: Any) -> bool:
+        if self.choices is not None:
+            return value in self.choices
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return True  # text and flags: the type check is all
+        if isinstance(value, float) and not math.isfinite(value):
+            return False
+        if self.lo is not None and (value < self.lo or (self.lo_open and value == self.lo)):
+            return False
+        if self.hi is not None and (value > self.hi or (self.hi_open and value == self.hi)):
+            return False
+        return not self.odd or value % 2 == 1
+
+
+def _valid(default: Any, valid: Valid) -> Any:
+    return field(default=default, metadata={"valid": valid})
+
+
+def within(default: float, lo: float | None, hi: float | None, lo_open: bool = False, hi_open: bool = False) -> Any:
+    """A number within [lo, hi] (None: unbounded; *_open: that end excluded); never NaN or infinite."""
+    return _valid(default, Valid(lo, hi, lo_open, hi_open))
+
+
+def positive(default: float) -> Any:
+    return within(default, 0.0, None, lo_open=True)
+
+
+def non_negative(default: float) -> Any:
+    return within(default, 0.0, None)
+
+
+def fraction(default: float) -> Any:
+    return within(default, 0.0, 1.0)
+
+
+def count(default: int, lo: int = 0, hi: int | None = None, odd: bool = False) -> Any:
+    """An integer of at least `lo` (and at most `hi`)."""
+    return _valid(default, Valid(lo, hi, odd=odd))
+
+
+def one_of(default: Any, *choices: Any) -> Any:
+    return _valid(default, Valid(choices=tuple(choices)))
+
+
+def flag(default: bool) -> Any:
+    return _valid(default, Valid())
+
+
+def text(default: str) -> Any:
+    """Free text (a path; "" = unset)."""
+    return _valid(default, Valid())
+
+
+class Checked:
+    """Base of the params dataclasses: a value outside its declaration is refused however the params are made
+    (`params_from_dict` names the dotted key; `dataclasses.replace` and direct construction land here)."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            valid = f.metadata.get("valid")
+            value = getattr(self, f.name)
+            if valid is not None and not valid.accepts(value):
+                raise InputError(f"{type(self).__name__}.{f.name} must be {valid.describe()}, got {value!r}")
+
+
+def valid_values(cls: type, name: str) -> Valid | None:
+    """The declaration of field `name` of params dataclass `cls` (None if it has none)."""
+    f = next((f for f in dataclasses.fields(cls) if f.name == name), None)
+    return None if f is None else f.metadata.get("valid")
 
 
 @dataclass(frozen=True)
-class SegmentationParams:
-    backend: str = "classical"  # registry name in sosmatch.plugin.segmentation
-    min_mask_area_px: int = 3  # the paper keeps masks "larger than 2 px"
-    max_sift_per_mask: int = 64  # SIFT features kept per mask A_k (ours; tracking only, never stored)
+class KeyframeParams(Checked):
+    interval_m: float = positive(2.0)  # theta_T: camera travel between keyframes
+
+
+@dataclass(frozen=True)
+class SegmentationParams(Checked):
+    backend: str = one_of("classical", "classical", "sam-onnx")  # registry name in sosmatch.plugin.segmentation
+    min_mask_area_px: int = count(3, 0)  # the paper keeps masks "larger than 2 px"
+    max_sift_per_mask: int = count(64, 0)  # SIFT features kept per mask A_k (ours; tracking only, never stored)
     # SIFT runs once per image on a copy whose longer side is at most this (0 = full resolution). (ours) OpenCV
     # doubles the image first, so 1200x900 at full size costs ~0.3 s; 480 px detects in ~0.04 s and still
     # gives thousands of keypoints; descriptors are computed only for the ones masks keep.
-    sift_max_side: int = 480
-    sift_max_keypoints: int = 2000  # (ours) distinct keypoints per image at most (0 = no limit): bounds descriptor time
-    sift_contrast_threshold: float = 0.01  # (ours) OpenCV's 0.04 finds ~100 keypoints on low-contrast NIR frames
+    sift_max_side: int = count(480, 0)
+    # (ours) distinct keypoints per image at most (0 = no limit): bounds descriptor time
+    sift_max_keypoints: int = count(2000, 0)
+    # (ours) OpenCV's 0.04 finds ~100 keypoints on low-contrast NIR frames
+    sift_contrast_threshold: float = non_negative(0.01)
     # -- backend `classical` (sosmatch.plugin.segmentation.classical; all ours, tuned on synthetic + Seneca) --
-    classical_max_side: int = 400  # working resolution (longer side, px); masks are mapped back to full size
-    classical_median_ksize: int = 5  # median filter (working px) that removes leaf / furrow texture
-    classical_smooth_sigma_color: float = 40.0  # bilateral filter colour sigma (0..255 units)
+    classical_max_side: int = count(400, 1)  # working resolution (longer side, px); masks are mapped back to full size
+    # median filter (working px) that removes leaf / furrow texture
+    classical_median_ksize: int = count(5, 1, 255, odd=True)
+    classical_smooth_sigma_color: float = non_negative(40.0)  # bilateral filter colour sigma (0..255 units)
     # gradient percentile below which pixels seed watershed regions; 60 (was 40): fewer, larger seeds, 2x faster
     # Ward merge, summer / winter recall 0.809 / 0.614 -> 0.822 / 0.644, summer-winter average F1 0.715 -> 0.843
-    classical_flat_percentile: float = 60.0
-    classical_merge_cost: float = 2000.0  # Ward merge cost of the finest level (working px x Delta E^2)
-    classical_merge_levels: int = 7  # levels of the merge hierarchy whose object-like regions become masks
-    classical_merge_level_factor: float = 2.5  # cost ratio between consecutive levels
-    classical_edge_weight: float = 0.15  # weight of the mean gradient along a shared boundary in the merge cost
-    classical_dedup_iou: float = 0.8  # nested masks of two levels more alike than this: keep the more contrasted
-    classical_max_area_frac: float = 0.08  # larger regions are background (fields, lawns) and dropped
-    classical_min_area_px: int = 100  # smaller regions (full-resolution px) are dropped
-    classical_max_elongation: float = 5.0  # sqrt(lambda_max / lambda_min) above this: sliver (road, hedge edge)
-    classical_min_fill: float = 0.75  # area / area of the moment ellipse below this: branchy or ring-shaped region
-    classical_min_contrast: float = 6.0  # mean Delta E to the neighbours below this: not an object
+    classical_flat_percentile: float = within(60.0, 0.0, 100.0)
+    classical_merge_cost: float = positive(2000.0)  # Ward merge cost of the finest level (working px x Delta E^2)
+    classical_merge_levels: int = count(7, 1)  # levels of the merge hierarchy whose object-like regions become masks
+    classical_merge_level_factor: float = within(2.5, 1.0, None, lo_open=True)  # cost ratio between consecutive levels
+    # weight of the mean gradient along a shared boundary in the merge cost
+    classical_edge_weight: float = non_negative(0.15)
+    # nested masks of two levels more alike than this: keep the more contrasted
+    classical_dedup_iou: float = fraction(0.8)
+    # larger regions are background (fields, lawns) and dropped
+    classical_max_area_frac: float = within(0.08, 0.0, 1.0, lo_open=True)
+    classical_min_area_px: int = count(100, 0)  # smaller regions (full-resolution px) are dropped
+    # sqrt(lambda_max / lambda_min) above this: sliver (road, hedge edge)
+    classical_max_elongation: float = within(5.0, 1.0, None)
+    # area / area of the moment ellipse below this: branchy or ring-shaped region
+    classical_min_fill: float = fraction(0.75)
+    classical_min_contrast: float = non_negative(6.0)  # mean Delta E to the neighbours below this: not an object
     # >0: non-convex masks (area / convex hull below this) also give their distance-transform parts. Off: on the
     # synthetic sessions 0.95 doubled the masks per frame for +0.03 recall in winter and none in summer.
-    classical_split_solidity: float = 0.0
-    classical_lightness_weight: float = 0.7  # weight of CIELAB L in merging (lit / shaded halves of a crown join)
-    classical_texture_weight: float = 1.0  # weight of local lightness std (texture) next to L, a, b (0 = off)
-    classical_texture_window: int = 5  # window (working px) of the texture measure
+    classical_split_solidity: float = fraction(0.0)
+    # weight of CIELAB L in merging (lit / shaded halves of a crown join)
+    classical_lightness_weight: float = non_negative(0.7)
+    # weight of local lightness std (texture) next to L, a, b (0 = off)
+    classical_texture_weight: float = non_negative(1.0)
+    classical_texture_window: int = count(5, 1)  # window (working px) of the texture measure
     # weight of normalised r, g chromaticity (x 300) in merging: unchanged by shading, so a crown's lit and shaded
     # halves join and a cast shadow stays with the ground it falls on (0 = off; summer recall 0.745 -> 0.85)
-    classical_chroma_weight: float = 2.0
+    classical_chroma_weight: float = non_negative(2.0)
     # parts of a whole: a mask that is at least this share of a coarser, more contrasted candidate with fill >=
     # `classical_fragment_parent_fill` (a single crown, not a clump) is dropped; its centroid is off the object's
     # (0 = off; map median horizontal error 1.0 -> 0.44 m, BENCHMARKS Mapping)
-    classical_fragment_ratio: float = 0.15
-    classical_fragment_parent_fill: float = 0.9
+    classical_fragment_ratio: float = fraction(0.15)
+    classical_fragment_parent_fill: float = fraction(0.9)
     # -- backend `sam-onnx` (sosmatch.plugin.segmentation.sam_onnx) --
-    sam_encoder: str = ""  # image-encoder ONNX path ("" = $SOSMATCH_SAM_ENCODER)
-    sam_decoder: str = ""  # prompt-decoder ONNX path ("" = $SOSMATCH_SAM_DECODER)
-    sam_points_per_side: int = 16  # grid of point prompts (SAM's automatic generator uses 32)
-    sam_points_per_batch: int = 64  # prompts per decoder call
-    sam_pred_iou_thresh: float = 0.86  # keep masks whose predicted IoU is at least this (SAM's default 0.88)
-    sam_stability_score_thresh: float = 0.92  # keep masks at least this stable (SAM's default 0.95)
-    sam_stability_score_offset: float = 1.0  # logit offset of the stability score (SAM's default)
-    sam_box_nms_thresh: float = 0.7  # duplicate removal: mask IoU above this suppresses the lower-scored mask
-    sam_max_area_frac: float = 0.5  # masks covering more of the image are background and dropped
-    sam_threads: int = 2  # onnxruntime intra-op threads
+    sam_encoder: str = text("")  # image-encoder ONNX path ("" = $SOSMATCH_SAM_ENCODER)
+    sam_decoder: str = text("")  # prompt-decoder ONNX path ("" = $SOSMATCH_SAM_DECODER)
+    sam_points_per_side: int = count(16, 1, 256)  # grid of point prompts (SAM's automatic generator uses 32)
+    sam_points_per_batch: int = count(64, 1)  # prompts per decoder call
+    sam_pred_iou_thresh: float = fraction(0.86)  # keep masks whose predicted IoU is at least this (SAM's default 0.88)
+    sam_stability_score_thresh: float = fraction(0.92)  # keep masks at least this stable (SAM's default 0.95)
+    sam_stability_score_offset: float = positive(1.0)  # logit offset of the stability score (SAM's default)
+    sam_box_nms_thresh: float = fraction(0.7)  # duplicate removal: mask IoU above this suppresses the lower-scored mask
+    # masks covering more of the image are background and dropped
+    sam_max_area_frac: float = within(0.5, 0.0, 1.0, lo_open=True)
+    sam_threads: int = count(2, 0)  # onnxruntime intra-op threads
 
 
 @dataclass(frozen=True)
-class TrackingParams:
+class TrackingParams(Checked):
     # theta_t (ours): tracks whose last observation is older are not candidates. On synthetic sessions 1 -> 2 -> 3
     # bridges segmentation misses (mean track length +17-22 %); beyond 3 gains little and adds duplicates/impurity.
-    max_track_age_keyframes: int = 3
+    max_track_age_keyframes: int = count(3, 1)
     # theta_a (ours): max centroid distance to the epipolar line (px, both images). EKF-noisy poses put 95 % of
     # true pairs within ~8 px (exact poses: ~4 px); 12 keeps >99 % of them while purity falls for wider margins.
     # Scale it with focal length x attitude error for other cameras. Evidence: BENCHMARKS.md, Tracking parameters.
-    epipolar_margin_px: float = 12.0
-    motion_gate_sigmas: float = 4.0  # theta_v: | |m_i - m_j| - mu_p | / sigma_p must stay below this
-    min_score: float = 0.2  # theta_q: minimum q = sqrt(q_s * q_f)
-    size_tolerance: float = 0.2  # theta_h: relative size difference at which q_s reaches 0
-    sift_ratio: float = 0.8  # Lowe's ratio test for q_f (ours; the paper does not state it)
-    centroid_sigma_px: float = 3.0  # (ours) centroid noise added in quadrature to sigma_p in the motion gate
-    cheirality_check: bool = True  # (ours) reject pairs whose centroid lies behind camera s along the epipolar line
+    epipolar_margin_px: float = positive(12.0)
+    motion_gate_sigmas: float = positive(4.0)  # theta_v: | |m_i - m_j| - mu_p | / sigma_p must stay below this
+    min_score: float = fraction(0.2)  # theta_q: minimum q = sqrt(q_s * q_f)
+    size_tolerance: float = positive(0.2)  # theta_h: relative size difference at which q_s reaches 0
+    # Lowe's ratio test for q_f (ours; the paper does not state it)
+    sift_ratio: float = within(0.8, 0.0, 1.0, lo_open=True)
+    # (ours) centroid noise added in quadrature to sigma_p in the motion gate
+    centroid_sigma_px: float = non_negative(3.0)
+    # (ours) reject pairs whose centroid lies behind camera s along the epipolar line
+    cheirality_check: bool = flag(True)
     # (ours) a track whose observations already triangulate (rays meeting at >= point_gate_min_ray_angle_deg) is
     # gated by where its point projects into the new keyframe (within epipolar_margin_px) instead of by the
     # epipolar line of its last observation and the motion gate: the line lets every segment along it through,
     # the point picks one spot, and across flight lines the motion gate's summed image motion means nothing.
-    point_transfer_gate: bool = True
-    point_gate_min_ray_angle_deg: float = 5.0
+    point_transfer_gate: bool = flag(True)
+    point_gate_min_ray_angle_deg: float = within(5.0, 0.0, 180.0)
 
 
 @dataclass(frozen=True)
-class TriangulationParams:
-    min_observations: int = 5  # theta_n: tracks with MORE than this many observations become landmarks
-    pixel_sigma_px: float = 3.0  # sigma: centroid noise used in triangulation and bundle adjustment
-    max_reprojection_error_px: float = 10.0  # (ours) landmarks above this mean error are dropped
-    min_triangulation_angle_deg: float = 1.0  # (ours) landmarks seen under a smaller ray angle are dropped
+class TriangulationParams(Checked):
+    min_observations: int = count(5, 1)  # theta_n: tracks with MORE than this many observations become landmarks
+    pixel_sigma_px: float = positive(3.0)  # sigma: centroid noise used in triangulation and bundle adjustment
+    max_reprojection_error_px: float = positive(10.0)  # (ours) landmarks above this mean error are dropped
+    # (ours) landmarks seen under a smaller ray angle are dropped
+    min_triangulation_angle_deg: float = within(1.0, 0.0, 180.0)
     # (ours) duplicate suppression: a landmark whose ground-plane (x, y) distance to a better-supported one is
     # at most this times the larger of their metric sizes h is a duplicate (a nested or partial mask of the same
     # object: a crown part, a crown and its clump, a split track) and is dropped; 0 = off. h = sqrt(lambda_max)
@@ -114,41 +227,42 @@ class TriangulationParams:
     # error 1.30 -> 0.50 m. OFF by default, as in the paper: on the evaluation suite (BENCHMARKS.md, "Duplicate
     # suppression and matching") 2.0 cut cross-season average F1 from 0.58 to 0.33 (summer-winter) and from
     # 0.76 to 0.30 (spring-autumn): the parts of an object that both seasons segment alike are evidence too.
-    duplicate_radius_factor: float = 0.0
+    duplicate_radius_factor: float = non_negative(0.0)
     # (ours) height outliers (`plugin.landmark_filters.height_outliers`): a landmark whose height differs from the
     # median of its `height_outlier_neighbours` nearest landmarks (horizontally) by more than this many robust
     # standard deviations of that difference is a wrong track triangulated along a straight flight line, where
     # collinear views cannot fix the depth; 0 = off (the paper's EKF keyframes every 2 m see an object from many
     # views). On in the "survey" preset.
-    height_outlier_sigmas: float = 0.0
-    height_outlier_neighbours: int = 8
+    height_outlier_sigmas: float = non_negative(0.0)
+    height_outlier_neighbours: int = count(8, 1)
 
 
 @dataclass(frozen=True)
-class AssociationParams:
-    window_length: int = 50  # theta_WL: landmarks per window
-    window_stride: int = 10  # theta_SL: stride between windows
-    max_size_difference: float = 0.2  # theta_r: putative pairs need r(h_i, h_j) <= this
-    distance_tolerance_m: float = 2.0  # theta_eps: pairwise distance mismatch still called consistent
+class AssociationParams(Checked):
+    window_length: int = count(50, 3)  # theta_WL: landmarks per window
+    window_stride: int = count(10, 1)  # theta_SL: stride between windows
+    max_size_difference: float = fraction(0.2)  # theta_r: putative pairs need r(h_i, h_j) <= this
+    distance_tolerance_m: float = positive(2.0)  # theta_eps: pairwise distance mismatch still called consistent
     # sigma (ours) of the CLIPPER affinity exp(-c^2 / 2 sigma^2): the spread of the distance mismatch c of a true
     # pair (four landmarks with ~0.3-0.5 m noise each give ~1 m); affinity at the gate eps = 2 m is exp(-2) = 0.14
-    affinity_sigma_m: float = 1.0
-    max_gravity_angle_deg: float = 22.5  # theta_alpha: max roll/pitch difference of an accepted transform
+    affinity_sigma_m: float = positive(1.0)
+    # theta_alpha: max roll/pitch difference of an accepted transform
+    max_gravity_angle_deg: float = within(22.5, 0.0, 180.0)
     # theta_S (ours default; swept for precision-recall): accept if |S| > this. On synthetic 1000-landmark survey
     # maps (tools/benchmarks/bench_match.py) theta_S = 4 accepts wrong window pairs, 5 and 6 none: 6 keeps a margin,
     # and a larger theta_S also makes the search faster (only theta_S-cores are solved)
-    min_associations: int = 6
-    transform: str = "rigid"  # "rigid" (Arun/Umeyama) or "similarity"
+    min_associations: int = count(6, 2)
+    transform: str = one_of("rigid", "rigid", "similarity")  # "rigid" (Arun/Umeyama) or "similarity"
 
 
 @dataclass(frozen=True)
-class Params:
+class Params(Checked):
     keyframes: KeyframeParams = field(default_factory=KeyframeParams)
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
     tracking: TrackingParams = field(default_factory=TrackingParams)
     triangulation: TriangulationParams = field(default_factory=TriangulationParams)
     association: AssociationParams = field(default_factory=AssociationParams)
-    seed: int = 0  # every random choice in the pipeline derives from this
+    seed: int = count(0, 0, 2**63 - 1)  # every random choice in the pipeline derives from this
 
 
 def params_to_dict(params: Any) -> dict[str, Any]:
@@ -184,6 +298,9 @@ def params_from_dict(data: dict[str, Any], cls: type = Params, where: str = "") 
             kwargs[key] = params_from_dict(value, hint, path)
         else:
             kwargs[key] = _coerce(value, hint, path)
+            valid = fields[key].metadata.get("valid")
+            if valid is not None and not valid.accepts(kwargs[key]):
+                raise InputError(f"{path} must be {valid.describe()}, got {kwargs[key]!r}")
     return cls(**kwargs)
 
 

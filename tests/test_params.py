@@ -84,3 +84,73 @@ def test_config_dump_with_preset_cli(capsys):
 
     assert main(["config", "dump", "--preset", "survey"]) == 0
     assert "min_observations = 2" in capsys.readouterr().out
+
+
+def _leaf_fields(cls=None, prefix=""):
+    """(dotted name, owning class, field) of every parameter, recursively."""
+    import dataclasses
+    import typing
+
+    cls = cls or Params
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(hints[f.name]):
+            yield from _leaf_fields(hints[f.name], f"{prefix}{f.name}.")
+        else:
+            yield f"{prefix}{f.name}", cls, f
+
+
+def test_every_parameter_declares_its_valid_values():
+    # A field added later must declare its range or choices (plugin/params.py: within, positive, count, one_of,
+    # flag, text); this test is what makes that so.
+    missing = [name for name, _, f in _leaf_fields() if "valid" not in f.metadata]
+    assert not missing, f"parameters without a valid-values declaration: {missing}"
+    for name, _, f in _leaf_fields():
+        assert f.metadata["valid"].accepts(f.default), f"{name}: default {f.default!r} outside its own declaration"
+
+
+def test_presets_respect_the_declarations():
+    from sosmatch.plugin.params import PRESETS, preset_params
+
+    for name in PRESETS:
+        preset_params(name)  # raises InputError if any override is out of range
+
+
+def test_segmentation_backend_choices_are_the_registry():
+    from sosmatch.plugin.params import SegmentationParams, valid_values
+    from sosmatch.plugin.segmentation import BACKENDS
+
+    assert set(valid_values(SegmentationParams, "backend").choices) == set(BACKENDS)
+
+
+@pytest.mark.parametrize("override, fragment", [
+    ("association.affinity_sigma_m=nan", "association.affinity_sigma_m must be within (0, inf)"),
+    ("triangulation.min_observations=-5", "triangulation.min_observations must be within [1, inf)"),
+    ("association.transform='affine'", "one of 'rigid', 'similarity'"),
+    ("segmentation.classical_median_ksize=4", "odd"),
+    ("tracking.min_score=1.5", "within [0, 1]"),
+    ("keyframes.interval_m=inf", "within (0, inf)"),
+])
+def test_out_of_range_values_are_refused_by_config_check(tmp_path, capsys, override, fragment):
+    from sosmatch.tools.cli import main
+
+    assert main(["config", "check", "--set", override]) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and len(err.strip().splitlines()) == 1
+    cfg = tmp_path / "c.toml"
+    section, kv = override.split(".", 1)
+    cfg.write_text(f"[{section}]\n{kv}\n")
+    assert main(["config", "check", "--config", str(cfg)]) == 2
+    err = capsys.readouterr().err
+    assert str(cfg) in err and fragment.split(" must")[-1].strip() in err
+
+
+def test_direct_construction_is_checked_too():
+    import dataclasses
+
+    from sosmatch.plugin.params import AssociationParams
+
+    with pytest.raises(InputError, match="AssociationParams.affinity_sigma_m"):
+        AssociationParams(affinity_sigma_m=float("nan"))
+    with pytest.raises(InputError, match="window_length"):
+        dataclasses.replace(Params().association, window_length=0)
