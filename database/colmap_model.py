@@ -17,6 +17,7 @@ from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses, quat_to_rotmat
 from .atomic import atomic_path, write_bytes_atomic
 from .cameras import camera_from_pycolmap, read_cameras_txt
+from .colmap_binary import check_binary_model
 from .poses import UNIT_QUAT_TOLERANCE
 
 if TYPE_CHECKING:
@@ -83,6 +84,36 @@ def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, lis
     return names, np.array(quats).reshape(-1, 4), np.array(trans).reshape(-1, 3), cam_ids
 
 
+def _pycolmap_problem(exc: Exception) -> str:
+    """pycolmap's error in words a user can act on (its own text, e.g. `unordered_map::at`, kept in brackets)."""
+    text = str(exc).strip().splitlines()
+    first = text[-1] if text else type(exc).__name__
+    if "unordered_map" in first:
+        return f"an id in one file refers to a record missing from another (pycolmap: {first})"
+    return f"pycolmap: {first}"
+
+
+def load_reconstruction(model_dir: str | Path) -> pycolmap.Reconstruction:
+    """The one way sosmatch opens a COLMAP model directory (binary or text).
+
+    A binary model is first walked by `colmap_binary.check_binary_model` (counts against file sizes, ids
+    against the records they refer to), so pycolmap never allocates beyond the files' size nor fails inside;
+    whatever pycolmap still refuses is an InputError naming the directory."""
+    import pycolmap
+
+    d = Path(model_dir)
+    if not d.is_dir():
+        raise InputError("COLMAP model directory not found", d)
+    if all((d / f"{n}.bin").is_file() for n in MODEL_FILES):  # pycolmap reads the binary files when present
+        check_binary_model(d)
+    elif not all((d / f"{n}.txt").is_file() for n in MODEL_FILES):
+        raise InputError("incomplete COLMAP model: need cameras, images and points3D (.bin or .txt)", d)
+    try:
+        return pycolmap.Reconstruction(str(d))
+    except Exception as exc:  # noqa: BLE001 (pycolmap raises plain RuntimeError / ValueError / IndexError)
+        raise InputError(f"cannot read COLMAP model: {_pycolmap_problem(exc)}", d) from None
+
+
 def read_colmap_model_poses(path: str | Path) -> tuple[Poses, dict[int, Camera], dict[str, int]]:
     """Poses and cameras of a COLMAP model.
 
@@ -108,13 +139,7 @@ def read_colmap_model_poses(path: str | Path) -> tuple[Poses, dict[int, Camera],
     if not complete:
         raise InputError("incomplete COLMAP model: need cameras, images and points3D (.bin or .txt), or "
                          "cameras.txt + images.txt", d)
-    import pycolmap
-
-    try:
-        rec = pycolmap.Reconstruction(str(d))
-    except Exception as exc:  # pycolmap raises plain RuntimeError / ValueError on corrupt files
-        raise InputError(f"cannot read COLMAP model: {str(exc).splitlines()[0] if str(exc) else exc!r}", d) \
-            from None
+    rec = load_reconstruction(d)
     cameras = {int(cid): camera_from_pycolmap(cam, d) for cid, cam in rec.cameras.items()}
     items = sorted(((img.name, iid) for iid, img in rec.images.items() if img.has_pose), key=lambda t: t[0])
     names, r_list, t_list, cam_of = [], [], [], {}

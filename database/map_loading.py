@@ -91,13 +91,10 @@ def read_colmap_points(model_dir: str | Path, database: str | Path | None = None
 
     Sizes come from the tracks (`track_sizes`) when a database is given or found beside the model, else NaN.
     """
-    import pycolmap
+    from .colmap_model import load_reconstruction
 
     model_dir = Path(model_dir)
-    try:
-        rec = pycolmap.Reconstruction(str(model_dir))
-    except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on malformed models
-        raise InputError(f"cannot read COLMAP model: {exc}".splitlines()[0], model_dir) from None
+    rec = load_reconstruction(model_dir)
     ids = sorted(rec.point3D_ids())
     if ids:
         xyz = np.array([rec.point3D(i).xyz for i in ids], dtype=np.float64).reshape(-1, 3)

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from ..database.atomic import write_text_atomic
+from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, write_landmark_map
 from ..database.match_io import check_match_maps, read_match
 from ..database.outputs import OutputDir, fingerprint, open_output_dir, sha256_file
@@ -172,7 +173,7 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
     image_names: dict[int, str] = {}
     next_camera, next_image = 1, 1
     for session, transform, label in zip(sessions, transforms, labels):
-        rec = pycolmap.Reconstruction(str(session.sparse_dir))
+        rec = load_reconstruction(session.sparse_dir)
         if not np.allclose(transform.matrix(), Sim3.identity().matrix()):
             rec.transform(pycolmap.Sim3d(transform.matrix()))
         camera_map: dict[int, int] = {}

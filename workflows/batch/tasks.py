@@ -23,12 +23,11 @@ log = logging.getLogger(__name__)
 
 
 def _session_summary(name: str, kind: str, session_dir: Path) -> dict[str, Any]:
-    import pycolmap
-
+    from ...database.colmap_model import load_reconstruction
     from ...database.session_io import read_session
 
     s = read_session(session_dir, name)
-    rec = pycolmap.Reconstruction(str(s.sparse_dir))
+    rec = load_reconstruction(s.sparse_dir)
     centres = np.array([img.projection_center() for img in rec.images.values() if img.has_pose]).reshape(-1, 3)
     return {
         "name": name,
