@@ -6,19 +6,35 @@
 - camera (EXIF IFD 0x8769): FocalLength (mm), FocalPlaneX/YResolution with their unit (pixels per inch or cm),
   the image size those refer to (ExifImageWidth/Height: the sensor readout, often larger than the file when
   images were downscaled after capture), Make/Model;
+- capture time: DateTimeOriginal + SubSecTimeOriginal (`capture_time_s`, seconds since 1970 in the camera's
+  clock; only differences matter);
 - XMP: every simple property of every rdf:Description of the x:xmpmeta packet(s) in the JPEG's APP1 segments
-  (DJI `drone-dji:GimbalYawDegree`..., senseFly `Heading`/`PitchAngle`/`RollAngle`...), keyed by local name.
+  (DJI `drone-dji:GimbalYawDegree`, `RelativeAltitude`..., senseFly `Heading`/`PitchAngle`/`RollAngle`...), keyed
+  by local name.
 No exiftool: the XMP packet is found by scanning the APP1 segments and parsed with xml.etree.
+
+Damaged metadata never stops a flight: an EXIF block Pillow reports as corrupt, an XMP packet that is not
+well-formed XML or a value out of range (a latitude beyond 90 degrees) is left out and named in
+`ImageMetadata.problems`, which the pose workflows summarise in one warning.
+
+`embed_metadata(jpeg_bytes, meta)` is the writer (the synthetic world geotags its JPEGs with it): EXIF GPS,
+focal lengths, make/model and capture time, and the XMP properties as attributes of one rdf:Description in the
+DJI namespace; `check_metadata` is the one validation of positions and focal lengths, used by both directions.
 """
 
 from __future__ import annotations
 
+import calendar
 import math
+import time
+import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
+from xml.sax.saxutils import quoteattr
 
 from PIL import Image, UnidentifiedImageError
+from PIL.TiffImagePlugin import IFDRational
 
 from ..plugin.errors import InputError
 
@@ -31,11 +47,15 @@ TAG_FOCAL_35MM = 0xA405
 TAG_FP_XRES, TAG_FP_YRES, TAG_FP_UNIT = 0xA20E, 0xA20F, 0xA210
 TAG_EXIF_WIDTH, TAG_EXIF_HEIGHT = 0xA002, 0xA003
 TAG_DATETIME_ORIGINAL = 0x9003
+TAG_SUBSEC_ORIGINAL = 0x9291
 GPS_LAT_REF, GPS_LAT, GPS_LON_REF, GPS_LON, GPS_ALT_REF, GPS_ALT = 1, 2, 3, 4, 5, 6
 GPS_TRACK = 0x0F
 XMP_APP1_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
+EXIF_APP1_HEADER = b"Exif\x00\x00"
 RDF_NS = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
 MM_PER_UNIT = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}  # FocalPlaneResolutionUnit: inch, cm, mm, um
+DJI_XMP_NAMESPACE = ("drone-dji", "http://www.dji.com/drone-dji/1.0/")
+EXIF_DATETIME_FORMAT = "%Y:%m:%d %H:%M:%S"
 
 
 @dataclass
@@ -55,13 +75,30 @@ class ImageMetadata:
     exif_size: tuple[int, int] | None = None  # the size FocalPlane*Resolution refers to
     make: str = ""
     model: str = ""
-    datetime_original: str = ""
+    datetime_original: str = ""  # EXIF "YYYY:MM:DD HH:MM:SS"
+    subsec_original: str = ""  # EXIF SubSecTimeOriginal: the digits of the fraction of a second
     xmp: dict[str, str] = field(default_factory=dict)
     sources: dict[str, str] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)  # damaged or implausible metadata that was left out
 
     @property
     def has_gps(self) -> bool:
         return self.latitude is not None and self.longitude is not None
+
+    @property
+    def capture_time_s(self) -> float | None:
+        """DateTimeOriginal (+ SubSecTimeOriginal) as seconds since 1970 of the camera's clock, or None."""
+        try:
+            seconds = float(calendar.timegm(time.strptime(self.datetime_original.strip(), EXIF_DATETIME_FORMAT)))
+        except ValueError:
+            return None
+        digits = self.subsec_original.strip()
+        return seconds + (float("0." + digits) if digits.isdigit() else 0.0)
+
+    @property
+    def camera_key(self) -> tuple[str, str, int, int]:
+        """What makes images share one camera: make, model and image size."""
+        return (self.make, self.model, self.width, self.height)
 
     def xmp_float(self, *names: str) -> tuple[float, str] | None:
         """The first XMP property among `names` (local names) that parses as a finite float, with its name."""
@@ -103,11 +140,17 @@ def _text(value: object) -> str:
 
 def xmp_packets(data: bytes) -> list[bytes]:
     """The XMP packets in a JPEG byte string: payloads of APP1 segments that start with the XMP namespace."""
-    packets: list[bytes] = []
     if data[:2] != b"\xff\xd8":
         start = data.find(b"<x:xmpmeta")  # not a JPEG: a bare scan still finds an embedded packet
         end = data.find(b"</x:xmpmeta>", start)
         return [data[start:end + 12]] if start >= 0 and end > start else []
+    return app1_payloads(data, XMP_APP1_HEADER)
+
+
+def app1_payloads(data: bytes, header: bytes) -> list[bytes]:
+    """The payloads (after `header`) of a JPEG's APP1 segments that start with `header` (metadata segments come
+    before the first scan)."""
+    packets: list[bytes] = []
     i = 2
     while i + 4 <= len(data):
         if data[i] != 0xFF:
@@ -123,22 +166,24 @@ def xmp_packets(data: bytes) -> list[bytes]:
             continue
         length = int.from_bytes(data[i + 2:i + 4], "big")
         payload = data[i + 4:i + 2 + length]
-        if marker == 0xE1 and payload.startswith(XMP_APP1_HEADER):
-            packets.append(payload[len(XMP_APP1_HEADER):])
+        if marker == 0xE1 and payload.startswith(header):
+            packets.append(payload[len(header):])
         i += 2 + length
     return packets
 
 
 def parse_xmp(packet: bytes) -> dict[str, str]:
-    """Simple XMP properties (attributes and leaf elements of rdf:Description) keyed by local name."""
+    """Simple XMP properties (attributes and leaf elements of rdf:Description) keyed by local name.
+
+    A packet without an x:xmpmeta element gives {}; one that is not well-formed XML raises ValueError."""
     start = packet.find(b"<x:xmpmeta")
     end = packet.rfind(b"</x:xmpmeta>")
     if start < 0 or end < 0:
         return {}
     try:
         root = ET.fromstring(packet[start:end + len(b"</x:xmpmeta>")])
-    except ET.ParseError:
-        return {}
+    except ET.ParseError as exc:
+        raise ValueError(f"XMP packet is not well-formed XML ({exc})") from None
     out: dict[str, str] = {}
     for desc in root.iter(f"{{{RDF_NS}}}Description"):
         for key, value in desc.attrib.items():
@@ -151,22 +196,50 @@ def parse_xmp(packet: bytes) -> dict[str, str]:
     return out
 
 
+def check_metadata(meta: ImageMetadata) -> list[str]:
+    """The problems of `meta`'s values (empty if none): a position off the globe or (0, 0) (a receiver without a
+    fix), a non-finite altitude, a non-positive focal length. The reader drops such values, the writer refuses."""
+    problems = []
+    if (meta.latitude is None) != (meta.longitude is None):
+        problems.append("GPS latitude without longitude (or the reverse)")
+    elif meta.latitude is not None and meta.longitude is not None:
+        if not (abs(meta.latitude) <= 90 and abs(meta.longitude) <= 180):
+            problems.append(f"GPS position {meta.latitude:.6f}, {meta.longitude:.6f} is off the globe")
+        elif meta.latitude == 0 and meta.longitude == 0:
+            problems.append("GPS position 0, 0 (receiver without a fix)")
+    if meta.altitude is not None and not math.isfinite(meta.altitude):
+        problems.append("GPS altitude is not a number")
+    for name in ("focal_mm", "focal_35mm"):
+        value = getattr(meta, name)
+        if value is not None and not value > 0:
+            problems.append(f"{name} {value} is not positive")
+    return problems
+
+
 def read_image_metadata(path: str | Path) -> ImageMetadata:
-    """Read GPS, camera and XMP metadata of one image (no pixel decoding). Unreadable images raise InputError."""
+    """Read GPS, camera and XMP metadata of one image (no pixel decoding). Unreadable images raise InputError;
+    damaged metadata is left out and listed in `problems` (see the module doc)."""
     path = Path(path)
+    problems: list[str] = []
     try:
-        with Image.open(path) as img:
-            width, height = img.size
-            exif = img.getexif()
-            gps = exif.get_ifd(GPS_IFD)
-            sub = exif.get_ifd(EXIF_IFD)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with Image.open(path) as img:
+                width, height = img.size
+                exif = img.getexif()
+                gps = exif.get_ifd(GPS_IFD)
+                sub = exif.get_ifd(EXIF_IFD)
+        problems += [f"EXIF: {w.message}" for w in caught if "EXIF" in str(w.message) or "exif" in str(w.message)]
     except FileNotFoundError:
         raise InputError("image not found", path) from None
     except (UnidentifiedImageError, OSError) as exc:
         raise InputError(f"cannot read image: {exc}", path) from None
+    except Exception as exc:  # noqa: BLE001 (Pillow raises assorted errors on a damaged EXIF block)
+        raise InputError(f"cannot read image metadata: {exc}", path) from None
     meta = ImageMetadata(path=path, width=int(width), height=int(height))
     meta.make, meta.model = _text(exif.get(TAG_MAKE)), _text(exif.get(TAG_MODEL))
     meta.datetime_original = _text(sub.get(TAG_DATETIME_ORIGINAL))
+    meta.subsec_original = _text(sub.get(TAG_SUBSEC_ORIGINAL))
 
     lat, lon = _dms(gps.get(GPS_LAT)), _dms(gps.get(GPS_LON))
     if lat is not None and lon is not None:
@@ -174,9 +247,8 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
             lat = -lat
         if _text(gps.get(GPS_LON_REF)).upper().startswith("W"):
             lon = -lon
-        if abs(lat) <= 90 and abs(lon) <= 180 and not (lat == 0 and lon == 0):  # 0,0: receiver without a fix
-            meta.latitude, meta.longitude = lat, lon
-            meta.sources["position"] = "EXIF GPSLatitude/GPSLongitude"
+        meta.latitude, meta.longitude = lat, lon
+        meta.sources["position"] = "EXIF GPSLatitude/GPSLongitude"
     alt = _float(gps.get(GPS_ALT))
     if alt is not None:
         ref = gps.get(GPS_ALT_REF)
@@ -188,6 +260,20 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
 
     meta.focal_mm = _float(sub.get(TAG_FOCAL_LENGTH))
     meta.focal_35mm = _float(sub.get(TAG_FOCAL_35MM))
+    for problem in check_metadata(meta):
+        if problem.startswith("GPS position") or problem.startswith("GPS latitude"):
+            if "without a fix" not in problem:
+                problems.append(problem)
+            meta.latitude = meta.longitude = None
+            meta.sources.pop("position", None)
+        elif problem.startswith("GPS altitude"):
+            problems.append(problem)
+            meta.altitude = None
+            meta.sources.pop("altitude", None)
+        else:  # a focal length that is not positive
+            problems.append(problem)
+            meta.focal_mm = meta.focal_mm if meta.focal_mm and meta.focal_mm > 0 else None
+            meta.focal_35mm = meta.focal_35mm if meta.focal_35mm and meta.focal_35mm > 0 else None
     xres, yres = _float(sub.get(TAG_FP_XRES)), _float(sub.get(TAG_FP_YRES))
     unit = sub.get(TAG_FP_UNIT, 2)  # EXIF default unit: inch
     if xres and xres > 0 and unit in MM_PER_UNIT:
@@ -201,7 +287,102 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
         data = path.read_bytes()
     except OSError as exc:
         raise InputError(f"cannot read image: {exc.strerror}", path) from None
+    if not exif and data[:2] == b"\xff\xd8" and any(len(p) > 8 for p in app1_payloads(data, EXIF_APP1_HEADER)):
+        problems.append("EXIF: the EXIF segment is unreadable")
     for packet in xmp_packets(data):
-        for key, value in parse_xmp(packet).items():
+        try:
+            properties = parse_xmp(packet)
+        except ValueError as exc:
+            problems.append(str(exc))
+            continue
+        for key, value in properties.items():
             meta.xmp.setdefault(key, value)
+    meta.problems = problems
     return meta
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Writing (the synthetic world's geotagged JPEGs)
+# ---------------------------------------------------------------------------------------------------------------
+def _rational(value: float, denominator: int) -> IFDRational:
+    return IFDRational(int(round(value * denominator)), denominator)
+
+
+def _dms_rationals(degrees: float) -> tuple[IFDRational, IFDRational, IFDRational]:
+    """Decimal degrees (unsigned) as EXIF degrees, minutes and seconds (1e-6 arc-second resolution: ~3e-8 m)."""
+    degrees = abs(degrees)
+    d = int(degrees)
+    m = int((degrees - d) * 60.0)
+    s = (degrees - d - m / 60.0) * 3600.0
+    return IFDRational(d, 1), IFDRational(m, 1), _rational(s, 1_000_000)
+
+
+def encode_exif(meta: ImageMetadata) -> bytes:
+    """The EXIF block (TIFF bytes, as Pillow's `exif=` takes them) of `meta`'s GPS, focal lengths, make/model,
+    capture time and focal-plane resolution. ValueError when `check_metadata` finds a problem."""
+    problems = check_metadata(meta)
+    if problems:
+        raise ValueError("; ".join(problems))
+    exif = Image.Exif()
+    if meta.make:
+        exif[TAG_MAKE] = meta.make
+    if meta.model:
+        exif[TAG_MODEL] = meta.model
+    sub = exif.get_ifd(EXIF_IFD)
+    if meta.datetime_original:
+        sub[TAG_DATETIME_ORIGINAL] = meta.datetime_original
+    if meta.subsec_original:
+        sub[TAG_SUBSEC_ORIGINAL] = meta.subsec_original
+    if meta.focal_mm is not None:
+        sub[TAG_FOCAL_LENGTH] = _rational(meta.focal_mm, 1000)
+    if meta.focal_35mm is not None:
+        sub[TAG_FOCAL_35MM] = int(round(meta.focal_35mm))  # EXIF: a SHORT, whole millimetres
+    if meta.focal_plane_px_per_mm is not None:
+        sub[TAG_FP_XRES] = _rational(meta.focal_plane_px_per_mm[0], 1000)
+        sub[TAG_FP_YRES] = _rational(meta.focal_plane_px_per_mm[1], 1000)
+        sub[TAG_FP_UNIT] = 4  # millimetres
+    if meta.exif_size is not None:
+        sub[TAG_EXIF_WIDTH], sub[TAG_EXIF_HEIGHT] = (int(v) for v in meta.exif_size)
+    if meta.latitude is not None and meta.longitude is not None:
+        gps = exif.get_ifd(GPS_IFD)
+        gps[0] = b"\x02\x03\x00\x00"  # GPSVersionID 2.3
+        gps[GPS_LAT_REF] = "N" if meta.latitude >= 0 else "S"
+        gps[GPS_LAT] = _dms_rationals(meta.latitude)
+        gps[GPS_LON_REF] = "E" if meta.longitude >= 0 else "W"
+        gps[GPS_LON] = _dms_rationals(meta.longitude)
+        if meta.altitude is not None:
+            gps[GPS_ALT_REF] = b"\x01" if meta.altitude < 0 else b"\x00"
+            gps[GPS_ALT] = _rational(abs(meta.altitude), 1000)
+        if meta.gps_track_deg is not None:
+            gps[GPS_TRACK] = _rational(meta.gps_track_deg % 360.0, 100)
+    return exif.tobytes()
+
+
+def encode_xmp(properties: dict[str, str], namespace: tuple[str, str] = DJI_XMP_NAMESPACE) -> bytes:
+    """An XMP packet with `properties` (local name -> text) as attributes of one rdf:Description in `namespace`
+    (prefix, URI), the way DJI writes `drone-dji:GimbalYawDegree="+12.30"`."""
+    prefix, uri = namespace
+    attrs = "".join(f"\n   {prefix}:{k}={quoteattr(str(v))}" for k, v in properties.items())
+    return ("<?xpacket begin='\ufeff' id='W5M0MpCehiHzreSzNTczkc9d'?>\n"
+            "<x:xmpmeta xmlns:x='adobe:ns:meta/'>\n <rdf:RDF xmlns:rdf='http://www.w3.org/1999/02/22-rdf-syntax-ns#'>\n"
+            f"  <rdf:Description rdf:about='' xmlns:{prefix}='{uri}'{attrs}/>\n"
+            " </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end='w'?>").encode()
+
+
+def _app1(payload: bytes) -> bytes:
+    if len(payload) + 2 > 0xFFFF:
+        raise ValueError(f"metadata segment of {len(payload)} bytes does not fit one JPEG APP1 segment")
+    return b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload
+
+
+def embed_metadata(jpeg: bytes, meta: ImageMetadata) -> bytes:
+    """`jpeg` with `meta` written into it: an EXIF APP1 segment (`encode_exif`) and, when `meta.xmp` has
+    properties, an XMP APP1 segment (`encode_xmp`), both right after the start-of-image marker (any metadata
+    segments already there follow them, and readers take the first). The pixels are untouched."""
+    if jpeg[:2] != b"\xff\xd8":
+        raise ValueError("not a JPEG byte string")
+    segments = _app1(EXIF_APP1_HEADER + encode_exif(meta))
+    if meta.xmp:
+        segments += _app1(XMP_APP1_HEADER + encode_xmp(meta.xmp))
+    return jpeg[:2] + segments + jpeg[2:]
+

@@ -1,0 +1,486 @@
+"""What a folder of survey images says about its poses and cameras: EXIF GPS, XMP attitude, heights, capture
+times and intrinsics, read once for every pose workflow (`poses-from-exif` turns them into poses, `poses`
+uses them as the priors and the fallback of structure from motion).
+
+`read_image_priors(images, ...)` returns an `ImagePriors`: per image the grid position (NaN without a fix), the
+prior rotation, whether it came from attitude tags, the capture time, the height sources, and one camera per
+make, model and image size. Nothing is refused here that structure from motion can live without (images
+without GPS, mixed cameras, damaged tags: they are counted in the summary and warned about once);
+`poses_from_exif.poses_from_images` adds the checks its own job needs.
+
+World frame. Positions are full UTM coordinates (WGS84 / UTM, EPSG:326zz north or 327zz south, the zone of the
+first image with a fix unless `epsg` is given). Heights: the GPS altitude (metres, as the receiver reports it:
+for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
+vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off
+point), the take-off altitude + RelativeAltitude. The take-off altitude is given (`takeoff_altitude_m`) or
+taken from the GPS at the start of the flight: the line of GPS altitude - RelativeAltitude over capture time
+(`plugin.georegistration.fit_drift`) at the first image, since a GPS altitude drifts from take-off on; that
+drift against the barometer is measured and reported. The pose CSV header says `# crs: EPSG:<code>`; float64
+keeps UTM-sized coordinates to well under a millimetre, and the landmark map stores an origin + EPSG, so every
+output stays georeferenced.
+Rotations are expressed in the UTM grid: the heading of an image (from true north) is turned into a grid
+azimuth with the local meridian convergence (1.5 degrees at the Seneca site, not negligible against attitude
+errors of a degree or two).
+
+Attitude sources, per image, first that applies:
+1. DJI XMP `GimbalYawDegree/GimbalPitchDegree/GimbalRollDegree` (absolute gimbal angles; pitch -90 = nadir):
+   the camera looks along the gimbal's forward axis, image x to its right (mount "gimbal").
+2. senseFly XMP `Heading/PitchAngle/RollAngle`, or DJI `FlightYawDegree/FlightPitchDegree/FlightRollDegree`
+   without gimbal tags, or the same angles from a telemetry CSV (`telemetry=`): the airframe attitude of a
+   camera fixed to the airframe looking down; the mounting is `mount` (see `FIXED_MOUNTS`), and the sign of
+   pitch and roll `pitch_sign`/`roll_sign`.
+3. No attitude at all: level, nadir, heading = course over ground (EXIF GPSTrack, else the direction to the
+   neighbouring images); a warning says how many images this affected.
+
+Fixed-mount convention (checked on the Seneca flight, `tools/benchmarks/bench_real.py attitude`): the senseFly
+pitch/roll/heading are taken as aerospace angles (yaw clockwise from north, pitch nose up, roll right wing down;
+R_ned_from_body = Rz(heading) Ry(pitch) Rx(roll)). For 53 consecutive same-line frame pairs, ORB matches
+(RANSAC-homography inliers, no telemetry used) were compared with the motion the telemetry poses predict over
+the flat ground at GPS altitude - Height. Median error per pair: image top towards the nose with pitch and roll
+as given 138 px; pitch or roll sign flipped 168-190 px; image x along the nose 503-527 px, along the tail
+527-584 px, image top towards the tail 704-805 px; a level camera (attitude ignored) 148 px. So the mount is
+"top_forward" with both signs +1 (the default), and the wrong mounts are ruled out by far; but the telemetry
+attitude is noisy (the remaining 138 px at ~70 m above ground is ~11 m on the ground, i.e. ~5-7 degrees per
+frame, no better explained by a height scale, a timing shift of the positions or the neighbouring rows'
+attitude), so refine such poses (`pose_refinement`) with an attitude sigma of ~5 degrees.
+
+Intrinsics: fx = FocalLength [mm] * FocalPlaneXResolution [px/mm] * (file width / ExifImageWidth): EXIF
+describes the sensor readout, and images are often downscaled afterwards (Seneca: 4000x3000 -> 1200x900).
+Without a focal-plane resolution, `sensor_width_mm` (fx = f / sensor width * file width) or the 35 mm
+equivalent focal length are used. The 35 mm figure refers to the diagonal of the sensor's full frame, not of a
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..database.exif import ImageMetadata, read_image_metadata
+from ..database.text_input import read_user_text
+from ..plugin.errors import InputError
+from ..plugin.geometry import Camera
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
+FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
+# Aspect ratios (long side / short side) of photo sensors' full frames; other aspects are crops of a 4:3 frame.
+SENSOR_ASPECTS = (4.0 / 3.0, 3.0 / 2.0)
+CROPPED_FROM_ASPECT = 4.0 / 3.0
+
+# Camera axes (x right, y down, z forward) expressed in the airframe's forward-right-down (FRD) axes, as the
+# columns of R_body_from_cam. A downward camera has z = body down; the mounts differ in where the image top is.
+FIXED_MOUNTS: dict[str, np.ndarray] = {
+    # image top towards the nose, image x along the right wing
+    "top_forward": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+    # image x towards the nose (image top towards the left wing)
+    "right_forward": np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+    # image top towards the tail
+    "top_backward": np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+    # image x towards the tail (image top towards the right wing)
+    "left_forward": np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]),
+}
+# A gimbal camera looks along its forward axis: x = right, y = down, z = forward.
+GIMBAL_MOUNT = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+# Chosen by the Seneca flow check (tools/benchmarks/bench_real.py, BENCHMARKS.md real-data section).
+DEFAULT_MOUNT = "top_forward"
+DEFAULT_PITCH_SIGN = 1.0
+DEFAULT_ROLL_SIGN = 1.0
+ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+def ned_from_body(yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
+    """(N,3,3) aerospace rotations Rz(yaw) Ry(pitch) Rx(roll): yaw clockwise from north, pitch nose up."""
+    y, p, r = (np.radians(np.asarray(a, dtype=np.float64)).reshape(-1) for a in (yaw_deg, pitch_deg, roll_deg))
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    one, zero = np.ones_like(y), np.zeros_like(y)
+    rz = np.stack([np.stack([cy, -sy, zero], -1), np.stack([sy, cy, zero], -1), np.stack([zero, zero, one], -1)], -2)
+    ry = np.stack([np.stack([cp, zero, sp], -1), np.stack([zero, one, zero], -1), np.stack([-sp, zero, cp], -1)], -2)
+    rx = np.stack([np.stack([one, zero, zero], -1), np.stack([zero, cr, -sr], -1), np.stack([zero, sr, cr], -1)], -2)
+    return rz @ ry @ rx
+
+
+def camera_rotations(
+    yaw_deg: np.ndarray,
+    pitch_deg: np.ndarray,
+    roll_deg: np.ndarray,
+    mount: str | np.ndarray = DEFAULT_MOUNT,
+    pitch_sign: float = DEFAULT_PITCH_SIGN,
+    roll_sign: float = DEFAULT_ROLL_SIGN,
+    grid_azimuth_of_north_deg: np.ndarray | float = 0.0,
+) -> np.ndarray:
+    """world_from_camera rotations (N,3,3) in an east-north-up grid frame from aerospace body angles.
+
+    `mount` is a name in FIXED_MOUNTS, "gimbal", or a 3x3 R_body_from_cam. `grid_azimuth_of_north_deg` is the
+    azimuth of true north in the grid (clockwise from grid north), added to the yaw (meridian convergence).
+    """
+    if isinstance(mount, str):
+        if mount == "gimbal":
+            m = GIMBAL_MOUNT
+        elif mount in FIXED_MOUNTS:
+            m = FIXED_MOUNTS[mount]
+        else:
+            raise InputError(f"unknown camera mount {mount!r} (use gimbal or one of {sorted(FIXED_MOUNTS)})")
+    else:
+        m = np.asarray(mount, dtype=np.float64)
+    yaw = np.asarray(yaw_deg, dtype=np.float64) + np.asarray(grid_azimuth_of_north_deg, dtype=np.float64)
+    r = ned_from_body(yaw, pitch_sign * np.asarray(pitch_deg, float), roll_sign * np.asarray(roll_deg, float))
+    return ENU_FROM_NED @ r @ m
+
+
+def utm_epsg(latitude: float, longitude: float) -> int:
+    """EPSG code of the WGS84 / UTM zone containing a point (326zz north, 327zz south)."""
+    zone = int(math.floor((longitude + 180.0) / 6.0)) % 60 + 1
+    return (32600 if latitude >= 0 else 32700) + zone
+
+
+def geographic_to_grid(lat: np.ndarray, lon: np.ndarray, epsg: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """WGS84 degrees -> (easting, northing, azimuth of true north in the grid in degrees) for a projected CRS."""
+    from pyproj import Transformer
+
+    tf = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
+    lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+    e, n = tf.transform(lon, lat)
+    # Meridian convergence measured, not looked up: the grid direction of a 1e-4 degree step north.
+    e2, n2 = tf.transform(lon, lat + 1e-4)
+    north_az = np.degrees(np.arctan2(np.asarray(e2) - e, np.asarray(n2) - n))
+    return np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64), north_az
+
+
+
+def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
+    """A directory's image files (sorted by name), or the given list of paths."""
+    if isinstance(images, (str, Path)):
+        root = Path(images)
+        if root.is_dir():
+            paths = sorted(p for p in root.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not paths:
+                raise InputError("no images (.jpg/.tif/.png) in directory", root)
+            return paths
+        if not root.exists():
+            raise InputError("image directory not found", root)
+        return [root]
+    return [Path(p) for p in images]
+
+
+_TELEMETRY_KEYS = {
+    "name": ("filename", "name", "image", "image_name", "file"),
+    "yaw": ("heading", "yaw", "yaw_deg", "flightyawdegree"),
+    "pitch": ("pitchangle", "pitch", "pitch_deg", "flightpitchdegree"),
+    "roll": ("rollangle", "roll", "roll_deg", "flightrolldegree"),
+    "lat": ("gpslatitude", "latitude", "lat"),
+    "lon": ("gpslongitude", "longitude", "lon"),
+    "alt": ("gpsaltitude", "altitude", "alt"),
+}
+
+
+def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
+    """Per image name: yaw/pitch/roll (and lat/lon/alt where present) from a telemetry CSV (header names as in
+    Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...; case-insensitive)."""
+    path = Path(path)
+    text = read_user_text(path, "telemetry file")
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        raise InputError("empty telemetry file", path)
+    header = [h.strip().lower() for h in rows[0]]
+    col = {key: next((header.index(a) for a in aliases if a in header), None)
+           for key, aliases in _TELEMETRY_KEYS.items()}
+    if col["name"] is None:
+        raise InputError(f"telemetry header needs an image name column (one of {_TELEMETRY_KEYS['name']})", path, 1)
+    out: dict[str, dict[str, float]] = {}
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or not "".join(row).strip():
+            continue
+        values: dict[str, float] = {}
+        for key, idx in col.items():
+            if key == "name" or idx is None or idx >= len(row) or not row[idx].strip():
+                continue
+            try:
+                values[key] = float(row[idx])
+            except ValueError:
+                raise InputError(f"non-numeric {header[idx]} value {row[idx]!r}", path, lineno) from None
+        out[row[col["name"]].strip()] = values
+    return out
+
+
+def full_frame_diagonal_px(width: int, height: int, sensor_aspect: float | None = None) -> float:
+    """Diagonal, in pixels of this image, of the sensor frame a 35 mm equivalent focal length refers to.
+
+    The image is the largest crop of a frame of `sensor_aspect` (long / short side; default: the image's own
+    aspect when it is a photo sensor's, 4:3 or 3:2, else 4:3) with the same pixel pitch: a wider image keeps the
+    frame's long side, a squarer one its short side."""
+    long_side, short_side = max(width, height), min(width, height)
+    aspect = long_side / short_side
+    if sensor_aspect is None:
+        sensor_aspect = next((a for a in SENSOR_ASPECTS if abs(aspect - a) <= 0.01 * a), CROPPED_FROM_ASPECT)
+    if aspect >= sensor_aspect:
+        frame = (long_side, long_side / sensor_aspect)
+    else:
+        frame = (short_side * sensor_aspect, short_side)
+    return math.hypot(*frame)
+
+
+def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = None) -> tuple[Camera, str]:
+    """Pinhole intrinsics of one image from its EXIF, scaled to the file's actual size, and the source used."""
+    w, h = meta.width, meta.height
+    if meta.focal_mm and sensor_width_mm:
+        fx = meta.focal_mm / sensor_width_mm * w
+        return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLength + given sensor width"
+    if meta.focal_mm and meta.focal_plane_px_per_mm:
+        ref_w, ref_h = meta.exif_size if meta.exif_size else (w, h)
+        if meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01:
+            log.warning("%s: EXIF size %dx%d and file %dx%d differ in aspect (cropped?): scaling by width",
+                        meta.path.name, ref_w, ref_h, w, h)
+        scale = w / ref_w
+        fx = meta.focal_mm * meta.focal_plane_px_per_mm[0] * scale
+        fy = meta.focal_mm * meta.focal_plane_px_per_mm[1] * scale
+        return Camera(w, h, fx, fy, w / 2.0, h / 2.0), "FocalLength + FocalPlaneX/YResolution (scaled to file size)"
+    if meta.focal_35mm:
+        fx = meta.focal_35mm / FULL_FRAME_DIAGONAL_MM * full_frame_diagonal_px(w, h)
+        return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLengthIn35mmFilm (full-frame diagonal)"
+    raise InputError("no usable focal length in EXIF (FocalLength with FocalPlaneXResolution, or "
+                     "FocalLengthIn35mmFilm); give the sensor width (--sensor-width-mm) or a cameras.txt", meta.path)
+
+
+def _course_from_neighbours(east: np.ndarray, north: np.ndarray) -> np.ndarray:
+    """Azimuth of travel (degrees clockwise from grid north) at each image, from its neighbours with a position
+    (NaN where an image has no neighbour with one)."""
+    n = len(east)
+    out = np.full(n, np.nan)
+    ok = np.flatnonzero(np.isfinite(east) & np.isfinite(north))
+    for i in range(n):
+        # the nearest images with a position before and after (the image itself at the ends of the flight)
+        before, after = ok[ok < i], ok[ok > i]
+        here = [i] if i in ok else []
+        a = before[-1] if len(before) else (here or [None])[0]
+        b = after[0] if len(after) else (here or [None])[0]
+        if a is not None and b is not None and a != b:
+            out[i] = np.degrees(np.arctan2(east[b] - east[a], north[b] - north[a]))
+    return out
+
+
+
+@dataclass
+class ImagePriors:
+    """Per image (in file-name order): what its metadata says (see `read_image_priors`)."""
+
+    paths: list[Path]
+    metas: list[ImageMetadata]
+    epsg: int  # projected CRS of `positions` (0 when no image has a GPS fix)
+    positions: np.ndarray  # (N,3) east, north, height; NaN without a GPS fix (only the height: no altitude)
+    gps_altitude: np.ndarray  # (N,) as the receiver reports it (NaN without)
+    relative_altitude: np.ndarray  # (N,) DJI RelativeAltitude (NaN without)
+    rotations: np.ndarray  # (N,3,3) prior world_from_camera (level nadir + course where no tags say)
+    attitude_kind: np.ndarray  # (N,) "gimbal" | "fixed" (airframe angles) | "course" (no attitude tags)
+    times_s: np.ndarray  # (N,) capture time (DateTimeOriginal; capture order where missing)
+    cameras: list[Camera]  # one per make + model + image size
+    camera_index: np.ndarray  # (N,) index into `cameras`
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.paths]
+
+    @property
+    def has_gps(self) -> np.ndarray:
+        return np.all(np.isfinite(self.positions), axis=1)
+
+    @property
+    def attitude_from_tags(self) -> np.ndarray:
+        return self.attitude_kind != "course"
+
+
+def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
+    """Capture times in seconds; images without one are placed by their order between those with one (capture
+    order at one second per image when none has a time)."""
+    t = np.array([m.capture_time_s if m.capture_time_s is not None else np.nan for m in metas], dtype=np.float64)
+    ok = np.isfinite(t)
+    idx = np.arange(len(t), dtype=np.float64)
+    if ok.sum() >= 2:
+        if not ok.all():
+            t[~ok] = np.interp(idx[~ok], idx[ok], t[ok])
+        return t - t.min(), "EXIF DateTimeOriginal" + ("" if ok.all() else " (interpolated where missing)")
+    return idx, "capture order (no EXIF DateTimeOriginal)"
+
+
+def _camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
+                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str]]:
+    """One camera per make + model + image size (the median focal length of its images), the camera of every
+    image and the intrinsics source of each camera. Without any usable focal length the camera gets COLMAP's
+    default guess (1.2 x the longer side) with a warning, or InputError when `strict`."""
+    keys = sorted({m.camera_key for m in metas}, key=lambda k: [m.camera_key for m in metas].index(k))
+    index = np.array([keys.index(m.camera_key) for m in metas], dtype=np.int64)
+    cameras, sources = [], []
+    for g, key in enumerate(keys):
+        members = [m for m, i in zip(metas, index) if i == g]
+        found = []
+        for m in members:
+            try:
+                found.append(camera_from_metadata(m, sensor_width_mm))
+            except InputError:
+                if strict:
+                    raise
+        w, h = key[2], key[3]
+        if not found:
+            f = 1.2 * max(w, h)
+            log.warning("%s %s (%dx%d, %d images): no usable focal length in EXIF; starting from %.0f px "
+                        "(structure from motion estimates it)", key[0], key[1], w, h, len(members), f)
+            cameras.append(Camera(w, h, f, f, w / 2.0, h / 2.0))
+            sources.append("none in EXIF (1.2 x the longer side)")
+            continue
+        fxs = np.array([c.fx for c, _ in found])
+        fys = np.array([c.fy for c, _ in found])
+        if fxs.max() > 1.01 * fxs.min():
+            log.warning("focal lengths differ between images (%.1f..%.1f px): using the median", fxs.min(), fxs.max())
+        c0 = found[0][0]
+        cameras.append(Camera(c0.width, c0.height, float(np.median(fxs)), float(np.median(fys)), c0.cx, c0.cy))
+        sources.append(found[0][1])
+    return cameras, index, sources
+
+
+def read_image_priors(
+    images: str | Path | Sequence[str | Path],
+    telemetry: str | Path | None = None,
+    mount: str = DEFAULT_MOUNT,
+    pitch_sign: float = DEFAULT_PITCH_SIGN,
+    roll_sign: float = DEFAULT_ROLL_SIGN,
+    sensor_width_mm: float | None = None,
+    epsg: int | None = None,
+    takeoff_altitude_m: float | None = None,
+    strict_intrinsics: bool = False,
+) -> ImagePriors:
+    """Read every image's metadata (and `telemetry`) into `ImagePriors` (see the module doc for the frame, the
+    attitude sources and the heights). Damaged or implausible tags are left out with one warning naming the
+    images; an unreadable image file is an InputError."""
+    from ..plugin.georegistration import fit_drift
+
+    paths = list_images(images)
+    tele = read_telemetry_csv(telemetry) if telemetry is not None else {}
+    metas = [read_image_metadata(p) for p in paths]
+    n = len(metas)
+    damaged = [m for m in metas if m.problems]
+    if damaged:
+        log.warning("%d of %d images have damaged or implausible metadata, left out: %s", len(damaged), n,
+                    "; ".join(f"{m.path.name}: {m.problems[0]}" for m in damaged[:3])
+                    + (f" ... ({len(damaged)} in all)" if len(damaged) > 3 else ""))
+    lat, lon, alt = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    pos_src: Counter = Counter()
+    for i, m in enumerate(metas):
+        t = tele.get(m.path.name, {})
+        if m.has_gps:
+            lat[i], lon[i] = m.latitude, m.longitude
+            pos_src["EXIF GPS"] += 1
+        elif "lat" in t and "lon" in t:
+            lat[i], lon[i] = t["lat"], t["lon"]
+            pos_src["telemetry CSV"] += 1
+        alt[i] = m.altitude if m.altitude is not None else t.get("alt", np.nan)
+    has = np.isfinite(lat)
+    east, north, north_az = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
+    if has.any():
+        first = int(np.flatnonzero(has)[0])
+        if epsg is None:
+            epsg = utm_epsg(float(lat[first]), float(lon[first]))
+        east[has], north[has], north_az[has] = geographic_to_grid(lat[has], lon[has], epsg)
+        north_az[~has] = float(np.mean(north_az[has]))
+    times, time_source = _capture_times(metas)
+
+    # Heights: DJI RelativeAltitude + take-off altitude where every fixed image has it, else the GPS altitude.
+    rel = np.array([v[0] if (v := m.xmp_float("RelativeAltitude")) else np.nan for m in metas])
+    heights, height_source, rel_drift = alt.copy(), "GPS altitude", None
+    fixed_alt = has & np.isfinite(alt)
+    if np.isfinite(rel[has]).all() and has.any():
+        if takeoff_altitude_m is None and fixed_alt.any():
+            rel_drift = fit_drift(times[fixed_alt], alt[fixed_alt] - rel[fixed_alt])
+            takeoff_altitude_m = rel_drift.reference
+            height_source = "take-off altitude (GPS at the start of the flight) + XMP RelativeAltitude"
+            if rel_drift.significant:
+                log.warning("the GPS altitude drifts by %+.1f m over the flight against the XMP RelativeAltitude "
+                            "(barometric): heights from the take-off altitude %.1f m + RelativeAltitude",
+                            rel_drift.change, takeoff_altitude_m)
+        elif takeoff_altitude_m is not None:
+            height_source = "given take-off altitude + XMP RelativeAltitude"
+        if takeoff_altitude_m is not None:
+            heights = takeoff_altitude_m + rel
+    positions = np.stack([east, north, heights], 1)  # NaN height: a fix without altitude
+
+    # Attitude, per image.
+    yaw, pitch, roll = np.zeros(n), np.zeros(n), np.zeros(n)
+    kind = np.empty(n, dtype=object)
+    att_src: Counter = Counter()
+    course = _course_from_neighbours(east, north)
+    for i, m in enumerate(metas):
+        t = tele.get(m.path.name, {})
+        gimbal = [m.xmp_float(k) for k in ("GimbalYawDegree", "GimbalPitchDegree", "GimbalRollDegree")]
+        fixed = [m.xmp_float("Heading", "FlightYawDegree"), m.xmp_float("PitchAngle", "FlightPitchDegree"),
+                 m.xmp_float("RollAngle", "FlightRollDegree")]
+        if all(gimbal):
+            (yaw[i], _), (pitch[i], _), (roll[i], _) = gimbal  # type: ignore[misc]
+            kind[i] = "gimbal"
+            att_src["XMP GimbalYaw/Pitch/RollDegree"] += 1
+        elif all(fixed):
+            (yaw[i], ky), (pitch[i], kp), (roll[i], kr) = fixed  # type: ignore[misc]
+            kind[i] = "fixed"
+            att_src[f"XMP {ky}/{kp}/{kr}"] += 1
+        elif all(k in t for k in ("yaw", "pitch", "roll")):
+            yaw[i], pitch[i], roll[i] = t["yaw"], t["pitch"], t["roll"]
+            kind[i] = "fixed"
+            att_src["telemetry CSV"] += 1
+        else:
+            kind[i] = "course"
+            if m.gps_track_deg is not None:
+                yaw[i] = m.gps_track_deg
+                att_src["EXIF GPSTrack (level, nadir)"] += 1
+            elif np.isfinite(course[i]):
+                yaw[i] = course[i] - north_az[i]  # course is a grid azimuth; yaw is from true north
+                att_src["course from neighbours (level, nadir)"] += 1
+            else:
+                att_src["nothing (level, nadir, heading unknown)"] += 1
+    rotations = np.empty((n, 3, 3))
+    for k, m_name, ps, rs in (("gimbal", "gimbal", 1.0, 1.0), ("fixed", mount, pitch_sign, roll_sign),
+                              ("course", mount, 1.0, 1.0)):
+        sel = kind == k
+        if sel.any():
+            rotations[sel] = camera_rotations(yaw[sel], pitch[sel], roll[sel], m_name, ps, rs, north_az[sel])
+    n_course = int(np.sum(kind == "course"))
+    if n_course:
+        log.warning("%d of %d images have no attitude tags: assumed level and nadir, heading = course", n_course, n)
+
+    cameras, camera_index, intrinsics_sources = _camera_groups(metas, sensor_width_mm, strict_intrinsics)
+    m0 = metas[0]
+    summary = {
+        "images": n,
+        "images_with_gps": int(has.sum()),
+        "epsg": int(epsg or 0),
+        "crs": f"EPSG:{epsg}" if epsg else "local",
+        "origin_latlon": [float(lat[has][0]), float(lon[has][0])] if has.any() else None,
+        "position_sources": dict(pos_src),
+        "altitude_source": height_source,
+        "gps_altitude_vs_relative_altitude": rel_drift.to_dict() if rel_drift is not None else None,
+        "takeoff_altitude_m": takeoff_altitude_m if np.isfinite(rel[has]).all() and has.any() else None,
+        "attitude_sources": dict(att_src),
+        "capture_times": time_source,
+        "mount": mount,
+        "pitch_sign": pitch_sign,
+        "roll_sign": roll_sign,
+        "meridian_convergence_deg": float(np.mean(north_az)),
+        "intrinsics_source": intrinsics_sources[0],
+        "cameras": [{"make_model": _make_model(next(m for m, i in zip(metas, camera_index) if i == g)),
+                     "images": int(np.sum(camera_index == g)), "width": c.width, "height": c.height,
+                     "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "intrinsics_source": intrinsics_sources[g]}
+                    for g, c in enumerate(cameras)],
+        "make_model": _make_model(m0),
+        "damaged_metadata": {m.path.name: m.problems for m in damaged},
+    }
+    return ImagePriors(paths, metas, int(epsg or 0), positions, alt, rel, rotations, kind, times, cameras,
+                       camera_index, summary)
+
+
+def _make_model(meta: ImageMetadata) -> str:
+    return meta.model if meta.model.startswith(meta.make) else f"{meta.make} {meta.model}".strip()
