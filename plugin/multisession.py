@@ -294,8 +294,10 @@ def consistent_edges(
 # --- refining a pairwise alignment on the full maps --------------------------------------------------------------
 
 
-def fit_yaw_translation(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> Sim3:
-    """Weighted least-squares 4-DOF transform target ≈ Rz(yaw) source + t (gravity-aligned frames).
+def fit_yaw_translation(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
+                        with_scale: bool = False) -> Sim3:
+    """Weighted least-squares 4-DOF transform target ≈ Rz(yaw) source + t (gravity-aligned frames); with
+    `with_scale` 5-DOF, target ≈ s Rz(yaw) source + t with the scale fitted on the horizontal coordinates.
 
     Both maps' z axes point up (roll and pitch are observable from gravity, the premise of the method's gravity
     check), so only the yaw and the translation are unknown. Fitting 4 instead of 6 degrees of freedom keeps
@@ -312,12 +314,14 @@ def fit_yaw_translation(source: np.ndarray, target: np.ndarray, weights: np.ndar
     xs, xd = src - mu_s, dst - mu_d
     num = w @ (xs[:, 0] * xd[:, 1] - xs[:, 1] * xd[:, 0])
     den = w @ (xs[:, 0] * xd[:, 0] + xs[:, 1] * xd[:, 1])
-    if np.hypot(num, den) < 1e-12 * max(float(w @ np.sum(xs[:, :2] ** 2, axis=1)), 1e-300):
+    spread = float(w @ np.sum(xs[:, :2] ** 2, axis=1))
+    if np.hypot(num, den) < 1e-12 * max(spread, 1e-300):
         raise ValueError("correspondences have no horizontal spread; the yaw is not determined")
     yaw = np.arctan2(num, den)
     c, s = np.cos(yaw), np.sin(yaw)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return Sim3(rot, mu_d - rot @ mu_s, 1.0)
+    scale = float(np.hypot(num, den) / spread) if with_scale else 1.0
+    return Sim3(rot, mu_d - scale * rot @ mu_s, scale)
 
 
 def mutual_nearest(

@@ -1,0 +1,446 @@
+"""Georegistration of a structure-from-motion block: world_from_sfm from camera centres against GPS (pure numpy).
+
+An SfM reconstruction is right up to a similarity; GPS is right to metres horizontally, its altitude may drift
+by tens of metres within a flight, a fix may be wrong, and attitude tags may be off (a whole flight line's yaw
+by 180 degrees). A plain 7-DOF fit of the centres to GPS follows all of that: a drifting altitude tilts the
+block (measured on a real flight: 40 degrees). So the similarity is put together from the sources that know
+each part:
+
+1. **Vertical** (`vertical_in_frame`): the world's up direction expressed in the SfM frame, per image
+   R_sfm_from_cam R_prior_from_cam^T e_z from the prior attitude (the IMU's gravity; a yaw error does not
+   change it), averaged robustly. Without attitude tags the prior is a level nadir camera, the survey
+   assumption, with a systematic uncertainty of `NADIR_ASSUMPTION_SIGMA_DEG`. The up direction of a 3-D fit to
+   the GPS positions is compared with it: when they agree within their uncertainties the two are combined
+   (inverse-variance), otherwise the GPS altitudes are inconsistent with the block (drift) and are not followed.
+2. **Horizontal** (`robust_horizontal_similarity`): scale, yaw and east/north offset of the levelled block on
+   the GPS positions, by least median of squares over 2-point samples (no threshold needed), then the noise
+   sigma measured from the median residual, inliers within the 99 % chi-square(2) radius, least squares on
+   them, repeated until the inliers settle. GPS fixes outside are listed.
+3. **Height** (`fit_drift`): the offset between reference heights (DJI RelativeAltitude + take-off altitude,
+   else the GPS altitude) and the levelled block, fitted as a line in capture time. A significant slope is the
+   reference drifting against the reconstruction: it is reported, and the heights are referenced to the start
+   of the flight (drift accumulates from take-off), not bent to follow it.
+
+Then `compare_with_priors` measures every image's orientation against its tags and finds flight lines whose
+tags contradict the images (a 180 degree yaw).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .geometry import rotation_angle_deg
+from .multisession import Sim3, fit_yaw_translation, umeyama
+
+# A level nadir camera is what survey flights aim for; fixed-wing airframes fly a few degrees nose-up and
+# multirotor gimbals hold nadir to a degree: the uncertainty of the mean view direction as the vertical.
+NADIR_ASSUMPTION_SIGMA_DEG = 3.0
+# Gimbal/IMU tilt calibration: an error common to all images that averaging does not remove.
+ATTITUDE_SYSTEMATIC_SIGMA_DEG = 0.5
+CHI2_2DOF_99 = 9.2103  # 99 % quantile of chi-square with 2 degrees of freedom
+CHI2_2DOF_MEDIAN = 1.3863  # its median
+CHI2_2DOF_9999 = 18.4207  # its 99.99 % quantile
+
+
+@dataclass
+class DriftFit:
+    """A robust straight line value(t) = offset + slope (t - t0) through one value per image."""
+
+    offset: float  # the value at the first image (t0)
+    slope_per_s: float
+    change: float  # slope x the flight's duration: the drift from the first to the last image
+    sigma: float  # robust standard deviation of the values about the line
+    change_sigma: float  # standard error of `change`
+    significant: bool  # |change| beyond 3 standard errors and beyond 2 sigma
+    median: float  # the median of the values (the offset to use when there is no drift)
+
+    @property
+    def reference(self) -> float:
+        """The offset that applies to the block: at the start of the flight when the value drifts, else the median."""
+        return self.offset if self.significant else self.median
+
+    def to_dict(self) -> dict:
+        return {"offset_at_start": self.offset, "median": self.median, "change_over_flight": self.change,
+                "change_sigma": self.change_sigma, "slope_per_min": self.slope_per_s * 60.0, "sigma": self.sigma,
+                "significant": self.significant}
+
+
+def _robust_sigma(residuals: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(residuals - np.median(residuals)))) if len(residuals) else 0.0
+
+
+def fit_drift(times: np.ndarray, values: np.ndarray, iterations: int = 10) -> DriftFit:
+    """Huber-weighted (k = 2 sigma) least-squares line of `values` over `times` (seconds), scale re-estimated
+    from the residuals' MAD every round; the line's change over the time span with its standard error."""
+    t = np.asarray(times, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(v)
+    t, v = t[ok], v[ok]
+    if len(v) == 0:
+        raise ValueError("no finite values to fit")
+    median = float(np.median(v))
+    t0, span = float(t.min()), float(t.max() - t.min())
+    if len(v) < 3 or span <= 0:
+        sigma = _robust_sigma(v)
+        return DriftFit(median, 0.0, 0.0, sigma, math.inf, False, median)
+    x = t - t0
+    w = np.ones(len(v))
+    coef = np.zeros(2)
+    sigma = _robust_sigma(v)
+    for _ in range(iterations):
+        a = np.stack([np.ones_like(x), x], 1) * np.sqrt(w)[:, None]
+        coef = np.linalg.lstsq(a, v * np.sqrt(w), rcond=None)[0]
+        r = v - coef[0] - coef[1] * x
+        sigma = max(_robust_sigma(r), 1e-9 * max(1.0, float(np.abs(v).max())))
+        k = 2.0 * sigma
+        w = np.where(np.abs(r) <= k, 1.0, k / np.maximum(np.abs(r), 1e-300))
+    sw = w.sum()
+    xm = (w @ x) / sw
+    sxx = float(w @ (x - xm) ** 2)
+    slope_se = sigma / math.sqrt(sxx) if sxx > 0 else math.inf
+    change, change_se = float(coef[1] * span), float(slope_se * span)
+    significant = bool(abs(change) > 3.0 * change_se and abs(change) > 2.0 * sigma)
+    return DriftFit(float(coef[0]), float(coef[1]), change, float(sigma), change_se, significant, median)
+
+
+def _mean_direction(vectors: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, np.ndarray, float]:
+    """Robust mean of unit vectors (N,3): (mean, inlier mask, per-vector angular sigma in degrees). Vectors
+    further than 3 robust sigmas (at least 2 degrees) from the mean are left out, the mean recomputed."""
+    v = vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
+    keep = np.ones(len(v), bool)
+    mean = v.mean(0)
+    sigma = 0.0
+    for _ in range(iterations):
+        mean = v[keep].mean(0)
+        mean /= np.linalg.norm(mean)
+        ang = np.degrees(np.arccos(np.clip(v @ mean, -1.0, 1.0)))
+        # angles of a 2-D isotropic spread: their median is 1.1774 sigma
+        sigma = float(np.median(ang[keep]) / 1.1774) if keep.any() else 0.0
+        new = ang <= max(3.0 * sigma, 2.0)
+        if not new.any() or np.array_equal(new, keep):
+            break
+        keep = new
+    return mean, keep, sigma
+
+
+@dataclass
+class Vertical:
+    """The world's up direction in the SfM frame and where it came from."""
+
+    up: np.ndarray  # unit vector, SfM frame
+    source: str  # "attitude tags", "nadir assumption", "... + GPS altitudes"
+    sigma_deg: float  # uncertainty of `up`
+    prior_up: np.ndarray  # from the attitude priors (tags or nadir) alone
+    prior_sigma_deg: float
+    gps_up: np.ndarray | None  # from a 3-D similarity to the GPS positions (None without >= 3 spread fixes)
+    gps_sigma_deg: float
+    gps_tilt_deg: float  # angle between prior_up and gps_up (nan without gps_up)
+    gps_consistent: bool
+    images_used: int
+    images_rejected: list[int] = field(default_factory=list)  # attitude tags contradicting the others' vertical
+
+
+def level_rotation(up: np.ndarray) -> np.ndarray:
+    """The smallest rotation R with R @ up = e_z."""
+    u = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(u, z)
+    s, c = float(np.linalg.norm(axis)), float(u @ z)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    k = axis / s
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + s * kx + (1.0 - c) * kx @ kx
+
+
+def vertical_in_frame(
+    sfm_from_cam: np.ndarray,
+    prior_world_from_cam: np.ndarray,
+    attitude_from_tags: np.ndarray,
+    sfm_centers: np.ndarray | None = None,
+    gps: np.ndarray | None = None,
+) -> Vertical:
+    """World up in the SfM frame from the prior attitudes, checked against (and combined with) the GPS positions.
+
+    `sfm_from_cam` (N,3,3) are the SfM rotations, `prior_world_from_cam` the tags' (or a level nadir camera's),
+    `attitude_from_tags` (N,) which priors came from tags: when at least 3 did, only those are used.
+    `gps` (N,3) may hold NaN rows (no fix)."""
+    tags = np.asarray(attitude_from_tags, bool)
+    use = tags if tags.sum() >= 3 else np.ones(len(tags), bool)
+    e_z = np.array([0.0, 0.0, 1.0])
+    per_image = np.einsum("nij,nkj,k->ni", sfm_from_cam[use], prior_world_from_cam[use], e_z)
+    prior_up, keep, spread = _mean_direction(per_image)
+    rejected = [int(i) for i in np.flatnonzero(use)[~keep]]
+    systematic = ATTITUDE_SYSTEMATIC_SIGMA_DEG if tags.sum() >= 3 else NADIR_ASSUMPTION_SIGMA_DEG
+    prior_sigma = math.hypot(spread / math.sqrt(max(int(keep.sum()), 1)), systematic)
+    source = "attitude tags" if tags.sum() >= 3 else "nadir assumption"
+
+    gps_up, gps_sigma, tilt, consistent = None, math.inf, math.nan, False
+    if gps is not None and sfm_centers is not None:
+        ok = np.all(np.isfinite(gps), axis=1)
+        if ok.sum() >= 3:
+            try:
+                fit = umeyama(sfm_centers[ok], gps[ok], with_scale=True)
+            except ValueError:  # collinear centres: the roll about the line is not observable from positions
+                fit = None
+            if fit is not None:
+                gps_up = fit.rotation.T @ e_z
+                resid = gps[ok] - fit.apply(sfm_centers[ok])
+                sigma_v = max(_robust_sigma(resid[:, 2]), 1e-3)
+                levelled = (sfm_centers[ok] - sfm_centers[ok].mean(0)) * fit.scale
+                extent = np.sqrt(np.mean(np.sum(levelled[:, :2] ** 2, axis=1)))
+                gps_sigma = math.degrees(sigma_v / (extent * math.sqrt(ok.sum()))) if extent > 0 else math.inf
+                tilt = float(np.degrees(np.arccos(np.clip(gps_up @ prior_up, -1.0, 1.0))))
+                consistent = tilt <= 3.0 * math.hypot(prior_sigma, gps_sigma)
+    if gps_up is not None and consistent:
+        wp, wg = 1.0 / prior_sigma**2, 1.0 / gps_sigma**2
+        up = (wp * prior_up + wg * gps_up) / (wp + wg)
+        up /= np.linalg.norm(up)
+        sigma = 1.0 / math.sqrt(wp + wg)
+        source += " + GPS altitudes"
+    else:
+        up, sigma = prior_up, prior_sigma
+    return Vertical(up, source, sigma, prior_up, prior_sigma, gps_up, gps_sigma, tilt, consistent,
+                    int(keep.sum()), rejected)
+
+
+@dataclass
+class HorizontalFit:
+    transform: Sim3  # target ≈ s Rz src + t (z of t meaningless)
+    inliers: np.ndarray  # bool (N,)
+    sigma_m: float  # per-axis noise of the target positions, measured
+    residuals_m: np.ndarray  # horizontal distance per point
+
+
+def robust_horizontal_similarity(src: np.ndarray, dst: np.ndarray, seed: int = 0,
+                                 samples: int = 500, min_sigma_m: float = 1e-3) -> HorizontalFit:
+    """Scale, yaw and translation of levelled points `src` (N,3) onto `dst` (N,3) on x, y: least median of
+    squares over 2-point samples, then least squares on the 99 % inliers of the measured sigma, iterated."""
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    n = len(src)
+    if n < 2:
+        raise ValueError(f"need >= 2 positions, got {n}")
+    rng = np.random.default_rng(seed)
+    if n * (n - 1) // 2 <= samples:
+        pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])
+    else:
+        pairs = np.array([rng.choice(n, 2, replace=False) for _ in range(samples)])
+
+    def residuals(t: Sim3) -> np.ndarray:
+        return np.linalg.norm((t.apply(src) - dst)[:, :2], axis=1)
+
+    best, best_med = None, math.inf
+    for i, j in pairs:
+        if np.linalg.norm(src[i, :2] - src[j, :2]) < 1e-9:
+            continue
+        try:
+            cand = fit_yaw_translation(src[[i, j]], dst[[i, j]], with_scale=True)
+        except ValueError:
+            continue
+        if not cand.scale > 0:
+            continue
+        med = float(np.median(residuals(cand) ** 2))
+        if med < best_med:
+            best, best_med = cand, med
+    if best is None:
+        raise ValueError("the positions have no horizontal spread")
+    fit = best
+    inliers = np.ones(n, bool)
+    sigma = max(math.sqrt(best_med / CHI2_2DOF_MEDIAN), min_sigma_m)
+    for _ in range(10):
+        r = residuals(fit)
+        new = r**2 <= CHI2_2DOF_99 * sigma**2
+        if new.sum() < 2:
+            break
+        fit = fit_yaw_translation(src[new], dst[new], with_scale=True)
+        r = residuals(fit)
+        dof = max(2 * int(new.sum()) - 4, 1)
+        sigma = max(math.sqrt(float(np.sum(r[new] ** 2)) / dof), min_sigma_m)
+        if np.array_equal(new, inliers):
+            break
+        inliers = new
+    return HorizontalFit(fit, inliers, sigma, residuals(fit))
+
+
+@dataclass
+class Georegistration:
+    """world_from_sfm and everything measured on the way (see the module doc)."""
+
+    transform: Sim3
+    vertical: Vertical
+    horizontal: HorizontalFit
+    height_offset: DriftFit  # of reference heights - levelled block heights
+    gps_altitude: DriftFit | None  # of GPS altitude - registered heights (the GPS altitude drift)
+    gps_indices: np.ndarray  # the images (indices into the inputs) with a GPS fix used
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        h, v = self.horizontal, self.vertical
+        return {
+            "transform": self.transform.to_dict(),
+            "images_with_gps": int(len(self.gps_indices)),
+            "gps_inliers": int(h.inliers.sum()),
+            "gps_horizontal_sigma_m": h.sigma_m,
+            "gps_horizontal_residual_median_m": float(np.median(h.residuals_m[h.inliers])),
+            "vertical_source": v.source, "vertical_sigma_deg": v.sigma_deg,
+            "gps_block_tilt_deg": None if math.isnan(v.gps_tilt_deg) else v.gps_tilt_deg,
+            "gps_altitudes_consistent": v.gps_consistent,
+            "height_offset": self.height_offset.to_dict(),
+            "gps_altitude_drift": None if self.gps_altitude is None else self.gps_altitude.to_dict(),
+            "warnings": list(self.warnings),
+        }
+
+
+def georegister(
+    sfm_centers: np.ndarray,
+    sfm_from_cam: np.ndarray,
+    gps: np.ndarray,
+    prior_world_from_cam: np.ndarray,
+    attitude_from_tags: np.ndarray,
+    times_s: np.ndarray,
+    reference_heights: np.ndarray | None = None,
+    seed: int = 0,
+) -> Georegistration:
+    """world_from_sfm for registered images: SfM centres (N,3) and rotations sfm_from_cam (N,3,3), GPS (N,3)
+    (NaN rows: no fix; needs >= 2 fixes), prior rotations and which came from tags, capture times (s), and
+    `reference_heights` (N,) to use instead of the GPS altitude for the height (DJI RelativeAltitude + take-off
+    altitude). ValueError when fewer than 2 images have a fix."""
+    c = np.asarray(sfm_centers, float)
+    gps = np.asarray(gps, float)
+    has = np.all(np.isfinite(gps), axis=1)
+    idx = np.flatnonzero(has)
+    if len(idx) < 2:
+        raise ValueError(f"{len(idx)} registered image(s) with a GPS position; georegistration needs 2")
+    # the GPS fixes that fit horizontally (block levelled by the priors alone) check the vertical
+    first = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags)
+    hfit = robust_horizontal_similarity(c[idx] @ level_rotation(first.up).T, gps[idx], seed)
+    checked = np.full_like(gps, np.nan)
+    checked[idx[hfit.inliers]] = gps[idx[hfit.inliers]]
+    vert = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags, c, checked)
+    level = level_rotation(vert.up)
+    levelled = c @ level.T
+    hfit = robust_horizontal_similarity(levelled[idx], gps[idx], seed)
+    s = hfit.transform.scale
+    r = hfit.transform.rotation @ level
+    block_z = s * levelled[:, 2]
+    heights = gps[:, 2] if reference_heights is None else np.asarray(reference_heights, float)
+    inl = idx[hfit.inliers]
+    use = inl[np.isfinite(heights[inl])]
+    warnings: list[str] = []
+    if len(use) == 0:
+        offset = DriftFit(0.0, 0.0, 0.0, 0.0, math.inf, False, 0.0)
+        warnings.append("no image has a height reference: heights are relative to the SfM origin")
+    else:
+        offset = fit_drift(times_s[use], heights[use] - block_z[use])
+    transform = Sim3(r, np.array([hfit.transform.translation[0], hfit.transform.translation[1],
+                                  offset.reference]), s)
+    registered_z = transform.apply(c)[:, 2]
+    gps_alt = fit_drift(times_s[inl], gps[inl, 2] - registered_z[inl]) if len(inl) else None
+    if not vert.gps_consistent and vert.gps_up is not None:
+        warnings.append(f"the GPS altitudes would tilt the block by {vert.gps_tilt_deg:.1f} deg against the "
+                        f"vertical of the {vert.source}: not followed")
+    if gps_alt is not None and gps_alt.significant:
+        warnings.append(f"the GPS altitude drifts by {gps_alt.change:+.1f} m over the flight against the "
+                        f"reconstruction ({gps_alt.slope_per_s * 60:+.2f} m/min): measured, not followed"
+                        + ("" if reference_heights is None else "; heights from the relative altitude")
+                        + ("; heights referenced to the start of the flight" if offset.significant else ""))
+    far = idx[hfit.residuals_m[np.arange(len(idx))] ** 2 > CHI2_2DOF_9999 * hfit.sigma_m**2]
+    if len(far):  # beyond the 99 % radius are left out; beyond 1 in 10^4 they are wrong fixes, not noise
+        warnings.append(f"{len(far)} GPS position(s) are off the reconstruction by more than 4.3 sigma of the "
+                        f"measured {hfit.sigma_m:.2f} m noise (left out of the fit)")
+    if hfit.inliers.sum() < 0.5 * len(idx):
+        warnings.append(f"only {int(hfit.inliers.sum())} of {len(idx)} GPS positions fit the reconstruction: "
+                        "the georegistration is doubtful")
+    if vert.images_rejected:
+        warnings.append(f"{len(vert.images_rejected)} image(s) have attitude tags whose vertical contradicts "
+                        "the others'")
+    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings)
+
+
+@dataclass
+class PriorComparison:
+    """Per image: the registered orientation against the prior (tags), and the contradictions found."""
+
+    angle_deg: np.ndarray  # total rotation between registered and prior orientation
+    yaw_deg: np.ndarray  # signed yaw of the prior against the registered orientation, wrapped to +-180
+    tilt_deg: np.ndarray  # angle between the two optical axes (the part a yaw error leaves alone)
+    position_m: np.ndarray  # distance between registered centre and prior (GPS) position (nan without)
+    yaw_bias_deg: float  # the median yaw difference of agreeing images (a compass offset)
+    contradicting: np.ndarray  # bool: yaw off the bias by more than 90 degrees
+    lines: list[dict]  # flight lines with contradicting tags: first/last index, count, median yaw
+
+
+def _heading_deg(world_from_cam: np.ndarray) -> np.ndarray:
+    """Azimuth (degrees, counter-clockwise from +x) of each image's top direction (-y axis) projected on the
+    ground; for a nadir camera the yaw that the tags encode."""
+    top = -world_from_cam[:, :, 1]
+    return np.degrees(np.arctan2(top[:, 1], top[:, 0]))
+
+
+def _wrap(deg: np.ndarray) -> np.ndarray:
+    return (np.asarray(deg) + 180.0) % 360.0 - 180.0
+
+
+def compare_with_priors(
+    world_from_cam: np.ndarray,
+    centers: np.ndarray,
+    prior_world_from_cam: np.ndarray,
+    prior_centers: np.ndarray,
+    line_ids: np.ndarray,
+) -> PriorComparison:
+    """Registered vs prior orientation of every image, and the flight lines (`line_ids`, -1 = none) on which
+    most images' tags contradict the images by more than 90 degrees of yaw."""
+    angle = np.asarray(rotation_angle_deg(world_from_cam, prior_world_from_cam), dtype=np.float64).reshape(-1)
+    yaw = _wrap(_heading_deg(prior_world_from_cam) - _heading_deg(world_from_cam))
+    axes = np.einsum("ni,ni->n", world_from_cam[:, :, 2], prior_world_from_cam[:, :, 2])
+    tilt = np.degrees(np.arccos(np.clip(axes, -1.0, 1.0)))
+    first = np.abs(yaw) <= 90.0
+    bias = float(np.median(yaw[first])) if first.any() else 0.0
+    contradicting = np.abs(_wrap(yaw - bias)) > 90.0
+    pos = np.linalg.norm(centers - prior_centers, axis=1)
+    lines = []
+    ids = np.asarray(line_ids)
+    for line in sorted(set(ids.tolist()) - {-1}):
+        members = np.flatnonzero(ids == line)
+        bad = contradicting[members]
+        if bad.sum() > 0.5 * len(members):
+            lines.append({"line": int(line), "first": int(members[0]), "last": int(members[-1]),
+                          "images": int(len(members)), "contradicting": int(bad.sum()),
+                          "median_yaw_deg": float(np.median(_wrap(yaw[members] - bias)))})
+    return PriorComparison(angle, yaw, tilt, pos, bias, contradicting, lines)
+
+
+def flight_lines(centers: np.ndarray, max_turn_deg: float = 30.0, min_images: int = 3) -> np.ndarray:
+    """Flight line id per image (in capture order) from the track: the steps between consecutive images are cut
+    into runs wherever the direction turns by more than `max_turn_deg` from the run's mean, each image joins the
+    longer of the runs of its incoming and outgoing step (a turn's diagonal step loses), and lines of fewer
+    than `min_images` images get -1."""
+    c = np.asarray(centers, float)
+    n = len(c)
+    ids = np.full(n, -1, dtype=np.int64)
+    if n < 2:
+        return ids
+    step = np.diff(c[:, :2], axis=0)
+    heading = np.degrees(np.arctan2(step[:, 1], step[:, 0]))
+    run = np.zeros(n - 1, dtype=np.int64)
+    start, ref = 0, heading[0]
+    for i in range(1, n - 1):
+        if abs(_wrap(heading[i] - ref)) > max_turn_deg:
+            run[i], start, ref = run[i - 1] + 1, i, heading[i]
+        else:
+            run[i] = run[i - 1]
+            ref = ref + _wrap(heading[i] - ref) / (i - start + 1)  # running mean direction
+    length = np.bincount(run)
+    incoming = np.r_[run[0], run]  # image i's incoming step is i - 1 (image 0: its outgoing one)
+    outgoing = np.r_[run, run[-1]]
+    member = np.where(length[incoming] >= length[outgoing], incoming, outgoing)
+    line = 0
+    for r in range(len(length)):
+        sel = member == r
+        if sel.sum() >= min_images:
+            ids[sel] = line
+            line += 1
+    return ids

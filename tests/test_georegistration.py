@@ -1,0 +1,135 @@
+"""Georegistration of an SfM block on GPS (plugin.georegistration): pure numpy, against exact truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from sosmatch.plugin.geometry import rotation_angle_deg
+from sosmatch.plugin.georegistration import (
+    compare_with_priors,
+    fit_drift,
+    flight_lines,
+    georegister,
+    level_rotation,
+    robust_horizontal_similarity,
+)
+from sosmatch.plugin.multisession import Sim3
+
+
+def _nadir(heading_rad: float) -> np.ndarray:
+    f = np.array([np.cos(heading_rad), np.sin(heading_rad), 0.0])
+    y, z = -f, np.array([0.0, 0.0, -1.0])
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def _block(n_lines: int = 4, per_line: int = 15, seed: int = 0):
+    """A lawnmower block: true world centres, rotations (world_from_cam), line ids, times."""
+    rng = np.random.default_rng(seed)
+    centers, rots, lines = [], [], []
+    for line in range(n_lines):
+        ys = np.arange(per_line) * 10.0
+        if line % 2:
+            ys = ys[::-1]
+        heading = np.pi / 2 if line % 2 == 0 else -np.pi / 2
+        for y in ys:
+            centers.append([line * 40.0, y, 100.0 + rng.normal(0, 0.5)])
+            tilt = Rotation.from_rotvec(np.radians(rng.normal(0, 1.5, 3)) * [1, 1, 0]).as_matrix()
+            rots.append(tilt @ _nadir(heading))
+            lines.append(line)
+    centers = np.array(centers) + [500000.0, 5200000.0, 300.0]
+    return centers, np.array(rots), np.array(lines), np.arange(len(centers)) * 2.0
+
+
+def _to_sfm(centers, rots, seed=1):
+    """The block in an arbitrary SfM frame (sfm_from_world = a random similarity)."""
+    rng = np.random.default_rng(seed)
+    sfm_from_world = Sim3(Rotation.random(random_state=rng.integers(1 << 30)).as_matrix(), rng.normal(0, 5, 3), 0.03)
+    return sfm_from_world.apply(centers), np.einsum("ij,njk->nik", sfm_from_world.rotation, rots), sfm_from_world
+
+
+def test_fit_drift_finds_a_linear_drift_and_not_noise():
+    t = np.arange(80) * 2.0
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0, 1.5, 80)
+    drift = fit_drift(t, 10.0 + 50.0 * t / t.max() + noise)
+    assert drift.significant and drift.change == pytest.approx(50.0, abs=2.0)
+    assert drift.offset == pytest.approx(10.0, abs=1.0) and drift.reference == drift.offset
+    flat = fit_drift(t, 10.0 + noise)
+    assert not flat.significant and flat.reference == flat.median
+    assert flat.sigma == pytest.approx(1.5, rel=0.3)
+
+
+def test_level_rotation_maps_up_to_z():
+    for up in ([0.1, -0.2, 0.97], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]):
+        u = np.array(up) / np.linalg.norm(up)
+        r = level_rotation(u)
+        np.testing.assert_allclose(r @ u, [0, 0, 1], atol=1e-12)
+        np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+
+
+def test_horizontal_similarity_ignores_outliers_and_measures_sigma():
+    rng = np.random.default_rng(5)
+    src = rng.uniform(-50, 50, (60, 3))
+    truth = Sim3(Rotation.from_euler("z", 37, degrees=True).as_matrix(), [100.0, -20.0, 0.0], 2.5)
+    dst = truth.apply(src) + rng.normal(0, 1.0, (60, 3)) * [1, 1, 0]
+    dst[:6, :2] += 40.0  # six wrong fixes
+    fit = robust_horizontal_similarity(src, dst)
+    assert not fit.inliers[:6].any() and fit.inliers[6:].mean() > 0.95
+    assert fit.sigma_m == pytest.approx(1.0, rel=0.25)
+    assert fit.transform.scale == pytest.approx(2.5, rel=0.01)
+
+
+@pytest.mark.parametrize("with_tags", [True, False])
+def test_georegister_ignores_altitude_drift_and_wrong_fixes(with_tags):
+    centers, rots, lines, times = _block()
+    sfm_c, sfm_r, _ = _to_sfm(centers, rots)
+    rng = np.random.default_rng(7)
+    gps = centers + rng.normal(0, 1.0, centers.shape) * [1, 1, 1.5]
+    gps[:, 2] += 50.0 * times / times.max()  # the GPS altitude drifts by 50 m
+    gps[10] += [35.0, -20.0, 0.0]  # a wrong fix
+    gps[33, :] = np.nan  # no fix
+    if with_tags:
+        noise = Rotation.from_rotvec(np.radians(rng.normal(0, 0.5, (len(rots), 3)))).as_matrix()
+        prior = noise @ rots
+        prior[lines == 2] = np.einsum("ij,njk->nik", np.diag([-1.0, -1.0, 1.0]), prior[lines == 2])  # yaw + 180
+        tags = np.ones(len(rots), bool)
+    else:
+        prior = np.stack([_nadir(np.pi / 2 if line % 2 == 0 else -np.pi / 2) for line in lines])
+        tags = np.zeros(len(rots), bool)
+    geo = georegister(sfm_c, sfm_r, gps, prior, tags, times)
+    world_c = geo.transform.apply(sfm_c)
+    world_r = np.einsum("ij,njk->nik", geo.transform.rotation, sfm_r)
+    err = np.linalg.norm(world_c - centers, axis=1)
+    # the height is referenced to the start of the flight, where the drift is zero; without tags the vertical
+    # comes from the mean view direction (0.3 deg off here), which the intercept of the drift line feels
+    assert np.median(err) < (1.0 if with_tags else 1.5) and err.max() < 2.0
+    assert np.max(rotation_angle_deg(world_r, rots)) < (0.6 if with_tags else 1.0)
+    assert not geo.horizontal.inliers[np.flatnonzero(geo.gps_indices == 10)[0]]
+    assert not geo.vertical.gps_consistent  # the drift would tilt the block: not followed
+    assert geo.gps_altitude is not None and geo.gps_altitude.change == pytest.approx(50.0, abs=3.0)
+    assert any("drifts by +" in w for w in geo.warnings)
+    if with_tags:
+        cmp = compare_with_priors(world_r, world_c, prior, gps, lines)
+        assert [ln["line"] for ln in cmp.lines] == [2]
+        assert cmp.contradicting[lines == 2].all() and not cmp.contradicting[lines != 2].any()
+
+
+def test_georegister_uses_consistent_gps_altitudes_with_the_nadir_assumption():
+    centers, rots, lines, times = _block(seed=2)
+    sfm_c, sfm_r, _ = _to_sfm(centers, rots, seed=4)
+    rng = np.random.default_rng(8)
+    gps = centers + rng.normal(0, 0.5, centers.shape)
+    prior = np.stack([_nadir(0.0)] * len(rots))  # headings unknown: level nadir, wrong yaw everywhere
+    geo = georegister(sfm_c, sfm_r, gps, prior, np.zeros(len(rots), bool), times)
+    assert geo.vertical.gps_consistent and "GPS altitudes" in geo.vertical.source
+    world_r = np.einsum("ij,njk->nik", geo.transform.rotation, sfm_r)
+    assert np.max(rotation_angle_deg(world_r, rots)) < 0.5
+    assert not geo.warnings
+
+
+def test_flight_lines_from_the_track():
+    centers, _, lines, _ = _block(n_lines=3, per_line=8)
+    ids = flight_lines(centers)
+    assert len(set(ids[lines == 0])) == 1 and len(set(ids.tolist()) - {-1}) == 3
