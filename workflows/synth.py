@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from ..database.cameras import write_cameras_txt
+from ..database.exif import embed_metadata
 from ..database.outputs import OutputDir, fingerprint, open_output_dir
 from ..database.poses import write_poses_csv
 from ..database.synth_session import (
@@ -39,7 +40,8 @@ from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..tools.synth.appearance import SEASON_LOOKS, CameraLook, encode_jpeg, finish_image, lighting
 from ..tools.synth.config import SynthConfig
-from ..tools.synth.flights import ekf_poses, flight_poses
+from ..tools.synth.flights import ekf_poses, flight_line_ids, flight_poses
+from ..tools.synth.geotags import geo_frame, session_geotags
 from ..tools.synth.noise import rng_for
 from ..tools.synth.render import ViewOutsideWorld, render_view
 from ..tools.synth.world import EXTRA_FRACTION, Scene, World, build_scene, get_world, visible_top_centres
@@ -144,6 +146,14 @@ def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, wo
     light = lighting(scene.dsm, world.res, az, el, SEASON_LOOKS[config.season].ambient, world.terrain)
     t_scene = time.perf_counter() - t1
     look = session_look(config)
+    geotags, geo = None, None
+    if config.geotags:  # EXIF GPS / DJI XMP with a consumer drone's errors, drawn from the exact poses
+        settings = config.geotag_settings()
+        geo = geo_frame(settings, world.config.size_m)
+        lines = flight_line_ids(config.flight_config())
+        takeoff = float(world.terrain_sampler.height_at(*poses.centers[0, :2]))
+        geotags = session_geotags(settings, geo, poses, camera, (config.width, config.height), lines, takeoff,
+                                  config.spacing_m, (config.world_seed, config.session_seed))
     t2 = time.perf_counter()
 
     def tracked(results: Any) -> Any:
@@ -163,7 +173,8 @@ def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, wo
         except ViewOutsideWorld as exc:
             raise InputError(f"image {name}: {exc}") from None
         rgb = finish_image(res.linear, look, rng_for(_T_FRAME, config.world_seed, config.session_seed, i))
-        (tmp / "images" / name).write_bytes(encode_jpeg(rgb, look.jpeg_quality))
+        jpeg = encode_jpeg(rgb, look.jpeg_quality)
+        (tmp / "images" / name).write_bytes(embed_metadata(jpeg, geotags[i]) if geotags else jpeg)
         (tmp / "labels" / (Path(name).stem + ".png")).write_bytes(_encode_png16(res.labels))
         visible = np.unique(res.labels)
         footprint = world.terrain_sampler.footprint(camera, r_wc, centre)
@@ -208,6 +219,8 @@ def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, wo
                   "objects": len(world.objects), "objects_present": int(present.sum())},
         "frames": len(poses),
     }
+    if geo is not None:
+        meta["geo"] = {**geo.to_dict(), "flight_lines": [int(v) for v in lines]}
     (tmp / SESSION_RECORD).write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
     taken.publish(SESSION_FILES, last=SESSION_RECORD)
     summary = {"out": str(out), "frames": len(poses), "objects_present": int(present.sum()),

@@ -62,6 +62,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--ekf-drift", type=float, default=d.ekf_drift_m_per_sqrt_m, help="m per sqrt(m) flown")
     g.add_argument("--ekf-attitude-drift", type=float, default=d.ekf_attitude_drift_deg_per_sqrt_m,
                    help="deg per sqrt(m) flown")
+    g = parser.add_argument_group("geotags in the JPEGs (EXIF GPS, DJI XMP; see tools/synth/geotags.py)")
+    g.add_argument("--geotags", choices=["exif", "dji"], default=None,
+                   help="exif: GPS + camera EXIF; dji: also gimbal/flight angles and RelativeAltitude in XMP")
+    g.add_argument("--geo-origin", type=_pair, default=d.geotag_origin_latlon, metavar="LAT,LON",
+                   help="latitude, longitude of the world centre")
+    g.add_argument("--gps-sigma", type=float, default=d.geotag_gps_sigma_m, help="horizontal GPS noise, m")
+    g.add_argument("--gps-altitude-sigma", type=float, default=d.geotag_altitude_sigma_m, help="m")
+    g.add_argument("--gps-altitude-drift", type=float, default=d.geotag_altitude_drift_m,
+                   help="GPS altitude error reached at the last image (grows linearly), m")
+    g.add_argument("--attitude-tag-sigma", type=float, default=d.geotag_attitude_sigma_deg,
+                   help="gimbal tilt error, deg")
+    g.add_argument("--yaw-tag-sigma", type=float, default=d.geotag_yaw_sigma_deg, help="compass error, deg")
+    g.add_argument("--yaw-fault-lines", type=_ints, default=(), metavar="I,J",
+                   help="flight lines (0 = first) whose XMP yaws are off by 180 degrees")
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated line numbers, got {text!r}") from None
 
 
 def config_from_args(args: argparse.Namespace):  # noqa: ANN201 (SynthConfig, imported lazily)
@@ -79,6 +100,10 @@ def config_from_args(args: argparse.Namespace):  # noqa: ANN201 (SynthConfig, im
         noise_sigma=args.noise, blur_sigma_px=args.blur, jpeg_quality=args.jpeg_quality,
         ekf_position_sigma_m=args.ekf_position_sigma, ekf_attitude_sigma_deg=args.ekf_attitude_sigma,
         ekf_drift_m_per_sqrt_m=args.ekf_drift, ekf_attitude_drift_deg_per_sqrt_m=args.ekf_attitude_drift,
+        geotags=args.geotags or "", geotag_origin_latlon=tuple(args.geo_origin), geotag_gps_sigma_m=args.gps_sigma,
+        geotag_altitude_sigma_m=args.gps_altitude_sigma, geotag_altitude_drift_m=args.gps_altitude_drift,
+        geotag_attitude_sigma_deg=args.attitude_tag_sigma, geotag_yaw_sigma_deg=args.yaw_tag_sigma,
+        geotag_yaw_fault_lines=tuple(args.yaw_fault_lines),
     )
 
 

@@ -23,6 +23,7 @@ from ...plugin.errors import InputError
 if TYPE_CHECKING:  # the heavy modules (cv2) are imported when used, so that `sosmatch --help` stays fast
     from ...plugin.geometry import Camera
     from .flights import EkfNoise, FlightConfig
+    from .geotags import GeotagSettings
     from .world import WorldConfig
 
 SEASON_NAMES = ("summer", "autumn", "winter", "spring")
@@ -66,6 +67,16 @@ class SynthConfig:
     ekf_attitude_sigma_deg: float = 0.3
     ekf_drift_m_per_sqrt_m: float = 0.05
     ekf_attitude_drift_deg_per_sqrt_m: float = 0.01
+    # geotags in the JPEGs (tools/synth/geotags.py): "" none, "exif" = EXIF GPS + camera tags (a compact camera),
+    # "dji" = also DJI XMP (gimbal and flight angles, RelativeAltitude); with a consumer drone's errors
+    geotags: str = ""
+    geotag_origin_latlon: tuple[float, float] = (47.0, 8.0)  # where the world centre lies
+    geotag_gps_sigma_m: float = 1.0  # horizontal, per axis
+    geotag_altitude_sigma_m: float = 1.5
+    geotag_altitude_drift_m: float = 0.0  # GPS altitude error growing linearly to this at the last image
+    geotag_attitude_sigma_deg: float = 0.5  # gimbal tilt error
+    geotag_yaw_sigma_deg: float = 1.0  # compass error
+    geotag_yaw_fault_lines: tuple[int, ...] = ()  # flight lines whose XMP yaws are 180 degrees off
 
     def world_config(self) -> WorldConfig:
         from .world import WorldConfig
@@ -87,6 +98,16 @@ class SynthConfig:
         return EkfNoise(self.ekf_position_sigma_m, self.ekf_attitude_sigma_deg, self.ekf_drift_m_per_sqrt_m,
                         self.ekf_attitude_drift_deg_per_sqrt_m)
 
+    def geotag_settings(self) -> GeotagSettings:
+        from .geotags import GeotagSettings
+
+        return GeotagSettings(kind=self.geotags, origin_latlon=tuple(self.geotag_origin_latlon),
+                              gps_sigma_m=self.geotag_gps_sigma_m, gps_altitude_sigma_m=self.geotag_altitude_sigma_m,
+                              gps_altitude_drift_m=self.geotag_altitude_drift_m,
+                              attitude_tag_sigma_deg=self.geotag_attitude_sigma_deg,
+                              yaw_tag_sigma_deg=self.geotag_yaw_sigma_deg,
+                              yaw_fault_lines=tuple(int(v) for v in self.geotag_yaw_fault_lines))
+
     def camera(self) -> Camera:
         from ...plugin.geometry import Camera
 
@@ -104,6 +125,8 @@ class SynthConfig:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["shift_m"] = list(self.shift_m)
+        d["geotag_origin_latlon"] = list(self.geotag_origin_latlon)
+        d["geotag_yaw_fault_lines"] = list(self.geotag_yaw_fault_lines)
         return d
 
     def validate(self) -> None:
@@ -150,3 +173,15 @@ class SynthConfig:
             bad("EKF noise settings must be >= 0")
         if self.exposure_ev is not None and abs(self.exposure_ev) > 4:
             bad("exposure_ev must be within +-4")
+        from .geotags import GEOTAG_KINDS
+
+        if self.geotags not in GEOTAG_KINDS:
+            bad(f"geotags must be one of exif, dji (or empty for none), got {self.geotags!r}")
+        lat, lon = self.geotag_origin_latlon
+        if not (abs(lat) <= 80 and abs(lon) <= 180):
+            bad("geotag origin must be a latitude within +-80 (UTM) and a longitude within +-180 degrees")
+        if min(self.geotag_gps_sigma_m, self.geotag_altitude_sigma_m, self.geotag_attitude_sigma_deg,
+               self.geotag_yaw_sigma_deg) < 0 or not math.isfinite(self.geotag_altitude_drift_m):
+            bad("geotag noise settings must be >= 0 (the drift may have either sign)")
+        if self.geotag_yaw_fault_lines and (self.geotags != "dji" or self.flight != "lawnmower"):
+            bad("a yaw fault on flight lines needs geotags=dji and a lawnmower flight")

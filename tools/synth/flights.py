@@ -103,6 +103,23 @@ def nominal_path(cfg: FlightConfig, center_xy: tuple[float, float]) -> tuple[np.
     return pts, np.arctan2(np.sin(heading), np.cos(heading))
 
 
+def flight_line_ids(cfg: FlightConfig) -> np.ndarray:
+    """Per frame, the flight line it was taken on, numbered in the order flown (0, 1, ...); -1 on the short
+    crossings between lawnmower lines and everywhere on a free-form path, which has no lines."""
+    frames = np.full(cfg.frames, -1, dtype=np.int64)
+    if cfg.kind != "lawnmower":
+        return frames
+    poly = _lawnmower(cfg)
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poly, axis=0), axis=1))])
+    seg = np.clip(np.searchsorted(cum, np.arange(cfg.frames) * cfg.spacing_m, side="right") - 1, 0, len(poly) - 2)
+    frames = np.where(seg % 2 == 0, seg // 2, -1)  # segments alternate: line, crossing, line, ...
+    if cfg.reverse:
+        frames = frames[::-1]
+        lines = frames >= 0
+        frames[lines] = frames[lines].max() - frames[lines]
+    return frames
+
+
 def _ar1(rng: np.random.Generator, n: int, sigma: float, rho: float = 0.85, dims: int = 1) -> np.ndarray:
     """A smooth stationary AR(1) sequence with standard deviation `sigma`."""
     out = np.zeros((n, dims))

@@ -1,0 +1,130 @@
+"""EXIF/XMP writing and reading (database.exif), the synthetic world's geotags, heights from RelativeAltitude,
+35 mm equivalents of cropped frames and damaged metadata: small files written here."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from sosmatch.database.exif import ImageMetadata, embed_metadata, read_image_metadata
+from sosmatch.database.poses import read_poses_csv
+from sosmatch.plugin.geometry import rotation_angle_deg
+from sosmatch.tools.cli import main
+from sosmatch.workflows import poses_from_exif as pfe
+from sosmatch.workflows.image_priors import full_frame_diagonal_px, read_image_priors
+
+
+def _jpeg(seed: int = 0, size: tuple[int, int] = (64, 48)) -> bytes:
+    rng = np.random.default_rng(seed)
+    ok, buf = cv2.imencode(".jpg", rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
+    assert ok
+    return buf.tobytes()
+
+
+def _meta(path, **kw) -> ImageMetadata:
+    base = dict(path=path, width=64, height=48, latitude=47.1234567, longitude=-8.7654321, altitude=512.345,
+                focal_mm=4.5, focal_35mm=24.0, make="DJI", model="FC1234",
+                datetime_original="2024:06:01 10:00:03", subsec_original="45",
+                xmp={"GimbalYawDegree": "+12.30", "GimbalPitchDegree": "-89.90", "GimbalRollDegree": "+0.00",
+                     "RelativeAltitude": "+80.10"})
+    base.update(kw)
+    return ImageMetadata(**base)
+
+
+def test_metadata_round_trip(tmp_path):
+    p = tmp_path / "a.jpg"
+    meta = _meta(p)
+    p.write_bytes(embed_metadata(_jpeg(), meta))
+    back = read_image_metadata(p)
+    assert back.latitude == pytest.approx(meta.latitude, abs=1e-9)
+    assert back.longitude == pytest.approx(meta.longitude, abs=1e-9)
+    assert back.altitude == pytest.approx(512.345)
+    assert (back.focal_mm, back.focal_35mm, back.make, back.model) == (4.5, 24.0, "DJI", "FC1234")
+    assert back.capture_time_s == pytest.approx(1717236003.45)
+    assert back.xmp == meta.xmp and back.problems == []
+    assert cv2.imdecode(np.frombuffer(p.read_bytes(), np.uint8), cv2.IMREAD_COLOR).shape == (48, 64, 3)
+
+
+def test_writer_refuses_what_the_reader_drops(tmp_path):
+    with pytest.raises(ValueError, match="off the globe"):
+        embed_metadata(_jpeg(), _meta(tmp_path / "a.jpg", latitude=95.0))
+
+
+def test_damaged_exif_and_xmp_are_problems_not_errors(tmp_path):
+    p = tmp_path / "a.jpg"
+    data = bytearray(embed_metadata(_jpeg(), _meta(p)))
+    i = data.find(b"Exif\x00\x00")
+    data[i + 14:i + 40] = b"\xab" * 26  # garble the first IFD
+    j = data.find(b"<rdf:Description")
+    data[j + 1:j + 5] = b"<<<<"  # XMP no longer well-formed
+    p.write_bytes(bytes(data))
+    meta = read_image_metadata(p)
+    assert not meta.has_gps and meta.xmp == {}
+    assert any("EXIF" in q for q in meta.problems) and any("XMP" in q for q in meta.problems)
+
+
+def test_35mm_equivalent_refers_to_the_full_sensor_frame():
+    # DJI 16:9 stills are the full-width band of a 4:3 sensor: the 4:3 diagonal, not the 16:9 one
+    assert full_frame_diagonal_px(4000, 2250) == pytest.approx(5000.0)
+    assert full_frame_diagonal_px(4000, 3000) == pytest.approx(5000.0)
+    assert full_frame_diagonal_px(6000, 4000) == pytest.approx(math.hypot(6000, 4000))  # a 3:2 sensor
+    assert full_frame_diagonal_px(2250, 4000) == pytest.approx(5000.0)  # portrait
+    meta = _meta("x.jpg", width=4000, height=2250, focal_mm=None, focal_35mm=24.0)
+    cam, source = pfe.camera_from_metadata(meta)
+    assert cam.fx == pytest.approx(24.0 / math.hypot(36, 24) * 5000.0) and "full-frame" in source
+
+
+def test_heights_from_relative_altitude_and_drift_against_it(tmp_path, caplog):
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(12):
+        # level flight 80 m above take-off (ground at 400 m); the GPS altitude drifts by 3 m per image
+        meta = _meta(img / f"f{k:02d}.jpg", latitude=47.0 + k * 1e-4, longitude=8.0, altitude=480.0 + 3.0 * k,
+                     datetime_original=f"2024:06:01 10:00:{2 * k:02d}", subsec_original="",
+                     xmp={"GimbalYawDegree": "0", "GimbalPitchDegree": "-90", "GimbalRollDegree": "0",
+                          "RelativeAltitude": "+80.00"})
+        (img / f"f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
+    priors = read_image_priors(img)
+    np.testing.assert_allclose(priors.positions[:, 2], 480.0, atol=1e-6)
+    assert "RelativeAltitude" in priors.summary["altitude_source"]
+    assert priors.summary["gps_altitude_vs_relative_altitude"]["change_over_flight"] == pytest.approx(33.0)
+    assert "drifts by +33.0 m" in caplog.text
+    given = read_image_priors(img, takeoff_altitude_m=100.0)
+    np.testing.assert_allclose(given.positions[:, 2], 180.0)
+
+
+def test_mixed_cameras_are_grouped_and_gps_is_optional(tmp_path):
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(3):
+        (img / f"a{k}.jpg").write_bytes(embed_metadata(_jpeg(k), _meta(img / f"a{k}.jpg")))
+        other = _meta(img / f"b{k}.jpg", width=80, height=60, model="Other", latitude=None, longitude=None)
+        (img / f"b{k}.jpg").write_bytes(embed_metadata(_jpeg(k, (80, 60)), other))
+    priors = read_image_priors(img)
+    assert len(priors.cameras) == 2 and priors.camera_index.tolist() == [0, 0, 0, 1, 1, 1]
+    assert priors.has_gps.tolist() == [True] * 3 + [False] * 3
+    assert [c["images"] for c in priors.summary["cameras"]] == [3, 3]
+
+
+def test_synth_geotags_match_the_truth(tmp_path, capsys):
+    out = tmp_path / "S"
+    assert main(["synth", "--out", str(out), "--frames", "30", "--width", "160", "--height", "120",
+                 "--geotags", "dji", "--yaw-fault-lines", "1", "--gps-altitude-drift", "20",
+                 "--world-size", "400"]) == 0
+    capsys.readouterr()
+    session = json.loads((out / "session.json").read_text())
+    offset = np.array(session["geo"]["world_to_crs_offset"])
+    lines = np.array(session["geo"]["flight_lines"])
+    truth, _ = read_poses_csv(out / "poses.csv")
+    exif = pfe.poses_from_images(out / "images")
+    assert exif.epsg == session["geo"]["epsg"]
+    err = exif.poses.centers - (truth.centers + offset)
+    assert np.abs(err[:, :2]).max() < 5.0 and np.std(err[:, :2]) < 2.0  # 1 m GPS noise
+    assert np.abs(err[:, 2]).max() < 1.0  # heights from RelativeAltitude: the GPS drift is not in them
+    angle = rotation_angle_deg(exif.poses.rotations, truth.rotations)
+    assert np.all(angle[lines == 1] > 175.0) and np.all(angle[lines != 1] < 5.0)
+    assert exif.camera.fx == pytest.approx(truth_fx := 80.0 / math.tan(math.radians(32.5)), rel=0.03), truth_fx
