@@ -208,6 +208,17 @@ def test_objects_change_between_sessions():
                           default)
 
 
+def test_changed_fraction_beyond_the_extras_pool_removes_more_and_adds_every_extra():
+    world = get_world(SynthConfig(**SMALL).world_config())
+    default = np.array([o.default_present for o in world.objects])
+    small = session_presence(world, SynthConfig(**SMALL, session_seed=1, changed_fraction=0.1))
+    large = session_presence(world, SynthConfig(**SMALL, session_seed=1, changed_fraction=0.4))
+    assert (default & ~large).sum() > 2 * (default & ~small).sum()  # removals keep growing
+    assert np.all(large[~default]) and np.all(small[~default])  # the pool is used up at 10 %
+    with pytest.raises(InputError, match="changed_fraction"):
+        SynthConfig(**SMALL, changed_fraction=0.6).validate()
+
+
 def test_cast_shadow_length_and_direction():
     res = 0.2
     dsm = np.zeros((400, 400), np.float32)

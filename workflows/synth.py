@@ -53,7 +53,8 @@ _T_PRESENCE, _T_LOOK, _T_FRAME = 21, 22, 23
 
 def session_presence(world: World, config: SynthConfig) -> np.ndarray:
     """Which world objects exist in this session: each default object is removed with probability
-    `changed_fraction`, each extra object added with the probability that adds as many as are removed."""
+    `changed_fraction`, each extra object added with the probability that adds as many as are removed (all of
+    them once `changed_fraction` reaches the pool's share, `EXTRA_FRACTION`)."""
     rng = rng_for(_T_PRESENCE, config.world_seed, config.session_seed)
     default = np.array([o.default_present for o in world.objects], bool)
     draw = rng.random(len(default))

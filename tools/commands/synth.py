@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--sun-azimuth", type=float, default=None, help="deg clockwise from north (season default)")
     g.add_argument("--sun-elevation", type=float, default=None, help="deg above horizon (season default)")
     g.add_argument("--changed", type=float, default=d.changed_fraction,
-                   help="fraction of objects removed (and as many added) in this session")
+                   help="fraction of objects removed in this session, at most 0.5 (as many added, up to the "
+                        "world's extras: 10 %% of the objects)")
     g = parser.add_argument_group("flight")
     g.add_argument("--flight", choices=["lawnmower", "freeform"], default=d.flight)
     g.add_argument("--frames", type=int, default=d.frames)
