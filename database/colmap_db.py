@@ -19,6 +19,7 @@ import sqlite3
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +27,9 @@ from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from .atomic import atomic_path
 from .cameras import pycolmap_camera
+
+if TYPE_CHECKING:
+    from ..plugin.changes import KeyframeSegments
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +61,52 @@ def affine_keypoints(centroids: np.ndarray, covariances: np.ndarray) -> np.ndarr
     out[:, :2] = centroids
     out[:, 2:] = affine.reshape(-1, 4)
     return out
+
+
+def keypoint_sizes_px(keypoints: np.ndarray) -> np.ndarray | None:
+    """Pixel size h = sqrt(lambda_max(Sigma)) of each affine keypoint (the inverse of `affine_keypoints`: the
+    largest singular value of A = sqrt(Sigma)); None for keypoints without a shape (2 or 4 columns)."""
+    kp = np.asarray(keypoints)
+    if kp.ndim != 2 or kp.shape[1] != 6:
+        return None
+    return np.linalg.svd(kp[:, 2:].astype(np.float64).reshape(-1, 2, 2), compute_uv=False)[:, 0]
+
+
+def read_segment_detections(path: str | Path, names: Sequence[str]) -> list[KeyframeSegments]:
+    """The keypoints of the images `names` in a session's database.db (segment centroids and pixel sizes).
+
+    A name missing from the database is an InputError (the database belongs to another session); an image
+    without keypoints gives an empty detection set.
+    """
+    import pycolmap
+
+    from ..plugin.changes import KeyframeSegments
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("COLMAP database not found", path)
+    try:
+        db = pycolmap.Database.open(str(path))
+    except Exception as exc:  # pycolmap raises plain RuntimeError on files that are not databases
+        raise InputError(f"cannot open COLMAP database: {exc}".splitlines()[0], path) from None
+    try:
+        try:
+            ids = {img.name: img.image_id for img in db.read_all_images()}
+        except Exception as exc:
+            raise InputError(f"cannot read the images of the COLMAP database: {exc}".splitlines()[0], path) \
+                from None
+        out = []
+        for name in names:
+            if name not in ids:
+                raise InputError(f"image {name!r} of the model is not in the database", path)
+            iid = ids[name]
+            kp = db.read_keypoints(iid) if db.exists_keypoints(iid) else np.zeros((0, 2), np.float32)
+            kp = np.asarray(kp, dtype=np.float64).reshape(len(kp), -1)
+            sizes = keypoint_sizes_px(kp)
+            out.append(KeyframeSegments(kp[:, :2].copy(), sizes if sizes is not None else np.full(len(kp), np.nan)))
+        return out
+    finally:
+        db.close()
 
 
 def track_associations(

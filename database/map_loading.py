@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..plugin.errors import InputError
+from .colmap_db import keypoint_sizes_px
 from .landmark_map import LandmarkMap, read_landmark_map
 
 if TYPE_CHECKING:
@@ -61,9 +62,9 @@ def track_sizes(rec: pycolmap.Reconstruction, ids: list[int], database: Path) ->
     try:
         for iid in rec.images:
             kp = db.read_keypoints(iid) if db.exists_keypoints(iid) else np.zeros((0, 2), np.float32)
-            if kp.shape[1] == 6:
-                a = kp[:, 2:].astype(np.float64).reshape(-1, 2, 2)
-                h_px[iid] = np.linalg.svd(a, compute_uv=False)[:, 0]  # sigma_max(A) = sqrt(lambda_max(A A^T))
+            sizes = keypoint_sizes_px(kp)
+            if sizes is not None:
+                h_px[iid] = sizes
     finally:
         db.close()
     poses = {iid: img.cam_from_world().matrix() for iid, img in rec.images.items() if img.has_pose}
