@@ -86,21 +86,18 @@ def centroid_points(synth: object, names: list[str], label_cache: dict[str, np.n
     return {oid: np.linalg.solve(normal[oid], rhs[oid]) for oid in normal if count[oid] >= 3}
 
 
-def score_session(session_dir: Path, mapped: Path) -> dict[str, float]:
-    """Ground-truth figures of a mapped session (see the module docstring)."""
+def landmark_objects(synth: object, mapped: Path, label_cache: dict[str, np.ndarray] | None = None,
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The object of each landmark of a mapped synthetic session: the object id under each observed centroid in
+    labels/ (0 = background), majority vote over the track read back from sparse/. Returns ((N,) ids, (N,) bool
+    purity: all observations on one id)."""
     import pycolmap
 
-    from ...database.landmark_map import read_landmark_map
     from ...database.session_io import read_landmark_point_ids
-    from ...database.synth_session import load_synth_session
 
-    synth = load_synth_session(session_dir)
-    lmap = read_landmark_map(mapped / "landmarks.sosmap")
-    pids = read_landmark_point_ids(mapped / "landmarks.csv", len(lmap))
+    label_cache = {} if label_cache is None else label_cache
+    pids = read_landmark_point_ids(mapped / "landmarks.csv")
     rec = pycolmap.Reconstruction(str(mapped / "sparse"))
-    run = json.loads((mapped / "run.json").read_text())
-    objects = {int(o["id"]): o for o in synth.objects}
-    label_cache: dict[str, np.ndarray] = {}
     majority, pure = [], []
     for pid in pids:
         ids = []
@@ -116,7 +113,21 @@ def score_session(session_dir: Path, mapped: Path) -> dict[str, float]:
         values, counts = np.unique(ids, return_counts=True)
         majority.append(int(values[np.argmax(counts)]))
         pure.append(len(values) == 1)
-    majority_arr = np.array(majority, dtype=np.int64)
+    return np.array(majority, dtype=np.int64), np.array(pure, dtype=bool)
+
+
+def score_session(session_dir: Path, mapped: Path) -> dict[str, float]:
+    """Ground-truth figures of a mapped session (see the module docstring)."""
+
+    from ...database.landmark_map import read_landmark_map
+    from ...database.synth_session import load_synth_session
+
+    synth = load_synth_session(session_dir)
+    lmap = read_landmark_map(mapped / "landmarks.sosmap")
+    run = json.loads((mapped / "run.json").read_text())
+    objects = {int(o["id"]): o for o in synth.objects}
+    label_cache: dict[str, np.ndarray] = {}
+    majority_arr, pure = landmark_objects(synth, mapped, label_cache)
     on_object = np.flatnonzero(majority_arr > 0)
     err_h, err_v = [], []
     for i in on_object:
@@ -149,7 +160,7 @@ def score_session(session_dir: Path, mapped: Path) -> dict[str, float]:
         "median_v_m": float(np.median(err_v)) if err_v else float("nan"),
         "pipe_h_m": float(np.median(pipe_h)) if pipe_h else float("nan"),
         "pipe_v_m": float(np.median(pipe_v)) if pipe_v else float("nan"),
-        "purity": float(np.mean(pure)) if pure else float("nan"),
+        "purity": float(np.mean(pure)) if len(pure) else float("nan"),
         "coverage": len(eligible & mapped_objects) / len(eligible) if eligible else float("nan"),
         "eligible_objects": len(eligible),
         "bytes_per_landmark": size / len(lmap) if len(lmap) else float("nan"),
