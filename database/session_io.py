@@ -12,6 +12,7 @@ import csv
 import io
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from ..plugin.errors import InputError
 from .atomic import write_text_atomic
 from .landmark_map import LandmarkMap, read_landmark_map
 from .text_input import read_user_text
+
+if TYPE_CHECKING:
+    from ..plugin.changes import SessionObservations
 
 MAX_ROWS = 2**31 - 1
 LANDMARK_CSV_COLUMNS = ["index", "point3d_id", "x", "y", "z", "size_m", "num_observations", "image_names"]
@@ -146,3 +150,27 @@ def write_landmarks_csv(
 ) -> None:
     """Write landmarks.csv atomically."""
     write_text_atomic(path, format_landmarks_csv(lmap, point3d_ids, num_observations, image_names))
+
+
+def read_session_observations(path: str | Path, with_segments: bool = True) -> SessionObservations:
+    """A mapped (or merged) session as change detection needs it: landmarks, their support (observing
+    keyframes), the keyframes' poses and cameras from sparse/ and, from database.db when present and
+    `with_segments`, every segment each keyframe saw. InputError when the session has no keyframe poses."""
+    from ..plugin.changes import SessionObservations
+    from .colmap_db import read_segment_detections
+    from .colmap_model import read_colmap_model_poses
+
+    session = read_session(path)
+    table = read_landmark_table(session.path / "landmarks.csv")
+    poses, cameras, camera_of = read_colmap_model_poses(session.sparse_dir)
+    if not len(poses):
+        raise InputError("session has no keyframes with poses in sparse/ (nothing says what it observed)",
+                         session.path)
+    segments = None
+    database = session.path / "database.db"
+    if with_segments and database.is_file():
+        segments = tuple(read_segment_detections(database, poses.names))
+    support = np.array([len(names) for names in table.image_names], dtype=np.float64)
+    lmap = session.landmarks
+    return SessionObservations(lmap.positions, lmap.sizes.astype(np.float64), poses,
+                               tuple(cameras[camera_of[n]] for n in poses.names), segments, support)

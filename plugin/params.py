@@ -256,12 +256,51 @@ class AssociationParams(Checked):
 
 
 @dataclass(frozen=True)
+class ChangeParams(Checked):
+    """Object-level change detection between two aligned sessions (`sosmatch.plugin.changes`; all ours)."""
+
+    # A landmark is compared only where the other session's keyframes should have seen it (projected inside the
+    # image with its own extent as margin) at least this often: theta_n + 1, the fewest observations a landmark
+    # can have (`triangulation.min_observations`), so fewer views could not have mapped it at all.
+    min_views: int = count(6, 1)
+    # counterpart gate = this x theta_eps (`association.distance_tolerance_m`), distance in x, y and z_weight x z.
+    # theta_eps is the landmark scatter the association already allows (2 m on drone maps, 10 m in the aerial
+    # preset); between two EKF maps 90 % of the landmarks of one object have the other map's nearest landmark of
+    # that object within 2.8-3.9 m (BENCHMARKS.md, Change detection), so 1.5 theta_eps = 3 m.
+    tolerance_factor: float = positive(1.5)
+    z_weight: float = non_negative(0.5)  # heights are the noisy direction of a nadir survey (as in refinement)
+    # r = 2 |h_a - h_b| / (h_a + h_b) of a counterpart (theta_r is 0.2 for association, where a wrong pair costs
+    # a wrong transform; here a re-segmented object must still count as present: sizes within a factor 1.67)
+    max_size_difference: float = within(0.5, 0.0, 2.0)
+    # A landmark without a counterpart is kept when a larger landmark of the other map (up to this many times
+    # its size) holds it in its footprint (ground distance <= 2 h): the other session mapped the object whole
+    # where this map has a part of it. 0 = off.
+    nest_max_ratio: float = non_negative(2.0)
+    # Landmarks of one object (a crown, its parts, its clump) are judged together: a landmark belongs to the
+    # best-supported landmark whose footprint holds it, ground distance <= this x the larger size h (2 = inside
+    # the other's footprint, the relation of `triangulation.duplicate_radius_factor`).
+    group_radius_factor: float = non_negative(2.0)
+    # A place without a counterpart landmark is still called occupied when the other session's own segments
+    # (every mask in its database, tracked or not) show a size-compatible segment at the landmark's projection
+    # in significantly more of its keyframes than at probe points around it: binomial tail probability below this.
+    segment_evidence_p: float = fraction(0.01)
+    # probes for the chance rate of segments: this many points on a circle of radius (probe_radius_factor x the
+    # counterpart gate + 2 h) around the landmark
+    probe_count: int = count(8, 1)
+    probe_radius_factor: float = positive(2.0)
+    # gone / new claims with a lower confidence are reported as unseen (the other session would not reliably
+    # have mapped such an object); 0 reports every claim
+    min_confidence: float = fraction(0.0)
+
+
+@dataclass(frozen=True)
 class Params(Checked):
     keyframes: KeyframeParams = field(default_factory=KeyframeParams)
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
     tracking: TrackingParams = field(default_factory=TrackingParams)
     triangulation: TriangulationParams = field(default_factory=TriangulationParams)
     association: AssociationParams = field(default_factory=AssociationParams)
+    changes: ChangeParams = field(default_factory=ChangeParams)
     seed: int = count(0, 0, 2**63 - 1)  # every random choice in the pipeline derives from this
 
 

@@ -69,12 +69,14 @@ def write_toy_session(
     pixel_noise_px: float = 1.0,
     landmark_noise_m: float = 0.05,
     min_observations: int = 3,
+    present: np.ndarray | None = None,
 ) -> ToySession:
     """Write a mapped-session directory (sparse/, landmarks.sosmap, landmarks.csv, poses.csv, truth.json).
 
     Cameras look straight down (image x = world x, image y = -world y). Every object seen in at least
     `min_observations` frames becomes a COLMAP 3D point and a landmark. The whole session lives in the frame
-    `session_from_world` (what a vehicle with its own odometry frame would see).
+    `session_from_world` (what a vehicle with its own odometry frame would see). `present` (bool per world
+    object) leaves the other objects out of this session (removed ones; the truth of change detection).
     """
     import pycolmap
 
@@ -95,6 +97,8 @@ def write_toy_session(
     for i, c in enumerate(centers_world):
         uv, depth = project(cam, r_wc_world, c, world.positions)
         inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        if present is not None:
+            inside &= np.asarray(present, dtype=bool)
         ids = np.flatnonzero(inside)
         kp = uv[ids] + rng.normal(0.0, pixel_noise_px, (len(ids), 2))
         name = f"frame_{i:05d}.jpg"

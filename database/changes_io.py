@@ -1,0 +1,123 @@
+"""changes.csv and changes.geojson (written by `sosmatch changes`): one row / feature per landmark of either map.
+
+changes.csv columns (CHANGE_COLUMNS): `class` (kept / gone / new / unseen), `session` (A or B), `index` (the
+landmark's index in its own map), `x, y, z` (in A's frame), `size_m`, `confidence`, `counterpart` (index in the
+other map of the landmark that matched it, -1 none), `counterpart_distance_m`, `size_change_m` (counterpart's
+size minus this one's), `views` (keyframes of the other session that should have seen it), `evidence`
+(landmark, nested, group, segments, none, views, confidence: see `sosmatch.plugin.changes`) and
+`height_above_ground_m`. Rows: A's landmarks in order, then B's. Empty cells are unknown values.
+The reader applies the same validation the writer's rows satisfy.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..plugin.changes import CLASSES, ChangeResult, LandmarkChanges
+from ..plugin.errors import InputError
+from .geojson import to_wgs84
+from .text_input import read_user_text
+
+CHANGE_COLUMNS = ["class", "session", "index", "x", "y", "z", "size_m", "confidence", "counterpart",
+                  "counterpart_distance_m", "size_change_m", "views", "evidence", "height_above_ground_m"]
+EVIDENCE = ("landmark", "nested", "group", "segments", "none", "views", "confidence")
+CHANGE_DTYPE = np.dtype([
+    ("class", "U6"), ("session", "U1"), ("index", "<i8"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
+    ("size_m", "<f8"), ("confidence", "<f8"), ("counterpart", "<i8"), ("counterpart_distance_m", "<f8"),
+    ("size_change_m", "<f8"), ("views", "<i8"), ("evidence", "U10"), ("height_above_ground_m", "<f8"),
+])
+
+
+def _fmt(value: float, digits: int) -> str:
+    return "" if not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def change_rows(result: ChangeResult) -> list[list[str]]:
+    """The rows of changes.csv (without the header)."""
+    rows = []
+    for session, verdict, pos, sizes in (("A", result.a, result.positions_a, result.sizes_a),
+                                         ("B", result.b, result.positions_b, result.sizes_b)):
+        for i in range(len(pos)):
+            rows.append([str(verdict.label[i]), session, str(i), _fmt(pos[i, 0], 3), _fmt(pos[i, 1], 3),
+                         _fmt(pos[i, 2], 3), _fmt(float(sizes[i]), 3), _fmt(float(verdict.confidence[i]), 3),
+                         str(int(verdict.counterpart[i])), _fmt(float(verdict.distance_m[i]), 3),
+                         _fmt(float(verdict.size_change_m[i]), 3), str(int(verdict.views[i])),
+                         str(verdict.evidence[i]), _fmt(float(verdict.height_above_ground_m[i]), 2)])
+    return rows
+
+
+def format_changes_csv(result: ChangeResult) -> str:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(CHANGE_COLUMNS)
+    writer.writerows(change_rows(result))
+    return buf.getvalue()
+
+
+def read_changes_csv(path: str | Path) -> np.ndarray:
+    """changes.csv -> structured array (CHANGE_DTYPE); InputError naming the file and line on any defect."""
+    path = Path(path)
+    text = read_user_text(path, "changes table")
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
+    if header is None or [c.strip() for c in header] != CHANGE_COLUMNS:
+        raise InputError(f"changes table must start with the header {','.join(CHANGE_COLUMNS)}", path, 1)
+    out = []
+    for lineno, row in enumerate(reader, start=2):
+        if not row:
+            continue
+        if len(row) != len(CHANGE_COLUMNS):
+            raise InputError(f"expected {len(CHANGE_COLUMNS)} fields, got {len(row)}", path, lineno)
+        try:
+            rec = tuple(_parse(v, CHANGE_DTYPE.fields[c][0]) for c, v in zip(CHANGE_COLUMNS, row))
+        except ValueError:
+            raise InputError("malformed value", path, lineno) from None
+        if rec[0] not in CLASSES or rec[1] not in ("A", "B") or rec[12] not in EVIDENCE or rec[2] < 0:
+            raise InputError("unknown class, session or evidence, or a negative index", path, lineno)
+        out.append(rec)
+    return np.array(out, dtype=CHANGE_DTYPE)
+
+
+def _parse(value: str, dtype: np.dtype) -> object:
+    value = value.strip()
+    if dtype.kind == "f":
+        return float(value) if value else float("nan")
+    if dtype.kind == "i":
+        return int(value)
+    return value
+
+
+def changes_feature_collection(result: ChangeResult, epsg: int) -> dict:
+    """GeoJSON FeatureCollection (WGS84 points with height) of every landmark of both maps, with class, session,
+    index, size, confidence, evidence and the counterpart as properties; `epsg`: the CRS of A's frame."""
+    features = []
+    for session, verdict, pos, sizes in (("A", result.a, result.positions_a, result.sizes_a),
+                                         ("B", result.b, result.positions_b, result.sizes_b)):
+        lonlat = to_wgs84(pos[:, :2], epsg) if len(pos) else np.zeros((0, 2))
+        features.extend(_features(session, verdict, pos, sizes, lonlat))
+    return {"type": "FeatureCollection",
+            "properties": {"source_crs": f"EPSG:{epsg}", "classes": list(CLASSES), **result.counts()},
+            "features": features}
+
+
+def _features(session: str, verdict: LandmarkChanges, pos: np.ndarray, sizes: np.ndarray,
+              lonlat: np.ndarray) -> list[dict]:
+    out = []
+    for i in range(len(pos)):
+        size = float(sizes[i])
+        out.append({
+            "type": "Feature", "id": f"{session}{i}",
+            "geometry": {"type": "Point", "coordinates": [round(float(lonlat[i, 0]), 8), round(float(lonlat[i, 1]), 8),
+                                                          round(float(pos[i, 2]), 3)]},
+            "properties": {"class": str(verdict.label[i]), "session": session, "index": i,
+                           "size_m": round(size, 3) if math.isfinite(size) else None,
+                           "confidence": round(float(verdict.confidence[i]), 3), "evidence": str(verdict.evidence[i]),
+                           "counterpart": int(verdict.counterpart[i]), "x": round(float(pos[i, 0]), 3),
+                           "y": round(float(pos[i, 1]), 3), "z": round(float(pos[i, 2]), 3)},
+        })
+    return out

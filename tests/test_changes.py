@@ -1,0 +1,181 @@
+"""Object-level change detection (plugin.changes): the per-landmark verdicts on a small world with exact truth,
+its building blocks, and invariance to B's frame."""
+
+import numpy as np
+import pytest
+
+from sosmatch.plugin.changes import (
+    GONE,
+    KEPT,
+    NEW,
+    UNSEEN,
+    KeyframeSegments,
+    SessionObservations,
+    counterparts,
+    detect_changes,
+    fit_logistic,
+    ground_height_field,
+    in_view,
+    landmark_groups,
+    predict_logistic,
+    segment_evidence,
+)
+from sosmatch.plugin.geometry import Camera, Poses
+from sosmatch.plugin.params import ChangeParams
+from sosmatch.tools.toy_sessions import lawnmower, yaw_transform
+
+CAM = Camera(640, 480, 400.0, 400.0, 320.0, 240.0)
+NADIR = np.diag([1.0, -1.0, -1.0])  # world_from_camera of a camera looking straight down
+
+
+def nadir_poses(centers: np.ndarray) -> Poses:
+    return Poses([f"f{i:04d}.jpg" for i in range(len(centers))], np.broadcast_to(NADIR, (len(centers), 3, 3)),
+                 centers)
+
+
+def make_world(seed: int, n: int = 260, extent: float = 240.0):
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0.0, extent, (n, 2))
+    heights = rng.uniform(0.0, 6.0, n)
+    return np.column_stack([xy, heights]), rng.uniform(1.0, 4.0, n)
+
+
+def observe(positions, sizes, present, centers, seed, clutter=25, session_from_world=None):
+    """A session of the world: landmarks = present objects seen >= 6 times (with noise), segments = the present
+    objects' projections plus random clutter segments, all in the frame session_from_world."""
+    rng = np.random.default_rng(seed)
+    poses = nadir_poses(centers)
+    seen, uv, depth = in_view(positions, sizes, poses, [CAM] * len(poses))
+    keep = present & (seen.sum(0) >= 6)
+    segs = []
+    for k in range(len(poses)):
+        vis = np.flatnonzero(seen[k] & present)
+        c = uv[k, vis] + rng.normal(0.0, 1.0, (len(vis), 2))
+        h = sizes[vis] * CAM.fx / depth[k, vis] * rng.uniform(0.9, 1.1, len(vis))
+        cl = rng.uniform([0, 0], [CAM.width, CAM.height], (clutter, 2))
+        segs.append(KeyframeSegments(np.vstack([c, cl]), np.concatenate([h, rng.uniform(2.0, 30.0, clutter)])))
+    pos = positions[keep] + rng.normal(0.0, 0.3, (int(keep.sum()), 3))
+    size = sizes[keep] * rng.uniform(0.92, 1.08, int(keep.sum()))
+    obs = SessionObservations(pos, size, poses, CAM, tuple(segs), seen.sum(0)[keep].astype(float))
+    if session_from_world is not None:
+        obs = obs.transformed(session_from_world)
+    return obs, np.flatnonzero(keep)
+
+
+@pytest.fixture(scope="module")
+def pair():
+    positions, sizes = make_world(3)
+    rng = np.random.default_rng(5)
+    n = len(positions)
+    present_a = rng.random(n) > 0.1
+    present_b = rng.random(n) > 0.1
+    cams_a = lawnmower(30, 150, 30, 150, 70, 30, 8)
+    cams_b = lawnmower(90, 210, 60, 180, 70, 30, 8)  # overlaps A in part
+    frame_b = yaw_transform(35.0, (12.0, -7.0, 2.0))
+    a, ids_a = observe(positions, sizes, present_a, cams_a, 1)
+    b, ids_b = observe(positions, sizes, present_b, cams_b, 2, session_from_world=frame_b)
+    return positions, sizes, present_a, present_b, a, ids_a, b, ids_b, frame_b.inverse()
+
+
+def test_removed_added_kept_and_unseen_objects_are_told_apart(pair):
+    positions, sizes, present_a, present_b, a, ids_a, b, ids_b, a_from_b = pair
+    res = detect_changes(a, b, a_from_b, ChangeParams(), association_tolerance_m=2.0)
+    seen_by_b = in_view(positions, sizes, b.transformed(a_from_b).poses, [CAM] * len(b.poses))[0].sum(0) >= 6
+    seen_by_a = in_view(positions, sizes, a.poses, [CAM] * len(a.poses))[0].sum(0) >= 6
+    label_a = dict(zip(ids_a.tolist(), res.a.label))
+    label_b = dict(zip(ids_b.tolist(), res.b.label))
+    removed = [o for o in ids_a if not present_b[o] and seen_by_b[o]]
+    added = [o for o in ids_b if not present_a[o] and seen_by_a[o]]
+    both = [o for o in ids_a if present_b[o] and o in label_b]
+    assert len(removed) >= 3 and len(added) >= 3 and len(both) >= 30
+    assert sum(label_a[o] == GONE for o in removed) >= 0.9 * len(removed)
+    assert sum(label_b[o] == NEW for o in added) >= 0.9 * len(added)
+    assert sum(label_a[o] == KEPT for o in both) >= 0.9 * len(both)
+    # what the other session never saw is never a change
+    assert all(label_a[o] == UNSEEN for o in ids_a if not seen_by_b[o] and
+               in_view(positions[[o]], sizes[[o]], b.transformed(a_from_b).poses, [CAM] * len(b.poses))[0].sum() == 0)
+    assert all(label_b[o] != NEW for o in ids_b if not seen_by_a[o])
+    assert res.common_area.area > 0 and res.observed_a.area > res.common_area.area
+    counts = res.counts()
+    assert counts["gone"] == res.a.count(GONE) and "ha seen by both" in res.summary()
+
+
+def test_verdicts_do_not_depend_on_the_frame_of_b_and_are_deterministic(pair):
+    positions, sizes, present_a, present_b, a, ids_a, b, ids_b, a_from_b = pair
+    res = detect_changes(a, b, a_from_b, ChangeParams(), 2.0)
+    b_world = b.transformed(a_from_b)  # B already in A's frame: identity transform
+    again = detect_changes(a, b_world, yaw_transform(0.0, (0.0, 0.0, 0.0)), ChangeParams(), 2.0)
+    assert np.array_equal(res.a.label, again.a.label) and np.array_equal(res.b.label, again.b.label)
+    np.testing.assert_allclose(res.a.confidence, again.a.confidence, atol=1e-9)
+    same = detect_changes(a, b, a_from_b, ChangeParams(), 2.0)
+    assert np.array_equal(res.b.confidence, same.b.confidence)
+
+
+def test_min_confidence_turns_weak_claims_into_unseen(pair):
+    *_, a, ids_a, b, ids_b, a_from_b = pair
+    loose = detect_changes(a, b, a_from_b, ChangeParams(), 2.0)
+    strict = detect_changes(a, b, a_from_b, ChangeParams(min_confidence=1.0), 2.0)
+    assert loose.a.count(GONE) > 0 and strict.a.count(GONE) == 0 and strict.b.count(NEW) == 0
+    moved = (loose.a.label == GONE) & (strict.a.label == UNSEEN)
+    assert np.all(strict.a.evidence[moved] == "confidence")
+    assert np.array_equal(loose.a.label == KEPT, strict.a.label == KEPT)
+
+
+def test_in_view_needs_the_footprint_inside_the_image():
+    poses = nadir_poses(np.array([[0.0, 0.0, 100.0]]))
+    # the image spans x in [-80, 80], y in [-60, 60] at 100 m (f = 400 px, 640 x 480)
+    pts = np.array([[0.0, 0.0, 0.0], [75.0, 0.0, 0.0], [75.0, 0.0, 0.0], [0.0, 0.0, 150.0]])
+    seen, uv, depth = in_view(pts, np.array([1.0, 1.0, 4.0, 1.0]), poses, [CAM])
+    assert seen[0].tolist() == [True, True, False, False]  # a 4 m object at 75 m reaches past the border
+    np.testing.assert_allclose(uv[0, 0], [320.0, 240.0])
+    assert depth[0, 3] < 0
+
+
+def test_counterparts_respect_the_gate_and_the_size_ratio():
+    p = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [20.0, 0.0, 0.0]])
+    q = np.array([[1.0, 0.0, 0.0], [10.0, 0.0, 3.0], [20.5, 0.0, 0.0], [21.0, 0.0, 0.0]])
+    idx, dist = counterparts(p, np.array([2.0, 2.0, 2.0]), q, np.array([2.1, 2.0, 5.0, 2.2]), 2.0, 0.5, 0.5)
+    assert idx.tolist() == [0, 1, 3]  # z counts half; the nearer one of the wrong size is skipped
+    np.testing.assert_allclose(dist, [1.0, 1.5, 1.0])
+
+
+def test_groups_are_stars_around_the_best_supported_landmark():
+    p = np.array([[0.0, 0, 0], [1.5, 0, 0], [3.0, 0, 0], [4.5, 0, 0], [50, 0, 0], [0.5, 0, 0]])
+    h = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 4.0])
+    group = landmark_groups(p, h, np.array([10, 5, 9, 4, 3, 1]), radius_factor=2.0, max_size_difference=0.5)
+    # 0 takes 1 (inside its footprint); 2 takes 3; the far one and the big one (other size) stay alone
+    assert group.tolist() == [0, 0, 2, 2, 4, 5]
+
+
+def test_segment_evidence_counts_views_with_a_matching_segment():
+    poses = nadir_poses(np.array([[x, 0.0, 100.0] for x in range(0, 40, 4)]))
+    target = np.array([[20.0, 0.0, 0.0]])
+    _, uv, depth = in_view(target, np.array([2.0]), poses, [CAM] * len(poses))
+    segs = [KeyframeSegments(uv[k] + 0.5, np.array([2.0 * CAM.fx / depth[k, 0]])) if k % 2 == 0
+            else KeyframeSegments(np.zeros((0, 2)), np.zeros(0)) for k in range(len(poses))]
+    hits, views, chance = segment_evidence(target, np.array([2.0]), poses, [CAM] * len(poses), segs, 2.0, 0.5, 8, 2.0)
+    assert views[0] == len(poses) and hits[0] == (len(poses) + 1) // 2
+    assert chance[0] < 0.1  # nothing around it
+    wrong = segment_evidence(target, np.array([6.0]), poses, [CAM] * len(poses), segs, 2.0, 0.5, 8, 2.0)[0]
+    assert wrong[0] == 0  # a segment of another size is no evidence
+
+
+def test_ground_follows_the_low_landmarks():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 200, (600, 2))
+    ground = 0.02 * xy[:, 0] + 5.0
+    z = ground + np.where(rng.random(600) < 0.4, rng.uniform(3, 15, 600), rng.normal(0, 0.2, 600))
+    field = ground_height_field(np.column_stack([xy, z]))
+    probe = np.array([[50.0, 50.0], [150.0, 120.0]])
+    np.testing.assert_allclose(field(probe[:, 0], probe[:, 1]), 0.02 * probe[:, 0] + 5.0, atol=0.6)
+
+
+def test_logistic_fit_recovers_a_monotone_rate():
+    rng = np.random.default_rng(1)
+    x = rng.normal(0, 1, (400, 1))
+    y = rng.random(400) < 1 / (1 + np.exp(-(0.5 + 2.0 * x[:, 0])))
+    w = fit_logistic(x, y, ridge=0.1)
+    assert 1.4 < w[1] < 2.6 and -0.1 < w[0] < 1.1
+    assert np.all(np.diff(predict_logistic(w, np.linspace(-2, 2, 5)[:, None])) > 0)
+    flat = fit_logistic(x, np.ones(400, bool))  # one class only: finite, high
+    assert np.all(np.isfinite(flat)) and predict_logistic(flat, x).min() > 0.9

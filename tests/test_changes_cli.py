@@ -1,0 +1,162 @@
+"""`sosmatch changes` end to end on toy mapped sessions (B with objects removed and added), its outputs, and bad
+input: one-line errors and nothing written."""
+
+import json
+import shutil
+
+import numpy as np
+import pycolmap
+import pytest
+
+from sosmatch.database.changes_io import CHANGE_COLUMNS, read_changes_csv
+from sosmatch.database.landmark_map import read_landmark_map, write_landmark_map
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.multisession import Sim3
+from sosmatch.tools.cli import main
+from sosmatch.tools.toy_sessions import (
+    ToyWorld,
+    lawnmower,
+    make_world,
+    toy_match_json,
+    write_toy_session,
+    yaw_transform,
+)
+
+
+def spaced_world(n: int, seed: int, extent: float = 240.0) -> ToyWorld:
+    """Objects that do not overlap (footprint radius 2 h apart, as real trees, roofs and boulders), sizes 0.5-3 m."""
+    rng = np.random.default_rng(seed)
+    pos, sizes = [], []
+    while len(pos) < n:
+        xy, h = rng.uniform(0.0, extent, 2), rng.uniform(0.5, 3.0)
+        if all(np.hypot(*(xy - q[:2])) > 2.0 * (h + g) for q, g in zip(pos, sizes)):
+            pos.append(np.r_[xy, rng.uniform(0.0, 6.0)])
+            sizes.append(h)
+    return ToyWorld(np.array(pos), np.array(sizes))
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    root = tmp_path_factory.mktemp("changes")
+    world = spaced_world(320, seed=4)
+    rng = np.random.default_rng(9)
+    present_a = rng.random(320) > 0.08
+    present_b = rng.random(320) > 0.08
+    path = lawnmower(20, 200, 20, 200, 60, 40, 8)
+    a = write_toy_session(root / "A", world, path, Sim3.identity(), seed=1, present=present_a)
+    b = write_toy_session(root / "B", world, path + [25.0, 15.0, 0.0], yaw_transform(30, (10, -5, 1)), seed=2,
+                          present=present_b)
+    other = write_toy_session(root / "C", make_world(320, seed=99), path, Sim3.identity(), seed=3)
+    toy_match_json(a, b, root / "AB" / "match.json")
+    toy_match_json(a, other, root / "AC" / "match.json")
+    return root, world, a, b, present_a, present_b
+
+
+def run(args, capsys):
+    code = main(["changes", *map(str, args)])
+    out = capsys.readouterr()
+    return code, out.out.strip(), out.err.strip()
+
+
+def test_changes_end_to_end(toy, tmp_path, capsys):
+    root, world, a, b, present_a, present_b = toy
+    out = tmp_path / "C"
+    code, line, _ = run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", out], capsys)
+    assert code == 0 and line.startswith("changes: ") and "\n" not in line and "gone" in line
+    rows = read_changes_csv(out / "changes.csv")
+    assert (out / "changes.csv").read_text().splitlines()[0] == ",".join(CHANGE_COLUMNS)
+    assert len(rows) == len(a.object_ids) + len(b.object_ids)
+    assert np.array_equal(rows["index"][rows["session"] == "A"], np.arange(len(a.object_ids)))
+    doc = json.loads((out / "changes.json").read_text())
+    assert doc["format"] == "sosmatch changes v1" and doc["counts"]["gone"] == int(np.sum(rows["class"] == "gone"))
+    assert (out / "changes.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not (out / "changes.geojson").exists()  # a local frame
+    # truth: every A landmark of a removed object that B's flight covered is gone, present ones are kept
+    a_rows = rows[rows["session"] == "A"]
+    removed = ~present_b[a.object_ids]
+    compared = a_rows["class"] != "unseen"
+    assert np.all(a_rows["class"][compared & removed] == "gone") and np.sum(compared & removed) >= 3
+    assert np.mean(a_rows["class"][compared & ~removed] == "kept") > 0.95
+    b_rows = rows[rows["session"] == "B"]
+    added = ~present_a[b.object_ids]
+    assert np.all(b_rows["class"][(b_rows["class"] != "unseen") & added] == "new")
+    kept = a_rows[a_rows["class"] == "kept"]
+    assert np.all(kept["counterpart"] >= 0) and np.all(np.abs(kept["size_change_m"]) < 1.0)
+    # the same command again gives the same files
+    again = tmp_path / "C2"
+    assert run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", again], capsys)[0] == 0
+    assert (again / "changes.csv").read_bytes() == (out / "changes.csv").read_bytes()
+
+
+def test_min_confidence_one_reports_no_change(toy, tmp_path, capsys):
+    root = toy[0]
+    out = tmp_path / "C"
+    assert run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", out, "--min-confidence",
+                "1", "--no-plot"], capsys)[0] == 0
+    rows = read_changes_csv(out / "changes.csv")
+    assert not np.any(np.isin(rows["class"], ["gone", "new"])) and not (out / "changes.png").exists()
+    assert run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", tmp_path / "x",
+                "--min-confidence", "2"], capsys)[0] == 2
+
+
+def test_georeferenced_maps_give_geojson(toy, tmp_path, capsys):
+    root = toy[0]
+    geo = tmp_path / "A"
+    shutil.copytree(root / "A", geo)
+    lmap = read_landmark_map(geo / "landmarks.sosmap")
+    write_landmark_map(geo / "landmarks.sosmap", type(lmap)(lmap.positions, lmap.sizes, lmap.origin, 32617))
+    out = tmp_path / "C"
+    assert run([geo, root / "B", "--match", root / "AB" / "match.json", "--out", out], capsys)[0] == 0
+    fc = json.loads((out / "changes.geojson").read_text())
+    rows = read_changes_csv(out / "changes.csv")
+    assert fc["type"] == "FeatureCollection" and len(fc["features"]) == len(rows)
+    props = fc["features"][0]["properties"]
+    assert props["class"] in ("kept", "gone", "new", "unseen") and props["session"] == "A"
+    lon, lat, _ = fc["features"][0]["geometry"]["coordinates"]
+    assert -90 < lon < -75 and 0 <= lat < 1  # EPSG:32617 near the origin of its grid
+
+
+def _refused(args, capsys, out, needle):
+    code, line, err = run(args, capsys)
+    assert code == 2 and not line and len(err.splitlines()) == 1 and needle in err, err
+    assert not out.exists()
+
+
+def test_bad_inputs_are_one_line_errors_and_write_nothing(toy, tmp_path, capsys):
+    root = toy[0]
+    out = tmp_path / "C"
+    doc = json.loads((root / "AB" / "match.json").read_text())
+    for h in doc["hypotheses"]:
+        h["accepted"] = False
+    refused = tmp_path / "refused.json"
+    refused.write_text(json.dumps(doc))
+    _refused([root / "A", root / "B", "--match", refused, "--out", out], capsys, out, "no accepted transform")
+    _refused([root / "A", root / "C", "--match", root / "AC" / "match.json", "--out", out], capsys, out,
+             "computed for other sessions")
+    _refused([root / "A", root / "C", "--match", root / "AB" / "match.json", "--out", out], capsys, out,
+             "other sessions")
+    # a session whose model holds no keyframe poses
+    bare = tmp_path / "bare"
+    shutil.copytree(root / "B", bare)
+    rec = pycolmap.Reconstruction(str(bare / "sparse"))
+    empty = pycolmap.Reconstruction()
+    for cam in rec.cameras.values():
+        empty.add_camera_with_trivial_rig(cam)
+    shutil.rmtree(bare / "sparse")
+    (bare / "sparse").mkdir()
+    empty.write_binary(str(bare / "sparse"))
+    _refused([root / "A", bare, "--match", root / "AB" / "match.json", "--out", out], capsys, out, "no keyframes")
+    _refused([root / "A", root / "B", "--match", tmp_path / "missing.json", "--out", out], capsys, out, "missing")
+    inside = root / "A" / "changes"
+    _refused([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", inside], capsys, inside,
+             "input")
+
+
+def test_python_api_matches_the_command(toy, tmp_path):
+    from sosmatch.workflows import changes
+
+    root = toy[0]
+    res = changes.run(root / "A", root / "B", root / "AB" / "match.json", tmp_path / "C", plot=False)
+    assert res.result.counts()["gone"] == res.result.a.count("gone")
+    with pytest.raises(InputError):
+        changes.compute(root / "A", root / "B", root / "AC" / "match.json")

@@ -1,0 +1,164 @@
+"""Scoring change detection against the synthetic world's truth (used by bench_changes and the tests).
+
+Truth of a pair (A, B) of one world: an object is *removed* when present in A and absent in B (objects.csv
+`present`), *added* when absent in A and present in B. An object is scored when both sessions' keyframes saw its
+place at least `min_views` times (its true position projected with the true poses, with its radius as margin,
+`plugin.changes.in_view`), whether or not it was there; the bar's scope is those of radius >= 2 m (the size
+bins). A landmark's object is the majority label of its observations (`bench_map.landmark_objects`).
+
+Claims are scored per object: an object is claimed gone when any of its A landmarks is `gone` (new: any of its B
+landmarks `new`). Precision = claimed objects truly removed / claimed objects; recall = removed objects that are
+claimed / removed objects (`recall`), and the same over the removed objects that A mapped at all
+(`recall_mapped`: what the comparison can reach; an object never mapped cannot be reported).
+False changes: every gone / new landmark whose object did not change (ground texture included), per hectare
+of the area both sessions observed (true footprints of frames.json). Outside: change claims on landmarks
+that lie outside the other session's true observed area (must be 0).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ...plugin.changes import GONE, NEW, ChangeResult, in_view
+
+SIZE_BINS = ((0.0, 2.0, "r < 2 m"), (2.0, 3.0, "2-3 m"), (3.0, 5.0, "3-5 m"), (5.0, np.inf, ">= 5 m"))
+
+
+@dataclass
+class ObjectTruth:
+    """Per world object of a pair: kind, radius, presence in A and B, views of its place by A and B."""
+
+    ids: np.ndarray
+    kind: np.ndarray
+    radius: np.ndarray
+    present_a: np.ndarray
+    present_b: np.ndarray
+    views_a: np.ndarray
+    views_b: np.ndarray
+
+    def index(self) -> dict[int, int]:
+        return {int(o): k for k, o in enumerate(self.ids)}
+
+
+def object_truth(synth_a: Any, synth_b: Any, keyframes_a: list[str], keyframes_b: list[str]) -> ObjectTruth:
+    """The world's objects with their presence and how often each session's keyframes saw their place."""
+    oa, ob = synth_a.objects, synth_b.objects
+    if not np.array_equal(oa["id"], ob["id"]):
+        raise ValueError("the two sessions are not of one world (object ids differ)")
+    pos = np.column_stack([oa["x"], oa["y"], oa["z"]])
+    half = oa["radius"] / 2.0  # in_view's margin is 2 h; an object's footprint radius is 2 h
+
+    def views(synth: Any, names: list[str]) -> np.ndarray:
+        idx = [synth.poses.names.index(n) for n in names]
+        poses = synth.poses.subset(idx)
+        seen, _, _ = in_view(pos, half, poses, [synth.camera] * len(poses))
+        return seen.sum(0)
+
+    return ObjectTruth(oa["id"].astype(np.int64), oa["kind"].astype(str), oa["radius"].astype(np.float64),
+                       oa["present"].astype(bool), ob["present"].astype(bool), views(synth_a, keyframes_a),
+                       views(synth_b, keyframes_b))
+
+
+def observed_truth_area(synth: Any, keyframes: list[str]) -> object:
+    """Union of the true ground footprints (frames.json) of the keyframes."""
+    import shapely
+
+    wanted = set(keyframes)
+    return shapely.union_all([shapely.Polygon(f["footprint"]) for f in synth.frames if f["name"] in wanted])
+
+
+@dataclass
+class Score:
+    """Counts of one or several pairs; `add` pools."""
+
+    claimed: dict[tuple[str, str, str], int] = field(default_factory=lambda: defaultdict(int))
+    correct: dict[tuple[str, str, str], int] = field(default_factory=lambda: defaultdict(int))
+    truth: dict[tuple[str, str, str], int] = field(default_factory=lambda: defaultdict(int))
+    found: dict[tuple[str, str, str], int] = field(default_factory=lambda: defaultdict(int))
+    truth_mapped: dict[tuple[str, str, str], int] = field(default_factory=lambda: defaultdict(int))
+    found_mapped: dict[tuple[str, str, str], int] = field(default_factory=lambda: defaultdict(int))
+    false_landmarks: int = 0
+    false_by_kind: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    outside: int = 0
+    common_ha: float = 0.0
+    pairs: int = 0
+
+    def add(self, other: Score) -> None:
+        for name in ("claimed", "correct", "truth", "found", "truth_mapped", "found_mapped", "false_by_kind"):
+            mine, theirs = getattr(self, name), getattr(other, name)
+            for k, v in theirs.items():
+                mine[k] += v
+        self.false_landmarks += other.false_landmarks
+        self.outside += other.outside
+        self.common_ha += other.common_ha
+        self.pairs += other.pairs
+
+    def _sum(self, table: dict, change: str, kind: str | None, size: str | None) -> int:
+        return sum(v for (c, k, s), v in table.items()
+                   if c == change and (kind is None or k == kind) and (size is None or s == size))
+
+    def precision(self, change: str, kind: str | None = None, size: str | None = None) -> tuple[float, int]:
+        n = self._sum(self.claimed, change, kind, size)
+        return (self._sum(self.correct, change, kind, size) / n if n else float("nan")), n
+
+    def recall(self, change: str, kind: str | None = None, size: str | None = None,
+               mapped: bool = False) -> tuple[float, int]:
+        truth, found = (self.truth_mapped, self.found_mapped) if mapped else (self.truth, self.found)
+        n = self._sum(truth, change, kind, size)
+        return (self._sum(found, change, kind, size) / n if n else float("nan")), n
+
+    def false_per_ha(self) -> float:
+        return self.false_landmarks / self.common_ha if self.common_ha > 0 else float("nan")
+
+
+def size_bin(radius: float) -> str:
+    for lo, hi, name in SIZE_BINS:
+        if lo <= radius < hi:
+            return name
+    return SIZE_BINS[-1][2]
+
+
+def score_pair(result: ChangeResult, truth: ObjectTruth, objects_a: np.ndarray, objects_b: np.ndarray,
+               truth_area_a: object, truth_area_b: object, min_views: int = 6,
+               min_confidence: float = 0.0) -> Score:
+    """Score one pair's ChangeResult (see the module docstring). objects_a/b: the object id of each landmark
+    (0 = not on an object). Claims below `min_confidence` are not counted as claims (as `--min-confidence`)."""
+    import shapely
+
+    score = Score(pairs=1)
+    where = truth.index()
+    common = shapely.intersection(truth_area_a, truth_area_b)
+    score.common_ha = float(common.area) / 1e4
+    sides = ((GONE, result.a, objects_a, truth.present_a & ~truth.present_b, result.positions_a, truth_area_b),
+             (NEW, result.b, objects_b, ~truth.present_a & truth.present_b, result.positions_b, truth_area_a))
+    for change, verdict, objects, changed, positions, other_area in sides:
+        claims = (verdict.label == change) & (verdict.confidence >= min_confidence)
+        claimed_objects: set[int] = set()
+        for i in np.flatnonzero(claims):
+            o = int(objects[i])
+            k = where.get(o)
+            if k is None or not changed[k]:
+                score.false_landmarks += 1
+                score.false_by_kind[truth.kind[k] if k is not None else "ground"] += 1
+            if not shapely.contains_xy(other_area, positions[i, 0], positions[i, 1]):
+                score.outside += 1
+            if k is not None:
+                claimed_objects.add(k)
+        mapped = {where[int(o)] for o in objects if int(o) in where}
+        in_scope = (truth.views_a >= min_views) & (truth.views_b >= min_views)
+        for k in np.flatnonzero(in_scope):
+            key = (change, str(truth.kind[k]), size_bin(float(truth.radius[k])))
+            if k in claimed_objects:
+                score.claimed[key] += 1
+                score.correct[key] += int(changed[k])
+            if changed[k]:
+                score.truth[key] += 1
+                score.found[key] += int(k in claimed_objects)
+                if k in mapped:
+                    score.truth_mapped[key] += 1
+                    score.found_mapped[key] += int(k in claimed_objects)
+    return score

@@ -1,0 +1,40 @@
+"""`sosmatch changes A B --match AB/match.json --out DIR`: which objects were kept, gone, new or unseen."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ._common import add_params_arguments, params_from_args
+
+NAME = "changes"
+HELP = ("object-level change detection between two aligned mapped sessions: changes.csv, changes.geojson, "
+        "changes.png, changes.json")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("session_a", type=Path, help="mapped session directory (the reference frame)")
+    parser.add_argument("session_b", type=Path, help="mapped session directory, compared in A's frame")
+    parser.add_argument("--match", type=Path, required=True,
+                        help="match.json of `sosmatch match A B` (or of a batch pair) with an accepted transform")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--min-confidence", type=float, default=None,
+                        help="report gone / new only when the other session would have mapped such an object "
+                             "with at least this probability (0-1; below: unseen). Default: changes.min_confidence")
+    parser.add_argument("--no-plot", action="store_true", help="skip changes.png")
+    add_params_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ...plugin.errors import InputError
+    from ...plugin.params import with_overrides
+    from ...workflows.changes import run as run_changes
+
+    params = params_from_args(args)
+    if args.min_confidence is not None:
+        if not 0.0 <= args.min_confidence <= 1.0:
+            raise InputError(f"--min-confidence must be between 0 and 1, got {args.min_confidence}")
+        params = with_overrides(params, {"changes.min_confidence": float(args.min_confidence)})
+    result = run_changes(args.session_a, args.session_b, args.match, args.out, params, plot=not args.no_plot)
+    print(f"changes: {result.summary()} -> {args.out / 'changes.csv'}")
+    return 0

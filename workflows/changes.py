@@ -1,0 +1,210 @@
+"""What changed between two mapped sessions (`sosmatch changes A B --match AB/match.json --out C`).
+
+`run(session_a, session_b, match_json, out_dir)` reads both sessions (landmarks, keyframe poses and cameras,
+the segments in their databases), brings B into A's frame with the accepted alignment of match.json (read by
+`database.match_io.read_match`) and classifies every landmark of either map as kept, gone, new or unseen
+(`sosmatch.plugin.changes.detect_changes`). Everything is read and checked before anything is written, so a bad
+input leaves nothing behind; then, atomically, into `out_dir`:
+    changes.csv       one row per landmark of either map (`sosmatch.database.changes_io`)
+    changes.geojson   the same as WGS84 points, when A's map is georeferenced (EPSG code)
+    changes.png       top view: both sessions' observed areas, kept grey, gone red, new green
+    changes.json      counts, the transform, the gate, parameters, inputs and the summary line (written last:
+                      its presence means the run finished)
+`compute(...)` is the same without writing (batch writes each accepted pair's result into its pair folder).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..database.atomic import write_bytes_atomic, write_text_atomic
+from ..database.changes_io import changes_feature_collection, format_changes_csv
+from ..database.match_io import read_match
+from ..database.session_io import read_session_observations
+from ..plugin import __version__
+from ..plugin.changes import GONE, KEPT, NEW, UNSEEN, ChangeResult, SessionObservations, detect_changes
+from ..plugin.errors import InputError
+from ..plugin.multisession import Sim3
+from ..plugin.params import Params, params_to_dict
+
+log = logging.getLogger(__name__)
+
+CHANGES_FORMAT = "sosmatch changes v1"
+OUTPUT_FILES = ("changes.csv", "changes.geojson", "changes.png", "changes.json")
+
+
+@dataclass
+class ChangesRun:
+    """What `compute` found: the verdicts and what they were computed from."""
+
+    result: ChangeResult
+    a_from_b: Sim3
+    epsg: int
+    sources: dict[str, str]
+    seconds: float = 0.0
+
+    def summary(self) -> str:
+        return self.result.summary()
+
+
+def check_match_fits(a: SessionObservations, b: SessionObservations, associations: np.ndarray, a_from_b: Sim3,
+                     gate_m: float, match_json: Path) -> None:
+    """InputError when match.json cannot be a match of these two maps: associations beyond their landmarks, or
+    associated landmarks that the transform does not bring together (median distance beyond the gate)."""
+    assoc = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
+    if len(assoc) and (assoc[:, 0].max() >= len(a.positions) or assoc[:, 1].max() >= len(b.positions)):
+        raise InputError(f"match refers to landmarks beyond the maps ({len(a.positions)} and {len(b.positions)} "
+                         "landmarks): it was computed for other sessions", match_json)
+    if len(assoc):
+        gap = np.linalg.norm(a.positions[assoc[:, 0]] - a_from_b.apply(b.positions[assoc[:, 1]]), axis=1)
+        if float(np.median(gap)) > gate_m:
+            raise InputError(f"the match's associated landmarks lie {np.median(gap):.1f} m apart (median) after "
+                             "its transform: it was computed for other sessions", match_json)
+
+
+def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path | None, params: Params | None = None,
+            a_from_b: Sim3 | None = None) -> ChangesRun:
+    """Read, check and classify; nothing is written. `a_from_b` overrides the match's transform (batch passes
+    its verified alignment); `match_json` may then be None."""
+    params = params or Params()
+    t0 = time.perf_counter()
+    associations = np.zeros((0, 2), np.int64)
+    if match_json is not None:
+        match = read_match(match_json)
+        if not match.accepted or match.transform is None:
+            raise InputError("match has no accepted transform: the sessions were not aligned, nothing to compare",
+                             match_json)
+        associations = match.associations
+        a_from_b = a_from_b or match.transform
+    if a_from_b is None:
+        raise ValueError("give match_json or a_from_b")
+    obs_a, obs_b = read_session_observations(session_a), read_session_observations(session_b)
+    gate = params.changes.tolerance_factor * params.association.distance_tolerance_m
+    if match_json is not None:
+        check_match_fits(obs_a, obs_b, associations, a_from_b, 2.0 * gate, Path(match_json))
+    result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
+    for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
+        if not area.area > 0:
+            raise InputError(f"session {name}'s keyframes see no ground (no footprint): nothing to compare", path)
+    if not result.common_area.area > 0:
+        raise InputError("after alignment the two sessions observed no common ground: the match is wrong or the "
+                         "flights do not overlap", match_json or session_b)
+    from ..database.landmark_map import read_landmark_map
+
+    epsg = read_landmark_map(Path(session_a) / "landmarks.sosmap").epsg
+    sources = {"session_a": str(session_a), "session_b": str(session_b),
+               "match": str(match_json) if match_json is not None else ""}
+    return ChangesRun(result, a_from_b, int(epsg), sources, time.perf_counter() - t0)
+
+
+def changes_png(result: ChangeResult, title: str = "") -> bytes:
+    """Top view in A's frame: the observed areas of A and B, kept landmarks grey, gone red, new green (marker
+    size grows with the landmark's size), unseen ones faint."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import shapely
+
+    fig, ax = plt.subplots(figsize=(9, 9), dpi=100)
+    for geom, colour, name in ((result.observed_a, "#1f77b4", "observed by A"),
+                               (result.observed_b, "#ff7f0e", "observed by B")):
+        first = True
+        for poly in getattr(geom, "geoms", [geom]):
+            if isinstance(poly, shapely.Polygon) and not poly.is_empty:
+                x, y = poly.exterior.xy
+                ax.fill(x, y, color=colour, alpha=0.08, lw=0)
+                ax.plot(x, y, color=colour, lw=0.8, alpha=0.6, label=name if first else None)
+                first = False
+
+    def draw(pos: np.ndarray, sizes: np.ndarray, mask: np.ndarray, **kw: Any) -> None:
+        if np.any(mask):
+            s = 6.0 + 4.0 * np.nan_to_num(sizes[mask], nan=1.0) ** 1.5
+            ax.scatter(pos[mask, 0], pos[mask, 1], s=s, **kw)
+
+    a, b = result.a, result.b
+    for pos, sizes, verdict in ((result.positions_a, result.sizes_a, a), (result.positions_b, result.sizes_b, b)):
+        draw(pos, sizes, verdict.label == UNSEEN, c="#cccccc", alpha=0.5, linewidths=0)
+    draw(result.positions_a, result.sizes_a, a.label == KEPT, c="#777777", alpha=0.7, linewidths=0,
+         label=f"kept ({a.count(KEPT)} of A, {b.count(KEPT)} of B)")
+    draw(result.positions_b, result.sizes_b, b.label == KEPT, c="#777777", alpha=0.7, linewidths=0)
+    draw(result.positions_a, result.sizes_a, a.label == GONE, c="#d62728", edgecolors="k", linewidths=0.5,
+         label=f"gone ({a.count(GONE)})")
+    draw(result.positions_b, result.sizes_b, b.label == NEW, c="#2ca02c", edgecolors="k", linewidths=0.5,
+         label=f"new ({b.count(NEW)})")
+    ax.scatter([], [], c="#cccccc", label=f"unseen by the other ({a.count(UNSEEN)} + {b.count(UNSEEN)})")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m] (A's frame)")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title or result.summary(), fontsize=9)
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
+    """The changes.json document."""
+    res = run.result
+    return {
+        "format": CHANGES_FORMAT, "version": __version__, **run.sources,
+        "a_from_b": run.a_from_b.to_dict(), "epsg": run.epsg,
+        "counts": res.counts(), "common_area_ha": round(float(res.common_area.area) / 1e4, 4),
+        "observed_area_ha": {"a": round(float(res.observed_a.area) / 1e4, 4),
+                             "b": round(float(res.observed_b.area) / 1e4, 4)},
+        "counterpart_gate_m": res.tolerance_m,
+        "params": {"changes": params_to_dict(params.changes),
+                   "association.distance_tolerance_m": params.association.distance_tolerance_m},
+        "summary": res.summary(), "seconds": round(run.seconds, 3),
+    }
+
+
+def write_outputs(run: ChangesRun, out_dir: str | Path, params: Params, plot: bool = True) -> list[Path]:
+    """Write changes.csv, changes.geojson (georeferenced maps), changes.png and changes.json (last)."""
+    out_dir = Path(out_dir)
+    written = [out_dir / "changes.csv"]
+    write_text_atomic(written[-1], format_changes_csv(run.result))
+    if run.epsg:
+        written.append(out_dir / "changes.geojson")
+        write_text_atomic(written[-1], json.dumps(changes_feature_collection(run.result, run.epsg),
+                                                  separators=(",", ":")) + "\n")
+    if plot:
+        written.append(out_dir / "changes.png")
+        write_bytes_atomic(written[-1], changes_png(run.result))
+    written.append(out_dir / "changes.json")
+    write_text_atomic(written[-1], json.dumps(changes_record(run, params), indent=1) + "\n")
+    return written
+
+
+def _check_output_dir(out_dir: Path, inputs: list[Path]) -> None:
+    """An output is never an input or inside one."""
+    out = out_dir.resolve()
+    for p in inputs:
+        src = p.resolve()
+        if out == src or src in out.parents:
+            raise InputError("output directory is (inside) an input; choose another --out", out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("output path exists and is not a directory", out_dir)
+
+
+def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, out_dir: str | Path,
+        params: Params | None = None, plot: bool = True) -> ChangesRun:
+    """Classify every landmark of A and B against the other session and write the outputs (module docstring).
+    Raises InputError (nothing written) for a match without an accepted transform, a match of other
+    sessions, sessions without keyframe poses or ground footprints, or no common observed ground."""
+    params = params or Params()
+    out_dir = Path(out_dir)
+    _check_output_dir(out_dir, [Path(session_a), Path(session_b)])
+    changes = compute(session_a, session_b, match_json, params)
+    write_outputs(changes, out_dir, params, plot)
+    log.info("%s", changes.summary())
+    return changes
