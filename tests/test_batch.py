@@ -102,6 +102,11 @@ def test_batch_stages_failures_and_groups(flights, local_run):
     rec = pycolmap.Reconstruction(str(out / "merged" / big["reference"] / "sparse"))
     n_images = sum(pycolmap.Reconstruction(str(root / n / "sparse")).num_images() for n in "ABC")
     assert rec.num_images() == big["images"] == n_images and big["fused"] > 20
+    # change detection of every pair in the graph: the toy world did not change, so nothing is gone or new
+    for key in ("A__B", "B__C"):
+        assert (out / "pairs" / key / "changes" / "changes.csv").is_file()
+        assert done[key]["kept"] > 0 and done[key]["gone"] == done[key]["new"] == 0
+    assert not (out / "pairs" / "A__D" / "changes").exists()
     for name in ("report.md", "report.json", "sessions.csv", "pairs.csv", "session_graph.png"):
         assert (out / name).stat().st_size > 0
     assert "| A__B | done | True |" in (out / "report.md").read_text()
@@ -120,6 +125,7 @@ def test_resume_skips_finished_tasks(flights, local_run, tmp_path):
     assert resumed.pop("A__B") is False and all(resumed.values())
     assert all(s.get("resumed") for s in again.sessions if s["status"] == "done")
     assert all(g.get("resumed") for g in again.groups if g.get("status") == "done")
+    assert all(p.get("changes") for p in again.pairs if p.get("in_graph"))
     assert _normalised(copy / "report.json", copy) == _normalised(out / "report.json", out)
 
 

@@ -29,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --no-verify: refit each accepted transform on all associations (verification "
                              "already refines its winner)")
     parser.add_argument("--no-merge", action="store_true", help="stop after the session graph")
+    parser.add_argument("--no-changes", action="store_true",
+                        help="skip change detection of the accepted pairs (pairs/A__B/changes/)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace outputs in --out made with other parameters or from changed flights (without "
@@ -49,14 +51,16 @@ def run(args: argparse.Namespace) -> int:
     if args.refine and not args.no_verify:
         raise InputError("--refine only applies with --no-verify (verification already refines its winner)")
     options = batch.BatchOptions(nearest=args.nearest, ekf=args.ekf, merge=not args.no_merge, refine=args.refine,
-                                 verify=not args.no_verify, progress=not args.no_progress,
-                                 overwrite=args.overwrite)
+                                 verify=not args.no_verify, changes=not args.no_changes,
+                                 progress=not args.no_progress, overwrite=args.overwrite)
     with make_executor(args.workers, args.scheduler, args.dask_local) as executor:
         report = batch.run(args.flights_dir, args.out, params, executor, options)
     done = sum(s["status"] == "done" for s in report.sessions)
     accepted = sum(bool(p.get("accepted")) for p in report.pairs)
+    gone, new = (sum(int(p.get(k) or 0) for p in report.pairs) for k in ("gone", "new"))
     print(f"{args.out}: {done}/{len(report.sessions)} sessions mapped, {len(report.pairs)} pairs "
-          f"({accepted} accepted), {len(report.groups)} groups; report {args.out / 'report.md'}")
+          f"({accepted} accepted; {gone} landmarks gone, {new} new), {len(report.groups)} groups; report "
+          f"{args.out / 'report.md'}")
     for line in report.failures:
         print(f"FAILED {line}")
     return 0 if report.ok else 1

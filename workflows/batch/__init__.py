@@ -22,7 +22,10 @@ processes, or a Dask cluster):
    group is brought into the frame of its best-connected session along a maximum spanning tree
    (`sosmatch.plugin.multisession.spanning_transforms`) and merged (`sosmatch.workflows.merge.merge_sessions`)
    -> OUT/merged/REFERENCE/;
-5. report: OUT/report.json, OUT/report.md (a table per session and per pair), OUT/session_graph.png.
+5. changes (BatchOptions.changes, on by default): every accepted pair in the graph is compared object by object
+   with its alignment (`sosmatch.workflows.changes`) -> OUT/pairs/A__B/changes/ (changes.csv, .geojson when
+   georeferenced, .png, .json); the counts of gone, new, kept and unseen landmarks go into the pair's row;
+6. report: OUT/report.json, OUT/report.md (a table per session and per pair), OUT/session_graph.png.
 
 Resume: every finished task writes OUT/state/STAGE/KEY.json atomically, holding a fingerprint of its inputs
 (flight, parameters, upstream fingerprints) and its result (paths relative to OUT, so a moved OUT resumes).
@@ -37,11 +40,12 @@ from __future__ import annotations
 from .discovery import PAIR_SEP, Flight, classify_flight, discover_flights
 from .report import BatchReport, plot_session_graph, write_report
 from .state import StateStore
-from .tasks import map_task, merge_task, pair_task, read_associations, summarise_match, verify_pair
+from .tasks import changes_task, map_task, merge_task, pair_task, read_associations, summarise_match, verify_pair
 from .workflow import BatchOptions, run
 
 __all__ = [
-    "PAIR_SEP", "BatchOptions", "BatchReport", "Flight", "StateStore", "classify_flight", "discover_flights",
+    "PAIR_SEP", "BatchOptions", "BatchReport", "Flight", "StateStore", "changes_task", "classify_flight",
+    "discover_flights",
     "map_task", "merge_task", "pair_task", "plot_session_graph", "read_associations", "run", "summarise_match",
     "verify_pair", "write_report",
 ]

@@ -32,7 +32,9 @@ class BatchReport:
     def failures(self) -> list[str]:
         items = [("session", s["name"], s) for s in self.sessions] + [("pair", p["pair"], p) for p in self.pairs]
         items += [("group", g["reference"], g) for g in self.groups]
-        return [f"{kind} {name}: {x.get('error', '')}" for kind, name, x in items if x["status"] == "failed"]
+        out = [f"{kind} {name}: {x.get('error', '')}" for kind, name, x in items if x["status"] == "failed"]
+        return out + [f"changes {p['pair']}: {p.get('changes_error', '')}" for p in self.pairs
+                      if p.get("changes_status") == "failed"]
 
     @property
     def ok(self) -> bool:
@@ -77,8 +79,8 @@ def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
 
 
 SESSION_COLUMNS = ["name", "kind", "status", "images", "points3D", "landmarks", "seconds", "error"]
-PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "yaw_deg", "shift_m", "scale", "seconds",
-                "error"]
+PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "yaw_deg", "shift_m", "scale", "gone",
+                "new", "kept", "unseen", "seconds", "error"]
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]
 
 
@@ -94,7 +96,8 @@ def write_report(report: BatchReport) -> None:
         f"{len(report.sessions)} sessions, {len(report.pairs)} pairs, {len(report.groups)} groups; {status}; "
         f"executor: {report.executor}; {report.seconds:.1f} s", "",
         "## Sessions", "", _table(report.sessions, SESSION_COLUMNS), "",
-        "## Pairs", "", "(transform a_from_b: yaw about z, length of the translation, scale)", "",
+        "## Pairs", "", "(transform a_from_b: yaw about z, length of the translation, scale; landmarks gone from A, "
+        "new in B, kept (of A) and unseen by the other session: pairs/A__B/changes/)", "",
         _table(pair_rows, PAIR_COLUMNS), "",
         "## Groups (merged models)", "", _table(groups, GROUP_COLUMNS), "",
         "![session graph](session_graph.png)", "",
@@ -110,56 +113,128 @@ def write_report(report: BatchReport) -> None:
     plot_session_graph(report, out / "session_graph.png")
 
 
+def session_outline(session_dir: str | Path) -> tuple[np.ndarray, Any] | None:
+    """(camera centres (K, 3), union of the keyframes' ground footprints) of a mapped session in its own frame,
+    the ground taken flat at the median landmark height; None when the session cannot be read."""
+    import shapely
+
+    from ...database.colmap_model import read_colmap_model_poses
+    from ...database.landmark_map import read_landmark_map
+    from ...plugin.errors import InputError
+    from ...plugin.evaluation.footprints import FlatGround, footprint_polygons
+
+    try:
+        poses, cameras, camera_of = read_colmap_model_poses(Path(session_dir) / "sparse")
+        lmap = read_landmark_map(Path(session_dir) / "landmarks.sosmap")
+    except InputError:
+        return None
+    if not len(poses):
+        return None
+    ground = FlatGround(float(np.median(lmap.positions[:, 2])) if len(lmap) else 0.0)
+    polys = []
+    for cid in sorted(set(camera_of.values())):
+        idx = [k for k, n in enumerate(poses.names) if camera_of[n] == cid]
+        polys.extend(footprint_polygons(cameras[cid], poses.rotations[idx], poses.centers[idx], ground, per_side=4))
+    return poses.centers, shapely.union_all(polys)
+
+
+def _placement(report: BatchReport) -> tuple[dict[str, Any], str]:
+    """How to put every session into one map: {name: reference_from_session Sim3} and a caption. Sessions that
+    share a georeferenced (or one local) frame stay where they are; otherwise the largest merged group is drawn
+    in its reference session's frame and the others are left out."""
+    from ...plugin.multisession import Sim3
+
+    names = [s["name"] for s in report.sessions if s["status"] == "done"]
+    epsgs = {s.get("epsg") for s in report.sessions if s["status"] == "done"}
+    if len(epsgs) == 1 and next(iter(epsgs)):
+        return {n: Sim3.identity() for n in names}, f"EPSG:{next(iter(epsgs))}"
+    groups = sorted(report.groups, key=lambda g: -len(g.get("members", [])))
+    if groups and len(groups[0]["members"]) > 1:
+        g = groups[0]
+        return ({n: Sim3.from_dict(t) for n, t in g["reference_from_session"].items()},
+                f"frame of {g['reference']} (its merged group)")
+    return {n: Sim3.identity() for n in names}, "each session's own frame"
+
+
 def plot_session_graph(report: BatchReport, path: Path) -> None:
-    """Sessions at their mean camera position (or on a circle), accepted pairs as solid lines labelled |S|,
-    rejected pairs dashed, failed pairs dotted red; colour = merged group."""
+    """Two panels, readable however much the flights overlap. Left, the geography: every session's keyframe
+    ground footprints (outline, light fill) and flight path in one frame (`_placement`), one colour per session,
+    named in the legend. Right, the graph: sessions on a circle (names outside it), accepted pairs solid green
+    labelled with |S| and the landmarks gone / new, pairs contradicted by the others orange dash-dot, rejected
+    dashed grey, failed dotted red; a node's outline colour is its merged group."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import shapely
 
     from ...database.atomic import atomic_path
 
     names = [s["name"] for s in report.sessions]
     n = len(names)
-    centres = [s.get("center") for s in report.sessions]
-    same_frame = len({s.get("epsg") for s in report.sessions}) == 1
-    if n and same_frame and all(c is not None for c in centres):
-        xy = np.asarray(centres)[:, :2]
-        if n > 1 and np.ptp(xy, axis=0).max() < 1e-6:
-            xy = None
-    else:
-        xy = None
-    if xy is None:
-        ang = 2 * np.pi * np.arange(n) / max(n, 1)
-        xy = np.stack([np.cos(ang), np.sin(ang)], 1)
-    pos = {nm: xy[i] for i, nm in enumerate(names)}
+    cmap = plt.get_cmap("tab20" if n > 10 else "tab10")
+    colour = {nm: cmap(i % cmap.N) for i, nm in enumerate(names)}
     group_of = {m: k for k, g in enumerate(report.groups) for m in g["members"]}
-    fig, ax = plt.subplots(figsize=(6, 5))
+    fig, (geo, graph) = plt.subplots(1, 2, figsize=(13, 6.2), gridspec_kw={"width_ratios": [1.15, 1.0]})
+
+    placement, caption = _placement(report)
+    drawn = 0
+    for s in report.sessions:
+        t = placement.get(s["name"])
+        outline = session_outline(s["session"]) if t is not None and s.get("session") else None
+        if outline is None:
+            continue
+        centres, area = outline
+        c = t.apply(centres)
+        for poly in getattr(area, "geoms", [area]):
+            if isinstance(poly, shapely.Polygon) and not poly.is_empty:
+                ring = t.apply(np.column_stack([np.asarray(poly.exterior.coords), np.zeros(len(poly.exterior.coords))]))
+                geo.fill(ring[:, 0], ring[:, 1], color=colour[s["name"]], alpha=0.12, lw=0)
+                geo.plot(ring[:, 0], ring[:, 1], color=colour[s["name"]], lw=1.2)
+        geo.plot(c[:, 0], c[:, 1], "-", color=colour[s["name"]], lw=0.8, alpha=0.8,
+                 label=f"{s['name']} ({s.get('landmarks', '?')} landmarks)")
+        geo.plot(c[:1, 0], c[:1, 1], "o", color=colour[s["name"]], ms=4)
+        drawn += 1
+    geo.set_title(f"flights: keyframe footprints and paths ({caption})", fontsize=9)
+    geo.set_aspect("equal", adjustable="datalim")
+    geo.set_xlabel("x [m]")
+    geo.set_ylabel("y [m]")
+    if drawn:
+        geo.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=3, frameon=False)
+
+    ang = np.pi / 2 - 2 * np.pi * np.arange(n) / max(n, 1)
+    pos = {nm: np.array([np.cos(a), np.sin(a)]) for nm, a in zip(names, ang)}
     for p in report.pairs:
         if p["a"] not in pos or p["b"] not in pos:
             continue
         (x0, y0), (x1, y1) = pos[p["a"]], pos[p["b"]]
+        mid = ((x0 + x1) / 2, (y0 + y1) / 2)
         if p["status"] == "done" and p.get("accepted") and p.get("in_graph") is False:
-            ax.plot([x0, x1], [y0, y1], "-.", color="tab:orange", lw=1.5, zorder=1)
+            graph.plot([x0, x1], [y0, y1], "-.", color="tab:orange", lw=1.5, zorder=1)
         elif p["status"] == "done" and p.get("accepted"):
-            ax.plot([x0, x1], [y0, y1], "-", color="tab:green", lw=2, zorder=1)
-            ax.annotate(str(p.get("num_associations", "")), ((x0 + x1) / 2, (y0 + y1) / 2), fontsize=8,
-                        ha="center", color="tab:green")
+            graph.plot([x0, x1], [y0, y1], "-", color="tab:green", lw=2, zorder=1)
+            text = f"|S| {p.get('num_associations', '')}"
+            if p.get("gone") is not None:
+                text += f"\n-{p['gone']} +{p['new']}"
+            graph.annotate(text, mid, fontsize=7, ha="center", va="center", color="darkgreen",
+                           bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})
         elif p["status"] == "done":
-            ax.plot([x0, x1], [y0, y1], "--", color="0.6", lw=1, zorder=0)
+            graph.plot([x0, x1], [y0, y1], "--", color="0.7", lw=1, zorder=0)
         else:
-            ax.plot([x0, x1], [y0, y1], ":", color="tab:red", lw=1, zorder=0)
-    cmap = plt.get_cmap("tab10")
+            graph.plot([x0, x1], [y0, y1], ":", color="tab:red", lw=1, zorder=0)
+    group_colours = plt.get_cmap("Dark2")
     for s in report.sessions:
         x, y = pos[s["name"]]
-        color = "tab:red" if s["status"] != "done" else cmap(group_of.get(s["name"], 0) % 10)
-        ax.scatter([x], [y], s=200, color=color, zorder=2, edgecolors="k")
-        ax.annotate(s["name"], (x, y), textcoords="offset points", xytext=(8, 8), fontsize=9)
-    ax.set_title("session graph: accepted (solid, |S|), contradicted (orange), rejected (dashed), failed (dotted)",
-                 fontsize=8)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.margins(0.2)
+        edge = "tab:red" if s["status"] != "done" else group_colours(group_of.get(s["name"], 0) % 8)
+        graph.scatter([x], [y], s=260, color=colour[s["name"]], zorder=2, edgecolors=[edge], linewidths=2.5)
+        graph.annotate(s["name"], (1.22 * x, 1.22 * y), fontsize=9, ha="center", va="center")
+    graph.set_title("session graph: accepted (|S|, landmarks gone / new), contradicted (orange),\n"
+                    "rejected (dashed), failed (dotted red); node outline = merged group", fontsize=8)
+    graph.set_xlim(-1.5, 1.5)
+    graph.set_ylim(-1.5, 1.5)
+    graph.set_aspect("equal")
+    graph.axis("off")
+    fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
     plt.close(fig)

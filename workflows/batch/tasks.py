@@ -1,5 +1,5 @@
 """Batch tasks: top-level functions with picklable arguments, run in worker processes (map, match + verify,
-merge)."""
+merge, changes)."""
 
 from __future__ import annotations
 
@@ -195,3 +195,16 @@ def merge_task(
         "merged": out_dir, "images": res.num_images, "points3D": res.num_points3d,
         "landmarks": res.num_landmarks, "fused": res.num_fused, "rejected_associations": res.num_rejected,
     }
+
+
+def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, params: Params) -> dict[str, Any]:
+    """Change detection of one accepted pair with its (verified) alignment a_from_b into out_dir
+    (`sosmatch.workflows.changes`); returns the counts for the report."""
+    from .. import changes
+
+    run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform))
+    changes.write_outputs(run, out_dir, params)
+    counts = run.result.counts()
+    return {"changes": str(Path(out_dir) / "changes.json"), "gone": counts["gone"], "new": counts["new"],
+            "kept": counts["kept_a"], "unseen": counts["unseen_a"] + counts["unseen_b"],
+            "changes_summary": run.summary()}

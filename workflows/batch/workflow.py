@@ -26,7 +26,7 @@ from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
-from .tasks import map_task, merge_task, pair_task
+from .tasks import changes_task, map_task, merge_task, pair_task
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +46,7 @@ class BatchOptions:
     verify_final_dof: int | None = 6  # the winner refitted 6-DOF on its pairs (None: keep the verify_dof fit)
     verify_min_ratio: float = 1.2  # (ours) the winner's support over the best disagreeing alignment's
     edge_tolerance_m: float = 5.0  # (ours) two accepted pairs agree if they place sessions within this distance
+    changes: bool = True  # change detection of every pair in the session graph (OUT/pairs/A__B/changes/)
     progress: bool = True
     # replace complete outputs made with other parameters or options (OUT itself, and each session, pair and merged
     # model whose inputs changed); without it such a run is refused (sosmatch.database.outputs)
@@ -158,6 +159,9 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     # 4: session graph (marks each pair's in_graph) and merged groups
     report.groups = _graph_and_merge(report, mapped, sessions, pairs, pair_fps, state, executor, options,
                                      params, out_dir)
+    # 5: what changed between the sessions of every pair the graph kept
+    if options.changes:
+        _changes(sessions, pairs, pair_fps, state, executor, options, params, out_dir)
     report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
                     for key, rec in pairs.items()]
     report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
@@ -226,6 +230,33 @@ def _graph_and_merge(
         if group["reference"] in merged:
             group.update(merged[group["reference"]])
     return groups
+
+
+def _valid_changes(done: dict[str, Any]) -> bool:
+    return Path(done.get("changes", "")).is_file()
+
+
+def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]], pair_fps: dict[str, str],
+             state: StateStore, executor: Executor, options: BatchOptions, params: Params, out_dir: Path) -> None:
+    """Run `changes_task` for every accepted pair in the session graph; its counts go into the pair's record."""
+    tasks, fps = {}, {}
+    pdict = params_to_dict(params)
+    for key, rec in pairs.items():
+        if rec["status"] != "done" or not rec.get("accepted") or not rec.get("in_graph") or not rec.get("transform"):
+            continue
+        a, b = key.split(PAIR_SEP)
+        fps[key] = fingerprint({"pair": pair_fps[key], "transform": rec["transform"], "changes": pdict["changes"],
+                                "eps": pdict["association"]["distance_tolerance_m"]})
+        tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
+                      rec["transform"], params)
+    done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
+                     options.progress, _valid_changes)
+    for key, rec in done.items():
+        if rec["status"] == "done":
+            pairs[key].update({k: rec[k] for k in ("changes", "gone", "new", "kept", "unseen", "changes_summary")})
+        else:
+            pairs[key]["changes_error"] = rec.get("error", "")
+            pairs[key]["changes_status"] = rec["status"]
 
 
 def _refined(session_a: str, session_b: str, match_json: str, sim: Sim3, params: Params) -> Sim3:
