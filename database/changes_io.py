@@ -4,7 +4,7 @@ changes.csv columns (CHANGE_COLUMNS): `class` (kept / gone / new / unseen), `ses
 landmark's index in its own map), `x, y, z` (in A's frame), `size_m`, `confidence`, `counterpart` (index in the
 other map of the landmark that matched it, -1 none), `counterpart_distance_m`, `size_change_m` (counterpart's
 size minus this one's), `views` (keyframes of the other session that should have seen it), `evidence`
-(landmark, nested, group, segments, none, views, confidence: see `sosmatch.plugin.changes`) and
+(landmark, nested, part, segments, none, views, confidence: see `sosmatch.plugin.changes`) and
 `height_above_ground_m`. Rows: A's landmarks in order, then B's. Empty cells are unknown values.
 The reader applies the same validation the writer's rows satisfy.
 """
@@ -25,7 +25,7 @@ from .text_input import read_user_text
 
 CHANGE_COLUMNS = ["class", "session", "index", "x", "y", "z", "size_m", "confidence", "counterpart",
                   "counterpart_distance_m", "size_change_m", "views", "evidence", "height_above_ground_m"]
-EVIDENCE = ("landmark", "nested", "group", "segments", "none", "views", "confidence")
+EVIDENCE = ("landmark", "nested", "part", "segments", "none", "views", "confidence")
 CHANGE_DTYPE = np.dtype([
     ("class", "U6"), ("session", "U1"), ("index", "<i8"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
     ("size_m", "<f8"), ("confidence", "<f8"), ("counterpart", "<i8"), ("counterpart_distance_m", "<f8"),

@@ -46,8 +46,8 @@ from .params import ChangeParams
 KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
 CLASSES = (KEPT, GONE, NEW, UNSEEN)
 # evidence behind a class
-BY_LANDMARK, BY_NESTING, BY_GROUP, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE = (
-    "landmark", "nested", "group", "segments", "none", "views", "confidence")
+BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE = (
+    "landmark", "nested", "part", "segments", "none", "views", "confidence")
 
 GROUND_QUANTILE = 0.2  # of the nearby landmarks' heights: below every object, robust to a few low outliers
 GROUND_NEIGHBOURS = 30
@@ -108,13 +108,13 @@ class LandmarkChanges:
     """The verdict for every landmark of one map (arrays of its length, in landmark order)."""
 
     label: np.ndarray  # class: kept / gone / new / unseen
-    evidence: np.ndarray  # why: landmark, group, segments, none, views, confidence
+    evidence: np.ndarray  # why: landmark, nested, part, segments, none, views, confidence
     counterpart: np.ndarray  # index of the counterpart landmark in the other map (-1 none)
     distance_m: np.ndarray  # to the counterpart (gate metric), NaN without one
     size_change_m: np.ndarray  # counterpart size - own size, NaN without one
     views: np.ndarray  # keyframes of the other session that should have seen the landmark
     confidence: np.ndarray  # see the module docstring; 0 where the other session saw too little
-    group: np.ndarray  # representative landmark of the landmark's object group (itself when alone)
+    linked: np.ndarray  # the own landmark through which a part / whole was kept (-1 none)
     height_above_ground_m: np.ndarray
 
     def count(self, label: str) -> int:
@@ -220,42 +220,32 @@ def observed_area(poses: Poses, cameras: Sequence[Camera], ground: HeightField) 
 # --- objects and counterparts ---------------------------------------------------------------------------------
 
 
-def landmark_groups(positions: np.ndarray, sizes: np.ndarray, support: np.ndarray | None, radius_factor: float,
-                    max_size_difference: float) -> np.ndarray:
-    """The object group of each landmark: the index of its representative.
-
-    Landmarks are visited best supported first (most observations, then largest, then index); an unassigned
-    landmark becomes a representative and takes every unassigned landmark that lies inside its footprint
-    (ground distance <= radius_factor x its size h) and has a compatible size (ratio r <= max_size_difference:
-    the nested and partial masks of one object; a ground patch beside a crown or a bush beside a field patch is
-    seldom of the same size). A group is a star around its representative, never a chain, so a grove does not
-    become one object. Landmarks without a size stay alone.
-    """
+def holder_pairs(points: np.ndarray, sizes: np.ndarray, holders: np.ndarray, holder_sizes: np.ndarray,
+                 max_ratio: float, same_map: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (i, j) where landmark j of `holders` holds landmark i of `points`: j is at least as large (h_i <= h_j
+    <= max_ratio h_i) and i lies inside j's footprint (ground distance <= 2 h_j). One object mapped as a whole
+    in one place and as parts in another (nested masks, split tracks) is linked this way. `same_map`: both
+    arrays are one map; a landmark does not hold itself. Unknown sizes hold nothing and are held by nothing."""
     from scipy.spatial import cKDTree
 
-    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)[:, :2]
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, :2]
+    q = np.asarray(holders, dtype=np.float64).reshape(-1, 3)[:, :2]
     h = np.asarray(sizes, dtype=np.float64).reshape(-1)
-    n = len(p)
-    group = np.arange(n)
-    hv = np.where(np.isfinite(h), h, 0.0)
-    if n < 2 or radius_factor <= 0:
-        return group
-    sup = np.zeros(n) if support is None else np.asarray(support, dtype=np.float64)
-    order = np.lexsort((np.arange(n), -hv, -sup))
-    tree = cKDTree(p)
-    assigned = np.zeros(n, dtype=bool)
-    for i in order:
-        if assigned[i]:
-            continue
-        assigned[i] = True
-        if hv[i] <= 0:
-            continue
-        cand = np.asarray(tree.query_ball_point(p[i], radius_factor * hv[i]), dtype=np.int64)
-        cand = cand[~assigned[cand] & (hv[cand] > 0)]
-        members = cand[size_ratio(hv[cand], np.full(len(cand), hv[i])) <= max_size_difference]
-        group[members] = i
-        assigned[members] = True
-    return group
+    hq = np.asarray(holder_sizes, dtype=np.float64).reshape(-1)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    finite = np.isfinite(hq)
+    if not len(p) or not np.any(finite) or max_ratio < 1:
+        return empty
+    reach = FOOTPRINT_MARGIN * float(np.max(hq[finite]))
+    pairs = cKDTree(p).sparse_distance_matrix(cKDTree(q), reach, output_type="ndarray")
+    i, j, d = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64), pairs["v"]
+    with np.errstate(invalid="ignore"):
+        ok = (hq[j] >= h[i]) & (hq[j] <= max_ratio * h[i]) & (d <= FOOTPRINT_MARGIN * hq[j])
+    if same_map:
+        ok &= i != j
+    i, j, d = i[ok], j[ok], d[ok]
+    order = np.lexsort((j, d, i))
+    return i[order], j[order]
 
 
 def counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
@@ -285,29 +275,13 @@ def counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray
 
 def inside_larger(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
                   max_ratio: float) -> np.ndarray:
-    """For each landmark, a landmark of the other map that holds it: larger (h_i <= h_j <= max_ratio h_i) and
-    with the landmark inside its footprint (ground distance <= 2 h_j). The other session mapped the object as a
-    whole (or a bigger part of it) where this map has a part; a removed object leaves, at most, smaller ground
-    patches. Returns (N,) index of the nearest such landmark or -1."""
-    from scipy.spatial import cKDTree
-
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, :2]
-    q = np.asarray(other_points, dtype=np.float64).reshape(-1, 3)[:, :2]
-    h = np.asarray(sizes, dtype=np.float64).reshape(-1)
-    hq = np.asarray(other_sizes, dtype=np.float64).reshape(-1)
-    out = np.full(len(p), -1, dtype=np.int64)
-    finite = np.isfinite(hq)
-    if not len(p) or not np.any(finite) or max_ratio < 1:
-        return out
-    reach = FOOTPRINT_MARGIN * float(np.max(hq[finite]))
-    for i, cand in enumerate(cKDTree(q).query_ball_point(p, reach)):
-        if not cand or not np.isfinite(h[i]):
-            continue
-        cand = np.asarray(cand, dtype=np.int64)
-        d = np.linalg.norm(q[cand] - p[i], axis=1)
-        ok = finite[cand] & (hq[cand] >= h[i]) & (hq[cand] <= max_ratio * h[i]) & (d <= FOOTPRINT_MARGIN * hq[cand])
-        if np.any(ok):
-            out[i] = int(cand[ok][np.argmin(d[ok])])
+    """For each landmark, the nearest landmark of the other map that holds it (`holder_pairs`): the other session
+    mapped the object as a whole (or a bigger part of it) where this map has a part; a removed object leaves, at
+    most, smaller ground patches. Returns (N,) index or -1."""
+    out = np.full(len(np.asarray(points).reshape(-1, 3)), -1, dtype=np.int64)
+    i, j = holder_pairs(points, sizes, other_points, other_sizes, max_ratio)
+    first = np.r_[True, i[1:] != i[:-1]] if len(i) else np.zeros(0, bool)  # sorted by i, then distance
+    out[i[first]] = j[first]
     return out
 
 
@@ -429,59 +403,61 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
     index, dist = counterparts(own_pos, own_h, other_pos, other_h, gate_m, params.max_size_difference,
                                params.z_weight)
     index = np.where(compared, index, -1)
-    dist = np.where(index >= 0, dist, np.nan)
-    group = landmark_groups(own_pos, own_h, own.support, params.group_radius_factor,
-                            params.max_size_difference)
-    label = np.full(n, UNSEEN, dtype=object)
-    evidence = np.full(n, TOO_FEW_VIEWS, dtype=object)
     holder = np.full(n, -1, dtype=np.int64)
     if params.nest_max_ratio >= 1:
         holder = np.where(compared & (index < 0), inside_larger(own_pos, own_h, other_pos, other_h,
                                                                 params.nest_max_ratio), -1)
-    matched_groups = np.unique(group[(index >= 0) | (holder >= 0)])
-    in_matched = np.isin(group, matched_groups) & compared
-    label[in_matched] = KEPT
-    evidence[in_matched] = BY_GROUP
-    evidence[holder >= 0] = BY_NESTING
+    label = np.full(n, UNSEEN, dtype=object)
+    evidence = np.full(n, TOO_FEW_VIEWS, dtype=object)
+    direct = compared & ((index >= 0) | (holder >= 0))
+    label[direct] = KEPT
     evidence[index >= 0] = BY_LANDMARK
-    open_ = compared & ~in_matched
+    evidence[(index < 0) & (holder >= 0)] = BY_NESTING
+    # one object, several landmarks of this map: a part inside the footprint of a larger matched landmark (at
+    # most part_max_ratio times its size) is kept with it
+    link = np.full(n, -1, dtype=np.int64)
+    if params.part_max_ratio >= 1:
+        part, whole = holder_pairs(own_pos, own_h, own_pos, own_h, params.part_max_ratio, same_map=True)
+        hit = compared[part] & ~direct[part] & direct[whole]
+        hp, hw = part[hit], whole[hit]  # sorted by part, then distance: the nearest whole first
+        first = np.r_[True, hp[1:] != hp[:-1]] if len(hp) else np.zeros(0, bool)
+        link[hp[first]] = hw[first]
+    by_part = link >= 0
+    label[by_part] = KEPT
+    evidence[by_part] = BY_PART
+    open_ = compared & ~direct & ~by_part
     if other.segments is not None and np.any(open_):
         idx = np.flatnonzero(open_)
         hits, trials, chance = segment_evidence(own_pos[idx], own_h[idx], other.poses, other.cameras,
                                                 other.segments, gate_m, params.max_size_difference,
                                                 params.probe_count, params.probe_radius_factor)
-        present = binomial_tail(hits, trials, chance) < params.segment_evidence_p
-        occupied_groups = np.unique(group[idx[present]])
-        by_segments = open_ & np.isin(group, occupied_groups)
-        label[by_segments] = KEPT
-        evidence[by_segments] = BY_SEGMENTS
-        open_ &= ~by_segments
+        present = idx[binomial_tail(hits, trials, chance) < params.segment_evidence_p]
+        label[present] = KEPT
+        evidence[present] = BY_SEGMENTS
+        open_[present] = False
     label[open_] = change_label
     evidence[open_] = NO_EVIDENCE
-    # confidence: this pair's re-observation rate of object groups like this one (representatives' features)
-    reps = np.unique(group[compared])
-    rep_found = np.isin(reps, group[label == KEPT])
+    # confidence: this pair's re-observation rate of landmarks like this one
     confidence = np.zeros(n)
-    if len(reps):
-        feats = reobservation_features(own_h[reps], views[reps], heights[reps],
-                                       None if own.support is None else own.support[reps])
-        rep_conf = predict_logistic(fit_logistic(feats, rep_found), feats)
-        conf_of = dict(zip(reps.tolist(), rep_conf.tolist()))
-        for i in np.flatnonzero(compared):
-            confidence[i] = conf_of.get(int(group[i]), 0.0)
+    if np.any(compared):
+        idx = np.flatnonzero(compared)
+        feats = reobservation_features(own_h[idx], views[idx], heights[idx],
+                                       None if own.support is None else own.support[idx])
+        confidence[idx] = predict_logistic(fit_logistic(feats, label[idx] == KEPT), feats)
     weak = (label == change_label) & (confidence < params.min_confidence)
     label[weak] = UNSEEN
     evidence[weak] = LOW_CONFIDENCE
     # the counterpart of a kept landmark: its match, else the larger landmark that holds it
-    nested = (index < 0) & (holder >= 0)
-    index = np.where(nested, holder, index)
+    index = np.where(index >= 0, index, holder)
     scale = np.array([1.0, 1.0, params.z_weight])
-    dist = np.where(nested, np.linalg.norm((own_pos - other_pos[np.maximum(index, 0)]) * scale, axis=1)
-                    if len(other_pos) else np.nan, dist)
-    size_change = np.where(index >= 0, other_h[np.maximum(index, 0)] - own_h, np.nan) if len(other_pos) \
-        else np.full(n, np.nan)
+    if len(other_pos):
+        dist = np.where(index >= 0, np.linalg.norm((own_pos - other_pos[np.maximum(index, 0)]) * scale, axis=1),
+                        np.nan)
+        size_change = np.where(index >= 0, other_h[np.maximum(index, 0)] - own_h, np.nan)
+    else:
+        dist = size_change = np.full(n, np.nan)
     return LandmarkChanges(label.astype(str), evidence.astype(str), index, dist, size_change, views, confidence,
-                           group, heights)
+                           link, heights)
 
 
 def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim3, params: ChangeParams,
@@ -509,5 +485,5 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
 
 __all__ = ["CLASSES", "GONE", "KEPT", "NEW", "UNSEEN", "ChangeResult", "KeyframeSegments", "LandmarkChanges",
            "SessionObservations", "counterparts", "detect_changes", "ground_height_field", "in_view",
-           "landmark_groups", "observed_area", "reobservation_features", "fit_logistic", "predict_logistic",
+           "holder_pairs", "observed_area", "reobservation_features", "fit_logistic", "predict_logistic",
            "segment_evidence"]

@@ -276,10 +276,11 @@ class ChangeParams(Checked):
     # its size) holds it in its footprint (ground distance <= 2 h): the other session mapped the object whole
     # where this map has a part of it. 0 = off.
     nest_max_ratio: float = non_negative(2.0)
-    # Landmarks of one object (a crown, its parts, its clump) are judged together: a landmark belongs to the
-    # best-supported landmark whose footprint holds it, ground distance <= this x the larger size h (2 = inside
-    # the other's footprint, the relation of `triangulation.duplicate_radius_factor`).
-    group_radius_factor: float = non_negative(2.0)
+    # One object is often several landmarks of one map (a crown, its lit half, the clump it stands in; split
+    # tracks), and the other session may have mapped only some of them: a landmark inside the footprint of a
+    # larger own landmark (at most this many times its size) that has a counterpart is kept with it. A wider
+    # reach lets large ground regions and neighbouring crowns hold objects that really went. 0 = off.
+    part_max_ratio: float = non_negative(2.5)
     # A place without a counterpart landmark is still called occupied when the other session's own segments
     # (every mask in its database, tracked or not) show a size-compatible segment at the landmark's projection
     # in significantly more of its keyframes than at probe points around it: binomial tail probability below this.

@@ -15,8 +15,8 @@ from sosmatch.plugin.changes import (
     detect_changes,
     fit_logistic,
     ground_height_field,
+    holder_pairs,
     in_view,
-    landmark_groups,
     predict_logistic,
     segment_evidence,
 )
@@ -34,10 +34,15 @@ def nadir_poses(centers: np.ndarray) -> Poses:
 
 
 def make_world(seed: int, n: int = 260, extent: float = 240.0):
+    """Objects that do not overlap (footprints, radius 2 h, apart), heights 0-6 m, sizes 1-4 m."""
     rng = np.random.default_rng(seed)
-    xy = rng.uniform(0.0, extent, (n, 2))
-    heights = rng.uniform(0.0, 6.0, n)
-    return np.column_stack([xy, heights]), rng.uniform(1.0, 4.0, n)
+    pos, sizes = [], []
+    while len(pos) < n:
+        xy, h = rng.uniform(0.0, extent, 2), rng.uniform(1.0, 4.0)
+        if all(np.hypot(*(xy - q[:2])) > 2.0 * (h + g) for q, g in zip(pos, sizes)):
+            pos.append(np.r_[xy, rng.uniform(0.0, 6.0)])
+            sizes.append(h)
+    return np.array(pos), np.array(sizes)
 
 
 def observe(positions, sizes, present, centers, seed, clutter=25, session_from_world=None):
@@ -139,12 +144,14 @@ def test_counterparts_respect_the_gate_and_the_size_ratio():
     np.testing.assert_allclose(dist, [1.0, 1.5, 1.0])
 
 
-def test_groups_are_stars_around_the_best_supported_landmark():
-    p = np.array([[0.0, 0, 0], [1.5, 0, 0], [3.0, 0, 0], [4.5, 0, 0], [50, 0, 0], [0.5, 0, 0]])
-    h = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 4.0])
-    group = landmark_groups(p, h, np.array([10, 5, 9, 4, 3, 1]), radius_factor=2.0, max_size_difference=0.5)
-    # 0 takes 1 (inside its footprint); 2 takes 3; the far one and the big one (other size) stay alone
-    assert group.tolist() == [0, 0, 2, 2, 4, 5]
+def test_holders_are_larger_landmarks_whose_footprint_holds_the_point():
+    p = np.array([[0.0, 0, 0], [1.5, 0, 0], [3.0, 0, 0], [30.0, 0, 0]])
+    h = np.array([1.0, 2.0, 8.0, 1.0])
+    i, j = holder_pairs(p, h, p, h, max_ratio=4.0, same_map=True)
+    # 0 lies in the footprint of 1 (radius 4), 1 in that of 2; 2 is too large to hold 0 (8 > 4 x 1)
+    assert list(zip(i.tolist(), j.tolist())) == [(0, 1), (1, 2)]
+    i, j = holder_pairs(p, h, p, h, max_ratio=10.0, same_map=True)
+    assert list(zip(i.tolist(), j.tolist())) == [(0, 1), (0, 2), (1, 2)]  # per landmark, nearest holder first
 
 
 def test_segment_evidence_counts_views_with_a_matching_segment():
