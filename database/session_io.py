@@ -152,15 +152,17 @@ def write_landmarks_csv(
     write_text_atomic(path, format_landmarks_csv(lmap, point3d_ids, num_observations, image_names))
 
 
-def read_session_observations(path: str | Path, with_segments: bool = True) -> SessionObservations:
-    """A mapped (or merged) session as change detection needs it: landmarks, their support (observing
-    keyframes), the keyframes' poses and cameras from sparse/ and, from database.db when present and
-    `with_segments`, every segment each keyframe saw. InputError when the session has no keyframe poses."""
+def read_session_observations(session: str | Path | SessionFiles, with_segments: bool = True) -> SessionObservations:
+    """A mapped (or merged) session (a directory, or one opened by `read_session`) as change detection needs it:
+    landmarks, their support (observing keyframes), the keyframes' poses and cameras from sparse/ and, from
+    database.db when present and `with_segments`, every segment each keyframe saw. InputError when the session
+    has no keyframe poses."""
     from ..plugin.changes import SessionObservations
     from .colmap_db import read_segment_detections
     from .colmap_model import read_colmap_model_poses
 
-    session = read_session(path)
+    if not isinstance(session, SessionFiles):
+        session = read_session(session)
     table = read_landmark_table(session.path / "landmarks.csv")
     poses, cameras, camera_of = read_colmap_model_poses(session.sparse_dir)
     if not len(poses):

@@ -16,6 +16,7 @@ from sosmatch.tools.cli import main
 from sosmatch.tools.toy_sessions import (
     ToyWorld,
     lawnmower,
+    load_toy_session,
     make_world,
     toy_match_json,
     write_toy_session,
@@ -86,6 +87,12 @@ def test_changes_end_to_end(toy, tmp_path, capsys):
     again = tmp_path / "C2"
     assert run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", again], capsys)[0] == 0
     assert (again / "changes.csv").read_bytes() == (out / "changes.csv").read_bytes()
+    # into the same directory: the same output is replaced freely, another needs --overwrite
+    assert run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", out], capsys)[0] == 0
+    other = ["--match", root / "AB" / "match.json", "--out", out, "--min-confidence", "0.5"]
+    code, _, err = run([root / "A", root / "B", *other], capsys)
+    assert code == 2 and "--overwrite" in err
+    assert run([root / "A", root / "B", *other, "--overwrite"], capsys)[0] == 0
 
 
 def test_min_confidence_one_reports_no_change(toy, tmp_path, capsys):
@@ -106,7 +113,10 @@ def test_georeferenced_maps_give_geojson(toy, tmp_path, capsys):
     lmap = read_landmark_map(geo / "landmarks.sosmap")
     write_landmark_map(geo / "landmarks.sosmap", type(lmap)(lmap.positions, lmap.sizes, lmap.origin, 32617))
     out = tmp_path / "C"
-    assert run([geo, root / "B", "--match", root / "AB" / "match.json", "--out", out], capsys)[0] == 0
+    # the map changed (its georeference): the old match no longer names it, a new one does
+    _refused([geo, root / "B", "--match", root / "AB" / "match.json", "--out", out], capsys, out, "other maps")
+    match = toy_match_json(load_toy_session(geo), toy[3], tmp_path / "match.json")
+    assert run([geo, root / "B", "--match", match, "--out", out], capsys)[0] == 0
     fc = json.loads((out / "changes.geojson").read_text())
     rows = read_changes_csv(out / "changes.csv")
     assert fc["type"] == "FeatureCollection" and len(fc["features"]) == len(rows)
@@ -131,10 +141,10 @@ def test_bad_inputs_are_one_line_errors_and_write_nothing(toy, tmp_path, capsys)
     refused = tmp_path / "refused.json"
     refused.write_text(json.dumps(doc))
     _refused([root / "A", root / "B", "--match", refused, "--out", out], capsys, out, "no accepted transform")
-    _refused([root / "A", root / "C", "--match", root / "AC" / "match.json", "--out", out], capsys, out,
-             "computed for other sessions")
-    _refused([root / "A", root / "C", "--match", root / "AB" / "match.json", "--out", out], capsys, out,
-             "other sessions")
+    _refused([root / "A", root / "B", "--match", root / "AC" / "match.json", "--out", out], capsys, out,
+             "computed for other maps")
+    _refused([root / "B", root / "A", "--match", root / "AB" / "match.json", "--out", out], capsys, out,
+             "other order")
     # a session whose model holds no keyframe poses
     bare = tmp_path / "bare"
     shutil.copytree(root / "B", bare)

@@ -27,10 +27,12 @@ import numpy as np
 
 from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.changes_io import changes_feature_collection, format_changes_csv
-from ..database.match_io import read_match
-from ..database.session_io import read_session_observations
+from ..database.landmark_map import landmark_map_fingerprint
+from ..database.match_io import check_match_maps, read_match
+from ..database.outputs import check_not_input, fingerprint, open_output_dir
+from ..database.session_io import read_session, read_session_observations
 from ..plugin import __version__
-from ..plugin.changes import GONE, KEPT, NEW, UNSEEN, ChangeResult, SessionObservations, detect_changes
+from ..plugin.changes import GONE, KEPT, NEW, UNSEEN, ChangeResult, detect_changes
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params import Params, params_to_dict
@@ -55,41 +57,26 @@ class ChangesRun:
         return self.result.summary()
 
 
-def check_match_fits(a: SessionObservations, b: SessionObservations, associations: np.ndarray, a_from_b: Sim3,
-                     gate_m: float, match_json: Path) -> None:
-    """InputError when match.json cannot be a match of these two maps: associations beyond their landmarks, or
-    associated landmarks that the transform does not bring together (median distance beyond the gate)."""
-    assoc = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
-    if len(assoc) and (assoc[:, 0].max() >= len(a.positions) or assoc[:, 1].max() >= len(b.positions)):
-        raise InputError(f"match refers to landmarks beyond the maps ({len(a.positions)} and {len(b.positions)} "
-                         "landmarks): it was computed for other sessions", match_json)
-    if len(assoc):
-        gap = np.linalg.norm(a.positions[assoc[:, 0]] - a_from_b.apply(b.positions[assoc[:, 1]]), axis=1)
-        if float(np.median(gap)) > gate_m:
-            raise InputError(f"the match's associated landmarks lie {np.median(gap):.1f} m apart (median) after "
-                             "its transform: it was computed for other sessions", match_json)
-
-
 def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path | None, params: Params | None = None,
             a_from_b: Sim3 | None = None) -> ChangesRun:
-    """Read, check and classify; nothing is written. `a_from_b` overrides the match's transform (batch passes
-    its verified alignment); `match_json` may then be None."""
+    """Read, check and classify; nothing is written. The match must be accepted and computed for exactly these
+    two maps (`match_io.check_match_maps`). `a_from_b` overrides the match's transform (batch passes its verified
+    alignment); `match_json` may then be None."""
     params = params or Params()
     t0 = time.perf_counter()
-    associations = np.zeros((0, 2), np.int64)
+    match = None
     if match_json is not None:
         match = read_match(match_json)
         if not match.accepted or match.transform is None:
             raise InputError("match has no accepted transform: the sessions were not aligned, nothing to compare",
                              match_json)
-        associations = match.associations
         a_from_b = a_from_b or match.transform
     if a_from_b is None:
         raise ValueError("give match_json or a_from_b")
-    obs_a, obs_b = read_session_observations(session_a), read_session_observations(session_b)
-    gate = params.changes.tolerance_factor * params.association.distance_tolerance_m
-    if match_json is not None:
-        check_match_fits(obs_a, obs_b, associations, a_from_b, 2.0 * gate, Path(match_json))
+    files_a, files_b = read_session(session_a), read_session(session_b)
+    if match is not None:
+        check_match_maps(match, files_a.landmarks, files_b.landmarks, match_json)
+    obs_a, obs_b = read_session_observations(files_a), read_session_observations(files_b)
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
         if not area.area > 0:
@@ -97,12 +84,11 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if not result.common_area.area > 0:
         raise InputError("after alignment the two sessions observed no common ground: the match is wrong or the "
                          "flights do not overlap", match_json or session_b)
-    from ..database.landmark_map import read_landmark_map
-
-    epsg = read_landmark_map(Path(session_a) / "landmarks.sosmap").epsg
     sources = {"session_a": str(session_a), "session_b": str(session_b),
-               "match": str(match_json) if match_json is not None else ""}
-    return ChangesRun(result, a_from_b, int(epsg), sources, time.perf_counter() - t0)
+               "match": str(match_json) if match_json is not None else "",
+               "map_a": landmark_map_fingerprint(files_a.landmarks),
+               "map_b": landmark_map_fingerprint(files_b.landmarks)}
+    return ChangesRun(result, a_from_b, int(files_a.landmarks.epsg), sources, time.perf_counter() - t0)
 
 
 def changes_png(result: ChangeResult, title: str = "") -> bytes:
@@ -169,7 +155,9 @@ def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
 
 
 def write_outputs(run: ChangesRun, out_dir: str | Path, params: Params, plot: bool = True) -> list[Path]:
-    """Write changes.csv, changes.geojson (georeferenced maps), changes.png and changes.json (last)."""
+    """Write changes.csv, changes.geojson (georeferenced maps), changes.png and changes.json (last) into a directory
+    the caller has taken (`database.outputs.open_output_dir`); outputs of an earlier run that this one does not
+    produce (a geojson, a plot) are removed, so the directory never mixes two runs."""
     out_dir = Path(out_dir)
     written = [out_dir / "changes.csv"]
     write_text_atomic(written[-1], format_changes_csv(run.result))
@@ -180,31 +168,37 @@ def write_outputs(run: ChangesRun, out_dir: str | Path, params: Params, plot: bo
     if plot:
         written.append(out_dir / "changes.png")
         write_bytes_atomic(written[-1], changes_png(run.result))
+    for stale in OUTPUT_FILES:
+        if out_dir / stale not in written and stale != "changes.json":
+            (out_dir / stale).unlink(missing_ok=True)
     written.append(out_dir / "changes.json")
     write_text_atomic(written[-1], json.dumps(changes_record(run, params), indent=1) + "\n")
     return written
 
 
-def _check_output_dir(out_dir: Path, inputs: list[Path]) -> None:
-    """An output is never an input or inside one."""
-    out = out_dir.resolve()
-    for p in inputs:
-        src = p.resolve()
-        if out == src or src in out.parents:
-            raise InputError("output directory is (inside) an input; choose another --out", out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("output path exists and is not a directory", out_dir)
+def output_identity(run: ChangesRun, params: Params, plot: bool) -> str:
+    """What determines the outputs: both maps (content fingerprints), the transform and the parameters."""
+    return fingerprint({"maps": [run.sources["map_a"], run.sources["map_b"]], "a_from_b": run.a_from_b.to_dict(),
+                        "changes": params_to_dict(params.changes),
+                        "eps": params.association.distance_tolerance_m, "plot": plot})
 
 
 def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, out_dir: str | Path,
-        params: Params | None = None, plot: bool = True) -> ChangesRun:
+        params: Params | None = None, plot: bool = True, overwrite: bool = False) -> ChangesRun:
     """Classify every landmark of A and B against the other session and write the outputs (module docstring).
-    Raises InputError (nothing written) for a match without an accepted transform, a match of other
-    sessions, sessions without keyframe poses or ground footprints, or no common observed ground."""
+
+    Raises InputError, with nothing written, for a match without an accepted transform, a match of other maps,
+    sessions without keyframe poses or ground footprints, no common observed ground, or an output directory that
+    is an input or not ours (`database.outputs`; `overwrite` replaces a complete changes output of other inputs).
+    """
     params = params or Params()
     out_dir = Path(out_dir)
-    _check_output_dir(out_dir, [Path(session_a), Path(session_b)])
+    check_not_input(out_dir, [session_a, session_b, match_json])
     changes = compute(session_a, session_b, match_json, params)
-    write_outputs(changes, out_dir, params, plot)
+    with open_output_dir(out_dir, "changes", output_identity(changes, params, plot),
+                         inputs=[session_a, session_b, match_json], overwrite=overwrite,
+                         legacy_record="changes.json") as out:
+        write_outputs(changes, out.path, params, plot)
+        out.finish()
     log.info("%s", changes.summary())
     return changes

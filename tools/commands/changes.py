@@ -22,6 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="report gone / new only when the other session would have mapped such an object "
                              "with at least this probability (0-1; below: unseen). Default: changes.min_confidence")
     parser.add_argument("--no-plot", action="store_true", help="skip changes.png")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a complete `sosmatch changes` output in --out made from other inputs")
     add_params_arguments(parser)
 
 
@@ -35,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
         if not 0.0 <= args.min_confidence <= 1.0:
             raise InputError(f"--min-confidence must be between 0 and 1, got {args.min_confidence}")
         params = with_overrides(params, {"changes.min_confidence": float(args.min_confidence)})
-    result = run_changes(args.session_a, args.session_b, args.match, args.out, params, plot=not args.no_plot)
+    result = run_changes(args.session_a, args.session_b, args.match, args.out, params, plot=not args.no_plot,
+                         overwrite=args.overwrite)
     print(f"changes: {result.summary()} -> {args.out / 'changes.csv'}")
     return 0

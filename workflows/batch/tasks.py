@@ -197,13 +197,19 @@ def merge_task(
     }
 
 
-def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, params: Params) -> dict[str, Any]:
+def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, params: Params,
+                 overwrite: bool = False) -> dict[str, Any]:
     """Change detection of one accepted pair with its (verified) alignment a_from_b into out_dir
-    (`sosmatch.workflows.changes`); returns the counts for the report."""
+    (`sosmatch.workflows.changes`); returns the counts for the report. `overwrite`: replace a complete changes
+    output of other inputs there (BatchOptions.overwrite)."""
+    from ...database.outputs import open_output_dir
     from .. import changes
 
     run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform))
-    changes.write_outputs(run, out_dir, params)
+    with open_output_dir(out_dir, "changes", changes.output_identity(run, params, True),
+                         inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json") as out:
+        changes.write_outputs(run, out.path, params)
+        out.finish()
     counts = run.result.counts()
     return {"changes": str(Path(out_dir) / "changes.json"), "gone": counts["gone"], "new": counts["new"],
             "kept": counts["kept_a"], "unseen": counts["unseen_a"] + counts["unseen_b"],
