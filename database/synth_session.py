@@ -111,13 +111,15 @@ class TerrainSampler:
         t = 0.5 * (a + b)
         return o + t[:, None] * d
 
-    def footprint(self, camera: Camera, r_wc: np.ndarray, center: np.ndarray) -> np.ndarray:
-        """Ground polygon (4, 2) of one image: the rays through the image corners (0,0), (W,0), (W,H), (0,H)
-        (COLMAP pixel convention) intersected with the terrain, in that order."""
-        w, h = camera.width, camera.height
-        corners = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
-        rays = pixel_rays(camera, corners, np.asarray(r_wc, dtype=np.float64))
-        origins = np.repeat(np.asarray(center, dtype=np.float64).reshape(1, 3), 4, axis=0)
+    def footprint(self, camera: Camera, r_wc: np.ndarray, center: np.ndarray, per_side: int = 1) -> np.ndarray:
+        """Ground polygon (4 per_side, 2) of one image: the rays through `per_side` points per side of the image
+        border, clockwise from the corner (0,0) (per_side 1: the corners (0,0), (W,0), (W,H), (0,H); COLMAP pixel
+        convention), through the lens model, intersected with the terrain, in that order."""
+        from ..plugin.evaluation.footprints import border_pixels
+
+        border = border_pixels(camera, per_side)
+        rays = pixel_rays(camera, border, np.asarray(r_wc, dtype=np.float64))
+        origins = np.repeat(np.asarray(center, dtype=np.float64).reshape(1, 3), len(border), axis=0)
         return self.intersect_rays(origins, rays)[:, :2]
 
 

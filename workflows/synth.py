@@ -90,12 +90,18 @@ def objects_table(scene: Scene) -> np.ndarray:
     return np.array(rows, dtype=OBJECT_DTYPE)
 
 
+def footprint_points_per_side(camera: Camera) -> int:
+    """Points per image side of a footprint: the corners of a pinhole image (its border rays meet the ground
+    along straight lines), 8 per side through a lens model, whose border rays bend."""
+    return 1 if camera.is_pinhole else 8
+
+
 def _check_inside(world: World, camera: Camera, poses: Poses) -> None:
-    """Every image must see only the world: test the corner rays at the lowest terrain height."""
+    """Every image must see only the world: test the border rays at the lowest terrain height."""
     size = world.config.size_m
     flat = TerrainSampler(np.full((2, 2), float(world.terrain.min()) - 0.5, np.float32), 0.0, 0.0, size)
     for name, r, c in zip(poses.names, poses.rotations, poses.centers):
-        corners = flat.footprint(camera, r, c)
+        corners = flat.footprint(camera, r, c, footprint_points_per_side(camera))
         if corners.min() < 1.0 or corners.max() > size - 1.0:
             raise InputError(
                 f"image {name} would see beyond the {size:g} m world (footprint {corners.min():.0f}.."
@@ -178,7 +184,7 @@ def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, wo
         (tmp / "images" / name).write_bytes(embed_metadata(jpeg, geotags[i]) if geotags else jpeg)
         (tmp / "labels" / (Path(name).stem + ".png")).write_bytes(_encode_png16(res.labels))
         visible = np.unique(res.labels)
-        footprint = world.terrain_sampler.footprint(camera, r_wc, centre)
+        footprint = world.terrain_sampler.footprint(camera, r_wc, centre, footprint_points_per_side(camera))
         return {
             "name": name,
             "visible_object_ids": [int(v) for v in visible if v != 0],
@@ -212,7 +218,9 @@ def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, wo
         "config": config.to_dict(),
         "sun": {"azimuth_deg": az, "elevation_deg": el},
         "camera": {"width": camera.width, "height": camera.height, "fx": camera.fx, "fy": camera.fy,
-                   "cx": camera.cx, "cy": camera.cy, "hfov_deg": config.hfov_deg},
+                   "cx": camera.cx, "cy": camera.cy, "hfov_deg": config.hfov_deg,
+                   **({} if camera.model == "PINHOLE" and camera.height == config.height else
+                      {"model": camera.model, "params": camera.params, "sensor": [config.width, config.height]})},
         "look": {"exposure_ev": look.exposure_ev, "white_balance": list(look.white_balance),
                  "vignetting": look.vignetting, "blur_sigma_px": look.blur_sigma_px,
                  "noise_sigma": look.noise_sigma, "jpeg_quality": look.jpeg_quality},

@@ -53,6 +53,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--width", type=int, default=d.width)
     g.add_argument("--height", type=int, default=d.height)
     g.add_argument("--hfov", type=float, default=d.hfov_deg, help="horizontal field of view, deg")
+    g.add_argument("--k1", type=float, default=d.lens_k1,
+                   help="radial distortion k1 (COLMAP/OpenCV; negative = barrel; cameras.txt becomes SIMPLE_RADIAL)")
+    g.add_argument("--k2", type=float, default=d.lens_k2, help="radial distortion k2 (with k2/p1/p2: OPENCV)")
+    g.add_argument("--p1", type=float, default=d.lens_p1, help="tangential distortion p1")
+    g.add_argument("--p2", type=float, default=d.lens_p2, help="tangential distortion p2")
+    g.add_argument("--crop", default=d.crop_aspect, metavar="W:H",
+                   help="record only the central full-width W:H band of the width x height sensor (e.g. 16:9)")
     g.add_argument("--exposure", type=float, default=None, help="exposure offset in EV (default: random)")
     g.add_argument("--noise", type=float, default=d.noise_sigma, help="read noise, 8-bit levels")
     g.add_argument("--blur", type=float, default=d.blur_sigma_px, help="optical blur sigma, px")
@@ -97,7 +104,8 @@ def config_from_args(args: argparse.Namespace):  # noqa: ANN201 (SynthConfig, im
         frames=args.frames, spacing_m=args.spacing, altitude_m=args.altitude, line_length_m=args.line_length,
         line_spacing_m=args.line_spacing, flight_seed=args.flight_seed, shift_m=tuple(args.shift),
         reverse=args.reverse, rotate_deg=args.rotate, attitude_jitter_deg=args.attitude_jitter,
-        width=args.width, height=args.height, hfov_deg=args.hfov, exposure_ev=args.exposure,
+        width=args.width, height=args.height, hfov_deg=args.hfov, lens_k1=args.k1, lens_k2=args.k2,
+        lens_p1=args.p1, lens_p2=args.p2, crop_aspect=args.crop, exposure_ev=args.exposure,
         noise_sigma=args.noise, blur_sigma_px=args.blur, jpeg_quality=args.jpeg_quality,
         ekf_position_sigma_m=args.ekf_position_sigma, ekf_attitude_sigma_deg=args.ekf_attitude_sigma,
         ekf_drift_m_per_sqrt_m=args.ekf_drift, ekf_attitude_drift_deg_per_sqrt_m=args.ekf_attitude_drift,

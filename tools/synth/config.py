@@ -61,8 +61,17 @@ class SynthConfig:
     attitude_jitter_deg: float = 1.5
     # camera
     width: int = 640
-    height: int = 480
-    hfov_deg: float = 65.0
+    height: int = 480  # of the sensor; `crop_aspect` may keep only a central band of it
+    hfov_deg: float = 65.0  # of the ideal (pinhole) part of the lens; barrel distortion widens the real view
+    # lens distortion in COLMAP's OPENCV terms (normalised coordinates, the same at every resolution): all zero is
+    # a PINHOLE camera, only k1 a SIMPLE_RADIAL one, anything else OPENCV; the images are rendered through it
+    lens_k1: float = 0.0
+    lens_k2: float = 0.0
+    lens_p1: float = 0.0
+    lens_p2: float = 0.0
+    # "W:H" (e.g. "16:9"): the images are the central full-width W:H band of the sensor, as consumer drones
+    # record video-format stills; the principal point moves with the crop, the focal length does not
+    crop_aspect: str = ""
     exposure_ev: float | None = None  # None: season bias + a random session offset
     noise_sigma: float = 1.5  # read noise, 8-bit digital numbers
     blur_sigma_px: float = 0.6
@@ -113,11 +122,32 @@ class SynthConfig:
                               yaw_tag_sigma_deg=self.geotag_yaw_sigma_deg,
                               yaw_fault_lines=tuple(int(v) for v in self.geotag_yaw_fault_lines))
 
-    def camera(self) -> Camera:
+    def sensor_camera(self) -> Camera:
+        """The camera of the whole sensor (`width` x `height`), lens included."""
         from ...plugin.geometry import Camera
 
         f = (self.width / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
-        return Camera(self.width, self.height, f, f, self.width / 2.0, self.height / 2.0)
+        k1, k2, p1, p2 = self.lens_k1, self.lens_k2, self.lens_p1, self.lens_p2
+        if k2 == p1 == p2 == 0.0:
+            model, extra = ("PINHOLE", ()) if k1 == 0.0 else ("SIMPLE_RADIAL", (k1,))
+        else:
+            model, extra = "OPENCV", (k1, k2, p1, p2)
+        return Camera(self.width, self.height, f, f, self.width / 2.0, self.height / 2.0, model, extra)
+
+    def crop_height(self) -> int:
+        """Rows of the recorded images: the sensor height, or the full-width `crop_aspect` band of it."""
+        if not self.crop_aspect:
+            return self.height
+        a, b = _aspect(self.crop_aspect)
+        return int(round(self.width * b / a))
+
+    def camera(self) -> Camera:
+        """The camera of the recorded images (the sensor camera, cropped to `crop_aspect` if set)."""
+        sensor = self.sensor_camera()
+        rows = self.crop_height()
+        if rows == self.height:
+            return sensor
+        return sensor.cropped(0, (self.height - rows) / 2.0, self.width, rows)
 
     def sun(self) -> tuple[float, float]:
         from .appearance import SEASON_LOOKS
@@ -152,6 +182,19 @@ class SynthConfig:
             bad("image width and height must be between 16 and 8192 pixels")
         if not 10.0 <= self.hfov_deg <= 120.0:
             bad("hfov_deg must be between 10 and 120 degrees")
+        if self.crop_aspect:
+            try:
+                _aspect(self.crop_aspect)
+            except ValueError as exc:
+                bad(str(exc))
+            if not 16 <= self.crop_height() < self.height:
+                bad(f"crop_aspect {self.crop_aspect} must keep a band narrower than the {self.width}x{self.height} "
+                    "sensor (a W:H wider than the sensor's) and at least 16 rows")
+        if max(abs(self.lens_k1), abs(self.lens_k2)) > 1.0 or max(abs(self.lens_p1), abs(self.lens_p2)) > 0.05:
+            bad("lens distortion out of range (|k1|, |k2| <= 1, |p1|, |p2| <= 0.05)")
+        if not _lens_is_invertible(self.sensor_camera()):
+            bad("the lens distortion folds the image over (rays are not one-to-one with pixels inside the sensor): "
+                "use a smaller |k1| / |k2| or a narrower --hfov")
         if not self.spacing_m > 0 or not self.line_length_m > 0 or not self.line_spacing_m > 0:
             bad("spacing_m, line_length_m and line_spacing_m must be positive")
         if not 40.0 <= self.altitude_m <= 1000.0:
@@ -190,3 +233,34 @@ class SynthConfig:
             bad("geotag noise settings must be >= 0 (the drift may have either sign)")
         if self.geotag_yaw_fault_lines and (self.geotags != "dji" or self.flight != "lawnmower"):
             bad("a yaw fault on flight lines needs geotags=dji and a lawnmower flight")
+
+
+def _aspect(text: str) -> tuple[float, float]:
+    """("16:9") -> (16.0, 9.0); ValueError on anything else."""
+    try:
+        a, b = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise ValueError(f"crop_aspect must be W:H such as 16:9, got {text!r}") from None
+    if not (a > 0 and b > 0 and math.isfinite(a) and math.isfinite(b)):
+        raise ValueError(f"crop_aspect must be W:H with positive numbers, got {text!r}")
+    return a, b
+
+
+def _lens_is_invertible(camera: Camera) -> bool:
+    """True when every pixel of the sensor lifts to one ray and back: no fold of the distortion inside the image
+    (e.g. strong barrel distortion bends the radius back beyond the image corners)."""
+    import numpy as np
+
+    if camera.is_pinhole:
+        return True
+    w, h = camera.width, camera.height
+    t = np.linspace(0.0, 1.0, 33)
+    grid = np.stack(np.meshgrid(t * w, t * h), -1).reshape(-1, 2)
+    normal = camera.cam_from_img(grid)
+    if not np.all(np.isfinite(normal)) or np.abs(camera.img_from_cam(normal) - grid).max() > 1e-3:
+        return False
+    # the forward map must keep its orientation (positive Jacobian) out to the corners' radius
+    radius = np.hypot(normal[:, 0], normal[:, 1]).max()
+    r = np.linspace(0.0, radius, 200)[1:]
+    ring = camera.img_from_cam(np.stack([r, np.zeros_like(r)], 1))[:, 0] - camera.cx
+    return bool(np.all(np.diff(ring) > 0))

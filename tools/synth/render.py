@@ -47,11 +47,21 @@ def _level_maps(camera: Camera, r_wc: np.ndarray, center: np.ndarray, scene: Sce
     With step_px > 1, the rays through the centres of step_px x step_px pixel blocks instead."""
     w, h = camera.width, camera.height
     half = step_px / 2.0
-    u = ((np.arange(0, w, step_px) + half - camera.cx) / camera.fx).astype(np.float32)[None, :]
-    v = ((np.arange(0, h, step_px) + half - camera.cy) / camera.fy).astype(np.float32)[:, None]
+    cols = np.arange(0, w, step_px) + half
+    rows = np.arange(0, h, step_px) + half
+    if camera.is_pinhole:  # separable: a row of u and a column of v broadcast over the image
+        u = ((cols - camera.cx) / camera.fx).astype(np.float32)[None, :]
+        v = ((rows - camera.cy) / camera.fy).astype(np.float32)[:, None]
+    else:  # every pixel's ray through the lens model
+        grid = np.stack(np.meshgrid(cols, rows), -1)
+        normal = camera.cam_from_img(grid.reshape(-1, 2)).reshape(grid.shape).astype(np.float32)
+        if not np.all(np.isfinite(normal)):
+            raise ViewOutsideWorld("the lens model cannot lift every pixel to a ray")
+        u, v = np.ascontiguousarray(normal[..., 0]), np.ascontiguousarray(normal[..., 1])
     r = np.asarray(r_wc, dtype=np.float64)
-    corners_dz = [r[2, 0] * uu + r[2, 1] * vv + r[2, 2] for uu in (u[0, 0], u[0, -1]) for vv in (v[0, 0], v[-1, 0])]
-    if max(corners_dz) >= -1e-3:  # dz is affine in (u, v): its maximum is at a corner
+    uu, vv = _extremes(np.broadcast_to(u, (len(rows), len(cols))), camera), \
+        _extremes(np.broadcast_to(v, (len(rows), len(cols))), camera)
+    if np.max(r[2, 0] * uu + r[2, 1] * vv + r[2, 2]) >= -1e-3:  # dz is affine in (u, v): its max is on the border
         raise ViewOutsideWorld("some camera rays do not point down (camera too tilted)")
     r32 = r.astype(np.float32)
     inv_dz = np.float32(1.0) / (r32[2, 0] * u + r32[2, 1] * v + r32[2, 2])
@@ -63,10 +73,31 @@ def _level_maps(camera: Camera, r_wc: np.ndarray, center: np.ndarray, scene: Sce
     for k in (0, 1):  # b = (d_xy / d_z) / res: raster cells moved per metre of height; a = position at h = 0
         np.multiply(r32[k, 0] * u + r32[k, 1] * v + r32[k, 2], inv_dz / res, out=b[..., k])
         a[..., k] = (cx if k == 0 else cy) / res - np.float32(0.5) - cz * b[..., k]
-    # |d_xy / d_z| is largest at a corner of the image (the level sets are conics around the nadir point)
-    tan_max = float(np.hypot(b[[0, 0, -1, -1], [0, -1, 0, -1], 0], b[[0, 0, -1, -1], [0, -1, 0, -1], 1]).max()
-                    * scene.world.res)
+    # |d_xy / d_z| is largest on the border of the image (its level sets are conics around the nadir point), at a
+    # corner of a pinhole image
+    tan_max = float(np.hypot(_extremes(b[..., 0], camera), _extremes(b[..., 1], camera)).max() * scene.world.res)
     return a, b, tan_max
+
+
+def _extremes(values: np.ndarray, camera: Camera) -> np.ndarray:
+    """Where a per-pixel (H, W) map of a ray quantity can take its extremes: the four corners of a pinhole image
+    (the rays of its border are straight lines between them), the whole border of an image with a lens model."""
+    if camera.is_pinhole:
+        return values[[0, 0, -1, -1], [0, -1, 0, -1]]
+    return np.concatenate([values[0], values[-1], values[1:-1, 0], values[1:-1, -1]])
+
+
+def _lens_stretch(camera: Camera) -> float:
+    """Largest ratio, over the image border, of a pixel step's ray change to the pinhole's (1 for a pinhole):
+    how much farther apart neighbouring rays of a distorted image can be on the ground."""
+    if camera.is_pinhole:
+        return 1.0
+    w, h = camera.width, camera.height
+    t = np.linspace(0.0, 1.0, 65)
+    border = np.concatenate([np.stack([t * w, np.zeros_like(t)], 1), np.stack([t * w, np.full_like(t, h)], 1),
+                             np.stack([np.zeros_like(t), t * h], 1), np.stack([np.full_like(t, w), t * h], 1)])
+    jac = camera.undistortion_jacobians(border)
+    return float(max(1.0, np.linalg.norm(jac, ord=2, axis=(1, 2)).max()))
 
 
 def _scene_stats(scene: Scene) -> dict:
@@ -88,13 +119,13 @@ def _scene_stats(scene: Scene) -> dict:
     return stats
 
 
-def view_height_range(scene: Scene, a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+def view_height_range(scene: Scene, a: np.ndarray, b: np.ndarray, camera: Camera) -> tuple[float, float]:
     """(lowest terrain, highest surface) in the part of the world the view can see; raises if outside."""
     world = scene.world
     n = world.n
     st = _scene_stats(scene)
     zmin, zmax = st["zmin"] - 0.5, st["zmax"] + 0.5
-    corners = np.stack([a[[0, 0, -1, -1], [0, -1, 0, -1]], b[[0, 0, -1, -1], [0, -1, 0, -1]]])
+    corners = np.stack([_extremes(a, camera), _extremes(b, camera)])
     pts = np.concatenate([corners[0] + z * corners[1] for z in (zmin, zmax)])
     lo = np.floor(pts.min(axis=0)).astype(int) - 2
     hi = np.ceil(pts.max(axis=0)).astype(int) + 3
@@ -188,7 +219,7 @@ def render_view(scene: Scene, light: np.ndarray, camera: Camera, r_wc: np.ndarra
     a, b, tan_max = _level_maps(camera, r_wc, np.asarray(center, dtype=np.float64), scene)
     dsm = scene.dsm
     res = scene.world.res
-    h_low, h_high = view_height_range(scene, a, b)
+    h_low, h_high = view_height_range(scene, a, b, camera)
     top, bottom = h_high + 0.01, h_low - 0.01
     shape = (camera.height, camera.width)
     # Stage 1, on rays through the centres of COARSE_PIXELS x COARSE_PIXELS pixel blocks: coarse levels
@@ -198,7 +229,8 @@ def render_view(scene: Scene, light: np.ndarray, camera: Camera, r_wc: np.ndarra
     cp = COARSE_PIXELS
     a_cp, b_cp, tan_cp = _level_maps(camera, r_wc, np.asarray(center, dtype=np.float64), scene, cp)
     coarse_step = COARSE_LEVEL_STEP_M
-    spread = (cp * 0.75) * (float(center[2]) - bottom) / min(camera.fx, camera.fy) * (1.0 + tan_max * tan_max)
+    spread = ((cp * 0.75) * (float(center[2]) - bottom) / min(camera.fx, camera.fy) * (1.0 + tan_max * tan_max)
+              * _lens_stretch(camera))
     cons, block = conservative_dsm(scene, coarse_step * max(tan_max, tan_cp) + spread)
     scale = np.float32(1.0 / block)
     a_c = (a_cp + np.float32(0.5)) * scale - np.float32(0.5)
