@@ -295,7 +295,20 @@ class ChangeParams(Checked):
 
 
 @dataclass(frozen=True)
+class ImageParams(Checked):
+    # (ours) the longer image side (px) at which the pixel-valued parameters hold: the tracking margins and noise
+    # (`tracking.*_px`), the triangulation sigma and reprojection limit (`triangulation.*_px`) and the pixel
+    # areas (`segmentation.min_mask_area_px`, `classical_min_area_px`). Mapping a larger image scales lengths by
+    # (longer side / this) and areas by its square (`pixel_scale`, `for_image`): at one field of view, pose errors
+    # in pixels grow with the focal length and centroid noise with the ratio of the image to the segmentation's
+    # working size, both in proportion to the image. Smaller images keep the values as they are (mask boundaries
+    # and JPEG blocks put a floor of a few native pixels under the noise). 0 = never scale.
+    reference_size_px: float = non_negative(640.0)  # the defaults were chosen on 640x480 synthetic sessions
+
+
+@dataclass(frozen=True)
 class Params(Checked):
+    image: ImageParams = field(default_factory=ImageParams)
     keyframes: KeyframeParams = field(default_factory=KeyframeParams)
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
     tracking: TrackingParams = field(default_factory=TrackingParams)
@@ -356,6 +369,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     # epipolar margin and the triangulation sigma scale by ~2-3; segments change more between views 300-500 px
     # apart, so sizes may differ more and the motion gate is wider.
     "survey": {
+        "image.reference_size_px": 1200.0,  # tuned on Seneca's 1200x900 frames
         "tracking.epipolar_margin_px": 24.0, "tracking.centroid_sigma_px": 9.0, "tracking.size_tolerance": 0.5,
         "tracking.motion_gate_sigmas": 8.0, "tracking.max_track_age_keyframes": 24,
         "triangulation.min_observations": 2, "triangulation.pixel_sigma_px": 6.0,
@@ -384,6 +398,38 @@ PRESETS: dict[str, dict[str, Any]] = {
         "association.min_associations": 10,
     },
 }
+
+
+# The pixel-valued parameters that `for_image` scales: lengths by the pixel scale, areas by its square.
+PIXEL_LENGTHS = ("tracking.epipolar_margin_px", "tracking.centroid_sigma_px", "triangulation.pixel_sigma_px",
+                 "triangulation.max_reprojection_error_px")
+PIXEL_AREAS = ("segmentation.min_mask_area_px", "segmentation.classical_min_area_px")
+
+
+def pixel_scale(params: Params, width: int, height: int) -> float:
+    """How much larger than `image.reference_size_px` a width x height image is (>= 1; 1 when scaling is off)."""
+    ref = params.image.reference_size_px
+    if ref <= 0:
+        return 1.0
+    return max(1.0, max(int(width), int(height)) / ref)
+
+
+def for_image(params: Params, width: int, height: int) -> Params:
+    """`params` with the pixel-valued parameters (PIXEL_LENGTHS, PIXEL_AREAS) scaled to a width x height image
+    (`pixel_scale`); the same object at or below the reference size."""
+    scale = pixel_scale(params, width, height)
+    if scale == 1.0:
+        return params
+    data = params_to_dict(params)
+    changes: dict[str, Any] = {}
+    for dotted in PIXEL_LENGTHS + PIXEL_AREAS:
+        section, key = dotted.split(".")
+        value = data[section][key]
+        if dotted in PIXEL_AREAS:
+            changes[dotted] = int(round(value * scale * scale)) if isinstance(value, int) else value * scale * scale
+        else:
+            changes[dotted] = value * scale
+    return with_overrides(params, changes)
 
 
 def preset_params(name: str) -> Params:

@@ -1,10 +1,12 @@
 """Parameters: paper defaults, TOML round trip, unknown keys rejected, overrides typed."""
 
+import math
+
 import pytest
 
 from sosmatch.database.config_io import dump_params, load_params, parse_override
 from sosmatch.plugin.errors import InputError
-from sosmatch.plugin.params import Params, params_to_dict
+from sosmatch.plugin.params import Params, params_to_dict, preset_params, with_overrides
 
 
 def test_paper_defaults():
@@ -154,3 +156,26 @@ def test_direct_construction_is_checked_too():
         AssociationParams(affinity_sigma_m=float("nan"))
     with pytest.raises(InputError, match="window_length"):
         dataclasses.replace(Params().association, window_length=0)
+
+
+def test_pixel_limits_scale_with_the_image_and_stay_at_the_tuned_size():
+    from sosmatch.plugin.params import PIXEL_AREAS, PIXEL_LENGTHS, for_image, pixel_scale
+
+    survey = preset_params("survey")
+    assert for_image(survey, 1200, 900) is survey and for_image(survey, 640, 480) is survey  # tuned / smaller
+    assert pixel_scale(Params(), 640, 480) == 1.0 and pixel_scale(survey, 900, 1200) == 1.0  # portrait too
+    big = for_image(survey, 4000, 2250)  # a DJI 16:9 frame: the longer side counts
+    s = 4000 / 1200
+    assert math.isclose(big.tracking.epipolar_margin_px, 24.0 * s)
+    assert math.isclose(big.triangulation.max_reprojection_error_px, 8.0 * s)
+    assert math.isclose(big.triangulation.pixel_sigma_px, 6.0 * s)
+    assert math.isclose(big.tracking.centroid_sigma_px, 9.0 * s)
+    assert big.segmentation.classical_min_area_px == round(100 * s * s)
+    assert isinstance(big.segmentation.min_mask_area_px, int)
+    assert len(PIXEL_LENGTHS) == 4 and len(PIXEL_AREAS) == 2
+    # everything else is untouched
+    assert big.tracking.size_tolerance == survey.tracking.size_tolerance and big.association == survey.association
+    paper = for_image(Params(), 1280, 960)
+    assert math.isclose(paper.tracking.epipolar_margin_px, 24.0)
+    off = with_overrides(Params(), {"image.reference_size_px": 0.0})
+    assert for_image(off, 4000, 3000) is off

@@ -24,7 +24,7 @@ from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, write_landmark_map
 from ...database.outputs import OutputDir, fingerprint
 from ...plugin import __version__
-from ...plugin.params import Params, params_to_dict
+from ...plugin.params import Params, for_image, params_to_dict, pixel_scale
 from .inputs import MapInputs, hash_json, image_digests, input_fingerprints, input_paths
 from .keyframes import CACHE_VERSION, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, RECORD, take_output_dir
@@ -101,6 +101,8 @@ def run(
     out_dir = Path(out_dir)
     digests = image_digests(inputs)
     fps = input_fingerprints(inputs, digests)
+    # pixel limits tuned at one image size scale with the image (run.json keeps the effective values)
+    params = for_image(params, inputs.camera.width, inputs.camera.height)
     pdict = params_to_dict(params)
     masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
     # what the outputs depend on: a complete session of another identity is replaced only with `overwrite`
@@ -201,7 +203,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                          len(landmarks), map_bytes, timings["total"], cached, counts, timings)
     record = {
         "format": "sosmatch-map-run", "version": 1,
-        "params": pdict, "versions": _versions(),
+        "params": pdict, "pixel_scale": pixel_scale(params, camera.width, camera.height), "versions": _versions(),
         "inputs": inputs.sources, "fingerprints": fps,
         "camera": {"model": camera.model, "width": camera.width, "height": camera.height, "params": camera.params,
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
