@@ -207,6 +207,7 @@ def test_refine_option_runs_and_keeps_poses_without_tie_points(tmp_path):
     plain = pfe.poses_from_images(img)
     res = pfe.run(img, tmp_path / "poses.csv", refine=True)
     assert res.summary["refinement"]["images"] == 3 and res.summary["refinement"]["points"] == 0
+    assert "no tie points" in res.summary["refinement"]["warnings"][0]  # said, not passed off as a refinement
     np.testing.assert_allclose(res.poses.centers, plain.poses.centers, atol=1e-6)
     poses, _ = read_poses_csv(tmp_path / "poses.csv")
     np.testing.assert_allclose(poses.rotations, plain.poses.rotations, atol=1e-9)
@@ -218,14 +219,18 @@ def test_map_without_poses_reads_them_from_exif(tmp_path, capsys):
     for k in range(3):
         write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 3e-4, 500.0,
                    {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"})
-    assert main(["map", "--images", str(img), "--out", str(tmp_path / "s"), "--no-progress"]) == 0
+    # noise images give no landmarks: the map is refused (one line, exit 2) but run.json records it all
+    assert main(["map", "--images", str(img), "--out", str(tmp_path / "s"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "map refused: the map has no landmarks" in err and len(err.strip().splitlines()) == 1
     run = json.loads((tmp_path / "s" / "run.json").read_text())
+    assert run["verdict"]["status"] == "refused"
     assert run["inputs"]["poses"].startswith("EXIF/XMP of") and run["epsg"] == 32614
     assert run["counts"]["keyframes"] == 3
     # the same poses through a pose CSV give the same keyframes and the same georeference
     assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p" / "poses.csv")]) == 0
     assert main(["map", "--images", str(img), "--poses", str(tmp_path / "p" / "poses.csv"), "--out",
-                 str(tmp_path / "s2"), "--no-progress"]) == 0
+                 str(tmp_path / "s2"), "--no-progress"]) == 2
     run2 = json.loads((tmp_path / "s2" / "run.json").read_text())
     assert run2["keyframes"] == run["keyframes"] and run2["map_origin"] == run["map_origin"]
     capsys.readouterr()

@@ -151,14 +151,11 @@ def test_colmap_pose_prior_ba_reduces_errors_drops_outliers_and_is_deterministic
     assert np.array_equal(a.centers, b.centers) and np.array_equal(a.rotations, b.rotations)
 
 
-@pytest.mark.parametrize("method", ["colmap", "scipy"])
-def test_refine_from_images_with_tie_points(tmp_path, method):
-    """Views of a textured plane rendered from true poses; the priors are perturbed; ORB tie points + priors
-    bring the poses back towards the truth."""
+def _plane_views(tmp_path):
+    """Views (16, 320x240) of a textured plane rendered from true poses: (paths, truth, camera, rng)."""
     import cv2
 
     from sosmatch.tools.ortho_session import Orthophoto, camera_for, make_poses, render_view
-    from sosmatch.workflows.pose_refinement import refine_poses_from_images
 
     rng = np.random.default_rng(7)
     tex = np.full((1200, 1600, 3), 90, np.uint8)
@@ -175,6 +172,16 @@ def test_refine_from_images_with_tie_points(tmp_path, method):
     for i, name in enumerate(truth.names):
         paths.append(tmp_path / name)
         cv2.imwrite(str(paths[-1]), render_view(ortho, cam, truth.rotations[i], truth.centers[i]))
+    return paths, truth, cam, rng
+
+
+@pytest.mark.parametrize("method", ["colmap", "scipy"])
+def test_refine_from_images_with_tie_points(tmp_path, method):
+    """Views of a textured plane rendered from true poses; the priors are perturbed; ORB tie points + priors
+    bring the poses back towards the truth."""
+    from sosmatch.workflows.pose_refinement import refine_poses_from_images
+
+    paths, truth, cam, rng = _plane_views(tmp_path)
     noisy = Poses(truth.names, _rotvec_to_matrix(rng.normal(0, np.radians(2.0), (16, 3))) @ truth.rotations,
                   truth.centers + rng.normal(0, 2.0, (16, 3)))
     refined, stats = refine_poses_from_images(paths, noisy, cam, position_sigma_m=2.0, attitude_sigma_deg=2.0,
@@ -215,3 +222,25 @@ def test_tie_point_pairs_never_pair_an_image_with_itself(tmp_path, caplog):
         tie_point_reconstruction(paths, poses, cam, max_features=200)
     # consecutive (0,1) (0,2) (1,2) (1,3) (2,3) and, within 2.4 median spacings, (0,3): six distinct pairs
     assert any("of 6 tried" in r.getMessage() for r in caplog.records), [r.getMessage() for r in caplog.records]
+
+
+def test_a_refinement_that_moves_poses_far_beyond_their_priors_is_rejected(tmp_path):
+    """GPS 12 m off but stated as 1 m: to fit the tie points the adjustment turns and tilts the block (the issue's
+    failure: reprojection 19 -> 0.6 px). That is an error (one line), not a success with a fine reprojection
+    figure; on request it is accepted, loudly."""
+    from sosmatch.plugin.errors import InputError
+    from sosmatch.workflows.pose_refinement import RefinementRejected, refine_poses_from_images
+
+    paths, truth, cam, rng = _plane_views(tmp_path)
+    noisy = Poses(truth.names, truth.rotations, truth.centers + rng.normal(0, 12.0, (16, 3)))
+    with pytest.raises(RefinementRejected, match=r"pose refinement rejected: .*(tilted the whole block|moved the "
+                                                 r"cameras .* against a 1 m GPS prior)") as exc:
+        refine_poses_from_images(paths, noisy, cam, position_sigma_m=1.0, pixel_sigma_px=1.0, max_features=1500)
+    assert isinstance(exc.value, InputError) and "\n" not in str(exc.value)
+    refined, stats = refine_poses_from_images(paths, noisy, cam, position_sigma_m=1.0, pixel_sigma_px=1.0,
+                                              max_features=1500, accept_implausible=True)
+    assert stats.block_tilt_change_deg > 15.0 or stats.position_change_median_m > 3.0
+    # the same priors stated honestly (12 m) are refined without complaint
+    _, honest = refine_poses_from_images(paths, noisy, cam, position_sigma_m=12.0, pixel_sigma_px=1.0,
+                                         max_features=1500)
+    assert not any("moved" in w or "tilted" in w for w in honest.warnings)

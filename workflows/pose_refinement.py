@@ -26,10 +26,11 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from ..plugin.errors import InputError
 from ..plugin.geometry import Poses, rotation_angle_deg
 from .triangulation import fixed_camera_ba_options
 
@@ -54,9 +55,71 @@ class RefinementStats:
     iterations: int
     seconds: float
     converged: bool
+    position_change_median_m: float = float("nan")
+    block_tilt_change_deg: float = float("nan")  # the rotation all poses share, its tilt off the vertical
+    warnings: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d["warnings"] = list(self.warnings)
+        return d
+
+
+def _pose_changes(before_r: np.ndarray, before_c: np.ndarray, after_r: np.ndarray, after_c: np.ndarray) -> dict:
+    """How far the poses moved: per-image position and rotation changes, and the tilt of the rotation they share
+    (the chordal mean of R_after R_before^T): a block that tilts as a whole moves every camera the same way."""
+    dpos = np.linalg.norm(after_c - before_c, axis=1)
+    drot = np.atleast_1d(rotation_angle_deg(before_r, after_r))
+    mean = np.einsum("nij,nkj->ik", after_r, before_r)  # sum of R_after R_before^T
+    u, _, vt = np.linalg.svd(mean)
+    shared = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    tilt = float(np.degrees(np.arccos(np.clip(shared[2, 2], -1.0, 1.0))))
+    return {"position_change_mean_m": float(dpos.mean()), "position_change_max_m": float(dpos.max()),
+            "position_change_median_m": float(np.median(dpos)), "rotation_change_mean_deg": float(drot.mean()),
+            "rotation_change_max_deg": float(drot.max()), "block_tilt_change_deg": tilt}
+
+
+def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[float, float, float],
+                     attitude_sigma_deg: float) -> tuple[list[str], list[str]]:
+    """(errors, warnings) of a refinement: the priors say how far the poses may move.
+
+    Errors (the refined poses are not used): a median position change beyond 3 prior sigmas (a Gaussian prior
+    puts 3 sigma in the tail of every axis: half the cameras beyond it means the tie points pulled the block away
+    from the GPS, e.g. folded it); a tilt of the whole block (the rotation all poses share) beyond 3 attitude
+    sigmas. Warnings: no convergence within the solver's iterations (Seneca's good refinement ends so: 0.52 px,
+    poses 1.2 sigma from their priors, block tilt 2 deg; the figures above judge the result); single images moved
+    beyond 5 sigmas (a wrong GPS fix, or a wrong tie point); a mean rotation change beyond 3 attitude sigmas; tie
+    points that barely constrain the poses (fewer than 1.5 measured coordinates per unknown: 6 per pose, 3 per
+    point)."""
+    sigma = float(np.max(np.atleast_1d(position_sigma_m)))
+    errors: list[str] = []
+    warnings: list[str] = []
+    if stats.points == 0:
+        return errors, ["no tie points between the images: the poses are the priors, unrefined"]
+    if not stats.converged:
+        warnings.append(f"the bundle adjustment did not converge ({stats.iterations} solve(s))")
+    if np.isfinite(stats.position_change_median_m) and stats.position_change_median_m > 3.0 * sigma:
+        errors.append(f"it moved the cameras {stats.position_change_median_m:.1f} m (median) against a "
+                      f"{sigma:g} m GPS prior (at most 3 sigma)")
+    if np.isfinite(stats.block_tilt_change_deg) and stats.block_tilt_change_deg > 3.0 * attitude_sigma_deg:
+        errors.append(f"it tilted the whole block by {stats.block_tilt_change_deg:.1f} deg against a "
+                      f"{attitude_sigma_deg:g} deg attitude prior (at most 3 sigma)")
+    if stats.position_change_max_m > 5.0 * sigma:
+        warnings.append(f"some cameras moved up to {stats.position_change_max_m:.1f} m (more than 5 x the "
+                        f"{sigma:g} m prior): a wrong GPS fix or wrong tie points")
+    if stats.rotation_change_mean_deg > 3.0 * attitude_sigma_deg:
+        warnings.append(f"the cameras turned {stats.rotation_change_mean_deg:.1f} deg on average (more than 3 x the "
+                        f"{attitude_sigma_deg:g} deg attitude prior)")
+    unknowns = 6 * stats.images + 3 * stats.points
+    if unknowns and 2 * stats.observations < 1.5 * unknowns:
+        warnings.append(f"only {stats.points} tie points ({stats.observations} observations) for {stats.images} "
+                        "images: the poses are barely constrained")
+    return errors, warnings
+
+
+class RefinementRejected(InputError):
+    """The refined poses are implausible against their priors (`judge_refinement`); the message says why (one
+    line; the command line prints it and exits 2, nothing is written)."""
 
 
 def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
@@ -276,17 +339,14 @@ def refine_poses_with_priors(
         rec.points3D[pid].xyz = p[k] + origin
     rec.update_point_3d_errors()
 
-    dpos = np.linalg.norm(c + origin - c_prior, axis=1)
-    drot = rotation_angle_deg(r_wc, r_prior)
     stats = RefinementStats(
         images=n_img, points=n_pts, observations=n_obs,
         reprojection_rmse_before_px=float(np.sqrt(np.mean(before**2))) if n_obs else 0.0,
         reprojection_rmse_after_px=float(np.sqrt(np.mean(after**2))) if n_obs else 0.0,
         reprojection_median_before_px=float(np.median(before)) if n_obs else 0.0,
         reprojection_median_after_px=float(np.median(after)) if n_obs else 0.0,
-        position_change_mean_m=float(dpos.mean()), position_change_max_m=float(dpos.max()),
-        rotation_change_mean_deg=float(drot.mean()), rotation_change_max_deg=float(drot.max()),
         iterations=int(result.nfev), seconds=time.perf_counter() - t0, converged=bool(result.status > 0),
+        **_pose_changes(r_prior, c_prior, r_wc, c + origin),
     )
     log.info("pose refinement: %d images, %d points, reprojection RMSE %.2f -> %.2f px, poses moved %.2f m / %.2f deg "
              "on average (%.1f s)", n_img, n_pts, stats.reprojection_rmse_before_px, stats.reprojection_rmse_after_px,
@@ -356,17 +416,14 @@ def refine_poses_with_colmap(
     err1 = _observation_errors(rec)
     after = poses_of_reconstruction(rec)
     before = before_poses.subset([before_poses.names.index(n) for n in after.names])
-    dpos = np.linalg.norm(after.centers - before.centers, axis=1)
-    drot = rotation_angle_deg(before.rotations, after.rotations)
     stats = RefinementStats(
         images=len(image_ids), points=rec.num_points3D(), observations=len(err1),
         reprojection_rmse_before_px=float(np.sqrt(np.mean(err0**2))) if len(err0) else float("nan"),
         reprojection_rmse_after_px=float(np.sqrt(np.mean(err1**2))) if len(err1) else float("nan"),
         reprojection_median_before_px=float(np.median(err0)) if len(err0) else float("nan"),
         reprojection_median_after_px=float(np.median(err1)) if len(err1) else float("nan"),
-        position_change_mean_m=float(dpos.mean()), position_change_max_m=float(dpos.max()),
-        rotation_change_mean_deg=float(drot.mean()), rotation_change_max_deg=float(drot.max()),
         iterations=iterations, seconds=time.perf_counter() - t0, converged=converged,
+        **_pose_changes(before.rotations, before.centers, after.rotations, after.centers),
     )
     log.info("COLMAP pose-prior BA: median reprojection %.2f -> %.2f px, poses moved %.2f m / %.2f deg on average",
              stats.reprojection_median_before_px, stats.reprojection_median_after_px,
@@ -569,13 +626,17 @@ def refine_poses_from_images(
     pixel_sigma_px: float = 2.0,
     max_features: int = 2000,  # matching cost grows with its square: 3000 took 80 s of knnMatch on Seneca
     method: str = "colmap",
+    accept_implausible: bool = False,
 ) -> tuple[Poses, RefinementStats]:
     """Refine GPS/telemetry poses BEFORE mapping, with ORB tie points between overlapping images and the pose
     priors (`tie_point_reconstruction`, then `refine_poses_with_colmap` (method "colmap", the default: COLMAP's
     pose-prior bundle adjustment, position priors only, seconds) or `refine_poses_with_priors` (method "scipy":
     position and attitude priors, minutes)). Returns the refined poses (same names and order, same world frame)
     and the statistics. Use it when the poses are far from EKF quality: the mapping's epipolar gate (a few
-    pixels) cannot track segments across frames whose poses are 100+ px off."""
+    pixels) cannot track segments across frames whose poses are 100+ px off.
+
+    The result is judged against the priors (`judge_refinement`): warnings are logged and kept in the stats;
+    errors raise RefinementRejected unless `accept_implausible` (then they are logged as warnings)."""
     if method not in ("colmap", "scipy"):
         raise ValueError(f"unknown refinement method {method!r} (colmap or scipy)")
     rec = tie_point_reconstruction(image_paths, poses, camera, max_features)
@@ -589,4 +650,15 @@ def refine_poses_from_images(
     if missing:
         raise ValueError(f"{len(missing)} images lost their pose in the refinement (e.g. {missing[0]})")
     order = [refined.names.index(nm) for nm in poses.names]
+    errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg)
+    for w in warnings:
+        log.warning("pose refinement: %s", w)
+    stats = replace(stats, warnings=tuple(warnings))
+    if errors and not accept_implausible:
+        before, after = stats.reprojection_median_before_px, stats.reprojection_median_after_px
+        raise RefinementRejected("pose refinement rejected: " + "; ".join(errors) + f" (a median reprojection of "
+                                 f"{before:.2f} -> {after:.2f} px says nothing about that); map without --refine, "
+                                 "or with better priors")
+    for e in errors:
+        log.warning("pose refinement: %s (accepted on request)", e)
     return refined.subset(order), stats
