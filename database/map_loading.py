@@ -122,6 +122,9 @@ def load_map(path: str | Path) -> LoadedMap:
             return LoadedMap(read_colmap_points(path.parent), "colmap", path.parent)
         raise InputError("not a landmark map (.sosmap), session directory or COLMAP model", path)
     if (path / "landmarks.sosmap").is_file():
+        from .session_io import check_session_usable
+
+        check_session_usable(path)
         return LoadedMap(read_landmark_map(path / "landmarks.sosmap"), "session", path / "landmarks.sosmap")
     model = _model_dir(path)
     if model is not None:

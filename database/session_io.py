@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -105,11 +106,30 @@ def read_landmark_point_ids(path: str | Path, count: int | None = None) -> np.nd
     return table.point3d_ids
 
 
+def check_session_usable(path: str | Path) -> None:
+    """InputError when `sosmatch map` refused the session directory `path` (run.json's verdict): its map is
+    implausible or empty and no later stage may use it. Directories without a verdict (merged models, older
+    sessions) pass."""
+    run = Path(path) / "run.json"
+    if not run.is_file():
+        return
+    try:
+        verdict = json.loads(run.read_text(encoding="utf-8")).get("verdict") or {}
+    except (OSError, ValueError, AttributeError):
+        return
+    if isinstance(verdict, dict) and verdict.get("status") == "refused":
+        reasons = "; ".join(str(r) for r in verdict.get("refusals", [])) or "no reason recorded"
+        raise InputError(f"`sosmatch map` refused this session ({reasons}); fix its poses or camera and map "
+                         "it again", path)
+
+
 def read_session(path: str | Path, name: str | None = None) -> SessionFiles:
-    """Open a mapped (or merged) session directory; raises InputError naming what is missing."""
+    """Open a mapped (or merged) session directory; raises InputError naming what is missing, or when the map
+    was refused (`check_session_usable`)."""
     path = Path(path)
     if not path.is_dir():
         raise InputError("session directory not found", path)
+    check_session_usable(path)
     sparse = path / "sparse"
     if not (sparse / "images.bin").exists() and not (sparse / "images.txt").exists():
         raise InputError("session has no COLMAP model in sparse/ (was it mapped?)", path)

@@ -20,14 +20,24 @@ def height_outliers(positions: np.ndarray, neighbours: int, sigmas: float) -> np
     positions: (N, 3) world coordinates. Returns a bool (N,) mask, True = outlier. Fewer than neighbours + 1
     landmarks, or a map whose differences have no spread: nothing is flagged.
     """
-    from scipy.spatial import cKDTree
-
     p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-    if neighbours < 1 or len(p) <= neighbours:
+    residual = neighbour_height_residuals(p, neighbours)
+    if residual is None:
         return np.zeros(len(p), dtype=bool)
-    _, idx = cKDTree(p[:, :2]).query(p[:, :2], k=neighbours + 1)
-    residual = p[:, 2] - np.median(p[idx[:, 1:], 2], axis=1)  # column 0 is the landmark itself
     scale = MAD_TO_SIGMA * float(np.median(np.abs(residual - np.median(residual))))
     if not scale > 0:
         return np.zeros(len(p), dtype=bool)
     return np.abs(residual) > sigmas * scale
+
+
+def neighbour_height_residuals(positions: np.ndarray, neighbours: int) -> np.ndarray | None:
+    """(N,) height of every landmark minus the median height of its `neighbours` nearest landmarks in the
+    horizontal plane (its local ground, free of the terrain's slope to first order); None when the map has at
+    most `neighbours` landmarks."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if neighbours < 1 or len(p) <= neighbours:
+        return None
+    _, idx = cKDTree(p[:, :2]).query(p[:, :2], k=neighbours + 1)
+    return p[:, 2] - np.median(p[idx[:, 1:], 2], axis=1)  # column 0 is the landmark itself

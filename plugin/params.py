@@ -295,6 +295,23 @@ class ChangeParams(Checked):
 
 
 @dataclass(frozen=True)
+class QualityParams(Checked):
+    # (ours) plausibility limits of a map (`plugin.map_quality.judge`): beyond them `sosmatch map` refuses it
+    # landmarks higher than a camera that flew over them (within their footprint), of those under the flight path:
+    # the aircraft would have flown through the object; 0 in every consistent map measured
+    max_share_above_cameras: float = fraction(0.05)
+    max_block_tilt_deg: float = within(20.0, 0.0, 90.0)  # tilt that the ground and the cameras share
+    # lower quartile of |dz| of neighbouring landmarks from different passes over that of one pass
+    # (`map_quality.pass_disagreement`): consistent maps 0.8-2.2 (25 synthetic and real maps, hills), a 50 m
+    # altitude drift 8.7
+    max_pass_disagreement: float = within(3.0, 1.0, None)
+    # warnings only
+    min_keyframes_with_landmarks: float = fraction(0.5)
+    min_track_yield: float = fraction(0.05)
+    refuse: bool = flag(True)  # False: a map beyond the limits is kept with a loud warning (run.json says so)
+
+
+@dataclass(frozen=True)
 class ImageParams(Checked):
     # (ours) the longer image side (px) at which the pixel-valued parameters hold: the tracking margins and noise
     # (`tracking.*_px`), the triangulation sigma and reprojection limit (`triangulation.*_px`) and the pixel
@@ -315,6 +332,7 @@ class Params(Checked):
     triangulation: TriangulationParams = field(default_factory=TriangulationParams)
     association: AssociationParams = field(default_factory=AssociationParams)
     changes: ChangeParams = field(default_factory=ChangeParams)
+    quality: QualityParams = field(default_factory=QualityParams)
     seed: int = count(0, 0, 2**63 - 1)  # every random choice in the pipeline derives from this
 
 

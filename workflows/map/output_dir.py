@@ -16,7 +16,7 @@ from ...database.outputs import OutputDir, open_output_dir
 COMMAND = "map"
 RECORD = "run.json"  # written last: the run's record (parameters, fingerprints, counts)
 PARTIAL = ".partial"
-OUTPUTS = ("database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv")
+OUTPUTS = ("database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "quality.png")
 
 
 def take_output_dir(out_dir: str | Path, identity: str, inputs: Iterable[Path], overwrite: bool) -> OutputDir:

@@ -24,10 +24,12 @@ from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, write_landmark_map
 from ...database.outputs import OutputDir, fingerprint
 from ...plugin import __version__
+from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_image, params_to_dict, pixel_scale
 from .inputs import MapInputs, hash_json, image_digests, input_fingerprints, input_paths
 from .keyframes import CACHE_VERSION, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, RECORD, take_output_dir
+from .quality import FIGURE, quality_stage, raise_if_refused, verdict_record
 
 log = logging.getLogger(__name__)
 
@@ -47,11 +49,18 @@ class MapSummary:
     keyframes_from_cache: int = 0
     counts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    quality: MapQuality | None = None
+    verdict: Verdict | None = None
 
     def line(self) -> str:
         """The one-line summary printed at the end of `sosmatch map`."""
-        return (f"{self.out_dir}: {self.num_keyframes} keyframes, {self.num_masks} masks, {self.num_tracks} tracks, "
+        line = (f"{self.out_dir}: {self.num_keyframes} keyframes, {self.num_masks} masks, {self.num_tracks} tracks, "
                 f"{self.num_landmarks} landmarks, map {self.map_bytes} bytes, {self.seconds:.1f} s")
+        if self.quality is not None:
+            line += f"; {self.quality.line()}"
+        if self.verdict is not None and self.verdict.warnings:
+            line += f"; WARNING: {'; '.join(self.verdict.warnings)}"
+        return line
 
 
 def _versions() -> dict[str, str]:
@@ -114,6 +123,7 @@ def run(
         out.finish(keep_staging=keep_cache)
     if keep_cache:
         log.info("per-keyframe cache kept in %s", out_dir / PARTIAL / "cache")
+    raise_if_refused(summary.verdict, params.quality, out_dir)
     return summary
 
 
@@ -188,19 +198,26 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     timings["outputs"] = time.perf_counter() - t
     stages.update()
     stages.close()
+
+    t = time.perf_counter()
+    long_tracks = int(np.count_nonzero(tracking.track_lengths() > tri.min_observations))
+    quality, verdict = quality_stage(landmarks, kf_poses, camera, [inputs.image_paths[i] for i in keyframes],
+                                     keypoints, long_tracks, params.quality, out.staged(FIGURE), str(out.path),
+                                     params.association.min_associations + 1)
+    timings["quality"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
 
     counts = {
         "images": len(inputs.image_paths), "keyframes": len(keyframes),
         "masks": int(sum(len(f) for f in features)), "tracks": int(tracking.num_tracks),
-        "tracks_long": int(np.count_nonzero(tracking.track_lengths() > tri.min_observations)),
+        "tracks_long": long_tracks,
         "database_pairs": db_summary.num_pairs, "database_matches": db_summary.num_matches,
         "matches_rejected_epipolar": rejected, "landmarks": len(landmarks), "map_bytes": map_bytes,
         "keyframes_from_cache": cached,
         **{f"points_{k}": v for k, v in landmarks.counts.items()},
     }
     summary = MapSummary(out.path, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
-                         len(landmarks), map_bytes, timings["total"], cached, counts, timings)
+                         len(landmarks), map_bytes, timings["total"], cached, counts, timings, quality, verdict)
     record = {
         "format": "sosmatch-map-run", "version": 1,
         "params": pdict, "pixel_scale": pixel_scale(params, camera.width, camera.height), "versions": _versions(),
@@ -209,7 +226,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
-        "counts": counts, "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        "counts": counts, "quality": quality.to_dict(), "verdict": verdict_record(verdict, params.quality.refuse),
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
     write_text_atomic(out.staged(RECORD), json.dumps(record, indent=2) + "\n")
     (out.path / RECORD).unlink(missing_ok=True)  # published last: present = the outputs beside it are complete

@@ -1,0 +1,308 @@
+"""How good a landmark map is, and whether its geometry can be real: pure numpy on the map's arrays.
+
+A map made on wrong poses can still show low reprojection errors (the bundle adjustment fits points to whatever
+poses it is given), so the figures here compare the map with facts that hold for every survey, whatever the
+camera, the terrain or the flying height:
+
+- **support**: landmarks, landmarks per keyframe, the share of keyframes that observe any landmark, and the
+  share of long tracks (more than theta_n observations) that became landmarks: with wrong relative poses the
+  tracks' observations do not meet in one point and fail the reprojection limit.
+- **reprojection** p50 / p90 of the landmarks' mean errors (after the points-only bundle adjustment).
+- **flying height** H: per keyframe, its height above the median height of the landmarks it observes (the ground
+  it sees); H is the median over keyframes, and `height_above_ground_spread` their p10-p90 range over H (a level
+  flight over level ground: ~0; hills: the relief over H).
+- **ground roughness** `height_spread`: p90 of |landmark height - median height of its 8 nearest landmarks| (the
+  local ground, slope-free to first order) over H. Trees and roofs stand out of the ground by a fraction of
+  the flying height; layers of landmarks at different heights over the same ground (inconsistent poses of
+  neighbouring flight lines) stand out by the pose error.
+- **landmarks above a camera**: landmarks higher than a camera whose ground position is within the landmark's
+  own footprint (2 h_S) of it: the aircraft would have flown through the object. Any camera, any terrain.
+- **tilt**: the ground's tilt (normal of a robust plane through the landmarks against world up), the cameras'
+  (mean viewing direction against straight down), and the block tilt, the part of the tilt that both share
+  (`block_tilt`). A whole block rotated off gravity (georegistration from camera centres that are nearly
+  collinear or coplanar leaves that rotation free) tilts the ground and the cameras together, keeping the views
+  perpendicular to the ground; a real slope under a levelled (gimbal or IMU-levelled) camera tilts only the
+  ground, an oblique camera over level ground only the cameras.
+
+`judge` turns the figures into refusals (the map is unusable) and warnings, with limits in `QualityParams`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .landmark_filters import neighbour_height_residuals
+from .params import QualityParams
+
+_UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class MapQuality:
+    """The quality figures of one map (see the module doc); NaN where a figure has no data."""
+
+    landmarks: int
+    keyframes: int
+    landmarks_per_keyframe: float
+    keyframes_with_landmarks: float  # share of keyframes observing at least one landmark
+    track_yield: float  # landmarks / tracks long enough to become one
+    reprojection_p50_px: float
+    reprojection_p90_px: float
+    flying_height_m: float  # median keyframe height above the ground it sees
+    height_above_ground_spread: float  # (p90 - p10) of the keyframes' heights above their ground, over H
+    height_spread: float  # p90 |landmark height - its neighbours' median| over H
+    landmarks_above_cameras: int
+    landmarks_under_cameras: int  # landmarks within 2 h_S of some camera's ground position (where "above" can be told)
+    passes: int
+    passes_without_landmarks: int  # passes of >= 3 keyframes none of which sees a landmark
+    pass_disagreement: float  # lower quartile of |dz| of neighbours from different passes / from one pass
+    ground_tilt_deg: float
+    view_tilt_deg: float
+    block_tilt_deg: float
+
+    def to_dict(self) -> dict[str, float | int]:
+        return {k: (round(v, 4) if isinstance(v, float) and np.isfinite(v) else v if not isinstance(v, float)
+                    else None) for k, v in asdict(self).items()}
+
+    def line(self) -> str:
+        """A short summary for the end of `sosmatch map`'s one-line report."""
+        def fmt(v: float, spec: str) -> str:
+            return format(v, spec) if np.isfinite(v) else "n/a"
+
+        return (f"reprojection p50/p90 {fmt(self.reprojection_p50_px, '.1f')}/{fmt(self.reprojection_p90_px, '.1f')}"
+                f" px, {fmt(self.landmarks_per_keyframe, '.1f')} landmarks/keyframe, height spread "
+                f"{fmt(self.height_spread, '.2f')} H (H {fmt(self.flying_height_m, '.0f')} m), block tilt "
+                f"{fmt(self.block_tilt_deg, '.0f')} deg")
+
+
+@dataclass
+class Verdict:
+    """`judge`'s result: refusals make the map unusable; warnings say what looks doubtful."""
+
+    refusals: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.refusals
+
+
+def robust_plane_normal(points: np.ndarray, iterations: int = 10) -> np.ndarray:
+    """Upward unit normal of a plane through (N, 3) points, by iteratively reweighted total least squares
+    (Cauchy weights at 2 robust sigmas of the distances): trees, roofs and wrong landmarks do not tilt it."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    w = np.ones(len(p))
+    normal = _UP.copy()
+    for _ in range(iterations):
+        c = np.average(p, axis=0, weights=w)
+        d = p - c
+        cov = (d * w[:, None]).T @ d
+        _, vecs = np.linalg.eigh(cov)
+        normal = vecs[:, 0]
+        dist = d @ normal
+        scale = 1.4826 * np.median(np.abs(dist)) + 1e-9
+        w = 1.0 / (1.0 + (dist / (2.0 * scale)) ** 2)
+    return normal if normal[2] >= 0 else -normal
+
+
+def shared_tilt_deg(ground_up: np.ndarray, camera_up: np.ndarray) -> float:
+    """The tilt (deg) that the ground's normal and the cameras' up direction (opposite of the view) share: the
+    smaller of their horizontal components, counted only as far as they lean the same way."""
+    tg, tc = np.asarray(ground_up, float)[:2], np.asarray(camera_up, float)[:2]
+    ng, nc = float(np.hypot(*tg)), float(np.hypot(*tc))
+    if ng < 1e-12 or nc < 1e-12:
+        return 0.0
+    cos_phi = float(tg @ tc) / (ng * nc)
+    s = min(ng, nc) * max(0.0, cos_phi)
+    return float(np.degrees(np.arcsin(min(1.0, s))))
+
+
+def assess_map(
+    positions: np.ndarray,
+    sizes_m: np.ndarray,
+    errors_px: np.ndarray,
+    observed_keyframes: list[np.ndarray],
+    camera_centers: np.ndarray,
+    camera_axes: np.ndarray,
+    long_tracks: int,
+    neighbours: int = 8,
+) -> MapQuality:
+    """The quality figures of a map.
+
+    Args:
+        positions: (L, 3) landmarks (world frame, z up); sizes_m: (L,) metric sizes h_S; errors_px: (L,) mean
+            reprojection errors.
+        observed_keyframes: per landmark, the keyframe indices observing it.
+        camera_centers: (K, 3) keyframe centres; camera_axes: (K, 3) viewing directions (camera z in the world).
+        long_tracks: tracks long enough to become landmarks (more than theta_n observations).
+        neighbours: landmarks whose median height is a landmark's local ground.
+    """
+    p = np.asarray(positions, np.float64).reshape(-1, 3)
+    centers = np.asarray(camera_centers, np.float64).reshape(-1, 3)
+    axes = np.asarray(camera_axes, np.float64).reshape(-1, 3)
+    n_l, n_k = len(p), len(centers)
+    nan = float("nan")
+    errors = np.asarray(errors_px, np.float64)
+    p50, p90 = (float(v) for v in np.percentile(errors, [50, 90])) if n_l else (nan, nan)
+    seen = np.zeros(n_k, bool)
+    ground_of_kf: list[list[float]] = [[] for _ in range(n_k)]
+    for i, kfs in enumerate(observed_keyframes):
+        for k in np.asarray(kfs, np.int64):
+            seen[k] = True
+            ground_of_kf[k].append(p[i, 2])
+    agl = np.array([centers[k, 2] - np.median(g) for k, g in enumerate(ground_of_kf) if g])
+    flying = float(np.median(agl)) if len(agl) else nan
+    agl_spread = float((np.percentile(agl, 90) - np.percentile(agl, 10)) / abs(flying)) \
+        if len(agl) >= 2 and flying != 0 else nan
+    resid = neighbour_height_residuals(p, neighbours)
+    spread = float(np.percentile(np.abs(resid), 90) / abs(flying)) if resid is not None and flying != 0 else nan
+    above, under = _landmarks_above_cameras(p, np.asarray(sizes_m, np.float64), centers)
+    passes = flight_passes(centers)
+    disagreement = pass_disagreement(p, sizes_m, observed_keyframes, passes, neighbours)
+    long_passes = [k for k in np.unique(passes) if np.count_nonzero(passes == k) >= 3]
+    empty = sum(1 for k in long_passes if not seen[passes == k].any()) if n_l else 0
+    mean_axis = axes.sum(axis=0)
+    mean_axis = mean_axis / np.linalg.norm(mean_axis) if np.linalg.norm(mean_axis) > 0 else -_UP
+    camera_up = -mean_axis
+    view_tilt = float(np.degrees(np.arccos(np.clip(camera_up @ _UP, -1.0, 1.0))))
+    if n_l >= 3:
+        normal = robust_plane_normal(p)
+        ground_tilt = float(np.degrees(np.arccos(np.clip(normal @ _UP, -1.0, 1.0))))
+        block_tilt = shared_tilt_deg(normal, camera_up)
+    else:
+        ground_tilt = block_tilt = nan
+    return MapQuality(
+        landmarks=n_l, keyframes=n_k, landmarks_per_keyframe=n_l / n_k if n_k else nan,
+        keyframes_with_landmarks=float(seen.mean()) if n_k else nan,
+        track_yield=n_l / long_tracks if long_tracks else nan,
+        reprojection_p50_px=p50, reprojection_p90_px=p90, flying_height_m=flying,
+        height_above_ground_spread=agl_spread, height_spread=spread, landmarks_above_cameras=above,
+        landmarks_under_cameras=under, passes=len(long_passes), passes_without_landmarks=empty,
+        pass_disagreement=disagreement,
+        ground_tilt_deg=ground_tilt, view_tilt_deg=view_tilt, block_tilt_deg=block_tilt,
+    )
+
+
+def flight_passes(centers: np.ndarray, turn_deg: float = 60.0) -> np.ndarray:
+    """(K,) pass number of every keyframe: a new pass starts where the heading (the direction of travel to the
+    keyframe two ahead) has turned by more than `turn_deg` from the heading at the start of the current pass
+    (a lawnmower's lines, a survey's legs; a smooth free-form path every `turn_deg` of turning)."""
+    c = np.asarray(centers, np.float64).reshape(-1, 3)[:, :2]
+    n = len(c)
+    if n < 3:
+        return np.zeros(n, np.int64)
+    ahead = c[np.minimum(np.arange(n) + 2, n - 1)] - c
+    behind = c - c[np.maximum(np.arange(n) - 2, 0)]
+    heading = np.where(np.linalg.norm(ahead, axis=1, keepdims=True) > 0, ahead, behind)
+    h = np.arctan2(heading[:, 1], heading[:, 0])
+    out = np.zeros(n, np.int64)
+    start = h[0]
+    for k in range(1, n):
+        if abs(np.degrees(np.angle(np.exp(1j * (h[k] - start))))) > turn_deg:
+            start = h[k]
+            out[k] = out[k - 1] + 1
+        else:
+            out[k] = out[k - 1]
+    return out
+
+
+def pass_disagreement(positions: np.ndarray, sizes_m: np.ndarray, observed_keyframes: list[np.ndarray],
+                      passes: np.ndarray, neighbours: int = 8, min_pairs: int = 20) -> float:
+    """How much more neighbouring landmarks disagree in height when different passes of the flight saw them.
+
+    Only landmarks seen from one pass (`flight_passes`) take part, with their heights above the map's robust
+    ground plane (so a regional slope does not count). Neighbours (each landmark's `neighbours` nearest in the
+    horizontal plane, duplicates of one object, closer than 2 max(h_S), left out) of the same pass were
+    triangulated from one run of poses, neighbours of different passes from poses flown at another time. The
+    ground does not know which pass saw it: in a consistent map both kinds of pairs differ in height alike
+    (relief, objects, triangulation noise of similar views), so the ratio of the lower quartiles of |dz| (pairs
+    on the same ground, which any map has plenty of) of different-pass to same-pass pairs is ~1 (synthetic and
+    real maps: 0.8-1.7; hills of 20-30 m: up to 1.6). Poses that disagree between passes (altitude drift,
+    offsets between lines) stack the passes' landmarks at different heights and raise it (a 50 m altitude drift
+    over a 100-frame survey: 9). NaN with fewer than `min_pairs` pairs of either kind (one pass, a sparse
+    map)."""
+    p = np.asarray(positions, np.float64).reshape(-1, 3)
+    passes = np.asarray(passes, np.int64)
+    pass_of = np.full(len(p), -1, np.int64)
+    for i, kfs in enumerate(observed_keyframes):
+        own = np.unique(passes[np.asarray(kfs, np.int64)])
+        if len(own) == 1:
+            pass_of[i] = own[0]
+    pure = np.flatnonzero(pass_of >= 0)
+    if len(pure) <= neighbours:
+        return float("nan")
+    from scipy.spatial import cKDTree
+
+    q = p[pure]
+    height = q[:, 2] - _plane_height(robust_plane_normal(p), np.median(p, axis=0), q[:, :2])
+    size = np.nan_to_num(np.asarray(sizes_m, np.float64)[pure], nan=0.0)
+    _, idx = cKDTree(q[:, :2]).query(q[:, :2], k=neighbours + 1)
+    i = np.repeat(np.arange(len(q)), neighbours)
+    j = idx[:, 1:].ravel()
+    keep = i < j  # each unordered pair once (pairs found from one side only are kept too)
+    keep |= ~np.isin(j * len(q) + i, i * len(q) + j)
+    keep &= np.hypot(*(q[i, :2] - q[j, :2]).T) > 2.0 * np.maximum(size[i], size[j])
+    i, j = i[keep], j[keep]
+    dz = np.abs(height[i] - height[j])
+    same = pass_of[pure][i] == pass_of[pure][j]
+    if np.count_nonzero(same) < min_pairs or np.count_nonzero(~same) < min_pairs:
+        return float("nan")
+    return float(np.percentile(dz[~same], 25) / max(float(np.percentile(dz[same], 25)), 1e-9))
+
+
+def _plane_height(normal: np.ndarray, point: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Height of the plane through `point` with upward `normal` at horizontal positions xy (M, 2)."""
+    return point[2] - (normal[0] * (xy[:, 0] - point[0]) + normal[1] * (xy[:, 1] - point[1])) / normal[2]
+
+
+def _landmarks_above_cameras(positions: np.ndarray, sizes_m: np.ndarray, centers: np.ndarray) -> tuple[int, int]:
+    """(landmarks higher than some camera that was within the landmark's footprint (2 h_S, ground plane),
+    landmarks with any camera within their footprint)."""
+    if not len(positions) or not len(centers):
+        return 0, 0
+    from scipy.spatial import cKDTree
+
+    radius = 2.0 * np.where(np.isfinite(sizes_m), sizes_m, 0.0)
+    tree = cKDTree(centers[:, :2])
+    above = under = 0
+    for i, near in enumerate(tree.query_ball_point(positions[:, :2], radius)):
+        if near:
+            under += 1
+            above += int(positions[i, 2] > centers[near, 2].min())
+    return above, under
+
+
+def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1) -> Verdict:
+    """Refusals and warnings for a map's figures (limits and their reasons: `QualityParams`). `min_landmarks`:
+    fewer make no usable map (`sosmatch map` passes association.min_associations + 1: a match needs more than
+    theta_S landmarks in common)."""
+    v = Verdict()
+    if q.landmarks == 0:
+        v.refusals.append("the map has no landmarks")
+        return v
+    if q.landmarks < min_landmarks:
+        v.refusals.append(f"only {q.landmarks} landmark(s): a map needs at least {min_landmarks} to be matched")
+    if q.landmarks_under_cameras and \
+            q.landmarks_above_cameras / q.landmarks_under_cameras > limits.max_share_above_cameras:
+        v.refusals.append(f"{q.landmarks_above_cameras} of the {q.landmarks_under_cameras} landmarks under the flight "
+                          "path lie above a camera that flew over them (the poses do not fit the images)")
+    if np.isfinite(q.block_tilt_deg) and q.block_tilt_deg > limits.max_block_tilt_deg:
+        v.refusals.append(f"the block is tilted {q.block_tilt_deg:.0f} deg against gravity: ground and cameras lean "
+                          f"together (ground {q.ground_tilt_deg:.0f} deg, view {q.view_tilt_deg:.0f} deg); the "
+                          "poses' vertical is wrong")
+    if np.isfinite(q.flying_height_m) and q.flying_height_m <= 0:
+        v.refusals.append(f"the cameras fly below the ground they see (height {q.flying_height_m:.1f} m)")
+    if np.isfinite(q.pass_disagreement) and q.pass_disagreement > limits.max_pass_disagreement:
+        v.refusals.append(f"landmarks seen from different passes disagree in height {q.pass_disagreement:.1f} x "
+                          f"more than neighbours of one pass (at most {limits.max_pass_disagreement:g}): the passes' "
+                          "poses disagree (altitude drift?)")
+    if q.passes_without_landmarks:
+        v.warnings.append(f"{q.passes_without_landmarks} of {q.passes} passes of the flight see no landmark at all "
+                          "(their poses may not fit their images, e.g. a wrong heading)")
+    if np.isfinite(q.keyframes_with_landmarks) and q.keyframes_with_landmarks < limits.min_keyframes_with_landmarks:
+        v.warnings.append(f"only {q.keyframes_with_landmarks:.0%} of the keyframes see a landmark")
+    if np.isfinite(q.track_yield) and q.track_yield < limits.min_track_yield:
+        v.warnings.append(f"only {q.track_yield:.0%} of the long tracks triangulated (poses or camera doubtful)")
+    return v

@@ -1,0 +1,112 @@
+"""Map plausibility (`plugin.map_quality`): consistent maps pass over any terrain and with any camera tilt, maps
+whose poses disagree between passes, rotated blocks and landmarks above the cameras are refused."""
+
+import numpy as np
+import pytest
+
+from sosmatch.plugin.map_quality import assess_map, flight_passes, judge, pass_disagreement, shared_tilt_deg
+from sosmatch.plugin.params import QualityParams
+
+
+def _rot(axis: str, deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    if axis == "x":
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def toy_flight(slope_deg: float = 0.0, view_tilt_deg: float = 0.0, pass_offsets_m: float = 0.0,
+               altitude: float = 100.0, seed: int = 0, hills_m: float = 0.0):
+    """A lawnmower (5 lines along x, 30 m apart, a keyframe every 8 m) over ground rising `slope_deg` along y,
+    flown at constant height above it (terrain following), cameras pitched `view_tilt_deg` about x; landmarks on
+    the ground with trees up to 20 m. Every landmark is seen by the cameras within 45 m of it horizontally on
+    one line; `pass_offsets_m` lifts each line's landmarks by a different amount (poses that disagree between
+    lines, as a drifting altimeter makes); `hills_m`: hills of that amplitude, 150 m apart, on top."""
+    rng = np.random.default_rng(seed)
+    grade = np.tan(np.radians(slope_deg))
+
+    def ground(x, y):
+        return y * grade + hills_m * np.sin(2 * np.pi * x / 150.0) * np.cos(2 * np.pi * y / 150.0)
+    centers, axes = [], []
+    for line in range(5):
+        xs = np.arange(0.0, 200.0, 8.0)
+        for x in xs if line % 2 == 0 else xs[::-1]:
+            y = 30.0 * line
+            centers.append((x, y, ground(x, y) + altitude))
+            axes.append(_rot("x", view_tilt_deg) @ np.array([0.0, 0.0, -1.0]))
+    centers, axes = np.array(centers), np.array(axes)
+    passes = flight_passes(centers)
+    positions, obs, sizes = [], [], []
+    shift = rng.uniform(-1.0, 1.0, passes.max() + 1) * pass_offsets_m
+    for _ in range(600):
+        x, y = rng.uniform(0, 200), rng.uniform(-10, 130)
+        z = ground(x, y) + (rng.uniform(0, 20) if rng.random() < 0.3 else rng.normal(0, 0.3))
+        line = int(np.clip(round(y / 30.0), 0, 4))
+        cams = np.flatnonzero(np.abs(centers[:, 1] - 30.0 * line) < 1.0)
+        on_line = cams[np.hypot(centers[cams, 0] - x, centers[cams, 1] - y) < 45.0]
+        if len(on_line) < 3:
+            continue
+        z += shift[passes[on_line[0]]]
+        positions.append((x, y, z))
+        obs.append(on_line)
+        sizes.append(rng.uniform(0.5, 3.0))
+    positions = np.array(positions)
+    return positions, np.array(sizes), obs, centers, axes
+
+
+def _judge(positions, sizes, obs, centers, axes):
+    q = assess_map(positions, sizes, np.full(len(positions), 2.0), obs, centers, axes, long_tracks=len(positions))
+    return q, judge(q, QualityParams())
+
+
+@pytest.mark.parametrize("slope, view, hills, altitude", [(0, 0, 0, 100), (25, 0, 0, 100), (40, 0, 0, 100),
+                                                          (0, 35, 0, 100), (-15, 10, 0, 100), (0, 0, 25, 100),
+                                                          (10, 20, 15, 60)])
+def test_consistent_maps_pass_on_any_terrain_and_camera_tilt(slope, view, hills, altitude):
+    q, v = _judge(*toy_flight(slope, view, altitude=altitude, hills_m=hills))
+    assert v.ok and not v.warnings, (v.refusals, v.warnings, q)
+    assert 0.6 < q.pass_disagreement < 1.8
+    assert q.landmarks_above_cameras == 0 and abs(q.flying_height_m - altitude) < 10
+    if not hills:
+        assert abs(q.ground_tilt_deg - abs(slope)) < 3
+
+
+def test_a_rotated_block_is_refused():
+    positions, sizes, obs, centers, axes = toy_flight()
+    r = _rot("y", 30.0)
+    q, v = _judge(positions @ r.T, sizes, obs, centers @ r.T, axes @ r.T)
+    assert not v.ok and "tilted 30 deg" in v.refusals[0]
+    assert abs(q.block_tilt_deg - 30) < 2
+
+
+def test_passes_that_disagree_in_height_are_refused():
+    q, v = _judge(*toy_flight(pass_offsets_m=15.0))
+    assert q.pass_disagreement > 3
+    assert not v.ok and any("passes" in r for r in v.refusals)
+
+
+def test_landmarks_above_the_cameras_and_empty_maps_are_refused():
+    positions, sizes, obs, centers, axes = toy_flight()
+    lifted = positions.copy()
+    lifted[: len(lifted) // 5, 2] += 150.0  # a fifth of the map above the flying height
+    q, v = _judge(lifted, sizes, obs, centers, axes)
+    assert q.landmarks_above_cameras > 0 and any("above a camera" in r for r in v.refusals)
+    q, v = _judge(np.zeros((0, 3)), np.zeros(0), [], centers, axes)
+    assert v.refusals == ["the map has no landmarks"]
+
+
+def test_shared_tilt_counts_only_what_ground_and_cameras_share():
+    up = np.array([0.0, 0.0, 1.0])
+    tilted = _rot("y", 30) @ up
+    assert shared_tilt_deg(tilted, up) == 0.0  # a slope under a levelled camera
+    assert shared_tilt_deg(up, tilted) == 0.0  # an oblique camera over level ground
+    assert abs(shared_tilt_deg(tilted, tilted) - 30) < 1e-9  # the block rotated
+    assert shared_tilt_deg(tilted, _rot("y", -30) @ up) == 0.0  # leaning opposite ways
+
+
+def test_pass_disagreement_needs_more_than_one_pass():
+    positions, sizes, obs, centers, axes = toy_flight()
+    one_line = [i for i, o in enumerate(obs) if flight_passes(centers)[o[0]] == 0]
+    value = pass_disagreement(positions[one_line], sizes[one_line], [obs[i] for i in one_line],
+                              flight_passes(centers))
+    assert np.isnan(value)

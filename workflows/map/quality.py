@@ -1,0 +1,71 @@
+"""The map's quality stage: figures (`plugin.map_quality.assess_map`), verdict (`judge`) and the picture.
+
+A refused map is still written (so that its picture and run.json can be looked at) but run.json records the
+verdict, `sosmatch map` ends with a one-line error and a non-zero exit, and the readers of mapped sessions
+(`database.session_io.check_session_usable`: match, merge, batch, export) refuse it.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...database.atomic import atomic_path
+from ...plugin.errors import InputError
+from ...plugin.geometry import Camera, Poses
+from ...plugin.map_quality import MapQuality, Verdict, assess_map, judge
+from ...plugin.params import QualityParams
+
+log = logging.getLogger(__name__)
+FIGURE = "quality.png"
+
+
+class MapRefused(InputError):
+    """The map was made but its geometry is implausible or it is empty: the inputs (poses, camera) are wrong."""
+
+
+def assess(landmarks: Any, poses: Poses, long_tracks: int) -> MapQuality:
+    """The quality figures of triangulated `landmarks` (workflows.triangulation.Landmarks) on keyframe `poses`."""
+    return assess_map(landmarks.positions, landmarks.sizes_m, landmarks.errors_px,
+                      [o[:, 0] for o in landmarks.observations], poses.centers, poses.rotations[:, :, 2],
+                      long_tracks)
+
+
+def quality_stage(
+    landmarks: Any, poses: Poses, camera: Camera, image_paths: list[Path], keypoints: list[np.ndarray],
+    long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
+) -> tuple[MapQuality, Verdict]:
+    """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged."""
+    quality = assess(landmarks, poses, long_tracks)
+    verdict = judge(quality, limits, min_landmarks)
+    for warning in verdict.warnings:
+        log.warning("%s: %s", title or "map", warning)
+    if figure is not None:
+        from .figure import draw_map_figure
+
+        try:
+            with atomic_path(figure) as tmp:
+                draw_map_figure(tmp, landmarks.positions, landmarks.sizes_m, landmarks.observations, keypoints,
+                                poses, camera, image_paths, quality, verdict, title)
+        except Exception as exc:  # the picture is a help, never a reason to lose the map
+            log.warning("could not draw %s: %s", figure, exc)
+    return quality, verdict
+
+
+def verdict_record(verdict: Verdict, enforced: bool) -> dict[str, Any]:
+    """run.json's "verdict": status ok / refused / accepted despite refusals (quality.refuse off)."""
+    status = "ok" if verdict.ok else ("refused" if enforced else "accepted_despite_refusals")
+    return {"status": status, "refusals": list(verdict.refusals), "warnings": list(verdict.warnings)}
+
+
+def raise_if_refused(verdict: Verdict, limits: QualityParams, out_dir: Path) -> None:
+    """MapRefused (one line, naming the session) when the verdict refuses the map and refusal is on."""
+    if verdict.ok:
+        return
+    if not limits.refuse:
+        log.warning("%s: accepted although %s (quality.refuse is off)", out_dir, "; ".join(verdict.refusals))
+        return
+    raise MapRefused(f"map refused: {'; '.join(verdict.refusals)} (see {FIGURE} and run.json)", out_dir)
