@@ -55,10 +55,10 @@ def render(root: Path, camera: Camera, seed: int = 0) -> np.ndarray:
     return objs
 
 
-def _map(root: Path, out: Path, camera_file: Path) -> np.ndarray:
+def _map(root: Path, out: Path, camera_file: Path):
     inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", camera_file)
     map_workflow.run(Params(), inputs, out, progress=False)
-    return read_landmark_map(out / "landmarks.sosmap").positions
+    return read_landmark_map(out / "landmarks.sosmap")
 
 
 def _horizontal_errors(positions: np.ndarray, objs: np.ndarray) -> np.ndarray:
@@ -78,7 +78,8 @@ def mapped(tmp_path_factory):
 
 
 def test_distorted_images_map_as_well_as_ideal_ones(mapped):
-    root, objs, ideal, lens, ignored = mapped
+    root, objs, ideal_map, lens_map, ignored_map = mapped
+    ideal, lens, ignored = ideal_map.positions, lens_map.positions, ignored_map.positions
     e_ideal, e_lens, e_ignored = (_horizontal_errors(p, objs) for p in (ideal, lens, ignored))
     assert len(lens) >= 0.8 * len(ideal) >= 8
     assert np.median(e_lens) <= max(1.25 * np.median(e_ideal), np.median(e_ideal) + 0.1)
@@ -110,3 +111,16 @@ def test_database_and_model_keep_the_real_camera_and_keypoints(mapped):
         db.close()
     run = json.loads((out / "run.json").read_text())
     assert run["camera"]["model"] == "OPENCV" and run["camera"]["params"] == LENS.params
+
+
+def test_metric_sizes_stay_right_through_the_lens(mapped):
+    """Sizes come from the undistorted covariances: a landmark of the distorted flight has the size of the same
+    landmark of the ideal flight (barrel distortion shrinks objects near the border by up to ~10 % in pixels)."""
+    from scipy.spatial import cKDTree
+
+    _, _, ideal, lens, _ = mapped
+    d, j = cKDTree(ideal.positions[:, :2]).query(lens.positions[:, :2])
+    same = d < 0.5
+    assert np.count_nonzero(same) >= 10
+    ratio = lens.sizes[same].astype(float) / ideal.sizes[j[same]].astype(float)
+    assert abs(np.median(ratio) - 1.0) < 0.05, np.median(ratio)

@@ -218,6 +218,16 @@ def refine_poses_with_priors(
     n_pts, n_obs = len(point_ids), len(obs_img)
     obs_img_a, obs_pt_a = np.array(obs_img, dtype=int), np.array(obs_pt, dtype=int)
     obs_uv_a = np.array(obs_uv, dtype=np.float64).reshape(-1, 2)
+    # the residuals below are pinhole projections: observations of a camera with distortion are undistorted into
+    # its equivalent pinhole first (the same rays), so the refinement holds for any lens model
+    from ..database.cameras import camera_from_pycolmap
+
+    obs_cam_a = np.asarray(obs_cam, dtype=np.int64)
+    for cid in set(obs_cam):
+        lens = camera_from_pycolmap(rec.cameras[cid])
+        if not lens.is_pinhole:
+            rows = np.flatnonzero(obs_cam_a == cid)
+            obs_uv_a[rows] = lens.undistort_points(obs_uv_a[rows])
     cams = {cid: np.asarray(rec.cameras[cid].calibration_matrix()) for cid in set(obs_cam)}
     k_obs = np.stack([cams[c] for c in obs_cam]) if n_obs else np.zeros((0, 3, 3))
     x0_pts = np.array([rec.points3D[pid].xyz for pid in point_ids], dtype=np.float64).reshape(-1, 3) - origin
