@@ -1,0 +1,217 @@
+"""Map plausibility against truth: false refusals on good sessions, true refusals on maps made on wrong poses.
+
+Every case renders a synthetic session (`sosmatch synth`, cached in WORK/sessions), maps it with
+`quality.refuse=false` (so that every figure is recorded) and prints the verdict `sosmatch map` would give, the
+quality figures (`plugin.map_quality`) and, where the map is in the session's frame, the median horizontal error
+of its landmarks against the objects (bench_map's scoring).
+
+Good cases (must not be refused): exact and EKF poses over several worlds, seasons, flights and heights, a lens
+with distortion mapped with its true model, a 16:9 crop, a survey-like flight with the survey preset.
+Bad cases (must be refused): the issue's faults without SfM, i.e. poses read from the synthetic EXIF/XMP tags
+(`synth --geotags`: GPS noise, a 50 m GPS altitude drift, a 180 deg yaw fault on one line, a k1 = -0.1 lens the
+EXIF camera does not model), each fault alone, a block rotated 30 deg off the vertical (what georegistration
+from nearly coplanar camera centres can do), and flight lines at alternating altitude offsets.
+`--mapped DIR ...` adds mapped sessions made elsewhere (Seneca, NAIP: `bench_real`) to the good cases; their
+run.json verdict is read (or recomputed from sparse/ for sessions mapped before the quality stage existed).
+
+    .venv/bin/python -m sosmatch.tools.benchmarks.bench_plausibility --work DIR [--frames 100] [--only NAME ...]
+        [--mapped SESSION ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .machine import machine_summary
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    good: bool
+    synth: dict[str, Any]  # SynthConfig overrides
+    poses: str = "exact"  # exact | ekf | exif (from the images' tags) | tilt30 | line_offsets
+    preset: str = "paper"
+    note: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+W7 = {"world_seed": 7, "season": "summer"}
+FAULTS = {"geotags": "dji", "geotag_altitude_drift_m": 50.0, "geotag_yaw_fault_lines": (2,)}
+CASES = [
+    Case("exact", True, W7),
+    Case("ekf", True, W7, "ekf"),
+    Case("lens k1=-0.1", True, {**W7, "lens_k1": -0.1}),
+    Case("lens k1=-0.1, 16:9 crop", True, {**W7, "lens_k1": -0.1, "crop_aspect": "16:9"}, "ekf"),
+    Case("winter", True, {**W7, "season": "winter", "session_seed": 3}, "ekf"),
+    Case("world 11 free-form", True, {"world_seed": 11, "flight": "freeform", "flight_seed": 4}, "ekf"),
+    Case("world 23 at 60 m", True, {"world_seed": 23, "altitude_m": 60.0, "line_spacing_m": 20.0}, "exact"),
+    Case("world 11 at 200 m", True, {"world_seed": 11, "altitude_m": 200.0, "line_spacing_m": 60.0,
+                                     "spacing_m": 14.0}, "ekf"),
+    Case("survey-like, survey preset", True, {**W7, "spacing_m": 30.0, "frames": 40, "line_length_m": 300.0,
+                                              "line_spacing_m": 50.0}, "ekf", "survey"),
+    Case("EXIF/XMP faults (drift 50 m, yaw line, k1 -0.1)", False, {**W7, **FAULTS, "lens_k1": -0.1}, "exif",
+         note="the issue's bar: poses from the tags, no SfM"),
+    Case("EXIF/XMP altitude drift 50 m", False, {**W7, "geotags": "dji", "geotag_altitude_drift_m": 50.0}, "exif"),
+    Case("EXIF/XMP yaw fault on one line", False, {**W7, "geotags": "dji", "geotag_yaw_fault_lines": (2,)}, "exif"),
+    Case("EXIF GPS only, drift 50 m", False, {**W7, "geotags": "exif", "geotag_altitude_drift_m": 50.0}, "exif"),
+    Case("block rotated 30 deg", False, W7, "tilt30"),
+    Case("lines at +-15 m altitude offsets", False, W7, "line_offsets"),
+]
+
+
+def _session(work: Path, case: Case, frames: int) -> Path:
+    from ...workflows.synth import SynthConfig
+    from ...workflows.synth import run as synth
+
+    cfg = SynthConfig(**{"frames": frames, **case.synth})
+    key = json.dumps(cfg.to_dict(), sort_keys=True)
+    out = work / "sessions" / ("s" + hashlib.sha1(key.encode()).hexdigest()[:10])
+    stamp = out / "config.key"
+    if not (stamp.is_file() and stamp.read_text() == key):
+        synth(out, cfg)
+        stamp.write_text(key)
+    return out
+
+
+def _rotated(poses: Any, deg: float) -> Any:
+    from ...plugin.geometry import Poses
+
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    t = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    m = poses.centers.mean(axis=0)
+    return Poses(poses.names, t @ poses.rotations, (poses.centers - m) @ t.T + m)
+
+
+def _line_offsets(poses: Any, offset_m: float) -> Any:
+    from ...plugin.geometry import Poses
+    from ...plugin.map_quality import flight_passes
+
+    passes = flight_passes(poses.centers)
+    centers = poses.centers.copy()
+    centers[:, 2] += np.where(passes % 4 < 2, offset_m, -offset_m)
+    return Poses(poses.names, poses.rotations, centers)
+
+
+def _inputs(session: Path, case: Case, work: Path) -> Any:
+    from ...database.poses import read_poses_csv, write_poses_csv
+    from ...workflows import map as map_workflow
+
+    if case.poses == "exif":
+        from ...workflows.poses_from_exif import map_inputs_from_images
+
+        return map_inputs_from_images(session / "images")
+    if case.poses in ("exact", "ekf"):
+        return map_workflow.load_inputs(None, session, ekf=case.poses == "ekf")
+    poses, epsg = read_poses_csv(session / "poses.csv")
+    poses = _rotated(poses, 30.0) if case.poses == "tilt30" else _line_offsets(poses, 15.0)
+    path = work / "poses" / f"{session.name}_{case.poses}.csv"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_poses_csv(path, poses, epsg)
+    return map_workflow.load_inputs(session / "images", path, session / "cameras.txt")
+
+
+def run_case(work: Path, case: Case, frames: int) -> dict[str, Any]:
+    from ...database.config_io import load_params
+    from ...workflows import map as map_workflow
+    from .bench_map import score_session
+
+    session = _session(work, case, frames)
+    inputs = _inputs(session, case, work)
+    out = work / "maps" / f"{session.name}_{case.poses}_{case.preset}"
+    params = load_params(preset=case.preset, overrides={"quality.refuse": False})
+    t = time.process_time()
+    summary = map_workflow.run(params, inputs, out, overwrite=True, progress=False)
+    cpu = time.process_time() - t
+    run = json.loads((out / "run.json").read_text())
+    row: dict[str, Any] = {"case": case.name, "good": case.good, "verdict": run["verdict"], "quality": run["quality"],
+                           "landmarks": summary.num_landmarks, "cpu_s": round(cpu, 1), "session": str(session),
+                           "map": str(out)}
+    if case.poses != "exif" and case.poses != "tilt30":  # maps in the session's own frame can be scored
+        score = score_session(session, out)
+        row["median_horizontal_m"] = score["median_h_m"]
+    return row
+
+
+def mapped_row(path: Path) -> dict[str, Any]:
+    """A mapped session made elsewhere: its verdict from run.json, or recomputed from sparse/."""
+    run = json.loads((path / "run.json").read_text())
+    if "verdict" in run:
+        return {"case": f"mapped: {path}", "good": True, "verdict": run["verdict"], "quality": run["quality"],
+                "landmarks": run["counts"]["landmarks"]}
+    import pycolmap
+
+    from ...database.session_io import read_landmark_table
+    from ...plugin.map_quality import assess_map, judge
+    from ...plugin.params import Params, params_from_dict
+
+    rec = pycolmap.Reconstruction(str(path / "sparse"))
+    ids = sorted(rec.images)
+    index = {iid: k for k, iid in enumerate(ids)}
+    centers = np.array([rec.images[i].projection_center() for i in ids])
+    axes = np.array([rec.images[i].cam_from_world().rotation.matrix().T[:, 2] for i in ids])
+    table = read_landmark_table(path / "landmarks.csv")
+    pids = table.point3d_ids
+    pos = np.array([rec.points3D[int(p)].xyz for p in pids]).reshape(-1, 3)
+    errors = np.array([rec.points3D[int(p)].error for p in pids])
+    obs = [np.array([index[e.image_id] for e in rec.points3D[int(p)].track.elements]) for p in pids]
+    q = assess_map(pos, table.sizes, errors, obs, centers, axes, run["counts"].get("tracks_long", len(pos)))
+    params = params_from_dict(run["params"]) if "params" in run else Params()
+    v = judge(q, params.quality, params.association.min_associations + 1)
+    status = "ok" if v.ok else "refused"
+    return {"case": f"mapped: {path}", "good": True, "landmarks": len(pos), "quality": q.to_dict(),
+            "verdict": {"status": status, "refusals": v.refusals, "warnings": v.warnings}}
+
+
+def _fmt(v: Any, spec: str = ".2f") -> str:
+    return "n/a" if v is None else format(v, spec) if isinstance(v, float) else str(v)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--work", type=Path, required=True, help="sessions, maps and results.json go here")
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--only", nargs="*", help="case names (substrings) to run")
+    ap.add_argument("--mapped", nargs="*", type=Path, default=[], help="more good mapped sessions to judge")
+    args = ap.parse_args(argv)
+    print(machine_summary())
+    rows = []
+    for case in CASES:
+        if args.only and not any(o in case.name for o in args.only):
+            continue
+        rows.append(run_case(args.work, case, args.frames))
+        print(f"  {case.name}: {rows[-1]['verdict']['status']}", flush=True)
+    rows += [mapped_row(p) for p in args.mapped]
+    args.work.mkdir(parents=True, exist_ok=True)
+    (args.work / "results.json").write_text(json.dumps(rows, indent=1, default=str) + "\n")
+    print("| case | should be | verdict | landmarks | reproj p50/p90 px | kf with lm | pass disagreement | "
+          "block tilt deg | ground tilt deg | above cams | horiz. error m | reason |")
+    print("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|")
+    wrong = 0
+    for r in rows:
+        q, v = r["quality"], r["verdict"]
+        refused = bool(v["refusals"])
+        wrong += int(refused == r["good"])
+        reason = "; ".join(v["refusals"] or v["warnings"])[:90]
+        print(f"| {r['case']} | {'kept' if r['good'] else 'refused'} | {'refused' if refused else 'kept'} | "
+              f"{r['landmarks']} | {_fmt(q['reprojection_p50_px'], '.1f')}/{_fmt(q['reprojection_p90_px'], '.1f')} | "
+              f"{_fmt(q['keyframes_with_landmarks'])} | {_fmt(q['pass_disagreement'])} | "
+              f"{_fmt(q['block_tilt_deg'], '.1f')} | {_fmt(q['ground_tilt_deg'], '.1f')} | "
+              f"{q['landmarks_above_cameras']} | {_fmt(r.get('median_horizontal_m'))} | {reason} |")
+    good = [r for r in rows if r["good"]]
+    bad = [r for r in rows if not r["good"]]
+    print(f"false refusals {sum(bool(r['verdict']['refusals']) for r in good)} of {len(good)}, "
+          f"true refusals {sum(bool(r['verdict']['refusals']) for r in bad)} of {len(bad)}")
+    return 0 if wrong == 0 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
