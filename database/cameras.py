@@ -20,6 +20,8 @@ from .text_input import read_user_text
 if TYPE_CHECKING:
     import pycolmap
 
+MAX_IMAGE_SIDE = 1_000_000  # pixels: no camera has a longer side
+
 
 def camera_from_colmap(model: str, width: int, height: int, params: Sequence[float],
                        source: str | Path | None = None, line: int | None = None) -> Camera:
@@ -30,6 +32,8 @@ def camera_from_colmap(model: str, width: int, height: int, params: Sequence[flo
         raise InputError(str(exc), source, line) from None
     if camera.width <= 0 or camera.height <= 0 or camera.fx <= 0 or camera.fy <= 0:
         raise InputError("camera size and focal length must be positive", source, line)
+    if max(camera.width, camera.height) > MAX_IMAGE_SIDE:
+        raise InputError(f"camera size {camera.width}x{camera.height} is beyond {MAX_IMAGE_SIDE} pixels", source, line)
     if not all(math.isfinite(p) for p in camera.params):
         raise InputError("NaN or infinite camera parameter", source, line)
     return camera
@@ -51,6 +55,8 @@ def read_cameras_txt(path: str | Path) -> dict[int, Camera]:
             raise InputError("malformed camera line", path, lineno) from None
         if cam_id in cameras:
             raise InputError(f"duplicate camera id {cam_id}", path, lineno)
+        if not 0 <= cam_id < 2**32:
+            raise InputError(f"camera id {cam_id} is not a COLMAP camera id (0..2^32-1)", path, lineno)
         cameras[cam_id] = camera_from_colmap(model, width, height, params, path, lineno)
     if not cameras:
         raise InputError("no camera in file", path)

@@ -18,10 +18,10 @@ from pathlib import Path
 
 from ..plugin.camera_models import CAMERA_MODELS
 from ..plugin.errors import InputError
+from .cameras import MAX_IMAGE_SIDE
 
 INVALID_POINT3D_ID = 2**64 - 1
 SENSOR_CAMERA, SENSOR_IMU = 0, 1
-MAX_IMAGE_SIDE = 1_000_000
 _PARAMS_OF_MODEL = {m.model_id: m.num_params for m in CAMERA_MODELS.values()}
 
 

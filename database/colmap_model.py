@@ -50,6 +50,7 @@ def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, lis
     quats: list[list[float]] = []
     trans: list[list[float]] = []
     cam_ids: list[int] = []
+    seen: set[str] = set()
     expect_pose = True
     for lineno, line in enumerate(lines, start=1):
         if line.startswith("#"):
@@ -74,8 +75,9 @@ def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, lis
         if abs(norm - 1.0) > UNIT_QUAT_TOLERANCE:
             raise InputError(f"quaternion is not unit length (norm {norm:.6f})", path, lineno)
         name = " ".join(parts[9:])
-        if name in names:
+        if name in seen:
             raise InputError(f"duplicate image name {name!r}", path, lineno)
+        seen.add(name)
         names.append(name)
         quats.append(values[:4])
         trans.append(values[4:])

@@ -28,6 +28,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.geometry import Poses, quat_to_rotmat, rotmat_to_quat
 from .atomic import write_text_atomic
+from .landmark_map import EPSG_RANGE, MAX_WORLD_COORD_M
 from .text_input import read_user_text
 
 QUAT_COLUMNS = ["name", "x", "y", "z", "qw", "qx", "qy", "qz"]
@@ -37,15 +38,63 @@ _ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _BODY_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 CONVENTIONS = ("world_from_camera", "camera_from_world")
 UNIT_QUAT_TOLERANCE = 1e-3
+MAX_NAME_CHARS = 4096
 
 
 def _parse_crs(text: str, path: Path, line: int) -> int:
     text = text.strip()
     if text.lower() == "local":
         return 0
-    if text.upper().startswith("EPSG:") and text[5:].isdigit():
-        return int(text[5:])
-    raise InputError(f"crs must be 'local' or 'EPSG:<code>', got {text!r}", path, line)
+    if text.upper().startswith("EPSG:") and text[5:].isdigit() and len(text) <= 16:
+        epsg = int(text[5:])
+        problem = crs_problem(epsg)
+        if problem is None:
+            return epsg
+        raise InputError(problem, path, line)
+    raise InputError(f"crs must be 'local' or 'EPSG:<code>', got {text[:40]!r}", path, line)
+
+
+def crs_problem(epsg: int) -> str | None:
+    """Why `epsg` cannot be the frame of poses (metres), or None: unknown, or not a projected CRS."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    if not EPSG_RANGE[0] <= epsg <= EPSG_RANGE[1]:
+        return f"EPSG code {epsg} is not an EPSG code ({EPSG_RANGE[0]}..{EPSG_RANGE[1]})"
+    try:
+        crs = CRS.from_epsg(epsg)
+    except CRSError:
+        return f"unknown EPSG code {epsg}"
+    if not crs.is_projected:
+        return f"EPSG:{epsg} ({crs.name}) is not a projected CRS in metres; poses need one (or 'local')"
+    return None
+
+
+def name_problem(name: str) -> str | None:
+    """Why `name` cannot be an image name of a pose file (reader and writer alike), or None."""
+    if not name:
+        return "empty image name"
+    if name != name.strip() or name.startswith("#"):
+        return f"image name {name[:40]!r} starts or ends with blanks or starts with '#'"
+    if len(name) > MAX_NAME_CHARS or any(c in name for c in "\n\r\0"):
+        return f"image name {name[:40]!r}... is longer than {MAX_NAME_CHARS} characters or holds a line break"
+    return None
+
+
+def _values_problem(values: list[float], ypr: bool) -> str | None:
+    """Why a row's numbers are not a pose (reader), or None."""
+    if not all(math.isfinite(v) for v in values):
+        return "NaN or infinite pose value"
+    if max(abs(v) for v in values[:3]) > MAX_WORLD_COORD_M:
+        return f"pose position beyond {MAX_WORLD_COORD_M:g} m (not a coordinate on Earth)"
+    if ypr:
+        if max(abs(v) for v in values[3:]) > 720.0:
+            return "yaw, pitch or roll beyond 720 degrees"
+        return None
+    norm = math.sqrt(sum(v * v for v in values[3:]))
+    if abs(norm - 1.0) > UNIT_QUAT_TOLERANCE:
+        return f"quaternion is not unit length (norm {norm:.6f})"
+    return None
 
 
 def ypr_to_rotmat(yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
@@ -80,8 +129,18 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
     file_convention, epsg = "world_from_camera", 0
     header: list[str] | None = None
     names: list[str] = []
+    seen: set[str] = set()
     rows: list[list[float]] = []
-    for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):
+    reader = csv.reader(io.StringIO(text))
+    lineno = 0
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as exc:  # e.g. a field of more than 131072 characters, a NUL byte
+            raise InputError(f"not a pose CSV: {exc}", path, reader.line_num) from None
+        lineno = reader.line_num
         if not row or not "".join(row).strip():
             continue
         if row[0].lstrip().startswith("#"):
@@ -105,19 +164,20 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
         try:
             values = [float(v) for v in row[1:]]
         except ValueError:
-            raise InputError(f"non-numeric pose value in {row[1:]}", path, lineno) from None
-        if not all(math.isfinite(v) for v in values):
-            raise InputError("NaN or infinite pose value", path, lineno)
-        norm = math.sqrt(sum(v * v for v in values[3:]))
-        if header == QUAT_COLUMNS and abs(norm - 1.0) > UNIT_QUAT_TOLERANCE:
-            raise InputError(f"quaternion is not unit length (norm {norm:.6f})", path, lineno)
+            raise InputError(f"non-numeric pose value in {_short(row[1:])}", path, lineno) from None
+        problem = name_problem(row[0].strip()) or _values_problem(values, header == YPR_COLUMNS)
+        if problem is not None:
+            raise InputError(problem, path, lineno)
         name = row[0].strip()
-        if name in names:
+        if name in seen:
             raise InputError(f"duplicate image name {name!r}", path, lineno)
+        seen.add(name)
         names.append(name)
         rows.append(values)
     if header is None:
         raise InputError("no header line (expected " + ",".join(QUAT_COLUMNS) + ")", path)
+    if not rows:
+        raise InputError("pose file holds no poses (only its header)", path)
     if convention is not None:
         file_convention = convention
     data = np.array(rows, dtype=np.float64).reshape(-1, len(header) - 1)
@@ -127,20 +187,40 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
         rot = quat_to_rotmat(data[:, 3:])
     else:
         rot = ypr_to_rotmat(data[:, 3], data[:, 4], data[:, 5])
-    if file_convention == "world_from_camera":
-        return Poses(names, rot, data[:, :3]), epsg
-    return Poses.from_cam_from_world(names, rot, data[:, :3]), epsg
+    poses = Poses(names, rot, data[:, :3]) if file_convention == "world_from_camera" else \
+        Poses.from_cam_from_world(names, rot, data[:, :3])
+    if np.abs(poses.centers).max() > MAX_WORLD_COORD_M:  # camera_from_world translations far from the origin
+        raise InputError(f"camera centres beyond {MAX_WORLD_COORD_M:g} m (not a coordinate on Earth)", path)
+    return poses, epsg
+
+
+def _short(values: list[str]) -> str:
+    text = repr(values)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def format_poses_csv(poses: Poses, epsg: int = 0) -> str:
-    """The pose CSV text (world_from_camera), full float precision."""
+    """The pose CSV text (world_from_camera), full float precision.
+
+    Raises ValueError for poses the reader would refuse (the same checks: names, positions, CRS)."""
+    if not len(poses):
+        raise ValueError("no poses to write")
+    if epsg and crs_problem(int(epsg)):
+        raise ValueError(crs_problem(int(epsg)))
+    if len(set(poses.names)) != len(poses.names):
+        raise ValueError("duplicate image names")
+    quats = rotmat_to_quat(poses.rotations)
     out = io.StringIO()
     out.write("# sosmatch poses v1\n# convention: world_from_camera\n")
     out.write(f"# crs: {f'EPSG:{epsg}' if epsg else 'local'}\n")
     out.write(",".join(QUAT_COLUMNS) + "\n")
-    quats = rotmat_to_quat(poses.rotations) if len(poses) else np.zeros((0, 4))
+    writer = csv.writer(out, lineterminator="\n")
     for name, c, q in zip(poses.names, poses.centers, quats):
-        out.write(name + "," + ",".join(repr(float(v)) for v in (*c, *q)) + "\n")
+        values = [float(v) for v in (*c, *q)]
+        problem = name_problem(name) or _values_problem(values, ypr=False)
+        if problem is not None:
+            raise ValueError(f"{name[:40]!r}: {problem}")
+        writer.writerow([name, *(repr(v) for v in values)])
     return out.getvalue()
 
 
