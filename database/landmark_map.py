@@ -53,7 +53,8 @@ class LandmarkMap:
         return bool(len(self.sizes)) and not bool(np.all(np.isnan(self.sizes)))
 
 
-MAX_ORIGIN_M = 1.0e8  # no world frame on Earth (projected CRS, ECEF, local) has coordinates beyond 100,000 km
+MAX_WORLD_COORD_M = 1.0e8  # no world frame on Earth (projected CRS, ECEF, local) has coordinates beyond 100,000 km
+MAX_ORIGIN_M = MAX_WORLD_COORD_M
 MAX_SIZE_M = 65504.0  # the largest float16: a larger size would be stored as infinity
 EPSG_RANGE = (1024, 32767)  # the EPSG dataset's codes (0 = local frame)
 

@@ -138,6 +138,37 @@ def read_session(path: str | Path, name: str | None = None) -> SessionFiles:
     return SessionFiles(path=path, name=name or path.resolve().name, landmarks=lmap, point3d_ids=ids)
 
 
+def check_map_of_images(map_dir: str | Path, images_dir: str | Path, samples: int = 6) -> None:
+    """Refuse (InputError) a mapped session that was not made from the images in `images_dir`: up to `samples`
+    of its keyframes (run.json `keyframe_images`, sha256 per image) must have the same contents there.
+
+    Sessions of one flight path share their image names, so names alone cannot tell a summer map from a
+    winter one; a map without the record (an older sosmatch, a merged model) is not checked."""
+    import hashlib
+    import json
+
+    map_dir, images_dir = Path(map_dir), Path(images_dir)
+    try:
+        record = json.loads((map_dir / "run.json").read_text(encoding="utf-8"))
+        digests = record["keyframe_images"]
+        items = sorted(digests.items()) if isinstance(digests, dict) else []
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        return
+    if not items:
+        return
+    picks = [items[int(i)] for i in np.linspace(0, len(items) - 1, min(samples, len(items))).round()]
+    for name, digest in picks:
+        image = images_dir / str(name)
+        try:
+            actual = hashlib.sha256(image.read_bytes()).hexdigest()
+        except OSError:
+            raise InputError(f"map was made from images that are not in {images_dir} (no {name}); is it this "
+                             "session's map?", map_dir) from None
+        if actual != digest:
+            raise InputError(f"map was made from other images than {images_dir} ({name} differs); is it this "
+                             "session's map (sessions given in the other order)?", map_dir)
+
+
 def format_landmarks_csv(
     lmap: LandmarkMap, point3d_ids: np.ndarray, num_observations: np.ndarray, image_names: list[list[str]]
 ) -> str:

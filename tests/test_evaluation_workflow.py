@@ -110,3 +110,26 @@ def test_workflow_is_deterministic_and_cli_reports_user_errors(sessions, capsys)
     code = main(["evaluate", str(a), str(b), "--out", str(root / "d4"), "--methods", "sosmatch", "--repeats", "1",
                  "--max-observers", "3"])
     assert code == 0 and "SOS-Match (ours)" in capsys.readouterr().out
+
+
+def test_maps_or_match_of_the_other_session_are_refused(sessions, tmp_path, capsys):
+    """Issue 14: evaluate with the maps given in swapped order, or with a match of the maps in the other order,
+    is a one-line error, not a silently wrong table (both sessions have the same image names)."""
+    import hashlib
+    import shutil
+
+    from sosmatch.workflows import match as match_workflow
+
+    root, a0, b0, _ = sessions
+    a, b = tmp_path / "A", tmp_path / "B"
+    for src, dst in ((a0, a), (b0, b)):
+        shutil.copytree(src, dst)
+        digests = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted((dst / "images").iterdir())}
+        (dst / "run.json").write_text(json.dumps({"keyframe_images": digests}))  # as `sosmatch map` records it
+    args = ["evaluate", str(a), str(b), "--methods", "sosmatch", "--repeats", "1"]
+    assert main([*args, "--map-a", str(b), "--map-b", str(a), "--out", str(tmp_path / "e1")]) == 2
+    err = capsys.readouterr().err
+    assert "other images" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "e1").exists()
+    match_workflow.run(Params(), b, a, tmp_path / "ba", workers=1, plot=False)  # B first
+    assert main([*args, "--match", str(tmp_path / "ba"), "--out", str(tmp_path / "e2")]) == 2
+    assert "in the other order" in capsys.readouterr().err

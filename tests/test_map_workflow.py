@@ -261,3 +261,69 @@ def test_run_killed_while_publishing_resumes(session, tmp_path):
     assert summary.keyframes_from_cache == summary.num_keyframes
     assert (out / "landmarks.sosmap").read_bytes() == (out_ref / "landmarks.sosmap").read_bytes()
     assert {p.name for p in out.iterdir()} == OUTPUT_NAMES
+
+
+def test_a_failed_map_does_not_block_its_own_retry(session, tmp_path, capsys):
+    """Issue 14, defect 4: after a corrupt image (or a camera of the wrong size) the run fails with the one-line
+    error; once the file is fixed the same command resumes, without --overwrite, and recomputes only what the
+    fix changed (the bad keyframe and the one after it)."""
+    root = session[0]
+    images = tmp_path / "images"
+    shutil.copytree(root / "images", images)
+    good = (images / "frame_00010.jpg").read_bytes()
+    (images / "frame_00010.jpg").write_bytes(b"\xff\xd8\xff\xe0 not a jpeg")
+    out = tmp_path / "s"
+    args = ["--images", images, "--poses", root / "poses.csv", "--camera", root / "cameras.txt", "--out", out]
+    code, cap = _cli(capsys, *args)
+    assert code == 2 and "frame_00010.jpg" in cap.err and len(cap.err.strip().splitlines()) == 1
+    cached = len(list((out / ".partial" / "cache").glob("*.npz")))
+    assert cached >= 10  # keyframes 0-9 were described before the bad one
+    (images / "frame_00010.jpg").write_bytes(good)
+    inputs = map_workflow.load_inputs(images, root / "poses.csv", root / "cameras.txt")
+    summary = map_workflow.run(Params(), inputs, out, progress=False)
+    assert summary.keyframes_from_cache == cached
+    assert (out / "landmarks.sosmap").read_bytes() == (session[2] / "landmarks.sosmap").read_bytes()
+    # a camera of the wrong size: refused, then fixed, then resumed the same way
+    wrong = tmp_path / "cameras.txt"
+    wrong.write_text((root / "cameras.txt").read_text().replace(" 320 240 ", " 640 480 "))
+    out2 = tmp_path / "s2"
+    code, cap = _cli(capsys, *args[:4], "--camera", wrong, "--out", out2)
+    assert code == 2 and "camera is" in cap.err
+    code, cap = _cli(capsys, *args[:6], "--out", out2)
+    assert code == 0, cap.err
+
+
+def test_database_that_is_a_directory_is_refused_a_corrupt_one_replaced(session, tmp_path, capsys):
+    root, _, ref, _ = session
+    args = ["--images", root / "images", "--poses", root / "poses.csv", "--camera", root / "cameras.txt"]
+    out = tmp_path / "s"
+    shutil.copytree(ref, out)
+    (out / "database.db").write_bytes(os.urandom(4096))  # our own output, damaged: replaced by the re-run
+    code, cap = _cli(capsys, *args, "--out", out)
+    assert code == 0, cap.err
+    pycolmap.Database.open(str(out / "database.db")).close()
+    (out / "database.db").unlink()
+    (out / "database.db").mkdir()
+    (out / "database.db" / "mine.txt").write_text("x")
+    code, cap = _cli(capsys, *args, "--out", out)
+    assert code == 2 and "database.db" in cap.err and len(cap.err.strip().splitlines()) == 1
+    assert (out / "database.db" / "mine.txt").read_text() == "x"
+
+
+def test_second_concurrent_map_on_one_directory_is_refused(session, tmp_path):
+    import subprocess
+    import sys
+
+    root = session[0]
+    out = tmp_path / "busy"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom sosmatch.database.outputs import "
+                               "open_output_dir\nwith open_output_dir(sys.argv[1], 'map', 'first run'):\n"
+                               "    print('held', flush=True)\n    sys.stdin.read()\n", str(out)],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+        with pytest.raises(map_workflow.InputError, match=f"in use by sosmatch map \\(pid {holder.pid}\\)"):
+            map_workflow.run(Params(), inputs, out, progress=False)
+    finally:
+        holder.communicate("")

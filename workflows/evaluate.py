@@ -38,6 +38,7 @@ from ..database.landmark_map import LandmarkMap, read_landmark_map
 from ..database.match_io import check_match_maps
 from ..database.outputs import fingerprint, open_output_dir
 from ..database.poses import read_poses_csv
+from ..database.session_io import check_map_of_images
 from ..plugin.errors import InputError
 from ..plugin.evaluation.claims import Hypothesis, claim_scores, observer_matrix
 from ..plugin.evaluation.footprints import footprint_polygons
@@ -358,9 +359,10 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
     if "sosmatch" in methods:
         ma = Path(map_a) if map_a is not None else session_a
         mb = Path(map_b) if map_b is not None else session_b
-        for m in (ma, mb):
+        for m, session in ((ma, session_a), (mb, session_b)):
             if not (m / "landmarks.csv").exists():
                 raise InputError("not a mapped session (no landmarks.csv); run `sosmatch map` first", m)
+            check_map_of_images(m, session / "images")
         results["sosmatch"] = _run_sosmatch(params, gt_a, gt_b, ma, mb, Path(match_dir) if match_dir else None,
                                             sweep_floor, repeats, max_observers)
     baselines = [m for m in methods if m != "sosmatch"]

@@ -172,9 +172,9 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
         report.images.append(res)
         try:
             image = read_image(path)
-        except InputError as exc:
+        except InputError as exc:  # recorded in the report; the caller says it (the CLI: once, on one line)
             res.error = str(exc)
-            log.error("%s", exc)
+            log.debug("%s", exc)
             continue
         res.height, res.width = image.shape[:2]
         t0 = time.perf_counter()

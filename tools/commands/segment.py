@@ -31,9 +31,8 @@ def run(args: argparse.Namespace) -> int:
     ok = [r for r in report.images if r.error is None]
     masks = sum(r.num_masks for r in ok)
     print(f"{len(ok)} image(s) segmented, {masks} masks; overlays and summary.csv in {args.out}")
-    for r in report.failed:
+    for r in report.failed:  # one line per bad image
         print(f"sosmatch segment: error: {r.error}", file=sys.stderr)
-    if report.failed:
-        print(f"sosmatch segment: {len(report.failed)} image(s) failed", file=sys.stderr)
-        return 2
-    return 0
+    if len(report.failed) > 1:
+        print(f"sosmatch segment: {len(report.failed)} images failed", file=sys.stderr)
+    return 2 if report.failed else 0

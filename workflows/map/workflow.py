@@ -226,6 +226,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
+        # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
+        "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
         "counts": counts, "quality": quality.to_dict(), "verdict": verdict_record(verdict, params.quality.refuse),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }

@@ -1,0 +1,213 @@
+"""Bad inputs found by the issue-14 audit: each is the project's one-line error naming the file (exit 2), and
+readers refuse exactly what their writers refuse (one validation per format)."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+from sosmatch.database.landmark_map import LandmarkMap, encode_landmark_map, read_landmark_map, write_landmark_map
+from sosmatch.database.match_io import read_match
+from sosmatch.database.poses import format_poses_csv, read_poses_csv
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.geometry import Poses
+from sosmatch.plugin.multisession import Sim3
+from sosmatch.tools.cli import main
+from sosmatch.tools.toy_sessions import lawnmower, make_world, toy_match_json, write_toy_session, yaw_transform
+
+
+def _one_line_error(capsys, *argv: object) -> str:
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bad")
+    world = make_world(200, seed=8)
+    a = write_toy_session(root / "A", world, lawnmower(20, 120, 20, 120, 60, 40, 10), Sim3.identity(), seed=1)
+    b = write_toy_session(root / "B", world, lawnmower(70, 180, 70, 180, 60, 40, 10), yaw_transform(30, (5, 2, 0)),
+                          seed=2)
+    c = write_toy_session(root / "C", make_world(200, seed=9), lawnmower(20, 120, 20, 120, 60, 40, 10),
+                          Sim3.identity(), seed=3)
+    return root, a, b, c
+
+
+# --- defect 3: a match.json of other sessions ------------------------------------------------------------------
+
+
+def test_merge_refuses_a_match_of_other_sessions(toy, tmp_path, capsys):
+    root, a, b, c = toy
+    ab = toy_match_json(a, b, tmp_path / "ab.json")
+    err = _one_line_error(capsys, "merge", a.path, c.path, "--match", ab, "--out", tmp_path / "M")
+    assert "computed for other maps (map" in err and "C" in err
+    assert "other order" in _one_line_error(capsys, "merge", b.path, a.path, "--match", ab, "--out", tmp_path / "M")
+    legacy = json.loads(ab.read_text())
+    del legacy["map_a"], legacy["map_b"]
+    (tmp_path / "old.json").write_text(json.dumps(legacy))
+    assert "does not identify its maps" in _one_line_error(capsys, "merge", a.path, b.path, "--match",
+                                                           tmp_path / "old.json", "--out", tmp_path / "M")
+    assert not (tmp_path / "M").exists()
+
+
+# --- defect 5: match.json that used to crash the readers ----------------------------------------------------------
+
+
+@pytest.mark.parametrize("edit, fragment", [
+    (lambda d: d["hypotheses"][0].update(associations=[[10**40, 1]]), "must be within"),
+    (lambda d: d["hypotheses"][0].update(associations=[[1.7, 1]]), "must be an integer, got 1.7"),
+    (lambda d: d["hypotheses"][0]["transform"].update(scale=float("inf")), "scale must be a finite number"),
+    (lambda d: d["hypotheses"][0].update(accepted="yes"), "accepted must be true or false"),
+    (lambda d: d.update(hypotheses={"0": 1}), "hypotheses must be a list"),
+    (lambda d: d["hypotheses"][0]["transform"].update(rotation=[[1, 0], [0, 1]]), "rotation must be a 3x3"),
+    (lambda d: d.update(best=7), "best must be within"),
+])
+def test_damaged_match_json_is_one_line(toy, tmp_path, capsys, edit, fragment):
+    _, a, b, _ = toy
+    path = toy_match_json(a, b, tmp_path / "m.json")
+    doc = json.loads(path.read_text())
+    edit(doc)
+    path.write_text(json.dumps(doc))
+    assert fragment in _one_line_error(capsys, "merge", a.path, b.path, "--match", path, "--out", tmp_path / "M")
+    assert not (tmp_path / "M").exists()  # an infinite scale no longer leaves half a model
+
+
+def test_deeply_nested_and_huge_number_json_are_one_line(tmp_path):
+    for text in ("[" * 200_000, '{"hypotheses": [' + "9" * 5000 + "]}"):
+        (tmp_path / "m.json").write_text(text)
+        with pytest.raises(InputError, match="cannot read match file"):
+            read_match(tmp_path / "m.json")
+
+
+# --- defects 5 and 6: pose CSVs --------------------------------------------------------------------------------
+
+
+POSES = Poses(["a.jpg", "b.jpg"], np.tile(np.eye(3), (2, 1, 1)), np.array([[0.0, 0, 10], [5.0, 0, 10]]))
+
+
+@pytest.mark.parametrize("edit, fragment", [
+    (lambda t: t.replace("a.jpg", '"' + "x" * 140_000 + '"'), "field larger than field limit"),
+    (lambda t: t.replace("a.jpg", ""), "empty image name"),
+    (lambda t: t.replace("5.0,", "1e300,"), r"beyond 1e\+08 m"),
+    (lambda t: t.replace("crs: local", "crs: EPSG:4294967295"), "not an EPSG code"),
+    (lambda t: t.replace("crs: local", "crs: EPSG:4326"), "not a projected CRS"),
+    (lambda t: "\n".join(t.splitlines()[:4]) + "\n", "holds no poses"),
+])
+def test_bad_pose_csv_is_refused_naming_it(tmp_path, edit, fragment):
+    path = tmp_path / "poses.csv"
+    path.write_text(edit(format_poses_csv(POSES)))
+    with pytest.raises(InputError, match=fragment) as exc:
+        read_poses_csv(path)
+    assert str(path) in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_pose_writer_refuses_what_the_reader_refuses():
+    for names, centres in ((["", "b.jpg"], POSES.centers), (POSES.names, POSES.centers * 1e300)):
+        with pytest.raises(ValueError):
+            format_poses_csv(Poses(names, POSES.rotations, centres))
+    with pytest.raises(ValueError, match="projected"):
+        format_poses_csv(POSES, 4326)
+    odd = Poses(["with, comma.jpg", "b.jpg"], POSES.rotations, POSES.centers)  # quoted by the writer
+    assert read_poses_csv_text(format_poses_csv(odd)).names == odd.names
+
+
+def read_poses_csv_text(text: str) -> Poses:
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        (Path(d) / "p.csv").write_text(text)
+        return read_poses_csv(Path(d) / "p.csv")[0]
+
+
+def test_header_only_pose_csv_blames_the_pose_file(toy, tmp_path, capsys):
+    path = tmp_path / "poses.csv"
+    path.write_text("# sosmatch poses v1\nname,x,y,z,qw,qx,qy,qz\n")
+    images = tmp_path / "images"
+    images.mkdir()
+    err = _one_line_error(capsys, "map", "--images", images, "--poses", path, "--camera", toy[0] / "none.txt",
+                          "--out", tmp_path / "o")
+    assert f"{path}: pose file holds no poses" in err
+
+
+# --- defect 6: .sosmap fields the writer refuses ------------------------------------------------------------------
+
+
+def _sosmap_with(origin=(0.0, 0.0, 0.0), epsg=0, offset=0.0, size=1.0) -> bytes:
+    header = struct.pack("<8sHHI3dII", b"SOSMAP\0\0", 1, 1, 1, *origin, epsg, 0)
+    rec = np.array([(offset, 0.0, 0.0, size)], dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("s", "<f2")])
+    body = header + rec.tobytes()
+    return body + struct.pack("<I", zlib.crc32(body))  # checksum-valid
+
+
+@pytest.mark.parametrize("fields, fragment", [
+    ({"origin": (1.7e308, 0.0, 0.0)}, "origin is beyond"),
+    ({"offset": 2.0e6}, r"more than 1e\+06 m from its origin"),
+    ({"epsg": 4294967295}, "not an EPSG code"),
+    ({"size": 0.0}, "not positive metres"),
+])
+def test_sosmap_reader_refuses_what_the_writer_refuses(tmp_path, capsys, fields, fragment):
+    path = tmp_path / "m.sosmap"
+    path.write_bytes(_sosmap_with(**fields))
+    with pytest.raises(InputError, match=fragment):
+        read_landmark_map(path)
+    lmap = LandmarkMap(np.array([[fields.get("offset", 0.0), 0, 0]]) + np.array(fields.get("origin", (0, 0, 0))),
+                       [fields.get("size", 1.0)], fields.get("origin", (0, 0, 0)), fields.get("epsg", 0))
+    with pytest.raises(ValueError):
+        encode_landmark_map(lmap)
+    assert fragment.replace("\\", "") in _one_line_error(capsys, "match", path, path, "--out", tmp_path / "o")
+
+
+# --- defect 9: messages that name the file ---------------------------------------------------------------------
+
+
+def test_geojson_of_a_map_stamped_with_a_geographic_crs(tmp_path, capsys):
+    path = tmp_path / "m.sosmap"
+    write_landmark_map(path, LandmarkMap(np.array([[10.0, 20.0, 1.0]]), [1.0], epsg=4326))
+    err = _one_line_error(capsys, "export", "--geojson", path, "--out", tmp_path / "l.geojson")
+    assert f"{path}: EPSG:4326" in err and "not a projected CRS" in err
+    write_landmark_map(path, LandmarkMap(np.array([[10.0, 20.0, 1.0]]), [1.0], epsg=32767))
+    assert f"{path}: unknown EPSG code 32767" in _one_line_error(capsys, "export", "--geojson", path, "--out",
+                                                                 tmp_path / "l.geojson")
+    assert not (tmp_path / "l.geojson").exists()
+
+
+def test_segment_reports_a_bad_image_once(tmp_path, capsys):
+    import cv2
+
+    src = tmp_path / "in"
+    src.mkdir()
+    cv2.imwrite(str(src / "a.png"), np.full((60, 80, 3), 120, np.uint8))
+    (src / "bad.jpg").write_bytes(b"\xff\xd8 broken")
+    assert main(["segment", str(src), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("bad.jpg") == 1 and len(err.strip().splitlines()) == 1, err
+
+
+# --- defect 5: batch inputs -------------------------------------------------------------------------------------
+
+
+def test_batch_refuses_a_flight_folder_name_that_is_not_utf8(toy, tmp_path, capsys):
+    flights = tmp_path / "flights"
+    flights.mkdir()
+    os.mkdir(os.fsencode(str(flights)) + b"/\xff\xfe")
+    err = _one_line_error(capsys, "batch", flights, "--out", tmp_path / "out")
+    assert "not valid UTF-8" in err and not (tmp_path / "out").exists()
+
+
+def test_unreachable_scheduler_is_one_line(tmp_path, capsys):
+    pytest.importorskip("dask.distributed")
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        err = _one_line_error(capsys, "batch", tmp_path, "--out", tmp_path / "out", "--scheduler",
+                              "tcp://127.0.0.1:9")
+    assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in err
