@@ -316,6 +316,7 @@ def open_output_dir(
     inputs: Iterable[str | Path | None] = (),
     overwrite: bool = False,
     legacy_record: str | None = None,
+    overwrite_flag: str = "--overwrite",
 ) -> OutputDir:
     """Take directory `path` for one run of `command` producing the output `identity` (see the module doc).
 
@@ -323,15 +324,15 @@ def open_output_dir(
     one, or holding one), a non-empty directory that is not this command's output, a complete output of
     another identity unless `overwrite`, and a directory another run is using. `legacy_record`: the name of
     the command's JSON record (format "sosmatch ...") that marks an output written before markers existed.
-    Cleans the stale temporaries of killed runs. Returns the taken directory (a context manager that releases
-    the lock).
+    Cleans the stale temporaries of killed runs. `overwrite_flag` is how the refusal names the command's
+    option. Returns the taken directory (a context manager that releases the lock).
     """
     path = Path(path)
     check_not_input(path, list(inputs))
     previous = _previous(path, command, legacy_record)
     if previous.state == "complete" and previous.identity != identity and not overwrite:
         raise InputError(f"output directory holds a complete `sosmatch {command}` output made from other inputs or "
-                         "settings; use --overwrite to replace it (or choose another directory)", path)
+                         f"settings; use {overwrite_flag} to replace it (or choose another directory)", path)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
     try:
         path.mkdir(parents=True, exist_ok=True)
@@ -342,7 +343,7 @@ def open_output_dir(
         again = _previous(path, command, legacy_record)  # under the lock: a run that just finished counts
         if again != previous and again.state == "complete" and again.identity != identity and not overwrite:
             raise InputError(f"output directory now holds a complete `sosmatch {command}` output made from other "
-                             "inputs or settings; use --overwrite to replace it", path)
+                             f"inputs or settings; use {overwrite_flag} to replace it", path)
         out = OutputDir(path, command, identity, again, fd, created)
         clean_stale_temporaries(path)
         if (path / STAGING).is_dir():

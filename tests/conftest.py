@@ -1,9 +1,45 @@
-"""Test-wide settings: keep the synthetic world cache out of the user's home directory."""
+"""Test-wide settings (the synthetic world cache out of the user's home directory) and shared fixtures."""
 
 import os
 import tempfile
 from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
 
 # Shared by all test workers and runs (entries are keyed by code version and written atomically), so a
 # repeated `make test` reuses rendered worlds instead of filling ~/.cache.
 os.environ.setdefault("SOSMATCH_CACHE_DIR", str(Path(tempfile.gettempdir()) / "sosmatch-test-cache"))
+
+
+@pytest.fixture(scope="module")
+def toy_sessions(tmp_path_factory):
+    """Three small mapped toy sessions (A and B overlap in one world, C flies over another world) and A-B's
+    match.json: cheap inputs for the multi-session commands (no rendering)."""
+    from sosmatch.plugin.multisession import Sim3
+    from sosmatch.tools.toy_sessions import lawnmower, make_world, toy_match_json, write_toy_session, yaw_transform
+
+    root = tmp_path_factory.mktemp("toy")
+    world = make_world(200, seed=5)
+    a = write_toy_session(root / "A", world, lawnmower(20, 120, 20, 120, 60, 40, 10), Sim3.identity(), seed=1)
+    b = write_toy_session(root / "B", world, lawnmower(70, 180, 70, 180, 60, 40, 10), yaw_transform(30, (5, 2, 0)),
+                          seed=2)
+    c = write_toy_session(root / "C", make_world(200, seed=9), lawnmower(20, 120, 20, 120, 60, 40, 10),
+                          Sim3.identity(), seed=3)
+    return SimpleNamespace(root=root, a=a, b=b, c=c, match=toy_match_json(a, b, root / "AB" / "match.json"))
+
+
+@pytest.fixture
+def cli_error(capsys):
+    """cli_error(*argv) runs the command line, asserts the one-line user error (exit 2, no traceback) and returns
+    it."""
+    from sosmatch.tools.cli import main
+
+    def run(*argv: object) -> str:
+        code = main([str(a) for a in argv])
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+        return err
+
+    return run

@@ -16,44 +16,28 @@ from sosmatch.database.match_io import read_match
 from sosmatch.database.poses import format_poses_csv, read_poses_csv
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Poses
-from sosmatch.plugin.multisession import Sim3
 from sosmatch.tools.cli import main
-from sosmatch.tools.toy_sessions import lawnmower, make_world, toy_match_json, write_toy_session, yaw_transform
+from sosmatch.tools.toy_sessions import toy_match_json
 
 
-def _one_line_error(capsys, *argv: object) -> str:
-    code = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    return err
-
-
-@pytest.fixture(scope="module")
-def toy(tmp_path_factory):
-    root = tmp_path_factory.mktemp("bad")
-    world = make_world(200, seed=8)
-    a = write_toy_session(root / "A", world, lawnmower(20, 120, 20, 120, 60, 40, 10), Sim3.identity(), seed=1)
-    b = write_toy_session(root / "B", world, lawnmower(70, 180, 70, 180, 60, 40, 10), yaw_transform(30, (5, 2, 0)),
-                          seed=2)
-    c = write_toy_session(root / "C", make_world(200, seed=9), lawnmower(20, 120, 20, 120, 60, 40, 10),
-                          Sim3.identity(), seed=3)
-    return root, a, b, c
+@pytest.fixture
+def toy(toy_sessions):
+    return toy_sessions.root, toy_sessions.a, toy_sessions.b, toy_sessions.c
 
 
 # --- defect 3: a match.json of other sessions ------------------------------------------------------------------
 
 
-def test_merge_refuses_a_match_of_other_sessions(toy, tmp_path, capsys):
+def test_merge_refuses_a_match_of_other_sessions(toy, tmp_path, cli_error):
     root, a, b, c = toy
     ab = toy_match_json(a, b, tmp_path / "ab.json")
-    err = _one_line_error(capsys, "merge", a.path, c.path, "--match", ab, "--out", tmp_path / "M")
+    err = cli_error("merge", a.path, c.path, "--match", ab, "--out", tmp_path / "M")
     assert "computed for other maps (map" in err and "C" in err
-    assert "other order" in _one_line_error(capsys, "merge", b.path, a.path, "--match", ab, "--out", tmp_path / "M")
+    assert "other order" in cli_error("merge", b.path, a.path, "--match", ab, "--out", tmp_path / "M")
     legacy = json.loads(ab.read_text())
     del legacy["map_a"], legacy["map_b"]
     (tmp_path / "old.json").write_text(json.dumps(legacy))
-    assert "does not identify its maps" in _one_line_error(capsys, "merge", a.path, b.path, "--match",
+    assert "does not identify its maps" in cli_error("merge", a.path, b.path, "--match",
                                                            tmp_path / "old.json", "--out", tmp_path / "M")
     assert not (tmp_path / "M").exists()
 
@@ -70,13 +54,13 @@ def test_merge_refuses_a_match_of_other_sessions(toy, tmp_path, capsys):
     (lambda d: d["hypotheses"][0]["transform"].update(rotation=[[1, 0], [0, 1]]), "rotation must be a 3x3"),
     (lambda d: d.update(best=7), "best must be within"),
 ])
-def test_damaged_match_json_is_one_line(toy, tmp_path, capsys, edit, fragment):
+def test_damaged_match_json_is_one_line(toy, tmp_path, cli_error, edit, fragment):
     _, a, b, _ = toy
     path = toy_match_json(a, b, tmp_path / "m.json")
     doc = json.loads(path.read_text())
     edit(doc)
     path.write_text(json.dumps(doc))
-    assert fragment in _one_line_error(capsys, "merge", a.path, b.path, "--match", path, "--out", tmp_path / "M")
+    assert fragment in cli_error("merge", a.path, b.path, "--match", path, "--out", tmp_path / "M")
     assert not (tmp_path / "M").exists()  # an infinite scale no longer leaves half a model
 
 
@@ -128,12 +112,12 @@ def read_poses_csv_text(text: str) -> Poses:
         return read_poses_csv(Path(d) / "p.csv")[0]
 
 
-def test_header_only_pose_csv_blames_the_pose_file(toy, tmp_path, capsys):
+def test_header_only_pose_csv_blames_the_pose_file(toy, tmp_path, cli_error):
     path = tmp_path / "poses.csv"
     path.write_text("# sosmatch poses v1\nname,x,y,z,qw,qx,qy,qz\n")
     images = tmp_path / "images"
     images.mkdir()
-    err = _one_line_error(capsys, "map", "--images", images, "--poses", path, "--camera", toy[0] / "none.txt",
+    err = cli_error("map", "--images", images, "--poses", path, "--camera", toy[0] / "none.txt",
                           "--out", tmp_path / "o")
     assert f"{path}: pose file holds no poses" in err
 
@@ -154,7 +138,7 @@ def _sosmap_with(origin=(0.0, 0.0, 0.0), epsg=0, offset=0.0, size=1.0) -> bytes:
     ({"epsg": 4294967295}, "not an EPSG code"),
     ({"size": 0.0}, "not positive metres"),
 ])
-def test_sosmap_reader_refuses_what_the_writer_refuses(tmp_path, capsys, fields, fragment):
+def test_sosmap_reader_refuses_what_the_writer_refuses(tmp_path, cli_error, fields, fragment):
     path = tmp_path / "m.sosmap"
     path.write_bytes(_sosmap_with(**fields))
     with pytest.raises(InputError, match=fragment):
@@ -163,19 +147,19 @@ def test_sosmap_reader_refuses_what_the_writer_refuses(tmp_path, capsys, fields,
                        [fields.get("size", 1.0)], fields.get("origin", (0, 0, 0)), fields.get("epsg", 0))
     with pytest.raises(ValueError):
         encode_landmark_map(lmap)
-    assert fragment.replace("\\", "") in _one_line_error(capsys, "match", path, path, "--out", tmp_path / "o")
+    assert fragment.replace("\\", "") in cli_error("match", path, path, "--out", tmp_path / "o")
 
 
 # --- defect 9: messages that name the file ---------------------------------------------------------------------
 
 
-def test_geojson_of_a_map_stamped_with_a_geographic_crs(tmp_path, capsys):
+def test_geojson_of_a_map_stamped_with_a_geographic_crs(tmp_path, cli_error):
     path = tmp_path / "m.sosmap"
     write_landmark_map(path, LandmarkMap(np.array([[10.0, 20.0, 1.0]]), [1.0], epsg=4326))
-    err = _one_line_error(capsys, "export", "--geojson", path, "--out", tmp_path / "l.geojson")
+    err = cli_error("export", "--geojson", path, "--out", tmp_path / "l.geojson")
     assert f"{path}: EPSG:4326" in err and "not a projected CRS" in err
     write_landmark_map(path, LandmarkMap(np.array([[10.0, 20.0, 1.0]]), [1.0], epsg=32767))
-    assert f"{path}: unknown EPSG code 32767" in _one_line_error(capsys, "export", "--geojson", path, "--out",
+    assert f"{path}: unknown EPSG code 32767" in cli_error("export", "--geojson", path, "--out",
                                                                  tmp_path / "l.geojson")
     assert not (tmp_path / "l.geojson").exists()
 
@@ -195,19 +179,19 @@ def test_segment_reports_a_bad_image_once(tmp_path, capsys):
 # --- defect 5: batch inputs -------------------------------------------------------------------------------------
 
 
-def test_batch_refuses_a_flight_folder_name_that_is_not_utf8(toy, tmp_path, capsys):
+def test_batch_refuses_a_flight_folder_name_that_is_not_utf8(toy, tmp_path, cli_error):
     flights = tmp_path / "flights"
     flights.mkdir()
     os.mkdir(os.fsencode(str(flights)) + b"/\xff\xfe")
-    err = _one_line_error(capsys, "batch", flights, "--out", tmp_path / "out")
+    err = cli_error("batch", flights, "--out", tmp_path / "out")
     assert "not valid UTF-8" in err and not (tmp_path / "out").exists()
 
 
-def test_unreachable_scheduler_is_one_line(tmp_path, capsys):
+def test_unreachable_scheduler_is_one_line(tmp_path, cli_error):
     pytest.importorskip("dask.distributed")
     import dask
 
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        err = _one_line_error(capsys, "batch", tmp_path, "--out", tmp_path / "out", "--scheduler",
+        err = cli_error("batch", tmp_path, "--out", tmp_path / "out", "--scheduler",
                               "tcp://127.0.0.1:9")
     assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in err

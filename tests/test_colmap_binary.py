@@ -14,19 +14,12 @@ import pytest
 from sosmatch.database.colmap_binary import check_binary_model
 from sosmatch.database.colmap_model import load_reconstruction
 from sosmatch.plugin.errors import InputError
-from sosmatch.plugin.multisession import Sim3
 from sosmatch.tools.cli import main
-from sosmatch.tools.toy_sessions import lawnmower, make_world, toy_match_json, write_toy_session, yaw_transform
 
 
-@pytest.fixture(scope="module")
-def toy(tmp_path_factory):
-    root = tmp_path_factory.mktemp("colmap")
-    world = make_world(150, seed=3)
-    a = write_toy_session(root / "A", world, lawnmower(20, 120, 20, 120, 60, 40, 10), Sim3.identity(), seed=1)
-    b = write_toy_session(root / "B", world, lawnmower(60, 160, 60, 160, 60, 40, 10), yaw_transform(20, (3, 1, 0)),
-                          seed=2)
-    return root, a.path, b.path, toy_match_json(a, b, root / "AB" / "match.json")
+@pytest.fixture
+def toy(toy_sessions):
+    return toy_sessions.root, toy_sessions.a.path, toy_sessions.b.path, toy_sessions.match
 
 
 def test_a_valid_model_passes_with_pycolmaps_counts(toy):

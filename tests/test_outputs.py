@@ -23,9 +23,7 @@ from sosmatch.database.atomic import TMP_LOCK, atomic_path, write_text_atomic
 from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
 from sosmatch.database.outputs import MARKER, OutputFiles, open_output_dir
 from sosmatch.plugin.errors import InputError
-from sosmatch.plugin.multisession import Sim3
 from sosmatch.tools.cli import main
-from sosmatch.tools.toy_sessions import lawnmower, make_world, toy_match_json, write_toy_session, yaw_transform
 
 SOSMATCH = str(Path(sys.executable).parent / "sosmatch")
 
@@ -35,46 +33,32 @@ def _tree(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
-def _one_line_error(capsys, *argv: object) -> str:
-    code = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    return err
-
-
-@pytest.fixture(scope="module")
-def toy(tmp_path_factory):
-    root = tmp_path_factory.mktemp("toy")
-    world = make_world(200, seed=5)
-    a = write_toy_session(root / "A", world, lawnmower(20, 120, 20, 120, 60, 40, 10), Sim3.identity(), seed=1)
-    b = write_toy_session(root / "B", world, lawnmower(70, 180, 70, 180, 60, 40, 10), yaw_transform(30, (5, 2, 0)),
-                          seed=2)
-    match = toy_match_json(a, b, root / "AB" / "match.json")
-    return root, a.path, b.path, match
+@pytest.fixture
+def toy(toy_sessions):
+    return toy_sessions.root, toy_sessions.a.path, toy_sessions.b.path, toy_sessions.match
 
 
 # --- rule 1: never delete or replace what the command did not create -------------------------------------------
 
 
-def test_export_never_replaces_its_input_or_a_directory(toy, tmp_path, capsys):
+def test_export_never_replaces_its_input_or_a_directory(toy, tmp_path, capsys, cli_error):
     root, a, _, _ = toy
     before = _tree(a)
-    assert "is also an input" in _one_line_error(capsys, "export", "--csv", a, "--out", a)
-    assert "inside the input" in _one_line_error(capsys, "export", "--csv", a, "--out", a / "landmarks.csv")
+    assert "is also an input" in cli_error("export", "--csv", a, "--out", a)
+    assert "inside the input" in cli_error("export", "--csv", a, "--out", a / "landmarks.csv")
     other = tmp_path / "d"
     other.mkdir()
     (other / "keep.txt").write_text("mine")
-    assert "is a directory" in _one_line_error(capsys, "export", "--ply", a, "--out", other)
+    assert "is a directory" in cli_error("export", "--ply", a, "--out", other)
     assert _tree(a) == before and _tree(other) == {"keep.txt": b"mine"}
 
 
-def test_export_replaces_only_its_own_unchanged_files(toy, tmp_path, capsys):
+def test_export_replaces_only_its_own_unchanged_files(toy, tmp_path, capsys, cli_error):
     _, a, b, _ = toy
     out = tmp_path / "l.csv"
     out.write_text("somebody else's table\n")
     for extra in ((), ("--overwrite",)):
-        assert "not written by `sosmatch export`" in _one_line_error(capsys, "export", "--csv", a, "--out", out,
+        assert "not written by `sosmatch export`" in cli_error("export", "--csv", a, "--out", out,
                                                                      *extra)
     assert out.read_text() == "somebody else's table\n"
     out.unlink()
@@ -83,33 +67,33 @@ def test_export_replaces_only_its_own_unchanged_files(toy, tmp_path, capsys):
     assert main(["export", "--csv", str(a), "--out", str(out)]) == 0  # the same export again: replaced freely
     assert out.read_bytes() == first
     capsys.readouterr()
-    assert "--overwrite" in _one_line_error(capsys, "export", "--csv", b, "--out", out)  # another map
+    assert "--overwrite" in cli_error("export", "--csv", b, "--out", out)  # another map
     assert main(["export", "--csv", str(b), "--out", str(out), "--overwrite"]) == 0 and out.read_bytes() != first
     out.write_text(out.read_text() + "# my note\n")  # edited by the user: no longer ours to replace
-    assert "changed since" in _one_line_error(capsys, "export", "--csv", a, "--out", out, "--overwrite")
+    assert "changed since" in cli_error("export", "--csv", a, "--out", out, "--overwrite")
 
 
-def test_merge_never_writes_into_an_input_or_another_commands_output(toy, tmp_path, capsys):
+def test_merge_never_writes_into_an_input_or_another_commands_output(toy, tmp_path, capsys, cli_error):
     root, a, b, match = toy
     before = _tree(a)
-    assert "also an input" in _one_line_error(capsys, "merge", a, b, "--match", match, "--out", a)
-    assert "inside the input" in _one_line_error(capsys, "merge", a, b, "--match", match, "--out", a / "merged")
+    assert "also an input" in cli_error("merge", a, b, "--match", match, "--out", a)
+    assert "inside the input" in cli_error("merge", a, b, "--match", match, "--out", a / "merged")
     mapped = tmp_path / "mapped"
     with open_output_dir(mapped, "map", "some map") as taken:  # a `sosmatch map` session
         write_text_atomic(mapped / "run.json", "{}")
         taken.finish()
-    assert "holds a `sosmatch map` output" in _one_line_error(capsys, "merge", a, b, "--match", match, "--out",
+    assert "holds a `sosmatch map` output" in cli_error("merge", a, b, "--match", match, "--out",
                                                               mapped, "--overwrite")
     foreign = tmp_path / "photos"
     foreign.mkdir()
     (foreign / "holiday.jpg").write_bytes(b"jpeg")
-    assert "never replaces what it did not create" in _one_line_error(capsys, "merge", a, b, "--match", match,
+    assert "never replaces what it did not create" in cli_error("merge", a, b, "--match", match,
                                                                       "--out", foreign, "--overwrite")
     assert _tree(a) == before and _tree(foreign) == {"holiday.jpg": b"jpeg"}
     assert (mapped / "run.json").read_text() == "{}"
 
 
-def test_a_directory_entry_of_the_other_kind_is_not_replaced(toy, tmp_path, capsys):
+def test_a_directory_entry_of_the_other_kind_is_not_replaced(toy, tmp_path, capsys, cli_error):
     _, a, b, match = toy
     out = tmp_path / "M"
     assert main(["merge", str(a), str(b), "--match", str(match), "--out", str(out)]) == 0
@@ -117,22 +101,22 @@ def test_a_directory_entry_of_the_other_kind_is_not_replaced(toy, tmp_path, caps
     (out / "landmarks.csv").mkdir()  # a user's folder where merge writes a file
     (out / "landmarks.csv" / "notes.txt").write_text("mine")
     capsys.readouterr()
-    assert "is a directory where `sosmatch merge` writes a file" in _one_line_error(
-        capsys, "merge", a, b, "--match", match, "--out", out)
+    assert "is a directory where `sosmatch merge` writes a file" in cli_error(
+        "merge", a, b, "--match", match, "--out", out)
     assert (out / "landmarks.csv" / "notes.txt").read_text() == "mine"
 
 
 # --- rule 3: a complete output of other inputs needs --overwrite; the same one is re-made freely ----------------
 
 
-def test_complete_output_of_other_inputs_needs_overwrite(toy, tmp_path, capsys):
+def test_complete_output_of_other_inputs_needs_overwrite(toy, tmp_path, capsys, cli_error):
     _, a, b, match = toy
     out = tmp_path / "M"
     assert main(["merge", str(a), str(b), "--match", str(match), "--out", str(out)]) == 0
     first = _tree(out)
     assert main(["merge", str(a), str(b), "--match", str(match), "--out", str(out)]) == 0  # same inputs: fine
     capsys.readouterr()
-    err = _one_line_error(capsys, "merge", a, b, "--match", match, "--out", out, "--set",
+    err = cli_error("merge", a, b, "--match", match, "--out", out, "--set",
                           "association.distance_tolerance_m=3")
     assert "use --overwrite" in err
     assert _tree(out).keys() == first.keys() and (out / "landmarks.sosmap").read_bytes() == first[
@@ -174,14 +158,14 @@ HOLDER = textwrap.dedent("""
 """)
 
 
-def test_second_concurrent_run_is_refused_and_a_killed_holder_releases(toy, tmp_path, capsys):
+def test_second_concurrent_run_is_refused_and_a_killed_holder_releases(toy, tmp_path, capsys, cli_error):
     _, a, b, match = toy
     out = tmp_path / "merged"
     holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(out)], stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
-        err = _one_line_error(capsys, "merge", a, b, "--match", match, "--out", out)
+        err = cli_error("merge", a, b, "--match", match, "--out", out)
         assert f"in use by sosmatch merge (pid {holder.pid})" in err
     finally:
         holder.send_signal(signal.SIGKILL)
@@ -237,15 +221,15 @@ def test_killed_synth_leaves_nothing_the_rerun_does_not_clean(tmp_path, monkeypa
 # --- outputs that are files where directories go, or cannot be made (one-line errors) ---------------------------
 
 
-def test_output_path_that_is_a_file_or_cannot_be_made(toy, tmp_path, capsys):
+def test_output_path_that_is_a_file_or_cannot_be_made(toy, tmp_path, capsys, cli_error):
     _, a, b, match = toy
     blocker = tmp_path / "file"
     blocker.write_text("x")
     for out, problem in ((blocker, "not a directory"), (blocker / "sub", "cannot create output directory")):
-        _one_line_error(capsys, "match", a, b, "--out", out)
-        assert problem in _one_line_error(capsys, "merge", a, b, "--match", match, "--out", out)
-        assert problem in _one_line_error(capsys, "synth", "--out", out, "--frames", "2")
-        assert problem in _one_line_error(capsys, "batch", a.parent, "--out", out)
+        cli_error("match", a, b, "--out", out)
+        assert problem in cli_error("merge", a, b, "--match", match, "--out", out)
+        assert problem in cli_error("synth", "--out", out, "--frames", "2")
+        assert problem in cli_error("batch", a.parent, "--out", out)
     assert blocker.read_text() == "x"
 
 

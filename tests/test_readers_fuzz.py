@@ -55,6 +55,13 @@ def _mutate(data: bytes, edits: list[tuple[int, int]], cut: int | None) -> bytes
     return bytes(out[:cut] if cut is not None else out)
 
 
+def _insert(text: str, inserts: list[tuple[int, str]], token: str) -> str:
+    for pos, piece in inserts:
+        k = pos % (len(text) + 1)
+        text = text[:k] + piece + token + text[k:]
+    return text
+
+
 edits = st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), max_size=6)
 cuts = st.none() | st.integers(0, 4000)
 
@@ -125,9 +132,7 @@ def test_pose_csv_reader(tmp_path_factory, inserts, ypr, token):
     text = POSES_TEXT
     if ypr:
         text = text.replace("qw,qx,qy,qz", "yaw_deg,pitch_deg,roll_deg").replace(",1.0,0.0,0.0,0.0", ",0,-90,0")
-    for pos, piece in inserts:
-        k = pos % (len(text) + 1)
-        text = text[:k] + piece + token + text[k:]
+    text = _insert(text, inserts, token)
     path = tmp_path_factory.mktemp("p") / "poses.csv"
     path.write_text(text, encoding="utf-8")
     out = _bounded(lambda: read_poses_csv(path), len(text.encode()))
@@ -149,10 +154,7 @@ CAMERAS_TEXT = "1 PINHOLE 640 480 500 500 320 240\n2 OPENCV 4000 3000 2900 2900 
 @given(st.lists(st.tuples(st.integers(0, 10**6), csv_noise), max_size=5),
        st.sampled_from(["", " 1e300", " nan", "9" * 5000, " -1", " SIMPLE_RADIAL", " EQUIRECTANGULAR", "\n"]))
 def test_cameras_reader(tmp_path_factory, inserts, token):
-    text = CAMERAS_TEXT
-    for pos, piece in inserts:
-        k = pos % (len(text) + 1)
-        text = text[:k] + piece + token + text[k:]
+    text = _insert(CAMERAS_TEXT, inserts, token)
     path = tmp_path_factory.mktemp("c") / "cameras.txt"
     path.write_text(text, encoding="utf-8")
     out = _bounded(lambda: read_cameras_txt(path), len(text.encode()))

@@ -183,8 +183,8 @@ def run_demo(out: str | Path, frames: int = DEMO_FRAMES, force: bool = False) ->
     from ..database.outputs import fingerprint, open_output_dir
 
     identity = fingerprint({"frames": frames})
-    with open_output_dir(out, "demo", identity, overwrite=force,
-                         legacy_record="sessions/summer/session.json") as taken:
+    with open_output_dir(out, "demo", identity, overwrite=force, legacy_record="sessions/summer/session.json",
+                         overwrite_flag="--force") as taken:
         redo = force or (taken.previous.state != "new" and taken.previous.identity != identity)
         ctx = DemoContext(taken.path, frames, overwrite=redo)
         report = []
