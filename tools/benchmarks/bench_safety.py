@@ -6,6 +6,8 @@
    `colmap_model.load_reconstruction` (the structural walk first): outcome, CPU seconds, peak RSS.
 2. `colmap_binary.check_binary_model` on a valid toy model of --objects points: CPU time per MB of model.
 3. `outputs.open_output_dir` + `finish` (marker, lock, checks): CPU time per call.
+4. A parent holding a batch executor's 2 busy workers is killed with SIGKILL: how long until every process it
+   started (the workers and the multiprocessing resource tracker) is gone.
 """
 
 from __future__ import annotations
@@ -53,6 +55,53 @@ def _child(kind: str, model: Path, limit: int) -> str:
     return f"{outcome} | {cpu} s CPU | peak RSS {int(rss) / 1024:.0f} MB"
 
 
+POOL = textwrap.dedent("""
+    import time
+    from sosmatch.workflows.executors import LocalExecutor
+    pool = LocalExecutor(2)._get_pool()
+    futures = [pool.submit(time.sleep, 600) for _ in range(2)]
+    time.sleep(1.0)
+    print("ready", flush=True)
+    time.sleep(600)
+""")
+
+
+def _descendants(pid: int) -> set[int]:
+    out, todo = set(), [pid]
+    while todo:
+        for task in Path(f"/proc/{todo.pop()}/task").glob("*"):
+            try:
+                kids = [int(k) for k in (task / "children").read_text().split()]
+            except OSError:
+                continue
+            out.update(kids)
+            todo.extend(kids)
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+def _orphans_after_kill() -> str:
+    import signal
+
+    parent = subprocess.Popen([sys.executable, "-c", POOL], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                              text=True)
+    parent.stdout.readline()
+    started = _descendants(parent.pid)
+    t0 = time.monotonic()
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    while any(_alive(p) for p in started) and time.monotonic() - t0 < 30:
+        time.sleep(0.005)
+    left = [p for p in started if _alive(p)]
+    return f"{len(started)} processes, {len(left)} left after {time.monotonic() - t0:.3f} s"
+
+
 def main(argv: list[str] | None = None) -> None:
     from ...database.colmap_binary import check_binary_model
     from ...database.outputs import open_output_dir
@@ -91,6 +140,7 @@ def main(argv: list[str] | None = None) -> None:
             with open_output_dir(root / f"o{k}", "bench", "x") as out:
                 out.finish()
         print(f"3. open_output_dir + finish: {(time.process_time() - t0) / 200 * 1000:.2f} ms CPU per output")
+    print(f"4. SIGKILL of a parent with 2 busy workers: {'; '.join(_orphans_after_kill() for _ in range(3))}")
     print(f"peak RSS of this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 
 
