@@ -19,7 +19,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from .atomic import write_text_atomic
-from .landmark_map import LandmarkMap, read_landmark_map
+from .landmark_map import MAX_WORLD_COORD_M, LandmarkMap, read_landmark_map
 from .text_input import read_user_text
 
 if TYPE_CHECKING:
@@ -81,6 +81,10 @@ def read_landmark_table(path: str | Path) -> LandmarkTable:
             nobs = int(row[col["num_observations"]]) if "num_observations" in col else 0
         except (ValueError, IndexError):
             raise InputError("malformed landmark row", path, lineno) from None
+        if not all(np.isfinite(vals[:3])) or np.abs(vals[:3]).max() > MAX_WORLD_COORD_M or not (
+                np.isnan(vals[3]) or 0 <= vals[3] < np.inf):  # the writer rounds sizes to mm
+            raise InputError("landmark row holds a non-finite or far-off position or a negative or infinite size",
+                             path, lineno)
         if not (0 <= idx < MAX_ROWS and -1 <= pid < 2**63 and 0 <= nobs < 2**31):
             raise InputError("landmark row holds an index, point3d_id or num_observations out of range", path, lineno)
         if idx in rows:
