@@ -23,6 +23,7 @@ from sosmatch.database.atomic import TMP_LOCK, atomic_path, write_text_atomic
 from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
 from sosmatch.database.outputs import MARKER, OutputFiles, open_output_dir
 from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.processes import descendants, is_alive
 from sosmatch.tools.cli import main
 
 SOSMATCH = str(Path(sys.executable).parent / "sosmatch")
@@ -282,39 +283,18 @@ POOLS = {
 }
 
 
-def _descendants(pid: int) -> set[int]:
-    out, todo = set(), [pid]
-    while todo:
-        p = todo.pop()
-        for task in Path(f"/proc/{p}/task").glob("*"):
-            try:
-                kids = [int(k) for k in (task / "children").read_text().split()]
-            except OSError:
-                continue
-            out.update(kids)
-            todo.extend(kids)
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
-    except (OSError, IndexError):
-        return False
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("kind", sorted(POOLS))
 def test_workers_die_with_a_killed_parent(kind):
     parent = subprocess.Popen([sys.executable, "-c", POOLS[kind]], stdout=subprocess.PIPE, text=True)
     try:
         assert parent.stdout.readline().strip() == "ready"
-        workers = _descendants(parent.pid)
+        workers = descendants(parent.pid)
         assert len(workers) >= 2  # the workers (and, with spawn, the resource tracker)
     finally:
         parent.send_signal(signal.SIGKILL)
         parent.wait()
     deadline = time.monotonic() + 10
-    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+    while any(is_alive(p) for p in workers) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not [p for p in workers if _alive(p)]
+    assert not [p for p in workers if is_alive(p)]

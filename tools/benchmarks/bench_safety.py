@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...plugin.processes import descendants, is_alive
 from .machine import machine_summary
 
 CHILD = textwrap.dedent("""
@@ -66,39 +67,19 @@ POOL = textwrap.dedent("""
 """)
 
 
-def _descendants(pid: int) -> set[int]:
-    out, todo = set(), [pid]
-    while todo:
-        for task in Path(f"/proc/{todo.pop()}/task").glob("*"):
-            try:
-                kids = [int(k) for k in (task / "children").read_text().split()]
-            except OSError:
-                continue
-            out.update(kids)
-            todo.extend(kids)
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
-    except (OSError, IndexError):
-        return False
-
-
 def _orphans_after_kill() -> str:
     import signal
 
     parent = subprocess.Popen([sys.executable, "-c", POOL], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                               text=True)
     parent.stdout.readline()
-    started = _descendants(parent.pid)
+    started = descendants(parent.pid)
     t0 = time.monotonic()
     parent.send_signal(signal.SIGKILL)
     parent.wait()
-    while any(_alive(p) for p in started) and time.monotonic() - t0 < 30:
+    while any(is_alive(p) for p in started) and time.monotonic() - t0 < 30:
         time.sleep(0.005)
-    left = [p for p in started if _alive(p)]
+    left = [p for p in started if is_alive(p)]
     return f"{len(started)} processes, {len(left)} left after {time.monotonic() - t0:.3f} s"
 
 
