@@ -130,36 +130,34 @@ def _rad_tan_thin_prism_fisheye(u: Array, v: Array, e: tuple[float, ...]) -> tup
 _FOV_EPS = 1e-4  # COLMAP's switch to the Taylor expansions
 
 
-def _fov_forward(u: Array, v: Array, e: tuple[float, ...]) -> tuple[Array, Array]:
+def _fov(u: Array, v: Array, e: tuple[float, ...], inverse: bool) -> tuple[Array, Array]:
+    """FOV model: the radius scales by atan(2 r tan(omega / 2)) / (r omega) (`inverse`: tan(r omega) /
+    (2 r tan(omega / 2))), with COLMAP's Taylor expansions near omega = 0 and r = 0."""
     omega = e[0]
     r2 = u * u + v * v
     omega2 = omega * omega
     if omega2 < _FOV_EPS:
-        factor = omega2 * r2 / 3.0 - omega2 / 12.0 + 1.0
+        factor = omega2 * r2 / 3.0 - omega2 / 12.0 + 1.0  # the same expansion both ways
     else:
         tan_half = np.tan(omega / 2.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.sqrt(r2)
-            exact = np.arctan(r * 2.0 * tan_half) / (r * omega)
-        taylor = -2.0 * tan_half * (4.0 * r2 * tan_half * tan_half - 3.0) / (3.0 * omega)
+            if inverse:
+                exact = np.tan(r * omega) / (r * 2.0 * tan_half)
+                taylor = omega * (omega * omega * r2 + 3.0) / (6.0 * tan_half)
+            else:
+                exact = np.arctan(r * 2.0 * tan_half) / (r * omega)
+                taylor = -2.0 * tan_half * (4.0 * r2 * tan_half * tan_half - 3.0) / (3.0 * omega)
         factor = np.where(r2 < _FOV_EPS, taylor, exact)
     return u * factor, v * factor
 
 
+def _fov_forward(u: Array, v: Array, e: tuple[float, ...]) -> tuple[Array, Array]:
+    return _fov(u, v, e, inverse=False)
+
+
 def _fov_inverse(x: Array, y: Array, e: tuple[float, ...]) -> tuple[Array, Array]:
-    omega = e[0]
-    r2 = x * x + y * y
-    omega2 = omega * omega
-    if omega2 < _FOV_EPS:
-        factor = omega2 * r2 / 3.0 - omega2 / 12.0 + 1.0
-    else:
-        tan_half = np.tan(omega / 2.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.sqrt(r2)
-            exact = np.tan(r * omega) / (r * 2.0 * tan_half)
-        taylor = omega * (omega * omega * r2 + 3.0) / (6.0 * tan_half)
-        factor = np.where(r2 < _FOV_EPS, taylor, exact)
-    return x * factor, y * factor
+    return _fov(x, y, e, inverse=True)
 
 
 def _division_forward(u: Array, v: Array, e: tuple[float, ...]) -> tuple[Array, Array]:

@@ -13,15 +13,9 @@ from sosmatch.plugin.geometry import project
 from sosmatch.tools.cli import main
 from sosmatch.workflows.synth import SynthConfig, run
 
+# test_synth's small world (the test-wide world cache, tests/conftest.py, makes it cheap), fewer frames
 SMALL = dict(world_seed=3, world_size_m=240.0, frames=6, spacing_m=8.0, width=320, height=240,
              line_length_m=40.0, line_spacing_m=25.0)
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _private_world_cache(tmp_path_factory):
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("SOSMATCH_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
-        yield
 
 
 @pytest.fixture(scope="module")
