@@ -4,15 +4,14 @@ real keypoints, tracking runs on undistorted centroids, and the map is as good a
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
 from sosmatch.database.cameras import write_cameras_txt
 from sosmatch.database.landmark_map import read_landmark_map
-from sosmatch.database.poses import write_poses_csv
-from sosmatch.plugin.geometry import Camera, Poses, pixel_rays
+from sosmatch.plugin.geometry import Camera
 from sosmatch.plugin.params import Params
+from sosmatch.tools.toy_sessions import render_disc_flight
 from sosmatch.workflows import map as map_workflow
 
 pycolmap = pytest.importorskip("pycolmap")
@@ -24,35 +23,7 @@ LENS = Camera(WIDTH, HEIGHT, 0.8 * WIDTH, 0.8 * WIDTH, WIDTH / 2, HEIGHT / 2, "O
 
 
 def render(root: Path, camera: Camera, seed: int = 0) -> np.ndarray:
-    """Nadir flight over a flat field with coloured discs, imaged through `camera`'s lens (every pixel's ray meets
-    the ground plane z = 0 and samples a 0.1 m orthophoto). Writes images/, poses.csv, cameras.txt; returns the
-    discs (x, y, radius)."""
-    rng = np.random.default_rng(seed)
-    gsd, x0, x1, y0, y1 = 0.1, -45.0, FRAMES * 2.0 + 45.0, -40.0, 40.0
-    w, h = int((x1 - x0) / gsd), int((y1 - y0) / gsd)
-    noise = cv2.GaussianBlur(rng.normal(0, 25, (h, w, 3)), (0, 0), 2)
-    ortho = np.clip(rng.integers(70, 110, 3) + noise, 0, 255).astype(np.uint8)
-    objs = np.stack([rng.uniform(x0 + 12, x1 - 12, 40), rng.uniform(y0 + 10, y1 - 10, 40), rng.uniform(1.5, 4, 40)], 1)
-    for x, y, r in objs:
-        color = tuple(int(c) for c in rng.integers(0, 255, 3))
-        cv2.circle(ortho, (int((x - x0) / gsd), int((y1 - y) / gsd)), int(r / gsd), color, -1, cv2.LINE_AA)
-    ortho = cv2.GaussianBlur(ortho, (0, 0), 1.0)  # the image pixel is ~2.3 ortho pixels: low-pass before sampling
-    centers = np.stack([np.arange(FRAMES) * 2.0, np.zeros(FRAMES), np.full(FRAMES, ALTITUDE)], 1)
-    names = [f"frame_{i:05d}.jpg" for i in range(FRAMES)]
-    r_wc = np.diag([1.0, -1.0, -1.0])
-    jj, ii = np.meshgrid(np.arange(WIDTH), np.arange(HEIGHT))
-    pixels = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], 1)
-    rays = pixel_rays(camera, pixels, r_wc)
-    (root / "images").mkdir(parents=True)
-    for name, c in zip(names, centers):
-        ground = c + rays * (-c[2] / rays[:, 2:3])
-        map_x = ((ground[:, 0] - x0) / gsd - 0.5).reshape(HEIGHT, WIDTH).astype(np.float32)
-        map_y = ((y1 - ground[:, 1]) / gsd - 0.5).reshape(HEIGHT, WIDTH).astype(np.float32)
-        img = cv2.remap(ortho, map_x, map_y, cv2.INTER_LINEAR)
-        cv2.imwrite(str(root / "images" / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
-    write_poses_csv(root / "poses.csv", Poses(names, np.repeat(r_wc[None], FRAMES, 0), centers))
-    write_cameras_txt(root / "cameras.txt", {1: camera})
-    return objs
+    return render_disc_flight(root, camera, FRAMES, ALTITUDE, seed)
 
 
 def _map(root: Path, out: Path, camera_file: Path):

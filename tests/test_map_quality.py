@@ -110,3 +110,53 @@ def test_pass_disagreement_needs_more_than_one_pass():
     value = pass_disagreement(positions[one_line], sizes[one_line], [obs[i] for i in one_line],
                               flight_passes(centers))
     assert np.isnan(value)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# End to end: `sosmatch map` on a real (tiny) flight whose poses were rotated off the vertical
+# ---------------------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def tilted_flight(tmp_path_factory):
+    from sosmatch.database.poses import read_poses_csv, write_poses_csv
+    from sosmatch.plugin.geometry import Camera, Poses
+    from sosmatch.tools.toy_sessions import render_disc_flight
+
+    root = tmp_path_factory.mktemp("tilted") / "flights" / "F"
+    render_disc_flight(root, Camera(320, 240, 256.0, 256.0, 160.0, 120.0))
+    poses, _ = read_poses_csv(root / "poses.csv")
+    r = _rot("x", 30.0)  # about the flight line: the block rolls 30 deg, images and poses still agree
+    m = poses.centers.mean(axis=0)
+    write_poses_csv(root / "poses.csv", Poses(poses.names, r @ poses.rotations, (poses.centers - m) @ r.T + m))
+    return root
+
+
+def test_map_refuses_a_rotated_block_and_no_later_stage_uses_it(tilted_flight, tmp_path, capsys):
+    import json
+
+    from sosmatch.database.session_io import read_session
+    from sosmatch.plugin.errors import InputError
+    from sosmatch.tools.cli import main
+    from sosmatch.workflows import batch
+
+    out = tmp_path / "map"
+    args = ["map", "--no-progress", "--images", str(tilted_flight / "images"), "--poses",
+            str(tilted_flight / "poses.csv"), "--out", str(out)]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "map refused: the block is tilted" in err and len(err.splitlines()) == 1
+    run = json.loads((out / "run.json").read_text())
+    assert run["verdict"]["status"] == "refused" and run["quality"]["block_tilt_deg"] > 20
+    assert (out / "quality.png").stat().st_size > 10_000  # the picture is there to look at
+    with pytest.raises(InputError, match="refused this session"):
+        read_session(out)
+    assert main(["export", str(out), "--geojson", "--out", str(tmp_path / "x.geojson")]) == 2
+    assert main(["match", str(out), str(out), "--out", str(tmp_path / "m")]) == 2
+    assert "refused this session" in capsys.readouterr().err
+    # kept on request, loudly, and run.json says so
+    assert main(args + ["--out", str(tmp_path / "kept"), "--set", "quality.refuse=false"]) == 0
+    kept = json.loads((tmp_path / "kept" / "run.json").read_text())
+    assert kept["verdict"]["status"] == "accepted_despite_refusals"
+    # batch counts it as a failed flight
+    report = batch.run(tilted_flight.parent, tmp_path / "batch", options=batch.BatchOptions(progress=False))
+    assert not report.ok and report.sessions[0]["status"] == "failed"
+    assert "refused" in json.dumps(report.sessions[0])

@@ -210,3 +210,42 @@ def oracle_pair_task(session_a: str, session_b: str, pair_dir: str, params: obje
     a, b = load_toy_session(session_a), load_toy_session(session_b)
     path = toy_match_json(a, b, Path(pair_dir) / "match.json")
     return summarise_match(path)
+
+
+def render_disc_flight(root: str | Path, camera: Camera, frames: int = 25, altitude: float = 60.0,
+                       seed: int = 0) -> np.ndarray:
+    """A tiny flight with real images: one nadir line (2 m steps along x) over a flat textured field with 40
+    coloured discs, every pixel's ray through `camera`'s lens model meeting the ground plane z = 0 and sampling a
+    0.1 m orthophoto. Writes ROOT/images/, poses.csv and cameras.txt (the `sosmatch map` inputs); returns the
+    discs (x, y, radius). The same seed gives the same world whatever the camera."""
+    import cv2
+
+    from ..database.cameras import write_cameras_txt
+    from ..plugin.geometry import pixel_rays
+
+    root = Path(root)
+    rng = np.random.default_rng(seed)
+    gsd, x0, x1, y0, y1 = 0.1, -45.0, frames * 2.0 + 45.0, -40.0, 40.0
+    w, h = int((x1 - x0) / gsd), int((y1 - y0) / gsd)
+    noise = cv2.GaussianBlur(rng.normal(0, 25, (h, w, 3)), (0, 0), 2)
+    ortho = np.clip(rng.integers(70, 110, 3) + noise, 0, 255).astype(np.uint8)
+    objs = np.stack([rng.uniform(x0 + 12, x1 - 12, 40), rng.uniform(y0 + 10, y1 - 10, 40), rng.uniform(1.5, 4, 40)], 1)
+    for x, y, r in objs:
+        color = tuple(int(c) for c in rng.integers(0, 255, 3))
+        cv2.circle(ortho, (int((x - x0) / gsd), int((y1 - y) / gsd)), int(r / gsd), color, -1, cv2.LINE_AA)
+    ortho = cv2.GaussianBlur(ortho, (0, 0), 1.0)  # an image pixel spans ~2 ortho pixels: low-pass before sampling
+    centers = np.stack([np.arange(frames) * 2.0, np.zeros(frames), np.full(frames, altitude)], 1)
+    names = [f"frame_{i:05d}.jpg" for i in range(frames)]
+    r_wc = np.diag([1.0, -1.0, -1.0])
+    jj, ii = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
+    rays = pixel_rays(camera, np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], 1), r_wc)
+    (root / "images").mkdir(parents=True)
+    for name, c in zip(names, centers):
+        ground = c + rays * (-c[2] / rays[:, 2:3])
+        map_x = ((ground[:, 0] - x0) / gsd - 0.5).reshape(camera.height, camera.width).astype(np.float32)
+        map_y = ((y1 - ground[:, 1]) / gsd - 0.5).reshape(camera.height, camera.width).astype(np.float32)
+        img = cv2.remap(ortho, map_x, map_y, cv2.INTER_LINEAR)
+        cv2.imwrite(str(root / "images" / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    write_poses_csv(root / "poses.csv", Poses(names, np.repeat(r_wc[None], frames, 0), centers))
+    write_cameras_txt(root / "cameras.txt", {1: camera})
+    return objs
