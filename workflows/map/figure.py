@@ -99,17 +99,20 @@ def draw_map_figure(
         ax.imshow(drawn)
         ax.set_title(f"{poses.names[k]}: {len(idx)} landmarks", fontsize=9)
         ax.axis("off")
-    centres = poses.centers
+    # local coordinates: UTM-sized numbers would end up as an axis offset nobody reads
+    origin = np.round(np.median(poses.centers, axis=0))
+    centres = poses.centers - origin
+    positions = positions - origin
     ax = fig.add_subplot(grid[1, : max(3, len(picks)) // 2 + 1])
     ax.plot(centres[:, 0], centres[:, 1], "-", color="0.6", lw=0.8, label="cameras")
     if len(positions):
         lo, hi = np.percentile(positions[:, 2], [2, 98])  # a few wild landmarks must not wash out the colours
         sc = ax.scatter(positions[:, 0], positions[:, 1], c=positions[:, 2], s=8, cmap="viridis", vmin=lo, vmax=hi,
                         label="landmarks")
-        fig.colorbar(sc, ax=ax, label="height (m)", shrink=0.8)
+        fig.colorbar(sc, ax=ax, label=f"height - {origin[2]:.0f} (m)", shrink=0.8)
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set_xlabel(f"x - {origin[0]:.0f} (m)")
+    ax.set_ylabel(f"y - {origin[1]:.0f} (m)")
     ax.set_title("top view", fontsize=9)
     ax.legend(loc="upper right", fontsize=8)
     ax = fig.add_subplot(grid[1, max(3, len(picks)) // 2 + 1:])
@@ -121,7 +124,7 @@ def draw_map_figure(
     if len(positions):
         ax.plot(positions[:, :2] @ direction, positions[:, 2], ".", color="tab:green", ms=3, label="landmarks")
     ax.set_xlabel("distance along the ground's steepest direction (m)")
-    ax.set_ylabel("height (m)")
+    ax.set_ylabel(f"height - {origin[2]:.0f} (m)")
     ax.set_title("side view", fontsize=9)
     ax.legend(loc="best", fontsize=8)
     status = "REFUSED: " + "; ".join(verdict.refusals) if verdict.refusals else "ok"
