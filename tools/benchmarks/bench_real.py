@@ -514,11 +514,14 @@ def common_landmarks(pos_a: np.ndarray, pos_b: np.ndarray, radius_m: float) -> n
 def draw_landmarks(session: Path, images_dir: Path, names: list[str], out: Path, width: int = 600) -> None:
     """A figure: the named images of a mapped session, side by side, each landmark observation drawn as a circle of
     the landmark's metric size at its observed centroid (yellow) with a line to where the landmark reprojects (red
-    dot)."""
+    dot), as `sosmatch map` draws its keyframes (`workflows.map.figure.draw_keyframe`)."""
     import cv2
     import pycolmap
 
+    from sosmatch.database.cameras import camera_from_pycolmap
+    from sosmatch.database.images import read_image
     from sosmatch.database.session_io import read_landmark_table
+    from sosmatch.workflows.map.figure import draw_keyframe
 
     rec = pycolmap.Reconstruction(str(session / "sparse"))
     by_name = {im.name: im for im in rec.images.values()}
@@ -526,28 +529,21 @@ def draw_landmarks(session: Path, images_dir: Path, names: list[str], out: Path,
     sizes = dict(zip(table.point3d_ids.tolist(), table.sizes.tolist()))
     tiles = []
     for name in names:
-        img = cv2.imread(str(images_dir / name))
         image = by_name.get(name)
-        if img is None or image is None:
+        if image is None or not (images_dir / name).is_file():
             continue
-        fx = image.camera.params[0]
-        for p2d in image.points2D:
-            if not p2d.has_point3D() or p2d.point3D_id not in rec.points3D:
-                continue
-            xyz = rec.points3D[p2d.point3D_id].xyz
-            depth = (image.cam_from_world() * xyz)[2]
-            radius = max(3, int(round(sizes.get(p2d.point3D_id, 1.0) * fx / max(depth, 1e-6))))
-            obs = tuple(int(round(v - 0.5)) for v in p2d.xy)
-            proj = image.project_point(xyz)
-            cv2.circle(img, obs, radius, (0, 255, 255), 3)
-            if proj is not None:
-                pr = tuple(int(round(v - 0.5)) for v in proj)
-                cv2.line(img, obs, pr, (0, 0, 255), 2)
-                cv2.circle(img, pr, 4, (0, 0, 255), -1)
-        scale = width / img.shape[1]
-        tiles.append(cv2.resize(img, (width, int(round(img.shape[0] * scale))), interpolation=cv2.INTER_AREA))
+        seen = [p for p in image.points2D if p.has_point3D() and p.point3D_id in rec.points3D]
+        pose = image.cam_from_world()
+        r_wc = np.asarray(pose.rotation.matrix()).T
+        drawn = draw_keyframe(read_image(images_dir / name), camera_from_pycolmap(image.camera), r_wc,
+                              -r_wc @ np.asarray(pose.translation),
+                              np.array([p.xy for p in seen]).reshape(-1, 2),
+                              np.array([rec.points3D[p.point3D_id].xyz for p in seen]).reshape(-1, 3),
+                              np.array([sizes.get(p.point3D_id, 1.0) for p in seen]))
+        scale = width / drawn.shape[1]
+        tiles.append(cv2.resize(drawn, (width, int(round(drawn.shape[0] * scale))), interpolation=cv2.INTER_AREA))
     if tiles:
-        cv2.imwrite(str(out), np.hstack(tiles), [cv2.IMWRITE_JPEG_QUALITY, 85])
+        cv2.imwrite(str(out), cv2.cvtColor(np.hstack(tiles), cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 85])
 
 
 def main() -> None:
