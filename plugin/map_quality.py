@@ -13,8 +13,8 @@ camera, the terrain or the flying height:
   flight over level ground: ~0; hills: the relief over H).
 - **ground roughness** `height_spread`: p90 of |landmark height - median height of its 8 nearest landmarks| (the
   local ground, slope-free to first order) over H. Trees and roofs stand out of the ground by a fraction of
-  the flying height; layers of landmarks at different heights over the same ground (inconsistent poses of
-  neighbouring flight lines) stand out by the pose error.
+  the flying height (an aircraft flies above what it maps); beyond 1 H the map is refused: a tenth of it would
+  sit farther from its neighbours' ground than the cameras fly above it.
 - **landmarks above a camera**: landmarks higher than a camera whose ground position is within the landmark's
   own footprint (2 h_S) of it: the aircraft would have flown through the object. Any camera, any terrain.
 - **tilt**: the ground's tilt (normal of a robust plane through the landmarks against world up), the cameras'
@@ -294,6 +294,10 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1) -> Verdi
                           "poses' vertical is wrong")
     if np.isfinite(q.flying_height_m) and q.flying_height_m <= 0:
         v.refusals.append(f"the cameras fly below the ground they see (height {q.flying_height_m:.1f} m)")
+    if np.isfinite(q.height_spread) and q.height_spread > limits.max_height_spread:
+        v.refusals.append(f"landmark heights scatter by {q.height_spread:.1f} x the flying height "
+                          f"({q.flying_height_m:.0f} m) around their neighbours' ground (at most "
+                          f"{limits.max_height_spread:g}): wrong tracks or wrong poses")
     if np.isfinite(q.pass_disagreement) and q.pass_disagreement > limits.max_pass_disagreement:
         v.refusals.append(f"landmarks seen from different passes disagree in height {q.pass_disagreement:.1f} x "
                           f"more than neighbours of one pass (at most {limits.max_pass_disagreement:g}): the passes' "

@@ -305,6 +305,10 @@ class QualityParams(Checked):
     # (`map_quality.pass_disagreement`): consistent maps 0.8-2.2 (25 synthetic and real maps, hills), a 50 m
     # altitude drift 8.7
     max_pass_disagreement: float = within(3.0, 1.0, None)
+    # p90 of |landmark height - its 8 neighbours' median| over the flying height: beyond 1 a tenth of the map sits
+    # farther from its neighbours' ground than the cameras fly above it (a drone flies above what it maps; a pit
+    # that deep under a tenth of the landmarks is no survey site); consistent maps 0.03-0.07, Seneca 0.04
+    max_height_spread: float = positive(1.0)
     # warnings only
     min_keyframes_with_landmarks: float = fraction(0.5)
     min_track_yield: float = fraction(0.05)
