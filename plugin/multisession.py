@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .association.windowed_search import size_ratio
+from .association.gates import size_ratio
 from .geometry import rotation_angle_deg
 
 

@@ -29,7 +29,7 @@ from ..database.match_io import MATCH_FORMAT, parse_match
 from ..database.outputs import fingerprint, open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg, search
-from ..plugin.association.windowed_search import search_reference
+from ..plugin.association.reference import search_reference
 from ..plugin.params import Params, params_to_dict
 
 

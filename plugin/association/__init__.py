@@ -1,18 +1,12 @@
 """Geometric association of two landmark maps (SOS-Match section 2): CLIPPER and the windowed search."""
 
 from .clipper import ClipperResult, ConsistencyGraph, affinity_graph, associate, max_clique_exact, solve
+from .gates import putative_pairs, size_ratio, size_score
+from .hypotheses import Consensus, SearchResult, WindowHypothesis
+from .reference import search_reference
 from .rigid import Transform, fit_transform, roll_pitch_yaw_deg, rotation_from_rpy_deg, tilt_deg
-from .windowed_search import (
-    Consensus,
-    SearchResult,
-    WindowHypothesis,
-    make_windows,
-    putative_pairs,
-    search,
-    search_reference,
-    size_ratio,
-    size_score,
-)
+from .windowed_search import search
+from .windows import make_windows
 
 __all__ = [
     "ClipperResult", "Consensus", "ConsistencyGraph", "SearchResult", "Transform", "WindowHypothesis",

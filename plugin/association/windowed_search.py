@@ -26,227 +26,24 @@ from __future__ import annotations
 import multiprocessing
 import os
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
 from ..params import AssociationParams
 from ..processes import exit_with_parent
-from .clipper import ConsistencyGraph, affinity_graph, solve
-from .rigid import Transform, fit_transform, roll_pitch_yaw_deg, rotation_angle_deg, tilt_deg
-
-
-@dataclass(frozen=True)
-class WindowHypothesis:
-    """The outcome of one solved window pair."""
-
-    window_a: tuple[int, int]  # landmark ids [start, end) of the window in map A
-    window_b: tuple[int, int]
-    num_putative: int  # putative associations of the window pair (after the size gate)
-    num_core: int  # associations in the theta_S-core the solver ran on
-    associations: np.ndarray  # (|S|, 2) landmark ids (A, B), sorted
-    score: float  # CLIPPER score of S (|S| when all affinities and weights are 1)
-    transform: Transform | None  # A_from_B, None when S is degenerate (fewer than 3 or colinear)
-    roll_deg: float
-    pitch_deg: float
-    tilt_deg: float
-    accepted: bool
-
-    @property
-    def size(self) -> int:
-        return len(self.associations)
-
-
-@dataclass(frozen=True)
-class Consensus:
-    """Accepted hypotheses whose transforms agree, and the transform fitted to all their associations."""
-
-    members: list[int]  # indices into SearchResult.hypotheses
-    transform: Transform
-    associations: np.ndarray  # (k, 2) associations of the members that fit the consensus transform within eps
-    rms_m: float  # residual of those associations under the consensus transform
-
-
-@dataclass
-class SearchResult:
-    hypotheses: list[WindowHypothesis]  # every solved window pair, in (window A, window B) order
-    windows_a: np.ndarray  # (W_A, 2) [start, end) of every window of A
-    windows_b: np.ndarray
-    num_window_pairs: int
-    best: int | None  # index of the accepted hypothesis with the largest |S| (then score), None if none
-    consensus: Consensus | None
-    timings: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def accepted(self) -> list[int]:
-        return [k for k, h in enumerate(self.hypotheses) if h.accepted]
-
-
-# --- building blocks -----------------------------------------------------------------------------------------
-
-
-def make_windows(n: int, length: int, stride: int) -> np.ndarray:
-    """[start, end) of windows of `length` ids with `stride`; one window if n <= length; the tail is covered."""
-    if length < 1 or stride < 1:
-        raise InputError(f"window length and stride must be >= 1, got {length} and {stride}")
-    if n <= length:
-        return np.array([[0, n]], dtype=np.int64)
-    starts = list(range(0, n - length + 1, stride))
-    if starts[-1] != n - length:
-        starts.append(n - length)
-    s = np.array(starts, dtype=np.int64)
-    return np.column_stack([s, s + length])
-
-
-def size_ratio(h_a: np.ndarray, h_b: np.ndarray) -> np.ndarray:
-    """r = 2 |h_a - h_b| / (h_a + h_b); 0 where either size is unknown (the gate is then off)."""
-    h_a = np.asarray(h_a, dtype=np.float64)
-    h_b = np.asarray(h_b, dtype=np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r = 2.0 * np.abs(h_a - h_b) / (h_a + h_b)
-    r = np.where(np.isnan(h_a) | np.isnan(h_b), 0.0, r)
-    return np.where(np.isnan(r), 0.0, r)  # both sizes 0
-
-
-def size_score(r: np.ndarray, theta_h: float) -> np.ndarray:
-    """q_s = 1 + cos(pi r / theta_h) for r < theta_h, else 0 (in [0, 2])."""
-    r = np.asarray(r, dtype=np.float64)
-    return np.where(r < theta_h, 1.0 + np.cos(np.pi * r / theta_h), 0.0)
-
-
-def putative_pairs(sizes_a: np.ndarray, sizes_b: np.ndarray, ids_a: np.ndarray, ids_b: np.ndarray,
-                   theta_r: float) -> tuple[np.ndarray, np.ndarray]:
-    """Size-gated associations between landmark ids `ids_a` x `ids_b`, ordered by (i, j), and their weights q_s."""
-    ia, ib = np.meshgrid(np.asarray(ids_a), np.asarray(ids_b), indexing="ij")
-    ia, ib = ia.ravel(), ib.ravel()
-    r = size_ratio(sizes_a[ia], sizes_b[ib])
-    ok = r <= theta_r
-    return np.column_stack([ia[ok], ib[ok]]), size_score(r[ok], theta_r)
-
-
-def core_mask(graph: ConsistencyGraph, k: int) -> np.ndarray:
-    """Vertices of the k-core (iterated removal of vertices of degree < k), as a boolean mask."""
-    alive = np.ones(graph.n, dtype=bool)
-    if k <= 0:
-        return alive
-    rows, cols = graph.rows, graph.cols
-    while True:
-        deg = np.bincount(rows, minlength=graph.n) + np.bincount(cols, minlength=graph.n)
-        low = alive & (deg < k)
-        if not low.any():
-            return alive
-        alive &= ~low
-        e = alive[rows] & alive[cols]
-        rows, cols = rows[e], cols[e]
-
-
-def _hypothesis(points_a: np.ndarray, points_b: np.ndarray, params: AssociationParams, wa: np.ndarray,
-                wb: np.ndarray, num_putative: int, pairs: np.ndarray, graph: ConsistencyGraph) -> WindowHypothesis:
-    """Solve one window pair on the core of its graph (`pairs` in (i, j) order, `graph` over them)."""
-    res = solve(graph)
-    assoc = pairs[res.selected]
-    transform, roll, pitch, tilt = None, np.nan, np.nan, np.nan
-    if len(assoc) >= 3:
-        try:
-            transform = fit_transform(points_b[assoc[:, 1]], points_a[assoc[:, 0]],
-                                      similarity=params.transform == "similarity")
-        except InputError:  # colinear or coincident landmarks: the transform is not determined
-            transform = None
-    if transform is not None:
-        roll, pitch, _ = roll_pitch_yaw_deg(transform.rotation)
-        tilt = tilt_deg(transform.rotation)
-    accepted = bool(len(assoc) > params.min_associations and transform is not None
-                    and tilt <= params.max_gravity_angle_deg)
-    return WindowHypothesis((int(wa[0]), int(wa[1])), (int(wb[0]), int(wb[1])), num_putative, len(pairs),
-                            assoc, res.score, transform, roll, pitch, tilt, accepted)
-
-
-def _check_inputs(points: np.ndarray, sizes: np.ndarray | None, name: str) -> tuple[np.ndarray, np.ndarray]:
-    p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise InputError(f"map {name}: positions must be an (N, 3) array, got shape {p.shape}")
-    if len(p) < 3:
-        raise InputError(f"map {name} has {len(p)} landmarks; at least 3 are needed to estimate a transform")
-    if not np.all(np.isfinite(p)):
-        raise InputError(f"map {name} holds NaN or infinite landmark positions")
-    h = np.full(len(p), np.nan) if sizes is None else np.asarray(sizes, dtype=np.float64).reshape(-1)
-    if len(h) != len(p):
-        raise InputError(f"map {name}: {len(p)} positions but {len(h)} sizes")
-    if np.any(h[np.isfinite(h)] < 0) or np.any(np.isinf(h)):
-        raise InputError(f"map {name} holds negative or infinite sizes")
-    return p, h
-
-
-def _check_params(params: AssociationParams) -> None:
-    if params.distance_tolerance_m <= 0 or params.affinity_sigma_m <= 0:
-        raise InputError("association.distance_tolerance_m and affinity_sigma_m must be positive")
-    if params.max_size_difference < 0:
-        raise InputError("association.max_size_difference must be >= 0")
-    if params.transform not in ("rigid", "similarity"):
-        raise InputError(f"association.transform must be 'rigid' or 'similarity', got {params.transform!r}")
-
-
-def _finish(points_a: np.ndarray, points_b: np.ndarray, params: AssociationParams, hyps: list[WindowHypothesis],
-            wins_a: np.ndarray, wins_b: np.ndarray, timings: dict[str, float]) -> SearchResult:
-    t0 = time.perf_counter()
-    accepted = [k for k, h in enumerate(hyps) if h.accepted]
-    best = max(accepted, key=lambda k: (hyps[k].size, hyps[k].score, -k)) if accepted else None
-    consensus = consensus_transform(points_a, points_b, hyps, accepted, params) if accepted else None
-    timings["consensus_s"] = time.perf_counter() - t0
-    return SearchResult(hyps, wins_a, wins_b, len(wins_a) * len(wins_b), best, consensus, timings)
-
-
-# --- the straightforward reference -------------------------------------------------------------------------
-
-
-def search_reference(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
-                     sizes_b: np.ndarray | None, params: AssociationParams) -> SearchResult:
-    """Every window pair computed from scratch (slow; the definition `search` must reproduce)."""
-    _check_params(params)
-    pa, ha = _check_inputs(points_a, sizes_a, "A")
-    pb, hb = _check_inputs(points_b, sizes_b, "B")
-    t0 = time.perf_counter()
-    wins_a = make_windows(len(pa), params.window_length, params.window_stride)
-    wins_b = make_windows(len(pb), params.window_length, params.window_stride)
-    hyps = []
-    for wa in wins_a:
-        for wb in wins_b:
-            pairs, w = putative_pairs(ha, hb, np.arange(*wa), np.arange(*wb), params.max_size_difference)
-            graph = affinity_graph(pa, pb, pairs, w, params.distance_tolerance_m, params.affinity_sigma_m)
-            core = core_mask(graph, params.min_associations)
-            if core.sum() > params.min_associations:
-                sub, old = graph.subgraph(core)
-                hyps.append(_hypothesis(pa, pb, params, wa, wb, len(pairs), pairs[old], sub))
-    return _finish(pa, pb, params, hyps, wins_a, wins_b, {"total_s": time.perf_counter() - t0})
-
-
-# --- the fast search -----------------------------------------------------------------------------------------
-
-
-def _window_span(n: int, wins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For every landmark id, the first and last index of the windows that contain it."""
-    ids = np.arange(n)
-    first = np.searchsorted(wins[:, 1], ids, side="right")  # first window with end > id
-    last = np.searchsorted(wins[:, 0], ids, side="right") - 1  # last window with start <= id
-    return first, last
-
-
-def _map_edges(points: np.ndarray, wins: np.ndarray, first: np.ndarray, last: np.ndarray,
-               length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Landmark pairs i < k that share a window, and their distances."""
-    n = len(points)
-    ii, kk = [], []
-    for off in range(1, min(length, n)):
-        i = np.arange(n - off)
-        k = i + off
-        ok = first[k] <= last[i]
-        ii.append(i[ok])
-        kk.append(k[ok])
-    i = np.concatenate(ii) if ii else np.zeros(0, np.int64)
-    k = np.concatenate(kk) if kk else np.zeros(0, np.int64)
-    d = points[i] - points[k]
-    return i, k, np.sqrt(np.einsum("ij,ij->i", d, d))
+from .clipper import ConsistencyGraph, affinity_graph
+from .gates import putative_pairs, size_ratio, size_score
+from .hypotheses import (
+    SearchResult,
+    WindowHypothesis,
+    check_inputs,
+    check_params,
+    core_mask,
+    finish_search,
+    make_hypothesis,
+)
+from .reference import search_reference
+from .windows import make_windows, map_edges, window_pair_counts, window_span
 
 
 def _expand_ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -364,9 +161,9 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
     `workers`: processes for the solve stage (None: 2 when there are at least PARALLEL_MIN_TASKS window pairs
     to solve and 2 cores, else 1); the result does not depend on it.
     """
-    _check_params(params)
-    pa, ha = _check_inputs(points_a, sizes_a, "A")
-    pb, hb = _check_inputs(points_b, sizes_b, "B")
+    check_params(params)
+    pa, ha = check_inputs(points_a, sizes_a, "A")
+    pb, hb = check_inputs(points_b, sizes_b, "B")
     k = params.min_associations  # a set of more than k associations lives in the k-core
     if k < 1:  # every window pair is solved, isolated associations included: nothing to share or prune
         return search_reference(pa, ha, pb, hb, params)
@@ -374,10 +171,10 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
     t0 = time.perf_counter()
     wins_a = make_windows(len(pa), params.window_length, params.window_stride)
     wins_b = make_windows(len(pb), params.window_length, params.window_stride)
-    fa, la = _window_span(len(pa), wins_a)
-    fb, lb = _window_span(len(pb), wins_b)
-    ea = _map_edges(pa, wins_a, fa, la, params.window_length)
-    eb = _map_edges(pb, wins_b, fb, lb, params.window_length)
+    fa, la = window_span(len(pa), wins_a)
+    fb, lb = window_span(len(pb), wins_b)
+    ea = map_edges(pa, wins_a, fa, la, params.window_length)
+    eb = map_edges(pb, wins_b, fb, lb, params.window_length)
     timings["edges_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -410,7 +207,7 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
         alive[e1[sel]] = True
         alive[e2[sel]] = True
         va, vb = np.divmod(verts[alive], nb)
-        count = _window_pair_counts(fa[va], la[va], fb[vb], lb[vb], len(wins_a), nwb)
+        count = window_pair_counts(fa[va], la[va], fb[vb], lb[vb], len(wins_a), nwb)
         tasks = [(int(w), None) for w in np.flatnonzero(count.ravel() > k)]  # fewer cannot hold k + 1
         shared = (pa, ha, pb, hb, params, wins_a, wins_b)
         return _solve_all(tasks, shared, _solve_direct_chunk, workers, timings, pa, pb, params, wins_a, wins_b)
@@ -449,14 +246,6 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
     return _solve_all(tasks, shared, _solve_chunk, workers, timings, pa, pb, params, wins_a, wins_b)
 
 
-def _window_pair_counts(a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray, b_hi: np.ndarray, nwa: int,
-                        nwb: int) -> np.ndarray:
-    """(nwa, nwb) number of items whose window rectangle [a_lo, a_hi] x [b_lo, b_hi] covers each window pair."""
-    diff = np.zeros((nwa + 1) * (nwb + 1), dtype=np.int64)
-    for ra, rb, sign in ((a_lo, b_lo, 1), (a_hi + 1, b_lo, -1), (a_lo, b_hi + 1, -1), (a_hi + 1, b_hi + 1, 1)):
-        diff += sign * np.bincount(ra * (nwb + 1) + rb, minlength=len(diff))
-    return diff.reshape(nwa + 1, nwb + 1).cumsum(0).cumsum(1)[:nwa, :nwb]
-
 
 def _solve_all(tasks: list, shared: tuple, chunk_fn: object, workers: int | None, timings: dict[str, float],
                pa: np.ndarray, pb: np.ndarray, params: AssociationParams, wins_a: np.ndarray,
@@ -480,7 +269,7 @@ def _solve_all(tasks: list, shared: tuple, chunk_fn: object, workers: int | None
     timings["window_pairs_solved"] = float(len(hyps))
     timings["workers"] = float(workers)
     timings["total_s"] = sum(v for key, v in timings.items() if key.endswith("_s"))
-    return _finish(pa, pb, params, hyps, wins_a, wins_b, timings)
+    return finish_search(pa, pb, params, hyps, wins_a, wins_b, timings)
 
 
 PARALLEL_MIN_TASKS = 1000  # below this many window pairs to solve, starting a second process costs more than it saves
@@ -508,7 +297,7 @@ def _solve_direct_chunk(tasks: list[tuple[int, None]]) -> list[tuple[int, Window
         core = core_mask(graph, k)
         if core.sum() > k:
             sub, old = graph.subgraph(core)
-            out.append((w, _hypothesis(pa, pb, params, wa, wb, len(pairs), pairs[old], sub)))
+            out.append((w, make_hypothesis(pa, pb, params, wa, wb, len(pairs), pairs[old], sub)))
     return out
 
 
@@ -538,54 +327,5 @@ def _solve_chunk(tasks: list[tuple[int, np.ndarray]]) -> list[tuple[int, WindowH
             graph, old = graph.subgraph(core)
             pairs = pairs[old]
         num_putative = int(np.count_nonzero(size_ratio(ha[wa[0]:wa[1], None], hb[None, wb[0]:wb[1]]) <= theta_r))
-        out.append((w, _hypothesis(pa, pb, params, wa, wb, num_putative, pairs, graph)))
+        out.append((w, make_hypothesis(pa, pb, params, wa, wb, num_putative, pairs, graph)))
     return out
-
-
-# --- hypotheses that agree -----------------------------------------------------------------------------------
-
-
-def consensus_transform(points_a: np.ndarray, points_b: np.ndarray, hyps: list[WindowHypothesis],
-                        accepted: list[int], params: AssociationParams) -> Consensus | None:
-    """Group accepted hypotheses whose transforms agree and fit one transform to the largest group.
-
-    Two transforms agree when they map the landmarks of the larger hypothesis within theta_eps of each other
-    and their rotations differ by less than theta_alpha. The group with the most distinct associations wins;
-    the transform is refitted to all its associations, keeping those within theta_eps of the fit.
-    """
-    eps = params.distance_tolerance_m
-    ranked = sorted(accepted, key=lambda k: (-hyps[k].size, -hyps[k].score, k))
-    groups: list[list[int]] = []
-    for k in ranked:
-        hk = hyps[k]
-        for g in groups:
-            h0 = hyps[g[0]]
-            xb = points_b[h0.associations[:, 1]]
-            if (rotation_angle_deg(h0.transform.rotation, hk.transform.rotation) < params.max_gravity_angle_deg
-                    and np.max(np.linalg.norm(h0.transform.apply(xb) - hk.transform.apply(xb), axis=1)) <= eps):
-                g.append(k)
-                break
-        else:
-            groups.append([k])
-
-    def distinct(g: list[int]) -> np.ndarray:
-        return np.unique(np.concatenate([hyps[k].associations for k in g]), axis=0)
-
-    sizes = [len(distinct(g)) if len(g) > 1 else hyps[g[0]].size for g in groups]
-    best = groups[max(range(len(groups)), key=lambda i: (sizes[i], -groups[i][0]))]
-    assoc = distinct(best)
-    transform = hyps[best[0]].transform
-    for _ in range(3):  # refit on the associations that fit the current transform
-        res = np.linalg.norm(transform.apply(points_b[assoc[:, 1]]) - points_a[assoc[:, 0]], axis=1)
-        inl = assoc[res <= eps]
-        if len(inl) < 3:
-            break
-        try:
-            transform = fit_transform(points_b[inl[:, 1]], points_a[inl[:, 0]],
-                                      similarity=params.transform == "similarity")
-        except InputError:
-            break
-    res = np.linalg.norm(transform.apply(points_b[assoc[:, 1]]) - points_a[assoc[:, 0]], axis=1)
-    inl = assoc[res <= eps]
-    rms = float(np.sqrt(np.mean(res[res <= eps] ** 2))) if len(inl) else float("nan")
-    return Consensus(sorted(best), transform, inl, rms)

@@ -1,0 +1,57 @@
+"""Windows over a map's landmark order (method.md section 2, step 1) and the landmark pairs they share."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def make_windows(n: int, length: int, stride: int) -> np.ndarray:
+    """[start, end) of windows of `length` ids with `stride`; one window if n <= length; the tail is covered."""
+    if length < 1 or stride < 1:
+        raise InputError(f"window length and stride must be >= 1, got {length} and {stride}")
+    if n <= length:
+        return np.array([[0, n]], dtype=np.int64)
+    starts = list(range(0, n - length + 1, stride))
+    if starts[-1] != n - length:
+        starts.append(n - length)
+    s = np.array(starts, dtype=np.int64)
+    return np.column_stack([s, s + length])
+
+
+
+def window_span(n: int, wins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every landmark id, the first and last index of the windows that contain it."""
+    ids = np.arange(n)
+    first = np.searchsorted(wins[:, 1], ids, side="right")  # first window with end > id
+    last = np.searchsorted(wins[:, 0], ids, side="right") - 1  # last window with start <= id
+    return first, last
+
+
+def map_edges(points: np.ndarray, wins: np.ndarray, first: np.ndarray, last: np.ndarray,
+               length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Landmark pairs i < k that share a window, and their distances."""
+    n = len(points)
+    ii, kk = [], []
+    for off in range(1, min(length, n)):
+        i = np.arange(n - off)
+        k = i + off
+        ok = first[k] <= last[i]
+        ii.append(i[ok])
+        kk.append(k[ok])
+    i = np.concatenate(ii) if ii else np.zeros(0, np.int64)
+    k = np.concatenate(kk) if kk else np.zeros(0, np.int64)
+    d = points[i] - points[k]
+    return i, k, np.sqrt(np.einsum("ij,ij->i", d, d))
+
+
+
+def window_pair_counts(a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray, b_hi: np.ndarray, nwa: int,
+                        nwb: int) -> np.ndarray:
+    """(nwa, nwb) number of items whose window rectangle [a_lo, a_hi] x [b_lo, b_hi] covers each window pair."""
+    diff = np.zeros((nwa + 1) * (nwb + 1), dtype=np.int64)
+    for ra, rb, sign in ((a_lo, b_lo, 1), (a_hi + 1, b_lo, -1), (a_lo, b_hi + 1, -1), (a_hi + 1, b_hi + 1, 1)):
+        diff += sign * np.bincount(ra * (nwb + 1) + rb, minlength=len(diff))
+    return diff.reshape(nwa + 1, nwb + 1).cumsum(0).cumsum(1)[:nwa, :nwb]
+
