@@ -253,6 +253,36 @@ class AssociationParams(Checked):
     # and a larger theta_S also makes the search faster (only theta_S-cores are solved)
     min_associations: int = count(6, 2)
     transform: str = one_of("rigid", "rigid", "similarity")  # "rigid" (Arun/Umeyama) or "similarity"
+    # -- how the search forms its graphs (all ours; the paper's method is consistency "distance", windows "id",
+    # no position prior: the "paper" preset). One definition of each test: plugin/association/consistency.py.
+    # consistency: "distance" = the paper's | ||a|| - ||b|| | <= theta_eps on 3D landmark-pair vectors a (map A)
+    # and b (map B); "gravity" = both maps are gravity-aligned, so a pair carries two invariants: the horizontal
+    # lengths agree within theta_eps and the height differences agree within theta_eps + L tan(gravity_tilt_deg)
+    # (L the longer horizontal length); and with yaw_slice_deg > 0 a consistent set must also share one yaw.
+    consistency: str = one_of("gravity", "distance", "gravity")
+    # (ours) tilt between the two maps' vertical axes the gravity test tolerates (EKF frames: 0.4-2.1 deg measured)
+    gravity_tilt_deg: float = within(5.0, 0.0, 90.0, hi_open=True)
+    # (ours) gravity: the height differences of a landmark pair may disagree by this times theta_eps beyond the
+    # tilt's share. Landmark heights are noisier than their ground positions: on the evaluation suite's EKF maps
+    # the 95th percentile of the height mismatch of true pairs is ~1.5x the horizontal one (BENCHMARKS.md)
+    height_tolerance_factor: float = non_negative(2.0)
+    # (ours) gravity: the yaw that a pair of associations implies (direction of a in A minus direction of b in B,
+    # within asin(theta_eps / length)) must fall in one slice of this width for all pairs of a set; every window
+    # pair is solved per slice and keeps its largest set. Chance-consistent pairs scatter over the 360 degrees,
+    # a true set (and never a mirror image) shares one yaw. 0 = off.
+    yaw_slice_deg: float = within(7.5, 0.0, 180.0)
+    # windows: "id" = theta_WL landmarks in id (time) order, as in the paper; "spatial" = the same windows over
+    # each map's landmarks sorted along a Hilbert curve of their horizontal positions in the map's own frame, so a
+    # window is a compact patch of ground whatever the flight path (crossing flights share windows)
+    windows: str = one_of("id", "id", "spatial")
+    # (ours) position prior: > 0 = putative associations only between landmarks whose horizontal positions, in
+    # the maps' common world frame (both georeferenced in one EPSG, or one shared local frame), are within this
+    # distance (GNSS sigma x k); 0 = off (maps in unrelated frames)
+    position_prior_m: float = non_negative(0.0)
+    # solver of each window pair (plugin/association/clipper.solve): "clipper" = the relaxation and greedy rounding
+    # on the theta_S-core (the paper); "bounded" = a greedy clique of the highest cores bounds the answer and the
+    # relaxation runs only on the part of the core that could hold a larger set (ours; never a smaller set)
+    solver: str = one_of("bounded", "clipper", "bounded")
 
 
 @dataclass(frozen=True)
@@ -382,7 +412,9 @@ def params_from_dict(data: dict[str, Any], cls: type = Params, where: str = "") 
 # Named parameter presets (hloc-style `confs`): dotted overrides applied on top of the paper's defaults, before a
 # config file and `--set`. "paper" is the method as published (keyframes every 2 m, EKF poses, 640x480).
 PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {},
+    # the search as published: id windows, 3D distance consistency, gravity checked after the solve, no prior
+    "paper": {"association.consistency": "distance", "association.windows": "id",
+              "association.position_prior_m": 0.0, "association.solver": "clipper"},
     # Photogrammetric survey flights: one frame every 30-40 m (55-75 % forward overlap), ~1200 px images, poses
     # from GPS + autopilot refined by `poses-from-exif --refine`. Measured on Seneca (BENCHMARKS.md, "Seneca end
     # to end"). An object is in only 2-3 frames of a flight line, so a landmark needs 3 observations (theta_n = 2)

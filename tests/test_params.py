@@ -1,5 +1,6 @@
 """Parameters: paper defaults, TOML round trip, unknown keys rejected, overrides typed."""
 
+import dataclasses
 import math
 
 import pytest
@@ -65,7 +66,11 @@ def test_override_parsing_and_rejection():
 def test_presets_layer_under_config_file_and_set(tmp_path):
     from sosmatch.plugin.params import PRESETS, preset_params
 
-    assert preset_params("paper") == Params()
+    # the paper's method differs from the defaults only in how the search forms and solves its graphs
+    paper = preset_params("paper")
+    assert dataclasses.replace(paper, association=Params().association) == Params()
+    assert set(PRESETS["paper"]) == {"association.consistency", "association.windows", "association.position_prior_m",
+                                     "association.solver"}
     survey = preset_params("survey")
     for dotted, value in PRESETS["survey"].items():
         section, key = dotted.split(".")

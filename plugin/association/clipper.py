@@ -12,6 +12,8 @@ Written from the paper; the authors' C++ is not used. Three steps:
    d grows until the support of u holds no inconsistent pair.
 3. Rounding: walk the associations by decreasing u (then by degree) and keep each one that is consistent with all
    kept so far. The result is always a clique of the consistency graph, and maximal (nothing can be added).
+`solve`'s default method first bounds the answer by the graph's cores (see `solve`) and runs the relaxation only
+where a larger set may hide. The loops are compiled (`kernels_graph.py`, `kernels_solve.py`, numba).
 
 `max_clique_exact` (Bron-Kerbosch with pivoting) is the exhaustive reference for small problems and tests.
 
@@ -25,12 +27,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import InputError
-
-DENSE_MAX = 160  # up to this many associations dense products beat scipy.sparse whatever the density (measured)
-DENSE_FILL = 0.25  # above this edge density dense products win at any size
+from .kernels_graph import DISTANCE, association_graph
+from .kernels_solve import BOUNDED, CLIPPER, solve_graph, sym_csr
+from .kernels_solve import core_numbers as _core_numbers
 
 
 @dataclass(frozen=True)
@@ -92,200 +93,45 @@ def affinity_graph(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray
                    weights: np.ndarray | None = None, eps: float = 2.0, sigma: float = 1.0) -> ConsistencyGraph:
     """CLIPPER consistency graph of putative associations `pairs` (m, 2) between `points_a` and `points_b`.
 
-    Vectorised over all m^2 / 2 pairs in row blocks (bounded memory); distances are gathered from the per-map
-    distance matrices of the landmarks that occur, which the associations share.
+    All m (m - 1) / 2 pairs are tested in one compiled pass (`kernels_graph.association_graph`; the pair
+    distances come from per-map tables of the landmarks that occur, which the associations share).
     """
     pa, pb, pairs, w = _validate(points_a, points_b, pairs, weights)
     if eps <= 0 or sigma <= 0:
         raise InputError(f"eps and sigma must be positive, got eps={eps}, sigma={sigma}")
-    m = len(pairs)
-    ua, ia = np.unique(pairs[:, 0], return_inverse=True)
-    ub, ib = np.unique(pairs[:, 1], return_inverse=True)
-    da = _pdist(pa[ua])  # float64: the windowed search must reproduce these values bit for bit
-    db = _pdist(pb[ub])
-    # a shared landmark gives an infinite distance on that side, so c is inf or NaN and fails the test below:
-    # no separate masks for "shares a landmark"
-    np.fill_diagonal(da, np.inf)
-    np.fill_diagonal(db, np.inf)
-    rows_l, cols_l, c_l = [], [], []
-    # row blocks over the upper triangle: bounded memory, and about half of the m^2 work
-    block = int(min(max(1, 2_000_000 // max(m, 1)), max(128, m // 8)))
-    for s in range(0, m, block):
-        r = np.arange(s, min(s + block, m))
-        ja, jb = ia[s:], ib[s:]  # columns from s on: the upper triangle and a little of the block's diagonal
-        with np.errstate(invalid="ignore"):
-            c = np.abs(da[ia[r]][:, ja] - db[ib[r]][:, jb])
-            ok = c <= eps
-        ok[:, : len(r)] &= np.arange(len(r))[:, None] < np.arange(len(r))[None, :]
-        rr, cc = np.nonzero(ok)
-        rows_l.append(rr + s)
-        cols_l.append(cc + s)
-        c_l.append(c[rr, cc])
-    if not rows_l:
-        return ConsistencyGraph(0, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), w)
-    cv = np.concatenate(c_l)
-    values = np.exp(-(cv * cv) / (2.0 * sigma * sigma))
-    return ConsistencyGraph(m, np.concatenate(rows_l).astype(np.int64), np.concatenate(cols_l).astype(np.int64),
-                            values, w)
+    rows, cols, _, values, _, _ = association_graph(pa, pb, pairs[:, 0].copy(), pairs[:, 1].copy(), DISTANCE,
+                                                    float(eps), float(sigma), 0.0, 0.0, 0.0, 1)
+    return ConsistencyGraph(len(pairs), rows, cols, values, w)
 
 
-def _pdist(p: np.ndarray) -> np.ndarray:
-    d = p[:, None, :] - p[None, :, :]
-    return np.sqrt(np.einsum("ijk,ijk->ij", d, d))
-
-
-class _Operator:
-    """y = (M + d C) u, dense or CSR; M and C share one sparsity pattern so one product serves both."""
-
-    def __init__(self, g: ConsistencyGraph) -> None:
-        n = g.n
-        self.dense = n <= DENSE_MAX or 2 * len(g.rows) > DENSE_FILL * n * n
-        if self.dense:
-            self.m = np.zeros((n, n))
-            self.m[g.rows, g.cols] = g.values
-            self.m[g.cols, g.rows] = g.values
-            self.m[np.arange(n), np.arange(n)] = g.diag
-            self.c = np.zeros((n, n))
-            self.c[g.rows, g.cols] = 1.0
-            self.c[g.cols, g.rows] = 1.0
-            self.c[np.arange(n), np.arange(n)] = 1.0
-            self.a = self.m
-        else:
-            # symmetric CSR assembled directly (one sort of row * n + col); M and C share the pattern
-            idx = np.arange(n)
-            r = np.concatenate([g.rows, g.cols, idx])
-            c = np.concatenate([g.cols, g.rows, idx])
-            v = np.concatenate([g.values, g.values, g.diag])
-            order = np.argsort(r * n + c, kind="stable")
-            indices = c[order].astype(np.int32)
-            indptr = np.zeros(n + 1, dtype=np.int32)
-            np.cumsum(np.bincount(r, minlength=n), out=indptr[1:])
-            self.mdata = v[order]
-            self.msp = sp.csr_matrix((self.mdata, indices, indptr), shape=(n, n))
-            self.a = sp.csr_matrix((self.mdata.copy(), indices, indptr), shape=(n, n))
-            self.c = sp.csr_matrix((np.ones(len(v)), indices, indptr), shape=(n, n))
-
-    def set_penalty(self, d: float) -> None:
-        if self.dense:
-            self.a = self.m + d * self.c
-        else:
-            self.a.data = self.mdata + d
-
-    def matvec(self, u: np.ndarray) -> np.ndarray:
-        return self.a @ u
-
-    def m_matvec(self, u: np.ndarray) -> np.ndarray:
-        if self.dense:
-            return self.m @ u
-        return self.msp @ u
-
-    def c_matvec(self, u: np.ndarray) -> np.ndarray:
-        return self.c @ u
-
-    def c_row(self, i: int, n: int) -> np.ndarray:
-        if self.dense:
-            return self.c[i] > 0
-        row = np.zeros(n, dtype=bool)
-        row[self.c.indices[self.c.indptr[i]: self.c.indptr[i + 1]]] = True
-        return row
+SOLVERS = {"clipper": CLIPPER, "bounded": BOUNDED}
 
 
 def solve(graph: ConsistencyGraph, tol_u: float = 1e-6, max_outer: int = 60, max_inner: int = 100,
-          beta: float = 0.25) -> ClipperResult:
-    """Densest consistent subset of the associations of `graph` (CLIPPER relaxation + rounding).
+          beta: float = 0.25, method: str = "bounded", penalty_start: str = "violations") -> ClipperResult:
+    """Densest consistent subset of the associations of `graph`: always a clique of the consistency graph.
 
-    Deterministic: u starts at the weighted degree vector M 1 (normalised), which favours well-connected
-    associations exactly as the first power iteration of the unpenalised problem would. `max_inner` caps the
-    gradient steps per penalty value: the penalty keeps growing, so full convergence at an intermediate d is not
-    needed (100 instead of 300 steps saved a third of the time on dense window pairs; |S| changed by 1-2 on 25 of
-    3835 window pairs of the demo maps, all borderline spurious sets).
+    method "clipper": CLIPPER's relaxation (projected gradient ascent on u^T M_d u with backtracking, the
+    penalty d raised until the support of u holds no inconsistent pair) and greedy rounding (associations by
+    decreasing u, then degree, then index, each kept when consistent with all kept so far: a maximal clique).
+    u starts at the weighted degree vector M 1, normalised (deterministic). `max_inner` caps the gradient steps
+    per penalty value (the penalty keeps growing, so full convergence at an intermediate d is not needed).
+    penalty_start "violations" starts d where CLIPPER (Lusk et al.) does, at the mean ratio (M u)_i / (sum of u
+    over i's inconsistent partners) of the violating associations, so the penalty acts from the first step
+    (fewer gradient steps); "zero" starts at d = 0.
+    method "bounded" (default): a clique bound first. A clique of more than s associations lies in the
+    s-core of the graph; a greedy clique grown from the highest cores gives s, and when no association has core
+    number >= s the greedy clique is a maximum clique and is returned; otherwise CLIPPER runs on the s-core
+    only and the larger set wins. Same kind of answer, far less work when one consistent set stands out.
     """
-    n = graph.n
-    if n == 0:
-        return ClipperResult(np.zeros(0, np.int64), 0.0, np.zeros(0), 0.0, 0)
-    if 2 * len(graph.rows) == n * (n - 1):
-        # complete consistency graph (common for a window pair's core): the positive M has a positive Perron
-        # vector, so the support is everything, consistent at d = 0, and rounding keeps all of it
-        selected = np.arange(n, dtype=np.int64)
-        return ClipperResult(selected, _score(graph, selected), np.full(n, 1.0 / np.sqrt(n)), 0.0, 0)
-    op = _Operator(graph)
-    u = op.m_matvec(np.ones(n)) + 1e-12
-    u /= np.sqrt(u @ u)
-    d = 0.0
-    op.set_penalty(d)
-    steps = 0
-    support_tol = 1e-8
-    for _outer in range(max_outer):
-        y = op.matvec(u) - d * u.sum()  # M_d u
-        f = float(u @ y)
-        alpha = 1.0
-        for _inner in range(max_inner):
-            while True:  # backtracking: shrink the step until F does not decrease
-                v = np.maximum(u + alpha * y, 0.0)
-                nv = np.sqrt(v @ v)
-                if nv == 0.0:
-                    alpha *= beta
-                    continue
-                v /= nv
-                yv = op.matvec(v) - d * v.sum()
-                fv = float(v @ yv)
-                if fv >= f - 1e-12 * max(1.0, abs(f)) or alpha < 1e-12:
-                    break
-                alpha *= beta
-            steps += 1
-            du = float(np.sqrt((v - u) @ (v - u)))
-            df = fv - f
-            u, y, f = v, yv, fv
-            if du < tol_u or abs(df) < 1e-12 * max(1.0, abs(f)):
-                break
-            alpha = min(alpha * 2.0, 1e3)  # grow again after a successful step: fewer products overall
-        # raise d while the support still contains an inconsistent pair
-        sup = u > support_tol * u.max()
-        cbu = u[sup].sum() - op.c_matvec(np.where(sup, u, 0.0))  # sum of u over inconsistent partners
-        viol = sup & (cbu > support_tol * u.max())
-        if not viol.any():
-            break
-        mu = op.m_matvec(u)
-        d += float(np.mean(np.abs(mu[viol] / cbu[viol])))
-        op.set_penalty(d)
-    selected = _round(op, u, graph)
-    return ClipperResult(selected, _score(graph, selected), u, d, steps)
-
-
-def _round(op: _Operator, u: np.ndarray, graph: ConsistencyGraph) -> np.ndarray:
-    """Greedy maximal clique, visiting associations by decreasing u, then degree, then index."""
-    n = graph.n
-    order = np.lexsort((np.arange(n), -graph.degrees, -np.round(u, 12)))
-    rank = np.empty(n, dtype=np.int64)
-    rank[order] = np.arange(n)
-    compat = np.ones(n, dtype=bool)
-    chosen = []
-    # usual case: the converged support is already a clique; take it in one step (the greedy walk below would
-    # take exactly these first, as they lead the order and are pairwise consistent)
-    insup = u > 1e-6 * u.max()
-    ns = int(insup.sum())
-    if ns and 2 * int(np.count_nonzero(insup[graph.rows] & insup[graph.cols])) == ns * (ns - 1):
-        chosen = np.flatnonzero(insup).tolist()
-        compat = (op.c_matvec(insup.astype(np.float64)) > ns - 0.5) & ~insup  # consistent with all of them
-    while True:
-        cand = np.flatnonzero(compat)
-        if len(cand) == 0:
-            break
-        i = int(cand[np.argmin(rank[cand])])
-        chosen.append(i)
-        compat &= op.c_row(i, n)
-        compat[i] = False
-    return np.sort(np.array(chosen, dtype=np.int64))
-
-
-def _score(graph: ConsistencyGraph, selected: np.ndarray) -> float:
-    if len(selected) == 0:
-        return 0.0
-    inside = np.zeros(graph.n, dtype=bool)
-    inside[selected] = True
-    e = inside[graph.rows] & inside[graph.cols]
-    # sorted before summing: the same value whatever order the edges were listed in (fast vs reference search)
-    return float((2.0 * np.sort(graph.values[e]).sum() + graph.diag[selected].sum()) / len(selected))
+    if method not in SOLVERS:
+        raise InputError(f"unknown solver {method!r} (known: {', '.join(SOLVERS)})")
+    if penalty_start not in ("violations", "zero"):
+        raise InputError(f"penalty_start must be 'violations' or 'zero', got {penalty_start!r}")
+    sel, score, u, d, steps = solve_graph(graph.n, graph.rows, graph.cols, graph.values, graph.diag,
+                                          SOLVERS[method], tol_u, max_outer, max_inner, beta,
+                                          penalty_start == "violations")
+    return ClipperResult(sel, float(score), u, float(d), int(steps))
 
 
 def associate(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray, weights: np.ndarray | None = None,
@@ -295,33 +141,9 @@ def associate(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray, wei
 
 
 def core_numbers(graph: ConsistencyGraph) -> np.ndarray:
-    """Core number of every vertex (Batagelj-Zaversnik peeling); a clique of size k lies in the (k-1)-core."""
-    n = graph.n
-    adj = [[] for _ in range(n)]
-    for r, c in zip(graph.rows.tolist(), graph.cols.tolist()):
-        adj[r].append(c)
-        adj[c].append(r)
-    deg = [len(a) for a in adj]
-    core = np.zeros(n, dtype=np.int64)
-    removed = [False] * n
-    buckets: dict[int, set[int]] = {}
-    for v, k in enumerate(deg):
-        buckets.setdefault(k, set()).add(v)
-    k = 0
-    for _ in range(n):
-        while not buckets.get(k):
-            k += 1
-        v = min(buckets[k])
-        buckets[k].discard(v)
-        removed[v] = True
-        core[v] = k
-        for w in adj[v]:
-            if not removed[w] and deg[w] > k:
-                buckets[deg[w]].discard(w)
-                deg[w] -= 1
-                buckets.setdefault(deg[w], set()).add(w)
-        k = max(0, k - 1)
-    return core
+    """Core number of every vertex (Batagelj-Zaversnik); a clique of size k lies in the (k-1)-core."""
+    indptr, indices, _ = sym_csr(graph.n, graph.rows, graph.cols, graph.values)
+    return _core_numbers(graph.n, indptr, indices)
 
 
 def max_clique_exact(graph: ConsistencyGraph) -> np.ndarray:

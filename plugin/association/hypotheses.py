@@ -1,12 +1,14 @@
 """What one solved window pair yields (a hypothesis), the search result, and the consensus of hypotheses.
 
 Shared by the straightforward reference (`reference.py`) and the fast search (`windowed_search.py`): a window
-pair's consistency graph is reduced to its theta_S-core, CLIPPER selects S, the transform A_from_B is fitted to S
-and checked against gravity, and the accepted hypotheses that agree form the consensus.
+pair's consistency graph is reduced to its theta_S-core (per yaw slice with the gravity test), the solver selects S
+(`kernels_search.solve_window_pair`), the transform A_from_B is fitted to S and checked against gravity, and the
+accepted hypotheses that agree form the consensus.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -14,8 +16,11 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import AssociationParams
-from .clipper import ConsistencyGraph, solve
+from .kernels_fit import fit_many
+from .kernels_graph import DISTANCE, GRAVITY
+from .kernels_solve import BOUNDED, CLIPPER
 from .rigid import Transform, fit_transform, roll_pitch_yaw_deg, rotation_angle_deg, tilt_deg
+from .windows import hilbert_order
 
 
 @dataclass(frozen=True)
@@ -33,6 +38,7 @@ class WindowHypothesis:
     pitch_deg: float
     tilt_deg: float
     accepted: bool
+    yaw_slice: int | None = None  # the yaw slice S was found in (gravity consistency with yaw slices), else None
 
     @property
     def size(self) -> int:
@@ -58,47 +64,69 @@ class SearchResult:
     best: int | None  # index of the accepted hypothesis with the largest |S| (then score), None if none
     consensus: Consensus | None
     timings: dict[str, float] = field(default_factory=dict)
+    # "spatial" windows: the landmark order the windows run over (window ranges index into it), else None
+    order_a: np.ndarray | None = None
+    order_b: np.ndarray | None = None
 
     @property
     def accepted(self) -> list[int]:
         return [k for k, h in enumerate(self.hypotheses) if h.accepted]
 
 
-def core_mask(graph: ConsistencyGraph, k: int) -> np.ndarray:
-    """Vertices of the k-core (iterated removal of vertices of degree < k), as a boolean mask."""
-    alive = np.ones(graph.n, dtype=bool)
-    if k <= 0:
-        return alive
-    rows, cols = graph.rows, graph.cols
-    while True:
-        deg = np.bincount(rows, minlength=graph.n) + np.bincount(cols, minlength=graph.n)
-        low = alive & (deg < k)
-        if not low.any():
-            return alive
-        alive &= ~low
-        e = alive[rows] & alive[cols]
-        rows, cols = rows[e], cols[e]
+@dataclass(frozen=True)
+class SearchMode:
+    """The association parameters as the compiled kernels take them."""
+
+    consistency: int  # kernels_graph.DISTANCE or GRAVITY
+    eps: float
+    sigma: float
+    tan_tilt: float
+    eps_z: float  # height tolerance of the gravity test
+    sin_tilt: float
+    nslices: int  # yaw slices (1: none)
+    theta_r: float
+    prior_m: float
+    k: int  # theta_S
+    method: int  # kernels_solve.CLIPPER or BOUNDED
+
+    @classmethod
+    def of(cls, params: AssociationParams, prior_m: float | None = None) -> SearchMode:
+        gravity = params.consistency == "gravity"
+        tilt = np.radians(params.gravity_tilt_deg) if gravity else 0.0
+        nslices = max(1, int(round(360.0 / params.yaw_slice_deg))) if gravity and params.yaw_slice_deg > 0 else 1
+        return cls(GRAVITY if gravity else DISTANCE, float(params.distance_tolerance_m),
+                   float(params.affinity_sigma_m), float(np.tan(tilt)),
+                   float(params.height_tolerance_factor * params.distance_tolerance_m),
+                   float(np.sin(tilt)), nslices,
+                   float(params.max_size_difference),
+                   float(params.position_prior_m if prior_m is None else prior_m), int(params.min_associations),
+                   BOUNDED if params.solver == "bounded" else CLIPPER)
 
 
-def make_hypothesis(points_a: np.ndarray, points_b: np.ndarray, params: AssociationParams, wa: np.ndarray,
-                wb: np.ndarray, num_putative: int, pairs: np.ndarray, graph: ConsistencyGraph) -> WindowHypothesis:
-    """Solve one window pair on the core of its graph (`pairs` in (i, j) order, `graph` over them)."""
-    res = solve(graph)
-    assoc = pairs[res.selected]
-    transform, roll, pitch, tilt = None, np.nan, np.nan, np.nan
-    if len(assoc) >= 3:
-        try:
-            transform = fit_transform(points_b[assoc[:, 1]], points_a[assoc[:, 0]],
-                                      similarity=params.transform == "similarity")
-        except InputError:  # colinear or coincident landmarks: the transform is not determined
-            transform = None
-    if transform is not None:
-        roll, pitch, _ = roll_pitch_yaw_deg(transform.rotation)
-        tilt = tilt_deg(transform.rotation)
-    accepted = bool(len(assoc) > params.min_associations and transform is not None
-                    and tilt <= params.max_gravity_angle_deg)
-    return WindowHypothesis((int(wa[0]), int(wa[1])), (int(wb[0]), int(wb[1])), num_putative, len(pairs),
-                            assoc, res.score, transform, roll, pitch, tilt, accepted)
+def make_hypotheses(points_a: np.ndarray, points_b: np.ndarray, params: AssociationParams, wins_a: np.ndarray,
+                    wins_b: np.ndarray, pair_ids: np.ndarray, num_putative: np.ndarray, num_core: np.ndarray,
+                    score: np.ndarray, yaw_slice: np.ndarray, off: np.ndarray, sel_a: np.ndarray,
+                    sel_b: np.ndarray) -> list[WindowHypothesis]:
+    """Hypotheses of solved window pairs (index wa * W_B + wb, with their selected associations at
+    sel_a/sel_b[off[h]:off[h + 1]]): transform A_from_B fitted to S, gravity check, acceptance |S| > theta_S."""
+    rot, tr, sc, ok = fit_many(points_a, points_b, off, sel_a, sel_b, params.transform == "similarity")
+    nwb = len(wins_b)
+    sliced = params.consistency == "gravity" and params.yaw_slice_deg > 0
+    out = []
+    for h in range(len(pair_ids)):
+        wa, wb = wins_a[pair_ids[h] // nwb], wins_b[pair_ids[h] % nwb]
+        assoc = np.column_stack([sel_a[off[h]:off[h + 1]], sel_b[off[h]:off[h + 1]]])
+        transform, roll, pitch, tilt = None, np.nan, np.nan, np.nan
+        if ok[h]:
+            transform = Transform(rot[h].copy(), tr[h].copy(), float(sc[h]))
+            roll, pitch, _ = roll_pitch_yaw_deg(transform.rotation)
+            tilt = tilt_deg(transform.rotation)
+        accepted = bool(len(assoc) > params.min_associations and transform is not None
+                        and tilt <= params.max_gravity_angle_deg)
+        out.append(WindowHypothesis((int(wa[0]), int(wa[1])), (int(wb[0]), int(wb[1])), int(num_putative[h]),
+                                    int(num_core[h]), assoc, float(score[h]), transform, roll, pitch, tilt, accepted,
+                                    int(yaw_slice[h]) if sliced else None))
+    return out
 
 
 def check_inputs(points: np.ndarray, sizes: np.ndarray | None, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -122,8 +150,37 @@ def check_params(params: AssociationParams) -> None:
         raise InputError("association.distance_tolerance_m and affinity_sigma_m must be positive")
     if params.max_size_difference < 0:
         raise InputError("association.max_size_difference must be >= 0")
+    for key, known in (("consistency", ("distance", "gravity")), ("windows", ("id", "spatial")),
+                       ("solver", ("clipper", "bounded"))):
+        if getattr(params, key) not in known:
+            raise InputError(f"association.{key} must be one of {', '.join(known)}, got {getattr(params, key)!r}")
+    if (params.position_prior_m < 0 or params.yaw_slice_deg < 0 or not 0 <= params.gravity_tilt_deg < 90
+            or params.height_tolerance_factor < 0):
+        raise InputError("association.position_prior_m, yaw_slice_deg and height_tolerance_factor must be >= 0, "
+                         "gravity_tilt_deg in [0, 90)")
     if params.transform not in ("rigid", "similarity"):
         raise InputError(f"association.transform must be 'rigid' or 'similarity', got {params.transform!r}")
+
+
+def in_window_order(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, params: AssociationParams,
+                    core: object) -> SearchResult:
+    """Run `core(pa, ha, pb, hb, params) -> (hypotheses, windows A, windows B, timings)` on the landmarks in the
+    order their windows run over (id order, or a Hilbert curve for "spatial" windows) and return the result
+    in the maps' own landmark ids."""
+    if params.windows != "spatial":
+        hyps, wins_a, wins_b, timings = core(pa, ha, pb, hb, params)
+        return finish_search(pa, pb, params, hyps, wins_a, wins_b, timings)
+    t0 = time.perf_counter()
+    oa, ob = hilbert_order(pa), hilbert_order(pb)
+    hyps, wins_a, wins_b, timings = core(pa[oa], ha[oa], pb[ob], hb[ob], params)
+    out = []
+    for h in hyps:
+        assoc = np.column_stack([oa[h.associations[:, 0]], ob[h.associations[:, 1]]])
+        out.append(dataclasses.replace(h, associations=assoc[np.lexsort((assoc[:, 1], assoc[:, 0]))]))
+    timings["order_s"] = time.perf_counter() - t0 - timings.get("total_s", 0.0)
+    res = finish_search(pa, pb, params, out, wins_a, wins_b, timings)
+    res.order_a, res.order_b = oa, ob
+    return res
 
 
 def finish_search(points_a: np.ndarray, points_b: np.ndarray, params: AssociationParams, hyps: list[WindowHypothesis],

@@ -1,331 +1,250 @@
 """Windowed cross-session correspondence search (SOS-Match, method.md section 2), fast and exact.
 
-What one window pair computes (both code paths, identical by construction):
-  windows of theta_WL landmarks by id order, stride theta_SL (a last window is added so the tail is covered);
-  putative associations = landmark pairs of the two windows whose size ratio r = 2|h_i - h_j| / (h_i + h_j) is
-  <= theta_r (r is 0 where a size is unknown), ordered by (i, j), weighted by q_s = 1 + cos(pi r / theta_r);
-  the CLIPPER consistency graph of these associations (clipper.affinity_graph);
-  its theta_S-core: only vertices of core number >= theta_S can be part of a consistent set of more than
-  theta_S associations, so the solver runs on that core (an empty core means the pair cannot be accepted);
-  CLIPPER on the core -> S; least-squares transform A_from_B from S; tilt of R e_z against e_z;
-  accepted iff |S| > theta_S and the tilt <= theta_alpha (and the transform is determined).
+What one window pair computes (`reference.py` states it as code, `search` reproduces it exactly):
+  windows of theta_WL landmarks with stride theta_SL (a last window covers the tail) over each map's landmarks
+  in id order ("id" windows, the paper) or along a Hilbert curve of their positions ("spatial" windows);
+  putative associations = landmark pairs of the two windows that pass the size gate r <= theta_r (and, with a
+  position prior, lie within position_prior_m of each other), ordered by (i, j), weighted by q_s;
+  the consistency graph of these associations (`consistency.py`: the paper's 3D distance test, or the gravity
+  test with yaw slices); its theta_S-core (per yaw slice), since only a vertex of core number >= theta_S can
+  belong to a set of more than theta_S associations; the solver on that core -> S; the least-squares transform
+  A_from_B of S and its tilt; accepted iff |S| > theta_S and the tilt <= theta_alpha.
 
-`search_reference` does exactly that for every window pair from scratch. `search` gets the same answers much
-faster because it never recomputes what overlapping windows share:
-  1. every landmark pair that shares a window is a map "edge"; the consistency of two associations is a match
-     between an edge of A and an edge of B of nearly equal length whose endpoints pass the size gate. All such
-     matches are found once, by a grid join on (length / eps, log size, log size), never per window pair;
-  2. each consistent pair of associations belongs to a rectangle of window pairs (those containing all four
-     landmarks); a global peel (degree over the union of windows >= theta_S) and then a window-aware peel of
-     the (association, window pair) incidences remove everything that cannot be in a set of size theta_S + 1;
-  3. only window pairs with a non-empty theta_S-core are solved, on that core, as in the reference.
+`search` never computes a window pair from scratch unless that is cheaper:
+  1. every landmark pair sharing a window is a map "edge"; two associations are consistent when an edge of A and
+     an edge of B pass the pair test and their endpoints pass the size gate. All such pairs are found once by a
+     sort-merge join on (size cell, size cell, length) (`kernels_search.edge_join`), or, with a position prior,
+     directly from the few putative associations each landmark has (`prior_join`);
+  2. each pair belongs to a rectangle of window pairs (those holding all four landmarks). A global peel removes
+     pairs of associations that are in fewer than theta_S pairs in all windows together; the rest are grouped
+     by window pair, and each window pair is solved from its own pairs, as the reference solves it;
+  3. where the maps are so dense that almost nothing can be pruned (the pairs would fill every window pair), the
+     window pairs are computed directly instead, with the reference's own kernels.
+Work is done in blocks of A windows sized so that the join's output stays within a fixed budget: memory grows
+with the output of one block, not with the product of the map sizes.
 """
 
 from __future__ import annotations
 
-import multiprocessing
-import os
 import time
 
 import numpy as np
 
 from ..params import AssociationParams
-from ..processes import exit_with_parent
-from .clipper import ConsistencyGraph, affinity_graph
-from .gates import putative_pairs, size_ratio, size_score
 from .hypotheses import (
+    SearchMode,
     SearchResult,
     WindowHypothesis,
     check_inputs,
     check_params,
-    core_mask,
-    finish_search,
-    make_hypothesis,
+    in_window_order,
+    make_hypotheses,
+)
+from .kernels_graph import gate_pairs
+from .kernels_search import (
+    compact_ids,
+    count_incidences,
+    count_putatives,
+    direct_window_pairs,
+    edge_join,
+    map_edges,
+    pair_slices_of,
+    peel_pairs,
+    peel_pairs_sliced,
+    prior_join,
+    size_cells,
+    solve_groups,
+    sorted_b_edges,
+    window_pair_graphs,
 )
 from .reference import search_reference
-from .windows import make_windows, map_edges, window_pair_counts, window_span
+from .windows import make_windows, window_pair_counts, window_span
 
-
-def _expand_ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For ranges [lo, hi): (owner index, value) of every element, vectorised."""
-    cnt = np.maximum(hi - lo, 0)
-    owner = np.repeat(np.arange(len(lo)), cnt)
-    start = np.cumsum(cnt) - cnt
-    val = np.arange(int(cnt.sum())) - np.repeat(start, cnt) + np.repeat(lo, cnt)
-    return owner, val
-
-
-def _consistent_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, ea: tuple, eb: tuple,
-                      params: AssociationParams) -> tuple[np.ndarray, ...]:
-    """All consistent pairs of size-gated associations {(p, j), (q, l)}: A edge (p, q) ~ B edge (j, l).
-
-    Returns (v1, v2, c): association ids p * N_B + j and q * N_B + l, and the distance mismatch c.
-
-    Sort-merge join: B edges are sorted by (size cell of j, size cell of l, length) where a size cell is
-    delta wide in log size, delta = ln((2 + theta_r) / (2 - theta_r)) the log-width of the gate
-    (r <= theta_r  <=>  |ln h_a - ln h_b| <= delta). For each directed A edge and each of the 3 x 3 neighbouring
-    size cells, one binary search finds the B edges of length within eps, so candidates are few and every
-    candidate is then checked exactly (same arithmetic as `clipper.affinity_graph`).
-    """
-    eps = params.distance_tolerance_m
-    theta_r = params.max_size_difference
-    ia, ka, da = ea
-    ib, kb, db = eb
-    # directed A edges (both orientations), undirected B edges (j < l): each consistent pair occurs once
-    p = np.concatenate([ia, ka])
-    q = np.concatenate([ka, ia])
-    dA = np.concatenate([da, da])
-    sized = bool(np.all(np.isfinite(ha)) and np.all(np.isfinite(hb)) and np.all(ha > 0) and np.all(hb > 0)
-                 and theta_r < 2.0)
-    if sized:
-        delta = max(float(np.log((2.0 + theta_r) / (2.0 - theta_r))), 1e-6)
-        sa = np.floor(np.log(ha) / delta).astype(np.int64)
-        sb = np.floor(np.log(hb) / delta).astype(np.int64)
-        smin = min(sa.min(), sb.min()) - 1
-        sa, sb = sa - smin, sb - smin
-        ns = int(max(sa.max(), sb.max())) + 2
-        offsets = (-1, 0, 1)
-    else:  # unknown sizes somewhere: distance-only join, the exact gate check below handles the rest
-        sa = np.zeros(len(ha), np.int64)
-        sb = np.zeros(len(hb), np.int64)
-        ns, offsets = 3, (0,)
-    span = float(max(dA.max(initial=0.0), db.max(initial=0.0))) + 4.0 * eps + 1.0  # cell spacing on the key
-    key_b = (sb[ib] * ns + sb[kb]) * span + db
-    order = np.argsort(key_b, kind="stable")
-    key_sorted = key_b[order]
-    slack = 1e-9 * span * ns * ns  # rounding of the composite key; the exact check below decides
-    nb = len(hb)
-    out: dict[str, list] = {"v1": [], "v2": [], "c": []}
-    key_a = (sa[p] * ns + sa[q]) * span + dA
-    a_order = np.argsort(key_a, kind="stable")  # sorted queries make the binary searches cache-friendly
-    p, q, dA, key_a = p[a_order], q[a_order], dA[a_order], key_a[a_order]
-    for d1 in offsets:
-        for d2 in offsets:
-            base = key_a + (d1 * ns + d2) * span  # a constant shift keeps the queries sorted
-            lo = np.searchsorted(key_sorted, base - eps - slack, side="left")
-            hi = np.searchsorted(key_sorted, base + eps + slack, side="right")
-            ea_idx, pos = _expand_ranges(lo, hi)
-            if len(ea_idx) == 0:
-                continue
-            eb_idx = order[pos]
-            c = np.abs(dA[ea_idx] - db[eb_idx])
-            ok = c <= eps
-            ea_idx, eb_idx, c = ea_idx[ok], eb_idx[ok], c[ok]
-            pp, qq = p[ea_idx], q[ea_idx]
-            jj, ll = ib[eb_idx], kb[eb_idx]
-            if sized:  # same arithmetic as size_ratio, without its NaN handling (no NaN here)
-                x, y = ha[pp], hb[jj]
-                ok = 2.0 * np.abs(x - y) / (x + y) <= theta_r
-                x, y = ha[qq], hb[ll]
-                ok &= 2.0 * np.abs(x - y) / (x + y) <= theta_r
-            else:
-                ok = (size_ratio(ha[pp], hb[jj]) <= theta_r) & (size_ratio(ha[qq], hb[ll]) <= theta_r)
-            out["v1"].append(pp[ok] * nb + jj[ok])  # association (p, j) as one id
-            out["v2"].append(qq[ok] * nb + ll[ok])
-            out["c"].append(c[ok])
-    return tuple(np.concatenate(out[k]) if out[k] else np.zeros(0, np.float64 if k == "c" else np.int64)
-                 for k in ("v1", "v2", "c"))
-
-
-def _compact_ids(v1: np.ndarray, v2: np.ndarray, space: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sorted distinct ids of v1 and v2 and both arrays renumbered 0..; a presence table beats sorting."""
-    if space > 200_000_000:
-        verts, inv = np.unique(np.concatenate([v1, v2]), return_inverse=True)
-        return verts, inv[: len(v1)], inv[len(v1):]
-    present = np.zeros(space, dtype=bool)
-    present[v1] = True
-    present[v2] = True
-    new_id = np.cumsum(present) - 1
-    return np.flatnonzero(present), new_id[v1], new_id[v2]
-
-
-def _peel_global(v1: np.ndarray, v2: np.ndarray, nv: int, k: int) -> np.ndarray:
-    """Indices of the edges left after iterated removal of vertices with fewer than k neighbours."""
-    idx = np.arange(len(v1))
-    a, b = v1, v2
-    while len(idx):
-        deg = np.bincount(a, minlength=nv) + np.bincount(b, minlength=nv)
-        keep = (deg[a] >= k) & (deg[b] >= k)
-        if keep.all():
-            break
-        idx, a, b = idx[keep], a[keep], b[keep]
-    return idx
+JOIN_BUDGET = 3_000_000  # join candidates per block of A windows (each found pair holds ~56 bytes)
+DIRECT_MIN_INCIDENCES = 300  # mean pair incidences per window pair above which window pairs are computed directly
 
 
 def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
            params: AssociationParams, workers: int | None = None) -> SearchResult:
-    """Windowed search between maps A and B; same hypotheses as `search_reference`, without the redundant work.
+    """Windowed search between maps A and B; the same hypotheses as `search_reference`, without redundant work.
 
     points_*: (N, 3) landmark positions (world z up), sizes_*: (N,) metric sizes or None/NaN when unknown.
     Returns every solved window pair, the best accepted hypothesis, the consensus and stage timings.
-    `workers`: processes for the solve stage (None: 2 when there are at least PARALLEL_MIN_TASKS window pairs
-    to solve and 2 cores, else 1); the result does not depend on it.
+    `workers` is accepted for compatibility and unused: the compiled search runs in one process (a second
+    process never paid for itself, BENCHMARKS.md "Association").
     """
+    del workers
     check_params(params)
     pa, ha = check_inputs(points_a, sizes_a, "A")
     pb, hb = check_inputs(points_b, sizes_b, "B")
-    k = params.min_associations  # a set of more than k associations lives in the k-core
-    if k < 1:  # every window pair is solved, isolated associations included: nothing to share or prune
+    if params.min_associations < 1:  # every window pair is solved, isolated associations included
         return search_reference(pa, ha, pb, hb, params)
+    return in_window_order(pa, ha, pb, hb, params, _search)
+
+
+class _Records:
+    """Solved window pairs, in window-pair order, as the flat arrays `make_hypotheses` takes."""
+
+    def __init__(self) -> None:
+        self.parts: list[tuple] = []
+
+    def add(self, ids: np.ndarray, nput: np.ndarray, ncore: np.ndarray, score: np.ndarray, slc: np.ndarray,
+            off: np.ndarray, sel_a: np.ndarray, sel_b: np.ndarray) -> None:
+        self.parts.append((ids, nput, ncore, score, slc, off, sel_a, sel_b))
+
+    def arrays(self) -> tuple:
+        if not self.parts:
+            z = np.zeros(0, np.int64)
+            return z, z, z, np.zeros(0), z, np.zeros(1, np.int64), z, z
+        offs, base = [np.zeros(1, np.int64)], 0
+        for p in self.parts:
+            offs.append(p[5][1:] + base)
+            base += p[5][-1]
+        cat = [np.concatenate([p[i] for p in self.parts]) for i in (0, 1, 2, 3, 4, 6, 7)]
+        return (*cat[:5], np.concatenate(offs), cat[5], cat[6])
+
+
+def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
+            params: AssociationParams) -> tuple[list[WindowHypothesis], np.ndarray, np.ndarray, dict]:
+    m = SearchMode.of(params)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     wins_a = make_windows(len(pa), params.window_length, params.window_stride)
     wins_b = make_windows(len(pb), params.window_length, params.window_stride)
     fa, la = window_span(len(pa), wins_a)
     fb, lb = window_span(len(pb), wins_b)
-    ea = map_edges(pa, wins_a, fa, la, params.window_length)
-    eb = map_edges(pb, wins_b, fb, lb, params.window_length)
-    timings["edges_s"] = time.perf_counter() - t0
+    shared = (pa, ha, pb, hb, wins_a, wins_b, m)
+    records = _Records()
+    stats = {"consistent_pairs": 0, "incidences": 0, "blocks": 0, "direct_blocks": 0}
+    if m.prior_m > 0:
+        timings["edges_s"] = 0.0
+        t1 = time.perf_counter()
+        pairs = _prior_pairs(pa, ha, pb, hb, fa, la, fb, lb, m)
+        timings["join_s"] = time.perf_counter() - t1
+        _block(pairs, 0, len(wins_a), shared, records, stats, timings)
+    else:
+        ea = map_edges(pa, fa, la, params.window_length, m.consistency)
+        eb = map_edges(pb, fb, lb, params.window_length, m.consistency)
+        cells_a, cells_b, ncell = size_cells(ha, hb, m.theta_r)
+        sb = sorted_b_edges(eb, cells_b, ncell, hb)
+        a_lo, a_hi = fa[ea[1]], la[ea[0]]  # A windows holding both endpoints of each A edge
+        timings["edges_s"] = time.perf_counter() - t0
+        all_edges = np.arange(len(ea[0]), dtype=np.int64)
+        join_args = (ea, sb, cells_a, ncell, pa, ha, pb, m.consistency, m.eps, m.tan_tilt, m.eps_z, m.theta_r,
+                     m.prior_m)
+        blocks = [(0, len(wins_a))]
+        stride = 97  # the join's size, estimated from every 97th A edge: small problems skip the exact count
+        if edge_join(all_edges[::stride], *join_args, True)[-1].sum() * stride > JOIN_BUDGET / 2:
+            blocks = _blocks(edge_join(all_edges, *join_args, True)[-1], a_lo, a_hi, len(wins_a))
+        for w0, w1 in blocks:
+            t1 = time.perf_counter()
+            sel = all_edges[(a_lo <= w1 - 1) & (a_hi >= w0)]
+            v1, v2, e_a, e_b, ori, cs, _ = edge_join(sel, *join_args, False)
 
-    t0 = time.perf_counter()
-    v1, v2, c = _consistent_pairs(pa, ha, pb, hb, ea, eb, params)
-    timings["join_s"] = time.perf_counter() - t0
-    timings["consistent_pairs"] = float(len(c))
+            def slices(alive: np.ndarray, e_a: np.ndarray = e_a, e_b: np.ndarray = e_b, ori: np.ndarray = ori) -> tuple:
+                return pair_slices_of(alive, ea, eb, e_a, e_b, ori, m.eps, m.sin_tilt, m.nslices)
 
-    t0 = time.perf_counter()
-    nb = len(pb)
-    verts, e1, e2 = _compact_ids(v1, v2, len(pa) * nb)
-    sel = _peel_global(e1, e2, len(verts), k)
-    # window-pair rectangle of each surviving edge: windows holding both A landmarks x both B landmarks
-    v1a, v1b = np.divmod(v1[sel], nb)
-    v2a, v2b = np.divmod(v2[sel], nb)
-    a_lo = fa[np.maximum(v1a, v2a)]
-    a_hi = la[np.minimum(v1a, v2a)]
-    b_lo = fb[np.maximum(v1b, v2b)]
-    b_hi = lb[np.minimum(v1b, v2b)]
+            pairs = (v1, v2, np.maximum(a_lo[e_a], w0), np.minimum(a_hi[e_a], w1 - 1), fb[eb[1][e_b]],
+                     lb[eb[0][e_b]], cs, slices)
+            timings["join_s"] = timings.get("join_s", 0.0) + time.perf_counter() - t1
+            _block(pairs, w0, w1, shared, records, stats, timings)
+    timings.update({k: float(v) for k, v in stats.items()})
+    t1 = time.perf_counter()
+    ids, nput, ncore, score, slc, off, sel_a, sel_b = records.arrays()
+    hyps = make_hypotheses(pa, pb, params, wins_a, wins_b, ids, nput, ncore, score, slc, off, sel_a, sel_b)
+    timings["fit_s"] = time.perf_counter() - t1
+    timings["window_pairs_solved"] = float(len(hyps))
+    timings["total_s"] = time.perf_counter() - t0
+    return hyps, wins_a, wins_b, timings
+
+
+def _blocks(cand: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray, nwa: int) -> list[tuple[int, int]]:
+    """Consecutive A windows [w0, w1) whose edges' join candidates stay within JOIN_BUDGET (at least one window)."""
+    cost = np.zeros(nwa + 1, np.int64)  # an edge costs in every window it belongs to (an upper bound per block)
+    np.add.at(cost, a_lo, cand)
+    np.add.at(cost, a_hi + 1, -cand)
+    per_window = np.cumsum(cost)[:nwa]
+    blocks, w0, acc = [], 0, 0
+    for w in range(nwa):
+        if w > w0 and acc + per_window[w] > JOIN_BUDGET:
+            blocks.append((w0, w))
+            w0, acc = w, 0
+        acc += per_window[w]
+    blocks.append((w0, nwa))
+    return blocks
+
+
+def _prior_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, fa: np.ndarray, la: np.ndarray,
+                 fb: np.ndarray, lb: np.ndarray, m: SearchMode) -> tuple:
+    """Consistent pairs of putative associations under a position prior (`prior_join`)."""
+    from scipy.spatial import cKDTree
+
+    # candidates a little beyond the radius; `putatives` applies the exact test (same arithmetic as the reference)
+    cand = cKDTree(pa[:, :2]).sparse_distance_matrix(cKDTree(pb[:, :2]), m.prior_m * (1 + 1e-6) + 1e-9,
+                                                    output_type="ndarray")
+    i, j = cand["i"].astype(np.int64), cand["j"].astype(np.int64)
+    order = np.lexsort((j, i))
+    i, j = i[order], j[order]
+    keep = gate_pairs(i, j, pa, ha, pb, hb, m.theta_r, m.prior_m)  # the exact gate of `putatives`
+    i, j = i[keep], j[keep]
+    off = np.searchsorted(i, np.arange(len(pa) + 1)).astype(np.int64)
+    v1, v2, alo, ahi, blo, bhi, cs, s0, ns = prior_join(i, j, off, fa, la, fb, lb, pa, pb, m.consistency, m.eps,
+                                                        m.tan_tilt, m.eps_z, m.sin_tilt, m.nslices)
+
+    def slices(alive: np.ndarray) -> tuple:
+        return s0[alive], ns[alive]
+
+    return v1, v2, alo, ahi, blo, bhi, cs, slices
+
+
+def _block(pairs: tuple, w0: int, w1: int, shared: tuple, records: _Records, stats: dict, timings: dict) -> None:
+    """Solve the window pairs of A windows [w0, w1) from the consistent pairs that fall into them."""
+    pa, ha, pb, hb, wins_a, wins_b, m = shared
+    v1, v2, a_lo, a_hi, b_lo, b_hi, cs, slices = pairs
     nwb = len(wins_b)
-    na_e = a_hi - a_lo + 1
-    nb_e = b_hi - b_lo + 1
-    num_inc = int((na_e * nb_e).sum())
-    if num_inc > DIRECT_MIN_INCIDENCES * len(wins_a) * nwb:
-        # dense maps (landmarks much closer than the window span): almost nothing is pruned, and bookkeeping
-        # the incidences would cost more than computing each remaining window pair directly
-        timings["expand_s"] = time.perf_counter() - t0
-        timings["incidences"] = float(num_inc)
-        timings["mode_direct"] = 1.0
-        alive = np.zeros(len(verts), dtype=bool)
+    nbm = len(pb)
+    stats["blocks"] += 1
+    stats["consistent_pairs"] += len(v1)
+    t0 = time.perf_counter()
+    ids, e1, e2 = compact_ids(v1, v2, len(pa) * nbm)
+    sel = np.flatnonzero(peel_pairs(len(ids), e1, e2, m.k))
+    s0 = np.zeros(len(v1), np.int64)
+    ns = np.ones(len(v1), np.int64)
+    s0[sel], ns[sel] = slices(sel)
+    if m.nslices > 1:  # the same peel per yaw slice, on what the plain peel left
+        _, f1, f2 = compact_ids(e1[sel], e2[sel], len(ids))
+        sel = sel[peel_pairs_sliced(int(max(f1.max(initial=-1), f2.max(initial=-1))) + 1, f1, f2, s0[sel], ns[sel],
+                                    m.nslices, m.k)]
+    inc = count_incidences(sel, a_lo, a_hi, b_lo, b_hi)
+    stats["incidences"] += inc
+    timings["peel_s"] = timings.get("peel_s", 0.0) + time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if inc > DIRECT_MIN_INCIDENCES * (w1 - w0) * nwb:
+        # dense maps: nearly every window pair keeps a core; computing them directly is cheaper than gathering
+        stats["direct_blocks"] += 1
+        alive = np.zeros(len(ids), bool)
         alive[e1[sel]] = True
         alive[e2[sel]] = True
-        va, vb = np.divmod(verts[alive], nb)
-        count = window_pair_counts(fa[va], la[va], fb[vb], lb[vb], len(wins_a), nwb)
-        tasks = [(int(w), None) for w in np.flatnonzero(count.ravel() > k)]  # fewer cannot hold k + 1
-        shared = (pa, ha, pb, hb, params, wins_a, wins_b)
-        return _solve_all(tasks, shared, _solve_direct_chunk, workers, timings, pa, pb, params, wins_a, wins_b)
-    owner, kk = _expand_ranges(np.zeros(len(sel), np.int64), na_e * nb_e)
-    wpair = (a_lo[owner] + kk // nb_e[owner]) * nwb + b_lo[owner] + kk % nb_e[owner]
-    inc_e = sel[owner]  # global edge index of every (edge, window pair) incidence
-    timings["expand_s"] = time.perf_counter() - t0
-    timings["incidences"] = float(len(inc_e))
-
-    # window-aware peel: a node is (vertex, window pair); iterate on shrinking arrays
-    t0 = time.perf_counter()
-    nw = len(wins_a) * nwb
-    _, ninv = np.unique(np.concatenate([e1[inc_e] * nw + wpair, e2[inc_e] * nw + wpair]), return_inverse=True)
-    n1, n2 = ninv[: len(inc_e)], ninv[len(inc_e):]
-    num_nodes = int(ninv.max()) + 1 if len(ninv) else 0
-    # rounds stop once they remove little: each window pair finishes its own peel before solving (exact either way)
-    while len(n1):
-        deg = np.bincount(n1, minlength=num_nodes) + np.bincount(n2, minlength=num_nodes)
-        keep = (deg[n1] >= k) & (deg[n2] >= k)
-        if keep.sum() > 0.98 * len(keep):
-            n1, n2, inc_e, wpair = n1[keep], n2[keep], inc_e[keep], wpair[keep]
-            break
-        n1, n2, inc_e, wpair = n1[keep], n2[keep], inc_e[keep], wpair[keep]
-    timings["peel_s"] = time.perf_counter() - t0
-
-    # solve the surviving window pairs exactly as the reference does, from the shared edges
-    t0 = time.perf_counter()
-    order = np.argsort(wpair, kind="stable")
-    wp_sorted = wpair[order]
-    cut = np.flatnonzero(np.diff(wp_sorted)) + 1
-    starts = np.concatenate([[0], cut]).astype(np.int64)
-    ends = np.concatenate([cut, [len(wp_sorted)]]).astype(np.int64)
-    tasks = [(int(wp_sorted[a]), inc_e[order[a:b]]) for a, b in zip(starts, ends) if b > a]
-    shared = (pa, ha, pb, hb, params, wins_a, wins_b, verts, e1, e2, c)
-    timings["solve_s"] = time.perf_counter() - t0  # grouping; _solve_all adds the solving
-    return _solve_all(tasks, shared, _solve_chunk, workers, timings, pa, pb, params, wins_a, wins_b)
-
-
-
-def _solve_all(tasks: list, shared: tuple, chunk_fn: object, workers: int | None, timings: dict[str, float],
-               pa: np.ndarray, pb: np.ndarray, params: AssociationParams, wins_a: np.ndarray,
-               wins_b: np.ndarray) -> SearchResult:
-    """Run `chunk_fn` over the window-pair tasks, in 1 or 2 processes, and assemble the result."""
-    t0 = time.perf_counter()
-    if workers is None:
-        workers = 2 if len(tasks) >= PARALLEL_MIN_TASKS and (os.cpu_count() or 1) >= 2 else 1
-    if "fork" not in multiprocessing.get_all_start_methods():  # the workers inherit the shared arrays by fork
-        workers = 1
-    if workers > 1 and len(tasks) > 1:
-        chunks = [tasks[w::workers] for w in range(workers)]  # interleaved: similar work per process
-        ctx = multiprocessing.get_context("fork")
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(shared, os.getpid())) as pool:
-            parts = pool.map(chunk_fn, chunks)
-        hyps = [h for _, h in sorted((x for part in parts for x in part), key=lambda t: t[0])]
+        va, vb = np.divmod(ids[alive], nbm)
+        fa, la = window_span(len(pa), wins_a)
+        fb, lb = window_span(len(pb), wins_b)
+        count = window_pair_counts(np.maximum(fa[va], w0), np.minimum(la[va], w1 - 1), fb[vb], lb[vb], len(wins_a),
+                                   nwb)
+        tasks = np.flatnonzero(count.ravel() > m.k).astype(np.int64)  # fewer associations cannot hold k + 1
+        tasks = tasks[(tasks // nwb >= w0) & (tasks // nwb < w1)]
+        found, nput, score, slc, ncore, off, sel_a, sel_b = direct_window_pairs(
+            pa, ha, pb, hb, wins_a, wins_b, tasks, m.consistency, m.eps, m.sigma, m.tan_tilt, m.eps_z, m.sin_tilt,
+            m.nslices, m.theta_r, m.prior_m, m.k, m.method)
+        ids_w = tasks[found]
+        nput = nput[found]
     else:
-        _init_worker(shared)
-        hyps = [h for _, h in chunk_fn(tasks)]
+        groups, goff, items = window_pair_graphs(sel, a_lo, a_hi, b_lo, b_hi, nwb, w0, w1 - w0)
+        found, score, slc, ncore, off, sel_a, sel_b = solve_groups(groups, goff, items, ids, e1, e2, cs, s0, ns, ha,
+                                                                   hb, nbm, m.sigma, m.theta_r, m.nslices, m.k,
+                                                                   m.method)
+        ids_w = groups[found]
+        nput = count_putatives(ids_w, wins_a, wins_b, pa, ha, pb, hb, m.theta_r, m.prior_m)
+    # window pairs without a result have empty ranges in the flat selections: keep the found ones' ends
+    new_off = np.concatenate([[0], off[np.flatnonzero(found) + 1]]).astype(np.int64)
+    records.add(ids_w, nput, ncore[found], score[found], slc[found], new_off, sel_a, sel_b)
     timings["solve_s"] = timings.get("solve_s", 0.0) + time.perf_counter() - t0
-    timings["window_pairs_solved"] = float(len(hyps))
-    timings["workers"] = float(workers)
-    timings["total_s"] = sum(v for key, v in timings.items() if key.endswith("_s"))
-    return finish_search(pa, pb, params, hyps, wins_a, wins_b, timings)
-
-
-PARALLEL_MIN_TASKS = 1000  # below this many window pairs to solve, starting a second process costs more than it saves
-DIRECT_MIN_INCIDENCES = 300  # mean consistent pairs per window pair above which window pairs are computed directly
-_WORKER: tuple = ()
-
-
-def _init_worker(shared: tuple, parent_pid: int | None = None) -> None:
-    global _WORKER
-    if parent_pid is not None:  # a worker process: it must not outlive the search's process
-        exit_with_parent(parent_pid)
-    _WORKER = shared
-
-
-def _solve_direct_chunk(tasks: list[tuple[int, None]]) -> list[tuple[int, WindowHypothesis]]:
-    """Window pairs computed from scratch, exactly as `search_reference` does (dense maps)."""
-    pa, ha, pb, hb, params, wins_a, wins_b = _WORKER[:7]
-    k = params.min_associations
-    nwb = len(wins_b)
-    out = []
-    for w, _ in tasks:
-        wa, wb = wins_a[w // nwb], wins_b[w % nwb]
-        pairs, wts = putative_pairs(ha, hb, np.arange(*wa), np.arange(*wb), params.max_size_difference)
-        graph = affinity_graph(pa, pb, pairs, wts, params.distance_tolerance_m, params.affinity_sigma_m)
-        core = core_mask(graph, k)
-        if core.sum() > k:
-            sub, old = graph.subgraph(core)
-            out.append((w, make_hypothesis(pa, pb, params, wa, wb, len(pairs), pairs[old], sub)))
-    return out
-
-
-def _solve_chunk(tasks: list[tuple[int, np.ndarray]]) -> list[tuple[int, WindowHypothesis]]:
-    """Solve window pairs from their surviving consistent pairs (global edge indices); returns (pair id, hyp)."""
-    pa, ha, pb, hb, params, wins_a, wins_b, verts, e1, e2, c = _WORKER
-    k = params.min_associations
-    nb, nwb = len(pb), len(wins_b)
-    sigma, theta_r = params.affinity_sigma_m, params.max_size_difference
-    out = []
-    for w, ge in tasks:
-        wa, wb = wins_a[w // nwb], wins_b[w % nwb]
-        core_v, cinv = np.unique(np.concatenate([e1[ge], e2[ge]]), return_inverse=True)
-        if len(core_v) <= k:
-            continue
-        vid = verts[core_v]  # sorted, i.e. in the reference's (i, j) order
-        pairs = np.column_stack([vid // nb, vid % nb])
-        r = size_ratio(ha[pairs[:, 0]], hb[pairs[:, 1]])
-        r1, r2 = cinv[: len(ge)], cinv[len(ge):]
-        cc = c[ge]
-        graph = ConsistencyGraph(len(core_v), np.minimum(r1, r2), np.maximum(r1, r2),
-                                 np.exp(-(cc * cc) / (2.0 * sigma * sigma)), size_score(r, theta_r))
-        core = core_mask(graph, k)  # finish the peel inside this window pair
-        if core.sum() <= k:
-            continue
-        if not core.all():
-            graph, old = graph.subgraph(core)
-            pairs = pairs[old]
-        num_putative = int(np.count_nonzero(size_ratio(ha[wa[0]:wa[1], None], hb[None, wb[0]:wb[1]]) <= theta_r))
-        out.append((w, make_hypothesis(pa, pb, params, wa, wb, num_putative, pairs, graph)))
-    return out

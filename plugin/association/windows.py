@@ -55,3 +55,39 @@ def window_pair_counts(a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray, b_h
         diff += sign * np.bincount(ra * (nwb + 1) + rb, minlength=len(diff))
     return diff.reshape(nwa + 1, nwb + 1).cumsum(0).cumsum(1)[:nwa, :nwb]
 
+
+
+HILBERT_BITS = 16  # a 65536 x 65536 grid over the map's extent: cells far below any landmark spacing
+
+
+def hilbert_order(points: np.ndarray) -> np.ndarray:
+    """Permutation sorting landmarks along a Hilbert curve of their horizontal positions (in their own frame).
+
+    Consecutive landmarks of this order are close on the ground, so windows of this order are compact patches
+    whatever path the flight took: the "spatial" windows. Ties (one grid cell) keep the id order; the order
+    depends only on the map itself.
+    """
+    xy = np.asarray(points, dtype=np.float64)[:, :2]
+    if len(xy) == 0:
+        return np.zeros(0, np.int64)
+    lo = xy.min(axis=0)
+    extent = float(np.max(xy.max(axis=0) - lo))
+    side = 1 << HILBERT_BITS
+    if extent <= 0:
+        return np.arange(len(xy))
+    g = np.minimum(((xy - lo) / extent * side).astype(np.int64), side - 1)
+    x, y = g[:, 0].copy(), g[:, 1].copy()
+    d = np.zeros(len(xy), np.int64)
+    s = side >> 1
+    while s > 0:  # the classic xy -> d conversion, one bit level at a time for all points
+        rx = (x & s) > 0
+        ry = (y & s) > 0
+        d += s * s * ((3 * rx) ^ ry)
+        # rotate the quadrant so the sub-curve is in standard orientation
+        flip = ~ry
+        swap_x = np.where(flip & rx, side - 1 - x, x)
+        swap_y = np.where(flip & rx, side - 1 - y, y)
+        x = np.where(flip, swap_y, swap_x)
+        y = np.where(flip, swap_x, swap_y)
+        s >>= 1
+    return np.argsort(d, kind="stable")

@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory (match.json, associations.csv, "
                                                                 "match.png)")
     parser.add_argument("--workers", type=int, default=None,
-                        help="processes for the solve stage (default: 2 when it pays and 2 cores exist)")
+                        help="(kept for scripts; unused: the compiled search runs in one process)")
     parser.add_argument("--exhaustive", action="store_true",
                         help="straightforward reference search of every window pair (slow; same result)")
     parser.add_argument("--no-plot", action="store_true", help="skip match.png")

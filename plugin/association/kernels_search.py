@@ -1,0 +1,813 @@
+"""Compiled kernels of the windowed search (numba): map edges, the shared join, the peel, window-pair solving.
+
+A window pair's hypothesis (`solve_window_pair`) is computed from its consistency graph; the reference builds
+that graph from scratch per window pair (`kernels_graph.association_graph`), the fast search gathers it from one
+join shared by all window pairs (`edge_join`, `window_pair_graphs`). Both then call the same function on the
+same sorted edge list, so their hypotheses are identical.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .kernels_graph import (
+    GRAVITY,
+    _grow_f,
+    _grow_i,
+    affinity_values,
+    association_graph,
+    gate1,
+    pair_mismatch,
+    pair_slices,
+    putatives,
+    size_ratio1,
+    size_weights,
+    vector_invariants,
+)
+from .kernels_solve import kcore_mask, solve_graph, sym_csr
+
+# --- one window pair ---------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, s0: np.ndarray, ns: np.ndarray,
+                      diag: np.ndarray, nslices: int, k: int, method: int) -> tuple:
+    """The hypothesis of one window pair from its consistency graph (edges sorted by (row, col)).
+
+    Only the k-core (k = theta_S) can hold a set of more than k associations. Without yaw slices the solver runs
+    on that core; with them, on the k-core of every slice's subgraph (pairs whose yaw tolerance covers the
+    slice), and the largest set wins (then the higher score, then the lower slice).
+    Returns (found, selected vertices, score, slice, core size); found is False when no core holds more than k.
+    """
+    empty = np.zeros(0, np.int64)
+    if n <= k:
+        return False, empty, 0.0, -1, 0
+    indptr, indices, _ = sym_csr(n, rows, cols, vals)
+    alive = kcore_mask(n, indptr, indices, np.ones(n, np.bool_), k)
+    ncore = 0
+    for i in range(n):
+        ncore += alive[i]
+    if ncore <= k:
+        return False, empty, 0.0, -1, 0
+    # edges of the core, bucketed by yaw slice (an edge in every slice its tolerance covers)
+    cnt = np.zeros(nslices + 1, np.int64)
+    for e in range(len(rows)):
+        if alive[rows[e]] and alive[cols[e]]:
+            for t in range(ns[e]):
+                cnt[(s0[e] + t) % nslices + 1] += 1
+    for t in range(nslices):
+        cnt[t + 1] += cnt[t]
+    fill = cnt[:-1].copy()
+    bucket = np.empty(cnt[nslices], np.int64)
+    for e in range(len(rows)):
+        if alive[rows[e]] and alive[cols[e]]:
+            for t in range(ns[e]):
+                sl = (s0[e] + t) % nslices
+                bucket[fill[sl]] = e
+                fill[sl] += 1
+    found = False
+    best_sel = empty
+    best_score = 0.0
+    best_slice = -1
+    best_core = 0
+    min_edges = k * (k + 1) // 2  # a set of k + 1 associations is a clique with this many pairs
+    local = np.full(n, -1, np.int64)  # work array: vertex -> index in the slice's vertex list
+    for sl in range(nslices):
+        be = bucket[cnt[sl]: cnt[sl + 1]]  # this slice's edges, in (row, col) order
+        if len(be) < min_edges:
+            continue
+        # the slice's vertices in ascending order, and its graph on them
+        verts = np.empty(2 * len(be), np.int64)
+        for x in range(len(be)):
+            verts[2 * x] = rows[be[x]]
+            verts[2 * x + 1] = cols[be[x]]
+        verts = np.unique(verts)
+        nv = len(verts)
+        if nv <= k:
+            continue
+        for x in range(nv):
+            local[verts[x]] = x
+        lr = np.empty(len(be), np.int64)
+        lc = np.empty(len(be), np.int64)
+        lv = np.empty(len(be))
+        for x in range(len(be)):
+            lr[x] = local[rows[be[x]]]
+            lc[x] = local[cols[be[x]]]
+            lv[x] = vals[be[x]]
+        for x in range(nv):
+            local[verts[x]] = -1
+        ip, ix, _ = sym_csr(nv, lr, lc, lv)
+        core = kcore_mask(nv, ip, ix, np.ones(nv, np.bool_), k)
+        nc = 0
+        for x in range(nv):
+            nc += core[x]
+        if nc <= k:
+            continue
+        # the core's own graph, vertices renumbered in order (edges stay sorted)
+        new = np.full(nv, -1, np.int64)
+        ids = np.empty(nc, np.int64)
+        t = 0
+        for x in range(nv):
+            if core[x]:
+                new[x] = t
+                ids[t] = verts[x]
+                t += 1
+        ce = 0
+        for x in range(len(be)):
+            if core[lr[x]] and core[lc[x]]:
+                ce += 1
+        gr = np.empty(ce, np.int64)
+        gc = np.empty(ce, np.int64)
+        gv = np.empty(ce)
+        t = 0
+        for x in range(len(be)):
+            if core[lr[x]] and core[lc[x]]:
+                gr[t] = new[lr[x]]
+                gc[t] = new[lc[x]]
+                gv[t] = lv[x]
+                t += 1
+        sel, score, _, _, _ = solve_graph(nc, gr, gc, gv, diag[ids], method, 1e-6, 60, 100, 0.25, True)
+        if not found or len(sel) > len(best_sel) or (len(sel) == len(best_sel) and score > best_score):
+            found = True
+            best_sel = ids[sel]
+            best_score = score
+            best_slice = sl
+            best_core = nc
+    return found, best_sel, best_score, best_slice, best_core
+
+
+@njit(cache=True)
+def direct_window_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, wins_a: np.ndarray,
+                        wins_b: np.ndarray, tasks: np.ndarray, mode: int, eps: float, sigma: float,
+                        tan_tilt: float, eps_z: float, sin_tilt: float, nslices: int, theta_r: float, prior_m: float,
+                        k: int, method: int) -> tuple:
+    """Window pairs `tasks` (index wa * W_B + wb) computed from scratch, exactly as the reference does.
+
+    Returns per task: found, num_putative, score, slice, core size, and the selected associations as offsets into
+    flat (index in A, index in B) arrays.
+    """
+    nt = len(tasks)
+    nwb = len(wins_b)
+    found = np.zeros(nt, np.bool_)
+    nput = np.zeros(nt, np.int64)
+    score = np.zeros(nt)
+    slc = np.full(nt, -1, np.int64)
+    ncore = np.zeros(nt, np.int64)
+    off = np.zeros(nt + 1, np.int64)
+    sel_a = np.empty(1024, np.int64)
+    sel_b = np.empty(1024, np.int64)
+    for t in range(nt):
+        wa = tasks[t] // nwb
+        wb = tasks[t] % nwb
+        ia, ib, w = putatives(wins_a[wa, 0], wins_a[wa, 1], wins_b[wb, 0], wins_b[wb, 1], pa, ha, pb, hb, theta_r,
+                              prior_m)
+        nput[t] = len(ia)
+        off[t + 1] = off[t]
+        if len(ia) <= k:
+            continue
+        rows, cols, _, vals, s0, ns = association_graph(pa, pb, ia, ib, mode, eps, sigma, tan_tilt, eps_z, sin_tilt,
+                                                        nslices)
+        ok, sel, sc, s, nc = solve_window_pair(len(ia), rows, cols, vals, s0, ns, w, nslices, k, method)
+        if not ok:
+            continue
+        found[t] = True
+        score[t] = sc
+        slc[t] = s
+        ncore[t] = nc
+        need = off[t] + len(sel)
+        if need > len(sel_a):
+            sel_a = _grow_i(sel_a, 2 * need)
+            sel_b = _grow_i(sel_b, 2 * need)
+        for u in range(len(sel)):
+            sel_a[off[t] + u] = ia[sel[u]]
+            sel_b[off[t] + u] = ib[sel[u]]
+        off[t + 1] = need
+    return found, nput, score, slc, ncore, off, sel_a[: off[nt]].copy(), sel_b[: off[nt]].copy()
+
+
+# --- edges of a map and the shared join ----------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def map_edges(points: np.ndarray, first: np.ndarray, last: np.ndarray, length: int, mode: int) -> tuple:
+    """Landmark pairs i < k sharing a window, with the invariants of i -> k and of k -> i.
+
+    Returns i, k, L, z (of i -> k; k -> i has -z), ang of i -> k, ang of k -> i.
+    """
+    n = len(points)
+    cnt = 0
+    for off in range(1, min(length, n)):
+        for i in range(n - off):
+            if first[i + off] <= last[i]:
+                cnt += 1
+    ei = np.empty(cnt, np.int64)
+    ek = np.empty(cnt, np.int64)
+    el = np.empty(cnt)
+    ez = np.empty(cnt)
+    af = np.empty(cnt)
+    ar = np.empty(cnt)
+    t = 0
+    for off in range(1, min(length, n)):
+        for i in range(n - off):
+            k = i + off
+            if first[k] <= last[i]:
+                x = points[k, 0] - points[i, 0]
+                y = points[k, 1] - points[i, 1]
+                z = points[k, 2] - points[i, 2]
+                ln, zz, ang = vector_invariants(x, y, z, mode)
+                ei[t] = i
+                ek[t] = k
+                el[t] = ln
+                ez[t] = zz
+                af[t] = ang
+                _, _, ang = vector_invariants(-x, -y, -z, mode)
+                ar[t] = ang
+                t += 1
+    return ei, ek, el, ez, af, ar
+
+
+@njit(cache=True)
+def size_cells(ha: np.ndarray, hb: np.ndarray, theta_r: float) -> tuple:
+    """Log-size cells of both maps' landmarks (one origin) and the number of cells (1: no cells).
+
+    r <= theta_r  <=>  |ln h_a - ln h_b| <= ln((2 + theta_r) / (2 - theta_r)) = delta, so partners lie in
+    neighbouring cells of width delta. One cell (the gate decides alone) when a size is unknown or 0, or
+    theta_r >= 2 opens the gate.
+    """
+    ca = np.zeros(len(ha), np.int64)
+    cb = np.zeros(len(hb), np.int64)
+    if theta_r >= 2.0 or len(ha) == 0 or len(hb) == 0:
+        return ca, cb, 1
+    lo = np.inf
+    for h in (ha, hb):
+        for i in range(len(h)):
+            if not (h[i] > 0.0) or np.isinf(h[i]):
+                return ca, cb, 1
+            lo = min(lo, np.log(h[i]))
+    delta = np.log((2.0 + theta_r) / (2.0 - theta_r))
+    if delta <= 0.0:
+        return ca, cb, 1
+    mx = 0
+    for i in range(len(ha)):
+        ca[i] = np.int64(np.floor((np.log(ha[i]) - lo) / delta)) + 1
+        mx = max(mx, ca[i])
+    for i in range(len(hb)):
+        cb[i] = np.int64(np.floor((np.log(hb[i]) - lo) / delta)) + 1
+        mx = max(mx, cb[i])
+    return ca, cb, mx + 2
+
+
+@njit(cache=True)
+def sorted_b_edges(eb: tuple, cells_b: np.ndarray, ncell: int, hb: np.ndarray) -> tuple:
+    """B edges grouped by (cell of j, cell of l), each group sorted by length, stored in that order.
+
+    Returns the group offsets (ncell * ncell + 1) and the edges' j, l, L, z, ang, ang reversed, h_j, h_l,
+    original edge id, ln h_j, ln h_l, all in group order, so the join reads them sequentially.
+    """
+    fj, fl, fln, fz, fang, fangr = eb
+    ne = len(fj)
+    ng = ncell * ncell
+    grp = np.empty(ne, np.int64)
+    for f in range(ne):
+        grp[f] = cells_b[fj[f]] * ncell + cells_b[fl[f]]
+    # by group, then length (stable: ties keep the edge order)
+    o1 = np.argsort(fln, kind="mergesort")
+    order = o1[np.argsort(grp[o1], kind="mergesort")]
+    goff = np.zeros(ng + 1, np.int64)
+    for f in range(ne):
+        goff[grp[f] + 1] += 1
+    for g in range(ng):
+        goff[g + 1] += goff[g]
+    lh = np.log(hb)  # NaN / -inf for unknown / zero sizes: only used when every size is positive (ncell > 1)
+    return (goff, fj[order], fl[order], fln[order], fz[order], fang[order], fangr[order], hb[fj[order]],
+            hb[fl[order]], order, lh[fj[order]], lh[fl[order]])
+
+
+@njit(cache=True)
+def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, ncell: int, pa: np.ndarray,
+              ha: np.ndarray, pb: np.ndarray, mode: int, eps: float, tan_tilt: float, eps_z: float, theta_r: float,
+              prior_m: float, count_only: bool) -> tuple:
+    """Every consistent pair of associations {(p, j), (q, l)} whose A landmarks form one of the edges `ea_sel`.
+
+    A directed A edge p -> q (both orientations o of each undirected edge) meets an undirected B edge j < l (so
+    each pair of associations is found once). Directed A edges are grouped by (cell of p, cell of q) and sorted by
+    length like the B edges (`sorted_b_edges`); each A group is swept against its 3 x 3 neighbouring B groups
+    with two pointers, so the candidates (lengths within eps) cost no search. Every candidate is then tested
+    exactly (size gate, prior, `pair_mismatch`) with the invariants oriented as the reference orients them.
+    Returns association ids p * N_B + j and q * N_B + l, the A edge, the B edge (original id), the orientation,
+    the mismatch c, and the number of candidates per selected A edge (the join's cost; `count_only`: only that).
+    The yaw slices of a pair are computed later, only for pairs that survive the peel (`pair_slices_of`).
+    """
+    ei, ek, el, ez, af, ar = ea
+    goff, bj, bl, bln, bz, bang, bangr, hbj, hbl, border, lhbj, lhbl = sb
+    nbm = len(pb)
+    nsel = len(ea_sel)
+    # directed A edges grouped by cells, sorted by length within a group
+    nd = 2 * nsel
+    dgrp = np.empty(nd, np.int64)
+    dlen = np.empty(nd)
+    for t in range(nsel):
+        e = ea_sel[t]
+        dgrp[2 * t] = cells_a[ei[e]] * ncell + cells_a[ek[e]]
+        dgrp[2 * t + 1] = cells_a[ek[e]] * ncell + cells_a[ei[e]]
+        dlen[2 * t] = el[e]
+        dlen[2 * t + 1] = el[e]
+    o1 = np.argsort(dlen, kind="mergesort")
+    dord = o1[np.argsort(dgrp[o1], kind="mergesort")]
+    ng = ncell * ncell
+    aoff = np.zeros(ng + 1, np.int64)
+    for x in range(nd):
+        aoff[dgrp[x] + 1] += 1
+    for g in range(ng):
+        aoff[g + 1] += aoff[g]
+    cap = 1024
+    v1 = np.empty(cap, np.int64)
+    v2 = np.empty(cap, np.int64)
+    eae = np.empty(cap, np.int64)
+    ebe = np.empty(cap, np.int64)
+    ori = np.empty(cap, np.int8)
+    cs = np.empty(cap)
+    counts = np.zeros(nsel, np.int64)
+    ne = 0
+    r2 = prior_m * prior_m
+    sized = ncell > 1
+    dlo = -1 if sized else 0
+    dhi = 1 if sized else 0
+    # |ln h_a - ln h_b| > delta (with margin) certainly fails r <= theta_r: a cheap first look before the exact test
+    delta = np.log((2.0 + theta_r) / (2.0 - theta_r)) * (1.0 + 1e-9) + 1e-12 if sized else 0.0
+    lha = np.log(ha) if sized else ha
+    for ga in range(ng):
+        if aoff[ga + 1] == aoff[ga]:
+            continue
+        ca1 = ga // ncell
+        ca2 = ga % ncell
+        for d1 in range(dlo, dhi + 1):
+            c1 = ca1 + d1
+            if c1 < 0 or c1 >= ncell:
+                continue
+            for d2 in range(dlo, dhi + 1):
+                c2 = ca2 + d2
+                if c2 < 0 or c2 >= ncell:
+                    continue
+                g = c1 * ncell + c2
+                b0 = goff[g]
+                b1 = goff[g + 1]
+                if b1 == b0:
+                    continue
+                lo = b0
+                for x in range(aoff[ga], aoff[ga + 1]):
+                    d = dord[x]
+                    t = d >> 1
+                    o = d & 1
+                    e = ea_sel[t]
+                    la = el[e]
+                    # a little wider than eps: the exact test below decides, whatever the rounding here
+                    slack = 1e-9 * (la + eps) + 1e-12
+                    while lo < b1 and bln[lo] < la - eps - slack:
+                        lo += 1
+                    hi = lo
+                    while hi < b1 and bln[hi] <= la + eps + slack:
+                        hi += 1
+                    counts[t] += hi - lo
+                    if count_only:
+                        continue
+                    p = ei[e] if o == 0 else ek[e]
+                    q = ek[e] if o == 0 else ei[e]
+                    hp = ha[p]
+                    hq = ha[q]
+                    lp = lha[p]
+                    lq = lha[q]
+                    for f in range(lo, hi):
+                        if sized and (abs(lp - lhbj[f]) > delta or abs(lq - lhbl[f]) > delta):
+                            continue
+                        if not size_ratio1(hp, hbj[f]) <= theta_r or not size_ratio1(hq, hbl[f]) <= theta_r:
+                            continue
+                        j = bj[f]
+                        l_ = bl[f]
+                        if prior_m > 0.0:
+                            dx = pa[p, 0] - pb[j, 0]
+                            dy = pa[p, 1] - pb[j, 1]
+                            if dx * dx + dy * dy > r2:
+                                continue
+                            dx = pa[q, 0] - pb[l_, 0]
+                            dy = pa[q, 1] - pb[l_, 1]
+                            if dx * dx + dy * dy > r2:
+                                continue
+                        # A oriented i -> k; B joins the partners of i and k: j -> l (o = 0) or l -> j (o = 1)
+                        c = pair_mismatch(la, ez[e], bln[f], bz[f] if o == 0 else -bz[f], mode, eps, tan_tilt, eps_z)
+                        if c < 0.0:
+                            continue
+                        if ne == cap:
+                            cap *= 2
+                            v1 = _grow_i(v1, cap)
+                            v2 = _grow_i(v2, cap)
+                            eae = _grow_i(eae, cap)
+                            ebe = _grow_i(ebe, cap)
+                            ori = _grow_i8(ori, cap)
+                            cs = _grow_f(cs, cap)
+                        v1[ne] = p * nbm + j
+                        v2[ne] = q * nbm + l_
+                        eae[ne] = e
+                        ebe[ne] = border[f]
+                        ori[ne] = o
+                        cs[ne] = c
+                        ne += 1
+    return (v1[:ne].copy(), v2[:ne].copy(), eae[:ne].copy(), ebe[:ne].copy(), ori[:ne].copy(), cs[:ne].copy(),
+            counts)
+
+
+@njit(cache=True)
+def _grow_i8(x: np.ndarray, cap: int) -> np.ndarray:
+    y = np.empty(cap, np.int8)
+    y[: len(x)] = x
+    return y
+
+
+@njit(cache=True)
+def pair_slices_of(sel: np.ndarray, ea: tuple, eb: tuple, e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray,
+                   eps: float, sin_tilt: float, nslices: int) -> tuple:
+    """Yaw slices of the joined pairs `sel` (from their edges and orientations, as `pair_slices` needs them)."""
+    s0 = np.zeros(len(sel), np.int64)
+    ns = np.ones(len(sel), np.int64)
+    for x in range(len(sel)):
+        t = sel[x]
+        e = e_a[t]
+        f = e_b[t]
+        if ori[t] == 0:
+            zb = eb[3][f]
+            angb = eb[4][f]
+        else:
+            zb = -eb[3][f]
+            angb = eb[5][f]
+        s0[x], ns[x] = pair_slices(ea[4][e], angb, ea[2][e], eb[2][f], ea[3][e], zb, eps, sin_tilt, nslices)
+    return s0, ns
+
+
+# --- peel and the graphs of window pairs ----------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def compact_ids(v1: np.ndarray, v2: np.ndarray, space: int) -> tuple:
+    """Sorted distinct association ids of v1 and v2, and both renumbered 0.. (a presence table when the id
+    space is small, else a sort)."""
+    if space <= 64 * (len(v1) + len(v2)) + 1_000_000:
+        present = np.zeros(space, np.bool_)
+        for x in v1:
+            present[x] = True
+        for x in v2:
+            present[x] = True
+        new = np.empty(space, np.int64)
+        nu = 0
+        for x in range(space):
+            if present[x]:
+                new[x] = nu
+                nu += 1
+        ids = np.empty(nu, np.int64)
+        for x in range(space):
+            if present[x]:
+                ids[new[x]] = x
+        i1 = np.empty(len(v1), np.int64)
+        i2 = np.empty(len(v2), np.int64)
+        for t in range(len(v1)):
+            i1[t] = new[v1[t]]
+            i2[t] = new[v2[t]]
+        return ids, i1, i2
+    both = np.concatenate((v1, v2))
+    order = np.argsort(both)
+    ids = np.empty(len(both), np.int64)
+    inv = np.empty(len(both), np.int64)
+    nu = 0
+    for t in range(len(order)):
+        x = both[order[t]]
+        if nu == 0 or ids[nu - 1] != x:
+            ids[nu] = x
+            nu += 1
+        inv[order[t]] = nu - 1
+    return ids[:nu].copy(), inv[: len(v1)].copy(), inv[len(v1):].copy()
+
+
+@njit(cache=True)
+def peel_pairs(nv: int, e1: np.ndarray, e2: np.ndarray, k: int) -> np.ndarray:
+    """Pairs left after iterated removal of associations in fewer than k pairs (boolean mask), O(E)."""
+    deg = np.zeros(nv, np.int64)
+    for t in range(len(e1)):
+        deg[e1[t]] += 1
+        deg[e2[t]] += 1
+    start = np.zeros(nv + 1, np.int64)
+    for v in range(nv):
+        start[v + 1] = start[v] + deg[v]
+    fill = start[:-1].copy()
+    inc = np.empty(2 * len(e1), np.int64)
+    for t in range(len(e1)):
+        inc[fill[e1[t]]] = t
+        fill[e1[t]] += 1
+        inc[fill[e2[t]]] = t
+        fill[e2[t]] += 1
+    alive_e = np.ones(len(e1), np.bool_)
+    alive_v = np.ones(nv, np.bool_)
+    queue = np.empty(nv, np.int64)
+    head = 0
+    tail = 0
+    for v in range(nv):
+        if deg[v] < k:
+            alive_v[v] = False
+            queue[tail] = v
+            tail += 1
+    while head < tail:
+        v = queue[head]
+        head += 1
+        for x in range(start[v], start[v + 1]):
+            t = inc[x]
+            if not alive_e[t]:
+                continue
+            alive_e[t] = False
+            w = e2[t] if e1[t] == v else e1[t]
+            if alive_v[w]:
+                deg[w] -= 1
+                if deg[w] < k:
+                    alive_v[w] = False
+                    queue[tail] = w
+                    tail += 1
+    return alive_e
+
+
+@njit(cache=True)
+def peel_pairs_sliced(nv: int, e1: np.ndarray, e2: np.ndarray, s0: np.ndarray, ns: np.ndarray, nslices: int,
+                      k: int) -> np.ndarray:
+    """`peel_pairs` per yaw slice: a node is (association, slice), a pair links its two associations in every
+    slice its yaw tolerance covers. A pair survives if it survives in at least one slice. Exact: an association
+    with fewer than k pairs in slice s over all windows cannot be in that slice's k-core of any window pair."""
+    nn = nv * nslices
+    deg = np.zeros(nn, np.int32)
+    total = 0
+    for t in range(len(e1)):
+        for x in range(ns[t]):
+            sl = (s0[t] + x) % nslices
+            deg[e1[t] * nslices + sl] += 1
+            deg[e2[t] * nslices + sl] += 1
+        total += ns[t]
+    start = np.zeros(nn + 1, np.int64)
+    for v in range(nn):
+        start[v + 1] = start[v] + deg[v]
+    fill = start[:-1].copy()
+    inc = np.empty(2 * total, np.int64)  # (pair, slice) incidences as pair * nslices + slice
+    for t in range(len(e1)):
+        for x in range(ns[t]):
+            sl = (s0[t] + x) % nslices
+            a = e1[t] * nslices + sl
+            b = e2[t] * nslices + sl
+            inc[fill[a]] = t * nslices + sl
+            fill[a] += 1
+            inc[fill[b]] = t * nslices + sl
+            fill[b] += 1
+    dead = np.zeros(len(e1) * nslices, np.bool_)  # (pair, slice) removed
+    alive_v = np.ones(nn, np.bool_)
+    queue = np.empty(nn, np.int64)
+    head = 0
+    tail = 0
+    for v in range(nn):
+        if deg[v] < k:
+            alive_v[v] = False
+            queue[tail] = v
+            tail += 1
+    while head < tail:
+        v = queue[head]
+        head += 1
+        for x in range(start[v], start[v + 1]):
+            ps = inc[x]
+            if dead[ps]:
+                continue
+            dead[ps] = True
+            t = ps // nslices
+            sl = ps % nslices
+            w = e2[t] * nslices + sl if e1[t] * nslices + sl == v else e1[t] * nslices + sl
+            if alive_v[w]:
+                deg[w] -= 1
+                if deg[w] < k:
+                    alive_v[w] = False
+                    queue[tail] = w
+                    tail += 1
+    out = np.zeros(len(e1), np.bool_)
+    for t in range(len(e1)):
+        for x in range(ns[t]):
+            if not dead[t * nslices + (s0[t] + x) % nslices]:
+                out[t] = True
+                break
+    return out
+
+
+@njit(cache=True)
+def count_incidences(sel: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray,
+                     b_hi: np.ndarray) -> int:
+    total = 0
+    for t in sel:
+        total += (a_hi[t] - a_lo[t] + 1) * (b_hi[t] - b_lo[t] + 1)
+    return total
+
+
+@njit(cache=True)
+def window_pair_graphs(sel: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray, b_hi: np.ndarray,
+                       nwb: int, w_off: int, nw_block: int) -> tuple:
+    """Group the pairs `sel` by the window pairs that contain them (A windows w_off .. w_off + nw_block - 1).
+
+    Returns the window pairs (index wa * W_B + wb) that hold at least one pair, CSR offsets and the pair ids of
+    each (counting sort: pairs of a window pair in the order of `sel`).
+    """
+    ng = nw_block * nwb
+    cnt = np.zeros(ng + 1, np.int64)
+    for t in sel:
+        for wa in range(a_lo[t], a_hi[t] + 1):
+            for wb in range(b_lo[t], b_hi[t] + 1):
+                cnt[(wa - w_off) * nwb + wb + 1] += 1
+    for g in range(ng):
+        cnt[g + 1] += cnt[g]
+    fill = cnt[:-1].copy()
+    out = np.empty(cnt[ng], np.int64)
+    for t in sel:
+        for wa in range(a_lo[t], a_hi[t] + 1):
+            for wb in range(b_lo[t], b_hi[t] + 1):
+                g = (wa - w_off) * nwb + wb
+                out[fill[g]] = t
+                fill[g] += 1
+    ngr = 0
+    for g in range(ng):
+        if cnt[g + 1] > cnt[g]:
+            ngr += 1
+    groups = np.empty(ngr, np.int64)
+    goff = np.empty(ngr + 1, np.int64)
+    t = 0
+    goff[0] = 0
+    pos = 0
+    items = np.empty(cnt[ng], np.int64)
+    for g in range(ng):
+        if cnt[g + 1] > cnt[g]:
+            groups[t] = (g // nwb + w_off) * nwb + g % nwb
+            for x in range(cnt[g], cnt[g + 1]):
+                items[pos] = out[x]
+                pos += 1
+            goff[t + 1] = pos
+            t += 1
+    return groups, goff, items
+
+
+@njit(cache=True)
+def solve_groups(groups: np.ndarray, goff: np.ndarray, items: np.ndarray, ids: np.ndarray, e1: np.ndarray,
+                 e2: np.ndarray, cs: np.ndarray, s0: np.ndarray, nsl: np.ndarray, ha: np.ndarray, hb: np.ndarray,
+                 nbm: int, sigma: float, theta_r: float, nslices: int, k: int, method: int) -> tuple:
+    """Solve every window pair of `groups` from its pairs, as `solve_window_pair` does for the reference.
+
+    The window pair's graph: its associations (sorted ids, i.e. the reference's (i, j) order), its pairs as edges
+    sorted by (row, col), affinities and size weights computed as the reference computes them.
+    """
+    ngr = len(groups)
+    found = np.zeros(ngr, np.bool_)
+    score = np.zeros(ngr)
+    slc = np.full(ngr, -1, np.int64)
+    ncore = np.zeros(ngr, np.int64)
+    off = np.zeros(ngr + 1, np.int64)
+    sel_a = np.empty(1024, np.int64)
+    sel_b = np.empty(1024, np.int64)
+    min_edges = k * (k + 1) // 2
+    for g in range(ngr):
+        off[g + 1] = off[g]
+        m = goff[g + 1] - goff[g]
+        if m < min_edges:
+            continue
+        its = items[goff[g]: goff[g + 1]]
+        # local vertex ids in ascending association id
+        verts = np.empty(2 * m, np.int64)
+        for x in range(m):
+            verts[2 * x] = e1[its[x]]
+            verts[2 * x + 1] = e2[its[x]]
+        verts = np.unique(verts)
+        nv = len(verts)
+        lo = np.empty(m, np.int64)
+        hi = np.empty(m, np.int64)
+        for x in range(m):
+            a = np.searchsorted(verts, e1[its[x]])
+            b = np.searchsorted(verts, e2[its[x]])
+            lo[x] = min(a, b)
+            hi[x] = max(a, b)
+        order = np.argsort(lo * nv + hi)
+        rows = lo[order]
+        cols = hi[order]
+        cc = np.empty(m)
+        ss = np.empty(m, np.int64)
+        nn = np.empty(m, np.int64)
+        for x in range(m):
+            cc[x] = cs[its[order[x]]]
+            ss[x] = s0[its[order[x]]]
+            nn[x] = nsl[its[order[x]]]
+        vals = affinity_values(cc, sigma)
+        va = np.empty(nv, np.int64)
+        vb = np.empty(nv, np.int64)
+        for x in range(nv):
+            va[x] = ids[verts[x]] // nbm
+            vb[x] = ids[verts[x]] % nbm
+        diag = size_weights(ha, hb, va, vb, theta_r)
+        ok, sel, sc, s, nc = solve_window_pair(nv, rows, cols, vals, ss, nn, diag, nslices, k, method)
+        if not ok:
+            continue
+        found[g] = True
+        score[g] = sc
+        slc[g] = s
+        ncore[g] = nc
+        need = off[g] + len(sel)
+        if need > len(sel_a):
+            sel_a = _grow_i(sel_a, 2 * need)
+            sel_b = _grow_i(sel_b, 2 * need)
+        for u in range(len(sel)):
+            sel_a[off[g] + u] = va[sel[u]]
+            sel_b[off[g] + u] = vb[sel[u]]
+        off[g + 1] = need
+    return found, score, slc, ncore, off, sel_a[: off[ngr]].copy(), sel_b[: off[ngr]].copy()
+
+
+@njit(cache=True)
+def count_putatives(tasks: np.ndarray, wins_a: np.ndarray, wins_b: np.ndarray, pa: np.ndarray, ha: np.ndarray,
+                    pb: np.ndarray, hb: np.ndarray, theta_r: float, prior_m: float) -> np.ndarray:
+    """Number of putative associations of each window pair (as `putatives` counts them)."""
+    nwb = len(wins_b)
+    out = np.zeros(len(tasks), np.int64)
+    r2 = prior_m * prior_m
+    for t in range(len(tasks)):
+        wa = tasks[t] // nwb
+        wb = tasks[t] % nwb
+        c = 0
+        for i in range(wins_a[wa, 0], wins_a[wa, 1]):
+            for j in range(wins_b[wb, 0], wins_b[wb, 1]):
+                c += gate1(i, j, pa, ha, pb, hb, theta_r, r2, prior_m > 0.0) >= 0.0
+        out[t] = c
+    return out
+
+
+@njit(cache=True)
+def prior_join(put_a: np.ndarray, put_b: np.ndarray, put_off: np.ndarray, fa: np.ndarray, la: np.ndarray,
+               fb: np.ndarray, lb: np.ndarray, pa: np.ndarray, pb: np.ndarray, mode: int, eps: float,
+               tan_tilt: float, eps_z: float, sin_tilt: float, nslices: int) -> tuple:
+    """Every consistent pair of putative associations that share a window pair, found from the associations.
+
+    With a position prior each landmark has a handful of putative partners, so pairs are enumerated directly:
+    for each putative (p, j), every putative (q, l) with p < q sharing an A window with p and l != j sharing a
+    B window with j. `put_a`, `put_b`: putative associations sorted by (i, j); `put_off[i]`: CSR offsets by A
+    landmark. Returns the same columns as `edge_join` with A and B window ranges instead of edge ids.
+    """
+    nbm = len(pb)
+    cap = 1024
+    v1 = np.empty(cap, np.int64)
+    v2 = np.empty(cap, np.int64)
+    alo = np.empty(cap, np.int64)
+    ahi = np.empty(cap, np.int64)
+    blo = np.empty(cap, np.int64)
+    bhi = np.empty(cap, np.int64)
+    cs = np.empty(cap)
+    s0 = np.empty(cap, np.int64)
+    nsl = np.empty(cap, np.int64)
+    ne = 0
+    na = len(pa)
+    for p in range(na):
+        for x in range(put_off[p], put_off[p + 1]):
+            j = put_b[x]
+            q = p + 1
+            while q < na and fa[q] <= la[p]:
+                for y in range(put_off[q], put_off[q + 1]):
+                    l_ = put_b[y]
+                    if l_ == j:
+                        continue
+                    lo_b, hi_b = (j, l_) if j < l_ else (l_, j)
+                    if fb[hi_b] > lb[lo_b]:
+                        continue  # j and l share no B window
+                    lna, za, anga = vector_invariants(pa[q, 0] - pa[p, 0], pa[q, 1] - pa[p, 1],
+                                                      pa[q, 2] - pa[p, 2], mode)
+                    lnb, zb, angb = vector_invariants(pb[l_, 0] - pb[j, 0], pb[l_, 1] - pb[j, 1],
+                                                      pb[l_, 2] - pb[j, 2], mode)
+                    c = pair_mismatch(lna, za, lnb, zb, mode, eps, tan_tilt, eps_z)
+                    if c < 0.0:
+                        continue
+                    if ne == cap:
+                        cap *= 2
+                        v1 = _grow_i(v1, cap)
+                        v2 = _grow_i(v2, cap)
+                        alo = _grow_i(alo, cap)
+                        ahi = _grow_i(ahi, cap)
+                        blo = _grow_i(blo, cap)
+                        bhi = _grow_i(bhi, cap)
+                        cs = _grow_f(cs, cap)
+                        s0 = _grow_i(s0, cap)
+                        nsl = _grow_i(nsl, cap)
+                    v1[ne] = p * nbm + j
+                    v2[ne] = q * nbm + l_
+                    alo[ne] = fa[q]
+                    ahi[ne] = la[p]
+                    blo[ne] = fb[hi_b]
+                    bhi[ne] = lb[lo_b]
+                    cs[ne] = c
+                    if mode == GRAVITY:
+                        s0[ne], nsl[ne] = pair_slices(anga, angb, lna, lnb, za, zb, eps, sin_tilt, nslices)
+                    else:
+                        s0[ne], nsl[ne] = 0, 1
+                    ne += 1
+                q += 1
+    return (v1[:ne].copy(), v2[:ne].copy(), alo[:ne].copy(), ahi[:ne].copy(), blo[:ne].copy(), bhi[:ne].copy(),
+            cs[:ne].copy(), s0[:ne].copy(), nsl[:ne].copy())
