@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .association.windowed_search import size_ratio
+from .association.gates import size_ratio
 from .evaluation.footprints import HeightField, footprint_polygons
 from .geometry import Camera, Poses, project
 from .multisession import Sim3

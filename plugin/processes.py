@@ -2,7 +2,7 @@
 
 A worker pool's children outlive a parent killed with SIGKILL (nothing runs in the parent to stop them), and
 with them the multiprocessing resource tracker they keep open. Every worker sosmatch starts calls
-`exit_with_parent` first (`workflows.executors.process_pool`, the association search's fork pool).
+`exit_with_parent` first (`workflows.executors.process_pool`).
 """
 
 from __future__ import annotations

@@ -269,17 +269,6 @@ POOLS = {
         print("ready", flush=True)
         time.sleep(600)
     """),
-    # the association search's fork pool
-    "search fork pool": textwrap.dedent("""
-        import multiprocessing, os, time
-        from sosmatch.plugin.association import windowed_search
-        pool = multiprocessing.get_context("fork").Pool(2, initializer=windowed_search._init_worker,
-                                                        initargs=((), os.getpid()))
-        pool.map_async(time.sleep, [600, 600])
-        time.sleep(1.0)
-        print("ready", flush=True)
-        time.sleep(600)
-    """),
 }
 
 
