@@ -22,7 +22,7 @@ from sosmatch.plugin.changes import (
 )
 from sosmatch.plugin.geometry import Camera, Poses
 from sosmatch.plugin.params import ChangeParams
-from sosmatch.tools.toy_sessions import lawnmower, yaw_transform
+from sosmatch.tools.toy_sessions import lawnmower, make_spaced_world, yaw_transform
 
 CAM = Camera(640, 480, 400.0, 400.0, 320.0, 240.0)
 NADIR = np.diag([1.0, -1.0, -1.0])  # world_from_camera of a camera looking straight down
@@ -33,16 +33,9 @@ def nadir_poses(centers: np.ndarray) -> Poses:
                  centers)
 
 
-def make_world(seed: int, n: int = 260, extent: float = 240.0):
-    """Objects that do not overlap (footprints, radius 2 h, apart), heights 0-6 m, sizes 1-4 m."""
-    rng = np.random.default_rng(seed)
-    pos, sizes = [], []
-    while len(pos) < n:
-        xy, h = rng.uniform(0.0, extent, 2), rng.uniform(1.0, 4.0)
-        if all(np.hypot(*(xy - q[:2])) > 2.0 * (h + g) for q, g in zip(pos, sizes)):
-            pos.append(np.r_[xy, rng.uniform(0.0, 6.0)])
-            sizes.append(h)
-    return np.array(pos), np.array(sizes)
+def make_world(seed: int, n: int = 260):
+    w = make_spaced_world(n, 240.0, (1.0, 4.0), seed)
+    return w.positions, w.sizes
 
 
 def observe(positions, sizes, present, centers, seed, clutter=25, session_from_world=None):

@@ -14,9 +14,9 @@ from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.tools.cli import main
 from sosmatch.tools.toy_sessions import (
-    ToyWorld,
     lawnmower,
     load_toy_session,
+    make_spaced_world,
     make_world,
     toy_match_json,
     write_toy_session,
@@ -24,22 +24,10 @@ from sosmatch.tools.toy_sessions import (
 )
 
 
-def spaced_world(n: int, seed: int, extent: float = 240.0) -> ToyWorld:
-    """Objects that do not overlap (footprint radius 2 h apart, as real trees, roofs and boulders), sizes 0.5-3 m."""
-    rng = np.random.default_rng(seed)
-    pos, sizes = [], []
-    while len(pos) < n:
-        xy, h = rng.uniform(0.0, extent, 2), rng.uniform(0.5, 3.0)
-        if all(np.hypot(*(xy - q[:2])) > 2.0 * (h + g) for q, g in zip(pos, sizes)):
-            pos.append(np.r_[xy, rng.uniform(0.0, 6.0)])
-            sizes.append(h)
-    return ToyWorld(np.array(pos), np.array(sizes))
-
-
 @pytest.fixture(scope="module")
 def toy(tmp_path_factory):
     root = tmp_path_factory.mktemp("changes")
-    world = spaced_world(320, seed=4)
+    world = make_spaced_world(320, seed=4)
     rng = np.random.default_rng(9)
     present_a = rng.random(320) > 0.08
     present_b = rng.random(320) > 0.08

@@ -50,6 +50,22 @@ def make_world(num_objects: int = 300, extent_m: float = 240.0, seed: int = 0) -
     return ToyWorld(np.hstack([xy, z]), rng.uniform(0.5, 6.0, num_objects))
 
 
+def make_spaced_world(num_objects: int, extent_m: float = 240.0, sizes: tuple[float, float] = (0.5, 3.0),
+                      seed: int = 0) -> ToyWorld:
+    """Objects that do not overlap, as real crowns, roofs and boulders: footprints (radius 2 h) apart; sizes
+    uniform in `sizes`, heights 0-6 m. (make_world lets objects overlap, which no change detection could
+    tell apart.)"""
+    rng = np.random.default_rng(seed)
+    pos: list[np.ndarray] = []
+    size: list[float] = []
+    while len(pos) < num_objects:
+        xy, h = rng.uniform(0.0, extent_m, 2), float(rng.uniform(*sizes))
+        if all(np.hypot(*(xy - q[:2])) > 2.0 * (h + g) for q, g in zip(pos, size)):
+            pos.append(np.r_[xy, rng.uniform(0.0, 6.0)])
+            size.append(h)
+    return ToyWorld(np.array(pos).reshape(-1, 3), np.array(size))
+
+
 def lawnmower(x0: float, x1: float, y0: float, y1: float, altitude: float, spacing: float, step: float) -> np.ndarray:
     """Camera centres along back-and-forth lines (east-west legs, `spacing` apart, a frame every `step` m)."""
     centers = []
