@@ -3,7 +3,13 @@
 import numpy as np
 import shapely
 
-from sosmatch.plugin.evaluation.footprints import FlatGround, HeightField, border_pixels, footprint_points
+from sosmatch.plugin.evaluation.footprints import (
+    FlatGround,
+    HeightField,
+    border_pixels,
+    footprint_points,
+    intersect_rays,
+)
 from sosmatch.plugin.evaluation.footprints import footprint_polygons as polys_of
 from sosmatch.plugin.evaluation.iou import iou_matrix
 from sosmatch.plugin.geometry import Camera, project
@@ -93,3 +99,16 @@ def test_iou_matches_rasterised_estimate_on_random_quads():
             inter = np.count_nonzero(inside[i] & inside[3 + j])
             union = np.count_nonzero(inside[i] | inside[3 + j])
             assert abs(iou[i, j] - inter / union) < 0.02
+
+
+def test_rays_reaching_a_flat_stretch_at_the_lowest_height_hit_it():
+    # a height field whose minimum is a flat plateau (as a grid of ground estimates clamped at its lowest
+    # value): the last sample of the march lies exactly on it, and must count as a hit
+    z = np.full((20, 20), -3.7629933986058024)
+    z[:5] = 0.87  # a higher strip
+    field = HeightField(z, 0.0, 0.0, 10.0, 10.0)
+    origins = np.array([[100.0, 150.0, 99.5], [120.0, 160.0, 99.5]])
+    dirs = np.array([[-0.3, 0.2, -0.963], [0.1, -0.1, -1.0]])
+    hits = intersect_rays(origins, dirs, field, max_range_m=2000.0)
+    np.testing.assert_allclose(hits[:, 2], field(hits[:, 0], hits[:, 1]), atol=1e-6)
+    assert np.all(np.linalg.norm(hits - origins, axis=1) < 200)

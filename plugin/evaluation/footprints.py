@@ -107,6 +107,10 @@ def intersect_rays(
     if z_range is None:
         raise ValueError("z_range is needed for a terrain without a z_range attribute")
     zmin, zmax = z_range
+    if not isinstance(terrain, FlatGround):
+        # a millimetre of slack for the march: a ray reaching a flat stretch at exactly the lowest height ends
+        # on it with rounding either way, and (ray - terrain) > 0 by 1e-15 there would read as a miss
+        zmin, zmax = zmin - 1e-3, zmax + 1e-3
     dz = d[..., 2]
     down = dz < -1e-12
     with np.errstate(divide="ignore", invalid="ignore"):
