@@ -3,6 +3,7 @@ size, false changes per hectare, same-season and cross-season pairs, at several 
 
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_changes --work DIR [--worlds 7,11,23,31]
         [--changed 0.04,0.10,0.25] [--frames 100] [--figure FILE.png] [--example FILE.png]
+        [--set changes.KEY=VALUE ...]   (an ablation: the same pairs with other change-detection parameters)
 
 Per world seed and change level, three sessions of one world (kept in WORK between runs): A summer (session seed
 1), B summer on another path (shifted 20, 10 m, sun from 200 deg: shadows moved; seed 2) and W winter (shifted
@@ -28,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...plugin.params import Params
 from .change_truth import SIZE_BINS, Score, object_truth, observed_truth_area, score_pair
 from .machine import machine_summary
 
@@ -42,7 +44,6 @@ SWEEP = (0.0, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95)
 
 def prepare(work: Path, world: int, changed: float, frames: int) -> Path:
     """Synthesise, map (EKF poses) and match + verify the pairs of one world and change level (skips done work)."""
-    from ...plugin.params import Params
     from ...workflows.batch.tasks import pair_task
     from ...workflows.map import load_inputs
     from ...workflows.map import run as map_run
@@ -73,12 +74,12 @@ class PairResult:
     scores: dict[float, Score]
 
 
-def evaluate(root: Path, world: int, changed: float, tag: str, sweep: tuple[float, ...]) -> PairResult | None:
+def evaluate(root: Path, world: int, changed: float, tag: str, sweep: tuple[float, ...],
+             params: Params | None = None) -> PairResult | None:
     """Classify the pair A-`tag` with its verified alignment and score it at every min-confidence of `sweep`;
     None when the pair was not aligned."""
     from ...database.synth_session import load_synth_session
     from ...plugin.multisession import Sim3
-    from ...plugin.params import Params
     from ...workflows.changes import compute
     from .bench_map import landmark_objects
 
@@ -86,7 +87,8 @@ def evaluate(root: Path, world: int, changed: float, tag: str, sweep: tuple[floa
     if not alignment["accepted"]:
         return None  # nothing to compare: reported as a pair that was not aligned
     t = time.process_time()
-    run = compute(root / "mA", root / f"m{tag}", None, Params(), a_from_b=Sim3.from_dict(alignment["transform"]))
+    run = compute(root / "mA", root / f"m{tag}", None, params or Params(),
+                  a_from_b=Sim3.from_dict(alignment["transform"]))
     cpu = time.process_time() - t
     sa, sb = load_synth_session(root / "A"), load_synth_session(root / tag)
     kfa = json.loads((root / "mA" / "run.json").read_text())["keyframes"]
@@ -204,7 +206,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--figure", type=Path, help="write the min-confidence figure here")
     ap.add_argument("--example", type=Path, help="write the first same-season pair's changes.png here")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="parameter override for change detection (repeatable)")
     args = ap.parse_args(argv)
+    from ...database.config_io import parse_override
+    from ...plugin.params import with_overrides
+
+    params = with_overrides(Params(), dict(parse_override(t) for t in args.overrides))
+    if args.overrides:
+        print(f"parameters: {', '.join(args.overrides)}")
     worlds = [int(w) for w in args.worlds.split(",")]
     levels = [float(c) for c in args.changed.split(",")]
     results: list[PairResult] = []
@@ -212,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         for changed in levels:
             root = prepare(args.work, world, changed, args.frames)
             for tag in PAIRS:
-                res = evaluate(root, world, changed, tag, SWEEP)
+                res = evaluate(root, world, changed, tag, SWEEP, params)
                 if res is None:
                     print(f"world {world} changed {changed:.2f} {PAIRS[tag]}: not aligned (no accepted alignment), "
                           "not scored", flush=True)
