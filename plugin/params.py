@@ -314,8 +314,8 @@ class ChangeParams(Checked):
     # A place without a counterpart landmark is still called occupied when the other session's own segments
     # (every mask in its database, tracked or not) show a size-compatible segment at the landmark's projection
     # in significantly more of its keyframes than at probe points around it: binomial tail probability below this
-    # (0.05: on the benchmark's tuning worlds 7 and 11 it cut false gone / new claims by a fifth for 1 of 38
-    # changed objects, 0.01 rescued fewer present objects; worlds 23 and 31 showed no difference; BENCHMARKS.md)
+    # (0.05: on worlds 7 and 11 it cut the false gone / new claims from 9 to 5 for 2 of 38 changed objects found
+    # fewer than at 0.01; worlds 23 and 31 showed no difference; BENCHMARKS.md, Change detection, ablation)
     segment_evidence_p: float = fraction(0.05)
     # probes for the chance rate of segments: this many points on a circle of radius (probe_radius_factor x the
     # counterpart gate + 2 h) around the landmark
