@@ -136,6 +136,7 @@ class ChangeResult:
     observed_a: object  # shapely geometry: union of A's keyframe ground footprints (A's frame)
     observed_b: object  # the same for B
     params: ChangeParams = field(default_factory=ChangeParams)
+    support: AlignmentSupport | None = None  # how much better the transform pairs the maps than a displaced one
 
     @property
     def common_area(self) -> object:
@@ -389,6 +390,54 @@ def predict_logistic(weights: np.ndarray, x: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-(weights[0] + x @ weights[1:])))
 
 
+# --- is the alignment plausible? -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AlignmentSupport:
+    """How many compared landmarks of A find a counterpart in B with the given transform, against the same count
+    with B displaced (the chance level of counterparts at this map density and these sizes)."""
+
+    compared: int  # landmarks of A that B's keyframes saw >= min_views times
+    matched: int  # of those, with a counterpart under the transform
+    displaced_rate: float  # the highest counterpart rate with B moved CONTROL_SHIFTS x gate in 6 directions
+    p_value: float  # P(>= matched | compared, displaced_rate): the transform explains no more than chance
+
+    @property
+    def rate(self) -> float:
+        return self.matched / self.compared if self.compared else 0.0
+
+    def plausible(self, max_p: float = 1e-3, min_ratio: float = 1.5) -> bool:
+        """The transform pairs the maps clearly better than chance: significant, and 1.5x the chance rate."""
+        return self.p_value < max_p and self.rate >= min_ratio * self.displaced_rate
+
+
+CONTROL_SHIFT = 3.0  # x the counterpart gate: a displacement beyond any landmark scatter the gate allows
+
+
+def alignment_support(a: SessionObservations, b_in_a: SessionObservations, gate_m: float,
+                      params: ChangeParams) -> AlignmentSupport:
+    """Counterpart rate of A's compared landmarks with B as given and with B displaced horizontally by
+    CONTROL_SHIFT x the gate in 6 directions (a control: the same maps, no true pairs). A wrong transform (an
+    accepted match of the wrong place, a mirrored map) gives as many counterparts as the control."""
+    seen, _, _ = in_view(a.positions, a.sizes, b_in_a.poses, b_in_a.cameras)
+    compared = np.flatnonzero(seen.sum(0) >= params.min_views)
+    pa, ha = a.positions[compared], a.sizes[compared]
+
+    def matched(shift: np.ndarray) -> int:
+        idx, _ = counterparts(pa, ha, b_in_a.positions + shift, b_in_a.sizes, gate_m, params.max_size_difference,
+                              params.z_weight)
+        return int(np.count_nonzero(idx >= 0))
+
+    n = len(compared)
+    real = matched(np.zeros(3))
+    ang = np.arange(6) * np.pi / 3.0
+    shifts = CONTROL_SHIFT * gate_m * np.column_stack([np.cos(ang), np.sin(ang), np.zeros(6)])
+    control = max((matched(d) for d in shifts), default=0) / n if n else 0.0
+    p = float(binomial_tail(np.array([real]), np.array([n]), np.array([max(control, 1.0 / max(n, 1))]))[0])
+    return AlignmentSupport(n, real, control, p)
+
+
 # --- the verdict ----------------------------------------------------------------------------------------------
 
 
@@ -480,10 +529,11 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
         sizes_b=b_in_a.sizes, tolerance_m=gate, ground=ground,
         observed_a=observed_area(a.poses, a.cameras, ground),
         observed_b=observed_area(b_in_a.poses, b_in_a.cameras, ground), params=params,
+        support=alignment_support(a, b_in_a, gate, params),
     )
 
 
-__all__ = ["CLASSES", "GONE", "KEPT", "NEW", "UNSEEN", "ChangeResult", "KeyframeSegments", "LandmarkChanges",
-           "SessionObservations", "counterparts", "detect_changes", "ground_height_field", "in_view",
-           "holder_pairs", "observed_area", "reobservation_features", "fit_logistic", "predict_logistic",
-           "segment_evidence"]
+__all__ = ["CLASSES", "GONE", "KEPT", "NEW", "UNSEEN", "AlignmentSupport", "ChangeResult", "KeyframeSegments",
+           "LandmarkChanges", "SessionObservations", "alignment_support", "counterparts", "detect_changes",
+           "fit_logistic", "ground_height_field", "holder_pairs", "in_view", "observed_area", "predict_logistic",
+           "reobservation_features", "segment_evidence"]

@@ -109,6 +109,15 @@ def test_verdicts_do_not_depend_on_the_frame_of_b_and_are_deterministic(pair):
     assert np.array_equal(res.b.confidence, same.b.confidence)
 
 
+def test_alignment_support_tells_the_true_transform_from_a_displaced_one(pair):
+    *_, a, ids_a, b, ids_b, a_from_b = pair
+    good = detect_changes(a, b, a_from_b, ChangeParams(), 2.0).support
+    assert good.plausible() and good.rate > 0.8 and good.displaced_rate < 0.3
+    off = yaw_transform(0.0, (20.0, -12.0, 0.0)).compose(a_from_b)
+    bad = detect_changes(a, b, off, ChangeParams(), 2.0).support
+    assert not bad.plausible() and bad.compared > 0
+
+
 def test_min_confidence_turns_weak_claims_into_unseen(pair):
     *_, a, ids_a, b, ids_b, a_from_b = pair
     loose = detect_changes(a, b, a_from_b, ChangeParams(), 2.0)

@@ -158,3 +158,7 @@ def test_python_api_matches_the_command(toy, tmp_path):
     assert res.result.counts()["gone"] == res.result.a.count("gone")
     with pytest.raises(InputError):
         changes.compute(root / "A", root / "B", root / "AC" / "match.json")
+    # a transform that does not bring the maps together (an accepted match of the wrong place) is refused
+    wrong = yaw_transform(0, (30.0, 20.0, 0.0)).compose(res.a_from_b)
+    with pytest.raises(InputError, match="does not bring the maps together"):
+        changes.compute(root / "A", root / "B", None, a_from_b=wrong)

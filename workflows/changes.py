@@ -32,7 +32,7 @@ from ..database.match_io import check_match_maps, read_match
 from ..database.outputs import check_not_input, fingerprint, open_output_dir
 from ..database.session_io import read_session, read_session_observations
 from ..plugin import __version__
-from ..plugin.changes import GONE, KEPT, NEW, UNSEEN, ChangeResult, detect_changes
+from ..plugin.changes import CONTROL_SHIFT, GONE, KEPT, NEW, UNSEEN, ChangeResult, detect_changes
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params import Params, params_to_dict
@@ -84,6 +84,12 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if not result.common_area.area > 0:
         raise InputError("after alignment the two sessions observed no common ground: the match is wrong or the "
                          "flights do not overlap", match_json or session_b)
+    sup = result.support
+    if sup is not None and not sup.plausible():
+        raise InputError(f"the transform does not bring the maps together: {sup.rate:.0%} of A's {sup.compared} "
+                         f"compared landmarks have a counterpart, {sup.displaced_rate:.0%} with B moved "
+                         f"{CONTROL_SHIFT * result.tolerance_m:.0f} m (chance); the alignment is wrong, nothing "
+                         "to compare", match_json or session_b)
     sources = {"session_a": str(session_a), "session_b": str(session_b),
                "match": str(match_json) if match_json is not None else "",
                "map_a": landmark_map_fingerprint(files_a.landmarks),
@@ -148,6 +154,10 @@ def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
         "observed_area_ha": {"a": round(float(res.observed_a.area) / 1e4, 4),
                              "b": round(float(res.observed_b.area) / 1e4, 4)},
         "counterpart_gate_m": res.tolerance_m,
+        "alignment_support": None if res.support is None else {
+            "compared": res.support.compared, "matched": res.support.matched,
+            "rate": round(res.support.rate, 4), "displaced_rate": round(res.support.displaced_rate, 4),
+            "p_value": res.support.p_value},
         "params": {"changes": params_to_dict(params.changes),
                    "association.distance_tolerance_m": params.association.distance_tolerance_m},
         "summary": res.summary(), "seconds": round(run.seconds, 3),
