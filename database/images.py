@@ -142,3 +142,17 @@ def list_images(paths: Iterable[str | Path]) -> list[Path]:
         else:
             raise InputError("no such file or directory", p)
     return out
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) of an image from its header (no decoding); InputError naming the file if unreadable."""
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    try:
+        with Image.open(path) as img:
+            return int(img.size[0]), int(img.size[1])
+    except FileNotFoundError:
+        raise InputError("image not found", path) from None
+    except (UnidentifiedImageError, OSError) as exc:
+        raise InputError(f"cannot read image: {exc}", path) from None

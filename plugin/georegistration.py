@@ -43,6 +43,9 @@ ATTITUDE_SYSTEMATIC_SIGMA_DEG = 0.5
 CHI2_2DOF_99 = 9.2103  # 99 % quantile of chi-square with 2 degrees of freedom
 CHI2_2DOF_MEDIAN = 1.3863  # its median
 CHI2_2DOF_9999 = 18.4207  # its 99.99 % quantile
+# A height drift smaller than this over a flight is within what the vertical of a block can explain (0.1 degree
+# over 300 m is 0.5 m) and is not followed nor warned about (it is still measured and recorded).
+MIN_HEIGHT_DRIFT_M = 1.0
 
 
 @dataclass
@@ -72,9 +75,10 @@ def _robust_sigma(residuals: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(residuals - np.median(residuals)))) if len(residuals) else 0.0
 
 
-def fit_drift(times: np.ndarray, values: np.ndarray, iterations: int = 10) -> DriftFit:
+def fit_drift(times: np.ndarray, values: np.ndarray, min_change: float = 0.0, iterations: int = 10) -> DriftFit:
     """Huber-weighted (k = 2 sigma) least-squares line of `values` over `times` (seconds), scale re-estimated
-    from the residuals' MAD every round; the line's change over the time span with its standard error."""
+    from the residuals' MAD every round; the line's change over the time span with its standard error. The
+    change is significant beyond 3 standard errors, 2 sigma and `min_change`."""
     t = np.asarray(times, dtype=np.float64)
     v = np.asarray(values, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(v)
@@ -102,7 +106,7 @@ def fit_drift(times: np.ndarray, values: np.ndarray, iterations: int = 10) -> Dr
     sxx = float(w @ (x - xm) ** 2)
     slope_se = sigma / math.sqrt(sxx) if sxx > 0 else math.inf
     change, change_se = float(coef[1] * span), float(slope_se * span)
-    significant = bool(abs(change) > 3.0 * change_se and abs(change) > 2.0 * sigma)
+    significant = bool(abs(change) > max(3.0 * change_se, 2.0 * sigma, min_change))
     return DriftFit(float(coef[0]), float(coef[1]), change, float(sigma), change_se, significant, median)
 
 
@@ -305,12 +309,13 @@ def georegister(
     seed: int = 0,
 ) -> Georegistration:
     """world_from_sfm for registered images: SfM centres (N,3) and rotations sfm_from_cam (N,3,3), GPS (N,3)
-    (NaN rows: no fix; needs >= 2 fixes), prior rotations and which came from tags, capture times (s), and
-    `reference_heights` (N,) to use instead of the GPS altitude for the height (DJI RelativeAltitude + take-off
-    altitude). ValueError when fewer than 2 images have a fix."""
+    as the receiver gave it (NaN: no fix, or no altitude; needs >= 2 horizontal fixes), prior rotations and
+    which came from tags, capture times (s), and `reference_heights` (N,) to register the height on instead of
+    the GPS altitude (DJI RelativeAltitude + take-off altitude). The GPS altitude's drift against the result is
+    measured either way. ValueError when fewer than 2 images have a fix."""
     c = np.asarray(sfm_centers, float)
     gps = np.asarray(gps, float)
-    has = np.all(np.isfinite(gps), axis=1)
+    has = np.all(np.isfinite(gps[:, :2]), axis=1)  # a horizontal fix (the altitude may be missing)
     idx = np.flatnonzero(has)
     if len(idx) < 2:
         raise ValueError(f"{len(idx)} registered image(s) with a GPS position; georegistration needs 2")
@@ -334,11 +339,12 @@ def georegister(
         offset = DriftFit(0.0, 0.0, 0.0, 0.0, math.inf, False, 0.0)
         warnings.append("no image has a height reference: heights are relative to the SfM origin")
     else:
-        offset = fit_drift(times_s[use], heights[use] - block_z[use])
+        offset = fit_drift(times_s[use], heights[use] - block_z[use], MIN_HEIGHT_DRIFT_M)
     transform = Sim3(r, np.array([hfit.transform.translation[0], hfit.transform.translation[1],
                                   offset.reference]), s)
     registered_z = transform.apply(c)[:, 2]
-    gps_alt = fit_drift(times_s[inl], gps[inl, 2] - registered_z[inl]) if len(inl) else None
+    alt = inl[np.isfinite(gps[inl, 2])]
+    gps_alt = fit_drift(times_s[alt], gps[alt, 2] - registered_z[alt], MIN_HEIGHT_DRIFT_M) if len(alt) else None
     if not vert.gps_consistent and vert.gps_up is not None:
         warnings.append(f"the GPS altitudes would tilt the block by {vert.gps_tilt_deg:.1f} deg against the "
                         f"vertical of the {vert.source}: not followed")
@@ -370,7 +376,7 @@ class PriorComparison:
     position_m: np.ndarray  # distance between registered centre and prior (GPS) position (nan without)
     yaw_bias_deg: float  # the median yaw difference of agreeing images (a compass offset)
     contradicting: np.ndarray  # bool: yaw off the bias by more than 90 degrees
-    lines: list[dict]  # flight lines with contradicting tags: first/last index, count, median yaw
+    lines: list[dict]  # flight lines with contradicting tags: first/last index, count, their mean yaw
 
 
 def _heading_deg(world_from_cam: np.ndarray) -> np.ndarray:
@@ -382,6 +388,12 @@ def _heading_deg(world_from_cam: np.ndarray) -> np.ndarray:
 
 def _wrap(deg: np.ndarray) -> np.ndarray:
     return (np.asarray(deg) + 180.0) % 360.0 - 180.0
+
+
+def _circular_mean_deg(deg: np.ndarray) -> float:
+    """Mean direction of angles (degrees, wrapped to +-180): +179 and -179 average to 180, not 0."""
+    a = np.radians(np.asarray(deg, dtype=np.float64))
+    return float(np.degrees(np.arctan2(np.sin(a).mean(), np.cos(a).mean())))
 
 
 def compare_with_priors(
@@ -409,7 +421,7 @@ def compare_with_priors(
         if bad.sum() > 0.5 * len(members):
             lines.append({"line": int(line), "first": int(members[0]), "last": int(members[-1]),
                           "images": int(len(members)), "contradicting": int(bad.sum()),
-                          "median_yaw_deg": float(np.median(_wrap(yaw[members] - bias)))})
+                          "median_yaw_deg": _circular_mean_deg(yaw[members][bad] - bias)})
     return PriorComparison(angle, yaw, tilt, pos, bias, contradicting, lines)
 
 

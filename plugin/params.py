@@ -360,6 +360,32 @@ class ImageParams(Checked):
 
 
 @dataclass(frozen=True)
+class SfmParams(Checked):
+    """(ours) Poses from images by structure from motion (`sosmatch poses`, `workflows/sfm.py`), on CPU.
+
+    Measured on Seneca's 167 1200x900 frames on 2 busy cores (BENCHMARKS.md, "Poses from images"): SIFT at the
+    image's own octave (first_octave 0) costs a quarter of COLMAP's default upsampled one (-1); a low-contrast
+    threshold below COLMAP's 0.0067 keeps feature-poor frames of fields and water registrable, and the feature
+    cap bounds the work on textured ones; only pairs that GPS says may overlap are matched."""
+
+    max_image_size_px: int = count(1000, 64)  # features on images downscaled to this longer side
+    max_features: int = count(4000, 64)  # per image (the strongest, larger scales first)
+    first_octave: int = count(0, -1, 4)  # SIFT's first octave: -1 doubles the image first (4x the work)
+    peak_threshold: float = positive(0.004)  # SIFT difference-of-Gaussian contrast threshold
+    camera_model: str = one_of("SIMPLE_RADIAL", "SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+    neighbours: int = count(10, 1)  # GPS nearest neighbours matched per image (`plugin.image_pairs`)
+    sequential: int = count(2, 0)  # plus this many successors in capture order
+    exhaustive_up_to: int = count(40, 0)  # without GPS: all pairs up to this many images, else a sequence
+    sequential_without_gps: int = count(10, 1)
+    mapper: str = one_of("incremental", "incremental", "global")
+    # GPS positions as pose priors in COLMAP's bundle adjustment (horizontal sigma gps_sigma_m; the vertical
+    # prior only from RelativeAltitude heights, never from a GPS altitude that may drift)
+    use_gps_priors: bool = flag(False)
+    gps_sigma_m: float = positive(3.0)  # a consumer receiver's horizontal error: the expected GPS noise
+    min_registered_fraction: float = fraction(0.5)  # fewer registered images than this is an error
+
+
+@dataclass(frozen=True)
 class Params(Checked):
     image: ImageParams = field(default_factory=ImageParams)
     keyframes: KeyframeParams = field(default_factory=KeyframeParams)
@@ -369,6 +395,7 @@ class Params(Checked):
     association: AssociationParams = field(default_factory=AssociationParams)
     changes: ChangeParams = field(default_factory=ChangeParams)
     quality: QualityParams = field(default_factory=QualityParams)
+    sfm: SfmParams = field(default_factory=SfmParams)
     seed: int = count(0, 0, 2**63 - 1)  # every random choice in the pipeline derives from this
 
 

@@ -213,14 +213,15 @@ def test_refine_option_runs_and_keeps_poses_without_tie_points(tmp_path):
     np.testing.assert_allclose(poses.rotations, plain.poses.rotations, atol=1e-9)
 
 
-def test_map_without_poses_reads_them_from_exif(tmp_path, capsys):
+def test_map_with_pose_source_exif_reads_them_from_exif(tmp_path, capsys):
     img = tmp_path / "images"
     img.mkdir()
     for k in range(3):
         write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 3e-4, 500.0,
                    {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"})
     # noise images give no landmarks: the map is refused (one line, exit 2) but run.json records it all
-    assert main(["map", "--images", str(img), "--out", str(tmp_path / "s"), "--no-progress"]) == 2
+    assert main(["map", "--images", str(img), "--pose-source", "exif", "--out", str(tmp_path / "s"),
+                 "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "map refused: the map has no landmarks" in err and len(err.strip().splitlines()) == 1
     run = json.loads((tmp_path / "s" / "run.json").read_text())

@@ -112,7 +112,7 @@ def test_georegister_ignores_altitude_drift_and_wrong_fixes(with_tags):
     assert any("drifts by +" in w for w in geo.warnings)
     if with_tags:
         cmp = compare_with_priors(world_r, world_c, prior, gps, lines)
-        assert [ln["line"] for ln in cmp.lines] == [2]
+        assert [ln["line"] for ln in cmp.lines] == [2] and abs(cmp.lines[0]["median_yaw_deg"]) > 175.0
         assert cmp.contradicting[lines == 2].all() and not cmp.contradicting[lines != 2].any()
 
 

@@ -154,6 +154,38 @@ def geographic_to_grid(lat: np.ndarray, lon: np.ndarray, epsg: int) -> tuple[np.
     return np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64), north_az
 
 
+def topocentric_to_grid(enu: np.ndarray, origin_lla: tuple[float, float, float],
+                        epsg: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """Points of a topocentric frame (x east, y north, z up at `origin_lla` = latitude, longitude, ellipsoidal
+    height; OpenSfM's world frame with GPS) -> (grid easting, northing, height (N,3), grid_from_topocentric
+    rotations (N,3,3), EPSG code: the UTM zone of the origin unless given). Exact through ECEF (pyproj); the
+    rotations are the polar factors of the local Jacobian (meridian convergence; the grid's scale is ~1e-4)."""
+    from pyproj import Transformer
+
+    lat0, lon0, h0 = (float(v) for v in origin_lla)
+    epsg = epsg or utm_epsg(lat0, lon0)
+    p = np.asarray(enu, dtype=np.float64).reshape(-1, 3)
+    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    x0 = np.array(to_ecef.transform(lon0, lat0, h0))
+    la, lo = math.radians(lat0), math.radians(lon0)
+    ecef_from_enu = np.array([[-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
+                              [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
+                              [0.0, math.cos(la), math.sin(la)]])
+    ecef_to_geo = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    geo_to_grid = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
+
+    def grid(points: np.ndarray) -> np.ndarray:
+        ecef = x0 + points @ ecef_from_enu.T
+        lon, lat, h = ecef_to_geo.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
+        e, n = geo_to_grid.transform(lon, lat)
+        return np.column_stack([e, n, h])
+
+    out = grid(p)
+    jac = np.stack([(grid(p + 0.5 * np.eye(3)[k]) - grid(p - 0.5 * np.eye(3)[k])) for k in range(3)], axis=2)
+    u, _, vt = np.linalg.svd(jac)
+    rotations = u @ vt
+    return out, rotations, int(epsg)
+
 
 def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
     """A directory's image files (sorted by name), or the given list of paths."""
@@ -359,7 +391,7 @@ def read_image_priors(
     """Read every image's metadata (and `telemetry`) into `ImagePriors` (see the module doc for the frame, the
     attitude sources and the heights). Damaged or implausible tags are left out with one warning naming the
     images; an unreadable image file is an InputError."""
-    from ..plugin.georegistration import fit_drift
+    from ..plugin.georegistration import MIN_HEIGHT_DRIFT_M, fit_drift
 
     paths = list_images(images)
     tele = read_telemetry_csv(telemetry) if telemetry is not None else {}
@@ -397,7 +429,7 @@ def read_image_priors(
     fixed_alt = has & np.isfinite(alt)
     if np.isfinite(rel[has]).all() and has.any():
         if takeoff_altitude_m is None and fixed_alt.any():
-            rel_drift = fit_drift(times[fixed_alt], alt[fixed_alt] - rel[fixed_alt])
+            rel_drift = fit_drift(times[fixed_alt], alt[fixed_alt] - rel[fixed_alt], MIN_HEIGHT_DRIFT_M)
             takeoff_altitude_m = rel_drift.reference
             height_source = "take-off altitude (GPS at the start of the flight) + XMP RelativeAltitude"
             if rel_drift.significant:

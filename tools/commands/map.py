@@ -19,10 +19,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="pose CSV (quaternion or yaw/pitch/roll), COLMAP model (dir or images.bin/.txt), "
                              "or a `sosmatch synth` session directory (default: from the images' EXIF/XMP, as "
                              "`sosmatch poses-from-exif`)")
+    parser.add_argument("--pose-source", choices=["sfm", "exif"], default=None,
+                        help="without --poses: sfm (default) = COLMAP structure from motion georegistered on the "
+                             "GPS, as `sosmatch poses` (its outputs go to OUT/poses); exif = the EXIF/XMP poses as "
+                             "they are (`poses-from-exif`; see --refine)")
     parser.add_argument("--telemetry", type=Path,
                         help="without --poses: attitude CSV for images whose XMP lacks it (see poses-from-exif)")
     parser.add_argument("--refine", action="store_true",
-                        help="without --poses: refine the EXIF poses from tie points first (poses-from-exif --refine)")
+                        help="--pose-source exif: refine the EXIF poses from tie points first (poses-from-exif "
+                             "--refine)")
     parser.add_argument("--camera", type=Path,
                         help="intrinsics: cameras.txt, cameras.bin or a COLMAP model (default: from --poses)")
     parser.add_argument("--out", type=Path, required=True, help="session directory to write")
@@ -47,16 +52,24 @@ def run(args: argparse.Namespace) -> int:
 
     params = params_from_args(args)
     # options of the other pose source would be silently ignored: say so instead
-    if args.poses is not None and (args.telemetry is not None or args.refine):
-        raise InputError("--telemetry and --refine apply only without --poses (poses from EXIF/XMP)")
+    if args.poses is not None and (args.telemetry is not None or args.refine or args.pose_source):
+        raise InputError("--pose-source, --telemetry and --refine apply only without --poses (poses from the images)")
+    if args.refine and args.pose_source != "exif":
+        raise InputError("--refine refines EXIF/XMP poses: give --pose-source exif (structure from motion, the "
+                         "default, needs no refinement)")
     if args.poses is None and (args.camera is not None or args.convention is not None or args.ekf):
         raise InputError("--camera, --convention and --ekf need --poses (without it, EXIF gives the camera)")
     if args.poses is None:
         if args.images is None:
-            raise InputError("give --poses, or --images with geotagged images (poses from EXIF/XMP)")
-        from ...workflows.poses_from_exif import map_inputs_from_images
+            raise InputError("give --poses, or --images (poses by structure from motion or from EXIF/XMP)")
+        if args.pose_source == "exif":
+            from ...workflows.poses_from_exif import map_inputs_from_images
 
-        inputs = map_inputs_from_images(args.images, args.telemetry, args.refine)
+            inputs = map_inputs_from_images(args.images, args.telemetry, args.refine)
+        else:
+            from ...workflows.poses import PosesFromImages
+
+            inputs = PosesFromImages(args.images, params, telemetry=args.telemetry)
     else:
         inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention, args.ekf,
                                           args.strict)

@@ -14,6 +14,7 @@ import numpy as np
 
 from ...database.cameras import read_cameras_txt
 from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
+from ...database.opensfm import is_opensfm
 from ...database.outputs import sha256_file
 from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
@@ -51,7 +52,8 @@ def load_inputs(
 
     Args:
         images: image directory (optional when `poses` is a synth session: its images/ is used).
-        poses: a pose CSV, a COLMAP model directory (or its images.bin/.txt), or a `sosmatch synth` session.
+        poses: a pose CSV, a COLMAP model directory (or its images.bin/.txt), an OpenSfM / OpenDroneMap
+            reconstruction (reconstruction.json or the project directory), or a `sosmatch synth` session.
         camera: cameras.txt / cameras.bin / model directory; optional when `poses` provides the intrinsics (a
             synth session, a COLMAP model, or a pose CSV with a one-camera cameras.txt beside it).
         convention: overrides the pose CSV's `# convention:` comment.
@@ -77,6 +79,13 @@ def load_inputs(
         sources["poses"] = str(poses)
         if len(cams) == 1:
             cam_from_poses = next(iter(cams.values()))
+    elif is_opensfm(poses):  # OpenDroneMap / OpenSfM: poses in the UTM grid of its reference_lla
+        from ..poses import opensfm_poses
+
+        pose_list, opensfm_cams, _, epsg, _ = opensfm_poses(poses, images)
+        sources["poses"] = str(poses)
+        if len(opensfm_cams) == 1:
+            cam_from_poses = next(iter(opensfm_cams.values()))
     else:
         if ekf:
             raise InputError("--ekf needs a synth session directory as --poses", poses)

@@ -9,7 +9,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -32,6 +32,18 @@ from .output_dir import OUTPUTS, PARTIAL, RECORD, take_output_dir
 from .quality import FIGURE, quality_stage, raise_if_refused, verdict_record
 
 log = logging.getLogger(__name__)
+
+
+class PosesSource(Protocol):
+    """Inputs whose poses a stage computes inside the map's output directory (`workflows.poses.PosesFromImages`)."""
+
+    def identity(self) -> str: ...
+
+    def input_paths(self) -> list[Path]: ...
+
+    def resolve(self, out: OutputDir) -> tuple[MapInputs, tuple[str, ...]]:
+        """The map inputs, and the entries it staged in `out` to publish with the map."""
+        ...
 
 
 @dataclass
@@ -80,7 +92,7 @@ def map_origin(positions: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
 
 def run(
     params: Params,
-    inputs: MapInputs,
+    inputs: MapInputs | PosesSource,
     out_dir: str | Path,
     overwrite: bool = False,
     text_model: bool = False,
@@ -94,7 +106,9 @@ def run(
 
     Args:
         params: method parameters.
-        inputs: images, poses and camera.
+        inputs: images, poses and camera; or a `PosesSource` (`workflows.poses.PosesFromImages`: images without
+            poses), resolved inside the taken directory (structure from motion in its staging area, resumable)
+            and published with the map (SESSION_DIR/poses).
         out_dir: the session directory (created; see the module doc for resume and refusal rules).
         overwrite: replace a complete session made from other inputs or parameters.
         text_model: write sparse/ as a text model instead of binary.
@@ -108,18 +122,32 @@ def run(
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     out_dir = Path(out_dir)
-    digests = image_digests(inputs)
-    fps = input_fingerprints(inputs, digests)
-    # pixel limits tuned at one image size scale with the image (run.json keeps the effective values)
-    params = for_image(params, inputs.camera.width, inputs.camera.height)
-    pdict = params_to_dict(params)
     masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
+    source = None if isinstance(inputs, MapInputs) else inputs
+    if source is None:
+        digests = image_digests(inputs)
+        fps = input_fingerprints(inputs, digests)
+        what, paths = fps["inputs"], input_paths(inputs)
+        # pixel limits tuned at one image size scale with the image (run.json keeps the effective values)
+        params = for_image(params, inputs.camera.width, inputs.camera.height)
+    else:  # the poses are computed inside the taken directory: the identity is that of their source
+        what, paths = source.identity(), source.input_paths()
+    pdict = params_to_dict(params)
     # what the outputs depend on: a complete session of another identity is replaced only with `overwrite`
-    identity = fingerprint({"inputs": fps["inputs"], "params": pdict, "text_model": text_model, "masks": masks_source})
-    with take_output_dir(out_dir, identity, input_paths(inputs), overwrite) as out:
+    identity = fingerprint({"inputs": what, "params": pdict, "text_model": text_model, "masks": masks_source})
+    with take_output_dir(out_dir, identity, paths, overwrite) as out:
+        extra: tuple[str, ...] = ()
+        if source is not None:
+            t = time.perf_counter()
+            inputs, extra = source.resolve(out)
+            timings["poses"] = time.perf_counter() - t
+            digests = image_digests(inputs)
+            fps = input_fingerprints(inputs, digests)
+            params = for_image(params, inputs.camera.width, inputs.camera.height)
+            pdict = params_to_dict(params)
         timings["inputs"] = time.perf_counter() - t_start
         summary = _map_into(out, params, inputs, fps, digests, pdict, masks_source, text_model, progress,
-                            on_keyframe, workers, masks_for, timings, t_start)
+                            on_keyframe, workers, masks_for, timings, t_start, extra)
         out.finish(keep_staging=keep_cache)
     if keep_cache:
         log.info("per-keyframe cache kept in %s", out_dir / PARTIAL / "cache")
@@ -131,7 +159,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
               pdict: dict[str, Any], masks_source: str, text_model: bool, progress: bool,
               on_keyframe: Callable[[int], None] | None, workers: int,
               masks_for: Callable[[str, np.ndarray], Any] | None, timings: dict[str, float],
-              t_start: float) -> MapSummary:
+              t_start: float, extra_outputs: tuple[str, ...] = ()) -> MapSummary:
     """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
     import pycolmap
 
@@ -233,5 +261,5 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     }
     write_text_atomic(out.staged(RECORD), json.dumps(record, indent=2) + "\n")
     (out.path / RECORD).unlink(missing_ok=True)  # published last: present = the outputs beside it are complete
-    out.publish(OUTPUTS, last=RECORD)
+    out.publish((*OUTPUTS, *extra_outputs), last=RECORD)
     return summary

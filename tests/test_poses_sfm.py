@@ -1,0 +1,140 @@
+"""`sosmatch poses`: COLMAP structure from motion on a small geotagged synthetic flight, against exact truth,
+and its bad inputs (no GPS, too few images, mixed cameras, damaged metadata). Small images, bounded features."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from sosmatch.database.exif import read_image_metadata
+from sosmatch.database.poses import read_poses_csv
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.geometry import rotation_angle_deg
+from sosmatch.plugin.params import Params, with_overrides
+from sosmatch.tools.cli import main
+from sosmatch.workflows import poses as poses_wf
+
+FAST = {"sfm.max_features": 1500}
+
+
+def _params() -> Params:
+    return with_overrides(Params(), FAST)
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory) -> Path:
+    """26 frames 320x240, DJI tags with 1 m GPS noise, a 30 m GPS altitude drift, line 1's yaw 180 deg off."""
+    out = tmp_path_factory.mktemp("sfm") / "flight"
+    assert main(["synth", "--out", str(out), "--frames", "26", "--width", "320", "--height", "240", "--world-size",
+                 "400", "--line-length", "100", "--geotags", "dji", "--gps-altitude-drift", "30",
+                 "--yaw-fault-lines", "1", "-q"]) == 0
+    return out
+
+
+def _strip_metadata(src: Path, dst: Path) -> None:
+    """Copy a JPEG without its APP1 (EXIF, XMP) segments."""
+    data = src.read_bytes()
+    out, i = bytearray(data[:2]), 2
+    while data[i] == 0xFF and data[i + 1] not in (0xDA, 0xD9):
+        length = int.from_bytes(data[i + 2:i + 4], "big")
+        if data[i + 1] != 0xE1:
+            out += data[i:i + 2 + length]
+        i += 2 + length
+    dst.write_bytes(bytes(out + data[i:]))
+
+
+def test_poses_of_a_geotagged_flight(flight, tmp_path, capsys):
+    out = tmp_path / "poses"
+    assert main(["poses", str(flight / "images"), "--out", str(out), "--set", "sfm.max_features=1500"]) == 0
+    line = capsys.readouterr().out
+    assert "26 of 26 images registered (EPSG:" in line and "WARNING" in line
+    truth, _ = read_poses_csv(flight / "poses.csv")
+    offset = np.array(json.loads((flight / "session.json").read_text())["geo"]["world_to_crs_offset"])
+    poses, epsg = read_poses_csv(out / "poses.csv")
+    assert epsg == json.loads((flight / "session.json").read_text())["geo"]["epsg"]
+    idx = [truth.names.index(n) for n in poses.names]
+    err = np.linalg.norm(poses.centers - (truth.centers[idx] + offset), axis=1)
+    assert np.median(err) < 2.0 and err.max() < 4.0  # 320x240 frames and 1 m GPS noise
+    assert np.median(rotation_angle_deg(poses.rotations, truth.rotations[idx])) < 3.0
+    report = json.loads((out / "poses.json").read_text())
+    warnings = " ".join(report["warnings"])
+    assert "GPS altitudes would tilt the block" in warnings and "drifts by +" in warnings
+    lines = report["comparison"]["contradicting_lines"]
+    assert len(lines) == 1 and report["comparison"]["images"][lines[0]["first"]]["name"] == "frame_00019.jpg"
+    assert (out / "cameras.txt").read_text().count("SIMPLE_RADIAL") == 1
+    assert (out / "sparse" / "images.bin").is_file() and (out / "database.db").is_file()
+    # the same call again: the finished output stands (nothing recomputed), the same poses
+    again = poses_wf.run(flight / "images", out, _params())
+    assert again.poses.names == poses.names and np.allclose(again.poses.centers, poses.centers)
+
+
+def test_images_without_gps_give_a_local_frame(flight, tmp_path, caplog):
+    images = tmp_path / "images"
+    images.mkdir()
+    for p in sorted((flight / "images").iterdir()):
+        _strip_metadata(p, images / p.name)
+    assert not read_image_metadata(images / "frame_00000.jpg").has_gps
+    result = poses_wf.run(images, tmp_path / "poses", _params())
+    assert result.epsg == 0 and "# crs: local" in (tmp_path / "poses" / "poses.csv").read_text()
+    assert any("no GPS positions" in w for w in result.warnings)
+    # levelled (nadir cameras look down) and metric by the nominal flight height
+    assert np.all(result.poses.rotations[:, 2, 2] < -0.98)
+    truth, _ = read_poses_csv(flight / "poses.csv")
+    step = np.linalg.norm(np.diff(result.poses.centers[:5], axis=0), axis=1)
+    assert 4.0 < np.median(step) < 10.0  # 7 m between frames at ~100 m above ground
+
+
+def test_fewer_than_three_images_is_a_clear_error(flight, tmp_path, capsys):
+    images = tmp_path / "images"
+    images.mkdir()
+    for name in ("frame_00000.jpg", "frame_00001.jpg"):
+        shutil.copy(flight / "images" / name, images / name)
+    assert main(["poses", str(images), "--out", str(tmp_path / "poses")]) == 2
+    err = capsys.readouterr().err
+    assert "registered" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "poses" / "poses.csv").exists()
+
+
+def test_mixed_cameras_get_one_camera_each_and_map_refuses_them(flight, tmp_path, capsys):
+    images = tmp_path / "images"
+    shutil.copytree(flight / "images", images)
+    for p in sorted(images.iterdir())[::3]:  # every third frame from a second, larger camera
+        img = cv2.imread(str(p))
+        data = cv2.imencode(".jpg", cv2.resize(img, (400, 300)))[1].tobytes()
+        p.write_bytes(data)  # no EXIF: another make/model and size
+    result = poses_wf.run(images, tmp_path / "poses", _params())
+    assert len(result.cameras) == 2
+    assert {(c.width, c.height) for c in result.cameras.values()} == {(320, 240), (400, 300)}
+    assert main(["map", "--images", str(images), "--out", str(tmp_path / "map"), "--set",
+                 "sfm.max_features=1500", "--no-progress"]) == 2
+    assert "cameras" in capsys.readouterr().err
+    assert not (tmp_path / "map" / "run.json").exists()
+
+
+def test_damaged_metadata_is_warned_about_and_the_images_still_register(flight, tmp_path):
+    images = tmp_path / "images"
+    shutil.copytree(flight / "images", images)
+    p = images / "frame_00005.jpg"
+    data = bytearray(p.read_bytes())
+    j = data.find(b"<rdf:Description")
+    data[j + 1:j + 5] = b"<<<<"  # the XMP is no longer XML: attitude and RelativeAltitude lost
+    p.write_bytes(bytes(data))
+    q = images / "frame_00012.jpg"
+    data = bytearray(q.read_bytes())
+    i = data.find(b"Exif\x00\x00")
+    data[i + 14:i + 40] = b"\xab" * 26  # the EXIF is unreadable: no GPS for this one
+    q.write_bytes(bytes(data))
+    result = poses_wf.run(images, tmp_path / "poses", _params())
+    damaged = result.report["priors"]["damaged_metadata"]
+    assert set(damaged) == {"frame_00005.jpg", "frame_00012.jpg"}
+    assert len(result.poses) == 26 and result.epsg != 0
+
+
+def test_without_images_or_with_an_output_inside_the_input(tmp_path):
+    with pytest.raises(InputError, match="image directory not found"):
+        poses_wf.run(tmp_path / "missing", tmp_path / "out")

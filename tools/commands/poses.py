@@ -1,0 +1,49 @@
+"""`sosmatch poses IMAGES --out DIR`: poses and cameras from the images by COLMAP's structure from motion."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ._common import add_params_arguments, params_from_args
+
+NAME = "poses"
+HELP = ("camera poses and intrinsics from a folder of photos: COLMAP structure from motion georegistered on "
+        "their GPS (poses.csv, cameras.txt, a COLMAP model, poses.json)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("images", type=Path, nargs="?", help="image directory")
+    parser.add_argument("--opensfm", type=Path, metavar="PROJECT",
+                        help="take the poses and cameras of an OpenDroneMap / OpenSfM project (its "
+                             "opensfm/reconstruction.json, converted to UTM) instead of computing them; IMAGES, if "
+                             "given, rescales the cameras to the image files")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--telemetry", type=Path,
+                        help="CSV with FileName,Heading,PitchAngle,RollAngle[,GPSLatitude,...] for images whose "
+                             "EXIF/XMP lacks them (as poses-from-exif)")
+    parser.add_argument("--takeoff-altitude", type=float,
+                        help="altitude of the take-off point (m, the GPS datum): heights = this + DJI "
+                             "RelativeAltitude (default: from the GPS at the start of the flight)")
+    parser.add_argument("--sensor-width-mm", type=float, help="sensor width when EXIF has no focal-plane resolution")
+    parser.add_argument("--nominal-height", type=float, default=100.0,
+                        help="without GPS and RelativeAltitude: the flight height above ground that sets the local "
+                             "frame's scale (m)")
+    parser.add_argument("--overwrite", action="store_true", help="replace a previous `poses` output of other inputs")
+    add_params_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ...plugin.errors import InputError
+    from ...workflows import poses
+
+    if args.opensfm is not None:
+        print(poses.run_opensfm(args.opensfm, args.out, args.images, overwrite=args.overwrite).line())
+        return 0
+    if args.images is None:
+        raise InputError("give an image directory (or --opensfm PROJECT)")
+    result = poses.run(args.images, args.out, params_from_args(args), telemetry=args.telemetry,
+                       takeoff_altitude_m=args.takeoff_altitude, sensor_width_mm=args.sensor_width_mm,
+                       nominal_height_m=args.nominal_height, overwrite=args.overwrite)
+    print(result.line())
+    return 0

@@ -1,0 +1,264 @@
+"""Structure from motion with COLMAP itself (pycolmap 4.2): the stages, each a plain function (hloc-style).
+
+    from sosmatch.workflows import sfm
+    sfm.create_database(db, priors, params.sfm)                # one camera per group, images with fixed ids
+    sfm.extract_features(db, image_dir, priors, params.sfm)     # SIFT at a bounded size
+    pairs = sfm.write_pairs(pairs_txt, priors, params.sfm)      # the pairs GPS says may overlap
+    sfm.match_pairs(db, pairs_txt, params.sfm)                  # SIFT matching + two-view geometry
+    model = sfm.reconstruct(db, image_dir, work_dir, priors, params.sfm, seed)  # incremental or global
+
+`workflows.poses` chains them with georegistration and the outputs; the database and models are COLMAP's own
+files (they open in COLMAP's GUI). CPU only: `SfmParams` bounds the image size, the feature count and the pairs
+(measured: BENCHMARKS.md, "Poses from images").
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..plugin.errors import InputError
+from ..plugin.image_pairs import select_pairs
+from ..plugin.params import SfmParams
+
+if TYPE_CHECKING:
+
+    from .image_priors import ImagePriors
+
+log = logging.getLogger(__name__)
+
+
+def _quiet() -> None:
+    import pycolmap
+
+    pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel),
+                                       1 if log.isEnabledFor(logging.DEBUG) else 2)
+
+
+def _threads() -> int:
+    import os
+
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def _initial_camera(cam: Any, camera_id: int, model: str) -> Any:
+    """The pycolmap camera `model` starting from the EXIF intrinsics `cam` (no distortion)."""
+    import pycolmap
+
+    one_focal = model in ("SIMPLE_RADIAL", "SIMPLE_PINHOLE", "RADIAL")
+    focal = [cam.fx] if one_focal else [cam.fx, cam.fy]
+    extra = {"SIMPLE_RADIAL": [0.0], "RADIAL": [0.0, 0.0], "OPENCV": [0.0] * 4}.get(model, [])
+    return pycolmap.Camera(camera_id=camera_id, model=model, width=int(cam.width), height=int(cam.height),
+                           params=[float(v) for v in [*focal, cam.cx, cam.cy, *extra]])
+
+
+def create_database(database: Path, priors: ImagePriors, params: SfmParams) -> None:
+    """A COLMAP database with one camera (and rig) per make + model + size, starting from the EXIF intrinsics,
+    and every image in name order with fixed ids (1, 2, ...): the ids, and so everything after, do not depend
+    on which extraction thread finishes first. An existing database is kept (a resumed run)."""
+    import pycolmap
+
+    if database.is_file():
+        return
+    tmp = database.with_name(database.name + ".tmp")
+    tmp.unlink(missing_ok=True)
+    db = pycolmap.Database.open(tmp)
+    try:
+        with pycolmap.DatabaseTransaction(db):
+            for g, cam in enumerate(priors.cameras):
+                camera = _initial_camera(cam, g + 1, params.camera_model)
+                db.write_camera(camera, use_camera_id=True)
+                rig = pycolmap.Rig(rig_id=g + 1)
+                rig.add_ref_sensor(camera.sensor_id)
+                db.write_rig(rig, use_rig_id=True)
+            for i, (name, g) in enumerate(zip(priors.names, priors.camera_index), start=1):
+                image = pycolmap.Image(name=name, camera_id=int(g) + 1, image_id=i)
+                db.write_image(image, use_image_id=True)
+                frame = pycolmap.Frame(frame_id=i, rig_id=int(g) + 1)
+                frame.add_data_id(image.data_id)
+                db.write_frame(frame, use_frame_id=True)
+    finally:
+        db.close()
+    tmp.replace(database)
+
+
+def extract_features(database: Path, image_dir: Path, priors: ImagePriors, params: SfmParams) -> dict[str, Any]:
+    """SIFT features of every image of the database (`create_database` first): images downscaled to
+    `max_image_size_px`, at most `max_features` each. Images that have features already keep them (COLMAP skips
+    them), so an interrupted extraction resumes."""
+    import pycolmap
+
+    _quiet()
+    t0 = time.perf_counter()
+    options = pycolmap.FeatureExtractionOptions()
+    options.max_image_size = params.max_image_size_px
+    options.num_threads = _threads()
+    options.sift.max_num_features = params.max_features
+    options.sift.first_octave = params.first_octave
+    options.sift.peak_threshold = params.peak_threshold
+    for g in range(len(priors.cameras)):
+        names = [n for n, i in zip(priors.names, priors.camera_index) if i == g]
+        reader = pycolmap.ImageReaderOptions()
+        reader.existing_camera_id = g + 1
+        pycolmap.extract_features(database, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                                  reader_options=reader, extraction_options=options, device=pycolmap.Device.cpu)
+    db = pycolmap.Database.open(database)
+    try:
+        counts = np.array([db.num_keypoints_for_image(im.image_id) for im in db.read_all_images()])
+        num_images, num_cameras = db.num_images(), db.num_cameras()
+    finally:
+        db.close()
+    if num_images != len(priors.names) or num_cameras != len(priors.cameras):
+        raise InputError(f"COLMAP's database holds {num_images} images and {num_cameras} cameras, expected "
+                         f"{len(priors.names)} and {len(priors.cameras)} (unreadable files?)", image_dir)
+    featureless = [n for n, c in zip(priors.names, counts) if c == 0]
+    if featureless:
+        log.warning("%d image(s) gave no features (unreadable or blank): %s", len(featureless),
+                    ", ".join(featureless[:8]))
+    return {"images": int(num_images), "keypoints_median": float(np.median(counts)) if len(counts) else 0.0,
+            "keypoints_min": int(counts.min()) if len(counts) else 0, "featureless": featureless,
+            "seconds": time.perf_counter() - t0}
+
+
+def footprint_diagonal_m(priors: ImagePriors) -> float | None:
+    """The ground diagonal of an image at the flight's height above ground, when DJI's RelativeAltitude gives
+    that height (above the take-off point, taken as the ground): centres further apart cannot overlap."""
+    rel = priors.relative_altitude[np.isfinite(priors.relative_altitude)]
+    if len(rel) == 0 or np.median(rel) <= 0:
+        return None
+    cam = priors.cameras[0]
+    # 1.5 x: the ground may lie lower than the take-off point and the camera may look off nadir
+    return 1.5 * float(np.median(rel)) * math.hypot(cam.width, cam.height) / cam.fx
+
+
+def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.ndarray, str]:
+    """Choose the pairs to match (`plugin.image_pairs.select_pairs`, images in capture order) and write them as
+    COLMAP's pair list (`name_a name_b` per line). Returns the index pairs and how they were chosen."""
+    from ..database.atomic import write_text_atomic
+
+    order = np.argsort(priors.times_s, kind="stable")
+    pairs, how = select_pairs(priors.positions[order, :2], params.neighbours, params.sequential,
+                              footprint_diagonal_m(priors), params.exhaustive_up_to, params.sequential_without_gps)
+    pairs = np.sort(order[pairs], axis=1)
+    names = priors.names
+    write_text_atomic(path, "".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+    return pairs, how
+
+
+def match_pairs(database: Path, pairs_txt: Path, params: SfmParams, seed: int = 0) -> dict[str, Any]:
+    """SIFT matching of the listed pairs and their two-view geometry (RANSAC seeded: deterministic)."""
+    import pycolmap
+
+    _quiet()
+    t0 = time.perf_counter()
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = _threads()
+    pairing = pycolmap.ImportedPairingOptions()
+    pairing.match_list_path = pairs_txt
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = int(seed % (2**31))
+    pycolmap.match_image_pairs(database, matching_options=matching, pairing_options=pairing,
+                               verification_options=verification, device=pycolmap.Device.cpu)
+    db = pycolmap.Database.open(database)
+    try:
+        matched, verified = db.num_matched_image_pairs(), db.num_verified_image_pairs()
+    finally:
+        db.close()
+    return {"pairs_matched": int(matched), "pairs_verified": int(verified), "seconds": time.perf_counter() - t0}
+
+
+def write_pose_priors(database: Path, priors: ImagePriors, origin: np.ndarray, params: SfmParams) -> int:
+    """GPS positions (minus `origin`) as COLMAP pose priors of the images with a fix: horizontal sigma
+    `gps_sigma_m`; vertical the same when the heights come from RelativeAltitude, else effectively free (a GPS
+    altitude may drift by tens of metres, which a prior would bend the block to). Returns the number written."""
+    import pycolmap
+
+    relative = "RelativeAltitude" in str(priors.summary.get("altitude_source", ""))
+    sigma_z = params.gps_sigma_m if relative else 1e3
+    cov = np.diag([params.gps_sigma_m**2, params.gps_sigma_m**2, sigma_z**2])
+    index = {n: i for i, n in enumerate(priors.names)}
+    db = pycolmap.Database.open(database)
+    written = 0
+    try:
+        db.clear_pose_priors()  # COLMAP's extractor writes WGS84 priors from EXIF itself; ours replace them
+        for im in db.read_all_images():
+            i = index[im.name]
+            if priors.has_gps[i]:
+                db.write_pose_prior(pycolmap.PosePrior(
+                    corr_data_id=im.data_id, position=priors.positions[i] - origin, position_covariance=cov,
+                    coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN))
+                written += 1
+    finally:
+        db.close()
+    return written
+
+
+@dataclass
+class SfmModel:
+    """The largest reconstruction and what became of every image."""
+
+    reconstruction: Any  # pycolmap.Reconstruction
+    registered: list[str]
+    unregistered: list[str]
+    other_models: list[list[str]] = field(default_factory=list)  # images of smaller, disconnected models
+    seconds: float = 0.0
+
+    def poses(self) -> tuple[list[str], np.ndarray, np.ndarray]:
+        """(names, sfm_from_cam rotations (N,3,3), centres (N,3)) of the registered images, sorted by name."""
+        rec = self.reconstruction
+        by_name = {im.name: im for im in rec.images.values() if im.has_pose}
+        names = sorted(by_name)
+        rots, centers = [], []
+        for n in names:
+            pose = by_name[n].cam_from_world()
+            r_cw = np.asarray(pose.rotation.matrix())
+            rots.append(r_cw.T)
+            centers.append(-r_cw.T @ np.asarray(pose.translation))
+        return names, np.array(rots).reshape(-1, 3, 3), np.array(centers).reshape(-1, 3)
+
+
+def reconstruct(database: Path, image_dir: Path, work_dir: Path, priors: ImagePriors, params: SfmParams,
+                seed: int = 0) -> SfmModel:
+    """COLMAP's incremental (or global) mapper on the matched database; the largest model is kept and the
+    images of the others are listed. InputError when no model has 3 images."""
+    import pycolmap
+
+    _quiet()
+    t0 = time.perf_counter()
+    work_dir.mkdir(parents=True, exist_ok=True)
+    if params.mapper == "global":
+        options = pycolmap.GlobalPipelineOptions()
+        options.num_threads = _threads()
+        options.random_seed = int(seed % (2**31))
+        options.min_model_size = 3
+        models = pycolmap.global_mapping(database, image_dir, work_dir, options)
+    else:
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = _threads()
+        options.random_seed = int(seed % (2**31))
+        options.min_model_size = 3
+        options.use_prior_position = params.use_gps_priors
+        options.use_robust_loss_on_prior_position = params.use_gps_priors
+        models = pycolmap.incremental_mapping(database, image_dir, work_dir, options)
+    recs = sorted(models.values(), key=lambda r: -r.num_reg_images())
+    if not recs or recs[0].num_reg_images() < 3:
+        raise InputError(f"structure from motion registered {recs[0].num_reg_images() if recs else 0} images "
+                         f"(needs 3): the images do not overlap, or have too little texture", image_dir)
+    best = recs[0]
+    registered = sorted(im.name for im in best.images.values() if im.has_pose)
+    others = [sorted(im.name for im in r.images.values() if im.has_pose) for r in recs[1:]]
+    unregistered = sorted(set(priors.names) - set(registered))
+    return SfmModel(best, registered, unregistered, others, time.perf_counter() - t0)
+
+
+def camera_of_model(model: SfmModel) -> dict[int, Any]:
+    """{camera_id: plugin Camera} of the model's cameras, as SfM refined them (focal length, distortion)."""
+    from ..database.cameras import camera_from_pycolmap
+
+    return {int(cid): camera_from_pycolmap(cam) for cid, cam in model.reconstruction.cameras.items()}
