@@ -74,6 +74,14 @@ def test_discovery(flights, tmp_path):
     with pytest.raises(InputError, match="no flights"):
         batch.discover_flights(tmp_path)
     assert main(["batch", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    # a folder of photos gets its poses by structure from motion, an ODM project from its reconstruction
+    for name in ("photos", "odm"):
+        (tmp_path / "kinds" / name / "images").mkdir(parents=True)
+        (tmp_path / "kinds" / name / "images" / "a.jpg").write_bytes(b"")
+    (tmp_path / "kinds" / "odm" / "opensfm").mkdir()
+    (tmp_path / "kinds" / "odm" / "opensfm" / "reconstruction.json").write_text("[]")
+    kinds = [(f.name, f.kind) for f in batch.discover_flights(tmp_path / "kinds")]
+    assert kinds == [("odm", "opensfm"), ("photos", "images")]
 
 
 def test_batch_stages_failures_and_groups(flights, local_run):

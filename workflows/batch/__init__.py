@@ -6,8 +6,10 @@ processes, or a Dask cluster):
    - "mapped": already a mapped session (sparse/, landmarks.sosmap, landmarks.csv): used as it is;
    - "synth": a `sosmatch synth` session (session.json, poses.csv, images/, cameras.txt);
    - "poses": images (in images/ or the folder itself) with a pose file poses.csv (and cameras.txt);
-   - "exif": geotagged images and no pose file: poses and intrinsics come from EXIF
-     (`sosmatch.workflows.poses_from_exif`).
+   - "opensfm": images with an OpenDroneMap / OpenSfM project's opensfm/reconstruction.json: its poses and
+     cameras (converted to UTM, `sosmatch.workflows.poses.opensfm_poses`);
+   - "images": a folder of photos and no pose file: poses and cameras by COLMAP's structure from motion,
+     georegistered on their GPS (`sosmatch.workflows.poses`; kept in OUT/sessions/NAME/poses).
 2. map: each flight -> OUT/sessions/NAME (`sosmatch.workflows.map`);
 3. match: every pair of mapped sessions, or with `nearest=k` only pairs where one session is among the k
    nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the

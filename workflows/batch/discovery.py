@@ -20,7 +20,7 @@ class Flight:
 
     name: str
     path: Path
-    kind: str  # "mapped" | "synth" | "poses" | "exif"
+    kind: str  # "mapped" | "synth" | "poses" | "opensfm" | "images"
 
 
 def images_dir(folder: Path) -> Path | None:
@@ -38,7 +38,9 @@ def classify_flight(folder: Path) -> str | None:
         return "synth"
     if images_dir(folder) is None:
         return None
-    return "poses" if (folder / "poses.csv").is_file() else "exif"
+    if (folder / "poses.csv").is_file():
+        return "poses"
+    return "opensfm" if (folder / "opensfm" / "reconstruction.json").is_file() else "images"
 
 
 def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) -> list[Flight]:

@@ -57,13 +57,12 @@ def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params
         cameras = flight_path / "cameras.txt"
         inputs = map_workflow.load_inputs(images_dir(flight_path), flight_path / "poses.csv",
                                           cameras if cameras.is_file() else None)
-    elif kind == "exif":
-        from .. import poses_from_exif
+    elif kind == "opensfm":
+        inputs = map_workflow.load_inputs(images_dir(flight_path), flight_path / "opensfm" / "reconstruction.json")
+    elif kind == "images":  # structure from motion inside the session directory (OUT/sessions/NAME/poses)
+        from ..poses import PosesFromImages
 
-        images = images_dir(flight_path)
-        exif_dir = out.parent / f".{name}.exif"
-        poses_from_exif.run(images, exif_dir / "poses.csv", overwrite=overwrite)
-        inputs = map_workflow.load_inputs(images, exif_dir / "poses.csv", exif_dir / "cameras.txt")
+        inputs = PosesFromImages(images_dir(flight_path), params)
     else:
         raise ValueError(f"unknown flight kind {kind!r}")
     map_workflow.run(params, inputs, out, overwrite=overwrite, progress=False)
