@@ -360,7 +360,7 @@ def georegister(
     if hfit.inliers.sum() < 0.5 * len(idx):
         warnings.append(f"only {int(hfit.inliers.sum())} of {len(idx)} GPS positions fit the reconstruction: "
                         "the georegistration is doubtful")
-    if vert.images_rejected:
+    if vert.images_rejected and vert.source.startswith("attitude tags"):  # (off-nadir views are no fault)
         warnings.append(f"{len(vert.images_rejected)} image(s) have attitude tags whose vertical contradicts "
                         "the others'")
     return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings)
