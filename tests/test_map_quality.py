@@ -64,7 +64,9 @@ def _judge(positions, sizes, obs, centers, axes):
                                                           (10, 20, 15, 60)])
 def test_consistent_maps_pass_on_any_terrain_and_camera_tilt(slope, view, hills, altitude):
     q, v = _judge(*toy_flight(slope, view, altitude=altitude, hills_m=hills))
-    assert v.ok and not v.warnings, (v.refusals, v.warnings, q)
+    assert v.ok, (v.refusals, q)
+    # a steep site is said (not refused): the same figure is what drifting GPS heights produce
+    assert [w for w in v.warnings if "ground tilts" not in w] == [] and bool(v.warnings) == (abs(slope) > 20)
     assert 0.6 < q.pass_disagreement < 1.8
     assert q.landmarks_above_cameras == 0 and abs(q.flying_height_m - altitude) < 10
     if not hills:

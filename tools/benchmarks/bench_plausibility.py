@@ -122,8 +122,6 @@ def _inputs(session: Path, case: Case, work: Path) -> Any:
 def run_case(work: Path, case: Case, frames: int) -> dict[str, Any]:
     from ...database.config_io import load_params
     from ...workflows import map as map_workflow
-    from .bench_map import score_session
-
     session = _session(work, case, frames)
     inputs = _inputs(session, case, work)
     out = work / "maps" / f"{session.name}_{case.poses}_{case.preset}"
@@ -136,53 +134,71 @@ def run_case(work: Path, case: Case, frames: int) -> dict[str, Any]:
     row: dict[str, Any] = {"case": case.name, "good": case.good, "verdict": run["verdict"], "quality": run["quality"],
                            "landmarks": run["counts"]["landmarks"], "cpu_s": round(cpu, 1), "session": str(session),
                            "map": str(out)}
-    if case.poses != "exif" and case.poses != "tilt30":  # maps in the session's own frame can be scored
-        score = score_session(session, out)
-        row["median_horizontal_m"] = score["median_h_m"]
+    if case.poses != "tilt30":  # a rotated block has no meaningful horizontal error
+        row["median_horizontal_m"] = horizontal_error(session, out)
     return row
 
 
-def mapped_row(path: Path) -> dict[str, Any]:
-    """A mapped session made elsewhere: its verdict from run.json, or recomputed from sparse/."""
-    run = json.loads((path / "run.json").read_text())
-    if "verdict" in run:
-        return {"case": f"mapped: {path}", "good": True, "verdict": run["verdict"], "quality": run["quality"],
-                "landmarks": run["counts"]["landmarks"]}
+def horizontal_error(session: Path, mapped: Path) -> float:
+    """Median horizontal distance of the map's landmarks on objects (bench_map's label vote) to the objects'
+    visible-top centres, in the session's world frame (maps made from the synthetic geotags are in UTM: the
+    session's `geo.world_to_crs_offset` is taken off)."""
+    from ...database.landmark_map import read_landmark_map
+    from ...database.synth_session import load_synth_session
+    from .bench_map import landmark_objects
+
+    synth = load_synth_session(session)
+    offset = np.asarray(synth.meta.get("geo", {}).get("world_to_crs_offset", [0.0, 0.0, 0.0]), np.float64)
+    lmap = read_landmark_map(mapped / "landmarks.sosmap")
+    pos = lmap.positions - (offset if lmap.epsg else 0.0)
+    majority, _ = landmark_objects(synth, mapped)
+    objects = {int(o["id"]): o for o in synth.objects}
+    err = [float(np.hypot(pos[i, 0] - objects[int(majority[i])]["x"], pos[i, 1] - objects[int(majority[i])]["y"]))
+           for i in np.flatnonzero(majority > 0)]
+    return float(np.median(err)) if err else float("nan")
+
+
+def figures(path: Path) -> dict[str, Any]:
+    """The quality figures of a mapped session, recomputed with the current code from sparse/, landmarks.csv and
+    run.json's counts (so sessions mapped by older code, or elsewhere, are judged alike)."""
     import pycolmap
 
     from ...database.session_io import read_landmark_table
-    from ...plugin.map_quality import assess_map, judge
-    from ...plugin.params import Params, params_from_dict
+    from ...plugin.map_quality import assess_map
 
+    run = json.loads((path / "run.json").read_text())
     rec = pycolmap.Reconstruction(str(path / "sparse"))
     ids = sorted(rec.images)
     index = {iid: k for k, iid in enumerate(ids)}
     centers = np.array([rec.images[i].projection_center() for i in ids])
     axes = np.array([rec.images[i].cam_from_world().rotation.matrix().T[:, 2] for i in ids])
     table = read_landmark_table(path / "landmarks.csv")
-    pids = table.point3d_ids
-    pos = np.array([rec.points3D[int(p)].xyz for p in pids]).reshape(-1, 3)
-    errors = np.array([rec.points3D[int(p)].error for p in pids])
-    obs = [np.array([index[e.image_id] for e in rec.points3D[int(p)].track.elements]) for p in pids]
+    points = [rec.points3D[int(p)] for p in table.point3d_ids]
+    pos = np.array([p.xyz for p in points]).reshape(-1, 3)
+    errors = np.array([p.error for p in points])
+    obs = [np.array([index[e.image_id] for e in p.track.elements]) for p in points]
     q = assess_map(pos, table.sizes, errors, obs, centers, axes, run["counts"].get("tracks_long", len(pos)))
-    params = params_from_dict(run["params"]) if "params" in run else Params()
-    v = judge(q, params.quality, params.association.min_associations + 1)
-    status = "ok" if v.ok else "refused"
-    return {"case": f"mapped: {path}", "good": True, "landmarks": len(pos), "quality": q.to_dict(),
-            "verdict": {"status": status, "refusals": v.refusals, "warnings": v.warnings}}
+    return q.to_dict()
+
+
+def mapped_row(path: Path, good: bool = True) -> dict[str, Any]:
+    """A mapped session made elsewhere (Seneca, NAIP, other engineers' synthetic maps)."""
+    return {"case": f"mapped: {path}", "good": good, "map": str(path), "quality": figures(path),
+            "landmarks": json.loads((path / "run.json").read_text())["counts"]["landmarks"]}
 
 
 def rejudge(row: dict[str, Any]) -> dict[str, Any]:
-    """The verdict of a row's recorded figures under the current limits (`map_quality.judge`, default quality
-    parameters): the table always shows what `sosmatch map` would say now."""
+    """The verdict of a row under the current code: figures recomputed from its map (when it is still there),
+    then `map_quality.judge` with the default limits, so the table always shows what `sosmatch map` would say."""
     from ...plugin.map_quality import MapQuality, judge
     from ...plugin.params import Params
 
-    q = MapQuality(**{k: (float("nan") if v is None else v) for k, v in row["quality"].items()})
+    quality = figures(Path(row["map"])) if Path(row.get("map", "")).is_dir() else row["quality"]
+    q = MapQuality(**{k: (float("nan") if v is None else v) for k, v in quality.items()})
     p = Params()
     v = judge(q, p.quality, p.association.min_associations + 1)
-    return {**row, "verdict": {"status": "ok" if v.ok else "refused", "refusals": v.refusals,
-                               "warnings": v.warnings}}
+    return {**row, "quality": quality, "verdict": {"status": "ok" if v.ok else "refused", "refusals": v.refusals,
+                                                   "warnings": v.warnings}}
 
 
 def _fmt(v: Any, spec: str = ".2f") -> str:
@@ -195,6 +211,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--only", nargs="*", help="case names (substrings) to run")
     ap.add_argument("--mapped", nargs="*", type=Path, default=[], help="more good mapped sessions to judge")
+    ap.add_argument("--mapped-bad", nargs="*", type=Path, default=[],
+                    help="mapped sessions known to be wrong (e.g. Seneca on its raw telemetry)")
     ap.add_argument("--report-only", action="store_true", help="re-judge and print WORK/results.json")
     args = ap.parse_args(argv)
     print(machine_summary())
@@ -210,10 +228,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {case.name}: {rows[-1]['verdict']['status']}", flush=True)
             args.work.mkdir(parents=True, exist_ok=True)
             results.write_text(json.dumps(rows, indent=1, default=str) + "\n")  # after every case: resumable
-    rows = [r for r in rows if not (args.mapped and r["case"].startswith("mapped: "))]
-    rows += [mapped_row(p) for p in args.mapped]
+    rows = [r for r in rows if not ((args.mapped or args.mapped_bad) and r["case"].startswith("mapped: "))]
+    rows += [mapped_row(p) for p in args.mapped] + [mapped_row(p, good=False) for p in args.mapped_bad]
     results.write_text(json.dumps(rows, indent=1, default=str) + "\n")
     rows = [rejudge(r) for r in rows]
+    for r in rows:  # scored with the current scorer where the session and map are still there
+        if not r["case"].startswith("mapped: ") and "rotated" not in r["case"] and Path(r["map"]).is_dir():
+            r["median_horizontal_m"] = horizontal_error(Path(r["session"]), Path(r["map"]))
     print("| case | should be | verdict | landmarks | reproj p50/p90 px | kf with lm | pass disagreement | "
           "block tilt deg | ground tilt deg | above cams | horiz. error m | reason |")
     print("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|")
