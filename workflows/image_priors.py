@@ -362,8 +362,9 @@ def _camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
         w, h = key[2], key[3]
         if not found:
             f = 1.2 * max(w, h)
-            log.warning("%s %s (%dx%d, %d images): no usable focal length in EXIF; starting from %.0f px "
-                        "(structure from motion estimates it)", key[0], key[1], w, h, len(members), f)
+            log.warning("%s (%dx%d, %d images): no usable focal length in EXIF; starting from %.0f px "
+                        "(structure from motion estimates it)", f"{key[0]} {key[1]}".strip() or "camera", w, h,
+                        len(members), f)
             cameras.append(Camera(w, h, f, f, w / 2.0, h / 2.0))
             sources.append("none in EXIF (1.2 x the longer side)")
             continue

@@ -137,17 +137,20 @@ def run(
 
 def compute_poses(image_dir: Path, work: Path, params: Params, identity: str,
                   telemetry: str | Path | None = None, takeoff_altitude_m: float | None = None,
-                  sensor_width_mm: float | None = None, nominal_height_m: float = NOMINAL_HEIGHT_M) -> PosesResult:
+                  sensor_width_mm: float | None = None, nominal_height_m: float = NOMINAL_HEIGHT_M,
+                  priors: ImagePriors | None = None) -> PosesResult:
     """The stages in directory `work` (created; features and matches of an interrupted run with the same
-    `identity` are reused); the outputs end up in `work/result` (a finished result there is returned as is)."""
+    `identity` are reused); the outputs end up in `work/result` (a finished result there is returned as is).
+    `priors`: the images' metadata when the caller has read it already (with these options)."""
     work.mkdir(parents=True, exist_ok=True)
     result_dir = work / "result"
     done = _stage_done(work, "result", identity)
     if done is not None and (result_dir / RECORD).is_file():
         return load_result(result_dir)
     shutil.rmtree(result_dir, ignore_errors=True)
-    priors = read_image_priors(image_dir, telemetry, sensor_width_mm=sensor_width_mm,
-                               takeoff_altitude_m=takeoff_altitude_m)
+    if priors is None:
+        priors = read_image_priors(image_dir, telemetry, sensor_width_mm=sensor_width_mm,
+                                   takeoff_altitude_m=takeoff_altitude_m)
     result = _compute(image_dir, work, result_dir, priors, params, identity, nominal_height_m)
     _mark_stage(work, "result", identity, {})
     return result
@@ -194,10 +197,11 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         log.info("features and matches of a previous run reused (%s)", db)
     origin = np.nanmedian(priors.positions, axis=0) if priors.has_gps.any() else np.zeros(3)
     origin = np.where(np.isfinite(origin), np.round(origin), 0.0)
-    if sp.use_gps_priors:
+    use_priors = sfm.gps_priors_apply(priors, sp)
+    if use_priors:
         sfm.write_pose_priors(db, priors, origin, sp)
     shutil.rmtree(work / "models", ignore_errors=True)
-    model = sfm.reconstruct(db, image_dir, work / "models", priors, sp, params.seed)
+    model = sfm.reconstruct(db, image_dir, work / "models", priors, sp, params.seed, use_priors)
     timings["mapping"] = model.seconds
     n_all = len(priors.names)
     if len(model.registered) < max(3, sp.min_registered_fraction * n_all):
@@ -249,7 +253,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         "cameras": {str(k): {"model": c.model, "width": c.width, "height": c.height, "params": c.params}
                     for k, c in cameras.items()},
         "camera_of_image": camera_of_image,
-        "priors": priors.summary, "matching": matched,
+        "priors": priors.summary, "matching": matched, "gps_priors_in_bundle_adjustment": use_priors,
         "georegistration": geo_report, "comparison": comparison,
         "params": params_to_dict(sp), "warnings": warnings,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
@@ -318,12 +322,13 @@ class PosesFromImages:
         """Poses (in OUT/.partial/poses_work, reused when an interrupted run finished them) -> map inputs; the
         result directory is staged as OUT/.partial/poses."""
         image_dir = Path(self.images)
-        cameras = read_image_priors(image_dir, self.telemetry, sensor_width_mm=self.sensor_width_mm).cameras
-        if len(cameras) > 1:  # before the structure from motion: map takes one camera
-            _refuse_cameras([f"{c.width}x{c.height}" for c in cameras], image_dir)
+        priors = read_image_priors(image_dir, self.telemetry, sensor_width_mm=self.sensor_width_mm,
+                                   takeoff_altitude_m=self.takeoff_altitude_m)
+        if len(priors.cameras) > 1:  # before the structure from motion: map takes one camera
+            _refuse_cameras([f"{c.width}x{c.height}" for c in priors.cameras], image_dir)
         work = out.staging / "poses_work"
         result = compute_poses(image_dir, work, self.params, self.identity(), self.telemetry,
-                               self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m)
+                               self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m, priors)
         staged = out.staging / "poses"
         shutil.rmtree(staged, ignore_errors=True)
         shutil.copytree(result.out_dir, staged)  # the work copy stays for a resumed run until the map is done

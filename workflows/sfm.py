@@ -223,10 +223,18 @@ class SfmModel:
         return names, np.array(rots).reshape(-1, 3, 3), np.array(centers).reshape(-1, 3)
 
 
+def gps_priors_apply(priors: ImagePriors, params: SfmParams) -> bool:
+    """Whether the GPS goes into the bundle adjustment as pose priors (`SfmParams.use_gps_priors`)."""
+    if params.use_gps_priors == "auto":
+        return bool(priors.has_gps.sum() >= 3 and "RelativeAltitude" in str(priors.summary.get("altitude_source")))
+    return params.use_gps_priors == "on" and bool(priors.has_gps.sum() >= 3)
+
+
 def reconstruct(database: Path, image_dir: Path, work_dir: Path, priors: ImagePriors, params: SfmParams,
-                seed: int = 0) -> SfmModel:
-    """COLMAP's incremental (or global) mapper on the matched database; the largest model is kept and the
-    images of the others are listed. InputError when no model has 3 images."""
+                seed: int = 0, use_priors: bool = False) -> SfmModel:
+    """COLMAP's incremental (or global) mapper on the matched database (`use_priors`: with the pose priors of
+    `write_pose_priors` in its bundle adjustments); the largest model is kept and the images of the others are
+    listed. InputError when no model has 3 images."""
     import pycolmap
 
     _quiet()
@@ -243,8 +251,8 @@ def reconstruct(database: Path, image_dir: Path, work_dir: Path, priors: ImagePr
         options.num_threads = _threads()
         options.random_seed = int(seed % (2**31))
         options.min_model_size = 3
-        options.use_prior_position = params.use_gps_priors
-        options.use_robust_loss_on_prior_position = params.use_gps_priors
+        options.use_prior_position = use_priors
+        options.use_robust_loss_on_prior_position = use_priors
         models = pycolmap.incremental_mapping(database, image_dir, work_dir, options)
     recs = sorted(models.values(), key=lambda r: -r.num_reg_images())
     if not recs or recs[0].num_reg_images() < 3:
