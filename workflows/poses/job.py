@@ -1,0 +1,239 @@
+"""`poses.run`: the stages of structure from motion in a work directory, resumable, and the output directory."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...database.atomic import write_text_atomic
+from ...database.cameras import format_cameras_txt
+from ...database.outputs import fingerprint, open_output_dir
+from ...database.poses import format_poses_csv
+from ...plugin.errors import InputError
+from ...plugin.geometry import Poses
+from ...plugin.params import Params, params_to_dict
+from .. import sfm
+from ..image_priors import ImagePriors, list_images, read_image_priors
+from .checks import NOMINAL_HEIGHT_M, _check_focal_lengths, _compare, _register, _transform_model
+from .result import OUTPUTS, RECORD, PosesResult, _json_default, _listing, _refuse_cameras, load_result, map_inputs
+
+log = logging.getLogger(__name__)
+
+def _image_identity(paths: Sequence[Path]) -> list[list[Any]]:
+    out = []
+    for p in paths:
+        st = p.stat()
+        out.append([p.name, st.st_size, st.st_mtime_ns])
+    return out
+
+def identity_of(image_dir: Path, params: Params, **options: Any) -> str:
+    """What the poses of `image_dir` depend on: the image files (names, sizes, times), the SfM parameters, the
+    seed and `options` (telemetry, take-off altitude, ...)."""
+    return fingerprint({"images": _image_identity(list_images(image_dir)), "sfm": params_to_dict(params.sfm),
+                        "seed": params.seed, **{k: str(v) for k, v in options.items()}})
+
+def run(
+    images: str | Path,
+    out: str | Path,
+    params: Params | None = None,
+    telemetry: str | Path | None = None,
+    takeoff_altitude_m: float | None = None,
+    sensor_width_mm: float | None = None,
+    nominal_height_m: float = NOMINAL_HEIGHT_M,
+    overwrite: bool = False,
+) -> PosesResult:
+    """Poses of the images in directory `images` into directory `out` (see the module doc)."""
+    params = params or Params()
+    image_dir = Path(images)
+    if not image_dir.is_dir():
+        raise InputError("image directory not found", image_dir)
+    options = {"telemetry": telemetry, "takeoff": takeoff_altitude_m, "sensor": sensor_width_mm,
+               "nominal_height_m": nominal_height_m}
+    identity = identity_of(image_dir, params, **options)
+    with open_output_dir(out, "poses", identity, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
+        if taken.was_complete and (taken.path / RECORD).is_file():
+            return load_result(taken.path)  # the same inputs and settings: the outputs stand
+        result = compute_poses(image_dir, taken.staging / "work", params, identity, telemetry, takeoff_altitude_m,
+                               sensor_width_mm, nominal_height_m)
+        for name in (*OUTPUTS, RECORD):
+            os.replace(result.out_dir / name, taken.staged(name))
+        (taken.path / RECORD).unlink(missing_ok=True)  # published last: present = the outputs beside it are complete
+        taken.publish(list(OUTPUTS), last=RECORD)
+        taken.finish()
+    return load_result(taken.path)
+
+def compute_poses(image_dir: Path, work: Path, params: Params, identity: str,
+                  telemetry: str | Path | None = None, takeoff_altitude_m: float | None = None,
+                  sensor_width_mm: float | None = None, nominal_height_m: float = NOMINAL_HEIGHT_M,
+                  priors: ImagePriors | None = None) -> PosesResult:
+    """The stages in directory `work` (created; features and matches of an interrupted run with the same
+    `identity` are reused); the outputs end up in `work/result` (a finished result there is returned as is).
+    `priors`: the images' metadata when the caller has read it already (with these options)."""
+    work.mkdir(parents=True, exist_ok=True)
+    result_dir = work / "result"
+    done = _stage_done(work, "result", identity)
+    if done is not None and (result_dir / RECORD).is_file():
+        return load_result(result_dir)
+    shutil.rmtree(result_dir, ignore_errors=True)
+    if priors is None:
+        priors = read_image_priors(image_dir, telemetry, sensor_width_mm=sensor_width_mm,
+                                   takeoff_altitude_m=takeoff_altitude_m)
+    result = _compute(image_dir, work, result_dir, priors, params, identity, nominal_height_m)
+    _mark_stage(work, "result", identity, {})
+    return result
+
+def _stage_done(work: Path, name: str, key: str) -> dict | None:
+    try:
+        done = json.loads((work / "stages.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    entry = done.get(name)
+    return entry if isinstance(entry, dict) and entry.get("key") == key else None
+
+def _mark_stage(work: Path, name: str, key: str, result: dict) -> None:
+    try:
+        done = json.loads((work / "stages.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        done = {}
+    done[name] = {"key": key, **result}
+    write_text_atomic(work / "stages.json", json.dumps(done, indent=1, default=_json_default) + "\n")
+
+def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors, params: Params, key: str,
+             nominal_height_m: float) -> PosesResult:
+    """Features, pairs, matches (resumable), mapping, georegistration, comparison; the files into `result_dir`."""
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    db = work / "database.db"
+    sp = params.sfm
+    warnings: list[str] = []
+
+    matched = _stage_done(work, "match", key)
+    if matched is None or not db.is_file():
+        sfm.create_database(db, priors, sp)  # kept from an interrupted run: extraction resumes
+        features = sfm.extract_features(db, image_dir, priors, sp)
+        timings["features"] = features["seconds"]
+        pairs, how = sfm.write_pairs(work / "pairs.txt", priors, sp)
+        matching = sfm.match_pairs(db, work / "pairs.txt", sp, params.seed)
+        timings["matching"] = matching["seconds"]
+        matched = {"features": features, "pairs": int(len(pairs)), "pairs_chosen_by": how, **matching}
+        _mark_stage(work, "match", key, matched)
+    else:
+        log.info("features and matches of a previous run reused (%s)", db)
+    origin = np.nanmedian(priors.positions, axis=0) if priors.has_gps.any() else np.zeros(3)
+    origin = np.where(np.isfinite(origin), np.round(origin), 0.0)
+    use_priors = sfm.gps_priors_apply(priors, sp)
+    if use_priors:
+        sfm.write_pose_priors(db, priors, origin, sp)
+    shutil.rmtree(work / "models", ignore_errors=True)
+    model = sfm.reconstruct(db, image_dir, work / "models", priors, sp, params.seed, use_priors)
+    timings["mapping"] = model.seconds
+    n_all = len(priors.names)
+    if len(model.registered) < max(3, sp.min_registered_fraction * n_all):
+        raise InputError(f"structure from motion registered only {len(model.registered)} of {n_all} images "
+                         f"(sfm.min_registered_fraction = {sp.min_registered_fraction}); the images may not overlap "
+                         "enough or lack texture; `sosmatch poses-from-exif` gives the EXIF/XMP poses instead",
+                         image_dir)
+    if model.unregistered:
+        warnings.append(f"{len(model.unregistered)} of {n_all} images could not be registered and are left out: "
+                        + _listing(model.unregistered))
+
+    # Georegistration (or a local frame) of the registered images.
+    t = time.perf_counter()
+    names, r_sfm, c_sfm = model.poses()
+    index = np.array([priors.names.index(n) for n in names])
+    transform, geo_report, geo = _register(priors, index, r_sfm, c_sfm, model, nominal_height_m, params.seed, sp,
+                                           warnings)
+    _transform_model(model.reconstruction, transform)
+    world_r = np.einsum("ij,njk->nik", transform.rotation, r_sfm)
+    world_c = transform.apply(c_sfm)
+    poses = Poses(names, world_r, world_c)
+    timings["georegistration"] = time.perf_counter() - t
+
+    comparison = _compare(priors, index, poses, warnings)
+    cameras = sfm.camera_of_model(model)
+    _check_focal_lengths(priors, cameras, warnings)
+    camera_of_image = {im.name: int(im.camera_id) for im in model.reconstruction.images.values() if im.has_pose}
+    rec = model.reconstruction
+    reprojection = float(np.mean([p.error for p in rec.points3D.values()])) if rec.num_points3D() else 0.0
+    for w in warnings:
+        log.warning("%s", w)
+
+    # Outputs: model, database, pose CSV, cameras, then the record (last).
+    tmp = work / "result.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    (tmp / "sparse").mkdir(parents=True)
+    rec.write_binary(tmp / "sparse")
+    epsg = priors.epsg if geo is not None else 0
+    write_text_atomic(tmp / "poses.csv", format_poses_csv(poses, epsg))
+    write_text_atomic(tmp / "cameras.txt", format_cameras_txt(cameras))
+    os.replace(db, tmp / "database.db")  # the work directory's copy is not needed any more
+    timings["total"] = time.perf_counter() - t0
+    report = {
+        "format": "sosmatch-poses", "version": 1,
+        "images": n_all, "registered": len(names), "unregistered": model.unregistered,
+        "other_models": model.other_models,
+        "epsg": epsg, "crs": f"EPSG:{epsg}" if epsg else "local",
+        "points": int(rec.num_points3D()), "reprojection_px": reprojection,
+        "cameras": {str(k): {"model": c.model, "width": c.width, "height": c.height, "params": c.params}
+                    for k, c in cameras.items()},
+        "camera_of_image": camera_of_image,
+        "priors": priors.summary, "matching": matched, "gps_priors_in_bundle_adjustment": use_priors,
+        "georegistration": geo_report, "comparison": comparison,
+        "params": params_to_dict(sp), "warnings": warnings,
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+    }
+    write_text_atomic(tmp / RECORD, json.dumps(report, indent=1, default=_json_default) + "\n")
+    os.replace(tmp, result_dir)
+    return load_result(result_dir)
+
+@dataclass
+class PosesFromImages:
+    """A folder of photos without poses as `workflows.map.run` inputs: structure from motion runs inside the
+    map's output directory (staging area: resumable) and its outputs are published as SESSION_DIR/poses."""
+
+    images: Path
+    params: Params
+    telemetry: Path | None = None
+    takeoff_altitude_m: float | None = None
+    sensor_width_mm: float | None = None
+    nominal_height_m: float = NOMINAL_HEIGHT_M
+    result: PosesResult | None = None  # after `resolve`
+
+    def _options(self) -> dict[str, Any]:
+        return {"telemetry": self.telemetry, "takeoff": self.takeoff_altitude_m, "sensor": self.sensor_width_mm,
+                "nominal_height_m": self.nominal_height_m}
+
+    def identity(self) -> str:
+        if not Path(self.images).is_dir():
+            raise InputError("image directory not found", self.images)
+        return identity_of(Path(self.images), self.params, **self._options())
+
+    def input_paths(self) -> list[Path]:
+        return [Path(self.images)] + ([Path(self.telemetry)] if self.telemetry else [])
+
+    def resolve(self, out: Any) -> tuple[Any, tuple[str, ...]]:
+        """Poses (in OUT/.partial/poses_work, reused when an interrupted run finished them) -> map inputs; the
+        result directory is staged as OUT/.partial/poses."""
+        image_dir = Path(self.images)
+        priors = read_image_priors(image_dir, self.telemetry, sensor_width_mm=self.sensor_width_mm,
+                                   takeoff_altitude_m=self.takeoff_altitude_m)
+        if len(priors.cameras) > 1:  # before the structure from motion: map takes one camera
+            _refuse_cameras([f"{c.width}x{c.height}" for c in priors.cameras], image_dir)
+        work = out.staging / "poses_work"
+        result = compute_poses(image_dir, work, self.params, self.identity(), self.telemetry,
+                               self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m, priors)
+        staged = out.staging / "poses"
+        shutil.rmtree(staged, ignore_errors=True)
+        shutil.copytree(result.out_dir, staged)  # the work copy stays for a resumed run until the map is done
+        self.result = load_result(staged)
+        source = f"structure from motion of {image_dir} (SESSION_DIR/poses)"
+        return map_inputs(self.result, image_dir, source), ("poses",)

@@ -1,0 +1,94 @@
+"""The `poses` output directory: its files, `PosesResult` (read back by `load_result`) and the map inputs of a
+result (`map_inputs`); shared helpers of the package."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...plugin.errors import InputError
+from ...plugin.geometry import Camera, Poses
+from ..image_priors import list_images
+
+log = logging.getLogger(__name__)
+
+RECORD = "poses.json"
+
+OUTPUTS = ("poses.csv", "cameras.txt", "sparse", "database.db")
+
+
+@dataclass
+class PosesResult:
+    """What `run` produced (the files are in `out_dir`)."""
+
+    out_dir: Path
+    poses: Poses  # registered images, world_from_camera, sorted by name
+    cameras: dict[int, Camera]  # as SfM refined them
+    camera_of_image: dict[str, int]
+    epsg: int  # 0: local frame
+    unregistered: list[str]
+    report: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    def line(self) -> str:
+        """The one-line summary `sosmatch poses` prints."""
+        geo = self.report.get("georegistration") or {}
+        frame = f"EPSG:{self.epsg}" if self.epsg else "local frame"
+        text = (f"{self.out_dir}: {len(self.poses)} of {len(self.poses) + len(self.unregistered)} images registered "
+                f"({frame}")
+        if geo:
+            text += f", GPS noise {geo['gps_horizontal_sigma_m']:.2f} m"
+        text += f"), {self.report.get('points', 0)} points at {self.report.get('reprojection_px', 0.0):.2f} px"
+        if self.warnings:
+            text += f"; {len(self.warnings)} WARNING(S), see {RECORD}"
+        return text
+
+def load_result(out_dir: str | Path) -> PosesResult:
+    """A finished `poses` output directory (poses.csv, cameras.txt, poses.json) as a PosesResult."""
+    from ...database.cameras import read_cameras_txt
+    from ...database.poses import read_poses_csv
+
+    out_dir = Path(out_dir)
+    record = out_dir / RECORD
+    try:
+        report = json.loads(record.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"unreadable poses record: {exc}", record) from None
+    poses, epsg = read_poses_csv(out_dir / "poses.csv")
+    cameras = read_cameras_txt(out_dir / "cameras.txt")
+    return PosesResult(out_dir, poses, cameras, {k: int(v) for k, v in report.get("camera_of_image", {}).items()},
+                       epsg, list(report.get("unregistered", [])), report, list(report.get("warnings", [])))
+
+def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
+    """`workflows.map.MapInputs` of the registered images (one camera: a folder of several cameras is mapped
+    camera by camera, an InputError says so)."""
+    from ..map import MapInputs
+
+    if len(result.cameras) != 1:
+        _refuse_cameras([f"{c.model} {c.width}x{c.height}" for c in result.cameras.values()], image_dir)
+    paths = {p.name: p for p in list_images(image_dir)}
+    camera = next(iter(result.cameras.values()))
+    return MapInputs([paths[n] for n in result.poses.names], result.poses, camera, result.epsg,
+                     {"poses": source, "camera": source, "images": str(image_dir)})
+
+def _refuse_cameras(listing: list[str], image_dir: Path) -> None:
+    raise InputError(f"the images come from {len(listing)} cameras ({', '.join(listing)}); map takes one camera: "
+                     "put each camera's images in a folder of its own", image_dir)
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+def _listing(names: Sequence[str], limit: int = 8) -> str:
+    return ", ".join(names[:limit]) + (f" ... ({len(names)} in all)" if len(names) > limit else "")
