@@ -64,7 +64,18 @@ import numpy as np
 
 from ..database.exif import ImageMetadata, read_image_metadata
 from ..database.text_input import read_user_text
+from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the tags are read with)
+    DEFAULT_MOUNT,
+    DEFAULT_PITCH_SIGN,
+    DEFAULT_ROLL_SIGN,
+    ENU_FROM_NED,
+    FIXED_MOUNTS,
+    GIMBAL_MOUNT,
+    camera_rotations,
+    ned_from_body,
+)
 from ..plugin.errors import InputError
+from ..plugin.geodesy import geographic_to_grid, topocentric_to_grid, utm_epsg  # noqa: F401 (re-exported)
 from ..plugin.geometry import Camera
 
 log = logging.getLogger(__name__)
@@ -74,117 +85,6 @@ FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 # Aspect ratios (long side / short side) of photo sensors' full frames; other aspects are crops of a 4:3 frame.
 SENSOR_ASPECTS = (4.0 / 3.0, 3.0 / 2.0)
 CROPPED_FROM_ASPECT = 4.0 / 3.0
-
-# Camera axes (x right, y down, z forward) expressed in the airframe's forward-right-down (FRD) axes, as the
-# columns of R_body_from_cam. A downward camera has z = body down; the mounts differ in where the image top is.
-FIXED_MOUNTS: dict[str, np.ndarray] = {
-    # image top towards the nose, image x along the right wing
-    "top_forward": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
-    # image x towards the nose (image top towards the left wing)
-    "right_forward": np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
-    # image top towards the tail
-    "top_backward": np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
-    # image x towards the tail (image top towards the right wing)
-    "left_forward": np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]),
-}
-# A gimbal camera looks along its forward axis: x = right, y = down, z = forward.
-GIMBAL_MOUNT = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-# Chosen by the Seneca flow check (tools/benchmarks/bench_real.py, BENCHMARKS.md real-data section).
-DEFAULT_MOUNT = "top_forward"
-DEFAULT_PITCH_SIGN = 1.0
-DEFAULT_ROLL_SIGN = 1.0
-ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-
-
-def ned_from_body(yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
-    """(N,3,3) aerospace rotations Rz(yaw) Ry(pitch) Rx(roll): yaw clockwise from north, pitch nose up."""
-    y, p, r = (np.radians(np.asarray(a, dtype=np.float64)).reshape(-1) for a in (yaw_deg, pitch_deg, roll_deg))
-    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
-    one, zero = np.ones_like(y), np.zeros_like(y)
-    rz = np.stack([np.stack([cy, -sy, zero], -1), np.stack([sy, cy, zero], -1), np.stack([zero, zero, one], -1)], -2)
-    ry = np.stack([np.stack([cp, zero, sp], -1), np.stack([zero, one, zero], -1), np.stack([-sp, zero, cp], -1)], -2)
-    rx = np.stack([np.stack([one, zero, zero], -1), np.stack([zero, cr, -sr], -1), np.stack([zero, sr, cr], -1)], -2)
-    return rz @ ry @ rx
-
-
-def camera_rotations(
-    yaw_deg: np.ndarray,
-    pitch_deg: np.ndarray,
-    roll_deg: np.ndarray,
-    mount: str | np.ndarray = DEFAULT_MOUNT,
-    pitch_sign: float = DEFAULT_PITCH_SIGN,
-    roll_sign: float = DEFAULT_ROLL_SIGN,
-    grid_azimuth_of_north_deg: np.ndarray | float = 0.0,
-) -> np.ndarray:
-    """world_from_camera rotations (N,3,3) in an east-north-up grid frame from aerospace body angles.
-
-    `mount` is a name in FIXED_MOUNTS, "gimbal", or a 3x3 R_body_from_cam. `grid_azimuth_of_north_deg` is the
-    azimuth of true north in the grid (clockwise from grid north), added to the yaw (meridian convergence).
-    """
-    if isinstance(mount, str):
-        if mount == "gimbal":
-            m = GIMBAL_MOUNT
-        elif mount in FIXED_MOUNTS:
-            m = FIXED_MOUNTS[mount]
-        else:
-            raise InputError(f"unknown camera mount {mount!r} (use gimbal or one of {sorted(FIXED_MOUNTS)})")
-    else:
-        m = np.asarray(mount, dtype=np.float64)
-    yaw = np.asarray(yaw_deg, dtype=np.float64) + np.asarray(grid_azimuth_of_north_deg, dtype=np.float64)
-    r = ned_from_body(yaw, pitch_sign * np.asarray(pitch_deg, float), roll_sign * np.asarray(roll_deg, float))
-    return ENU_FROM_NED @ r @ m
-
-
-def utm_epsg(latitude: float, longitude: float) -> int:
-    """EPSG code of the WGS84 / UTM zone containing a point (326zz north, 327zz south)."""
-    zone = int(math.floor((longitude + 180.0) / 6.0)) % 60 + 1
-    return (32600 if latitude >= 0 else 32700) + zone
-
-
-def geographic_to_grid(lat: np.ndarray, lon: np.ndarray, epsg: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """WGS84 degrees -> (easting, northing, azimuth of true north in the grid in degrees) for a projected CRS."""
-    from pyproj import Transformer
-
-    tf = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
-    lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
-    e, n = tf.transform(lon, lat)
-    # Meridian convergence measured, not looked up: the grid direction of a 1e-4 degree step north.
-    e2, n2 = tf.transform(lon, lat + 1e-4)
-    north_az = np.degrees(np.arctan2(np.asarray(e2) - e, np.asarray(n2) - n))
-    return np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64), north_az
-
-
-def topocentric_to_grid(enu: np.ndarray, origin_lla: tuple[float, float, float],
-                        epsg: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
-    """Points of a topocentric frame (x east, y north, z up at `origin_lla` = latitude, longitude, ellipsoidal
-    height; OpenSfM's world frame with GPS) -> (grid easting, northing, height (N,3), grid_from_topocentric
-    rotations (N,3,3), EPSG code: the UTM zone of the origin unless given). Exact through ECEF (pyproj); the
-    rotations are the polar factors of the local Jacobian (meridian convergence; the grid's scale is ~1e-4)."""
-    from pyproj import Transformer
-
-    lat0, lon0, h0 = (float(v) for v in origin_lla)
-    epsg = epsg or utm_epsg(lat0, lon0)
-    p = np.asarray(enu, dtype=np.float64).reshape(-1, 3)
-    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
-    x0 = np.array(to_ecef.transform(lon0, lat0, h0))
-    la, lo = math.radians(lat0), math.radians(lon0)
-    ecef_from_enu = np.array([[-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
-                              [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
-                              [0.0, math.cos(la), math.sin(la)]])
-    ecef_to_geo = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
-    geo_to_grid = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
-
-    def grid(points: np.ndarray) -> np.ndarray:
-        ecef = x0 + points @ ecef_from_enu.T
-        lon, lat, h = ecef_to_geo.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
-        e, n = geo_to_grid.transform(lon, lat)
-        return np.column_stack([e, n, h])
-
-    out = grid(p)
-    jac = np.stack([(grid(p + 0.5 * np.eye(3)[k]) - grid(p - 0.5 * np.eye(3)[k])) for k in range(3)], axis=2)
-    u, _, vt = np.linalg.svd(jac)
-    rotations = u @ vt
-    return out, rotations, int(epsg)
 
 
 def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:

@@ -35,6 +35,8 @@ import numpy as np
 
 from ...database.exif import EXIF_DATETIME_FORMAT, ImageMetadata
 from ...plugin.association.rigid import roll_pitch_yaw_deg
+from ...plugin.attitude import ENU_FROM_NED, GIMBAL_MOUNT
+from ...plugin.geodesy import geographic_to_grid, utm_epsg
 from ...plugin.geometry import Camera, Poses
 from .noise import rng_for
 
@@ -42,10 +44,6 @@ _T_GEOTAGS = 31
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 START_TIME = "2024:06:01 10:00:00"
 GEOTAG_KINDS = ("", "exif", "dji")
-# R_body_from_cam of a gimbal camera (x right, y down, z forward) and the ENU <-> NED swap (its own inverse),
-# the same conventions `workflows.poses_from_exif` reads the tags with.
-_GIMBAL_MOUNT = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-_ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 
 @dataclass(frozen=True)
@@ -80,8 +78,6 @@ class GeoFrame:
 
 def geo_frame(settings: GeotagSettings, world_size_m: float) -> GeoFrame:
     """The UTM zone of the origin and the offset that puts the world centre there (whole metres)."""
-    from ...workflows.poses_from_exif import geographic_to_grid, utm_epsg
-
     lat, lon = settings.origin_latlon
     epsg = utm_epsg(lat, lon)
     e, n, _ = geographic_to_grid(np.array([lat]), np.array([lon]), epsg)
@@ -101,7 +97,7 @@ def _gimbal_angles(rotations: np.ndarray, north_az_deg: np.ndarray) -> np.ndarra
     """(n,3) DJI gimbal (yaw from true north, pitch, roll) of world_from_camera rotations in the ENU grid."""
     out = np.empty((len(rotations), 3))
     for i, r in enumerate(rotations):
-        ned_from_body = _ENU_FROM_NED @ r @ _GIMBAL_MOUNT.T
+        ned_from_body = ENU_FROM_NED @ r @ GIMBAL_MOUNT.T  # the conventions the reader inverts (its own inverse)
         roll, pitch, yaw = roll_pitch_yaw_deg(ned_from_body)
         out[i] = (yaw - north_az_deg[i], pitch, roll)
     out[:, 0] = (out[:, 0] + 180.0) % 360.0 - 180.0
@@ -127,8 +123,6 @@ def session_geotags(
     frame (the 35 mm figure refers to its diagonal even when the images are a crop of it), `takeoff_height_m`
     the world height of the take-off point, `seeds` (world seed, session seed)."""
     from pyproj import Transformer
-
-    from ...workflows.poses_from_exif import geographic_to_grid
 
     n = len(poses)
     rng = rng_for(_T_GEOTAGS, *seeds)

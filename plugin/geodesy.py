@@ -1,0 +1,60 @@
+"""Geodesy for survey images (pyproj): WGS84 -> UTM grid with the measured meridian convergence, and topocentric
+(east-north-up at a reference point, OpenSfM's world frame) -> grid."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def utm_epsg(latitude: float, longitude: float) -> int:
+    """EPSG code of the WGS84 / UTM zone containing a point (326zz north, 327zz south)."""
+    zone = int(math.floor((longitude + 180.0) / 6.0)) % 60 + 1
+    return (32600 if latitude >= 0 else 32700) + zone
+
+
+def geographic_to_grid(lat: np.ndarray, lon: np.ndarray, epsg: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """WGS84 degrees -> (easting, northing, azimuth of true north in the grid in degrees) for a projected CRS."""
+    from pyproj import Transformer
+
+    tf = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
+    lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+    e, n = tf.transform(lon, lat)
+    # Meridian convergence measured, not looked up: the grid direction of a 1e-4 degree step north.
+    e2, n2 = tf.transform(lon, lat + 1e-4)
+    north_az = np.degrees(np.arctan2(np.asarray(e2) - e, np.asarray(n2) - n))
+    return np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64), north_az
+
+
+def topocentric_to_grid(enu: np.ndarray, origin_lla: tuple[float, float, float],
+                        epsg: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """Points of a topocentric frame (x east, y north, z up at `origin_lla` = latitude, longitude, ellipsoidal
+    height; OpenSfM's world frame with GPS) -> (grid easting, northing, height (N,3), grid_from_topocentric
+    rotations (N,3,3), EPSG code: the UTM zone of the origin unless given). Exact through ECEF (pyproj); the
+    rotations are the polar factors of the local Jacobian (meridian convergence; the grid's scale is ~1e-4)."""
+    from pyproj import Transformer
+
+    lat0, lon0, h0 = (float(v) for v in origin_lla)
+    epsg = epsg or utm_epsg(lat0, lon0)
+    p = np.asarray(enu, dtype=np.float64).reshape(-1, 3)
+    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    x0 = np.array(to_ecef.transform(lon0, lat0, h0))
+    la, lo = math.radians(lat0), math.radians(lon0)
+    ecef_from_enu = np.array([[-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
+                              [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
+                              [0.0, math.cos(la), math.sin(la)]])
+    ecef_to_geo = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    geo_to_grid = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
+
+    def grid(points: np.ndarray) -> np.ndarray:
+        ecef = x0 + points @ ecef_from_enu.T
+        lon, lat, h = ecef_to_geo.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
+        e, n = geo_to_grid.transform(lon, lat)
+        return np.column_stack([e, n, h])
+
+    out = grid(p)
+    jac = np.stack([(grid(p + 0.5 * np.eye(3)[k]) - grid(p - 0.5 * np.eye(3)[k])) for k in range(3)], axis=2)
+    u, _, vt = np.linalg.svd(jac)
+    rotations = u @ vt
+    return out, rotations, int(epsg)
