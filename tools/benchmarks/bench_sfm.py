@@ -70,7 +70,7 @@ def synthetic_case(label: str, args: list[str], work: Path) -> dict:
     session = work / name
     lens = ["--k1", "-0.1"] if _synth_supports("lens_k1") else []
     if not (session / "session.json").is_file():
-        assert cli(["synth", "--out", str(session), *args, *FAULTS, *lens]) == 0
+        assert cli(["synth", "--out", str(session), *args, *FAULTS, *lens, "-q"]) == 0
     meta = json.loads((session / "session.json").read_text())
     offset = np.array(meta["geo"]["world_to_crs_offset"])
     truth, _ = read_poses_csv(session / "poses.csv")

@@ -30,7 +30,7 @@ def opensfm_poses(project: str | Path, image_dir: str | Path | None = None
     camera of each image, EPSG (0: local), what was done)."""
     from ...database.images import image_size
     from ...database.opensfm import read_opensfm_reconstruction
-    from ..image_priors import topocentric_to_grid
+    from ...plugin.geodesy import topocentric_to_grid
 
     rec = read_opensfm_reconstruction(project)
     poses = rec.poses
