@@ -38,8 +38,11 @@ from .multisession import Sim3, fit_yaw_translation, umeyama
 # A level nadir camera is what survey flights aim for; fixed-wing airframes fly a few degrees nose-up and
 # multirotor gimbals hold nadir to a degree: the uncertainty of the mean view direction as the vertical.
 NADIR_ASSUMPTION_SIGMA_DEG = 3.0
-# Gimbal/IMU tilt calibration: an error common to all images that averaging does not remove.
+# Gimbal/IMU tilt calibration: an error common to all images that averaging does not remove. A camera fixed to an
+# airframe adds its unknown mounting and the airframe's flying attitude (a fixed wing's few degrees nose-up), as
+# uncertain as the nadir assumption.
 ATTITUDE_SYSTEMATIC_SIGMA_DEG = 0.5
+AIRFRAME_SYSTEMATIC_SIGMA_DEG = NADIR_ASSUMPTION_SIGMA_DEG
 CHI2_2DOF_99 = 9.2103  # 99 % quantile of chi-square with 2 degrees of freedom
 CHI2_2DOF_MEDIAN = 1.3863  # its median
 CHI2_2DOF_9999 = 18.4207  # its 99.99 % quantile
@@ -166,11 +169,13 @@ def vertical_in_frame(
     attitude_from_tags: np.ndarray,
     sfm_centers: np.ndarray | None = None,
     gps: np.ndarray | None = None,
+    tag_systematic_deg: float = ATTITUDE_SYSTEMATIC_SIGMA_DEG,
 ) -> Vertical:
     """World up in the SfM frame from the prior attitudes, checked against (and combined with) the GPS positions.
 
     `sfm_from_cam` (N,3,3) are the SfM rotations, `prior_world_from_cam` the tags' (or a level nadir camera's),
-    `attitude_from_tags` (N,) which priors came from tags: when at least 3 did, only those are used.
+    `attitude_from_tags` (N,) which priors came from tags: when at least 3 did, only those are used, with a
+    systematic uncertainty of `tag_systematic_deg` (a gimbal's; `AIRFRAME_SYSTEMATIC_SIGMA_DEG` for a fixed camera).
     `gps` (N,3) may hold NaN rows (no fix)."""
     tags = np.asarray(attitude_from_tags, bool)
     use = tags if tags.sum() >= 3 else np.ones(len(tags), bool)
@@ -178,7 +183,7 @@ def vertical_in_frame(
     per_image = np.einsum("nij,nkj,k->ni", sfm_from_cam[use], prior_world_from_cam[use], e_z)
     prior_up, keep, spread = _mean_direction(per_image)
     rejected = [int(i) for i in np.flatnonzero(use)[~keep]]
-    systematic = ATTITUDE_SYSTEMATIC_SIGMA_DEG if tags.sum() >= 3 else NADIR_ASSUMPTION_SIGMA_DEG
+    systematic = tag_systematic_deg if tags.sum() >= 3 else NADIR_ASSUMPTION_SIGMA_DEG
     prior_sigma = math.hypot(spread / math.sqrt(max(int(keep.sum()), 1)), systematic)
     source = "attitude tags" if tags.sum() >= 3 else "nadir assumption"
 
@@ -307,6 +312,7 @@ def georegister(
     times_s: np.ndarray,
     reference_heights: np.ndarray | None = None,
     seed: int = 0,
+    tag_systematic_deg: float = ATTITUDE_SYSTEMATIC_SIGMA_DEG,
 ) -> Georegistration:
     """world_from_sfm for registered images: SfM centres (N,3) and rotations sfm_from_cam (N,3,3), GPS (N,3)
     as the receiver gave it (NaN: no fix, or no altitude; needs >= 2 horizontal fixes), prior rotations and
@@ -320,11 +326,12 @@ def georegister(
     if len(idx) < 2:
         raise ValueError(f"{len(idx)} registered image(s) with a GPS position; georegistration needs 2")
     # the GPS fixes that fit horizontally (block levelled by the priors alone) check the vertical
-    first = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags)
+    first = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags,
+                              tag_systematic_deg=tag_systematic_deg)
     hfit = robust_horizontal_similarity(c[idx] @ level_rotation(first.up).T, gps[idx], seed)
     checked = np.full_like(gps, np.nan)
     checked[idx[hfit.inliers]] = gps[idx[hfit.inliers]]
-    vert = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags, c, checked)
+    vert = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags, c, checked, tag_systematic_deg)
     level = level_rotation(vert.up)
     levelled = c @ level.T
     hfit = robust_horizontal_similarity(levelled[idx], gps[idx], seed)

@@ -29,16 +29,26 @@ def _transform_model(rec: Any, transform: Sim3) -> None:
 def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: np.ndarray, model: sfm.SfmModel,
               nominal_height_m: float, seed: int, sp: SfmParams, warnings: list[str]) -> tuple[Sim3, dict | None, Any]:
     """world_from_sfm: georegistration on GPS when >= 2 registered images have a fix, else a local levelled frame."""
-    from ...plugin.georegistration import georegister, level_rotation, vertical_in_frame
+    from ...plugin.georegistration import (
+        AIRFRAME_SYSTEMATIC_SIGMA_DEG,
+        ATTITUDE_SYSTEMATIC_SIGMA_DEG,
+        georegister,
+        level_rotation,
+        vertical_in_frame,
+    )
 
     tags = priors.attitude_from_tags[index]
+    # airframe angles (a camera fixed to the aircraft) know the camera's vertical only as well as its mounting
+    airframe = bool(np.any(priors.attitude_kind[index] == "fixed"))
+    systematic = AIRFRAME_SYSTEMATIC_SIGMA_DEG if airframe else ATTITUDE_SYSTEMATIC_SIGMA_DEG
     # the GPS as the receiver gave it (its altitude checks the vertical and is measured for drift); the heights
     # to register on are the priors' (RelativeAltitude-based where DJI gives it)
     gps = np.column_stack([priors.positions[index, :2], priors.gps_altitude[index]])
     relative = "RelativeAltitude" in str(priors.summary.get("altitude_source", ""))
     reference = priors.positions[index, 2] if relative else None
     if np.sum(np.all(np.isfinite(gps[:, :2]), axis=1)) >= 2:
-        geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference, seed)
+        geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference, seed,
+                          systematic)
         warnings.extend(geo.warnings)
         noisy = gps_noise_warning(geo.horizontal.sigma_m, sp.gps_sigma_m)
         if noisy:
@@ -48,7 +58,7 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
                                   for k in np.flatnonzero(~geo.horizontal.inliers)]
         return geo.transform, report, geo
     # Local frame: levelled by the priors (tags or the nadir assumption), origin under the cameras' centre.
-    vert = vertical_in_frame(r_sfm, priors.rotations[index], tags)
+    vert = vertical_in_frame(r_sfm, priors.rotations[index], tags, tag_systematic_deg=systematic)
     level = level_rotation(vert.up)
     pts = np.array([p.xyz for p in model.reconstruction.points3D.values()]).reshape(-1, 3) @ level.T
     cams = c_sfm @ level.T
