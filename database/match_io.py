@@ -61,8 +61,16 @@ class MatchSummary:
     hypotheses: list[MatchHypothesis] = field(default_factory=list)
     map_a: MapRef = field(default_factory=lambda: MapRef(None, None, None))
     map_b: MapRef = field(default_factory=lambda: MapRef(None, None, None))
-    seconds: float | None = None  # the search's time
+    seconds: float | None = None  # the answer's time (search + verification)
     min_associations: int | None = None  # theta_S of the search
+    # where the answer comes from: "verified" (the verification on the full maps; `accepted` is its decision),
+    # "consensus" (the window consensus, not verified), "hypothesis" (no consensus: the best or largest one)
+    source: str = "hypothesis"
+    consensus_accepted: bool = False  # the window search's own answer, whatever the verification decided
+    consensus_transform: Sim3 | None = None
+    consensus_associations: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    runner_up_support: int | None = None  # the verification's best rival (None: not verified)
+    search_mode: dict[str, Any] = field(default_factory=dict)  # which search ran (match.json "search_mode")
 
 
 # --- field validation (each raises InputError naming the file and the field) -----------------------------------
@@ -204,23 +212,43 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     summary = MatchSummary(False, None, np.zeros((0, 2), np.int64), kind, len(hyps), hypotheses=hyps,
                            map_a=_map_ref(data.get("map_a"), "map_a", path),
                            map_b=_map_ref(data.get("map_b"), "map_b", path), seconds=seconds, min_associations=theta)
-    # The hypothesis to merge with: the consensus (the transform refitted on the associations of every accepted
+    mode = data.get("search_mode")
+    summary.search_mode = mode if isinstance(mode, dict) else {}
+    # The window search's own answer: the consensus (the transform refitted on the associations of every accepted
     # window pair that agrees with the best one; written only when one was accepted), else the best accepted
-    # hypothesis, else the largest one (then `accepted` is False).
+    # hypothesis, else the largest one (then not accepted).
     if consensus is not None and consensus.get("transform") is not None:
-        summary.accepted = True
-        summary.transform = _sim3(consensus["transform"], "consensus.transform", path)
-        summary.associations = parse_associations(consensus.get("associations"), "consensus.associations", path)
-        return summary
-    chosen = hyps[best] if best is not None else None
-    if chosen is None or not chosen.accepted:
-        pool = [h for h in hyps if h.accepted] or hyps
-        if pool:
-            chosen = max(pool, key=lambda h: len(h.associations))
-    if chosen is not None:
-        summary.accepted = bool(chosen.accepted) and chosen.transform is not None
-        summary.transform = chosen.transform
-        summary.associations = chosen.associations
+        summary.source = "consensus"
+        summary.consensus_accepted = True
+        summary.consensus_transform = _sim3(consensus["transform"], "consensus.transform", path)
+        summary.consensus_associations = parse_associations(consensus.get("associations"), "consensus.associations",
+                                                            path)
+    else:
+        chosen = hyps[best] if best is not None else None
+        if chosen is None or not chosen.accepted:
+            pool = [h for h in hyps if h.accepted] or hyps
+            if pool:
+                chosen = max(pool, key=lambda h: len(h.associations))
+        if chosen is not None:
+            summary.consensus_accepted = bool(chosen.accepted) and chosen.transform is not None
+            summary.consensus_transform = chosen.transform
+            summary.consensus_associations = chosen.associations
+    summary.accepted = summary.consensus_accepted
+    summary.transform = summary.consensus_transform
+    summary.associations = summary.consensus_associations
+    # The answer every consumer uses: the verification's when it ran (match.json "verification", the default)
+    ver = data.get("verification")
+    if ver is not None:
+        if not isinstance(ver, dict):
+            raise InputError("match file field verification must be an object or null", path)
+        summary.source = "verified"
+        summary.accepted = _bool(ver.get("accepted"), "verification.accepted", path)
+        summary.transform = (None if ver.get("transform") is None
+                             else _sim3(ver["transform"], "verification.transform", path))
+        summary.associations = parse_associations(ver.get("associations"), "verification.associations", path)
+        summary.runner_up_support = _int(ver.get("runner_up_support", 0), "verification.runner_up_support", path)
+        if summary.accepted and summary.transform is None:
+            raise InputError("match file field verification is accepted without a transform", path)
     return summary
 
 

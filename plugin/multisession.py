@@ -465,9 +465,10 @@ def verify_alignments(
     `min_support` and is at least `min_ratio` times the support of the best rival (an alignment that moves some
     of the winner's supporting B landmarks more than 2 gate_m away from where the winner puts them).
     `final_dof` 6: the winner's transform is finally refitted rigidly (6-DOF, Huber-weighted) on its supporting
-    pairs. The 4-DOF search finds the pairs robustly; with tens to hundreds of pairs over the whole overlap the
-    small tilt between two EKF frames (~1 deg on the synthetic winter flights) is then observable, which one
-    window's 8-20 inliers could not resolve. None: keep the `dof` fit.
+    pairs, then refined by 6-DOF ICP from there (pairs re-made until they settle). The 4-DOF search finds the
+    pairs robustly; with tens to hundreds of pairs over the whole overlap the small tilt between two EKF frames
+    (~1 deg on the synthetic winter flights) is then observable, which one window's 8-20 inliers could not
+    resolve, and the landmarks that tilt kept out of the 4-DOF pairs join. None: keep the `dof` fit.
     """
     pb_all = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
     refined: list[Alignment] = []
@@ -493,7 +494,13 @@ def verify_alignments(
     runner_up = max(rivals, default=0)
     support = len(best.associations)
     if final_dof == 6 and dof != 6 and support >= 3:
-        best = _final_rigid_fit(np.asarray(points_a, dtype=np.float64).reshape(-1, 3), pb_all, best, gate_m, z_weight)
+        pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
+        first = _final_rigid_fit(pa_all, pb_all, best, gate_m, z_weight)
+        # then 6-DOF ICP from there: pairs the 4-DOF fit could not reach because the frames are tilted (1-2 deg
+        # between EKF frames is metres of height at the far end of a map) join and the pairs settle again
+        again = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, first.transform, gate_m, max_size_difference,
+                                 dof=6, z_weight=z_weight)
+        best = again if len(again.associations) >= len(first.associations) else first
     accepted = support > min_support and support >= min_ratio * runner_up
     return Verification(best, runner_up, len(refined), accepted)
 
@@ -517,3 +524,23 @@ def _huber_weights(dist: np.ndarray, gate_m: float) -> np.ndarray:
     the gate pulls little)."""
     huber = gate_m / 2.0
     return np.where(dist <= huber, 1.0, huber / np.maximum(dist, 1e-12))
+
+
+def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                  sizes_b: np.ndarray | None, hypotheses: Sequence, association: object,
+                  verification: object) -> Verification:
+    """The verified answer of a windowed search: its hypotheses checked and refined on the full maps.
+
+    `hypotheses`: the search's `WindowHypothesis` list; every one with a transform that passes the gravity check
+    is a candidate, largest |S| first (at most `verification.max_candidates`), and `verify_alignments` chooses
+    among them with the search's own gates (theta_eps, theta_r, support > theta_S). `association`,
+    `verification`: `AssociationParams`, `VerificationParams`.
+    """
+    cands = [h for h in sorted(hypotheses, key=lambda h: -h.size)
+             if h.transform is not None and h.tilt_deg <= association.max_gravity_angle_deg]
+    sims = [(Sim3(h.transform.rotation, h.transform.translation, h.transform.scale), h.associations[:, 1])
+            for h in cands[:verification.max_candidates]]
+    return verify_alignments(np.asarray(points_a, np.float64), sizes_a, np.asarray(points_b, np.float64), sizes_b,
+                             sims, association.distance_tolerance_m, association.max_size_difference,
+                             association.min_associations, min_ratio=verification.min_ratio, dof=verification.dof,
+                             z_weight=verification.z_weight, final_dof=verification.final_dof or None)

@@ -286,6 +286,20 @@ class AssociationParams(Checked):
 
 
 @dataclass(frozen=True)
+class VerificationParams(Checked):
+    """Verification of a match on the full maps (`plugin.multisession.verify_search`; a stage of `sosmatch match`,
+    all ours). Across seasons one window pair's |S| is 4-14 for true and chance hypotheses alike; over the full
+    maps a true transform brings many more landmarks of B onto landmarks of A (BENCHMARKS.md, Multi-session)."""
+
+    enabled: bool = flag(True)  # off (`match --no-verify`): the answer is the window consensus as it is
+    dof: int = one_of(4, 4, 6)  # ICP degrees of freedom: 4 = yaw + translation (gravity-aligned maps), 6 = rigid
+    final_dof: int = one_of(6, 0, 6)  # the winner refitted 6-DOF on its pairs (0: keep the `dof` fit)
+    min_ratio: float = positive(1.2)  # the winner's support over the best alignment that puts B elsewhere
+    z_weight: float = positive(0.5)  # heights count this much in the nearest-neighbour distance (noisier)
+    max_candidates: int = count(400, 1)  # window hypotheses tried, largest first (bounds dense maps)
+
+
+@dataclass(frozen=True)
 class ChangeParams(Checked):
     """Object-level change detection between two aligned sessions (`sosmatch.plugin.changes`; all ours)."""
 
@@ -398,6 +412,7 @@ class Params(Checked):
     tracking: TrackingParams = field(default_factory=TrackingParams)
     triangulation: TriangulationParams = field(default_factory=TriangulationParams)
     association: AssociationParams = field(default_factory=AssociationParams)
+    verification: VerificationParams = field(default_factory=VerificationParams)
     changes: ChangeParams = field(default_factory=ChangeParams)
     quality: QualityParams = field(default_factory=QualityParams)
     sfm: SfmParams = field(default_factory=SfmParams)

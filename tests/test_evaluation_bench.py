@@ -33,4 +33,4 @@ def test_section_replaced_in_place_and_idempotent():
     twice = replace_section(once, sec)
     assert twice == once
     assert "| summer-winter | SOS-Match (ours) | 1 | 0.01 | 0.700 | 0.500 |" in once
-    assert "median of 2 windowed search(es)" in once
+    assert "median of 2 runs of the match's answer" in once

@@ -40,11 +40,18 @@ def test_match_end_to_end(maps, tmp_path, capsys):
     assert best["accepted"] and best["size"] > doc["params"]["association"]["min_associations"]
     rot = np.array(doc["consensus"]["transform"]["rotation"])
     assert rotation_angle_deg(rot, s.rotation) < 0.5
-    # the merge stage's reader understands the file
+    # the answer is verified on the full maps, and every consumer's reader returns it
+    ver = doc["verification"]
+    assert doc["answer"] == "verified" and ver["accepted"] and ver["support"] >= best["size"]
+    assert rotation_angle_deg(np.array(ver["transform"]["rotation"]), s.rotation) < 0.5
+    assert doc["search_mode"] == {"consistency": "gravity", "windows": "id", "solver": "bounded", "yaw_slices": 48,
+                                  "position_prior_m": 0.0, "position_prior": "off", "paper": False}
+    assert doc["search_seconds"] >= doc["timings"]["verify_s"] > 0
     summary = read_match(out / "match.json")
-    assert summary.accepted and len(summary.associations) in (best["size"], doc["consensus"]["num_associations"])
+    assert summary.accepted and summary.source == "verified" and len(summary.associations) == ver["support"]
+    assert summary.consensus_accepted and len(summary.consensus_associations) == doc["consensus"]["num_associations"]
     rows = (out / "associations.csv").read_text().splitlines()
-    assert rows[0].startswith("index_a,index_b") and len(rows) - 1 == doc["consensus"]["num_associations"]
+    assert rows[0].startswith("index_a,index_b") and len(rows) - 1 == ver["support"]
     truth = set(map(tuple, s.truth.tolist()))
     pairs = {(int(r.split(",")[0]), int(r.split(",")[1])) for r in rows[1:]}
     assert len(pairs - truth) <= 1
@@ -55,6 +62,23 @@ def test_match_end_to_end(maps, tmp_path, capsys):
     doc2 = json.loads((out2 / "match.json").read_text())
     assert doc2["hypotheses"] == doc["hypotheses"] and doc2["consensus"] == doc["consensus"]
     assert not (out2 / "match.png").exists()
+
+
+def test_no_verify_paper_preset_and_an_ignored_prior(maps, tmp_path, caplog):
+    d, s = maps
+    out = tmp_path / "raw"
+    assert main(["match", str(d / "a.sosmap"), str(d / "session_b"), "--out", str(out), "--no-plot", "--no-verify",
+                 "--preset", "paper", "--set", "association.position_prior_m=50"]) == 0
+    doc = json.loads((out / "match.json").read_text())
+    assert doc["answer"] == "consensus" and doc["verification"] is None
+    mode = doc["search_mode"]
+    assert mode["consistency"] == "distance" and mode["solver"] == "clipper" and mode["yaw_slices"] == 1
+    # the maps carry no EPSG code: they are not known to share a frame, so the prior was not used
+    assert mode["position_prior"].startswith("ignored") and not mode["paper"]
+    assert "position prior ignored" in caplog.text
+    summary = read_match(out / "match.json")
+    assert summary.source == "consensus" and summary.accepted
+    assert len(summary.associations) == doc["consensus"]["num_associations"]
 
 
 def test_match_colmap_model_without_sizes(maps, tmp_path):

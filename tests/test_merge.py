@@ -295,8 +295,8 @@ def test_merge_refine_iterates_where_one_refit_cannot(pair, tmp_path):
 
 
 def test_verify_final_rigid_fit_recovers_a_small_tilt():
-    """Two EKF frames tilted 1.5 deg against each other: the 4-DOF search finds the pairs, the final 6-DOF fit on
-    them recovers the tilt the 4-DOF fit cannot express."""
+    """Two EKF frames tilted 1.5 deg against each other: the 4-DOF search finds the pairs, the final 6-DOF fit and
+    ICP from it recover the tilt the 4-DOF fit cannot express, and keep (or gain) the pairs."""
     from sosmatch.plugin.association.rigid import rotation_from_rpy_deg
     from sosmatch.plugin.multisession import verify_alignments
 
@@ -308,4 +308,4 @@ def test_verify_final_rigid_fit_recovers_a_small_tilt():
     assert flat.accepted and tilted.accepted
     assert transform_error(flat.best.transform, truth, b)[1] > 1.2
     assert transform_error(tilted.best.transform, truth, b)[1] < 0.3
-    assert np.array_equal(flat.best.associations, tilted.best.associations)
+    assert len(tilted.best.associations) >= len(flat.best.associations) and tilted.best.rms_m < flat.best.rms_m

@@ -1,19 +1,23 @@
-"""Associate two landmark maps (`sosmatch match A B --out DIR`): the windowed CLIPPER search of SOS-Match.
+"""Associate two landmark maps (`sosmatch match A B --out DIR`): the windowed CLIPPER search of SOS-Match,
+then its verification on the full maps.
 
 `run(params, a, b, out_dir)` loads both maps (session directory, .sosmap file or COLMAP model; see
-`sosmatch.database.map_loading`), runs `sosmatch.plugin.association.search` and writes, atomically:
-    match.json          every solved window pair (hypothesis), the best accepted one, the consensus, timings
-                        (schema in README.md, section "Matching maps")
-    associations.csv    the final associations: the consensus' if any hypothesis was accepted, else none
-    match.png           both maps in A's frame (B moved by the consensus transform), associations drawn, the best
+`sosmatch.database.map_loading`), computes the match's answer (`sosmatch.plugin.match_answer.match_maps`: the
+search, then, unless `verify` is off, the verification of its hypotheses on the full maps) and writes, atomically:
+    match.json          every solved window pair (hypothesis), the best accepted one, the consensus, the
+                        verification, which search mode ran, timings (schema in README.md, "Matching maps")
+    associations.csv    the answer's associations (the verified alignment's, or the consensus'), else none
+    match.png           both maps in A's frame (B moved by the answer's transform), associations drawn, the best
                         hypothesis highlighted
 Transforms map B into A's frame: x_A = scale * R @ x_B + t, in the maps' world coordinates.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -28,9 +32,12 @@ from ..database.map_loading import LoadedMap, load_map
 from ..database.match_io import MATCH_FORMAT, parse_match
 from ..database.outputs import fingerprint, open_output_dir
 from ..plugin import __version__
-from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg, search
-from ..plugin.association.reference import search_reference
+from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
+from ..plugin.association.hypotheses import SearchMode
+from ..plugin.match_answer import MatchAnswer, match_maps
 from ..plugin.params import Params, params_to_dict
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -41,21 +48,38 @@ class MatchResult:
     map_a: LoadedMap
     map_b: LoadedMap
     search: SearchResult
-    associations: np.ndarray  # (K, 2) final associations (consensus), empty if nothing was accepted
-    transform: Transform | None  # consensus A_from_B, None if nothing was accepted
+    associations: np.ndarray  # (K, 2) the answer's associations, empty if there is none
+    transform: Transform | None  # the answer's A_from_B, None if there is none
     seconds: float
+    answer: MatchAnswer | None = None
+
+    @property
+    def accepted(self) -> bool:
+        return bool(self.answer.accepted) if self.answer is not None else self.transform is not None
 
     def summary(self) -> str:
         """The one-line summary the command prints."""
         s = self.search
         head = (f"{len(self.map_a.lmap)} x {len(self.map_b.lmap)} landmarks, {len(s.hypotheses)}/{s.num_window_pairs}"
                 f" window pairs solved, {len(s.accepted)} accepted")
+        ans = self.answer
+        if ans is not None and ans.verification is not None:
+            v = ans.verification
+            if not v.accepted:
+                found = ("" if v.best is None else
+                         f" (best support {len(v.best.associations)}, runner-up {v.runner_up_support})")
+                return (f"{head}, verification: no match{found} ({self.seconds:.2f} s) -> "
+                        f"{self.out_dir / 'match.json'}")
+            _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
+            return (f"{head}, verified: {len(self.associations)} associations on the full maps (runner-up "
+                    f"{v.runner_up_support}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg) ({self.seconds:.2f} s) -> "
+                    f"{self.out_dir / 'match.json'}")
         if self.transform is None:
             return f"{head}, no match ({self.seconds:.2f} s) -> {self.out_dir / 'match.json'}"
         best = s.hypotheses[s.best]
         _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
         return (f"{head}, best |S|={best.size}, consensus {len(self.associations)} associations "
-                f"(rms {s.consensus.rms_m:.2f} m, yaw {yaw:.1f} deg) ({self.seconds:.2f} s) -> "
+                f"(rms {s.consensus.rms_m:.2f} m, yaw {yaw:.1f} deg), not verified ({self.seconds:.2f} s) -> "
                 f"{self.out_dir / 'match.json'}")
 
 
@@ -79,8 +103,33 @@ def hypothesis_to_json(h: WindowHypothesis) -> dict[str, Any]:
         "num_putative": h.num_putative, "num_core": h.num_core, "size": h.size, "score": _num(h.score),
         "associations": h.associations.tolist(), "transform": transform_to_json(h.transform),
         "roll_deg": _num(h.roll_deg), "pitch_deg": _num(h.pitch_deg), "tilt_deg": _num(h.tilt_deg),
-        "accepted": h.accepted,
+        "accepted": h.accepted, "yaw_slice": h.yaw_slice,
     }
+
+
+def search_mode_json(params: Params, answer: MatchAnswer | None) -> dict[str, Any]:
+    """Which search ran: the consistency test, windows, solver, yaw slices and the position prior."""
+    ap = params.association
+    mode = SearchMode.of(ap)
+    return {"consistency": ap.consistency, "windows": ap.windows, "solver": ap.solver, "yaw_slices": mode.nslices,
+            "position_prior_m": ap.position_prior_m, "position_prior": answer.prior if answer else "off",
+            "paper": ap.consistency == "distance" and ap.windows == "id" and ap.solver == "clipper"
+            and ap.position_prior_m == 0}
+
+
+def verification_json(answer: MatchAnswer | None, params: Params) -> dict[str, Any] | None:
+    """The verification's result (None when it did not run)."""
+    if answer is None or answer.verification is None:
+        return None
+    v, vp = answer.verification, params.verification
+    best = v.best
+    return {"accepted": bool(v.accepted), "transform": transform_to_json(answer.transform),
+            "support": 0 if best is None else len(best.associations), "runner_up_support": int(v.runner_up_support),
+            "rms_m": None if best is None else _num(best.rms_m), "num_refined": int(v.num_refined),
+            "associations": answer.associations.tolist(),
+            "method": {"dof": vp.dof, "final_dof": vp.final_dof, "min_ratio": vp.min_ratio, "z_weight": vp.z_weight,
+                       "max_candidates": vp.max_candidates, "gate_m": params.association.distance_tolerance_m,
+                       "min_support": params.association.min_associations}}
 
 
 def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
@@ -101,7 +150,9 @@ def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
         "version": __version__,
         "map_a": source(result.map_a),
         "map_b": source(result.map_b),
-        "params": {"association": params_to_dict(params.association), "seed": params.seed},
+        "params": {"association": params_to_dict(params.association),
+                   "verification": params_to_dict(params.verification), "seed": params.seed},
+        "search_mode": search_mode_json(params, result.answer),
         "transform_kind": params.association.transform,
         "transform_convention": "x_A = scale * R @ x_B + t (A_from_B, world coordinates of the maps)",
         "num_windows": [len(s.windows_a), len(s.windows_b)],
@@ -111,9 +162,15 @@ def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
         "best": s.best,
         "accepted": s.accepted,
         "consensus": consensus,
+        "verification": verification_json(result.answer, params),
+        # the answer consumers read (database.match_io.read_match): "verified" or "consensus"
+        "answer": result.answer.source if result.answer is not None else "consensus",
         "hypotheses": [hypothesis_to_json(h) for h in s.hypotheses],
-        "search_seconds": s.timings.get("total_s"),
-        "timings": {k: float(v) for k, v in s.timings.items()},
+        # the time of the answer: search + verification (wall); their parts in `timings`
+        "search_seconds": result.answer.timings["total_s"] if result.answer else s.timings.get("total_s"),
+        "timings": {**{k: float(v) for k, v in s.timings.items()},
+                    **({"search_wall_s": result.answer.timings["search_s"],
+                        "verify_s": result.answer.timings["verify_s"]} if result.answer else {})},
     }
 
 
@@ -153,10 +210,13 @@ def alignment_png(result: MatchResult) -> bytes:
         # at map scale the segments are sub-metre: mark the associated landmarks too
         ax.scatter(a[assoc[:, 0], 0], a[assoc[:, 0], 1], s=14, marker="+", c="#2ca02c", linewidths=0.8,
                    label=f"consensus associations ({len(assoc)})")
-        best = s.hypotheses[s.best]
-        ax.scatter(a[best.associations[:, 0], 0], a[best.associations[:, 0], 1], s=40, facecolors="none",
-                   edgecolors="#d62728", linewidths=1.2, label=f"best hypothesis |S|={best.size}")
+        if s.best is not None:
+            best = s.hypotheses[s.best]
+            ax.scatter(a[best.associations[:, 0], 0], a[best.associations[:, 0], 1], s=40, facecolors="none",
+                       edgecolors="#d62728", linewidths=1.2, label=f"best hypothesis |S|={best.size}")
         title = f"{len(s.accepted)} accepted of {len(s.hypotheses)} solved window pairs"
+        if result.answer is not None and result.answer.verification is not None:
+            title += ", verified" if result.accepted else ", verification refused it"
     else:
         ax.scatter(b[:, 0], b[:, 1], s=6, c="#ff7f0e", label=f"map B, own frame ({len(b)})", linewidths=0)
         title = "no accepted hypothesis (map B shown in its own frame)"
@@ -172,32 +232,39 @@ def alignment_png(result: MatchResult) -> bytes:
 
 
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
-        exhaustive: bool = False, plot: bool = True, overwrite: bool = False) -> MatchResult:
+        exhaustive: bool = False, plot: bool = True, overwrite: bool = False,
+        verify: bool | None = None) -> MatchResult:
     """Match map `b` against map `a` and write match.json, associations.csv and match.png into `out_dir`.
 
-    a, b: session directories, .sosmap files or COLMAP models. workers: processes for the solve stage (None:
-    automatic). exhaustive: use the straightforward reference search (every window pair from scratch; slow,
-    same result). overwrite: replace a complete match of other maps or settings in `out_dir` (see
+    a, b: session directories, .sosmap files or COLMAP models. workers: unused (the search runs in one process).
+    exhaustive: use the straightforward reference search (every window pair from scratch; slow, same result).
+    verify: verify the search's hypotheses on the full maps (default `params.verification.enabled`); off, the
+    answer is the window consensus. A position prior (`association.position_prior_m`) is used only when both maps
+    are georeferenced in one EPSG. overwrite: replace a complete match of other maps or settings in `out_dir` (see
     `sosmatch.database.outputs` for what is never replaced). Raises InputError for unreadable or unusable maps.
     """
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
     map_a, map_b = load_map(a), load_map(b)
     la, lb = map_a.lmap, map_b.lmap
+    if verify is not None:
+        params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
     identity = fingerprint({"a": landmark_map_fingerprint(la), "b": landmark_map_fingerprint(lb),
-                            "association": params_to_dict(params.association), "seed": params.seed,
+                            "association": params_to_dict(params.association),
+                            "verification": params_to_dict(params.verification), "seed": params.seed,
                             "exhaustive": exhaustive, "plot": plot})
     with open_output_dir(out_dir, "match", identity, inputs=[a, b], overwrite=overwrite,
                          legacy_record="match.json") as out:
-        if exhaustive:
-            res = search_reference(la.positions, la.sizes, lb.positions, lb.sizes, params.association)
-        else:
-            res = search(la.positions, la.sizes, lb.positions, lb.sizes, params.association, workers=workers)
-        if res.consensus is not None:
-            assoc, transform = res.consensus.associations, res.consensus.transform
-        else:
-            assoc, transform = np.zeros((0, 2), np.int64), None
-        result = MatchResult(out_dir, map_a, map_b, res, assoc, transform, 0.0)
+        common = la.epsg == lb.epsg != 0
+        if params.association.position_prior_m > 0 and not common:
+            log.warning("position prior ignored: the maps are not georeferenced in one EPSG (A: %s, B: %s)",
+                        la.epsg, lb.epsg)
+        ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
+                         exhaustive=exhaustive)
+        # a refused answer names no associations (match.json's verification keeps what was tried)
+        result = MatchResult(out_dir, map_a, map_b, ans.search,
+                             ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
+                             ans.transform if ans.accepted else None, 0.0, ans)
         result.seconds = time.perf_counter() - t0
         doc = match_to_json(result, params)
         doc["seconds_total"] = result.seconds

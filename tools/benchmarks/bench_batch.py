@@ -11,8 +11,9 @@ no images; each session in its own rotated and shifted frame), which exercises t
 the graph and merge without the image front end.
 
 Checked and printed: pairs matched; per pair the footprint overlap, the match's own decision and the error of
-its consensus transform, then the batch's verified alignment (`workflows.batch.verify_pair`: every window
-hypothesis refined on the full maps, the best supported one wins): accepted or not, its support (mutual nearest
+its consensus transform, then the verified alignment (`sosmatch match`'s verification stage,
+`plugin.multisession.verify_search`: every window hypothesis refined on the full maps, the best supported one
+wins): accepted or not, its support (mutual nearest
 neighbours) and the runner-up's, and its error against the truth as (RMS displacement at the overlap in metres,
 rotation angle in degrees) and in the 4 degrees of freedom of gravity-aligned maps (horizontal RMS displacement,
 yaw difference). Truth: for synthetic flights, each session's frame is its EKF frame, which no rigid transform

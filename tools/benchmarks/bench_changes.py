@@ -8,9 +8,8 @@ size, false changes per hectare, same-season and cross-season pairs, at several 
 Per world seed and change level, three sessions of one world (kept in WORK between runs): A summer (session seed
 1), B summer on another path (shifted 20, 10 m, sun from 200 deg: shadows moved; seed 2) and W winter (shifted
 -10, 15 m, flown in reverse; seed 3), each mapped on its EKF poses. Pairs A-B (same season) and A-W (cross season)
-are matched and verified as `batch` does, into WORK/.../pairs/A{B,W} (`workflows.batch.tasks.pair_task`: the
-window hypotheses refined on the full maps; `match` will carry that alignment itself once the search issue
-lands), and
+are matched as `batch` does, into WORK/.../pairs/A{B,W} (`workflows.batch.tasks.pair_task`: `sosmatch match`,
+whose answer is the window hypotheses verified on the full maps, read back with `match_io.read_match`), and
 `workflows.changes.compute` classifies every landmark. Scoring: `tools.benchmarks.change_truth` (objects of
 radius >= 2 m seen by both sessions' keyframes >= 6 times; per-object claims; false changes per hectare of the
 common area; claims outside the other session's true observed area).
@@ -59,8 +58,8 @@ def prepare(work: Path, world: int, changed: float, frames: int) -> Path:
         if not (root / f"m{tag}" / "run.json").exists():
             map_run(Params(), load_inputs(None, root / tag, ekf=True), root / f"m{tag}", progress=False)
     for tag in PAIRS:
-        if not (root / "pairs" / f"A{tag}" / "alignment.json").exists():
-            pair_task(str(root / "mA"), str(root / f"m{tag}"), str(root / "pairs" / f"A{tag}"), Params(), verify={})
+        if not (root / "pairs" / f"A{tag}" / "match.json").exists():
+            pair_task(str(root / "mA"), str(root / f"m{tag}"), str(root / "pairs" / f"A{tag}"), Params(), verify=True)
     return root
 
 
@@ -78,17 +77,16 @@ def evaluate(root: Path, world: int, changed: float, tag: str, sweep: tuple[floa
              params: Params | None = None) -> PairResult | None:
     """Classify the pair A-`tag` with its verified alignment and score it at every min-confidence of `sweep`;
     None when the pair was not aligned."""
+    from ...database.match_io import read_match
     from ...database.synth_session import load_synth_session
-    from ...plugin.multisession import Sim3
     from ...workflows.changes import compute
     from .bench_map import landmark_objects
 
-    alignment = json.loads((root / "pairs" / f"A{tag}" / "alignment.json").read_text())
-    if not alignment["accepted"]:
+    alignment = read_match(root / "pairs" / f"A{tag}" / "match.json")  # the match's verified answer
+    if not alignment.accepted:
         return None  # nothing to compare: reported as a pair that was not aligned
     t = time.process_time()
-    run = compute(root / "mA", root / f"m{tag}", None, params or Params(),
-                  a_from_b=Sim3.from_dict(alignment["transform"]))
+    run = compute(root / "mA", root / f"m{tag}", None, params or Params(), a_from_b=alignment.transform)
     cpu = time.process_time() - t
     sa, sb = load_synth_session(root / "A"), load_synth_session(root / tag)
     kfa = json.loads((root / "mA" / "run.json").read_text())["keyframes"]
@@ -236,12 +234,10 @@ def main(argv: list[str] | None = None) -> int:
         figure(results, SWEEP, args.figure)
     if args.example:
         from ...database.atomic import write_bytes_atomic
-        from ...plugin.multisession import Sim3
         from ...workflows.changes import changes_png, compute
 
         root = args.work / f"w{worlds[0]}_c{levels[-1]:.2f}"
-        alignment = json.loads((root / "pairs" / "AB" / "alignment.json").read_text())
-        run = compute(root / "mA", root / "mB", None, a_from_b=Sim3.from_dict(alignment["transform"]))
+        run = compute(root / "mA", root / "mB", root / "pairs" / "AB" / "match.json")
         write_bytes_atomic(args.example, changes_png(run.result, f"world {worlds[0]}, --changed {levels[-1]:.2f}, "
                                                                  f"summer vs summer: {run.summary()}"))
     print(f"\nmachine: {machine_summary()}")

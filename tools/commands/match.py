@@ -1,4 +1,4 @@
-"""`sosmatch match A B --out DIR`: associate two landmark maps (SOS-Match windowed CLIPPER search)."""
+"""`sosmatch match A B --out DIR`: associate two landmark maps (windowed CLIPPER search, then verification)."""
 
 from __future__ import annotations
 
@@ -20,6 +20,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="(kept for scripts; unused: the compiled search runs in one process)")
     parser.add_argument("--exhaustive", action="store_true",
                         help="straightforward reference search of every window pair (slow; same result)")
+    parser.add_argument("--no-verify", action="store_true",
+                        help="answer with the window consensus as it is, without verifying the hypotheses on the "
+                             "full maps (verification.enabled)")
     parser.add_argument("--no-plot", action="store_true", help="skip match.png")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a complete `sosmatch match` output of other maps or settings in --out")
@@ -34,6 +37,6 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     params = params_from_args(args)
     result = run_match(params, args.a, args.b, args.out, workers=args.workers, exhaustive=args.exhaustive,
-                       plot=not args.no_plot, overwrite=args.overwrite)
+                       plot=not args.no_plot, overwrite=args.overwrite, verify=False if args.no_verify else None)
     print(f"match: {result.summary()}")
     return 0

@@ -13,12 +13,12 @@ processes, or a Dask cluster):
 2. map: each flight -> OUT/sessions/NAME (`sosmatch.workflows.map`);
 3. match: every pair of mapped sessions, or with `nearest=k` only pairs where one session is among the k
    nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the
-   same local frame) -> OUT/pairs/A__B/match.json; then (BatchOptions.verify, on by default) every window
-   hypothesis is checked on the FULL maps and the best supported one is refined there (`verify_pair`: size-gated
-   mutual nearest neighbours within theta_eps, iterated 4-DOF fit) -> OUT/pairs/A__B/alignment.json, whose
-   decision, transform and associations the graph and the merge use. Why: across seasons one window pair's |S|
-   is no larger for a true hypothesis than for chance ones, and one window's 8-20 inliers give a noisy rotation;
-   see BENCHMARKS.md, Multi-session;
+   same local frame) -> OUT/pairs/A__B/match.json (`sosmatch match`, which, unless BatchOptions.verify is off,
+   checks every window hypothesis on the FULL maps and refines the best supported one:
+   `plugin.multisession.verify_search`); its answer's decision, transform and associations
+   (`database.match_io.read_match`) are what the graph and the merge use. Why verify: across seasons one window
+   pair's |S| is no larger for a true hypothesis than for chance ones, and one window's 8-20 inliers give a noisy
+   rotation; see BENCHMARKS.md, Multi-session;
 4. session graph: sessions are nodes, accepted pairs are edges carrying a_from_b and |S|; accepted pairs
    that contradict others linking the same groups are left out (`plugin.multisession.consistent_edges`); each connected
    group is brought into the frame of its best-connected session along a maximum spanning tree
@@ -42,12 +42,12 @@ from __future__ import annotations
 from .discovery import PAIR_SEP, Flight, classify_flight, discover_flights
 from .report import BatchReport, plot_session_graph, write_report
 from .state import StateStore
-from .tasks import changes_task, map_task, merge_task, pair_task, read_associations, summarise_match, verify_pair
+from .tasks import changes_task, map_task, merge_task, pair_task, read_associations, summarise_match
 from .workflow import BatchOptions, run
 
 __all__ = [
     "PAIR_SEP", "BatchOptions", "BatchReport", "Flight", "StateStore", "changes_task", "classify_flight",
     "discover_flights",
     "map_task", "merge_task", "pair_task", "plot_session_graph", "read_associations", "run", "summarise_match",
-    "verify_pair", "write_report",
+    "write_report",
 ]

@@ -20,7 +20,7 @@ def fingerprint(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-PATH_KEYS = ("session", "match", "alignment", "merged", "changes")  # result fields that hold paths
+PATH_KEYS = ("session", "match", "merged", "changes")  # result fields that hold paths
 
 
 class StateStore:

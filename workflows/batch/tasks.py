@@ -1,21 +1,15 @@
-"""Batch tasks: top-level functions with picklable arguments, run in worker processes (map, match + verify,
-merge, changes)."""
+"""Batch tasks: top-level functions with picklable arguments, run in worker processes (map, match (its verification
+included), merge, changes)."""
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ...database.atomic import write_text_atomic
-from ...plugin.errors import InputError
-from ...plugin.multisession import (
-    Sim3,
-    verify_alignments,
-)
+from ...plugin.multisession import Sim3
 from ...plugin.params import Params
 from .discovery import images_dir
 
@@ -69,90 +63,31 @@ def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params
     return _session_summary(name, kind, out)
 
 
-def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params,
-              verify: dict[str, Any] | None = None, overwrite: bool = False) -> dict[str, Any]:
-    """Match two mapped sessions into pair_dir/match.json and summarise the chosen hypothesis.
+def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params, verify: bool = True,
+              overwrite: bool = False) -> dict[str, Any]:
+    """Match two mapped sessions into pair_dir/match.json and summarise its answer.
 
-    With `verify` (keyword arguments of `verify_pair`; batch passes them unless BatchOptions.verify is off),
-    every window hypothesis is then checked and refined on the full maps, the result is written to
-    pair_dir/alignment.json, and the summary's `accepted`, `transform` and `num_associations` are the verified
-    alignment's (the match's own are kept as `match_accepted`, `match_transform`, `match_associations`).
+    `sosmatch match` verifies the window hypotheses on the full maps unless `verify` is off (BatchOptions.verify);
+    the summary's `accepted`, `transform` and `num_associations` are the answer's (the verified alignment's), the
+    window consensus is kept as `match_accepted`, `match_transform`, `match_associations`.
     `overwrite`: replace a complete match of other maps or settings in pair_dir (BatchOptions.overwrite).
     """
     from .. import match as match_workflow
 
-    # workers=1: the task already runs in a worker process; nested pools would oversubscribe the cores
-    res = match_workflow.run(params, session_a, session_b, pair_dir, workers=1, overwrite=overwrite)
-    summary = summarise_match(Path(pair_dir) / "match.json")
-    if verify is None:
-        return summary
-    cands = [(h.transform, h.associations[:, 1]) for h in sorted(res.search.hypotheses, key=lambda h: -h.size)
-             if h.transform is not None and h.tilt_deg <= params.association.max_gravity_angle_deg]
-    return {**summary, **verify_pair(res.map_a.lmap, res.map_b.lmap, cands, Path(pair_dir), params, **verify)}
-
-
-def verify_pair(map_a: Any, map_b: Any, candidates: list[tuple[Any, np.ndarray]], pair_dir: Path,
-                params: Params, dof: int = 4, min_ratio: float = 1.2, z_weight: float = 0.5,
-                max_candidates: int = 400, final_dof: int | None = 6) -> dict[str, Any]:
-    """Verify a pair's window hypotheses on the full landmark maps (`plugin.multisession.verify_alignments`:
-    mutual nearest neighbours within theta_eps that pass the size gate theta_r, ICP-refined with `dof` 4 =
-    yaw + translation, the winner finally refitted with `final_dof` 6 on its pairs), write
-    pair_dir/alignment.json and return the summary fields it overrides.
-
-    `max_candidates` bounds the work on dense same-season maps (the largest hypotheses are tried first).
-    """
-    from ...database.match_io import read_match
-
-    a_p, b_p = np.asarray(map_a.positions, np.float64), np.asarray(map_b.positions, np.float64)
-    ap = params.association
-    sims = [(Sim3(t.rotation, t.translation, t.scale), idx) for t, idx in candidates[:max_candidates]]
-    v = verify_alignments(a_p, map_a.sizes, b_p, map_b.sizes, sims, ap.distance_tolerance_m, ap.max_size_difference,
-                          ap.min_associations, min_ratio=min_ratio, dof=dof, z_weight=z_weight, final_dof=final_dof)
-    match = read_match(pair_dir / "match.json")
-    out = {
-        "match_accepted": bool(match.accepted),
-        "match_transform": match.transform.to_dict() if match.transform is not None else None,
-        "match_associations": int(len(match.associations)),
-        "accepted": bool(v.accepted),
-        "transform": v.best.transform.to_dict() if v.best is not None else None,
-        "num_associations": int(len(v.best.associations)) if v.best is not None else 0,
-        "runner_up_support": int(v.runner_up_support),
-        "alignment": str(pair_dir / "alignment.json"),
-    }
-    doc = {
-        "format": "sosmatch alignment v1",
-        "method": {"dof": dof, "final_dof": final_dof, "gate_m": ap.distance_tolerance_m,
-                   "max_size_difference": ap.max_size_difference, "min_support": ap.min_associations,
-                   "min_ratio": min_ratio, "z_weight": z_weight,
-                   "candidates": len(sims), "refined": v.num_refined},
-        "accepted": out["accepted"], "transform": out["transform"],
-        "support": out["num_associations"], "runner_up_support": out["runner_up_support"],
-        "rms_m": v.best.rms_m if v.best is not None and np.isfinite(v.best.rms_m) else None,
-        "associations": v.best.associations.tolist() if v.best is not None else [],
-        "match_transform": out["match_transform"],
-    }
-    write_text_atomic(pair_dir / "alignment.json", json.dumps(doc, indent=1) + "\n")
-    return out
+    match_workflow.run(params, session_a, session_b, pair_dir, overwrite=overwrite, verify=verify)
+    return summarise_match(Path(pair_dir) / "match.json")
 
 
 def read_associations(path: str | Path) -> np.ndarray:
-    """(K,2) landmark associations of a pair: alignment.json's (verified) or match.json's."""
-    from ...database.match_io import parse_associations, read_match
+    """(K,2) landmark associations of a pair's answer (match.json, read by `match_io.read_match`)."""
+    from ...database.match_io import read_match
 
-    path = Path(path)
-    if path.name == "alignment.json":
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError, RecursionError) as exc:
-            raise InputError(f"cannot read alignment file: {exc}", path) from None
-        if not isinstance(data, dict):
-            raise InputError("alignment file must hold a JSON object", path)
-        return parse_associations(data.get("associations"), "associations", path)
     return read_match(path).associations
 
 
 def summarise_match(match_json: Path) -> dict[str, Any]:
-    """The part of a match.json the batch report and the session graph need."""
+    """The part of a match.json the batch report and the session graph need: the answer (verified unless the
+    match ran without verification) and the window consensus it came from."""
     from ...database.match_io import read_match
 
     m = read_match(match_json)
@@ -161,7 +96,12 @@ def summarise_match(match_json: Path) -> dict[str, Any]:
         "accepted": bool(m.accepted),
         "num_associations": int(len(m.associations)),
         "num_hypotheses": int(m.num_hypotheses),
-        "transform": m.transform.to_dict() if m.transform is not None else None,
+        "transform": m.transform.to_dict() if m.transform is not None and m.accepted else None,
+        "answer": m.source,
+        "match_accepted": bool(m.consensus_accepted),
+        "match_transform": m.consensus_transform.to_dict() if m.consensus_transform is not None else None,
+        "match_associations": int(len(m.consensus_associations)),
+        "runner_up_support": m.runner_up_support,
     }
 
 
@@ -175,15 +115,15 @@ def merge_task(
     overwrite: bool = False,
 ) -> dict[str, Any]:
     """Merge one connected group: sessions in the reference frame, landmarks fused along the tree edges
-    (a, b, alignment.json or match.json path); writes out_dir (see `sosmatch.workflows.merge`)."""
+    (a, b, match.json path); writes out_dir (see `sosmatch.workflows.merge`)."""
     from ...database.match_io import check_match_maps, read_match
     from ...database.session_io import read_session
     from ..merge import merge_sessions
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3.from_dict(t) for t in transforms]
-    for a, b, m in edges:  # the pair's match (beside its alignment) must be about these two sessions
-        match_json = Path(m).parent / "match.json"
+    for a, b, m in edges:  # the pair's match must be about these two sessions
+        match_json = Path(m)
         check_match_maps(read_match(match_json), sessions[a].landmarks, sessions[b].landmarks, match_json,
                          names=(labels[a], labels[b]))
     pairs = [(a, b, read_associations(m)) for a, b, m in edges]

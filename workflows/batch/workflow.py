@@ -39,12 +39,10 @@ class BatchOptions:
     ekf: bool = False  # synth flights: map with the noisy poses_ekf.csv instead of the ground truth
     merge: bool = True
     refine: bool = False  # (legacy, without verify) consensus transforms re-fitted on their own associations
-    # Verify every pair's window hypotheses on the full maps and refine the winner (`verify_pair`); off = the
-    # match's consensus as it is. BENCHMARKS.md, Multi-session, has what each step does to the errors.
+    # Each match verifies its window hypotheses on the full maps (a stage of `sosmatch match`, settings in
+    # Params.verification); off = the match's consensus as it is. BENCHMARKS.md, Multi-session, has what each
+    # step does to the errors.
     verify: bool = True
-    verify_dof: int = 4  # 4: yaw + translation (gravity-aligned maps); 6: rigid
-    verify_final_dof: int | None = 6  # the winner refitted 6-DOF on its pairs (None: keep the verify_dof fit)
-    verify_min_ratio: float = 1.2  # (ours) the winner's support over the best disagreeing alignment's
     edge_tolerance_m: float = 5.0  # (ours) two accepted pairs agree if they place sessions within this distance
     changes: bool = True  # change detection of every pair in the session graph (OUT/pairs/A__B/changes/)
     progress: bool = True
@@ -59,12 +57,12 @@ def _valid_session(done: dict[str, Any]) -> bool:
 
 
 def _valid_match(done: dict[str, Any]) -> bool:
-    return Path(done.get("match", "")).is_file() and ("alignment" not in done or Path(done["alignment"]).is_file())
+    return Path(done.get("match", "")).is_file()
 
 
 def _associations_file(rec: dict[str, Any]) -> str:
-    """The file whose associations a merge fuses: the verified alignment's, else the match's."""
-    return rec.get("alignment") or rec["match"]
+    """The file whose answer a merge fuses: the pair's match.json (its verified alignment, unless unverified)."""
+    return rec["match"]
 
 
 def _valid_merge(done: dict[str, Any]) -> bool:
@@ -139,10 +137,8 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     # 3: match
     chosen = _choose_pairs(mapped, sessions, options.nearest)
     matcher = pair_fn or pair_task
-    # a custom matcher (pair_fn) returns its own summary; only the default one verifies
-    verify = ({"dof": options.verify_dof, "min_ratio": options.verify_min_ratio,
-               "final_dof": options.verify_final_dof}
-              if options.verify and matcher is pair_task else None)
+    # a custom matcher (pair_fn) returns its own summary; the default one is `sosmatch match` (verified)
+    verify = bool(options.verify) if matcher is pair_task else None
     pair_fps, pair_tasks = {}, {}
     for a, b in chosen:
         key = f"{a}{PAIR_SEP}{b}"
@@ -182,7 +178,7 @@ def _graph_and_merge(
             continue
         a, b = key.split(PAIR_SEP)
         sim = Sim3.from_dict(rec["transform"])
-        if options.refine and "alignment" not in rec:
+        if options.refine and rec.get("answer") != "verified":
             sim = _refined(sessions[a]["session"], sessions[b]["session"], rec["match"], sim, params)
         edge = Edge(index[a], index[b], sim, float(rec["num_associations"]))
         edges.append(edge)
