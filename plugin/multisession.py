@@ -465,10 +465,10 @@ def verify_alignments(
     `min_support` and is at least `min_ratio` times the support of the best rival (an alignment that moves some
     of the winner's supporting B landmarks more than 2 gate_m away from where the winner puts them).
     `final_dof` 6: the winner's transform is finally refitted rigidly (6-DOF, Huber-weighted) on its supporting
-    pairs, then refined by 6-DOF ICP from there (pairs re-made until they settle). The 4-DOF search finds the
+    pairs, and its support is the mutual nearest neighbours under that transform. The 4-DOF search finds the
     pairs robustly; with tens to hundreds of pairs over the whole overlap the small tilt between two EKF frames
     (~1 deg on the synthetic winter flights) is then observable, which one window's 8-20 inliers could not
-    resolve, and the landmarks that tilt kept out of the 4-DOF pairs join. None: keep the `dof` fit.
+    resolve, and the landmarks that the tilt kept out of the 4-DOF pairs join. None: keep the `dof` fit.
     """
     pb_all = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
     refined: list[Alignment] = []
@@ -496,11 +496,13 @@ def verify_alignments(
     if final_dof == 6 and dof != 6 and support >= 3:
         pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
         first = _final_rigid_fit(pa_all, pb_all, best, gate_m, z_weight)
-        # then 6-DOF ICP from there: pairs the 4-DOF fit could not reach because the frames are tilted (1-2 deg
-        # between EKF frames is metres of height at the far end of a map) join and the pairs settle again
-        again = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, first.transform, gate_m, max_size_difference,
-                                 dof=6, z_weight=z_weight)
-        best = again if len(again.associations) >= len(first.associations) else first
+        # then the pairs under that transform: landmarks the 4-DOF fit could not reach because the frames are
+        # tilted (1-2 deg between EKF frames is metres of height at the far end of a map) join its support
+        assoc, dist = mutual_nearest(pa_all, sizes_a, first.transform.apply(pb_all), sizes_b, gate_m,
+                                     max_size_difference, z_weight)
+        best = first
+        if len(assoc) >= len(first.associations):
+            best = Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
     accepted = support > min_support and support >= min_ratio * runner_up
     return Verification(best, runner_up, len(refined), accepted)
 

@@ -97,7 +97,7 @@ def test_consistency_functions_match_the_graph_kernel():
     for params in (P, GRAVITY):
         m = 1 if params.consistency == "gravity" else 0
         sm = SearchMode.of(params)
-        rows, cols, c, _, s0, ns = association_graph(s.points_a, s.points_b, pairs[:, 0].copy(), pairs[:, 1].copy(), m,
+        rows, cols, c, s0, ns = association_graph(s.points_a, s.points_b, pairs[:, 0].copy(), pairs[:, 1].copy(), m,
                                                      sm.eps, sm.sigma, sm.tan_tilt, sm.eps_z, sm.sin_tilt, sm.nslices)
         iu, ju = np.triu_indices(len(pairs), 1)
         ok, mis, t0, tn = pair_consistency(s.points_a, s.points_b, pairs[iu], pairs[ju], params)

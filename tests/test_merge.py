@@ -295,8 +295,8 @@ def test_merge_refine_iterates_where_one_refit_cannot(pair, tmp_path):
 
 
 def test_verify_final_rigid_fit_recovers_a_small_tilt():
-    """Two EKF frames tilted 1.5 deg against each other: the 4-DOF search finds the pairs, the final 6-DOF fit and
-    ICP from it recover the tilt the 4-DOF fit cannot express, and keep (or gain) the pairs."""
+    """Two EKF frames tilted 1.5 deg against each other: the 4-DOF search finds the pairs, the final 6-DOF fit on
+    them recovers the tilt the 4-DOF fit cannot express, and the pairs under it keep (or gain) the support."""
     from sosmatch.plugin.association.rigid import rotation_from_rpy_deg
     from sosmatch.plugin.multisession import verify_alignments
 

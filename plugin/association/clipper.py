@@ -99,9 +99,9 @@ def affinity_graph(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray
     pa, pb, pairs, w = _validate(points_a, points_b, pairs, weights)
     if eps <= 0 or sigma <= 0:
         raise InputError(f"eps and sigma must be positive, got eps={eps}, sigma={sigma}")
-    rows, cols, _, values, _, _ = association_graph(pa, pb, pairs[:, 0].copy(), pairs[:, 1].copy(), DISTANCE,
-                                                    float(eps), float(sigma), 0.0, 0.0, 0.0, 1)
-    return ConsistencyGraph(len(pairs), rows, cols, values, w)
+    rows, cols, c, _, _ = association_graph(pa, pb, pairs[:, 0].copy(), pairs[:, 1].copy(), DISTANCE, float(eps),
+                                            float(sigma), 0.0, 0.0, 0.0, 1)
+    return ConsistencyGraph(len(pairs), rows, cols, np.exp(-(c * c) / (2.0 * sigma * sigma)), w)
 
 
 SOLVERS = {"clipper": CLIPPER, "bounded": BOUNDED}

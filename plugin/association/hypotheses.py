@@ -206,18 +206,31 @@ def consensus_transform(points_a: np.ndarray, points_b: np.ndarray, hyps: list[W
     """
     eps = params.distance_tolerance_m
     ranked = sorted(accepted, key=lambda k: (-hyps[k].size, -hyps[k].score, k))
+    # Each hypothesis joins the first group (in order of creation) whose first member it agrees with, else starts a
+    # group. Done head by head: every hypothesis not yet grouped is compared with the new head at once (a later
+    # head never takes one that agreed with an earlier head, so the groups are those of the one-by-one walk).
+    rot = np.stack([hyps[k].transform.scale * hyps[k].transform.rotation for k in ranked]) if ranked else None
+    tr = np.stack([hyps[k].transform.translation for k in ranked]) if ranked else None
+    pure = np.stack([hyps[k].transform.rotation for k in ranked]) if ranked else None
+    group_of = np.full(len(ranked), -1)
     groups: list[list[int]] = []
-    for k in ranked:
-        hk = hyps[k]
-        for g in groups:
-            h0 = hyps[g[0]]
-            xb = points_b[h0.associations[:, 1]]
-            if (rotation_angle_deg(h0.transform.rotation, hk.transform.rotation) < params.max_gravity_angle_deg
-                    and np.max(np.linalg.norm(h0.transform.apply(xb) - hk.transform.apply(xb), axis=1)) <= eps):
-                g.append(k)
-                break
-        else:
-            groups.append([k])
+    for x in range(len(ranked)):
+        if group_of[x] >= 0:
+            continue
+        group_of[x] = len(groups)
+        groups.append([ranked[x]])
+        rest = np.flatnonzero(group_of < 0)
+        rest = rest[rest > x]
+        if not len(rest):
+            continue
+        xb = points_b[hyps[ranked[x]].associations[:, 1]]
+        mine = xb @ rot[x].T + tr[x]
+        theirs = np.einsum("kij,nj->kni", rot[rest], xb) + tr[rest][:, None, :]
+        near = np.max(np.linalg.norm(theirs - mine[None], axis=2), axis=1) <= eps
+        turn = np.atleast_1d(rotation_angle_deg(np.broadcast_to(pure[x], pure[rest].shape), pure[rest]))
+        for y in rest[near & (turn < params.max_gravity_angle_deg)]:
+            group_of[y] = group_of[x]
+            groups[-1].append(ranked[y])
 
     def distinct(g: list[int]) -> np.ndarray:
         return np.unique(np.concatenate([hyps[k].associations for k in g]), axis=0)

@@ -176,11 +176,12 @@ def association_graph(pa: np.ndarray, pb: np.ndarray, ia: np.ndarray, ib: np.nda
                       sigma: float, tan_tilt: float, eps_z: float, sin_tilt: float, nslices: int) -> tuple:
     """Every consistent pair (p < q) of the associations (ia[p], ib[p]).
 
-    Returns rows, cols (sorted by (row, col)), mismatch c, affinity exp(-c^2 / 2 sigma^2), first yaw slice and
-    number of slices of every edge. Associations sharing a landmark on either side are never consistent. With
-    few distinct landmarks (a window pair, or many putative associations among a few hundred landmarks) the
-    m (m - 1) / 2 tests read per-map tables of the pair invariants (`invariant_table`), else they form the
-    vectors on the fly; both give identical values.
+    Returns rows, cols (sorted by (row, col)), mismatch c, first yaw slice and number of slices of every edge
+    (the affinity exp(-c^2 / 2 sigma^2) is computed where it is needed: `affinity_values`; sigma is unused here).
+    Associations sharing a landmark on either side are never consistent. With few distinct landmarks (a window
+    pair, or many putative associations among a few hundred landmarks) the m (m - 1) / 2 tests read per-map
+    tables of the pair invariants (`invariant_table`), else they form the vectors on the fly; both give identical
+    values.
     """
     ua, la = _local_ids(ia, pa.shape[0])
     ub, lb = _local_ids(ib, pb.shape[0])
@@ -250,6 +251,7 @@ def graph_from_tables(la: np.ndarray, lb: np.ndarray, ta: np.ndarray, tb: np.nda
     cap = max(16, min(m * (m - 1) // 2, 4 * m + 1024))
     rows = np.empty(cap, np.int64)
     cols = np.empty(cap, np.int64)
+    cs = np.empty(cap)
     ne = 0
     lena = ta[0]
     lenb = tb[0]
@@ -258,16 +260,22 @@ def graph_from_tables(la: np.ndarray, lb: np.ndarray, ta: np.ndarray, tb: np.nda
             cap = 2 * cap + m
             rows = _grow_i(rows, cap)
             cols = _grow_i(cols, cap)
+            cs = _grow_f(cs, cap)
         ra = lena[la[p]]
         rb = lenb[lb[p]]
         start = ne
         for q in range(p + 1, m):
-            d = ra[la[q]] - rb[lb[q]]
+            d = abs(ra[la[q]] - rb[lb[q]])
             cols[ne] = q
-            # the length test of pair_mismatch (false for NaN and +-inf: a shared landmark)
-            ne += (d <= eps) & (d >= -eps)
+            cs[ne] = d
+            # the length test of pair_mismatch (false for NaN and inf: a shared landmark)
+            ne += d <= eps
         rows[start:ne] = p
-    cs = np.empty(ne)
+    rows = rows[:ne]
+    cols = cols[:ne]
+    cs = cs[:ne]
+    if mode != GRAVITY:  # the length test is the whole test, c the length mismatch
+        return rows.copy(), cols.copy(), cs.copy(), np.zeros(ne, np.int64), np.ones(ne, np.int64)
     s0 = np.zeros(ne, np.int64)
     ns = np.ones(ne, np.int64)
     keep = np.ones(ne, np.bool_)
@@ -284,13 +292,9 @@ def graph_from_tables(la: np.ndarray, lb: np.ndarray, ta: np.ndarray, tb: np.nda
             keep[e] = False
             continue
         cs[e] = c
-        if mode == GRAVITY:
-            s0[e], ns[e] = pair_slices(ta[2, i, j], tb[2, u, v], ta[0, i, j], tb[0, u, v], ta[1, i, j],
-                                       tb[1, u, v], eps, sin_tilt, nslices)
-    rows = rows[:ne][keep]
-    cols = cols[:ne][keep]
-    cs = cs[keep]
-    return rows, cols, cs, affinity_values(cs, sigma), s0[keep], ns[keep]
+        s0[e], ns[e] = pair_slices(ta[2, i, j], tb[2, u, v], ta[0, i, j], tb[0, u, v], ta[1, i, j], tb[1, u, v], eps,
+                                   sin_tilt, nslices)
+    return rows[keep], cols[keep], cs[keep], s0[keep], ns[keep]
 
 
 @njit(cache=True)
@@ -335,7 +339,41 @@ def _graph_direct(pa: np.ndarray, pb: np.ndarray, ia: np.ndarray, ib: np.ndarray
                 s0[ne], ns[ne] = 0, 1
             ne += 1
     cs = cs[:ne].copy()
-    return rows[:ne].copy(), cols[:ne].copy(), cs, affinity_values(cs, sigma), s0[:ne].copy(), ns[:ne].copy()
+    return rows[:ne].copy(), cols[:ne].copy(), cs, s0[:ne].copy(), ns[:ne].copy()
+
+
+_LN2_HI = 6.93147180369123816490e-01  # ln 2 split in two (fdlibm), so n ln 2 is exact in the reduction
+_LN2_LO = 1.90821492927058770002e-10
+_INV_LN2 = 1.44269504088896338700e00
+_POW2_NEG = np.ldexp(1.0, -np.arange(1011))  # 2^-k, k = 0..1010 (e^x for x >= -700)
+
+
+@njit(cache=True, inline="always")
+def exp_nonpositive(x: float) -> float:
+    """e^x for x <= 0, to ~1 ulp: x = n ln 2 + r, |r| <= ln 2 / 2, e^r by its Taylor polynomial (degree 13),
+    scaled by 2^n. Plain arithmetic (no library call), so the loops that use it vectorise, and every search path
+    gets the same bits."""
+    if x < -700.0:
+        return 0.0
+    if x > 0.0:
+        x = 0.0
+    n = np.floor(x * _INV_LN2 + 0.5)
+    r = (x - n * _LN2_HI) - n * _LN2_LO
+    p = 1.0 / 6227020800.0
+    p = p * r + 1.0 / 479001600.0
+    p = p * r + 1.0 / 39916800.0
+    p = p * r + 1.0 / 3628800.0
+    p = p * r + 1.0 / 362880.0
+    p = p * r + 1.0 / 40320.0
+    p = p * r + 1.0 / 5040.0
+    p = p * r + 1.0 / 720.0
+    p = p * r + 1.0 / 120.0
+    p = p * r + 1.0 / 24.0
+    p = p * r + 1.0 / 6.0
+    p = p * r + 0.5
+    p = p * r + 1.0
+    p = p * r + 1.0
+    return p * _POW2_NEG[-np.int64(n)]
 
 
 @njit(cache=True)
@@ -344,7 +382,7 @@ def affinity_values(c: np.ndarray, sigma: float) -> np.ndarray:
     out = np.empty(len(c))
     s = 2.0 * sigma * sigma
     for e in range(len(c)):
-        out[e] = np.exp(-(c[e] * c[e]) / s)
+        out[e] = exp_nonpositive(-(c[e] * c[e]) / s)
     return out
 
 

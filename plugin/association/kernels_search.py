@@ -31,8 +31,8 @@ from .kernels_solve import kcore_mask, solve_graph, sym_csr
 
 
 @njit(cache=True)
-def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, s0: np.ndarray, ns: np.ndarray,
-                      diag: np.ndarray, nslices: int, k: int, method: int) -> tuple:
+def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, cs: np.ndarray, s0: np.ndarray, ns: np.ndarray,
+                      diag: np.ndarray, nslices: int, k: int, method: int, sigma: float) -> tuple:
     """The hypothesis of one window pair from its consistency graph (edges sorted by (row, col)).
 
     Only the k-core (k = theta_S) can hold a set of more than k associations. Without yaw slices the solver runs
@@ -43,7 +43,7 @@ def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarr
     empty = np.zeros(0, np.int64)
     if n <= k:
         return False, empty, 0.0, -1, 0
-    indptr, indices, _ = sym_csr(n, rows, cols, vals)
+    indptr, indices, _ = sym_csr(n, rows, cols, cs)
     alive = kcore_mask(n, indptr, indices, np.ones(n, np.bool_), k)
     ncore = 0
     for i in range(n):
@@ -94,7 +94,7 @@ def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarr
         for x in range(len(be)):
             lr[x] = local[rows[be[x]]]
             lc[x] = local[cols[be[x]]]
-            lv[x] = vals[be[x]]
+            lv[x] = cs[be[x]]
         for x in range(nv):
             local[verts[x]] = -1
         ip, ix, _ = sym_csr(nv, lr, lc, lv)
@@ -127,7 +127,9 @@ def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarr
                 gc[t] = new[lc[x]]
                 gv[t] = lv[x]
                 t += 1
-        sel, score, _, _, _ = solve_graph(nc, gr, gc, gv, diag[ids], method, 1e-6, 60, 100, 0.25, True)
+        # affinities only for the core's pairs, the ones the solver reads
+        sel, score, _, _, _ = solve_graph(nc, gr, gc, affinity_values(gv, sigma), diag[ids], method, 1e-6, 60, 100,
+                                          0.25, True)
         if not found or len(sel) > len(best_sel) or (len(sel) == len(best_sel) and score > best_score):
             found = True
             best_sel = ids[sel]
@@ -166,9 +168,9 @@ def direct_window_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.n
         off[t + 1] = off[t]
         if len(ia) <= k:
             continue
-        rows, cols, _, vals, s0, ns = association_graph(pa, pb, ia, ib, mode, eps, sigma, tan_tilt, eps_z, sin_tilt,
+        rows, cols, cs, s0, ns = association_graph(pa, pb, ia, ib, mode, eps, sigma, tan_tilt, eps_z, sin_tilt,
                                                         nslices)
-        ok, sel, sc, s, nc = solve_window_pair(len(ia), rows, cols, vals, s0, ns, w, nslices, k, method)
+        ok, sel, sc, s, nc = solve_window_pair(len(ia), rows, cols, cs, s0, ns, w, nslices, k, method, sigma)
         if not ok:
             continue
         found[t] = True
@@ -287,7 +289,7 @@ def sorted_b_edges(eb: tuple, cells_b: np.ndarray, ncell: int, hb: np.ndarray) -
 @njit(cache=True)
 def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, ncell: int, pa: np.ndarray,
               ha: np.ndarray, pb: np.ndarray, mode: int, eps: float, tan_tilt: float, eps_z: float, theta_r: float,
-              prior_m: float, count_only: bool) -> tuple:
+              prior_m: float, count_only: bool, expected: int) -> tuple:
     """Every consistent pair of associations {(p, j), (q, l)} whose A landmarks form one of the edges `ea_sel`.
 
     A directed A edge p -> q (both orientations o of each undirected edge) meets an undirected B edge j < l (so
@@ -295,13 +297,14 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
     length like the B edges (`sorted_b_edges`); each A group is swept against its 3 x 3 neighbouring B groups
     with two pointers, so the candidates (lengths within eps) cost no search. Every candidate is then tested
     exactly (size gate, prior, `pair_mismatch`) with the invariants oriented as the reference orients them.
-    Returns association ids p * N_B + j and q * N_B + l, the A edge, the B edge (original id), the orientation,
-    the mismatch c, and the number of candidates per selected A edge (the join's cost; `count_only`: only that).
-    The yaw slices of a pair are computed later, only for pairs that survive the peel (`pair_slices_of`).
+    Returns each pair as its A edge, B edge (original id) and orientation (9 bytes: a large join is mostly pairs
+    the peel removes), and the number of candidates per selected A edge (the join's cost; `count_only`: only
+    that). `expected`: the output's size if known (its buffers then grow less). Association ids, mismatch and
+    yaw slices follow from the edges (`edge_pair_ids`, `edge_pair_details`), the latter only for the pairs that
+    survive the peel.
     """
     ei, ek, el, ez, af, ar = ea
     goff, bj, bl, bln, bz, bang, bangr, hbj, hbl, border, lhbj, lhbl = sb
-    nbm = len(pb)
     nsel = len(ea_sel)
     # directed A edges grouped by cells, sorted by length within a group
     nd = 2 * nsel
@@ -321,21 +324,19 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
         aoff[dgrp[x] + 1] += 1
     for g in range(ng):
         aoff[g + 1] += aoff[g]
-    cap = 1024
-    v1 = np.empty(cap, np.int64)
-    v2 = np.empty(cap, np.int64)
-    eae = np.empty(cap, np.int64)
-    ebe = np.empty(cap, np.int64)
+    cap = max(1024, expected)
+    eae = np.empty(cap, np.int32)
+    ebe = np.empty(cap, np.int32)
     ori = np.empty(cap, np.int8)
-    cs = np.empty(cap)
     counts = np.zeros(nsel, np.int64)
     ne = 0
     r2 = prior_m * prior_m
     sized = ncell > 1
     dlo = -1 if sized else 0
     dhi = 1 if sized else 0
-    # |ln h_a - ln h_b| > delta (with margin) certainly fails r <= theta_r: a cheap first look before the exact test
-    delta = np.log((2.0 + theta_r) / (2.0 - theta_r)) * (1.0 + 1e-9) + 1e-12 if sized else 0.0
+    delta = np.log((2.0 + theta_r) / (2.0 - theta_r)) if sized else 0.0
+    delta_hi = delta * (1.0 + 1e-9) + 1e-12
+    delta_lo = delta * (1.0 - 1e-9) - 1e-12
     lha = np.log(ha) if sized else ha
     for ga in range(ng):
         if aoff[ga + 1] == aoff[ga]:
@@ -379,9 +380,20 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                     lp = lha[p]
                     lq = lha[q]
                     for f in range(lo, hi):
-                        if sized and (abs(lp - lhbj[f]) > delta or abs(lq - lhbl[f]) > delta):
-                            continue
-                        if not size_ratio1(hp, hbj[f]) <= theta_r or not size_ratio1(hq, hbl[f]) <= theta_r:
+                        if sized:
+                            # r <= theta_r <=> |ln h_a - ln h_b| <= delta: decided by the logs away from the
+                            # boundary, by the exact ratio (the reference's expression) within 1e-9 of it
+                            d1 = abs(lp - lhbj[f])
+                            if d1 > delta_hi:
+                                continue
+                            d2 = abs(lq - lhbl[f])
+                            if d2 > delta_hi:
+                                continue
+                            if d1 > delta_lo and not size_ratio1(hp, hbj[f]) <= theta_r:
+                                continue
+                            if d2 > delta_lo and not size_ratio1(hq, hbl[f]) <= theta_r:
+                                continue
+                        elif not size_ratio1(hp, hbj[f]) <= theta_r or not size_ratio1(hq, hbl[f]) <= theta_r:
                             continue
                         j = bj[f]
                         l_ = bl[f]
@@ -400,21 +412,21 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                             continue
                         if ne == cap:
                             cap *= 2
-                            v1 = _grow_i(v1, cap)
-                            v2 = _grow_i(v2, cap)
-                            eae = _grow_i(eae, cap)
-                            ebe = _grow_i(ebe, cap)
+                            eae = _grow_i32(eae, cap)
+                            ebe = _grow_i32(ebe, cap)
                             ori = _grow_i8(ori, cap)
-                            cs = _grow_f(cs, cap)
-                        v1[ne] = p * nbm + j
-                        v2[ne] = q * nbm + l_
                         eae[ne] = e
                         ebe[ne] = border[f]
                         ori[ne] = o
-                        cs[ne] = c
                         ne += 1
-    return (v1[:ne].copy(), v2[:ne].copy(), eae[:ne].copy(), ebe[:ne].copy(), ori[:ne].copy(), cs[:ne].copy(),
-            counts)
+    return eae[:ne].copy(), ebe[:ne].copy(), ori[:ne].copy(), counts
+
+
+@njit(cache=True)
+def _grow_i32(x: np.ndarray, cap: int) -> np.ndarray:
+    y = np.empty(cap, np.int32)
+    y[: len(x)] = x
+    return y
 
 
 @njit(cache=True)
@@ -425,23 +437,39 @@ def _grow_i8(x: np.ndarray, cap: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def pair_slices_of(sel: np.ndarray, ea: tuple, eb: tuple, e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray,
-                   eps: float, sin_tilt: float, nslices: int) -> tuple:
-    """Yaw slices of the joined pairs `sel` (from their edges and orientations, as `pair_slices` needs them)."""
+def edge_pair_ids(e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, eb: tuple, nbm: int,
+                  space: int) -> tuple:
+    """`compact_ids` of the joined pairs' associations (p, j) and (q, l), formed from their edges."""
+    ei, ek = ea[0], ea[1]
+    fj, fl = eb[0], eb[1]
+    v1 = np.empty(len(e_a), np.int64)
+    v2 = np.empty(len(e_a), np.int64)
+    for t in range(len(e_a)):
+        e = e_a[t]
+        f = e_b[t]
+        p, q = (ei[e], ek[e]) if ori[t] == 0 else (ek[e], ei[e])
+        v1[t] = p * nbm + fj[f]
+        v2[t] = q * nbm + fl[f]
+    return compact_ids(v1, v2, space)
+
+
+@njit(cache=True)
+def edge_pair_details(sel: np.ndarray, e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, eb: tuple,
+                      mode: int, eps: float, tan_tilt: float, eps_z: float, sin_tilt: float, nslices: int) -> tuple:
+    """Mismatch c and yaw slices of the joined pairs `sel`, as `edge_join` tests them and `pair_slices` gives."""
+    cs = np.empty(len(sel))
     s0 = np.zeros(len(sel), np.int64)
     ns = np.ones(len(sel), np.int64)
     for x in range(len(sel)):
         t = sel[x]
         e = e_a[t]
         f = e_b[t]
-        if ori[t] == 0:
-            zb = eb[3][f]
-            angb = eb[4][f]
-        else:
-            zb = -eb[3][f]
-            angb = eb[5][f]
-        s0[x], ns[x] = pair_slices(ea[4][e], angb, ea[2][e], eb[2][f], ea[3][e], zb, eps, sin_tilt, nslices)
-    return s0, ns
+        zb = eb[3][f] if ori[t] == 0 else -eb[3][f]
+        cs[x] = pair_mismatch(ea[2][e], ea[3][e], eb[2][f], zb, mode, eps, tan_tilt, eps_z)
+        if mode == GRAVITY:
+            s0[x], ns[x] = pair_slices(ea[4][e], eb[4][f] if ori[t] == 0 else eb[5][f], ea[2][e], eb[2][f],
+                                       ea[3][e], zb, eps, sin_tilt, nslices)
+    return cs, s0, ns
 
 
 # --- peel and the graphs of window pairs ----------------------------------------------------------------------------
@@ -489,22 +517,42 @@ def compact_ids(v1: np.ndarray, v2: np.ndarray, space: int) -> tuple:
 
 @njit(cache=True)
 def peel_pairs(nv: int, e1: np.ndarray, e2: np.ndarray, k: int) -> np.ndarray:
-    """Pairs left after iterated removal of associations in fewer than k pairs (boolean mask), O(E)."""
+    """Pairs left after iterated removal of associations in fewer than k pairs (boolean mask), O(E).
+
+    A few passes of plain degree counting remove the bulk (most associations of a large join are in few pairs)
+    without building anything; the queue-based peel finishes on what is left."""
+    alive_e = np.ones(len(e1), np.bool_)
     deg = np.zeros(nv, np.int64)
-    for t in range(len(e1)):
+    left = len(e1)
+    for _pass in range(3):
+        deg[:] = 0
+        for t in range(len(e1)):
+            if alive_e[t]:
+                deg[e1[t]] += 1
+                deg[e2[t]] += 1
+        removed = 0
+        for t in range(len(e1)):
+            if alive_e[t] and (deg[e1[t]] < k or deg[e2[t]] < k):
+                alive_e[t] = False
+                removed += 1
+        left -= removed
+        if removed == 0 or left == 0:
+            return alive_e
+    sel = np.flatnonzero(alive_e)
+    deg[:] = 0
+    for t in sel:
         deg[e1[t]] += 1
         deg[e2[t]] += 1
     start = np.zeros(nv + 1, np.int64)
     for v in range(nv):
         start[v + 1] = start[v] + deg[v]
     fill = start[:-1].copy()
-    inc = np.empty(2 * len(e1), np.int64)
-    for t in range(len(e1)):
+    inc = np.empty(2 * len(sel), np.int64)
+    for t in sel:
         inc[fill[e1[t]]] = t
         fill[e1[t]] += 1
         inc[fill[e2[t]]] = t
         fill[e2[t]] += 1
-    alive_e = np.ones(len(e1), np.bool_)
     alive_v = np.ones(nv, np.bool_)
     queue = np.empty(nv, np.int64)
     head = 0
@@ -535,65 +583,49 @@ def peel_pairs(nv: int, e1: np.ndarray, e2: np.ndarray, k: int) -> np.ndarray:
 @njit(cache=True)
 def peel_pairs_sliced(nv: int, e1: np.ndarray, e2: np.ndarray, s0: np.ndarray, ns: np.ndarray, nslices: int,
                       k: int) -> np.ndarray:
-    """`peel_pairs` per yaw slice: a node is (association, slice), a pair links its two associations in every
-    slice its yaw tolerance covers. A pair survives if it survives in at least one slice. Exact: an association
-    with fewer than k pairs in slice s over all windows cannot be in that slice's k-core of any window pair."""
-    nn = nv * nslices
-    deg = np.zeros(nn, np.int32)
-    total = 0
+    """`peel_pairs` per yaw slice: in slice s, the pairs whose yaw tolerance covers s, and an association with fewer
+    than k of them (over all windows) is removed, iterated. A pair survives if it survives in at least one slice.
+    Exact: such an association cannot be in that slice's k-core of any window pair. Each slice is peeled on its
+    own pairs only (counting sort by slice, local vertex ids), so time and memory grow with the incidences."""
+    cnt = np.zeros(nslices + 1, np.int64)
+    for t in range(len(e1)):
+        for x in range(ns[t]):
+            cnt[(s0[t] + x) % nslices + 1] += 1
+    for sl in range(nslices):
+        cnt[sl + 1] += cnt[sl]
+    fill = cnt[:-1].copy()
+    items = np.empty(cnt[nslices], np.int64)
     for t in range(len(e1)):
         for x in range(ns[t]):
             sl = (s0[t] + x) % nslices
-            deg[e1[t] * nslices + sl] += 1
-            deg[e2[t] * nslices + sl] += 1
-        total += ns[t]
-    start = np.zeros(nn + 1, np.int64)
-    for v in range(nn):
-        start[v + 1] = start[v] + deg[v]
-    fill = start[:-1].copy()
-    inc = np.empty(2 * total, np.int64)  # (pair, slice) incidences as pair * nslices + slice
-    for t in range(len(e1)):
-        for x in range(ns[t]):
-            sl = (s0[t] + x) % nslices
-            a = e1[t] * nslices + sl
-            b = e2[t] * nslices + sl
-            inc[fill[a]] = t * nslices + sl
-            fill[a] += 1
-            inc[fill[b]] = t * nslices + sl
-            fill[b] += 1
-    dead = np.zeros(len(e1) * nslices, np.bool_)  # (pair, slice) removed
-    alive_v = np.ones(nn, np.bool_)
-    queue = np.empty(nn, np.int64)
-    head = 0
-    tail = 0
-    for v in range(nn):
-        if deg[v] < k:
-            alive_v[v] = False
-            queue[tail] = v
-            tail += 1
-    while head < tail:
-        v = queue[head]
-        head += 1
-        for x in range(start[v], start[v + 1]):
-            ps = inc[x]
-            if dead[ps]:
-                continue
-            dead[ps] = True
-            t = ps // nslices
-            sl = ps % nslices
-            w = e2[t] * nslices + sl if e1[t] * nslices + sl == v else e1[t] * nslices + sl
-            if alive_v[w]:
-                deg[w] -= 1
-                if deg[w] < k:
-                    alive_v[w] = False
-                    queue[tail] = w
-                    tail += 1
+            items[fill[sl]] = t
+            fill[sl] += 1
     out = np.zeros(len(e1), np.bool_)
-    for t in range(len(e1)):
-        for x in range(ns[t]):
-            if not dead[t * nslices + (s0[t] + x) % nslices]:
-                out[t] = True
-                break
+    local = np.full(nv, -1, np.int64)
+    for sl in range(nslices):
+        its = items[cnt[sl]: cnt[sl + 1]]
+        m = len(its)
+        if m < k:
+            continue
+        verts = np.empty(2 * m, np.int64)
+        nl = 0
+        for x in range(m):
+            for v in (e1[its[x]], e2[its[x]]):
+                if local[v] < 0:
+                    local[v] = nl
+                    verts[nl] = v
+                    nl += 1
+        a = np.empty(m, np.int64)
+        b = np.empty(m, np.int64)
+        for x in range(m):
+            a[x] = local[e1[its[x]]]
+            b[x] = local[e2[its[x]]]
+        for x in range(nl):
+            local[verts[x]] = -1
+        alive = peel_pairs(nl, a, b, k)
+        for x in range(m):
+            if alive[x]:
+                out[its[x]] = True
     return out
 
 
@@ -669,26 +701,34 @@ def solve_groups(groups: np.ndarray, goff: np.ndarray, items: np.ndarray, ids: n
     sel_a = np.empty(1024, np.int64)
     sel_b = np.empty(1024, np.int64)
     min_edges = k * (k + 1) // 2
+    loc = np.full(len(ids), -1, np.int64)
     for g in range(ngr):
         off[g + 1] = off[g]
         m = goff[g + 1] - goff[g]
         if m < min_edges:
             continue
         its = items[goff[g]: goff[g + 1]]
-        # local vertex ids in ascending association id
+        # local vertex ids in ascending association id (a stamp array maps global ids to local ones)
         verts = np.empty(2 * m, np.int64)
+        nv = 0
         for x in range(m):
-            verts[2 * x] = e1[its[x]]
-            verts[2 * x + 1] = e2[its[x]]
-        verts = np.unique(verts)
-        nv = len(verts)
+            for v in (e1[its[x]], e2[its[x]]):
+                if loc[v] < 0:
+                    loc[v] = 0
+                    verts[nv] = v
+                    nv += 1
+        verts = np.sort(verts[:nv])
+        for x in range(nv):
+            loc[verts[x]] = x
         lo = np.empty(m, np.int64)
         hi = np.empty(m, np.int64)
         for x in range(m):
-            a = np.searchsorted(verts, e1[its[x]])
-            b = np.searchsorted(verts, e2[its[x]])
+            a = loc[e1[its[x]]]
+            b = loc[e2[its[x]]]
             lo[x] = min(a, b)
             hi[x] = max(a, b)
+        for x in range(nv):
+            loc[verts[x]] = -1
         order = np.argsort(lo * nv + hi)
         rows = lo[order]
         cols = hi[order]
@@ -699,14 +739,13 @@ def solve_groups(groups: np.ndarray, goff: np.ndarray, items: np.ndarray, ids: n
             cc[x] = cs[its[order[x]]]
             ss[x] = s0[its[order[x]]]
             nn[x] = nsl[its[order[x]]]
-        vals = affinity_values(cc, sigma)
         va = np.empty(nv, np.int64)
         vb = np.empty(nv, np.int64)
         for x in range(nv):
             va[x] = ids[verts[x]] // nbm
             vb[x] = ids[verts[x]] % nbm
         diag = size_weights(ha, hb, va, vb, theta_r)
-        ok, sel, sc, s, nc = solve_window_pair(nv, rows, cols, vals, ss, nn, diag, nslices, k, method)
+        ok, sel, sc, s, nc = solve_window_pair(nv, rows, cols, cc, ss, nn, diag, nslices, k, method, sigma)
         if not ok:
             continue
         found[g] = True

@@ -46,10 +46,10 @@ def _reference(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
     for a, wa in enumerate(wins_a):
         for b, wb in enumerate(wins_b):
             ia, ib, w = putatives(wa[0], wa[1], wb[0], wb[1], pa, ha, pb, hb, m.theta_r, m.prior_m)
-            rows, cols, _, vals, s0, ns = association_graph(pa, pb, ia, ib, m.consistency, m.eps, m.sigma,
+            rows, cols, cs, s0, ns = association_graph(pa, pb, ia, ib, m.consistency, m.eps, m.sigma,
                                                             m.tan_tilt, m.eps_z, m.sin_tilt, m.nslices)
-            ok, chosen, sc, s, nc = solve_window_pair(len(ia), rows, cols, vals, s0, ns, w, m.nslices, m.k,
-                                                      m.method)
+            ok, chosen, sc, s, nc = solve_window_pair(len(ia), rows, cols, cs, s0, ns, w, m.nslices, m.k,
+                                                      m.method, m.sigma)
             if ok:
                 ids.append(a * len(wins_b) + b)
                 nput.append(len(ia))

@@ -47,8 +47,9 @@ from .kernels_search import (
     count_putatives,
     direct_window_pairs,
     edge_join,
+    edge_pair_details,
+    edge_pair_ids,
     map_edges,
-    pair_slices_of,
     peel_pairs,
     peel_pairs_sliced,
     prior_join,
@@ -134,20 +135,18 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
                      m.prior_m)
         blocks = [(0, len(wins_a))]
         stride = 97  # the join's size, estimated from every 97th A edge: small problems skip the exact count
-        if edge_join(all_edges[::stride], *join_args, True)[-1].sum() * stride > JOIN_BUDGET / 2:
-            blocks = _blocks(edge_join(all_edges, *join_args, True)[-1], a_lo, a_hi, len(wins_a))
+        sample = edge_join(all_edges[::stride], *join_args, False, 1024)
+        estimate = int(len(sample[0]) * stride * 1.1)  # pairs, to size the output buffers
+        if sample[-1].sum() * stride > JOIN_BUDGET / 2:
+            blocks = _blocks(edge_join(all_edges, *join_args, True, 0)[-1], a_lo, a_hi, len(wins_a))
+            estimate = 0
         for w0, w1 in blocks:
             t1 = time.perf_counter()
             sel = all_edges[(a_lo <= w1 - 1) & (a_hi >= w0)]
-            v1, v2, e_a, e_b, ori, cs, _ = edge_join(sel, *join_args, False)
-
-            def slices(alive: np.ndarray, e_a: np.ndarray = e_a, e_b: np.ndarray = e_b, ori: np.ndarray = ori) -> tuple:
-                return pair_slices_of(alive, ea, eb, e_a, e_b, ori, m.eps, m.sin_tilt, m.nslices)
-
-            pairs = (v1, v2, np.maximum(a_lo[e_a], w0), np.minimum(a_hi[e_a], w1 - 1), fb[eb[1][e_b]],
-                     lb[eb[0][e_b]], cs, slices)
+            e_a, e_b, ori, _ = edge_join(sel, *join_args, False, estimate or 1024)
             timings["join_s"] = timings.get("join_s", 0.0) + time.perf_counter() - t1
-            _block(pairs, w0, w1, shared, records, stats, timings)
+            _block(_EdgePairs(e_a, e_b, ori, ea, eb, a_lo, a_hi, fb, lb, w0, w1, m, len(pa) * len(pb)), w0, w1,
+                   shared, records, stats, timings)
     timings.update({k: float(v) for k, v in stats.items()})
     t1 = time.perf_counter()
     ids, nput, ncore, score, slc, off, sel_a, sel_b = records.arrays()
@@ -188,34 +187,85 @@ def _prior_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
     keep = gate_pairs(i, j, pa, ha, pb, hb, m.theta_r, m.prior_m)  # the exact gate of `putatives`
     i, j = i[keep], j[keep]
     off = np.searchsorted(i, np.arange(len(pa) + 1)).astype(np.int64)
-    v1, v2, alo, ahi, blo, bhi, cs, s0, ns = prior_join(i, j, off, fa, la, fb, lb, pa, pb, m.consistency, m.eps,
-                                                        m.tan_tilt, m.eps_z, m.sin_tilt, m.nslices)
-
-    def slices(alive: np.ndarray) -> tuple:
-        return s0[alive], ns[alive]
-
-    return v1, v2, alo, ahi, blo, bhi, cs, slices
+    return _ListedPairs(*prior_join(i, j, off, fa, la, fb, lb, pa, pb, m.consistency, m.eps, m.tan_tilt, m.eps_z,
+                                    m.sin_tilt, m.nslices), len(pa) * len(pb))
 
 
-def _block(pairs: tuple, w0: int, w1: int, shared: tuple, records: _Records, stats: dict, timings: dict) -> None:
+class _ListedPairs:
+    """Consistent pairs given as full arrays (`prior_join`)."""
+
+    def __init__(self, v1: np.ndarray, v2: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray,
+                 b_hi: np.ndarray, cs: np.ndarray, s0: np.ndarray, ns: np.ndarray, space: int) -> None:
+        self.v1, self.v2, self.cs, self.s0, self.ns, self.space = v1, v2, cs, s0, ns, space
+        self.ranges_all = (a_lo, a_hi, b_lo, b_hi)
+
+    def __len__(self) -> int:
+        return len(self.v1)
+
+    def compact(self) -> tuple:
+        return compact_ids(self.v1, self.v2, self.space)
+
+    def ranges(self, sel: np.ndarray) -> tuple:
+        return tuple(r[sel] for r in self.ranges_all)
+
+    def details(self, sel: np.ndarray) -> tuple:
+        return self.cs[sel], self.s0[sel], self.ns[sel]
+
+
+class _EdgePairs:
+    """Consistent pairs as the join gives them (A edge, B edge, orientation), for A windows [w0, w1)."""
+
+    def __init__(self, e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, eb: tuple, a_lo: np.ndarray,
+                 a_hi: np.ndarray, fb: np.ndarray, lb: np.ndarray, w0: int, w1: int, m: SearchMode,
+                 space: int) -> None:
+        self.e_a, self.e_b, self.ori, self.ea, self.eb, self.m, self.space = e_a, e_b, ori, ea, eb, m, space
+        self.a_lo, self.a_hi, self.fb, self.lb, self.w0, self.w1 = a_lo, a_hi, fb, lb, w0, w1
+
+    def __len__(self) -> int:
+        return len(self.e_a)
+
+    def compact(self) -> tuple:
+        return edge_pair_ids(self.e_a, self.e_b, self.ori, self.ea, self.eb, self.nbm, self.space)
+
+    @property
+    def nbm(self) -> int:  # landmarks of map B (fb has one entry per landmark)
+        return len(self.fb)
+
+    def ranges(self, sel: np.ndarray) -> tuple:
+        """Window ranges of the pairs `sel`: the A windows holding both A landmarks (clipped to the block) and the
+        B windows holding both B landmarks."""
+        e, f = self.e_a[sel], self.e_b[sel]
+        return (np.maximum(self.a_lo[e], self.w0), np.minimum(self.a_hi[e], self.w1 - 1), self.fb[self.eb[1][f]],
+                self.lb[self.eb[0][f]])
+
+    def details(self, sel: np.ndarray) -> tuple:
+        m = self.m
+        return edge_pair_details(sel, self.e_a, self.e_b, self.ori, self.ea, self.eb, m.consistency, m.eps,
+                                 m.tan_tilt, m.eps_z, m.sin_tilt, m.nslices)
+
+
+def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, records: _Records, stats: dict,
+           timings: dict) -> None:
     """Solve the window pairs of A windows [w0, w1) from the consistent pairs that fall into them."""
     pa, ha, pb, hb, wins_a, wins_b, m = shared
-    v1, v2, a_lo, a_hi, b_lo, b_hi, cs, slices = pairs
     nwb = len(wins_b)
     nbm = len(pb)
     stats["blocks"] += 1
-    stats["consistent_pairs"] += len(v1)
+    stats["consistent_pairs"] += len(pairs)
     t0 = time.perf_counter()
-    ids, e1, e2 = compact_ids(v1, v2, len(pa) * nbm)
+    ids, e1, e2 = pairs.compact()
     sel = np.flatnonzero(peel_pairs(len(ids), e1, e2, m.k))
-    s0 = np.zeros(len(v1), np.int64)
-    ns = np.ones(len(v1), np.int64)
-    s0[sel], ns[sel] = slices(sel)
+    cs, s0, ns = pairs.details(sel)
     if m.nslices > 1:  # the same peel per yaw slice, on what the plain peel left
         _, f1, f2 = compact_ids(e1[sel], e2[sel], len(ids))
-        sel = sel[peel_pairs_sliced(int(max(f1.max(initial=-1), f2.max(initial=-1))) + 1, f1, f2, s0[sel], ns[sel],
-                                    m.nslices, m.k)]
-    inc = count_incidences(sel, a_lo, a_hi, b_lo, b_hi)
+        keep = peel_pairs_sliced(int(max(f1.max(initial=-1), f2.max(initial=-1))) + 1, f1, f2, s0, ns, m.nslices,
+                                 m.k)
+        sel, cs, s0, ns = sel[keep], cs[keep], s0[keep], ns[keep]
+    # from here on, everything is about the surviving pairs only, numbered 0 .. len(sel) - 1
+    a_lo, a_hi, b_lo, b_hi = pairs.ranges(sel)
+    e1, e2 = e1[sel], e2[sel]
+    local = np.arange(len(sel), dtype=np.int64)
+    inc = count_incidences(local, a_lo, a_hi, b_lo, b_hi)
     stats["incidences"] += inc
     timings["peel_s"] = timings.get("peel_s", 0.0) + time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -223,8 +273,8 @@ def _block(pairs: tuple, w0: int, w1: int, shared: tuple, records: _Records, sta
         # dense maps: nearly every window pair keeps a core; computing them directly is cheaper than gathering
         stats["direct_blocks"] += 1
         alive = np.zeros(len(ids), bool)
-        alive[e1[sel]] = True
-        alive[e2[sel]] = True
+        alive[e1] = True
+        alive[e2] = True
         va, vb = np.divmod(ids[alive], nbm)
         fa, la = window_span(len(pa), wins_a)
         fb, lb = window_span(len(pb), wins_b)
@@ -238,7 +288,7 @@ def _block(pairs: tuple, w0: int, w1: int, shared: tuple, records: _Records, sta
         ids_w = tasks[found]
         nput = nput[found]
     else:
-        groups, goff, items = window_pair_graphs(sel, a_lo, a_hi, b_lo, b_hi, nwb, w0, w1 - w0)
+        groups, goff, items = window_pair_graphs(local, a_lo, a_hi, b_lo, b_hi, nwb, w0, w1 - w0)
         found, score, slc, ncore, off, sel_a, sel_b = solve_groups(groups, goff, items, ids, e1, e2, cs, s0, ns, ha,
                                                                    hb, nbm, m.sigma, m.theta_r, m.nslices, m.k,
                                                                    m.method)

@@ -1,34 +1,76 @@
-"""Benchmark of the association stage: one CLIPPER problem, the full windowed search, and its scaling.
+"""Benchmark of the association stage (issue 15): one CLIPPER problem against the C++ reference, and the match on
+maps of every kind (sparse, dense, without sizes, aerial, crossing flights, a season), with its scaling.
 
-    python -m sosmatch.tools.benchmarks.bench_match                 # everything (a few minutes)
-    python -m sosmatch.tools.benchmarks.bench_match --only clipper  # or: search, scaling
-Prints the figures (median of repeats) with the machine line; `--plot PNG` writes the scaling curve.
+    python -m sosmatch.tools.benchmarks.bench_match                     # everything (tens of minutes)
+    python -m sosmatch.tools.benchmarks.bench_match --only clipper      # or: sparse, dense, nosizes, aerial,
+                                                                        #     crossing, season, scaling
+    python -m sosmatch.tools.benchmarks.bench_match --only scaling --max-scaling 20000 --plot docs/img/match_scaling.png
+Prints every figure (medians of repeats) with the machine line and the load. CPU times are `time.process_time` of
+this one process (the search runs in one process); wall times are given beside them. Peak memory is the
+`ru_maxrss` of a fresh child process that runs one match (`--memory`).
 
-Problems:
-- clipper: 100 true associations of a rigid copy (landmarks in a 100 x 100 x 10 m box, noise 0.1 m) plus random
-  wrong pairs up to m putative associations; eps 2 m, sigma 1 m; time = affinity + solve.
-- search: two synthetic survey maps (`plugin/association/synthetic.py`: 300 landmarks/km^2, lawnmower id order,
-  sizes 1-8 m with 10 % noise, half of the area shared, position noise 0.4 m, 10 % missing, 5 % added, arbitrary
-  yaw, 2 deg tilt), default parameters; checked against the straightforward per-window-pair reference.
+The C++ reference (mit-acl/clipper v0.2.4; never a dependency of sosmatch) runs when `import clipper_ref` works
+(or with `--clipper-ref DIR`, the directory holding the module). Build it outside the repository:
+    reconstruct include/clipper/*.h and src/*.cpp of v0.2.4 (CMakeLists "project(clipper VERSION 0.2.4)") with
+    CLIPPER_ENABLE_MAXCLIQUE and CLIPPER_ENABLE_SCS_SDR off, and a ~40-line pybind11 module `clipper_ref` whose
+    run(D1 3xn1, D2 3xn2, A mx2 int32, sigma, epsilon, threads) builds invariants::EuclideanDistance{sigma,
+    epsilon}, CLIPPER(invariant, Params{}) with setParallelize(true) and omp_set_num_threads(threads), times
+    scorePairwiseConsistency and solve() with std::chrono::steady_clock and returns (affinity_s, solve_s,
+    soln.nodes, soln.ifinal);
+    cmake -DCMAKE_BUILD_TYPE=Release -DPYBIND11_FINDPYTHON=ON -Dpybind11_DIR=$(python -c "import pybind11;
+    print(pybind11.get_cmake_dir())") (Eigen 3.4 from libeigen3-dev, OpenMP, -march=native; pybind11 from PyPI)
+and pass --clipper-ref BUILD_DIR. Its times are taken inside C++ (no Python overhead counted against it).
+
+Problems (all deterministic in their seeds; the synthetic stand-ins are documented with each section):
+- clipper: 100 true associations of a rigid copy (100 landmarks per map in a 100 x 100 x 10 m box, noise 0.1 m)
+  plus random wrong pairs up to m putative associations; eps 2 m, sigma 0.5 m; time = affinity + solve.
+- sparse: two synthetic survey maps of ~1000 landmarks (`plugin/association/synthetic.py`: 300 landmarks/km^2,
+  lawnmower id order, sizes 1-8 m with 10 % noise, half of the area shared, position noise 0.4 m, 10 % missing,
+  5 % added, arbitrary yaw, 2 deg tilt).
+- dense: the demo's density: ~600 landmarks in 200 m x 200 m (15,000 / km^2), lines 30 m apart, 95 % overlap,
+  0.7 m noise (one flight mapped twice, exact vs EKF poses, as the issue's 686 x 622 demo maps).
+- nosizes: maps whose sizes say nothing (another robot's boulder maps: 392 x 212 landmarks, size gate open,
+  eps 0.2 m): boulders on flat ground (60 m x 60 m, heights 0-1.5 m), B 212 of A's 392 with 3 cm noise.
+- aerial: NAIP-like maps of 1000-1200 landmarks (the sharper NAIP dates give 950-1130): a 4.7 x 3.6 km tile
+  flown in lines 800 m apart, landmarks 5-60 m across on flat ground (z = 0), 12 % of them segmented alike on both
+  dates, those 5-7 m apart (centroid scatter 4 m plus a 3 m georeference offset), sizes re-segmented (r ~0.2);
+  aerial preset; both georeferenced (the prior applies) and, for the record, without the prior.
+- crossing: two flights over one area crossing at 0 / 45 / 90 deg: how many common landmarks lie in a window pair
+  holding more than theta_S common ones (id vs spatial windows), and what the match finds.
+- season: a season map of 100,000 landmarks (100 survey flights of ~1000 landmarks over 10 km x 10 km, each in
+  its own lawnmower order, concatenated) and a new flight of 2,000 landmarks over 1.4 km x 1.4 km of it
+  (georeferenced: 3 m offset, 0.5 deg yaw), with a position prior of 30 m.
+- scaling: search time of two sparse survey maps of n x n landmarks without a prior, n up to --max-scaling.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import resource
 import statistics
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from ...plugin.association import affinity_graph, search, search_reference, solve
+from ...plugin.association import affinity_graph, search_reference, solve
+from ...plugin.association.reference import differences
 from ...plugin.association.rigid import rotation_angle_deg, rotation_from_rpy_deg
 from ...plugin.association.synthetic import survey_map_pair
-from ...plugin.params import AssociationParams
+from ...plugin.match_answer import match_maps
+from ...plugin.params import Params, preset_params, with_overrides
 from .machine import machine_summary
 
-CLIPPER_BARS_MS = {256: 5.0, 512: 15.0, 1024: 50.0, 2048: 200.0}
-SEARCH_BAR_S = 2.0
-SCALING_SIZES = (250, 500, 1000, 2000, 4000)
+CLIPPER_SIZES = (256, 512, 1024, 2048)
+CLIPPER_RATIO_BARS = {256: 10.0, 512: 10.0, 1024: 20.0, 2048: 20.0}
+BARS_S = {"sparse": 0.2, "dense": 1.0, "nosizes": 1.0, "aerial": 5.0, "season": 10.0}
+AERIAL_MEMORY_BAR_MB = 500.0
+
+
+# --- one problem ---------------------------------------------------------------------------------------------------
 
 
 def clipper_problem(m: int, n_true: int = 100, noise: float = 0.1, seed: int = 0) -> tuple:
@@ -47,144 +89,425 @@ def clipper_problem(m: int, n_true: int = 100, noise: float = 0.1, seed: int = 0
     return a, b, pairs[perm], perm < n_true
 
 
-def bench_clipper(repeats: int) -> None:
-    print("## One association problem: 100 true pairs + outliers, noise 0.1 m, eps 2 m (affinity + solve)")
-    print("| m | edges | affinity ms | solve ms | total ms (median) | CPU ms (median) | bar ms | true pairs selected "
-          "| false pairs |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for m, bar in CLIPPER_BARS_MS.items():
+def _clipper_ref(path: str | None) -> object | None:
+    if path:
+        sys.path.insert(0, path)
+    try:
+        import clipper_ref  # type: ignore[import-not-found]
+    except ImportError:
+        return None
+    return clipper_ref
+
+
+def bench_clipper(repeats: int, ref_path: str | None) -> list[dict]:
+    """Affinity and solve of one problem, ours and (if built) the C++ reference, interleaved repeat by repeat."""
+    ref = _clipper_ref(ref_path)
+    eps, sigma = 2.0, 0.5
+    print(f"## One association problem: 100 true pairs + outliers, noise 0.1 m, eps {eps} m, sigma {sigma} m")
+    print("C++ reference: " + (f"clipper_ref {getattr(ref, '__version__', '?')} (2 OpenMP threads)" if ref else
+                               "not importable (see the docstring): skipped"))
+    print("| m | edges | ours affinity ms | ours solve ms | ours total ms | ours CPU ms | ours true/false | "
+          "C++ affinity ms | C++ solve ms | C++ total ms | C++ true/false | ratio (bar) | affinity, solve faster |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    rows = []
+    for m in CLIPPER_SIZES:
         a, b, pairs, is_true = clipper_problem(m)
-        t_aff, t_sol, t_tot, t_cpu = [], [], [], []
+        affinity_graph(a[:10], b[:10], pairs[:5] % 10)  # compiled before timing
+        ta, ts, tc, ra, rs, sel, ref_sel = [], [], [], [], [], None, None
         for _ in range(repeats):
             c0 = time.process_time()
             t0 = time.perf_counter()
-            g = affinity_graph(a, b, pairs, eps=2.0, sigma=1.0)
+            g = affinity_graph(a, b, pairs, eps=eps, sigma=sigma)
             t1 = time.perf_counter()
-            res = solve(g)
+            sel = solve(g).selected
             t2 = time.perf_counter()
-            t_cpu.append(time.process_time() - c0)
-            t_aff.append(t1 - t0)
-            t_sol.append(t2 - t1)
-            t_tot.append(t2 - t0)
-        sel = res.selected
-        print(f"| {m} | {len(g.rows)} | {1e3 * statistics.median(t_aff):.1f} | {1e3 * statistics.median(t_sol):.1f} "
-              f"| **{1e3 * statistics.median(t_tot):.1f}** | {1e3 * statistics.median(t_cpu):.1f} | {bar:.0f} "
-              f"| {int(is_true[sel].sum())}/100 "
-              f"| {int((~is_true[sel]).sum())} |")
+            tc.append(time.process_time() - c0)
+            ta.append(t1 - t0)
+            ts.append(t2 - t1)
+            if ref is not None:
+                out = ref.run(np.ascontiguousarray(a.T), np.ascontiguousarray(b.T), pairs.astype(np.int32), sigma,
+                              eps, 2)
+                ra.append(out[0])
+                rs.append(out[1])
+                ref_sel = np.asarray(out[2], np.int64)
+        med = {k: 1e3 * statistics.median(v) for k, v in (("a", ta), ("s", ts), ("c", tc))}
+        row = {"m": m, "edges": len(g.rows), "ours_affinity_ms": med["a"], "ours_solve_ms": med["s"],
+               "ours_total_ms": med["a"] + med["s"], "ours_cpu_ms": med["c"], "ours_true": int(is_true[sel].sum()),
+               "ours_false": int((~is_true[sel]).sum())}
+        cells = ["-"] * 6
+        if ref is not None:
+            row.update(ref_affinity_ms=1e3 * statistics.median(ra), ref_solve_ms=1e3 * statistics.median(rs),
+                       ref_true=int(is_true[ref_sel].sum()), ref_false=int((~is_true[ref_sel]).sum()))
+            row["ref_total_ms"] = row["ref_affinity_ms"] + row["ref_solve_ms"]
+            row["ratio"] = row["ref_total_ms"] / row["ours_total_ms"]
+            ok = row["ratio"] >= CLIPPER_RATIO_BARS[m]
+            both = row["ours_affinity_ms"] < row["ref_affinity_ms"] and row["ours_solve_ms"] < row["ref_solve_ms"]
+            cells = [f"{row['ref_affinity_ms']:.2f}", f"{row['ref_solve_ms']:.2f}", f"{row['ref_total_ms']:.2f}",
+                     f"{row['ref_true']}/{row['ref_false']}",
+                     f"**{row['ratio']:.1f}x** ({CLIPPER_RATIO_BARS[m]:.0f}x {'met' if ok else 'MISSED'})",
+                     "yes" if both else "NO"]
+        rows.append(row)
+        print(f"| {m} | {row['edges']} | {med['a']:.3f} | {med['s']:.3f} | {row['ours_total_ms']:.3f} | "
+              f"{med['c']:.3f} | {row['ours_true']}/{row['ours_false']} | " + " | ".join(cells) + " |")
+    return rows
 
 
-def _maps(n: int, seed: int = 1) -> tuple:
-    s = survey_map_pair(n, seed=seed)
-    return s, (s.points_a, s.sizes_a, s.points_b, s.sizes_b)
+# --- maps ----------------------------------------------------------------------------------------------------------
 
 
-def _accepted_key(res: object) -> list:
-    return [(h.window_a, h.window_b, h.associations.tolist()) for h in res.hypotheses if h.accepted]
-
-
-def bench_search(repeats: int, reference: bool) -> None:
-    params = AssociationParams()
-    s, args = _maps(1000)
-    print(f"## Windowed search, two maps of {len(s.points_a)} and {len(s.points_b)} landmarks "
-          f"({len(s.truth)} shared), default parameters")
-    runs, cpu, res = [], [], None
+def _timed_match(pa: np.ndarray, ha: np.ndarray | None, pb: np.ndarray, hb: np.ndarray | None, params: Params,
+                 repeats: int, common_frame: bool = True) -> tuple:
+    """The match's answer (search + verification), timed: (answer, median CPU s, median wall s)."""
+    n = min(60, len(pa), len(pb))
+    match_maps(pa[:n], None if ha is None else ha[:n], pb[:n], None if hb is None else hb[:n], params)  # compile
+    cpu, wall, ans = [], [], None
     for _ in range(repeats):
         c0 = time.process_time()
         t0 = time.perf_counter()
-        res = search(*args, params, workers=1)
-        runs.append(time.perf_counter() - t0)
+        ans = match_maps(pa, ha, pb, hb, params, common_frame=common_frame)
+        wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
-    c = res.consensus
+    return ans, statistics.median(cpu), statistics.median(wall)
+
+
+def _quality(ans: object, truth: set | None, rotation: np.ndarray | None) -> str:
+    if not ans.accepted:
+        return "no match"
+    found = set(map(tuple, ans.associations.tolist()))
+    out = f"{len(found)} associations"
+    if truth is not None:
+        out += f" ({len(found & truth)} true, {len(found - truth)} false)"
+    if rotation is not None:
+        out += f", rotation error {rotation_angle_deg(ans.transform.rotation, rotation):.3f} deg"
+    return out
+
+
+def _report(name: str, ans: object, cpu: float, wall: float, truth: set | None, rotation: np.ndarray | None,
+            bar: float | None = None) -> dict:
+    s = ans.search
+    t = s.timings
+    verdict = "" if bar is None else f" - bar {bar} s {'met' if cpu <= bar else 'MISSED'}"
+    print(f"{name}: **{cpu:.3f} s CPU** (wall {wall:.3f} s; search {ans.timings['search_s']:.3f} s + verification "
+          f"{ans.timings['verify_s']:.3f} s wall){verdict}; window pairs {s.num_window_pairs}, solved "
+          f"{len(s.hypotheses)}, accepted {len(s.accepted)}, consistent pairs {int(t.get('consistent_pairs', 0))}, "
+          f"incidences {int(t.get('incidences', 0))}; answer ({ans.source}): {_quality(ans, truth, rotation)}")
+    return {"case": name, "cpu_s": cpu, "wall_s": wall, "search_wall_s": ans.timings["search_s"],
+            "verify_wall_s": ans.timings["verify_s"], "window_pairs": s.num_window_pairs,
+            "solved": len(s.hypotheses), "accepted": bool(ans.accepted), "associations": len(ans.associations)}
+
+
+def bench_sparse(repeats: int, reference: bool) -> list[dict]:
+    s = survey_map_pair(1000, seed=1)
     truth = set(map(tuple, s.truth.tolist()))
-    found = set(map(tuple, c.associations.tolist())) if c else set()
-    print(f"search: median {statistics.median(runs):.2f} s over {repeats} runs (bar {SEARCH_BAR_S} s), "
-          f"runs {', '.join(f'{t:.2f}' for t in runs)}; CPU median {statistics.median(cpu):.2f} s (one process)")
-    print("stages (last run): " + ", ".join(f"{k} {v:.3g}" for k, v in res.timings.items()))
-    print(f"window pairs {res.num_window_pairs}, solved {len(res.hypotheses)}, accepted {len(res.accepted)}; "
-          f"consensus {len(found)} associations, {len(found & truth)} true, {len(found - truth)} false; "
-          f"rotation error {rotation_angle_deg(c.transform.rotation, s.rotation):.3f} deg, translation error "
-          f"{np.linalg.norm(c.transform.translation - s.translation):.2f} m")
-    if reference:
-        t0 = time.perf_counter()
-        ref = search_reference(*args, params)
-        t_ref = time.perf_counter() - t0
-        same = _accepted_key(ref) == _accepted_key(res)
-        print(f"reference (every window pair from scratch): {t_ref:.1f} s, {len(ref.accepted)} accepted; "
-              f"same accepted hypotheses and associations: {same}")
-
-
-def bench_scaling(repeats: int, plot: str | None, reference_up_to: int) -> None:
-    params = AssociationParams()
-    print("## Search time against map size (both maps about this size, half of the area shared)")
-    print("| landmarks (A x B) | window pairs | solved | accepted | consistent pairs | search s (median) "
-          "| CPU s | reference s |")
-    print("|---|---|---|---|---|---|---|---|")
+    print(f"## Two sparse survey maps, {len(s.points_a)} x {len(s.points_b)} landmarks ({len(s.truth)} shared)")
     rows = []
-    for n in SCALING_SIZES:
-        s, args = _maps(n)
-        runs, cpu = [], []
-        for _ in range(repeats if n <= 2000 else 1):
-            c0 = time.process_time()
-            t0 = time.perf_counter()
-            res = search(*args, params, workers=1)
-            runs.append(time.perf_counter() - t0)
-            cpu.append(time.process_time() - c0)
-        t_ref = None
-        if n <= reference_up_to:
-            t0 = time.perf_counter()
-            search_reference(*args, params)
-            t_ref = time.perf_counter() - t0
-        med = statistics.median(runs)
-        rows.append((n, med, t_ref, statistics.median(cpu)))
-        print(f"| {len(s.points_a)} x {len(s.points_b)} | {res.num_window_pairs} | {len(res.hypotheses)} | "
-              f"{len(res.accepted)} | {int(res.timings['consistent_pairs'])} | {med:.2f} | "
-              f"{statistics.median(cpu):.2f} | "
-              f"{'-' if t_ref is None else f'{t_ref:.1f}'} |")
+    for label, params in (("default", Params()), ("paper preset", preset_params("paper"))):
+        ans, cpu, wall = _timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, repeats)
+        rows.append(_report(f"sparse 1000, {label}", ans, cpu, wall, truth, s.rotation,
+                            BARS_S["sparse"] if label == "default" else None))
+        if reference:
+            t0 = time.process_time()
+            ref = search_reference(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params.association)
+            diff = differences(ans.search, ref)
+            print(f"  reference (every window pair from scratch): {time.process_time() - t0:.1f} s CPU; "
+                  f"same hypotheses: {not diff}")
+    return rows
+
+
+def dense_maps() -> object:
+    return survey_map_pair(620, seed=3, density_per_km2=15000, strip_width_m=30, overlap=0.95, noise_m=0.7)
+
+
+def bench_dense(repeats: int) -> list[dict]:
+    s = dense_maps()
+    truth = set(map(tuple, s.truth.tolist()))
+    print(f"## Dense maps (demo density), {len(s.points_a)} x {len(s.points_b)} landmarks in "
+          f"{np.ptp(s.points_a[:, 0]):.0f} m x {np.ptp(s.points_a[:, 1]):.0f} m")
+    rows = []
+    for label, params, reps in (("default", Params(), repeats), ("paper preset", preset_params("paper"), 1)):
+        ans, cpu, wall = _timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, reps)
+        rows.append(_report(f"dense 600, {label}", ans, cpu, wall, truth, s.rotation,
+                            BARS_S["dense"] if label == "default" else None))
+    return rows
+
+
+def boulder_maps(seed: int = 0) -> tuple:
+    """392 boulders on flat ground, 212 of them seen again in another frame with 3 cm noise; no sizes."""
+    rng = np.random.default_rng(seed)
+    a = np.column_stack([rng.uniform(0, 60, 392), rng.uniform(0, 60, 392), rng.uniform(0, 1.5, 392)])
+    keep = np.sort(rng.choice(392, 212, replace=False))
+    r = rotation_from_rpy_deg(0.5, -0.3, rng.uniform(-180, 180))
+    t = np.array([12.0, -40.0, 0.3])
+    b = (a[keep] - t) @ r + rng.normal(0, 0.03, (212, 3))  # x_B = R^T (x_A - t)
+    return a, b, r, t, {(int(i), k) for k, i in enumerate(keep)}
+
+
+def bench_nosizes(repeats: int) -> list[dict]:
+    a, b, r, _, truth = boulder_maps()
+    print(f"## Maps without sizes (boulder-map stand-in), {len(a)} x {len(b)} landmarks, eps 0.2 m, sigma 0.1 m")
+    over = {"association.distance_tolerance_m": 0.2, "association.affinity_sigma_m": 0.1}
+    rows = []
+    for label, base in (("default", Params()), ("paper preset", preset_params("paper"))):
+        params = with_overrides(base, over)
+        ans, cpu, wall = _timed_match(a, None, b, None, params, repeats if label == "default" else 1)
+        rows.append(_report(f"no sizes 392 x 212, {label}", ans, cpu, wall, truth, r,
+                            BARS_S["nosizes"] if label == "default" else None))
+    return rows
+
+
+def aerial_maps(n_a: int = 1100, n_b: int = 1000, seed: int = 0, common: float = 0.12) -> tuple:
+    """NAIP-like maps of one 4.7 km x 3.6 km tile on two dates (see the module docstring); world = UTM-like."""
+    rng = np.random.default_rng(seed)
+    w, h = 4700.0, 3600.0
+    n_c = int(common * min(n_a, n_b))
+    obj = np.column_stack([rng.uniform(0, w, n_c), rng.uniform(0, h, n_c)])
+    size = np.exp(rng.uniform(np.log(5.0), np.log(60.0), n_c))
+
+    def date(n: int, offset: np.ndarray) -> tuple:
+        xy = obj + rng.normal(0, 4.0, obj.shape) + offset
+        hs = size * np.exp(rng.normal(0, 0.2, n_c))
+        extra = np.column_stack([rng.uniform(0, w, n - n_c), rng.uniform(0, h, n - n_c)])
+        hx = np.exp(rng.uniform(np.log(5.0), np.log(60.0), n - n_c))
+        pts = np.vstack([xy, extra])
+        sizes = np.concatenate([hs, hx])
+        ids = np.concatenate([np.arange(n_c), -np.ones(n - n_c, np.int64)])
+        line = np.floor(pts[:, 1] / 800.0).astype(int)  # flight lines 800 m apart, flown back and forth
+        along = np.where(line % 2 == 0, pts[:, 0], -pts[:, 0])
+        order = np.lexsort((along, line))
+        pos = np.column_stack([pts[order], np.zeros(n)]) + [500000.0, 4700000.0, 0.0]
+        return pos, sizes[order], ids[order]
+
+    pa, ha, ida = date(n_a, np.zeros(2))
+    pb, hb, idb = date(n_b, np.array([2.0, -2.2]))
+    ia = {int(o): k for k, o in enumerate(ida) if o >= 0}
+    truth = {(ia[int(o)], k) for k, o in enumerate(idb) if o >= 0}
+    return pa, ha, pb, hb, truth
+
+
+def bench_aerial(repeats: int, memory: bool) -> list[dict]:
+    pa, ha, pb, hb, truth = aerial_maps()
+    params = preset_params("aerial")
+    print(f"## Aerial maps (NAIP stand-in), {len(pa)} x {len(pb)} landmarks, {len(truth)} common, aerial preset "
+          f"(position prior {params.association.position_prior_m} m)")
+    rows = []
+    for label, common in (("georeferenced (prior applies)", True), ("without the prior", False)):
+        if not common and params.association.position_prior_m == 0:
+            continue
+        ans, cpu, wall = _timed_match(pa, ha, pb, hb, params, repeats if common else 1, common_frame=common)
+        row = _report(f"aerial {len(pa)} x {len(pb)}, {label}", ans, cpu, wall, truth, np.eye(3),
+                      BARS_S["aerial"] if common else None)
+        if memory:
+            row["peak_mb"] = child_peak_mb("aerial", common)
+            ok = "met" if row["peak_mb"] <= AERIAL_MEMORY_BAR_MB else "MISSED"
+            print(f"  peak memory (fresh process, imports included): {row['peak_mb']:.0f} MB"
+                  + (f" - bar {AERIAL_MEMORY_BAR_MB:.0f} MB {ok}" if common else ""))
+        rows.append(row)
+    return rows
+
+
+def crossing_maps(angle_deg: float, seed: int = 5) -> tuple:
+    """One 600 m x 600 m area at 1500 landmarks/km^2 flown twice, lines 30 m apart, the second flight's lines
+    turned by `angle_deg` (each map in its flight's id order, B in its own frame)."""
+    rng = np.random.default_rng(seed)
+    n = rng.poisson(1500 * 0.36)
+    world = np.column_stack([rng.uniform(0, 600, n), rng.uniform(0, 600, n), rng.uniform(0, 15, n)])
+    size = rng.uniform(1, 8, n)
+
+    def flight(turn: float, noise: float) -> tuple:
+        keep = np.flatnonzero(rng.random(n) > 0.1)
+        c, s_ = np.cos(np.radians(turn)), np.sin(np.radians(turn))
+        u = (world[keep, 0] - 300) * c + (world[keep, 1] - 300) * s_  # across the lines
+        v = -(world[keep, 0] - 300) * s_ + (world[keep, 1] - 300) * c  # along them
+        line = np.floor(u / 30.0).astype(int)
+        order = np.lexsort((np.where(line % 2 == 0, v, -v), line))
+        keep = keep[order]
+        pts = world[keep] + rng.normal(0, noise, (len(keep), 3))
+        return pts, size[keep] * (1 + rng.normal(0, 0.1, len(keep))), keep
+
+    pa, ha, ka = flight(0.0, 0.0)
+    pw, hb, kb = flight(angle_deg, 0.4)
+    r = rotation_from_rpy_deg(0.5, 0.3, 37.0)
+    pb = (pw - [300.0, 300.0, 0.0]) @ r  # B in its own frame
+    ia = {int(o): i for i, o in enumerate(ka)}
+    truth = {(ia[int(o)], j) for j, o in enumerate(kb) if int(o) in ia}
+    return pa, ha.clip(0.3), pb, hb.clip(0.3), truth, r
+
+
+def reachable_fraction(pa: np.ndarray, pb: np.ndarray, truth: set, params: object) -> float:
+    """Share of the common landmarks that lie in some window pair holding more than theta_S common landmarks."""
+    from ...plugin.association.windows import hilbert_order, make_windows
+
+    oa = hilbert_order(pa) if params.windows == "spatial" else np.arange(len(pa))
+    ob = hilbert_order(pb) if params.windows == "spatial" else np.arange(len(pb))
+    ra, rb = np.empty(len(pa), int), np.empty(len(pb), int)
+    ra[oa], rb[ob] = np.arange(len(pa)), np.arange(len(pb))
+    t = np.array(sorted(truth))
+    pos_a, pos_b = ra[t[:, 0]], rb[t[:, 1]]
+    wa = make_windows(len(pa), params.window_length, params.window_stride)
+    wb = make_windows(len(pb), params.window_length, params.window_stride)
+    reached = np.zeros(len(t), bool)
+    for a0, a1 in wa:
+        ina = (pos_a >= a0) & (pos_a < a1)
+        if ina.sum() <= params.min_associations:
+            continue
+        for b0, b1 in wb:
+            both = ina & (pos_b >= b0) & (pos_b < b1)
+            if both.sum() > params.min_associations:
+                reached |= both
+    return float(reached.mean())
+
+
+def bench_crossing(repeats: int) -> list[dict]:
+    print("## Crossing flights: common landmarks in a window pair holding > theta_S of them, and the match")
+    print("| crossing | landmarks | common | windows | reachable | answer | CPU s |")
+    print("|---|---|---|---|---|---|---|")
+    rows = []
+    for angle in (0.0, 45.0, 90.0):
+        pa, ha, pb, hb, truth, r = crossing_maps(angle)
+        for windows in ("id", "spatial"):
+            params = with_overrides(Params(), {"association.windows": windows})
+            frac = reachable_fraction(pa, pb, truth, params.association)
+            ans, cpu, wall = _timed_match(pa, ha, pb, hb, params, repeats)
+            print(f"| {angle:.0f} deg | {len(pa)} x {len(pb)} | {len(truth)} | {windows} | {frac:.0%} | "
+                  f"{_quality(ans, truth, r)} | {cpu:.3f} |")
+            rows.append({"angle": angle, "windows": windows, "reachable": frac, "cpu_s": cpu,
+                         "accepted": bool(ans.accepted), "associations": len(ans.associations)})
+    return rows
+
+
+def season_maps(seed: int = 2) -> tuple:
+    """A season map (100 flights of 1 km^2, ~1000 landmarks each, concatenated) and a new 2000-landmark flight."""
+    rng = np.random.default_rng(seed)
+    tiles = []
+    for ty in range(10):
+        for tx in range(10):
+            n = rng.poisson(1000)
+            xy = rng.uniform(0, 1000, (n, 2))
+            line = np.floor(xy[:, 0] / 100.0).astype(int)
+            order = np.lexsort((np.where(line % 2 == 0, xy[:, 1], -xy[:, 1]), line))
+            tiles.append(np.column_stack([xy[order] + [tx * 1000.0, ty * 1000.0], rng.uniform(0, 15, n)]))
+    world = np.vstack(tiles)
+    sizes = rng.uniform(1, 8, len(world))
+    x0, y0 = 4300.0, 5200.0
+    inside = np.flatnonzero((world[:, 0] >= x0) & (world[:, 0] < x0 + 1420) & (world[:, 1] >= y0)
+                            & (world[:, 1] < y0 + 1420))
+    sel = inside[rng.random(len(inside)) > 0.05][:2000]
+    line = np.floor((world[sel, 0] - x0) / 100.0).astype(int)
+    sel = sel[np.lexsort((np.where(line % 2 == 0, world[sel, 1], -world[sel, 1]), line))]
+    r = rotation_from_rpy_deg(0.0, 0.0, 0.5)
+    new = (world[sel] - [x0, y0, 0]) @ r.T + [x0, y0, 0] + [3.0, -2.0, 0.5] + rng.normal(0, 0.4, (len(sel), 3))
+    hn = sizes[sel] * (1 + rng.normal(0, 0.1, len(sel)))
+    offset = np.array([500000.0, 4700000.0, 0.0])
+    return new + offset, hn.clip(0.3), world + offset, sizes, {(k, int(i)) for k, i in enumerate(sel)}
+
+
+def bench_season(repeats: int) -> list[dict]:
+    pa, ha, pb, hb, truth = season_maps()
+    params = with_overrides(Params(), {"association.position_prior_m": 30.0})
+    print(f"## A new flight of {len(pa)} landmarks against a season map of {len(pb)} (position prior 30 m)")
+    ans, cpu, wall = _timed_match(pa, ha, pb, hb, params, repeats)
+    return [_report(f"season {len(pa)} x {len(pb)}, prior 30 m", ans, cpu, wall, truth, None, BARS_S["season"])]
+
+
+def bench_scaling(sizes: list[int], plot: str | None) -> list[dict]:
+    print("## Search time against map size (two sparse survey maps of n x n landmarks, half of the area shared, "
+          "no prior, default parameters)")
+    print("| landmarks (A x B) | window pairs | solved | accepted | consistent pairs | blocks | CPU s | wall s | "
+          "peak MB |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    rows = []
+    params = Params()
+    for n in sizes:
+        s = survey_map_pair(n, seed=1)
+        ans, cpu, wall = _timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, 1)
+        peak = child_peak_mb("scaling", n)
+        t = ans.search.timings
+        rows.append({"n": n, "cpu_s": cpu, "wall_s": wall, "peak_mb": peak})
+        print(f"| {len(s.points_a)} x {len(s.points_b)} | {ans.search.num_window_pairs} | {len(ans.search.hypotheses)} "
+              f"| {len(ans.search.accepted)} | {int(t['consistent_pairs'])} | {int(t['blocks'])} | {cpu:.2f} | "
+              f"{wall:.2f} | {peak:.0f} |")
     if plot:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
-        ns = [r[0] for r in rows]
-        ax.loglog(ns, [r[1] for r in rows], "o-", label="search, wall time")
-        ax.loglog(ns, [r[3] for r in rows], "^-", label="search, CPU time (one process)")
-        ref = [(r[0], r[2]) for r in rows if r[2] is not None]
-        if ref:
-            ax.loglog(*zip(*ref), "s--", label="reference: every window pair from scratch")
-        ax.axhline(SEARCH_BAR_S, color="gray", lw=0.8, ls=":", label=f"bar at 1000 landmarks ({SEARCH_BAR_S} s)")
         from matplotlib.ticker import NullFormatter
 
+        fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+        ns = [r["n"] for r in rows]
+        ax.loglog(ns, [r["cpu_s"] for r in rows], "o-", label="match (search + verification), CPU s")
+        ax2 = ax.twinx()
+        ax2.loglog(ns, [r["peak_mb"] for r in rows], "s--", color="gray", label="peak memory, MB (right)")
         ax.set_xticks(ns, [str(n) for n in ns])
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("landmarks per map")
-        ax.set_ylabel("seconds")
-        ax.set_title(f"sosmatch match: windowed search time ({machine_summary().rsplit(', ', 1)[-1]})")
+        ax.set_ylabel("CPU seconds")
+        ax2.set_ylabel("MB")
+        ax.set_title(f"sosmatch match, no prior ({machine_summary().rsplit(', ', 1)[-1]})")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        lines = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
+        ax.legend(lines, [h.get_label() for h in lines], fontsize=8, loc="upper left")
         fig.savefig(plot, bbox_inches="tight")
         plt.close(fig)
         print(f"plot: {plot}")
+    return rows
 
 
-def main() -> None:
+# --- peak memory of one match in a fresh process ------------------------------------------------------------------
+
+
+def child_peak_mb(case: str, arg: object) -> float:
+    """ru_maxrss (MB) of a fresh interpreter that imports sosmatch, builds the maps of `case` and runs one match."""
+    code = f"import sys; from sosmatch.tools.benchmarks.bench_match import _child; _child({case!r}, {arg!r})"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return float(json.loads(out.stdout.strip().splitlines()[-1])["peak_mb"])
+
+
+def _child(case: str, arg: object) -> None:
+    if case == "aerial":
+        pa, ha, pb, hb, _ = aerial_maps()
+        match_maps(pa, ha, pb, hb, preset_params("aerial"), common_frame=bool(arg))
+    elif case == "scaling":
+        s = survey_map_pair(int(arg), seed=1)
+        match_maps(s.points_a, s.sizes_a, s.points_b, s.sizes_b, Params())
+    print(json.dumps({"peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}))
+
+
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--only", choices=["clipper", "search", "scaling"], action="append")
+    parts = ["clipper", "sparse", "dense", "nosizes", "aerial", "crossing", "season", "scaling"]
+    parser.add_argument("--only", choices=parts, action="append")
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--no-reference", action="store_true", help="skip the slow reference check at 1000")
-    parser.add_argument("--reference-up-to", type=int, default=500, help="reference timings in the scaling table")
+    parser.add_argument("--clipper-ref", default=None, help="directory holding the clipper_ref module")
+    parser.add_argument("--reference", action="store_true", help="check sparse maps against the slow reference")
+    parser.add_argument("--memory", action="store_true", help="peak memory of the aerial match (child process)")
+    parser.add_argument("--max-scaling", type=int, default=20000)
     parser.add_argument("--plot", default=None, help="PNG of the scaling curve (e.g. docs/img/match_scaling.png)")
-    args = parser.parse_args()
-    parts = args.only or ["clipper", "search", "scaling"]
+    parser.add_argument("--json", default=None, help="write every figure to this JSON file")
+    args = parser.parse_args(argv)
     print(machine_summary())
-    if "clipper" in parts:
-        bench_clipper(max(args.repeats, 5))
-    if "search" in parts:
-        bench_search(args.repeats, not args.no_reference)
-    if "scaling" in parts:
-        bench_scaling(max(1, args.repeats // 2), args.plot, args.reference_up_to)
-    print(machine_summary())
+    results: dict = {}
+    for part in args.only or parts:
+        if part == "clipper":
+            results[part] = bench_clipper(max(args.repeats, 7), args.clipper_ref)
+        elif part == "sparse":
+            results[part] = bench_sparse(args.repeats, args.reference)
+        elif part == "dense":
+            results[part] = bench_dense(args.repeats)
+        elif part == "nosizes":
+            results[part] = bench_nosizes(args.repeats)
+        elif part == "aerial":
+            results[part] = bench_aerial(args.repeats, args.memory)
+        elif part == "crossing":
+            results[part] = bench_crossing(max(1, args.repeats // 3))
+        elif part == "season":
+            results[part] = bench_season(max(1, args.repeats // 2))
+        elif part == "scaling":
+            ns = [n for n in (250, 500, 1000, 2000, 4000, 8000, 12000, 16000, 20000) if n <= args.max_scaling]
+            results[part] = bench_scaling(ns, args.plot)
+        print(machine_summary())
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__":
