@@ -499,6 +499,11 @@ PRESETS: dict[str, dict[str, Any]] = {
         "association.max_size_difference": 0.4,
         # theta_S: with eps 5x wider, chance-consistent sets grow (up to 8 on NAIP windows): accept only > 10
         "association.min_associations": 10,
+        # coarse imagery comes georeferenced (orthophotos, airborne GNSS): two dates agree to a few metres, so
+        # candidates only within 50 m (10 x a 5 m registration sigma). Applied only when both maps carry one EPSG
+        # code (sosmatch match ignores it otherwise); without it the NAIP-like 1100 x 1000 stand-in takes 7.7 s
+        # CPU instead of a fraction of a second (BENCHMARKS.md, Association)
+        "association.position_prior_m": 50.0,
     },
 }
 
