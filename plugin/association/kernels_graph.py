@@ -258,9 +258,9 @@ def graph_from_tables(la: np.ndarray, lb: np.ndarray, ta: np.ndarray, tb: np.nda
     for p in range(m):
         if ne + m > cap:  # room for a whole row: the loop below writes unconditionally
             cap = 2 * cap + m
-            rows = _grow_i(rows, cap)
-            cols = _grow_i(cols, cap)
-            cs = _grow_f(cs, cap)
+            rows = grow(rows, cap)
+            cols = grow(cols, cap)
+            cs = grow(cs, cap)
         ra = lena[la[p]]
         rb = lenb[lb[p]]
         start = ne
@@ -325,11 +325,11 @@ def _graph_direct(pa: np.ndarray, pb: np.ndarray, ia: np.ndarray, ib: np.ndarray
                 continue
             if ne == cap:
                 cap *= 2
-                rows = _grow_i(rows, cap)
-                cols = _grow_i(cols, cap)
-                cs = _grow_f(cs, cap)
-                s0 = _grow_i(s0, cap)
-                ns = _grow_i(ns, cap)
+                rows = grow(rows, cap)
+                cols = grow(cols, cap)
+                cs = grow(cs, cap)
+                s0 = grow(s0, cap)
+                ns = grow(ns, cap)
             rows[ne] = p
             cols[ne] = q
             cs[ne] = c
@@ -387,14 +387,8 @@ def affinity_values(c: np.ndarray, sigma: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def _grow_i(x: np.ndarray, cap: int) -> np.ndarray:
-    y = np.empty(cap, np.int64)
-    y[: len(x)] = x
-    return y
-
-
-@njit(cache=True)
-def _grow_f(x: np.ndarray, cap: int) -> np.ndarray:
-    y = np.empty(cap, np.float64)
+def grow(x: np.ndarray, cap: int) -> np.ndarray:
+    """A copy of `x` with room for `cap` entries (the output buffers of the joins and graphs)."""
+    y = np.empty(cap, x.dtype)
     y[: len(x)] = x
     return y

@@ -13,11 +13,10 @@ from numba import njit
 
 from .kernels_graph import (
     GRAVITY,
-    _grow_f,
-    _grow_i,
     affinity_values,
     association_graph,
     gate1,
+    grow,
     pair_mismatch,
     pair_slices,
     putatives,
@@ -140,6 +139,20 @@ def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, cs: np.ndarray
 
 
 @njit(cache=True)
+def _append_selection(sel_a: np.ndarray, sel_b: np.ndarray, off: np.ndarray, t: int, va: np.ndarray,
+                      vb: np.ndarray) -> tuple:
+    """Append one window pair's selected associations (va, vb) as entry t of the flat selections."""
+    need = off[t] + len(va)
+    if need > len(sel_a):
+        sel_a = grow(sel_a, 2 * need)
+        sel_b = grow(sel_b, 2 * need)
+    sel_a[off[t]: need] = va
+    sel_b[off[t]: need] = vb
+    off[t + 1] = need
+    return sel_a, sel_b
+
+
+@njit(cache=True)
 def direct_window_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, wins_a: np.ndarray,
                         wins_b: np.ndarray, tasks: np.ndarray, mode: int, eps: float, sigma: float,
                         tan_tilt: float, eps_z: float, sin_tilt: float, nslices: int, theta_r: float, prior_m: float,
@@ -177,14 +190,7 @@ def direct_window_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.n
         score[t] = sc
         slc[t] = s
         ncore[t] = nc
-        need = off[t] + len(sel)
-        if need > len(sel_a):
-            sel_a = _grow_i(sel_a, 2 * need)
-            sel_b = _grow_i(sel_b, 2 * need)
-        for u in range(len(sel)):
-            sel_a[off[t] + u] = ia[sel[u]]
-            sel_b[off[t] + u] = ib[sel[u]]
-        off[t + 1] = need
+        sel_a, sel_b = _append_selection(sel_a, sel_b, off, t, ia[sel], ib[sel])
     return found, nput, score, slc, ncore, off, sel_a[: off[nt]].copy(), sel_b[: off[nt]].copy()
 
 
@@ -412,28 +418,14 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                             continue
                         if ne == cap:
                             cap *= 2
-                            eae = _grow_i32(eae, cap)
-                            ebe = _grow_i32(ebe, cap)
-                            ori = _grow_i8(ori, cap)
+                            eae = grow(eae, cap)
+                            ebe = grow(ebe, cap)
+                            ori = grow(ori, cap)
                         eae[ne] = e
                         ebe[ne] = border[f]
                         ori[ne] = o
                         ne += 1
     return eae[:ne].copy(), ebe[:ne].copy(), ori[:ne].copy(), counts
-
-
-@njit(cache=True)
-def _grow_i32(x: np.ndarray, cap: int) -> np.ndarray:
-    y = np.empty(cap, np.int32)
-    y[: len(x)] = x
-    return y
-
-
-@njit(cache=True)
-def _grow_i8(x: np.ndarray, cap: int) -> np.ndarray:
-    y = np.empty(cap, np.int8)
-    y[: len(x)] = x
-    return y
 
 
 @njit(cache=True)
@@ -520,7 +512,7 @@ def peel_pairs(nv: int, e1: np.ndarray, e2: np.ndarray, k: int) -> np.ndarray:
     """Pairs left after iterated removal of associations in fewer than k pairs (boolean mask), O(E).
 
     A few passes of plain degree counting remove the bulk (most associations of a large join are in few pairs)
-    without building anything; the queue-based peel finishes on what is left."""
+    without building anything; the k-core of what is left (`kcore_mask`) finishes it."""
     alive_e = np.ones(len(e1), np.bool_)
     deg = np.zeros(nv, np.int64)
     left = len(e1)
@@ -539,44 +531,10 @@ def peel_pairs(nv: int, e1: np.ndarray, e2: np.ndarray, k: int) -> np.ndarray:
         if removed == 0 or left == 0:
             return alive_e
     sel = np.flatnonzero(alive_e)
-    deg[:] = 0
+    ip, ix, _ = sym_csr(nv, e1[sel], e2[sel], np.zeros(len(sel)))
+    core = kcore_mask(nv, ip, ix, np.ones(nv, np.bool_), k)
     for t in sel:
-        deg[e1[t]] += 1
-        deg[e2[t]] += 1
-    start = np.zeros(nv + 1, np.int64)
-    for v in range(nv):
-        start[v + 1] = start[v] + deg[v]
-    fill = start[:-1].copy()
-    inc = np.empty(2 * len(sel), np.int64)
-    for t in sel:
-        inc[fill[e1[t]]] = t
-        fill[e1[t]] += 1
-        inc[fill[e2[t]]] = t
-        fill[e2[t]] += 1
-    alive_v = np.ones(nv, np.bool_)
-    queue = np.empty(nv, np.int64)
-    head = 0
-    tail = 0
-    for v in range(nv):
-        if deg[v] < k:
-            alive_v[v] = False
-            queue[tail] = v
-            tail += 1
-    while head < tail:
-        v = queue[head]
-        head += 1
-        for x in range(start[v], start[v + 1]):
-            t = inc[x]
-            if not alive_e[t]:
-                continue
-            alive_e[t] = False
-            w = e2[t] if e1[t] == v else e1[t]
-            if alive_v[w]:
-                deg[w] -= 1
-                if deg[w] < k:
-                    alive_v[w] = False
-                    queue[tail] = w
-                    tail += 1
+        alive_e[t] = core[e1[t]] and core[e2[t]]
     return alive_e
 
 
@@ -752,14 +710,7 @@ def solve_groups(groups: np.ndarray, goff: np.ndarray, items: np.ndarray, ids: n
         score[g] = sc
         slc[g] = s
         ncore[g] = nc
-        need = off[g] + len(sel)
-        if need > len(sel_a):
-            sel_a = _grow_i(sel_a, 2 * need)
-            sel_b = _grow_i(sel_b, 2 * need)
-        for u in range(len(sel)):
-            sel_a[off[g] + u] = va[sel[u]]
-            sel_b[off[g] + u] = vb[sel[u]]
-        off[g + 1] = need
+        sel_a, sel_b = _append_selection(sel_a, sel_b, off, g, va[sel], vb[sel])
     return found, score, slc, ncore, off, sel_a[: off[ngr]].copy(), sel_b[: off[ngr]].copy()
 
 
@@ -826,15 +777,15 @@ def prior_join(put_a: np.ndarray, put_b: np.ndarray, put_off: np.ndarray, fa: np
                         continue
                     if ne == cap:
                         cap *= 2
-                        v1 = _grow_i(v1, cap)
-                        v2 = _grow_i(v2, cap)
-                        alo = _grow_i(alo, cap)
-                        ahi = _grow_i(ahi, cap)
-                        blo = _grow_i(blo, cap)
-                        bhi = _grow_i(bhi, cap)
-                        cs = _grow_f(cs, cap)
-                        s0 = _grow_i(s0, cap)
-                        nsl = _grow_i(nsl, cap)
+                        v1 = grow(v1, cap)
+                        v2 = grow(v2, cap)
+                        alo = grow(alo, cap)
+                        ahi = grow(ahi, cap)
+                        blo = grow(blo, cap)
+                        bhi = grow(bhi, cap)
+                        cs = grow(cs, cap)
+                        s0 = grow(s0, cap)
+                        nsl = grow(nsl, cap)
                     v1[ne] = p * nbm + j
                     v2[ne] = q * nbm + l_
                     alo[ne] = fa[q]

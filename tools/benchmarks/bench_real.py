@@ -295,9 +295,16 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
 
     a = read_landmark_map(map_a / "landmarks.sosmap")
     b = read_landmark_map(map_b / "landmarks.sosmap")
+    from ...database.match_io import read_match
+
     result = json.loads((match_dir / "match.json").read_text())
+    answer = read_match(match_dir / "match.json")  # what every consumer uses: the verified alignment
     out = {"landmarks": [len(a), len(b)], "window_pairs_solved": result.get("num_solved"),
-           "accepted": result.get("num_accepted"), "match_s": result.get("seconds_total")}
+           "accepted": result.get("num_accepted"), "match_s": result.get("seconds_total"),
+           "search_s": result.get("search_seconds"), "search_mode": result.get("search_mode"),
+           "answer": answer.source, "answer_accepted": bool(answer.accepted),
+           "answer_support": len(answer.associations) if answer.accepted else 0,
+           "runner_up_support": answer.runner_up_support}
     # the margin to theta_S: the largest upright (tilt <= theta_alpha) hypothesis that is wrong, i.e. off the
     # identity by more than the bar (15 m at B's landmark centroid or 2 degrees); every one is, for the controls
     centre = b.positions.mean(axis=0)
@@ -311,6 +318,8 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
     out["largest_wrong_upright_hypothesis"] = max(wrong)
     best = result.get("consensus") or (result["hypotheses"][result["best"]] if result.get("best") is not None
                                        else None)
+    if answer.accepted:
+        out["answer_error_m"], out["answer_error_deg"] = _identity_error(answer.transform.to_dict(), centre)
     if best:
         out["transform_error_m"], out["transform_error_deg"] = _identity_error(best["transform"], centre)
         assoc = np.array(best["associations"]).reshape(-1, 2)
