@@ -22,7 +22,7 @@ DISTANCE, GRAVITY = 0, 1  # association.consistency
 # --- the size gate -----------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def size_ratio1(x: float, y: float) -> float:
     """r = 2 |x - y| / (x + y); 0 where a size is unknown (NaN) or both are 0 (the gate is then open)."""
     if np.isnan(x) or np.isnan(y):
@@ -33,7 +33,7 @@ def size_ratio1(x: float, y: float) -> float:
     return 2.0 * abs(x - y) / s
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def size_weight1(r: float, theta_r: float) -> float:
     """q_s = 1 + cos(pi r / theta_r) for r < theta_r, else 0."""
     if r < theta_r:
@@ -41,7 +41,7 @@ def size_weight1(r: float, theta_r: float) -> float:
     return 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def gate1(i: int, j: int, pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, theta_r: float,
           r2: float, prior: bool) -> float:
     """r of landmark pair (i, j) if it passes the size gate (and the position prior), else -1."""
@@ -104,7 +104,7 @@ def size_weights(ha: np.ndarray, hb: np.ndarray, ia: np.ndarray, ib: np.ndarray,
 # --- the pair test -------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def vector_invariants(x: float, y: float, z: float, mode: int) -> tuple:
     """(L, z, atan2(y, x)) of an oriented landmark-pair vector (L 3D for "distance", horizontal for "gravity")."""
     if mode == DISTANCE:
@@ -112,7 +112,7 @@ def vector_invariants(x: float, y: float, z: float, mode: int) -> tuple:
     return np.sqrt(x * x + y * y), z, np.arctan2(y, x)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def pair_mismatch(la: float, za: float, lb: float, zb: float, mode: int, eps: float, tan_tilt: float,
                   eps_z: float) -> float:
     """Mismatch c of two landmark-pair vectors (invariants of A's and B's), or -1 if they are inconsistent.
@@ -133,7 +133,7 @@ def pair_mismatch(la: float, za: float, lb: float, zb: float, mode: int, eps: fl
     return np.sqrt(ch * ch + ez * ez)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def pair_slices(anga: float, angb: float, la: float, lb: float, za: float, zb: float, eps: float,
                 sin_tilt: float, nslices: int) -> tuple:
     """Yaw slices a consistent pair allows: (first slice, number of slices), slices of 2 pi / nslices.
@@ -161,7 +161,7 @@ def pair_slices(anga: float, angb: float, la: float, lb: float, za: float, zb: f
     return lo % nslices, ns
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def in_slice(s: int, s0: int, ns: int, nslices: int) -> bool:
     return (s - s0) % nslices < ns
 
@@ -348,7 +348,7 @@ _INV_LN2 = 1.44269504088896338700e00
 _POW2_NEG = np.ldexp(1.0, -np.arange(1011))  # 2^-k, k = 0..1010 (e^x for x >= -700)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def exp_nonpositive(x: float) -> float:
     """e^x for x <= 0, to ~1 ulp: x = n ln 2 + r, |r| <= ln 2 / 2, e^r by its Taylor polynomial (degree 13),
     scaled by 2^n. Plain arithmetic (no library call), so the loops that use it vectorise, and every search path

@@ -135,7 +135,7 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
                      m.prior_m)
         blocks = [(0, len(wins_a))]
         stride = 97  # the join's size, estimated from every 97th A edge: small problems skip the exact count
-        sample = edge_join(all_edges[::stride], *join_args, False, 1024)
+        sample = edge_join(np.ascontiguousarray(all_edges[::stride]), *join_args, False, 1024)
         estimate = int(len(sample[0]) * stride * 1.1)  # pairs, to size the output buffers
         if sample[-1].sum() * stride > JOIN_BUDGET / 2:
             blocks = _blocks(edge_join(all_edges, *join_args, True, 0)[-1], a_lo, a_hi, len(wins_a))
