@@ -129,3 +129,42 @@ def read_match_hypotheses(path: str | Path, max_gravity_angle_deg: float = 22.5)
                            np.array([len(h.associations) for h in match.hypotheses], dtype=np.int64),
                            np.asarray(ok, bool), np.array([bool(h.accepted) for h in match.hypotheses], bool),
                            match.seconds, match.min_associations, match)
+
+
+def landmark_observed_objects(map_dir: str | Path, labels_dir: str | Path) -> list[np.ndarray]:
+    """Per landmark of a mapped session (landmarks.csv order), the object id under each observed mask centroid.
+
+    Observations come from the session's sparse/ model (the keypoints are the mask centroids, COLMAP pixel
+    convention: pixel i spans [i, i + 1)); ids from `labels_dir/IMAGE_STEM.png` (uint16 object id per pixel,
+    0 = ground cover), as `sosmatch synth` writes them. A missing label image is an InputError naming it."""
+    import cv2
+    import pycolmap
+
+    map_dir, labels_dir = Path(map_dir), Path(labels_dir)
+    table = read_landmark_table(map_dir / "landmarks.csv")
+    model = map_dir / "sparse"
+    try:
+        rec = pycolmap.Reconstruction(str(model))
+    except Exception as exc:  # pycolmap raises plain RuntimeError / ValueError for unreadable models
+        raise InputError(f"cannot read the sparse model: {exc}", model) from None
+    labels: dict[str, np.ndarray] = {}
+    out = []
+    for pid in table.point3d_ids:
+        if int(pid) not in rec.points3D:
+            raise InputError(f"landmark point {int(pid)} is not in the sparse model", map_dir / "landmarks.csv")
+        ids = []
+        for el in rec.points3D[int(pid)].track.elements:
+            image = rec.images[el.image_id]
+            lab = labels.get(image.name)
+            if lab is None:
+                path = labels_dir / (Path(image.name).stem + ".png")
+                lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+                if lab is None:
+                    raise InputError("cannot read label image", path)
+                labels[image.name] = lab
+            u, v = image.points2D[el.point2D_idx].xy
+            col = int(np.clip(np.floor(u), 0, lab.shape[1] - 1))
+            row = int(np.clip(np.floor(v), 0, lab.shape[0] - 1))
+            ids.append(int(lab[row, col]))
+        out.append(np.asarray(ids, dtype=np.int64))
+    return out

@@ -95,6 +95,12 @@ def test_workflow_writes_table_plots_and_sane_scores(sessions):
     # Same day, textured, planar: the feature baselines match too.
     assert rows["ORB+RANSAC"]["recall_reached"] > 0.3
     assert rows["SOS-Match (ours)"]["map_mb"] < rows["ORB+RANSAC"]["map_mb"] / 20
+    # the operating point (theta_S as configured) sits on the curve, and the accepted hypotheses are right
+    ours_row = rows["SOS-Match (ours)"]
+    assert 0 < ours_row["recall_at_operating"] <= ours_row["recall_reached"]
+    assert ours_row["precision_at_operating"] >= 0.99 and ours_row["operating_theta_S"] == 6
+    assert ours_row["accepted_max_error_m"] < 1.0
+    assert ours["landmark_truth"] is None  # no object ground truth in these sessions: nothing to count
     data = json.loads((out / "evaluation.json").read_text())
     assert data["rows"] == json.loads(json.dumps(ev["rows"]))
     assert "| planar | SOS-Match (ours) |" in (out / "evaluation.md").read_text()

@@ -45,13 +45,14 @@ from ..plugin.errors import InputError
 from ..plugin.evaluation.claims import Hypothesis, claim_scores, observer_matrix
 from ..plugin.evaluation.footprints import footprint_polygons
 from ..plugin.evaluation.iou import iou_matrix
-from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, pr_curve
+from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
 from ..plugin.keyframes import select_keyframes
 from ..plugin.params import Params, params_to_dict
 
 log = logging.getLogger(__name__)
 
 METHODS = ("sosmatch", "orb_ransac", "sift_ransac")
+WRONG_ASSOCIATION_M = 5.0  # an association whose landmarks are farther apart (world frame) is drawn as wrong
 LABELS = {"sosmatch": "SOS-Match (ours)", "orb_ransac": "ORB+RANSAC", "sift_ransac": "SIFT+RANSAC"}
 
 
@@ -150,10 +151,16 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         if hyps.match.accepted:  # the match's answer (verified unless it ran without verification)
             best = {"associations": hyps.match.associations.tolist(),
                     "transform": hyps.match.transform.matrix().tolist(), "answer": hyps.match.source}
+        accepted = np.flatnonzero(hyps.accepted)
+        theta_s = hyps.min_associations if hyps.min_associations is not None else assoc_params.min_associations
+        out["accepted"] = [(hyps.associations[k], _transform_of(hyps.raw["hypotheses"][k].get("transform")))
+                           for k in accepted]
     elif min(len(pa), len(pb)) < 3:
         # Too few landmarks for any transform: the method claims nothing (an honest zero, not an error).
         log.warning("maps have %d and %d landmarks: SOS-Match can claim nothing", len(pa), len(pb))
         hypotheses = []
+        theta_s = assoc_params.min_associations
+        out["accepted"] = []
         out.update(search_seconds=0.0, search_seconds_runs=[0.0], curve_floor_theta_S=None, accepted_hypotheses=0,
                    window_pairs=0, note=f"maps have {len(pa)} and {len(pb)} landmarks")
     else:
@@ -183,12 +190,106 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         if answer.accepted:
             best = {"associations": answer.associations.tolist(), "transform": answer.transform.to_matrix().tolist(),
                     "answer": answer.source}
+        theta_s = assoc_params.min_associations
+        out["accepted"] = [] if result is None else [(result.hypotheses[k].associations, result.hypotheses[k].transform)
+                                                     for k in result.accepted]
         out["accepted_hypotheses"] = 0 if result is None else len(result.accepted)
         out["window_pairs"] = 0 if result is None else result.num_window_pairs
     out["num_hypotheses"] = len(hypotheses)
+    out["operating_theta_S"] = int(theta_s)
+    out["accepted_truth"] = [{"size": int(len(assoc)), **error_to_identity(t, pb[assoc[:, 1]])}
+                             for assoc, t in out["accepted"]]
     out["scores"] = claim_scores(hypotheses, obs_a, obs_b)
     out["best"] = best
     out["positions"] = (pa, pb)
+    out["sizes"] = (ha, hb)
+    out["observers"] = (obs_a, obs_b)
+    return out
+
+
+def _transform_of(data: dict | None) -> Any:
+    """A match.json transform (rotation, translation, scale) as an association Transform, None if absent."""
+    from ..plugin.association.rigid import Transform
+
+    if not data:
+        return None
+    return Transform(np.asarray(data["rotation"], np.float64).reshape(3, 3),
+                     np.asarray(data["translation"], np.float64).reshape(3), float(data.get("scale", 1.0)))
+
+
+def error_to_identity(transform: Any, points_b: np.ndarray) -> dict:
+    """How far a hypothesis is from the truth, at the centroid of its own associated B landmarks: `error_m` (3D),
+    `horizontal_m`, `yaw_deg`, and `max_m` (the largest displacement of any of them). The evaluation's sessions
+    share one world frame (their footprints are compared in it), so the true transform is the identity, up to
+    each map's own pose drift (1-2 m on the synthetic EKF poses)."""
+    from ..plugin.association.rigid import roll_pitch_yaw_deg
+
+    if transform is None or len(points_b) == 0:
+        return {"error_m": float("nan"), "horizontal_m": float("nan"), "yaw_deg": float("nan"), "max_m": float("nan")}
+    centre = points_b.mean(axis=0)
+    d = transform.apply(centre[None])[0] - centre
+    return {"error_m": float(np.linalg.norm(d)), "horizontal_m": float(np.hypot(d[0], d[1])),
+            "yaw_deg": abs(roll_pitch_yaw_deg(transform.rotation)[2]),
+            "max_m": float(np.linalg.norm(transform.apply(points_b) - points_b, axis=1).max())}
+
+
+def _has_object_truth(session: Path) -> bool:
+    return all((session / f).exists() for f in ("objects.csv", "frames.json", "labels"))
+
+
+def _landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Path, map_b: Path, sos: dict,
+                    iou: np.ndarray) -> dict | None:
+    """Common landmarks of the two maps against the synthetic ground-truth objects, the size agreement of the
+    common pairs and the oracle recall (`plugin.evaluation.landmark_truth`); None without object truth."""
+    from ..database.evaluation_io import landmark_observed_objects
+    from ..database.synth_session import load_synth_session
+    from ..plugin.evaluation.landmark_truth import (
+        common_landmarks,
+        count_by,
+        eligible_objects,
+        majority_objects,
+        oracle_recall,
+    )
+
+    if not (_has_object_truth(session_a) and _has_object_truth(session_b)):
+        return None
+    t0 = time.perf_counter()
+    synth = [load_synth_session(s) for s in (session_a, session_b)]
+    seen = []
+    for s, m in zip(synth, (map_a, map_b)):
+        run_json = m / "run.json"
+        keyframes = set(json.loads(run_json.read_text(encoding="utf-8"))["keyframes"]) if run_json.exists() else None
+        counts: dict[int, int] = {}
+        for frame in s.frames:
+            if keyframes is None or frame["name"] in keyframes:
+                for oid in frame["visible_object_ids"]:
+                    counts[int(oid)] = counts.get(int(oid), 0) + 1
+        seen.append(counts)
+    present = [s.present_objects()["id"] for s in synth]
+    eligible = eligible_objects(present[0], present[1], seen[0], seen[1], params.triangulation.min_observations + 1)
+    kind_of = {int(o["id"]): str(o["kind"]) for s in synth for o in s.objects}
+    objs = [majority_objects(landmark_observed_objects(m, s.path / "labels")) for s, m in zip(synth, (map_a, map_b))]
+    (pa, pb), (ha, hb) = sos["positions"], sos["sizes"]
+    common = common_landmarks(objs[0], objs[1], pa, pb, ha, hb, eligible, kind_of)
+    theta_r = params.association.max_size_difference
+    out = common.summary(theta_r)
+    from ..plugin.association.windowed_search import size_ratio
+
+    gated = common.pairs[size_ratio(common.sizes[:, 0], common.sizes[:, 1]) <= theta_r] if len(common.pairs) else \
+        common.pairs
+    out["oracle"] = oracle_recall(common.pairs, sos["observers"][0], sos["observers"][1], iou)
+    out["oracle_size_gated"] = oracle_recall(gated, sos["observers"][0], sos["observers"][1], iou)
+    out["eligible_by_kind"] = count_by([kind_of[int(o)] for o in eligible])
+    out["mapped_a_by_kind"] = count_by([kind_of[int(o)] for o in common.mapped_a])
+    out["mapped_b_by_kind"] = count_by([kind_of[int(o)] for o in common.mapped_b])
+    out["landmarks_on_objects"] = [int(np.count_nonzero(o.object_ids > 0)) for o in objs]
+    # associations of accepted hypotheses that join two landmarks of one object (the truth the search should find)
+    ids_a, ids_b = objs[0].object_ids, objs[1].object_ids
+    out["accepted_same_object"] = [int(np.count_nonzero((ids_a[a[:, 0]] == ids_b[a[:, 1]]) & (ids_a[a[:, 0]] > 0)))
+                                   for a, _ in sos["accepted"]]
+    out["common_pairs"] = [[int(o), int(i), int(j), float(x), float(y)] for o, (i, j), (x, y)
+                           in zip(common.objects, common.pairs, common.sizes)]
+    out["seconds"] = time.perf_counter() - t0
     return out
 
 
@@ -219,20 +320,52 @@ def _run_baseline(name: str, gt_a: GroundTruthSession, gt_b: GroundTruthSession,
 
 def _row(case: str, method: str, res: dict) -> dict:
     s = res["curve"].summary
-    return {"case": case, "method": LABELS.get(method, method), "search_s": res["search_seconds"],
-            "map_mb": float(np.mean(res["map_bytes"])) / 1e6, "average_f1": s["average_f1"],
-            "recall_at_p99": s["recall_at_p99"], "f1_at_p99": s["f1_at_p99"], "f1_at_r99": s["f1_at_r99"],
-            "recall_reached": s["recall_reached"]}
+    row = {"case": case, "method": LABELS.get(method, method), "search_s": res["search_seconds"],
+           "map_mb": float(np.mean(res["map_bytes"])) / 1e6, "average_f1": s["average_f1"],
+           "recall_at_p99": s["recall_at_p99"], "f1_at_p99": s["f1_at_p99"], "f1_at_r99": s["f1_at_r99"],
+           "recall_reached": s["recall_reached"]}
+    op = res.get("operating_point")
+    if op is not None:
+        row.update(f1_at_operating=op["f1"], recall_at_operating=op["recall"], precision_at_operating=op["precision"],
+                   operating_theta_S=res.get("operating_theta_S"))
+    truth = res.get("landmark_truth")
+    if truth is not None:
+        row.update(common_landmarks=truth["common"], eligible_objects=truth["eligible_objects"],
+                   oracle_recall=truth["oracle_size_gated"]["recall"], limited_by=limiting_stage(row, truth))
+    errors = [h["error_m"] for h in res.get("accepted_truth", []) if np.isfinite(h["error_m"])]
+    if "accepted_truth" in res:
+        row["accepted_max_error_m"] = max(errors) if errors else None
+    return row
+
+
+def limiting_stage(row: dict, truth: dict, target: float = 0.95) -> str:
+    """Which stage limits the recall at the operating point: "none" (it reaches `target`), "search" (the
+    common landmarks that pass the size gate could vouch for a tenth more than the search found) or
+    "front end" (the search finds about what the common landmarks allow)."""
+    recall, oracle = row.get("recall_at_operating", 0.0), truth["oracle_size_gated"]["recall"]
+    if recall >= target:
+        return "none"
+    return "search" if recall < 0.9 * oracle else "front end"
+
+
+def _cell(row: dict, key: str, fmt: str = ".3f") -> str:
+    value = row.get(key)
+    return "-" if value is None else format(value, fmt)
 
 
 def format_table(rows: Sequence[dict]) -> str:
-    """Markdown table: case, method, search time, map size, average F1, recall at P >= 0.99."""
-    lines = ["| case | method | search time (s) | map size (MB) | average F1 | recall at P >= 0.99 |",
-             "|---|---|---:|---:|---:|---:|"]
+    """Markdown table: case, method, search time, map size, average F1, recall at P >= 0.99, F1 and recall at
+    the method's own operating point (theta_S), and the common landmarks of the two maps against the eligible
+    ground-truth objects with the oracle recall (synthetic sessions only)."""
+    lines = ["| case | method | search time (s) | map size (MB) | average F1 | recall at P >= 0.99 "
+             "| F1 at theta_S | recall at theta_S | common / eligible objects | oracle recall | limited by |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
     for r in rows:
         t = "n/a" if r["search_s"] is None else f"{r['search_s']:.3g}"
+        common = f"{r['common_landmarks']} / {r['eligible_objects']}" if "common_landmarks" in r else "-"
         lines.append(f"| {r['case']} | {r['method']} | {t} | {r['map_mb']:.4g} | {r['average_f1']:.3f} "
-                     f"| {r['recall_at_p99']:.3f} |")
+                     f"| {r['recall_at_p99']:.3f} | {_cell(r, 'f1_at_operating')} | {_cell(r, 'recall_at_operating')} "
+                     f"| {common} | {_cell(r, 'oracle_recall')} | {r.get('limited_by', '-')} |")
     return "\n".join(lines) + "\n"
 
 
@@ -278,14 +411,29 @@ def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict |
         pa, pb = sos["positions"]
         ax.scatter(pa[:, 0], pa[:, 1], s=6, color="tab:blue", marker="o", label=f"landmarks A ({len(pa)})")
         ax.scatter(pb[:, 0], pb[:, 1], s=6, color="tab:orange", marker="x", label=f"landmarks B ({len(pb)})")
+        truth = sos.get("landmark_truth")
+        if truth and truth.get("common_pairs"):
+            common = np.asarray([c[1] for c in truth["common_pairs"]], dtype=int)
+            ax.scatter(pa[common, 0], pa[common, 1], s=70, facecolors="none", edgecolors="0.35", marker="s", lw=0.8,
+                       label=f"common landmarks (truth: {len(common)})")
+        # Associations of the accepted hypotheses, drawn as rings (a right one joins two landmarks ~1 m apart,
+        # invisible as a segment on a plot hundreds of metres wide); red: more than 5 m apart in the world frame
+        assoc = [a for a, _ in sos.get("accepted", [])]
+        if assoc:
+            pairs = np.unique(np.concatenate(assoc).reshape(-1, 2), axis=0)
+            far = np.linalg.norm(pa[pairs[:, 0]] - pb[pairs[:, 1]], axis=1) > WRONG_ASSOCIATION_M
+            for sel, color, label in ((~far, "limegreen", "associated"), (far, "red", "associated, wrong")):
+                if sel.any():
+                    a, b = pa[pairs[sel, 0]], pb[pairs[sel, 1]]
+                    ax.scatter(a[:, 0], a[:, 1], s=40, facecolors="none", edgecolors=color, lw=1.6,
+                               label=f"{label} ({int(sel.sum())}, {len(assoc)} accepted hypotheses)")
+                    for u, v in zip(a, b):
+                        ax.plot([u[0], v[0]], [u[1], v[1]], color=color, lw=1.6)
         best = sos.get("best")
         if best:
-            assoc = np.asarray(best["associations"], dtype=int).reshape(-1, 2)
-            seg_a, seg_b = pa[assoc[:, 0]], pb[assoc[:, 1]]
-            for a, b in zip(seg_a, seg_b):
-                ax.plot([a[0], b[0]], [a[1], b[1]], color="green", lw=0.8)
-            ax.plot([], [], color="green", label=f"the match's answer ({best.get('answer', 'best hypothesis')}): "
-                                                 f"{len(assoc)} associations")
+            ab = np.asarray(best["associations"], dtype=int).reshape(-1, 2)
+            ax.scatter(pa[ab[:, 0], 0], pa[ab[:, 0], 1], s=12, color="darkgreen", marker="D",
+                       label=f"the match's answer ({best.get('answer', 'best hypothesis')}): {len(ab)} associations")
     ax.set_aspect("equal")
     ax.set(xlabel="x (m)", ylabel="y (m)", title=title)
     ax.legend(loc="best", fontsize=7)
@@ -297,7 +445,8 @@ def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict |
 
 def _jsonable(res: dict) -> dict:
     c: PRCurve = res["curve"]
-    keep = {k: v for k, v in res.items() if k not in ("scores", "curve", "positions")}
+    keep = {k: v for k, v in res.items() if k not in ("scores", "curve", "positions", "sizes", "observers",
+                                                      "accepted")}
     keep["summary"] = c.summary
     keep["curve"] = {"thresholds": c.thresholds.tolist(), "precision": c.precision.tolist(),
                      "recall": c.recall.tolist(), "tp": c.tp.tolist(), "fp": c.fp.tolist()}
@@ -381,6 +530,10 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
             results[m] = _run_baseline(m, gt_a, gt_b, images_a, images_b, config)
     for res in results.values():
         res["curve"] = pr_curve(res["scores"], iou)
+    if "sosmatch" in results:
+        sos = results["sosmatch"]
+        sos["operating_point"] = operating_point(sos["curve"], sos["operating_theta_S"] + 0.5)
+        sos["landmark_truth"] = _landmark_truth(params, session_a, session_b, ma, mb, sos, iou)
     rows = [_row(case, m, res) for m, res in results.items()]
     evaluation = {
         "case": case,

@@ -90,3 +90,16 @@ def summarize(curve: PRCurve, target: float = TARGET) -> dict:
     out.update(f1_at_r99=float(f1[k]), threshold_at_r99=float(thr[k]), recall_reached=float(r[k]))
     out["average_f1"] = 0.5 * (out["f1_at_p99"] + out["f1_at_r99"])
     return out
+
+
+def operating_point(curve: PRCurve, min_score: float) -> dict:
+    """Precision, recall and F1 of the claims with score >= `min_score` (a method's own decision threshold:
+    for SOS-Match |S| > theta_S, i.e. min_score = theta_S + 1 on integer |S|); nothing claimed gives P = 1,
+    R = 0."""
+    ok = np.flatnonzero(curve.thresholds >= min_score)
+    if len(ok) == 0:
+        return {"min_score": float(min_score), "precision": 1.0, "recall": 0.0, "f1": 0.0, "tp": 0, "fp": 0}
+    k = int(ok[-1])  # thresholds decrease: the last one still >= min_score claims the most
+    p, r = float(curve.precision[k]), float(curve.recall[k])
+    return {"min_score": float(min_score), "precision": p, "recall": r, "f1": float(_f1(np.array(p), np.array(r))),
+            "tp": int(curve.tp[k]), "fp": int(curve.fp[k])}

@@ -1,0 +1,64 @@
+"""Common landmarks against ground-truth objects, the oracle recall and the operating point of a PR curve."""
+
+import numpy as np
+import pytest
+
+from sosmatch.plugin.evaluation.claims import observer_matrix
+from sosmatch.plugin.evaluation.landmark_truth import (
+    common_landmarks,
+    eligible_objects,
+    majority_objects,
+    oracle_recall,
+)
+from sosmatch.plugin.evaluation.metrics import operating_point, pr_curve
+
+
+def test_majority_objects_votes_and_measures_purity():
+    objs = majority_objects([np.array([3, 3, 0, 3]), np.array([0, 0, 5]), np.array([], np.int64), np.array([2, 4])])
+    assert objs.object_ids.tolist() == [3, 0, 0, 2]  # a tie goes to the smaller id
+    assert objs.purity.tolist() == pytest.approx([0.75, 2 / 3, 0.0, 0.5])
+
+
+def test_common_landmarks_pairs_the_closest_landmarks_of_each_object():
+    a = majority_objects([np.array([1]), np.array([1]), np.array([2]), np.array([0]), np.array([7])])
+    b = majority_objects([np.array([2]), np.array([1]), np.array([9])])
+    pa = np.array([[0, 0, 0], [5, 0, 0], [20, 0, 0], [30, 0, 0], [40, 0, 0]], float)
+    pb = np.array([[20.5, 0, 0], [4.0, 0, 0], [50, 0, 0]], float)
+    ha, hb = np.array([1.0, 2.0, 3.0, 1.0, 1.0]), np.array([3.6, 2.2, 1.0])
+    common = common_landmarks(a, b, pa, pb, ha, hb, eligible=np.array([1, 2, 3, 7]),
+                              kind_of={1: "conifer", 2: "pond"})
+    assert common.objects.tolist() == [1, 2]
+    assert common.pairs.tolist() == [[1, 1], [2, 0]]  # object 1: A's landmark at x = 5 is closer to B's at 4
+    assert common.offsets_m == pytest.approx([1.0, 0.5])
+    assert common.ratio == pytest.approx([1.1, 1.2])
+    assert common.mapped_a.tolist() == [1, 2, 7] and common.mapped_b.tolist() == [1, 2]
+    s = common.summary(theta_r=0.15)
+    assert s["common"] == 2 and s["eligible_objects"] == 4
+    assert s["within_size_gate"] == pytest.approx(0.5)  # r = 0.095 passes, r = 0.18 does not
+    assert s["common_by_kind"] == {"conifer": 1, "pond": 1}
+
+
+def test_eligible_objects_need_both_sessions_and_enough_keyframes():
+    got = eligible_objects(np.array([1, 2, 3, 4]), np.array([2, 3, 4, 5]), {2: 6, 3: 9, 4: 2}, {2: 7, 3: 5, 4: 9}, 6)
+    assert got.tolist() == [2]
+
+
+def test_oracle_recall_counts_the_keyframe_pairs_common_landmarks_vouch_for():
+    # 3 keyframes per session; landmark i of A seen in keyframe i, landmark j of B in keyframe j
+    obs_a = observer_matrix([[0], [1], [2]], 3)
+    obs_b = observer_matrix([[0], [1], [2]], 3)
+    iou = np.eye(3) * 0.8
+    got = oracle_recall(np.array([[0, 0], [1, 1]]), obs_a, obs_b, iou)
+    assert got == {"associations": 2, "recall": pytest.approx(2 / 3), "precision": 1.0}
+    assert oracle_recall(np.zeros((0, 2), int), obs_a, obs_b, iou)["recall"] == 0.0
+
+
+def test_operating_point_takes_the_claims_above_the_threshold():
+    iou = np.array([0.5, 0.5, 0.1, 0.0, 0.5, 0.0, 0.5])
+    scores = np.array([9.0, 8.0, 7.0, 7.0, 5.0, np.nan, np.nan])
+    c = pr_curve(scores, iou)
+    op = operating_point(c, 7.5)  # claims with score >= 7.5: two right ones of 4 positives
+    assert op["precision"] == 1.0 and op["recall"] == 0.5 and op["f1"] == pytest.approx(2 / 3)
+    op = operating_point(c, 6)  # one false claim joins
+    assert op["precision"] == pytest.approx(2 / 3) and op["tp"] == 2 and op["fp"] == 1
+    assert operating_point(c, 10)["recall"] == 0.0 and operating_point(c, 10)["precision"] == 1.0
