@@ -235,6 +235,19 @@ class TriangulationParams(Checked):
     # views). On in the "survey" preset.
     height_outlier_sigmas: float = non_negative(0.0)
     height_outlier_neighbours: int = count(8, 1)
+    # metric size h_S of a landmark (`plugin.landmark_size`): "mean" = the paper's mean of h_px x depth / f over the
+    # observations; "nadir" (ours) = sqrt(lambda_max) of the object's footprint covariance fitted jointly over the
+    # observations with the relief displacement of off-nadir views removed and masks cut by the image border left
+    # out: sizes of one object then agree across flights, altitudes and crossing directions (median r 0.09 -> 0.04)
+    size_estimator: str = one_of("nadir", "nadir", "mean")
+    # (ours) split tracks of one object (one per pass, or around a segmentation gap) become one landmark
+    # (`plugin.track_fusion`): pieces that never share a keyframe, lie within this factor x the larger metric size
+    # horizontally, agree in size within `fuse_size_tolerance` and are explained by one point within
+    # max_reprojection_error_px; 0 = off (the paper: every track its own landmark). theta_n applies to the fused
+    # landmark, and tracks with at least `min_piece_observations` observations are triangulated as pieces
+    fuse_radius_factor: float = non_negative(2.0)
+    fuse_size_tolerance: float = positive(0.5)
+    min_piece_observations: int = count(3, 2)
 
 
 @dataclass(frozen=True)
@@ -463,7 +476,9 @@ def params_from_dict(data: dict[str, Any], cls: type = Params, where: str = "") 
 PRESETS: dict[str, dict[str, Any]] = {
     # the search as published: id windows, 3D distance consistency, gravity checked after the solve, no prior
     "paper": {"association.consistency": "distance", "association.windows": "id",
-              "association.position_prior_m": 0.0, "association.solver": "clipper"},
+              "association.position_prior_m": 0.0, "association.solver": "clipper",
+              # and the front end as published: every track its own landmark, the mean metric size
+              "triangulation.size_estimator": "mean", "triangulation.fuse_radius_factor": 0.0},
     # Photogrammetric survey flights: one frame every 30-40 m (55-75 % forward overlap), ~1200 px images, poses
     # from GPS + autopilot refined by `poses-from-exif --refine`. Measured on Seneca (BENCHMARKS.md, "Seneca end
     # to end"). An object is in only 2-3 frames of a flight line, so a landmark needs 3 observations (theta_n = 2)

@@ -66,11 +66,16 @@ def test_override_parsing_and_rejection():
 def test_presets_layer_under_config_file_and_set(tmp_path):
     from sosmatch.plugin.params import PRESETS, preset_params
 
-    # the paper's method differs from the defaults only in how the search forms and solves its graphs
+    # the paper's method differs from the defaults only in how the search forms and solves its graphs and in the
+    # front end's track fusion and size estimator
     paper = preset_params("paper")
-    assert dataclasses.replace(paper, association=Params().association) == Params()
+    base = Params()
+    assert dataclasses.replace(paper, association=base.association, triangulation=base.triangulation) == base
     assert set(PRESETS["paper"]) == {"association.consistency", "association.windows", "association.position_prior_m",
-                                     "association.solver"}
+                                     "association.solver", "triangulation.size_estimator",
+                                     "triangulation.fuse_radius_factor"}
+    assert dataclasses.replace(paper.triangulation, size_estimator="nadir", fuse_radius_factor=2.0) == \
+        Params().triangulation
     survey = preset_params("survey")
     for dotted, value in PRESETS["survey"].items():
         section, key = dotted.split(".")

@@ -11,7 +11,8 @@ plugin/. Steps:
    within `max_reprojection_error_px`, positive depth in every observing camera and a largest ray angle of at
    least `min_triangulation_angle_deg`. Dropped points are deleted from the reconstruction too, so sparse/
    and the landmark map agree;
-5. metric size per landmark: mask size h_px x depth / f, averaged over the observations;
+5. metric size per landmark (`plugin.landmark_size`, `size_estimator`): the paper's mean of h_px x depth / f
+   over the observations, or (default) the nadir-equivalent size fitted over them;
 6. duplicate suppression (`duplicate_radius_factor`, see `suppress_duplicates`): landmarks of nested or
    partial masks of one object are dropped in favour of the best-supported one (deleted from the
    reconstruction too).
@@ -23,15 +24,19 @@ from __future__ import annotations
 
 import logging
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.landmark_filters import height_outliers
+from ..plugin.landmark_size import SIZE_ESTIMATORS, mean_size, nadir_size
 from ..plugin.params import TriangulationParams
+from ..plugin.track_fusion import TrackPiece, fuse_tracks
 
 if TYPE_CHECKING:
     import pycolmap
@@ -41,13 +46,13 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Landmarks:
-    """Triangulated landmarks in map order (majority track id, then point id), plus what was dropped."""
+    """Triangulated landmarks in map order (first track id, then point id), plus what was dropped."""
 
     positions: np.ndarray  # (L, 3) world frame
     sizes_m: np.ndarray  # (L,) metric size h_S
     num_observations: np.ndarray  # (L,)
     point3d_ids: np.ndarray  # (L,) ids in the pycolmap reconstruction / sparse model
-    track_ids: np.ndarray  # (L,) majority tracker track id of the observations
+    track_ids: np.ndarray  # (L,) smallest tracker track id of the observations (first sighting)
     errors_px: np.ndarray  # (L,) mean reprojection error after the points-only BA
     observations: list[np.ndarray]  # per landmark: (n, 2) int (keyframe index, mask index), keyframe order
     counts: dict[str, int] = field(default_factory=dict)  # triangulated / dropped_* / kept
@@ -164,6 +169,38 @@ def suppress_duplicates(
     return keep
 
 
+def _observations(rec: pycolmap.Reconstruction, pid: int) -> np.ndarray:
+    """(n, 2) int (keyframe index, mask index) of a point's track, in keyframe order (image id = keyframe + 1)."""
+    obs = np.array([(el.image_id - 1, el.point2D_idx) for el in rec.points3D[pid].track.elements], dtype=np.int64)
+    return obs[np.argsort(obs[:, 0], kind="stable")]
+
+
+def fuse_split_tracks(rec: pycolmap.Reconstruction, camera: Camera, poses: Poses,
+                      size_of: Callable[[np.ndarray, np.ndarray], float], params: TriangulationParams) -> int:
+    """Merge the points of tracks that are pieces of one object (`plugin.track_fusion.fuse_tracks`) into one
+    point each (pycolmap merge_points3D, then a points-only BA of the merged ones); returns the merges made."""
+    pids = sorted(rec.point3D_ids())
+    pieces = []
+    for pid in pids:
+        obs = _observations(rec, pid)
+        xyz = np.asarray(rec.points3D[pid].xyz, dtype=np.float64)
+        pixels = np.array([rec.images[int(k) + 1].points2D[int(i)].xy for k, i in obs], dtype=np.float64)
+        pieces.append(TrackPiece(obs[:, 0], camera.undistort_points(pixels), xyz, size_of(obs, xyz)))
+    groups = fuse_tracks(pieces, camera.pinhole(), poses, params.fuse_radius_factor, params.fuse_size_tolerance,
+                         params.max_reprojection_error_px)
+    merges = 0
+    for group in groups:
+        if len(group) < 2:
+            continue
+        merged = pids[group[0]]
+        for k in group[1:]:
+            merged = rec.merge_points3D(merged, pids[k])
+            merges += 1
+    if merges:
+        refine_points_only(rec, params.pixel_sigma_px)
+    return merges
+
+
 def _drop_rows(rec: pycolmap.Reconstruction, rows: list, keep: np.ndarray) -> tuple[list, int]:
     """Keep the landmark rows where `keep` (row[1] = point id); the others are deleted from `rec` too, so
     sparse/ and the landmark map agree. Returns (kept rows, number dropped)."""
@@ -180,6 +217,8 @@ def triangulate_landmarks(
     track_ids: list[np.ndarray],
     params: TriangulationParams,
     seed: int = 0,
+    centroids_px: list[np.ndarray] | None = None,
+    covariances_px: list[np.ndarray] | None = None,
 ) -> Landmarks:
     """Triangulate the landmarks of a session database written by `write_colmap_database`.
 
@@ -191,6 +230,9 @@ def triangulate_landmarks(
         track_ids: per keyframe, the tracker's track id of every mask (-1: none); used to order the landmarks.
         params: triangulation parameters (theta_n, sigma, filters).
         seed: random seed for COLMAP's RANSAC triangulation.
+        centroids_px, covariances_px: per keyframe, the centroid (k, 2) and pixel covariance (k, 2, 2) of every
+            mask, undistorted (pixels of `camera.pinhole()`, like `sizes_px`); needed by the "nadir" size
+            estimator (without them the paper's mean is used).
     """
     import pycolmap
 
@@ -224,14 +266,28 @@ def triangulate_landmarks(
         refine_points_only(rec, params.pixel_sigma_px)
 
     r_cw, t_cw = poses.cam_from_world()
-    focal = float(np.sqrt(camera.fx * camera.fy))
+    if params.size_estimator not in SIZE_ESTIMATORS:
+        raise InputError(f"triangulation.size_estimator must be one of {', '.join(SIZE_ESTIMATORS)}, got "
+                         f"{params.size_estimator!r}")
+    nadir = params.size_estimator == "nadir" and centroids_px is not None and covariances_px is not None
+    pinhole = camera.pinhole()  # sizes are measured on undistorted masks, through the equivalent pinhole
+
+    def size_of(obs: np.ndarray, xyz: np.ndarray) -> float:
+        kf = obs[:, 0]
+        if nadir:
+            return nadir_size(pinhole, poses.rotations[kf], poses.centers[kf], xyz,
+                              np.array([centroids_px[k][i] for k, i in obs]),
+                              np.array([covariances_px[k][i] for k, i in obs]), params.min_observations + 1)
+        return mean_size(pinhole, poses.rotations[kf], poses.centers[kf], xyz,
+                         np.array([sizes_px[k][i] for k, i in obs], dtype=np.float64))
+
+    counts["fused"] = fuse_split_tracks(rec, camera, poses, size_of, params) if params.fuse_radius_factor > 0 else 0
     drop = {"few_observations": 0, "reprojection": 0, "behind_camera": 0, "small_angle": 0, "duplicate": 0,
             "height_outlier": 0}
     rows = []
     for pid in sorted(rec.point3D_ids()):
         point = rec.points3D[pid]
-        obs = np.array([(el.image_id - 1, el.point2D_idx) for el in point.track.elements], dtype=np.int64)
-        obs = obs[np.argsort(obs[:, 0], kind="stable")]
+        obs = _observations(rec, pid)
         xyz = np.asarray(point.xyz, dtype=np.float64)
         depth = np.einsum("nj,nj->n", r_cw[obs[:, 0], 2, :], np.broadcast_to(xyz, (len(obs), 3))) + t_cw[obs[:, 0], 2]
         reason = None
@@ -249,10 +305,10 @@ def triangulate_landmarks(
             continue
         tids = np.array([track_ids[k][i] for k, i in obs])
         tids = tids[tids >= 0]
-        track = int(np.bincount(tids - tids.min()).argmax() + tids.min()) if len(tids) else -1
-        h_px = np.array([sizes_px[k][i] for k, i in obs], dtype=np.float64)
-        size_m = float(np.mean(h_px * depth / focal))
-        rows.append((track, pid, xyz, size_m, len(obs), float(point.error), obs))
+        # a fused landmark holds several tracks: it takes its first sighting's (the smallest id), so that two
+        # maps flown over one path order an object by the same pass (the search's windows are id ranges)
+        track = int(tids.min()) if len(tids) else -1
+        rows.append((track, pid, xyz, size_of(obs, xyz), len(obs), float(point.error), obs))
     if rows and params.duplicate_radius_factor > 0:
         keep = suppress_duplicates(np.array([r[2] for r in rows]), np.array([r[3] for r in rows]),
                                    np.array([r[4] for r in rows]), np.array([r[5] for r in rows]),

@@ -197,7 +197,10 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     t = time.perf_counter()
     tri = params.triangulation
     centroids = [f.centroids for f in gate_features]
-    pairs = track_associations(tracking.track_ids, "all", tri.min_observations)
+    # tracks long enough to be pieces of a landmark (fused in triangulation; theta_n applies afterwards)
+    shortest = tri.min_observations if tri.fuse_radius_factor <= 0 else min(tri.min_observations,
+                                                                             tri.min_piece_observations - 1)
+    pairs = track_associations(tracking.track_ids, "all", shortest)
     pairs, rejected = verify_associations(gate_camera, kf_poses, centroids, pairs,
                                           params.tracking.epipolar_margin_px)
     keypoints = [affine_keypoints(f.centroids, f.covariances) for f in features]
@@ -209,7 +212,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     t = time.perf_counter()
     pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1 if log.isEnabledFor(logging.DEBUG) else 2)
     landmarks = triangulate_landmarks(partial / "database.db", camera, kf_poses,
-                                      [f.sizes for f in gate_features], tracking.track_ids, tri, seed=params.seed)
+                                      [f.sizes for f in gate_features], tracking.track_ids, tri, seed=params.seed,
+                                      centroids_px=centroids, covariances_px=[f.covariances for f in gate_features])
     timings["triangulation"] = time.perf_counter() - t
     stages.update()
     stages.set_description("outputs")
