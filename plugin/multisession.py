@@ -11,6 +11,7 @@ from __future__ import annotations
 import heapq
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -505,6 +506,18 @@ def verify_alignments(
             best = Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
     accepted = support > min_support and support >= min_ratio * runner_up
     return Verification(best, runner_up, len(refined), accepted)
+
+
+def verification_candidates(hypotheses: Sequence[Any], max_gravity_angle_deg: float,
+                            max_candidates: int = 400) -> list[tuple[Sim3, np.ndarray]]:
+    """The candidates `verify_alignments` takes from a search's window hypotheses (objects with `size`,
+    `transform` (rotation, translation, scale; None when degenerate), `tilt_deg`, `associations`): those that
+    pass the gravity check, largest |S| first (stable), at most `max_candidates` (bounds the work on dense
+    same-season maps), each as (a_from_b, indices of its B landmarks)."""
+    usable = [h for h in hypotheses if h.transform is not None and h.tilt_deg <= max_gravity_angle_deg]
+    usable.sort(key=lambda h: -h.size)
+    return [(Sim3(h.transform.rotation, h.transform.translation, h.transform.scale),
+             np.asarray(h.associations, dtype=np.int64).reshape(-1, 2)[:, 1]) for h in usable[:max_candidates]]
 
 
 def _final_rigid_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, gate_m: float, z_weight: float) -> Alignment:

@@ -85,7 +85,7 @@ def test_workflow_writes_table_plots_and_sane_scores(sessions):
     for f in ("evaluation.md", "evaluation.json", "pr.png", "overlay.png"):
         assert (out / f).stat().st_size > 0
     rows = {r["method"]: r for r in ev["rows"]}
-    assert set(rows) == {"SOS-Match (ours)", "ORB+RANSAC", "SIFT+RANSAC"}
+    assert set(rows) == {"SOS-Match (ours)", "SOS-Match, windows only", "ORB+RANSAC", "SIFT+RANSAC"}
     assert ev["protocol"]["positive_pairs"] > 30 and ev["protocol"]["negative_pairs"] > 30
     ours = ev["methods"]["sosmatch"]
     assert ours["accepted_hypotheses"] >= 1
@@ -101,6 +101,10 @@ def test_workflow_writes_table_plots_and_sane_scores(sessions):
     assert ours_row["precision_at_operating"] >= 0.99 and ours_row["operating_theta_S"] == 6
     assert ours_row["accepted_max_error_m"] < 1.0
     assert ours["landmark_truth"] is None  # no object ground truth in these sessions: nothing to count
+    # the full-map verification finds the true alignment and vouches for at least what the windows do
+    ver = ours["verification"]
+    assert ver["accepted"] and ver["error_m"] < 1.0 and ver["support"] > 6
+    assert ours_row["recall_at_operating"] >= rows["SOS-Match, windows only"]["recall_at_operating"]
     data = json.loads((out / "evaluation.json").read_text())
     assert data["rows"] == json.loads(json.dumps(ev["rows"]))
     assert "| planar | SOS-Match (ours) |" in (out / "evaluation.md").read_text()

@@ -29,6 +29,7 @@ import statistics
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -53,7 +54,8 @@ log = logging.getLogger(__name__)
 
 METHODS = ("sosmatch", "orb_ransac", "sift_ransac")
 WRONG_ASSOCIATION_M = 5.0  # an association whose landmarks are farther apart (world frame) is drawn as wrong
-LABELS = {"sosmatch": "SOS-Match (ours)", "orb_ransac": "ORB+RANSAC", "sift_ransac": "SIFT+RANSAC"}
+LABELS = {"sosmatch": "SOS-Match (ours)", "sosmatch_windows": "SOS-Match, windows only", "orb_ransac": "ORB+RANSAC",
+          "sift_ransac": "SIFT+RANSAC"}
 
 
 @dataclasses.dataclass
@@ -155,12 +157,16 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         theta_s = hyps.min_associations if hyps.min_associations is not None else assoc_params.min_associations
         out["accepted"] = [(hyps.associations[k], _transform_of(hyps.raw["hypotheses"][k].get("transform")))
                            for k in accepted]
+        solved = [SimpleNamespace(size=len(a), transform=_transform_of(raw.get("transform")),
+                                  tilt_deg=float(raw.get("tilt_deg") or 0.0) if ok else float("inf"), associations=a)
+                  for a, ok, raw in zip(hyps.associations, hyps.gravity_ok, hyps.raw["hypotheses"])]
     elif min(len(pa), len(pb)) < 3:
         # Too few landmarks for any transform: the method claims nothing (an honest zero, not an error).
         log.warning("maps have %d and %d landmarks: SOS-Match can claim nothing", len(pa), len(pb))
         hypotheses = []
         theta_s = assoc_params.min_associations
         out["accepted"] = []
+        solved = []
         out.update(search_seconds=0.0, search_seconds_runs=[0.0], curve_floor_theta_S=None, accepted_hypotheses=0,
                    window_pairs=0, note=f"maps have {len(pa)} and {len(pb)} landmarks")
     else:
@@ -195,16 +201,46 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
                                                      for k in result.accepted]
         out["accepted_hypotheses"] = 0 if result is None else len(result.accepted)
         out["window_pairs"] = 0 if result is None else result.num_window_pairs
+        solved = [] if result is None else result.hypotheses
+    verification, verified = _verify(pa, ha, pb, hb, solved, assoc_params, theta_s)
+    out["verification"] = verification
     out["num_hypotheses"] = len(hypotheses)
     out["operating_theta_S"] = int(theta_s)
     out["accepted_truth"] = [{"size": int(len(assoc)), **error_to_identity(t, pb[assoc[:, 1]])}
                              for assoc, t in out["accepted"]]
-    out["scores"] = claim_scores(hypotheses, obs_a, obs_b)
+    out["scores_windows"] = claim_scores(hypotheses, obs_a, obs_b)
+    out["scores"] = out["scores_windows"] if verified is None else claim_scores(hypotheses + [verified], obs_a, obs_b)
     out["best"] = best
     out["positions"] = (pa, pb)
     out["sizes"] = (ha, hb)
     out["observers"] = (obs_a, obs_b)
     return out
+
+
+def _verify(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, solved: Sequence[Any],
+            assoc_params: Any, theta_s: int) -> tuple[dict | None, Hypothesis | None]:
+    """The matcher's answer on the full maps: the window hypotheses verified and refined on every landmark
+    (`plugin.multisession.verify_alignments`, as `sosmatch batch` runs it). Returns its record and, when it wins
+    clearly (support >= 1.2 x any rival alignment's), the claiming hypothesis of its associations scored by their
+    number (its support), so that the theta_S sweep accepts it exactly when support > theta_S."""
+    from ..plugin.multisession import verification_candidates, verify_alignments
+
+    candidates = verification_candidates(solved, assoc_params.max_gravity_angle_deg)
+    if not candidates:
+        return None, None
+    t0 = time.perf_counter()
+    # min_support 0: the acceptance threshold theta_S is applied by the score sweep (support > theta_S)
+    ver = verify_alignments(pa, ha, pb, hb, candidates, assoc_params.distance_tolerance_m,
+                            assoc_params.max_size_difference, 0)
+    seconds = time.perf_counter() - t0
+    if ver.best is None:
+        return {"support": 0, "accepted": False, "seconds": seconds}, None
+    assoc = ver.best.associations
+    record = {"support": int(len(assoc)), "runner_up_support": int(ver.runner_up_support),
+              "clear_winner": bool(ver.accepted), "accepted": bool(ver.accepted and len(assoc) > theta_s),
+              "candidates": len(candidates), "refined": ver.num_refined, "seconds": seconds,
+              **error_to_identity(ver.best.transform, pb[assoc[:, 1]]), "associations": assoc.tolist()}
+    return record, (Hypothesis(assoc, float(len(assoc)), True) if ver.accepted else None)
 
 
 def _transform_of(data: dict | None) -> Any:
@@ -333,6 +369,9 @@ def _row(case: str, method: str, res: dict) -> dict:
         row.update(common_landmarks=truth["common"], eligible_objects=truth["eligible_objects"],
                    oracle_recall=truth["oracle_size_gated"]["recall"], limited_by=limiting_stage(row, truth))
     errors = [h["error_m"] for h in res.get("accepted_truth", []) if np.isfinite(h["error_m"])]
+    ver = res.get("verification")
+    if ver and ver.get("accepted") and np.isfinite(ver.get("error_m", np.nan)):
+        errors.append(ver["error_m"])
     if "accepted_truth" in res:
         row["accepted_max_error_m"] = max(errors) if errors else None
     return row
@@ -419,14 +458,19 @@ def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict |
         # Associations of the accepted hypotheses, drawn as rings (a right one joins two landmarks ~1 m apart,
         # invisible as a segment on a plot hundreds of metres wide); red: more than 5 m apart in the world frame
         assoc = [a for a, _ in sos.get("accepted", [])]
+        ver = sos.get("verification") or {}
+        if ver.get("accepted"):
+            assoc.append(np.asarray(ver["associations"], dtype=int).reshape(-1, 2))
         if assoc:
             pairs = np.unique(np.concatenate(assoc).reshape(-1, 2), axis=0)
             far = np.linalg.norm(pa[pairs[:, 0]] - pb[pairs[:, 1]], axis=1) > WRONG_ASSOCIATION_M
             for sel, color, label in ((~far, "limegreen", "associated"), (far, "red", "associated, wrong")):
                 if sel.any():
                     a, b = pa[pairs[sel, 0]], pb[pairs[sel, 1]]
+                    what = f"{len(sos.get('accepted', []))} accepted hypotheses" + (
+                        f" + verified alignment of {ver['support']}" if ver.get("accepted") else "")
                     ax.scatter(a[:, 0], a[:, 1], s=40, facecolors="none", edgecolors=color, lw=1.6,
-                               label=f"{label} ({int(sel.sum())}, {len(assoc)} accepted hypotheses)")
+                               label=f"{label} ({int(sel.sum())}; {what})")
                     for u, v in zip(a, b):
                         ax.plot([u[0], v[0]], [u[1], v[1]], color=color, lw=1.6)
         best = sos.get("best")
@@ -445,8 +489,8 @@ def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict |
 
 def _jsonable(res: dict) -> dict:
     c: PRCurve = res["curve"]
-    keep = {k: v for k, v in res.items() if k not in ("scores", "curve", "positions", "sizes", "observers",
-                                                      "accepted")}
+    keep = {k: v for k, v in res.items() if k not in ("scores", "scores_windows", "curve", "positions", "sizes",
+                                                      "observers", "accepted")}
     keep["summary"] = c.summary
     keep["curve"] = {"thresholds": c.thresholds.tolist(), "precision": c.precision.tolist(),
                      "recall": c.recall.tolist(), "tp": c.tp.tolist(), "fp": c.fp.tolist()}
@@ -532,8 +576,14 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
         res["curve"] = pr_curve(res["scores"], iou)
     if "sosmatch" in results:
         sos = results["sosmatch"]
-        sos["operating_point"] = operating_point(sos["curve"], sos["operating_theta_S"] + 0.5)
         sos["landmark_truth"] = _landmark_truth(params, session_a, session_b, ma, mb, sos, iou)
+        # the same search scored without the full-map verification: the window hypotheses alone (as the paper)
+        windows = {k: v for k, v in sos.items() if k not in ("scores", "curve", "verification")}
+        windows["scores"] = sos["scores_windows"]
+        windows["curve"] = pr_curve(windows["scores"], iou)
+        results["sosmatch_windows"] = windows
+        for res in (sos, windows):
+            res["operating_point"] = operating_point(res["curve"], res["operating_theta_S"] + 0.5)
     rows = [_row(case, m, res) for m, res in results.items()]
     evaluation = {
         "case": case,
