@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..plugin.errors import InputError
+from ..plugin.map_noise import MapNoise
 from .colmap_db import keypoint_sizes_px
 from .landmark_map import LandmarkMap, read_landmark_map
 
@@ -28,6 +29,30 @@ class LoadedMap:
     lmap: LandmarkMap
     kind: str  # "sosmap", "session" or "colmap"
     path: Path  # the file or model directory actually read
+    noise: MapNoise | None = None  # a mapped session's own noise figures (run.json "noise"), None if unknown
+
+
+def read_map_noise(session: Path) -> MapNoise | None:
+    """The noise figures `sosmatch map` recorded in SESSION/run.json (`plugin.map_noise`); None when the session
+    has no run.json or the run predates them. A run.json that is not JSON is an InputError naming it."""
+    import json
+
+    from .text_input import read_user_text
+
+    run_json = Path(session) / "run.json"
+    if not run_json.is_file():
+        return None
+    try:
+        data = json.loads(read_user_text(run_json, "session record"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"session record is not JSON: {exc}", run_json) from None
+    noise = data.get("noise") if isinstance(data, dict) else None
+    if not isinstance(noise, dict):
+        return None
+    try:
+        return MapNoise.from_dict(noise)
+    except (TypeError, ValueError):
+        raise InputError("session record has a malformed 'noise' entry", run_json) from None
 
 
 def _model_dir(path: Path) -> Path | None:
@@ -125,7 +150,8 @@ def load_map(path: str | Path) -> LoadedMap:
         from .session_io import check_session_usable
 
         check_session_usable(path)
-        return LoadedMap(read_landmark_map(path / "landmarks.sosmap"), "session", path / "landmarks.sosmap")
+        return LoadedMap(read_landmark_map(path / "landmarks.sosmap"), "session", path / "landmarks.sosmap",
+                         read_map_noise(path))
     model = _model_dir(path)
     if model is not None:
         return LoadedMap(read_colmap_points(model), "colmap", model)

@@ -296,6 +296,10 @@ class AssociationParams(Checked):
     # on the theta_S-core (the paper); "bounded" = a greedy clique of the highest cores bounds the answer and the
     # relaxation runs only on the part of the core that could hold a larger set (ours; never a smaller set)
     solver: str = one_of("bounded", "clipper", "bounded")
+    # (ours) derive theta_eps, sigma and theta_r from the two maps' own noise figures (`plugin.map_noise`: the
+    # per-observation residual and size spread each mapped session records in run.json) instead of the values
+    # above; maps without the figures (.sosmap files, COLMAP models) keep the values above
+    derive_from_maps: bool = flag(False)
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from sosmatch.database.cameras import write_cameras_txt
 from sosmatch.database.landmark_map import read_landmark_map
 from sosmatch.database.poses import write_poses_csv
 from sosmatch.database.session_io import read_session
+from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Camera, Poses
 from sosmatch.plugin.params import Params
 from sosmatch.tools.cli import main
@@ -96,6 +97,40 @@ def test_outputs_are_complete_and_consistent(session):
         db.close()
     line = summary.line()
     assert f"{summary.num_landmarks} landmarks" in line and "\n" not in line
+
+
+def test_map_records_its_noise_and_landmarks_find_their_objects(session, tmp_path):
+    from sosmatch.database.evaluation_io import landmark_observed_objects
+    from sosmatch.database.map_loading import load_map
+    from sosmatch.plugin.evaluation.landmark_truth import majority_objects
+    from sosmatch.plugin.geometry import project
+
+    root, objs, out, _ = session
+    noise = load_map(out).noise
+    # exact poses, flat discs at 0.075 m/px: a centroid is within a few pixels, one disc's size alike in all views
+    assert noise.ground_resolution_m == pytest.approx(60.0 / 256.0, rel=0.02)
+    assert 0 < noise.residual_m < 0.5 and 0 < noise.size_log_std < 0.2 and noise.landmarks > 10
+    # label images (object id per pixel, 0 = ground) as `sosmatch synth` writes them: each landmark is its disc
+    cam = Camera(320, 240, 256.0, 256.0, 160.0, 120.0)
+    labels = tmp_path / "labels"
+    labels.mkdir()
+    rec = pycolmap.Reconstruction(str(out / "sparse"))
+    for image in rec.images.values():
+        center = np.array([float(image.name[6:11]) * 2.0, 0.0, 60.0])
+        lab = np.zeros((240, 320), np.uint16)
+        for k, (x, y, r) in enumerate(objs):
+            uv, _ = project(cam, np.diag([1.0, -1.0, -1.0]), center, np.array([[x, y, 0.0]]))
+            cv2.circle(lab, (int(uv[0, 0]), int(uv[0, 1])), int(r * cam.fx / 60.0), k + 1, -1)
+        cv2.imwrite(str(labels / (Path(image.name).stem + ".png")), lab)
+    found = majority_objects(landmark_observed_objects(out, labels))
+    lmap = read_landmark_map(out / "landmarks.sosmap")
+    on = np.flatnonzero(found.object_ids > 0)
+    assert len(on) >= 0.8 * len(lmap) and np.median(found.purity[on]) == 1.0
+    dist = np.linalg.norm(lmap.positions[on, :2] - objs[found.object_ids[on] - 1, :2], axis=1)
+    assert np.all(dist < objs[found.object_ids[on] - 1, 2])  # inside the disc it was voted to
+    (labels / (Path(rec.images[1].name).stem + ".png")).unlink()
+    with pytest.raises(InputError, match="label image"):
+        landmark_observed_objects(out, labels)
 
 
 def test_interrupted_run_resumes_to_identical_outputs(session, tmp_path):

@@ -34,6 +34,7 @@ from ..database.outputs import fingerprint, open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import SearchMode
+from ..plugin.map_noise import derived_association_params
 from ..plugin.match_answer import MatchAnswer, match_maps
 from ..plugin.params import Params, params_to_dict
 
@@ -153,6 +154,7 @@ def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
         "params": {"association": params_to_dict(params.association),
                    "verification": params_to_dict(params.verification), "seed": params.seed},
         "search_mode": search_mode_json(params, result.answer),
+        "map_noise": [None if m.noise is None else m.noise.to_dict() for m in (result.map_a, result.map_b)],
         "transform_kind": params.association.transform,
         "transform_convention": "x_A = scale * R @ x_B + t (A_from_B, world coordinates of the maps)",
         "num_windows": [len(s.windows_a), len(s.windows_b)],
@@ -249,6 +251,9 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     la, lb = map_a.lmap, map_b.lmap
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
+    # tolerances from the maps' own noise when `association.derive_from_maps` (recorded in match.json's params)
+    params = dataclasses.replace(params, association=derived_association_params(params.association, map_a.noise,
+                                                                                map_b.noise))
     identity = fingerprint({"a": landmark_map_fingerprint(la), "b": landmark_map_fingerprint(lb),
                             "association": params_to_dict(params.association),
                             "verification": params_to_dict(params.verification), "seed": params.seed,

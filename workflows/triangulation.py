@@ -35,6 +35,7 @@ from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.landmark_filters import height_outliers
 from ..plugin.landmark_size import SIZE_ESTIMATORS, mean_size, nadir_size
+from ..plugin.map_noise import MapNoise, measure_map_noise
 from ..plugin.params import TriangulationParams
 from ..plugin.track_fusion import TrackPiece, fuse_tracks
 
@@ -56,6 +57,7 @@ class Landmarks:
     errors_px: np.ndarray  # (L,) mean reprojection error after the points-only BA
     observations: list[np.ndarray]  # per landmark: (n, 2) int (keyframe index, mask index), keyframe order
     counts: dict[str, int] = field(default_factory=dict)  # triangulated / dropped_* / kept
+    noise: MapNoise | None = None  # the map's own noise figures (`plugin.map_noise`), with centroids + covariances
     reconstruction: Any = field(default=None, repr=False)  # pycolmap.Reconstruction holding exactly these points
 
     def __len__(self) -> int:
@@ -323,6 +325,12 @@ def triangulate_landmarks(
     counts.update({f"dropped_{k}": v for k, v in drop.items()})
     counts["kept"] = len(rows)
     counts["tracks_split"] = len(rows) - len({r[0] for r in rows})
+    noise = None
+    if centroids_px is not None and covariances_px is not None:
+        obs = [r[6] for r in rows]
+        noise = measure_map_noise(pinhole, poses.rotations, poses.centers, [r[2] for r in rows], [o[:, 0] for o in obs],
+                                  [np.array([centroids_px[k][i] for k, i in o]).reshape(-1, 2) for o in obs],
+                                  [np.array([covariances_px[k][i] for k, i in o]).reshape(-1, 2, 2) for o in obs])
     return Landmarks(
         positions=np.array([r[2] for r in rows], dtype=np.float64).reshape(-1, 3),
         sizes_m=np.array([r[3] for r in rows], dtype=np.float64),
@@ -332,5 +340,6 @@ def triangulate_landmarks(
         errors_px=np.array([r[5] for r in rows], dtype=np.float64),
         observations=[r[6] for r in rows],
         counts=counts,
+        noise=noise,
         reconstruction=rec,
     )

@@ -262,6 +262,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
         "counts": counts, "quality": quality.to_dict(), "verdict": verdict_record(verdict, params.quality.refuse),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        # the map's own noise (plugin.map_noise): `sosmatch match` derives its tolerances from it
+        "noise": landmarks.noise.to_dict() if landmarks.noise is not None else None,
     }
     write_text_atomic(out.staged(RECORD), json.dumps(record, indent=2) + "\n")
     (out.path / RECORD).unlink(missing_ok=True)  # published last: present = the outputs beside it are complete

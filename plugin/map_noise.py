@@ -1,0 +1,105 @@
+"""What a landmark map measures about its own noise, and the association parameters that follow from it (ours).
+
+The search's tolerances are about noise: theta_eps / sigma about how far apart the same pair of landmarks can be in
+two maps, theta_r about how much one object's size differs between them. The paper fixes them for 0.3-0.5 m drone
+landmarks (eps 2 m, sigma 1 m, theta_r 0.2); a map from 2.5 m/px airborne imagery needs several times more
+(NAIP: eps 10 m, sigma 5 m, theta_r 0.4 were sized by hand from the truth). Both follow from quantities one map
+measures on itself, with no second map and no truth (`measure_map_noise`, written into run.json by `sosmatch map`):
+
+- `ground_resolution_m`: metres per pixel at the landmarks (median depth / f over the observations);
+- `residual_m`: the median reprojection residual of one observation, in metres on the ground (pixels x depth / f):
+  how far one segment's centroid lies from its landmark: centroid jitter of the segmenter at its working
+  resolution, pose noise, and for fused tracks the drift between passes;
+- `size_log_std`: the median over landmarks of the standard deviation of ln(size) over their observations, each
+  observation's size taken on the landmark's horizontal plane (`landmark_size.plane_covariances`): how much the
+  segment of one object changes from view to view.
+
+A landmark of another session is another draw of the same segmentation process, so its offset and its size change
+are of the order of one observation's, not of the mean's (`derived_association_params`):
+
+    sigma = residual (the larger of the two maps'),   theta_eps = 2 sigma (the paper's ratio),
+    theta_r = 1.645 sqrt(s_A^2 + s_B^2)              (90 % of two independent log-sizes differ by less)
+
+Measured (BENCHMARKS.md, "Association parameters from the maps"): synthetic 100 m maps give residual 0.9-1.0 m
+and s 0.08-0.09, i.e. sigma ~1 m, eps ~2 m, theta_r ~0.2 (the paper's values); NAIP 2.5 m/px maps give ~4-6 m and
+~0.15-0.2, i.e. the hand-sized aerial values. Windows and theta_S are left as configured.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import Camera
+from .landmark_size import plane_covariances
+from .params import AssociationParams
+
+Z_90 = 1.645  # two-sided 90 % quantile of a standard normal
+
+
+@dataclass(frozen=True)
+class MapNoise:
+    """A map's own noise figures (module doc); NaN where the map has no landmarks."""
+
+    ground_resolution_m: float
+    residual_m: float
+    size_log_std: float
+    landmarks: int
+
+    def to_dict(self) -> dict:
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> MapNoise:
+        def num(key: str) -> float:
+            value = data.get(key)
+            return float("nan") if value is None else float(value)
+
+        return cls(num("ground_resolution_m"), num("residual_m"), num("size_log_std"), int(data.get("landmarks", 0)))
+
+    @property
+    def usable(self) -> bool:
+        return self.landmarks > 0 and all(math.isfinite(v) and v > 0 for v in (self.residual_m, self.size_log_std))
+
+
+def measure_map_noise(camera: Camera, rotations_wc: np.ndarray, centers: np.ndarray, points: np.ndarray,
+                      observations: list[np.ndarray], pixels: list[np.ndarray],
+                      covariances_px: list[np.ndarray]) -> MapNoise:
+    """The noise figures of a map: per landmark i, its point, observing keyframes `observations[i]` (n,) (indices
+    into rotations_wc / centers, world_from_camera), the observed pixels (n, 2) and mask covariances (n, 2, 2)
+    (pixels of the pinhole `camera`)."""
+    gsd, residual, spread = [], [], []
+    r_cw = np.transpose(np.asarray(rotations_wc, np.float64), (0, 2, 1))
+    f = float(np.sqrt(camera.fx * camera.fy))
+    for point, kf, px, cov in zip(points, observations, pixels, covariances_px):
+        kf = np.asarray(kf, np.int64)
+        p = np.einsum("nij,nj->ni", r_cw[kf], np.asarray(point, np.float64)[None] - centers[kf])
+        depth = p[:, 2]
+        uv = np.stack([camera.fx * p[:, 0] / depth + camera.cx, camera.fy * p[:, 1] / depth + camera.cy], 1)
+        gsd.append(depth / f)
+        residual.append(np.linalg.norm(uv - np.asarray(px, np.float64), axis=1) * depth / f)
+        plane = plane_covariances(camera, np.asarray(rotations_wc)[kf], centers[kf], point, cov)
+        h = np.sqrt(np.maximum(np.linalg.eigvalsh(plane)[:, 1], 1e-12))
+        if len(h) >= 2:
+            spread.append(float(np.std(np.log(h))))
+    if not gsd:
+        return MapNoise(float("nan"), float("nan"), float("nan"), 0)
+    return MapNoise(float(np.median(np.concatenate(gsd))), float(np.median(np.concatenate(residual))),
+                    float(np.median(spread)) if spread else float("nan"), len(gsd))
+
+
+def derived_association_params(base: AssociationParams, noise_a: MapNoise | None,
+                               noise_b: MapNoise | None) -> AssociationParams:
+    """The association parameters for two maps: with `base.derive_from_maps`, theta_eps, sigma and theta_r
+    derived from the maps' noise (module doc); otherwise, or when either map has no usable noise figures (a bare
+    .sosmap, a COLMAP model, an empty map), `base` unchanged. One function for every consumer (match, evaluate)."""
+    if not base.derive_from_maps or noise_a is None or noise_b is None or not (noise_a.usable and noise_b.usable):
+        return base
+    sigma = max(noise_a.residual_m, noise_b.residual_m)
+    theta_r = Z_90 * math.hypot(noise_a.size_log_std, noise_b.size_log_std)
+    return dataclasses.replace(base, affinity_sigma_m=round(sigma, 2), distance_tolerance_m=round(2.0 * sigma, 2),
+                               max_size_difference=round(theta_r, 3))
