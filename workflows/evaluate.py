@@ -38,6 +38,7 @@ from ..database.atomic import atomic_path, write_text_atomic
 from ..database.cameras import read_cameras_txt
 from ..database.evaluation_io import read_landmark_table, read_match_hypotheses, terrain_of_session
 from ..database.landmark_map import LandmarkMap, read_landmark_map
+from ..database.map_loading import read_map_noise
 from ..database.match_io import check_match_maps
 from ..database.outputs import fingerprint, open_output_dir
 from ..database.poses import read_poses_csv
@@ -48,6 +49,7 @@ from ..plugin.evaluation.footprints import footprint_polygons
 from ..plugin.evaluation.iou import iou_matrix
 from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
 from ..plugin.keyframes import select_keyframes
+from ..plugin.map_noise import derived_association_params
 from ..plugin.params import Params, params_to_dict
 
 log = logging.getLogger(__name__)
@@ -135,8 +137,11 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
     pb, hb, bytes_b, lmap_b = _map_arrays(map_b)
     if obs_a.shape[0] != len(pa) or obs_b.shape[0] != len(pb):
         raise InputError("landmarks.csv and landmarks.sosmap disagree on the number of landmarks", map_a)
-    assoc_params = params.association
-    out: dict[str, Any] = {"map_bytes": [bytes_a, bytes_b], "landmarks": [len(pa), len(pb)]}
+    noise = [read_map_noise(m) for m in (map_a, map_b)]
+    assoc_params = derived_association_params(params.association, *noise)  # as `sosmatch match` does
+    out: dict[str, Any] = {"map_bytes": [bytes_a, bytes_b], "landmarks": [len(pa), len(pb)],
+                           "association": params_to_dict(assoc_params),
+                           "map_noise": [None if n is None else n.to_dict() for n in noise]}
     best = None
     if match_dir is not None:
         hyps = read_match_hypotheses(match_dir, assoc_params.max_gravity_angle_deg)
@@ -202,14 +207,23 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         out["accepted_hypotheses"] = 0 if result is None else len(result.accepted)
         out["window_pairs"] = 0 if result is None else result.num_window_pairs
         solved = [] if result is None else result.hypotheses
-    verification, verified = _verify(pa, ha, pb, hb, solved, assoc_params, theta_s)
+    verification, verified, winner = _verify(pa, ha, pb, hb, solved, assoc_params, theta_s)
     out["verification"] = verification
     out["num_hypotheses"] = len(hypotheses)
     out["operating_theta_S"] = int(theta_s)
     out["accepted_truth"] = [{"size": int(len(assoc)), **error_to_identity(t, pb[assoc[:, 1]])}
                              for assoc, t in out["accepted"]]
     out["scores_windows"] = claim_scores(hypotheses, obs_a, obs_b)
-    out["scores"] = out["scores_windows"] if verified is None else claim_scores(hypotheses + [verified], obs_a, obs_b)
+    if verified is None:
+        out["scores"] = out["scores_windows"]
+    else:  # the matcher's answer: the verified alignment and the window hypotheses that agree with it
+        tol = 2.0 * assoc_params.distance_tolerance_m
+        agreeing = [h for h in hypotheses if _agrees(h.associations, winner, pa, pb, tol)]
+        for entry, (assoc, _) in zip(out["accepted_truth"], out["accepted"]):
+            entry["agrees_with_verified"] = _agrees(assoc, winner, pa, pb, tol)
+        out["scores"] = claim_scores(agreeing + [verified], obs_a, obs_b)
+        verification["window_hypotheses_agreeing"] = len(agreeing)
+        verification["window_hypotheses_dropped"] = int(sum(h.valid for h in hypotheses)) - len(agreeing)
     out["best"] = best
     out["positions"] = (pa, pb)
     out["sizes"] = (ha, hb)
@@ -217,30 +231,43 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
     return out
 
 
+def _agrees(associations: np.ndarray, transform: Any, pa: np.ndarray, pb: np.ndarray, tolerance_m: float) -> bool:
+    """A window hypothesis agrees with an alignment when most of its associations fit it: the median distance
+    between an associated A landmark and its B partner moved by the alignment is within `tolerance_m`."""
+    assoc = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
+    if not len(assoc):
+        return False
+    return bool(np.median(np.linalg.norm(transform.apply(pb[assoc[:, 1]]) - pa[assoc[:, 0]], axis=1)) <= tolerance_m)
+
+
 def _verify(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, solved: Sequence[Any],
-            assoc_params: Any, theta_s: int) -> tuple[dict | None, Hypothesis | None]:
+            assoc_params: Any, theta_s: int) -> tuple[dict | None, Hypothesis | None, Any]:
     """The matcher's answer on the full maps: the window hypotheses verified and refined on every landmark
     (`plugin.multisession.verify_alignments`, as `sosmatch batch` runs it). Returns its record and, when it wins
     clearly (support >= 1.2 x any rival alignment's), the claiming hypothesis of its associations scored by their
-    number (its support), so that the theta_S sweep accepts it exactly when support > theta_S."""
+    number (its support), so that the theta_S sweep accepts it exactly when support > theta_S, and its
+    transform (None without a clear winner)."""
     from ..plugin.multisession import verification_candidates, verify_alignments
 
     candidates = verification_candidates(solved, assoc_params.max_gravity_angle_deg)
     if not candidates:
-        return None, None
+        return None, None, None
     t0 = time.perf_counter()
     # min_support 0: the acceptance threshold theta_S is applied by the score sweep (support > theta_S)
     ver = verify_alignments(pa, ha, pb, hb, candidates, assoc_params.distance_tolerance_m,
                             assoc_params.max_size_difference, 0)
     seconds = time.perf_counter() - t0
     if ver.best is None:
-        return {"support": 0, "accepted": False, "seconds": seconds}, None
+        return {"support": 0, "accepted": False, "seconds": seconds}, None, None
     assoc = ver.best.associations
     record = {"support": int(len(assoc)), "runner_up_support": int(ver.runner_up_support),
+              "transform": ver.best.transform.to_dict(),
               "clear_winner": bool(ver.accepted), "accepted": bool(ver.accepted and len(assoc) > theta_s),
               "candidates": len(candidates), "refined": ver.num_refined, "seconds": seconds,
               **error_to_identity(ver.best.transform, pb[assoc[:, 1]]), "associations": assoc.tolist()}
-    return record, (Hypothesis(assoc, float(len(assoc)), True) if ver.accepted else None)
+    if not ver.accepted:
+        return record, None, None
+    return record, Hypothesis(assoc, float(len(assoc)), True), ver.best.transform
 
 
 def _transform_of(data: dict | None) -> Any:
@@ -307,7 +334,7 @@ def _landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Pat
     objs = [majority_objects(landmark_observed_objects(m, s.path / "labels")) for s, m in zip(synth, (map_a, map_b))]
     (pa, pb), (ha, hb) = sos["positions"], sos["sizes"]
     common = common_landmarks(objs[0], objs[1], pa, pb, ha, hb, eligible, kind_of)
-    theta_r = params.association.max_size_difference
+    theta_r = sos["association"]["max_size_difference"]  # the gate the search used (possibly derived)
     out = common.summary(theta_r)
     from ..plugin.association.windowed_search import size_ratio
 
@@ -368,9 +395,13 @@ def _row(case: str, method: str, res: dict) -> dict:
     if truth is not None:
         row.update(common_landmarks=truth["common"], eligible_objects=truth["eligible_objects"],
                    oracle_recall=truth["oracle_size_gated"]["recall"], limited_by=limiting_stage(row, truth))
-    errors = [h["error_m"] for h in res.get("accepted_truth", []) if np.isfinite(h["error_m"])]
-    ver = res.get("verification")
-    if ver and ver.get("accepted") and np.isfinite(ver.get("error_m", np.nan)):
+    # the worst accepted answer: the verified alignment and the window hypotheses that agree with it, or without
+    # a verified alignment (the windows-only row) every accepted window hypothesis
+    ver = res.get("verification") or {}
+    verified = bool(ver.get("clear_winner"))
+    errors = [h["error_m"] for h in res.get("accepted_truth", [])
+              if np.isfinite(h["error_m"]) and (not verified or h.get("agrees_with_verified"))]
+    if ver.get("accepted") and np.isfinite(ver.get("error_m", np.nan)):
         errors.append(ver["error_m"])
     if "accepted_truth" in res:
         row["accepted_max_error_m"] = max(errors) if errors else None
@@ -438,7 +469,7 @@ def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict |
     import matplotlib.pyplot as plt
     import shapely
 
-    fig, ax = plt.subplots(figsize=(6.5, 6), dpi=110)
+    fig, ax = plt.subplots(figsize=(9.5, 6), dpi=110)
     for gt, color, label in ((gt_a, "tab:blue", "A"), (gt_b, "tab:orange", "B")):
         step = max(1, len(gt.footprints) // 40)
         for poly in gt.footprints[::step]:
@@ -480,7 +511,7 @@ def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict |
                        label=f"the match's answer ({best.get('answer', 'best hypothesis')}): {len(ab)} associations")
     ax.set_aspect("equal")
     ax.set(xlabel="x (m)", ylabel="y (m)", title=title)
-    ax.legend(loc="best", fontsize=7)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7)  # beside the map, not on it
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
