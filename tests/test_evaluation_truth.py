@@ -62,3 +62,24 @@ def test_operating_point_takes_the_claims_above_the_threshold():
     op = operating_point(c, 6)  # one false claim joins
     assert op["precision"] == pytest.approx(2 / 3) and op["tp"] == 2 and op["fp"] == 1
     assert operating_point(c, 10)["recall"] == 0.0 and operating_point(c, 10)["precision"] == 1.0
+
+
+def test_overlap_test_claims_only_cameras_the_association_places_close():
+    from sosmatch.plugin.evaluation.claims import Hypothesis, claim_scores, observer_geometry, separation_ratio
+
+    # one landmark per map at the origin, seen by three keyframes each: cameras 100 m up at x = -50, 0, +50
+    centers = np.array([[-50.0, 0, 100], [0.0, 0, 100], [50.0, 0, 100]])
+    obs = observer_matrix([[0, 1, 2]], 3)
+    landmark = np.zeros((1, 3))
+    geo = observer_geometry(obs, landmark, centers)
+    ratio = separation_ratio(640, 480, 500.0)  # 0.8 x 480 / 500: cameras up to 76.8 m apart at 100 m
+    assert ratio == pytest.approx(0.768)
+    hyp = [Hypothesis(np.array([[0, 0]]), 7.0)]
+    plain = claim_scores(hyp, obs, obs)
+    assert np.isfinite(plain).all()  # the old rule: all 9 observer pairs
+    got = claim_scores(hyp, obs, obs, (geo, geo, ratio))
+    assert np.isfinite(got).tolist() == [[True, True, False], [True, True, True], [False, True, True]]  # 100 m apart
+    # B's frame turned by 180 degrees: its observer at +50 is where A's at -50 is (the hypothesis' rotation)
+    turn = np.diag([-1.0, -1.0, 1.0])
+    got = claim_scores([Hypothesis(np.array([[0, 0]]), 7.0, True, turn)], obs, obs, (geo, geo, ratio))
+    assert np.isfinite(got).tolist() == [[False, True, True], [True, True, True], [True, True, False]]

@@ -44,7 +44,13 @@ from ..database.outputs import fingerprint, open_output_dir
 from ..database.poses import read_poses_csv
 from ..database.session_io import check_map_of_images
 from ..plugin.errors import InputError
-from ..plugin.evaluation.claims import Hypothesis, claim_scores, observer_matrix
+from ..plugin.evaluation.claims import (
+    Hypothesis,
+    claim_scores,
+    observer_geometry,
+    observer_matrix,
+    separation_ratio,
+)
 from ..plugin.evaluation.footprints import footprint_polygons
 from ..plugin.evaluation.iou import iou_matrix
 from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
@@ -71,6 +77,7 @@ class GroundTruthSession:
     all_names: list[str]
     all_centers: np.ndarray
     footprints: np.ndarray  # (K,) shapely polygons
+    camera: Any = None  # the session's camera (cameras.txt)
 
 
 def load_ground_truth(params: Params, session: str | Path, dem: str | Path | None = None,
@@ -86,7 +93,7 @@ def load_ground_truth(params: Params, session: str | Path, dem: str | Path | Non
     terrain = terrain_of_session(session, dem, ground_height)
     polys = footprint_polygons(camera, poses.rotations[keys], poses.centers[keys], terrain)
     return GroundTruthSession(session, [poses.names[k] for k in keys], keys, poses.centers[keys],
-                              list(poses.names), poses.centers, polys)
+                              list(poses.names), poses.centers, polys, camera)
 
 
 def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path) -> np.ndarray:
@@ -104,6 +111,23 @@ def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path
     idx = np.fromiter((row[n] for n in names), dtype=np.int64, count=len(names))
     _, kf = cKDTree(gt.centers).query(gt.all_centers[idx]) if len(idx) else (None, np.zeros(0, np.int64))
     return np.asarray(kf, dtype=np.int64)
+
+
+def _map_frame_centers(gt: GroundTruthSession, map_dir: Path) -> np.ndarray:
+    """The evaluation keyframes' camera centres in the frame of the map (the poses it was built on, as run.json
+    records them: a synthetic session's EKF poses); the ground-truth centres when that pose file is unknown."""
+    run_json = map_dir / "run.json"
+    try:
+        source = Path(json.loads(run_json.read_text(encoding="utf-8"))["inputs"]["poses"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return gt.centers
+    if source.suffix != ".csv" or not source.is_file():
+        return gt.centers
+    poses, _ = read_poses_csv(source)
+    row = {n: i for i, n in enumerate(poses.names)}
+    if not all(n in row for n in gt.names):
+        return gt.centers
+    return poses.centers[[row[n] for n in gt.names]]
 
 
 def _observers(gt: GroundTruthSession, map_dir: Path, max_observers: int | None) -> tuple[Any, Any]:
@@ -127,7 +151,8 @@ def _map_arrays(map_dir: Path) -> tuple[np.ndarray, np.ndarray, int, LandmarkMap
 
 
 def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSession, map_a: Path, map_b: Path,
-                  match_dir: Path | None, sweep_floor: int | None, repeats: int, max_observers: int | None) -> dict:
+                  match_dir: Path | None, sweep_floor: int | None, repeats: int, max_observers: int | None,
+                  separation: float | None = None) -> dict:
     from ..plugin.association.windowed_search import search
     from ..plugin.match_answer import match_maps
 
@@ -150,8 +175,8 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
             raise InputError("scoring a match file needs both maps' landmarks.sosmap (to check that the match is "
                              "about them)", map_a if lmap_a is None else map_b)
         check_match_maps(hyps.match, lmap_a, lmap_b, match_json, names=(str(map_a), str(map_b)))
-        hypotheses = [Hypothesis(a, float(s), bool(ok)) for a, s, ok in zip(hyps.associations, hyps.sizes,
-                                                                           hyps.gravity_ok)]
+        hypotheses = [Hypothesis(a, float(s), bool(ok), None if h.transform is None else h.transform.rotation)
+                      for a, s, ok, h in zip(hyps.associations, hyps.sizes, hyps.gravity_ok, hyps.match.hypotheses)]
         out["search_seconds"] = hyps.seconds
         out["search_seconds_runs"] = [hyps.seconds]
         out["curve_floor_theta_S"] = hyps.min_associations
@@ -160,11 +185,11 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
                     "transform": hyps.match.transform.matrix().tolist(), "answer": hyps.match.source}
         accepted = np.flatnonzero(hyps.accepted)
         theta_s = hyps.min_associations if hyps.min_associations is not None else assoc_params.min_associations
-        out["accepted"] = [(hyps.associations[k], _transform_of(hyps.raw["hypotheses"][k].get("transform")))
-                           for k in accepted]
-        solved = [SimpleNamespace(size=len(a), transform=_transform_of(raw.get("transform")),
-                                  tilt_deg=float(raw.get("tilt_deg") or 0.0) if ok else float("inf"), associations=a)
-                  for a, ok, raw in zip(hyps.associations, hyps.gravity_ok, hyps.raw["hypotheses"])]
+        out["accepted"] = [(hyps.associations[k], hyps.match.hypotheses[k].transform) for k in accepted]
+        # the gravity check as read: a hypothesis that failed it gets an infinite tilt, so it is no candidate
+        solved = [SimpleNamespace(size=len(a), transform=h.transform, tilt_deg=0.0 if ok else float("inf"),
+                                  associations=a)
+                  for a, ok, h in zip(hyps.associations, hyps.gravity_ok, hyps.match.hypotheses)]
     elif min(len(pa), len(pb)) < 3:
         # Too few landmarks for any transform: the method claims nothing (an honest zero, not an error).
         log.warning("maps have %d and %d landmarks: SOS-Match can claim nothing", len(pa), len(pb))
@@ -195,7 +220,8 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         out["curve_floor_theta_S"] = floor
         hypotheses = [
             Hypothesis(h.associations, float(h.size),
-                       h.transform is not None and bool(h.tilt_deg <= assoc_params.max_gravity_angle_deg))
+                       h.transform is not None and bool(h.tilt_deg <= assoc_params.max_gravity_angle_deg),
+                       None if h.transform is None else h.transform.rotation)
             for h in sweep.hypotheses
         ]
         if answer.accepted:
@@ -213,7 +239,12 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
     out["operating_theta_S"] = int(theta_s)
     out["accepted_truth"] = [{"size": int(len(assoc)), **error_to_identity(t, pb[assoc[:, 1]])}
                              for assoc, t in out["accepted"]]
-    out["scores_windows"] = claim_scores(hypotheses, obs_a, obs_b)
+    geometry = None
+    if separation is not None:
+        geometry = (observer_geometry(obs_a, pa, _map_frame_centers(gt_a, map_a)),
+                    observer_geometry(obs_b, pb, _map_frame_centers(gt_b, map_b)), separation)
+    out["geometry"] = geometry
+    out["scores_windows"] = claim_scores(hypotheses, obs_a, obs_b, geometry)
     if verified is None:
         out["scores"] = out["scores_windows"]
     else:  # the matcher's answer: the verified alignment and the window hypotheses that agree with it
@@ -221,7 +252,7 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         agreeing = [h for h in hypotheses if _agrees(h.associations, winner, pa, pb, tol)]
         for entry, (assoc, _) in zip(out["accepted_truth"], out["accepted"]):
             entry["agrees_with_verified"] = _agrees(assoc, winner, pa, pb, tol)
-        out["scores"] = claim_scores(agreeing + [verified], obs_a, obs_b)
+        out["scores"] = claim_scores(agreeing + [verified], obs_a, obs_b, geometry)
         verification["window_hypotheses_agreeing"] = len(agreeing)
         verification["window_hypotheses_dropped"] = int(sum(h.valid for h in hypotheses)) - len(agreeing)
     out["best"] = best
@@ -267,17 +298,7 @@ def _verify(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, solv
               **error_to_identity(ver.best.transform, pb[assoc[:, 1]]), "associations": assoc.tolist()}
     if not ver.accepted:
         return record, None, None
-    return record, Hypothesis(assoc, float(len(assoc)), True), ver.best.transform
-
-
-def _transform_of(data: dict | None) -> Any:
-    """A match.json transform (rotation, translation, scale) as an association Transform, None if absent."""
-    from ..plugin.association.rigid import Transform
-
-    if not data:
-        return None
-    return Transform(np.asarray(data["rotation"], np.float64).reshape(3, 3),
-                     np.asarray(data["translation"], np.float64).reshape(3), float(data.get("scale", 1.0)))
+    return record, Hypothesis(assoc, float(len(assoc)), True, ver.best.transform.rotation), ver.best.transform
 
 
 def error_to_identity(transform: Any, points_b: np.ndarray) -> dict:
@@ -340,8 +361,8 @@ def _landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Pat
 
     gated = common.pairs[size_ratio(common.sizes[:, 0], common.sizes[:, 1]) <= theta_r] if len(common.pairs) else \
         common.pairs
-    out["oracle"] = oracle_recall(common.pairs, sos["observers"][0], sos["observers"][1], iou)
-    out["oracle_size_gated"] = oracle_recall(gated, sos["observers"][0], sos["observers"][1], iou)
+    out["oracle"] = oracle_recall(common.pairs, sos["observers"][0], sos["observers"][1], iou, sos.get("geometry"))
+    out["oracle_size_gated"] = oracle_recall(gated, sos["observers"][0], sos["observers"][1], iou, sos.get("geometry"))
     out["eligible_by_kind"] = count_by([kind_of[int(o)] for o in eligible])
     out["mapped_a_by_kind"] = count_by([kind_of[int(o)] for o in common.mapped_a])
     out["mapped_b_by_kind"] = count_by([kind_of[int(o)] for o in common.mapped_b])
@@ -521,7 +542,7 @@ def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict |
 def _jsonable(res: dict) -> dict:
     c: PRCurve = res["curve"]
     keep = {k: v for k, v in res.items() if k not in ("scores", "scores_windows", "curve", "positions", "sizes",
-                                                      "observers", "accepted")}
+                                                      "observers", "accepted", "geometry")}
     keep["summary"] = c.summary
     keep["curve"] = {"thresholds": c.thresholds.tolist(), "precision": c.precision.tolist(),
                      "recall": c.recall.tolist(), "tp": c.tp.tolist(), "fp": c.fp.tolist()}
@@ -533,7 +554,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         map_a: str | Path | None = None, map_b: str | Path | None = None, match_dir: str | Path | None = None,
         methods: Sequence[str] = METHODS, case: str | None = None, dem: str | Path | None = None,
         ground_height: float = 0.0, sweep_floor: int | None = None, repeats: int = 3, max_observers: int | None = None,
-        baseline_threads: int = 0, overwrite: bool = False) -> dict:
+        overlap_test: bool = True, baseline_threads: int = 0, overwrite: bool = False) -> dict:
     """Evaluate SOS-Match and the baselines on one session pair; returns the evaluation dict (also written).
 
     Args:
@@ -551,6 +572,8 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
             timed search's own hypotheses; lower values extend the curve but can cost many times the search);
             repeats: timing repeats of our search.
         max_observers: per landmark, keep only this many observers (nearest) when forming claims.
+        overlap_test: an association claims only the observer pairs it places close enough to overlap
+            (`plugin.evaluation.claims`, ObserverGeometry); False: every observer pair (the earlier rule).
         baseline_threads: worker threads of the baselines over keyframe pairs (0: one per core).
         overwrite: replace a complete evaluation of other inputs or settings in `out_dir` (taken through
             `sosmatch.database.outputs`).
@@ -594,8 +617,10 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
             if not (m / "landmarks.csv").exists():
                 raise InputError("not a mapped session (no landmarks.csv); run `sosmatch map` first", m)
             check_map_of_images(m, session / "images")
+        cam = gt_a.camera
+        separation = separation_ratio(cam.width, cam.height, float(np.sqrt(cam.fx * cam.fy))) if overlap_test else None
         results["sosmatch"] = _run_sosmatch(params, gt_a, gt_b, ma, mb, Path(match_dir) if match_dir else None,
-                                            sweep_floor, repeats, max_observers)
+                                            sweep_floor, repeats, max_observers, separation)
     baselines = [m for m in methods if m != "sosmatch"]
     if baselines:
         images_a, images_b = _load_images(gt_a, session_a / "images"), _load_images(gt_b, session_b / "images")

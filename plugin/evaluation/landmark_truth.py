@@ -134,17 +134,19 @@ def eligible_objects(present_a: np.ndarray, present_b: np.ndarray, seen_a: dict[
     return np.asarray(ok, dtype=np.int64)
 
 
-def oracle_recall(pairs: np.ndarray, observers_a: object, observers_b: object, iou: np.ndarray) -> dict:
+def oracle_recall(pairs: np.ndarray, observers_a: object, observers_b: object, iou: np.ndarray,
+                  geometry: tuple | None = None) -> dict:
     """Precision and recall of one hypothesis holding `pairs` (all of them right), scored like the search's.
 
-    The ceiling the search can reach on these maps: every keyframe pair the common landmarks can vouch for."""
+    The ceiling the search can reach on these maps: every keyframe pair the common landmarks can vouch for
+    (`geometry`: the same overlap test as the search's claims, `claims.claim_scores`)."""
     from .claims import Hypothesis, claim_scores
     from .metrics import pr_curve
 
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if len(pairs) == 0:
         return {"associations": 0, "recall": 0.0, "precision": 1.0}
-    scores = claim_scores([Hypothesis(pairs, float(len(pairs)))], observers_a, observers_b)
+    scores = claim_scores([Hypothesis(pairs, float(len(pairs)))], observers_a, observers_b, geometry)
     curve = pr_curve(scores, iou)
     return {"associations": int(len(pairs)), "recall": float(curve.recall[-1]) if len(curve.recall) else 0.0,
             "precision": float(curve.precision[-1]) if len(curve.precision) else 1.0}

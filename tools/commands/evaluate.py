@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "configured theta_S; lower extends the curve at a much higher cost)")
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats of the search (median)")
     parser.add_argument("--max-observers", type=int, help="claims use only the N observers nearest each landmark")
+    parser.add_argument("--no-overlap-test", action="store_true",
+                        help="an association claims every pair of its observers, also pairs it places too far apart "
+                             "to overlap (the earlier rule)")
     parser.add_argument("--baseline-threads", type=int, default=0,
                         help="worker threads of the baselines (0: one per core)")
     parser.add_argument("--overwrite", action="store_true",
@@ -46,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         methods=[m.strip() for m in args.methods.split(",") if m.strip()], case=args.case, dem=args.dem,
         ground_height=args.ground_height, sweep_floor=args.sweep_floor, repeats=args.repeats,
         max_observers=args.max_observers, baseline_threads=args.baseline_threads,
-        overwrite=args.overwrite,
+        overwrite=args.overwrite, overlap_test=not args.no_overlap_test,
     )
     print((Path(args.out) / "evaluation.md").read_text(encoding="utf-8"), end="")
     return 0 if result["rows"] is not None else 1
