@@ -14,15 +14,21 @@ measures on itself, with no second map and no truth (`measure_map_noise`, writte
   observation's size taken on the landmark's horizontal plane (`landmark_size.plane_covariances`): how much the
   segment of one object changes from view to view.
 
-A landmark of another session is another draw of the same segmentation process, so its offset and its size change
-are of the order of one observation's, not of the mean's (`derived_association_params`):
+A landmark of another session is another draw of the same segmentation process, of an object that may have
+changed meanwhile (season, water level, growth), so two maps disagree by more than one observation scatters. How
+much more was measured on the synthetic cross-season pairs of the tuning worlds 5 and 11 (summer-winter on the
+same path, crossing at 90 degrees, at 130 m, spring-autumn: BENCHMARKS.md, "Association parameters from the
+maps"): the pairwise distance mismatch of common landmarks reaches 2.0-4.6 x the per-observation residual at its
+90th percentile (median 2.7), their size difference r reaches 1.5-3.3 x sqrt(s_A^2 + s_B^2) at its 80th (median
+2.2). Hence (`derived_association_params`):
 
-    sigma = residual (the larger of the two maps'),   theta_eps = 2 sigma (the paper's ratio),
-    theta_r = 1.645 sqrt(s_A^2 + s_B^2)              (90 % of two independent log-sizes differ by less)
+    sigma = 1.5 residual (the larger of the two maps'),   theta_eps = 2 sigma (the paper's ratio) = 3 residual,
+    theta_r = 3 sqrt(s_A^2 + s_B^2)
 
-Measured (BENCHMARKS.md, "Association parameters from the maps"): synthetic 100 m maps give residual 0.9-1.0 m
-and s 0.08-0.09, i.e. sigma ~1 m, eps ~2 m, theta_r ~0.2 (the paper's values); NAIP 2.5 m/px maps give ~4-6 m and
-~0.15-0.2, i.e. the hand-sized aerial values. Windows and theta_S are left as configured.
+On the 100 m synthetic maps (residual 0.9-1.0 m, s 0.08-0.09) this gives eps ~2.8 m, sigma ~1.4 m, theta_r
+~0.35; at 130 m eps ~4 m; on the NAIP 2.5 m/px maps (residual 3.3-3.4 m, s 0.065) eps ~10 m, sigma ~5 m, theta_r
+~0.28: the hand-sized aerial preset's tolerances, from the maps alone. Windows and theta_S are left as
+configured.
 """
 
 from __future__ import annotations
@@ -37,7 +43,8 @@ from .geometry import Camera
 from .landmark_size import plane_covariances
 from .params import AssociationParams
 
-Z_90 = 1.645  # two-sided 90 % quantile of a standard normal
+SIGMA_PER_RESIDUAL = 1.5  # sigma of the affinity per metre of per-observation residual (eps = 2 sigma)
+SIZE_GATE_PER_SPREAD = 3.0  # theta_r per unit of sqrt(s_A^2 + s_B^2)
 
 
 @dataclass(frozen=True)
@@ -99,7 +106,7 @@ def derived_association_params(base: AssociationParams, noise_a: MapNoise | None
     .sosmap, a COLMAP model, an empty map), `base` unchanged. One function for every consumer (match, evaluate)."""
     if not base.derive_from_maps or noise_a is None or noise_b is None or not (noise_a.usable and noise_b.usable):
         return base
-    sigma = max(noise_a.residual_m, noise_b.residual_m)
-    theta_r = Z_90 * math.hypot(noise_a.size_log_std, noise_b.size_log_std)
+    sigma = SIGMA_PER_RESIDUAL * max(noise_a.residual_m, noise_b.residual_m)
+    theta_r = SIZE_GATE_PER_SPREAD * math.hypot(noise_a.size_log_std, noise_b.size_log_std)
     return dataclasses.replace(base, affinity_sigma_m=round(sigma, 2), distance_tolerance_m=round(2.0 * sigma, 2),
                                max_size_difference=round(theta_r, 3))

@@ -47,8 +47,8 @@ def test_derived_tolerances_and_when_they_apply():
     a = MapNoise(0.2, 0.9, 0.08, 300)
     b = MapNoise(0.2, 1.1, 0.09, 200)
     got = derived_association_params(base, a, b)
-    assert got.affinity_sigma_m == pytest.approx(1.1) and got.distance_tolerance_m == pytest.approx(2.2)
-    assert got.max_size_difference == pytest.approx(1.645 * np.hypot(0.08, 0.09), abs=1e-3)
+    assert got.affinity_sigma_m == pytest.approx(1.65) and got.distance_tolerance_m == pytest.approx(3.3)
+    assert got.max_size_difference == pytest.approx(3.0 * np.hypot(0.08, 0.09), abs=1e-3)
     assert (got.window_length, got.min_associations) == (base.window_length, base.min_associations)
     # off, or a map without figures (a .sosmap file, an empty map): the configured values
     off = dataclasses.replace(base, derive_from_maps=False)

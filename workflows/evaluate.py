@@ -357,7 +357,7 @@ def _landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Pat
     common = common_landmarks(objs[0], objs[1], pa, pb, ha, hb, eligible, kind_of)
     theta_r = sos["association"]["max_size_difference"]  # the gate the search used (possibly derived)
     out = common.summary(theta_r)
-    from ..plugin.association.windowed_search import size_ratio
+    from ..plugin.association.gates import size_ratio
 
     gated = common.pairs[size_ratio(common.sizes[:, 0], common.sizes[:, 1]) <= theta_r] if len(common.pairs) else \
         common.pairs
@@ -587,11 +587,11 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     identity = fingerprint({"inputs": [None if p is None else str(Path(p).resolve()) for p in inputs],
                             "params": params_to_dict(params), "methods": list(methods), "case": case,
                             "ground_height": ground_height, "sweep_floor": sweep_floor, "repeats": repeats,
-                            "max_observers": max_observers})
+                            "max_observers": max_observers, "overlap_test": overlap_test})
     with open_output_dir(out_dir, "evaluate", identity, inputs=inputs, overwrite=overwrite,
                          legacy_record="evaluation.json") as taken:
         evaluation = _evaluate(params, session_a, session_b, out_dir, map_a, map_b, match_dir, methods, case, dem,
-                               ground_height, sweep_floor, repeats, max_observers, baseline_threads)
+                               ground_height, sweep_floor, repeats, max_observers, baseline_threads, overlap_test)
         taken.finish()
     return evaluation
 
@@ -599,7 +599,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
 def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, map_a: str | Path | None,
               map_b: str | Path | None, match_dir: str | Path | None, methods: Sequence[str], case: str,
               dem: str | Path | None, ground_height: float, sweep_floor: int | None, repeats: int,
-              max_observers: int | None, baseline_threads: int) -> dict:
+              max_observers: int | None, baseline_threads: int, overlap_test: bool = True) -> dict:
     """`run` inside its taken output directory."""
     from ..tools.baselines.base import BaselineConfig
 

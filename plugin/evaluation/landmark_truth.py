@@ -69,7 +69,7 @@ class CommonLandmarks:
 
     def summary(self, theta_r: float) -> dict:
         """Counts, the size-ratio quartiles and the share inside the size gate theta_r (JSON-friendly)."""
-        from ..association.windowed_search import size_ratio
+        from ..association.gates import size_ratio
 
         r = size_ratio(self.sizes[:, 0], self.sizes[:, 1]) if len(self.pairs) else np.zeros(0)
         ratio = self.ratio[np.isfinite(self.ratio)]
