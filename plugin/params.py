@@ -296,6 +296,12 @@ class AssociationParams(Checked):
     # on the theta_S-core (the paper); "bounded" = a greedy clique of the highest cores bounds the answer and the
     # relaxation runs only on the part of the core that could hold a larger set (ours; never a smaller set)
     solver: str = one_of("bounded", "clipper", "bounded")
+    # (ours) the size gate of the full-map verification (`plugin.multisession.verify_alignments`, run by batch and
+    # scored by evaluate): r of the mutual nearest neighbours that support an alignment. Across seasons one object's
+    # sizes differ by r 0.12 (median) / 0.3-0.4 (80th percentile) between two maps (tuning worlds 5, 11); inside an
+    # alignment the positions already single out the partner, so this gate follows that spread while the search's
+    # theta_r, where a wrong pair makes a wrong transform, stays tight (BENCHMARKS.md, issue 16)
+    verify_size_difference: float = fraction(0.4)
     # (ours) derive theta_eps, sigma and theta_r from the two maps' own noise figures (`plugin.map_noise`: the
     # per-observation residual and size spread each mapped session records in run.json) instead of the values
     # above; maps without the figures (.sosmap files, COLMAP models) keep the values above

@@ -286,7 +286,7 @@ def _verify(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, solv
     t0 = time.perf_counter()
     # min_support 0: the acceptance threshold theta_S is applied by the score sweep (support > theta_S)
     ver = verify_alignments(pa, ha, pb, hb, candidates, assoc_params.distance_tolerance_m,
-                            assoc_params.max_size_difference, 0)
+                            assoc_params.verify_size_difference, 0)
     seconds = time.perf_counter() - t0
     if ver.best is None:
         return {"support": 0, "accepted": False, "seconds": seconds}, None, None
@@ -640,6 +640,8 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
         results["sosmatch_windows"] = windows
         for res in (sos, windows):
             res["operating_point"] = operating_point(res["curve"], res["operating_theta_S"] + 0.5)
+    order = ["sosmatch", "sosmatch_windows"] + [m for m in results if not m.startswith("sosmatch")]
+    results = {m: results[m] for m in order if m in results}  # the windows-only row beside ours
     rows = [_row(case, m, res) for m, res in results.items()]
     evaluation = {
         "case": case,

@@ -316,6 +316,15 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
             if err_m > 15.0 or err_deg > 2.0:
                 wrong.append(h["size"])
     out["largest_wrong_upright_hypothesis"] = max(wrong)
+    out["largest_right_hypothesis"] = max([h["size"] for h in result["hypotheses"] if h.get("transform")
+                                           and h.get("tilt_deg") is not None and h["tilt_deg"] <= max_tilt
+                                           and max(_identity_error(h["transform"], centre)[0] / 15.0,
+                                                   _identity_error(h["transform"], centre)[1] / 2.0) <= 1.0],
+                                          default=0)
+    out["association"] = {k: result["params"]["association"].get(k) for k in
+                          ("distance_tolerance_m", "affinity_sigma_m", "max_size_difference", "window_length",
+                           "window_stride", "min_associations", "derive_from_maps")}
+    out["verified"] = _verified(map_a, map_b, match_dir, centre)
     best = result.get("consensus") or (result["hypotheses"][result["best"]] if result.get("best") is not None
                                        else None)
     if answer.accepted:
@@ -328,6 +337,39 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
         out["associations_within_10m"] = int(np.sum(d < 10.0))
         out["association_distance_median_m"] = float(np.median(d)) if len(d) else float("nan")
     return out
+
+
+def _verified(map_a: Path, map_b: Path, match_dir: Path, centre: np.ndarray) -> dict:
+    """The match's window hypotheses verified on the full maps (`plugin.multisession.verify_alignments`, the
+    candidates and gates `batch` and `evaluate` use, with the association parameters the match ran with): its
+    support, the best rival's, whether it wins clearly (>= 1.2x), its error to the identity."""
+    import json
+    from types import SimpleNamespace
+
+    from ...database.map_loading import load_map
+    from ...database.match_io import read_match
+    from ...plugin.geometry import rotation_angle_deg
+    from ...plugin.multisession import verification_candidates, verify_alignments
+    from ...plugin.params import AssociationParams, params_from_dict
+
+    match = read_match(match_dir / "match.json")
+    raw = json.loads((match_dir / "match.json").read_text())["params"]["association"]
+    ap = params_from_dict({k: v for k, v in raw.items() if k in AssociationParams.__dataclass_fields__},
+                          AssociationParams)
+    a, b = load_map(map_a).lmap, load_map(map_b).lmap
+    solved = [SimpleNamespace(size=len(h.associations), transform=h.transform, associations=h.associations,
+                              tilt_deg=h.tilt_deg if h.tilt_deg is not None else 0.0) for h in match.hypotheses]
+    cands = verification_candidates(solved, ap.max_gravity_angle_deg)
+    if not cands:
+        return {"support": 0, "runner_up_support": 0, "clear_winner": False}
+    v = verify_alignments(a.positions, a.sizes, b.positions, b.sizes, cands, ap.distance_tolerance_m,
+                          ap.verify_size_difference, 0)
+    if v.best is None:
+        return {"support": 0, "runner_up_support": 0, "clear_winner": False}
+    t = v.best.transform
+    return {"support": int(len(v.best.associations)), "runner_up_support": int(v.runner_up_support),
+            "clear_winner": bool(v.accepted), "error_m": float(np.linalg.norm(t.apply(centre[None])[0] - centre)),
+            "error_deg": float(rotation_angle_deg(t.rotation, np.eye(3)))}
 
 
 def draw_naip_match(tif: Path, map_a: Path, map_b: Path, match_dir: Path, out: Path, width: int = 934) -> None:
@@ -376,14 +418,18 @@ def draw_naip_match(tif: Path, map_a: Path, map_b: Path, match_dir: Path, out: P
 
 
 def naip_check(naip: Path, work: Path, extra_args: list[str], preset: str = "paper",
-               map_args: list[str] | None = None, both_orders: bool = True, control: bool = True) -> dict:
+               map_args: list[str] | None = None, both_orders: bool = True, control: bool = True,
+               match_sets: list[str] | None = None) -> dict:
     """Render both NAIP dates along one path, map both (`map_args`), match (parameters: `preset`); score against
     the identity ground truth. The transform is in world (UTM) coordinates, so its error is taken where the data
     is: the displacement of B's landmark centroid, and the rotation angle. `both_orders`: also match 2009 into
     2015. `control`: the negative control, maps of the west half of one date against the east half of the other
     (`half_orthophoto`; rendered and mapped alike), both ways round, and of 2009's two halves: they share no
     ground, so nothing may be accepted; and 2009 against the 2015 orthophoto mirrored (`mirrored_orthophoto`).
-    Each match reports the largest upright (tilt <= theta_alpha) hypothesis: the margin to theta_S."""
+    Each match reports the largest upright (tilt <= theta_alpha) hypothesis: the margin to theta_S, and the
+    match's window hypotheses verified on the full maps as `batch` and `evaluate` do (`_verified`): the verified
+    alignment's support, its rival's, and its error. `preset` "none": the defaults; `match_sets`: `--set` of the
+    match (e.g. association.derive_from_maps=true: tolerances from the maps' own noise, plugin.map_noise)."""
     from ..cli import main as cli
 
     sessions, times = naip_sessions(naip, work, extra_args, map_args)
@@ -404,11 +450,15 @@ def naip_check(naip: Path, work: Path, extra_args: list[str], preset: str = "pap
         out.update({f"control_{k}": v for k, v in ctrl_times.items() if "mirrored" in k})
         runs.append(("control_2009_mirrored2015", ctrl[0][1], ctrl[1][1]))
     for label, map_a, map_b in runs:
-        match_dir = work / f"naip_match_{preset}_{label}"
-        assert cli(["match", str(map_a), str(map_b), "--out", str(match_dir), "--no-plot", "--preset", preset]) == 0
+        tag = preset + "".join(f"_{kv.split('.')[-1]}" for kv in match_sets or [])
+        match_dir = work / f"naip_match_{tag}_{label}"
+        flags = ([] if preset == "none" else ["--preset", preset])
+        flags += [x for kv in match_sets or [] for x in ("--set", kv)]
+        assert cli(["match", str(map_a), str(map_b), "--out", str(match_dir), "--no-plot", *flags]) == 0
         out[label] = _score_match(map_a, map_b, match_dir)
+    tag = preset + "".join(f"_{kv.split('.')[-1]}" for kv in match_sets or [])
     draw_naip_match(sorted(naip.glob("*.tif"))[0], sessions[0][1], sessions[1][1],
-                    work / f"naip_match_{preset}_2015_into_2009", work / "naip_match.jpg")
+                    work / f"naip_match_{tag}_2015_into_2009", work / "naip_match.jpg")
     out["figure"] = str(work / "naip_match.jpg")
     return out
 
@@ -568,7 +618,9 @@ def main() -> None:
     parser.add_argument("--pixel-sigma", type=float, default=3.0)
     parser.add_argument("--out", type=Path, help="refine: write the refined model here")
     parser.add_argument("--naip", type=Path, default=Path("/work/shared/data/naip"))
-    parser.add_argument("--preset", default="paper", help="naip: parameter preset of the match")
+    parser.add_argument("--preset", default="paper", help="naip: parameter preset of the match (none: defaults)")
+    parser.add_argument("--match-set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="naip: override of `sosmatch match` (repeatable), e.g. association.derive_from_maps=true")
     parser.add_argument("--map-preset", help="naip: parameter preset of `sosmatch map` (default: the defaults)")
     parser.add_argument("--map-set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="naip: override of `sosmatch map` (repeatable)")
@@ -605,7 +657,8 @@ def main() -> None:
     if args.check == "naip":
         map_args = (["--preset", args.map_preset] if args.map_preset else []) + \
             [x for kv in args.map_set for x in ("--set", kv)]
-        r = naip_check(args.naip, args.work, extra, args.preset, map_args, not args.one_order, not args.no_control)
+        r = naip_check(args.naip, args.work, extra, args.preset, map_args, not args.one_order, not args.no_control,
+                       args.match_set)
         for k, v in r.items():
             print(f"{k}: {v}")
         return

@@ -39,7 +39,7 @@ from .machine import machine_summary
 
 log = logging.getLogger(__name__)
 
-MARKER, END_MARKER = "<!-- section:seasons -->", "<!-- end:seasons -->"
+MARKER, END_MARKER = "<!-- section:{} -->", "<!-- end:{} -->"
 
 # Session name -> `sosmatch synth` arguments (the world seed is added). Seeds as in bench_evaluate where the
 # session is the same (summer 1, winter 6, spring 4, autumn 5), so world 11 reproduces the suite's sessions.
@@ -230,12 +230,14 @@ def check_bars(world: int, rows: dict[str, dict]) -> list[str]:
     return notes
 
 
-def replace_section(text: str, section: str) -> str:
-    if MARKER not in text:
+def replace_section(text: str, section: str, name: str = "seasons") -> str:
+    """`section` in place of the marked section `name` of BENCHMARKS.md (appended when there is none)."""
+    marker, end_marker = MARKER.format(name), END_MARKER.format(name)
+    if marker not in text:
         return text.rstrip("\n") + "\n\n" + section
-    start = text.index(MARKER)
-    end = text.find(END_MARKER, start)
-    end = start + len(MARKER) + 1 if end < 0 else end + len(END_MARKER) + 1
+    start = text.index(marker)
+    end = text.find(end_marker, start)
+    end = start + len(marker) + 1 if end < 0 else end + len(end_marker) + 1
     return text[:start] + section + text[end:]
 
 
@@ -255,6 +257,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="claims from every observer pair (the evaluation's earlier rule)")
     parser.add_argument("--write", action="store_true", help="write the tables into BENCHMARKS.md")
     parser.add_argument("--title", default="Seasons, crossing flights and altitude on several worlds (issue 16)")
+    parser.add_argument("--section", default="seasons", help="name of the marked BENCHMARKS.md section to write")
+    parser.add_argument("--note", action="append", default=[], help="a paragraph after the title (repeatable)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     os.environ.setdefault("SOSMATCH_CACHE_DIR", str(args.work / "cache"))
@@ -277,17 +281,19 @@ def main(argv: list[str] | None = None) -> None:
         tables.append(world_table(world, list(rows.values()), world in held))
         bars += check_bars(world, rows)
     end_load = machine_summary().rsplit("load ", 1)[-1]
-    shown = " ".join(argv if argv is not None else __import__("sys").argv[1:])
-    section = "\n".join([MARKER, f"## {args.title}", "",
+    raw = list(argv if argv is not None else __import__("sys").argv[1:])
+    shown = " ".join(a for i, a in enumerate(raw) if a != "--note" and (i == 0 or raw[i - 1] != "--note"))
+    notes = [x for n in args.note for x in (n, "")]
+    section = "\n".join([MARKER.format(args.section), f"### {args.title}", "",
                          f"Command: `python -m sosmatch.tools.benchmarks.bench_seasons {shown}`  ",
-                         f"Machine: {machine} (load at the end: {end_load})", "", *tables, "Bars:",
-                         *[f"- {b}" for b in bars], "", END_MARKER, ""])
+                         f"Machine: {machine} (load at the end: {end_load})", "", *notes, *tables, "Bars:",
+                         *[f"- {b}" for b in bars], "", END_MARKER.format(args.section), ""])
     print(section)
     if args.write:
         from ...database.atomic import write_text_atomic
 
         bench = Path("BENCHMARKS.md")
-        write_text_atomic(bench, replace_section(bench.read_text(encoding="utf-8"), section))
+        write_text_atomic(bench, replace_section(bench.read_text(encoding="utf-8"), section, args.section))
 
 
 if __name__ == "__main__":
