@@ -548,14 +548,11 @@ def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
 
     `hypotheses`: the search's `WindowHypothesis` list; every one with a transform that passes the gravity check
     is a candidate, largest |S| first (at most `verification.max_candidates`), and `verify_alignments` chooses
-    among them with the search's own gates (theta_eps, theta_r, support > theta_S). `association`,
+    among them with the search's theta_eps, the verification's size gate and support > theta_S. `association`,
     `verification`: `AssociationParams`, `VerificationParams`.
     """
-    cands = [h for h in sorted(hypotheses, key=lambda h: -h.size)
-             if h.transform is not None and h.tilt_deg <= association.max_gravity_angle_deg]
-    sims = [(Sim3(h.transform.rotation, h.transform.translation, h.transform.scale), h.associations[:, 1])
-            for h in cands[:verification.max_candidates]]
+    sims = verification_candidates(hypotheses, association.max_gravity_angle_deg, verification.max_candidates)
     return verify_alignments(np.asarray(points_a, np.float64), sizes_a, np.asarray(points_b, np.float64), sizes_b,
-                             sims, association.distance_tolerance_m, association.max_size_difference,
+                             sims, association.distance_tolerance_m, verification.max_size_difference,
                              association.min_associations, min_ratio=verification.min_ratio, dof=verification.dof,
                              z_weight=verification.z_weight, final_dof=verification.final_dof or None)

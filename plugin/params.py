@@ -296,12 +296,6 @@ class AssociationParams(Checked):
     # on the theta_S-core (the paper); "bounded" = a greedy clique of the highest cores bounds the answer and the
     # relaxation runs only on the part of the core that could hold a larger set (ours; never a smaller set)
     solver: str = one_of("bounded", "clipper", "bounded")
-    # (ours) the size gate of the full-map verification (`plugin.multisession.verify_alignments`, run by batch and
-    # scored by evaluate): r of the mutual nearest neighbours that support an alignment. Across seasons one object's
-    # sizes differ by r 0.12 (median) / 0.3-0.4 (80th percentile) between two maps (tuning worlds 5, 11); inside an
-    # alignment the positions already single out the partner, so this gate follows that spread while the search's
-    # theta_r, where a wrong pair makes a wrong transform, stays tight (BENCHMARKS.md, issue 16)
-    verify_size_difference: float = fraction(0.4)
     # (ours) derive theta_eps, sigma and theta_r from the two maps' own noise figures (`plugin.map_noise`: the
     # per-observation residual and size spread each mapped session records in run.json) instead of the values
     # above; maps without the figures (.sosmap files, COLMAP models) keep the values above
@@ -320,6 +314,11 @@ class VerificationParams(Checked):
     min_ratio: float = positive(1.2)  # the winner's support over the best alignment that puts B elsewhere
     z_weight: float = positive(0.5)  # heights count this much in the nearest-neighbour distance (noisier)
     max_candidates: int = count(400, 1)  # window hypotheses tried, largest first (bounds dense maps)
+    # the size gate of the verification's pairs (r of mutual nearest neighbours within theta_eps). Across seasons
+    # one object's sizes differ by r 0.12 (median) / 0.3-0.4 (80th percentile) between two maps (worlds 5, 11);
+    # inside an alignment the positions already single out the partner, so this gate follows that spread while
+    # the search's theta_r, where a wrong pair makes a wrong transform, stays tight (BENCHMARKS.md, issue 16)
+    max_size_difference: float = fraction(0.4)
 
 
 @dataclass(frozen=True)

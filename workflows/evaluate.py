@@ -29,7 +29,6 @@ import statistics
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -39,7 +38,7 @@ from ..database.cameras import read_cameras_txt
 from ..database.evaluation_io import read_landmark_table, read_match_hypotheses, terrain_of_session
 from ..database.landmark_map import LandmarkMap, read_landmark_map
 from ..database.map_loading import read_map_noise
-from ..database.match_io import check_match_maps
+from ..database.match_io import check_match_maps, read_match_json
 from ..database.outputs import fingerprint, open_output_dir
 from ..database.poses import read_poses_csv
 from ..database.session_io import check_map_of_images
@@ -186,17 +185,17 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         accepted = np.flatnonzero(hyps.accepted)
         theta_s = hyps.min_associations if hyps.min_associations is not None else assoc_params.min_associations
         out["accepted"] = [(hyps.associations[k], hyps.match.hypotheses[k].transform) for k in accepted]
-        # the gravity check as read: a hypothesis that failed it gets an infinite tilt, so it is no candidate
-        solved = [SimpleNamespace(size=len(a), transform=h.transform, tilt_deg=0.0 if ok else float("inf"),
-                                  associations=a)
-                  for a, ok, h in zip(hyps.associations, hyps.gravity_ok, hyps.match.hypotheses)]
+        ver_doc = read_match_json(match_json).get("verification")
+        verified_by_match = None if ver_doc is None else (
+            hyps.match.transform, hyps.match.associations, hyps.match.runner_up_support or 0,
+            float((ver_doc.get("method") or {}).get("min_ratio", params.verification.min_ratio)), None)
     elif min(len(pa), len(pb)) < 3:
         # Too few landmarks for any transform: the method claims nothing (an honest zero, not an error).
         log.warning("maps have %d and %d landmarks: SOS-Match can claim nothing", len(pa), len(pb))
         hypotheses = []
         theta_s = assoc_params.min_associations
         out["accepted"] = []
-        solved = []
+        verified_by_match = None
         out.update(search_seconds=0.0, search_seconds_runs=[0.0], curve_floor_theta_S=None, accepted_hypotheses=0,
                    window_pairs=0, note=f"maps have {len(pa)} and {len(pb)} landmarks")
     else:
@@ -205,8 +204,9 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         answer = None
         for _ in range(max(1, repeats)):
             t0 = time.perf_counter()
-            answer = match_maps(pa, ha, pb, hb, params, common_frame=bool(
-                lmap_a is not None and lmap_b is not None and lmap_a.epsg == lmap_b.epsg != 0))
+            common = bool(lmap_a is not None and lmap_b is not None and lmap_a.epsg == lmap_b.epsg != 0)
+            answer = match_maps(pa, ha, pb, hb, dataclasses.replace(params, association=assoc_params),
+                                common_frame=common)
             times.append(time.perf_counter() - t0)
         result = answer.search
         out["search_seconds"] = statistics.median(times)
@@ -232,8 +232,12 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
                                                      for k in result.accepted]
         out["accepted_hypotheses"] = 0 if result is None else len(result.accepted)
         out["window_pairs"] = 0 if result is None else result.num_window_pairs
-        solved = [] if result is None else result.hypotheses
-    verification, verified, winner = _verify(pa, ha, pb, hb, solved, assoc_params, theta_s)
+        v = answer.verification
+        verified_by_match = None if v is None else (
+            None if v.best is None else v.best.transform,
+            np.zeros((0, 2), np.int64) if v.best is None else v.best.associations, v.runner_up_support,
+            params.verification.min_ratio, answer.timings["verify_s"])
+    verification, verified, winner = _verified_claim(verified_by_match, pb, theta_s)
     out["verification"] = verification
     out["num_hypotheses"] = len(hypotheses)
     out["operating_theta_S"] = int(theta_s)
@@ -271,34 +275,27 @@ def _agrees(associations: np.ndarray, transform: Any, pa: np.ndarray, pb: np.nda
     return bool(np.median(np.linalg.norm(transform.apply(pb[assoc[:, 1]]) - pa[assoc[:, 0]], axis=1)) <= tolerance_m)
 
 
-def _verify(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, solved: Sequence[Any],
-            assoc_params: Any, theta_s: int) -> tuple[dict | None, Hypothesis | None, Any]:
-    """The matcher's answer on the full maps: the window hypotheses verified and refined on every landmark
-    (`plugin.multisession.verify_alignments`, as `sosmatch batch` runs it). Returns its record and, when it wins
-    clearly (support >= 1.2 x any rival alignment's), the claiming hypothesis of its associations scored by their
-    number (its support), so that the theta_S sweep accepts it exactly when support > theta_S, and its
-    transform (None without a clear winner)."""
-    from ..plugin.multisession import verification_candidates, verify_alignments
-
-    candidates = verification_candidates(solved, assoc_params.max_gravity_angle_deg)
-    if not candidates:
+def _verified_claim(verified: tuple | None, pb: np.ndarray, theta_s: int) -> tuple[dict | None, Hypothesis | None,
+                                                                                Any]:
+    """The match's verified answer as a claim (the verification `plugin.match_answer.match_maps` ran, in this
+    process or as match.json records it; one verification for `sosmatch match`, batch and this evaluation).
+    `verified`: (transform, associations, runner-up support, min_ratio, seconds), None when it did not run.
+    Returns its record and, when it wins clearly (support >= min_ratio x any rival alignment's), the claiming
+    hypothesis of its associations scored by their number (its support), so that the theta_S sweep accepts it
+    exactly when support > theta_S, and its transform (None without a clear winner)."""
+    if verified is None:
         return None, None, None
-    t0 = time.perf_counter()
-    # min_support 0: the acceptance threshold theta_S is applied by the score sweep (support > theta_S)
-    ver = verify_alignments(pa, ha, pb, hb, candidates, assoc_params.distance_tolerance_m,
-                            assoc_params.verify_size_difference, 0)
-    seconds = time.perf_counter() - t0
-    if ver.best is None:
+    transform, assoc, runner_up, min_ratio, seconds = verified
+    assoc = np.asarray(assoc, dtype=np.int64).reshape(-1, 2)
+    if transform is None or not len(assoc):
         return {"support": 0, "accepted": False, "seconds": seconds}, None, None
-    assoc = ver.best.associations
-    record = {"support": int(len(assoc)), "runner_up_support": int(ver.runner_up_support),
-              "transform": ver.best.transform.to_dict(),
-              "clear_winner": bool(ver.accepted), "accepted": bool(ver.accepted and len(assoc) > theta_s),
-              "candidates": len(candidates), "refined": ver.num_refined, "seconds": seconds,
-              **error_to_identity(ver.best.transform, pb[assoc[:, 1]]), "associations": assoc.tolist()}
-    if not ver.accepted:
+    clear = bool(len(assoc) >= min_ratio * runner_up)
+    record = {"support": int(len(assoc)), "runner_up_support": int(runner_up), "transform": transform.to_dict(),
+              "clear_winner": clear, "accepted": bool(clear and len(assoc) > theta_s), "seconds": seconds,
+              **error_to_identity(transform, pb[assoc[:, 1]]), "associations": assoc.tolist()}
+    if not clear:
         return record, None, None
-    return record, Hypothesis(assoc, float(len(assoc)), True, ver.best.transform.rotation), ver.best.transform
+    return record, Hypothesis(assoc, float(len(assoc)), True, transform.rotation), transform
 
 
 def error_to_identity(transform: Any, points_b: np.ndarray) -> dict:

@@ -130,6 +130,7 @@ def verification_json(answer: MatchAnswer | None, params: Params) -> dict[str, A
             "associations": answer.associations.tolist(),
             "method": {"dof": vp.dof, "final_dof": vp.final_dof, "min_ratio": vp.min_ratio, "z_weight": vp.z_weight,
                        "max_candidates": vp.max_candidates, "gate_m": params.association.distance_tolerance_m,
+                       "max_size_difference": vp.max_size_difference,
                        "min_support": params.association.min_associations}}
 
 

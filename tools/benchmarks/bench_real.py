@@ -324,7 +324,7 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
     out["association"] = {k: result["params"]["association"].get(k) for k in
                           ("distance_tolerance_m", "affinity_sigma_m", "max_size_difference", "window_length",
                            "window_stride", "min_associations", "derive_from_maps")}
-    out["verified"] = _verified(map_a, map_b, match_dir, centre)
+    out["verified"] = _verified(match_dir, centre)
     best = result.get("consensus") or (result["hypotheses"][result["best"]] if result.get("best") is not None
                                        else None)
     if answer.accepted:
@@ -339,37 +339,23 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
     return out
 
 
-def _verified(map_a: Path, map_b: Path, match_dir: Path, centre: np.ndarray) -> dict:
-    """The match's window hypotheses verified on the full maps (`plugin.multisession.verify_alignments`, the
-    candidates and gates `batch` and `evaluate` use, with the association parameters the match ran with): its
-    support, the best rival's, whether it wins clearly (>= 1.2x), its error to the identity."""
-    import json
-    from types import SimpleNamespace
-
-    from ...database.map_loading import load_map
-    from ...database.match_io import read_match
+def _verified(match_dir: Path, centre: np.ndarray) -> dict:
+    """The match's answer as `sosmatch match` verified it on the full maps (match.json "verification", the one
+    verification `batch` and `evaluate` read too): its support, the best rival's, whether it was accepted, its
+    error to the identity."""
+    from ...database.match_io import read_match, read_match_json
     from ...plugin.geometry import rotation_angle_deg
-    from ...plugin.multisession import verification_candidates, verify_alignments
-    from ...plugin.params import AssociationParams, params_from_dict
 
-    match = read_match(match_dir / "match.json")
-    raw = json.loads((match_dir / "match.json").read_text())["params"]["association"]
-    ap = params_from_dict({k: v for k, v in raw.items() if k in AssociationParams.__dataclass_fields__},
-                          AssociationParams)
-    a, b = load_map(map_a).lmap, load_map(map_b).lmap
-    solved = [SimpleNamespace(size=len(h.associations), transform=h.transform, associations=h.associations,
-                              tilt_deg=h.tilt_deg if h.tilt_deg is not None else 0.0) for h in match.hypotheses]
-    cands = verification_candidates(solved, ap.max_gravity_angle_deg)
-    if not cands:
-        return {"support": 0, "runner_up_support": 0, "clear_winner": False}
-    v = verify_alignments(a.positions, a.sizes, b.positions, b.sizes, cands, ap.distance_tolerance_m,
-                          ap.verify_size_difference, 0)
-    if v.best is None:
-        return {"support": 0, "runner_up_support": 0, "clear_winner": False}
-    t = v.best.transform
-    return {"support": int(len(v.best.associations)), "runner_up_support": int(v.runner_up_support),
-            "clear_winner": bool(v.accepted), "error_m": float(np.linalg.norm(t.apply(centre[None])[0] - centre)),
-            "error_deg": float(rotation_angle_deg(t.rotation, np.eye(3)))}
+    ver = read_match_json(match_dir / "match.json").get("verification")
+    if not ver:
+        return {"support": 0, "runner_up_support": 0, "accepted": False}
+    out = {"support": int(ver.get("support", 0)), "runner_up_support": int(ver.get("runner_up_support", 0)),
+           "accepted": bool(ver.get("accepted"))}
+    t = read_match(match_dir / "match.json").transform
+    if t is not None:
+        out.update(error_m=float(np.linalg.norm(t.apply(centre[None])[0] - centre)),
+                   error_deg=float(rotation_angle_deg(t.rotation, np.eye(3))))
+    return out
 
 
 def draw_naip_match(tif: Path, map_a: Path, map_b: Path, match_dir: Path, out: Path, width: int = 934) -> None:
