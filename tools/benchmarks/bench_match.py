@@ -39,15 +39,19 @@ import numpy as np
 
 from ...plugin.association import affinity_graph, search_reference, solve
 from ...plugin.association.reference import differences
-from ...plugin.association.rigid import rotation_angle_deg
 from ...plugin.association.synthetic import survey_map_pair
 from ...plugin.match_answer import match_maps
 from ...plugin.params import Params, preset_params, with_overrides
+from .bench_match_real import bench_evaluation, bench_naip
 from .machine import machine_summary
 from .match_problems import aerial_maps, boulder_maps, clipper_problem, crossing_maps, dense_maps, season_maps
+from .match_report import bar, print_bars, quality, report, timed_match
 
 CLIPPER_SIZES = (256, 512, 1024, 2048)
 CLIPPER_RATIO_BARS = {256: 10.0, 512: 10.0, 1024: 20.0, 2048: 20.0}
+# The C++ reference on a quiet machine (issue 15: this machine, median wall ms of affinity and solve, 2 OpenMP
+# threads): on a loaded machine its own repeats are slower, so the bar takes the faster of the two.
+CLIPPER_QUIET_MS = {256: (1.7, 0.15), 512: (6.1, 0.28), 1024: (24.7, 1.7), 2048: (115.5, 6.9)}
 BARS_S = {"sparse": 0.2, "dense": 1.0, "nosizes": 1.0, "aerial": 5.0, "season": 10.0}
 AERIAL_MEMORY_BAR_MB = 500.0
 
@@ -67,31 +71,36 @@ def _clipper_ref(path: str | None) -> object | None:
 
 def bench_clipper(repeats: int, ref_path: str | None) -> list[dict]:
     """Affinity and solve of one problem, ours and (if built) the C++ reference with 2 OpenMP threads (the issue's
-    setting) and with 1 (the fair one on a loaded machine, where a 2-thread OpenMP loop waits for the thread the
-    scheduler took away), interleaved repeat by repeat so that all see the same load."""
+    setting) and with 1, interleaved repeat by repeat so that all see the same load.
+
+    On a shared machine a wall time measures the load as much as the code (a 2-thread OpenMP loop waits for the
+    thread the scheduler took away; the quiet-machine figures of the issue are 10x below those at load 10). The
+    figure of each configuration is therefore its fastest repeat (the one least disturbed; medians are printed
+    beside it), and the bar compares ours with the fastest C++ figure: its 1- or 2-thread repeats here, or its
+    quiet-machine medians of the issue (`CLIPPER_QUIET_MS`), whichever is faster, stage by stage.
+    """
     ref = _clipper_ref(ref_path)
     eps, sigma = 2.0, 0.5
-    print(f"## One association problem: 100 true pairs + outliers, noise 0.1 m, eps {eps} m, sigma {sigma} m")
-    print("C++ reference: " + (f"clipper_ref {getattr(ref, '__version__', '?')}" if ref else
+    print(f"## One association problem: 100 true pairs + outliers, noise 0.1 m, eps {eps} m, sigma {sigma} m, "
+          f"{repeats} interleaved repeats")
+    print("C++ reference: " + (f"clipper_ref {getattr(ref, '__version__', '?')} (its own steady_clock)" if ref else
                                "not importable (see the docstring): skipped"))
-    print("| m | edges | ours affinity + solve ms | ours true/false | C++ 2 threads affinity + solve ms | C++ 1 thread "
-          "affinity + solve ms | C++ true/false | ratio to 2 threads (bar) | ratio to 1 thread | affinity, solve "
-          "each faster (2 threads) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| m | edges | ours affinity + solve ms (fastest; median) | ours true/false | C++ 2 threads affinity + "
+          "solve ms (fastest; median) | C++ 1 thread (fastest; median) | C++ true/false | ratio to the faster C++ "
+          "(bar) | affinity, solve each faster |")
+    print("|---|---|---|---|---|---|---|---|---|")
     rows = []
     for m in CLIPPER_SIZES:
         a, b, pairs, is_true = clipper_problem(m)
         affinity_graph(a[:10], b[:10], pairs[:5] % 10)  # compiled before timing
-        times: dict[str, list[float]] = {k: [] for k in ("a", "s", "c", "ra2", "rs2", "ra1", "rs1")}
-        sel, ref_sel = None, None
+        times: dict[str, list[float]] = {k: [] for k in ("a", "s", "ra2", "rs2", "ra1", "rs1")}
+        sel, ref_sel, g = None, None, None
         for _ in range(repeats):
-            c0 = time.process_time()
             t0 = time.perf_counter()
             g = affinity_graph(a, b, pairs, eps=eps, sigma=sigma)
             t1 = time.perf_counter()
             sel = solve(g).selected
             t2 = time.perf_counter()
-            times["c"].append(time.process_time() - c0)
             times["a"].append(t1 - t0)
             times["s"].append(t2 - t1)
             if ref is not None:
@@ -101,72 +110,44 @@ def bench_clipper(repeats: int, ref_path: str | None) -> list[dict]:
                     times[f"ra{th}"].append(out[0])
                     times[f"rs{th}"].append(out[1])
                     ref_sel = np.asarray(out[2], np.int64)
+        fast = {k: 1e3 * min(v) for k, v in times.items() if v}
         med = {k: 1e3 * statistics.median(v) for k, v in times.items() if v}
-        row = {"m": m, "edges": len(g.rows), "ours_affinity_ms": med["a"], "ours_solve_ms": med["s"],
-               "ours_total_ms": med["a"] + med["s"], "ours_cpu_ms": med["c"], "ours_true": int(is_true[sel].sum()),
-               "ours_false": int((~is_true[sel]).sum())}
-        cells = ["-"] * 6
+        row = {"m": m, "edges": len(g.rows), "ours_affinity_ms": fast["a"], "ours_solve_ms": fast["s"],
+               "ours_total_ms": fast["a"] + fast["s"], "ours_median_ms": med["a"] + med["s"],
+               "ours_true": int(is_true[sel].sum()), "ours_false": int((~is_true[sel]).sum())}
+        cells = ["-"] * 5
         if ref is not None:
             for th in (2, 1):
-                row[f"ref{th}_affinity_ms"], row[f"ref{th}_solve_ms"] = med[f"ra{th}"], med[f"rs{th}"]
-                row[f"ref{th}_total_ms"] = med[f"ra{th}"] + med[f"rs{th}"]
-                row[f"ratio{th}"] = row[f"ref{th}_total_ms"] / row["ours_total_ms"]
-            row.update(ref_true=int(is_true[ref_sel].sum()), ref_false=int((~is_true[ref_sel]).sum()))
-            ok = row["ratio2"] >= CLIPPER_RATIO_BARS[m]
-            both = row["ours_affinity_ms"] < row["ref2_affinity_ms"] and row["ours_solve_ms"] < row["ref2_solve_ms"]
-            cells = [f"{row['ref2_affinity_ms']:.2f} + {row['ref2_solve_ms']:.2f}",
-                     f"{row['ref1_affinity_ms']:.2f} + {row['ref1_solve_ms']:.2f}",
-                     f"{row['ref_true']}/{row['ref_false']}",
-                     f"**{row['ratio2']:.1f}x** ({CLIPPER_RATIO_BARS[m]:.0f}x {'met' if ok else 'MISSED'})",
-                     f"{row['ratio1']:.1f}x", "yes" if both else "NO"]
+                row[f"ref{th}_affinity_ms"], row[f"ref{th}_solve_ms"] = fast[f"ra{th}"], fast[f"rs{th}"]
+                row[f"ref{th}_total_ms"] = fast[f"ra{th}"] + fast[f"rs{th}"]
+                row[f"ref{th}_median_ms"] = med[f"ra{th}"] + med[f"rs{th}"]
+            quiet_a, quiet_s = CLIPPER_QUIET_MS[m]
+            ref_a, ref_s = min(fast["ra2"], fast["ra1"], quiet_a), min(fast["rs2"], fast["rs1"], quiet_s)
+            ref_total = min(row["ref2_total_ms"], row["ref1_total_ms"], quiet_a + quiet_s)
+            which = ("quiet-machine medians" if ref_total == quiet_a + quiet_s else
+                     "2 threads here" if ref_total == row["ref2_total_ms"] else "1 thread here")
+            row.update(ref_total_ms=ref_total, ref_source=which, ratio=ref_total / row["ours_total_ms"],
+                       ref_true=int(is_true[ref_sel].sum()), ref_false=int((~is_true[ref_sel]).sum()))
+            need = CLIPPER_RATIO_BARS[m]
+            both = row["ours_affinity_ms"] < ref_a and row["ours_solve_ms"] < ref_s
+            found = row["ours_true"] >= 0.95 * int(is_true.sum()) and row["ours_false"] == 0
+            ok = bar(f"one problem m = {m}: >= {need:.0f}x the C++ reference, affinity and solve each faster, "
+                     ">= 95 % of the true pairs, no false one",
+                     f"{row['ratio']:.1f}x ({row['ours_total_ms']:.2f} vs {ref_total:.2f} ms, C++ {which}; "
+                     "affinity {row['ours_affinity_ms']:.2f} vs {ref_a:.2f}, solve "
+                     f"{row['ours_solve_ms']:.2f} vs {ref_s:.2f}; {row['ours_true']} true / {row['ours_false']} "
+                     "false)", row["ratio"] >= need and both and found)
+            cells = [f"{fast['ra2']:.2f} + {fast['rs2']:.2f}; {row['ref2_median_ms']:.2f}",
+                     f"{fast['ra1']:.2f} + {fast['rs1']:.2f}; {row['ref1_median_ms']:.2f}",
+                     f"{row['ref_true']}/{row['ref_false']}", f"**{row['ratio']:.1f}x** ({need:.0f}x {ok})",
+                     f"{'yes' if both else 'NO'} ({ref_a / fast['a']:.0f}x, {ref_s / fast['s']:.1f}x)"]
         rows.append(row)
-        print(f"| {m} | {row['edges']} | {med['a']:.3f} + {med['s']:.3f} | {row['ours_true']}/{row['ours_false']} | "
-              + " | ".join(cells) + " |")
+        print(f"| {m} | {row['edges']} | {fast['a']:.3f} + {fast['s']:.3f}; {row['ours_median_ms']:.3f} | "
+              f"{row['ours_true']}/{row['ours_false']} | " + " | ".join(cells) + " |")
     return rows
 
 
 # --- maps ----------------------------------------------------------------------------------------------------------
-
-
-def _timed_match(pa: np.ndarray, ha: np.ndarray | None, pb: np.ndarray, hb: np.ndarray | None, params: Params,
-                 repeats: int, common_frame: bool = True) -> tuple:
-    """The match's answer (search + verification), timed: (answer, median CPU s, median wall s)."""
-    n = min(60, len(pa), len(pb))
-    match_maps(pa[:n], None if ha is None else ha[:n], pb[:n], None if hb is None else hb[:n], params)  # compile
-    cpu, wall, ans = [], [], None
-    for _ in range(repeats):
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        ans = match_maps(pa, ha, pb, hb, params, common_frame=common_frame)
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return ans, statistics.median(cpu), statistics.median(wall)
-
-
-def _quality(ans: object, truth: set | None, rotation: np.ndarray | None) -> str:
-    if not ans.accepted:
-        return "no match"
-    found = set(map(tuple, ans.associations.tolist()))
-    out = f"{len(found)} associations"
-    if truth is not None:
-        out += f" ({len(found & truth)} true, {len(found - truth)} false)"
-    if rotation is not None:
-        out += f", rotation error {rotation_angle_deg(ans.transform.rotation, rotation):.3f} deg"
-    return out
-
-
-def _report(name: str, ans: object, cpu: float, wall: float, truth: set | None, rotation: np.ndarray | None,
-            bar: float | None = None) -> dict:
-    s = ans.search
-    t = s.timings
-    verdict = "" if bar is None else f" - bar {bar} s {'met' if cpu <= bar else 'MISSED'}"
-    print(f"{name}: **{cpu:.3f} s CPU** (wall {wall:.3f} s; search {ans.timings['search_s']:.3f} s + verification "
-          f"{ans.timings['verify_s']:.3f} s wall){verdict}; window pairs {s.num_window_pairs}, solved "
-          f"{len(s.hypotheses)}, accepted {len(s.accepted)}, consistent pairs {int(t.get('consistent_pairs', 0))}, "
-          f"incidences {int(t.get('incidences', 0))}; answer ({ans.source}): {_quality(ans, truth, rotation)}")
-    return {"case": name, "cpu_s": cpu, "wall_s": wall, "search_wall_s": ans.timings["search_s"],
-            "verify_wall_s": ans.timings["verify_s"], "window_pairs": s.num_window_pairs,
-            "solved": len(s.hypotheses), "accepted": bool(ans.accepted), "associations": len(ans.associations)}
 
 
 def bench_sparse(repeats: int, reference: bool) -> list[dict]:
@@ -175,8 +156,8 @@ def bench_sparse(repeats: int, reference: bool) -> list[dict]:
     print(f"## Two sparse survey maps, {len(s.points_a)} x {len(s.points_b)} landmarks ({len(s.truth)} shared)")
     rows = []
     for label, params in (("default", Params()), ("paper preset", preset_params("paper"))):
-        ans, cpu, wall = _timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, repeats)
-        rows.append(_report(f"sparse 1000, {label}", ans, cpu, wall, truth, s.rotation,
+        ans, cpu, wall = timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, repeats)
+        rows.append(report(f"sparse 1000, {label}", ans, cpu, wall, truth, s.rotation,
                             BARS_S["sparse"] if label == "default" else None))
         if reference:
             t0 = time.process_time()
@@ -194,8 +175,8 @@ def bench_dense(repeats: int) -> list[dict]:
           f"{np.ptp(s.points_a[:, 0]):.0f} m x {np.ptp(s.points_a[:, 1]):.0f} m")
     rows = []
     for label, params, reps in (("default", Params(), repeats), ("paper preset", preset_params("paper"), 1)):
-        ans, cpu, wall = _timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, reps)
-        rows.append(_report(f"dense 600, {label}", ans, cpu, wall, truth, s.rotation,
+        ans, cpu, wall = timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, reps)
+        rows.append(report(f"dense 600, {label}", ans, cpu, wall, truth, s.rotation,
                             BARS_S["dense"] if label == "default" else None))
     return rows
 
@@ -207,8 +188,8 @@ def bench_nosizes(repeats: int) -> list[dict]:
     rows = []
     for label, base in (("default", Params()), ("paper preset", preset_params("paper"))):
         params = with_overrides(base, over)
-        ans, cpu, wall = _timed_match(a, None, b, None, params, repeats if label == "default" else 1)
-        rows.append(_report(f"no sizes 392 x 212, {label}", ans, cpu, wall, truth, r,
+        ans, cpu, wall = timed_match(a, None, b, None, params, repeats if label == "default" else 1)
+        rows.append(report(f"no sizes 392 x 212, {label}", ans, cpu, wall, truth, r,
                             BARS_S["nosizes"] if label == "default" else None))
     return rows
 
@@ -222,12 +203,13 @@ def bench_aerial(repeats: int, memory: bool) -> list[dict]:
     for label, common in (("georeferenced (prior applies)", True), ("without the prior", False)):
         if not common and params.association.position_prior_m == 0:
             continue
-        ans, cpu, wall = _timed_match(pa, ha, pb, hb, params, repeats if common else 1, common_frame=common)
-        row = _report(f"aerial {len(pa)} x {len(pb)}, {label}", ans, cpu, wall, truth, np.eye(3),
+        ans, cpu, wall = timed_match(pa, ha, pb, hb, params, repeats if common else 1, common_frame=common)
+        row = report(f"aerial {len(pa)} x {len(pb)}, {label}", ans, cpu, wall, truth, np.eye(3),
                       BARS_S["aerial"] if common else None)
         if memory:
             row["peak_mb"] = child_peak_mb("aerial", common)
-            ok = "met" if row["peak_mb"] <= AERIAL_MEMORY_BAR_MB else "MISSED"
+            ok = bar(f"aerial stand-in {len(pa)} x {len(pb)}: <= {AERIAL_MEMORY_BAR_MB:.0f} MB peak",
+                     f"{row['peak_mb']:.0f} MB", row["peak_mb"] <= AERIAL_MEMORY_BAR_MB) if common else ""
             print(f"  peak memory (fresh process, imports included): {row['peak_mb']:.0f} MB"
                   + (f" - bar {AERIAL_MEMORY_BAR_MB:.0f} MB {ok}" if common else ""))
         rows.append(row)
@@ -268,9 +250,9 @@ def bench_crossing(repeats: int) -> list[dict]:
         for windows in ("id", "spatial"):
             params = with_overrides(Params(), {"association.windows": windows})
             frac = reachable_fraction(pa, pb, truth, params.association)
-            ans, cpu, wall = _timed_match(pa, ha, pb, hb, params, repeats)
+            ans, cpu, wall = timed_match(pa, ha, pb, hb, params, repeats)
             print(f"| {angle:.0f} deg | {len(pa)} x {len(pb)} | {len(truth)} | {windows} | {frac:.0%} | "
-                  f"{_quality(ans, truth, r)} | {cpu:.3f} |")
+                  f"{quality(ans, truth, r)} | {cpu:.3f} |")
             rows.append({"angle": angle, "windows": windows, "reachable": frac, "cpu_s": cpu,
                          "accepted": bool(ans.accepted), "associations": len(ans.associations)})
     return rows
@@ -280,52 +262,81 @@ def bench_season(repeats: int) -> list[dict]:
     pa, ha, pb, hb, truth = season_maps()
     params = with_overrides(Params(), {"association.position_prior_m": 30.0})
     print(f"## A new flight of {len(pa)} landmarks against a season map of {len(pb)} (position prior 30 m)")
-    ans, cpu, wall = _timed_match(pa, ha, pb, hb, params, repeats)
-    return [_report(f"season {len(pa)} x {len(pb)}, prior 30 m", ans, cpu, wall, truth, None, BARS_S["season"])]
+    ans, cpu, wall = timed_match(pa, ha, pb, hb, params, repeats)
+    return [report(f"season {len(pa)} x {len(pb)}, prior 30 m", ans, cpu, wall, truth, None, BARS_S["season"])]
+
+
+def bench_controls(repeats: int) -> list[dict]:
+    """Negative controls on synthetic maps: B mirrored (x -> -x in its own frame; a mirror image is no rigid motion
+    of A, so its only "alignments" are chance sets, or the upside-down copy of a flat map), for sparse, dense and
+    aerial maps (the aerial one mirrored about its tile centre under the same georeference, so the prior applies).
+    Nothing may be accepted."""
+    print("## Negative controls: maps against the mirror image of the other (nothing may be accepted)")
+    s, d = survey_map_pair(1000, seed=1), dense_maps()
+    pa, ha, pb, hb, _ = aerial_maps()
+    flip = np.array([-1.0, 1.0, 1.0])
+    centre = np.array([pb[:, 0].min() + pb[:, 0].max(), 0.0, 0.0])
+    cases = (("sparse 1000", s.points_a, s.sizes_a, s.points_b * flip, s.sizes_b, Params(), False),
+             ("dense 600", d.points_a, d.sizes_a, d.points_b * flip, d.sizes_b, Params(), False),
+             ("aerial stand-in", pa, ha, centre + pb * flip, hb, preset_params("aerial"), True))
+    rows = []
+    for name, xa, sa, xb, sb, params, common in cases:
+        ans, cpu, wall = timed_match(xa, sa, xb, sb, params, repeats, common_frame=common)
+        row = report(f"control {name} vs its mirror image", ans, cpu, wall, None, None)
+        bar(f"negative control {name} vs mirror image: nothing accepted",
+            f"{len(ans.associations)} associations accepted" if ans.accepted else "nothing accepted", not ans.accepted)
+        rows.append(row)
+    return rows
 
 
 def bench_scaling(sizes: list[int], plot: str | None) -> list[dict]:
     print("## Search time against map size (two sparse survey maps of n x n landmarks, half of the area shared, "
           "no prior, default parameters)")
     print("| landmarks (A x B) | window pairs | solved | accepted | consistent pairs | blocks | CPU s | wall s | "
-          "peak MB |")
+          "peak MB (process) |")
     print("|---|---|---|---|---|---|---|---|---|")
     rows = []
     params = Params()
     for n in sizes:
         s = survey_map_pair(n, seed=1)
-        ans, cpu, wall = _timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, 1)
-        peak = child_peak_mb("scaling", n)
+        ans, cpu, wall = timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, 1)
+        # the process's peak so far: sizes ascend, so it is this size's peak (a fresh process per size doubled
+        # the run's time; `child_peak_mb("scaling", n)` gives it alone)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         t = ans.search.timings
         rows.append({"n": n, "cpu_s": cpu, "wall_s": wall, "peak_mb": peak})
+        if plot:  # redrawn after every size: an interrupted run keeps the curve so far
+            plot_scaling(rows, plot)
         print(f"| {len(s.points_a)} x {len(s.points_b)} | {ans.search.num_window_pairs} | {len(ans.search.hypotheses)} "
               f"| {len(ans.search.accepted)} | {int(t['consistent_pairs'])} | {int(t['blocks'])} | {cpu:.2f} | "
               f"{wall:.2f} | {peak:.0f} |")
-    if plot:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.ticker import NullFormatter
-
-        fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
-        ns = [r["n"] for r in rows]
-        ax.loglog(ns, [r["cpu_s"] for r in rows], "o-", label="match (search + verification), CPU s")
-        ax2 = ax.twinx()
-        ax2.loglog(ns, [r["peak_mb"] for r in rows], "s--", color="gray", label="peak memory, MB (right)")
-        ax.set_xticks(ns, [str(n) for n in ns])
-        ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.set_xlabel("landmarks per map")
-        ax.set_ylabel("CPU seconds")
-        ax2.set_ylabel("MB")
-        ax.set_title(f"sosmatch match, no prior ({machine_summary().rsplit(', ', 1)[-1]})")
-        ax.grid(True, which="both", alpha=0.3)
-        lines = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
-        ax.legend(lines, [h.get_label() for h in lines], fontsize=8, loc="upper left")
-        fig.savefig(plot, bbox_inches="tight")
-        plt.close(fig)
-        print(f"plot: {plot}")
     return rows
+
+
+def plot_scaling(rows: list[dict], plot: str) -> None:
+    """The scaling curve (CPU seconds and peak memory against landmarks per map), log-log, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
+
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    ns = [r["n"] for r in rows]
+    ax.loglog(ns, [r["cpu_s"] for r in rows], "o-", label="match (search + verification), CPU s")
+    ax2 = ax.twinx()
+    ax2.loglog(ns, [r["peak_mb"] for r in rows], "s--", color="gray", label="peak memory, MB (right)")
+    ax.set_xticks(ns, [str(n) for n in ns])
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel("landmarks per map")
+    ax.set_ylabel("CPU seconds")
+    ax2.set_ylabel("MB")
+    ax.set_title(f"sosmatch match, no prior ({machine_summary().rsplit(', ', 1)[-1]})")
+    ax.grid(True, which="both", alpha=0.3)
+    lines = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
+    ax.legend(lines, [h.get_label() for h in lines], fontsize=8, loc="upper left")
+    fig.savefig(plot, bbox_inches="tight")
+    plt.close(fig)
 
 
 # --- peak memory of one match in a fresh process ------------------------------------------------------------------
@@ -334,7 +345,11 @@ def bench_scaling(sizes: list[int], plot: str | None) -> list[dict]:
 def child_peak_mb(case: str, arg: object) -> float:
     """ru_maxrss (MB) of a fresh interpreter that imports sosmatch, builds the maps of `case` and runs one match."""
     code = f"import sys; from sosmatch.tools.benchmarks.bench_match import _child; _child({case!r}, {arg!r})"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    if out.returncode != 0:
+        print(f"  (the memory run of {case} {arg} failed with exit code {out.returncode}: "
+              f"{(out.stderr.strip().splitlines() or ['no message'])[-1]})")
+        return float("nan")
     return float(json.loads(out.stdout.strip().splitlines()[-1])["peak_mb"])
 
 
@@ -350,12 +365,17 @@ def _child(case: str, arg: object) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parts = ["clipper", "sparse", "dense", "nosizes", "aerial", "crossing", "season", "scaling"]
+    parts = ["clipper", "sparse", "dense", "nosizes", "aerial", "naip", "evaluation", "controls", "crossing", "season",
+             "scaling"]
     parser.add_argument("--only", choices=parts, action="append")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--clipper-ref", default=None, help="directory holding the clipper_ref module")
     parser.add_argument("--reference", action="store_true", help="check sparse maps against the slow reference")
     parser.add_argument("--memory", action="store_true", help="peak memory of the aerial match (child process)")
+    parser.add_argument("--naip", type=Path, default=Path("../shared/data/naip"), help="the two NAIP orthophotos")
+    parser.add_argument("--naip-work", type=Path, default=Path("naip_work"), help="NAIP sessions and maps (reused)")
+    parser.add_argument("--eval-work", type=Path, default=Path("bench_work"),
+                        help="evaluation suite sessions, maps and evaluations (bench_evaluate --work; reused)")
     parser.add_argument("--max-scaling", type=int, default=20000)
     parser.add_argument("--plot", default=None, help="PNG of the scaling curve (e.g. docs/img/match_scaling.png)")
     parser.add_argument("--json", default=None, help="write every figure to this JSON file")
@@ -364,7 +384,7 @@ def main(argv: list[str] | None = None) -> None:
     results: dict = {}
     for part in args.only or parts:
         if part == "clipper":
-            results[part] = bench_clipper(max(args.repeats, 7), args.clipper_ref)
+            results[part] = bench_clipper(max(3 * args.repeats, 15), args.clipper_ref)
         elif part == "sparse":
             results[part] = bench_sparse(args.repeats, args.reference)
         elif part == "dense":
@@ -373,6 +393,12 @@ def main(argv: list[str] | None = None) -> None:
             results[part] = bench_nosizes(args.repeats)
         elif part == "aerial":
             results[part] = bench_aerial(args.repeats, args.memory)
+        elif part == "naip":
+            results[part] = bench_naip(args.naip, args.naip_work, args.repeats, args.memory)
+        elif part == "evaluation":
+            results[part] = bench_evaluation(args.eval_work, 3)
+        elif part == "controls":
+            results[part] = bench_controls(max(1, args.repeats // 3))
         elif part == "crossing":
             results[part] = bench_crossing(max(1, args.repeats // 3))
         elif part == "season":
@@ -381,6 +407,7 @@ def main(argv: list[str] | None = None) -> None:
             ns = [n for n in (250, 500, 1000, 2000, 4000, 8000, 12000, 16000, 20000) if n <= args.max_scaling]
             results[part] = bench_scaling(ns, args.plot)
         print(machine_summary())
+    print_bars()
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
 
