@@ -379,6 +379,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--naip-work", type=Path, default=Path("naip_work"), help="NAIP sessions and maps (reused)")
     parser.add_argument("--eval-work", type=Path, default=Path("bench_work"),
                         help="evaluation suite sessions, maps and evaluations (bench_evaluate --work; reused)")
+    parser.add_argument("--eval-baseline-work", type=Path, default=None,
+                        help="read ORB+RANSAC from this suite's finished evaluations (same sessions) instead")
     parser.add_argument("--max-scaling", type=int, default=20000)
     parser.add_argument("--plot", default=None, help="PNG of the scaling curve (e.g. docs/img/match_scaling.png)")
     parser.add_argument("--json", default=None, help="write every figure to this JSON file")
@@ -399,7 +401,7 @@ def main(argv: list[str] | None = None) -> None:
         elif part == "naip":
             results[part] = bench_naip(args.naip, args.naip_work, args.repeats, args.memory)
         elif part == "evaluation":
-            results[part] = bench_evaluation(args.eval_work, 3)
+            results[part] = bench_evaluation(args.eval_work, 3, args.eval_baseline_work)
         elif part == "controls":
             results[part] = bench_controls(max(1, args.repeats // 3))
         elif part == "crossing":

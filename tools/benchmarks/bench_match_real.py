@@ -26,19 +26,27 @@ NAIP_LIMIT_S, NAIP_MEMORY_MB = 5.0, 500.0
 NAIP_WRONG_M, NAIP_WRONG_DEG = 15.0, 2.0  # an answer this far from the identity (the truth) is wrong
 
 
-def bench_evaluation(work: Path, repeats: int) -> list[dict]:
-    """The evaluation suite (`bench_evaluate`; ours and ORB+RANSAC, side by side in one run per case)."""
+def bench_evaluation(work: Path, repeats: int, baseline_work: Path | None = None) -> list[dict]:
+    """The evaluation suite (`bench_evaluate`): ours and ORB+RANSAC, side by side in one run per case, or with
+    `baseline_work` ORB+RANSAC read from that suite's finished evaluations of the same sessions (its time depends
+    on the images only: a map change needs no new baseline run)."""
     from .bench_evaluate import CASES, run_case
 
-    print(f"## Evaluation suite (`bench_evaluate`, work {work}): our match against ORB+RANSAC, accuracy")
+    source = f"ORB+RANSAC from {baseline_work}" if baseline_work else "side by side"
+    print(f"## Evaluation suite (`bench_evaluate`, work {work}; {source}): our match against ORB+RANSAC, accuracy")
     print("| case | ours s (match's answer, median) | ORB+RANSAC s | ratio (bar 46x) | average F1 (before) | "
           "recall at P >= 0.99 (before) |")
     print("|---|---|---|---|---|---|")
     rows = []
     for case in CASES:
-        ev = run_case(case, work, ["sosmatch", "orb_ransac"], repeats, reuse=True)
-        got = {r["method"]: r for r in ev["rows"]}
-        ours, orb = got["SOS-Match (ours)"], got.get("ORB+RANSAC")
+        if baseline_work is None:
+            ev = run_case(case, work, ["sosmatch", "orb_ransac"], repeats, reuse=True)
+            rows_b = ev["rows"]
+        else:
+            ev = run_case(case, work, ["sosmatch"], repeats, reuse=True)
+            rows_b = run_case(case, baseline_work, ["sosmatch", "orb_ransac"], repeats, reuse=True)["rows"]
+        ours = {r["method"]: r for r in ev["rows"]}["SOS-Match (ours)"]
+        orb = {r["method"]: r for r in rows_b}.get("ORB+RANSAC")
         f1_0, rec_0 = EVAL_BEFORE[case.name]
         f1, rec = ours["average_f1"], ours["recall_at_p99"]
         ratio = orb["search_s"] / max(ours["search_s"], 1e-9) if orb else float("nan")
