@@ -42,8 +42,9 @@ class PosesResult:
         frame = f"EPSG:{self.epsg}" if self.epsg else "local frame"
         text = (f"{self.out_dir}: {len(self.poses)} of {len(self.poses) + len(self.unregistered)} images registered "
                 f"({frame}")
-        if geo:
-            text += f", GPS noise {geo['gps_horizontal_sigma_m']:.2f} m"
+        sigma = geo.get("gps_horizontal_sigma_m")  # absent in a local frame (no GPS to measure the noise of)
+        if isinstance(sigma, (int, float)):
+            text += f", GPS noise {sigma:.2f} m"
         text += f"), {self.report.get('points', 0)} points at {self.report.get('reprojection_px', 0.0):.2f} px"
         if self.warnings:
             text += f"; {len(self.warnings)} WARNING(S), see {RECORD}"
