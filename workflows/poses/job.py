@@ -27,6 +27,7 @@ from .checks import NOMINAL_HEIGHT_M, _check_focal_lengths, _compare, _register,
 from .result import OUTPUTS, RECORD, PosesResult, _json_default, _listing, _refuse_cameras, load_result, map_inputs
 
 log = logging.getLogger(__name__)
+MIN_IMAGES = 3  # the fewest images an incremental reconstruction (two-view start + one more) can pose
 
 def _image_identity(paths: Sequence[Path]) -> list[list[Any]]:
     out = []
@@ -116,6 +117,9 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     sp = params.sfm
     warnings: list[str] = []
 
+    if len(priors.names) < MIN_IMAGES:  # said before the work: COLMAP would report "0 registered", not why
+        raise InputError(f"{len(priors.names)} image(s): structure from motion needs at least {MIN_IMAGES} "
+                         "overlapping images", image_dir)
     matched = _stage_done(work, "match", key)
     if matched is None or not db.is_file():
         sfm.create_database(db, priors, sp)  # kept from an interrupted run: extraction resumes
@@ -137,7 +141,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     model = sfm.reconstruct(db, image_dir, work / "models", priors, sp, params.seed, use_priors)
     timings["mapping"] = model.seconds
     n_all = len(priors.names)
-    if len(model.registered) < max(3, sp.min_registered_fraction * n_all):
+    if len(model.registered) < max(MIN_IMAGES, sp.min_registered_fraction * n_all):
         raise InputError(f"structure from motion registered only {len(model.registered)} of {n_all} images "
                          f"(sfm.min_registered_fraction = {sp.min_registered_fraction}); the images may not overlap "
                          "enough or lack texture; `sosmatch poses-from-exif` gives the EXIF/XMP poses instead",
