@@ -38,8 +38,8 @@ class Valid:
             return "one of " + ", ".join(repr(c) for c in self.choices)
         if self.lo is None and self.hi is None:
             return "any value"
-        lo = "-inf" if self.lo is None else f"{self.lo:g}"
-        hi = "inf" if self.hi is None else f"{self.hi:g}"
+        lo = "-inf" if self.lo is None else (f"{self.lo:g}" if isinstance(self.lo, float) else str(self.lo))
+        hi = "inf" if self.hi is None else (f"{self.hi:g}" if isinstance(self.hi, float) else str(self.hi))
         text = f"within {'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open or self.hi is None else ']'}"
         return text + (", odd" if self.odd else "")
 
@@ -78,9 +78,12 @@ def fraction(default: float) -> Any:
     return within(default, 0.0, 1.0)
 
 
+MAX_COUNT = 2**31 - 1  # counts reach COLMAP's options and compiled kernels as C ints: a larger one overflows there
+
+
 def count(default: int, lo: int = 0, hi: int | None = None, odd: bool = False) -> Any:
-    """An integer of at least `lo` (and at most `hi`)."""
-    return _valid(default, Valid(lo, hi, odd=odd))
+    """An integer of at least `lo` and at most `hi` (None: MAX_COUNT)."""
+    return _valid(default, Valid(lo, MAX_COUNT if hi is None else hi, odd=odd))
 
 
 def one_of(default: Any, *choices: Any) -> Any:
@@ -311,7 +314,7 @@ class VerificationParams(Checked):
     enabled: bool = flag(True)  # off (`match --no-verify`): the answer is the window consensus as it is
     dof: int = one_of(4, 4, 6)  # ICP degrees of freedom: 4 = yaw + translation (gravity-aligned maps), 6 = rigid
     final_dof: int = one_of(6, 0, 6)  # the winner refitted 6-DOF on its pairs (0: keep the `dof` fit)
-    min_ratio: float = positive(1.2)  # the winner's support over the best alignment that puts B elsewhere
+    min_ratio: float = within(1.2, 1.0, None)  # the winner's support over the best alignment that puts B elsewhere
     z_weight: float = positive(0.5)  # heights count this much in the nearest-neighbour distance (noisier)
     max_candidates: int = count(400, 1)  # window hypotheses tried, largest first (bounds dense maps)
     # the size gate of the verification's pairs (r of mutual nearest neighbours within theta_eps). Across seasons

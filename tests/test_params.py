@@ -137,7 +137,11 @@ def test_segmentation_backend_choices_are_the_registry():
 
 @pytest.mark.parametrize("override, fragment", [
     ("association.affinity_sigma_m=nan", "association.affinity_sigma_m must be within (0, inf)"),
-    ("triangulation.min_observations=-5", "triangulation.min_observations must be within [1, inf)"),
+    ("triangulation.min_observations=-5", "triangulation.min_observations must be within [1, 2147483647]"),
+    # an integer beyond a C int once reached numba (a 40-line traceback) and COLMAP's options
+    ("association.window_length=99999999999999999999999", "window_length must be within [3, 2147483647]"),
+    ("sfm.max_features=4294967296", "sfm.max_features must be within [64, 2147483647]"),
+    ("verification.min_ratio=0.5", "verification.min_ratio must be within [1, inf)"),  # a winner weaker than its rival
     ("association.transform='affine'", "one of 'rigid', 'similarity'"),
     ("segmentation.classical_median_ksize=4", "odd"),
     ("tracking.min_score=1.5", "within [0, 1]"),
