@@ -29,6 +29,8 @@ from .atomic import atomic_path
 from .cameras import pycolmap_camera
 
 if TYPE_CHECKING:
+    import pycolmap
+
     from ..plugin.changes import KeyframeSegments
 
 log = logging.getLogger(__name__)
@@ -72,23 +74,57 @@ def keypoint_sizes_px(keypoints: np.ndarray) -> np.ndarray | None:
     return np.linalg.svd(kp[:, 2:].astype(np.float64).reshape(-1, 2, 2), compute_uv=False)[:, 0]
 
 
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def open_colmap_database(path: str | Path) -> pycolmap.Database:
+    """A user's COLMAP database opened for reading; InputError naming it when it is not one.
+
+    The SQLite header is checked first: pycolmap's own refusal of another file is a glog warning on stderr and
+    "No registered database factory succeeded", which names neither the file nor the problem."""
+    import pycolmap
+
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(SQLITE_MAGIC))
+    except FileNotFoundError:
+        raise InputError("COLMAP database not found", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read COLMAP database: {exc.strerror or exc}", path) from None
+    if head != SQLITE_MAGIC:
+        raise InputError("not a COLMAP database (not an SQLite file" + (": empty)" if not head else ")"), path)
+    # pycolmap opens read-write and adds its schema to any SQLite file: look first, read-only
+    try:
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+        try:
+            tables = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        raise InputError(f"cannot read COLMAP database: {exc}".splitlines()[0], path) from None
+    missing = sorted({"cameras", "images", "keypoints"} - tables)
+    if missing:
+        raise InputError(f"not a COLMAP database (an SQLite file without the table {missing[0]})", path)
+    try:
+        return pycolmap.Database.open(str(path))
+    except Exception as exc:  # pycolmap raises plain RuntimeError on files that are not databases
+        raise InputError(f"cannot open COLMAP database: {exc}".splitlines()[0], path) from None
+
+
 def read_segment_detections(path: str | Path, names: Sequence[str]) -> list[KeyframeSegments]:
     """The keypoints of the images `names` in a session's database.db (segment centroids and pixel sizes).
 
     A name missing from the database is an InputError (the database belongs to another session); an image
     without keypoints gives an empty detection set.
     """
-    import pycolmap
 
     from ..plugin.changes import KeyframeSegments
 
     path = Path(path)
     if not path.is_file():
         raise InputError("COLMAP database not found", path)
-    try:
-        db = pycolmap.Database.open(str(path))
-    except Exception as exc:  # pycolmap raises plain RuntimeError on files that are not databases
-        raise InputError(f"cannot open COLMAP database: {exc}".splitlines()[0], path) from None
+    db = open_colmap_database(path)
     try:
         try:
             ids = {img.name: img.image_id for img in db.read_all_images()}

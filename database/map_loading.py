@@ -77,12 +77,10 @@ def track_sizes(rec: pycolmap.Reconstruction, ids: list[int], database: Path) ->
     as `sosmatch map` writes them), depth from the image pose, f = sqrt(fx fy). Points whose keypoints carry no
     shape (2 or 4 columns) get NaN, so the size gate is off for them.
     """
-    import pycolmap
 
-    try:
-        db = pycolmap.Database.open(str(database))
-    except Exception as exc:  # not a COLMAP database
-        raise InputError(f"cannot open COLMAP database: {exc}".splitlines()[0], database) from None
+    from .colmap_db import open_colmap_database
+
+    db = open_colmap_database(database)
     h_px: dict[int, np.ndarray] = {}
     try:
         for iid in rec.images:

@@ -195,3 +195,27 @@ def test_unreachable_scheduler_is_one_line(tmp_path, cli_error):
         err = cli_error("batch", tmp_path, "--out", tmp_path / "out", "--scheduler",
                               "tcp://127.0.0.1:9")
     assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in err
+
+
+# --- a database.db that is not COLMAP's: refused by name, and never written (pycolmap adds its schema to any file)
+
+
+@pytest.mark.parametrize("content", [b"", b"\x9f" * 5000, "other sqlite"])
+def test_a_database_that_is_not_colmaps_is_refused_and_left_alone(toy, tmp_path, cli_error, content):
+    import shutil
+    import sqlite3
+
+    _, a, b, _ = toy
+    ab = toy_match_json(a, b, tmp_path / "ab.json")
+    b2 = tmp_path / "B"
+    shutil.copytree(b.path, b2)
+    db = b2 / "database.db"
+    if content == "other sqlite":
+        with sqlite3.connect(db) as con:
+            con.execute("CREATE TABLE notes (text)")
+    else:
+        db.write_bytes(content)
+    before = db.read_bytes()
+    err = cli_error("changes", a.path, b2, "--match", ab, "--out", tmp_path / "C")
+    assert str(db) in err and "not a COLMAP database" in err
+    assert db.read_bytes() == before and not (tmp_path / "C").exists()
