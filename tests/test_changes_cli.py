@@ -132,7 +132,7 @@ def test_bad_inputs_are_one_line_errors_and_write_nothing(toy, tmp_path, capsys)
     _refused([root / "A", root / "B", "--match", root / "AC" / "match.json", "--out", out], capsys, out,
              "computed for other maps")
     _refused([root / "B", root / "A", "--match", root / "AB" / "match.json", "--out", out], capsys, out,
-             "other order")
+             f"other order (its map A is {root / 'A'})")  # the session given, not the letter "B"
     # a session whose model holds no keyframe poses
     bare = tmp_path / "bare"
     shutil.copytree(root / "B", bare)

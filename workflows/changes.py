@@ -75,7 +75,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         raise ValueError("give match_json or a_from_b")
     files_a, files_b = read_session(session_a), read_session(session_b)
     if match is not None:
-        check_match_maps(match, files_a.landmarks, files_b.landmarks, match_json)
+        check_match_maps(match, files_a.landmarks, files_b.landmarks, match_json,
+                         names=(str(session_a), str(session_b)))
     obs_a, obs_b = read_session_observations(files_a), read_session_observations(files_b)
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
@@ -88,8 +89,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if sup is not None and not sup.plausible():
         raise InputError(f"the transform does not bring the maps together: {sup.rate:.0%} of A's {sup.compared} "
                          f"compared landmarks have a counterpart, {sup.displaced_rate:.0%} with B moved "
-                         f"{CONTROL_SHIFT * result.tolerance_m:.0f} m (chance); the alignment is wrong, nothing "
-                         "to compare", match_json or session_b)
+                         f"{CONTROL_SHIFT * result.tolerance_m:.0f} m (chance): the alignment is wrong, or the "
+                         "maps share too few landmarks to confirm it; nothing compared", match_json or session_b)
     sources = {"session_a": str(session_a), "session_b": str(session_b),
                "match": str(match_json) if match_json is not None else "",
                "map_a": landmark_map_fingerprint(files_a.landmarks),
