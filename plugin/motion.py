@@ -25,6 +25,8 @@ import logging
 import cv2
 import numpy as np
 
+from .image_matching import cross_checked_matches, gray_u8, homography_inliers, orb_features
+
 logger = logging.getLogger(__name__)
 
 MIN_TRACKS = 8  # below this the LK statistics are too noisy to gate on; use the fallback
@@ -37,26 +39,12 @@ _FB_MAX_PX = 1.0  # forward-backward consistency for a kept LK track (px at the 
 _WORK_MAX_DIM = 1024  # larger images are downscaled for speed; displacements are scaled back
 
 
-def _to_gray_u8(img: np.ndarray) -> np.ndarray:
-    img = np.asarray(img)
-    if img.ndim == 3:
-        img = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2GRAY)
-    if img.ndim != 2:
-        raise ValueError(f"expected a 2-D grayscale (or HxWx3) image, got shape {img.shape}")
-    if img.dtype != np.uint8:
-        img = img.astype(np.float64)
-        if img.max(initial=0.0) <= 1.0:  # float images in [0, 1]
-            img = img * 255.0
-        img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(img)
-
-
 def _working_pair(prev_gray: np.ndarray, cur_gray: np.ndarray,
                   same_size: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
     """Both keyframes as uint8 gray, downscaled by one factor (from `prev`) so the larger side is at most
     `_WORK_MAX_DIM`; returns (prev, cur, scale). Displacements measured on them divide by `scale`."""
-    prev = _to_gray_u8(prev_gray)
-    cur = _to_gray_u8(cur_gray)
+    prev = gray_u8(prev_gray)
+    cur = gray_u8(cur_gray)
     if same_size and prev.shape != cur.shape:
         raise ValueError(f"keyframes differ in size: {prev.shape} vs {cur.shape}")
     scale = min(1.0, _WORK_MAX_DIM / max(prev.shape))
@@ -99,20 +87,17 @@ def homography_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_fe
     """Displacement vectors (N,2) in px (full resolution) of cross-checked ORB matches that agree with one RANSAC
     homography (large-motion fallback for `lk_displacements`). Empty when fewer than `MIN_TRACKS` agree."""
     prev, cur, scale = _working_pair(prev_gray, cur_gray)
-    orb = cv2.ORB_create(int(max_features))
-    kp0, d0 = orb.detectAndCompute(prev, None)
-    kp1, d1 = orb.detectAndCompute(cur, None)
-    if d0 is None or d1 is None or len(kp0) < MIN_TRACKS or len(kp1) < MIN_TRACKS:
+    f0, f1 = orb_features(prev, max_features), orb_features(cur, max_features)
+    if len(f0) < MIN_TRACKS or len(f1) < MIN_TRACKS:
         return np.zeros((0, 2))
-    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d0, d1)
+    matches = cross_checked_matches(f0.descriptors, f1.descriptors)
     if len(matches) < 2 * MIN_TRACKS:
         return np.zeros((0, 2))
-    p0 = np.float32([kp0[m.queryIdx].pt for m in matches])
-    p1 = np.float32([kp1[m.trainIdx].pt for m in matches])
-    homography, inliers = cv2.findHomography(p0, p1, cv2.RANSAC, ransac_px)
-    if homography is None or inliers is None or int(inliers.sum()) < 2 * MIN_TRACKS:
+    p0 = f0.points[matches[:, 0]].astype(np.float32)
+    p1 = f1.points[matches[:, 1]].astype(np.float32)
+    keep = homography_inliers(p0, p1, ransac_px)
+    if keep is None or int(keep.sum()) < 2 * MIN_TRACKS:
         return np.zeros((0, 2))  # too few agreeing matches: a chance homography, not the image motion
-    keep = inliers.ravel().astype(bool)
     return (p1[keep] - p0[keep]).astype(np.float64) / scale
 
 
@@ -129,8 +114,8 @@ def image_motion_stats(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners:
     if len(disp) >= MIN_TRACKS:
         mag = np.linalg.norm(disp, axis=1)
         return float(mag.mean()), float(mag.std())
-    prev = _to_gray_u8(prev_gray).astype(np.float64)
-    cur = _to_gray_u8(cur_gray).astype(np.float64)
+    prev = gray_u8(prev_gray).astype(np.float64)
+    cur = gray_u8(cur_gray).astype(np.float64)
     window = cv2.createHanningWindow(prev.shape[::-1], cv2.CV_64F)
     (dx, dy), response = cv2.phaseCorrelate(prev, cur, window)
     mu = float(np.hypot(dx, dy))

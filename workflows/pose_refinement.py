@@ -493,19 +493,17 @@ def _orb_matches(desc_a: np.ndarray, desc_b: np.ndarray, kp_a: np.ndarray, kp_b:
                  ransac_px: float) -> np.ndarray:
     """Indices (M, 2) of ORB matches between two images that pass Lowe's ratio test and a RANSAC homography
     (the ground is nearly flat, so a homography is the right image-only model; parallax outliers are dropped)."""
-    import cv2
+    from ..plugin.image_matching import homography_inliers, ratio_matches
 
     if desc_a is None or desc_b is None or len(desc_a) < 8 or len(desc_b) < 8:
         return np.zeros((0, 2), dtype=int)
-    knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(desc_a, desc_b, k=2)
-    good = np.array([(m[0].queryIdx, m[0].trainIdx) for m in knn
-                     if len(m) == 2 and m[0].distance < 0.8 * m[1].distance], dtype=int).reshape(-1, 2)
+    good = ratio_matches(desc_a, desc_b, 0.8)
     if len(good) < 12:
         return np.zeros((0, 2), dtype=int)
-    _, inl = cv2.findHomography(kp_a[good[:, 0]], kp_b[good[:, 1]], cv2.RANSAC, ransac_px)
+    inl = homography_inliers(kp_a[good[:, 0]], kp_b[good[:, 1]], ransac_px)
     if inl is None or inl.sum() < 12:
         return np.zeros((0, 2), dtype=int)
-    return good[inl.ravel().astype(bool)]
+    return good[inl]
 
 
 def tie_point_reconstruction(
@@ -533,9 +531,9 @@ def tie_point_reconstruction(
     import pycolmap
 
     from ..database.cameras import pycolmap_camera
+    from ..plugin.image_matching import orb_features
 
     n = len(poses)
-    orb = cv2.ORB_create(max_features)
     kps, descs = [], []
     for path in image_paths:
         img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
@@ -545,9 +543,9 @@ def tie_point_reconstruction(
             raise InputError("cannot read image", path)
         if img.shape[1] != camera.width:
             raise ValueError(f"{path}: image width {img.shape[1]} differs from the camera's {camera.width}")
-        k, d = orb.detectAndCompute(img, None)
-        kps.append(np.array([p.pt for p in k], dtype=np.float64).reshape(-1, 2) + 0.5)  # COLMAP pixel centres
-        descs.append(d)
+        features = orb_features(img, max_features)
+        kps.append(features.colmap_points)
+        descs.append(features.descriptors)
     spacing = np.median(np.linalg.norm(np.diff(poses.centers[:, :2], axis=0), axis=1)) if n > 1 else 1.0
     radius = neighbour_fraction * 4.0 * spacing
     d2 = np.linalg.norm(poses.centers[:, None, :2] - poses.centers[None, :, :2], axis=2)
