@@ -390,6 +390,36 @@ class QualityParams(Checked):
 
 
 @dataclass(frozen=True)
+class PoseCheckParams(Checked):
+    """(ours) The poses checked against what the images show (`plugin.pose_check`): pose-free matches of a
+    bounded subsample of overlapping image pairs, explained by the poses' epipolar geometry. Limits measured on
+    good poses (exact, EKF, refined, structure from motion; synthetic and real) against deliberately wrong ones:
+    BENCHMARKS.md, "Poses against the images"."""
+
+    enabled: bool = flag(True)  # `sosmatch map` runs the check (its refusals refuse the map, as quality.refuse says)
+    max_pairs: int = count(240, 3)  # a third each: consecutive images, k apart, another flight line
+    max_image_side_px: int = count(1024, 64)  # features on images downscaled to this longer side
+    max_features: int = count(2000, 64)  # ORB features per image
+    ratio: float = within(0.8, 0.0, 1.0, lo_open=True)  # Lowe's ratio test
+    ransac_px: float = positive(1.5)  # fundamental-matrix RANSAC threshold at the working size
+    min_inliers: int = count(30, 8)  # fewer agreeing matches: no evidence (chance matches reach ~20 in turns)
+    noise_px: float = positive(1.0)  # ORB keypoint noise at the working size (the fit's pixel scale)
+    wide_shift: float = within(0.4, 0.0, 1.0, lo_open=True)  # "wide" pairs move the image by this much
+    max_wide_offset: int = count(10, 1)
+    cross_radius: float = positive(0.5)  # cross-line partners within this fraction of the footprint's short side
+    min_pairs: int = count(10, 1)  # fewer checked pairs: a warning that the check saw too little
+    # refusals / warnings (plugin.pose_check.judge_poses); systematic errors only beyond 2 sigma of their fit
+    max_epipolar_gate_fraction: float = positive(1.0)  # median pair error beyond the tracker's epipolar gate
+    warn_epipolar_gate_fraction: float = positive(0.25)
+    max_height_drift: float = positive(0.2)  # heights drifting over the flight, as a fraction of the flying height
+    warn_height_drift: float = positive(0.05)
+    max_height_tilt_deg: float = within(20.0, 0.0, 90.0)  # the same limit as the map's block tilt
+    warn_height_tilt_deg: float = within(5.0, 0.0, 90.0)
+    max_attitude_bias_deg: float = within(10.0, 0.0, 180.0)
+    warn_attitude_bias_deg: float = within(2.0, 0.0, 180.0)
+
+
+@dataclass(frozen=True)
 class ImageParams(Checked):
     # (ours) the longer image side (px) at which the pixel-valued parameters hold: the tracking margins and noise
     # (`tracking.*_px`), the triangulation sigma and reprojection limit (`triangulation.*_px`) and the pixel
@@ -440,6 +470,7 @@ class Params(Checked):
     verification: VerificationParams = field(default_factory=VerificationParams)
     changes: ChangeParams = field(default_factory=ChangeParams)
     quality: QualityParams = field(default_factory=QualityParams)
+    pose_check: PoseCheckParams = field(default_factory=PoseCheckParams)
     sfm: SfmParams = field(default_factory=SfmParams)
     seed: int = count(0, 0, 2**63 - 1)  # every random choice in the pipeline derives from this
 

@@ -1,0 +1,240 @@
+"""The check itself: which pairs (from the capture order, bounded), their pose-free matches judged by the poses
+(`PairCheck`), and the figures of the whole flight (`PoseCheck`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry import Camera, Poses
+from ..image_matching import OrbFeatures
+from ..map_quality import flight_passes
+from ..params import PoseCheckParams
+from .matches import PairMatches, match_pair
+from .systematic import SystematicErrors, fit_systematic_errors, pair_sampson_px
+from .two_view import relative_poses, triangulation_depths
+
+
+@dataclass(frozen=True)
+class PairCheck:
+    """One pair: its pose-free matches judged by the poses (pixels of the ideal pinhole image, full size)."""
+
+    a: int
+    b: int
+    kind: str  # "next" (consecutive images), "wide" (k images apart), "cross" (another part of the flight)
+    matches: int
+    inliers: int
+    flow_px: float  # median image motion of the inliers
+    epipolar_px: float  # median Sampson distance under the poses
+    epipolar_p90_px: float
+    epipolar_fit_px: float  # the same after the systematic errors were taken off the poses
+    in_front: float  # share of inliers the poses triangulate in front of both cameras
+    depth_m: float  # median depth of the inliers in camera a (the poses' triangulation): the flying height
+
+    def reversed(self, gate_px: float) -> bool:
+        """The matches fit the poses' epipolar geometry but lie behind the cameras: the motion is reversed."""
+        return self.in_front < 0.5 and self.epipolar_px <= gate_px
+
+    def to_list(self) -> list:
+        return [self.a, self.b, self.kind, self.inliers, round(self.epipolar_px, 3), round(self.epipolar_fit_px, 3),
+                round(self.in_front, 3)]
+
+
+
+@dataclass
+class PoseCheck:
+    """How the poses explain the pose-free matches of a subsample of image pairs (module doc)."""
+
+    images: int
+    pairs_tried: int
+    pairs_checked: int
+    focal_px: float
+    gate_px: float  # the tracker's epipolar gate for this image (the scale of "far off")
+    flying_height_m: float
+    epipolar_p50_px: float  # median over pairs of each pair's median Sampson distance
+    epipolar_p90_px: float
+    epipolar_fit_p50_px: float  # after the systematic errors are taken off
+    share_beyond_gate: float  # pairs whose median match is further off its epipolar line than the gate
+    reversed_pairs: int
+    reversed_passes: list[dict] = field(default_factory=list)  # passes whose checked pairs are mostly reversed
+    systematic: SystematicErrors = field(default_factory=SystematicErrors)
+    wide_offset: int = 1
+    pairs: list[PairCheck] = field(default_factory=list)
+
+    @property
+    def epipolar_p50_deg(self) -> float:
+        return float(np.degrees(self.epipolar_p50_px / self.focal_px)) if self.focal_px > 0 else float("nan")
+
+    def to_dict(self, names: list[str] | None = None) -> dict:
+        def num(v: float) -> float | None:
+            return round(float(v), 4) if np.isfinite(v) else None
+
+        s = self.systematic
+        out = {
+            "images": self.images, "pairs_tried": self.pairs_tried, "pairs_checked": self.pairs_checked,
+            "wide_offset": self.wide_offset, "focal_px": num(self.focal_px), "gate_px": num(self.gate_px),
+            "flying_height_m": num(self.flying_height_m), "epipolar_p50_px": num(self.epipolar_p50_px),
+            "epipolar_p90_px": num(self.epipolar_p90_px), "epipolar_p50_deg": num(self.epipolar_p50_deg),
+            "epipolar_fit_p50_px": num(self.epipolar_fit_p50_px), "share_beyond_gate": num(self.share_beyond_gate),
+            "reversed_pairs": self.reversed_pairs, "reversed_passes": self.reversed_passes,
+            "height_drift_m": num(s.height_drift_m), "height_drift_sigma_m": num(s.height_drift_sigma_m),
+            "height_tilt_deg": num(s.height_tilt_deg), "height_tilt_sigma_deg": num(s.height_tilt_sigma_deg),
+            "height_tilt_azimuth_deg": num(s.height_tilt_azimuth_deg),
+            "attitude_bias_deg": num(s.attitude_bias_deg), "attitude_bias_sigma_deg": num(s.attitude_bias_sigma_deg),
+            "attitude_bias_axis": [num(v) for v in s.attitude_bias_axis],
+            "pairs_columns": ["a", "b", "kind", "inliers", "epipolar_px", "epipolar_fit_px", "in_front"],
+            "pairs": [p.to_list() for p in self.pairs],
+        }
+        if names is not None:
+            out["images_checked"] = sorted({names[i] for p in self.pairs for i in (p.a, p.b)})
+        return out
+
+    def line(self) -> str:
+        """A short summary for the map's one-line report."""
+        if not self.pairs_checked:
+            return f"poses vs images: no pair of {self.pairs_tried} matched"
+        s = self.systematic
+        text = (f"poses vs images: epipolar {self.epipolar_p50_px:.1f} px ({self.pairs_checked} pairs), height drift "
+                f"{_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg")
+        return text + (f", {self.reversed_pairs} reversed" if self.reversed_pairs else "")
+
+
+def _fmt(v: float, spec: str) -> str:
+    return format(v, spec) if np.isfinite(v) else "n/a"
+
+
+def anchor_images(n: int, max_anchors: int) -> np.ndarray:
+    """Up to `max_anchors` images spread evenly over the capture order (each starts the pairs of its checks)."""
+    if n < 2:
+        return np.zeros(0, dtype=np.int64)
+    return np.unique(np.linspace(0, n - 2, min(n - 1, max(1, max_anchors))).round().astype(np.int64))
+
+
+def wide_offset(flows_px: list[float], short_side_px: float, target_shift: float, max_offset: int) -> int:
+    """How many images apart a pair moves the image by `target_shift` of its shorter side, from the consecutive
+    pairs' image motion: wider baselines see the direction of motion (and the heights) better."""
+    if not flows_px:
+        return 1
+    flow = float(np.median(flows_px))
+    if flow <= 0:
+        return max_offset
+    return int(np.clip(round(target_shift * short_side_px / flow), 1, max_offset))
+
+
+def cross_partners(centers: np.ndarray, anchors: np.ndarray, min_gap: int, radius_m: float) -> list[tuple[int, int]]:
+    """For each anchor, the image nearest to it (horizontal distance of the poses' centres) at least `min_gap`
+    images away in the capture order, if within `radius_m`: another flight line over the same ground."""
+    c = np.asarray(centers, np.float64)[:, :2]
+    out = []
+    for i in anchors:
+        d = np.linalg.norm(c - c[i], axis=1)
+        d[max(0, i - min_gap):i + min_gap + 1] = np.inf
+        j = int(np.argmin(d))
+        if np.isfinite(d[j]) and d[j] <= radius_m:
+            out.append((int(min(i, j)), int(max(i, j))))
+    return out
+
+
+def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatures], params: PoseCheckParams,
+                gate_px: float) -> PoseCheck:
+    """Check `poses` (in capture order) against the images: `features(i)` gives image i's ORB features (the
+    caller reads the file; called at most once per image, only for the images of the chosen pairs).
+
+    Pairs: consecutive images from up to `max_pairs / 3` anchors spread over the flight; pairs `wide_offset`
+    images apart, the offset chosen from the consecutive pairs' image motion; and per anchor the nearest image of
+    another part of the flight that the poses say overlaps (half a footprint, the footprint estimated from the
+    consecutive pairs' image motion and the poses' spacing). `gate_px` is the tracker's epipolar gate.
+    """
+    n = len(poses)
+    focal = float(np.sqrt(camera.fx * camera.fy))
+    noise_px = params.noise_px / _working_scale(camera, params)
+    cache: dict[int, OrbFeatures] = {}
+
+    def feat(i: int) -> OrbFeatures:
+        if i not in cache:
+            cache[i] = features(i)
+        return cache[i]
+
+    tried: set[tuple[int, int]] = set()
+    found: dict[tuple[int, int], tuple[str, PairMatches]] = {}
+
+    def attempt(a: int, b: int, kind: str) -> PairMatches | None:
+        if (a, b) in tried or a == b:
+            return found.get((a, b), ("", None))[1]
+        tried.add((a, b))
+        pm = match_pair(a, b, feat(a), feat(b), camera, params)
+        if pm is not None:
+            found[(a, b)] = (kind, pm)
+        return pm
+
+    anchors = anchor_images(n, params.max_pairs // 3)
+    flows = [pm.flow_px for i in anchors if (pm := attempt(int(i), int(i) + 1, "next")) is not None]
+    short = float(min(camera.width, camera.height))
+    k = wide_offset(flows, short, params.wide_shift, params.max_wide_offset)
+    if k > 1:
+        for i in anchors:
+            if i + k < n:
+                attempt(int(i), int(i) + k, "wide")
+    steps = np.linalg.norm(np.diff(poses.centers[:, :2], axis=0), axis=1)
+    if flows and len(steps):
+        # metres per pixel of image motion between consecutive images -> the footprint's shorter side
+        footprint = short * float(np.median(steps)) / max(float(np.median(flows)), 1e-9)
+        for a, b in cross_partners(poses.centers, anchors, 2 * k + 1, params.cross_radius * footprint):
+            attempt(a, b, "cross")
+
+    keys = sorted(found)
+    kinds = [found[key][0] for key in keys]
+    matched = [found[key][1] for key in keys]
+    if not matched:
+        return PoseCheck(n, len(tried), 0, focal, gate_px, float("nan"), float("nan"), float("nan"), float("nan"),
+                         float("nan"), 0)
+    rot, t = relative_poses(poses.rotations, poses.centers, np.array([p.a for p in matched]),
+                            np.array([p.b for p in matched]))
+    raw = np.split(pair_sampson_px(poses, matched, focal), np.cumsum([p.inliers for p in matched])[:-1])
+    depth, front = [], []
+    for p, r_p, t_p in zip(matched, rot, t):
+        d_a, d_b = triangulation_depths(p.x_a, p.x_b, r_p, t_p)
+        ok = (d_a > 0) & (d_b > 0)
+        front.append(float(np.mean(ok)))
+        depth.append(float(np.median(d_a[ok])) if ok.any() else float("nan"))
+    depth_a = np.array(depth)
+    nexts = [d for d, kind in zip(depth_a, kinds) if kind == "next" and np.isfinite(d)]
+    flying = float(np.median(nexts if nexts else depth_a[np.isfinite(depth_a)])) if np.isfinite(depth_a).any() \
+        else float("nan")
+    systematic = fit_systematic_errors(poses, matched, focal, flying, noise_px)
+    fitted = systematic.corrected(poses, flying)
+    after = np.split(pair_sampson_px(fitted, matched, focal), np.cumsum([p.inliers for p in matched])[:-1])
+    checks = [PairCheck(p.a, p.b, kind, p.matches, p.inliers, p.flow_px, float(np.nanmedian(r)),
+                        float(np.nanpercentile(r, 90)), float(np.nanmedian(f)), fr, d)
+              for p, kind, r, f, fr, d in zip(matched, kinds, raw, after, front, depth)]
+    med = np.array([c.epipolar_px for c in checks])
+    fit_med = np.array([c.epipolar_fit_px for c in checks])
+    reversed_passes = _reversed_passes(checks, poses, gate_px)
+    return PoseCheck(
+        images=n, pairs_tried=len(tried), pairs_checked=len(checks), focal_px=focal, gate_px=gate_px,
+        flying_height_m=flying, epipolar_p50_px=float(np.nanmedian(med)),
+        epipolar_p90_px=float(np.nanpercentile(med, 90)), epipolar_fit_p50_px=float(np.nanmedian(fit_med)),
+        share_beyond_gate=float(np.mean(med > gate_px)),
+        reversed_pairs=sum(c.reversed(gate_px) for c in checks), reversed_passes=reversed_passes,
+        systematic=systematic, wide_offset=k, pairs=checks)
+
+
+def _working_scale(camera: Camera, params: PoseCheckParams) -> float:
+    return min(1.0, params.max_image_side_px / max(camera.width, camera.height))
+
+
+def _reversed_passes(checks: list[PairCheck], poses: Poses, gate_px: float) -> list[dict]:
+    """Passes of the flight (`map_quality.flight_passes`) most of whose checked pairs inside the pass (at least
+    two) are reversed: the poses say those images moved the other way."""
+    passes = flight_passes(poses.centers)
+    out = []
+    for k in np.unique(passes):
+        inside = [c for c in checks if passes[c.a] == k and passes[c.b] == k]
+        bad = [c for c in inside if c.reversed(gate_px)]
+        if len(bad) >= 2 and len(bad) > 0.5 * len(inside):
+            members = np.flatnonzero(passes == k)
+            out.append({"pass": int(k), "first": poses.names[members[0]], "last": poses.names[members[-1]],
+                        "images": int(len(members)), "pairs": len(inside), "reversed": len(bad)})
+    return out

@@ -1,0 +1,60 @@
+"""The verdict on the figures of `check.check_poses`: refusals (the poses contradict the images) and warnings."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..map_quality import Verdict
+from ..params import PoseCheckParams
+from .check import PoseCheck
+
+
+def judge_poses(check: PoseCheck, limits: PoseCheckParams) -> Verdict:
+    """Refusals (the poses contradict the images) and warnings (they fit them loosely); limits: PoseCheckParams.
+
+    A systematic error is refused only when it exceeds its limit by more than two of its standard deviations
+    (the evidence must be clear, not a noisy fit)."""
+    v = Verdict()
+    if check.pairs_checked < limits.min_pairs:
+        v.warnings.append(f"poses vs images: only {check.pairs_checked} of {check.pairs_tried} image pairs matched "
+                          "(too few to check the poses: little texture, or poses far off where the images are)")
+        if not check.pairs_checked:
+            return v
+    gate = check.gate_px
+    for rp in check.reversed_passes:
+        v.refusals.append(f"poses vs images: on the pass {rp['first']} .. {rp['last']} ({rp['reversed']} of "
+                          f"{rp['pairs']} pairs) the images move the other way than the poses say (a heading "
+                          "180 deg off?)")
+    if check.epipolar_p50_px > limits.max_epipolar_gate_fraction * gate:
+        v.refusals.append(f"poses vs images: the poses' epipolar geometry misses the images' matches by "
+                          f"{check.epipolar_p50_px:.1f} px (median of {check.pairs_checked} pairs; the tracker's gate "
+                          f"is {gate:.1f} px): wrong relative rotations or directions of motion")
+    elif check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * gate:
+        v.warnings.append(f"poses vs images: the poses fit the images' matches only to {check.epipolar_p50_px:.1f} px "
+                          f"(median of {check.pairs_checked} pairs; gate {gate:.1f} px): expect a sparse map")
+    s, h = check.systematic, check.flying_height_m
+    systematic = [  # value, its sigma, refusal limit, warning limit, what, the refusal limit in words, likely cause
+        (s.height_drift_m, s.height_drift_sigma_m, limits.max_height_drift * h, limits.warn_height_drift * h,
+         f"the cameras' heights drift by {s.height_drift_m:+.1f} m (+-{s.height_drift_sigma_m:.1f}) over the flight",
+         f"{limits.max_height_drift * h:.0f} m, {limits.max_height_drift:.0%} of the {h:.0f} m flying height",
+         "a drifting GPS altitude?"),
+        (s.height_tilt_deg, s.height_tilt_sigma_deg, limits.max_height_tilt_deg, limits.warn_height_tilt_deg,
+         f"the cameras' heights tilt {s.height_tilt_deg:.1f} deg (+-{s.height_tilt_sigma_deg:.1f}) over the ground",
+         f"{limits.max_height_tilt_deg:g} deg", "the camera centres lie on a tilted plane"),
+        (s.attitude_bias_deg, s.attitude_bias_sigma_deg, limits.max_attitude_bias_deg, limits.warn_attitude_bias_deg,
+         f"the cameras share an attitude error of {s.attitude_bias_deg:.1f} deg (+-{s.attitude_bias_sigma_deg:.1f})",
+         f"{limits.max_attitude_bias_deg:g} deg", "a wrong mounting or heading convention?"),
+    ]
+    for value, sigma, limit, warn, what, at_most, cause in systematic:
+        if _beyond(value, sigma, limit):
+            v.refusals.append(f"poses vs images: {what} against what the images show (at most {at_most}): {cause}")
+        elif _beyond(value, sigma, warn):
+            v.warnings.append(f"poses vs images: {what} against the images")
+    return v
+
+
+def _beyond(value: float, sigma: float, limit: float) -> bool:
+    """|value| exceeds `limit` by more than two standard deviations (False for NaN)."""
+    if not (np.isfinite(value) and np.isfinite(limit)):
+        return False
+    return abs(value) - 2.0 * (sigma if np.isfinite(sigma) else np.inf) > limit

@@ -1,0 +1,125 @@
+"""Poses against what the images show: the image I/O around `plugin.pose_check`, for `sosmatch map` (a stage of
+every map) and `sosmatch check-poses` (poses a user brings: a pose CSV, a COLMAP model, an OpenSfM project, or
+the images' own EXIF/XMP tags).
+
+Only the images of the chosen pairs are read (at most ~`pose_check.max_pairs` x 1.5 of them, whatever the
+flight's length), once each, in grey, and their features are computed at `pose_check.max_image_side_px`.
+`check` returns the figures; `run` also writes them (`pose_check.json`, atomically) and raises `PosesRefused`
+(one line, exit 2 on the command line) when the poses contradict the images.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..plugin.errors import InputError
+from ..plugin.geometry import Camera, Poses
+from ..plugin.image_matching import OrbFeatures
+from ..plugin.map_quality import Verdict
+from ..plugin.params import Params, PoseCheckParams, for_image
+from ..plugin.pose_check import PoseCheck, check_poses, judge_poses
+
+log = logging.getLogger(__name__)
+
+
+class PosesRefused(InputError):
+    """The poses contradict the images (`plugin.pose_check.judge_poses`); the message says how."""
+
+
+def image_features(paths: Sequence[Path], camera: Camera, params: PoseCheckParams) -> Callable[[int], OrbFeatures]:
+    """`features(i)`: ORB features of image `paths[i]` at the working size (read on demand; an unreadable image or
+    one of another size than the camera is an InputError naming it)."""
+    from ..database.images import read_image
+    from ..plugin.image_matching import orb_features
+
+    def features(i: int) -> OrbFeatures:
+        image = read_image(paths[i])
+        if image.shape[:2] != (camera.height, camera.width):
+            raise InputError(f"image is {image.shape[1]}x{image.shape[0]} but the camera is {camera.width}x"
+                             f"{camera.height}", paths[i])
+        return orb_features(image, params.max_features, params.max_image_side_px)
+
+    return features
+
+
+def gate_px(params: Params, camera: Camera) -> float:
+    """The tracker's epipolar gate for this camera's image size (the pixel limits scale with the image)."""
+    return float(for_image(params, camera.width, camera.height).tracking.epipolar_margin_px)
+
+
+def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params,
+          gate: float | None = None) -> tuple[PoseCheck, Verdict]:
+    """The figures of `poses` (in the order of `image_paths`, capture order) against the images, and their
+    verdict. `gate`: the tracker's epipolar gate in pixels of these images (None: `gate_px(params, camera)`;
+    the map passes its own, as its parameters are already scaled to the image)."""
+    if len(image_paths) != len(poses):
+        raise ValueError(f"{len(image_paths)} images for {len(poses)} poses")
+    result = check_poses(poses, camera, image_features(list(image_paths), camera, params.pose_check),
+                         params.pose_check, gate_px(params, camera) if gate is None else float(gate))
+    verdict = judge_poses(result, params.pose_check)
+    return result, verdict
+
+
+@dataclass
+class CheckResult:
+    """What `run` found and wrote."""
+
+    check: PoseCheck
+    verdict: Verdict
+    out: Path | None
+
+    def summary(self) -> dict:
+        """The verdict and the flight's figures without the per-pair table (for the map's run.json)."""
+        figures = {k: v for k, v in self.check.to_dict().items() if k not in ("pairs", "pairs_columns")}
+        return {"verdict": _verdict_record(self.verdict), "figures": figures,
+                "record": self.out.name if self.out is not None else None}
+
+    def line(self) -> str:
+        status = "ok" if self.verdict.ok else "REFUSED"
+        text = f"{status}: {self.check.line()}"
+        if self.verdict.warnings:
+            text += f"; WARNING: {'; '.join(self.verdict.warnings)}"
+        return text
+
+
+FORMAT = "sosmatch-pose-check"
+
+
+def _verdict_record(verdict: Verdict) -> dict:
+    return {"status": "ok" if verdict.ok else "refused", "refusals": list(verdict.refusals),
+            "warnings": list(verdict.warnings)}
+
+
+def write_disabled(out: str | Path) -> None:
+    """The record of a check that was switched off (`pose_check.enabled=false`)."""
+    from ..database.atomic import write_text_atomic
+
+    write_text_atomic(Path(out), json.dumps({"format": FORMAT, "version": 1, "verdict": {"status": "disabled"}})
+                      + "\n")
+
+
+def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path | None = None,
+        refuse: bool = True, sources: dict | None = None, gate: float | None = None) -> CheckResult:
+    """Check the poses (`check`), write the figures to `out` (JSON, atomically; None: nothing written) and raise
+    PosesRefused (after writing) when they contradict the images and `refuse` is on."""
+    from ..database.atomic import write_text_atomic
+
+    result, verdict = check(image_paths, poses, camera, params, gate)
+    for warning in verdict.warnings:
+        log.warning("%s", warning)
+    if out is not None:
+        out = Path(out)
+        record = {"format": FORMAT, "version": 1, "inputs": sources or {},
+                  "verdict": _verdict_record(verdict),
+                  "pose_check": result.to_dict([p.name for p in map(Path, image_paths)]),
+                  "images": [Path(p).name for p in image_paths],
+                  "params": {k: getattr(params.pose_check, k) for k in params.pose_check.__dataclass_fields__}}
+        write_text_atomic(out, json.dumps(record, indent=1) + "\n")
+    if verdict.refusals and refuse:
+        raise PosesRefused("poses refused: " + "; ".join(r.removeprefix("poses vs images: ") for r in verdict.refusals),
+                           out if out is not None else Path(image_paths[0]).parent)
+    return CheckResult(result, verdict, out)
