@@ -21,8 +21,9 @@ from sosmatch.tools.cli import main
 from sosmatch.workflows import map as map_workflow
 
 pycolmap = pytest.importorskip("pycolmap")
+# the last: the output marker (sosmatch.database.outputs)
 OUTPUT_NAMES = {"database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "quality.png",
-                "run.json", ".sosmatch-output.json"}  # the last: the output marker (sosmatch.database.outputs)
+                "pose_check.json", "run.json", ".sosmatch-output.json"}
 
 
 def render_session(root: Path, n_frames=25, width=320, height=240, altitude=60.0, n_objects=40, seed=0):

@@ -1,9 +1,11 @@
 """Map plausibility against truth: false refusals on good sessions, true refusals on maps made on wrong poses.
 
 Every case renders a synthetic session (`sosmatch synth`, cached in WORK/sessions), maps it with
-`quality.refuse=false` (so that every figure is recorded) and prints the verdict `sosmatch map` would give, the
-quality figures (`plugin.map_quality`) and, where the map is in the session's frame, the median horizontal error
-of its landmarks against the objects (bench_map's scoring).
+`quality.refuse=false` (so that every figure is recorded) and prints the verdict `sosmatch map` would give (the
+map's figures, `plugin.map_quality`, joined with the poses against the images, `workflows.pose_check`), the
+figures and, where the map is in the session's frame, the median horizontal error of its landmarks against the
+objects (bench_map's scoring). Maps made before the pose check existed get it computed here from their inputs
+(run.json's image, pose and camera paths) with their own parameters.
 
 Good cases (must not be refused): exact and EKF poses over several worlds, seasons, flights and heights, a lens
 with distortion mapped with its true model, a 16:9 crop, a survey-like flight with the survey preset.
@@ -133,7 +135,7 @@ def run_case(work: Path, case: Case, frames: int) -> dict[str, Any]:
     run = json.loads((out / "run.json").read_text())
     row: dict[str, Any] = {"case": case.name, "good": case.good, "verdict": run["verdict"], "quality": run["quality"],
                            "landmarks": run["counts"]["landmarks"], "cpu_s": round(cpu, 1), "session": str(session),
-                           "map": str(out)}
+                           "map": str(out), "pose_check": pose_check_of(run, inputs)}
     if case.poses != "tilt30":  # a rotated block has no meaningful horizontal error
         row["median_horizontal_m"] = horizontal_error(session, out)
     return row
@@ -181,28 +183,64 @@ def figures(path: Path) -> dict[str, Any]:
     return q.to_dict()
 
 
+def pose_check_of(run: dict[str, Any], inputs: Any = None) -> dict[str, Any] | None:
+    """The map's pose check (run.json's "pose_check": verdict and figures); for a map made before the check
+    existed, the check run now on `inputs` (or on the inputs run.json names) with the map's own parameters
+    (already scaled to the image: their gate as it is). None when the inputs are gone."""
+    from ...plugin.params import params_from_dict
+    from ...workflows import map as map_workflow
+    from ...workflows import pose_check
+
+    if run.get("pose_check"):
+        return run["pose_check"]
+    if inputs is None:
+        src = run.get("inputs") or {}
+        paths = [Path(src[k]) if src.get(k) else None for k in ("images", "poses", "camera")]
+        if paths[0] is None or paths[1] is None or not all(p is None or p.exists() for p in paths):
+            return None
+        inputs = map_workflow.load_inputs(*paths)
+    params = params_from_dict(run["params"])
+    t = time.process_time()
+    result = pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, refuse=False,
+                            gate=params.tracking.epipolar_margin_px)
+    return {**result.summary(), "cpu_s": round(time.process_time() - t, 1)}
+
+
 def mapped_row(path: Path, good: bool = True) -> dict[str, Any]:
     """A mapped session made elsewhere (Seneca, NAIP, other engineers' synthetic maps)."""
+    run = json.loads((path / "run.json").read_text())
     return {"case": f"mapped: {path}", "good": good, "map": str(path), "quality": figures(path),
-            "landmarks": json.loads((path / "run.json").read_text())["counts"]["landmarks"]}
+            "landmarks": run["counts"]["landmarks"], "pose_check": pose_check_of(run)}
 
 
 def rejudge(row: dict[str, Any]) -> dict[str, Any]:
     """The verdict of a row under the current code: figures recomputed from its map (when it is still there),
-    then `map_quality.judge` with the default limits, so the table always shows what `sosmatch map` would say."""
-    from ...plugin.map_quality import MapQuality, judge
+    then `map_quality.judge` with the default limits joined with the row's pose check, so the table always shows
+    what `sosmatch map` would say."""
+    from ...plugin.map_quality import MapQuality, Verdict, judge
     from ...plugin.params import Params
+    from ...workflows.map.quality import joined
 
     quality = figures(Path(row["map"])) if Path(row.get("map", "")).is_dir() else row["quality"]
     q = MapQuality(**{k: (float("nan") if v is None else v) for k, v in quality.items()})
     p = Params()
     v = judge(q, p.quality, p.association.min_associations + 1)
+    pv = (row.get("pose_check") or {}).get("verdict") or {}
+    v = joined(v, Verdict(list(pv.get("refusals", [])), list(pv.get("warnings", []))))
     return {**row, "quality": quality, "verdict": {"status": "ok" if v.ok else "refused", "refusals": v.refusals,
                                                    "warnings": v.warnings}}
 
 
 def _fmt(v: Any, spec: str = ".2f") -> str:
     return "n/a" if v is None else format(v, spec) if isinstance(v, float) else str(v)
+
+
+def _pose_cell(row: dict[str, Any]) -> str:
+    f = (row.get("pose_check") or {}).get("figures")
+    if not f:
+        return "n/a"
+    return (f"{_fmt(f['epipolar_p50_px'], '.1f')} / {_fmt(f['height_drift_m'], '+.1f')} / "
+            f"{_fmt(f['height_tilt_deg'], '.1f')} / {f['reversed_pairs']}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -236,8 +274,9 @@ def main(argv: list[str] | None = None) -> int:
         if not r["case"].startswith("mapped: ") and "rotated" not in r["case"] and Path(r["map"]).is_dir():
             r["median_horizontal_m"] = horizontal_error(Path(r["session"]), Path(r["map"]))
     print("| case | should be | verdict | landmarks | reproj p50/p90 px | kf with lm | pass disagreement | "
-          "block tilt deg | ground tilt deg | above cams | horiz. error m | reason |")
-    print("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|")
+          "block tilt deg | ground tilt deg | above cams | horiz. error m | poses vs images: epipolar px / "
+          "drift m / tilt deg / reversed | reason |")
+    print("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|---|")
     wrong = 0
     for r in rows:
         q, v = r["quality"], r["verdict"]
@@ -248,11 +287,15 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['landmarks']} | {_fmt(q['reprojection_p50_px'], '.1f')}/{_fmt(q['reprojection_p90_px'], '.1f')} | "
               f"{_fmt(q['keyframes_with_landmarks'])} | {_fmt(q['pass_disagreement'])} | "
               f"{_fmt(q['block_tilt_deg'], '.1f')} | {_fmt(q['ground_tilt_deg'], '.1f')} | "
-              f"{q['landmarks_above_cameras']} | {_fmt(r.get('median_horizontal_m'))} | {reason} |")
+              f"{q['landmarks_above_cameras']} | {_fmt(r.get('median_horizontal_m'))} | {_pose_cell(r)} | {reason} |")
     good = [r for r in rows if r["good"]]
     bad = [r for r in rows if not r["good"]]
-    print(f"false refusals {sum(bool(r['verdict']['refusals']) for r in good)} of {len(good)}, "
-          f"true refusals {sum(bool(r['verdict']['refusals']) for r in bad)} of {len(bad)}")
+    def by_poses(rows: list[dict[str, Any]]) -> int:
+        return sum(any(x.startswith("poses vs images") for x in r["verdict"]["refusals"]) for r in rows)
+
+    print(f"false refusals {sum(bool(r['verdict']['refusals']) for r in good)} of {len(good)} "
+          f"({by_poses(good)} by the pose check), true refusals {sum(bool(r['verdict']['refusals']) for r in bad)} "
+          f"of {len(bad)} ({by_poses(bad)} by the pose check)")
     return 0 if wrong == 0 else 1
 
 

@@ -16,7 +16,8 @@ from ...database.outputs import OutputDir, open_output_dir
 COMMAND = "map"
 RECORD = "run.json"  # written last: the run's record (parameters, fingerprints, counts)
 PARTIAL = ".partial"
-OUTPUTS = ("database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "quality.png")
+POSE_CHECK = "pose_check.json"  # the poses against the images (`workflows.pose_check`); absent when disabled
+OUTPUTS = ("database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "quality.png", POSE_CHECK)
 
 
 def take_output_dir(out_dir: str | Path, identity: str, inputs: Iterable[Path], overwrite: bool) -> OutputDir:

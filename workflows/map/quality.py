@@ -1,4 +1,5 @@
-"""The map's quality stage: figures (`plugin.map_quality.assess_map`), verdict (`judge`) and the picture.
+"""The map's quality stages: the poses against the images (`workflows.pose_check`, before anything is mapped),
+then the map's figures (`plugin.map_quality.assess_map`), verdict (`judge`) and the picture.
 
 A refused map is still written (so that its picture and run.json can be looked at) but run.json records the
 verdict, `sosmatch map` ends with a one-line error and a non-zero exit, and the readers of mapped sessions
@@ -25,6 +26,32 @@ FIGURE = "quality.png"
 
 class MapRefused(InputError):
     """The map was made but its geometry is implausible or it is empty: the inputs (poses, camera) are wrong."""
+
+
+def pose_check_stage(inputs: Any, params: Any, record: Path) -> Any:
+    """The poses of `inputs` (MapInputs) checked against its images (`workflows.pose_check.run`, figures written
+    to `record`), or None when `pose_check.enabled` is off (`record` then says so, so that no stale figures of
+    an earlier run stand beside the map). Never raises on a refusal: its verdict joins the map's (`joined`), so a
+    map on poses that contradict the images is refused like an implausible one."""
+    from .. import pose_check
+
+    if not params.pose_check.enabled:
+        pose_check.write_disabled(record)
+        return None
+
+    # `params` are the map's, already scaled to the image (`plugin.params.for_image`): its gate as it is
+    return pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, record, refuse=False,
+                          sources=inputs.sources, gate=params.tracking.epipolar_margin_px)
+
+
+def joined(*verdicts: Verdict | None) -> Verdict:
+    """One verdict with the refusals and warnings of all (None: a stage that did not run)."""
+    out = Verdict()
+    for v in verdicts:
+        if v is not None:
+            out.refusals.extend(v.refusals)
+            out.warnings.extend(v.warnings)
+    return out
 
 
 def assess(landmarks: Any, poses: Poses, long_tracks: int) -> MapQuality:

@@ -28,8 +28,8 @@ from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_image, params_to_dict, pixel_scale
 from .inputs import MapInputs, hash_json, image_digests, input_fingerprints, input_paths
 from .keyframes import CACHE_VERSION, describe_keyframes
-from .output_dir import OUTPUTS, PARTIAL, RECORD, take_output_dir
-from .quality import FIGURE, quality_stage, raise_if_refused, verdict_record
+from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
+from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +63,7 @@ class MapSummary:
     timings: dict[str, float] = field(default_factory=dict)
     quality: MapQuality | None = None
     verdict: Verdict | None = None
+    pose_check: Any = None  # workflows.pose_check.CheckResult (None: the check was off)
 
     def line(self) -> str:
         """The one-line summary printed at the end of `sosmatch map`."""
@@ -70,6 +71,8 @@ class MapSummary:
                 f"{self.num_landmarks} landmarks, map {self.map_bytes} bytes, {self.seconds:.1f} s")
         if self.quality is not None:
             line += f"; {self.quality.line()}"
+        if self.pose_check is not None:
+            line += f"; {self.pose_check.check.line()}"
         if self.verdict is not None and self.verdict.warnings:
             line += f"; WARNING: {'; '.join(self.verdict.warnings)}"
         return line
@@ -181,6 +184,11 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                                   progress, on_keyframe, workers, masks_for, digests)
     timings["keyframes"] = time.perf_counter() - t
 
+    t = time.perf_counter()
+    # after the keyframes (an unreadable image fails there, with the cache of those before it kept for the retry)
+    checked = pose_check_stage(inputs, params, out.staged(POSE_CHECK))
+    timings["pose_check"] = time.perf_counter() - t
+
     from tqdm import tqdm
 
     stages = tqdm(total=4, desc="tracking", unit="stage", disable=not progress, leave=False)
@@ -236,6 +244,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     quality, verdict = quality_stage(landmarks, kf_poses, camera, [inputs.image_paths[i] for i in keyframes],
                                      keypoints, long_tracks, params.quality, out.staged(FIGURE), str(out.path),
                                      params.association.min_associations + 1)
+    verdict = joined(verdict, checked.verdict if checked is not None else None)
     timings["quality"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
 
@@ -249,7 +258,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         **{f"points_{k}": v for k, v in landmarks.counts.items()},
     }
     summary = MapSummary(out.path, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
-                         len(landmarks), map_bytes, timings["total"], cached, counts, timings, quality, verdict)
+                         len(landmarks), map_bytes, timings["total"], cached, counts, timings, quality, verdict,
+                         checked)
     record = {
         "format": "sosmatch-map-run", "version": 1,
         "params": pdict, "pixel_scale": pixel_scale(params, camera.width, camera.height), "versions": _versions(),
@@ -261,6 +271,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
         "counts": counts, "quality": quality.to_dict(), "verdict": verdict_record(verdict, params.quality.refuse),
+        "pose_check": checked.summary() if checked is not None else None,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         # the map's own noise (plugin.map_noise): `sosmatch match` derives its tolerances from it
         "noise": landmarks.noise.to_dict() if landmarks.noise is not None else None,

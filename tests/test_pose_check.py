@@ -1,0 +1,146 @@
+"""The poses against what the images show (`plugin.pose_check`, `workflows.pose_check`, the map's stage): a small
+rendered lawnmower flight with its exact poses (kept) and the issue's deliberately wrong poses (refused), plus the
+two-view geometry against a direct computation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sosmatch.database.cameras import read_cameras_txt
+from sosmatch.database.poses import read_poses_csv, write_poses_csv
+from sosmatch.plugin.geometry import Poses
+from sosmatch.plugin.map_quality import flight_passes
+from sosmatch.plugin.params import Params, with_overrides
+from sosmatch.plugin.pose_check import (
+    essential_matrices,
+    relative_poses,
+    sampson_distances,
+    triangulation_depths,
+)
+from sosmatch.tools.cli import main
+from sosmatch.workflows import pose_check
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory) -> Path:
+    """40 frames 320x240 over a 400 m world: five passes (long lines and short turns) at 100 m."""
+    out = tmp_path_factory.mktemp("posecheck") / "flight"
+    assert main(["synth", "--out", str(out), "--frames", "40", "--width", "320", "--height", "240", "--world-size",
+                 "400", "--line-length", "100", "-q"]) == 0
+    return out
+
+
+def _inputs(flight: Path):
+    poses, _ = read_poses_csv(flight / "poses.csv")
+    camera = next(iter(read_cameras_txt(flight / "cameras.txt").values()))
+    return [flight / "images" / n for n in poses.names], poses, camera
+
+
+def _rot(axis: str, deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    if axis == "x":
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _drifting(poses: Poses, total_m: float) -> Poses:
+    """Heights climbing linearly by `total_m` over the capture order (a drifting GPS altitude)."""
+    centers = poses.centers.copy()
+    centers[:, 2] += total_m * np.arange(len(poses)) / (len(poses) - 1)
+    return Poses(poses.names, poses.rotations, centers)
+
+
+def _on_a_plane(poses: Poses, deg: float) -> Poses:
+    """Camera centres rotated onto a plane `deg` off the horizontal, attitudes kept (a georegistration gone
+    wrong on nearly collinear centres)."""
+    m = poses.centers.mean(axis=0)
+    return Poses(poses.names, poses.rotations, (poses.centers - m) @ _rot("x", deg).T + m)
+
+
+def _yaw_fault(poses: Poses, pass_index: int) -> Poses:
+    """One pass of the flight with its heading 180 deg off (a DJI yaw tag fault)."""
+    rotations = poses.rotations.copy()
+    sel = flight_passes(poses.centers) == pass_index
+    rotations[sel] = _rot("z", 180.0) @ rotations[sel]
+    return Poses(poses.names, rotations, poses.centers)
+
+
+def test_two_view_geometry_against_a_direct_projection():
+    rng = np.random.default_rng(0)
+    r_wc = np.stack([_rot("z", d) @ np.diag([1.0, -1.0, -1.0]) for d in (0.0, 7.0)])
+    centers = np.array([[0.0, 0.0, 50.0], [6.0, 1.0, 51.0]])
+    world = np.c_[rng.uniform(-20, 20, (30, 2)), rng.uniform(-2, 2, 30)]
+    x = [(world - c) @ r for r, c in zip(r_wc, centers)]  # camera frames (x_cam = R_wc^T (X - C))
+    x_a, x_b = (v[:, :2] / v[:, 2:3] for v in x)
+    rot, t = relative_poses(r_wc, centers, np.array([0]), np.array([1]))
+    assert np.allclose(x[0] @ rot[0].T + t[0], x[1])  # x_b = R x_a + t
+    e = essential_matrices(rot, t)[0]
+    assert np.max(sampson_distances(x_a, x_b, e)) < 1e-9  # exact matches lie on their epipolar lines
+    moved = x_b + [0.0, 0.01]
+    assert np.median(sampson_distances(x_a, moved, e)) > 1e-3
+    d_a, d_b = triangulation_depths(x_a, x_b, rot[0], t[0])
+    assert np.allclose(d_a, x[0][:, 2]) and np.allclose(d_b, x[1][:, 2])
+    d_a, d_b = triangulation_depths(x_a, x_b, rot[0], -t[0])  # the motion reversed: E is the same, depths flip
+    assert np.max(sampson_distances(x_a, x_b, essential_matrices(rot, -t)[0])) < 1e-9 and np.all(d_a < 0)
+
+
+def test_exact_poses_are_kept_and_the_check_is_deterministic(flight):
+    images, poses, camera = _inputs(flight)
+    result, verdict = pose_check.check(images, poses, camera, Params())
+    assert verdict.refusals == [] and verdict.warnings == []
+    assert result.pairs_checked >= 30 and result.epipolar_p50_px < 1.0
+    assert abs(result.systematic.height_drift_m) < 3.0 and result.systematic.height_tilt_deg < 3.0
+    assert abs(result.flying_height_m - 100.0) < 10.0  # the images' own depths: the flying height
+    again, _ = pose_check.check(images, poses, camera, Params())
+    assert again.to_dict() == result.to_dict()
+
+
+@pytest.mark.parametrize("fault, expected", [
+    (lambda p: _drifting(p, 50.0), "heights drift by +5"),
+    (lambda p: _on_a_plane(p, 40.0), "heights tilt 4"),
+    (lambda p: _yaw_fault(p, 1), "the images move the other way"),
+])
+def test_poses_that_contradict_the_images_are_refused(flight, fault, expected):
+    images, poses, camera = _inputs(flight)
+    _, verdict = pose_check.check(images, fault(poses), camera, Params())
+    assert any(expected in r for r in verdict.refusals), verdict.refusals
+
+
+def test_map_refuses_drifting_heights_in_one_line_and_writes_the_figures(flight, tmp_path, capsys):
+    images, poses, _ = _inputs(flight)
+    bad = tmp_path / "drift.csv"
+    write_poses_csv(bad, _drifting(poses, 50.0))
+    out = tmp_path / "map"
+    args = ["map", "--no-progress", "--images", str(flight / "images"), "--poses", str(bad), "--camera",
+            str(flight / "cameras.txt"), "--out", str(out)]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "map refused" in err and "heights drift" in err
+    run = json.loads((out / "run.json").read_text())
+    assert run["verdict"]["status"] == "refused"
+    assert run["pose_check"]["verdict"]["status"] == "refused" and run["pose_check"]["figures"]["height_drift_m"] > 40
+    record = json.loads((out / "pose_check.json").read_text())
+    assert record["format"] == "sosmatch-pose-check" and len(record["pose_check"]["pairs"]) >= 30
+    # switched off: no figures, and no refusal of the poses (the map's own judgement stays)
+    assert not with_overrides(Params(), {"pose_check.enabled": False}).pose_check.enabled
+    assert main(args[:-1] + [str(tmp_path / "off"), "--set", "pose_check.enabled=false", "--set",
+                             "quality.refuse=false"]) == 0
+    assert json.loads((tmp_path / "off" / "pose_check.json").read_text())["verdict"]["status"] == "disabled"
+    off = json.loads((tmp_path / "off" / "run.json").read_text())
+    assert off["pose_check"] is None and not any("poses vs images" in r for r in off["verdict"]["refusals"])
+
+
+def test_check_poses_command(flight, tmp_path, capsys, cli_error):
+    images, poses, _ = _inputs(flight)
+    out = tmp_path / "pose_check.json"
+    assert main(["check-poses", "--poses", str(flight), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.startswith("ok: poses vs images: epipolar")
+    assert json.loads(out.read_text())["verdict"]["status"] == "ok"
+    bad = tmp_path / "yaw.csv"
+    write_poses_csv(bad, _yaw_fault(poses, 1))
+    err = cli_error("check-poses", "--images", flight / "images", "--poses", bad, "--camera", flight / "cameras.txt")
+    assert "poses refused" in err and "the images move the other way" in err
