@@ -196,6 +196,8 @@ def pose_check_of(run: dict[str, Any], inputs: Any = None) -> dict[str, Any] | N
     if inputs is None:
         src = run.get("inputs") or {}
         paths = [Path(src[k]) if src.get(k) else None for k in ("images", "poses", "camera")]
+        if paths[2] == paths[1]:  # the intrinsics came with the poses (a synth session, a model)
+            paths[2] = None
         if paths[0] is None or paths[1] is None or not all(p is None or p.exists() for p in paths):
             return None
         inputs = map_workflow.load_inputs(*paths)
