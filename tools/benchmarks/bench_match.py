@@ -7,7 +7,7 @@ maps of every kind (sparse, dense, without sizes, aerial, crossing flights, a se
     python -m sosmatch.tools.benchmarks.bench_match --only scaling --max-scaling 20000 --plot docs/img/match_scaling.png
 Prints every figure (medians of repeats) with the machine line and the load. CPU times are `time.process_time` of
 this one process (the search runs in one process); wall times are given beside them. Peak memory is the
-`ru_maxrss` of a fresh child process that runs one match (`--memory`).
+VmHWM of a fresh child process that runs one match (`--memory`; `match_report.peak_rss_mb`).
 
 The C++ reference (mit-acl/clipper v0.2.4; never a dependency of sosmatch) runs when `import clipper_ref` works
 (or with `--clipper-ref DIR`, the directory holding the module). Build it outside the repository:
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import statistics
 import subprocess
 import sys
@@ -45,7 +44,7 @@ from ...plugin.params import Params, preset_params, with_overrides
 from .bench_match_real import bench_evaluation, bench_naip
 from .machine import machine_summary
 from .match_problems import aerial_maps, boulder_maps, clipper_problem, crossing_maps, dense_maps, season_maps
-from .match_report import bar, print_bars, quality, report, timed_match
+from .match_report import bar, peak_rss_mb, print_bars, quality, report, timed_match
 
 CLIPPER_SIZES = (256, 512, 1024, 2048)
 CLIPPER_RATIO_BARS = {256: 10.0, 512: 10.0, 1024: 20.0, 2048: 20.0}
@@ -306,7 +305,7 @@ def bench_scaling(sizes: list[int], plot: str | None) -> list[dict]:
         ans, cpu, wall = timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, 1)
         # the process's peak so far: sizes ascend, so it is this size's peak (a fresh process per size doubled
         # the run's time; `child_peak_mb("scaling", n)` gives it alone)
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        peak = peak_rss_mb()
         t = ans.search.timings
         rows.append({"n": n, "cpu_s": cpu, "wall_s": wall, "peak_mb": peak})
         if plot:  # redrawn after every size: an interrupted run keeps the curve so far
@@ -347,7 +346,8 @@ def plot_scaling(rows: list[dict], plot: str) -> None:
 
 
 def child_peak_mb(case: str, arg: object) -> float:
-    """ru_maxrss (MB) of a fresh interpreter that imports sosmatch, builds the maps of `case` and runs one match."""
+    """Peak memory (MB, `peak_rss_mb`) of a fresh interpreter that imports sosmatch, builds the maps of `case` and
+    runs one match."""
     code = f"import sys; from sosmatch.tools.benchmarks.bench_match import _child; _child({case!r}, {arg!r})"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if out.returncode != 0:
@@ -364,7 +364,7 @@ def _child(case: str, arg: object) -> None:
     elif case == "scaling":
         s = survey_map_pair(int(arg), seed=1)
         match_maps(s.points_a, s.sizes_a, s.points_b, s.sizes_b, Params())
-    print(json.dumps({"peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}))
+    print(json.dumps({"peak_mb": peak_rss_mb()}))
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -141,12 +141,14 @@ def bench_naip(naip: Path, work: Path, repeats: int, memory: bool) -> list[dict]
 
 
 def naip_peak_mb(map_a: Path, map_b: Path) -> float:
-    """ru_maxrss (MB) of a fresh interpreter that reads both maps and runs one match (aerial preset)."""
-    code = ("import json, resource; from sosmatch.database.landmark_map import read_landmark_map as r; "
+    """Peak memory (MB, `peak_rss_mb`) of a fresh interpreter that reads both maps and runs one match (aerial
+    preset)."""
+    code = ("import json; from sosmatch.database.landmark_map import read_landmark_map as r; "
+            "from sosmatch.tools.benchmarks.match_report import peak_rss_mb; "
             "from sosmatch.plugin.match_answer import match_maps; from sosmatch.plugin.params import preset_params; "
             f"a = r({str(map_a / 'landmarks.sosmap')!r}); b = r({str(map_b / 'landmarks.sosmap')!r}); "
             "match_maps(a.positions, a.sizes, b.positions, b.sizes, preset_params('aerial'), "
             "common_frame=a.epsg == b.epsg != 0); "
-            "print(json.dumps({'peak_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}))")
+            "print(json.dumps({'peak_mb': peak_rss_mb()}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     return float(json.loads(out.stdout.strip().splitlines()[-1])["peak_mb"])

@@ -16,6 +16,20 @@ from ...plugin.params import Params
 BARS: list[tuple[str, str, bool]] = []  # (bar, measured figure, met) of this run, in the order measured
 
 
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process (MB): the VmHWM of /proc/self/status where there is one. Not
+    ru_maxrss: Linux keeps that across execve, so a child spawned by a large parent reports the parent's size."""
+    try:
+        for line in open("/proc/self/status", encoding="ascii"):
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def bar(name: str, figure: str, met: bool) -> str:
     """Record a bar of issue 15 with its figure; returns "met" / "MISSED" for the line that shows it."""
     BARS.append((name, figure, bool(met)))
