@@ -182,13 +182,14 @@ def section_text(evaluations: list[dict], machine: str, command: str, notes: lis
     return "\n".join(lines)
 
 
-def replace_section(text: str, section: str) -> str:
-    """Put `section` in place of the evaluate marker (or of a previous section between the two markers)."""
-    if MARKER not in text:
+def replace_section(text: str, section: str, marker: str = MARKER, end_marker: str = END_MARKER) -> str:
+    """Put `section` in place of `marker` (or of a previous section between the two markers; default: the
+    evaluate section of BENCHMARKS.md), or append it when the text has no such marker."""
+    if marker not in text:
         return text.rstrip("\n") + "\n\n" + section
-    start = text.index(MARKER)
-    end = text.find(END_MARKER, start)
-    end = start + len(MARKER) + 1 if end < 0 else end + len(END_MARKER) + 1
+    start = text.index(marker)
+    end = text.find(end_marker, start)
+    end = start + len(marker) + 1 if end < 0 else end + len(end_marker) + 1
     return text[:start] + section + text[end:]
 
 

@@ -230,17 +230,6 @@ def check_bars(world: int, rows: dict[str, dict]) -> list[str]:
     return notes
 
 
-def replace_section(text: str, section: str, name: str = "seasons") -> str:
-    """`section` in place of the marked section `name` of BENCHMARKS.md (appended when there is none)."""
-    marker, end_marker = MARKER.format(name), END_MARKER.format(name)
-    if marker not in text:
-        return text.rstrip("\n") + "\n\n" + section
-    start = text.index(marker)
-    end = text.find(end_marker, start)
-    end = start + len(marker) + 1 if end < 0 else end + len(end_marker) + 1
-    return text[:start] + section + text[end:]
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, required=True, help="sessions, maps, evaluations (outside the repo)")
@@ -291,9 +280,11 @@ def main(argv: list[str] | None = None) -> None:
     print(section)
     if args.write:
         from ...database.atomic import write_text_atomic
+        from .bench_evaluate import replace_section
 
         bench = Path("BENCHMARKS.md")
-        write_text_atomic(bench, replace_section(bench.read_text(encoding="utf-8"), section, args.section))
+        write_text_atomic(bench, replace_section(bench.read_text(encoding="utf-8"), section,
+                                                  MARKER.format(args.section), END_MARKER.format(args.section)))
 
 
 if __name__ == "__main__":
