@@ -66,14 +66,14 @@ def test_override_parsing_and_rejection():
 def test_presets_layer_under_config_file_and_set(tmp_path):
     from sosmatch.plugin.params import PRESETS, preset_params
 
-    # the paper's method differs from the defaults only in how the search forms and solves its graphs and in the
-    # front end's track fusion and size estimator
+    # the paper's method differs from the defaults only in how the search forms and solves its graphs, in its
+    # fixed tolerances (not derived from the maps' noise) and in the front end's track fusion and size estimator
     paper = preset_params("paper")
     base = Params()
     assert dataclasses.replace(paper, association=base.association, triangulation=base.triangulation) == base
     assert set(PRESETS["paper"]) == {"association.consistency", "association.windows", "association.position_prior_m",
-                                     "association.solver", "triangulation.size_estimator",
-                                     "triangulation.fuse_radius_factor"}
+                                     "association.solver", "association.derive_from_maps",
+                                     "triangulation.size_estimator", "triangulation.fuse_radius_factor"}
     assert dataclasses.replace(paper.triangulation, size_estimator="nadir", fuse_radius_factor=2.0) == \
         Params().triangulation
     survey = preset_params("survey")
