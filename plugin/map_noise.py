@@ -17,8 +17,8 @@ measures on itself, with no second map and no truth (`measure_map_noise`, writte
 A landmark of another session is another draw of the same segmentation process, of an object that may have
 changed meanwhile (season, water level, growth), so two maps disagree by more than one observation scatters. How
 much more was measured on the synthetic cross-season pairs of the tuning worlds 5 and 11 (summer-winter on the
-same path, crossing at 90 degrees, at 130 m, spring-autumn: BENCHMARKS.md, "Association parameters from the
-maps"): the pairwise distance mismatch of common landmarks reaches 2.0-4.6 x the per-observation residual at its
+same path, crossing at 90 degrees, at 130 m, spring-autumn: BENCHMARKS.md, "Seasons, crossing flights and
+altitude"): the pairwise distance mismatch of common landmarks reaches 2.0-4.6 x the per-observation residual at its
 90th percentile (median 2.7), their size difference r reaches 1.5-3.3 x sqrt(s_A^2 + s_B^2) at its 80th (median
 2.2). Hence (`derived_association_params`):
 
