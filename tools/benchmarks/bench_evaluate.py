@@ -60,7 +60,8 @@ CASES = (
 )
 
 
-def _cli(args: list[str]) -> None:
+def run_cli(args: list[str]) -> None:
+    """`sosmatch ARGS` in this process; a non-zero exit is an error (a benchmark step that failed)."""
     from ..cli import main
 
     log.info("sosmatch %s", " ".join(args))
@@ -78,14 +79,14 @@ def _slug(args: tuple[str, ...]) -> str:
 def synth_session(args: tuple[str, ...], out: Path) -> Path:
     """`sosmatch synth` unless the session already exists."""
     if not (out / "session.json").exists():
-        _cli(["synth", "-q", "--world-seed", str(WORLD_SEED), *args, "--out", str(out)])
+        run_cli(["synth", "-q", "--world-seed", str(WORLD_SEED), *args, "--out", str(out)])
     return out
 
 
 def map_session(synth_dir: Path, out: Path, extra: tuple[str, ...] = ()) -> Path:
     """`sosmatch map` of a synthetic session on its EKF poses unless the map already exists."""
     if not (out / "run.json").exists():
-        _cli(["map", "-q", "--poses", str(synth_dir), "--ekf", "--out", str(out), "--no-progress", *extra])
+        run_cli(["map", "-q", "--poses", str(synth_dir), "--ekf", "--out", str(out), "--no-progress", *extra])
     return out
 
 

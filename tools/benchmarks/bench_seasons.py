@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .bench_evaluate import run_cli
 from .machine import machine_summary
 
 log = logging.getLogger(__name__)
@@ -83,21 +84,11 @@ CASES = (
 BAR_RECALL, BAR_ALTITUDE_F1, BAR_RATIO, BAR_ERROR_M = 0.8, 0.05, (0.97, 1.03), 5.0
 
 
-def _cli(args: list[str]) -> None:
-    from ..cli import main
-
-    log.info("sosmatch %s", " ".join(args))
-    code = main(args)
-    logging.getLogger("sosmatch").setLevel(logging.INFO)  # the CLI's -q lowered it for the whole process
-    if code != 0:
-        raise RuntimeError(f"`sosmatch {' '.join(args)}` failed with exit code {code}")
-
-
 def session_dir(work: Path, world: int, name: str) -> Path:
     """`sosmatch synth` of session `name` in world `world` unless it exists."""
     out = work / f"w{world}" / "sessions" / name
     if not (out / "session.json").exists():
-        _cli(["synth", "-q", "--world-seed", str(world), *SESSIONS[name], "--out", str(out)])
+        run_cli(["synth", "-q", "--world-seed", str(world), *SESSIONS[name], "--out", str(out)])
     return out
 
 
@@ -113,7 +104,7 @@ def map_dir(work: Path, world: int, name: str, tag: str, overrides: list[str], f
         if src.is_dir() and not (out / ".partial" / "cache").exists():
             shutil.copytree(src, out / ".partial" / "cache")
     sets = [x for kv in overrides for x in ("--set", kv)]
-    _cli(["map", "-q", "--poses", str(synth), "--ekf", "--out", str(out), "--no-progress", "--keep-cache", *sets])
+    run_cli(["map", "-q", "--poses", str(synth), "--ekf", "--out", str(out), "--no-progress", "--keep-cache", *sets])
     return out
 
 
