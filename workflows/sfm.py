@@ -240,15 +240,18 @@ def reconstruct(database: Path, image_dir: Path, work_dir: Path, priors: ImagePr
     _quiet()
     t0 = time.perf_counter()
     work_dir.mkdir(parents=True, exist_ok=True)
+    # One thread: COLMAP's multi-threaded bundle adjustment sums in a scheduling-dependent order, so the poses
+    # depended on the machine's core count (and, rarely, on the run): the same photos gave other bytes. The
+    # features and matches before it are the same with any thread count and keep them.
     if params.mapper == "global":
         options = pycolmap.GlobalPipelineOptions()
-        options.num_threads = _threads()
+        options.num_threads = 1
         options.random_seed = int(seed % (2**31))
         options.min_model_size = 3
         models = pycolmap.global_mapping(database, image_dir, work_dir, options)
     else:
         options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads = _threads()
+        options.num_threads = 1
         options.random_seed = int(seed % (2**31))
         options.min_model_size = 3
         options.use_prior_position = use_priors
