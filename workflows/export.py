@@ -95,6 +95,9 @@ def run(
     code = int(epsg or lmap.epsg)
     if code:
         check_projected_crs(code, source if not epsg else None)
+    elif "geojson" in targets:  # said here, where the map's name is known
+        raise InputError("the landmark map has no geographic reference (EPSG 0, a local frame): give --epsg CODE "
+                         "of its world frame if it has one", source)
     identity = fingerprint({"map": landmark_map_fingerprint(lmap), "epsg": code, "geometry": geometry,
                             "formats": sorted(targets), "extras": sorted(extras)})
     files = OutputFiles(targets.values(), "export", identity, inputs=[source], overwrite=overwrite)
