@@ -359,6 +359,10 @@ def run(
     check_match_maps(match, a.landmarks, b.landmarks, match_json, names=(str(session_a), str(session_b)))
     if not match.accepted or match.transform is None:
         raise InputError("match has no accepted hypothesis: the sessions cannot be merged", match_json)
+    if match.source != "verified":  # across seasons one window's consensus can be a chance alignment
+        log.warning("%s: the match was not verified on the full maps (written by a sosmatch before the verification "
+                    "stage, or with verification.enabled = false): merging its window consensus as it is; "
+                    "`sosmatch match` again verifies it", match_json)
     transform = match.transform
     used, dof = 0, 0
     if refine:
