@@ -13,7 +13,7 @@ def _pair(text: str) -> tuple[float, float]:
     try:
         a, b = (float(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected DX,DY in metres, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected two comma-separated numbers, got {text!r}") from None
     return (a, b)
 
 

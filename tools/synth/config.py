@@ -169,6 +169,12 @@ class SynthConfig:
         def bad(msg: str) -> None:
             raise InputError(msg)
 
+        # every number first: a NaN passes each "< 0" and "between" test below and failed deep in the renderer
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if any(isinstance(v, float) and not math.isfinite(v)
+                   for v in (value if isinstance(value, (tuple, list)) else (value,))):
+                bad(f"{f.name} must be a finite number, got {value!r}")
         if self.season not in SEASON_NAMES:
             bad(f"season must be one of {', '.join(SEASON_NAMES)}, got {self.season!r}")
         if self.flight not in FLIGHT_KINDS:
