@@ -162,6 +162,10 @@ def test_geojson_of_a_map_stamped_with_a_geographic_crs(tmp_path, cli_error):
     assert f"{path}: unknown EPSG code 32767" in cli_error("export", "--geojson", path, "--out",
                                                                  tmp_path / "l.geojson")
     assert not (tmp_path / "l.geojson").exists()
+    write_landmark_map(path, LandmarkMap(np.array([[10.0, 20.0, 1.0]]), [1.0], epsg=0))  # a local frame
+    assert f"{path}: the landmark map has no geographic reference" in cli_error("export", "--geojson", path,
+                                                                                "--out", tmp_path / "l.geojson")
+    assert not (tmp_path / "l.geojson").exists()
 
 
 def test_segment_reports_a_bad_image_once(tmp_path, capsys):
@@ -219,3 +223,14 @@ def test_a_database_that_is_not_colmaps_is_refused_and_left_alone(toy, tmp_path,
     err = cli_error("changes", a.path, b2, "--match", ab, "--out", tmp_path / "C")
     assert str(db) in err and "not a COLMAP database" in err
     assert db.read_bytes() == before and not (tmp_path / "C").exists()
+
+
+# --- synth: a NaN or infinite setting passed every range check and failed in the renderer (a traceback) -----------
+
+
+@pytest.mark.parametrize("flags", [["--gps-sigma", "nan", "--geotags", "exif"], ["--ekf-drift", "inf"],
+                                   ["--rotate", "nan"], ["--shift", "nan,0"], ["--yaw-tag-sigma", "inf"]])
+def test_synth_refuses_settings_that_are_not_finite(tmp_path, cli_error, flags):
+    err = cli_error("synth", "--out", tmp_path / "S", "--frames", "2", *flags)
+    assert "must be a finite number" in err
+    assert not (tmp_path / "S").exists()
