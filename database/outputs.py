@@ -98,6 +98,21 @@ def _read_json(path: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else {}
 
 
+def _holds_files(folder: Path) -> bool:
+    """True when anything but directories lies in `folder` or below (True too when it cannot be read)."""
+    try:
+        for root, dirs, files in os.walk(folder, onerror=_raise):
+            if files or any(os.path.islink(os.path.join(root, d)) for d in dirs):
+                return True
+    except OSError:
+        return True
+    return False
+
+
+def _raise(exc: OSError) -> None:
+    raise exc
+
+
 @dataclass(frozen=True)
 class PreviousOutput:
     """What an output directory held when a run took it."""
@@ -286,8 +301,9 @@ class OutputDir:
         no trace); a directory holding anything more (e.g. a resumable cache) stays."""
         if not self._created:
             return
-        with contextlib.suppress(OSError):
-            (self.path / STAGING).rmdir()
+        staging = self.path / STAGING
+        if not _holds_files(staging):  # only empty folders (a stage's work directory made before the refusal)
+            shutil.rmtree(staging, ignore_errors=True)
         try:
             left = {p.name for p in self.path.iterdir()}
         except OSError:

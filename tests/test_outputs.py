@@ -148,6 +148,21 @@ def test_a_failed_run_that_wrote_nothing_leaves_nothing(tmp_path):
     assert not (tmp_path / "a").exists()
 
 
+def test_a_failed_run_that_made_only_empty_folders_leaves_nothing(tmp_path):
+    out = tmp_path / "a"  # `map --images` of 2 photos left OUT/.partial/poses_work/ and an unfinished marker
+    with pytest.raises(InputError):
+        with open_output_dir(out, "map", "x") as taken:
+            (taken.staging / "poses_work" / "sub").mkdir(parents=True)
+            raise InputError("bad input")
+    assert not out.exists()
+    with pytest.raises(InputError):  # a staging area holding a file (a resumable cache) stays
+        with open_output_dir(out, "map", "x") as taken:
+            (taken.staging / "work").mkdir(parents=True)
+            (taken.staging / "work" / "cache.npz").write_bytes(b"1")
+            raise InputError("bad input")
+    assert (out / ".partial" / "work" / "cache.npz").is_file()
+
+
 # --- rule 4: one run at a time ------------------------------------------------------------------------------------
 
 HOLDER = textwrap.dedent("""
