@@ -302,3 +302,22 @@ def test_workers_die_with_a_killed_parent(kind):
     while any(is_alive(p) for p in workers) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not [p for p in workers if is_alive(p)]
+
+
+def test_check_poses_never_writes_over_an_input_or_a_foreign_file(tmp_path, cli_error):
+    """`check-poses --out` was a plain atomic write: `--out S/poses.csv` replaced the pose file it checked."""
+    from sosmatch.tools.cli import main
+
+    session = tmp_path / "S"
+    assert main(["synth", "--out", str(session), "--frames", "3", "--width", "160", "--height", "120",
+                 "--world-size", "200", "-q"]) == 0
+    poses = (session / "poses.csv").read_bytes()
+    assert "output is also an input" in cli_error("check-poses", "--poses", session, "--out", session / "poses.csv")
+    assert "inside the input" in cli_error("check-poses", "--images", session / "images", "--poses",
+                                           session / "poses.csv", "--camera", session / "cameras.txt",
+                                           "--out", session / "images" / "check.json")
+    (tmp_path / "notes.json").write_text("mine")
+    assert "not written by `sosmatch check-poses`" in cli_error("check-poses", "--poses", session, "--out",
+                                                                tmp_path / "notes.json")
+    assert (session / "poses.csv").read_bytes() == poses and (tmp_path / "notes.json").read_text() == "mine"
+    assert not (session / "images" / "check.json").exists()

@@ -15,6 +15,7 @@ import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
@@ -22,6 +23,9 @@ from ..plugin.image_matching import OrbFeatures
 from ..plugin.map_quality import Verdict
 from ..plugin.params import Params, PoseCheckParams, for_image
 from ..plugin.pose_check import PoseCheck, check_poses, judge_poses
+
+if TYPE_CHECKING:
+    from ..database.outputs import OutputFiles
 
 log = logging.getLogger(__name__)
 
@@ -103,9 +107,12 @@ def write_disabled(out: str | Path) -> None:
 
 
 def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path | None = None,
-        refuse: bool = True, sources: dict | None = None, gate: float | None = None) -> CheckResult:
+        refuse: bool = True, sources: dict | None = None, gate: float | None = None,
+        files: OutputFiles | None = None) -> CheckResult:
     """Check the poses (`check`), write the figures to `out` (JSON, atomically; None: nothing written) and raise
-    PosesRefused (after writing) when they contradict the images and `refuse` is on."""
+    PosesRefused (after writing) when they contradict the images and `refuse` is on. `files`: the OutputFiles
+    that `out` is written through (`check_to_file`, a user's file); without it `out` lies in a directory the
+    caller owns (the map's output)."""
     from ..database.atomic import write_text_atomic
 
     result, verdict = check(image_paths, poses, camera, params, gate)
@@ -118,8 +125,28 @@ def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Param
                   "pose_check": result.to_dict([p.name for p in map(Path, image_paths)]),
                   "images": [Path(p).name for p in image_paths],
                   "params": {k: getattr(params.pose_check, k) for k in params.pose_check.__dataclass_fields__}}
-        write_text_atomic(out, json.dumps(record, indent=1) + "\n")
+        text = json.dumps(record, indent=1) + "\n"
+        if files is not None:
+            files.write(out, text)
+        else:
+            write_text_atomic(out, text)
     if verdict.refusals and refuse:
         raise PosesRefused("poses refused: " + "; ".join(r.removeprefix("poses vs images: ") for r in verdict.refusals),
                            out if out is not None else Path(image_paths[0]).parent)
     return CheckResult(result, verdict, out)
+
+
+def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path,
+                  refuse: bool = True, sources: dict | None = None, overwrite: bool = False) -> CheckResult:
+    """`run` with its figures written to a user's file `out` (`sosmatch check-poses --out`): checked before any
+    work by `database.outputs.OutputFiles` (never an input such as the pose file, never a file sosmatch did not
+    write; one of this command's made from other inputs or settings is replaced only with `overwrite`)."""
+    from ..database.outputs import OutputFiles, fingerprint
+    from ..plugin.params import params_to_dict
+
+    sources = sources or {}
+    inputs = [Path(v) for v in sources.values() if v] + sorted({Path(p).parent for p in image_paths})
+    identity = fingerprint({"sources": sources, "images": [Path(p).name for p in image_paths],
+                            "params": params_to_dict(params)})
+    files = OutputFiles([out], "check-poses", identity, inputs=inputs, overwrite=overwrite)
+    return run(image_paths, poses, camera, params, out, refuse=refuse, sources=sources, files=files)

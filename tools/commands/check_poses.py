@@ -23,6 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="pose convention of the CSV (overrides its '# convention:' comment)")
     parser.add_argument("--out", type=Path, help="write the figures here (JSON, e.g. pose_check.json)")
     parser.add_argument("--warn-only", action="store_true", help="report a refusal but exit 0")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an --out file this command wrote before from other inputs or settings")
     add_params_arguments(parser)
 
 
@@ -39,7 +41,13 @@ def run(args: argparse.Namespace) -> int:
         inputs = map_inputs_from_images(args.images)
     else:
         inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention)
-    result = pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params_from_args(args), args.out,
-                            refuse=not args.warn_only, sources=inputs.sources)
+    params = params_from_args(args)
+    if args.out is not None:  # a user's file: never an input, never one sosmatch did not write
+        result = pose_check.check_to_file(inputs.image_paths, inputs.poses, inputs.camera, params, args.out,
+                                          refuse=not args.warn_only, sources=inputs.sources,
+                                          overwrite=args.overwrite)
+    else:
+        result = pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, refuse=not args.warn_only,
+                                sources=inputs.sources)
     print(result.line())
     return 0
