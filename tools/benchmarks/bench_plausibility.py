@@ -183,11 +183,11 @@ def figures(path: Path) -> dict[str, Any]:
     return q.to_dict()
 
 
-def pose_check_of(run: dict[str, Any], inputs: Any = None) -> dict[str, Any] | None:
+def pose_check_of(run: dict[str, Any], inputs: Any = None, where: Path | None = None) -> dict[str, Any] | None:
     """The map's pose check (run.json's "pose_check": verdict and figures); for a map made before the check
-    existed, the check run now on `inputs` (or on the inputs run.json names) with the map's own parameters
-    (already scaled to the image: their gate as it is). None when the inputs are gone."""
-    from ...plugin.params import params_from_dict
+    existed, the check run now on `inputs` (or on the inputs run.json names) at the map's own epipolar gate
+    (already scaled to the image). None when the inputs are gone."""
+    from ...plugin.params import Params
     from ...workflows import map as map_workflow
     from ...workflows import pose_check
 
@@ -195,24 +195,33 @@ def pose_check_of(run: dict[str, Any], inputs: Any = None) -> dict[str, Any] | N
         return run["pose_check"]
     if inputs is None:
         src = run.get("inputs") or {}
-        paths = [Path(src[k]) if src.get(k) else None for k in ("images", "poses", "camera")]
+        paths = [_resolved(Path(src[k]), where) if src.get(k) else None for k in ("images", "poses", "camera")]
         if paths[2] == paths[1]:  # the intrinsics came with the poses (a synth session, a model)
             paths[2] = None
         if paths[0] is None or paths[1] is None or not all(p is None or p.exists() for p in paths):
             return None
         inputs = map_workflow.load_inputs(*paths)
-    params = params_from_dict(run["params"])
+    # the check's own defaults, at the gate the map tracked with (older run.json files hold keys since renamed)
+    params = Params()
     t = time.process_time()
     result = pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, refuse=False,
-                            gate=params.tracking.epipolar_margin_px)
+                            gate=float(run["params"]["tracking"]["epipolar_margin_px"]))
     return {**result.summary(), "cpu_s": round(time.process_time() - t, 1)}
+
+
+def _resolved(path: Path, where: Path | None) -> Path:
+    """A run.json input path; a relative one (the map was made from another working directory) is looked for
+    under the map directory's ancestors."""
+    if path.is_absolute() or path.exists() or where is None:
+        return path
+    return next((a / path for a in Path(where).resolve().parents if (a / path).exists()), path)
 
 
 def mapped_row(path: Path, good: bool = True) -> dict[str, Any]:
     """A mapped session made elsewhere (Seneca, NAIP, other engineers' synthetic maps)."""
     run = json.loads((path / "run.json").read_text())
     return {"case": f"mapped: {path}", "good": good, "map": str(path), "quality": figures(path),
-            "landmarks": run["counts"]["landmarks"], "pose_check": pose_check_of(run)}
+            "landmarks": run["counts"]["landmarks"], "pose_check": pose_check_of(run, where=path)}
 
 
 def rejudge(row: dict[str, Any]) -> dict[str, Any]:
