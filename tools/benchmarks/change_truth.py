@@ -12,7 +12,9 @@ claimed / removed objects (`recall`), and the same over the removed objects that
 (`recall_mapped`: what the comparison can reach; an object never mapped cannot be reported).
 False changes: every gone / new landmark whose object did not change (ground texture included), per hectare
 of the area both sessions observed (true footprints of frames.json). Outside: change claims on landmarks
-that lie outside the other session's true observed area (must be 0).
+that lie outside the other session's true observed area (must be 0). Every claimed landmark is also kept with its
+confidence and whether its object truly changed (`landmark_claims`): the precision of what a user reads in
+changes.csv, and the calibration of the confidence.
 """
 
 from __future__ import annotations
@@ -86,6 +88,8 @@ class Score:
     outside: int = 0
     common_ha: float = 0.0
     pairs: int = 0
+    # (confidence, the landmark's object truly changed this way) per gone / new landmark, any size or object
+    landmark_claims: list[tuple[float, bool]] = field(default_factory=list)
 
     def add(self, other: Score) -> None:
         for name in ("claimed", "correct", "truth", "found", "truth_mapped", "found_mapped", "false_by_kind"):
@@ -96,6 +100,7 @@ class Score:
         self.outside += other.outside
         self.common_ha += other.common_ha
         self.pairs += other.pairs
+        self.landmark_claims.extend(other.landmark_claims)
 
     def _sum(self, table: dict, change: str, kind: str | None, size: str | None) -> int:
         return sum(v for (c, k, s), v in table.items()
@@ -110,6 +115,20 @@ class Score:
         truth, found = (self.truth_mapped, self.found_mapped) if mapped else (self.truth, self.found)
         n = self._sum(truth, change, kind, size)
         return (self._sum(found, change, kind, size) / n if n else float("nan")), n
+
+    def scope_counts(self, change: str, min_radius: float = 2.0) -> tuple[int, int, int, int]:
+        """(correct claims, claims, changed objects found, changed objects) over the size bins from min_radius."""
+        names = {name for lo, _, name in SIZE_BINS if lo >= min_radius}
+        return tuple(self._sum_sizes(t, change, names) for t in (self.correct, self.claimed, self.found, self.truth))
+
+    def _sum_sizes(self, table: dict, change: str, sizes: set[str]) -> int:
+        return sum(v for (c, _, s), v in table.items() if c == change and s in sizes)
+
+    def landmark_precision(self) -> tuple[float, int]:
+        """Share of all gone / new landmarks whose object truly changed (ground texture and small objects
+        included), and their number."""
+        n = len(self.landmark_claims)
+        return (sum(ok for _, ok in self.landmark_claims) / n if n else float("nan")), n
 
     def false_per_ha(self) -> float:
         return self.false_landmarks / self.common_ha if self.common_ha > 0 else float("nan")
@@ -141,6 +160,7 @@ def score_pair(result: ChangeResult, truth: ObjectTruth, objects_a: np.ndarray, 
         for i in np.flatnonzero(claims):
             o = int(objects[i])
             k = where.get(o)
+            score.landmark_claims.append((float(verdict.confidence[i]), bool(k is not None and changed[k])))
             if k is None or not changed[k]:
                 score.false_landmarks += 1
                 score.false_by_kind[truth.kind[k] if k is not None else "ground"] += 1
