@@ -1,0 +1,136 @@
+"""What the other session shows at a landmark's place: counterpart landmarks, larger landmarks that hold it, and
+segments of its keyframes (with the local chance rate of such segments)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..association.gates import size_ratio
+from ..geometry import Camera, Poses
+from .observations import FOOTPRINT_MARGIN, KeyframeSegments, in_view
+
+
+def holder_pairs(points: np.ndarray, sizes: np.ndarray, holders: np.ndarray, holder_sizes: np.ndarray,
+                 max_ratio: float, same_map: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (i, j) where landmark j of `holders` holds landmark i of `points`: j is at least as large (h_i <= h_j
+    <= max_ratio h_i) and i lies inside j's footprint (ground distance <= 2 h_j). One object mapped as a whole
+    in one place and as parts in another (nested masks, split tracks) is linked this way. `same_map`: both
+    arrays are one map; a landmark does not hold itself. Unknown sizes hold nothing and are held by nothing."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, :2]
+    q = np.asarray(holders, dtype=np.float64).reshape(-1, 3)[:, :2]
+    h = np.asarray(sizes, dtype=np.float64).reshape(-1)
+    hq = np.asarray(holder_sizes, dtype=np.float64).reshape(-1)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    finite = np.isfinite(hq)
+    if not len(p) or not np.any(finite) or max_ratio < 1:
+        return empty
+    reach = FOOTPRINT_MARGIN * float(np.max(hq[finite]))
+    pairs = cKDTree(p).sparse_distance_matrix(cKDTree(q), reach, output_type="ndarray")
+    i, j, d = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64), pairs["v"]
+    with np.errstate(invalid="ignore"):
+        ok = (hq[j] >= h[i]) & (hq[j] <= max_ratio * h[i]) & (d <= FOOTPRINT_MARGIN * hq[j])
+    if same_map:
+        ok &= i != j
+    i, j, d = i[ok], j[ok], d[ok]
+    order = np.lexsort((j, d, i))
+    return i[order], j[order]
+
+
+def counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
+                 gate_m: float, max_size_difference: float, z_weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each landmark, the nearest landmark of the other map within `gate_m` (distance in x, y and
+    z_weight x z) whose size ratio r is at most `max_size_difference` (NaN sizes pass). Many landmarks may share
+    one counterpart (nested masks of one object). Returns ((N,) index or -1, (N,) distance or NaN)."""
+    from scipy.spatial import cKDTree
+
+    scale = np.array([1.0, 1.0, z_weight])
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3) * scale
+    q = np.asarray(other_points, dtype=np.float64).reshape(-1, 3) * scale
+    index = np.full(len(p), -1, dtype=np.int64)
+    dist = np.full(len(p), np.nan)
+    if not len(p) or not len(q):
+        return index, dist
+    pairs = cKDTree(p).sparse_distance_matrix(cKDTree(q), gate_m, output_type="ndarray")
+    i, j, d = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64), pairs["v"]
+    ok = size_ratio(np.asarray(sizes, np.float64)[i], np.asarray(other_sizes, np.float64)[j]) <= max_size_difference
+    i, j, d = i[ok], j[ok], d[ok]
+    order = np.lexsort((j, d, i))  # per landmark: nearest first, ties by index
+    first = np.r_[True, i[order][1:] != i[order][:-1]] if len(order) else np.zeros(0, bool)
+    index[i[order][first]] = j[order][first]
+    dist[i[order][first]] = d[order][first]
+    return index, dist
+
+
+def inside_larger(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
+                  max_ratio: float) -> np.ndarray:
+    """For each landmark, the nearest landmark of the other map that holds it (`holder_pairs`): the other session
+    mapped the object as a whole (or a bigger part of it) where this map has a part; a removed object leaves, at
+    most, smaller ground patches. Returns (N,) index or -1."""
+    out = np.full(len(np.asarray(points).reshape(-1, 3)), -1, dtype=np.int64)
+    i, j = holder_pairs(points, sizes, other_points, other_sizes, max_ratio)
+    first = np.r_[True, i[1:] != i[:-1]] if len(i) else np.zeros(0, bool)  # sorted by i, then distance
+    out[i[first]] = j[first]
+    return out
+
+
+def segment_evidence(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequence[Camera],
+                     segments: Sequence[KeyframeSegments], gate_m: float, max_size_difference: float,
+                     probe_count: int, probe_radius_factor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How often another session's segments show something like each landmark where it should be.
+
+    In every keyframe that should have seen the landmark (`in_view`), a hit is a segment whose centroid lies
+    within the gate (projected: gate_m x f / depth pixels) of the landmark's projection and whose pixel size
+    matches size x f / depth (ratio r <= max_size_difference). The same count at `probe_count` points on a
+    circle around the landmark (radius probe_radius_factor x gate_m + 2 h, same height) gives the local chance
+    rate of such segments (ground texture, neighbours). Returns (hits (N,), views (N,), chance rate (N,)),
+    the rate with a Laplace prior ((probe hits + 1) / (probe views + 2)).
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    h = np.asarray(sizes, dtype=np.float64).reshape(-1)
+    n = len(pts)
+    ang = 2.0 * np.pi * np.arange(probe_count) / max(probe_count, 1)
+    radius = probe_radius_factor * gate_m + FOOTPRINT_MARGIN * np.nan_to_num(h, nan=0.0)
+    offsets = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], 1)
+    probes = (pts[:, None, :] + radius[:, None, None] * offsets[None]).reshape(-1, 3)
+    all_pts = np.vstack([pts, probes])
+    all_h = np.concatenate([h, np.repeat(h, probe_count)])
+    hits = _segment_hits(all_pts, all_h, poses, cameras, segments, gate_m, max_size_difference)
+    seen, _, _ = in_view(all_pts, all_h, poses, cameras)
+    views = seen.sum(0)
+    probe_hits = hits[n:].reshape(n, probe_count).sum(1)
+    probe_views = views[n:].reshape(n, probe_count).sum(1)
+    chance = (probe_hits + 1.0) / (probe_views + 2.0)
+    return hits[:n], views[:n], chance
+
+
+def _segment_hits(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequence[Camera],
+                  segments: Sequence[KeyframeSegments], gate_m: float, max_size_difference: float) -> np.ndarray:
+    from scipy.spatial import cKDTree
+
+    seen, uv, depth = in_view(points, sizes, poses, cameras)
+    hits = np.zeros(len(points), dtype=np.int64)
+    for k, seg in enumerate(segments):
+        idx = np.flatnonzero(seen[k])
+        if not len(idx) or not len(seg.centroids):
+            continue
+        f = float(np.sqrt(cameras[k].fx * cameras[k].fy))
+        radius_px = gate_m * f / depth[k, idx]
+        pred_px = sizes[idx] * f / depth[k, idx]
+        near = cKDTree(seg.centroids).query_ball_point(uv[k, idx], radius_px)
+        for m, cand in zip(range(len(idx)), near):
+            if cand and np.any(size_ratio(seg.sizes_px[cand], np.full(len(cand), pred_px[m]))
+                               <= max_size_difference):
+                hits[idx[m]] += 1
+    return hits
+
+
+def binomial_tail(hits: np.ndarray, trials: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """P(X >= hits) for X ~ Binomial(trials, rate), elementwise."""
+    from scipy.stats import binom
+
+    hits = np.asarray(hits)
+    return np.where(hits <= 0, 1.0, binom.sf(hits - 1, trials, rate))

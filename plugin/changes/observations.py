@@ -1,0 +1,125 @@
+"""What each session observed: its landmarks and keyframe segments (`SessionObservations`), which keyframes
+should have seen a point (`in_view`), the ground under the landmarks (`ground_height_field`) and the keyframes'
+ground footprints (`observed_area`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..evaluation.footprints import HeightField, footprint_polygons
+from ..geometry import Camera, Poses, project
+from ..multisession import Sim3
+
+GROUND_QUANTILE = 0.2  # of the nearby landmarks' heights: below every object, robust to a few low outliers
+GROUND_NEIGHBOURS = 30
+GROUND_CELL_M = 10.0
+FOOTPRINT_MARGIN = 2.0  # x h: an object's footprint radius (h = sqrt(lambda_max) is half a disc's radius)
+
+@dataclass(frozen=True)
+class KeyframeSegments:
+    """The segments one keyframe saw (every mask, tracked or not): centroids (K, 2) in COLMAP pixels and pixel
+    sizes h = sqrt(lambda_max) (K,) (NaN where unknown)."""
+
+    centroids: np.ndarray
+    sizes_px: np.ndarray
+
+
+@dataclass(frozen=True)
+class SessionObservations:
+    """One session as change detection sees it: its landmarks and what its keyframes looked at.
+
+    positions (N, 3) and sizes (N,) (metres, NaN unknown) of the landmarks; support (N,) their number of
+    observations (ranks the landmarks of one object; None: by size); poses of the keyframes (world_from_camera)
+    with one camera each; segments per keyframe (None: the session's database is not available, the segment
+    evidence is then off for the other session's landmarks).
+    """
+
+    positions: np.ndarray
+    sizes: np.ndarray
+    poses: Poses
+    cameras: tuple[Camera, ...]
+    segments: tuple[KeyframeSegments, ...] | None = None
+    support: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "positions", np.asarray(self.positions, dtype=np.float64).reshape(-1, 3))
+        object.__setattr__(self, "sizes", np.asarray(self.sizes, dtype=np.float64).reshape(-1))
+        cams = (self.cameras,) * len(self.poses) if isinstance(self.cameras, Camera) else tuple(self.cameras)
+        object.__setattr__(self, "cameras", cams)
+        if len(self.sizes) != len(self.positions):
+            raise ValueError(f"{len(self.positions)} positions but {len(self.sizes)} sizes")
+        if len(cams) != len(self.poses):
+            raise ValueError(f"{len(self.poses)} keyframes but {len(cams)} cameras")
+        if self.segments is not None and len(self.segments) != len(self.poses):
+            raise ValueError(f"{len(self.poses)} keyframes but {len(self.segments)} segment sets")
+        if self.support is not None and len(self.support) != len(self.positions):
+            raise ValueError(f"{len(self.positions)} landmarks but {len(self.support)} support values")
+
+    def transformed(self, t: Sim3) -> SessionObservations:
+        """The same session in another frame (x' = s R x + t): landmarks, sizes and camera poses moved; pixels
+        do not change under a similarity, so the segments stay as they are."""
+        poses = Poses(list(self.poses.names), np.einsum("ij,njk->nik", t.rotation, self.poses.rotations),
+                      t.apply(self.poses.centers))
+        return replace(self, positions=t.apply(self.positions), sizes=self.sizes * t.scale, poses=poses)
+
+
+
+def in_view(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequence[Camera],
+            margin_factor: float = FOOTPRINT_MARGIN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which keyframes should have seen each point: the point in front of the camera and inside the image with
+    its footprint (radius margin_factor x h, projected) as margin, so that a segment of it would not touch the
+    image border. Returns (K, N) bool, (K, N, 2) pixels and (K, N) depths."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    h = np.nan_to_num(np.asarray(sizes, dtype=np.float64).reshape(-1), nan=0.0)
+    k_count = len(poses)
+    seen = np.zeros((k_count, len(pts)), dtype=bool)
+    uv = np.zeros((k_count, len(pts), 2))
+    depth = np.zeros((k_count, len(pts)))
+    for k in range(k_count):
+        cam = cameras[k]
+        uv[k], depth[k] = project(cam, poses.rotations[k], poses.centers[k], pts)  # through the lens model
+        d = depth[k]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = margin_factor * h * np.sqrt(cam.fx * cam.fy) / d
+        u, v = uv[k, :, 0], uv[k, :, 1]
+        seen[k] = (d > 0) & (u >= r) & (u <= cam.width - r) & (v >= r) & (v <= cam.height - r)
+    return seen, uv, depth
+
+
+def ground_height_field(points: np.ndarray, cell_m: float = GROUND_CELL_M, neighbours: int = GROUND_NEIGHBOURS,
+                        quantile: float = GROUND_QUANTILE, margin_m: float = 200.0) -> HeightField:
+    """A coarse ground model from landmark heights: at every node of a `cell_m` grid over the landmarks (plus
+    `margin_m`, where the footprints of oblique views reach), the `quantile` of the heights of the `neighbours`
+    nearest landmarks. Objects stand on the ground and most landmarks of a survey are ground texture, so a low
+    quantile follows the terrain; bilinear in between, constant beyond."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if not len(p):
+        raise ValueError("no landmarks to estimate the ground from")
+    lo, hi = p[:, :2].min(0) - margin_m, p[:, :2].max(0) + margin_m
+    nx = max(2, int(np.ceil((hi[0] - lo[0]) / cell_m)) + 1)
+    ny = max(2, int(np.ceil((hi[1] - lo[1]) / cell_m)) + 1)
+    gx, gy = np.meshgrid(lo[0] + cell_m * np.arange(nx), lo[1] + cell_m * np.arange(ny))
+    k = min(neighbours, len(p))
+    _, idx = cKDTree(p[:, :2]).query(np.column_stack([gx.ravel(), gy.ravel()]), k=k)
+    idx = np.asarray(idx).reshape(-1, k)
+    z = np.quantile(p[idx, 2], quantile, axis=1).reshape(ny, nx)
+    return HeightField(z, float(lo[0]), float(lo[1]), cell_m, cell_m)
+
+
+def observed_area(poses: Poses, cameras: Sequence[Camera], ground: HeightField) -> object:
+    """Union of the keyframes' ground footprints (shapely geometry, world x, y)."""
+    import shapely
+
+    if not len(poses):
+        return shapely.Polygon()
+    polys = []
+    for cam in dict.fromkeys(cameras):  # footprints per distinct camera
+        idx = [k for k, c in enumerate(cameras) if c == cam]
+        polys.extend(footprint_polygons(cam, poses.rotations[idx], poses.centers[idx], ground, per_side=4))
+    return shapely.union_all(polys)

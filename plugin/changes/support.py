@@ -1,0 +1,56 @@
+"""Is the alignment plausible? The counterpart rate of the given transform against B displaced (chance)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..params import ChangeParams
+from .evidence import binomial_tail, counterparts
+from .observations import SessionObservations, in_view
+
+
+@dataclass(frozen=True)
+class AlignmentSupport:
+    """How many compared landmarks of A find a counterpart in B with the given transform, against the same count
+    with B displaced (the chance level of counterparts at this map density and these sizes)."""
+
+    compared: int  # landmarks of A that B's keyframes saw >= min_views times
+    matched: int  # of those, with a counterpart under the transform
+    displaced_rate: float  # the highest counterpart rate with B moved CONTROL_SHIFTS x gate in 6 directions
+    p_value: float  # P(>= matched | compared, displaced_rate): the transform explains no more than chance
+
+    @property
+    def rate(self) -> float:
+        return self.matched / self.compared if self.compared else 0.0
+
+    def plausible(self, max_p: float = 1e-3, min_ratio: float = 1.5) -> bool:
+        """The transform pairs the maps clearly better than chance: significant, and 1.5x the chance rate."""
+        return self.p_value < max_p and self.rate >= min_ratio * self.displaced_rate
+
+
+CONTROL_SHIFT = 3.0  # x the counterpart gate: a displacement beyond any landmark scatter the gate allows
+
+
+def alignment_support(a: SessionObservations, b_in_a: SessionObservations, gate_m: float,
+                      params: ChangeParams) -> AlignmentSupport:
+    """Counterpart rate of A's compared landmarks with B as given and with B displaced horizontally by
+    CONTROL_SHIFT x the gate in 6 directions (a control: the same maps, no true pairs). A wrong transform (an
+    accepted match of the wrong place, a mirrored map) gives as many counterparts as the control."""
+    seen, _, _ = in_view(a.positions, a.sizes, b_in_a.poses, b_in_a.cameras)
+    compared = np.flatnonzero(seen.sum(0) >= params.min_views)
+    pa, ha = a.positions[compared], a.sizes[compared]
+
+    def matched(shift: np.ndarray) -> int:
+        idx, _ = counterparts(pa, ha, b_in_a.positions + shift, b_in_a.sizes, gate_m, params.max_size_difference,
+                              params.z_weight)
+        return int(np.count_nonzero(idx >= 0))
+
+    n = len(compared)
+    real = matched(np.zeros(3))
+    ang = np.arange(6) * np.pi / 3.0
+    shifts = CONTROL_SHIFT * gate_m * np.column_stack([np.cos(ang), np.sin(ang), np.zeros(6)])
+    control = max((matched(d) for d in shifts), default=0) / n if n else 0.0
+    p = float(binomial_tail(np.array([real]), np.array([n]), np.array([max(control, 1.0 / max(n, 1))]))[0])
+    return AlignmentSupport(n, real, control, p)

@@ -1,0 +1,168 @@
+"""The verdict per landmark (`detect_changes`): kept, gone, new or unseen, with its evidence and confidence."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..evaluation.footprints import HeightField
+from ..multisession import Sim3
+from ..params import ChangeParams
+from .confidence import fit_logistic, predict_logistic, reobservation_features
+from .evidence import binomial_tail, counterparts, holder_pairs, inside_larger, segment_evidence
+from .observations import SessionObservations, ground_height_field, in_view, observed_area
+from .support import AlignmentSupport, alignment_support
+
+KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
+CLASSES = (KEPT, GONE, NEW, UNSEEN)
+# evidence behind a class
+BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE = (
+    "landmark", "nested", "part", "segments", "none", "views", "confidence")
+
+
+@dataclass(frozen=True)
+class LandmarkChanges:
+    """The verdict for every landmark of one map (arrays of its length, in landmark order)."""
+
+    label: np.ndarray  # class: kept / gone / new / unseen
+    evidence: np.ndarray  # why: landmark, nested, part, segments, none, views, confidence
+    counterpart: np.ndarray  # index of the counterpart landmark in the other map (-1 none)
+    distance_m: np.ndarray  # to the counterpart (gate metric), NaN without one
+    size_change_m: np.ndarray  # counterpart size - own size, NaN without one
+    views: np.ndarray  # keyframes of the other session that should have seen the landmark
+    confidence: np.ndarray  # see the module docstring; 0 where the other session saw too little
+    linked: np.ndarray  # the own landmark through which a part / whole was kept (-1 none)
+    height_above_ground_m: np.ndarray
+
+    def count(self, label: str) -> int:
+        return int(np.count_nonzero(self.label == label))
+
+
+@dataclass(frozen=True)
+class ChangeResult:
+    """`detect_changes` output: per-landmark verdicts of both maps, everything in A's frame."""
+
+    a: LandmarkChanges
+    b: LandmarkChanges
+    positions_a: np.ndarray
+    positions_b: np.ndarray  # B's landmarks in A's frame
+    sizes_a: np.ndarray
+    sizes_b: np.ndarray
+    tolerance_m: float
+    ground: HeightField
+    observed_a: object  # shapely geometry: union of A's keyframe ground footprints (A's frame)
+    observed_b: object  # the same for B
+    params: ChangeParams = field(default_factory=ChangeParams)
+    support: AlignmentSupport | None = None  # how much better the transform pairs the maps than a displaced one
+
+    @property
+    def common_area(self) -> object:
+        import shapely
+
+        return shapely.intersection(self.observed_a, self.observed_b)
+
+    def counts(self) -> dict[str, int]:
+        """Landmarks per class: kept (of A and of B), gone (A), new (B), unseen (of both maps)."""
+        return {"kept_a": self.a.count(KEPT), "kept_b": self.b.count(KEPT), "gone": self.a.count(GONE),
+                "new": self.b.count(NEW), "unseen_a": self.a.count(UNSEEN), "unseen_b": self.b.count(UNSEEN)}
+
+    def summary(self) -> str:
+        """One line: counts per class and the common area."""
+        c = self.counts()
+        area_ha = float(self.common_area.area) / 1e4
+        return (f"{c['gone']} gone, {c['new']} new, {c['kept_a']} + {c['kept_b']} kept, {c['unseen_a']} + "
+                f"{c['unseen_b']} unseen landmarks (A + B), {area_ha:.1f} ha seen by both")
+
+
+
+def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,
+           other_pos: np.ndarray, other_h: np.ndarray, heights: np.ndarray, change_label: str, gate_m: float,
+           params: ChangeParams) -> LandmarkChanges:
+    """Classify one map's landmarks against the other session (both already in one frame)."""
+    n = len(own_pos)
+    seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
+    views = seen.sum(0)
+    compared = views >= params.min_views
+    index, dist = counterparts(own_pos, own_h, other_pos, other_h, gate_m, params.max_size_difference,
+                               params.z_weight)
+    index = np.where(compared, index, -1)
+    holder = np.full(n, -1, dtype=np.int64)
+    if params.nest_max_ratio >= 1:
+        holder = np.where(compared & (index < 0), inside_larger(own_pos, own_h, other_pos, other_h,
+                                                                params.nest_max_ratio), -1)
+    label = np.full(n, UNSEEN, dtype=object)
+    evidence = np.full(n, TOO_FEW_VIEWS, dtype=object)
+    direct = compared & ((index >= 0) | (holder >= 0))
+    label[direct] = KEPT
+    evidence[index >= 0] = BY_LANDMARK
+    evidence[(index < 0) & (holder >= 0)] = BY_NESTING
+    # one object, several landmarks of this map: a part inside the footprint of a larger matched landmark (at
+    # most part_max_ratio times its size) is kept with it
+    link = np.full(n, -1, dtype=np.int64)
+    if params.part_max_ratio >= 1:
+        part, whole = holder_pairs(own_pos, own_h, own_pos, own_h, params.part_max_ratio, same_map=True)
+        hit = compared[part] & ~direct[part] & direct[whole]
+        hp, hw = part[hit], whole[hit]  # sorted by part, then distance: the nearest whole first
+        first = np.r_[True, hp[1:] != hp[:-1]] if len(hp) else np.zeros(0, bool)
+        link[hp[first]] = hw[first]
+    by_part = link >= 0
+    label[by_part] = KEPT
+    evidence[by_part] = BY_PART
+    open_ = compared & ~direct & ~by_part
+    if other.segments is not None and np.any(open_):
+        idx = np.flatnonzero(open_)
+        hits, trials, chance = segment_evidence(own_pos[idx], own_h[idx], other.poses, other.cameras,
+                                                other.segments, gate_m, params.max_size_difference,
+                                                params.probe_count, params.probe_radius_factor)
+        present = idx[binomial_tail(hits, trials, chance) < params.segment_evidence_p]
+        label[present] = KEPT
+        evidence[present] = BY_SEGMENTS
+        open_[present] = False
+    label[open_] = change_label
+    evidence[open_] = NO_EVIDENCE
+    # confidence: this pair's re-observation rate of landmarks like this one
+    confidence = np.zeros(n)
+    if np.any(compared):
+        idx = np.flatnonzero(compared)
+        feats = reobservation_features(own_h[idx], views[idx], heights[idx],
+                                       None if own.support is None else own.support[idx])
+        confidence[idx] = predict_logistic(fit_logistic(feats, label[idx] == KEPT), feats)
+    weak = (label == change_label) & (confidence < params.min_confidence)
+    label[weak] = UNSEEN
+    evidence[weak] = LOW_CONFIDENCE
+    # the counterpart of a kept landmark: its match, else the larger landmark that holds it
+    index = np.where(index >= 0, index, holder)
+    scale = np.array([1.0, 1.0, params.z_weight])
+    if len(other_pos):
+        dist = np.where(index >= 0, np.linalg.norm((own_pos - other_pos[np.maximum(index, 0)]) * scale, axis=1),
+                        np.nan)
+        size_change = np.where(index >= 0, other_h[np.maximum(index, 0)] - own_h, np.nan)
+    else:
+        dist = size_change = np.full(n, np.nan)
+    return LandmarkChanges(label.astype(str), evidence.astype(str), index, dist, size_change, views, confidence,
+                           link, heights)
+
+
+def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim3, params: ChangeParams,
+                   association_tolerance_m: float) -> ChangeResult:
+    """Classify every landmark of A and B as kept, gone (A), new (B) or unseen; see the module docstring.
+
+    a_from_b brings B into A's frame (x_A = s R x_B + t). association_tolerance_m is theta_eps of the
+    association that aligned the maps; the counterpart gate is `params.tolerance_factor` times it.
+    """
+    b_in_a = b.transformed(a_from_b)
+    gate = params.tolerance_factor * association_tolerance_m
+    all_pts = np.vstack([a.positions, b_in_a.positions])
+    ground = ground_height_field(all_pts)
+    heights_a = a.positions[:, 2] - ground(a.positions[:, 0], a.positions[:, 1])
+    heights_b = b_in_a.positions[:, 2] - ground(b_in_a.positions[:, 0], b_in_a.positions[:, 1])
+    res_a = _judge(a, a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, heights_a, GONE, gate, params)
+    res_b = _judge(b_in_a, b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, heights_b, NEW, gate, params)
+    return ChangeResult(
+        a=res_a, b=res_b, positions_a=a.positions, positions_b=b_in_a.positions, sizes_a=a.sizes,
+        sizes_b=b_in_a.sizes, tolerance_m=gate, ground=ground,
+        observed_a=observed_area(a.poses, a.cameras, ground),
+        observed_b=observed_area(b_in_a.poses, b_in_a.cameras, ground), params=params,
+        support=alignment_support(a, b_in_a, gate, params),
+    )
