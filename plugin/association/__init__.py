@@ -1,5 +1,7 @@
 """Geometric association of two landmark maps (SOS-Match section 2): CLIPPER and the windowed search."""
 
+# First: numba's cache of the compiled kernels is checked against their sources before any kernel loads.
+from . import kernel_cache  # noqa: F401, I001
 from .clipper import ClipperResult, ConsistencyGraph, affinity_graph, associate, max_clique_exact, solve
 from .gates import putative_pairs, size_ratio, size_score
 from .hypotheses import Consensus, SearchResult, WindowHypothesis

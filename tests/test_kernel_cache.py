@@ -1,0 +1,77 @@
+"""numba's cache of compiled kernels follows changes of *called* kernels in other modules (kernel_cache)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+from sosmatch.plugin.association import kernel_cache
+
+
+def _write_package(root: Path, increment: int) -> Path:
+    package = root / "kpkg"
+    package.mkdir(exist_ok=True)
+    (package / "__init__.py").write_text(textwrap.dedent("""
+        from pathlib import Path
+        from sosmatch.plugin.association.kernel_cache import refresh
+        refresh(Path(__file__).resolve().parent)
+    """))
+    (package / "callee.py").write_text(textwrap.dedent(f"""
+        from numba import njit
+        @njit(cache=True)
+        def g(x):
+            return x + {increment}
+    """))
+    (package / "caller.py").write_text(textwrap.dedent("""
+        from numba import njit
+        from .callee import g
+        @njit(cache=True)
+        def f(x):
+            return g(x) * 10
+    """))
+    return package
+
+
+def _call(root: Path) -> int:
+    out = subprocess.run([sys.executable, "-c", "from kpkg.caller import f; print(f(1))"], cwd=root,
+                         capture_output=True, text=True, check=True)
+    return int(out.stdout.strip())
+
+
+def test_a_changed_callee_recompiles_its_cached_caller(tmp_path: Path) -> None:
+    package = _write_package(tmp_path, increment=1)
+    assert _call(tmp_path) == 20
+    assert list((package / "__pycache__").glob("caller.*.nbc")), "numba cached the caller"
+    _write_package(tmp_path, increment=2)  # only the callee's module changes
+    assert _call(tmp_path) == 30  # numba alone would load the caller with the old callee inlined: 20
+    stamp = (package / "__pycache__" / kernel_cache.STAMP_NAME).read_text().strip()
+    assert stamp == kernel_cache.sources_digest(package)
+
+
+def test_invalidation_touches_only_the_package_cache_files(tmp_path: Path) -> None:
+    package = tmp_path / "pkg"
+    package.mkdir()
+    (package / "mod.py").write_text("x = 1\n")
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    ours = [cache / "mod.f-3.py311.nbi", cache / "mod.f-3.py311.1.nbc"]
+    foreign = [cache / "other.f-3.py311.nbi", cache / "mod.cpython-311.pyc", cache / "notes.txt"]
+    for path in ours + foreign:
+        path.write_text("")
+    digest = kernel_cache.sources_digest(package)
+    assert kernel_cache.invalidate_stale(package, cache, digest) == 2
+    assert not any(path.exists() for path in ours)
+    assert all(path.exists() for path in foreign)
+    for path in ours:
+        path.write_text("")
+    assert kernel_cache.invalidate_stale(package, cache, digest) == 0  # stamp matches: nothing removed
+    assert all(path.exists() for path in ours)
+    (package / "mod.py").write_text("x = 2\n")
+    assert kernel_cache.invalidate_stale(package, cache, kernel_cache.sources_digest(package)) == 2
+
+
+def test_the_association_package_is_stamped() -> None:
+    directory = kernel_cache.cache_dir()
+    assert (directory / kernel_cache.STAMP_NAME).read_text().strip() == kernel_cache.sources_digest()
