@@ -278,11 +278,26 @@ class OutputDir:
             shutil.rmtree(tmp, ignore_errors=True)
             os.close(fd)
 
-    def publish(self, names: Sequence[str], last: str | None = None) -> None:
-        """Move the staged entries NAMES (then `last`, the record whose presence means complete) into OUT."""
+    def publish(self, names: Sequence[str], last: str | None = None, optional: Sequence[str] = ()) -> None:
+        """Move the staged entries NAMES (then `last`, the record whose presence means complete) into OUT.
+
+        An `optional` name (an aid such as a picture, which may fail without losing the output) that this run
+        did not stage is not published, and its previous version, ours since OUT is, is removed: what stands
+        beside the record always comes from the same run."""
         staging = self.path / STAGING
         for name in [*names, *([last] if last else [])]:
-            self._replace_entry(staging / name, name)
+            src = staging / name
+            if name in optional and not (src.exists() or src.is_symlink()):
+                self._remove_entry(name)
+                continue
+            self._replace_entry(src, name)
+
+    def _remove_entry(self, name: str) -> None:
+        """Remove OUT/NAME, an entry of this command's output (a file; a directory of another kind is refused)."""
+        dst = self.path / name
+        if dst.is_dir() and not dst.is_symlink():
+            raise InputError(f"is a directory where `sosmatch {self.command}` writes a file; not removed", dst)
+        dst.unlink(missing_ok=True)
 
     def finish(self, keep_staging: bool = False) -> None:
         """Mark the output complete (a later run with another identity then needs overwrite)."""

@@ -363,3 +363,24 @@ def test_second_concurrent_map_on_one_directory_is_refused(session, tmp_path):
             map_workflow.run(Params(), inputs, out, progress=False)
     finally:
         holder.communicate("")
+
+
+def test_a_picture_that_cannot_be_drawn_loses_nothing(session, tmp_path, monkeypatch):
+    """quality.png is an aid: when drawing it fails the map is still published, and no picture of an earlier run
+    stands beside the new map."""
+    from sosmatch.workflows.map import figure
+
+    root, _, out_ref, _ = session
+    out = tmp_path / "no_picture"
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    map_workflow.run(Params(), inputs, out, progress=False)
+    assert (out / "quality.png").is_file()
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no display")
+
+    monkeypatch.setattr(figure, "draw_map_figure", broken)
+    map_workflow.run(Params(), inputs, out, progress=False, overwrite=True)
+    assert not (out / "quality.png").exists()  # the earlier run's picture is not left beside this map
+    assert {p.name for p in out.iterdir()} == OUTPUT_NAMES - {"quality.png"}
+    assert (out / "landmarks.sosmap").read_bytes() == (out_ref / "landmarks.sosmap").read_bytes()
