@@ -188,3 +188,14 @@ def test_logistic_fit_recovers_a_monotone_rate():
     assert np.all(np.diff(predict_logistic(w, np.linspace(-2, 2, 5)[:, None])) > 0)
     flat = fit_logistic(x, np.ones(400, bool))  # one class only: finite, high
     assert np.all(np.isfinite(flat)) and predict_logistic(flat, x).min() > 0.9
+
+
+def test_a_verified_alignment_needs_only_to_beat_chance():
+    """match's verification answers whether the alignment is right; changes then refuses only a chance-level
+    pairing. The audit's sparse summer/winter pair: 13 of 89 (15 %) against 6 % displaced, p 0.0015."""
+    from sosmatch.plugin.changes import AlignmentSupport
+
+    sparse = AlignmentSupport(compared=89, matched=13, displaced_rate=0.06, p_value=0.0015)
+    assert not sparse.plausible() and sparse.plausible(max_p=1.0)
+    chance = AlignmentSupport(compared=89, matched=7, displaced_rate=0.07, p_value=0.4)
+    assert not chance.plausible(max_p=1.0)

@@ -162,3 +162,6 @@ def test_python_api_matches_the_command(toy, tmp_path):
     wrong = yaw_transform(0, (30.0, 20.0, 0.0)).compose(res.a_from_b)
     with pytest.raises(InputError, match="does not bring the maps together"):
         changes.compute(root / "A", root / "B", None, a_from_b=wrong)
+    # even a verified alignment is refused when its counterparts are no more frequent than chance
+    with pytest.raises(InputError, match="does not bring the maps together"):
+        changes.compute(root / "A", root / "B", None, a_from_b=wrong, verified=True)

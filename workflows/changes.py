@@ -58,10 +58,14 @@ class ChangesRun:
 
 
 def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path | None, params: Params | None = None,
-            a_from_b: Sim3 | None = None) -> ChangesRun:
+            a_from_b: Sim3 | None = None, verified: bool = False) -> ChangesRun:
     """Read, check and classify; nothing is written. The match must be accepted and computed for exactly these
     two maps (`match_io.check_match_maps`). `a_from_b` overrides the match's transform (batch passes its verified
-    alignment); `match_json` may then be None."""
+    alignment with `verified=True`); `match_json` may then be None.
+
+    Whether the alignment is right has one answer, match's verification on the full maps: a verified alignment
+    is refused here only when its counterparts are no more frequent than chance (B displaced); an unverified one
+    (a match.json from before the verification stage, or a transform from elsewhere) must also be significant."""
     params = params or Params()
     t0 = time.perf_counter()
     match = None
@@ -70,6 +74,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         if not match.accepted or match.transform is None:
             raise InputError("match has no accepted transform: the sessions were not aligned, nothing to compare",
                              match_json)
+        verified = verified or (a_from_b is None and match.source == "verified")
         a_from_b = a_from_b or match.transform
     if a_from_b is None:
         raise ValueError("give match_json or a_from_b")
@@ -86,7 +91,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         raise InputError("after alignment the two sessions observed no common ground: the match is wrong or the "
                          "flights do not overlap", match_json or session_b)
     sup = result.support
-    if sup is not None and not sup.plausible():
+    if sup is not None and not sup.plausible(max_p=1.0 if verified else 1e-3):
         raise InputError(f"the transform does not bring the maps together: {sup.rate:.0%} of A's {sup.compared} "
                          f"compared landmarks have a counterpart, {sup.displaced_rate:.0%} with B moved "
                          f"{CONTROL_SHIFT * result.tolerance_m:.0f} m (chance): the alignment is wrong, or the "

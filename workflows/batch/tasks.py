@@ -137,14 +137,15 @@ def merge_task(
 
 
 def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, params: Params,
-                 overwrite: bool = False) -> dict[str, Any]:
-    """Change detection of one accepted pair with its (verified) alignment a_from_b into out_dir
+                 overwrite: bool = False, verified: bool = True) -> dict[str, Any]:
+    """Change detection of one accepted pair with its alignment a_from_b into out_dir
     (`sosmatch.workflows.changes`); returns the counts for the report. `overwrite`: replace a complete changes
-    output of other inputs there (BatchOptions.overwrite)."""
+    output of other inputs there (BatchOptions.overwrite); `verified`: the match's answer is its verification's
+    (`changes.compute` then trusts it unless its counterparts are at chance level)."""
     from ...database.outputs import open_output_dir
     from .. import changes
 
-    run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform))
+    run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform), verified=verified)
     with open_output_dir(out_dir, "changes", changes.output_identity(run, params, True),
                          inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json") as out:
         changes.write_outputs(run, out.path, params)

@@ -244,7 +244,7 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
         fps[key] = fingerprint({"pair": pair_fps[key], "transform": rec["transform"], "changes": pdict["changes"],
                                 "eps": pdict["association"]["distance_tolerance_m"]})
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
-                      rec["transform"], params, options.overwrite)
+                      rec["transform"], params, options.overwrite, rec.get("answer") == "verified")
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
                      options.progress, _valid_changes)
     for key, rec in done.items():
