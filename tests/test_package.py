@@ -59,3 +59,12 @@ def test_user_error_is_one_line_exit_2(tmp_path):
     assert len(lines) == 1, out.stderr
     assert str(bad) in lines[0] and "no_such_key" in lines[0]
     assert "Traceback" not in out.stderr
+
+
+@pytest.mark.parametrize("argv", [["map", "--no-such-flag"], ["match"], ["nosuchcommand"], ["match", "--set"]])
+def test_a_command_line_mistake_is_one_line_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2
+    assert len(err.strip().splitlines()) == 1 and "--help" in err and "error:" in err, err

@@ -13,6 +13,7 @@ import logging
 import pkgutil
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from ..plugin import __version__
 from ..plugin.errors import InputError
@@ -31,13 +32,21 @@ def _command_modules() -> list:
     return modules
 
 
+class _Parser(argparse.ArgumentParser):
+    """A usage error is one line like every other user error (argparse prints the whole usage first): what is
+    wrong and where the help is; exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="sosmatch",
         description="Open-set segment landmark maps and cross-session correspondence search (SOS-Match).",
     )
     parser.add_argument("--version", action="version", version=f"sosmatch {__version__}")
-    verbosity = argparse.ArgumentParser(add_help=False)
+    verbosity = _Parser(add_help=False)
     verbosity.add_argument("-v", "--verbose", action="count", default=0, help="more logging (twice: debug)")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
