@@ -173,6 +173,9 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     fmt = data.get("format", MATCH_FORMAT)
     if not isinstance(fmt, str) or not fmt.startswith("sosmatch match"):
         raise InputError(f"not a sosmatch match file (format {_short(fmt)})", path)
+    if fmt != MATCH_FORMAT:  # another version's fields may mean something else: never guess
+        raise InputError(f"match file of format {_short(fmt)}; this sosmatch reads {MATCH_FORMAT!r}: re-run "
+                         "`sosmatch match`", path)
     raw_hyps = data.get("hypotheses")
     if raw_hyps is None:
         raise InputError("match file needs a 'hypotheses' list", path)

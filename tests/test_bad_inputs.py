@@ -53,6 +53,7 @@ def test_merge_refuses_a_match_of_other_sessions(toy, tmp_path, cli_error):
     (lambda d: d.update(hypotheses={"0": 1}), "hypotheses must be a list"),
     (lambda d: d["hypotheses"][0]["transform"].update(rotation=[[1, 0], [0, 1]]), "rotation must be a 3x3"),
     (lambda d: d.update(best=7), "best must be within"),
+    (lambda d: d.update(format="sosmatch match v0"), "this sosmatch reads 'sosmatch match v1'"),
 ])
 def test_damaged_match_json_is_one_line(toy, tmp_path, cli_error, edit, fragment):
     _, a, b, _ = toy
