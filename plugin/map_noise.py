@@ -110,3 +110,17 @@ def derived_association_params(base: AssociationParams, noise_a: MapNoise | None
     theta_r = SIZE_GATE_PER_SPREAD * math.hypot(noise_a.size_log_std, noise_b.size_log_std)
     return dataclasses.replace(base, affinity_sigma_m=round(sigma, 2), distance_tolerance_m=round(2.0 * sigma, 2),
                                max_size_difference=round(theta_r, 3))
+
+
+def first_search_params(configured: AssociationParams, derived: AssociationParams) -> AssociationParams | None:
+    """The tolerances of the first of two searches (`match_answer.match_maps`' `first_try`): the tighter of the
+    configured and the derived theta_eps, sigma and theta_r, the rest as derived. The derived ones allow for what
+    changes between two sessions (season, growth), which the maps cannot measure and two sessions of one season
+    do not need; looser tolerances multiply the chance-consistent pairs until nothing is pruned (the evaluation
+    suite's summer pairs: 0.26 -> 6.4 s of CPU, BENCHMARKS.md). None when the derived ones are nowhere looser
+    (derivation off, or maps less noisy than the configured values allow): one search is enough."""
+    first = dataclasses.replace(
+        derived, distance_tolerance_m=min(configured.distance_tolerance_m, derived.distance_tolerance_m),
+        affinity_sigma_m=min(configured.affinity_sigma_m, derived.affinity_sigma_m),
+        max_size_difference=min(configured.max_size_difference, derived.max_size_difference))
+    return None if first == derived else first

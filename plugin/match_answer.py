@@ -5,19 +5,29 @@ One function computes it (`match_maps`), and every consumer reads it (through ma
 - verification on (`verification.enabled`, the default): the search's hypotheses checked and refined on the full
   maps (`multisession.verify_search`); the answer is the verified alignment, accepted or not;
 - verification off (`match --no-verify`): the search's consensus of agreeing accepted window hypotheses.
+
+Tolerances in two steps (`first_try`, ours): tolerances derived from the maps' noise allow for what changes
+between sessions (season, growth), which two sessions of one season do not need; looser tolerances make many more
+chance-consistent pairs, and past a density nothing is pruned any more (evaluation suite, summer vs summer: 0.26 s
+-> 6.4 s of CPU, BENCHMARKS.md "Derived tolerances and search time"). So the search runs first with the tighter
+tolerances (`map_noise.first_search_params`) and its hypotheses are verified on the full maps with the derived
+ones (whose gate decides the associations of the answer); only when that verification refuses, the search runs
+again with the derived tolerances. `tolerances` says which search gave the answer.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from .association import SearchResult, Transform, search, search_reference
 from .multisession import Verification, verify_search
-from .params import Params
+from .params import AssociationParams, Params
 
 
 @dataclass
@@ -29,41 +39,62 @@ class MatchAnswer:
     associations: np.ndarray  # (K, 2) landmark index pairs (A, B) supporting it
     source: str  # "verified" (the verification's alignment) or "consensus" (the search's, unverified)
     prior: str  # how the position prior was used: "off", "applied", or why it was ignored
+    tolerances: str = "configured"  # the search's: "configured" (one search), "first" or "derived" (two steps)
     timings: dict[str, float] = field(default_factory=dict)  # search_s, verify_s, total_s (wall)
 
 
 def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
                params: Params, common_frame: bool = True, exhaustive: bool = False,
-               verify: bool | None = None) -> MatchAnswer:
+               verify: bool | None = None, first_try: AssociationParams | None = None) -> MatchAnswer:
     """Search the two maps and verify the result (see the module docstring).
 
     common_frame: the two maps are expressed in one world frame (both georeferenced in one EPSG), the condition
     of the position prior; when False a prior in `params` is ignored (and `prior` says so). exhaustive: the
     straightforward reference search (same hypotheses, slow). verify: overrides `params.verification.enabled`.
+    first_try: tighter association parameters for a first search whose hypotheses are verified with
+    `params.association` (module doc); used only with the verification on; None: one search.
     """
     t0 = time.perf_counter()
-    ap = params.association
     prior = "off"
-    if ap.position_prior_m > 0:
+    if params.association.position_prior_m > 0:
         prior = "applied" if common_frame else "ignored: the maps are not georeferenced in one EPSG"
-        if not common_frame:
-            ap = dataclasses.replace(ap, position_prior_m=0.0)
+
+    def usable(ap: AssociationParams) -> AssociationParams:
+        return ap if common_frame else dataclasses.replace(ap, position_prior_m=0.0)
+
+    ap = usable(params.association)
     fn = search_reference if exhaustive else search
-    res = fn(points_a, sizes_a, points_b, sizes_b, ap)
-    t1 = time.perf_counter()
     verify = params.verification.enabled if verify is None else verify
-    ver = None
+    clock = {"search_s": 0.0, "verify_s": 0.0}
+
+    def timed(stage: str, f: Callable[..., Any], *args: Any) -> Any:
+        t = time.perf_counter()
+        out = f(*args)
+        clock[stage] += time.perf_counter() - t
+        return out
+
+    tolerances, res, ver = "configured", None, None
+    if verify and first_try is not None:
+        res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, usable(first_try))
+        ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap,
+                    params.verification)
+        tolerances = "first"
+        if not ver.accepted:
+            res, ver, tolerances = None, None, "derived"
+    if res is None:
+        res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, ap)
     if verify:
-        ver = verify_search(points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap, params.verification)
+        if ver is None:
+            ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap,
+                        params.verification)
         best = ver.best
         transform = None if best is None else Transform(best.transform.rotation, best.transform.translation,
                                                          best.transform.scale)
         assoc = np.zeros((0, 2), np.int64) if best is None else best.associations
-        answer = MatchAnswer(res, ver, bool(ver.accepted), transform, assoc, "verified", prior)
+        answer = MatchAnswer(res, ver, bool(ver.accepted), transform, assoc, "verified", prior, tolerances)
     elif res.consensus is not None:
         answer = MatchAnswer(res, None, True, res.consensus.transform, res.consensus.associations, "consensus", prior)
     else:
         answer = MatchAnswer(res, None, False, None, np.zeros((0, 2), np.int64), "consensus", prior)
-    t2 = time.perf_counter()
-    answer.timings = {"search_s": t1 - t0, "verify_s": t2 - t1, "total_s": t2 - t0}
+    answer.timings = {**clock, "total_s": time.perf_counter() - t0}
     return answer

@@ -9,7 +9,7 @@ import pytest
 from sosmatch.database.map_loading import load_map, read_map_noise
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Camera, project
-from sosmatch.plugin.map_noise import MapNoise, derived_association_params, measure_map_noise
+from sosmatch.plugin.map_noise import MapNoise, derived_association_params, first_search_params, measure_map_noise
 from sosmatch.plugin.params import AssociationParams
 
 CAM = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
@@ -68,3 +68,58 @@ def test_session_noise_is_read_from_run_json(tmp_path):
     (tmp_path / "run.json").write_text("{not json")
     with pytest.raises(InputError, match="run.json"):
         load_map(tmp_path)
+
+
+def test_first_search_tolerances_are_the_tighter_ones():
+    configured = AssociationParams(derive_from_maps=True)
+    looser = derived_association_params(configured, MapNoise(0.2, 0.9, 0.08, 300), MapNoise(0.2, 1.1, 0.09, 200))
+    first = first_search_params(configured, looser)
+    assert first is not None
+    assert (first.distance_tolerance_m, first.affinity_sigma_m, first.max_size_difference) == (
+        configured.distance_tolerance_m, configured.affinity_sigma_m, configured.max_size_difference)
+    # mixed: a tighter derived size gate is kept, a looser eps is not
+    mixed = dataclasses.replace(looser, max_size_difference=0.1)
+    assert first_search_params(configured, mixed).max_size_difference == 0.1
+    # nowhere looser (derivation off, or quiet maps): one search
+    assert first_search_params(configured, configured) is None
+    quiet = dataclasses.replace(configured, distance_tolerance_m=1.0, affinity_sigma_m=0.5, max_size_difference=0.1)
+    assert first_search_params(configured, quiet) is None
+
+
+def _answer_in_two_steps(first_size_gate: float | None = None):
+    from sosmatch.plugin.association.synthetic import survey_map_pair
+    from sosmatch.plugin.match_answer import match_maps
+    from sosmatch.plugin.params import Params
+
+    s = survey_map_pair(300, seed=4, noise_m=0.3, size_noise=0.05, tilt_deg=1.0)
+    loose = dataclasses.replace(Params().association, distance_tolerance_m=4.0, affinity_sigma_m=2.0,
+                                max_size_difference=0.4)
+    params = dataclasses.replace(Params(), association=loose)
+    first = first_search_params(Params().association, loose)
+    if first_size_gate is not None:
+        first = dataclasses.replace(first, max_size_difference=first_size_gate)
+    two = match_maps(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, first_try=first)
+    one = match_maps(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params)
+    return s, two, one
+
+
+def test_two_step_search_stops_at_the_first_when_it_is_verified():
+    s, two, one = _answer_in_two_steps()
+    assert (two.tolerances, one.tolerances) == ("first", "configured")
+    assert two.accepted and one.accepted
+    # the first search's tolerances make fewer pairs; the answer is verified with the derived gate, as one search's
+    assert two.search.timings["consistent_pairs"] < one.search.timings["consistent_pairs"]
+    assert two.verification.best.transform.rotation == pytest.approx(one.verification.best.transform.rotation,
+                                                                     abs=1e-2)
+    truth = set(map(tuple, s.truth.tolist()))
+    got = set(map(tuple, two.associations.tolist()))
+    assert len(got & truth) >= 0.9 * len(set(map(tuple, one.associations.tolist())) & truth)
+
+
+def test_two_step_search_falls_back_to_the_derived_tolerances():
+    # a first search that cannot find anything (a size gate no two landmarks pass): the derived search answers,
+    # exactly as one search does
+    _, two, one = _answer_in_two_steps(first_size_gate=0.0)
+    assert two.tolerances == "derived" and one.accepted
+    assert two.accepted and np.array_equal(two.associations, one.associations)
+    assert two.search.timings["consistent_pairs"] == one.search.timings["consistent_pairs"]

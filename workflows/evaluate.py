@@ -54,7 +54,7 @@ from ..plugin.evaluation.footprints import footprint_polygons
 from ..plugin.evaluation.iou import iou_matrix
 from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
 from ..plugin.keyframes import select_keyframes
-from ..plugin.map_noise import derived_association_params
+from ..plugin.map_noise import derived_association_params, first_search_params
 from ..plugin.params import Params, params_to_dict
 
 log = logging.getLogger(__name__)
@@ -163,6 +163,7 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         raise InputError("landmarks.csv and landmarks.sosmap disagree on the number of landmarks", map_a)
     noise = [read_map_noise(m) for m in (map_a, map_b)]
     assoc_params = derived_association_params(params.association, *noise)  # as `sosmatch match` does
+    first_try = first_search_params(params.association, assoc_params)
     out: dict[str, Any] = {"map_bytes": [bytes_a, bytes_b], "landmarks": [len(pa), len(pb)],
                            "association": params_to_dict(assoc_params),
                            "map_noise": [None if n is None else n.to_dict() for n in noise]}
@@ -206,7 +207,7 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
             t0 = time.perf_counter()
             common = bool(lmap_a is not None and lmap_b is not None and lmap_a.epsg == lmap_b.epsg != 0)
             answer = match_maps(pa, ha, pb, hb, dataclasses.replace(params, association=assoc_params),
-                                common_frame=common)
+                                common_frame=common, first_try=first_try)
             times.append(time.perf_counter() - t0)
         result = answer.search
         out["search_seconds"] = statistics.median(times)

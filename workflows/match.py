@@ -34,7 +34,7 @@ from ..database.outputs import fingerprint, open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import SearchMode
-from ..plugin.map_noise import derived_association_params
+from ..plugin.map_noise import derived_association_params, first_search_params
 from ..plugin.match_answer import MatchAnswer, match_maps
 from ..plugin.params import Params, params_to_dict
 
@@ -114,6 +114,7 @@ def search_mode_json(params: Params, answer: MatchAnswer | None) -> dict[str, An
     mode = SearchMode.of(ap)
     return {"consistency": ap.consistency, "windows": ap.windows, "solver": ap.solver, "yaw_slices": mode.nslices,
             "position_prior_m": ap.position_prior_m, "position_prior": answer.prior if answer else "off",
+            "tolerances": answer.tolerances if answer else "configured",
             "paper": ap.consistency == "distance" and ap.windows == "id" and ap.solver == "clipper"
             and ap.position_prior_m == 0}
 
@@ -252,11 +253,14 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     la, lb = map_a.lmap, map_b.lmap
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
-    # tolerances from the maps' own noise when `association.derive_from_maps` (recorded in match.json's params)
-    params = dataclasses.replace(params, association=derived_association_params(params.association, map_a.noise,
-                                                                                map_b.noise))
+    # tolerances from the maps' own noise when `association.derive_from_maps` (recorded in match.json's params),
+    # searched first with the tighter of them and the configured ones (`match_answer`, module doc)
+    derived = derived_association_params(params.association, map_a.noise, map_b.noise)
+    first_try = first_search_params(params.association, derived)
+    params = dataclasses.replace(params, association=derived)
     identity = fingerprint({"a": landmark_map_fingerprint(la), "b": landmark_map_fingerprint(lb),
                             "association": params_to_dict(params.association),
+                            "first_try": None if first_try is None else params_to_dict(first_try),
                             "verification": params_to_dict(params.verification), "seed": params.seed,
                             "exhaustive": exhaustive, "plot": plot})
     with open_output_dir(out_dir, "match", identity, inputs=[a, b], overwrite=overwrite,
@@ -266,7 +270,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
             log.warning("position prior ignored: the maps are not georeferenced in one EPSG (A: %s, B: %s)",
                         la.epsg, lb.epsg)
         ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
-                         exhaustive=exhaustive)
+                         exhaustive=exhaustive, first_try=first_try)
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
