@@ -13,6 +13,12 @@ survive as LK tracks, the second estimator matches ORB features (cross-checked) 
 RANSAC homography (OpenCV's RANSAC uses a fixed seed, so the result is deterministic); the ground is near-planar at
 survey height, so one homography describes the image motion and its inliers' displacements give `mu_p`, `sigma_p`.
 
+The statistics are magnitudes of displacements in the pixel frame the tracking compares centroids in. With a lens
+(`camera` not a pinhole), tracking sees undistorted centroids (`mask_features.undistort_features`), so the track
+ends found on the real, distorted images are undistorted through the same camera model before their displacements
+are measured: otherwise `mu_p` and `sigma_p` describe a differently scaled image (barrel distortion shortens the
+motion towards the edges) and the spread of the distortion itself inflates `sigma_p`.
+
 Last fallback when neither finds enough tracks (water, fog, snow, motion blur, no overlap in a turn): the global
 shift from phase correlation gives `mu_p`, and `sigma_p` is set wide (`max(FALLBACK_MIN_SIGMA_PX, 0.5 mu_p)`)
 because a blind front end should loosen the motion gate rather than reject every candidate.
@@ -25,6 +31,7 @@ import logging
 import cv2
 import numpy as np
 
+from .geometry import Camera
 from .image_matching import cross_checked_matches, gray_u8, homography_inliers, orb_features
 
 logger = logging.getLogger(__name__)
@@ -57,62 +64,86 @@ def _working_pair(prev_gray: np.ndarray, cur_gray: np.ndarray,
 
 def lk_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int = 400) -> np.ndarray:
     """Displacement vectors (N,2) in px (full resolution) of forward-backward-consistent LK corner tracks."""
-    return _lk_tracks(prev_gray, cur_gray, max_corners)[0]
+    start, end, _ = _lk_tracks(prev_gray, cur_gray, max_corners)
+    return end - start
 
 
-def _lk_tracks(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int) -> tuple[np.ndarray, int]:
-    """`lk_displacements` and the number of corners it started from."""
+def _lk_tracks(prev_gray: np.ndarray, cur_gray: np.ndarray,
+               max_corners: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """(start, end) pixels (N,2 each, full resolution) of the tracks of `lk_displacements`, and the number of
+    corners it started from."""
     prev, cur, scale = _working_pair(prev_gray, cur_gray, same_size=True)
     min_distance = max(5.0, min(prev.shape) / 40.0)  # spread corners over the image, not on one textured patch
     corners = cv2.goodFeaturesToTrack(prev, maxCorners=int(max_corners), qualityLevel=0.01,
                                       minDistance=min_distance, blockSize=7)
     if corners is None or len(corners) == 0:
-        return np.zeros((0, 2)), 0
+        return np.zeros((0, 2)), np.zeros((0, 2)), 0
     p0 = corners.astype(np.float32).reshape(-1, 1, 2)
     lk = dict(winSize=(21, 21), maxLevel=4, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, **lk)
     if p1 is None:
-        return np.zeros((0, 2)), len(corners)
+        return np.zeros((0, 2)), np.zeros((0, 2)), len(corners)
     p0r, st2, _ = cv2.calcOpticalFlowPyrLK(cur, prev, p1, None, **lk)
     fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
     h, w = prev.shape
     end = p1.reshape(-1, 2)
     inside = (end[:, 0] >= 0) & (end[:, 0] < w) & (end[:, 1] >= 0) & (end[:, 1] < h)
     keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < _FB_MAX_PX) & inside
-    return (end[keep] - p0.reshape(-1, 2)[keep]).astype(np.float64) / scale, len(corners)
+    start = p0.reshape(-1, 2)[keep].astype(np.float64) / scale
+    return start, end[keep].astype(np.float64) / scale, len(corners)
 
 
 def homography_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_features: int = 1500,
                              ransac_px: float = 3.0) -> np.ndarray:
     """Displacement vectors (N,2) in px (full resolution) of cross-checked ORB matches that agree with one RANSAC
     homography (large-motion fallback for `lk_displacements`). Empty when fewer than `MIN_TRACKS` agree."""
+    start, end = _homography_tracks(prev_gray, cur_gray, max_features, ransac_px)
+    return end - start
+
+
+def _homography_tracks(prev_gray: np.ndarray, cur_gray: np.ndarray, max_features: int = 1500,
+                       ransac_px: float = 3.0, camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) pixels (N,2 each, full resolution) of the matches of `homography_displacements`. With a lens
+    (`camera` not a pinhole) the matches are undistorted first and the homography is fitted to (and the pixels
+    returned in) `camera.pinhole()`: a plane maps by a homography between pinhole images only, and on distorted
+    pixels the RANSAC threshold would cut the image's rim, where the lens bends the motion most."""
+    none = (np.zeros((0, 2)), np.zeros((0, 2)))
     prev, cur, scale = _working_pair(prev_gray, cur_gray)
     f0, f1 = orb_features(prev, max_features), orb_features(cur, max_features)
     if len(f0) < MIN_TRACKS or len(f1) < MIN_TRACKS:
-        return np.zeros((0, 2))
+        return none
     matches = cross_checked_matches(f0.descriptors, f1.descriptors)
     if len(matches) < 2 * MIN_TRACKS:
-        return np.zeros((0, 2))
-    p0 = f0.points[matches[:, 0]].astype(np.float32)
-    p1 = f1.points[matches[:, 1]].astype(np.float32)
-    keep = homography_inliers(p0, p1, ransac_px)
+        return none
+    p0 = f0.points[matches[:, 0]].astype(np.float64) / scale
+    p1 = f1.points[matches[:, 1]].astype(np.float64) / scale
+    if camera is not None and not camera.is_pinhole:
+        p0, p1 = camera.undistort_points(p0), camera.undistort_points(p1)
+    # fitted at the working resolution, where `ransac_px` is meant
+    keep = homography_inliers((p0 * scale).astype(np.float32), (p1 * scale).astype(np.float32), ransac_px)
     if keep is None or int(keep.sum()) < 2 * MIN_TRACKS:
-        return np.zeros((0, 2))  # too few agreeing matches: a chance homography, not the image motion
-    return (p1[keep] - p0[keep]).astype(np.float64) / scale
+        return none  # too few agreeing matches: a chance homography, not the image motion
+    return p0[keep], p1[keep]
 
 
-def image_motion_stats(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int = 400) -> tuple[float, float]:
+def image_motion_stats(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int = 400,
+                       camera: Camera | None = None) -> tuple[float, float]:
     """Mean and standard deviation (px) of the image motion between two consecutive keyframes.
 
     `mu_p`, `sigma_p` are the mean and (population) standard deviation of the displacement magnitudes of LK corner
     tracks. Deterministic. With fewer than `MIN_TRACKS` tracks, falls back to ORB + homography, then to phase
-    correlation (module docstring).
+    correlation (module docstring). `camera`: the lens the images were taken through; when it is not a pinhole
+    the displacements are measured between undistorted track ends, in pixels of `camera.pinhole()` (the frame of
+    the undistorted centroids tracking compares). The phase-correlation shift stays as measured: it is a global
+    estimate with a wide sigma, and the lens scale is 1 at the principal point.
     """
-    disp, n_corners = _lk_tracks(prev_gray, cur_gray, max_corners)
-    if len(disp) < max(MIN_TRACKS, MIN_LK_FRACTION * n_corners):
-        disp = homography_displacements(prev_gray, cur_gray)
-    if len(disp) >= MIN_TRACKS:
-        mag = np.linalg.norm(disp, axis=1)
+    start, end, n_corners = _lk_tracks(prev_gray, cur_gray, max_corners)
+    if camera is not None and not camera.is_pinhole and len(start):
+        start, end = camera.undistort_points(start), camera.undistort_points(end)
+    if len(start) < max(MIN_TRACKS, MIN_LK_FRACTION * n_corners):
+        start, end = _homography_tracks(prev_gray, cur_gray, camera=camera)  # undistorted already
+    if len(start) >= MIN_TRACKS:
+        mag = np.linalg.norm(end - start, axis=1)
         return float(mag.mean()), float(mag.std())
     prev = gray_u8(prev_gray).astype(np.float64)
     cur = gray_u8(cur_gray).astype(np.float64)
@@ -120,5 +151,5 @@ def image_motion_stats(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners:
     (dx, dy), response = cv2.phaseCorrelate(prev, cur, window)
     mu = float(np.hypot(dx, dy))
     sigma = max(FALLBACK_MIN_SIGMA_PX, 0.5 * mu)
-    logger.debug("only %d LK tracks; phase correlation shift %.1f px (response %.2f)", len(disp), mu, response)
+    logger.debug("only %d LK tracks; phase correlation shift %.1f px (response %.2f)", len(start), mu, response)
     return mu, float(sigma)

@@ -121,3 +121,36 @@ def test_few_corners_all_tracked_is_not_an_lk_failure():
     mag = np.linalg.norm(disp, axis=1)
     assert (mu, sigma) == (float(mag.mean()), float(mag.std()))  # LK's own statistics, no fallback
     assert mu == pytest.approx(5.0, abs=0.3) and sigma < 0.5
+
+
+
+def _through_lens(world: np.ndarray, camera, offset: tuple[float, float]) -> np.ndarray:
+    """The real camera's image of a flat textured `world` seen straight down, the pinhole image's pixel (0, 0) at
+    world pixel `offset`: each distorted pixel samples the world where its ray lands (the world is larger than
+    the view, so no border is ever sampled)."""
+    yy, xx = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    src = camera.undistort_points(np.stack([xx.ravel() + 0.5, yy.ravel() + 0.5], 1)) - 0.5  # COLMAP: centre 0.5
+    maps = (src + np.asarray(offset)).reshape(camera.height, camera.width, 2).astype(np.float32)
+    return cv2.remap(world, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+@pytest.mark.parametrize("shift", [(0.0, 25.0), (30.0, 240.0)])  # LK's range; the survey-sized homography fallback
+def test_motion_through_a_lens_is_measured_in_undistorted_pixels(shift):
+    # Tracking compares undistorted centroids, so the motion it is gated on must be measured in the same frame: a
+    # pure translation of the ground is one shift in the pinhole image, but barrel distortion (k1 = -0.1) shrinks
+    # it towards the rim of the real image, biasing mu_p low and inflating sigma_p
+    from sosmatch.plugin.geometry import Camera
+
+    lens = Camera(800, 600, 500.0, 500.0, 400.0, 300.0, model="SIMPLE_RADIAL", extra=(-0.1,))
+    world = _texture(7, shape=(1200, 1400))
+    a = _through_lens(world, lens, (300.0, 300.0))
+    b = _through_lens(world, lens, (300.0 - shift[0], 300.0 - shift[1]))
+    if shift[1] > 100:
+        assert len(lk_displacements(a, b)) < 0.1 * 400  # the fallback is what measures this one
+    mu_u, sigma_u = image_motion_stats(a, b, camera=lens)
+    mu_d, sigma_d = image_motion_stats(a, b)
+    truth = np.hypot(*shift)
+    assert mu_u == pytest.approx(truth, rel=0.01, abs=0.3)
+    assert sigma_u < 1.0
+    assert abs(mu_d - truth) > 2.0 * abs(mu_u - truth) and sigma_d > 2.0 * sigma_u  # the frame mix it replaces
+    assert image_motion_stats(a, b, camera=lens.pinhole()) == (mu_d, sigma_d)  # a pinhole changes nothing

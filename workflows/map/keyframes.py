@@ -13,12 +13,13 @@ import numpy as np
 
 from ...database.atomic import atomic_path
 from ...plugin.errors import InputError
+from ...plugin.geometry import Camera
 from ...plugin.params import Params, params_to_dict
 from .inputs import MapInputs
 
 log = logging.getLogger(__name__)
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: image motion measured between undistorted track ends (lens cameras)
 
 
 def _cache_path(cache_dir: Path, k: int, name: str) -> Path:
@@ -55,10 +56,12 @@ def _describe_one(
     path: Path, prev_path: Path | None, size: tuple[int, int], params: Params, entry: Path, key: str,
     prev_gray: np.ndarray | None = None,
     masks_for: Callable[[str, np.ndarray], Any] | None = None,
+    camera: Camera | None = None,
 ) -> tuple[Any, tuple[float, float], np.ndarray]:
     """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
 
-    Returns (MaskFeatures, (mu_p, sigma_p), gray image). Runs in the main process or a worker process.
+    Returns (MaskFeatures, (mu_p, sigma_p), gray image). Runs in the main process or a worker process. `camera`:
+    the images' lens; the motion is measured in the undistorted pixels tracking compares (`image_motion_stats`).
     """
     from ...database.images import read_image
     from ...plugin.mask_features import describe_masks, segment_and_describe, to_gray_u8
@@ -71,7 +74,7 @@ def _describe_one(
     gray = to_gray_u8(image)
     if prev_path is not None and prev_gray is None:
         prev_gray = to_gray_u8(read_image(prev_path))
-    mu_sigma = image_motion_stats(prev_gray, gray) if prev_path is not None else (0.0, 0.0)
+    mu_sigma = image_motion_stats(prev_gray, gray, camera=camera) if prev_path is not None else (0.0, 0.0)
     mu_sigma = (float(mu_sigma[0]), float(mu_sigma[1]))
     seg = params.segmentation
     if masks_for is not None:
@@ -143,7 +146,7 @@ def describe_keyframes(
         prev_gray, prev_k = None, -2
         for k, path, prev_path, entry, key in todo:
             feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
-                                                  prev_gray if prev_k == k - 1 else None, masks_for)
+                                                  prev_gray if prev_k == k - 1 else None, masks_for, inputs.camera)
             results[k] = (feats, mu_sigma)
             prev_gray, prev_k = gray, k
             bar.update()
@@ -154,7 +157,8 @@ def describe_keyframes(
 
         # spawn (no fork of a process holding pycolmap/OpenCV threads); the workers die with this process
         with process_pool(workers, _worker_init) as pool:
-            futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for))
+            futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for,
+                                              inputs.camera))
                        for k, path, prev_path, entry, key in todo]
             try:
                 for k, fut in futures:

@@ -174,8 +174,10 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
 
     partial = out.staging
     camera = inputs.camera
+    # the lens enters the cached image motion (measured in undistorted pixels); a pinhole's focal length does not
+    lens = None if camera.is_pinhole else [camera.model, list(camera.params)]
     cache_key = hash_json({"v": CACHE_VERSION, "seg": pdict["segmentation"], "kf": pdict["keyframes"],
-                           "masks": masks_source, "size": [camera.width, camera.height]})
+                           "masks": masks_source, "size": [camera.width, camera.height], "lens": lens})
 
     t = time.perf_counter()
     keyframes = select_keyframes(inputs.poses.centers, params.keyframes.interval_m)
