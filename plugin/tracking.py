@@ -353,7 +353,8 @@ def track_masks(
         camera: intrinsics of every keyframe (pixels in COLMAP convention, as the centroids).
         keyframe_poses: pose of every keyframe, same order as `features`.
         motion_stats: motion_stats[t] = (mu_p, sigma_p) between keyframes t-1 and t (entry 0 unused), e.g. from
-            `sosmatch.plugin.motion.image_motion_stats`.
+            `sosmatch.plugin.motion.image_motion_stats`; NaN where the motion is unknown: no motion gate
+            for gaps spanning that step.
         params: tracking parameters.
 
     Returns:

@@ -67,9 +67,16 @@ def test_few_tracks_falls_back_to_phase_correlation():
     mu, sigma = image_motion_stats(img, img2, max_corners=5)
     assert mu == pytest.approx(10.0, abs=1.0)
     assert sigma >= FALLBACK_MIN_SIGMA_PX and sigma >= 0.5 * mu - 1e-9
-    # a blank pair gives finite numbers, not an exception
+    # a blank pair has no motion to measure: unknown (NaN, so tracking applies no motion gate), not an exception
     blank = np.zeros((64, 64), np.uint8)
-    assert all(np.isfinite(image_motion_stats(blank, blank)))
+    assert all(np.isnan(image_motion_stats(blank, blank)))
+
+
+def test_unrelated_pair_has_unknown_motion_not_a_phase_correlation_guess():
+    # two views sharing no shift (a survey turn, or frames beyond the estimators' reach): phase correlation still
+    # returns a peak, but at the noise floor; reporting it as the motion would gate out the true partners
+    a, b = _texture(8, shape=(300, 400)), _texture(9, shape=(300, 400))
+    assert all(np.isnan(image_motion_stats(a, b)))
 
 
 def test_large_images_are_downscaled_but_shift_is_in_full_resolution_px():
