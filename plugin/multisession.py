@@ -464,7 +464,8 @@ def verify_alignments(
     them). The
     alignment with the most mutual-nearest-neighbour support wins; it is accepted when that support exceeds
     `min_support` and is at least `min_ratio` times the support of the best rival (an alignment that moves some
-    of the winner's supporting B landmarks more than 2 gate_m away from where the winner puts them).
+    of the winner's supporting B landmarks more than 2 gate_m away from where the winner puts them: the search's
+    other candidates, and B deliberately displaced and turned (`_displaced_starts`), refined like the winner).
     `final_dof` 6: the winner's transform is finally refitted rigidly (6-DOF, Huber-weighted) on its supporting
     pairs, and its support is the mutual nearest neighbours under that transform. The 4-DOF search finds the
     pairs robustly; with tens to hundreds of pairs over the whole overlap the small tilt between two EKF frames
@@ -492,10 +493,19 @@ def verify_alignments(
     # apart with |support| within 1), i.e. its uncertainty, not a contradiction.
     rivals = [len(refined[k].associations) for k in order[1:]
               if not _agree(best.transform, refined[k].transform, probe, 2.0 * gate_m)]
+    # The rivals the search offered are not enough: with one candidate there is none, and a chance alignment of
+    # two unrelated maps then won by default (3 of 8 pairs of different synthetic worlds were "verified" with
+    # 8-15 pairs). B deliberately put elsewhere and refined like the winner is the chance level at this map
+    # density and these gates: the winner must beat it by min_ratio too.
+    pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
+    for start in _displaced_starts(best.transform, pb_all, gate_m):
+        control = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, start, gate_m, max_size_difference, dof=dof,
+                                   z_weight=z_weight)
+        if not _agree(best.transform, control.transform, probe, 2.0 * gate_m):
+            rivals.append(len(control.associations))
     runner_up = max(rivals, default=0)
     support = len(best.associations)
     if final_dof == 6 and dof != 6 and support >= 3:
-        pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
         first = _final_rigid_fit(pa_all, pb_all, best, gate_m, z_weight)
         # then the pairs under that transform: landmarks the 4-DOF fit could not reach because the frames are
         # tilted (1-2 deg between EKF frames is metres of height at the far end of a map) join its support
@@ -506,6 +516,27 @@ def verify_alignments(
             best = Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
     accepted = support > min_support and support >= min_ratio * runner_up
     return Verification(best, runner_up, len(refined), accepted)
+
+
+CONTROL_SHIFT_GATES = 3.0  # the displaced controls: B moved this many gates (beyond any landmark scatter)
+CONTROL_YAWS_DEG = (-10.0, 10.0, 180.0)  # and B turned about its centre (a flight's lines, its reverse)
+
+
+def _displaced_starts(transform: Sim3, points_b: np.ndarray, gate_m: float) -> list[Sim3]:
+    """The winner's transform with B moved CONTROL_SHIFT_GATES gates in 6 horizontal directions and turned by
+    CONTROL_YAWS_DEG about B's centre (in A's frame): starts of alignments that put B elsewhere."""
+    starts = []
+    for k in range(6):
+        ang = k * np.pi / 3.0
+        shift = CONTROL_SHIFT_GATES * gate_m * np.array([np.cos(ang), np.sin(ang), 0.0])
+        starts.append(Sim3(transform.rotation, transform.translation + shift, transform.scale))
+    centre = transform.apply(points_b).mean(axis=0) if len(points_b) else np.zeros(3)
+    for yaw in CONTROL_YAWS_DEG:
+        c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+        turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        starts.append(Sim3(turn @ transform.rotation, turn @ (transform.translation - centre) + centre,
+                           transform.scale))
+    return starts
 
 
 def verification_candidates(hypotheses: Sequence[Any], max_gravity_angle_deg: float,

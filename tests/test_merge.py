@@ -309,3 +309,21 @@ def test_verify_final_rigid_fit_recovers_a_small_tilt():
     assert transform_error(flat.best.transform, truth, b)[1] > 1.2
     assert transform_error(tilted.best.transform, truth, b)[1] < 0.3
     assert len(tilted.best.associations) >= len(flat.best.associations) and tilted.best.rms_m < flat.best.rms_m
+
+
+def test_verification_with_one_candidate_must_beat_b_displaced():
+    """Two unrelated maps and one candidate: before the displaced controls there was no rival, so the chance
+    pairs of the candidate (support well over theta_S at this density) were accepted by default."""
+    from sosmatch.plugin.multisession import Sim3, verify_alignments
+
+    rng = np.random.default_rng(4)
+    a = np.column_stack([rng.uniform(0, 300, 400), rng.uniform(0, 300, 400), rng.normal(0, 0.3, 400)])
+    unrelated = np.column_stack([rng.uniform(0, 300, 200), rng.uniform(0, 300, 200), rng.normal(0, 0.3, 200)])
+    identity = Sim3(np.eye(3), np.zeros(3), 1.0)
+    chance = verify_alignments(a, None, unrelated, None, [(identity, np.arange(20))], 3.0, 0.4, 6)
+    assert len(chance.best.associations) > 6  # the chance support alone passes theta_S
+    assert not chance.accepted and chance.runner_up_support > 0
+    # the same density with B a noisy part of A: accepted, and the controls stay well below the winner
+    same = a[:200] + rng.normal(0, 0.5, (200, 3))
+    true = verify_alignments(a, None, same, None, [(identity, np.arange(20))], 3.0, 0.4, 6)
+    assert true.accepted and len(true.best.associations) > 3 * true.runner_up_support
