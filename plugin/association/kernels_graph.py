@@ -183,8 +183,8 @@ def association_graph(pa: np.ndarray, pb: np.ndarray, ia: np.ndarray, ib: np.nda
     tables of the pair invariants (`invariant_table`), else they form the vectors on the fly; both give identical
     values.
     """
-    ua, la = _local_ids(ia, pa.shape[0])
-    ub, lb = _local_ids(ib, pb.shape[0])
+    ua, la = local_ids(ia, pa.shape[0])
+    ub, lb = local_ids(ib, pb.shape[0])
     if len(ua) <= TABLE_MAX and len(ub) <= TABLE_MAX:
         ta = invariant_table(pa, ua, mode)
         tb = invariant_table(pb, ub, mode)
@@ -193,7 +193,7 @@ def association_graph(pa: np.ndarray, pb: np.ndarray, ia: np.ndarray, ib: np.nda
 
 
 @njit(cache=True)
-def _local_ids(ids: np.ndarray, n: int) -> tuple:
+def local_ids(ids: np.ndarray, n: int) -> tuple:
     """Distinct values of `ids` (ascending) and each entry's index among them."""
     present = np.zeros(n, np.bool_)
     for v in ids:

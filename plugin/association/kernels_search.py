@@ -17,6 +17,7 @@ from .kernels_graph import (
     association_graph,
     gate1,
     grow,
+    local_ids,
     pair_mismatch,
     pair_slices,
     putatives,
@@ -25,6 +26,31 @@ from .kernels_graph import (
     vector_invariants,
 )
 from .kernels_solve import kcore_mask, solve_graph, sym_csr
+
+# --- yaw slices ----------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def slice_buckets(s0: np.ndarray, ns: np.ndarray, use: np.ndarray, nslices: int) -> tuple:
+    """Counting sort of the items `use` marks into yaw slices: item t lies in the ns[t] slices from s0[t] on
+    (wrapping). Returns (cnt, items): the items of slice sl are items[cnt[sl]: cnt[sl + 1]], ascending."""
+    cnt = np.zeros(nslices + 1, np.int64)
+    for t in range(len(s0)):
+        if use[t]:
+            for x in range(ns[t]):
+                cnt[(s0[t] + x) % nslices + 1] += 1
+    for sl in range(nslices):
+        cnt[sl + 1] += cnt[sl]
+    fill = cnt[:-1].copy()
+    items = np.empty(cnt[nslices], np.int64)
+    for t in range(len(s0)):
+        if use[t]:
+            for x in range(ns[t]):
+                sl = (s0[t] + x) % nslices
+                items[fill[sl]] = t
+                fill[sl] += 1
+    return cnt, items
+
 
 # --- one window pair ---------------------------------------------------------------------------------------------
 
@@ -50,21 +76,10 @@ def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, cs: np.ndarray
     if ncore <= k:
         return False, empty, 0.0, -1, 0
     # edges of the core, bucketed by yaw slice (an edge in every slice its tolerance covers)
-    cnt = np.zeros(nslices + 1, np.int64)
+    in_core = np.empty(len(rows), np.bool_)
     for e in range(len(rows)):
-        if alive[rows[e]] and alive[cols[e]]:
-            for t in range(ns[e]):
-                cnt[(s0[e] + t) % nslices + 1] += 1
-    for t in range(nslices):
-        cnt[t + 1] += cnt[t]
-    fill = cnt[:-1].copy()
-    bucket = np.empty(cnt[nslices], np.int64)
-    for e in range(len(rows)):
-        if alive[rows[e]] and alive[cols[e]]:
-            for t in range(ns[e]):
-                sl = (s0[e] + t) % nslices
-                bucket[fill[sl]] = e
-                fill[sl] += 1
+        in_core[e] = alive[rows[e]] and alive[cols[e]]
+    cnt, bucket = slice_buckets(s0, ns, in_core, nslices)
     found = False
     best_sel = empty
     best_score = 0.0
@@ -471,29 +486,10 @@ def edge_pair_details(sel: np.ndarray, e_a: np.ndarray, e_b: np.ndarray, ori: np
 def compact_ids(v1: np.ndarray, v2: np.ndarray, space: int) -> tuple:
     """Sorted distinct association ids of v1 and v2, and both renumbered 0.. (a presence table when the id
     space is small, else a sort)."""
-    if space <= 64 * (len(v1) + len(v2)) + 1_000_000:
-        present = np.zeros(space, np.bool_)
-        for x in v1:
-            present[x] = True
-        for x in v2:
-            present[x] = True
-        new = np.empty(space, np.int64)
-        nu = 0
-        for x in range(space):
-            if present[x]:
-                new[x] = nu
-                nu += 1
-        ids = np.empty(nu, np.int64)
-        for x in range(space):
-            if present[x]:
-                ids[new[x]] = x
-        i1 = np.empty(len(v1), np.int64)
-        i2 = np.empty(len(v2), np.int64)
-        for t in range(len(v1)):
-            i1[t] = new[v1[t]]
-            i2[t] = new[v2[t]]
-        return ids, i1, i2
     both = np.concatenate((v1, v2))
+    if space <= 64 * (len(v1) + len(v2)) + 1_000_000:
+        ids, inv = local_ids(both, space)
+        return ids, inv[: len(v1)].copy(), inv[len(v1):].copy()
     order = np.argsort(both)
     ids = np.empty(len(both), np.int64)
     inv = np.empty(len(both), np.int64)
@@ -545,19 +541,7 @@ def peel_pairs_sliced(nv: int, e1: np.ndarray, e2: np.ndarray, s0: np.ndarray, n
     than k of them (over all windows) is removed, iterated. A pair survives if it survives in at least one slice.
     Exact: such an association cannot be in that slice's k-core of any window pair. Each slice is peeled on its
     own pairs only (counting sort by slice, local vertex ids), so time and memory grow with the incidences."""
-    cnt = np.zeros(nslices + 1, np.int64)
-    for t in range(len(e1)):
-        for x in range(ns[t]):
-            cnt[(s0[t] + x) % nslices + 1] += 1
-    for sl in range(nslices):
-        cnt[sl + 1] += cnt[sl]
-    fill = cnt[:-1].copy()
-    items = np.empty(cnt[nslices], np.int64)
-    for t in range(len(e1)):
-        for x in range(ns[t]):
-            sl = (s0[t] + x) % nslices
-            items[fill[sl]] = t
-            fill[sl] += 1
+    cnt, items = slice_buckets(s0, ns, np.ones(len(e1), np.bool_), nslices)
     out = np.zeros(len(e1), np.bool_)
     local = np.full(nv, -1, np.int64)
     for sl in range(nslices):
