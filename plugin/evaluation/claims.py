@@ -122,11 +122,9 @@ def claim_scores(
         return _geometric_claims(hypotheses, observers_a, observers_b, geometry, scores)
     oa_t = observers_a.T.tocsr()
     for hyp in hypotheses:
-        assoc = np.asarray(hyp.associations, dtype=np.int64).reshape(-1, 2)
-        if not hyp.valid or len(assoc) == 0:
+        assoc = _associations(hyp, observers_a, observers_b)
+        if assoc is None:
             continue
-        if assoc[:, 0].max() >= observers_a.shape[0] or assoc[:, 1].max() >= observers_b.shape[0]:
-            raise ValueError("association refers to a landmark index beyond the map")
         # (K_a x M) @ (M x K_b): sum over associations of outer products of observer indicators.
         pairs = (oa_t[:, assoc[:, 0]] @ observers_b[assoc[:, 1]]).tocoo()
         if pairs.nnz:
@@ -136,6 +134,17 @@ def claim_scores(
     return scores
 
 
+def _associations(hyp: Hypothesis, observers_a: sp.csr_matrix, observers_b: sp.csr_matrix) -> np.ndarray | None:
+    """A hypothesis' (K, 2) associations checked against the maps' landmark counts; None when it claims nothing
+    (invalid or empty)."""
+    assoc = np.asarray(hyp.associations, dtype=np.int64).reshape(-1, 2)
+    if not hyp.valid or len(assoc) == 0:
+        return None
+    if assoc[:, 0].max() >= observers_a.shape[0] or assoc[:, 1].max() >= observers_b.shape[0]:
+        raise ValueError("association refers to a landmark index beyond the map")
+    return assoc
+
+
 def _geometric_claims(hypotheses: Sequence[Hypothesis], observers_a: sp.csr_matrix, observers_b: sp.csr_matrix,
                       geometry: tuple[ObserverGeometry, ObserverGeometry, float], scores: np.ndarray) -> np.ndarray:
     """`claim_scores` with the separation test: per distinct association, its best hypothesis' score and
@@ -143,11 +152,9 @@ def _geometric_claims(hypotheses: Sequence[Hypothesis], observers_a: sp.csr_matr
     geo_a, geo_b, ratio = geometry
     best: dict[tuple[int, int], tuple[float, np.ndarray | None]] = {}
     for hyp in hypotheses:
-        assoc = np.asarray(hyp.associations, dtype=np.int64).reshape(-1, 2)
-        if not hyp.valid or len(assoc) == 0:
+        assoc = _associations(hyp, observers_a, observers_b)
+        if assoc is None:
             continue
-        if assoc[:, 0].max() >= observers_a.shape[0] or assoc[:, 1].max() >= observers_b.shape[0]:
-            raise ValueError("association refers to a landmark index beyond the map")
         for a, b in assoc.tolist():
             if (a, b) not in best or hyp.score > best[(a, b)][0]:
                 best[(a, b)] = (hyp.score, hyp.rotation)
