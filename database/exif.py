@@ -196,9 +196,24 @@ def parse_xmp(packet: bytes) -> dict[str, str]:
     return out
 
 
+# XMP attitude tags (degrees) the pose workflows read: a value beyond one turn is a damaged tag, not an angle
+# (a yaw of 1e308 would otherwise be taken as a heading)
+XMP_ANGLE_TAGS = ("GimbalYawDegree", "GimbalPitchDegree", "GimbalRollDegree", "FlightYawDegree", "FlightPitchDegree",
+                  "FlightRollDegree", "Heading", "PitchAngle", "RollAngle")
+
+
+def _bad_angle(value: object) -> bool:
+    try:
+        number = float(str(value).strip())
+    except ValueError:
+        return False  # not a number at all: `xmp_float` skips it already
+    return not (math.isfinite(number) and abs(number) <= 360.0)
+
+
 def check_metadata(meta: ImageMetadata) -> list[str]:
     """The problems of `meta`'s values (empty if none): a position off the globe or (0, 0) (a receiver without a
-    fix), a non-finite altitude, a non-positive focal length. The reader drops such values, the writer refuses."""
+    fix), a non-finite altitude, a non-positive focal length, a GPS track or an XMP attitude angle beyond one
+    turn. The reader drops such values, the writer refuses."""
     problems = []
     if (meta.latitude is None) != (meta.longitude is None):
         problems.append("GPS latitude without longitude (or the reverse)")
@@ -213,6 +228,11 @@ def check_metadata(meta: ImageMetadata) -> list[str]:
         value = getattr(meta, name)
         if value is not None and not value > 0:
             problems.append(f"{name} {value} is not positive")
+    if meta.gps_track_deg is not None and _bad_angle(meta.gps_track_deg):
+        problems.append(f"GPS track {meta.gps_track_deg} is not an angle")
+    for name in XMP_ANGLE_TAGS:
+        if name in meta.xmp and _bad_angle(meta.xmp[name]):
+            problems.append(f"XMP {name} {meta.xmp[name]} is not an angle")
     return problems
 
 
@@ -270,6 +290,9 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
             problems.append(problem)
             meta.altitude = None
             meta.sources.pop("altitude", None)
+        elif problem.startswith("GPS track"):
+            problems.append(problem)
+            meta.gps_track_deg = None
         else:  # a focal length that is not positive
             problems.append(problem)
             meta.focal_mm = meta.focal_mm if meta.focal_mm and meta.focal_mm > 0 else None
@@ -297,6 +320,9 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
             continue
         for key, value in properties.items():
             meta.xmp.setdefault(key, value)
+    for name in XMP_ANGLE_TAGS:  # a damaged attitude tag is left out (the image falls back to the other sources)
+        if name in meta.xmp and _bad_angle(meta.xmp[name]):
+            problems.append(f"XMP {name} {meta.xmp.pop(name)} is not an angle")
     meta.problems = problems
     return meta
 

@@ -67,6 +67,27 @@ def test_damaged_exif_and_xmp_are_problems_not_errors(tmp_path):
     assert any("EXIF" in q for q in meta.problems) and any("XMP" in q for q in meta.problems)
 
 
+def test_an_attitude_tag_beyond_one_turn_is_dropped_not_taken_as_a_heading(tmp_path, caplog):
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(4):
+        meta = _meta(img / f"f{k}.jpg", latitude=47.0 + k * 1e-4, longitude=8.0, altitude=480.0,
+                     datetime_original=f"2024:06:01 10:00:{2 * k:02d}", subsec_original="",
+                     xmp={"GimbalYawDegree": "+45.00", "GimbalPitchDegree": "-90", "GimbalRollDegree": "0"})
+        data = embed_metadata(_jpeg(k), meta)
+        if k == 2:  # the writer refuses such a tag, so damage the file as a faulty firmware would
+            data = data.replace(b'"+45.00"', b'"1e+308"')
+        (img / f"f{k}.jpg").write_bytes(data)
+    damaged = read_image_metadata(img / "f2.jpg")
+    assert "GimbalYawDegree" not in damaged.xmp
+    assert any("GimbalYawDegree 1e+308 is not an angle" in q for q in damaged.problems)
+    with pytest.raises(ValueError, match="not an angle"):
+        embed_metadata(_jpeg(), _meta(tmp_path / "x.jpg", xmp={"GimbalYawDegree": "720.5"}))
+    priors = read_image_priors(img)
+    assert priors.summary["attitude_sources"]["XMP GimbalYaw/Pitch/RollDegree"] == 3
+    assert "f2.jpg" in priors.summary["damaged_metadata"] and "f2.jpg: XMP GimbalYawDegree" in caplog.text
+
+
 def test_35mm_equivalent_refers_to_the_full_sensor_frame():
     # DJI 16:9 stills are the full-width band of a 4:3 sensor: the 4:3 diagonal, not the 16:9 one
     assert full_frame_diagonal_px(4000, 2250) == pytest.approx(5000.0)
