@@ -33,7 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .geometry import rotation_angle_deg
-from .multisession import Sim3, fit_yaw_translation, umeyama
+from .multisession import Sim3, umeyama
+from .refinement import fit_yaw_translation
 
 # A level nadir camera is what survey flights aim for; fixed-wing airframes fly a few degrees nose-up and
 # multirotor gimbals hold nadir to a degree: the uncertainty of the mean view direction as the vertical.

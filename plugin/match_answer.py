@@ -3,7 +3,7 @@
 One function computes it (`match_maps`), and every consumer reads it (through match.json and
 `database.match_io.read_match`: merge, evaluate, batch, changes), so there is one notion of "the alignment":
 - verification on (`verification.enabled`, the default): the search's hypotheses checked and refined on the full
-  maps (`multisession.verify_search`); the answer is the verified alignment, accepted or not;
+  maps (`verification.verify_search`); the answer is the verified alignment, accepted or not;
 - verification off (`match --no-verify`): the search's consensus of agreeing accepted window hypotheses.
 
 Tolerances in two steps (`first_try`, ours): tolerances derived from the maps' noise allow for what changes
@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from .association import SearchResult, Transform, search, search_reference
-from .multisession import Verification, verify_search
 from .params import AssociationParams, Params
+from .verification import Verification, verify_search
 
 
 @dataclass

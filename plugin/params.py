@@ -311,7 +311,7 @@ class AssociationParams(Checked):
 
 @dataclass(frozen=True)
 class VerificationParams(Checked):
-    """Verification of a match on the full maps (`plugin.multisession.verify_search`; a stage of `sosmatch match`,
+    """Verification of a match on the full maps (`plugin.verification.verify_search`; a stage of `sosmatch match`,
     all ours). Across seasons one window pair's |S| is 4-14 for true and chance hypotheses alike; over the full
     maps a true transform brings many more landmarks of B onto landmarks of A (BENCHMARKS.md, Multi-session)."""
 

@@ -193,7 +193,7 @@ def test_merge_with_a_similarity_transform(tmp_path):
     assert np.allclose(lm.positions[n_a:], b.session_from_world.inverse().apply(lb.positions[unfused]), atol=1e-3)
 
 
-# --- full-map verification and refinement of a pair (plugin.multisession) -------------------------------------
+# --- full-map refinement and verification of a pair (plugin.refinement, plugin.verification) ------------------
 
 
 def _toy_maps(seed=0, n=300, noise=0.3, a_from_b=None):
@@ -212,7 +212,7 @@ def _toy_maps(seed=0, n=300, noise=0.3, a_from_b=None):
 
 
 def test_fit_yaw_translation_is_exact_and_ignores_height_noise():
-    from sosmatch.plugin.multisession import fit_yaw_translation
+    from sosmatch.plugin.refinement import fit_yaw_translation
 
     rng = np.random.default_rng(1)
     truth = yaw_transform(-130, (4, 5, -6))
@@ -228,7 +228,7 @@ def test_fit_yaw_translation_is_exact_and_ignores_height_noise():
 
 
 def test_mutual_nearest_gates_distance_size_and_mutuality():
-    from sosmatch.plugin.multisession import mutual_nearest
+    from sosmatch.plugin.refinement import mutual_nearest
 
     a = np.array([[0, 0, 0], [10, 0, 0], [20, 0, 0], [30, 0, 0]], float)
     b = np.array([[0.5, 0, 0], [10.2, 0, 3.0], [20.3, 0, 0], [20.6, 0, 0], [33, 0, 0]], float)
@@ -242,7 +242,7 @@ def test_mutual_nearest_gates_distance_size_and_mutuality():
 
 
 def test_refine_alignment_recovers_a_perturbed_transform():
-    from sosmatch.plugin.multisession import refine_alignment
+    from sosmatch.plugin.refinement import refine_alignment
 
     a, sa, b, sb, truth, ids = _toy_maps()
     start = yaw_transform(2.0, (1.0, -0.8, 0.5)).compose(truth)  # 2 deg and ~1.4 m off
@@ -256,7 +256,7 @@ def test_refine_alignment_recovers_a_perturbed_transform():
 
 
 def test_verify_alignments_picks_the_supported_candidate_and_rejects_ties():
-    from sosmatch.plugin.multisession import verify_alignments
+    from sosmatch.plugin.verification import verify_alignments
 
     a, sa, b, sb, truth, ids = _toy_maps(seed=3)
     wrong = [yaw_transform(ang, (dx, dy, 0)).compose(truth) for ang, dx, dy in ((90, 40, 0), (-70, 0, 30))]
@@ -298,7 +298,7 @@ def test_verify_final_rigid_fit_recovers_a_small_tilt():
     """Two EKF frames tilted 1.5 deg against each other: the 4-DOF search finds the pairs, the final 6-DOF fit on
     them recovers the tilt the 4-DOF fit cannot express, and the pairs under it keep (or gain) the support."""
     from sosmatch.plugin.association.rigid import rotation_from_rpy_deg
-    from sosmatch.plugin.multisession import verify_alignments
+    from sosmatch.plugin.verification import verify_alignments
 
     truth = Sim3(rotation_from_rpy_deg(1.5, 0.0, 50.0), [20.0, -10.0, 2.0])
     a, sa, b, sb, _, _ = _toy_maps(seed=5, a_from_b=truth)
@@ -314,7 +314,8 @@ def test_verify_final_rigid_fit_recovers_a_small_tilt():
 def test_verification_with_one_candidate_must_beat_b_displaced():
     """Two unrelated maps and one candidate: before the displaced controls there was no rival, so the chance
     pairs of the candidate (support well over theta_S at this density) were accepted by default."""
-    from sosmatch.plugin.multisession import Sim3, verify_alignments
+    from sosmatch.plugin.multisession import Sim3
+    from sosmatch.plugin.verification import verify_alignments
 
     rng = np.random.default_rng(4)
     a = np.column_stack([rng.uniform(0, 300, 400), rng.uniform(0, 300, 400), rng.normal(0, 0.3, 400)])

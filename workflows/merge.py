@@ -42,8 +42,9 @@ from ..database.outputs import OutputDir, fingerprint, open_output_dir, sha256_f
 from ..database.session_io import SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
-from ..plugin.multisession import Sim3, fusion_groups, refine_alignment, umeyama
+from ..plugin.multisession import Sim3, fusion_groups, umeyama
 from ..plugin.params import Params
+from ..plugin.refinement import refine_alignment
 
 log = logging.getLogger(__name__)
 
@@ -346,7 +347,7 @@ def run(
 ) -> MergeResult:
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
-    With `refine`, the transform is re-estimated on the full maps (`plugin.multisession.refine_alignment`:
+    With `refine`, the transform is re-estimated on the full maps (`plugin.refinement.refine_alignment`:
     size-gated mutual nearest neighbours within `params.association.distance_tolerance_m`, refitted until they
     stop changing; yaw + translation for gravity-aligned rigid matches, else rigid / similarity). The
     hypothesis' associations are still the ones fused (those the refined transform explains within the gate).

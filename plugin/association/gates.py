@@ -2,7 +2,7 @@
 
 r(h_i, h_j) = 2 |h_i - h_j| / (h_i + h_j) <= theta_r (`association.max_size_difference`) admits a landmark pair as
 a putative association, weighted by q_s = 1 + cos(pi r / theta_r). An unknown size (NaN) opens the gate (r = 0).
-The windowed search, the reference, the full-map verification (`plugin.multisession`) and the evaluation all use
+The windowed search, the reference, the full-map verification (`plugin.verification`) and the evaluation all use
 these functions, so the gate means the same everywhere.
 """
 

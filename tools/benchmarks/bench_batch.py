@@ -12,7 +12,7 @@ the graph and merge without the image front end.
 
 Checked and printed: pairs matched; per pair the footprint overlap, the match's own decision and the error of
 its consensus transform, then the verified alignment (`sosmatch match`'s verification stage,
-`plugin.multisession.verify_search`: every window hypothesis refined on the full maps, the best supported one
+`plugin.verification.verify_search`: every window hypothesis refined on the full maps, the best supported one
 wins): accepted or not, its support (mutual nearest
 neighbours) and the runner-up's, and its error against the truth as (RMS displacement at the overlap in metres,
 rotation angle in degrees) and in the 4 degrees of freedom of gravity-aligned maps (horizontal RMS displacement,
@@ -257,8 +257,8 @@ def step_errors(report: dict, pair_truth: object) -> list[str]:
     `refine_alignment` 6-DOF and 4-DOF (iterated mutual nearest neighbours on the full maps, size-gated, Huber)."""
     from ...database.match_io import read_match
     from ...database.session_io import read_session
-    from ...plugin.multisession import refine_alignment
     from ...plugin.params import Params
+    from ...plugin.refinement import refine_alignment
     from ...workflows.merge import refine_transform
 
     ap = Params().association

@@ -551,7 +551,7 @@ def common_landmarks(pos_a: np.ndarray, pos_b: np.ndarray, radius_m: float) -> n
     """(K, 2) index pairs (A, B) of landmarks that are each other's nearest neighbour in the ground plane (x, y)
     and less than `radius_m` apart there: the landmarks two maps share when their true transform is the identity.
     Heights are left out because 3-view landmarks can be tens of metres off in height (BENCHMARKS.md)."""
-    from ...plugin.multisession import mutual_nearest
+    from ...plugin.refinement import mutual_nearest
 
     return mutual_nearest(pos_a, None, pos_b, None, radius_m, np.inf, z_weight=0.0)[0]
 

@@ -60,8 +60,8 @@ def synthetic_case(label: str, args: list[str], work: Path) -> dict:
     from sosmatch.database.landmark_map import read_landmark_map
     from sosmatch.database.poses import read_poses_csv
     from sosmatch.plugin.geometry import rotation_angle_deg
-    from sosmatch.plugin.multisession import mutual_nearest
     from sosmatch.plugin.params import Params
+    from sosmatch.plugin.refinement import mutual_nearest
     from sosmatch.tools.cli import main as cli
     from sosmatch.workflows import map as map_wf
     from sosmatch.workflows import poses as poses_wf

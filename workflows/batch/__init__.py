@@ -15,7 +15,7 @@ processes, or a Dask cluster):
    nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the
    same local frame) -> OUT/pairs/A__B/match.json (`sosmatch match`, which, unless BatchOptions.verify is off,
    checks every window hypothesis on the FULL maps and refines the best supported one:
-   `plugin.multisession.verify_search`); its answer's decision, transform and associations
+   `plugin.verification.verify_search`); its answer's decision, transform and associations
    (`database.match_io.read_match`) are what the graph and the merge use. Why verify: across seasons one window
    pair's |S| is no larger for a true hypothesis than for chance ones, and one window's 8-20 inliers give a noisy
    rotation; see BENCHMARKS.md, Multi-session;
