@@ -321,6 +321,14 @@ class VerificationParams(Checked):
     min_ratio: float = within(1.2, 1.0, None)  # the winner's support over the best alignment that puts B elsewhere
     z_weight: float = positive(0.5)  # heights count this much in the nearest-neighbour distance (noisier)
     max_candidates: int = count(400, 1)  # window hypotheses tried, largest first (bounds dense maps)
+    # The chance model (`plugin.verification.chance_test`): B refined from this many random placements over A
+    # measures the support chance alignments of these two maps reach (0: off, the ratio alone decides, which
+    # accepted 2 of 8 pairs of maps of different worlds). The winner is the best of N_eff ~1e5 distinct
+    # alignments (`effective_trials`), so it is accepted only when the probability that the best of N_eff
+    # chance alignments reaches its support is at most `false_alarm`: the rate at which two maps of different
+    # places would be reported as aligned.
+    chance_starts: int = count(64, 0)
+    false_alarm: float = within(1e-2, 0.0, 1.0, lo_open=True)
     # the size gate of the verification's pairs (r of mutual nearest neighbours within theta_eps). Across seasons
     # one object's sizes differ by r 0.12 (median) / 0.3-0.4 (80th percentile) between two maps (worlds 5, 11);
     # inside an alignment the positions already single out the partner, so this gate follows that spread while

@@ -16,13 +16,38 @@ from .refinement import Alignment, huber_weights, mutual_nearest, refine_alignme
 
 
 @dataclass(frozen=True)
+class ChanceModel:
+    """How often chance alone reaches the winner's support (`chance_test`).
+
+    Two maps of different places still pair up: at 300 landmarks in 220 m x 240 m and a 2.9 m gate, a refined
+    alignment of two unrelated maps has 1-13 mutual nearest neighbours on average (BENCHMARKS.md, "Negative
+    pairs"), and the search offers the best of a very large number of distinct alignments. So the winner's
+    support is compared with the MAXIMUM chance support over that many trials (the look-elsewhere effect), not
+    with one rival."""
+
+    samples: int  # chance refinements measured (random starts that did not converge to the winner)
+    mean: float  # their mean support
+    variance: float  # and its variance (> mean: overdispersed, fitted as a negative binomial; else Poisson)
+    trials: float  # N_eff: effectively independent alignments the search could have found
+    tail: float  # q: probability that one chance alignment reaches the winner's support
+    p_value: float  # 1 - (1 - q)^N_eff: probability that the best of N_eff chance alignments reaches it
+
+    def to_dict(self) -> dict[str, float]:
+        return {"samples": self.samples, "mean": self.mean, "variance": self.variance, "trials": self.trials,
+                "tail": self.tail, "p_value": self.p_value}
+
+
+@dataclass(frozen=True)
 class Verification:
     """The outcome of `verify_alignments`: the best-supported refined alignment and how clearly it won."""
 
     best: Alignment | None  # None when no candidate could be refined
     runner_up_support: int  # support of the best alignment that disagrees with `best` (0 if none)
     num_refined: int  # candidates refined (the others agreed with an alignment already refined)
-    accepted: bool
+    accepted: bool  # support > theta_S and `clear`
+    support: int = 0  # the winner's support in the `dof` search (the figure the tests compare)
+    clear: bool = False  # it beats every rival by min_ratio and chance (p_value <= false_alarm)
+    chance: ChanceModel | None = None  # None: no winner, or the chance test off (chance_starts 0)
 
 
 def _agree(t1: Sim3, t2: Sim3, points: np.ndarray, tolerance_m: float) -> bool:
@@ -33,6 +58,7 @@ def verify_alignments(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
     candidates: Sequence[tuple[Sim3, np.ndarray]], gate_m: float, max_size_difference: float,
     min_support: int, min_ratio: float = 1.2, dof: int = 4, z_weight: float = 0.5, final_dof: int | None = 6,
+    chance_starts: int = 64, false_alarm: float = 1e-2, prior_m: float = 0.0,
 ) -> Verification:
     """Choose among a pair's window hypotheses by their support on the FULL maps, and refine the winner.
 
@@ -51,6 +77,11 @@ def verify_alignments(
     pairs robustly; with tens to hundreds of pairs over the whole overlap the small tilt between two EKF frames
     (~1 deg on the synthetic winter flights) is then observable, which one window's 8-20 inliers could not
     resolve, and the landmarks that the tilt kept out of the 4-DOF pairs join. None: keep the `dof` fit.
+    Chance (`sequential_chance`, `chance_test`): up to `chance_starts` refinements from random placements of B over A
+    (within `prior_m` of where it is when both maps share one frame, 0: anywhere) measure the support chance
+    reaches; the winner must be improbable as the best of the N_eff alignments the search had
+    (`effective_trials`): p_value <= `false_alarm`. Those chance alignments are rivals too. 0 starts: no chance
+    test (the ratio alone, as before).
     """
     pb_all = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
     refined: list[Alignment] = []
@@ -83,8 +114,14 @@ def verify_alignments(
                                    z_weight=z_weight)
         if not _agree(best.transform, control.transform, probe, 2.0 * gate_m):
             rivals.append(len(control.associations))
-    runner_up = max(rivals, default=0)
     support = len(best.associations)
+    chance = None
+    if chance_starts > 0:
+        chance, samples = sequential_chance(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support,
+                                            gate_m, max_size_difference, chance_starts, false_alarm, prior_m, dof,
+                                            z_weight)
+        rivals.extend(int(s) for s in samples)
+    runner_up = max(rivals, default=0)
     if final_dof == 6 and dof != 6 and support >= 3:
         first = _final_rigid_fit(pa_all, pb_all, best, gate_m, z_weight)
         # then the pairs under that transform: landmarks the 4-DOF fit could not reach because the frames are
@@ -94,8 +131,8 @@ def verify_alignments(
         best = first
         if len(assoc) >= len(first.associations):
             best = Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
-    accepted = support > min_support and support >= min_ratio * runner_up
-    return Verification(best, runner_up, len(refined), accepted)
+    clear = bool(support >= min_ratio * runner_up and (chance is None or chance.p_value <= false_alarm))
+    return Verification(best, runner_up, len(refined), bool(support > min_support and clear), support, clear, chance)
 
 
 CONTROL_SHIFT_GATES = 3.0  # the displaced controls: B moved this many gates (beyond any landmark scatter)
@@ -117,6 +154,155 @@ def _displaced_starts(transform: Sim3, points_b: np.ndarray, gate_m: float) -> l
         starts.append(Sim3(turn @ transform.rotation, turn @ (transform.translation - centre) + centre,
                            transform.scale))
     return starts
+
+
+CHANCE_SEED = 0  # the random placements of the chance model (fixed: the same maps give the same decision)
+
+
+CHANCE_BATCH = 16  # chance placements refined per step of `sequential_chance`
+CHANCE_MARGIN = 1e-3  # it stops early when p_value <= false_alarm x this or p_value >= CHANCE_CLEARLY_CHANCE
+CHANCE_CLEARLY_CHANCE = 0.5
+
+
+def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, prior_m: float = 0.0) -> list[Sim3]:
+    """`starts` random placements of B over A (a_from_b), deterministic (CHANCE_SEED). Without a prior a
+    uniform yaw and B's centroid on a random landmark of A (over A's footprint, where the landmarks are, so the
+    density chance works with is A's own); with `prior_m` (both maps in one frame, the search's putative
+    associations within that radius) B moved by a uniform offset in the disc of that radius and turned by at
+    most the angle that moves B's landmarks that far: the alignments the prior lets the search find."""
+    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
+    pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    if not len(pa) or not len(pb) or starts <= 0:
+        return []
+    rng = np.random.default_rng(CHANCE_SEED)
+    centre_b = pb.mean(axis=0)
+    radius_b = _horizontal_radius(pb)
+    out = []
+    for _ in range(starts):
+        if prior_m > 0:
+            yaw = rng.uniform(-1.0, 1.0) * min(np.pi, prior_m / radius_b)
+            r, ang = prior_m * np.sqrt(rng.uniform()), rng.uniform(0.0, 2.0 * np.pi)
+            target = centre_b + np.array([r * np.cos(ang), r * np.sin(ang), 0.0])
+        else:
+            yaw = rng.uniform(0.0, 2.0 * np.pi)
+            target = np.array([*pa[rng.integers(len(pa)), :2], pa[:, 2].mean()])
+        turn = _yaw_matrix(yaw)
+        out.append(Sim3(turn, target - turn @ centre_b))
+    return out
+
+
+def chance_supports(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                    sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, gate_m: float,
+                    max_size_difference: float, placements: Sequence[Sim3], dof: int = 4,
+                    z_weight: float = 0.5) -> np.ndarray:
+    """Supports of chance alignments of these two maps: B refined from each placement exactly like the winner
+    (`refine_alignment`: the same gate, size gate and fit); the refinements that converge to the winner (its
+    supporting B landmarks `probe` within 2 gates of where it puts them) are no chance and are left out."""
+    out = []
+    for start in placements:
+        aligned = refine_alignment(points_a, sizes_a, points_b, sizes_b, start, gate_m, max_size_difference,
+                                   dof=dof, z_weight=z_weight)
+        if not _agree(winner, aligned.transform, probe, 2.0 * gate_m):
+            out.append(len(aligned.associations))
+    return np.asarray(out, np.int64)
+
+
+def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                      sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, support: int, gate_m: float,
+                      max_size_difference: float, starts: int, false_alarm: float, prior_m: float = 0.0,
+                      dof: int = 4, z_weight: float = 0.5) -> tuple[ChanceModel, np.ndarray]:
+    """`chance_test` of the winner's support on up to `starts` chance placements, refined CHANCE_BATCH at a time:
+    it stops once the answer cannot be in doubt (p_value <= false_alarm x CHANCE_MARGIN: a true alignment many
+    decades above chance, as every dense map pair; or p_value >= CHANCE_CLEARLY_CHANCE), which keeps the cost
+    of a clear case at one batch. The placements are fixed in advance, so the result is deterministic.
+    Returns the model and the chance supports."""
+    placements = chance_placements(points_a, points_b, starts, prior_m)
+    trials = effective_trials(points_a, points_b, gate_m, prior_m)
+    samples = np.zeros(0, np.int64)
+    chance = chance_test(samples, support, trials)
+    for k in range(0, len(placements), CHANCE_BATCH):
+        more = chance_supports(points_a, sizes_a, points_b, sizes_b, winner, probe, gate_m, max_size_difference,
+                               placements[k:k + CHANCE_BATCH], dof, z_weight)
+        samples = np.concatenate([samples, more])
+        chance = chance_test(samples, support, trials)
+        if chance.p_value <= false_alarm * CHANCE_MARGIN or chance.p_value >= CHANCE_CLEARLY_CHANCE:
+            break
+    return chance, samples
+
+
+def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, prior_m: float = 0.0) -> float:
+    """N_eff: how many effectively independent alignments the search chooses its winner from.
+
+    Two placements of B share no chance pair once B moved by more than a gate diameter (2 gate_m: every
+    landmark's gate disc has left its old one), or turned by more than 2 gate_m / R_B (R_B: the RMS horizontal
+    distance of B's landmarks from their centroid, so a typical landmark moved that far). So the translations
+    over A's footprint (its horizontal bounding box; with a position prior the disc of radius `prior_m`, if
+    smaller) hold area / (2 gate_m)^2 independent cells, and the yaws (a full turn; with a prior at most
+    +-prior_m / R_B) hold yaw range / (2 gate_m / R_B) of them. A 220 m x 240 m map at a 2.9 m gate and R_B
+    ~90 m: ~1,600 x ~100 = 1.6e5. (Counting the search's 48 yaw slices instead would ignore that within one
+    slice a turn of 7.5 degrees moves far landmarks by ten gates.)"""
+    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
+    pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    cell = 2.0 * gate_m
+    span = np.ptp(pa[:, :2], axis=0) if len(pa) else np.zeros(2)
+    area = float(span[0] * span[1])
+    radius_b = _horizontal_radius(pb)
+    yaw_range = 2.0 * np.pi
+    if prior_m > 0:
+        area = min(area, np.pi * prior_m**2)
+        yaw_range = min(yaw_range, 2.0 * prior_m / radius_b)
+    return float(max(1.0, area / cell**2) * max(1.0, yaw_range * radius_b / cell))
+
+
+def chance_test(samples: np.ndarray, support: int, trials: float) -> ChanceModel:
+    """The probability that the best of `trials` chance alignments reaches `support`.
+
+    The chance supports (`chance_supports`) are counts, overdispersed because placements differ in how much of
+    B lies over A and how dense A is there: a Poisson mixture, fitted by its moments as a negative binomial
+    (the gamma-mixed Poisson; variance <= mean: Poisson). One trial reaches the support with q = P(X >= support);
+    the best of N_eff independent ones with 1 - (1 - q)^N_eff. The tail is extrapolated from a few dozen
+    samples, so the mean carries one pseudo-sample of 1 (a map pair whose every random start reached the winner
+    measured no chance at all; that is not chance 0) and the variance is at least the mean."""
+    from scipy import stats
+
+    x = np.asarray(samples, np.float64).reshape(-1)
+    mean = float((x.sum() + 1.0) / (len(x) + 1))
+    var = float(np.var(x, ddof=1)) if len(x) > 1 else mean
+    var = max(var, mean)
+    if var > mean * (1.0 + 1e-9):
+        tail = float(stats.nbinom.sf(support - 1, mean**2 / (var - mean), mean / var))
+    else:
+        tail = float(stats.poisson.sf(support - 1, mean))
+    p_value = float(-np.expm1(trials * np.log1p(-min(tail, 1.0 - 1e-16))))
+    return ChanceModel(int(len(x)), mean, var, float(trials), tail, p_value)
+
+
+def _horizontal_radius(points: np.ndarray) -> float:
+    """RMS horizontal distance of the points from their centroid (at least 1 m)."""
+    if not len(points):
+        return 1.0
+    d = points[:, :2] - points[:, :2].mean(axis=0)
+    return float(max(1.0, np.sqrt(np.mean(np.sum(d**2, axis=1)))))
+
+
+def _yaw_matrix(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def hypothesis_agrees(associations: np.ndarray, transform: Any, points_a: np.ndarray, points_b: np.ndarray,
+                      tolerance_m: float) -> bool:
+    """A window hypothesis agrees with an alignment when most of its associations fit it: the median distance
+    between an associated A landmark and its B partner moved by the alignment is within `tolerance_m` (2
+    theta_eps in match.json and the evaluation). Such a hypothesis is part of the verified answer: its
+    associations, never its own transform (fitted on its 7-10 associations it can be metres off the verified
+    one, which is fitted on all of them)."""
+    assoc = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
+    if not len(assoc):
+        return False
+    moved = transform.apply(np.asarray(points_b, np.float64)[assoc[:, 1]])
+    return bool(np.median(np.linalg.norm(moved - np.asarray(points_a, np.float64)[assoc[:, 0]], axis=1))
+                <= tolerance_m)
 
 
 def verification_candidates(hypotheses: Sequence[Any], max_gravity_angle_deg: float,
@@ -159,4 +345,6 @@ def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
     return verify_alignments(np.asarray(points_a, np.float64), sizes_a, np.asarray(points_b, np.float64), sizes_b,
                              sims, association.distance_tolerance_m, verification.max_size_difference,
                              association.min_associations, min_ratio=verification.min_ratio, dof=verification.dof,
-                             z_weight=verification.z_weight, final_dof=verification.final_dof or None)
+                             z_weight=verification.z_weight, final_dof=verification.final_dof or None,
+                             chance_starts=verification.chance_starts, false_alarm=verification.false_alarm,
+                             prior_m=association.position_prior_m)

@@ -37,6 +37,7 @@ from ..plugin.association.hypotheses import SearchMode
 from ..plugin.map_noise import derived_association_params, first_search_params
 from ..plugin.match_answer import MatchAnswer, match_maps
 from ..plugin.params import Params, params_to_dict
+from ..plugin.verification import hypothesis_agrees
 
 log = logging.getLogger(__name__)
 
@@ -68,12 +69,14 @@ class MatchResult:
             v = ans.verification
             if not v.accepted:
                 found = ("" if v.best is None else
-                         f" (best support {len(v.best.associations)}, runner-up {v.runner_up_support})")
+                         f" (best support {len(v.best.associations)}, runner-up {v.runner_up_support}"
+                         f"{_chance_text(v)})")
                 return (f"{head}, verification: no match{found} ({self.seconds:.2f} s) -> "
                         f"{self.out_dir / 'match.json'}")
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
             return (f"{head}, verified: {len(self.associations)} associations on the full maps (runner-up "
-                    f"{v.runner_up_support}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg) ({self.seconds:.2f} s) -> "
+                    f"{v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg) "
+                    f"({self.seconds:.2f} s) -> "
                     f"{self.out_dir / 'match.json'}")
         if self.transform is None:
             return f"{head}, no match ({self.seconds:.2f} s) -> {self.out_dir / 'match.json'}"
@@ -119,6 +122,11 @@ def search_mode_json(params: Params, answer: MatchAnswer | None) -> dict[str, An
             and ap.position_prior_m == 0}
 
 
+def _chance_text(v: Any) -> str:
+    """', chance p 3e-09 (mean 2.1)': the probability that chance alone reaches this support somewhere."""
+    return "" if v.chance is None else f", chance p {v.chance.p_value:.1g} (mean {v.chance.mean:.1f})"
+
+
 def verification_json(answer: MatchAnswer | None, params: Params) -> dict[str, Any] | None:
     """The verification's result (None when it did not run)."""
     if answer is None or answer.verification is None:
@@ -128,11 +136,24 @@ def verification_json(answer: MatchAnswer | None, params: Params) -> dict[str, A
     return {"accepted": bool(v.accepted), "transform": transform_to_json(answer.transform),
             "support": 0 if best is None else len(best.associations), "runner_up_support": int(v.runner_up_support),
             "rms_m": None if best is None else _num(best.rms_m), "num_refined": int(v.num_refined),
+            "support_dof": int(v.support), "clear": bool(v.clear),
+            "chance": None if v.chance is None else {**v.chance.to_dict(), "false_alarm": vp.false_alarm},
             "associations": answer.associations.tolist(),
             "method": {"dof": vp.dof, "final_dof": vp.final_dof, "min_ratio": vp.min_ratio, "z_weight": vp.z_weight,
                        "max_candidates": vp.max_candidates, "gate_m": params.association.distance_tolerance_m,
-                       "max_size_difference": vp.max_size_difference,
-                       "min_support": params.association.min_associations}}
+                       "max_size_difference": vp.max_size_difference, "chance_starts": vp.chance_starts,
+                       "false_alarm": vp.false_alarm, "min_support": params.association.min_associations}}
+
+
+def _agreement(result: MatchResult, params: Params) -> list[bool | None]:
+    """Per window hypothesis: does it agree with the verified answer (None: no accepted verified answer)."""
+    hyps = result.search.hypotheses
+    ans = result.answer
+    if ans is None or ans.source != "verified" or not ans.accepted or ans.transform is None:
+        return [None] * len(hyps)
+    tol = 2.0 * params.association.distance_tolerance_m
+    pa, pb = result.map_a.lmap.positions, result.map_b.lmap.positions
+    return [hypothesis_agrees(h.associations, ans.transform, pa, pb, tol) for h in hyps]
 
 
 def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
@@ -169,7 +190,10 @@ def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
         "verification": verification_json(result.answer, params),
         # the answer consumers read (database.match_io.read_match): "verified" or "consensus"
         "answer": result.answer.source if result.answer is not None else "consensus",
-        "hypotheses": [hypothesis_to_json(h) for h in s.hypotheses],
+        # every window hypothesis, and (verified answer accepted) whether it agrees with it: an agreeing one lends
+        # the answer its associations, never its own transform (`plugin.verification.hypothesis_agrees`)
+        "hypotheses": [{**hypothesis_to_json(h), "agrees_with_answer": agree}
+                       for h, agree in zip(s.hypotheses, _agreement(result, params))],
         # the time of the answer: search + verification (wall); their parts in `timings`
         "search_seconds": result.answer.timings["total_s"] if result.answer else s.timings.get("total_s"),
         "timings": {**{k: float(v) for k, v in s.timings.items()},

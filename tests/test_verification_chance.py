@@ -1,0 +1,102 @@
+"""The verification's chance model: the winner of a search is the best of very many alignments, so it must be
+improbable as the best of that many chance alignments, not only beat one rival (maps of different worlds were
+verified by the ratio test alone)."""
+
+import json
+
+import numpy as np
+
+from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
+from sosmatch.database.match_io import read_match
+from sosmatch.plugin.association.synthetic import survey_map_pair
+from sosmatch.plugin.multisession import Sim3
+from sosmatch.plugin.refinement import refine_alignment
+from sosmatch.plugin.verification import chance_test, effective_trials, verify_alignments
+from sosmatch.tools.cli import main
+
+
+def _yaw(deg):
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_the_best_of_many_chance_alignments_is_refused():
+    """Two unrelated maps (a sparse B over a denser A): the best of 500 random refined placements, as a search
+    would offer it, beats the displaced controls by the ratio (accepted without the chance model on 2 of these 3
+    map pairs), but chance reaches it easily somewhere among the ~1e5 alignments: refused on all 3."""
+    ratio_only = []
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        a = np.column_stack([rng.uniform(0, 250, (300, 2)), rng.normal(0, 0.3, 300)])
+        b = np.column_stack([rng.uniform(0, 250, (80, 2)), rng.normal(0, 0.3, 80)])
+        starts = np.random.default_rng(1)
+        best = None
+        for _ in range(500):
+            turn, target = _yaw(starts.uniform(0, 360)), np.r_[starts.uniform(0, 250, 2), 0.0]
+            al = refine_alignment(a, None, b, None, Sim3(turn, target - turn @ b.mean(0)), 3.0, 0.4)
+            if best is None or len(al.associations) > len(best.associations):
+                best = al
+        cand = [(best.transform, best.associations[:, 1])]
+        assert len(best.associations) > 6  # chance alone passes theta_S
+        ratio_only.append(verify_alignments(a, None, b, None, cand, 3.0, 0.4, 6, chance_starts=0).accepted)
+        v = verify_alignments(a, None, b, None, cand, 3.0, 0.4, 6)
+        assert not v.accepted and not v.clear and v.chance.p_value > 0.5 and v.chance.trials > 1e4
+    assert sum(ratio_only) >= 1
+
+
+def test_chance_test_counts_the_trials_and_the_overdispersion():
+    rng = np.random.default_rng(0)
+    samples = rng.poisson(3.0, 64)
+    one = chance_test(samples, 15, 1.0)
+    many = chance_test(samples, 15, 1e5)
+    assert 0 < one.p_value < many.p_value <= 1 and abs(one.p_value - one.tail) < 1e-12
+    # the same mean, more spread (placements over more and less of A): a fatter tail, a larger p-value
+    spread = chance_test(np.concatenate([samples[:32] * 0, samples[32:] * 2]), 15, 1e5)
+    assert spread.variance > many.variance and spread.p_value > many.p_value
+    # every random start reached the winner: no chance measured is not chance 0 (one pseudo-sample of 1)
+    assert chance_test(np.zeros(0, int), 15, 1e5).mean == 1.0
+
+
+def test_a_position_prior_shrinks_the_trials():
+    rng = np.random.default_rng(0)
+    a = np.column_stack([rng.uniform(0, 600, (500, 2)), np.zeros(500)])
+    b = a[:250]
+    free = effective_trials(a, b, 3.0)
+    assert 1e5 < free < 1e7  # 600 m at a 3 m gate, every yaw
+    assert effective_trials(a, b, 3.0, prior_m=30.0) < free / 100
+    assert effective_trials(a, b, 3.0, prior_m=1e6) == free  # a prior wider than the map changes nothing
+
+
+def _write(path, points, sizes):
+    write_landmark_map(path, LandmarkMap(points, sizes, points.mean(0).round()))
+
+
+def test_match_refuses_maps_of_different_worlds_and_records_the_chance(tmp_path, capsys):
+    """Dense maps (3000 landmarks per km^2) and theta_S 3, so that chance hypotheses between maps of two
+    different worlds reach the verification."""
+    one = survey_map_pair(250, seed=31, density_per_km2=3000)
+    other = survey_map_pair(120, seed=41, density_per_km2=3000)
+    _write(tmp_path / "a.sosmap", one.points_a, one.sizes_a)
+    _write(tmp_path / "b.sosmap", one.points_b, one.sizes_b)
+    _write(tmp_path / "elsewhere.sosmap", other.points_b, other.sizes_b)
+    loose = ["--set", "association.min_associations=3", "--set", "association.max_size_difference=0.4", "--no-plot"]
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "same"),
+                 *loose]) == 0
+    assert "chance p" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "same" / "match.json").read_text())
+    ver = doc["verification"]
+    assert ver["accepted"] and ver["clear"]
+    assert ver["chance"]["p_value"] <= ver["chance"]["false_alarm"] == doc["params"]["verification"]["false_alarm"]
+    assert ver["chance"]["trials"] > 1e3 and ver["chance"]["samples"] > 0 and ver["support_dof"] > 50
+    # window hypotheses lend the verified answer their associations; they say whether they agree with it
+    agree = [h["agrees_with_answer"] for h in doc["hypotheses"] if h["accepted"]]
+    assert agree and all(isinstance(x, bool) for x in agree) and any(agree)
+
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "elsewhere.sosmap"), "--out",
+                 str(tmp_path / "different"), *loose]) == 0
+    doc = json.loads((tmp_path / "different" / "match.json").read_text())
+    ver = doc["verification"]
+    assert doc["num_accepted"] > 0 and ver["support"] > 3  # chance hypotheses were verified
+    assert not ver["accepted"] and ver["chance"]["p_value"] > ver["chance"]["false_alarm"]
+    assert not read_match(tmp_path / "different" / "match.json").accepted  # what every consumer reads
+    assert all(h["agrees_with_answer"] is None for h in doc["hypotheses"])
