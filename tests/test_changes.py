@@ -199,3 +199,60 @@ def test_a_verified_alignment_needs_only_to_beat_chance():
     assert not sparse.plausible() and sparse.plausible(max_p=1.0)
     chance = AlignmentSupport(compared=89, matched=7, displaced_rate=0.07, p_value=0.4)
     assert not chance.plausible(max_p=1.0)
+
+
+def test_presence_rate_follows_the_references_of_similar_size():
+    from sosmatch.plugin.changes import presence_rate
+
+    sizes = np.r_[np.full(40, 1.0), np.full(40, 4.0)]
+    views = np.full(80, 20)
+    hits = np.r_[np.full(40, 6), np.full(40, 18)]  # small objects show in 30 % of the views, large in 90 %
+    rate = presence_rate(np.array([1.0, 4.0, 2.0, np.nan]), sizes, hits, views, bandwidth=0.3)
+    assert abs(rate[0] - 0.3) < 0.02 and abs(rate[1] - 0.9) < 0.02
+    assert rate[0] < rate[2] < rate[1] and abs(rate[3] - 0.6) < 0.02  # unknown size: the pooled rate
+
+
+def test_dispersion_measures_how_many_views_are_one_look():
+    from sosmatch.plugin.changes import dispersion
+
+    rng = np.random.default_rng(0)
+    p = rng.uniform(0.3, 0.9, 400)
+    independent = rng.binomial(30, p)
+    assert 0.99 <= dispersion(independent, np.full(400, 30), p) < 1.3
+    looks = 4 * rng.binomial(8, p)  # every look repeated in 4 neighbouring keyframes
+    assert 3.0 < dispersion(looks, np.full(400, 32), p) < 5.5
+    assert dispersion(np.array([1]), np.array([5]), np.array([0.5])) == 1.0  # too few to tell: no correction
+
+
+def test_absence_log_ratio_weighs_hits_against_presence_and_chance():
+    from sosmatch.plugin.changes import absence_log_ratio
+
+    chance, present = np.full(3, 0.05), np.full(3, 0.8)
+    llr = absence_log_ratio(np.array([0, 24, 6]), np.full(3, 30), chance, present)
+    assert llr[0] > 30 and llr[1] < -30  # nothing there vs. shown as often as present objects are
+    assert abs(absence_log_ratio(np.array([0]), np.array([30]), chance[:1], present[:1], 5.0)[0] - llr[0] / 5) < 1e-9
+
+
+def test_a_claim_needs_segments_that_say_absent(pair):
+    """A removed object, whose place B's keyframes never show, is claimed with high confidence; the same place
+    with a segment in three of four views (about as often as B's segments show the objects both mapped) is
+    not: low probability of absence, kept by B's segments."""
+    positions, sizes, present_a, present_b, a, ids_a, b, ids_b, a_from_b = pair
+    res = detect_changes(a, b, a_from_b, ChangeParams(min_confidence=0.0), 2.0)
+    gone = res.a.label == GONE
+    assert np.any(gone) and np.all(res.a.confidence[gone] > 0.99)
+    assert np.all(res.a.confidence[res.a.evidence == "landmark"] == 0.0)
+    # put segments at the removed objects' places into three of every four of B's keyframes
+    b_in_a = b.transformed(a_from_b)
+    target = np.flatnonzero(gone)
+    seen, uv, depth = in_view(res.positions_a[target], res.sizes_a[target], b_in_a.poses, [CAM] * len(b.poses))
+    segs = []
+    for k, seg in enumerate(b.segments):
+        vis = np.flatnonzero(seen[k] & ((k + np.arange(len(target))) % 4 != 0))
+        h = res.sizes_a[target][vis] * CAM.fx / depth[k, vis]
+        segs.append(KeyframeSegments(np.vstack([seg.centroids, uv[k, vis]]), np.concatenate([seg.sizes_px, h])))
+    b2 = SessionObservations(b.positions, b.sizes, b.poses, CAM, tuple(segs), b.support)
+    again = detect_changes(a, b2, a_from_b, ChangeParams(min_confidence=0.0), 2.0)
+    assert np.all(again.a.confidence[target] < res.a.confidence[target])
+    assert np.median(again.a.confidence[target]) < 0.1
+    assert np.count_nonzero(again.a.label[target] == KEPT) >= 0.8 * len(target)

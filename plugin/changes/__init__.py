@@ -18,23 +18,40 @@ landmark of either map gets one class:
   around it (`segment_evidence`): the object was there, only not mapped.
 - `gone` (a landmark of A) / `new` (of B): seen well by the other session, no counterpart, no evidence.
 
-Confidence (gone / new): how likely the other session would have mapped the object had it still been there.
-It is the pair's own re-observation rate of landmarks like this one, fitted on every object group that the
-other session saw (matched or not) by logistic regression on log size, log views and height above the ground
-(`reobservation_model`): large, tall objects seen in many keyframes are found again, small ground-level
-patches seldom are; a winter session re-observes summer crowns less often, and its claims get lower
-confidence. Below `min_confidence` a claim is reported as unseen.
+Confidence (gone / new): the probability that the object is absent from the other session, from that session's
+own observations at the place rather than from its map (`verdict.absence_probability`). In each of its keyframes
+that should have seen the landmark, a hit is a size-compatible segment at the projection (`segment_hits`); if
+the object is absent, hits come at the local chance rate (probes around it); if present, at the rate at which
+the other session's segments show objects of this size that both maps have (`presence_rate`, measured on this
+pair's landmarks with a counterpart, so it calibrates itself per pair, season and segmenter). The
+log-likelihood ratio of the two binomials is divided by the dispersion of the references' hit counts
+(`dispersion`: neighbouring keyframes see an object alike, so n views are fewer independent looks) and turned
+into a probability at prior odds 1. A claim below `min_confidence` (0.8 by default) is reported as unseen: the
+other session's images do not say that the object went. Without the other session's database (no segments)
+the confidence falls back to the pair's re-observation rate of landmarks like this one (`confidence`: logistic
+in log size, log views, height above ground and support, fitted on the compared landmarks).
 
 The ground under the landmarks (for heights above ground and the keyframes' ground footprints) is a coarse
 height field of a low quantile of the nearby landmarks' heights (`ground_height_field`): most landmarks of a
 survey are ground texture, and objects only stand above it.
 
-Modules: `observations` (what a session saw), `evidence` (what the other session shows at a place), `confidence`
-(the re-observation model), `support` (is the alignment plausible), `verdict` (`detect_changes`).
+Modules: `observations` (what a session saw), `evidence` (what the other session shows at a place, and how
+often it shows present objects), `confidence` (the re-observation model, the fallback without segments),
+`support` (is the alignment plausible), `verdict` (`detect_changes`, `absence_probability`).
 """
 
 from .confidence import fit_logistic, predict_logistic, reobservation_features
-from .evidence import binomial_tail, counterparts, holder_pairs, inside_larger, segment_evidence
+from .evidence import (
+    absence_log_ratio,
+    binomial_tail,
+    counterparts,
+    dispersion,
+    holder_pairs,
+    inside_larger,
+    presence_rate,
+    segment_evidence,
+    segment_hits,
+)
 from .observations import (
     FOOTPRINT_MARGIN,
     KeyframeSegments,
@@ -64,7 +81,7 @@ from .verdict import (
 
 __all__ = ["BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS", "CLASSES", "CONTROL_SHIFT", "FOOTPRINT_MARGIN",
            "GONE", "KEPT", "LOW_CONFIDENCE", "NEW", "NO_EVIDENCE", "TOO_FEW_VIEWS", "UNSEEN", "AlignmentSupport",
-           "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations", "alignment_support",
-           "binomial_tail", "counterparts", "detect_changes", "fit_logistic", "ground_height_field", "holder_pairs",
-           "in_view", "inside_larger", "observed_area", "predict_logistic", "reobservation_features",
-           "segment_evidence"]
+           "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations", "absence_log_ratio",
+           "alignment_support", "binomial_tail", "counterparts", "detect_changes", "dispersion", "fit_logistic",
+           "ground_height_field", "holder_pairs", "in_view", "inside_larger", "observed_area", "predict_logistic",
+           "presence_rate", "reobservation_features", "segment_evidence", "segment_hits"]

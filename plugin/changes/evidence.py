@@ -84,10 +84,10 @@ def segment_evidence(points: np.ndarray, sizes: np.ndarray, poses: Poses, camera
 
     In every keyframe that should have seen the landmark (`in_view`), a hit is a segment whose centroid lies
     within the gate (projected: gate_m x f / depth pixels) of the landmark's projection and whose pixel size
-    matches size x f / depth (ratio r <= max_size_difference). The same count at `probe_count` points on a
-    circle around the landmark (radius probe_radius_factor x gate_m + 2 h, same height) gives the local chance
-    rate of such segments (ground texture, neighbours). Returns (hits (N,), views (N,), chance rate (N,)),
-    the rate with a Laplace prior ((probe hits + 1) / (probe views + 2)).
+    matches size x f / depth (ratio r <= max_size_difference) (`segment_hits`). The same count at `probe_count`
+    points on a circle around the landmark (radius probe_radius_factor x gate_m + 2 h, same height) gives the
+    local chance rate of such segments (ground texture, neighbours). Returns (hits (N,), views (N,), chance rate
+    (N,)), the rate with a Laplace prior ((probe hits + 1) / (probe views + 2)).
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     h = np.asarray(sizes, dtype=np.float64).reshape(-1)
@@ -98,19 +98,22 @@ def segment_evidence(points: np.ndarray, sizes: np.ndarray, poses: Poses, camera
     probes = (pts[:, None, :] + radius[:, None, None] * offsets[None]).reshape(-1, 3)
     all_pts = np.vstack([pts, probes])
     all_h = np.concatenate([h, np.repeat(h, probe_count)])
-    hits = _segment_hits(all_pts, all_h, poses, cameras, segments, gate_m, max_size_difference)
-    seen, _, _ = in_view(all_pts, all_h, poses, cameras)
-    views = seen.sum(0)
+    hits, views = segment_hits(all_pts, all_h, poses, cameras, segments, gate_m, max_size_difference)
     probe_hits = hits[n:].reshape(n, probe_count).sum(1)
     probe_views = views[n:].reshape(n, probe_count).sum(1)
     chance = (probe_hits + 1.0) / (probe_views + 2.0)
     return hits[:n], views[:n], chance
 
 
-def _segment_hits(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequence[Camera],
-                  segments: Sequence[KeyframeSegments], gate_m: float, max_size_difference: float) -> np.ndarray:
+def segment_hits(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequence[Camera],
+                 segments: Sequence[KeyframeSegments], gate_m: float, max_size_difference: float,
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Per point: in how many keyframes that should have seen it (`in_view`) a segment of compatible size lies
+    within the projected gate of its projection (hits), and in how many keyframes it was in view (views)."""
     from scipy.spatial import cKDTree
 
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    sizes = np.asarray(sizes, dtype=np.float64).reshape(-1)
     seen, uv, depth = in_view(points, sizes, poses, cameras)
     hits = np.zeros(len(points), dtype=np.int64)
     for k, seg in enumerate(segments):
@@ -125,7 +128,54 @@ def _segment_hits(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: 
             if cand and np.any(size_ratio(seg.sizes_px[cand], np.full(len(cand), pred_px[m]))
                                <= max_size_difference):
                 hits[idx[m]] += 1
-    return hits
+    return hits, seen.sum(0)
+
+
+def presence_rate(sizes: np.ndarray, reference_sizes: np.ndarray, reference_hits: np.ndarray,
+                  reference_views: np.ndarray, bandwidth: float) -> np.ndarray:
+    """Per landmark, the per-keyframe rate at which the other session's segments show an object of its size that
+    is there: measured on the reference landmarks (those with a counterpart landmark, so present in both
+    sessions), pooled with a Gaussian kernel of `bandwidth` in log size, with a Laplace prior
+    ((hits + 1) / (views + 2)). It is the pair's own rate, so a winter session, a coarser camera or another
+    segmenter calibrate it themselves. Unknown sizes take the pooled rate of every reference."""
+    s = np.log(np.asarray(sizes, dtype=np.float64).reshape(-1))
+    rs = np.log(np.asarray(reference_sizes, dtype=np.float64).reshape(-1))
+    rh = np.asarray(reference_hits, dtype=np.float64).reshape(-1)
+    rv = np.asarray(reference_views, dtype=np.float64).reshape(-1)
+    ok = np.isfinite(rs)
+    rs, rh, rv = rs[ok], rh[ok], rv[ok]
+    w = np.exp(-0.5 * ((s[:, None] - rs[None, :]) / bandwidth) ** 2)
+    w = np.where(np.isfinite(s)[:, None], w, 1.0)
+    return (w @ rh + 1.0) / (w @ rv + 2.0)
+
+
+def dispersion(hits: np.ndarray, views: np.ndarray, rate: np.ndarray) -> float:
+    """Pearson dispersion of hit counts against a binomial of the given rates (sum of squared Pearson residuals
+    over degrees of freedom), at least 1. The keyframes that see a landmark are neighbours along a strip and
+    segment it alike, so its hits vary several times more than independent views would give; dividing a
+    log-likelihood by this factor is the quasi-likelihood correction for that."""
+    h = np.asarray(hits, dtype=np.float64)
+    n = np.asarray(views, dtype=np.float64)
+    p = np.clip(np.asarray(rate, dtype=np.float64), 1e-6, 1 - 1e-6)
+    ok = n > 0
+    if np.count_nonzero(ok) < 3:
+        return 1.0
+    resid = (h[ok] - n[ok] * p[ok]) ** 2 / (n[ok] * p[ok] * (1 - p[ok]))
+    return max(1.0, float(resid.sum() / (np.count_nonzero(ok) - 1)))
+
+
+def absence_log_ratio(hits: np.ndarray, views: np.ndarray, chance: np.ndarray, present: np.ndarray,
+                      dispersion_factor: float = 1.0) -> np.ndarray:
+    """log P(hits | the object is absent) - log P(hits | present), divided by the dispersion factor: hits are
+    binomial over the views with the local chance rate (absent: only ground texture and neighbours show such
+    segments) or with the presence rate of objects of its size (present). Positive: the segments say absent."""
+    from scipy.stats import binom
+
+    h = np.asarray(hits)
+    n = np.asarray(views)
+    lo = binom.logpmf(h, n, np.clip(chance, 1e-6, 1 - 1e-6))
+    lp = binom.logpmf(h, n, np.clip(present, 1e-6, 1 - 1e-6))
+    return (lo - lp) / max(float(dispersion_factor), 1.0)
 
 
 def binomial_tail(hits: np.ndarray, trials: np.ndarray, rate: np.ndarray) -> np.ndarray:

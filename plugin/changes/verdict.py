@@ -10,7 +10,17 @@ from ..evaluation.footprints import HeightField
 from ..multisession import Sim3
 from ..params import ChangeParams
 from .confidence import fit_logistic, predict_logistic, reobservation_features
-from .evidence import binomial_tail, counterparts, holder_pairs, inside_larger, segment_evidence
+from .evidence import (
+    absence_log_ratio,
+    binomial_tail,
+    counterparts,
+    dispersion,
+    holder_pairs,
+    inside_larger,
+    presence_rate,
+    segment_evidence,
+    segment_hits,
+)
 from .observations import SessionObservations, ground_height_field, in_view, observed_area
 from .support import AlignmentSupport, alignment_support
 
@@ -76,6 +86,29 @@ class ChangeResult:
 
 
 
+REFERENCE_LIMIT = 400  # reference landmarks for the presence rate (evenly spaced): bounded cost on large maps
+
+
+def absence_probability(positions: np.ndarray, sizes: np.ndarray, reference: np.ndarray, idx: np.ndarray,
+                        hits: np.ndarray, views: np.ndarray, chance: np.ndarray, other: SessionObservations,
+                        gate_m: float, params: ChangeParams) -> np.ndarray:
+    """P(absent | the other session's segments) for the landmarks idx, from their segment hits in the other
+    session's keyframes: binomial with the local chance rate if the object is absent, with the presence rate of
+    objects of its size if present (`presence_rate`, measured on this map's `reference` landmarks, those with a
+    counterpart), the log-likelihood ratio divided by the references' dispersion (neighbouring keyframes are not
+    independent looks), prior odds 1."""
+    ref = np.flatnonzero(reference)
+    if len(ref) > REFERENCE_LIMIT:
+        ref = ref[np.linspace(0, len(ref) - 1, REFERENCE_LIMIT).round().astype(np.int64)]
+    ref_hits, ref_views = segment_hits(positions[ref], sizes[ref], other.poses, other.cameras, other.segments,
+                                       gate_m, params.max_size_difference)
+    bw = params.presence_bandwidth
+    phi = dispersion(ref_hits, ref_views, presence_rate(sizes[ref], sizes[ref], ref_hits, ref_views, bw))
+    rate = presence_rate(sizes[idx], sizes[ref], ref_hits, ref_views, bw)
+    llr = absence_log_ratio(hits, views, chance, rate, phi)
+    return 1.0 / (1.0 + np.exp(-np.clip(llr, -30.0, 30.0)))  # below 1: --min-confidence 1 reports nothing
+
+
 def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,
            other_pos: np.ndarray, other_h: np.ndarray, heights: np.ndarray, change_label: str, gate_m: float,
            params: ChangeParams) -> LandmarkChanges:
@@ -110,24 +143,26 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
     label[by_part] = KEPT
     evidence[by_part] = BY_PART
     open_ = compared & ~direct & ~by_part
+    confidence = np.zeros(n)
     if other.segments is not None and np.any(open_):
         idx = np.flatnonzero(open_)
         hits, trials, chance = segment_evidence(own_pos[idx], own_h[idx], other.poses, other.cameras,
                                                 other.segments, gate_m, params.max_size_difference,
                                                 params.probe_count, params.probe_radius_factor)
-        present = idx[binomial_tail(hits, trials, chance) < params.segment_evidence_p]
-        label[present] = KEPT
-        evidence[present] = BY_SEGMENTS
-        open_[present] = False
-    label[open_] = change_label
-    evidence[open_] = NO_EVIDENCE
-    # confidence: this pair's re-observation rate of landmarks like this one
-    confidence = np.zeros(n)
-    if np.any(compared):
+        present = binomial_tail(hits, trials, chance) < params.segment_evidence_p
+        confidence[idx] = absence_probability(own_pos, own_h, compared & (index >= 0), idx, hits, trials, chance,
+                                              other, gate_m, params)
+        label[idx[present]] = KEPT
+        evidence[idx[present]] = BY_SEGMENTS
+        open_[idx[present]] = False
+    elif other.segments is None and np.any(compared):
+        # no segments of the other session: its re-observation rate of landmarks like this one
         idx = np.flatnonzero(compared)
         feats = reobservation_features(own_h[idx], views[idx], heights[idx],
                                        None if own.support is None else own.support[idx])
         confidence[idx] = predict_logistic(fit_logistic(feats, label[idx] == KEPT), feats)
+    label[open_] = change_label
+    evidence[open_] = NO_EVIDENCE
     weak = (label == change_label) & (confidence < params.min_confidence)
     label[weak] = UNSEEN
     evidence[weak] = LOW_CONFIDENCE

@@ -52,7 +52,7 @@ SAME, CROSS = "same season", "cross season"
 PAIRS = (("A", "B", SAME), ("A", "C", SAME), ("B", "C", SAME), ("A", "W", CROSS), ("B", "W", CROSS),
          ("C", "W", CROSS))
 KINDS = (SAME, CROSS)
-SWEEP = (0.0, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95)
+SWEEP = (0.0, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 0.99)
 CALIBRATION_BINS = (0.0, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0001)
 BOOTSTRAP_DRAWS = 2000
 
@@ -172,10 +172,11 @@ def _cell(v: tuple[float, int]) -> str:
     return f"{v[0]:.2f} ({v[1]})" if v[1] else "- (0)"
 
 
-def report(results: list[PairResult], sweep: Sequence[float]) -> str:
+def report(results: list[PairResult], sweep: Sequence[float], default: float = 0.0) -> str:
+    """The tables; the bar table and the per-kind table at the `default` min-confidence (the parameters')."""
     worlds = sorted({r.world for r in results})
-    lines = [f"worlds {', '.join(map(str, worlds))}; radius >= 2 m, both saw >= 6 times; value (right/claimed or "
-             "found/changed) [95 % interval, worlds resampled]", "",
+    lines = [f"worlds {', '.join(map(str, worlds))}; min-confidence {default:.2f}; radius >= 2 m, both saw >= 6 "
+             "times; value (right/claimed or found/changed) [95 % interval, worlds resampled]", "",
              "| pairs | --changed | gone P | gone R | new P | new R | all claimed landmarks P | false changes / ha | "
              "outside | CPU s / pair |", "|---|---|---|---|---|---|---|---|---|---|"]
     levels = sorted({r.changed for r in results})
@@ -184,17 +185,19 @@ def report(results: list[PairResult], sweep: Sequence[float]) -> str:
             rs = [r for r in results if r.kind == kind and (changed is None or r.changed == changed)]
             if not rs:
                 continue
-            s = pool(rs)
+            s = pool(rs, default)
             name = f"**{kind}, all**" if changed is None else kind
             lines.append(f"| {name} ({len(rs)}) | {'all' if changed is None else f'{changed:.2f}'} | "
-                         f"{_ratio_cell(rs, _precision('gone'))} | {_ratio_cell(rs, _recall('gone'))} | "
-                         f"{_ratio_cell(rs, _precision('new'))} | {_ratio_cell(rs, _recall('new'))} | "
-                         f"{_ratio_cell(rs, _landmarks)} | {s.false_per_ha():.2f} | {s.outside} | "
+                         f"{_ratio_cell(rs, _precision('gone'), default)} | "
+                         f"{_ratio_cell(rs, _recall('gone'), default)} | "
+                         f"{_ratio_cell(rs, _precision('new'), default)} | "
+                         f"{_ratio_cell(rs, _recall('new'), default)} | "
+                         f"{_ratio_cell(rs, _landmarks, default)} | {s.false_per_ha():.2f} | {s.outside} | "
                          f"{np.mean([r.cpu_s for r in rs]):.2f} |")
     lines += ["", "Per kind and size (all change levels pooled; P = precision (claims), R = recall (changed "
               "objects)):", "", "| pairs | change | kind / size | P | R | R of mapped |", "|---|---|---|---|---|---|"]
     for kind in KINDS:
-        s = pool([r for r in results if r.kind == kind])
+        s = pool([r for r in results if r.kind == kind], default)
         if not s.pairs:
             continue
         kinds = sorted({k for (_, k, _) in list(s.truth) + list(s.claimed)})
@@ -283,6 +286,9 @@ def main(argv: list[str] | None = None) -> int:
     from ...plugin.params import with_overrides
 
     params = with_overrides(Params(), dict(parse_override(t) for t in args.overrides))
+    default = params.changes.min_confidence  # the bar table's; every claim is kept for the sweep below it
+    sweep = sorted({*SWEEP, default})
+    params = with_overrides(params, {"changes.min_confidence": 0.0})
     if args.overrides:
         print(f"parameters: {', '.join(args.overrides)}")
     worlds = [int(w) for w in args.worlds.split(",")]
@@ -294,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
         for changed in levels:
             root = prepare(args.work, world, changed, args.frames, pairs)
             for a, b, kind in pairs:
-                res = evaluate(root, world, changed, a, b, kind, SWEEP, params)
+                res = evaluate(root, world, changed, a, b, kind, sweep, params)
                 if res is None:
                     print(f"world {world} changed {changed:.2f} {a}-{b} ({kind}): not aligned (no accepted "
                           "alignment), not scored", flush=True)
@@ -303,16 +309,17 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"world {world} changed {changed:.2f} {a}-{b} ({kind}): {res.summary} ({res.cpu_s:.2f} s "
                       "CPU)", flush=True)
     print()
-    print(report(results, SWEEP))
+    print(report(results, sweep, default))
     if args.figure:
-        figure(results, SWEEP, args.figure)
+        figure(results, sweep, args.figure)
     if args.example:
         from ...database.atomic import write_bytes_atomic
         from ...workflows.changes import changes_png, compute
 
         a, b, _ = pairs[0]
         root = args.work / f"w{worlds[0]}_c{levels[-1]:.2f}"
-        run = compute(root / f"m{a}", root / f"m{b}", root / "pairs" / f"{a}{b}" / "match.json", params)
+        run = compute(root / f"m{a}", root / f"m{b}", root / "pairs" / f"{a}{b}" / "match.json",
+                      with_overrides(params, {"changes.min_confidence": default}))
         write_bytes_atomic(args.example, changes_png(run.result, f"world {worlds[0]}, --changed {levels[-1]:.2f}, "
                                                                  f"{a} vs {b}: {run.summary()}"))
     print(f"\nmachine: {machine_summary()}")

@@ -19,8 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="match.json of `sosmatch match A B` (or of a batch pair) with an accepted transform")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--min-confidence", type=float, default=None,
-                        help="report gone / new only when the other session would have mapped such an object "
-                             "with at least this probability (0-1; below: unseen). Default: changes.min_confidence")
+                        help="report gone / new only when the other session's images say the object is absent "
+                             "with at least this probability (0-1; below: unseen). Default: changes.min_confidence "
+                             "(0.8)")
     parser.add_argument("--no-plot", action="store_true", help="skip changes.png")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a complete `sosmatch changes` output in --out made from other inputs")
