@@ -256,3 +256,23 @@ def test_a_claim_needs_segments_that_say_absent(pair):
     assert np.all(again.a.confidence[target] < res.a.confidence[target])
     assert np.median(again.a.confidence[target]) < 0.1
     assert np.count_nonzero(again.a.label[target] == KEPT) >= 0.8 * len(target)
+
+
+def test_an_object_mapped_whole_here_and_as_parts_there_is_kept():
+    """A maps a crown whole (4 m) and as two halves; B maps only the halves. The whole has no counterpart of its
+    size, but B's halves inside its footprint match A's halves: kept (evidence part, counterpart a half), where
+    without part links it would be claimed gone."""
+    centers = np.column_stack([np.linspace(-20.0, 20.0, 10), np.zeros(10), np.full(10, 60.0)])
+    rng = np.random.default_rng(4)
+    ground = np.column_stack([rng.uniform(-40, 40, (30, 2)), np.zeros(30)])
+    parts = np.array([[-2.0, 0.0, 3.0], [2.0, 0.0, 3.0]])
+    a = SessionObservations(np.vstack([[[0.0, 0.0, 3.0]], parts, ground]), np.r_[4.0, 2.0, 2.0, np.full(30, 1.5)],
+                            nadir_poses(centers), CAM)
+    b = SessionObservations(np.vstack([parts + 0.3, ground + 0.2]), np.r_[2.1, 1.9, np.full(30, 1.5)],
+                            nadir_poses(centers + [3.0, 1.0, 0.0]), CAM)
+    same = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    res = detect_changes(a, b, same, ChangeParams(min_confidence=0.0), 2.0)
+    assert res.a.label[0] == KEPT and res.a.evidence[0] == "part" and res.a.counterpart[0] in (0, 1)
+    assert np.all(res.a.label[1:3] == KEPT) and np.all(res.a.evidence[1:3] == "landmark")
+    off = detect_changes(a, b, same, ChangeParams(min_confidence=0.0, part_max_ratio=0.0), 2.0)
+    assert off.a.label[0] == GONE

@@ -10,12 +10,14 @@ landmark of either map gets one class:
 - `kept`: the other map has a counterpart, a landmark within the counterpart gate (`tolerance_factor` x
   theta_eps, distance in x, y and z_weight x z) of a compatible size (size ratio r <= `max_size_difference`);
   the size change is reported. One object is often several landmarks (a crown, its lit half, the clump it
-  stands in: nested masks of the segmenter), and the other session may map other parts of it, so landmarks
-  are judged by object: a landmark belongs to the best-supported landmark whose footprint holds it
-  (`landmark_groups`), and a group with one member matched is kept as a whole. A group without a counterpart
-  is still kept when the other session's own segments (every mask of its keyframes, tracked or not) show a
+  stands in: nested masks of the segmenter), and the other session may map other parts of it, so a landmark
+  without a counterpart is still kept when a larger landmark of the other map (up to `nest_max_ratio` x its
+  size) holds it in its footprint (evidence `nested`), when it lies in the footprint of a larger landmark of
+  its own map that has a counterpart, or when smaller landmarks of the other map inside its own footprint have
+  counterparts in its map (both up to `part_max_ratio`; evidence `part`: one object, whole in one map and parts
+  in the other), or when the other session's own segments (every mask of its keyframes, tracked or not) show a
   size-compatible segment at the landmark's projection in significantly more keyframes than at probe points
-  around it (`segment_evidence`): the object was there, only not mapped.
+  around it (`segment_evidence`, evidence `segments`): the object was there, only not mapped.
 - `gone` (a landmark of A) / `new` (of B): seen well by the other session, no counterpart, no evidence.
 
 Confidence (gone / new): the probability that the object is absent from the other session, from that session's

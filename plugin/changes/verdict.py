@@ -143,6 +143,22 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
     label[by_part] = KEPT
     evidence[by_part] = BY_PART
     open_ = compared & ~direct & ~by_part
+    if params.part_max_ratio >= 1 and np.any(open_):
+        # the same link the other way round: the other session mapped this object as parts, smaller landmarks
+        # (down to 1 / part_max_ratio of its size) inside its footprint that have a counterpart in this map (a
+        # crown whole here, its halves there; a removed object leaves no matched parts, only ground patches)
+        matched_other, _ = counterparts(other_pos, other_h, own_pos, own_h, gate_m, params.max_size_difference,
+                                        params.z_weight)
+        j, i = holder_pairs(other_pos, other_h, own_pos, own_h, params.part_max_ratio)
+        ok = open_[i] & (matched_other[j] >= 0)
+        i, j = i[ok], j[ok]
+        order = np.lexsort((j, i))
+        first = np.r_[True, i[order][1:] != i[order][:-1]] if len(order) else np.zeros(0, bool)
+        whole = i[order][first]
+        holder[whole] = j[order][first]  # reported as the counterpart
+        label[whole] = KEPT
+        evidence[whole] = BY_PART
+        open_[whole] = False
     confidence = np.zeros(n)
     if other.segments is not None and np.any(open_):
         idx = np.flatnonzero(open_)
