@@ -134,6 +134,18 @@ def pair_mismatch(la: float, za: float, lb: float, zb: float, mode: int, eps: fl
 
 
 @njit(cache=True)
+def pair_consistent(la: float, za: float, lb: float, zb: float, mode: int, eps: float, tan_tilt: float,
+                    eps_z: float) -> bool:
+    """Whether `pair_mismatch` keeps the pair (its c is not -1), without a branch: the same decision for every
+    input, NaN included (a NaN e_z gives pair_mismatch a NaN c, which no `c < 0` test removes)."""
+    ok = abs(la - lb) <= eps
+    if mode == DISTANCE:
+        return ok
+    ez = abs(za - zb) - max(la, lb) * tan_tilt
+    return ok & ((ez <= 0.0) | (not ez > eps_z))
+
+
+@njit(cache=True)
 def pair_slices(anga: float, angb: float, la: float, lb: float, za: float, zb: float, eps: float,
                 sin_tilt: float, nslices: int) -> tuple:
     """Yaw slices a consistent pair allows: (first slice, number of slices), slices of 2 pi / nslices.

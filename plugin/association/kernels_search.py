@@ -18,6 +18,7 @@ from .kernels_graph import (
     gate1,
     grow,
     local_ids,
+    pair_consistent,
     pair_mismatch,
     pair_slices,
     putatives,
@@ -282,6 +283,23 @@ def size_cells(ha: np.ndarray, hb: np.ndarray, theta_r: float) -> tuple:
 
 
 @njit(cache=True)
+def grouped_order(grp: np.ndarray, order: np.ndarray, ng: int) -> tuple:
+    """The items `order` lists, grouped by grp (0 .. ng - 1) and in `order`'s order within a group (a counting
+    sort: what a stable sort by grp of `order` gives), and the groups' offsets (ng + 1)."""
+    off = np.zeros(ng + 1, np.int64)
+    for x in order:
+        off[grp[x] + 1] += 1
+    for g in range(ng):
+        off[g + 1] += off[g]
+    fill = off[:-1].copy()
+    out = np.empty(len(order), np.int64)
+    for x in order:
+        out[fill[grp[x]]] = x
+        fill[grp[x]] += 1
+    return out, off
+
+
+@njit(cache=True)
 def sorted_b_edges(eb: tuple, cells_b: np.ndarray, ncell: int, hb: np.ndarray) -> tuple:
     """B edges grouped by (cell of j, cell of l), each group sorted by length, stored in that order.
 
@@ -295,13 +313,7 @@ def sorted_b_edges(eb: tuple, cells_b: np.ndarray, ncell: int, hb: np.ndarray) -
     for f in range(ne):
         grp[f] = cells_b[fj[f]] * ncell + cells_b[fl[f]]
     # by group, then length (stable: ties keep the edge order)
-    o1 = np.argsort(fln, kind="mergesort")
-    order = o1[np.argsort(grp[o1], kind="mergesort")]
-    goff = np.zeros(ng + 1, np.int64)
-    for f in range(ne):
-        goff[grp[f] + 1] += 1
-    for g in range(ng):
-        goff[g + 1] += goff[g]
+    order, goff = grouped_order(grp, np.argsort(fln, kind="mergesort"), ng)
     lh = np.log(hb)  # NaN / -inf for unknown / zero sizes: only used when every size is positive (ncell > 1)
     return (goff, fj[order], fl[order], fln[order], fz[order], fang[order], fangr[order], hb[fj[order]],
             hb[fl[order]], order, lh[fj[order]], lh[fl[order]])
@@ -330,21 +342,52 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
     # directed A edges grouped by cells, sorted by length within a group
     nd = 2 * nsel
     dgrp = np.empty(nd, np.int64)
-    dlen = np.empty(nd)
+    ulen = np.empty(nsel)
     for t in range(nsel):
         e = ea_sel[t]
         dgrp[2 * t] = cells_a[ei[e]] * ncell + cells_a[ek[e]]
         dgrp[2 * t + 1] = cells_a[ek[e]] * ncell + cells_a[ei[e]]
-        dlen[2 * t] = el[e]
-        dlen[2 * t + 1] = el[e]
-    o1 = np.argsort(dlen, kind="mergesort")
-    dord = o1[np.argsort(dgrp[o1], kind="mergesort")]
+        ulen[t] = el[e]
+    # directed edge d = 2 t + o in the order (group, length, d): both orientations share the length
+    uo = np.argsort(ulen, kind="mergesort")
+    by_len = np.empty(nd, np.int64)
+    for x in range(nsel):
+        by_len[2 * x] = 2 * uo[x]
+        by_len[2 * x + 1] = 2 * uo[x] + 1
     ng = ncell * ncell
-    aoff = np.zeros(ng + 1, np.int64)
+    dord, aoff = grouped_order(dgrp, by_len, ng)
+    sized = ncell > 1
+    lha = np.log(ha) if sized else ha
+    # the directed A edges' data in sweep order (each A group is swept up to 9 times: sequential reads)
+    xt = np.empty(nd, np.int64)
+    xe = np.empty(nd, np.int64)
+    xo = np.empty(nd, np.int8)
+    xp = np.empty(nd, np.int64)
+    xq = np.empty(nd, np.int64)
+    xl = np.empty(nd)
+    xz = np.empty(nd)
+    xhp = np.empty(nd)
+    xhq = np.empty(nd)
+    xlp = np.empty(nd)
+    xlq = np.empty(nd)
     for x in range(nd):
-        aoff[dgrp[x] + 1] += 1
-    for g in range(ng):
-        aoff[g + 1] += aoff[g]
+        d = dord[x]
+        t = d >> 1
+        o = d & 1
+        e = ea_sel[t]
+        p = ei[e] if o == 0 else ek[e]
+        q = ek[e] if o == 0 else ei[e]
+        xt[x] = t
+        xe[x] = e
+        xo[x] = o
+        xp[x] = p
+        xq[x] = q
+        xl[x] = el[e]
+        xz[x] = ez[e]
+        xhp[x] = ha[p]
+        xhq[x] = ha[q]
+        xlp[x] = lha[p]
+        xlq[x] = lha[q]
     cap = max(1024, expected)
     eae = np.empty(cap, np.int32)
     ebe = np.empty(cap, np.int32)
@@ -352,13 +395,11 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
     counts = np.zeros(nsel, np.int64)
     ne = 0
     r2 = prior_m * prior_m
-    sized = ncell > 1
     dlo = -1 if sized else 0
     dhi = 1 if sized else 0
     delta = np.log((2.0 + theta_r) / (2.0 - theta_r)) if sized else 0.0
     delta_hi = delta * (1.0 + 1e-9) + 1e-12
     delta_lo = delta * (1.0 - 1e-9) - 1e-12
-    lha = np.log(ha) if sized else ha
     for ga in range(ng):
         if aoff[ga + 1] == aoff[ga]:
             continue
@@ -378,68 +419,63 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                 if b1 == b0:
                     continue
                 lo = b0
+                hi = b0
                 for x in range(aoff[ga], aoff[ga + 1]):
-                    d = dord[x]
-                    t = d >> 1
-                    o = d & 1
-                    e = ea_sel[t]
-                    la = el[e]
-                    # a little wider than eps: the exact test below decides, whatever the rounding here
+                    la = xl[x]
+                    # a little wider than eps: the exact test below decides, whatever the rounding here; both
+                    # ends grow with la (A edges ascend in length), so both pointers only move forward
                     slack = 1e-9 * (la + eps) + 1e-12
                     while lo < b1 and bln[lo] < la - eps - slack:
                         lo += 1
-                    hi = lo
+                    if hi < lo:
+                        hi = lo
                     while hi < b1 and bln[hi] <= la + eps + slack:
                         hi += 1
-                    counts[t] += hi - lo
-                    if count_only:
+                    counts[xt[x]] += hi - lo
+                    if count_only or hi == lo:
                         continue
-                    p = ei[e] if o == 0 else ek[e]
-                    q = ek[e] if o == 0 else ei[e]
-                    hp = ha[p]
-                    hq = ha[q]
-                    lp = lha[p]
-                    lq = lha[q]
+                    e = xe[x]
+                    o = xo[x]
+                    p = xp[x]
+                    q = xq[x]
+                    hp = xhp[x]
+                    hq = xhq[x]
+                    lp = xlp[x]
+                    lq = xlq[x]
+                    za = xz[x]
+                    if ne + (hi - lo) > cap:  # room for every candidate: the loop below stores unconditionally
+                        cap = 2 * cap + (hi - lo)
+                        eae = grow(eae, cap)
+                        ebe = grow(ebe, cap)
+                        ori = grow(ori, cap)
+                    # about half the candidates pass, at random: every test is evaluated without a branch (a
+                    # mispredicted branch costs more than the tests) and the pair stored, kept when it passes
                     for f in range(lo, hi):
+                        zb = bz[f] if o == 0 else -bz[f]
+                        ok = pair_consistent(la, za, bln[f], zb, mode, eps, tan_tilt, eps_z)
                         if sized:
                             # r <= theta_r <=> |ln h_a - ln h_b| <= delta: decided by the logs away from the
                             # boundary, by the exact ratio (the reference's expression) within 1e-9 of it
                             d1 = abs(lp - lhbj[f])
-                            if d1 > delta_hi:
-                                continue
                             d2 = abs(lq - lhbl[f])
-                            if d2 > delta_hi:
-                                continue
-                            if d1 > delta_lo and not size_ratio1(hp, hbj[f]) <= theta_r:
-                                continue
-                            if d2 > delta_lo and not size_ratio1(hq, hbl[f]) <= theta_r:
-                                continue
-                        elif not size_ratio1(hp, hbj[f]) <= theta_r or not size_ratio1(hq, hbl[f]) <= theta_r:
-                            continue
-                        j = bj[f]
-                        l_ = bl[f]
+                            ok = ok & (d1 <= delta_hi) & (d2 <= delta_hi)
+                            if ok & ((d1 > delta_lo) | (d2 > delta_lo)):  # rare: near the gate's boundary
+                                ok = ((d1 <= delta_lo) | (size_ratio1(hp, hbj[f]) <= theta_r)) & (
+                                    (d2 <= delta_lo) | (size_ratio1(hq, hbl[f]) <= theta_r))
+                        else:
+                            ok = ok & (size_ratio1(hp, hbj[f]) <= theta_r) & (size_ratio1(hq, hbl[f]) <= theta_r)
                         if prior_m > 0.0:
+                            j = bj[f]
+                            l_ = bl[f]
                             dx = pa[p, 0] - pb[j, 0]
                             dy = pa[p, 1] - pb[j, 1]
-                            if dx * dx + dy * dy > r2:
-                                continue
-                            dx = pa[q, 0] - pb[l_, 0]
-                            dy = pa[q, 1] - pb[l_, 1]
-                            if dx * dx + dy * dy > r2:
-                                continue
-                        # A oriented i -> k; B joins the partners of i and k: j -> l (o = 0) or l -> j (o = 1)
-                        c = pair_mismatch(la, ez[e], bln[f], bz[f] if o == 0 else -bz[f], mode, eps, tan_tilt, eps_z)
-                        if c < 0.0:
-                            continue
-                        if ne == cap:
-                            cap *= 2
-                            eae = grow(eae, cap)
-                            ebe = grow(ebe, cap)
-                            ori = grow(ori, cap)
+                            dx2 = pa[q, 0] - pb[l_, 0]
+                            dy2 = pa[q, 1] - pb[l_, 1]
+                            ok = ok & (dx * dx + dy * dy <= r2) & (dx2 * dx2 + dy2 * dy2 <= r2)
                         eae[ne] = e
                         ebe[ne] = border[f]
                         ori[ne] = o
-                        ne += 1
+                        ne += ok
     return eae[:ne].copy(), ebe[:ne].copy(), ori[:ne].copy(), counts
 
 
