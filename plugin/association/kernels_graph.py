@@ -228,13 +228,25 @@ def local_ids(ids: np.ndarray, n: int) -> tuple:
 
 @njit(cache=True)
 def invariant_table(points: np.ndarray, ids: np.ndarray, mode: int) -> np.ndarray:
-    """(3, k, k) invariants of the vectors ids[i] -> ids[j] of landmarks `ids` (ascending): L, z, ang.
+    """(3, k, k) invariants of the vectors ids[i] -> ids[j] of landmarks `ids` (ascending): L, z, ang; for the
+    "distance" test (1, k, k), L only (it reads nothing else).
 
     Each vector is formed from the lower to the higher id and reversed exactly, so [i, j] and [j, i] hold what
     `vector_invariants` gives for either orientation. The diagonal length is +inf: an association pair sharing
     a landmark never passes the test.
     """
     k = len(ids)
+    if mode == DISTANCE:  # the 3D distance test reads the lengths only
+        t = np.empty((1, k, k))
+        for i in range(k):
+            t[0, i, i] = np.inf
+            for j in range(i + 1, k):
+                x = points[ids[j], 0] - points[ids[i], 0]
+                y = points[ids[j], 1] - points[ids[i], 1]
+                z = points[ids[j], 2] - points[ids[i], 2]
+                t[0, i, j] = vector_invariants(x, y, z, mode)[0]
+                t[0, j, i] = vector_invariants(-x, -y, -z, mode)[0]
+        return t
     t = np.empty((3, k, k))
     for i in range(k):
         t[0, i, i] = np.inf
@@ -261,32 +273,39 @@ def graph_from_tables(la: np.ndarray, lb: np.ndarray, ta: np.ndarray, tb: np.nda
     """`association_graph` from invariant tables; la, lb: each association's row in ta, tb."""
     m = len(la)
     cap = max(16, min(m * (m - 1) // 2, 4 * m + 1024))
-    rows = np.empty(cap, np.int64)
-    cols = np.empty(cap, np.int64)
+    found = np.empty(cap, np.int32)  # columns of the pairs that pass, row by row (int32: half the stores)
+    row_end = np.zeros(m, np.int64)
     ne = 0
     lena = ta[0]
     lenb = tb[0]
+    # unsigned indices: numba then skips the negative-index wraparound on every table read
+    ua = la.astype(np.uint32)
+    ub = lb.astype(np.uint32)
     for p in range(m):
         if ne + m > cap:  # room for a whole row: the loop below writes unconditionally
             cap = 2 * cap + m
-            rows = grow(rows, cap)
-            cols = grow(cols, cap)
-        ra = lena[la[p]]
-        rb = lenb[lb[p]]
-        start = ne
+            found = grow(found, cap)
+        ra = lena[ua[p]]
+        rb = lenb[ub[p]]
         # the m^2 / 2 tests store one column each, without a branch (few pass: c is formed for those below)
         for q in range(p + 1, m):
-            cols[ne] = q
+            found[ne] = q
             # the length test of pair_mismatch (false for NaN and inf: a shared landmark)
-            ne += abs(ra[la[q]] - rb[lb[q]]) <= eps
-        rows[start:ne] = p
-    rows = rows[:ne]
-    cols = cols[:ne]
+            ne += abs(ra[ua[q]] - rb[ub[q]]) <= eps
+        row_end[p] = ne
+    rows = np.empty(ne, np.int64)
+    cols = np.empty(ne, np.int64)
+    e = 0
+    for p in range(m):
+        for x in range(e, row_end[p]):
+            rows[x] = p
+            cols[x] = found[x]
+        e = row_end[p]
     cs = np.empty(ne)
     if mode != GRAVITY:  # the length test is the whole test, c the length mismatch (the same expression)
         for e in range(ne):
-            cs[e] = abs(lena[la[rows[e]], la[cols[e]]] - lenb[lb[rows[e]], lb[cols[e]]])
-        return rows.copy(), cols.copy(), cs, np.zeros(ne, np.int64), np.ones(ne, np.int64)
+            cs[e] = abs(lena[ua[rows[e]], ua[cols[e]]] - lenb[ub[rows[e]], ub[cols[e]]])
+        return rows, cols, cs, np.zeros(ne, np.int64), np.ones(ne, np.int64)
     s0 = np.zeros(ne, np.int64)
     ns = np.ones(ne, np.int64)
     keep = np.ones(ne, np.bool_)

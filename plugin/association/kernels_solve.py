@@ -33,7 +33,7 @@ def sym_csr(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> tup
     for i in range(n):
         indptr[i + 1] = indptr[i] + deg[i]
     fill = indptr[:-1].copy()
-    indices = np.empty(indptr[n], np.int64)
+    indices = np.empty(indptr[n], np.int32)  # int32: half the scattered writes (and reads by every consumer)
     data = np.empty(indptr[n], np.float64)
     for e in range(len(rows)):  # rows ascending within each vertex's list when the edge list is sorted
         r, c = rows[e], cols[e]
@@ -312,52 +312,70 @@ def greedy_clique(n: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndar
         for p in range(indptr[i], indptr[i + 1]):
             acc += data[p]
         wdeg[i] = -acc
-    o1 = np.argsort(wdeg, kind="mergesort")
-    negcore = np.empty(n, np.int64)
+    # The visiting order is (-core, -weighted degree, index). The search stops after a few starts (usually one,
+    # in the highest core), so the order is formed lazily: vertices bucketed by core number (counting sort), a
+    # bucket sorted when the walk reaches it, and each start's candidates sorted among themselves by the same key.
+    maxcore = 0
     for i in range(n):
-        negcore[i] = -core[i]
-    order = o1[np.argsort(negcore[o1], kind="mergesort")]
-    rank = np.empty(n, np.int64)
-    for t in range(n):
-        rank[order[t]] = t
+        maxcore = max(maxcore, core[i])
+    boff = np.zeros(maxcore + 2, np.int64)
+    for i in range(n):
+        boff[maxcore - core[i] + 1] += 1  # bucket 0 holds the highest core
+    for c in range(maxcore + 1):
+        boff[c + 1] += boff[c]
+    fill = boff[:-1].copy()
+    byc = np.empty(n, np.int64)
+    for i in range(n):  # ascending index within a bucket
+        byc[fill[maxcore - core[i]]] = i
+        fill[maxcore - core[i]] += 1
     mark = np.zeros(n, np.int64)  # stamp of the current clique's common neighbourhood
     best = np.zeros(0, np.int64)
     cand = np.empty(n, np.int64)
     clique = np.empty(n, np.int64)
     stamp = 0
-    for t in range(min(n, max_starts)):
-        v = order[t]
-        if core[v] + 1 <= len(best):
+    t = 0
+    for bk in range(maxcore + 1):
+        if t >= max_starts or boff[bk + 1] == boff[bk]:
+            continue
+        if maxcore - bk + 1 <= len(best):
             break
-        nc = 0
-        for p in range(indptr[v], indptr[v + 1]):
-            w = indices[p]
-            if core[w] >= len(best):
-                cand[nc] = w
-                nc += 1
-        # candidates in the global order
-        ranks = np.empty(nc, np.int64)
-        for k in range(nc):
-            ranks[k] = rank[cand[k]]
-        co = np.argsort(ranks)
-        size = 1
-        clique[0] = v
-        stamp += 1
-        for p in range(indptr[v], indptr[v + 1]):
-            mark[indices[p]] = stamp  # common neighbours of the clique so far carry the current stamp
-        for k in range(nc):
-            w = cand[co[k]]
-            if mark[w] != stamp:
-                continue
-            clique[size] = w
-            size += 1
+        members = byc[boff[bk]: boff[bk + 1]]
+        members = members[np.argsort(wdeg[members], kind="mergesort")]  # stable: ties by index
+        for v in members:
+            if t >= max_starts or core[v] + 1 <= len(best):
+                break
+            t += 1
+            nc = 0
+            for p in range(indptr[v], indptr[v + 1]):
+                w = indices[p]
+                if core[w] >= len(best):
+                    cand[nc] = w
+                    nc += 1
+            # candidates in the global order: sorted by index, then weighted degree, then core (stable sorts)
+            cs = np.sort(cand[:nc])
+            cs = cs[np.argsort(wdeg[cs], kind="mergesort")]
+            negc = np.empty(nc, np.int64)
+            for k in range(nc):
+                negc[k] = -core[cs[k]]
+            cs = cs[np.argsort(negc, kind="mergesort")]
+            size = 1
+            clique[0] = v
             stamp += 1
-            for p in range(indptr[w], indptr[w + 1]):
-                x = indices[p]
-                if mark[x] == stamp - 1:
-                    mark[x] = stamp
-        if size > len(best):
-            best = np.sort(clique[:size].copy())
+            for p in range(indptr[v], indptr[v + 1]):
+                mark[indices[p]] = stamp  # common neighbours of the clique so far carry the current stamp
+            for k in range(nc):
+                w = cs[k]
+                if mark[w] != stamp:
+                    continue
+                clique[size] = w
+                size += 1
+                stamp += 1
+                for p in range(indptr[w], indptr[w + 1]):
+                    x = indices[p]
+                    if mark[x] == stamp - 1:
+                        mark[x] = stamp
+            if size > len(best):
+                best = np.sort(clique[:size].copy())
     return best
 
 
