@@ -27,8 +27,13 @@ altitude"): the pairwise distance mismatch of common landmarks reaches 2.0-4.6 x
 
 On the 100 m synthetic maps (residual 0.9-1.0 m, s 0.08-0.09) this gives eps ~2.8 m, sigma ~1.4 m, theta_r
 ~0.35; at 130 m eps ~4 m; on the NAIP 2.5 m/px maps (residual 3.3-3.4 m, s 0.065) eps ~10 m, sigma ~5 m, theta_r
-~0.28: the hand-sized aerial preset's tolerances, from the maps alone. Windows and theta_S are left as
-configured.
+~0.28: the hand-sized aerial preset's tolerances, from the maps alone.
+
+Windows and theta_S follow from the two maps' geometry at those tolerances (`derived_search_params`, the chance
+model of `association.window_chance`): maps so sparse for their tolerance that a configured window holds far
+fewer than one chance-consistent association per transform get longer windows, and theta_S above their largest
+chance set (NAIP: 200 landmarks, theta_S 10, the aerial preset's hand-sized values); survey maps keep the
+configured 50 / 10 / 6.
 """
 
 from __future__ import annotations
@@ -110,6 +115,37 @@ def derived_association_params(base: AssociationParams, noise_a: MapNoise | None
     theta_r = SIZE_GATE_PER_SPREAD * math.hypot(noise_a.size_log_std, noise_b.size_log_std)
     return dataclasses.replace(base, affinity_sigma_m=round(sigma, 2), distance_tolerance_m=round(2.0 * sigma, 2),
                                max_size_difference=round(theta_r, 3))
+
+
+@dataclass(frozen=True)
+class DerivedSearch:
+    """The association parameters two maps get (`derived_search_params`) and what they were derived from."""
+
+    params: AssociationParams
+    record: dict  # match.json "search_mode" "derived": which values were derived, and from what
+
+
+def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noise_b: MapNoise | None,
+                          points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                          sizes_b: np.ndarray | None) -> DerivedSearch:
+    """Every association parameter that follows from the two maps, for every consumer (match, evaluate): the
+    tolerances from their noise (`derived_association_params`), then, at those tolerances, the windows and theta_S
+    from their geometry (`association.window_chance.derived_windows`). Both only with `base.derive_from_maps` and
+    both maps' noise figures; otherwise `base` unchanged (a .sosmap file or COLMAP model keeps the configured
+    search)."""
+    tolerances = derived_association_params(base, noise_a, noise_b)
+    if tolerances is base:
+        return DerivedSearch(base, {"tolerances": "configured", "windows": "configured"})
+    from .association.window_chance import derived_windows
+
+    record: dict = {"tolerances": {"from": "map noise (residual_m, size_log_std)",
+                                   "distance_tolerance_m": tolerances.distance_tolerance_m,
+                                   "affinity_sigma_m": tolerances.affinity_sigma_m,
+                                   "max_size_difference": tolerances.max_size_difference}}
+    windows = derived_windows(points_a, sizes_a, points_b, sizes_b, tolerances)
+    record["windows"] = {"from": "landmark density, size-gate fraction and theta_eps (chance model, "
+                                 "association.window_chance)", **windows.to_dict()}
+    return DerivedSearch(windows.params, record)
 
 
 def first_search_params(configured: AssociationParams, derived: AssociationParams) -> AssociationParams | None:

@@ -54,7 +54,7 @@ from ..plugin.evaluation.footprints import footprint_polygons
 from ..plugin.evaluation.iou import iou_matrix
 from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
 from ..plugin.keyframes import select_keyframes
-from ..plugin.map_noise import derived_association_params, first_search_params
+from ..plugin.map_noise import derived_search_params, first_search_params
 from ..plugin.params import Params, params_to_dict
 from ..plugin.verification import hypothesis_agrees
 
@@ -163,10 +163,11 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
     if obs_a.shape[0] != len(pa) or obs_b.shape[0] != len(pb):
         raise InputError("landmarks.csv and landmarks.sosmap disagree on the number of landmarks", map_a)
     noise = [read_map_noise(m) for m in (map_a, map_b)]
-    assoc_params = derived_association_params(params.association, *noise)  # as `sosmatch match` does
+    derivation = derived_search_params(params.association, *noise, pa, ha, pb, hb)  # as `sosmatch match` does
+    assoc_params = derivation.params
     first_try = first_search_params(params.association, assoc_params)
     out: dict[str, Any] = {"map_bytes": [bytes_a, bytes_b], "landmarks": [len(pa), len(pb)],
-                           "association": params_to_dict(assoc_params),
+                           "association": params_to_dict(assoc_params), "derived": derivation.record,
                            "map_noise": [None if n is None else n.to_dict() for n in noise]}
     best = None
     if match_dir is not None:

@@ -34,7 +34,7 @@ from ..database.outputs import fingerprint, open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import SearchMode
-from ..plugin.map_noise import derived_association_params, first_search_params
+from ..plugin.map_noise import derived_search_params, first_search_params
 from ..plugin.match_answer import MatchAnswer, match_maps
 from ..plugin.params import Params, params_to_dict
 from ..plugin.verification import hypothesis_agrees
@@ -277,11 +277,13 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     la, lb = map_a.lmap, map_b.lmap
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
-    # tolerances from the maps' own noise when `association.derive_from_maps` (recorded in match.json's params),
-    # searched first with the tighter of them and the configured ones (`match_answer`, module doc)
-    derived = derived_association_params(params.association, map_a.noise, map_b.noise)
-    first_try = first_search_params(params.association, derived)
-    params = dataclasses.replace(params, association=derived)
+    # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
+    # (recorded in match.json's params and search_mode "derived"), searched first with the tighter of the
+    # derived and the configured tolerances (`match_answer`, module doc)
+    derivation = derived_search_params(params.association, map_a.noise, map_b.noise, la.positions, la.sizes,
+                                       lb.positions, lb.sizes)
+    first_try = first_search_params(params.association, derivation.params)
+    params = dataclasses.replace(params, association=derivation.params)
     identity = fingerprint({"a": landmark_map_fingerprint(la), "b": landmark_map_fingerprint(lb),
                             "association": params_to_dict(params.association),
                             "first_try": None if first_try is None else params_to_dict(first_try),
@@ -301,6 +303,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                              ans.transform if ans.accepted else None, 0.0, ans)
         result.seconds = time.perf_counter() - t0
         doc = match_to_json(result, params)
+        doc["search_mode"]["derived"] = derivation.record
         doc["seconds_total"] = result.seconds
         parse_match(doc, out_dir / "match.json")  # the reader's validation: never write what it would refuse
         write_text_atomic(out_dir / "associations.csv", associations_csv(result))

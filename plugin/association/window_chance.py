@@ -1,0 +1,193 @@
+"""How large a consistent set chance alone makes in the windows of two maps, and the windows that follow (ours).
+
+A window pair holds n_A x n_B landmark pairs, of which a fraction q passes the size gate theta_r (measured on the
+two maps' sizes). Under one rigid upright transform (yaw + translation), a putative association of the pair is
+consistent by chance when B's landmark lands within about theta_eps of its partner in A: a window of ground area
+W_A holds n_A landmarks, so for each of B's landmarks over the common ground the expected number of size-compatible
+partners within theta_eps is n_A q pi eps^2 / W_A, and per transform
+
+    lambda = n_A n_B q pi eps^2 / max(W_A, W_B)           (chance-consistent associations per transform)
+
+The search looks at every transform a window pair allows (the look-elsewhere effect): translations over the window
+in cells of pi eps^2, and yaws in steps of eps / R (R the window's radius) - N_T = W / (pi eps^2) x 2 pi R / eps -
+over every pair of disjoint windows. The largest chance set is then the largest k that at least one of those
+N trials reaches: N x P(Poisson(lambda) >= k) >= 1 (`window_chance`).
+
+The tolerance radius is theta_eps itself, not eps / 2 (what pairwise length agreement within eps guarantees for
+one transform): the solver finds the largest pairwise-consistent set, which uses all the slack of the pairwise
+test and of the yaw slice. So measured, with the search itself on a map against its mirror image (which no rigid
+transform explains, `tools/benchmarks/bench_windows.py`): synthetic summer vs winter maps of worlds 5, 11, 42 at
+the derived theta_eps 2.7-4.1 m and 50-landmark windows: largest chance sets 6-10 (model 7-10); NAIP 2009 vs 2015
+at 10.2 m: 5 (model 6). BENCHMARKS.md, "Windows from the maps".
+
+Windows from the maps (`derived_windows`): a window pair separates a true set from chance while lambda is below
+one: above it, chance sets grow in proportion to the window, as the true set does (lambda and the common
+landmarks are both proportional to the window's landmarks), so a longer window no longer helps and costs
+quadratically. Below it, a longer window holds proportionally more common landmarks and the chance level grows
+only slowly. Survey maps of 0.3-2 m landmarks at a derived theta_eps of 2.7-4 m reach lambda ~1 at the paper's 50
+landmarks; 2.5 m/px orthophoto maps of 20 m objects at 10 m reach only ~0.2 there, their windows may hold five
+times as many landmarks at the same chance per transform. theta_S of such windows exceeds their largest chance set.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..params import AssociationParams
+from .gates import size_ratio
+from .windows import hilbert_order
+
+SIZE_SAMPLE = 800  # landmarks of each map the size-gate fraction q is measured on (evenly spaced, deterministic)
+MAX_CHANCE_PER_TRANSFORM = 1.0  # lambda up to which longer windows separate true sets from chance (module doc)
+# putative associations of one window pair beyond which windows are not grown (CLIPPER's affinity matrix grows with
+# their square: 25 000 associations of one window pair take ~1 s; NAIP's 200-landmark windows hold ~11 600)
+MAX_PUTATIVE_PER_WINDOW_PAIR = 25_000
+
+
+@dataclass(frozen=True)
+class WindowChance:
+    """The chance model of one window length (module doc); areas in m^2."""
+
+    length: int  # landmarks per window (theta_WL)
+    landmarks: tuple[int, int]  # per window in A and B (fewer when a map is shorter than the window)
+    window_area_m2: tuple[float, float]  # median horizontal area (convex hull) of disjoint windows of A and B
+    size_pass: float  # q: fraction of landmark pairs that pass the size gate theta_r
+    per_transform: float  # lambda: chance-consistent associations expected under one transform
+    trials: float  # N: transforms x disjoint window pairs the search looks at
+    largest: int  # the largest chance-consistent set size N trials reach (expected)
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+
+def _ordered(points: np.ndarray, params: AssociationParams) -> np.ndarray:
+    xy = np.asarray(points, np.float64)[:, :2]
+    return xy[hilbert_order(points)] if params.windows == "spatial" else xy
+
+
+def _window_area(xy: np.ndarray, length: int) -> float:
+    """Median convex-hull area of the disjoint windows of `length` consecutive landmarks (the whole map if
+    shorter); 0 for degenerate (collinear) windows."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    areas = []
+    for s in range(0, max(1, len(xy) - length + 1), length):
+        part = xy[s:s + length]
+        if len(part) < 3:
+            continue
+        try:
+            areas.append(float(ConvexHull(part).volume))  # 2D: volume is the area
+        except QhullError:
+            areas.append(0.0)
+    return float(np.median(areas)) if areas else 0.0
+
+
+def size_pass_fraction(sizes_a: np.ndarray | None, sizes_b: np.ndarray | None, theta_r: float) -> float:
+    """q: the fraction of landmark pairs (A, B) whose sizes pass the gate r <= theta_r (1 without sizes)."""
+    if sizes_a is None or sizes_b is None or len(sizes_a) == 0 or len(sizes_b) == 0:
+        return 1.0
+
+    def sample(h: np.ndarray) -> np.ndarray:
+        h = np.asarray(h, np.float64)
+        return h if len(h) <= SIZE_SAMPLE else h[np.linspace(0, len(h) - 1, SIZE_SAMPLE).astype(np.int64)]
+
+    r = size_ratio(sample(sizes_a)[:, None], sample(sizes_b)[None, :])
+    return float(np.mean(r <= theta_r))
+
+
+def _poisson_sf(k: int, lam: float) -> float:
+    """P(X >= k) for X ~ Poisson(lam)."""
+    if k <= 0:
+        return 1.0
+    term, below = math.exp(-lam), 0.0
+    for i in range(k):
+        below += term
+        term *= lam / (i + 1)
+    return max(0.0, 1.0 - below) if below < 0.999 else _poisson_tail(k, lam)
+
+
+def _poisson_tail(k: int, lam: float) -> float:
+    """P(X >= k) summed from k upwards (accurate where the tail is tiny)."""
+    log_term = -lam + k * math.log(lam) - math.lgamma(k + 1) if lam > 0 else -math.inf
+    total, term, i = 0.0, math.exp(log_term), k
+    while term > 1e-300 and (total == 0.0 or term > total * 1e-16):
+        total += term
+        i += 1
+        term *= lam / i
+    return total
+
+
+def window_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                  sizes_b: np.ndarray | None, params: AssociationParams, length: int | None = None) -> WindowChance:
+    """The chance model (module doc) for windows of `length` landmarks (default `params.window_length`) at the
+    tolerances of `params` (theta_eps, theta_r), over the windows' order (`params.windows`)."""
+    length = int(params.window_length if length is None else length)
+    xa, xb = _ordered(points_a, params), _ordered(points_b, params)
+    na, nb = min(length, len(xa)), min(length, len(xb))
+    wa, wb = _window_area(xa, length), _window_area(xb, length)
+    q = size_pass_fraction(sizes_a, sizes_b, params.max_size_difference)
+    cell = math.pi * params.distance_tolerance_m ** 2
+    if min(wa, wb) <= 0 or na < 3 or nb < 3:  # no extent to place landmarks by chance: no trials
+        return WindowChance(length, (na, nb), (wa, wb), q, 0.0, 0.0, 0)
+    lam = na * nb * q * cell / max(wa, wb)
+    common = min(wa, wb)
+    radius = math.sqrt(common / math.pi)
+    transforms = max(1.0, common / cell) * max(1.0, 2.0 * math.pi * radius / params.distance_tolerance_m)
+    pairs = max(1.0, len(xa) / length) * max(1.0, len(xb) / length)
+    trials = transforms * pairs
+    largest = 0
+    while largest < na * nb and trials * _poisson_sf(largest + 1, lam) >= 1.0:
+        largest += 1
+    return WindowChance(length, (na, nb), (wa, wb), q, lam, trials, largest)
+
+
+@dataclass(frozen=True)
+class DerivedWindows:
+    """The windows `derived_windows` chose, and the chance model that chose them (recorded in match.json)."""
+
+    params: AssociationParams  # theta_WL, theta_SL and theta_S derived (the configured ones when `derived` is None)
+    configured: WindowChance  # the chance model at the configured window length
+    derived: WindowChance | None  # ... at the derived one; None: the configured windows are kept
+
+    def to_dict(self) -> dict:
+        p = self.params
+        return {"derived": self.derived is not None, "window_length": p.window_length,
+                "window_stride": p.window_stride, "min_associations": p.min_associations,
+                "rule": f"longest doubled window with lambda <= {MAX_CHANCE_PER_TRANSFORM:g} and at most "
+                        f"{MAX_PUTATIVE_PER_WINDOW_PAIR} putative associations; theta_S >= its largest chance set",
+                "configured_chance": self.configured.to_dict(),
+                "derived_chance": None if self.derived is None else self.derived.to_dict()}
+
+
+def derived_windows(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                    sizes_b: np.ndarray | None, params: AssociationParams) -> DerivedWindows:
+    """Longer windows for maps whose configured windows hold far fewer chance-consistent associations per
+    transform than one (module doc): the longest window (doubling the configured theta_WL, up to the larger map)
+    whose lambda stays <= MAX_CHANCE_PER_TRANSFORM and whose window pair holds at most MAX_PUTATIVE_PER_WINDOW_PAIR
+    putative associations (the solver's cost grows with their square), overlapping by half, and theta_S the larger of the configured one and that window's largest chance set. The configured windows
+    stay when even the doubled window exceeds one chance association per transform (or the maps are shorter
+    than the configured window)."""
+    base = window_chance(points_a, sizes_a, points_b, sizes_b, params)
+    longest = max(len(points_a), len(points_b))
+    best = None
+    length = params.window_length
+    while length < longest:
+        length *= 2
+        chance = window_chance(points_a, sizes_a, points_b, sizes_b, params, length)
+        putative = chance.landmarks[0] * chance.landmarks[1] * chance.size_pass
+        if chance.per_transform > MAX_CHANCE_PER_TRANSFORM or chance.trials == 0 or \
+                putative > MAX_PUTATIVE_PER_WINDOW_PAIR:
+            break
+        best = chance
+    if best is None:
+        return DerivedWindows(params, base, None)
+    # overlapping by half: every stretch of length / 2 consecutive landmarks lies whole in one window, at least
+    # the configured windows' length - stride once grown to twice that, at a fraction of the window pairs
+    stride = max(params.window_stride, best.length // 2)
+    grown = dataclasses.replace(params, window_length=best.length, window_stride=stride,
+                                min_associations=max(params.min_associations, best.largest))
+    return DerivedWindows(grown, base, best)

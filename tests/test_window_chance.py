@@ -1,0 +1,78 @@
+"""The chance model of window pairs and the windows derived from it (`plugin.association.window_chance`)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sosmatch.plugin.association import search
+from sosmatch.plugin.association.synthetic import survey_map_pair
+from sosmatch.plugin.association.window_chance import (
+    MAX_CHANCE_PER_TRANSFORM,
+    derived_windows,
+    size_pass_fraction,
+    window_chance,
+)
+from sosmatch.plugin.map_noise import MapNoise, derived_search_params
+from sosmatch.plugin.params import AssociationParams
+
+
+def _largest_upright(res, params):
+    return max((int(h.size) for h in res.hypotheses
+                if h.transform is not None and h.tilt_deg <= params.max_gravity_angle_deg), default=0)
+
+
+@pytest.mark.parametrize("density", [300.0, 3000.0])
+def test_model_bounds_the_largest_chance_set_of_the_search(density):
+    # two maps of different worlds: every consistent set the search finds between them is chance
+    a = survey_map_pair(400, seed=3, density_per_km2=density)
+    b = survey_map_pair(400, seed=11, density_per_km2=density)
+    params = AssociationParams()
+    chance = window_chance(a.points_a, a.sizes_a, b.points_b, b.sizes_b, params)
+    assert chance.per_transform <= MAX_CHANCE_PER_TRANSFORM
+    found = _largest_upright(search(a.points_a, a.sizes_a, b.points_b, b.sizes_b,
+                                    dataclasses.replace(params, min_associations=2)), params)
+    assert chance.largest - 3 <= found <= chance.largest
+
+
+def test_chance_grows_with_the_window_and_the_tolerance():
+    s = survey_map_pair(400, seed=3, density_per_km2=3000.0)
+    params = AssociationParams()
+    args = (s.points_a, s.sizes_a, s.points_b, s.sizes_b)
+    short, long = window_chance(*args, params, 50), window_chance(*args, params, 200)
+    assert long.per_transform > 2 * short.per_transform and long.largest > short.largest
+    loose = window_chance(*args, dataclasses.replace(params, distance_tolerance_m=4.0), 50)
+    assert loose.per_transform > 3 * short.per_transform and loose.largest > short.largest
+    assert size_pass_fraction(s.sizes_a, s.sizes_b, 0.2) < size_pass_fraction(s.sizes_a, s.sizes_b, 0.4)
+    assert size_pass_fraction(None, s.sizes_b, 0.2) == 1.0
+
+
+def test_sparse_maps_get_longer_windows_dense_ones_keep_the_configured():
+    params = AssociationParams()
+    sparse = survey_map_pair(600, seed=5, density_per_km2=300.0)
+    got = derived_windows(sparse.points_a, sparse.sizes_a, sparse.points_b, sparse.sizes_b, params)
+    assert got.derived is not None and got.params.window_length > params.window_length
+    assert got.derived.per_transform <= MAX_CHANCE_PER_TRANSFORM
+    assert got.params.min_associations >= max(params.min_associations, got.derived.largest)
+    assert got.params.window_stride == got.params.window_length // 2
+    doc = got.to_dict()
+    assert doc["derived"] and doc["derived_chance"]["length"] == got.params.window_length
+    dense = survey_map_pair(600, seed=5, density_per_km2=30000.0)
+    kept = derived_windows(dense.points_a, dense.sizes_a, dense.points_b, dense.sizes_b, params)
+    assert kept.derived is None and kept.params == params
+    assert kept.configured.per_transform > MAX_CHANCE_PER_TRANSFORM / 2
+
+
+def test_derivation_is_recorded_and_needs_both_maps_noise():
+    s = survey_map_pair(600, seed=5, density_per_km2=300.0)
+    arrays = (s.points_a, s.sizes_a, s.points_b, s.sizes_b)
+    base = AssociationParams(derive_from_maps=True)
+    noise = MapNoise(0.2, 0.7, 0.06, 600)
+    got = derived_search_params(base, noise, noise, *arrays)
+    assert got.params.distance_tolerance_m == pytest.approx(3 * 0.7, abs=0.01)
+    assert got.record["windows"]["window_length"] == got.params.window_length
+    assert got.record["tolerances"]["distance_tolerance_m"] == got.params.distance_tolerance_m
+    for off in (derived_search_params(base, noise, None, *arrays),
+                derived_search_params(dataclasses.replace(base, derive_from_maps=False), noise, noise, *arrays)):
+        assert off.params.window_length == base.window_length and off.record["windows"] == "configured"
+    assert np.isfinite(got.record["windows"]["configured_chance"]["per_transform"])
