@@ -16,9 +16,11 @@ N trials reaches: N x P(Poisson(lambda) >= k) >= 1 (`window_chance`).
 The tolerance radius is theta_eps itself, not eps / 2 (what pairwise length agreement within eps guarantees for
 one transform): the solver finds the largest pairwise-consistent set, which uses all the slack of the pairwise
 test and of the yaw slice. So measured, with the search itself on a map against its mirror image (which no rigid
-transform explains, `tools/benchmarks/bench_windows.py`): synthetic summer vs winter maps of worlds 5, 11, 42 at
-the derived theta_eps 2.7-4.1 m and 50-landmark windows: largest chance sets 6-10 (model 7-10); NAIP 2009 vs 2015
-at 10.2 m: 5 (model 6). BENCHMARKS.md, "Windows from the maps".
+transform explains, `tools/benchmarks/bench_windows.py`) and on maps of two different synthetic worlds: synthetic
+survey maps of worlds 5, 11, 42 at the derived theta_eps 2.7-4.1 m and 50-landmark windows reach 6-10 (model
+7-13: it overestimates where lambda > 1, where it decides nothing); NAIP 2009 vs 2015 at 10.2 m reaches 5 (model
+6); different worlds at 300 / 3000 landmarks per km^2, theta_eps 2 m: 4 / 5 (model 4 / 7). BENCHMARKS.md,
+"Windows from the maps".
 
 Windows from the maps (`derived_windows`): a window pair separates a true set from chance while lambda is below
 one: above it, chance sets grow in proportion to the window, as the true set does (lambda and the common
@@ -43,8 +45,8 @@ from .windows import hilbert_order
 
 SIZE_SAMPLE = 800  # landmarks of each map the size-gate fraction q is measured on (evenly spaced, deterministic)
 MAX_CHANCE_PER_TRANSFORM = 1.0  # lambda up to which longer windows separate true sets from chance (module doc)
-# putative associations of one window pair beyond which windows are not grown (CLIPPER's affinity matrix grows with
-# their square: 25 000 associations of one window pair take ~1 s; NAIP's 200-landmark windows hold ~11 600)
+# putative associations of one window pair beyond which windows are not grown: the solver's affinity matrix grows
+# with their square (NAIP's 200-landmark windows hold ~11 600; a 50-landmark survey window pair ~700)
 MAX_PUTATIVE_PER_WINDOW_PAIR = 25_000
 
 
