@@ -170,9 +170,10 @@ def derived_windows(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: 
     """Longer windows for maps whose configured windows hold far fewer chance-consistent associations per
     transform than one (module doc): the longest window (doubling the configured theta_WL, up to the larger map)
     whose lambda stays <= MAX_CHANCE_PER_TRANSFORM and whose window pair holds at most MAX_PUTATIVE_PER_WINDOW_PAIR
-    putative associations (the solver's cost grows with their square), overlapping by half, and theta_S the larger of the configured one and that window's largest chance set. The configured windows
-    stay when even the doubled window exceeds one chance association per transform (or the maps are shorter
-    than the configured window)."""
+    putative associations (the solver's cost grows with their square), overlapping by half, and theta_S the
+    larger of the configured one and that window's largest chance set. The configured windows stay when even the
+    doubled window exceeds one chance association per transform (or the maps are shorter than the configured
+    window)."""
     base = window_chance(points_a, sizes_a, points_b, sizes_b, params)
     longest = max(len(points_a), len(points_b))
     best = None
