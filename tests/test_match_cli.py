@@ -46,7 +46,8 @@ def test_match_end_to_end(maps, tmp_path, capsys):
     assert rotation_angle_deg(np.array(ver["transform"]["rotation"]), s.rotation) < 0.5
     assert doc["search_mode"] == {"consistency": "gravity", "windows": "id", "solver": "bounded", "yaw_slices": 48,
                                   "position_prior_m": 0.0, "position_prior": "off", "paper": False,
-                                  "tolerances": "configured"}  # a .sosmap has no noise figures: one search
+                                  "tolerances": "configured",  # a .sosmap has no noise figures: one search
+                                  "derived": {"tolerances": "configured", "windows": "configured"}}
     assert doc["search_seconds"] >= doc["timings"]["verify_s"] > 0
     summary = read_match(out / "match.json")
     assert summary.accepted and summary.source == "verified" and len(summary.associations) == ver["support"]

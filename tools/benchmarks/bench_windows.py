@@ -6,7 +6,8 @@ For every pair of mapped sessions (directories with landmarks.sosmap and run.jso
 their noise, the chance model (`plugin.association.window_chance`) at each window length, the largest upright
 consistent set the search finds between A and B mirrored (x -> -x in B's frame: same density, sizes and layout,
 but no rigid transform explains it, so every set is chance), and the windows and theta_S `derived_search_params`
-gives. Prints one line per pair and length, then the machine.
+gives (`--no-search`: the model and the derived windows only, for many pairs). Prints one line per pair and
+length, then the machine.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import time
 from pathlib import Path
 
 
-def chance_rows(map_a: Path, map_b: Path, lengths: list[int]) -> list[dict]:
+def chance_rows(map_a: Path, map_b: Path, lengths: list[int], run_search: bool = True) -> list[dict]:
     from ...database.map_loading import load_map
     from ...plugin.association import search
     from ...plugin.association.window_chance import window_chance
@@ -36,10 +37,12 @@ def chance_rows(map_a: Path, map_b: Path, lengths: list[int]) -> list[dict]:
         ap = dataclasses.replace(tolerances, window_length=length, window_stride=max(1, length // 5),
                                  min_associations=3)
         c0 = time.process_time()
-        res = search(pa, ha, pb, hb, ap)
-        found = max((int(h.size) for h in res.hypotheses
-                     if h.transform is not None and h.tilt_deg <= ap.max_gravity_angle_deg), default=0)
-        rows.append({"pair": f"{map_a.name} / {map_b.name} (mirrored)", "theta_eps": tolerances.distance_tolerance_m,
+        found = None
+        if run_search:
+            res = search(pa, ha, pb, hb, ap)
+            found = max((int(h.size) for h in res.hypotheses
+                         if h.transform is not None and h.tilt_deg <= ap.max_gravity_angle_deg), default=0)
+        rows.append({"pair": f"{map_a} / {map_b.name}", "theta_eps": tolerances.distance_tolerance_m,
                      "length": length, "lambda": round(model.per_transform, 3), "model_largest": model.largest,
                      "search_largest": found, "cpu_s": round(time.process_time() - c0, 2),
                      "derived": (derived.params.window_length, derived.params.window_stride,
@@ -53,6 +56,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("maps", nargs="+", type=Path, help="mapped sessions, in pairs A B")
     parser.add_argument("--lengths", default="50", help="window lengths to compare (comma-separated)")
+    parser.add_argument("--no-search", action="store_true", help="the model and the derived windows only")
     args = parser.parse_args(argv)
     if len(args.maps) % 2:
         parser.error("maps come in pairs")
@@ -61,9 +65,10 @@ def main(argv: list[str] | None = None) -> None:
           "derived windows / stride / theta_S |")
     print("|---|---:|---:|---:|---:|---:|---|")
     for map_a, map_b in zip(args.maps[::2], args.maps[1::2]):
-        for r in chance_rows(map_a, map_b, lengths):
+        for r in chance_rows(map_a, map_b, lengths, run_search=not args.no_search):
+            found = "-" if r["search_largest"] is None else r["search_largest"]
             print(f"| {r['pair']} | {r['theta_eps']:.2f} | {r['length']} | {r['lambda']:.2f} | {r['model_largest']} | "
-                  f"{r['search_largest']} | {' / '.join(str(v) for v in r['derived'])} |", flush=True)
+                  f"{found} | {' / '.join(str(v) for v in r['derived'])} |", flush=True)
     print(machine_summary())
 
 
