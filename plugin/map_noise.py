@@ -153,10 +153,15 @@ def first_search_params(configured: AssociationParams, derived: AssociationParam
     configured and the derived theta_eps, sigma and theta_r, the rest as derived. The derived ones allow for what
     changes between two sessions (season, growth), which the maps cannot measure and two sessions of one season
     do not need; looser tolerances multiply the chance-consistent pairs until nothing is pruned (the evaluation
-    suite's summer pairs: 0.26 -> 6.4 s of CPU, BENCHMARKS.md). None when the derived ones are nowhere looser
-    (derivation off, or maps less noisy than the configured values allow): one search is enough."""
+    suite's summer pairs: 0.26 -> 6.4 s of CPU, BENCHMARKS.md). Likewise the configured windows and theta_S:
+    longer derived windows (`association.window_chance`) allow for few repeating landmarks, which the maps cannot
+    measure either, and cost more where the configured windows already find the answer (the demo: 0.056 -> 0.096 s
+    CPU). None when the derived ones are nowhere looser (derivation off, or maps less noisy than the configured
+    values allow, and the configured windows kept): one search is enough."""
     first = dataclasses.replace(
         derived, distance_tolerance_m=min(configured.distance_tolerance_m, derived.distance_tolerance_m),
         affinity_sigma_m=min(configured.affinity_sigma_m, derived.affinity_sigma_m),
-        max_size_difference=min(configured.max_size_difference, derived.max_size_difference))
+        max_size_difference=min(configured.max_size_difference, derived.max_size_difference),
+        window_length=configured.window_length, window_stride=configured.window_stride,
+        min_associations=configured.min_associations)
     return None if first == derived else first

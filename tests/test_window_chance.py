@@ -13,7 +13,7 @@ from sosmatch.plugin.association.window_chance import (
     size_pass_fraction,
     window_chance,
 )
-from sosmatch.plugin.map_noise import MapNoise, derived_search_params
+from sosmatch.plugin.map_noise import MapNoise, derived_search_params, first_search_params
 from sosmatch.plugin.params import AssociationParams
 
 
@@ -76,3 +76,16 @@ def test_derivation_is_recorded_and_needs_both_maps_noise():
                 derived_search_params(dataclasses.replace(base, derive_from_maps=False), noise, noise, *arrays)):
         assert off.params.window_length == base.window_length and off.record["windows"] == "configured"
     assert np.isfinite(got.record["windows"]["configured_chance"]["per_transform"])
+
+
+def test_first_search_keeps_the_configured_windows():
+    # the derived longer windows are searched only when the configured ones are refused (as looser tolerances)
+    s = survey_map_pair(600, seed=5, density_per_km2=300.0)
+    base = AssociationParams(derive_from_maps=True)
+    noise = MapNoise(0.2, 0.5, 0.05, 600)
+    got = derived_search_params(base, noise, noise, s.points_a, s.sizes_a, s.points_b, s.sizes_b).params
+    assert got.window_length > base.window_length
+    first = first_search_params(base, got)
+    assert (first.window_length, first.window_stride, first.min_associations) == (
+        base.window_length, base.window_stride, base.min_associations)
+    assert first.distance_tolerance_m == min(base.distance_tolerance_m, got.distance_tolerance_m)
