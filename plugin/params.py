@@ -212,6 +212,11 @@ class TrackingParams(Checked):
     # the point picks one spot, and across flight lines the motion gate's summed image motion means nothing.
     point_transfer_gate: bool = flag(True)
     point_gate_min_ray_angle_deg: float = within(5.0, 0.0, 180.0)
+    # (ours) ground band gate (`plugin.ground_band`): a track without a point yet must reappear within
+    # epipolar_margin_px of the stretch of its epipolar line between the heights of the local ground, i.e. the
+    # median height of the candidate tracks' points +- this many robust standard deviations; 0 = off. Needs the
+    # point transfer gate (its points are the ground).
+    ground_band_sigmas: float = non_negative(6.0)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,12 @@ For each keyframe t, the candidate tracks are those whose latest observation (ma
   this replaces the epipolar, cheirality and motion gates for that track. The epipolar line admits every segment
   along it (Seneca: 54 of 338 three-view tracks were consistent; 113 of 213 with this gate), and across flight
   lines the summed image motion of the motion gate is meaningless.
+- **Ground band** *(ours, `ground_band_sigmas`, `plugin.ground_band`)*: a track without a point yet must reappear
+  within `epipolar_margin_px` of the stretch of its epipolar line between the lowest and highest height of the
+  local ground (median +- that many robust sigmas of the heights of the candidate tracks' points confirmed by a
+  third observation). With fixed poses this predicts the image motion from the poses and the ground, where the
+  image-only estimate fails (Seneca: 72 of 165 steps without a measured motion), and removes the wrong partners
+  that the epipolar line admits hundreds of metres above or below the ground.
 - **Score** (`theta_q`): `q = sqrt(q_s q_f) >= min_score`, with the size score
   `q_s = 1 + cos(pi r / theta_h)` if `r = 2|h_i - h_j| / (h_i + h_j) < theta_h` else 0 (in [0, 2] as in the
   paper) and the feature score q_f defined below.
@@ -55,12 +61,14 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from .geometry import Camera, Poses, pixel_rays, project
+from .ground_band import band_distances, band_segments, local_ground
 from .mask_features import MaskFeatures
 from .params import TrackingParams
 
 logger = logging.getLogger(__name__)
 
 _MIN_BASELINE_M = 1e-6  # below this the two poses share a centre; fall back to the rotation homography
+_GROUND_MIN_OBSERVATIONS = 3  # tracks whose points describe the ground for the ground band gate
 _PAIR_CHUNK_ELEMS = 4_000_000  # padded pairs x rows x cols per batched descriptor product (~16 MB float32)
 
 
@@ -269,13 +277,16 @@ def pair_scores(
     desc_s: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     desc_t: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     predicted_xy: np.ndarray | None = None,
+    band: tuple[float, float] | None = None,
 ) -> np.ndarray:
     """(n, m) score q of masks `masks_s` of keyframe s against all masks of keyframe t; 0 where infeasible.
 
     `mu`, `sigma` are the expected centroid displacement and its standard deviation for this keyframe gap (the
     centroid-noise term is already included by the caller). `predicted_xy` (n, 2), optional: where the row's
     track point projects in keyframe t (NaN: no point yet); such rows are gated by the distance to it (point
-    transfer gate, module docstring) instead of the motion, epipolar and cheirality gates.
+    transfer gate, module docstring) instead of the motion, epipolar and cheirality gates. `band`, optional:
+    the (lowest, highest) height of the local ground (`plugin.ground_band`); rows without a point must then lie
+    within `epipolar_margin_px` of the stretch of the epipolar line between those heights.
     """
     n, m = len(masks_s), len(feat_t)
     q = np.zeros((n, m))
@@ -297,6 +308,11 @@ def pair_scores(
     ok &= has_point | (epipolar_distances(camera, poses, s, t, xy_s, xy_t) <= params.epipolar_margin_px)
     if params.cheirality_check and ok.any():
         ok &= has_point | ~behind_camera(camera, poses, s, t, xy_s, xy_t, params.epipolar_margin_px)
+    if band is not None and ok.any():
+        rows = np.flatnonzero(ok.any(axis=1) & ~has_point[:, 0])
+        if len(rows):
+            dist = band_distances(band_segments(camera, poses, s, t, xy_s[rows], band), xy_t)
+            ok[rows] &= ~(dist > params.epipolar_margin_px)  # NaN (no prediction for that ray): no band gate
     ii, jj = np.nonzero(ok)
     if len(ii) == 0:
         return q
@@ -321,22 +337,24 @@ def gap_motion(
 
 def _predict_track_points(
     ray_a: np.ndarray, ray_b: np.ndarray, origin: np.ndarray, camera: Camera, poses: Poses, t: int, min_eig: float
-) -> np.ndarray:
-    """(n, 2) projection into keyframe t of each track's least-squares ray intersection; NaN where the rays are
-    too close to parallel (smallest eigenvalue of sum(I - d d^T) below `min_eig`) or the point is not in front
-    of camera t."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) projection into keyframe t of each track's least-squares ray intersection, and (n, 3) that point;
+    NaN where the rays are too close to parallel (smallest eigenvalue of sum(I - d d^T) below `min_eig`), and
+    for the projection also where the point is not in front of camera t."""
     out = np.full((len(ray_a), 2), np.nan)
+    points = np.full((len(ray_a), 3), np.nan)
     if not len(ray_a):
-        return out
+        return out, points
     eig_min = np.linalg.eigvalsh(ray_a)[:, 0]
     good = np.flatnonzero(eig_min >= min_eig)
     if not len(good):
-        return out
+        return out, points
     x = np.linalg.solve(ray_a[good], ray_b[good][:, :, None])[:, :, 0] + origin
+    points[good] = x
     uv, depth = project(camera, poses.rotations[t], poses.centers[t], x)
     front = depth > 1e-9
     out[good[front]] = uv[front]
-    return out
+    return out, points
 
 
 def track_masks(
@@ -378,6 +396,7 @@ def track_masks(
     min_eig = 1.0 - np.cos(np.radians(params.point_gate_min_ray_angle_deg))
     last_kf = np.zeros(0, np.int64)  # per track: keyframe of its latest observation
     last_mask = np.zeros(0, np.int64)  # per track: mask index of its latest observation
+    n_obs = np.zeros(0, np.int64)  # per track: number of observations
     track_ids: list[np.ndarray] = []
     desc_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     n_matched = 0
@@ -386,8 +405,13 @@ def track_masks(
         m = len(feat_t)
         ids = np.full(m, -1, np.int64)
         cand = np.flatnonzero(last_kf >= t - max_age) if m else np.zeros(0, np.int64)
-        predicted = _predict_track_points(ray_a[cand], ray_b[cand], origin, camera, keyframe_poses, t, min_eig) \
-            if point_gate and len(cand) else None
+        predicted, band = None, None
+        if point_gate and len(cand):
+            predicted, points = _predict_track_points(ray_a[cand], ray_b[cand], origin, camera, keyframe_poses, t,
+                                                      min_eig)
+            # the ground under the recent keyframes: the points of the candidate tracks (seen within theta_t) that a
+            # third observation confirmed (a wrong two-view link puts its point anywhere along the epipolar line)
+            band = local_ground(points[n_obs[cand] >= _GROUND_MIN_OBSERVATIONS, 2], params.ground_band_sigmas)
         if len(cand):
             desc_cache[t] = _desc_index(feat_t)
             q = np.zeros((len(cand), m))
@@ -398,7 +422,7 @@ def track_masks(
                 mu, sigma = gap_motion(motion_stats, int(s), t, params.centroid_sigma_px)
                 q[rows] = pair_scores(
                     features[s], last_mask[cand[rows]], feat_t, camera, keyframe_poses, int(s), t, mu, sigma,
-                    params, desc_cache[s], desc_cache[t], None if predicted is None else predicted[rows],
+                    params, desc_cache[s], desc_cache[t], None if predicted is None else predicted[rows], band,
                 )
             r_any = np.flatnonzero(q.max(axis=1) > 0)
             c_any = np.flatnonzero(q.max(axis=0) > 0)
@@ -413,6 +437,8 @@ def track_masks(
         ids[new] = len(last_kf) + np.arange(len(new))
         last_kf = np.concatenate([last_kf, np.full(len(new), t, np.int64)])
         last_mask = np.concatenate([last_mask, np.zeros(len(new), np.int64)])
+        n_obs = np.concatenate([n_obs, np.zeros(len(new), np.int64)])
+        n_obs[ids] += 1
         if point_gate and m:
             ray_a = np.concatenate([ray_a, np.zeros((len(new), 3, 3))])
             ray_b = np.concatenate([ray_b, np.zeros((len(new), 3))])

@@ -1,7 +1,8 @@
 """Segment tracker: purity and length on a synthetic nadir flight, each gate rejecting what it should, one-to-one
 assignment, determinism. The scene is built here (no shared data): objects on a plane with relief, a straight
 survey leg at 100 m, centroids projected with 3 px noise, sizes from radius * f / depth, SIFT descriptors as random
-unit vectors per object (noisy, partially re-detected per observation), plus per-frame clutter masks."""
+unit vectors per object (noisy, partially re-detected per observation), plus per-frame clutter masks. The ground
+band gate (plugin/ground_band.py) at the end."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sosmatch.plugin.geometry import Camera, Poses, project
+from sosmatch.plugin.geometry import Camera, Poses, pixel_rays, project
+from sosmatch.plugin.ground_band import MIN_GROUND_POINTS, band_distances, band_segments, local_ground
 from sosmatch.plugin.mask_features import MaskFeatures
 from sosmatch.plugin.params import TrackingParams
 from sosmatch.plugin.tracking import (
@@ -320,3 +322,84 @@ def test_point_transfer_gate_picks_the_observation_where_the_track_point_project
     # ... and rays closer than point_gate_min_ray_angle_deg leave the track on the epipolar and motion gates
     near_parallel = dataclasses.replace(params, point_gate_min_ray_angle_deg=20.0)
     assert track_masks(feats, CAM, poses, wrong_motion, near_parallel).track_ids[2][0] != track
+
+
+
+def _two_views() -> Poses:
+    return Poses(["a", "b"], np.stack([NADIR, NADIR]), np.array([[0.0, 0.0, 100.0], [20.0, 0.0, 100.0]]))
+
+
+def test_segment_holds_the_points_between_the_band_heights():
+    poses = _two_views()
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-20, 40, 30), rng.uniform(-20, 20, 30), rng.uniform(-3.0, 8.0, 30)])
+    uv_a, _ = project(CAM, poses.rotations[0], poses.centers[0], pts)
+    uv_b, _ = project(CAM, poses.rotations[1], poses.centers[1], pts)
+    seg = band_segments(CAM, poses, 0, 1, uv_a, (-5.0, 10.0))
+    d = band_distances(seg, uv_b)
+    assert np.diag(d).max() < 1e-6  # every point between the heights lies on its segment
+    # the ends are the images of the ray at the band's top and bottom
+    ray = pixel_rays(CAM, uv_a[:1], poses.rotations[0])[0]
+    top = poses.centers[0] + (10.0 - 100.0) / ray[2] * ray
+    assert np.allclose(seg[0, 0], project(CAM, poses.rotations[1], poses.centers[1], top[None])[0][0])
+    # a point on the same ray 60 m below the band projects on the epipolar line but far off the segment
+    deep = poses.centers[0] + (-65.0 - 100.0) / ray[2] * ray
+    uv_deep, _ = project(CAM, poses.rotations[1], poses.centers[1], deep[None])
+    assert band_distances(seg[:1], uv_deep)[0, 0] > 50.0
+    # a band reaching up to the camera gives no prediction (NaN), not a gate
+    assert np.isnan(band_segments(CAM, poses, 0, 1, uv_a[:3], (-5.0, 150.0))).all()
+
+
+def test_local_ground_is_robust_to_a_minority_of_wrong_points():
+    rng = np.random.default_rng(1)
+    z = np.concatenate([rng.normal(200.0, 2.0, 60), rng.uniform(-500.0, 100.0, 25)])  # 30 % wrong tracks
+    lo, hi = local_ground(z, 6.0)
+    # holds the ground's +-3 sigma, and the MAD, inflated by the wrong points, stays far tighter than they are
+    assert 170.0 < lo < 194.0 and 206.0 < hi < 230.0
+    assert local_ground(z[: MIN_GROUND_POINTS - 1], 6.0) is None
+    assert local_ground(z, 0.0) is None  # off
+
+
+def test_tracker_takes_the_partner_on_the_ground():
+    """A survey leg at 100 m, 20 m between keyframes (160 px of image motion, reported unknown), objects on the
+    ground with 0-5 m relief. Object O first seen in keyframe 5; in keyframe 6 a decoy lies on O's epipolar line
+    where a point 60 m under the ground would be, with O's own descriptors (a better score than O's true mask).
+    Without the band the decoy wins; with it O's track continues to its true mask."""
+    rng = np.random.default_rng(4)
+    n_kf = 10
+    centers = np.column_stack([np.arange(n_kf) * 20.0, np.zeros(n_kf), np.full(n_kf, 100.0)])
+    poses = Poses([f"kf{i}" for i in range(n_kf)], np.repeat(NADIR[None], n_kf, 0), centers)
+    gx, gy = np.meshgrid(np.arange(-40.0, 240.0, 9.0), np.arange(-30.0, 31.0, 9.0))
+    objects = np.column_stack([gx.ravel(), gy.ravel(), rng.uniform(0.0, 5.0, gx.size)])
+    words = _unit(rng.standard_normal((len(objects), 12, 128)))
+    first = {}
+    per_kf = []
+    for t in range(n_kf):
+        uv, depth = project(CAM, poses.rotations[t], poses.centers[t], objects)
+        vis = np.flatnonzero((uv[:, 0] > 10) & (uv[:, 0] < 630) & (uv[:, 1] > 10) & (uv[:, 1] < 470) & (depth > 0))
+        for o in vis:
+            first.setdefault(int(o), t)
+        xy = uv[vis] + rng.normal(0.0, 2.0, (len(vis), 2))
+        sizes = np.full(len(vis), 2.0 * CAM.fx / 100.0)
+        descs = [_unit(words[o] + rng.normal(0.0, 0.1, words[o].shape)) for o in vis]
+        per_kf.append([vis, xy, sizes, descs])
+    o = next(k for k, t in sorted(first.items(), key=lambda kv: kv[0]) if t == 5
+             and k in per_kf[6][0] and k in per_kf[7][0])
+    i5 = int(np.flatnonzero(per_kf[5][0] == o)[0])
+    ray = pixel_rays(CAM, per_kf[5][1][i5:i5 + 1], poses.rotations[5])[0]
+    deep = poses.centers[5] + (objects[o, 2] - 60.0 - 100.0) / ray[2] * ray
+    uv_deep, _ = project(CAM, poses.rotations[6], poses.centers[6], deep[None])
+    vis6, xy6, sizes6, descs6 = per_kf[6]
+    per_kf[6] = [np.append(vis6, -1), np.vstack([xy6, uv_deep]), np.append(sizes6, sizes6[0]),
+                 descs6 + [per_kf[5][3][i5]]]  # the decoy carries exactly O's descriptors of keyframe 5
+    feats = [_features(xy, sizes, descs) for _, xy, sizes, descs in per_kf]
+    motion = [(0.0, 0.0)] + [(np.nan, np.nan)] * (n_kf - 1)
+    base = TrackingParams(epipolar_margin_px=12.0, size_tolerance=0.5)
+
+    def partner_of_o(params: TrackingParams) -> int:
+        res = track_masks(feats, CAM, poses, motion, params)
+        tid = res.track_ids[5][i5]
+        return int(per_kf[6][0][int(np.flatnonzero(res.track_ids[6] == tid)[0])])
+
+    assert partner_of_o(dataclasses.replace(base, ground_band_sigmas=0.0)) == -1  # the decoy
+    assert partner_of_o(base) == o
