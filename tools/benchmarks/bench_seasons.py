@@ -103,6 +103,12 @@ def map_dir(work: Path, world: int, name: str, tag: str, overrides: list[str], f
         src = work / f"w{world}" / "maps" / features_from / name / ".partial" / "cache"
         if src.is_dir() and not (out / ".partial" / "cache").exists():
             shutil.copytree(src, out / ".partial" / "cache")
+            # an unfinished `map` output holding that cache (resumed by the run below), not a foreign directory,
+            # which `map` refuses to write into (database/outputs.py)
+            from sosmatch.database.outputs import MARKER, MARKER_FORMAT
+
+            (out / MARKER).write_text(json.dumps({"format": MARKER_FORMAT, "command": "map", "identity": None,
+                                                  "complete": False}) + "\n")
     sets = [x for kv in overrides for x in ("--set", kv)]
     run_cli(["map", "-q", "--poses", str(synth), "--ekf", "--out", str(out), "--no-progress", "--keep-cache", *sets])
     return out
