@@ -394,7 +394,7 @@ def test_tracker_takes_the_partner_on_the_ground():
                  descs6 + [per_kf[5][3][i5]]]  # the decoy carries exactly O's descriptors of keyframe 5
     feats = [_features(xy, sizes, descs) for _, xy, sizes, descs in per_kf]
     motion = [(0.0, 0.0)] + [(np.nan, np.nan)] * (n_kf - 1)
-    base = TrackingParams(epipolar_margin_px=12.0, size_tolerance=0.5)
+    base = TrackingParams(epipolar_margin_px=12.0, size_tolerance=0.5, ground_band_sigmas=6.0)
 
     def partner_of_o(params: TrackingParams) -> int:
         res = track_masks(feats, CAM, poses, motion, params)
