@@ -13,7 +13,7 @@ What one window pair computes (`reference.py` states it as code, `search` reprod
 `search` never computes a window pair from scratch unless that is cheaper:
   1. every landmark pair sharing a window is a map "edge"; two associations are consistent when an edge of A and
      an edge of B pass the pair test and their endpoints pass the size gate. All such pairs are found once by a
-     sort-merge join on (size cell, size cell, length) (`kernels_search.edge_join`), or, with a position prior,
+     sort-merge join on (size cell, size cell, length) (`kernels_join.edge_join`), or, with a position prior,
      directly from the few putative associations each landmark has (`prior_join`);
   2. each pair belongs to a rectangle of window pairs (those holding all four landmarks). A global peel removes
      pairs of associations that are in fewer than theta_S pairs in all windows together; the rest are grouped
@@ -41,21 +41,16 @@ from .hypotheses import (
     make_hypotheses,
 )
 from .kernels_graph import gate_pairs
+from .kernels_join import edge_join, edge_pair_details, edge_pair_ids, map_edges, size_cells, sorted_b_edges
 from .kernels_search import (
     compact_ids,
     count_incidences,
     count_putatives,
     direct_window_pairs,
-    edge_join,
-    edge_pair_details,
-    edge_pair_ids,
-    map_edges,
     peel_pairs,
     peel_pairs_sliced,
     prior_join,
-    size_cells,
     solve_groups,
-    sorted_b_edges,
     window_pair_graphs,
 )
 from .reference import search_reference
