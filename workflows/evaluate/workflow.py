@@ -1,24 +1,5 @@
-"""Evaluate cross-session matching like the paper (`sosmatch evaluate`): Table I and the precision-recall figure.
-
-`run(params, session_a, session_b, out_dir, ...)`:
-  1. ground truth: keyframes every `keyframes.interval_m` on the ground-truth poses (poses.csv) of each
-     session, their ground footprints on the terrain (SESSION/terrain.npz, an elevation raster, or a flat
-     ground) and the IoU of every cross-session keyframe pair (plugin/evaluation);
-  2. SOS-Match: the windowed search between the two landmark maps (in-process, or the hypotheses of a given
-     match.json), its hypotheses turned into keyframe-pair claims scored by |S| (plugin/evaluation/claims.py);
-  3. baselines (tools/baselines): ORB+RANSAC and SIFT+RANSAC on the same keyframe images, scored by inliers;
-  4. the PR curve of every method, recall at precision >= 0.99, average F1, mean search time, map size;
-  5. writes evaluation.json, evaluation.md (the table), pr.png and overlay.png into `out_dir`, each atomically.
-
-Search time of SOS-Match is the median of `repeats` runs of the match's answer at the configured theta_S (the
-operating point): the windowed search and its verification on the full maps, as `sosmatch match` computes it
-(`plugin.match_answer.match_maps`); the overlay draws that answer. The curve sweeps the score threshold over
-those runs' hypotheses (|S| > theta_S), or, with `sweep_floor` below theta_S, over one extra run at that lower
-floor (the solver only runs where a set larger than theta_S can exist, so lower floors collect more, smaller
-hypotheses, at a much higher cost).
-Map size is the mean of the two sessions' maps: landmarks.sosmap bytes for SOS-Match, keypoints + descriptors
-bytes for the baselines.
-"""
+"""The evaluation's computation: ground truth of both sessions, the match (our verified answer and the raw
+window hypotheses), the baselines, the PR curves and the outputs (the package docstring says what and why)."""
 
 from __future__ import annotations
 
@@ -33,37 +14,35 @@ from typing import Any
 
 import numpy as np
 
-from ..database.atomic import atomic_path, write_text_atomic
-from ..database.cameras import read_cameras_txt
-from ..database.evaluation_io import read_landmark_table, read_match_hypotheses, terrain_of_session
-from ..database.landmark_map import LandmarkMap, read_landmark_map
-from ..database.map_loading import read_map_noise
-from ..database.match_io import check_match_maps, read_match_json
-from ..database.outputs import fingerprint, open_output_dir
-from ..database.poses import read_poses_csv
-from ..database.session_io import check_map_of_images
-from ..plugin.errors import InputError
-from ..plugin.evaluation.claims import (
+from ...database.atomic import write_text_atomic
+from ...database.cameras import read_cameras_txt
+from ...database.evaluation_io import read_landmark_table, read_match_hypotheses, terrain_of_session
+from ...database.landmark_map import LandmarkMap, read_landmark_map
+from ...database.map_loading import read_map_noise
+from ...database.match_io import check_match_maps, read_match_json
+from ...database.outputs import fingerprint, open_output_dir
+from ...database.poses import read_poses_csv
+from ...database.session_io import check_map_of_images
+from ...plugin.errors import InputError
+from ...plugin.evaluation.claims import (
     Hypothesis,
     claim_scores,
     observer_geometry,
     observer_matrix,
     separation_ratio,
 )
-from ..plugin.evaluation.footprints import footprint_polygons
-from ..plugin.evaluation.iou import iou_matrix
-from ..plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
-from ..plugin.keyframes import select_keyframes
-from ..plugin.map_noise import derived_search_params, first_search_params
-from ..plugin.params import Params, params_to_dict
-from ..plugin.verification import hypothesis_agrees
+from ...plugin.evaluation.footprints import footprint_polygons
+from ...plugin.evaluation.iou import iou_matrix
+from ...plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
+from ...plugin.keyframes import select_keyframes
+from ...plugin.map_noise import derived_search_params, first_search_params
+from ...plugin.params import Params, params_to_dict
+from ...plugin.verification import hypothesis_agrees
+from .report import format_table, plot_overlay, plot_pr, row_of
 
 log = logging.getLogger(__name__)
 
 METHODS = ("sosmatch", "orb_ransac", "sift_ransac")
-WRONG_ASSOCIATION_M = 5.0  # an association whose landmarks are farther apart (world frame) is drawn as wrong
-LABELS = {"sosmatch": "SOS-Match (ours)", "sosmatch_windows": "SOS-Match, windows only", "orb_ransac": "ORB+RANSAC",
-          "sift_ransac": "SIFT+RANSAC"}
 
 
 @dataclasses.dataclass
@@ -153,8 +132,8 @@ def _map_arrays(map_dir: Path) -> tuple[np.ndarray, np.ndarray, int, LandmarkMap
 def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSession, map_a: Path, map_b: Path,
                   match_dir: Path | None, sweep_floor: int | None, repeats: int, max_observers: int | None,
                   separation: float | None = None) -> dict:
-    from ..plugin.association.windowed_search import search
-    from ..plugin.match_answer import match_maps
+    from ...plugin.association.windowed_search import search
+    from ...plugin.match_answer import match_maps
 
     obs_a, _ = _observers(gt_a, map_a, max_observers)
     obs_b, _ = _observers(gt_b, map_b, max_observers)
@@ -307,7 +286,7 @@ def error_to_identity(transform: Any, points_b: np.ndarray) -> dict:
     `horizontal_m`, `yaw_deg`, and `max_m` (the largest displacement of any of them). The evaluation's sessions
     share one world frame (their footprints are compared in it), so the true transform is the identity, up to
     each map's own pose drift (1-2 m on the synthetic EKF poses)."""
-    from ..plugin.association.rigid import roll_pitch_yaw_deg
+    from ...plugin.association.rigid import roll_pitch_yaw_deg
 
     if transform is None or len(points_b) == 0:
         return {"error_m": float("nan"), "horizontal_m": float("nan"), "yaw_deg": float("nan"), "max_m": float("nan")}
@@ -326,9 +305,9 @@ def _landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Pat
                     iou: np.ndarray) -> dict | None:
     """Common landmarks of the two maps against the synthetic ground-truth objects, the size agreement of the
     common pairs and the oracle recall (`plugin.evaluation.landmark_truth`); None without object truth."""
-    from ..database.evaluation_io import landmark_observed_objects
-    from ..database.synth_session import load_synth_session
-    from ..plugin.evaluation.landmark_truth import (
+    from ...database.evaluation_io import landmark_observed_objects
+    from ...database.synth_session import load_synth_session
+    from ...plugin.evaluation.landmark_truth import (
         common_landmarks,
         count_by,
         eligible_objects,
@@ -358,7 +337,7 @@ def _landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Pat
     common = common_landmarks(objs[0], objs[1], pa, pb, ha, hb, eligible, kind_of)
     theta_r = sos["association"]["max_size_difference"]  # the gate the search used (possibly derived)
     out = common.summary(theta_r)
-    from ..plugin.association.gates import size_ratio
+    from ...plugin.association.gates import size_ratio
 
     gated = common.pairs[size_ratio(common.sizes[:, 0], common.sizes[:, 1]) <= theta_r] if len(common.pairs) else \
         common.pairs
@@ -392,7 +371,7 @@ def _load_images(gt: GroundTruthSession, image_dir: Path) -> list[np.ndarray]:
 
 def _run_baseline(name: str, gt_a: GroundTruthSession, gt_b: GroundTruthSession, images_a: list[np.ndarray],
                   images_b: list[np.ndarray], config: Any) -> dict:
-    from ..tools.baselines import get_backend
+    from ...tools.baselines import get_backend
 
     backend = get_backend(name)
     fa, fb = backend.extract(images_a, config), backend.extract(images_b, config)
@@ -401,149 +380,6 @@ def _run_baseline(name: str, gt_a: GroundTruthSession, gt_b: GroundTruthSession,
     scores[counts <= 0] = np.nan  # no (or too few) matches: no claim at any threshold
     return {"search_seconds": seconds, "search_seconds_runs": [seconds], "extract_seconds": fa.seconds + fb.seconds,
             "map_bytes": [fa.nbytes, fb.nbytes], "scores": scores}
-
-
-def _row(case: str, method: str, res: dict) -> dict:
-    s = res["curve"].summary
-    row = {"case": case, "method": LABELS.get(method, method), "search_s": res["search_seconds"],
-           "map_mb": float(np.mean(res["map_bytes"])) / 1e6, "average_f1": s["average_f1"],
-           "recall_at_p99": s["recall_at_p99"], "f1_at_p99": s["f1_at_p99"], "f1_at_r99": s["f1_at_r99"],
-           "recall_reached": s["recall_reached"]}
-    op = res.get("operating_point")
-    if op is not None:
-        row.update(f1_at_operating=op["f1"], recall_at_operating=op["recall"], precision_at_operating=op["precision"],
-                   operating_theta_S=res.get("operating_theta_S"))
-    truth = res.get("landmark_truth")
-    if truth is not None:
-        row.update(common_landmarks=truth["common"], eligible_objects=truth["eligible_objects"],
-                   oracle_recall=truth["oracle_size_gated"]["recall"], limited_by=limiting_stage(row, truth))
-    # The worst accepted transform. With the verification the matcher accepts one transform, the verified one:
-    # the window hypotheses that agree with it lend it their associations (the claims), not their transforms,
-    # which are fitted on their own 7-10 associations and can be metres off (5.8-7.2 m on held-out worlds).
-    # Without a verified answer (the windows-only row, the paper's protocol) every accepted window hypothesis
-    # is an answer of its own.
-    ver = res.get("verification") or {}
-    verified = bool(ver.get("clear_winner"))
-    if verified:
-        errors = [ver["error_m"]] if ver.get("accepted") and np.isfinite(ver.get("error_m", np.nan)) else []
-        windows = [h["error_m"] for h in res.get("accepted_truth", [])
-                   if np.isfinite(h["error_m"]) and h.get("agrees_with_verified")]
-        row["agreeing_windows_max_error_m"] = max(windows) if windows else None
-    else:
-        errors = [h["error_m"] for h in res.get("accepted_truth", []) if np.isfinite(h["error_m"])]
-    if "accepted_truth" in res:
-        row["accepted_max_error_m"] = max(errors) if errors else None
-    return row
-
-
-def limiting_stage(row: dict, truth: dict, target: float = 0.95) -> str:
-    """Which stage limits the recall at the operating point: "none" (it reaches `target`), "search" (the
-    common landmarks that pass the size gate could vouch for a tenth more than the search found) or
-    "front end" (the search finds about what the common landmarks allow)."""
-    recall, oracle = row.get("recall_at_operating", 0.0), truth["oracle_size_gated"]["recall"]
-    if recall >= target:
-        return "none"
-    return "search" if recall < 0.9 * oracle else "front end"
-
-
-def _cell(row: dict, key: str, fmt: str = ".3f") -> str:
-    value = row.get(key)
-    return "-" if value is None else format(value, fmt)
-
-
-def format_table(rows: Sequence[dict]) -> str:
-    """Markdown table: case, method, search time, map size, average F1, recall at P >= 0.99, F1 and recall at
-    the method's own operating point (theta_S), and the common landmarks of the two maps against the eligible
-    ground-truth objects with the oracle recall (synthetic sessions only)."""
-    lines = ["| case | method | search time (s) | map size (MB) | average F1 | recall at P >= 0.99 "
-             "| F1 at theta_S | recall at theta_S | common / eligible objects | oracle recall | limited by |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
-    for r in rows:
-        t = "n/a" if r["search_s"] is None else f"{r['search_s']:.3g}"
-        common = f"{r['common_landmarks']} / {r['eligible_objects']}" if "common_landmarks" in r else "-"
-        lines.append(f"| {r['case']} | {r['method']} | {t} | {r['map_mb']:.4g} | {r['average_f1']:.3f} "
-                     f"| {r['recall_at_p99']:.3f} | {_cell(r, 'f1_at_operating')} | {_cell(r, 'recall_at_operating')} "
-                     f"| {common} | {_cell(r, 'oracle_recall')} | {r.get('limited_by', '-')} |")
-    return "\n".join(lines) + "\n"
-
-
-def plot_pr(curves: dict[str, PRCurve], path: Path, title: str) -> None:
-    """Precision-recall curves of every method into a PNG (written atomically)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.5, 4.2), dpi=110)
-    for method, c in curves.items():
-        if len(c.recall):
-            ax.step(np.r_[0.0, c.recall], np.r_[1.0, c.precision], where="pre", label=LABELS.get(method, method))
-        else:
-            ax.plot([], [], label=f"{LABELS.get(method, method)} (no claims)")
-    ax.axhline(0.99, color="grey", lw=0.6, ls=":")
-    ax.set(xlabel="recall", ylabel="precision", xlim=(0, 1.02), ylim=(0, 1.02), title=title)
-    ax.legend(loc="lower left", fontsize=8)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
-
-
-def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict | None, path: Path, title: str) -> None:
-    """Both flights' keyframe footprints and paths, both landmark maps, and the best hypothesis' associations."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import shapely
-
-    fig, ax = plt.subplots(figsize=(9.5, 6), dpi=110)
-    for gt, color, label in ((gt_a, "tab:blue", "A"), (gt_b, "tab:orange", "B")):
-        step = max(1, len(gt.footprints) // 40)
-        for poly in gt.footprints[::step]:
-            if not poly.is_empty and isinstance(poly, shapely.Polygon):
-                x, y = poly.exterior.xy
-                ax.plot(x, y, color=color, lw=0.3, alpha=0.35)
-        ax.plot(gt.centers[:, 0], gt.centers[:, 1], color=color, lw=1.2, label=f"session {label} keyframes")
-    if sos is not None:
-        pa, pb = sos["positions"]
-        ax.scatter(pa[:, 0], pa[:, 1], s=6, color="tab:blue", marker="o", label=f"landmarks A ({len(pa)})")
-        ax.scatter(pb[:, 0], pb[:, 1], s=6, color="tab:orange", marker="x", label=f"landmarks B ({len(pb)})")
-        truth = sos.get("landmark_truth")
-        if truth and truth.get("common_pairs"):
-            common = np.asarray([c[1] for c in truth["common_pairs"]], dtype=int)
-            ax.scatter(pa[common, 0], pa[common, 1], s=70, facecolors="none", edgecolors="0.35", marker="s", lw=0.8,
-                       label=f"common landmarks (truth: {len(common)})")
-        # Associations of the accepted hypotheses, drawn as rings (a right one joins two landmarks ~1 m apart,
-        # invisible as a segment on a plot hundreds of metres wide); red: more than 5 m apart in the world frame
-        assoc = [a for a, _ in sos.get("accepted", [])]
-        ver = sos.get("verification") or {}
-        if ver.get("accepted"):
-            assoc.append(np.asarray(ver["associations"], dtype=int).reshape(-1, 2))
-        if assoc:
-            pairs = np.unique(np.concatenate(assoc).reshape(-1, 2), axis=0)
-            far = np.linalg.norm(pa[pairs[:, 0]] - pb[pairs[:, 1]], axis=1) > WRONG_ASSOCIATION_M
-            for sel, color, label in ((~far, "limegreen", "associated"), (far, "red", "associated, wrong")):
-                if sel.any():
-                    a, b = pa[pairs[sel, 0]], pb[pairs[sel, 1]]
-                    what = f"{len(sos.get('accepted', []))} accepted hypotheses" + (
-                        f" + verified alignment of {ver['support']}" if ver.get("accepted") else "")
-                    ax.scatter(a[:, 0], a[:, 1], s=40, facecolors="none", edgecolors=color, lw=1.6,
-                               label=f"{label} ({int(sel.sum())}; {what})")
-                    for u, v in zip(a, b):
-                        ax.plot([u[0], v[0]], [u[1], v[1]], color=color, lw=1.6)
-        best = sos.get("best")
-        if best:
-            ab = np.asarray(best["associations"], dtype=int).reshape(-1, 2)
-            ax.scatter(pa[ab[:, 0], 0], pa[ab[:, 0], 1], s=12, color="darkgreen", marker="D",
-                       label=f"the match's answer ({best.get('answer', 'best hypothesis')}): {len(ab)} associations")
-    ax.set_aspect("equal")
-    ax.set(xlabel="x (m)", ylabel="y (m)", title=title)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7)  # beside the map, not on it
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
 
 
 def _jsonable(res: dict) -> dict:
@@ -608,7 +444,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
               dem: str | Path | None, ground_height: float, sweep_floor: int | None, repeats: int,
               max_observers: int | None, baseline_threads: int, overlap_test: bool = True) -> dict:
     """`run` inside its taken output directory."""
-    from ..tools.baselines.base import BaselineConfig
+    from ...tools.baselines.base import BaselineConfig
 
     t0 = time.perf_counter()
     gt_a = load_ground_truth(params, session_a, dem, ground_height)
@@ -649,7 +485,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
             res["operating_point"] = operating_point(res["curve"], res["operating_theta_S"] + 0.5)
     order = ["sosmatch", "sosmatch_windows"] + [m for m in results if not m.startswith("sosmatch")]
     results = {m: results[m] for m in order if m in results}  # the windows-only row beside ours
-    rows = [_row(case, m, res) for m, res in results.items()]
+    rows = [row_of(case, m, res) for m, res in results.items()]
     evaluation = {
         "case": case,
         "sessions": [str(session_a), str(session_b)],
