@@ -217,6 +217,11 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
                            map_b=_map_ref(data.get("map_b"), "map_b", path), seconds=seconds, min_associations=theta)
     mode = data.get("search_mode")
     summary.search_mode = mode if isinstance(mode, dict) else {}
+    searched = summary.search_mode.get("searched")
+    if isinstance(searched, dict) and searched.get("min_associations") is not None:
+        # theta_S of the search whose hypotheses these are (the first of two searches keeps the configured one)
+        summary.min_associations = _int(searched["min_associations"], "search_mode.searched.min_associations",
+                                        path, 0, 10**6)
     # The window search's own answer: the consensus (the transform refitted on the associations of every accepted
     # window pair that agrees with the best one; written only when one was accepted), else the best accepted
     # hypothesis, else the largest one (then not accepted).

@@ -40,6 +40,9 @@ class MatchAnswer:
     source: str  # "verified" (the verification's alignment) or "consensus" (the search's, unverified)
     prior: str  # how the position prior was used: "off", "applied", or why it was ignored
     tolerances: str = "configured"  # the search's: "configured" (one search), "first" or "derived" (two steps)
+    # the association parameters of the search whose hypotheses `search` holds (the first of two searches keeps
+    # the configured windows and theta_S: its hypotheses are judged at its own theta_S); None: params.association
+    searched: AssociationParams | None = None
     timings: dict[str, float] = field(default_factory=dict)  # search_s, verify_s, total_s (wall)
 
 
@@ -91,10 +94,12 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         transform = None if best is None else Transform(best.transform.rotation, best.transform.translation,
                                                          best.transform.scale)
         assoc = np.zeros((0, 2), np.int64) if best is None else best.associations
-        answer = MatchAnswer(res, ver, bool(ver.accepted), transform, assoc, "verified", prior, tolerances)
+        searched = usable(first_try) if tolerances == "first" and first_try is not None else ap
+        answer = MatchAnswer(res, ver, bool(ver.accepted), transform, assoc, "verified", prior, tolerances, searched)
     elif res.consensus is not None:
-        answer = MatchAnswer(res, None, True, res.consensus.transform, res.consensus.associations, "consensus", prior)
+        answer = MatchAnswer(res, None, True, res.consensus.transform, res.consensus.associations, "consensus", prior,
+                             searched=ap)
     else:
-        answer = MatchAnswer(res, None, False, None, np.zeros((0, 2), np.int64), "consensus", prior)
+        answer = MatchAnswer(res, None, False, None, np.zeros((0, 2), np.int64), "consensus", prior, searched=ap)
     answer.timings = {**clock, "total_s": time.perf_counter() - t0}
     return answer

@@ -44,6 +44,9 @@ def test_match_end_to_end(maps, tmp_path, capsys):
     ver = doc["verification"]
     assert doc["answer"] == "verified" and ver["accepted"] and ver["support"] >= best["size"]
     assert rotation_angle_deg(np.array(ver["transform"]["rotation"]), s.rotation) < 0.5
+    ap = doc["params"]["association"]
+    assert doc["search_mode"].pop("searched") == {k: ap[k] for k in (
+        "window_length", "window_stride", "min_associations", "distance_tolerance_m", "max_size_difference")}
     assert doc["search_mode"] == {"consistency": "gravity", "windows": "id", "solver": "bounded", "yaw_slices": 48,
                                   "position_prior_m": 0.0, "position_prior": "off", "paper": False,
                                   "tolerances": "configured",  # a .sosmap has no noise figures: one search
@@ -176,3 +179,22 @@ def test_exhaustive_flag_gives_the_same_file(maps, tmp_path):
     assert docs[0]["num_accepted"] > 0
     for key in ("hypotheses", "best", "accepted", "consensus"):
         assert docs[0][key] == docs[1][key]
+
+
+def test_the_first_of_two_searches_is_judged_at_its_own_theta_s(maps):
+    # the first search keeps the configured windows and theta_S (map_noise.first_search_params); when it answers,
+    # its hypotheses are those of that theta_S, which match.json and the evaluation must use (not the derived one)
+    import dataclasses
+
+    from sosmatch.plugin.match_answer import match_maps
+    from sosmatch.plugin.params import Params
+
+    _, s = maps
+    params = Params()
+    derived = dataclasses.replace(params.association, min_associations=params.association.min_associations + 3)
+    first = dataclasses.replace(derived, min_associations=params.association.min_associations)
+    answer = match_maps(s.points_a, s.sizes_a, s.points_b, s.sizes_b,
+                        dataclasses.replace(params, association=derived), common_frame=False, first_try=first)
+    assert answer.accepted and answer.tolerances == "first"
+    assert answer.searched.min_associations == first.min_associations != derived.min_associations
+    assert min(h.size for h in answer.search.hypotheses) <= derived.min_associations  # hypotheses of theta_S 6

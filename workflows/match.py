@@ -118,8 +118,16 @@ def search_mode_json(params: Params, answer: MatchAnswer | None) -> dict[str, An
     return {"consistency": ap.consistency, "windows": ap.windows, "solver": ap.solver, "yaw_slices": mode.nslices,
             "position_prior_m": ap.position_prior_m, "position_prior": answer.prior if answer else "off",
             "tolerances": answer.tolerances if answer else "configured",
+            # theta_S and windows of the search whose hypotheses match.json lists (`MatchAnswer.searched`)
+            "searched": _searched_json(answer.searched if answer and answer.searched else ap),
             "paper": ap.consistency == "distance" and ap.windows == "id" and ap.solver == "clipper"
             and ap.position_prior_m == 0}
+
+
+def _searched_json(ap: Any) -> dict[str, Any]:
+    return {"window_length": ap.window_length, "window_stride": ap.window_stride,
+            "min_associations": ap.min_associations, "distance_tolerance_m": ap.distance_tolerance_m,
+            "max_size_difference": ap.max_size_difference}
 
 
 def _chance_text(v: Any) -> str:

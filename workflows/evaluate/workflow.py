@@ -191,14 +191,17 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
                                 common_frame=common, first_try=first_try)
             times.append(time.perf_counter() - t0)
         result = answer.search
+        # the parameters of the search whose hypotheses these are: the first of two searches keeps the configured
+        # windows and theta_S (`first_search_params`), so its operating point is the configured theta_S
+        searched = answer.searched or assoc_params
         out["search_seconds"] = statistics.median(times)
         out["search_seconds_runs"] = times
         out["verify_seconds"] = answer.timings["verify_s"]
-        if sweep_floor is None or sweep_floor >= assoc_params.min_associations:
-            floor, sweep = assoc_params.min_associations, result  # the curve starts at the operating point
+        if sweep_floor is None or sweep_floor >= searched.min_associations:
+            floor, sweep = searched.min_associations, result  # the curve starts at the operating point
         else:  # a lower floor keeps hypotheses with small |S| (costly: the solver runs on far more window pairs)
             floor = sweep_floor
-            sweep = search(pa, ha, pb, hb, dataclasses.replace(assoc_params, min_associations=floor))
+            sweep = search(pa, ha, pb, hb, dataclasses.replace(searched, min_associations=floor))
         out["curve_floor_theta_S"] = floor
         hypotheses = [
             Hypothesis(h.associations, float(h.size),
@@ -209,7 +212,7 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         if answer.accepted:
             best = {"associations": answer.associations.tolist(), "transform": answer.transform.to_matrix().tolist(),
                     "answer": answer.source}
-        theta_s = assoc_params.min_associations
+        theta_s = searched.min_associations
         out["accepted"] = [] if result is None else [(result.hypotheses[k].associations, result.hypotheses[k].transform)
                                                      for k in result.accepted]
         out["accepted_hypotheses"] = 0 if result is None else len(result.accepted)
