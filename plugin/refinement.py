@@ -15,6 +15,12 @@ from .association.gates import size_ratio
 from .multisession import Sim3
 
 
+def yaw_matrix(yaw: float) -> np.ndarray:
+    """The rotation by `yaw` radians about the vertical (z) axis."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def fit_yaw_translation(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
                         with_scale: bool = False) -> Sim3:
     """Weighted least-squares 4-DOF transform target ≈ Rz(yaw) source + t (gravity-aligned frames); with
@@ -38,9 +44,7 @@ def fit_yaw_translation(source: np.ndarray, target: np.ndarray, weights: np.ndar
     spread = float(w @ np.sum(xs[:, :2] ** 2, axis=1))
     if np.hypot(num, den) < 1e-12 * max(spread, 1e-300):
         raise ValueError("correspondences have no horizontal spread; the yaw is not determined")
-    yaw = np.arctan2(num, den)
-    c, s = np.cos(yaw), np.sin(yaw)
-    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    rot = yaw_matrix(np.arctan2(num, den))
     scale = float(np.hypot(num, den) / spread) if with_scale else 1.0
     return Sim3(rot, mu_d - scale * rot @ mu_s, scale)
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from .multisession import Sim3
-from .refinement import Alignment, huber_weights, mutual_nearest, refine_alignment, weighted_umeyama
+from .refinement import Alignment, huber_weights, mutual_nearest, refine_alignment, weighted_umeyama, yaw_matrix
 
 
 @dataclass(frozen=True)
@@ -109,11 +109,9 @@ def verify_alignments(
     # 8-15 pairs). B deliberately put elsewhere and refined like the winner is the chance level at this map
     # density and these gates: the winner must beat it by min_ratio too.
     pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
-    for start in _displaced_starts(best.transform, pb_all, gate_m):
-        control = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, start, gate_m, max_size_difference, dof=dof,
-                                   z_weight=z_weight)
-        if not _agree(best.transform, control.transform, probe, 2.0 * gate_m):
-            rivals.append(len(control.associations))
+    displaced = _displaced_starts(best.transform, pb_all, gate_m)
+    rivals.extend(int(s) for s in chance_supports(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, gate_m,
+                                                  max_size_difference, displaced, dof, z_weight))
     support = len(best.associations)
     chance = None
     if chance_starts > 0:
@@ -149,8 +147,7 @@ def _displaced_starts(transform: Sim3, points_b: np.ndarray, gate_m: float) -> l
         starts.append(Sim3(transform.rotation, transform.translation + shift, transform.scale))
     centre = transform.apply(points_b).mean(axis=0) if len(points_b) else np.zeros(3)
     for yaw in CONTROL_YAWS_DEG:
-        c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
-        turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        turn = yaw_matrix(np.radians(yaw))
         starts.append(Sim3(turn @ transform.rotation, turn @ (transform.translation - centre) + centre,
                            transform.scale))
     return starts
@@ -186,7 +183,7 @@ def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, p
         else:
             yaw = rng.uniform(0.0, 2.0 * np.pi)
             target = np.array([*pa[rng.integers(len(pa)), :2], pa[:, 2].mean()])
-        turn = _yaw_matrix(yaw)
+        turn = yaw_matrix(yaw)
         out.append(Sim3(turn, target - turn @ centre_b))
     return out
 
@@ -283,11 +280,6 @@ def _horizontal_radius(points: np.ndarray) -> float:
         return 1.0
     d = points[:, :2] - points[:, :2].mean(axis=0)
     return float(max(1.0, np.sqrt(np.mean(np.sum(d**2, axis=1)))))
-
-
-def _yaw_matrix(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def hypothesis_agrees(associations: np.ndarray, transform: Any, points_a: np.ndarray, points_b: np.ndarray,
