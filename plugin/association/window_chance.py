@@ -101,28 +101,6 @@ def size_pass_fraction(sizes_a: np.ndarray | None, sizes_b: np.ndarray | None, t
     return float(np.mean(r <= theta_r))
 
 
-def _poisson_sf(k: int, lam: float) -> float:
-    """P(X >= k) for X ~ Poisson(lam)."""
-    if k <= 0:
-        return 1.0
-    term, below = math.exp(-lam), 0.0
-    for i in range(k):
-        below += term
-        term *= lam / (i + 1)
-    return max(0.0, 1.0 - below) if below < 0.999 else _poisson_tail(k, lam)
-
-
-def _poisson_tail(k: int, lam: float) -> float:
-    """P(X >= k) summed from k upwards (accurate where the tail is tiny)."""
-    log_term = -lam + k * math.log(lam) - math.lgamma(k + 1) if lam > 0 else -math.inf
-    total, term, i = 0.0, math.exp(log_term), k
-    while term > 1e-300 and (total == 0.0 or term > total * 1e-16):
-        total += term
-        i += 1
-        term *= lam / i
-    return total
-
-
 def window_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
                   sizes_b: np.ndarray | None, params: AssociationParams, length: int | None = None) -> WindowChance:
     """The chance model (module doc) for windows of `length` landmarks (default `params.window_length`) at the
@@ -141,8 +119,10 @@ def window_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
     transforms = max(1.0, common / cell) * max(1.0, 2.0 * math.pi * radius / params.distance_tolerance_m)
     pairs = max(1.0, len(xa) / length) * max(1.0, len(xb) / length)
     trials = transforms * pairs
-    largest = 0
-    while largest < na * nb and trials * _poisson_sf(largest + 1, lam) >= 1.0:
+    from scipy.stats import poisson
+
+    largest = 0  # sf(k - 1) = P(X >= k)
+    while largest < na * nb and trials * float(poisson.sf(largest, lam)) >= 1.0:
         largest += 1
     return WindowChance(length, (na, nb), (wa, wb), q, lam, trials, largest)
 
