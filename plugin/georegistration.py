@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .geometry import rotation_angle_deg
+from .landmark_filters import MAD_TO_SIGMA
 from .multisession import Sim3, umeyama
 from .refinement import fit_yaw_translation
 
@@ -76,7 +77,7 @@ class DriftFit:
 
 
 def _robust_sigma(residuals: np.ndarray) -> float:
-    return float(1.4826 * np.median(np.abs(residuals - np.median(residuals)))) if len(residuals) else 0.0
+    return float(MAD_TO_SIGMA * np.median(np.abs(residuals - np.median(residuals)))) if len(residuals) else 0.0
 
 
 def fit_drift(times: np.ndarray, values: np.ndarray, min_change: float = 0.0, iterations: int = 10) -> DriftFit:

@@ -30,9 +30,9 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import Camera, Poses, pixel_rays, project
+from .landmark_filters import MAD_TO_SIGMA
 
 MIN_GROUND_POINTS = 10  # fewer triangulated track points than this give no ground estimate: no band
-_MAD_TO_SIGMA = 1.4826  # median absolute deviation -> standard deviation of a normal distribution
 
 
 def local_ground(heights: np.ndarray, sigmas: float) -> tuple[float, float] | None:
@@ -43,7 +43,7 @@ def local_ground(heights: np.ndarray, sigmas: float) -> tuple[float, float] | No
     if sigmas <= 0 or len(z) < MIN_GROUND_POINTS:
         return None
     mid = float(np.median(z))
-    half = sigmas * _MAD_TO_SIGMA * float(np.median(np.abs(z - mid)))
+    half = sigmas * MAD_TO_SIGMA * float(np.median(np.abs(z - mid)))
     return mid - half, mid + half
 
 
