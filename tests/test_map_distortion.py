@@ -32,8 +32,16 @@ def _map(root: Path, out: Path, camera_file: Path):
     return read_landmark_map(out / "landmarks.sosmap")
 
 
-def _horizontal_errors(positions: np.ndarray, objs: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(positions[:, None, :2] - objs[None, :, :2], axis=2).min(1)
+def _on_disc_errors(positions: np.ndarray, objs: np.ndarray) -> np.ndarray:
+    """Horizontal error of the landmarks that lie on a disc (within its radius of the nearest disc's centre).
+
+    A map also holds landmarks of the textured field (3-8 m from any disc centre here): the median over all
+    landmarks sits on the jump between the two groups, so one more good landmark moves it by 0.02 m (the ground
+    band gate added two on discs, 0.220 -> 0.237 m); the discs' own landmarks measure the lens handling."""
+    d = np.linalg.norm(positions[:, None, :2] - objs[None, :, :2], axis=2)
+    nearest = d.argmin(1)
+    err = d[np.arange(len(d)), nearest]
+    return err[err < objs[nearest, 2]]
 
 
 @pytest.fixture(scope="module")
@@ -51,9 +59,10 @@ def mapped(tmp_path_factory):
 def test_distorted_images_map_as_well_as_ideal_ones(mapped):
     root, objs, ideal_map, lens_map, ignored_map = mapped
     ideal, lens, ignored = ideal_map.positions, lens_map.positions, ignored_map.positions
-    e_ideal, e_lens, e_ignored = (_horizontal_errors(p, objs) for p in (ideal, lens, ignored))
+    e_ideal, e_lens, e_ignored = (_on_disc_errors(p, objs) for p in (ideal, lens, ignored))
     assert len(lens) >= 0.8 * len(ideal) >= 8
-    assert np.median(e_lens) <= max(1.25 * np.median(e_ideal), np.median(e_ideal) + 0.1)
+    assert len(e_lens) >= 0.8 * len(e_ideal) >= 8  # as many discs mapped
+    assert np.median(e_lens) <= max(1.25 * np.median(e_ideal), np.median(e_ideal) + 0.05)
     assert np.median(np.abs(lens[:, 2])) < 1.5  # on the ground
     # the same images taken for an ideal lens: the lens bends the rays and the map pays for it
     assert np.median(e_ignored) > np.median(e_lens) or len(ignored) < 0.8 * len(lens)
