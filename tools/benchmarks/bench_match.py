@@ -9,17 +9,8 @@ Prints every figure (medians of repeats) with the machine line and the load. CPU
 this one process (the search runs in one process); wall times are given beside them. Peak memory is the
 VmHWM of a fresh child process that runs one match (`--memory`; `match_report.peak_rss_mb`).
 
-The C++ reference (mit-acl/clipper v0.2.4; never a dependency of sosmatch) runs when `import clipper_ref` works
-(or with `--clipper-ref DIR`, the directory holding the module). Build it outside the repository:
-    reconstruct include/clipper/*.h and src/*.cpp of v0.2.4 (CMakeLists "project(clipper VERSION 0.2.4)") with
-    CLIPPER_ENABLE_MAXCLIQUE and CLIPPER_ENABLE_SCS_SDR off, and a ~40-line pybind11 module `clipper_ref` whose
-    run(D1 3xn1, D2 3xn2, A mx2 int32, sigma, epsilon, threads) builds invariants::EuclideanDistance{sigma,
-    epsilon}, CLIPPER(invariant, Params{}) with setParallelize(true) and omp_set_num_threads(threads), times
-    scorePairwiseConsistency and solve() with std::chrono::steady_clock and returns (affinity_s, solve_s,
-    soln.nodes, soln.ifinal);
-    cmake -DCMAKE_BUILD_TYPE=Release -DPYBIND11_FINDPYTHON=ON -Dpybind11_DIR=$(python -c "import pybind11;
-    print(pybind11.get_cmake_dir())") (Eigen 3.4 from libeigen3-dev, OpenMP, -march=native; pybind11 from PyPI)
-and pass --clipper-ref BUILD_DIR. Its times are taken inside C++ (no Python overhead counted against it).
+The one-problem comparison with the C++ CLIPPER reference (how to build it, the protocol): `match_clipper.py`
+(`--clipper-ref BUILD_DIR`).
 
 Problems: `match_problems.py` (deterministic in their seeds; each documented there).
 """
@@ -28,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import subprocess
 import sys
 import time
@@ -36,118 +26,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ...plugin.association import affinity_graph, search_reference, solve
+from ...plugin.association import search_reference
 from ...plugin.association.reference import differences
 from ...plugin.association.synthetic import survey_map_pair
 from ...plugin.match_answer import match_maps
 from ...plugin.params import Params, preset_params, with_overrides
 from .bench_match_real import bench_evaluation, bench_naip
 from .machine import machine_summary
-from .match_problems import aerial_maps, boulder_maps, clipper_problem, crossing_maps, dense_maps, season_maps
+from .match_clipper import bench_clipper
+from .match_problems import aerial_maps, boulder_maps, crossing_maps, dense_maps, season_maps
 from .match_report import bar, peak_rss_mb, print_bars, quality, report, timed_match
 
-CLIPPER_SIZES = (256, 512, 1024, 2048)
-CLIPPER_RATIO_BARS = {256: 10.0, 512: 10.0, 1024: 20.0, 2048: 20.0}
-# The C++ reference on a quiet machine (issue 15: this machine, median wall ms of affinity and solve, 2 OpenMP
-# threads): on a loaded machine its own repeats are slower, so the bar takes the faster of the two.
-CLIPPER_QUIET_MS = {256: (1.7, 0.15), 512: (6.1, 0.28), 1024: (24.7, 1.7), 2048: (115.5, 6.9)}
 BARS_S = {"sparse": 0.2, "dense": 1.0, "nosizes": 1.0, "aerial": 5.0, "season": 10.0}
 AERIAL_MEMORY_BAR_MB = 500.0
-
-
-# --- one problem ---------------------------------------------------------------------------------------------------
-
-
-def _clipper_ref(path: str | None) -> object | None:
-    if path:
-        sys.path.insert(0, path)
-    try:
-        import clipper_ref  # type: ignore[import-not-found]
-    except ImportError:
-        return None
-    return clipper_ref
-
-
-def bench_clipper(repeats: int, ref_path: str | None) -> list[dict]:
-    """Affinity and solve of one problem, ours and (if built) the C++ reference with 2 OpenMP threads (the issue's
-    setting) and with 1, interleaved repeat by repeat so that all see the same load.
-
-    On a shared machine a wall time measures the load as much as the code (a 2-thread OpenMP loop waits for the
-    thread the scheduler took away; the quiet-machine figures of the issue are 10x below those at load 10). The
-    figure of each configuration is therefore its fastest repeat (the one least disturbed; medians are printed
-    beside it), and the bar compares ours with the fastest C++ figure: its 1- or 2-thread repeats here, or its
-    quiet-machine medians of the issue (`CLIPPER_QUIET_MS`), whichever is faster, stage by stage. Ours is the
-    CPU time of the calling thread (`time.thread_time`: the kernels run on it; the process time would also count
-    the reference's OpenMP threads spinning after its calls), which a descheduled thread does not accrue; the
-    C++ times are wall times of its own clock, which it does: on a loaded machine the comparison with its repeats
-    here favours ours, the one with its quiet-machine medians does not.
-    """
-    ref = _clipper_ref(ref_path)
-    eps, sigma = 2.0, 0.5
-    print(f"## One association problem: 100 true pairs + outliers, noise 0.1 m, eps {eps} m, sigma {sigma} m, "
-          f"{repeats} interleaved repeats")
-    print("C++ reference: " + (f"clipper_ref {getattr(ref, '__version__', '?')} (its own steady_clock)" if ref else
-                               "not importable (see the docstring): skipped"))
-    print("| m | edges | ours affinity + solve CPU ms (fastest; median) | ours true/false | C++ 2 threads affinity + "
-          "solve ms (fastest; median) | C++ 1 thread (fastest; median) | C++ true/false | ratio to the faster C++ "
-          "(bar) | affinity, solve each faster |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    rows = []
-    for m in CLIPPER_SIZES:
-        a, b, pairs, is_true = clipper_problem(m)
-        affinity_graph(a[:10], b[:10], pairs[:5] % 10)  # compiled before timing
-        times: dict[str, list[float]] = {k: [] for k in ("a", "s", "ra2", "rs2", "ra1", "rs1")}
-        sel, ref_sel, g = None, None, None
-        for _ in range(repeats):
-            t0 = time.thread_time()
-            g = affinity_graph(a, b, pairs, eps=eps, sigma=sigma)
-            t1 = time.thread_time()
-            sel = solve(g).selected
-            t2 = time.thread_time()
-            times["a"].append(t1 - t0)
-            times["s"].append(t2 - t1)
-            if ref is not None:
-                for th in (2, 1):
-                    out = ref.run(np.ascontiguousarray(a.T), np.ascontiguousarray(b.T), pairs.astype(np.int32), sigma,
-                                  eps, th)
-                    times[f"ra{th}"].append(out[0])
-                    times[f"rs{th}"].append(out[1])
-                    ref_sel = np.asarray(out[2], np.int64)
-        fast = {k: 1e3 * min(v) for k, v in times.items() if v}
-        med = {k: 1e3 * statistics.median(v) for k, v in times.items() if v}
-        row = {"m": m, "edges": len(g.rows), "ours_affinity_ms": fast["a"], "ours_solve_ms": fast["s"],
-               "ours_total_ms": fast["a"] + fast["s"], "ours_median_ms": med["a"] + med["s"],
-               "ours_true": int(is_true[sel].sum()), "ours_false": int((~is_true[sel]).sum())}
-        cells = ["-"] * 5
-        if ref is not None:
-            for th in (2, 1):
-                row[f"ref{th}_affinity_ms"], row[f"ref{th}_solve_ms"] = fast[f"ra{th}"], fast[f"rs{th}"]
-                row[f"ref{th}_total_ms"] = fast[f"ra{th}"] + fast[f"rs{th}"]
-                row[f"ref{th}_median_ms"] = med[f"ra{th}"] + med[f"rs{th}"]
-            quiet_a, quiet_s = CLIPPER_QUIET_MS[m]
-            ref_a, ref_s = min(fast["ra2"], fast["ra1"], quiet_a), min(fast["rs2"], fast["rs1"], quiet_s)
-            ref_total = min(row["ref2_total_ms"], row["ref1_total_ms"], quiet_a + quiet_s)
-            which = ("quiet-machine medians" if ref_total == quiet_a + quiet_s else
-                     "2 threads here" if ref_total == row["ref2_total_ms"] else "1 thread here")
-            row.update(ref_total_ms=ref_total, ref_source=which, ratio=ref_total / row["ours_total_ms"],
-                       ref_true=int(is_true[ref_sel].sum()), ref_false=int((~is_true[ref_sel]).sum()))
-            need = CLIPPER_RATIO_BARS[m]
-            both = row["ours_affinity_ms"] < ref_a and row["ours_solve_ms"] < ref_s
-            found = row["ours_true"] >= 0.95 * int(is_true.sum()) and row["ours_false"] == 0
-            ok = bar(f"one problem m = {m}: >= {need:.0f}x the C++ reference, affinity and solve each faster, "
-                     ">= 95 % of the true pairs, no false one",
-                     f"{row['ratio']:.1f}x ({row['ours_total_ms']:.2f} vs {ref_total:.2f} ms, C++ {which}; "
-                     f"affinity {row['ours_affinity_ms']:.2f} vs {ref_a:.2f}, solve "
-                     f"{row['ours_solve_ms']:.2f} vs {ref_s:.2f}; {row['ours_true']} true / {row['ours_false']} "
-                     "false)", row["ratio"] >= need and both and found)
-            cells = [f"{fast['ra2']:.2f} + {fast['rs2']:.2f}; {row['ref2_median_ms']:.2f}",
-                     f"{fast['ra1']:.2f} + {fast['rs1']:.2f}; {row['ref1_median_ms']:.2f}",
-                     f"{row['ref_true']}/{row['ref_false']}", f"**{row['ratio']:.1f}x** ({need:.0f}x {ok})",
-                     f"{'yes' if both else 'NO'} ({ref_a / fast['a']:.0f}x, {ref_s / fast['s']:.1f}x)"]
-        rows.append(row)
-        print(f"| {m} | {row['edges']} | {fast['a']:.3f} + {fast['s']:.3f}; {row['ours_median_ms']:.3f} | "
-              f"{row['ours_true']}/{row['ours_false']} | " + " | ".join(cells) + " |")
-    return rows
 
 
 # --- maps ----------------------------------------------------------------------------------------------------------
@@ -390,7 +281,7 @@ def main(argv: list[str] | None = None) -> None:
     results: dict = {}
     for part in args.only or parts:
         if part == "clipper":
-            results[part] = bench_clipper(max(3 * args.repeats, 15), args.clipper_ref)
+            results[part] = bench_clipper(max(3, args.repeats), args.clipper_ref)
         elif part == "sparse":
             results[part] = bench_sparse(args.repeats, args.reference)
         elif part == "dense":
