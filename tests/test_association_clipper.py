@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from sosmatch.plugin.association import (
     affinity_graph,
@@ -150,3 +152,40 @@ def test_fit_transform_and_gravity_angles():
         fit_transform(np.outer(np.arange(5.0), [1, 2, 0]), np.outer(np.arange(5.0), [1, 2, 0]))
     with pytest.raises(InputError, match="at least 3"):
         fit_transform(src[:2], dst[:2])
+
+
+def straightforward_graph(a, b, pairs, eps, sigma):
+    """The consistency graph by its definition, pair by pair in plain Python (the affinity's reference)."""
+    rows, cols, vals = [], [], []
+    for p in range(len(pairs)):
+        for q in range(p + 1, len(pairs)):
+            (i, u), (j, v) = pairs[p], pairs[q]
+            if i == j or u == v:
+                continue
+            da, db = a[j] - a[i], b[v] - b[u]
+            c = abs(np.sqrt(da[0] * da[0] + da[1] * da[1] + da[2] * da[2])
+                    - np.sqrt(db[0] * db[0] + db[1] * db[1] + db[2] * db[2]))
+            if c <= eps:
+                rows.append(p)
+                cols.append(q)
+                vals.append(c)
+    c = np.array(vals)
+    return np.array(rows, np.int64), np.array(cols, np.int64), np.exp(-(c * c) / (2.0 * sigma * sigma))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n_a=st.integers(1, 12), n_b=st.integers(1, 12), m=st.integers(0, 40),
+       grid=st.booleans(), eps=st.sampled_from([1.0, 2.0]) | st.floats(0.1, 4.0), sigma=st.floats(0.1, 2.0))
+def test_affinity_graph_equals_its_definition(seed, n_a, n_b, m, grid, eps, sigma):
+    """The compiled graph (four rows of tests at a time, per-map distance tables) is the definition's, edge for
+    edge and bit for bit, for any number of associations (also fewer than four, or not a multiple of four) and on
+    integer grids where many mismatches fall exactly on eps."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.uniform(0, 8, (n_a, 3)), rng.uniform(0, 8, (n_b, 3))
+    if grid:
+        a, b = np.round(a), np.round(b)
+    pairs = np.column_stack([rng.integers(0, n_a, m), rng.integers(0, n_b, m)]).astype(np.int64)
+    g = affinity_graph(a, b, pairs, eps=eps, sigma=sigma)
+    rows, cols, vals = straightforward_graph(a, b, pairs, eps, sigma)
+    assert g.rows.tolist() == rows.tolist() and g.cols.tolist() == cols.tolist()
+    assert g.values.tobytes() == vals.tobytes()
