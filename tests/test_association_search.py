@@ -129,3 +129,32 @@ def test_dense_maps_take_the_direct_path_with_the_same_result():
     ref = search_reference(s.points_a, s.sizes_a, s.points_b, s.sizes_b, P)
     assert len(ref.accepted) > 0
     _assert_same(fast, ref)
+
+
+@pytest.mark.parametrize("space_extra,k", [(0, 2), (0, 3), (0, 6), (2_000_000_000, 3)])
+def test_peel_on_association_ids_equals_compact_then_peel(space_extra, k):
+    """`peeled_ids` (degrees on the ids, only survivors renumbered; or the sort path for a huge id space) leaves
+    the pairs `compact_ids` + `peel_pairs` leave, with the ids of their associations in the same order."""
+    from sosmatch.plugin.association.kernels_search import compact_ids, peel_pairs, peeled_ids
+
+    rng = np.random.default_rng(k)
+    # a dense core (survives) in a sparse cloud (peeled), and a tail hanging off the core listed from the core
+    # outwards: at k = 2 each pass removes one edge of it (more passes than the table path makes: its fallback)
+    core = rng.choice(5000, 40, replace=False)
+    v1 = [core[rng.integers(0, 40, 600)]]
+    v2 = [core[rng.integers(0, 40, 600)]]
+    v1.append(rng.integers(0, 5000, 3000))
+    v2.append(rng.integers(0, 5000, 3000))
+    chain = np.concatenate([[core[0]], np.arange(5000, 5400)])
+    v1.append(chain[:-1])
+    v2.append(chain[1:])
+    v1, v2 = np.concatenate(v1), np.concatenate(v2)
+    keep = v1 != v2
+    v1, v2 = v1[keep].astype(np.int64), v2[keep].astype(np.int64)
+    space = 6000 + space_extra
+    ids, e1, e2 = compact_ids(v1, v2, space)
+    want = np.flatnonzero(peel_pairs(len(ids), e1, e2, k))
+    got_ids, f1, f2, sel = peeled_ids(v1, v2, space, k)
+    assert np.array_equal(sel, want) and len(sel) > 0
+    assert np.array_equal(got_ids, np.unique(np.concatenate([v1[want], v2[want]])))
+    assert np.array_equal(got_ids[f1], v1[sel]) and np.array_equal(got_ids[f2], v2[sel])

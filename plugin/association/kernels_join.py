@@ -4,8 +4,8 @@ edges that all window pairs of the fast search share.
 `map_edges` lists each map's landmark pairs that share a window with their gravity-aware invariants; `edge_join`
 pairs an A edge with every B edge of compatible sizes whose invariants agree (the consistency test of
 `kernels_graph.pair_consistent`, done once for all window pairs instead of once per window pair);
-`edge_pair_ids` / `edge_pair_details` give the joined pairs' associations and yaw slices, which
-`kernels_search` peels and cuts into the window pairs' graphs. Split out of kernels_search.py along this seam.
+`edge_pair_peel` / `edge_pair_details` give the joined pairs' associations (peeled) and yaw slices, which
+`kernels_search` cuts into the window pairs' graphs. Split out of kernels_search.py along this seam.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from .kernels_graph import GRAVITY, grow, pair_consistent, pair_mismatch, pair_slices, size_ratio1, vector_invariants
-from .kernels_search import compact_ids
+from .kernels_search import peeled_ids
 
 # --- edges of a map and the shared join ----------------------------------------------------------------------------
 
@@ -139,7 +139,7 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
     Returns each pair as its A edge, B edge (original id) and orientation (9 bytes: a large join is mostly pairs
     the peel removes), and the number of candidates per selected A edge (the join's cost; `count_only`: only
     that). `expected`: the output's size if known (its buffers then grow less). Association ids, mismatch and
-    yaw slices follow from the edges (`edge_pair_ids`, `edge_pair_details`), the latter only for the pairs that
+    yaw slices follow from the edges (`edge_pair_peel`, `edge_pair_details`), the latter only for the pairs that
     survive the peel.
     """
     ei, ek, el, ez, af, ar = ea
@@ -286,9 +286,9 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
 
 
 @njit(cache=True)
-def edge_pair_ids(e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, eb: tuple, nbm: int,
-                  space: int) -> tuple:
-    """`compact_ids` of the joined pairs' associations (p, j) and (q, l), formed from their edges."""
+def edge_pair_peel(e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, eb: tuple, nbm: int, space: int,
+                   k: int) -> tuple:
+    """`peeled_ids` of the joined pairs' associations (p, j) and (q, l), formed from their edges."""
     ei, ek = ea[0], ea[1]
     fj, fl = eb[0], eb[1]
     v1 = np.empty(len(e_a), np.int64)
@@ -299,7 +299,7 @@ def edge_pair_ids(e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, 
         p, q = (ei[e], ek[e]) if ori[t] == 0 else (ek[e], ei[e])
         v1[t] = p * nbm + fj[f]
         v2[t] = q * nbm + fl[f]
-    return compact_ids(v1, v2, space)
+    return peeled_ids(v1, v2, space, k)
 
 
 @njit(cache=True)

@@ -265,6 +265,68 @@ def peel_pairs(nv: int, e1: np.ndarray, e2: np.ndarray, k: int) -> np.ndarray:
 
 
 @njit(cache=True)
+def peeled_ids(v1: np.ndarray, v2: np.ndarray, space: int, k: int) -> tuple:
+    """The pairs of associations (v1[t], v2[t]) (ids < space) left by `peel_pairs`, their associations compacted:
+    (ids, e1, e2, sel): `sel` the surviving pairs (ascending), ids the sorted distinct associations they hold,
+    e1 / e2 their endpoints numbered into ids.
+
+    The same pairs as `compact_ids` then `peel_pairs` (the peel's result, all pairs of the k-core, does not depend
+    on the numbering), with the same relative order of the ids; but when the id space is small enough for a table
+    the degrees are counted on the ids themselves, pairs are removed with their counts decremented in place, and
+    only the survivors (a few percent of a large join) are renumbered: a large join is never compacted whole."""
+    n = len(v1)
+    if space > 64 * 2 * n + 1_000_000:  # a table would be too large: sort (`compact_ids`) and peel
+        ids, e1, e2 = compact_ids(v1, v2, space)
+        sel = np.flatnonzero(peel_pairs(len(ids), e1, e2, k))
+        used, f1, f2 = compact_ids(e1[sel], e2[sel], len(ids))
+        return ids[used], f1, f2, sel
+    cnt = np.zeros(space, np.int32)
+    for t in range(n):
+        cnt[v1[t]] += 1
+        cnt[v2[t]] += 1
+    live = np.arange(n)
+    nl = n
+    removed = 0
+    for _pass in range(8):  # passes over the pairs still alive: each removal lowers its ends' counts at once
+        w = 0
+        for x in range(nl):
+            t = live[x]
+            a = v1[t]
+            b = v2[t]
+            if cnt[a] < k or cnt[b] < k:
+                cnt[a] -= 1
+                cnt[b] -= 1
+            else:
+                live[w] = t
+                w += 1
+        removed = nl - w
+        nl = w
+        if removed == 0 or nl == 0:
+            break
+    sel = live[:nl].copy()
+    if removed > 0:  # not yet converged: the k-core of what is left decides (exact, whatever the passes did)
+        ids, e1, e2 = compact_ids(v1[sel], v2[sel], space)
+        sel = sel[peel_pairs(len(ids), e1, e2, k)]
+    # renumber the associations of the surviving pairs: cnt > 0 exactly on them (counts of alive pairs)
+    for t in sel:  # counts of removed pairs' other ends may be > 0: mark the survivors' ends apart
+        cnt[v1[t]] = -1
+        cnt[v2[t]] = -1
+    ids = np.empty(2 * len(sel), np.int64)
+    nu = 0
+    for v in range(space):
+        if cnt[v] == -1:
+            cnt[v] = nu
+            ids[nu] = v
+            nu += 1
+    e1 = np.empty(len(sel), np.int64)
+    e2 = np.empty(len(sel), np.int64)
+    for x in range(len(sel)):
+        e1[x] = cnt[v1[sel[x]]]
+        e2[x] = cnt[v2[sel[x]]]
+    return ids[:nu].copy(), e1, e2, sel
+
+
+@njit(cache=True)
 def peel_pairs_sliced(nv: int, e1: np.ndarray, e2: np.ndarray, s0: np.ndarray, ns: np.ndarray, nslices: int,
                       k: int) -> np.ndarray:
     """`peel_pairs` per yaw slice: in slice s, the pairs whose yaw tolerance covers s, and an association with fewer

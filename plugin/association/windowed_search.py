@@ -41,14 +41,13 @@ from .hypotheses import (
     make_hypotheses,
 )
 from .kernels_graph import gate_pairs
-from .kernels_join import edge_join, edge_pair_details, edge_pair_ids, map_edges, size_cells, sorted_b_edges
+from .kernels_join import edge_join, edge_pair_details, edge_pair_peel, map_edges, size_cells, sorted_b_edges
 from .kernels_search import (
-    compact_ids,
     count_incidences,
     count_putatives,
     direct_window_pairs,
-    peel_pairs,
     peel_pairs_sliced,
+    peeled_ids,
     prior_join,
     solve_groups,
     window_pair_graphs,
@@ -197,8 +196,8 @@ class _ListedPairs:
     def __len__(self) -> int:
         return len(self.v1)
 
-    def compact(self) -> tuple:
-        return compact_ids(self.v1, self.v2, self.space)
+    def peeled(self, k: int) -> tuple:
+        return peeled_ids(self.v1, self.v2, self.space, k)
 
     def ranges(self, sel: np.ndarray) -> tuple:
         return tuple(r[sel] for r in self.ranges_all)
@@ -219,8 +218,8 @@ class _EdgePairs:
     def __len__(self) -> int:
         return len(self.e_a)
 
-    def compact(self) -> tuple:
-        return edge_pair_ids(self.e_a, self.e_b, self.ori, self.ea, self.eb, self.nbm, self.space)
+    def peeled(self, k: int) -> tuple:
+        return edge_pair_peel(self.e_a, self.e_b, self.ori, self.ea, self.eb, self.nbm, self.space, k)
 
     @property
     def nbm(self) -> int:  # landmarks of map B (fb has one entry per landmark)
@@ -248,17 +247,14 @@ def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, re
     stats["blocks"] += 1
     stats["consistent_pairs"] += len(pairs)
     t0 = time.perf_counter()
-    ids, e1, e2 = pairs.compact()
-    sel = np.flatnonzero(peel_pairs(len(ids), e1, e2, m.k))
+    # the pairs the peel leaves (`sel`), their associations numbered 0 .. len(ids) - 1 (all of them used)
+    ids, e1, e2, sel = pairs.peeled(m.k)
     cs, s0, ns = pairs.details(sel)
     if m.nslices > 1:  # the same peel per yaw slice, on what the plain peel left
-        _, f1, f2 = compact_ids(e1[sel], e2[sel], len(ids))
-        keep = peel_pairs_sliced(int(max(f1.max(initial=-1), f2.max(initial=-1))) + 1, f1, f2, s0, ns, m.nslices,
-                                 m.k)
-        sel, cs, s0, ns = sel[keep], cs[keep], s0[keep], ns[keep]
+        keep = peel_pairs_sliced(len(ids), e1, e2, s0, ns, m.nslices, m.k)
+        sel, cs, s0, ns, e1, e2 = sel[keep], cs[keep], s0[keep], ns[keep], e1[keep], e2[keep]
     # from here on, everything is about the surviving pairs only, numbered 0 .. len(sel) - 1
     a_lo, a_hi, b_lo, b_hi = pairs.ranges(sel)
-    e1, e2 = e1[sel], e2[sel]
     local = np.arange(len(sel), dtype=np.int64)
     inc = count_incidences(local, a_lo, a_hi, b_lo, b_hi)
     stats["incidences"] += inc
