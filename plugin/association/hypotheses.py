@@ -19,7 +19,7 @@ from ..params import AssociationParams
 from .kernels_fit import fit_many
 from .kernels_graph import DISTANCE, GRAVITY
 from .kernels_solve import BOUNDED, CLIPPER
-from .rigid import Transform, fit_transform, roll_pitch_yaw_deg, rotation_angle_deg, tilt_deg
+from .rigid import Transform, fit_transform, rotation_angle_deg
 from .windows import hilbert_order
 
 
@@ -112,20 +112,27 @@ def make_hypotheses(points_a: np.ndarray, points_b: np.ndarray, params: Associat
     rot, tr, sc, ok = fit_many(points_a, points_b, off, sel_a, sel_b, params.transform == "similarity")
     nwb = len(wins_b)
     sliced = params.consistency == "gravity" and params.yaw_slice_deg > 0
+    # the angles of every fitted rotation at once, as `roll_pitch_yaw_deg` and `tilt_deg` compute them one by one
+    # (the same ufuncs element by element: identical floats); NaN where no transform was fitted
+    roll = np.where(ok, np.degrees(np.arctan2(rot[:, 2, 1], rot[:, 2, 2])), np.nan).tolist()
+    pitch = np.where(ok, np.degrees(np.arcsin(np.clip(-rot[:, 2, 0], -1.0, 1.0))), np.nan).tolist()
+    tilts = np.where(ok, np.degrees(np.arccos(np.clip(rot[:, 2, 2], -1.0, 1.0))), np.nan)
+    size = np.diff(off)
+    accepted = ((size > params.min_associations) & ok & (tilts <= params.max_gravity_angle_deg)).tolist()
+    pairs = np.column_stack([sel_a, sel_b]) if len(pair_ids) else np.zeros((0, 2), np.int64)
+    wa_of, wb_of = np.divmod(np.asarray(pair_ids, np.int64), nwb)
+    wins_a_l, wins_b_l = np.asarray(wins_a).tolist(), np.asarray(wins_b).tolist()
+    offs, oks, tilt_l = np.asarray(off).tolist(), ok.tolist(), tilts.tolist()
+    nput, ncore = np.asarray(num_putative, np.int64).tolist(), np.asarray(num_core, np.int64).tolist()
+    scores = np.asarray(score, np.float64).tolist()
+    slices = np.asarray(yaw_slice, np.int64).tolist() if sliced else None
     out = []
-    for h in range(len(pair_ids)):
-        wa, wb = wins_a[pair_ids[h] // nwb], wins_b[pair_ids[h] % nwb]
-        assoc = np.column_stack([sel_a[off[h]:off[h + 1]], sel_b[off[h]:off[h + 1]]])
-        transform, roll, pitch, tilt = None, np.nan, np.nan, np.nan
-        if ok[h]:
-            transform = Transform(rot[h].copy(), tr[h].copy(), float(sc[h]))
-            roll, pitch, _ = roll_pitch_yaw_deg(transform.rotation)
-            tilt = tilt_deg(transform.rotation)
-        accepted = bool(len(assoc) > params.min_associations and transform is not None
-                        and tilt <= params.max_gravity_angle_deg)
-        out.append(WindowHypothesis((int(wa[0]), int(wa[1])), (int(wb[0]), int(wb[1])), int(num_putative[h]),
-                                    int(num_core[h]), assoc, float(score[h]), transform, roll, pitch, tilt, accepted,
-                                    int(yaw_slice[h]) if sliced else None))
+    for h, (a, b) in enumerate(zip(wa_of.tolist(), wb_of.tolist())):
+        transform = Transform(rot[h].copy(), tr[h].copy(), float(sc[h])) if oks[h] else None
+        wa, wb = wins_a_l[a], wins_b_l[b]
+        out.append(WindowHypothesis((wa[0], wa[1]), (wb[0], wb[1]), nput[h], ncore[h], pairs[offs[h]:offs[h + 1]],
+                                    scores[h], transform, roll[h], pitch[h], tilt_l[h], accepted[h],
+                                    slices[h] if sliced else None))
     return out
 
 
@@ -232,8 +239,12 @@ def consensus_transform(points_a: np.ndarray, points_b: np.ndarray, hyps: list[W
             group_of[y] = group_of[x]
             groups[-1].append(ranked[y])
 
-    def distinct(g: list[int]) -> np.ndarray:
-        return np.unique(np.concatenate([hyps[k].associations for k in g]), axis=0)
+    nb = max(len(points_b), 1)
+
+    def distinct(g: list[int]) -> np.ndarray:  # the distinct associations in (A, B) order, as np.unique(axis=0)
+        both = np.concatenate([hyps[k].associations for k in g])
+        a, b = np.divmod(np.unique(both[:, 0] * nb + both[:, 1]), nb)
+        return np.column_stack([a, b])
 
     sizes = [len(distinct(g)) if len(g) > 1 else hyps[g[0]].size for g in groups]
     best = groups[max(range(len(groups)), key=lambda i: (sizes[i], -groups[i][0]))]
