@@ -2,7 +2,7 @@
 maps of every kind (sparse, dense, without sizes, aerial, crossing flights, a season), with its scaling.
 
     python -m sosmatch.tools.benchmarks.bench_match                     # everything (tens of minutes)
-    python -m sosmatch.tools.benchmarks.bench_match --only clipper      # or: sparse, dense, nosizes, aerial,
+    python -m sosmatch.tools.benchmarks.bench_match --only clipper      # or: sparse, dense, derived, nosizes, aerial,
                                                                         #     crossing, season, scaling
     python -m sosmatch.tools.benchmarks.bench_match --only scaling --max-scaling 20000 --plot docs/img/match_scaling.png
 Prints every figure (medians of repeats) with the machine line and the load. CPU times are `time.process_time` of
@@ -18,7 +18,9 @@ Problems: `match_problems.py` (deterministic in their seeds; each documented the
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import statistics
 import subprocess
 import sys
 import time
@@ -29,6 +31,7 @@ import numpy as np
 from ...plugin.association import search_reference
 from ...plugin.association.reference import differences
 from ...plugin.association.synthetic import survey_map_pair
+from ...plugin.map_noise import MapNoise, derived_association_params, derived_search_params, first_search_params
 from ...plugin.match_answer import match_maps
 from ...plugin.params import Params, preset_params, with_overrides
 from .bench_match_real import bench_evaluation, bench_naip
@@ -72,6 +75,57 @@ def bench_dense(repeats: int) -> list[dict]:
         ans, cpu, wall = timed_match(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params, reps)
         rows.append(report(f"dense 600, {label}", ans, cpu, wall, truth, s.rotation,
                             BARS_S["dense"] if label == "default" else None))
+    return rows
+
+
+# The noise figures every mapped session carries (`map_noise.MapNoise`), at the upper end of those of bench_seasons'
+# v3 maps of worlds 5, 11, 23, 42 (residual 0.82-0.97 m, size log-spread 0.07-0.095): theta_eps 2.85 m, sigma
+# 1.43 m, theta_r 0.38 derived, the widest tolerances (the slowest search) those sessions get.
+MAPPED_NOISE = MapNoise(ground_resolution_m=0.1, residual_m=0.95, size_log_std=0.09, landmarks=1)
+
+
+def timed_default_match(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, noise: MapNoise,
+                        repeats: int) -> tuple:
+    """`timed_match` of what `sosmatch match` runs on two mapped sessions (`workflows.match.run`): the parameters
+    derived from the maps' noise figures and geometry, the first search with the tighter tolerances, the derived
+    one only when its verification refuses (`match_answer.match_maps`). The derivation is timed with the match."""
+    base = Params()
+
+    def once(a: np.ndarray, sa: np.ndarray, b: np.ndarray, sb: np.ndarray) -> object:
+        derived = derived_search_params(base.association, noise, noise, a, sa, b, sb)
+        first = first_search_params(base.association, derived.params)
+        return match_maps(a, sa, b, sb, dataclasses.replace(base, association=derived.params), first_try=first)
+
+    n = min(60, len(pa), len(pb))
+    once(pa[:n], ha[:n], pb[:n], hb[:n])  # compile
+    cpu, wall, ans = [], [], None
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        ans = once(pa, ha, pb, hb)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return ans, statistics.median(cpu), statistics.median(wall)
+
+
+def bench_derived(repeats: int) -> list[dict]:
+    """The default path on maps that carry noise figures (every mapped session; the sparse and dense cases above
+    are bare arrays, so they search with the configured tolerances): the sparse and dense maps, and a sparse pair
+    of another season (B's sizes re-segmented, 25 % size noise, 1 m position noise), each with `MAPPED_NOISE`."""
+    s, d = survey_map_pair(1000, seed=1), dense_maps()
+    season = survey_map_pair(1000, seed=4, noise_m=1.0, size_noise=0.25)
+    derived = derived_association_params(Params().association, MAPPED_NOISE, MAPPED_NOISE)
+    print(f"## The default path on maps with noise figures (residual {MAPPED_NOISE.residual_m} m, size log-spread "
+          f"{MAPPED_NOISE.size_log_std}: theta_eps {derived.distance_tolerance_m} m, sigma "
+          f"{derived.affinity_sigma_m} m, theta_r {derived.max_size_difference} derived)")
+    rows = []
+    for name, m, limit in (("sparse 1000", s, BARS_S["sparse"]), ("dense 600", d, BARS_S["dense"]),
+                           ("sparse 1000, another season", season, BARS_S["sparse"])):
+        truth = set(map(tuple, m.truth.tolist()))
+        ans, cpu, wall = timed_default_match(m.points_a, m.sizes_a, m.points_b, m.sizes_b, MAPPED_NOISE, repeats)
+        row = report(f"{name} with noise figures (default path)", ans, cpu, wall, truth, m.rotation, limit)
+        print(f"  the step that answered: {ans.tolerances} (first: the tighter tolerances; derived: the second search)")
+        row["step"] = ans.tolerances
+        rows.append(row)
     return rows
 
 
@@ -260,8 +314,8 @@ def _child(case: str, arg: object) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parts = ["clipper", "sparse", "dense", "nosizes", "aerial", "naip", "evaluation", "controls", "crossing", "season",
-             "scaling"]
+    parts = ["clipper", "sparse", "dense", "derived", "nosizes", "aerial", "naip", "evaluation", "controls", "crossing",
+             "season", "scaling"]
     parser.add_argument("--only", choices=parts, action="append")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--clipper-ref", default=None, help="directory holding the clipper_ref module")
@@ -286,6 +340,8 @@ def main(argv: list[str] | None = None) -> None:
             results[part] = bench_sparse(args.repeats, args.reference)
         elif part == "dense":
             results[part] = bench_dense(args.repeats)
+        elif part == "derived":
+            results[part] = bench_derived(args.repeats)
         elif part == "nosizes":
             results[part] = bench_nosizes(args.repeats)
         elif part == "aerial":
