@@ -1,5 +1,6 @@
 """The package installs under one namespace and the command line behaves."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -68,3 +69,19 @@ def test_a_command_line_mistake_is_one_line_exit_2(argv, capsys):
     err = capsys.readouterr().err
     assert exc.value.code == 2
     assert len(err.strip().splitlines()) == 1 and "--help" in err and "error:" in err, err
+
+
+@pytest.mark.parametrize("user_level, verbose, expected", [(None, 0, 2), (None, 2, 0), ("1", 0, 1)])
+def test_colmap_log_is_quiet_for_commands_that_load_pycolmap_later(user_level, verbose, expected):
+    # Commands import pycolmap inside `run`, after the CLI set up logging: glog must be told through its environment
+    # (on stderr, not a file per run in /tmp), and a user's own GLOG_minloglevel wins.
+    code = (
+        f"from sosmatch.tools.cli import _setup_logging; _setup_logging({verbose}, False)\n"
+        "import pycolmap\n"
+        "print(int(pycolmap.logging.minloglevel), bool(pycolmap.logging.logtostderr))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GLOG_")}
+    if user_level is not None:
+        env["GLOG_minloglevel"] = user_level
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.split() == [str(expected), "True"]

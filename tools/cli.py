@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
@@ -61,11 +62,15 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     logging.getLogger("sosmatch").setLevel(level)
-    try:  # silence COLMAP's C++ log unless asked for debug output
-        if verbose < 2 and "pycolmap" in sys.modules:
-            sys.modules["pycolmap"].logging.minloglevel = 2
-    except AttributeError:  # pragma: no cover
-        pass
+    # COLMAP's C++ log (glog): silent unless asked for debug output, and on stderr like ours instead of a file per
+    # run in /tmp. Commands import pycolmap inside `run`, after this, so glog must be told through its environment
+    # (read when pycolmap loads); a user's own GLOG_* settings win.
+    os.environ.setdefault("GLOG_logtostderr", "1")
+    os.environ.setdefault("GLOG_minloglevel", "0" if verbose > 1 else "2")
+    if "pycolmap" in sys.modules:  # already loaded (the CLI called from Python): set the flags themselves
+        colmap_log = sys.modules["pycolmap"].logging
+        colmap_log.logtostderr = os.environ["GLOG_logtostderr"] not in ("0", "false")
+        colmap_log.minloglevel = int(os.environ["GLOG_minloglevel"])
 
 
 def main(argv: Sequence[str] | None = None) -> int:
