@@ -25,27 +25,80 @@ def sym_csr(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> tup
     (i, c) and each group in order), which makes every sum over a neighbourhood independent of how the graph was
     built.
     """
-    deg = np.zeros(n, np.int64)
+    indptr, indices, data, _ = _sym_csr(n, rows, cols, vals, np.zeros(0), False)
+    return indptr, indices, data
+
+
+@njit(cache=True)
+def sym_csr_weighted(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, diag: np.ndarray) -> tuple:
+    """`sym_csr` and the weighted degrees diag[i] + sum of i's affinities, summed in i's neighbour-list order (the
+    order the scatter delivers them in, so the same bits as a sum over the finished list), in the same pass."""
+    return _sym_csr(n, rows, cols, vals, diag, True)
+
+
+@njit(cache=True)
+def _sym_csr(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, diag: np.ndarray, weighted: bool) -> tuple:
+    lower = np.zeros(n, np.int64)  # edges (r, i) with i the column: i's neighbours listed before its own row
+    upper = np.zeros(n, np.int64)
+    by_rows = True  # rows ascending and rows < cols: each vertex's own row is one run of the list, in place
+    last = 0
+    run = 0  # a row's edges counted in a register (an increment of upper[r] per edge waits for the previous one)
     for e in range(len(rows)):
-        deg[rows[e]] += 1
-        deg[cols[e]] += 1
+        r, c = rows[e], cols[e]
+        if r != last:
+            upper[last] += run
+            run = 0
+            by_rows &= r > last
+            last = r
+        run += 1
+        lower[c] += 1
+        by_rows &= r < c
+    if len(rows):
+        upper[last] += run
     indptr = np.zeros(n + 1, np.int64)
     for i in range(n):
-        indptr[i + 1] = indptr[i] + deg[i]
+        indptr[i + 1] = indptr[i] + lower[i] + upper[i]
     fill = indptr[:-1].copy()
     indices = np.empty(indptr[n], np.int32)  # int32: half the scattered writes (and reads by every consumer)
     data = np.empty(indptr[n], np.float64)
-    for e in range(len(rows)):  # rows ascending within each vertex's list when the edge list is sorted
-        r, c = rows[e], cols[e]
-        k = fill[r]
-        indices[k] = c
-        data[k] = vals[e]
-        fill[r] = k + 1
-        k = fill[c]
-        indices[k] = r
-        data[k] = vals[e]
-        fill[c] = k + 1
-    return indptr, indices, data
+    wdeg = diag.copy() if weighted else np.zeros(0)
+    if not by_rows:  # any edge order: both ends appended in edge order
+        for e in range(len(rows)):
+            r, c, v = rows[e], cols[e], vals[e]
+            k = fill[r]
+            indices[k] = c
+            data[k] = v
+            fill[r] = k + 1
+            k = fill[c]
+            indices[k] = r
+            data[k] = v
+            fill[c] = k + 1
+            if weighted:
+                wdeg[r] += v
+                wdeg[c] += v
+        return indptr, indices, data, wdeg
+    # The same lists and sums in the same order, without the serial fill[r] / wdeg[r] updates of the loop above:
+    # when row r is reached, every edge (r', r), r' < r, has been appended to r's list and weight, and r's own
+    # row follows them in place (its run starts at indptr[r] + lower[r]), summed in a register.
+    e = 0
+    for r in range(n):
+        base = indptr[r] + lower[r] - e
+        acc = wdeg[r] if weighted else 0.0
+        for x in range(e, e + upper[r]):
+            c, v = cols[x], vals[x]
+            indices[base + x] = c
+            data[base + x] = v
+            acc += v
+            k = fill[c]
+            indices[k] = r
+            data[k] = v
+            fill[c] = k + 1
+            if weighted:
+                wdeg[c] += v
+        if weighted:
+            wdeg[r] = acc
+        e += upper[r]
+    return indptr, indices, data, wdeg
 
 
 # --- k-cores -------------------------------------------------------------------------------------------------
@@ -113,10 +166,11 @@ def core_numbers(n: int, indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:
     bin_[0] = 0
     for a in range(n):
         v = vert[a]
+        dv = deg[v]  # final: v is taken at its core number, and only higher-degree neighbours change below
         for p in range(indptr[v], indptr[v + 1]):
-            u = indices[p]
-            if deg[u] > deg[v]:
-                du = deg[u]
+            u = np.uint32(indices[p])  # unsigned: no negative-index wraparound on the reads below
+            du = deg[u]
+            if du > dv:
                 pu = pos[u]
                 pw = bin_[du]
                 w = vert[pw]
@@ -126,7 +180,7 @@ def core_numbers(n: int, indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:
                     pos[w] = pu
                     vert[pw] = u
                 bin_[du] += 1
-                deg[u] -= 1
+                deg[u] = du - 1
     return deg
 
 
@@ -297,21 +351,17 @@ def greedy_round(n: int, indptr: np.ndarray, indices: np.ndarray, u: np.ndarray)
 
 
 @njit(cache=True)
-def greedy_clique(n: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, diag: np.ndarray, core: np.ndarray,
+def greedy_clique(n: int, indptr: np.ndarray, indices: np.ndarray, weighted_degree: np.ndarray, core: np.ndarray,
                   max_starts: int) -> np.ndarray:
     """A large clique, grown greedily from the vertices of highest core number (the PMC heuristic).
 
     A clique of size s + 1 lies in the s-core, so growing from v only considers neighbours whose core number
     is at least the best size so far, and the search stops once no vertex can start a larger clique. Returns the
     clique's vertices (sorted). Vertices are visited by decreasing core number, then decreasing weighted degree
-    (diagonal weight + affinities: of two equally large cliques the heavier one is found first), then index.
+    (diagonal weight + affinities, `sym_csr_weighted`: of two equally large cliques the heavier one is found
+    first), then index.
     """
-    wdeg = np.empty(n)
-    for i in range(n):
-        acc = diag[i]
-        for p in range(indptr[i], indptr[i + 1]):
-            acc += data[p]
-        wdeg[i] = -acc
+    wdeg = -weighted_degree
     # The visiting order is (-core, -weighted degree, index). The search stops after a few starts (usually one,
     # in the highest core), so the order is formed lazily: vertices bucketed by core number (counting sort), a
     # bucket sorted when the walk reaches it, and each start's candidates sorted among themselves by the same key.
@@ -448,7 +498,7 @@ def solve_graph(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, di
     """
     if n == 0:
         return np.zeros(0, np.int64), 0.0, np.zeros(0), 0.0, 0
-    indptr, indices, data = sym_csr(n, rows, cols, vals)
+    indptr, indices, data, wdeg = sym_csr_weighted(n, rows, cols, vals, diag)
     if 2 * len(rows) == n * (n - 1):
         # complete graph (common for a window pair's core): the positive M has a positive Perron vector, the
         # support is everything, consistent at d = 0, and rounding keeps all of it
@@ -460,7 +510,7 @@ def solve_graph(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, di
         sel = greedy_round(n, indptr, indices, u)
         return sel, clique_weight(indptr, indices, data, diag, sel) / len(sel), u, d, steps
     core = core_numbers(n, indptr, indices)
-    best = greedy_clique(n, indptr, indices, data, diag, core, 64)
+    best = greedy_clique(n, indptr, indices, wdeg, core, 64)
     s = len(best)
     wb = clique_weight(indptr, indices, data, diag, best)
     keep = core >= s
