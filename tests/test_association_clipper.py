@@ -189,3 +189,38 @@ def test_affinity_graph_equals_its_definition(seed, n_a, n_b, m, grid, eps, sigm
     rows, cols, vals = straightforward_graph(a, b, pairs, eps, sigma)
     assert g.rows.tolist() == rows.tolist() and g.cols.tolist() == cols.tolist()
     assert g.values.tobytes() == vals.tobytes()
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(0, 30), density=st.floats(0.0, 1.0),
+       order=st.sampled_from(["sorted", "shuffled", "some reversed"]))
+def test_symmetric_csr_and_weighted_degrees_equal_their_definition(seed, n, density, order):
+    """sym_csr_weighted (a sorted edge list placed row by row, any other order appended edge by edge) lists each
+    vertex's neighbours in the order its edges arrive and sums its weight in that order, like the plain loop."""
+    from sosmatch.plugin.association.kernels_solve import sym_csr, sym_csr_weighted
+
+    rng = np.random.default_rng(seed)
+    r, c = np.nonzero(np.triu(rng.random((n, n)) < density, 1))
+    v, d = rng.random(len(r)), rng.random(n)
+    if order == "shuffled":
+        o = rng.permutation(len(r))
+        r, c, v = r[o], c[o], v[o]
+    elif order == "some reversed":
+        swap = rng.random(len(r)) < 0.3
+        r, c = np.where(swap, c, r), np.where(swap, r, c)
+    r, c = r.astype(np.int64), c.astype(np.int64)
+    lists = [[] for _ in range(n)]
+    for e in range(len(r)):
+        lists[r[e]].append((c[e], v[e]))
+        lists[c[e]].append((r[e], v[e]))
+    weights = []
+    for i in range(n):
+        acc = d[i]
+        for _, x in lists[i]:
+            acc += x
+        weights.append(acc)
+    indptr, indices, data, wdeg = sym_csr_weighted(n, r, c, v, d)
+    assert np.array_equal(indptr, np.cumsum([0] + [len(x) for x in lists]))
+    assert indices.tolist() == [j for x in lists for j, _ in x] and data.tolist() == [w for x in lists for _, w in x]
+    assert wdeg.tolist() == weights
+    assert all(np.array_equal(x, y) for x, y in zip(sym_csr(n, r, c, v), (indptr, indices, data)))
