@@ -361,12 +361,15 @@ class ChangeParams(Checked):
     # a wrong transform; here a re-segmented object must still count as present: sizes within a factor 1.67)
     max_size_difference: float = within(0.5, 0.0, 2.0)
     # A landmark without a counterpart is kept when a larger landmark of the other map (up to this many times
-    # its size) holds it in its footprint (ground distance <= 2 h): the other session mapped the object whole
-    # where this map has a part of it. 0 = off.
+    # its size) holds it in its footprint (ground distance <= 2 h) and this session shows that landmark too (a
+    # counterpart here, or this session's segments): the other session mapped the object whole where this map
+    # has a part of it; a ground patch seen where this map's object stood is no such whole. 0 = off.
     nest_max_ratio: float = non_negative(2.0)
     # One object is often several landmarks of one map (a crown, its lit half, the clump it stands in; split
     # tracks), and the other session may have mapped only some of them: a landmark inside the footprint of a
-    # larger own landmark (at most this many times its size) that has a counterpart is kept with it, and so is
+    # larger own landmark (at most this many times its size) that the other session shows directly (a
+    # counterpart, or its segments) or holds in a landmark of its own is kept with it (not through a whole
+    # kept only by a part link itself: chained links let ground regions hold what really went), and so is
     # a landmark whose footprint holds smaller landmarks of the other map (down to 1 / this of its size) that
     # have counterparts in its own map (the object whole here, as parts there; on the 7 development worlds this
     # removed 5 of 6 false same-season new claims for 2 of 15 found). A wider reach lets large ground regions

@@ -235,20 +235,20 @@ def test_absence_log_ratio_weighs_hits_against_presence_and_chance():
 
 def test_a_claim_needs_segments_that_say_absent(pair):
     """A removed object, whose place B's keyframes never show, is claimed with high confidence; the same place
-    with a segment in three of four views (about as often as B's segments show the objects both mapped) is
-    not: low probability of absence, kept by B's segments."""
+    with a segment in seven of eight views (about as often as B's segments show the objects both mapped, which
+    in this world is every view) is not: low probability of absence, kept by B's segments."""
     positions, sizes, present_a, present_b, a, ids_a, b, ids_b, a_from_b = pair
     res = detect_changes(a, b, a_from_b, ChangeParams(min_confidence=0.0), 2.0)
     gone = res.a.label == GONE
     assert np.any(gone) and np.all(res.a.confidence[gone] > 0.99)
     assert np.all(res.a.confidence[res.a.evidence == "landmark"] == 0.0)
-    # put segments at the removed objects' places into three of every four of B's keyframes
+    # put segments at the removed objects' places into seven of every eight of B's keyframes
     b_in_a = b.transformed(a_from_b)
     target = np.flatnonzero(gone)
     seen, uv, depth = in_view(res.positions_a[target], res.sizes_a[target], b_in_a.poses, [CAM] * len(b.poses))
     segs = []
     for k, seg in enumerate(b.segments):
-        vis = np.flatnonzero(seen[k] & ((k + np.arange(len(target))) % 4 != 0))
+        vis = np.flatnonzero(seen[k] & ((k + np.arange(len(target))) % 8 != 0))
         h = res.sizes_a[target][vis] * CAM.fx / depth[k, vis]
         segs.append(KeyframeSegments(np.vstack([seg.centroids, uv[k, vis]]), np.concatenate([seg.sizes_px, h])))
     b2 = SessionObservations(b.positions, b.sizes, b.poses, CAM, tuple(segs), b.support)
@@ -276,3 +276,43 @@ def test_an_object_mapped_whole_here_and_as_parts_there_is_kept():
     assert np.all(res.a.label[1:3] == KEPT) and np.all(res.a.evidence[1:3] == "landmark")
     off = detect_changes(a, b, same, ChangeParams(min_confidence=0.0, part_max_ratio=0.0), 2.0)
     assert off.a.label[0] == GONE
+
+
+def _segments_of(positions, sizes, poses, rng, clutter=20):
+    """Every keyframe's segments: the projections of the given places with their sizes, plus random clutter."""
+    seen, uv, depth = in_view(positions, sizes, poses, [CAM] * len(poses))
+    segs = []
+    for k in range(len(poses)):
+        vis = np.flatnonzero(seen[k])
+        cl = rng.uniform([0, 0], [CAM.width, CAM.height], (clutter, 2))
+        segs.append(KeyframeSegments(np.vstack([uv[k, vis], cl]), np.concatenate(
+            [sizes[vis] * CAM.fx / depth[k, vis], rng.uniform(2.0, 30.0, clutter)])))
+    return tuple(segs)
+
+
+def test_a_holder_vouches_only_when_this_session_shows_it_too():
+    """A maps a tree (3 m) that B no longer has; where it stood B maps a larger ground patch (5.5 m) that A's
+    images do not show: the patch is not the tree's whole, so the tree is gone. A also maps half of a crown
+    (2 m) whose whole (3.5 m) only B mapped; A's images show the whole crown (segmented, never mapped), so the
+    half is kept, nested in B's crown; without those segments nothing says B's crown is there in A, and the
+    half is claimed."""
+    centers = np.column_stack([np.linspace(-20.0, 40.0, 12), np.zeros(12), np.full(12, 60.0)])
+    poses = nadir_poses(centers)
+    rng = np.random.default_rng(7)
+    ground = np.column_stack([rng.uniform([-30, -20], [50, 20], (80, 2)), np.zeros(80)])
+    tree, half = np.array([[0.0, 0.0, 1.0]]), np.array([[20.0, 0.0, 4.0]])
+    far = np.hypot(*(ground[:, None, :2] - np.vstack([tree, half])[None, :, :2]).transpose(2, 0, 1)).min(1) > 15.0
+    ground = ground[far][:30]  # common ground texture, away from both objects
+    patch, crown = np.array([[1.0, 0.0, 0.0]]), np.array([[20.5, 0.0, 4.0]])
+    pos_a, size_a = np.vstack([tree, half, ground]), np.r_[3.0, 2.0, np.full(30, 1.5)]
+    pos_b, size_b = np.vstack([patch, crown, ground + 0.2]), np.r_[5.5, 3.5, np.full(30, 1.5)]
+    shown_a = _segments_of(np.vstack([pos_a, crown]), np.r_[size_a, 3.5], poses, rng)
+    b = SessionObservations(pos_b, size_b, poses, CAM, _segments_of(pos_b, size_b, poses, rng))
+    same = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    res = detect_changes(SessionObservations(pos_a, size_a, poses, CAM, shown_a), b, same, ChangeParams(), 2.0)
+    assert res.a.label[0] == GONE and res.a.evidence[0] == "none" and res.a.confidence[0] > 0.99
+    assert res.a.label[1] == KEPT and res.a.evidence[1] == "nested" and res.a.counterpart[1] == 1
+    assert np.all(res.a.label[2:] == KEPT)  # the common ground
+    unshown = detect_changes(SessionObservations(pos_a, size_a, poses, CAM, _segments_of(pos_a, size_a, poses, rng)),
+                             b, same, ChangeParams(), 2.0)
+    assert unshown.a.label[1] == GONE and unshown.a.label[0] == GONE

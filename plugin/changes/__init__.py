@@ -13,11 +13,17 @@ landmark of either map gets one class:
   stands in: nested masks of the segmenter), and the other session may map other parts of it, so a landmark
   without a counterpart is still kept when a larger landmark of the other map (up to `nest_max_ratio` x its
   size) holds it in its footprint (evidence `nested`), when it lies in the footprint of a larger landmark of
-  its own map that has a counterpart, or when smaller landmarks of the other map inside its own footprint have
-  counterparts in its map (both up to `part_max_ratio`; evidence `part`: one object, whole in one map and parts
-  in the other), or when the other session's own segments (every mask of its keyframes, tracked or not) show a
-  size-compatible segment at the landmark's projection in significantly more keyframes than at probe points
-  around it (`segment_evidence`, evidence `segments`): the object was there, only not mapped.
+  its own map that the other session shows or that is nested there, or when smaller landmarks of the other map
+  inside its own footprint have counterparts in its map (both up to `part_max_ratio`; evidence `part`: one
+  object, whole in one map and parts in the other), or when the other session's own segments (every mask of its
+  keyframes, tracked or not) show it (`segment_evidence`, evidence `segments`): a size-compatible segment at the
+  landmark's projection in significantly more keyframes than at probe points around it, and hits more like those
+  of an object that is there than like its absence (absence probability below 1/2): the object was there, only
+  not mapped. A link vouches only with direct evidence behind it: the holder in the other map must be shown by
+  this landmark's own session too (a counterpart landmark in its map, or its segments), and the whole in the
+  own map must be shown by the other session or nested in such a holder. A ground patch that one session sees
+  where the other's object stood, or a whole kept only through a part link of its own, is no evidence that the
+  object is still there (such chains kept most of the removed and added objects that were mapped).
 - `gone` (a landmark of A) / `new` (of B): seen well by the other session, no counterpart, no evidence.
 
 Confidence (gone / new): the probability that the object is absent from the other session, from that session's

@@ -66,12 +66,15 @@ def counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray
 
 
 def inside_larger(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
-                  max_ratio: float) -> np.ndarray:
+                  max_ratio: float, eligible: np.ndarray | None = None) -> np.ndarray:
     """For each landmark, the nearest landmark of the other map that holds it (`holder_pairs`): the other session
     mapped the object as a whole (or a bigger part of it) where this map has a part; a removed object leaves, at
     most, smaller ground patches. Returns (N,) index or -1."""
     out = np.full(len(np.asarray(points).reshape(-1, 3)), -1, dtype=np.int64)
     i, j = holder_pairs(points, sizes, other_points, other_sizes, max_ratio)
+    if eligible is not None:
+        keep = np.asarray(eligible, dtype=bool)[j]
+        i, j = i[keep], j[keep]
     first = np.r_[True, i[1:] != i[:-1]] if len(i) else np.zeros(0, bool)  # sorted by i, then distance
     out[i[first]] = j[first]
     return out

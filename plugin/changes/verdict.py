@@ -109,33 +109,81 @@ def absence_probability(positions: np.ndarray, sizes: np.ndarray, reference: np.
     return 1.0 / (1.0 + np.exp(-np.clip(llr, -30.0, 30.0)))  # below 1: --min-confidence 1 reports nothing
 
 
-def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,
-           other_pos: np.ndarray, other_h: np.ndarray, heights: np.ndarray, change_label: str, gate_m: float,
-           params: ChangeParams) -> LandmarkChanges:
-    """Classify one map's landmarks against the other session (both already in one frame)."""
+@dataclass(frozen=True)
+class _Direct:
+    """What the other session shows of one map's landmarks directly, before any containment link: how often it
+    should have seen them, their counterpart landmarks, and its segments at their places (for the compared ones
+    without a counterpart). `established`: present in both sessions by direct evidence (a counterpart, or the
+    other session's segments); only such landmarks may vouch for others through a nested or part link."""
+
+    views: np.ndarray
+    compared: np.ndarray
+    index: np.ndarray  # counterpart in the other map (-1 none or not compared)
+    hits: np.ndarray  # segment hits / views / local chance rate; computed where `tested`
+    trials: np.ndarray
+    chance: np.ndarray
+    absent: np.ndarray  # P(absent | segment hits), `absence_probability`
+    tested: np.ndarray
+    by_segments: np.ndarray  # the other session's segments show it significantly more often than chance
+
+    @property
+    def established(self) -> np.ndarray:
+        return self.compared & ((self.index >= 0) | self.by_segments)
+
+
+def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, other_pos: np.ndarray,
+            other_h: np.ndarray, gate_m: float, params: ChangeParams) -> _Direct:
     n = len(own_pos)
     seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
     views = seen.sum(0)
     compared = views >= params.min_views
-    index, dist = counterparts(own_pos, own_h, other_pos, other_h, gate_m, params.max_size_difference,
-                               params.z_weight)
+    index, _ = counterparts(own_pos, own_h, other_pos, other_h, gate_m, params.max_size_difference,
+                            params.z_weight)
     index = np.where(compared, index, -1)
+    hits, trials = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    chance, absent = np.full(n, np.nan), np.zeros(n)
+    tested = compared & (index < 0) & (other.segments is not None)
+    by_segments = np.zeros(n, dtype=bool)
+    if np.any(tested):
+        idx = np.flatnonzero(tested)
+        hits[idx], trials[idx], chance[idx] = segment_evidence(
+            own_pos[idx], own_h[idx], other.poses, other.cameras, other.segments, gate_m,
+            params.max_size_difference, params.probe_count, params.probe_radius_factor)
+        absent[idx] = absence_probability(own_pos, own_h, compared & (index >= 0), idx, hits[idx], trials[idx],
+                                          chance[idx], other, gate_m, params)
+        # shown: more hits than chance would give, and more like an object that is there than like its absence
+        by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
+                            & (absent[idx] < 0.5))
+    return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments)
+
+
+def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,
+           other_pos: np.ndarray, other_h: np.ndarray, heights: np.ndarray, change_label: str, gate_m: float,
+           params: ChangeParams, mine: _Direct, theirs: _Direct) -> LandmarkChanges:
+    """Classify one map's landmarks against the other session (both already in one frame); `mine` is the direct
+    evidence of this map's landmarks in the other session, `theirs` that of the other map's in this one."""
+    n = len(own_pos)
+    views, compared, index = mine.views, mine.compared, mine.index
     holder = np.full(n, -1, dtype=np.int64)
     if params.nest_max_ratio >= 1:
+        # the holder must itself be established in this session (a counterpart here, or this session's
+        # segments show it): a ground patch that the other session sees where this map's object stood is no
+        # whole of that object
         holder = np.where(compared & (index < 0), inside_larger(own_pos, own_h, other_pos, other_h,
-                                                                params.nest_max_ratio), -1)
+                                                                params.nest_max_ratio, theirs.established), -1)
     label = np.full(n, UNSEEN, dtype=object)
     evidence = np.full(n, TOO_FEW_VIEWS, dtype=object)
     direct = compared & ((index >= 0) | (holder >= 0))
     label[direct] = KEPT
     evidence[index >= 0] = BY_LANDMARK
     evidence[(index < 0) & (holder >= 0)] = BY_NESTING
-    # one object, several landmarks of this map: a part inside the footprint of a larger matched landmark (at
-    # most part_max_ratio times its size) is kept with it
+    # one object, several landmarks of this map: a part inside the footprint of a larger landmark (at most
+    # part_max_ratio times its size) that the other session shows directly is kept with it; a whole kept only
+    # through a link of its own vouches for nothing (chained links let ground regions hold what really went)
     link = np.full(n, -1, dtype=np.int64)
     if params.part_max_ratio >= 1:
         part, whole = holder_pairs(own_pos, own_h, own_pos, own_h, params.part_max_ratio, same_map=True)
-        hit = compared[part] & ~direct[part] & direct[whole]
+        hit = compared[part] & ~direct[part] & (mine.established | direct)[whole]
         hp, hw = part[hit], whole[hit]  # sorted by part, then distance: the nearest whole first
         first = np.r_[True, hp[1:] != hp[:-1]] if len(hp) else np.zeros(0, bool)
         link[hp[first]] = hw[first]
@@ -161,16 +209,12 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
         open_[whole] = False
     confidence = np.zeros(n)
     if other.segments is not None and np.any(open_):
-        idx = np.flatnonzero(open_)
-        hits, trials, chance = segment_evidence(own_pos[idx], own_h[idx], other.poses, other.cameras,
-                                                other.segments, gate_m, params.max_size_difference,
-                                                params.probe_count, params.probe_radius_factor)
-        present = binomial_tail(hits, trials, chance) < params.segment_evidence_p
-        confidence[idx] = absence_probability(own_pos, own_h, compared & (index >= 0), idx, hits, trials, chance,
-                                              other, gate_m, params)
-        label[idx[present]] = KEPT
-        evidence[idx[present]] = BY_SEGMENTS
-        open_[idx[present]] = False
+        idx = np.flatnonzero(open_)  # all tested: compared, no counterpart
+        confidence[idx] = mine.absent[idx]
+        present = idx[mine.by_segments[idx]]
+        label[present] = KEPT
+        evidence[present] = BY_SEGMENTS
+        open_[present] = False
     elif other.segments is None and np.any(compared):
         # no segments of the other session: its re-observation rate of landmarks like this one
         idx = np.flatnonzero(compared)
@@ -208,8 +252,12 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
     ground = ground_height_field(all_pts)
     heights_a = a.positions[:, 2] - ground(a.positions[:, 0], a.positions[:, 1])
     heights_b = b_in_a.positions[:, 2] - ground(b_in_a.positions[:, 0], b_in_a.positions[:, 1])
-    res_a = _judge(a, a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, heights_a, GONE, gate, params)
-    res_b = _judge(b_in_a, b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, heights_b, NEW, gate, params)
+    direct_a = _direct(a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, gate, params)
+    direct_b = _direct(b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, gate, params)
+    res_a = _judge(a, a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, heights_a, GONE, gate, params,
+                   direct_a, direct_b)
+    res_b = _judge(b_in_a, b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, heights_b, NEW, gate, params,
+                   direct_b, direct_a)
     return ChangeResult(
         a=res_a, b=res_b, positions_a=a.positions, positions_b=b_in_a.positions, sizes_a=a.sizes,
         sizes_b=b_in_a.sizes, tolerance_m=gate, ground=ground,
