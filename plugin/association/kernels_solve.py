@@ -38,66 +38,39 @@ def sym_csr_weighted(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarra
 
 @njit(cache=True)
 def _sym_csr(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, diag: np.ndarray, weighted: bool) -> tuple:
-    lower = np.zeros(n, np.int64)  # edges (r, i) with i the column: i's neighbours listed before its own row
-    upper = np.zeros(n, np.int64)
-    by_rows = True  # rows ascending and rows < cols: each vertex's own row is one run of the list, in place
+    deg = np.zeros(n, np.int64)
     last = 0
-    run = 0  # a row's edges counted in a register (an increment of upper[r] per edge waits for the previous one)
+    run = 0  # a run of equal rows counted in a register (an increment of deg[r] per edge waits for the previous one)
     for e in range(len(rows)):
-        r, c = rows[e], cols[e]
+        r = rows[e]
         if r != last:
-            upper[last] += run
+            deg[last] += run
             run = 0
-            by_rows &= r > last
             last = r
         run += 1
-        lower[c] += 1
-        by_rows &= r < c
+        deg[cols[e]] += 1
     if len(rows):
-        upper[last] += run
+        deg[last] += run
     indptr = np.zeros(n + 1, np.int64)
     for i in range(n):
-        indptr[i + 1] = indptr[i] + lower[i] + upper[i]
+        indptr[i + 1] = indptr[i] + deg[i]
     fill = indptr[:-1].copy()
     indices = np.empty(indptr[n], np.int32)  # int32: half the scattered writes (and reads by every consumer)
     data = np.empty(indptr[n], np.float64)
     wdeg = diag.copy() if weighted else np.zeros(0)
-    if not by_rows:  # any edge order: both ends appended in edge order
-        for e in range(len(rows)):
-            r, c, v = rows[e], cols[e], vals[e]
-            k = fill[r]
-            indices[k] = c
-            data[k] = v
-            fill[r] = k + 1
-            k = fill[c]
-            indices[k] = r
-            data[k] = v
-            fill[c] = k + 1
-            if weighted:
-                wdeg[r] += v
-                wdeg[c] += v
-        return indptr, indices, data, wdeg
-    # The same lists and sums in the same order, without the serial fill[r] / wdeg[r] updates of the loop above:
-    # when row r is reached, every edge (r', r), r' < r, has been appended to r's list and weight, and r's own
-    # row follows them in place (its run starts at indptr[r] + lower[r]), summed in a register.
-    e = 0
-    for r in range(n):
-        base = indptr[r] + lower[r] - e
-        acc = wdeg[r] if weighted else 0.0
-        for x in range(e, e + upper[r]):
-            c, v = cols[x], vals[x]
-            indices[base + x] = c
-            data[base + x] = v
-            acc += v
-            k = fill[c]
-            indices[k] = r
-            data[k] = v
-            fill[c] = k + 1
-            if weighted:
-                wdeg[c] += v
+    for e in range(len(rows)):  # both ends appended in edge order (ascending lists when sorted by (row, col))
+        r, c, v = rows[e], cols[e], vals[e]
+        k = fill[r]
+        indices[k] = c
+        data[k] = v
+        fill[r] = k + 1
+        k = fill[c]
+        indices[k] = r
+        data[k] = v
+        fill[c] = k + 1
         if weighted:
-            wdeg[r] = acc
-        e += upper[r]
+            wdeg[r] += v
+            wdeg[c] += v
     return indptr, indices, data, wdeg
 
 
