@@ -5,6 +5,7 @@ Only these functions know the layouts, so a schema change elsewhere is one edit 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,6 +13,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.evaluation.footprints import FlatGround, HeightField
+from ..plugin.evaluation.landmark_truth import objects_under
 from .match_io import MatchSummary, read_match
 from .session_io import LandmarkTable, read_landmark_table  # noqa: F401 (re-exported for the evaluation)
 
@@ -162,9 +164,23 @@ def landmark_observed_objects(map_dir: str | Path, labels_dir: str | Path) -> li
                 if lab is None:
                     raise InputError("cannot read label image", path)
                 labels[image.name] = lab
-            u, v = image.points2D[el.point2D_idx].xy
-            col = int(np.clip(np.floor(u), 0, lab.shape[1] - 1))
-            row = int(np.clip(np.floor(v), 0, lab.shape[0] - 1))
-            ids.append(int(lab[row, col]))
+            ids.append(int(objects_under(lab, np.asarray(image.points2D[el.point2D_idx].xy))[0]))
         out.append(np.asarray(ids, dtype=np.int64))
+    return out
+
+
+def segment_objects(map_dir: str | Path, labels_dir: str | Path, names: Sequence[str]) -> list[np.ndarray]:
+    """Per keyframe `names` of a mapped session, the object id under each segment centroid (every mask, as the
+    map's database.db holds them as keypoints), from `labels_dir/IMAGE_STEM.png` as `landmark_observed_objects`."""
+    import cv2
+
+    from .colmap_db import read_segment_detections
+
+    out = []
+    for name, det in zip(names, read_segment_detections(Path(map_dir) / "database.db", names)):
+        path = Path(labels_dir) / (Path(name).stem + ".png")
+        lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if lab is None:
+            raise InputError("cannot read label image", path)
+        out.append(objects_under(lab, det.centroids))
     return out

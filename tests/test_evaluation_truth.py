@@ -8,7 +8,9 @@ from sosmatch.plugin.evaluation.landmark_truth import (
     common_landmarks,
     eligible_objects,
     majority_objects,
+    objects_under,
     oracle_recall,
+    segmented_objects,
 )
 from sosmatch.plugin.evaluation.metrics import operating_point, pr_curve
 
@@ -17,6 +19,20 @@ def test_majority_objects_votes_and_measures_purity():
     objs = majority_objects([np.array([3, 3, 0, 3]), np.array([0, 0, 5]), np.array([], np.int64), np.array([2, 4])])
     assert objs.object_ids.tolist() == [3, 0, 0, 2]  # a tie goes to the smaller id
     assert objs.purity.tolist() == pytest.approx([0.75, 2 / 3, 0.0, 0.5])
+
+
+def test_segmented_objects_counts_keyframes_not_segments():
+    labels = np.zeros((4, 6), np.uint16)
+    labels[1:3, 2:4] = 7
+    labels[:, 5] = 9
+    # COLMAP pixels: (2.0, 1.0) and (3.99, 2.99) are inside object 7's pixels, (1.99, 1.5) is not; off the image
+    # the nearest border pixel counts (x = 40 -> column 5)
+    assert objects_under(labels, np.array([[2.0, 1.0], [3.99, 2.99], [1.99, 1.5], [40.0, -3.0]])).tolist() == \
+        [7, 7, 0, 9]
+    # object 7 split into two segments in keyframe 0 counts once there: 2 keyframes; object 9 in 3; 0 never counts
+    per_keyframe = [np.array([7, 7, 0]), np.array([9, 7]), np.array([9, 0]), np.array([9]), np.array([], np.int64)]
+    assert segmented_objects(per_keyframe, 3).tolist() == [9]
+    assert segmented_objects(per_keyframe, 2).tolist() == [7, 9]
 
 
 def test_common_landmarks_pairs_the_closest_landmarks_of_each_object():

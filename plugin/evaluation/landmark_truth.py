@@ -8,6 +8,9 @@ there, the search does not find them). With a synthetic world's truth the common
   cover), majority vote (`majority_objects`);
 - eligible objects of a pair of sessions: present in both and seen in more than theta_n keyframes of each
   (`frames.json` visibility): the landmarks a perfect front end could have in common;
+- segmented objects of a map: the object under a segment centroid (every mask of every keyframe, as the map's
+  database holds them) in more than theta_n keyframes (`segmented_objects`); an eligible object segmented in both
+  maps but not common was lost by tracking or triangulation, one not segmented by the segmenter;
 - common landmarks: objects that are the majority object of a landmark in both maps; for each, the pair of
   landmarks (one per map) closest in space stands for it (`common_landmarks`);
 - their size agreement: the ratio h_B / h_A and the relative difference r (the search's size gate,
@@ -46,6 +49,26 @@ def majority_objects(observed: Sequence[np.ndarray]) -> LandmarkObjects:
         k = int(np.argmax(counts))
         ids[i], purity[i] = values[k], counts[k] / len(obs)
     return LandmarkObjects(ids, purity)
+
+
+def objects_under(labels: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Object id of the label image `labels` (rows x cols, 0 = ground cover) under each pixel point `xy` (n, 2),
+    COLMAP convention (pixel i spans [i, i + 1)); points off the image take the nearest border pixel."""
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    col = np.clip(np.floor(xy[:, 0]).astype(np.int64), 0, labels.shape[1] - 1)
+    row = np.clip(np.floor(xy[:, 1]).astype(np.int64), 0, labels.shape[0] - 1)
+    return np.asarray(labels[row, col], np.int64)
+
+
+def segmented_objects(ids_per_keyframe: Sequence[np.ndarray], min_keyframes: int) -> np.ndarray:
+    """Object ids (> 0) under a segment centroid in at least `min_keyframes` keyframes (an object split into
+    several segments counts once per keyframe), from `objects_under` of each keyframe's segment centroids."""
+    counts: dict[int, int] = {}
+    for ids in ids_per_keyframe:
+        for oid in np.unique(np.asarray(ids, np.int64)):
+            if oid > 0:
+                counts[int(oid)] = counts.get(int(oid), 0) + 1
+    return np.asarray(sorted(o for o, n in counts.items() if n >= min_keyframes), np.int64)
 
 
 @dataclass

@@ -194,6 +194,39 @@ def world_table(world: int, rows: list[dict], held_out: bool) -> str:
     return "\n".join(lines) + "\n"
 
 
+def kind_table(work: Path, worlds: list[int], case: Case, evaluations: list[dict]) -> str:
+    """Per object kind, summed over the worlds: the eligible objects of a case, those the segmenter found in both
+    maps (in > theta_n keyframes), the common landmarks, the segmented ones lost by tracking or triangulation, the
+    median radius of the unsegmented ones and the median size ratio B / A of the common pairs."""
+    from ...database.synth_session import load_synth_session
+
+    agg: dict[str, dict] = {}
+    for world, ev in zip(worlds, evaluations):
+        truth = ev["methods"]["sosmatch"].get("landmark_truth") or {}
+        if "segmented_both_by_kind" not in truth:
+            return ""  # evaluated before the segmented objects were recorded
+        kind_of = {int(o["id"]): str(o["kind"]) for o in load_synth_session(session_dir(work, world, case.a)).objects}
+        for key, col in (("eligible_by_kind", "eligible"), ("segmented_both_by_kind", "segmented"),
+                         ("common_by_kind", "common"), ("segmented_not_common_by_kind", "lost")):
+            for kind, n in truth[key].items():
+                agg.setdefault(kind, {}).setdefault(col, 0)
+                agg[kind][col] += n
+        for kind, r in zip(truth["unsegmented_kinds"], truth["unsegmented_radius_m"]):
+            agg.setdefault(kind, {}).setdefault("radius", []).append(r)
+        for oid, _, _, size_a, size_b in truth["common_pairs"]:
+            agg.setdefault(kind_of[int(oid)], {}).setdefault("ratio", []).append(size_b / size_a)
+    lines = [f"**{case.name}** ({case.a} vs {case.b}; worlds {', '.join(str(w) for w in worlds)} summed)", "",
+             "| kind | eligible | segmented in both | common | segmented, not common | not segmented: median radius m "
+             "| size ratio B/A of common (median) |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for kind, g in sorted(agg.items()):
+        radius, ratio = g.get("radius", []), g.get("ratio", [])
+        r_med = float(np.median(radius)) if radius else None
+        lines.append(f"| {kind} | {g.get('eligible', 0)} | {g.get('segmented', 0)} | {g.get('common', 0)} "
+                     f"| {g.get('lost', 0)} | {len(radius)} at {_f(r_med, '.1f')} "
+                     f"| {_f(float(np.median(ratio)) if ratio else None)} |")
+    return "\n".join(lines) + "\n"
+
+
 def check_bars(world: int, rows: dict[str, dict]) -> list[str]:
     """Issue 16's synthetic bars for one world, as sentences with the figures."""
     notes = []
@@ -245,6 +278,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--title", default="Seasons, crossing flights and altitude on several worlds (issue 16)")
     parser.add_argument("--section", default="seasons", help="name of the marked BENCHMARKS.md section to write")
     parser.add_argument("--note", action="append", default=[], help="a paragraph after the title (repeatable)")
+    parser.add_argument("--by-kind", default="", metavar="CASES",
+                        help="cases to tabulate per object kind (segmented, common, lost, size ratio)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     os.environ.setdefault("SOSMATCH_CACHE_DIR", str(args.work / "cache"))
@@ -255,17 +290,24 @@ def main(argv: list[str] | None = None) -> None:
     wanted = [c for c in CASES if c.name in args.cases.split(",")]
     eval_tag = args.eval_tag or args.maps_tag
     tables, bars = [], []
+    evaluations: dict[str, list[dict]] = {}
     for world in worlds:
         rows: dict[str, dict] = {}
         for case in wanted:
             ours = ours_eval(args.work, world, case, args.maps_tag, args.map_set, eval_tag, args.eval_set,
                              args.features_from, not args.no_overlap_test)
+            evaluations.setdefault(case.name, []).append(ours)
             base = None if args.no_baselines else baseline_eval(args.work, world, case)
             rows[case.name] = case_row(ours, base)
             print(f"w{world} {case.name}: " + json.dumps({k: v for k, v in rows[case.name].items()
                                                            if k not in ("case", "method")}, default=str))
         tables.append(world_table(world, list(rows.values()), world in held))
         bars += check_bars(world, rows)
+    by_kind = [c for c in wanted if c.name in args.by_kind.split(",")]
+    kinds = [t for t in (kind_table(args.work, worlds, c, evaluations[c.name]) for c in by_kind) if t]
+    if kinds:
+        tables += ["Per object kind (eligible: present in both sessions and seen in > theta_n keyframes of each; "
+                   "segmented: under a segment centroid in > theta_n keyframes of both maps):", "", *kinds]
     end_load = machine_summary().rsplit("load ", 1)[-1]
     raw = list(argv if argv is not None else __import__("sys").argv[1:])
     shown = " ".join(a for i, a in enumerate(raw) if a != "--note" and (i == 0 or raw[i - 1] != "--note"))
