@@ -215,10 +215,10 @@ class TrackingParams(Checked):
     # (ours) ground band gate (`plugin.ground_band`): a track without a point yet must reappear within
     # epipolar_margin_px of the stretch of its epipolar line between the heights of the local ground, i.e. the
     # median height of the candidate tracks' confirmed points +- this many robust standard deviations; 0 = off.
-    # Needs the point transfer gate (its points are the ground). On (6) in the "survey" preset, where frames are
-    # 300-550 px apart and image motion often unmeasurable; off by default: with 2 m keyframes it changed little
-    # (BENCHMARKS.md, "The ground band"), and not yet checked enough at the paper's settings.
-    ground_band_sigmas: float = non_negative(0.0)
+    # Needs the point transfer gate (its points are the ground). Where frames are 300-550 px apart and image motion
+    # often unmeasurable it decides (Seneca, survey preset: 184 -> 283 landmarks); with the paper's 2 m keyframes
+    # it changes little (BENCHMARKS.md, "The ground band"; the seasons worlds). Off (0) in the "paper" preset.
+    ground_band_sigmas: float = non_negative(6.0)
 
 
 @dataclass(frozen=True)
@@ -554,7 +554,7 @@ PRESETS: dict[str, dict[str, Any]] = {
               "association.position_prior_m": 0.0, "association.solver": "clipper",
               # and the front end as published: every track its own landmark, the mean metric size
               "triangulation.size_estimator": "mean", "triangulation.fuse_radius_factor": 0.0,
-              "association.derive_from_maps": False},
+              "tracking.ground_band_sigmas": 0.0, "association.derive_from_maps": False},
     # Photogrammetric survey flights: one frame every 30-40 m (55-75 % forward overlap), ~1200 px images, poses
     # from GPS + autopilot refined by `poses-from-exif --refine`. Measured on Seneca (BENCHMARKS.md, "Seneca end
     # to end"). An object is in only 2-3 frames of a flight line, so a landmark needs 3 observations (theta_n = 2)
@@ -566,9 +566,9 @@ PRESETS: dict[str, dict[str, Any]] = {
         "image.reference_size_px": 1200.0,  # tuned on Seneca's 1200x900 frames
         "tracking.epipolar_margin_px": 24.0, "tracking.centroid_sigma_px": 9.0, "tracking.size_tolerance": 0.5,
         "tracking.motion_gate_sigmas": 8.0, "tracking.max_track_age_keyframes": 24,
-        # frames 300-550 px apart defeat image-only motion estimation (Seneca: 72 of 165 steps): the poses and the
-        # ground predict where a segment reappears (184 -> 283 landmarks on Seneca; BENCHMARKS.md, "The ground band")
-        "tracking.ground_band_sigmas": 6.0,
+        # frames 300-550 px apart defeat image-only motion estimation (Seneca: 72 of 165 steps): the ground band
+        # gate (on by default, `tracking.ground_band_sigmas`) predicts where a segment reappears from the poses and
+        # the ground (184 -> 283 landmarks on Seneca; BENCHMARKS.md, "The ground band")
         "triangulation.min_observations": 2, "triangulation.pixel_sigma_px": 6.0,
         # 3-observation landmarks cannot vote out a bad observation: a tighter cut than the paper's 10 px
         # (Seneca: 7 px -> 194 landmarks at 3.1 px mean, 8 px -> see BENCHMARKS, 10 px -> 256 at 4.2 px)

@@ -22,12 +22,13 @@ For each keyframe t, the candidate tracks are those whose latest observation (ma
   this replaces the epipolar, cheirality and motion gates for that track. The epipolar line admits every segment
   along it (Seneca: 54 of 338 three-view tracks were consistent; 113 of 213 with this gate), and across flight
   lines the summed image motion of the motion gate is meaningless.
-- **Ground band** *(ours, `ground_band_sigmas`, `plugin.ground_band`; on in the survey preset)*: a track without a
-  point yet must reappear within `epipolar_margin_px` of the stretch of its epipolar line between the lowest and
-  highest height of the local ground (median +- that many robust sigmas of the heights of the candidate tracks'
-  points confirmed by a third observation). With fixed poses this predicts the image motion from the poses and the
-  ground, where the image-only estimate fails (Seneca: 72 of 165 steps without a measured motion), and removes the
-  wrong partners that the epipolar line admits hundreds of metres above or below the ground.
+- **Ground band** *(ours, `ground_band_sigmas`, `plugin.ground_band`; on by default, off in the paper preset)*: a
+  track without a point yet must reappear within `epipolar_margin_px` of the stretch of its epipolar line between
+  the lowest and highest height of the local ground (median +- that many robust sigmas of the heights of the
+  candidate tracks' points confirmed by a third observation). With fixed poses this predicts the image motion from
+  the poses and the ground, where the image-only estimate fails (Seneca: 72 of 165 steps without a measured
+  motion), and removes the wrong partners that the epipolar line admits hundreds of metres above or below the
+  ground.
 - **Score** (`theta_q`): `q = sqrt(q_s q_f) >= min_score`, with the size score
   `q_s = 1 + cos(pi r / theta_h)` if `r = 2|h_i - h_j| / (h_i + h_j) < theta_h` else 0 (in [0, 2] as in the
   paper) and the feature score q_f defined below.
