@@ -54,6 +54,24 @@ def _agree(t1: Sim3, t2: Sim3, points: np.ndarray, tolerance_m: float) -> bool:
     return bool(len(points) and np.max(np.linalg.norm(t1.apply(points) - t2.apply(points), axis=1)) <= tolerance_m)
 
 
+def converged_to_winner(winner: Sim3, probe: np.ndarray, gate_m: float, winner_pairs: np.ndarray | None,
+                        aligned: Alignment) -> bool:
+    """Whether a refinement found the winner again rather than another alignment: its transform puts the winner's
+    supporting B landmarks `probe` within 2 gates of where the winner puts them, or (with `winner_pairs`, the
+    winner's pairs after its final rigid fit) most of its own pairs are the winner's. The latter is the same
+    alignment fitted with yaw only on another part of two maps tilted against each other: 1 deg between two
+    frames is 17 m of height 1 km away, so 4-DOF fits from different window hypotheses each hold a band of the
+    map and disagree by more than 2 gates, though their pairs are those of one rigid alignment."""
+    if _agree(winner, aligned.transform, probe, 2.0 * gate_m):
+        return True
+    mine = np.asarray(aligned.associations, np.int64).reshape(-1, 2)
+    if winner_pairs is None or not len(mine) or not len(winner_pairs):
+        return False
+    base = int(max(mine[:, 1].max(), winner_pairs[:, 1].max())) + 1
+    shared = np.isin(mine[:, 0] * base + mine[:, 1], winner_pairs[:, 0] * base + winner_pairs[:, 1])
+    return bool(2 * int(shared.sum()) > len(mine))
+
+
 def verify_alignments(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
     candidates: Sequence[tuple[Sim3, np.ndarray]], gate_m: float, max_size_difference: float,
@@ -102,33 +120,41 @@ def verify_alignments(
     # A rival puts B somewhere else: more than 2 gates away. Refinements that converged within that distance
     # are the same alignment caught on a slightly different set of chance pairs (seen across seasons: 2-3 m
     # apart with |support| within 1), i.e. its uncertainty, not a contradiction.
-    rivals = [len(refined[k].associations) for k in order[1:]
-              if not _agree(best.transform, refined[k].transform, probe, 2.0 * gate_m)]
-    # The rivals the search offered are not enough: with one candidate there is none, and a chance alignment of
-    # two unrelated maps then won by default (3 of 8 pairs of different synthetic worlds were "verified" with
-    # 8-15 pairs). B deliberately put elsewhere and refined like the winner is the chance level at this map
-    # density and these gates: the winner must beat it by min_ratio too.
     pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
-    displaced = _displaced_starts(best.transform, pb_all, gate_m)
-    rivals.extend(int(s) for s in chance_supports(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, gate_m,
-                                                  max_size_difference, displaced, dof, z_weight))
     support = len(best.associations)
-    chance = None
-    if chance_starts > 0:
-        chance, samples = sequential_chance(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support,
-                                            gate_m, max_size_difference, chance_starts, false_alarm, prior_m, dof,
-                                            z_weight)
-        rivals.extend(int(s) for s in samples)
-    runner_up = max(rivals, default=0)
+    rigid, winner_pairs = None, None
     if final_dof == 6 and dof != 6 and support >= 3:
         first = _final_rigid_fit(pa_all, pb_all, best, gate_m, z_weight)
         # then the pairs under that transform: landmarks the 4-DOF fit could not reach because the frames are
         # tilted (1-2 deg between EKF frames is metres of height at the far end of a map) join its support
         assoc, dist = mutual_nearest(pa_all, sizes_a, first.transform.apply(pb_all), sizes_b, gate_m,
                                      max_size_difference, z_weight)
-        best = first
+        rigid = first
         if len(assoc) >= len(first.associations):
-            best = Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
+            rigid = Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
+        # the pairs of the rigid alignment the winner belongs to, over the whole overlap (the judge of which
+        # other refinements found the winner again; the answer keeps the fit above)
+        winner_pairs = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, rigid.transform, gate_m,
+                                        max_size_difference, dof=6, z_weight=z_weight).associations
+    rivals = [len(refined[k].associations) for k in order[1:]
+              if not converged_to_winner(best.transform, probe, gate_m, winner_pairs, refined[k])]
+    # The rivals the search offered are not enough: with one candidate there is none, and a chance alignment of
+    # two unrelated maps then won by default (3 of 8 pairs of different synthetic worlds were "verified" with
+    # 8-15 pairs). B deliberately put elsewhere and refined like the winner is the chance level at this map
+    # density and these gates: the winner must beat it by min_ratio too.
+    displaced = _displaced_starts(best.transform, pb_all, gate_m)
+    rivals.extend(int(s) for s in chance_supports(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, gate_m,
+                                                  max_size_difference, displaced, dof, z_weight,
+                                                  winner_pairs=winner_pairs))
+    chance = None
+    if chance_starts > 0:
+        chance, samples = sequential_chance(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support,
+                                            gate_m, max_size_difference, chance_starts, false_alarm, prior_m, dof,
+                                            z_weight, winner_pairs=winner_pairs)
+        rivals.extend(int(s) for s in samples)
+    runner_up = max(rivals, default=0)
+    if rigid is not None:
+        best = rigid
     clear = bool(support >= min_ratio * runner_up and (chance is None or chance.p_value <= false_alarm))
     return Verification(best, runner_up, len(refined), bool(support > min_support and clear), support, clear, chance)
 
@@ -191,15 +217,15 @@ def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, p
 def chance_supports(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
                     sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, gate_m: float,
                     max_size_difference: float, placements: Sequence[Sim3], dof: int = 4,
-                    z_weight: float = 0.5) -> np.ndarray:
+                    z_weight: float = 0.5, winner_pairs: np.ndarray | None = None) -> np.ndarray:
     """Supports of chance alignments of these two maps: B refined from each placement exactly like the winner
-    (`refine_alignment`: the same gate, size gate and fit); the refinements that converge to the winner (its
-    supporting B landmarks `probe` within 2 gates of where it puts them) are no chance and are left out."""
+    (`refine_alignment`: the same gate, size gate and fit); the refinements that converge to the winner
+    (`converged_to_winner`) are no chance and are left out."""
     out = []
     for start in placements:
         aligned = refine_alignment(points_a, sizes_a, points_b, sizes_b, start, gate_m, max_size_difference,
                                    dof=dof, z_weight=z_weight)
-        if not _agree(winner, aligned.transform, probe, 2.0 * gate_m):
+        if not converged_to_winner(winner, probe, gate_m, winner_pairs, aligned):
             out.append(len(aligned.associations))
     return np.asarray(out, np.int64)
 
@@ -207,7 +233,8 @@ def chance_supports(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: 
 def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
                       sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, support: int, gate_m: float,
                       max_size_difference: float, starts: int, false_alarm: float, prior_m: float = 0.0,
-                      dof: int = 4, z_weight: float = 0.5) -> tuple[ChanceModel, np.ndarray]:
+                      dof: int = 4, z_weight: float = 0.5,
+                      winner_pairs: np.ndarray | None = None) -> tuple[ChanceModel, np.ndarray]:
     """`chance_test` of the winner's support on up to `starts` chance placements, refined CHANCE_BATCH at a time:
     it stops once the answer cannot be in doubt (p_value <= false_alarm x CHANCE_MARGIN: a true alignment many
     decades above chance, as every dense map pair; or p_value >= CHANCE_CLEARLY_CHANCE), which keeps the cost
@@ -219,7 +246,7 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
     chance = chance_test(samples, support, trials)
     for k in range(0, len(placements), CHANCE_BATCH):
         more = chance_supports(points_a, sizes_a, points_b, sizes_b, winner, probe, gate_m, max_size_difference,
-                               placements[k:k + CHANCE_BATCH], dof, z_weight)
+                               placements[k:k + CHANCE_BATCH], dof, z_weight, winner_pairs)
         samples = np.concatenate([samples, more])
         chance = chance_test(samples, support, trials)
         if chance.p_value <= false_alarm * CHANCE_MARGIN or chance.p_value >= CHANCE_CLEARLY_CHANCE:
