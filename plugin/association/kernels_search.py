@@ -307,23 +307,20 @@ def peeled_ids(v1: np.ndarray, v2: np.ndarray, space: int, k: int) -> tuple:
     if removed > 0:  # not yet converged: the k-core of what is left decides (exact, whatever the passes did)
         ids, e1, e2 = compact_ids(v1[sel], v2[sel], space)
         sel = sel[peel_pairs(len(ids), e1, e2, k)]
-    # renumber the associations of the surviving pairs: cnt > 0 exactly on them (counts of alive pairs)
-    for t in sel:  # counts of removed pairs' other ends may be > 0: mark the survivors' ends apart
-        cnt[v1[t]] = -1
-        cnt[v2[t]] = -1
-    ids = np.empty(2 * len(sel), np.int64)
-    nu = 0
-    for v in range(space):
-        if cnt[v] == -1:
-            cnt[v] = nu
-            ids[nu] = v
-            nu += 1
+    # renumber the associations of the surviving pairs (few: sorted, not a scan of the whole id space)
+    ends = np.empty(2 * len(sel), np.int64)
+    for x in range(len(sel)):
+        ends[2 * x] = v1[sel[x]]
+        ends[2 * x + 1] = v2[sel[x]]
+    ids = np.unique(ends)
+    for x in range(len(ids)):
+        cnt[ids[x]] = x
     e1 = np.empty(len(sel), np.int64)
     e2 = np.empty(len(sel), np.int64)
     for x in range(len(sel)):
         e1[x] = cnt[v1[sel[x]]]
         e2[x] = cnt[v2[sel[x]]]
-    return ids[:nu].copy(), e1, e2, sel
+    return ids, e1, e2, sel
 
 
 @njit(cache=True)
