@@ -123,6 +123,9 @@ class DerivedSearch:
 
     params: AssociationParams
     record: dict  # match.json "search_mode" "derived": which values were derived, and from what
+    # the first of the two searches (`first_search_params`; `match_answer.match_maps`' `first_try`), None when one
+    # search is enough
+    first_try: AssociationParams | None = None
 
 
 def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noise_b: MapNoise | None,
@@ -132,7 +135,7 @@ def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noi
     tolerances from their noise (`derived_association_params`), then, at those tolerances, the windows and theta_S
     from their geometry (`association.window_chance.derived_windows`). Both only with `base.derive_from_maps` and
     both maps' noise figures; otherwise `base` unchanged (a .sosmap file or COLMAP model keeps the configured
-    search)."""
+    search). `first_try` is the first of the two searches every consumer runs (`first_search_params`)."""
     tolerances = derived_association_params(base, noise_a, noise_b)
     if tolerances is base:
         return DerivedSearch(base, {"tolerances": "configured", "windows": "configured"})
@@ -145,7 +148,7 @@ def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noi
     windows = derived_windows(points_a, sizes_a, points_b, sizes_b, tolerances)
     record["windows"] = {"from": "landmark density, size-gate fraction and theta_eps (chance model, "
                                  "association.window_chance)", **windows.to_dict()}
-    return DerivedSearch(windows.params, record)
+    return DerivedSearch(windows.params, record, first_search_params(base, windows.params))
 
 
 def first_search_params(configured: AssociationParams, derived: AssociationParams) -> AssociationParams | None:

@@ -75,6 +75,7 @@ def test_derivation_is_recorded_and_needs_both_maps_noise():
     for off in (derived_search_params(base, noise, None, *arrays),
                 derived_search_params(dataclasses.replace(base, derive_from_maps=False), noise, noise, *arrays)):
         assert off.params.window_length == base.window_length and off.record["windows"] == "configured"
+        assert off.first_try is None  # nothing derived: one search
     assert np.isfinite(got.record["windows"]["configured_chance"]["per_transform"])
 
 
@@ -83,9 +84,11 @@ def test_first_search_keeps_the_configured_windows():
     s = survey_map_pair(600, seed=5, density_per_km2=300.0)
     base = AssociationParams(derive_from_maps=True)
     noise = MapNoise(0.2, 0.5, 0.05, 600)
-    got = derived_search_params(base, noise, noise, s.points_a, s.sizes_a, s.points_b, s.sizes_b).params
+    derivation = derived_search_params(base, noise, noise, s.points_a, s.sizes_a, s.points_b, s.sizes_b)
+    got = derivation.params
     assert got.window_length > base.window_length
     first = first_search_params(base, got)
+    assert derivation.first_try == first  # the one first search every consumer runs
     assert (first.window_length, first.window_stride, first.min_associations) == (
         base.window_length, base.window_stride, base.min_associations)
     assert first.distance_tolerance_m == min(base.distance_tolerance_m, got.distance_tolerance_m)

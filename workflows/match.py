@@ -34,7 +34,7 @@ from ..database.outputs import fingerprint, open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import SearchMode
-from ..plugin.map_noise import derived_search_params, first_search_params
+from ..plugin.map_noise import derived_search_params
 from ..plugin.match_answer import MatchAnswer, match_maps
 from ..plugin.params import Params, params_to_dict
 from ..plugin.verification import hypothesis_agrees
@@ -290,7 +290,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     # derived and the configured tolerances (`match_answer`, module doc)
     derivation = derived_search_params(params.association, map_a.noise, map_b.noise, la.positions, la.sizes,
                                        lb.positions, lb.sizes)
-    first_try = first_search_params(params.association, derivation.params)
+    first_try = derivation.first_try
     params = dataclasses.replace(params, association=derivation.params)
     identity = fingerprint({"a": landmark_map_fingerprint(la), "b": landmark_map_fingerprint(lb),
                             "association": params_to_dict(params.association),

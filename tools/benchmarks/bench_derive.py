@@ -64,7 +64,7 @@ def displacement_m(answer: object, points_b: np.ndarray) -> float | None:
 
 def bench_pair(map_a: Path, map_b: Path) -> dict:
     from ...database.map_loading import read_map_noise
-    from ...plugin.map_noise import derived_search_params, first_search_params
+    from ...plugin.map_noise import derived_search_params
     from ...plugin.match_answer import match_maps
     from ...plugin.params import Params
     from ...workflows.evaluate.workflow import _map_arrays
@@ -73,9 +73,9 @@ def bench_pair(map_a: Path, map_b: Path) -> dict:
     pb, hb, _, _ = _map_arrays(map_b)
     params = Params()
     configured = dataclasses.replace(params.association, derive_from_maps=False)
-    derived = derived_search_params(params.association, read_map_noise(map_a), read_map_noise(map_b), pa, ha, pb,
-                                    hb).params
-    first = first_search_params(params.association, derived)
+    derivation = derived_search_params(params.association, read_map_noise(map_a), read_map_noise(map_b), pa, ha,
+                                       pb, hb)
+    derived, first = derivation.params, derivation.first_try
     row = {"landmarks": [len(pa), len(pb)], "theta_eps": derived.distance_tolerance_m,
            "sigma": derived.affinity_sigma_m, "theta_r": derived.max_size_difference}
     for name, ap, first_try in (("configured", configured, None), ("derived", derived, None),

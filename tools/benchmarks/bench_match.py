@@ -31,7 +31,7 @@ import numpy as np
 from ...plugin.association import search_reference
 from ...plugin.association.reference import differences
 from ...plugin.association.synthetic import survey_map_pair
-from ...plugin.map_noise import MapNoise, derived_association_params, derived_search_params, first_search_params
+from ...plugin.map_noise import MapNoise, derived_association_params, derived_search_params
 from ...plugin.match_answer import match_maps
 from ...plugin.params import Params, preset_params, with_overrides
 from .bench_match_real import bench_evaluation, bench_naip
@@ -93,8 +93,8 @@ def timed_default_match(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.n
 
     def once(a: np.ndarray, sa: np.ndarray, b: np.ndarray, sb: np.ndarray) -> object:
         derived = derived_search_params(base.association, noise, noise, a, sa, b, sb)
-        first = first_search_params(base.association, derived.params)
-        return match_maps(a, sa, b, sb, dataclasses.replace(base, association=derived.params), first_try=first)
+        return match_maps(a, sa, b, sb, dataclasses.replace(base, association=derived.params),
+                          first_try=derived.first_try)
 
     n = min(60, len(pa), len(pb))
     once(pa[:n], ha[:n], pb[:n], hb[:n])  # compile

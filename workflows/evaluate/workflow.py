@@ -35,7 +35,7 @@ from ...plugin.evaluation.footprints import footprint_polygons
 from ...plugin.evaluation.iou import iou_matrix
 from ...plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
 from ...plugin.keyframes import select_keyframes
-from ...plugin.map_noise import derived_search_params, first_search_params
+from ...plugin.map_noise import derived_search_params
 from ...plugin.params import Params, params_to_dict
 from ...plugin.verification import hypothesis_agrees
 from .report import format_table, plot_overlay, plot_pr, row_of
@@ -145,7 +145,7 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
     noise = [read_map_noise(m) for m in (map_a, map_b)]
     derivation = derived_search_params(params.association, *noise, pa, ha, pb, hb)  # as `sosmatch match` does
     assoc_params = derivation.params
-    first_try = first_search_params(params.association, assoc_params)
+    first_try = derivation.first_try
     out: dict[str, Any] = {"map_bytes": [bytes_a, bytes_b], "landmarks": [len(pa), len(pb)],
                            "association": params_to_dict(assoc_params), "derived": derivation.record,
                            "map_noise": [None if n is None else n.to_dict() for n in noise]}
