@@ -19,7 +19,7 @@ from ..params import AssociationParams
 from .kernels_fit import fit_many
 from .kernels_graph import DISTANCE, GRAVITY
 from .kernels_solve import BOUNDED, CLIPPER
-from .rigid import Transform, fit_transform, rotation_angle_deg
+from .rigid import Transform, fit_transform, rolls_pitches_deg, rotation_angle_deg, tilts_deg
 from .windows import hilbert_order
 
 
@@ -112,11 +112,11 @@ def make_hypotheses(points_a: np.ndarray, points_b: np.ndarray, params: Associat
     rot, tr, sc, ok = fit_many(points_a, points_b, off, sel_a, sel_b, params.transform == "similarity")
     nwb = len(wins_b)
     sliced = params.consistency == "gravity" and params.yaw_slice_deg > 0
-    # the angles of every fitted rotation at once, as `roll_pitch_yaw_deg` and `tilt_deg` compute them one by one
-    # (the same ufuncs element by element: identical floats); NaN where no transform was fitted
-    roll = np.where(ok, np.degrees(np.arctan2(rot[:, 2, 1], rot[:, 2, 2])), np.nan).tolist()
-    pitch = np.where(ok, np.degrees(np.arcsin(np.clip(-rot[:, 2, 0], -1.0, 1.0))), np.nan).tolist()
-    tilts = np.where(ok, np.degrees(np.arccos(np.clip(rot[:, 2, 2], -1.0, 1.0))), np.nan)
+    # the angles of every fitted rotation at once; NaN where no transform was fitted
+    rolls, pitches = rolls_pitches_deg(rot)
+    roll = np.where(ok, rolls, np.nan).tolist()
+    pitch = np.where(ok, pitches, np.nan).tolist()
+    tilts = np.where(ok, tilts_deg(rot), np.nan)
     size = np.diff(off)
     accepted = ((size > params.min_associations) & ok & (tilts <= params.max_gravity_angle_deg)).tolist()
     pairs = np.column_stack([sel_a, sel_b]) if len(pair_ids) else np.zeros((0, 2), np.int64)

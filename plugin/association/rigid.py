@@ -65,17 +65,27 @@ def fit_transform(src: np.ndarray, dst: np.ndarray, similarity: bool = False) ->
     return Transform(r, t, scale)
 
 
+def tilts_deg(rotations: np.ndarray) -> np.ndarray:
+    """`tilt_deg` of every rotation of a (..., 3, 3) stack (the same ufuncs element by element: the same floats)."""
+    return np.degrees(np.arccos(np.clip(rotations[..., 2, 2], -1.0, 1.0)))
+
+
 def tilt_deg(rotation: np.ndarray) -> float:
     """Angle (degrees) between R e_z and e_z: the roll/pitch part of the rotation, independent of yaw."""
-    return float(np.degrees(np.arccos(np.clip(rotation[2, 2], -1.0, 1.0))))
+    return float(tilts_deg(rotation))
+
+
+def rolls_pitches_deg(rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Roll and pitch (`roll_pitch_yaw_deg`) of every rotation of a (..., 3, 3) stack, in degrees."""
+    r = rotations
+    return (np.degrees(np.arctan2(r[..., 2, 1], r[..., 2, 2])),
+            np.degrees(np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))))
 
 
 def roll_pitch_yaw_deg(rotation: np.ndarray) -> tuple[float, float, float]:
     """Aerospace angles of R = Rz(yaw) Ry(pitch) Rx(roll), in degrees."""
-    r = rotation
-    pitch = np.degrees(np.arcsin(np.clip(-r[2, 0], -1.0, 1.0)))
-    roll = np.degrees(np.arctan2(r[2, 1], r[2, 2]))
-    yaw = np.degrees(np.arctan2(r[1, 0], r[0, 0]))
+    roll, pitch = rolls_pitches_deg(rotation)
+    yaw = np.degrees(np.arctan2(rotation[1, 0], rotation[0, 0]))
     return float(roll), float(pitch), float(yaw)
 
 
