@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import statistics
 import subprocess
 import sys
 import time
@@ -38,7 +37,7 @@ from .bench_match_real import bench_evaluation, bench_naip
 from .machine import machine_summary
 from .match_clipper import bench_clipper
 from .match_problems import aerial_maps, boulder_maps, crossing_maps, dense_maps, season_maps
-from .match_report import bar, peak_rss_mb, print_bars, quality, report, timed_match
+from .match_report import bar, peak_rss_mb, print_bars, quality, report, timed, timed_match
 
 BARS_S = {"sparse": 0.2, "dense": 1.0, "nosizes": 1.0, "aerial": 5.0, "season": 10.0}
 AERIAL_MEMORY_BAR_MB = 500.0
@@ -96,15 +95,7 @@ def timed_default_match(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.n
         return match_maps(a, sa, b, sb, dataclasses.replace(base, association=derived.params),
                           first_try=derived.first_try)
 
-    n = min(60, len(pa), len(pb))
-    once(pa[:n], ha[:n], pb[:n], hb[:n])  # compile
-    cpu, wall, ans = [], [], None
-    for _ in range(repeats):
-        c0, t0 = time.process_time(), time.perf_counter()
-        ans = once(pa, ha, pb, hb)
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return ans, statistics.median(cpu), statistics.median(wall)
+    return timed(once, pa, ha, pb, hb, repeats)
 
 
 def bench_derived(repeats: int) -> list[dict]:

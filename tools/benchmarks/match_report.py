@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -47,19 +48,27 @@ def print_bars() -> None:
         print(f"| {name} | {figure} | {'met' if met else '**MISSED**'} |")
 
 
-def timed_match(pa: np.ndarray, ha: np.ndarray | None, pb: np.ndarray, hb: np.ndarray | None, params: Params,
-                 repeats: int, common_frame: bool = True) -> tuple:
-    """The match's answer (search + verification), timed: (answer, median CPU s, median wall s)."""
+def timed(run: Callable[..., object], pa: np.ndarray, ha: np.ndarray | None, pb: np.ndarray, hb: np.ndarray | None,
+          repeats: int) -> tuple:
+    """`run(pa, ha, pb, hb)` timed after a small warm-up call that compiles the kernels: (its answer, median CPU s,
+    median wall s)."""
     n = min(60, len(pa), len(pb))
-    match_maps(pa[:n], None if ha is None else ha[:n], pb[:n], None if hb is None else hb[:n], params)  # compile
+    run(pa[:n], None if ha is None else ha[:n], pb[:n], None if hb is None else hb[:n])  # compile
     cpu, wall, ans = [], [], None
     for _ in range(repeats):
         c0 = time.process_time()
         t0 = time.perf_counter()
-        ans = match_maps(pa, ha, pb, hb, params, common_frame=common_frame)
+        ans = run(pa, ha, pb, hb)
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     return ans, statistics.median(cpu), statistics.median(wall)
+
+
+def timed_match(pa: np.ndarray, ha: np.ndarray | None, pb: np.ndarray, hb: np.ndarray | None, params: Params,
+                 repeats: int, common_frame: bool = True) -> tuple:
+    """The match's answer (search + verification), timed: (answer, median CPU s, median wall s)."""
+    return timed(lambda a, sa, b, sb: match_maps(a, sa, b, sb, params, common_frame=common_frame),
+                 pa, ha, pb, hb, repeats)
 
 
 def quality(ans: object, truth: set | None, rotation: np.ndarray | None) -> str:
