@@ -139,7 +139,6 @@ def landmark_observed_objects(map_dir: str | Path, labels_dir: str | Path) -> li
     Observations come from the session's sparse/ model (the keypoints are the mask centroids, COLMAP pixel
     convention: pixel i spans [i, i + 1)); ids from `labels_dir/IMAGE_STEM.png` (uint16 object id per pixel,
     0 = ground cover), as `sosmatch synth` writes them. A missing label image is an InputError naming it."""
-    import cv2
     import pycolmap
 
     map_dir, labels_dir = Path(map_dir), Path(labels_dir)
@@ -159,11 +158,7 @@ def landmark_observed_objects(map_dir: str | Path, labels_dir: str | Path) -> li
             image = rec.images[el.image_id]
             lab = labels.get(image.name)
             if lab is None:
-                path = labels_dir / (Path(image.name).stem + ".png")
-                lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-                if lab is None:
-                    raise InputError("cannot read label image", path)
-                labels[image.name] = lab
+                lab = labels[image.name] = read_label_image(labels_dir, image.name)
             ids.append(int(objects_under(lab, np.asarray(image.points2D[el.point2D_idx].xy))[0]))
         out.append(np.asarray(ids, dtype=np.int64))
     return out
@@ -172,15 +167,19 @@ def landmark_observed_objects(map_dir: str | Path, labels_dir: str | Path) -> li
 def segment_objects(map_dir: str | Path, labels_dir: str | Path, names: Sequence[str]) -> list[np.ndarray]:
     """Per keyframe `names` of a mapped session, the object id under each segment centroid (every mask, as the
     map's database.db holds them as keypoints), from `labels_dir/IMAGE_STEM.png` as `landmark_observed_objects`."""
-    import cv2
-
     from .colmap_db import read_segment_detections
 
-    out = []
-    for name, det in zip(names, read_segment_detections(Path(map_dir) / "database.db", names)):
-        path = Path(labels_dir) / (Path(name).stem + ".png")
-        lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if lab is None:
-            raise InputError("cannot read label image", path)
-        out.append(objects_under(lab, det.centroids))
-    return out
+    dets = read_segment_detections(Path(map_dir) / "database.db", names)
+    return [objects_under(read_label_image(labels_dir, name), det.centroids) for name, det in zip(names, dets)]
+
+
+def read_label_image(labels_dir: str | Path, image_name: str) -> np.ndarray:
+    """The label image of a keyframe (`labels_dir/IMAGE_STEM.png`, uint16 object id per pixel, 0 = ground cover, as
+    `sosmatch synth` writes it); an unreadable or missing one is an InputError naming it."""
+    import cv2
+
+    path = Path(labels_dir) / (Path(image_name).stem + ".png")
+    lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if lab is None:
+        raise InputError("cannot read label image", path)
+    return lab
