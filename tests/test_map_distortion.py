@@ -13,6 +13,7 @@ from sosmatch.plugin.geometry import Camera
 from sosmatch.plugin.params import Params
 from sosmatch.tools.toy_sessions import render_disc_flight
 from sosmatch.workflows import map as map_workflow
+from sosmatch.workflows.map.quality import MapRefused
 
 pycolmap = pytest.importorskip("pycolmap")
 
@@ -52,12 +53,19 @@ def mapped(tmp_path_factory):
     ideal = _map(root / "ideal", root / "ideal_map", root / "ideal" / "cameras.txt")
     lens = _map(root / "distorted", root / "lens_map", root / "distorted" / "cameras.txt")
     write_cameras_txt(root / "pinhole.txt", {1: PINHOLE})
-    ignored = _map(root / "distorted", root / "ignored_map", root / "pinhole.txt")
-    return root, objs, ideal, lens, ignored
+    # Ignoring the lens bends every ray, so the pose check may see the images contradict the poses (a tilt near
+    # its 20 deg limit: 19.9 deg on one CPU, 20.1 on another) and refuse the map. A refused map is still written
+    # (run.json says why); either way the map must pay for the ignored lens, which the test below measures.
+    try:
+        ignored = _map(root / "distorted", root / "ignored_map", root / "pinhole.txt")
+        refused = False
+    except MapRefused:
+        ignored, refused = read_landmark_map(root / "ignored_map" / "landmarks.sosmap"), True
+    return root, objs, ideal, lens, ignored, refused
 
 
 def test_distorted_images_map_as_well_as_ideal_ones(mapped):
-    root, objs, ideal_map, lens_map, ignored_map = mapped
+    root, objs, ideal_map, lens_map, ignored_map, ignored_refused = mapped
     ideal, lens, ignored = ideal_map.positions, lens_map.positions, ignored_map.positions
     e_ideal, e_lens, e_ignored = (_on_disc_errors(p, objs) for p in (ideal, lens, ignored))
     assert len(lens) >= 0.8 * len(ideal) >= 8
@@ -65,7 +73,7 @@ def test_distorted_images_map_as_well_as_ideal_ones(mapped):
     assert np.median(e_lens) <= max(1.25 * np.median(e_ideal), np.median(e_ideal) + 0.05)
     assert np.median(np.abs(lens[:, 2])) < 1.5  # on the ground
     # the same images taken for an ideal lens: the lens bends the rays and the map pays for it
-    assert np.median(e_ignored) > np.median(e_lens) or len(ignored) < 0.8 * len(lens)
+    assert ignored_refused or np.median(e_ignored) > np.median(e_lens) or len(ignored) < 0.8 * len(lens)
 
 
 def test_database_and_model_keep_the_real_camera_and_keypoints(mapped):
@@ -98,7 +106,7 @@ def test_metric_sizes_stay_right_through_the_lens(mapped):
     landmark of the ideal flight (barrel distortion shrinks objects near the border by up to ~10 % in pixels)."""
     from scipy.spatial import cKDTree
 
-    _, _, ideal, lens, _ = mapped
+    _, _, ideal, lens, _, _ = mapped
     d, j = cKDTree(ideal.positions[:, :2]).query(lens.positions[:, :2])
     same = d < 0.5
     assert np.count_nonzero(same) >= 10
