@@ -83,8 +83,28 @@ def test_a_rotated_block_is_refused():
 
 def test_passes_that_disagree_in_height_are_refused():
     q, v = _judge(*toy_flight(pass_offsets_m=15.0))
-    assert q.pass_disagreement > 3
+    assert q.pass_disagreement > 3 and q.pass_offset_m > 5.0
     assert not v.ok and any("passes" in r for r in v.refusals)
+
+
+def test_passes_a_little_apart_over_precise_ground_are_warned_not_refused():
+    """Where one pass's neighbours agree to centimetres (flat ground, no trees), passes 1-2 m apart in height give a
+    ratio far beyond the limit, as an EKF's drift does: the map is usable (1-2 % of the flying height), so it is
+    said, not refused; the same ground with the passes 15 m apart is refused."""
+    positions, sizes, obs, centers, axes = toy_flight(seed=3)
+    rng = np.random.default_rng(1)
+    flat = positions.copy()
+    flat[:, 2] = rng.normal(0.0, 0.05, len(flat))  # bare, flat ground: heights known to 5 cm
+    passes = flight_passes(centers)
+    of = np.array([passes[o[0]] for o in obs])
+    for offset, refused in ((1.5, False), (15.0, True)):
+        lifted = flat.copy()
+        lifted[:, 2] += np.where(of % 4 < 2, offset, -offset) / 2  # neighbouring lines `offset` apart
+        q, v = _judge(lifted, sizes, obs, centers, axes)
+        assert q.pass_disagreement > QualityParams().max_pass_disagreement, q
+        assert abs(q.pass_offset_m - offset) < 0.3 * offset, q
+        assert v.ok != refused, (v.refusals, q)
+        assert any("passes" in t for t in (v.refusals if refused else v.warnings))
 
 
 def test_landmarks_above_the_cameras_and_empty_maps_are_refused():
@@ -111,7 +131,7 @@ def test_pass_disagreement_needs_more_than_one_pass():
     one_line = [i for i, o in enumerate(obs) if flight_passes(centers)[o[0]] == 0]
     value = pass_disagreement(positions[one_line], sizes[one_line], [obs[i] for i in one_line],
                               flight_passes(centers))
-    assert np.isnan(value)
+    assert np.isnan(value.ratio) and np.isnan(value.offset_m)
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -23,6 +23,7 @@ run.json verdict is read (or recomputed from sparse/ for sessions mapped before 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import time
@@ -233,7 +234,8 @@ def rejudge(row: dict[str, Any]) -> dict[str, Any]:
     from ...workflows.map.quality import joined
 
     quality = figures(Path(row["map"])) if Path(row.get("map", "")).is_dir() else row["quality"]
-    q = MapQuality(**{k: (float("nan") if v is None else v) for k, v in quality.items()})
+    known = {f.name for f in dataclasses.fields(MapQuality)}  # rows of older runs lack the newer figures (NaN)
+    q = MapQuality(**{k: (float("nan") if quality.get(k) is None else quality[k]) for k in known})
     p = Params()
     v = judge(q, p.quality, p.association.min_associations + 1)
     pv = (row.get("pose_check") or {}).get("verdict") or {}
