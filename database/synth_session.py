@@ -241,3 +241,26 @@ def load_synth_session(path: str | Path) -> SynthSession:
             raise InputError(f"frame {f.get('name')!r} lacks visible_object_ids or footprint", path / "frames.json")
     terrain = read_terrain_npz(path / "terrain.npz")
     return SynthSession(path, cameras[1], poses, ekf, objects, frames, terrain, meta)
+
+
+def ground_truth_frame(path: str | Path) -> str | None:
+    """What a synthetic session's ground truth (poses.csv, objects.csv, terrain.npz) is expressed in: its procedural
+    world ("world seed 61, 600 m at 0.15 m") or its orthophoto's CRS ("orthophoto in EPSG:32618"); None for a
+    directory without session.json (a real flight: its ground truth's frame is the user's to know).
+
+    Two sessions can be scored against each other only in one frame: sessions of two worlds share coordinates
+    but no ground, objects or object ids."""
+    path = Path(path)
+    if not (path / "session.json").is_file():
+        return None
+    meta = _read_json(path / "session.json")
+    if not isinstance(meta, dict) or meta.get("format") != SESSION_FORMAT:
+        raise InputError(f"not a synthetic session (format must be {SESSION_FORMAT!r})", path / "session.json")
+    if meta.get("source") == "orthophoto":
+        return f"orthophoto in EPSG:{meta.get('epsg')}"
+    config = meta.get("config")
+    if not isinstance(config, dict) or not all(k in config for k in ("world_seed", "world_size_m",
+                                                                      "world_resolution_m")):
+        raise InputError("config lacks world_seed, world_size_m or world_resolution_m", path / "session.json")
+    return (f"world seed {config['world_seed']}, {config['world_size_m']:g} m at "
+            f"{config['world_resolution_m']:g} m")

@@ -143,3 +143,22 @@ def test_maps_or_match_of_the_other_session_are_refused(sessions, tmp_path, caps
     match_workflow.run(Params(), b, a, tmp_path / "ba", workers=1, plot=False)  # B first
     assert main([*args, "--match", str(tmp_path / "ba"), "--out", str(tmp_path / "e2")]) == 2
     assert "in the other order" in capsys.readouterr().err
+
+
+def test_sessions_of_two_worlds_are_refused(sessions, tmp_path, cli_error):
+    """New-user sweep: two `sosmatch synth` sessions of different world seeds share coordinates but no ground, so
+    their footprints 'overlap' by coordinates alone; evaluate scored such a pair (exit 0, a table of nonsense)."""
+    import shutil
+
+    root, a0, b0, _ = sessions
+    a, b = tmp_path / "A", tmp_path / "B"
+    for src, dst, seed in ((a0, a, 61), (b0, b, 77)):
+        shutil.copytree(src, dst)
+        config = {"world_seed": seed, "world_size_m": 600.0, "world_resolution_m": 0.15}
+        (dst / "session.json").write_text(json.dumps({"format": "sosmatch-synth-session", "version": 1,
+                                                      "config": config}))
+    args = ["evaluate", a, b, "--methods", "sosmatch", "--repeats", "1"]
+    err = cli_error(*args, "--out", tmp_path / "e1")
+    assert "B/session.json" in err and "world seed 77" in err and not (tmp_path / "e1").exists()
+    (b / "session.json").write_text((a / "session.json").read_text())  # one world: scored as before
+    assert main([str(x) for x in (*args, "--out", tmp_path / "e2")]) == 0

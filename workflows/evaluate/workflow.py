@@ -23,6 +23,7 @@ from ...database.match_io import check_match_maps, read_match_json
 from ...database.outputs import fingerprint, open_output_dir
 from ...database.poses import read_poses_csv
 from ...database.session_io import check_map_of_images
+from ...database.synth_session import ground_truth_frame
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (
     Hypothesis,
@@ -74,6 +75,16 @@ def load_ground_truth(params: Params, session: str | Path, dem: str | Path | Non
     polys = footprint_polygons(camera, poses.rotations[keys], poses.centers[keys], terrain)
     return GroundTruthSession(session, [poses.names[k] for k in keys], keys, poses.centers[keys],
                               list(poses.names), poses.centers, polys, camera)
+
+
+def check_same_ground_truth_frame(session_a: Path, session_b: Path) -> None:
+    """Refuse two synthetic sessions whose ground truths lie in different frames (two worlds, or a world and an
+    orthophoto): the protocol compares their footprints and objects in one frame, and across worlds it would
+    score a match against ground that neither map saw (footprints overlapping by coordinates only)."""
+    frame_a, frame_b = ground_truth_frame(session_a), ground_truth_frame(session_b)
+    if frame_a is not None and frame_b is not None and frame_a != frame_b:
+        raise InputError(f"rendered in another world than {session_a} ({frame_b}, not {frame_a}): the two "
+                         "sessions share no ground truth to score a match against", session_b / "session.json")
 
 
 def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path) -> np.ndarray:
@@ -391,6 +402,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
     from ...tools.baselines.base import BaselineConfig
 
     t0 = time.perf_counter()
+    check_same_ground_truth_frame(session_a, session_b)
     gt_a = load_ground_truth(params, session_a, dem, ground_height)
     gt_b = load_ground_truth(params, session_b, dem, ground_height)
     iou = iou_matrix(gt_a.footprints, gt_b.footprints)
