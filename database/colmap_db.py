@@ -29,8 +29,6 @@ from .atomic import atomic_path
 from .cameras import pycolmap_camera
 
 if TYPE_CHECKING:
-    import pycolmap
-
     from ..plugin.changes import KeyframeSegments
 
 log = logging.getLogger(__name__)
@@ -77,13 +75,46 @@ def keypoint_sizes_px(keypoints: np.ndarray) -> np.ndarray | None:
 SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
-def open_colmap_database(path: str | Path) -> pycolmap.Database:
-    """A user's COLMAP database opened for reading; InputError naming it when it is not one.
+class DatabaseReader:
+    """A user's COLMAP database read through a read-only SQLite connection: image ids by name and keypoints.
 
-    The SQLite header is checked first: pycolmap's own refusal of another file is a glog warning on stderr and
-    "No registered database factory succeeded", which names neither the file nor the problem."""
-    import pycolmap
+    Read-only because a reader must not write its input: pycolmap's Database opens read-write and commits its
+    schema on open (the file's change counter and mtime move on every read, so a batch re-run saw its mapped
+    flights as changed), and it cannot open a file it may not write. Keypoints are COLMAP's float32 blobs of
+    `rows` x `cols` (2: x y, 4: similarity, 6: affine shape), as pycolmap's read_keypoints returns them."""
 
+    def __init__(self, path: Path, con: sqlite3.Connection) -> None:
+        self.path, self.con = path, con
+
+    def image_ids(self) -> dict[str, int]:
+        try:
+            return {str(name): int(iid) for iid, name in self.con.execute("SELECT image_id, name FROM images")}
+        except sqlite3.Error as exc:
+            raise InputError(f"cannot read the images of the COLMAP database: {exc}", self.path) from None
+
+    def keypoints(self, image_id: int) -> np.ndarray:
+        """(rows, cols) float32 keypoints of one image; (0, 2) when it has none."""
+        try:
+            row = self.con.execute("SELECT rows, cols, data FROM keypoints WHERE image_id = ?",
+                                   (int(image_id),)).fetchone()
+        except sqlite3.Error as exc:
+            raise InputError(f"cannot read the keypoints of the COLMAP database: {exc}", self.path) from None
+        if row is None or not row[0]:
+            return np.zeros((0, 2), np.float32)
+        rows, cols, data = row
+        if not isinstance(data, bytes) or cols not in (2, 4, 6) or len(data) != 4 * rows * cols:
+            raise InputError(f"keypoints of image {image_id}: a blob of {rows} x {cols} float32 expected",
+                             self.path)
+        return np.frombuffer(data, dtype="<f4").reshape(rows, cols).copy()
+
+    def close(self) -> None:
+        self.con.close()
+
+
+def open_colmap_database(path: str | Path) -> DatabaseReader:
+    """A user's COLMAP database opened for reading (read-only); InputError naming it when it is not one.
+
+    The SQLite header is checked first, so that a file of another kind is named as such."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -94,22 +125,20 @@ def open_colmap_database(path: str | Path) -> pycolmap.Database:
         raise InputError(f"cannot read COLMAP database: {exc.strerror or exc}", path) from None
     if head != SQLITE_MAGIC:
         raise InputError("not a COLMAP database (not an SQLite file" + (": empty)" if not head else ")"), path)
-    # pycolmap opens read-write and adds its schema to any SQLite file: look first, read-only
     try:
         con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
         try:
             tables = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
-        finally:
+        except sqlite3.Error:
             con.close()
+            raise
     except sqlite3.Error as exc:
         raise InputError(f"cannot read COLMAP database: {exc}".splitlines()[0], path) from None
     missing = sorted({"cameras", "images", "keypoints"} - tables)
     if missing:
+        con.close()
         raise InputError(f"not a COLMAP database (an SQLite file without the table {missing[0]})", path)
-    try:
-        return pycolmap.Database.open(str(path))
-    except Exception as exc:  # pycolmap raises plain RuntimeError on files that are not databases
-        raise InputError(f"cannot open COLMAP database: {exc}".splitlines()[0], path) from None
+    return DatabaseReader(path, con)
 
 
 def read_segment_detections(path: str | Path, names: Sequence[str]) -> list[KeyframeSegments]:
@@ -126,18 +155,12 @@ def read_segment_detections(path: str | Path, names: Sequence[str]) -> list[Keyf
         raise InputError("COLMAP database not found", path)
     db = open_colmap_database(path)
     try:
-        try:
-            ids = {img.name: img.image_id for img in db.read_all_images()}
-        except Exception as exc:
-            raise InputError(f"cannot read the images of the COLMAP database: {exc}".splitlines()[0], path) \
-                from None
+        ids = db.image_ids()
         out = []
         for name in names:
             if name not in ids:
                 raise InputError(f"image {name!r} of the model is not in the database", path)
-            iid = ids[name]
-            kp = db.read_keypoints(iid) if db.exists_keypoints(iid) else np.zeros((0, 2), np.float32)
-            kp = np.asarray(kp, dtype=np.float64).reshape(len(kp), -1)
+            kp = np.asarray(db.keypoints(ids[name]), dtype=np.float64)
             sizes = keypoint_sizes_px(kp)
             out.append(KeyframeSegments(kp[:, :2].copy(), sizes if sizes is not None else np.full(len(kp), np.nan)))
         return out

@@ -84,8 +84,7 @@ def track_sizes(rec: pycolmap.Reconstruction, ids: list[int], database: Path) ->
     h_px: dict[int, np.ndarray] = {}
     try:
         for iid in rec.images:
-            kp = db.read_keypoints(iid) if db.exists_keypoints(iid) else np.zeros((0, 2), np.float32)
-            sizes = keypoint_sizes_px(kp)
+            sizes = keypoint_sizes_px(db.keypoints(iid))
             if sizes is not None:
                 h_px[iid] = sizes
     finally:

@@ -153,3 +153,24 @@ def test_colmap_38_point_triangulator_runs_on_the_database(tmp_path):
     xyz = np.array([p.xyz for p in rec.points3D.values()])
     nearest = np.linalg.norm(xyz[:, None, :] - pts[None], axis=2).min(1)
     assert np.median(nearest) < 0.05  # noise-free centroids: the points are exact
+
+
+def test_reading_a_database_leaves_it_byte_identical(tmp_path):
+    """New-user sweep: `changes` (and `match` of a COLMAP model with its database) read database.db through
+    pycolmap, which opens read-write and commits on open: every read moved the file's change counter and mtime,
+    so a batch re-run saw its mapped flights as changed. The reader gives pycolmap's keypoints, read-only."""
+    import hashlib
+    import os
+
+    from sosmatch.database.colmap_db import read_segment_detections
+
+    cam, poses, _, cents, tids = nadir_scene()
+    kps = [affine_keypoints(c, np.repeat(np.diag([9.0, 4.0])[None], len(c), 0)) for c in cents]
+    path = tmp_path / "database.db"
+    write_colmap_database(path, cam, poses.names, kps, track_associations(tids, "all", min_observations=3))
+    os.utime(path, ns=(1_000_000_000, 1_000_000_000))
+    before = hashlib.sha256(path.read_bytes()).hexdigest()
+    dets = read_segment_detections(path, poses.names[::-1])
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == before and path.stat().st_mtime_ns == 1_000_000_000
+    for det, kp in zip(dets, kps[::-1]):
+        assert np.allclose(det.centroids, kp[:, :2]) and np.allclose(det.sizes_px, 3.0, rtol=1e-5)
