@@ -125,8 +125,13 @@ def open_colmap_database(path: str | Path) -> DatabaseReader:
         raise InputError(f"cannot read COLMAP database: {exc.strerror or exc}", path) from None
     if head != SQLITE_MAGIC:
         raise InputError("not a COLMAP database (not an SQLite file" + (": empty)" if not head else ")"), path)
+    # pycolmap leaves its databases in WAL mode, where even a read-only reader creates -wal and -shm files beside
+    # the database (left behind, as it may not checkpoint): without pending WAL content the file is complete, so
+    # it is read as immutable (no locks, no side files); sosmatch publishes databases by rename, never in place
+    wal = path.with_name(path.name + "-wal")
+    immutable = "" if wal.is_file() and wal.stat().st_size > 0 else "&immutable=1"
     try:
-        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro{immutable}", uri=True)
         try:
             tables = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
         except sqlite3.Error:

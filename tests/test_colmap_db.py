@@ -172,5 +172,6 @@ def test_reading_a_database_leaves_it_byte_identical(tmp_path):
     before = hashlib.sha256(path.read_bytes()).hexdigest()
     dets = read_segment_detections(path, poses.names[::-1])
     assert hashlib.sha256(path.read_bytes()).hexdigest() == before and path.stat().st_mtime_ns == 1_000_000_000
+    assert [p.name for p in tmp_path.iterdir()] == ["database.db"]  # no -wal / -shm of a WAL-mode reader left
     for det, kp in zip(dets, kps[::-1]):
         assert np.allclose(det.centroids, kp[:, :2]) and np.allclose(det.sizes_px, 3.0, rtol=1e-5)
