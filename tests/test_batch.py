@@ -276,3 +276,28 @@ def test_refine_needs_no_verify(tmp_path, capsys):
     (tmp_path / "flights").mkdir()
     assert main(["batch", str(tmp_path / "flights"), "--out", str(tmp_path / "o"), "--refine"]) == 2
     assert "--refine only applies with --no-verify" in capsys.readouterr().err
+
+
+def test_a_changed_flight_is_redone_and_a_relative_flights_dir_resumes(flights, tmp_path, monkeypatch):
+    """New-user sweep: a mapped flight replaced by another map kept every pair's old match (the state's
+    fingerprint named the flight's path, not its contents), and an adopted flight given by a relative path was
+    stored relative to the cwd and looked up relative to OUT, so it never resumed."""
+    root, _ = flights
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(root / "A", tmp_path / "fl" / "A")
+    shutil.copytree(root / "B", tmp_path / "fl" / "B")
+    first = _run("fl", "out", LocalExecutor(0))
+    again = _run("fl", "out", LocalExecutor(0))
+    assert all(s.get("resumed") for s in again.sessions) and all(p.get("resumed") for p in again.pairs)
+    world = make_world(700, extent_m=720, seed=5)
+    shutil.rmtree(tmp_path / "fl" / "B")  # B mapped again, from another flight over the same ground
+    write_toy_session(tmp_path / "fl" / "B", world, lawnmower(70, 170, 30, 130, 60, 35, 10),
+                      yaw_transform(35, (12, -4, 1)), seed=99)
+    third = _run("fl", "out", LocalExecutor(0))
+    assert [s.get("resumed", False) for s in third.sessions] == [True, False]
+    assert not third.pairs[0].get("resumed", False)
+    from sosmatch.database.landmark_map import landmark_map_fingerprint, read_landmark_map
+
+    match = json.loads((tmp_path / "out" / "pairs" / "A__B" / "match.json").read_text())
+    assert match["map_b"]["fingerprint"] == landmark_map_fingerprint(read_landmark_map("fl/B/landmarks.sosmap"))
+    assert third.pairs[0]["num_associations"] != first.pairs[0]["num_associations"]

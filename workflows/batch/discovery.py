@@ -43,6 +43,23 @@ def classify_flight(folder: Path) -> str | None:
     return "opensfm" if (folder / "opensfm" / "reconstruction.json").is_file() else "images"
 
 
+def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
+    """(relative path, size, mtime in ns) of every file under a flight folder, sorted: what the map stage's
+    fingerprint knows of the flight's contents, so that re-running a batch redoes a flight whose images, poses or
+    mapped session changed (and every pair, merge and comparison of it) instead of resuming stale results. A
+    listing, not a digest: re-reading every image on every re-run would cost what the skip saves; a touched but
+    unchanged flight is mapped again and gives the same files."""
+    entries = []
+    for path in sorted(folder.rglob("*")):
+        try:
+            st = path.stat()
+        except OSError:
+            continue  # a dangling link: the map stage reports what it cannot read
+        if path.is_file():
+            entries.append((path.relative_to(folder).as_posix(), st.st_size, st.st_mtime_ns))
+    return entries
+
+
 def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) -> list[Flight]:
     """Flights in the sub-folders of `flights_dir`, sorted by name; hidden folders and `exclude` are skipped."""
     root = Path(flights_dir)

@@ -27,7 +27,7 @@ class StateStore:
     """OUT/state/STAGE/KEY.json: the fingerprint and result of every finished task, written atomically.
 
     Paths inside OUT are stored relative to OUT (`base`), so a moved or copied OUT directory still resumes;
-    paths outside it (an already mapped flight adopted as it is) stay as they are.
+    paths outside it (an already mapped flight adopted as it is) are stored absolute.
     """
 
     def __init__(self, root: Path, base: Path | None = None) -> None:
@@ -39,10 +39,11 @@ class StateStore:
         base = self.base.resolve()
         for key in PATH_KEYS:
             if isinstance(out.get(key), str):
+                resolved = Path(out[key]).resolve()
                 try:
-                    out[key] = Path(out[key]).resolve().relative_to(base).as_posix()
-                except ValueError:
-                    pass  # outside OUT: keep it absolute
+                    out[key] = resolved.relative_to(base).as_posix()
+                except ValueError:  # outside OUT (an adopted mapped flight): absolute, not relative to the cwd
+                    out[key] = str(resolved)
         return out
 
     def _absolute(self, result: dict[str, Any]) -> dict[str, Any]:

@@ -23,7 +23,7 @@ from ...plugin.multisession import (
 )
 from ...plugin.params import Params, params_to_dict
 from ..executors import Executor, LocalExecutor
-from .discovery import PAIR_SEP, discover_flights
+from .discovery import PAIR_SEP, discover_flights, flight_signature
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
 from .tasks import changes_task, map_task, merge_task, pair_task
@@ -126,7 +126,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     fps, tasks = {}, {}
     for f in flights:
         fps[f.name] = fingerprint({"flight": str(f.path.resolve()), "kind": f.kind, "params": pdict,
-                                    "ekf": options.ekf})
+                                    "ekf": options.ekf, "contents": flight_signature(f.path)})
         tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf,
                          options.overwrite)
     sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
