@@ -162,3 +162,21 @@ def test_sessions_of_two_worlds_are_refused(sessions, tmp_path, cli_error):
     assert "B/session.json" in err and "world seed 77" in err and not (tmp_path / "e1").exists()
     (b / "session.json").write_text((a / "session.json").read_text())  # one world: scored as before
     assert main([str(x) for x in (*args, "--out", tmp_path / "e2")]) == 0
+
+
+def test_a_pair_without_positive_keyframe_pairs_is_refused(sessions, tmp_path, cli_error):
+    """New-user sweep: flights at 80 m and 150 m have no keyframe pair of IoU > 1/3 (IoU is at most the ratio of
+    the footprints' areas), so recall and F1 are undefined; evaluate reported 0.000 with exit 0 for a right
+    alignment. B flown 3.5x higher here."""
+    import shutil
+
+    from sosmatch.database.poses import read_poses_csv
+
+    root, a, b0, _ = sessions
+    b = tmp_path / "B"
+    shutil.copytree(b0, b)
+    poses, _ = read_poses_csv(b / "poses.csv")
+    poses.centers[:, 2] *= 3.5
+    write_poses_csv(b / "poses.csv", poses)
+    err = cli_error("evaluate", a, b, "--methods", "sosmatch", "--repeats", "1", "--out", tmp_path / "e")
+    assert "IoU > 0.333" in err and "largest 0.0" in err and not (tmp_path / "e").exists()

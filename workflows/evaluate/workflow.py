@@ -87,6 +87,22 @@ def check_same_ground_truth_frame(session_a: Path, session_b: Path) -> None:
                          "sessions share no ground truth to score a match against", session_b / "session.json")
 
 
+def check_positive_pairs(gt_a: GroundTruthSession, gt_b: GroundTruthSession, iou: np.ndarray, where: Path) -> None:
+    """Refuse a pair without one keyframe pair of IoU > TP_IOU: recall and F1 are undefined there, and the table
+    said 0.000 with exit 0, also for a right alignment. IoU cannot exceed the ratio of the footprints' areas, so
+    flights at very different heights (80 m and 150 m: 0.23) never reach it, nor do flights that do not overlap."""
+    if iou.size and np.any(iou > TP_IOU):
+        return
+    import shapely
+
+    area_a, area_b = (float(np.median(shapely.area(g.footprints))) if len(g.footprints) else 0.0
+                      for g in (gt_a, gt_b))
+    largest = float(iou.max()) if iou.size else 0.0
+    raise InputError(f"no keyframe pair of the two sessions overlaps by IoU > {TP_IOU:.3f} (largest {largest:.2f}; "
+                     f"median footprints {area_a:.0f} and {area_b:.0f} m^2): the protocol's recall and F1 are "
+                     "undefined for flights that do not overlap or differ this much in height", where)
+
+
 def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path) -> np.ndarray:
     """Evaluation keyframe index of each image name: the keyframe nearest to the image's ground-truth centre.
 
@@ -408,6 +424,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
     iou = iou_matrix(gt_a.footprints, gt_b.footprints)
     log.info("%s: %d x %d keyframes, %d positive pairs (IoU > %.3f), ground truth in %.1f s", case, len(gt_a.names),
              len(gt_b.names), int((iou > TP_IOU).sum()), TP_IOU, time.perf_counter() - t0)
+    check_positive_pairs(gt_a, gt_b, iou, session_b)
     results: dict[str, dict] = {}
     if "sosmatch" in methods:
         ma = Path(map_a) if map_a is not None else session_a
