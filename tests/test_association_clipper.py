@@ -224,3 +224,67 @@ def test_symmetric_csr_and_weighted_degrees_equal_their_definition(seed, n, dens
     assert indices.tolist() == [j for x in lists for j, _ in x] and data.tolist() == [w for x in lists for _, w in x]
     assert wdeg.tolist() == weights
     assert all(np.array_equal(x, y) for x, y in zip(sym_csr(n, r, c, v), (indptr, indices, data)))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n_a=st.integers(1, 12), n_b=st.integers(1, 12), m=st.integers(0, 60),
+       grid=st.booleans(), eps=st.sampled_from([1.0, 2.0]) | st.floats(0.1, 4.0), blocks=st.integers(1, 7),
+       parallel=st.booleans())
+def test_problem_graph_in_blocks_equals_the_edge_list_graph(seed, n_a, n_b, m, grid, eps, blocks, parallel):
+    """The one-problem kernel gives the edges of `association_graph` in its order and the symmetric CSR of
+    `sym_csr` (entries, order, and each entry's edge) for any cut of the rows into blocks, on one thread or
+    several: the cut never shows in the output. Solving from that CSR selects what solving the edge list does."""
+    from sosmatch.plugin.association.kernels_graph import DISTANCE, association_graph
+    from sosmatch.plugin.association.kernels_problem import problem_graph_parallel, problem_graph_serial
+    from sosmatch.plugin.association.kernels_solve import sym_csr
+
+    rng = np.random.default_rng(seed)
+    a, b = rng.uniform(0, 8, (n_a, 3)), rng.uniform(0, 8, (n_b, 3))
+    if grid:
+        a, b = np.round(a), np.round(b)
+    pairs = np.column_stack([rng.integers(0, n_a, m), rng.integers(0, n_b, m)]).astype(np.int64)
+    kernel = problem_graph_parallel if parallel else problem_graph_serial
+    problem, rows, cols, x, indptr, indices, slot = kernel(a, b, pairs, eps, 0.5, blocks)
+    r0, c0, cs, _, _ = association_graph(a, b, pairs[:, 0].copy(), pairs[:, 1].copy(), DISTANCE, eps, 1.0, 0.0, 0.0,
+                                         0.0, 1)
+    assert problem == 0 and rows.tolist() == r0.tolist() and cols.tolist() == c0.tolist()
+    assert x.tobytes() == (-(cs * cs) / 0.5).tobytes()
+    ip, ix, data = sym_csr(m, r0, c0, cs)
+    assert indptr.tolist() == ip.tolist() and indices.tolist() == ix.tolist()
+    assert cs[slot].tobytes() == data.tobytes()
+    g = affinity_graph(a, b, pairs, eps=eps, sigma=0.5)
+    assert g.csr is not None
+    plain = ConsistencyGraph(g.n, g.rows, g.cols, g.values, g.diag)  # no CSR: the solver builds it
+    for method in ("bounded", "clipper"):
+        x1, x2 = solve(g, method=method), solve(plain, method=method)
+        assert x1.selected.tolist() == x2.selected.tolist() and x1.score == x2.score
+        assert x1.u.tobytes() == x2.u.tobytes()
+
+
+def test_problem_graph_beyond_the_tables_and_threads():
+    """More distinct landmarks than the distance tables hold: the vectors are formed on the fly and the solver
+    builds the CSR itself; the parallel path (forced on here) and the serial one give the same graph."""
+    from sosmatch.plugin.association import kernels_problem
+    from sosmatch.plugin.association.kernels_graph import TABLE_MAX
+
+    rng = np.random.default_rng(3)
+    n = TABLE_MAX + 1
+    a = rng.uniform(0, 100, (n, 3))
+    b = a + rng.normal(0, 0.05, a.shape)
+    pairs = np.column_stack([np.arange(n), rng.permutation(n)]).astype(np.int64)
+    pairs[:50, 1] = pairs[:50, 0]  # 50 true associations among 2049 wrong ones
+    g = affinity_graph(a, b, pairs, eps=0.5, sigma=0.5)
+    assert g.csr is None
+    rows, cols, _ = straightforward_graph(a, b, pairs[:60], 0.5, 0.5)
+    assert [(r, c) for r, c in zip(g.rows, g.cols) if c < 60] == list(zip(rows, cols))
+    assert solve(g).selected.tolist() == np.flatnonzero(pairs[:, 0] == pairs[:, 1]).tolist()  # (a few by chance)
+    small = np.column_stack([np.arange(300), np.arange(300)]).astype(np.int64)
+    serial = affinity_graph(a, b, small, eps=0.5, sigma=0.5)
+    free, kernels_problem._core_free = kernels_problem._core_free, lambda: True
+    try:
+        threaded = affinity_graph(a, b, small, eps=0.5, sigma=0.5)
+    finally:
+        kernels_problem._core_free = free
+    for x, y in zip((serial.rows, serial.cols, serial.values, *serial.csr), (threaded.rows, threaded.cols,
+                                                                              threaded.values, *threaded.csr)):
+        assert x.tobytes() == y.tobytes()

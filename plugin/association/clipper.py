@@ -24,13 +24,14 @@ near 1 while the affinity at the gate eps = 2 m is exp(-2) = 0.14, so borderline
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import InputError
-from .kernels_graph import DISTANCE, PROBLEM_PAIRS, PROBLEM_POINTS_A, PROBLEM_POINTS_B, association_graph, check_problem
-from .kernels_solve import BOUNDED, CLIPPER, solve_graph, sym_csr
+from .kernels_graph import PROBLEM_PAIRS, PROBLEM_POINTS_A, PROBLEM_POINTS_B
+from .kernels_problem import problem_graph
+from .kernels_solve import BOUNDED, CLIPPER, solve_graph, solve_graph_csr, sym_csr
 from .kernels_solve import core_numbers as _core_numbers
 
 
@@ -43,6 +44,9 @@ class ConsistencyGraph:
     cols: np.ndarray  # int64 (E,)
     values: np.ndarray  # float64 (E,), in (0, 1]
     diag: np.ndarray  # float64 (n,), weights on the diagonal (1 when unweighted)
+    # the symmetric CSR structure (indptr, indices, edge of each entry) when `affinity_graph` built it with the
+    # edges; `solve` then does not scatter the edge list again
+    csr: tuple | None = field(default=None, compare=False, repr=False)
 
     @property
     def degrees(self) -> np.ndarray:
@@ -68,48 +72,48 @@ class ClipperResult:
     iterations: int  # gradient steps taken
 
 
-def _validate(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray,
-              weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _validate(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray) -> tuple:
+    """The inputs as arrays of the right shapes (the value checks are the compiled `check_problem`'s)."""
     pa = np.asarray(points_a, dtype=np.float64)
     pb = np.asarray(points_b, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     for name, pts in (("points_a", pa), ("points_b", pb)):
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise InputError(f"{name} must be an (N, 3) array, got shape {pts.shape}")
-    # one compiled pass for the value checks (a dozen numpy reductions cost more than the problem at small m)
-    problem = check_problem(pa, pb, pairs)
-    if problem == PROBLEM_POINTS_A:
-        raise InputError("points_a holds NaN or infinite coordinates")
-    if problem == PROBLEM_POINTS_B:
-        raise InputError("points_b holds NaN or infinite coordinates")
-    if problem == PROBLEM_PAIRS:
-        raise InputError("association pairs index a landmark that does not exist")
-    if weights is None:
-        w = np.ones(len(pairs))
-    else:
-        w = np.asarray(weights, dtype=np.float64).reshape(-1)
-        if len(w) != len(pairs) or not np.all(np.isfinite(w)) or np.any(w < 0):
-            raise InputError("weights must be one finite, non-negative value per association pair")
-    return pa, pb, pairs, w
+    return pa, pb, pairs
+
+
+_PROBLEMS = {PROBLEM_POINTS_A: "points_a holds NaN or infinite coordinates",
+             PROBLEM_POINTS_B: "points_b holds NaN or infinite coordinates",
+             PROBLEM_PAIRS: "association pairs index a landmark that does not exist"}
 
 
 def affinity_graph(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray,
                    weights: np.ndarray | None = None, eps: float = 2.0, sigma: float = 1.0) -> ConsistencyGraph:
     """CLIPPER consistency graph of putative associations `pairs` (m, 2) between `points_a` and `points_b`.
 
-    All m (m - 1) / 2 pairs are tested in one compiled pass (`kernels_graph.association_graph`; the pair
-    distances come from per-map tables of the landmarks that occur, which the associations share).
+    One compiled call (`kernels_problem.problem_graph`) checks the values, tests all m (m - 1) / 2 pairs (the
+    pair distances come from per-map tables of the landmarks that occur, which the associations share; the rows
+    in blocks, one per thread) and builds the graph's symmetric CSR for `solve`.
     """
-    pa, pb, pairs, w = _validate(points_a, points_b, pairs, weights)
-    if eps <= 0 or sigma <= 0:
+    pa, pb, pairs = _validate(points_a, points_b, pairs)
+    scale_ok = not (eps <= 0 or sigma <= 0)
+    problem, rows, cols, x, indptr, indices, slot = problem_graph(
+        pa, pb, pairs, float(eps), 2.0 * sigma * sigma if scale_ok else 1.0)
+    if problem:
+        raise InputError(_PROBLEMS[problem])
+    if weights is None:
+        w = np.ones(len(pairs))
+    else:
+        w = np.asarray(weights, dtype=np.float64).reshape(-1)
+        if len(w) != len(pairs) or not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise InputError("weights must be one finite, non-negative value per association pair")
+    if not scale_ok:
         raise InputError(f"eps and sigma must be positive, got eps={eps}, sigma={sigma}")
-    rows, cols, c, _, _ = association_graph(pa, pb, pairs[:, 0].copy(), pairs[:, 1].copy(), DISTANCE, float(eps),
-                                            float(sigma), 0.0, 0.0, 0.0, 1)
-    # exp(-(c * c) / (2 sigma^2)) evaluated in place, operation by operation as written (the same bits)
-    np.multiply(c, c, out=c)
-    np.negative(c, out=c)
-    np.divide(c, 2.0 * sigma * sigma, out=c)
-    return ConsistencyGraph(len(pairs), rows, cols, np.exp(c, out=c), w)
+    # exp(-(c * c) / (2 sigma^2)): the kernel formed the argument operation by operation as numpy did; numpy's exp
+    # as before (the same bits)
+    csr = (indptr, indices, slot) if len(indptr) else None
+    return ConsistencyGraph(len(pairs), rows, cols, np.exp(x, out=x), w, csr)
 
 
 SOLVERS = {"clipper": CLIPPER, "bounded": BOUNDED}
@@ -136,9 +140,14 @@ def solve(graph: ConsistencyGraph, tol_u: float = 1e-6, max_outer: int = 60, max
         raise InputError(f"unknown solver {method!r} (known: {', '.join(SOLVERS)})")
     if penalty_start not in ("violations", "zero"):
         raise InputError(f"penalty_start must be 'violations' or 'zero', got {penalty_start!r}")
-    sel, score, u, d, steps = solve_graph(graph.n, graph.rows, graph.cols, graph.values, graph.diag,
-                                          SOLVERS[method], tol_u, max_outer, max_inner, beta,
-                                          penalty_start == "violations")
+    if graph.csr is not None:
+        indptr, indices, slot = graph.csr
+        sel, score, u, d, steps = solve_graph_csr(indptr, indices, slot, graph.values, graph.diag, SOLVERS[method],
+                                                  tol_u, max_outer, max_inner, beta, penalty_start == "violations")
+    else:
+        sel, score, u, d, steps = solve_graph(graph.n, graph.rows, graph.cols, graph.values, graph.diag,
+                                              SOLVERS[method], tol_u, max_outer, max_inner, beta,
+                                              penalty_start == "violations")
     return ClipperResult(sel, float(score), u, float(d), int(steps))
 
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .kernels_sweep import expand_rows, grow, sweep_rows
+
 DISTANCE, GRAVITY = 0, 1  # association.consistency
 
 
@@ -310,98 +312,18 @@ def graph_from_tables(la: np.ndarray, lb: np.ndarray, ta: np.ndarray, tb: np.nda
     """`association_graph` from invariant tables; la, lb: each association's row in ta, tb."""
     m = len(la)
     cap = max(16, min(m * (m - 1) // 2 + 4 * m, 16 * m + 4096))
-    found = np.empty(cap, np.int32)  # columns of the pairs that pass, row by row (int32: half the stores)
-    row_end = np.zeros(m, np.int64)
-    lena = ta[0]
-    lenb = tb[0]
-    # unsigned indices: numba then skips the negative-index wraparound on every table read
+    # the length tests of pair_mismatch, every row in this thread (`kernels_sweep`)
     ua = la.astype(np.uint32)
     ub = lb.astype(np.uint32)
-    # The m^2 / 2 length tests of pair_mismatch (false for NaN and inf: a shared landmark) store one column
-    # each, without a branch (few pass; c is formed for those below). Four rows at a time: each column's
-    # landmark ids are read once for the four, and the four independent stores keep the core busy (1.3-1.4x
-    # over one row at a time); each row's columns land in a buffer of their own, ascending, and are appended.
-    buf = np.empty((4, max(m, 1)), np.int32)
-    b0, b1, b2, b3 = buf[0], buf[1], buf[2], buf[3]
-    ne = 0
-    p = 0
-    while p < m:
-        if ne + 4 * m > cap:  # room for four whole rows
-            cap = 2 * cap + 4 * m
-            found = grow(found, cap)
-        if p + 4 > m:  # the last rows, one at a time
-            ra = lena[ua[p]]
-            rb = lenb[ub[p]]
-            for q in range(p + 1, m):
-                found[ne] = q
-                ne += abs(ra[ua[q]] - rb[ub[q]]) <= eps
-            row_end[p] = ne
-            p += 1
-            continue
-        ra0, rb0 = lena[ua[p]], lenb[ub[p]]
-        ra1, rb1 = lena[ua[p + 1]], lenb[ub[p + 1]]
-        ra2, rb2 = lena[ua[p + 2]], lenb[ub[p + 2]]
-        ra3, rb3 = lena[ua[p + 3]], lenb[ub[p + 3]]
-        n0 = 0
-        n1 = 0
-        n2 = 0
-        n3 = 0
-        for q in range(p + 1, p + 4):  # the corner of the triangle: columns before the four-row sweep
-            b0[n0] = q
-            n0 += abs(ra0[ua[q]] - rb0[ub[q]]) <= eps
-        for q in range(p + 2, p + 4):
-            b1[n1] = q
-            n1 += abs(ra1[ua[q]] - rb1[ub[q]]) <= eps
-        b2[n2] = p + 3
-        n2 += abs(ra2[ua[p + 3]] - rb2[ub[p + 3]]) <= eps
-        for q in range(p + 4, m):
-            x = ua[q]
-            y = ub[q]
-            b0[n0] = q
-            n0 += abs(ra0[x] - rb0[y]) <= eps
-            b1[n1] = q
-            n1 += abs(ra1[x] - rb1[y]) <= eps
-            b2[n2] = q
-            n2 += abs(ra2[x] - rb2[y]) <= eps
-            b3[n3] = q
-            n3 += abs(ra3[x] - rb3[y]) <= eps
-        for k in range(n0):
-            found[ne + k] = b0[k]
-        ne += n0
-        row_end[p] = ne
-        for k in range(n1):
-            found[ne + k] = b1[k]
-        ne += n1
-        row_end[p + 1] = ne
-        for k in range(n2):
-            found[ne + k] = b2[k]
-        ne += n2
-        row_end[p + 2] = ne
-        for k in range(n3):
-            found[ne + k] = b3[k]
-        ne += n3
-        row_end[p + 3] = ne
-        p += 4
+    count = np.empty(m, np.int64)
+    found, ne = sweep_rows(ua, ub, ta[0], tb[0], eps, 0, m, np.empty(cap, np.int32), 0, count)
     rows = np.empty(ne, np.int64)
     cols = np.empty(ne, np.int64)
     cs = np.empty(ne)
-    e = 0
-    if mode != GRAVITY:  # the length test is the whole test, c the length mismatch (the same expression)
-        for p in range(m):
-            ra = lena[ua[p]]
-            rb = lenb[ub[p]]
-            for x in range(e, row_end[p]):
-                q = found[x]
-                rows[x] = p
-                cols[x] = q
-                cs[x] = abs(ra[ua[q]] - rb[ub[q]])
-            e = row_end[p]
+    # the edges with the length mismatch c (the same expression as the test)
+    expand_rows(ua, ub, ta[0], tb[0], 0, m, found, 0, 0, count, rows, cols, cs)
+    if mode != GRAVITY:  # the length test is the whole test, c the length mismatch
         return rows, cols, cs, np.zeros(ne, np.int64), np.ones(ne, np.int64)
-    for p in range(m):
-        for x in range(e, row_end[p]):
-            rows[x] = p
-            cols[x] = found[x]
-        e = row_end[p]
     s0 = np.zeros(ne, np.int64)
     ns = np.ones(ne, np.int64)
     keep = np.ones(ne, np.bool_)
@@ -510,11 +432,3 @@ def affinity_values(c: np.ndarray, sigma: float) -> np.ndarray:
     for e in range(len(c)):
         out[e] = exp_nonpositive(-(c[e] * c[e]) / s)
     return out
-
-
-@njit(cache=True)
-def grow(x: np.ndarray, cap: int) -> np.ndarray:
-    """A copy of `x` with room for `cap` entries (the output buffers of the joins and graphs)."""
-    y = np.empty(cap, x.dtype)
-    y[: len(x)] = x
-    return y

@@ -374,8 +374,13 @@ def greedy_clique(n: int, indptr: np.ndarray, indices: np.ndarray, weighted_degr
                 if core[w] >= len(best):
                     cand[nc] = w
                     nc += 1
-            # candidates in the global order: sorted by index, then weighted degree, then core (stable sorts)
-            cs = np.sort(cand[:nc])
+            # candidates in the global order: sorted by index, then weighted degree, then core (stable sorts; the
+            # neighbour lists are ascending wherever they come from, so the index sort is only a safeguard)
+            cs = cand[:nc]
+            for k in range(1, nc):
+                if cs[k - 1] > cs[k]:
+                    cs = np.sort(cs)
+                    break
             cs = cs[np.argsort(wdeg[cs], kind="mergesort")]
             negc = np.empty(nc, np.int64)
             for k in range(nc):
@@ -472,7 +477,47 @@ def solve_graph(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, di
     if n == 0:
         return np.zeros(0, np.int64), 0.0, np.zeros(0), 0.0, 0
     indptr, indices, data, wdeg = sym_csr_weighted(n, rows, cols, vals, diag)
-    if 2 * len(rows) == n * (n - 1):
+    return solve_csr(n, indptr, indices, data, wdeg, diag, method, tol_u, max_outer, max_inner, beta,
+                     d0_from_violations)
+
+
+@njit(cache=True)
+def csr_values(indptr: np.ndarray, slot: np.ndarray, vals: np.ndarray, diag: np.ndarray) -> tuple:
+    """The CSR's affinities (vals of each entry's edge `slot`) and the weighted degrees diag[i] + i's affinities,
+    summed in i's neighbour-list order (`sym_csr_weighted`'s bits)."""
+    n = len(indptr) - 1
+    data = np.empty(len(slot))
+    wdeg = np.empty(n)
+    for i in range(n):
+        w = diag[i]
+        for k in range(indptr[i], indptr[i + 1]):
+            v = vals[slot[k]]
+            data[k] = v
+            w += v
+        wdeg[i] = w
+    return data, wdeg
+
+
+@njit(cache=True)
+def solve_graph_csr(indptr: np.ndarray, indices: np.ndarray, slot: np.ndarray, vals: np.ndarray, diag: np.ndarray,
+                    method: int, tol_u: float, max_outer: int, max_inner: int, beta: float,
+                    d0_from_violations: bool) -> tuple:
+    """`solve_graph` of a graph whose symmetric CSR structure is given (`kernels_problem.problem_graph`): slot is
+    the edge (index into vals) of every entry."""
+    n = len(indptr) - 1
+    if n == 0:
+        return np.zeros(0, np.int64), 0.0, np.zeros(0), 0.0, 0
+    data, wdeg = csr_values(indptr, slot, vals, diag)
+    return solve_csr(n, indptr, indices, data, wdeg, diag, method, tol_u, max_outer, max_inner, beta,
+                     d0_from_violations)
+
+
+@njit(cache=True)
+def solve_csr(n: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, wdeg: np.ndarray, diag: np.ndarray,
+              method: int, tol_u: float, max_outer: int, max_inner: int, beta: float,
+              d0_from_violations: bool) -> tuple:
+    """`solve_graph` from the symmetric CSR (neighbour lists ascending) and the weighted degrees."""
+    if len(indices) == n * (n - 1):
         # complete graph (common for a window pair's core): the positive M has a positive Perron vector, the
         # support is everything, consistent at d = 0, and rounding keeps all of it
         sel = np.arange(n)

@@ -1,0 +1,183 @@
+"""The graph of one CLIPPER problem (`clipper.affinity_graph`) in one compiled call, on both cores (numba).
+
+The distance-consistency graph of m associations is m^2 / 2 length tests against two per-map distance tables
+(`kernels_sweep`). Here the rows are cut into blocks of about equal numbers of tests, one per thread, and each
+block's edges land at their place in row order, so the output is the same whatever the number of threads (one
+thread included) and the same as `kernels_graph.association_graph` gives. The same call also returns the
+symmetric CSR structure of the graph (what `solve` needs, built by whoever holds the rows' edges: here), so
+the solver does not scatter the edge list again.
+
+Threads: numba's `prange` (its OpenMP or TBB layer; the workqueue layer when neither is installed). The C++
+reference of the benchmark runs its affinity on 2 OpenMP threads as well.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .kernels_graph import DISTANCE, PROBLEM_NONE, TABLE_MAX, _graph_direct, check_problem, invariant_table, local_ids
+from .kernels_sweep import expand_rows, sweep_rows
+
+
+@njit(cache=True)
+def row_blocks(m: int, blocks: int) -> np.ndarray:
+    """Row bounds of `blocks` consecutive blocks of about equal numbers of tests (row p holds m - 1 - p)."""
+    total = m * (m - 1) // 2
+    bounds = np.empty(blocks + 1, np.int64)
+    bounds[0] = 0
+    p = 0
+    done = 0
+    for b in range(1, blocks):
+        target = total * b // blocks
+        while p < m and done < target:
+            done += m - 1 - p
+            p += 1
+        bounds[b] = p
+    bounds[blocks] = m
+    return bounds
+
+
+def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float, two_s2: float,
+                  blocks: int) -> tuple:
+    """The consistency graph of associations `pairs` (m, 2) between points pa and pb: (problem, rows, cols, x,
+    indptr, indices, slot).
+
+    problem: `check_problem`'s code (nothing else is computed unless it is PROBLEM_NONE). rows < cols, sorted by
+    (row, col), as `association_graph` gives them; x = -(c * c) / two_s2 of each edge's length mismatch c (the
+    affinity is exp(x), taken by numpy as before: the same bits). indptr, indices (int32): the symmetric CSR of the
+    edges, each vertex's neighbours ascending (its lower ones, then its higher ones: `kernels_solve.sym_csr`'s
+    order), slot (int32): the edge of every CSR entry. With more distinct landmarks than the tables hold
+    (`TABLE_MAX`) the CSR is left empty (indptr of length 0) and the solver builds it from the edge list.
+    """
+    empty_i = np.zeros(0, np.int64)
+    empty_32 = np.zeros(0, np.int32)
+    problem = check_problem(pa, pb, pairs)
+    if problem != PROBLEM_NONE:
+        return problem, empty_i, empty_i, np.zeros(0), empty_i, empty_32, empty_32
+    m = pairs.shape[0]
+    ia = pairs[:, 0].copy()
+    ib = pairs[:, 1].copy()
+    ids_a, la = local_ids(ia, pa.shape[0])
+    ids_b, lb = local_ids(ib, pb.shape[0])
+    if len(ids_a) > TABLE_MAX or len(ids_b) > TABLE_MAX:  # too many landmarks for tables: vectors on the fly
+        rows, cols, x, _, _ = _graph_direct(pa, pb, ia, ib, DISTANCE, eps, 0.0, 0.0, 0.0, 0.0, 1)
+        for e in range(len(x)):
+            c = x[e]
+            x[e] = -(c * c) / two_s2
+        return problem, rows, cols, x, empty_i, empty_32, empty_32
+    lena = invariant_table(pa, ids_a, DISTANCE)[0]
+    lenb = invariant_table(pb, ids_b, DISTANCE)[0]
+    ua = la.astype(np.uint32)
+    ub = lb.astype(np.uint32)
+    bounds = row_blocks(m, blocks)
+    total = m * (m - 1) // 2
+    # block t's columns go to found[base[t]:], base = the tests of the rows before it (no block can outgrow its
+    # share; the 4 m of slack keep sweep_rows' room check for four whole rows from growing a private copy)
+    base = np.zeros(blocks + 1, np.int64)
+    for t in range(blocks):
+        r0, r1 = bounds[t], bounds[t + 1]
+        base[t + 1] = base[t] + (r1 - r0) * (2 * m - r0 - r1 - 1) // 2
+    found = np.empty(total + 4 * m, np.int32)
+    count = np.zeros(m, np.int64)
+    ends = np.empty(blocks, np.int64)
+    for t in prange(blocks):
+        _, ends[t] = sweep_rows(ua, ub, lena, lenb, eps, bounds[t], bounds[t + 1], found, base[t], count)
+    # where each block's edges start in row order, and each row's
+    start = np.zeros(blocks + 1, np.int64)
+    for t in range(blocks):
+        start[t + 1] = start[t] + ends[t] - base[t]
+    ne = start[blocks]
+    rows = np.empty(ne, np.int64)
+    cols = np.empty(ne, np.int64)
+    x = np.empty(ne)
+    # how many lower neighbours each vertex has in each block (block t's rows are lower than the later blocks')
+    lower = np.zeros((blocks, m), np.int64)
+    for t in prange(blocks):
+        expand_rows(ua, ub, lena, lenb, bounds[t], bounds[t + 1], found, base[t], start[t], count, rows, cols, x)
+        for e in range(start[t], start[t + 1]):
+            c = x[e]
+            x[e] = -(c * c) / two_s2  # numpy's order before: multiply, negate, divide
+            lower[t, cols[e]] += 1
+    indptr = np.zeros(m + 1, np.int64)
+    for v in range(m):
+        d = count[v]
+        for t in range(blocks):
+            d += lower[t, v]
+        indptr[v + 1] = indptr[v] + d
+    # each block scatters its rows into their higher neighbours' lists (after the lower neighbours of earlier
+    # blocks) and copies its rows' own higher neighbours to the end of their lists
+    fill = np.empty((blocks, m), np.int64)
+    for v in range(m):
+        k = indptr[v]
+        for t in range(blocks):
+            fill[t, v] = k
+            k += lower[t, v]
+    indices = np.empty(indptr[m], np.int32)
+    slot = np.empty(indptr[m], np.int32)
+    for t in prange(blocks):
+        f = fill[t]
+        e = start[t]
+        for p in range(bounds[t], bounds[t + 1]):
+            k = indptr[p + 1] - count[p]
+            for _ in range(count[p]):
+                q = cols[e]
+                indices[k] = q
+                slot[k] = e
+                k += 1
+                j = f[q]
+                indices[j] = p
+                slot[j] = e
+                f[q] = j + 1
+                e += 1
+    return problem, rows, cols, x, indptr, indices, slot
+
+
+# one source, compiled twice: in the serial build prange is range (no thread pool is woken for one block)
+problem_graph_serial = njit(cache=True)(_problem_graph)
+problem_graph_parallel = njit(cache=True, parallel=True)(_problem_graph)
+
+PARALLEL_MIN = 256  # from this many associations on, one block of rows per thread when a core is free
+_lock = threading.Lock()
+_free: list = [-1.0, False]  # when the load was last read (monotonic s), and whether a core was free then
+_pid = os.getpid()
+
+
+def _core_free() -> bool:
+    """Whether a core is idle now: fewer runnable tasks (this one included) than cores, from /proc/loadavg (Linux;
+    elsewhere no), read at most every 0.25 s. On a busy machine a thread of a parallel loop waits for a core and
+    the call waits for that thread (the C++ reference's 2-thread affinity then runs 4-16x its quiet time); there
+    one thread does all the rows."""
+    now = time.monotonic()
+    if now - _free[0] > 0.25:
+        try:
+            with open("/proc/loadavg") as f:
+                running = int(f.read().split()[3].split("/")[0])
+            _free[1] = running < (os.cpu_count() or 1)
+        except (OSError, ValueError, IndexError):
+            _free[1] = False
+        _free[0] = now
+    return _free[1]
+
+
+def problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float, two_s2: float) -> tuple:
+    """`_problem_graph`, in one block of rows per thread from PARALLEL_MIN associations on when a core is free,
+    else in this thread; the same output either way.
+
+    One parallel call at a time (numba's workqueue layer, used when neither OpenMP nor TBB is installed, must not
+    be entered by two threads; a concurrent caller takes the serial build), and none in a forked child (GNU
+    OpenMP cannot run in a child of a process that used it).
+    """
+    threads = numba.get_num_threads()
+    if len(pairs) >= PARALLEL_MIN and threads > 1 and os.getpid() == _pid and _core_free() and \
+            _lock.acquire(blocking=False):
+        try:
+            return problem_graph_parallel(pa, pb, pairs, eps, two_s2, threads)
+        finally:
+            _lock.release()
+    return problem_graph_serial(pa, pb, pairs, eps, two_s2, 1)
