@@ -280,7 +280,7 @@ def test_problem_graph_beyond_the_tables_and_threads():
     assert solve(g).selected.tolist() == np.flatnonzero(pairs[:, 0] == pairs[:, 1]).tolist()  # (a few by chance)
     small = np.column_stack([np.arange(300), np.arange(300)]).astype(np.int64)
     serial = affinity_graph(a, b, small, eps=0.5, sigma=0.5)
-    free, kernels_problem._core_free = kernels_problem._core_free, lambda: True
+    free, kernels_problem._core_free = kernels_problem._core_free, lambda threads: True
     try:
         threaded = affinity_graph(a, b, small, eps=0.5, sigma=0.5)
     finally:

@@ -86,46 +86,44 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
     found = np.empty(total + 4 * m, np.int32)
     count = np.zeros(m, np.int64)
     ends = np.empty(blocks, np.int64)
+    # how many lower neighbours each vertex has in each block (block t's rows are lower than the later blocks')
+    lower = np.zeros((blocks, m), np.int64)
     for t in prange(blocks):
-        _, ends[t] = sweep_rows(ua, ub, lena, lenb, eps, bounds[t], bounds[t + 1], found, base[t], count)
-    # where each block's edges start in row order, and each row's
+        _, end = sweep_rows(ua, ub, lena, lenb, eps, bounds[t], bounds[t + 1], found, base[t], count)
+        ends[t] = end
+        low = lower[t]
+        for k in range(base[t], end):
+            low[found[k]] += 1
+    # where each block's edges start in row order; each vertex's list: its lower neighbours block by block, then
+    # its higher ones
     start = np.zeros(blocks + 1, np.int64)
     for t in range(blocks):
         start[t + 1] = start[t] + ends[t] - base[t]
     ne = start[blocks]
-    rows = np.empty(ne, np.int64)
-    cols = np.empty(ne, np.int64)
-    x = np.empty(ne)
-    # how many lower neighbours each vertex has in each block (block t's rows are lower than the later blocks')
-    lower = np.zeros((blocks, m), np.int64)
-    for t in prange(blocks):
-        expand_rows(ua, ub, lena, lenb, bounds[t], bounds[t + 1], found, base[t], start[t], count, rows, cols, x)
-        for e in range(start[t], start[t + 1]):
-            c = x[e]
-            x[e] = -(c * c) / two_s2  # numpy's order before: multiply, negate, divide
-            lower[t, cols[e]] += 1
     indptr = np.zeros(m + 1, np.int64)
-    for v in range(m):
-        d = count[v]
-        for t in range(blocks):
-            d += lower[t, v]
-        indptr[v + 1] = indptr[v] + d
-    # each block scatters its rows into their higher neighbours' lists (after the lower neighbours of earlier
-    # blocks) and copies its rows' own higher neighbours to the end of their lists
     fill = np.empty((blocks, m), np.int64)
     for v in range(m):
         k = indptr[v]
         for t in range(blocks):
             fill[t, v] = k
             k += lower[t, v]
+        indptr[v + 1] = k + count[v]
+    rows = np.empty(ne, np.int64)
+    cols = np.empty(ne, np.int64)
+    x = np.empty(ne)
     indices = np.empty(indptr[m], np.int32)
     slot = np.empty(indptr[m], np.int32)
+    # each block writes its rows' edges, scatters them into their higher neighbours' lists (after the lower
+    # neighbours of earlier blocks) and copies its rows' own higher neighbours to the end of their lists
     for t in prange(blocks):
+        expand_rows(ua, ub, lena, lenb, bounds[t], bounds[t + 1], found, base[t], start[t], count, rows, cols, x)
         f = fill[t]
         e = start[t]
         for p in range(bounds[t], bounds[t + 1]):
             k = indptr[p + 1] - count[p]
             for _ in range(count[p]):
+                c = x[e]
+                x[e] = -(c * c) / two_s2  # numpy's order before: multiply, negate, divide
                 q = cols[e]
                 indices[k] = q
                 slot[k] = e
@@ -146,19 +144,34 @@ PARALLEL_MIN = 256  # from this many associations on, one block of rows per thre
 _lock = threading.Lock()
 _free: list = [-1.0, False]  # when the load was last read (monotonic s), and whether a core was free then
 _pid = os.getpid()
+calls = [0, 0]  # problems of >= PARALLEL_MIN associations done in one thread, and on every thread (benchmarks)
 
 
-def _core_free() -> bool:
-    """Whether a core is idle now: fewer runnable tasks (this one included) than cores, from /proc/loadavg (Linux;
-    elsewhere no), read at most every 0.25 s. On a busy machine a thread of a parallel loop waits for a core and
-    the call waits for that thread (the C++ reference's 2-thread affinity then runs 4-16x its quiet time); there
-    one thread does all the rows."""
+def _others_running() -> int:
+    """Runnable tasks of other processes now: /proc/loadavg's count less this process's own runnable threads (the
+    reader, and a thread pool still spinning after the last parallel loop). Linux only (OSError elsewhere)."""
+    with open("/proc/loadavg") as f:
+        running = int(f.read().split()[3].split("/")[0])
+    own = 0
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/stat", "rb") as f:
+                stat = f.read()
+        except FileNotFoundError:  # a thread that ended meanwhile
+            continue
+        own += stat[stat.rindex(b")") + 2: stat.rindex(b")") + 3] == b"R"
+    return running - own
+
+
+def _core_free(threads: int) -> bool:
+    """Whether `threads` threads would each find a core: other processes' runnable tasks leave that many idle
+    (read at most every 0.25 s). On a busy machine a thread of a parallel loop waits for a core and the call waits
+    for that thread (the C++ reference's 2-thread affinity then runs 4-16x its quiet time): there one thread does
+    all the rows."""
     now = time.monotonic()
     if now - _free[0] > 0.25:
         try:
-            with open("/proc/loadavg") as f:
-                running = int(f.read().split()[3].split("/")[0])
-            _free[1] = running < (os.cpu_count() or 1)
+            _free[1] = _others_running() <= (os.cpu_count() or 1) - threads
         except (OSError, ValueError, IndexError):
             _free[1] = False
         _free[0] = now
@@ -174,10 +187,12 @@ def problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float,
     OpenMP cannot run in a child of a process that used it).
     """
     threads = numba.get_num_threads()
-    if len(pairs) >= PARALLEL_MIN and threads > 1 and os.getpid() == _pid and _core_free() and \
+    if len(pairs) >= PARALLEL_MIN and threads > 1 and os.getpid() == _pid and _core_free(threads) and \
             _lock.acquire(blocking=False):
         try:
+            calls[1] += 1
             return problem_graph_parallel(pa, pb, pairs, eps, two_s2, threads)
         finally:
             _lock.release()
+    calls[0] += len(pairs) >= PARALLEL_MIN
     return problem_graph_serial(pa, pb, pairs, eps, two_s2, 1)
