@@ -254,6 +254,34 @@ def local_ids(ids: np.ndarray, n: int) -> tuple:
 
 
 @njit(cache=True)
+def distance_table(points: np.ndarray, ids: np.ndarray, out: np.ndarray) -> None:
+    """out[i, j] = the 3D distance of landmarks ids[i] and ids[j] (`vector_invariants`' expression for "distance"),
+    +inf on the diagonal: `invariant_table`'s "distance" table.
+
+    The reversed vector (-x, -y, -z) has the same squares, so the same length bit for bit: the table is formed row
+    by row over every column (contiguous coordinates, a loop that vectorises; mirroring the upper triangle instead
+    costs a strided store per entry, more than the square root it saves).
+    """
+    k = len(ids)
+    xs = np.empty(k)
+    ys = np.empty(k)
+    zs = np.empty(k)
+    for i in range(k):
+        xs[i] = points[ids[i], 0]
+        ys[i] = points[ids[i], 1]
+        zs[i] = points[ids[i], 2]
+    for i in range(k):
+        row = out[i]
+        xi, yi, zi = xs[i], ys[i], zs[i]
+        for j in range(k):
+            x = xs[j] - xi
+            y = ys[j] - yi
+            z = zs[j] - zi
+            row[j] = np.sqrt(x * x + y * y + z * z)
+        row[i] = np.inf
+
+
+@njit(cache=True)
 def invariant_table(points: np.ndarray, ids: np.ndarray, mode: int) -> np.ndarray:
     """(3, k, k) invariants of the vectors ids[i] -> ids[j] of landmarks `ids` (ascending): L, z, ang; for the
     "distance" test (1, k, k), L only (it reads nothing else).
@@ -264,27 +292,8 @@ def invariant_table(points: np.ndarray, ids: np.ndarray, mode: int) -> np.ndarra
     """
     k = len(ids)
     if mode == DISTANCE:  # the 3D distance test reads the lengths only
-        # the reversed vector (-x, -y, -z) has the same squares, so the same length bit for bit: the table is
-        # formed row by row over every column (contiguous coordinates, a loop that vectorises; mirroring the upper
-        # triangle instead costs a strided store per entry, more than the square root it saves)
-        xs = np.empty(k)
-        ys = np.empty(k)
-        zs = np.empty(k)
-        for i in range(k):
-            xs[i] = points[ids[i], 0]
-            ys[i] = points[ids[i], 1]
-            zs[i] = points[ids[i], 2]
         t = np.empty((1, k, k))
-        tt = t[0]
-        for i in range(k):
-            row = tt[i]
-            xi, yi, zi = xs[i], ys[i], zs[i]
-            for j in range(k):
-                x = xs[j] - xi
-                y = ys[j] - yi
-                z = zs[j] - zi
-                row[j] = np.sqrt(x * x + y * y + z * z)  # vector_invariants' expression for "distance"
-            row[i] = np.inf
+        distance_table(points, ids, t[0])
         return t
     t = np.empty((3, k, k))
     for i in range(k):

@@ -16,18 +16,20 @@ from __future__ import annotations
 import os
 import threading
 import time
+import types
 
 import numba
 import numpy as np
 from numba import njit, prange
 
-from .kernels_graph import DISTANCE, PROBLEM_NONE, TABLE_MAX, _graph_direct, check_problem, invariant_table, local_ids
+from .kernels_graph import DISTANCE, PROBLEM_NONE, TABLE_MAX, _graph_direct, check_problem, distance_table, local_ids
 from .kernels_sweep import expand_rows, sweep_rows
 
 
 @njit(cache=True)
 def row_blocks(m: int, blocks: int) -> np.ndarray:
-    """Row bounds of `blocks` consecutive blocks of about equal numbers of tests (row p holds m - 1 - p)."""
+    """Row bounds of `blocks` consecutive blocks of about equal numbers of tests (row p holds m - 1 - p), and the
+    number of tests before each block."""
     total = m * (m - 1) // 2
     bounds = np.empty(blocks + 1, np.int64)
     bounds[0] = 0
@@ -40,7 +42,32 @@ def row_blocks(m: int, blocks: int) -> np.ndarray:
             p += 1
         bounds[b] = p
     bounds[blocks] = m
-    return bounds
+    base = np.zeros(blocks + 1, np.int64)  # the tests of the rows before each block
+    for t in range(blocks):
+        r0, r1 = bounds[t], bounds[t + 1]
+        base[t + 1] = base[t] + (r1 - r0) * (2 * m - r0 - r1 - 1) // 2
+    return bounds, base
+
+
+@njit(cache=True)
+def csr_offsets(ends: np.ndarray, base: np.ndarray, count: np.ndarray, lower: np.ndarray) -> tuple:
+    """Where each block's edges start in row order (start), the CSR's indptr, and where each block writes its
+    lower neighbours into each vertex's list (fill): a vertex's list holds its lower neighbours block by block,
+    then its higher ones (count). (A function of its own: numba's array analysis of the parallel build got the
+    length of an array allocated among the parallel loops wrong.)"""
+    blocks, m = lower.shape
+    start = np.zeros(blocks + 1, np.int64)
+    for t in range(blocks):
+        start[t + 1] = start[t] + ends[t] - base[t]
+    indptr = np.zeros(m + 1, np.int64)
+    fill = np.empty((blocks, m), np.int64)
+    for v in range(m):
+        k = indptr[v]
+        for t in range(blocks):
+            fill[t, v] = k
+            k += lower[t, v]
+        indptr[v + 1] = k + count[v]
+    return start, indptr, fill
 
 
 def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float, two_s2: float,
@@ -71,19 +98,19 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
             c = x[e]
             x[e] = -(c * c) / two_s2
         return problem, rows, cols, x, empty_i, empty_32, empty_32
-    lena = invariant_table(pa, ids_a, DISTANCE)[0]
-    lenb = invariant_table(pb, ids_b, DISTANCE)[0]
+    lena = np.empty((len(ids_a), len(ids_a)))
+    lenb = np.empty((len(ids_b), len(ids_b)))
+    for t in prange(2):  # the two maps' distance tables side by side
+        if t == 0:
+            distance_table(pa, ids_a, lena)
+        else:
+            distance_table(pb, ids_b, lenb)
     ua = la.astype(np.uint32)
     ub = lb.astype(np.uint32)
-    bounds = row_blocks(m, blocks)
-    total = m * (m - 1) // 2
     # block t's columns go to found[base[t]:], base = the tests of the rows before it (no block can outgrow its
     # share; the 4 m of slack keep sweep_rows' room check for four whole rows from growing a private copy)
-    base = np.zeros(blocks + 1, np.int64)
-    for t in range(blocks):
-        r0, r1 = bounds[t], bounds[t + 1]
-        base[t + 1] = base[t] + (r1 - r0) * (2 * m - r0 - r1 - 1) // 2
-    found = np.empty(total + 4 * m, np.int32)
+    bounds, base = row_blocks(m, blocks)
+    found = np.empty(base[blocks] + 4 * m, np.int32)
     count = np.zeros(m, np.int64)
     ends = np.empty(blocks, np.int64)
     # how many lower neighbours each vertex has in each block (block t's rows are lower than the later blocks')
@@ -94,20 +121,8 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
         low = lower[t]
         for k in range(base[t], end):
             low[found[k]] += 1
-    # where each block's edges start in row order; each vertex's list: its lower neighbours block by block, then
-    # its higher ones
-    start = np.zeros(blocks + 1, np.int64)
-    for t in range(blocks):
-        start[t + 1] = start[t] + ends[t] - base[t]
+    start, indptr, fill = csr_offsets(ends, base, count, lower)
     ne = start[blocks]
-    indptr = np.zeros(m + 1, np.int64)
-    fill = np.empty((blocks, m), np.int64)
-    for v in range(m):
-        k = indptr[v]
-        for t in range(blocks):
-            fill[t, v] = k
-            k += lower[t, v]
-        indptr[v + 1] = k + count[v]
     rows = np.empty(ne, np.int64)
     cols = np.empty(ne, np.int64)
     x = np.empty(ne)
@@ -136,9 +151,18 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
     return problem, rows, cols, x, indptr, indices, slot
 
 
+def _named(func: types.FunctionType, name: str) -> types.FunctionType:
+    """`func` under another name: numba keys its on-disk cache by the function's qualified name and not by the
+    `parallel` flag, so the two builds of one source need two names (else one loads the other's machine code)."""
+    out = types.FunctionType(func.__code__, func.__globals__, name, func.__defaults__, func.__closure__)
+    out.__qualname__ = name
+    out.__doc__ = func.__doc__
+    return out
+
+
 # one source, compiled twice: in the serial build prange is range (no thread pool is woken for one block)
-problem_graph_serial = njit(cache=True)(_problem_graph)
-problem_graph_parallel = njit(cache=True, parallel=True)(_problem_graph)
+problem_graph_serial = njit(cache=True)(_named(_problem_graph, "problem_graph_serial"))
+problem_graph_parallel = njit(cache=True, parallel=True)(_named(_problem_graph, "problem_graph_parallel"))
 
 PARALLEL_MIN = 256  # from this many associations on, one block of rows per thread when a core is free
 _lock = threading.Lock()
