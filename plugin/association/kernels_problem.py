@@ -50,24 +50,62 @@ def row_blocks(m: int, blocks: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def csr_offsets(ends: np.ndarray, base: np.ndarray, count: np.ndarray, lower: np.ndarray) -> tuple:
-    """Where each block's edges start in row order (start), the CSR's indptr, and where each block writes its
-    lower neighbours into each vertex's list (fill): a vertex's list holds its lower neighbours block by block,
-    then its higher ones (count). (A function of its own: numba's array analysis of the parallel build got the
-    length of an array allocated among the parallel loops wrong.)"""
+def csr_offsets(ends: np.ndarray, base: np.ndarray, count: np.ndarray, lower: np.ndarray, bounds: np.ndarray) -> tuple:
+    """Where each block's edges start in row order (start), the CSR's indptr (a vertex's list: its lower
+    neighbours, then its `count` higher ones), where each row's columns are in `found` (src) and the index of its
+    first edge (edge0), and vertex bounds of blocks of about equal numbers of CSR entries (vb). (A function of its
+    own: numba's array analysis of the parallel build got the length of arrays allocated among its loops wrong.)"""
     blocks, m = lower.shape
     start = np.zeros(blocks + 1, np.int64)
+    src = np.empty(m, np.int64)
+    edge0 = np.empty(m, np.int64)
     for t in range(blocks):
         start[t + 1] = start[t] + ends[t] - base[t]
+        k = base[t]
+        e = start[t]
+        for p in range(bounds[t], bounds[t + 1]):
+            src[p] = k
+            edge0[p] = e
+            k += count[p]
+            e += count[p]
     indptr = np.zeros(m + 1, np.int64)
-    fill = np.empty((blocks, m), np.int64)
     for v in range(m):
-        k = indptr[v]
+        d = count[v]
         for t in range(blocks):
-            fill[t, v] = k
-            k += lower[t, v]
-        indptr[v + 1] = k + count[v]
-    return start, indptr, fill
+            d += lower[t, v]
+        indptr[v + 1] = indptr[v] + d
+    vb = np.empty(blocks + 1, np.int64)
+    vb[0] = 0
+    v = 0
+    for t in range(1, blocks):
+        while v < m and indptr[v] < indptr[m] * t // blocks:
+            v += 1
+        vb[t] = v
+    vb[blocks] = m
+    return start, indptr, src, edge0, vb
+
+
+@njit(cache=True)
+def fill_csr(v0: int, v1: int, found: np.ndarray, count: np.ndarray, src: np.ndarray, edge0: np.ndarray,
+             indptr: np.ndarray, indices: np.ndarray, slot: np.ndarray) -> None:
+    """The neighbour lists of vertices [v0, v1) (and the edge of each entry): the lower neighbours p < v in row
+    order, read from every earlier row's columns, then v's own columns. Each block of vertices writes only its
+    own lists (blocks of rows scattering into shared lists wrote the same cache lines from both cores)."""
+    fill = indptr[v0:v1].copy()
+    for p in range(v1):
+        s0 = src[p]
+        for k in range(count[p]):
+            q = found[s0 + k]
+            if q >= v0 and q < v1:
+                j = fill[q - v0]
+                indices[j] = p
+                slot[j] = edge0[p] + k
+                fill[q - v0] = j + 1
+    for v in range(v0, v1):
+        j = indptr[v + 1] - count[v]
+        for k in range(count[v]):
+            indices[j + k] = found[src[v] + k]
+            slot[j + k] = edge0[v] + k
 
 
 def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float, two_s2: float,
@@ -121,33 +159,20 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
         low = lower[t]
         for k in range(base[t], end):
             low[found[k]] += 1
-    start, indptr, fill = csr_offsets(ends, base, count, lower)
+    start, indptr, src, edge0, vb = csr_offsets(ends, base, count, lower, bounds)
     ne = start[blocks]
     rows = np.empty(ne, np.int64)
     cols = np.empty(ne, np.int64)
     x = np.empty(ne)
     indices = np.empty(indptr[m], np.int32)
     slot = np.empty(indptr[m], np.int32)
-    # each block writes its rows' edges, scatters them into their higher neighbours' lists (after the lower
-    # neighbours of earlier blocks) and copies its rows' own higher neighbours to the end of their lists
+    # each block writes its rows' edges with the affinity argument, and the neighbour lists of its vertices
     for t in prange(blocks):
         expand_rows(ua, ub, lena, lenb, bounds[t], bounds[t + 1], found, base[t], start[t], count, rows, cols, x)
-        f = fill[t]
-        e = start[t]
-        for p in range(bounds[t], bounds[t + 1]):
-            k = indptr[p + 1] - count[p]
-            for _ in range(count[p]):
-                c = x[e]
-                x[e] = -(c * c) / two_s2  # numpy's order before: multiply, negate, divide
-                q = cols[e]
-                indices[k] = q
-                slot[k] = e
-                k += 1
-                j = f[q]
-                indices[j] = p
-                slot[j] = e
-                f[q] = j + 1
-                e += 1
+        for e in range(start[t], start[t + 1]):
+            c = x[e]
+            x[e] = -(c * c) / two_s2  # numpy's order before: multiply, negate, divide
+        fill_csr(vb[t], vb[t + 1], found, count, src, edge0, indptr, indices, slot)
     return problem, rows, cols, x, indptr, indices, slot
 
 
