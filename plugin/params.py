@@ -333,8 +333,12 @@ class VerificationParams(Checked):
     # accepted 2 of 8 pairs of maps of different worlds). The winner is the best of N_eff ~1e5 distinct
     # alignments (`effective_trials`), so it is accepted only when the probability that the best of N_eff
     # chance alignments reaches its support is at most `false_alarm`: the rate at which two maps of different
-    # places would be reported as aligned.
-    chance_starts: int = count(64, 0)
+    # places would be reported as aligned. At most this many placements: `sequential_chance` stops after 16 once
+    # the answer is beyond doubt (every clear pair), and draws more while it is in doubt, because the tail is
+    # extrapolated from the samples' moments and a few dozen samples of a skewed count scatter widely: a true
+    # sparse winter pair of world 64 (never used before; support 32, chance max 11) read p 0.037 (refused) from
+    # 64 samples, 0.005 from 128, 3e-4 from 256, 2e-5 from 512 (0.6 s of CPU for 1,000 refinements there)
+    chance_starts: int = count(512, 0)
     false_alarm: float = within(1e-2, 0.0, 1.0, lo_open=True)
     # the size gate of the verification's pairs (r of mutual nearest neighbours within theta_eps). Across seasons
     # one object's sizes differ by r 0.12 (median) / 0.3-0.4 (80th percentile) between two maps (worlds 5, 11);

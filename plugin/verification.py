@@ -76,7 +76,7 @@ def verify_alignments(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
     candidates: Sequence[tuple[Sim3, np.ndarray]], gate_m: float, max_size_difference: float,
     min_support: int, min_ratio: float = 1.2, dof: int = 4, z_weight: float = 0.5, final_dof: int | None = 6,
-    chance_starts: int = 64, false_alarm: float = 1e-2, prior_m: float = 0.0,
+    chance_starts: int = 512, false_alarm: float = 1e-2, prior_m: float = 0.0,
 ) -> Verification:
     """Choose among a pair's window hypotheses by their support on the FULL maps, and refine the winner.
 
