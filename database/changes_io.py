@@ -1,11 +1,14 @@
-"""changes.csv and changes.geojson (written by `sosmatch changes`): one row / feature per landmark of either map.
+"""changes.csv and changes.geojson (written by `sosmatch changes`): one row / feature per landmark of either map
+and per object either session saw but never mapped.
 
 changes.csv columns (CHANGE_COLUMNS): `class` (kept / gone / new / unseen), `session` (A or B), `index` (the
 landmark's index in its own map), `x, y, z` (in A's frame), `size_m`, `confidence`, `counterpart` (index in the
 other map of the landmark that matched it, -1 none), `counterpart_distance_m`, `size_change_m` (counterpart's
 size minus this one's), `views` (keyframes of the other session that should have seen it), `evidence`
-(landmark, nested, part, segments, none, views, confidence: see `sosmatch.plugin.changes`) and
-`height_above_ground_m`. Rows: A's landmarks in order, then B's. Empty cells are unknown values.
+(landmark, nested, part, segments, none, views, confidence: see `sosmatch.plugin.changes`),
+`height_above_ground_m` and `source` (`landmark`, or `track`: an object the session saw but never mapped, from its
+track pieces, `sosmatch.plugin.changes.unmapped`; its `index` counts those objects of its session). Rows: A's
+landmarks in order, then B's, then A's and B's objects never mapped. Empty cells are unknown values.
 The reader applies the same validation the writer's rows satisfy.
 """
 
@@ -24,30 +27,42 @@ from .geojson import to_wgs84
 from .text_input import read_user_text
 
 CHANGE_COLUMNS = ["class", "session", "index", "x", "y", "z", "size_m", "confidence", "counterpart",
-                  "counterpart_distance_m", "size_change_m", "views", "evidence", "height_above_ground_m"]
+                  "counterpart_distance_m", "size_change_m", "views", "evidence", "height_above_ground_m", "source"]
 EVIDENCE = ("landmark", "nested", "part", "segments", "none", "views", "confidence")
 CHANGE_DTYPE = np.dtype([
     ("class", "U6"), ("session", "U1"), ("index", "<i8"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
     ("size_m", "<f8"), ("confidence", "<f8"), ("counterpart", "<i8"), ("counterpart_distance_m", "<f8"),
     ("size_change_m", "<f8"), ("views", "<i8"), ("evidence", "U10"), ("height_above_ground_m", "<f8"),
+    ("source", "U8"),
 ])
+SOURCES = ("landmark", "track")
 
 
 def _fmt(value: float, digits: int) -> str:
     return "" if not math.isfinite(value) else f"{value:.{digits}f}"
 
 
+def _parts(result: ChangeResult) -> list[tuple[str, str, LandmarkChanges, np.ndarray, np.ndarray]]:
+    """(session, source, verdicts, positions, sizes) of every row group, in row order."""
+    parts = [("A", "landmark", result.a, result.positions_a, result.sizes_a),
+             ("B", "landmark", result.b, result.positions_b, result.sizes_b)]
+    for session, verdict, objs in (("A", result.tracks_a, result.unmapped_a),
+                                   ("B", result.tracks_b, result.unmapped_b)):
+        if verdict is not None:
+            parts.append((session, "track", verdict, objs.positions, objs.sizes))
+    return parts
+
+
 def change_rows(result: ChangeResult) -> list[list[str]]:
     """The rows of changes.csv (without the header)."""
     rows = []
-    for session, verdict, pos, sizes in (("A", result.a, result.positions_a, result.sizes_a),
-                                         ("B", result.b, result.positions_b, result.sizes_b)):
+    for session, source, verdict, pos, sizes in _parts(result):
         for i in range(len(pos)):
             rows.append([str(verdict.label[i]), session, str(i), _fmt(pos[i, 0], 3), _fmt(pos[i, 1], 3),
                          _fmt(pos[i, 2], 3), _fmt(float(sizes[i]), 3), _fmt(float(verdict.confidence[i]), 3),
                          str(int(verdict.counterpart[i])), _fmt(float(verdict.distance_m[i]), 3),
                          _fmt(float(verdict.size_change_m[i]), 3), str(int(verdict.views[i])),
-                         str(verdict.evidence[i]), _fmt(float(verdict.height_above_ground_m[i]), 2)])
+                         str(verdict.evidence[i]), _fmt(float(verdict.height_above_ground_m[i]), 2), source])
     return rows
 
 
@@ -77,8 +92,9 @@ def read_changes_csv(path: str | Path) -> np.ndarray:
             rec = tuple(_parse(v, CHANGE_DTYPE.fields[c][0]) for c, v in zip(CHANGE_COLUMNS, row))
         except ValueError:
             raise InputError("malformed value", path, lineno) from None
-        if rec[0] not in CLASSES or rec[1] not in ("A", "B") or rec[12] not in EVIDENCE or rec[2] < 0:
-            raise InputError("unknown class, session or evidence, or a negative index", path, lineno)
+        if (rec[0] not in CLASSES or rec[1] not in ("A", "B") or rec[12] not in EVIDENCE or rec[2] < 0
+                or rec[14] not in SOURCES):
+            raise InputError("unknown class, session, evidence or source, or a negative index", path, lineno)
         out.append(rec)
     return np.array(out, dtype=CHANGE_DTYPE)
 
@@ -96,25 +112,24 @@ def changes_feature_collection(result: ChangeResult, epsg: int) -> dict:
     """GeoJSON FeatureCollection (WGS84 points with height) of every landmark of both maps, with class, session,
     index, size, confidence, evidence and the counterpart as properties; `epsg`: the CRS of A's frame."""
     features = []
-    for session, verdict, pos, sizes in (("A", result.a, result.positions_a, result.sizes_a),
-                                         ("B", result.b, result.positions_b, result.sizes_b)):
+    for session, source, verdict, pos, sizes in _parts(result):
         lonlat = to_wgs84(pos[:, :2], epsg) if len(pos) else np.zeros((0, 2))
-        features.extend(_features(session, verdict, pos, sizes, lonlat))
+        features.extend(_features(session, source, verdict, pos, sizes, lonlat))
     return {"type": "FeatureCollection",
             "properties": {"source_crs": f"EPSG:{epsg}", "classes": list(CLASSES), **result.counts()},
             "features": features}
 
 
-def _features(session: str, verdict: LandmarkChanges, pos: np.ndarray, sizes: np.ndarray,
+def _features(session: str, source: str, verdict: LandmarkChanges, pos: np.ndarray, sizes: np.ndarray,
               lonlat: np.ndarray) -> list[dict]:
     out = []
     for i in range(len(pos)):
         size = float(sizes[i])
         out.append({
-            "type": "Feature", "id": f"{session}{i}",
+            "type": "Feature", "id": f"{session}{i}" if source == "landmark" else f"{session}t{i}",
             "geometry": {"type": "Point", "coordinates": [round(float(lonlat[i, 0]), 8), round(float(lonlat[i, 1]), 8),
                                                           round(float(pos[i, 2]), 3)]},
-            "properties": {"class": str(verdict.label[i]), "session": session, "index": i,
+            "properties": {"class": str(verdict.label[i]), "session": session, "index": i, "source": source,
                            "size_m": round(size, 3) if math.isfinite(size) else None,
                            "confidence": round(float(verdict.confidence[i]), 3), "evidence": str(verdict.evidence[i]),
                            "counterpart": int(verdict.counterpart[i]), "x": round(float(pos[i, 0]), 3),

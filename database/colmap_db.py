@@ -173,6 +173,32 @@ def read_segment_detections(path: str | Path, names: Sequence[str]) -> list[Keyf
         db.close()
 
 
+def read_keyframe_matches(path: str | Path, names: Sequence[str]) -> list[tuple[int, int, np.ndarray]]:
+    """The matched keypoint pairs of a session's database.db between the images `names` (the tracks the map
+    wrote there, `write_colmap_database`): (index a, index b into names, (M, 2) keypoint indices). Pairs with an
+    image outside `names` are left out; an unreadable database is an InputError."""
+    import pycolmap
+
+    path = Path(path)
+    db = open_colmap_database(path)
+    try:
+        try:
+            order = {name: k for k, name in enumerate(names)}
+            index = {img.image_id: order[img.name] for img in db.read_all_images() if img.name in order}
+            pair_ids, matches = db.read_all_matches()
+        except Exception as exc:
+            raise InputError(f"cannot read the matches of the COLMAP database: {exc}".splitlines()[0], path) \
+                from None
+    finally:
+        db.close()
+    out = []
+    for pid, m in zip(pair_ids, matches):
+        i1, i2 = pycolmap.pair_id_to_image_pair(pid)
+        if i1 in index and i2 in index and len(m):
+            out.append((index[i1], index[i2], np.asarray(m, dtype=np.int64).reshape(-1, 2)))
+    return out
+
+
 def track_associations(
     track_ids: Sequence[np.ndarray], mode: str = "all", min_observations: int = 0
 ) -> dict[tuple[int, int], np.ndarray]:

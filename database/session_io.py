@@ -223,11 +223,31 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
     if not len(poses):
         raise InputError("session has no keyframes with poses in sparse/ (nothing says what it observed)",
                          session.path)
-    segments = None
+    segments = tracks = None
     database = session.path / "database.db"
     if with_segments and database.is_file():
         segments = tuple(read_segment_detections(database, poses.names))
+        tracks = _unmapped_tracks(session, database, poses.names, segments)
     support = np.array([len(names) for names in table.image_names], dtype=np.float64)
     lmap = session.landmarks
     return SessionObservations(lmap.positions, lmap.sizes.astype(np.float64), poses,
-                               tuple(cameras[camera_of[n]] for n in poses.names), segments, support)
+                               tuple(cameras[camera_of[n]] for n in poses.names), segments, support, tracks)
+
+
+def _unmapped_tracks(session: SessionFiles, database: Path, names: list[str], segments: tuple) -> tuple:
+    """The tracks of database.db that share no observation with a landmark of sparse/ (pieces the map never
+    promoted), as (n, 2) rows (keyframe index into `names`, keypoint index)."""
+    from ..plugin.changes import tracks_from_matches
+    from .colmap_db import read_keyframe_matches
+    from .colmap_model import load_reconstruction
+
+    tracks = tracks_from_matches(read_keyframe_matches(database, names), [len(s.centroids) for s in segments])
+    order = {name: k for k, name in enumerate(names)}
+    rec = load_reconstruction(session.sparse_dir)
+    used = set()
+    for point in rec.points3D.values():
+        for el in point.track.elements:
+            name = rec.images[el.image_id].name
+            if name in order:
+                used.add((order[name], int(el.point2D_idx)))
+    return tuple(t for t in tracks if not any((int(k), int(i)) in used for k, i in t))

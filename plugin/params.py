@@ -399,6 +399,18 @@ class ChangeParams(Checked):
     # BENCHMARKS.md raised same-season gone precision from 0.71 to 0.91 at unchanged recall; 0 reports every
     # claim. Without the other session's database the confidence is its re-observation rate of such landmarks.
     min_confidence: float = fraction(0.8)
+    # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
+    # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least
+    # min_views keyframes, are judged against the other session as its landmarks are (direct evidence only; they
+    # vouch for nothing). An object whose track broke into pieces too short for a landmark can then still be
+    # reported gone / new. False: landmarks only.
+    unmapped_objects: bool = flag(True)
+    # the mean reprojection error (px) such a track's point may have: the map's own landmark limit
+    # (triangulation.max_reprojection_error_px, 10 px by default)
+    unmapped_max_error_px: float = positive(10.0)
+    # the centroid noise (px) behind such a point's position uncertainty (the map's triangulation.pixel_sigma_px):
+    # its place must be known to within the counterpart gate at 2 sigma to ask the other session what is there
+    unmapped_pixel_sigma_px: float = positive(3.0)
 
 
 @dataclass(frozen=True)

@@ -51,20 +51,46 @@ def intersect_rays(camera: Camera, poses: Poses, keyframes: np.ndarray, pixels: 
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
     x = np.linalg.lstsq(proj.sum(0), np.einsum("nij,nj->i", proj, c), rcond=None)[0]
-    f = np.array([camera.fx, camera.fy])
     for _ in range(iterations):
-        p = np.einsum("nji,nj->ni", r, x[None, :] - c)  # camera coordinates R^T (X - C)
-        z = p[:, 2:3]
-        if np.any(z <= 1e-9):
+        projected = _pinhole_projection(camera, r, c, x)
+        if projected is None:
             break
-        res = (f * p[:, :2] / z + [camera.cx, camera.cy] - pixels).ravel()
-        rt = np.transpose(r, (0, 2, 1))  # rows of R_cw
-        jac = f[None, :, None] * (rt[:, :2, :] / z[:, :, None] - p[:, :2, None] * rt[:, 2:3, :] / z[:, :, None] ** 2)
-        step = np.linalg.lstsq(jac.reshape(-1, 3), -res, rcond=None)[0]
+        uv, jac = projected
+        step = np.linalg.lstsq(jac.reshape(-1, 3), -(uv - pixels).ravel(), rcond=None)[0]
         x = x + step
         if np.linalg.norm(step) < 1e-4:
             break
     return x
+
+
+def _pinhole_projection(camera: Camera, r: np.ndarray, c: np.ndarray, x: np.ndarray,
+                        ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pixels (n, 2) of point x in the pinhole cameras (rotations r (n, 3, 3) world_from_camera, centres c) and
+    their Jacobians (n, 2, 3) with respect to x; None when x is behind a camera."""
+    f = np.array([camera.fx, camera.fy])
+    p = np.einsum("nji,nj->ni", r, x[None, :] - c)  # camera coordinates R^T (X - C)
+    z = p[:, 2:3]
+    if np.any(z <= 1e-9):
+        return None
+    rt = np.transpose(r, (0, 2, 1))  # rows of R_cw
+    jac = f[None, :, None] * (rt[:, :2, :] / z[:, :, None] - p[:, :2, None] * rt[:, 2:3, :] / z[:, :, None] ** 2)
+    return f * p[:, :2] / z + [camera.cx, camera.cy], jac
+
+
+def point_covariance(camera: Camera, poses: Poses, keyframes: np.ndarray, point: np.ndarray,
+                     sigma_px: float) -> np.ndarray:
+    """(3, 3) covariance of a point triangulated from its observations in the pinhole `camera` (poses fixed) with
+    independent pixel noise sigma_px: sigma^2 (J^T J)^-1 of the reprojection Jacobian; infinite when the views do
+    not fix the point (behind a camera, or rays too alike)."""
+    kf = np.asarray(keyframes, np.int64)
+    projected = _pinhole_projection(camera, poses.rotations[kf], poses.centers[kf], np.asarray(point, np.float64))
+    if projected is None:
+        return np.full((3, 3), np.inf)
+    jac = projected[1].reshape(-1, 3)
+    info = jac.T @ jac
+    if np.linalg.cond(info) > 1e12:
+        return np.full((3, 3), np.inf)
+    return sigma_px ** 2 * np.linalg.inv(info)
 
 
 def reprojection_errors(camera: Camera, poses: Poses, keyframes: np.ndarray, pixels: np.ndarray,

@@ -19,6 +19,7 @@ from sosmatch.plugin.changes import (
     in_view,
     predict_logistic,
     segment_evidence,
+    tracks_from_matches,
 )
 from sosmatch.plugin.geometry import Camera, Poses
 from sosmatch.plugin.params import ChangeParams
@@ -316,3 +317,77 @@ def test_a_holder_vouches_only_when_this_session_shows_it_too():
     unshown = detect_changes(SessionObservations(pos_a, size_a, poses, CAM, _segments_of(pos_a, size_a, poses, rng)),
                              b, same, ChangeParams(), 2.0)
     assert unshown.a.label[1] == GONE and unshown.a.label[0] == GONE
+
+
+def test_tracks_are_the_connected_matches_of_one_segment_per_keyframe():
+    # keyframe a, keyframe b, matched keypoints: one 3-view track (0:1, 1:0, 2:2), one 2-view track (0:0, 1:1) and
+    # a component that holds two keypoints of keyframe 2 (no track of one segment)
+    matches = [(0, 1, np.array([[1, 0], [0, 1]])), (1, 2, np.array([[0, 2]])), (0, 2, np.array([[1, 2]])),
+               (1, 2, np.array([[2, 0], [2, 1]]))]
+    tracks = tracks_from_matches(matches, [2, 3, 3])
+    as_sets = sorted(sorted(map(tuple, t.tolist())) for t in tracks)
+    assert as_sets == [[(0, 0), (1, 1)], [(0, 1), (1, 0), (2, 2)]]
+    assert all(np.all(np.diff(t[:, 0]) > 0) for t in tracks)
+    assert tracks_from_matches([], [2, 2]) == []
+
+
+def _unmapped_pair(mapped_in_b: bool):
+    """A strip flown twice over common ground texture. B has a bush (1.5 m) that A does not: B's images segment it
+    in every view, but its track broke into pieces, the longest of 4 views, too short for a landmark (unless
+    `mapped_in_b`). A's images show nothing of that size there."""
+    centers = np.column_stack([np.linspace(-20.0, 40.0, 12), np.zeros(12), np.full(12, 60.0)])
+    poses = nadir_poses(centers)
+    rng = np.random.default_rng(11)
+    ground = np.column_stack([rng.uniform([-30, -20], [50, 20], (120, 2)), np.zeros(120)])
+    bush = np.array([[10.0, 3.0, 1.0]])
+    ground = ground[np.hypot(ground[:, 0] - 10.0, ground[:, 1] - 3.0) > 12.0][:40]
+    size_g = np.full(len(ground), 1.5)
+    a = SessionObservations(ground, size_g, poses, CAM, _segments_of(ground, size_g, poses, rng))
+    # B's segments: the bush first in every keyframe that sees it, then the ground and clutter
+    segs = _segments_of(np.vstack([bush, ground + 0.2]), np.r_[1.5, size_g], poses, rng)
+    seen = in_view(bush, np.r_[1.5], poses, [CAM] * len(poses))[0][:, 0]
+    views = np.flatnonzero(seen)
+    assert len(views) >= 8
+    piece = np.column_stack([views[2:6], np.zeros(4, np.int64)])  # keypoint 0: the bush
+    pos_b, size_b = (np.vstack([bush, ground + 0.2]), np.r_[1.5, size_g]) if mapped_in_b else (ground + 0.2, size_g)
+    b = SessionObservations(pos_b, size_b, poses, CAM, segs, tracks=(piece,))
+    return a, b, bush
+
+
+def test_an_added_object_that_was_never_mapped_is_found_from_its_track():
+    """B never mapped the bush (a 4-view track), but its own segments show it in every view and A's show nothing:
+    it is reported new, as one of B's objects never mapped; landmarks alone cannot see it. Mapped as a landmark,
+    the same track is no object of its own (the landmark explains it)."""
+    a, b, bush = _unmapped_pair(mapped_in_b=False)
+    same = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    res = detect_changes(a, b, same, ChangeParams(), 2.0)
+    assert len(res.unmapped_b) == 1 and np.linalg.norm(res.unmapped_b.positions[0, :2] - bush[0, :2]) < 1.0
+    assert 1.0 < res.unmapped_b.sizes[0] < 2.2 and res.unmapped_b.support[0] == 4
+    assert res.tracks_b.label[0] == NEW and res.tracks_b.confidence[0] > 0.9
+    assert res.counts()["new_unmapped"] == 1 and res.counts()["new"] == 0
+    assert np.all(res.b.label == KEPT) and np.all(res.a.label == KEPT)  # the common ground
+    off = detect_changes(a, b, same, ChangeParams(unmapped_objects=False), 2.0)
+    assert off.tracks_b is None and len(off.unmapped_b) == 0 and off.counts()["new_unmapped"] == 0
+    # the other way round A has no tracks: nothing to judge of A's
+    assert res.tracks_a is None
+    a2, b2, _ = _unmapped_pair(mapped_in_b=True)
+    mapped = detect_changes(a2, b2, same, ChangeParams(), 2.0)
+    assert len(mapped.unmapped_b) == 0 and mapped.b.label[0] == NEW
+
+
+def test_a_track_is_an_object_only_where_its_own_segments_show_it_and_its_place_is_fixed():
+    a, b, bush = _unmapped_pair(mapped_in_b=False)
+    same = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    # the same 4 views, but B's other keyframes do not segment the bush: one piece of track is no object
+    piece = b.tracks[0]
+    segs = list(b.segments)
+    for k in set(range(len(segs))) - set(piece[:, 0].tolist()):
+        segs[k] = KeyframeSegments(segs[k].centroids[1:], segs[k].sizes_px[1:]) if len(segs[k].centroids) else segs[k]
+    flicker = SessionObservations(b.positions, b.sizes, b.poses, CAM, tuple(segs), tracks=b.tracks)
+    assert len(detect_changes(a, flicker, same, ChangeParams(), 2.0).unmapped_b) == 0
+    # views along one flight line fix the height poorly: two neighbouring views leave it open by more than the
+    # counterpart gate at 3 px of centroid noise, the 4 views of the piece do so only at 10 px
+    short = SessionObservations(b.positions, b.sizes, b.poses, CAM, b.segments, tracks=(piece[:2],))
+    assert len(detect_changes(a, short, same, ChangeParams(), 2.0).unmapped_b) == 0
+    assert len(detect_changes(a, b, same, ChangeParams(), 2.0).unmapped_b) == 1
+    assert len(detect_changes(a, b, same, ChangeParams(unmapped_pixel_sigma_px=10.0), 2.0).unmapped_b) == 0

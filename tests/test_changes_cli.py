@@ -54,19 +54,23 @@ def test_changes_end_to_end(toy, tmp_path, capsys):
     assert code == 0 and line.startswith("changes: ") and "\n" not in line and "gone" in line
     rows = read_changes_csv(out / "changes.csv")
     assert (out / "changes.csv").read_text().splitlines()[0] == ",".join(CHANGE_COLUMNS)
-    assert len(rows) == len(a.object_ids) + len(b.object_ids)
-    assert np.array_equal(rows["index"][rows["session"] == "A"], np.arange(len(a.object_ids)))
+    assert np.sum(rows["source"] == "landmark") == len(a.object_ids) + len(b.object_ids)
+    assert np.array_equal(rows["index"][(rows["session"] == "A") & (rows["source"] == "landmark")],
+                          np.arange(len(a.object_ids)))
     doc = json.loads((out / "changes.json").read_text())
-    assert doc["format"] == "sosmatch changes v1" and doc["counts"]["gone"] == int(np.sum(rows["class"] == "gone"))
+    landmark = rows["source"] == "landmark"
+    assert doc["format"] == "sosmatch changes v1"
+    assert doc["counts"]["gone"] == int(np.sum(rows["class"][landmark] == "gone"))
+    assert doc["counts"]["gone_unmapped"] == int(np.sum(rows["class"][~landmark] == "gone"))
     assert (out / "changes.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not (out / "changes.geojson").exists()  # a local frame
     # truth: every A landmark of a removed object that B's flight covered is gone, present ones are kept
-    a_rows = rows[rows["session"] == "A"]
+    a_rows = rows[(rows["session"] == "A") & (rows["source"] == "landmark")]
     removed = ~present_b[a.object_ids]
     compared = a_rows["class"] != "unseen"
     assert np.all(a_rows["class"][compared & removed] == "gone") and np.sum(compared & removed) >= 3
     assert np.mean(a_rows["class"][compared & ~removed] == "kept") > 0.95
-    b_rows = rows[rows["session"] == "B"]
+    b_rows = rows[(rows["session"] == "B") & (rows["source"] == "landmark")]
     added = ~present_a[b.object_ids]
     assert np.all(b_rows["class"][(b_rows["class"] != "unseen") & added] == "new")
     kept = a_rows[a_rows["class"] == "kept"]

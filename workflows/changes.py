@@ -5,7 +5,8 @@ the segments in their databases), brings B into A's frame with the accepted alig
 `database.match_io.read_match`) and classifies every landmark of either map as kept, gone, new or unseen
 (`sosmatch.plugin.changes.detect_changes`). Everything is read and checked before anything is written, so a bad
 input leaves nothing behind; then, atomically, into `out_dir`:
-    changes.csv       one row per landmark of either map (`sosmatch.database.changes_io`)
+    changes.csv       one row per landmark of either map, and per object either session saw but never mapped
+                      (`sosmatch.database.changes_io`)
     changes.geojson   the same as WGS84 points, when A's map is georeferenced (EPSG code)
     changes.png       top view: both sessions' observed areas, kept grey, gone red, new green
     changes.json      counts, the transform, the gate, parameters, inputs and the summary line (written last:
@@ -105,7 +106,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
 
 def changes_png(result: ChangeResult, title: str = "") -> bytes:
     """Top view in A's frame: the observed areas of A and B, kept landmarks grey, gone red, new green (marker
-    size grows with the landmark's size), unseen ones faint."""
+    size grows with the landmark's size; objects a session never mapped as diamonds), unseen ones faint."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -138,6 +139,11 @@ def changes_png(result: ChangeResult, title: str = "") -> bytes:
          label=f"gone ({a.count(GONE)})")
     draw(result.positions_b, result.sizes_b, b.label == NEW, c="#2ca02c", edgecolors="k", linewidths=0.5,
          label=f"new ({b.count(NEW)})")
+    for objs, verdict, change, colour in ((result.unmapped_a, result.tracks_a, GONE, "#d62728"),
+                                          (result.unmapped_b, result.tracks_b, NEW, "#2ca02c")):
+        if verdict is not None:  # objects never mapped (from track pieces): diamonds
+            draw(objs.positions, objs.sizes, verdict.label == change, c=colour, marker="D", edgecolors="k",
+                 linewidths=0.5, label=f"{change}, never mapped ({verdict.count(change)})")
     ax.scatter([], [], c="#cccccc", label=f"unseen by the other ({a.count(UNSEEN)} + {b.count(UNSEEN)})")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m] (A's frame)")

@@ -69,6 +69,7 @@ from .observations import (
     observed_area,
 )
 from .support import CONTROL_SHIFT, AlignmentSupport, alignment_support
+from .unmapped import UnmappedObjects, no_unmapped_objects, tracks_from_matches, unmapped_objects
 from .verdict import (
     BY_LANDMARK,
     BY_NESTING,
@@ -92,4 +93,5 @@ __all__ = ["BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS", "CLASSES", "CO
            "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations", "absence_log_ratio",
            "alignment_support", "binomial_tail", "counterparts", "detect_changes", "dispersion", "fit_logistic",
            "ground_height_field", "holder_pairs", "in_view", "inside_larger", "observed_area", "predict_logistic",
-           "presence_rate", "reobservation_features", "segment_evidence", "segment_hits"]
+           "presence_rate", "reobservation_features", "segment_evidence", "segment_hits", "UnmappedObjects",
+           "no_unmapped_objects", "tracks_from_matches", "unmapped_objects"]

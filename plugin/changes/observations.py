@@ -34,7 +34,7 @@ class SessionObservations:
     positions (N, 3) and sizes (N,) (metres, NaN unknown) of the landmarks; support (N,) their number of
     observations (ranks the landmarks of one object; None: by size); poses of the keyframes (world_from_camera)
     with one camera each; segments per keyframe (None: the session's database is not available, the segment
-    evidence is then off for the other session's landmarks).
+    evidence is then off for the other session's landmarks); tracks that no landmark holds (from the database).
     """
 
     positions: np.ndarray
@@ -43,6 +43,9 @@ class SessionObservations:
     cameras: tuple[Camera, ...]
     segments: tuple[KeyframeSegments, ...] | None = None
     support: np.ndarray | None = None
+    # the session's tracks that no landmark holds ((n, 2) rows: keyframe index, keypoint index into segments),
+    # for the objects it saw but never mapped (`unmapped.unmapped_objects`); None: not available
+    tracks: tuple[np.ndarray, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "positions", np.asarray(self.positions, dtype=np.float64).reshape(-1, 3))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from .evidence import (
 )
 from .observations import SessionObservations, ground_height_field, in_view, observed_area
 from .support import AlignmentSupport, alignment_support
+from .unmapped import UnmappedObjects, no_unmapped_objects, unmapped_objects
 
 KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
 CLASSES = (KEPT, GONE, NEW, UNSEEN)
@@ -65,6 +66,11 @@ class ChangeResult:
     observed_b: object  # the same for B
     params: ChangeParams = field(default_factory=ChangeParams)
     support: AlignmentSupport | None = None  # how much better the transform pairs the maps than a displaced one
+    # objects each session saw but never mapped (`unmapped`; B's in A's frame) and their verdicts
+    unmapped_a: UnmappedObjects = field(default_factory=no_unmapped_objects)
+    unmapped_b: UnmappedObjects = field(default_factory=no_unmapped_objects)
+    tracks_a: LandmarkChanges | None = None
+    tracks_b: LandmarkChanges | None = None
 
     @property
     def common_area(self) -> object:
@@ -73,38 +79,44 @@ class ChangeResult:
         return shapely.intersection(self.observed_a, self.observed_b)
 
     def counts(self) -> dict[str, int]:
-        """Landmarks per class: kept (of A and of B), gone (A), new (B), unseen (of both maps)."""
+        """Landmarks per class: kept (of A and of B), gone (A), new (B), unseen (of both maps); objects never
+        mapped (of A and of B) and how many of them are gone (A) / new (B)."""
         return {"kept_a": self.a.count(KEPT), "kept_b": self.b.count(KEPT), "gone": self.a.count(GONE),
-                "new": self.b.count(NEW), "unseen_a": self.a.count(UNSEEN), "unseen_b": self.b.count(UNSEEN)}
+                "new": self.b.count(NEW), "unseen_a": self.a.count(UNSEEN), "unseen_b": self.b.count(UNSEEN),
+                "unmapped_a": len(self.unmapped_a), "unmapped_b": len(self.unmapped_b),
+                "gone_unmapped": self.tracks_a.count(GONE) if self.tracks_a is not None else 0,
+                "new_unmapped": self.tracks_b.count(NEW) if self.tracks_b is not None else 0}
 
     def summary(self) -> str:
         """One line: counts per class and the common area."""
         c = self.counts()
         area_ha = float(self.common_area.area) / 1e4
         return (f"{c['gone']} gone, {c['new']} new, {c['kept_a']} + {c['kept_b']} kept, {c['unseen_a']} + "
-                f"{c['unseen_b']} unseen landmarks (A + B), {area_ha:.1f} ha seen by both")
+                f"{c['unseen_b']} unseen landmarks (A + B); {c['gone_unmapped']} gone, {c['new_unmapped']} new "
+                f"of {c['unmapped_a']} + {c['unmapped_b']} objects never mapped; {area_ha:.1f} ha seen by both")
 
 
 
 REFERENCE_LIMIT = 400  # reference landmarks for the presence rate (evenly spaced): bounded cost on large maps
 
 
-def absence_probability(positions: np.ndarray, sizes: np.ndarray, reference: np.ndarray, idx: np.ndarray,
-                        hits: np.ndarray, views: np.ndarray, chance: np.ndarray, other: SessionObservations,
-                        gate_m: float, params: ChangeParams) -> np.ndarray:
-    """P(absent | the other session's segments) for the landmarks idx, from their segment hits in the other
-    session's keyframes: binomial with the local chance rate if the object is absent, with the presence rate of
-    objects of its size if present (`presence_rate`, measured on this map's `reference` landmarks, those with a
-    counterpart), the log-likelihood ratio divided by the references' dispersion (neighbouring keyframes are not
+def absence_probability(sizes: np.ndarray, ref_positions: np.ndarray, ref_sizes: np.ndarray, hits: np.ndarray,
+                        views: np.ndarray, chance: np.ndarray, other: SessionObservations, gate_m: float,
+                        params: ChangeParams) -> np.ndarray:
+    """P(absent | the other session's segments) for objects of the given sizes, from their segment hits in the
+    other session's keyframes: binomial with the local chance rate if the object is absent, with the presence rate
+    of objects of its size if present (`presence_rate`, measured on the reference landmarks of its map, those with
+    a counterpart), the log-likelihood ratio divided by the references' dispersion (neighbouring keyframes are not
     independent looks), prior odds 1."""
-    ref = np.flatnonzero(reference)
+    ref = np.arange(len(ref_positions))
     if len(ref) > REFERENCE_LIMIT:
         ref = ref[np.linspace(0, len(ref) - 1, REFERENCE_LIMIT).round().astype(np.int64)]
-    ref_hits, ref_views = segment_hits(positions[ref], sizes[ref], other.poses, other.cameras, other.segments,
+    ref_h = ref_sizes[ref]
+    ref_hits, ref_views = segment_hits(ref_positions[ref], ref_h, other.poses, other.cameras, other.segments,
                                        gate_m, params.max_size_difference)
     bw = params.presence_bandwidth
-    phi = dispersion(ref_hits, ref_views, presence_rate(sizes[ref], sizes[ref], ref_hits, ref_views, bw))
-    rate = presence_rate(sizes[idx], sizes[ref], ref_hits, ref_views, bw)
+    phi = dispersion(ref_hits, ref_views, presence_rate(ref_h, ref_h, ref_hits, ref_views, bw))
+    rate = presence_rate(sizes, ref_h, ref_hits, ref_views, bw)
     llr = absence_log_ratio(hits, views, chance, rate, phi)
     return 1.0 / (1.0 + np.exp(-np.clip(llr, -30.0, 30.0)))  # below 1: --min-confidence 1 reports nothing
 
@@ -132,7 +144,10 @@ class _Direct:
 
 
 def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, other_pos: np.ndarray,
-            other_h: np.ndarray, gate_m: float, params: ChangeParams) -> _Direct:
+            other_h: np.ndarray, gate_m: float, params: ChangeParams,
+            references: tuple[np.ndarray, np.ndarray] | None = None) -> _Direct:
+    """`references`: positions and sizes of the own map's landmarks with a counterpart (for the presence rate);
+    None: those among own_pos."""
     n = len(own_pos)
     seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
     views = seen.sum(0)
@@ -149,8 +164,10 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         hits[idx], trials[idx], chance[idx] = segment_evidence(
             own_pos[idx], own_h[idx], other.poses, other.cameras, other.segments, gate_m,
             params.max_size_difference, params.probe_count, params.probe_radius_factor)
-        absent[idx] = absence_probability(own_pos, own_h, compared & (index >= 0), idx, hits[idx], trials[idx],
-                                          chance[idx], other, gate_m, params)
+        if references is None:
+            references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
+        absent[idx] = absence_probability(own_h[idx], *references, hits[idx], trials[idx], chance[idx], other,
+                                          gate_m, params)
         # shown: more hits than chance would give, and more like an object that is there than like its absence
         by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
                             & (absent[idx] < 0.5))
@@ -258,10 +275,40 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
                    direct_a, direct_b)
     res_b = _judge(b_in_a, b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, heights_b, NEW, gate, params,
                    direct_b, direct_a)
+    unmapped_a, tracks_a = _unmapped(a, b_in_a, direct_a, direct_b, ground, GONE, gate, params)
+    unmapped_b, tracks_b = _unmapped(b_in_a, a, direct_b, direct_a, ground, NEW, gate, params)
     return ChangeResult(
         a=res_a, b=res_b, positions_a=a.positions, positions_b=b_in_a.positions, sizes_a=a.sizes,
         sizes_b=b_in_a.sizes, tolerance_m=gate, ground=ground,
         observed_a=observed_area(a.poses, a.cameras, ground),
         observed_b=observed_area(b_in_a.poses, b_in_a.cameras, ground), params=params,
-        support=alignment_support(a, b_in_a, gate, params),
+        support=alignment_support(a, b_in_a, gate, params), unmapped_a=unmapped_a, unmapped_b=unmapped_b,
+        tracks_a=tracks_a, tracks_b=tracks_b,
     )
+
+
+def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direct, theirs: _Direct,
+              ground: HeightField, change_label: str, gate_m: float, params: ChangeParams,
+              ) -> tuple[UnmappedObjects, LandmarkChanges | None]:
+    """The objects `own` saw but never mapped (`unmapped.unmapped_objects`) and their verdicts against `other`,
+    judged as landmarks are but by direct evidence alone: a counterpart landmark, a holder of the other map that
+    this session shows, the other session's segments, else a change with the absence probability (presence rates
+    from this map's landmarks with a counterpart). No part links: a piece of track is no whole of anything, and it
+    vouches for nothing. None without the tracks or either session's segments (nothing to judge them by)."""
+    if not params.unmapped_objects or own.tracks is None or own.segments is None or other.segments is None:
+        return no_unmapped_objects(), None
+    objs = unmapped_objects(own.tracks, own.poses, own.cameras, own.segments, own.positions, own.sizes, gate_m,
+                            params.max_size_difference, params.z_weight, params.part_max_ratio,
+                            params.unmapped_max_error_px, params.unmapped_pixel_sigma_px)
+    # its own segments must show it, as the other session's must show a landmark to keep it (the same test, with
+    # this session's landmarks as the references of presence): a piece of track alone is no object
+    nothing = np.zeros((0, 3))
+    shown = _direct(objs.positions, objs.sizes, own, nothing, nothing[:, 0], gate_m, params,
+                    (own.positions, own.sizes))
+    objs = objs.subset(np.flatnonzero(shown.by_segments & (shown.hits >= params.min_views)))
+    reference = mine.compared & (mine.index >= 0)
+    direct = _direct(objs.positions, objs.sizes, other, other.positions, other.sizes, gate_m, params,
+                     (own.positions[reference], own.sizes[reference]))
+    heights = objs.positions[:, 2] - ground(objs.positions[:, 0], objs.positions[:, 1])
+    return objs, _judge(own, objs.positions, objs.sizes, other, other.positions, other.sizes, heights, change_label,
+                        gate_m, replace(params, part_max_ratio=0.0), direct, theirs)

@@ -112,9 +112,26 @@ def evaluate(root: Path, world: int, changed: float, a: str, b: str, kind: str, 
     kfb = json.loads((root / f"m{b}" / "run.json").read_text())["keyframes"]
     truth = object_truth(sa, sb, kfa, kfb)
     oa, ob = landmark_objects(sa, root / f"m{a}")[0], landmark_objects(sb, root / f"m{b}")[0]
+    ua = unmapped_track_objects(sa, root / f"m{a}", run.result.unmapped_a)
+    ub = unmapped_track_objects(sb, root / f"m{b}", run.result.unmapped_b)
     area_a, area_b = observed_truth_area(sa, kfa), observed_truth_area(sb, kfb)
-    scores = {c: score_pair(run.result, truth, oa, ob, area_a, area_b, min_confidence=c) for c in sweep}
+    scores = {c: score_pair(run.result, truth, oa, ob, area_a, area_b, min_confidence=c, unmapped_objects_a=ua,
+                            unmapped_objects_b=ub) for c in sweep}
     return PairResult(world, changed, a + b, kind, cpu, run.summary(), scores)
+
+
+def unmapped_track_objects(synth: object, mapped: Path, unmapped: object) -> np.ndarray:
+    """The object of each object a session never mapped (`ChangeResult.unmapped_a/b`): majority label under the
+    observations of its track (keypoints of the session's database)."""
+    from ...database.session_io import read_session, read_session_observations
+    from .bench_map import track_objects
+
+    if not len(unmapped.tracks):  # type: ignore[attr-defined]
+        return np.zeros(0, np.int64)
+    obs = read_session_observations(read_session(mapped))
+    tracks = [[(obs.poses.names[k], *obs.segments[k].centroids[i]) for k, i in t]  # type: ignore[index]
+              for t in unmapped.tracks]  # type: ignore[attr-defined]
+    return track_objects(synth, tracks)[0]
 
 
 # --- statistics -----------------------------------------------------------------------------------------------

@@ -95,18 +95,30 @@ def landmark_objects(synth: object, mapped: Path, label_cache: dict[str, np.ndar
 
     from ...database.session_io import read_landmark_point_ids
 
-    label_cache = {} if label_cache is None else label_cache
     pids = read_landmark_point_ids(mapped / "landmarks.csv")
     rec = pycolmap.Reconstruction(str(mapped / "sparse"))
-    majority, pure = [], []
+    tracks = []
     for pid in pids:
-        ids = []
+        obs = []
         for el in rec.points3D[int(pid)].track.elements:
             image = rec.images[el.image_id]
-            if image.name not in label_cache:
-                label_cache[image.name] = _labels(synth.label_path(image.name))
-            lab = label_cache[image.name]
-            u, v = np.asarray(image.points2D[el.point2D_idx].xy, dtype=np.float64)
+            obs.append((image.name, *np.asarray(image.points2D[el.point2D_idx].xy, dtype=np.float64)))
+        tracks.append(obs)
+    return track_objects(synth, tracks, label_cache)
+
+
+def track_objects(synth: object, tracks: list[list[tuple[str, float, float]]],
+                  label_cache: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The object of each track of observations (image name, u, v in COLMAP pixels): the object id under each
+    observation in labels/ (0 = background), majority vote. Returns ((N,) ids, (N,) bool purity)."""
+    label_cache = {} if label_cache is None else label_cache
+    majority, pure = [], []
+    for obs in tracks:
+        ids = []
+        for name, u, v in obs:
+            if name not in label_cache:
+                label_cache[name] = _labels(synth.label_path(name))
+            lab = label_cache[name]
             col = int(np.clip(np.floor(u), 0, lab.shape[1] - 1))  # COLMAP: pixel i spans [i, i + 1)
             row = int(np.clip(np.floor(v), 0, lab.shape[0] - 1))
             ids.append(int(lab[row, col]))

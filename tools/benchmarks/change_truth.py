@@ -7,8 +7,9 @@ place at least `min_views` times (its true position projected with the true pose
 bins). A landmark's object is the majority label of its observations (`bench_map.landmark_objects`).
 
 Claims are scored per object: an object is claimed gone when any of its A landmarks is `gone` (new: any of its B
-landmarks `new`). Precision = claimed objects truly removed / claimed objects; recall = removed objects that are
-claimed / removed objects (`recall`), and the same over the removed objects that A mapped at all
+landmarks `new`), or any of the objects A never mapped whose track lies on it (`plugin.changes.unmapped`).
+Precision = claimed objects truly removed / claimed objects; recall = removed objects that are claimed / removed
+objects (`recall`), and the same over the removed objects that A mapped at all
 (`recall_mapped`: what the comparison can reach; an object never mapped cannot be reported).
 False changes: every gone / new landmark whose object did not change (ground texture included), per hectare
 of the area both sessions observed (true footprints of frames.json). Outside: change claims on landmarks
@@ -143,24 +144,34 @@ def size_bin(radius: float) -> str:
 
 def score_pair(result: ChangeResult, truth: ObjectTruth, objects_a: np.ndarray, objects_b: np.ndarray,
                truth_area_a: object, truth_area_b: object, min_views: int = 6,
-               min_confidence: float = 0.0) -> Score:
+               min_confidence: float = 0.0, unmapped_objects_a: np.ndarray | None = None,
+               unmapped_objects_b: np.ndarray | None = None) -> Score:
     """Score one pair's ChangeResult (see the module docstring). objects_a/b: the object id of each landmark
-    (0 = not on an object). Claims below `min_confidence` are not counted as claims (as `--min-confidence`)."""
+    (0 = not on an object); unmapped_objects_a/b: the same for the objects each session never mapped
+    (`result.unmapped_a/b`, whose claims count as the landmarks' do; None: not scored). Claims below
+    `min_confidence` are not counted as claims (as `--min-confidence`)."""
     import shapely
 
     score = Score(pairs=1)
     where = truth.index()
     common = shapely.intersection(truth_area_a, truth_area_b)
     score.common_ha = float(common.area) / 1e4
-    sides = ((GONE, result.a, objects_a, truth.present_a & ~truth.present_b, result.positions_a, truth_area_b),
-             (NEW, result.b, objects_b, ~truth.present_a & truth.present_b, result.positions_b, truth_area_a))
-    for change, verdict, objects, changed, positions, other_area in sides:
-        claims = (verdict.label == change) & (verdict.confidence >= min_confidence)
+    sides = ((GONE, result.a, objects_a, truth.present_a & ~truth.present_b, result.positions_a, truth_area_b,
+              result.tracks_a, unmapped_objects_a, result.unmapped_a.positions),
+             (NEW, result.b, objects_b, ~truth.present_a & truth.present_b, result.positions_b, truth_area_a,
+              result.tracks_b, unmapped_objects_b, result.unmapped_b.positions))
+    for change, verdict, objects, changed, positions, other_area, tracks, track_objects, track_pos in sides:
+        mapped = {where[int(o)] for o in objects if int(o) in where}  # by a landmark
+        labels, confidence = verdict.label, verdict.confidence
+        if tracks is not None and track_objects is not None:
+            labels, confidence = np.r_[labels, tracks.label], np.r_[confidence, tracks.confidence]
+            objects, positions = np.r_[objects, track_objects], np.r_[positions.reshape(-1, 3), track_pos]
+        claims = (labels == change) & (confidence >= min_confidence)
         claimed_objects: set[int] = set()
         for i in np.flatnonzero(claims):
             o = int(objects[i])
             k = where.get(o)
-            score.landmark_claims.append((float(verdict.confidence[i]), bool(k is not None and changed[k])))
+            score.landmark_claims.append((float(confidence[i]), bool(k is not None and changed[k])))
             if k is None or not changed[k]:
                 score.false_landmarks += 1
                 score.false_by_kind[truth.kind[k] if k is not None else "ground"] += 1
@@ -168,7 +179,6 @@ def score_pair(result: ChangeResult, truth: ObjectTruth, objects_a: np.ndarray, 
                 score.outside += 1
             if k is not None:
                 claimed_objects.add(k)
-        mapped = {where[int(o)] for o in objects if int(o) in where}
         in_scope = (truth.views_a >= min_views) & (truth.views_b >= min_views)
         for k in np.flatnonzero(in_scope):
             key = (change, str(truth.kind[k]), size_bin(float(truth.radius[k])))

@@ -151,6 +151,7 @@ def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, 
         changes.write_outputs(run, out.path, params)
         out.finish()
     counts = run.result.counts()
-    return {"changes": str(Path(out_dir) / "changes.json"), "gone": counts["gone"], "new": counts["new"],
+    return {"changes": str(Path(out_dir) / "changes.json"), "gone": counts["gone"] + counts["gone_unmapped"],
+            "new": counts["new"] + counts["new_unmapped"],
             "kept": counts["kept_a"], "unseen": counts["unseen_a"] + counts["unseen_b"],
             "changes_summary": run.summary()}
