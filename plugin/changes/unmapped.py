@@ -12,9 +12,10 @@ when
   noise): the other session is asked what is there, and a short track along one flight line often leaves
   its height open by tens of metres;
 - the own map does not explain it: no own landmark is its counterpart (gate, size) and it is neither inside the
-  footprint of a larger own landmark nor holds smaller ones, of any size (a nested mask, a fragment of a mapped
-  crown, a whole over mapped parts); pieces of one object (up to `part_max_ratio` apart in size, inside each
-  other's footprint) keep the best supported one;
+  footprint of a larger own landmark nor holds smaller ones, of any size, at that landmark's height (within the
+  gate: a nested mask, a fragment of a mapped crown, a whole over mapped parts; a tree standing in a mapped
+  field rises above the field's landmark); pieces of one object (up to `part_max_ratio` apart in size, inside
+  each other's footprint) keep the best supported one;
 - its own session's segments show it (tested in `verdict`, as "the other session's segments show it" is
   there): a size-compatible segment at its projection in at least `min_views` of its own keyframes,
   significantly more often than at the probe points around it, and hits more like those of the session's own
@@ -138,10 +139,14 @@ def unmapped_objects(tracks: Sequence[np.ndarray], poses: Poses, cameras: Sequen
         idx, _ = counterparts(pos_a, size_a, landmark_positions, landmark_sizes, gate_m, max_size_difference,
                               z_weight)
         ok &= idx < 0
-        # any size: a piece inside a mapped crown is a fragment of it, a whole over mapped parts is those parts
-        inside, _ = holder_pairs(pos_a, size_a, landmark_positions, landmark_sizes, np.inf)
-        _, holding = holder_pairs(landmark_positions, landmark_sizes, pos_a, size_a, np.inf)
-        ok[inside] = ok[holding] = False
+        # nested in 3D, of any size: a piece inside a mapped crown (in its footprint and at its height, within the
+        # gate) is a fragment of it, a whole over mapped parts at its height is those parts; an object standing
+        # in a mapped field rises above the field's landmark and stays a candidate
+        lz = np.asarray(landmark_positions, np.float64).reshape(-1, 3)[:, 2]
+        i, j = holder_pairs(pos_a, size_a, landmark_positions, landmark_sizes, np.inf)
+        ok[i[z_weight * np.abs(pos_a[i, 2] - lz[j]) <= gate_m]] = False
+        j, i = holder_pairs(landmark_positions, landmark_sizes, pos_a, size_a, np.inf)
+        ok[i[z_weight * np.abs(pos_a[i, 2] - lz[j]) <= gate_m]] = False
     # pieces of one object (passes, nested masks): the best supported one stands for it
     part, whole = holder_pairs(pos_a, size_a, pos_a, size_a, part_max_ratio, same_map=True)
     links = [set() for _ in range(len(pos_a))]
