@@ -207,11 +207,13 @@ def write_landmarks_csv(
     write_text_atomic(path, format_landmarks_csv(lmap, point3d_ids, num_observations, image_names))
 
 
-def read_session_observations(session: str | Path | SessionFiles, with_segments: bool = True) -> SessionObservations:
+def read_session_observations(session: str | Path | SessionFiles, with_segments: bool = True,
+                              with_tracks: bool = True) -> SessionObservations:
     """A mapped (or merged) session (a directory, or one opened by `read_session`) as change detection needs it:
     landmarks, their support (observing keyframes), the keyframes' poses and cameras from sparse/ and, from
-    database.db when present and `with_segments`, every segment each keyframe saw. InputError when the session
-    has no keyframe poses."""
+    database.db when present and `with_segments`, every segment each keyframe saw and (`with_tracks`) the tracks
+    there that no landmark holds (for the objects it never mapped). InputError when the session has no keyframe
+    poses."""
     from ..plugin.changes import SessionObservations
     from .colmap_db import read_segment_detections
     from .colmap_model import read_colmap_model_poses
@@ -227,7 +229,8 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
     database = session.path / "database.db"
     if with_segments and database.is_file():
         segments = tuple(read_segment_detections(database, poses.names))
-        tracks = _unmapped_tracks(session, database, poses.names, segments)
+        if with_tracks:
+            tracks = _unmapped_tracks(session, database, poses.names, segments)
     support = np.array([len(names) for names in table.image_names], dtype=np.float64)
     lmap = session.landmarks
     return SessionObservations(lmap.positions, lmap.sizes.astype(np.float64), poses,

@@ -83,7 +83,9 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if match is not None:
         check_match_maps(match, files_a.landmarks, files_b.landmarks, match_json,
                          names=(str(session_a), str(session_b)))
-    obs_a, obs_b = read_session_observations(files_a), read_session_observations(files_b)
+    tracks = params.changes.unmapped_objects
+    obs_a = read_session_observations(files_a, with_tracks=tracks)
+    obs_b = read_session_observations(files_b, with_tracks=tracks)
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
         if not area.area > 0:

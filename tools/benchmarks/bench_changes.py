@@ -15,8 +15,10 @@ cross-season pairs A-W, B-W, C-W are matched and verified as `batch` does, into 
 (`workflows.batch.tasks.pair_task`: `sosmatch match`, whose answer is the window hypotheses verified on the full
 maps, read back with `match_io.read_match`), and `workflows.changes.compute` classifies every landmark.
 Scoring: `tools.benchmarks.change_truth` (objects of radius >= 2 m seen by both sessions' keyframes >= 6 times;
-per-object claims; every claimed landmark; false changes per hectare of the common area; claims outside the other
-session's true observed area).
+per-object claims, those on objects a session never mapped included (`unmapped_track_objects`: the majority label
+under the track); every claimed landmark; false changes per hectare of the common area; claims outside the other
+session's true observed area). `--set changes.unmapped_objects=false` scores landmarks only (the code before
+that stage, identical tables).
 
 Statistics: the pairs of one world are not independent (the change levels of a world remove nested sets of the
 same objects, and its pairs share sessions), so the 95 % intervals are percentile intervals of a bootstrap that
@@ -128,7 +130,7 @@ def unmapped_track_objects(synth: object, mapped: Path, unmapped: object) -> np.
 
     if not len(unmapped.tracks):  # type: ignore[attr-defined]
         return np.zeros(0, np.int64)
-    obs = read_session_observations(read_session(mapped))
+    obs = read_session_observations(read_session(mapped), with_tracks=False)
     tracks = [[(obs.poses.names[k], *obs.segments[k].centroids[i]) for k, i in t]  # type: ignore[index]
               for t in unmapped.tracks]  # type: ignore[attr-defined]
     return track_objects(synth, tracks)[0]
