@@ -54,6 +54,51 @@ def _agree(t1: Sim3, t2: Sim3, points: np.ndarray, tolerance_m: float) -> bool:
     return bool(len(points) and np.max(np.linalg.norm(t1.apply(points) - t2.apply(points), axis=1)) <= tolerance_m)
 
 
+class _NearTried:
+    """Which candidates (transform, indices of its B landmarks) agree with a transform tried before them (`_agree`
+    at gate_m on their own B landmarks), all later candidates at once for each tried transform. The batched
+    products round differently from one candidate's own, so a candidate within AGREE_MARGIN of the gate is
+    decided by `_agree` itself: the same decisions as testing every candidate against every tried transform."""
+
+    def __init__(self, candidates: Sequence[tuple[Sim3, np.ndarray]], points_b: np.ndarray, gate_m: float) -> None:
+        idx = [np.asarray(i, dtype=np.int64).reshape(-1) for _, i in candidates]
+        self.candidates, self.points_b, self.gate_m = candidates, points_b, gate_m
+        self.done = np.zeros(len(candidates), bool)
+        n = np.array([len(i) for i in idx], np.int64)
+        self.start = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
+        self.empty = n == 0  # no landmarks to compare: never agrees (`_agree`)
+        self.probe = points_b[np.concatenate(idx)] if len(idx) else np.zeros((0, 3))
+        self.owner = owner = np.repeat(np.arange(len(candidates)), n)
+        if len(candidates):
+            rot = np.stack([t.scale * t.rotation for t, _ in candidates])
+            tr = np.stack([t.translation for t, _ in candidates])
+            self.own = np.einsum("nij,nj->ni", rot[owner], self.probe) + tr[owner]
+        else:
+            self.own = np.zeros((0, 3))
+        scale = float(np.abs(self.own).max(initial=0.0)) + float(np.abs(self.probe).max(initial=0.0))
+        self.margin = AGREE_MARGIN * (1.0 + scale)
+
+    def tried(self, c: int, transform: Sim3) -> None:
+        """Mark the candidates after c that agree with `transform`."""
+        later = np.flatnonzero(~self.done[c + 1:] & ~self.empty[c + 1:]) + c + 1
+        if not len(later):
+            return
+        pick = np.zeros(len(self.done), bool)
+        pick[later] = True
+        rows = np.flatnonzero(pick[self.owner])
+        moved = transform.scale * self.probe[rows] @ transform.rotation.T + transform.translation
+        dist = np.sqrt(np.sum((self.own[rows] - moved) ** 2, axis=1))
+        bounds = np.concatenate([[0], np.cumsum(np.diff(self.start)[later])[:-1]]).astype(np.int64)
+        worst = np.maximum.reduceat(dist, bounds)
+        self.done[later[worst <= self.gate_m - self.margin]] = True
+        for k in later[np.abs(worst - self.gate_m) <= self.margin]:  # too close to call: the exact test
+            t, i = self.candidates[k]
+            self.done[k] = _agree(t, transform, self.points_b[np.asarray(i, dtype=np.int64).reshape(-1)], self.gate_m)
+
+
+AGREE_MARGIN = 1e-9  # relative to the coordinates' magnitude: far above the rounding of a 3 x 3 product
+
+
 def converged_to_winner(winner: Sim3, probe: np.ndarray, gate_m: float, winner_pairs: np.ndarray | None,
                         aligned: Alignment) -> bool:
     """Whether a refinement found the winner again rather than another alignment: its transform puts the winner's
@@ -103,15 +148,15 @@ def verify_alignments(
     """
     pb_all = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
     refined: list[Alignment] = []
-    tried: list[Sim3] = []  # the starting transforms and where they converged: a candidate near either is done
-    for transform, idx_b in candidates:
-        probe = pb_all[np.asarray(idx_b, dtype=np.int64).reshape(-1)]
-        if any(_agree(transform, t, probe, gate_m) for t in tried):
+    # the starting transforms and where they converged: a later candidate near either is done
+    near_tried = _NearTried(candidates, pb_all, gate_m)
+    for c, (transform, _) in enumerate(candidates):
+        if near_tried.done[c]:
             continue
-        tried.append(transform)
         refined.append(refine_alignment(points_a, sizes_a, points_b, sizes_b, transform, gate_m,
                                         max_size_difference, dof=dof, z_weight=z_weight))
-        tried.append(refined[-1].transform)
+        near_tried.tried(c, transform)
+        near_tried.tried(c, refined[-1].transform)
     if not refined:
         return Verification(None, 0, 0, False)
     order = sorted(range(len(refined)), key=lambda k: (-len(refined[k].associations), refined[k].rms_m, k))

@@ -120,3 +120,29 @@ def test_yaw_only_fits_of_one_tilted_alignment_are_no_rivals():
     found = set(map(tuple, v.best.associations.tolist()))
     assert v.accepted and v.runner_up_support * 2 < v.support
     assert len(found & truth) >= 0.98 * len(found) and len(found) > 200
+
+
+def test_candidates_near_a_tried_transform_are_those_of_the_one_by_one_test():
+    """`_NearTried` decides for all later candidates at once which agree with a tried transform; the decisions
+    are those of `_agree` on every candidate and every transform tried before it, also for candidates placed
+    right at the gate (where the batched products' rounding could decide) and far from the origin (UTM)."""
+    from sosmatch.plugin.verification import _agree, _NearTried
+
+    rng = np.random.default_rng(3)
+    for origin in (0.0, 5.0e6):
+        pb = rng.uniform(-200, 200, (300, 3)) + [origin, origin, 0.0]
+        base = Sim3(_yaw(20.0), np.array([3.0, -4.0, 1.0]))
+        cands = []
+        for _ in range(120):
+            idx = rng.choice(300, int(rng.integers(0, 12)), replace=False)
+            shift = np.r_[rng.uniform(-3, 3, 2), 0.0]
+            cands.append((Sim3(_yaw(20.0 + rng.uniform(-0.5, 0.5)), base.translation + shift), idx))
+        # one candidate exactly at the gate: its worst landmark lies 2.0 m from where `base` puts it
+        cands.append((Sim3(base.rotation, base.translation + [2.0, 0.0, 0.0]), np.array([0, 1, 2])))
+        tried = [base, cands[5][0]]
+        near = _NearTried(cands, pb, 2.0)
+        for t in tried:
+            near.tried(-1, t)
+        for k, (t, idx) in enumerate(cands):
+            assert near.done[k] == any(_agree(t, x, pb[idx], 2.0) for x in tried)
+        assert near.done[-1]

@@ -92,3 +92,21 @@ def test_first_search_keeps_the_configured_windows():
     assert (first.window_length, first.window_stride, first.min_associations) == (
         base.window_length, base.window_stride, base.min_associations)
     assert first.distance_tolerance_m == min(base.distance_tolerance_m, got.distance_tolerance_m)
+
+
+def test_size_gate_fraction_is_the_mean_of_the_gate_over_all_pairs():
+    """The compiled count gives the fraction of `gates.size_ratio` over the sampled pairs exactly, unknown (NaN),
+    zero and infinite sizes included."""
+    from sosmatch.plugin.association.gates import size_ratio
+
+    rng = np.random.default_rng(0)
+    for n_a, n_b in ((7, 900), (1000, 300)):
+        a, b = rng.uniform(0, 5, n_a), rng.uniform(0, 5, n_b)
+        a[::11], b[::13], a[::17], b[::19] = np.nan, 0.0, np.inf, np.inf
+
+        def sample(h):
+            return h if len(h) <= 800 else h[np.linspace(0, len(h) - 1, 800).astype(np.int64)]
+
+        for theta in (0.0, 0.2, 0.45):
+            expected = float(np.mean(size_ratio(sample(a)[:, None], sample(b)[None, :]) <= theta))
+            assert size_pass_fraction(a, b, theta) == expected

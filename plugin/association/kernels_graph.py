@@ -69,6 +69,18 @@ def gate_pairs(ia: np.ndarray, ib: np.ndarray, pa: np.ndarray, ha: np.ndarray, p
 
 
 @njit(cache=True)
+def size_pass_count(ha: np.ndarray, hb: np.ndarray, theta_r: float) -> int:
+    """How many of the landmark pairs ha x hb pass the size gate r <= theta_r, r as `gates.size_ratio` gives it
+    (`size_ratio1`, whose NaN for two infinite sizes `gates.size_ratio` reads as 0)."""
+    c = 0
+    for i in range(len(ha)):
+        for j in range(len(hb)):
+            r = size_ratio1(ha[i], hb[j])
+            c += (r <= theta_r) | (r != r)
+    return c
+
+
+@njit(cache=True)
 def putatives(a0: int, a1: int, b0: int, b1: int, pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
               theta_r: float, prior_m: float) -> tuple:
     """Putative associations of landmarks [a0, a1) x [b0, b1), in (i, j) order, and their weights q_s.

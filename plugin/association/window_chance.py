@@ -40,7 +40,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..params import AssociationParams
-from .gates import size_ratio
 from .windows import hilbert_order
 
 SIZE_SAMPLE = 800  # landmarks of each map the size-gate fraction q is measured on (evenly spaced, deterministic)
@@ -97,19 +96,26 @@ def size_pass_fraction(sizes_a: np.ndarray | None, sizes_b: np.ndarray | None, t
         h = np.asarray(h, np.float64)
         return h if len(h) <= SIZE_SAMPLE else h[np.linspace(0, len(h) - 1, SIZE_SAMPLE).astype(np.int64)]
 
-    r = size_ratio(sample(sizes_a)[:, None], sample(sizes_b)[None, :])
-    return float(np.mean(r <= theta_r))
+    from .kernels_graph import size_pass_count
+
+    a, b = sample(sizes_a), sample(sizes_b)
+    return size_pass_count(a, b, float(theta_r)) / (len(a) * len(b))
 
 
 def window_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
                   sizes_b: np.ndarray | None, params: AssociationParams, length: int | None = None) -> WindowChance:
     """The chance model (module doc) for windows of `length` landmarks (default `params.window_length`) at the
     tolerances of `params` (theta_eps, theta_r), over the windows' order (`params.windows`)."""
-    length = int(params.window_length if length is None else length)
-    xa, xb = _ordered(points_a, params), _ordered(points_b, params)
+    q = size_pass_fraction(sizes_a, sizes_b, params.max_size_difference)
+    return _chance(_ordered(points_a, params), _ordered(points_b, params), q, params,
+                   int(params.window_length if length is None else length))
+
+
+def _chance(xa: np.ndarray, xb: np.ndarray, q: float, params: AssociationParams, length: int) -> WindowChance:
+    """`window_chance` of the two maps' horizontal positions in window order and their size-gate fraction q
+    (neither depends on the window length: `derived_windows` computes them once for all lengths it tries)."""
     na, nb = min(length, len(xa)), min(length, len(xb))
     wa, wb = _window_area(xa, length), _window_area(xb, length)
-    q = size_pass_fraction(sizes_a, sizes_b, params.max_size_difference)
     cell = math.pi * params.distance_tolerance_m ** 2
     if min(wa, wb) <= 0 or na < 3 or nb < 3:  # no extent to place landmarks by chance: no trials
         return WindowChance(length, (na, nb), (wa, wb), q, 0.0, 0.0, 0)
@@ -119,12 +125,23 @@ def window_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
     transforms = max(1.0, common / cell) * max(1.0, 2.0 * math.pi * radius / params.distance_tolerance_m)
     pairs = max(1.0, len(xa) / length) * max(1.0, len(xb) / length)
     trials = transforms * pairs
+    return WindowChance(length, (na, nb), (wa, wb), q, lam, trials, _largest_chance_set(lam, trials, na * nb))
+
+
+def _largest_chance_set(lam: float, trials: float, most: int) -> int:
+    """The smallest k (at most `most`) with trials x P(Poisson(lam) >= k + 1) < 1: the largest set size that at
+    least one of `trials` trials reaches. P(X >= k + 1) = sf(k), evaluated for a block of k at a time (the same
+    values one call per k gives)."""
     from scipy.stats import poisson
 
-    largest = 0  # sf(k - 1) = P(X >= k)
-    while largest < na * nb and trials * float(poisson.sf(largest, lam)) >= 1.0:
-        largest += 1
-    return WindowChance(length, (na, nb), (wa, wb), q, lam, trials, largest)
+    start, block = 0, 16
+    while start < most:
+        ks = np.arange(start, min(start + block, most))
+        below = np.flatnonzero(trials * poisson.sf(ks, lam) < 1.0)
+        if len(below):
+            return int(ks[below[0]])
+        start += block
+    return most
 
 
 @dataclass(frozen=True)
@@ -154,13 +171,15 @@ def derived_windows(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: 
     larger of the configured one and that window's largest chance set. The configured windows stay when even the
     doubled window exceeds one chance association per transform (or the maps are shorter than the configured
     window)."""
-    base = window_chance(points_a, sizes_a, points_b, sizes_b, params)
+    xa, xb = _ordered(points_a, params), _ordered(points_b, params)
+    q = size_pass_fraction(sizes_a, sizes_b, params.max_size_difference)
+    base = _chance(xa, xb, q, params, params.window_length)
     longest = max(len(points_a), len(points_b))
     best = None
     length = params.window_length
     while length < longest:
         length *= 2
-        chance = window_chance(points_a, sizes_a, points_b, sizes_b, params, length)
+        chance = _chance(xa, xb, q, params, length)
         putative = chance.landmarks[0] * chance.landmarks[1] * chance.size_pass
         if chance.per_transform > MAX_CHANCE_PER_TRANSFORM or chance.trials == 0 or \
                 putative > MAX_PUTATIVE_PER_WINDOW_PAIR:
