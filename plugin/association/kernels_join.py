@@ -107,22 +107,56 @@ def grouped_order(grp: np.ndarray, order: np.ndarray, ng: int) -> tuple:
 
 @njit(cache=True)
 def sorted_b_edges(eb: tuple, cells_b: np.ndarray, ncell: int, hb: np.ndarray) -> tuple:
-    """B edges grouped by (cell of j, cell of l), each group sorted by length, stored in that order.
+    """B edges in both directions j -> l, grouped by (cell of j, cell of l), each group sorted by length, stored in
+    that order (each undirected edge twice: once as listed, once reversed).
 
-    Returns the group offsets (ncell * ncell + 1) and the edges' j, l, L, z, ang, ang reversed, h_j, h_l,
-    original edge id, ln h_j, ln h_l, all in group order, so the join reads them sequentially.
+    Returns the group offsets (ncell * ncell + 1) and the directed edges' j, l, L, z (negated when reversed),
+    h_j, h_l, ln h_j, ln h_l, original edge id and direction (1: reversed), all in group order, so the join reads
+    them sequentially.
     """
     fj, fl, fln, fz, fang, fangr = eb
     ne = len(fj)
+    nd = 2 * ne
     ng = ncell * ncell
-    grp = np.empty(ne, np.int64)
+    grp = np.empty(nd, np.int64)
     for f in range(ne):
-        grp[f] = cells_b[fj[f]] * ncell + cells_b[fl[f]]
+        grp[2 * f] = cells_b[fj[f]] * ncell + cells_b[fl[f]]
+        grp[2 * f + 1] = cells_b[fl[f]] * ncell + cells_b[fj[f]]
     # by group, then length (stable: ties keep the edge order)
-    order, goff = grouped_order(grp, np.argsort(fln, kind="mergesort"), ng)
+    uo = np.argsort(fln, kind="mergesort")
+    by_len = np.empty(nd, np.int64)
+    for x in range(ne):
+        by_len[2 * x] = 2 * uo[x]
+        by_len[2 * x + 1] = 2 * uo[x] + 1
+    order, goff = grouped_order(grp, by_len, ng)
     lh = np.log(hb)  # NaN / -inf for unknown / zero sizes: only used when every size is positive (ncell > 1)
-    return (goff, fj[order], fl[order], fln[order], fz[order], fang[order], fangr[order], hb[fj[order]],
-            hb[fl[order]], order, lh[fj[order]], lh[fl[order]])
+    bj = np.empty(nd, np.int64)
+    bl = np.empty(nd, np.int64)
+    bln = np.empty(nd)
+    bz = np.empty(nd)
+    hbj = np.empty(nd)
+    hbl = np.empty(nd)
+    lhbj = np.empty(nd)
+    lhbl = np.empty(nd)
+    bf = np.empty(nd, np.int32)
+    bd = np.empty(nd, np.int8)
+    for x in range(nd):
+        d = order[x]
+        f = d >> 1
+        o = d & 1
+        j = fj[f] if o == 0 else fl[f]
+        l_ = fl[f] if o == 0 else fj[f]
+        bj[x] = j
+        bl[x] = l_
+        bln[x] = fln[f]
+        bz[x] = fz[f] if o == 0 else -fz[f]
+        hbj[x] = hb[j]
+        hbl[x] = hb[l_]
+        lhbj[x] = lh[j]
+        lhbl[x] = lh[l_]
+        bf[x] = f
+        bd[x] = o
+    return goff, bj, bl, bln, bz, hbj, hbl, lhbj, lhbl, bf, bd
 
 
 @njit(cache=True)
@@ -131,11 +165,13 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
               prior_m: float, count_only: bool, expected: int) -> tuple:
     """Every consistent pair of associations {(p, j), (q, l)} whose A landmarks form one of the edges `ea_sel`.
 
-    A directed A edge p -> q (both orientations o of each undirected edge) meets an undirected B edge j < l (so
-    each pair of associations is found once). Directed A edges are grouped by (cell of p, cell of q) and sorted by
-    length like the B edges (`sorted_b_edges`); each A group is swept against its 3 x 3 neighbouring B groups
-    with two pointers, so the candidates (lengths within eps) cost no search. Every candidate is then tested
-    exactly (size gate, prior, `pair_mismatch`) with the invariants oriented as the reference orients them.
+    An undirected A edge p < q meets a directed B edge j -> l (both directions of each B edge, `sorted_b_edges`),
+    so each pair of associations is found once. The A edges are grouped by (cell of p, cell of q) and sorted by
+    length like the B edges; each A group is swept against its 3 x 3 neighbouring B groups with two pointers, so
+    the candidates (lengths within eps) cost no search. (Directing B rather than A halves the sweeps: an A edge
+    is visited once per neighbouring group instead of once per direction.) Every candidate is then tested
+    exactly (size gate, prior, `pair_mismatch`) with the invariants oriented as the reference orients them: a
+    reversed B edge with A's p -> q is the B edge with A's q -> p, stored as orientation 1.
     Returns each pair as its A edge, B edge (original id) and orientation (9 bytes: a large join is mostly pairs
     the peel removes), and the number of candidates per selected A edge (the join's cost; `count_only`: only
     that). `expected`: the output's size if known (its buffers then grow less). Association ids, mismatch and
@@ -143,49 +179,37 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
     survive the peel.
     """
     ei, ek, el, ez, af, ar = ea
-    goff, bj, bl, bln, bz, bang, bangr, hbj, hbl, border, lhbj, lhbl = sb
+    goff, bj, bl, bln, bz, hbj, hbl, lhbj, lhbl, bf, bd = sb
     nsel = len(ea_sel)
-    # directed A edges grouped by cells, sorted by length within a group
-    nd = 2 * nsel
-    dgrp = np.empty(nd, np.int64)
+    grp = np.empty(nsel, np.int64)
     ulen = np.empty(nsel)
     for t in range(nsel):
         e = ea_sel[t]
-        dgrp[2 * t] = cells_a[ei[e]] * ncell + cells_a[ek[e]]
-        dgrp[2 * t + 1] = cells_a[ek[e]] * ncell + cells_a[ei[e]]
+        grp[t] = cells_a[ei[e]] * ncell + cells_a[ek[e]]
         ulen[t] = el[e]
-    # directed edge d = 2 t + o in the order (group, length, d): both orientations share the length
-    uo = np.argsort(ulen, kind="mergesort")
-    by_len = np.empty(nd, np.int64)
-    for x in range(nsel):
-        by_len[2 * x] = 2 * uo[x]
-        by_len[2 * x + 1] = 2 * uo[x] + 1
     ng = ncell * ncell
-    dord, aoff = grouped_order(dgrp, by_len, ng)
+    # the A edges in the order (group, length, edge): a counting sort of the stable length order
+    dord, aoff = grouped_order(grp, np.argsort(ulen, kind="mergesort"), ng)
     sized = ncell > 1
     lha = np.log(ha) if sized else ha
-    # the directed A edges' data in sweep order (each A group is swept up to 9 times: sequential reads)
-    xt = np.empty(nd, np.int64)
-    xe = np.empty(nd, np.int64)
-    xo = np.empty(nd, np.int8)
-    xp = np.empty(nd, np.int64)
-    xq = np.empty(nd, np.int64)
-    xl = np.empty(nd)
-    xz = np.empty(nd)
-    xhp = np.empty(nd)
-    xhq = np.empty(nd)
-    xlp = np.empty(nd)
-    xlq = np.empty(nd)
-    for x in range(nd):
-        d = dord[x]
-        t = d >> 1
-        o = d & 1
+    # the A edges' data in sweep order (each A group is swept up to 9 times: sequential reads)
+    xt = np.empty(nsel, np.int64)
+    xe = np.empty(nsel, np.int64)
+    xp = np.empty(nsel, np.int64)
+    xq = np.empty(nsel, np.int64)
+    xl = np.empty(nsel)
+    xz = np.empty(nsel)
+    xhp = np.empty(nsel)
+    xhq = np.empty(nsel)
+    xlp = np.empty(nsel)
+    xlq = np.empty(nsel)
+    for x in range(nsel):
+        t = dord[x]
         e = ea_sel[t]
-        p = ei[e] if o == 0 else ek[e]
-        q = ek[e] if o == 0 else ei[e]
+        p = ei[e]
+        q = ek[e]
         xt[x] = t
         xe[x] = e
-        xo[x] = o
         xp[x] = p
         xq[x] = q
         xl[x] = el[e]
@@ -211,12 +235,12 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
             continue
         ca1 = ga // ncell
         ca2 = ga % ncell
-        for d1 in range(dlo, dhi + 1):
-            c1 = ca1 + d1
+        for n1 in range(dlo, dhi + 1):
+            c1 = ca1 + n1
             if c1 < 0 or c1 >= ncell:
                 continue
-            for d2 in range(dlo, dhi + 1):
-                c2 = ca2 + d2
+            for n2 in range(dlo, dhi + 1):
+                c2 = ca2 + n2
                 if c2 < 0 or c2 >= ncell:
                     continue
                 g = c1 * ncell + c2
@@ -241,7 +265,6 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                     if count_only or hi == lo:
                         continue
                     e = xe[x]
-                    o = xo[x]
                     p = xp[x]
                     q = xq[x]
                     hp = xhp[x]
@@ -257,8 +280,7 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                     # about half the candidates pass, at random: every test is evaluated without a branch (a
                     # mispredicted branch costs more than the tests) and the pair stored, kept when it passes
                     for f in range(lo, hi):
-                        zb = bz[f] if o == 0 else -bz[f]
-                        ok = pair_consistent(la, za, bln[f], zb, mode, eps, tan_tilt, eps_z)
+                        ok = pair_consistent(la, za, bln[f], bz[f], mode, eps, tan_tilt, eps_z)
                         if sized:
                             # r <= theta_r <=> |ln h_a - ln h_b| <= delta: decided by the logs away from the
                             # boundary, by the exact ratio (the reference's expression) within 1e-9 of it
@@ -279,8 +301,8 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                             dy2 = pa[q, 1] - pb[l_, 1]
                             ok = ok & (dx * dx + dy * dy <= r2) & (dx2 * dx2 + dy2 * dy2 <= r2)
                         eae[ne] = e
-                        ebe[ne] = border[f]
-                        ori[ne] = o
+                        ebe[ne] = bf[f]
+                        ori[ne] = bd[f]
                         ne += ok
     return eae[:ne].copy(), ebe[:ne].copy(), ori[:ne].copy(), counts
 
