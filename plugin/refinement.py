@@ -8,6 +8,7 @@ Used by the match's verification (`plugin.verification`) and by `merge --refine`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -51,24 +52,25 @@ def fit_yaw_translation(source: np.ndarray, target: np.ndarray, weights: np.ndar
 
 def mutual_nearest(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
-    gate_m: float, max_size_difference: float, z_weight: float = 0.5,
+    gate_m: float, max_size_difference: float, z_weight: float = 0.5, tree_a: Any = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Mutual nearest neighbours between two landmark maps already in one frame.
 
     Candidates are pairs within `gate_m` under the distance sqrt(dx² + dy² + (z_weight dz)²) (landmark heights
     are noisier than their ground positions) whose relative size difference is at most `max_size_difference`
     (sizes NaN or None: no size gate). A pair is kept when each is the other's nearest candidate.
+    `tree_a`: `pairing_tree(points_a, z_weight)` when one map A is paired with many placements of B (built once).
     Returns ((K,2) landmark index pairs (A, B) sorted by A, (K,) distances).
     """
     from scipy.spatial import cKDTree
 
-    scale = np.array([1.0, 1.0, z_weight])
-    pa = np.asarray(points_a, dtype=np.float64).reshape(-1, 3) * scale
-    pb = np.asarray(points_b, dtype=np.float64).reshape(-1, 3) * scale
+    pa = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
+    pb = np.asarray(points_b, dtype=np.float64).reshape(-1, 3) * [1.0, 1.0, z_weight]
     empty = (np.zeros((0, 2), np.int64), np.zeros(0))
     if not len(pa) or not len(pb):
         return empty
-    pairs = cKDTree(pa).sparse_distance_matrix(cKDTree(pb), gate_m, output_type="ndarray")
+    tree_a = pairing_tree(pa, z_weight) if tree_a is None else tree_a
+    pairs = tree_a.sparse_distance_matrix(cKDTree(pb), gate_m, output_type="ndarray")
     i, j, d = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64), pairs["v"]
     if sizes_a is not None and sizes_b is not None:
         ok = size_ratio(np.asarray(sizes_a, np.float64)[i], np.asarray(sizes_b, np.float64)[j]) <= max_size_difference
@@ -89,6 +91,13 @@ def mutual_nearest(
     return np.column_stack([i[keep], j[keep]])[order], d[keep][order]
 
 
+def pairing_tree(points: np.ndarray, z_weight: float = 0.5) -> Any:
+    """The KD-tree `mutual_nearest` pairs a map's landmarks with: positions with heights scaled by z_weight."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(np.asarray(points, dtype=np.float64).reshape(-1, 3) * np.array([1.0, 1.0, z_weight]))
+
+
 @dataclass(frozen=True)
 class Alignment:
     """A pairwise alignment refined on the full maps (`refine_alignment`)."""
@@ -102,7 +111,7 @@ class Alignment:
 def refine_alignment(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
     initial: Sim3, gate_m: float, max_size_difference: float, dof: int = 4, with_scale: bool = False,
-    max_iterations: int = 20, z_weight: float = 0.5,
+    max_iterations: int = 20, z_weight: float = 0.5, tree_a: Any = None,
 ) -> Alignment:
     """Refine a_from_b on every landmark the two maps share, not only on one window's associations.
 
@@ -110,14 +119,16 @@ def refine_alignment(
     within `gate_m`, refit with Huber weights (residuals beyond gate_m / 2 count less, so a wrong pair near the
     gate pulls little), until the set of pairs stops changing. `dof` 4 fits yaw + translation
     (`fit_yaw_translation`, for gravity-aligned maps); 6 a rigid (or with `with_scale` a similarity) transform.
-    Keeps `initial` (and its supporting pairs) when fewer than 3 pairs are found.
+    Keeps `initial` (and its supporting pairs) when fewer than 3 pairs are found. `tree_a`: as `mutual_nearest`.
     """
     if dof not in (4, 6):
         raise ValueError(f"dof must be 4 or 6, got {dof}")
     pa = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
     transform = initial
-    assoc, dist = mutual_nearest(pa, sizes_a, transform.apply(pb), sizes_b, gate_m, max_size_difference, z_weight)
+    tree_a = pairing_tree(pa, z_weight) if tree_a is None else tree_a
+    assoc, dist = mutual_nearest(pa, sizes_a, transform.apply(pb), sizes_b, gate_m, max_size_difference, z_weight,
+                                 tree_a)
     iterations = 0
     while iterations < max_iterations and len(assoc) >= 3:
         iterations += 1
@@ -130,7 +141,7 @@ def refine_alignment(
         except ValueError:
             break
         new_assoc, new_dist = mutual_nearest(pa, sizes_a, new.apply(pb), sizes_b, gate_m, max_size_difference,
-                                             z_weight)
+                                             z_weight, tree_a)
         if len(new_assoc) < 3:
             break
         same = np.array_equal(new_assoc, assoc)

@@ -12,7 +12,15 @@ from typing import Any
 import numpy as np
 
 from .multisession import Sim3
-from .refinement import Alignment, huber_weights, mutual_nearest, refine_alignment, weighted_umeyama, yaw_matrix
+from .refinement import (
+    Alignment,
+    huber_weights,
+    mutual_nearest,
+    pairing_tree,
+    refine_alignment,
+    weighted_umeyama,
+    yaw_matrix,
+)
 
 
 @dataclass(frozen=True)
@@ -147,14 +155,16 @@ def verify_alignments(
     test (the ratio alone, as before).
     """
     pb_all = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
+    pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
+    tree_a = pairing_tree(pa_all, z_weight)  # every refinement below pairs B, placed somewhere, with this A
     refined: list[Alignment] = []
     # the starting transforms and where they converged: a later candidate near either is done
     near_tried = _NearTried(candidates, pb_all, gate_m)
     for c, (transform, _) in enumerate(candidates):
         if near_tried.done[c]:
             continue
-        refined.append(refine_alignment(points_a, sizes_a, points_b, sizes_b, transform, gate_m,
-                                        max_size_difference, dof=dof, z_weight=z_weight))
+        refined.append(refine_alignment(pa_all, sizes_a, pb_all, sizes_b, transform, gate_m,
+                                        max_size_difference, dof=dof, z_weight=z_weight, tree_a=tree_a))
         near_tried.tried(c, transform)
         near_tried.tried(c, refined[-1].transform)
     if not refined:
@@ -165,7 +175,6 @@ def verify_alignments(
     # A rival puts B somewhere else: more than 2 gates away. Refinements that converged within that distance
     # are the same alignment caught on a slightly different set of chance pairs (seen across seasons: 2-3 m
     # apart with |support| within 1), i.e. its uncertainty, not a contradiction.
-    pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
     support = len(best.associations)
     rigid, winner_pairs = None, None
     if final_dof == 6 and dof != 6 and support >= 3:
@@ -173,14 +182,14 @@ def verify_alignments(
         # then the pairs under that transform: landmarks the 4-DOF fit could not reach because the frames are
         # tilted (1-2 deg between EKF frames is metres of height at the far end of a map) join its support
         assoc, dist = mutual_nearest(pa_all, sizes_a, first.transform.apply(pb_all), sizes_b, gate_m,
-                                     max_size_difference, z_weight)
+                                     max_size_difference, z_weight, tree_a)
         rigid = first
         if len(assoc) >= len(first.associations):
             rigid = Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
         # the pairs of the rigid alignment the winner belongs to, over the whole overlap (the judge of which
         # other refinements found the winner again; the answer keeps the fit above)
         winner_pairs = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, rigid.transform, gate_m,
-                                        max_size_difference, dof=6, z_weight=z_weight).associations
+                                        max_size_difference, dof=6, z_weight=z_weight, tree_a=tree_a).associations
     rivals = [len(refined[k].associations) for k in order[1:]
               if not converged_to_winner(best.transform, probe, gate_m, winner_pairs, refined[k])]
     # The rivals the search offered are not enough: with one candidate there is none, and a chance alignment of
@@ -190,12 +199,12 @@ def verify_alignments(
     displaced = _displaced_starts(best.transform, pb_all, gate_m)
     rivals.extend(int(s) for s in chance_supports(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, gate_m,
                                                   max_size_difference, displaced, dof, z_weight,
-                                                  winner_pairs=winner_pairs))
+                                                  winner_pairs=winner_pairs, tree_a=tree_a))
     chance = None
     if chance_starts > 0:
         chance, samples = sequential_chance(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support,
                                             gate_m, max_size_difference, chance_starts, false_alarm, prior_m, dof,
-                                            z_weight, winner_pairs=winner_pairs)
+                                            z_weight, winner_pairs=winner_pairs, tree_a=tree_a)
         rivals.extend(int(s) for s in samples)
     runner_up = max(rivals, default=0)
     if rigid is not None:
@@ -262,14 +271,14 @@ def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, p
 def chance_supports(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
                     sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, gate_m: float,
                     max_size_difference: float, placements: Sequence[Sim3], dof: int = 4,
-                    z_weight: float = 0.5, winner_pairs: np.ndarray | None = None) -> np.ndarray:
+                    z_weight: float = 0.5, winner_pairs: np.ndarray | None = None, tree_a: Any = None) -> np.ndarray:
     """Supports of chance alignments of these two maps: B refined from each placement exactly like the winner
     (`refine_alignment`: the same gate, size gate and fit); the refinements that converge to the winner
-    (`converged_to_winner`) are no chance and are left out."""
+    (`converged_to_winner`) are no chance and are left out. `tree_a`: `refinement.pairing_tree` of A, if built."""
     out = []
     for start in placements:
         aligned = refine_alignment(points_a, sizes_a, points_b, sizes_b, start, gate_m, max_size_difference,
-                                   dof=dof, z_weight=z_weight)
+                                   dof=dof, z_weight=z_weight, tree_a=tree_a)
         if not converged_to_winner(winner, probe, gate_m, winner_pairs, aligned):
             out.append(len(aligned.associations))
     return np.asarray(out, np.int64)
@@ -279,19 +288,19 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
                       sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, support: int, gate_m: float,
                       max_size_difference: float, starts: int, false_alarm: float, prior_m: float = 0.0,
                       dof: int = 4, z_weight: float = 0.5,
-                      winner_pairs: np.ndarray | None = None) -> tuple[ChanceModel, np.ndarray]:
+                      winner_pairs: np.ndarray | None = None, tree_a: Any = None) -> tuple[ChanceModel, np.ndarray]:
     """`chance_test` of the winner's support on up to `starts` chance placements, refined CHANCE_BATCH at a time:
     it stops once the answer cannot be in doubt (p_value <= false_alarm x CHANCE_MARGIN: a true alignment many
     decades above chance, as every dense map pair; or p_value >= CHANCE_CLEARLY_CHANCE), which keeps the cost
     of a clear case at one batch. The placements are fixed in advance, so the result is deterministic.
-    Returns the model and the chance supports."""
+    Returns the model and the chance supports. `tree_a`: as `chance_supports`."""
     placements = chance_placements(points_a, points_b, starts, prior_m)
     trials = effective_trials(points_a, points_b, gate_m, prior_m)
     samples = np.zeros(0, np.int64)
     chance = chance_test(samples, support, trials)
     for k in range(0, len(placements), CHANCE_BATCH):
         more = chance_supports(points_a, sizes_a, points_b, sizes_b, winner, probe, gate_m, max_size_difference,
-                               placements[k:k + CHANCE_BATCH], dof, z_weight, winner_pairs)
+                               placements[k:k + CHANCE_BATCH], dof, z_weight, winner_pairs, tree_a)
         samples = np.concatenate([samples, more])
         chance = chance_test(samples, support, trials)
         if chance.p_value <= false_alarm * CHANCE_MARGIN or chance.p_value >= CHANCE_CLEARLY_CHANCE:
