@@ -3,9 +3,10 @@ edges that all window pairs of the fast search share.
 
 `map_edges` lists each map's landmark pairs that share a window with their gravity-aware invariants; `edge_join`
 pairs an A edge with every B edge of compatible sizes whose invariants agree (the consistency test of
-`kernels_graph.pair_consistent`, done once for all window pairs instead of once per window pair);
-`edge_pair_peel` / `edge_pair_details` give the joined pairs' associations (peeled) and yaw slices, which
-`kernels_search` cuts into the window pairs' graphs. Split out of kernels_search.py along this seam.
+`kernels_graph.pair_consistent`, done once for all window pairs instead of once per window pair) and gives each
+pair as its two association ids, which `kernels_search.peeled_ids` peels; `edge_pair_details` gives the mismatch
+and yaw slices of the survivors, which `kernels_search` cuts into the window pairs' graphs. Split out of
+kernels_search.py along this seam.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ import numpy as np
 from numba import njit
 
 from .kernels_graph import GRAVITY, grow, pair_consistent, pair_mismatch, pair_slices, size_ratio1, vector_invariants
-from .kernels_search import peeled_ids
 
 # --- edges of a map and the shared join ----------------------------------------------------------------------------
 
@@ -111,8 +111,7 @@ def sorted_b_edges(eb: tuple, cells_b: np.ndarray, ncell: int, hb: np.ndarray) -
     that order (each undirected edge twice: once as listed, once reversed).
 
     Returns the group offsets (ncell * ncell + 1) and the directed edges' j, l, L, z (negated when reversed),
-    h_j, h_l, ln h_j, ln h_l, original edge id and direction (1: reversed), all in group order, so the join reads
-    them sequentially.
+    h_j, h_l, ln h_j, ln h_l, all in group order, so the join reads them sequentially.
     """
     fj, fl, fln, fz, fang, fangr = eb
     ne = len(fj)
@@ -138,8 +137,6 @@ def sorted_b_edges(eb: tuple, cells_b: np.ndarray, ncell: int, hb: np.ndarray) -
     hbl = np.empty(nd)
     lhbj = np.empty(nd)
     lhbl = np.empty(nd)
-    bf = np.empty(nd, np.int32)
-    bd = np.empty(nd, np.int8)
     for x in range(nd):
         d = order[x]
         f = d >> 1
@@ -154,9 +151,7 @@ def sorted_b_edges(eb: tuple, cells_b: np.ndarray, ncell: int, hb: np.ndarray) -
         hbl[x] = hb[l_]
         lhbj[x] = lh[j]
         lhbl[x] = lh[l_]
-        bf[x] = f
-        bd[x] = o
-    return goff, bj, bl, bln, bz, hbj, hbl, lhbj, lhbl, bf, bd
+    return goff, bj, bl, bln, bz, hbj, hbl, lhbj, lhbl
 
 
 @njit(cache=True)
@@ -170,17 +165,17 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
     length like the B edges; each A group is swept against its 3 x 3 neighbouring B groups with two pointers, so
     the candidates (lengths within eps) cost no search. (Directing B rather than A halves the sweeps: an A edge
     is visited once per neighbouring group instead of once per direction.) Every candidate is then tested
-    exactly (size gate, prior, `pair_mismatch`) with the invariants oriented as the reference orients them: a
-    reversed B edge with A's p -> q is the B edge with A's q -> p, stored as orientation 1.
-    Returns each pair as its A edge, B edge (original id) and orientation (9 bytes: a large join is mostly pairs
-    the peel removes), and the number of candidates per selected A edge (the join's cost; `count_only`: only
-    that). `expected`: the output's size if known (its buffers then grow less). Association ids, mismatch and
-    yaw slices follow from the edges (`edge_pair_peel`, `edge_pair_details`), the latter only for the pairs that
-    survive the peel.
+    exactly (size gate, prior, `pair_mismatch`) with the invariants oriented as the reference orients them (a
+    reversed B edge carries its negated height).
+    Returns each pair as its two association ids p * N_B + j and q * N_B + l, p < q (the ids the peel counts,
+    formed here where p, q, j and l are at hand), and the number of candidates per selected A edge (the join's
+    cost; `count_only`: only that). `expected`: the output's size if known (its buffers then grow less).
+    Mismatch and yaw slices follow from the ids (`edge_pair_details`), only for the pairs that survive the peel.
     """
     ei, ek, el, ez, af, ar = ea
-    goff, bj, bl, bln, bz, hbj, hbl, lhbj, lhbl, bf, bd = sb
+    goff, bj, bl, bln, bz, hbj, hbl, lhbj, lhbl = sb
     nsel = len(ea_sel)
+    nbm = len(pb)
     grp = np.empty(nsel, np.int64)
     ulen = np.empty(nsel)
     for t in range(nsel):
@@ -194,7 +189,6 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
     lha = np.log(ha) if sized else ha
     # the A edges' data in sweep order (each A group is swept up to 9 times: sequential reads)
     xt = np.empty(nsel, np.int64)
-    xe = np.empty(nsel, np.int64)
     xp = np.empty(nsel, np.int64)
     xq = np.empty(nsel, np.int64)
     xl = np.empty(nsel)
@@ -209,7 +203,6 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
         p = ei[e]
         q = ek[e]
         xt[x] = t
-        xe[x] = e
         xp[x] = p
         xq[x] = q
         xl[x] = el[e]
@@ -219,9 +212,8 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
         xlp[x] = lha[p]
         xlq[x] = lha[q]
     cap = max(1024, expected)
-    eae = np.empty(cap, np.int32)
-    ebe = np.empty(cap, np.int32)
-    ori = np.empty(cap, np.int8)
+    v1 = np.empty(cap, np.int64)
+    v2 = np.empty(cap, np.int64)
     counts = np.zeros(nsel, np.int64)
     ne = 0
     r2 = prior_m * prior_m
@@ -264,7 +256,6 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                     counts[xt[x]] += hi - lo
                     if count_only or hi == lo:
                         continue
-                    e = xe[x]
                     p = xp[x]
                     q = xq[x]
                     hp = xhp[x]
@@ -274,9 +265,8 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                     za = xz[x]
                     if ne + (hi - lo) > cap:  # room for every candidate: the loop below stores unconditionally
                         cap = 2 * cap + (hi - lo)
-                        eae = grow(eae, cap)
-                        ebe = grow(ebe, cap)
-                        ori = grow(ori, cap)
+                        v1 = grow(v1, cap)
+                        v2 = grow(v2, cap)
                     # about half the candidates pass, at random: every test is evaluated without a branch (a
                     # mispredicted branch costs more than the tests) and the pair stored, kept when it passes
                     for f in range(lo, hi):
@@ -300,44 +290,30 @@ def edge_join(ea_sel: np.ndarray, ea: tuple, sb: tuple, cells_a: np.ndarray, nce
                             dx2 = pa[q, 0] - pb[l_, 0]
                             dy2 = pa[q, 1] - pb[l_, 1]
                             ok = ok & (dx * dx + dy * dy <= r2) & (dx2 * dx2 + dy2 * dy2 <= r2)
-                        eae[ne] = e
-                        ebe[ne] = bf[f]
-                        ori[ne] = bd[f]
+                        v1[ne] = p * nbm + bj[f]
+                        v2[ne] = q * nbm + bl[f]
                         ne += ok
-    return eae[:ne].copy(), ebe[:ne].copy(), ori[:ne].copy(), counts
+    return v1[:ne].copy(), v2[:ne].copy(), counts
 
 
 @njit(cache=True)
-def edge_pair_peel(e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, eb: tuple, nbm: int, space: int,
-                   k: int) -> tuple:
-    """`peeled_ids` of the joined pairs' associations (p, j) and (q, l), formed from their edges."""
-    ei, ek = ea[0], ea[1]
-    fj, fl = eb[0], eb[1]
-    v1 = np.empty(len(e_a), np.int64)
-    v2 = np.empty(len(e_a), np.int64)
-    for t in range(len(e_a)):
-        e = e_a[t]
-        f = e_b[t]
-        p, q = (ei[e], ek[e]) if ori[t] == 0 else (ek[e], ei[e])
-        v1[t] = p * nbm + fj[f]
-        v2[t] = q * nbm + fl[f]
-    return peeled_ids(v1, v2, space, k)
-
-
-@njit(cache=True)
-def edge_pair_details(sel: np.ndarray, e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, eb: tuple,
-                      mode: int, eps: float, tan_tilt: float, eps_z: float, sin_tilt: float, nslices: int) -> tuple:
-    """Mismatch c and yaw slices of the joined pairs `sel`, as `edge_join` tests them and `pair_slices` gives."""
+def edge_pair_details(sel: np.ndarray, v1: np.ndarray, v2: np.ndarray, pa: np.ndarray, pb: np.ndarray, mode: int,
+                      eps: float, tan_tilt: float, eps_z: float, sin_tilt: float, nslices: int) -> tuple:
+    """Mismatch c and yaw slices of the joined pairs `sel` (association ids v1 = p * N_B + j, v2 = q * N_B + l,
+    p < q), as `edge_join` tests them and `pair_slices` gives: the invariants of p -> q and j -> l formed as
+    `map_edges` forms them (j > l: the reversed vector of l -> j, whose negated differences are exact)."""
+    nbm = len(pb)
     cs = np.empty(len(sel))
     s0 = np.zeros(len(sel), np.int64)
     ns = np.ones(len(sel), np.int64)
     for x in range(len(sel)):
-        t = sel[x]
-        e = e_a[t]
-        f = e_b[t]
-        zb = eb[3][f] if ori[t] == 0 else -eb[3][f]
-        cs[x] = pair_mismatch(ea[2][e], ea[3][e], eb[2][f], zb, mode, eps, tan_tilt, eps_z)
+        p = v1[sel[x]] // nbm
+        j = v1[sel[x]] % nbm
+        q = v2[sel[x]] // nbm
+        l_ = v2[sel[x]] % nbm
+        la, za, anga = vector_invariants(pa[q, 0] - pa[p, 0], pa[q, 1] - pa[p, 1], pa[q, 2] - pa[p, 2], mode)
+        lb, zb, angb = vector_invariants(pb[l_, 0] - pb[j, 0], pb[l_, 1] - pb[j, 1], pb[l_, 2] - pb[j, 2], mode)
+        cs[x] = pair_mismatch(la, za, lb, zb, mode, eps, tan_tilt, eps_z)
         if mode == GRAVITY:
-            s0[x], ns[x] = pair_slices(ea[4][e], eb[4][f] if ori[t] == 0 else eb[5][f], ea[2][e], eb[2][f],
-                                       ea[3][e], zb, eps, sin_tilt, nslices)
+            s0[x], ns[x] = pair_slices(anga, angb, la, lb, za, zb, eps, sin_tilt, nslices)
     return cs, s0, ns

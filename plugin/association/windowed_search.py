@@ -41,7 +41,7 @@ from .hypotheses import (
     make_hypotheses,
 )
 from .kernels_graph import gate_pairs
-from .kernels_join import edge_join, edge_pair_details, edge_pair_peel, map_edges, size_cells, sorted_b_edges
+from .kernels_join import edge_join, edge_pair_details, map_edges, size_cells, sorted_b_edges
 from .kernels_search import (
     count_incidences,
     count_putatives,
@@ -137,9 +137,9 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
         for w0, w1 in blocks:
             t1 = time.perf_counter()
             sel = all_edges[(a_lo <= w1 - 1) & (a_hi >= w0)]
-            e_a, e_b, ori, _ = edge_join(sel, *join_args, False, estimate or 1024)
+            v1, v2, _ = edge_join(sel, *join_args, False, estimate or 1024)
             timings["join_s"] = timings.get("join_s", 0.0) + time.perf_counter() - t1
-            _block(_EdgePairs(e_a, e_b, ori, ea, eb, a_lo, a_hi, fb, lb, w0, w1, m, len(pa) * len(pb)), w0, w1,
+            _block(_EdgePairs(v1, v2, pa, pb, fa, la, fb, lb, w0, w1, m), w0, w1,
                    shared, records, stats, timings)
     timings.update({k: float(v) for k, v in stats.items()})
     t1 = time.perf_counter()
@@ -207,35 +207,33 @@ class _ListedPairs:
 
 
 class _EdgePairs:
-    """Consistent pairs as the join gives them (A edge, B edge, orientation), for A windows [w0, w1)."""
+    """Consistent pairs as the join gives them (association ids p * N_B + j, q * N_B + l with p < q), for A windows
+    [w0, w1)."""
 
-    def __init__(self, e_a: np.ndarray, e_b: np.ndarray, ori: np.ndarray, ea: tuple, eb: tuple, a_lo: np.ndarray,
-                 a_hi: np.ndarray, fb: np.ndarray, lb: np.ndarray, w0: int, w1: int, m: SearchMode,
-                 space: int) -> None:
-        self.e_a, self.e_b, self.ori, self.ea, self.eb, self.m, self.space = e_a, e_b, ori, ea, eb, m, space
-        self.a_lo, self.a_hi, self.fb, self.lb, self.w0, self.w1 = a_lo, a_hi, fb, lb, w0, w1
+    def __init__(self, v1: np.ndarray, v2: np.ndarray, pa: np.ndarray, pb: np.ndarray, fa: np.ndarray,
+                 la: np.ndarray, fb: np.ndarray, lb: np.ndarray, w0: int, w1: int, m: SearchMode) -> None:
+        self.v1, self.v2, self.pa, self.pb, self.m = v1, v2, pa, pb, m
+        self.fa, self.la, self.fb, self.lb, self.w0, self.w1 = fa, la, fb, lb, w0, w1
+        self.space = len(pa) * len(pb)
 
     def __len__(self) -> int:
-        return len(self.e_a)
+        return len(self.v1)
 
     def peeled(self, k: int) -> tuple:
-        return edge_pair_peel(self.e_a, self.e_b, self.ori, self.ea, self.eb, self.nbm, self.space, k)
-
-    @property
-    def nbm(self) -> int:  # landmarks of map B (fb has one entry per landmark)
-        return len(self.fb)
+        return peeled_ids(self.v1, self.v2, self.space, k)
 
     def ranges(self, sel: np.ndarray) -> tuple:
         """Window ranges of the pairs `sel`: the A windows holding both A landmarks (clipped to the block) and the
         B windows holding both B landmarks."""
-        e, f = self.e_a[sel], self.e_b[sel]
-        return (np.maximum(self.a_lo[e], self.w0), np.minimum(self.a_hi[e], self.w1 - 1), self.fb[self.eb[1][f]],
-                self.lb[self.eb[0][f]])
+        p, j = np.divmod(self.v1[sel], len(self.pb))
+        q, l_ = np.divmod(self.v2[sel], len(self.pb))
+        return (np.maximum(self.fa[q], self.w0), np.minimum(self.la[p], self.w1 - 1), self.fb[np.maximum(j, l_)],
+                self.lb[np.minimum(j, l_)])
 
     def details(self, sel: np.ndarray) -> tuple:
         m = self.m
-        return edge_pair_details(sel, self.e_a, self.e_b, self.ori, self.ea, self.eb, m.consistency, m.eps,
-                                 m.tan_tilt, m.eps_z, m.sin_tilt, m.nslices)
+        return edge_pair_details(sel, self.v1, self.v2, self.pa, self.pb, m.consistency, m.eps, m.tan_tilt, m.eps_z,
+                                 m.sin_tilt, m.nslices)
 
 
 def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, records: _Records, stats: dict,
