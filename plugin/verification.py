@@ -68,7 +68,7 @@ class _NearTried:
     products round differently from one candidate's own, so a candidate within AGREE_MARGIN of the gate is
     decided by `_agree` itself: the same decisions as testing every candidate against every tried transform."""
 
-    def __init__(self, candidates: Sequence[tuple[Sim3, np.ndarray]], points_b: np.ndarray, gate_m: float) -> None:
+    def __init__(self, candidates: Sequence[tuple[Any, np.ndarray]], points_b: np.ndarray, gate_m: float) -> None:
         idx = [np.asarray(i, dtype=np.int64).reshape(-1) for _, i in candidates]
         self.candidates, self.points_b, self.gate_m = candidates, points_b, gate_m
         self.done = np.zeros(len(candidates), bool)
@@ -127,7 +127,7 @@ def converged_to_winner(winner: Sim3, probe: np.ndarray, gate_m: float, winner_p
 
 def verify_alignments(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
-    candidates: Sequence[tuple[Sim3, np.ndarray]], gate_m: float, max_size_difference: float,
+    candidates: Sequence[tuple[Any, np.ndarray]], gate_m: float, max_size_difference: float,
     min_support: int, min_ratio: float = 1.2, dof: int = 4, z_weight: float = 0.5, final_dof: int | None = 6,
     chance_starts: int = 512, false_alarm: float = 1e-2, prior_m: float = 0.0,
 ) -> Verification:
@@ -135,11 +135,11 @@ def verify_alignments(
 
     One window pair sees 50 x 50 landmarks; across seasons a true hypothesis there has |S| ~ 5-9, and so do
     chance-consistent wrong ones, so |S| cannot tell them apart. Over the full maps it can: a correct transform
-    brings many more landmarks of B onto landmarks of A than a wrong one. Every candidate (transform, (K,)
-    indices of its B landmarks), largest first, is refined by `refine_alignment` unless it already agrees with
-    a candidate tried before or its refined result (its B landmarks land within gate_m of where that one puts
-    them). The
-    alignment with the most mutual-nearest-neighbour support wins; it is accepted when that support exceeds
+    brings many more landmarks of B onto landmarks of A than a wrong one. Every candidate (transform: a `Sim3`,
+    or any object with its rotation, translation and scale; (K,) indices of its B landmarks), largest first, is
+    refined by `refine_alignment` unless it already agrees with a candidate tried before or its refined result
+    (its B landmarks land within gate_m of where that one puts them). The alignment with
+    the most mutual-nearest-neighbour support wins; it is accepted when that support exceeds
     `min_support` and is at least `min_ratio` times the support of the best rival (an alignment that moves some
     of the winner's supporting B landmarks more than 2 gate_m away from where the winner puts them: the search's
     other candidates, and B deliberately displaced and turned (`_displaced_starts`), refined like the winner).
@@ -163,9 +163,11 @@ def verify_alignments(
     for c, (transform, _) in enumerate(candidates):
         if near_tried.done[c]:
             continue
-        refined.append(refine_alignment(pa_all, sizes_a, pb_all, sizes_b, transform, gate_m,
+        start = transform if isinstance(transform, Sim3) else Sim3(transform.rotation, transform.translation,
+                                                                   transform.scale)
+        refined.append(refine_alignment(pa_all, sizes_a, pb_all, sizes_b, start, gate_m,
                                         max_size_difference, dof=dof, z_weight=z_weight, tree_a=tree_a))
-        near_tried.tried(c, transform)
+        near_tried.tried(c, start)
         near_tried.tried(c, refined[-1].transform)
     if not refined:
         return Verification(None, 0, 0, False)
@@ -379,15 +381,16 @@ def hypothesis_agrees(associations: np.ndarray, transform: Any, points_a: np.nda
 
 
 def verification_candidates(hypotheses: Sequence[Any], max_gravity_angle_deg: float,
-                            max_candidates: int = 400) -> list[tuple[Sim3, np.ndarray]]:
+                            max_candidates: int = 400) -> list[tuple[Any, np.ndarray]]:
     """The candidates `verify_alignments` takes from a search's window hypotheses (objects with `size`,
     `transform` (rotation, translation, scale; None when degenerate), `tilt_deg`, `associations`): those that
     pass the gravity check, largest |S| first (stable), at most `max_candidates` (bounds the work on dense
-    same-season maps), each as (a_from_b, indices of its B landmarks)."""
+    same-season maps), each as (a_from_b, indices of its B landmarks); a_from_b is the hypothesis's own transform
+    (`verify_alignments` makes a `Sim3` of the few it refines, not of every candidate)."""
     usable = [h for h in hypotheses if h.transform is not None and h.tilt_deg <= max_gravity_angle_deg]
     usable.sort(key=lambda h: -h.size)
-    return [(Sim3(h.transform.rotation, h.transform.translation, h.transform.scale),
-             np.asarray(h.associations, dtype=np.int64).reshape(-1, 2)[:, 1]) for h in usable[:max_candidates]]
+    return [(h.transform, np.asarray(h.associations, dtype=np.int64).reshape(-1, 2)[:, 1])
+            for h in usable[:max_candidates]]
 
 
 def _final_rigid_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, gate_m: float, z_weight: float) -> Alignment:
