@@ -328,7 +328,7 @@ class VerificationParams(Checked):
     min_ratio: float = within(1.2, 1.0, None)  # the winner's support over the best alignment that puts B elsewhere
     z_weight: float = positive(0.5)  # heights count this much in the nearest-neighbour distance (noisier)
     max_candidates: int = count(400, 1)  # window hypotheses tried, largest first (bounds dense maps)
-    # The chance model (`plugin.verification.chance_test`): B refined from this many random placements over A
+    # The chance model (`plugin.chance.chance_test`): B refined from this many random placements over A
     # measures the support chance alignments of these two maps reach (0: off, the ratio alone decides, which
     # accepted 2 of 8 pairs of maps of different worlds). The winner is the best of N_eff ~1e5 distinct
     # alignments (`effective_trials`), so it is accepted only when the probability that the best of N_eff
@@ -337,7 +337,8 @@ class VerificationParams(Checked):
     # the answer is beyond doubt (every clear pair), and draws more while it is in doubt, because the tail is
     # extrapolated from the samples' moments and a few dozen samples of a skewed count scatter widely: a true
     # sparse winter pair of world 64 (never used before; support 32, chance max 11) read p 0.037 (refused) from
-    # 64 samples, 0.005 from 128, 3e-4 from 256, 2e-5 from 512 (0.6 s of CPU for 1,000 refinements there)
+    # 64 samples, 0.005 from 128, 3e-4 from 256, 2e-5 from 512 (0.6 s of CPU for 1,000 refinements there; the
+    # model then without each placement's opportunity, `chance.chance_opportunity`)
     chance_starts: int = count(512, 0)
     false_alarm: float = within(1e-2, 0.0, 1.0, lo_open=True)
     # the size gate of the verification's pairs (r of mutual nearest neighbours within theta_eps). Across seasons

@@ -11,6 +11,13 @@ from typing import Any
 
 import numpy as np
 
+from .chance import (
+    ChanceModel,
+    chance_supports,
+    converged_to_winner,
+    sequential_chance,
+    transforms_agree,
+)
 from .multisession import Sim3
 from .refinement import (
     Alignment,
@@ -21,28 +28,6 @@ from .refinement import (
     weighted_umeyama,
     yaw_matrix,
 )
-
-
-@dataclass(frozen=True)
-class ChanceModel:
-    """How often chance alone reaches the winner's support (`chance_test`).
-
-    Two maps of different places still pair up: at 300 landmarks in 220 m x 240 m and a 2.9 m gate, a refined
-    alignment of two unrelated maps has 1-13 mutual nearest neighbours on average (BENCHMARKS.md, "Negative
-    pairs"), and the search offers the best of a very large number of distinct alignments. So the winner's
-    support is compared with the MAXIMUM chance support over that many trials (the look-elsewhere effect), not
-    with one rival."""
-
-    samples: int  # chance refinements measured (random starts that did not converge to the winner)
-    mean: float  # their mean support
-    variance: float  # and its variance (> mean: overdispersed, fitted as a negative binomial; else Poisson)
-    trials: float  # N_eff: effectively independent alignments the search could have found
-    tail: float  # q: probability that one chance alignment reaches the winner's support
-    p_value: float  # 1 - (1 - q)^N_eff: probability that the best of N_eff chance alignments reaches it
-
-    def to_dict(self) -> dict[str, float]:
-        return {"samples": self.samples, "mean": self.mean, "variance": self.variance, "trials": self.trials,
-                "tail": self.tail, "p_value": self.p_value}
 
 
 @dataclass(frozen=True)
@@ -58,15 +43,12 @@ class Verification:
     chance: ChanceModel | None = None  # None: no winner, or the chance test off (chance_starts 0)
 
 
-def _agree(t1: Sim3, t2: Sim3, points: np.ndarray, tolerance_m: float) -> bool:
-    return bool(len(points) and np.max(np.linalg.norm(t1.apply(points) - t2.apply(points), axis=1)) <= tolerance_m)
-
-
 class _NearTried:
-    """Which candidates (transform, indices of its B landmarks) agree with a transform tried before them (`_agree`
-    at gate_m on their own B landmarks), all later candidates at once for each tried transform. The batched
-    products round differently from one candidate's own, so a candidate within AGREE_MARGIN of the gate is
-    decided by `_agree` itself: the same decisions as testing every candidate against every tried transform."""
+    """Which candidates (transform, indices of its B landmarks) agree with a transform tried before them
+    (`transforms_agree` at gate_m on their own B landmarks), all later candidates at once for each tried
+    transform. The batched products round differently from one candidate's own, so a candidate within
+    AGREE_MARGIN of the gate is decided by `transforms_agree` itself: the same decisions as testing every
+    candidate against every tried transform."""
 
     def __init__(self, candidates: Sequence[tuple[Any, np.ndarray]], points_b: np.ndarray, gate_m: float) -> None:
         idx = [np.asarray(i, dtype=np.int64).reshape(-1) for _, i in candidates]
@@ -74,7 +56,7 @@ class _NearTried:
         self.done = np.zeros(len(candidates), bool)
         n = np.array([len(i) for i in idx], np.int64)
         self.start = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
-        self.empty = n == 0  # no landmarks to compare: never agrees (`_agree`)
+        self.empty = n == 0  # no landmarks to compare: never agrees (`transforms_agree`)
         self.probe = points_b[np.concatenate(idx)] if len(idx) else np.zeros((0, 3))
         self.owner = owner = np.repeat(np.arange(len(candidates)), n)
         if len(candidates):
@@ -101,28 +83,11 @@ class _NearTried:
         self.done[later[worst <= self.gate_m - self.margin]] = True
         for k in later[np.abs(worst - self.gate_m) <= self.margin]:  # too close to call: the exact test
             t, i = self.candidates[k]
-            self.done[k] = _agree(t, transform, self.points_b[np.asarray(i, dtype=np.int64).reshape(-1)], self.gate_m)
+            own = self.points_b[np.asarray(i, dtype=np.int64).reshape(-1)]
+            self.done[k] = transforms_agree(t, transform, own, self.gate_m)
 
 
 AGREE_MARGIN = 1e-9  # relative to the coordinates' magnitude: far above the rounding of a 3 x 3 product
-
-
-def converged_to_winner(winner: Sim3, probe: np.ndarray, gate_m: float, winner_pairs: np.ndarray | None,
-                        aligned: Alignment) -> bool:
-    """Whether a refinement found the winner again rather than another alignment: its transform puts the winner's
-    supporting B landmarks `probe` within 2 gates of where the winner puts them, or (with `winner_pairs`, the
-    winner's pairs after its final rigid fit) most of its own pairs are the winner's. The latter is the same
-    alignment fitted with yaw only on another part of two maps tilted against each other: 1 deg between two
-    frames is 17 m of height 1 km away, so 4-DOF fits from different window hypotheses each hold a band of the
-    map and disagree by more than 2 gates, though their pairs are those of one rigid alignment."""
-    if _agree(winner, aligned.transform, probe, 2.0 * gate_m):
-        return True
-    mine = np.asarray(aligned.associations, np.int64).reshape(-1, 2)
-    if winner_pairs is None or not len(mine) or not len(winner_pairs):
-        return False
-    base = int(max(mine[:, 1].max(), winner_pairs[:, 1].max())) + 1
-    shared = np.isin(mine[:, 0] * base + mine[:, 1], winner_pairs[:, 0] * base + winner_pairs[:, 1])
-    return bool(2 * int(shared.sum()) > len(mine))
 
 
 def verify_alignments(
@@ -233,136 +198,6 @@ def _displaced_starts(transform: Sim3, points_b: np.ndarray, gate_m: float) -> l
         starts.append(Sim3(turn @ transform.rotation, turn @ (transform.translation - centre) + centre,
                            transform.scale))
     return starts
-
-
-CHANCE_SEED = 0  # the random placements of the chance model (fixed: the same maps give the same decision)
-
-
-CHANCE_BATCH = 16  # chance placements refined per step of `sequential_chance`
-CHANCE_MARGIN = 1e-3  # it stops early when p_value <= false_alarm x this or p_value >= CHANCE_CLEARLY_CHANCE
-CHANCE_CLEARLY_CHANCE = 0.5
-
-
-def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, prior_m: float = 0.0) -> list[Sim3]:
-    """`starts` random placements of B over A (a_from_b), deterministic (CHANCE_SEED). Without a prior a
-    uniform yaw and B's centroid on a random landmark of A (over A's footprint, where the landmarks are, so the
-    density chance works with is A's own); with `prior_m` (both maps in one frame, the search's putative
-    associations within that radius) B moved by a uniform offset in the disc of that radius and turned by at
-    most the angle that moves B's landmarks that far: the alignments the prior lets the search find."""
-    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
-    pb = np.asarray(points_b, np.float64).reshape(-1, 3)
-    if not len(pa) or not len(pb) or starts <= 0:
-        return []
-    rng = np.random.default_rng(CHANCE_SEED)
-    centre_b = pb.mean(axis=0)
-    radius_b = _horizontal_radius(pb)
-    out = []
-    for _ in range(starts):
-        if prior_m > 0:
-            yaw = rng.uniform(-1.0, 1.0) * min(np.pi, prior_m / radius_b)
-            r, ang = prior_m * np.sqrt(rng.uniform()), rng.uniform(0.0, 2.0 * np.pi)
-            target = centre_b + np.array([r * np.cos(ang), r * np.sin(ang), 0.0])
-        else:
-            yaw = rng.uniform(0.0, 2.0 * np.pi)
-            target = np.array([*pa[rng.integers(len(pa)), :2], pa[:, 2].mean()])
-        turn = yaw_matrix(yaw)
-        out.append(Sim3(turn, target - turn @ centre_b))
-    return out
-
-
-def chance_supports(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
-                    sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, gate_m: float,
-                    max_size_difference: float, placements: Sequence[Sim3], dof: int = 4,
-                    z_weight: float = 0.5, winner_pairs: np.ndarray | None = None, tree_a: Any = None) -> np.ndarray:
-    """Supports of chance alignments of these two maps: B refined from each placement exactly like the winner
-    (`refine_alignment`: the same gate, size gate and fit); the refinements that converge to the winner
-    (`converged_to_winner`) are no chance and are left out. `tree_a`: `refinement.pairing_tree` of A, if built."""
-    out = []
-    for start in placements:
-        aligned = refine_alignment(points_a, sizes_a, points_b, sizes_b, start, gate_m, max_size_difference,
-                                   dof=dof, z_weight=z_weight, tree_a=tree_a)
-        if not converged_to_winner(winner, probe, gate_m, winner_pairs, aligned):
-            out.append(len(aligned.associations))
-    return np.asarray(out, np.int64)
-
-
-def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
-                      sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, support: int, gate_m: float,
-                      max_size_difference: float, starts: int, false_alarm: float, prior_m: float = 0.0,
-                      dof: int = 4, z_weight: float = 0.5,
-                      winner_pairs: np.ndarray | None = None, tree_a: Any = None) -> tuple[ChanceModel, np.ndarray]:
-    """`chance_test` of the winner's support on up to `starts` chance placements, refined CHANCE_BATCH at a time:
-    it stops once the answer cannot be in doubt (p_value <= false_alarm x CHANCE_MARGIN: a true alignment many
-    decades above chance, as every dense map pair; or p_value >= CHANCE_CLEARLY_CHANCE), which keeps the cost
-    of a clear case at one batch. The placements are fixed in advance, so the result is deterministic.
-    Returns the model and the chance supports. `tree_a`: as `chance_supports`."""
-    placements = chance_placements(points_a, points_b, starts, prior_m)
-    trials = effective_trials(points_a, points_b, gate_m, prior_m)
-    samples = np.zeros(0, np.int64)
-    chance = chance_test(samples, support, trials)
-    for k in range(0, len(placements), CHANCE_BATCH):
-        more = chance_supports(points_a, sizes_a, points_b, sizes_b, winner, probe, gate_m, max_size_difference,
-                               placements[k:k + CHANCE_BATCH], dof, z_weight, winner_pairs, tree_a)
-        samples = np.concatenate([samples, more])
-        chance = chance_test(samples, support, trials)
-        if chance.p_value <= false_alarm * CHANCE_MARGIN or chance.p_value >= CHANCE_CLEARLY_CHANCE:
-            break
-    return chance, samples
-
-
-def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, prior_m: float = 0.0) -> float:
-    """N_eff: how many effectively independent alignments the search chooses its winner from.
-
-    Two placements of B share no chance pair once B moved by more than a gate diameter (2 gate_m: every
-    landmark's gate disc has left its old one), or turned by more than 2 gate_m / R_B (R_B: the RMS horizontal
-    distance of B's landmarks from their centroid, so a typical landmark moved that far). So the translations
-    over A's footprint (its horizontal bounding box; with a position prior the disc of radius `prior_m`, if
-    smaller) hold area / (2 gate_m)^2 independent cells, and the yaws (a full turn; with a prior at most
-    +-prior_m / R_B) hold yaw range / (2 gate_m / R_B) of them. A 220 m x 240 m map at a 2.9 m gate and R_B
-    ~90 m: ~1,600 x ~100 = 1.6e5. (Counting the search's 48 yaw slices instead would ignore that within one
-    slice a turn of 7.5 degrees moves far landmarks by ten gates.)"""
-    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
-    pb = np.asarray(points_b, np.float64).reshape(-1, 3)
-    cell = 2.0 * gate_m
-    span = np.ptp(pa[:, :2], axis=0) if len(pa) else np.zeros(2)
-    area = float(span[0] * span[1])
-    radius_b = _horizontal_radius(pb)
-    yaw_range = 2.0 * np.pi
-    if prior_m > 0:
-        area = min(area, np.pi * prior_m**2)
-        yaw_range = min(yaw_range, 2.0 * prior_m / radius_b)
-    return float(max(1.0, area / cell**2) * max(1.0, yaw_range * radius_b / cell))
-
-
-def chance_test(samples: np.ndarray, support: int, trials: float) -> ChanceModel:
-    """The probability that the best of `trials` chance alignments reaches `support`.
-
-    The chance supports (`chance_supports`) are counts, overdispersed because placements differ in how much of
-    B lies over A and how dense A is there: a Poisson mixture, fitted by its moments as a negative binomial
-    (the gamma-mixed Poisson; variance <= mean: Poisson). One trial reaches the support with q = P(X >= support);
-    the best of N_eff independent ones with 1 - (1 - q)^N_eff. The tail is extrapolated from a few dozen
-    samples, so the mean carries one pseudo-sample of 1 (a map pair whose every random start reached the winner
-    measured no chance at all; that is not chance 0) and the variance is at least the mean."""
-    from scipy import stats
-
-    x = np.asarray(samples, np.float64).reshape(-1)
-    mean = float((x.sum() + 1.0) / (len(x) + 1))
-    var = float(np.var(x, ddof=1)) if len(x) > 1 else mean
-    var = max(var, mean)
-    if var > mean * (1.0 + 1e-9):
-        tail = float(stats.nbinom.sf(support - 1, mean**2 / (var - mean), mean / var))
-    else:
-        tail = float(stats.poisson.sf(support - 1, mean))
-    p_value = float(-np.expm1(trials * np.log1p(-min(tail, 1.0 - 1e-16))))
-    return ChanceModel(int(len(x)), mean, var, float(trials), tail, p_value)
-
-
-def _horizontal_radius(points: np.ndarray) -> float:
-    """RMS horizontal distance of the points from their centroid (at least 1 m)."""
-    if not len(points):
-        return 1.0
-    d = points[:, :2] - points[:, :2].mean(axis=0)
-    return float(max(1.0, np.sqrt(np.mean(np.sum(d**2, axis=1)))))
 
 
 def hypothesis_agrees(associations: np.ndarray, transform: Any, points_a: np.ndarray, points_b: np.ndarray,

@@ -9,9 +9,10 @@ import numpy as np
 from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
 from sosmatch.database.match_io import read_match
 from sosmatch.plugin.association.synthetic import survey_map_pair
+from sosmatch.plugin.chance import chance_test, effective_trials
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.refinement import refine_alignment
-from sosmatch.plugin.verification import chance_test, effective_trials, verify_alignments
+from sosmatch.plugin.verification import verify_alignments
 from sosmatch.tools.cli import main
 
 
@@ -126,7 +127,8 @@ def test_candidates_near_a_tried_transform_are_those_of_the_one_by_one_test():
     """`_NearTried` decides for all later candidates at once which agree with a tried transform; the decisions
     are those of `_agree` on every candidate and every transform tried before it, also for candidates placed
     right at the gate (where the batched products' rounding could decide) and far from the origin (UTM)."""
-    from sosmatch.plugin.verification import _agree, _NearTried
+    from sosmatch.plugin.chance import transforms_agree as _agree
+    from sosmatch.plugin.verification import _NearTried
 
     rng = np.random.default_rng(3)
     for origin in (0.0, 5.0e6):
@@ -146,3 +148,58 @@ def test_candidates_near_a_tried_transform_are_those_of_the_one_by_one_test():
         for k, (t, idx) in enumerate(cands):
             assert near.done[k] == any(_agree(t, x, pb[idx], 2.0) for x in tried)
         assert near.done[-1]
+
+
+def test_the_chance_tail_follows_each_placements_opportunity():
+    """Chance supports of placements that cover more or less of A (opportunity o_i uniform in 0-100, support
+    Poisson with mean 0.1 o_i): the unconditioned negative binomial reads the spread of the overlaps as an
+    unbounded gamma tail and overstates the probability of a support of 25 by orders of magnitude; with the
+    opportunities the tail is that of the mixture the placements actually make."""
+    from scipy import stats
+
+    rng = np.random.default_rng(5)
+    o = rng.uniform(0.0, 100.0, 512)
+    x = rng.poisson(0.1 * o)
+    truth = float(np.mean(stats.poisson.sf(24, 0.1 * np.linspace(0.0, 100.0, 100001))))
+    free = chance_test(x, 25, 1.0)
+    conditioned = chance_test(x, 25, 1.0, o)
+    assert free.tail > 100 * truth
+    assert truth / 5 < conditioned.tail < 5 * truth
+    assert conditioned.overdispersion < 0.05  # what remains once the overlap is known is close to Poisson
+    # a real extra spread at a given opportunity is kept: a fatter tail than the Poisson mixture
+    spread = rng.negative_binomial(2.0, 2.0 / (2.0 + 0.1 * o))
+    assert chance_test(spread, 25, 1.0, o).overdispersion > 0.2
+    assert chance_test(spread, 25, 1.0, o).tail > 10 * conditioned.tail
+    # no opportunity measured: the unconditioned model
+    assert np.isnan(chance_test(x, 25, 1.0, np.zeros(512)).overdispersion)
+
+
+def test_the_opportunity_counts_the_density_of_a_under_b_but_not_the_partners():
+    from sosmatch.plugin.chance import chance_opportunity, horizontal_tree
+
+    rng = np.random.default_rng(2)
+    a = np.column_stack([rng.uniform(0, 200, (400, 2)), np.zeros(400)])
+    tree = horizontal_tree(a)
+    b = a[rng.choice(400, 60, replace=False)] + np.r_[rng.normal(0, 0.5, 2), 0.0]
+    centred = chance_opportunity(tree, b, 3.0)
+    half_off = chance_opportunity(tree, b + [100.0, 0.0, 0.0], 3.0)
+    away = chance_opportunity(tree, b + [1000.0, 0.0, 0.0], 3.0)
+    assert away == 0.0 and half_off < 0.75 * centred
+    # B on its partners (a true alignment) or B shifted by 15 m over the same uniform field: alike, because the
+    # density is counted beyond the gate
+    shifted = chance_opportunity(tree, b + [15.0, 0.0, 0.0], 3.0)
+    assert abs(centred - shifted) < 0.25 * shifted
+
+
+def test_a_chance_alignment_counts_only_the_pairs_the_winner_does_not_explain():
+    from sosmatch.plugin.chance import chance_pairs
+
+    rng = np.random.default_rng(1)
+    a = rng.uniform(0, 100, (50, 3))
+    b = a.copy()
+    pairs = np.column_stack([np.arange(10), np.arange(10)])  # the winner's own pairs (identity)
+    wrong = np.column_stack([np.arange(10, 20), np.arange(20, 30)])  # pairs of landmarks the winner puts apart
+    ident = Sim3(np.eye(3), np.zeros(3))
+    far = np.linalg.norm(a[10:20] - b[20:30], axis=1) > 6.0
+    assert chance_pairs(a, b, ident, np.vstack([pairs, wrong]), 3.0) == int(far.sum())
+    assert chance_pairs(a, b, ident, pairs, 3.0) == 0

@@ -11,7 +11,7 @@ parameters (plus `--set`); its row goes to `WORK/rows/A--B.json` (an existing ro
 interrupted run resumes; `--fresh` recomputes). Truth: sessions of one world share its frame, so the true A_from_B
 is the identity up to each map's EKF drift (`workflows.evaluate.error_to_identity`, at the centroid of the
 answer's B landmarks); pairs of different worlds have no true alignment. The chance model's CPU per pair is
-measured by running it again (`plugin.verification.sequential_chance`, process time); `--cost` also measures it
+measured by running it again (`plugin.chance.sequential_chance`, process time); `--cost` also measures it
 side by side on the search benchmark's dense, sparse and aerial maps (`chance_cost`).
 """
 
@@ -52,8 +52,8 @@ def map_path(maps: Path, tag: str, name: str) -> Path:
 def run_pair(maps: Path, tag: str, work: Path, a: str, b: str, same: bool, overrides: list[str]) -> dict:
     from ...database.config_io import parse_override
     from ...database.landmark_map import read_landmark_map
+    from ...plugin.chance import sequential_chance
     from ...plugin.params import Params, with_overrides
-    from ...plugin.verification import sequential_chance
     from ...workflows.evaluate import error_to_identity
     from ...workflows.match import run
 

@@ -1,0 +1,280 @@
+"""The chance model of the verification: what support alignments of two maps reach by chance alone.
+
+The winner of a search is the best of very many distinct alignments, so it must be improbable as the best of that
+many chance alignments, not only beat one rival (maps of different worlds were verified by the ratio test alone).
+B is refined from random placements over A exactly like the winner (`chance_refinements`); their supports are
+counts whose expected value depends on how much of A lies under B where it was placed (`chance_opportunity`), and
+`chance_test` extrapolates their tail to the best of N_eff (`effective_trials`) chance alignments. Pure numpy +
+scipy; a part of `plugin.verification`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .multisession import Sim3
+from .refinement import Alignment, refine_alignment, yaw_matrix
+
+
+def transforms_agree(t1: Sim3, t2: Sim3, points: np.ndarray, tolerance_m: float) -> bool:
+    """Whether two transforms put every one of `points` within `tolerance_m` of each other (none: no)."""
+    return bool(len(points) and np.max(np.linalg.norm(t1.apply(points) - t2.apply(points), axis=1)) <= tolerance_m)
+
+
+@dataclass(frozen=True)
+class ChanceModel:
+    """How often chance alone reaches the winner's support (`chance_test`).
+
+    Two maps of different places still pair up: at 300 landmarks in 220 m x 240 m and a 2.9 m gate, a refined
+    alignment of two unrelated maps has 1-13 mutual nearest neighbours on average (BENCHMARKS.md, "Negative
+    pairs"), and the search offers the best of a very large number of distinct alignments. So the winner's
+    support is compared with the MAXIMUM chance support over that many trials (the look-elsewhere effect), not
+    with one rival."""
+
+    samples: int  # chance refinements measured (random starts that did not converge to the winner)
+    mean: float  # their mean support
+    variance: float  # and its variance (> mean: overdispersed; else Poisson)
+    trials: float  # N_eff: effectively independent alignments the search could have found
+    tail: float  # q: probability that one chance alignment reaches the winner's support
+    p_value: float  # 1 - (1 - q)^N_eff: probability that the best of N_eff chance alignments reaches it
+    # 1/k of the negative binomial left once each placement's opportunity is accounted for (0: Poisson); NaN:
+    # no opportunities measured (the unconditioned model)
+    overdispersion: float = float("nan")
+
+    def to_dict(self) -> dict[str, float]:
+        return {"samples": self.samples, "mean": self.mean, "variance": self.variance, "trials": self.trials,
+                "tail": self.tail, "p_value": self.p_value,
+                "overdispersion": None if np.isnan(self.overdispersion) else self.overdispersion}
+
+
+
+def converged_to_winner(winner: Sim3, probe: np.ndarray, gate_m: float, winner_pairs: np.ndarray | None,
+                        aligned: Alignment) -> bool:
+    """Whether a refinement found the winner again rather than another alignment: its transform puts the winner's
+    supporting B landmarks `probe` within 2 gates of where the winner puts them, or (with `winner_pairs`, the
+    winner's pairs after its final rigid fit) most of its own pairs are the winner's. The latter is the same
+    alignment fitted with yaw only on another part of two maps tilted against each other: 1 deg between two
+    frames is 17 m of height 1 km away, so 4-DOF fits from different window hypotheses each hold a band of the
+    map and disagree by more than 2 gates, though their pairs are those of one rigid alignment."""
+    if transforms_agree(winner, aligned.transform, probe, 2.0 * gate_m):
+        return True
+    mine = np.asarray(aligned.associations, np.int64).reshape(-1, 2)
+    return bool(2 * shared_with_winner(mine, winner_pairs) > len(mine))
+
+
+def chance_pairs(points_a: np.ndarray, points_b: np.ndarray, winner: Sim3, pairs: np.ndarray, gate_m: float) -> int:
+    """How many of an alignment's `pairs` the winner does not explain: pairs whose landmarks the winner puts more
+    than 2 gates apart (the tolerance of `converged_to_winner`)."""
+    ij = np.asarray(pairs, np.int64).reshape(-1, 2)
+    if not len(ij):
+        return 0
+    gap = np.linalg.norm(points_a[ij[:, 0]] - winner.apply(points_b[ij[:, 1]]), axis=1)
+    return int(np.sum(gap > 2.0 * gate_m))
+
+
+def shared_with_winner(pairs: np.ndarray, winner_pairs: np.ndarray | None) -> int:
+    """How many of `pairs` ((K, 2) landmark indices A, B) are pairs of the winner (`winner_pairs`; None: 0)."""
+    mine = np.asarray(pairs, np.int64).reshape(-1, 2)
+    if winner_pairs is None or not len(mine) or not len(winner_pairs):
+        return 0
+    base = int(max(mine[:, 1].max(), winner_pairs[:, 1].max())) + 1
+    return int(np.isin(mine[:, 0] * base + mine[:, 1], winner_pairs[:, 0] * base + winner_pairs[:, 1]).sum())
+
+
+CHANCE_SEED = 0  # the random placements of the chance model (fixed: the same maps give the same decision)
+
+
+CHANCE_BATCH = 16  # chance placements refined per step of `sequential_chance`
+CHANCE_MARGIN = 1e-3  # it stops early when p_value <= false_alarm x this or p_value >= CHANCE_CLEARLY_CHANCE
+CHANCE_CLEARLY_CHANCE = 0.5
+
+
+def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, prior_m: float = 0.0) -> list[Sim3]:
+    """`starts` random placements of B over A (a_from_b), deterministic (CHANCE_SEED). Without a prior a
+    uniform yaw and B's centroid on a random landmark of A (over A's footprint, where the landmarks are, so the
+    density chance works with is A's own); with `prior_m` (both maps in one frame, the search's putative
+    associations within that radius) B moved by a uniform offset in the disc of that radius and turned by at
+    most the angle that moves B's landmarks that far: the alignments the prior lets the search find."""
+    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
+    pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    if not len(pa) or not len(pb) or starts <= 0:
+        return []
+    rng = np.random.default_rng(CHANCE_SEED)
+    centre_b = pb.mean(axis=0)
+    radius_b = _horizontal_radius(pb)
+    out = []
+    for _ in range(starts):
+        if prior_m > 0:
+            yaw = rng.uniform(-1.0, 1.0) * min(np.pi, prior_m / radius_b)
+            r, ang = prior_m * np.sqrt(rng.uniform()), rng.uniform(0.0, 2.0 * np.pi)
+            target = centre_b + np.array([r * np.cos(ang), r * np.sin(ang), 0.0])
+        else:
+            yaw = rng.uniform(0.0, 2.0 * np.pi)
+            target = np.array([*pa[rng.integers(len(pa)), :2], pa[:, 2].mean()])
+        turn = yaw_matrix(yaw)
+        out.append(Sim3(turn, target - turn @ centre_b))
+    return out
+
+
+def chance_refinements(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                       sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, gate_m: float,
+                       max_size_difference: float, placements: Sequence[Sim3], dof: int = 4,
+                       z_weight: float = 0.5, winner_pairs: np.ndarray | None = None,
+                       tree_a: Any = None, tree_a_xy: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    """Chance alignments of these two maps: B refined from each placement exactly like the winner
+    (`refine_alignment`: the same gate, size gate and fit); the refinements that converge to the winner
+    (`converged_to_winner`) are no chance and are left out. Returns their supports, counting only the pairs chance
+    gave them (`chance_pairs`), and their opportunities (`chance_opportunity`; zeros without `tree_a_xy`).
+    `tree_a`: `refinement.pairing_tree` of A, if built; `tree_a_xy`: `horizontal_tree` of A."""
+    supports, opportunities = [], []
+    for start in placements:
+        aligned = refine_alignment(points_a, sizes_a, points_b, sizes_b, start, gate_m, max_size_difference,
+                                   dof=dof, z_weight=z_weight, tree_a=tree_a)
+        if converged_to_winner(winner, probe, gate_m, winner_pairs, aligned):
+            continue
+        # only the pairs chance gave it: a refinement caught on the edge of the winner's basin (turned a few
+        # degrees about the winner's pairs) holds some of the winner's own pairs, no evidence of what chance
+        # reaches elsewhere
+        supports.append(chance_pairs(points_a, points_b, winner, aligned.associations, gate_m))
+        opportunities.append(0.0 if tree_a_xy is None else
+                             chance_opportunity(tree_a_xy, aligned.transform.apply(points_b), gate_m))
+    return np.asarray(supports, np.int64), np.asarray(opportunities, np.float64)
+
+
+def chance_supports(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                    sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, gate_m: float,
+                    max_size_difference: float, placements: Sequence[Sim3], dof: int = 4,
+                    z_weight: float = 0.5, winner_pairs: np.ndarray | None = None, tree_a: Any = None) -> np.ndarray:
+    """The supports of `chance_refinements` (for rivals, which need no opportunity)."""
+    return chance_refinements(points_a, sizes_a, points_b, sizes_b, winner, probe, gate_m, max_size_difference,
+                              placements, dof, z_weight, winner_pairs, tree_a)[0]
+
+
+OPPORTUNITY_GATES = (2.0, 6.0)  # A's density around a placed B landmark: counted in this annulus (in gates)
+
+
+def horizontal_tree(points: np.ndarray) -> Any:
+    """The KD-tree of a map's horizontal positions (`chance_opportunity`)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(np.asarray(points, np.float64).reshape(-1, 3)[:, :2])
+
+
+def chance_opportunity(tree_a_xy: Any, placed_b: np.ndarray, gate_m: float) -> float:
+    """How many chance partners B placed so can expect: the sum over B's landmarks of min(1, pi gate^2 rho), rho
+    the density of A's landmarks around it. rho is counted in the annulus OPPORTUNITY_GATES (beyond the gate, so
+    that the winner's own partners do not raise the winner's opportunity: the same measure for the winner and for
+    chance). A placement with half of B off A, or over a sparse part of it, has a fraction of the opportunity of
+    one over A's dense core."""
+    inner, outer = (g * gate_m for g in OPPORTUNITY_GATES)
+    xy = np.asarray(placed_b, np.float64).reshape(-1, 3)[:, :2]
+    if not len(xy):
+        return 0.0
+    counts = (tree_a_xy.query_ball_point(xy, outer, return_length=True)
+              - tree_a_xy.query_ball_point(xy, inner, return_length=True))
+    density = counts / (np.pi * (outer**2 - inner**2))
+    return float(np.sum(np.minimum(1.0, np.pi * gate_m**2 * density)))
+
+
+def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                      sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, support: int, gate_m: float,
+                      max_size_difference: float, starts: int, false_alarm: float, prior_m: float = 0.0,
+                      dof: int = 4, z_weight: float = 0.5,
+                      winner_pairs: np.ndarray | None = None, tree_a: Any = None) -> tuple[ChanceModel, np.ndarray]:
+    """`chance_test` of the winner's support on up to `starts` chance placements, refined CHANCE_BATCH at a time:
+    it stops once the answer cannot be in doubt (p_value <= false_alarm x CHANCE_MARGIN: a true alignment many
+    decades above chance, as every dense map pair; or p_value >= CHANCE_CLEARLY_CHANCE), which keeps the cost
+    of a clear case at one batch. The placements are fixed in advance, so the result is deterministic.
+    Returns the model and the chance supports. `tree_a`: as `chance_refinements`."""
+    placements = chance_placements(points_a, points_b, starts, prior_m)
+    trials = effective_trials(points_a, points_b, gate_m, prior_m)
+    tree_a_xy = horizontal_tree(points_a)
+    samples, opportunities = np.zeros(0, np.int64), np.zeros(0, np.float64)
+    chance = chance_test(samples, support, trials, opportunities)
+    for k in range(0, len(placements), CHANCE_BATCH):
+        more, more_o = chance_refinements(points_a, sizes_a, points_b, sizes_b, winner, probe, gate_m,
+                                          max_size_difference, placements[k:k + CHANCE_BATCH], dof, z_weight,
+                                          winner_pairs, tree_a, tree_a_xy)
+        samples, opportunities = np.concatenate([samples, more]), np.concatenate([opportunities, more_o])
+        chance = chance_test(samples, support, trials, opportunities)
+        if chance.p_value <= false_alarm * CHANCE_MARGIN or chance.p_value >= CHANCE_CLEARLY_CHANCE:
+            break
+    return chance, samples
+
+
+def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, prior_m: float = 0.0) -> float:
+    """N_eff: how many effectively independent alignments the search chooses its winner from.
+
+    Two placements of B share no chance pair once B moved by more than a gate diameter (2 gate_m: every
+    landmark's gate disc has left its old one), or turned by more than 2 gate_m / R_B (R_B: the RMS horizontal
+    distance of B's landmarks from their centroid, so a typical landmark moved that far). So the translations
+    over A's footprint (its horizontal bounding box; with a position prior the disc of radius `prior_m`, if
+    smaller) hold area / (2 gate_m)^2 independent cells, and the yaws (a full turn; with a prior at most
+    +-prior_m / R_B) hold yaw range / (2 gate_m / R_B) of them. A 220 m x 240 m map at a 2.9 m gate and R_B
+    ~90 m: ~1,600 x ~100 = 1.6e5. (Counting the search's 48 yaw slices instead would ignore that within one
+    slice a turn of 7.5 degrees moves far landmarks by ten gates.)"""
+    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
+    pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    cell = 2.0 * gate_m
+    span = np.ptp(pa[:, :2], axis=0) if len(pa) else np.zeros(2)
+    area = float(span[0] * span[1])
+    radius_b = _horizontal_radius(pb)
+    yaw_range = 2.0 * np.pi
+    if prior_m > 0:
+        area = min(area, np.pi * prior_m**2)
+        yaw_range = min(yaw_range, 2.0 * prior_m / radius_b)
+    return float(max(1.0, area / cell**2) * max(1.0, yaw_range * radius_b / cell))
+
+
+def chance_test(samples: np.ndarray, support: int, trials: float,
+                opportunities: np.ndarray | None = None) -> ChanceModel:
+    """The probability that the best of `trials` chance alignments reaches `support`.
+
+    The chance supports (`chance_refinements`) are counts, overdispersed because placements differ in how much of
+    B lies over A and how dense A is there. With each sample's `opportunity` (`chance_opportunity`) that part is
+    measured, not guessed: sample i is negative binomial with mean beta o_i (beta = sum x / sum o, the Poisson
+    estimate) and the dispersion k that the moments of what remains give (none left: Poisson), and one chance
+    alignment reaches the support with q = the mean over the samples of P(X_i >= support), the mixture over the
+    placements chance actually makes. Without opportunities (or none measured) the whole spread is fitted by its
+    moments as one negative binomial (a gamma mixture of Poissons), whose unbounded gamma tail overstates what a
+    bounded overlap can reach: across seasons it refused true pairs (world 7: support 46 against a chance maximum
+    of 31 in 512 placements, p 0.20; with opportunities 1e-7), because a few placements over A's dense core
+    inflate the variance. The best of N_eff independent trials reaches it with 1 - (1 - q)^N_eff. The tail is
+    extrapolated from a few dozen samples, so the mean carries one pseudo-sample of 1 (at the mean opportunity:
+    a map pair whose every random start reached the winner measured no chance at all; that is not chance 0) and
+    the variance is at least the mean."""
+    from scipy import stats
+
+    x = np.asarray(samples, np.float64).reshape(-1)
+    mean = float((x.sum() + 1.0) / (len(x) + 1))
+    var = float(np.var(x, ddof=1)) if len(x) > 1 else mean
+    var = max(var, mean)
+    o = None if opportunities is None else np.asarray(opportunities, np.float64).reshape(-1)
+    overdispersion = float("nan")
+    if o is not None and len(o) == len(x) and len(x) and o.sum() > 0:
+        mu = np.maximum((x.sum() + 1.0) / (o.sum() + o.mean()) * o, 1e-9)
+        extra = float(np.sum((x - mu) ** 2 - mu))
+        overdispersion = max(0.0, extra / float(np.sum(mu**2)))
+        if overdispersion > 0:
+            k = 1.0 / overdispersion
+            tail = float(np.mean(stats.nbinom.sf(support - 1, k, k / (k + mu))))
+        else:
+            tail = float(np.mean(stats.poisson.sf(support - 1, mu)))
+    elif var > mean * (1.0 + 1e-9):
+        tail = float(stats.nbinom.sf(support - 1, mean**2 / (var - mean), mean / var))
+    else:
+        tail = float(stats.poisson.sf(support - 1, mean))
+    p_value = float(-np.expm1(trials * np.log1p(-min(tail, 1.0 - 1e-16))))
+    return ChanceModel(int(len(x)), mean, var, float(trials), tail, p_value, overdispersion)
+
+
+def _horizontal_radius(points: np.ndarray) -> float:
+    """RMS horizontal distance of the points from their centroid (at least 1 m)."""
+    if not len(points):
+        return 1.0
+    d = points[:, :2] - points[:, :2].mean(axis=0)
+    return float(max(1.0, np.sqrt(np.mean(np.sum(d**2, axis=1)))))
