@@ -3,7 +3,7 @@ object: nothing may be accepted) and maps of one world (every one must keep its 
 
     nice -n 10 .venv/bin/python -m sosmatch.tools.benchmarks.bench_negatives --maps /work/data16 \
         [--work /tmp/bench_negatives] [--worlds 5,11,23,42] [--tag v3] [--only cross|same] [--set k=v ...] [--cost]
-        [--suite BENCH_WORK/maps] [--no-pairs]
+        [--suite BENCH_WORK/maps] [--no-pairs] [--null PAIRS --null-starts M]
 
 The maps are bench_seasons' (`MAPS/wSEED/maps/TAG/SESSION`, mapped sessions with run.json, so `match` derives its
 tolerances from their noise as a user's run would). Each pair is matched with `workflows.match.run` and default
@@ -12,7 +12,10 @@ interrupted run resumes; `--fresh` recomputes). Truth: sessions of one world sha
 is the identity up to each map's EKF drift (`workflows.evaluate.error_to_identity`, at the centroid of the
 answer's B landmarks); pairs of different worlds have no true alignment. The chance model's CPU per pair is
 measured by running it again (`plugin.chance.sequential_chance`, process time); `--cost` also measures it
-side by side on the search benchmark's dense, sparse and aerial maps (`chance_cost`).
+side by side on the search benchmark's dense, sparse and aerial maps (`chance_cost`). `--null` calibrates the
+chance model itself (`null_calibration`): unrelated random maps, the best of M random refinements offered as the
+winner; its tail q says how often one chance alignment reaches that support, so M q is (about) the probability
+that the best of M does, and over many pairs it must not fall below x more often than a fraction x of the time.
 """
 
 from __future__ import annotations
@@ -162,6 +165,56 @@ def suite_answers(maps: Path, work: Path) -> str:
     return "\n".join(lines)
 
 
+def _null_field(rng: object, n: int, span: float, clustered: bool) -> tuple:
+    """n landmarks over span x span m: uniform, or in groves (a Thomas process: centres uniform, 8 m spread)."""
+    import numpy as np
+
+    if clustered:
+        centres = rng.uniform(0, span, (max(3, n // 12), 2))
+        xy = centres[rng.integers(len(centres), size=n)] + rng.normal(0, 8.0, (n, 2))
+    else:
+        xy = rng.uniform(0, span, (n, 2))
+    return np.column_stack([xy, rng.normal(0, 0.5, n)]), rng.lognormal(1.0, 0.5, n)
+
+
+def null_calibration(pairs_n: int, starts: int) -> str:
+    """The chance model on pairs of unrelated maps (150-400 x 50-200 landmarks, uniform or in groves, gates
+    2-4 m, sizes with the verification's gate 0.4): the best of `starts` random refinements is offered to
+    `verify_alignments` as the winner. Prints, per pair, the support, p and starts x q (q: the model's tail at
+    that support), then how many pairs were accepted and how many have starts x q below 0.01 / 0.05 / 0.2 (a
+    calibrated tail: about that fraction of the pairs, fewer when the starts converge to shared optima)."""
+    import numpy as np
+
+    from ...plugin.multisession import Sim3
+    from ...plugin.refinement import refine_alignment, yaw_matrix
+    from ...plugin.verification import verify_alignments
+
+    lines, mq, accepted = [], [], 0
+    for seed in range(pairs_n):
+        rng = np.random.default_rng(1000 + seed)
+        clustered = seed % 2 == 1
+        a, sa = _null_field(rng, int(rng.integers(150, 400)), 250.0, clustered)
+        b, sb = _null_field(rng, int(rng.integers(50, 200)), 200.0, clustered)
+        gate = float(rng.uniform(2.0, 4.0))
+        best = None
+        for _ in range(starts):
+            turn = yaw_matrix(rng.uniform(0, 2 * np.pi))
+            target = np.r_[rng.uniform(0, 250, 2), 0.0]
+            aligned = refine_alignment(a, sa, b, sb, Sim3(turn, target - turn @ b.mean(0)), gate, 0.4)
+            if best is None or len(aligned.associations) > len(best.associations):
+                best = aligned
+        v = verify_alignments(a, sa, b, sb, [(best.transform, best.associations[:, 1])], gate, 0.4, 6)
+        accepted += int(v.accepted)
+        mq.append(starts * v.chance.tail if v.chance else float("inf"))
+        lines.append(f"null {seed}: {'groves' if clustered else 'uniform'} {len(a)} x {len(b)}, gate {gate:.1f} m: "
+                     f"support {v.support}, runner-up {v.runner_up_support}, p {v.chance.p_value if v.chance else '-'}"
+                     f", starts x q {mq[-1]:.3g}, accepted {v.accepted}")
+    arr = np.asarray(mq)
+    lines.append(f"null calibration: {pairs_n} pairs, best of {starts} starts: accepted {accepted}; starts x q below "
+                 + ", ".join(f"{x}: {int(np.sum(arr < x))}" for x in (0.01, 0.05, 0.2)))
+    return "\n".join(lines)
+
+
 def _f(x: object, fmt: str) -> str:
     return "-" if x is None else format(x, fmt)
 
@@ -203,6 +256,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--suite", type=Path, help="also the evaluation suite's answers with and without the chance "
                     "model (bench_evaluate's maps directory)")
     ap.add_argument("--no-pairs", action="store_true", help="skip the world pairs (with --cost / --suite)")
+    ap.add_argument("--null", type=int, default=0, help="also calibrate the chance model on this many pairs of "
+                    "unrelated random maps")
+    ap.add_argument("--null-starts", type=int, default=3000, help="random refinements per --null pair")
     args = ap.parse_args(argv)
     worlds = [int(w) for w in args.worlds.split(",")]
     (args.work / "rows").mkdir(parents=True, exist_ok=True)
@@ -230,6 +286,8 @@ def main(argv: list[str] | None = None) -> None:
         print(suite_answers(args.suite, args.work))
     if args.cost:
         print(chance_cost())
+    if args.null:
+        print(null_calibration(args.null, args.null_starts), flush=True)
     print(f"load average {os.getloadavg()[0]:.1f}")
 
 
