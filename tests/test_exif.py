@@ -244,3 +244,20 @@ def test_map_with_pose_source_exif_reads_them_from_exif(tmp_path, capsys):
     assert main(["map", "--images", str(img), "--camera", str(tmp_path / "p" / "cameras.txt"),
                  "--out", str(tmp_path / "s5")]) == 2
     assert "need --poses" in capsys.readouterr().err and not (tmp_path / "s5").exists()
+
+
+def test_images_without_attitude_whose_orientations_cannot_be_solved_are_an_error(tmp_path, capsys):
+    """No attitude tags and no tie points (noise images): the headings would be the course over ground, a guess;
+    one line names the cause, and nothing is written."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(3):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)  # flying east, no XMP
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p" / "poses.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "3 of 3 images have no attitude tags and their orientations could not be solved from tie points (no " \
+           "tie points" in err and "sosmatch poses" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "p" / "poses.csv").exists()
+    assert main(["map", "--images", str(img), "--pose-source", "exif", "--out", str(tmp_path / "s"),
+                 "--no-progress"]) == 2
+    assert "have no attitude tags and their orientations could not be solved" in capsys.readouterr().err

@@ -149,3 +149,30 @@ def test_synth_geotags_match_the_truth(tmp_path, capsys):
     angle = rotation_angle_deg(exif.poses.rotations, truth.rotations)
     assert np.all(angle[lines == 1] > 175.0) and np.all(angle[lines != 1] < 5.0)
     assert exif.camera.fx == pytest.approx(truth_fx := 80.0 / math.tan(math.radians(32.5)), rel=0.03), truth_fx
+
+
+def test_images_without_attitude_tags_get_orientations_from_the_images_not_the_course(tmp_path, capsys):
+    """EXIF GPS only (no attitude tags): the course over ground is a guess for the heading, tens of degrees off
+    at the line turns. `map --pose-source exif` (and poses-from-exif) solve the orientations from tie points with
+    the GPS positions as priors instead of mapping on the guess."""
+    out = tmp_path / "S"
+    assert main(["synth", "--out", str(out), "--frames", "24", "--width", "320", "--height", "240",
+                 "--line-length", "56", "--geotags", "exif", "--world-size", "400", "--world-seed", "5"]) == 0
+    capsys.readouterr()
+    lines = np.array(json.loads((out / "session.json").read_text())["geo"]["flight_lines"])
+    truth, _ = read_poses_csv(out / "poses.csv")
+    priors = read_image_priors(out / "images")
+    assert priors.summary["images_without_attitude"] == 24
+    at_turns = priors.summary["images_at_turns_without_attitude"]
+    assert 0 < at_turns <= np.sum(lines == -1) + 4  # the corners of the turns, not the straight lines
+    guess = rotation_angle_deg(priors.rotations, truth.rotations)
+    assert guess.max() > 20.0  # the course at a corner: the mean of the line's and the turn's directions
+
+    from sosmatch.workflows.poses_from_exif import map_inputs_from_images
+
+    inputs = map_inputs_from_images(out / "images")
+    solved = rotation_angle_deg(inputs.poses.rotations, truth.rotations)
+    print(f"course headings {np.median(guess):.1f} / {guess.max():.1f} deg -> solved {np.median(solved):.2f} / "
+          f"{solved.max():.2f} deg (median / max)")
+    assert solved.max() < 5.0 and np.median(solved) < 0.5 * np.median(guess)
+    assert "orientations of the 24 images without attitude tags solved from tie points" in inputs.sources["poses"]

@@ -198,6 +198,28 @@ def _course_from_neighbours(east: np.ndarray, north: np.ndarray) -> np.ndarray:
     return out
 
 
+# A change of the direction of travel beyond this between the legs before and after an image marks a turn. The
+# legs span two images each: GPS noise turns a leg by ~sigma * sqrt(2) / length (1 m over two 7 m spacings: ~6 deg;
+# world 88 at 150 m: at most 25 deg between two straight legs), a survey's line turns are 90-180 deg.
+TURN_DEG = 30.0
+TURN_LEG_IMAGES = 2
+
+
+def turn_images(east: np.ndarray, north: np.ndarray) -> np.ndarray:
+    """(N,) bool: images at a turn of the flight, where the directions of travel from TURN_LEG_IMAGES images
+    before and to as many after differ by more than TURN_DEG (images without a position, and the first and last
+    ones, are never marked). There the course over ground says nothing of the heading (a multirotor yaws at or
+    after the corner, a fixed wing banks through it)."""
+    n, k = len(east), TURN_LEG_IMAGES
+    out = np.zeros(n, dtype=bool)
+    ok = np.isfinite(east) & np.isfinite(north)
+    for i in range(k, n - k):
+        if ok[i - k] and ok[i] and ok[i + k]:
+            a = np.arctan2(east[i] - east[i - k], north[i] - north[i - k])
+            b = np.arctan2(east[i + k] - east[i], north[i + k] - north[i])
+            out[i] = abs(np.degrees(np.angle(np.exp(1j * (b - a))))) > TURN_DEG
+    return out
+
 
 @dataclass
 class ImagePriors:
@@ -382,8 +404,11 @@ def read_image_priors(
         if sel.any():
             rotations[sel] = camera_rotations(yaw[sel], pitch[sel], roll[sel], m_name, ps, rs, north_az[sel])
     n_course = int(np.sum(kind == "course"))
+    n_turns = int(np.sum(turn_images(east, north) & (kind == "course")))
     if n_course:
-        log.warning("%d of %d images have no attitude tags: assumed level and nadir, heading = course", n_course, n)
+        log.warning("%d of %d images have no attitude tags: assumed level and nadir, heading = the course over "
+                    "ground (a guess: %d of them at turns of the flight, where the course says nothing of the heading)",
+                    n_course, n, n_turns)
 
     cameras, camera_index, intrinsics_sources = _camera_groups(metas, sensor_width_mm, strict_intrinsics)
     m0 = metas[0]
@@ -398,6 +423,8 @@ def read_image_priors(
         "gps_altitude_vs_relative_altitude": rel_drift.to_dict() if rel_drift is not None else None,
         "takeoff_altitude_m": takeoff_altitude_m if np.isfinite(rel[has]).all() and has.any() else None,
         "attitude_sources": dict(att_src),
+        "images_without_attitude": n_course,  # their headings are the course over ground (a guess)
+        "images_at_turns_without_attitude": n_turns,  # ... where the course says nothing of the heading
         "capture_times": time_source,
         "mount": mount,
         "pitch_sign": pitch_sign,

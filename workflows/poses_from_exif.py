@@ -5,6 +5,14 @@ pinhole camera and a summary of what was read from which tags); `run(...)` write
 What is read, the world frame, the attitude conventions, heights and intrinsics: `workflows.image_priors`
 (shared with `sosmatch poses`, which uses these poses as the priors of structure from motion). This job needs
 every image to have a GPS position and all images one camera.
+
+Images without attitude tags (EXIF GPS only): their headings would be the course over ground, a guess that is
+several degrees off on the lines (GPS noise over a few metres of flight) and tens of degrees off at the turns
+(world 88 at 150 m: 1-13 deg and 44-54 deg; its map's landmarks 4.6 m from their objects). So their
+orientations are solved from the images, as OpenDroneMap and COLMAP do with GPS-only photos: the refinement
+from tie points with the GPS positions as priors (`--refine`), on whenever any image lacks attitude tags
+(`orientations_from_images`); a refinement that fails is an error naming the cause, never poses of guessed
+headings.
 """
 
 from __future__ import annotations
@@ -130,8 +138,9 @@ def run(
     files = OutputFiles([out, cameras_path], "poses-from-exif", identity, inputs=[*sources, telemetry],
                         overwrite=overwrite)
     result = poses_from_images(images, telemetry, mount, pitch_sign, roll_sign, sensor_width_mm, epsg)
-    if refine:
-        stats = _refine(result, images, position_sigma_m, attitude_sigma_deg, refine_method)
+    guessed = orientations_from_images(result, refine)
+    if refine or guessed:
+        stats = _refine(result, images, position_sigma_m, attitude_sigma_deg, refine_method, guessed)
         result.summary["refinement"] = {"method": refine_method, "position_sigma_m": position_sigma_m,
                                         "attitude_sigma_deg": attitude_sigma_deg, **stats.to_dict()}
     files.write(out, format_poses_csv(result.poses, result.epsg))
@@ -163,9 +172,11 @@ def map_inputs_from_images(
 
     result = poses_from_images(images, telemetry)
     source = f"EXIF/XMP of {images}" + (f" + {telemetry}" if telemetry else "")
-    if refine:
-        _refine(result, images, position_sigma_m)
-        source += ", refined from tie points"
+    guessed = orientations_from_images(result, refine)
+    if refine or guessed:
+        _refine(result, images, position_sigma_m, guessed=guessed)
+        source += (f", orientations of the {guessed} images without attitude tags solved from tie points" if guessed
+                   else ", refined from tie points")
     return MapInputs(_image_paths(images, result.poses), result.poses, result.camera, result.epsg,
                      {"poses": source, "camera": f"EXIF of {images}", "images": str(images)})
 
@@ -176,12 +187,40 @@ def _image_paths(images: str | Path, poses: Poses) -> list[Path]:
     return [paths[n] for n in poses.names]
 
 
-def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, attitude_sigma_deg: float = 5.0,
-            method: str = "colmap") -> object:
-    """Refine `result.poses` in place from tie points between the images (`refine_poses_from_images`); returns the
-    refinement statistics."""
-    from .pose_refinement import refine_poses_from_images
+def orientations_from_images(result: ExifPoses, refine: bool) -> int:
+    """How many images have no attitude tags (0: none, or `refine` was asked for anyway); when some lack them, says
+    once that their orientations are solved from the images instead of taken from the course over ground."""
+    guessed = int(result.summary.get("images_without_attitude", 0))
+    if guessed:
+        result.summary["orientations"] = "solved from tie points (GPS positions as priors)"
+        log.warning("%d of %d images have no attitude tags: their orientations are solved from the images (tie "
+                    "points, the GPS positions as priors; as --refine), not taken from the course over ground",
+                    guessed, len(result.poses))
+    return 0 if refine else guessed
 
-    result.poses, stats = refine_poses_from_images(_image_paths(images, result.poses), result.poses, result.camera,
-                                                   position_sigma_m, attitude_sigma_deg, method=method)
+
+def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, attitude_sigma_deg: float = 5.0,
+            method: str = "colmap", guessed: int = 0) -> object:
+    """Refine `result.poses` in place from tie points between the images (`refine_poses_from_images`); returns the
+    refinement statistics. `guessed`: the refinement was not asked for but is needed, because that many images
+    have no attitude tags; its failure then says so (and points to structure from motion)."""
+    from .pose_refinement import RefinementRejected, refine_poses_from_images
+
+    try:
+        result.poses, stats = refine_poses_from_images(_image_paths(images, result.poses), result.poses,
+                                                       result.camera, position_sigma_m, attitude_sigma_deg,
+                                                       method=method)
+    except (RefinementRejected, ValueError) as error:
+        if not guessed:
+            raise
+        _unsolved(result, images, guessed, str(error).split(";")[0])
+    if guessed and stats.points == 0:
+        _unsolved(result, images, guessed, "no tie points between the images")
     return stats
+
+
+def _unsolved(result: ExifPoses, images: str | Path, guessed: int, why: str) -> None:
+    """The one-line error when the orientations of images without attitude tags cannot come from the images."""
+    raise InputError(f"{guessed} of {len(result.poses)} images have no attitude tags and their orientations could "
+                     f"not be solved from tie points ({why}); give poses, or take them from structure from motion "
+                     "(`sosmatch poses`, `map --pose-source sfm`)", Path(images)) from None

@@ -143,7 +143,13 @@ def run_case(work: Path, case: Case, frames: int) -> dict[str, Any]:
 
 
 def horizontal_error(session: Path, mapped: Path) -> float:
-    """Median horizontal distance of the map's landmarks on objects (bench_map's label vote) to the objects'
+    """Median of `horizontal_errors` (NaN without a landmark on an object)."""
+    err = horizontal_errors(session, mapped)
+    return float(np.median(err)) if len(err) else float("nan")
+
+
+def horizontal_errors(session: Path, mapped: Path) -> np.ndarray:
+    """Horizontal distance of each of the map's landmarks on objects (bench_map's label vote) to the objects'
     visible-top centres, in the session's world frame (maps made from the synthetic geotags are in UTM: the
     session's `geo.world_to_crs_offset` is taken off)."""
     from ...database.landmark_map import read_landmark_map
@@ -156,9 +162,8 @@ def horizontal_error(session: Path, mapped: Path) -> float:
     pos = lmap.positions - (offset if lmap.epsg else 0.0)
     majority, _ = landmark_objects(synth, mapped)
     objects = {int(o["id"]): o for o in synth.objects}
-    err = [float(np.hypot(pos[i, 0] - objects[int(majority[i])]["x"], pos[i, 1] - objects[int(majority[i])]["y"]))
-           for i in np.flatnonzero(majority > 0)]
-    return float(np.median(err)) if err else float("nan")
+    return np.array([np.hypot(pos[i, 0] - objects[int(majority[i])]["x"], pos[i, 1] - objects[int(majority[i])]["y"])
+                     for i in np.flatnonzero(majority > 0)], dtype=np.float64)
 
 
 def figures(path: Path) -> dict[str, Any]:

@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pose-source", choices=["sfm", "exif"], default=None,
                         help="without --poses: sfm (default) = COLMAP structure from motion georegistered on the "
                              "GPS, as `sosmatch poses` (its outputs go to OUT/poses); exif = the EXIF/XMP poses as "
-                             "they are (`poses-from-exif`; see --refine)")
+                             "they are (`poses-from-exif`; see --refine; images without attitude tags get their "
+                             "orientations from tie points, as with --refine)")
     parser.add_argument("--telemetry", type=Path,
                         help="without --poses: attitude CSV for images whose XMP lacks it (see poses-from-exif)")
     parser.add_argument("--refine", action="store_true",

@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epsg", type=int, help="projected CRS for the poses (default: the UTM zone of image 1)")
     parser.add_argument("--refine", action="store_true",
                         help="refine the poses with ORB tie points between overlapping images, the EXIF poses "
-                             "acting as priors (for consumer GPS / autopilot attitude)")
+                             "acting as priors (for consumer GPS / autopilot attitude; on by itself when images have "
+                             "no attitude tags: their orientations come from the tie points)")
     parser.add_argument("--position-sigma", type=float, default=3.0, help="--refine: GPS sigma, metres")
     parser.add_argument("--attitude-sigma", type=float, default=5.0,
                         help="--refine with --refine-method scipy: attitude sigma, degrees")
