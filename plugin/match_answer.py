@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .association import SearchResult, Transform, search, search_reference
+from .association import SearchResult, Transform, kernel_cache, search, search_reference
 from .params import AssociationParams, Params
 from .verification import Verification, verify_search
 
@@ -57,6 +57,7 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     first_try: tighter association parameters for a first search whose hypotheses are verified with
     `params.association` (module doc); used only with the verification on; None: one search.
     """
+    kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so, once
     t0 = time.perf_counter()
     prior = "off"
     if params.association.position_prior_m > 0:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -75,3 +76,27 @@ def test_invalidation_touches_only_the_package_cache_files(tmp_path: Path) -> No
 def test_the_association_package_is_stamped() -> None:
     directory = kernel_cache.cache_dir()
     assert (directory / kernel_cache.STAMP_NAME).read_text().strip() == kernel_cache.sources_digest()
+
+
+def test_a_search_that_must_compile_says_so_once(tmp_path: Path) -> None:
+    """An empty cache (a fresh install): one line says the kernels are compiled once, before the first search;
+    a kernel compiled since is no longer counted."""
+    script = textwrap.dedent("""
+        import logging, sys
+        import numpy as np
+        logging.basicConfig(level=logging.INFO, stream=sys.stdout, format="%(message)s")
+        from sosmatch.plugin.association import kernel_cache
+        from sosmatch.plugin.association.kernels_solve import sym_csr
+        kernel_cache.announce_compile()
+        kernel_cache.announce_compile()  # once per process
+        sym_csr(3, np.array([0, 1]), np.array([1, 2]), np.array([1.0, 1.0]))
+        kernel_cache._announced.clear()
+        kernel_cache.announce_compile()
+    """)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, env=env)
+    lines = [line for line in out.stdout.splitlines() if line.startswith("compiling the search kernels")]
+    total = len(kernel_cache.kernels())
+    assert total > 20 and len(lines) == 2, out.stdout + out.stderr
+    assert f"({total} of {total}, up to ~" in lines[0] and "later runs start at once" in lines[0]
+    assert f"({total - 2} of {total}, up to ~" in lines[1]  # sym_csr and the _sym_csr it calls are cached now

@@ -1,6 +1,7 @@
 """`sosmatch match` end to end on small synthetic maps, and bad input."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -36,6 +37,9 @@ def test_match_end_to_end(maps, tmp_path, capsys):
     assert line.startswith("match: ") and "\n" not in line and "accepted" in line
     doc = json.loads((out / "match.json").read_text())
     assert doc["format"] == "sosmatch match v1" and doc["num_accepted"] > 0
+    # the summary prints the wall time and, beside it, the CPU time (the honest figure on a shared machine)
+    wall, cpu = (float(x) for x in re.search(r"\(([0-9.]+) s, CPU ([0-9.]+) s\) -> ", line).groups())
+    assert (wall, cpu) == (round(doc["seconds_total"], 2), round(doc["cpu_seconds_total"], 2)) and cpu > 0
     best = doc["hypotheses"][doc["best"]]
     assert best["accepted"] and best["size"] > doc["params"]["association"]["min_associations"]
     rot = np.array(doc["consensus"]["transform"]["rotation"])

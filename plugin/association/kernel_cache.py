@@ -9,6 +9,10 @@ stale code or crashes in it (a segfault was seen in `windowed_search` after an u
 differs from the sources' digest, the package's own cache files (`MODULE.*.nbi` / `.nbc`, files numba wrote for
 these modules and nothing else) are removed before any kernel loads, and the new stamp is written. The check
 runs once per process, under a file lock (pytest-xdist and pool workers import concurrently).
+
+`announce_compile()` says so, once, before a search would compile kernels that have no cache entry (the first
+match after an install: minutes of CPU, for maps that then match in seconds); `tools.warm_kernels` compiles
+them ahead (`make install` runs it).
 """
 
 from __future__ import annotations
@@ -16,15 +20,21 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import importlib
 import logging
 import os
+import pkgutil
 from pathlib import Path
 
 logger = logging.getLogger(__name__)
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 STAMP_NAME = "sosmatch-kernels.sha1"
+# CPU seconds per kernel compiled: a default match from an empty cache compiled 41 kernels in 61 s of CPU, the
+# position-prior path 2 more in 2.5 s (BENCHMARKS.md, "The new-user sweep"); what the notice's minutes come from
+COMPILE_CPU_S_PER_KERNEL = 1.5
 _refreshed: set[Path] = set()
+_announced: list[bool] = []
 
 
 def sources_digest(package_dir: Path = PACKAGE_DIR) -> str:
@@ -74,6 +84,48 @@ def invalidate_stale(package_dir: Path, directory: Path, digest: str) -> int:
     tmp.write_text(digest + "\n")
     os.replace(tmp, stamp)
     return removed
+
+
+def kernels() -> dict[str, object]:
+    """Every numba kernel of this package that numba caches on disk, by "module.name" (imports the modules)."""
+    found: dict[str, object] = {}
+    for info in pkgutil.iter_modules([str(PACKAGE_DIR)]):
+        module = importlib.import_module(f"{__package__}.{info.name}")
+        for name, obj in vars(module).items():
+            cache = getattr(obj, "_cache", None)
+            if getattr(obj, "__module__", None) == module.__name__ and hasattr(cache, "_cache_file"):
+                found[f"{info.name}.{name}"] = obj
+    return found
+
+
+def uncompiled_kernels() -> list[str]:
+    """The kernels with no entry in numba's on-disk cache yet ("module.name"): the next search compiles them.
+    (An entry serves the argument types it was compiled for; the searches call every kernel with one set.)
+    Empty when numba's cache layout cannot be read (private API): then nothing is announced."""
+    try:
+        return sorted(name for name, kernel in kernels().items()
+                      if not Path(kernel._cache._cache_file._index_path).is_file())  # type: ignore[attr-defined]
+    except Exception as error:  # noqa: BLE001 - a private API of numba: never fail a search on it
+        logger.debug("numba cache entries not checked: %s", error)
+        return []
+
+
+def compile_message(missing: int, total: int) -> str:
+    """The one line said before `missing` of the `total` kernels compile ("up to": a search compiles only those it
+    calls, a default match 43 of 66)."""
+    minutes = max(1, round(COMPILE_CPU_S_PER_KERNEL * missing / 60.0))
+    return (f"compiling the search kernels once for this install ({missing} of {total}, up to ~{minutes} min of "
+            "CPU); later runs start at once")
+
+
+def announce_compile() -> None:
+    """Log `compile_message` (once per process) before a search that must compile kernels first."""
+    if _announced:
+        return
+    _announced.append(True)
+    missing = uncompiled_kernels()
+    if missing:
+        logger.info("%s (`make install` compiles them ahead)", compile_message(len(missing), len(kernels())))
 
 
 def refresh(package_dir: Path = PACKAGE_DIR) -> None:
