@@ -8,7 +8,8 @@ every image to have a GPS position and all images one camera.
 
 Images without attitude tags (EXIF GPS only): their headings would be the course over ground, a guess that is
 several degrees off on the lines (GPS noise over a few metres of flight) and tens of degrees off at the turns
-(world 88 at 150 m: 1-13 deg and 44-54 deg; its map's landmarks 4.6 m from their objects). So their
+(world 88 at 150 m: 1-13 deg on the lines, 37-54 deg at the corners of the turns; its map's landmarks 4.0 m
+(median) from their objects, 2.7 m with the orientations from tie points; BENCHMARKS.md). So their
 orientations are solved from the images, as OpenDroneMap and COLMAP do with GPS-only photos: the refinement
 from tie points with the GPS positions as priors (`--refine`), on whenever any image lacks attitude tags
 (`orientations_from_images`); a refinement that fails is an error naming the cause, never poses of guessed
@@ -22,6 +23,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -138,7 +140,7 @@ def run(
     files = OutputFiles([out, cameras_path], "poses-from-exif", identity, inputs=[*sources, telemetry],
                         overwrite=overwrite)
     result = poses_from_images(images, telemetry, mount, pitch_sign, roll_sign, sensor_width_mm, epsg)
-    guessed = orientations_from_images(result, refine)
+    guessed = orientations_from_images(result)
     if refine or guessed:
         stats = _refine(result, images, position_sigma_m, attitude_sigma_deg, refine_method, guessed)
         result.summary["refinement"] = {"method": refine_method, "position_sigma_m": position_sigma_m,
@@ -172,7 +174,7 @@ def map_inputs_from_images(
 
     result = poses_from_images(images, telemetry)
     source = f"EXIF/XMP of {images}" + (f" + {telemetry}" if telemetry else "")
-    guessed = orientations_from_images(result, refine)
+    guessed = orientations_from_images(result)
     if refine or guessed:
         _refine(result, images, position_sigma_m, guessed=guessed)
         source += (f", orientations of the {guessed} images without attitude tags solved from tie points" if guessed
@@ -187,23 +189,24 @@ def _image_paths(images: str | Path, poses: Poses) -> list[Path]:
     return [paths[n] for n in poses.names]
 
 
-def orientations_from_images(result: ExifPoses, refine: bool) -> int:
-    """How many images have no attitude tags (0: none, or `refine` was asked for anyway); when some lack them, says
-    once that their orientations are solved from the images instead of taken from the course over ground."""
+def orientations_from_images(result: ExifPoses) -> int:
+    """How many images have no attitude tags; when some lack them, says once that their orientations are solved
+    from the images (the refinement runs, asked for or not) instead of taken from the course over ground."""
     guessed = int(result.summary.get("images_without_attitude", 0))
     if guessed:
         result.summary["orientations"] = "solved from tie points (GPS positions as priors)"
         log.warning("%d of %d images have no attitude tags: their orientations are solved from the images (tie "
                     "points, the GPS positions as priors; as --refine), not taken from the course over ground",
                     guessed, len(result.poses))
-    return 0 if refine else guessed
+    return guessed
 
 
 def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, attitude_sigma_deg: float = 5.0,
             method: str = "colmap", guessed: int = 0) -> object:
     """Refine `result.poses` in place from tie points between the images (`refine_poses_from_images`); returns the
-    refinement statistics. `guessed`: the refinement was not asked for but is needed, because that many images
-    have no attitude tags; its failure then says so (and points to structure from motion)."""
+    refinement statistics. `guessed`: that many images have no attitude tags, so the refinement must solve their
+    orientations: its failure, or no tie points at all, is an error saying so (and pointing to structure from
+    motion)."""
     from .pose_refinement import RefinementRejected, refine_poses_from_images
 
     try:
@@ -219,7 +222,7 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
     return stats
 
 
-def _unsolved(result: ExifPoses, images: str | Path, guessed: int, why: str) -> None:
+def _unsolved(result: ExifPoses, images: str | Path, guessed: int, why: str) -> NoReturn:
     """The one-line error when the orientations of images without attitude tags cannot come from the images."""
     raise InputError(f"{guessed} of {len(result.poses)} images have no attitude tags and their orientations could "
                      f"not be solved from tie points ({why}); give poses, or take them from structure from motion "
