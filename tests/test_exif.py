@@ -258,6 +258,8 @@ def test_images_without_attitude_whose_orientations_cannot_be_solved_are_an_erro
     assert "3 of 3 images have no attitude tags and their orientations could not be solved from tie points (no " \
            "tie points" in err and "sosmatch poses" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "p" / "poses.csv").exists()
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p" / "poses.csv"), "--refine"]) == 2
+    assert "have no attitude tags and their orientations could not be solved" in capsys.readouterr().err
     assert main(["map", "--images", str(img), "--pose-source", "exif", "--out", str(tmp_path / "s"),
                  "--no-progress"]) == 2
     assert "have no attitude tags and their orientations could not be solved" in capsys.readouterr().err
