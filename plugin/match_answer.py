@@ -57,7 +57,7 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     first_try: tighter association parameters for a first search whose hypotheses are verified with
     `params.association` (module doc); used only with the verification on; None: one search.
     """
-    kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so, once
+    compiling = kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so
     t0 = time.perf_counter()
     prior = "off"
     if params.association.position_prior_m > 0:
@@ -103,4 +103,6 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     else:
         answer = MatchAnswer(res, None, False, None, np.zeros((0, 2), np.int64), "consensus", prior, searched=ap)
     answer.timings = {**clock, "total_s": time.perf_counter() - t0}
+    if compiling:
+        kernel_cache.mark_compiled()
     return answer

@@ -80,7 +80,7 @@ def test_the_association_package_is_stamped() -> None:
 
 def test_a_search_that_must_compile_says_so_once(tmp_path: Path) -> None:
     """An empty cache (a fresh install): one line says the kernels are compiled once, before the first search;
-    a kernel compiled since is no longer counted."""
+    a kernel compiled since is no longer counted; once a search has compiled them, no process says it again."""
     script = textwrap.dedent("""
         import logging, sys
         import numpy as np
@@ -92,6 +92,9 @@ def test_a_search_that_must_compile_says_so_once(tmp_path: Path) -> None:
         sym_csr(3, np.array([0, 1]), np.array([1, 2]), np.array([1.0, 1.0]))
         kernel_cache._announced.clear()
         kernel_cache.announce_compile()
+        kernel_cache.mark_compiled()  # what a search that announced does when it is done
+        kernel_cache._announced.clear()
+        print("after the search:", kernel_cache.announce_compile(), kernel_cache.compiled_for_these_sources())
     """)
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, env=env)
@@ -100,3 +103,5 @@ def test_a_search_that_must_compile_says_so_once(tmp_path: Path) -> None:
     assert total > 20 and len(lines) == 2, out.stdout + out.stderr
     assert f"({total} of {total}, up to ~" in lines[0] and "later runs start at once" in lines[0]
     assert f"({total - 2} of {total}, up to ~" in lines[1]  # sym_csr and the _sym_csr it calls are cached now
+    # kernels that never get an entry of their own (callees, paths of their own) do not repeat the message
+    assert "after the search: False True" in out.stdout

@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 
 def warm_kernels() -> tuple[int, int, float]:
-    """Compile what is not cached yet; returns (kernels missing before, missing after, CPU seconds)."""
+    """Compile the searches' kernels; returns (kernels without a cache entry before, after, CPU seconds)."""
     from ..plugin.association import associate
     from ..plugin.association.synthetic import survey_map_pair
     from ..plugin.match_answer import match_maps
@@ -34,7 +34,7 @@ def warm_kernels() -> tuple[int, int, float]:
 
     before = len(kernel_cache.uncompiled_kernels())
     t0 = time.process_time()
-    if before:
+    if before:  # some kernels never get an entry of their own (`kernel_cache.uncompiled_kernels`)
         pair = survey_map_pair(120, seed=1)
         default = Params()
         prior = dataclasses.replace(default, association=dataclasses.replace(default.association,
@@ -60,8 +60,8 @@ def _wrong_pairs(n_a: int, n_b: int, m: int) -> np.ndarray:
 
 def main() -> int:
     total, missing = len(kernel_cache.kernels()), len(kernel_cache.uncompiled_kernels())
-    if not missing:
-        print(f"sosmatch: the {total} search kernels are compiled already", flush=True)
+    if kernel_cache.compiled_for_these_sources() or not missing:
+        print(f"sosmatch: the search kernels are compiled already ({total - missing} of {total} cached)", flush=True)
         return 0
     print(f"sosmatch: {kernel_cache.compile_message(missing, total)}", flush=True)
     try:
@@ -69,8 +69,10 @@ def main() -> int:
     except Exception as error:  # noqa: BLE001 - an install never fails on this: the first match compiles instead
         print(f"sosmatch: kernels not compiled ahead ({error}); the first match compiles them", file=sys.stderr)
         return 0
+    kernel_cache.mark_compiled()
     print(f"sosmatch: {before - after} kernels compiled in {cpu:.0f} s of CPU"
-          + (f", {after} left for the first search that needs them" if after else ""), flush=True)
+          + (f" ({after} others are compiled into their callers, or on a path of their own)" if after else ""),
+          flush=True)
     return 0
 
 

@@ -10,9 +10,9 @@ differs from the sources' digest, the package's own cache files (`MODULE.*.nbi` 
 these modules and nothing else) are removed before any kernel loads, and the new stamp is written. The check
 runs once per process, under a file lock (pytest-xdist and pool workers import concurrently).
 
-`announce_compile()` says so, once, before a search would compile kernels that have no cache entry (the first
-match after an install: minutes of CPU, for maps that then match in seconds); `tools.warm_kernels` compiles
-them ahead (`make install` runs it).
+`announce_compile()` says so, once, before a search would compile the kernels (the first match after an install
+or a change of their sources: minutes of CPU, for maps that then match in seconds); `tools.warm_kernels`
+compiles them ahead (`make install` runs it). Either writes a marker with the sources' digest when done.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ logger = logging.getLogger(__name__)
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 STAMP_NAME = "sosmatch-kernels.sha1"
+COMPILED_NAME = "sosmatch-kernels.compiled"  # the sources' digest, once the searches' kernels are compiled
 # CPU seconds per kernel compiled: a default match from an empty cache compiled 41 kernels in 61 s of CPU, the
 # position-prior path 2 more in 2.5 s (BENCHMARKS.md, "The new-user sweep"); what the notice's minutes come from
 COMPILE_CPU_S_PER_KERNEL = 1.5
@@ -99,9 +100,10 @@ def kernels() -> dict[str, object]:
 
 
 def uncompiled_kernels() -> list[str]:
-    """The kernels with no entry in numba's on-disk cache yet ("module.name"): the next search compiles them.
-    (An entry serves the argument types it was compiled for; the searches call every kernel with one set.)
-    Empty when numba's cache layout cannot be read (private API): then nothing is announced."""
+    """The kernels with no entry in numba's on-disk cache ("module.name"). Not all of them compile in a search:
+    kernels called only from other kernels are compiled into their callers and never get an entry of their own,
+    and some paths (the parallel graph build, the exhaustive reference) run only when asked for. Empty when
+    numba's cache layout cannot be read (private API)."""
     try:
         return sorted(name for name, kernel in kernels().items()
                       if not Path(kernel._cache._cache_file._index_path).is_file())  # type: ignore[attr-defined]
@@ -118,14 +120,40 @@ def compile_message(missing: int, total: int) -> str:
             "CPU); later runs start at once")
 
 
-def announce_compile() -> None:
-    """Log `compile_message` (once per process) before a search that must compile kernels first."""
+def compiled_for_these_sources(package_dir: Path = PACKAGE_DIR) -> bool:
+    """Whether a search (or `tools.warm_kernels`) has compiled the kernels since their sources last changed: the
+    marker beside the cache holds the sources' digest."""
+    try:
+        return (cache_dir(package_dir) / COMPILED_NAME).read_text().strip() == sources_digest(package_dir)
+    except OSError:
+        return False
+
+
+def mark_compiled(package_dir: Path = PACKAGE_DIR) -> None:
+    """Record that the searches' kernels are compiled for the current sources (never fatal)."""
+    try:
+        directory = cache_dir(package_dir)
+        tmp = directory / f".{COMPILED_NAME}.{os.getpid()}.tmp"
+        tmp.write_text(sources_digest(package_dir) + "\n")
+        os.replace(tmp, directory / COMPILED_NAME)
+    except OSError as error:
+        logger.debug("compiled-kernels marker not written: %s", error)
+
+
+def announce_compile() -> bool:
+    """Log `compile_message` (once per process) before a search that must compile the kernels first: nothing has
+    compiled them since their sources changed. Returns True when it did; the caller then `mark_compiled` after
+    its search, so the next process starts without the message."""
     if _announced:
-        return
+        return False
     _announced.append(True)
+    if compiled_for_these_sources():
+        return False
     missing = uncompiled_kernels()
-    if missing:
-        logger.info("%s (`make install` compiles them ahead)", compile_message(len(missing), len(kernels())))
+    if not missing:
+        return False
+    logger.info("%s (`make install` compiles them ahead)", compile_message(len(missing), len(kernels())))
+    return True
 
 
 def refresh(package_dir: Path = PACKAGE_DIR) -> None:
