@@ -236,7 +236,7 @@ def test_problem_graph_in_blocks_equals_the_edge_list_graph(seed, n_a, n_b, m, g
     several: the cut never shows in the output. Solving from that CSR selects what solving the edge list does."""
     from sosmatch.plugin.association.kernels_graph import DISTANCE, association_graph
     from sosmatch.plugin.association.kernels_problem import problem_graph_parallel, problem_graph_serial
-    from sosmatch.plugin.association.kernels_solve import sym_csr
+    from sosmatch.plugin.association.kernels_solve import csr_data, sym_csr
 
     rng = np.random.default_rng(seed)
     a, b = rng.uniform(0, 8, (n_a, 3)), rng.uniform(0, 8, (n_b, 3))
@@ -244,14 +244,15 @@ def test_problem_graph_in_blocks_equals_the_edge_list_graph(seed, n_a, n_b, m, g
         a, b = np.round(a), np.round(b)
     pairs = np.column_stack([rng.integers(0, n_a, m), rng.integers(0, n_b, m)]).astype(np.int64)
     kernel = problem_graph_parallel if parallel else problem_graph_serial
-    problem, rows, cols, x, indptr, indices, slot = kernel(a, b, pairs, eps, 0.5, blocks)
+    problem, rows, cols, x, indptr, indices, edge0 = kernel(a, b, pairs, eps, 0.5, blocks)
     r0, c0, cs, _, _ = association_graph(a, b, pairs[:, 0].copy(), pairs[:, 1].copy(), DISTANCE, eps, 1.0, 0.0, 0.0,
                                          0.0, 1)
     assert problem == 0 and rows.tolist() == r0.tolist() and cols.tolist() == c0.tolist()
     assert x.tobytes() == (-(cs * cs) / 0.5).tobytes()
     ip, ix, data = sym_csr(m, r0, c0, cs)
     assert indptr.tolist() == ip.tolist() and indices.tolist() == ix.tolist()
-    assert cs[slot].tobytes() == data.tobytes()
+    assert edge0.tolist() == np.searchsorted(r0, np.arange(m + 1)).tolist()  # the edge list's row pointers
+    assert csr_data(indptr, indices, edge0, cs).tobytes() == data.tobytes()
     g = affinity_graph(a, b, pairs, eps=eps, sigma=0.5)
     assert g.csr is not None
     plain = ConsistencyGraph(g.n, g.rows, g.cols, g.values, g.diag)  # no CSR: the solver builds it

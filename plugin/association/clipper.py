@@ -44,8 +44,8 @@ class ConsistencyGraph:
     cols: np.ndarray  # int64 (E,)
     values: np.ndarray  # float64 (E,), in (0, 1]
     diag: np.ndarray  # float64 (n,), weights on the diagonal (1 when unweighted)
-    # the symmetric CSR structure (indptr, indices, edge of each entry) when `affinity_graph` built it with the
-    # edges; `solve` then does not scatter the edge list again
+    # the symmetric CSR structure (indptr, indices) and the edge list's row pointers when `affinity_graph` built it
+    # with the edges; `solve` then does not scatter the edge list again
     csr: tuple | None = field(default=None, compare=False, repr=False)
 
     @property
@@ -98,7 +98,7 @@ def affinity_graph(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray
     """
     pa, pb, pairs = _validate(points_a, points_b, pairs)
     scale_ok = not (eps <= 0 or sigma <= 0)
-    problem, rows, cols, x, indptr, indices, slot = problem_graph(
+    problem, rows, cols, x, indptr, indices, edge0 = problem_graph(
         pa, pb, pairs, float(eps), 2.0 * sigma * sigma if scale_ok else 1.0)
     if problem:
         raise InputError(_PROBLEMS[problem])
@@ -112,7 +112,7 @@ def affinity_graph(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray
         raise InputError(f"eps and sigma must be positive, got eps={eps}, sigma={sigma}")
     # exp(-(c * c) / (2 sigma^2)): the kernel formed the argument operation by operation as numpy did; numpy's exp
     # as before (the same bits)
-    csr = (indptr, indices, slot) if len(indptr) else None
+    csr = (indptr, indices, edge0) if len(indptr) else None
     return ConsistencyGraph(len(pairs), rows, cols, np.exp(x, out=x), w, csr)
 
 
@@ -141,8 +141,8 @@ def solve(graph: ConsistencyGraph, tol_u: float = 1e-6, max_outer: int = 60, max
     if penalty_start not in ("violations", "zero"):
         raise InputError(f"penalty_start must be 'violations' or 'zero', got {penalty_start!r}")
     if graph.csr is not None:
-        indptr, indices, slot = graph.csr
-        sel, score, u, d, steps = solve_graph_csr(indptr, indices, slot, graph.values, graph.diag, SOLVERS[method],
+        indptr, indices, edge0 = graph.csr
+        sel, score, u, d, steps = solve_graph_csr(indptr, indices, edge0, graph.values, graph.diag, SOLVERS[method],
                                                   tol_u, max_outer, max_inner, beta, penalty_start == "violations")
     else:
         sel, score, u, d, steps = solve_graph(graph.n, graph.rows, graph.cols, graph.values, graph.diag,

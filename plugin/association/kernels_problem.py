@@ -53,12 +53,13 @@ def row_blocks(m: int, blocks: int) -> np.ndarray:
 def csr_offsets(ends: np.ndarray, base: np.ndarray, count: np.ndarray, lower: np.ndarray, bounds: np.ndarray) -> tuple:
     """Where each block's edges start in row order (start), the CSR's indptr (a vertex's list: its lower
     neighbours, then its `count` higher ones), where each row's columns are in `found` (src) and the index of its
-    first edge (edge0), and vertex bounds of blocks of about equal numbers of CSR entries (vb). (A function of its
-    own: numba's array analysis of the parallel build got the length of arrays allocated among its loops wrong.)"""
+    first edge (edge0, m + 1 entries: the row pointers of the edge list), and vertex bounds of blocks of about
+    equal numbers of CSR entries (vb). (A function of its own: numba's array analysis of the parallel build got the
+    length of arrays allocated among its loops wrong.)"""
     blocks, m = lower.shape
     start = np.zeros(blocks + 1, np.int64)
     src = np.empty(m, np.int64)
-    edge0 = np.empty(m, np.int64)
+    edge0 = np.empty(m + 1, np.int64)
     for t in range(blocks):
         start[t + 1] = start[t] + ends[t] - base[t]
         k = base[t]
@@ -68,6 +69,7 @@ def csr_offsets(ends: np.ndarray, base: np.ndarray, count: np.ndarray, lower: np
             edge0[p] = e
             k += count[p]
             e += count[p]
+    edge0[m] = start[blocks]
     indptr = np.zeros(m + 1, np.int64)
     for v in range(m):
         d = count[v]
@@ -86,11 +88,11 @@ def csr_offsets(ends: np.ndarray, base: np.ndarray, count: np.ndarray, lower: np
 
 
 @njit(cache=True)
-def fill_csr(v0: int, v1: int, found: np.ndarray, count: np.ndarray, src: np.ndarray, edge0: np.ndarray,
-             indptr: np.ndarray, indices: np.ndarray, slot: np.ndarray) -> None:
-    """The neighbour lists of vertices [v0, v1) (and the edge of each entry): the lower neighbours p < v in row
-    order, read from every earlier row's columns, then v's own columns. Each block of vertices writes only its
-    own lists (blocks of rows scattering into shared lists wrote the same cache lines from both cores)."""
+def fill_csr(v0: int, v1: int, found: np.ndarray, count: np.ndarray, src: np.ndarray, indptr: np.ndarray,
+             indices: np.ndarray) -> None:
+    """The neighbour lists of vertices [v0, v1): the lower neighbours p < v in row order, read from every earlier
+    row's columns, then v's own columns. Each block of vertices writes only its own lists (blocks of rows
+    scattering into shared lists wrote the same cache lines from both cores)."""
     fill = indptr[v0:v1].copy()
     for p in range(v1):
         s0 = src[p]
@@ -99,32 +101,32 @@ def fill_csr(v0: int, v1: int, found: np.ndarray, count: np.ndarray, src: np.nda
             if q >= v0 and q < v1:
                 j = fill[q - v0]
                 indices[j] = p
-                slot[j] = edge0[p] + k
                 fill[q - v0] = j + 1
     for v in range(v0, v1):
         j = indptr[v + 1] - count[v]
         for k in range(count[v]):
             indices[j + k] = found[src[v] + k]
-            slot[j + k] = edge0[v] + k
 
 
 def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float, two_s2: float,
                   blocks: int) -> tuple:
     """The consistency graph of associations `pairs` (m, 2) between points pa and pb: (problem, rows, cols, x,
-    indptr, indices, slot).
+    indptr, indices, edge0).
 
     problem: `check_problem`'s code (nothing else is computed unless it is PROBLEM_NONE). rows < cols, sorted by
     (row, col), as `association_graph` gives them; x = -(c * c) / two_s2 of each edge's length mismatch c (the
     affinity is exp(x), taken by numpy as before: the same bits). indptr, indices (int32): the symmetric CSR of the
     edges, each vertex's neighbours ascending (its lower ones, then its higher ones: `kernels_solve.sym_csr`'s
-    order), slot (int32): the edge of every CSR entry. With more distinct landmarks than the tables hold
-    (`TABLE_MAX`) the CSR is left empty (indptr of length 0) and the solver builds it from the edge list.
+    order); edge0: the row pointers of the edge list (row p's edges are edge0[p]:edge0[p + 1], and they are p's
+    higher neighbours in the CSR: the solver reads their values there and forms the rest only when it needs it).
+    With more distinct landmarks than the tables hold (`TABLE_MAX`) the CSR is left empty (indptr of length 0) and
+    the solver builds it from the edge list.
     """
     empty_i = np.zeros(0, np.int64)
     empty_32 = np.zeros(0, np.int32)
     problem = check_problem(pa, pb, pairs)
     if problem != PROBLEM_NONE:
-        return problem, empty_i, empty_i, np.zeros(0), empty_i, empty_32, empty_32
+        return problem, empty_i, empty_i, np.zeros(0), empty_i, empty_32, empty_i
     m = pairs.shape[0]
     ia = pairs[:, 0].copy()
     ib = pairs[:, 1].copy()
@@ -135,7 +137,7 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
         for e in range(len(x)):
             c = x[e]
             x[e] = -(c * c) / two_s2
-        return problem, rows, cols, x, empty_i, empty_32, empty_32
+        return problem, rows, cols, x, empty_i, empty_32, empty_i
     lena = np.empty((len(ids_a), len(ids_a)))
     lenb = np.empty((len(ids_b), len(ids_b)))
     for t in prange(2):  # the two maps' distance tables side by side
@@ -165,15 +167,14 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
     cols = np.empty(ne, np.int64)
     x = np.empty(ne)
     indices = np.empty(indptr[m], np.int32)
-    slot = np.empty(indptr[m], np.int32)
     # each block writes its rows' edges with the affinity argument, and the neighbour lists of its vertices
     for t in prange(blocks):
         expand_rows(ua, ub, lena, lenb, bounds[t], bounds[t + 1], found, base[t], start[t], count, rows, cols, x)
         for e in range(start[t], start[t + 1]):
             c = x[e]
             x[e] = -(c * c) / two_s2  # numpy's order before: multiply, negate, divide
-        fill_csr(vb[t], vb[t + 1], found, count, src, edge0, indptr, indices, slot)
-    return problem, rows, cols, x, indptr, indices, slot
+        fill_csr(vb[t], vb[t + 1], found, count, src, indptr, indices)
+    return problem, rows, cols, x, indptr, indices, edge0
 
 
 def _named(func: types.FunctionType, name: str) -> types.FunctionType:

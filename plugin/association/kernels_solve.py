@@ -140,6 +140,14 @@ def core_numbers(n: int, indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:
     for a in range(n):
         v = vert[a]
         dv = deg[v]  # final: v is taken at its core number, and only higher-degree neighbours change below
+        if dv >= n - 1 - a:
+            # The n - a vertices left have at most n - 1 - a neighbours among themselves, so a k-core with k > dv
+            # (which holds none of the vertices taken, their core numbers are <= dv) cannot exist: every vertex left
+            # has core number dv (>= dv, as they are taken in order). Typically the true associations' clique,
+            # whose lists (most of the graph's entries) need not be walked.
+            for b in range(a + 1, n):
+                deg[vert[b]] = dv
+            break
         for p in range(indptr[v], indptr[v + 1]):
             u = np.uint32(indices[p])  # unsigned: no negative-index wraparound on the reads below
             du = deg[u]
@@ -408,6 +416,36 @@ def greedy_clique(n: int, indptr: np.ndarray, indices: np.ndarray, weighted_degr
 
 
 @njit(cache=True)
+def top_core_clique(core: np.ndarray) -> np.ndarray:
+    """The vertices of the highest core (ascending) when they are a clique, else an empty array.
+
+    With c the highest core number, the c-core is the set of vertices of core number c, and each has >= c
+    neighbours in it; when it holds exactly c + 1 vertices, each is adjacent to all the others: a clique, and a
+    maximum one (a clique of k vertices lies in the (k - 1)-core, so k <= c + 1). `greedy_clique` then returns
+    exactly this set (it starts in the highest core, takes the other c vertices of that core first, and no vertex
+    outside can join a clique of c + 1: that would make one of c + 2), so it need not run, nor need the weighted
+    degrees that order it be formed. Typical of a CLIPPER problem: the true associations are the highest core."""
+    n = len(core)
+    c = -1
+    k = 0
+    for i in range(n):
+        if core[i] > c:
+            c = core[i]
+            k = 1
+        elif core[i] == c:
+            k += 1
+    if n == 0 or k != c + 1:
+        return np.zeros(0, np.int64)
+    out = np.empty(k, np.int64)
+    j = 0
+    for i in range(n):
+        if core[i] == c:
+            out[j] = i
+            j += 1
+    return out
+
+
+@njit(cache=True)
 def induced(n: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, keep: np.ndarray) -> tuple:
     """CSR of the subgraph induced by `keep`: (vertex ids, indptr, indices, data)."""
     new = np.full(n, -1, np.int64)
@@ -441,18 +479,29 @@ def induced(n: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, k
 
 
 @njit(cache=True)
-def clique_weight(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, diag: np.ndarray,
+def clique_weight(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, edge0: np.ndarray, diag: np.ndarray,
                   sel: np.ndarray) -> float:
     """1_S^T M 1_S of the sorted vertex set `sel`, edges summed in (v, w) order: with sorted neighbour lists (an
-    edge list sorted by (row, col) gives them, see `sym_csr`) the same value whatever else differs."""
+    edge list sorted by (row, col) gives them, see `sym_csr`) the same value whatever else differs.
+
+    data: the CSR's values (edge0 empty), or the edge list's (sorted by (row, col); edge0 its row pointers: v's
+    edges are v's higher neighbours, the last edge0[v + 1] - edge0[v] entries of its ascending list), read there
+    without forming the CSR's values."""
     inside = np.zeros(len(indptr) - 1, np.bool_)
     for v in sel:
         inside[v] = True
     s = 0.0
     for v in sel:
-        for p in range(indptr[v], indptr[v + 1]):
-            if indices[p] > v and inside[indices[p]]:
-                s += data[p]
+        if len(edge0):
+            e = edge0[v]
+            higher = indptr[v + 1] - (edge0[v + 1] - e)
+            for k in range(indptr[v + 1] - higher):
+                if inside[indices[higher + k]]:
+                    s += data[e + k]
+        else:
+            for p in range(indptr[v], indptr[v + 1]):
+                if indices[p] > v and inside[indices[p]]:
+                    s += data[p]
     t = 0.0
     for v in sel:
         t += diag[v]
@@ -477,61 +526,87 @@ def solve_graph(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, di
     if n == 0:
         return np.zeros(0, np.int64), 0.0, np.zeros(0), 0.0, 0
     indptr, indices, data, wdeg = sym_csr_weighted(n, rows, cols, vals, diag)
-    return solve_csr(n, indptr, indices, data, wdeg, diag, method, tol_u, max_outer, max_inner, beta,
-                     d0_from_violations)
+    return solve_csr(n, indptr, indices, data, np.zeros(0, np.int64), wdeg, diag, method, tol_u, max_outer,
+                     max_inner, beta, d0_from_violations)
 
 
 @njit(cache=True)
-def csr_values(indptr: np.ndarray, slot: np.ndarray, vals: np.ndarray, diag: np.ndarray) -> tuple:
-    """The CSR's affinities (vals of each entry's edge `slot`) and the weighted degrees diag[i] + i's affinities,
-    summed in i's neighbour-list order (`sym_csr_weighted`'s bits)."""
+def csr_data(indptr: np.ndarray, indices: np.ndarray, edge0: np.ndarray, vals: np.ndarray) -> np.ndarray:
+    """The values `vals` of an edge list sorted by (row, col) (row p's edges vals[edge0[p]:edge0[p + 1]], p's
+    higher neighbours) in the order of the CSR's entries: each vertex's lower entries, filled in row order, then its
+    higher ones."""
     n = len(indptr) - 1
-    data = np.empty(len(slot))
+    data = np.empty(indptr[n])
+    fill = indptr[:-1].copy()
+    for p in range(n):
+        e = edge0[p]
+        higher = indptr[p + 1] - (edge0[p + 1] - e)
+        for k in range(edge0[p + 1] - e):
+            v = vals[e + k]
+            data[higher + k] = v
+            q = indices[higher + k]
+            data[fill[q]] = v
+            fill[q] += 1
+    return data
+
+
+@njit(cache=True)
+def weighted_degrees(indptr: np.ndarray, data: np.ndarray, diag: np.ndarray) -> np.ndarray:
+    """diag[i] + the affinities of i's entries, summed in i's neighbour-list order (`sym_csr_weighted`'s bits)."""
+    n = len(indptr) - 1
     wdeg = np.empty(n)
     for i in range(n):
         w = diag[i]
         for k in range(indptr[i], indptr[i + 1]):
-            v = vals[slot[k]]
-            data[k] = v
-            w += v
+            w += data[k]
         wdeg[i] = w
-    return data, wdeg
+    return wdeg
 
 
 @njit(cache=True)
-def solve_graph_csr(indptr: np.ndarray, indices: np.ndarray, slot: np.ndarray, vals: np.ndarray, diag: np.ndarray,
+def solve_graph_csr(indptr: np.ndarray, indices: np.ndarray, edge0: np.ndarray, vals: np.ndarray, diag: np.ndarray,
                     method: int, tol_u: float, max_outer: int, max_inner: int, beta: float,
                     d0_from_violations: bool) -> tuple:
-    """`solve_graph` of a graph whose symmetric CSR structure is given (`kernels_problem.problem_graph`): slot is
-    the edge (index into vals) of every entry."""
+    """`solve_graph` of a graph whose symmetric CSR structure is given (`kernels_problem.problem_graph`): vals the
+    values of the edge list (sorted by (row, col)), edge0 its row pointers; the lists are ascending."""
     n = len(indptr) - 1
     if n == 0:
         return np.zeros(0, np.int64), 0.0, np.zeros(0), 0.0, 0
-    data, wdeg = csr_values(indptr, slot, vals, diag)
-    return solve_csr(n, indptr, indices, data, wdeg, diag, method, tol_u, max_outer, max_inner, beta,
+    return solve_csr(n, indptr, indices, vals, edge0, np.zeros(0), diag, method, tol_u, max_outer, max_inner, beta,
                      d0_from_violations)
 
 
 @njit(cache=True)
-def solve_csr(n: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, wdeg: np.ndarray, diag: np.ndarray,
-              method: int, tol_u: float, max_outer: int, max_inner: int, beta: float,
+def solve_csr(n: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, edge0: np.ndarray, wdeg: np.ndarray,
+              diag: np.ndarray, method: int, tol_u: float, max_outer: int, max_inner: int, beta: float,
               d0_from_violations: bool) -> tuple:
-    """`solve_graph` from the symmetric CSR (neighbour lists ascending) and the weighted degrees."""
+    """`solve_graph` from the symmetric CSR and the weighted degrees. data: the CSR's values (edge0 empty), or an
+    edge list's with edge0 its row pointers (`clique_weight`; the CSR's values are then formed, and the weighted
+    degrees (wdeg empty) from them, only where a path reads them: not when the highest core is the clique)."""
     if len(indices) == n * (n - 1):
         # complete graph (common for a window pair's core): the positive M has a positive Perron vector, the
         # support is everything, consistent at d = 0, and rounding keeps all of it
         sel = np.arange(n)
-        return sel, clique_weight(indptr, indices, data, diag, sel) / n, np.full(n, 1.0 / np.sqrt(n)), 0.0, 0
+        return sel, clique_weight(indptr, indices, data, edge0, diag, sel) / n, np.full(n, 1.0 / np.sqrt(n)), 0.0, 0
     if method == CLIPPER:
+        if len(edge0):
+            data = csr_data(indptr, indices, edge0, data)
         u, d, steps = clipper_relax(n, indptr, indices, data, diag, tol_u, max_outer, max_inner, beta,
                                     d0_from_violations)
         sel = greedy_round(n, indptr, indices, u)
-        return sel, clique_weight(indptr, indices, data, diag, sel) / len(sel), u, d, steps
+        return sel, clique_weight(indptr, indices, data, np.zeros(0, np.int64), diag, sel) / len(sel), u, d, steps
     core = core_numbers(n, indptr, indices)
-    best = greedy_clique(n, indptr, indices, wdeg, core, 64)
+    best = top_core_clique(core)
+    if len(best) == 0:
+        if len(edge0):  # every path from here reads the CSR's values
+            data = csr_data(indptr, indices, edge0, data)
+            edge0 = np.zeros(0, np.int64)
+        if len(wdeg) == 0:
+            wdeg = weighted_degrees(indptr, data, diag)
+        best = greedy_clique(n, indptr, indices, wdeg, core, 64)
     s = len(best)
-    wb = clique_weight(indptr, indices, data, diag, best)
-    keep = core >= s
+    wb = clique_weight(indptr, indices, data, edge0, diag, best)
+    keep = core >= s  # empty when the highest core is the clique (`top_core_clique`)
     u = np.zeros(n)
     if not keep.any():
         for v in best:
@@ -542,7 +617,7 @@ def solve_csr(n: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray,
                                     d0_from_violations)
     sel = ids[greedy_round(len(ids), ip, ix, u_sub)]
     u[ids] = u_sub
-    ws = clique_weight(indptr, indices, data, diag, sel)
+    ws = clique_weight(indptr, indices, data, np.zeros(0, np.int64), diag, sel)
     if len(sel) > s or (len(sel) == s and ws > wb):
         return sel, ws / len(sel), u, d, steps
     return best, wb / s, u, d, steps

@@ -1,0 +1,88 @@
+"""The solver's shortcuts are exact: core numbers (with the early exit once the vertices left cannot hold a higher
+core), the highest core taken as the clique when it is one (instead of the greedy clique), and the values of the
+edge list read through its row pointers (the clique weight, the CSR's values and weighted degrees formed from
+them)."""
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from sosmatch.plugin.association import max_clique_exact
+from sosmatch.plugin.association.clipper import ConsistencyGraph
+from sosmatch.plugin.association.kernels_solve import (
+    clique_weight,
+    core_numbers,
+    csr_data,
+    greedy_clique,
+    sym_csr_weighted,
+    top_core_clique,
+    weighted_degrees,
+)
+
+
+def random_graph(seed: int, n: int, density: float, clique: int) -> tuple:
+    """Edges (rows < cols, sorted by (row, col)) of a random graph with a clique planted on random vertices."""
+    rng = np.random.default_rng(seed)
+    adj = np.triu(rng.random((n, n)) < density, 1)
+    members = rng.choice(n, min(clique, n), replace=False)
+    adj[np.ix_(members, members)] = True
+    adj = np.triu(adj, 1)
+    r, c = np.nonzero(adj)
+    return r.astype(np.int64), c.astype(np.int64), rng.random(len(r)), rng.uniform(0.5, 2.0, n)
+
+
+def peeled_core_numbers(n: int, rows: np.ndarray, cols: np.ndarray) -> list:
+    """Core numbers by their definition: repeatedly remove a vertex of least degree; its core number is the
+    largest least degree seen so far."""
+    nbr = [set() for _ in range(n)]
+    for r, c in zip(rows.tolist(), cols.tolist()):
+        nbr[r].add(c)
+        nbr[c].add(r)
+    alive = set(range(n))
+    core = [0] * n
+    level = 0
+    while alive:
+        v = min(alive, key=lambda x: (len(nbr[x] & alive), x))
+        level = max(level, len(nbr[v] & alive))
+        core[v] = level
+        alive.remove(v)
+    return core
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 40), density=st.floats(0.0, 1.0),
+       clique=st.integers(0, 40))
+def test_core_numbers_and_the_top_core_clique(seed, n, density, clique):
+    rows, cols, vals, diag = random_graph(seed, n, density, clique)
+    indptr, indices, data, wdeg = sym_csr_weighted(n, rows, cols, vals, diag)
+    core = core_numbers(n, indptr, indices)
+    assert core.tolist() == peeled_core_numbers(n, rows, cols)
+    top = top_core_clique(core)
+    greedy = greedy_clique(n, indptr, indices, wdeg, core, 64)
+    if len(top):
+        # the shortcut's answer is the greedy clique's, and a maximum clique
+        assert top.tolist() == greedy.tolist()
+        g = ConsistencyGraph(n, rows, cols, vals, diag)
+        assert len(top) == len(max_clique_exact(g))
+    else:
+        assert (core == core.max()).sum() != core.max() + 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(0, 40), density=st.floats(0.0, 1.0), clique=st.integers(0, 20))
+def test_values_through_the_edge_lists_row_pointers(seed, n, density, clique):
+    """From a sorted edge list and its row pointers: the CSR's values (`csr_data`), the weighted degrees and the
+    clique weight (read in the edge list) have the bits of those of the CSR with its values (`sym_csr_weighted`)."""
+    if n:
+        rows, cols, vals, diag = random_graph(seed, n, density, clique)
+    else:
+        rows, cols, vals, diag = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    indptr, indices, data, wdeg = sym_csr_weighted(n, rows, cols, vals, diag)
+    edge0 = np.searchsorted(rows, np.arange(n + 1))
+    assert csr_data(indptr, indices, edge0, vals).tobytes() == data.tobytes()
+    assert weighted_degrees(indptr, data, diag).tobytes() == wdeg.tobytes()
+    rng = np.random.default_rng(seed)
+    none = np.zeros(0, np.int64)
+    for sel in (np.arange(n), np.sort(rng.choice(n, n // 2, replace=False)) if n else none):
+        assert clique_weight(indptr, indices, vals, edge0, diag, sel) == clique_weight(indptr, indices, data, none,
+                                                                                         diag, sel)
