@@ -337,7 +337,7 @@ def graph_from_tables(la: np.ndarray, lb: np.ndarray, ta: np.ndarray, tb: np.nda
     ua = la.astype(np.uint32)
     ub = lb.astype(np.uint32)
     count = np.empty(m, np.int64)
-    found, ne = sweep_rows(ua, ub, ta[0], tb[0], eps, 0, m, np.empty(cap, np.int32), 0, count)
+    found, ne = sweep_rows(ua, ub, ta[0], tb[0], eps, 0, m, np.empty(cap, np.int32), 0, count, np.zeros(0, np.int64))
     rows = np.empty(ne, np.int64)
     cols = np.empty(ne, np.int64)
     cs = np.empty(ne)

@@ -96,12 +96,23 @@ def fill_csr(v0: int, v1: int, found: np.ndarray, count: np.ndarray, src: np.nda
     fill = indptr[v0:v1].copy()
     for p in range(v1):
         s0 = src[p]
-        for k in range(count[p]):
+        # row p's columns are ascending: those in [v0, v1) are one run, entered by a binary search (a block of
+        # vertices reads only its own entries)
+        lo = 0
+        hi = count[p]
+        while lo < hi and v0 > p + 1:
+            mid = (lo + hi) >> 1
+            if found[s0 + mid] < v0:
+                lo = mid + 1
+            else:
+                hi = mid
+        for k in range(lo, count[p]):
             q = found[s0 + k]
-            if q >= v0 and q < v1:
-                j = fill[q - v0]
-                indices[j] = p
-                fill[q - v0] = j + 1
+            if q >= v1:
+                break
+            j = fill[q - v0]
+            indices[j] = p
+            fill[q - v0] = j + 1
     for v in range(v0, v1):
         j = indptr[v + 1] - count[v]
         for k in range(count[v]):
@@ -156,11 +167,8 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
     # how many lower neighbours each vertex has in each block (block t's rows are lower than the later blocks')
     lower = np.zeros((blocks, m), np.int64)
     for t in prange(blocks):
-        _, end = sweep_rows(ua, ub, lena, lenb, eps, bounds[t], bounds[t + 1], found, base[t], count)
+        _, end = sweep_rows(ua, ub, lena, lenb, eps, bounds[t], bounds[t + 1], found, base[t], count, lower[t])
         ends[t] = end
-        low = lower[t]
-        for k in range(base[t], end):
-            low[found[k]] += 1
     start, indptr, src, edge0, vb = csr_offsets(ends, base, count, lower, bounds)
     ne = start[blocks]
     rows = np.empty(ne, np.int64)
@@ -193,6 +201,7 @@ problem_graph_parallel = njit(cache=True, parallel=True)(_named(_problem_graph, 
 PARALLEL_MIN = 256  # from this many associations on, one block of rows per thread when a core is free
 _lock = threading.Lock()
 _free: list = [-1.0, False]  # when the load was last read (monotonic s), and whether a core was free then
+_threads: list = [-1.0, 1]  # when numba's thread count was last read, and the count
 _pid = os.getpid()
 calls = [0, 0]  # problems of >= PARALLEL_MIN associations done in one thread, and on every thread (benchmarks)
 
@@ -211,6 +220,16 @@ def _others_running() -> int:
             continue
         own += stat[stat.rindex(b")") + 2: stat.rindex(b")") + 3] == b"R"
     return running - own
+
+
+def _thread_count() -> int:
+    """numba.get_num_threads(), read at most every 0.25 s: a call costs ~1 us, 1 % of a problem of 256
+    associations. (numba's count is per thread; a count read in another thread changes only how many blocks of
+    rows are formed, never the output.)"""
+    now = time.monotonic()
+    if now - _threads[0] > 0.25:
+        _threads[:] = [now, numba.get_num_threads()]
+    return _threads[1]
 
 
 def _core_free(threads: int) -> bool:
@@ -236,7 +255,7 @@ def problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float,
     be entered by two threads; a concurrent caller takes the serial build), and none in a forked child (GNU
     OpenMP cannot run in a child of a process that used it).
     """
-    threads = numba.get_num_threads()
+    threads = _thread_count()
     if len(pairs) >= PARALLEL_MIN and threads > 1 and os.getpid() == _pid and _core_free(threads) and \
             _lock.acquire(blocking=False):
         try:

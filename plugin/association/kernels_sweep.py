@@ -24,10 +24,13 @@ def grow(x: np.ndarray, cap: int) -> np.ndarray:
 
 @njit(cache=True)
 def sweep_rows(ua: np.ndarray, ub: np.ndarray, lena: np.ndarray, lenb: np.ndarray, eps: float, r0: int, r1: int,
-               found: np.ndarray, ne: int, count: np.ndarray) -> tuple:
+               found: np.ndarray, ne: int, count: np.ndarray, lower: np.ndarray) -> tuple:
     """The tests of rows [r0, r1) against every later column: the columns that pass, row by row ascending, are
     written to `found` from position `ne` on and count[p] is set to row p's number. `found` grows (a copy) only
     when it has no room for the pairs of the next four rows. Returns (found, end position).
+
+    lower (empty, or m entries): lower[q] counts the rows that found column q (q's lower neighbours: the CSR's
+    row lengths), counted where each column is appended.
 
     ua, ub: each association's row in lena, lenb (unsigned: numba then skips the negative-index wraparound on
     every table read). The tests store one column each without a branch (few pass). Four rows at a time: each
@@ -48,6 +51,9 @@ def sweep_rows(ua: np.ndarray, ub: np.ndarray, lena: np.ndarray, lenb: np.ndarra
             for q in range(p + 1, m):
                 found[ne + n0] = q
                 n0 += abs(ra[ua[q]] - rb[ub[q]]) <= eps
+            if len(lower):
+                for k in range(ne, ne + n0):
+                    lower[found[k]] += 1
             ne += n0
             count[p] = n0
             p += 1
@@ -84,6 +90,9 @@ def sweep_rows(ua: np.ndarray, ub: np.ndarray, lena: np.ndarray, lenb: np.ndarra
             row = buf[r]
             for k in range(nrow[r]):
                 found[ne + k] = row[k]
+            if len(lower):
+                for k in range(nrow[r]):
+                    lower[row[k]] += 1
             ne += nrow[r]
             count[p + r] = nrow[r]
         p += 4
