@@ -134,7 +134,9 @@ def solve(graph: ConsistencyGraph, tol_u: float = 1e-6, max_outer: int = 60, max
     method "bounded" (default): a clique bound first. A clique of more than s associations lies in the
     s-core of the graph; a greedy clique grown from the highest cores gives s, and when no association has core
     number >= s the greedy clique is a maximum clique and is returned; otherwise CLIPPER runs on the s-core
-    only and the larger set wins. Same kind of answer, far less work when one consistent set stands out.
+    only and the larger set wins. Same kind of answer, far less work when one consistent set stands out. When the
+    highest core is itself a clique (c + 1 associations of core number c, as the true ones of a CLIPPER problem
+    are), it is that greedy clique and a maximum one, and the greedy walk is not run.
     """
     if method not in SOLVERS:
         raise InputError(f"unknown solver {method!r} (known: {', '.join(SOLVERS)})")
