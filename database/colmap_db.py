@@ -73,6 +73,7 @@ def keypoint_sizes_px(keypoints: np.ndarray) -> np.ndarray | None:
 
 
 SQLITE_MAGIC = b"SQLite format 3\x00"
+MAX_IMAGE_ID = 2147483647  # COLMAP's pair ids: image_id1 * MAX_IMAGE_ID + image_id2
 
 
 class DatabaseReader:
@@ -106,6 +107,23 @@ class DatabaseReader:
             raise InputError(f"keypoints of image {image_id}: a blob of {rows} x {cols} float32 expected",
                              self.path)
         return np.frombuffer(data, dtype="<f4").reshape(rows, cols).copy()
+
+    def matches(self) -> list[tuple[int, int, np.ndarray]]:
+        """Every image pair's raw matches: (image id 1, image id 2, (M, 2) uint32 keypoint indices), pairs without
+        matches left out. COLMAP stores a pair once, as pair_id = id1 * 2147483647 + id2 with id1 < id2."""
+        try:
+            rows = self.con.execute("SELECT pair_id, rows, cols, data FROM matches").fetchall()
+        except sqlite3.Error as exc:
+            raise InputError(f"cannot read the matches of the COLMAP database: {exc}", self.path) from None
+        out = []
+        for pair_id, n, cols, data in rows:
+            if not n:
+                continue
+            if not isinstance(data, bytes) or cols != 2 or len(data) != 8 * n:
+                raise InputError(f"matches of pair {pair_id}: a blob of {n} x 2 uint32 expected", self.path)
+            id1, id2 = divmod(int(pair_id), MAX_IMAGE_ID)
+            out.append((id1, id2, np.frombuffer(data, dtype="<u4").reshape(n, 2).copy()))
+        return out
 
     def close(self) -> None:
         self.con.close()
@@ -176,27 +194,16 @@ def read_segment_detections(path: str | Path, names: Sequence[str]) -> list[Keyf
 def read_keyframe_matches(path: str | Path, names: Sequence[str]) -> list[tuple[int, int, np.ndarray]]:
     """The matched keypoint pairs of a session's database.db between the images `names` (the tracks the map
     wrote there, `write_colmap_database`): (index a, index b into names, (M, 2) keypoint indices). Pairs with an
-    image outside `names` are left out; an unreadable database is an InputError."""
-    import pycolmap
-
-    path = Path(path)
-    db = open_colmap_database(path)
+    image outside `names` are left out; an unreadable database is an InputError. Read-only, as every reader here
+    (`DatabaseReader`)."""
+    db = open_colmap_database(Path(path))
     try:
-        try:
-            order = {name: k for k, name in enumerate(names)}
-            index = {img.image_id: order[img.name] for img in db.read_all_images() if img.name in order}
-            pair_ids, matches = db.read_all_matches()
-        except Exception as exc:
-            raise InputError(f"cannot read the matches of the COLMAP database: {exc}".splitlines()[0], path) \
-                from None
+        order = {name: k for k, name in enumerate(names)}
+        index = {iid: order[name] for name, iid in db.image_ids().items() if name in order}
+        pairs = db.matches()
     finally:
         db.close()
-    out = []
-    for pid, m in zip(pair_ids, matches):
-        i1, i2 = pycolmap.pair_id_to_image_pair(pid)
-        if i1 in index and i2 in index and len(m):
-            out.append((index[i1], index[i2], np.asarray(m, dtype=np.int64).reshape(-1, 2)))
-    return out
+    return [(index[i1], index[i2], m.astype(np.int64)) for i1, i2, m in pairs if i1 in index and i2 in index]
 
 
 def track_associations(

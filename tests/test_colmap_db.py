@@ -175,3 +175,32 @@ def test_reading_a_database_leaves_it_byte_identical(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["database.db"]  # no -wal / -shm of a WAL-mode reader left
     for det, kp in zip(dets, kps[::-1]):
         assert np.allclose(det.centroids, kp[:, :2]) and np.allclose(det.sizes_px, 3.0, rtol=1e-5)
+
+
+def test_the_matches_are_read_read_only_as_written(tmp_path):
+    """`changes` reads the tracks behind a session's database (objects never mapped) from its matches: the
+    read-only reader had no matches (the call went to a pycolmap method it lacks, so every `changes` run on a
+    mapped session failed); the pairs and keypoint indices are the ones written, in the caller's image order,
+    and the file is left as it was."""
+    import hashlib
+
+    from sosmatch.database.colmap_db import read_keyframe_matches
+
+    cam, poses, _, cents, tids = nadir_scene()
+    kps = [affine_keypoints(c, np.repeat(np.diag([9.0, 4.0])[None], len(c), 0)) for c in cents]
+    path = tmp_path / "database.db"
+    pairs = track_associations(tids, "all", min_observations=3)
+    write_colmap_database(path, cam, poses.names, kps, pairs)
+    before = hashlib.sha256(path.read_bytes()).hexdigest()
+    names = poses.names[::-1]  # the caller's order: index k is names[k]
+    got = {(a, b): m for a, b, m in read_keyframe_matches(path, names)}
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == before
+    n = len(names)
+    want = {(n - 1 - a, n - 1 - b): m for (a, b), m in pairs.items() if len(m)}
+    assert len(got) == len(want) > 0
+    for (a, b), m in want.items():
+        # COLMAP stores each pair once, ordered by image id; reversed names swap the columns' roles
+        g = got[(a, b)] if (a, b) in got else got[(b, a)][:, ::-1]
+        assert {tuple(r) for r in g.tolist()} == {tuple(r) for r in m.tolist()}
+    some = read_keyframe_matches(path, names[:3])  # pairs with an image outside the names are left out
+    assert some and all(max(a, b) < 3 for a, b, _ in some)
