@@ -5,7 +5,7 @@ changes.csv columns (CHANGE_COLUMNS): `class` (kept / gone / new / unseen), `ses
 landmark's index in its own map), `x, y, z` (in A's frame), `size_m`, `confidence`, `counterpart` (index in the
 other map of the landmark that matched it, -1 none), `counterpart_distance_m`, `size_change_m` (counterpart's
 size minus this one's), `views` (keyframes of the other session that should have seen it), `evidence`
-(landmark, nested, part, segments, none, views, confidence: see `sosmatch.plugin.changes`),
+(landmark, nested, part, segments, none, views, confidence, height: `sosmatch.plugin.changes.EVIDENCE`),
 `height_above_ground_m` and `source` (`landmark`, or `track`: an object the session saw but never mapped, from its
 track pieces, `sosmatch.plugin.changes.unmapped`; its `index` counts those objects of its session). Rows: A's
 landmarks in order, then B's, then A's and B's objects never mapped. Empty cells are unknown values.
@@ -21,14 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..plugin.changes import CLASSES, ChangeResult, LandmarkChanges
+from ..plugin.changes import CLASSES, EVIDENCE, ChangeResult, LandmarkChanges
 from ..plugin.errors import InputError
 from .geojson import to_wgs84
 from .text_input import read_user_text
 
 CHANGE_COLUMNS = ["class", "session", "index", "x", "y", "z", "size_m", "confidence", "counterpart",
                   "counterpart_distance_m", "size_change_m", "views", "evidence", "height_above_ground_m", "source"]
-EVIDENCE = ("landmark", "nested", "part", "segments", "none", "views", "confidence")
 CHANGE_DTYPE = np.dtype([
     ("class", "U6"), ("session", "U1"), ("index", "<i8"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
     ("size_m", "<f8"), ("confidence", "<f8"), ("counterpart", "<i8"), ("counterpart_distance_m", "<f8"),

@@ -412,6 +412,14 @@ class ChangeParams(Checked):
     # the centroid noise (px) behind such a point's position uncertainty (the map's triangulation.pixel_sigma_px):
     # its place must be known to within the counterpart gate at 2 sigma to ask the other session what is there
     unmapped_pixel_sigma_px: float = positive(3.0)
+    # A landmark (or an object never mapped) lower than the ground by more than this many robust standard
+    # deviations of its own map's heights above the ground (1.4826 x their median absolute deviation, about 2 m
+    # on drone maps) is a wrong triangulation (two patches linked into one track): no object lies under the
+    # ground its session looked at, and its place is wrong with its height (a ground patch triangulated 33 m
+    # deep fell inside the other session's images, 3.4 m outside its footprint). It is compared with nothing
+    # (unseen, evidence 'height'). The development maps' object landmarks lie at most 2.3-7 m below the ground
+    # field (1 %), wrong triangulations down to 40 m.
+    max_depth_sigmas: float = positive(4.0)
 
 
 @dataclass(frozen=True)

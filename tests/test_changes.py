@@ -213,16 +213,35 @@ def test_presence_rate_follows_the_references_of_similar_size():
     assert rate[0] < rate[2] < rate[1] and abs(rate[3] - 0.6) < 0.02  # unknown size: the pooled rate
 
 
-def test_dispersion_measures_how_many_views_are_one_look():
-    from sosmatch.plugin.changes import dispersion
+def test_the_dispersion_grows_with_the_views_as_correlated_looks_do():
+    """Hits of n correlated views (beta-binomial, intra-class correlation rho) vary by 1 + (n - 1) rho times a
+    binomial's: the correlation measured on references seen 40 times predicts the Pearson dispersion of places
+    seen 8 times, which one factor for every count (the references' own, about 1 + 39 rho) overstated 3-4
+    times, so a place seen in 8 views with no hit could never say absent."""
+    from sosmatch.plugin.changes import absence_log_ratio, dispersion, view_correlation
 
     rng = np.random.default_rng(0)
-    p = rng.uniform(0.3, 0.9, 400)
-    independent = rng.binomial(30, p)
-    assert 0.99 <= dispersion(independent, np.full(400, 30), p) < 1.3
-    looks = 4 * rng.binomial(8, p)  # every look repeated in 4 neighbouring keyframes
-    assert 3.0 < dispersion(looks, np.full(400, 32), p) < 5.5
-    assert dispersion(np.array([1]), np.array([5]), np.array([0.5])) == 1.0  # too few to tell: no correction
+    rho = 0.15
+
+    def draw(n, m):
+        p = rng.uniform(0.5, 0.9, m)
+        q = rng.beta(p * (1 - rho) / rho, (1 - p) * (1 - rho) / rho)
+        return rng.binomial(n, q), p
+
+    ref_hits, ref_p = draw(40, 4000)
+    est = view_correlation(ref_hits, np.full(4000, 40), ref_p)
+    assert abs(est - rho) < 0.02
+    few_hits, few_p = draw(8, 4000)
+    pearson = np.mean((few_hits - 8 * few_p) ** 2 / (8 * few_p * (1 - few_p)))
+    assert abs(dispersion(np.array([8]), est)[0] - pearson) < 0.15 * pearson
+    assert dispersion(np.array([8]), est)[0] < 0.4 * dispersion(np.array([40]), est)[0]
+    # independent views: no correction; too few counts to tell: none either
+    assert view_correlation(rng.binomial(30, ref_p[:400]), np.full(400, 30), ref_p[:400]) < 0.01
+    assert view_correlation(np.array([1]), np.array([5]), np.array([0.5])) == 0.0
+    # a place seen 8 times, never shown, where objects show in 3 of 4 views: absent at odds above 4:1
+    llr = absence_log_ratio(np.array([0]), np.array([8]), np.array([0.05]), np.array([0.75]),
+                            dispersion(np.array([8]), est))
+    assert llr[0] > np.log(4.0)
 
 
 def test_absence_log_ratio_weighs_hits_against_presence_and_chance():
@@ -407,3 +426,33 @@ def test_the_two_directions_are_judged_alike(pair):
     assert np.array_equal(ab.a.evidence, ba.b.evidence) and np.array_equal(ab.b.evidence, ba.a.evidence)
     assert ab.a.count(GONE) >= 3 and ab.b.count(NEW) >= 3
     assert np.allclose(ab.a.confidence, ba.b.confidence, atol=0.05)
+
+
+def test_a_landmark_below_the_ground_is_compared_with_nothing(pair):
+    """A ground patch triangulated tens of metres deep (two patches linked into one track) lies under the
+    ground its session looked at: its place is as wrong as its height, and it fell inside the other session's
+    images though it lay outside its footprint. It is never a change, whatever the other session shows; a
+    landmark at the ground's usual scatter is judged as before."""
+    from sosmatch.plugin.changes import BELOW_GROUND, below_the_ground
+
+    positions, sizes, present_a, present_b, a, ids_a, b, ids_b, a_from_b = pair
+    params = ChangeParams(min_confidence=0.0)
+    res = detect_changes(a, b, a_from_b, params, 2.0)
+    gone = np.flatnonzero(res.a.label == GONE)
+    kept = np.flatnonzero(res.a.label == KEPT)
+    assert len(gone) >= 2 and len(kept) >= 2
+    deep, shallow = gone[0], gone[1]
+    moved = a.positions.copy()
+    moved[deep, 2] -= 30.0  # 30 m under the ground
+    moved[kept[0], 2] -= 30.0  # a kept one too: deep is wrong, not absent
+    moved[shallow, 2] -= 0.5  # within the ground's scatter
+    a2 = SessionObservations(moved, a.sizes, a.poses, CAM, a.segments, a.support)
+    again = detect_changes(a2, b, a_from_b, params, 2.0)
+    assert again.a.label[deep] == UNSEEN and again.a.evidence[deep] == BELOW_GROUND
+    assert again.a.label[kept[0]] == UNSEEN and again.a.evidence[kept[0]] == BELOW_GROUND
+    assert again.a.label[shallow] == GONE
+    others = np.setdiff1d(np.arange(len(moved)), [deep, kept[0], shallow])
+    assert np.mean(again.a.label[others] == res.a.label[others]) > 0.97
+    # the scale is the map's own: heights of 2 m scatter put -30 m far out, -3 m within
+    h = np.random.default_rng(1).normal(0.0, 2.0, 500)
+    assert below_the_ground(np.array([-30.0, -3.0, np.nan]), h, 4.0).tolist() == [True, False, False]

@@ -32,8 +32,9 @@ that should have seen the landmark, a hit is a size-compatible segment at the pr
 the object is absent, hits come at the local chance rate (probes around it); if present, at the rate at which
 the other session's segments show objects of this size that both maps have (`presence_rate`, measured on this
 pair's landmarks with a counterpart, so it calibrates itself per pair, season and segmenter). The
-log-likelihood ratio of the two binomials is divided by the dispersion of the references' hit counts
-(`dispersion`: neighbouring keyframes see an object alike, so n views are fewer independent looks) and turned
+log-likelihood ratio of the two binomials is divided by the dispersion of a count of n views, 1 + (n - 1) rho
+(`dispersion`; rho the views' intra-class correlation measured on the references' hits, `view_correlation`:
+neighbouring keyframes see an object alike, so n views are fewer independent looks) and turned
 into a probability at prior odds 1. A claim below `min_confidence` (0.8 by default) is reported as unseen: the
 other session's images do not say that the object went. Without the other session's database (no segments)
 the confidence falls back to the pair's re-observation rate of landmarks like this one (`confidence`: logistic
@@ -41,7 +42,9 @@ in log size, log views, height above ground and support, fitted on the compared 
 
 The ground under the landmarks (for heights above ground and the keyframes' ground footprints) is a coarse
 height field of a low quantile of the nearby landmarks' heights (`ground_height_field`): most landmarks of a
-survey are ground texture, and objects only stand above it.
+survey are ground texture, and objects only stand above it. A landmark lower than it by more than
+`max_depth_sigmas` robust standard deviations of its map's heights is a wrong triangulation and is compared with
+nothing (`below_the_ground`; unseen, evidence `height`).
 
 Modules: `observations` (what a session saw), `evidence` (what the other session shows at a place, and how
 often it shows present objects), `confidence` (the re-observation model, the fallback without segments),
@@ -59,11 +62,13 @@ from .evidence import (
     presence_rate,
     segment_evidence,
     segment_hits,
+    view_correlation,
 )
 from .observations import (
     FOOTPRINT_MARGIN,
     KeyframeSegments,
     SessionObservations,
+    below_the_ground,
     ground_height_field,
     in_view,
     observed_area,
@@ -71,11 +76,13 @@ from .observations import (
 from .support import CONTROL_SHIFT, AlignmentSupport, alignment_support
 from .unmapped import UnmappedObjects, no_unmapped_objects, tracks_from_matches, unmapped_objects
 from .verdict import (
+    BELOW_GROUND,
     BY_LANDMARK,
     BY_NESTING,
     BY_PART,
     BY_SEGMENTS,
     CLASSES,
+    EVIDENCE,
     GONE,
     KEPT,
     LOW_CONFIDENCE,
@@ -88,10 +95,11 @@ from .verdict import (
     detect_changes,
 )
 
-__all__ = ["BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS", "CLASSES", "CONTROL_SHIFT", "FOOTPRINT_MARGIN",
-           "GONE", "KEPT", "LOW_CONFIDENCE", "NEW", "NO_EVIDENCE", "TOO_FEW_VIEWS", "UNSEEN", "AlignmentSupport",
-           "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations", "absence_log_ratio",
-           "alignment_support", "binomial_tail", "counterparts", "detect_changes", "dispersion", "fit_logistic",
-           "ground_height_field", "holder_pairs", "in_view", "inside_larger", "observed_area", "predict_logistic",
-           "presence_rate", "reobservation_features", "segment_evidence", "segment_hits", "UnmappedObjects",
-           "no_unmapped_objects", "tracks_from_matches", "unmapped_objects"]
+__all__ = ["BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS", "CLASSES", "CONTROL_SHIFT", "EVIDENCE",
+           "FOOTPRINT_MARGIN", "GONE", "KEPT", "LOW_CONFIDENCE", "NEW", "NO_EVIDENCE", "TOO_FEW_VIEWS", "UNSEEN",
+           "AlignmentSupport", "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations",
+           "absence_log_ratio", "alignment_support", "binomial_tail", "counterparts", "detect_changes", "dispersion",
+           "fit_logistic", "ground_height_field", "holder_pairs", "in_view", "inside_larger", "observed_area",
+           "predict_logistic", "presence_rate", "reobservation_features", "segment_evidence", "segment_hits",
+           "UnmappedObjects", "view_correlation", "no_unmapped_objects", "tracks_from_matches", "unmapped_objects",
+           "below_the_ground", "BELOW_GROUND"]

@@ -40,6 +40,19 @@ def holder_pairs(points: np.ndarray, sizes: np.ndarray, holders: np.ndarray, hol
     return i[order], j[order]
 
 
+def nested_pairs(points: np.ndarray, sizes: np.ndarray, holders: np.ndarray, holder_sizes: np.ndarray,
+                 gate_m: float, z_weight: float, same_map: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """`holder_pairs` of any size ratio whose two landmarks lie at one height (z_weight x |dz| <= gate_m): nested
+    in 3D, a fragment of a mapped crown or a mask of a building's roof inside the whole's landmark. A tree
+    standing in a mapped field or meadow rises above the field's landmark and is not nested in it, so only the
+    height, not a size limit, keeps ground regions from holding the objects on them."""
+    i, j = holder_pairs(points, sizes, holders, holder_sizes, np.inf, same_map)
+    zi = np.asarray(points, dtype=np.float64).reshape(-1, 3)[i, 2]
+    zj = np.asarray(holders, dtype=np.float64).reshape(-1, 3)[j, 2]
+    ok = z_weight * np.abs(zi - zj) <= gate_m
+    return i[ok], j[ok]
+
+
 def counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
                  gate_m: float, max_size_difference: float, z_weight: float) -> tuple[np.ndarray, np.ndarray]:
     """For each landmark, the nearest landmark of the other map within `gate_m` (distance in x, y and
@@ -152,33 +165,45 @@ def presence_rate(sizes: np.ndarray, reference_sizes: np.ndarray, reference_hits
     return (w @ rh + 1.0) / (w @ rv + 2.0)
 
 
-def dispersion(hits: np.ndarray, views: np.ndarray, rate: np.ndarray) -> float:
-    """Pearson dispersion of hit counts against a binomial of the given rates (sum of squared Pearson residuals
-    over degrees of freedom), at least 1. The keyframes that see a landmark are neighbours along a strip and
-    segment it alike, so its hits vary several times more than independent views would give; dividing a
-    log-likelihood by this factor is the quasi-likelihood correction for that."""
+def view_correlation(hits: np.ndarray, views: np.ndarray, rate: np.ndarray) -> float:
+    """Intra-class correlation rho of the views of one place, from hit counts against their rates (moment
+    estimate of the beta-binomial, clipped to [0, 1)): the keyframes that see a landmark are neighbours along a
+    strip and segment it alike, so its hits vary by n p (1 - p) (1 + (n - 1) rho) instead of n p (1 - p). 0 with
+    fewer than 3 counts (too few to tell: no correction)."""
     h = np.asarray(hits, dtype=np.float64)
     n = np.asarray(views, dtype=np.float64)
     p = np.clip(np.asarray(rate, dtype=np.float64), 1e-6, 1 - 1e-6)
-    ok = n > 0
+    ok = n > 1
     if np.count_nonzero(ok) < 3:
-        return 1.0
-    resid = (h[ok] - n[ok] * p[ok]) ** 2 / (n[ok] * p[ok] * (1 - p[ok]))
-    return max(1.0, float(resid.sum() / (np.count_nonzero(ok) - 1)))
+        return 0.0
+    h, n, p = h[ok], n[ok], p[ok]
+    var = n * p * (1 - p)
+    excess = float(np.sum((h - n * p) ** 2) - np.sum(var))
+    return float(np.clip(excess / float(np.sum(var * (n - 1))), 0.0, 1.0 - 1e-6))
+
+
+def dispersion(views: np.ndarray, rho: float) -> np.ndarray:
+    """The quasi-likelihood dispersion of a count of n correlated views, 1 + (n - 1) rho (`view_correlation`):
+    8 views of one pass are barely more than one look, but 40 views of four passes are several. Measured on
+    the references (sosmatch changes, BENCHMARKS.md), the Pearson dispersion grows with n as this predicts
+    (rho 0.13-0.23 same season: about 2 at 8 views, 8-10 at 45), so one factor for all (their mean, 5-7)
+    overstated few-view evidence's dependence and understated many-view evidence's."""
+    return 1.0 + (np.maximum(np.asarray(views, dtype=np.float64), 1.0) - 1.0) * float(rho)
 
 
 def absence_log_ratio(hits: np.ndarray, views: np.ndarray, chance: np.ndarray, present: np.ndarray,
-                      dispersion_factor: float = 1.0) -> np.ndarray:
-    """log P(hits | the object is absent) - log P(hits | present), divided by the dispersion factor: hits are
-    binomial over the views with the local chance rate (absent: only ground texture and neighbours show such
-    segments) or with the presence rate of objects of its size (present). Positive: the segments say absent."""
+                      dispersion_factor: float | np.ndarray = 1.0) -> np.ndarray:
+    """log P(hits | the object is absent) - log P(hits | present), divided by the dispersion factor (per count,
+    `dispersion`): hits are binomial over the views with the local chance rate (absent: only ground texture and
+    neighbours show such segments) or with the presence rate of objects of its size (present). Positive: the
+    segments say absent."""
     from scipy.stats import binom
 
     h = np.asarray(hits)
     n = np.asarray(views)
     lo = binom.logpmf(h, n, np.clip(chance, 1e-6, 1 - 1e-6))
     lp = binom.logpmf(h, n, np.clip(present, 1e-6, 1 - 1e-6))
-    return (lo - lp) / max(float(dispersion_factor), 1.0)
+    return (lo - lp) / np.maximum(np.asarray(dispersion_factor, dtype=np.float64), 1.0)
 
 
 def binomial_tail(hits: np.ndarray, trials: np.ndarray, rate: np.ndarray) -> np.ndarray:

@@ -115,6 +115,21 @@ def ground_height_field(points: np.ndarray, cell_m: float = GROUND_CELL_M, neigh
     return HeightField(z, float(lo[0]), float(lo[1]), cell_m, cell_m)
 
 
+def below_the_ground(heights: np.ndarray, map_heights: np.ndarray, max_sigmas: float) -> np.ndarray:
+    """Which heights above the ground lie lower than `max_sigmas` robust standard deviations of the map's
+    landmark heights (`map_heights`; 1.4826 x their median absolute deviation) below the ground: nothing a
+    camera saw lies under the ground it looked at, so such a point is a wrong triangulation, its place as wrong
+    as its height. Unknown heights are not below."""
+    h = np.asarray(heights, dtype=np.float64).reshape(-1)
+    ref = np.asarray(map_heights, dtype=np.float64).reshape(-1)
+    ref = ref[np.isfinite(ref)]
+    if not len(ref):
+        return np.zeros(len(h), dtype=bool)
+    scale = 1.4826 * float(np.median(np.abs(ref - np.median(ref))))
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(h) & (h < -max_sigmas * scale)
+
+
 def observed_area(poses: Poses, cameras: Sequence[Camera], ground: HeightField) -> object:
     """Union of the keyframes' ground footprints (shapely geometry, world x, y)."""
     import shapely

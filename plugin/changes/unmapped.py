@@ -35,7 +35,7 @@ import numpy as np
 from ..geometry import Camera, Poses
 from ..landmark_size import mean_size
 from ..track_fusion import intersect_rays, point_covariance, reprojection_errors
-from .evidence import counterparts, holder_pairs
+from .evidence import counterparts, holder_pairs, nested_pairs
 from .observations import KeyframeSegments
 
 
@@ -142,11 +142,8 @@ def unmapped_objects(tracks: Sequence[np.ndarray], poses: Poses, cameras: Sequen
         # nested in 3D, of any size: a piece inside a mapped crown (in its footprint and at its height, within the
         # gate) is a fragment of it, a whole over mapped parts at its height is those parts; an object standing
         # in a mapped field rises above the field's landmark and stays a candidate
-        lz = np.asarray(landmark_positions, np.float64).reshape(-1, 3)[:, 2]
-        i, j = holder_pairs(pos_a, size_a, landmark_positions, landmark_sizes, np.inf)
-        ok[i[z_weight * np.abs(pos_a[i, 2] - lz[j]) <= gate_m]] = False
-        j, i = holder_pairs(landmark_positions, landmark_sizes, pos_a, size_a, np.inf)
-        ok[i[z_weight * np.abs(pos_a[i, 2] - lz[j]) <= gate_m]] = False
+        ok[nested_pairs(pos_a, size_a, landmark_positions, landmark_sizes, gate_m, z_weight)[0]] = False
+        ok[nested_pairs(landmark_positions, landmark_sizes, pos_a, size_a, gate_m, z_weight)[1]] = False
     # pieces of one object (passes, nested masks): the best supported one stands for it
     part, whole = holder_pairs(pos_a, size_a, pos_a, size_a, part_max_ratio, same_map=True)
     links = [set() for _ in range(len(pos_a))]

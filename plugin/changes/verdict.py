@@ -20,16 +20,18 @@ from .evidence import (
     presence_rate,
     segment_evidence,
     segment_hits,
+    view_correlation,
 )
-from .observations import SessionObservations, ground_height_field, in_view, observed_area
+from .observations import SessionObservations, below_the_ground, ground_height_field, in_view, observed_area
 from .support import AlignmentSupport, alignment_support
 from .unmapped import UnmappedObjects, no_unmapped_objects, unmapped_objects
 
 KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
 CLASSES = (KEPT, GONE, NEW, UNSEEN)
 # evidence behind a class
-BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE = (
-    "landmark", "nested", "part", "segments", "none", "views", "confidence")
+BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE, BELOW_GROUND = (
+    "landmark", "nested", "part", "segments", "none", "views", "confidence", "height")
+EVIDENCE = (BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE, BELOW_GROUND)
 
 
 @dataclass(frozen=True)
@@ -106,8 +108,9 @@ def absence_probability(sizes: np.ndarray, ref_positions: np.ndarray, ref_sizes:
     """P(absent | the other session's segments) for objects of the given sizes, from their segment hits in the
     other session's keyframes: binomial with the local chance rate if the object is absent, with the presence rate
     of objects of its size if present (`presence_rate`, measured on the reference landmarks of its map, those with
-    a counterpart), the log-likelihood ratio divided by the references' dispersion (neighbouring keyframes are not
-    independent looks), prior odds 1."""
+    a counterpart), the log-likelihood ratio divided by the dispersion of a count of that many views (`dispersion`,
+    with the views' correlation measured on the references: neighbouring keyframes are not independent looks),
+    prior odds 1."""
     ref = np.arange(len(ref_positions))
     if len(ref) > REFERENCE_LIMIT:
         ref = ref[np.linspace(0, len(ref) - 1, REFERENCE_LIMIT).round().astype(np.int64)]
@@ -115,9 +118,9 @@ def absence_probability(sizes: np.ndarray, ref_positions: np.ndarray, ref_sizes:
     ref_hits, ref_views = segment_hits(ref_positions[ref], ref_h, other.poses, other.cameras, other.segments,
                                        gate_m, params.max_size_difference)
     bw = params.presence_bandwidth
-    phi = dispersion(ref_hits, ref_views, presence_rate(ref_h, ref_h, ref_hits, ref_views, bw))
+    rho = view_correlation(ref_hits, ref_views, presence_rate(ref_h, ref_h, ref_hits, ref_views, bw))
     rate = presence_rate(sizes, ref_h, ref_hits, ref_views, bw)
-    llr = absence_log_ratio(hits, views, chance, rate, phi)
+    llr = absence_log_ratio(hits, views, chance, rate, dispersion(views, rho))
     return 1.0 / (1.0 + np.exp(-np.clip(llr, -30.0, 30.0)))  # below 1: --min-confidence 1 reports nothing
 
 
@@ -145,13 +148,16 @@ class _Direct:
 
 def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, other_pos: np.ndarray,
             other_h: np.ndarray, gate_m: float, params: ChangeParams,
-            references: tuple[np.ndarray, np.ndarray] | None = None) -> _Direct:
+            references: tuple[np.ndarray, np.ndarray] | None = None,
+            deep: np.ndarray | None = None) -> _Direct:
     """`references`: positions and sizes of the own map's landmarks with a counterpart (for the presence rate);
-    None: those among own_pos."""
+    None: those among own_pos. `deep`: landmarks below the ground (`below_the_ground`), compared with nothing."""
     n = len(own_pos)
     seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
     views = seen.sum(0)
     compared = views >= params.min_views
+    if deep is not None:
+        compared &= ~deep
     index, _ = counterparts(own_pos, own_h, other_pos, other_h, gate_m, params.max_size_difference,
                             params.z_weight)
     index = np.where(compared, index, -1)
@@ -190,6 +196,7 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
                                                                 params.nest_max_ratio, theirs.established), -1)
     label = np.full(n, UNSEEN, dtype=object)
     evidence = np.full(n, TOO_FEW_VIEWS, dtype=object)
+    evidence[(views >= params.min_views) & ~compared] = BELOW_GROUND
     direct = compared & ((index >= 0) | (holder >= 0))
     label[direct] = KEPT
     evidence[index >= 0] = BY_LANDMARK
@@ -269,14 +276,15 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
     ground = ground_height_field(all_pts)
     heights_a = a.positions[:, 2] - ground(a.positions[:, 0], a.positions[:, 1])
     heights_b = b_in_a.positions[:, 2] - ground(b_in_a.positions[:, 0], b_in_a.positions[:, 1])
-    direct_a = _direct(a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, gate, params)
-    direct_b = _direct(b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, gate, params)
+    deep_a, deep_b = (below_the_ground(h, h, params.max_depth_sigmas) for h in (heights_a, heights_b))
+    direct_a = _direct(a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, gate, params, deep=deep_a)
+    direct_b = _direct(b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, gate, params, deep=deep_b)
     res_a = _judge(a, a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, heights_a, GONE, gate, params,
                    direct_a, direct_b)
     res_b = _judge(b_in_a, b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, heights_b, NEW, gate, params,
                    direct_b, direct_a)
-    unmapped_a, tracks_a = _unmapped(a, b_in_a, direct_a, direct_b, ground, GONE, gate, params)
-    unmapped_b, tracks_b = _unmapped(b_in_a, a, direct_b, direct_a, ground, NEW, gate, params)
+    unmapped_a, tracks_a = _unmapped(a, b_in_a, direct_a, direct_b, ground, heights_a, GONE, gate, params)
+    unmapped_b, tracks_b = _unmapped(b_in_a, a, direct_b, direct_a, ground, heights_b, NEW, gate, params)
     return ChangeResult(
         a=res_a, b=res_b, positions_a=a.positions, positions_b=b_in_a.positions, sizes_a=a.sizes,
         sizes_b=b_in_a.sizes, tolerance_m=gate, ground=ground,
@@ -288,7 +296,7 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
 
 
 def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direct, theirs: _Direct,
-              ground: HeightField, change_label: str, gate_m: float, params: ChangeParams,
+              ground: HeightField, own_heights: np.ndarray, change_label: str, gate_m: float, params: ChangeParams,
               ) -> tuple[UnmappedObjects, LandmarkChanges | None]:
     """The objects `own` saw but never mapped (`unmapped.unmapped_objects`) and their verdicts against `other`,
     judged as landmarks are but by direct evidence alone: a counterpart landmark, a holder of the other map that
@@ -300,6 +308,9 @@ def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direc
     objs = unmapped_objects(own.tracks, own.poses, own.cameras, own.segments, own.positions, own.sizes, gate_m,
                             params.max_size_difference, params.z_weight, params.part_max_ratio,
                             params.unmapped_max_error_px, params.unmapped_pixel_sigma_px)
+    # below the ground its session looked at (by the scale of its map's landmarks): a wrong triangulation
+    heights = objs.positions[:, 2] - ground(objs.positions[:, 0], objs.positions[:, 1])
+    objs = objs.subset(np.flatnonzero(~below_the_ground(heights, own_heights, params.max_depth_sigmas)))
     # its own segments must show it, as the other session's must show a landmark to keep it (the same test, with
     # this session's landmarks as the references of presence): a piece of track alone is no object
     nothing = np.zeros((0, 3))
