@@ -5,6 +5,7 @@ calibration of the confidence, same-season and cross-season pairs at several `sy
     .venv/bin/python -m sosmatch.tools.benchmarks.bench_changes --work DIR [--worlds 7,11,23,31]
         [--changed 0.04,0.10] [--frames 100] [--figure FILE.png] [--example FILE.png]
         [--set changes.KEY=VALUE ...]   (an ablation: the same pairs with other change-detection parameters)
+        [--cached]   (score only the pairs already matched in WORK: nothing is rendered, mapped or matched)
 
 Per world seed and change level, four sessions of one world (kept in WORK between runs): A summer (session seed
 1), B summer on another path (shifted 20, 10 m, sun from 200 deg: shadows moved; seed 2), C summer on a third path
@@ -298,6 +299,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--figure", type=Path, help="write the min-confidence figure here")
     ap.add_argument("--example", type=Path, help="write the first same-season pair's changes.png here")
+    ap.add_argument("--cached", action="store_true",
+                    help="score only the pairs already matched in WORK (render, map and match nothing)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="parameter override for change detection (repeatable)")
     args = ap.parse_args(argv)
@@ -317,8 +320,12 @@ def main(argv: list[str] | None = None) -> int:
     results: list[PairResult] = []
     for world in worlds:
         for changed in levels:
-            root = prepare(args.work, world, changed, args.frames, pairs)
+            root = (args.work / f"w{world}_c{changed:.2f}" if args.cached
+                    else prepare(args.work, world, changed, args.frames, pairs))
             for a, b, kind in pairs:
+                if args.cached and not (root / "pairs" / f"{a}{b}" / "match.json").is_file():
+                    print(f"world {world} changed {changed:.2f} {a}-{b} ({kind}): not in WORK, not scored", flush=True)
+                    continue
                 res = evaluate(root, world, changed, a, b, kind, sweep, params)
                 if res is None:
                     print(f"world {world} changed {changed:.2f} {a}-{b} ({kind}): not aligned (no accepted "
