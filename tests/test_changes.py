@@ -456,3 +456,34 @@ def test_a_landmark_below_the_ground_is_compared_with_nothing(pair):
     # the scale is the map's own: heights of 2 m scatter put -30 m far out, -3 m within
     h = np.random.default_rng(1).normal(0.0, 2.0, 500)
     assert below_the_ground(np.array([-30.0, -3.0, np.nan]), h, 4.0).tolist() == [True, False, False]
+
+
+def test_the_presence_rate_of_a_landmark_follows_how_often_its_own_session_shows_it(pair):
+    """A landmark that its own session segments in only some of its views (a crown's fragment) would be shown as
+    rarely by the other session if it were there: few hits there say less that it went. The same removed
+    objects, with their own session's segments taken out of half of its keyframes, are claimed with less
+    confidence; the other claims are as before."""
+    from sosmatch.plugin.changes import landmark_presence_rate
+
+    # the pair's rate for objects of this size, scaled by the landmark's own repeatability against its size's
+    rate = landmark_presence_rate(np.array([2.0, 2.0]), np.array([20, 9]), np.array([20, 20]), np.full(40, 2.0),
+                                  np.full(40, 16), np.full(40, 20), np.full(40, 19), np.full(40, 20), 0.3)
+    assert 0.78 < rate[0] <= 0.85 and abs(rate[1] - rate[0] * 10 / 21) < 0.01
+    positions, sizes, present_a, present_b, a, ids_a, b, ids_b, a_from_b = pair
+    params = ChangeParams(min_confidence=0.0)
+    res = detect_changes(a, b, a_from_b, params, 2.0)
+    gone = np.flatnonzero(res.a.label == GONE)
+    target = gone[:3]
+    assert len(target) == 3
+    seen, uv, _ = in_view(a.positions[target], a.sizes[target], a.poses, [CAM] * len(a.poses))
+    segs = []
+    for k, seg in enumerate(a.segments):
+        if k % 2 or not np.any(seen[k]):
+            segs.append(seg)
+            continue
+        near = np.linalg.norm(seg.centroids[:, None, :] - uv[k][None, seen[k]], axis=2).min(1) < 3.0
+        segs.append(KeyframeSegments(seg.centroids[~near], seg.sizes_px[~near]))
+    a2 = SessionObservations(a.positions, a.sizes, a.poses, CAM, tuple(segs), a.support)
+    again = detect_changes(a2, b, a_from_b, params, 2.0)
+    assert np.all(again.a.label[target] == GONE)
+    assert np.all(again.a.confidence[target] < res.a.confidence[target] - 1e-6)

@@ -31,7 +31,9 @@ own observations at the place rather than from its map (`verdict.absence_probabi
 that should have seen the landmark, a hit is a size-compatible segment at the projection (`segment_hits`); if
 the object is absent, hits come at the local chance rate (probes around it); if present, at the rate at which
 the other session's segments show objects of this size that both maps have (`presence_rate`, measured on this
-pair's landmarks with a counterpart, so it calibrates itself per pair, season and segmenter). The
+pair's landmarks with a counterpart, so it calibrates itself per pair, season and segmenter), scaled by how often
+the landmark's own session shows it against landmarks of its size (`landmark_presence_rate`: a fragment its own
+session segments in half of its views would show as rarely in the other's). The
 log-likelihood ratio of the two binomials is divided by the dispersion of a count of n views, 1 + (n - 1) rho
 (`dispersion`; rho the views' intra-class correlation measured on the references' hits, `view_correlation`:
 neighbouring keyframes see an object alike, so n views are fewer independent looks) and turned
@@ -59,6 +61,7 @@ from .evidence import (
     dispersion,
     holder_pairs,
     inside_larger,
+    landmark_presence_rate,
     presence_rate,
     segment_evidence,
     segment_hits,
@@ -102,4 +105,5 @@ __all__ = ["BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS", "CLASSES", "CO
            "fit_logistic", "ground_height_field", "holder_pairs", "in_view", "inside_larger", "observed_area",
            "predict_logistic", "presence_rate", "reobservation_features", "segment_evidence", "segment_hits",
            "UnmappedObjects", "view_correlation", "no_unmapped_objects", "tracks_from_matches", "unmapped_objects",
-           "below_the_ground", "BELOW_GROUND"]
+           "below_the_ground", "BELOW_GROUND",
+           "landmark_presence_rate"]

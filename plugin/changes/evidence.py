@@ -165,6 +165,23 @@ def presence_rate(sizes: np.ndarray, reference_sizes: np.ndarray, reference_hits
     return (w @ rh + 1.0) / (w @ rv + 2.0)
 
 
+def landmark_presence_rate(sizes: np.ndarray, own_hits: np.ndarray, own_views: np.ndarray,
+                           reference_sizes: np.ndarray, reference_hits: np.ndarray, reference_views: np.ndarray,
+                           reference_own_hits: np.ndarray, reference_own_views: np.ndarray,
+                           bandwidth: float) -> np.ndarray:
+    """Per landmark, the rate at which the other session's segments would show it if it were there: the other
+    session's rate for objects of its size (`presence_rate` of the references' hits there) times how much more or
+    less often its own session shows this landmark than landmarks of that size (its own hits (+1) / views (+2)
+    over the references' rate in their own session). A fragment of a crown that its own session segments in half
+    of its views is segmented as rarely by the other one, however present: 1 hit in 20 views of the other session
+    says little against it, where a standalone tree that its own session shows in every view is absent. Clipped to
+    [0.001, 0.999]."""
+    other_rate = presence_rate(sizes, reference_sizes, reference_hits, reference_views, bandwidth)
+    own_rate = presence_rate(sizes, reference_sizes, reference_own_hits, reference_own_views, bandwidth)
+    mine = (np.asarray(own_hits, dtype=np.float64) + 1.0) / (np.asarray(own_views, dtype=np.float64) + 2.0)
+    return np.clip(other_rate * mine / own_rate, 1e-3, 1.0 - 1e-3)
+
+
 def view_correlation(hits: np.ndarray, views: np.ndarray, rate: np.ndarray) -> float:
     """Intra-class correlation rho of the views of one place, from hit counts against their rates (moment
     estimate of the beta-binomial, clipped to [0, 1)): the keyframes that see a landmark are neighbours along a

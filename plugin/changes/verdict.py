@@ -17,6 +17,7 @@ from .evidence import (
     dispersion,
     holder_pairs,
     inside_larger,
+    landmark_presence_rate,
     presence_rate,
     segment_evidence,
     segment_hits,
@@ -104,13 +105,15 @@ REFERENCE_LIMIT = 400  # reference landmarks for the presence rate (evenly space
 
 def absence_probability(sizes: np.ndarray, ref_positions: np.ndarray, ref_sizes: np.ndarray, hits: np.ndarray,
                         views: np.ndarray, chance: np.ndarray, other: SessionObservations, gate_m: float,
-                        params: ChangeParams) -> np.ndarray:
+                        params: ChangeParams, own: SessionObservations | None = None,
+                        positions: np.ndarray | None = None) -> np.ndarray:
     """P(absent | the other session's segments) for objects of the given sizes, from their segment hits in the
     other session's keyframes: binomial with the local chance rate if the object is absent, with the presence rate
     of objects of its size if present (`presence_rate`, measured on the reference landmarks of its map, those with
     a counterpart), the log-likelihood ratio divided by the dispersion of a count of that many views (`dispersion`,
     with the views' correlation measured on the references: neighbouring keyframes are not independent looks),
-    prior odds 1."""
+    prior odds 1. With `own` (the landmarks' own session, with its segments) and their `positions`, the presence
+    rate is each landmark's own (`landmark_presence_rate`): scaled by how often its own session shows it."""
     ref = np.arange(len(ref_positions))
     if len(ref) > REFERENCE_LIMIT:
         ref = ref[np.linspace(0, len(ref) - 1, REFERENCE_LIMIT).round().astype(np.int64)]
@@ -118,8 +121,18 @@ def absence_probability(sizes: np.ndarray, ref_positions: np.ndarray, ref_sizes:
     ref_hits, ref_views = segment_hits(ref_positions[ref], ref_h, other.poses, other.cameras, other.segments,
                                        gate_m, params.max_size_difference)
     bw = params.presence_bandwidth
-    rho = view_correlation(ref_hits, ref_views, presence_rate(ref_h, ref_h, ref_hits, ref_views, bw))
-    rate = presence_rate(sizes, ref_h, ref_hits, ref_views, bw)
+    if own is not None and own.segments is not None and positions is not None:
+        # the presence rate of each landmark from how often its own session shows it (the references' too)
+        ref_own = segment_hits(ref_positions[ref], ref_h, own.poses, own.cameras, own.segments, gate_m,
+                               params.max_size_difference)
+        mine = segment_hits(positions, sizes, own.poses, own.cameras, own.segments, gate_m,
+                            params.max_size_difference)
+        ref_rate = landmark_presence_rate(ref_h, *ref_own, ref_h, ref_hits, ref_views, *ref_own, bw)
+        rate = landmark_presence_rate(sizes, *mine, ref_h, ref_hits, ref_views, *ref_own, bw)
+    else:
+        ref_rate = presence_rate(ref_h, ref_h, ref_hits, ref_views, bw)
+        rate = presence_rate(sizes, ref_h, ref_hits, ref_views, bw)
+    rho = view_correlation(ref_hits, ref_views, ref_rate)
     llr = absence_log_ratio(hits, views, chance, rate, dispersion(views, rho))
     return 1.0 / (1.0 + np.exp(-np.clip(llr, -30.0, 30.0)))  # below 1: --min-confidence 1 reports nothing
 
@@ -149,9 +162,10 @@ class _Direct:
 def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, other_pos: np.ndarray,
             other_h: np.ndarray, gate_m: float, params: ChangeParams,
             references: tuple[np.ndarray, np.ndarray] | None = None,
-            deep: np.ndarray | None = None) -> _Direct:
+            deep: np.ndarray | None = None, own: SessionObservations | None = None) -> _Direct:
     """`references`: positions and sizes of the own map's landmarks with a counterpart (for the presence rate);
-    None: those among own_pos. `deep`: landmarks below the ground (`below_the_ground`), compared with nothing."""
+    None: those among own_pos. `deep`: landmarks below the ground (`below_the_ground`), compared with nothing.
+    `own`: the session these landmarks belong to (its segments give each one's own presence rate)."""
     n = len(own_pos)
     seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
     views = seen.sum(0)
@@ -173,7 +187,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         if references is None:
             references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
         absent[idx] = absence_probability(own_h[idx], *references, hits[idx], trials[idx], chance[idx], other,
-                                          gate_m, params)
+                                          gate_m, params, own, own_pos[idx])
         # shown: more hits than chance would give, and more like an object that is there than like its absence
         by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
                             & (absent[idx] < 0.5))
@@ -277,8 +291,10 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
     heights_a = a.positions[:, 2] - ground(a.positions[:, 0], a.positions[:, 1])
     heights_b = b_in_a.positions[:, 2] - ground(b_in_a.positions[:, 0], b_in_a.positions[:, 1])
     deep_a, deep_b = (below_the_ground(h, h, params.max_depth_sigmas) for h in (heights_a, heights_b))
-    direct_a = _direct(a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, gate, params, deep=deep_a)
-    direct_b = _direct(b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, gate, params, deep=deep_b)
+    direct_a = _direct(a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, gate, params, deep=deep_a,
+                       own=a)
+    direct_b = _direct(b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, gate, params, deep=deep_b,
+                       own=b_in_a)
     res_a = _judge(a, a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, heights_a, GONE, gate, params,
                    direct_a, direct_b)
     res_b = _judge(b_in_a, b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, heights_b, NEW, gate, params,
@@ -319,7 +335,7 @@ def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direc
     objs = objs.subset(np.flatnonzero(shown.by_segments & (shown.hits >= params.min_views)))
     reference = mine.compared & (mine.index >= 0)
     direct = _direct(objs.positions, objs.sizes, other, other.positions, other.sizes, gate_m, params,
-                     (own.positions[reference], own.sizes[reference]))
+                     (own.positions[reference], own.sizes[reference]), own=own)
     heights = objs.positions[:, 2] - ground(objs.positions[:, 0], objs.positions[:, 1])
     return objs, _judge(own, objs.positions, objs.sizes, other, other.positions, other.sizes, heights, change_label,
                         gate_m, replace(params, part_max_ratio=0.0), direct, theirs)
