@@ -34,3 +34,20 @@ def test_section_replaced_in_place_and_idempotent():
     assert twice == once
     assert "| summer-winter | SOS-Match (ours) | 1 | 0.01 | 0.700 | 0.500 |" in once
     assert "median of 2 runs of the match's answer" in once
+
+
+def test_seasons_altitude_bar_on_same_season_pairs_only():
+    from sosmatch.tools.benchmarks.bench_seasons import check_bars as season_bars
+
+    def row(ratio):
+        return {"size_ratio_median": ratio, "recall_at_p99": 0.9, "average_f1": 0.95}
+
+    rows = {"summer-winter": row(0.95), "summer-winter-130m": row(0.90), "summer-130m": row(1.01),
+            "winter-130m": row(0.96)}
+    notes = [n for n in season_bars(7, rows) if "size ratio" in n]
+    assert len(notes) == 3
+    assert "w7 summer-130m" in notes[0] and "1.010" in notes[0] and notes[0].endswith("met")
+    assert "w7 winter-130m" in notes[1] and "0.960" in notes[1] and notes[1].endswith("MISSED")
+    # the cross-season pair is information, with its equal-altitude reference and the quotient, and no verdict
+    assert "information" in notes[2] and "0.900" in notes[2] and "0.950" in notes[2] and "0.947" in notes[2]
+    assert "met" not in notes[2] and "MISSED" not in notes[2]
