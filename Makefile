@@ -1,7 +1,8 @@
 # Two commands do everything on a fresh machine: `make demo` and `make test`.
-# Both create .venv and install the package (editable, with test and dask extras) the first time, and compile the
-# search kernels into numba's cache (minutes of CPU, once; else the first match does it); later runs skip the
-# install unless setup.cfg or setup.py changed.
+# Both create .venv and install the package (editable, with test and dask extras) the first time; later runs skip
+# the install unless setup.cfg or setup.py changed. `make install` also compiles every search kernel into numba's
+# cache (~100 s of CPU, once), so that a user's first match starts at once; the demo and the tests compile only
+# the kernels they call, when they call them (a fresh `make demo` took 5 min 5 s with the whole warm-up first).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -15,10 +16,9 @@ $(STAMP): setup.cfg setup.py pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e ".[test,dask]"
-	$(BIN)/python -m sosmatch.tools.warm_kernels
 	touch $(STAMP)
 
-# the kernels again (a second when their cache is complete): a changed kernel source empties it
+# every kernel compiled (a second when their cache is complete): a changed kernel source empties it
 install: $(STAMP)
 	$(BIN)/python -m sosmatch.tools.warm_kernels
 
