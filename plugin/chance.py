@@ -51,7 +51,6 @@ class ChanceModel:
                 "overdispersion": None if np.isnan(self.overdispersion) else self.overdispersion}
 
 
-
 def converged_to_winner(winner: Sim3, probe: np.ndarray, gate_m: float, winner_pairs: np.ndarray | None,
                         aligned: Alignment) -> bool:
     """Whether a refinement found the winner again rather than another alignment: its transform puts the winner's
