@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 
 import cv2
@@ -151,7 +152,7 @@ def test_synth_geotags_match_the_truth(tmp_path, capsys):
     assert exif.camera.fx == pytest.approx(truth_fx := 80.0 / math.tan(math.radians(32.5)), rel=0.03), truth_fx
 
 
-def test_images_without_attitude_tags_get_orientations_from_the_images_not_the_course(tmp_path, capsys):
+def test_images_without_attitude_tags_get_orientations_from_the_images_not_the_course(tmp_path, capsys, caplog):
     """EXIF GPS only (no attitude tags): the course over ground is a guess for the heading, tens of degrees off
     at the line turns. `map --pose-source exif` (and poses-from-exif) solve the orientations from tie points with
     the GPS positions as priors instead of mapping on the guess."""
@@ -170,7 +171,12 @@ def test_images_without_attitude_tags_get_orientations_from_the_images_not_the_c
 
     from sosmatch.workflows.poses_from_exif import map_inputs_from_images
 
-    inputs = map_inputs_from_images(out / "images")
+    caplog.clear()
+    with caplog.at_level(logging.INFO):
+        inputs = map_inputs_from_images(out / "images")
+    # one warning about the missing attitude, and it says what is done (no second one calling the course the pose)
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING and "attitude" in r.getMessage()]
+    assert len(said) == 1 and "solved from the images" in said[0], said
     solved = rotation_angle_deg(inputs.poses.rotations, truth.rotations)
     print(f"course headings {np.median(guess):.1f} / {guess.max():.1f} deg -> solved {np.median(solved):.2f} / "
           f"{solved.max():.2f} deg (median / max)")

@@ -30,7 +30,8 @@ Attitude sources, per image, first that applies:
    camera fixed to the airframe looking down; the mounting is `mount` (see `FIXED_MOUNTS`), and the sign of
    pitch and roll `pitch_sign`/`roll_sign`.
 3. No attitude at all: level, nadir, heading = course over ground (EXIF GPSTrack, else the direction to the
-   neighbouring images); a warning says how many images this affected.
+   neighbouring images): a starting point only, logged at info level; the callers that make poses solve these
+   orientations from the images (structure from motion, `poses_from_exif`'s refinement) and warn themselves.
 
 Fixed-mount convention (checked on the Seneca flight, `tools/benchmarks/bench_real.py attitude`): the senseFly
 pitch/roll/heading are taken as aerospace angles (yaw clockwise from north, pitch nose up, roll right wing down;
@@ -406,9 +407,12 @@ def read_image_priors(
     n_course = int(np.sum(kind == "course"))
     n_turns = int(np.sum(turn_images(east, north) & (kind == "course")))
     if n_course:
-        log.warning("%d of %d images have no attitude tags: assumed level and nadir, heading = the course over "
-                    "ground (a guess: %d of them at turns of the flight, where the course says nothing of the heading)",
-                    n_course, n, n_turns)
+        # Info, not a warning: these rotations are only a starting point. Every caller that makes poses solves the
+        # orientations of such images from the images (structure from motion; poses_from_exif's refinement) and
+        # says so itself; a warning here would tell the user the guess is what their map is built on.
+        log.info("%d of %d images have no attitude tags: their starting orientations are level, nadir and headed "
+                 "along the course over ground (%d of them at turns of the flight, where the course says nothing "
+                 "of the heading)", n_course, n, n_turns)
 
     cameras, camera_index, intrinsics_sources = _camera_groups(metas, sensor_width_mm, strict_intrinsics)
     m0 = metas[0]
