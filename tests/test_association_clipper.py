@@ -197,7 +197,7 @@ def test_affinity_graph_equals_its_definition(seed, n_a, n_b, m, grid, eps, sigm
 def test_symmetric_csr_and_weighted_degrees_equal_their_definition(seed, n, density, order):
     """sym_csr_weighted (a sorted edge list placed row by row, any other order appended edge by edge) lists each
     vertex's neighbours in the order its edges arrive and sums its weight in that order, like the plain loop."""
-    from sosmatch.plugin.association.kernels_solve import sym_csr, sym_csr_weighted
+    from sosmatch.plugin.association.kernels_csr import sym_csr, sym_csr_weighted
 
     rng = np.random.default_rng(seed)
     r, c = np.nonzero(np.triu(rng.random((n, n)) < density, 1))
@@ -234,9 +234,9 @@ def test_problem_graph_in_blocks_equals_the_edge_list_graph(seed, n_a, n_b, m, g
     """The one-problem kernel gives the edges of `association_graph` in its order and the symmetric CSR of
     `sym_csr` (entries, order, and each entry's edge) for any cut of the rows into blocks, on one thread or
     several: the cut never shows in the output. Solving from that CSR selects what solving the edge list does."""
+    from sosmatch.plugin.association.kernels_csr import csr_data, sym_csr
     from sosmatch.plugin.association.kernels_graph import DISTANCE, association_graph
     from sosmatch.plugin.association.kernels_problem import problem_graph_parallel, problem_graph_serial
-    from sosmatch.plugin.association.kernels_solve import csr_data, sym_csr
 
     rng = np.random.default_rng(seed)
     a, b = rng.uniform(0, 8, (n_a, 3)), rng.uniform(0, 8, (n_b, 3))

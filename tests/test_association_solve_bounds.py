@@ -9,15 +9,8 @@ from hypothesis import strategies as st
 
 from sosmatch.plugin.association import max_clique_exact
 from sosmatch.plugin.association.clipper import ConsistencyGraph
-from sosmatch.plugin.association.kernels_solve import (
-    clique_weight,
-    core_numbers,
-    csr_data,
-    greedy_clique,
-    sym_csr_weighted,
-    top_core_clique,
-    weighted_degrees,
-)
+from sosmatch.plugin.association.kernels_cliques import clique_weight, core_numbers, greedy_clique, top_core_clique
+from sosmatch.plugin.association.kernels_csr import csr_data, sym_csr_weighted, weighted_degrees
 
 
 def random_graph(seed: int, n: int, density: float, clique: int) -> tuple:

@@ -86,7 +86,7 @@ def test_a_search_that_must_compile_says_so_once(tmp_path: Path) -> None:
         import numpy as np
         logging.basicConfig(level=logging.INFO, stream=sys.stdout, format="%(message)s")
         from sosmatch.plugin.association import kernel_cache
-        from sosmatch.plugin.association.kernels_solve import sym_csr
+        from sosmatch.plugin.association.kernels_csr import sym_csr
         kernel_cache.announce_compile()
         kernel_cache.announce_compile()  # once per process
         sym_csr(3, np.array([0, 1]), np.array([1, 2]), np.array([1.0, 1.0]))

@@ -13,7 +13,8 @@ Written from the paper; the authors' C++ is not used. Three steps:
 3. Rounding: walk the associations by decreasing u (then by degree) and keep each one that is consistent with all
    kept so far. The result is always a clique of the consistency graph, and maximal (nothing can be added).
 `solve`'s default method first bounds the answer by the graph's cores (see `solve`) and runs the relaxation only
-where a larger set may hide. The loops are compiled (`kernels_graph.py`, `kernels_solve.py`, numba).
+where a larger set may hide. The loops are compiled (numba): `kernels_graph.py`, `kernels_csr.py`,
+`kernels_cliques.py`, `kernels_solve.py`.
 
 `max_clique_exact` (Bron-Kerbosch with pivoting) is the exhaustive reference for small problems and tests.
 
@@ -29,10 +30,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from .kernels_cliques import core_numbers as _core_numbers
+from .kernels_csr import sym_csr
 from .kernels_graph import PROBLEM_PAIRS, PROBLEM_POINTS_A, PROBLEM_POINTS_B
 from .kernels_problem import problem_graph
-from .kernels_solve import BOUNDED, CLIPPER, solve_graph, solve_graph_csr, sym_csr
-from .kernels_solve import core_numbers as _core_numbers
+from .kernels_solve import BOUNDED, CLIPPER, solve_graph, solve_graph_csr
 
 
 @dataclass(frozen=True)

@@ -127,7 +127,7 @@ def _problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float
     problem: `check_problem`'s code (nothing else is computed unless it is PROBLEM_NONE). rows < cols, sorted by
     (row, col), as `association_graph` gives them; x = -(c * c) / two_s2 of each edge's length mismatch c (the
     affinity is exp(x), taken by numpy as before: the same bits). indptr, indices (int32): the symmetric CSR of the
-    edges, each vertex's neighbours ascending (its lower ones, then its higher ones: `kernels_solve.sym_csr`'s
+    edges, each vertex's neighbours ascending (its lower ones, then its higher ones: `kernels_csr.sym_csr`'s
     order); edge0: the row pointers of the edge list (row p's edges are edge0[p]:edge0[p + 1], and they are p's
     higher neighbours in the CSR: the solver reads their values there and forms the rest only when it needs it).
     With more distinct landmarks than the tables hold (`TABLE_MAX`) the CSR is left empty (indptr of length 0) and

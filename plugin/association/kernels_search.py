@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .kernels_cliques import kcore_mask
+from .kernels_csr import sym_csr
 from .kernels_graph import (
     GRAVITY,
     affinity_values,
@@ -25,7 +27,7 @@ from .kernels_graph import (
     size_weights,
     vector_invariants,
 )
-from .kernels_solve import kcore_mask, solve_graph, sym_csr
+from .kernels_solve import solve_graph
 
 # --- yaw slices ----------------------------------------------------------------------------------------------------
 
