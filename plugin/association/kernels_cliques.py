@@ -2,13 +2,7 @@
 the highest cores and its weight; `kernels_solve.solve_csr` takes a clique from here as the bound CLIPPER must
 beat.
 
-NumPy is memory-bound on these loops (gathers over edge lists, a sparse mat-vec per gradient step, a peel that
-revisits every edge each round); compiled, each is a single pass over its arrays. Every kernel is plain numpy in,
-numpy out, deterministic, and cached on disk by numba (`cache=True`: the first call in a fresh environment
-compiles for a few seconds, later processes load the machine code).
-
-No fast-math: the windowed search and its straightforward reference must compute bit-identical affinities, so
-every floating-point expression here is evaluated exactly as written.
+Compiled, cached on disk and without fast-math for the reasons `kernels_solve.py` gives.
 """
 
 from __future__ import annotations
