@@ -251,3 +251,30 @@ def pixel_rays(camera: Camera, uv: np.ndarray, r_wc: np.ndarray) -> np.ndarray:
     else:  # through the lens model; NaN rows where it cannot lift the pixel
         d_cam = np.concatenate([camera.cam_from_img(uv).reshape(-1, 2), np.ones((len(uv), 1))], 1)
     return d_cam @ r_wc.T
+
+
+def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+    """Rodrigues, vectorised: (N,3) rotation vectors -> (N,3,3)."""
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < 1e-12
+    k = np.where(small[:, None], 0.0, w / np.where(small, 1.0, theta)[:, None])
+    kx = np.zeros((len(w), 3, 3))
+    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 0] = -k[:, 2], k[:, 1], k[:, 2]
+    kx[:, 1, 2], kx[:, 2, 0], kx[:, 2, 1] = -k[:, 0], -k[:, 1], k[:, 0]
+    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
+    return np.eye(3)[None] + s * kx + (1 - c) * (kx @ kx)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(N,3) -> (N,3,3) cross-product matrices [v]x."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 0] = -v[..., 2], v[..., 1], v[..., 2]
+    out[..., 1, 2], out[..., 2, 0], out[..., 2, 1] = -v[..., 0], -v[..., 1], v[..., 0]
+    return out
+
+
+def matrix_to_rotvec(r: np.ndarray) -> np.ndarray:
+    """(N,3,3) -> (N,3) rotation vectors (angles below pi, which is all the priors need)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(r).as_rotvec()

@@ -6,13 +6,11 @@ import numpy as np
 import pycolmap
 import pytest
 
-from sosmatch.plugin.geometry import Camera, Poses, project
+from sosmatch.plugin.geometry import Camera, Poses, project, rotation_angle_deg, rotvec_to_matrix
 from sosmatch.workflows.pose_refinement import (
-    _rotvec_to_matrix,
     poses_of_reconstruction,
     refine_poses_with_colmap,
     refine_poses_with_priors,
-    rotation_angle_deg,
 )
 
 CAM = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
@@ -32,7 +30,7 @@ def _scene(seed=0):
     for line, north in enumerate([0.0, 40.0]):
         for k in range(12):
             centers.append([k * 12.0, north, 80.0 + rng.normal(0, 1)])
-            rots.append(_rotvec_to_matrix(rng.normal(0, np.radians(3), (1, 3)))[0] @ _nadir(90 if line == 0 else 270))
+            rots.append(rotvec_to_matrix(rng.normal(0, np.radians(3), (1, 3)))[0] @ _nadir(90 if line == 0 else 270))
     truth = Poses([f"f{i:03d}.jpg" for i in range(24)], np.array(rots), np.array(centers) + ORIGIN)
     pts = np.column_stack([rng.uniform(-30, 160, 400), rng.uniform(-40, 80, 400), rng.uniform(0, 8, 400)]) + ORIGIN
     return truth, pts, rng
@@ -86,7 +84,7 @@ def _errors(rec, truth):
 def test_refinement_reduces_reprojection_and_pose_error_and_stays_near_priors():
     truth, pts, rng = _scene()
     pos_sigma, att_sigma = 2.0, 2.0
-    noisy = Poses(truth.names, _rotvec_to_matrix(rng.normal(0, np.radians(att_sigma), (24, 3))) @ truth.rotations,
+    noisy = Poses(truth.names, rotvec_to_matrix(rng.normal(0, np.radians(att_sigma), (24, 3))) @ truth.rotations,
                   truth.centers + rng.normal(0, pos_sigma, (24, 3)))
     rec = _build(truth, pts, noisy, rng)
     pos_before, rot_before = _errors(rec, truth)
@@ -123,7 +121,7 @@ def test_deterministic():
 
 def test_colmap_pose_prior_ba_reduces_errors_drops_outliers_and_is_deterministic():
     truth, pts, rng = _scene(4)
-    noisy = Poses(truth.names, _rotvec_to_matrix(rng.normal(0, np.radians(3.0), (24, 3))) @ truth.rotations,
+    noisy = Poses(truth.names, rotvec_to_matrix(rng.normal(0, np.radians(3.0), (24, 3))) @ truth.rotations,
                   truth.centers + rng.normal(0, 2.0, (24, 3)))
 
     def build():
@@ -182,7 +180,7 @@ def test_refine_from_images_with_tie_points(tmp_path, method):
     from sosmatch.workflows.pose_refinement import refine_poses_from_images
 
     paths, truth, cam, rng = _plane_views(tmp_path)
-    noisy = Poses(truth.names, _rotvec_to_matrix(rng.normal(0, np.radians(2.0), (16, 3))) @ truth.rotations,
+    noisy = Poses(truth.names, rotvec_to_matrix(rng.normal(0, np.radians(2.0), (16, 3))) @ truth.rotations,
                   truth.centers + rng.normal(0, 2.0, (16, 3)))
     refined, stats = refine_poses_from_images(paths, noisy, cam, position_sigma_m=2.0, attitude_sigma_deg=2.0,
                                               pixel_sigma_px=1.0, max_features=1500, method=method)

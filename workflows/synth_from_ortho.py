@@ -50,11 +50,11 @@ OBJECT_COLUMNS = ["id", "kind", "x", "y", "z", "radius", "height", "present"]
 
 def noisy_poses(poses: Poses, position_sigma_m: float, attitude_sigma_deg: float, seed: int) -> Poses:
     """The poses with seeded independent Gaussian position and small-rotation noise (the exact ones if both 0)."""
-    from .pose_refinement import _rotvec_to_matrix
+    from ..plugin.geometry import rotvec_to_matrix
 
     rng = np.random.default_rng(seed)
     dc = rng.normal(0.0, position_sigma_m, poses.centers.shape) if position_sigma_m > 0 else 0.0
-    dr = _rotvec_to_matrix(rng.normal(0.0, np.radians(attitude_sigma_deg), (len(poses), 3))) \
+    dr = rotvec_to_matrix(rng.normal(0.0, np.radians(attitude_sigma_deg), (len(poses), 3))) \
         if attitude_sigma_deg > 0 else np.eye(3)
     return Poses(list(poses.names), dr @ poses.rotations, poses.centers + dc)
 

@@ -1,0 +1,95 @@
+"""Pose refinement statistics and the plausibility judgement of a refinement against its priors."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ...plugin.errors import InputError
+from ...plugin.geometry import rotation_angle_deg
+
+
+@dataclass
+class RefinementStats:
+    """What the refinement did. Errors in pixels, metres and degrees; 'prior' = the given poses."""
+
+    images: int
+    points: int
+    observations: int
+    reprojection_rmse_before_px: float
+    reprojection_rmse_after_px: float
+    reprojection_median_before_px: float
+    reprojection_median_after_px: float
+    position_change_mean_m: float
+    position_change_max_m: float
+    rotation_change_mean_deg: float
+    rotation_change_max_deg: float
+    iterations: int
+    seconds: float
+    converged: bool
+    position_change_median_m: float = float("nan")
+    block_tilt_change_deg: float = float("nan")  # the rotation all poses share, its tilt off the vertical
+    warnings: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["warnings"] = list(self.warnings)
+        return d
+
+
+def pose_changes(before_r: np.ndarray, before_c: np.ndarray, after_r: np.ndarray, after_c: np.ndarray) -> dict:
+    """How far the poses moved: per-image position and rotation changes, and the tilt of the rotation they share
+    (the chordal mean of R_after R_before^T): a block that tilts as a whole moves every camera the same way."""
+    dpos = np.linalg.norm(after_c - before_c, axis=1)
+    drot = np.atleast_1d(rotation_angle_deg(before_r, after_r))
+    mean = np.einsum("nij,nkj->ik", after_r, before_r)  # sum of R_after R_before^T
+    u, _, vt = np.linalg.svd(mean)
+    shared = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    tilt = float(np.degrees(np.arccos(np.clip(shared[2, 2], -1.0, 1.0))))
+    return {"position_change_mean_m": float(dpos.mean()), "position_change_max_m": float(dpos.max()),
+            "position_change_median_m": float(np.median(dpos)), "rotation_change_mean_deg": float(drot.mean()),
+            "rotation_change_max_deg": float(drot.max()), "block_tilt_change_deg": tilt}
+
+
+def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[float, float, float],
+                     attitude_sigma_deg: float) -> tuple[list[str], list[str]]:
+    """(errors, warnings) of a refinement: the priors say how far the poses may move.
+
+    Errors (the refined poses are not used): a median position change beyond 3 prior sigmas (a Gaussian prior
+    puts 3 sigma in the tail of every axis: half the cameras beyond it means the tie points pulled the block away
+    from the GPS, e.g. folded it); a tilt of the whole block (the rotation all poses share) beyond 3 attitude
+    sigmas. Warnings: no convergence within the solver's iterations (Seneca's good refinement ends so: 0.52 px,
+    poses 1.2 sigma from their priors, block tilt 2 deg; the figures above judge the result); single images moved
+    beyond 5 sigmas (a wrong GPS fix, or a wrong tie point); a mean rotation change beyond 3 attitude sigmas; tie
+    points that barely constrain the poses (fewer than 1.5 measured coordinates per unknown: 6 per pose, 3 per
+    point)."""
+    sigma = float(np.max(np.atleast_1d(position_sigma_m)))
+    errors: list[str] = []
+    warnings: list[str] = []
+    if stats.points == 0:
+        return errors, ["no tie points between the images: the poses are the priors, unrefined"]
+    if not stats.converged:
+        warnings.append(f"the bundle adjustment did not converge ({stats.iterations} solve(s))")
+    if np.isfinite(stats.position_change_median_m) and stats.position_change_median_m > 3.0 * sigma:
+        errors.append(f"it moved the cameras {stats.position_change_median_m:.1f} m (median) against a "
+                      f"{sigma:g} m GPS prior (at most 3 sigma)")
+    if np.isfinite(stats.block_tilt_change_deg) and stats.block_tilt_change_deg > 3.0 * attitude_sigma_deg:
+        errors.append(f"it tilted the whole block by {stats.block_tilt_change_deg:.1f} deg against a "
+                      f"{attitude_sigma_deg:g} deg attitude prior (at most 3 sigma)")
+    if stats.position_change_max_m > 5.0 * sigma:
+        warnings.append(f"some cameras moved up to {stats.position_change_max_m:.1f} m (more than 5 x the "
+                        f"{sigma:g} m prior): a wrong GPS fix or wrong tie points")
+    if stats.rotation_change_mean_deg > 3.0 * attitude_sigma_deg:
+        warnings.append(f"the cameras turned {stats.rotation_change_mean_deg:.1f} deg on average (more than 3 x the "
+                        f"{attitude_sigma_deg:g} deg attitude prior)")
+    unknowns = 6 * stats.images + 3 * stats.points
+    if unknowns and 2 * stats.observations < 1.5 * unknowns:
+        warnings.append(f"only {stats.points} tie points ({stats.observations} observations) for {stats.images} "
+                        "images: the poses are barely constrained")
+    return errors, warnings
+
+
+class RefinementRejected(InputError):
+    """The refined poses are implausible against their priors (`judge_refinement`); the message says why (one
+    line; the command line prints it and exits 2, nothing is written)."""
