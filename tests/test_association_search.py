@@ -135,7 +135,7 @@ def test_dense_maps_take_the_direct_path_with_the_same_result():
 def test_peel_on_association_ids_equals_compact_then_peel(space_extra, k):
     """`peeled_ids` (degrees on the ids, only survivors renumbered; or the sort path for a huge id space) leaves
     the pairs `compact_ids` + `peel_pairs` leave, with the ids of their associations in the same order."""
-    from sosmatch.plugin.association.kernels_search import compact_ids, peel_pairs, peeled_ids
+    from sosmatch.plugin.association.kernels_peel import compact_ids, peel_pairs, peeled_ids
 
     rng = np.random.default_rng(k)
     # a dense core (survives) in a sparse cloud (peeled), and a tail hanging off the core listed from the core

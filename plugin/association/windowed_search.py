@@ -42,12 +42,11 @@ from .hypotheses import (
 )
 from .kernels_graph import gate_pairs
 from .kernels_join import edge_join, edge_pair_details, map_edges, size_cells, sorted_b_edges
+from .kernels_peel import peel_pairs_sliced, peeled_ids
 from .kernels_search import (
     count_incidences,
     count_putatives,
     direct_window_pairs,
-    peel_pairs_sliced,
-    peeled_ids,
     prior_join,
     solve_groups,
     window_pair_graphs,
