@@ -16,7 +16,8 @@ from sosmatch.plugin.geometry import pixel_rays, project
 from sosmatch.tools.synth import world_cache
 from sosmatch.tools.synth.appearance import cast_shadow, lighting
 from sosmatch.tools.synth.render import render_view
-from sosmatch.tools.synth.world import WorldConfig, build_scene, get_world
+from sosmatch.tools.synth.scene import build_scene
+from sosmatch.tools.synth.world import WorldConfig, get_world
 from sosmatch.workflows.synth import SynthConfig, run, session_poses, session_presence
 
 SOSMATCH = str(Path(sys.executable).parent / "sosmatch")

@@ -44,7 +44,8 @@ from ..tools.synth.flights import ekf_poses, flight_line_ids, flight_poses
 from ..tools.synth.geotags import geo_frame, session_geotags
 from ..tools.synth.noise import rng_for
 from ..tools.synth.render import ViewOutsideWorld, render_view
-from ..tools.synth.world import EXTRA_FRACTION, Scene, World, build_scene, get_world, visible_top_centres
+from ..tools.synth.scene import Scene, build_scene, visible_top_centres
+from ..tools.synth.world import EXTRA_FRACTION, World, get_world
 
 __all__ = ["SynthConfig", "run", "session_presence", "session_poses", "session_look", "objects_table"]
 log = logging.getLogger(__name__)

@@ -18,7 +18,7 @@ import numpy as np
 
 from ...plugin.geometry import Camera
 from .appearance import srgb_to_linear_lut
-from .world import Scene
+from .scene import Scene
 
 MAX_STEP_M = 0.3  # horizontal distance a ray moves between two levels at most (thin objects are >= 1 m)
 MAX_LEVEL_STEP_M = 0.6

@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 
 WORLD_CODE_VERSION = 1
 MAX_WORLDS = 6
-_SOURCES = ("world.py", "appearance.py", "noise.py")
+_SOURCES = ("world.py", "objects.py", "appearance.py", "noise.py")  # what a cached world is built by
 _CORE_ARRAYS = ("terrain_coarse", "terrain", "cover", "cell", "cp_cls", "cp_crop", "cp_theta", "cp_period",
                 "cp_phase", "cp_bright")
 
