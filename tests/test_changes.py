@@ -21,59 +21,15 @@ from sosmatch.plugin.changes import (
     segment_evidence,
     tracks_from_matches,
 )
-from sosmatch.plugin.geometry import Camera, Poses
 from sosmatch.plugin.params import ChangeParams
-from sosmatch.tools.toy_sessions import lawnmower, make_spaced_world, yaw_transform
+from sosmatch.tools.toy_sessions import CHANGE_CAMERA, nadir_poses, toy_change_pair, yaw_transform
 
-CAM = Camera(640, 480, 400.0, 400.0, 320.0, 240.0)
-NADIR = np.diag([1.0, -1.0, -1.0])  # world_from_camera of a camera looking straight down
-
-
-def nadir_poses(centers: np.ndarray) -> Poses:
-    return Poses([f"f{i:04d}.jpg" for i in range(len(centers))], np.broadcast_to(NADIR, (len(centers), 3, 3)),
-                 centers)
-
-
-def make_world(seed: int, n: int = 260):
-    w = make_spaced_world(n, 240.0, (1.0, 4.0), seed)
-    return w.positions, w.sizes
-
-
-def observe(positions, sizes, present, centers, seed, clutter=25, session_from_world=None):
-    """A session of the world: landmarks = present objects seen >= 6 times (with noise), segments = the present
-    objects' projections plus random clutter segments, all in the frame session_from_world."""
-    rng = np.random.default_rng(seed)
-    poses = nadir_poses(centers)
-    seen, uv, depth = in_view(positions, sizes, poses, [CAM] * len(poses))
-    keep = present & (seen.sum(0) >= 6)
-    segs = []
-    for k in range(len(poses)):
-        vis = np.flatnonzero(seen[k] & present)
-        c = uv[k, vis] + rng.normal(0.0, 1.0, (len(vis), 2))
-        h = sizes[vis] * CAM.fx / depth[k, vis] * rng.uniform(0.9, 1.1, len(vis))
-        cl = rng.uniform([0, 0], [CAM.width, CAM.height], (clutter, 2))
-        segs.append(KeyframeSegments(np.vstack([c, cl]), np.concatenate([h, rng.uniform(2.0, 30.0, clutter)])))
-    pos = positions[keep] + rng.normal(0.0, 0.3, (int(keep.sum()), 3))
-    size = sizes[keep] * rng.uniform(0.92, 1.08, int(keep.sum()))
-    obs = SessionObservations(pos, size, poses, CAM, tuple(segs), seen.sum(0)[keep].astype(float))
-    if session_from_world is not None:
-        obs = obs.transformed(session_from_world)
-    return obs, np.flatnonzero(keep)
+CAM = CHANGE_CAMERA
 
 
 @pytest.fixture(scope="module")
 def pair():
-    positions, sizes = make_world(3)
-    rng = np.random.default_rng(5)
-    n = len(positions)
-    present_a = rng.random(n) > 0.1
-    present_b = rng.random(n) > 0.1
-    cams_a = lawnmower(30, 150, 30, 150, 70, 30, 8)
-    cams_b = lawnmower(90, 210, 60, 180, 70, 30, 8)  # overlaps A in part
-    frame_b = yaw_transform(35.0, (12.0, -7.0, 2.0))
-    a, ids_a = observe(positions, sizes, present_a, cams_a, 1)
-    b, ids_b = observe(positions, sizes, present_b, cams_b, 2, session_from_world=frame_b)
-    return positions, sizes, present_a, present_b, a, ids_a, b, ids_b, frame_b.inverse()
+    return toy_change_pair()
 
 
 def test_removed_added_kept_and_unseen_objects_are_told_apart(pair):

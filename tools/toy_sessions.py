@@ -265,3 +265,58 @@ def render_disc_flight(root: str | Path, camera: Camera, frames: int = 25, altit
     write_poses_csv(root / "poses.csv", Poses(names, np.repeat(r_wc[None], frames, 0), centers))
     write_cameras_txt(root / "cameras.txt", {1: camera})
     return objs
+
+
+# --- change detection: two sessions of one world, as `plugin.changes` sees them (no files) ----------------------
+
+CHANGE_CAMERA = Camera(640, 480, 400.0, 400.0, 320.0, 240.0)
+NADIR = np.diag([1.0, -1.0, -1.0])  # world_from_camera of a camera looking straight down
+
+
+def nadir_poses(centers: np.ndarray) -> Poses:
+    return Poses([f"f{i:04d}.jpg" for i in range(len(centers))], np.broadcast_to(NADIR, (len(centers), 3, 3)),
+                 centers)
+
+
+def change_session(positions: np.ndarray, sizes: np.ndarray, present: np.ndarray, centers: np.ndarray, seed: int,
+                   clutter: int = 25, session_from_world: Sim3 | None = None) -> tuple[object, np.ndarray]:
+    """A session of the world: landmarks = present objects seen >= 6 times (with noise), segments = the present
+    objects' projections plus random clutter segments, all in the frame session_from_world. Returns the
+    `SessionObservations` and the world index of each landmark."""
+    from ..plugin.changes import KeyframeSegments, SessionObservations, in_view
+
+    cam = CHANGE_CAMERA
+    rng = np.random.default_rng(seed)
+    poses = nadir_poses(centers)
+    seen, uv, depth = in_view(positions, sizes, poses, [cam] * len(poses))
+    keep = present & (seen.sum(0) >= 6)
+    segs = []
+    for k in range(len(poses)):
+        vis = np.flatnonzero(seen[k] & present)
+        c = uv[k, vis] + rng.normal(0.0, 1.0, (len(vis), 2))
+        h = sizes[vis] * cam.fx / depth[k, vis] * rng.uniform(0.9, 1.1, len(vis))
+        cl = rng.uniform([0, 0], [cam.width, cam.height], (clutter, 2))
+        segs.append(KeyframeSegments(np.vstack([c, cl]), np.concatenate([h, rng.uniform(2.0, 30.0, clutter)])))
+    pos = positions[keep] + rng.normal(0.0, 0.3, (int(keep.sum()), 3))
+    size = sizes[keep] * rng.uniform(0.92, 1.08, int(keep.sum()))
+    obs = SessionObservations(pos, size, poses, cam, tuple(segs), seen.sum(0)[keep].astype(float))
+    if session_from_world is not None:
+        obs = obs.transformed(session_from_world)
+    return obs, np.flatnonzero(keep)
+
+
+def toy_change_pair() -> tuple:
+    """Two partly overlapping sessions of one 260-object world, each with about a tenth of the objects absent,
+    B in a frame of its own: (positions, sizes, present_a, present_b, a, ids_a, b, ids_b, a_from_b)."""
+    w = make_spaced_world(260, 240.0, (1.0, 4.0), 3)
+    positions, sizes = w.positions, w.sizes
+    rng = np.random.default_rng(5)
+    n = len(positions)
+    present_a = rng.random(n) > 0.1
+    present_b = rng.random(n) > 0.1
+    cams_a = lawnmower(30, 150, 30, 150, 70, 30, 8)
+    cams_b = lawnmower(90, 210, 60, 180, 70, 30, 8)  # overlaps A in part
+    frame_b = yaw_transform(35.0, (12.0, -7.0, 2.0))
+    a, ids_a = change_session(positions, sizes, present_a, cams_a, 1)
+    b, ids_b = change_session(positions, sizes, present_b, cams_b, 2, session_from_world=frame_b)
+    return positions, sizes, present_a, present_b, a, ids_a, b, ids_b, frame_b.inverse()
