@@ -6,6 +6,8 @@ calibration of the confidence, same-season and cross-season pairs at several `sy
         [--changed 0.04,0.10] [--frames 100] [--figure FILE.png] [--example FILE.png]
         [--set changes.KEY=VALUE ...]   (an ablation: the same pairs with other change-detection parameters)
         [--cached]   (score only the pairs already matched in WORK: nothing is rendered, mapped or matched)
+        [--failures]   (every false claim, missed change and claim on no object at the default confidence, with its
+                        mechanism: `change_failures`)
 
 Per world seed and change level, four sessions of one world (kept in WORK between runs): A summer (session seed
 1), B summer on another path (shifted 20, 10 m, sun from 200 deg: shadows moved; seed 2), C summer on a third path
@@ -20,6 +22,10 @@ per-object claims, those on objects a session never mapped included (`unmapped_t
 under the track); every claimed landmark; false changes per hectare of the common area; claims outside the other
 session's true observed area). `--set changes.unmapped_objects=false` scores landmarks only (the code before
 that stage, identical tables).
+
+Precision is also given with the claims on no object (ground texture, shadows: landmarks of radius >= 2 m whose
+observations lie on the ground) counted as false claims (`P with ground`): what changes.csv says of things of
+that size. The bar's precision counts only claims on the world's objects.
 
 Statistics: the pairs of one world are not independent (the change levels of a world remove nested sets of the
 same objects, and its pairs share sessions), so the 95 % intervals are percentile intervals of a bootstrap that
@@ -42,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from ...plugin.params import Params
+from .change_failures import Failure, classify_failures, failure_table
 from .change_truth import SIZE_BINS, Score, object_truth, observed_truth_area, score_pair
 from .machine import machine_summary
 
@@ -93,12 +100,13 @@ class PairResult:
     cpu_s: float
     summary: str
     scores: dict[float, Score]
+    failures: list[Failure]  # at the default min-confidence
 
 
 def evaluate(root: Path, world: int, changed: float, a: str, b: str, kind: str, sweep: Sequence[float],
-             params: Params | None = None) -> PairResult | None:
-    """Classify the pair a-b with its verified alignment and score it at every min-confidence of `sweep`; None
-    when the pair was not aligned."""
+             params: Params | None = None, default: float = 0.8) -> PairResult | None:
+    """Classify the pair a-b with its verified alignment and score it at every min-confidence of `sweep` (its
+    failures at `default`); None when the pair was not aligned."""
     from ...database.match_io import read_match
     from ...database.synth_session import load_synth_session
     from ...workflows.changes import compute
@@ -120,7 +128,8 @@ def evaluate(root: Path, world: int, changed: float, a: str, b: str, kind: str, 
     area_a, area_b = observed_truth_area(sa, kfa), observed_truth_area(sb, kfb)
     scores = {c: score_pair(run.result, truth, oa, ob, area_a, area_b, min_confidence=c, unmapped_objects_a=ua,
                             unmapped_objects_b=ub) for c in sweep}
-    return PairResult(world, changed, a + b, kind, cpu, run.summary(), scores)
+    failures = classify_failures(run.result, truth, oa, ob, default, ua, ub)
+    return PairResult(world, changed, a + b, kind, cpu, run.summary(), scores, failures)
 
 
 def unmapped_track_objects(synth: object, mapped: Path, unmapped: object) -> np.ndarray:
@@ -164,8 +173,8 @@ def world_bootstrap(results: Sequence[PairResult], ratio: Callable[[Score], tupl
     return float(np.quantile(vals, 0.025)), float(np.quantile(vals, 0.975))
 
 
-def _precision(change: str) -> Callable[[Score], tuple[int, int]]:
-    return lambda s: s.scope_counts(change)[:2]
+def _precision(change: str, with_ground: bool = False) -> Callable[[Score], tuple[int, int]]:
+    return lambda s: s.scope_counts(change, with_ground=with_ground)[:2]
 
 
 def _recall(change: str) -> Callable[[Score], tuple[int, int]]:
@@ -197,8 +206,9 @@ def report(results: list[PairResult], sweep: Sequence[float], default: float = 0
     worlds = sorted({r.world for r in results})
     lines = [f"worlds {', '.join(map(str, worlds))}; min-confidence {default:.2f}; radius >= 2 m, both saw >= 6 "
              "times; value (right/claimed or found/changed) [95 % interval, worlds resampled]", "",
-             "| pairs | --changed | gone P | gone R | new P | new R | all claimed landmarks P | false changes / ha | "
-             "outside | CPU s / pair |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "| pairs | --changed | gone P | gone R | new P | new R | gone P with ground | new P with ground | "
+             "all claimed landmarks P | false changes / ha | outside | CPU s / pair |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     levels = sorted({r.changed for r in results})
     for kind in KINDS:
         for changed in [*levels, None]:
@@ -212,6 +222,8 @@ def report(results: list[PairResult], sweep: Sequence[float], default: float = 0
                          f"{_ratio_cell(rs, _recall('gone'), default)} | "
                          f"{_ratio_cell(rs, _precision('new'), default)} | "
                          f"{_ratio_cell(rs, _recall('new'), default)} | "
+                         f"{_ratio_cell(rs, _precision('gone', True), default, False)} | "
+                         f"{_ratio_cell(rs, _precision('new', True), default, False)} | "
                          f"{_ratio_cell(rs, _landmarks, default)} | {s.false_per_ha():.2f} | {s.outside} | "
                          f"{np.mean([r.cpu_s for r in rs]):.2f} |")
     lines += ["", "Per kind and size (all change levels pooled; P = precision (claims), R = recall (changed "
@@ -301,6 +313,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--example", type=Path, help="write the first same-season pair's changes.png here")
     ap.add_argument("--cached", action="store_true",
                     help="score only the pairs already matched in WORK (render, map and match nothing)")
+    ap.add_argument("--failures", action="store_true",
+                    help="print every failure's mechanism at the default min-confidence (change_failures)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="parameter override for change detection (repeatable)")
     args = ap.parse_args(argv)
@@ -326,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
                 if args.cached and not (root / "pairs" / f"{a}{b}" / "match.json").is_file():
                     print(f"world {world} changed {changed:.2f} {a}-{b} ({kind}): not in WORK, not scored", flush=True)
                     continue
-                res = evaluate(root, world, changed, a, b, kind, sweep, params)
+                res = evaluate(root, world, changed, a, b, kind, sweep, params, default)
                 if res is None:
                     print(f"world {world} changed {changed:.2f} {a}-{b} ({kind}): not aligned (no accepted "
                           "alignment), not scored", flush=True)
@@ -336,6 +350,13 @@ def main(argv: list[str] | None = None) -> int:
                       "CPU)", flush=True)
     print()
     print(report(results, sweep, default))
+    if args.failures:
+        for kind in KINDS:
+            found = [f for r in results if r.kind == kind for f in r.failures]
+            if found:
+                print(f"\nFailures, {kind} (min-confidence {default:.2f}; objects of radius >= 2 m both saw >= 6 "
+                      f"times, claims on no object of radius >= 2 m):\n")
+                print(failure_table(found))
     if args.figure:
         figure(results, sweep, args.figure)
     if args.example:
