@@ -123,16 +123,18 @@ def chance_refinements(points_a: np.ndarray, sizes_a: np.ndarray | None, points_
                        sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, gate_m: float,
                        max_size_difference: float, placements: Sequence[Sim3], dof: int = 4,
                        z_weight: float = 0.5, winner_pairs: np.ndarray | None = None,
-                       tree_a: Any = None, tree_a_xy: Any = None) -> tuple[np.ndarray, np.ndarray]:
-    """Chance alignments of these two maps: B refined from each placement exactly like the winner
-    (`refine_alignment`: the same gate, size gate and fit); the refinements that converge to the winner
+                       tree_a: Any = None, tree_a_xy: Any = None,
+                       coarse_factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Chance alignments of these two maps: B refined from each placement like the winner (`refine_alignment`:
+    the same gate, size gate and fit; `coarse_factor` as there, 1 for the chance model's samples:
+    `verification.verify_alignments` says why); the refinements that converge to the winner
     (`converged_to_winner`) are no chance and are left out. Returns their supports, counting only the pairs chance
     gave them (`chance_pairs`), and their opportunities (`chance_opportunity`; zeros without `tree_a_xy`).
     `tree_a`: `refinement.pairing_tree` of A, if built; `tree_a_xy`: `horizontal_tree` of A."""
     supports, opportunities = [], []
     for start in placements:
         aligned = refine_alignment(points_a, sizes_a, points_b, sizes_b, start, gate_m, max_size_difference,
-                                   dof=dof, z_weight=z_weight, tree_a=tree_a)
+                                   dof=dof, z_weight=z_weight, tree_a=tree_a, coarse_factor=coarse_factor)
         if converged_to_winner(winner, probe, gate_m, winner_pairs, aligned):
             continue
         # only the pairs chance gave it: a refinement caught on the edge of the winner's basin (turned a few
@@ -147,10 +149,11 @@ def chance_refinements(points_a: np.ndarray, sizes_a: np.ndarray | None, points_
 def chance_supports(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
                     sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, gate_m: float,
                     max_size_difference: float, placements: Sequence[Sim3], dof: int = 4,
-                    z_weight: float = 0.5, winner_pairs: np.ndarray | None = None, tree_a: Any = None) -> np.ndarray:
+                    z_weight: float = 0.5, winner_pairs: np.ndarray | None = None, tree_a: Any = None,
+                    coarse_factor: float = 1.0) -> np.ndarray:
     """The supports of `chance_refinements` (for rivals, which need no opportunity)."""
     return chance_refinements(points_a, sizes_a, points_b, sizes_b, winner, probe, gate_m, max_size_difference,
-                              placements, dof, z_weight, winner_pairs, tree_a)[0]
+                              placements, dof, z_weight, winner_pairs, tree_a, coarse_factor=coarse_factor)[0]
 
 
 OPPORTUNITY_GATES = (2.0, 6.0)  # A's density around a placed B landmark: counted in this annulus (in gates)

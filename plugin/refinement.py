@@ -111,7 +111,7 @@ class Alignment:
 def refine_alignment(
     points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
     initial: Sim3, gate_m: float, max_size_difference: float, dof: int = 4, with_scale: bool = False,
-    max_iterations: int = 20, z_weight: float = 0.5, tree_a: Any = None,
+    max_iterations: int = 20, z_weight: float = 0.5, tree_a: Any = None, coarse_factor: float = 1.0,
 ) -> Alignment:
     """Refine a_from_b on every landmark the two maps share, not only on one window's associations.
 
@@ -120,9 +120,32 @@ def refine_alignment(
     gate pulls little), until the set of pairs stops changing. `dof` 4 fits yaw + translation
     (`fit_yaw_translation`, for gravity-aligned maps); 6 a rigid (or with `with_scale` a similarity) transform.
     Keeps `initial` (and its supporting pairs) when fewer than 3 pairs are found. `tree_a`: as `mutual_nearest`.
+    `coarse_factor` > 1: also the same iteration first at a gate of coarse_factor x gate_m, then at gate_m from
+    where it converged (coarse to fine), and the one of the two with more pairs (ties: the one-gate result). At
+    gate_m alone the pairing settles in the nearest local optimum: where an object is mapped as several
+    fragments a few metres apart (crowns, across seasons) and one map is stretched by its EKF drift, a start
+    1-2 gates off pairs some landmarks with a neighbouring fragment and the fit stops there (world 97's crossing
+    flight: 18 pairs 1.7 m from the optimum with 22; BENCHMARKS.md, issue 16). The wider first gate sees the
+    partners of the whole overlap at once; its optimum is not always the one-gate optimum, hence the better of
+    the two.
     """
     if dof not in (4, 6):
         raise ValueError(f"dof must be 4 or 6, got {dof}")
+    fine = _refine_at_gate(points_a, sizes_a, points_b, sizes_b, initial, gate_m, max_size_difference, dof,
+                           with_scale, max_iterations, z_weight, tree_a)
+    if coarse_factor <= 1.0:
+        return fine
+    coarse = _refine_at_gate(points_a, sizes_a, points_b, sizes_b, initial, coarse_factor * gate_m,
+                             max_size_difference, dof, with_scale, max_iterations, z_weight, tree_a).transform
+    polished = _refine_at_gate(points_a, sizes_a, points_b, sizes_b, coarse, gate_m, max_size_difference, dof,
+                               with_scale, max_iterations, z_weight, tree_a)
+    return polished if len(polished.associations) > len(fine.associations) else fine
+
+
+def _refine_at_gate(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                    sizes_b: np.ndarray | None, initial: Sim3, gate_m: float, max_size_difference: float, dof: int,
+                    with_scale: bool, max_iterations: int, z_weight: float, tree_a: Any) -> Alignment:
+    """One stage of `refine_alignment`: the iteration at one gate."""
     pa = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
     transform = initial
