@@ -180,3 +180,22 @@ def test_a_pair_without_positive_keyframe_pairs_is_refused(sessions, tmp_path, c
     write_poses_csv(b / "poses.csv", poses)
     err = cli_error("evaluate", a, b, "--methods", "sosmatch", "--repeats", "1", "--out", tmp_path / "e")
     assert "IoU > 0.333" in err and "largest 0.0" in err and not (tmp_path / "e").exists()
+
+
+def test_a_refused_verification_claims_nothing(sessions, tmp_path):
+    """When the verification refuses (here forced: a rival ratio no alignment reaches), `sosmatch match` answers
+    "no match", so the matcher's row claims nothing and accepts no hypothesis; the window hypotheses stay in the
+    windows-only row (the paper's protocol). Before, the matcher's row silently became the windows-only row: world
+    97's crossing flight read recall 0.454 and a worst accepted hypothesis 21 m off for a refused match."""
+    import dataclasses
+
+    _, a, b, _ = sessions
+    p = Params()
+    strict = dataclasses.replace(p, verification=dataclasses.replace(p.verification, min_ratio=1000.0))
+    ev = run(strict, a, b, tmp_path / "out", case="refused", repeats=1, methods=["sosmatch"])
+    rows = {r["method"]: r for r in ev["rows"]}
+    ours, windows = rows["SOS-Match (ours)"], rows["SOS-Match, windows only"]
+    assert not ev["methods"]["sosmatch"]["verification"]["clear_winner"]
+    assert ours["recall_reached"] == 0.0 and ours["recall_at_p99"] == 0.0 and ours["accepted_max_error_m"] is None
+    assert ev["methods"]["sosmatch"]["claimed_pairs"] == 0
+    assert windows["recall_reached"] > 0.5 and windows["accepted_max_error_m"] is not None

@@ -39,11 +39,13 @@ def row_of(case: str, method: str, res: dict) -> dict:
     # The worst accepted transform. With the verification the matcher accepts one transform, the verified one:
     # the window hypotheses that agree with it lend it their associations (the claims), not their transforms,
     # which are fitted on their own 7-10 associations and can be metres off (5.8-7.2 m on held-out worlds).
-    # Without a verified answer (the windows-only row, the paper's protocol) every accepted window hypothesis
-    # is an answer of its own.
+    # Without a verification (the windows-only row, the paper's protocol, or `--no-verify`) every accepted window
+    # hypothesis is an answer of its own; with a refused verification the matcher accepted nothing.
     ver = res.get("verification") or {}
     verified = bool(ver.get("clear_winner"))
-    if verified:
+    if res.get("verification") is not None and not verified:
+        errors = []
+    elif verified:
         errors = [ver["error_m"]] if ver.get("accepted") and np.isfinite(ver.get("error_m", np.nan)) else []
         windows = [h["error_m"] for h in res.get("accepted_truth", [])
                    if np.isfinite(h["error_m"]) and h.get("agrees_with_verified")]

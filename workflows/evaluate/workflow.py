@@ -262,8 +262,13 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
                     observer_geometry(obs_b, pb, _map_frame_centers(gt_b, map_b)), separation)
     out["geometry"] = geometry
     out["scores_windows"] = claim_scores(hypotheses, obs_a, obs_b, geometry)
-    if verified is None:
+    if verification is None:  # no verification ran (`--no-verify`): the matcher answers with its windows
         out["scores"] = out["scores_windows"]
+    elif verified is None:
+        # the verification refused: `sosmatch match` answers "no match", so the matcher claims nothing (its
+        # window hypotheses are chance-level |S| 7 as often as true ones across seasons: world 97's crossing
+        # flight had 8 "accepted" at 2-21 m; they stay in the windows-only row, the paper's protocol)
+        out["scores"] = np.full_like(out["scores_windows"], np.nan)
     else:  # the matcher's answer: the verified alignment and the window hypotheses that agree with it
         tol = 2.0 * assoc_params.distance_tolerance_m
         agreeing = [h for h in hypotheses if hypothesis_agrees(h.associations, winner, pa, pb, tol)]
