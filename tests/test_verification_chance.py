@@ -95,6 +95,9 @@ def test_match_refuses_maps_of_different_worlds_and_records_the_chance(tmp_path,
 
     assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "elsewhere.sosmap"), "--out",
                  str(tmp_path / "different"), *loose]) == 0
+    # the line names no match and nothing "accepted" (the window hypotheses over theta_S are chance here)
+    line = capsys.readouterr().out
+    assert "verification: no match" in line and "accepted" not in line and "over theta_S" in line
     doc = json.loads((tmp_path / "different" / "match.json").read_text())
     ver = doc["verification"]
     assert doc["num_accepted"] > 0 and ver["support"] > 3  # chance hypotheses were verified
