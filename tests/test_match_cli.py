@@ -34,7 +34,7 @@ def test_match_end_to_end(maps, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["match", str(d / "a.sosmap"), str(d / "session_b"), "--out", str(out)]) == 0
     line = capsys.readouterr().out.strip()
-    assert line.startswith("match: ") and "\n" not in line and "accepted" in line
+    assert line.startswith("match: ") and "\n" not in line and "over theta_S" in line and "verified: " in line
     doc = json.loads((out / "match.json").read_text())
     assert doc["format"] == "sosmatch match v1" and doc["num_accepted"] > 0
     # the summary prints the wall time and, beside it, the CPU time (the honest figure on a shared machine)
