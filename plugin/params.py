@@ -143,6 +143,9 @@ class SegmentationParams(Checked):
     # gradient percentile below which pixels seed watershed regions; 60 (was 40): fewer, larger seeds, 2x faster
     # Ward merge, summer / winter recall 0.809 / 0.614 -> 0.822 / 0.644, summer-winter average F1 0.715 -> 0.843
     classical_flat_percentile: float = within(60.0, 0.0, 100.0)
+    # gradient minima at least this x the flat level deep seed watershed regions too (h-minima; 0: flat zones
+    # only): small textured objects on snow had no flat pixel and no seed (winter bushes 5-8/21-27 found -> 14-24)
+    classical_minima_depth: float = non_negative(1.0)
     classical_merge_cost: float = positive(2000.0)  # Ward merge cost of the finest level (working px x Delta E^2)
     classical_merge_levels: int = count(7, 1)  # levels of the merge hierarchy whose object-like regions become masks
     classical_merge_level_factor: float = within(2.5, 1.0, None, lo_open=True)  # cost ratio between consecutive levels
