@@ -9,23 +9,32 @@ from sosmatch.plugin.params import SegmentationParams
 from sosmatch.plugin.segmentation import MaskSet, get_backend, mask_iou_matrix
 
 
+def place_discs(shape, n, rng, radius, border, gap):
+    """n disc masks of random radius in `radius`, `border` px inside the image and `gap` px apart; and their
+    uint16 ground-truth ids."""
+    h, w = shape
+    gt = np.zeros((h, w), np.uint16)
+    discs = []
+    while len(discs) < n:
+        r = rng.uniform(*radius)
+        cx, cy = rng.uniform(r + border, [w - r - border, h - r - border])
+        m = np.zeros((h, w), np.uint8)
+        cv2.circle(m, (int(cx), int(cy)), int(r), 1, -1)
+        if (cv2.dilate(m, np.ones((2 * gap + 1,) * 2, np.uint8)) & (gt > 0)).any():
+            continue
+        discs.append(m > 0)
+        gt[m > 0] = len(discs)
+    return discs, gt
+
+
 def blob_scene(h=480, w=640, n=12, seed=0, radius=(10, 40)):
     """Textured field with n separated discs of random colour; returns image and uint16 ground-truth ids."""
     rng = np.random.default_rng(seed)
     noise = cv2.GaussianBlur(rng.normal(0, 12, (h, w)).astype(np.float32), (0, 0), 1.0)
     img = np.array([150, 90, 80], np.float32)[None, None] + noise[..., None]
-    gt = np.zeros((h, w), np.uint16)
-    k = 0
-    while k < n:
-        r = rng.uniform(*radius)
-        cx, cy = rng.uniform(r + 2, [w - r - 2, h - r - 2])
-        m = np.zeros((h, w), np.uint8)
-        cv2.circle(m, (int(cx), int(cy)), int(r), 1, -1)
-        if (cv2.dilate(m, np.ones((9, 9), np.uint8)) & (gt > 0)).any():
-            continue
-        k += 1
-        img[m > 0] = rng.uniform(20, 235, 3) + noise[m > 0, None] * 0.5
-        gt[m > 0] = k
+    discs, gt = place_discs((h, w), n, rng, radius, 2, 4)
+    for m in discs:
+        img[m] = rng.uniform(20, 235, 3) + noise[m, None] * 0.5
     return np.clip(img, 0, 255).astype(np.uint8), gt
 
 
@@ -154,19 +163,9 @@ def snow_scene(h=480, w=640, n=10, seed=0):
     """Smooth bright ground (snow: sensor noise only) with n small textured dark blobs (bushes, boulders)."""
     rng = np.random.default_rng(seed)
     img = np.full((h, w, 3), 205.0, np.float32) + rng.normal(0, 1.5, (h, w, 1))
-    gt = np.zeros((h, w), np.uint16)
-    k = 0
-    while k < n:
-        r = rng.uniform(8, 12)
-        cx, cy = rng.uniform(r + 30, [w - r - 30, h - r - 30])
-        m = np.zeros((h, w), np.uint8)
-        cv2.circle(m, (int(cx), int(cy)), int(r), 1, -1)
-        if (cv2.dilate(m, np.ones((41, 41), np.uint8)) & (gt > 0)).any():
-            continue
-        k += 1
-        texture = rng.normal(0, 35, (h, w)).astype(np.float32)
-        img[m > 0] = np.array([110, 95, 80]) + texture[m > 0, None]
-        gt[m > 0] = k
+    discs, gt = place_discs((h, w), n, rng, (8, 12), 30, 20)
+    for m in discs:
+        img[m] = np.array([110, 95, 80]) + rng.normal(0, 35, (int(m.sum()), 1))
     return np.clip(img, 0, 255).astype(np.uint8), gt
 
 
