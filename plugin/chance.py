@@ -203,9 +203,53 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
                                           winner_pairs, tree_a, tree_a_xy)
         samples, opportunities = np.concatenate([samples, more]), np.concatenate([opportunities, more_o])
         chance = chance_test(samples, support, trials, opportunities)
-        if chance.p_value <= false_alarm * CHANCE_MARGIN or chance.p_value >= CHANCE_CLEARLY_CHANCE:
+        if not (chance.p_value <= false_alarm * CHANCE_MARGIN or chance.p_value >= CHANCE_CLEARLY_CHANCE):
+            continue
+        # the point estimate is past a stop; stop only if the whole interval is (a tail extrapolated from 16-64
+        # samples swings by decades: 1.8e-9 after 16 placements, 2.4e-4 after 256 on one pair)
+        low, high = chance_interval(samples, support, trials, opportunities)
+        if high <= false_alarm * CHANCE_MARGIN or low >= CHANCE_CLEARLY_CHANCE:
             break
     return chance, samples
+
+
+CHANCE_RESAMPLES = 100  # bootstrap resamples of `chance_interval`
+CHANCE_INTERVAL = 0.9  # its two-sided level
+
+
+def chance_interval(samples: np.ndarray, support: int, trials: float,
+                    opportunities: np.ndarray | None) -> tuple[float, float]:
+    """A bootstrap interval (level CHANCE_INTERVAL, CHANCE_RESAMPLES resamples of the (support, opportunity)
+    pairs, seeded: deterministic) of `chance_test`'s p_value: how far it could move with other placements of the
+    same kind. The early stops of `sequential_chance` decide on it, so a few dozen samples whose spread happens
+    to be small cannot end the test on a tail they do not support. Without opportunities: the point estimate."""
+    x = np.asarray(samples, np.float64).reshape(-1)
+    o = None if opportunities is None else np.asarray(opportunities, np.float64).reshape(-1)
+    if o is None or len(o) != len(x) or len(x) < 2 or o.sum() <= 0:
+        p = chance_test(samples, support, trials, opportunities).p_value
+        return p, p
+    rows = np.random.default_rng(CHANCE_SEED).integers(0, len(x), (CHANCE_RESAMPLES, len(x)))
+    tails, _ = _opportunity_tails(x[rows], o[rows], support)
+    p = -np.expm1(trials * np.log1p(-np.minimum(tails, 1.0 - 1e-16)))
+    low, high = np.quantile(p, [(1.0 - CHANCE_INTERVAL) / 2.0, (1.0 + CHANCE_INTERVAL) / 2.0])
+    return float(low), float(high)
+
+
+def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int) -> tuple:
+    """q of `chance_test` with opportunities for each row of x (supports) and o (opportunities), and each row's
+    overdispersion: the negative binomial with mean beta o_i and the moment dispersion of what remains, mixed
+    over the row's placements (Poisson where nothing remains). Rows with no opportunity are never passed."""
+    from scipy import stats
+
+    n = x.shape[1]
+    beta = (x.sum(axis=1) + 1.0) / (o.sum(axis=1) + o.sum(axis=1) / n)
+    mu = np.maximum(beta[:, None] * o, 1e-9)
+    extra = np.sum((x - mu) ** 2 - mu, axis=1)
+    overdispersion = np.maximum(0.0, extra / np.sum(mu**2, axis=1))
+    k = 1.0 / np.where(overdispersion > 0, overdispersion, 1.0)[:, None]
+    tails = np.where(overdispersion > 0, np.mean(stats.nbinom.sf(support - 1, k, k / (k + mu)), axis=1),
+                     np.mean(stats.poisson.sf(support - 1, mu), axis=1))
+    return tails, overdispersion
 
 
 def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, prior_m: float = 0.0) -> float:
@@ -258,14 +302,8 @@ def chance_test(samples: np.ndarray, support: int, trials: float,
     o = None if opportunities is None else np.asarray(opportunities, np.float64).reshape(-1)
     overdispersion = float("nan")
     if o is not None and len(o) == len(x) and len(x) and o.sum() > 0:
-        mu = np.maximum((x.sum() + 1.0) / (o.sum() + o.mean()) * o, 1e-9)
-        extra = float(np.sum((x - mu) ** 2 - mu))
-        overdispersion = max(0.0, extra / float(np.sum(mu**2)))
-        if overdispersion > 0:
-            k = 1.0 / overdispersion
-            tail = float(np.mean(stats.nbinom.sf(support - 1, k, k / (k + mu))))
-        else:
-            tail = float(np.mean(stats.poisson.sf(support - 1, mu)))
+        tails, dispersions = _opportunity_tails(x[None], o[None], support)
+        tail, overdispersion = float(tails[0]), float(dispersions[0])
     elif var > mean * (1.0 + 1e-9):
         tail = float(stats.nbinom.sf(support - 1, mean**2 / (var - mean), mean / var))
     else:

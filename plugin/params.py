@@ -337,7 +337,7 @@ class VerificationParams(Checked):
     # alignments (`effective_trials`), so it is accepted only when the probability that the best of N_eff
     # chance alignments reaches its support is at most `false_alarm`: the rate at which two maps of different
     # places would be reported as aligned. At most this many placements: `sequential_chance` stops after 16 once
-    # the answer is beyond doubt (every clear pair), and draws more while it is in doubt, because the tail is
+    # the answer is beyond doubt (its bootstrap interval past a stop) and draws more while in doubt, as the tail is
     # extrapolated from the samples' moments and a few dozen samples of a skewed count scatter widely: a true
     # sparse winter pair of world 64 (never used before; support 32, chance max 11) read p 0.037 (refused) from
     # 64 samples, 0.005 from 128, 3e-4 from 256, 2e-5 from 512 (0.6 s of CPU for 1,000 refinements there; the

@@ -9,7 +9,7 @@ import numpy as np
 from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
 from sosmatch.database.match_io import read_match
 from sosmatch.plugin.association.synthetic import survey_map_pair
-from sosmatch.plugin.chance import chance_test, effective_trials
+from sosmatch.plugin.chance import CHANCE_MARGIN, chance_interval, chance_test, effective_trials
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.refinement import refine_alignment
 from sosmatch.plugin.verification import verify_alignments
@@ -206,3 +206,28 @@ def test_a_chance_alignment_counts_only_the_pairs_the_winner_does_not_explain():
     far = np.linalg.norm(a[10:20] - b[20:30], axis=1) > 6.0
     assert chance_pairs(a, b, ident, np.vstack([pairs, wrong]), 3.0) == int(far.sum())
     assert chance_pairs(a, b, ident, pairs, 3.0) == 0
+
+
+def test_an_early_stop_needs_the_whole_interval_past_it():
+    """Chance supports with a real extra spread (negative binomial, k 1.5, over the opportunities): the first 16
+    placements can miss the tail, so their point estimate calls a support of 16 a 1e-6 event among 1.6e5
+    alignments while all 2048 placements say chance reaches it (p 1). The old early stop accepted there (p <=
+    false_alarm x CHANCE_MARGIN after one batch); the bootstrap interval of those 16 reaches above that, so the
+    test goes on. With many samples the interval closes around the point estimate."""
+    false_alarm, trials = 1e-2, 1.6e5
+    fooled = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        o = rng.uniform(0.5, 3.0, 2048)
+        x = rng.negative_binomial(1.5, 1.5 / (1.5 + 0.8 * o))
+        assert chance_test(x, 16, trials, o).p_value > 0.5
+        first = chance_test(x[:16], 16, trials, o[:16]).p_value
+        low, high = chance_interval(x[:16], 16, trials, o[:16])
+        assert low <= first <= high
+        if first <= false_alarm * CHANCE_MARGIN:
+            fooled += 1
+            assert high > false_alarm * CHANCE_MARGIN
+    assert fooled >= 2
+    # a clear chance case over many samples: a narrow interval that lies wholly past the refusal stop
+    low, high = chance_interval(x, 16, trials, o)
+    assert 0.5 <= low <= high
