@@ -98,12 +98,11 @@ from .verdict import (
     detect_changes,
 )
 
-__all__ = ["BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS", "CLASSES", "CONTROL_SHIFT", "EVIDENCE",
-           "FOOTPRINT_MARGIN", "GONE", "KEPT", "LOW_CONFIDENCE", "NEW", "NO_EVIDENCE", "TOO_FEW_VIEWS", "UNSEEN",
-           "AlignmentSupport", "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations",
-           "absence_log_ratio", "alignment_support", "binomial_tail", "counterparts", "detect_changes", "dispersion",
-           "fit_logistic", "ground_height_field", "holder_pairs", "in_view", "inside_larger", "observed_area",
+__all__ = ["BELOW_GROUND", "BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS", "CLASSES", "CONTROL_SHIFT",
+           "EVIDENCE", "FOOTPRINT_MARGIN", "GONE", "KEPT", "LOW_CONFIDENCE", "NEW", "NO_EVIDENCE", "TOO_FEW_VIEWS",
+           "UNSEEN", "AlignmentSupport", "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations",
+           "UnmappedObjects", "absence_log_ratio", "alignment_support", "below_the_ground", "binomial_tail",
+           "counterparts", "detect_changes", "dispersion", "fit_logistic", "ground_height_field", "holder_pairs",
+           "in_view", "inside_larger", "landmark_presence_rate", "no_unmapped_objects", "observed_area",
            "predict_logistic", "presence_rate", "reobservation_features", "segment_evidence", "segment_hits",
-           "UnmappedObjects", "view_correlation", "no_unmapped_objects", "tracks_from_matches", "unmapped_objects",
-           "below_the_ground", "BELOW_GROUND",
-           "landmark_presence_rate"]
+           "tracks_from_matches", "unmapped_objects", "view_correlation"]
