@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from sosmatch.tools.benchmarks.bench_real import common_landmarks
+from sosmatch.tools.benchmarks.real_seneca import common_landmarks
 
 
 def test_common_landmarks_are_mutual_nearest_within_radius():

@@ -4,7 +4,7 @@ import numpy as np
 import rasterio
 from rasterio.transform import from_origin
 
-from sosmatch.tools.benchmarks.bench_real import half_orthophoto, mirrored_orthophoto
+from sosmatch.tools.benchmarks.real_naip import half_orthophoto, mirrored_orthophoto
 
 
 def _geotiff(path, width=9, height=4):

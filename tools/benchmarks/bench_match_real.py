@@ -3,7 +3,7 @@ against ORB+RANSAC, and the accuracy that must not fall) and the real NAIP pair 
 
 Both build what they need with the other benchmarks' functions and reuse it when it exists (an interrupted run
 resumes): the evaluation cases with `bench_evaluate.run_case` (sessions, maps and evaluations under --eval-work),
-the NAIP sessions and maps with `bench_real.naip_sessions` (under --naip-work; the orthophotos of --naip).
+the NAIP sessions and maps with `real_naip.naip_sessions` (under --naip-work; the orthophotos of --naip).
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def naip_maps(naip: Path, work: Path) -> dict[str, tuple[Path, Path]]:
     """The mapped NAIP sessions: both dates, and the negative controls (opposite halves of the two dates, the two
     halves of one date, one date against the other mirrored), rendered and mapped as `bench_real naip --hfov 90
     --frame-spacing 75` does (BENCHMARKS.md, "NAIP 2009 vs 2015 matched")."""
-    from .bench_real import half_orthophoto, mirrored_orthophoto, naip_sessions
+    from .real_naip import half_orthophoto, mirrored_orthophoto, naip_sessions
 
     extra = ["--hfov", "90", "--frame-spacing", "75"]
     maps: list[str] = []
