@@ -288,8 +288,7 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
     gate = params.tolerance_factor * association_tolerance_m
     all_pts = np.vstack([a.positions, b_in_a.positions])
     ground = ground_height_field(all_pts)
-    heights_a = a.positions[:, 2] - ground(a.positions[:, 0], a.positions[:, 1])
-    heights_b = b_in_a.positions[:, 2] - ground(b_in_a.positions[:, 0], b_in_a.positions[:, 1])
+    heights_a, heights_b = _above(ground, a.positions), _above(ground, b_in_a.positions)
     deep_a, deep_b = (below_the_ground(h, h, params.max_depth_sigmas) for h in (heights_a, heights_b))
     direct_a = _direct(a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, gate, params, deep=deep_a,
                        own=a)
@@ -325,17 +324,23 @@ def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direc
                             params.max_size_difference, params.z_weight, params.part_max_ratio,
                             params.unmapped_max_error_px, params.unmapped_pixel_sigma_px)
     # below the ground its session looked at (by the scale of its map's landmarks): a wrong triangulation
-    heights = objs.positions[:, 2] - ground(objs.positions[:, 0], objs.positions[:, 1])
-    objs = objs.subset(np.flatnonzero(~below_the_ground(heights, own_heights, params.max_depth_sigmas)))
+    heights = _above(ground, objs.positions)
+    keep = np.flatnonzero(~below_the_ground(heights, own_heights, params.max_depth_sigmas))
+    objs, heights = objs.subset(keep), heights[keep]
     # its own segments must show it, as the other session's must show a landmark to keep it (the same test, with
     # this session's landmarks as the references of presence): a piece of track alone is no object
     nothing = np.zeros((0, 3))
     shown = _direct(objs.positions, objs.sizes, own, nothing, nothing[:, 0], gate_m, params,
                     (own.positions, own.sizes))
-    objs = objs.subset(np.flatnonzero(shown.by_segments & (shown.hits >= params.min_views)))
+    keep = np.flatnonzero(shown.by_segments & (shown.hits >= params.min_views))
+    objs, heights = objs.subset(keep), heights[keep]
     reference = mine.compared & (mine.index >= 0)
     direct = _direct(objs.positions, objs.sizes, other, other.positions, other.sizes, gate_m, params,
                      (own.positions[reference], own.sizes[reference]), own=own)
-    heights = objs.positions[:, 2] - ground(objs.positions[:, 0], objs.positions[:, 1])
     return objs, _judge(own, objs.positions, objs.sizes, other, other.positions, other.sizes, heights, change_label,
                         gate_m, replace(params, part_max_ratio=0.0), direct, theirs)
+
+
+def _above(ground: HeightField, points: np.ndarray) -> np.ndarray:
+    """Heights of `points` above the ground height field."""
+    return points[:, 2] - ground(points[:, 0], points[:, 1])
