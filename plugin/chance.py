@@ -230,7 +230,7 @@ def chance_interval(samples: np.ndarray, support: int, trials: float,
         return p, p
     rows = np.random.default_rng(CHANCE_SEED).integers(0, len(x), (CHANCE_RESAMPLES, len(x)))
     tails, _ = _opportunity_tails(x[rows], o[rows], support)
-    p = -np.expm1(trials * np.log1p(-np.minimum(tails, 1.0 - 1e-16)))
+    p = _best_of(tails, trials)
     low, high = np.quantile(p, [(1.0 - CHANCE_INTERVAL) / 2.0, (1.0 + CHANCE_INTERVAL) / 2.0])
     return float(low), float(high)
 
@@ -241,8 +241,8 @@ def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int) -> tuple:
     over the row's placements (Poisson where nothing remains). Rows with no opportunity are never passed."""
     from scipy import stats
 
-    n = x.shape[1]
-    beta = (x.sum(axis=1) + 1.0) / (o.sum(axis=1) + o.sum(axis=1) / n)
+    total = o.sum(axis=1)
+    beta = (x.sum(axis=1) + 1.0) / (total + total / x.shape[1])  # one pseudo-sample at the mean opportunity
     mu = np.maximum(beta[:, None] * o, 1e-9)
     extra = np.sum((x - mu) ** 2 - mu, axis=1)
     overdispersion = np.maximum(0.0, extra / np.sum(mu**2, axis=1))
@@ -308,8 +308,14 @@ def chance_test(samples: np.ndarray, support: int, trials: float,
         tail = float(stats.nbinom.sf(support - 1, mean**2 / (var - mean), mean / var))
     else:
         tail = float(stats.poisson.sf(support - 1, mean))
-    p_value = float(-np.expm1(trials * np.log1p(-min(tail, 1.0 - 1e-16))))
+    p_value = float(_best_of(tail, trials))
     return ChanceModel(int(len(x)), mean, var, float(trials), tail, p_value, overdispersion)
+
+
+def _best_of(tail: float | np.ndarray, trials: float) -> float | np.ndarray:
+    """1 - (1 - q)^N_eff: the probability that the best of `trials` chance alignments, each reaching the support
+    with probability `tail`, reaches it (q kept below 1 so that the log stays finite)."""
+    return -np.expm1(trials * np.log1p(-np.minimum(tail, 1.0 - 1e-16)))
 
 
 def _horizontal_radius(points: np.ndarray) -> float:
