@@ -349,10 +349,11 @@ class VerificationParams(Checked):
     # inside an alignment the positions already single out the partner, so this gate follows that spread while
     # the search's theta_r, where a wrong pair makes a wrong transform, stays tight (BENCHMARKS.md, issue 16)
     max_size_difference: float = fraction(0.4)
-    # every refinement of the verification (candidates, rivals, chance placements) first at this many gates, then
-    # at the gate (`refinement.refine_alignment`): 2 = the resolution at which the verification tells two
-    # alignments apart (`chance.converged_to_winner`); at the gate alone the fit stopped in a fragment's local
-    # optimum (world 97's crossing flight: 18 pairs where 22 were 1.7 m away). 1: one stage, as before
+    # the verification's candidates and displaced rivals are refined first at this many gates, then at the gate
+    # (`refinement.refine_alignment`; the chance placements stay one-gate, `verify_alignments` says why): 2 = the
+    # resolution at which the verification tells two alignments apart (`chance.converged_to_winner`); at the gate
+    # alone the fit stopped in a fragment's local optimum (world 97's crossing flight: 18 pairs where 22 were
+    # 1.7 m away). 1: one stage, as before
     coarse_factor: float = within(2.0, 1.0, None)
 
 
