@@ -126,6 +126,22 @@ def read_image(path: str | Path) -> np.ndarray:
     return out
 
 
+def read_gray(path: str | Path) -> np.ndarray:
+    """Read an image file as (H, W) uint8 gray, on its stored pixel grid like `read_image` (OpenCV's imread would
+    turn it by its EXIF Orientation tag, while the poses, the intrinsics and COLMAP see the stored grid); raise
+    InputError naming the file if it cannot be read."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("image file not found" if not path.exists() else "not a file", path)
+    data = np.fromfile(path, dtype=np.uint8)
+    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION) if data.size else None
+    if gray is None:
+        raise InputError("unreadable image (not a supported image format, or corrupt)", path)
+    return gray
+
+
 def list_images(paths: Iterable[str | Path]) -> list[Path]:
     """Expand files and directories (not recursive) into a sorted list of image files.
 

@@ -242,3 +242,32 @@ def test_a_refinement_that_moves_poses_far_beyond_their_priors_is_rejected(tmp_p
     _, honest = refine_poses_from_images(paths, noisy, cam, position_sigma_m=12.0, pixel_sigma_px=1.0,
                                          max_features=1500)
     assert not any("moved" in w or "tilted" in w for w in honest.warnings)
+
+
+def test_tie_points_read_the_stored_pixel_grid_whatever_the_exif_orientation(tmp_path):
+    """A camera that records Orientation 6 (rotate 90 for display) leaves the pixels in sensor order, and the
+    poses, the intrinsics and COLMAP all refer to that grid; OpenCV's imread turned the images to 240x320 and the
+    refinement failed ('image width 240 differs from the camera's 320'). The same points with and without the tag."""
+    from PIL import Image
+
+    from sosmatch.workflows.pose_refinement import tie_point_reconstruction
+
+    paths, truth, cam, _ = _plane_views(tmp_path)
+    tagged = []
+    for p in paths:
+        with Image.open(p) as img:
+            exif = img.getexif()
+            exif[0x0112] = 6  # Orientation: the stored grid is shown turned by 90 degrees
+            tagged.append(p.with_name(p.stem + "_o6.jpg"))
+            img.convert("RGB").save(tagged[-1], quality=100, exif=exif.tobytes())
+    plain = []
+    for p in paths:
+        with Image.open(p) as img:
+            plain.append(p.with_name(p.stem + "_o1.jpg"))
+            img.convert("RGB").save(plain[-1], quality=100)
+    with Image.open(tagged[0]) as img:
+        assert img.getexif()[0x0112] == 6 and img.size == (cam.width, cam.height)
+    rec_tagged = tie_point_reconstruction(tagged, truth, cam, max_features=1500)
+    rec_plain = tie_point_reconstruction(plain, truth, cam, max_features=1500)
+    assert rec_tagged.num_points3D() > 100
+    assert rec_tagged.num_points3D() == rec_plain.num_points3D()

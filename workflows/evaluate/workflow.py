@@ -334,15 +334,9 @@ def error_to_identity(transform: Any, points_b: np.ndarray) -> dict:
 
 
 def _load_images(gt: GroundTruthSession, image_dir: Path) -> list[np.ndarray]:
-    import cv2
+    from ...database.images import read_gray
 
-    images = []
-    for name in gt.names:
-        img = cv2.imread(str(image_dir / name), cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise InputError("cannot read keyframe image", image_dir / name)
-        images.append(img)
-    return images
+    return [read_gray(image_dir / name) for name in gt.names]
 
 
 def _run_baseline(name: str, gt_a: GroundTruthSession, gt_b: GroundTruthSession, images_a: list[np.ndarray],

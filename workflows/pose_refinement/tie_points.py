@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...plugin.errors import InputError
+from ...database.images import read_gray
 from ...plugin.geometry import Poses
 from .judge import RefinementRejected, RefinementStats, judge_refinement
 from .with_colmap import poses_of_reconstruction, refine_poses_with_colmap
@@ -56,7 +56,6 @@ def tie_point_reconstruction(
     the rays meet under less than `min_ray_angle_deg`.
     `camera` is a sosmatch Camera (any lens model: rays and the model go through it), image order = pose order.
     """
-    import cv2
     import pycolmap
 
     from ...database.cameras import pycolmap_camera
@@ -65,10 +64,7 @@ def tie_point_reconstruction(
     n = len(poses)
     kps, descs = [], []
     for path in image_paths:
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if img is None:
-
-            raise InputError("cannot read image", path)
+        img = read_gray(path)
         if img.shape[1] != camera.width:
             raise ValueError(f"{path}: image width {img.shape[1]} differs from the camera's {camera.width}")
         features = orb_features(img, max_features)
