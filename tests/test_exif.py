@@ -95,6 +95,20 @@ def test_intrinsics_scaled_to_file_size(tmp_path):
     assert "FocalPlane" in source
 
 
+def test_intrinsics_of_a_frame_turned_to_portrait_keep_the_sensor_focal_length(tmp_path):
+    """A 4:3 readout turned by 90 degrees by software (300x400 file, EXIF still 4000x3000): the file's width is the
+    readout's height, so the focal length in pixels is that of the landscape file (the old code scaled by
+    300 / 4000 and gave 0.75 of it, with a warning about a crop)."""
+    landscape, portrait = tmp_path / "l.jpg", tmp_path / "p.jpg"
+    write_jpeg(landscape, 41.0, -83.0, size=(400, 300))
+    write_jpeg(portrait, 41.0, -83.0, size=(300, 400))
+    cam_l, _ = pfe.camera_from_metadata(read_image_metadata(landscape))
+    cam_p, source = pfe.camera_from_metadata(read_image_metadata(portrait))
+    assert (cam_p.width, cam_p.height, cam_p.cx, cam_p.cy) == (300, 400, 150.0, 200.0)
+    assert cam_p.fx == pytest.approx(cam_l.fx, rel=1e-9) and cam_p.fy == pytest.approx(cam_l.fy, rel=1e-9)
+    assert "turned by 90 degrees" in source
+
+
 def _camera_dirs(R):  # noqa: N803
     return R[:, 0], R[:, 1], R[:, 2]  # image x, image y (down), optical axis in world
 

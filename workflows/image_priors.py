@@ -168,13 +168,20 @@ def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = No
         return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLength + given sensor width"
     if meta.focal_mm and meta.focal_plane_px_per_mm:
         ref_w, ref_h = meta.exif_size if meta.exif_size else (w, h)
-        if meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01:
+        px_per_mm_x, px_per_mm_y = meta.focal_plane_px_per_mm
+        source = "FocalLength + FocalPlaneX/YResolution (scaled to file size)"
+        if meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01 and abs(ref_h / ref_w - w / h) <= 0.01:
+            # the readout the EXIF describes, turned by 90 degrees (a portrait frame rotated by software, which
+            # leaves the EXIF as the camera wrote it): its width is the readout's height
+            ref_w, ref_h, px_per_mm_x, px_per_mm_y = ref_h, ref_w, px_per_mm_y, px_per_mm_x
+            source += f", the {meta.exif_size[0]}x{meta.exif_size[1]} readout turned by 90 degrees"
+        elif meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01:
             log.warning("%s: EXIF size %dx%d and file %dx%d differ in aspect (cropped?): scaling by width",
                         meta.path.name, ref_w, ref_h, w, h)
         scale = w / ref_w
-        fx = meta.focal_mm * meta.focal_plane_px_per_mm[0] * scale
-        fy = meta.focal_mm * meta.focal_plane_px_per_mm[1] * scale
-        return Camera(w, h, fx, fy, w / 2.0, h / 2.0), "FocalLength + FocalPlaneX/YResolution (scaled to file size)"
+        fx = meta.focal_mm * px_per_mm_x * scale
+        fy = meta.focal_mm * px_per_mm_y * scale
+        return Camera(w, h, fx, fy, w / 2.0, h / 2.0), source
     if meta.focal_35mm:
         fx = meta.focal_35mm / FULL_FRAME_DIAGONAL_MM * full_frame_diagonal_px(w, h)
         return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLengthIn35mmFilm (full-frame diagonal)"
