@@ -281,6 +281,23 @@ def test_cli_runs_and_rejects_a_flight_outside_the_world(tmp_path):
     assert not (tmp_path / "T").exists()
 
 
+def test_cli_takes_negative_coordinate_lists_in_the_southern_and_western_hemispheres(tmp_path):
+    """`--geo-origin -33.45,-70.66` (Santiago) and `--shift -2,-3`: argparse took each value for an option and
+    refused with 'expected one argument'; only the `--geo-origin=-33.45,-70.66` spelling worked."""
+    from sosmatch.database.exif import read_image_metadata
+
+    out = subprocess.run(
+        [SOSMATCH, "synth", "--out", str(tmp_path / "S"), "--world-seed", "3", "--world-size", "240",
+         "--frames", "3", "--width", "160", "--height", "120", "--line-length", "40", "--shift", "-2,-3",
+         "--geotags", "exif", "--geo-origin", "-33.45,-70.66", "-q"],
+        capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    meta = json.loads((tmp_path / "S" / "session.json").read_text())["config"]
+    assert list(meta["shift_m"]) == [-2.0, -3.0]
+    tags = read_image_metadata(next((tmp_path / "S" / "images").glob("*.jpg")))
+    assert abs(tags.latitude + 33.45) < 0.01 and abs(tags.longitude + 70.66) < 0.01
+
+
 def test_contact_sheet_places_frames_side_by_side(session_dir, tmp_path):
     from sosmatch.workflows.demo import contact_sheet
 

@@ -12,6 +12,7 @@ import importlib
 import logging
 import os
 import pkgutil
+import re
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
@@ -73,10 +74,28 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
         colmap_log.minloglevel = int(os.environ["GLOG_minloglevel"])
 
 
+# A comma list of numbers whose first is negative ("-33.45,-70.66"): argparse takes any other token that starts
+# with "-" for an option, so `--geo-origin -33.45,-70.66` (the southern or western hemisphere) and `--shift -20,10`
+# failed with "expected one argument".
+_NEGATIVE_NUMBER_LIST = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)+$")
+
+
+def join_negative_number_lists(argv: Sequence[str]) -> list[str]:
+    """`--opt -1.5,2` -> `--opt=-1.5,2`: a long option followed by a comma list of numbers starting with a minus
+    gets it as its value (what the user meant; no option looks like that)."""
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and _NEGATIVE_NUMBER_LIST.match(token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `sosmatch` console script. Returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(join_negative_number_lists(sys.argv[1:] if argv is None else argv))
     _setup_logging(args.verbose, args.quiet)
     try:
         code = args._run(args)
