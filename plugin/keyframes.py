@@ -41,3 +41,53 @@ def select_keyframes(centers: np.ndarray, interval_m: float) -> np.ndarray:
         last = last + 1 + int(far[0])
         keys.append(last)
     return np.asarray(keys, dtype=np.int64)
+
+
+# A flight's consecutive frames are about as far apart as each frame is from its nearest neighbour (along a
+# line: one spacing; a hover: zero). Frames listed in another order (file names that do not follow the capture
+# order: renamed files, counters that wrapped, two batteries' folders merged, a model exported by name) jump
+# across the survey: their median consecutive step is many spacings.
+SCRAMBLED_STEP_RATIO = 3.0
+
+
+def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """The order in which the frames were taken, and how it was found ("given", "capture time", "path").
+
+    Capture times (every frame one, finite) decide when they exist (stable for equal times). Without them the
+    given order stands unless it is evidently not a flight (the median step between consecutive frames more than
+    SCRAMBLED_STEP_RATIO x the median distance to the nearest frame, horizontally); then the frames are chained
+    from an end of the survey (the frame farthest from the centroid) to the nearest frame not yet taken, which
+    retraces a survey's lines and turns.
+
+    Args:
+        centers: (N, 3) camera centres in metres, in the given order.
+        times: (N,) capture times in seconds, or None.
+
+    Returns:
+        ((N,) int64 permutation into the given order, how).
+    """
+    centers = np.asarray(centers, dtype=np.float64)
+    n = len(centers)
+    identity = np.arange(n, dtype=np.int64)
+    if times is not None and len(times) == n and n > 1 and np.all(np.isfinite(times)):
+        order = np.argsort(np.asarray(times, dtype=np.float64), kind="stable").astype(np.int64)
+        return order, ("given" if np.array_equal(order, identity) else "capture time")
+    if n < 3 or not np.all(np.isfinite(centers)):
+        return identity, "given"
+    from scipy.spatial import cKDTree
+
+    xy = centers[:, :2]
+    step = float(np.median(np.linalg.norm(np.diff(xy, axis=0), axis=1)))
+    nearest = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
+    if step <= SCRAMBLED_STEP_RATIO * nearest or step == 0.0:
+        return identity, "given"
+    current = int(np.argmax(np.linalg.norm(xy - xy.mean(axis=0), axis=1)))
+    taken = np.zeros(n, dtype=bool)
+    order = [current]
+    taken[current] = True
+    for _ in range(n - 1):  # O(N^2) in all, one row at a time (memory O(N))
+        row = np.where(taken, np.inf, np.linalg.norm(xy - xy[current], axis=1))
+        current = int(np.argmin(row))  # ties: the lowest index (deterministic)
+        order.append(current)
+        taken[current] = True
+    return np.asarray(order, dtype=np.int64), "path"

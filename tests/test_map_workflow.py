@@ -384,3 +384,28 @@ def test_a_picture_that_cannot_be_drawn_loses_nothing(session, tmp_path, monkeyp
     assert not (out / "quality.png").exists()  # the earlier run's picture is not left beside this map
     assert {p.name for p in out.iterdir()} == OUTPUT_NAMES - {"quality.png"}
     assert (out / "landmarks.sosmap").read_bytes() == (out_ref / "landmarks.sosmap").read_bytes()
+
+
+def test_frames_whose_names_do_not_follow_the_flight_are_mapped_in_flight_order(session, tmp_path, caplog):
+    """The same images and poses under shuffled file names (renamed files, a wrapped counter), the pose file in
+    name order as a COLMAP export by name gives it: the map follows the camera path, not the names. Before, the
+    keyframes were taken in name order, every consecutive pair a jump across the flight: tracks broke at each, and
+    the map kept a fraction of the landmarks, accepted without a word."""
+    import logging
+
+    root, _, _, summary = session
+    poses = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt").poses
+    rng = np.random.default_rng(4)
+    new_names = [f"IMG_{k:04d}.jpg" for k in rng.permutation(len(poses.names))]
+    (tmp_path / "images").mkdir()
+    for old, new in zip(poses.names, new_names):
+        shutil.copy2(root / "images" / old, tmp_path / "images" / new)
+    by_name = np.argsort(new_names)
+    shuffled = Poses([new_names[i] for i in by_name], poses.rotations[by_name], poses.centers[by_name])
+    write_poses_csv(tmp_path / "poses.csv", shuffled)
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.map"):
+        inputs = map_workflow.load_inputs(tmp_path / "images", tmp_path / "poses.csv", root / "cameras.txt")
+        mixed = map_workflow.run(Params(), inputs, tmp_path / "mapped", progress=False)
+    assert any("not listed in flight order" in r.getMessage() for r in caplog.records)
+    assert mixed.num_keyframes == summary.num_keyframes
+    assert mixed.num_landmarks >= 0.9 * summary.num_landmarks, (mixed.num_landmarks, summary.num_landmarks)

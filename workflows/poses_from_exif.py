@@ -170,7 +170,7 @@ def map_inputs_from_images(
     """`sosmatch map --images DIR` without `--poses`: the images' EXIF/XMP (and `telemetry`) poses and camera as
     `workflows.map.MapInputs`, refined from tie points first when `refine` (see `run`). Nothing is written; the
     map's fingerprint covers the poses as used, so a re-run resumes."""
-    from .map import MapInputs
+    from .map import MapInputs, in_flight_order
 
     result = poses_from_images(images, telemetry)
     source = f"EXIF/XMP of {images}" + (f" + {telemetry}" if telemetry else "")
@@ -179,8 +179,8 @@ def map_inputs_from_images(
         _refine(result, images, position_sigma_m, guessed=guessed)
         source += (f", orientations of the {guessed} images without attitude tags solved from tie points" if guessed
                    else ", refined from tie points")
-    return MapInputs(_image_paths(images, result.poses), result.poses, result.camera, result.epsg,
-                     {"poses": source, "camera": f"EXIF of {images}", "images": str(images)})
+    return in_flight_order(MapInputs(_image_paths(images, result.poses), result.poses, result.camera, result.epsg,
+                                     {"poses": source, "camera": f"EXIF of {images}", "images": str(images)}))
 
 
 def _image_paths(images: str | Path, poses: Poses) -> list[Path]:

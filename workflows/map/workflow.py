@@ -26,7 +26,7 @@ from ...database.outputs import OutputDir, fingerprint
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_image, params_to_dict, pixel_scale
-from .inputs import MapInputs, hash_json, image_digests, input_fingerprints, input_paths
+from .inputs import MapInputs, hash_json, image_digests, in_flight_order, input_fingerprints, input_paths
 from .keyframes import CACHE_VERSION, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
@@ -128,6 +128,7 @@ def run(
     masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
     source = None if isinstance(inputs, MapInputs) else inputs
     if source is None:
+        inputs = in_flight_order(inputs)
         digests = image_digests(inputs)
         fps = input_fingerprints(inputs, digests)
         what, paths = fps["inputs"], input_paths(inputs)
@@ -143,6 +144,7 @@ def run(
         if source is not None:
             t = time.perf_counter()
             inputs, extra = source.resolve(out)
+            inputs = in_flight_order(inputs)
             timings["poses"] = time.perf_counter() - t
             digests = image_digests(inputs)
             fps = input_fingerprints(inputs, digests)

@@ -1,0 +1,42 @@
+"""The order the frames were taken in, from capture times or the camera path (plugin.keyframes.flight_order)."""
+
+import numpy as np
+
+from sosmatch.plugin.keyframes import flight_order
+
+
+def _lawnmower(lines=4, per_line=20, spacing=7.0, line_gap=30.0):
+    pts = []
+    for k in range(lines):
+        xs = np.arange(per_line) * spacing
+        pts += [(x, k * line_gap, 100.0) for x in (xs if k % 2 == 0 else xs[::-1])]
+    return np.asarray(pts)
+
+
+def test_a_flight_in_order_stays_as_given_and_hovering_is_no_jump():
+    c = _lawnmower()
+    assert flight_order(c)[1] == "given"
+    hover = np.repeat(c, 3, axis=0)  # three frames at every place: the nearest frame is at 0 m
+    assert flight_order(hover)[1] == "given"
+
+
+def test_a_shuffled_lawnmower_is_chained_back_along_its_lines():
+    c = _lawnmower()
+    perm = np.random.default_rng(0).permutation(len(c))
+    order, how = flight_order(c[perm])
+    assert how == "path" and sorted(order.tolist()) == list(range(len(c)))
+    walked = perm[order]  # indices of the true flight, in the recovered order
+    steps = np.linalg.norm(np.diff(c[walked][:, :2], axis=0), axis=1)
+    assert np.all(steps <= 30.0 + 1e-9)  # one spacing along a line, one line gap at a turn, never across
+    assert np.sum(steps > 7.0 + 1e-9) <= 3
+
+
+def test_capture_times_decide_when_every_frame_has_one():
+    c = _lawnmower(lines=2, per_line=5)
+    times = np.arange(len(c), dtype=float)[::-1]  # listed last-taken first
+    order, how = flight_order(c, times)
+    assert how == "capture time" and order.tolist() == list(range(len(c)))[::-1]
+    assert flight_order(c, np.arange(len(c), dtype=float))[1] == "given"
+    with_missing = np.arange(len(c), dtype=float)
+    with_missing[3] = np.nan  # one frame without a time: the path rule decides (in order here)
+    assert flight_order(c, with_missing)[1] == "given"
