@@ -489,6 +489,10 @@ class PoseCheckParams(Checked):
     warn_height_tilt_deg: float = within(5.0, 0.0, 90.0)
     max_attitude_bias_deg: float = within(10.0, 0.0, 180.0)
     warn_attitude_bias_deg: float = within(2.0, 0.0, 180.0)
+    # the systematic errors are judged only when the flight separates them: the fit's condition index (Belsley,
+    # Kuh & Welsch: above 30 the estimates are degraded by near-collinearity; measured 3-5 on lawnmower flights,
+    # 122 on a single straight line)
+    max_condition_index: float = positive(30.0)
 
 
 @dataclass(frozen=True)

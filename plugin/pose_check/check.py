@@ -84,6 +84,7 @@ class PoseCheck:
             "height_tilt_azimuth_deg": num(s.height_tilt_azimuth_deg),
             "attitude_bias_deg": num(s.attitude_bias_deg), "attitude_bias_sigma_deg": num(s.attitude_bias_sigma_deg),
             "attitude_bias_axis": [num(v) for v in s.attitude_bias_axis],
+            "systematic_condition_index": num(s.condition_index),
             "pairs_columns": ["a", "b", "kind", "inliers", "epipolar_px", "epipolar_fit_px", "in_front"],
             "pairs": [p.to_list() for p in self.pairs],
         }
