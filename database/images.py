@@ -142,17 +142,26 @@ def read_gray(path: str | Path) -> np.ndarray:
     return gray
 
 
+def image_files(folder: str | Path) -> list[Path]:
+    """The image files of a folder (not recursive), sorted by name: files with an image extension, hidden ones
+    (a leading dot) left out. Those are never the user's images: macOS writes a `._NAME.JPG` AppleDouble file (a
+    few kB of metadata) beside every image it copies to an SD card or a FAT/exFAT drive, and one of them stopped a
+    whole folder ("cannot identify image file"). Every command that takes a folder of images lists it here."""
+    return sorted(f for f in Path(folder).iterdir()
+                  if f.suffix.lower() in IMAGE_EXTENSIONS and not f.name.startswith(".") and f.is_file())
+
+
 def list_images(paths: Iterable[str | Path]) -> list[Path]:
     """Expand files and directories (not recursive) into a sorted list of image files.
 
     Files given explicitly are kept whatever their extension (read_image decides); directories contribute
-    their files with an image extension, sorted by name. A missing path raises InputError.
+    their `image_files`. A missing path raises InputError.
     """
     out: list[Path] = []
     for p in paths:
         p = Path(p)
         if p.is_dir():
-            out.extend(sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_EXTENSIONS))
+            out.extend(image_files(p))
         elif p.exists():
             out.append(p)
         else:

@@ -211,6 +211,26 @@ def test_cli_writes_files(tmp_path, capsys):
     assert '"telemetry CSV"' not in capsys.readouterr().out
 
 
+def test_macos_appledouble_files_beside_the_images_are_not_images(tmp_path, capsys):
+    """A folder copied by macOS onto an SD card or exFAT drive holds a hidden `._NAME.jpg` (AppleDouble metadata,
+    a few kB, not a JPEG) beside every image: it stopped poses-from-exif ("cannot identify image file") and made
+    segment fail on every one of them. Hidden files are not images, for every command that lists a folder."""
+    from sosmatch.database.images import list_images
+    from sosmatch.workflows.image_priors import list_images as photo_list
+
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(2):
+        write_jpeg(img / f"f{k}.jpg", -33.0 - k * 1e-4, 151.0, 50.0,
+                   {"Heading": "180", "PitchAngle": "0", "RollAngle": "0"})
+        (img / f"._f{k}.jpg").write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        " + bytes(4000))
+    (img / ".DS_Store").write_bytes(bytes(64))
+    assert [p.name for p in list_images([img])] == ["f0.jpg", "f1.jpg"]
+    assert [p.name for p in photo_list(img)] == ["f0.jpg", "f1.jpg"]
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "s" / "poses.csv")]) == 0, capsys.readouterr()
+    assert read_poses_csv(tmp_path / "s" / "poses.csv")[0].names == ["f0.jpg", "f1.jpg"]
+
+
 def test_refine_option_runs_and_keeps_poses_without_tie_points(tmp_path):
     # Independent noise images share no tie points: refinement must leave the EXIF poses where they are.
     img = tmp_path / "images"

@@ -64,6 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from ..database.exif import ImageMetadata, read_image_metadata
+from ..database.images import IMAGE_EXTENSIONS, image_files
 from ..database.text_input import read_user_text
 from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the tags are read with)
     DEFAULT_MOUNT,
@@ -81,7 +82,6 @@ from ..plugin.geometry import Camera
 
 log = logging.getLogger(__name__)
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 # Aspect ratios (long side / short side) of photo sensors' full frames; other aspects are crops of a 4:3 frame.
 SENSOR_ASPECTS = (4.0 / 3.0, 3.0 / 2.0)
@@ -93,9 +93,9 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
     if isinstance(images, (str, Path)):
         root = Path(images)
         if root.is_dir():
-            paths = sorted(p for p in root.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            paths = image_files(root)
             if not paths:
-                raise InputError("no images (.jpg/.tif/.png) in directory", root)
+                raise InputError(f"no images ({'/'.join(IMAGE_EXTENSIONS)}) in directory", root)
             return paths
         if not root.exists():
             raise InputError("image directory not found", root)

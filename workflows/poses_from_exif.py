@@ -40,7 +40,6 @@ from .image_priors import (  # noqa: F401 (re-exported: the conventions' histori
     FIXED_MOUNTS,
     FULL_FRAME_DIAGONAL_MM,
     GIMBAL_MOUNT,
-    IMAGE_SUFFIXES,
     camera_from_metadata,
     camera_rotations,
     full_frame_diagonal_px,

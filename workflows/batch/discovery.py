@@ -6,11 +6,11 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+from ...database.images import image_files
 from ...plugin.errors import InputError
 
 log = logging.getLogger(__name__)
 
-IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 PAIR_SEP = "__"
 
 
@@ -25,7 +25,7 @@ class Flight:
 
 def images_dir(folder: Path) -> Path | None:
     for cand in (folder / "images", folder):
-        if cand.is_dir() and any(f.suffix.lower() in IMAGE_EXTENSIONS for f in cand.iterdir() if f.is_file()):
+        if cand.is_dir() and image_files(cand):
             return cand
     return None
 

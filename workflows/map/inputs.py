@@ -14,6 +14,7 @@ import numpy as np
 
 from ...database.cameras import read_cameras_txt
 from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
+from ...database.images import IMAGE_EXTENSIONS, image_files  # noqa: F401 (IMAGE_EXTENSIONS: re-exported by workflows.map)
 from ...database.opensfm import is_opensfm
 from ...database.outputs import sha256_file
 from ...database.poses import read_poses_csv
@@ -23,7 +24,6 @@ from ...plugin.keyframes import flight_order
 
 log = logging.getLogger(__name__)
 
-IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 
 
 @dataclass
@@ -112,7 +112,7 @@ def load_inputs(
     if not images.is_dir():
         raise InputError("image directory not found", images)
     sources["images"] = str(images)
-    files = {f.name: f for f in images.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_EXTENSIONS}
+    files = {f.name: f for f in image_files(images)}
     keep = []
     missing = []
     for i, name in enumerate(pose_list.names):
