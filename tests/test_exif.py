@@ -31,7 +31,7 @@ def _dms(deg: float) -> tuple:
 
 def write_jpeg(path: Path, lat: float | None, lon: float | None, alt: float = 300.0, xmp: dict | None = None,
                size: tuple = (400, 300), focal: float = 4.3, fp_res: float = 16393.44, exif_size: tuple = (4000, 3000),
-               xmp_as_elements: bool = False) -> None:
+               xmp_as_elements: bool = False, when: str | None = None) -> None:
     rng = np.random.default_rng(zlib.crc32(path.name.encode()))  # different content per file name
     img = Image.fromarray(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
     exif = Image.Exif()
@@ -43,6 +43,8 @@ def write_jpeg(path: Path, lat: float | None, lon: float | None, alt: float = 30
     sub[0xA20F] = IFDRational(round(fp_res * 100), 100)
     sub[0xA210] = 2
     sub[0xA002], sub[0xA003] = exif_size
+    if when is not None:
+        sub[0x9003] = when  # DateTimeOriginal
     if lat is not None:
         gps = exif.get_ifd(0x8825)
         gps[1] = "N" if lat >= 0 else "S"
@@ -229,6 +231,27 @@ def test_macos_appledouble_files_beside_the_images_are_not_images(tmp_path, caps
     assert [p.name for p in photo_list(img)] == ["f0.jpg", "f1.jpg"]
     assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "s" / "poses.csv")]) == 0, capsys.readouterr()
     assert read_poses_csv(tmp_path / "s" / "poses.csv")[0].names == ["f0.jpg", "f1.jpg"]
+
+
+def test_images_whose_names_do_not_follow_the_flight_are_read_in_capture_order(tmp_path):
+    """Renamed files (names in another order than the capture times): the course over ground of images without
+    attitude tags came from their neighbours by name, i.e. from frames across the survey (Seneca's 30 frames under
+    shuffled names: orientations up to 37 deg off those of the same frames in order), and the poses were listed
+    by name. The images are read in capture order."""
+    from sosmatch.workflows.image_priors import read_image_priors
+
+    img = tmp_path / "images"
+    img.mkdir()
+    names = ["c.jpg", "a.jpg", "d.jpg", "b.jpg"]  # taken in this order, flying north 20 m per image
+    for k, name in enumerate(names):
+        write_jpeg(img / name, 41.0 + k * 20 / 111_000, -83.0, 300.0, when=f"2024:05:01 10:00:{10 * k:02d}")
+    priors = read_image_priors(img)
+    assert priors.names == names
+    ok = priors.attitude_kind == "course"
+    assert ok.all()
+    # level nadir, headed along the course: the image top (-y of the camera) points north everywhere
+    top = -priors.rotations[:, :, 1]
+    assert np.all(top[:, 1] > 0.99), top
 
 
 def test_refine_option_runs_and_keeps_poses_without_tie_points(tmp_path):

@@ -79,6 +79,7 @@ from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the 
 from ..plugin.errors import InputError
 from ..plugin.geodesy import geographic_to_grid, topocentric_to_grid, utm_epsg  # noqa: F401 (re-exported)
 from ..plugin.geometry import Camera
+from ..plugin.keyframes import flight_order
 
 log = logging.getLogger(__name__)
 
@@ -231,7 +232,8 @@ def turn_images(east: np.ndarray, north: np.ndarray) -> np.ndarray:
 
 @dataclass
 class ImagePriors:
-    """Per image (in file-name order): what its metadata says (see `read_image_priors`)."""
+    """Per image (in capture order: by EXIF capture time when every image has one, else by file name): what its
+    metadata says (see `read_image_priors`)."""
 
     paths: list[Path]
     metas: list[ImageMetadata]
@@ -328,6 +330,13 @@ def read_image_priors(
     tele = read_telemetry_csv(telemetry) if telemetry is not None else {}
     metas = [read_image_metadata(p) for p in paths]
     n = len(metas)
+    # capture order, not file-name order (renamed files, a wrapped counter): the course over ground, the pairs
+    # of consecutive images and the poses' order all follow it
+    stamps = [m.capture_time_s for m in metas]
+    order, how = flight_order(np.zeros((n, 3)), None if None in stamps else np.asarray(stamps, dtype=np.float64))
+    if how == "capture time":
+        log.info("the images are taken in the order of their capture times (EXIF DateTimeOriginal), not by name")
+        paths, metas = [paths[i] for i in order], [metas[i] for i in order]
     damaged = [m for m in metas if m.problems]
     if damaged:
         log.warning("%d of %d images have damaged or implausible metadata, left out: %s", len(damaged), n,
