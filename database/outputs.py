@@ -389,6 +389,19 @@ def open_output_dir(
     return out
 
 
+def _check_writable_place(path: Path) -> None:
+    """The folder that will hold `path` (its nearest existing ancestor, when it is still to be made) is a directory
+    this process may write: checked before any work, so that a run of minutes does not end on "cannot write
+    output: File exists" (a file where a folder of the path should be) or a read-only file system."""
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise InputError(f"cannot write output: {folder} is a file, not a folder", path)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write output: {folder} is read-only or not writable", path)
+
+
 class OutputFiles:
     """Output files of one run of one command (see the module doc, rule 1): checked when made, before any work,
     and again when each is written."""
@@ -409,6 +422,7 @@ class OutputFiles:
         check_not_input(path, self.inputs)
         if path.is_dir():
             raise InputError("output path is a directory; give a file name", path)
+        _check_writable_place(path)
         if not (path.exists() or path.is_symlink()):
             return
         entry = (registry.get("files") or {}).get(path.name) if isinstance(registry.get("files"), dict) else None

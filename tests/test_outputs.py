@@ -259,6 +259,19 @@ def test_output_files_check_everything_before_any_work(tmp_path):
     assert not (tmp_path / "poses.csv").exists()
 
 
+def test_an_output_file_below_a_file_is_refused_before_any_work(toy, tmp_path, cli_error):
+    """`--out afile/x.csv` where `afile` is a file: poses-from-exif did its whole refinement (14 s on 10 Seneca
+    frames) and then said "cannot write output: File exists". The place is checked with the file, before any
+    work (a read-only file system likewise; not testable as root, whom permission bits do not stop)."""
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    with pytest.raises(InputError, match="is a file, not a folder"):
+        OutputFiles([blocker / "sub" / "poses.csv"], "poses-from-exif", "id")
+    _, a, _, _ = toy
+    assert "is a file, not a folder" in cli_error("export", "--csv", a, "--out", blocker / "x.csv")
+    assert blocker.read_text() == "x"
+
+
 def test_map_output_marker_and_identity(tmp_path):
     lmap = LandmarkMap(np.zeros((3, 3)), np.ones(3))
     out = tmp_path / "o"
