@@ -265,8 +265,20 @@ class TriangulationParams(Checked):
 
 @dataclass(frozen=True)
 class AssociationParams(Checked):
-    window_length: int = count(50, 3)  # theta_WL: landmarks per window
-    window_stride: int = count(10, 1)  # theta_SL: stride between windows
+    # theta_WL: landmarks per window; with factors > 1 below, the window of the map whose factor is 1 (the sparser)
+    window_length: int = count(50, 3)
+    window_stride: int = count(10, 1)  # theta_SL: stride between windows (scaled by the same factors)
+    # (ours) each map's windows are window_length x its factor landmarks, stride window_stride x its factor: the
+    # paper's windows are one length in both maps, which in maps of unequal density cover unequal ground (world 97,
+    # 284 summer landmarks at 100 m against 95 winter ones at 130 m: 50-landmark windows span 9 400 and 30 400 m^2,
+    # so a window pair held a third of the common objects at most and no true set reached theta_S). With
+    # `equal_area_windows` and `derive_from_maps` the factors are derived from the maps
+    # (`window_chance.area_factors`: the denser map's window grows by the power of two that brings its ground area
+    # nearest the sparser map's; 1 and 1 for maps of about equal density, the paper's windows); otherwise they are
+    # used as configured (1 and 1: the same length in both maps)
+    equal_area_windows: bool = flag(True)
+    window_factor_a: int = count(1, 1)
+    window_factor_b: int = count(1, 1)
     max_size_difference: float = fraction(0.2)  # theta_r: putative pairs need r(h_i, h_j) <= this
     distance_tolerance_m: float = positive(2.0)  # theta_eps: pairwise distance mismatch still called consistent
     # sigma (ours) of the CLIPPER affinity exp(-c^2 / 2 sigma^2): the spread of the distance mismatch c of a true
@@ -598,7 +610,8 @@ PRESETS: dict[str, dict[str, Any]] = {
               "association.position_prior_m": 0.0, "association.solver": "clipper",
               # and the front end as published: every track its own landmark, the mean metric size
               "triangulation.size_estimator": "mean", "triangulation.fuse_radius_factor": 0.0,
-              "tracking.ground_band_sigmas": 0.0, "association.derive_from_maps": False},
+              "tracking.ground_band_sigmas": 0.0, "association.derive_from_maps": False,
+              "association.equal_area_windows": False},
     # Photogrammetric survey flights: one frame every 30-40 m (55-75 % forward overlap), ~1200 px images, poses
     # from GPS + autopilot refined by `poses-from-exif --refine`. Measured on Seneca (BENCHMARKS.md, "Seneca end
     # to end"). An object is in only 2-3 frames of a flight line, so a landmark needs 3 observations (theta_n = 2)

@@ -33,6 +33,10 @@ GRAVITY = AssociationParams()  # the default: gravity consistency, yaw slices, b
     ("position prior", dataclasses.replace(GRAVITY, position_prior_m=60.0), {"same_frame": True}),
     ("no sizes", dataclasses.replace(GRAVITY, window_length=25, window_stride=8), {"no_sizes": True}),
     ("dense maps", GRAVITY, {"dense": True}),
+    # equal-area windows: each map its own window length and stride (the denser map's grown)
+    ("A's windows 4 x B's", dataclasses.replace(GRAVITY, window_length=20, window_stride=5, window_factor_a=4), {}),
+    ("B's windows 2 x A's, spatial", dataclasses.replace(GRAVITY, windows="spatial", window_length=30,
+                                                          window_stride=7, window_factor_b=2), {}),
 ])
 def test_mode_equals_reference(name, params, kw):
     if kw.get("dense"):

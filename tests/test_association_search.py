@@ -25,6 +25,7 @@ def _assert_same(fast, ref):
     (1, 180, AssociationParams()),
     (2, 150, dataclasses.replace(P, window_length=30, window_stride=7, min_associations=4)),
     (4, 120, dataclasses.replace(P, min_associations=2)),
+    (2, 150, dataclasses.replace(P, window_length=25, window_stride=5, window_factor_b=3)),
 ])
 def test_fast_search_equals_reference(seed, n, params):
     s = survey_map_pair(n, seed=seed)

@@ -24,7 +24,7 @@ from .hypotheses import (
 )
 from .kernels_graph import association_graph, putatives
 from .kernels_search import solve_window_pair
-from .windows import make_windows
+from .windows import map_windows
 
 
 def search_reference(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
@@ -40,8 +40,7 @@ def _reference(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
                params: AssociationParams) -> tuple[list[WindowHypothesis], np.ndarray, np.ndarray, dict]:
     t0 = time.perf_counter()
     m = SearchMode.of(params)
-    wins_a = make_windows(len(pa), params.window_length, params.window_stride)
-    wins_b = make_windows(len(pb), params.window_length, params.window_stride)
+    wins_a, wins_b = map_windows(len(pa), len(pb), params)
     ids, nput, ncore, score, slc, sel = [], [], [], [], [], []
     for a, wa in enumerate(wins_a):
         for b, wb in enumerate(wins_b):

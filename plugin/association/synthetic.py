@@ -36,8 +36,12 @@ def _lawnmower_order(xy: np.ndarray, x0: float, strip_width_m: float) -> np.ndar
 def survey_map_pair(n_landmarks: int, seed: int = 0, density_per_km2: float = 300.0, overlap: float = 0.5,
                     noise_m: float = 0.4, size_noise: float = 0.1, missing: float = 0.1, added: float = 0.05,
                     strip_width_m: float = 100.0, yaw_deg: float | None = None,
-                    tilt_deg: float = 2.0) -> SyntheticPair:
-    """Two maps of about `n_landmarks` each sharing `overlap` of their area; deterministic in `seed`."""
+                    tilt_deg: float = 2.0, missing_b: float | None = None,
+                    added_b: float | None = None) -> SyntheticPair:
+    """Two maps of about `n_landmarks` each sharing `overlap` of their area; deterministic in `seed`.
+
+    missing_b / added_b (default: `missing` / `added`): B's own fractions, for maps of unequal density (a winter
+    map that keeps a tenth of the summer objects and segments as many again of its own)."""
     rng = np.random.default_rng(seed)
     side = 1000.0 * np.sqrt(n_landmarks / ((1.0 - missing) * density_per_km2))  # metres
     width = (2.0 - overlap) * side
@@ -47,7 +51,7 @@ def survey_map_pair(n_landmarks: int, seed: int = 0, density_per_km2: float = 30
     world = np.column_stack([xy, z])
     size = rng.uniform(1.0, 8.0, n_world)
 
-    def observe(lo: float, noisy: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def observe(lo: float, noisy: bool, missing: float, added: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ids = np.flatnonzero((xy[:, 0] >= lo) & (xy[:, 0] < lo + side) & (rng.random(n_world) >= missing))
         pos = world[ids] + (rng.normal(0.0, noise_m, (len(ids), 3)) if noisy else 0.0)
         h = size[ids] * (1.0 + (rng.normal(0.0, size_noise, len(ids)) if noisy else 0.0))
@@ -60,8 +64,9 @@ def survey_map_pair(n_landmarks: int, seed: int = 0, density_per_km2: float = 30
         order = _lawnmower_order(pos, lo, strip_width_m)
         return pos[order], np.abs(h[order]).clip(0.3), ids[order]
 
-    pa, ha, ida = observe(0.0, noisy=False)
-    pw, hb, idb = observe((1.0 - overlap) * side, noisy=True)
+    pa, ha, ida = observe(0.0, False, missing, added)
+    pw, hb, idb = observe((1.0 - overlap) * side, True, missing if missing_b is None else missing_b,
+                          added if added_b is None else added_b)
     yaw = rng.uniform(-180.0, 180.0) if yaw_deg is None else yaw_deg
     tilt_dir = rng.uniform(0, 2 * np.pi)
     r = rotation_from_rpy_deg(tilt_deg * np.cos(tilt_dir), tilt_deg * np.sin(tilt_dir), yaw)

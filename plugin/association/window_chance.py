@@ -29,6 +29,21 @@ quadratically. Below it, a longer window holds proportionally more common landma
 only slowly. Survey maps of 0.3-2 m landmarks at a derived theta_eps of 2.7-4 m reach lambda ~1 at the paper's 50
 landmarks; 2.5 m/px orthophoto maps of 20 m objects at 10 m reach only ~0.2 there, their windows may hold five
 times as many landmarks at the same chance per transform. theta_S of such windows exceeds their largest chance set.
+Configured windows that are kept keep the configured theta_S: there lambda is near or above one, where the model
+overestimates the largest chance set (above), and raising theta_S to it would drop true hypotheses of sparse map
+pairs (world 97 at 130 m: true sets of 6 against a model's 7) while chance hypotheses over theta_S are refused by
+the verification's chance test on the full maps anyway (`plugin.chance`).
+
+Windows of equal ground area (`area_factors`, ours): the paper's windows hold theta_WL landmarks in both maps, so
+in maps of unequal density (a winter map holds a third of the summer map's landmarks, a map flown higher fewer
+small ones) one window of the sparser map spans several of the denser map's, and a window pair holds only that
+fraction of their common objects (world 97 summer vs winter at 130 m: 9 400 against 30 400 m^2, no true set over
+theta_S). The denser map's window therefore holds theta_WL x f landmarks (stride theta_SL x f), f the largest
+power of two whose window spans no more ground than the sparser map's window of theta_WL: maps whose densities
+differ by less than a factor of two keep f = 1 (the paper's windows), and a window pair never covers more ground
+than the sparser window (so lambda, over the larger window area, grows only with the denser window's landmarks).
+A power of two keeps the denser map's windows on the strides of the doubling rule above, which then doubles both
+maps' windows together.
 """
 
 from __future__ import annotations
@@ -53,7 +68,8 @@ MAX_PUTATIVE_PER_WINDOW_PAIR = 25_000
 class WindowChance:
     """The chance model of one window length (module doc); areas in m^2."""
 
-    length: int  # landmarks per window (theta_WL)
+    length: int  # theta_WL (the window of a map whose factor is 1)
+    lengths: tuple[int, int]  # landmarks per window of A and of B: theta_WL x each map's window factor
     landmarks: tuple[int, int]  # per window in A and B (fewer when a map is shorter than the window)
     window_area_m2: tuple[float, float]  # median horizontal area (convex hull) of disjoint windows of A and B
     size_pass: float  # q: fraction of landmark pairs that pass the size gate theta_r
@@ -104,8 +120,9 @@ def size_pass_fraction(sizes_a: np.ndarray | None, sizes_b: np.ndarray | None, t
 
 def window_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
                   sizes_b: np.ndarray | None, params: AssociationParams, length: int | None = None) -> WindowChance:
-    """The chance model (module doc) for windows of `length` landmarks (default `params.window_length`) at the
-    tolerances of `params` (theta_eps, theta_r), over the windows' order (`params.windows`)."""
+    """The chance model (module doc) for windows of `length` landmarks (default `params.window_length`) times each
+    map's window factor (`params.window_factor_a`, `_b`) at the tolerances of `params` (theta_eps, theta_r), over the
+    windows' order (`params.windows`)."""
     q = size_pass_fraction(sizes_a, sizes_b, params.max_size_difference)
     return _chance(_ordered(points_a, params), _ordered(points_b, params), q, params,
                    int(params.window_length if length is None else length))
@@ -114,18 +131,36 @@ def window_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
 def _chance(xa: np.ndarray, xb: np.ndarray, q: float, params: AssociationParams, length: int) -> WindowChance:
     """`window_chance` of the two maps' horizontal positions in window order and their size-gate fraction q
     (neither depends on the window length: `derived_windows` computes them once for all lengths it tries)."""
-    na, nb = min(length, len(xa)), min(length, len(xb))
-    wa, wb = _window_area(xa, length), _window_area(xb, length)
+    la, lb = length * params.window_factor_a, length * params.window_factor_b
+    na, nb = min(la, len(xa)), min(lb, len(xb))
+    wa, wb = _window_area(xa, la), _window_area(xb, lb)
     cell = math.pi * params.distance_tolerance_m ** 2
     if min(wa, wb) <= 0 or na < 3 or nb < 3:  # no extent to place landmarks by chance: no trials
-        return WindowChance(length, (na, nb), (wa, wb), q, 0.0, 0.0, 0)
+        return WindowChance(length, (la, lb), (na, nb), (wa, wb), q, 0.0, 0.0, 0)
     lam = na * nb * q * cell / max(wa, wb)
     common = min(wa, wb)
     radius = math.sqrt(common / math.pi)
     transforms = max(1.0, common / cell) * max(1.0, 2.0 * math.pi * radius / params.distance_tolerance_m)
-    pairs = max(1.0, len(xa) / length) * max(1.0, len(xb) / length)
+    pairs = max(1.0, len(xa) / la) * max(1.0, len(xb) / lb)
     trials = transforms * pairs
-    return WindowChance(length, (na, nb), (wa, wb), q, lam, trials, _largest_chance_set(lam, trials, na * nb))
+    return WindowChance(length, (la, lb), (na, nb), (wa, wb), q, lam, trials,
+                        _largest_chance_set(lam, trials, na * nb))
+
+
+def area_factors(xa: np.ndarray, xb: np.ndarray, length: int) -> tuple[int, int]:
+    """The window factors (f_A, f_B) of equal-area windows (module doc) for maps whose horizontal positions in
+    window order are xa and xb: 1 for the sparser map; for the denser one the largest power of two f whose windows
+    of length x f landmarks span at most the median ground area of the sparser map's windows of `length` (and
+    stop at the first that holds the whole map). (1, 1) when a map has no window area (fewer than 3 landmarks,
+    collinear)."""
+    wa, wb = _window_area(xa, length), _window_area(xb, length)
+    if min(wa, wb) <= 0 or wa == wb:
+        return 1, 1
+    dense, target = (xa, wb) if wa < wb else (xb, wa)
+    f = 1
+    while length * f < len(dense) and _window_area(dense, 2 * length * f) <= target:
+        f *= 2
+    return (f, 1) if wa < wb else (1, f)
 
 
 def _largest_chance_set(lam: float, trials: float, most: int) -> int:
@@ -156,7 +191,12 @@ class DerivedWindows:
         p = self.params
         return {"derived": self.derived is not None, "window_length": p.window_length,
                 "window_stride": p.window_stride, "min_associations": p.min_associations,
-                "rule": f"longest doubled window with lambda <= {MAX_CHANCE_PER_TRANSFORM:g} and at most "
+                "window_factors": [p.window_factor_a, p.window_factor_b],
+                "equal_area": p.equal_area_windows,
+                "rule": ("denser map's window x the largest power of two within the sparser's area; "
+                         if p.equal_area_windows
+                         else "") +
+                        f"longest doubled window with lambda <= {MAX_CHANCE_PER_TRANSFORM:g} and at most "
                         f"{MAX_PUTATIVE_PER_WINDOW_PAIR} putative associations; theta_S >= its largest chance set",
                 "configured_chance": self.configured.to_dict(),
                 "derived_chance": None if self.derived is None else self.derived.to_dict()}
@@ -164,20 +204,23 @@ class DerivedWindows:
 
 def derived_windows(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
                     sizes_b: np.ndarray | None, params: AssociationParams) -> DerivedWindows:
-    """Longer windows for maps whose configured windows hold far fewer chance-consistent associations per
-    transform than one (module doc): the longest window (doubling the configured theta_WL, up to the larger map)
-    whose lambda stays <= MAX_CHANCE_PER_TRANSFORM and whose window pair holds at most MAX_PUTATIVE_PER_WINDOW_PAIR
-    putative associations (the solver's cost grows with their square), overlapping by half, and theta_S the
-    larger of the configured one and that window's largest chance set. The configured windows stay when even the
-    doubled window exceeds one chance association per transform (or the maps are shorter than the configured
-    window)."""
+    """Windows of equal ground area in both maps (with `params.equal_area_windows`: the window factors of
+    `area_factors`, else the configured ones), then longer windows for maps whose windows hold far fewer
+    chance-consistent associations per transform than one (module doc): the longest window (doubling theta_WL, in
+    both maps, while a map is longer than its window) whose lambda stays <= MAX_CHANCE_PER_TRANSFORM and whose
+    window pair holds at most MAX_PUTATIVE_PER_WINDOW_PAIR putative associations (the solver's cost grows with
+    their square), overlapping by half, and theta_S the larger of the configured one and that window's largest
+    chance set. The configured theta_WL, theta_SL and theta_S stay when even the doubled window exceeds one chance
+    association per transform (or the maps are shorter than the configured window)."""
     xa, xb = _ordered(points_a, params), _ordered(points_b, params)
+    if params.equal_area_windows:
+        fa, fb = area_factors(xa, xb, params.window_length)
+        params = dataclasses.replace(params, window_factor_a=fa, window_factor_b=fb)
     q = size_pass_fraction(sizes_a, sizes_b, params.max_size_difference)
     base = _chance(xa, xb, q, params, params.window_length)
-    longest = max(len(points_a), len(points_b))
     best = None
     length = params.window_length
-    while length < longest:
+    while length * params.window_factor_a < len(xa) or length * params.window_factor_b < len(xb):
         length *= 2
         chance = _chance(xa, xb, q, params, length)
         putative = chance.landmarks[0] * chance.landmarks[1] * chance.size_pass

@@ -52,7 +52,7 @@ from .kernels_search import (
     window_pair_graphs,
 )
 from .reference import search_reference
-from .windows import make_windows, window_pair_counts, window_span
+from .windows import map_windows, window_layouts, window_pair_counts, window_span
 
 JOIN_BUDGET = 3_000_000  # join candidates per block of A windows (each found pair holds ~56 bytes)
 DIRECT_MIN_INCIDENCES = 300  # mean pair incidences per window pair above which window pairs are computed directly
@@ -103,8 +103,7 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
     m = SearchMode.of(params)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    wins_a = make_windows(len(pa), params.window_length, params.window_stride)
-    wins_b = make_windows(len(pb), params.window_length, params.window_stride)
+    wins_a, wins_b = map_windows(len(pa), len(pb), params)
     fa, la = window_span(len(pa), wins_a)
     fb, lb = window_span(len(pb), wins_b)
     shared = (pa, ha, pb, hb, wins_a, wins_b, m)
@@ -117,8 +116,9 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
         timings["join_s"] = time.perf_counter() - t1
         _block(pairs, 0, len(wins_a), shared, records, stats, timings)
     else:
-        ea = map_edges(pa, fa, la, params.window_length, m.consistency)
-        eb = map_edges(pb, fb, lb, params.window_length, m.consistency)
+        (len_a, _), (len_b, _) = window_layouts(params)
+        ea = map_edges(pa, fa, la, len_a, m.consistency)
+        eb = map_edges(pb, fb, lb, len_b, m.consistency)
         cells_a, cells_b, ncell = size_cells(ha, hb, m.theta_r)
         sb = sorted_b_edges(eb, cells_b, ncell, hb)
         a_lo, a_hi = fa[ea[1]], la[ea[0]]  # A windows holding both endpoints of each A edge

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..params import AssociationParams
 
 
 def make_windows(n: int, length: int, stride: int) -> np.ndarray:
@@ -19,6 +20,19 @@ def make_windows(n: int, length: int, stride: int) -> np.ndarray:
     s = np.array(starts, dtype=np.int64)
     return np.column_stack([s, s + length])
 
+
+def window_layouts(params: AssociationParams) -> tuple[tuple[int, int], tuple[int, int]]:
+    """(length, stride) of A's windows and of B's: theta_WL and theta_SL times each map's window factor (1 and 1:
+    the paper's windows; equal-area windows grow the denser map's, `window_chance.area_factors`)."""
+    length, stride = params.window_length, params.window_stride
+    fa, fb = params.window_factor_a, params.window_factor_b
+    return (length * fa, stride * fa), (length * fb, stride * fb)
+
+
+def map_windows(n_a: int, n_b: int, params: AssociationParams) -> tuple[np.ndarray, np.ndarray]:
+    """The windows of maps of n_a and n_b landmarks (`make_windows` with each map's `window_layouts`)."""
+    (la, sa), (lb, sb) = window_layouts(params)
+    return make_windows(n_a, la, sa), make_windows(n_b, lb, sb)
 
 
 def window_span(n: int, wins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -157,7 +157,7 @@ def bench_aerial(repeats: int, memory: bool) -> list[dict]:
 
 def reachable_fraction(pa: np.ndarray, pb: np.ndarray, truth: set, params: object) -> float:
     """Share of the common landmarks that lie in some window pair holding more than theta_S common landmarks."""
-    from ...plugin.association.windows import hilbert_order, make_windows
+    from ...plugin.association.windows import hilbert_order, map_windows
 
     oa = hilbert_order(pa) if params.windows == "spatial" else np.arange(len(pa))
     ob = hilbert_order(pb) if params.windows == "spatial" else np.arange(len(pb))
@@ -165,8 +165,7 @@ def reachable_fraction(pa: np.ndarray, pb: np.ndarray, truth: set, params: objec
     ra[oa], rb[ob] = np.arange(len(pa)), np.arange(len(pb))
     t = np.array(sorted(truth))
     pos_a, pos_b = ra[t[:, 0]], rb[t[:, 1]]
-    wa = make_windows(len(pa), params.window_length, params.window_stride)
-    wb = make_windows(len(pb), params.window_length, params.window_stride)
+    wa, wb = map_windows(len(pa), len(pb), params)
     reached = np.zeros(len(t), bool)
     for a0, a1 in wa:
         ina = (pos_a >= a0) & (pos_a < a1)
