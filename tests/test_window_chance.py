@@ -9,6 +9,7 @@ from sosmatch.plugin.association import search
 from sosmatch.plugin.association.synthetic import survey_map_pair
 from sosmatch.plugin.association.window_chance import (
     MAX_CHANCE_PER_TRANSFORM,
+    area_factors,
     derived_windows,
     size_pass_fraction,
     window_chance,
@@ -110,3 +111,69 @@ def test_size_gate_fraction_is_the_mean_of_the_gate_over_all_pairs():
         for theta in (0.0, 0.2, 0.45):
             expected = float(np.mean(size_ratio(sample(a)[:, None], sample(b)[None, :]) <= theta))
             assert size_pass_fraction(a, b, theta) == expected
+
+
+def _winter_like(seed):
+    """A dense summer-like map A and a map B of a third of its density of which a third is common (a winter map:
+    most summer objects lost, as many segmented of its own)."""
+    return survey_map_pair(600, seed=seed, density_per_km2=10000.0, missing_b=0.9, added_b=2.0, noise_m=0.3)
+
+
+def test_equal_area_factors_grow_only_the_denser_map():
+    s = _winter_like(4)
+    params = AssociationParams()
+    got = derived_windows(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params).params
+    fa, fb = got.window_factor_a, got.window_factor_b
+    assert fa >= 2 and fb == 1
+    # the denser map's window spans no more ground than the sparser map's, and twice it would
+    xa, xb = s.points_a[:, :2], s.points_b[:, :2]
+    assert area_factors(xa, xb, 50) == (fa, fb) and area_factors(xb, xa, 50) == (fb, fa)  # either map order
+    chance = window_chance(s.points_a, s.sizes_a, s.points_b, s.sizes_b, got)
+    assert chance.lengths == (50 * fa, 50) and chance.window_area_m2[0] <= chance.window_area_m2[1]
+    assert window_chance(s.points_a, s.sizes_a, s.points_b, s.sizes_b,
+                         dataclasses.replace(got, window_factor_a=2 * fa)).window_area_m2[0] > chance.window_area_m2[1]
+    # maps of one density keep the paper's windows; so does the rule switched off (the configured factors stay)
+    same = survey_map_pair(600, seed=4, density_per_km2=10000.0)
+    assert area_factors(same.points_a[:, :2], same.points_b[:, :2], 50) == (1, 1)
+    off = dataclasses.replace(params, equal_area_windows=False, window_factor_b=3)
+    kept = derived_windows(s.points_a, s.sizes_a, s.points_b, s.sizes_b, off).params
+    assert (kept.window_factor_a, kept.window_factor_b) == (1, 3)
+    doc = derived_windows(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params).to_dict()
+    assert doc["window_factors"] == [fa, fb] and doc["configured_chance"]["lengths"] == [50 * fa, 50]
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_equal_area_windows_hold_the_true_set_that_equal_length_windows_cannot(seed):
+    # B has a third of A's density: a 50-landmark window of A covers a third of B's, so no window pair of equal
+    # length holds more than theta_S of the common objects (nothing true is accepted, with or without the longer
+    # windows the chance rule derives); equal-area windows hold them and find the true transform
+    s = _winter_like(seed)
+    truth = set(map(tuple, s.truth.tolist()))
+
+    def true_accepted(res):
+        return [h for h in (res.hypotheses[i] for i in res.accepted)
+                if sum(tuple(x) in truth for x in h.associations.tolist()) > len(h.associations) / 2]
+
+    for equal_area in (False, True):
+        params = derived_windows(s.points_a, s.sizes_a, s.points_b, s.sizes_b,
+                                 AssociationParams(equal_area_windows=equal_area)).params
+        res = search(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params)
+        if not equal_area:
+            assert params.window_factor_a == params.window_factor_b == 1 and true_accepted(res) == []
+        else:
+            assert params.window_factor_a > 1 and len(true_accepted(res)) >= 3
+            best = res.hypotheses[res.best]
+            assert best in true_accepted(res)
+            # the window's transform (9-13 associations, 0.3 m noise) horizontally where the truth puts B
+            assert np.linalg.norm((best.transform.translation - s.translation)[:2]) < 2.0
+
+
+def test_first_search_keeps_the_equal_area_factors():
+    s = _winter_like(4)
+    base = AssociationParams(derive_from_maps=True)
+    noise = MapNoise(0.2, 0.5, 0.05, 600)
+    got = derived_search_params(base, noise, noise, s.points_a, s.sizes_a, s.points_b, s.sizes_b)
+    assert got.params.window_factor_a > 1
+    first = got.first_try if got.first_try is not None else got.params
+    assert (first.window_factor_a, first.window_factor_b) == (got.params.window_factor_a, 1)
+    assert got.record["windows"]["window_factors"] == [got.params.window_factor_a, 1]

@@ -133,6 +133,8 @@ def search_mode_json(params: Params, answer: MatchAnswer | None) -> dict[str, An
 
 def _searched_json(ap: Any) -> dict[str, Any]:
     return {"window_length": ap.window_length, "window_stride": ap.window_stride,
+            # each map's window is window_length x its factor (equal-area windows; 1 and 1 the paper's)
+            "window_factors": [ap.window_factor_a, ap.window_factor_b],
             "min_associations": ap.min_associations, "distance_tolerance_m": ap.distance_tolerance_m,
             "max_size_difference": ap.max_size_difference}
 

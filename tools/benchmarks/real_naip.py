@@ -140,7 +140,8 @@ def _score_match(map_a: Path, map_b: Path, match_dir: Path) -> dict:
                                           default=0)
     out["association"] = {k: result["params"]["association"].get(k) for k in
                           ("distance_tolerance_m", "affinity_sigma_m", "max_size_difference", "window_length",
-                           "window_stride", "min_associations", "derive_from_maps")}
+                           "window_stride", "window_factor_a", "window_factor_b", "min_associations",
+                           "derive_from_maps")}
     out["verified"] = _verified(match_dir, centre)
     best = result.get("consensus") or (result["hypotheses"][result["best"]] if result.get("best") is not None
                                        else None)
