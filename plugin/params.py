@@ -273,9 +273,9 @@ class AssociationParams(Checked):
     # 284 summer landmarks at 100 m against 95 winter ones at 130 m: 50-landmark windows span 9 400 and 30 400 m^2,
     # so a window pair held a third of the common objects at most and no true set reached theta_S). With
     # `equal_area_windows` and `derive_from_maps` the factors are derived from the maps
-    # (`window_chance.area_factors`: the denser map's window grows by the power of two that brings its ground area
-    # nearest the sparser map's; 1 and 1 for maps of about equal density, the paper's windows); otherwise they are
-    # used as configured (1 and 1: the same length in both maps)
+    # (`window_chance.area_factors`: the denser map's window grows by the largest power of two whose window spans
+    # no more ground than the sparser map's; 1 and 1 for maps within a factor of two of each other's density, the
+    # paper's windows); otherwise they are used as configured (1 and 1: the same length in both maps, literally)
     equal_area_windows: bool = flag(True)
     window_factor_a: int = count(1, 1)
     window_factor_b: int = count(1, 1)

@@ -67,8 +67,8 @@ def test_presets_layer_under_config_file_and_set(tmp_path):
     from sosmatch.plugin.params import PRESETS, preset_params
 
     # the paper's method differs from the defaults only in how the search forms and solves its graphs, in its
-    # fixed tolerances (not derived from the maps' noise), in the front end's track fusion and size estimator and
-    # in tracking's ground band gate
+    # fixed tolerances (not derived from the maps' noise) and same-length windows in both maps, in the front end's
+    # track fusion and size estimator and in tracking's ground band gate
     paper = preset_params("paper")
     base = Params()
     assert dataclasses.replace(paper, association=base.association, triangulation=base.triangulation,
@@ -77,6 +77,7 @@ def test_presets_layer_under_config_file_and_set(tmp_path):
     assert paper.tracking.ground_band_sigmas == 0.0 < base.tracking.ground_band_sigmas
     assert set(PRESETS["paper"]) == {"association.consistency", "association.windows", "association.position_prior_m",
                                      "association.solver", "association.derive_from_maps",
+                                     "association.equal_area_windows",
                                      "triangulation.size_estimator", "triangulation.fuse_radius_factor",
                                      "tracking.ground_band_sigmas"}
     assert dataclasses.replace(paper.triangulation, size_estimator="nadir", fuse_radius_factor=2.0) == \
