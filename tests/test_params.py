@@ -119,7 +119,7 @@ def _leaf_fields(cls=None, prefix=""):
 
 
 def test_every_parameter_declares_its_valid_values():
-    # A field added later must declare its range or choices (plugin/params.py: within, positive, count, one_of,
+    # A field added later must declare its range or choices (plugin/params/checks.py: within, positive, count, one_of,
     # flag, text); this test is what makes that so.
     missing = [name for name, _, f in _leaf_fields() if "valid" not in f.metadata]
     assert not missing, f"parameters without a valid-values declaration: {missing}"

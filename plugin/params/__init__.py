@@ -1,0 +1,76 @@
+"""Every parameter of the method, with the paper's defaults, in one frozen dataclass tree.
+
+Field comments give the symbol used in SOS-Match (Thomas et al., IROS 2024) and `../shared/spec/method.md`.
+Values marked *(ours)* are not fixed by the paper; the module that uses them documents how they were chosen.
+Parameters are plain data: `params_from_dict` / `params_to_dict` convert to and from nested dicts (TOML lives in
+`sosmatch.database.config_io`), and unknown keys are rejected rather than silently ignored.
+
+One module per part: `checks` (valid values), `mapping`, `matching`, `changes` (the stages' sections),
+`tree` (`Params` and its dict conversion), `presets` (named presets, scaling to an image size); every name is
+imported from here, `sosmatch.plugin.params`.
+"""
+
+from .changes import ChangeParams
+from .checks import (
+    MAX_COUNT,
+    Checked,
+    Valid,
+    count,
+    flag,
+    fraction,
+    non_negative,
+    one_of,
+    positive,
+    text,
+    valid_values,
+    within,
+)
+from .mapping import (
+    ImageParams,
+    KeyframeParams,
+    PoseCheckParams,
+    QualityParams,
+    SegmentationParams,
+    SfmParams,
+    TrackingParams,
+    TriangulationParams,
+)
+from .matching import AssociationParams, VerificationParams
+from .presets import PIXEL_AREAS, PIXEL_LENGTHS, PRESETS, for_image, pixel_scale, preset_params
+from .tree import Params, params_from_dict, params_to_dict, with_overrides
+
+__all__ = [
+    "AssociationParams",
+    "ChangeParams",
+    "Checked",
+    "ImageParams",
+    "KeyframeParams",
+    "MAX_COUNT",
+    "PIXEL_AREAS",
+    "PIXEL_LENGTHS",
+    "PRESETS",
+    "Params",
+    "PoseCheckParams",
+    "QualityParams",
+    "SegmentationParams",
+    "SfmParams",
+    "TrackingParams",
+    "TriangulationParams",
+    "Valid",
+    "VerificationParams",
+    "count",
+    "flag",
+    "for_image",
+    "fraction",
+    "non_negative",
+    "one_of",
+    "params_from_dict",
+    "params_to_dict",
+    "pixel_scale",
+    "positive",
+    "preset_params",
+    "text",
+    "valid_values",
+    "with_overrides",
+    "within",
+]

@@ -1,0 +1,89 @@
+"""Parameters of object-level change detection between two aligned sessions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .checks import (
+    Checked,
+    count,
+    flag,
+    fraction,
+    non_negative,
+    positive,
+    within,
+)
+
+
+@dataclass(frozen=True)
+class ChangeParams(Checked):
+    """Object-level change detection between two aligned sessions (`sosmatch.plugin.changes`; all ours)."""
+
+    # A landmark is compared only where the other session's keyframes should have seen it (projected inside the
+    # image with its own extent as margin) at least this often: theta_n + 1, the fewest observations a landmark
+    # can have (`triangulation.min_observations`), so fewer views could not have mapped it at all.
+    min_views: int = count(6, 1)
+    # counterpart gate = this x theta_eps (`association.distance_tolerance_m`), distance in x, y and z_weight x z.
+    # theta_eps is the landmark scatter the association already allows (2 m on drone maps, 10 m in the aerial
+    # preset); between two EKF maps 90 % of the landmarks of one object have the other map's nearest landmark of
+    # that object within 2.8-3.9 m (BENCHMARKS.md, Change detection), so 1.5 theta_eps = 3 m.
+    tolerance_factor: float = positive(1.5)
+    z_weight: float = non_negative(0.5)  # heights are the noisy direction of a nadir survey (as in refinement)
+    # r = 2 |h_a - h_b| / (h_a + h_b) of a counterpart (theta_r is 0.2 for association, where a wrong pair costs
+    # a wrong transform; here a re-segmented object must still count as present: sizes within a factor 1.67)
+    max_size_difference: float = within(0.5, 0.0, 2.0)
+    # A landmark without a counterpart is kept when a larger landmark of the other map (up to this many times
+    # its size) holds it in its footprint (ground distance <= 2 h) and this session shows that landmark too (a
+    # counterpart here, or this session's segments): the other session mapped the object whole where this map
+    # has a part of it; a ground patch seen where this map's object stood is no such whole. 0 = off.
+    nest_max_ratio: float = non_negative(2.0)
+    # One object is often several landmarks of one map (a crown, its lit half, the clump it stands in; split
+    # tracks), and the other session may have mapped only some of them: a landmark inside the footprint of a
+    # larger own landmark (at most this many times its size) that the other session shows directly (a
+    # counterpart, or its segments) or holds in a landmark of its own is kept with it (not through a whole
+    # kept only by a part link itself: chained links let ground regions hold what really went), and so is
+    # a landmark whose footprint holds smaller landmarks of the other map (down to 1 / this of its size) that
+    # have counterparts in its own map (the object whole here, as parts there; on the 7 development worlds this
+    # removed 5 of 6 false same-season new claims for 2 of 15 found). A wider reach lets large ground regions
+    # and neighbouring crowns hold objects that really went. 0 = off.
+    part_max_ratio: float = non_negative(2.5)
+    # A place without a counterpart landmark is still called occupied when the other session's own segments
+    # (every mask in its database, tracked or not) show a size-compatible segment at the landmark's projection
+    # in significantly more of its keyframes than at probe points around it: binomial tail probability below this
+    # (0.05: on worlds 7 and 11 it cut the false gone / new claims from 9 to 5 for 2 of 38 changed objects found
+    # fewer than at 0.01; worlds 23 and 31 showed no difference; BENCHMARKS.md, Change detection, ablation)
+    segment_evidence_p: float = fraction(0.05)
+    # probes for the chance rate of segments: this many points on a circle of radius (probe_radius_factor x the
+    # counterpart gate + 2 h) around the landmark
+    probe_count: int = count(8, 1)
+    probe_radius_factor: float = positive(2.0)
+    # The presence rate (how often the other session's segments show an object of a given size that is there) is
+    # measured on the landmarks with a counterpart, pooled with a Gaussian kernel of this width in log size
+    # (0.3: sizes within a factor 1.35 count fully; a landmark's size scatters by about that between sessions)
+    presence_bandwidth: float = positive(0.3)
+    # A gone / new claim needs the other session's segments to say the object is absent: its confidence is
+    # P(absent | segment hits) (quasi-binomial, prior odds 1, `verdict.absence_probability`); claims below this
+    # are reported as unseen (the other session cannot tell). 0.8 (odds 4:1) on the 7 development worlds of
+    # BENCHMARKS.md raised same-season gone precision from 0.71 to 0.91 at unchanged recall; 0 reports every
+    # claim. Without the other session's database the confidence is its re-observation rate of such landmarks.
+    min_confidence: float = fraction(0.8)
+    # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
+    # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least
+    # min_views keyframes, are judged against the other session as its landmarks are (direct evidence only; they
+    # vouch for nothing). An object whose track broke into pieces too short for a landmark can then still be
+    # reported gone / new. False: landmarks only.
+    unmapped_objects: bool = flag(True)
+    # the mean reprojection error (px) such a track's point may have: the map's own landmark limit
+    # (triangulation.max_reprojection_error_px, 10 px by default)
+    unmapped_max_error_px: float = positive(10.0)
+    # the centroid noise (px) behind such a point's position uncertainty (the map's triangulation.pixel_sigma_px):
+    # its place must be known to within the counterpart gate at 2 sigma to ask the other session what is there
+    unmapped_pixel_sigma_px: float = positive(3.0)
+    # A landmark (or an object never mapped) lower than the ground by more than this many robust standard
+    # deviations of its own map's heights above the ground (1.4826 x their median absolute deviation, about 2 m
+    # on drone maps) is a wrong triangulation (two patches linked into one track): no object lies under the
+    # ground its session looked at, and its place is wrong with its height (a ground patch triangulated 33 m
+    # deep fell inside the other session's images, 3.4 m outside its footprint). It is compared with nothing
+    # (unseen, evidence 'height'). The development maps' object landmarks lie at most 2.3-7 m below the ground
+    # field (1 %), wrong triangulations down to 40 m.
+    max_depth_sigmas: float = positive(4.0)

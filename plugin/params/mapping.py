@@ -1,0 +1,268 @@
+"""Parameters of mapping a session: images, keyframes, segmentation, tracking, triangulation, and the checks
+of a map (quality, poses) and of its poses from images (SfM)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .checks import (
+    Checked,
+    count,
+    flag,
+    fraction,
+    non_negative,
+    one_of,
+    positive,
+    text,
+    within,
+)
+
+
+@dataclass(frozen=True)
+class ImageParams(Checked):
+    # (ours) the longer image side (px) at which the pixel-valued parameters hold: the tracking margins and noise
+    # (`tracking.*_px`), the triangulation sigma and reprojection limit (`triangulation.*_px`) and the pixel
+    # areas (`segmentation.min_mask_area_px`, `classical_min_area_px`). Mapping a larger image scales lengths by
+    # (longer side / this) and areas by its square (`pixel_scale`, `for_image`): at one field of view, pose errors
+    # in pixels grow with the focal length and centroid noise with the ratio of the image to the segmentation's
+    # working size, both in proportion to the image. Smaller images keep the values as they are (mask boundaries
+    # and JPEG blocks put a floor of a few native pixels under the noise). 0 = never scale.
+    reference_size_px: float = non_negative(640.0)  # the defaults were chosen on 640x480 synthetic sessions
+
+
+@dataclass(frozen=True)
+class KeyframeParams(Checked):
+    interval_m: float = positive(2.0)  # theta_T: camera travel between keyframes
+
+
+@dataclass(frozen=True)
+class SegmentationParams(Checked):
+    backend: str = one_of("classical", "classical", "sam-onnx")  # registry name in sosmatch.plugin.segmentation
+    min_mask_area_px: int = count(3, 0)  # the paper keeps masks "larger than 2 px"
+    max_sift_per_mask: int = count(64, 0)  # SIFT features kept per mask A_k (ours; tracking only, never stored)
+    # SIFT runs once per image on a copy whose longer side is at most this (0 = full resolution). (ours) OpenCV
+    # doubles the image first, so 1200x900 at full size costs ~0.3 s; 480 px detects in ~0.04 s and still
+    # gives thousands of keypoints; descriptors are computed only for the ones masks keep.
+    sift_max_side: int = count(480, 0)
+    # (ours) distinct keypoints per image at most (0 = no limit): bounds descriptor time
+    sift_max_keypoints: int = count(2000, 0)
+    # (ours) OpenCV's 0.04 finds ~100 keypoints on low-contrast NIR frames
+    sift_contrast_threshold: float = non_negative(0.01)
+    # -- backend `classical` (sosmatch.plugin.segmentation.classical; all ours, tuned on synthetic + Seneca) --
+    classical_max_side: int = count(400, 1)  # working resolution (longer side, px); masks are mapped back to full size
+    # median filter (working px) that removes leaf / furrow texture
+    classical_median_ksize: int = count(5, 1, 255, odd=True)
+    classical_smooth_sigma_color: float = non_negative(40.0)  # bilateral filter colour sigma (0..255 units)
+    # gradient percentile below which pixels seed watershed regions; 60 (was 40): fewer, larger seeds, 2x faster
+    # Ward merge, summer / winter recall 0.809 / 0.614 -> 0.822 / 0.644, summer-winter average F1 0.715 -> 0.843
+    classical_flat_percentile: float = within(60.0, 0.0, 100.0)
+    # gradient minima at least this x the flat level deep seed watershed regions too (h-minima; 0: flat zones
+    # only): small textured objects on snow had no flat pixel and no seed (winter bushes 5-8/21-27 found -> 14-24)
+    classical_minima_depth: float = non_negative(1.0)
+    classical_merge_cost: float = positive(2000.0)  # Ward merge cost of the finest level (working px x Delta E^2)
+    classical_merge_levels: int = count(7, 1)  # levels of the merge hierarchy whose object-like regions become masks
+    classical_merge_level_factor: float = within(2.5, 1.0, None, lo_open=True)  # cost ratio between consecutive levels
+    # weight of the mean gradient along a shared boundary in the merge cost
+    classical_edge_weight: float = non_negative(0.15)
+    # nested masks of two levels more alike than this: keep the more contrasted
+    classical_dedup_iou: float = fraction(0.8)
+    # larger regions are background (fields, lawns) and dropped
+    classical_max_area_frac: float = within(0.08, 0.0, 1.0, lo_open=True)
+    classical_min_area_px: int = count(100, 0)  # smaller regions (full-resolution px) are dropped
+    # sqrt(lambda_max / lambda_min) above this: sliver (road, hedge edge)
+    classical_max_elongation: float = within(5.0, 1.0, None)
+    # area / area of the moment ellipse below this: branchy or ring-shaped region
+    classical_min_fill: float = fraction(0.75)
+    classical_min_contrast: float = non_negative(6.0)  # mean Delta E to the neighbours below this: not an object
+    # >0: non-convex masks (area / convex hull below this) also give their distance-transform parts. Off: on the
+    # synthetic sessions 0.95 doubled the masks per frame for +0.03 recall in winter and none in summer.
+    classical_split_solidity: float = fraction(0.0)
+    # weight of CIELAB L in merging (lit / shaded halves of a crown join)
+    classical_lightness_weight: float = non_negative(0.7)
+    # weight of local lightness std (texture) next to L, a, b (0 = off)
+    classical_texture_weight: float = non_negative(1.0)
+    classical_texture_window: int = count(5, 1)  # window (working px) of the texture measure
+    # weight of normalised r, g chromaticity (x 300) in merging: unchanged by shading, so a crown's lit and shaded
+    # halves join and a cast shadow stays with the ground it falls on (0 = off; summer recall 0.745 -> 0.85)
+    classical_chroma_weight: float = non_negative(2.0)
+    # parts of a whole: a mask that is at least this share of a coarser, more contrasted candidate with fill >=
+    # `classical_fragment_parent_fill` (a single crown, not a clump) is dropped; its centroid is off the object's
+    # (0 = off; map median horizontal error 1.0 -> 0.44 m, BENCHMARKS Mapping)
+    classical_fragment_ratio: float = fraction(0.15)
+    classical_fragment_parent_fill: float = fraction(0.9)
+    # -- backend `sam-onnx` (sosmatch.plugin.segmentation.sam_onnx) --
+    sam_encoder: str = text("")  # image-encoder ONNX path ("" = $SOSMATCH_SAM_ENCODER)
+    sam_decoder: str = text("")  # prompt-decoder ONNX path ("" = $SOSMATCH_SAM_DECODER)
+    sam_points_per_side: int = count(16, 1, 256)  # grid of point prompts (SAM's automatic generator uses 32)
+    sam_points_per_batch: int = count(64, 1)  # prompts per decoder call
+    sam_pred_iou_thresh: float = fraction(0.86)  # keep masks whose predicted IoU is at least this (SAM's default 0.88)
+    sam_stability_score_thresh: float = fraction(0.92)  # keep masks at least this stable (SAM's default 0.95)
+    sam_stability_score_offset: float = positive(1.0)  # logit offset of the stability score (SAM's default)
+    sam_box_nms_thresh: float = fraction(0.7)  # duplicate removal: mask IoU above this suppresses the lower-scored mask
+    # masks covering more of the image are background and dropped
+    sam_max_area_frac: float = within(0.5, 0.0, 1.0, lo_open=True)
+    sam_threads: int = count(2, 0)  # onnxruntime intra-op threads
+
+
+@dataclass(frozen=True)
+class TrackingParams(Checked):
+    # theta_t (ours): tracks whose last observation is older are not candidates. On synthetic sessions 1 -> 2 -> 3
+    # bridges segmentation misses (mean track length +17-22 %); beyond 3 gains little and adds duplicates/impurity.
+    max_track_age_keyframes: int = count(3, 1)
+    # theta_a (ours): max centroid distance to the epipolar line (px, both images). EKF-noisy poses put 95 % of
+    # true pairs within ~8 px (exact poses: ~4 px); 12 keeps >99 % of them while purity falls for wider margins.
+    # Scale it with focal length x attitude error for other cameras. Evidence: BENCHMARKS.md, Tracking parameters.
+    epipolar_margin_px: float = positive(12.0)
+    motion_gate_sigmas: float = positive(4.0)  # theta_v: | |m_i - m_j| - mu_p | / sigma_p must stay below this
+    min_score: float = fraction(0.2)  # theta_q: minimum q = sqrt(q_s * q_f)
+    size_tolerance: float = positive(0.2)  # theta_h: relative size difference at which q_s reaches 0
+    # Lowe's ratio test for q_f (ours; the paper does not state it)
+    sift_ratio: float = within(0.8, 0.0, 1.0, lo_open=True)
+    # (ours) centroid noise added in quadrature to sigma_p in the motion gate
+    centroid_sigma_px: float = non_negative(3.0)
+    # (ours) reject pairs whose centroid lies behind camera s along the epipolar line
+    cheirality_check: bool = flag(True)
+    # (ours) a track whose observations already triangulate (rays meeting at >= point_gate_min_ray_angle_deg) is
+    # gated by where its point projects into the new keyframe (within epipolar_margin_px) instead of by the
+    # epipolar line of its last observation and the motion gate: the line lets every segment along it through,
+    # the point picks one spot, and across flight lines the motion gate's summed image motion means nothing.
+    point_transfer_gate: bool = flag(True)
+    point_gate_min_ray_angle_deg: float = within(5.0, 0.0, 180.0)
+    # (ours) ground band gate (`plugin.ground_band`): a track without a point yet must reappear within
+    # epipolar_margin_px of the stretch of its epipolar line between the heights of the local ground, i.e. the
+    # median height of the candidate tracks' confirmed points +- this many robust standard deviations; 0 = off.
+    # Needs the point transfer gate (its points are the ground). Where frames are 300-550 px apart and image motion
+    # often unmeasurable it decides (Seneca, survey preset: 184 -> 283 landmarks); with the paper's 2 m keyframes
+    # it changes little (BENCHMARKS.md, "The ground band"; the seasons worlds). Off (0) in the "paper" preset.
+    ground_band_sigmas: float = non_negative(6.0)
+
+
+@dataclass(frozen=True)
+class TriangulationParams(Checked):
+    min_observations: int = count(5, 1)  # theta_n: tracks with MORE than this many observations become landmarks
+    pixel_sigma_px: float = positive(3.0)  # sigma: centroid noise used in triangulation and bundle adjustment
+    max_reprojection_error_px: float = positive(10.0)  # (ours) landmarks above this mean error are dropped
+    # (ours) landmarks seen under a smaller ray angle are dropped
+    min_triangulation_angle_deg: float = within(1.0, 0.0, 180.0)
+    # (ours) duplicate suppression: a landmark whose ground-plane (x, y) distance to a better-supported one is
+    # at most this times the larger of their metric sizes h is a duplicate (a nested or partial mask of the same
+    # object: a crown part, a crown and its clump, a split track) and is dropped; 0 = off. h = sqrt(lambda_max)
+    # is half the radius of a disc, so 2 h = "inside the other's footprint": a part's centroid lies within
+    # ~0.85 h of the whole's, a 2-crown clump's within ~0.9 h of each crown, while two touching distinct discs
+    # are 2 (h_1 + h_2) > 2 max(h) apart. Measured (BENCHMARKS.md, Mapping): 2.0 lowers the median horizontal
+    # error 1.30 -> 0.50 m. OFF by default, as in the paper: on the evaluation suite (BENCHMARKS.md, "Duplicate
+    # suppression and matching") 2.0 cut cross-season average F1 from 0.58 to 0.33 (summer-winter) and from
+    # 0.76 to 0.30 (spring-autumn): the parts of an object that both seasons segment alike are evidence too.
+    duplicate_radius_factor: float = non_negative(0.0)
+    # (ours) height outliers (`plugin.landmark_filters.height_outliers`): a landmark whose height differs from the
+    # median of its `height_outlier_neighbours` nearest landmarks (horizontally) by more than this many robust
+    # standard deviations of that difference is a wrong track triangulated along a straight flight line, where
+    # collinear views cannot fix the depth; 0 = off (the paper's EKF keyframes every 2 m see an object from many
+    # views). On in the "survey" preset.
+    height_outlier_sigmas: float = non_negative(0.0)
+    height_outlier_neighbours: int = count(8, 1)
+    # metric size h_S of a landmark (`plugin.landmark_size`): "mean" = the paper's mean of h_px x depth / f over the
+    # observations; "nadir" (ours) = sqrt(lambda_max) of the object's footprint covariance fitted jointly over the
+    # observations with the relief displacement of off-nadir views removed and masks cut by the image border left
+    # out: sizes of one object then agree across flights, altitudes and crossing directions (median r 0.09 -> 0.04)
+    size_estimator: str = one_of("nadir", "nadir", "mean")
+    # (ours) split tracks of one object (one per pass, or around a segmentation gap) become one landmark
+    # (`plugin.track_fusion`): pieces that never share a keyframe, lie within this factor x the larger metric size
+    # horizontally, agree in size within `fuse_size_tolerance` and are explained by one point within
+    # max_reprojection_error_px; 0 = off (the paper: every track its own landmark). theta_n applies to the fused
+    # landmark, and tracks with at least `min_piece_observations` observations are triangulated as pieces
+    fuse_radius_factor: float = non_negative(2.0)
+    fuse_size_tolerance: float = positive(0.5)
+    min_piece_observations: int = count(3, 2)
+
+
+@dataclass(frozen=True)
+class QualityParams(Checked):
+    # (ours) plausibility limits of a map (`plugin.map_quality.judge`): beyond them `sosmatch map` refuses it
+    # landmarks higher than a camera that flew over them (within their footprint), of those under the flight path:
+    # the aircraft would have flown through the object; 0 in every consistent map measured
+    max_share_above_cameras: float = fraction(0.05)
+    max_block_tilt_deg: float = within(20.0, 0.0, 90.0)  # tilt that the ground and the cameras share
+    # the worst pair of passes: lower quartile of |dz| of their neighbouring landmarks over that of one pass's
+    # (`map_quality.pass_disagreement`): consistent maps 1.0-3.5 (32 synthetic and real maps), a 50 m altitude
+    # drift 26, flight lines 30 m apart in height 34
+    max_pass_disagreement: float = within(6.0, 1.0, None)
+    # ... and refused only when those two passes also put the same ground this far apart in height, as a fraction
+    # of the flying height (the pose check's warn_height_drift): the ratio proves that the passes differ, this
+    # says that it matters. An EKF's scale drift along a pass puts passes a few % of H apart (world 64: 2.7 m at
+    # 98 m, ratio 6.1; the matcher's derived tolerances absorb it: a warning); the lines 30 m apart above: 27.7 m,
+    # 27 % (bench_plausibility; the 50 m pose-CSV drift was not re-measured in metres)
+    max_pass_offset: float = fraction(0.05)
+    # p90 of |landmark height - its 8 neighbours' median| over the flying height: beyond 1 a tenth of the map sits
+    # farther from its neighbours' ground than the cameras fly above it (a drone flies above what it maps; a pit
+    # that deep under a tenth of the landmarks is no survey site); consistent maps 0.03-0.07, Seneca 0.04
+    max_height_spread: float = positive(1.0)
+    # warnings only
+    # a whole block's ground steeper than this is rare (synthetic and real maps: <= 2 deg); GPS heights that drift
+    # tilt it too (a 50 m drift over a 100-frame survey: 12-27 deg)
+    warn_ground_tilt_deg: float = within(20.0, 0.0, 90.0)
+    min_keyframes_with_landmarks: float = fraction(0.5)
+    min_track_yield: float = fraction(0.05)
+    refuse: bool = flag(True)  # False: a map beyond the limits is kept with a loud warning (run.json says so)
+
+
+@dataclass(frozen=True)
+class PoseCheckParams(Checked):
+    """(ours) The poses checked against what the images show (`plugin.pose_check`): pose-free matches of a
+    bounded subsample of overlapping image pairs, explained by the poses' epipolar geometry. Limits measured on
+    good poses (exact, EKF, refined, structure from motion; synthetic and real) against deliberately wrong ones:
+    BENCHMARKS.md, "Poses against the images"."""
+
+    enabled: bool = flag(True)  # `sosmatch map` runs the check (its refusals refuse the map, as quality.refuse says)
+    max_pairs: int = count(240, 3)  # a third each: consecutive images, k apart, another flight line
+    max_image_side_px: int = count(1024, 64)  # features on images downscaled to this longer side
+    max_features: int = count(2000, 64)  # ORB features per image
+    ratio: float = within(0.8, 0.0, 1.0, lo_open=True)  # Lowe's ratio test
+    ransac_px: float = positive(1.5)  # fundamental-matrix RANSAC threshold at the working size
+    min_inliers: int = count(30, 8)  # fewer agreeing matches: no evidence (chance matches reach ~20 in turns)
+    noise_px: float = positive(1.0)  # ORB keypoint noise at the working size (the fit's pixel scale)
+    wide_shift: float = within(0.4, 0.0, 1.0, lo_open=True)  # "wide" pairs move the image by this much
+    max_wide_offset: int = count(10, 1)
+    cross_radius: float = positive(0.5)  # cross-line partners within this fraction of the footprint's short side
+    min_pairs: int = count(10, 1)  # fewer checked pairs: a warning that the check saw too little
+    # refusals / warnings (plugin.pose_check.judge_poses); systematic errors only beyond 2 sigma of their fit
+    max_epipolar_gate_fraction: float = positive(1.0)  # median pair error beyond the tracker's epipolar gate
+    warn_epipolar_gate_fraction: float = positive(0.25)
+    max_height_drift: float = positive(0.2)  # heights drifting over the flight, as a fraction of the flying height
+    warn_height_drift: float = positive(0.05)
+    max_height_tilt_deg: float = within(20.0, 0.0, 90.0)  # the same limit as the map's block tilt
+    warn_height_tilt_deg: float = within(5.0, 0.0, 90.0)
+    max_attitude_bias_deg: float = within(10.0, 0.0, 180.0)
+    warn_attitude_bias_deg: float = within(2.0, 0.0, 180.0)
+    # the systematic errors are judged only when the flight separates them: the fit's condition index (Belsley,
+    # Kuh & Welsch: above 30 the estimates are degraded by near-collinearity; measured 3-5 on lawnmower flights,
+    # 122 on a single straight line)
+    max_condition_index: float = positive(30.0)
+
+
+@dataclass(frozen=True)
+class SfmParams(Checked):
+    """(ours) Poses from images by structure from motion (`sosmatch poses`, `workflows/sfm.py`), on CPU.
+
+    Measured on Seneca's 167 1200x900 frames on 2 busy cores (BENCHMARKS.md, "Poses from images"): SIFT at the
+    image's own octave (first_octave 0) costs a quarter of COLMAP's default upsampled one (-1); a low-contrast
+    threshold below COLMAP's 0.0067 keeps feature-poor frames of fields and water registrable, and the feature
+    cap bounds the work on textured ones; only pairs that GPS says may overlap are matched."""
+
+    max_image_size_px: int = count(1000, 64)  # features on images downscaled to this longer side
+    max_features: int = count(4000, 64)  # per image (the strongest, larger scales first)
+    first_octave: int = count(0, -1, 4)  # SIFT's first octave: -1 doubles the image first (4x the work)
+    peak_threshold: float = positive(0.004)  # SIFT difference-of-Gaussian contrast threshold
+    camera_model: str = one_of("SIMPLE_RADIAL", "SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+    neighbours: int = count(10, 1)  # GPS nearest neighbours matched per image (`plugin.image_pairs`)
+    sequential: int = count(2, 0)  # plus this many successors in capture order
+    exhaustive_up_to: int = count(40, 0)  # without GPS: all pairs up to this many images, else a sequence
+    sequential_without_gps: int = count(10, 1)
+    mapper: str = one_of("incremental", "incremental", "global")
+    # GPS positions as pose priors in COLMAP's bundle adjustment (sigma gps_sigma_m): "auto" = when the heights come
+    # from DJI RelativeAltitude, consistent in 3-D; never on a GPS altitude alone, which may drift (COLMAP aligns
+    # the block to the priors in 3-D first, and a 50 m drift would tilt it). Measured (BENCHMARKS.md): on a
+    # 26-frame 320 px flight centres 1.01 -> 0.56 m, the focal length 24 -> 11 % off; 90-frame flights unchanged
+    use_gps_priors: str = one_of("auto", "auto", "on", "off")
+    gps_sigma_m: float = positive(3.0)  # a consumer receiver's horizontal error: the expected GPS noise
+    min_registered_fraction: float = fraction(0.5)  # fewer registered images than this is an error

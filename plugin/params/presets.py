@@ -1,0 +1,105 @@
+"""Named parameter presets (hloc-style `confs`) and the scaling of pixel-valued parameters to an image size."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..errors import InputError
+from .tree import Params, params_to_dict, with_overrides
+
+# Named parameter presets (hloc-style `confs`): dotted overrides applied on top of the paper's defaults, before a
+# config file and `--set`. "paper" is the method as published (keyframes every 2 m, EKF poses, 640x480).
+PRESETS: dict[str, dict[str, Any]] = {
+    # the search as published: id windows, 3D distance consistency, gravity checked after the solve, no prior
+    "paper": {"association.consistency": "distance", "association.windows": "id",
+              "association.position_prior_m": 0.0, "association.solver": "clipper",
+              # and the front end as published: every track its own landmark, the mean metric size
+              "triangulation.size_estimator": "mean", "triangulation.fuse_radius_factor": 0.0,
+              "tracking.ground_band_sigmas": 0.0, "association.derive_from_maps": False,
+              "association.equal_area_windows": False},
+    # Photogrammetric survey flights: one frame every 30-40 m (55-75 % forward overlap), ~1200 px images, poses
+    # from GPS + autopilot refined by `poses-from-exif --refine`. Measured on Seneca (BENCHMARKS.md, "Seneca end
+    # to end"). An object is in only 2-3 frames of a flight line, so a landmark needs 3 observations (theta_n = 2)
+    # and a track may wait 24 keyframes for the neighbouring line (the point transfer gate, not the motion gate,
+    # decides there). The classical backend segments at 400 px, a third of the image, so centroid noise, the
+    # epipolar margin and the triangulation sigma scale by ~2-3; segments change more between views 300-500 px
+    # apart, so sizes may differ more and the motion gate is wider.
+    "survey": {
+        "image.reference_size_px": 1200.0,  # tuned on Seneca's 1200x900 frames
+        "tracking.epipolar_margin_px": 24.0, "tracking.centroid_sigma_px": 9.0, "tracking.size_tolerance": 0.5,
+        "tracking.motion_gate_sigmas": 8.0, "tracking.max_track_age_keyframes": 24,
+        # frames 300-550 px apart defeat image-only motion estimation (Seneca: 72 of 165 steps): the ground band
+        # gate (on by default, `tracking.ground_band_sigmas`) predicts where a segment reappears from the poses and
+        # the ground (184 -> 283 landmarks on Seneca; BENCHMARKS.md, "The ground band")
+        "triangulation.min_observations": 2, "triangulation.pixel_sigma_px": 6.0,
+        # 3-observation landmarks cannot vote out a bad observation: a tighter cut than the paper's 10 px
+        # (Seneca: 7 px -> 194 landmarks at 3.1 px mean, 8 px -> see BENCHMARKS, 10 px -> 256 at 4.2 px)
+        "triangulation.max_reprojection_error_px": 8.0,
+        # 3 views along one line leave depth free along the epipolar line: wrong tracks land tens to hundreds of
+        # metres below the ground at a few px (Seneca: 30 of 237 landmarks > 20 m off; neighbour spread 1.1 m)
+        "triangulation.height_outlier_sigmas": 6.0,
+    },
+    # Aerial maps of a whole district (km^2) from coarse imagery (airborne or orthophoto, 1-5 m/px): hundreds of
+    # landmarks tens of metres across, of which only ~10 % are segmented alike on two dates (ponds grow and merge,
+    # fields change). Association only; measured on NAIP 2009 vs 2015 (BENCHMARKS.md, "Real data").
+    "aerial": {
+        # theta_WL / theta_SL: a window pair must hold more than theta_S of the ~10 % common landmarks: on NAIP
+        # 200-landmark windows (~50 frames of flight) hold up to 18-21, 50-landmark ones at most 8; windows
+        # overlapping by half still hold every stretch of flight whole, at a third of the pairs of stride 50
+        "association.window_length": 200, "association.window_stride": 100,
+        # theta_eps: a landmark is a segment centroid at 2.5 m/px of an object that changed shape: common
+        # landmarks are 5-7 m apart horizontally across dates, pairwise distances differ by 5 m (median) to 12 m
+        # (90 %), vs ~1 m for the paper's 0.3-0.5 m drone landmarks; sigma keeps the paper's ratio eps / 2
+        "association.distance_tolerance_m": 10.0, "association.affinity_sigma_m": 5.0,
+        # theta_r: a re-segmented pond's size differs by r = 0.21 (median) to 0.40 (75 %) between dates
+        "association.max_size_difference": 0.4,
+        # theta_S: with eps 5x wider, chance-consistent sets grow (up to 8 on NAIP windows): accept only > 10
+        "association.min_associations": 10,
+        # coarse imagery comes georeferenced (orthophotos, airborne GNSS): two dates agree to a few metres, so
+        # candidates only within 50 m (10 x a 5 m registration sigma). Applied only when both maps carry one EPSG
+        # code (sosmatch match ignores it otherwise); without it the NAIP-like 1100 x 1000 stand-in takes 7.7 s
+        # CPU instead of a fraction of a second (BENCHMARKS.md, Association)
+        "association.position_prior_m": 50.0,
+    },
+}
+
+
+# The pixel-valued parameters that `for_image` scales: lengths by the pixel scale, areas by its square.
+PIXEL_LENGTHS = ("tracking.epipolar_margin_px", "tracking.centroid_sigma_px", "triangulation.pixel_sigma_px",
+                 "triangulation.max_reprojection_error_px")
+
+
+PIXEL_AREAS = ("segmentation.min_mask_area_px", "segmentation.classical_min_area_px")
+
+
+def pixel_scale(params: Params, width: int, height: int) -> float:
+    """How much larger than `image.reference_size_px` a width x height image is (>= 1; 1 when scaling is off)."""
+    ref = params.image.reference_size_px
+    if ref <= 0:
+        return 1.0
+    return max(1.0, max(int(width), int(height)) / ref)
+
+
+def for_image(params: Params, width: int, height: int) -> Params:
+    """`params` with the pixel-valued parameters (PIXEL_LENGTHS, PIXEL_AREAS) scaled to a width x height image
+    (`pixel_scale`); the same object at or below the reference size."""
+    scale = pixel_scale(params, width, height)
+    if scale == 1.0:
+        return params
+    data = params_to_dict(params)
+    changes: dict[str, Any] = {}
+    for dotted in PIXEL_LENGTHS + PIXEL_AREAS:
+        section, key = dotted.split(".")
+        value = data[section][key]
+        if dotted in PIXEL_AREAS:
+            changes[dotted] = int(round(value * scale * scale)) if isinstance(value, int) else value * scale * scale
+        else:
+            changes[dotted] = value * scale
+    return with_overrides(params, changes)
+
+
+def preset_params(name: str) -> Params:
+    """The named preset (see PRESETS) as parameters; an unknown name is an InputError listing the known ones."""
+    if name not in PRESETS:
+        raise InputError(f"unknown preset {name!r} (known: {', '.join(sorted(PRESETS))})")
+    return with_overrides(Params(), PRESETS[name])
