@@ -162,3 +162,6 @@ def test_a_single_straight_line_makes_no_claim_it_cannot_separate(tmp_path):
     assert verdict.refusals == []
     assert not any("heights tilt" in w or "heights drift" in w or "attitude error of" in w for w in verdict.warnings)
     assert any("cannot tell a height drift" in w for w in verdict.warnings)
+    # the map's one-line summary does not print the fit's drift and tilt as if they were measured
+    line = result.line()
+    assert "not separable" in line and " m," not in line.split("pairs)")[1] and " deg" not in line.split("pairs)")[1]

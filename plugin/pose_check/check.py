@@ -62,6 +62,14 @@ class PoseCheck:
     systematic: SystematicErrors = field(default_factory=SystematicErrors)
     wide_offset: int = 1
     pairs: list[PairCheck] = field(default_factory=list)
+    # the limit the systematic fit's condition index was held to (`PoseCheckParams.max_condition_index`)
+    max_condition_index: float = float("inf")
+
+    @property
+    def systematic_separable(self) -> bool:
+        """Whether the flight's geometry tells the height drift, the tilt of the heights and a shared attitude
+        error apart (`SystematicErrors.condition_index` within the limit): only then are they judged or reported."""
+        return not self.systematic.condition_index > self.max_condition_index
 
     @property
     def epipolar_p50_deg(self) -> float:
@@ -97,8 +105,11 @@ class PoseCheck:
         if not self.pairs_checked:
             return f"poses vs images: no pair of {self.pairs_tried} matched"
         s = self.systematic
-        text = (f"poses vs images: epipolar {self.epipolar_p50_px:.1f} px ({self.pairs_checked} pairs), height drift "
-                f"{_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg")
+        text = f"poses vs images: epipolar {self.epipolar_p50_px:.1f} px ({self.pairs_checked} pairs), "
+        if self.systematic_separable:
+            text += f"height drift {_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg"
+        else:  # the fit's figures mean nothing here (one straight line): do not print them as if measured
+            text += f"height drift and tilt not separable on this flight (condition index {s.condition_index:.0f})"
         return text + (f", {self.reversed_pairs} reversed" if self.reversed_pairs else "")
 
 
@@ -219,7 +230,7 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         epipolar_p90_px=float(np.nanpercentile(med, 90)), epipolar_fit_p50_px=float(np.nanmedian(fit_med)),
         share_beyond_gate=float(np.mean(med > gate_px)),
         reversed_pairs=sum(c.reversed(gate_px) for c in checks), reversed_passes=reversed_passes,
-        systematic=systematic, wide_offset=k, pairs=checks)
+        systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index)
 
 
 def _working_scale(camera: Camera, params: PoseCheckParams) -> float:

@@ -33,7 +33,7 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams) -> Verdict:
         v.warnings.append(f"poses vs images: the poses fit the images' matches only to {check.epipolar_p50_px:.1f} px "
                           f"(median of {check.pairs_checked} pairs; gate {gate:.1f} px): expect a sparse map")
     s, h = check.systematic, check.flying_height_m
-    if s.condition_index > limits.max_condition_index:
+    if not check.systematic_separable:
         v.warnings.append(f"poses vs images: the flight's geometry cannot tell a height drift, a tilt of the heights "
                           f"and an attitude error shared by all cameras apart (condition index "
                           f"{s.condition_index:.0f}; a single straight line?): they are not checked")
