@@ -3,14 +3,12 @@
 import numpy as np
 
 from sosmatch.plugin.keyframes import flight_order
+from sosmatch.tools.toy_sessions import lawnmower
 
 
 def _lawnmower(lines=4, per_line=20, spacing=7.0, line_gap=30.0):
-    pts = []
-    for k in range(lines):
-        xs = np.arange(per_line) * spacing
-        pts += [(x, k * line_gap, 100.0) for x in (xs if k % 2 == 0 else xs[::-1])]
-    return np.asarray(pts)
+    """`lines` back-and-forth lines of `per_line` frames at 100 m (toy_sessions.lawnmower)."""
+    return lawnmower(0.0, (per_line - 1) * spacing, 0.0, (lines - 1) * line_gap, 100.0, line_gap, spacing)
 
 
 def test_a_flight_in_order_stays_as_given_and_hovering_is_no_jump():
