@@ -12,6 +12,9 @@ Layouts: COLMAP's src/colmap/scene/reconstruction_io_binary.cc (little-endian; i
 from __future__ import annotations
 
 import math
+import mmap
+import os
+import stat
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +31,7 @@ _PARAMS_OF_MODEL = {m.model_id: m.num_params for m in CAMERA_MODELS.values()}
 class _Reader:
     """Sequential little-endian reads of one file that refuse to run past its end."""
 
-    def __init__(self, data: bytes, path: Path) -> None:
+    def __init__(self, data: bytes | mmap.mmap, path: Path) -> None:
         self.data, self.path, self.pos = data, path, 0
 
     def left(self) -> int:
@@ -77,8 +80,15 @@ def _unit_quaternion(q: tuple, what: str, path: Path) -> None:
 
 
 def _read(path: Path) -> _Reader:
+    """The file mapped into memory, not read: a model's points3D.bin and images.bin grow with the survey (GBs for
+    large ones) and the walk touches each byte once, so the pages it needs come and go (bounded memory)."""
     try:
-        return _Reader(path.read_bytes(), path)
+        with open(path, "rb") as handle:
+            if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+                raise InputError("COLMAP model file is not a regular file", path)
+            if os.fstat(handle.fileno()).st_size == 0:
+                return _Reader(b"", path)
+            return _Reader(mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ), path)
     except OSError as exc:
         raise InputError(f"cannot read COLMAP model file: {exc.strerror or exc}", path) from None
 

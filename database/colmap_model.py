@@ -19,6 +19,7 @@ from .atomic import atomic_path, write_bytes_atomic
 from .cameras import camera_from_pycolmap, read_cameras_txt
 from .colmap_binary import check_binary_model
 from .poses import UNIT_QUAT_TOLERANCE
+from .text_input import bounded_lines
 
 if TYPE_CHECKING:
     import pycolmap
@@ -42,47 +43,49 @@ def is_colmap_model(path: str | Path) -> bool:
 
 def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, list[int]]:
     """Parse images.txt -> names, quaternions (w,x,y,z) cam_from_world, translations, camera ids."""
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read images file: {exc}", path) from None
     names: list[str] = []
     quats: list[list[float]] = []
     trans: list[list[float]] = []
     cam_ids: list[int] = []
     seen: set[str] = set()
     expect_pose = True
-    for lineno, line in enumerate(lines, start=1):
-        if line.startswith("#"):
-            continue
-        if not expect_pose:  # the POINTS2D line that follows every pose line (may be empty)
-            expect_pose = True
-            continue
-        parts = line.split()
-        if not parts:
-            continue
-        if len(parts) < 10:
-            raise InputError(f"expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, got {len(parts)} fields",
-                             path, lineno)
-        try:
-            values = [float(v) for v in parts[1:8]]
-            cam_id = int(parts[8])
-        except ValueError:
-            raise InputError(f"non-numeric pose value in {parts[1:9]}", path, lineno) from None
-        if not all(math.isfinite(v) for v in values):
-            raise InputError("NaN or infinite pose value", path, lineno)
-        norm = math.sqrt(sum(v * v for v in values[:4]))
-        if abs(norm - 1.0) > UNIT_QUAT_TOLERANCE:
-            raise InputError(f"quaternion is not unit length (norm {norm:.6f})", path, lineno)
-        name = " ".join(parts[9:])
-        if name in seen:
-            raise InputError(f"duplicate image name {name!r}", path, lineno)
-        seen.add(name)
-        names.append(name)
-        quats.append(values[:4])
-        trans.append(values[4:])
-        cam_ids.append(cam_id)
-        expect_pose = False
+    try:
+        handle = open(path, encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"cannot read images file: {exc.strerror or exc}", path) from None
+    # line by line: the POINTS2D lines make images.txt as large as the survey's tie points
+    with handle:
+        for lineno, line in bounded_lines(handle, path, "images file"):
+            if line.startswith("#"):
+                continue
+            if not expect_pose:  # the POINTS2D line that follows every pose line (may be empty)
+                expect_pose = True
+                continue
+            parts = line.split()
+            if not parts:
+                continue
+            if len(parts) < 10:
+                raise InputError(f"expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, got {len(parts)} fields",
+                                 path, lineno)
+            try:
+                values = [float(v) for v in parts[1:8]]
+                cam_id = int(parts[8])
+            except ValueError:
+                raise InputError(f"non-numeric pose value in {parts[1:9]}", path, lineno) from None
+            if not all(math.isfinite(v) for v in values):
+                raise InputError("NaN or infinite pose value", path, lineno)
+            norm = math.sqrt(sum(v * v for v in values[:4]))
+            if abs(norm - 1.0) > UNIT_QUAT_TOLERANCE:
+                raise InputError(f"quaternion is not unit length (norm {norm:.6f})", path, lineno)
+            name = " ".join(parts[9:])
+            if name in seen:
+                raise InputError(f"duplicate image name {name!r}", path, lineno)
+            seen.add(name)
+            names.append(name)
+            quats.append(values[:4])
+            trans.append(values[4:])
+            cam_ids.append(cam_id)
+            expect_pose = False
     return names, np.array(quats).reshape(-1, 4), np.array(trans).reshape(-1, 3), cam_ids
 
 

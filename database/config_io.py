@@ -10,6 +10,7 @@ import tomli_w
 
 from ..plugin.errors import InputError
 from ..plugin.params import Params, params_from_dict, params_to_dict, preset_params, with_overrides
+from .text_input import read_user_text
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -26,11 +27,7 @@ def load_params(
     if path is not None:
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise InputError("config file not found", path) from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(f"cannot read config: {exc}", path) from None
+            data = tomllib.loads(read_user_text(path, "config file"))
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"invalid TOML: {exc}", path) from None
         try:

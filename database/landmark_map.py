@@ -18,6 +18,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from .atomic import write_bytes_atomic
+from .text_input import MIB, read_user_bytes
 
 MAGIC = b"SOSMAP\0\0"
 VERSION = 1
@@ -26,6 +27,8 @@ _HEADER = struct.Struct("<8sHHI3dII")
 _RECORD = np.dtype([("xyz", "<f4", (3,)), ("size", "<f2")])
 assert _HEADER.size == 48 and _RECORD.itemsize == 14
 BYTES_PER_LANDMARK = _RECORD.itemsize
+# A map of 76 million landmarks (a whole season's flights hold tens of thousands): the largest file read.
+LANDMARK_MAP_LIMIT_BYTES = 1024 * MIB
 MAX_OFFSET_M = 1.0e6  # float32 offsets beyond this lose centimetres; the writer refuses them
 
 
@@ -157,11 +160,4 @@ def write_landmark_map(path: str | Path, lmap: LandmarkMap) -> int:
 
 
 def read_landmark_map(path: str | Path) -> LandmarkMap:
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError("landmark map not found", path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read landmark map: {exc.strerror}", path) from None
-    return decode_landmark_map(data, path)
+    return decode_landmark_map(read_user_bytes(path, "landmark map", LANDMARK_MAP_LIMIT_BYTES), path)

@@ -35,24 +35,16 @@ class LoadedMap:
 def read_map_noise(session: Path) -> MapNoise | None:
     """The noise figures `sosmatch map` recorded in SESSION/run.json (`plugin.map_noise`); None when the session
     has no run.json or the run predates them. A run.json that is not JSON is an InputError naming it."""
-    import json
+    from .session_io import read_map_record
 
-    from .text_input import read_user_text
-
-    run_json = Path(session) / "run.json"
-    if not run_json.is_file():
-        return None
-    try:
-        data = json.loads(read_user_text(run_json, "session record"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"session record is not JSON: {exc}", run_json) from None
-    noise = data.get("noise") if isinstance(data, dict) else None
+    record = read_map_record(session)
+    noise = None if record is None else record.get("noise")
     if not isinstance(noise, dict):
         return None
     try:
         return MapNoise.from_dict(noise)
     except (TypeError, ValueError):
-        raise InputError("session record has a malformed 'noise' entry", run_json) from None
+        raise InputError("session record has a malformed 'noise' entry", Path(session) / "run.json") from None
 
 
 def _model_dir(path: Path) -> Path | None:

@@ -41,6 +41,7 @@ from typing import Any
 
 from ..plugin.errors import InputError
 from .atomic import atomic_path, clean_stale_temporaries, locked_temp_dir, write_text_atomic
+from .text_input import read_user_bytes
 
 MARKER = ".sosmatch-output.json"
 LOCK = ".sosmatch-output.lock"
@@ -89,11 +90,12 @@ def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> 
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
+    """A marker or registry file: None when missing, {} when unreadable (then nothing it would allow is allowed)."""
+    if not path.exists():
         return None
-    except (OSError, ValueError, RecursionError):
+    try:
+        data = json.loads(read_user_bytes(path, "output record"))
+    except (InputError, ValueError, RecursionError):
         return {}
     return data if isinstance(data, dict) else {}
 

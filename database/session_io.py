@@ -110,17 +110,32 @@ def read_landmark_point_ids(path: str | Path, count: int | None = None) -> np.nd
     return table.point3d_ids
 
 
+def read_map_record(map_dir: str | Path) -> dict | None:
+    """MAP_DIR/run.json, the record `sosmatch map` writes last (inputs, keyframes, noise, verdict), as a dict; None
+    when the directory has none (a merged model, an older sosmatch). InputError naming the file when it is
+    unreadable, not JSON or not a JSON object: the one reader of the record, for every stage that consults it."""
+    path = Path(map_dir) / "run.json"
+    if not path.is_file():
+        return None
+    text = read_user_text(path, "session record")
+    try:
+        record = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise InputError(f"session record is not JSON: {str(exc).splitlines()[0]}", path) from None
+    if not isinstance(record, dict):
+        raise InputError("session record must hold a JSON object", path)
+    return record
+
+
 def check_session_usable(path: str | Path) -> None:
     """InputError when `sosmatch map` refused the session directory `path` (run.json's verdict): its map is
     implausible or empty and no later stage may use it. Directories without a verdict (merged models, older
     sessions) pass."""
-    run = Path(path) / "run.json"
-    if not run.is_file():
-        return
     try:
-        verdict = json.loads(run.read_text(encoding="utf-8")).get("verdict") or {}
-    except (OSError, ValueError, AttributeError):
+        record = read_map_record(path)
+    except InputError:  # an unreadable record decides nothing here; the stage that needs it says so
         return
+    verdict = (record or {}).get("verdict") or {}
     if isinstance(verdict, dict) and verdict.get("status") == "refused":
         reasons = "; ".join(str(r) for r in verdict.get("refusals", [])) or "no reason recorded"
         raise InputError(f"`sosmatch map` refused this session ({reasons}); fix its poses or camera and map "
@@ -149,22 +164,21 @@ def check_map_of_images(map_dir: str | Path, images_dir: str | Path, samples: in
     Sessions of one flight path share their image names, so names alone cannot tell a summer map from a
     winter one; a map without the record (an older sosmatch, a merged model) is not checked."""
     import hashlib
-    import json
 
     map_dir, images_dir = Path(map_dir), Path(images_dir)
     try:
-        record = json.loads((map_dir / "run.json").read_text(encoding="utf-8"))
-        digests = record["keyframe_images"]
-        items = sorted(digests.items()) if isinstance(digests, dict) else []
-    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        digests = (read_map_record(map_dir) or {}).get("keyframe_images")
+    except InputError:
         return
+    items = sorted(digests.items()) if isinstance(digests, dict) else []
     if not items:
         return
     picks = [items[int(i)] for i in np.linspace(0, len(items) - 1, min(samples, len(items))).round()]
     for name, digest in picks:
         image = images_dir / str(name)
         try:
-            actual = hashlib.sha256(image.read_bytes()).hexdigest()
+            with open(image, "rb") as handle:  # streamed: an image file of any size in bounded memory
+                actual = hashlib.file_digest(handle, "sha256").hexdigest()
         except OSError:
             raise InputError(f"map was made from images that are not in {images_dir} (no {name}); is it this "
                              "session's map?", map_dir) from None

@@ -148,11 +148,12 @@ class SynthSession:
 
 
 def _read_json(path: Path) -> Any:
+    if not path.exists():
+        raise InputError("file not found (not a complete synthetic session?)", path)
+    text = read_user_text(path, "session file")
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("file not found (not a complete synthetic session?)", path) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        return json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"cannot read JSON: {exc}", path) from None
 
 

@@ -1,22 +1,102 @@
-"""Reading a user's text file: one place that turns a missing or unreadable file into a one-line InputError."""
+"""Reading a user's file: one place that turns a missing, unreadable or implausibly large file into a one-line
+InputError, and that reads no more than a bound, whatever the path is.
+
+Every whole-file input (pose and telemetry tables, cameras files, match.json, run.json, config TOML, landmark
+maps) is read here. A file is read with a cap instead of after a `stat`, because the size of what a path
+names is not always known in advance: `--match /dev/zero` (or a pipe that never ends) filled memory until
+Python raised MemoryError with a traceback. The caps are far above what the format holds for any real
+survey (a pose table of a million frames is about 100 MB), so they only ever stop a wrong path.
+"""
 
 from __future__ import annotations
 
+import os
+import stat
+from collections.abc import Iterator
 from pathlib import Path
+from typing import IO
 
 from ..plugin.errors import InputError
 
+MIB = 1 << 20
+# The largest text input read whole: a pose or telemetry table of a million rows is ~100 MB, a match.json of two
+# whole-season maps a few MB. Parsing holds a few times the text, so memory stays within a few GB.
+TEXT_LIMIT_BYTES = 256 * MIB
+# The longest line of a text file read line by line (a COLMAP images.txt POINTS2D line of 100 k observations is
+# ~4 MB).
+LINE_LIMIT_BYTES = 64 * MIB
 
-def read_user_text(path: str | Path, what: str) -> str:
-    """The UTF-8 text of `path`; raises InputError("<what> not found" / "cannot read <what>: ...") naming the file.
 
-    `what` is the file's role as a user knows it ("pose file", "telemetry file"), so the one-line error says
-    which input is wrong, not just which path.
+def _size_words(limit_bytes: int) -> str:
+    return f"{limit_bytes / MIB:.0f} MiB" if limit_bytes >= MIB else f"{limit_bytes} bytes"
+
+
+def _read_capped(handle: IO[bytes], limit_bytes: int, chunk_bytes: int = MIB) -> bytes:
+    """At most limit_bytes + 1 bytes of a stream, in chunks (one `read(n)` allocates n bytes at once)."""
+    out = bytearray()
+    while len(out) <= limit_bytes:
+        chunk = handle.read(min(chunk_bytes, limit_bytes + 1 - len(out)))
+        if not chunk:
+            break
+        out += chunk
+    return bytes(out)
+
+
+def read_user_bytes(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_BYTES) -> bytes:
+    """The bytes of `path`, at most `limit_bytes`; raises InputError naming the file when it is missing, a
+    folder, unreadable or larger than the limit (read with a cap, so a device or a pipe cannot fill memory).
+
+    `what` is the file's role as a user knows it ("pose file", "match file"), so the one-line error says which
+    input is wrong, not just which path.
     """
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
+        with open(path, "rb") as handle:
+            info = os.fstat(handle.fileno())
+            if stat.S_ISREG(info.st_mode):  # its size is known: a file over the limit is not read at all
+                data = b"" if info.st_size > limit_bytes else handle.read()
+                too_large = info.st_size > limit_bytes or len(data) > limit_bytes
+            else:  # a pipe or a device: its size is unknown, so read in chunks up to the limit
+                data = _read_capped(handle, limit_bytes)
+                too_large = len(data) > limit_bytes
     except FileNotFoundError:
         raise InputError(f"{what} not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read {what}: {exc}", path) from None
+    except IsADirectoryError:
+        raise InputError(f"{what} is a folder, not a file", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read {what}: {exc.strerror or exc}", path) from None
+    if too_large:
+        raise InputError(f"{what} is larger than {_size_words(limit_bytes)}, more than any {what} holds: is it "
+                         "the right file?", path)
+    return data
+
+
+def read_user_text(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_BYTES) -> str:
+    """The UTF-8 text of `path` (`read_user_bytes`' checks and bound); InputError naming the file when it is not
+    UTF-8 text."""
+    data = read_user_bytes(path, what, limit_bytes)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"cannot read {what}: not UTF-8 text (byte {exc.start})", path) from None
+
+
+def bounded_lines(handle: IO[str], path: str | Path, what: str,
+                  limit_bytes: int = LINE_LIMIT_BYTES) -> Iterator[tuple[int, str]]:
+    """(line number from 1, line without its end) of an open text file, one line in memory at a time; a line
+    longer than `limit_bytes` characters is an InputError naming the file and the line (a file without line
+    ends would otherwise be read whole as one line)."""
+    lineno = 0
+    while True:
+        try:
+            line = handle.readline(limit_bytes + 1)
+        except UnicodeDecodeError as exc:
+            raise InputError(f"cannot read {what}: not UTF-8 text (byte {exc.start})", Path(path),
+                             lineno + 1) from None
+        if not line:
+            return
+        lineno += 1
+        if len(line) > limit_bytes:
+            raise InputError(f"{what} has a line longer than {_size_words(limit_bytes)}: is it the right file?",
+                             Path(path), lineno)
+        yield lineno, line.rstrip("\r\n")

@@ -4,12 +4,12 @@ which eligible objects the segmenter found in both maps, the size agreement and 
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ...database.session_io import read_map_record
 from ...plugin.params import Params
 
 
@@ -39,8 +39,8 @@ def landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Path
     seen, segmented = [], []
     min_keyframes = params.triangulation.min_observations + 1
     for s, m in zip(synth, (map_a, map_b)):
-        run_json = m / "run.json"
-        names = json.loads(run_json.read_text(encoding="utf-8"))["keyframes"] if run_json.exists() else None
+        record = read_map_record(m)
+        names = None if record is None else record["keyframes"]
         keyframes = None if names is None else set(names)
         counts: dict[int, int] = {}
         for frame in s.frames:

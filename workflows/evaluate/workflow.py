@@ -22,7 +22,7 @@ from ...database.map_loading import read_map_noise
 from ...database.match_io import check_match_maps, read_match_json
 from ...database.outputs import fingerprint, open_output_dir
 from ...database.poses import read_poses_csv
-from ...database.session_io import check_map_of_images
+from ...database.session_io import check_map_of_images, read_map_record
 from ...database.synth_session import ground_truth_frame
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (
@@ -123,10 +123,9 @@ def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path
 def _map_frame_centers(gt: GroundTruthSession, map_dir: Path) -> np.ndarray:
     """The evaluation keyframes' camera centres in the frame of the map (the poses it was built on, as run.json
     records them: a synthetic session's EKF poses); the ground-truth centres when that pose file is unknown."""
-    run_json = map_dir / "run.json"
     try:
-        source = Path(json.loads(run_json.read_text(encoding="utf-8"))["inputs"]["poses"])
-    except (OSError, ValueError, KeyError, TypeError):
+        source = Path((read_map_record(map_dir) or {})["inputs"]["poses"])
+    except (InputError, KeyError, TypeError):
         return gt.centers
     if source.suffix != ".csv" or not source.is_file():
         return gt.centers
