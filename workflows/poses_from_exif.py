@@ -62,6 +62,9 @@ class ExifPoses:
     epsg: int
     camera: Camera
     summary: dict = field(default_factory=dict)
+    # (N,) images without attitude tags, whose headings are the course over ground: a guess the refinement
+    # replaces by what the image motion says
+    headings_guessed: np.ndarray | None = None
 
 
 def poses_from_images(
@@ -100,7 +103,7 @@ def poses_from_images(
         log.warning("%d camera makes/models in one folder: using the first one's intrinsics for all",
                     len(priors.cameras))
     poses = Poses(priors.names, priors.rotations, priors.positions)
-    return ExifPoses(poses, priors.epsg, priors.cameras[0], priors.summary)
+    return ExifPoses(poses, priors.epsg, priors.cameras[0], priors.summary, ~priors.attitude_from_tags)
 
 
 def run(
@@ -211,7 +214,7 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
     try:
         result.poses, stats = refine_poses_from_images(_image_paths(images, result.poses), result.poses,
                                                        result.camera, position_sigma_m, attitude_sigma_deg,
-                                                       method=method)
+                                                       method=method, unknown_headings=result.headings_guessed)
     except (RefinementRejected, ValueError) as error:
         if not guessed:
             raise

@@ -5,14 +5,14 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ...database.images import read_gray
 from ...plugin.geometry import Poses
 from .judge import RefinementRejected, RefinementStats, judge_refinement
-from .with_colmap import poses_of_reconstruction, refine_poses_with_colmap
+from .with_colmap import point_errors, poses_of_reconstruction, refine_poses_with_colmap
 from .with_priors import refine_poses_with_priors
 
 log = logging.getLogger(__name__)
@@ -35,33 +35,48 @@ def _orb_matches(desc_a: np.ndarray, desc_b: np.ndarray, kp_a: np.ndarray, kp_b:
     return good[inl]
 
 
-def tie_point_reconstruction(
+@dataclass
+class TiePoints:
+    """ORB tie points of a set of images, found with nothing from the poses but the camera centres (which pairs to
+    match): per image its keypoints (COLMAP pixels), per matched pair the homography-inlier matches, and the
+    tracks (feature indices into the concatenation of the images' keypoints, `offsets[i]` the first of image i)."""
+
+    keypoints: list[np.ndarray]
+    pair_matches: dict[tuple[int, int], np.ndarray]
+    tracks: list[np.ndarray]
+    offsets: np.ndarray
+    pairs_tried: int
+
+    @property
+    def observations(self) -> int:
+        return int(sum(len(g) for g in self.tracks))
+
+    def image_of(self) -> np.ndarray:
+        return np.repeat(np.arange(len(self.keypoints)), np.diff(self.offsets))
+
+
+def match_tie_points(
     image_paths: list,
-    poses: Poses,
+    centers: np.ndarray,
     camera: object,
     max_features: int = 3000,
     neighbour_fraction: float = 0.6,
     ransac_px: float = 6.0,
     min_track_length: int = 3,
     max_neighbours: int = 8,
-    min_ray_angle_deg: float = 2.0,
-) -> object:
-    """A pycolmap Reconstruction of ORB tie points with the given (prior) poses (changed by nothing here).
+) -> TiePoints:
+    """ORB tie points between overlapping images (image order = the order of `centers`, the camera centres).
 
     Features per image (ORB, `max_features`); matches (ratio test + RANSAC homography at `ransac_px`) between each
     image and the next two, and between any two images whose centres are closer than `neighbour_fraction` x 4 x the
     median spacing of consecutive images (a typical 75% forward overlap puts ~4 spacings in a footprint; at most its
     `max_neighbours` nearest), which links neighbouring flight lines; tracks by union-find (tracks with two features
-    in one image are dropped); points by least-squares intersection of the rays from the prior poses, dropped when
-    the rays meet under less than `min_ray_angle_deg`.
-    `camera` is a sosmatch Camera (any lens model: rays and the model go through it), image order = pose order.
+    in one image are dropped). The orientations play no part: the matches are what the images show.
     """
-    import pycolmap
-
-    from ...database.cameras import pycolmap_camera
     from ...plugin.image_matching import orb_features
 
-    n = len(poses)
+    centers = np.asarray(centers, dtype=np.float64)
+    n = len(centers)
     kps, descs = [], []
     for path in image_paths:
         img = read_gray(path)
@@ -70,9 +85,9 @@ def tie_point_reconstruction(
         features = orb_features(img, max_features)
         kps.append(features.colmap_points)
         descs.append(features.descriptors)
-    spacing = np.median(np.linalg.norm(np.diff(poses.centers[:, :2], axis=0), axis=1)) if n > 1 else 1.0
+    spacing = np.median(np.linalg.norm(np.diff(centers[:, :2], axis=0), axis=1)) if n > 1 else 1.0
     radius = neighbour_fraction * 4.0 * spacing
-    d2 = np.linalg.norm(poses.centers[:, None, :2] - poses.centers[None, :, :2], axis=2)
+    d2 = np.linalg.norm(centers[:, None, :2] - centers[None, :, :2], axis=2)
     pairs = {(i, j) for i in range(n) for j in range(i + 1, min(n, i + 3))}
     # each image with its `max_neighbours` nearest within the radius: enough to tie neighbouring flight lines
     # together, and matching cost stays linear in the number of images (all pairs in the radius: 2x the time)
@@ -80,7 +95,7 @@ def tie_point_reconstruction(
     # put the other one first, and the pair (i, i) would union features of one image and drop their tracks
     near = np.argsort(np.where(np.eye(n, dtype=bool), np.inf, d2), axis=1, kind="stable")[:, :max_neighbours]
     pairs |= {(min(i, int(j)), max(i, int(j))) for i in range(n) for j in near[i] if i != j and d2[i, j] < radius}
-    offsets = np.concatenate([[0], np.cumsum([len(k) for k in kps])])
+    offsets = np.concatenate([[0], np.cumsum([len(k) for k in kps])]).astype(np.int64)
     parent = np.arange(offsets[-1])
 
     def find(a: int) -> int:
@@ -91,11 +106,11 @@ def tie_point_reconstruction(
             parent[a], a = root, parent[a]
         return root
 
-    n_pairs_ok = 0
+    matched: dict[tuple[int, int], np.ndarray] = {}
     for i, j in sorted(pairs):
         m = _orb_matches(descs[i], descs[j], kps[i], kps[j], ransac_px)
         if len(m):
-            n_pairs_ok += 1
+            matched[(i, j)] = m
         for a, b in m:
             ra, rb = find(offsets[i] + a), find(offsets[j] + b)
             if ra != rb:
@@ -105,13 +120,27 @@ def tie_point_reconstruction(
     order = np.argsort(roots, kind="stable")
     groups = np.split(order, np.flatnonzero(np.diff(roots[order])) + 1)
     tracks = [g for g in groups if len(g) >= min_track_length and len(np.unique(img_of[g])) == len(g)]
-    log.info("tie points: %d image pairs matched of %d tried, %d tracks of >= %d images", n_pairs_ok, len(pairs),
+    log.info("tie points: %d image pairs matched of %d tried, %d tracks of >= %d images", len(matched), len(pairs),
              len(tracks), min_track_length)
+    return TiePoints(kps, matched, tracks, offsets, len(pairs))
 
+
+def reconstruction_of_tie_points(tie: TiePoints, poses: Poses, camera: object,
+                                 min_ray_angle_deg: float = 2.0) -> object:
+    """A pycolmap Reconstruction of the tie points with the given poses (changed by nothing here): points by
+    least-squares intersection of the rays from the poses, dropped when behind a camera or when the rays meet under
+    less than `min_ray_angle_deg`. `camera` is a sosmatch Camera (any lens model: rays and the model go through
+    it), image order = pose order."""
+    import pycolmap
+
+    from ...database.cameras import pycolmap_camera
+
+    n, kps, offsets = len(poses), tie.keypoints, tie.offsets
+    img_of = tie.image_of()
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(pycolmap_camera(camera, 1))
     used = np.zeros(offsets[-1], dtype=bool)
-    for g in tracks:
+    for g in tie.tracks:
         used[g] = True
     local_index = np.full(offsets[-1], -1)
     for i in range(n):
@@ -122,7 +151,7 @@ def tie_point_reconstruction(
         r_cw = poses.rotations[i].T
         rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(pycolmap.Rotation3d(r_cw), -r_cw @ poses.centers[i]))
     origin = poses.centers.mean(axis=0)
-    for g in tracks:
+    for g in tie.tracks:
         imgs = img_of[g]
         uv = np.stack([kps[i][a - offsets[i]] for i, a in zip(imgs, g)])
         d_cam = np.concatenate([camera.cam_from_img(uv), np.ones((len(uv), 1))], 1)  # through the lens model
@@ -149,6 +178,40 @@ def tie_point_reconstruction(
     return rec
 
 
+def tie_point_reconstruction(image_paths: list, poses: Poses, camera: object, max_features: int = 3000) -> object:
+    """A pycolmap Reconstruction of ORB tie points with the given (prior) poses (changed by nothing here):
+    `match_tie_points` (pairs from the centres of `poses`), then `reconstruction_of_tie_points`."""
+    tie = match_tie_points(image_paths, poses.centers, camera, max_features)
+    return reconstruction_of_tie_points(tie, poses, camera)
+
+
+def headings_from_image_motion(tie: TiePoints, poses: Poses, camera: object, unknown: np.ndarray
+                               ) -> tuple[Poses, np.ndarray]:
+    """The poses with the headings of the images marked `unknown` (no attitude tags) turned to what the images'
+    motion and the GPS say (`plugin.heading`), and the turn of every image in degrees (NaN: not turned). An unknown
+    image in no matched pair, or whose pairs disagree, keeps its prior turned by the mean turn of the others (the
+    camera's mounting relative to the course is one per flight as often as not); the rest is left to the
+    refinement."""
+    from ...plugin.heading import directions_of_motion, heading_corrections, turned_about_vertical
+
+    unknown = np.asarray(unknown, dtype=bool)
+    pairs = []
+    for (i, j), m in sorted(tie.pair_matches.items()):
+        if not (unknown[i] or unknown[j]):
+            continue
+        x_a = camera.cam_from_img(tie.keypoints[i][m[:, 0]])
+        x_b = camera.cam_from_img(tie.keypoints[j][m[:, 1]])
+        found = directions_of_motion(x_a, x_b)
+        if found is not None:
+            pairs.append((i, j, *found, float(len(m))))
+    turns = np.where(unknown, heading_corrections(poses.rotations, poses.centers, pairs), np.nan)
+    solved = np.isfinite(turns)
+    if solved.any():
+        typical = float(np.angle(np.mean(np.exp(1j * turns[solved]))))
+        turns[unknown & ~solved] = typical
+    return Poses(poses.names, turned_about_vertical(poses.rotations, turns), poses.centers), np.degrees(turns)
+
+
 def refine_poses_from_images(
     image_paths: list,
     poses: Poses,
@@ -159,6 +222,7 @@ def refine_poses_from_images(
     max_features: int = 2000,  # matching cost grows with its square: 3000 took 80 s of knnMatch on Seneca
     method: str = "colmap",
     accept_implausible: bool = False,
+    unknown_headings: np.ndarray | None = None,
 ) -> tuple[Poses, RefinementStats]:
     """Refine GPS/telemetry poses BEFORE mapping, with ORB tie points between overlapping images and the pose
     priors (`tie_point_reconstruction`, then `refine_poses_with_colmap` (method "colmap", the default: COLMAP's
@@ -167,11 +231,28 @@ def refine_poses_from_images(
     and the statistics. Use it when the poses are far from EKF quality: the mapping's epipolar gate (a few
     pixels) cannot track segments across frames whose poses are 100+ px off.
 
-    The result is judged against the priors (`judge_refinement`): warnings are logged and kept in the stats;
-    errors raise RefinementRejected unless `accept_implausible` (then they are logged as warnings)."""
+    `unknown_headings` (N,) bool: images whose prior heading is a guess (no attitude tags: the course over
+    ground); their headings are first turned to what the image motion says (`headings_from_image_motion`), as a
+    bundle adjustment does not turn a camera by 90 degrees out of its starting point.
+
+    The result is judged against the priors and against the tie points (`judge_refinement`; `explained_share`:
+    the share of the tie-point observations the refined poses explain within 2 pixel sigmas, every track
+    triangulated anew with them, so tracks the starting poses could not triangulate count too): warnings are
+    logged and kept in the stats; errors raise RefinementRejected unless `accept_implausible` (then they are
+    logged as warnings)."""
     if method not in ("colmap", "scipy"):
         raise ValueError(f"unknown refinement method {method!r} (colmap or scipy)")
-    rec = tie_point_reconstruction(image_paths, poses, camera, max_features)
+    tie = match_tie_points(image_paths, poses.centers, camera, max_features)
+    turns = np.full(len(poses), np.nan)
+    if unknown_headings is not None and np.any(unknown_headings):
+        poses, turns = headings_from_image_motion(tie, poses, camera, unknown_headings)
+        solved = turns[np.isfinite(turns)]
+        if len(solved):
+            log.info("headings of %d images without attitude tags from the image motion: turned %.1f deg from the "
+                     "course over ground (median of |turn|; circular mean %+.1f deg)", len(solved),
+                     float(np.median(np.abs(solved))), float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(
+                         solved)))))))
+    rec = reconstruction_of_tie_points(tie, poses, camera)
     if method == "colmap":
         sigma = float(np.max(np.atleast_1d(position_sigma_m)))
         stats = refine_poses_with_colmap(rec, poses, sigma, pixel_sigma_px)
@@ -182,7 +263,14 @@ def refine_poses_from_images(
     if missing:
         raise ValueError(f"{len(missing)} images lost their pose in the refinement (e.g. {missing[0]})")
     order = [refined.names.index(nm) for nm in poses.names]
-    errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg)
+    refined = refined.subset(order)
+    explained, observed = explained_by_image(tie, refined, camera, 2.0 * pixel_sigma_px)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_image = np.where(observed > 0, explained / np.maximum(observed, 1), np.nan)
+    stats = replace(stats, explained_share=float(explained.sum() / observed.sum()) if observed.sum() else float("nan"),
+                    explained_share_by_image=tuple(float(v) for v in per_image),
+                    heading_turns_deg=tuple(float(t) for t in turns))
+    errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg, poses.names)
     for w in warnings:
         log.warning("pose refinement: %s", w)
     stats = replace(stats, warnings=tuple(warnings))
@@ -193,4 +281,19 @@ def refine_poses_from_images(
                                  "or with better priors")
     for e in errors:
         log.warning("pose refinement: %s (accepted on request)", e)
-    return refined.subset(order), stats
+    return refined, stats
+
+
+def explained_by_image(tie: TiePoints, poses: Poses, camera: object, max_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per image: how many of its tie-point observations `poses` explain, and how many it has. Every track is
+    triangulated with these poses (`reconstruction_of_tie_points`) and an observation is explained when it
+    reprojects within `max_px`; a track that cannot be triangulated (behind a camera, parallel rays) explains
+    none of its observations."""
+    rec = reconstruction_of_tie_points(tie, poses, camera)
+    explained = np.zeros(len(poses), dtype=np.int64)
+    for point in rec.points3D.values():
+        for image_id, _, err in point_errors(rec, point):
+            if err <= max_px:
+                explained[image_id - 1] += 1
+    return explained, np.bincount(tie.image_of()[np.concatenate(tie.tracks)] if tie.tracks else
+                                  np.zeros(0, np.int64), minlength=len(poses))

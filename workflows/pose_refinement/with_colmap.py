@@ -41,7 +41,7 @@ def refine_poses_with_colmap(
     image_ids = registered_image_ids(rec)
     prior_index = {name: k for k, name in enumerate(prior_poses.names)}
     before_poses = poses_of_reconstruction(rec)
-    err0 = _observation_errors(rec)
+    err0 = observation_errors(rec)
     # Work near the origin: Ceres' relative tolerances and float math behave better than at UTM magnitudes.
     origin = prior_poses.centers.mean(axis=0)
     rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(np.eye(3)), -origin))
@@ -75,7 +75,7 @@ def refine_poses_with_colmap(
         pycolmap.logging.minloglevel = log_level
         rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(np.eye(3)), origin))
     rec.update_point_3d_errors()
-    err1 = _observation_errors(rec)
+    err1 = observation_errors(rec)
     after = poses_of_reconstruction(rec)
     before = before_poses.subset([before_poses.names.index(n) for n in after.names])
     stats = RefinementStats(
@@ -93,7 +93,7 @@ def refine_poses_with_colmap(
     return stats
 
 
-def _point_errors(rec: object, point: object) -> list[tuple[int, int, float]]:
+def point_errors(rec: object, point: object) -> list[tuple[int, int, float]]:
     """(image id, point2D index, reprojection error px; inf behind the camera) of each observation of `point`."""
     out = []
     for el in point.track.elements:
@@ -104,9 +104,9 @@ def _point_errors(rec: object, point: object) -> list[tuple[int, int, float]]:
     return out
 
 
-def _observation_errors(rec: object) -> np.ndarray:
+def observation_errors(rec: object) -> np.ndarray:
     """Reprojection error (px) of every observation of every 3D point."""
-    return np.asarray([e for point in rec.points3D.values() for _, _, e in _point_errors(rec, point)],
+    return np.asarray([e for point in rec.points3D.values() for _, _, e in point_errors(rec, point)],
                       dtype=np.float64)
 
 
@@ -116,7 +116,7 @@ def _drop_outlier_observations(rec: object, max_px: float) -> int:
     removed = 0
     for pid in list(rec.points3D):
         point = rec.points3D[pid]
-        bad = [(image_id, idx) for image_id, idx, err in _point_errors(rec, point) if err > max_px]
+        bad = [(image_id, idx) for image_id, idx, err in point_errors(rec, point) if err > max_px]
         if not bad:
             continue
         if point.track.length() - len(bad) < 2:
