@@ -71,6 +71,11 @@ class MatchSummary:
     consensus_associations: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     runner_up_support: int | None = None  # the verification's best rival (None: not verified)
     search_mode: dict[str, Any] = field(default_factory=dict)  # which search ran (match.json "search_mode")
+    # the test the answer's associations passed against its transform: distance (`plugin.refinement.
+    # pairing_distance` with gate_z_weight) within gate_m; the verification pairs within the search's theta_eps with
+    # heights weighted by verification.z_weight, the window consensus within theta_eps in 3D (None: not recorded)
+    gate_m: float | None = None
+    gate_z_weight: float = 1.0
 
 
 # --- field validation (each raises InputError naming the file and the field) -----------------------------------
@@ -94,6 +99,14 @@ def _float(value: Any, name: str, path: Path, allow_none: bool = False) -> float
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise InputError(f"{_where(name)} must be a finite number, got {_short(value)}", path)
     return float(value)
+
+
+def _positive(value: Any, name: str, path: Path) -> float | None:
+    """An optional positive finite number (None when absent)."""
+    value = _float(value, name, path, allow_none=True)
+    if value is not None and value <= 0:
+        raise InputError(f"{_where(name)} must be positive, got {_short(value)}", path)
+    return value
 
 
 def _bool(value: Any, name: str, path: Path) -> bool:
@@ -208,10 +221,16 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     seconds = _float(seconds, "search_seconds", path, allow_none=True)
     params = data.get("params")
     theta = None
+    gate, z_weight = None, None
     if isinstance(params, dict):
         assoc = params.get("association")
         theta = assoc.get("min_associations") if isinstance(assoc, dict) else params.get("min_associations")
         theta = None if theta is None else _int(theta, "params.association.min_associations", path, 0, 10**6)
+        gate = _positive(assoc.get("distance_tolerance_m") if isinstance(assoc, dict) else None,
+                         "params.association.distance_tolerance_m", path)
+        ver_params = params.get("verification")
+        z_weight = _positive(ver_params.get("z_weight") if isinstance(ver_params, dict) else None,
+                             "params.verification.z_weight", path)
     summary = MatchSummary(False, None, np.zeros((0, 2), np.int64), kind, len(hyps), hypotheses=hyps,
                            map_a=_map_ref(data.get("map_a"), "map_a", path),
                            map_b=_map_ref(data.get("map_b"), "map_b", path), seconds=seconds, min_associations=theta)
@@ -257,6 +276,9 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
         summary.runner_up_support = _int(ver.get("runner_up_support", 0), "verification.runner_up_support", path)
         if summary.accepted and summary.transform is None:
             raise InputError("match file field verification is accepted without a transform", path)
+    summary.gate_m = gate
+    if summary.source == "verified" and z_weight is not None:
+        summary.gate_z_weight = z_weight
     return summary
 
 

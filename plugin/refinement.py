@@ -91,6 +91,13 @@ def mutual_nearest(
     return np.column_stack([i[keep], j[keep]])[order], d[keep][order]
 
 
+def pairing_distance(points_a: np.ndarray, points_b: np.ndarray, z_weight: float = 0.5) -> np.ndarray:
+    """The distance `mutual_nearest` pairs landmarks by, row by row: sqrt(dx² + dy² + (z_weight dz)²) between
+    (N,3) positions already in one frame (z_weight 1: the 3D distance)."""
+    d = np.asarray(points_a, dtype=np.float64).reshape(-1, 3) - np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
+    return np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2 + (z_weight * d[:, 2]) ** 2)
+
+
 def pairing_tree(points: np.ndarray, z_weight: float = 0.5) -> Any:
     """The KD-tree `mutual_nearest` pairs a map's landmarks with: positions with heights scaled by z_weight."""
     from scipy.spatial import cKDTree

@@ -23,6 +23,7 @@ from .refinement import (
     Alignment,
     huber_weights,
     mutual_nearest,
+    pairing_distance,
     pairing_tree,
     refine_alignment,
     weighted_umeyama,
@@ -242,13 +243,12 @@ def _final_rigid_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, gate_m:
     """One Huber-weighted 6-DOF fit on an alignment's supporting pairs (kept as they are)."""
     assoc = aligned.associations
     src, dst = pb[assoc[:, 1]], pa[assoc[:, 0]]
-    scale = np.array([1.0, 1.0, z_weight])  # the distance `mutual_nearest` pairs by
-    w = huber_weights(np.linalg.norm((aligned.transform.apply(src) - dst) * scale, axis=1), gate_m)
+    w = huber_weights(pairing_distance(aligned.transform.apply(src), dst, z_weight), gate_m)
     try:
         rigid = weighted_umeyama(src, dst, w, with_scale=False)
     except ValueError:
         return aligned
-    res = np.linalg.norm((rigid.apply(src) - dst) * scale, axis=1)
+    res = pairing_distance(rigid.apply(src), dst, z_weight)
     return Alignment(rigid, assoc, float(np.sqrt(np.mean(res**2))), aligned.iterations)
 
 

@@ -328,3 +328,36 @@ def test_verification_with_one_candidate_must_beat_b_displaced():
     same = a[:200] + rng.normal(0, 0.5, (200, 3))
     true = verify_alignments(a, None, same, None, [(identity, np.arange(20))], 3.0, 0.4, 6)
     assert true.accepted and len(true.best.associations) > 3 * true.runner_up_support
+
+
+def test_merge_fuses_an_answer_by_the_test_its_match_applied(pair, tmp_path):
+    """A verified answer pairs landmarks within the match's own theta_eps (derived from the maps, recorded in
+    match.json) with heights at half weight; merge fused them only within the configured 2 m in 3D, so a verified
+    summer-winter answer lost 16 of its 35 associations (world 131). Here B sits 3 m high under the answer (a
+    height offset between two odometry frames): every association passes the verification's test (1.5 m) and
+    is fused; the same answer as an unverified consensus (3D distance, 3 m > 2.73 m) fuses none."""
+    root, world, a, b = pair
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    high = Sim3(np.eye(3), np.array([0.0, 0.0, 3.0])).compose(truth)
+    path = toy_match_json(a, b, tmp_path / "window.json", transform=high)
+    data = json.loads(path.read_text())
+    data["params"] = {"association": {"distance_tolerance_m": 2.73, "min_associations": 6},
+                      "verification": {"z_weight": 0.5}}
+    (tmp_path / "consensus.json").write_text(json.dumps(data))
+    hyp = data["hypotheses"][0]
+    data["verification"] = {"accepted": True, "transform": hyp["transform"], "associations": hyp["associations"],
+                            "support": len(hyp["associations"]), "runner_up_support": 3}
+    (tmp_path / "verified.json").write_text(json.dumps(data))
+    n_assoc = len(true_associations(a, b))
+    res = merge.run(a.path, b.path, tmp_path / "verified.json", tmp_path / "V")
+    assert res.num_fused == n_assoc and res.num_rejected == 0
+    m = read_match(tmp_path / "verified.json")
+    assert (m.gate_m, m.gate_z_weight, m.source) == (2.73, 0.5, "verified")
+    res = merge.run(a.path, b.path, tmp_path / "consensus.json", tmp_path / "C")
+    assert res.num_fused == 0 and res.num_rejected == n_assoc
+    # batch's merge stage fuses each tree edge at its own match's gate too
+    from sosmatch.workflows.batch import merge_task
+
+    out = merge_task([str(a.path), str(b.path)], ["A", "B"], [Sim3.identity().to_dict(), high.to_dict()],
+                     [(0, 1, str(tmp_path / "verified.json"))], str(tmp_path / "T"), 2.0)
+    assert out["fused"] == n_assoc and out["rejected_associations"] == 0

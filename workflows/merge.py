@@ -10,8 +10,9 @@ How models are combined: every session's cameras, images and 3D points are copie
 image names are prefixed with the session label (`LABEL/frame_00000.jpg`) so they stay unique, and each group
 of associated landmarks becomes ONE 3D point whose track holds every session's observations
 (`Reconstruction.merge_points3D`: the position is the track-length-weighted mean). Associations whose landmarks
-are still farther apart than `max_fuse_distance_m` after alignment are not fused (an outlier association would
-otherwise drag two distinct objects into one point); they are counted in merge.json.
+no longer pass their match's own test after alignment (`FusePair`: the gate and height weight match.json records
+for its answer; else `max_fuse_distance_m` in 3D) are not fused (an outlier association would otherwise drag two
+distinct objects into one point); they are counted in merge.json.
 
 Output directory (a "merged session", readable by match/merge again):
     sparse/            COLMAP binary model (opens in pycolmap 4.x and COLMAP 3.8)
@@ -30,7 +31,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -44,7 +45,7 @@ from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3, fusion_groups, umeyama
 from ..plugin.params import Params
-from ..plugin.refinement import refine_alignment
+from ..plugin.refinement import pairing_distance, refine_alignment
 
 log = logging.getLogger(__name__)
 
@@ -101,12 +102,35 @@ def _labels(sessions: list[SessionFiles], labels: list[str] | None) -> list[str]
     return list(labels)
 
 
+class FusePair(NamedTuple):
+    """Landmark associations of sessions a and b to fuse, and the test they passed against their alignment: the
+    match's own gate (`MatchSummary.gate_m`, `gate_z_weight`; `pairing_distance`). A verified match pairs
+    landmarks within the theta_eps derived from the maps (2.7 m on 100 m flights) with heights at half weight;
+    re-judging them at the configured 2 m in 3D left 16 of 35 verified summer-winter associations unfused.
+    gate_m None: `max_fuse_distance_m` of the merge, in 3D."""
+
+    a: int
+    b: int
+    associations: np.ndarray
+    gate_m: float | None = None
+    z_weight: float = 1.0
+
+
+def match_fuse_pair(a: int, b: int, match: Any) -> FusePair:
+    """The FusePair of a match's answer (a `database.match_io.MatchSummary`) between sessions a and b."""
+    return FusePair(a, b, match.associations, match.gate_m, match.gate_z_weight)
+
+
 def _filter_associations(
-    sessions: list[SessionFiles], transforms: list[Sim3], pairs: list[tuple[int, int, np.ndarray]], max_dist: float
+    sessions: list[SessionFiles], transforms: list[Sim3], pairs: Sequence[FusePair | tuple[int, int, np.ndarray]],
+    max_dist: float
 ) -> tuple[list[tuple[int, int, np.ndarray]], int]:
-    """Keep associations whose two landmarks are within max_dist in the reference frame and have 3D points."""
+    """Keep associations whose two landmarks pass their pair's gate (`FusePair`; plain (a, b, associations):
+    within max_dist in 3D) in the reference frame and have 3D points."""
     kept, rejected = [], 0
-    for a, b, assoc in pairs:
+    for pair in pairs:
+        a, b, assoc, gate, z_weight = FusePair(*pair)
+        gate = max_dist if gate is None else gate
         assoc = np.asarray(assoc, dtype=np.int64).reshape(-1, 2)
         na, nb = len(sessions[a].landmarks), len(sessions[b].landmarks)
         valid = (assoc[:, 0] < na) & (assoc[:, 1] < nb)
@@ -117,7 +141,7 @@ def _filter_associations(
             )
         pa = transforms[a].apply(sessions[a].landmarks.positions[assoc[:, 0]])
         pb = transforms[b].apply(sessions[b].landmarks.positions[assoc[:, 1]])
-        ok = np.linalg.norm(pa - pb, axis=1) <= max_dist
+        ok = pairing_distance(pa, pb, z_weight) <= gate
         ok &= (sessions[a].point3d_ids[assoc[:, 0]] >= 0) & (sessions[b].point3d_ids[assoc[:, 1]] >= 0)
         rejected += int(np.count_nonzero(~ok))
         kept.append((a, b, assoc[ok]))
@@ -127,7 +151,7 @@ def _filter_associations(
 def merge_sessions(
     sessions: list[SessionFiles],
     transforms: list[Sim3],
-    pairs: list[tuple[int, int, np.ndarray]],
+    pairs: Sequence[FusePair | tuple[int, int, np.ndarray]],
     out_dir: str | Path,
     labels: list[str] | None = None,
     max_fuse_distance_m: float = 2.0,
@@ -137,7 +161,8 @@ def merge_sessions(
 ) -> MergeResult:
     """Combine sessions into one COLMAP model in the frame of `transforms` (reference_from_session each).
 
-    `pairs`: (session index a, session index b, (K,2) landmark index pairs) whose landmarks are fused. Writes
+    `pairs`: `FusePair`s (session index a, session index b, (K,2) landmark index pairs, the match's gate) whose
+    landmarks are fused (a plain (a, b, pairs) tuple is judged by `max_fuse_distance_m` in 3D). Writes
     out_dir/{sparse/, landmarks.sosmap, landmarks.csv, merge.json} (built in out_dir/.partial, published
     together, merge.json last, `record` added to it); returns the counts. `out_dir` is taken through
     `sosmatch.database.outputs` (`overwrite`: replace a complete merge of other inputs; `inputs`: further input
@@ -150,8 +175,8 @@ def merge_sessions(
     identity = fingerprint({
         "sessions": [session_fingerprint(s) for s in sessions], "labels": labels,
         "transforms": [t.to_dict() for t in transforms], "eps": max_fuse_distance_m, "record": record,
-        "pairs": [[a, b, hashlib.sha256(np.ascontiguousarray(assoc, dtype="<i8").tobytes()).hexdigest()]
-                  for a, b, assoc in pairs]})
+        "pairs": [[p.a, p.b, hashlib.sha256(np.ascontiguousarray(p.associations, dtype="<i8").tobytes()).hexdigest(),
+                   p.gate_m, p.z_weight] for p in (FusePair(*q) for q in pairs)]})
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD) as out:
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m, record or {}, t0)
@@ -160,7 +185,7 @@ def merge_sessions(
 
 
 def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[Sim3],
-                pairs: list[tuple[int, int, np.ndarray]], labels: list[str], max_fuse_distance_m: float,
+                pairs: Sequence[FusePair | tuple[int, int, np.ndarray]], labels: list[str], max_fuse_distance_m: float,
                 record: dict[str, Any], t0: float) -> MergeResult:
     """`merge_sessions` inside its taken output directory: build in the staging area, then publish."""
     import pycolmap
@@ -348,7 +373,8 @@ def run(
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
     With `refine`, the transform is re-estimated on the full maps (`plugin.refinement.refine_alignment`:
-    size-gated mutual nearest neighbours within `params.association.distance_tolerance_m`, refitted until they
+    size-gated mutual nearest neighbours within the match's gate (match.json's theta_eps, else
+    `params.association.distance_tolerance_m`), refitted until they
     stop changing; yaw + translation for gravity-aligned rigid matches, else rigid / similarity). The
     hypothesis' associations are still the ones fused (those the refined transform explains within the gate).
     Raises InputError when match.json was computed for other maps (`match_io.check_match_maps`) or has no
@@ -365,6 +391,9 @@ def run(
                     "stage, or with verification.enabled = false): merging its window consensus as it is; "
                     "`sosmatch match` again verifies it", match_json)
     transform = match.transform
+    # the answer's own gate (recorded in match.json: the tolerance the match derived from the maps), for the
+    # refinement and the fusion alike; a match.json without it: the configured one
+    gate = match.gate_m or params.association.distance_tolerance_m
     used, dof = 0, 0
     if refine:
         ap = params.association
@@ -374,16 +403,16 @@ def run(
         dof = 4 if not with_scale and tilt_deg(transform.rotation) <= ap.max_gravity_angle_deg else 6
         la, lb = a.landmarks, b.landmarks
         aligned = refine_alignment(la.positions, la.sizes, lb.positions, lb.sizes, transform,
-                                   ap.distance_tolerance_m, ap.max_size_difference, dof=dof, with_scale=with_scale)
+                                   gate, ap.max_size_difference, dof=dof, with_scale=with_scale)
         if len(aligned.associations) >= 3:
             transform, used = aligned.transform, len(aligned.associations)
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],
-        [(0, 1, match.associations)],
+        [match_fuse_pair(0, 1, match)],
         out_dir,
         labels=list(labels) if labels else None,
-        max_fuse_distance_m=params.association.distance_tolerance_m,
+        max_fuse_distance_m=gate,
         record={"refined": bool(refine and used), "match": str(match_json),
                 "match_transform": match.transform.to_dict(),
                 "refine": {"requested": refine, "associations_used": used, "dof": dof}},

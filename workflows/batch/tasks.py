@@ -118,15 +118,16 @@ def merge_task(
     (a, b, match.json path); writes out_dir (see `sosmatch.workflows.merge`)."""
     from ...database.match_io import check_match_maps, read_match
     from ...database.session_io import read_session
-    from ..merge import merge_sessions
+    from ..merge import match_fuse_pair, merge_sessions
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3.from_dict(t) for t in transforms]
-    for a, b, m in edges:  # the pair's match must be about these two sessions
+    pairs = []
+    for a, b, m in edges:  # the pair's match must be about these two sessions; its answer fused at its own gate
         match_json = Path(m)
-        check_match_maps(read_match(match_json), sessions[a].landmarks, sessions[b].landmarks, match_json,
-                         names=(labels[a], labels[b]))
-    pairs = [(a, b, read_associations(m)) for a, b, m in edges]
+        match = read_match(match_json)
+        check_match_maps(match, sessions[a].landmarks, sessions[b].landmarks, match_json, names=(labels[a], labels[b]))
+        pairs.append(match_fuse_pair(a, b, match))
     res = merge_sessions(sessions, sims, pairs, out_dir, labels=labels, max_fuse_distance_m=max_fuse_distance_m,
                          record={"tree_edges": [[labels[a], labels[b], m] for a, b, m in edges]},
                          inputs=[m for _, _, m in edges], overwrite=overwrite)
