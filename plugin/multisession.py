@@ -10,7 +10,7 @@ For a session pair (A, B) the stored transform is `a_from_b` (B's landmarks into
 from __future__ import annotations
 
 import heapq
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,12 +134,16 @@ def connected_groups(num_nodes: int, edges: Iterable[Edge]) -> list[list[int]]:
     return sorted(groups.values(), key=lambda g: g[0])
 
 
-def spanning_transforms(group: Sequence[int], edges: Sequence[Edge]) -> tuple[int, dict[int, Sim3], list[Edge]]:
+def spanning_transforms(group: Sequence[int], edges: Sequence[Edge],
+                        preferred: Collection[int] = ()) -> tuple[int, dict[int, Sim3], list[Edge]]:
     """Bring every session of a connected group into one reference frame along a maximum spanning tree.
 
     The reference is the session with the largest total edge weight (ties: the smallest index), so the frame
-    that most sessions agree with directly anchors the group. The tree keeps the heaviest edges (most
-    associations), because a composed transform is only as good as its weakest link.
+    that most sessions agree with directly anchors the group; when some members are `preferred` (georeferenced
+    sessions: their frame is a map projection, any other is arbitrary), it is the strongest of those, so the
+    merged model keeps the group's georeference (a local reference dropped it: a DJI-tagged flight merged with
+    five local ones gave a model no GIS could place). The tree keeps the heaviest edges (most associations),
+    because a composed transform is only as good as its weakest link (a maximum spanning tree from any reference).
     Returns (reference, {session: reference_from_session}, tree edges).
     """
     members = set(group)
@@ -148,7 +152,7 @@ def spanning_transforms(group: Sequence[int], edges: Sequence[Edge]) -> tuple[in
     for e in inner:
         strength[e.a] += e.weight
         strength[e.b] += e.weight
-    reference = min(group, key=lambda i: (-strength[i], i))
+    reference = min([i for i in group if i in preferred] or group, key=lambda i: (-strength[i], i))
     adjacency: dict[int, list[tuple[int, Edge]]] = {i: [] for i in group}
     for k, e in enumerate(inner):
         adjacency[e.a].append((k, e))

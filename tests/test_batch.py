@@ -301,3 +301,35 @@ def test_a_changed_flight_is_redone_and_a_relative_flights_dir_resumes(flights, 
     match = json.loads((tmp_path / "out" / "pairs" / "A__B" / "match.json").read_text())
     assert match["map_b"]["fingerprint"] == landmark_map_fingerprint(read_landmark_map("fl/B/landmarks.sosmap"))
     assert third.pairs[0]["num_associations"] != first.pairs[0]["num_associations"]
+
+
+def test_a_group_with_a_georeferenced_session_is_merged_in_its_frame(flights, tmp_path):
+    """The reference of a merged group is its best-connected session among the georeferenced ones: with the
+    best-connected one (B, local), a group holding a georeferenced flight (C, here EPSG:32632) was merged into a
+    local frame and the model lost its georeference (world 131: a DJI-tagged flight and five local ones)."""
+    from sosmatch.database.landmark_map import LandmarkMap, read_landmark_map, write_landmark_map
+    from sosmatch.workflows.export import run as export
+
+    root, truth = flights
+    for name in ("A", "B", "C"):
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    c = read_landmark_map(tmp_path / "fl" / "C" / "landmarks.sosmap")
+    write_landmark_map(tmp_path / "fl" / "C" / "landmarks.sosmap", LandmarkMap(c.positions, c.sizes, c.origin, 32632))
+    with LocalExecutor(1) as ex:
+        report = _run(tmp_path / "fl", tmp_path / "out", ex)
+    (group,) = report.groups
+    assert group["reference"] == "C" and sorted(group["members"]) == ["A", "B", "C"]
+    merged = read_landmark_map(tmp_path / "out" / "merged" / "C" / "landmarks.sosmap")
+    assert merged.epsg == 32632
+    # C's cameras stay where its georeference put them; A's land there through B
+    rec = pycolmap.Reconstruction(str(tmp_path / "out" / "merged" / "C" / "sparse"))
+    c_rec = pycolmap.Reconstruction(str(tmp_path / "fl" / "C" / "sparse"))
+    for img in c_rec.images.values():
+        assert np.allclose(rec.find_image_with_name(f"C/{img.name}").projection_center(), img.projection_center(),
+                           atol=1e-6)
+    a_rec = pycolmap.Reconstruction(str(tmp_path / "fl" / "A" / "sparse"))
+    c_from_a = truth["C"].compose(truth["A"].inverse())
+    img = next(iter(a_rec.images.values()))
+    assert np.allclose(rec.find_image_with_name(f"A/{img.name}").projection_center(),
+                       c_from_a.apply(img.projection_center()), atol=0.5)
+    assert export(tmp_path / "out" / "merged" / "C", csv_out=tmp_path / "m.csv")["epsg"] == 32632

@@ -195,8 +195,9 @@ def _graph_and_merge(
                     edge_keys[(e.a, e.b)])
     groups = []
     merge_tasks, merge_fps = {}, {}
+    georeferenced = {index[n] for n in names if sessions[n].get("epsg")}  # a merged group keeps a georeference
     for members in connected_groups(len(names), edges):
-        ref, ref_from, tree = spanning_transforms(members, edges)
+        ref, ref_from, tree = spanning_transforms(members, edges, georeferenced)
         order = [ref] + [m for m in members if m != ref]
         group = {
             "reference": names[ref],
