@@ -361,3 +361,18 @@ def test_merge_fuses_an_answer_by_the_test_its_match_applied(pair, tmp_path):
     out = merge_task([str(a.path), str(b.path)], ["A", "B"], [Sim3.identity().to_dict(), high.to_dict()],
                      [(0, 1, str(tmp_path / "verified.json"))], str(tmp_path / "T"), 2.0)
     assert out["fused"] == n_assoc and out["rejected_associations"] == 0
+
+
+def test_merging_a_georeferenced_b_into_a_local_a_says_the_georeference_is_not_kept(pair, tmp_path, caplog):
+    from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
+
+    root, world, a, b = pair
+    shutil.copytree(b.path, tmp_path / "Bgeo")
+    lm = read_landmark_map(b.path / "landmarks.sosmap")
+    write_landmark_map(tmp_path / "Bgeo" / "landmarks.sosmap", LandmarkMap(lm.positions, lm.sizes, lm.origin, 32632))
+    geo_b = b.__class__(tmp_path / "Bgeo", b.session_from_world, b.object_ids)
+    match = toy_match_json(a, geo_b, tmp_path / "match.json")
+    with caplog.at_level("WARNING"):
+        res = merge.run(a.path, geo_b.path, match, tmp_path / "M")
+    assert read_landmark_map(tmp_path / "M" / "landmarks.sosmap").epsg == 0 and res.num_fused > 20
+    assert "EPSG:32632" in caplog.text and "local frame" in caplog.text

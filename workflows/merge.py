@@ -386,6 +386,10 @@ def run(
     check_match_maps(match, a.landmarks, b.landmarks, match_json, names=(str(session_a), str(session_b)))
     if not match.accepted or match.transform is None:
         raise InputError("match has no accepted hypothesis: the sessions cannot be merged", match_json)
+    if b.landmarks.epsg and not a.landmarks.epsg:  # the model is in A's frame: B's georeference is not carried
+        log.warning("%s is georeferenced (EPSG:%d) and %s is not: the merged model is in %s's local frame; match and "
+                    "merge with the georeferenced session first to keep its georeference", session_b,
+                    b.landmarks.epsg, session_a, session_a)
     if match.source != "verified":  # across seasons one window's consensus can be a chance alignment
         log.warning("%s: the match was not verified on the full maps (written by a sosmatch before the verification "
                     "stage, or with verification.enabled = false): merging its window consensus as it is; "
