@@ -244,6 +244,29 @@ def load_synth_session(path: str | Path) -> SynthSession:
     return SynthSession(path, cameras[1], poses, ekf, objects, frames, terrain, meta)
 
 
+def ground_truth_crs(path: str | Path) -> tuple[int, np.ndarray] | None:
+    """The CRS a synthetic session's ground truth maps to: (EPSG code, world_to_crs offset (3,)); the world frame
+    of a session with geotags is its UTM grid shifted by the offset (`tools/synth/geotags.py`), an orthophoto's is
+    its raster's CRS itself (offset 0), a session without geotags has none (EPSG 0). None without session.json."""
+    path = Path(path)
+    if not (path / "session.json").is_file():
+        return None
+    meta = _read_json(path / "session.json")
+    if not isinstance(meta, dict):
+        raise InputError("session.json must hold an object", path / "session.json")
+    geo = meta.get("geo") if meta.get("source") != "orthophoto" else {"epsg": meta.get("epsg")}
+    if not isinstance(geo, dict) or not geo.get("epsg"):
+        return 0, np.zeros(3)
+    try:
+        epsg = int(geo["epsg"])
+        offset = np.asarray(geo.get("world_to_crs_offset", [0.0, 0.0, 0.0]), dtype=np.float64).reshape(3)
+    except (TypeError, ValueError):
+        raise InputError("geo.epsg or geo.world_to_crs_offset is not a number", path / "session.json") from None
+    if not np.all(np.isfinite(offset)):
+        raise InputError("geo.world_to_crs_offset must be finite", path / "session.json")
+    return epsg, offset
+
+
 def ground_truth_frame(path: str | Path) -> str | None:
     """What a synthetic session's ground truth (poses.csv, objects.csv, terrain.npz) is expressed in: its procedural
     world ("world seed 61, 600 m at 0.15 m") or its orthophoto's CRS ("orthophoto in EPSG:32618"); None for a

@@ -199,3 +199,45 @@ def test_a_refused_verification_claims_nothing(sessions, tmp_path):
     assert ours["recall_reached"] == 0.0 and ours["recall_at_p99"] == 0.0 and ours["accepted_max_error_m"] is None
     assert ev["methods"]["sosmatch"]["claimed_pairs"] == 0
     assert windows["recall_reached"] > 0.5 and windows["accepted_max_error_m"] is not None
+
+
+def test_a_map_georeferenced_in_the_sessions_crs_is_scored_in_the_world_frame(sessions, tmp_path):
+    """Fourth sweep (multi-session): a map built from a synthetic session's DJI / EXIF geotags lives in UTM (the
+    world shifted by session.json's world_to_crs_offset). Evaluated against a local map of another session, its
+    right alignment was scored 5.2e6 m off with recall 0 and exit 0 (world 131); the offset is now taken off."""
+    import shutil
+
+    from sosmatch.database.landmark_map import read_landmark_map
+    from sosmatch.plugin.errors import InputError
+
+    root, a, b, ev = sessions
+    offset = np.array([423675.0, 5205349.0, 420.0])
+    world = {"world_seed": 1, "world_size_m": 600.0, "world_resolution_m": 0.15}
+    for src, geo in ((a, None), (b, {"epsg": 32632, "world_to_crs_offset": offset.tolist()})):
+        dst = tmp_path / src.name
+        shutil.copytree(src, dst)
+        meta = {"format": "sosmatch-synth-session", "version": 1, "config": world}
+        if geo:
+            meta["geo"] = geo
+            lm = read_landmark_map(src / "landmarks.sosmap")
+            write_landmark_map(dst / "landmarks.sosmap", LandmarkMap(lm.positions + offset, lm.sizes, offset, 32632))
+            lines = (src / "landmarks.csv").read_text().splitlines()
+            out = [lines[0]]
+            for line in lines[1:]:
+                f = line.split(",")
+                f[2:5] = [repr(float(v) + float(o)) for v, o in zip(f[2:5], offset)]
+                out.append(",".join(f))
+            (dst / "landmarks.csv").write_text("\n".join(out) + "\n")
+        (dst / "session.json").write_text(json.dumps(meta))
+    geo = run(Params(), tmp_path / "A", tmp_path / "B", tmp_path / "out", case="geo", repeats=1, methods=["sosmatch"])
+    plain = {r["method"]: r for r in ev["rows"]}["SOS-Match (ours)"]
+    row = {r["method"]: r for r in geo["rows"]}["SOS-Match (ours)"]
+    ver = geo["methods"]["sosmatch"]["verification"]
+    assert ver["accepted"] and ver["error_m"] < 1.0
+    assert row["recall_reached"] == pytest.approx(plain["recall_reached"], abs=0.05)
+    assert row["average_f1"] == pytest.approx(plain["average_f1"], abs=0.05)
+    # a map in another CRS than the session's truth cannot be related to it: one line naming the map
+    (tmp_path / "B" / "session.json").write_text(json.dumps({"format": "sosmatch-synth-session", "version": 1,
+                                                             "config": world}))
+    with pytest.raises(InputError, match="EPSG:32632 but the ground truth"):
+        run(Params(), tmp_path / "A", tmp_path / "B", tmp_path / "out2", case="geo", repeats=1, methods=["sosmatch"])

@@ -23,7 +23,7 @@ from ...database.match_io import check_match_maps, read_match_json
 from ...database.outputs import fingerprint, open_output_dir
 from ...database.poses import read_poses_csv
 from ...database.session_io import check_map_of_images, read_map_record
-from ...database.synth_session import ground_truth_frame
+from ...database.synth_session import ground_truth_crs, ground_truth_frame
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (
     Hypothesis,
@@ -37,6 +37,7 @@ from ...plugin.evaluation.iou import iou_matrix
 from ...plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
 from ...plugin.keyframes import select_keyframes
 from ...plugin.map_noise import derived_search_params
+from ...plugin.multisession import Sim3
 from ...plugin.params import Params, params_to_dict
 from ...plugin.verification import hypothesis_agrees
 from .report import format_table, plot_overlay, plot_pr, row_of
@@ -120,29 +121,50 @@ def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path
     return np.asarray(kf, dtype=np.int64)
 
 
-def _map_frame_centers(gt: GroundTruthSession, map_dir: Path) -> np.ndarray:
+def world_from_map(session: Path, map_dir: Path, epsg: int) -> Sim3:
+    """The transform from a map's frame into its session's ground-truth frame: the identity for a map in the
+    world frame (built on the session's poses.csv or poses_ekf.csv), the world_to_crs offset taken off for a map
+    georeferenced in the session's CRS (built from its DJI / EXIF geotags: UTM). Without it a right alignment of
+    such a map with a local one was scored 5.2e6 m off, F1 0, "limited by front end", exit 0. A map in another CRS
+    (the session's flight crossed a UTM zone edge) has no rigid relation to the truth: an error."""
+    crs = ground_truth_crs(session)
+    if crs is None or not epsg:
+        return Sim3.identity()
+    truth_epsg, offset = crs
+    if epsg != truth_epsg:
+        truth = f"EPSG:{truth_epsg}" if truth_epsg else "its local world frame"
+        raise InputError(f"map is georeferenced in EPSG:{epsg} but the ground truth of {session} is in {truth}: "
+                         "no rigid transform relates them", map_dir / "landmarks.sosmap")
+    return Sim3(np.eye(3), -offset)
+
+
+def _map_frame_centers(gt: GroundTruthSession, map_dir: Path, world_from: Sim3) -> np.ndarray:
     """The evaluation keyframes' camera centres in the frame of the map (the poses it was built on, as run.json
-    records them: a synthetic session's EKF poses); the ground-truth centres when that pose file is unknown."""
+    records them: a synthetic session's EKF poses); else the ground-truth centres moved into the map's frame
+    (`world_from`: `world_from_map`)."""
+    truth = world_from.inverse().apply(gt.centers)
     try:
         source = Path((read_map_record(map_dir) or {})["inputs"]["poses"])
     except (InputError, KeyError, TypeError):
-        return gt.centers
+        return truth
     if source.suffix != ".csv" or not source.is_file():
-        return gt.centers
+        return truth
     poses, _ = read_poses_csv(source)
     row = {n: i for i, n in enumerate(poses.names)}
     if not all(n in row for n in gt.names):
-        return gt.centers
+        return truth
     return poses.centers[[row[n] for n in gt.names]]
 
 
-def _observers(gt: GroundTruthSession, map_dir: Path, max_observers: int | None) -> tuple[Any, Any]:
+def _observers(gt: GroundTruthSession, map_dir: Path, max_observers: int | None,
+               centers: np.ndarray) -> tuple[Any, Any]:
+    """Each landmark's observing keyframes; `centers`: the keyframes' centres in the map's frame."""
     table = read_landmark_table(map_dir / "landmarks.csv")
     flat = [n for names in table.image_names for n in names]
     kf = _keyframe_of_names(gt, flat, map_dir / "landmarks.csv")
     splits = np.cumsum([len(n) for n in table.image_names])[:-1]
     obs = np.split(kf, splits) if len(table.image_names) else []
-    return observer_matrix(obs, len(gt.names), table.positions[:, :2], gt.centers[:, :2], max_observers), table
+    return observer_matrix(obs, len(gt.names), table.positions[:, :2], centers[:, :2], max_observers), table
 
 
 def _map_arrays(map_dir: Path) -> tuple[np.ndarray, np.ndarray, int, LandmarkMap | None]:
@@ -162,10 +184,15 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
     from ...plugin.association.windowed_search import search
     from ...plugin.match_answer import match_maps
 
-    obs_a, _ = _observers(gt_a, map_a, max_observers)
-    obs_b, _ = _observers(gt_b, map_b, max_observers)
     pa, ha, bytes_a, lmap_a = _map_arrays(map_a)
     pb, hb, bytes_b, lmap_b = _map_arrays(map_b)
+    # each map's frame against the ground truth's: the true a_from_b, and the keyframes in each map's frame
+    world_a, world_b = (world_from_map(gt.path, m, lm.epsg if lm is not None else 0)
+                        for gt, m, lm in ((gt_a, map_a, lmap_a), (gt_b, map_b, lmap_b)))
+    truth = world_a.inverse().compose(world_b)
+    centers_a, centers_b = _map_frame_centers(gt_a, map_a, world_a), _map_frame_centers(gt_b, map_b, world_b)
+    obs_a, _ = _observers(gt_a, map_a, max_observers, centers_a)
+    obs_b, _ = _observers(gt_b, map_b, max_observers, centers_b)
     if obs_a.shape[0] != len(pa) or obs_b.shape[0] != len(pb):
         raise InputError("landmarks.csv and landmarks.sosmap disagree on the number of landmarks", map_a)
     noise = [read_map_noise(m) for m in (map_a, map_b)]
@@ -249,16 +276,15 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
             None if v.best is None else v.best.transform,
             np.zeros((0, 2), np.int64) if v.best is None else v.best.associations, v.runner_up_support,
             v.clear, answer.timings["verify_s"])
-    verification, verified, winner = _verified_claim(verified_by_match, pb, theta_s)
+    verification, verified, winner = _verified_claim(verified_by_match, pb, theta_s, truth)
     out["verification"] = verification
     out["num_hypotheses"] = len(hypotheses)
     out["operating_theta_S"] = int(theta_s)
-    out["accepted_truth"] = [{"size": int(len(assoc)), **error_to_identity(t, pb[assoc[:, 1]])}
+    out["accepted_truth"] = [{"size": int(len(assoc)), **error_to_identity(t, pb[assoc[:, 1]], truth)}
                              for assoc, t in out["accepted"]]
     geometry = None
     if separation is not None:
-        geometry = (observer_geometry(obs_a, pa, _map_frame_centers(gt_a, map_a)),
-                    observer_geometry(obs_b, pb, _map_frame_centers(gt_b, map_b)), separation)
+        geometry = (observer_geometry(obs_a, pa, centers_a), observer_geometry(obs_b, pb, centers_b), separation)
     out["geometry"] = geometry
     out["scores_windows"] = claim_scores(hypotheses, obs_a, obs_b, geometry)
     if verification is None:  # no verification ran (`--no-verify`): the matcher answers with its windows
@@ -277,14 +303,14 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         verification["window_hypotheses_agreeing"] = len(agreeing)
         verification["window_hypotheses_dropped"] = int(sum(h.valid for h in hypotheses)) - len(agreeing)
     out["best"] = best
-    out["positions"] = (pa, pb)
+    out["positions"] = (world_a.apply(pa), world_b.apply(pb))  # the ground truth's frame (landmark truth, overlay)
     out["sizes"] = (ha, hb)
     out["observers"] = (obs_a, obs_b)
     return out
 
 
-def _verified_claim(verified: tuple | None, pb: np.ndarray, theta_s: int) -> tuple[dict | None, Hypothesis | None,
-                                                                                Any]:
+def _verified_claim(verified: tuple | None, pb: np.ndarray, theta_s: int,
+                    truth: Sim3 | None = None) -> tuple[dict | None, Hypothesis | None, Any]:
     """The match's verified answer as a claim (the verification `plugin.match_answer.match_maps` ran, in this
     process or as match.json records it; one verification for `sosmatch match`, batch and this evaluation).
     `verified`: (transform, associations, runner-up support, clear, seconds), None when it did not run; `clear`:
@@ -302,7 +328,7 @@ def _verified_claim(verified: tuple | None, pb: np.ndarray, theta_s: int) -> tup
     clear = bool(clear)
     record = {"support": int(len(assoc)), "runner_up_support": int(runner_up), "transform": transform.to_dict(),
               "clear_winner": clear, "accepted": bool(clear and len(assoc) > theta_s), "seconds": seconds,
-              **error_to_identity(transform, pb[assoc[:, 1]]), "associations": assoc.tolist()}
+              **error_to_identity(transform, pb[assoc[:, 1]], truth), "associations": assoc.tolist()}
     if not clear:
         return record, None, None
     return record, Hypothesis(assoc, float(len(assoc)), True, transform.rotation), transform
@@ -316,20 +342,22 @@ def _clear_in_file(ver_doc: dict, support: int, runner_up: int, params: Params) 
     return bool(support >= min_ratio * runner_up)
 
 
-def error_to_identity(transform: Any, points_b: np.ndarray) -> dict:
+def error_to_identity(transform: Any, points_b: np.ndarray, truth: Sim3 | None = None) -> dict:
     """How far a hypothesis is from the truth, at the centroid of its own associated B landmarks: `error_m` (3D),
     `horizontal_m`, `yaw_deg`, and `max_m` (the largest displacement of any of them). The evaluation's sessions
     share one world frame (their footprints are compared in it), so the true transform is the identity, up to
-    each map's own pose drift (1-2 m on the synthetic EKF poses)."""
+    each map's own pose drift (1-2 m on the synthetic EKF poses); `truth`: the true a_from_b when a map is in
+    another frame than the world (`world_from_map`: a georeferenced map), else the identity."""
     from ...plugin.association.rigid import roll_pitch_yaw_deg
 
     if transform is None or len(points_b) == 0:
         return {"error_m": float("nan"), "horizontal_m": float("nan"), "yaw_deg": float("nan"), "max_m": float("nan")}
+    truth = truth or Sim3.identity()
     centre = points_b.mean(axis=0)
-    d = transform.apply(centre[None])[0] - centre
+    d = transform.apply(centre[None])[0] - truth.apply(centre[None])[0]
     return {"error_m": float(np.linalg.norm(d)), "horizontal_m": float(np.hypot(d[0], d[1])),
-            "yaw_deg": abs(roll_pitch_yaw_deg(transform.rotation)[2]),
-            "max_m": float(np.linalg.norm(transform.apply(points_b) - points_b, axis=1).max())}
+            "yaw_deg": abs(roll_pitch_yaw_deg(transform.rotation @ truth.rotation.T)[2]),
+            "max_m": float(np.linalg.norm(transform.apply(points_b) - truth.apply(points_b), axis=1).max())}
 
 
 def _load_images(gt: GroundTruthSession, image_dir: Path) -> list[np.ndarray]:
