@@ -49,7 +49,7 @@ def ply_bytes(lmap: LandmarkMap, epsg: int) -> bytes:
     """Binary PLY of the landmarks: double x, y, z (world frame) and float size_m."""
     header = ("ply\nformat binary_little_endian 1.0\n"
               f"comment sosmatch landmarks, crs {'EPSG:' + str(epsg) if epsg else 'local'}\n"
-              f"comment origin {lmap.origin[0]!r} {lmap.origin[1]!r} {lmap.origin[2]!r}\n"
+              f"comment origin {float(lmap.origin[0])!r} {float(lmap.origin[1])!r} {float(lmap.origin[2])!r}\n"
               f"element vertex {len(lmap)}\nproperty double x\nproperty double y\nproperty double z\n"
               "property float size_m\nend_header\n").encode("ascii")
     rec = np.zeros(len(lmap), dtype=[("xyz", "<f8", (3,)), ("size", "<f4")])
