@@ -11,6 +11,8 @@ from __future__ import annotations
 import csv
 import io
 import json
+from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -221,13 +223,68 @@ def write_landmarks_csv(
     write_text_atomic(path, format_landmarks_csv(lmap, point3d_ids, num_observations, image_names))
 
 
+class KeyframeImages(Sequence):
+    """A session's keyframe images as grey float arrays, read on demand (the surface evidence of change detection
+    looks at a few keyframes per landmark) and kept while they fit in `max_bytes` (least recently used out first:
+    bounded memory on any survey; the cache changes only the speed, never a value)."""
+
+    def __init__(self, images_dir: Path, names: Sequence[str], sizes: Sequence[tuple[int, int]],
+                 max_bytes: int = 512 * 2**20) -> None:
+        self.images_dir, self.names, self.sizes, self.max_bytes = Path(images_dir), list(names), list(sizes), max_bytes
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._bytes = 0
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __getitem__(self, k: int) -> np.ndarray:  # type: ignore[override]
+        if k in self._cache:
+            self._cache.move_to_end(k)
+            return self._cache[k]
+        from .images import read_image
+
+        path = self.images_dir / self.names[k]
+        rgb = read_image(path)
+        if (rgb.shape[1], rgb.shape[0]) != tuple(self.sizes[k]):
+            raise InputError(f"image is {rgb.shape[1]} x {rgb.shape[0]} px but the map's camera of this keyframe is "
+                             f"{self.sizes[k][0]} x {self.sizes[k][1]}: images of another session?", path)
+        grey = rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+        self._cache[k] = grey
+        self._bytes += grey.nbytes
+        while self._bytes > self.max_bytes and len(self._cache) > 1:
+            _, old = self._cache.popitem(last=False)
+            self._bytes -= old.nbytes
+        return grey
+
+
+def session_images_dir(session: str | Path | SessionFiles, images_dir: str | Path | None = None) -> Path | None:
+    """The directory of a mapped session's keyframe images: `images_dir` if given, else the one its run.json
+    records, when it still exists (None otherwise: no surface evidence). The map must have been made from those
+    images (`check_map_of_images`: InputError otherwise)."""
+    path = session.path if isinstance(session, SessionFiles) else Path(session)
+    if images_dir is None:
+        try:
+            recorded = json.loads((path / "run.json").read_text(encoding="utf-8"))["inputs"]["images"]
+        except (OSError, ValueError, KeyError, TypeError, RecursionError):
+            return None
+        if not isinstance(recorded, str) or not Path(recorded).is_dir():
+            return None
+        images_dir = recorded
+    images_dir = Path(images_dir)
+    if not images_dir.is_dir():
+        raise InputError("images directory not found", images_dir)
+    check_map_of_images(path, images_dir)
+    return images_dir
+
+
 def read_session_observations(session: str | Path | SessionFiles, with_segments: bool = True,
-                              with_tracks: bool = True) -> SessionObservations:
+                              with_tracks: bool = True, images_dir: str | Path | None = None,
+                              ) -> SessionObservations:
     """A mapped (or merged) session (a directory, or one opened by `read_session`) as change detection needs it:
     landmarks, their support (observing keyframes), the keyframes' poses and cameras from sparse/ and, from
     database.db when present and `with_segments`, every segment each keyframe saw and (`with_tracks`) the tracks
-    there that no landmark holds (for the objects it never mapped). InputError when the session has no keyframe
-    poses."""
+    there that no landmark holds (for the objects it never mapped), and with `images_dir` the keyframes' images
+    (read on demand, `KeyframeImages`). InputError when the session has no keyframe poses."""
     from ..plugin.changes import SessionObservations
     from .colmap_db import read_segment_detections
     from .colmap_model import read_colmap_model_poses
@@ -247,8 +304,11 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
             tracks = _unmapped_tracks(session, database, poses.names, segments)
     support = np.array([len(names) for names in table.image_names], dtype=np.float64)
     lmap = session.landmarks
-    return SessionObservations(lmap.positions, lmap.sizes.astype(np.float64), poses,
-                               tuple(cameras[camera_of[n]] for n in poses.names), segments, support, tracks)
+    cams = tuple(cameras[camera_of[n]] for n in poses.names)
+    images = None if images_dir is None else KeyframeImages(Path(images_dir), poses.names,
+                                                             [(c.width, c.height) for c in cams])
+    return SessionObservations(lmap.positions, lmap.sizes.astype(np.float64), poses, cams, segments, support,
+                               tracks, images)
 
 
 def _unmapped_tracks(session: SessionFiles, database: Path, names: list[str], segments: tuple) -> tuple:

@@ -149,6 +149,8 @@ def test_bad_inputs_are_one_line_errors_and_write_nothing(toy, tmp_path, capsys)
     empty.write_binary(str(bare / "sparse"))
     _refused([root / "A", bare, "--match", root / "AB" / "match.json", "--out", out], capsys, out, "no keyframes")
     _refused([root / "A", root / "B", "--match", tmp_path / "missing.json", "--out", out], capsys, out, "missing")
+    _refused([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", out, "--images-a",
+              tmp_path / "no_images"], capsys, out, "images directory not found")
     inside = root / "A" / "changes"
     _refused([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", inside], capsys, inside,
              "input")

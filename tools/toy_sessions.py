@@ -279,13 +279,14 @@ def nadir_poses(centers: np.ndarray) -> Poses:
 
 
 def change_session(positions: np.ndarray, sizes: np.ndarray, present: np.ndarray, centers: np.ndarray, seed: int,
-                   clutter: int = 25, session_from_world: Sim3 | None = None) -> tuple[object, np.ndarray]:
+                   clutter: int = 25, session_from_world: Sim3 | None = None, camera: Camera = CHANGE_CAMERA,
+                   ) -> tuple[object, np.ndarray]:
     """A session of the world: landmarks = present objects seen >= 6 times (with noise), segments = the present
     objects' projections plus random clutter segments, all in the frame session_from_world. Returns the
     `SessionObservations` and the world index of each landmark."""
     from ..plugin.changes import KeyframeSegments, SessionObservations, in_view
 
-    cam = CHANGE_CAMERA
+    cam = camera
     rng = np.random.default_rng(seed)
     poses = nadir_poses(centers)
     seen, uv, depth = in_view(positions, sizes, poses, [cam] * len(poses))
@@ -320,3 +321,49 @@ def toy_change_pair() -> tuple:
     a, ids_a = change_session(positions, sizes, present_a, cams_a, 1)
     b, ids_b = change_session(positions, sizes, present_b, cams_b, 2, session_from_world=frame_b)
     return positions, sizes, present_a, present_b, a, ids_a, b, ids_b, frame_b.inverse()
+
+
+def render_nadir_images(poses: Poses, camera: Camera, positions: np.ndarray, sizes: np.ndarray, drawn: np.ndarray,
+                        world_seed: int, gain: float = 1.0, offset: float = 0.0, noise_seed: int = 0,
+                        ) -> list[np.ndarray]:
+    """Grey images of a world seen by nadir pinhole keyframes: a textured ground plane at z = 0 (sinusoids of
+    0.8-12 m drawn from `world_seed`, the same in every session: fine enough to tell heights by) and a disc of
+    radius 2 h at each drawn point's height, with a texture of its own (dark, ringed and spotted, phases from the
+    world seed); brightness gain and offset and pixel noise per session (another illumination, another
+    exposure). The higher disc hides the lower; a disc at height 0 is a patch of the ground (a shadow)."""
+    rng = np.random.default_rng(world_seed)
+    waves = [(np.exp(rng.uniform(np.log(0.8), np.log(12.0))), rng.uniform(0, np.pi), rng.uniform(0, 2 * np.pi))
+             for _ in range(16)]
+    spots = rng.uniform(0, 2 * np.pi, (len(positions), 2))
+    noise = np.random.default_rng(noise_seed)
+    v, u = np.mgrid[0:camera.height, 0:camera.width] + 0.5
+    ray = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], -1)
+    order = np.argsort(positions[:, 2])  # the higher disc hides the lower
+    images = []
+    for k in range(len(poses)):
+        d = ray @ poses.rotations[k].T
+        c = poses.centers[k]
+
+        def at(z: float, c: np.ndarray = c, d: np.ndarray = d) -> tuple[np.ndarray, np.ndarray]:
+            t = (z - c[2]) / d[..., 2]  # the pixels' rays meet the plane at height z
+            return c[0] + t * d[..., 0], c[1] + t * d[..., 1]
+
+        x, y = at(0.0)
+        img = 120.0 + sum(12.0 * np.sin(2 * np.pi * (x * np.cos(a) + y * np.sin(a)) / lam + ph)
+                          for lam, a, ph in waves)
+        uv, depth = project(camera, poses.rotations[k], c, positions)
+        reach = 2.0 * sizes * camera.fx / np.maximum(depth, 1e-6) + 2.0
+        for i in order[drawn[order] & (depth[order] > 0)]:
+            u0, u1 = (np.clip([uv[i, 0] - reach[i], uv[i, 0] + reach[i] + 1], 0, camera.width)).astype(int)
+            v0, v1 = (np.clip([uv[i, 1] - reach[i], uv[i, 1] + reach[i] + 1], 0, camera.height)).astype(int)
+            if u1 <= u0 or v1 <= v0:
+                continue
+            box = (slice(v0, v1), slice(u0, u1))  # the disc's pixels only
+            ox, oy = at(float(positions[i, 2]), c, d[box])
+            dx, dy = ox - positions[i, 0], oy - positions[i, 1]
+            r = np.hypot(dx, dy)
+            tex = (55.0 + 25.0 * np.cos(2 * np.pi * r / sizes[i])
+                   + 20.0 * np.sin(2.2 * dx + spots[i, 0]) * np.sin(1.9 * dy + spots[i, 1]))
+            img[box] = np.where(r <= 2.0 * sizes[i], tex, img[box])
+        images.append(np.clip(gain * img + offset + noise.normal(0.0, 3.0, img.shape), 0, 255).astype(np.float32))
+    return images

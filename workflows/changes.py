@@ -31,7 +31,7 @@ from ..database.changes_io import changes_feature_collection, format_changes_csv
 from ..database.landmark_map import landmark_map_fingerprint
 from ..database.match_io import check_match_maps, read_match
 from ..database.outputs import check_not_input, fingerprint, open_output_dir
-from ..database.session_io import read_session, read_session_observations
+from ..database.session_io import read_session, read_session_observations, session_images_dir
 from ..plugin import __version__
 from ..plugin.changes import CONTROL_SHIFT, GONE, KEPT, NEW, UNSEEN, ChangeResult, detect_changes
 from ..plugin.errors import InputError
@@ -59,7 +59,8 @@ class ChangesRun:
 
 
 def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path | None, params: Params | None = None,
-            a_from_b: Sim3 | None = None, verified: bool = False) -> ChangesRun:
+            a_from_b: Sim3 | None = None, verified: bool = False, images_a: str | Path | None = None,
+            images_b: str | Path | None = None) -> ChangesRun:
     """Read, check and classify; nothing is written. The match must be accepted and computed for exactly these
     two maps (`match_io.check_match_maps`). `a_from_b` overrides the match's transform (batch passes its verified
     alignment with `verified=True`); `match_json` may then be None.
@@ -84,8 +85,16 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         check_match_maps(match, files_a.landmarks, files_b.landmarks, match_json,
                          names=(str(session_a), str(session_b)))
     tracks = params.changes.unmapped_objects
-    obs_a = read_session_observations(files_a, with_tracks=tracks)
-    obs_b = read_session_observations(files_b, with_tracks=tracks)
+    dirs = [None, None]
+    if params.changes.surface_evidence:
+        dirs = [session_images_dir(files_a, images_a), session_images_dir(files_b, images_b)]
+        if None in dirs:
+            log.warning("the images of session %s are not available (run.json's image directory is gone; "
+                        "--images-a / --images-b): no surface evidence, the segments alone decide",
+                        "A" if dirs[0] is None else "B")
+            dirs = [None, None]
+    obs_a = read_session_observations(files_a, with_tracks=tracks, images_dir=dirs[0])
+    obs_b = read_session_observations(files_b, with_tracks=tracks, images_dir=dirs[1])
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
         if not area.area > 0:
@@ -101,6 +110,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
                          "maps share too few landmarks to confirm it; nothing compared", match_json or session_b)
     sources = {"session_a": str(session_a), "session_b": str(session_b),
                "match": str(match_json) if match_json is not None else "",
+               "images_a": str(dirs[0] or ""), "images_b": str(dirs[1] or ""),
                "map_a": landmark_map_fingerprint(files_a.landmarks),
                "map_b": landmark_map_fingerprint(files_b.landmarks)}
     return ChangesRun(result, a_from_b, int(files_a.landmarks.epsg), sources, time.perf_counter() - t0)
@@ -204,11 +214,13 @@ def output_identity(run: ChangesRun, params: Params, plot: bool) -> str:
     """What determines the outputs: both maps (content fingerprints), the transform and the parameters."""
     return fingerprint({"maps": [run.sources["map_a"], run.sources["map_b"]], "a_from_b": run.a_from_b.to_dict(),
                         "changes": params_to_dict(params.changes),
+                        "images": [run.sources["images_a"], run.sources["images_b"]],
                         "eps": params.association.distance_tolerance_m, "plot": plot})
 
 
 def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, out_dir: str | Path,
-        params: Params | None = None, plot: bool = True, overwrite: bool = False) -> ChangesRun:
+        params: Params | None = None, plot: bool = True, overwrite: bool = False,
+        images_a: str | Path | None = None, images_b: str | Path | None = None) -> ChangesRun:
     """Classify every landmark of A and B against the other session and write the outputs (module docstring).
 
     Raises InputError, with nothing written, for a match without an accepted transform, a match of other maps,
@@ -217,8 +229,8 @@ def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, ou
     """
     params = params or Params()
     out_dir = Path(out_dir)
-    check_not_input(out_dir, [session_a, session_b, match_json])
-    changes = compute(session_a, session_b, match_json, params)
+    check_not_input(out_dir, [p for p in (session_a, session_b, match_json, images_a, images_b) if p is not None])
+    changes = compute(session_a, session_b, match_json, params, images_a=images_a, images_b=images_b)
     with open_output_dir(out_dir, "changes", output_identity(changes, params, plot),
                          inputs=[session_a, session_b, match_json], overwrite=overwrite,
                          legacy_record="changes.json") as out:

@@ -42,6 +42,15 @@ other session's images do not say that the object went. Without the other sessio
 the confidence falls back to the pair's re-observation rate of landmarks like this one (`confidence`: logistic
 in log size, log views, height above ground and support, fitted on the compared landmarks).
 
+Surface heights (`surface`, `changes.surface_evidence`, with both sessions' images): removed and added trees,
+buildings and boulders change the surface, moved shadows and ground texture do not. At each tested landmark each
+session's surface height above the local ground is estimated from its own keyframes alone (a plane sweep of a
+small patch in the keyframes of widest baselines, registered on the ground around the place), and the two
+heights become a log-likelihood ratio of absence calibrated on the pair's landmarks with a counterpart
+(`surface.height_log_ratio`), added to the segments' before the confidence: a removed crown is high in its own
+session and ground in the other, a fragment of a kept one high in both; a place without height of its own (ground
+texture, a shadow, a flat object) gets no evidence either way.
+
 The ground under the landmarks (for heights above ground and the keyframes' ground footprints) is a coarse
 height field of a low quantile of the nearby landmarks' heights (`ground_height_field`): most landmarks of a
 survey are ground texture, and objects only stand above it. A landmark lower than it by more than
@@ -49,8 +58,9 @@ survey are ground texture, and objects only stand above it. A landmark lower tha
 nothing (`below_the_ground`; unseen, evidence `height`).
 
 Modules: `observations` (what a session saw), `evidence` (what the other session shows at a place, and how
-often it shows present objects), `confidence` (the re-observation model, the fallback without segments),
-`support` (is the alignment plausible), `verdict` (`detect_changes`, `absence_probability`).
+often it shows present objects), `surface` (each session's surface height at a place from its own images),
+`confidence` (the re-observation model, the fallback without segments), `support` (is the alignment plausible),
+`verdict` (`detect_changes`, `absence_probability`).
 """
 
 from .confidence import fit_logistic, predict_logistic, reobservation_features
@@ -77,6 +87,7 @@ from .observations import (
     observed_area,
 )
 from .support import CONTROL_SHIFT, AlignmentSupport, alignment_support
+from .surface import height_log_ratio, heights_above_ground
 from .unmapped import UnmappedObjects, no_unmapped_objects, tracks_from_matches, unmapped_objects
 from .verdict import (
     BELOW_GROUND,
@@ -102,7 +113,7 @@ __all__ = ["BELOW_GROUND", "BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS"
            "EVIDENCE", "FOOTPRINT_MARGIN", "GONE", "KEPT", "LOW_CONFIDENCE", "NEW", "NO_EVIDENCE", "TOO_FEW_VIEWS",
            "UNSEEN", "AlignmentSupport", "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations",
            "UnmappedObjects", "absence_log_ratio", "alignment_support", "below_the_ground", "binomial_tail",
-           "counterparts", "detect_changes", "dispersion", "fit_logistic", "ground_height_field", "holder_pairs",
-           "in_view", "inside_larger", "landmark_presence_rate", "no_unmapped_objects", "observed_area",
-           "predict_logistic", "presence_rate", "reobservation_features", "segment_evidence", "segment_hits",
-           "tracks_from_matches", "unmapped_objects", "view_correlation"]
+           "counterparts", "detect_changes", "dispersion", "fit_logistic", "ground_height_field", "height_log_ratio",
+           "heights_above_ground", "holder_pairs", "in_view", "inside_larger", "landmark_presence_rate",
+           "no_unmapped_objects", "observed_area", "predict_logistic", "presence_rate", "reobservation_features",
+           "segment_evidence", "segment_hits", "tracks_from_matches", "unmapped_objects", "view_correlation"]

@@ -46,6 +46,9 @@ class SessionObservations:
     # the session's tracks that no landmark holds ((n, 2) rows: keyframe index, keypoint index into segments),
     # for the objects it saw but never mapped (`unmapped.unmapped_objects`); None: not available
     tracks: tuple[np.ndarray, ...] | None = None
+    # the keyframes' images as grey arrays, in keyframe order (a sequence that may read them on demand; an item
+    # None where unreadable); None: not available, the surface evidence is then off (`surface`)
+    images: Sequence[np.ndarray | None] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "positions", np.asarray(self.positions, dtype=np.float64).reshape(-1, 3))
@@ -58,12 +61,14 @@ class SessionObservations:
             raise ValueError(f"{len(self.poses)} keyframes but {len(cams)} cameras")
         if self.segments is not None and len(self.segments) != len(self.poses):
             raise ValueError(f"{len(self.poses)} keyframes but {len(self.segments)} segment sets")
+        if self.images is not None and len(self.images) != len(self.poses):
+            raise ValueError(f"{len(self.poses)} keyframes but {len(self.images)} images")
         if self.support is not None and len(self.support) != len(self.positions):
             raise ValueError(f"{len(self.positions)} landmarks but {len(self.support)} support values")
 
     def transformed(self, t: Sim3) -> SessionObservations:
         """The same session in another frame (x' = s R x + t): landmarks, sizes and camera poses moved; pixels
-        do not change under a similarity, so the segments stay as they are."""
+        do not change under a similarity, so the segments and images stay as they are."""
         poses = Poses(list(self.poses.names), np.einsum("ij,njk->nik", t.rotation, self.poses.rotations),
                       t.apply(self.poses.centers))
         return replace(self, positions=t.apply(self.positions), sizes=self.sizes * t.scale, poses=poses)

@@ -25,6 +25,12 @@ class AlignmentSupport:
     def rate(self) -> float:
         return self.matched / self.compared if self.compared else 0.0
 
+    def counterpart_log_ratio(self) -> float:
+        """log P(counterpart | absent) / P(counterpart | present): a removed object's place finds a counterpart at
+        the chance (displaced) rate, a present one at the transform's rate (both at least 1 / compared)."""
+        floor = 1.0 / max(self.compared, 1)
+        return float(np.log(max(self.displaced_rate, floor) / max(self.rate, floor)))
+
     def plausible(self, max_p: float = 1e-3, min_ratio: float = 1.5) -> bool:
         """The transform pairs the maps clearly better than chance: significant, and 1.5x the chance rate."""
         return self.p_value < max_p and self.rate >= min_ratio * self.displaced_rate

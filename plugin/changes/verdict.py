@@ -25,6 +25,8 @@ from .evidence import (
 )
 from .observations import SessionObservations, below_the_ground, ground_height_field, in_view, observed_area
 from .support import AlignmentSupport, alignment_support
+from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
+from .surface import height_log_ratio, heights_above_ground
 from .unmapped import UnmappedObjects, no_unmapped_objects, unmapped_objects
 
 KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
@@ -106,14 +108,16 @@ REFERENCE_LIMIT = 400  # reference landmarks for the presence rate (evenly space
 def absence_probability(sizes: np.ndarray, ref_positions: np.ndarray, ref_sizes: np.ndarray, hits: np.ndarray,
                         views: np.ndarray, chance: np.ndarray, other: SessionObservations, gate_m: float,
                         params: ChangeParams, own: SessionObservations | None = None,
-                        positions: np.ndarray | None = None) -> np.ndarray:
+                        positions: np.ndarray | None = None, log_ratio: np.ndarray | float = 0.0) -> np.ndarray:
     """P(absent | the other session's segments) for objects of the given sizes, from their segment hits in the
     other session's keyframes: binomial with the local chance rate if the object is absent, with the presence rate
     of objects of its size if present (`presence_rate`, measured on the reference landmarks of its map, those with
     a counterpart), the log-likelihood ratio divided by the dispersion of a count of that many views (`dispersion`,
     with the views' correlation measured on the references: neighbouring keyframes are not independent looks),
     prior odds 1. With `own` (the landmarks' own session, with its segments) and their `positions`, the presence
-    rate is each landmark's own (`landmark_presence_rate`): scaled by how often its own session shows it."""
+    rate is each landmark's own (`landmark_presence_rate`): scaled by how often its own session shows it.
+    `log_ratio`: further evidence of absence (a log-likelihood ratio: the surface heights',
+    `surface.height_log_ratio`), added to the segments'."""
     ref = np.arange(len(ref_positions))
     if len(ref) > REFERENCE_LIMIT:
         ref = ref[np.linspace(0, len(ref) - 1, REFERENCE_LIMIT).round().astype(np.int64)]
@@ -133,7 +137,7 @@ def absence_probability(sizes: np.ndarray, ref_positions: np.ndarray, ref_sizes:
         ref_rate = presence_rate(ref_h, ref_h, ref_hits, ref_views, bw)
         rate = presence_rate(sizes, ref_h, ref_hits, ref_views, bw)
     rho = view_correlation(ref_hits, ref_views, ref_rate)
-    llr = absence_log_ratio(hits, views, chance, rate, dispersion(views, rho))
+    llr = absence_log_ratio(hits, views, chance, rate, dispersion(views, rho)) + log_ratio
     return 1.0 / (1.0 + np.exp(-np.clip(llr, -30.0, 30.0)))  # below 1: --min-confidence 1 reports nothing
 
 
@@ -153,6 +157,11 @@ class _Direct:
     absent: np.ndarray  # P(absent | segment hits), `absence_probability`
     tested: np.ndarray
     by_segments: np.ndarray  # the other session's segments show it significantly more often than chance
+    surface: np.ndarray  # the surface heights' log-likelihood ratio of absence (0 without both sessions' images)
+    # the surface heights say absent more strongly than a counterpart would say present: no link vouches for it
+    doubted: np.ndarray
+    # the reference places' surface heights above the ground (own session, other session), None: not measured
+    surface_references: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def established(self) -> np.ndarray:
@@ -162,10 +171,18 @@ class _Direct:
 def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, other_pos: np.ndarray,
             other_h: np.ndarray, gate_m: float, params: ChangeParams,
             references: tuple[np.ndarray, np.ndarray] | None = None,
-            deep: np.ndarray | None = None, own: SessionObservations | None = None) -> _Direct:
+            deep: np.ndarray | None = None, own: SessionObservations | None = None,
+            ground: HeightField | None = None,
+            surface_references: tuple[np.ndarray, np.ndarray] | None = None,
+            counterpart_log_ratio: float = 0.0) -> _Direct:
     """`references`: positions and sizes of the own map's landmarks with a counterpart (for the presence rate);
     None: those among own_pos. `deep`: landmarks below the ground (`below_the_ground`), compared with nothing.
-    `own`: the session these landmarks belong to (its segments give each one's own presence rate)."""
+    `own`: the session these landmarks belong to (its segments give each one's own presence rate). With the
+    `ground` and both sessions' images, each tested landmark's surface heights are evidence too (`_surface`),
+    calibrated on `surface_references` (None: measured here on the landmarks with a counterpart); with
+    `params.surface_overrules_links`, every compared landmark's, and a counterpart they contradict more than
+    it supports presence (`counterpart_log_ratio`: log P(counterpart | absent) / P(counterpart | present))
+    is none."""
     n = len(own_pos)
     seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
     views = seen.sum(0)
@@ -177,21 +194,49 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     index = np.where(compared, index, -1)
     hits, trials = np.zeros(n, np.int64), np.zeros(n, np.int64)
     chance, absent = np.full(n, np.nan), np.zeros(n)
-    tested = compared & (index < 0) & (other.segments is not None)
     by_segments = np.zeros(n, dtype=bool)
+    surface, doubted = np.zeros(n), np.zeros(n, dtype=bool)
+    if references is None:
+        references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
+    asked = compared & ((index < 0) & (other.segments is not None) | params.surface_overrules_links)
+    if (params.surface_evidence and ground is not None and own is not None and own.images is not None
+            and other.images is not None and np.any(asked)):
+        if surface_references is None:
+            ref = np.flatnonzero(compared & (index >= 0))
+            if len(ref) > SURFACE_REFERENCES:
+                ref = ref[np.linspace(0, len(ref) - 1, SURFACE_REFERENCES).round().astype(np.int64)]
+            surface_references = _surface(own_pos[ref], own, other, ground, params)
+        idx = np.flatnonzero(asked)
+        surface[idx] = height_log_ratio(*_surface(own_pos[idx], own, other, ground, params), *surface_references)
+        if params.surface_overrules_links:
+            # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
+            # object stood is as often as chance allows (`alignment_support`'s displaced rate): where the
+            # surface says absent more strongly than the counterpart says there, it is no evidence of presence
+            # (nor is a containment link, a compatible landmark nearby too: `_judge`)
+            doubted = asked & (surface + counterpart_log_ratio > 0)
+            index = np.where(doubted, -1, index)
+    tested = compared & (index < 0) & (other.segments is not None)
     if np.any(tested):
         idx = np.flatnonzero(tested)
         hits[idx], trials[idx], chance[idx] = segment_evidence(
             own_pos[idx], own_h[idx], other.poses, other.cameras, other.segments, gate_m,
             params.max_size_difference, params.probe_count, params.probe_radius_factor)
-        if references is None:
-            references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
         absent[idx] = absence_probability(own_h[idx], *references, hits[idx], trials[idx], chance[idx], other,
-                                          gate_m, params, own, own_pos[idx])
+                                          gate_m, params, own, own_pos[idx], surface[idx])
         # shown: more hits than chance would give, and more like an object that is there than like its absence
         by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
                             & (absent[idx] < 0.5))
-    return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments)
+    return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments, surface, doubted,
+                   surface_references)
+
+
+def _surface(points: np.ndarray, own: SessionObservations, other: SessionObservations, ground: HeightField,
+             params: ChangeParams) -> tuple[np.ndarray, np.ndarray]:
+    """The surface height above the ground at each point in its own session and in the other, each from that
+    session's own images (`surface.heights_above_ground`; both in one frame)."""
+    g = ground(points[:, 0], points[:, 1])
+    return tuple(heights_above_ground(points, g, s.images, s.poses, s.cameras, params.surface_views)
+                 for s in (own, other))
 
 
 def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,
@@ -206,8 +251,9 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
         # the holder must itself be established in this session (a counterpart here, or this session's
         # segments show it): a ground patch that the other session sees where this map's object stood is no
         # whole of that object
-        holder = np.where(compared & (index < 0), inside_larger(own_pos, own_h, other_pos, other_h,
-                                                                params.nest_max_ratio, theirs.established), -1)
+        holder = np.where(compared & (index < 0) & ~mine.doubted,
+                          inside_larger(own_pos, own_h, other_pos, other_h, params.nest_max_ratio,
+                                        theirs.established), -1)
     label = np.full(n, UNSEEN, dtype=object)
     evidence = np.full(n, TOO_FEW_VIEWS, dtype=object)
     evidence[(views >= params.min_views) & ~compared] = BELOW_GROUND
@@ -221,7 +267,7 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
     link = np.full(n, -1, dtype=np.int64)
     if params.part_max_ratio >= 1:
         part, whole = holder_pairs(own_pos, own_h, own_pos, own_h, params.part_max_ratio, same_map=True)
-        hit = compared[part] & ~direct[part] & (mine.established | direct)[whole]
+        hit = compared[part] & ~direct[part] & ~mine.doubted[part] & (mine.established | direct)[whole]
         hp, hw = part[hit], whole[hit]  # sorted by part, then distance: the nearest whole first
         first = np.r_[True, hp[1:] != hp[:-1]] if len(hp) else np.zeros(0, bool)
         link[hp[first]] = hw[first]
@@ -236,7 +282,7 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
         matched_other, _ = counterparts(other_pos, other_h, own_pos, own_h, gate_m, params.max_size_difference,
                                         params.z_weight)
         j, i = holder_pairs(other_pos, other_h, own_pos, own_h, params.part_max_ratio)
-        ok = open_[i] & (matched_other[j] >= 0)
+        ok = open_[i] & ~mine.doubted[i] & (matched_other[j] >= 0)
         i, j = i[ok], j[ok]
         order = np.lexsort((j, i))
         first = np.r_[True, i[order][1:] != i[order][:-1]] if len(order) else np.zeros(0, bool)
@@ -290,29 +336,31 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
     ground = ground_height_field(all_pts)
     heights_a, heights_b = _above(ground, a.positions), _above(ground, b_in_a.positions)
     deep_a, deep_b = (below_the_ground(h, h, params.max_depth_sigmas) for h in (heights_a, heights_b))
+    support = alignment_support(a, b_in_a, gate, params)
+    cp = support.counterpart_log_ratio()
     direct_a = _direct(a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, gate, params, deep=deep_a,
-                       own=a)
+                       own=a, ground=ground, counterpart_log_ratio=cp)
     direct_b = _direct(b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, gate, params, deep=deep_b,
-                       own=b_in_a)
+                       own=b_in_a, ground=ground, counterpart_log_ratio=cp)
     res_a = _judge(a, a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, heights_a, GONE, gate, params,
                    direct_a, direct_b)
     res_b = _judge(b_in_a, b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, heights_b, NEW, gate, params,
                    direct_b, direct_a)
-    unmapped_a, tracks_a = _unmapped(a, b_in_a, direct_a, direct_b, ground, heights_a, GONE, gate, params)
-    unmapped_b, tracks_b = _unmapped(b_in_a, a, direct_b, direct_a, ground, heights_b, NEW, gate, params)
+    unmapped_a, tracks_a = _unmapped(a, b_in_a, direct_a, direct_b, ground, heights_a, GONE, gate, params, cp)
+    unmapped_b, tracks_b = _unmapped(b_in_a, a, direct_b, direct_a, ground, heights_b, NEW, gate, params, cp)
     return ChangeResult(
         a=res_a, b=res_b, positions_a=a.positions, positions_b=b_in_a.positions, sizes_a=a.sizes,
         sizes_b=b_in_a.sizes, tolerance_m=gate, ground=ground,
         observed_a=observed_area(a.poses, a.cameras, ground),
         observed_b=observed_area(b_in_a.poses, b_in_a.cameras, ground), params=params,
-        support=alignment_support(a, b_in_a, gate, params), unmapped_a=unmapped_a, unmapped_b=unmapped_b,
+        support=support, unmapped_a=unmapped_a, unmapped_b=unmapped_b,
         tracks_a=tracks_a, tracks_b=tracks_b,
     )
 
 
 def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direct, theirs: _Direct,
               ground: HeightField, own_heights: np.ndarray, change_label: str, gate_m: float, params: ChangeParams,
-              ) -> tuple[UnmappedObjects, LandmarkChanges | None]:
+              counterpart_log_ratio: float = 0.0) -> tuple[UnmappedObjects, LandmarkChanges | None]:
     """The objects `own` saw but never mapped (`unmapped.unmapped_objects`) and their verdicts against `other`,
     judged as landmarks are but by direct evidence alone: a counterpart landmark, a holder of the other map that
     this session shows, the other session's segments, else a change with the absence probability (presence rates
@@ -336,7 +384,8 @@ def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direc
     objs, heights = objs.subset(keep), heights[keep]
     reference = mine.compared & (mine.index >= 0)
     direct = _direct(objs.positions, objs.sizes, other, other.positions, other.sizes, gate_m, params,
-                     (own.positions[reference], own.sizes[reference]), own=own)
+                     (own.positions[reference], own.sizes[reference]), own=own, ground=ground,
+                     surface_references=mine.surface_references, counterpart_log_ratio=counterpart_log_ratio)
     return objs, _judge(own, objs.positions, objs.sizes, other, other.positions, other.sizes, heights, change_label,
                         gate_m, replace(params, part_max_ratio=0.0), direct, theirs)
 

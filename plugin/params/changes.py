@@ -67,6 +67,21 @@ class ChangeParams(Checked):
     # BENCHMARKS.md raised same-season gone precision from 0.71 to 0.91 at unchanged recall; 0 reports every
     # claim. Without the other session's database the confidence is its re-observation rate of such landmarks.
     min_confidence: float = fraction(0.8)
+    # (ours) The surface heights as evidence (`plugin.changes.surface`): at each tested landmark (compared, no
+    # counterpart) each session's surface height above the local ground from its own keyframes alone (a plane
+    # sweep of a 2 m patch in `surface_views` keyframes of wide baselines, registered on the ground around the
+    # place), compared across the sessions as a likelihood ratio calibrated on the pair's landmarks with a
+    # counterpart, and added to the segments' evidence of absence: a removed crown is high in its own session and
+    # ground in the other, a fragment of a kept one high in both, a moved shadow ground in both (no evidence).
+    # Needs both sessions' images (`sosmatch changes --images-a/--images-b`, or those each map's run.json
+    # records); without them the segments alone decide.
+    surface_evidence: bool = flag(True)
+    surface_views: int = count(6, 2)
+    # the surface heights may also overrule a counterpart or containment link: a landmark whose heights say
+    # absent more strongly than its counterpart says present (the pair's chance counterpart rate against its
+    # counterpart rate, `AlignmentSupport.counterpart_log_ratio`) is judged as one without. False: the heights
+    # only add to the evidence of landmarks without a counterpart.
+    surface_overrules_links: bool = flag(False)
     # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
     # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least
     # min_views keyframes, are judged against the other session as its landmarks are (direct evidence only; they

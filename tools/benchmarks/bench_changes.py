@@ -116,7 +116,8 @@ def evaluate(root: Path, world: int, changed: float, a: str, b: str, kind: str, 
     if not alignment.accepted:
         return None  # nothing to compare: reported as a pair that was not aligned
     t = time.process_time()
-    run = compute(root / f"m{a}", root / f"m{b}", None, params or Params(), a_from_b=alignment.transform)
+    run = compute(root / f"m{a}", root / f"m{b}", None, params or Params(), a_from_b=alignment.transform,
+                  images_a=root / a / "images", images_b=root / b / "images")
     cpu = time.process_time() - t
     sa, sb = load_synth_session(root / a), load_synth_session(root / b)
     kfa = json.loads((root / f"m{a}" / "run.json").read_text())["keyframes"]

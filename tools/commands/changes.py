@@ -22,6 +22,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="report gone / new only when the other session's images say the object is absent "
                              "with at least this probability (0-1; below: unseen). Default: changes.min_confidence "
                              "(0.8)")
+    parser.add_argument("--images-a", type=Path, default=None,
+                        help="A's keyframe images (default: the directory A's run.json records, if it exists); "
+                             "with B's, the images are evidence of what changed")
+    parser.add_argument("--images-b", type=Path, default=None, help="B's keyframe images (as --images-a)")
     parser.add_argument("--no-plot", action="store_true", help="skip changes.png")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a complete `sosmatch changes` output in --out made from other inputs")
@@ -39,6 +43,6 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--min-confidence must be between 0 and 1, got {args.min_confidence}")
         params = with_overrides(params, {"changes.min_confidence": float(args.min_confidence)})
     result = run_changes(args.session_a, args.session_b, args.match, args.out, params, plot=not args.no_plot,
-                         overwrite=args.overwrite)
+                         overwrite=args.overwrite, images_a=args.images_a, images_b=args.images_b)
     print(f"changes: {result.summary()} -> {args.out / 'changes.csv'}")
     return 0

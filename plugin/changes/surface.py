@@ -1,0 +1,316 @@
+"""The surface height at a place from one session's own images (multi-view photo-consistency, a local plane sweep).
+
+Removed and added trees, buildings and boulders change the surface; moved shadows, ground texture and a
+season's looks do not. So each session's surface height at a place is estimated from its own keyframes alone: a
+small horizontal patch around the place is swept through candidate heights from below the local ground to far
+above it, sampled in the keyframes of the session that see it from the most different directions, and the height
+at which those views agree best (mean pairwise zero-mean normalised correlation of the patch's grey levels) is
+the surface there. A wrong height shifts the patch's projection with the parallax of each view, so the views
+disagree; within one session the illumination is one, so the grey levels compare directly. What is compared
+across sessions is a height in metres, never a look.
+
+Pure numpy: the images come in as a sequence of grey arrays per keyframe (read on demand by the caller)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import Camera, Poses, project
+
+PATCH_CELLS = 15  # cells across the swept patch
+PATCH_HALF_M = 1.0  # the swept patch's half width: small, so the top of a crown or a roof fills it (BENCHMARKS)
+MIN_PATCH_HALF_M = 1.0  # a smaller patch holds too little texture to agree or disagree
+SWEEP_VIEWS = 6
+REFERENCE_LIMIT = 200  # reference places (evenly spaced) for the calibration: bounded cost on large maps
+SWEEP_STEP_M = 0.5
+SWEEP_BELOW_M = 3.0  # below the local ground (its estimate from the landmarks is coarse)
+SWEEP_ABOVE_M = 30.0  # above it: taller than any tree or building of a survey
+GROUND_BAND_M = 1.0
+REGISTER_HALF_M = 10.0  # half width of the ground window that registers the views to one another
+REGISTER_HOLE_M = 5.0  # the window's centre left out (an object at the place: scope objects have radius <= 6 m)
+REGISTER_CELL_M = 0.4
+REGISTER_SLACK_M = 2.0  # how far one keyframe's map pose may put the ground from where another puts it
+
+
+@dataclass(frozen=True)
+class SurfaceHeights:
+    """Per place: the best-agreeing height (NaN where fewer than two views saw the whole sweep), the agreement
+    there (-1..1) and its margin over the median agreement of all heights (how peaked the sweep is)."""
+
+    z: np.ndarray
+    agreement: np.ndarray
+    peak: np.ndarray
+    ground: np.ndarray  # the best agreement within GROUND_BAND_M of the local ground: is the ground seen there
+    views: np.ndarray  # number of views used
+
+
+def spread_views(inside: np.ndarray, centers: np.ndarray, off_centre: np.ndarray, count: int) -> np.ndarray:
+    """(count, N) keyframe indices (-1 none) per point: among the keyframes where `inside` (K, N), first the one
+    that sees the point nearest its image centre (`off_centre` (K, N)), then in turn the one whose camera centre
+    is farthest (horizontally) from those chosen: the widest baselines, so a wrong height shows the most parallax.
+    Ties go to the lower keyframe index (deterministic)."""
+    k_count, n = inside.shape
+    out = np.full((count, n), -1, dtype=np.int64)
+    if not k_count or not n:
+        return out
+    first = np.argmin(np.where(inside, off_centre, np.inf), axis=0)
+    has = inside[first, np.arange(n)]
+    out[0] = np.where(has, first, -1)
+    xy = np.asarray(centers, dtype=np.float64)[:, :2]
+    nearest = np.where(has[None], np.linalg.norm(xy[:, None, :] - xy[first][None, :, :], axis=2), -np.inf)
+    for c in range(1, count):
+        cand = np.where(inside, nearest, -np.inf)
+        pick = np.argmax(cand, axis=0)
+        ok = np.isfinite(cand[pick, np.arange(n)]) & (cand[pick, np.arange(n)] > 0)
+        out[c] = np.where(ok, pick, -1)
+        d = np.linalg.norm(xy[:, None, :] - xy[pick][None, :, :], axis=2)
+        nearest = np.where(ok[None], np.minimum(nearest, d), nearest)
+        nearest[pick[ok], np.flatnonzero(ok)] = -np.inf
+    return out
+
+
+def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The image's values at array coordinates (x column, y row), bilinear; coordinates must lie inside."""
+    x0 = np.clip(np.floor(x).astype(np.int64), 0, image.shape[1] - 2)
+    y0 = np.clip(np.floor(y).astype(np.int64), 0, image.shape[0] - 2)
+    fx, fy = x - x0, y - y0
+    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx
+    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def sweep_levels(ground_z: float) -> np.ndarray:
+    """The candidate heights of one place: SWEEP_STEP_M apart from the ground - SWEEP_BELOW_M to + SWEEP_ABOVE_M."""
+    return ground_z + np.arange(-SWEEP_BELOW_M, SWEEP_ABOVE_M + 1e-9, SWEEP_STEP_M)
+
+
+def sample_grid(image: np.ndarray, camera: Camera, rotation: np.ndarray, center: np.ndarray,
+                points: np.ndarray) -> np.ndarray | None:
+    """The image's grey values at world points (bilinear, COLMAP pixels); None when any falls outside the image
+    or behind the camera."""
+    uv, depth = project(camera, rotation, center, points)
+    x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5  # COLMAP pixels: centre of the first pixel at 0.5
+    h, w = image.shape[:2]
+    if not (np.all(depth > 0) and np.all(np.isfinite(uv)) and x.min() >= 0 and y.min() >= 0
+            and x.max() <= w - 1 and y.max() <= h - 1):
+        return None
+    return bilinear(image, x, y)
+
+
+def grid_points(xy: np.ndarray, half_m: float, cells: int, z: float) -> np.ndarray:
+    """(cells * cells, 3) points of a horizontal square grid around xy at height z (row-major, y then x)."""
+    step = 2.0 * half_m / cells
+    t = -half_m + step * (np.arange(cells) + 0.5)
+    gx, gy = np.meshgrid(xy[0] + t, xy[1] + t)
+    return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, float(z))])
+
+
+def register_views(xy: np.ndarray, ground_z: float, views: Sequence[int], images: Sequence[np.ndarray | None],
+                   poses: Poses, cameras: Sequence[Camera]) -> tuple[list[int], np.ndarray]:
+    """The views that hold the registration window, and for each a horizontal offset (V, 2) in metres that
+    brings its look of the ground around xy onto the first view's (best zero-mean normalised correlation of the
+    ortho images at the ground height within REGISTER_SLACK_M, refined to a fraction of a cell).
+
+    A map's keyframe poses are off by a fraction of a degree and of a metre (a metre on the ground from 100 m),
+    more than the parallax of a few metres of height; registered on the ground around the place, the views keep
+    only the parallax of what stands above it (plane plus parallax), so the sweep measures the height above the
+    local ground even where the ground model is off. The window leaves out a disc of REGISTER_HOLE_M around the
+    place: an object standing there would pull the registration onto itself and take its own parallax away."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    s = int(round(REGISTER_SLACK_M / REGISTER_CELL_M))
+    m = int(round(2 * REGISTER_HALF_M / REGISTER_CELL_M))
+    big = m + 2 * s
+    pts = grid_points(xy, REGISTER_HALF_M + s * REGISTER_CELL_M, big, ground_z)
+    kept, looks = [], []
+    for k in views:
+        image = images[k] if k >= 0 else None
+        if image is None:
+            continue
+        g = sample_grid(image, cameras[k], poses.rotations[k], poses.centers[k], pts)
+        if g is not None:
+            kept.append(int(k))
+            looks.append(g.reshape(big, big))
+    offsets = np.zeros((len(kept), 2))
+    if len(kept) < 2:
+        return kept, offsets
+    t = (np.arange(m) + 0.5) * REGISTER_CELL_M - REGISTER_HALF_M
+    w = (np.hypot(*np.meshgrid(t, t)) > REGISTER_HOLE_M).astype(np.float64)
+    w /= w.sum()
+    ref = looks[0][s:s + m, s:s + m]
+    ref = ref - np.sum(w * ref)
+    ref = w * ref / max(float(np.sqrt(np.sum(w * ref * ref))), 1e-6)
+    for v in range(1, len(kept)):
+        win = sliding_window_view(looks[v], (m, m))  # (2s+1, 2s+1, m, m)
+        mu = np.einsum("uv,ijuv->ij", w, win)
+        var = np.einsum("uv,ijuv->ij", w, win * win) - mu * mu
+        r = np.einsum("uv,ijuv->ij", ref, win) / np.sqrt(np.maximum(var, 1e-12))
+        i, j = np.unravel_index(int(np.argmax(r)), r.shape)
+        di = _parabola(r[i - 1, j], r[i, j], r[i + 1, j]) if 0 < i < 2 * s else 0.0
+        dj = _parabola(r[i, j - 1], r[i, j], r[i, j + 1]) if 0 < j < 2 * s else 0.0
+        offsets[v] = [(j + dj - s) * REGISTER_CELL_M, (i + di - s) * REGISTER_CELL_M]
+    return kept, offsets
+
+
+def _parabola(a: float, b: float, c: float) -> float:
+    """The vertex of the parabola through (-1, a), (0, b), (1, c) (a sub-cell peak), within half a cell."""
+    den = a - 2 * b + c
+    return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+
+def sweep_agreement(xy: np.ndarray, half_m: float, levels: np.ndarray, views: Sequence[int],
+                    images: Sequence[np.ndarray | None], poses: Poses, cameras: Sequence[Camera],
+                    offsets: np.ndarray | None = None, cells: int = PATCH_CELLS) -> tuple[np.ndarray, int]:
+    """(len(levels),) mean pairwise zero-mean normalised correlation of the grey patch around xy (half width
+    half_m) at each height in the views (those that hold the whole patch at every level; a flat patch agrees
+    0), and the number of views used (the agreement is NaN with fewer than two). `offsets` (V, 2): each view's
+    registration offset (`register_views`), added to the points it samples."""
+    flat = grid_points(xy, half_m, cells, 0.0)
+    m = len(flat)
+    pts = np.column_stack([np.tile(flat[:, 0], len(levels)), np.tile(flat[:, 1], len(levels)),
+                           np.repeat(levels, m)])
+    patches = []
+    for v, k in enumerate(views):
+        image = images[k] if k >= 0 else None
+        if image is None:
+            continue
+        shift = np.zeros(3) if offsets is None else np.array([offsets[v, 0], offsets[v, 1], 0.0])
+        g = sample_grid(image, cameras[k], poses.rotations[k], poses.centers[k], pts + shift)
+        if g is None:
+            continue
+        p = g.reshape(len(levels), m)
+        p = p - p.mean(axis=1, keepdims=True)
+        norm = np.linalg.norm(p, axis=1, keepdims=True)
+        patches.append(np.where(norm > 1e-6, p / np.maximum(norm, 1e-12), 0.0))
+    v = len(patches)
+    if v < 2:
+        return np.full(len(levels), np.nan), v
+    s = np.sum(patches, axis=0)
+    # mean over the v (v - 1) / 2 pairs of unit vectors: (|sum|^2 - sum of |p|^2) / (v (v - 1))
+    self_terms = np.sum([np.sum(p * p, axis=1) for p in patches], axis=0)
+    return (np.sum(s * s, axis=1) - self_terms) / (v * (v - 1)), v
+
+
+def sweep_views(points: np.ndarray, half_m: np.ndarray, ground_z: np.ndarray, poses: Poses,
+                cameras: Sequence[Camera], views: int) -> np.ndarray:
+    """(views, N) keyframes per point for the sweep (`spread_views`): those that hold the patch at the bottom
+    and the top of the sweep and the registration window at the ground."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n, k_count = len(p), len(poses)
+    inside = np.ones((k_count, n), dtype=bool)
+    off = np.zeros((k_count, n))
+    reach = REGISTER_HALF_M + REGISTER_SLACK_M
+    for dz, wide in ((-SWEEP_BELOW_M, half_m), (SWEEP_ABOVE_M, half_m), (0.0, np.maximum(half_m, reach))):
+        for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
+            corner = np.column_stack([p[:, 0] + sx * wide, p[:, 1] + sy * wide, ground_z + dz])
+            for k in range(k_count):
+                cam = cameras[k]
+                uv, depth = project(cam, poses.rotations[k], poses.centers[k], corner)
+                inside[k] &= (depth > 0) & (uv[:, 0] >= 1) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] >= 1) & (
+                    uv[:, 1] <= cam.height - 1)
+    for k in range(k_count):
+        cam = cameras[k]
+        uv, _ = project(cam, poses.rotations[k], poses.centers[k], np.column_stack([p[:, :2], ground_z]))
+        off[k] = np.hypot(uv[:, 0] - cam.width / 2.0, uv[:, 1] - cam.height / 2.0) / max(cam.width, cam.height)
+    return spread_views(inside, poses.centers, off, views)
+
+
+def sweep_curves(points: np.ndarray, halves: Sequence[np.ndarray], ground_z: np.ndarray,
+                 images: Sequence[np.ndarray | None], poses: Poses, cameras: Sequence[Camera],
+                 views: int = 6) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    """The sweep of every point for each patch size in `halves` (half widths per point): the levels relative
+    to the local ground (L,), per size an (N, L) agreement (smoothed over neighbouring levels; NaN rows where
+    fewer than two views), and the views used per point."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = len(p)
+    g = np.asarray(ground_z, dtype=np.float64).reshape(-1)
+    halves = [np.maximum(np.nan_to_num(np.asarray(h, dtype=np.float64) * np.ones(n), nan=MIN_PATCH_HALF_M),
+                         MIN_PATCH_HALF_M) for h in halves]
+    chosen = sweep_views(p, np.max(halves, axis=0), g, poses, cameras, views)
+    rel = sweep_levels(0.0)
+    curves = [np.full((n, len(rel)), np.nan) for _ in halves]
+    used = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        kept, offsets = register_views(p[i, :2], float(g[i]), chosen[:, i], images, poses, cameras)
+        for c, half in zip(curves, halves):
+            score, used[i] = sweep_agreement(p[i, :2], float(half[i]), g[i] + rel, kept, images, poses, cameras,
+                                             offsets)
+            if used[i] >= 2:
+                c[i] = np.convolve(np.pad(score, 1, mode="edge"), [0.25, 0.5, 0.25], mode="valid")
+    return rel, curves, used
+
+
+def surface_heights(points: np.ndarray, half_m: np.ndarray, ground_z: np.ndarray, images: Sequence[np.ndarray | None],
+                    poses: Poses, cameras: Sequence[Camera], views: int = 6) -> SurfaceHeights:
+    """The surface height at each point's (x, y) from one session's keyframes (`images` grey arrays, one per
+    keyframe, None where unavailable): the sweep (`sweep_curves`) from the local ground (`ground_z` per point)
+    in the `views` keyframes that see it from the most different directions."""
+    g = np.asarray(ground_z, dtype=np.float64).reshape(-1)
+    rel, (curve,), used = sweep_curves(points, [half_m], g, images, poses, cameras, views)
+    ok = np.all(np.isfinite(curve), axis=1)
+    best = np.argmax(np.where(ok[:, None], curve, -np.inf), axis=1)
+    at = curve[np.arange(len(g)), best]
+    z = np.where(ok, g + rel[best], np.nan)
+    peak = at - np.median(curve, axis=1)
+    ground = np.max(np.where(np.abs(rel) <= GROUND_BAND_M, curve, -np.inf), axis=1)
+    return SurfaceHeights(z, np.where(ok, at, np.nan), peak, np.where(ok, ground, np.nan), used)
+
+
+def heights_above_ground(points: np.ndarray, ground_z: np.ndarray, images: Sequence[np.ndarray | None] | None,
+                         poses: Poses, cameras: Sequence[Camera], views: int = SWEEP_VIEWS) -> np.ndarray:
+    """The surface height above the local ground at each point's (x, y) in one session (`surface_heights` with
+    a PATCH_HALF_M patch; the views are registered on the ground around the place, so the height is relative to
+    it). NaN where fewer than two views hold the sweep, or without images."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if images is None or not len(p):
+        return np.full(len(p), np.nan)
+    g = np.asarray(ground_z, dtype=np.float64).reshape(-1)
+    return surface_heights(p, np.full(len(p), PATCH_HALF_M), g, images, poses, cameras, views).z - g
+
+
+def _height_scale(h: np.ndarray) -> np.ndarray:
+    """Heights on the scale their errors are alike on: log(1 + h / 1 m), the ground band (h <= 0) at 0 (a sweep
+    misses a 10 m crown by metres, the ground by centimetres)."""
+    return np.log1p(np.maximum(np.asarray(h, dtype=np.float64), 0.0))
+
+
+def _log_conditional(x: np.ndarray, y: np.ndarray, rx: np.ndarray, ry: np.ndarray, bx: float,
+                     by: float) -> np.ndarray:
+    """log p(y | x) of a Gaussian kernel estimate on the reference pairs (rx, ry) with bandwidths bx, by."""
+    from scipy.special import logsumexp
+
+    wx = -0.5 * ((x[:, None] - rx[None, :]) / bx) ** 2
+    wy = -0.5 * ((y[:, None] - ry[None, :]) / by) ** 2
+    return logsumexp(wx + wy, axis=1) - logsumexp(wx, axis=1) - np.log(by * np.sqrt(2.0 * np.pi))
+
+
+def height_log_ratio(own_h: np.ndarray, other_h: np.ndarray, ref_own_h: np.ndarray,
+                     ref_other_h: np.ndarray) -> np.ndarray:
+    """log P(other's height | absent there) - log P(other's height | present) of each place, from the surface
+    heights above the ground of its own session (own_h) and of the other session (other_h), calibrated on the
+    pair's reference places (both heights of landmarks with a counterpart, present in both).
+
+    Present: the other's height as the references with an own height like this one show it (a kernel estimate of
+    p(other | own); it holds how well the two sessions' sweeps agree, and a season's leaf-off crowns). Absent: the
+    other session sees there what it sees where its own session sees the ground, p(other | own = 0). So a place
+    with no height in its own session (ground texture, a shadow, a flat object, a sweep that missed) gets no
+    evidence either way, and a crown whose place the other session also sees high is present. Bounded by the
+    references' count (n samples resolve no odds beyond n); 0 where a height is unknown or the references are
+    fewer than 10."""
+    own_h, other_h = np.asarray(own_h, dtype=np.float64), np.asarray(other_h, dtype=np.float64)
+    out = np.zeros(len(own_h))
+    ref = np.isfinite(ref_own_h) & np.isfinite(ref_other_h)
+    ok = np.isfinite(own_h) & np.isfinite(other_h)
+    if np.count_nonzero(ref) < 10 or not np.any(ok):
+        return out
+    rx, ry = _height_scale(ref_own_h[ref]), _height_scale(ref_other_h[ref])
+    n = len(rx)
+    bx, by = (max(float(np.std(r)) * n ** (-1.0 / 6.0), 0.1) for r in (rx, ry))  # Scott's rule, 2 dimensions
+    x, y = _height_scale(own_h[ok]), _height_scale(other_h[ok])
+    llr = _log_conditional(np.zeros_like(x), y, rx, ry, bx, by) - _log_conditional(x, y, rx, ry, bx, by)
+    bound = float(np.log(n - 1))
+    out[ok] = np.clip(llr, -bound, bound)
+    return out

@@ -1,0 +1,140 @@
+"""The surface heights as evidence of change (plugin.changes.surface): each session's surface height at a place from
+its own images (a plane sweep registered on the ground around it), compared across the sessions as a likelihood
+ratio calibrated on the pair's landmarks with a counterpart."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sosmatch.plugin.changes import GONE, KEPT, KeyframeSegments, detect_changes, ground_height_field
+from sosmatch.plugin.changes.surface import height_log_ratio, heights_above_ground, spread_views
+from sosmatch.plugin.geometry import Camera, Poses, rotvec_to_matrix
+from sosmatch.plugin.params import ChangeParams
+from sosmatch.tools.toy_sessions import change_session, lawnmower, render_nadir_images, yaw_transform
+
+CAM = Camera(320, 240, 200.0, 200.0, 160.0, 120.0)  # 0.23 m a pixel from 45 m
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """25 objects (textured discs of radius 2 h, 3-8 m above a textured ground) and 40 ground-texture landmarks on
+    90 x 90 m, and a dark ground patch (a shadow) that is at one place in A and at another in B. B lacks 4 of the
+    objects; its segmenter missed object 5, and its landmark of it lies 5 m off (beyond the counterpart gate).
+    Both sessions in one frame."""
+    rng = np.random.default_rng(3)
+    gx, gy = np.meshgrid(np.arange(5) * 17.0 + 11.0, np.arange(5) * 17.0 + 11.0)
+    objects = np.column_stack([gx.ravel() + rng.uniform(-2, 2, 25), gy.ravel() + rng.uniform(-2, 2, 25),
+                               rng.uniform(3.0, 8.0, 25)])
+    ground = np.column_stack([rng.uniform(5, 85, (40, 2)), np.zeros(40)])
+    shadows = np.array([[40.0, 46.0, 0.0], [44.0, 41.0, 0.0]])  # index 65 in A only, 66 in B only
+    positions = np.vstack([objects, ground, shadows])
+    sizes = np.concatenate([rng.uniform(1.2, 2.2, 25), np.full(40, 1.0), np.full(2, 1.5)])
+    drawn = (np.arange(67) < 25) | (np.arange(67) >= 65)
+    removed = np.array([2, 8, 16, 22])
+    present_a, present_b = np.ones(67, bool), np.ones(67, bool)
+    present_b[removed] = False
+    present_a[66], present_b[65] = False, False
+    a, ids_a = change_session(positions, sizes, present_a, lawnmower(5, 85, 5, 85, 45, 10, 6), 1, camera=CAM)
+    b, ids_b = change_session(positions, sizes, present_b, lawnmower(7, 87, 3, 83, 45, 10, 6), 2, camera=CAM)
+    # B's landmark of object 5 lies 5 m off, and B's segments outline it in only every third keyframe
+    j5 = int(np.flatnonzero(ids_b == 5)[0])
+    b = replace(b, positions=b.positions + np.where(np.arange(len(ids_b)) == j5, 1.0, 0.0)[:, None] * [5.0, 0, 0])
+    uv = np.array([(b.positions[j5] - c) @ r for r, c in zip(b.poses.rotations, b.poses.centers)])
+    uv = uv[:, :2] / uv[:, 2:] * CAM.fx + [CAM.cx, CAM.cy]
+    keep = [(np.linalg.norm(s.centroids - p, axis=1) > 40) | (k % 3 == 0)
+            for k, (s, p) in enumerate(zip(b.segments, uv))]
+    b = replace(b, segments=tuple(KeyframeSegments(s.centroids[m], s.sizes_px[m]) for s, m in zip(b.segments, keep)))
+    images_a = render_nadir_images(a.poses, CAM, positions, sizes, drawn & present_a, 7, noise_seed=1)
+    images_b = render_nadir_images(b.poses, CAM, positions, sizes, drawn & present_b, 7, gain=0.8, offset=25.0,
+                                   noise_seed=2)
+    return positions, sizes, removed, a, ids_a, b, ids_b, images_a, images_b
+
+
+def _tilted(poses: Poses, sigma_deg: float, seed: int) -> Poses:
+    """The poses with each keyframe turned by a small random rotation (sigma_deg per axis: a map's attitude
+    errors)."""
+    rng = np.random.default_rng(seed)
+    turn = rotvec_to_matrix(np.radians(sigma_deg) * rng.normal(size=(len(poses), 3)))
+    return Poses(poses.names, turn @ poses.rotations, poses.centers)
+
+
+def test_the_sweep_finds_the_surface_despite_a_maps_pose_errors(scene):
+    positions, sizes, removed, a, ids_a, b, ids_b, images_a, images_b = scene
+    poses = _tilted(a.poses, 0.3, 0)  # 0.5 deg: 0.4 m on the ground from 45 m, two pixels
+    for ids, want in ((np.arange(25), positions[:25, 2]), (np.arange(25, 65), np.zeros(40))):
+        keep = np.isin(ids, ids_a)
+        pts = positions[ids[keep]]
+        h = heights_above_ground(pts, np.zeros(len(pts)), images_a, poses, [CAM] * len(poses))
+        assert np.all(np.isfinite(h))
+        err = np.abs(h - want[keep])
+        assert np.median(err) < 0.5 and np.mean(err < 1.0) >= 0.9
+    # no images: no height
+    assert np.all(np.isnan(heights_above_ground(positions[:3], np.zeros(3), None, a.poses, [CAM] * len(a.poses))))
+
+
+def test_the_widest_views_are_chosen_deterministically():
+    inside = np.array([[True], [True], [True], [False]])
+    centers = np.array([[0.0, 0, 50], [5.0, 0, 50], [30.0, 0, 50], [60.0, 0, 50]])
+    off = np.array([[0.3], [0.0], [0.2], [0.1]])
+    v = spread_views(inside, centers, off, 4)[:, 0]
+    assert v.tolist() == [1, 2, 0, -1]  # the most central, then the farthest from it, then the rest
+
+
+def test_the_height_ratio_is_calibrated_on_the_references():
+    rng = np.random.default_rng(0)
+    own = np.concatenate([np.zeros(150), rng.uniform(3, 12, 50)])
+    other = np.where(own > 0, own + rng.normal(0, 0.8, 200), np.abs(rng.normal(0, 0.1, 200)))
+    llr = height_log_ratio(np.array([8.0, 8.0, 0.0, 0.0]), np.array([0.0, 7.5, 0.0, 6.0]), own, other)
+    assert llr[0] > 2.0  # high here, ground there: absent
+    assert llr[1] < -2.0  # high in both: present
+    assert abs(llr[2]) < 0.1 and abs(llr[3]) < 0.1  # no height of its own: no evidence either way
+    assert np.all(np.abs(llr) <= np.log(199) + 1e-9)
+    assert np.all(height_log_ratio(np.array([8.0]), np.array([np.nan]), own, other) == 0)
+    assert np.all(height_log_ratio(np.array([8.0]), np.array([0.0]), own[:5], other[:5]) == 0)  # too few
+
+
+def test_the_surface_says_present_where_the_other_map_lost_the_object(scene):
+    positions, sizes, removed, a, ids_a, b, ids_b, images_a, images_b = scene
+    same_frame = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    i5 = int(np.flatnonzero(ids_a == 5)[0])
+    plain = detect_changes(a, b, same_frame, ChangeParams(), 2.0)
+    assert plain.a.label[i5] == GONE  # no counterpart within the gate, no segment: a false claim
+    seen = detect_changes(replace(a, images=images_a), replace(b, images=images_b), same_frame, ChangeParams(), 2.0)
+    assert seen.a.label[i5] != GONE  # B's own images show a surface as high as A's there
+    for o in removed:  # B's images show the ground where they stood
+        i = int(np.flatnonzero(ids_a == o)[0])
+        assert seen.a.label[i] == GONE and seen.a.confidence[i] >= plain.a.confidence[i]
+    kept = np.isin(ids_a, np.setdiff1d(np.arange(65), removed))
+    assert np.mean(seen.a.label[kept] == KEPT) >= 0.95
+    # the shadow moved: no height in either session, so no evidence either way (the segments decide)
+    s = int(np.flatnonzero(ids_a == 65)[0])
+    assert seen.a.confidence[s] == pytest.approx(plain.a.confidence[s], abs=0.05)
+    off = detect_changes(replace(a, images=images_a), replace(b, images=images_b), same_frame,
+                         ChangeParams(surface_evidence=False), 2.0)
+    assert np.array_equal(off.a.label, plain.a.label) and np.array_equal(off.a.confidence, plain.a.confidence)
+
+
+def test_the_ground_field_is_where_the_sweep_starts(scene):
+    positions, sizes, removed, a, ids_a, b, ids_b, images_a, images_b = scene
+    g = ground_height_field(a.positions)
+    assert abs(float(g(45.0, 45.0))) < 1.0
+
+
+def test_keyframe_images_are_read_on_demand_within_a_memory_bound(tmp_path):
+    import cv2
+
+    from sosmatch.database.session_io import KeyframeImages
+    from sosmatch.plugin.errors import InputError
+
+    rng = np.random.default_rng(1)
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), rng.integers(0, 255, (24, 32, 3), dtype=np.uint8))
+    roomy = KeyframeImages(tmp_path, ["f0.png", "f1.png", "f2.png"], [(32, 24)] * 3)
+    tight = KeyframeImages(tmp_path, ["f0.png", "f1.png", "f2.png"], [(32, 24)] * 3, max_bytes=1)
+    for k in (0, 1, 2, 0, 2):
+        assert roomy[k].shape == (24, 32) and np.array_equal(roomy[k], tight[k])
+    assert len(tight._cache) == 1 and len(roomy._cache) == 3
+    with pytest.raises(InputError, match="f1.png.*another session"):
+        KeyframeImages(tmp_path, ["f0.png", "f1.png"], [(32, 24), (64, 48)])[1]
+
