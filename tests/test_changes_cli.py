@@ -171,3 +171,21 @@ def test_python_api_matches_the_command(toy, tmp_path):
     # even a verified alignment is refused when its counterparts are no more frequent than chance
     with pytest.raises(InputError, match="does not bring the maps together"):
         changes.compute(root / "A", root / "B", None, a_from_b=wrong, verified=True)
+
+
+def test_without_the_images_a_warning_and_the_segments_alone(toy, caplog):
+    import logging
+
+    from sosmatch.plugin.params import Params, with_overrides
+    from sosmatch.workflows.changes import compute
+
+    root = toy[0]
+    args = (root / "A", root / "B", root / "AB" / "match.json")
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.changes"):
+        seen = compute(*args)  # the toy maps record no image directory
+    assert "no surface evidence" in caplog.text
+    plain = compute(*args, with_overrides(Params(), {"changes.surface_evidence": False}))
+    for side in ("a", "b"):
+        mine, theirs = getattr(seen.result, side), getattr(plain.result, side)
+        assert np.array_equal(mine.label, theirs.label) and np.array_equal(mine.confidence, theirs.confidence)
+    assert seen.sources["images_a"] == seen.sources["images_b"] == ""
