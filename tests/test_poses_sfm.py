@@ -160,3 +160,43 @@ def test_damaged_metadata_is_warned_about_and_the_images_still_register(flight, 
 def test_without_images_or_with_an_output_inside_the_input(tmp_path):
     with pytest.raises(InputError, match="image directory not found"):
         poses_wf.run(tmp_path / "missing", tmp_path / "out")
+
+
+def test_images_the_incremental_mapper_leaves_out_are_registered_by_the_global_mapper(tmp_path, capsys):
+    """Frames 40 m apart at 80 m with 8 deg of attitude jitter (a fixed wing's survey, as Seneca's turns): COLMAP's
+    incremental mapper grows one model from a seed pair and leaves 3 of 30 images out (Seneca's first 30 frames:
+    18 registered, the rest in three small models). The global mapper on the same matches registers all of them,
+    as close to the truth; without it the images left out are listed with their strongest link."""
+    flight = tmp_path / "F"
+    assert main(["synth", "--out", str(flight), "--frames", "30", "--width", "320", "--height", "240", "--spacing",
+                 "40", "--altitude", "80", "--attitude-jitter", "8", "--line-length", "250", "--geotags", "exif",
+                 "--world-size", "500", "--world-seed", "5", "-q"]) == 0
+    truth, _ = read_poses_csv(flight / "poses.csv")
+    offset = np.array(json.loads((flight / "session.json").read_text())["geo"]["world_to_crs_offset"])
+
+    def errors(out: Path) -> tuple[np.ndarray, np.ndarray]:
+        poses, _ = read_poses_csv(out / "poses.csv")
+        idx = [truth.names.index(n) for n in poses.names]
+        return (np.linalg.norm(poses.centers - (truth.centers[idx] + offset), axis=1),
+                rotation_angle_deg(poses.rotations, truth.rotations[idx]))
+
+    alone = tmp_path / "incremental"
+    assert main(["poses", str(flight / "images"), "--out", str(alone), "--set",
+                 "sfm.global_when_incomplete=false"]) == 0
+    report = json.loads((alone / "poses.json").read_text())
+    left = report["unregistered"]
+    assert left and report["mapper"] == "incremental"
+    assert set(report["unregistered_strongest_link_inliers"]) == set(left)
+    assert any("could not be registered" in w and "inliers with any one of them" in w for w in report["warnings"])
+
+    out = tmp_path / "P"
+    assert main(["poses", str(flight / "images"), "--out", str(out)]) == 0
+    assert "30 of 30 images registered" in capsys.readouterr().out
+    report = json.loads((out / "poses.json").read_text())
+    assert report["mapper"] == "global" and report["incremental_registered"] == 30 - len(left)
+    centres, rotations = errors(out)
+    kept_centres, kept_rotations = errors(alone)
+    print(f"incremental {30 - len(left)} of 30: {np.median(kept_centres):.2f} m, {np.median(kept_rotations):.2f} deg; "
+          f"global 30: {np.median(centres):.2f} m, {np.median(rotations):.2f} deg (median)")
+    assert np.median(centres) < 1.5 * np.median(kept_centres) and centres.max() < 4.0
+    assert np.median(rotations) < 1.5 * np.median(kept_rotations) and rotations.max() < 3.0

@@ -208,6 +208,8 @@ class SfmModel:
     unregistered: list[str]
     other_models: list[list[str]] = field(default_factory=list)  # images of smaller, disconnected models
     seconds: float = 0.0
+    mapper: str = "incremental"  # the mapper whose model this is
+    incremental_registered: int | None = None  # when the global mapper's model replaced the incremental one
 
     def poses(self) -> tuple[list[str], np.ndarray, np.ndarray]:
         """(names, sfm_from_cam rotations (N,3,3), centres (N,3)) of the registered images, sorted by name."""
@@ -234,16 +236,38 @@ def reconstruct(database: Path, image_dir: Path, work_dir: Path, priors: ImagePr
                 seed: int = 0, use_priors: bool = False) -> SfmModel:
     """COLMAP's incremental (or global) mapper on the matched database (`use_priors`: with the pose priors of
     `write_pose_priors` in its bundle adjustments); the largest model is kept and the images of the others are
-    listed. InputError when no model has 3 images."""
+    listed. When the incremental mapper leaves images out and `params.global_when_incomplete`, the global mapper
+    runs on the same matches and its model is kept if it registers more (`SfmModel.mapper` says which).
+    InputError when no model has 3 images."""
+    t0 = time.perf_counter()
+    model = _mapped(database, image_dir, work_dir / params.mapper, priors, params.mapper, seed, use_priors)
+    if model.unregistered and params.mapper == "incremental" and params.global_when_incomplete:
+        log.info("the incremental mapper registered %d of %d images (%d other models): trying COLMAP's global "
+                 "mapper on the same matches", len(model.registered), len(priors.names), len(model.other_models))
+        try:
+            other = _mapped(database, image_dir, work_dir / "global", priors, "global", seed, use_priors)
+        except InputError:
+            other = None
+        if other is not None and len(other.registered) > len(model.registered):
+            log.info("the global mapper registered %d of %d images: its model is taken", len(other.registered),
+                     len(priors.names))
+            other.incremental_registered = len(model.registered)
+            model = other
+    model.seconds = time.perf_counter() - t0
+    return model
+
+
+def _mapped(database: Path, image_dir: Path, work_dir: Path, priors: ImagePriors, mapper: str, seed: int,
+            use_priors: bool) -> SfmModel:
+    """One mapper's largest model (see `reconstruct`)."""
     import pycolmap
 
     _quiet()
-    t0 = time.perf_counter()
     work_dir.mkdir(parents=True, exist_ok=True)
     # One thread: COLMAP's multi-threaded bundle adjustment sums in a scheduling-dependent order, so the poses
     # depended on the machine's core count (and, rarely, on the run): the same photos gave other bytes. The
     # features and matches before it are the same with any thread count and keep them.
-    if params.mapper == "global":
+    if mapper == "global":
         options = pycolmap.GlobalPipelineOptions()
         options.num_threads = 1
         options.random_seed = int(seed % (2**31))
@@ -265,7 +289,29 @@ def reconstruct(database: Path, image_dir: Path, work_dir: Path, priors: ImagePr
     registered = sorted(im.name for im in best.images.values() if im.has_pose)
     others = [sorted(im.name for im in r.images.values() if im.has_pose) for r in recs[1:]]
     unregistered = sorted(set(priors.names) - set(registered))
-    return SfmModel(best, registered, unregistered, others, time.perf_counter() - t0)
+    return SfmModel(best, registered, unregistered, others, mapper=mapper)
+
+
+def strongest_links(database: Path, names: list[str], registered: list[str]) -> dict[str, int]:
+    """Per image of `names`: the most verified (two-view geometry) inlier matches it shares with one image of
+    `registered` (0: none): why an image was left out (COLMAP registers an image on 2D-3D correspondences, at
+    least 30 with its defaults, so a few dozen inliers with the registered images rarely suffice)."""
+    import pycolmap
+
+    db = pycolmap.Database.open(database)
+    try:
+        ids = {im.image_id: im.name for im in db.read_all_images()}
+        pair_ids, counts = db.read_two_view_geometry_num_inliers()
+    finally:
+        db.close()
+    wanted, done = set(names), set(registered)
+    best = dict.fromkeys(names, 0)
+    for pair_id, count in zip(pair_ids, counts):
+        a, b = (ids.get(int(i)) for i in pycolmap.pair_id_to_image_pair(pair_id))
+        for left, other in ((a, b), (b, a)):
+            if left in wanted and other in done:
+                best[left] = max(best[left], int(count))
+    return best
 
 
 def camera_of_model(model: SfmModel) -> dict[int, Any]:

@@ -259,6 +259,12 @@ class SfmParams(Checked):
     exhaustive_up_to: int = count(40, 0)  # without GPS: all pairs up to this many images, else a sequence
     sequential_without_gps: int = count(10, 1)
     mapper: str = one_of("incremental", "incremental", "global")
+    # (ours) when the incremental mapper leaves images out (it grows one model from a seed pair and starts another
+    # where an image's links to it are too weak: Seneca's first 30 frames split into models of 18, 5, 5 and 3 at
+    # the turns), COLMAP's global mapper on the same matches, which solves the whole view graph at once; its model
+    # is kept when it registers more images (Seneca 30: all 30, within 0.81 deg / 0.52 m of the incremental model
+    # on the 18 both hold; BENCHMARKS.md, "The fourth new-user sweep")
+    global_when_incomplete: bool = flag(True)
     # GPS positions as pose priors in COLMAP's bundle adjustment (sigma gps_sigma_m): "auto" = when the heights come
     # from DJI RelativeAltitude, consistent in 3-D; never on a GPS altitude alone, which may drift (COLMAP aligns
     # the block to the priors in 3-D first, and a 50 m drift would tilt it). Measured (BENCHMARKS.md): on a

@@ -146,9 +146,16 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
                          f"(sfm.min_registered_fraction = {sp.min_registered_fraction}); the images may not overlap "
                          "enough or lack texture; `sosmatch poses-from-exif` gives the EXIF/XMP poses instead",
                          image_dir)
+    links: dict[str, int] = {}
     if model.unregistered:
-        warnings.append(f"{len(model.unregistered)} of {n_all} images could not be registered and are left out: "
-                        + _listing(model.unregistered))
+        links = sfm.strongest_links(db, model.unregistered, model.registered)
+        weak = sorted(model.unregistered, key=lambda n: (links[n], n))
+        warnings.append(f"{len(model.unregistered)} of {n_all} images could not be registered and are left out (too "
+                        "few verified matches with the registered images: at most "
+                        f"{max(links.values())} inliers with any one of them"
+                        + (f"; {len(model.other_models)} separate model(s) hold {sum(map(len, model.other_models))} "
+                           "images" if model.other_models else "") + "): "
+                        + _listing([f"{n} ({links[n]})" for n in weak]))
 
     # Georegistration (or a local frame) of the registered images.
     t = time.perf_counter()
@@ -185,6 +192,8 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         "format": "sosmatch-poses", "version": 1,
         "images": n_all, "registered": len(names), "unregistered": model.unregistered,
         "other_models": model.other_models,
+        "mapper": model.mapper, "incremental_registered": model.incremental_registered,
+        "unregistered_strongest_link_inliers": links,
         "epsg": epsg, "crs": f"EPSG:{epsg}" if epsg else "local",
         "points": int(rec.num_points3D()), "reprojection_px": reprojection,
         "cameras": {str(k): {"model": c.model, "width": c.width, "height": c.height, "params": c.params}
