@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -233,3 +234,27 @@ def test_images_turned_by_90_degrees_without_attitude_tags_get_their_headings_fr
     print(f"turned images: course {np.median(rotation_angle_deg(course.poses.rotations, truth_turned)):.1f} deg "
           f"-> solved {np.median(solved):.2f} / {solved.max():.2f} deg (median / max)")
     assert solved.max() < 5.0
+
+
+def test_map_images_reads_each_file_metadata_once(tmp_path, capsys, monkeypatch):
+    """`map --images` without poses: the images' EXIF is read once per file (`read_image_priors`); putting the
+    frames in flight order takes the capture times from there instead of reading every file again."""
+    import sosmatch.database.exif as exif_module
+    import sosmatch.workflows.image_priors as priors_module
+    from sosmatch.workflows.poses_from_exif import map_inputs_from_images
+
+    out = tmp_path / "S"
+    assert main(["synth", "--out", str(out), "--frames", "12", "--width", "320", "--height", "240",
+                 "--geotags", "dji", "--world-size", "400", "--world-seed", "5", "-q"]) == 0
+    capsys.readouterr()
+    reads: list[str] = []
+
+    def counted(path, *args, **kwargs):
+        reads.append(Path(path).name)
+        return read_image_metadata(path, *args, **kwargs)
+
+    monkeypatch.setattr(exif_module, "read_image_metadata", counted)
+    monkeypatch.setattr(priors_module, "read_image_metadata", counted)
+    inputs = map_inputs_from_images(out / "images")
+    assert len(inputs.poses) == 12
+    assert sorted(reads) == sorted(set(reads)) and len(reads) == 12

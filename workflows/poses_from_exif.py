@@ -65,6 +65,7 @@ class ExifPoses:
     # (N,) images without attitude tags, whose headings are the course over ground: a guess the refinement
     # replaces by what the image motion says
     headings_guessed: np.ndarray | None = None
+    capture_times: list[float | None] | None = None  # (N,) EXIF capture times as read (None: the image has none)
 
 
 def poses_from_images(
@@ -103,7 +104,8 @@ def poses_from_images(
         log.warning("%d camera makes/models in one folder: using the first one's intrinsics for all",
                     len(priors.cameras))
     poses = Poses(priors.names, priors.rotations, priors.positions)
-    return ExifPoses(poses, priors.epsg, priors.cameras[0], priors.summary, ~priors.attitude_from_tags)
+    return ExifPoses(poses, priors.epsg, priors.cameras[0], priors.summary, ~priors.attitude_from_tags,
+                     [m.capture_time_s for m in metas])
 
 
 def run(
@@ -182,7 +184,8 @@ def map_inputs_from_images(
         source += (f", orientations of the {guessed} images without attitude tags solved from tie points" if guessed
                    else ", refined from tie points")
     return in_flight_order(MapInputs(_image_paths(images, result.poses), result.poses, result.camera, result.epsg,
-                                     {"poses": source, "camera": f"EXIF of {images}", "images": str(images)}))
+                                     {"poses": source, "camera": f"EXIF of {images}", "images": str(images)}),
+                           result.capture_times)
 
 
 def _image_paths(images: str | Path, poses: Poses) -> list[Path]:

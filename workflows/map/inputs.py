@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -138,15 +139,17 @@ def load_inputs(
     return in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources))
 
 
-def in_flight_order(inputs: MapInputs) -> MapInputs:
+def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | None = None) -> MapInputs:
     """The inputs in the order the frames were taken (`plugin.keyframes.flight_order`): by the images' EXIF
     capture times when every image has one, else as given unless that order is evidently not a flight (then along
     the camera path). Keyframes and tracks follow this order: frames mapped in file-name order when the names do
-    not follow the flight lost two thirds of the landmarks (tracks broken at every jump), without a word."""
+    not follow the flight lost two thirds of the landmarks (tracks broken at every jump), without a word.
+    `capture_times`: each image's capture time (None without one) when the caller has read its EXIF already
+    (`map --images`: `read_image_priors`); else it is read here."""
     from ...database.exif import read_image_metadata
 
-    times = []
-    for path in inputs.image_paths:
+    times = list(capture_times) if capture_times is not None else []
+    for path in inputs.image_paths if capture_times is None else []:
         try:
             times.append(read_image_metadata(path).capture_time_s)
         except InputError:  # an unreadable image is named where its pixels are read (the run resumes from there)
