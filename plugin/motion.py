@@ -168,3 +168,23 @@ def image_motion_stats(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners:
     sigma = max(FALLBACK_MIN_SIGMA_PX, 0.5 * mu)
     logger.debug("only %d LK tracks; phase correlation shift %.1f px (response %.2f)", len(start), mu, response)
     return mu, float(sigma)
+
+
+def views_per_pass(motion_px: np.ndarray, directions_cam: np.ndarray, width: int, height: int) -> float:
+    """How many consecutive keyframes see a ground point on one pass of the flight: the image's extent along the
+    direction of motion (the chord through the centre of the width x height image along it) over the image motion
+    between the keyframes, the median over the steps whose motion was measured (NaN: none was).
+
+    `motion_px` (K,): mu_p of each step (`image_motion_stats`; NaN or <= 0: unknown); `directions_cam` (K, 2): the
+    direction of travel of each step in the camera's image axes (x right, y down; from the poses)."""
+    motion = np.asarray(motion_px, dtype=np.float64)
+    d = np.asarray(directions_cam, dtype=np.float64).reshape(-1, 2)
+    norm = np.linalg.norm(d, axis=1)
+    ok = np.isfinite(motion) & (motion > 0) & (norm > 0)
+    if not ok.any():
+        return float("nan")
+    u = np.abs(d[ok] / norm[ok, None])
+    with np.errstate(divide="ignore"):
+        chord = np.minimum(np.where(u[:, 0] > 0, width / u[:, 0], np.inf),
+                           np.where(u[:, 1] > 0, height / u[:, 1], np.inf))
+    return float(np.median(chord / motion[ok]))

@@ -409,3 +409,20 @@ def test_frames_whose_names_do_not_follow_the_flight_are_mapped_in_flight_order(
     assert any("not listed in flight order" in r.getMessage() for r in caplog.records)
     assert mixed.num_keyframes == summary.num_keyframes
     assert mixed.num_landmarks >= 0.9 * summary.num_landmarks, (mixed.num_landmarks, summary.num_landmarks)
+
+
+def test_a_low_flight_keeps_the_landmarks_its_views_allow(tmp_path, capsys):
+    """40 m above ground with frames 7 m apart, an object is in ~5 keyframes of a pass, so no track could have the
+    6 observations theta_n = 5 asks for: 24 and 31 landmarks on two worlds against 238 and 225 at 100 m. theta_n
+    follows the views (2 here, recorded in run.json), and the landmarks that need it are most of the map."""
+    session = tmp_path / "low"
+    assert main(["synth", "--out", str(session), "--frames", "24", "--width", "320", "--height", "240",
+                 "--altitude", "40", "--world-size", "400", "--world-seed", "5", "-q"]) == 0
+    out = tmp_path / "mapped"
+    assert _cli(capsys, "--poses", session, "--out", out)[0] == 0
+    counts = json.loads((out / "run.json").read_text())["counts"]
+    assert 4.0 < counts["views_per_pass"] < 7.0  # 240 px along the motion, ~44 px per 7 m step
+    assert counts["min_observations"] == 2
+    observations = np.loadtxt(out / "landmarks.csv", delimiter=",", skiprows=1, usecols=6, ndmin=1)
+    print(f"{len(observations)} landmarks, {np.sum(observations > 5)} with more than 5 observations")
+    assert len(observations) >= 3 * max(1, int(np.sum(observations > 5)))

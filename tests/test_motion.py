@@ -161,3 +161,30 @@ def test_motion_through_a_lens_is_measured_in_undistorted_pixels(shift):
     assert sigma_u < 1.0
     assert abs(mu_d - truth) > 2.0 * abs(mu_u - truth) and sigma_d > 2.0 * sigma_u  # the frame mix it replaces
     assert image_motion_stats(a, b, camera=lens.pinhole()) == (mu_d, sigma_d)  # a pinhole changes nothing
+
+
+def test_views_per_pass_is_the_image_extent_along_the_motion_over_the_motion():
+    from sosmatch.plugin.motion import views_per_pass
+
+    forward = np.array([[0.0, -1.0]] * 3)  # image top forward: the motion runs along the 480 px side
+    assert views_per_pass(np.array([88.0, 88.0, np.nan]), forward, 640, 480) == pytest.approx(480 / 88)
+    sideways = np.array([[1.0, 0.0]] * 2)  # a camera turned by 90 degrees: along the 640 px side
+    assert views_per_pass(np.array([80.0, 80.0]), sideways, 640, 480) == pytest.approx(8.0)
+    diagonal = np.array([[1.0, 1.0]])  # the chord through the centre ends on the shorter side's border
+    assert views_per_pass(np.array([10.0]), diagonal, 640, 480) == pytest.approx(480 * np.sqrt(2) / 10)
+    assert np.isnan(views_per_pass(np.array([np.nan, 0.0]), forward[:2], 640, 480))
+
+
+def test_theta_n_follows_the_views_a_flight_gives():
+    """theta_n (5) is at most half the keyframes that see a point on one pass and at least 2: unchanged at 100 m
+    (13.6 views), 3 at 60 m (7.9), 2 at 40 m (5.4) and on a survey (2-3 views); never raised; the paper preset and
+    an unknown image motion keep it."""
+    from sosmatch.plugin.params import Params, for_flight, preset_params
+
+    params = Params()
+    assert for_flight(params, 13.6) is params and for_flight(params, float("nan")) is params
+    assert for_flight(params, 7.9).triangulation.min_observations == 3
+    assert for_flight(params, 5.4).triangulation.min_observations == 2
+    assert for_flight(params, 2.5).triangulation.min_observations == 2
+    paper = preset_params("paper")
+    assert for_flight(paper, 5.4) is paper

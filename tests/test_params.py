@@ -68,7 +68,7 @@ def test_presets_layer_under_config_file_and_set(tmp_path):
 
     # the paper's method differs from the defaults only in how the search forms and solves its graphs, in its
     # fixed tolerances (not derived from the maps' noise) and same-length windows in both maps, in the front end's
-    # track fusion and size estimator and in tracking's ground band gate
+    # track fusion, size estimator and fixed theta_n and in tracking's ground band gate
     paper = preset_params("paper")
     base = Params()
     assert dataclasses.replace(paper, association=base.association, triangulation=base.triangulation,
@@ -79,9 +79,9 @@ def test_presets_layer_under_config_file_and_set(tmp_path):
                                      "association.solver", "association.derive_from_maps",
                                      "association.equal_area_windows",
                                      "triangulation.size_estimator", "triangulation.fuse_radius_factor",
-                                     "tracking.ground_band_sigmas"}
-    assert dataclasses.replace(paper.triangulation, size_estimator="nadir", fuse_radius_factor=2.0) == \
-        Params().triangulation
+                                     "triangulation.min_observations_from_views", "tracking.ground_band_sigmas"}
+    assert dataclasses.replace(paper.triangulation, size_estimator="nadir", fuse_radius_factor=2.0,
+                               min_observations_from_views=True) == Params().triangulation
     survey = preset_params("survey")
     for dotted, value in PRESETS["survey"].items():
         section, key = dotted.split(".")

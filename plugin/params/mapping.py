@@ -140,6 +140,14 @@ class TrackingParams(Checked):
 @dataclass(frozen=True)
 class TriangulationParams(Checked):
     min_observations: int = count(5, 1)  # theta_n: tracks with MORE than this many observations become landmarks
+    # (ours) theta_n at most half the keyframes that see a ground point on one pass (`plugin.motion.views_per_pass`:
+    # the image's extent along the motion over the image motion per keyframe), and never below 2
+    # (`params.for_flight`): the paper's 5 assumes keyframes every 2 m that see an object many times; flying lower,
+    # or with frames further apart, an object is in fewer keyframes (synthetic 640x480, 65 deg, 7 m apart: 5.4 at
+    # 40 m, 13.6 at 100 m; Seneca ~2), and at 40 m no track could have 6 observations on one pass: 24 and 31
+    # landmarks on two worlds against 238 and 225 at 100 m (BENCHMARKS.md, "The fourth new-user sweep"). Off in
+    # the "paper" preset.
+    min_observations_from_views: bool = flag(True)
     pixel_sigma_px: float = positive(3.0)  # sigma: centroid noise used in triangulation and bundle adjustment
     max_reprojection_error_px: float = positive(10.0)  # (ours) landmarks above this mean error are dropped
     # (ours) landmarks seen under a smaller ray angle are dropped

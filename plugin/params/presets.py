@@ -16,7 +16,7 @@ PRESETS: dict[str, dict[str, Any]] = {
               # and the front end as published: every track its own landmark, the mean metric size
               "triangulation.size_estimator": "mean", "triangulation.fuse_radius_factor": 0.0,
               "tracking.ground_band_sigmas": 0.0, "association.derive_from_maps": False,
-              "association.equal_area_windows": False},
+              "association.equal_area_windows": False, "triangulation.min_observations_from_views": False},
     # Photogrammetric survey flights: one frame every 30-40 m (55-75 % forward overlap), ~1200 px images, poses
     # from GPS + autopilot refined by `poses-from-exif --refine`. Measured on Seneca (BENCHMARKS.md, "Seneca end
     # to end"). An object is in only 2-3 frames of a flight line, so a landmark needs 3 observations (theta_n = 2)
@@ -103,3 +103,22 @@ def preset_params(name: str) -> Params:
     if name not in PRESETS:
         raise InputError(f"unknown preset {name!r} (known: {', '.join(sorted(PRESETS))})")
     return with_overrides(Params(), PRESETS[name])
+
+
+# The fewest observations below which theta_n is never lowered (theta_n >= 2: three views, the fewest in which one
+# bad observation shows; the survey preset's measured choice on Seneca, where an object is in 2-3 frames of a line).
+MIN_THETA_N = 2
+
+
+def for_flight(params: Params, views_per_pass: float) -> Params:
+    """`params` with theta_n (`triangulation.min_observations`) at most half of `views_per_pass`, the keyframes
+    that see a ground point on one pass of the flight (`plugin.motion.views_per_pass`), and at least MIN_THETA_N
+    (never raised); the same object when `triangulation.min_observations_from_views` is off or the views are
+    unknown (NaN)."""
+    tri = params.triangulation
+    if not tri.min_observations_from_views or not views_per_pass == views_per_pass:
+        return params
+    theta_n = max(MIN_THETA_N, int(views_per_pass // 2))
+    if theta_n >= tri.min_observations:
+        return params
+    return with_overrides(params, {"triangulation.min_observations": theta_n})

@@ -25,7 +25,7 @@ from ...database.landmark_map import LandmarkMap, write_landmark_map
 from ...database.outputs import OutputDir, fingerprint
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
-from ...plugin.params import Params, for_image, params_to_dict, pixel_scale
+from ...plugin.params import Params, for_flight, for_image, params_to_dict, pixel_scale
 from .inputs import MapInputs, hash_json, image_digests, in_flight_order, input_fingerprints, input_paths
 from .keyframes import CACHE_VERSION, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
@@ -85,6 +85,18 @@ def _versions() -> dict[str, str]:
 
     return {"sosmatch": __version__, "python": platform.python_version(), "numpy": np.__version__,
             "scipy": scipy.__version__, "opencv": cv2.__version__, "pycolmap": pycolmap.__version__}
+
+
+def flight_views(kf_poses: Any, motion: list[tuple[float, float]], camera: Any) -> float:
+    """`plugin.motion.views_per_pass` of the keyframes: each step's image motion (mu_p) and its direction of
+    travel in the earlier keyframe's image axes (from the poses)."""
+    from ...plugin.motion import views_per_pass
+
+    if len(kf_poses) < 2:
+        return float("nan")
+    steps = np.diff(kf_poses.centers, axis=0)
+    in_cam = np.einsum("kji,kj->ki", kf_poses.rotations[:-1], steps)  # R^T (C_k+1 - C_k)
+    return views_per_pass(np.array([m[0] for m in motion[1:]]), in_cam[:, :2], camera.width, camera.height)
 
 
 def map_origin(positions: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
@@ -202,6 +214,13 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     gate_camera = camera.pinhole()
     gate_features = [undistort_features(f, camera) for f in features]
     tracking = track_masks(gate_features, gate_camera, kf_poses, motion, params.tracking)
+    views = flight_views(kf_poses, motion, camera)
+    flown = for_flight(params, views)
+    if flown is not params:
+        log.info("an object is in %.1f keyframes of a pass: a landmark needs more than %d observations (theta_n %d "
+                 "is more than half of them)", views, flown.triangulation.min_observations,
+                 params.triangulation.min_observations)
+        params = flown
     timings["tracking"] = time.perf_counter() - t
     stages.update()
     stages.set_description("database")
@@ -259,6 +278,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "database_pairs": db_summary.num_pairs, "database_matches": db_summary.num_matches,
         "matches_rejected_epipolar": rejected, "landmarks": len(landmarks), "map_bytes": map_bytes,
         "keyframes_from_cache": cached,
+        "views_per_pass": round(views, 2) if np.isfinite(views) else None,
+        "min_observations": params.triangulation.min_observations,
         **{f"points_{k}": v for k, v in landmarks.counts.items()},
     }
     summary = MapSummary(out.path, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
