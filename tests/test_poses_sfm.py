@@ -193,7 +193,9 @@ def test_images_the_incremental_mapper_leaves_out_are_registered_by_the_global_m
     assert main(["poses", str(flight / "images"), "--out", str(out)]) == 0
     assert "30 of 30 images registered" in capsys.readouterr().out
     report = json.loads((out / "poses.json").read_text())
-    assert report["mapper"] == "global" and report["incremental_registered"] == 30 - len(left)
+    assert report["mapper"] == "global" and len(report["incremental_registered"]) == 30 - len(left)
+    assert report["registered_only_by_global_mapper"] == sorted(left)
+    assert any("registered only by COLMAP's global mapper" in w for w in report["warnings"])
     centres, rotations = errors(out)
     kept_centres, kept_rotations = errors(alone)
     print(f"incremental {30 - len(left)} of 30: {np.median(kept_centres):.2f} m, {np.median(kept_rotations):.2f} deg; "

@@ -209,7 +209,8 @@ class SfmModel:
     other_models: list[list[str]] = field(default_factory=list)  # images of smaller, disconnected models
     seconds: float = 0.0
     mapper: str = "incremental"  # the mapper whose model this is
-    incremental_registered: int | None = None  # when the global mapper's model replaced the incremental one
+    # the images the incremental mapper registered, when the global mapper's model replaced its model
+    incremental_registered: list[str] | None = None
 
     def poses(self) -> tuple[list[str], np.ndarray, np.ndarray]:
         """(names, sfm_from_cam rotations (N,3,3), centres (N,3)) of the registered images, sorted by name."""
@@ -251,7 +252,7 @@ def reconstruct(database: Path, image_dir: Path, work_dir: Path, priors: ImagePr
         if other is not None and len(other.registered) > len(model.registered):
             log.info("the global mapper registered %d of %d images: its model is taken", len(other.registered),
                      len(priors.names))
-            other.incremental_registered = len(model.registered)
+            other.incremental_registered = model.registered
             model = other
     model.seconds = time.perf_counter() - t0
     return model

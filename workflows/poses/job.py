@@ -169,6 +169,14 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     poses = Poses(names, world_r, world_c)
     timings["georegistration"] = time.perf_counter() - t
 
+    if model.incremental_registered is not None:
+        # weakly tied to the rest (the incremental mapper could not add them): said, and where the GPS disagrees
+        added = sorted(set(model.registered) - set(model.incremental_registered))
+        off = [n for n in (geo_report or {}).get("gps_outliers", []) if n in added]
+        warnings.append(f"{len(added)} of {n_all} images were registered only by COLMAP's global mapper (the "
+                        "incremental mapper left them out: weakly tied to the others)"
+                        + (f", {len(off)} of them off their GPS fix by more than the outlier limit ({_listing(off)})"
+                           if off else "") + ": " + _listing(added))
     comparison = _compare(priors, index, poses, warnings)
     cameras = sfm.camera_of_model(model)
     _check_focal_lengths(priors, cameras, warnings)
@@ -193,6 +201,8 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         "images": n_all, "registered": len(names), "unregistered": model.unregistered,
         "other_models": model.other_models,
         "mapper": model.mapper, "incremental_registered": model.incremental_registered,
+        "registered_only_by_global_mapper": sorted(set(model.registered) - set(model.incremental_registered))
+        if model.incremental_registered is not None else [],
         "unregistered_strongest_link_inliers": links,
         "epsg": epsg, "crs": f"EPSG:{epsg}" if epsg else "local",
         "points": int(rec.num_points3D()), "reprojection_px": reprojection,
