@@ -129,6 +129,16 @@ def read_map_record(map_dir: str | Path) -> dict | None:
     return record
 
 
+def map_min_observations(map_dir: str | Path) -> int | None:
+    """theta_n (`triangulation.min_observations`) the map in MAP_DIR was made with: run.json's
+    counts.min_observations, which the flight's views may have lowered below the configured one
+    (`params.for_flight`); None for maps without it (merged models, older runs: the configured one is the best
+    guess). A landmark there needed more than this many observations. InputError naming run.json when it is
+    unreadable."""
+    value = ((read_map_record(map_dir) or {}).get("counts") or {}).get("min_observations")
+    return value if isinstance(value, int) and not isinstance(value, bool) and value >= 1 else None
+
+
 def check_session_usable(path: str | Path) -> None:
     """InputError when `sosmatch map` refused the session directory `path` (run.json's verdict): its map is
     implausible or empty and no later stage may use it. Directories without a verdict (merged models, older
@@ -308,7 +318,7 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
     images = None if images_dir is None else KeyframeImages(Path(images_dir), poses.names,
                                                              [(c.width, c.height) for c in cams])
     return SessionObservations(lmap.positions, lmap.sizes.astype(np.float64), poses, cams, segments, support,
-                               tracks, images)
+                               tracks, images, map_min_observations(session.path))
 
 
 def _unmapped_tracks(session: SessionFiles, database: Path, names: list[str], segments: tuple) -> tuple:

@@ -189,3 +189,29 @@ def test_without_the_images_a_warning_and_the_segments_alone(toy, caplog):
         mine, theirs = getattr(seen.result, side), getattr(plain.result, side)
         assert np.array_equal(mine.label, theirs.label) and np.array_equal(mine.confidence, theirs.confidence)
     assert seen.sources["images_a"] == seen.sources["images_b"] == ""
+
+
+def test_a_session_whose_flight_lowered_theta_n_is_compared_where_it_could_have_mapped_a_landmark(toy, tmp_path,
+                                                                                                  capsys):
+    """`sosmatch map` lowers theta_n where the flight's views allow fewer (run.json counts.min_observations,
+    `params.for_flight`): a session mapped with theta_n 2 made landmarks from 3 views, so A's landmarks its
+    keyframes saw 3-5 times are compared (changes.min_views 6 is the default theta_n 5 + 1), the others as before."""
+    root = toy[0]
+    low = tmp_path / "root"
+    shutil.copytree(root, low)
+    (low / "B" / "run.json").write_text(json.dumps({"counts": {"min_observations": 2}}))
+    tables = []
+    for base, out in ((root, tmp_path / "configured"), (low, tmp_path / "lowered")):
+        assert run([base / "A", base / "B", "--match", base / "AB" / "match.json", "--out", out], capsys)[0] == 0
+        rows = read_changes_csv(out / "changes.csv")
+        tables.append(rows[(rows["session"] == "A") & (rows["source"] == "landmark")])
+    configured, lowered = tables
+    assert np.array_equal(configured["views"], lowered["views"])  # B's keyframes seeing each of A's landmarks
+    few = (configured["views"] >= 3) & (configured["views"] < 6)
+    print(f"{np.sum(few)} of A's landmarks in 3-5 of B's keyframes; unseen {np.sum(configured['class'] == 'unseen')}"
+          f" -> {np.sum(lowered['class'] == 'unseen')}")
+    assert np.sum(few) >= 3
+    assert np.all(configured["evidence"][few] == "views")
+    assert not np.any(lowered["evidence"][few] == "views")
+    assert np.all(lowered["evidence"][configured["views"] < 3] == "views")
+    assert np.mean(lowered["class"][few] == "unseen") < 0.5

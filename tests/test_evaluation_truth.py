@@ -59,6 +59,27 @@ def test_eligible_objects_need_both_sessions_and_enough_keyframes():
     assert got.tolist() == [2]
 
 
+def test_each_map_makes_objects_eligible_by_the_theta_n_its_flight_allowed(tmp_path):
+    """`sosmatch map` lowers theta_n where the flight's views allow fewer (run.json counts.min_observations): such a
+    map made landmarks of objects in 3 keyframes, so those objects are eligible there; a map without the record
+    (a merged model, an older run) keeps the configured theta_n."""
+    import json
+
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows.evaluate.truth import keyframes_for_a_landmark
+
+    low, old = tmp_path / "low", tmp_path / "old"
+    low.mkdir()
+    old.mkdir()
+    (low / "run.json").write_text(json.dumps({"counts": {"min_observations": 2, "views_per_pass": 5.3}}))
+    (old / "run.json").write_text(json.dumps({"counts": {"landmarks": 10}}))
+    params = Params()
+    least = [keyframes_for_a_landmark(params, m) for m in (low, old)]
+    assert least == [3, params.triangulation.min_observations + 1]
+    got = eligible_objects(np.array([1, 2, 3]), np.array([1, 2, 3]), {1: 3, 2: 6, 3: 4}, {1: 6, 2: 6, 3: 5}, *least)
+    assert got.tolist() == [1, 2]  # 3 is in 5 keyframes of the old map: too few for a landmark there
+
+
 def test_oracle_recall_counts_the_keyframe_pairs_common_landmarks_vouch_for():
     # 3 keyframes per session; landmark i of A seen in keyframe i, landmark j of B in keyframe j
     obs_a = observer_matrix([[0], [1], [2]], 3)

@@ -49,6 +49,9 @@ class SessionObservations:
     # the keyframes' images as grey arrays, in keyframe order (a sequence that may read them on demand; an item
     # None where unreadable); None: not available, the surface evidence is then off (`surface`)
     images: Sequence[np.ndarray | None] | None = None
+    # theta_n the session's map was made with (run.json; the flight's views may have lowered the configured one,
+    # `params.for_flight`); None: unknown, changes.min_views alone decides (`views_needed`)
+    min_observations: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "positions", np.asarray(self.positions, dtype=np.float64).reshape(-1, 3))
@@ -65,6 +68,12 @@ class SessionObservations:
             raise ValueError(f"{len(self.poses)} keyframes but {len(self.images)} images")
         if self.support is not None and len(self.support) != len(self.positions):
             raise ValueError(f"{len(self.positions)} landmarks but {len(self.support)} support values")
+
+    def views_needed(self, min_views: int) -> int:
+        """How many of this session's keyframes must see a place for it to be compared: `min_views`
+        (changes.min_views, theta_n + 1), at most one more than the theta_n this session's map was made with: a
+        flight whose views lowered theta_n mapped landmarks from fewer views, so fewer views could have mapped one."""
+        return min_views if self.min_observations is None else min(min_views, self.min_observations + 1)
 
     def transformed(self, t: Sim3) -> SessionObservations:
         """The same session in another frame (x' = s R x + t): landmarks, sizes and camera poses moved; pixels

@@ -45,7 +45,7 @@ def alignment_support(a: SessionObservations, b_in_a: SessionObservations, gate_
     CONTROL_SHIFT x the gate in 6 directions (a control: the same maps, no true pairs). A wrong transform (an
     accepted match of the wrong place, a mirrored map) gives as many counterparts as the control."""
     seen, _, _ = in_view(a.positions, a.sizes, b_in_a.poses, b_in_a.cameras)
-    compared = np.flatnonzero(seen.sum(0) >= params.min_views)
+    compared = np.flatnonzero(seen.sum(0) >= b_in_a.views_needed(params.min_views))
     pa, ha = a.positions[compared], a.sizes[compared]
 
     def matched(shift: np.ndarray) -> int:

@@ -186,7 +186,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     n = len(own_pos)
     seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
     views = seen.sum(0)
-    compared = views >= params.min_views
+    compared = views >= other.views_needed(params.min_views)
     if deep is not None:
         compared &= ~deep
     index, _ = counterparts(own_pos, own_h, other_pos, other_h, gate_m, params.max_size_difference,
@@ -256,7 +256,7 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
                                         theirs.established), -1)
     label = np.full(n, UNSEEN, dtype=object)
     evidence = np.full(n, TOO_FEW_VIEWS, dtype=object)
-    evidence[(views >= params.min_views) & ~compared] = BELOW_GROUND
+    evidence[(views >= other.views_needed(params.min_views)) & ~compared] = BELOW_GROUND
     direct = compared & ((index >= 0) | (holder >= 0))
     label[direct] = KEPT
     evidence[index >= 0] = BY_LANDMARK
@@ -380,7 +380,7 @@ def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direc
     nothing = np.zeros((0, 3))
     shown = _direct(objs.positions, objs.sizes, own, nothing, nothing[:, 0], gate_m, params,
                     (own.positions, own.sizes))
-    keep = np.flatnonzero(shown.by_segments & (shown.hits >= params.min_views))
+    keep = np.flatnonzero(shown.by_segments & (shown.hits >= own.views_needed(params.min_views)))
     objs, heights = objs.subset(keep), heights[keep]
     reference = mine.compared & (mine.index >= 0)
     direct = _direct(objs.positions, objs.sizes, other, other.positions, other.sizes, gate_m, params,

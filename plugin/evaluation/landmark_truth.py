@@ -148,12 +148,14 @@ def common_landmarks(objects_a: LandmarkObjects, objects_b: LandmarkObjects, pos
 
 
 def eligible_objects(present_a: np.ndarray, present_b: np.ndarray, seen_a: dict[int, int], seen_b: dict[int, int],
-                     min_keyframes: int) -> np.ndarray:
-    """Object ids present in both sessions and seen in at least `min_keyframes` keyframes of each.
+                     min_keyframes_a: int, min_keyframes_b: int | None = None) -> np.ndarray:
+    """Object ids present in both sessions and seen in at least `min_keyframes_a` keyframes of A and
+    `min_keyframes_b` (None: the same) of B (each map's theta_n + 1: the flights may allow different ones).
 
     `present_*`: ids present in the session; `seen_*`: id -> number of keyframes showing it."""
+    least_b = min_keyframes_a if min_keyframes_b is None else min_keyframes_b
     both = np.intersect1d(np.asarray(present_a, np.int64), np.asarray(present_b, np.int64))
-    ok = [int(o) for o in both if seen_a.get(int(o), 0) >= min_keyframes and seen_b.get(int(o), 0) >= min_keyframes]
+    ok = [int(o) for o in both if seen_a.get(int(o), 0) >= min_keyframes_a and seen_b.get(int(o), 0) >= least_b]
     return np.asarray(ok, dtype=np.int64)
 
 

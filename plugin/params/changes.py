@@ -21,7 +21,9 @@ class ChangeParams(Checked):
 
     # A landmark is compared only where the other session's keyframes should have seen it (projected inside the
     # image with its own extent as margin) at least this often: theta_n + 1, the fewest observations a landmark
-    # can have (`triangulation.min_observations`), so fewer views could not have mapped it at all.
+    # can have (`triangulation.min_observations`), so fewer views could not have mapped it at all. At most one more
+    # than the theta_n the viewing session's map was made with (run.json; `map` lowers it where the flight's views
+    # allow fewer: `SessionObservations.views_needed`).
     min_views: int = count(6, 1)
     # counterpart gate = this x theta_eps (`association.distance_tolerance_m`), distance in x, y and z_weight x z.
     # theta_eps is the landmark scatter the association already allows (2 m on drone maps, 10 m in the aerial

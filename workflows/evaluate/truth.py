@@ -9,12 +9,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ...database.session_io import read_map_record
+from ...database.session_io import map_min_observations, read_map_record
 from ...plugin.params import Params
 
 
 def has_object_truth(session: Path) -> bool:
     return all((session / f).exists() for f in ("objects.csv", "frames.json", "labels"))
+
+
+def keyframes_for_a_landmark(params: Params, map_dir: Path) -> int:
+    """The fewest keyframes in which the map at MAP_DIR could make a landmark of an object: one more than the theta_n
+    it was made with (run.json, lowered by its flight's views where `params.for_flight` did), else than the
+    configured one (maps without the record)."""
+    return (map_min_observations(map_dir) or params.triangulation.min_observations) + 1
 
 
 def landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Path, map_b: Path, sos: dict,
@@ -37,8 +44,9 @@ def landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Path
     t0 = time.perf_counter()
     synth = [load_synth_session(s) for s in (session_a, session_b)]
     seen, segmented = [], []
-    min_keyframes = params.triangulation.min_observations + 1
-    for s, m in zip(synth, (map_a, map_b)):
+    # an object is eligible when each map's keyframes saw it often enough to make a landmark there
+    min_keyframes = [keyframes_for_a_landmark(params, m) for m in (map_a, map_b)]
+    for s, m, least in zip(synth, (map_a, map_b), min_keyframes):
         record = read_map_record(m)
         names = None if record is None else record["keyframes"]
         keyframes = None if names is None else set(names)
@@ -50,10 +58,10 @@ def landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Path
         seen.append(counts)
         # which objects the segmenter found often enough (every mask, from the map's database), where it exists
         has_db = names is not None and (m / "database.db").is_file()
-        segmented.append(segmented_objects(segment_objects(m, s.path / "labels", names), min_keyframes)
+        segmented.append(segmented_objects(segment_objects(m, s.path / "labels", names), least)
                          if has_db else None)
     present = [s.present_objects()["id"] for s in synth]
-    eligible = eligible_objects(present[0], present[1], seen[0], seen[1], min_keyframes)
+    eligible = eligible_objects(present[0], present[1], seen[0], seen[1], *min_keyframes)
     kind_of = {int(o["id"]): str(o["kind"]) for s in synth for o in s.objects}
     objs = [majority_objects(landmark_observed_objects(m, s.path / "labels")) for s, m in zip(synth, (map_a, map_b))]
     (pa, pb), (ha, hb) = sos["positions"], sos["sizes"]
