@@ -333,3 +333,42 @@ def test_a_group_with_a_georeferenced_session_is_merged_in_its_frame(flights, tm
     assert np.allclose(rec.find_image_with_name(f"A/{img.name}").projection_center(),
                        c_from_a.apply(img.projection_center()), atol=0.5)
     assert export(tmp_path / "out" / "merged" / "C", csv_out=tmp_path / "m.csv")["epsg"] == 32632
+
+
+def test_the_report_says_how_far_each_pair_s_transform_moves_b_s_landmarks(flights, local_run):
+    """pairs.csv: the median and max of |T(p) - p| over B's landmarks, against the truth; the translation of
+    a_from_b is the move of the origin, which B's 35 deg turn about a point ~100 m from the data makes another
+    figure entirely."""
+    import csv
+
+    from sosmatch.database.landmark_map import read_landmark_map
+
+    root, truth = flights
+    out, _ = local_run
+    rows = {r["pair"]: r for r in csv.DictReader((out / "pairs.csv").open())}
+    assert "shift_m" not in rows["A__B"]
+    for key in ("A__B", "B__C"):
+        a, b = key.split("__")
+        a_from_b = truth[a].compose(truth[b].inverse())
+        moved = a_from_b.displacement(read_landmark_map(root / b / "landmarks.sosmap").positions)
+        got = float(rows[key]["moved_median_m"]), float(rows[key]["moved_max_m"])
+        print(key, got, "median, max m; |t| of a_from_b", np.linalg.norm(a_from_b.translation))
+        assert abs(got[0] - np.median(moved)) < 0.3 and abs(got[1] - moved.max()) < 0.5
+        assert abs(np.linalg.norm(a_from_b.translation) - got[0]) > 5.0  # the origin's move is not the landmarks'
+    assert rows["A__D"]["moved_median_m"] == ""  # no accepted transform: nothing moves
+
+
+def test_displacement_is_how_far_the_points_move_not_the_origin():
+    """A 2.7 deg roll about a point 300 m from the origin (the nu5 sweep's tilted one-line map) translates the
+    origin 14 m; the landmarks within 30 m of that point move at most 30 m x 2 sin(1.35 deg) = 1.4 m."""
+    angle = np.radians(2.7)
+    roll = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]])
+    centre = np.array([0.0, 300.0, 0.0])
+    t = Sim3(roll, centre - roll @ centre)
+    rng = np.random.default_rng(3)
+    points = centre + rng.uniform(-20.0, 20.0, (50, 3))
+    moved = t.displacement(points)
+    assert moved.shape == (50,) and moved.max() <= 2 * 30.0 * np.sin(angle / 2)
+    assert np.allclose(moved, np.linalg.norm(t.apply(points) - points, axis=1))
+    assert np.linalg.norm(t.translation) > 10.0 * np.median(moved)
+    assert np.allclose(Sim3(np.eye(3), [3.0, 4.0, 0.0]).displacement(points), 5.0)

@@ -64,7 +64,27 @@ def _table(rows: list[dict[str, Any]], columns: list[str]) -> str:
     return "\n".join(lines)
 
 
+def _landmark_positions(session_dir: str | Path | None) -> np.ndarray | None:
+    """A session's landmark positions (landmarks.sosmap), None when it cannot be read."""
+    from ...database.landmark_map import read_landmark_map
+    from ...plugin.errors import InputError
+
+    if session_dir is None:
+        return None
+    try:
+        return read_landmark_map(Path(session_dir) / "landmarks.sosmap").positions
+    except (InputError, OSError):
+        return None
+
+
 def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
+    """Each pair's record with its transform a_from_b summarised: yaw about z, scale, and how far it moves B's
+    landmarks (median and max of |T(p) - p| over them, `Sim3.displacement`: the translation alone is the move of
+    the origin, which a small turn far from the data makes large)."""
+    from ...plugin.multisession import Sim3
+
+    where = {s["name"]: s.get("session") for s in report.sessions}
+    positions: dict[str, np.ndarray | None] = {}
     rows = []
     for p in report.pairs:
         row = dict(p)
@@ -72,15 +92,21 @@ def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
         if t:
             rot = np.asarray(t["rotation"])
             row["yaw_deg"] = round(float(np.degrees(np.arctan2(rot[1, 0], rot[0, 0]))), 3)
-            row["shift_m"] = round(float(np.linalg.norm(t["translation"])), 3)
             row["scale"] = round(float(t["scale"]), 5)
+            b = p.get("b")
+            if b not in positions:
+                positions[b] = _landmark_positions(where.get(b))
+            if positions[b] is not None and len(positions[b]):
+                moved = Sim3.from_dict(t).displacement(positions[b])
+                row["moved_median_m"] = round(float(np.median(moved)), 3)
+                row["moved_max_m"] = round(float(moved.max()), 3)
         rows.append(row)
     return rows
 
 
 SESSION_COLUMNS = ["name", "kind", "status", "images", "points3D", "landmarks", "seconds", "error"]
-PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "yaw_deg", "shift_m", "scale", "gone",
-                "new", "kept", "unseen", "seconds", "error"]
+PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "yaw_deg", "moved_median_m",
+                "moved_max_m", "scale", "gone", "new", "kept", "unseen", "seconds", "error"]
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]
 
 
@@ -96,8 +122,8 @@ def write_report(report: BatchReport) -> None:
         f"{len(report.sessions)} sessions, {len(report.pairs)} pairs, {len(report.groups)} groups; {status}; "
         f"executor: {report.executor}; {report.seconds:.1f} s", "",
         "## Sessions", "", _table(report.sessions, SESSION_COLUMNS), "",
-        "## Pairs", "", "(transform a_from_b: yaw about z, length of the translation, scale; landmarks gone from A, "
-        "new in B, kept (of A) and unseen by the other session: pairs/A__B/changes/)", "",
+        "## Pairs", "", "(transform a_from_b: yaw about z, how far it moves B's landmarks (median, max m), scale; "
+        "landmarks gone from A, new in B, kept (of A) and unseen by the other session: pairs/A__B/changes/)", "",
         _table(pair_rows, PAIR_COLUMNS), "",
         "## Groups (merged models)", "", _table(groups, GROUP_COLUMNS), "",
         "![session graph](session_graph.png)", "",
