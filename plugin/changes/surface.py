@@ -14,7 +14,6 @@ Pure numpy: the images come in as a sequence of grey arrays per keyframe (read o
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,23 +27,10 @@ REFERENCE_LIMIT = 200  # reference places (evenly spaced) for the calibration: b
 SWEEP_STEP_M = 0.5
 SWEEP_BELOW_M = 3.0  # below the local ground (its estimate from the landmarks is coarse)
 SWEEP_ABOVE_M = 30.0  # above it: taller than any tree or building of a survey
-GROUND_BAND_M = 1.0
 REGISTER_HALF_M = 10.0  # half width of the ground window that registers the views to one another
 REGISTER_HOLE_M = 5.0  # the window's centre left out (an object at the place: scope objects have radius <= 6 m)
 REGISTER_CELL_M = 0.4
 REGISTER_SLACK_M = 2.0  # how far one keyframe's map pose may put the ground from where another puts it
-
-
-@dataclass(frozen=True)
-class SurfaceHeights:
-    """Per place: the best-agreeing height (NaN where fewer than two views saw the whole sweep), the agreement
-    there (-1..1) and its margin over the median agreement of all heights (how peaked the sweep is)."""
-
-    z: np.ndarray
-    agreement: np.ndarray
-    peak: np.ndarray
-    ground: np.ndarray  # the best agreement within GROUND_BAND_M of the local ground: is the ground seen there
-    views: np.ndarray  # number of views used
 
 
 def spread_views(inside: np.ndarray, centers: np.ndarray, off_centre: np.ndarray, count: int) -> np.ndarray:
@@ -218,57 +204,43 @@ def sweep_views(points: np.ndarray, half_m: np.ndarray, ground_z: np.ndarray, po
     return spread_views(inside, poses.centers, off, views)
 
 
-def sweep_curves(points: np.ndarray, halves: Sequence[np.ndarray], ground_z: np.ndarray,
+def sweep_curves(points: np.ndarray, half_m: np.ndarray, ground_z: np.ndarray,
                  images: Sequence[np.ndarray | None], poses: Poses, cameras: Sequence[Camera],
-                 views: int = 6) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
-    """The sweep of every point for each patch size in `halves` (half widths per point): the levels relative
-    to the local ground (L,), per size an (N, L) agreement (smoothed over neighbouring levels; NaN rows where
-    fewer than two views), and the views used per point."""
+                 views: int = SWEEP_VIEWS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sweep of every point with a patch of half width `half_m` (per point, at least MIN_PATCH_HALF_M) in
+    the `views` keyframes that see it from the most different directions: the levels relative to the local
+    ground (L,), the (N, L) agreement (smoothed over neighbouring levels; NaN rows where fewer than two views),
+    and the views used per point."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = len(p)
     g = np.asarray(ground_z, dtype=np.float64).reshape(-1)
-    halves = [np.maximum(np.nan_to_num(np.asarray(h, dtype=np.float64) * np.ones(n), nan=MIN_PATCH_HALF_M),
-                         MIN_PATCH_HALF_M) for h in halves]
-    chosen = sweep_views(p, np.max(halves, axis=0), g, poses, cameras, views)
+    half = np.maximum(np.nan_to_num(np.asarray(half_m, dtype=np.float64) * np.ones(n), nan=MIN_PATCH_HALF_M),
+                      MIN_PATCH_HALF_M)
+    chosen = sweep_views(p, half, g, poses, cameras, views)
     rel = sweep_levels(0.0)
-    curves = [np.full((n, len(rel)), np.nan) for _ in halves]
+    curve = np.full((n, len(rel)), np.nan)
     used = np.zeros(n, dtype=np.int64)
     for i in range(n):
         kept, offsets = register_views(p[i, :2], float(g[i]), chosen[:, i], images, poses, cameras)
-        for c, half in zip(curves, halves):
-            score, used[i] = sweep_agreement(p[i, :2], float(half[i]), g[i] + rel, kept, images, poses, cameras,
-                                             offsets)
-            if used[i] >= 2:
-                c[i] = np.convolve(np.pad(score, 1, mode="edge"), [0.25, 0.5, 0.25], mode="valid")
-    return rel, curves, used
-
-
-def surface_heights(points: np.ndarray, half_m: np.ndarray, ground_z: np.ndarray, images: Sequence[np.ndarray | None],
-                    poses: Poses, cameras: Sequence[Camera], views: int = 6) -> SurfaceHeights:
-    """The surface height at each point's (x, y) from one session's keyframes (`images` grey arrays, one per
-    keyframe, None where unavailable): the sweep (`sweep_curves`) from the local ground (`ground_z` per point)
-    in the `views` keyframes that see it from the most different directions."""
-    g = np.asarray(ground_z, dtype=np.float64).reshape(-1)
-    rel, (curve,), used = sweep_curves(points, [half_m], g, images, poses, cameras, views)
-    ok = np.all(np.isfinite(curve), axis=1)
-    best = np.argmax(np.where(ok[:, None], curve, -np.inf), axis=1)
-    at = curve[np.arange(len(g)), best]
-    z = np.where(ok, g + rel[best], np.nan)
-    peak = at - np.median(curve, axis=1)
-    ground = np.max(np.where(np.abs(rel) <= GROUND_BAND_M, curve, -np.inf), axis=1)
-    return SurfaceHeights(z, np.where(ok, at, np.nan), peak, np.where(ok, ground, np.nan), used)
+        score, used[i] = sweep_agreement(p[i, :2], float(half[i]), g[i] + rel, kept, images, poses, cameras, offsets)
+        if used[i] >= 2:
+            curve[i] = np.convolve(np.pad(score, 1, mode="edge"), [0.25, 0.5, 0.25], mode="valid")
+    return rel, curve, used
 
 
 def heights_above_ground(points: np.ndarray, ground_z: np.ndarray, images: Sequence[np.ndarray | None] | None,
                          poses: Poses, cameras: Sequence[Camera], views: int = SWEEP_VIEWS) -> np.ndarray:
-    """The surface height above the local ground at each point's (x, y) in one session (`surface_heights` with
-    a PATCH_HALF_M patch; the views are registered on the ground around the place, so the height is relative to
-    it). NaN where fewer than two views hold the sweep, or without images."""
+    """The surface height above the local ground at each point's (x, y) in one session: the best-agreeing level
+    of the sweep (`sweep_curves`, a PATCH_HALF_M patch; the views are registered on the ground around the place,
+    so the height is relative to it). NaN where fewer than two views hold the sweep, or without images."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if images is None or not len(p):
         return np.full(len(p), np.nan)
     g = np.asarray(ground_z, dtype=np.float64).reshape(-1)
-    return surface_heights(p, np.full(len(p), PATCH_HALF_M), g, images, poses, cameras, views).z - g
+    rel, curve, _ = sweep_curves(p, np.full(len(p), PATCH_HALF_M), g, images, poses, cameras, views)
+    ok = np.all(np.isfinite(curve), axis=1)
+    best = np.argmax(np.where(ok[:, None], curve, -np.inf), axis=1)
+    return np.where(ok, g + rel[best], np.nan) - g
 
 
 def _height_scale(h: np.ndarray) -> np.ndarray:
