@@ -274,8 +274,8 @@ def session_images_dir(session: str | Path | SessionFiles, images_dir: str | Pat
     path = session.path if isinstance(session, SessionFiles) else Path(session)
     if images_dir is None:
         try:
-            recorded = json.loads((path / "run.json").read_text(encoding="utf-8"))["inputs"]["images"]
-        except (OSError, ValueError, KeyError, TypeError, RecursionError):
+            recorded = ((read_map_record(path) or {}).get("inputs") or {}).get("images")
+        except (InputError, AttributeError):  # unreadable, or "inputs" not an object: no images known
             return None
         if not isinstance(recorded, str) or not Path(recorded).is_dir():
             return None
