@@ -212,6 +212,14 @@ class SfmModel:
     # the images the incremental mapper registered, when the global mapper's model replaced its model
     incremental_registered: list[str] | None = None
 
+    @property
+    def registered_only_by_global_mapper(self) -> list[str]:
+        """The images only the global mapper registered (weakly tied to the rest), sorted; empty when the
+        incremental mapper's model was kept."""
+        if self.incremental_registered is None:
+            return []
+        return sorted(set(self.registered) - set(self.incremental_registered))
+
     def poses(self) -> tuple[list[str], np.ndarray, np.ndarray]:
         """(names, sfm_from_cam rotations (N,3,3), centres (N,3)) of the registered images, sorted by name."""
         rec = self.reconstruction

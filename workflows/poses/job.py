@@ -171,7 +171,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
 
     if model.incremental_registered is not None:
         # weakly tied to the rest (the incremental mapper could not add them): said, and where the GPS disagrees
-        added = sorted(set(model.registered) - set(model.incremental_registered))
+        added = model.registered_only_by_global_mapper
         off = [n for n in (geo_report or {}).get("gps_outliers", []) if n in added]
         warnings.append(f"{len(added)} of {n_all} images were registered only by COLMAP's global mapper (the "
                         "incremental mapper left them out: weakly tied to the others)"
@@ -201,8 +201,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         "images": n_all, "registered": len(names), "unregistered": model.unregistered,
         "other_models": model.other_models,
         "mapper": model.mapper, "incremental_registered": model.incremental_registered,
-        "registered_only_by_global_mapper": sorted(set(model.registered) - set(model.incremental_registered))
-        if model.incremental_registered is not None else [],
+        "registered_only_by_global_mapper": model.registered_only_by_global_mapper,
         "unregistered_strongest_link_inliers": links,
         "epsg": epsg, "crs": f"EPSG:{epsg}" if epsg else "local",
         "points": int(rec.num_points3D()), "reprojection_px": reprojection,
