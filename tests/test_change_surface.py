@@ -7,8 +7,24 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sosmatch.plugin.changes import GONE, KEPT, KeyframeSegments, detect_changes, ground_height_field
-from sosmatch.plugin.changes.surface import height_log_ratio, heights_above_ground, spread_views
+from sosmatch.plugin.changes import (
+    FLAT,
+    GONE,
+    KEPT,
+    NEW,
+    UNSEEN,
+    KeyframeSegments,
+    detect_changes,
+    ground_height_field,
+)
+from sosmatch.plugin.changes.surface import (
+    SWEEP_STEP_M,
+    ground_sweep_noise,
+    height_log_ratio,
+    heights_above_ground,
+    spread_views,
+    stands_above_ground,
+)
 from sosmatch.plugin.geometry import Camera, Poses, rotvec_to_matrix
 from sosmatch.plugin.params import ChangeParams
 from sosmatch.tools.toy_sessions import change_session, lawnmower, render_nadir_images, yaw_transform
@@ -113,6 +129,43 @@ def test_the_surface_says_present_where_the_other_map_lost_the_object(scene):
     off = detect_changes(replace(a, images=images_a), replace(b, images=images_b), same_frame,
                          ChangeParams(surface_evidence=False), 2.0)
     assert np.array_equal(off.a.label, plain.a.label) and np.array_equal(off.a.confidence, plain.a.confidence)
+
+
+def test_a_moved_shadow_is_no_object_that_went(scene):
+    # the shadow at 65 (A only) and 66 (B only): the other session's segments do not show it, but neither
+    # session's surface stands above the ground there, so it is no object and no change; the removed objects are
+    positions, sizes, removed, a, ids_a, b, ids_b, images_a, images_b = scene
+    same_frame = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    a_img, b_img = replace(a, images=images_a), replace(b, images=images_b)
+    blind = detect_changes(a_img, b_img, same_frame, ChangeParams(object_height_p=1.0), 2.0)
+    seen = detect_changes(a_img, b_img, same_frame, ChangeParams(), 2.0)
+    s_a, s_b = int(np.flatnonzero(ids_a == 65)[0]), int(np.flatnonzero(ids_b == 66)[0])
+    assert blind.a.label[s_a] == GONE and blind.b.label[s_b] == NEW  # without the test: claimed
+    assert (seen.a.label[s_a], seen.a.evidence[s_a]) == (UNSEEN, FLAT)
+    assert (seen.b.label[s_b], seen.b.evidence[s_b]) == (UNSEEN, FLAT)
+    for o in removed:
+        i = int(np.flatnonzero(ids_a == o)[0])
+        assert seen.a.label[i] == GONE
+    # everything else is as without the test
+    other = np.ones(len(ids_a), bool)
+    other[s_a] = False
+    assert np.array_equal(seen.a.label[other], blind.a.label[other])
+
+
+def test_the_ground_noise_is_mirrored_from_the_places_at_or_below_the_ground():
+    rng = np.random.default_rng(1)
+    ground = rng.normal(0.0, 0.6, 400)
+    objects = rng.uniform(2.0, 15.0, 300)  # objects only add height: they must not widen the noise
+    sigma = ground_sweep_noise(np.concatenate([ground, objects, [np.nan]]))
+    assert sigma == pytest.approx(0.6, rel=0.15)
+    assert np.isnan(ground_sweep_noise(np.array([-0.1, 0.0, 3.0])))  # too few places
+    heights = np.array([0.3, 1.0, 2.0, 5.0, np.nan, -2.0])
+    up = stands_above_ground(heights, np.concatenate([ground, objects]), 0.01)  # 2.33 sigma = 1.4 m
+    assert up.tolist() == [False, False, True, True, False, False]
+    assert stands_above_ground(heights, ground, 1.0).all()  # off
+    assert stands_above_ground(heights, ground[:3], 0.01).all()  # no noise measured: no test
+    # never finer than the sweep itself
+    assert not stands_above_ground(np.array([SWEEP_STEP_M]), np.zeros(50), 0.01)[0]
 
 
 def test_the_ground_field_is_where_the_sweep_starts(scene):

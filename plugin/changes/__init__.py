@@ -87,7 +87,7 @@ from .observations import (
     observed_area,
 )
 from .support import CONTROL_SHIFT, AlignmentSupport, alignment_support
-from .surface import height_log_ratio, heights_above_ground
+from .surface import ground_sweep_noise, height_log_ratio, heights_above_ground, stands_above_ground
 from .unmapped import UnmappedObjects, no_unmapped_objects, tracks_from_matches, unmapped_objects
 from .verdict import (
     BELOW_GROUND,
@@ -97,6 +97,7 @@ from .verdict import (
     BY_SEGMENTS,
     CLASSES,
     EVIDENCE,
+    FLAT,
     GONE,
     KEPT,
     LOW_CONFIDENCE,
@@ -110,10 +111,11 @@ from .verdict import (
 )
 
 __all__ = ["BELOW_GROUND", "BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS", "CLASSES", "CONTROL_SHIFT",
-           "EVIDENCE", "FOOTPRINT_MARGIN", "GONE", "KEPT", "LOW_CONFIDENCE", "NEW", "NO_EVIDENCE", "TOO_FEW_VIEWS",
-           "UNSEEN", "AlignmentSupport", "ChangeResult", "KeyframeSegments", "LandmarkChanges", "SessionObservations",
-           "UnmappedObjects", "absence_log_ratio", "alignment_support", "below_the_ground", "binomial_tail",
-           "counterparts", "detect_changes", "dispersion", "fit_logistic", "ground_height_field", "height_log_ratio",
-           "heights_above_ground", "holder_pairs", "in_view", "inside_larger", "landmark_presence_rate",
-           "no_unmapped_objects", "observed_area", "predict_logistic", "presence_rate", "reobservation_features",
-           "segment_evidence", "segment_hits", "tracks_from_matches", "unmapped_objects", "view_correlation"]
+           "EVIDENCE", "FLAT", "FOOTPRINT_MARGIN", "GONE", "KEPT", "LOW_CONFIDENCE", "NEW", "NO_EVIDENCE",
+           "TOO_FEW_VIEWS", "UNSEEN", "AlignmentSupport", "ChangeResult", "KeyframeSegments", "LandmarkChanges",
+           "SessionObservations", "UnmappedObjects", "absence_log_ratio", "alignment_support", "below_the_ground",
+           "binomial_tail", "counterparts", "detect_changes", "dispersion", "fit_logistic", "ground_height_field",
+           "ground_sweep_noise", "height_log_ratio", "heights_above_ground", "holder_pairs", "in_view",
+           "inside_larger", "landmark_presence_rate", "no_unmapped_objects", "observed_area", "predict_logistic",
+           "presence_rate", "reobservation_features", "segment_evidence", "segment_hits", "stands_above_ground",
+           "tracks_from_matches", "unmapped_objects", "view_correlation"]

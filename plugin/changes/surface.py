@@ -286,3 +286,29 @@ def height_log_ratio(own_h: np.ndarray, other_h: np.ndarray, ref_own_h: np.ndarr
     bound = float(np.log(n - 1))
     out[ok] = np.clip(llr, -bound, bound)
     return out
+
+
+def ground_sweep_noise(ref_heights: np.ndarray, min_places: int = 10) -> float:
+    """The standard deviation of the sweep's height at places of bare ground, from reference places' heights above
+    the ground in one session: the root mean square of those at or below the ground (objects only ever add height,
+    so that half is ground alone, mirrored). NaN with fewer than `min_places` such heights."""
+    h = np.asarray(ref_heights, dtype=np.float64)
+    low = h[np.isfinite(h) & (h <= 0.0)]
+    if len(low) < min_places:
+        return float("nan")
+    return float(np.sqrt(np.mean(low * low)))
+
+
+def stands_above_ground(heights: np.ndarray, ref_heights: np.ndarray, p: float) -> np.ndarray:
+    """Whether the surface at each place stands above the local ground (`heights_above_ground` of its session):
+    higher than the ground's sweep noise (`ground_sweep_noise` of the session's reference places) allows at
+    one-sided significance p, and at least one sweep step. An unknown height (NaN) does not stand; p >= 1 lets
+    every place stand (the test is off), and so do too few reference places to measure the noise."""
+    from scipy.stats import norm
+
+    h = np.asarray(heights, dtype=np.float64)
+    sigma = ground_sweep_noise(ref_heights)
+    if p >= 1.0 or not np.isfinite(sigma):
+        return np.ones(len(h), dtype=bool)
+    limit = max(float(norm.isf(p)) * sigma, SWEEP_STEP_M)
+    return np.isfinite(h) & (h > limit)

@@ -26,15 +26,16 @@ from .evidence import (
 from .observations import SessionObservations, below_the_ground, ground_height_field, in_view, observed_area
 from .support import AlignmentSupport, alignment_support
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
-from .surface import height_log_ratio, heights_above_ground
+from .surface import height_log_ratio, heights_above_ground, stands_above_ground
 from .unmapped import UnmappedObjects, no_unmapped_objects, unmapped_objects
 
 KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
 CLASSES = (KEPT, GONE, NEW, UNSEEN)
 # evidence behind a class
-BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE, BELOW_GROUND = (
-    "landmark", "nested", "part", "segments", "none", "views", "confidence", "height")
-EVIDENCE = (BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE, BELOW_GROUND)
+BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE, BELOW_GROUND, FLAT = (
+    "landmark", "nested", "part", "segments", "none", "views", "confidence", "height", "flat")
+EVIDENCE = (BY_LANDMARK, BY_NESTING, BY_PART, BY_SEGMENTS, NO_EVIDENCE, TOO_FEW_VIEWS, LOW_CONFIDENCE, BELOW_GROUND,
+            FLAT)
 
 
 @dataclass(frozen=True)
@@ -162,6 +163,9 @@ class _Direct:
     doubted: np.ndarray
     # the reference places' surface heights above the ground (own session, other session), None: not measured
     surface_references: tuple[np.ndarray, np.ndarray] | None = None
+    # swept places whose surface in their own session stands no higher than the ground (`stands_above_ground`):
+    # no object of theirs to have gone (all False where nothing was swept)
+    flat: np.ndarray | None = None
 
     @property
     def established(self) -> np.ndarray:
@@ -195,7 +199,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     hits, trials = np.zeros(n, np.int64), np.zeros(n, np.int64)
     chance, absent = np.full(n, np.nan), np.zeros(n)
     by_segments = np.zeros(n, dtype=bool)
-    surface, doubted = np.zeros(n), np.zeros(n, dtype=bool)
+    surface, doubted, flat = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     if references is None:
         references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
     asked = compared & ((index < 0) & (other.segments is not None) | params.surface_overrules_links)
@@ -207,7 +211,9 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                 ref = ref[np.linspace(0, len(ref) - 1, SURFACE_REFERENCES).round().astype(np.int64)]
             surface_references = _surface(own_pos[ref], own, other, ground, params)
         idx = np.flatnonzero(asked)
-        surface[idx] = height_log_ratio(*_surface(own_pos[idx], own, other, ground, params), *surface_references)
+        own_heights, other_heights = _surface(own_pos[idx], own, other, ground, params)
+        surface[idx] = height_log_ratio(own_heights, other_heights, *surface_references)
+        flat[idx] = ~stands_above_ground(own_heights, surface_references[0], params.object_height_p)
         if params.surface_overrules_links:
             # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
             # object stood is as often as chance allows (`alignment_support`'s displaced rate): where the
@@ -227,7 +233,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
                             & (absent[idx] < 0.5))
     return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments, surface, doubted,
-                   surface_references)
+                   surface_references, flat)
 
 
 def _surface(points: np.ndarray, own: SessionObservations, other: SessionObservations, ground: HeightField,
@@ -307,7 +313,13 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
         confidence[idx] = predict_logistic(fit_logistic(feats, label[idx] == KEPT), feats)
     label[open_] = change_label
     evidence[open_] = NO_EVIDENCE
-    weak = (label == change_label) & (confidence < params.min_confidence)
+    if mine.flat is not None:
+        # no height of its own where it stands: a change of looks (a shadow, ground texture), not of an object
+        flat = open_ & mine.flat
+        label[flat] = UNSEEN
+        evidence[flat] = FLAT
+        open_ &= ~flat
+    weak = open_ & (confidence < params.min_confidence)
     label[weak] = UNSEEN
     evidence[weak] = LOW_CONFIDENCE
     # the counterpart of a kept landmark: its match, else the larger landmark that holds it
