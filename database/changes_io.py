@@ -5,7 +5,7 @@ changes.csv columns (CHANGE_COLUMNS): `class` (kept / gone / new / unseen), `ses
 landmark's index in its own map), `x, y, z` (in A's frame), `size_m`, `confidence`, `counterpart` (index in the
 other map of the landmark that matched it, -1 none), `counterpart_distance_m`, `size_change_m` (counterpart's
 size minus this one's), `views` (keyframes of the other session that should have seen it), `evidence`
-(landmark, nested, part, segments, none, views, confidence, height: `sosmatch.plugin.changes.EVIDENCE`),
+(landmark, nested, part, segments, none, views, confidence, height, flat: `sosmatch.plugin.changes.EVIDENCE`),
 `height_above_ground_m` and `source` (`landmark`, or `track`: an object the session saw but never mapped, from its
 track pieces, `sosmatch.plugin.changes.unmapped`; its `index` counts those objects of its session). Rows: A's
 landmarks in order, then B's, then A's and B's objects never mapped. Empty cells are unknown values.
