@@ -143,6 +143,9 @@ def test_a_moved_shadow_is_no_object_that_went(scene):
     assert blind.a.label[s_a] == GONE and blind.b.label[s_b] == NEW  # without the test: claimed
     assert (seen.a.label[s_a], seen.a.evidence[s_a]) == (UNSEEN, FLAT)
     assert (seen.b.label[s_b], seen.b.evidence[s_b]) == (UNSEEN, FLAT)
+    counts = seen.counts()
+    assert counts["flat_a"] == int(np.sum(seen.a.evidence == FLAT)) >= 1 and "flat" in seen.summary()
+    assert blind.counts()["flat_a"] == 0 and "flat" not in blind.summary()
     for o in removed:
         i = int(np.flatnonzero(ids_a == o)[0])
         assert seen.a.label[i] == GONE

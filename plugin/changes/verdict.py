@@ -85,10 +85,13 @@ class ChangeResult:
         return shapely.intersection(self.observed_a, self.observed_b)
 
     def counts(self) -> dict[str, int]:
-        """Landmarks per class: kept (of A and of B), gone (A), new (B), unseen (of both maps); objects never
+        """Landmarks per class: kept (of A and of B), gone (A), new (B), unseen (of both maps; flat: those unseen
+        because no object stands there, evidence `flat`); objects never
         mapped (of A and of B) and how many of them are gone (A) / new (B)."""
         return {"kept_a": self.a.count(KEPT), "kept_b": self.b.count(KEPT), "gone": self.a.count(GONE),
                 "new": self.b.count(NEW), "unseen_a": self.a.count(UNSEEN), "unseen_b": self.b.count(UNSEEN),
+                "flat_a": int(np.count_nonzero(self.a.evidence == FLAT)),
+                "flat_b": int(np.count_nonzero(self.b.evidence == FLAT)),
                 "unmapped_a": len(self.unmapped_a), "unmapped_b": len(self.unmapped_b),
                 "gone_unmapped": self.tracks_a.count(GONE) if self.tracks_a is not None else 0,
                 "new_unmapped": self.tracks_b.count(NEW) if self.tracks_b is not None else 0}
@@ -97,8 +100,10 @@ class ChangeResult:
         """One line: counts per class and the common area."""
         c = self.counts()
         area_ha = float(self.common_area.area) / 1e4
+        flat = (f" ({c['flat_a']} + {c['flat_b']} of them flat: a change of looks, no object standing there)"
+                if c["flat_a"] + c["flat_b"] else "")
         return (f"{c['gone']} gone, {c['new']} new, {c['kept_a']} + {c['kept_b']} kept, {c['unseen_a']} + "
-                f"{c['unseen_b']} unseen landmarks (A + B); {c['gone_unmapped']} gone, {c['new_unmapped']} new "
+                f"{c['unseen_b']} unseen landmarks (A + B){flat}; {c['gone_unmapped']} gone, {c['new_unmapped']} new "
                 f"of {c['unmapped_a']} + {c['unmapped_b']} objects never mapped; {area_ha:.1f} ha seen by both")
 
 
