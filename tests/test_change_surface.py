@@ -22,6 +22,7 @@ from sosmatch.plugin.changes.surface import (
     ground_sweep_noise,
     height_log_ratio,
     heights_above_ground,
+    shows_relief,
     spread_views,
     stands_above_ground,
 )
@@ -169,6 +170,39 @@ def test_the_ground_noise_is_mirrored_from_the_places_at_or_below_the_ground():
     assert stands_above_ground(heights, ground[:3], 0.01).all()  # no noise measured: no test
     # never finer than the sweep itself
     assert not stands_above_ground(np.array([SWEEP_STEP_M]), np.zeros(50), 0.01)[0]
+
+
+def test_without_relief_in_the_images_the_objectness_test_stands_aside(scene, caplog):
+    # the same sessions with every object drawn flat on the ground (an orthophoto's views): no place stands, so
+    # the test cannot tell objects from texture; it says so and the segments and heights decide as without it
+    positions, sizes, removed, a, ids_a, b, ids_b, images_a, images_b = scene
+    flat_world = positions * [1.0, 1.0, 0.0]
+    drawn = (np.arange(67) < 25) | (np.arange(67) >= 65)
+    present_a, present_b = np.ones(67, bool), np.ones(67, bool)
+    present_b[removed] = False
+    present_a[66], present_b[65] = False, False
+    flat_a = render_nadir_images(a.poses, CAM, flat_world, sizes, drawn & present_a, 7, noise_seed=1)
+    flat_b = render_nadir_images(b.poses, CAM, flat_world, sizes, drawn & present_b, 7, gain=0.8, offset=25.0,
+                                 noise_seed=2)
+    same_frame = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    a_img, b_img = replace(a, images=flat_a), replace(b, images=flat_b)
+    with caplog.at_level("WARNING"):
+        on = detect_changes(a_img, b_img, same_frame, ChangeParams(), 2.0)
+    off = detect_changes(a_img, b_img, same_frame, ChangeParams(object_height_p=1.0), 2.0)
+    assert "no relief" in caplog.text
+    assert not np.any(on.a.evidence == FLAT) and not np.any(on.b.evidence == FLAT)
+    assert np.array_equal(on.a.label, off.a.label) and np.array_equal(on.b.label, off.b.label)
+
+
+def test_relief_is_what_the_ground_noise_alone_would_not_raise():
+    rng = np.random.default_rng(2)
+    ground = np.round(rng.normal(0.0, 0.5, 200) * 2) / 2  # the sweep's 0.5 m steps
+    assert not shows_relief(ground, 0.01)  # bare ground, or an orthophoto's views: its few high places are noise
+    assert not shows_relief(np.zeros(200), 0.01)
+    trees = np.concatenate([ground[:150], rng.uniform(3.0, 15.0, 50)])
+    assert shows_relief(trees, 0.01)
+    assert shows_relief(np.concatenate([ground[:190], rng.uniform(3.0, 15.0, 10)]), 0.01)  # 5 % stand
+    assert not shows_relief(trees, 1.0) and not shows_relief(np.array([np.nan]), 0.01)
 
 
 def test_the_ground_field_is_where_the_sweep_starts(scene):

@@ -312,3 +312,18 @@ def stands_above_ground(heights: np.ndarray, ref_heights: np.ndarray, p: float) 
         return np.ones(len(h), dtype=bool)
     limit = max(float(norm.isf(p)) * sigma, SWEEP_STEP_M)
     return np.isfinite(h) & (h > limit)
+
+
+def shows_relief(ref_heights: np.ndarray, p: float) -> bool:
+    """Whether a session's images show any relief at its reference places: more of them stand above the ground
+    (`stands_above_ground`) than its ground noise alone would raise at level p (binomial tail below p). An
+    orthophoto rendered as views, or a survey of bare fields, does not: there the objectness test cannot tell an
+    object from ground texture and is not applied."""
+    from scipy.stats import binom
+
+    h = np.asarray(ref_heights, dtype=np.float64)
+    h = h[np.isfinite(h)]
+    if p >= 1.0 or not len(h):
+        return False
+    standing = int(np.count_nonzero(stands_above_ground(h, h, p)))
+    return bool(binom.sf(standing - 1, len(h), p) < p)

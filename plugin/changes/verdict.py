@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -26,8 +27,10 @@ from .evidence import (
 from .observations import SessionObservations, below_the_ground, ground_height_field, in_view, observed_area
 from .support import AlignmentSupport, alignment_support
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
-from .surface import height_log_ratio, heights_above_ground, stands_above_ground
+from .surface import height_log_ratio, heights_above_ground, shows_relief, stands_above_ground
 from .unmapped import UnmappedObjects, no_unmapped_objects, unmapped_objects
+
+log = logging.getLogger(__name__)
 
 KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
 CLASSES = (KEPT, GONE, NEW, UNSEEN)
@@ -210,6 +213,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     asked = compared & ((index < 0) & (other.segments is not None) | params.surface_overrules_links)
     if (params.surface_evidence and ground is not None and own is not None and own.images is not None
             and other.images is not None and np.any(asked)):
+        measured_here = surface_references is None
         if surface_references is None:
             ref = np.flatnonzero(compared & (index >= 0))
             if len(ref) > SURFACE_REFERENCES:
@@ -218,7 +222,12 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         idx = np.flatnonzero(asked)
         own_heights, other_heights = _surface(own_pos[idx], own, other, ground, params)
         surface[idx] = height_log_ratio(own_heights, other_heights, *surface_references)
-        flat[idx] = ~stands_above_ground(own_heights, surface_references[0], params.object_height_p)
+        if shows_relief(surface_references[0], params.object_height_p):
+            flat[idx] = ~stands_above_ground(own_heights, surface_references[0], params.object_height_p)
+        elif measured_here and params.object_height_p < 1.0:
+            log.warning("a session's images show no relief at its %d reference places (an orthophoto, bare fields?):"
+                        " its objects cannot be told from ground texture, so its changes are reported without that "
+                        "test", len(surface_references[0]))
         if params.surface_overrules_links:
             # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
             # object stood is as often as chance allows (`alignment_support`'s displaced rate): where the

@@ -93,7 +93,9 @@ class ChangeParams(Checked):
     # `flat`: nothing in the images says an object went. On 12 development pairs such places made 359 of the
     # 415 same-season claims of radius >= 2 m; the test cut the false changes from 6.6 to 1.0 / ha (29.8 to 2.2
     # across seasons) and cost a quarter of the found objects, low bushes and conifers (BENCHMARKS.md, Change
-    # detection, ninth round). 1 = off (needs both sessions' images, as surface_evidence).
+    # detection, ninth round). Not applied (with a warning) to a session whose images show no relief at all:
+    # no more of its reference places stand than this p lets the noise raise (`surface.shows_relief`: an
+    # orthophoto's views, bare fields). 1 = off (needs both sessions' images, as surface_evidence).
     object_height_p: float = fraction(0.01)
     # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
     # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least
