@@ -125,7 +125,8 @@ def intersect_rays(
         # March from t_lo to t_hi: the first sample below the terrain brackets the first hit (no tunnelling
         # through hills narrower than a step, which at 64 steps over the terrain's relief is negligible).
         frac = np.linspace(0.0, 1.0, steps + 1)
-        ts = t_lo[..., None] + (t_hi_c - t_lo)[..., None] * frac
+        with np.errstate(invalid="ignore"):  # a ray that never goes down: inf - inf, zeroed below
+            ts = t_lo[..., None] + (t_hi_c - t_lo)[..., None] * frac
         ts = np.where(np.isfinite(ts), ts, 0.0)
         pts = o[..., None, :] + ts[..., None] * d[..., None, :]
         f = pts[..., 2] - terrain(pts[..., 0], pts[..., 1])
