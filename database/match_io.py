@@ -286,14 +286,20 @@ def read_match_json(path: str | Path) -> dict[str, Any]:
     """The parsed (not yet validated) match.json (a directory means its match.json); InputError if unreadable."""
     path = Path(path)
     if path.is_dir():
+        if not (path / "match.json").exists():
+            raise InputError("folder holds no match.json (give the match.json of `sosmatch match`, or its folder)",
+                             path)
         path = path / "match.json"
     text = read_user_text(path, "match file")
+    if not text.strip():
+        raise InputError("match file is empty (an interrupted copy?); re-run `sosmatch match`", path)
     try:
         data = json.loads(text)
     except RecursionError:
         raise InputError("cannot read match file: nested too deeply", path) from None
     except ValueError as exc:  # JSONDecodeError, and integers of more than 4300 digits
-        raise InputError(f"cannot read match file: {str(exc).splitlines()[0]}", path) from None
+        raise InputError(f"cannot read match file: not valid JSON, truncated or another kind of file "
+                         f"({str(exc).splitlines()[0]})", path) from None
     if not isinstance(data, dict):
         raise InputError("match file must hold a JSON object", path)
     return data
@@ -303,9 +309,8 @@ def read_match(path: str | Path) -> MatchSummary:
     """Read and validate match.json (or a directory holding it): the hypothesis to merge with, every hypothesis,
     the maps it was computed for. Use `check_match_maps` before trusting its indices for your maps."""
     path = Path(path)
-    if path.is_dir():
-        path = path / "match.json"
-    return parse_match(read_match_json(path), path)
+    doc = read_match_json(path)
+    return parse_match(doc, path / "match.json" if path.is_dir() else path)
 
 
 def check_match_maps(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap, path: str | Path,

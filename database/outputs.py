@@ -391,6 +391,19 @@ def open_output_dir(
     return out
 
 
+def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | Path | None] = (),
+                     legacy_record: str | None = None) -> None:
+    """What `open_output_dir` refuses whatever the run produces, checked before any work and changing nothing:
+    an input (or inside one, or holding one), a path that is a file, a non-empty directory that is not this
+    command's output, or a new directory that cannot be made (a file or a read-only folder on its way). A command
+    whose output identity is known only after its work (`sosmatch changes`) calls this first, so a bad `--out`
+    is refused at once; `open_output_dir` still decides (overwrite, the lock) when the work is done."""
+    path = Path(path)
+    check_not_input(path, list(inputs))
+    if _previous(path, command, legacy_record).state == "new" and not path.exists():
+        _check_writable_place(path)
+
+
 def _check_writable_place(path: Path) -> None:
     """The folder that will hold `path` (its nearest existing ancestor, when it is still to be made) is a directory
     this process may write: checked before any work, so that a run of minutes does not end on "cannot write

@@ -159,7 +159,8 @@ def read_session(path: str | Path, name: str | None = None) -> SessionFiles:
     was refused (`check_session_usable`)."""
     path = Path(path)
     if not path.is_dir():
-        raise InputError("session directory not found", path)
+        raise InputError("is a file, not a session directory (give the folder `sosmatch map` wrote)"
+                         if path.exists() else "session directory not found", path)
     check_session_usable(path)
     sparse = path / "sparse"
     if not (sparse / "images.bin").exists() and not (sparse / "images.txt").exists():
@@ -282,7 +283,8 @@ def session_images_dir(session: str | Path | SessionFiles, images_dir: str | Pat
         images_dir = recorded
     images_dir = Path(images_dir)
     if not images_dir.is_dir():
-        raise InputError("images directory not found", images_dir)
+        raise InputError("is a file, not an images directory" if images_dir.exists() else
+                         "images directory not found", images_dir)
     check_map_of_images(path, images_dir)
     return images_dir
 
@@ -308,6 +310,8 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
                          session.path)
     segments = tracks = None
     database = session.path / "database.db"
+    if with_segments and database.exists() and not database.is_file():
+        raise InputError("is a folder, not the session's COLMAP database", database)
     if with_segments and database.is_file():
         segments = tuple(read_segment_detections(database, poses.names))
         if with_tracks:

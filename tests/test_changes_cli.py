@@ -215,3 +215,152 @@ def test_a_session_whose_flight_lowered_theta_n_is_compared_where_it_could_have_
     assert not np.any(lowered["evidence"][few] == "views")
     assert np.all(lowered["evidence"][configured["views"] < 3] == "views")
     assert np.mean(lowered["class"][few] == "unseen") < 0.5
+
+
+# --- the new-user sweep of `sosmatch changes` with bad or unusual inputs (issue 17, "Bad input") ------------------
+
+
+def test_the_same_session_twice_or_a_copy_of_it_is_refused(toy, tmp_path, cli_error):
+    """`changes A A` (even with a match of A against itself, which `match` accepts) compared a map with itself
+    and reported "0 gone, 0 new" as a success; it is a mistake, refused like one."""
+    root, _, a, *_ = toy
+    self_match = toy_match_json(a, a, tmp_path / "AA" / "match.json")
+    out = tmp_path / "C"
+    assert "A and B are the same session" in cli_error("changes", root / "A", root / "A", "--match", self_match,
+                                                       "--out", out)
+    # the same directory spelt otherwise, and a copy of it: the same landmark map
+    assert "same session" in cli_error("changes", root / "A", root / "A" / ".", "--match", self_match, "--out", out)
+    shutil.copytree(root / "A", tmp_path / "copy")
+    err = cli_error("changes", root / "A", tmp_path / "copy", "--match", self_match, "--out", out)
+    assert f"{tmp_path / 'copy'}: holds the same landmark map as {root / 'A'}" in err
+    # with the match of A and B, the refusal names the real problem (it said "computed for other maps")
+    assert "same session" in cli_error("changes", root / "A", root / "A", "--match", root / "AB" / "match.json",
+                                       "--out", out)
+    assert not out.exists()
+
+
+def test_a_map_without_landmarks_is_refused_by_name(toy, tmp_path, cli_error):
+    """It was refused as "the transform does not bring the maps together: 0% of A's 204 compared landmarks"."""
+    from sosmatch.database.landmark_map import landmark_map_fingerprint
+
+    root = toy[0]
+    empty = tmp_path / "B"
+    shutil.copytree(root / "B", empty)
+    lmap = read_landmark_map(empty / "landmarks.sosmap")
+    write_landmark_map(empty / "landmarks.sosmap", type(lmap)(np.zeros((0, 3)), np.zeros(0), lmap.origin, lmap.epsg))
+    header = (empty / "landmarks.csv").read_text().splitlines()[0]
+    (empty / "landmarks.csv").write_text(header + "\n")
+    doc = json.loads((root / "AB" / "match.json").read_text())  # a match that names the empty map
+    doc["map_b"].update(fingerprint=landmark_map_fingerprint(read_landmark_map(empty / "landmarks.sosmap")),
+                        landmarks=0)
+    for h in doc["hypotheses"]:
+        h["associations"] = []
+    (tmp_path / "match.json").write_text(json.dumps(doc))
+    out = tmp_path / "C"
+    err = cli_error("changes", root / "A", empty, "--match", tmp_path / "match.json", "--out", out)
+    assert f"{empty / 'landmarks.sosmap'}: landmark map holds no landmarks" in err
+    assert not out.exists()
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_a_session_whose_cameras_do_not_look_at_the_ground_is_named_as_such(toy, tmp_path, cli_error):
+    """B's keyframes turned to look up: the footprints printed numpy's RuntimeWarnings (rays that never go down),
+    and the refusal blamed the transform ("0% of A's 0 compared landmarks have a counterpart")."""
+    root = toy[0]
+    up = tmp_path / "B"
+    shutil.copytree(root / "B", up)
+    rec = pycolmap.Reconstruction(str(up / "sparse"))
+    flip = np.diag([1.0, -1.0, -1.0])
+    for image in rec.images.values():
+        frame = rec.frames[image.frame_id]
+        rot = frame.rig_from_world.rotation.matrix()
+        center = -rot.T @ frame.rig_from_world.translation
+        frame.rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(flip @ rot), -(flip @ rot) @ center)
+    rec.write_binary(str(up / "sparse"))
+    out = tmp_path / "C"
+    err = cli_error("changes", root / "A", up, "--match", root / "AB" / "match.json", "--out", out)
+    assert "none of A's landmarks lies where B's keyframes looked" in err and "do not look at the ground" in err
+    assert not out.exists()
+
+
+def test_damaged_match_files_and_folders_say_what_is_wrong(toy, tmp_path, cli_error, capsys):
+    root = toy[0]
+    out = tmp_path / "C"
+    text = (root / "AB" / "match.json").read_text()
+    (tmp_path / "empty.json").write_text("")
+    (tmp_path / "half.json").write_text(text[: len(text) // 2])
+    (tmp_path / "folder").mkdir()
+    for path, needle in ((tmp_path / "empty.json", "match file is empty"),
+                         (tmp_path / "half.json", "not valid JSON, truncated"),
+                         (tmp_path / "folder", f"{tmp_path / 'folder'}: folder holds no match.json")):
+        assert needle in cli_error("changes", root / "A", root / "B", "--match", path, "--out", out)
+    assert not out.exists()
+    # a folder holding match.json (match's --out, a batch pair) is the match
+    assert run([root / "A", root / "B", "--match", root / "AB", "--out", out, "--no-plot"], capsys)[0] == 0
+
+
+def test_files_and_folders_of_the_wrong_kind_are_named(toy, tmp_path, cli_error):
+    """A database.db that is a folder was skipped in silence (the segments left out of the evidence); a file given
+    as a session or an images folder was "not found"."""
+    root = toy[0]
+    out = tmp_path / "C"
+    match = root / "AB" / "match.json"
+    b = tmp_path / "B"
+    shutil.copytree(root / "B", b)
+    (b / "database.db").mkdir()
+    # one line: the warning that the toy sessions have no images no longer comes before the error
+    assert f"{b / 'database.db'}: is a folder" in cli_error("changes", root / "A", b, "--match", match, "--out", out)
+    assert f"{match}: is a file, not a session directory" in cli_error("changes", root / "A", match, "--match",
+                                                                      match, "--out", out)
+    assert f"{match}: is a file, not an images directory" in cli_error(
+        "changes", root / "A", root / "B", "--match", match, "--out", out, "--images-a", match)
+    assert not out.exists()
+
+
+def test_a_bad_out_is_refused_before_any_work(toy, tmp_path, cli_error):
+    """--out that is a file, a folder of the user's, or under a file was refused only after the whole comparison;
+    now first: with a match that would be refused too, the error is about --out."""
+    root = toy[0]
+    doc = json.loads((root / "AB" / "match.json").read_text())
+    for h in doc["hypotheses"]:
+        h["accepted"] = False
+    refused = tmp_path / "refused.json"
+    refused.write_text(json.dumps(doc))
+    (tmp_path / "file").write_text("mine")
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "folder" / "notes.txt").write_text("mine")
+    for out, needle in ((tmp_path / "file", "output path exists and is not a directory"),
+                        (tmp_path / "folder", "is not a `sosmatch changes` output"),
+                        (tmp_path / "file" / "sub", "is a file, not a folder")):
+        assert needle in cli_error("changes", root / "A", root / "B", "--match", refused, "--out", out)
+    assert (tmp_path / "file").read_text() == "mine" and sorted(p.name for p in (tmp_path / "folder").iterdir()) == [
+        "notes.txt"]
+
+
+def test_a_refused_rewrite_leaves_the_earlier_output_whole(toy, tmp_path, cli_error, capsys):
+    """A changes.png that is a folder in the output stopped a re-run only after it had replaced changes.csv, so
+    the earlier run's changes.json stood beside the new run's table."""
+    root = toy[0]
+    out = tmp_path / "C"
+    args = [root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", out]
+    assert run(args, capsys)[0] == 0
+    before = {name: (out / name).read_bytes() for name in ("changes.csv", "changes.json")}
+    (out / "changes.png").unlink()
+    (out / "changes.png").mkdir()
+    err = cli_error("changes", *args, "--overwrite", "--min-confidence", "0.3")
+    assert f"{out / 'changes.png'}: is a directory where `sosmatch changes` writes a file" in err
+    assert {name: (out / name).read_bytes() for name in before} == before
+
+
+def test_a_session_without_its_database_is_said(toy, caplog):
+    """Without database.db a session's segments are no evidence and the confidences fall back to the pair's
+    re-observation rate: said, not silent (the toy sessions have none)."""
+    import logging
+
+    from sosmatch.workflows.changes import compute
+
+    root = toy[0]
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.changes"):
+        compute(root / "A", root / "B", root / "AB" / "match.json")
+    assert f"session A ({root / 'A'}) has no database.db" in caplog.text
+    assert f"session B ({root / 'B'}) has no database.db" in caplog.text

@@ -30,7 +30,7 @@ from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.changes_io import changes_feature_collection, format_changes_csv
 from ..database.landmark_map import landmark_map_fingerprint
 from ..database.match_io import check_match_maps, read_match
-from ..database.outputs import check_not_input, fingerprint, open_output_dir
+from ..database.outputs import check_output_dir, fingerprint, open_output_dir
 from ..database.session_io import read_session, read_session_observations, session_images_dir
 from ..plugin import __version__
 from ..plugin.changes import CONTROL_SHIFT, GONE, KEPT, NEW, UNSEEN, ChangeResult, detect_changes
@@ -81,20 +81,38 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if a_from_b is None:
         raise ValueError("give match_json or a_from_b")
     files_a, files_b = read_session(session_a), read_session(session_b)
+    prints = landmark_map_fingerprint(files_a.landmarks), landmark_map_fingerprint(files_b.landmarks)
+    if files_a.path.resolve() == files_b.path.resolve():
+        raise InputError("A and B are the same session: nothing to compare (give the sessions of two flights)",
+                         session_b)
+    if prints[0] == prints[1]:
+        raise InputError(f"holds the same landmark map as {session_a} (a copy of one session?): nothing to compare",
+                         session_b)
+    for files in (files_a, files_b):
+        if not len(files.landmarks):
+            raise InputError("landmark map holds no landmarks: nothing to compare", files.path / "landmarks.sosmap")
     if match is not None:
         check_match_maps(match, files_a.landmarks, files_b.landmarks, match_json,
                          names=(str(session_a), str(session_b)))
     tracks = params.changes.unmapped_objects
     dirs = [None, None]
+    warnings = []  # said once every check has passed: a refused run prints its one-line error alone
     if params.changes.surface_evidence:
         dirs = [session_images_dir(files_a, images_a), session_images_dir(files_b, images_b)]
         if None in dirs:
-            log.warning("the images of session %s are not available (run.json's image directory is gone; "
-                        "--images-a / --images-b): no surface evidence, the segments alone decide",
-                        "A" if dirs[0] is None else "B")
+            missing = " and ".join(f"{name} ({path})" for name, path, d in (("A", session_a, dirs[0]),
+                                                                            ("B", session_b, dirs[1])) if d is None)
+            warnings.append(f"the images of session {missing} are not available (no run.json recording them, or "
+                            "the directory it records is gone; give --images-a / --images-b): no surface evidence, "
+                            "the segments alone decide")
             dirs = [None, None]
     obs_a = read_session_observations(files_a, with_tracks=tracks, images_dir=dirs[0])
     obs_b = read_session_observations(files_b, with_tracks=tracks, images_dir=dirs[1])
+    for name, path, obs in (("A", session_a, obs_a), ("B", session_b, obs_b)):
+        if obs.segments is None:
+            warnings.append(f"session {name} ({path}) has no database.db: its own segments cannot say whether the "
+                            "other session's objects are there; its confidences come from the pair's "
+                            "re-observation rate")
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
         if not area.area > 0:
@@ -103,6 +121,10 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         raise InputError("after alignment the two sessions observed no common ground: the match is wrong or the "
                          "flights do not overlap", match_json or session_b)
     sup = result.support
+    if sup is not None and sup.compared == 0:
+        raise InputError("none of A's landmarks lies where B's keyframes looked (in view of enough of them to be "
+                         "compared): after alignment the flights do not overlap, or B's poses do not look at the "
+                         "ground; nothing compared", match_json or session_b)
     if sup is not None and not sup.plausible(max_p=1.0 if verified else 1e-3):
         raise InputError(f"the transform does not bring the maps together: {sup.rate:.0%} of A's {sup.compared} "
                          f"compared landmarks have a counterpart, {sup.displaced_rate:.0%} with B moved "
@@ -111,8 +133,9 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     sources = {"session_a": str(session_a), "session_b": str(session_b),
                "match": str(match_json) if match_json is not None else "",
                "images_a": str(dirs[0] or ""), "images_b": str(dirs[1] or ""),
-               "map_a": landmark_map_fingerprint(files_a.landmarks),
-               "map_b": landmark_map_fingerprint(files_b.landmarks)}
+               "map_a": prints[0], "map_b": prints[1]}
+    for text in warnings:
+        log.warning("%s", text)
     return ChangesRun(result, a_from_b, int(files_a.landmarks.epsg), sources, time.perf_counter() - t0)
 
 
@@ -188,11 +211,24 @@ def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
     }
 
 
+def check_output_entries(out_dir: str | Path) -> None:
+    """InputError when a name the outputs take (OUTPUT_FILES) is a directory in `out_dir`: not ours to replace."""
+    for name in OUTPUT_FILES:
+        path = Path(out_dir) / name
+        if path.is_dir() and not path.is_symlink():
+            raise InputError("is a directory where `sosmatch changes` writes a file; not replaced (remove it or "
+                             "choose another output directory)", path)
+
+
 def write_outputs(run: ChangesRun, out_dir: str | Path, params: Params, plot: bool = True) -> list[Path]:
     """Write changes.csv, changes.geojson (georeferenced maps), changes.png and changes.json (last) into a directory
     the caller has taken (`database.outputs.open_output_dir`); outputs of an earlier run that this one does not
     produce (a geojson, a plot) are removed, so the directory never mixes two runs."""
     out_dir = Path(out_dir)
+    check_output_entries(out_dir)  # before anything is replaced: a refusal leaves the earlier output whole
+    # the record goes first and comes back last: a run that fails half-way never leaves an earlier run's record
+    # beside its own tables (the output directory's marker says it is unfinished; a re-run completes it)
+    (out_dir / "changes.json").unlink(missing_ok=True)
     written = [out_dir / "changes.csv"]
     write_text_atomic(written[-1], format_changes_csv(run.result))
     if run.epsg:
@@ -224,12 +260,15 @@ def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, ou
     """Classify every landmark of A and B against the other session and write the outputs (module docstring).
 
     Raises InputError, with nothing written, for a match without an accepted transform, a match of other maps,
-    sessions without keyframe poses or ground footprints, no common observed ground, or an output directory that
-    is an input or not ours (`database.outputs`; `overwrite` replaces a complete changes output of other inputs).
+    the same session (or map) twice, a map without landmarks, sessions without keyframe poses or ground
+    footprints, no common observed ground, or an output directory that is an input or not ours
+    (`database.outputs`, checked before any work; `overwrite` replaces a complete changes output of other inputs).
     """
     params = params or Params()
     out_dir = Path(out_dir)
-    check_not_input(out_dir, [p for p in (session_a, session_b, match_json, images_a, images_b) if p is not None])
+    check_output_dir(out_dir, "changes", legacy_record="changes.json",
+                     inputs=[p for p in (session_a, session_b, match_json, images_a, images_b) if p is not None])
+    check_output_entries(out_dir)
     changes = compute(session_a, session_b, match_json, params, images_a=images_a, images_b=images_b)
     with open_output_dir(out_dir, "changes", output_identity(changes, params, plot),
                          inputs=[session_a, session_b, match_json], overwrite=overwrite,
