@@ -134,8 +134,9 @@ def map_min_observations(map_dir: str | Path) -> int | None:
     counts.min_observations, which the flight's views may have lowered below the configured one
     (`params.for_flight`); None for maps without it (merged models, older runs: the configured one is the best
     guess). A landmark there needed more than this many observations. InputError naming run.json when it is
-    unreadable."""
-    value = ((read_map_record(map_dir) or {}).get("counts") or {}).get("min_observations")
+    unreadable; a record whose `counts` is not an object (edited by hand) says nothing of it."""
+    counts = (read_map_record(map_dir) or {}).get("counts")
+    value = counts.get("min_observations") if isinstance(counts, dict) else None
     return value if isinstance(value, int) and not isinstance(value, bool) and value >= 1 else None
 
 

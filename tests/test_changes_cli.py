@@ -364,3 +364,14 @@ def test_a_session_without_its_database_is_said(toy, caplog):
         compute(root / "A", root / "B", root / "AB" / "match.json")
     assert f"session A ({root / 'A'}) has no database.db" in caplog.text
     assert f"session B ({root / 'B'}) has no database.db" in caplog.text
+
+
+def test_a_session_record_with_entries_of_other_types_is_no_traceback(toy, tmp_path, capsys):
+    """run.json with `counts` that is not an object (a hand edit) ended in AttributeError; such entries say nothing,
+    as a record without them."""
+    root = toy[0]
+    b = tmp_path / "B"
+    shutil.copytree(root / "B", b)
+    (b / "run.json").write_text(json.dumps({"inputs": ["x"], "keyframe_images": 5, "counts": 3}))
+    code, line, err = run([root / "A", b, "--match", root / "AB" / "match.json", "--out", tmp_path / "C"], capsys)
+    assert code == 0 and line.startswith("changes: ") and "Traceback" not in err
