@@ -19,6 +19,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import textwrap
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -174,6 +175,15 @@ def changes_png(result: ChangeResult, title: str = "") -> bytes:
          label=f"gone ({a.count(GONE)})")
     draw(result.positions_b, result.sizes_b, b.label == NEW, c="#2ca02c", edgecolors="k", linewidths=0.5,
          label=f"new ({b.count(NEW)})")
+    # a change is a few metres on a plot of hundreds: a ring around each makes it visible at a glance
+    rings = [(result.positions_a, a.label == GONE, "#d62728"), (result.positions_b, b.label == NEW, "#2ca02c")]
+    for objs, verdict, change, colour in ((result.unmapped_a, result.tracks_a, GONE, "#d62728"),
+                                          (result.unmapped_b, result.tracks_b, NEW, "#2ca02c")):
+        if verdict is not None:
+            rings.append((objs.positions, verdict.label == change, colour))
+    for pos, mask, colour in rings:
+        if np.any(mask):
+            ax.scatter(pos[mask, 0], pos[mask, 1], s=220, facecolors="none", edgecolors=colour, linewidths=1.5)
     for objs, verdict, change, colour in ((result.unmapped_a, result.tracks_a, GONE, "#d62728"),
                                           (result.unmapped_b, result.tracks_b, NEW, "#2ca02c")):
         if verdict is not None:  # objects never mapped (from track pieces): diamonds
@@ -183,7 +193,7 @@ def changes_png(result: ChangeResult, title: str = "") -> bytes:
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m] (A's frame)")
     ax.set_ylabel("y [m]")
-    ax.set_title(title or result.summary(), fontsize=9)
+    ax.set_title(textwrap.fill(title or result.summary(), 110), fontsize=9)
     ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", bbox_inches="tight")
