@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -29,8 +28,6 @@ from .support import AlignmentSupport, alignment_support
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
 from .surface import height_log_ratio, heights_above_ground, shows_relief, stands_above_ground
 from .unmapped import UnmappedObjects, no_unmapped_objects, unmapped_objects
-
-log = logging.getLogger(__name__)
 
 KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
 CLASSES = (KEPT, GONE, NEW, UNSEEN)
@@ -80,6 +77,8 @@ class ChangeResult:
     unmapped_b: UnmappedObjects = field(default_factory=no_unmapped_objects)
     tracks_a: LandmarkChanges | None = None
     tracks_b: LandmarkChanges | None = None
+    # sessions ("A", "B") whose images show no relief: their claims were made without the objectness test
+    without_relief: tuple[str, ...] = ()
 
     @property
     def common_area(self) -> object:
@@ -174,6 +173,8 @@ class _Direct:
     # swept places whose surface in their own session stands no higher than the ground (`stands_above_ground`):
     # no object of theirs to have gone (all False where nothing was swept)
     flat: np.ndarray | None = None
+    # whether the own session's images show relief at its references (`shows_relief`); None: not measured here
+    relief: bool | None = None
 
     @property
     def established(self) -> np.ndarray:
@@ -208,12 +209,14 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     chance, absent = np.full(n, np.nan), np.zeros(n)
     by_segments = np.zeros(n, dtype=bool)
     surface, doubted, flat = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    relief = None
     if references is None:
         references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
     asked = compared & ((index < 0) & (other.segments is not None) | params.surface_overrules_links)
     if (params.surface_evidence and ground is not None and own is not None and own.images is not None
             and other.images is not None and np.any(asked)):
         measured_here = surface_references is None
+        relief = True
         if surface_references is None:
             ref = np.flatnonzero(compared & (index >= 0))
             if len(ref) > SURFACE_REFERENCES:
@@ -225,9 +228,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         if shows_relief(surface_references[0], params.object_height_p):
             flat[idx] = ~stands_above_ground(own_heights, surface_references[0], params.object_height_p)
         elif measured_here and params.object_height_p < 1.0:
-            log.warning("a session's images show no relief at its %d reference places (an orthophoto, bare fields?):"
-                        " its objects cannot be told from ground texture, so its changes are reported without that "
-                        "test", len(surface_references[0]))
+            relief = False
         if params.surface_overrules_links:
             # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
             # object stood is as often as chance allows (`alignment_support`'s displaced rate): where the
@@ -247,7 +248,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
                             & (absent[idx] < 0.5))
     return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments, surface, doubted,
-                   surface_references, flat)
+                   surface_references, flat, relief)
 
 
 def _surface(points: np.ndarray, own: SessionObservations, other: SessionObservations, ground: HeightField,
@@ -381,6 +382,7 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
         observed_b=observed_area(b_in_a.poses, b_in_a.cameras, ground), params=params,
         support=support, unmapped_a=unmapped_a, unmapped_b=unmapped_b,
         tracks_a=tracks_a, tracks_b=tracks_b,
+        without_relief=tuple(name for name, d in (("A", direct_a), ("B", direct_b)) if d.relief is False),
     )
 
 
