@@ -67,7 +67,7 @@ def bench_pair(map_a: Path, map_b: Path) -> dict:
     from ...plugin.map_noise import derived_search_params
     from ...plugin.match_answer import match_maps
     from ...plugin.params import Params
-    from ...workflows.evaluate.workflow import _map_arrays
+    from ...workflows.evaluate.ground_truth import _map_arrays
 
     pa, ha, _, _ = _map_arrays(map_a)
     pb, hb, _, _ = _map_arrays(map_b)
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     from ...plugin.match_answer import match_maps
     from ...plugin.params import Params
-    from ...workflows.evaluate.workflow import _map_arrays
+    from ...workflows.evaluate.ground_truth import _map_arrays
 
     print(machine_summary(), flush=True)
     todo = pairs(args)

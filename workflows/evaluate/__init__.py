@@ -20,8 +20,9 @@ Map size is the mean of the two sessions' maps: landmarks.sosmap bytes for SOS-M
 bytes for the baselines.
 """
 
+from .ground_truth import GroundTruthSession, load_ground_truth
 from .report import LABELS, format_table, limiting_stage, plot_overlay, plot_pr
-from .workflow import METHODS, GroundTruthSession, demo_step, error_to_identity, load_ground_truth, run
+from .workflow import METHODS, demo_step, error_to_identity, run
 
 __all__ = ["LABELS", "METHODS", "GroundTruthSession", "demo_step", "error_to_identity", "format_table",
            "limiting_stage", "load_ground_truth", "plot_overlay", "plot_pr", "run"]

@@ -14,7 +14,7 @@ from ...database.atomic import atomic_path
 from ...plugin.evaluation.metrics import PRCurve
 
 if TYPE_CHECKING:
-    from .workflow import GroundTruthSession
+    from .ground_truth import GroundTruthSession
 
 WRONG_ASSOCIATION_M = 5.0  # an association whose landmarks are farther apart (world frame) is drawn as wrong
 LABELS = {"sosmatch": "SOS-Match (ours)", "sosmatch_windows": "SOS-Match, windows only", "orb_ransac": "ORB+RANSAC",

@@ -15,167 +15,40 @@ from typing import Any
 import numpy as np
 
 from ...database.atomic import write_text_atomic
-from ...database.cameras import read_cameras_txt
-from ...database.evaluation_io import read_landmark_table, read_match_hypotheses, terrain_of_session
-from ...database.landmark_map import LandmarkMap, read_landmark_map
+from ...database.evaluation_io import read_match_hypotheses
 from ...database.map_loading import read_map_noise
 from ...database.match_io import check_match_maps, read_match_json
 from ...database.outputs import fingerprint, open_output_dir
-from ...database.poses import read_poses_csv
-from ...database.session_io import check_map_of_images, read_map_record
-from ...database.synth_session import ground_truth_crs, ground_truth_frame
+from ...database.session_io import check_map_of_images
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (
     Hypothesis,
     claim_scores,
     observer_geometry,
-    observer_matrix,
     separation_ratio,
 )
-from ...plugin.evaluation.footprints import footprint_polygons
 from ...plugin.evaluation.iou import iou_matrix
 from ...plugin.evaluation.metrics import FP_IOU, TP_IOU, PRCurve, operating_point, pr_curve
-from ...plugin.keyframes import select_keyframes
 from ...plugin.map_noise import derived_search_params
 from ...plugin.multisession import Sim3
 from ...plugin.params import Params, params_to_dict
 from ...plugin.verification import hypothesis_agrees
+from .ground_truth import (
+    GroundTruthSession,
+    _map_arrays,
+    _map_frame_centers,
+    _observers,
+    check_positive_pairs,
+    check_same_ground_truth_frame,
+    load_ground_truth,
+    world_from_map,
+)
 from .report import format_table, plot_overlay, plot_pr, row_of
 from .truth import landmark_truth
 
 log = logging.getLogger(__name__)
 
 METHODS = ("sosmatch", "orb_ransac", "sift_ransac")
-
-
-@dataclasses.dataclass
-class GroundTruthSession:
-    """Keyframes of one session with ground-truth poses and footprints."""
-
-    path: Path
-    names: list[str]  # keyframe image names
-    frame_index: np.ndarray  # keyframe -> row of poses.csv
-    centers: np.ndarray  # (K, 3) ground-truth camera centres of the keyframes
-    all_names: list[str]
-    all_centers: np.ndarray
-    footprints: np.ndarray  # (K,) shapely polygons
-    camera: Any = None  # the session's camera (cameras.txt)
-
-
-def load_ground_truth(params: Params, session: str | Path, dem: str | Path | None = None,
-                      ground_height: float = 0.0, poses_file: str = "poses.csv") -> GroundTruthSession:
-    """Keyframes (by travel on the ground-truth poses) and their footprints for one session directory."""
-    session = Path(session)
-    poses, _ = read_poses_csv(session / poses_file)
-    if len(poses) == 0:
-        raise InputError("no poses", session / poses_file)
-    cameras = read_cameras_txt(session / "cameras.txt")
-    camera = cameras[min(cameras)]
-    keys = select_keyframes(poses.centers, params.keyframes.interval_m)
-    terrain = terrain_of_session(session, dem, ground_height)
-    polys = footprint_polygons(camera, poses.rotations[keys], poses.centers[keys], terrain)
-    return GroundTruthSession(session, [poses.names[k] for k in keys], keys, poses.centers[keys],
-                              list(poses.names), poses.centers, polys, camera)
-
-
-def check_same_ground_truth_frame(session_a: Path, session_b: Path) -> None:
-    """Refuse two synthetic sessions whose ground truths lie in different frames (two worlds, or a world and an
-    orthophoto): the protocol compares their footprints and objects in one frame, and across worlds it would
-    score a match against ground that neither map saw (footprints overlapping by coordinates only)."""
-    frame_a, frame_b = ground_truth_frame(session_a), ground_truth_frame(session_b)
-    if frame_a is not None and frame_b is not None and frame_a != frame_b:
-        raise InputError(f"rendered in another world than {session_a} ({frame_b}, not {frame_a}): the two "
-                         "sessions share no ground truth to score a match against", session_b / "session.json")
-
-
-def check_positive_pairs(gt_a: GroundTruthSession, gt_b: GroundTruthSession, iou: np.ndarray, where: Path) -> None:
-    """Refuse a pair without one keyframe pair of IoU > TP_IOU: recall and F1 are undefined there, and the table
-    said 0.000 with exit 0, also for a right alignment. IoU cannot exceed the ratio of the footprints' areas, so
-    flights at very different heights (80 m and 150 m: 0.23) never reach it, nor do flights that do not overlap."""
-    if iou.size and np.any(iou > TP_IOU):
-        return
-    import shapely
-
-    area_a, area_b = (float(np.median(shapely.area(g.footprints))) if len(g.footprints) else 0.0
-                      for g in (gt_a, gt_b))
-    largest = float(iou.max()) if iou.size else 0.0
-    raise InputError(f"no keyframe pair of the two sessions overlaps by IoU > {TP_IOU:.3f} (largest {largest:.2f}; "
-                     f"median footprints {area_a:.0f} and {area_b:.0f} m^2): the protocol's recall and F1 are "
-                     "undefined for flights that do not overlap or differ this much in height", where)
-
-
-def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path) -> np.ndarray:
-    """Evaluation keyframe index of each image name: the keyframe nearest to the image's ground-truth centre.
-
-    Mapping may pick its keyframes on noisy (EKF) poses, so its images need not be the evaluation keyframes;
-    at 2 m keyframe spacing against footprints ~100 m wide, snapping to the nearest one changes IoU by ~2 %.
-    """
-    from scipy.spatial import cKDTree
-
-    row = {n: i for i, n in enumerate(gt.all_names)}
-    missing = [n for n in names if n not in row]
-    if missing:
-        raise InputError(f"{len(missing)} image name(s) not in {gt.path / 'poses.csv'}, e.g. {missing[0]!r}", where)
-    idx = np.fromiter((row[n] for n in names), dtype=np.int64, count=len(names))
-    _, kf = cKDTree(gt.centers).query(gt.all_centers[idx]) if len(idx) else (None, np.zeros(0, np.int64))
-    return np.asarray(kf, dtype=np.int64)
-
-
-def world_from_map(session: Path, map_dir: Path, epsg: int) -> Sim3:
-    """The transform from a map's frame into its session's ground-truth frame: the identity for a map in the
-    world frame (built on the session's poses.csv or poses_ekf.csv), the world_to_crs offset taken off for a map
-    georeferenced in the session's CRS (built from its DJI / EXIF geotags: UTM). Without it a right alignment of
-    such a map with a local one was scored 5.2e6 m off, F1 0, "limited by front end", exit 0. A map in another CRS
-    (the session's flight crossed a UTM zone edge) has no rigid relation to the truth: an error."""
-    crs = ground_truth_crs(session)
-    if crs is None or not epsg:
-        return Sim3.identity()
-    truth_epsg, offset = crs
-    if epsg != truth_epsg:
-        truth = f"EPSG:{truth_epsg}" if truth_epsg else "its local world frame"
-        raise InputError(f"map is georeferenced in EPSG:{epsg} but the ground truth of {session} is in {truth}: "
-                         "no rigid transform relates them", map_dir / "landmarks.sosmap")
-    return Sim3(np.eye(3), -offset)
-
-
-def _map_frame_centers(gt: GroundTruthSession, map_dir: Path, world_from: Sim3) -> np.ndarray:
-    """The evaluation keyframes' camera centres in the frame of the map (the poses it was built on, as run.json
-    records them: a synthetic session's EKF poses); else the ground-truth centres moved into the map's frame
-    (`world_from`: `world_from_map`)."""
-    truth = world_from.inverse().apply(gt.centers)
-    try:
-        source = Path((read_map_record(map_dir) or {})["inputs"]["poses"])
-    except (InputError, KeyError, TypeError):
-        return truth
-    if source.suffix != ".csv" or not source.is_file():
-        return truth
-    poses, _ = read_poses_csv(source)
-    row = {n: i for i, n in enumerate(poses.names)}
-    if not all(n in row for n in gt.names):
-        return truth
-    return poses.centers[[row[n] for n in gt.names]]
-
-
-def _observers(gt: GroundTruthSession, map_dir: Path, max_observers: int | None,
-               centers: np.ndarray) -> tuple[Any, Any]:
-    """Each landmark's observing keyframes; `centers`: the keyframes' centres in the map's frame."""
-    table = read_landmark_table(map_dir / "landmarks.csv")
-    flat = [n for names in table.image_names for n in names]
-    kf = _keyframe_of_names(gt, flat, map_dir / "landmarks.csv")
-    splits = np.cumsum([len(n) for n in table.image_names])[:-1]
-    obs = np.split(kf, splits) if len(table.image_names) else []
-    return observer_matrix(obs, len(gt.names), table.positions[:, :2], centers[:, :2], max_observers), table
-
-
-def _map_arrays(map_dir: Path) -> tuple[np.ndarray, np.ndarray, int, LandmarkMap | None]:
-    """Landmark positions, sizes and the map's byte size (landmarks.sosmap if present, else the csv), and the
-    landmark map itself (None without landmarks.sosmap)."""
-    sosmap = map_dir / "landmarks.sosmap"
-    if sosmap.exists():
-        lmap = read_landmark_map(sosmap)
-        return lmap.positions, lmap.sizes.astype(np.float64), sosmap.stat().st_size, lmap
-    table = read_landmark_table(map_dir / "landmarks.csv")
-    return table.positions, table.sizes, 52 + 14 * len(table.positions), None
 
 
 def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSession, map_a: Path, map_b: Path,
