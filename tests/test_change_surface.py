@@ -86,6 +86,11 @@ def test_the_sweep_finds_the_surface_despite_a_maps_pose_errors(scene):
         assert np.all(np.isfinite(h))
         err = np.abs(h - want[keep])
         assert np.median(err) < 0.5 and np.mean(err < 1.0) >= 0.9
+    # views too coarse for the patch (2 m across under MIN_PATCH_PIXELS of them): no height, never a guess
+    coarse = Camera(320, 240, 100.0, 100.0, 160.0, 120.0)  # 0.45 m a pixel from 45 m: the patch is 4.4 px wide
+    pts = positions[:5]
+    assert np.all(np.isnan(heights_above_ground(pts, np.zeros(5), images_a, a.poses, [coarse] * len(a.poses))))
+    assert not shows_relief(np.full(50, np.nan), 0.01)
     # no images: no height
     assert np.all(np.isnan(heights_above_ground(positions[:3], np.zeros(3), None, a.poses, [CAM] * len(a.poses))))
 

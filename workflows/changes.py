@@ -118,8 +118,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     for name in result.without_relief:
         path = session_a if name == "A" else session_b
         warnings.append(f"the images of session {name} ({path}) show no relief at its reference places (views of "
-                        "an orthophoto, bare fields?): its objects cannot be told from ground texture, so its "
-                        "changes are claimed without that test")
+                        "an orthophoto, bare fields, or too coarse for a height?): its objects cannot be told from "
+                        "ground texture, so its changes are claimed without that test")
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
         if not area.area > 0:
             raise InputError(f"session {name}'s keyframes see no ground (no footprint): nothing to compare", path)

@@ -22,6 +22,10 @@ from ..geometry import Camera, Poses, project
 PATCH_CELLS = 15  # cells across the swept patch
 PATCH_HALF_M = 1.0  # the swept patch's half width: small, so the top of a crown or a roof fills it (BENCHMARKS)
 MIN_PATCH_HALF_M = 1.0  # a smaller patch holds too little texture to agree or disagree
+# a view resolves the patch when it spans this many of its pixels: below that the correlation of 15 x 15
+# interpolated cells rests on a few independent pixels and agrees as well at any height (views of a 1 m/px
+# orthophoto: the patch is 2 pixels wide). A drone survey at 100 m sees it across 8-15 pixels.
+MIN_PATCH_PIXELS = 5.0
 SWEEP_VIEWS = 6
 REFERENCE_LIMIT = 200  # reference places (evenly spaced) for the calibration: bounded cost on large maps
 SWEEP_STEP_M = 0.5
@@ -183,7 +187,8 @@ def sweep_agreement(xy: np.ndarray, half_m: float, levels: np.ndarray, views: Se
 def sweep_views(points: np.ndarray, half_m: np.ndarray, ground_z: np.ndarray, poses: Poses,
                 cameras: Sequence[Camera], views: int) -> np.ndarray:
     """(views, N) keyframes per point for the sweep (`spread_views`): those that hold the patch at the bottom
-    and the top of the sweep and the registration window at the ground."""
+    and the top of the sweep and the registration window at the ground, and resolve the patch (at least
+    MIN_PATCH_PIXELS across at the ground; a coarser view leaves the place without a height)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n, k_count = len(p), len(poses)
     inside = np.ones((k_count, n), dtype=bool)
@@ -199,8 +204,11 @@ def sweep_views(points: np.ndarray, half_m: np.ndarray, ground_z: np.ndarray, po
                     uv[:, 1] <= cam.height - 1)
     for k in range(k_count):
         cam = cameras[k]
-        uv, _ = project(cam, poses.rotations[k], poses.centers[k], np.column_stack([p[:, :2], ground_z]))
+        uv, depth = project(cam, poses.rotations[k], poses.centers[k], np.column_stack([p[:, :2], ground_z]))
         off[k] = np.hypot(uv[:, 0] - cam.width / 2.0, uv[:, 1] - cam.height / 2.0) / max(cam.width, cam.height)
+        # the patch's width in this view's pixels at the ground (the nearest, widest place of the sweep is above)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inside[k] &= 2.0 * half_m * min(cam.fx, cam.fy) / np.maximum(depth, 1e-9) >= MIN_PATCH_PIXELS
     return spread_views(inside, poses.centers, off, views)
 
 
@@ -317,8 +325,9 @@ def stands_above_ground(heights: np.ndarray, ref_heights: np.ndarray, p: float) 
 def shows_relief(ref_heights: np.ndarray, p: float) -> bool:
     """Whether a session's images show any relief at its reference places: more of them stand above the ground
     (`stands_above_ground`) than its ground noise alone would raise at level p (binomial tail below p). An
-    orthophoto rendered as views, or a survey of bare fields, does not: there the objectness test cannot tell an
-    object from ground texture and is not applied."""
+    orthophoto rendered as views, or a survey of bare fields, does not, nor do images too coarse for a height at
+    any reference place (all NaN): there the objectness test cannot tell an object from ground texture and is
+    not applied."""
     from scipy.stats import binom
 
     h = np.asarray(ref_heights, dtype=np.float64)
