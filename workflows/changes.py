@@ -176,24 +176,23 @@ def changes_png(result: ChangeResult, title: str = "") -> bytes:
     draw(result.positions_a, result.sizes_a, a.label == KEPT, c="#777777", alpha=0.7, linewidths=0,
          label=f"kept ({a.count(KEPT)} of A, {b.count(KEPT)} of B)")
     draw(result.positions_b, result.sizes_b, b.label == KEPT, c="#777777", alpha=0.7, linewidths=0)
+    def ring(pos: np.ndarray, mask: np.ndarray, colour: str) -> None:
+        # a change is a few metres on a plot of hundreds: a ring around each makes it visible at a glance
+        if np.any(mask):
+            ax.scatter(pos[mask, 0], pos[mask, 1], s=220, facecolors="none", edgecolors=colour, linewidths=1.5)
+
     draw(result.positions_a, result.sizes_a, a.label == GONE, c="#d62728", edgecolors="k", linewidths=0.5,
          label=f"gone ({a.count(GONE)})")
     draw(result.positions_b, result.sizes_b, b.label == NEW, c="#2ca02c", edgecolors="k", linewidths=0.5,
          label=f"new ({b.count(NEW)})")
-    # a change is a few metres on a plot of hundreds: a ring around each makes it visible at a glance
-    rings = [(result.positions_a, a.label == GONE, "#d62728"), (result.positions_b, b.label == NEW, "#2ca02c")]
-    for objs, verdict, change, colour in ((result.unmapped_a, result.tracks_a, GONE, "#d62728"),
-                                          (result.unmapped_b, result.tracks_b, NEW, "#2ca02c")):
-        if verdict is not None:
-            rings.append((objs.positions, verdict.label == change, colour))
-    for pos, mask, colour in rings:
-        if np.any(mask):
-            ax.scatter(pos[mask, 0], pos[mask, 1], s=220, facecolors="none", edgecolors=colour, linewidths=1.5)
+    ring(result.positions_a, a.label == GONE, "#d62728")
+    ring(result.positions_b, b.label == NEW, "#2ca02c")
     for objs, verdict, change, colour in ((result.unmapped_a, result.tracks_a, GONE, "#d62728"),
                                           (result.unmapped_b, result.tracks_b, NEW, "#2ca02c")):
         if verdict is not None:  # objects never mapped (from track pieces): diamonds
             draw(objs.positions, objs.sizes, verdict.label == change, c=colour, marker="D", edgecolors="k",
                  linewidths=0.5, label=f"{change}, never mapped ({verdict.count(change)})")
+            ring(objs.positions, verdict.label == change, colour)
     ax.scatter([], [], c="#cccccc", label=f"unseen by the other ({a.count(UNSEEN)} + {b.count(UNSEEN)})")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m] (A's frame)")

@@ -216,7 +216,6 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     if (params.surface_evidence and ground is not None and own is not None and own.images is not None
             and other.images is not None and np.any(asked)):
         measured_here = surface_references is None
-        relief = True
         if surface_references is None:
             ref = np.flatnonzero(compared & (index >= 0))
             if len(ref) > SURFACE_REFERENCES:
@@ -225,10 +224,11 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         idx = np.flatnonzero(asked)
         own_heights, other_heights = _surface(own_pos[idx], own, other, ground, params)
         surface[idx] = height_log_ratio(own_heights, other_heights, *surface_references)
-        if shows_relief(surface_references[0], params.object_height_p):
-            flat[idx] = ~stands_above_ground(own_heights, surface_references[0], params.object_height_p)
-        elif measured_here and params.object_height_p < 1.0:
-            relief = False
+        if params.object_height_p < 1.0:  # the objectness test is on
+            shown = shows_relief(surface_references[0], params.object_height_p)
+            if shown:
+                flat[idx] = ~stands_above_ground(own_heights, surface_references[0], params.object_height_p)
+            relief = shown if measured_here else None
         if params.surface_overrules_links:
             # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
             # object stood is as often as chance allows (`alignment_support`'s displaced rate): where the
