@@ -10,13 +10,13 @@ import cv2
 import numpy as np
 import pytest
 
-from sosmatch.database.cameras import write_cameras_txt
+from sosmatch.database.cameras import read_cameras_txt, write_cameras_txt
 from sosmatch.database.landmark_map import read_landmark_map
 from sosmatch.database.poses import write_poses_csv
 from sosmatch.database.session_io import read_session
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Camera, Poses
-from sosmatch.plugin.params import Params
+from sosmatch.plugin.params import Params, with_overrides
 from sosmatch.tools.cli import main
 from sosmatch.workflows import map as map_workflow
 
@@ -64,6 +64,19 @@ def session(tmp_path_factory):
     inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
     summary = map_workflow.run(Params(), inputs, out, progress=False)
     return root, objs, out, summary
+
+
+def test_the_segmenter_works_at_the_measured_ground_resolution(session):
+    """The pose check's flying height sets the classical backend's working size (run.json records both)."""
+    root, _, out, _ = session
+    record = json.loads((out / "run.json").read_text())
+    camera = read_cameras_txt(root / "cameras.txt")[1]
+    true_gsd = 60.0 / camera.fx  # render_session: flat ground 60 m below every camera
+    assert abs(record["ground_resolution_m"] / true_gsd - 1) < 0.03
+    seg = record["params"]["segmentation"]
+    side = max(camera.width, camera.height)
+    expected = round(side * record["ground_resolution_m"] / seg["classical_ground_resolution_m"])
+    assert seg["classical_max_side"] == expected < camera.width  # 0.23 m/px images segmented at 0.32 m/px
 
 
 def _cli(capsys, *args):
@@ -310,15 +323,26 @@ def test_a_failed_map_does_not_block_its_own_retry(session, tmp_path, capsys):
     (images / "frame_00010.jpg").write_bytes(b"\xff\xd8\xff\xe0 not a jpeg")
     out = tmp_path / "s"
     args = ["--images", images, "--poses", root / "poses.csv", "--camera", root / "cameras.txt", "--out", out]
+    # the pose check, the first stage, reads the bad image before any keyframe is described
     code, cap = _cli(capsys, *args)
     assert code == 2 and "frame_00010.jpg" in cap.err and len(cap.err.strip().splitlines()) == 1
-    cached = len(list((out / ".partial" / "cache").glob("*.npz")))
+    assert not list((out / ".partial" / "cache").glob("*.npz"))
+    # without it, the keyframes fail there, keeping the ones described before
+    off = {"pose_check.enabled": False}
+    code, cap = _cli(capsys, *args[:-1], tmp_path / "s_off", "--set", "pose_check.enabled=false")
+    assert code == 2 and "frame_00010.jpg" in cap.err and len(cap.err.strip().splitlines()) == 1
+    cached = len(list((tmp_path / "s_off" / ".partial" / "cache").glob("*.npz")))
     assert cached >= 10  # keyframes 0-9 were described before the bad one
     (images / "frame_00010.jpg").write_bytes(good)
     inputs = map_workflow.load_inputs(images, root / "poses.csv", root / "cameras.txt")
     summary = map_workflow.run(Params(), inputs, out, progress=False)
-    assert summary.keyframes_from_cache == cached
     assert (out / "landmarks.sosmap").read_bytes() == (session[2] / "landmarks.sosmap").read_bytes()
+    summary = map_workflow.run(with_overrides(Params(), off), inputs, tmp_path / "s_off", progress=False)
+    assert summary.keyframes_from_cache == cached
+    fresh = map_workflow.run(with_overrides(Params(), off), inputs, tmp_path / "s_fresh", progress=False)
+    assert fresh.keyframes_from_cache == 0
+    resumed, from_scratch = (tmp_path / name / "landmarks.sosmap" for name in ("s_off", "s_fresh"))
+    assert resumed.read_bytes() == from_scratch.read_bytes()
     # a camera of the wrong size: refused, then fixed, then resumed the same way
     wrong = tmp_path / "cameras.txt"
     wrong.write_text((root / "cameras.txt").read_text().replace(" 320 240 ", " 640 480 "))

@@ -199,3 +199,32 @@ def test_pixel_limits_scale_with_the_image_and_stay_at_the_tuned_size():
     assert math.isclose(paper.tracking.epipolar_margin_px, 24.0)
     off = with_overrides(Params(), {"image.reference_size_px": 0.0})
     assert for_image(off, 4000, 3000) is off
+
+
+def test_the_segmenters_working_pixel_covers_the_same_ground_at_any_altitude():
+    from sosmatch.plugin.params import for_ground_resolution
+    from sosmatch.plugin.params.presets import MIN_WORK_SIDE_PX
+
+    p = Params()
+    target = p.segmentation.classical_ground_resolution_m
+    # 640 px frames (f 502 px) at 80, 100, 130 and 150 m: one working pixel is `target` metres each time
+    for altitude in (80.0, 100.0, 130.0, 150.0):
+        gsd = altitude / 502.3
+        q = for_ground_resolution(p, gsd, 640, 480)
+        side = q.segmentation.classical_max_side
+        assert abs(gsd * 640 / side - target) <= 0.5 * gsd * 640 / side**2 * 1.01  # rounding to a whole pixel
+        # the smallest region keeps its number of working pixels (400 px at the defaults), so its ground area
+        working_area = q.segmentation.classical_min_area_px * (side / 640) ** 2
+        assert abs(working_area - 100 * (400 / 640) ** 2) <= 0.6 * (side / 640) ** 2
+    assert for_ground_resolution(p, 130 / 502.3, 640, 480).segmentation.classical_max_side > 400
+    # never above the full size (coarse imagery: every pixel counts), never a thumbnail
+    assert for_ground_resolution(p, 1.0, 640, 480).segmentation.classical_max_side == 640
+    assert for_ground_resolution(p, 0.005, 4000, 3000).segmentation.classical_max_side == MIN_WORK_SIDE_PX
+    assert for_ground_resolution(p, 0.005, 120, 90).segmentation.classical_max_side == 120
+    # unchanged when unknown, switched off, or for another backend
+    assert for_ground_resolution(p, float("nan"), 640, 480) is p
+    assert for_ground_resolution(p, 0.0, 640, 480) is p
+    off = with_overrides(p, {"segmentation.classical_ground_resolution_m": 0.0})
+    assert for_ground_resolution(off, 0.2, 640, 480) is off
+    sam = with_overrides(p, {"segmentation.backend": "sam-onnx"})
+    assert for_ground_resolution(sam, 0.2, 640, 480) is sam

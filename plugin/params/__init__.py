@@ -36,7 +36,16 @@ from .mapping import (
     TriangulationParams,
 )
 from .matching import AssociationParams, VerificationParams
-from .presets import PIXEL_AREAS, PIXEL_LENGTHS, PRESETS, for_flight, for_image, pixel_scale, preset_params
+from .presets import (
+    PIXEL_AREAS,
+    PIXEL_LENGTHS,
+    PRESETS,
+    for_flight,
+    for_ground_resolution,
+    for_image,
+    pixel_scale,
+    preset_params,
+)
 from .tree import Params, params_from_dict, params_to_dict, with_overrides
 
 __all__ = [
@@ -61,6 +70,7 @@ __all__ = [
     "count",
     "flag",
     "for_flight",
+    "for_ground_resolution",
     "for_image",
     "fraction",
     "non_negative",

@@ -50,6 +50,15 @@ class SegmentationParams(Checked):
     sift_contrast_threshold: float = non_negative(0.01)
     # -- backend `classical` (sosmatch.plugin.segmentation.classical; all ours, tuned on synthetic + Seneca) --
     classical_max_side: int = count(400, 1)  # working resolution (longer side, px); masks are mapped back to full size
+    # (ours) the ground one working pixel covers (m): when the map measures its flying height (the pose check's
+    # median depth), the working size follows the ground resolution, longer side = image side x (flying height /
+    # focal length) / this, instead of the fixed `classical_max_side`, and `classical_min_area_px` keeps its share
+    # of working pixels. The parameters in working pixels (median, texture window, merge cost) then mean the same
+    # ground at any altitude and on any camera. At a fixed 400 px, 640 px frames flown at 130 m were segmented at
+    # 0.42 m per working pixel against 0.32 m at 100 m, and tree crowns came out 4-16 % larger (neighbours
+    # merged, boundaries took coarser pixels; BENCHMARKS.md, "One working pixel, one ground size"). 0.32: the
+    # synthetic 100 m sessions the classical parameters were tuned on. 0 = always `classical_max_side`.
+    classical_ground_resolution_m: float = non_negative(0.32)
     # median filter (working px) that removes leaf / furrow texture
     classical_median_ksize: int = count(5, 1, 255, odd=True)
     classical_smooth_sigma_color: float = non_negative(40.0)  # bilateral filter colour sigma (0..255 units)

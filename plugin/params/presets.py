@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from ..errors import InputError
 from .tree import Params, params_to_dict, with_overrides
 
@@ -96,6 +98,32 @@ def for_image(params: Params, width: int, height: int) -> Params:
         else:
             changes[dotted] = value * scale
     return with_overrides(params, changes)
+
+
+# Fewest working pixels on the longer side: a very low flight (a few mm per pixel) is not shrunk to a thumbnail
+# whose whole width is a handful of objects; its objects are then seen larger than the tuning assumed.
+MIN_WORK_SIDE_PX = 160
+
+
+def for_ground_resolution(params: Params, ground_resolution_m: float, width: int, height: int) -> Params:
+    """`params` with the classical segmenter's working size following the ground resolution of the images.
+
+    `ground_resolution_m`: metres of ground per full-resolution pixel (flying height / focal length). The working
+    longer side becomes max(width, height) x ground_resolution_m / `segmentation.classical_ground_resolution_m`
+    (at most the full size, at least MIN_WORK_SIDE_PX), and `classical_min_area_px` (full-resolution pixels)
+    is scaled so that it keeps the same number of working pixels it had at `classical_max_side`. The same
+    object when the backend is not `classical`, the target is 0 or the ground resolution is unknown."""
+    seg = params.segmentation
+    target = seg.classical_ground_resolution_m
+    if seg.backend != "classical" or not target > 0 or not (np.isfinite(ground_resolution_m)
+                                                             and ground_resolution_m > 0):
+        return params
+    full = max(int(width), int(height))
+    side = int(round(full * float(ground_resolution_m) / target))
+    side = min(full, max(min(MIN_WORK_SIDE_PX, full), side))
+    was = min(full, seg.classical_max_side)  # the working side the fixed rule gives (never above full size)
+    area = int(round(seg.classical_min_area_px * (was / side) ** 2))
+    return with_overrides(params, {"segmentation.classical_max_side": side, "segmentation.classical_min_area_px": area})
 
 
 def preset_params(name: str) -> Params:

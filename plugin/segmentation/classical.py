@@ -1,6 +1,8 @@
 """`classical`: an open-set region segmenter from well-kept libraries (OpenCV, NumPy, SciPy); no weights.
 
-Pipeline, at a reduced working resolution (`classical_max_side`, 400 px):
+Pipeline, at a reduced working resolution (`classical_max_side`, 400 px; `sosmatch map` sets it from the flying
+height it measures so that one working pixel covers `classical_ground_resolution_m` of ground at any altitude,
+`plugin.params.for_ground_resolution`):
 1. smoothing: median filter (removes leaf / furrow texture finer than the kernel) then a bilateral filter;
 2. over-segmentation: marker-controlled watershed (OpenCV) seeded by the flat zones of the CIELAB gradient and
    by its minima deeper than the flat level (`classical_minima_depth`: a textured crown, bush or boulder on snow);

@@ -25,7 +25,7 @@ from ...database.landmark_map import LandmarkMap, write_landmark_map
 from ...database.outputs import OutputDir, fingerprint
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
-from ...plugin.params import Params, for_flight, for_image, params_to_dict, pixel_scale
+from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
 from .inputs import MapInputs, hash_json, image_digests, in_flight_order, input_fingerprints, input_paths
 from .keyframes import CACHE_VERSION, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
@@ -99,6 +99,24 @@ def flight_views(kf_poses: Any, motion: list[tuple[float, float]], camera: Any) 
     return views_per_pass(np.array([m[0] for m in motion[1:]]), in_cam[:, :2], camera.width, camera.height)
 
 
+def working_resolution(params: Params, checked: Any, camera: Any) -> tuple[Params, float]:
+    """(`params` with the classical segmenter's working size set from the ground resolution the pose check measured
+    (its flying height over the focal length; `plugin.params.for_ground_resolution`); unchanged, with a log line,
+    when the check is off or found no depth; the ground resolution in m/px, NaN when not measured)."""
+    height = float(checked.check.flying_height_m) if checked is not None else float("nan")
+    gsd = height / float(np.sqrt(camera.fx * camera.fy))
+    scaled = for_ground_resolution(params, gsd, camera.width, camera.height)
+    seg = scaled.segmentation
+    if scaled is not params:
+        log.info("ground resolution %.3f m/px (flying height %.1f m): segmenting at %d px (%.2f m per working "
+                 "pixel)", gsd, height, seg.classical_max_side,
+                 gsd * max(camera.width, camera.height) / seg.classical_max_side)
+    elif seg.backend == "classical" and seg.classical_ground_resolution_m > 0:
+        log.info("flying height not measured (pose check %s): segmenting at the fixed %d px",
+                 "off" if checked is None else "found no depth", seg.classical_max_side)
+    return scaled, gsd
+
+
 def map_origin(positions: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
     """A round-numbered origin near the data (median of the landmarks, else of the cameras; whole metres)."""
     pts = positions if len(positions) else camera_centers
@@ -148,9 +166,9 @@ def run(
         params = for_image(params, inputs.camera.width, inputs.camera.height)
     else:  # the poses are computed inside the taken directory: the identity is that of their source
         what, paths = source.identity(), source.input_paths()
-    pdict = params_to_dict(params)
     # what the outputs depend on: a complete session of another identity is replaced only with `overwrite`
-    identity = fingerprint({"inputs": what, "params": pdict, "text_model": text_model, "masks": masks_source})
+    identity = fingerprint({"inputs": what, "params": params_to_dict(params), "text_model": text_model,
+                            "masks": masks_source})
     with take_output_dir(out_dir, identity, paths, overwrite) as out:
         extra: tuple[str, ...] = ()
         if source is not None:
@@ -161,9 +179,8 @@ def run(
             digests = image_digests(inputs)
             fps = input_fingerprints(inputs, digests)
             params = for_image(params, inputs.camera.width, inputs.camera.height)
-            pdict = params_to_dict(params)
         timings["inputs"] = time.perf_counter() - t_start
-        summary = _map_into(out, params, inputs, fps, digests, pdict, masks_source, text_model, progress,
+        summary = _map_into(out, params, inputs, fps, digests, masks_source, text_model, progress,
                             on_keyframe, workers, masks_for, timings, t_start, extra)
         out.finish(keep_staging=keep_cache)
     if keep_cache:
@@ -173,7 +190,7 @@ def run(
 
 
 def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, str], digests: list[str],
-              pdict: dict[str, Any], masks_source: str, text_model: bool, progress: bool,
+              masks_source: str, text_model: bool, progress: bool,
               on_keyframe: Callable[[int], None] | None, workers: int,
               masks_for: Callable[[str, np.ndarray], Any] | None, timings: dict[str, float],
               t_start: float, extra_outputs: tuple[str, ...] = ()) -> MapSummary:
@@ -188,6 +205,12 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
 
     partial = out.staging
     camera = inputs.camera
+    t = time.perf_counter()
+    # before the keyframes: its flying height sets the segmenter's working size (`working_resolution`)
+    checked = pose_check_stage(inputs, params, out.staged(POSE_CHECK))
+    timings["pose_check"] = time.perf_counter() - t
+    params, ground_resolution = working_resolution(params, checked, camera)
+    pdict = params_to_dict(params)
     # the lens enters the cached image motion (measured in undistorted pixels); a pinhole's focal length does not
     lens = None if camera.is_pinhole else [camera.model, list(camera.params)]
     cache_key = hash_json({"v": CACHE_VERSION, "seg": pdict["segmentation"], "kf": pdict["keyframes"],
@@ -199,11 +222,6 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
                                                   progress, on_keyframe, workers, masks_for, digests)
     timings["keyframes"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    # after the keyframes (an unreadable image fails there, with the cache of those before it kept for the retry)
-    checked = pose_check_stage(inputs, params, out.staged(POSE_CHECK))
-    timings["pose_check"] = time.perf_counter() - t
 
     from tqdm import tqdm
 
@@ -292,6 +310,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "camera": {"model": camera.model, "width": camera.width, "height": camera.height, "params": camera.params,
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
+        # metres of ground per image pixel at the measured flying height (sets the segmenter's working size)
+        "ground_resolution_m": round(ground_resolution, 5) if np.isfinite(ground_resolution) else None,
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
