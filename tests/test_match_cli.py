@@ -125,9 +125,23 @@ def test_bad_input_one_line_exit_2(maps, tmp_path):
     tiny = tmp_path / "tiny.sosmap"
     write_landmark_map(tiny, LandmarkMap(np.zeros((2, 3)), np.ones(2)))
     assert main(["match", str(tiny), str(d / "a.sosmap"), "--out", str(tmp_path / "o")]) == 2
-    assert main(["match", str(d / "a.sosmap"), str(d / "a.sosmap"), "--out", str(tmp_path / "o"),
+    assert main(["match", str(d / "a.sosmap"), str(d / "session_b"), "--out", str(tmp_path / "o"),
                  "--set", "association.transform=affine"]) == 2
     assert not (tmp_path / "o").exists()
+
+
+def test_a_map_matched_with_itself_or_a_copy_is_refused(maps, tmp_path, capsys):
+    """`match A A` reported the identity, verified by every landmark, as a success: a mistake, refused like one."""
+    d, _ = maps
+    out = tmp_path / "o"
+    assert main(["match", str(d / "session_b"), str(d / "session_b" / "."), "--out", str(out)]) == 2
+    assert "A and B are the same session: nothing to match" in capsys.readouterr().err
+    copy = tmp_path / "copy.sosmap"
+    copy.write_bytes((d / "a.sosmap").read_bytes())
+    assert main(["match", str(d / "a.sosmap"), str(copy), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"{copy}: holds the same landmark map as {d / 'a.sosmap'}" in err
+    assert not out.exists()
 
 
 def test_colmap_model_sizes_from_tracks(tmp_path):

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..database.atomic import write_bytes_atomic, write_text_atomic
-from ..database.landmark_map import landmark_map_fingerprint
+from ..database.landmark_map import check_two_maps, landmark_map_fingerprint
 from ..database.map_loading import LoadedMap, load_map
 from ..database.match_io import MATCH_FORMAT, parse_match
 from ..database.outputs import fingerprint, open_output_dir
@@ -292,6 +292,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     out_dir = Path(out_dir)
     map_a, map_b = load_map(a), load_map(b)
     la, lb = map_a.lmap, map_b.lmap
+    check_two_maps(a, b, la, lb, "match")
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
     # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
