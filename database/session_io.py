@@ -129,6 +129,19 @@ def read_map_record(map_dir: str | Path) -> dict | None:
     return record
 
 
+def map_keyframe_names(map_dir: str | Path) -> list[str] | None:
+    """The keyframes (image names, flight order) the map in MAP_DIR was built from: run.json's `keyframes`; None
+    for directories without a record or a record without them (merged models, older runs). InputError naming
+    run.json when the record is unreadable or its `keyframes` is not a list of names (a record edited by hand)."""
+    record = read_map_record(map_dir)
+    if record is None or "keyframes" not in record:
+        return None
+    names = record["keyframes"]
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise InputError("session record has no list of keyframe names (`keyframes`)", Path(map_dir) / "run.json")
+    return names
+
+
 def map_min_observations(map_dir: str | Path) -> int | None:
     """theta_n (`triangulation.min_observations`) the map in MAP_DIR was made with: run.json's
     counts.min_observations, which the flight's views may have lowered below the configured one

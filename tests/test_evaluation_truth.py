@@ -120,3 +120,21 @@ def test_overlap_test_claims_only_cameras_the_association_places_close():
     turn = np.diag([-1.0, -1.0, 1.0])
     got = claim_scores([Hypothesis(np.array([[0, 0]]), 7.0, True, turn)], obs, obs, (geo, geo, ratio))
     assert np.isfinite(got).tolist() == [[False, True, True], [True, True, True], [True, True, False]]
+
+
+def test_a_hand_edited_record_without_keyframe_names_is_one_error_naming_it(tmp_path):
+    import json
+
+    from sosmatch.database.session_io import map_keyframe_names
+    from sosmatch.plugin.errors import InputError
+
+    assert map_keyframe_names(tmp_path) is None  # no record: a merged model, an older run
+    (tmp_path / "run.json").write_text(json.dumps({"counts": {}}))
+    assert map_keyframe_names(tmp_path) is None
+    (tmp_path / "run.json").write_text(json.dumps({"keyframes": ["a.jpg", "b.jpg"]}))
+    assert map_keyframe_names(tmp_path) == ["a.jpg", "b.jpg"]
+    for bad in ({"keyframes": 5}, {"keyframes": ["a.jpg", 3]}, {"keyframes": None}):
+        (tmp_path / "run.json").write_text(json.dumps(bad))
+        with pytest.raises(InputError, match="keyframe names") as err:
+            map_keyframe_names(tmp_path)
+        assert "run.json" in str(err.value)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...database.session_io import map_min_observations, read_map_record
+from ...database.session_io import map_keyframe_names, map_min_observations
 from ...plugin.params import Params
 
 
@@ -47,8 +47,7 @@ def landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Path
     # an object is eligible when each map's keyframes saw it often enough to make a landmark there
     min_keyframes = [keyframes_for_a_landmark(params, m) for m in (map_a, map_b)]
     for s, m, least in zip(synth, (map_a, map_b), min_keyframes):
-        record = read_map_record(m)
-        names = None if record is None else record["keyframes"]
+        names = map_keyframe_names(m)
         keyframes = None if names is None else set(names)
         counts: dict[int, int] = {}
         for frame in s.frames:
