@@ -238,11 +238,11 @@ def main() -> None:
     if args.check == "seneca":
         for k, v in seneca_end_to_end(args.seneca, args.work).items():
             print(f"{k}: {v}")
-        for k, v in seneca_cross_session(args.seneca, args.work, args.work / "poses_refined.csv").items():
+        for k, v in seneca_cross_session(args.seneca, args.work, args.work / "refined" / "poses.csv").items():
             print(f"cross-session {k}: {v}")
         return
     if args.check == "seneca-cross":
-        for k, v in seneca_cross_session(args.seneca, args.work, args.work / "poses_refined.csv").items():
+        for k, v in seneca_cross_session(args.seneca, args.work, args.work / "refined" / "poses.csv").items():
             print(f"cross-session {k}: {v}")
         return
     if args.check == "naip":

@@ -27,22 +27,30 @@ def seneca_end_to_end(seneca: Path, work: Path) -> dict:
     poses_from_exif.run(seneca / "images", work / "poses.csv", telemetry=seneca / "telemetry.csv")
     out["exif_seconds"] = time.perf_counter() - t
     t = time.perf_counter()
-    res = poses_from_exif.run(seneca / "images", work / "poses_refined.csv", telemetry=seneca / "telemetry.csv",
+    # its own folder: the refinement writes its own cameras.txt beside its poses (refined intrinsics), and an
+    # output of another command's inputs is never replaced
+    (work / "refined").mkdir(exist_ok=True)
+    res = poses_from_exif.run(seneca / "images", work / "refined" / "poses.csv", telemetry=seneca / "telemetry.csv",
                               refine=True)
     out["refine_seconds"] = time.perf_counter() - t
     out["refinement"] = res.summary["refinement"]
-    for label, poses_csv, preset in [("telemetry, paper defaults", "poses.csv", "paper"),
-                                     ("refined, paper defaults", "poses_refined.csv", "paper"),
-                                     ("telemetry, survey preset", "poses.csv", "survey"),
-                                     ("refined, survey preset", "poses_refined.csv", "survey")]:
+    from sosmatch.workflows.map.quality import MapRefused
+
+    for label, poses_dir, preset in [("telemetry, paper defaults", work, "paper"),
+                                     ("refined, paper defaults", work / "refined", "paper"),
+                                     ("telemetry, survey preset", work, "survey"),
+                                     ("refined, survey preset", work / "refined", "survey")]:
         session = work / ("map_" + label.replace(", ", "_").replace(" ", "_"))
-        inputs = map_wf.load_inputs(seneca / "images", work / poses_csv, work / "cameras.txt")
+        inputs = map_wf.load_inputs(seneca / "images", poses_dir / "poses.csv", poses_dir / "cameras.txt")
         t = time.perf_counter()
-        summary = map_wf.run(load_params(preset=preset), inputs, session, overwrite=True, progress=False)
+        try:
+            map_wf.run(load_params(preset=preset), inputs, session, overwrite=True, progress=False)
+        except MapRefused as refused:  # published all the same (run.json says why): its figures are reported
+            out[label + " (refused)"] = str(refused)
         wall = time.perf_counter() - t
         run = json.loads((session / "run.json").read_text())
         errors = np.array([p.error for p in pycolmap.Reconstruction(session / "sparse").points3D.values()])
-        out[label] = {"landmarks": summary.num_landmarks,
+        out[label] = {"landmarks": run["counts"]["landmarks"],
                       "tracks_long": run["counts"]["tracks_long"], "masks": run["counts"]["masks"],
                       "mean_reprojection_px": float(errors.mean()) if len(errors) else float("nan"),
                       "map_bytes": run["counts"]["map_bytes"], "seconds": wall}
@@ -82,7 +90,7 @@ def seneca_cross_session(seneca: Path, work: Path, poses_csv: Path) -> dict:
         keep = [i for i in range(len(poses)) if lo <= course[i] < hi]
         subset_csv = work / f"poses_{label}.csv"
         write_poses_csv(subset_csv, poses.subset(keep), epsg)
-        inputs = map_wf.load_inputs(seneca / "images", subset_csv, work / "cameras.txt")
+        inputs = map_wf.load_inputs(seneca / "images", subset_csv, poses_csv.parent / "cameras.txt")
         session = work / f"map_{label}"
         try:
             summary = map_wf.run(load_params(preset="survey"), inputs, session, overwrite=True, progress=False)
