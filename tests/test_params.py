@@ -217,12 +217,14 @@ def test_the_segmenters_working_pixel_covers_the_same_ground_at_any_altitude():
         working_area = q.segmentation.classical_min_area_px * (side / 640) ** 2
         assert abs(working_area - 100 * (400 / 640) ** 2) <= 0.6 * (side / 640) ** 2
     assert for_ground_resolution(p, 130 / 502.3, 640, 480).segmentation.classical_max_side > 400
-    # never above the full size (coarse imagery: every pixel counts), never a thumbnail
-    assert for_ground_resolution(p, 1.0, 640, 480).segmentation.classical_max_side == 640
+    # at most the full size (imagery at the target: every pixel counts), never a thumbnail
+    assert for_ground_resolution(p, target, 640, 480).segmentation.classical_max_side == 640
     assert for_ground_resolution(p, 0.005, 4000, 3000).segmentation.classical_max_side == MIN_WORK_SIDE_PX
     assert for_ground_resolution(p, 0.005, 120, 90).segmentation.classical_max_side == 120
-    # unchanged when unknown, switched off, or for another backend
+    # unchanged when unknown, switched off, for another backend, or for imagery coarser than the target (an
+    # orthophoto's views: no working size reaches it, the fixed one stays)
     assert for_ground_resolution(p, float("nan"), 640, 480) is p
+    assert for_ground_resolution(p, 2.5, 640, 480) is p and for_ground_resolution(p, 1.01 * target, 640, 480) is p
     assert for_ground_resolution(p, 0.0, 640, 480) is p
     off = with_overrides(p, {"segmentation.classical_ground_resolution_m": 0.0})
     assert for_ground_resolution(off, 0.2, 640, 480) is off

@@ -57,7 +57,8 @@ class SegmentationParams(Checked):
     # ground at any altitude and on any camera. At a fixed 400 px, 640 px frames flown at 130 m were segmented at
     # 0.42 m per working pixel against 0.32 m at 100 m, and tree crowns came out 4-16 % larger (neighbours
     # merged, boundaries took coarser pixels; BENCHMARKS.md, "One working pixel, one ground size"). 0.32: the
-    # synthetic 100 m sessions the classical parameters were tuned on. 0 = always `classical_max_side`.
+    # synthetic 100 m sessions the classical parameters were tuned on. Imagery coarser than this (orthophoto views)
+    # keeps `classical_max_side`: no working size reaches the target there. 0 = always `classical_max_side`.
     classical_ground_resolution_m: float = non_negative(0.32)
     # median filter (working px) that removes leaf / furrow texture
     classical_median_ksize: int = count(5, 1, 255, odd=True)

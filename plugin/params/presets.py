@@ -110,13 +110,16 @@ def for_ground_resolution(params: Params, ground_resolution_m: float, width: int
 
     `ground_resolution_m`: metres of ground per full-resolution pixel (flying height / focal length). The working
     longer side becomes max(width, height) x ground_resolution_m / `segmentation.classical_ground_resolution_m`
-    (at most the full size, at least MIN_WORK_SIDE_PX), and `classical_min_area_px` (full-resolution pixels)
-    is scaled so that it keeps the same number of working pixels it had at `classical_max_side`. The same
-    object when the backend is not `classical`, the target is 0 or the ground resolution is unknown."""
+    (at least MIN_WORK_SIDE_PX), and `classical_min_area_px` (full-resolution pixels) is scaled so that it keeps
+    the same number of working pixels it had at `classical_max_side`. The same object when the backend is not
+    `classical`, the target is 0, the ground resolution is unknown, or the images are coarser than the target:
+    no resampling reaches it there, and the fixed `classical_max_side` is what such imagery was measured with
+    (the NAIP views at 2.5 m/px: segmented at their full size instead, the 2009 / 2015 answer moved from 2.4 to
+    5.7 m off; BENCHMARKS.md, "One working pixel, one ground size")."""
     seg = params.segmentation
     target = seg.classical_ground_resolution_m
     if seg.backend != "classical" or not target > 0 or not (np.isfinite(ground_resolution_m)
-                                                             and ground_resolution_m > 0):
+                                                             and 0 < ground_resolution_m <= target):
         return params
     full = max(int(width), int(height))
     side = int(round(full * float(ground_resolution_m) / target))

@@ -112,8 +112,9 @@ def working_resolution(params: Params, checked: Any, camera: Any) -> tuple[Param
                  "pixel)", gsd, height, seg.classical_max_side,
                  gsd * max(camera.width, camera.height) / seg.classical_max_side)
     elif seg.backend == "classical" and seg.classical_ground_resolution_m > 0:
-        log.info("flying height not measured (pose check %s): segmenting at the fixed %d px",
-                 "off" if checked is None else "found no depth", seg.classical_max_side)
+        why = ("pose check off" if checked is None else "no depth found" if not np.isfinite(gsd)
+               else f"{gsd:.2f} m/px images, coarser than the target")
+        log.info("segmenting at the fixed %d px (%s)", seg.classical_max_side, why)
     return scaled, gsd
 
 
