@@ -269,6 +269,7 @@ def refine_poses_from_images(
         per_image = np.where(observed > 0, explained / np.maximum(observed, 1), np.nan)
     stats = replace(stats, explained_share=float(explained.sum() / observed.sum()) if observed.sum() else float("nan"),
                     explained_share_by_image=tuple(float(v) for v in per_image),
+                    observations_by_image=tuple(int(n) for n in observed),
                     heading_turns_deg=tuple(float(t) for t in turns))
     errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg, poses.names)
     for w in warnings:
