@@ -17,8 +17,8 @@ sizes"), that number depends on how the object was seen, not only on the object:
   lambda is a second moment of the whole region and a boundary band of about a pixel changes it by
   ~2 x band / radius for objects >= 8 px in radius. What the size did depend on was the segmenter's working
   pixel: at a fixed 400 px it covered 0.32 m at 100 m and 0.42 m at 130 m, where neighbouring crowns merged and
-  boundaries took coarser pixels (crowns 4-16 % larger at 130 m). The map now segments at one ground size per
-  working pixel (`SegmentationParams.classical_ground_resolution_m`, from the flying height it measures), which
+  boundaries took coarser pixels (crowns 4-16 % larger at 130 m). The map now keeps the working pixel no
+  coarser than `SegmentationParams.classical_ground_resolution_m` (from the flying height it measures), which
   removes that term at its source rather than correcting sizes afterwards.
 - **Depth** converts pixels to metres at the landmark point, which for a tall object lies a few metres below its
   visible top: depth ratios of 1.02-1.04 at 80-150 m, the same for every session flown at a similar altitude.

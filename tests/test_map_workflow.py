@@ -66,17 +66,20 @@ def session(tmp_path_factory):
     return root, objs, out, summary
 
 
-def test_the_segmenter_works_at_the_measured_ground_resolution(session):
-    """The pose check's flying height sets the classical backend's working size (run.json records both)."""
+def test_the_map_measures_its_ground_resolution_and_segments_by_it(session):
+    """The pose check's flying height over the focal length is the images' ground resolution (run.json); the
+    classical backend's working size is the one `for_ground_resolution` gives for it."""
+    from sosmatch.plugin.params import for_ground_resolution
+
     root, _, out, _ = session
     record = json.loads((out / "run.json").read_text())
     camera = read_cameras_txt(root / "cameras.txt")[1]
     true_gsd = 60.0 / camera.fx  # render_session: flat ground 60 m below every camera
     assert abs(record["ground_resolution_m"] / true_gsd - 1) < 0.03
     seg = record["params"]["segmentation"]
-    side = max(camera.width, camera.height)
-    expected = round(side * record["ground_resolution_m"] / seg["classical_ground_resolution_m"])
-    assert seg["classical_max_side"] == expected < camera.width  # 0.23 m/px images segmented at 0.32 m/px
+    expected = for_ground_resolution(Params(), record["ground_resolution_m"], camera.width, camera.height)
+    # 320 px images at 0.23 m/px: segmented whole, already finer than the target
+    assert seg["classical_max_side"] == expected.segmentation.classical_max_side == 400
 
 
 def _cli(capsys, *args):

@@ -201,32 +201,34 @@ def test_pixel_limits_scale_with_the_image_and_stay_at_the_tuned_size():
     assert for_image(off, 4000, 3000) is off
 
 
-def test_the_segmenters_working_pixel_covers_the_same_ground_at_any_altitude():
+def test_the_segmenters_working_pixel_is_never_coarser_than_its_ground_target():
     from sosmatch.plugin.params import for_ground_resolution
-    from sosmatch.plugin.params.presets import MIN_WORK_SIDE_PX
 
     p = Params()
     target = p.segmentation.classical_ground_resolution_m
-    # 640 px frames (f 502 px) at 80, 100, 130 and 150 m: one working pixel is `target` metres each time
-    for altitude in (80.0, 100.0, 130.0, 150.0):
+    # 640 px frames (f 502 px): at 100 m and below the fixed 400 px already meet the target (unchanged: the
+    # parameters were tuned there, and low flights keep their detail)
+    for altitude in (40.0, 80.0, 100.0):
+        assert for_ground_resolution(p, altitude / 502.3, 640, 480) is p
+    # higher, the working size grows so that one working pixel covers at most `target` metres
+    for altitude in (110.0, 130.0, 150.0):
         gsd = altitude / 502.3
         q = for_ground_resolution(p, gsd, 640, 480)
         side = q.segmentation.classical_max_side
-        assert abs(gsd * 640 / side - target) <= 0.5 * gsd * 640 / side**2 * 1.01  # rounding to a whole pixel
-        # the smallest region keeps its number of working pixels (400 px at the defaults), so its ground area
+        assert 400 < side <= 640 and gsd * 640 / side <= target < gsd * 640 / (side - 1)
+        # the smallest region keeps its number of working pixels (as at 400 px), so its ground area
         working_area = q.segmentation.classical_min_area_px * (side / 640) ** 2
         assert abs(working_area - 100 * (400 / 640) ** 2) <= 0.6 * (side / 640) ** 2
-    assert for_ground_resolution(p, 130 / 502.3, 640, 480).segmentation.classical_max_side > 400
-    # at most the full size (imagery at the target: every pixel counts), never a thumbnail
+    # at most the full size (imagery at the target: every pixel counts)
     assert for_ground_resolution(p, target, 640, 480).segmentation.classical_max_side == 640
-    assert for_ground_resolution(p, 0.005, 4000, 3000).segmentation.classical_max_side == MIN_WORK_SIDE_PX
-    assert for_ground_resolution(p, 0.005, 120, 90).segmentation.classical_max_side == 120
+    # a 4000 px drone frame at 100 m (2.7 cm/px): 400 px make 0.27 m, within the target
+    assert for_ground_resolution(p, 0.027, 4000, 3000) is p
     # unchanged when unknown, switched off, for another backend, or for imagery coarser than the target (an
     # orthophoto's views: no working size reaches it, the fixed one stays)
     assert for_ground_resolution(p, float("nan"), 640, 480) is p
     assert for_ground_resolution(p, 2.5, 640, 480) is p and for_ground_resolution(p, 1.01 * target, 640, 480) is p
     assert for_ground_resolution(p, 0.0, 640, 480) is p
     off = with_overrides(p, {"segmentation.classical_ground_resolution_m": 0.0})
-    assert for_ground_resolution(off, 0.2, 640, 480) is off
+    assert for_ground_resolution(off, 0.26, 640, 480) is off
     sam = with_overrides(p, {"segmentation.backend": "sam-onnx"})
-    assert for_ground_resolution(sam, 0.2, 640, 480) is sam
+    assert for_ground_resolution(sam, 0.26, 640, 480) is sam

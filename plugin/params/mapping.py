@@ -50,16 +50,18 @@ class SegmentationParams(Checked):
     sift_contrast_threshold: float = non_negative(0.01)
     # -- backend `classical` (sosmatch.plugin.segmentation.classical; all ours, tuned on synthetic + Seneca) --
     classical_max_side: int = count(400, 1)  # working resolution (longer side, px); masks are mapped back to full size
-    # (ours) the ground one working pixel covers (m): when the map measures its flying height (the pose check's
-    # median depth), the working size follows the ground resolution, longer side = image side x (flying height /
-    # focal length) / this, instead of the fixed `classical_max_side`, and `classical_min_area_px` keeps its share
-    # of working pixels. The parameters in working pixels (median, texture window, merge cost) then mean the same
-    # ground at any altitude and on any camera. At a fixed 400 px, 640 px frames flown at 130 m were segmented at
-    # 0.42 m per working pixel against 0.32 m at 100 m, and tree crowns came out 4-16 % larger (neighbours
-    # merged, boundaries took coarser pixels; BENCHMARKS.md, "One working pixel, one ground size"). 0.32: the
-    # synthetic 100 m sessions the classical parameters were tuned on. Imagery coarser than this (orthophoto views)
-    # keeps `classical_max_side`: no working size reaches the target there. 0 = always `classical_max_side`.
-    classical_ground_resolution_m: float = non_negative(0.32)
+    # (ours) the most ground one working pixel may cover (m): when the map measures its flying height (the pose
+    # check's median depth) and `classical_max_side` would make working pixels coarser than this, the working size
+    # grows to image side x (flying height / focal length) / this (at most the full image), and
+    # `classical_min_area_px` keeps its share of working pixels. At a fixed 400 px, 640 px frames flown at 130 m
+    # were segmented at 0.42 m per working pixel against 0.32 m at 100 m: neighbouring crowns merged, boundaries
+    # took coarser pixels, and crowns came out 4-16 % larger (BENCHMARKS.md, "One working pixel, one ground
+    # size"). Finer working pixels stay (low flights keep their detail), as does imagery coarser than this
+    # (orthophoto views: no working size reaches it). 0.33: the 0.32 m of the synthetic 100 m sessions the
+    # classical parameters were tuned on, with room for the 3 % by which the measured flying height moves with
+    # the scene (features on crowns over snow: 96 m at 100 m), so those sessions keep their 400 px. 0 = always
+    # `classical_max_side`.
+    classical_ground_resolution_m: float = non_negative(0.33)
     # median filter (working px) that removes leaf / furrow texture
     classical_median_ksize: int = count(5, 1, 255, odd=True)
     classical_smooth_sigma_color: float = non_negative(40.0)  # bilateral filter colour sigma (0..255 units)

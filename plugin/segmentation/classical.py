@@ -1,7 +1,7 @@
 """`classical`: an open-set region segmenter from well-kept libraries (OpenCV, NumPy, SciPy); no weights.
 
-Pipeline, at a reduced working resolution (`classical_max_side`, 400 px; `sosmatch map` sets it from the flying
-height it measures so that one working pixel covers `classical_ground_resolution_m` of ground at any altitude,
+Pipeline, at a reduced working resolution (`classical_max_side`, 400 px; `sosmatch map` raises it from the flying
+height it measures where a working pixel would cover more than `classical_ground_resolution_m` of ground,
 `plugin.params.for_ground_resolution`):
 1. smoothing: median filter (removes leaf / furrow texture finer than the kernel) then a bilateral filter;
 2. over-segmentation: marker-controlled watershed (OpenCV) seeded by the flat zones of the CIELAB gradient and

@@ -100,21 +100,18 @@ def flight_views(kf_poses: Any, motion: list[tuple[float, float]], camera: Any) 
 
 
 def working_resolution(params: Params, checked: Any, camera: Any) -> tuple[Params, float]:
-    """(`params` with the classical segmenter's working size set from the ground resolution the pose check measured
-    (its flying height over the focal length; `plugin.params.for_ground_resolution`); unchanged, with a log line,
-    when the check is off or found no depth; the ground resolution in m/px, NaN when not measured)."""
+    """(`params` with the classical segmenter's working size raised where the ground resolution the pose check
+    measured (its flying height over the focal length) would make a working pixel coarser than its target
+    (`plugin.params.for_ground_resolution`), the ground resolution in m/px, NaN when not measured)."""
     height = float(checked.check.flying_height_m) if checked is not None else float("nan")
     gsd = height / float(np.sqrt(camera.fx * camera.fy))
     scaled = for_ground_resolution(params, gsd, camera.width, camera.height)
     seg = scaled.segmentation
-    if scaled is not params:
-        log.info("ground resolution %.3f m/px (flying height %.1f m): segmenting at %d px (%.2f m per working "
-                 "pixel)", gsd, height, seg.classical_max_side,
-                 gsd * max(camera.width, camera.height) / seg.classical_max_side)
-    elif seg.backend == "classical" and seg.classical_ground_resolution_m > 0:
-        why = ("pose check off" if checked is None else "no depth found" if not np.isfinite(gsd)
-               else f"{gsd:.2f} m/px images, coarser than the target")
-        log.info("segmenting at the fixed %d px (%s)", seg.classical_max_side, why)
+    if seg.backend == "classical":
+        side = min(seg.classical_max_side, max(camera.width, camera.height))
+        log.info("segmenting at %d px: %s", side, "flying height not measured" if not np.isfinite(gsd) else
+                 f"{gsd * max(camera.width, camera.height) / side:.2f} m per working pixel at the measured flying "
+                 f"height {height:.1f} m")
     return scaled, gsd
 
 
