@@ -221,6 +221,10 @@ def test_the_segmenters_working_pixel_is_never_coarser_than_its_ground_target():
         assert abs(working_area - 100 * (400 / 640) ** 2) <= 0.6 * (side / 640) ** 2
     # at most the full size (imagery at the target: every pixel counts)
     assert for_ground_resolution(p, target, 640, 480).segmentation.classical_max_side == 640
+    # never more than twice the fixed size: a 40 Mpx frame at 0.3 m/px is not segmented whole
+    assert for_ground_resolution(p, 0.3, 7300, 5500).segmentation.classical_max_side == 800
+    # a 5472 px drone frame at 120 m (3.2 cm/px): 0.44 m per working pixel at 400 px, so 531 px
+    assert for_ground_resolution(p, 0.032, 5472, 3648).segmentation.classical_max_side == 531
     # a 4000 px drone frame at 100 m (2.7 cm/px): 400 px make 0.27 m, within the target
     assert for_ground_resolution(p, 0.027, 4000, 3000) is p
     # unchanged when unknown, switched off, for another backend, or for imagery coarser than the target (an

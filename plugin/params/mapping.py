@@ -52,15 +52,15 @@ class SegmentationParams(Checked):
     classical_max_side: int = count(400, 1)  # working resolution (longer side, px); masks are mapped back to full size
     # (ours) the most ground one working pixel may cover (m): when the map measures its flying height (the pose
     # check's median depth) and `classical_max_side` would make working pixels coarser than this, the working size
-    # grows to image side x (flying height / focal length) / this (at most the full image), and
-    # `classical_min_area_px` keeps its share of working pixels. At a fixed 400 px, 640 px frames flown at 130 m
-    # were segmented at 0.42 m per working pixel against 0.32 m at 100 m: neighbouring crowns merged, boundaries
-    # took coarser pixels, and crowns came out 4-16 % larger (BENCHMARKS.md, "One working pixel, one ground
-    # size"). Finer working pixels stay (low flights keep their detail), as does imagery coarser than this
-    # (orthophoto views: no working size reaches it). 0.33: the 0.32 m of the synthetic 100 m sessions the
-    # classical parameters were tuned on, with room for the 3 % by which the measured flying height moves with
-    # the scene (features on crowns over snow: 96 m at 100 m), so those sessions keep their 400 px. 0 = always
-    # `classical_max_side`.
+    # grows to image side x (flying height / focal length) / this (at most the full image, and 2 x
+    # `classical_max_side` so that time and memory per frame stay bounded), and `classical_min_area_px` keeps its
+    # share of working pixels. At a fixed 400 px, 640 px frames flown at 130 m were segmented at 0.42 m per working
+    # pixel against 0.32 m at 100 m: neighbouring crowns merged, boundaries took coarser pixels, and crowns came out
+    # 4-16 % larger (BENCHMARKS.md, "One working pixel, one ground size"). Finer working pixels stay (low flights
+    # keep their detail), as does imagery coarser than this (orthophoto views: no working size reaches it). 0.33:
+    # the 0.32 m of the synthetic 100 m sessions the classical parameters were tuned on, with room for the 3 % by
+    # which the measured flying height moves with the scene (features on crowns over snow: 96 m at 100 m), so those
+    # sessions keep their 400 px. 0 = always `classical_max_side`.
     classical_ground_resolution_m: float = non_negative(0.33)
     # median filter (working px) that removes leaf / furrow texture
     classical_median_ksize: int = count(5, 1, 255, odd=True)

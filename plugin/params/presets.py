@@ -100,12 +100,18 @@ def for_image(params: Params, width: int, height: int) -> Params:
     return with_overrides(params, changes)
 
 
+# The working size grows at most this many times `classical_max_side`: time and memory per frame stay bounded
+# (x4 pixels) whatever the image size; a 40 Mpx frame at 0.3 m/px would otherwise be segmented whole.
+MAX_WORK_SIDE_FACTOR = 2
+
+
 def for_ground_resolution(params: Params, ground_resolution_m: float, width: int, height: int) -> Params:
     """`params` with the classical segmenter's working pixel no coarser than `classical_ground_resolution_m`.
 
     `ground_resolution_m`: metres of ground per full-resolution pixel (flying height / focal length). Where the
     fixed working size (`classical_max_side`) would make a working pixel cover more ground than the target, the
-    working longer side grows to max(width, height) x ground_resolution_m / target (at most the full size), and
+    working longer side grows to max(width, height) x ground_resolution_m / target (at most the full size and
+    MAX_WORK_SIDE_FACTOR x the fixed one), and
     `classical_min_area_px` (full-resolution pixels) shrinks so that it keeps its number of working pixels. A
     coarser working pixel merges neighbouring crowns and widens boundaries, so the same objects came out larger
     from higher flights (130 m against 100 m: crowns 4-16 % larger); a finer one changes sizes little and keeps
@@ -123,7 +129,7 @@ def for_ground_resolution(params: Params, ground_resolution_m: float, width: int
         return params
     full = max(int(width), int(height))
     fixed = min(full, seg.classical_max_side)
-    side = min(full, int(np.ceil(full * float(ground_resolution_m) / target - 1e-9)))
+    side = min(full, MAX_WORK_SIDE_FACTOR * fixed, int(np.ceil(full * float(ground_resolution_m) / target - 1e-9)))
     if side <= fixed:  # the fixed size's working pixel is already no coarser than the target
         return params
     area = int(round(seg.classical_min_area_px * (fixed / side) ** 2))
