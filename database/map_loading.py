@@ -136,11 +136,12 @@ def load_map(path: str | Path) -> LoadedMap:
             return LoadedMap(read_colmap_points(path.parent), "colmap", path.parent)
         raise InputError("not a landmark map (.sosmap), session directory or COLMAP model", path)
     if (path / "landmarks.sosmap").is_file():
-        from .session_io import check_session_usable
+        from .session_io import check_map_of_record, check_session_usable
 
         check_session_usable(path)
-        return LoadedMap(read_landmark_map(path / "landmarks.sosmap"), "session", path / "landmarks.sosmap",
-                         read_map_noise(path))
+        lmap = read_landmark_map(path / "landmarks.sosmap")
+        check_map_of_record(path, lmap)  # its noise figures (run.json) must be this map's
+        return LoadedMap(lmap, "session", path / "landmarks.sosmap", read_map_noise(path))
     model = _model_dir(path)
     if model is not None:
         return LoadedMap(read_colmap_points(model), "colmap", model)

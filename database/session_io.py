@@ -21,7 +21,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from .atomic import write_text_atomic
-from .landmark_map import MAX_WORLD_COORD_M, LandmarkMap, read_landmark_map
+from .landmark_map import MAX_WORLD_COORD_M, LandmarkMap, landmark_map_fingerprint, read_landmark_map
 from .text_input import read_user_text
 
 if TYPE_CHECKING:
@@ -180,8 +180,24 @@ def read_session(path: str | Path, name: str | None = None) -> SessionFiles:
     if not (sparse / "images.bin").exists() and not (sparse / "images.txt").exists():
         raise InputError("session has no COLMAP model in sparse/ (was it mapped?)", path)
     lmap = read_landmark_map(path / "landmarks.sosmap")
+    check_map_of_record(path, lmap)
     ids = read_landmark_point_ids(path / "landmarks.csv", len(lmap))
     return SessionFiles(path=path, name=name or path.resolve().name, landmarks=lmap, point3d_ids=ids)
+
+
+def check_map_of_record(path: str | Path, lmap: LandmarkMap) -> None:
+    """InputError when the session's run.json records another landmark map than its landmarks.sosmap (files of
+    two sessions mixed in one folder: the map of one, the model and database of the other). Records without the
+    fingerprint (merged models, older runs) and unreadable ones (the stage that needs them says so) pass."""
+    try:
+        record = read_map_record(path)
+    except InputError:
+        return
+    recorded = (record or {}).get("landmarks_fingerprint")
+    if isinstance(recorded, str) and recorded != landmark_map_fingerprint(lmap):
+        raise InputError("is not the landmark map this session's run.json was written with (files of two sessions "
+                         "mixed in one folder?); map the session again or copy its own landmarks.sosmap back",
+                         Path(path) / "landmarks.sosmap")
 
 
 def check_map_of_images(map_dir: str | Path, images_dir: str | Path, samples: int = 6) -> None:

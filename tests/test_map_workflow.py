@@ -82,6 +82,28 @@ def test_the_map_measures_its_ground_resolution_and_segments_by_it(session):
     assert seg["classical_max_side"] == expected.segmentation.classical_max_side == 400
 
 
+def test_a_folder_holding_another_sessions_landmark_map_is_refused(session, tmp_path, capsys):
+    """run.json records the fingerprint of the landmarks.sosmap it was written with: a folder whose map was
+    replaced by another session's (its model and database are this one's) is refused by every reader."""
+    from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
+
+    _, _, out, _ = session
+    assert read_session(out).landmarks is not None  # its own map passes
+    mixed = tmp_path / "mixed"
+    shutil.copytree(out, mixed)
+    own = read_landmark_map(out / "landmarks.sosmap")
+    other = LandmarkMap(own.positions + np.array([5.0, 0.0, 0.0]), own.sizes, own.origin, own.epsg)
+    write_landmark_map(mixed / "landmarks.sosmap", other)
+    with pytest.raises(InputError, match="not the landmark map this session's run.json was written with"):
+        read_session(mixed)
+    assert main(["export", str(mixed), "--csv", "--out", str(tmp_path / "x.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and str(mixed / "landmarks.sosmap") in err
+    assert not (tmp_path / "x.csv").exists()
+    assert main(["match", str(mixed), str(out), "--out", str(tmp_path / "m")]) == 2
+    assert "two sessions" in capsys.readouterr().err and not (tmp_path / "m").exists()
+
+
 def _cli(capsys, *args):
     code = main(["map", "--no-progress", *map(str, args)])
     return code, capsys.readouterr()

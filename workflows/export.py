@@ -21,7 +21,7 @@ import numpy as np
 from ..database.geojson import check_projected_crs, geojson_text, to_wgs84
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map
 from ..database.outputs import OutputFiles, fingerprint
-from ..database.session_io import check_session_usable, read_landmark_table
+from ..database.session_io import check_map_of_record, check_session_usable, read_landmark_table
 from ..plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -33,6 +33,7 @@ def load_map(source: str | Path) -> tuple[LandmarkMap, dict[str, np.ndarray]]:
     if source.is_dir():
         check_session_usable(source)
         lmap = read_landmark_map(source / "landmarks.sosmap")
+        check_map_of_record(source, lmap)
         extras: dict[str, np.ndarray] = {}
         table_path = source / "landmarks.csv"
         if table_path.exists():

@@ -21,7 +21,7 @@ from ...database.colmap_db import (
     write_colmap_database,
 )
 from ...database.colmap_model import write_model, write_ply
-from ...database.landmark_map import LandmarkMap, write_landmark_map
+from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
 from ...database.outputs import OutputDir, fingerprint
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
@@ -308,6 +308,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "camera": {"model": camera.model, "width": camera.width, "height": camera.height, "params": camera.params,
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
+        # the content of landmarks.sosmap as written: readers refuse a folder whose map is another session's
+        "landmarks_fingerprint": landmark_map_fingerprint(read_landmark_map(partial / "landmarks.sosmap")),
         # metres of ground per image pixel at the measured flying height (sets the segmenter's working size)
         "ground_resolution_m": round(ground_resolution, 5) if np.isfinite(ground_resolution) else None,
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
