@@ -182,3 +182,24 @@ def test_map_refuses_a_rotated_block_and_no_later_stage_uses_it(tilted_flight, t
     report = batch.run(tilted_flight.parent, tmp_path / "batch", options=batch.BatchOptions(progress=False))
     assert not report.ok and report.sessions[0]["status"] == "failed"
     assert "refused" in json.dumps(report.sessions[0])
+
+
+def test_the_ground_plane_of_a_narrow_strip_with_deep_outliers_is_level():
+    """Seneca on the default parameters: landmarks along a strip of fields, a few of them hundreds of metres below
+    (wrong tracks). From uniform weights the fit took a vertical plane (89 deg "ground tilt" over flat land); a
+    real slope is still found."""
+    from sosmatch.plugin.map_quality import robust_plane_normal
+
+    rng = np.random.default_rng(3)
+    along = rng.uniform(-180, 180, 90)
+    across = rng.normal(0, 20, 90)
+    xy = np.column_stack([along, across]) @ np.array([[0.46, -0.89], [0.89, 0.46]])  # a strip across the axes
+    z = rng.normal(0, 1.0, 90)
+    z[:8] = rng.uniform(-1100, -150, 8)  # wrong tracks far below the ground
+    flat = np.column_stack([xy, z])
+    up = np.array([0.0, 0.0, 1.0])
+    assert np.degrees(np.arccos(robust_plane_normal(flat) @ up)) < 3.0
+    slope = np.radians(25.0)
+    sloped = flat.copy()
+    sloped[:, 2] += np.tan(slope) * xy[:, 0]
+    assert abs(np.degrees(np.arccos(robust_plane_normal(sloped) @ up)) - 25.0) < 2.0
