@@ -179,12 +179,17 @@ def test_theta_n_follows_the_views_a_flight_gives():
     """theta_n (5) is at most half the keyframes that see a point on one pass and at least 2: unchanged at 100 m
     (13.6 views), 3 at 60 m (7.9), 2 at 40 m (5.4) and on a survey (2-3 views); never raised; the paper preset and
     an unknown image motion keep it."""
-    from sosmatch.plugin.params import Params, for_flight, preset_params
+    from sosmatch.plugin.params import Params, for_flight, preset_params, with_overrides
 
     params = Params()
     assert for_flight(params, 13.6) is params and for_flight(params, float("nan")) is params
     assert for_flight(params, 7.9).triangulation.min_observations == 3
     assert for_flight(params, 5.4).triangulation.min_observations == 2
     assert for_flight(params, 2.5).triangulation.min_observations == 2
+    # landmarks from a few views along a line: wrong tracks far off the ground are filtered where theta_n is lowered
+    assert params.triangulation.height_outlier_sigmas == 0.0
+    assert for_flight(params, 5.4).triangulation.height_outlier_sigmas == 6.0
+    own = with_overrides(params, {"triangulation.height_outlier_sigmas": 4.0})
+    assert for_flight(own, 5.4).triangulation.height_outlier_sigmas == 4.0  # a user's value is kept
     paper = preset_params("paper")
     assert for_flight(paper, 5.4) is paper

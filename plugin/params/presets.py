@@ -9,6 +9,11 @@ import numpy as np
 from ..errors import InputError
 from .tree import Params, params_to_dict, with_overrides
 
+# Height-outlier filter for landmarks from a few collinear views (robust sigmas of the difference to the
+# neighbours' height): the survey preset's, measured on Seneca (BENCHMARKS.md, "Seneca end to end"), and what
+# `for_flight` switches on where a flight's views lower theta_n.
+FEW_VIEWS_HEIGHT_OUTLIER_SIGMAS = 6.0
+
 # Named parameter presets (hloc-style `confs`): dotted overrides applied on top of the paper's defaults, before a
 # config file and `--set`. "paper" is the method as published (keyframes every 2 m, EKF poses, 640x480).
 PRESETS: dict[str, dict[str, Any]] = {
@@ -39,7 +44,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "triangulation.max_reprojection_error_px": 8.0,
         # 3 views along one line leave depth free along the epipolar line: wrong tracks land tens to hundreds of
         # metres below the ground at a few px (Seneca: 30 of 237 landmarks > 20 m off; neighbour spread 1.1 m)
-        "triangulation.height_outlier_sigmas": 6.0,
+        "triangulation.height_outlier_sigmas": FEW_VIEWS_HEIGHT_OUTLIER_SIGMAS,
     },
     # Aerial maps of a whole district (km^2) from coarse imagery (airborne or orthophoto, 1-5 m/px): hundreds of
     # landmarks tens of metres across, of which only ~10 % are segmented alike on two dates (ponds grow and merge,
@@ -152,11 +157,19 @@ def for_flight(params: Params, views_per_pass: float) -> Params:
     """`params` with theta_n (`triangulation.min_observations`) at most half of `views_per_pass`, the keyframes
     that see a ground point on one pass of the flight (`plugin.motion.views_per_pass`), and at least MIN_THETA_N
     (never raised); the same object when `triangulation.min_observations_from_views` is off or the views are
-    unknown (NaN)."""
+    unknown (NaN).
+
+    Where theta_n is lowered, the height-outlier filter is switched on too (at FEW_VIEWS_HEIGHT_OUTLIER_SIGMAS,
+    unless set): a landmark from a few views along one straight line can be a wrong track whose depth those views
+    do not fix. Seneca mapped with the defaults (2.4 views per pass, theta_n 2) kept landmarks 100-1100 m below
+    the ground and was accepted with warnings; the survey preset has filtered them since it was measured there."""
     tri = params.triangulation
     if not tri.min_observations_from_views or not views_per_pass == views_per_pass:
         return params
     theta_n = max(MIN_THETA_N, int(views_per_pass // 2))
     if theta_n >= tri.min_observations:
         return params
-    return with_overrides(params, {"triangulation.min_observations": theta_n})
+    changes: dict[str, Any] = {"triangulation.min_observations": theta_n}
+    if tri.height_outlier_sigmas <= 0:
+        changes["triangulation.height_outlier_sigmas"] = FEW_VIEWS_HEIGHT_OUTLIER_SIGMAS
+    return with_overrides(params, changes)

@@ -234,8 +234,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     flown = for_flight(params, views)
     if flown is not params:
         log.info("an object is in %.1f keyframes of a pass: a landmark needs more than %d observations (theta_n %d "
-                 "is more than half of them)", views, flown.triangulation.min_observations,
-                 params.triangulation.min_observations)
+                 "is more than half of them); landmarks %g robust sigmas off their neighbours' ground are dropped",
+                 views, flown.triangulation.min_observations, params.triangulation.min_observations,
+                 flown.triangulation.height_outlier_sigmas)
         params = flown
     timings["tracking"] = time.perf_counter() - t
     stages.update()
