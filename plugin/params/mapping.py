@@ -178,7 +178,7 @@ class TriangulationParams(Checked):
     # median of its `height_outlier_neighbours` nearest landmarks (horizontally) by more than this many robust
     # standard deviations of that difference is a wrong track triangulated along a straight flight line, where
     # collinear views cannot fix the depth; 0 = off (the paper's EKF keyframes every 2 m see an object from many
-    # views). On in the "survey" preset.
+    # views). On in the "survey" preset, and wherever `params.for_flight` lowers theta_n (a few views per pass).
     height_outlier_sigmas: float = non_negative(0.0)
     height_outlier_neighbours: int = count(8, 1)
     # metric size h_S of a landmark (`plugin.landmark_size`): "mean" = the paper's mean of h_px x depth / f over the
