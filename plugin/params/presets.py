@@ -116,12 +116,11 @@ def for_ground_resolution(params: Params, ground_resolution_m: float, width: int
     `ground_resolution_m`: metres of ground per full-resolution pixel (flying height / focal length). Where the
     fixed working size (`classical_max_side`) would make a working pixel cover more ground than the target, the
     working longer side grows to max(width, height) x ground_resolution_m / target (at most the full size and
-    MAX_WORK_SIDE_FACTOR x the fixed one), and
-    `classical_min_area_px` (full-resolution pixels) shrinks so that it keeps its number of working pixels. A
-    coarser working pixel merges neighbouring crowns and widens boundaries, so the same objects came out larger
-    from higher flights (130 m against 100 m: crowns 4-16 % larger); a finer one changes sizes little and keeps
-    the detail of low flights (Seneca at 0.22 m per working pixel: a rule that also coarsened it to 0.32 m left
-    227 landmarks instead of 372; BENCHMARKS.md, "One working pixel, one ground size").
+    MAX_WORK_SIDE_FACTOR x the fixed one), and `classical_min_area_px` (full-resolution pixels) shrinks so that it
+    keeps its number of working pixels. A coarser working pixel merges neighbouring crowns and widens boundaries, so
+    the same objects came out larger from higher flights (130 m against 100 m: crowns 4-16 % larger); a finer one
+    changes sizes little and keeps the detail of low flights (Seneca at 0.22 m per working pixel: a rule that also
+    coarsened it to 0.32 m left 227 landmarks instead of 372; BENCHMARKS.md, "One working pixel, one ground size").
 
     The same object when the backend is not `classical`, the target is 0, the ground resolution is unknown, the
     fixed size already meets the target, or the images are coarser than the target: no resampling reaches it
