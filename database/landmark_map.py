@@ -89,17 +89,20 @@ def landmark_map_problem(origin: np.ndarray, offsets: np.ndarray, stored_sizes: 
 
 
 def check_two_maps(path_a: str | Path, path_b: str | Path, map_a: LandmarkMap, map_b: LandmarkMap,
-                   what: str = "compare") -> None:
-    """InputError (naming `path_b`) when B is A, by path or by content (`landmark_map_fingerprint`): comparing a
-    map with itself or with a copy of it answers nothing (`match` would report the identity as a success)."""
+                   what: str = "compare") -> tuple[str, str]:
+    """The two maps' fingerprints (`landmark_map_fingerprint`); InputError (naming `path_b`) when B is A, by path
+    or by content: comparing a map with itself or with a copy of it answers nothing (`match` would report the
+    identity as a success)."""
     from ..plugin.errors import InputError
 
     if Path(path_a).resolve() == Path(path_b).resolve():
         raise InputError(f"A and B are the same session: nothing to {what} (give the sessions of two flights)",
                          path_b)
-    if landmark_map_fingerprint(map_a) == landmark_map_fingerprint(map_b):
+    prints = landmark_map_fingerprint(map_a), landmark_map_fingerprint(map_b)
+    if prints[0] == prints[1]:
         raise InputError(f"holds the same landmark map as {path_a} (a copy of one session?): nothing to {what}",
                          path_b)
+    return prints
 
 
 def landmark_map_fingerprint(lmap: LandmarkMap) -> str:

@@ -100,18 +100,21 @@ def robust_plane_normal(points: np.ndarray, iterations: int = 10) -> np.ndarray:
     1.4 deg from this start). A sloped site still pulls the fit onto its slope."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     normal = _UP.copy()
-    dist = p[:, 2] - np.median(p[:, 2]) if len(p) else np.zeros(0)
-    w = 1.0 / (1.0 + (dist / (2.0 * (1.4826 * np.median(np.abs(dist)) + 1e-9))) ** 2) if len(p) else dist
+    w = _cauchy_weights(p[:, 2] - np.median(p[:, 2])) if len(p) else np.ones(0)
     for _ in range(iterations):
         c = np.average(p, axis=0, weights=w)
         d = p - c
         cov = (d * w[:, None]).T @ d
         _, vecs = np.linalg.eigh(cov)
         normal = vecs[:, 0]
-        dist = d @ normal
-        scale = 1.4826 * np.median(np.abs(dist)) + 1e-9
-        w = 1.0 / (1.0 + (dist / (2.0 * scale)) ** 2)
+        w = _cauchy_weights(d @ normal)
     return normal if normal[2] >= 0 else -normal
+
+
+def _cauchy_weights(dist: np.ndarray) -> np.ndarray:
+    """Cauchy weights of distances to a plane at 2 robust sigmas (1.4826 x their median absolute value)."""
+    scale = 1.4826 * np.median(np.abs(dist)) + 1e-9
+    return 1.0 / (1.0 + (dist / (2.0 * scale)) ** 2)
 
 
 def shared_tilt_deg(ground_up: np.ndarray, camera_up: np.ndarray) -> float:

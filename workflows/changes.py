@@ -29,7 +29,7 @@ import numpy as np
 
 from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.changes_io import changes_feature_collection, format_changes_csv
-from ..database.landmark_map import check_two_maps, landmark_map_fingerprint
+from ..database.landmark_map import check_two_maps
 from ..database.match_io import check_match_maps, read_match
 from ..database.outputs import check_output_dir, fingerprint, open_output_dir
 from ..database.session_io import read_session, read_session_observations, session_images_dir
@@ -82,8 +82,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if a_from_b is None:
         raise ValueError("give match_json or a_from_b")
     files_a, files_b = read_session(session_a), read_session(session_b)
-    check_two_maps(session_a, session_b, files_a.landmarks, files_b.landmarks)
-    prints = landmark_map_fingerprint(files_a.landmarks), landmark_map_fingerprint(files_b.landmarks)
+    prints = check_two_maps(session_a, session_b, files_a.landmarks, files_b.landmarks)
     for files in (files_a, files_b):
         if not len(files.landmarks):
             raise InputError("landmark map holds no landmarks: nothing to compare", files.path / "landmarks.sosmap")

@@ -292,7 +292,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     out_dir = Path(out_dir)
     map_a, map_b = load_map(a), load_map(b)
     la, lb = map_a.lmap, map_b.lmap
-    check_two_maps(a, b, la, lb, "match")
+    prints = check_two_maps(a, b, la, lb, "match")
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
     # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
@@ -302,7 +302,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                                        lb.positions, lb.sizes)
     first_try = derivation.first_try
     params = dataclasses.replace(params, association=derivation.params)
-    identity = fingerprint({"a": landmark_map_fingerprint(la), "b": landmark_map_fingerprint(lb),
+    identity = fingerprint({"a": prints[0], "b": prints[1],
                             "association": params_to_dict(params.association),
                             "first_try": None if first_try is None else params_to_dict(first_try),
                             "verification": params_to_dict(params.verification), "seed": params.seed,
