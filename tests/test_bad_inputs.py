@@ -13,7 +13,7 @@ import pytest
 
 from sosmatch.database.landmark_map import LandmarkMap, encode_landmark_map, read_landmark_map, write_landmark_map
 from sosmatch.database.match_io import read_match
-from sosmatch.database.poses import format_poses_csv, read_poses_csv
+from sosmatch.database.poses import format_poses_csv, read_poses_csv, write_poses_csv
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Poses
 from sosmatch.tools.cli import main
@@ -235,3 +235,32 @@ def test_synth_refuses_settings_that_are_not_finite(tmp_path, cli_error, flags):
     err = cli_error("synth", "--out", tmp_path / "S", "--frames", "2", *flags)
     assert "must be a finite number" in err
     assert not (tmp_path / "S").exists()
+
+
+# --- the sixth new-user sweep (nu6) -------------------------------------------------------------------------------
+
+
+def _disc_flight(root, frames=6):
+    from sosmatch.plugin.geometry import Camera
+    from sosmatch.tools.toy_sessions import render_disc_flight
+
+    render_disc_flight(root, Camera(160, 120, 120.0, 120.0, 80.0, 60.0), frames=frames)
+    return root
+
+
+def test_a_flight_that_never_moves_a_keyframe_apart_is_one_line_before_any_work(tmp_path, cli_error):
+    """Every camera centre within keyframes.interval_m of the first (a hover, one position copied to every row):
+    one keyframe. Before: the segmentation ran, then pycolmap's assertion 'Need at least two images for
+    triangulation' came out as a traceback (exit 1)."""
+    root = _disc_flight(tmp_path / "f")
+    poses = read_poses_csv(root / "poses.csv")[0]
+    hover = Poses(poses.names, poses.rotations, poses.centers[:1] + 0.1 * np.arange(len(poses.names))[:, None])
+    write_poses_csv(root / "hover.csv", hover)
+    err = cli_error("map", "--images", root / "images", "--poses", root / "hover.csv", "--camera",
+                    root / "cameras.txt", "--out", tmp_path / "M")
+    assert f"{root / 'hover.csv'}: the 6 camera centres lie within 0.87 m of the first" in err
+    assert not (tmp_path / "M").exists()
+    # a keyframe interval longer than the flight is the same: named with its parameter
+    err = cli_error("map", "--images", root / "images", "--poses", root / "poses.csv", "--camera",
+                    root / "cameras.txt", "--out", tmp_path / "M", "--set", "keyframes.interval_m=50")
+    assert "keyframes.interval_m" in err and not (tmp_path / "M").exists()

@@ -139,6 +139,23 @@ def load_inputs(
     return in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources))
 
 
+def require_keyframes(inputs: MapInputs, interval_m: float) -> None:
+    """Refuse (InputError naming the pose source) poses that give fewer than two keyframes: every camera centre
+    within `interval_m` (keyframes.interval_m) of the first, as a hovering flight or one position copied to every
+    image gives. A map needs two keyframes to triangulate anything; without this check pycolmap's own assertion
+    surfaced as a traceback after the segmentation."""
+    from ...plugin.keyframes import select_keyframes
+
+    centers = inputs.poses.centers
+    if len(select_keyframes(centers, interval_m)) >= 2:
+        return
+    spread = float(np.max(np.linalg.norm(centers - centers[0], axis=1))) if len(centers) else 0.0
+    raise InputError(f"the {len(centers)} camera centres lie within {spread:.2f} m of the first, less than the "
+                     f"{interval_m:g} m between keyframes (keyframes.interval_m): one keyframe, nothing to "
+                     "triangulate (a hovering flight, or one position given to every image?)",
+                     inputs.sources.get("poses"))
+
+
 def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | None = None) -> MapInputs:
     """The inputs in the order the frames were taken (`plugin.keyframes.flight_order`): by the images' EXIF
     capture times when every image has one, else as given unless that order is evidently not a flight (then along

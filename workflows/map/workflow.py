@@ -26,7 +26,15 @@ from ...database.outputs import OutputDir, fingerprint
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
-from .inputs import MapInputs, hash_json, image_digests, in_flight_order, input_fingerprints, input_paths
+from .inputs import (
+    MapInputs,
+    hash_json,
+    image_digests,
+    in_flight_order,
+    input_fingerprints,
+    input_paths,
+    require_keyframes,
+)
 from .keyframes import CACHE_VERSION, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
@@ -157,6 +165,7 @@ def run(
     source = None if isinstance(inputs, MapInputs) else inputs
     if source is None:
         inputs = in_flight_order(inputs)
+        require_keyframes(inputs, params.keyframes.interval_m)
         digests = image_digests(inputs)
         fps = input_fingerprints(inputs, digests)
         what, paths = fps["inputs"], input_paths(inputs)
@@ -173,6 +182,7 @@ def run(
             t = time.perf_counter()
             inputs, extra = source.resolve(out)
             inputs = in_flight_order(inputs)
+            require_keyframes(inputs, params.keyframes.interval_m)
             timings["poses"] = time.perf_counter() - t
             digests = image_digests(inputs)
             fps = input_fingerprints(inputs, digests)
