@@ -5,6 +5,7 @@ two-view geometry against a direct computation."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ from sosmatch.plugin.pose_check import (
     sampson_distances,
     triangulation_depths,
 )
+from sosmatch.plugin.pose_check.verdict import judge_poses
 from sosmatch.tools.cli import main
 from sosmatch.workflows import pose_check
 
@@ -145,6 +147,23 @@ def test_check_poses_command(flight, tmp_path, capsys, cli_error):
     write_poses_csv(bad, _yaw_fault(poses, 1))
     err = cli_error("check-poses", "--images", flight / "images", "--poses", bad, "--camera", flight / "cameras.txt")
     assert "poses refused" in err and "the images move the other way" in err
+
+
+def test_one_position_given_to_every_image_is_refused_not_ok(flight, tmp_path, capsys, cli_error):
+    """Every pose at the first camera centre: no pair has a baseline, every epipolar distance is NaN. Before:
+    `ok: poses vs images: epipolar nan px` (exit 0) after five numpy 'All-NaN slice' warnings on stderr."""
+    images, poses, _ = _inputs(flight)
+    same = tmp_path / "same.csv"
+    write_poses_csv(same, Poses(poses.names, poses.rotations, np.repeat(poses.centers[:1], len(poses), 0)))
+    err = cli_error("check-poses", "--images", flight / "images", "--poses", same, "--camera",
+                    flight / "cameras.txt")
+    assert "poses refused" in err and "at one position, but the images move by" in err
+    # images that do not move either (a true hover): nothing to judge, said as a warning
+    result, _ = pose_check.check(images, poses, next(iter(read_cameras_txt(flight / "cameras.txt").values())),
+                                 Params())
+    still = replace(result, epipolar_p50_px=float("nan"), pairs=[replace(p, flow_px=0.5) for p in result.pairs])
+    verdict = judge_poses(still, Params().pose_check)
+    assert verdict.refusals == [] and any("are not checked" in w for w in verdict.warnings)
 
 
 def test_a_single_straight_line_makes_no_claim_it_cannot_separate(tmp_path):

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -218,16 +219,19 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
     systematic = fit_systematic_errors(poses, matched, focal, flying, noise_px)
     fitted = systematic.corrected(poses, flying)
     after = np.split(pair_sampson_px(fitted, matched, focal), np.cumsum([p.inliers for p in matched])[:-1])
-    checks = [PairCheck(p.a, p.b, kind, p.matches, p.inliers, p.flow_px, float(np.nanmedian(r)),
-                        float(np.nanpercentile(r, 90)), float(np.nanmedian(f)), fr, d)
-              for p, kind, r, f, fr, d in zip(matched, kinds, raw, after, front, depth)]
-    med = np.array([c.epipolar_px for c in checks])
-    fit_med = np.array([c.epipolar_fit_px for c in checks])
+    with warnings.catch_warnings():  # a pair without a baseline in the poses has only NaN distances: NaN, said
+        warnings.simplefilter("ignore", RuntimeWarning)  # by the verdict, not by numpy's "All-NaN slice" on stderr
+        checks = [PairCheck(p.a, p.b, kind, p.matches, p.inliers, p.flow_px, float(np.nanmedian(r)),
+                            float(np.nanpercentile(r, 90)), float(np.nanmedian(f)), fr, d)
+                  for p, kind, r, f, fr, d in zip(matched, kinds, raw, after, front, depth)]
+        med = np.array([c.epipolar_px for c in checks])
+        fit_med = np.array([c.epipolar_fit_px for c in checks])
+        p50, p90, fit_p50 = (float(np.nanmedian(med)), float(np.nanpercentile(med, 90)),
+                             float(np.nanmedian(fit_med)))
     reversed_passes = _reversed_passes(checks, poses, gate_px)
     return PoseCheck(
         images=n, pairs_tried=len(tried), pairs_checked=len(checks), focal_px=focal, gate_px=gate_px,
-        flying_height_m=flying, epipolar_p50_px=float(np.nanmedian(med)),
-        epipolar_p90_px=float(np.nanpercentile(med, 90)), epipolar_fit_p50_px=float(np.nanmedian(fit_med)),
+        flying_height_m=flying, epipolar_p50_px=p50, epipolar_p90_px=p90, epipolar_fit_p50_px=fit_p50,
         share_beyond_gate=float(np.mean(med > gate_px)),
         reversed_pairs=sum(c.reversed(gate_px) for c in checks), reversed_passes=reversed_passes,
         systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index)

@@ -21,6 +21,18 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams) -> Verdict:
         if not check.pairs_checked:
             return v
     gate = check.gate_px
+    if not np.isfinite(check.epipolar_p50_px):
+        # no pair has a baseline in the poses (E = 0, the Sampson distance undefined): the epipolar test cannot run,
+        # so "ok" would be a verdict on nothing
+        flow = float(np.median([p.flow_px for p in check.pairs])) if check.pairs else float("nan")
+        if np.isfinite(flow) and flow > gate:
+            v.refusals.append(f"poses vs images: the poses put the cameras of all {check.pairs_checked} matched pairs "
+                              f"at one position, but the images move by {flow:.1f} px between them (median): the "
+                              "poses do not describe this flight (one position given to every image?)")
+        else:
+            v.warnings.append(f"poses vs images: the cameras of all {check.pairs_checked} matched pairs stand at one "
+                              "position (no baseline): the poses are not checked")
+        return v
     for rp in check.reversed_passes:
         v.refusals.append(f"poses vs images: on the pass {rp['first']} .. {rp['last']} ({rp['reversed']} of "
                           f"{rp['pairs']} pairs) the images move the other way than the poses say (a heading "
