@@ -50,7 +50,7 @@ def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, lis
     seen: set[str] = set()
     expect_pose = True
     try:
-        handle = open(path, encoding="utf-8")
+        handle = open(path, encoding="utf-8-sig")  # a byte order mark is not text
     except OSError as exc:
         raise InputError(f"cannot read images file: {exc.strerror or exc}", path) from None
     # line by line: the POINTS2D lines make images.txt as large as the survey's tie points

@@ -73,10 +73,11 @@ def read_user_bytes(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_B
 
 def read_user_text(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_BYTES) -> str:
     """The UTF-8 text of `path` (`read_user_bytes`' checks and bound); InputError naming the file when it is not
-    UTF-8 text."""
+    UTF-8 text. A leading byte order mark is not text: Excel's "CSV UTF-8" and Windows editors write one, and
+    it made a valid pose table's header read as '\ufeff# sosmatch poses v1' (refused)."""
     data = read_user_bytes(path, what, limit_bytes)
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(f"cannot read {what}: not UTF-8 text (byte {exc.start})", path) from None
 

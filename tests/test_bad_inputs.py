@@ -264,3 +264,33 @@ def test_a_flight_that_never_moves_a_keyframe_apart_is_one_line_before_any_work(
     err = cli_error("map", "--images", root / "images", "--poses", root / "poses.csv", "--camera",
                     root / "cameras.txt", "--out", tmp_path / "M", "--set", "keyframes.interval_m=50")
     assert "keyframes.interval_m" in err and not (tmp_path / "M").exists()
+
+
+def test_a_byte_order_mark_is_not_part_of_a_text_input(toy, tmp_path, cli_error):
+    """Excel's "CSV UTF-8" and Windows editors start a file with a UTF-8 byte order mark. Before: a valid pose
+    table was refused with 'header must be name,x,y,z,... got \\ufeff# sosmatch poses v1', a config TOML with
+    'invalid TOML: Invalid statement', a match.json as 'not valid JSON'. Each reads as it does without it."""
+    from sosmatch.database.cameras import read_cameras_txt, write_cameras_txt
+    from sosmatch.database.config_io import load_params
+    from sosmatch.plugin.geometry import Camera
+
+    def with_bom(path):
+        bom = path.with_name("bom_" + path.name)
+        bom.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+        return bom
+
+    poses = Poses(["a.jpg", "b.jpg"], np.repeat(np.eye(3)[None], 2, 0), np.array([[0.0, 0, 50], [5.0, 0, 50]]))
+    (tmp_path / "p.csv").write_text(format_poses_csv(poses))
+    back = read_poses_csv(with_bom(tmp_path / "p.csv"))[0]
+    assert back.names == poses.names and np.allclose(back.centers, poses.centers)
+    write_cameras_txt(tmp_path / "cameras.txt", {1: Camera(160, 120, 100.0, 100.0, 80.0, 60.0)})
+    assert read_cameras_txt(with_bom(tmp_path / "cameras.txt")) == read_cameras_txt(tmp_path / "cameras.txt")
+    (tmp_path / "c.toml").write_text("[tracking]\nepipolar_margin_px = 8.0\n")
+    assert load_params(with_bom(tmp_path / "c.toml")).tracking.epipolar_margin_px == 8.0
+    _, a, b, _ = toy
+    ab = toy_match_json(a, b, tmp_path / "ab.json")
+    assert read_match(with_bom(ab)).associations.tolist() == read_match(ab).associations.tolist()
+    # a byte order mark in the middle of a file is still refused like any stray character
+    (tmp_path / "mid.csv").write_text(format_poses_csv(poses).replace("a.jpg,", "a.jpg,\ufeff"))
+    with pytest.raises(InputError):
+        read_poses_csv(tmp_path / "mid.csv")
