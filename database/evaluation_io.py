@@ -16,6 +16,7 @@ from ..plugin.evaluation.footprints import FlatGround, HeightField
 from ..plugin.evaluation.landmark_truth import objects_under
 from .match_io import MatchSummary, read_match
 from .session_io import LandmarkTable, read_landmark_table  # noqa: F401 (re-exported for the evaluation)
+from .text_input import read_user_npz
 
 # Key names accepted in terrain.npz for the height grid and its georeferencing.
 _Z_KEYS = ("z", "height", "heights", "elevation", "dem")
@@ -29,12 +30,7 @@ def read_terrain_npz(path: str | Path) -> HeightField:
     square cell, `resolution_m` as `sosmatch synth` writes it; `origin` as [x0, y0]).
     """
     path = Path(path)
-    try:
-        data = dict(np.load(path, allow_pickle=False))
-    except FileNotFoundError:
-        raise InputError("terrain file not found", path) from None
-    except (OSError, ValueError) as exc:
-        raise InputError(f"cannot read terrain file: {exc}", path) from None
+    data = read_user_npz(path, "terrain file")
     key = next((k for k in _Z_KEYS if k in data), None)
     if key is None:
         raise InputError(f"no height grid (one of {', '.join(_Z_KEYS)}) in {sorted(data)}", path)

@@ -16,7 +16,6 @@ import csv
 import io
 import json
 import math
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,7 +26,7 @@ from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses, pixel_rays
 from .cameras import read_cameras_txt
 from .poses import read_poses_csv
-from .text_input import read_user_text
+from .text_input import read_user_npz, read_user_text
 
 SESSION_FORMAT = "sosmatch-synth-session"
 SESSION_VERSION = 1
@@ -203,13 +202,11 @@ def format_objects_csv(objects: np.ndarray) -> str:
 def read_terrain_npz(path: str | Path) -> TerrainSampler:
     """terrain.npz (heights float32 2-D, x0, y0, resolution_m) -> TerrainSampler."""
     path = Path(path)
+    data = read_user_npz(path, "terrain file")
     try:
-        with np.load(path) as data:
-            heights = np.asarray(data["heights"], dtype=np.float32)
-            x0, y0, res = float(data["x0"]), float(data["y0"]), float(data["resolution_m"])
-    except FileNotFoundError:
-        raise InputError("terrain file not found", path) from None
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        heights = np.asarray(data["heights"], dtype=np.float32)
+        x0, y0, res = float(data["x0"]), float(data["y0"]), float(data["resolution_m"])
+    except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"cannot read terrain (expected heights, x0, y0, resolution_m): {exc}", path) from None
     if heights.ndim != 2 or min(heights.shape) < 2 or not res > 0 or not np.all(np.isfinite(heights)):
         raise InputError("terrain heights must be a finite 2-D grid of at least 2x2 with resolution_m > 0", path)

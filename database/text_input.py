@@ -16,6 +16,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
+import numpy as np
+
 from ..plugin.errors import InputError
 
 MIB = 1 << 20
@@ -25,6 +27,9 @@ TEXT_LIMIT_BYTES = 256 * MIB
 # The longest line of a text file read line by line (a COLMAP images.txt POINTS2D line of 100 k observations is
 # ~4 MB).
 LINE_LIMIT_BYTES = 64 * MIB
+# The largest NumPy archive read (terrain.npz: a synthetic world's height raster is ~64 MB; a user's DEM a few
+# hundred MB at most).
+NPZ_LIMIT_BYTES = 1024 * MIB
 
 
 def _size_words(limit_bytes: int) -> str:
@@ -80,6 +85,27 @@ def read_user_text(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_BY
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(f"cannot read {what}: not UTF-8 text (byte {exc.start})", path) from None
+
+
+def read_user_npz(path: str | Path, what: str, limit_bytes: int = NPZ_LIMIT_BYTES) -> dict[str, np.ndarray]:
+    """Every array of the NumPy archive at `path` (`read_user_bytes`' checks and bound; no pickled objects),
+    decompressed here, so that a truncated, empty or foreign file is an InputError naming it: NumPy raises
+    EOFError, zipfile.BadZipFile, zlib.error or ValueError for those, at load or at a member's first access."""
+    import io
+    import zipfile
+    import zlib
+
+    data = read_user_bytes(path, what, limit_bytes)
+    if not data:
+        raise InputError(f"{what} is empty (an interrupted copy?)", path)
+    try:
+        archive = np.load(io.BytesIO(data), allow_pickle=False)
+        if not hasattr(archive, "files"):  # a .npy file: one array without names
+            raise InputError(f"{what} is a single array, not a .npz archive of named arrays", path)
+        with archive:
+            return {name: archive[name] for name in archive.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise InputError(f"cannot read {what}: not a NumPy .npz archive, or a truncated one ({exc})", path) from None
 
 
 def bounded_lines(handle: IO[str], path: str | Path, what: str,

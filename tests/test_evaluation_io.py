@@ -29,6 +29,29 @@ def test_synth_terrain_layout(tmp_path):
         read_terrain_npz(tmp_path / "bad.npz")
 
 
+@pytest.mark.parametrize("damage", ["truncated", "empty", "npy", "pickled"])
+def test_a_damaged_terrain_npz_is_one_line_for_both_of_its_readers(tmp_path, damage):
+    """terrain.npz is read by the evaluation (any DEM layout) and by the synthetic session. Before: a truncated
+    file was zipfile.BadZipFile and an empty one EOFError out of `evaluate` (a traceback, exit 1)."""
+    from sosmatch.database.synth_session import read_terrain_npz as read_synth_terrain
+
+    path = tmp_path / "terrain.npz"
+    np.savez(path, heights=np.zeros((4, 4), np.float32), x0=0.0, y0=0.0, resolution_m=1.0)
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[:200])
+    elif damage == "empty":
+        path.write_bytes(b"")
+    elif damage == "npy":
+        np.save(tmp_path / "t.npy", np.zeros(3))
+        path.write_bytes((tmp_path / "t.npy").read_bytes())
+    else:
+        np.savez(path, heights=np.array([{"a": 1}], dtype=object))
+    for reader in (read_terrain_npz, read_synth_terrain):
+        with pytest.raises(InputError) as err:
+            reader(path)
+        assert str(err.value).startswith(f"{path}: ") and "\n" not in str(err.value)
+
+
 def test_landmark_table(tmp_path):
     p = tmp_path / "landmarks.csv"
     p.write_text("index,point3d_id,x,y,z,size_m,num_observations,image_names\n"
