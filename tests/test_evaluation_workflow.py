@@ -241,3 +241,38 @@ def test_a_map_georeferenced_in_the_sessions_crs_is_scored_in_the_world_frame(se
                                                              "config": world}))
     with pytest.raises(InputError, match="EPSG:32632 but the ground truth"):
         run(Params(), tmp_path / "A", tmp_path / "B", tmp_path / "out2", case="geo", repeats=1, methods=["sosmatch"])
+
+
+def test_the_map_s_own_poses_do_not_depend_on_the_folder_evaluate_runs_in(sessions, tmp_path, monkeypatch):
+    """run.json names the pose file a map was built on; `evaluate` scores the map at those poses (a synthetic
+    session's EKF poses). Before: map recorded the path as given (relative to the folder it ran in), so evaluate
+    run from another folder found no file there and silently used the true poses (the sweep's evaluation changed
+    from 234 to 235 claimed pairs with the cwd), or read another file of that relative name. Now map records
+    absolute paths, and a relative one of an older map is looked up in the evaluated session."""
+    from sosmatch.database.poses import read_poses_csv
+    from sosmatch.plugin.multisession import Sim3
+    from sosmatch.workflows.evaluate.ground_truth import _map_frame_centers, load_ground_truth
+    from sosmatch.workflows.map.inputs import recorded_sources
+
+    root, a, _, _ = sessions
+    session = tmp_path / "S"
+    session.mkdir()
+    for f in ("poses.csv", "cameras.txt"):
+        (session / f).write_bytes((a / f).read_bytes())
+    (session / "images").symlink_to(a / "images")
+    poses = read_poses_csv(a / "poses.csv")[0]
+    ekf = Poses(poses.names, poses.rotations, poses.centers + [1.5, -0.5, 0.2])  # the map's own (EKF) poses
+    write_poses_csv(session / "poses_ekf.csv", ekf)
+    monkeypatch.chdir(tmp_path)
+    recorded = recorded_sources({"poses": "S/poses_ekf.csv", "images": "S/images", "camera": "EXIF/XMP of 3 images"})
+    assert recorded == {"poses": str(session / "poses_ekf.csv"), "images": str(session / "images"),
+                        "camera": "EXIF/XMP of 3 images"}
+    gt = load_ground_truth(Params(), session)
+    for inputs in (recorded, {"poses": "S/poses_ekf.csv"}):  # a map of this sosmatch, one of an older one
+        mapped = tmp_path / "M"
+        mapped.mkdir(exist_ok=True)
+        (mapped / "run.json").write_text(json.dumps({"inputs": inputs}))
+        for cwd in (tmp_path, root, session):
+            monkeypatch.chdir(cwd)
+            centers = _map_frame_centers(gt, mapped, Sim3.identity())
+            assert np.allclose(centers - gt.centers, [1.5, -0.5, 0.2]), (inputs, cwd)

@@ -125,6 +125,10 @@ def _map_frame_centers(gt: GroundTruthSession, map_dir: Path, world_from: Sim3) 
         source = Path((read_map_record(map_dir) or {})["inputs"]["poses"])
     except (InputError, KeyError, TypeError):
         return truth
+    if not source.is_absolute():
+        # a map made before run.json recorded absolute paths: its path is relative to a folder nobody knows now
+        # (the cwd of `map`); the session's own file of that name is the one a synthetic session's map was built on
+        source = Path(gt.path) / source.name
     if source.suffix != ".csv" or not source.is_file():
         return truth
     poses, _ = read_poses_csv(source)

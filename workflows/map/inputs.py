@@ -224,5 +224,12 @@ def input_paths(inputs: MapInputs) -> list[Path]:
     return sorted(paths)
 
 
+def recorded_sources(sources: dict[str, str]) -> dict[str, str]:
+    """The input sources as run.json records them: paths absolute (a relative one meant the folder the map was run
+    from, and `evaluate` run from another folder read another file or none: the map's poses silently replaced by
+    the truth); descriptions that are no path ("EXIF/XMP of ...") as they are."""
+    return {k: str(Path(v).absolute()) if Path(v).exists() else v for k, v in sources.items()}
+
+
 def hash_json(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()

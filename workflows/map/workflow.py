@@ -33,6 +33,7 @@ from .inputs import (
     in_flight_order,
     input_fingerprints,
     input_paths,
+    recorded_sources,
     require_keyframes,
 )
 from .keyframes import CACHE_VERSION, describe_keyframes
@@ -315,7 +316,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     record = {
         "format": "sosmatch-map-run", "version": 1,
         "params": pdict, "pixel_scale": pixel_scale(params, camera.width, camera.height), "versions": _versions(),
-        "inputs": inputs.sources, "fingerprints": fps,
+        "inputs": recorded_sources(inputs.sources), "fingerprints": fps,
         "camera": {"model": camera.model, "width": camera.width, "height": camera.height, "params": camera.params,
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
