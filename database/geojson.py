@@ -36,6 +36,36 @@ def check_projected_crs(epsg: int, source: str | Path | None = None) -> None:
                          f"frame must be ({where} CRS)", source)
 
 
+# How far outside a CRS's area of use coordinates may lie (a map across a UTM zone edge: tens of km)
+CRS_AREA_MARGIN_M = 100_000.0
+
+
+def check_within_crs_area(epsg: int, xy: np.ndarray, source: str | Path | None = None) -> None:
+    """Refuse (InputError naming `source`) coordinates more than CRS_AREA_MARGIN_M outside the projected
+    bounds of the CRS's area of use: a local map stamped with a CRS (a synthetic session's 300 m coordinates as
+    UTM zone 33N) converts to lon/lat without complaint, in the Gulf of Guinea. A CRS without a recorded or
+    projectable area (Web Mercator's is the world) is not checked."""
+    from pyproj import CRS, Transformer
+
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    crs = CRS.from_epsg(int(epsg))
+    area = crs.area_of_use
+    if area is None or not len(xy) or area.east < area.west:
+        return
+    try:
+        tf = Transformer.from_crs(CRS.from_epsg(4326), crs, always_xy=True)
+        x0, y0, x1, y1 = tf.transform_bounds(area.west, area.south, area.east, area.north)
+    except Exception:  # pyproj.ProjError and friends: no projected bounds, nothing to check against
+        return
+    if not all(np.isfinite([x0, y0, x1, y1])):
+        return
+    lo, hi, m = xy.min(axis=0), xy.max(axis=0), CRS_AREA_MARGIN_M
+    if lo[0] < x0 - m or hi[0] > x1 + m or lo[1] < y0 - m or hi[1] > y1 + m:
+        raise InputError(f"the landmarks lie at x {lo[0]:.0f}..{hi[0]:.0f}, y {lo[1]:.0f}..{hi[1]:.0f} m, more than "
+                         f"{m / 1000:.0f} km outside where EPSG:{epsg} ({crs.name}) is used (x {x0:.0f}..{x1:.0f}, "
+                         f"y {y0:.0f}..{y1:.0f}): a local frame given a CRS?", source)
+
+
 def to_wgs84(xy: np.ndarray, epsg: int) -> np.ndarray:
     """(N, 2) coordinates of a projected CRS (EPSG code) -> (N, 2) WGS84 longitude, latitude in degrees."""
     from pyproj import CRS, Transformer

@@ -86,3 +86,27 @@ def test_cli_session_dir_geojson_ply_csv(tmp_path, capsys):
     capsys.readouterr()
     assert main(["export", "--geojson", str(tmp_path / "missing"), "--out", str(tmp_path / "m.geojson")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_a_local_map_given_a_crs_it_cannot_lie_in_is_refused(tmp_path, cli_error):
+    """`export --epsg` on a map in a local frame (a synthetic session: coordinates of a few hundred metres).
+    Before: exit 0, a GeoJSON at lon 10.5, lat 0.003 (UTM 33N) or in the Atlantic (CH LV95). Now the landmarks
+    must lie within 100 km of the CRS's area of use; a map a little past a UTM zone's edge is still exported."""
+    local = _map(epsg=0)
+    pos = local.positions - local.positions.min(0) + 250.0
+    local = LandmarkMap(pos, local.sizes, origin=pos.mean(0).round(), epsg=0)
+    path = tmp_path / "local.sosmap"
+    write_landmark_map(path, local)
+    for code in ("32633", "2056", "32714"):
+        err = cli_error("export", "--geojson", path, "--epsg", code, "--out", tmp_path / "l.geojson")
+        assert f"{path}: the landmarks lie at x 250..3" in err and f"outside where EPSG:{code}" in err
+        err = cli_error("export", "--csv", path, "--epsg", code, "--out", tmp_path / "l.csv")
+        assert "a local frame given a CRS?" in err
+    assert not (tmp_path / "l.geojson").exists() and not (tmp_path / "l.csv").exists()
+    assert main(["export", "--ply", str(path), "--epsg", "32633", "--out", str(tmp_path / "l.ply")]) == 0  # no lon/lat
+    # UTM zone 14N at x 900 km: 66 km past the east edge of the zone's projected box (834 km), is exported
+    edge = _map()
+    pos = edge.positions + [-486000 + 900000, 0, 0]
+    edge = LandmarkMap(pos, edge.sizes, origin=pos.mean(0).round(), epsg=32614)
+    write_landmark_map(tmp_path / "edge.sosmap", edge)
+    assert main(["export", "--geojson", str(tmp_path / "edge.sosmap"), "--out", str(tmp_path / "e.geojson")]) == 0

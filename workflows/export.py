@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..database.geojson import check_projected_crs, geojson_text, to_wgs84
+from ..database.geojson import check_projected_crs, check_within_crs_area, geojson_text, to_wgs84
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map
 from ..database.outputs import OutputFiles, fingerprint
 from ..database.session_io import check_map_of_record, check_session_usable, read_landmark_table
@@ -96,6 +96,8 @@ def run(
     code = int(epsg or lmap.epsg)
     if code:
         check_projected_crs(code, source if not epsg else None)
+        if "geojson" in targets or "csv" in targets:  # the formats that carry lon/lat
+            check_within_crs_area(code, lmap.positions[:, :2], source)
     elif "geojson" in targets:  # said here, where the map's name is known
         raise InputError("the landmark map has no geographic reference (EPSG 0, a local frame): give --epsg CODE "
                          "of its world frame if it has one", source)
