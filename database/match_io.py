@@ -274,12 +274,27 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
                              else _sim3(ver["transform"], "verification.transform", path))
         summary.associations = parse_associations(ver.get("associations"), "verification.associations", path)
         summary.runner_up_support = _int(ver.get("runner_up_support", 0), "verification.runner_up_support", path)
+        _check_verified_associations(summary.associations, ver.get("support"), path)
         if summary.accepted and summary.transform is None:
             raise InputError("match file field verification is accepted without a transform", path)
     summary.gate_m = gate
     if summary.source == "verified" and z_weight is not None:
         summary.gate_z_weight = z_weight
     return summary
+
+
+def _check_verified_associations(assoc: np.ndarray, support: Any, path: Path) -> None:
+    """The verification's associations are mutual nearest neighbours (each landmark at most once) and its support
+    is their number: an edited list (a landmark paired twice, pairs removed) was merged and compared without a
+    word (37 associations cut to none: merge 'succeeded' fusing 0)."""
+    name = "verification.associations"
+    for side, label in ((0, "A"), (1, "B")):
+        values, counts = np.unique(assoc[:, side], return_counts=True)
+        if np.any(counts > 1):
+            raise InputError(f"{_where(name)} pairs landmark {int(values[counts > 1][0])} of map {label} more than "
+                             "once (the verification pairs each landmark at most once)", path)
+    if support is not None and _int(support, "verification.support", path) != len(assoc):
+        raise InputError(f"{_where(name)} holds {len(assoc)} pairs but verification.support is {support}", path)
 
 
 def read_match_json(path: str | Path) -> dict[str, Any]:

@@ -294,3 +294,25 @@ def test_a_byte_order_mark_is_not_part_of_a_text_input(toy, tmp_path, cli_error)
     (tmp_path / "mid.csv").write_text(format_poses_csv(poses).replace("a.jpg,", "a.jpg,\ufeff"))
     with pytest.raises(InputError):
         read_poses_csv(tmp_path / "mid.csv")
+
+
+@pytest.mark.parametrize("edit, fragment", [
+    (lambda v: v["associations"].append([v["associations"][0][0], 10**6]), "pairs landmark"),  # A's twice
+    (lambda v: v["associations"].append([10**6, v["associations"][0][1]]), "of map B more than once"),
+    (lambda v: v.update(associations=[]), "holds 0 pairs but verification.support is"),
+])
+def test_an_edited_verified_answer_is_refused(toy, tmp_path, cli_error, edit, fragment):
+    """match.json's verified associations edited by hand: a landmark paired twice, or the list cut while the
+    support stays. Before: merge fused what was left and reported success (0 fused for an emptied list)."""
+    _, a, b, _ = toy
+    path = toy_match_json(a, b, tmp_path / "m.json")
+    doc = json.loads(path.read_text())
+    hyp = doc["hypotheses"][0]  # a verified answer as `sosmatch match` writes it
+    doc["verification"] = {"accepted": True, "transform": hyp["transform"], "associations": hyp["associations"],
+                           "support": len(hyp["associations"]), "runner_up_support": 0}
+    path.write_text(json.dumps(doc))
+    assert read_match(path).accepted
+    edit(doc["verification"])
+    path.write_text(json.dumps(doc))
+    err = cli_error("merge", a.path, b.path, "--match", path, "--out", tmp_path / "M")
+    assert fragment in err and str(path) in err and not (tmp_path / "M").exists()
