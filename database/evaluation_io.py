@@ -154,28 +154,39 @@ def landmark_observed_objects(map_dir: str | Path, labels_dir: str | Path) -> li
             image = rec.images[el.image_id]
             lab = labels.get(image.name)
             if lab is None:
-                lab = labels[image.name] = read_label_image(labels_dir, image.name)
+                cam = rec.cameras[image.camera_id]
+                lab = labels[image.name] = read_label_image(labels_dir, image.name, (cam.width, cam.height))
             ids.append(int(objects_under(lab, np.asarray(image.points2D[el.point2D_idx].xy))[0]))
         out.append(np.asarray(ids, dtype=np.int64))
     return out
 
 
-def segment_objects(map_dir: str | Path, labels_dir: str | Path, names: Sequence[str]) -> list[np.ndarray]:
+def segment_objects(map_dir: str | Path, labels_dir: str | Path, names: Sequence[str],
+                    size: tuple[int, int] | None = None) -> list[np.ndarray]:
     """Per keyframe `names` of a mapped session, the object id under each segment centroid (every mask, as the
     map's database.db holds them as keypoints), from `labels_dir/IMAGE_STEM.png` as `landmark_observed_objects`."""
     from .colmap_db import read_segment_detections
 
     dets = read_segment_detections(Path(map_dir) / "database.db", names)
-    return [objects_under(read_label_image(labels_dir, name), det.centroids) for name, det in zip(names, dets)]
+    return [objects_under(read_label_image(labels_dir, name, size), det.centroids) for name, det in zip(names, dets)]
 
 
-def read_label_image(labels_dir: str | Path, image_name: str) -> np.ndarray:
+def read_label_image(labels_dir: str | Path, image_name: str, size: tuple[int, int] | None = None) -> np.ndarray:
     """The label image of a keyframe (`labels_dir/IMAGE_STEM.png`, uint16 object id per pixel, 0 = ground cover, as
-    `sosmatch synth` writes it); an unreadable or missing one is an InputError naming it."""
+    `sosmatch synth` writes it); an unreadable or missing one, one of another pixel type or, given `size` (width,
+    height of its image), of another size is an InputError naming it."""
     import cv2
 
     path = Path(labels_dir) / (Path(image_name).stem + ".png")
     lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if lab is None:
         raise InputError("cannot read label image", path)
+    # object ids are looked up at pixel positions: another depth wraps the ids, another size moves every lookup
+    # (clipped to the border), and the evaluation's object counts came out wrong with exit 0
+    if lab.ndim != 2 or lab.dtype != np.uint16:
+        channels = 1 if lab.ndim == 2 else lab.shape[2]
+        raise InputError(f"label image must hold one 16-bit object id per pixel (as `sosmatch synth` writes it), got "
+                         f"{channels} channel(s) of {lab.dtype}", path)
+    if size is not None and (lab.shape[1], lab.shape[0]) != tuple(size):
+        raise InputError(f"label image is {lab.shape[1]}x{lab.shape[0]} but its image is {size[0]}x{size[1]}", path)
     return lab

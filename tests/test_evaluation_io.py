@@ -78,3 +78,23 @@ def test_match_hypotheses_gravity_and_sizes(tmp_path):
     (tmp_path / "match.json").write_text("{}")
     with pytest.raises(InputError, match="hypotheses"):
         read_match_hypotheses(tmp_path / "match.json")
+
+
+def test_a_label_image_of_another_depth_or_size_is_refused(tmp_path):
+    """Object ids are looked up at the mask centroids' pixels. Before: an 8-bit label (ids wrapped at 256) or
+    one of another size (every lookup clipped to its border) was read, and `evaluate` counted the landmarks'
+    objects wrong with exit 0."""
+    import cv2
+
+    from sosmatch.database.evaluation_io import read_label_image
+
+    good = np.zeros((24, 32), np.uint16)
+    good[5:9, 5:9] = 300
+    cv2.imwrite(str(tmp_path / "f.png"), good)
+    assert read_label_image(tmp_path, "f.jpg", (32, 24))[6, 6] == 300
+    for bad, fragment in ((good.astype(np.uint8), "1 channel(s) of uint8"),
+                          (np.dstack([good] * 3), "3 channel(s) of uint16"),
+                          (np.zeros((12, 16), np.uint16), "label image is 16x12 but its image is 32x24")):
+        cv2.imwrite(str(tmp_path / "f.png"), bad)
+        with pytest.raises(InputError, match=fragment.replace("(", r"\(").replace(")", r"\)")):
+            read_label_image(tmp_path, "f.jpg", (32, 24))

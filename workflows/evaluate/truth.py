@@ -57,7 +57,8 @@ def landmark_truth(params: Params, session_a: Path, session_b: Path, map_a: Path
         seen.append(counts)
         # which objects the segmenter found often enough (every mask, from the map's database), where it exists
         has_db = names is not None and (m / "database.db").is_file()
-        segmented.append(segmented_objects(segment_objects(m, s.path / "labels", names), least)
+        size = (s.camera.width, s.camera.height)
+        segmented.append(segmented_objects(segment_objects(m, s.path / "labels", names, size), least)
                          if has_db else None)
     present = [s.present_objects()["id"] for s in synth]
     eligible = eligible_objects(present[0], present[1], seen[0], seen[1], *min_keyframes)
