@@ -113,3 +113,40 @@ def test_errors_are_user_errors(tmp_path, capsys):
     assert main(["synth-from-ortho", str(small), "--out", str(tmp_path / "x"), "--gsd", "5"]) == 2
     assert "smaller than one footprint" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("flags, fragment", [
+    (["--offset", "nan"], "offset must be a finite number"),  # was: ValueError traceback from the pose writer
+    (["--heading", "inf"], "heading must be a finite number"),  # was: 'math domain error'
+    (["--gsd", "nan"], "gsd must be a finite number"),  # was: 'arange: cannot compute length'
+    (["--frame-spacing", "-5"], "frame spacing must be positive"),  # was: IndexError traceback
+    (["--frame-spacing", "0"], "frame spacing must be positive"),  # was: the default spacing, silently
+    (["--frame-spacing", "1e-6"], "the flight plan would hold"),  # was: MemoryError (32.6 GiB)
+    (["--line-spacing", "1e-6"], "the flight plan would hold"),  # was: MemoryError (24 GiB)
+    (["--max-tilt", "90"], "max tilt must be between 0 and 45"),  # was: MemoryError (2.96 EiB)
+    (["--max-tilt", "-5"], "max tilt must be between 0 and 45"),  # was: rendered, exit 0
+    (["--frames", "-3"], "frames must be between 1 and"),  # was: rendered, exit 0
+    (["--ekf-position-sigma", "-1"], "ekf sigmas must be >= 0"),  # was: rendered, exit 0
+    (["--seed", "-1"], "seed must be >= 0"),  # was: ValueError traceback from numpy
+])
+def test_settings_that_cannot_make_a_session_are_one_line(tmp_path, cli_error, flags, fragment):
+    tif = write_geotiff(tmp_path / "geo.tif")
+    err = cli_error("synth-from-ortho", tif, "--out", tmp_path / "x", "--gsd", "2", "--width", "160", "--height",
+                    "120", *flags)
+    assert fragment in err and not (tmp_path / "x").exists()
+
+
+def test_an_image_without_georeference_is_one_line_without_rasterio_s_warning(tmp_path):
+    """In a process of its own, as a user runs it (pytest would catch the warning): before, rasterio's
+    NotGeoreferencedWarning and its source line stood above the error."""
+    import subprocess
+    import sys
+
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "plain.tif"), np.zeros((300, 400, 3), np.uint8))
+    run = subprocess.run([sys.executable, "-c", "import sys; from sosmatch.tools.cli import main; sys.exit(main())",
+                          "synth-from-ortho", str(tmp_path / "plain.tif"), "--out", str(tmp_path / "x")],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert "projected CRS" in run.stderr

@@ -79,6 +79,7 @@ def plan_path(
     heading_deg: float | None = None,
     offset_m: float = 0.0,
     max_frames: int | None = None,
+    max_plan_frames: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Camera centres (N, 3) at `altitude_m` and headings (N,) of a flight over `bounds` (min E, min N, max E,
     max N) that keeps every nadir footprint inside the bounds.
@@ -87,7 +88,8 @@ def plan_path(
     "cross" (two lines through the centre, the second perpendicular). Lines run along the longer side unless
     `heading_deg` (0 = north, 90 = east) says otherwise. Defaults: frames every 1/8 of the footprint length
     (a ground point is seen in ~8 consecutive frames per line), lines every half footprint width (50% sidelap).
-    `offset_m` shifts the lines sideways (a second session on a parallel path).
+    `offset_m` shifts the lines sideways (a second session on a parallel path). `max_plan_frames`: a plan that would
+    hold more frames than this (before `max_frames` takes the first ones) is a ValueError, not an allocation.
     """
     gsd = altitude_m / camera.fx
     along_len, across_len = camera.height * gsd, camera.width * gsd  # image top points along the track
@@ -107,6 +109,11 @@ def plan_path(
     half_c = np.abs(corners @ v).max() - 0.5 * across_len
     if half_a < 0 or (kind == "lawnmower" and half_c < 0):
         raise ValueError("the area is smaller than one footprint: lower the altitude or the field of view")
+    planned = (2 * half_a / frame_spacing_m + 1) * (2 * max(half_c, 0.0) / line_spacing_m + 1 if kind == "lawnmower"
+                                                     else 2.0)
+    if max_plan_frames is not None and planned > max_plan_frames:
+        raise ValueError(f"the flight plan would hold ~{planned:.3g} frames, more than {max_plan_frames}: a larger "
+                         "frame or line spacing")
     steps = np.arange(-half_a, half_a + 1e-9, frame_spacing_m)
     steps += (half_a - steps[-1]) / 2.0  # centre the frames on the track
     if kind == "lawnmower":

@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 
@@ -59,6 +60,42 @@ def noisy_poses(poses: Poses, position_sigma_m: float, attitude_sigma_deg: float
     return Poses(list(poses.names), dr @ poses.rotations, poses.centers + dc)
 
 
+MAX_PLAN_FRAMES = 100_000  # as `sosmatch synth`: a plan beyond this is a wrong spacing, not a survey
+MAX_TILT_DEG = 45.0
+
+
+def check_settings(altitude_m: float | None, gsd_m: float, width: int, height: int, hfov_deg: float,
+                   frame_spacing_m: float | None, line_spacing_m: float | None, heading_deg: float | None,
+                   offset_m: float, frames: int | None, max_tilt_deg: float, seed: int, jpeg_quality: int,
+                   ekf_position_sigma_m: float, ekf_attitude_sigma_deg: float) -> None:
+    """Refuse (one-line InputError naming the setting) values that cannot make a session, before the orthophoto
+    is read. Before: a NaN offset or negative frame spacing was a traceback, a frame spacing of 1e-6 m or a
+    90 degree tilt asked for tens of GB (MemoryError), and 0 frames, a negative tilt or sigma rendered with exit 0."""
+    numbers = {"altitude": altitude_m, "gsd": gsd_m, "hfov": hfov_deg, "frame spacing": frame_spacing_m,
+               "line spacing": line_spacing_m, "heading": heading_deg, "offset": offset_m, "max tilt": max_tilt_deg,
+               "ekf position sigma": ekf_position_sigma_m, "ekf attitude sigma": ekf_attitude_sigma_deg}
+    for name, value in numbers.items():
+        if value is not None and not math.isfinite(value):
+            raise InputError(f"{name} must be a finite number, got {value!r}")
+    for name in ("altitude", "gsd", "frame spacing", "line spacing"):
+        if numbers[name] is not None and numbers[name] <= 0:
+            raise InputError(f"{name} must be positive, got {numbers[name]!r}")
+    if not 16 <= width <= 8192 or not 16 <= height <= 8192:
+        raise InputError(f"image width and height must be between 16 and 8192 pixels, got {width}x{height}")
+    if not 1.0 < hfov_deg < 170.0:
+        raise InputError(f"field of view must be within (1, 170) degrees, got {hfov_deg!r}")
+    if frames is not None and not 1 <= frames <= MAX_PLAN_FRAMES:
+        raise InputError(f"frames must be between 1 and {MAX_PLAN_FRAMES}, got {frames}")
+    if not 0.0 <= max_tilt_deg <= MAX_TILT_DEG:
+        raise InputError(f"max tilt must be between 0 and {MAX_TILT_DEG:g} degrees, got {max_tilt_deg!r}")
+    if ekf_position_sigma_m < 0 or ekf_attitude_sigma_deg < 0:
+        raise InputError("ekf sigmas must be >= 0")
+    if seed < 0:
+        raise InputError(f"seed must be >= 0, got {seed}")
+    if not 1 <= jpeg_quality <= 100:
+        raise InputError(f"jpeg quality must be between 1 and 100, got {jpeg_quality}")
+
+
 def read_orthophoto(path: str | Path) -> osess.Orthophoto:
     """Read the first three bands of a north-up GeoTIFF in a projected CRS as RGB (pixels equal to the raster's
     nodata value in every band are invalid; a 4th band is not taken as alpha, since NAIP's 4th band is NIR)."""
@@ -66,10 +103,12 @@ def read_orthophoto(path: str | Path) -> osess.Orthophoto:
 
     path = Path(path)
     try:
-        with rasterio.open(path) as src:
-            data = src.read()
-            tr, crs, nodata = src.transform, src.crs, src.nodata
-            mask = src.dataset_mask()
+        with warnings.catch_warnings():  # an image without georeference is refused below, in one line
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            with rasterio.open(path) as src:
+                data = src.read()
+                tr, crs, nodata = src.transform, src.crs, src.nodata
+                mask = src.dataset_mask()
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(f"cannot read orthophoto: {exc}", path) from None
     if crs is None or not crs.is_projected or crs.to_epsg() is None:
@@ -127,19 +166,19 @@ def run(
     """
     import cv2
 
+    check_settings(altitude_m, gsd_m, width, height, hfov_deg, frame_spacing_m, line_spacing_m, heading_deg,
+                   offset_m, frames, max_tilt_deg, seed, jpeg_quality, ekf_position_sigma_m, ekf_attitude_sigma_deg)
     ortho = read_orthophoto(geotiff)
     camera = osess.camera_for(width, height, hfov_deg)
     if altitude_m is None:
         altitude_m = gsd_m * camera.fx
-    if altitude_m <= 0 or width <= 0 or height <= 0 or not 1.0 < hfov_deg < 170.0:
-        raise InputError("altitude, image size must be positive and the field of view within (1, 170) degrees")
     try:
         # Tilted views shift their footprint by up to altitude * tan(tilt) per axis: keep that margin too.
         margin = altitude_m * math.tan(math.radians(max(max_tilt_deg, 0.0))) * math.sqrt(2.0)
         e0, n0, e1, n1 = ortho.bounds()
         centers, headings = osess.plan_path((e0 + margin, n0 + margin, e1 - margin, n1 - margin), camera,
                                             altitude_m, path, frame_spacing_m,
-                                            line_spacing_m, heading_deg, offset_m, frames)
+                                            line_spacing_m, heading_deg, offset_m, frames, MAX_PLAN_FRAMES)
     except ValueError as exc:
         raise InputError(str(exc), geotiff) from None
     if len(centers) == 0:
