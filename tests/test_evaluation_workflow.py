@@ -276,3 +276,17 @@ def test_the_map_s_own_poses_do_not_depend_on_the_folder_evaluate_runs_in(sessio
             monkeypatch.chdir(cwd)
             centers = _map_frame_centers(gt, mapped, Sim3.identity())
             assert np.allclose(centers - gt.centers, [1.5, -0.5, 0.2]), (inputs, cwd)
+
+
+@pytest.mark.parametrize("flags, fragment", [
+    (["--max-observers", "0"], "--max-observers must be at least 1"),  # was: F1 0.000, 'front end', exit 0
+    (["--max-observers", "-2"], "--max-observers must be at least 1"),  # was: observers sliced off, exit 0
+    (["--ground-height", "nan"], "--ground-height must be a finite height"),
+    (["--sweep-floor", "-1"], "--sweep-floor must be at least 2"),
+    (["--repeats", "0"], "--repeats must be at least 1"),
+    (["--baseline-threads", "-1"], "--baseline-threads must be 0"),
+])
+def test_evaluate_options_that_make_no_evaluation_are_one_line(sessions, tmp_path, cli_error, flags, fragment):
+    _, a, b, _ = sessions
+    err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--methods", "sosmatch", *flags)
+    assert fragment in err and not (tmp_path / "E").exists()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import statistics
 import time
 from collections.abc import Sequence
@@ -263,6 +264,24 @@ def _jsonable(res: dict) -> dict:
     return keep
 
 
+def check_options(ground_height: float, sweep_floor: int | None, repeats: int, max_observers: int | None,
+                  baseline_threads: int) -> None:
+    """Refuse (one-line InputError naming the option) values that make no evaluation. Before: --max-observers 0
+    left every landmark without an observer and scored F1 0.000 'limited by front end' with exit 0, a negative
+    one sliced observers off the wrong end, a NaN ground height gave NaN footprints, and --repeats / --sweep-floor
+    / --baseline-threads below their meaning were taken silently."""
+    if not math.isfinite(ground_height) or abs(ground_height) > 1e5:
+        raise InputError(f"--ground-height must be a finite height in metres (within 100 km), got {ground_height!r}")
+    if max_observers is not None and max_observers < 1:
+        raise InputError(f"--max-observers must be at least 1 (or left out: every observer), got {max_observers}")
+    if sweep_floor is not None and sweep_floor < 2:
+        raise InputError(f"--sweep-floor must be at least 2 (the smallest theta_S), got {sweep_floor}")
+    if repeats < 1:
+        raise InputError(f"--repeats must be at least 1, got {repeats}")
+    if baseline_threads < 0:
+        raise InputError(f"--baseline-threads must be 0 (one per core) or more, got {baseline_threads}")
+
+
 def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: str | Path,
         map_a: str | Path | None = None, map_b: str | Path | None = None, match_dir: str | Path | None = None,
         methods: Sequence[str] = METHODS, case: str | None = None, dem: str | Path | None = None,
@@ -295,6 +314,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
+    check_options(ground_height, sweep_floor, repeats, max_observers, baseline_threads)
     case = case or f"{session_a.name} vs {session_b.name}"
     inputs = [session_a, session_b, map_a, map_b, match_dir, dem]
     identity = fingerprint({"inputs": [None if p is None else str(Path(p).resolve()) for p in inputs],
