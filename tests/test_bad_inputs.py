@@ -316,3 +316,12 @@ def test_an_edited_verified_answer_is_refused(toy, tmp_path, cli_error, edit, fr
     path.write_text(json.dumps(doc))
     err = cli_error("merge", a.path, b.path, "--match", path, "--out", tmp_path / "M")
     assert fragment in err and str(path) in err and not (tmp_path / "M").exists()
+
+
+@pytest.mark.parametrize("workers", ["0", "-3"])
+def test_map_refuses_a_worker_count_below_one(tmp_path, cli_error, workers):
+    """Before: map took 0 or -3 workers as 1 without a word (match refuses them)."""
+    root = _disc_flight(tmp_path / "f", frames=3)
+    err = cli_error("map", "--poses", root / "poses.csv", "--images", root / "images", "--out", tmp_path / "M",
+                    "--workers", workers)
+    assert f"--workers must be >= 1, got {workers}" in err and not (tmp_path / "M").exists()

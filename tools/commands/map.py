@@ -51,6 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ...workflows import map as map_workflow
 
+    if args.workers < 1:  # was taken as 1 without a word (match refuses it, batch takes 0 for one per core)
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
     params = params_from_args(args)
     # options of the other pose source would be silently ignored: say so instead
     if args.poses is not None and (args.telemetry is not None or args.refine or args.pose_source):
