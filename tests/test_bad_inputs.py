@@ -325,3 +325,20 @@ def test_map_refuses_a_worker_count_below_one(tmp_path, cli_error, workers):
     err = cli_error("map", "--poses", root / "poses.csv", "--images", root / "images", "--out", tmp_path / "M",
                     "--workers", workers)
     assert f"--workers must be >= 1, got {workers}" in err and not (tmp_path / "M").exists()
+
+
+@pytest.mark.parametrize("flags, fragment", [
+    (["--epsg", "4326"], "--epsg: EPSG:4326 (WGS 84) is not a projected CRS"),  # was: ValueError traceback
+    (["--epsg", "99999"], "--epsg: EPSG code 99999 is not an EPSG code"),  # was: pyproj CRSError traceback
+    (["--mount", "bogus"], "unknown camera mount 'bogus'"),  # was: taken when the images had gimbal tags
+    (["--sensor-width-mm", "nan"], "sensor width must be a positive number"),
+    (["--position-sigma", "-1"], "position sigma must be a positive number"),
+    (["--attitude-sigma", "inf"], "attitude sigma must be a positive number"),
+])
+def test_poses_from_exif_options_are_checked_before_the_images_are_read(tmp_path, cli_error, flags, fragment):
+    import cv2
+
+    (tmp_path / "imgs").mkdir()
+    cv2.imwrite(str(tmp_path / "imgs" / "a.jpg"), np.zeros((8, 8, 3), np.uint8))  # no EXIF at all
+    err = cli_error("poses-from-exif", tmp_path / "imgs", "--out", tmp_path / "p" / "poses.csv", *flags)
+    assert fragment in err and not (tmp_path / "p" / "poses.csv").exists()

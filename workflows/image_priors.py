@@ -310,6 +310,23 @@ def _camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
     return cameras, index, sources
 
 
+def check_prior_options(mount: str | np.ndarray, sensor_width_mm: float | None, epsg: int | None,
+                        takeoff_altitude_m: float | None) -> None:
+    """Refuse (one-line InputError) options the images' metadata cannot be read with, before any image is read.
+    Before: `--epsg 4326` or an unknown code was a traceback from the pose writer or pyproj after every image was
+    read; a mount name the images never needed (gimbal tags), a NaN or negative sensor width, were taken."""
+    from ..database.poses import crs_problem
+
+    if isinstance(mount, str) and mount != "gimbal" and mount not in FIXED_MOUNTS:
+        raise InputError(f"unknown camera mount {mount!r} (use one of {', '.join(sorted(FIXED_MOUNTS))})")
+    if sensor_width_mm is not None and not (math.isfinite(sensor_width_mm) and sensor_width_mm > 0):
+        raise InputError(f"the sensor width must be a positive number of millimetres, got {sensor_width_mm!r}")
+    if epsg is not None and (problem := crs_problem(int(epsg))) is not None:
+        raise InputError(f"--epsg: {problem}")
+    if takeoff_altitude_m is not None and not math.isfinite(takeoff_altitude_m):
+        raise InputError(f"the take-off altitude must be a finite number of metres, got {takeoff_altitude_m!r}")
+
+
 def read_image_priors(
     images: str | Path | Sequence[str | Path],
     telemetry: str | Path | None = None,
@@ -326,6 +343,7 @@ def read_image_priors(
     images; an unreadable image file is an InputError."""
     from ..plugin.georegistration import MIN_HEIGHT_DRIFT_M, fit_drift
 
+    check_prior_options(mount, sensor_width_mm, epsg, takeoff_altitude_m)
     paths = list_images(images)
     tele = read_telemetry_csv(telemetry) if telemetry is not None else {}
     metas = [read_image_metadata(p) for p in paths]

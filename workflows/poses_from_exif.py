@@ -19,6 +19,7 @@ headings.
 from __future__ import annotations
 
 import logging
+import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -134,6 +135,9 @@ def run(
     `sosmatch.database.outputs.OutputFiles`, checked before any work: an existing file is replaced only when
     this command wrote it (from other images or options: only with `overwrite`).
     """
+    for name, sigma in (("position sigma", position_sigma_m), ("attitude sigma", attitude_sigma_deg)):
+        if not (math.isfinite(sigma) and sigma > 0):  # the refinement's prior weights: 1 / sigma^2
+            raise InputError(f"the {name} must be a positive number, got {sigma!r}")
     out = Path(out)
     cameras_path = Path(cameras_out) if cameras_out is not None else out.parent / "cameras.txt"
     sources = [Path(p) for p in ([images] if isinstance(images, (str, Path)) else images)]
