@@ -334,11 +334,16 @@ def test_map_refuses_a_worker_count_below_one(tmp_path, cli_error, workers):
     (["--sensor-width-mm", "nan"], "sensor width must be a positive number"),
     (["--position-sigma", "-1"], "position sigma must be a positive number"),
     (["--attitude-sigma", "inf"], "attitude sigma must be a positive number"),
+    (["--nominal-height", "nan"], "nominal height must be a positive number"),  # `poses`: scales a block without GPS
 ])
 def test_poses_from_exif_options_are_checked_before_the_images_are_read(tmp_path, cli_error, flags, fragment):
     import cv2
 
     (tmp_path / "imgs").mkdir()
     cv2.imwrite(str(tmp_path / "imgs" / "a.jpg"), np.zeros((8, 8, 3), np.uint8))  # no EXIF at all
+    if flags[0] == "--nominal-height":
+        err = cli_error("poses", tmp_path / "imgs", "--out", tmp_path / "p", *flags)
+        assert fragment in err and not (tmp_path / "p").exists()
+        return
     err = cli_error("poses-from-exif", tmp_path / "imgs", "--out", tmp_path / "p" / "poses.csv", *flags)
     assert fragment in err and not (tmp_path / "p" / "poses.csv").exists()

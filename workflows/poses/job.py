@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import shutil
 import time
@@ -57,6 +58,8 @@ def run(
     image_dir = Path(images)
     if not image_dir.is_dir():
         raise InputError("image directory not found", image_dir)
+    if not (math.isfinite(nominal_height_m) and nominal_height_m > 0):  # scales a block without GPS heights
+        raise InputError(f"the nominal height must be a positive number of metres, got {nominal_height_m!r}")
     options = {"telemetry": telemetry, "takeoff": takeoff_altitude_m, "sensor": sensor_width_mm,
                "nominal_height_m": nominal_height_m}
     identity = identity_of(image_dir, params, **options)
