@@ -33,6 +33,7 @@ SESSION_VERSION = 1
 # objects.csv: x, y, z is the centre of the object's visible top surface (the mean over its footprint seen from
 # straight above, where triangulated mask centroids land); apex_z the highest point (tree tip, roof ridge, water
 # level of a pond), ground_z the terrain under the object's centre, height = apex_z - ground_z (0 for ponds).
+MAX_OBJECT_ID = 65535  # label images hold object ids as uint16 (0 = ground cover)
 OBJECT_COLUMNS = ["id", "kind", "x", "y", "z", "radius", "height", "present", "apex_z", "ground_z"]
 # Files written before apex_z / ground_z existed (z was the apex then); still read, see read_objects_csv.
 LEGACY_OBJECT_COLUMNS = OBJECT_COLUMNS[:8]
@@ -185,6 +186,12 @@ def read_objects_csv(path: str | Path) -> np.ndarray:
         rows.append(values[:7] + (bool(values[7]),) + extra)
     if header is None:
         raise InputError("no header line", path)
+    ids = [r[0] for r in rows]
+    if len(set(ids)) != len(ids):  # objects are looked up by id: a second row silently replaced the first
+        dup = next(i for i in ids if ids.count(i) > 1)
+        raise InputError(f"object id {dup} is listed more than once", path)
+    if ids and not all(0 < i <= MAX_OBJECT_ID for i in ids):
+        raise InputError(f"object ids must be within 1..{MAX_OBJECT_ID} (label images hold them as uint16)", path)
     return np.array(rows, dtype=OBJECT_DTYPE)
 
 
@@ -237,6 +244,12 @@ def load_synth_session(path: str | Path) -> SynthSession:
     for f in frames:
         if not isinstance(f.get("visible_object_ids"), list) or not isinstance(f.get("footprint"), list):
             raise InputError(f"frame {f.get('name')!r} lacks visible_object_ids or footprint", path / "frames.json")
+        # ids as objects.csv holds them (the evaluation counts sightings by int(id): 'x' was a traceback, 1.5 a
+        # sighting of object 1)
+        if not all(isinstance(i, int) and not isinstance(i, bool) and 0 < i <= MAX_OBJECT_ID
+                   for i in f["visible_object_ids"]):
+            raise InputError(f"frame {f['name']!r}: visible_object_ids must be object ids (integers "
+                             f"1..{MAX_OBJECT_ID})", path / "frames.json")
     terrain = read_terrain_npz(path / "terrain.npz")
     return SynthSession(path, cameras[1], poses, ekf, objects, frames, terrain, meta)
 

@@ -419,3 +419,24 @@ def test_world_cache_keeps_the_most_recently_used_entries(tmp_path):
     removed = world_cache.prune(tmp_path, keep=3)
     assert sorted(p.name for p in removed) == ["broken", "w0", "w3"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w1", "w2", "w4"]
+
+
+def test_object_ids_the_evaluation_counts_by_are_checked(session_dir, tmp_path):
+    """frames.json's visible_object_ids and objects.csv's ids are what the evaluation counts sightings and kinds
+    by. Before: an id 'x' was a ValueError traceback out of `evaluate`, 1.5 counted as object 1, and a second
+    objects.csv row of one id silently replaced the first."""
+    import shutil
+
+    broken = tmp_path / "broken"
+    shutil.copytree(session_dir, broken)
+    frames = json.loads((session_dir / "frames.json").read_text())
+    for bad in (["x"], [1.5], [True], [0], [70000]):
+        frames[1]["visible_object_ids"] = bad
+        (broken / "frames.json").write_text(json.dumps(frames))
+        with pytest.raises(InputError, match="frames.json: frame 'frame_00001.jpg': visible_object_ids must be"):
+            load_synth_session(broken)
+    shutil.copy(session_dir / "frames.json", broken / "frames.json")
+    lines = (session_dir / "objects.csv").read_text().splitlines()
+    (broken / "objects.csv").write_text("\n".join(lines + [lines[2]]) + "\n")
+    with pytest.raises(InputError, match="is listed more than once"):
+        load_synth_session(broken)
