@@ -354,3 +354,34 @@ def test_an_optional_output_not_staged_removes_its_earlier_version(tmp_path):
         taken.staged("run.json").write_text("record")
         with pytest.raises(FileNotFoundError):  # a required output that was not staged is a bug, not skipped
             taken.publish(["data.bin"], last="run.json", optional=["picture.png"])
+
+
+def test_a_full_disk_mid_run_is_one_line_and_the_run_resumes(tmp_path, capsys):
+    """No space left on device while writing (an SD card, a quota): before, a 40-line OSError traceback (map,
+    synth, segment, merge; exit 1). Now one line naming the output, exit 2, and the same command finishes once
+    there is room. Needs a small tmpfs (root): skipped where one cannot be mounted."""
+    import subprocess
+
+    from sosmatch.plugin.geometry import Camera
+    from sosmatch.tools.cli import main
+    from sosmatch.tools.toy_sessions import render_disc_flight
+
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    root = tmp_path / "flight"
+    render_disc_flight(root, Camera(160, 120, 120.0, 120.0, 80.0, 60.0), frames=4)
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=24k", "tmpfs", str(disk)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        assert main(["segment", str(root / "images"), "--out", str(disk / "S")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1] == (f"sosmatch segment: error: {disk / 'S'}: No space left on device: free some space, then "
+                           "re-run the same command to resume")
+        assert not any("Traceback" in line for line in err)
+        subprocess.run(["mount", "-o", "remount,size=8m", str(disk)], check=True)
+        assert main(["segment", str(root / "images"), "--out", str(disk / "S")]) == 0
+        assert len(list((disk / "S").glob("*.png"))) == 4
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)

@@ -8,6 +8,7 @@ so that `sosmatch --help` stays instant.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import os
@@ -22,6 +23,8 @@ from ..plugin.errors import InputError
 from . import commands
 
 EXIT_USER_ERROR = 2
+# a device or quota that is full: the user frees space and re-runs (the run resumes)
+FULL_DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 log = logging.getLogger("sosmatch")
 
 
@@ -107,6 +110,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"sosmatch {args.command}: interrupted (re-run the same command to resume)", file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.errno not in FULL_DISK_ERRNOS:
+            raise
+        # a full disk or quota mid-run is the user's to fix, like a bad input: one line, and the run resumes (every
+        # output is written atomically; the temporaries of this one are removed by the next run)
+        if args.verbose:
+            log.exception("disk full")
+        where = exc.filename or getattr(args, "out", None)
+        where = f"{where}: " if where is not None else ""
+        print(f"sosmatch {args.command}: error: {where}{os.strerror(exc.errno)}: free some space, then re-run the "
+              "same command to resume", file=sys.stderr)
+        return EXIT_USER_ERROR
     return int(code or 0)
 
 
