@@ -8,6 +8,7 @@ pose exports often are) is parsed here with the same validation as the pose CSV 
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -98,6 +99,39 @@ def _pycolmap_problem(exc: Exception) -> str:
     return f"pycolmap: {first}"
 
 
+_TEXT_COUNT = re.compile(r"^#\s*Number of [A-Za-z0-9 ]+:\s*(\d+)")
+
+
+def _check_text_model_file(path: Path, lines_per_record: int) -> None:
+    """A COLMAP text file that is complete: it ends with a line end and holds as many records as its
+    `# Number of ...: N` header says (COLMAP writes one; a file without it is not counted). pycolmap reads a file
+    cut inside a line as far as it goes: a points3D.txt truncated at 700 bytes gave 4 of 42 landmarks and a
+    'no match' with exit 0."""
+    declared, records = None, 0
+    last = ""
+    try:
+        handle = open(path, encoding="utf-8-sig")  # a byte order mark is not text
+    except OSError as exc:
+        raise InputError(f"cannot read {path.name}: {exc.strerror or exc}", path) from None
+    with handle:
+        for _, line in bounded_lines(handle, path, path.name):
+            if line.startswith("#"):
+                if declared is None and (m := _TEXT_COUNT.match(line)):
+                    declared = int(m.group(1))
+                continue
+            if line.strip() or lines_per_record > 1:  # images.txt: an image's POINTS2D line may be empty
+                records += 1
+    with open(path, "rb") as raw:
+        if raw.seek(0, 2):
+            raw.seek(-1, 2)
+            last = raw.read(1).decode("latin-1")
+    if last not in ("", "\n"):
+        raise InputError("file ends inside a line: truncated (an interrupted copy?)", path)
+    if declared is not None and records != declared * lines_per_record:
+        found = records // lines_per_record
+        raise InputError(f"file says it holds {declared} records but holds {found}: truncated or edited", path)
+
+
 def load_reconstruction(model_dir: str | Path) -> pycolmap.Reconstruction:
     """The one way sosmatch opens a COLMAP model directory (binary or text).
 
@@ -113,6 +147,9 @@ def load_reconstruction(model_dir: str | Path) -> pycolmap.Reconstruction:
         check_binary_model(d)
     elif not all((d / f"{n}.txt").is_file() for n in MODEL_FILES):
         raise InputError("incomplete COLMAP model: need cameras, images and points3D (.bin or .txt)", d)
+    else:
+        for name in MODEL_FILES:
+            _check_text_model_file(d / f"{name}.txt", 2 if name == "images" else 1)
     try:
         return pycolmap.Reconstruction(str(d))
     except Exception as exc:  # noqa: BLE001 (pycolmap raises plain RuntimeError / ValueError / IndexError)

@@ -347,3 +347,29 @@ def test_poses_from_exif_options_are_checked_before_the_images_are_read(tmp_path
         return
     err = cli_error("poses-from-exif", tmp_path / "imgs", "--out", tmp_path / "p" / "poses.csv", *flags)
     assert fragment in err and not (tmp_path / "p" / "poses.csv").exists()
+
+
+def test_a_truncated_colmap_text_model_is_refused_not_read_in_part(toy, tmp_path, cli_error):
+    """pycolmap reads a points3D.txt cut inside a line as far as it goes. Before: a text model truncated at 700
+    bytes matched as 4 of its 42 landmarks ('no match', exit 0). Now the file must end with a line end and hold
+    the records its `# Number of ...` header counts."""
+    import pycolmap
+
+    from sosmatch.database.colmap_model import load_reconstruction
+
+    _, a, b, _ = toy
+    model = tmp_path / "model"
+    model.mkdir()
+    pycolmap.Reconstruction(str(a.path / "sparse")).write_text(str(model))
+    assert len(load_reconstruction(model).points3D) > 10
+    text = (model / "points3D.txt").read_text()
+    lines = text.splitlines(keepends=True)
+    for cut, fragment in ((text[:len(text) // 2].rstrip("\n")[:-3], "ends inside a line"),
+                          ("".join(lines[:len(lines) // 2]), "says it holds")):
+        (model / "points3D.txt").write_text(cut)
+        err = cli_error("match", model, b.path, "--out", tmp_path / "m")
+        assert f"{model / 'points3D.txt'}: file {fragment}" in err and not (tmp_path / "m").exists()
+    (model / "points3D.txt").write_text(text)
+    images = (model / "images.txt").read_text().splitlines(keepends=True)
+    (model / "images.txt").write_text("".join(images[:-2]))  # one image (pose and POINTS2D lines) less
+    assert "images.txt: file says it holds" in cli_error("match", model, b.path, "--out", tmp_path / "m")
