@@ -373,3 +373,18 @@ def test_a_truncated_colmap_text_model_is_refused_not_read_in_part(toy, tmp_path
     images = (model / "images.txt").read_text().splitlines(keepends=True)
     (model / "images.txt").write_text("".join(images[:-2]))  # one image (pose and POINTS2D lines) less
     assert "images.txt: file says it holds" in cli_error("match", model, b.path, "--out", tmp_path / "m")
+
+
+@pytest.mark.parametrize("argv", [["match", "A", "B", "--out", ""], ["match", "", "B", "--out", "M"],
+                                  ["map", "--images", "", "--poses", "p.csv", "--out", "M"],
+                                  ["export", "A", "--csv", "--out="], ["config", "check", "--config", " "]])
+def test_an_empty_path_argument_is_refused(tmp_path, monkeypatch, capsys, argv):
+    """`--out "$OUT"` with OUT unset: before, the empty path was the current folder (match wrote match.json,
+    associations.csv and match.png into it; map read it as the image folder). Every command's path arguments; a
+    usage error, so argparse's one line and exit 2."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert "empty path (an unset shell variable?)" in err and list(tmp_path.iterdir()) == []

@@ -16,6 +16,7 @@ import pkgutil
 import re
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import NoReturn
 
 from ..plugin import __version__
@@ -58,8 +59,19 @@ def build_parser() -> argparse.ArgumentParser:
     for module in _command_modules():
         cmd = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP, parents=[verbosity])
         module.add_arguments(cmd)
+        for action in cmd._actions:  # every path argument of every command: an empty one is refused
+            if action.type is Path:
+                action.type = user_path
         cmd.set_defaults(_run=module.run)
     return parser
+
+
+def user_path(text: str) -> Path:
+    """A path argument. An empty one (`--out "$OUT"` with OUT unset) became Path('.'): match wrote its outputs
+    into the current folder and map read it as the image folder ('.: only 0 image(s) have a pose')."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty path (an unset shell variable?)")
+    return Path(text)
 
 
 def _setup_logging(verbose: int, quiet: bool) -> None:
