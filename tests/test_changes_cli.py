@@ -98,24 +98,33 @@ def test_min_confidence_one_reports_no_change(toy, tmp_path, capsys):
                 "--min-confidence", "2"], capsys)[0] == 2
 
 
-def test_georeferenced_maps_give_geojson(toy, tmp_path, capsys):
+@pytest.mark.parametrize("epsg", [27700, 32617])
+def test_georeferenced_maps_give_geojson(toy, tmp_path, capsys, caplog, epsg):
+    """A georeferenced A gives changes.geojson in WGS84; a local frame stamped with a CRS whose area of use lies
+    far from its coordinates (UTM 17N: x 166-834 km) gives none, with a warning, as `export` refuses it."""
     root = toy[0]
     geo = tmp_path / "A"
     shutil.copytree(root / "A", geo)
     lmap = read_landmark_map(geo / "landmarks.sosmap")
-    write_landmark_map(geo / "landmarks.sosmap", type(lmap)(lmap.positions, lmap.sizes, lmap.origin, 32617))
+    write_landmark_map(geo / "landmarks.sosmap", type(lmap)(lmap.positions, lmap.sizes, lmap.origin, epsg))
     out = tmp_path / "C"
     # the map changed (its georeference): the old match no longer names it, a new one does
     _refused([geo, root / "B", "--match", root / "AB" / "match.json", "--out", out], capsys, out, "other maps")
     match = toy_match_json(load_toy_session(geo), toy[3], tmp_path / "match.json")
-    assert run([geo, root / "B", "--match", match, "--out", out], capsys)[0] == 0
-    fc = json.loads((out / "changes.geojson").read_text())
+    code, _, _ = run([geo, root / "B", "--match", match, "--out", out], capsys)
     rows = read_changes_csv(out / "changes.csv")
+    assert code == 0 and len(rows)
+    if epsg == 32617:
+        assert not (out / "changes.geojson").exists() and "no changes.geojson" in caplog.text
+        assert "EPSG:32617" in caplog.text
+        assert json.loads((out / "changes.json").read_text())["epsg"] == 0
+        return
+    fc = json.loads((out / "changes.geojson").read_text())
     assert fc["type"] == "FeatureCollection" and len(fc["features"]) == len(rows)
     props = fc["features"][0]["properties"]
     assert props["class"] in ("kept", "gone", "new", "unseen") and props["session"] == "A"
     lon, lat, _ = fc["features"][0]["geometry"]["coordinates"]
-    assert -90 < lon < -75 and 0 <= lat < 1  # EPSG:32617 near the origin of its grid
+    assert -7.6 < lon < -7.5 and 49.7 < lat < 49.8  # EPSG:27700 near the origin of its grid, off Cornwall
 
 
 def _refused(args, capsys, out, needle):

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.changes_io import changes_feature_collection, format_changes_csv
+from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
 from ..database.match_io import check_match_maps, read_match
 from ..database.outputs import check_output_dir, fingerprint, open_output_dir
@@ -134,9 +135,16 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
                "match": str(match_json) if match_json is not None else "",
                "images_a": str(dirs[0] or ""), "images_b": str(dirs[1] or ""),
                "map_a": prints[0], "map_b": prints[1]}
+    epsg = int(files_a.landmarks.epsg)
+    if epsg:
+        try:  # the same plausibility test as `export`: a local frame stamped with a CRS has no place on Earth
+            check_within_crs_area(epsg, files_a.landmarks.positions[:, :2], session_a)
+        except InputError as e:
+            warnings.append(f"{e}; no changes.geojson (the table and the plot are in A's frame as given)")
+            epsg = 0
     for text in warnings:
         log.warning("%s", text)
-    return ChangesRun(result, a_from_b, int(files_a.landmarks.epsg), sources, time.perf_counter() - t0)
+    return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0)
 
 
 def changes_png(result: ChangeResult, title: str = "") -> bytes:
