@@ -66,7 +66,7 @@ def local_run(flights, tmp_path_factory):
     return out, report
 
 
-def test_discovery(flights, tmp_path):
+def test_discovery(flights, tmp_path, caplog):
     root, _ = flights
     found = batch.discover_flights(root)
     assert [(f.name, f.kind) for f in found] == [("A", "mapped"), ("B", "mapped"), ("C", "mapped"),
@@ -80,8 +80,11 @@ def test_discovery(flights, tmp_path):
         (tmp_path / "kinds" / name / "images" / "a.jpg").write_bytes(b"")
     (tmp_path / "kinds" / "odm" / "opensfm").mkdir()
     (tmp_path / "kinds" / "odm" / "opensfm" / "reconstruction.json").write_text("[]")
-    kinds = [(f.name, f.kind) for f in batch.discover_flights(tmp_path / "kinds")]
+    (tmp_path / "kinds" / "moved").symlink_to(tmp_path / "gone")  # a flight unmounted or moved: said, skipped
+    with caplog.at_level("WARNING"):
+        kinds = [(f.name, f.kind) for f in batch.discover_flights(tmp_path / "kinds")]
     assert kinds == [("odm", "opensfm"), ("photos", "images")]
+    assert "moved: a link to" in caplog.text and "does not exist" in caplog.text
 
 
 def test_batch_stages_failures_and_groups(flights, local_run):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,6 +68,10 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
         raise InputError("flights directory not found", root)
     excluded = {p.resolve() for p in exclude}
     flights = []
+    for link in sorted(p for p in root.iterdir() if p.is_symlink() and not p.exists()):
+        if not link.name.startswith((".", "_")):  # a flight moved or unmounted: say so, do not drop it silently
+            log.warning("%s: a link to %s, which does not exist; not a flight of this batch", link,
+                        os.readlink(link))
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
         if folder.name.startswith((".", "_")) or folder.resolve() in excluded:
             continue
