@@ -19,7 +19,9 @@ from sosmatch.plugin.changes import (
 )
 from sosmatch.plugin.changes.surface import (
     SWEEP_STEP_M,
+    footprint_places,
     ground_sweep_noise,
+    height_limit,
     height_log_ratio,
     heights_above_ground,
     shows_relief,
@@ -190,6 +192,67 @@ def test_the_ground_noise_is_mirrored_from_the_places_at_or_below_the_ground():
     assert stands_above_ground(heights, ground[:3], 0.01).all()  # no noise measured: no test
     # never finer than the sweep itself
     assert not stands_above_ground(np.array([SWEEP_STEP_M]), np.zeros(50), 0.01)[0]
+
+
+def test_the_highest_of_several_places_is_tested_at_their_joint_level():
+    rng = np.random.default_rng(4)
+    ground = rng.normal(0.0, 0.5, 4000)
+    one, seven = height_limit(ground, 0.01), height_limit(ground, 0.01, places=7)
+    assert one == pytest.approx(2.326 * 0.5, rel=0.1) and seven == pytest.approx(2.976 * 0.5, rel=0.1)
+    assert np.isnan(height_limit(ground, 1.0)) and np.isnan(height_limit(ground[:3], 0.01))
+    # bare ground swept at 7 places each: the highest passes the joint limit about as often as one place at p
+    maxima = rng.normal(0.0, 0.5, (20000, 7))
+    rate = np.mean(stands_above_ground(maxima, ground, 0.01, places=7))
+    assert 0.005 < rate < 0.02
+    assert 0.03 < np.mean(stands_above_ground(maxima, ground, 0.01, places=1)) < 0.1  # uncorrected: ~7 x p
+    # unknown places do not count; a row with none known does not stand
+    h = np.array([[np.nan, 0.2, 3.0], [np.nan, np.nan, np.nan], [0.1, np.nan, 0.0], [5.0, np.nan, np.nan]])
+    assert stands_above_ground(h, ground, 0.01, places=3).tolist() == [True, False, False, True]
+    assert stands_above_ground(h[:, :0], ground, 0.01).tolist() == [False] * 4
+
+
+def test_the_ring_lies_inside_the_footprint():
+    pts = np.array([[10.0, 20.0, 3.0], [0.0, 0.0, 0.0]])
+    ring = footprint_places(pts, np.array([1.5, np.nan]), 6)
+    assert ring.shape == (2, 6, 3)
+    d = np.linalg.norm(ring[0, :, :2] - pts[0, :2], axis=1)
+    assert np.allclose(d, 1.5) and np.allclose(ring[0, :, 2], 3.0)  # half the footprint's radius 2 h
+    assert np.allclose(ring[1], 0.0)  # no size: the place itself
+    assert np.array_equal(ring, footprint_places(pts, np.array([1.5, np.nan]), 6))
+
+
+def test_an_object_beside_its_landmark_is_found_on_the_ring(scene):
+    # A's landmark of a removed object lies 2.6 h off the object's centre, beyond the edge of its top (radius
+    # 2 h), where a patch around the landmark is ground: its own place does not stand; the ring (at h around it)
+    # reaches the object
+    positions, sizes, removed, a, ids_a, b, ids_b, images_a, images_b = scene
+    same_frame = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    b_img = replace(b, images=images_b)
+    for o in removed:
+        i = int(np.flatnonzero(ids_a == o)[0])
+        shift = np.where(np.arange(len(ids_a)) == i, 1.0, 0.0)[:, None] * [2.6 * sizes[o], 0.0, 0.0]
+        a_img = replace(a, positions=a.positions + shift, images=images_a)
+        centre_only = detect_changes(a_img, b_img, same_frame, ChangeParams(object_height_ring=0), 2.0)
+        ring = detect_changes(a_img, b_img, same_frame, ChangeParams(), 2.0)
+        assert (centre_only.a.label[i], centre_only.a.evidence[i]) == (UNSEEN, FLAT)
+        assert ring.a.label[i] == GONE
+
+
+def test_a_shadow_beside_a_kept_object_is_not_that_object(scene):
+    # the shadow that moved lies just beyond the edge of a crown both sessions have: the ring around the shadow's
+    # landmark reaches the crown, which stands there in B's images too, so nothing that stands there went
+    positions, sizes, removed, a, ids_a, b, ids_b, images_a, images_b = scene
+    moved = positions.copy()
+    moved[65, :2] = positions[0, :2] + [2.0 * sizes[0] + 1.0, 0.0]
+    a_images, b_images = _render(a, b, moved, sizes, removed)
+    s_a = int(np.flatnonzero(ids_a == 65)[0])
+    a_moved = replace(a, positions=np.where((np.arange(len(ids_a)) == s_a)[:, None], moved[65], a.positions),
+                      images=a_images)
+    same_frame = yaw_transform(0.0, (0.0, 0.0, 0.0))
+    seen = detect_changes(a_moved, replace(b, images=b_images), same_frame, ChangeParams(), 2.0)
+    i0 = int(np.flatnonzero(ids_a == 0)[0])
+    assert seen.a.label[i0] == KEPT and seen.a.counterpart[i0] >= 0
+    assert (seen.a.label[s_a], seen.a.evidence[s_a]) == (UNSEEN, FLAT)
 
 
 def test_without_relief_in_the_images_the_objectness_test_stands_aside(scene):

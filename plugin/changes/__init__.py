@@ -25,9 +25,13 @@ landmark of either map gets one class:
   where the other's object stood, or a whole kept only through a part link of its own, is no evidence that the
   object is still there (such chains kept most of the removed and added objects that were mapped).
 - `gone` (a landmark of A) / `new` (of B): seen well by the other session, no counterpart, no evidence, and an
-  object: with both sessions' images, its own session's surface at the place stands above the local ground
-  (`surface.stands_above_ground`, `changes.object_height_p`); a place that does not (a moved shadow, ground
-  texture, snow over a field, a flat object) is unseen with evidence `flat`: a change of looks, not of an object.
+  object that went: with both sessions' images, its own session's surface stands above the local ground at the
+  landmark's place or on a ring inside its footprint (`surface.stands_above_ground`, `surface.footprint_places`,
+  `changes.object_height_p`, `changes.object_height_ring`: the highest of those places, at the significance for
+  all of them), and the other session's surface stands at none of those places. A place where nothing stands
+  (a moved shadow, ground texture, snow over a field, a flat object), or where what stands stands in both
+  sessions (the crown beside a shadow that moved), is unseen with evidence `flat`: a change of looks, not of an
+  object.
 
 Confidence (gone / new): the probability that the object is absent from the other session, from that session's
 own observations at the place rather than from its map (`verdict.absence_probability`). In each of its keyframes

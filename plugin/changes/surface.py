@@ -307,18 +307,48 @@ def ground_sweep_noise(ref_heights: np.ndarray, min_places: int = 10) -> float:
     return float(np.sqrt(np.mean(low * low)))
 
 
-def stands_above_ground(heights: np.ndarray, ref_heights: np.ndarray, p: float) -> np.ndarray:
-    """Whether the surface at each place stands above the local ground (`heights_above_ground` of its session):
-    higher than the ground's sweep noise (`ground_sweep_noise` of the session's reference places) allows at
-    one-sided significance p, and at least one sweep step. An unknown height (NaN) does not stand; p >= 1 lets
-    every place stand (the test is off), and so do too few reference places to measure the noise."""
+def footprint_places(points: np.ndarray, sizes: np.ndarray, ring: int) -> np.ndarray:
+    """(N, ring, 3) places on a ring around each landmark at half its footprint's radius (h of a disc is half its
+    radius, so the ring lies at distance h, inside the object), at `ring` fixed angles (deterministic), at the
+    landmark's height. A landmark's centroid may sit beside a small crown's top (a fragment, a lit half, a cone
+    whose top is a point): the ring looks where the object's top may be."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    h = np.nan_to_num(np.asarray(sizes, dtype=np.float64).reshape(-1), nan=0.0)
+    angle = 2.0 * np.pi * np.arange(ring) / max(ring, 1)
+    out = np.repeat(p[:, None, :], ring, axis=1)
+    out[:, :, 0] += h[:, None] * np.cos(angle)[None, :]
+    out[:, :, 1] += h[:, None] * np.sin(angle)[None, :]
+    return out
+
+
+def height_limit(ref_heights: np.ndarray, p: float, places: int = 1) -> float:
+    """The height above the ground that the ground's sweep noise (`ground_sweep_noise` of the session's reference
+    places) exceeds with one-sided probability p over `places` places (Sidak: each at 1 - (1 - p)^(1/places), so
+    the highest of several sweeps of bare ground passes as rarely as one sweep does at p), and at least one sweep
+    step. NaN when the test cannot be made (p >= 1, or too few reference places to measure the noise)."""
     from scipy.stats import norm
 
-    h = np.asarray(heights, dtype=np.float64)
     sigma = ground_sweep_noise(ref_heights)
     if p >= 1.0 or not np.isfinite(sigma):
+        return float("nan")
+    each = -np.expm1(np.log1p(-p) / max(int(places), 1))
+    return max(float(norm.isf(each)) * sigma, SWEEP_STEP_M)
+
+
+def stands_above_ground(heights: np.ndarray, ref_heights: np.ndarray, p: float, places: int = 1) -> np.ndarray:
+    """Whether the surface at each place stands above the local ground (`heights_above_ground` of its session):
+    higher than `height_limit` at one-sided significance p. `heights` (N,) one place per landmark, or (N, K) the
+    sweeps of K places of each (its centroid and `footprint_places`): the highest known one is tested, at the
+    limit for `places` places. An unknown height (NaN everywhere) does not stand; p >= 1 lets every place stand
+    (the test is off), and so do too few reference places to measure the noise."""
+    h = np.asarray(heights, dtype=np.float64)
+    limit = height_limit(ref_heights, p, places)
+    if not np.isfinite(limit):
         return np.ones(len(h), dtype=bool)
-    limit = max(float(norm.isf(p)) * sigma, SWEEP_STEP_M)
+    if h.ndim == 2:
+        known = np.isfinite(h)
+        h = np.where(known.any(axis=1), np.max(np.where(known, h, -np.inf), axis=1) if h.shape[1] else np.nan,
+                     np.nan)
     return np.isfinite(h) & (h > limit)
 
 

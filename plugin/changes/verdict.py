@@ -26,7 +26,14 @@ from .evidence import (
 from .observations import SessionObservations, below_the_ground, ground_height_field, in_view, observed_area
 from .support import AlignmentSupport, alignment_support
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
-from .surface import height_log_ratio, heights_above_ground, shows_relief, stands_above_ground
+from .surface import (
+    footprint_places,
+    height_limit,
+    height_log_ratio,
+    heights_above_ground,
+    shows_relief,
+    stands_above_ground,
+)
 from .unmapped import UnmappedObjects, no_unmapped_objects, unmapped_objects
 
 KEPT, GONE, NEW, UNSEEN = "kept", "gone", "new", "unseen"
@@ -227,7 +234,31 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         if params.object_height_p < 1.0:  # the objectness test is on
             shown = shows_relief(surface_references[0], params.object_height_p)
             if shown:
-                flat[idx] = ~stands_above_ground(own_heights, surface_references[0], params.object_height_p)
+                flat[idx], pick, place_h = _flat(own_pos[idx], own_h[idx], own_heights, own, ground,
+                                                 surface_references[0], params)
+                # a landmark whose object stands beside its place (on its ring) is judged where it stands: the
+                # other session's surface is swept at the same places, and the heights' evidence is read at the
+                # place that stands
+                there = other_heights.copy()
+                moved = np.flatnonzero(pick >= 0)
+                if len(moved):
+                    ring = footprint_places(own_pos[idx[moved]], own_h[idx[moved]], params.object_height_ring)
+                    at = ring.reshape(-1, 3)
+                    around = heights_above_ground(at, ground(at[:, 0], at[:, 1]), other.images, other.poses,
+                                                  other.cameras, params.surface_views).reshape(len(moved), -1)
+                    there[moved] = around[np.arange(len(moved)), pick[moved]]
+                    surface[idx[moved]] = height_log_ratio(place_h[moved], there[moved], *surface_references)
+                # what stands in both sessions' images did not go (nor come), such as the crown beside a shadow
+                # that moved: no change of the surface, no change of an object. Tested where the own session
+                # stands, and, for a landmark judged on its ring, anywhere on it as the own session was (the
+                # highest of the same places at their joint level). Only where the other session's own ground
+                # noise is measured (otherwise every place would "stand")
+                if np.isfinite(height_limit(surface_references[1], params.object_height_p)):
+                    flat[idx] |= stands_above_ground(there, surface_references[1], params.object_height_p)
+                    if len(moved):
+                        flat[idx[moved]] |= stands_above_ground(np.column_stack([other_heights[moved], around]),
+                                                                surface_references[1], params.object_height_p,
+                                                                1 + params.object_height_ring)
             relief = shown if measured_here else None
         if params.surface_overrules_links:
             # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
@@ -249,6 +280,33 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                             & (absent[idx] < 0.5))
     return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments, surface, doubted,
                    surface_references, flat, relief)
+
+
+def _flat(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: SessionObservations,
+          ground: HeightField, ref_heights: np.ndarray,
+          params: ChangeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which landmarks have no object standing in their footprint in their own session: neither at their place
+    (`heights`, already swept) nor at any of `params.object_height_ring` places around it
+    (`surface.footprint_places`, swept here only for those whose place does not stand), the highest tested at the
+    limit for all those places (`surface.stands_above_ground`). Also, per landmark, where its object stands: -1
+    its own place, k the k-th place of its ring (the highest, where only the ring stands), and the own session's
+    height there."""
+    places = 1 + params.object_height_ring
+    flat = ~stands_above_ground(heights, ref_heights, params.object_height_p, places)
+    pick = np.full(len(flat), -1, dtype=np.int64)
+    high = np.asarray(heights, dtype=np.float64).copy()
+    low = np.flatnonzero(flat & (np.asarray(sizes) > 0))
+    if params.object_height_ring and len(low):
+        at = footprint_places(points[low], sizes[low], params.object_height_ring).reshape(-1, 3)
+        around = heights_above_ground(at, ground(at[:, 0], at[:, 1]), own.images, own.poses, own.cameras,
+                                      params.surface_views).reshape(len(low), -1)
+        flat[low] = ~stands_above_ground(np.column_stack([heights[low], around]), ref_heights,
+                                         params.object_height_p, places)
+        stands = ~flat[low]
+        best = np.argmax(np.where(np.isfinite(around), around, -np.inf), axis=1)
+        pick[low[stands]] = best[stands]
+        high[low[stands]] = around[stands, best[stands]]
+    return flat, pick, high
 
 
 def _surface(points: np.ndarray, own: SessionObservations, other: SessionObservations, ground: HeightField,

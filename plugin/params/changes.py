@@ -97,6 +97,16 @@ class ChangeParams(Checked):
     # no more of its reference places stand than this p lets the noise raise (`surface.shows_relief`: an
     # orthophoto's views, bare fields). 1 = off (needs both sessions' images, as surface_evidence).
     object_height_p: float = fraction(0.01)
+    # (ours) the landmark's own session's surface is swept at its place and, where that does not stand, at this
+    # many places on a ring at half its footprint's radius (`surface.footprint_places`); the highest is tested at
+    # the limit for that many places (Sidak, so bare ground passes as rarely as one place does at
+    # object_height_p): a landmark's centroid may sit beside a small crown's top or a cone's tip, where the
+    # sweep finds the ground (BENCHMARKS.md, Change detection, tenth round: more removed and added objects found at
+    # the same precision). A landmark judged on its
+    # ring is judged where its object stands: the heights' evidence is read there, and where the other
+    # session's surface stands on the same places (the crown beside a shadow that moved) it is `flat`.
+    # 0 = the landmark's own place only (the other session's surface is still tested there).
+    object_height_ring: int = count(6)
     # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
     # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least
     # min_views keyframes, are judged against the other session as its landmarks are (direct evidence only; they

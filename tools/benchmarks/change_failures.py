@@ -13,7 +13,9 @@ Missed change (the object changed; none of its landmarks or tracks is claimed), 
   within the gate, which lies on the ground or on a neighbour (a coincidence of place and size);
 - `held by a larger landmark`: kept because a larger landmark of the other map holds it (`nested`);
 - `part link`: kept as a part of a larger landmark of its own map; `other's segments`: kept because the other
-  session's segments show something there; `not compared`: too few views of the other session, or below ground.
+  session's segments show something there; `flat`: compared, but its own session's surface stood no higher than
+  the ground there (`changes.object_height_p`); `not compared`: too few views of the other session, or below
+  ground.
 
 False claim (the object is in both sessions), for its most confident claimed landmark:
 - `claimed from a track`: only a track of it (never mapped) is claimed;
@@ -44,6 +46,7 @@ from ...plugin.changes import (
     BY_NESTING,
     BY_PART,
     BY_SEGMENTS,
+    FLAT,
     FOOTPRINT_MARGIN,
     GONE,
     LOW_CONFIDENCE,
@@ -126,6 +129,8 @@ def classify_failures(result: ChangeResult, truth: ObjectTruth, objects_a: np.nd
                     why = "part link"
                 elif BY_SEGMENTS in ev:
                     why = "other's segments"
+                elif FLAT in ev:
+                    why = "flat"
                 else:
                     why = "not compared" + (" (below ground)" if BELOW_GROUND in ev else "")
                 out.append(Failure(change, MISSED, oid, str(truth.kind[k]), float(truth.radius[k]), why))
