@@ -242,10 +242,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                 there = other_heights.copy()
                 moved = np.flatnonzero(pick >= 0)
                 if len(moved):
-                    ring = footprint_places(own_pos[idx[moved]], own_h[idx[moved]], params.object_height_ring)
-                    at = ring.reshape(-1, 3)
-                    around = heights_above_ground(at, ground(at[:, 0], at[:, 1]), other.images, other.poses,
-                                                  other.cameras, params.surface_views).reshape(len(moved), -1)
+                    around = _ring_heights(own_pos[idx[moved]], own_h[idx[moved]], other, ground, params)
                     there[moved] = around[np.arange(len(moved)), pick[moved]]
                     surface[idx[moved]] = height_log_ratio(place_h[moved], there[moved], *surface_references)
                 # what stands in both sessions' images did not go (nor come), such as the crown beside a shadow
@@ -297,9 +294,7 @@ def _flat(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: Sessi
     high = np.asarray(heights, dtype=np.float64).copy()
     low = np.flatnonzero(flat & (np.asarray(sizes) > 0))
     if params.object_height_ring and len(low):
-        at = footprint_places(points[low], sizes[low], params.object_height_ring).reshape(-1, 3)
-        around = heights_above_ground(at, ground(at[:, 0], at[:, 1]), own.images, own.poses, own.cameras,
-                                      params.surface_views).reshape(len(low), -1)
+        around = _ring_heights(points[low], sizes[low], own, ground, params)
         flat[low] = ~stands_above_ground(np.column_stack([heights[low], around]), ref_heights,
                                          params.object_height_p, places)
         stands = ~flat[low]
@@ -313,9 +308,22 @@ def _surface(points: np.ndarray, own: SessionObservations, other: SessionObserva
              params: ChangeParams) -> tuple[np.ndarray, np.ndarray]:
     """The surface height above the ground at each point in its own session and in the other, each from that
     session's own images (`surface.heights_above_ground`; both in one frame)."""
-    g = ground(points[:, 0], points[:, 1])
-    return tuple(heights_above_ground(points, g, s.images, s.poses, s.cameras, params.surface_views)
-                 for s in (own, other))
+    return _heights(points, own, ground, params), _heights(points, other, ground, params)
+
+
+def _heights(points: np.ndarray, session: SessionObservations, ground: HeightField,
+             params: ChangeParams) -> np.ndarray:
+    """The surface height above the pair's ground at each (N, 3) point, from one session's own images."""
+    return heights_above_ground(points, ground(points[:, 0], points[:, 1]), session.images, session.poses,
+                                session.cameras, params.surface_views)
+
+
+def _ring_heights(points: np.ndarray, sizes: np.ndarray, session: SessionObservations, ground: HeightField,
+                  params: ChangeParams) -> np.ndarray:
+    """(N, object_height_ring) heights (`_heights`) of one session at each landmark's `surface.footprint_places`:
+    the same places in either session."""
+    ring = footprint_places(points, sizes, params.object_height_ring)
+    return _heights(ring.reshape(-1, 3), session, ground, params).reshape(len(ring), -1)
 
 
 def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,

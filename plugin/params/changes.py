@@ -101,11 +101,11 @@ class ChangeParams(Checked):
     # many places on a ring at half its footprint's radius (`surface.footprint_places`); the highest is tested at
     # the limit for that many places (Sidak, so bare ground passes as rarely as one place does at
     # object_height_p): a landmark's centroid may sit beside a small crown's top or a cone's tip, where the
-    # sweep finds the ground (BENCHMARKS.md, Change detection, tenth round: more removed and added objects found at
-    # the same precision). A landmark judged on its
-    # ring is judged where its object stands: the heights' evidence is read there, and where the other
-    # session's surface stands on the same places (the crown beside a shadow that moved) it is `flat`.
-    # 0 = the landmark's own place only (the other session's surface is still tested there).
+    # sweep finds the ground (BENCHMARKS.md, Change detection, tenth round: more removed and added objects found
+    # at the same precision). A landmark judged on its ring is judged where its object stands: the heights'
+    # evidence is read there, and where the other session's surface stands on the same places (the crown beside
+    # a shadow that moved) it is `flat`. 0 = the landmark's own place only (the other session's surface is still
+    # tested there).
     object_height_ring: int = count(6)
     # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
     # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least

@@ -61,6 +61,9 @@ def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
     return entries
 
 
+NOT_FLIGHTS = (".", "_")  # folder names that are never flights: hidden ones, and those put aside with "_"
+
+
 def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) -> list[Flight]:
     """Flights in the sub-folders of `flights_dir`, sorted by name; hidden folders and `exclude` are skipped."""
     root = Path(flights_dir)
@@ -69,11 +72,11 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
     excluded = {p.resolve() for p in exclude}
     flights = []
     for link in sorted(p for p in root.iterdir() if p.is_symlink() and not p.exists()):
-        if not link.name.startswith((".", "_")):  # a flight moved or unmounted: say so, do not drop it silently
+        if not link.name.startswith(NOT_FLIGHTS):  # a flight moved or unmounted: say so, do not drop it silently
             log.warning("%s: a link to %s, which does not exist; not a flight of this batch", link,
                         os.readlink(link))
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
-        if folder.name.startswith((".", "_")) or folder.resolve() in excluded:
+        if folder.name.startswith(NOT_FLIGHTS) or folder.resolve() in excluded:
             continue
         try:  # names go into JSON state, reports and pair names: they must be text
             folder.name.encode("utf-8")
