@@ -126,6 +126,9 @@ class DerivedSearch:
     # the first of the two searches (`first_search_params`; `match_answer.match_maps`' `first_try`), None when one
     # search is enough
     first_try: AssociationParams | None = None
+    # a last search at wider windows when the derived one is refused (`window_chance`, "Wider windows";
+    # `match_maps`' `wider_try`), None when the windows were not grown or a wider one is not affordable
+    wider_try: AssociationParams | None = None
 
 
 def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noise_b: MapNoise | None,
@@ -135,7 +138,8 @@ def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noi
     tolerances from their noise (`derived_association_params`), then, at those tolerances, the windows and theta_S
     from their geometry (`association.window_chance.derived_windows`). Both only with `base.derive_from_maps` and
     both maps' noise figures; otherwise `base` unchanged (a .sosmap file or COLMAP model keeps the configured
-    search). `first_try` is the first of the two searches every consumer runs (`first_search_params`)."""
+    search). `first_try` is the first of the two searches every consumer runs (`first_search_params`), `wider_try`
+    the last one after a refusal, at wider windows."""
     tolerances = derived_association_params(base, noise_a, noise_b)
     if tolerances is base:
         return DerivedSearch(base, {"tolerances": "configured", "windows": "configured"})
@@ -148,7 +152,7 @@ def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noi
     windows = derived_windows(points_a, sizes_a, points_b, sizes_b, tolerances)
     record["windows"] = {"from": "landmark density, size-gate fraction and theta_eps (chance model, "
                                  "association.window_chance)", **windows.to_dict()}
-    return DerivedSearch(windows.params, record, first_search_params(base, windows.params))
+    return DerivedSearch(windows.params, record, first_search_params(base, windows.params), windows.wider_params)
 
 
 def first_search_params(configured: AssociationParams, derived: AssociationParams) -> AssociationParams | None:

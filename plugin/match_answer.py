@@ -12,7 +12,10 @@ chance-consistent pairs, and past a density nothing is pruned any more (evaluati
 -> 6.4 s of CPU, BENCHMARKS.md "Derived tolerances and search time"). So the search runs first with the tighter
 tolerances (`map_noise.first_search_params`) and its hypotheses are verified on the full maps with the derived
 ones (whose gate decides the associations of the answer); only when that verification refuses, the search runs
-again with the derived tolerances. `tolerances` says which search gave the answer.
+again with the derived tolerances. Maps whose derived windows were grown (`association.window_chance`: few
+chance-consistent associations per transform) get a last search at the next doubled window when that one is
+refused too (`wider_try`: a window that long detects a smaller fraction of repeating landmarks). `tolerances`
+says which search gave the answer.
 """
 
 from __future__ import annotations
@@ -39,7 +42,8 @@ class MatchAnswer:
     associations: np.ndarray  # (K, 2) landmark index pairs (A, B) supporting it
     source: str  # "verified" (the verification's alignment) or "consensus" (the search's, unverified)
     prior: str  # how the position prior was used: "off", "applied", or why it was ignored
-    tolerances: str = "configured"  # the search's: "configured" (one search), "first" or "derived" (two steps)
+    # the search's: "configured" (one search), "first" or "derived" (two steps), "wider" (the last, wider windows)
+    tolerances: str = "configured"
     # the association parameters of the search whose hypotheses `search` holds (the first of two searches keeps
     # the configured windows and theta_S: its hypotheses are judged at its own theta_S); None: params.association
     searched: AssociationParams | None = None
@@ -48,14 +52,17 @@ class MatchAnswer:
 
 def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
                params: Params, common_frame: bool = True, exhaustive: bool = False,
-               verify: bool | None = None, first_try: AssociationParams | None = None) -> MatchAnswer:
+               verify: bool | None = None, first_try: AssociationParams | None = None,
+               wider_try: AssociationParams | None = None) -> MatchAnswer:
     """Search the two maps and verify the result (see the module docstring).
 
     common_frame: the two maps are expressed in one world frame (both georeferenced in one EPSG), the condition
     of the position prior; when False a prior in `params` is ignored (and `prior` says so). exhaustive: the
     straightforward reference search (same hypotheses, slow). verify: overrides `params.verification.enabled`.
     first_try: tighter association parameters for a first search whose hypotheses are verified with
-    `params.association` (module doc); used only with the verification on; None: one search.
+    `params.association` (module doc); used only with the verification on; None: one search. wider_try: the
+    association parameters of a last search when the verification refuses `params.association`'s (module doc);
+    used only with the verification on.
     """
     compiling = kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so
     t0 = time.perf_counter()
@@ -91,11 +98,18 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         if ver is None:
             ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap,
                         params.verification)
+        if not ver.accepted and wider_try is not None:
+            # the wider search's hypotheses are verified with the same gate (its tolerances are the derived ones)
+            res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, usable(wider_try))
+            ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap,
+                        params.verification)
+            tolerances = "wider"
         best = ver.best
         transform = None if best is None else Transform(best.transform.rotation, best.transform.translation,
                                                          best.transform.scale)
         assoc = np.zeros((0, 2), np.int64) if best is None else best.associations
-        searched = usable(first_try) if tolerances == "first" and first_try is not None else ap
+        searched = {"first": first_try, "wider": wider_try}.get(tolerances) or params.association
+        searched = usable(searched)
         answer = MatchAnswer(res, ver, bool(ver.accepted), transform, assoc, "verified", prior, tolerances, searched)
     elif res.consensus is not None:
         answer = MatchAnswer(res, None, True, res.consensus.transform, res.consensus.associations, "consensus", prior,

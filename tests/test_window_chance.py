@@ -14,7 +14,12 @@ from sosmatch.plugin.association.window_chance import (
     size_pass_fraction,
     window_chance,
 )
-from sosmatch.plugin.map_noise import MapNoise, derived_search_params, first_search_params
+from sosmatch.plugin.map_noise import (
+    MapNoise,
+    derived_association_params,
+    derived_search_params,
+    first_search_params,
+)
 from sosmatch.plugin.params import AssociationParams
 
 
@@ -61,6 +66,7 @@ def test_sparse_maps_get_longer_windows_dense_ones_keep_the_configured():
     dense = survey_map_pair(600, seed=5, density_per_km2=30000.0)
     kept = derived_windows(dense.points_a, dense.sizes_a, dense.points_b, dense.sizes_b, params)
     assert kept.derived is None and kept.params == params
+    assert kept.wider_params is None and kept.to_dict()["wider"] is None  # kept windows: no wider search
     assert kept.configured.per_transform > MAX_CHANCE_PER_TRANSFORM / 2
 
 
@@ -73,10 +79,13 @@ def test_derivation_is_recorded_and_needs_both_maps_noise():
     assert got.params.distance_tolerance_m == pytest.approx(3 * 0.7, abs=0.01)
     assert got.record["windows"]["window_length"] == got.params.window_length
     assert got.record["tolerances"]["distance_tolerance_m"] == got.params.distance_tolerance_m
+    tolerances = derived_association_params(base, noise, noise)
+    assert got.wider_try == derived_windows(*arrays, tolerances).wider_params  # the last search, recorded too
+    assert got.record["windows"]["wider"] == derived_windows(*arrays, tolerances).to_dict()["wider"]
     for off in (derived_search_params(base, noise, None, *arrays),
                 derived_search_params(dataclasses.replace(base, derive_from_maps=False), noise, noise, *arrays)):
         assert off.params.window_length == base.window_length and off.record["windows"] == "configured"
-        assert off.first_try is None  # nothing derived: one search
+        assert off.first_try is None and off.wider_try is None  # nothing derived: one search
     assert np.isfinite(got.record["windows"]["configured_chance"]["per_transform"])
 
 
@@ -177,3 +186,28 @@ def test_first_search_keeps_the_equal_area_factors():
     first = got.first_try if got.first_try is not None else got.params
     assert (first.window_factor_a, first.window_factor_b) == (got.params.window_factor_a, 1)
     assert got.record["windows"]["window_factors"] == [got.params.window_factor_a, 1]
+
+
+def test_a_refused_search_at_grown_windows_searches_once_more_at_the_next_doubled_window():
+    # a map pair sparse for its tolerance (lambda ~0.7 at 100 landmarks) whose landmarks rarely repeat (B keeps a
+    # tenth of A's objects and segments nine times as many of its own): the grown windows hold no true set over
+    # their theta_S, the next doubled window does (window_chance module doc, "Wider windows")
+    from sosmatch.plugin.match_answer import match_maps
+    from sosmatch.plugin.params import Params
+
+    s = survey_map_pair(800, seed=3, density_per_km2=3000.0, missing_b=0.9, added_b=9.0, noise_m=0.4)
+    arrays = (s.points_a, s.sizes_a, s.points_b, s.sizes_b)
+    got = derived_windows(*arrays, AssociationParams())
+    assert got.derived is not None and got.derived.per_transform <= MAX_CHANCE_PER_TRANSFORM
+    wider = got.wider_params
+    assert wider.window_length == 2 * got.params.window_length and wider.window_stride == wider.window_length // 2
+    assert got.wider.per_transform > MAX_CHANCE_PER_TRANSFORM  # the grown window was the longest under the bound
+    assert wider.min_associations >= max(got.params.min_associations, got.wider.largest)
+    assert got.to_dict()["wider"]["window_length"] == wider.window_length
+    params = dataclasses.replace(Params(), association=got.params)
+    assert not match_maps(*arrays, params).accepted
+    ans = match_maps(*arrays, params, wider_try=wider)
+    assert ans.accepted and ans.tolerances == "wider" and ans.searched.window_length == wider.window_length
+    c = s.points_b.mean(axis=0)
+    t = ans.transform
+    assert np.linalg.norm((s.rotation @ c + s.translation) - (t.scale * t.rotation @ c + t.translation)) < 2.0

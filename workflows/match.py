@@ -305,6 +305,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     identity = fingerprint({"a": prints[0], "b": prints[1],
                             "association": params_to_dict(params.association),
                             "first_try": None if first_try is None else params_to_dict(first_try),
+                            **({} if derivation.wider_try is None else
+                               {"wider_try": params_to_dict(derivation.wider_try)}),
                             "verification": params_to_dict(params.verification), "seed": params.seed,
                             "exhaustive": exhaustive, "plot": plot})
     with open_output_dir(out_dir, "match", identity, inputs=[a, b], overwrite=overwrite,
@@ -314,7 +316,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
             log.warning("position prior ignored: the maps are not georeferenced in one EPSG (A: %s, B: %s)",
                         la.epsg, lb.epsg)
         ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
-                         exhaustive=exhaustive, first_try=first_try)
+                         exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try)
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),

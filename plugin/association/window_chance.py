@@ -34,6 +34,21 @@ overestimates the largest chance set (above), and raising theta_S to it would dr
 pairs (world 97 at 130 m: true sets of 6 against a model's 7) while chance hypotheses over theta_S are refused by
 the verification's chance test on the full maps anyway (`plugin.chance`).
 
+Wider windows after a refusal (`DerivedWindows.wider_params`, ours): lambda <= 1 is the cheapest window that
+separates maps whose landmarks repeat often, not a limit of what a window can separate. A window of n landmarks
+holds r n true associations (r: the fraction of landmarks with a counterpart, which the maps cannot measure) and a
+largest chance set of about lambda + sqrt(2 lambda ln N) with lambda proportional to n, so the smallest repeat
+rate a window detects, theta_S / n, still falls as the window doubles past lambda = 1. Hence, when the search at
+the grown windows is refused by the verification, the matcher searches once more at the next doubled window (its
+theta_S again its largest chance set) if its window pair stays within MAX_PUTATIVE_PER_WINDOW_PAIR. NAIP 2009 vs
+2015 with both orthophotos sharpened (906 / 786 landmarks instead of 698 / 617, as sharper rasters of other dates
+give): lambda 0.53 at 100 landmarks, 1.07 at 200, so the grown windows were 100 and found nothing; at 200 the
+verified answer is 62 associations against 21, 1.7 m off (BENCHMARKS.md, "Sharper rasters"). Only grown windows
+get the wider search: there chance is sparse (lambda <= 1/2 at the configured window), so the doubled window
+stays near lambda 1, where the theta_S-core still prunes. Survey maps whose configured windows already hold lambda
+~1 would pay for it on every pair that has no answer (maps of two different synthetic worlds, 337 x 318
+landmarks: 9 s of CPU at 50-landmark windows, 31 s at 100, 105 s at 200) and keep one search.
+
 Windows of equal ground area (`area_factors`, ours): the paper's windows hold theta_WL landmarks in both maps, so
 in maps of unequal density (a winter map holds a third of the summer map's landmarks, a map flown higher fewer
 small ones) one window of the sparser map spans several of the denser map's, and a window pair holds only that
@@ -186,6 +201,10 @@ class DerivedWindows:
     params: AssociationParams  # theta_WL, theta_SL and theta_S derived (the configured ones when `derived` is None)
     configured: WindowChance  # the chance model at the configured window length
     derived: WindowChance | None  # ... at the derived one; None: the configured windows are kept
+    # the wider windows of a last search when the derived one is refused (module doc, "Wider windows"); None: no
+    # wider search (windows not grown, the maps no longer than the window, or too many putative associations)
+    wider_params: AssociationParams | None = None
+    wider: WindowChance | None = None
 
     def to_dict(self) -> dict:
         p = self.params
@@ -199,7 +218,12 @@ class DerivedWindows:
                         f"longest doubled window with lambda <= {MAX_CHANCE_PER_TRANSFORM:g} and at most "
                         f"{MAX_PUTATIVE_PER_WINDOW_PAIR} putative associations; theta_S >= its largest chance set",
                 "configured_chance": self.configured.to_dict(),
-                "derived_chance": None if self.derived is None else self.derived.to_dict()}
+                "derived_chance": None if self.derived is None else self.derived.to_dict(),
+                "wider": None if self.wider_params is None else {
+                    "window_length": self.wider_params.window_length,
+                    "window_stride": self.wider_params.window_stride,
+                    "min_associations": self.wider_params.min_associations,
+                    "chance": None if self.wider is None else self.wider.to_dict()}}
 
 
 def derived_windows(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
@@ -211,28 +235,38 @@ def derived_windows(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: 
     window pair holds at most MAX_PUTATIVE_PER_WINDOW_PAIR putative associations (the solver's cost grows with
     their square), overlapping by half, and theta_S the larger of the configured one and that window's largest
     chance set. The configured theta_WL, theta_SL and theta_S stay when even the doubled window exceeds one chance
-    association per transform (or the maps are shorter than the configured window)."""
+    association per transform (or the maps are shorter than the configured window). Grown windows come with the
+    next doubled window for a last search after a refusal (`wider_params`, module doc) when it is affordable."""
     xa, xb = _ordered(points_a, params), _ordered(points_b, params)
     if params.equal_area_windows:
         fa, fb = area_factors(xa, xb, params.window_length)
         params = dataclasses.replace(params, window_factor_a=fa, window_factor_b=fb)
     q = size_pass_fraction(sizes_a, sizes_b, params.max_size_difference)
     base = _chance(xa, xb, q, params, params.window_length)
+
+    def doubled(chance: WindowChance) -> WindowChance | None:
+        """The chance model of the next doubled window; None when both maps are no longer than the window."""
+        length = chance.length
+        if length * params.window_factor_a >= len(xa) and length * params.window_factor_b >= len(xb):
+            return None
+        return _chance(xa, xb, q, params, 2 * length)
+
+    def affordable(chance: WindowChance | None) -> bool:
+        putative = 0 if chance is None else chance.landmarks[0] * chance.landmarks[1] * chance.size_pass
+        return chance is not None and chance.trials > 0 and putative <= MAX_PUTATIVE_PER_WINDOW_PAIR
+
+    def windows_of(chance: WindowChance) -> AssociationParams:
+        # overlapping by half: every stretch of length / 2 consecutive landmarks lies whole in one window, at
+        # least the configured windows' length - stride once grown to twice that, at a fraction of the pairs
+        return dataclasses.replace(params, window_length=chance.length,
+                                   window_stride=max(params.window_stride, chance.length // 2),
+                                   min_associations=max(params.min_associations, chance.largest))
+
     best = None
-    length = params.window_length
-    while length * params.window_factor_a < len(xa) or length * params.window_factor_b < len(xb):
-        length *= 2
-        chance = _chance(xa, xb, q, params, length)
-        putative = chance.landmarks[0] * chance.landmarks[1] * chance.size_pass
-        if chance.per_transform > MAX_CHANCE_PER_TRANSFORM or chance.trials == 0 or \
-                putative > MAX_PUTATIVE_PER_WINDOW_PAIR:
-            break
-        best = chance
+    nxt = doubled(base)
+    while affordable(nxt) and nxt.per_transform <= MAX_CHANCE_PER_TRANSFORM:
+        best, nxt = nxt, doubled(nxt)
     if best is None:
         return DerivedWindows(params, base, None)
-    # overlapping by half: every stretch of length / 2 consecutive landmarks lies whole in one window, at least
-    # the configured windows' length - stride once grown to twice that, at a fraction of the window pairs
-    stride = max(params.window_stride, best.length // 2)
-    grown = dataclasses.replace(params, window_length=best.length, window_stride=stride,
-                                min_associations=max(params.min_associations, best.largest))
-    return DerivedWindows(grown, base, best)
+    wider = nxt if affordable(nxt) else None
+    return DerivedWindows(windows_of(best), base, best, None if wider is None else windows_of(wider), wider)

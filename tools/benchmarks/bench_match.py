@@ -93,7 +93,7 @@ def timed_default_match(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.n
     def once(a: np.ndarray, sa: np.ndarray, b: np.ndarray, sb: np.ndarray) -> object:
         derived = derived_search_params(base.association, noise, noise, a, sa, b, sb)
         return match_maps(a, sa, b, sb, dataclasses.replace(base, association=derived.params),
-                          first_try=derived.first_try)
+                          first_try=derived.first_try, wider_try=derived.wider_try)
 
     return timed(once, pa, ha, pb, hb, repeats)
 
