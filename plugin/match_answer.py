@@ -84,32 +84,24 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         clock[stage] += time.perf_counter() - t
         return out
 
-    tolerances, res, ver = "configured", None, None
-    if verify and first_try is not None:
-        res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, usable(first_try))
+    # the searches in order, each verified with the derived gate (`ap`) until one is accepted (module doc): the
+    # first and the wider one only with the verification on, which is what decides whether the next one runs
+    steps = [("first", first_try)] if verify and first_try is not None else []
+    steps.append(("derived" if steps else "configured", params.association))
+    if verify and wider_try is not None:
+        steps.append(("wider", wider_try))
+    for label, step in steps:
+        tolerances, searched = label, usable(step)  # of the last search that ran: the one whose answer this is
+        res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, searched)
         ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap,
-                    params.verification)
-        tolerances = "first"
-        if not ver.accepted:
-            res, ver, tolerances = None, None, "derived"
-    if res is None:
-        res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, ap)
+                    params.verification) if verify else None
+        if ver is None or ver.accepted:
+            break
     if verify:
-        if ver is None:
-            ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap,
-                        params.verification)
-        if not ver.accepted and wider_try is not None:
-            # the wider search's hypotheses are verified with the same gate (its tolerances are the derived ones)
-            res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, usable(wider_try))
-            ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap,
-                        params.verification)
-            tolerances = "wider"
         best = ver.best
         transform = None if best is None else Transform(best.transform.rotation, best.transform.translation,
                                                          best.transform.scale)
         assoc = np.zeros((0, 2), np.int64) if best is None else best.associations
-        searched = {"first": first_try, "wider": wider_try}.get(tolerances) or params.association
-        searched = usable(searched)
         answer = MatchAnswer(res, ver, bool(ver.accepted), transform, assoc, "verified", prior, tolerances, searched)
     elif res.consensus is not None:
         answer = MatchAnswer(res, None, True, res.consensus.transform, res.consensus.associations, "consensus", prior,

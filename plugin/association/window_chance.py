@@ -45,7 +45,7 @@ theta_S again its largest chance set) if its window pair stays within MAX_PUTATI
 give): lambda 0.53 at 100 landmarks, 1.07 at 200, so the grown windows were 100 and found nothing; at 200 the
 verified answer is 62 associations against 21, 1.7 m off (BENCHMARKS.md, "Sharper rasters"). Only grown windows
 get the wider search: there chance is sparse (lambda <= 1/2 at the configured window), so the doubled window
-stays near lambda 1, where the theta_S-core still prunes. Survey maps whose configured windows already hold lambda
+lies at lambda 1-2, where the theta_S-core still prunes. Survey maps whose configured windows already hold lambda
 ~1 would pay for it on every pair that has no answer (maps of two different synthetic worlds, 337 x 318
 landmarks: 9 s of CPU at 50-landmark windows, 31 s at 100, 105 s at 200) and keep one search.
 
@@ -252,8 +252,10 @@ def derived_windows(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: 
         return _chance(xa, xb, q, params, 2 * length)
 
     def affordable(chance: WindowChance | None) -> bool:
-        putative = 0 if chance is None else chance.landmarks[0] * chance.landmarks[1] * chance.size_pass
-        return chance is not None and chance.trials > 0 and putative <= MAX_PUTATIVE_PER_WINDOW_PAIR
+        if chance is None:
+            return False
+        putative = chance.landmarks[0] * chance.landmarks[1] * chance.size_pass
+        return chance.trials > 0 and putative <= MAX_PUTATIVE_PER_WINDOW_PAIR
 
     def windows_of(chance: WindowChance) -> AssociationParams:
         # overlapping by half: every stretch of length / 2 consecutive landmarks lies whole in one window, at
