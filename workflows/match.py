@@ -305,6 +305,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     identity = fingerprint({"a": prints[0], "b": prints[1],
                             "association": params_to_dict(params.association),
                             "first_try": None if first_try is None else params_to_dict(first_try),
+                            # only when there is one: outputs of maps that get no wider search keep their identity
                             **({} if derivation.wider_try is None else
                                {"wider_try": params_to_dict(derivation.wider_try)}),
                             "verification": params_to_dict(params.verification), "seed": params.seed,

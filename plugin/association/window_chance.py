@@ -208,8 +208,7 @@ class DerivedWindows:
 
     def to_dict(self) -> dict:
         p = self.params
-        return {"derived": self.derived is not None, "window_length": p.window_length,
-                "window_stride": p.window_stride, "min_associations": p.min_associations,
+        return {"derived": self.derived is not None, **_window_fields(p),
                 "window_factors": [p.window_factor_a, p.window_factor_b],
                 "equal_area": p.equal_area_windows,
                 "rule": ("denser map's window x the largest power of two within the sparser's area; "
@@ -220,10 +219,14 @@ class DerivedWindows:
                 "configured_chance": self.configured.to_dict(),
                 "derived_chance": None if self.derived is None else self.derived.to_dict(),
                 "wider": None if self.wider_params is None else {
-                    "window_length": self.wider_params.window_length,
-                    "window_stride": self.wider_params.window_stride,
-                    "min_associations": self.wider_params.min_associations,
+                    **_window_fields(self.wider_params),
                     "chance": None if self.wider is None else self.wider.to_dict()}}
+
+
+def _window_fields(p: AssociationParams) -> dict:
+    """The windows and theta_S of one search, as match.json records them."""
+    return {"window_length": p.window_length, "window_stride": p.window_stride,
+            "min_associations": p.min_associations}
 
 
 def derived_windows(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
