@@ -2,7 +2,8 @@
 
 One validation (`camera_from_colmap`) serves the text reader, the pycolmap reader (cameras.bin, models) and
 every writer's input: a known perspective or fisheye model (`plugin.camera_models`; the spherical EQUIRECTANGULAR
-is refused), COLMAP's parameter count, positive size and focal lengths, finite parameters.
+is refused), COLMAP's parameter count, positive size and focal lengths, finite parameters, a distortion that does
+not fold the image over (`Camera.lens_folds`).
 """
 
 from __future__ import annotations
@@ -36,6 +37,10 @@ def camera_from_colmap(model: str, width: int, height: int, params: Sequence[flo
         raise InputError(f"camera size {camera.width}x{camera.height} is beyond {MAX_IMAGE_SIDE} pixels", source, line)
     if not all(math.isfinite(p) for p in camera.params):
         raise InputError("NaN or infinite camera parameter", source, line)
+    if camera.lens_folds():  # no pixel-to-ray map exists: mapping would fail deep inside (a LinAlgError)
+        raise InputError(f"the {camera.model} distortion {list(camera.extra)} folds the image over (pixels inside "
+                         f"the {camera.width}x{camera.height} sensor do not lift to one ray each): a wrong sign or "
+                         "scale of the distortion parameters?", source, line)
     return camera
 
 

@@ -71,6 +71,26 @@ class Camera:
         """True when pixels are ideal pinhole pixels (PINHOLE, SIMPLE_PINHOLE, or a model with zero distortion)."""
         return camera_model(self.model).is_identity(self.extra)
 
+    def lens_folds(self) -> bool:
+        """True when the distortion folds the image over: some pixel inside the sensor does not lift to one ray
+        and back, or the radius bends back before the corners (a strong negative k1: 480x360, f 377, k -0.6).
+        Judged for the additive radial-tangential models only (SIMPLE_RADIAL .. FULL_OPENCV); the fisheye and
+        closed-form models (FOV, division, EUCM) are taken as given."""
+        spec = camera_model(self.model)
+        if self.is_pinhole or spec.fisheye or spec.forward is not None:
+            return False
+        t = np.linspace(0.0, 1.0, 33)
+        grid = np.stack(np.meshgrid(t * self.width, t * self.height), -1).reshape(-1, 2)
+        with np.errstate(all="ignore"):
+            normal = self.cam_from_img(grid)
+            if not np.all(np.isfinite(normal)) or np.abs(self.img_from_cam(normal) - grid).max() > 1e-3:
+                return True
+            # the forward map must keep its orientation (positive Jacobian) out to the corners' radius
+            radius = np.hypot(normal[:, 0], normal[:, 1]).max()
+            r = np.linspace(0.0, radius, 200)[1:]
+            ring = self.img_from_cam(np.stack([r, np.zeros_like(r)], 1))[:, 0] - self.cx
+        return not bool(np.all(np.diff(ring) > 0))
+
     @property
     def K(self) -> np.ndarray:  # noqa: N802 (the usual name)
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])

@@ -14,6 +14,7 @@ from sosmatch.database.cameras import (
 )
 from sosmatch.database.colmap_model import read_camera_file
 from sosmatch.plugin.camera_models import CAMERA_MODELS
+from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Camera, pixel_rays, project, quat_to_rotmat
 
 pycolmap = pytest.importorskip("pycolmap")
@@ -140,3 +141,16 @@ def test_every_model_round_trips_through_cameras_txt_and_cameras_bin(tmp_path):
     single.add_camera(pycolmap_camera(cams[5], 1))
     single.write_binary(str(one))
     assert read_camera_file(one / "cameras.bin") == cams[5]
+
+
+def test_a_lens_that_folds_the_image_over_is_refused_in_one_line(tmp_path):
+    """SIMPLE_RADIAL k = -0.6 at f 377 on 480x360: the radius bends back inside the sensor, so some pixels have
+    no ray. Before: `sosmatch map` stopped with a LinAlgError traceback in the tracker; `synth` already refused
+    such a lens. Every drone-like lens of every model (EXTRA above) is kept."""
+    assert not any(_camera(name).lens_folds() for name in CAMERA_MODELS)
+    assert Camera.from_colmap("SIMPLE_RADIAL", 480, 360, [376.7, 240, 180, -0.15]).lens_folds() is False
+    path = tmp_path / "cameras.txt"
+    path.write_text("1 SIMPLE_RADIAL 480 360 376.7 240 180 -0.6\n")
+    with pytest.raises(InputError, match="folds the image over") as err:  # the CLI's one-line user error
+        read_cameras_txt(path)
+    assert str(err.value).startswith(f"{path}:1:")

@@ -198,7 +198,7 @@ class SynthConfig:
                     "sensor (a W:H wider than the sensor's) and at least 16 rows")
         if max(abs(self.lens_k1), abs(self.lens_k2)) > 1.0 or max(abs(self.lens_p1), abs(self.lens_p2)) > 0.05:
             bad("lens distortion out of range (|k1|, |k2| <= 1, |p1|, |p2| <= 0.05)")
-        if not _lens_is_invertible(self.sensor_camera()):
+        if self.sensor_camera().lens_folds():
             bad("the lens distortion folds the image over (rays are not one-to-one with pixels inside the sensor): "
                 "use a smaller |k1| / |k2| or a narrower --hfov")
         if not self.spacing_m > 0 or not self.line_length_m > 0 or not self.line_spacing_m > 0:
@@ -250,23 +250,3 @@ def _aspect(text: str) -> tuple[float, float]:
     if not (a > 0 and b > 0 and math.isfinite(a) and math.isfinite(b)):
         raise ValueError(f"crop_aspect must be W:H with positive numbers, got {text!r}")
     return a, b
-
-
-def _lens_is_invertible(camera: Camera) -> bool:
-    """True when every pixel of the sensor lifts to one ray and back: no fold of the distortion inside the image
-    (e.g. strong barrel distortion bends the radius back beyond the image corners)."""
-    import numpy as np
-
-    if camera.is_pinhole:
-        return True
-    w, h = camera.width, camera.height
-    t = np.linspace(0.0, 1.0, 33)
-    grid = np.stack(np.meshgrid(t * w, t * h), -1).reshape(-1, 2)
-    normal = camera.cam_from_img(grid)
-    if not np.all(np.isfinite(normal)) or np.abs(camera.img_from_cam(normal) - grid).max() > 1e-3:
-        return False
-    # the forward map must keep its orientation (positive Jacobian) out to the corners' radius
-    radius = np.hypot(normal[:, 0], normal[:, 1]).max()
-    r = np.linspace(0.0, radius, 200)[1:]
-    ring = camera.img_from_cam(np.stack([r, np.zeros_like(r)], 1))[:, 0] - camera.cx
-    return bool(np.all(np.diff(ring) > 0))
