@@ -22,6 +22,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
+from ..plugin.params.matching import MAX_ASSOCIATIONS
 from .landmark_map import LandmarkMap, landmark_map_fingerprint
 from .text_input import read_user_text
 
@@ -225,7 +226,8 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     if isinstance(params, dict):
         assoc = params.get("association")
         theta = assoc.get("min_associations") if isinstance(assoc, dict) else params.get("min_associations")
-        theta = None if theta is None else _int(theta, "params.association.min_associations", path, 0, 10**6)
+        theta = None if theta is None else _int(theta, "params.association.min_associations", path, 0,
+                                                MAX_ASSOCIATIONS)
         gate = _positive(assoc.get("distance_tolerance_m") if isinstance(assoc, dict) else None,
                          "params.association.distance_tolerance_m", path)
         ver_params = params.get("verification")
@@ -240,7 +242,7 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     if isinstance(searched, dict) and searched.get("min_associations") is not None:
         # theta_S of the search whose hypotheses these are (the first of two searches keeps the configured one)
         summary.min_associations = _int(searched["min_associations"], "search_mode.searched.min_associations",
-                                        path, 0, 10**6)
+                                        path, 0, MAX_ASSOCIATIONS)
     # The window search's own answer: the consensus (the transform refitted on the associations of every accepted
     # window pair that agrees with the best one; written only when one was accepted), else the best accepted
     # hypothesis, else the largest one (then not accepted).

@@ -142,7 +142,16 @@ def test_segmentation_backend_choices_are_the_registry():
 
 
 @pytest.mark.parametrize("override, fragment", [
-    ("association.affinity_sigma_m=nan", "association.affinity_sigma_m must be within (0, inf)"),
+    ("association.affinity_sigma_m=nan", "association.affinity_sigma_m must be within [0.001, 1000]"),
+    # values the checks once let through into a MemoryError, a ZeroDivisionError, an OverflowError or 31 GiB
+    ("association.yaw_slice_deg=1e-9", "yaw_slice_deg must be 0 (off) or within [0.5, 180]"),
+    ("association.affinity_sigma_m=1e-300", "affinity_sigma_m must be within [0.001, 1000]"),
+    ("association.distance_tolerance_m=1e300", "distance_tolerance_m must be within [0.001, 1000]"),
+    ("association.min_associations=2000000", "min_associations must be within [2, 1000000]"),
+    ("verification.chance_starts=1000000000", "chance_starts must be within [0, 100000]"),
+    ("changes.probe_count=100000000", "probe_count must be within [1, 360]"),
+    ("changes.unmapped_pixel_sigma_px=1e300", "unmapped_pixel_sigma_px must be within (0, 10000]"),
+    ("changes.surface_views=1000000", "surface_views must be within [2, 100]"),
     ("triangulation.min_observations=-5", "triangulation.min_observations must be within [1, 2147483647]"),
     # an integer beyond a C int once reached numba (a 40-line traceback) and COLMAP's options
     ("association.window_length=99999999999999999999999", "window_length must be within [3, 2147483647]"),
@@ -165,6 +174,14 @@ def test_out_of_range_values_are_refused_by_config_check(tmp_path, capsys, overr
     assert main(["config", "check", "--config", str(cfg)]) == 2
     err = capsys.readouterr().err
     assert str(cfg) in err and fragment.split(" must")[-1].strip() in err
+
+
+def test_config_check_says_what_it_checked_and_takes_the_off_value(capsys):
+    from sosmatch.tools.cli import main
+
+    assert main(["config", "check", "--preset", "paper", "--set", "association.yaw_slice_deg=0"]) == 0
+    assert capsys.readouterr().out.strip() == "preset paper + --set association.yaw_slice_deg=0: ok"  # was "defaults"
+    assert main(["config", "check"]) == 0 and capsys.readouterr().out.strip() == "defaults: ok"
 
 
 def test_direct_construction_is_checked_too():

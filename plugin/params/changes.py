@@ -10,7 +10,6 @@ from .checks import (
     flag,
     fraction,
     non_negative,
-    positive,
     within,
 )
 
@@ -29,8 +28,8 @@ class ChangeParams(Checked):
     # theta_eps is the landmark scatter the association already allows (2 m on drone maps, 10 m in the aerial
     # preset); between two EKF maps 90 % of the landmarks of one object have the other map's nearest landmark of
     # that object within 2.8-3.9 m (BENCHMARKS.md, Change detection), so 1.5 theta_eps = 3 m.
-    tolerance_factor: float = positive(1.5)
-    z_weight: float = non_negative(0.5)  # heights are the noisy direction of a nadir survey (as in refinement)
+    tolerance_factor: float = within(1.5, 0.0, 100.0, lo_open=True)
+    z_weight: float = within(0.5, 0.0, 100.0)  # heights are the noisy direction of a nadir survey (as in refinement)
     # r = 2 |h_a - h_b| / (h_a + h_b) of a counterpart (theta_r is 0.2 for association, where a wrong pair costs
     # a wrong transform; here a re-segmented object must still count as present: sizes within a factor 1.67)
     max_size_difference: float = within(0.5, 0.0, 2.0)
@@ -57,12 +56,12 @@ class ChangeParams(Checked):
     segment_evidence_p: float = fraction(0.05)
     # probes for the chance rate of segments: this many points on a circle of radius (probe_radius_factor x the
     # counterpart gate + 2 h) around the landmark
-    probe_count: int = count(8, 1)
-    probe_radius_factor: float = positive(2.0)
+    probe_count: int = count(8, 1, 360)
+    probe_radius_factor: float = within(2.0, 0.0, 100.0, lo_open=True)
     # The presence rate (how often the other session's segments show an object of a given size that is there) is
     # measured on the landmarks with a counterpart, pooled with a Gaussian kernel of this width in log size
     # (0.3: sizes within a factor 1.35 count fully; a landmark's size scatters by about that between sessions)
-    presence_bandwidth: float = positive(0.3)
+    presence_bandwidth: float = within(0.3, 0.0, 10.0, lo_open=True)
     # A gone / new claim needs the other session's segments to say the object is absent: its confidence is
     # P(absent | segment hits) (quasi-binomial, prior odds 1, `verdict.absence_probability`); claims below this
     # are reported as unseen (the other session cannot tell). 0.8 (odds 4:1) on the 7 development worlds of
@@ -78,7 +77,7 @@ class ChangeParams(Checked):
     # Needs both sessions' images (`sosmatch changes --images-a/--images-b`, or those each map's run.json
     # records); without them the segments alone decide.
     surface_evidence: bool = flag(True)
-    surface_views: int = count(6, 2)
+    surface_views: int = count(6, 2, 100)
     # the surface heights may also overrule a counterpart or containment link: a landmark whose heights say
     # absent more strongly than its counterpart says present (the pair's chance counterpart rate against its
     # counterpart rate, `AlignmentSupport.counterpart_log_ratio`) is judged as one without. False: the heights
@@ -106,7 +105,7 @@ class ChangeParams(Checked):
     # evidence is read there, and where the other session's surface stands on the same places (the crown beside
     # a shadow that moved) it is `flat`. 0 = the landmark's own place only (the other session's surface is still
     # tested there).
-    object_height_ring: int = count(6)
+    object_height_ring: int = count(6, 0, 360)
     # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
     # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least
     # min_views keyframes, are judged against the other session as its landmarks are (direct evidence only; they
@@ -115,10 +114,10 @@ class ChangeParams(Checked):
     unmapped_objects: bool = flag(True)
     # the mean reprojection error (px) such a track's point may have: the map's own landmark limit
     # (triangulation.max_reprojection_error_px, 10 px by default)
-    unmapped_max_error_px: float = positive(10.0)
+    unmapped_max_error_px: float = within(10.0, 0.0, 1e4, lo_open=True)
     # the centroid noise (px) behind such a point's position uncertainty (the map's triangulation.pixel_sigma_px):
     # its place must be known to within the counterpart gate at 2 sigma to ask the other session what is there
-    unmapped_pixel_sigma_px: float = positive(3.0)
+    unmapped_pixel_sigma_px: float = within(3.0, 0.0, 1e4, lo_open=True)
     # A landmark (or an object never mapped) lower than the ground by more than this many robust standard
     # deviations of its own map's heights above the ground (1.4826 x their median absolute deviation, about 2 m
     # on drone maps) is a wrong triangulation (two patches linked into one track): no object lies under the
@@ -126,4 +125,4 @@ class ChangeParams(Checked):
     # deep fell inside the other session's images, 3.4 m outside its footprint). It is compared with nothing
     # (unseen, evidence 'height'). The development maps' object landmarks lie at most 2.3-7 m below the ground
     # field (1 %), wrong triangulations down to 40 m.
-    max_depth_sigmas: float = positive(4.0)
+    max_depth_sigmas: float = within(4.0, 0.0, 100.0, lo_open=True)

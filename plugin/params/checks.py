@@ -26,8 +26,11 @@ class Valid:
     hi_open: bool = False
     odd: bool = False
     choices: tuple[Any, ...] | None = None
+    off: float | None = None  # one value outside the range that is also accepted: "off" (e.g. 0)
 
     def describe(self) -> str:
+        if self.off is not None:
+            return f"{self.off:g} (off) or " + Valid(self.lo, self.hi, self.lo_open, self.hi_open, self.odd).describe()
         if self.choices is not None:
             return "one of " + ", ".join(repr(c) for c in self.choices)
         if self.lo is None and self.hi is None:
@@ -44,6 +47,8 @@ class Valid:
             return True  # text and flags: the type check is all
         if isinstance(value, float) and not math.isfinite(value):
             return False
+        if self.off is not None and value == self.off:
+            return True
         if self.lo is not None and (value < self.lo or (self.lo_open and value == self.lo)):
             return False
         if self.hi is not None and (value > self.hi or (self.hi_open and value == self.hi)):
@@ -55,9 +60,11 @@ def _valid(default: Any, valid: Valid) -> Any:
     return field(default=default, metadata={"valid": valid})
 
 
-def within(default: float, lo: float | None, hi: float | None, lo_open: bool = False, hi_open: bool = False) -> Any:
-    """A number within [lo, hi] (None: unbounded; *_open: that end excluded); never NaN or infinite."""
-    return _valid(default, Valid(lo, hi, lo_open, hi_open))
+def within(default: float, lo: float | None, hi: float | None, lo_open: bool = False, hi_open: bool = False,
+           off: float | None = None) -> Any:
+    """A number within [lo, hi] (None: unbounded; *_open: that end excluded), or exactly `off` (a value that
+    switches the feature off, e.g. 0, when the range itself excludes it); never NaN or infinite."""
+    return _valid(default, Valid(lo, hi, lo_open, hi_open, off=off))
 
 
 def positive(default: float) -> Any:

@@ -11,9 +11,12 @@ from .checks import (
     fraction,
     non_negative,
     one_of,
-    positive,
     within,
 )
+
+# theta_S can be no larger than this: no map pair holds a million common landmarks, and match.json's reader
+# (`database.match_io`) holds its record to the same bound
+MAX_ASSOCIATIONS = 10**6
 
 
 @dataclass(frozen=True)
@@ -33,16 +36,17 @@ class AssociationParams(Checked):
     window_factor_a: int = count(1, 1)
     window_factor_b: int = count(1, 1)
     max_size_difference: float = fraction(0.2)  # theta_r: putative pairs need r(h_i, h_j) <= this
-    distance_tolerance_m: float = positive(2.0)  # theta_eps: pairwise distance mismatch still called consistent
+    # theta_eps: pairwise distance mismatch still called consistent (1 mm .. 1 km: beyond, every pair is consistent)
+    distance_tolerance_m: float = within(2.0, 1e-3, 1e3)
     # sigma (ours) of the CLIPPER affinity exp(-c^2 / 2 sigma^2): the spread of the distance mismatch c of a true
     # pair (four landmarks with ~0.3-0.5 m noise each give ~1 m); affinity at the gate eps = 2 m is exp(-2) = 0.14
-    affinity_sigma_m: float = positive(1.0)
+    affinity_sigma_m: float = within(1.0, 1e-3, 1e3)
     # theta_alpha: max roll/pitch difference of an accepted transform
     max_gravity_angle_deg: float = within(22.5, 0.0, 180.0)
     # theta_S (ours default; swept for precision-recall): accept if |S| > this. On synthetic 1000-landmark survey
     # maps (tools/benchmarks/bench_match.py) theta_S = 4 accepts wrong window pairs, 5 and 6 none: 6 keeps a margin,
     # and a larger theta_S also makes the search faster (only theta_S-cores are solved)
-    min_associations: int = count(6, 2)
+    min_associations: int = count(6, 2, MAX_ASSOCIATIONS)
     transform: str = one_of("rigid", "rigid", "similarity")  # "rigid" (Arun/Umeyama) or "similarity"
     # -- how the search forms its graphs (all ours; the paper's method is consistency "distance", windows "id",
     # no position prior: the "paper" preset). One definition of each test: plugin/association/consistency.py.
@@ -61,7 +65,7 @@ class AssociationParams(Checked):
     # within asin(theta_eps / length)) must fall in one slice of this width for all pairs of a set; every window
     # pair is solved per slice and keeps its largest set. Chance-consistent pairs scatter over the 360 degrees,
     # a true set (and never a mirror image) shares one yaw. 0 = off.
-    yaw_slice_deg: float = within(7.5, 0.0, 180.0)
+    yaw_slice_deg: float = within(7.5, 0.5, 180.0, off=0.0)
     # windows: "id" = theta_WL landmarks in id (time) order, as in the paper; "spatial" = the same windows over
     # each map's landmarks sorted along a Hilbert curve of their horizontal positions in the map's own frame, so a
     # window is a compact patch of ground whatever the flight path (crossing flights share windows)
@@ -94,7 +98,8 @@ class VerificationParams(Checked):
     dof: int = one_of(4, 4, 6)  # ICP degrees of freedom: 4 = yaw + translation (gravity-aligned maps), 6 = rigid
     final_dof: int = one_of(6, 0, 6)  # the winner refitted 6-DOF on its pairs (0: keep the `dof` fit)
     min_ratio: float = within(1.2, 1.0, None)  # the winner's support over the best alignment that puts B elsewhere
-    z_weight: float = positive(0.5)  # heights count this much in the nearest-neighbour distance (noisier)
+    # heights count this much in the nearest-neighbour distance (noisier)
+    z_weight: float = within(0.5, 0.0, 100.0, lo_open=True)
     max_candidates: int = count(400, 1)  # window hypotheses tried, largest first (bounds dense maps)
     # The chance model (`plugin.chance.chance_test`): B refined from this many random placements over A
     # measures the support chance alignments of these two maps reach (0: off, the ratio alone decides, which
@@ -107,7 +112,7 @@ class VerificationParams(Checked):
     # sparse winter pair of world 64 (never used before; support 32, chance max 11) read p 0.037 (refused) from
     # 64 samples, 0.005 from 128, 3e-4 from 256, 2e-5 from 512 (0.6 s of CPU for 1,000 refinements there; the
     # model then without each placement's opportunity, `chance.chance_opportunity`)
-    chance_starts: int = count(512, 0)
+    chance_starts: int = count(512, 0, 100_000)
     false_alarm: float = within(1e-2, 0.0, 1.0, lo_open=True)
     # the size gate of the verification's pairs (r of mutual nearest neighbours within theta_eps). Across seasons
     # one object's sizes differ by r 0.12 (median) / 0.3-0.4 (80th percentile) between two maps (worlds 5, 11);

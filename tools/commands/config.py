@@ -23,5 +23,12 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "dump":
         sys.stdout.write(dump_params(params))
     else:
-        print(f"{args.config or 'defaults'}: ok")
+        print(f"{_what(args)}: ok")
     return 0
+
+
+def _what(args: argparse.Namespace) -> str:
+    """What was checked, in the order it applies: the preset, the config file, each --set."""
+    parts = ([f"preset {args.preset}"] if getattr(args, "preset", None) else []) + \
+        ([str(args.config)] if args.config else []) + [f"--set {s}" for s in (getattr(args, "overrides", None) or [])]
+    return " + ".join(parts) or "defaults"
