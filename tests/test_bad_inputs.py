@@ -388,3 +388,19 @@ def test_an_empty_path_argument_is_refused(tmp_path, monkeypatch, capsys, argv):
     err = capsys.readouterr().err.strip()
     assert stop.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
     assert "empty path (an unset shell variable?)" in err and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv", [
+    ["export", "{src}", "--csv", "--out", "{tmp}/newdir/"],
+    ["check-poses", "--poses", "{src}", "--out", "{tmp}/figures/"],
+    ["poses-from-exif", "{src}", "--out", "{tmp}/poses/"],
+])
+def test_a_file_output_given_as_a_folder_is_refused(tmp_path, capsys, argv):
+    """`export --csv --out newdir/` wrote a CSV file named `newdir` (the path's trailing slash was dropped). A
+    usage error: argparse's one line and exit 2."""
+    with pytest.raises(SystemExit) as stop:
+        main([a.format(src=tmp_path / "none", tmp=tmp_path) for a in argv])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert "ends in a separator, a folder: give a file name" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

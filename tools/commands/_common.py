@@ -8,6 +8,17 @@ from pathlib import Path
 from ...plugin.params import Params
 
 
+def output_file(text: str) -> Path:
+    """A path argument that names a file to write: empty, or ending in a path separator (`--out exports/`, a
+    folder meant; the Path made of it drops the slash, and the export was written as a file named `exports`),
+    it is refused as a usage error."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty path (an unset shell variable?)")
+    if text.endswith(("/", "\\")):
+        raise argparse.ArgumentTypeError(f"{text!r} ends in a separator, a folder: give a file name")
+    return Path(text)
+
+
 def add_params_arguments(parser: argparse.ArgumentParser) -> None:
     """`--preset NAME`, `--config FILE` and repeatable `--set section.key=value` for commands that use method
     parameters (applied in that order)."""

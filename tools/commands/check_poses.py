@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_params_arguments, params_from_args
+from ._common import add_params_arguments, output_file, params_from_args
 
 NAME = "check-poses"
 HELP = ("check poses against the images (pose-free image matches vs the poses' epipolar geometry: wrong headings, "
@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", type=Path, help="intrinsics: cameras.txt, cameras.bin or a COLMAP model")
     parser.add_argument("--convention", choices=["world_from_camera", "camera_from_world"],
                         help="pose convention of the CSV (overrides its '# convention:' comment)")
-    parser.add_argument("--out", type=Path, help="write the figures here (JSON, e.g. pose_check.json)")
+    parser.add_argument("--out", type=output_file, help="write the figures here (JSON, e.g. pose_check.json)")
     parser.add_argument("--warn-only", action="store_true", help="report a refusal but exit 0")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an --out file this command wrote before from other inputs or settings")

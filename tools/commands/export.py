@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from ._common import output_file
+
 NAME = "export"
 HELP = "export landmarks of a session or .sosmap as GeoJSON (WGS84, for QGIS), PLY or CSV"
 
@@ -17,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="GeoJSON FeatureCollection in WGS84 (needs a georeferenced map or --epsg)")
     fmt.add_argument("--ply", action="store_const", const="ply", dest="format", help="binary PLY (double xyz)")
     fmt.add_argument("--csv", action="store_const", const="csv", dest="format", help="CSV (+ lon/lat if known)")
-    parser.add_argument("--out", type=Path, required=True, help="file to write")
+    parser.add_argument("--out", type=output_file, required=True, help="file to write")
     parser.add_argument("--epsg", type=int, help="EPSG code of the map's world frame (overrides the map's own)")
     parser.add_argument("--circles", action="store_true", help="GeoJSON polygons of each landmark's size")
     parser.add_argument("--overwrite", action="store_true",

@@ -6,14 +6,16 @@ import argparse
 import json
 from pathlib import Path
 
+from ._common import output_file
+
 NAME = "poses-from-exif"
 HELP = "derive poses.csv (UTM, EPSG recorded) and cameras.txt from the images' EXIF GPS and XMP attitude tags"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("images", type=Path, help="image directory (or one image)")
-    parser.add_argument("--out", type=Path, required=True, help="pose CSV to write; cameras.txt goes beside it")
-    parser.add_argument("--cameras", type=Path, help="where to write cameras.txt (default: beside --out)")
+    parser.add_argument("--out", type=output_file, required=True, help="pose CSV to write; cameras.txt goes beside it")
+    parser.add_argument("--cameras", type=output_file, help="where to write cameras.txt (default: beside --out)")
     parser.add_argument("--telemetry", type=Path,
                         help="CSV with FileName,Heading,PitchAngle,RollAngle[,GPSLatitude,...] for images "
                              "whose XMP lacks attitude (e.g. Seneca's telemetry.csv)")
