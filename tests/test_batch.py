@@ -87,6 +87,26 @@ def test_discovery(flights, tmp_path, caplog):
     assert "moved: a link to" in caplog.text and "does not exist" in caplog.text
 
 
+def test_discovery_skips_what_is_not_a_flight_and_says_so(flights, local_run, tmp_path, caplog):
+    """The seventh new-user sweep: two links to one flight were mapped (and merged) twice; a flight folder whose
+    images were not copied was dropped at INFO as having "no images, pose file or mapped session"; an earlier
+    batch output kept in the flights folder was taken for a flight."""
+    root, _ = flights
+    kinds = tmp_path / "kinds"
+    kinds.mkdir()
+    (kinds / "A").symlink_to(root / "A")
+    (kinds / "A_again").symlink_to(root / "A")
+    (kinds / "no_images").mkdir()
+    (kinds / "no_images" / "poses.csv").write_text("name,x,y,z\n")
+    shutil.copytree(local_run[0], kinds / "last_run", symlinks=True)
+    with caplog.at_level("WARNING"):
+        found = [(f.name, f.kind) for f in batch.discover_flights(kinds)]
+    assert found == [("A", "mapped")]
+    assert "A_again: the same folder as flight A" in caplog.text
+    assert "no_images: a pose file but no images" in caplog.text
+    assert "last_run: an output of `sosmatch batch`, not a flight" in caplog.text
+
+
 def test_batch_stages_failures_and_groups(flights, local_run):
     root, truth = flights
     out, report = local_run

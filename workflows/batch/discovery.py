@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from ...database.images import image_files
+from ...database.outputs import MARKER
 from ...plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -62,6 +64,18 @@ def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
 
 
 NOT_FLIGHTS = (".", "_")  # folder names that are never flights: hidden ones, and those put aside with "_"
+# outputs of the sosmatch commands whose folders are never flights (those of synth, poses and map are)
+NOT_FLIGHT_OUTPUTS = ("batch", "match", "merge", "changes", "evaluate", "demo", "segment")
+
+
+def _made_by(folder: Path) -> str | None:
+    """The sosmatch command whose output `folder` is (its marker), or None."""
+    try:
+        marker = json.loads((folder / MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    command = marker.get("command") if isinstance(marker, dict) else None
+    return command if isinstance(command, str) else None
 
 
 def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) -> list[Flight]:
@@ -70,7 +84,8 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
     if not root.is_dir():
         raise InputError("flights directory not found", root)
     excluded = {p.resolve() for p in exclude}
-    flights = []
+    flights: list[Flight] = []
+    seen: dict[Path, str] = {}  # resolved folder -> the flight name it is mapped as
     for link in sorted(p for p in root.iterdir() if p.is_symlink() and not p.exists()):
         if not link.name.startswith(NOT_FLIGHTS):  # a flight moved or unmounted: say so, do not drop it silently
             log.warning("%s: a link to %s, which does not exist; not a flight of this batch", link,
@@ -85,10 +100,25 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
                              root) from None
         if PAIR_SEP in folder.name:
             raise InputError(f"flight folder names may not contain {PAIR_SEP!r} (used for pair names)", folder)
+        made_by = _made_by(folder)
+        if made_by in NOT_FLIGHT_OUTPUTS:  # e.g. an earlier batch's output kept beside the flights
+            log.warning("%s: an output of `sosmatch %s`, not a flight; skipped", folder, made_by)
+            continue
+        real = folder.resolve()
+        if real in seen:  # two links (or a link and the folder) to one flight: mapping it twice would also
+            # "match" it with itself and merge it twice
+            log.warning("%s: the same folder as flight %s (%s); mapped once, as %s", folder, seen[real], real,
+                        seen[real])
+            continue
         kind = classify_flight(folder)
         if kind is None:
-            log.info("%s: no images, pose file or mapped session; not a flight", folder)
+            if (folder / "poses.csv").is_file():
+                log.warning("%s: a pose file but no images (looked in %s/images and %s itself); not a flight",
+                            folder, folder, folder)
+            else:
+                log.info("%s: no images, pose file or mapped session; not a flight", folder)
             continue
+        seen[real] = folder.name
         flights.append(Flight(folder.name, folder, kind))
     if not flights:
         raise InputError("no flights found (one folder per flight: images with poses.csv, geotagged images, "
