@@ -285,6 +285,15 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     return summary
 
 
+def unverified_note(match: MatchSummary) -> str | None:
+    """What a consumer of `match` (merge, changes) says when its answer was not verified on the full maps (None
+    when it was): across seasons one window's consensus can be a chance alignment."""
+    if match.source == "verified":
+        return None
+    return ("the match was not verified on the full maps (written by a sosmatch before the verification stage, or "
+            "with --no-verify / verification.enabled = false)")
+
+
 def _check_verified_associations(assoc: np.ndarray, support: Any, path: Path) -> None:
     """The verification's associations are mutual nearest neighbours (each landmark at most once) and its support
     is their number: an edited list (a landmark paired twice, pairs removed) was merged and compared without a

@@ -298,19 +298,25 @@ class KeyframeImages(Sequence):
         return grey
 
 
+def recorded_images_dir(session: str | Path) -> Path | None:
+    """The images directory a mapped session's run.json records (None when it records none or is unreadable);
+    it may no longer exist."""
+    try:
+        recorded = ((read_map_record(Path(session)) or {}).get("inputs") or {}).get("images")
+    except (InputError, AttributeError):  # unreadable, or "inputs" not an object: no images known
+        return None
+    return Path(recorded) if isinstance(recorded, str) and recorded else None
+
+
 def session_images_dir(session: str | Path | SessionFiles, images_dir: str | Path | None = None) -> Path | None:
     """The directory of a mapped session's keyframe images: `images_dir` if given, else the one its run.json
     records, when it still exists (None otherwise: no surface evidence). The map must have been made from those
     images (`check_map_of_images`: InputError otherwise)."""
     path = session.path if isinstance(session, SessionFiles) else Path(session)
     if images_dir is None:
-        try:
-            recorded = ((read_map_record(path) or {}).get("inputs") or {}).get("images")
-        except (InputError, AttributeError):  # unreadable, or "inputs" not an object: no images known
+        images_dir = recorded_images_dir(path)
+        if images_dir is None or not images_dir.is_dir():
             return None
-        if not isinstance(recorded, str) or not Path(recorded).is_dir():
-            return None
-        images_dir = recorded
     images_dir = Path(images_dir)
     if not images_dir.is_dir():
         raise InputError("is a file, not an images directory" if images_dir.exists() else

@@ -384,3 +384,25 @@ def test_a_session_record_with_entries_of_other_types_is_no_traceback(toy, tmp_p
     (b / "run.json").write_text(json.dumps({"inputs": ["x"], "keyframe_images": 5, "counts": 3}))
     code, line, err = run([root / "A", b, "--match", root / "AB" / "match.json", "--out", tmp_path / "C"], capsys)
     assert code == 0 and line.startswith("changes: ") and "Traceback" not in err
+
+
+def test_an_unverified_match_is_said_and_out_may_not_lie_among_the_recorded_images(toy, tmp_path, cli_error, caplog):
+    """The seventh new-user sweep: `changes` took a --no-verify match without a word (merge warns), and wrote its
+    output into the images folder a session's run.json records, which it reads for the surface heights."""
+    import logging
+
+    from sosmatch.database.match_io import read_match
+    from sosmatch.workflows.changes import compute
+
+    root = toy[0]
+    assert read_match(root / "AB" / "match.json").source != "verified"  # the toy match: a window consensus
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.changes"):
+        compute(root / "A", root / "B", root / "AB" / "match.json")
+    assert "the match was not verified on the full maps" in caplog.text
+    a = tmp_path / "A"
+    shutil.copytree(root / "A", a)
+    (tmp_path / "photos").mkdir()
+    (a / "run.json").write_text(json.dumps({"inputs": {"images": str(tmp_path / "photos")}}))
+    err = cli_error("changes", a, root / "B", "--match", root / "AB" / "match.json", "--out",
+                    tmp_path / "photos" / "chg")
+    assert "photos" in err and "input" in err and not (tmp_path / "photos" / "chg").exists(), err

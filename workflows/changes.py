@@ -31,9 +31,14 @@ from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.changes_io import changes_feature_collection, format_changes_csv
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
-from ..database.match_io import check_match_maps, read_match
+from ..database.match_io import check_match_maps, read_match, unverified_note
 from ..database.outputs import check_output_dir, fingerprint, open_output_dir
-from ..database.session_io import read_session, read_session_observations, session_images_dir
+from ..database.session_io import (
+    read_session,
+    read_session_observations,
+    recorded_images_dir,
+    session_images_dir,
+)
 from ..plugin import __version__
 from ..plugin.changes import CONTROL_SHIFT, GONE, KEPT, NEW, UNSEEN, ChangeResult, detect_changes
 from ..plugin.errors import InputError
@@ -93,6 +98,9 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     tracks = params.changes.unmapped_objects
     dirs = [None, None]
     warnings = []  # said once every check has passed: a refused run prints its one-line error alone
+    if match is not None and not verified and (note := unverified_note(match)) is not None:
+        warnings.append(f"{match_json}: {note}: its transform is used only because B's landmarks find "
+                        "counterparts in A far more often than by chance; `sosmatch match` again verifies it")
     if params.changes.surface_evidence:
         dirs = [session_images_dir(files_a, images_a), session_images_dir(files_b, images_b)]
         if None in dirs:
@@ -282,8 +290,10 @@ def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, ou
     """
     params = params or Params()
     out_dir = Path(out_dir)
+    # the images each session's map records are read too (surface evidence): writing among them is refused
+    images = [images_a or recorded_images_dir(session_a), images_b or recorded_images_dir(session_b)]
     check_output_dir(out_dir, "changes", legacy_record="changes.json",
-                     inputs=[p for p in (session_a, session_b, match_json, images_a, images_b) if p is not None])
+                     inputs=[p for p in (session_a, session_b, match_json, *images) if p is not None])
     check_output_entries(out_dir)
     changes = compute(session_a, session_b, match_json, params, images_a=images_a, images_b=images_b)
     with open_output_dir(out_dir, "changes", output_identity(changes, params, plot),

@@ -38,7 +38,7 @@ import numpy as np
 from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, write_landmark_map
-from ..database.match_io import check_match_maps, read_match
+from ..database.match_io import check_match_maps, read_match, unverified_note
 from ..database.outputs import OutputDir, fingerprint, open_output_dir, sha256_file
 from ..database.session_io import SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
@@ -390,10 +390,9 @@ def run(
         log.warning("%s is georeferenced (EPSG:%d) and %s is not: the merged model is in %s's local frame; match and "
                     "merge with the georeferenced session first to keep its georeference", session_b,
                     b.landmarks.epsg, session_a, session_a)
-    if match.source != "verified":  # across seasons one window's consensus can be a chance alignment
-        log.warning("%s: the match was not verified on the full maps (written by a sosmatch before the verification "
-                    "stage, or with verification.enabled = false): merging its window consensus as it is; "
-                    "`sosmatch match` again verifies it", match_json)
+    if (note := unverified_note(match)) is not None:
+        log.warning("%s: %s: merging its window consensus as it is; `sosmatch match` again verifies it", match_json,
+                    note)
     transform = match.transform
     # the answer's own gate (recorded in match.json: the tolerance the match derived from the maps), for the
     # refinement and the fusion alike; a match.json without it: the configured one
