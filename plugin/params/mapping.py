@@ -258,6 +258,9 @@ class PoseCheckParams(Checked):
     # Kuh & Welsch: above 30 the estimates are degraded by near-collinearity; measured 3-5 on lawnmower flights,
     # 122 on a single straight line)
     max_condition_index: float = positive(30.0)
+    # ... and only when they explain the checked pairs significantly better than the poses as given (an F test at
+    # this level, each pair one observation: `SystematicErrors.explained_p`)
+    systematic_significance: float = within(0.01, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

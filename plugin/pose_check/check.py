@@ -65,12 +65,21 @@ class PoseCheck:
     pairs: list[PairCheck] = field(default_factory=list)
     # the limit the systematic fit's condition index was held to (`PoseCheckParams.max_condition_index`)
     max_condition_index: float = float("inf")
+    # the significance level the fit had to reach (`PoseCheckParams.systematic_significance`)
+    systematic_significance: float = 1.0
 
     @property
     def systematic_separable(self) -> bool:
         """Whether the flight's geometry tells the height drift, the tilt of the heights and a shared attitude
         error apart (`SystematicErrors.condition_index` within the limit): only then are they judged or reported."""
         return not self.systematic.condition_index > self.max_condition_index
+
+    @property
+    def systematic_explains(self) -> bool:
+        """Whether the fitted systematic errors explain the pairs significantly better than the poses as given
+        (`SystematicErrors.explained_p` below the level): otherwise the fit only shapes the poses' random errors
+        into parameters (which may then be large) and is neither judged nor reported as a measurement."""
+        return not self.systematic.explained_p > self.systematic_significance
 
     @property
     def epipolar_p50_deg(self) -> float:
@@ -94,6 +103,7 @@ class PoseCheck:
             "attitude_bias_deg": num(s.attitude_bias_deg), "attitude_bias_sigma_deg": num(s.attitude_bias_sigma_deg),
             "attitude_bias_axis": [num(v) for v in s.attitude_bias_axis],
             "systematic_condition_index": num(s.condition_index),
+            "systematic_f": num(s.explained_f), "systematic_p": num(s.explained_p),
             "pairs_columns": ["a", "b", "kind", "inliers", "epipolar_px", "epipolar_fit_px", "in_front"],
             "pairs": [p.to_list() for p in self.pairs],
         }
@@ -107,10 +117,12 @@ class PoseCheck:
             return f"poses vs images: no pair of {self.pairs_tried} matched"
         s = self.systematic
         text = f"poses vs images: epipolar {self.epipolar_p50_px:.1f} px ({self.pairs_checked} pairs), "
-        if self.systematic_separable:
-            text += f"height drift {_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg"
-        else:  # the fit's figures mean nothing here (one straight line): do not print them as if measured
+        if not self.systematic_separable:  # the fit's figures mean nothing here (one straight line): do not print
             text += f"height drift and tilt not separable on this flight (condition index {s.condition_index:.0f})"
+        elif not self.systematic_explains:  # nor here: the fit explains no more than the random errors would
+            text += f"no systematic error stands out of the random ones (F {_fmt(s.explained_f, '.1f')})"
+        else:
+            text += f"height drift {_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg"
         return text + (f", {self.reversed_pairs} reversed" if self.reversed_pairs else "")
 
 
@@ -234,7 +246,8 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         flying_height_m=flying, epipolar_p50_px=p50, epipolar_p90_px=p90, epipolar_fit_p50_px=fit_p50,
         share_beyond_gate=float(np.mean(med > gate_px)),
         reversed_pairs=sum(c.reversed(gate_px) for c in checks), reversed_passes=reversed_passes,
-        systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index)
+        systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index,
+        systematic_significance=params.systematic_significance)
 
 
 def _working_scale(camera: Camera, params: PoseCheckParams) -> float:

@@ -50,6 +50,10 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams) -> Verdict:
                           f"and an attitude error shared by all cameras apart (condition index "
                           f"{s.condition_index:.0f}; a single straight line?): they are not checked")
         return v
+    if not check.systematic_explains:
+        # the poses' random errors, not a systematic one: the fit's parameters are no measurement (silent, as on
+        # exact poses, where there is nothing to explain either)
+        return v
     systematic = [  # value, its sigma, refusal limit, warning limit, what, the refusal limit in words, likely cause
         (s.height_drift_m, s.height_drift_sigma_m, limits.max_height_drift * h, limits.warn_height_drift * h,
          f"the cameras' heights drift by {s.height_drift_m:+.1f} m (+-{s.height_drift_sigma_m:.1f}) over the flight",
