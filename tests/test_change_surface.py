@@ -303,3 +303,32 @@ def test_keyframe_images_are_read_on_demand_within_a_memory_bound(tmp_path):
     with pytest.raises(InputError, match="f1.png.*another session"):
         KeyframeImages(tmp_path, ["f0.png", "f1.png"], [(32, 24), (64, 48)])[1]
 
+
+
+def test_the_ground_noise_is_measured_beside_the_landmarks_when_the_references_are_all_objects():
+    """A pair whose counterparts are all objects (a small map, or summer against winter, where the ground's own
+    texture is segmented otherwise): no reference place lies at ground level, so the sweep's ground noise was
+    unmeasurable and the objectness test let every place stand without a word (a 60 m summer-winter pair of the
+    seventh new-user sweep: 46 gone and 10 new claimed, none right). The bare places beside the compared
+    landmarks measure it: the moved shadow is flat again, the removed objects are still gone."""
+    rng = np.random.default_rng(5)
+    gx, gy = np.meshgrid(np.arange(5) * 17.0 + 11.0, np.arange(5) * 17.0 + 11.0)
+    objects = np.column_stack([gx.ravel() + rng.uniform(-2, 2, 25), gy.ravel() + rng.uniform(-2, 2, 25),
+                               rng.uniform(3.0, 8.0, 25)])
+    shadows = np.array([[40.0, 46.0, 0.0], [44.0, 41.0, 0.0]])  # 25 in A only, 26 in B only
+    positions = np.vstack([objects, shadows])
+    sizes = np.concatenate([rng.uniform(1.2, 2.2, 25), np.full(2, 1.5)])
+    removed = np.array([2, 8, 16, 22])
+    present_a, present_b = np.ones(27, bool), np.ones(27, bool)
+    present_b[removed], present_a[26], present_b[25] = False, False, False
+    a, ids_a = change_session(positions, sizes, present_a, lawnmower(5, 85, 5, 85, 45, 10, 6), 1, camera=CAM)
+    b, ids_b = change_session(positions, sizes, present_b, lawnmower(7, 87, 3, 83, 45, 10, 6), 2, camera=CAM)
+    a = replace(a, images=render_nadir_images(a.poses, CAM, positions, sizes, present_a, 7, noise_seed=1))
+    b = replace(b, images=render_nadir_images(b.poses, CAM, positions, sizes, present_b, 7, gain=0.8, offset=25.0,
+                                              noise_seed=2))
+    result = detect_changes(a, b, yaw_transform(0.0, (0.0, 0.0, 0.0)), ChangeParams(), 2.0)
+    s_a, s_b = int(np.flatnonzero(ids_a == 25)[0]), int(np.flatnonzero(ids_b == 26)[0])
+    assert (result.a.label[s_a], result.a.evidence[s_a]) == (UNSEEN, FLAT)
+    assert (result.b.label[s_b], result.b.evidence[s_b]) == (UNSEEN, FLAT)
+    assert all(result.a.label[int(np.flatnonzero(ids_a == o)[0])] == GONE for o in removed)
+    assert result.without_ground_noise == ()

@@ -123,6 +123,11 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         warnings.append(f"the images of session {name} ({path}) show no relief at its reference places (views of "
                         "an orthophoto, bare fields, or too coarse for a height?): its objects cannot be told from "
                         "ground texture, so its changes are claimed without that test")
+    for name in result.without_ground_noise:
+        path = session_a if name == "A" else session_b
+        warnings.append(f"session {name} ({path}): too few places at ground level to measure how its surface "
+                        "heights scatter on bare ground: its claims are not tested for an object standing there "
+                        "(expect false changes of moved shadows and re-segmented ground)")
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
         if not area.area > 0:
             raise InputError(f"session {name}'s keyframes see no ground (no footprint): nothing to compare", path)

@@ -28,6 +28,7 @@ from .support import AlignmentSupport, alignment_support
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
 from .surface import (
     footprint_places,
+    ground_sweep_noise,
     height_limit,
     height_log_ratio,
     heights_above_ground,
@@ -86,6 +87,8 @@ class ChangeResult:
     tracks_b: LandmarkChanges | None = None
     # sessions ("A", "B") whose images show no relief: their claims were made without the objectness test
     without_relief: tuple[str, ...] = ()
+    # sessions whose sweep's ground noise could not be measured: their claims were made without that test too
+    without_ground_noise: tuple[str, ...] = ()
 
     @property
     def common_area(self) -> object:
@@ -182,6 +185,9 @@ class _Direct:
     flat: np.ndarray | None = None
     # whether the own session's images show relief at its references (`shows_relief`); None: not measured here
     relief: bool | None = None
+    # False: the sweep's ground noise could not be measured (too few places at ground level even with the bare
+    # places added), so the objectness test let every place stand; None: measured, or not measured here
+    ground_noise: bool | None = None
 
     @property
     def established(self) -> np.ndarray:
@@ -216,7 +222,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     chance, absent = np.full(n, np.nan), np.zeros(n)
     by_segments = np.zeros(n, dtype=bool)
     surface, doubted, flat = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-    relief = None
+    relief, ground_noise = None, None
     if references is None:
         references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
     asked = compared & ((index < 0) & (other.segments is not None) | params.surface_overrules_links)
@@ -228,6 +234,13 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
             if len(ref) > SURFACE_REFERENCES:
                 ref = ref[np.linspace(0, len(ref) - 1, SURFACE_REFERENCES).round().astype(np.int64)]
             surface_references = _surface(own_pos[ref], own, other, ground, params)
+            if params.object_height_p < 1.0 and not all(np.isfinite(ground_sweep_noise(r))
+                                                        for r in surface_references):
+                # too few reference places at ground level to measure the sweep's ground noise (a small or
+                # cross-season pair keeps few counterparts, most of them objects): without it the objectness
+                # test would let every place stand. Bare places beside the compared landmarks add ground
+                surface_references = _with_ground_places(surface_references, own_pos[compared], own_h[compared],
+                                                         own, other, ground, gate_m, params)
         idx = np.flatnonzero(asked)
         own_heights, other_heights = _surface(own_pos[idx], own, other, ground, params)
         surface[idx] = height_log_ratio(own_heights, other_heights, *surface_references)
@@ -257,6 +270,8 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                                                                 surface_references[1], params.object_height_p,
                                                                 1 + params.object_height_ring)
             relief = shown if measured_here else None
+            if measured_here and not all(np.isfinite(ground_sweep_noise(r)) for r in surface_references):
+                ground_noise = False  # the test could not be made: every place stands (said by the caller)
         if params.surface_overrules_links:
             # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
             # object stood is as often as chance allows (`alignment_support`'s displaced rate): where the
@@ -276,7 +291,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
                             & (absent[idx] < 0.5))
     return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments, surface, doubted,
-                   surface_references, flat, relief)
+                   surface_references, flat, relief, ground_noise)
 
 
 def _flat(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: SessionObservations,
@@ -302,6 +317,29 @@ def _flat(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: Sessi
         pick[low[stands]] = best[stands]
         high[low[stands]] = around[stands, best[stands]]
     return flat, pick, high
+
+
+def _with_ground_places(references: tuple[np.ndarray, np.ndarray], points: np.ndarray, sizes: np.ndarray,
+                        own: SessionObservations, other: SessionObservations, ground: HeightField, gate_m: float,
+                        params: ChangeParams) -> tuple[np.ndarray, np.ndarray]:
+    """`references` (own, other heights) with the surface heights at one bare place beside each of `points` (up
+    to `SURFACE_REFERENCES` of them, evenly spaced) appended: where the segment evidence takes its chance rate,
+    `probe_radius_factor` x the gate + 2 h away, at a golden-angle turn per landmark (deterministic). Objects only
+    add height, so the places at or below the ground measure the sweep's ground noise whatever stands on the
+    others (`surface.ground_sweep_noise`); the pairs also join the calibration as places that did not change."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) > SURFACE_REFERENCES:
+        keep = np.linspace(0, len(pts) - 1, SURFACE_REFERENCES).round().astype(np.int64)
+        pts, sizes = pts[keep], np.asarray(sizes)[keep]
+    if not len(pts):
+        return references
+    angle = np.arange(len(pts)) * np.pi * (3.0 - np.sqrt(5.0))
+    radius = params.probe_radius_factor * gate_m + 2.0 * np.nan_to_num(np.asarray(sizes, np.float64), nan=0.0)
+    places = pts.copy()
+    places[:, 0] += radius * np.cos(angle)
+    places[:, 1] += radius * np.sin(angle)
+    more = _surface(places, own, other, ground, params)
+    return np.concatenate([references[0], more[0]]), np.concatenate([references[1], more[1]])
 
 
 def _surface(points: np.ndarray, own: SessionObservations, other: SessionObservations, ground: HeightField,
@@ -449,6 +487,8 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
         support=support, unmapped_a=unmapped_a, unmapped_b=unmapped_b,
         tracks_a=tracks_a, tracks_b=tracks_b,
         without_relief=tuple(name for name, d in (("A", direct_a), ("B", direct_b)) if d.relief is False),
+        without_ground_noise=tuple(name for name, d in (("A", direct_a), ("B", direct_b))
+                                   if d.ground_noise is False),
     )
 
 
