@@ -98,6 +98,7 @@ def test_match_refuses_maps_of_different_worlds_and_records_the_chance(tmp_path,
     # the line names no match and nothing "accepted" (the window hypotheses over theta_S are chance here)
     line = capsys.readouterr().out
     assert "verification: no match" in line and "accepted" not in line and "over theta_S" in line
+    assert "the best candidate holds" in line and "B placed elsewhere" in line
     doc = json.loads((tmp_path / "different" / "match.json").read_text())
     ver = doc["verification"]
     assert doc["num_accepted"] > 0 and ver["support"] > 3  # chance hypotheses were verified

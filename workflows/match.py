@@ -75,9 +75,11 @@ class MatchResult:
         if ans is not None and ans.verification is not None:
             v = ans.verification
             if not v.accepted:
+                # the runner-up is the best alignment that puts B elsewhere, chance placements included: it may
+                # hold more pairs than the best candidate ("best support 6, runner-up 8" read as a contradiction)
                 found = ("" if v.best is None else
-                         f" (best support {len(v.best.associations)}, runner-up {v.runner_up_support}"
-                         f"{_chance_text(v)})")
+                         f" (the best candidate holds {len(v.best.associations)} associations, B placed elsewhere "
+                         f"{v.runner_up_support}{_chance_text(v)})")
                 return (f"{head}, verification: no match{found} ({self.times()}) -> "
                         f"{self.out_dir / 'match.json'}")
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
