@@ -186,22 +186,28 @@ def test_a_single_straight_line_makes_no_claim_it_cannot_separate(tmp_path):
     assert "not separable" in line and " m," not in line.split("pairs)")[1] and " deg" not in line.split("pairs)")[1]
 
 
-def test_correct_poses_at_low_altitude_are_not_refused_for_errors_the_fit_only_imagines(tmp_path):
-    """EKF poses of a 40 m flight (480x360; the seventh new-user sweep): only 25 of 97 pairs match, the poses'
-    random errors are large against the baselines, and the unconstrained fit ran to 121 m of height drift and
-    38 deg of shared attitude error, refusing correct poses ("heights drift by -121.1 m (+-35.7)"). Those
-    parameters explain the pairs no better than chance (F test, each pair one observation), so nothing is
-    claimed; a real fault on the same flight still explains most of the misfit and is refused."""
+@pytest.mark.parametrize("world, significant", [(19, False), (5, True)])
+def test_correct_poses_at_low_altitude_are_not_refused_for_errors_the_fit_only_imagines(tmp_path, world,
+                                                                                      significant):
+    """EKF poses of 40 m flights (480x360; the seventh new-user sweep): only 25-45 of 97 pairs match, the poses'
+    random errors are large against the baselines, and the unconstrained fit ran to 121 m (world 19) and 61 m
+    (world 5) of height drift with 38 and 21 deg of shared attitude error, refusing correct poses ("heights
+    drift by -121.1 m (+-35.7)"). On world 19 the fit explains the pairs no better than chance (F test, each
+    pair one observation); on world 5 it does significantly (pairs that share images share the EKF's slowly
+    varying errors) but removes less than half of their misfit. Either way nothing is claimed; a real fault on
+    the same flight is most of the misfit and is refused."""
     out = tmp_path / "low"
-    assert main(["synth", "--out", str(out), "--world-seed", "19", "--session-seed", "31", "--altitude", "40",
-                 "--frames", "50", "--width", "480", "--height", "360", "-q"]) == 0
+    assert main(["synth", "--out", str(out), "--world-seed", str(world), "--session-seed", "31", "--altitude",
+                 "40", "--frames", "50", "--width", "480", "--height", "360", "-q"]) == 0
     camera = next(iter(read_cameras_txt(out / "cameras.txt").values()))
     images = [out / "images" / n for n in read_poses_csv(out / "poses.csv")[0].names]
     ekf, _ = read_poses_csv(out / "poses_ekf.csv")
     result, verdict = pose_check.check(images, ekf, camera, Params())
     assert verdict.refusals == [] and not result.systematic_explains
-    assert result.systematic.explained_p > 0.01 and "no systematic error stands out" in result.line()
+    assert (result.systematic.explained_p < 0.01) == significant and result.systematic.explained_share < 0.5
+    assert "no systematic error stands out" in result.line()
     exact, _ = read_poses_csv(out / "poses.csv")
     for fault, expected in ((_drifting(exact, 20.0), "heights drift by +2"), (_on_a_plane(ekf, 40.0), "heights tilt")):
         result, verdict = pose_check.check(images, fault, camera, Params())
-        assert result.systematic.explained_p < 1e-3 and any(expected in r for r in verdict.refusals), verdict.refusals
+        assert result.systematic.explained_p < 1e-3 and result.systematic.explained_share > 0.8
+        assert any(expected in r for r in verdict.refusals), verdict.refusals

@@ -65,8 +65,10 @@ class PoseCheck:
     pairs: list[PairCheck] = field(default_factory=list)
     # the limit the systematic fit's condition index was held to (`PoseCheckParams.max_condition_index`)
     max_condition_index: float = float("inf")
-    # the significance level the fit had to reach (`PoseCheckParams.systematic_significance`)
+    # the significance level the fit had to reach and the share of the misfit it had to explain
+    # (`PoseCheckParams.systematic_significance`, `min_systematic_share`)
     systematic_significance: float = 1.0
+    min_systematic_share: float = 0.0
 
     @property
     def systematic_separable(self) -> bool:
@@ -77,9 +79,11 @@ class PoseCheck:
     @property
     def systematic_explains(self) -> bool:
         """Whether the fitted systematic errors explain the pairs significantly better than the poses as given
-        (`SystematicErrors.explained_p` below the level): otherwise the fit only shapes the poses' random errors
-        into parameters (which may then be large) and is neither judged nor reported as a measurement."""
-        return not self.systematic.explained_p > self.systematic_significance
+        (`SystematicErrors.explained_p` below the level) and are most of their misfit (`explained_share`):
+        otherwise the fit only shapes the poses' random errors into parameters (which may then be large) and is
+        neither judged nor reported as a measurement."""
+        s = self.systematic
+        return not (s.explained_p > self.systematic_significance or s.explained_share < self.min_systematic_share)
 
     @property
     def epipolar_p50_deg(self) -> float:
@@ -104,6 +108,7 @@ class PoseCheck:
             "attitude_bias_axis": [num(v) for v in s.attitude_bias_axis],
             "systematic_condition_index": num(s.condition_index),
             "systematic_f": num(s.explained_f), "systematic_p": num(s.explained_p),
+            "systematic_share": num(s.explained_share),
             "pairs_columns": ["a", "b", "kind", "inliers", "epipolar_px", "epipolar_fit_px", "in_front"],
             "pairs": [p.to_list() for p in self.pairs],
         }
@@ -120,7 +125,8 @@ class PoseCheck:
         if not self.systematic_separable:  # the fit's figures mean nothing here (one straight line): do not print
             text += f"height drift and tilt not separable on this flight (condition index {s.condition_index:.0f})"
         elif not self.systematic_explains:  # nor here: the fit explains no more than the random errors would
-            text += f"no systematic error stands out of the random ones (F {_fmt(s.explained_f, '.1f')})"
+            text += (f"no systematic error stands out of the random ones (F {_fmt(s.explained_f, '.1f')}, "
+                     f"{_fmt(100 * s.explained_share, '.0f')} % of the misfit)")
         else:
             text += f"height drift {_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg"
         return text + (f", {self.reversed_pairs} reversed" if self.reversed_pairs else "")
@@ -247,7 +253,7 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         share_beyond_gate=float(np.mean(med > gate_px)),
         reversed_pairs=sum(c.reversed(gate_px) for c in checks), reversed_passes=reversed_passes,
         systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index,
-        systematic_significance=params.systematic_significance)
+        systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share)
 
 
 def _working_scale(camera: Camera, params: PoseCheckParams) -> float:

@@ -34,12 +34,16 @@ class SystematicErrors:
     condition_index: float = float("nan")
     # whether the fit explains the pairs at all: the F statistic of the nested models (poses as given against
     # poses corrected by the six parameters), each checked pair one observation (its own random pose error moves
-    # all its matches alike, so pairs, not matches, are what is independent), and its p-value. Random pose errors
-    # alone let six free parameters "explain" a few percent (EKF poses at 40 m: F 0.7, while the unconstrained
-    # fit ran to 121 m of drift and 38 deg of attitude, refusing correct poses); a true systematic error removes
-    # most of the pairs' misfit (a 50 m drift on exact poses: p50 1.85 -> 0.30 px)
+    # all its matches alike, so pairs, not matches, are what is independent), its p-value, and the share of the
+    # pairs' misfit it removes (R^2 of the pairs). Random pose errors let six free parameters explain a part of
+    # the misfit: on correct EKF poses of 40 m flights the fit ran to 121 m of drift and 38 deg of attitude (F
+    # 1.9, p 0.13, a quarter explained) or, where 45 pairs share the EKF's slowly varying errors, to 61 m of drift
+    # at F 5.9 (p 2e-4: pairs that share images are not independent) with less than half explained. A true
+    # systematic error is most of the misfit (a 50 m drift on exact poses: p50 1.85 -> 0.30 px, 97 %; the same
+    # drift at 40 m on 11-25 pairs: 83-85 %)
     explained_f: float = float("nan")
     explained_p: float = float("nan")
+    explained_share: float = float("nan")
 
     def corrected(self, poses: Poses, flying_height_m: float) -> Poses:
         """`poses` with the fitted systematic errors taken off (what the images prefer)."""
@@ -129,8 +133,8 @@ def fit_systematic_errors(poses: Poses, pairs: list[PairMatches], focal_px: floa
                               x_scale="jac", max_nfev=100).x
         w_pair = pair_weights(theta)
     r = residuals(theta)
-    explained_f, explained_p = _explained(r / per_inlier, residuals(np.zeros(6)) / per_inlier, counts, w_pair,
-                                          len(theta))
+    explained_f, explained_p, share = _explained(r / per_inlier, residuals(np.zeros(6)) / per_inlier, counts,
+                                                 w_pair, len(theta))
     jac = _jacobian(residuals, theta, r)
     w = w_pair[of]
     bread = jac.T @ (w[:, None] * jac)
@@ -156,29 +160,31 @@ def fit_systematic_errors(poses: Poses, pairs: list[PairMatches], focal_px: floa
         height_tilt_azimuth_deg=float(np.degrees(np.arctan2(slope[1], slope[0]))) if g > 0 else float("nan"),
         attitude_bias_deg=float(np.degrees(angle)), attitude_bias_sigma_deg=float(np.degrees(a_sigma)),
         attitude_bias_axis=axis, parameters=tuple(float(v) for v in theta), condition_index=condition_index,
-        explained_f=explained_f, explained_p=explained_p)
+        explained_f=explained_f, explained_p=explained_p, explained_share=share)
 
 
 def _explained(fitted: np.ndarray, given: np.ndarray, counts: np.ndarray, w_pair: np.ndarray,
-               parameters: int) -> tuple[float, float]:
+               parameters: int) -> tuple[float, float, float]:
     """F test of the fitted systematic errors against none (`SystematicErrors.explained_f`) on the residuals of
     every inlier (concatenated by pair, `counts` each) as fitted and as given. Each pair is one observation: the
     median of its squared residuals (a few matches that fit the fundamental matrix but no pose, 30 px off, would
     otherwise decide a pair's mean: measured on exact poses), weighted by the fit's final robust weight of the
-    pair so that pairs set aside as grossly wrong do not decide it either way. (F, p-value); NaN when there are
-    too few pairs."""
+    pair so that pairs set aside as grossly wrong do not decide it either way. (F, p-value, the share of the
+    given misfit the fit removes); NaN when there are too few pairs."""
     from scipy.stats import f as f_distribution
 
     dof = len(counts) - parameters
     if dof < 1:
-        return float("nan"), float("nan")
+        return float("nan"), float("nan"), float("nan")
     cuts = np.cumsum(counts)[:-1]
     rss_given, rss_fitted = (float(np.sum(w_pair * [np.median(v**2) for v in np.split(r, cuts)]))
                              for r in (given, fitted))
+    gain = max(rss_given - rss_fitted, 0.0)
+    share = gain / rss_given if rss_given > 0.0 else float("nan")
     if rss_fitted <= 0.0:
-        return float("inf"), 0.0
-    f_stat = max(rss_given - rss_fitted, 0.0) / parameters / (rss_fitted / dof)
-    return float(f_stat), float(f_distribution.sf(f_stat, parameters, dof))
+        return float("inf"), 0.0, share
+    f_stat = gain / parameters / (rss_fitted / dof)
+    return float(f_stat), float(f_distribution.sf(f_stat, parameters, dof)), float(share)
 
 
 def _jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f0: np.ndarray,
