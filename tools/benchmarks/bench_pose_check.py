@@ -109,7 +109,7 @@ def _cases(work: Path, frames: int) -> list[tuple[str, bool, Any]]:
     # low flights of small images (the seventh new-user sweep): few pairs match and the poses' random errors are
     # large against the baselines, where an unconstrained systematic fit once refused correct EKF poses
     for world, session in LOW_FLIGHTS:
-        low = Case(f"world {world} at 40 m, 480x360", True, {"world_seed": world, "session_seed": session,
+        low = Case(f"world {world} flight {session} at 40 m", True, {"world_seed": world, "session_seed": session,
                                                              "altitude_m": 40.0, "width": 480, "height": 360})
         out.append((f"{low.name} (ekf)", True, lambda c=low: map_workflow.load_inputs(
             None, _session(work, c, LOW_FRAMES), ekf=True)))
@@ -139,7 +139,7 @@ def run_case(name: str, good: bool, inputs: Any, params: Any) -> dict[str, Any]:
             "drift": f"{s.height_drift_m:+.1f} +- {s.height_drift_sigma_m:.1f}",
             "tilt": f"{s.height_tilt_deg:.1f} +- {s.height_tilt_sigma_deg:.1f}",
             "attitude": f"{s.attitude_bias_deg:.2f} +- {s.attitude_bias_sigma_deg:.2f}",
-            "explained": f"{s.explained_f:.1f} ({s.explained_p:.1g})",
+            "explained": f"{s.explained_f:.1f} ({s.explained_p:.1g}), {100 * s.explained_share:.0f} %",
             "refusals": verdict.refusals, "warnings": verdict.warnings}
 
 
@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
         r = rows[-1]
         print(f"  {name}: {'refused' if r['refusals'] else 'kept'} ({r['cpu_s']} CPU-s)", flush=True)
     print("| poses | should be | verdict | pairs | H m | epipolar p50 px (gate) | after fit | reversed pairs | "
-          "height drift m | height tilt deg | attitude deg | fit F (p) | reason / warning |")
+          "height drift m | height tilt deg | attitude deg | fit F (p), share | reason / warning |")
     print("|---|---|---|---|---:|---|---:|---:|---|---|---|---|---|")
     for r in rows:
         reason = "; ".join(x.removeprefix("poses vs images: ") for x in (r["refusals"] or r["warnings"]))[:110]
