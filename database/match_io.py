@@ -248,7 +248,8 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     # hypothesis, else the largest one (then not accepted).
     if consensus is not None and consensus.get("transform") is not None:
         summary.source = "consensus"
-        summary.consensus_accepted = True
+        # a consensus that holds fewer than theta_S associations is no answer (written since 2026-12-04)
+        summary.consensus_accepted = _bool(consensus.get("accepted", True), "consensus.accepted", path)
         summary.consensus_transform = _sim3(consensus["transform"], "consensus.transform", path)
         summary.consensus_associations = parse_associations(consensus.get("associations"), "consensus.associations",
                                                             path)

@@ -104,8 +104,8 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         assoc = np.zeros((0, 2), np.int64) if best is None else best.associations
         answer = MatchAnswer(res, ver, bool(ver.accepted), transform, assoc, "verified", prior, tolerances, searched)
     elif res.consensus is not None:
-        answer = MatchAnswer(res, None, True, res.consensus.transform, res.consensus.associations, "consensus", prior,
-                             searched=ap)
+        answer = MatchAnswer(res, None, res.consensus.accepted, res.consensus.transform, res.consensus.associations,
+                             "consensus", prior, searched=ap)
     else:
         answer = MatchAnswer(res, None, False, None, np.zeros((0, 2), np.int64), "consensus", prior, searched=ap)
     answer.timings = {**clock, "total_s": time.perf_counter() - t0}

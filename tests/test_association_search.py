@@ -159,3 +159,31 @@ def test_peel_on_association_ids_equals_compact_then_peel(space_extra, k):
     assert np.array_equal(sel, want) and len(sel) > 0
     assert np.array_equal(got_ids, np.unique(np.concatenate([v1[want], v2[want]])))
     assert np.array_equal(got_ids[f1], v1[sel]) and np.array_equal(got_ids[f2], v2[sel])
+
+
+def test_a_consensus_that_holds_fewer_than_theta_s_is_no_answer():
+    """Two accepted window hypotheses of 8 associations each whose transforms agree (within theta_eps on the larger
+    one's landmarks) but whose associations, refitted together, leave fewer than theta_S within theta_eps: the
+    seventh new-user sweep's `match --no-verify` of two different worlds answered such a consensus of 5 (theta_S
+    7) as a match. The consensus must hold theta_S itself, the bar each hypothesis met."""
+    from sosmatch.plugin.association.hypotheses import WindowHypothesis, consensus_transform
+    from sosmatch.plugin.association.rigid import Transform
+
+    rng = np.random.default_rng(3)
+    params = dataclasses.replace(P, min_associations=7, distance_tolerance_m=2.0)
+    pa = rng.uniform(0, 100, (16, 3))
+    identity = Transform(np.eye(3), np.zeros(3), 1.0)
+    pairs = [np.column_stack([np.arange(k, k + 8)] * 2) for k in (0, 8)]
+
+    def hyp(assoc):
+        return WindowHypothesis((0, 16), (0, 16), 8, 8, assoc, 8.0, identity, 0.0, 0.0, 0.0, True)
+
+    def b_with(fitting: int) -> np.ndarray:  # B: the first `fitting` landmarks on A's, the others 3-6 m off
+        pb = pa.copy()
+        pb[fitting:] += rng.choice([-1, 1], (16 - fitting, 3)) * rng.uniform(3.0, 6.0, (16 - fitting, 3))
+        return pb
+
+    kept = consensus_transform(pa, b_with(8), [hyp(pairs[0]), hyp(pairs[1])], [0, 1], params)
+    assert kept is not None and len(kept.associations) == 8 and kept.accepted
+    few = consensus_transform(pa, b_with(5), [hyp(pairs[0]), hyp(pairs[1])], [0, 1], params)
+    assert few is not None and len(few.associations) == 5 and not few.accepted

@@ -88,8 +88,12 @@ def test_no_verify_paper_preset_and_an_ignored_prior(maps, tmp_path, caplog):
     assert mode["position_prior"].startswith("ignored") and not mode["paper"]
     assert "position prior ignored" in caplog.text
     summary = read_match(out / "match.json")
-    assert summary.source == "consensus" and summary.accepted
+    assert summary.source == "consensus" and summary.accepted and doc["consensus"]["accepted"] is True
     assert len(summary.associations) == doc["consensus"]["num_associations"]
+    # a consensus below theta_S is recorded as such and read as no answer (merge and changes refuse it)
+    doc["consensus"]["accepted"] = False
+    (out / "below.json").write_text(json.dumps(doc))
+    assert not read_match(out / "below.json").accepted
 
 
 def test_match_colmap_model_without_sizes(maps, tmp_path):

@@ -87,6 +87,10 @@ class MatchResult:
                     f"{v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg) "
                     f"({self.times()}) -> "
                     f"{self.out_dir / 'match.json'}")
+        if s.consensus is not None and not s.consensus.accepted:
+            return (f"{head}, no match: the consensus of {len(s.consensus.members)} agreeing hypotheses holds "
+                    f"{len(s.consensus.associations)} associations under its refitted transform, fewer than "
+                    f"theta_S; not verified ({self.times()}) -> {self.out_dir / 'match.json'}")
         if self.transform is None:
             return f"{head}, no match ({self.times()}) -> {self.out_dir / 'match.json'}"
         best = s.hypotheses[s.best]
@@ -187,7 +191,7 @@ def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
     if s.consensus is not None:
         consensus = {"members": s.consensus.members, "transform": transform_to_json(s.consensus.transform),
                      "num_associations": len(s.consensus.associations), "rms_m": _num(s.consensus.rms_m),
-                     "associations": s.consensus.associations.tolist()}
+                     "accepted": bool(s.consensus.accepted), "associations": s.consensus.associations.tolist()}
     return {
         "format": MATCH_FORMAT,
         "version": __version__,
