@@ -308,10 +308,12 @@ def _landmarks_above_cameras(positions: np.ndarray, sizes_m: np.ndarray, centers
     return above, under
 
 
-def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1) -> Verdict:
+def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
+          images_flying_height_m: float = float("nan")) -> Verdict:
     """Refusals and warnings for a map's figures (limits and their reasons: `QualityParams`). `min_landmarks`:
     fewer make no usable map (`sosmatch map` passes association.min_associations + 1: a match needs more than
-    theta_S landmarks in common)."""
+    theta_S landmarks in common). `images_flying_height_m`: the flying height the pose check's own matches
+    triangulate to (NaN: not checked), which the map's must agree with."""
     v = Verdict()
     if q.landmarks == 0:
         v.refusals.append("the map has no landmarks")
@@ -328,6 +330,12 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1) -> Verdi
                           "poses' vertical is wrong")
     if np.isfinite(q.flying_height_m) and q.flying_height_m <= 0:
         v.refusals.append(f"the cameras fly below the ground they see (height {q.flying_height_m:.1f} m)")
+    h_map, h_images = q.flying_height_m, images_flying_height_m
+    if np.isfinite(h_map) and np.isfinite(h_images) and h_map > 0 and h_images > 0 and \
+            max(h_map / h_images, h_images / h_map) > limits.max_height_disagreement:
+        v.refusals.append(f"the landmarks put the cameras {h_map:.0f} m above the ground, the images' own matches "
+                          f"{h_images:.0f} m (at most {limits.max_height_disagreement:g} x apart): the landmarks are "
+                          "triangulated wrong (poses that do not fit the images, or wrong tracks)")
     if np.isfinite(q.height_spread) and q.height_spread > limits.max_height_spread:
         v.refusals.append(f"landmark heights scatter by {q.height_spread:.1f} x the flying height "
                           f"({q.flying_height_m:.0f} m) around their neighbours' ground (at most "

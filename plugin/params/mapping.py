@@ -217,6 +217,12 @@ class QualityParams(Checked):
     # farther from its neighbours' ground than the cameras fly above it (a drone flies above what it maps; a pit
     # that deep under a tenth of the landmarks is no survey site); consistent maps 0.03-0.07, Seneca 0.04
     max_height_spread: float = positive(1.0)
+    # the flying height two ways: the cameras over the map's landmarks (segments tracked over many keyframes) and
+    # over the pose check's ORB matches triangulated pair by pair (`PoseCheck.flying_height_m`), with the same
+    # poses; beyond this factor apart one of them triangulated nonsense. Consistent maps 0.92-1.04 (43 synthetic,
+    # real and orthophoto maps at 40-1390 m); Seneca on EXIF poses of every 2nd frame 5.9 (landmarks at -693 ..
+    # +136 m under a 62 m flight, taken as a 347 m one), 8.5 and 599 on wrong poses
+    max_height_disagreement: float = within(1.5, 1.0, None)
     # warnings only
     # a whole block's ground steeper than this is rare (synthetic and real maps: <= 2 deg); GPS heights that drift
     # tilt it too (a 50 m drift over a 100-frame survey: 12-27 deg)

@@ -64,10 +64,12 @@ def assess(landmarks: Any, poses: Poses, long_tracks: int) -> MapQuality:
 def quality_stage(
     landmarks: Any, poses: Poses, camera: Camera, image_paths: list[Path], keypoints: list[np.ndarray],
     long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
+    images_flying_height_m: float = float("nan"),
 ) -> tuple[MapQuality, Verdict]:
-    """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged."""
+    """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
+    `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`)."""
     quality = assess(landmarks, poses, long_tracks)
-    verdict = judge(quality, limits, min_landmarks)
+    verdict = judge(quality, limits, min_landmarks, images_flying_height_m)
     for warning in verdict.warnings:
         log.warning("%s: %s", title or "map", warning)
     if figure is not None:

@@ -294,7 +294,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     long_tracks = int(np.count_nonzero(tracking.track_lengths() > tri.min_observations))
     quality, verdict = quality_stage(landmarks, kf_poses, camera, [inputs.image_paths[i] for i in keyframes],
                                      keypoints, long_tracks, params.quality, out.staged(FIGURE), str(out.path),
-                                     params.association.min_associations + 1)
+                                     params.association.min_associations + 1,
+                                     checked.check.flying_height_m if checked is not None else float("nan"))
     verdict = joined(verdict, checked.verdict if checked is not None else None)
     timings["quality"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
