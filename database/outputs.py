@@ -100,6 +100,16 @@ def _read_json(path: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else {}
 
 
+def unfinished_output(path: str | Path) -> str | None:
+    """The command whose run in directory `path` has not finished (its marker says incomplete: interrupted, or
+    running now), else None. What such a directory holds may be an earlier run's, made from other inputs."""
+    marker = _read_json(Path(path) / MARKER)
+    if marker is None or marker.get("format") != MARKER_FORMAT or marker.get("complete") is not False:
+        return None
+    command = marker.get("command")
+    return command if isinstance(command, str) else "?"
+
+
 def _holds_files(folder: Path) -> bool:
     """True when anything but directories lies in `folder` or below (True too when it cannot be read)."""
     try:

@@ -404,3 +404,21 @@ def test_a_file_output_given_as_a_folder_is_refused(tmp_path, capsys, argv):
     assert stop.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
     assert "ends in a separator, a folder: give a file name" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_session_whose_run_has_not_finished_is_not_used(toy, tmp_path, cli_error):
+    """The eighth new-user sweep killed `map --overwrite` (after editing the camera): the directory kept the old
+    complete map beside the unfinished run, and match, changes and export used it as the new one."""
+    import json
+    import shutil
+
+    root, a, b, _ = toy
+    killed = tmp_path / "A"
+    shutil.copytree(a.path, killed)
+    (killed / ".sosmatch-output.json").write_text(json.dumps(
+        {"format": "sosmatch output v1", "command": "map", "identity": "x", "complete": False}))
+    for argv in (["export", killed, "--csv", "--out", tmp_path / "a.csv"],
+                 ["match", killed, b.path, "--out", tmp_path / "M"]):
+        err = cli_error(*argv)
+        assert "a `sosmatch map` run into this directory has not finished" in err and str(killed) in err
+    assert not (tmp_path / "a.csv").exists() and not (tmp_path / "M").exists()
