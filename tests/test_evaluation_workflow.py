@@ -290,3 +290,22 @@ def test_evaluate_options_that_make_no_evaluation_are_one_line(sessions, tmp_pat
     _, a, b, _ = sessions
     err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--methods", "sosmatch", *flags)
     assert fragment in err and not (tmp_path / "E").exists()
+
+
+def test_a_session_against_itself_or_a_refused_map_is_refused(sessions, tmp_path, cli_error):
+    """The eighth new-user sweep: `evaluate S1 S1` (and S1 against a byte copy) scored average F1 1.000, and a map
+    that `sosmatch map` refused was scored F1 0 "limited by the front end"; match refuses both."""
+    import shutil
+
+    root, a, b, _ = sessions
+    err = cli_error("evaluate", a, a, "--out", tmp_path / "e1")
+    assert "A and B are the same session" in err and not (tmp_path / "e1").exists()
+    copy = tmp_path / "A_copy"
+    shutil.copytree(a, copy)
+    err = cli_error("evaluate", a, copy, "--methods", "sosmatch", "--out", tmp_path / "e2")
+    assert "holds the same landmark map as" in err and not (tmp_path / "e2").exists()
+    refused = tmp_path / "B_refused"
+    shutil.copytree(b, refused)
+    (refused / "run.json").write_text(json.dumps({"verdict": {"status": "refused", "refusals": ["no landmarks"]}}))
+    err = cli_error("evaluate", a, refused, "--methods", "sosmatch", "--out", tmp_path / "e3")
+    assert "`sosmatch map` refused this session" in err and not (tmp_path / "e3").exists()

@@ -17,10 +17,11 @@ import numpy as np
 
 from ...database.atomic import write_text_atomic
 from ...database.evaluation_io import read_match_hypotheses
+from ...database.landmark_map import check_two_maps, read_landmark_map
 from ...database.map_loading import read_map_noise
 from ...database.match_io import check_match_maps, read_match_json
 from ...database.outputs import fingerprint, open_output_dir
-from ...database.session_io import check_map_of_images
+from ...database.session_io import check_map_of_images, check_session_usable
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (
     Hypothesis,
@@ -315,6 +316,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     if unknown:
         raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
     check_options(ground_height, sweep_floor, repeats, max_observers, baseline_threads)
+    check_two_sessions(session_a, session_b, map_a, map_b, "sosmatch" in methods)
     case = case or f"{session_a.name} vs {session_b.name}"
     inputs = [session_a, session_b, map_a, map_b, match_dir, dem]
     identity = fingerprint({"inputs": [None if p is None else str(Path(p).resolve()) for p in inputs],
@@ -327,6 +329,25 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
                                ground_height, sweep_floor, repeats, max_observers, baseline_threads, overlap_test)
         taken.finish()
     return evaluation
+
+
+def check_two_sessions(session_a: Path, session_b: Path, map_a: str | Path | None, map_b: str | Path | None,
+                       with_maps: bool) -> None:
+    """InputError before any work when the pair is one session (by path), or (`with_maps`) when a map is one that
+    `sosmatch map` refused or has not finished, or the two maps are one map or copies (`check_two_maps`): a
+    session scored against itself came out as a perfect F1 1.000, a refused map as F1 0 "limited by the front
+    end"; `match` refuses both."""
+    if session_a.resolve() == session_b.resolve():
+        raise InputError("A and B are the same session: nothing to evaluate (give the sessions of two flights)",
+                         session_b)
+    if not with_maps:
+        return
+    maps = [Path(m) if m is not None else s for m, s in ((map_a, session_a), (map_b, session_b))]
+    for m in maps:
+        if (m / "landmarks.sosmap").is_file():
+            check_session_usable(m)
+    if all((m / "landmarks.sosmap").is_file() for m in maps):
+        check_two_maps(maps[0], maps[1], *(read_landmark_map(m / "landmarks.sosmap") for m in maps), "evaluate")
 
 
 def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, map_a: str | Path | None,
