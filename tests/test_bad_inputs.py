@@ -422,3 +422,21 @@ def test_a_session_whose_run_has_not_finished_is_not_used(toy, tmp_path, cli_err
         err = cli_error(*argv)
         assert "a `sosmatch map` run into this directory has not finished" in err and str(killed) in err
     assert not (tmp_path / "a.csv").exists() and not (tmp_path / "M").exists()
+
+
+def test_map_inputs_name_their_session_and_their_one_camera(tmp_path, cli_error):
+    """The eighth new-user sweep: `map --poses S --out S/mapout` wrote into the synth session it read; run.json
+    named the pose file as the camera of a synth session; a cameras.txt of two cameras beside the pose file was
+    answered with "no camera intrinsics: give --camera"."""
+    from sosmatch.workflows.map import load_inputs
+
+    s = tmp_path / "S"
+    assert main(["synth", "--out", str(s), "--frames", "4", "--width", "160", "--height", "120", "-q"]) == 0
+    err = cli_error("map", "--poses", s, "--out", s / "mapout")
+    assert "inside" in err and not (s / "mapout").exists()
+    assert load_inputs(None, s).sources["camera"] == str(s / "cameras.txt")
+    root = _disc_flight(tmp_path / "f", frames=3)
+    line = (root / "cameras.txt").read_text().strip().splitlines()[-1]
+    (root / "cameras.txt").write_text(f"{line}\n2{line[1:]}\n")
+    err = cli_error("map", "--images", root / "images", "--poses", root / "poses.csv", "--out", tmp_path / "M")
+    assert f"{root / 'cameras.txt'}: holds 2 cameras" in err and not (tmp_path / "M").exists()

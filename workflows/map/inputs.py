@@ -38,6 +38,15 @@ class MapInputs:
     sources: dict[str, str] = field(default_factory=dict)
 
 
+def _one_camera(cams: dict[int, Camera], source: Path) -> Camera | None:
+    """The one camera of `cams`; InputError naming `source` when it holds several (images of two sizes, two
+    drones: "no camera intrinsics: give --camera" sent a user after a file lying right there)."""
+    if len(cams) > 1:
+        raise InputError(f"holds {len(cams)} cameras (images of several sizes or cameras?): a map is made from one "
+                         "camera's images; map each camera's images on their own", source)
+    return next(iter(cams.values()), None)
+
+
 def _is_synth_session(path: Path) -> bool:
     return path.is_dir() and (path / "session.json").is_file() and (path / "poses.csv").is_file()
 
@@ -72,15 +81,17 @@ def load_inputs(
         pose_file = poses / ("poses_ekf.csv" if ekf else "poses.csv")
         pose_list, epsg = read_poses_csv(pose_file, convention)
         sources["poses"] = str(pose_file)
+        sources["session"] = str(poses)  # the folder given: an output inside it is inside an input
         cams = read_cameras_txt(poses / "cameras.txt")
-        cam_from_poses = next(iter(cams.values())) if len(cams) == 1 else None
+        cam_from_poses = _one_camera(cams, poses / "cameras.txt")
+        if cam_from_poses is not None:
+            sources["camera"] = str(poses / "cameras.txt")  # was recorded as the pose file
         if images is None:
             images = poses / "images"
     elif is_colmap_model(poses):
         pose_list, cams, _ = read_colmap_model_poses(poses)
         sources["poses"] = str(poses)
-        if len(cams) == 1:
-            cam_from_poses = next(iter(cams.values()))
+        cam_from_poses = _one_camera(cams, poses) if camera is None else None
     elif is_opensfm(poses):  # OpenDroneMap / OpenSfM: poses in the UTM grid of its reference_lla
         from ..poses import opensfm_poses
 
@@ -95,10 +106,8 @@ def load_inputs(
         sources["poses"] = str(poses)
         beside = poses.parent / "cameras.txt"  # where `sosmatch poses-from-exif` puts the intrinsics
         if camera is None and beside.is_file():
-            cams = read_cameras_txt(beside)
-            if len(cams) == 1:
-                cam_from_poses = next(iter(cams.values()))
-                sources["camera"] = str(beside)
+            cam_from_poses = _one_camera(read_cameras_txt(beside), beside)
+            sources["camera"] = str(beside)
     if camera is not None:
         cam = read_camera_file(camera)
         sources["camera"] = str(camera)
