@@ -211,3 +211,11 @@ def test_correct_poses_at_low_altitude_are_not_refused_for_errors_the_fit_only_i
         result, verdict = pose_check.check(images, fault, camera, Params())
         assert result.systematic.explained_p < 1e-3 and result.systematic.explained_share > 0.8
         assert any(expected in r for r in verdict.refusals), verdict.refusals
+
+
+def test_a_huge_condition_index_is_printed_in_powers_of_ten():
+    """A perfectly collinear orthophoto flight printed a 154-digit condition index in the map's summary line."""
+    from sosmatch.plugin.pose_check.systematic import SystematicErrors
+
+    assert SystematicErrors(condition_index=1.733e153).condition_text == "2e153"
+    assert SystematicErrors(condition_index=121.7).condition_text == "122"

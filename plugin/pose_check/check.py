@@ -123,7 +123,7 @@ class PoseCheck:
         s = self.systematic
         text = f"poses vs images: epipolar {self.epipolar_p50_px:.1f} px ({self.pairs_checked} pairs), "
         if not self.systematic_separable:  # the fit's figures mean nothing here (one straight line): do not print
-            text += f"height drift and tilt not separable on this flight (condition index {s.condition_index:.0f})"
+            text += f"height drift and tilt not separable on this flight (condition index {s.condition_text})"
         elif not self.systematic_explains:  # nor here: the fit explains no more than the random errors would
             text += (f"no systematic error stands out of the random ones (F {_fmt(s.explained_f, '.1f')}, "
                      f"{_fmt(100 * s.explained_share, '.0f')} % of the misfit)")

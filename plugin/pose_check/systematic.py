@@ -45,6 +45,13 @@ class SystematicErrors:
     explained_p: float = float("nan")
     explained_share: float = float("nan")
 
+    @property
+    def condition_text(self) -> str:
+        """The condition index as a person reads it: whole up to a million, beyond in powers of ten (a perfectly
+        collinear flight gave a 154-digit number)."""
+        ci = self.condition_index
+        return f"{ci:.0f}" if not ci >= 1e6 else f"{ci:.0e}".replace("e+", "e")
+
     def corrected(self, poses: Poses, flying_height_m: float) -> Poses:
         """`poses` with the fitted systematic errors taken off (what the images prefer)."""
         if not self.parameters:

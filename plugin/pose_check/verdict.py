@@ -48,7 +48,7 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams) -> Verdict:
     if not check.systematic_separable:
         v.warnings.append(f"poses vs images: the flight's geometry cannot tell a height drift, a tilt of the heights "
                           f"and an attitude error shared by all cameras apart (condition index "
-                          f"{s.condition_index:.0f}; a single straight line?): they are not checked")
+                          f"{s.condition_text}; a single straight line?): they are not checked")
         return v
     if not check.systematic_explains:
         # the poses' random errors, not a systematic one: the fit's parameters are no measurement (silent, as on
