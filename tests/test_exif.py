@@ -186,6 +186,13 @@ def test_telemetry_and_course_fallbacks(tmp_path):
     res2 = pfe.poses_from_images(img, telemetry=tele)
     assert res2.summary["attitude_sources"] == {"telemetry CSV": 3}
     assert res2.poses.rotations[0][1, 2] > 0.17  # rolled right: optical axis tilts north (left of east)
+    # the eighth new-user sweep: a telemetry file whose names match no image was ignored without a word; now the
+    # names match case-insensitively (a copy of the frames as .JPG) and a file of other images is an error
+    tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"F{k}.JPG,90,0,10\n" for k in range(3)))
+    assert pfe.poses_from_images(img, telemetry=tele).summary["attitude_sources"] == {"telemetry CSV": 3}
+    tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"shot_{k}.jpg,90,0,10\n" for k in range(3)))
+    with pytest.raises(InputError, match="none of its 3 rows names an image"):
+        pfe.poses_from_images(img, telemetry=tele)
 
 
 def test_missing_gps_is_a_clear_error(tmp_path, capsys):

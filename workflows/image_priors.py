@@ -60,6 +60,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -113,6 +114,26 @@ _TELEMETRY_KEYS = {
     "lon": ("gpslongitude", "longitude", "lon"),
     "alt": ("gpsaltitude", "altitude", "alt"),
 }
+
+
+def _telemetry_rows(tele: dict[str, dict[str, float]], names: list[str], telemetry: str | Path | None,
+                    images: Any) -> list[dict[str, float]]:
+    """Each image's telemetry row, by file name (case-insensitively: a copy of the frames as .JPG). A telemetry
+    file that names none of the images is an InputError (it was silently ignored: the attitudes then came from
+    the course over ground); one that misses some is a warning naming how many."""
+    if telemetry is None:
+        return [{} for _ in names]
+    folded = {k.lower(): v for k, v in tele.items()}
+    rows = [tele.get(n, folded.get(n.lower(), {})) for n in names]
+    missing = [n for n, r in zip(names, rows) if not r]
+    if names and len(missing) == len(names):
+        raise InputError(f"none of its {len(tele)} rows names an image of {images} (rows e.g. "
+                         f"{next(iter(tele), '-')!r}, images e.g. {names[0]!r}): a telemetry file of other images?",
+                         telemetry)
+    if missing:
+        log.warning("%s: no row for %d of %d images (e.g. %s): their poses come from their own tags", telemetry,
+                    len(missing), len(names), missing[0])
+    return rows
 
 
 def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
@@ -355,6 +376,7 @@ def read_image_priors(
     if how == "capture time":
         log.info("the images are taken in the order of their capture times (EXIF DateTimeOriginal), not by name")
         paths, metas = [paths[i] for i in order], [metas[i] for i in order]
+    rows = _telemetry_rows(tele, [m.path.name for m in metas], telemetry, images)
     damaged = [m for m in metas if m.problems]
     if damaged:
         log.warning("%d of %d images have damaged or implausible metadata, left out: %s", len(damaged), n,
@@ -363,7 +385,7 @@ def read_image_priors(
     lat, lon, alt = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     pos_src: Counter = Counter()
     for i, m in enumerate(metas):
-        t = tele.get(m.path.name, {})
+        t = rows[i]
         if m.has_gps:
             lat[i], lon[i] = m.latitude, m.longitude
             pos_src["EXIF GPS"] += 1
@@ -406,7 +428,7 @@ def read_image_priors(
     att_src: Counter = Counter()
     course = _course_from_neighbours(east, north)
     for i, m in enumerate(metas):
-        t = tele.get(m.path.name, {})
+        t = rows[i]
         gimbal = [m.xmp_float(k) for k in ("GimbalYawDegree", "GimbalPitchDegree", "GimbalRollDegree")]
         fixed = [m.xmp_float("Heading", "FlightYawDegree"), m.xmp_float("PitchAngle", "FlightPitchDegree"),
                  m.xmp_float("RollAngle", "FlightRollDegree")]
