@@ -128,6 +128,7 @@ def test_errors_are_user_errors(tmp_path, capsys):
     (["--frames", "-3"], "frames must be between 1 and"),  # was: rendered, exit 0
     (["--ekf-position-sigma", "-1"], "ekf sigmas must be >= 0"),  # was: rendered, exit 0
     (["--seed", "-1"], "seed must be >= 0"),  # was: ValueError traceback from numpy
+    (["--offset", "100000"], "look at ground outside the orthophoto"),  # was: black images, exit 0
 ])
 def test_settings_that_cannot_make_a_session_are_one_line(tmp_path, cli_error, flags, fragment):
     tif = write_geotiff(tmp_path / "geo.tif")

@@ -29,6 +29,7 @@ import math
 import warnings
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -136,6 +137,23 @@ def _stat(path: str | Path) -> list[int]:
     return [st.st_size, st.st_mtime_ns]
 
 
+def _check_over_the_raster(poses: Any, camera: Any, bounds: tuple[float, float, float, float],
+                           geotiff: str | Path) -> None:
+    """InputError, before any frame is rendered, when every frame's ground footprint lies off the orthophoto
+    (`--offset 100000` rendered five black images and called it a session); a warning naming how many when some
+    do."""
+    e0, n0, e1, n1 = bounds
+    off = 0
+    for r, c in zip(poses.rotations, poses.centers):
+        fp = np.asarray(osess.footprint(camera, r, c), dtype=np.float64).reshape(-1, 2)
+        off += int(fp[:, 0].max() < e0 or fp[:, 0].min() > e1 or fp[:, 1].max() < n0 or fp[:, 1].min() > n1)
+    if off == len(poses):
+        raise InputError(f"all {off} frames of the flight plan look at ground outside the orthophoto (it covers "
+                         f"x {e0:.0f}..{e1:.0f}, y {n0:.0f}..{n1:.0f}): check --offset and the path", geotiff)
+    if off:
+        log.warning("%d of %d frames look at ground outside the orthophoto (their images are blank)", off, len(poses))
+
+
 def run(
     geotiff: str | Path,
     out: str | Path,
@@ -184,6 +202,7 @@ def run(
     if len(centers) == 0:
         raise InputError("the flight plan has no frames", geotiff)
     poses = osess.make_poses(centers, headings, max_tilt_deg, seed)
+    _check_over_the_raster(poses, camera, ortho.bounds(), geotiff)
     out = Path(out)
     identity = fingerprint({"geotiff": str(Path(geotiff).resolve()), "stat": _stat(geotiff), "path": path,
                             "altitude_m": altitude_m, "width": width, "height": height, "hfov_deg": hfov_deg,
