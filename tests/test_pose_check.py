@@ -219,3 +219,15 @@ def test_a_huge_condition_index_is_printed_in_powers_of_ten():
 
     assert SystematicErrors(condition_index=1.733e153).condition_text == "2e153"
     assert SystematicErrors(condition_index=121.7).condition_text == "122"
+
+
+def test_a_pair_far_beyond_the_gate_is_named_though_the_median_is_fine(flight):
+    """The eighth new-user sweep: EXIF poses of 40 Seneca frames, four of them guessed 24-26 deg off, passed with
+    'epipolar 0.5 px (20 pairs)' and no word, one pair missing its matches by 271 px on a 22 px gate."""
+    images, poses, camera = _inputs(flight)
+    result, verdict = pose_check.check(images, poses, camera, Params())
+    assert not any("checked pairs miss" in w for w in verdict.warnings)
+    bad = replace(result, pairs=[replace(result.pairs[3], epipolar_px=12.0 * result.gate_px), *result.pairs[4:]])
+    verdict = judge_poses(bad, Params().pose_check, poses.names)
+    a, b = poses.names[result.pairs[3].a], poses.names[result.pairs[3].b]
+    assert verdict.refusals == [] and any(f"{a} / {b}" in w and "checked pairs miss" in w for w in verdict.warnings)

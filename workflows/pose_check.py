@@ -64,7 +64,7 @@ def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Par
         raise ValueError(f"{len(image_paths)} images for {len(poses)} poses")
     result = check_poses(poses, camera, image_features(list(image_paths), camera, params.pose_check),
                          params.pose_check, gate_px(params, camera) if gate is None else float(gate))
-    verdict = judge_poses(result, params.pose_check)
+    verdict = judge_poses(result, params.pose_check, poses.names)
     return result, verdict
 
 

@@ -254,6 +254,10 @@ class PoseCheckParams(Checked):
     # refusals / warnings (plugin.pose_check.judge_poses); systematic errors only beyond 2 sigma of their fit
     max_epipolar_gate_fraction: float = positive(1.0)  # median pair error beyond the tracker's epipolar gate
     warn_epipolar_gate_fraction: float = positive(0.25)
+    # single pairs whose median error exceeds this times the gate: named in a warning (their images' poses are
+    # wrong where the flight's median hides them; good EKF poses: at most 13 px on a 12 px gate, in 1 of 185-224
+    # pairs; EXIF poses whose attitudes the tie points could not solve: 271 px on a 22 px gate)
+    warn_pair_gate_fraction: float = positive(2.0)
     max_height_drift: float = positive(0.2)  # heights drifting over the flight, as a fraction of the flying height
     warn_height_drift: float = positive(0.05)
     max_height_tilt_deg: float = within(20.0, 0.0, 90.0)  # the same limit as the map's block tilt

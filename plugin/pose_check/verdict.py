@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ..map_quality import Verdict
@@ -9,8 +11,9 @@ from ..params import PoseCheckParams
 from .check import PoseCheck
 
 
-def judge_poses(check: PoseCheck, limits: PoseCheckParams) -> Verdict:
+def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] | None = None) -> Verdict:
     """Refusals (the poses contradict the images) and warnings (they fit them loosely); limits: PoseCheckParams.
+    `names`: the images' names (capture order), to name the pairs whose poses do not fit them.
 
     A systematic error is refused only when it exceeds its limit by more than two of its standard deviations
     (the evidence must be clear, not a noisy fit)."""
@@ -44,6 +47,18 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams) -> Verdict:
     elif check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * gate:
         v.warnings.append(f"poses vs images: the poses fit the images' matches only to {check.epipolar_p50_px:.1f} px "
                           f"(median of {check.pairs_checked} pairs; gate {gate:.1f} px): expect a sparse map")
+    # the median speaks for the flight; a few images whose poses are far off hide behind it (EXIF poses whose
+    # attitudes the tie points could not solve: 25 deg off, one pair 271 px beyond a 24 px gate, the rest 0.5 px)
+    pair_limit = limits.warn_pair_gate_fraction * gate
+    far = sorted((p for p in check.pairs if p.epipolar_px > pair_limit), key=lambda p: -p.epipolar_px)
+    if far and not v.refusals:
+        def name(i: int) -> str:
+            return names[i] if names is not None and i < len(names) else f"#{i}"
+        shown = ", ".join(f"{name(p.a)} / {name(p.b)} {p.epipolar_px:.0f} px" for p in far[:3])
+        more = ", ..." if len(far) > 3 else ""
+        v.warnings.append(f"poses vs images: {len(far)} of {check.pairs_checked} checked pairs miss their matches by "
+                          f"more than {pair_limit:.0f} px, {limits.warn_pair_gate_fraction:g} x the gate ({shown}"
+                          f"{more}): those images' poses do not fit them")
     s, h = check.systematic, check.flying_height_m
     if not check.systematic_separable:
         v.warnings.append(f"poses vs images: the flight's geometry cannot tell a height drift, a tilt of the heights "
