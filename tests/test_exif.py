@@ -327,3 +327,21 @@ def test_images_without_attitude_whose_orientations_cannot_be_solved_are_an_erro
     assert main(["map", "--images", str(img), "--pose-source", "exif", "--out", str(tmp_path / "s"),
                  "--no-progress"]) == 2
     assert "have no attitude tags and their orientations could not be solved" in capsys.readouterr().err
+
+
+def test_the_advice_for_a_missing_focal_length_is_one_that_can_be_followed(tmp_path):
+    """Images with their EXIF stripped: the error advised --sensor-width-mm (useless without a focal length in
+    mm: the same error came back) "or a cameras.txt" (poses-from-exif takes none)."""
+    from dataclasses import replace
+
+    from sosmatch.workflows.image_priors import camera_from_metadata
+
+    write_jpeg(tmp_path / "a.jpg", 47.0, -99.0)
+    meta = read_image_metadata(tmp_path / "a.jpg")
+    bare = replace(meta, focal_mm=None, focal_plane_px_per_mm=None, focal_35mm=None)
+    with pytest.raises(InputError, match="no focal length at all") as err:
+        camera_from_metadata(bare, sensor_width_mm=6.2)
+    assert "sosmatch poses" in str(err.value) and "--sensor-width-mm" not in str(err.value)
+    no_plane = replace(meta, focal_plane_px_per_mm=None, focal_35mm=None)
+    with pytest.raises(InputError, match="--sensor-width-mm"):
+        camera_from_metadata(no_plane)

@@ -207,8 +207,13 @@ def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = No
     if meta.focal_35mm:
         fx = meta.focal_35mm / FULL_FRAME_DIAGONAL_MM * full_frame_diagonal_px(w, h)
         return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLengthIn35mmFilm (full-frame diagonal)"
+    if meta.focal_mm:
+        advice = "give the sensor width (--sensor-width-mm)"
+    else:  # a sensor width needs a focal length in mm to go with it: without one it cannot help
+        advice = ("the images carry no focal length at all (EXIF stripped?): take poses and intrinsics from "
+                  "structure from motion (`sosmatch poses`), or give `sosmatch map` a pose CSV and --camera")
     raise InputError("no usable focal length in EXIF (FocalLength with FocalPlaneXResolution, or "
-                     "FocalLengthIn35mmFilm); give the sensor width (--sensor-width-mm) or a cameras.txt", meta.path)
+                     f"FocalLengthIn35mmFilm); {advice}", meta.path)
 
 
 def _course_from_neighbours(east: np.ndarray, north: np.ndarray) -> np.ndarray:
