@@ -440,3 +440,16 @@ def test_object_ids_the_evaluation_counts_by_are_checked(session_dir, tmp_path):
     (broken / "objects.csv").write_text("\n".join(lines + [lines[2]]) + "\n")
     with pytest.raises(InputError, match="is listed more than once"):
         load_synth_session(broken)
+
+
+def test_wrong_types_from_python_are_input_errors():
+    """The eighth new-user sweep, from Python: SynthConfig(width=320.5) passed its checks and failed in the
+    renderer ("slice indices must be integers"), width="320" with a TypeError inside validate()."""
+    from sosmatch.plugin.errors import InputError
+    from sosmatch.workflows.synth import SynthConfig
+
+    for kwargs, fragment in (({"width": 320.5}, "width must be an integer"), ({"width": "320"}, "an integer"),
+                             ({"shift_m": ("a", 1)}, "a list of numbers"), ({"reverse": 1}, "true or false")):
+        with pytest.raises(InputError, match=fragment):
+            SynthConfig(**kwargs).validate()
+    SynthConfig(altitude_m=80, shift_m=[1, 2], sun_azimuth_deg=None).validate()  # ints for floats, lists: fine

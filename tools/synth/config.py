@@ -169,7 +169,13 @@ class SynthConfig:
         def bad(msg: str) -> None:
             raise InputError(msg)
 
-        # every number first: a NaN passes each "< 0" and "between" test below and failed deep in the renderer
+        # every type first: SynthConfig(width=320.5) passed and failed in the renderer's slicing, width="320" in
+        # the range tests below (tracebacks from Python callers; the CLI parses types itself)
+        for f in dataclasses.fields(self):
+            problem = _type_problem(str(f.type), getattr(self, f.name))
+            if problem:
+                bad(f"{f.name} must be {problem}, got {getattr(self, f.name)!r}")
+        # every number then: a NaN passes each "< 0" and "between" test below and failed deep in the renderer
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if any(isinstance(v, float) and not math.isfinite(v)
@@ -240,6 +246,32 @@ class SynthConfig:
         if self.geotag_yaw_fault_lines and (self.geotags != "dji" or self.flight != "lawnmower"):
             bad("a yaw fault on flight lines needs geotags=dji and a lawnmower flight")
 
+
+def _number(v: object, integer: bool = False) -> bool:
+    if isinstance(v, bool):
+        return False
+    return isinstance(v, int) if integer else isinstance(v, (int, float))
+
+
+def _type_problem(annotation: str, value: object) -> str:
+    """What `value` should be for a field annotated `annotation` ("" when it is)."""
+    if annotation.endswith("| None"):
+        if value is None:
+            return ""
+        annotation = annotation[: -len("| None")].strip()
+    if annotation == "int":
+        return "" if _number(value, integer=True) else "an integer"
+    if annotation == "float":
+        return "" if _number(value) else "a number"
+    if annotation == "bool":
+        return "" if isinstance(value, bool) else "true or false"
+    if annotation == "str":
+        return "" if isinstance(value, str) else "text"
+    if annotation.startswith("tuple["):
+        integer = annotation.startswith("tuple[int")
+        ok = isinstance(value, (tuple, list)) and all(_number(v, integer) for v in value)
+        return "" if ok else f"a list of {'integers' if integer else 'numbers'}"
+    return ""
 
 def _aspect(text: str) -> tuple[float, float]:
     """("16:9") -> (16.0, 9.0); ValueError on anything else."""
