@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--refine only applies with --no-verify (verification already refines its winner)")
     options = batch.BatchOptions(nearest=args.nearest, ekf=args.ekf, merge=not args.no_merge, refine=args.refine,
                                  verify=not args.no_verify, changes=not args.no_changes,
-                                 progress=not args.no_progress, overwrite=args.overwrite)
+                                 progress=not (args.no_progress or args.quiet), overwrite=args.overwrite)
     with make_executor(args.workers, args.scheduler, args.dask_local) as executor:
         report = batch.run(args.flights_dir, args.out, params, executor, options)
     done = sum(s["status"] == "done" for s in report.sessions)

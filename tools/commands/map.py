@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention, args.ekf,
                                           args.strict)
     summary = map_workflow.run(params, inputs, args.out, overwrite=args.overwrite, text_model=args.text,
-                               keep_cache=args.keep_cache, progress=not args.no_progress and sys.stderr.isatty(),
-                               workers=args.workers)
+                               keep_cache=args.keep_cache, workers=args.workers,
+                               progress=not (args.no_progress or args.quiet) and sys.stderr.isatty())
     print(summary.line())
     return 0
