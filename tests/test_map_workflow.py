@@ -475,3 +475,10 @@ def test_a_low_flight_keeps_the_landmarks_its_views_allow(tmp_path, capsys):
     observations = np.loadtxt(out / "landmarks.csv", delimiter=",", skiprows=1, usecols=6, ndmin=1)
     print(f"{len(observations)} landmarks, {np.sum(observations > 5)} with more than 5 observations")
     assert len(observations) >= 3 * max(1, int(np.sum(observations > 5)))
+
+
+def test_the_summary_points_at_the_published_pose_check_record(session):
+    """The eighth new-user sweep: MapSummary.pose_check.out named OUT/.partial/pose_check.json, gone once the map
+    was published."""
+    _, _, out, summary = session
+    assert summary.pose_check.out == out / "pose_check.json" and summary.pose_check.out.is_file()

@@ -7,7 +7,7 @@ import logging
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -311,6 +311,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "min_observations": params.triangulation.min_observations,
         **{f"points_{k}": v for k, v in landmarks.counts.items()},
     }
+    if checked is not None:  # the record is written in the staging folder and published beside the map
+        checked = replace(checked, out=out.path / POSE_CHECK)
     summary = MapSummary(out.path, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
                          len(landmarks), map_bytes, timings["total"], cached, counts, timings, quality, verdict,
                          checked)
