@@ -165,6 +165,14 @@ def read_image(path: str | Path) -> np.ndarray:
     return out
 
 
+def check_images_decode(paths: Iterable[str | Path]) -> None:
+    """InputError naming the first image whose pixels do not decode whole (`read_image`: a truncated JPEG), one
+    image in memory at a time. For stages that hand the files to a reader that half-decodes quietly (COLMAP's
+    extractor registered a JPEG cut to 150 kB, whose map then refused it)."""
+    for path in paths:
+        read_image(path)
+
+
 def read_gray(path: str | Path) -> np.ndarray:
     """Read an image file as (H, W) uint8 gray, on its stored pixel grid like `read_image` (OpenCV's imread would
     turn it by its EXIF Orientation tag, while the poses, the intrinsics and COLMAP see the stored grid); raise

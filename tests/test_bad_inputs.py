@@ -440,3 +440,18 @@ def test_map_inputs_name_their_session_and_their_one_camera(tmp_path, cli_error)
     (root / "cameras.txt").write_text(f"{line}\n2{line[1:]}\n")
     err = cli_error("map", "--images", root / "images", "--poses", root / "poses.csv", "--out", tmp_path / "M")
     assert f"{root / 'cameras.txt'}: holds 2 cameras" in err and not (tmp_path / "M").exists()
+
+
+def test_poses_refuses_a_truncated_image_as_map_does(tmp_path, cli_error):
+    """The eighth new-user sweep: `sosmatch poses` registered a JPEG cut short (COLMAP's reader decodes what is
+    there), and `map` then refused that image; now both say so, before any feature is extracted."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    (tmp_path / "imgs").mkdir()
+    for k in range(4):
+        cv2.imwrite(str(tmp_path / "imgs" / f"f{k}.jpg"), rng.integers(0, 255, (120, 160, 3), dtype=np.uint8))
+    cut = tmp_path / "imgs" / "f2.jpg"
+    cut.write_bytes(cut.read_bytes()[: cut.stat().st_size // 2])
+    err = cli_error("poses", tmp_path / "imgs", "--out", tmp_path / "P")
+    assert f"{cut}: corrupt or truncated image" in err

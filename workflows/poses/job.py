@@ -17,6 +17,7 @@ import numpy as np
 
 from ...database.atomic import write_text_atomic
 from ...database.cameras import format_cameras_txt
+from ...database.images import check_images_decode
 from ...database.outputs import fingerprint, open_output_dir
 from ...database.poses import format_poses_csv
 from ...plugin.errors import InputError
@@ -91,6 +92,8 @@ def compute_poses(image_dir: Path, work: Path, params: Params, identity: str,
     if priors is None:
         priors = read_image_priors(image_dir, telemetry, sensor_width_mm=sensor_width_mm,
                                    takeoff_altitude_m=takeoff_altitude_m)
+    if _stage_done(work, "match", identity) is None:  # COLMAP's reader half-decodes a truncated JPEG quietly
+        check_images_decode(image_dir / n for n in priors.names)
     result = _compute(image_dir, work, result_dir, priors, params, identity, nominal_height_m)
     _mark_stage(work, "result", identity, {})
     return result
