@@ -482,3 +482,15 @@ def test_the_summary_points_at_the_published_pose_check_record(session):
     was published."""
     _, _, out, summary = session
     assert summary.pose_check.out == out / "pose_check.json" and summary.pose_check.out.is_file()
+
+
+def test_byte_identical_images_are_named(tmp_path, caplog):
+    """The eighth new-user sweep: two byte-identical copies under other names were mapped without a word (and
+    the pose check called the identical pair 'reversed')."""
+    from sosmatch.workflows.map.inputs import warn_duplicate_images
+
+    paths = [tmp_path / n for n in ("a.jpg", "b.jpg", "a_copy.jpg")]
+    with caplog.at_level("WARNING"):
+        assert warn_duplicate_images(paths, ["x", "y", "x"]) == [["a.jpg", "a_copy.jpg"]]
+    assert "a.jpg = a_copy.jpg" in caplog.text
+    assert warn_duplicate_images(paths, ["x", "y", "z"]) == []

@@ -202,7 +202,23 @@ def image_digests(inputs: MapInputs) -> list[str]:
             digests.append(sha256_file(p))
         except OSError as exc:
             raise InputError(f"cannot read image: {exc.strerror or exc}", p) from None
+    warn_duplicate_images(inputs.image_paths, digests)
     return digests
+
+
+def warn_duplicate_images(paths: list[Path], digests: list[str]) -> list[list[str]]:
+    """Groups of images with the same contents under different names (a copy made twice), said in one warning:
+    two poses for one picture, and the pose check reads the identical pair as 'reversed' (it has no baseline in
+    the images)."""
+    groups: dict[str, list[str]] = {}
+    for p, d in zip(paths, digests):
+        groups.setdefault(d, []).append(p.name)
+    same = [names for names in groups.values() if len(names) > 1]
+    if same:
+        log.warning("%d image(s) are byte-identical copies of others (%s): the same picture under two names, "
+                    "with two poses; remove the copies", sum(len(g) - 1 for g in same),
+                    "; ".join(" = ".join(g) for g in same[:3]) + (" ..." if len(same) > 3 else ""))
+    return same
 
 
 def input_fingerprints(inputs: MapInputs, digests: list[str] | None = None) -> dict[str, str]:
