@@ -22,6 +22,7 @@ from typing import NoReturn
 from ..plugin import __version__
 from ..plugin.errors import InputError
 from . import commands
+from .commands._common import user_path
 
 EXIT_USER_ERROR = 2
 # a device or quota that is full: the user frees space and re-runs (the run resumes)
@@ -64,14 +65,6 @@ def build_parser() -> argparse.ArgumentParser:
                 action.type = user_path
         cmd.set_defaults(_run=module.run)
     return parser
-
-
-def user_path(text: str) -> Path:
-    """A path argument. An empty one (`--out "$OUT"` with OUT unset) became Path('.'): match wrote its outputs
-    into the current folder and map read it as the image folder ('.: only 0 image(s) have a pose')."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("empty path (an unset shell variable?)")
-    return Path(text)
 
 
 def _setup_logging(verbose: int, quiet: bool) -> None:

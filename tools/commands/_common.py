@@ -8,15 +8,22 @@ from pathlib import Path
 from ...plugin.params import Params
 
 
-def output_file(text: str) -> Path:
-    """A path argument that names a file to write: empty, or ending in a path separator (`--out exports/`, a
-    folder meant; the Path made of it drops the slash, and the export was written as a file named `exports`),
-    it is refused as a usage error."""
+def user_path(text: str) -> Path:
+    """A path argument (every `type=Path` argument of every command is made this one, `tools.cli`). An empty one
+    (`--out "$OUT"` with OUT unset) became Path('.'): match wrote its outputs into the current folder and map read
+    it as the image folder ('.: only 0 image(s) have a pose')."""
     if not text.strip():
         raise argparse.ArgumentTypeError("empty path (an unset shell variable?)")
+    return Path(text)
+
+
+def output_file(text: str) -> Path:
+    """A path argument that names a file to write (`user_path`), refused as a usage error when it ends in a path
+    separator (`--out exports/`, a folder meant; the Path made of it drops the slash, and the export was written
+    as a file named `exports`)."""
     if text.endswith(("/", "\\")):
         raise argparse.ArgumentTypeError(f"{text!r} ends in a separator, a folder: give a file name")
-    return Path(text)
+    return user_path(text)
 
 
 def add_params_arguments(parser: argparse.ArgumentParser) -> None:
