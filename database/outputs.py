@@ -100,14 +100,25 @@ def _read_json(path: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else {}
 
 
+def _marker(path: str | Path) -> dict[str, Any] | None:
+    """Directory `path`'s output marker when it is one sosmatch wrote (its format), else None."""
+    marker = _read_json(Path(path) / MARKER)
+    return marker if marker is not None and marker.get("format") == MARKER_FORMAT else None
+
+
+def output_command(path: str | Path) -> str | None:
+    """The sosmatch command whose output directory `path` is (its marker), else None."""
+    command = (_marker(path) or {}).get("command")
+    return command if isinstance(command, str) else None
+
+
 def unfinished_output(path: str | Path) -> str | None:
     """The command whose run in directory `path` has not finished (its marker says incomplete: interrupted, or
     running now), else None. What such a directory holds may be an earlier run's, made from other inputs."""
-    marker = _read_json(Path(path) / MARKER)
-    if marker is None or marker.get("format") != MARKER_FORMAT or marker.get("complete") is not False:
+    marker = _marker(path)
+    if marker is None or marker.get("complete") is not False:
         return None
-    command = marker.get("command")
-    return command if isinstance(command, str) else "?"
+    return output_command(path) or "?"
 
 
 def _holds_files(folder: Path) -> bool:

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from ...database.images import image_files
-from ...database.outputs import MARKER
+from ...database.outputs import output_command
 from ...plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -68,16 +67,6 @@ NOT_FLIGHTS = (".", "_")  # folder names that are never flights: hidden ones, an
 NOT_FLIGHT_OUTPUTS = ("batch", "match", "merge", "changes", "evaluate", "demo", "segment")
 
 
-def _made_by(folder: Path) -> str | None:
-    """The sosmatch command whose output `folder` is (its marker), or None."""
-    try:
-        marker = json.loads((folder / MARKER).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    command = marker.get("command") if isinstance(marker, dict) else None
-    return command if isinstance(command, str) else None
-
-
 def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) -> list[Flight]:
     """Flights in the sub-folders of `flights_dir`, sorted by name; hidden folders and `exclude` are skipped."""
     root = Path(flights_dir)
@@ -100,7 +89,7 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
                              root) from None
         if PAIR_SEP in folder.name:
             raise InputError(f"flight folder names may not contain {PAIR_SEP!r} (used for pair names)", folder)
-        made_by = _made_by(folder)
+        made_by = output_command(folder)
         if made_by in NOT_FLIGHT_OUTPUTS:  # e.g. an earlier batch's output kept beside the flights
             log.warning("%s: an output of `sosmatch %s`, not a flight; skipped", folder, made_by)
             continue
