@@ -230,12 +230,9 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
             and other.images is not None and np.any(asked)):
         measured_here = surface_references is None
         if surface_references is None:
-            ref = np.flatnonzero(compared & (index >= 0))
-            if len(ref) > SURFACE_REFERENCES:
-                ref = ref[np.linspace(0, len(ref) - 1, SURFACE_REFERENCES).round().astype(np.int64)]
+            ref = _evenly(np.flatnonzero(compared & (index >= 0)), SURFACE_REFERENCES)
             surface_references = _surface(own_pos[ref], own, other, ground, params)
-            if params.object_height_p < 1.0 and not all(np.isfinite(ground_sweep_noise(r))
-                                                        for r in surface_references):
+            if params.object_height_p < 1.0 and not _ground_noise_known(surface_references):
                 # too few reference places at ground level to measure the sweep's ground noise (a small or
                 # cross-season pair keeps few counterparts, most of them objects): without it the objectness
                 # test would let every place stand. Bare places beside the compared landmarks add ground
@@ -270,7 +267,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                                                                 surface_references[1], params.object_height_p,
                                                                 1 + params.object_height_ring)
             relief = shown if measured_here else None
-            if measured_here and not all(np.isfinite(ground_sweep_noise(r)) for r in surface_references):
+            if measured_here and not _ground_noise_known(surface_references):
                 ground_noise = False  # the test could not be made: every place stands (said by the caller)
         if params.surface_overrules_links:
             # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
@@ -319,6 +316,19 @@ def _flat(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: Sessi
     return flat, pick, high
 
 
+def _evenly(indices: np.ndarray, limit: int) -> np.ndarray:
+    """At most `limit` of `indices`, evenly spaced over them (bounded cost on large maps)."""
+    if len(indices) <= limit:
+        return indices
+    return indices[np.linspace(0, len(indices) - 1, limit).round().astype(np.int64)]
+
+
+def _ground_noise_known(references: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether both sessions' reference heights hold enough places at ground level to measure the sweep's ground
+    noise (`surface.ground_sweep_noise`), the scale of the objectness test."""
+    return all(np.isfinite(ground_sweep_noise(r)) for r in references)
+
+
 def _with_ground_places(references: tuple[np.ndarray, np.ndarray], points: np.ndarray, sizes: np.ndarray,
                         own: SessionObservations, other: SessionObservations, ground: HeightField, gate_m: float,
                         params: ChangeParams) -> tuple[np.ndarray, np.ndarray]:
@@ -327,10 +337,8 @@ def _with_ground_places(references: tuple[np.ndarray, np.ndarray], points: np.nd
     `probe_radius_factor` x the gate + 2 h away, at a golden-angle turn per landmark (deterministic). Objects only
     add height, so the places at or below the ground measure the sweep's ground noise whatever stands on the
     others (`surface.ground_sweep_noise`); the pairs also join the calibration as places that did not change."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(pts) > SURFACE_REFERENCES:
-        keep = np.linspace(0, len(pts) - 1, SURFACE_REFERENCES).round().astype(np.int64)
-        pts, sizes = pts[keep], np.asarray(sizes)[keep]
+    keep = _evenly(np.arange(len(points)), SURFACE_REFERENCES)
+    pts, sizes = np.asarray(points, dtype=np.float64).reshape(-1, 3)[keep], np.asarray(sizes)[keep]
     if not len(pts):
         return references
     angle = np.arange(len(pts)) * np.pi * (3.0 - np.sqrt(5.0))
