@@ -301,13 +301,13 @@ def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
 
 
 def _camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
-                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str]]:
+                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str], list[str]]:
     """One camera per make + model + image size (the median focal length of its images), the camera of every
     image and the intrinsics source of each camera. Without any usable focal length the camera gets COLMAP's
-    default guess (1.2 x the longer side) with a warning, or InputError when `strict`."""
+    default guess (1.2 x the longer side) with a warning (also returned, last), or InputError when `strict`."""
     keys = sorted({m.camera_key for m in metas}, key=lambda k: [m.camera_key for m in metas].index(k))
     index = np.array([keys.index(m.camera_key) for m in metas], dtype=np.int64)
-    cameras, sources = [], []
+    cameras, sources, warnings = [], [], []
     for g, key in enumerate(keys):
         members = [m for m, i in zip(metas, index) if i == g]
         found = []
@@ -320,9 +320,9 @@ def _camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
         w, h = key[2], key[3]
         if not found:
             f = 1.2 * max(w, h)
-            log.warning("%s (%dx%d, %d images): no usable focal length in EXIF; starting from %.0f px "
-                        "(structure from motion estimates it)", f"{key[0]} {key[1]}".strip() or "camera", w, h,
-                        len(members), f)
+            warnings.append(f"{f'{key[0]} {key[1]}'.strip() or 'camera'} ({w}x{h}, {len(members)} images): no usable "
+                            f"focal length in EXIF; starting from {f:.0f} px (structure from motion estimates it)")
+            log.warning("%s", warnings[-1])
             cameras.append(Camera(w, h, f, f, w / 2.0, h / 2.0))
             sources.append("none in EXIF (1.2 x the longer side)")
             continue
@@ -333,7 +333,7 @@ def _camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
         c0 = found[0][0]
         cameras.append(Camera(c0.width, c0.height, float(np.median(fxs)), float(np.median(fys)), c0.cx, c0.cy))
         sources.append(found[0][1])
-    return cameras, index, sources
+    return cameras, index, sources, warnings
 
 
 def check_prior_options(mount: str | np.ndarray, sensor_width_mm: float | None, epsg: int | None,
@@ -475,7 +475,8 @@ def read_image_priors(
                  "along the course over ground (%d of them at turns of the flight, where the course says nothing "
                  "of the heading)", n_course, n, n_turns)
 
-    cameras, camera_index, intrinsics_sources = _camera_groups(metas, sensor_width_mm, strict_intrinsics)
+    cameras, camera_index, intrinsics_sources, camera_warnings = _camera_groups(metas, sensor_width_mm,
+                                                                                strict_intrinsics)
     m0 = metas[0]
     summary = {
         "images": n,
@@ -496,6 +497,7 @@ def read_image_priors(
         "roll_sign": roll_sign,
         "meridian_convergence_deg": float(np.mean(north_az)),
         "intrinsics_source": intrinsics_sources[0],
+        "warnings": camera_warnings,  # those a consumer's own record must count (`poses`' poses.json)
         "cameras": [{"make_model": _make_model(next(m for m, i in zip(metas, camera_index) if i == g)),
                      "images": int(np.sum(camera_index == g)), "width": c.width, "height": c.height,
                      "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "intrinsics_source": intrinsics_sources[g]}

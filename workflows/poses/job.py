@@ -122,9 +122,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     db = work / "database.db"
     sp = params.sfm
     # the priors' own warnings count too (a camera without a focal length in EXIF was printed but not counted)
-    warnings: list[str] = [f"camera {c['width']}x{c['height']} ({c['images']} images): no usable focal length in "
-                           "EXIF; structure from motion estimates it" for c in priors.summary.get("cameras", [])
-                           if str(c.get("intrinsics_source", "")).startswith("none")]
+    warnings: list[str] = list(priors.summary.get("warnings", []))
 
     if len(priors.names) < MIN_IMAGES:  # said before the work: COLMAP would report "0 registered", not why
         raise InputError(f"{len(priors.names)} image(s): structure from motion needs at least {MIN_IMAGES} "
