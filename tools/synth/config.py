@@ -273,6 +273,7 @@ def _type_problem(annotation: str, value: object) -> str:
         return "" if ok else f"a list of {'integers' if integer else 'numbers'}"
     return ""
 
+
 def _aspect(text: str) -> tuple[float, float]:
     """("16:9") -> (16.0, 9.0); ValueError on anything else."""
     try:
