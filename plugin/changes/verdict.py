@@ -23,15 +23,13 @@ from .evidence import (
     segment_hits,
     view_correlation,
 )
+from .objectness import evenly, flat_landmarks, ground_noise_known, ring_heights, surface_heights, with_ground_places
 from .observations import SessionObservations, below_the_ground, ground_height_field, in_view, observed_area
 from .support import AlignmentSupport, alignment_support
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
 from .surface import (
-    footprint_places,
-    ground_sweep_noise,
     height_limit,
     height_log_ratio,
-    heights_above_ground,
     shows_relief,
     stands_above_ground,
 )
@@ -204,7 +202,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     """`references`: positions and sizes of the own map's landmarks with a counterpart (for the presence rate);
     None: those among own_pos. `deep`: landmarks below the ground (`below_the_ground`), compared with nothing.
     `own`: the session these landmarks belong to (its segments give each one's own presence rate). With the
-    `ground` and both sessions' images, each tested landmark's surface heights are evidence too (`_surface`),
+    `ground` and both sessions' images, each tested landmark's surface heights are evidence too (`surface_heights`),
     calibrated on `surface_references` (None: measured here on the landmarks with a counterpart); with
     `params.surface_overrules_links`, every compared landmark's, and a counterpart they contradict more than
     it supports presence (`counterpart_log_ratio`: log P(counterpart | absent) / P(counterpart | present))
@@ -230,21 +228,21 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
             and other.images is not None and np.any(asked)):
         measured_here = surface_references is None
         if surface_references is None:
-            ref = _evenly(np.flatnonzero(compared & (index >= 0)), SURFACE_REFERENCES)
-            surface_references = _surface(own_pos[ref], own, other, ground, params)
-            if params.object_height_p < 1.0 and not _ground_noise_known(surface_references):
+            ref = evenly(np.flatnonzero(compared & (index >= 0)), SURFACE_REFERENCES)
+            surface_references = surface_heights(own_pos[ref], own, other, ground, params)
+            if params.object_height_p < 1.0 and not ground_noise_known(surface_references):
                 # too few reference places at ground level to measure the sweep's ground noise (a small or
                 # cross-season pair keeps few counterparts, most of them objects): without it the objectness
                 # test would let every place stand. Bare places beside the compared landmarks add ground
-                surface_references = _with_ground_places(surface_references, own_pos[compared], own_h[compared],
+                surface_references = with_ground_places(surface_references, own_pos[compared], own_h[compared],
                                                          own, other, ground, gate_m, params)
         idx = np.flatnonzero(asked)
-        own_heights, other_heights = _surface(own_pos[idx], own, other, ground, params)
+        own_heights, other_heights = surface_heights(own_pos[idx], own, other, ground, params)
         surface[idx] = height_log_ratio(own_heights, other_heights, *surface_references)
         if params.object_height_p < 1.0:  # the objectness test is on
             shown = shows_relief(surface_references[0], params.object_height_p)
             if shown:
-                flat[idx], pick, place_h = _flat(own_pos[idx], own_h[idx], own_heights, own, ground,
+                flat[idx], pick, place_h = flat_landmarks(own_pos[idx], own_h[idx], own_heights, own, ground,
                                                  surface_references[0], params)
                 # a landmark whose object stands beside its place (on its ring) is judged where it stands: the
                 # other session's surface is swept at the same places, and the heights' evidence is read at the
@@ -252,7 +250,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                 there = other_heights.copy()
                 moved = np.flatnonzero(pick >= 0)
                 if len(moved):
-                    around = _ring_heights(own_pos[idx[moved]], own_h[idx[moved]], other, ground, params)
+                    around = ring_heights(own_pos[idx[moved]], own_h[idx[moved]], other, ground, params)
                     there[moved] = around[np.arange(len(moved)), pick[moved]]
                     surface[idx[moved]] = height_log_ratio(place_h[moved], there[moved], *surface_references)
                 # what stands in both sessions' images did not go (nor come), such as the crown beside a shadow
@@ -267,7 +265,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                                                                 surface_references[1], params.object_height_p,
                                                                 1 + params.object_height_ring)
             relief = shown if measured_here else None
-            if measured_here and not _ground_noise_known(surface_references):
+            if measured_here and not ground_noise_known(surface_references):
                 ground_noise = False  # the test could not be made: every place stands (said by the caller)
         if params.surface_overrules_links:
             # a counterpart is a landmark of compatible size within the gate, which a ground patch where the
@@ -289,87 +287,6 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                             & (absent[idx] < 0.5))
     return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments, surface, doubted,
                    surface_references, flat, relief, ground_noise)
-
-
-def _flat(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: SessionObservations,
-          ground: HeightField, ref_heights: np.ndarray,
-          params: ChangeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Which landmarks have no object standing in their footprint in their own session: neither at their place
-    (`heights`, already swept) nor at any of `params.object_height_ring` places around it
-    (`surface.footprint_places`, swept here only for those whose place does not stand), the highest tested at the
-    limit for all those places (`surface.stands_above_ground`). Also, per landmark, where its object stands: -1
-    its own place, k the k-th place of its ring (the highest, where only the ring stands), and the own session's
-    height there."""
-    places = 1 + params.object_height_ring
-    flat = ~stands_above_ground(heights, ref_heights, params.object_height_p, places)
-    pick = np.full(len(flat), -1, dtype=np.int64)
-    high = np.asarray(heights, dtype=np.float64).copy()
-    low = np.flatnonzero(flat & (np.asarray(sizes) > 0))
-    if params.object_height_ring and len(low):
-        around = _ring_heights(points[low], sizes[low], own, ground, params)
-        flat[low] = ~stands_above_ground(np.column_stack([heights[low], around]), ref_heights,
-                                         params.object_height_p, places)
-        stands = ~flat[low]
-        best = np.argmax(np.where(np.isfinite(around), around, -np.inf), axis=1)
-        pick[low[stands]] = best[stands]
-        high[low[stands]] = around[stands, best[stands]]
-    return flat, pick, high
-
-
-def _evenly(indices: np.ndarray, limit: int) -> np.ndarray:
-    """At most `limit` of `indices`, evenly spaced over them (bounded cost on large maps)."""
-    if len(indices) <= limit:
-        return indices
-    return indices[np.linspace(0, len(indices) - 1, limit).round().astype(np.int64)]
-
-
-def _ground_noise_known(references: tuple[np.ndarray, np.ndarray]) -> bool:
-    """Whether both sessions' reference heights hold enough places at ground level to measure the sweep's ground
-    noise (`surface.ground_sweep_noise`), the scale of the objectness test."""
-    return all(np.isfinite(ground_sweep_noise(r)) for r in references)
-
-
-def _with_ground_places(references: tuple[np.ndarray, np.ndarray], points: np.ndarray, sizes: np.ndarray,
-                        own: SessionObservations, other: SessionObservations, ground: HeightField, gate_m: float,
-                        params: ChangeParams) -> tuple[np.ndarray, np.ndarray]:
-    """`references` (own, other heights) with the surface heights at one bare place beside each of `points` (up
-    to `SURFACE_REFERENCES` of them, evenly spaced) appended: where the segment evidence takes its chance rate,
-    `probe_radius_factor` x the gate + 2 h away, at a golden-angle turn per landmark (deterministic). Objects only
-    add height, so the places at or below the ground measure the sweep's ground noise whatever stands on the
-    others (`surface.ground_sweep_noise`); the pairs also join the calibration as places that did not change."""
-    keep = _evenly(np.arange(len(points)), SURFACE_REFERENCES)
-    pts, sizes = np.asarray(points, dtype=np.float64).reshape(-1, 3)[keep], np.asarray(sizes)[keep]
-    if not len(pts):
-        return references
-    angle = np.arange(len(pts)) * np.pi * (3.0 - np.sqrt(5.0))
-    radius = params.probe_radius_factor * gate_m + 2.0 * np.nan_to_num(np.asarray(sizes, np.float64), nan=0.0)
-    places = pts.copy()
-    places[:, 0] += radius * np.cos(angle)
-    places[:, 1] += radius * np.sin(angle)
-    more = _surface(places, own, other, ground, params)
-    return np.concatenate([references[0], more[0]]), np.concatenate([references[1], more[1]])
-
-
-def _surface(points: np.ndarray, own: SessionObservations, other: SessionObservations, ground: HeightField,
-             params: ChangeParams) -> tuple[np.ndarray, np.ndarray]:
-    """The surface height above the ground at each point in its own session and in the other, each from that
-    session's own images (`surface.heights_above_ground`; both in one frame)."""
-    return _heights(points, own, ground, params), _heights(points, other, ground, params)
-
-
-def _heights(points: np.ndarray, session: SessionObservations, ground: HeightField,
-             params: ChangeParams) -> np.ndarray:
-    """The surface height above the pair's ground at each (N, 3) point, from one session's own images."""
-    return heights_above_ground(points, ground(points[:, 0], points[:, 1]), session.images, session.poses,
-                                session.cameras, params.surface_views)
-
-
-def _ring_heights(points: np.ndarray, sizes: np.ndarray, session: SessionObservations, ground: HeightField,
-                  params: ChangeParams) -> np.ndarray:
-    """(N, object_height_ring) heights (`_heights`) of one session at each landmark's `surface.footprint_places`:
-    the same places in either session."""
-    ring = footprint_places(points, sizes, params.object_height_ring)
-    return _heights(ring.reshape(-1, 3), session, ground, params).reshape(len(ring), -1)
 
 
 def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,

@@ -1,0 +1,95 @@
+"""Does an object stand at a landmark: each session's surface height above the pair's ground, swept from its own
+images at the landmark's place and on a ring inside its footprint (`surface`), and the sweep's ground noise that
+scales the test, measured on the pair's reference places or, where too few lie at ground level, on bare places
+beside the compared landmarks. Used by `verdict.detect_changes` (the objectness test of a gone / new claim)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..evaluation.footprints import HeightField
+from ..params import ChangeParams
+from .observations import SessionObservations
+from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
+from .surface import footprint_places, ground_sweep_noise, heights_above_ground, stands_above_ground
+
+
+def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: SessionObservations,
+          ground: HeightField, ref_heights: np.ndarray,
+          params: ChangeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which landmarks have no object standing in their footprint in their own session: neither at their place
+    (`heights`, already swept) nor at any of `params.object_height_ring` places around it
+    (`surface.footprint_places`, swept here only for those whose place does not stand), the highest tested at the
+    limit for all those places (`surface.stands_above_ground`). Also, per landmark, where its object stands: -1
+    its own place, k the k-th place of its ring (the highest, where only the ring stands), and the own session's
+    height there."""
+    places = 1 + params.object_height_ring
+    flat = ~stands_above_ground(heights, ref_heights, params.object_height_p, places)
+    pick = np.full(len(flat), -1, dtype=np.int64)
+    high = np.asarray(heights, dtype=np.float64).copy()
+    low = np.flatnonzero(flat & (np.asarray(sizes) > 0))
+    if params.object_height_ring and len(low):
+        around = ring_heights(points[low], sizes[low], own, ground, params)
+        flat[low] = ~stands_above_ground(np.column_stack([heights[low], around]), ref_heights,
+                                         params.object_height_p, places)
+        stands = ~flat[low]
+        best = np.argmax(np.where(np.isfinite(around), around, -np.inf), axis=1)
+        pick[low[stands]] = best[stands]
+        high[low[stands]] = around[stands, best[stands]]
+    return flat, pick, high
+
+
+def evenly(indices: np.ndarray, limit: int) -> np.ndarray:
+    """At most `limit` of `indices`, evenly spaced over them (bounded cost on large maps)."""
+    if len(indices) <= limit:
+        return indices
+    return indices[np.linspace(0, len(indices) - 1, limit).round().astype(np.int64)]
+
+
+def ground_noise_known(references: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether both sessions' reference heights hold enough places at ground level to measure the sweep's ground
+    noise (`surface.ground_sweep_noise`), the scale of the objectness test."""
+    return all(np.isfinite(ground_sweep_noise(r)) for r in references)
+
+
+def with_ground_places(references: tuple[np.ndarray, np.ndarray], points: np.ndarray, sizes: np.ndarray,
+                        own: SessionObservations, other: SessionObservations, ground: HeightField, gate_m: float,
+                        params: ChangeParams) -> tuple[np.ndarray, np.ndarray]:
+    """`references` (own, other heights) with the surface heights at one bare place beside each of `points` (up
+    to `SURFACE_REFERENCES` of them, evenly spaced) appended: where the segment evidence takes its chance rate,
+    `probe_radius_factor` x the gate + 2 h away, at a golden-angle turn per landmark (deterministic). Objects only
+    add height, so the places at or below the ground measure the sweep's ground noise whatever stands on the
+    others (`surface.ground_sweep_noise`); the pairs also join the calibration as places that did not change."""
+    keep = evenly(np.arange(len(points)), SURFACE_REFERENCES)
+    pts, sizes = np.asarray(points, dtype=np.float64).reshape(-1, 3)[keep], np.asarray(sizes)[keep]
+    if not len(pts):
+        return references
+    angle = np.arange(len(pts)) * np.pi * (3.0 - np.sqrt(5.0))
+    radius = params.probe_radius_factor * gate_m + 2.0 * np.nan_to_num(np.asarray(sizes, np.float64), nan=0.0)
+    places = pts.copy()
+    places[:, 0] += radius * np.cos(angle)
+    places[:, 1] += radius * np.sin(angle)
+    more = surface_heights(places, own, other, ground, params)
+    return np.concatenate([references[0], more[0]]), np.concatenate([references[1], more[1]])
+
+
+def surface_heights(points: np.ndarray, own: SessionObservations, other: SessionObservations, ground: HeightField,
+             params: ChangeParams) -> tuple[np.ndarray, np.ndarray]:
+    """The surface height above the ground at each point in its own session and in the other, each from that
+    session's own images (`surface.heights_above_ground`; both in one frame)."""
+    return session_heights(points, own, ground, params), session_heights(points, other, ground, params)
+
+
+def session_heights(points: np.ndarray, session: SessionObservations, ground: HeightField,
+             params: ChangeParams) -> np.ndarray:
+    """The surface height above the pair's ground at each (N, 3) point, from one session's own images."""
+    return heights_above_ground(points, ground(points[:, 0], points[:, 1]), session.images, session.poses,
+                                session.cameras, params.surface_views)
+
+
+def ring_heights(points: np.ndarray, sizes: np.ndarray, session: SessionObservations, ground: HeightField,
+                  params: ChangeParams) -> np.ndarray:
+    """(N, object_height_ring) heights (`session_heights`) of one session at each landmark's `surface.footprint_places`:
+    the same places in either session."""
+    ring = footprint_places(points, sizes, params.object_height_ring)
+    return session_heights(ring.reshape(-1, 3), session, ground, params).reshape(len(ring), -1)
