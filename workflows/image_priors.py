@@ -53,20 +53,18 @@ equivalent focal length are used. The 35 mm figure refers to the diagonal of the
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ..database.exif import ImageMetadata, read_image_metadata
 from ..database.images import IMAGE_EXTENSIONS, image_files
-from ..database.text_input import read_user_text
+from ..database.telemetry_io import read_telemetry_csv, telemetry_rows
 from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the tags are read with)
     DEFAULT_MOUNT,
     DEFAULT_PITCH_SIGN,
@@ -103,66 +101,6 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
             raise InputError("image directory not found", root)
         return [root]
     return [Path(p) for p in images]
-
-
-_TELEMETRY_KEYS = {
-    "name": ("filename", "name", "image", "image_name", "file"),
-    "yaw": ("heading", "yaw", "yaw_deg", "flightyawdegree"),
-    "pitch": ("pitchangle", "pitch", "pitch_deg", "flightpitchdegree"),
-    "roll": ("rollangle", "roll", "roll_deg", "flightrolldegree"),
-    "lat": ("gpslatitude", "latitude", "lat"),
-    "lon": ("gpslongitude", "longitude", "lon"),
-    "alt": ("gpsaltitude", "altitude", "alt"),
-}
-
-
-def _telemetry_rows(tele: dict[str, dict[str, float]], names: list[str], telemetry: str | Path | None,
-                    images: Any) -> list[dict[str, float]]:
-    """Each image's telemetry row, by file name (case-insensitively: a copy of the frames as .JPG). A telemetry
-    file that names none of the images is an InputError (it was silently ignored: the attitudes then came from
-    the course over ground); one that misses some is a warning naming how many."""
-    if telemetry is None:
-        return [{} for _ in names]
-    folded = {k.lower(): v for k, v in tele.items()}
-    rows = [tele.get(n, folded.get(n.lower(), {})) for n in names]
-    missing = [n for n, r in zip(names, rows) if not r]
-    if names and len(missing) == len(names):
-        raise InputError(f"none of its {len(tele)} rows names an image of {images} (rows e.g. "
-                         f"{next(iter(tele), '-')!r}, images e.g. {names[0]!r}): a telemetry file of other images?",
-                         telemetry)
-    if missing:
-        log.warning("%s: no row for %d of %d images (e.g. %s): their poses come from their own tags", telemetry,
-                    len(missing), len(names), missing[0])
-    return rows
-
-
-def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
-    """Per image name: yaw/pitch/roll (and lat/lon/alt where present) from a telemetry CSV (header names as in
-    Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...; case-insensitive)."""
-    path = Path(path)
-    text = read_user_text(path, "telemetry file")
-    rows = list(csv.reader(text.splitlines()))
-    if not rows:
-        raise InputError("empty telemetry file", path)
-    header = [h.strip().lower() for h in rows[0]]
-    col = {key: next((header.index(a) for a in aliases if a in header), None)
-           for key, aliases in _TELEMETRY_KEYS.items()}
-    if col["name"] is None:
-        raise InputError(f"telemetry header needs an image name column (one of {_TELEMETRY_KEYS['name']})", path, 1)
-    out: dict[str, dict[str, float]] = {}
-    for lineno, row in enumerate(rows[1:], start=2):
-        if not row or not "".join(row).strip():
-            continue
-        values: dict[str, float] = {}
-        for key, idx in col.items():
-            if key == "name" or idx is None or idx >= len(row) or not row[idx].strip():
-                continue
-            try:
-                values[key] = float(row[idx])
-            except ValueError:
-                raise InputError(f"non-numeric {header[idx]} value {row[idx]!r}", path, lineno) from None
-        out[row[col["name"]].strip()] = values
-    return out
 
 
 def full_frame_diagonal_px(width: int, height: int, sensor_aspect: float | None = None) -> float:
@@ -381,7 +319,7 @@ def read_image_priors(
     if how == "capture time":
         log.info("the images are taken in the order of their capture times (EXIF DateTimeOriginal), not by name")
         paths, metas = [paths[i] for i in order], [metas[i] for i in order]
-    rows = _telemetry_rows(tele, [m.path.name for m in metas], telemetry, images)
+    rows = telemetry_rows(tele, [m.path.name for m in metas], telemetry, images)
     damaged = [m for m in metas if m.problems]
     if damaged:
         log.warning("%d of %d images have damaged or implausible metadata, left out: %s", len(damaged), n,

@@ -48,7 +48,6 @@ from .image_priors import (  # noqa: F401 (re-exported: the conventions' histori
     list_images,
     ned_from_body,
     read_image_priors,
-    read_telemetry_csv,
     utm_epsg,
 )
 

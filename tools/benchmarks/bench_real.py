@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...database.telemetry_io import read_telemetry_csv
 from ...plugin.geometry import Camera
 from ...workflows import poses_from_exif as pfe
 from .machine import machine_summary
@@ -91,7 +92,7 @@ def attitude_check(seneca: Path, max_pairs: int = 60, extra_poses: Path | None =
     import cv2
 
     images = seneca / "images"
-    tele = pfe.read_telemetry_csv(seneca / "telemetry.csv")
+    tele = read_telemetry_csv(seneca / "telemetry.csv")
     height = _column(seneca / "telemetry.csv", "Height")
     base = pfe.poses_from_images(images, telemetry=seneca / "telemetry.csv")
     names = base.poses.names

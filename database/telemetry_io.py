@@ -1,0 +1,74 @@
+"""Telemetry CSVs: per-image attitude (and position) logged by the autopilot beside the images, as senseFly's
+eMotion exports it (Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...). Read
+by `workflows.image_priors` where the images' own tags carry no attitude."""
+
+from __future__ import annotations
+
+import csv
+import logging
+from pathlib import Path
+from typing import Any
+
+from ..plugin.errors import InputError
+from .text_input import read_user_text
+
+log = logging.getLogger(__name__)
+
+_TELEMETRY_KEYS = {
+    "name": ("filename", "name", "image", "image_name", "file"),
+    "yaw": ("heading", "yaw", "yaw_deg", "flightyawdegree"),
+    "pitch": ("pitchangle", "pitch", "pitch_deg", "flightpitchdegree"),
+    "roll": ("rollangle", "roll", "roll_deg", "flightrolldegree"),
+    "lat": ("gpslatitude", "latitude", "lat"),
+    "lon": ("gpslongitude", "longitude", "lon"),
+    "alt": ("gpsaltitude", "altitude", "alt"),
+}
+
+
+def telemetry_rows(tele: dict[str, dict[str, float]], names: list[str], telemetry: str | Path | None,
+                    images: Any) -> list[dict[str, float]]:
+    """Each image's telemetry row, by file name (case-insensitively: a copy of the frames as .JPG). A telemetry
+    file that names none of the images is an InputError (it was silently ignored: the attitudes then came from
+    the course over ground); one that misses some is a warning naming how many."""
+    if telemetry is None:
+        return [{} for _ in names]
+    folded = {k.lower(): v for k, v in tele.items()}
+    rows = [tele.get(n, folded.get(n.lower(), {})) for n in names]
+    missing = [n for n, r in zip(names, rows) if not r]
+    if names and len(missing) == len(names):
+        raise InputError(f"none of its {len(tele)} rows names an image of {images} (rows e.g. "
+                         f"{next(iter(tele), '-')!r}, images e.g. {names[0]!r}): a telemetry file of other images?",
+                         telemetry)
+    if missing:
+        log.warning("%s: no row for %d of %d images (e.g. %s): their poses come from their own tags", telemetry,
+                    len(missing), len(names), missing[0])
+    return rows
+
+
+def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
+    """Per image name: yaw/pitch/roll (and lat/lon/alt where present) from a telemetry CSV (header names as in
+    Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...; case-insensitive)."""
+    path = Path(path)
+    text = read_user_text(path, "telemetry file")
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        raise InputError("empty telemetry file", path)
+    header = [h.strip().lower() for h in rows[0]]
+    col = {key: next((header.index(a) for a in aliases if a in header), None)
+           for key, aliases in _TELEMETRY_KEYS.items()}
+    if col["name"] is None:
+        raise InputError(f"telemetry header needs an image name column (one of {_TELEMETRY_KEYS['name']})", path, 1)
+    out: dict[str, dict[str, float]] = {}
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or not "".join(row).strip():
+            continue
+        values: dict[str, float] = {}
+        for key, idx in col.items():
+            if key == "name" or idx is None or idx >= len(row) or not row[idx].strip():
+                continue
+            try:
+                values[key] = float(row[idx])
+            except ValueError:
+                raise InputError(f"non-numeric {header[idx]} value {row[idx]!r}", path, lineno) from None
+        out[row[col["name"]].strip()] = values
+    return out
