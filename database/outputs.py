@@ -4,7 +4,8 @@ The rules (README "Errors"; tests/test_outputs.py keeps them):
 1. A command never deletes or replaces anything it did not create. An output directory is new, empty, or a
    previous output of the same command: its marker file `.sosmatch-output.json`, written by sosmatch when it
    takes the directory, names the command. An output file is new, or a file the same command wrote before
-   and nobody changed since: the directory's registry `.sosmatch-files.json` lists it with its sha256.
+   and nobody changed since: the directory's registry `.sosmatch-files.json` lists it with its sha256
+   (`database.output_files.OutputFiles`).
 2. An output is never an input, never inside an input, and never holds one (compared as resolved paths).
 3. Replacing a previous *complete* output of the same command made from other inputs or settings (another
    `identity`) needs `overwrite=True` (`--overwrite`). An incomplete one (a killed or failed run) is resumed or
@@ -22,8 +23,8 @@ Python:
         write_text_atomic(out_dir.path / "match.json", text)
         out_dir.finish()                       # the output is complete (until then it is resumable)
 
-    files = OutputFiles([geojson], "export", identity, inputs=[source])   # checked before any work
-    files.write(geojson, text)
+    files = OutputFiles([geojson], "export", identity, inputs=[source])   # database.output_files: single files,
+    files.write(geojson, text)                                             # checked before any work
 """
 
 from __future__ import annotations
@@ -34,22 +35,19 @@ import hashlib
 import json
 import os
 import shutil
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
-from .atomic import atomic_path, clean_stale_temporaries, locked_temp_dir, write_text_atomic
+from .atomic import clean_stale_temporaries, locked_temp_dir, write_text_atomic
 from .text_input import read_user_bytes
 
 MARKER = ".sosmatch-output.json"
 LOCK = ".sosmatch-output.lock"
 STAGING = ".partial"
-FILES_REGISTRY = ".sosmatch-files.json"
-FILES_LOCK = ".sosmatch-files.lock"
 MARKER_FORMAT = "sosmatch output v1"
-FILES_FORMAT = "sosmatch output files v1"
 _OURS = {MARKER, LOCK}  # present in a directory that is otherwise empty: still empty
 
 
@@ -66,7 +64,7 @@ def sha256_file(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def _resolved(path: str | Path) -> Path:
+def resolved_path(path: str | Path) -> Path:
     return Path(os.path.realpath(os.path.expanduser(str(path))))
 
 
@@ -76,11 +74,11 @@ def _inside(path: Path, folder: Path) -> bool:
 
 def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
     """Refuse an output that is an input, lies inside an input directory or holds an input (resolved paths)."""
-    out = _resolved(output)
+    out = resolved_path(output)
     for inp in inputs:
         if inp is None:
             continue
-        src = _resolved(inp)
+        src = resolved_path(inp)
         if out == src:
             raise InputError("output is also an input; write it elsewhere", output)
         if src.is_dir() and _inside(out, src):
@@ -89,7 +87,7 @@ def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> 
             raise InputError(f"output would hold the input {inp}; write it elsewhere", output)
 
 
-def _read_json(path: Path) -> dict[str, Any] | None:
+def read_json_or_none(path: Path) -> dict[str, Any] | None:
     """A marker or registry file: None when missing, {} when unreadable (then nothing it would allow is allowed)."""
     if not path.exists():
         return None
@@ -102,7 +100,7 @@ def _read_json(path: Path) -> dict[str, Any] | None:
 
 def _marker(path: str | Path) -> dict[str, Any] | None:
     """Directory `path`'s output marker when it is one sosmatch wrote (its format), else None."""
-    marker = _read_json(Path(path) / MARKER)
+    marker = read_json_or_none(Path(path) / MARKER)
     return marker if marker is not None and marker.get("format") == MARKER_FORMAT else None
 
 
@@ -150,7 +148,7 @@ def _previous(path: Path, command: str, legacy_record: str | None) -> PreviousOu
         return PreviousOutput("new")
     if not path.is_dir():
         raise InputError("output path exists and is not a directory", path)
-    marker = _read_json(path / MARKER)
+    marker = read_json_or_none(path / MARKER)
     if marker is None:
         try:
             names = sorted(p.name for p in path.iterdir() if p.name not in _OURS)
@@ -159,7 +157,7 @@ def _previous(path: Path, command: str, legacy_record: str | None) -> PreviousOu
         if not names:
             return PreviousOutput("new")
         if legacy_record is not None:
-            record = _read_json(path / legacy_record)
+            record = read_json_or_none(path / legacy_record)
             if record and str(record.get("format", "")).startswith("sosmatch"):
                 return PreviousOutput("complete", None)  # written before markers existed: complete, identity unknown
         raise InputError(f"output directory is not empty and is not a `sosmatch {command}` output ({names[0]}, ...);"
@@ -422,10 +420,10 @@ def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | P
     path = Path(path)
     check_not_input(path, list(inputs))
     if _previous(path, command, legacy_record).state == "new" and not path.exists():
-        _check_writable_place(path)
+        check_writable_place(path)
 
 
-def _check_writable_place(path: Path) -> None:
+def check_writable_place(path: Path) -> None:
     """The folder that will hold `path` (its nearest existing ancestor, when it is still to be made) is a directory
     this process may write: checked before any work, so that a run of minutes does not end on "cannot write
     output: File exists" (a file where a folder of the path should be) or a read-only file system."""
@@ -436,72 +434,3 @@ def _check_writable_place(path: Path) -> None:
         raise InputError(f"cannot write output: {folder} is a file, not a folder", path)
     if not os.access(folder, os.W_OK | os.X_OK):
         raise InputError(f"cannot write output: {folder} is read-only or not writable", path)
-
-
-class OutputFiles:
-    """Output files of one run of one command (see the module doc, rule 1): checked when made, before any work,
-    and again when each is written."""
-
-    def __init__(self, paths: Iterable[str | Path], command: str, identity: str, *,
-                 inputs: Iterable[str | Path | None] = (), overwrite: bool = False) -> None:
-        self.paths = [Path(p) for p in paths]
-        self.command = command
-        self.identity = identity
-        self.inputs = list(inputs)
-        self.overwrite = overwrite
-        if len({_resolved(p) for p in self.paths}) != len(self.paths):
-            raise InputError("the same file is given for two outputs", self.paths[0])
-        for p in self.paths:
-            self._check(p, _read_json(p.parent / FILES_REGISTRY) or {})
-
-    def _check(self, path: Path, registry: Mapping[str, Any]) -> None:
-        check_not_input(path, self.inputs)
-        if path.is_dir():
-            raise InputError("output path is a directory; give a file name", path)
-        _check_writable_place(path)
-        if not (path.exists() or path.is_symlink()):
-            return
-        entry = (registry.get("files") or {}).get(path.name) if isinstance(registry.get("files"), dict) else None
-        ours = (isinstance(entry, dict) and entry.get("command") == self.command and not path.is_symlink()
-                and entry.get("sha256") == _sha256_or_none(path))
-        if not ours:
-            raise InputError(f"output file exists and was not written by `sosmatch {self.command}` (or was changed "
-                             "since); sosmatch never replaces what it did not create: remove it or choose another "
-                             "name", path)
-        if entry.get("identity") != self.identity and not self.overwrite:
-            raise InputError(f"output file holds a `sosmatch {self.command}` output made from other inputs or "
-                             "settings; use --overwrite to replace it", path)
-
-    def write(self, path: str | Path, data: bytes | str) -> None:
-        """Write one of the output files atomically and record it in its directory's registry."""
-        path = Path(path)
-        if path not in self.paths:
-            raise ValueError(f"{path} is not one of this run's output files")
-        payload = data.encode("utf-8") if isinstance(data, str) else data
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd = os.open(path.parent / FILES_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise InputError(f"cannot write output: {exc.strerror or exc}", path) from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)  # short: other writers of this directory wait
-            registry = _read_json(path.parent / FILES_REGISTRY) or {}
-            self._check(path, registry)
-            with atomic_path(path) as tmp:
-                tmp.write_bytes(payload)
-            files = registry.get("files") if isinstance(registry.get("files"), dict) else {}
-            files[path.name] = {"command": self.command, "identity": self.identity,
-                                "sha256": hashlib.sha256(payload).hexdigest()}
-            write_text_atomic(path.parent / FILES_REGISTRY,
-                              json.dumps({"format": FILES_FORMAT, "files": files}, indent=1, sort_keys=True) + "\n")
-        except OSError as exc:
-            raise InputError(f"cannot write output: {exc.strerror or exc}", path) from None
-        finally:
-            os.close(fd)
-
-
-def _sha256_or_none(path: Path) -> str | None:
-    try:
-        return sha256_file(path)
-    except OSError:
-        return None

@@ -20,7 +20,8 @@ import numpy as np
 
 from ..database.geojson import check_projected_crs, check_within_crs_area, geojson_text, to_wgs84
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map
-from ..database.outputs import OutputFiles, fingerprint
+from ..database.output_files import OutputFiles
+from ..database.outputs import fingerprint
 from ..database.session_io import check_map_of_record, check_session_usable, read_landmark_table
 from ..plugin.errors import InputError
 
@@ -85,7 +86,7 @@ def run(
 
     `epsg` overrides the map's CRS code (for maps saved with 0 whose frame is in fact that CRS); a code must
     be a projected CRS (the map's coordinates are metres). Output files go through
-    `sosmatch.database.outputs.OutputFiles`: a file that exists is replaced only when this command wrote it
+    `sosmatch.database.output_files.OutputFiles`: a file that exists is replaced only when this command wrote it
     (and `overwrite` when it came from another map or options). Returns {"landmarks": N, "epsg": code,
     "written": [paths]}.
     """

@@ -25,7 +25,7 @@ from ..plugin.params import Params, PoseCheckParams, for_image
 from ..plugin.pose_check import PoseCheck, check_poses, judge_poses
 
 if TYPE_CHECKING:
-    from ..database.outputs import OutputFiles
+    from ..database.output_files import OutputFiles
 
 log = logging.getLogger(__name__)
 
@@ -139,9 +139,10 @@ def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Param
 def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path,
                   refuse: bool = True, sources: dict | None = None, overwrite: bool = False) -> CheckResult:
     """`run` with its figures written to a user's file `out` (`sosmatch check-poses --out`): checked before any
-    work by `database.outputs.OutputFiles` (never an input such as the pose file, never a file sosmatch did not
+    work by `database.output_files.OutputFiles` (never an input such as the pose file, never a file sosmatch did not
     write; one of this command's made from other inputs or settings is replaced only with `overwrite`)."""
-    from ..database.outputs import OutputFiles, fingerprint
+    from ..database.output_files import OutputFiles
+    from ..database.outputs import fingerprint
     from ..plugin.params import params_to_dict
 
     sources = sources or {}

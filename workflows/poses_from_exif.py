@@ -29,7 +29,8 @@ from typing import NoReturn
 import numpy as np
 
 from ..database.cameras import format_cameras_txt
-from ..database.outputs import OutputFiles, fingerprint
+from ..database.output_files import OutputFiles
+from ..database.outputs import fingerprint
 from ..database.poses import format_poses_csv
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
@@ -131,7 +132,7 @@ def run(
     pose-prior bundle adjustment with position priors, "scipy" = position and attitude priors) before they are
     written; the summary then holds the refinement statistics. Both files are written atomically; the return
     value carries the poses, camera and the source summary. The two files go through
-    `sosmatch.database.outputs.OutputFiles`, checked before any work: an existing file is replaced only when
+    `sosmatch.database.output_files.OutputFiles`, checked before any work: an existing file is replaced only when
     this command wrote it (from other images or options: only with `overwrite`).
     """
     for name, sigma in (("position sigma", position_sigma_m), ("attitude sigma", attitude_sigma_deg)):
