@@ -202,3 +202,31 @@ def test_images_the_incremental_mapper_leaves_out_are_registered_by_the_global_m
           f"global 30: {np.median(centres):.2f} m, {np.median(rotations):.2f} deg (median)")
     assert np.median(centres) < 1.5 * np.median(kept_centres) and centres.max() < 4.0
     assert np.median(rotations) < 1.5 * np.median(kept_rotations) and rotations.max() < 3.0
+
+
+def test_images_left_out_leave_the_model_and_the_poses(flight, tmp_path):
+    """The ninth new-user sweep: the global mapper placed Seneca frames 2000 km off their GPS fix and they were
+    published. Images left out (`job._without_images`: weakly tied and off their fix) leave poses.csv and the
+    sparse model alike, with their observations."""
+    import pycolmap
+
+    from sosmatch.workflows.poses.job import _without_images
+
+    out = tmp_path / "poses"
+    assert main(["poses", str(flight / "images"), "--out", str(out), "--set", "sfm.max_features=1500", "-q"]) == 0
+    rec = pycolmap.Reconstruction(str(out / "sparse"))
+    poses, _ = read_poses_csv(out / "poses.csv")
+    gone = ["frame_00003.jpg", "frame_00010.jpg"]
+    observed = sum(1 for p in rec.points3D.values() for el in p.track.elements
+                   if rec.images[el.image_id].name in gone)
+    assert observed > 0
+
+    class Model:
+        reconstruction = rec
+
+    kept = _without_images(Model(), poses, gone)
+    assert len(kept) == len(poses) - 2 and not set(gone) & set(kept.names)
+    assert {im.name for im in rec.images.values() if im.has_pose} == set(kept.names)
+    assert not any(rec.images[el.image_id].name in gone for p in rec.points3D.values() for el in p.track.elements)
+    i = poses.names.index(kept.names[5])
+    assert np.array_equal(kept.centers[5], poses.centers[i])

@@ -177,13 +177,24 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     timings["georegistration"] = time.perf_counter() - t
 
     if model.incremental_registered is not None:
-        # weakly tied to the rest (the incremental mapper could not add them): said, and where the GPS disagrees
+        # weakly tied to the rest (the incremental mapper could not add them): said; where the GPS disagrees too,
+        # neither source can be trusted (the global mapper placed such images 2000 km off on Seneca frames), so
+        # they are left out like unregistered images
         added = model.registered_only_by_global_mapper
         off = [n for n in (geo_report or {}).get("gps_outliers", []) if n in added]
         warnings.append(f"{len(added)} of {n_all} images were registered only by COLMAP's global mapper (the "
                         "incremental mapper left them out: weakly tied to the others)"
-                        + (f", {len(off)} of them off their GPS fix by more than the outlier limit ({_listing(off)})"
-                           if off else "") + ": " + _listing(added))
+                        + (f"; {len(off)} of them lie off their GPS fix by more than the outlier limit and are "
+                           f"left out ({_listing(off)})" if off else "") + ": " + _listing(added))
+        if off:
+            poses = _without_images(model, poses, off)
+            if len(poses.names) < max(MIN_IMAGES, sp.min_registered_fraction * n_all):
+                raise InputError(f"structure from motion placed only {len(poses.names)} of {n_all} images where "
+                                 "their GPS allows (sfm.min_registered_fraction = "
+                                 f"{sp.min_registered_fraction}); the images may not overlap enough or lack "
+                                 "texture; `sosmatch poses-from-exif` gives the EXIF/XMP poses instead", image_dir)
+            names = poses.names
+            index = np.array([priors.names.index(n) for n in names])
     comparison = _compare(priors, index, poses, warnings)
     cameras = sfm.camera_of_model(model)
     _check_focal_lengths(priors, cameras, warnings)
@@ -206,6 +217,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     report = {
         "format": "sosmatch-poses", "version": 1,
         "images": n_all, "registered": len(names), "unregistered": model.unregistered,
+        "left_out_off_gps": sorted(set(model.registered) - set(names)),
         "other_models": model.other_models,
         "mapper": model.mapper, "incremental_registered": model.incremental_registered,
         "registered_only_by_global_mapper": model.registered_only_by_global_mapper,
@@ -266,3 +278,13 @@ class PosesFromImages:
         self.result = load_result(staged)
         source = f"structure from motion of {image_dir} (SESSION_DIR/poses)"
         return map_inputs(self.result, image_dir, source), ("poses",)
+
+
+def _without_images(model: Any, poses: Poses, left_out: list[str]) -> Poses:
+    """`poses` without the images `left_out`, which are also de-registered from the model (with their
+    observations), so that the published sparse model and poses.csv agree."""
+    rec = model.reconstruction
+    for image in list(rec.images.values()):
+        if image.name in left_out and image.has_pose:
+            rec.deregister_frame(image.frame_id)
+    return poses.subset([i for i, n in enumerate(poses.names) if n not in left_out])

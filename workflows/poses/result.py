@@ -40,8 +40,8 @@ class PosesResult:
         """The one-line summary `sosmatch poses` prints."""
         geo = self.report.get("georegistration") or {}
         frame = f"EPSG:{self.epsg}" if self.epsg else "local frame"
-        text = (f"{self.out_dir}: {len(self.poses)} of {len(self.poses) + len(self.unregistered)} images registered "
-                f"({frame}")
+        total = self.report.get("images", len(self.poses) + len(self.unregistered))
+        text = f"{self.out_dir}: {len(self.poses)} of {total} images registered ({frame}"
         sigma = geo.get("gps_horizontal_sigma_m")  # absent in a local frame (no GPS to measure the noise of)
         if isinstance(sigma, (int, float)):
             text += f", GPS noise {sigma:.2f} m"
