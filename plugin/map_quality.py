@@ -308,6 +308,22 @@ def _landmarks_above_cameras(positions: np.ndarray, sizes_m: np.ndarray, centers
     return above, under
 
 
+def isolated_cameras(centers: np.ndarray, flying_height_m: float, half_diagonal_px: float,
+                     focal_px: float) -> np.ndarray:
+    """Indices of cameras that share no ground with any other: their nearest other centre is farther than the
+    diagonal of one image's ground footprint at the flying height (2 H x half diagonal / focal; nadir views).
+    Such a camera can hold no track; in a pose file it is a wrong position (a failed registration placed a Seneca
+    frame 2000 km off). Empty without a flying height or with fewer than 2 cameras."""
+    c = np.asarray(centers, np.float64).reshape(-1, 3)
+    if len(c) < 2 or not np.isfinite(flying_height_m) or flying_height_m <= 0 or focal_px <= 0:
+        return np.zeros(0, np.int64)
+    from scipy.spatial import cKDTree
+
+    nearest, _ = cKDTree(c).query(c, k=2)
+    reach = 2.0 * flying_height_m * half_diagonal_px / focal_px
+    return np.flatnonzero(nearest[:, 1] > reach)
+
+
 def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
           images_flying_height_m: float = float("nan")) -> Verdict:
     """Refusals and warnings for a map's figures (limits and their reasons: `QualityParams`). `min_landmarks`:

@@ -4,7 +4,14 @@ whose poses disagree between passes, rotated blocks and landmarks above the came
 import numpy as np
 import pytest
 
-from sosmatch.plugin.map_quality import assess_map, flight_passes, judge, pass_disagreement, shared_tilt_deg
+from sosmatch.plugin.map_quality import (
+    assess_map,
+    flight_passes,
+    isolated_cameras,
+    judge,
+    pass_disagreement,
+    shared_tilt_deg,
+)
 from sosmatch.plugin.params import QualityParams
 
 
@@ -215,3 +222,16 @@ def test_the_landmarks_must_put_the_cameras_as_high_as_the_images_do():
     assert judge(q, QualityParams()).ok  # not checked: nothing to compare
     v = judge(q, QualityParams(), images_flying_height_m=q.flying_height_m / 5.9)
     assert any("the images' own matches" in r for r in v.refusals), v.refusals
+
+
+def test_a_camera_sharing_no_ground_with_any_other_is_isolated():
+    # a lawnmower flight at 100 m, a camera every 5 m on lines 30 m apart; 640x480 at f 500 px: the footprint's
+    # diagonal at 100 m is 2 x 100 x 400 / 500 = 160 m
+    xs, ys = np.meshgrid(np.arange(0.0, 200.0, 5.0), np.arange(0.0, 120.0, 30.0))
+    centers = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 100.0)])
+    assert len(isolated_cameras(centers, 100.0, 400.0, 500.0)) == 0
+    far = np.vstack([centers, [[1.7e6, 3.2e6, 4.3e5]], [[350.0, 90.0, 100.0]], [[195.0, -165.0, 100.0]]])
+    # 2000 km off: isolated; 155 m past the end of a line: within a footprint; 165 m beside one: isolated
+    assert isolated_cameras(far, 100.0, 400.0, 500.0).tolist() == [len(centers), len(centers) + 2]
+    assert len(isolated_cameras(far, float("nan"), 400.0, 500.0)) == 0
+    assert len(isolated_cameras(far[:1], 100.0, 400.0, 500.0)) == 0

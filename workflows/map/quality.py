@@ -17,7 +17,7 @@ import numpy as np
 from ...database.atomic import atomic_path
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
-from ...plugin.map_quality import MapQuality, Verdict, assess_map, judge
+from ...plugin.map_quality import MapQuality, Verdict, assess_map, isolated_cameras, judge
 from ...plugin.params import QualityParams
 
 log = logging.getLogger(__name__)
@@ -70,6 +70,13 @@ def quality_stage(
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`)."""
     quality = assess(landmarks, poses, long_tracks)
     verdict = judge(quality, limits, min_landmarks, images_flying_height_m)
+    alone = isolated_cameras(poses.centers, quality.flying_height_m, 0.5 * float(np.hypot(camera.width, camera.height)),
+                             float(camera.fx))
+    if len(alone):
+        names = ", ".join(poses.names[i] for i in alone[:5]) + (", ..." if len(alone) > 5 else "")
+        verdict.warnings.append(f"{len(alone)} of {len(poses)} keyframes share no ground with any other (their "
+                                f"nearest neighbour lies beyond one image's footprint): wrong positions in the pose "
+                                f"file? ({names})")
     for warning in verdict.warnings:
         log.warning("%s: %s", title or "map", warning)
     if figure is not None:
