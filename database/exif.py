@@ -262,12 +262,15 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
     meta.subsec_original = _text(sub.get(TAG_SUBSEC_ORIGINAL))
 
     lat, lon = _dms(gps.get(GPS_LAT)), _dms(gps.get(GPS_LON))
-    if lat is not None and lon is not None:
-        if _text(gps.get(GPS_LAT_REF)).upper().startswith("S"):
-            lat = -lat
-        if _text(gps.get(GPS_LON_REF)).upper().startswith("W"):
-            lon = -lon
-        meta.latitude, meta.longitude = lat, lon
+    lat_ref, lon_ref = _text(gps.get(GPS_LAT_REF)).strip().upper()[:1], _text(gps.get(GPS_LON_REF)).strip().upper()[:1]
+    if lat is not None and lon is not None and (lat_ref not in ("N", "S") or lon_ref not in ("E", "W")):
+        # the hemisphere is part of the position (EXIF requires the refs): without it a flight in the south or
+        # west would be placed mirrored on the other side of the globe without a word
+        problems.append(f"GPS position without its hemisphere (GPSLatitudeRef {lat_ref or 'missing'}, "
+                        f"GPSLongitudeRef {lon_ref or 'missing'}; N/S and E/W expected)")
+    elif lat is not None and lon is not None:
+        meta.latitude = -lat if lat_ref == "S" else lat
+        meta.longitude = -lon if lon_ref == "W" else lon
         meta.sources["position"] = "EXIF GPSLatitude/GPSLongitude"
     alt = _float(gps.get(GPS_ALT))
     if alt is not None:

@@ -17,6 +17,7 @@ from sosmatch.database.cameras import read_cameras_txt
 from sosmatch.database.exif import read_image_metadata
 from sosmatch.database.poses import read_poses_csv
 from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.gps_track import frozen_fix, gps_jumps, off_nadir_deg
 from sosmatch.tools.cli import main
 from sosmatch.workflows import poses_from_exif as pfe
 
@@ -345,3 +346,75 @@ def test_the_advice_for_a_missing_focal_length_is_one_that_can_be_followed(tmp_p
     no_plane = replace(meta, focal_plane_px_per_mm=None, focal_35mm=None)
     with pytest.raises(InputError, match="--sensor-width-mm"):
         camera_from_metadata(no_plane)
+
+
+# The ninth new-user sweep's drone folders: a frozen fix, a jump, tags without their hemisphere, Parrot tags and
+# cameras tagged to look at the horizon (`plugin.gps_track`).
+NADIR = {"GimbalYawDegree": "+0.0", "GimbalPitchDegree": "-90.0", "GimbalRollDegree": "0.0"}
+
+
+def test_frozen_fix_jumps_and_off_nadir():
+    east, north = np.arange(20.0) * 10.0, np.zeros(20)
+    times = np.arange(20.0) * 2.0  # 5 m/s
+    assert not frozen_fix(east, north) and gps_jumps(east, north, times) == []
+    assert frozen_fix(np.full(5, 3.0) + [0, 0.2, 0, 0, 0.1], np.full(5, 7.0))
+    assert not frozen_fix(np.full(2, 3.0), np.full(2, 7.0))  # two images: not a flight to judge
+    north[7] = 300.0  # one fix 300 m off the line: the jump in and the jump out are named
+    assert [(i, j) for i, j, _, _ in gps_jumps(east, north, times)] == [(6, 7), (7, 8)]
+    assert gps_jumps(east, north, np.full(20, np.nan)) == []  # no times: no speed
+    # a fast flight (25 m/s, frames 2 s apart) and a turn between lines 60 m apart: no jump
+    east2 = np.r_[np.arange(10.0) * 50.0, 450.0 - np.arange(10.0) * 50.0]
+    north2 = np.r_[np.zeros(10), np.full(10, 60.0)]
+    assert gps_jumps(east2, north2, np.arange(20.0) * 2.0) == []
+    down = np.diag([1.0, -1.0, -1.0])[None]  # camera z along world -z
+    side = np.array([[[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]])  # camera z horizontal
+    assert off_nadir_deg(down)[0] == pytest.approx(0.0) and off_nadir_deg(side)[0] == pytest.approx(90.0)
+
+
+def _flight(img, n=6, lat0=47.0, xmp=NADIR, same=False):
+    img.mkdir()
+    for k in range(n):
+        lat = lat0 + (0 if same else k * 1e-4)
+        write_jpeg(img / f"f{k}.jpg", lat, 8.0, 500.0, xmp, xmp_as_elements=True,
+                   when=f"2026:06:01 10:00:{2 * k:02d}")
+
+
+def test_poses_from_exif_refuses_a_frozen_fix_and_cameras_tagged_at_the_horizon(tmp_path):
+    _flight(tmp_path / "frozen", same=True)
+    with pytest.raises(InputError, match="lie at one point"):
+        pfe.run(tmp_path / "frozen", tmp_path / "o1" / "poses.csv")
+    horizon = {"GimbalYawDegree": "+0.0", "GimbalPitchDegree": "0.0", "GimbalRollDegree": "0.0"}
+    _flight(tmp_path / "horizon", xmp=horizon)
+    with pytest.raises(InputError, match="from straight down"):
+        pfe.run(tmp_path / "horizon", tmp_path / "o2" / "poses.csv")
+    assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
+
+
+def test_a_jump_is_named_and_parrot_tags_are_gimbal_angles(tmp_path, caplog):
+    img = tmp_path / "jump"
+    img.mkdir()
+    parrot = {"CameraYawDegree": "+0.0", "CameraPitchDegree": "-90.0", "CameraRollDegree": "0.0"}
+    for k in range(6):  # 11 m every 2 s, f3 300 m east
+        write_jpeg(img / f"f{k}.jpg", 47.0 + k * 1e-4, 8.0 + (0.004 if k == 3 else 0.0), 500.0, parrot,
+                   xmp_as_elements=True, when=f"2026:06:01 10:00:{2 * k:02d}")
+    res = pfe.run(img, tmp_path / "o" / "poses.csv")
+    assert [j[:2] for j in res.summary["gps_jumps"]] == [["f2.jpg", "f3.jpg"], ["f3.jpg", "f4.jpg"]]
+    assert any("GPS jumps 2 time(s)" in w and "f2.jpg -> f3.jpg" in w for w in res.summary["warnings"])
+    assert res.summary["attitude_sources"] == {"XMP CameraYaw/Pitch/RollDegree (Parrot)": 6}
+    np.testing.assert_allclose(res.poses.rotations[:, :, 2], [[0, 0, -1]] * 6, atol=1e-9)
+
+
+def test_a_gps_position_without_its_hemisphere_is_left_out(tmp_path):
+    from PIL import Image
+
+    src = tmp_path / "a.jpg"
+    write_jpeg(src, -33.9, -70.6, 500.0)  # Santiago: S and W
+    meta = read_image_metadata(src)
+    assert meta.latitude == pytest.approx(-33.9, abs=1e-6) and meta.longitude == pytest.approx(-70.6, abs=1e-6)
+    with Image.open(src) as im:
+        exif = im.getexif()
+        gps = exif.get_ifd(0x8825)
+        del gps[1], gps[3]  # GPSLatitudeRef, GPSLongitudeRef
+        im.save(tmp_path / "b.jpg", exif=exif.tobytes())
+    meta = read_image_metadata(tmp_path / "b.jpg")
+    assert meta.latitude is None and any("without its hemisphere" in p for p in meta.problems)

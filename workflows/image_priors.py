@@ -23,8 +23,9 @@ azimuth with the local meridian convergence (1.5 degrees at the Seneca site, not
 errors of a degree or two).
 
 Attitude sources, per image, first that applies:
-1. DJI XMP `GimbalYawDegree/GimbalPitchDegree/GimbalRollDegree` (absolute gimbal angles; pitch -90 = nadir):
-   the camera looks along the gimbal's forward axis, image x to its right (mount "gimbal").
+1. DJI XMP `GimbalYawDegree/GimbalPitchDegree/GimbalRollDegree` (absolute gimbal angles; pitch -90 = nadir), or
+   Parrot's `CameraYawDegree/CameraPitchDegree/CameraRollDegree` (the same convention, as OpenDroneMap reads
+   them): the camera looks along the gimbal's forward axis, image x to its right (mount "gimbal").
 2. senseFly XMP `Heading/PitchAngle/RollAngle`, or DJI `FlightYawDegree/FlightPitchDegree/FlightRollDegree`
    without gimbal tags, or the same angles from a telemetry CSV (`telemetry=`): the airframe attitude of a
    camera fixed to the airframe looking down; the mounting is `mount` (see `FIXED_MOUNTS`), and the sign of
@@ -59,6 +60,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -78,6 +80,7 @@ from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the 
 from ..plugin.errors import InputError
 from ..plugin.geodesy import geographic_to_grid, topocentric_to_grid, utm_epsg  # noqa: F401 (re-exported)
 from ..plugin.geometry import Camera
+from ..plugin.gps_track import FROZEN_SPREAD_M, OFF_NADIR_LIMIT_DEG, frozen_fix, gps_jumps, off_nadir_deg
 from ..plugin.keyframes import flight_order
 
 log = logging.getLogger(__name__)
@@ -372,13 +375,16 @@ def read_image_priors(
     course = _course_from_neighbours(east, north)
     for i, m in enumerate(metas):
         t = rows[i]
-        gimbal = [m.xmp_float(k) for k in ("GimbalYawDegree", "GimbalPitchDegree", "GimbalRollDegree")]
+        gimbal = [m.xmp_float(*k) for k in (("GimbalYawDegree", "CameraYawDegree"),
+                                            ("GimbalPitchDegree", "CameraPitchDegree"),
+                                            ("GimbalRollDegree", "CameraRollDegree"))]
         fixed = [m.xmp_float("Heading", "FlightYawDegree"), m.xmp_float("PitchAngle", "FlightPitchDegree"),
                  m.xmp_float("RollAngle", "FlightRollDegree")]
         if all(gimbal):
             (yaw[i], _), (pitch[i], _), (roll[i], _) = gimbal  # type: ignore[misc]
             kind[i] = "gimbal"
-            att_src["XMP GimbalYaw/Pitch/RollDegree"] += 1
+            parrot = gimbal[0][1].startswith("Camera")  # type: ignore[index]
+            att_src["XMP CameraYaw/Pitch/RollDegree (Parrot)" if parrot else "XMP GimbalYaw/Pitch/RollDegree"] += 1
         elif all(fixed):
             (yaw[i], ky), (pitch[i], kp), (roll[i], kr) = fixed  # type: ignore[misc]
             kind[i] = "fixed"
@@ -413,6 +419,10 @@ def read_image_priors(
                  "along the course over ground (%d of them at turns of the flight, where the course says nothing "
                  "of the heading)", n_course, n, n_turns)
 
+    track_warnings, track_facts = _track_checks(east, north, times, time_source.startswith("EXIF"), rotations,
+                                                kind != "course", [m.path.name for m in metas])
+    for text in track_warnings:
+        log.warning("%s", text)
     cameras, camera_index, intrinsics_sources, camera_warnings = _camera_groups(metas, sensor_width_mm,
                                                                                 strict_intrinsics)
     m0 = metas[0]
@@ -435,16 +445,46 @@ def read_image_priors(
         "roll_sign": roll_sign,
         "meridian_convergence_deg": float(np.mean(north_az)),
         "intrinsics_source": intrinsics_sources[0],
-        "warnings": camera_warnings,  # those a consumer's own record must count (`poses`' poses.json)
+        "warnings": track_warnings + camera_warnings,  # those a consumer's own record must count (poses.json)
         "cameras": [{"make_model": _make_model(next(m for m, i in zip(metas, camera_index) if i == g)),
                      "images": int(np.sum(camera_index == g)), "width": c.width, "height": c.height,
                      "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "intrinsics_source": intrinsics_sources[g]}
                     for g, c in enumerate(cameras)],
         "make_model": _make_model(m0),
         "damaged_metadata": {m.path.name: m.problems for m in damaged},
+        **track_facts,
     }
     return ImagePriors(paths, metas, int(epsg or 0), positions, alt, rel, rotations, kind, times, cameras,
                        camera_index, summary)
+
+
+def _track_checks(east: np.ndarray, north: np.ndarray, times: np.ndarray, timed: bool, rotations: np.ndarray,
+                  tagged: np.ndarray, names: list[str]) -> tuple[list[str], dict[str, Any]]:
+    """What the GPS track and the attitude tags say that no aircraft does (`plugin.gps_track`): warnings naming
+    images, and the facts for the summary (`gps_frozen`, `gps_jumps`, `tags_median_off_nadir_deg`). Without
+    capture times (`timed` False, `times` one second per image) a jump is judged against the flight's own steps
+    between consecutive images."""
+    out: list[str] = []
+    frozen = frozen_fix(east, north)
+    jumps = [] if frozen else gps_jumps(east, north, times)
+    if frozen:
+        out.append(f"the GPS fixes of all {int(np.sum(np.isfinite(east)))} images lie within {FROZEN_SPREAD_M:g} m "
+                   "of one point: a receiver without a lock repeats its last fix; poses from them have no baseline")
+    elif jumps:
+        said = ", ".join(f"{names[i]} -> {names[j]} {d:.0f} m" + (f" at {v:.0f} m/s" if timed else "")
+                         for i, j, d, v in jumps[:4])
+        out.append(f"the GPS jumps {len(jumps)} time(s) farther than the aircraft flies between two captures "
+                   f"({said}{', ...' if len(jumps) > 4 else ''}): wrong fixes; their images' positions are wrong")
+    off = off_nadir_deg(rotations[tagged]) if np.any(tagged) else np.zeros(0)
+    median_off = float(np.median(off)) if len(off) else None
+    if median_off is not None and median_off > OFF_NADIR_LIMIT_DEG:
+        out.append(f"the attitude tags turn {int(np.sum(off > OFF_NADIR_LIMIT_DEG))} of {len(off)} cameras more "
+                   f"than {OFF_NADIR_LIMIT_DEG:g} deg away from straight down (median {median_off:.0f} deg): a "
+                   "survey camera looks at the ground; tags written in another pitch convention (DJI gimbal pitch "
+                   "-90 = nadir, 0 = horizon)?")
+    facts = {"gps_frozen": frozen, "gps_jumps": [[names[i], names[j], round(d, 1)] for i, j, d, _ in jumps],
+             "tags_median_off_nadir_deg": median_off}
+    return out, facts
 
 
 def _make_model(meta: ImageMetadata) -> str:

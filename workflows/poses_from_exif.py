@@ -34,6 +34,7 @@ from ..database.outputs import fingerprint
 from ..database.poses import format_poses_csv
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
+from ..plugin.gps_track import OFF_NADIR_LIMIT_DEG
 from .image_priors import (  # noqa: F401 (re-exported: the conventions' historical home)
     DEFAULT_MOUNT,
     DEFAULT_PITCH_SIGN,
@@ -92,6 +93,16 @@ def poses_from_images(
         first = metas[int(no_fix[0])]
         raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude), "
                          f"e.g. {first.path.name}; give a telemetry CSV with positions or a poses.csv", first.path)
+    # the GPS positions and tags are these poses: where no aircraft flies or looks like that, they are unusable
+    if priors.summary.get("gps_frozen"):
+        raise InputError(f"the GPS fixes of all {n} images lie at one point (a receiver without a lock): no poses "
+                         "from them; take poses from structure from motion (`sosmatch poses`) or give a pose CSV",
+                         metas[0].path.parent)
+    off = priors.summary.get("tags_median_off_nadir_deg")
+    if off is not None and off > OFF_NADIR_LIMIT_DEG:
+        raise InputError(f"the attitude tags turn the cameras {off:.0f} deg from straight down (median): not a "
+                         "survey looking at the ground; tags in another pitch convention (DJI gimbal pitch -90 = "
+                         "nadir)? Take poses from structure from motion (`sosmatch poses`)", metas[0].path)
     no_height = np.flatnonzero(~priors.has_gps)
     if len(no_height):
         raise InputError("image has GPS latitude/longitude but no GPSAltitude", metas[int(no_height[0])].path)
