@@ -12,8 +12,12 @@ Yaw/pitch/roll (`ypr_to_rotmat`): aerospace angles of the camera body in degrees
 them. Body axes x forward (the optical axis), y right, z down; the angles rotate a local-level NED frame
 (north, east, down) into the body, intrinsic Z-Y-X: yaw clockwise from north, pitch positive nose up
 (-90 = looking straight down, image top towards the yaw heading), roll positive right side down. The world
-frame stays ENU (x east, y north, z up). With `convention: camera_from_world` the matrix from the angles is
-taken as the camera_from_world rotation, exactly as a quaternion would be.
+frame stays ENU (x east, y north, z up). In a projected CRS (`# crs: EPSG:<code>`) the yaw is from true north,
+as gimbals and autopilots report it, and is turned into the grid by the meridian convergence at each camera
+(1.5 deg at the Seneca site: read as a grid azimuth it cost the map four fifths of its landmarks); in a local
+frame north is the frame's +y. With `convention: camera_from_world` the matrix from the angles is taken as the
+camera_from_world rotation, exactly as a quaternion would be (and the yaw as given: the camera's heading is not
+known before the inversion).
 """
 
 from __future__ import annotations
@@ -186,7 +190,15 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
     elif header == QUAT_COLUMNS:
         rot = quat_to_rotmat(data[:, 3:])
     else:
-        rot = ypr_to_rotmat(data[:, 3], data[:, 4], data[:, 5])
+        yaw = data[:, 3]
+        if epsg and file_convention == "world_from_camera":  # true north -> grid (see the module doc)
+            from ..plugin.geodesy import grid_north_azimuth
+
+            convergence = grid_north_azimuth(data[:, 0], data[:, 1], epsg)
+            if not np.all(np.isfinite(convergence)):
+                raise InputError(f"camera positions outside the area of EPSG:{epsg} (no true north there)", path)
+            yaw = yaw + convergence
+        rot = ypr_to_rotmat(yaw, data[:, 4], data[:, 5])
     poses = Poses(names, rot, data[:, :3]) if file_convention == "world_from_camera" else \
         Poses.from_cam_from_world(names, rot, data[:, :3])
     if np.abs(poses.centers).max() > MAX_WORLD_COORD_M:  # camera_from_world translations far from the origin

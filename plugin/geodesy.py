@@ -27,6 +27,16 @@ def geographic_to_grid(lat: np.ndarray, lon: np.ndarray, epsg: int) -> tuple[np.
     return np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64), north_az
 
 
+def grid_north_azimuth(easting: np.ndarray, northing: np.ndarray, epsg: int) -> np.ndarray:
+    """Azimuth of true north in the grid (degrees, clockwise from grid north: the meridian convergence) at grid
+    points of a projected CRS; a heading from true north is that heading + this in the grid."""
+    from pyproj import Transformer
+
+    to_geo = Transformer.from_crs(f"EPSG:{epsg}", "EPSG:4326", always_xy=True)
+    lon, lat = to_geo.transform(np.asarray(easting, dtype=np.float64), np.asarray(northing, dtype=np.float64))
+    return geographic_to_grid(np.asarray(lat), np.asarray(lon), epsg)[2]
+
+
 def topocentric_to_grid(enu: np.ndarray, origin_lla: tuple[float, float, float],
                         epsg: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Points of a topocentric frame (x east, y north, z up at `origin_lla` = latitude, longitude, ellipsoidal

@@ -51,3 +51,21 @@ def test_bad_ypr_rows_name_file_and_line(tmp_path, row, fragment):
     with pytest.raises(InputError, match=fragment) as exc:
         read_poses_csv(path)
     assert str(exc.value).startswith(f"{path}:3: ")
+
+
+def test_yaw_in_a_projected_crs_is_from_true_north(tmp_path):
+    """The ninth new-user sweep: gimbal yaw (from true north) in a UTM pose CSV was read as a grid azimuth, 1.5 deg
+    off at Seneca (16 landmarks instead of 75). In a projected CRS it is turned by the meridian convergence."""
+    from sosmatch.plugin.geodesy import geographic_to_grid
+
+    e, n, north_az = geographic_to_grid(np.array([42.9]), np.array([-76.9]), 32617)  # west of the zone's centre
+    assert abs(north_az[0]) > 1.0
+    path = tmp_path / "p.csv"
+    path.write_text(f"# crs: EPSG:32617\nname,x,y,z,yaw_deg,pitch_deg,roll_deg\na.jpg,{e[0]},{n[0]},300,0,-90,0\n")
+    poses, epsg = read_poses_csv(path)
+    top = -poses.rotations[0][:, 1]  # image top: towards true north
+    assert epsg == 32617 and np.degrees(np.arctan2(top[0], top[1])) == pytest.approx(north_az[0], abs=1e-6)
+    local = tmp_path / "l.csv"
+    local.write_text(path.read_text().replace("EPSG:32617", "local"))
+    top = -read_poses_csv(local)[0].rotations[0][:, 1]
+    assert np.degrees(np.arctan2(top[0], top[1])) == pytest.approx(0.0, abs=1e-9)  # a local frame's north is +y
