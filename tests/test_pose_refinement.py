@@ -271,3 +271,22 @@ def test_tie_points_read_the_stored_pixel_grid_whatever_the_exif_orientation(tmp
     rec_plain = tie_point_reconstruction(plain, truth, cam, max_features=1500)
     assert rec_tagged.num_points3D() > 100
     assert rec_tagged.num_points3D() == rec_plain.num_points3D()
+
+
+def test_cameras_turned_far_from_their_priors_are_named():
+    """The ninth new-user sweep: two tagged frames turned 23-26 deg by the refinement were hidden by the mean turn
+    (2 deg); `tie_points.turned_images` names every camera beyond 3 attitude sigmas on few tie points, the largest
+    first."""
+    from sosmatch.workflows.pose_refinement.tie_points import turned_images
+
+    before = Poses([f"f{k}.jpg" for k in range(6)], np.stack([_nadir(10.0 * k) for k in range(6)]),
+                   np.zeros((6, 3)))
+    after = Poses(before.names, before.rotations.copy(), before.centers)
+    after.rotations[2] = _nadir(20.0 + 23.0)
+    after.rotations[4] = _nadir(40.0 - 30.0)
+    after.rotations[5] = _nadir(50.0 + 14.0)  # within 3 x 5 deg
+    named = turned_images(before, after, 5.0)
+    assert [n for n, _ in named] == ["f4.jpg", "f2.jpg"] and named[0][1] == pytest.approx(30.0)
+    assert turned_images(before, before, 5.0) == []
+    # well held (>= 5 observations) they are the tie points' correction of poor priors (Seneca's telemetry): not named
+    assert [n for n, _ in turned_images(before, after, 5.0, (9, 9, 3, 9, 40, 3))] == ["f2.jpg"]

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...database.images import read_gray
-from ...plugin.geometry import Poses
+from ...plugin.geometry import Poses, rotation_angle_deg
 from .judge import RefinementRejected, RefinementStats, judge_refinement
 from .with_colmap import point_errors, poses_of_reconstruction, refine_poses_with_colmap
 from .with_priors import refine_poses_with_priors
@@ -272,6 +272,16 @@ def refine_poses_from_images(
                     observations_by_image=tuple(int(n) for n in observed),
                     heading_turns_deg=tuple(float(t) for t in turns))
     errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg, poses.names)
+    turned = turned_images(poses, refined, attitude_sigma_deg, stats.observations_by_image)
+    if turned:
+        # the mean turn (judge_refinement) hid cameras that a handful of tie points turned away from their priors
+        # (the ninth sweep: two DJI frames of 3 observations each 23-26 deg off their gimbal tags, which agree
+        # with SfM within 2 deg); well-held cameras turn far too where the priors are poor, and rightly (Seneca's
+        # telemetry: 59 of 167 beyond 15 deg, after it 1-5 deg from SfM)
+        warnings.append(f"{len(turned)} of {len(poses)} cameras turned more than 3 x the {attitude_sigma_deg:g} deg "
+                        f"attitude prior on fewer than {WEAK_OBSERVATIONS} tie-point observations (one wrong tie "
+                        "point decides): " + ", ".join(f"{n} {d:.0f} deg" for n, d in turned[:5])
+                        + (", ..." if len(turned) > 5 else "") + "; their orientations are doubtful")
     for w in warnings:
         log.warning("pose refinement: %s", w)
     stats = replace(stats, warnings=tuple(warnings))
@@ -283,6 +293,23 @@ def refine_poses_from_images(
     for e in errors:
         log.warning("pose refinement: %s (accepted on request)", e)
     return refined, stats
+
+
+# A camera's own tie points constrain its 6 unknowns when they give at least 1.5 measured coordinates per unknown
+# (the block-level rule of `judge_refinement`): 5 observations; with fewer one wrong tie point decides its turn.
+WEAK_OBSERVATIONS = 5
+
+
+def turned_images(before: Poses, after: Poses, attitude_sigma_deg: float,
+                  observations_by_image: tuple[int, ...] | np.ndarray | None = None) -> list[tuple[str, float]]:
+    """(name, degrees) of the cameras whose orientation `after` differs from `before` (same names and order) by
+    more than 3 attitude sigmas, the largest turn first; with `observations_by_image`, only those held by fewer
+    than `WEAK_OBSERVATIONS` tie-point observations (an image without any is not turned by the adjustment)."""
+    turn = np.atleast_1d(rotation_angle_deg(before.rotations, after.rotations))
+    weak = np.ones(len(turn), bool) if observations_by_image is None or len(observations_by_image) != len(turn) \
+        else np.asarray(observations_by_image) < WEAK_OBSERVATIONS
+    odd = np.flatnonzero((turn > 3.0 * attitude_sigma_deg) & weak)
+    return [(before.names[i], float(turn[i])) for i in odd[np.argsort(-turn[odd], kind="stable")]]
 
 
 def explained_by_image(tie: TiePoints, poses: Poses, camera: object, max_px: float) -> tuple[np.ndarray, np.ndarray]:
