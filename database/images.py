@@ -9,6 +9,7 @@ and the poses and intrinsics refer to the stored pixel grid.
 from __future__ import annotations
 
 import logging
+import unicodedata
 import warnings
 from collections.abc import Iterable
 from pathlib import Path
@@ -188,6 +189,13 @@ def read_gray(path: str | Path) -> np.ndarray:
     if gray is None:
         raise InputError("unreadable image (not a supported image format, or corrupt)", path)
     return gray
+
+
+def name_key(name: str) -> str:
+    """An image name as other files may spell it: Unicode NFC (macOS writes file names decomposed, NFD, while
+    a CSV typed elsewhere holds the composed form) and case-folded (a camera's IMG_0001.JPG copied as .jpg). For
+    pairing names of pose and telemetry files with image files when the exact name is absent."""
+    return unicodedata.normalize("NFC", name).casefold()
 
 
 def image_files(folder: str | Path) -> list[Path]:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
+from .images import name_key
 from .text_input import read_user_text
 
 log = logging.getLogger(__name__)
@@ -32,8 +33,8 @@ def telemetry_rows(tele: dict[str, dict[str, float]], names: list[str], telemetr
     the course over ground); one that misses some is a warning naming how many."""
     if telemetry is None:
         return [{} for _ in names]
-    folded = {k.lower(): v for k, v in tele.items()}
-    rows = [tele.get(n, folded.get(n.lower(), {})) for n in names]
+    folded = {name_key(k): v for k, v in tele.items()}
+    rows = [tele.get(n, folded.get(name_key(n), {})) for n in names]
     missing = [n for n, r in zip(names, rows) if not r]
     if names and len(missing) == len(names):
         raise InputError(f"none of its {len(tele)} rows names an image of {images} (rows e.g. "
@@ -50,7 +51,11 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
     Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...; case-insensitive)."""
     path = Path(path)
     text = read_user_text(path, "telemetry file")
-    rows = list(csv.reader(text.splitlines()))
+    lines = text.splitlines()
+    first = next((ln for ln in lines if ln.strip()), "")
+    # spreadsheets in many locales export ';' (a ',' is their decimal mark), others tabs
+    delimiter = max(",;\t", key=first.count) if first else ","
+    rows = list(csv.reader(lines, delimiter=delimiter))
     if not rows:
         raise InputError("empty telemetry file", path)
     header = [h.strip().lower() for h in rows[0]]

@@ -494,3 +494,27 @@ def test_byte_identical_images_are_named(tmp_path, caplog):
         assert warn_duplicate_images(paths, ["x", "y", "x"]) == [["a.jpg", "a_copy.jpg"]]
     assert "a.jpg = a_copy.jpg" in caplog.text
     assert warn_duplicate_images(paths, ["x", "y", "z"]) == []
+
+
+def test_pose_names_spelt_otherwise_pair_with_their_images(session, tmp_path):
+    """The ninth new-user sweep: a pose CSV naming the images in upper case (as the camera wrote them) or in the
+    composed Unicode form (files named on macOS are decomposed) paired with none of them."""
+    import unicodedata
+
+    root = session[0]
+    images = tmp_path / "images"
+    images.mkdir()
+    names = sorted(p.name for p in (root / "images").iterdir())[:6]
+    renamed = {n: unicodedata.normalize("NFD", f"Bild ü_{n}") for n in names[:3]}
+    for n in names:
+        shutil.copy(root / "images" / n, images / renamed.get(n, n))
+    others = {p.name for p in (root / "images").iterdir()} - set(names)
+    lines = [ln for ln in (root / "poses.csv").read_text().splitlines() if ln.split(",")[0] not in others]
+    text = "\n".join(lines) + "\n"
+    for n in names[:3]:
+        text = text.replace(n + ",", unicodedata.normalize("NFC", f"Bild ü_{n}") + ",")
+    for n in names[3:]:
+        text = text.replace(n + ",", n.upper() + ",")
+    (tmp_path / "poses.csv").write_text(text)
+    inputs = map_workflow.load_inputs(images, tmp_path / "poses.csv", root / "cameras.txt", strict=True)
+    assert sorted(p.name for p in inputs.image_paths) == sorted(renamed.get(n, n) for n in names)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +16,7 @@ import numpy as np
 
 from ...database.cameras import read_cameras_txt
 from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
-from ...database.images import IMAGE_EXTENSIONS, image_files  # noqa: F401 (IMAGE_EXTENSIONS: re-exported by workflows.map)
+from ...database.images import IMAGE_EXTENSIONS, image_files, name_key  # noqa: F401 (IMAGE_EXTENSIONS: re-exported)
 from ...database.opensfm import is_opensfm
 from ...database.outputs import sha256_file
 from ...database.poses import read_poses_csv
@@ -123,6 +124,9 @@ def load_inputs(
         raise InputError("image directory not found", images)
     sources["images"] = str(images)
     files = {f.name: f for f in image_files(images)}
+    # a name spelt otherwise (case, Unicode normalisation): paired when it names one file only
+    spelt = Counter(name_key(n) for n in files)
+    by_key = {name_key(n): f for n, f in files.items() if spelt[name_key(n)] == 1}
     keep = []
     missing = []
     for i, name in enumerate(pose_list.names):
@@ -131,6 +135,8 @@ def load_inputs(
             keep.append((i, path))
         elif Path(name).name in files:  # poses may carry a sub-path ("images/x.jpg"); match by file name
             keep.append((i, files[Path(name).name]))
+        elif name_key(Path(name).name) in by_key:
+            keep.append((i, by_key[name_key(Path(name).name)]))
         else:
             missing.append(name)
     used = {p.name for _, p in keep}
