@@ -69,3 +69,11 @@ def test_yaw_in_a_projected_crs_is_from_true_north(tmp_path):
     local.write_text(path.read_text().replace("EPSG:32617", "local"))
     top = -read_poses_csv(local)[0].rotations[0][:, 1]
     assert np.degrees(np.arctan2(top[0], top[1])) == pytest.approx(0.0, abs=1e-9)  # a local frame's north is +y
+
+
+def test_longitude_latitude_given_as_x_y_are_named(tmp_path):
+    path = tmp_path / "p.csv"
+    rows = "".join(f"f{k}.jpg,{-76.9 + k * 1e-5},{42.9 + k * 1e-5},300,0,-90,0\n" for k in range(5))
+    path.write_text("# crs: EPSG:32617\nname,x,y,z,yaw_deg,pitch_deg,roll_deg\n" + rows)
+    with pytest.raises(InputError, match="look like longitude / latitude in degrees"):
+        read_poses_csv(path)
