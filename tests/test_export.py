@@ -110,3 +110,13 @@ def test_a_local_map_given_a_crs_it_cannot_lie_in_is_refused(tmp_path, cli_error
     edge = LandmarkMap(pos, edge.sizes, origin=pos.mean(0).round(), epsg=32614)
     write_landmark_map(tmp_path / "edge.sosmap", edge)
     assert main(["export", "--geojson", str(tmp_path / "edge.sosmap"), "--out", str(tmp_path / "e.geojson")]) == 0
+
+
+def test_another_crs_than_the_one_the_map_records_is_refused(tmp_path, cli_error):
+    """The ninth new-user sweep: `export --epsg 32618` on a map recorded in EPSG:32617 moved every landmark 500 km
+    (a relabelling, not a reprojection), exit 0. The recorded code itself is fine."""
+    path = tmp_path / "m.sosmap"
+    write_landmark_map(path, _map(epsg=32614))
+    err = cli_error("export", "--geojson", path, "--epsg", "32615", "--out", tmp_path / "x.geojson")
+    assert "records its frame as EPSG:32614" in err and not (tmp_path / "x.geojson").exists()
+    assert main(["export", "--geojson", str(path), "--epsg", "32614", "--out", str(tmp_path / "y.geojson")]) == 0

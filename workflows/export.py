@@ -84,8 +84,9 @@ def run(
 ) -> dict:
     """Export the landmarks of `source` (a .sosmap or a session directory) to the requested files (atomic).
 
-    `epsg` overrides the map's CRS code (for maps saved with 0 whose frame is in fact that CRS); a code must
-    be a projected CRS (the map's coordinates are metres). Output files go through
+    `epsg` gives the CRS code of maps saved with 0 whose frame is in fact that CRS (another code than the one a
+    map records is an InputError: a relabelling, not a reprojection); a code must be a projected CRS (the map's
+    coordinates are metres). Output files go through
     `sosmatch.database.output_files.OutputFiles`: a file that exists is replaced only when this command wrote it
     (and `overwrite` when it came from another map or options). Returns {"landmarks": N, "epsg": code,
     "written": [paths]}.
@@ -94,6 +95,11 @@ def run(
         raise InputError("nothing to export: give --geojson, --ply and/or --csv")
     targets = {name: Path(p) for name, p in (("geojson", geojson), ("ply", ply), ("csv", csv_out)) if p is not None}
     lmap, extras = load_map(source)
+    if epsg and lmap.epsg and int(epsg) != int(lmap.epsg):
+        # --epsg relabels the coordinates, it does not reproject them: every landmark would land elsewhere
+        # (the ninth sweep: 500 km west, exit 0)
+        raise InputError(f"the map records its frame as EPSG:{lmap.epsg}; --epsg {epsg} would relabel its "
+                         "coordinates, not reproject them (every landmark placed elsewhere): omit --epsg", source)
     code = int(epsg or lmap.epsg)
     if code:
         check_projected_crs(code, source if not epsg else None)
