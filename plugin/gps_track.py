@@ -31,17 +31,22 @@ def frozen_fix(east: np.ndarray, north: np.ndarray) -> bool:
     return bool(np.max(np.linalg.norm(xy - np.median(xy, axis=0), axis=1)) <= FROZEN_SPREAD_M)
 
 
-def gps_jumps(east: np.ndarray, north: np.ndarray, times_s: np.ndarray) -> list[tuple[int, int, float, float]]:
+def gps_jumps(east: np.ndarray, north: np.ndarray, times_s: np.ndarray,
+              height: np.ndarray | None = None) -> list[tuple[int, int, float, float]]:
     """Consecutive fixes (in capture order) the aircraft cannot have flown between: (i, j, distance m, speed m/s)
     where the speed (distance over the capture interval, at least `TIME_RESOLUTION_S`) exceeds both
-    `JUMP_SPEED_FACTOR` x the flight's median speed and `SURVEY_SPEED_M_S`. Fixes without a position are skipped;
-    without capture times (any NaN) there is no speed to judge: empty."""
+    `JUMP_SPEED_FACTOR` x the flight's median speed and `SURVEY_SPEED_M_S`. With `height`, the distance is in 3D
+    where both fixes have one (one altitude read with the wrong sign is 500 m off its neighbours). Fixes without
+    a position are skipped; without capture times (any NaN) there is no speed to judge: empty."""
     xy = np.column_stack([east, north])
     t = np.asarray(times_s, np.float64)
     ok = np.flatnonzero(np.all(np.isfinite(xy), axis=1))
     if len(ok) < 3 or not np.all(np.isfinite(t[ok])):
         return []
     step = np.linalg.norm(np.diff(xy[ok], axis=0), axis=1)
+    if height is not None:
+        dz = np.diff(np.asarray(height, np.float64)[ok])
+        step = np.where(np.isfinite(dz), np.hypot(step, np.nan_to_num(dz)), step)
     dt = np.maximum(np.abs(np.diff(t[ok])), TIME_RESOLUTION_S)
     speed = step / dt
     limit = max(JUMP_SPEED_FACTOR * float(np.median(speed)), SURVEY_SPEED_M_S)

@@ -362,6 +362,13 @@ def test_frozen_fix_jumps_and_off_nadir():
     north[7] = 300.0  # one fix 300 m off the line: the jump in and the jump out are named
     assert [(i, j) for i, j, _, _ in gps_jumps(east, north, times)] == [(6, 7), (7, 8)]
     assert gps_jumps(east, north, np.full(20, np.nan)) == []  # no times: no speed
+    north[7] = 0.0
+    height = np.full(20, 281.0)
+    height[12] = -281.0  # GPSAltitudeRef 1 on one image: 562 m under its neighbours
+    assert gps_jumps(east, north, times) == []
+    assert [(i, j) for i, j, _, _ in gps_jumps(east, north, times, height)] == [(11, 12), (12, 13)]
+    height[12] = np.nan  # no altitude: judged horizontally
+    assert gps_jumps(east, north, times, height) == []
     # a fast flight (25 m/s, frames 2 s apart) and a turn between lines 60 m apart: no jump
     east2 = np.r_[np.arange(10.0) * 50.0, 450.0 - np.arange(10.0) * 50.0]
     north2 = np.r_[np.zeros(10), np.full(10, 60.0)]

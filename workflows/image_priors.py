@@ -419,8 +419,8 @@ def read_image_priors(
                  "along the course over ground (%d of them at turns of the flight, where the course says nothing "
                  "of the heading)", n_course, n, n_turns)
 
-    track_warnings, track_facts = _track_checks(east, north, times, time_source.startswith("EXIF"), rotations,
-                                                kind != "course", [m.path.name for m in metas])
+    track_warnings, track_facts = _track_checks(east, north, positions[:, 2], times, time_source.startswith("EXIF"),
+                                                rotations, kind != "course", [m.path.name for m in metas])
     for text in track_warnings:
         log.warning("%s", text)
     cameras, camera_index, intrinsics_sources, camera_warnings = _camera_groups(metas, sensor_width_mm,
@@ -458,15 +458,15 @@ def read_image_priors(
                        camera_index, summary)
 
 
-def _track_checks(east: np.ndarray, north: np.ndarray, times: np.ndarray, timed: bool, rotations: np.ndarray,
-                  tagged: np.ndarray, names: list[str]) -> tuple[list[str], dict[str, Any]]:
+def _track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times: np.ndarray, timed: bool,
+                  rotations: np.ndarray, tagged: np.ndarray, names: list[str]) -> tuple[list[str], dict[str, Any]]:
     """What the GPS track and the attitude tags say that no aircraft does (`plugin.gps_track`): warnings naming
     images, and the facts for the summary (`gps_frozen`, `gps_jumps`, `tags_median_off_nadir_deg`). Without
     capture times (`timed` False, `times` one second per image) a jump is judged against the flight's own steps
     between consecutive images."""
     out: list[str] = []
     frozen = frozen_fix(east, north)
-    jumps = [] if frozen else gps_jumps(east, north, times)
+    jumps = [] if frozen else gps_jumps(east, north, times, heights)
     if frozen:
         out.append(f"the GPS fixes of all {int(np.sum(np.isfinite(east)))} images lie within {FROZEN_SPREAD_M:g} m "
                    "of one point: a receiver without a lock repeats its last fix; poses from them have no baseline")
