@@ -61,6 +61,10 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
     header = [h.strip().lower() for h in rows[0]]
     col = {key: next((header.index(a) for a in aliases if a in header), None)
            for key, aliases in _TELEMETRY_KEYS.items()}
+    if all(col[k] is None for k in ("yaw", "pitch", "roll")) and {"omega", "phi", "kappa"} <= set(header):
+        log.warning("%s: omega/phi/kappa columns (photogrammetric angles of the camera) are not read; attitude "
+                    "comes from yaw/pitch/roll columns (%s, %s, %s)", path, *(_TELEMETRY_KEYS[k][0]
+                                                                           for k in ("yaw", "pitch", "roll")))
     if col["name"] is None:
         raise InputError(f"telemetry header needs an image name column (one of {_TELEMETRY_KEYS['name']})", path, 1)
     out: dict[str, dict[str, float]] = {}

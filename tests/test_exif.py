@@ -425,3 +425,16 @@ def test_a_gps_position_without_its_hemisphere_is_left_out(tmp_path):
         im.save(tmp_path / "b.jpg", exif=exif.tobytes())
     meta = read_image_metadata(tmp_path / "b.jpg")
     assert meta.latitude is None and any("without its hemisphere" in p for p in meta.problems)
+
+
+def test_telemetry_with_semicolons_and_omega_phi_kappa(tmp_path, caplog):
+    from sosmatch.database.telemetry_io import read_telemetry_csv
+
+    semi = tmp_path / "t.csv"
+    semi.write_text("FileName;Heading;PitchAngle;RollAngle\nf0.jpg;70.5;2.5;-2.9\n")
+    assert read_telemetry_csv(semi) == {"f0.jpg": {"yaw": 70.5, "pitch": 2.5, "roll": -2.9}}
+    opk = tmp_path / "o.csv"
+    opk.write_text("filename,latitude,longitude,altitude,omega,phi,kappa\nf0.jpg,47,8,500,1,2,3\n")
+    assert read_telemetry_csv(opk) == {"f0.jpg": {"lat": 47.0, "lon": 8.0, "alt": 500.0}}
+    assert "omega/phi/kappa columns" in caplog.text
+
