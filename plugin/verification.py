@@ -42,6 +42,7 @@ class Verification:
     support: int = 0  # the winner's support in the `dof` search (the figure the tests compare)
     clear: bool = False  # it beats every rival by min_ratio and chance (p_value <= false_alarm)
     chance: ChanceModel | None = None  # None: no winner, or the chance test off (chance_starts 0)
+    tilt_p: float | None = None  # the final 6-DOF refit's F test (`tilt_significance`; None: not refitted)
 
 
 class _NearTried:
@@ -96,6 +97,7 @@ def verify_alignments(
     candidates: Sequence[tuple[Any, np.ndarray]], gate_m: float, max_size_difference: float,
     min_support: int, min_ratio: float = 1.2, dof: int = 4, z_weight: float = 0.5, final_dof: int | None = 6,
     chance_starts: int = 512, false_alarm: float = 1e-2, prior_m: float = 0.0, coarse_factor: float = 2.0,
+    final_tilt_p: float = 0.01,
 ) -> Verification:
     """Choose among a pair's window hypotheses by their support on the FULL maps, and refine the winner.
 
@@ -113,7 +115,9 @@ def verify_alignments(
     pairs, and its support is the mutual nearest neighbours under that transform. The 4-DOF search finds the
     pairs robustly; with tens to hundreds of pairs over the whole overlap the small tilt between two EKF frames
     (~1 deg on the synthetic winter flights) is then observable, which one window's 8-20 inliers could not
-    resolve, and the landmarks that the tilt kept out of the 4-DOF pairs join. None: keep the `dof` fit.
+    resolve, and the landmarks that the tilt kept out of the 4-DOF pairs join. None: keep the `dof` fit. The
+    refit's roll and pitch are kept only when they explain the winner's pairs beyond chance
+    (`tilt_significance` <= `final_tilt_p`); else the `dof` fit stands and its pairs are recounted as above.
     Chance (`sequential_chance`, `chance_test`): up to `chance_starts` refinements from random placements of B over A
     (within `prior_m` of where it is when both maps share one frame, 0: anywhere) measure the support chance
     reaches; the winner must be improbable as the best of the N_eff alignments the search had
@@ -153,9 +157,12 @@ def verify_alignments(
     # are the same alignment caught on a slightly different set of chance pairs (seen across seasons: 2-3 m
     # apart with |support| within 1), i.e. its uncertainty, not a contradiction.
     support = len(best.associations)
-    rigid, winner_pairs = None, None
+    rigid, winner_pairs, tilt_p = None, None, None
     if final_dof == 6 and dof != 6 and support >= 3:
         first = _final_rigid_fit(pa_all, pb_all, best, gate_m, z_weight)
+        tilt_p = tilt_significance(pa_all, pb_all, best, first.transform, z_weight)
+        if tilt_p > final_tilt_p:
+            first = best  # the tilt is not in the pairs: the `dof` fit stands
         # then the pairs under that transform: landmarks the 4-DOF fit could not reach because the frames are
         # tilted (1-2 deg between EKF frames is metres of height at the far end of a map) join its support
         assoc, dist = mutual_nearest(pa_all, sizes_a, first.transform.apply(pb_all), sizes_b, gate_m,
@@ -188,7 +195,8 @@ def verify_alignments(
     if rigid is not None:
         best = rigid
     clear = bool(support >= min_ratio * runner_up and (chance is None or chance.p_value <= false_alarm))
-    return Verification(best, runner_up, len(refined), bool(support > min_support and clear), support, clear, chance)
+    return Verification(best, runner_up, len(refined), bool(support > min_support and clear), support, clear, chance,
+                        tilt_p)
 
 
 CONTROL_SHIFT_GATES = 3.0  # the displaced controls: B moved this many gates (beyond any landmark scatter)
@@ -239,6 +247,26 @@ def verification_candidates(hypotheses: Sequence[Any], max_gravity_angle_deg: fl
             for h in usable[:max_candidates]]
 
 
+def tilt_significance(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, rigid: Sim3, z_weight: float) -> float:
+    """p of the F test that the 6-DOF `rigid` fits an alignment's pairs better than its own gravity-aligned
+    (4-DOF) transform only by chance: the two extra parameters (roll, pitch) against the residual sum over
+    3 x pairs coordinates (heights scaled by `z_weight`, as the pairs were formed). 1 when there is nothing to
+    test (fewer than 3 pairs, or no improvement)."""
+    from scipy.stats import f as f_dist
+
+    assoc = aligned.associations
+    n = len(assoc)
+    if n < 3:
+        return 1.0
+    src, dst = pb[assoc[:, 1]], pa[assoc[:, 0]]
+    rss4 = float(np.sum(pairing_distance(aligned.transform.apply(src), dst, z_weight) ** 2))
+    rss6 = float(np.sum(pairing_distance(rigid.apply(src), dst, z_weight) ** 2))
+    dof = 3 * n - 6
+    if rss6 <= 0.0 or rss4 <= rss6:
+        return 1.0 if rss4 <= rss6 else 0.0
+    return float(f_dist.sf(((rss4 - rss6) / 2.0) / (rss6 / dof), 2, dof))
+
+
 def _final_rigid_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, gate_m: float, z_weight: float) -> Alignment:
     """One Huber-weighted 6-DOF fit on an alignment's supporting pairs (kept as they are)."""
     assoc = aligned.associations
@@ -268,4 +296,5 @@ def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
                              association.min_associations, min_ratio=verification.min_ratio, dof=verification.dof,
                              z_weight=verification.z_weight, final_dof=verification.final_dof or None,
                              chance_starts=verification.chance_starts, false_alarm=verification.false_alarm,
-                             prior_m=association.position_prior_m, coarse_factor=verification.coarse_factor)
+                             prior_m=association.position_prior_m, coarse_factor=verification.coarse_factor,
+                             final_tilt_p=verification.final_tilt_p)
