@@ -130,6 +130,10 @@ def load_map(path: str | Path) -> LoadedMap:
     if not path.exists():
         raise InputError("no such file or directory", path)
     if path.is_file():
+        if path.name == "landmarks.sosmap" and (path.parent / "run.json").is_file():
+            # a session's own map file is that session (its checks, and its noise figures: without them a bare
+            # .sosmap is matched at the configured tolerances, which lost pairs that matched as sessions)
+            return load_map(path.parent)
         if path.suffix == ".sosmap":
             return LoadedMap(read_landmark_map(path), "sosmap", path)
         if path.name.startswith("points3D."):
@@ -145,4 +149,8 @@ def load_map(path: str | Path) -> LoadedMap:
     model = _model_dir(path)
     if model is not None:
         return LoadedMap(read_colmap_points(model), "colmap", model)
-    raise InputError("directory holds neither landmarks.sosmap nor a COLMAP model (points3D.bin/.txt)", path)
+    if (path / "session.json").is_file() and (path / "images").is_dir():
+        raise InputError("a synthetic session that is not mapped yet (no landmarks.sosmap): map it first "
+                         f"(`sosmatch map --poses {path} --out MAPPED`) and give MAPPED", path)
+    raise InputError("directory holds neither landmarks.sosmap nor a COLMAP model (points3D.bin/.txt): a mapped "
+                     "session (`sosmatch map --out`) is expected", path)

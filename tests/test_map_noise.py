@@ -65,6 +65,13 @@ def test_session_noise_is_read_from_run_json(tmp_path):
     noise = MapNoise(0.2, 0.9, 0.08, 3)
     (tmp_path / "run.json").write_text(json.dumps({"noise": noise.to_dict()}))
     assert load_map(tmp_path).noise == noise
+    # the session's own map file is the session (the ninth sweep: given as a file, its noise was unknown and the
+    # configured tolerances found nothing where the session matched); a copy elsewhere has none
+    assert load_map(tmp_path / "landmarks.sosmap").noise == noise and load_map(tmp_path / "landmarks.sosmap").kind \
+        == "session"
+    (tmp_path / "copy").mkdir()
+    (tmp_path / "copy" / "m.sosmap").write_bytes((tmp_path / "landmarks.sosmap").read_bytes())
+    assert load_map(tmp_path / "copy" / "m.sosmap").noise is None
     (tmp_path / "run.json").write_text("{not json")
     with pytest.raises(InputError, match="run.json"):
         load_map(tmp_path)

@@ -222,3 +222,11 @@ def test_the_first_of_two_searches_is_judged_at_its_own_theta_s(maps):
     assert answer.accepted and answer.tolerances == "first"
     assert answer.searched.min_associations == first.min_associations != derived.min_associations
     assert min(h.size for h in answer.search.hypotheses) <= derived.min_associations  # hypotheses of theta_S 6
+
+
+def test_an_unmapped_synthetic_session_is_named_as_such(tmp_path, cli_error):
+    raw = tmp_path / "raw"
+    (raw / "images").mkdir(parents=True)
+    (raw / "session.json").write_text("{}")
+    err = cli_error("match", raw, raw, "--out", tmp_path / "m")
+    assert "not mapped yet" in err and "sosmatch map --poses" in err and not (tmp_path / "m").exists()
