@@ -118,6 +118,9 @@ def test_batch_stages_failures_and_groups(flights, local_run):
     assert sorted(done) == ["A__B", "A__C", "A__D", "B__C", "B__D", "C__D"]
     assert sum(p["status"] == "skipped" for p in report.pairs) == 4  # every pair with the failed flight
     assert {k for k, p in done.items() if p["accepted"]} == {"A__B", "B__C"}
+    # a refused pair holds no associations; what its best candidate had is its own column
+    assert all((p["num_associations"] > 0) == p["accepted"] and (p["refused_support"] is None) == p["accepted"]
+               for p in done.values())
     assert {k for k, p in done.items() if p.get("in_graph")} == {"A__B", "B__C"}
     groups = {g["reference"]: g for g in report.groups}
     big = next(g for g in report.groups if len(g["members"]) == 3)

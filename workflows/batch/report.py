@@ -105,8 +105,8 @@ def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
 
 
 SESSION_COLUMNS = ["name", "kind", "status", "images", "points3D", "landmarks", "seconds", "error"]
-PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "yaw_deg", "moved_median_m",
-                "moved_max_m", "scale", "gone", "new", "kept", "unseen", "seconds", "error"]
+PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "refused_support", "yaw_deg",
+                "moved_median_m", "moved_max_m", "scale", "gone", "new", "kept", "unseen", "seconds", "error"]
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]
 
 

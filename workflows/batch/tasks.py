@@ -94,7 +94,10 @@ def summarise_match(match_json: Path) -> dict[str, Any]:
     return {
         "match": str(match_json),
         "accepted": bool(m.accepted),
-        "num_associations": int(len(m.associations)),
+        # an answer's associations; a refused candidate's support is no association (the report printed the two
+        # in one column)
+        "num_associations": int(len(m.associations)) if m.accepted else 0,
+        "refused_support": None if m.accepted else int(len(m.associations)),
         "num_hypotheses": int(m.num_hypotheses),
         "transform": m.transform.to_dict() if m.transform is not None and m.accepted else None,
         "answer": m.source,
