@@ -19,7 +19,9 @@ FROZEN_SPREAD_M = 1.0  # fixes of >= 3 images all within this of their median: t
 JUMP_SPEED_FACTOR = 4.0
 SURVEY_SPEED_M_S = 20.0
 TIME_RESOLUTION_S = 1.0  # EXIF DateTimeOriginal without sub-seconds: two captures in one second are <= 1 s apart
-OFF_NADIR_LIMIT_DEG = 60.0
+# a camera tagged this far from nadir (median of the flight) looks at the horizon: nadir tags read in the other
+# pitch convention give ~90; oblique surveys (gimbal pitch -25 .. -60) stay below
+OFF_NADIR_LIMIT_DEG = 80.0
 
 
 def frozen_fix(east: np.ndarray, north: np.ndarray) -> bool:
@@ -37,11 +39,14 @@ def gps_jumps(east: np.ndarray, north: np.ndarray, times_s: np.ndarray,
     where the speed (distance over the capture interval, at least `TIME_RESOLUTION_S`) exceeds both
     `JUMP_SPEED_FACTOR` x the flight's median speed and `SURVEY_SPEED_M_S`. With `height`, the distance is in 3D
     where both fixes have one (one altitude read with the wrong sign is 500 m off its neighbours). Fixes without
-    a position are skipped; without capture times (any NaN) there is no speed to judge: empty."""
+    a position are skipped; without capture times (any NaN), or with times that do not advance (one clock stamp on
+    every frame), there is no speed to judge: empty (the step between lines or batteries is no evidence)."""
     xy = np.column_stack([east, north])
     t = np.asarray(times_s, np.float64)
     ok = np.flatnonzero(np.all(np.isfinite(xy), axis=1))
     if len(ok) < 3 or not np.all(np.isfinite(t[ok])):
+        return []
+    if np.median(np.abs(np.diff(t[ok]))) <= 0.0:
         return []
     step = np.linalg.norm(np.diff(xy[ok], axis=0), axis=1)
     if height is not None:

@@ -362,6 +362,7 @@ def test_frozen_fix_jumps_and_off_nadir():
     north[7] = 300.0  # one fix 300 m off the line: the jump in and the jump out are named
     assert [(i, j) for i, j, _, _ in gps_jumps(east, north, times)] == [(6, 7), (7, 8)]
     assert gps_jumps(east, north, np.full(20, np.nan)) == []  # no times: no speed
+    assert gps_jumps(east, north, np.full(20, 5.0)) == []  # one clock stamp on every frame: no speed either
     north[7] = 0.0
     height = np.full(20, 281.0)
     height[12] = -281.0  # GPSAltitudeRef 1 on one image: 562 m under its neighbours
@@ -395,6 +396,11 @@ def test_poses_from_exif_refuses_a_frozen_fix_and_cameras_tagged_at_the_horizon(
     with pytest.raises(InputError, match="from straight down"):
         pfe.run(tmp_path / "horizon", tmp_path / "o2" / "poses.csv")
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
+    oblique = {"GimbalYawDegree": "+0.0", "GimbalPitchDegree": "-25.0", "GimbalRollDegree": "0.0"}
+    _flight(tmp_path / "oblique", xmp=oblique)  # 65 deg from nadir: an oblique survey still looks at the ground
+    res = pfe.run(tmp_path / "oblique", tmp_path / "o3" / "poses.csv")
+    assert res.summary["tags_median_off_nadir_deg"] == pytest.approx(65.0, abs=0.1)
+    assert not any("straight down" in w for w in res.summary["warnings"])
 
 
 def test_a_jump_is_named_and_parrot_tags_are_gimbal_angles(tmp_path, caplog):
@@ -406,6 +412,12 @@ def test_a_jump_is_named_and_parrot_tags_are_gimbal_angles(tmp_path, caplog):
                    xmp_as_elements=True, when=f"2026:06:01 10:00:{2 * k:02d}")
     res = pfe.run(img, tmp_path / "o" / "poses.csv")
     assert [j[:2] for j in res.summary["gps_jumps"]] == [["f2.jpg", "f3.jpg"], ["f3.jpg", "f4.jpg"]]
+    untimed = tmp_path / "untimed"
+    untimed.mkdir()
+    for k in range(6):  # the same fixes without capture times: no speed, so no jump is judged
+        write_jpeg(untimed / f"f{k}.jpg", 47.0 + k * 1e-4, 8.0 + (0.004 if k == 3 else 0.0), 500.0, parrot,
+                   xmp_as_elements=True)
+    assert pfe.run(untimed, tmp_path / "u" / "poses.csv").summary["gps_jumps"] == []
     assert any("GPS jumps 2 time(s)" in w and "f2.jpg -> f3.jpg" in w for w in res.summary["warnings"])
     assert res.summary["attitude_sources"] == {"XMP CameraYaw/Pitch/RollDegree (Parrot)": 6}
     np.testing.assert_allclose(res.poses.rotations[:, :, 2], [[0, 0, -1]] * 6, atol=1e-9)

@@ -462,14 +462,16 @@ def _track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, time
                   rotations: np.ndarray, tagged: np.ndarray, names: list[str]) -> tuple[list[str], dict[str, Any]]:
     """What the GPS track and the attitude tags say that no aircraft does (`plugin.gps_track`): warnings naming
     images, and the facts for the summary (`gps_frozen`, `gps_jumps`, `tags_median_off_nadir_deg`). Without
-    capture times (`timed` False, `times` one second per image) a jump is judged against the flight's own steps
-    between consecutive images."""
+    capture times (`timed` False: `times` are one second per image) there is no speed, so no jump is judged: the
+    step to the next line or battery is as long as a wrong fix."""
     out: list[str] = []
     frozen = frozen_fix(east, north)
-    jumps = [] if frozen else gps_jumps(east, north, times, heights)
+    jumps = [] if frozen or not timed else gps_jumps(east, north, times, heights)
     if frozen:
-        out.append(f"the GPS fixes of all {int(np.sum(np.isfinite(east)))} images lie within {FROZEN_SPREAD_M:g} m "
-                   "of one point: a receiver without a lock repeats its last fix; poses from them have no baseline")
+        fixed = int(np.sum(np.isfinite(east)))
+        out.append(f"the GPS fixes of all {fixed} images{'' if fixed == len(names) else ' with a fix'} lie within "
+                   f"{FROZEN_SPREAD_M:g} m of one point: a receiver without a lock repeats its last fix; poses from "
+                   "them have no baseline")
     elif jumps:
         said = ", ".join(f"{names[i]} -> {names[j]} {d:.0f} m" + (f" at {v:.0f} m/s" if timed else "")
                          for i, j, d, v in jumps[:4])
@@ -481,7 +483,7 @@ def _track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, time
         out.append(f"the attitude tags turn {int(np.sum(off > OFF_NADIR_LIMIT_DEG))} of {len(off)} cameras more "
                    f"than {OFF_NADIR_LIMIT_DEG:g} deg away from straight down (median {median_off:.0f} deg): a "
                    "survey camera looks at the ground; tags written in another pitch convention (DJI gimbal pitch "
-                   "-90 = nadir, 0 = horizon)?")
+                   "-90 = nadir, 0 = horizon; airframe tags: --mount, --pitch-sign)?")
     facts = {"gps_frozen": frozen, "gps_jumps": [[names[i], names[j], round(d, 1)] for i, j, d, _ in jumps],
              "tags_median_off_nadir_deg": median_off}
     return out, facts

@@ -102,7 +102,8 @@ def poses_from_images(
     if off is not None and off > OFF_NADIR_LIMIT_DEG:
         raise InputError(f"the attitude tags turn the cameras {off:.0f} deg from straight down (median): not a "
                          "survey looking at the ground; tags in another pitch convention (DJI gimbal pitch -90 = "
-                         "nadir)? Take poses from structure from motion (`sosmatch poses`)", metas[0].path)
+                         "nadir; airframe tags: --mount, --pitch-sign)? Or take poses from structure from motion "
+                         "(`sosmatch poses`)", metas[0].path)
     no_height = np.flatnonzero(~priors.has_gps)
     if len(no_height):
         raise InputError("image has GPS latitude/longitude but no GPSAltitude", metas[int(no_height[0])].path)
