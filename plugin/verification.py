@@ -21,12 +21,10 @@ from .chance import (
 from .multisession import Sim3
 from .refinement import (
     Alignment,
-    huber_weights,
     mutual_nearest,
     pairing_distance,
     pairing_tree,
     refine_alignment,
-    weighted_umeyama,
     yaw_matrix,
 )
 
@@ -42,7 +40,7 @@ class Verification:
     support: int = 0  # the winner's support in the `dof` search (the figure the tests compare)
     clear: bool = False  # it beats every rival by min_ratio and chance (p_value <= false_alarm)
     chance: ChanceModel | None = None  # None: no winner, or the chance test off (chance_starts 0)
-    tilt_p: float | None = None  # the final 6-DOF refit's F test (`tilt_significance`; None: not refitted)
+    tilt_p: float | None = None  # the F test of a tilt in the winner's pairs (`tilt_significance`; None: not run)
 
 
 class _NearTried:
@@ -97,7 +95,7 @@ def verify_alignments(
     candidates: Sequence[tuple[Any, np.ndarray]], gate_m: float, max_size_difference: float,
     min_support: int, min_ratio: float = 1.2, dof: int = 4, z_weight: float = 0.5, final_dof: int | None = 6,
     chance_starts: int = 512, false_alarm: float = 1e-2, prior_m: float = 0.0, coarse_factor: float = 2.0,
-    final_tilt_p: float = 0.01,
+    tilt_prior_deg: float = 1.0,
 ) -> Verification:
     """Choose among a pair's window hypotheses by their support on the FULL maps, and refine the winner.
 
@@ -111,13 +109,14 @@ def verify_alignments(
     `min_support` and is at least `min_ratio` times the support of the best rival (an alignment that moves some
     of the winner's supporting B landmarks more than 2 gate_m away from where the winner puts them: the search's
     other candidates, and B deliberately displaced and turned (`_displaced_starts`), refined like the winner).
-    `final_dof` 6: the winner's transform is finally refitted rigidly (6-DOF, Huber-weighted) on its supporting
-    pairs, and its support is the mutual nearest neighbours under that transform. The 4-DOF search finds the
-    pairs robustly; with tens to hundreds of pairs over the whole overlap the small tilt between two EKF frames
-    (~1 deg on the synthetic winter flights) is then observable, which one window's 8-20 inliers could not
-    resolve, and the landmarks that the tilt kept out of the 4-DOF pairs join. None: keep the `dof` fit. The
-    refit's roll and pitch are kept only when they explain the winner's pairs beyond chance
-    (`tilt_significance` <= `final_tilt_p`); else the `dof` fit stands and its pairs are recounted as above.
+    `final_dof` 6: the winner's transform is finally tilted by what its supporting pairs' heights show, shrunk
+    towards level by a Gaussian prior of `tilt_prior_deg` per axis (`tilted_fit`), and its support is the mutual
+    nearest neighbours under that transform. The 4-DOF search finds the pairs robustly; with tens to hundreds of
+    pairs over the whole overlap the small tilt between two EKF frames (~1 deg on the synthetic winter flights)
+    is then observable, which one window's 8-20 inliers could not resolve, and the landmarks that the tilt kept
+    out of the 4-DOF pairs join; with few or noisy heights the prior keeps the maps near level (a free 6-DOF
+    refit fitted the EKF frames' local distortion: 1.5 deg of tilt between maps that agree within 0.4 deg).
+    None: keep the `dof` fit. `tilt_significance` (the F test of a tilt in those heights) is reported.
     Chance (`sequential_chance`, `chance_test`): up to `chance_starts` refinements from random placements of B over A
     (within `prior_m` of where it is when both maps share one frame, 0: anywhere) measure the support chance
     reaches; the winner must be improbable as the best of the N_eff alignments the search had
@@ -159,10 +158,8 @@ def verify_alignments(
     support = len(best.associations)
     rigid, winner_pairs, tilt_p = None, None, None
     if final_dof == 6 and dof != 6 and support >= 3:
-        first = _final_rigid_fit(pa_all, pb_all, best, gate_m, z_weight)
-        tilt_p = tilt_significance(pa_all, pb_all, best, first.transform, z_weight)
-        if tilt_p > final_tilt_p:
-            first = best  # the tilt is not in the pairs: the `dof` fit stands
+        tilt_p = tilt_significance(pa_all, pb_all, best)
+        first = tilted_fit(pa_all, pb_all, best, tilt_prior_deg, z_weight)
         # then the pairs under that transform: landmarks the 4-DOF fit could not reach because the frames are
         # tilted (1-2 deg between EKF frames is metres of height at the far end of a map) join its support
         assoc, dist = mutual_nearest(pa_all, sizes_a, first.transform.apply(pb_all), sizes_b, gate_m,
@@ -247,37 +244,65 @@ def verification_candidates(hypotheses: Sequence[Any], max_gravity_angle_deg: fl
             for h in usable[:max_candidates]]
 
 
-def tilt_significance(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, rigid: Sim3, z_weight: float) -> float:
-    """p of the F test that the 6-DOF `rigid` fits an alignment's pairs better than its own gravity-aligned
-    (4-DOF) transform only by chance: the two extra parameters (roll, pitch) against the residual sum over
-    3 x pairs coordinates (heights scaled by `z_weight`, as the pairs were formed). 1 when there is nothing to
-    test (fewer than 3 pairs, or no improvement)."""
+def tilt_significance(pa: np.ndarray, pb: np.ndarray, aligned: Alignment) -> float:
+    """p of the F test that the pairs of a gravity-aligned (4-DOF) alignment show a tilt: their height residuals
+    (B's landmark placed by the alignment minus its partner in A) regressed on the horizontal position, F(2, n-3)
+    on the two slopes against the residuals' own scatter. Only heights carry a small tilt (1 deg is 1.7 m of height
+    100 m away and millimetres horizontally), so horizontal noise, which is smaller, does not enter. 1 when there
+    is nothing to test (fewer than 5 pairs, or no scatter left)."""
     from scipy.stats import f as f_dist
 
     assoc = aligned.associations
     n = len(assoc)
-    if n < 3:
+    if n < 5:
         return 1.0
-    src, dst = pb[assoc[:, 1]], pa[assoc[:, 0]]
-    rss4 = float(np.sum(pairing_distance(aligned.transform.apply(src), dst, z_weight) ** 2))
-    rss6 = float(np.sum(pairing_distance(rigid.apply(src), dst, z_weight) ** 2))
-    dof = 3 * n - 6
-    if rss6 <= 0.0 or rss4 <= rss6:
-        return 1.0 if rss4 <= rss6 else 0.0
-    return float(f_dist.sf(((rss4 - rss6) / 2.0) / (rss6 / dof), 2, dof))
+    placed = aligned.transform.apply(pb[assoc[:, 1]])
+    dz = placed[:, 2] - pa[assoc[:, 0], 2]
+    xy = placed[:, :2] - placed[:, :2].mean(axis=0)
+    design = np.column_stack([xy, np.ones(n)])
+    coef, *_ = np.linalg.lstsq(design, dz, rcond=None)
+    rss_full = float(np.sum((dz - design @ coef) ** 2))
+    rss_level = float(np.sum((dz - dz.mean()) ** 2))
+    if rss_full <= 0.0:
+        return 0.0 if rss_level > 0.0 else 1.0
+    return float(f_dist.sf(((rss_level - rss_full) / 2.0) / (rss_full / (n - 3)), 2, n - 3))
 
 
-def _final_rigid_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, gate_m: float, z_weight: float) -> Alignment:
-    """One Huber-weighted 6-DOF fit on an alignment's supporting pairs (kept as they are)."""
+def tilted_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, prior_deg: float, z_weight: float) -> Alignment:
+    """A gravity-aligned (4-DOF) alignment tilted by what its pairs' heights show, shrunk towards level by a prior:
+    the height residuals regressed on the horizontal position (as `tilt_significance`) give the two slopes and
+    their covariance; a zero-mean Gaussian prior of `prior_deg` per axis on the relative tilt of two gravity-aligned
+    maps (EKF frames differ by 0.2-1.4 deg on the synthetic worlds) weighs them (the posterior mean). Few or noisy
+    heights then leave the maps level instead of fitting the frames' local distortion; many pairs over a wide
+    overlap measure the tilt. The tilt turns B about the pairs' centroid. Fewer than 5 pairs, or no prior: as is."""
     assoc = aligned.associations
-    src, dst = pb[assoc[:, 1]], pa[assoc[:, 0]]
-    w = huber_weights(pairing_distance(aligned.transform.apply(src), dst, z_weight), gate_m)
-    try:
-        rigid = weighted_umeyama(src, dst, w, with_scale=False)
-    except ValueError:
+    n = len(assoc)
+    if n < 5 or prior_deg <= 0.0:
         return aligned
-    res = pairing_distance(rigid.apply(src), dst, z_weight)
-    return Alignment(rigid, assoc, float(np.sqrt(np.mean(res**2))), aligned.iterations)
+    placed = aligned.transform.apply(pb[assoc[:, 1]])
+    dz = placed[:, 2] - pa[assoc[:, 0], 2]
+    centre = placed.mean(axis=0)
+    design = np.column_stack([placed[:, :2] - centre[:2], np.ones(n)])
+    normal = design.T @ design
+    try:
+        inverse = np.linalg.inv(normal)
+    except np.linalg.LinAlgError:
+        return aligned
+    coef = inverse @ design.T @ dz
+    scatter = float(np.sum((dz - design @ coef) ** 2)) / (n - 3)
+    slopes = coef[:2]
+    if scatter > 0.0:
+        prior_precision = np.eye(2) / np.tan(np.radians(prior_deg)) ** 2
+        data_precision = np.linalg.inv(scatter * inverse[:2, :2])
+        slopes = np.linalg.solve(data_precision + prior_precision, data_precision @ slopes)
+    # heights fall by slope . (x, y) after turning B by -slope_y about x and +slope_x about y
+    tx, ty = -float(np.arctan(slopes[1])), float(np.arctan(slopes[0]))
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(tx), -np.sin(tx)], [0.0, np.sin(tx), np.cos(tx)]])
+    ry = np.array([[np.cos(ty), 0.0, np.sin(ty)], [0.0, 1.0, 0.0], [-np.sin(ty), 0.0, np.cos(ty)]])
+    turn = rx @ ry
+    transform = Sim3(turn, centre - turn @ centre, 1.0).compose(aligned.transform)
+    res = pairing_distance(transform.apply(pb[assoc[:, 1]]), pa[assoc[:, 0]], z_weight)
+    return Alignment(transform, assoc, float(np.sqrt(np.mean(res**2))), aligned.iterations)
 
 
 def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
@@ -297,4 +322,4 @@ def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
                              z_weight=verification.z_weight, final_dof=verification.final_dof or None,
                              chance_starts=verification.chance_starts, false_alarm=verification.false_alarm,
                              prior_m=association.position_prior_m, coarse_factor=verification.coarse_factor,
-                             final_tilt_p=verification.final_tilt_p)
+                             tilt_prior_deg=verification.tilt_prior_deg)

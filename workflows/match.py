@@ -160,11 +160,11 @@ def verification_json(answer: MatchAnswer | None, params: Params) -> dict[str, A
             "support": 0 if best is None else len(best.associations), "runner_up_support": int(v.runner_up_support),
             "rms_m": None if best is None else _num(best.rms_m), "num_refined": int(v.num_refined),
             "support_dof": int(v.support), "clear": bool(v.clear),
-            # the final 6-DOF refit's F test; its roll and pitch kept only when tilt_p <= final_tilt_p
+            # the F test of a tilt in the winner's pairs' heights (the fitted tilt is shrunk by tilt_prior_deg)
             "tilt_p": None if v.tilt_p is None else _num(v.tilt_p),
             "chance": None if v.chance is None else {**v.chance.to_dict(), "false_alarm": vp.false_alarm},
             "associations": answer.associations.tolist(),
-            "method": {"dof": vp.dof, "final_dof": vp.final_dof, "final_tilt_p": vp.final_tilt_p,
+            "method": {"dof": vp.dof, "final_dof": vp.final_dof, "tilt_prior_deg": vp.tilt_prior_deg,
                        "min_ratio": vp.min_ratio, "z_weight": vp.z_weight,
                        "max_candidates": vp.max_candidates, "gate_m": params.association.distance_tolerance_m,
                        "max_size_difference": vp.max_size_difference, "chance_starts": vp.chance_starts,
