@@ -30,6 +30,7 @@ from .result import OUTPUTS, RECORD, PosesResult, _json_default, _listing, _refu
 
 log = logging.getLogger(__name__)
 MIN_IMAGES = 3  # the fewest images an incremental reconstruction (two-view start + one more) can pose
+GROSS_GPS_SIGMAS = 10.0  # an image this many GPS sigmas off its fix, weakly tied, is a failed registration
 
 def _image_identity(paths: Sequence[Path]) -> list[list[Any]]:
     out = []
@@ -181,11 +182,21 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         # neither source can be trusted (the global mapper placed such images 2000 km off on Seneca frames), so
         # they are left out like unregistered images
         added = model.registered_only_by_global_mapper
-        off = [n for n in (geo_report or {}).get("gps_outliers", []) if n in added]
+        flagged = [n for n in (geo_report or {}).get("gps_outliers", []) if n in added]
+        # left out only beyond a gross-error bound (10 GPS sigmas, at least the configured receiver's): the
+        # outlier limit (~3 sigma) also flags ~1 % of good images by the GPS noise alone
+        sigma = max(float(geo.horizontal.sigma_m) if geo is not None else 0.0, sp.gps_sigma_m)
+        fix = {n: priors.positions[priors.names.index(n), :2] for n in flagged}
+        miss = {n: float(np.linalg.norm(poses.centers[names.index(n), :2] - fix[n])) for n in flagged}
+        off = [n for n in flagged if miss[n] > GROSS_GPS_SIGMAS * sigma]
+        near = [n for n in flagged if n not in off]
         warnings.append(f"{len(added)} of {n_all} images were registered only by COLMAP's global mapper (the "
                         "incremental mapper left them out: weakly tied to the others)"
-                        + (f"; {len(off)} of them lie off their GPS fix by more than the outlier limit and are "
-                           f"left out ({_listing(off)})" if off else "") + ": " + _listing(added))
+                        + (f"; {len(off)} of them lie more than {GROSS_GPS_SIGMAS:g} GPS sigmas ("
+                           f"{GROSS_GPS_SIGMAS * sigma:.0f} m) off their GPS fix and are left out ("
+                           + _listing([f"{n} {miss[n]:.0f} m" for n in off]) + ")" if off else "")
+                        + (f"; {len(near)} off their fix by more than the outlier limit ({_listing(near)})"
+                           if near else "") + ": " + _listing(added))
         if off:
             poses = _without_images(model, poses, off)
             if len(poses.names) < max(MIN_IMAGES, sp.min_registered_fraction * n_all):
