@@ -203,13 +203,13 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
         Poses.from_cam_from_world(names, rot, data[:, :3])
     if np.abs(poses.centers).max() > MAX_WORLD_COORD_M:  # camera_from_world translations far from the origin
         raise InputError(f"camera centres beyond {MAX_WORLD_COORD_M:g} m (not a coordinate on Earth)", path)
-    degrees = _look_like_degrees(poses.centers)
+    degrees = _look_like_degrees(poses.centers, epsg)
     if degrees:
         raise InputError(degrees, path)
     return poses, epsg
 
 
-def _look_like_degrees(centers: np.ndarray) -> str | None:
+def _look_like_degrees(centers: np.ndarray, epsg: int = 0) -> str | None:
     """Why the x, y of these camera centres look like longitude / latitude in degrees, or None: several cameras
     all within 0.5 of one another horizontally, at x within +-180 and y within +-90. A flight spans metres at
     least; in degrees it spans thousandths (a GPS log pasted as x, y gave 'wrong relative rotations' before)."""
@@ -217,10 +217,11 @@ def _look_like_degrees(centers: np.ndarray) -> str | None:
     if len(xy) < 3 or np.ptp(xy, axis=0).max() >= 0.5:
         return None
     if np.all(np.abs(xy[:, 0]) <= 180.0) and np.all(np.abs(xy[:, 1]) <= 90.0):
+        frame = f"EPSG:{epsg}'s metres" if epsg else ("metres, in a projected CRS (`# crs: EPSG:<code>`, e.g. UTM) "
+                                                        "or a local frame")
         return (f"the camera x, y look like longitude / latitude in degrees (x {xy[0, 0]:.6f}, y {xy[0, 1]:.6f}; "
-                f"all {len(xy)} within {np.ptp(xy, axis=0).max():.4f} of each other): poses need metres, in a "
-                "projected CRS (`# crs: EPSG:<code>`, e.g. UTM) or a local frame; `sosmatch poses-from-exif` turns "
-                "GPS into UTM")
+                f"all {len(xy)} within {np.ptp(xy, axis=0).max():.4f} of each other): poses need {frame}; "
+                "`sosmatch poses-from-exif` turns GPS into UTM")
     return None
 
 

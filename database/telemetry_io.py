@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import logging
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -28,13 +29,17 @@ _TELEMETRY_KEYS = {
 
 def telemetry_rows(tele: dict[str, dict[str, float]], names: list[str], telemetry: str | Path | None,
                     images: Any) -> list[dict[str, float]]:
-    """Each image's telemetry row, by file name (case-insensitively: a copy of the frames as .JPG). A telemetry
+    """Each image's telemetry row, by file name (else by `images.name_key`, when that names one row and one
+    image: a copy of the frames as .JPG, names decomposed by macOS). A telemetry
     file that names none of the images is an InputError (it was silently ignored: the attitudes then came from
     the course over ground); one that misses some is a warning naming how many."""
     if telemetry is None:
         return [{} for _ in names]
-    folded = {name_key(k): v for k, v in tele.items()}
-    rows = [tele.get(n, folded.get(name_key(n), {})) for n in names]
+    # a name spelt otherwise (case, Unicode form) is paired when it folds to one row and one image only
+    rows_of = Counter(name_key(k) for k in tele)
+    images_of = Counter(name_key(n) for n in names)
+    folded = {name_key(k): v for k, v in tele.items() if rows_of[name_key(k)] == 1}
+    rows = [tele.get(n, folded.get(name_key(n), {}) if images_of[name_key(n)] == 1 else {}) for n in names]
     missing = [n for n, r in zip(names, rows) if not r]
     if names and len(missing) == len(names):
         raise InputError(f"none of its {len(tele)} rows names an image of {images} (rows e.g. "
@@ -75,8 +80,8 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
         for key, idx in col.items():
             if key == "name" or idx is None or idx >= len(row) or not row[idx].strip():
                 continue
-            try:
-                values[key] = float(row[idx])
+            try:  # a ';' or tab file may carry the decimal comma of its locale
+                values[key] = float(row[idx] if delimiter == "," else row[idx].replace(",", "."))
             except ValueError:
                 raise InputError(f"non-numeric {header[idx]} value {row[idx]!r}", path, lineno) from None
         out[row[col["name"]].strip()] = values

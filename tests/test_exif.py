@@ -443,8 +443,13 @@ def test_telemetry_with_semicolons_and_omega_phi_kappa(tmp_path, caplog):
     from sosmatch.database.telemetry_io import read_telemetry_csv
 
     semi = tmp_path / "t.csv"
-    semi.write_text("FileName;Heading;PitchAngle;RollAngle\nf0.jpg;70.5;2.5;-2.9\n")
-    assert read_telemetry_csv(semi) == {"f0.jpg": {"yaw": 70.5, "pitch": 2.5, "roll": -2.9}}
+    semi.write_text("FileName;Heading;PitchAngle;RollAngle\nf0.jpg;70.5;2.5;-2.9\nf1.jpg;70,5;2,5;-2,9\n")
+    row = {"yaw": 70.5, "pitch": 2.5, "roll": -2.9}
+    assert read_telemetry_csv(semi) == {"f0.jpg": row, "f1.jpg": row}  # decimal commas of ';' locales too
+    from sosmatch.database.telemetry_io import telemetry_rows
+
+    tele = {"A.JPG": {"yaw": 1.0}, "b.jpg": {"yaw": 2.0}, "B.JPG": {"yaw": 3.0}}
+    assert telemetry_rows(tele, ["a.jpg", "b.jpg", "B.jpg"], semi, "imgs") == [{"yaw": 1.0}, {"yaw": 2.0}, {}]
     opk = tmp_path / "o.csv"
     opk.write_text("filename,latitude,longitude,altitude,omega,phi,kappa\nf0.jpg,47,8,500,1,2,3\n")
     assert read_telemetry_csv(opk) == {"f0.jpg": {"lat": 47.0, "lon": 8.0, "alt": 500.0}}

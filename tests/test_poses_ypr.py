@@ -58,7 +58,7 @@ def test_yaw_in_a_projected_crs_is_from_true_north(tmp_path):
     off at Seneca (16 landmarks instead of 75). In a projected CRS it is turned by the meridian convergence."""
     from sosmatch.plugin.geodesy import geographic_to_grid
 
-    e, n, north_az = geographic_to_grid(np.array([42.9]), np.array([-76.9]), 32617)  # west of the zone's centre
+    e, n, north_az = geographic_to_grid(np.array([42.9]), np.array([-76.9]), 32617)  # east of the zone's centre
     assert abs(north_az[0]) > 1.0
     path = tmp_path / "p.csv"
     path.write_text(f"# crs: EPSG:32617\nname,x,y,z,yaw_deg,pitch_deg,roll_deg\na.jpg,{e[0]},{n[0]},300,0,-90,0\n")

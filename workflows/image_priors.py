@@ -325,7 +325,7 @@ def read_image_priors(
     rows = telemetry_rows(tele, [m.path.name for m in metas], telemetry, images)
     damaged = [m for m in metas if m.problems]
     if damaged:
-        log.warning("%d of %d images have damaged or implausible metadata, left out: %s", len(damaged), n,
+        log.warning("%d of %d images have damaged or implausible metadata (those values left out): %s", len(damaged), n,
                     "; ".join(f"{m.path.name}: {m.problems[0]}" for m in damaged[:3])
                     + (f" ... ({len(damaged)} in all)" if len(damaged) > 3 else ""))
     lat, lon, alt = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)

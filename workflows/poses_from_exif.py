@@ -91,8 +91,10 @@ def poses_from_images(
     no_fix = np.flatnonzero(~np.isfinite(priors.positions[:, 0]))
     if len(no_fix):
         first = metas[int(no_fix[0])]
-        raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude), "
-                         f"e.g. {first.path.name}; give a telemetry CSV with positions or a poses.csv", first.path)
+        hemisphere = any("hemisphere" in p for p in first.problems)
+        raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude"
+                         + (", here without its N/S/E/W refs" if hemisphere else "") + f"), e.g. {first.path.name}; "
+                         "give a telemetry CSV with positions or a poses.csv", first.path)
     # the GPS positions and tags are these poses: where no aircraft flies or looks like that, they are unusable
     if priors.summary.get("gps_frozen"):
         raise InputError(f"the GPS fixes of all {n} images lie at one point (a receiver without a lock): no poses "

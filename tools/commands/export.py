@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fmt.add_argument("--ply", action="store_const", const="ply", dest="format", help="binary PLY (double xyz)")
     fmt.add_argument("--csv", action="store_const", const="csv", dest="format", help="CSV (+ lon/lat if known)")
     parser.add_argument("--out", type=output_file, required=True, help="file to write")
-    parser.add_argument("--epsg", type=int, help="EPSG code of the map's world frame (overrides the map's own)")
+    parser.add_argument("--epsg", type=int, help="EPSG code of the world frame of a map saved without one (another "
+                        "code than the one a map records is refused: it would relabel, not reproject)")
     parser.add_argument("--circles", action="store_true", help="GeoJSON polygons of each landmark's size")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a file this command exported before from another map or with other options")
