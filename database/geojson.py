@@ -40,7 +40,8 @@ def check_projected_crs(epsg: int, source: str | Path | None = None) -> None:
 CRS_AREA_MARGIN_M = 100_000.0
 
 
-def check_within_crs_area(epsg: int, xy: np.ndarray, source: str | Path | None = None) -> None:
+def check_within_crs_area(epsg: int, xy: np.ndarray, source: str | Path | None = None,
+                          what: str = "the landmarks") -> None:
     """Refuse (InputError naming `source`) coordinates more than CRS_AREA_MARGIN_M outside the projected
     bounds of the CRS's area of use: a local map stamped with a CRS (a synthetic session's 300 m coordinates as
     UTM zone 33N) converts to lon/lat without complaint, in the Gulf of Guinea. A CRS without a recorded or
@@ -61,7 +62,7 @@ def check_within_crs_area(epsg: int, xy: np.ndarray, source: str | Path | None =
         return
     lo, hi, m = xy.min(axis=0), xy.max(axis=0), CRS_AREA_MARGIN_M
     if lo[0] < x0 - m or hi[0] > x1 + m or lo[1] < y0 - m or hi[1] > y1 + m:
-        raise InputError(f"the landmarks lie at x {lo[0]:.0f}..{hi[0]:.0f}, y {lo[1]:.0f}..{hi[1]:.0f} m, more than "
+        raise InputError(f"{what} lie at x {lo[0]:.0f}..{hi[0]:.0f}, y {lo[1]:.0f}..{hi[1]:.0f} m, more than "
                          f"{m / 1000:.0f} km outside where EPSG:{epsg} ({crs.name}) is used (x {x0:.0f}..{x1:.0f}, "
                          f"y {y0:.0f}..{y1:.0f}): a local frame given a CRS?", source)
 

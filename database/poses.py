@@ -193,7 +193,14 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
         yaw = data[:, 3]
         if epsg and file_convention == "world_from_camera":  # true north -> grid (see the module doc)
             from ..plugin.geodesy import grid_north_azimuth
+            from .geojson import check_within_crs_area
 
+            # beyond the CRS's area its grid has no meaningful north (pyproj extrapolates a 90 deg convergence);
+            # degrees given as x, y are named as such first
+            degrees = _look_like_degrees(data[:, :3], epsg)
+            if degrees:
+                raise InputError(degrees, path)
+            check_within_crs_area(epsg, data[:, :2], path, "the camera centres")
             convergence = grid_north_azimuth(data[:, 0], data[:, 1], epsg)
             if not np.all(np.isfinite(convergence)):
                 raise InputError(f"camera positions outside the area of EPSG:{epsg} (no true north there)", path)

@@ -77,3 +77,12 @@ def test_longitude_latitude_given_as_x_y_are_named(tmp_path):
     path.write_text("# crs: EPSG:32617\nname,x,y,z,yaw_deg,pitch_deg,roll_deg\n" + rows)
     with pytest.raises(InputError, match="look like longitude / latitude in degrees"):
         read_poses_csv(path)
+
+
+def test_angles_in_a_crs_far_outside_its_area_are_refused(tmp_path):
+    """True north needs the CRS's own area: local coordinates stamped with a UTM zone gave a made-up convergence."""
+    path = tmp_path / "p.csv"
+    path.write_text("# crs: EPSG:32617\nname,x,y,z,yaw_deg,pitch_deg,roll_deg\n"
+                    + "".join(f"f{k}.jpg,{50 * k},0,300,0,-90,0\n" for k in range(3)))
+    with pytest.raises(InputError, match="the camera centres lie at x 0..100"):
+        read_poses_csv(path)
