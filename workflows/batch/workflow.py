@@ -219,7 +219,10 @@ def _graph_and_merge(
         merge_tasks[key] = (
             [sessions[names[m]]["session"] for m in order], [names[m] for m in order],
             [ref_from[m].to_dict() for m in order], tree_edges, str(out_dir / "merged" / key),
-            params.association.distance_tolerance_m, options.overwrite,
+            # the group's merged model is this batch's own product of its sessions and pairs: when a flight was
+            # added, removed or changed it is remade, as everything else that changed (a changed setting is
+            # refused before any work by the batch's own identity unless --overwrite)
+            params.association.distance_tolerance_m, True,
         )
     merged = run_stage(executor, merge_task, merge_tasks, merge_fps, state, "merge", out_dir, "merge groups",
                         options.progress, _valid_merge)
@@ -245,7 +248,7 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
         fps[key] = fingerprint({"pair": pair_fps[key], "transform": rec["transform"], "changes": pdict["changes"],
                                 "eps": pdict["association"]["distance_tolerance_m"]})
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
-                      rec["transform"], params, options.overwrite, rec.get("answer") == "verified")
+                      rec["transform"], params, True, rec.get("answer") == "verified")  # the batch's own, as merge
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
                      options.progress, _valid_changes)
     for key, rec in done.items():
