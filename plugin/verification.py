@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -244,6 +244,31 @@ def verification_candidates(hypotheses: Sequence[Any], max_gravity_angle_deg: fl
             for h in usable[:max_candidates]]
 
 
+class _HeightTilt(NamedTuple):
+    """The height residuals of an alignment's pairs regressed on the horizontal position (`_height_regression`)."""
+
+    centre: np.ndarray  # (3,) centroid of B's placed landmarks: the regression's origin
+    design: np.ndarray  # (n, 3) x, y about the centre, 1
+    dz: np.ndarray  # (n,) height residuals: B's landmark placed by the alignment minus its partner in A
+    coef: np.ndarray  # (3,) slope in x, slope in y, offset
+    inverse: np.ndarray | None  # (design^T design)^-1; None when the pairs are collinear
+
+
+def _height_regression(pa: np.ndarray, pb: np.ndarray, aligned: Alignment) -> _HeightTilt:
+    """One regression for `tilt_significance` (its F test) and `tilted_fit` (its slopes and covariance)."""
+    assoc = aligned.associations
+    placed = aligned.transform.apply(pb[assoc[:, 1]])
+    dz = placed[:, 2] - pa[assoc[:, 0], 2]
+    centre = placed.mean(axis=0)
+    design = np.column_stack([placed[:, :2] - centre[:2], np.ones(len(assoc))])
+    coef, *_ = np.linalg.lstsq(design, dz, rcond=None)
+    try:
+        inverse = np.linalg.inv(design.T @ design)
+    except np.linalg.LinAlgError:
+        inverse = None
+    return _HeightTilt(centre, design, dz, coef, inverse)
+
+
 def tilt_significance(pa: np.ndarray, pb: np.ndarray, aligned: Alignment) -> float:
     """p of the F test that the pairs of a gravity-aligned (4-DOF) alignment show a tilt: their height residuals
     (B's landmark placed by the alignment minus its partner in A) regressed on the horizontal position, F(2, n-3)
@@ -252,17 +277,12 @@ def tilt_significance(pa: np.ndarray, pb: np.ndarray, aligned: Alignment) -> flo
     is nothing to test (fewer than 5 pairs, or no scatter left)."""
     from scipy.stats import f as f_dist
 
-    assoc = aligned.associations
-    n = len(assoc)
+    n = len(aligned.associations)
     if n < 5:
         return 1.0
-    placed = aligned.transform.apply(pb[assoc[:, 1]])
-    dz = placed[:, 2] - pa[assoc[:, 0], 2]
-    xy = placed[:, :2] - placed[:, :2].mean(axis=0)
-    design = np.column_stack([xy, np.ones(n)])
-    coef, *_ = np.linalg.lstsq(design, dz, rcond=None)
-    rss_full = float(np.sum((dz - design @ coef) ** 2))
-    rss_level = float(np.sum((dz - dz.mean()) ** 2))
+    h = _height_regression(pa, pb, aligned)
+    rss_full = float(np.sum((h.dz - h.design @ h.coef) ** 2))
+    rss_level = float(np.sum((h.dz - h.dz.mean()) ** 2))
     if rss_full <= 0.0:
         return 0.0 if rss_level > 0.0 else 1.0
     return float(f_dist.sf(((rss_level - rss_full) / 2.0) / (rss_full / (n - 3)), 2, n - 3))
@@ -279,28 +299,21 @@ def tilted_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, prior_deg: fl
     n = len(assoc)
     if n < 5 or prior_deg <= 0.0:
         return aligned
-    placed = aligned.transform.apply(pb[assoc[:, 1]])
-    dz = placed[:, 2] - pa[assoc[:, 0], 2]
-    centre = placed.mean(axis=0)
-    design = np.column_stack([placed[:, :2] - centre[:2], np.ones(n)])
-    normal = design.T @ design
-    try:
-        inverse = np.linalg.inv(normal)
-    except np.linalg.LinAlgError:
+    h = _height_regression(pa, pb, aligned)
+    if h.inverse is None:
         return aligned
-    coef = inverse @ design.T @ dz
-    scatter = float(np.sum((dz - design @ coef) ** 2)) / (n - 3)
-    slopes = coef[:2]
+    scatter = float(np.sum((h.dz - h.design @ h.coef) ** 2)) / (n - 3)
+    slopes = h.coef[:2]
     if scatter > 0.0:
         prior_precision = np.eye(2) / np.tan(np.radians(prior_deg)) ** 2
-        data_precision = np.linalg.inv(scatter * inverse[:2, :2])
+        data_precision = np.linalg.inv(scatter * h.inverse[:2, :2])
         slopes = np.linalg.solve(data_precision + prior_precision, data_precision @ slopes)
     # heights fall by slope . (x, y) after turning B by -slope_y about x and +slope_x about y
     tx, ty = -float(np.arctan(slopes[1])), float(np.arctan(slopes[0]))
     rx = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(tx), -np.sin(tx)], [0.0, np.sin(tx), np.cos(tx)]])
     ry = np.array([[np.cos(ty), 0.0, np.sin(ty)], [0.0, 1.0, 0.0], [-np.sin(ty), 0.0, np.cos(ty)]])
     turn = rx @ ry
-    transform = Sim3(turn, centre - turn @ centre, 1.0).compose(aligned.transform)
+    transform = Sim3(turn, h.centre - turn @ h.centre, 1.0).compose(aligned.transform)
     res = pairing_distance(transform.apply(pb[assoc[:, 1]]), pa[assoc[:, 0]], z_weight)
     return Alignment(transform, assoc, float(np.sqrt(np.mean(res**2))), aligned.iterations)
 

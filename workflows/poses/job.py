@@ -149,11 +149,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     model = sfm.reconstruct(db, image_dir, work / "models", priors, sp, params.seed, use_priors)
     timings["mapping"] = model.seconds
     n_all = len(priors.names)
-    if len(model.registered) < max(MIN_IMAGES, sp.min_registered_fraction * n_all):
-        raise InputError(f"structure from motion registered only {len(model.registered)} of {n_all} images "
-                         f"(sfm.min_registered_fraction = {sp.min_registered_fraction}); the images may not overlap "
-                         "enough or lack texture; `sosmatch poses-from-exif` gives the EXIF/XMP poses instead",
-                         image_dir)
+    _check_registered(len(model.registered), n_all, sp, image_dir, "registered")
     links: dict[str, int] = {}
     if model.unregistered:
         links = sfm.strongest_links(db, model.unregistered, model.registered)
@@ -199,11 +195,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
                            if near else "") + ": " + _listing(added))
         if off:
             poses = _without_images(model, poses, off)
-            if len(poses.names) < max(MIN_IMAGES, sp.min_registered_fraction * n_all):
-                raise InputError(f"structure from motion placed only {len(poses.names)} of {n_all} images where "
-                                 "their GPS allows (sfm.min_registered_fraction = "
-                                 f"{sp.min_registered_fraction}); the images may not overlap enough or lack "
-                                 "texture; `sosmatch poses-from-exif` gives the EXIF/XMP poses instead", image_dir)
+            _check_registered(len(poses.names), n_all, sp, image_dir, "placed where their GPS allows")
             names = poses.names
             index = np.array([priors.names.index(n) for n in names])
     comparison = _compare(priors, index, poses, warnings)
@@ -289,6 +281,14 @@ class PosesFromImages:
         self.result = load_result(staged)
         source = f"structure from motion of {image_dir} (SESSION_DIR/poses)"
         return map_inputs(self.result, image_dir, source), ("poses",)
+
+
+def _check_registered(count: int, n_all: int, sp: Any, image_dir: Path, how: str) -> None:
+    """InputError when fewer than `sfm.min_registered_fraction` of the images (at least MIN_IMAGES) have poses."""
+    if count < max(MIN_IMAGES, sp.min_registered_fraction * n_all):
+        raise InputError(f"structure from motion {how} only {count} of {n_all} images (sfm.min_registered_fraction "
+                         f"= {sp.min_registered_fraction}); the images may not overlap enough or lack texture; "
+                         "`sosmatch poses-from-exif` gives the EXIF/XMP poses instead", image_dir)
 
 
 def _without_images(model: Any, poses: Poses, left_out: list[str]) -> Poses:
