@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import unicodedata
 import warnings
+from collections import Counter
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -196,6 +197,14 @@ def name_key(name: str) -> str:
     a CSV typed elsewhere holds the composed form) and case-folded (a camera's IMG_0001.JPG copied as .jpg). For
     pairing names of pose and telemetry files with image files when the exact name is absent."""
     return unicodedata.normalize("NFC", name).casefold()
+
+
+def unique_by_key(names: Iterable[str]) -> dict[str, str]:
+    """{`name_key`: name} for the names no other of `names` folds to: a name spelt otherwise is paired only when
+    its folded form is unambiguous."""
+    names = list(names)
+    counts = Counter(name_key(n) for n in names)
+    return {name_key(n): n for n in names if counts[name_key(n)] == 1}
 
 
 def image_files(folder: str | Path) -> list[Path]:

@@ -6,12 +6,11 @@ from __future__ import annotations
 
 import csv
 import logging
-from collections import Counter
 from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
-from .images import name_key
+from .images import name_key, unique_by_key
 from .text_input import read_user_text
 
 log = logging.getLogger(__name__)
@@ -36,10 +35,9 @@ def telemetry_rows(tele: dict[str, dict[str, float]], names: list[str], telemetr
     if telemetry is None:
         return [{} for _ in names]
     # a name spelt otherwise (case, Unicode form) is paired when it folds to one row and one image only
-    rows_of = Counter(name_key(k) for k in tele)
-    images_of = Counter(name_key(n) for n in names)
-    folded = {name_key(k): v for k, v in tele.items() if rows_of[name_key(k)] == 1}
-    rows = [tele.get(n, folded.get(name_key(n), {}) if images_of[name_key(n)] == 1 else {}) for n in names]
+    folded = {k: tele[row] for k, row in unique_by_key(tele).items()}
+    unambiguous = unique_by_key(names)
+    rows = [tele.get(n, folded.get(name_key(n), {}) if name_key(n) in unambiguous else {}) for n in names]
     missing = [n for n, r in zip(names, rows) if not r]
     if names and len(missing) == len(names):
         raise InputError(f"none of its {len(tele)} rows names an image of {images} (rows e.g. "

@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +15,7 @@ import numpy as np
 
 from ...database.cameras import read_cameras_txt
 from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
-from ...database.images import IMAGE_EXTENSIONS, image_files, name_key  # noqa: F401 (IMAGE_EXTENSIONS: re-exported)
+from ...database.images import IMAGE_EXTENSIONS, image_files, name_key, unique_by_key  # noqa: F401 (re-exported)
 from ...database.opensfm import is_opensfm
 from ...database.outputs import sha256_file
 from ...database.poses import read_poses_csv
@@ -125,8 +124,7 @@ def load_inputs(
     sources["images"] = str(images)
     files = {f.name: f for f in image_files(images)}
     # a name spelt otherwise (case, Unicode normalisation): paired when it names one file only
-    spelt = Counter(name_key(n) for n in files)
-    by_key = {name_key(n): f for n, f in files.items() if spelt[name_key(n)] == 1}
+    by_key = {k: files[n] for k, n in unique_by_key(files).items()}
     keep = []
     missing = []
     for i, name in enumerate(pose_list.names):
