@@ -4,6 +4,7 @@ the session graph (groups, spanning-tree transforms) and identical results on a 
 import json
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pycolmap
@@ -403,3 +404,61 @@ def test_displacement_is_how_far_the_points_move_not_the_origin():
     assert np.allclose(moved, np.linalg.norm(t.apply(points) - points, axis=1))
     assert np.linalg.norm(t.translation) > 10.0 * np.median(moved)
     assert np.allclose(Sim3(np.eye(3), [3.0, 4.0, 0.0]).displacement(points), 5.0)
+
+
+def test_a_setting_of_later_stages_or_a_moved_flights_folder_maps_nothing_again(flights, tmp_path, monkeypatch):
+    """Tenth sweep: any `--set` (even `changes.min_confidence`) mapped every flight again (the map stage's
+    fingerprint held the whole parameter tree), and so did moving the flights folder (it held the folder's
+    path); a verification setting, on the contrary, kept every pair's old match (the pair's fingerprint lacked
+    it). A flight's map now depends on its contents and the mapping parameters, a pair on what `match` reads."""
+    from sosmatch.plugin.params import Params, with_overrides
+
+    root, _ = flights
+    monkeypatch.chdir(tmp_path)
+    for name in "AB":
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+
+    def run(flights_dir, params, overwrite=True):
+        return batch.run(flights_dir, "out", params, executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                         options=batch.BatchOptions(progress=False, overwrite=overwrite))
+
+    first = run("fl", Params(), overwrite=False)
+    assert not any(s.get("resumed") for s in first.sessions)
+    looser = with_overrides(Params(), {"changes.min_confidence": 0.5})
+    again = run("fl", looser)
+    assert all(s.get("resumed") for s in again.sessions) and all(p.get("resumed") for p in again.pairs)
+    stricter = with_overrides(looser, {"verification.false_alarm": 0.001})
+    third = run("fl", stricter)
+    assert all(s.get("resumed") for s in third.sessions) and not any(p.get("resumed") for p in third.pairs)
+    shutil.move(tmp_path / "fl", tmp_path / "moved")
+    fourth = run("moved", stricter, overwrite=False)  # these flights are adopted maps: read again where they are
+    assert [Path(s["session"]).resolve() for s in fourth.sessions] == [(tmp_path / "moved" / n).resolve()
+                                                                        for n in "AB"]
+    assert all(p.get("resumed") for p in fourth.pairs)
+    coarser = with_overrides(stricter, {"keyframes.interval_m": 4.0})
+    fifth = run("moved", coarser)
+    assert not any(s.get("resumed") for s in fifth.sessions)
+
+
+def test_a_batch_state_of_the_earlier_map_fingerprint_resumes(flights, tmp_path):
+    """Outputs made before the map stage's fingerprint changed (it held the folder's path and every parameter)
+    resume their maps instead of mapping every flight again."""
+    from sosmatch.plugin.params import Params, params_to_dict
+    from sosmatch.workflows.batch.discovery import flight_signature
+    from sosmatch.workflows.batch.state import STATE_VERSION, fingerprint
+
+    root, _ = flights
+    shutil.copytree(root / "A", tmp_path / "fl" / "A")
+    out = tmp_path / "out"
+    options = batch.BatchOptions(progress=False, merge=False, changes=False)
+    batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    state = out / "state" / "map" / "A.json"
+    data = json.loads(state.read_text())
+    path = tmp_path / "fl" / "A"
+    data["fingerprint"] = fingerprint({"flight": str(path.resolve()), "kind": "mapped", "ekf": False,
+                                       "contents": flight_signature(path), "params": params_to_dict(Params())})
+    assert data["version"] == STATE_VERSION
+    state.write_text(json.dumps(data))
+    again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    assert again.sessions[0].get("resumed")
+    assert json.loads(state.read_text())["fingerprint"] != data["fingerprint"]  # re-saved under today's

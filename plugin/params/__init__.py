@@ -46,7 +46,7 @@ from .presets import (
     pixel_scale,
     preset_params,
 )
-from .tree import Params, params_from_dict, params_to_dict, with_overrides
+from .tree import LATER_SECTIONS, Params, mapping_params, params_from_dict, params_to_dict, with_overrides
 
 __all__ = [
     "AssociationParams",
@@ -54,6 +54,7 @@ __all__ = [
     "Checked",
     "ImageParams",
     "KeyframeParams",
+    "LATER_SECTIONS",
     "MAX_COUNT",
     "PIXEL_AREAS",
     "PIXEL_LENGTHS",
@@ -73,6 +74,7 @@ __all__ = [
     "for_ground_resolution",
     "for_image",
     "fraction",
+    "mapping_params",
     "non_negative",
     "one_of",
     "params_from_dict",

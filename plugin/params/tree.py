@@ -47,6 +47,19 @@ def params_to_dict(params: Any) -> dict[str, Any]:
     return dataclasses.asdict(params)
 
 
+LATER_SECTIONS = ("association", "verification", "changes")  # the stages that read a map, never make one
+
+
+def mapping_params(params: Params) -> dict[str, Any]:
+    """The parameters a map depends on, as a nested dict: every section but those of the stages after it
+    (`LATER_SECTIONS`), and the one figure of theirs a map uses (theta_S, `association.min_associations`: the
+    quality check counts the landmarks a match needs). A batch resumes a flight's map while these are
+    unchanged, so a setting of matching or change detection does not map every flight again."""
+    out = {k: v for k, v in params_to_dict(params).items() if k not in LATER_SECTIONS}
+    out["association.min_associations"] = params.association.min_associations
+    return out
+
+
 def _coerce(value: Any, annotation: Any, where: str) -> Any:
     """Check a config value against the field type; ints are accepted where floats are expected."""
     kind = {"float": float, "int": int, "str": str, "bool": bool}.get(annotation, annotation)

@@ -84,12 +84,20 @@ def record_result(result: TaskResult, log_dir: Path, stage: str, key: str) -> di
 def run_stage(
     executor: Executor, fn: Any, tasks: dict[str, tuple], fingerprints: dict[str, str], state: StateStore,
     stage: str, out_dir: Path, desc: str, progress: bool, still_valid: Any = None,
+    earlier: dict[str, str] | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """Skip tasks whose state matches, run the rest, save the state of those that succeed."""
+    """Skip tasks whose state matches, run the rest, save the state of those that succeed.
+
+    `earlier`: the fingerprint an earlier version of the batch gave the same task (its state is taken as this
+    one's and re-saved under `fingerprints`), so an output made before a fingerprint changed resumes."""
     records: dict[str, dict[str, Any]] = {}
     todo = {}
     for key, args in tasks.items():
         done = state.get(stage, key, fingerprints[key])
+        if done is None and earlier is not None and key in earlier:
+            done = state.get(stage, key, earlier[key])
+            if done is not None and (still_valid is None or still_valid(done)):
+                state.put(stage, key, fingerprints[key], {k: v for k, v in done.items() if k != "resumed"})
         if done is not None and (still_valid is None or still_valid(done)):
             records[key] = {**done, "status": "done", "resumed": True}
         else:

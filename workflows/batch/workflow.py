@@ -21,7 +21,7 @@ from ...plugin.multisession import (
     nearest_pairs,
     spanning_transforms,
 )
-from ...plugin.params import Params, params_to_dict
+from ...plugin.params import Params, mapping_params, params_to_dict
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_signature
 from .report import BatchReport, write_report
@@ -123,14 +123,17 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     state = StateStore(out_dir / "state", out_dir)
     report = BatchReport(out_dir, executor=executor.describe())
     # 1-2: map
-    fps, tasks = {}, {}
+    fps, earlier, tasks = {}, {}, {}
     for f in flights:
-        fps[f.name] = fingerprint({"flight": str(f.path.resolve()), "kind": f.kind, "params": pdict,
-                                    "ekf": options.ekf, "contents": flight_signature(f.path)})
+        # what a flight's map depends on: its contents (not where the folder is: a moved flights folder resumes)
+        # and the mapping parameters (a setting of matching or change detection does not map it again)
+        contents = {"kind": f.kind, "ekf": options.ekf, "contents": flight_signature(f.path)}
+        fps[f.name] = fingerprint({"map": 2, **contents, "params": mapping_params(params)})
+        earlier[f.name] = fingerprint({"flight": str(f.path.resolve()), **contents, "params": pdict})
         tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf,
                          options.overwrite)
     sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
-                          options.progress, _valid_session)
+                          options.progress, _valid_session, earlier)
     report.sessions = [{"name": f.name, "kind": f.kind, **sessions[f.name]} for f in flights]
     mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
 
@@ -142,9 +145,10 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     pair_fps, pair_tasks = {}, {}
     for a, b in chosen:
         key = f"{a}{PAIR_SEP}{b}"
+        # what `sosmatch match` depends on (its own identity: both maps, association, verification, seed)
         pair_fps[key] = fingerprint({"a": fps[a], "b": fps[b], "association": pdict["association"],
-                                      "seed": pdict["seed"], "matcher": matcher.__qualname__,
-                                      "verify": verify})
+                                      "verification": pdict["verification"], "seed": pdict["seed"],
+                                      "matcher": matcher.__qualname__, "verify": verify})
         pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
         if matcher is pair_task:
             pair_tasks[key] += (verify, options.overwrite)
