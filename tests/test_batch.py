@@ -462,3 +462,28 @@ def test_a_batch_state_of_the_earlier_map_fingerprint_resumes(flights, tmp_path)
     again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
     assert again.sessions[0].get("resumed")
     assert json.loads(state.read_text())["fingerprint"] != data["fingerprint"]  # re-saved under today's
+
+
+def test_outputs_of_a_removed_flight_are_named_and_skipped_changes_are_not_zero(flights, tmp_path, capsys):
+    """Tenth sweep: a flight removed since an earlier run left its pairs in OUT without a word, and a run
+    without change detection said "0 landmarks gone, 0 new" (as if nothing changed)."""
+    root, _ = flights
+    for name in "ABC":
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    out = tmp_path / "out"
+    options = batch.BatchOptions(progress=False)
+    first = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    assert first.stale_outputs == [] and "in 2 pair(s)" in first.changes_line()
+    assert {p["changes_status"] for p in first.pairs if p.get("in_graph")} == {"done"}
+    shutil.rmtree(tmp_path / "fl" / "C")
+    again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    # C's pairs, and the merged model of the old group if its reference changed (the chain's middle, B, was)
+    current = {f"merged/{g['reference']}" for g in again.groups}
+    assert {"pairs/A__C", "pairs/B__C"} <= set(again.stale_outputs)
+    assert all(s.startswith("pairs/") or (s.startswith("merged/") and s not in current) for s in again.stale_outputs)
+    assert (out / "pairs" / "B__C" / "match.json").is_file()  # left in place: named, not deleted
+    assert json.loads((out / "report.json").read_text())["stale_outputs"] == again.stale_outputs
+    assert "pairs/B__C" in (out / "report.md").read_text()
+    off = batch.run(tmp_path / "fl", tmp_path / "off", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                    options=batch.BatchOptions(progress=False, changes=False))
+    assert off.changes_line().startswith("no changes detected") and "gone" not in off.changes_line()

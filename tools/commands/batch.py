@@ -57,9 +57,8 @@ def run(args: argparse.Namespace) -> int:
         report = batch.run(args.flights_dir, args.out, params, executor, options)
     done = sum(s["status"] == "done" for s in report.sessions)
     accepted = sum(bool(p.get("accepted")) for p in report.pairs)
-    gone, new = (sum(int(p.get(k) or 0) for p in report.pairs) for k in ("gone", "new"))
     print(f"{args.out}: {done}/{len(report.sessions)} sessions mapped, {len(report.pairs)} pairs "
-          f"({accepted} accepted; {gone} landmarks gone, {new} new), {len(report.groups)} groups; report "
+          f"({accepted} accepted; {report.changes_line()}), {len(report.groups)} groups; report "
           f"{args.out / 'report.md'}")
     for line in report.failures:
         print(f"FAILED {line}")

@@ -31,9 +31,12 @@ processes, or a Dask cluster):
 6. report: OUT/report.json, OUT/report.md (a table per session and per pair), OUT/session_graph.png.
 
 Resume: every finished task writes OUT/state/STAGE/KEY.json atomically, holding a fingerprint of its inputs
-(flight, parameters, upstream fingerprints) and its result (paths relative to OUT, so a moved OUT resumes).
+(a flight's contents, the parameters its stage reads (`plugin.params.mapping_params` for a map), upstream
+fingerprints) and its result (paths relative to OUT, so a moved OUT resumes, and a moved flights folder too).
 A re-run skips tasks whose state matches and whose outputs still exist, so an interrupted batch continues
-where it stopped; changing parameters redoes what they affect. A failing task is reported with its error
+where it stopped; changing parameters redoes what they affect. Folders of OUT that belong to no flight or group
+of the run (flights removed since) are named in the report (`BatchReport.stale_outputs`), not deleted.
+A failing task is reported with its error
 (traceback in OUT/logs/), the tasks that need its output are reported as skipped, and every other task goes
 on. `BatchReport.ok` (and the command's exit code) says whether anything failed.
 """

@@ -27,6 +27,7 @@ class BatchReport:
     groups: list[dict[str, Any]] = field(default_factory=list)
     executor: str = ""
     seconds: float = 0.0
+    stale_outputs: list[str] = field(default_factory=list)  # OUT's folders of no flight or group of this run
 
     @property
     def failures(self) -> list[str]:
@@ -50,7 +51,19 @@ class BatchReport:
             "sessions": self.sessions,
             "pairs": self.pairs,
             "groups": self.groups,
+            "stale_outputs": self.stale_outputs,
         }
+
+    def changes_line(self) -> str:
+        """What the pairs' change detection found, for a one-line summary: the counts of the pairs it ran on,
+        and which it did not (a pair without changes is no pair where nothing changed)."""
+        ran = [p for p in self.pairs if p.get("changes_status") == "done"]
+        failed = sum(p.get("changes_status") == "failed" for p in self.pairs)
+        if not ran and not failed:
+            return "no changes detected (off, or no accepted pair)"
+        gone, new = (sum(int(p.get(k) or 0) for p in ran) for k in ("gone", "new"))
+        line = f"{gone} landmarks gone, {new} new in {len(ran)} pair(s)"
+        return line + (f", change detection failed on {failed}" if failed else "")
 
 
 def _table(rows: list[dict[str, Any]], columns: list[str]) -> str:
@@ -106,7 +119,8 @@ def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
 
 SESSION_COLUMNS = ["name", "kind", "status", "images", "points3D", "landmarks", "seconds", "error"]
 PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "refused_support", "yaw_deg",
-                "moved_median_m", "moved_max_m", "scale", "gone", "new", "kept", "unseen", "seconds", "error"]
+                "moved_median_m", "moved_max_m", "scale", "changes_status", "gone", "new", "kept", "unseen", "seconds",
+                "error"]
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]
 
 
@@ -128,6 +142,9 @@ def write_report(report: BatchReport) -> None:
         "## Groups (merged models)", "", _table(groups, GROUP_COLUMNS), "",
         "![session graph](session_graph.png)", "",
     ]
+    if report.stale_outputs:
+        md += ["## Outputs of no flight or group of this run (left in place, not read)", "",
+               *[f"- {name}" for name in report.stale_outputs], ""]
     write_text_atomic(out / "report.md", "\n".join(md))
     tables = (("sessions.csv", report.sessions, SESSION_COLUMNS), ("pairs.csv", pair_rows, PAIR_COLUMNS))
     for name, rows, cols in tables:

@@ -167,7 +167,26 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
                       "error": "a session failed to map"}
                      for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
+    report.stale_outputs = _stale_outputs(out_dir, report)
     return report
+
+
+def _stale_outputs(out_dir: Path, report: BatchReport) -> list[str]:
+    """The batch's outputs (OUT/sessions/F, OUT/pairs/A__B, OUT/merged/R) that this run neither made nor read: of
+    flights removed from the flights folder since an earlier run, or of a group whose reference changed. They are
+    left in place (a user may still want them) but named, so that nobody reads them as part of this batch."""
+    current = {"sessions": {s["name"] for s in report.sessions}, "pairs": {p["pair"] for p in report.pairs},
+               "merged": {g["reference"] for g in report.groups if g.get("merged")}}
+    stale = []
+    for folder, names in current.items():
+        if (out_dir / folder).is_dir():
+            stale += [f"{folder}/{p.name}" for p in sorted((out_dir / folder).iterdir())
+                      if p.is_dir() and p.name not in names]
+    if stale:
+        log.warning("%d output(s) in %s belong to no flight or group of this run (flights removed since an earlier "
+                    "run?): %s%s; left in place, not part of this report", len(stale), out_dir,
+                    ", ".join(stale[:6]), " ..." if len(stale) > 6 else "")
+    return stale
 
 
 def _graph_and_merge(
@@ -256,11 +275,11 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
                      options.progress, _valid_changes)
     for key, rec in done.items():
+        pairs[key]["changes_status"] = rec["status"]
         if rec["status"] == "done":
             pairs[key].update({k: rec[k] for k in ("changes", "gone", "new", "kept", "unseen", "changes_summary")})
         else:
             pairs[key]["changes_error"] = rec.get("error", "")
-            pairs[key]["changes_status"] = rec["status"]
 
 
 def _refined(session_a: str, session_b: str, match_json: str, sim: Sim3, params: Params) -> Sim3:
