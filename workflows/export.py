@@ -3,7 +3,7 @@
 - GeoJSON: see `sosmatch.database.geojson` (points or size circles, lon/lat/height, the map's CRS in the
   properties); needs a georeferenced map (EPSG != 0) or `epsg=`.
 - PLY: binary little-endian vertices with double x, y, z in the map's world frame (UTM-sized coordinates keep
-  millimetres, unlike float32) and a float size; the CRS and origin are in the header comments.
+  millimetres, unlike float32) and a float size; the CRS is in a header comment.
 - CSV: index,x,y,z,size_m (+ lon,lat when georeferenced).
 A session directory is read through its landmarks.sosmap; its landmarks.csv, when present, adds the
 observation counts to the GeoJSON properties.
@@ -49,9 +49,11 @@ def load_map(source: str | Path) -> tuple[LandmarkMap, dict[str, np.ndarray]]:
 
 def ply_bytes(lmap: LandmarkMap, epsg: int) -> bytes:
     """Binary PLY of the landmarks: double x, y, z (world frame) and float size_m."""
+    # no "comment origin" line: a session's own landmarks.ply stores float32 offsets and says "world = vertex +
+    # origin"; these vertices are world coordinates already, and an origin line read the same way doubled them
     header = ("ply\nformat binary_little_endian 1.0\n"
-              f"comment sosmatch landmarks, crs {'EPSG:' + str(epsg) if epsg else 'local'}\n"
-              f"comment origin {float(lmap.origin[0])!r} {float(lmap.origin[1])!r} {float(lmap.origin[2])!r}\n"
+              f"comment sosmatch landmarks in world coordinates (no origin to add), "
+              f"crs {'EPSG:' + str(epsg) if epsg else 'local'}\n"
               f"element vertex {len(lmap)}\nproperty double x\nproperty double y\nproperty double z\n"
               "property float size_m\nend_header\n").encode("ascii")
     rec = np.zeros(len(lmap), dtype=[("xyz", "<f8", (3,)), ("size", "<f4")])
