@@ -2,9 +2,13 @@
 
 Layout (little-endian; see docs/ARCHITECTURE.md):
     magic b"SOSMAP\\0\\0" | uint16 version | uint16 flags | uint32 count | 3 x float64 origin | uint32 epsg
-    | uint32 reserved | count x (3 x float32 offset from origin, float16 metric size) | uint32 CRC-32
-14 bytes per landmark plus 52 bytes. Ids are implicit by order. The reader validates every field and raises
-`InputError` naming the file for anything wrong; it never returns a partial or wrong map.
+    | uint32 reserved | count x (3 x float32 offset from origin, float16 metric size)
+    | [version 2 with flag 2: the map's noise figures, 3 x float64 + uint32 + 4 zero bytes] | uint32 CRC-32
+14 bytes per landmark plus 52 bytes (84 with the noise figures). Ids are implicit by order. The noise figures
+(`plugin.map_noise.MapNoise`: what the map measured about its own scatter) travel with the file, so a map copied
+out of its session is matched with the tolerances derived from them, as its session is; a map without them is
+written as version 1, byte for byte as before. The reader validates every field and raises `InputError` naming
+the file for anything wrong; it never returns a partial or wrong map.
 """
 
 from __future__ import annotations
@@ -17,15 +21,19 @@ from pathlib import Path
 import numpy as np
 
 from ..plugin.errors import InputError
+from ..plugin.map_noise import MapNoise
 from .atomic import write_bytes_atomic
 from .text_input import MIB, read_user_bytes
 
 MAGIC = b"SOSMAP\0\0"
-VERSION = 1
+VERSION = 2  # the newest this reader knows; 1: no noise figures (written so when a map has none)
+VERSIONS = (1, 2)
 FLAG_SIZES = 1
+FLAG_NOISE = 2  # version 2: the noise block follows the records
 _HEADER = struct.Struct("<8sHHI3dII")
 _RECORD = np.dtype([("xyz", "<f4", (3,)), ("size", "<f2")])
-assert _HEADER.size == 48 and _RECORD.itemsize == 14
+_NOISE = struct.Struct("<3dI4x")  # ground resolution m, residual m, size log std (NaN: unknown), landmarks
+assert _HEADER.size == 48 and _RECORD.itemsize == 14 and _NOISE.size == 32
 BYTES_PER_LANDMARK = _RECORD.itemsize
 # A map of 76 million landmarks (a whole season's flights hold tens of thousands): the largest file read.
 LANDMARK_MAP_LIMIT_BYTES = 1024 * MIB
@@ -40,6 +48,7 @@ class LandmarkMap:
     sizes: np.ndarray
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
     epsg: int = 0  # 0: local frame; otherwise the world frame is this projected CRS
+    noise: MapNoise | None = None  # what the map measured about its own scatter (`plugin.map_noise`); None: unknown
 
     def __post_init__(self) -> None:
         self.positions = np.asarray(self.positions, dtype=np.float64).reshape(-1, 3)
@@ -63,11 +72,12 @@ EPSG_RANGE = (1024, 32767)  # the EPSG dataset's codes (0 = local frame)
 
 
 def landmark_map_problem(origin: np.ndarray, offsets: np.ndarray, stored_sizes: np.ndarray, epsg: int,
-                         flags: int) -> str | None:
+                         flags: int, noise: MapNoise | None = None) -> str | None:
     """What makes a map unwritable / unreadable, or None: the one validation of the format, shared by
     `encode_landmark_map` (which refuses to write it) and `decode_landmark_map` (which refuses to read it).
 
-    `offsets` are positions minus origin, `stored_sizes` the sizes as float16 (as the file holds them)."""
+    `offsets` are positions minus origin, `stored_sizes` the sizes as float16 (as the file holds them), `noise`
+    the noise figures it carries."""
     if not np.all(np.isfinite(origin)) or not np.all(np.isfinite(offsets)):
         return "landmark map holds non-finite coordinates"
     if np.abs(origin).max() > MAX_ORIGIN_M:
@@ -81,10 +91,14 @@ def landmark_map_problem(origin: np.ndarray, offsets: np.ndarray, stored_sizes: 
     known = stored_sizes[np.isfinite(stored_sizes)]
     if np.any(np.isinf(stored_sizes)) or np.any(known <= 0):
         return f"landmark map holds sizes that are not positive metres up to {MAX_SIZE_M:g} (zero, negative, infinite)"
-    if flags & ~FLAG_SIZES:
+    if flags & ~(FLAG_SIZES | FLAG_NOISE):
         return f"landmark map has unknown flags {flags:#x}"
     if bool(flags & FLAG_SIZES) != bool(len(known)):
         return "landmark map's size flag disagrees with its sizes"
+    if noise is not None:
+        figures = np.array([noise.ground_resolution_m, noise.residual_m, noise.size_log_std])
+        if np.any(np.isinf(figures)) or np.any(figures[np.isfinite(figures)] < 0) or not 0 <= noise.landmarks < 2**32:
+            return "landmark map's noise figures are not non-negative numbers (or unknown) and a landmark count"
     return None
 
 
@@ -129,14 +143,19 @@ def encode_landmark_map(lmap: LandmarkMap) -> bytes:
         records = np.zeros(len(lmap), dtype=_RECORD)
         records["xyz"] = offsets
         records["size"] = lmap.sizes
-    flags = FLAG_SIZES if lmap.has_sizes else 0
-    problem = landmark_map_problem(lmap.origin, offsets, records["size"].astype(np.float32), int(lmap.epsg), flags)
+    flags = (FLAG_SIZES if lmap.has_sizes else 0) | (FLAG_NOISE if lmap.noise is not None else 0)
+    problem = landmark_map_problem(lmap.origin, offsets, records["size"].astype(np.float32), int(lmap.epsg), flags,
+                                   lmap.noise)
     if problem is None and not np.all(np.isfinite(records["xyz"])):
         problem = "landmark map holds non-finite coordinates"
     if problem is not None:
         raise ValueError(problem)
-    header = _HEADER.pack(MAGIC, VERSION, flags, len(lmap), *lmap.origin, int(lmap.epsg), 0)
+    header = _HEADER.pack(MAGIC, 2 if lmap.noise is not None else 1, flags, len(lmap), *lmap.origin,
+                          int(lmap.epsg), 0)
     body = header + records.tobytes()
+    if lmap.noise is not None:
+        n = lmap.noise
+        body += _NOISE.pack(n.ground_resolution_m, n.residual_m, n.size_log_std, n.landmarks)
     return body + struct.pack("<I", zlib.crc32(body))
 
 
@@ -147,9 +166,14 @@ def decode_landmark_map(data: bytes, source: str | Path = "<bytes>") -> Landmark
     magic, version, flags, count, ox, oy, oz, epsg, reserved = _HEADER.unpack_from(data)
     if magic != MAGIC:
         raise InputError("not a landmark map (bad magic bytes)", source)
-    if version != VERSION:
-        raise InputError(f"unsupported landmark map version {version} (this reader knows {VERSION})", source)
-    expected = _HEADER.size + count * BYTES_PER_LANDMARK + 4
+    if version not in VERSIONS:
+        raise InputError(f"unsupported landmark map version {version} (this reader knows "
+                         f"{', '.join(map(str, VERSIONS))})", source)
+    if flags & FLAG_NOISE and version < 2:
+        raise InputError(f"landmark map has unknown flags {flags:#x} for version {version}", source)
+    if version == 2 and not flags & FLAG_NOISE:
+        raise InputError("landmark map of version 2 without its noise figures (flag 2)", source)
+    expected = _HEADER.size + count * BYTES_PER_LANDMARK + (_NOISE.size if flags & FLAG_NOISE else 0) + 4
     if len(data) != expected:
         raise InputError(f"landmark map is {len(data)} bytes, header says {expected} (truncated?)", source)
     (crc,) = struct.unpack_from("<I", data, expected - 4)
@@ -161,12 +185,18 @@ def decode_landmark_map(data: bytes, source: str | Path = "<bytes>") -> Landmark
     records = np.frombuffer(data, dtype=_RECORD, count=count, offset=_HEADER.size)
     offsets = records["xyz"].astype(np.float64)
     sizes = records["size"].astype(np.float32)
-    problem = landmark_map_problem(origin, offsets, sizes, int(epsg), flags)
+    noise = None
+    if flags & FLAG_NOISE:
+        *figures, landmarks = _NOISE.unpack_from(data, _HEADER.size + count * BYTES_PER_LANDMARK)
+        noise = MapNoise(*figures, landmarks)
+        if data[expected - 8:expected - 4] != bytes(4):
+            raise InputError("landmark map's noise block has non-zero padding", source)
+    problem = landmark_map_problem(origin, offsets, sizes, int(epsg), flags, noise)
     if problem is not None:
         raise InputError(problem, source)
     if not flags & FLAG_SIZES:
         sizes[:] = np.nan
-    return LandmarkMap(positions=offsets + origin, sizes=sizes, origin=origin, epsg=int(epsg))
+    return LandmarkMap(positions=offsets + origin, sizes=sizes, origin=origin, epsg=int(epsg), noise=noise)
 
 
 def write_landmark_map(path: str | Path, lmap: LandmarkMap) -> int:

@@ -29,7 +29,13 @@ class LoadedMap:
     lmap: LandmarkMap
     kind: str  # "sosmap", "session" or "colmap"
     path: Path  # the file or model directory actually read
-    noise: MapNoise | None = None  # a mapped session's own noise figures (run.json "noise"), None if unknown
+    noise: MapNoise | None = None  # the map's own noise figures (its file's, or its session's run.json), None: unknown
+
+
+def session_map_noise(session: Path, lmap: LandmarkMap) -> MapNoise | None:
+    """A mapped session's noise figures: those its map file carries (`landmark_map`, version 2), else those its
+    run.json records (sessions mapped before map files carried them; the same figures of the same run)."""
+    return lmap.noise if lmap.noise is not None else read_map_noise(session)
 
 
 def read_map_noise(session: Path) -> MapNoise | None:
@@ -135,7 +141,8 @@ def load_map(path: str | Path) -> LoadedMap:
             # .sosmap is matched at the configured tolerances, which lost pairs that matched as sessions)
             return load_map(path.parent)
         if path.suffix == ".sosmap":
-            return LoadedMap(read_landmark_map(path), "sosmap", path)
+            lmap = read_landmark_map(path)
+            return LoadedMap(lmap, "sosmap", path, lmap.noise)
         if path.name.startswith("points3D."):
             return LoadedMap(read_colmap_points(path.parent), "colmap", path.parent)
         raise InputError("not a landmark map (.sosmap), session directory or COLMAP model", path)
@@ -145,7 +152,7 @@ def load_map(path: str | Path) -> LoadedMap:
         check_session_usable(path)
         lmap = read_landmark_map(path / "landmarks.sosmap")
         check_map_of_record(path, lmap)  # its noise figures (run.json) must be this map's
-        return LoadedMap(lmap, "session", path / "landmarks.sosmap", read_map_noise(path))
+        return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap))
     model = _model_dir(path)
     if model is not None:
         return LoadedMap(read_colmap_points(model), "colmap", model)

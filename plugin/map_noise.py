@@ -73,6 +73,22 @@ class MapNoise:
 
         return cls(num("ground_resolution_m"), num("residual_m"), num("size_log_std"), int(data.get("landmarks", 0)))
 
+    @classmethod
+    def of_merged(cls, parts: list[MapNoise | None]) -> MapNoise | None:
+        """The figures of a map merged from maps with these figures (None if any is unknown): each the largest
+        of the parts' (a merged map scatters at least as much as its noisiest part, and its parts' frames were
+        aligned with errors of their own), the landmarks summed."""
+        if not parts or any(p is None for p in parts):
+            return None
+        known = [p for p in parts if p is not None]
+
+        def largest(key: str) -> float:
+            values = [getattr(p, key) for p in known if math.isfinite(getattr(p, key))]
+            return max(values) if values else float("nan")
+
+        return cls(largest("ground_resolution_m"), largest("residual_m"), largest("size_log_std"),
+                   sum(p.landmarks for p in known))
+
     @property
     def usable(self) -> bool:
         return self.landmarks > 0 and all(math.isfinite(v) and v > 0 for v in (self.residual_m, self.size_log_std))

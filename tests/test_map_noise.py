@@ -71,7 +71,7 @@ def test_session_noise_is_read_from_run_json(tmp_path):
         == "session"
     (tmp_path / "copy").mkdir()
     (tmp_path / "copy" / "m.sosmap").write_bytes((tmp_path / "landmarks.sosmap").read_bytes())
-    assert load_map(tmp_path / "copy" / "m.sosmap").noise is None
+    assert load_map(tmp_path / "copy" / "m.sosmap").noise is None  # a map file written before they travelled
     (tmp_path / "run.json").write_text("{not json")
     with pytest.raises(InputError, match="run.json"):
         load_map(tmp_path)

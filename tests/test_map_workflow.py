@@ -114,7 +114,7 @@ def test_outputs_are_complete_and_consistent(session):
     assert {p.name for p in out.iterdir()} == OUTPUT_NAMES  # no .partial, no temporaries
     lmap = read_landmark_map(out / "landmarks.sosmap")
     assert len(lmap) == summary.num_landmarks >= 10
-    assert summary.map_bytes == (out / "landmarks.sosmap").stat().st_size == 52 + 14 * len(lmap)
+    assert summary.map_bytes == (out / "landmarks.sosmap").stat().st_size == 84 + 14 * len(lmap)  # + noise figures
     assert np.abs(lmap.origin - np.median(lmap.positions, 0)).max() <= 0.5  # origin near the data
     # Landmarks sit on the discs: horizontal error to the nearest disc centre, height near the ground.
     d = np.linalg.norm(lmap.positions[:, None, :2] - objs[None, :, :2], axis=2).min(1)
@@ -146,6 +146,12 @@ def test_map_records_its_noise_and_landmarks_find_their_objects(session, tmp_pat
 
     root, objs, out, _ = session
     noise = load_map(out).noise
+    # the map file carries the figures run.json records, so a copy of it is matched as the session is
+    from sosmatch.database.map_loading import read_map_noise
+
+    assert noise == read_map_noise(out) and load_map(out / "landmarks.sosmap").noise == noise
+    (tmp_path / "copy.sosmap").write_bytes((out / "landmarks.sosmap").read_bytes())
+    assert load_map(tmp_path / "copy.sosmap").noise == noise and load_map(tmp_path / "copy.sosmap").kind == "sosmap"
     # exact poses, flat discs at 0.075 m/px: a centroid is within a few pixels, one disc's size alike in all views
     assert noise.ground_resolution_m == pytest.approx(60.0 / 256.0, rel=0.02)
     assert 0 < noise.residual_m < 0.5 and 0 < noise.size_log_std < 0.2 and noise.landmarks > 10

@@ -230,3 +230,21 @@ def test_an_unmapped_synthetic_session_is_named_as_such(tmp_path, cli_error):
     (raw / "session.json").write_text("{}")
     err = cli_error("match", raw, raw, "--out", tmp_path / "m")
     assert "not mapped yet" in err and "sosmatch map --poses" in err and not (tmp_path / "m").exists()
+
+
+def test_map_files_carrying_their_noise_figures_are_matched_with_derived_tolerances(maps, tmp_path, caplog):
+    """Ninth sweep: a map copied out of its session was searched at the configured tolerances (its noise figures
+    lived only in run.json). A map file written with its figures (`sosmatch map` writes them) carries them."""
+    from sosmatch.plugin.map_noise import MapNoise
+
+    d, s = maps
+    for name, pts, sizes in (("a", s.points_a, s.sizes_a), ("b", s.points_b, s.sizes_b)):
+        noise = MapNoise(ground_resolution_m=0.16, residual_m=0.95, size_log_std=0.08, landmarks=len(pts))
+        write_landmark_map(tmp_path / f"{name}.sosmap", LandmarkMap(pts, sizes, pts.mean(0).round(), noise=noise))
+    out = tmp_path / "out"
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(out),
+                 "--no-plot"]) == 0
+    doc = json.loads((out / "match.json").read_text())
+    assert doc["map_noise"][0]["residual_m"] == 0.95 and doc["search_mode"]["derived"]["tolerances"] != "configured"
+    assert not [r for r in caplog.records if "records no noise figures" in r.getMessage()]
+    assert doc["answer"] == "verified" and doc["verification"]["accepted"]

@@ -176,6 +176,13 @@ def test_merge_with_a_similarity_transform(tmp_path):
                           yaw_transform(-20, (4, 2, 0), scale=0.8), seed=2)
     match = toy_match_json(a, b, tmp_path / "match.json")
     assert read_match(match).transform.scale == pytest.approx(1.25)
+    from sosmatch.database.landmark_map import write_landmark_map
+    from sosmatch.plugin.map_noise import MapNoise
+
+    for s, residual in ((a, 0.9), (b, 0.8)):  # the maps' own noise figures, as `sosmatch map` writes them
+        lm = read_landmark_map(s.path / "landmarks.sosmap")
+        lm.noise = MapNoise(0.1, residual, 0.05 + residual / 10, len(lm))
+        write_landmark_map(s.path / "landmarks.sosmap", lm)
     res = merge.run(a.path, b.path, match, tmp_path / "M")
     rec = pycolmap.Reconstruction(str(tmp_path / "M" / "sparse"))
     rec_b = pycolmap.Reconstruction(str(b.path / "sparse"))
@@ -184,6 +191,10 @@ def test_merge_with_a_similarity_transform(tmp_path):
         assert np.allclose(c, b.session_from_world.inverse().apply(img.projection_center()), atol=1e-6)
     assert rec.compute_mean_reprojection_error() < 3.0 and res.num_fused == len(true_associations(a, b))
     lm = read_landmark_map(tmp_path / "M" / "landmarks.sosmap")
+    # its noise figures: the noisier part's, B's metres in A's frame (x 1.25), so a match of it derives them
+    assert lm.noise.residual_m == pytest.approx(max(0.9, 0.8 * 1.25)) and lm.noise.ground_resolution_m == 0.125
+    assert lm.noise.size_log_std == pytest.approx(0.14)
+    assert lm.noise.landmarks == sum(len(read_session(x.path).landmarks) for x in (a, b))
     # The merged map lists A's landmarks, then B's unfused ones in order, with B's sizes times the scale.
     lb = read_session(b.path).landmarks
     unfused = np.setdiff1d(np.arange(len(lb)), true_associations(a, b)[:, 1])

@@ -310,9 +310,9 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     if params.association.derive_from_maps:
         for name, m in (("A", map_a), ("B", map_b)):
             if m.noise is None:
-                log.warning("map %s (%s) records no noise figures (a bare .sosmap or a COLMAP model): the "
-                            "configured tolerances are used, not ones derived from the maps; give its mapped session "
-                            "directory to derive them", name, m.path)
+                log.warning("map %s (%s) records no noise figures (a COLMAP model, or a .sosmap written before "
+                            "map files carried them): the configured tolerances are used, not ones derived from the "
+                            "maps; give its mapped session directory to derive them", name, m.path)
     derivation = derived_search_params(params.association, map_a.noise, map_b.noise, la.positions, la.sizes,
                                        lb.positions, lb.sizes)
     first_try = derivation.first_try

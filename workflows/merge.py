@@ -24,6 +24,7 @@ Output directory (a "merged session", readable by match/merge again):
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -38,11 +39,13 @@ import numpy as np
 from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, write_landmark_map
+from ..database.map_loading import session_map_noise
 from ..database.match_io import check_match_maps, read_match, unverified_note
 from ..database.outputs import OutputDir, fingerprint, open_output_dir, sha256_file
 from ..database.session_io import SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
+from ..plugin.map_noise import MapNoise
 from ..plugin.multisession import Sim3, fusion_groups, umeyama
 from ..plugin.params import Params
 from ..plugin.refinement import pairing_distance, refine_alignment
@@ -146,6 +149,17 @@ def _filter_associations(
         rejected += int(np.count_nonzero(~ok))
         kept.append((a, b, assoc[ok]))
     return kept, rejected
+
+
+def _merged_noise(sessions: Sequence[SessionFiles], transforms: Sequence[Sim3]) -> MapNoise | None:
+    """The merged map's noise figures (`MapNoise.of_merged`), each session's metres in the reference frame's
+    (a similarity transform's scale), so that matching the merged map derives its tolerances as for its parts."""
+    parts = []
+    for s, t in zip(sessions, transforms):
+        n = session_map_noise(s.path, s.landmarks)
+        parts.append(None if n is None else dataclasses.replace(
+            n, ground_resolution_m=n.ground_resolution_m * t.scale, residual_m=n.residual_m * t.scale))
+    return MapNoise.of_merged(parts)
 
 
 def merge_sessions(
@@ -294,7 +308,8 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
             sizes.append(size)
             pids_out.append(pid)
     ref = sessions[0].landmarks
-    lmap = LandmarkMap(np.asarray(positions).reshape(-1, 3), np.asarray(sizes), ref.origin, ref.epsg)
+    lmap = LandmarkMap(np.asarray(positions).reshape(-1, 3), np.asarray(sizes), ref.origin, ref.epsg,
+                       _merged_noise(sessions, transforms))
 
     sparse = out.staged("sparse")
     sparse.mkdir()

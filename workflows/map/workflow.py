@@ -280,7 +280,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     t = time.perf_counter()
     write_model(landmarks.reconstruction, out.staged("sparse"), text=text_model)
     origin = map_origin(landmarks.positions, kf_poses.centers)
-    lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg)
+    # the noise figures travel with the map file (a map copied out of the session is matched as the session is)
+    lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg,
+                       landmarks.noise)
     map_bytes = write_landmark_map(out.staged("landmarks.sosmap"), lmap)
     write_ply(out.staged("landmarks.ply"), landmarks.positions - origin, landmarks.sizes_m, origin, inputs.epsg)
     image_names = [[kf_poses.names[k] for k in obs[:, 0]] for obs in landmarks.observations]
