@@ -273,7 +273,7 @@ def refine_poses_from_images(
                     heading_turns_deg=tuple(float(t) for t in turns))
     errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg, poses.names)
     turned = turned_images(poses, refined, attitude_sigma_deg, stats.observations_by_image)
-    if turned:
+    if turned and (accept_implausible or not errors):  # a rejected refinement: its rejection says more
         # the mean turn (judge_refinement) hid cameras that a handful of tie points turned away from their priors
         # (the ninth sweep: two DJI frames of 3 observations each 23-26 deg off their gimbal tags, which agree
         # with SfM within 2 deg); well-held cameras turn far too where the priors are poor, and rightly (Seneca's
