@@ -176,7 +176,7 @@ def _stale_outputs(out_dir: Path, report: BatchReport) -> list[str]:
     flights removed from the flights folder since an earlier run, or of a group whose reference changed. They are
     left in place (a user may still want them) but named, so that nobody reads them as part of this batch."""
     current = {"sessions": {s["name"] for s in report.sessions}, "pairs": {p["pair"] for p in report.pairs},
-               "merged": {g["reference"] for g in report.groups if g.get("merged")}}
+               "merged": {g["reference"] for g in report.groups if g.get("status") not in ("single", "not merged")}}
     stale = []
     for folder, names in current.items():
         if (out_dir / folder).is_dir():
