@@ -101,3 +101,26 @@ def test_the_final_tilt_is_kept_only_where_the_pairs_show_it():
                           chance_starts=0)  # the level pair: its answer stays within a small fraction of the prior
     assert v.tilt_p is not None and v.tilt_p > 0.01 and len(v.best.associations) == 40
     assert np.degrees(np.arccos(v.best.transform.rotation[2, 2])) < 0.2
+
+
+def test_a_rival_turned_about_the_winner_s_pairs_counts_only_the_pairs_the_winner_does_not_explain():
+    """A held-out world's summer vs winter at 130 m: the true winner (27 pairs) was refused by the ratio test against
+    26 pairs of a candidate turned 3.4 deg about the winner's pairs, 21 of which the winner puts within 2 gates.
+    Here B's cluster near the pivot (10 landmarks) fits both; its far cluster (14) fits the winner, and a decoy copy
+    of it in A (13) fits the turn. The turn's support against the winner is about the decoy's 13, as a chance
+    placement's would be (`chance.chance_pairs`), not 23: the winner (24) is clear."""
+    rng = np.random.default_rng(3)
+    near = rng.uniform(-8, 8, (10, 3)) * [1, 1, 0.1]
+    far = rng.uniform(-8, 8, (14, 3)) * [1, 1, 0.1] + [100, 0, 0]
+    turn = Sim3(np.array([[np.cos(np.radians(4)), -np.sin(np.radians(4)), 0],
+                          [np.sin(np.radians(4)), np.cos(np.radians(4)), 0], [0, 0, 1]]), np.zeros(3), 1.0)
+    decoy = turn.apply(far[:13])
+    clutter = rng.uniform(-150, 250, (40, 3)) * [1, 1, 0.01]
+    points_a = np.vstack([near, far, decoy, clutter])
+    points_b = np.vstack([near, far]) + rng.normal(0, 0.05, (24, 3))
+    sizes_a, sizes_b = np.full(len(points_a), 2.0), np.full(len(points_b), 2.0)
+    candidates = [(Sim3.identity(), np.arange(24)), (turn, np.arange(24))]
+    ver = verify_alignments(points_a, sizes_a, points_b, sizes_b, candidates, gate_m=2.0, max_size_difference=0.3,
+                            min_support=6, chance_starts=0, final_dof=None)
+    assert len(ver.best.associations) == 24 and np.allclose(ver.best.transform.rotation, np.eye(3), atol=1e-3)
+    assert ver.runner_up_support < 24 / 1.2 and ver.accepted  # before: 22 (the turn's 23 pairs less one), refused
