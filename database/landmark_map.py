@@ -95,11 +95,8 @@ def landmark_map_problem(origin: np.ndarray, offsets: np.ndarray, stored_sizes: 
         return f"landmark map has unknown flags {flags:#x}"
     if bool(flags & FLAG_SIZES) != bool(len(known)):
         return "landmark map's size flag disagrees with its sizes"
-    if noise is not None:
-        figures = np.array([noise.ground_resolution_m, noise.residual_m, noise.size_log_std])
-        if np.any(np.isinf(figures)) or np.any(figures[np.isfinite(figures)] < 0) or not 0 <= noise.landmarks < 2**32:
-            return "landmark map's noise figures are not non-negative numbers (or unknown) and a landmark count"
-    return None
+    problem = None if noise is None else noise.problem()
+    return None if problem is None else f"landmark map's {problem}"
 
 
 def check_two_maps(path_a: str | Path, path_b: str | Path, map_a: LandmarkMap, map_b: LandmarkMap,

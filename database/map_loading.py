@@ -48,9 +48,13 @@ def read_map_noise(session: Path) -> MapNoise | None:
     if not isinstance(noise, dict):
         return None
     try:
-        return MapNoise.from_dict(noise)
+        figures = MapNoise.from_dict(noise)
     except (TypeError, ValueError):
         raise InputError("session record has a malformed 'noise' entry", Path(session) / "run.json") from None
+    problem = figures.problem()
+    if problem is not None:
+        raise InputError(f"session record's {problem}", Path(session) / "run.json")
+    return figures
 
 
 def _model_dir(path: Path) -> Path | None:

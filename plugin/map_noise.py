@@ -50,6 +50,8 @@ from .params import AssociationParams
 
 SIGMA_PER_RESIDUAL = 1.5  # sigma of the affinity per metre of per-observation residual (eps = 2 sigma)
 SIZE_GATE_PER_SPREAD = 3.0  # theta_r per unit of sqrt(s_A^2 + s_B^2)
+MAX_FIGURE = 1000.0  # the largest noise figure in metres a map file may hold (`MapNoise.problem`)
+MAX_SIZE_SPREAD = 10.0  # and the largest spread of ln size
 
 
 @dataclass(frozen=True)
@@ -89,6 +91,22 @@ class MapNoise:
         return cls(largest("ground_resolution_m"), largest("residual_m"), largest("size_log_std"),
                    sum(p.landmarks for p in known))
 
+    def problem(self) -> str | None:
+        """What makes these figures impossible for a landmark map, or None: each NaN (unknown) or a non-negative
+        number up to MAX_FIGURE (metres of ground; no imagery a landmark map is made from has kilometre pixels, and
+        a spread of ln size of 10 is a factor of 20,000 between one object's views). The one check of every file
+        that holds them (`.sosmap` version 2, run.json)."""
+        figures = np.array([self.ground_resolution_m, self.residual_m, self.size_log_std], dtype=np.float64)
+        limits = np.array([MAX_FIGURE, MAX_FIGURE, MAX_SIZE_SPREAD])
+        known = ~np.isnan(figures)
+        if np.any(~np.isfinite(figures[known])) or np.any(figures[known] < 0) or np.any(figures[known] > limits[known]):
+            return (f"noise figures must be unknown or within [0, {MAX_FIGURE:g}] m (size spread [0, "
+                    f"{MAX_SIZE_SPREAD:g}]): ground resolution {self.ground_resolution_m:g} m, residual "
+                    f"{self.residual_m:g} m, size spread {self.size_log_std:g}")
+        if not 0 <= self.landmarks < 2**32:
+            return f"noise figures' landmark count {self.landmarks} is not a count"
+        return None
+
     @property
     def usable(self) -> bool:
         return self.landmarks > 0 and all(math.isfinite(v) and v > 0 for v in (self.residual_m, self.size_log_std))
@@ -127,8 +145,10 @@ def derived_association_params(base: AssociationParams, noise_a: MapNoise | None
     .sosmap, a COLMAP model, an empty map), `base` unchanged. One function for every consumer (match, evaluate)."""
     if not base.derive_from_maps or noise_a is None or noise_b is None or not (noise_a.usable and noise_b.usable):
         return base
-    sigma = SIGMA_PER_RESIDUAL * max(noise_a.residual_m, noise_b.residual_m)
-    theta_r = SIZE_GATE_PER_SPREAD * math.hypot(noise_a.size_log_std, noise_b.size_log_std)
+    # within the parameters' declared ranges (theta_eps <= 1000 m, theta_r <= 1: any size): maps that noisy
+    # are searched at the widest tolerances the search accepts, not refused for a figure nobody set
+    sigma = min(SIGMA_PER_RESIDUAL * max(noise_a.residual_m, noise_b.residual_m), 500.0)
+    theta_r = min(SIZE_GATE_PER_SPREAD * math.hypot(noise_a.size_log_std, noise_b.size_log_std), 1.0)
     return dataclasses.replace(base, affinity_sigma_m=round(sigma, 2), distance_tolerance_m=round(2.0 * sigma, 2),
                                max_size_difference=round(theta_r, 3))
 

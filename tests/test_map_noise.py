@@ -50,6 +50,10 @@ def test_derived_tolerances_and_when_they_apply():
     assert got.affinity_sigma_m == pytest.approx(1.65) and got.distance_tolerance_m == pytest.approx(3.3)
     assert got.max_size_difference == pytest.approx(3.0 * np.hypot(0.08, 0.09), abs=1e-3)
     assert (got.window_length, got.min_associations) == (base.window_length, base.min_associations)
+    # figures a map file may hold but the search's parameters do not allow: the widest tolerances it accepts
+    # (they were refused by the parameter check, naming no file; a built AssociationParams passed that check)
+    wild = derived_association_params(base, MapNoise(2.0, 600.0, 2.0, 10), b)
+    assert (wild.distance_tolerance_m, wild.max_size_difference) == (1000.0, 1.0)
     # off, or a map without figures (a .sosmap file, an empty map): the configured values
     off = dataclasses.replace(base, derive_from_maps=False)
     assert derived_association_params(off, a, b) == off
@@ -72,6 +76,9 @@ def test_session_noise_is_read_from_run_json(tmp_path):
     (tmp_path / "copy").mkdir()
     (tmp_path / "copy" / "m.sosmap").write_bytes((tmp_path / "landmarks.sosmap").read_bytes())
     assert load_map(tmp_path / "copy" / "m.sosmap").noise is None  # a map file written before they travelled
+    (tmp_path / "run.json").write_text(json.dumps({"noise": MapNoise(0.2, 1e6, 0.08, 3).to_dict()}))
+    with pytest.raises(InputError, match="run.json: session record's noise figures must be"):
+        load_map(tmp_path)
     (tmp_path / "run.json").write_text("{not json")
     with pytest.raises(InputError, match="run.json"):
         load_map(tmp_path)
