@@ -145,10 +145,11 @@ def test_ply_is_float32_local_with_origin_comment():
 
 
 def test_wrong_tracks_far_below_the_ground_are_dropped_as_height_outliers(tmp_path):
-    # consistent observations of "objects" 300 m below a 0-10 m high scene: what a wrong track along a straight
+    # consistent observations of "objects" 45-60 m below a 0-10 m high scene: what a wrong track along a straight
     # flight line triangulates to; they pass every per-point check and only the neighbours' heights betray them
     cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
-    below = np.array([[20.0, 5.0, -300.0], [40.0, -10.0, -250.0]])
+    # (within one flying height of the ground: farther ones are dropped always, `beyond_flying_height`)
+    below = np.array([[20.0, 5.0, -60.0], [40.0, -10.0, -45.0]])
     ids = len(pts) + np.arange(len(below))
     for k in range(len(poses)):
         uv, d = project(cam, poses.rotations[k], poses.centers[k], below)
@@ -164,3 +165,21 @@ def test_wrong_tracks_far_below_the_ground_are_dropped_as_height_outliers(tmp_pa
     assert on.counts["dropped_height_outlier"] == len(off) - len(on) >= len(ids)
     assert len(on) >= len(off) - len(ids) - 2  # the scene's own landmarks stay (at most a stray one or two)
     assert set(on.reconstruction.point3D_ids()) == set(on.point3d_ids.tolist())
+
+
+def test_wrong_tracks_a_flying_height_below_the_ground_are_dropped_always(tmp_path):
+    """The eleventh sweep: with the spread-sized filter off (the default) wrong tracks 290-644 m under a 100 m
+    flight stayed landmarks and the map said ok. A whole flying height off the ground is impossible: dropped."""
+    cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
+    below = np.array([[20.0, 5.0, -300.0], [40.0, -10.0, -250.0]])
+    ids = len(pts) + np.arange(len(below))
+    for k in range(len(poses)):
+        uv, d = project(cam, poses.rotations[k], poses.centers[k], below)
+        vis = (uv[:, 0] > 0) & (uv[:, 0] < 640) & (uv[:, 1] > 0) & (uv[:, 1] < 480) & (d > 0)
+        cents[k] = np.vstack([cents[k], uv[vis]])
+        tids[k] = np.concatenate([tids[k], ids[vis]])
+        sizes[k] = np.concatenate([sizes[k], OBJECT_SIZE_M * cam.fx / d[vis]])
+    out = run(tmp_path, cam, poses, cents, tids, sizes)  # height_outlier_sigmas 0: the spread filter is off
+    assert not set(ids) & set(out.track_ids.tolist())
+    assert out.counts["dropped_beyond_flying_height"] == len(ids) and out.counts["dropped_height_outlier"] == 0
+    assert set(out.reconstruction.point3D_ids()) == set(out.point3d_ids.tolist())

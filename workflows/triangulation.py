@@ -17,7 +17,9 @@ plugin/. Steps:
    partial masks of one object are dropped in favour of the best-supported one (deleted from the
    reconstruction too).
 7. height outliers (`height_outlier_sigmas`, see `plugin.landmark_filters.height_outliers`): wrong tracks
-   that straight-line views triangulated far off the ground of their neighbours are dropped (deleted too).
+   that straight-line views triangulated far off the ground of their neighbours are dropped (deleted too);
+   landmarks a whole flying height above or below their neighbours are dropped always
+   (`landmark_filters.beyond_flying_height`: physically impossible, whatever the map's spread).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
-from ..plugin.landmark_filters import height_outliers
+from ..plugin.landmark_filters import beyond_flying_height, height_outliers
 from ..plugin.landmark_size import SIZE_ESTIMATORS, mean_size, nadir_size
 from ..plugin.map_noise import MapNoise, measure_map_noise
 from ..plugin.params import TriangulationParams
@@ -285,7 +287,7 @@ def triangulate_landmarks(
 
     counts["fused"] = fuse_split_tracks(rec, camera, poses, size_of, params) if params.fuse_radius_factor > 0 else 0
     drop = {"few_observations": 0, "reprojection": 0, "behind_camera": 0, "small_angle": 0, "duplicate": 0,
-            "height_outlier": 0}
+            "height_outlier": 0, "beyond_flying_height": 0}
     rows = []
     for pid in sorted(rec.point3D_ids()):
         point = rec.points3D[pid]
@@ -320,6 +322,9 @@ def triangulate_landmarks(
         bad = height_outliers(np.array([r[2] for r in rows]), params.height_outlier_neighbours,
                               params.height_outlier_sigmas)
         rows, drop["height_outlier"] = _drop_rows(rec, rows, ~bad)
+    if rows:  # physically impossible heights, whatever the map's spread (`landmark_filters.beyond_flying_height`)
+        far = beyond_flying_height(np.array([r[2] for r in rows]), poses.centers, params.height_outlier_neighbours)
+        rows, drop["beyond_flying_height"] = _drop_rows(rec, rows, ~far)
     # Map order: by track id (roughly time of first sighting), then point id (untracked last).
     rows.sort(key=lambda r: (r[0] < 0, r[0], r[1]))
     counts.update({f"dropped_{k}": v for k, v in drop.items()})
