@@ -387,3 +387,20 @@ def test_merging_a_georeferenced_b_into_a_local_a_says_the_georeference_is_not_k
         res = merge.run(a.path, geo_b.path, match, tmp_path / "M")
     assert read_landmark_map(tmp_path / "M" / "landmarks.sosmap").epsg == 0 and res.num_fused > 20
     assert "EPSG:32632" in caplog.text and "local frame" in caplog.text
+
+
+def test_a_flight_already_in_a_merged_map_is_not_merged_again(pair, tmp_path):
+    """The eleventh sweep: a flight merged into a season map that already held it (its match accepted, as it
+    must: the same landmarks) put its 100 images into the model twice, exit 0. merge.json records the flights'
+    maps (`flight_maps`) and a merge holding one flight twice is refused before any work."""
+    from sosmatch.plugin.errors import InputError
+
+    root, world, a, b = pair
+    merge.run(a.path, b.path, toy_match_json(a, b, tmp_path / "match.json"), tmp_path / "M")
+    merged = read_session(tmp_path / "M")
+    flights = [merge.flight_maps(read_session(p)) for p in (a.path, b.path)]
+    assert merge.flight_maps(merged) == sorted(flights[0] + flights[1])
+    with pytest.raises(InputError, match="holds a flight that .* holds already"):
+        merge.merge_sessions([merged, read_session(b.path)], [Sim3.identity(), Sim3.identity()], [],
+                             tmp_path / "again")
+    assert not (tmp_path / "again").exists()

@@ -191,11 +191,39 @@ def merge_sessions(
         "transforms": [t.to_dict() for t in transforms], "eps": max_fuse_distance_m, "record": record,
         "pairs": [[p.a, p.b, hashlib.sha256(np.ascontiguousarray(p.associations, dtype="<i8").tobytes()).hexdigest(),
                    p.gate_m, p.z_weight] for p in (FusePair(*q) for q in pairs)]})
+    members = _distinct_flights(sessions)
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD) as out:
-        result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m, record or {}, t0)
+        # the flights' maps it holds go into merge.json (not into the identity: earlier merges keep theirs)
+        result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
+                             {**(record or {}), "flight_maps": members}, t0)
         out.finish()
     return result
+
+
+def flight_maps(session: SessionFiles) -> list[str]:
+    """The landmark maps (content fingerprints) of the flights a session holds: a merged session's as its
+    merge.json records them (`flight_maps`), a flight's its own."""
+    try:
+        recorded = json.loads((session.path / MERGE_RECORD).read_text(encoding="utf-8")).get("flight_maps")
+    except (OSError, ValueError, AttributeError):
+        recorded = None
+    if isinstance(recorded, list) and recorded and all(isinstance(f, str) for f in recorded):
+        return sorted(set(recorded))
+    return [landmark_map_fingerprint(session.landmarks)]
+
+
+def _distinct_flights(sessions: Sequence[SessionFiles]) -> list[str]:
+    """The flights' maps of all `sessions` (`flight_maps`); InputError when one flight is in two of them (the
+    eleventh sweep: a flight merged into a season map that already held it, its images twice in the model)."""
+    seen: dict[str, Path] = {}
+    for s in sessions:
+        for f in flight_maps(s):
+            if f in seen:
+                raise InputError(f"holds a flight that {seen[f]} holds already (the same landmark map): merging "
+                                 "it again would put its images into the model twice", s.path)
+            seen[f] = s.path
+    return sorted(seen)
 
 
 def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[Sim3],
