@@ -406,3 +406,17 @@ def test_an_unverified_match_is_said_and_out_may_not_lie_among_the_recorded_imag
     err = cli_error("changes", a, root / "B", "--match", root / "AB" / "match.json", "--out",
                     tmp_path / "photos" / "chg")
     assert "photos" in err and "input" in err and not (tmp_path / "photos" / "chg").exists(), err
+
+
+def test_a_merged_model_is_refused(toy, tmp_path, cli_error):
+    """The eleventh sweep: a merged season map compared with a flight claimed 79 objects gone on 7.7 ha at
+    confidence 0.98 (6 of them near any object), exit 0: a merged model keeps neither its flights' images nor
+    their segments, the evidence of change."""
+    from sosmatch.workflows import merge
+
+    root, _, a, b, *_ = toy
+    merge.run(a.path, b.path, root / "AB" / "match.json", tmp_path / "M")
+    match = toy_match_json(a, b, tmp_path / "MB" / "match.json")
+    out = tmp_path / "C"
+    err = cli_error("changes", tmp_path / "M", root / "B", "--match", match, "--out", out)
+    assert f"{tmp_path / 'M'}: a merged model (merge.json)" in err and not out.exists()
