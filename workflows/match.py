@@ -70,7 +70,7 @@ class MatchResult:
         """The one-line summary the command prints."""
         s = self.search
         head = (f"{len(self.map_a.lmap)} x {len(self.map_b.lmap)} landmarks, {len(s.hypotheses)}/{s.num_window_pairs}"
-                f" window pairs solved, {len(s.accepted)} over theta_S")
+                f" window pairs solved, {len(s.accepted)} window hypotheses over theta_S")
         ans = self.answer
         if ans is not None and ans.verification is not None:
             v = ans.verification
