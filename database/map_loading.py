@@ -9,6 +9,7 @@ model, else they are NaN and the size gate is off for them. Every problem raises
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,6 +23,8 @@ from .landmark_map import LandmarkMap, read_landmark_map
 
 if TYPE_CHECKING:
     import pycolmap
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -52,8 +55,9 @@ def read_map_noise(session: Path) -> MapNoise | None:
     except (TypeError, ValueError):
         raise InputError("session record has a malformed 'noise' entry", Path(session) / "run.json") from None
     problem = figures.problem()
-    if problem is not None:
-        raise InputError(f"session record's {problem}", Path(session) / "run.json")
+    if problem is not None:  # a session of an older version, or a record edited by hand: as if it had none
+        log.warning("%s: session record's %s: taken as unknown", Path(session) / "run.json", problem)
+        return None
     return figures
 
 

@@ -146,9 +146,11 @@ def derived_association_params(base: AssociationParams, noise_a: MapNoise | None
     if not base.derive_from_maps or noise_a is None or noise_b is None or not (noise_a.usable and noise_b.usable):
         return base
     # within the parameters' declared ranges (theta_eps <= 1000 m, theta_r <= 1: any size): maps that noisy
-    # are searched at the widest tolerances the search accepts, not refused for a figure nobody set
-    sigma = min(SIGMA_PER_RESIDUAL * max(noise_a.residual_m, noise_b.residual_m), 500.0)
-    theta_r = min(SIZE_GATE_PER_SPREAD * math.hypot(noise_a.size_log_std, noise_b.size_log_std), 1.0)
+    # are searched at the widest tolerances the search accepts, not refused for a figure nobody set; and no
+    # tighter than the figures' own resolution (sigma is kept in centimetres: below 5 mm it rounded to 0, which
+    # the search refuses; a size gate under 1 % is below what one object's sizes repeat to in any map)
+    sigma = min(max(SIGMA_PER_RESIDUAL * max(noise_a.residual_m, noise_b.residual_m), 0.01), 500.0)
+    theta_r = min(max(SIZE_GATE_PER_SPREAD * math.hypot(noise_a.size_log_std, noise_b.size_log_std), 0.01), 1.0)
     return dataclasses.replace(base, affinity_sigma_m=round(sigma, 2), distance_tolerance_m=round(2.0 * sigma, 2),
                                max_size_difference=round(theta_r, 3))
 

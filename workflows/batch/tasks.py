@@ -141,15 +141,19 @@ def merge_task(
 
 
 def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, params: Params,
-                 overwrite: bool = False, verified: bool = True) -> dict[str, Any]:
+                 overwrite: bool = False, verified: bool = True, images_a: str | None = None,
+                 images_b: str | None = None) -> dict[str, Any]:
     """Change detection of one accepted pair with its alignment a_from_b into out_dir
     (`sosmatch.workflows.changes`); returns the counts for the report. `overwrite`: replace a complete changes
     output of other inputs there (BatchOptions.overwrite); `verified`: the match's answer is its verification's
-    (`changes.compute` then trusts it unless its counterparts are at chance level)."""
+    (`changes.compute` then trusts it unless its counterparts are at chance level). `images_a`, `images_b`: where
+    the flights' images are now (a flights folder moved after mapping; None: where the session's run.json
+    recorded them)."""
     from ...database.outputs import open_output_dir
     from .. import changes
 
-    run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform), verified=verified)
+    run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform), verified=verified,
+                          images_a=images_a, images_b=images_b)
     with open_output_dir(out_dir, "changes", changes.output_identity(run, params, True),
                          inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json") as out:
         changes.write_outputs(run, out.path, params)

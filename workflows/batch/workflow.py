@@ -23,7 +23,7 @@ from ...plugin.multisession import (
 )
 from ...plugin.params import Params, mapping_params, params_to_dict
 from ..executors import Executor, LocalExecutor
-from .discovery import PAIR_SEP, discover_flights, flight_signature
+from .discovery import PAIR_SEP, discover_flights, flight_signature, images_dir
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
 from .tasks import changes_task, map_task, merge_task, pair_task
@@ -128,7 +128,9 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         # what a flight's map depends on: its contents (not where the folder is: a moved flights folder resumes)
         # and the mapping parameters (a setting of matching or change detection does not map it again)
         contents = {"kind": f.kind, "ekf": options.ekf, "contents": flight_signature(f.path)}
-        fps[f.name] = fingerprint({"map": 2, **contents, "params": mapping_params(params)})
+        # an adopted session is used where it lies: its place is part of it (a copy elsewhere is another session)
+        where = {"flight": str(f.path.resolve())} if f.kind == "mapped" else {}
+        fps[f.name] = fingerprint({"map": 2, **contents, **where, "params": mapping_params(params)})
         earlier[f.name] = fingerprint({"flight": str(f.path.resolve()), **contents, "params": pdict})
         tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf,
                          options.overwrite)
@@ -161,7 +163,10 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
                                      params, out_dir)
     # 5: what changed between the sessions of every pair the graph kept
     if options.changes:
-        _changes(sessions, pairs, pair_fps, state, executor, options, params, out_dir)
+        # where each flight's images are now: a map resumed after the flights folder moved records the old place
+        images = {f.name: None if f.kind == "mapped" or images_dir(f.path) is None else str(images_dir(f.path))
+                  for f in flights}
+        _changes(sessions, pairs, pair_fps, state, executor, options, params, out_dir, images)
     report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
                     for key, rec in pairs.items()]
     report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
@@ -183,9 +188,9 @@ def _stale_outputs(out_dir: Path, report: BatchReport) -> list[str]:
             stale += [f"{folder}/{p.name}" for p in sorted((out_dir / folder).iterdir())
                       if p.is_dir() and p.name not in names]
     if stale:
-        log.warning("%d output(s) in %s belong to no flight or group of this run (flights removed since an earlier "
-                    "run?): %s%s; left in place, not part of this report", len(stale), out_dir,
-                    ", ".join(stale[:6]), " ..." if len(stale) > 6 else "")
+        log.warning("%d output(s) in %s belong to no flight, pair or group of this run (flights removed "
+                    "since an earlier run, or pairs --nearest no longer chooses?): %s%s; left in place, not part "
+                    "of this report", len(stale), out_dir, ", ".join(stale[:6]), " ..." if len(stale) > 6 else "")
     return stale
 
 
@@ -260,7 +265,8 @@ def _valid_changes(done: dict[str, Any]) -> bool:
 
 
 def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]], pair_fps: dict[str, str],
-             state: StateStore, executor: Executor, options: BatchOptions, params: Params, out_dir: Path) -> None:
+             state: StateStore, executor: Executor, options: BatchOptions, params: Params, out_dir: Path,
+             images: dict[str, str | None]) -> None:
     """Run `changes_task` for every accepted pair in the session graph; its counts go into the pair's record."""
     tasks, fps = {}, {}
     pdict = params_to_dict(params)
@@ -271,7 +277,8 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
         fps[key] = fingerprint({"pair": pair_fps[key], "transform": rec["transform"], "changes": pdict["changes"],
                                 "eps": pdict["association"]["distance_tolerance_m"]})
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
-                      rec["transform"], params, True, rec.get("answer") == "verified")  # the batch's own, as merge
+                      rec["transform"], params, True, rec.get("answer") == "verified",  # the batch's own, as merge
+                      images[a], images[b])
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
                      options.progress, _valid_changes)
     for key, rec in done.items():

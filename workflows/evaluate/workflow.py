@@ -18,7 +18,7 @@ import numpy as np
 from ...database.atomic import write_text_atomic
 from ...database.evaluation_io import read_match_hypotheses
 from ...database.landmark_map import check_two_maps, read_landmark_map
-from ...database.map_loading import read_map_noise
+from ...database.map_loading import read_map_noise, session_map_noise
 from ...database.match_io import check_match_maps, read_match_json
 from ...database.outputs import fingerprint, open_output_dir
 from ...database.session_io import check_map_of_images, check_session_usable
@@ -70,7 +70,8 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
     obs_b, _ = _observers(gt_b, map_b, max_observers, centers_b)
     if obs_a.shape[0] != len(pa) or obs_b.shape[0] != len(pb):
         raise InputError("landmarks.csv and landmarks.sosmap disagree on the number of landmarks", map_a)
-    noise = [read_map_noise(m) for m in (map_a, map_b)]
+    noise = [read_map_noise(m) if lm is None else session_map_noise(m, lm)
+             for m, lm in ((map_a, lmap_a), (map_b, lmap_b))]
     derivation = derived_search_params(params.association, *noise, pa, ha, pb, hb)  # as `sosmatch match` does
     assoc_params = derivation.params
     first_try = derivation.first_try

@@ -280,9 +280,13 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     t = time.perf_counter()
     write_model(landmarks.reconstruction, out.staged("sparse"), text=text_model)
     origin = map_origin(landmarks.positions, kf_poses.centers)
-    # the noise figures travel with the map file (a map copied out of the session is matched as the session is)
-    lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg,
-                       landmarks.noise)
+    # the noise figures travel with the map file (a map copied out of the session is matched as the session is);
+    # figures no map can have (`MapNoise.problem`) are left out of it, with a warning, rather than failing the run
+    noise = landmarks.noise
+    if noise is not None and noise.problem() is not None:
+        log.warning("the map's %s: not written into the map file", noise.problem())
+        noise = None
+    lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg, noise)
     map_bytes = write_landmark_map(out.staged("landmarks.sosmap"), lmap)
     write_ply(out.staged("landmarks.ply"), landmarks.positions - origin, landmarks.sizes_m, origin, inputs.epsg)
     image_names = [[kf_poses.names[k] for k in obs[:, 0]] for obs in landmarks.observations]
