@@ -489,3 +489,23 @@ def test_outputs_of_a_removed_flight_are_named_and_skipped_changes_are_not_zero(
     off = batch.run(tmp_path / "fl", tmp_path / "off", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
                     options=batch.BatchOptions(progress=False, changes=False))
     assert off.changes_line().startswith("no changes detected") and "gone" not in off.changes_line()
+
+
+def test_comparisons_after_the_flights_folder_moved_read_the_images_where_they_are(tmp_path):
+    """The session's review: a moved flights folder resumes its maps, whose run.json records the images' old
+    place; a comparison run afterwards (a changed changes setting) found none there and went without the surface
+    evidence. The batch passes each flight's images as they are now."""
+    from sosmatch.plugin.params import Params, with_overrides
+
+    for k in (1, 2):
+        assert main(["synth", "-q", "--world-seed", "7", "--session-seed", str(k), "--frames", "30", "--width", "320",
+                     "--height", "240", "--out", str(tmp_path / "fl" / f"F{k}")]) == 0
+    first = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0),
+                      options=batch.BatchOptions(progress=False))
+    assert first.pairs[0].get("changes_status") == "done"
+    shutil.move(tmp_path / "fl", tmp_path / "moved")
+    again = batch.run(tmp_path / "moved", tmp_path / "out", with_overrides(Params(), {"changes.min_confidence": 0.9}),
+                      executor=LocalExecutor(0), options=batch.BatchOptions(progress=False, overwrite=True))
+    assert all(s.get("resumed") for s in again.sessions) and again.pairs[0].get("resumed")
+    changes = json.loads((tmp_path / "out" / "pairs" / "F1__F2" / "changes" / "changes.json").read_text())
+    assert [changes["images_a"], changes["images_b"]] == [str(tmp_path / "moved" / f / "images") for f in ("F1", "F2")]
