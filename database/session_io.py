@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from ..plugin.changes import SessionObservations
 
 MAX_ROWS = 2**31 - 1
+MERGE_RECORD = "merge.json"  # a merged session's record (`sosmatch merge`, written last: it marks one)
 LANDMARK_CSV_COLUMNS = ["index", "point3d_id", "x", "y", "z", "size_m", "num_observations", "image_names"]
 
 
@@ -43,6 +44,11 @@ class SessionFiles:
     @property
     def sparse_dir(self) -> Path:
         return self.path / "sparse"
+
+    @property
+    def is_merged(self) -> bool:
+        """A merged model (`sosmatch merge`'s output), not one flight's session."""
+        return (self.path / MERGE_RECORD).is_file()
 
 
 @dataclass

@@ -89,7 +89,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         raise ValueError("give match_json or a_from_b")
     files_a, files_b = read_session(session_a), read_session(session_b)
     for files in (files_a, files_b):
-        if (files.path / "merge.json").is_file():
+        if files.is_merged:
             # the evidence of change is each flight's own images and segments, which a merged model keeps
             # neither of (the eleventh sweep: a season map against one of its flights' neighbours claimed 79
             # objects gone on 7.7 ha, 6 of them near any object, at confidence 0.98, exit 0)

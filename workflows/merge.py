@@ -42,7 +42,7 @@ from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, write
 from ..database.map_loading import session_map_noise
 from ..database.match_io import check_match_maps, read_match, unverified_note
 from ..database.outputs import OutputDir, fingerprint, open_output_dir, sha256_file
-from ..database.session_io import SessionFiles, read_session, write_landmarks_csv
+from ..database.session_io import MERGE_RECORD, SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
@@ -53,7 +53,6 @@ from ..plugin.refinement import pairing_distance, refine_alignment
 log = logging.getLogger(__name__)
 
 MERGE_FORMAT = "sosmatch merge v1"
-MERGE_RECORD = "merge.json"
 
 
 @dataclass
