@@ -94,11 +94,12 @@ def run_stage(
     todo = {}
     for key, args in tasks.items():
         done = state.get(stage, key, fingerprints[key])
-        if done is None and earlier is not None and key in earlier:
+        migrated = done is None and earlier is not None and key in earlier
+        if migrated:
             done = state.get(stage, key, earlier[key])
-            if done is not None and (still_valid is None or still_valid(done)):
-                state.put(stage, key, fingerprints[key], {k: v for k, v in done.items() if k != "resumed"})
         if done is not None and (still_valid is None or still_valid(done)):
+            if migrated:  # re-saved under today's fingerprint
+                state.put(stage, key, fingerprints[key], done)
             records[key] = {**done, "status": "done", "resumed": True}
         else:
             todo[key] = args

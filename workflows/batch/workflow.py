@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ...database.outputs import open_output_dir
+from ...database.session_io import MERGE_RECORD
 from ...plugin.multisession import (
     Edge,
     Sim3,
@@ -66,7 +67,7 @@ def _associations_file(rec: dict[str, Any]) -> str:
 
 
 def _valid_merge(done: dict[str, Any]) -> bool:
-    return (Path(done.get("merged", "")) / "merge.json").is_file()
+    return (Path(done.get("merged", "")) / MERGE_RECORD).is_file()
 
 
 def _choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None) -> list[tuple[str, str]]:
@@ -164,8 +165,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     # 5: what changed between the sessions of every pair the graph kept
     if options.changes:
         # where each flight's images are now: a map resumed after the flights folder moved records the old place
-        images = {f.name: None if f.kind == "mapped" or images_dir(f.path) is None else str(images_dir(f.path))
-                  for f in flights}
+        images = {f.name: None if f.kind == "mapped" else images_dir(f.path) for f in flights}
         _changes(sessions, pairs, pair_fps, state, executor, options, params, out_dir, images)
     report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
                     for key, rec in pairs.items()]
@@ -266,7 +266,7 @@ def _valid_changes(done: dict[str, Any]) -> bool:
 
 def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]], pair_fps: dict[str, str],
              state: StateStore, executor: Executor, options: BatchOptions, params: Params, out_dir: Path,
-             images: dict[str, str | None]) -> None:
+             images: dict[str, Path | None]) -> None:
     """Run `changes_task` for every accepted pair in the session graph; its counts go into the pair's record."""
     tasks, fps = {}, {}
     pdict = params_to_dict(params)
@@ -278,7 +278,7 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
                                 "eps": pdict["association"]["distance_tolerance_m"]})
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
                       rec["transform"], params, True, rec.get("answer") == "verified",  # the batch's own, as merge
-                      images[a], images[b])
+                      *(None if images[n] is None else str(images[n]) for n in (a, b)))
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
                      options.progress, _valid_changes)
     for key, rec in done.items():
