@@ -147,7 +147,7 @@ def encode_landmark_map(lmap: LandmarkMap) -> bytes:
         problem = "landmark map holds non-finite coordinates"
     if problem is not None:
         raise ValueError(problem)
-    header = _HEADER.pack(MAGIC, 2 if lmap.noise is not None else 1, flags, len(lmap), *lmap.origin,
+    header = _HEADER.pack(MAGIC, VERSION if lmap.noise is not None else 1, flags, len(lmap), *lmap.origin,
                           int(lmap.epsg), 0)
     body = header + records.tobytes()
     if lmap.noise is not None:

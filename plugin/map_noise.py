@@ -80,9 +80,9 @@ class MapNoise:
         """The figures of a map merged from maps with these figures (None if any is unknown): each the largest
         of the parts' (a merged map scatters at least as much as its noisiest part, and its parts' frames were
         aligned with errors of their own), the landmarks summed."""
-        if not parts or any(p is None for p in parts):
-            return None
         known = [p for p in parts if p is not None]
+        if not known or len(known) < len(parts):
+            return None
 
         def largest(key: str) -> float:
             values = [getattr(p, key) for p in known if math.isfinite(getattr(p, key))]

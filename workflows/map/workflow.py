@@ -283,8 +283,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     # the noise figures travel with the map file (a map copied out of the session is matched as the session is);
     # figures no map can have (`MapNoise.problem`) are left out of it, with a warning, rather than failing the run
     noise = landmarks.noise
-    if noise is not None and noise.problem() is not None:
-        log.warning("the map's %s: not written into the map file", noise.problem())
+    problem = None if noise is None else noise.problem()
+    if problem is not None:
+        log.warning("the map's %s: not written into the map file", problem)
         noise = None
     lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg, noise)
     map_bytes = write_landmark_map(out.staged("landmarks.sosmap"), lmap)
