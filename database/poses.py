@@ -185,32 +185,33 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
     if convention is not None:
         file_convention = convention
     data = np.array(rows, dtype=np.float64).reshape(-1, len(header) - 1)
+    # camera centres given as lon / lat degrees are named as such before anything reads them as metres (the
+    # true-north conversion below, the CRS's area); camera_from_world translations are checked as centres below
+    centres_given = file_convention == "world_from_camera"
+    degrees = _look_like_degrees(data[:, :3], epsg) if centres_given else None
+    if degrees:
+        raise InputError(degrees, path)
     if not len(data):
         rot = np.zeros((0, 3, 3))
     elif header == QUAT_COLUMNS:
         rot = quat_to_rotmat(data[:, 3:])
     else:
         yaw = data[:, 3]
-        if epsg and file_convention == "world_from_camera":  # true north -> grid (see the module doc)
+        if epsg and centres_given:  # true north -> grid (see the module doc)
             from ..plugin.geodesy import grid_north_azimuth
             from .geojson import check_within_crs_area
 
-            # beyond the CRS's area its grid has no meaningful north (pyproj extrapolates a 90 deg convergence);
-            # degrees given as x, y are named as such first
-            degrees = _look_like_degrees(data[:, :3], epsg)
-            if degrees:
-                raise InputError(degrees, path)
+            # beyond the CRS's area its grid has no meaningful north (pyproj extrapolates a 90 deg convergence)
             check_within_crs_area(epsg, data[:, :2], path, "the camera centres")
             convergence = grid_north_azimuth(data[:, 0], data[:, 1], epsg)
             if not np.all(np.isfinite(convergence)):
                 raise InputError(f"camera positions outside the area of EPSG:{epsg} (no true north there)", path)
             yaw = yaw + convergence
         rot = ypr_to_rotmat(yaw, data[:, 4], data[:, 5])
-    poses = Poses(names, rot, data[:, :3]) if file_convention == "world_from_camera" else \
-        Poses.from_cam_from_world(names, rot, data[:, :3])
+    poses = Poses(names, rot, data[:, :3]) if centres_given else Poses.from_cam_from_world(names, rot, data[:, :3])
     if np.abs(poses.centers).max() > MAX_WORLD_COORD_M:  # camera_from_world translations far from the origin
         raise InputError(f"camera centres beyond {MAX_WORLD_COORD_M:g} m (not a coordinate on Earth)", path)
-    degrees = _look_like_degrees(poses.centers, epsg)
+    degrees = None if centres_given else _look_like_degrees(poses.centers, epsg)
     if degrees:
         raise InputError(degrees, path)
     return poses, epsg
