@@ -144,12 +144,9 @@ def test_ply_is_float32_local_with_origin_comment():
     assert np.allclose(np.frombuffer(body, "<f4"), [1.25, -2.5, 3.0, 1.5])
 
 
-def test_wrong_tracks_far_below_the_ground_are_dropped_as_height_outliers(tmp_path):
-    # consistent observations of "objects" 45-60 m below a 0-10 m high scene: what a wrong track along a straight
-    # flight line triangulates to; they pass every per-point check and only the neighbours' heights betray them
-    cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
-    # (within one flying height of the ground: farther ones are dropped always, `beyond_flying_height`)
-    below = np.array([[20.0, 5.0, -60.0], [40.0, -10.0, -45.0]])
+def observe_wrong_tracks(cam, poses, pts, cents, tids, sizes, below):
+    """Add consistent observations of points `below` the scene to its keyframes (their centroids, track ids after
+    the scene's, sizes): what a wrong track along a straight flight line triangulates to. Returns their ids."""
     ids = len(pts) + np.arange(len(below))
     for k in range(len(poses)):
         uv, d = project(cam, poses.rotations[k], poses.centers[k], below)
@@ -157,6 +154,16 @@ def test_wrong_tracks_far_below_the_ground_are_dropped_as_height_outliers(tmp_pa
         cents[k] = np.vstack([cents[k], uv[vis]])
         tids[k] = np.concatenate([tids[k], ids[vis]])
         sizes[k] = np.concatenate([sizes[k], OBJECT_SIZE_M * cam.fx / d[vis]])
+    return ids
+
+
+def test_wrong_tracks_far_below_the_ground_are_dropped_as_height_outliers(tmp_path):
+    # consistent observations of "objects" 45-60 m below a 0-10 m high scene: what a wrong track along a straight
+    # flight line triangulates to; they pass every per-point check and only the neighbours' heights betray them
+    cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
+    # (within one flying height of the ground: farther ones are dropped always, `beyond_flying_height`)
+    below = np.array([[20.0, 5.0, -60.0], [40.0, -10.0, -45.0]])
+    ids = observe_wrong_tracks(cam, poses, pts, cents, tids, sizes, below)
     off = run(tmp_path / "off", cam, poses, cents, tids, sizes)
     assert set(ids) <= set(off.track_ids.tolist())  # without the filter they are landmarks
     params = TriangulationParams(duplicate_radius_factor=0.0, height_outlier_sigmas=6.0)
@@ -172,13 +179,7 @@ def test_wrong_tracks_a_flying_height_below_the_ground_are_dropped_always(tmp_pa
     flight stayed landmarks and the map said ok. A whole flying height off the ground is impossible: dropped."""
     cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
     below = np.array([[20.0, 5.0, -300.0], [40.0, -10.0, -250.0]])
-    ids = len(pts) + np.arange(len(below))
-    for k in range(len(poses)):
-        uv, d = project(cam, poses.rotations[k], poses.centers[k], below)
-        vis = (uv[:, 0] > 0) & (uv[:, 0] < 640) & (uv[:, 1] > 0) & (uv[:, 1] < 480) & (d > 0)
-        cents[k] = np.vstack([cents[k], uv[vis]])
-        tids[k] = np.concatenate([tids[k], ids[vis]])
-        sizes[k] = np.concatenate([sizes[k], OBJECT_SIZE_M * cam.fx / d[vis]])
+    ids = observe_wrong_tracks(cam, poses, pts, cents, tids, sizes, below)
     out = run(tmp_path, cam, poses, cents, tids, sizes)  # height_outlier_sigmas 0: the spread filter is off
     assert not set(ids) & set(out.track_ids.tolist())
     assert out.counts["dropped_beyond_flying_height"] == len(ids) and out.counts["dropped_height_outlier"] == 0
