@@ -64,31 +64,50 @@ def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, cs: np.ndarray
     best_slice = -1
     best_core = 0
     min_edges = k * (k + 1) // 2  # a set of k + 1 associations is a clique with this many pairs
-    local = np.full(n, -1, np.int64)  # work array: vertex -> index in the slice's vertex list
+    local = np.full(n, -1, np.int64)  # work arrays: vertex -> index in the slice's vertex list, and its degree
+    deg = np.zeros(n, np.int64)
+    verts = np.empty(n, np.int64)
     for sl in range(nslices):
         be = bucket[cnt[sl]: cnt[sl + 1]]  # this slice's edges, in (row, col) order
         if len(be) < min_edges:
             continue
-        # the slice's vertices in ascending order, and its graph on them
-        verts = np.empty(2 * len(be), np.int64)
+        # the slice's vertices of degree >= k in ascending order, and its graph on them: a vertex of lower degree
+        # is outside the k-core (the peel's first round, done on the edge list), and a slice with too few of them
+        # holds no set of k + 1. Degrees and a scan of the n vertices: no sort of the slice's endpoints (which cost
+        # half the search on dense maps of two places, BENCHMARKS.md "Refusals of season maps").
         for x in range(len(be)):
-            verts[2 * x] = rows[be[x]]
-            verts[2 * x + 1] = cols[be[x]]
-        verts = np.unique(verts)
-        nv = len(verts)
-        if nv <= k:
-            continue
-        for x in range(nv):
-            local[verts[x]] = x
-        lr = np.empty(len(be), np.int64)
-        lc = np.empty(len(be), np.int64)
-        lv = np.empty(len(be))
-        for x in range(len(be)):
-            lr[x] = local[rows[be[x]]]
-            lc[x] = local[cols[be[x]]]
-            lv[x] = cs[be[x]]
+            deg[rows[be[x]]] += 1
+            deg[cols[be[x]]] += 1
+        nv = 0
+        for v in range(n):
+            if deg[v] >= k:
+                local[v] = nv
+                verts[nv] = v
+                nv += 1
+        ne = 0
+        if nv > k:
+            for x in range(len(be)):
+                if local[rows[be[x]]] >= 0 and local[cols[be[x]]] >= 0:
+                    ne += 1
+        lr = np.empty(ne, np.int64)
+        lc = np.empty(ne, np.int64)
+        lv = np.empty(ne)
+        if ne >= min_edges:
+            t = 0
+            for x in range(len(be)):
+                r, c = local[rows[be[x]]], local[cols[be[x]]]
+                if r >= 0 and c >= 0:
+                    lr[t] = r
+                    lc[t] = c
+                    lv[t] = cs[be[x]]
+                    t += 1
+        for x in range(len(be)):  # the work arrays back to their rest state, for the next slice
+            deg[rows[be[x]]] = 0
+            deg[cols[be[x]]] = 0
         for x in range(nv):
             local[verts[x]] = -1
+        if ne < min_edges:
+            continue
         ip, ix, _ = sym_csr(nv, lr, lc, lv)
         core = kcore_mask(nv, ip, ix, np.ones(nv, np.bool_), k)
         nc = 0
@@ -106,14 +125,14 @@ def solve_window_pair(n: int, rows: np.ndarray, cols: np.ndarray, cs: np.ndarray
                 ids[t] = verts[x]
                 t += 1
         ce = 0
-        for x in range(len(be)):
+        for x in range(ne):
             if core[lr[x]] and core[lc[x]]:
                 ce += 1
         gr = np.empty(ce, np.int64)
         gc = np.empty(ce, np.int64)
         gv = np.empty(ce)
         t = 0
-        for x in range(len(be)):
+        for x in range(ne):
             if core[lr[x]] and core[lc[x]]:
                 gr[t] = new[lr[x]]
                 gc[t] = new[lc[x]]
