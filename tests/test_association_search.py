@@ -187,3 +187,62 @@ def test_a_consensus_that_holds_fewer_than_theta_s_is_no_answer():
     assert kept is not None and len(kept.associations) == 8 and kept.accepted
     few = consensus_transform(pa, b_with(5), [hyp(pairs[0]), hyp(pairs[1])], [0, 1], params)
     assert few is not None and len(few.associations) == 5 and not few.accepted
+
+
+def groups_by_definition(points_b, hyps, ranked, eps, max_turn_deg):
+    """The consensus' groups as `consensus_transform` defines them, one head at a time with array operations: each
+    hypothesis (in rank order) joins the first group whose head maps the head's B landmarks within eps of where
+    the head maps them, with rotations less than max_turn_deg apart."""
+    rot = np.stack([hyps[k].transform.scale * hyps[k].transform.rotation for k in ranked])
+    tr = np.stack([hyps[k].transform.translation for k in ranked])
+    pure = np.stack([hyps[k].transform.rotation for k in ranked])
+    group_of = np.full(len(ranked), -1)
+    ng = 0
+    for x in range(len(ranked)):
+        if group_of[x] >= 0:
+            continue
+        group_of[x] = ng
+        rest = np.flatnonzero(group_of < 0)
+        rest = rest[rest > x]
+        if len(rest):
+            xb = points_b[hyps[ranked[x]].associations[:, 1]]
+            mine = xb @ rot[x].T + tr[x]
+            theirs = np.einsum("kij,nj->kni", rot[rest], xb) + tr[rest][:, None, :]
+            near = np.max(np.linalg.norm(theirs - mine[None], axis=2), axis=1) <= eps
+            turn = np.atleast_1d(rotation_angle_deg(np.broadcast_to(pure[x], pure[rest].shape), pure[rest]))
+            group_of[rest[near & (turn < max_turn_deg)]] = ng
+        ng += 1
+    return group_of.tolist()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_consensus_groups_equal_their_definition(seed):
+    """The compiled grouping (`kernels_fit.agreeing_groups`, one pass with the cheap test first) forms the groups
+    the per-head statement forms, on hypotheses of true, nearby and chance transforms."""
+    from sosmatch.plugin.association.hypotheses import WindowHypothesis
+    from sosmatch.plugin.association.kernels_fit import agreeing_groups
+    from sosmatch.plugin.association.rigid import Transform
+
+    rng = np.random.default_rng(seed)
+    pb = rng.uniform(0, 300, (400, 3)) * [1, 1, 0.1]
+    hyps = []
+    for _ in range(300):
+        kind = rng.integers(3)  # the truth, a transform a little off it, or anywhere at any yaw
+        yaw = {0: 0.0, 1: rng.normal(0, 10), 2: rng.uniform(-180, 180)}[kind]
+        t = {0: np.zeros(3), 1: rng.normal(0, 2, 3), 2: rng.uniform(-300, 300, 3)}[kind]
+        rot = rotation_from_rpy_deg(rng.normal(0, 1), rng.normal(0, 1), yaw)
+        scale = 1.0 if seed % 2 == 0 else float(rng.uniform(0.95, 1.05))
+        b = np.sort(rng.choice(len(pb), rng.integers(3, 12), replace=False))
+        assoc = np.column_stack([b, b])
+        hyps.append(WindowHypothesis((0, 1), (0, 1), 0, 0, assoc, float(len(b)), Transform(rot, t, scale), 0.0, 0.0,
+                                     0.0, True))
+    ranked = list(range(len(hyps)))
+    eps, turn = 3.0, 22.5
+    want = groups_by_definition(pb, hyps, ranked, eps, turn)
+    off = np.concatenate([[0], np.cumsum([h.size for h in hyps])]).astype(np.int64)
+    got = agreeing_groups(np.stack([h.transform.scale * h.transform.rotation for h in hyps]),
+                          np.stack([h.transform.translation for h in hyps]),
+                          np.stack([h.transform.rotation for h in hyps]), off,
+                          pb[np.concatenate([h.associations[:, 1] for h in hyps])], eps, turn)
+    assert got.tolist() == want
+    assert 1 < max(want) + 1 < len(hyps)  # some groups hold several hypotheses, not all one

@@ -16,10 +16,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import AssociationParams
-from .kernels_fit import fit_many
+from .kernels_fit import agreeing_groups, fit_many
 from .kernels_graph import DISTANCE, GRAVITY
 from .kernels_solve import BOUNDED, CLIPPER
-from .rigid import Transform, fit_transform, rolls_pitches_deg, rotation_angle_deg, tilts_deg
+from .rigid import Transform, fit_transform, rolls_pitches_deg, tilts_deg
 from .windows import hilbert_order
 
 
@@ -216,31 +216,20 @@ def consensus_transform(points_a: np.ndarray, points_b: np.ndarray, hyps: list[W
     """
     eps = params.distance_tolerance_m
     ranked = sorted(accepted, key=lambda k: (-hyps[k].size, -hyps[k].score, k))
-    # Each hypothesis joins the first group (in order of creation) whose first member it agrees with, else starts a
-    # group. Done head by head: every hypothesis not yet grouped is compared with the new head at once (a later
-    # head never takes one that agreed with an earlier head, so the groups are those of the one-by-one walk).
-    rot = np.stack([hyps[k].transform.scale * hyps[k].transform.rotation for k in ranked]) if ranked else None
-    tr = np.stack([hyps[k].transform.translation for k in ranked]) if ranked else None
-    pure = np.stack([hyps[k].transform.rotation for k in ranked]) if ranked else None
-    group_of = np.full(len(ranked), -1)
+    # each hypothesis joins the first group (in order of creation) whose first member it agrees with, else starts a
+    # group (`kernels_fit.agreeing_groups`)
     groups: list[list[int]] = []
-    for x in range(len(ranked)):
-        if group_of[x] >= 0:
-            continue
-        group_of[x] = len(groups)
-        groups.append([ranked[x]])
-        rest = np.flatnonzero(group_of < 0)
-        rest = rest[rest > x]
-        if not len(rest):
-            continue
-        xb = points_b[hyps[ranked[x]].associations[:, 1]]
-        mine = xb @ rot[x].T + tr[x]
-        theirs = np.einsum("kij,nj->kni", rot[rest], xb) + tr[rest][:, None, :]
-        near = np.max(np.linalg.norm(theirs - mine[None], axis=2), axis=1) <= eps
-        turn = np.atleast_1d(rotation_angle_deg(np.broadcast_to(pure[x], pure[rest].shape), pure[rest]))
-        for y in rest[near & (turn < params.max_gravity_angle_deg)]:
-            group_of[y] = group_of[x]
-            groups[-1].append(ranked[y])
+    if ranked:
+        rot = np.stack([hyps[k].transform.scale * hyps[k].transform.rotation for k in ranked])
+        tr = np.stack([hyps[k].transform.translation for k in ranked])
+        pure = np.stack([hyps[k].transform.rotation for k in ranked])
+        off = np.concatenate([[0], np.cumsum([hyps[k].size for k in ranked])]).astype(np.int64)
+        pts = points_b[np.concatenate([hyps[k].associations[:, 1] for k in ranked])]
+        group_of = agreeing_groups(rot, tr, pure, off, np.ascontiguousarray(pts, dtype=np.float64), float(eps),
+                                   float(params.max_gravity_angle_deg))
+        groups = [[] for _ in range(int(group_of.max()) + 1)]
+        for x, g in enumerate(group_of.tolist()):
+            groups[g].append(ranked[x])
 
     nb = max(len(points_b), 1)
 

@@ -65,3 +65,57 @@ def fit_many(pa: np.ndarray, pb: np.ndarray, off: np.ndarray, sel_a: np.ndarray,
         sc[h] = scale
         ok[h] = True
     return rot, tr, sc, ok
+
+
+@njit(cache=True)
+def agreeing_groups(rot: np.ndarray, tr: np.ndarray, pure: np.ndarray, off: np.ndarray, pts: np.ndarray, eps: float,
+                    max_turn_deg: float) -> np.ndarray:
+    """Groups of agreeing transforms, in order (`hypotheses.consensus_transform`): each transform joins the first
+    group whose first member (head) it agrees with, else it starts a group. y agrees with head x when it maps x's
+    points pts[off[x]:off[x + 1]] within eps of where x maps them (x_A = rot x_B + tr; rot holds the scale) and
+    their rotations `pure` differ by less than max_turn_deg. Returns each transform's group number.
+
+    One pass over the pairs (head, transform not yet grouped) with the cheap test first: over a map of two places
+    every chance hypothesis is its own group, and the pairs number half the square of the hypotheses (52 689
+    hypotheses took 562 s as array operations per head, BENCHMARKS.md "Refusals of season maps").
+    """
+    n = len(tr)
+    group = np.full(n, -1, np.int64)
+    ng = 0
+    cos_turn = np.cos(np.radians(max_turn_deg))
+    for x in range(n):
+        if group[x] >= 0:
+            continue
+        group[x] = ng
+        m = off[x + 1] - off[x]
+        mine = np.empty((m, 3))
+        for p in range(m):
+            for i in range(3):
+                mine[p, i] = (rot[x, i, 0] * pts[off[x] + p, 0] + rot[x, i, 1] * pts[off[x] + p, 1]
+                              + rot[x, i, 2] * pts[off[x] + p, 2] + tr[x, i])
+        for y in range(x + 1, n):
+            if group[y] >= 0:
+                continue
+            trace = 0.0
+            for i in range(3):
+                for j in range(3):
+                    trace += pure[x, i, j] * pure[y, i, j]
+            c = min(max((trace - 1.0) / 2.0, -1.0), 1.0)
+            if c < cos_turn - 1e-9:  # clearly turned by more (the exact angle is computed only near the limit)
+                continue
+            if c <= cos_turn + 1e-9 and not np.degrees(np.arccos(c)) < max_turn_deg:
+                continue
+            near = True
+            for p in range(m):
+                d2 = 0.0
+                for i in range(3):
+                    d = (rot[y, i, 0] * pts[off[x] + p, 0] + rot[y, i, 1] * pts[off[x] + p, 1]
+                         + rot[y, i, 2] * pts[off[x] + p, 2] + tr[y, i]) - mine[p, i]
+                    d2 += d * d
+                if not np.sqrt(d2) <= eps:
+                    near = False
+                    break
+            if near:
+                group[y] = ng
+        ng += 1
+    return group
