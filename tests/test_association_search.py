@@ -132,7 +132,7 @@ def test_dense_maps_take_the_direct_path_with_the_same_result():
     _assert_same(fast, ref)
 
 
-@pytest.mark.parametrize("space_extra,k", [(0, 2), (0, 3), (0, 6), (2_000_000_000, 3)])
+@pytest.mark.parametrize("space_extra,k", [(0, 2), (0, 3), (0, 6), (-600, 1), (2_000_000_000, 3)])
 def test_peel_on_association_ids_equals_compact_then_peel(space_extra, k):
     """`peeled_ids` (degrees on the ids, only survivors renumbered; or the sort path for a huge id space) leaves
     the pairs `compact_ids` + `peel_pairs` leave, with the ids of their associations in the same order."""

@@ -136,12 +136,27 @@ def peeled_ids(v1: np.ndarray, v2: np.ndarray, space: int, k: int) -> tuple:
     if removed > 0:  # not yet converged: the k-core of what is left decides (exact, whatever the passes did)
         ids, e1, e2 = compact_ids(v1[sel], v2[sel], space)
         sel = sel[peel_pairs(len(ids), e1, e2, k)]
-    # renumber the associations of the surviving pairs (few: sorted, not a scan of the whole id space)
-    ends = np.empty(2 * len(sel), np.int64)
-    for x in range(len(sel)):
-        ends[2 * x] = v1[sel[x]]
-        ends[2 * x + 1] = v2[sel[x]]
-    ids = np.unique(ends)
+    # renumber the associations of the surviving pairs: where they are many against the id space (maps of two
+    # places: nearly every pair survives), marked in the table and read off a scan of it; where they are few, sorted
+    if space <= 8 * len(sel):
+        for x in range(len(sel)):
+            cnt[v1[sel[x]]] = -1
+            cnt[v2[sel[x]]] = -1
+        nu = 0
+        for v in range(space):
+            nu += cnt[v] == -1
+        ids = np.empty(nu, np.int64)
+        nu = 0
+        for v in range(space):
+            if cnt[v] == -1:
+                ids[nu] = v
+                nu += 1
+    else:
+        ends = np.empty(2 * len(sel), np.int64)
+        for x in range(len(sel)):
+            ends[2 * x] = v1[sel[x]]
+            ends[2 * x + 1] = v2[sel[x]]
+        ids = np.unique(ends)
     for x in range(len(ids)):
         cnt[ids[x]] = x
     e1 = np.empty(len(sel), np.int64)
