@@ -24,6 +24,7 @@ from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params.matching import MAX_ASSOCIATIONS
 from .landmark_map import LandmarkMap, landmark_map_fingerprint
+from .outputs import check_finished
 from .text_input import read_user_text
 
 MATCH_FORMAT = "sosmatch match v1"
@@ -317,6 +318,7 @@ def read_match_json(path: str | Path) -> dict[str, Any]:
             raise InputError("folder holds no match.json (give the match.json of `sosmatch match`, or its folder)",
                              path)
         path = path / "match.json"
+    check_finished(path.parent, path)  # a killed `match --overwrite` leaves the old match.json beside new files
     text = read_user_text(path, "match file")
     if not text.strip():
         raise InputError("match file is empty (an interrupted copy?); re-run `sosmatch match`", path)

@@ -119,6 +119,18 @@ def unfinished_output(path: str | Path) -> str | None:
     return output_command(path) or "?"
 
 
+def check_finished(path: str | Path, named: str | Path | None = None) -> None:
+    """InputError (naming `named`, default `path`) when a run of sosmatch into directory `path` has not finished
+    (interrupted, or running now): what it holds may be an earlier run's beside its unfinished successor (a killed
+    `match --overwrite` leaves the new associations.csv beside the old match.json). Every reader of an input that
+    a sosmatch command wrote asks this of the directory that holds it."""
+    if (command := unfinished_output(path)) is not None:
+        where = "this directory" if named is None else f"its directory {Path(path)}"
+        raise InputError(f"a `sosmatch {command}` run into {where} has not finished (interrupted, or still "
+                         "running): re-run the same command to finish it before using it",
+                         path if named is None else named)
+
+
 def _holds_files(folder: Path) -> bool:
     """True when anything but directories lies in `folder` or below (True too when it cannot be read)."""
     try:

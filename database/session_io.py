@@ -165,11 +165,9 @@ def check_session_usable(path: str | Path) -> None:
     sessions) pass. Also when a run of sosmatch into `path` has not finished (interrupted, or running now): what
     the directory holds may be an earlier run's, from other inputs (a killed `map --overwrite` leaves the old
     map beside its unfinished successor)."""
-    from .outputs import unfinished_output
+    from .outputs import check_finished
 
-    if (command := unfinished_output(path)) is not None:
-        raise InputError(f"a `sosmatch {command}` run into this directory has not finished (interrupted, or still "
-                         "running): re-run the same command to finish it before using it", path)
+    check_finished(path)
     try:
         record = read_map_record(path)
     except InputError:  # an unreadable record decides nothing here; the stage that needs it says so

@@ -424,6 +424,43 @@ def test_a_session_whose_run_has_not_finished_is_not_used(toy, tmp_path, cli_err
     assert not (tmp_path / "a.csv").exists() and not (tmp_path / "M").exists()
 
 
+def test_outputs_of_unfinished_runs_are_refused_wherever_they_are_read(toy, tmp_path, cli_error):
+    """The twelfth new-user sweep killed `match --overwrite` (its new associations.csv beside the old match.json,
+    which merge and changes then used), killed `merge --overwrite` (its map file, given by name, was matched and
+    exported), and a `synth` (map said "pose file is a folder"). Every reader of such an output refuses it in one
+    line naming the unfinished command, and nothing is written."""
+    import shutil
+
+    root, a, b, _ = toy
+
+    def unfinished(folder, command):
+        (folder / ".sosmatch-output.json").write_text(json.dumps(
+            {"format": "sosmatch output v1", "command": command, "identity": "x", "complete": False}))
+
+    m = tmp_path / "M"
+    m.mkdir()
+    ab = toy_match_json(a, b, m / "match.json")
+    unfinished(m, "match")
+    for argv in (["merge", a.path, b.path, "--match", ab, "--out", tmp_path / "G"],
+                 ["changes", a.path, b.path, "--match", m, "--out", tmp_path / "C"]):
+        err = cli_error(*argv)
+        assert "a `sosmatch match` run into its directory" in err and "has not finished" in err and str(ab) in err
+    g = tmp_path / "merged"
+    shutil.copytree(a.path, g)
+    (g / "run.json").unlink(missing_ok=True)  # a merged model's folder: its map file is read as a bare .sosmap
+    unfinished(g, "merge")
+    for argv in (["match", g / "landmarks.sosmap", b.path, "--out", tmp_path / "M2"],
+                 ["export", g / "landmarks.sosmap", "--csv", "--out", tmp_path / "g.csv"]):
+        err = cli_error(*argv)
+        assert "a `sosmatch merge` run into its directory" in err and str(g / "landmarks.sosmap") in err
+    s = tmp_path / "S"
+    (s / ".partial").mkdir(parents=True)
+    unfinished(s, "synth")
+    err = cli_error("map", "--poses", s, "--out", tmp_path / "mapped")
+    assert "a `sosmatch synth` run into this directory has not finished" in err
+    assert not any((tmp_path / n).exists() for n in ("G", "C", "M2", "g.csv", "mapped"))
+
+
 def test_map_inputs_name_their_session_and_their_one_camera(tmp_path, cli_error):
     """The eighth new-user sweep: `map --poses S --out S/mapout` wrote into the synth session it read; run.json
     named the pose file as the camera of a synth session; a cameras.txt of two cameras beside the pose file was

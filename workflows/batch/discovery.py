@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...database.images import image_files
-from ...database.outputs import output_command
+from ...database.outputs import output_command, unfinished_output
 from ...plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -101,7 +101,10 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
             continue
         kind = classify_flight(folder)
         if kind is None:
-            if (folder / "poses.csv").is_file():
+            if (unfinished := unfinished_output(folder)) is not None:  # e.g. a killed `synth`: only its staging
+                log.warning("%s: a `sosmatch %s` run into it has not finished; not a flight until it is re-run",
+                            folder, unfinished)
+            elif (folder / "poses.csv").is_file():
                 log.warning("%s: a pose file but no images (looked in %s/images and %s itself); not a flight",
                             folder, folder, folder)
             else:

@@ -20,7 +20,7 @@ from ...database.evaluation_io import read_match_hypotheses
 from ...database.landmark_map import check_two_maps, read_landmark_map
 from ...database.map_loading import read_map_noise, session_map_noise
 from ...database.match_io import check_match_maps, read_match_json
-from ...database.outputs import fingerprint, open_output_dir
+from ...database.outputs import check_finished, fingerprint, open_output_dir
 from ...database.session_io import check_map_of_images, check_session_usable
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (
@@ -345,6 +345,7 @@ def check_two_sessions(session_a: Path, session_b: Path, map_a: str | Path | Non
         return
     maps = [Path(m) if m is not None else s for m, s in ((map_a, session_a), (map_b, session_b))]
     for m in maps:
+        check_finished(m)  # a killed map leaves only its staging: say so, not "no landmarks.csv"
         if (m / "landmarks.sosmap").is_file():
             check_session_usable(m)
     if all((m / "landmarks.sosmap").is_file() for m in maps):

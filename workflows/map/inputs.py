@@ -17,7 +17,7 @@ from ...database.cameras import read_cameras_txt
 from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
 from ...database.images import IMAGE_EXTENSIONS, image_files, name_key, unique_by_key  # noqa: F401 (re-exported)
 from ...database.opensfm import is_opensfm
-from ...database.outputs import sha256_file
+from ...database.outputs import check_finished, sha256_file
 from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
@@ -77,6 +77,8 @@ def load_inputs(
     epsg = 0
     if not poses.exists():
         raise InputError("pose file not found", poses)
+    if poses.is_dir():  # a killed `synth` (or `poses`) leaves only its staging: say so, not "a folder"
+        check_finished(poses)
     if _is_synth_session(poses):
         pose_file = poses / ("poses_ekf.csv" if ekf else "poses.csv")
         pose_list, epsg = read_poses_csv(pose_file, convention)
