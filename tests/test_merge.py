@@ -3,6 +3,7 @@
 opens in pycolmap and in COLMAP 3.8."""
 
 import json
+import os
 import shutil
 import subprocess
 
@@ -133,6 +134,17 @@ def test_cli_merge_and_user_errors(pair, tmp_path, capsys):
     assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "M"),
                  "--refine"]) == 0
     assert (tmp_path / "M" / "merge.json").exists()
+    # the same merge with the match file spelt another way (relative to another folder): the same input, no
+    # --overwrite needed (the twelfth sweep: "made from other inputs or settings")
+    rel = os.path.relpath(match, root)
+    cwd = os.getcwd()
+    try:
+        os.chdir(root)
+        assert main(["merge", str(a.path), str(b.path), "--match", rel, "--out", str(tmp_path / "M"),
+                     "--refine"]) == 0, capsys.readouterr().err
+    finally:
+        os.chdir(cwd)
+    assert json.loads((tmp_path / "M" / "merge.json").read_text())["match"] == str(match.resolve())
     # A match without an accepted hypothesis is a user error, not a traceback.
     data = json.loads(match.read_text())
     data["hypotheses"][0]["accepted"] = False

@@ -41,7 +41,7 @@ from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, write_landmark_map
 from ..database.map_loading import session_map_noise
 from ..database.match_io import check_match_maps, read_match, unverified_note
-from ..database.outputs import OutputDir, fingerprint, open_output_dir, sha256_file
+from ..database.outputs import OutputDir, fingerprint, open_output_dir, resolved_path, sha256_file
 from ..database.session_io import MERGE_RECORD, SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
@@ -458,7 +458,8 @@ def run(
         out_dir,
         labels=list(labels) if labels else None,
         max_fuse_distance_m=gate,
-        record={"refined": bool(refine and used), "match": str(match_json),
+        # the match file by its real path: another spelling of it is the same input (and the same merge)
+        record={"refined": bool(refine and used), "match": str(resolved_path(match_json)),
                 "match_transform": match.transform.to_dict(),
                 "refine": {"requested": refine, "associations_used": used, "dof": dof}},
         overwrite=overwrite,
