@@ -32,9 +32,9 @@ def add_params_arguments(parser: argparse.ArgumentParser) -> None:
     from ...plugin.params import PRESETS
 
     parser.add_argument("--preset", choices=sorted(PRESETS), default=None,
-                        help="named parameter preset: paper (the defaults), survey (photogrammetric flights, "
-                             "frames 30-40 m apart) or aerial (association of km-scale maps from coarse imagery); "
-                             "see README")
+                        help="named parameter preset: paper (the method as published; the defaults are ours), "
+                             "survey (photogrammetric flights, frames 30-40 m apart) or aerial (association of "
+                             "km-scale maps from coarse imagery); see README")
     parser.add_argument("--config", type=Path, help="TOML file of parameters (see `sosmatch config dump`)")
     parser.add_argument(
         "--set",
