@@ -83,3 +83,20 @@ def test_dask_executor_on_an_existing_scheduler_address(dask_executor):
         assert ex.describe() == f"dask ({address})"
         assert _values(ex.run(operator.mul, TASKS, progress=False)) == EXPECTED
     assert dask_executor.run(operator.add, {"k": (1, 2)}, progress=False)["k"].value == 3  # cluster still up
+
+
+def _sigint_handler() -> str:
+    import signal
+
+    return "ignored" if signal.getsignal(signal.SIGINT) == signal.SIG_IGN else "handled"
+
+
+def test_pool_workers_leave_ctrl_c_to_their_parent():
+    """Ctrl-C reaches every process of the group; a worker that died of it while writing its result to the pipe
+    hung `map --workers 2` (the twelfth sweep) and printed tracebacks in `batch`. Workers ignore it; the parent
+    stops the run."""
+    from sosmatch.workflows.executors import process_pool
+
+    with process_pool(1) as pool:
+        assert pool.submit(_sigint_handler).result() == "ignored"
+    assert _sigint_handler() == "handled"
