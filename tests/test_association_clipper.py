@@ -281,11 +281,11 @@ def test_problem_graph_beyond_the_tables_and_threads():
     assert solve(g).selected.tolist() == np.flatnonzero(pairs[:, 0] == pairs[:, 1]).tolist()  # (a few by chance)
     small = np.column_stack([np.arange(300), np.arange(300)]).astype(np.int64)
     serial = affinity_graph(a, b, small, eps=0.5, sigma=0.5)
-    free, kernels_problem._core_free = kernels_problem._core_free, lambda threads: True
+    free, kernels_problem.core_free = kernels_problem.core_free, lambda threads: True
     try:
         threaded = affinity_graph(a, b, small, eps=0.5, sigma=0.5)
     finally:
-        kernels_problem._core_free = free
+        kernels_problem.core_free = free
     for x, y in zip((serial.rows, serial.cols, serial.values, *serial.csr), (threaded.rows, threaded.cols,
                                                                               threaded.values, *threaded.csr)):
         assert x.tobytes() == y.tobytes()

@@ -132,6 +132,25 @@ def test_dense_maps_take_the_direct_path_with_the_same_result():
     _assert_same(fast, ref)
 
 
+def test_dense_window_pairs_in_threads_give_the_same_hypotheses(monkeypatch):
+    """Where cores are idle the direct window pairs run in one share of the tasks per thread
+    (`windowed_search._direct_in_threads`); the joined results are those of one thread, bit for bit."""
+    from sosmatch.plugin.association import windowed_search
+
+    s = survey_map_pair(300, seed=3, density_per_km2=10000, strip_width_m=30)
+    params = dataclasses.replace(AssociationParams(), max_size_difference=0.4, distance_tolerance_m=3.0)
+    monkeypatch.setattr(windowed_search, "core_free", lambda threads: False)
+    one = search(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params)
+    calls = []
+    monkeypatch.setattr(windowed_search, "core_free", lambda threads: calls.append(threads) or True)
+    monkeypatch.setattr(windowed_search, "thread_count", lambda: 3)
+    monkeypatch.setattr(windowed_search, "DIRECT_THREAD_MIN", 4)
+    threaded = search(s.points_a, s.sizes_a, s.points_b, s.sizes_b, params)
+    assert calls and max(calls) == 3 and one.timings["direct_blocks"] >= 1
+    assert len(one.hypotheses) > 20
+    _assert_same(threaded, one)
+
+
 @pytest.mark.parametrize("space_extra,k", [(0, 2), (0, 3), (0, 6), (-600, 1), (2_000_000_000, 3)])
 def test_peel_on_association_ids_equals_compact_then_peel(space_extra, k):
     """`peeled_ids` (degrees on the ids, only survivors renumbered; or the sort path for a huge id space) leaves

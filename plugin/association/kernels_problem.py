@@ -222,7 +222,7 @@ def _others_running() -> int:
     return running - own
 
 
-def _thread_count() -> int:
+def thread_count() -> int:
     """numba.get_num_threads(), read at most every 0.25 s: a call costs ~1 us, 1 % of a problem of 256
     associations. (numba's count is per thread; a count read in another thread changes only how many blocks of
     rows are formed, never the output.)"""
@@ -232,7 +232,7 @@ def _thread_count() -> int:
     return _threads[1]
 
 
-def _core_free(threads: int) -> bool:
+def core_free(threads: int) -> bool:
     """Whether `threads` threads would each find a core: other processes' runnable tasks leave that many idle
     (read at most every 0.25 s). On a busy machine a thread of a parallel loop waits for a core and the call waits
     for that thread (the C++ reference's 2-thread affinity then runs 4-16x its quiet time): there one thread does
@@ -255,8 +255,8 @@ def problem_graph(pa: np.ndarray, pb: np.ndarray, pairs: np.ndarray, eps: float,
     be entered by two threads; a concurrent caller takes the serial build), and none in a forked child (GNU
     OpenMP cannot run in a child of a process that used it).
     """
-    threads = _thread_count()
-    if len(pairs) >= PARALLEL_MIN and threads > 1 and os.getpid() == _pid and _core_free(threads) and \
+    threads = thread_count()
+    if len(pairs) >= PARALLEL_MIN and threads > 1 and os.getpid() == _pid and core_free(threads) and \
             _lock.acquire(blocking=False):
         try:
             calls[1] += 1

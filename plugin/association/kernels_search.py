@@ -164,7 +164,7 @@ def _append_selection(sel_a: np.ndarray, sel_b: np.ndarray, off: np.ndarray, t: 
     return sel_a, sel_b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # nogil: `windowed_search` runs blocks of tasks in threads when cores are idle
 def direct_window_pairs(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray, wins_a: np.ndarray,
                         wins_b: np.ndarray, tasks: np.ndarray, mode: int, eps: float, sigma: float,
                         tan_tilt: float, eps_z: float, sin_tilt: float, nslices: int, theta_r: float, prior_m: float,

@@ -43,6 +43,7 @@ from .hypotheses import (
 from .kernels_graph import gate_pairs
 from .kernels_join import edge_join, edge_pair_details, map_edges, size_cells, sorted_b_edges
 from .kernels_peel import peel_pairs_sliced, peeled_ids
+from .kernels_problem import core_free, thread_count
 from .kernels_search import (
     count_incidences,
     count_putatives,
@@ -235,6 +236,28 @@ class _EdgePairs:
                                  m.sin_tilt, m.nslices)
 
 
+DIRECT_THREAD_MIN = 64  # window pairs per thread from which a dense block is computed on every idle core
+
+
+def _direct_in_threads(tasks: np.ndarray, maps: tuple, mode: tuple) -> tuple:
+    """`direct_window_pairs` of `tasks`, in one contiguous share of the tasks per thread when cores are idle
+    (`kernels_problem.core_free`; the kernel releases the GIL), else in this thread. The shares' results are joined
+    in task order: the same arrays as one call. Maps of two places spend nearly all their search here."""
+    threads = min(thread_count(), len(tasks) // DIRECT_THREAD_MIN)
+    if threads < 2 or not core_free(threads):
+        return direct_window_pairs(*maps, tasks, *mode)
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(threads) as pool:
+        parts = list(pool.map(lambda share: direct_window_pairs(*maps, share, *mode), np.array_split(tasks, threads)))
+    offs, base = [np.zeros(1, np.int64)], 0
+    for part in parts:
+        offs.append(part[5][1:] + base)
+        base += part[5][-1]
+    cat = [np.concatenate([part[i] for part in parts]) for i in (0, 1, 2, 3, 4, 6, 7)]
+    return (*cat[:5], np.concatenate(offs), cat[5], cat[6])
+
+
 def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, records: _Records, stats: dict,
            timings: dict) -> None:
     """Solve the window pairs of A windows [w0, w1) from the consistent pairs that fall into them."""
@@ -270,9 +293,9 @@ def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, re
                                    nwb)
         tasks = np.flatnonzero(count.ravel() > m.k).astype(np.int64)  # fewer associations cannot hold k + 1
         tasks = tasks[(tasks // nwb >= w0) & (tasks // nwb < w1)]
-        found, nput, score, slc, ncore, off, sel_a, sel_b = direct_window_pairs(
-            pa, ha, pb, hb, wins_a, wins_b, tasks, m.consistency, m.eps, m.sigma, m.tan_tilt, m.eps_z, m.sin_tilt,
-            m.nslices, m.theta_r, m.prior_m, m.k, m.method)
+        found, nput, score, slc, ncore, off, sel_a, sel_b = _direct_in_threads(
+            tasks, (pa, ha, pb, hb, wins_a, wins_b), (m.consistency, m.eps, m.sigma, m.tan_tilt, m.eps_z, m.sin_tilt,
+                                                      m.nslices, m.theta_r, m.prior_m, m.k, m.method))
         ids_w = tasks[found]
         nput = nput[found]
     else:
