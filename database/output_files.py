@@ -17,6 +17,7 @@ from .atomic import atomic_path, write_text_atomic
 from .outputs import check_not_input, check_writable_place, read_json_or_none, resolved_path, sha256_file
 
 FILES_REGISTRY = ".sosmatch-files.json"
+FILES_LOCK = ".sosmatch-files.lock"
 FILES_FORMAT = "sosmatch output files v1"
 
 
@@ -62,8 +63,7 @@ class OutputFiles:
         payload = data.encode("utf-8") if isinstance(data, str) else data
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            # the directory itself is the lock (no lock file left in the user's folder, the twelfth sweep)
-            fd = os.open(path.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+            fd = os.open(path.parent / FILES_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
             raise InputError(f"cannot write output: {exc.strerror or exc}", path) from None
         try:
