@@ -36,13 +36,25 @@ log = logging.getLogger(__name__)
 
 def _init_worker(parent_pid: int, initializer: Callable[[], None] | None) -> None:
     exit_with_parent(parent_pid)
-    # Ctrl-C reaches the whole process group: the parent stops the run (its pool cancels what has not started and
-    # waits for what runs), a worker must not die of it mid-result. A worker interrupted while writing a result
+    # Ctrl-C reaches the whole process group: the parent stops the run (`stop_pool`: cancels what has not started,
+    # terminates what runs), a worker must not die of it mid-result. A worker interrupted while writing a result
     # larger than the pipe's buffer left `map --workers 2` waiting for it forever (twelfth sweep, 1 in 28 tries),
     # and `batch` printed each worker's KeyboardInterrupt traceback.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if initializer is not None:
         initializer()
+
+
+def stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Stop a pool at once, on an interruption: tasks not started are cancelled and the workers killed (their
+    work is resumable: every output is written atomically), then the pool is shut down. A worker ignores Ctrl-C
+    (`_init_worker`), so without this an interrupted run would wait for every running task (a batch's maps)."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # no public API before Python 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:  # SIGKILL: a worker that imported pycolmap prints glog's stack dump on SIGTERM
+        proc.kill()
+    for proc in procs:
+        proc.join(10)
 
 
 def process_pool(workers: int, initializer: Callable[[], None] | None = None) -> ProcessPoolExecutor:
@@ -129,12 +141,17 @@ class LocalExecutor(Executor):
             else:
                 pool = self._get_pool()
                 pending = {pool.submit(call_task, key, fn, args) for key, args in tasks.items()}
-                while pending:
-                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                    for fut in done:
-                        res = fut.result()  # call_task never raises; a dead worker (BrokenProcessPool) does
-                        results[res.key] = res
-                        bar.update(1)
+                try:
+                    while pending:
+                        done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                        for fut in done:
+                            res = fut.result()  # call_task never raises; a dead worker (BrokenProcessPool) does
+                            results[res.key] = res
+                            bar.update(1)
+                except BaseException:  # Ctrl-C (or a broken pool): stop now, not after every running task
+                    self._pool = None
+                    stop_pool(pool)
+                    raise
         return {key: results[key] for key in tasks}
 
     def close(self) -> None:

@@ -153,7 +153,7 @@ def describe_keyframes(
             if on_keyframe is not None:
                 on_keyframe(k)
     else:
-        from ..executors import process_pool
+        from ..executors import process_pool, stop_pool
 
         # spawn (no fork of a process holding pycolmap/OpenCV threads); the workers die with this process
         with process_pool(workers, _worker_init) as pool:
@@ -167,9 +167,8 @@ def describe_keyframes(
                     bar.update()
                     if on_keyframe is not None:
                         on_keyframe(k)
-            except BaseException:
-                for _, fut in futures:
-                    fut.cancel()
+            except BaseException:  # Ctrl-C: stop now, not after the keyframes being described
+                stop_pool(pool)
                 raise
     bar.close()
     features = [r[0] for r in results]  # type: ignore[index]
