@@ -20,7 +20,7 @@ from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
 from .colmap_db import keypoint_sizes_px
 from .landmark_map import LandmarkMap, read_landmark_map
-from .outputs import check_finished
+from .outputs import check_input_finished
 
 if TYPE_CHECKING:
     import pycolmap
@@ -144,10 +144,9 @@ def load_map(path: str | Path) -> LoadedMap:
     path = Path(path)
     if not path.exists():
         raise InputError("no such file or directory", path)
-    # the folder a sosmatch command wrote it into (a map file's, a model's session) must be finished: a killed
-    # `merge --overwrite` leaves its new landmarks.sosmap beside the old model
-    for folder in ([path.parent, path.parent.parent] if path.is_file() else [path, path.parent]):
-        check_finished(folder, None if folder == path else path)
+    # the output a sosmatch command wrote it into (a map file's folder, a model's session) must be finished: a
+    # killed `merge --overwrite` leaves its new landmarks.sosmap beside the old model
+    check_input_finished(path)
     if path.is_file():
         if path.name == "landmarks.sosmap" and (path.parent / "run.json").is_file():
             # a session's own map file is that session (its checks, and its noise figures: without them a bare

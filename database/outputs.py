@@ -119,6 +119,18 @@ def unfinished_output(path: str | Path) -> str | None:
     return output_command(path) or "?"
 
 
+def check_input_finished(path: str | Path) -> None:
+    """`check_finished` of the sosmatch output that holds the input `path`: the nearest of `path` (a directory)
+    and its parents, up to three levels (a model's points3D.bin in sparse/0 of a merged model), with an output
+    marker. Only that output decides: a finished session inside a folder of the user's is not refused for the
+    folder's sake."""
+    real = resolved_path(path)
+    for folder in ([real] if real.is_dir() else []) + list(real.parents)[:3]:
+        if _marker(folder) is not None:
+            check_finished(folder, None if folder == real else path)
+            return
+
+
 def check_finished(path: str | Path, named: str | Path | None = None) -> None:
     """InputError (naming `named`, default `path`) when a run of sosmatch into directory `path` has not finished
     (interrupted, or running now): what it holds may be an earlier run's beside its unfinished successor (a killed

@@ -459,6 +459,14 @@ def test_outputs_of_unfinished_runs_are_refused_wherever_they_are_read(toy, tmp_
     err = cli_error("map", "--poses", s, "--out", tmp_path / "mapped")
     assert "a `sosmatch synth` run into this directory has not finished" in err
     assert not any((tmp_path / n).exists() for n in ("G", "C", "M2", "g.csv", "mapped"))
+    # a finished session kept in a folder of the user's that holds an unfinished run is its own output: used
+    u = tmp_path / "U"
+    shutil.copytree(a.path, u / "A")
+    (u / "A" / ".sosmatch-output.json").write_text(json.dumps(
+        {"format": "sosmatch output v1", "command": "map", "identity": "x", "complete": True}))
+    unfinished(u, "batch")
+    assert main(["export", str(u / "A" / "landmarks.sosmap"), "--csv", "--out", str(tmp_path / "u.csv"), "-q"]) == 0
+    assert main(["export", str(u / "A"), "--csv", "--out", str(tmp_path / "u2.csv"), "-q"]) == 0
 
 
 def test_map_inputs_name_their_session_and_their_one_camera(tmp_path, cli_error):

@@ -21,7 +21,7 @@ import numpy as np
 from ..database.geojson import check_projected_crs, check_within_crs_area, geojson_text, to_wgs84
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map
 from ..database.output_files import OutputFiles
-from ..database.outputs import check_finished, fingerprint
+from ..database.outputs import check_input_finished, fingerprint
 from ..database.session_io import check_map_of_record, check_session_usable, read_landmark_table
 from ..plugin.errors import InputError
 
@@ -46,7 +46,7 @@ def load_map(source: str | Path) -> tuple[LandmarkMap, dict[str, np.ndarray]]:
         raise InputError("landmark map or session directory not found", source)
     if source.name == "landmarks.sosmap" and (source.parent / "run.json").is_file():
         return load_map(source.parent)  # a session's own map file is that session (its checks), as `match` reads it
-    check_finished(source.parent, source)  # a killed `merge --overwrite` leaves its new map file beside the old
+    check_input_finished(source)  # a killed `merge --overwrite` leaves its new map file beside the old
     return read_landmark_map(source), {}
 
 

@@ -73,7 +73,9 @@ def agreeing_groups(rot: np.ndarray, tr: np.ndarray, pure: np.ndarray, off: np.n
     """Groups of agreeing transforms, in order (`hypotheses.consensus_transform`): each transform joins the first
     group whose first member (head) it agrees with, else it starts a group. y agrees with head x when it maps x's
     points pts[off[x]:off[x + 1]] within eps of where x maps them (x_A = rot x_B + tr; rot holds the scale) and
-    their rotations `pure` differ by less than max_turn_deg. Returns each transform's group number.
+    their rotations `pure` differ by less than max_turn_deg. Returns each transform's group number. (The sums run
+    in loops, not numpy's einsum / matmul: a decision exactly at eps or at the turn limit may differ from an array
+    statement's in the last bit, which the array statements themselves did between `@` and einsum.)
 
     One pass over the pairs (head, transform not yet grouped) with the cheap test first: over a map of two places
     every chance hypothesis is its own group, and the pairs number half the square of the hypotheses (52 689
