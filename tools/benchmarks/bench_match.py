@@ -3,8 +3,9 @@ maps of every kind (sparse, dense, without sizes, aerial, crossing flights, a se
 
     python -m sosmatch.tools.benchmarks.bench_match                     # everything (tens of minutes)
     python -m sosmatch.tools.benchmarks.bench_match --only clipper      # or: sparse, dense, derived, nosizes, aerial,
-                                                                        #     crossing, season, scaling
+                                                                        #     crossing, season, scaling, refusal
     python -m sosmatch.tools.benchmarks.bench_match --only scaling --max-scaling 20000 --plot docs/img/match_scaling.png
+    python -m sosmatch.tools.benchmarks.bench_match --only refusal --max-refusal 3000  # maps of two places
 Prints every figure (medians of repeats) with the machine line and the load. CPU times are `time.process_time` of
 this one process (the search runs in one process); wall times are given beside them. Peak memory is the
 VmHWM of a fresh child process that runs one match (`--memory`; `match_report.peak_rss_mb`).
@@ -251,6 +252,41 @@ def bench_scaling(sizes: list[int], plot: str | None) -> list[dict]:
     return rows
 
 
+# noise figures of a season map merged from flights (the eleventh sweep's 788-landmark map of world 7: residual 1.31 m,
+# size log-spread 0.089, 0.41 m pixels), from which the match derives theta_eps 3.9 m, theta_r 0.37
+SEASON_NOISE = MapNoise(ground_resolution_m=0.41, residual_m=1.31, size_log_std=0.089, landmarks=1)
+SEASON_DENSITY = 5000.0  # landmarks per km^2 of the synthetic worlds' maps (3800-7800 measured on mapped flights)
+
+
+def bench_refusal(sizes: list[int]) -> list[dict]:
+    """What refusing maps of two places costs as they grow to the size of a season: two survey maps of n landmarks
+    of unrelated worlds (`survey_map_pair` A maps of two seeds, at the density of mapped flights) with a season
+    map's noise figures, matched as `sosmatch match` matches two mapped sessions (`timed_default_match`: the
+    first search, its verification, the derived search, its verification). Nothing may be accepted; the figures
+    say where the time goes (each stage's own clock)."""
+    print("## Refusing maps of two places, season-sized (unrelated survey maps, a season map's noise figures, "
+          "the default path)")
+    print("| landmarks (A x B) | window pairs | hypotheses over theta_S | CPU s | search s | of it consensus s | "
+          "verification s | answer |")
+    print("|---|---|---|---|---|---|---|---|")
+    rows = []
+    for n in sizes:
+        a = survey_map_pair(n, seed=31, density_per_km2=SEASON_DENSITY)
+        b = survey_map_pair(n, seed=32, density_per_km2=SEASON_DENSITY)
+        ans, cpu, wall = timed_default_match(a.points_a, a.sizes_a, b.points_a, b.sizes_a, SEASON_NOISE, 1)
+        t = ans.search.timings
+        rows.append({"n": n, "cpu_s": cpu, "wall_s": wall, "search_s": ans.timings["search_s"],
+                     "consensus_s": t.get("consensus_s", 0.0), "verify_s": ans.timings["verify_s"],
+                     "accepted": bool(ans.accepted)})
+        print(f"| {len(a.points_a)} x {len(b.points_a)} | {ans.search.num_window_pairs} | "
+              f"{len(ans.search.accepted)} | {cpu:.1f} | {ans.timings['search_s']:.1f} | "
+              f"{t.get('consensus_s', 0.0):.1f} | {ans.timings['verify_s']:.1f} | "
+              f"{'ACCEPTED' if ans.accepted else 'refused'} ({ans.tolerances}) |")
+        bar(f"maps of two places, {n} landmarks each: nothing accepted",
+            "accepted" if ans.accepted else "refused", not ans.accepted)
+    return rows
+
+
 def plot_scaling(rows: list[dict], plot: str) -> None:
     """The scaling curve (CPU seconds and peak memory against landmarks per map), log-log, as a PNG."""
     import matplotlib
@@ -305,7 +341,7 @@ def _child(case: str, arg: object) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parts = ["clipper", "sparse", "dense", "derived", "nosizes", "aerial", "naip", "evaluation", "controls", "crossing",
-             "season", "scaling"]
+             "season", "scaling", "refusal"]
     parser.add_argument("--only", choices=parts, action="append")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--clipper-ref", default=None, help="directory holding the clipper_ref module")
@@ -318,6 +354,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eval-baseline-work", type=Path, default=None,
                         help="read ORB+RANSAC from this suite's finished evaluations (same sessions) instead")
     parser.add_argument("--max-scaling", type=int, default=20000)
+    parser.add_argument("--max-refusal", type=int, default=3000, help="largest maps of the refusal part")
     parser.add_argument("--plot", default=None, help="PNG of the scaling curve (e.g. docs/img/match_scaling.png)")
     parser.add_argument("--json", default=None, help="write every figure to this JSON file")
     args = parser.parse_args(argv)
@@ -349,6 +386,8 @@ def main(argv: list[str] | None = None) -> None:
         elif part == "scaling":
             ns = [n for n in (250, 500, 1000, 2000, 4000, 8000, 12000, 16000, 20000) if n <= args.max_scaling]
             results[part] = bench_scaling(ns, args.plot)
+        elif part == "refusal":
+            results[part] = bench_refusal([n for n in (250, 500, 1000, 2000, 3000) if n <= args.max_refusal])
         print(machine_summary())
     print_bars()
     if args.json:
