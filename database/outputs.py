@@ -393,6 +393,7 @@ def open_output_dir(
     overwrite: bool = False,
     legacy_record: str | None = None,
     overwrite_flag: str = "--overwrite",
+    earlier: Iterable[str] = (),
 ) -> OutputDir:
     """Take directory `path` for one run of `command` producing the output `identity` (see the module doc).
 
@@ -401,12 +402,15 @@ def open_output_dir(
     another identity unless `overwrite`, and a directory another run is using. `legacy_record`: the name of
     the command's JSON record (format "sosmatch ...") that marks an output written before markers existed.
     Cleans the stale temporaries of killed runs. `overwrite_flag` is how the refusal names the command's
-    option. Returns the taken directory (a context manager that releases the lock).
+    option. `earlier`: the identities an earlier sosmatch gave this same output (same inputs and settings): such
+    an output is no other one, and is made again under `identity`. Returns the taken directory (a context
+    manager that releases the lock).
     """
     path = Path(path)
     check_not_input(path, list(inputs))
     previous = _previous(path, command, legacy_record)
-    if previous.state == "complete" and previous.identity != identity and not overwrite:
+    same = {identity, *earlier}
+    if previous.state == "complete" and previous.identity not in same and not overwrite:
         raise InputError(f"output directory holds a complete `sosmatch {command}` output made from other inputs or "
                          f"settings; use {overwrite_flag} to replace it (or choose another directory)", path)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
@@ -417,7 +421,7 @@ def open_output_dir(
     fd = _acquire_lock(path / LOCK, command)
     try:
         again = _previous(path, command, legacy_record)  # under the lock: a run that just finished counts
-        if again != previous and again.state == "complete" and again.identity != identity and not overwrite:
+        if again != previous and again.state == "complete" and again.identity not in same and not overwrite:
             raise InputError(f"output directory now holds a complete `sosmatch {command}` output made from other "
                              f"inputs or settings; use {overwrite_flag} to replace it", path)
         out = OutputDir(path, command, identity, again, fd, created)

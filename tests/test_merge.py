@@ -145,6 +145,23 @@ def test_cli_merge_and_user_errors(pair, tmp_path, capsys):
     finally:
         os.chdir(cwd)
     assert json.loads((tmp_path / "M" / "merge.json").read_text())["match"] == str(match.resolve())
+    # a merge made before the real path was recorded (the path as spelt, relative here) is the same merge when the
+    # command is run again as it was (the review of the twelfth round: refused as "other inputs" after upgrading)
+    import sosmatch.workflows.merge as merge_module
+
+    real = merge_module.resolved_path
+    merge_module.resolved_path = lambda p: p
+    try:
+        os.chdir(root)
+        assert main(["merge", str(a.path), str(b.path), "--match", rel, "--out", str(tmp_path / "OLD")]) == 0
+        assert json.loads((tmp_path / "OLD" / "merge.json").read_text())["match"] == rel
+        merge_module.resolved_path = real
+        assert main(["merge", str(a.path), str(b.path), "--match", rel, "--out", str(tmp_path / "OLD")]) == 0, \
+            capsys.readouterr().err
+    finally:
+        merge_module.resolved_path = real
+        os.chdir(cwd)
+    assert json.loads((tmp_path / "OLD" / "merge.json").read_text())["match"] == str(match.resolve())
     # A match without an accepted hypothesis is a user error, not a traceback.
     data = json.loads(match.read_text())
     data["hypotheses"][0]["accepted"] = False

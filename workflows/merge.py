@@ -171,6 +171,7 @@ def merge_sessions(
     record: dict[str, Any] | None = None,
     overwrite: bool = False,
     inputs: Sequence[str | Path] = (),
+    earlier_records: Sequence[dict[str, Any]] = (),
 ) -> MergeResult:
     """Combine sessions into one COLMAP model in the frame of `transforms` (reference_from_session each).
 
@@ -179,20 +180,26 @@ def merge_sessions(
     out_dir/{sparse/, landmarks.sosmap, landmarks.csv, merge.json} (built in out_dir/.partial, published
     together, merge.json last, `record` added to it); returns the counts. `out_dir` is taken through
     `sosmatch.database.outputs` (`overwrite`: replace a complete merge of other inputs; `inputs`: further input
-    paths besides the sessions, e.g. the match file).
+    paths besides the sessions, e.g. the match file). `earlier_records`: the records an earlier sosmatch wrote
+    for the same merge (`outputs.open_output_dir`'s `earlier`).
     """
     t0 = time.perf_counter()
     if len(sessions) != len(transforms) or not sessions:
         raise ValueError("need one transform per session and at least one session")
     labels = _labels(sessions, labels)
-    identity = fingerprint({
-        "sessions": [session_fingerprint(s) for s in sessions], "labels": labels,
-        "transforms": [t.to_dict() for t in transforms], "eps": max_fuse_distance_m, "record": record,
-        "pairs": [[p.a, p.b, hashlib.sha256(np.ascontiguousarray(p.associations, dtype="<i8").tobytes()).hexdigest(),
-                   p.gate_m, p.z_weight] for p in (FusePair(*q) for q in pairs)]})
+    fused = [[p.a, p.b, hashlib.sha256(np.ascontiguousarray(p.associations, dtype="<i8").tobytes()).hexdigest(),
+              p.gate_m, p.z_weight] for p in (FusePair(*q) for q in pairs)]
+    prints = [session_fingerprint(s) for s in sessions]
+
+    def identity_of(rec: dict[str, Any] | None) -> str:
+        return fingerprint({"sessions": prints, "labels": labels, "transforms": [t.to_dict() for t in transforms],
+                            "eps": max_fuse_distance_m, "record": rec, "pairs": fused})
+
+    identity = identity_of(record)
     members = _distinct_flights(sessions)
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
-                         overwrite=overwrite, legacy_record=MERGE_RECORD) as out:
+                         overwrite=overwrite, legacy_record=MERGE_RECORD,
+                         earlier=[identity_of(r) for r in earlier_records]) as out:
         # the flights' maps it holds go into merge.json (not into the identity: earlier merges keep theirs)
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
                              {**(record or {}), "flight_maps": members}, t0)
@@ -451,6 +458,10 @@ def run(
                                    gate, ap.max_size_difference, dof=dof, with_scale=with_scale)
         if len(aligned.associations) >= 3:
             transform, used = aligned.transform, len(aligned.associations)
+    # the match file by its real path: another spelling of it is the same input (and the same merge)
+    record = {"refined": bool(refine and used), "match": str(resolved_path(match_json)),
+              "match_transform": match.transform.to_dict(),
+              "refine": {"requested": refine, "associations_used": used, "dof": dof}}
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],
@@ -458,12 +469,11 @@ def run(
         out_dir,
         labels=list(labels) if labels else None,
         max_fuse_distance_m=gate,
-        # the match file by its real path: another spelling of it is the same input (and the same merge)
-        record={"refined": bool(refine and used), "match": str(resolved_path(match_json)),
-                "match_transform": match.transform.to_dict(),
-                "refine": {"requested": refine, "associations_used": used, "dof": dof}},
+        record=record,
         overwrite=overwrite,
         inputs=[match_json],
+        # merges before 2026-12-05 recorded the match file as it was spelt: the same merge when spelt so again
+        earlier_records=[{**record, "match": str(match_json)}],
     )
     log.info(
         "merged %s + %s: %d images, %d points, %d fused landmarks",
