@@ -371,8 +371,9 @@ def test_a_session_without_its_database_is_said(toy, caplog):
     root = toy[0]
     with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.changes"):
         compute(root / "A", root / "B", root / "AB" / "match.json")
-    assert f"session A ({root / 'A'}) has no database.db" in caplog.text
-    assert f"session B ({root / 'B'}) has no database.db" in caplog.text
+    # named by their folders first (a batch's pair B--C has B as its "session A")
+    assert f"{root / 'A'} (session A of the comparison) has no database.db" in caplog.text
+    assert f"{root / 'B'} (session B of the comparison) has no database.db" in caplog.text
 
 
 def test_a_session_record_with_entries_of_other_types_is_no_traceback(toy, tmp_path, capsys):

@@ -121,20 +121,20 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     obs_b = read_session_observations(files_b, with_tracks=tracks, images_dir=dirs[1])
     for name, path, obs in (("A", session_a, obs_a), ("B", session_b, obs_b)):
         if obs.segments is None:
-            warnings.append(f"session {name} ({path}) has no database.db: its own segments cannot say whether the "
-                            "other session's objects are there; its confidences come from the pair's "
-                            "re-observation rate")
+            warnings.append(f"{path} (session {name} of the comparison) has no database.db: its own segments "
+                            "cannot say whether the other session's objects are there; its confidences come from the "
+                            "pair's re-observation rate")
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
     for name in result.without_relief:
         path = session_a if name == "A" else session_b
-        warnings.append(f"the images of session {name} ({path}) show no relief at its reference places (views of "
-                        "an orthophoto, bare fields, or too coarse for a height?): its objects cannot be told from "
-                        "ground texture, so its changes are claimed without that test")
+        warnings.append(f"the images of {path} (session {name} of the comparison) show no relief at its reference "
+                        "places (views of an orthophoto, bare fields, or too coarse for a height?): its objects "
+                        "cannot be told from ground texture, so its changes are claimed without that test")
     for name in result.without_ground_noise:
         path = session_a if name == "A" else session_b
-        warnings.append(f"session {name} ({path}): too few places at ground level to measure how its surface "
-                        "heights scatter on bare ground: its claims are not tested for an object standing there "
-                        "(expect false changes of moved shadows and re-segmented ground)")
+        warnings.append(f"{path} (session {name} of the comparison): too few places at ground level to measure "
+                        "how its surface heights scatter on bare ground: its claims are not tested for an object "
+                        "standing there (expect false changes of moved shadows and re-segmented ground)")
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
         if not area.area > 0:
             raise InputError(f"session {name}'s keyframes see no ground (no footprint): nothing to compare", path)
