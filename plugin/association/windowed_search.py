@@ -78,7 +78,9 @@ def search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarra
 
 
 class _Records:
-    """Solved window pairs, in window-pair order, as the flat arrays `make_hypotheses` takes."""
+    """Solved window pairs, in window-pair order, as the flat arrays `make_hypotheses` takes. The join is by
+    position (five per-window-pair arrays, the selections' offsets, the two selections), so it also joins the
+    shares of one block's direct window pairs (`_direct_in_threads`), whose arrays come in the kernel's order."""
 
     def __init__(self) -> None:
         self.parts: list[tuple] = []
@@ -248,14 +250,11 @@ def _direct_in_threads(tasks: np.ndarray, maps: tuple, mode: tuple) -> tuple:
         return direct_window_pairs(*maps, tasks, *mode)
     from concurrent.futures import ThreadPoolExecutor
 
+    joined = _Records()
     with ThreadPoolExecutor(threads) as pool:
-        parts = list(pool.map(lambda share: direct_window_pairs(*maps, share, *mode), np.array_split(tasks, threads)))
-    offs, base = [np.zeros(1, np.int64)], 0
-    for part in parts:
-        offs.append(part[5][1:] + base)
-        base += part[5][-1]
-    cat = [np.concatenate([part[i] for part in parts]) for i in (0, 1, 2, 3, 4, 6, 7)]
-    return (*cat[:5], np.concatenate(offs), cat[5], cat[6])
+        for part in pool.map(lambda share: direct_window_pairs(*maps, share, *mode), np.array_split(tasks, threads)):
+            joined.add(*part)
+    return joined.arrays()
 
 
 def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, records: _Records, stats: dict,
