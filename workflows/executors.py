@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 def _init_worker(parent_pid: int, initializer: Callable[[], None] | None) -> None:
     exit_with_parent(parent_pid)
     # Ctrl-C reaches the whole process group: the parent stops the run (`stop_pool`: cancels what has not started,
-    # terminates what runs), a worker must not die of it mid-result. A worker interrupted while writing a result
+    # kills what runs), a worker must not die of it mid-result. A worker interrupted while writing a result
     # larger than the pipe's buffer left `map --workers 2` waiting for it forever (twelfth sweep, 1 in 28 tries),
     # and `batch` printed each worker's KeyboardInterrupt traceback.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -47,7 +47,7 @@ def _init_worker(parent_pid: int, initializer: Callable[[], None] | None) -> Non
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:
     """Stop a pool at once, on an interruption: tasks not started are cancelled and the workers killed (their
-    work is resumable: every output is written atomically), then the pool is shut down. A worker ignores Ctrl-C
+    work is resumable: every output is written atomically). A worker ignores Ctrl-C
     (`_init_worker`), so without this an interrupted run would wait for every running task (a batch's maps)."""
     procs = list((getattr(pool, "_processes", None) or {}).values())  # no public API before Python 3.14
     pool.shutdown(wait=False, cancel_futures=True)
