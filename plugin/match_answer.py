@@ -16,6 +16,13 @@ again with the derived tolerances. Maps whose derived windows were grown (`assoc
 chance-consistent associations per transform) get a last search at the next doubled window when that one is
 refused too (`wider_try`: a window that long detects a smaller fraction of repeating landmarks). `tolerances`
 says which search gave the answer.
+
+Maps georeferenced in one EPSG (ours, `association.georeference_prior_m`): before those searches, one search with
+the derived tolerances only among landmarks within that distance of each other where the georeferences put them,
+verified with the chance model of the alignments that near (`plugin.chance`: far fewer than over the whole maps,
+so a smaller support is significant, and the search is local, so it is fast whatever the maps' size). Only its
+refusal runs the searches above, which look everywhere: a georeference that is wrong by more than the radius
+costs one search, never the answer. A configured `position_prior_m` is a hard limit instead (every search within it).
 """
 
 from __future__ import annotations
@@ -41,8 +48,11 @@ class MatchAnswer:
     transform: Transform | None  # A_from_B of the answer (x_A = s R x_B + t); None when there is none
     associations: np.ndarray  # (K, 2) landmark index pairs (A, B) supporting it
     source: str  # "verified" (the verification's alignment) or "consensus" (the search's, unverified)
-    prior: str  # how the position prior was used: "off", "applied", or why it was ignored
-    # the search's: "configured" (one search), "first" or "derived" (two steps), "wider" (the last, wider windows)
+    # how the position prior was used: "off", "applied", or why it was ignored; with the georeference prior
+    # "georeference R m" (its search answered) or "georeference R m refused: searched everywhere"
+    prior: str
+    # the search's: "georeference" (near the georeference), "configured" (one search), "first" or "derived" (two
+    # steps), "wider" (the last, wider windows)
     tolerances: str = "configured"
     # the association parameters of the search whose hypotheses `search` holds (the first of two searches keeps
     # the configured windows and theta_S: its hypotheses are judged at its own theta_S); None: params.association
@@ -51,13 +61,14 @@ class MatchAnswer:
 
 
 def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
-               params: Params, common_frame: bool = True, exhaustive: bool = False,
+               params: Params, common_frame: bool = False, exhaustive: bool = False,
                verify: bool | None = None, first_try: AssociationParams | None = None,
                wider_try: AssociationParams | None = None) -> MatchAnswer:
     """Search the two maps and verify the result (see the module docstring).
 
     common_frame: the two maps are expressed in one world frame (both georeferenced in one EPSG), the condition
-    of the position prior; when False a prior in `params` is ignored (and `prior` says so). exhaustive: the
+    of the position prior and of the search near the georeference; when False (the default: the caller must know)
+    a prior in `params` is ignored (and `prior` says so). exhaustive: the
     straightforward reference search (same hypotheses, slow). verify: overrides `params.verification.enabled`.
     first_try: tighter association parameters for a first search whose hypotheses are verified with
     `params.association` (module doc); used only with the verification on; None: one search. wider_try: the
@@ -69,13 +80,14 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     prior = "off"
     if params.association.position_prior_m > 0:
         prior = "applied" if common_frame else "ignored: the maps are not georeferenced in one EPSG"
+    verify = params.verification.enabled if verify is None else verify
+    near = georeference_prior_m(params.association, common_frame, verify)
 
     def usable(ap: AssociationParams) -> AssociationParams:
         return ap if common_frame else dataclasses.replace(ap, position_prior_m=0.0)
 
     ap = usable(params.association)
     fn = search_reference if exhaustive else search
-    verify = params.verification.enabled if verify is None else verify
     clock = {"search_s": 0.0, "verify_s": 0.0}
 
     def timed(stage: str, f: Callable[..., Any], *args: Any) -> Any:
@@ -90,13 +102,20 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     steps.append(("derived" if steps else "configured", params.association))
     if verify and wider_try is not None:
         steps.append(("wider", wider_try))
+    if near > 0:  # first near the georeference, with the derived tolerances (module doc)
+        steps.insert(0, ("georeference", dataclasses.replace(params.association, position_prior_m=near)))
     for label, step in steps:
         tolerances, searched = label, usable(step)  # of the last search that ran: the one whose answer this is
         res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, searched)
-        ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, ap,
+        # verified with the derived gate and the chance model of the alignments this search could find
+        gate = dataclasses.replace(ap, position_prior_m=searched.position_prior_m)
+        ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, gate,
                     params.verification) if verify else None
         if ver is None or ver.accepted:
             break
+    if near > 0:
+        prior = (f"georeference {near:g} m" if tolerances == "georeference" else
+                 f"georeference {near:g} m refused: searched everywhere")
     if verify:
         best = ver.best
         transform = None if best is None else Transform(best.transform.rotation, best.transform.translation,
@@ -112,3 +131,11 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     if compiling:
         kernel_cache.mark_compiled()
     return answer
+
+
+def georeference_prior_m(params: AssociationParams, common_frame: bool, verify: bool) -> float:
+    """The radius of the first search near the maps' georeference (`association.georeference_prior_m`, module doc),
+    0 when there is none: maps not in one frame, a (hard) position prior configured, or the verification off."""
+    if not common_frame or not verify or params.position_prior_m > 0:
+        return 0.0
+    return float(params.georeference_prior_m)

@@ -18,6 +18,7 @@ from .chance import (
     converged_to_winner,
     sequential_chance,
     transforms_agree,
+    within_prior,
 )
 from .multisession import Sim3
 from .refinement import (
@@ -42,6 +43,9 @@ class Verification:
     clear: bool = False  # it beats every rival by min_ratio and chance (p_value <= false_alarm)
     chance: ChanceModel | None = None  # None: no winner, or the chance test off (chance_starts 0)
     tilt_p: float | None = None  # the F test of a tilt in the winner's pairs (`tilt_significance`; None: not run)
+    # with a position prior: the winner lies beyond it (`chance.within_prior`), where its chance test does not
+    # reach, so it is not accepted
+    beyond_prior: bool = False
 
 
 class _NearTried:
@@ -198,8 +202,9 @@ def verify_alignments(
     if rigid is not None:
         best = rigid
     clear = bool(support >= min_ratio * runner_up and (chance is None or chance.p_value <= false_alarm))
-    return Verification(best, runner_up, len(refined), bool(support > min_support and clear), support, clear, chance,
-                        tilt_p)
+    beyond = not within_prior(best.transform, pb_all, prior_m, gate_m)
+    return Verification(best, runner_up, len(refined), bool(support > min_support and clear and not beyond),
+                        support, clear, chance, tilt_p, beyond)
 
 
 CONTROL_SHIFT_GATES = 3.0  # the displaced controls: B moved this many gates (beyond any landmark scatter)

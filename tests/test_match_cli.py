@@ -52,7 +52,7 @@ def test_match_end_to_end(maps, tmp_path, capsys):
     assert doc["search_mode"].pop("searched") == {"window_factors": [ap["window_factor_a"], ap["window_factor_b"]],
                                                   **{k: ap[k] for k in ("window_length", "window_stride",
                                                                         "min_associations", "distance_tolerance_m",
-                                                                        "max_size_difference")}}
+                                                                        "max_size_difference", "position_prior_m")}}
     assert doc["search_mode"] == {"consistency": "gravity", "windows": "id", "solver": "bounded", "yaw_slices": 48,
                                   "position_prior_m": 0.0, "position_prior": "off", "paper": False,
                                   "tolerances": "configured",  # a .sosmap has no noise figures: one search

@@ -76,7 +76,8 @@ def test_presets_layer_under_config_file_and_set(tmp_path):
     assert dataclasses.replace(paper.tracking, ground_band_sigmas=base.tracking.ground_band_sigmas) == base.tracking
     assert paper.tracking.ground_band_sigmas == 0.0 < base.tracking.ground_band_sigmas
     assert set(PRESETS["paper"]) == {"association.consistency", "association.windows", "association.position_prior_m",
-                                     "association.solver", "association.derive_from_maps",
+                                     "association.georeference_prior_m", "association.solver",
+                                     "association.derive_from_maps",
                                      "association.equal_area_windows",
                                      "triangulation.size_estimator", "triangulation.fuse_radius_factor",
                                      "triangulation.min_observations_from_views", "tracking.ground_band_sigmas"}

@@ -79,11 +79,14 @@ class MatchResult:
                 # hold more pairs than the best candidate ("best support 6, runner-up 8" read as a contradiction)
                 found = ("" if v.best is None else
                          f" (the best candidate holds {len(v.best.associations)} associations, B placed elsewhere "
-                         f"{v.runner_up_support}{_chance_text(v)})")
+                         f"{v.runner_up_support}{_chance_text(v)}"
+                         f"{', beyond the position prior' if v.beyond_prior else ''})")
                 return (f"{head}, verification: no match{found} ({self.times()}) -> "
                         f"{self.out_dir / 'match.json'}")
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
-            return (f"{head}, verified: {len(self.associations)} associations on the full maps (runner-up "
+            near = (f" within {ans.searched.position_prior_m:g} m of the georeference"
+                    if ans.tolerances == "georeference" and ans.searched is not None else "")
+            return (f"{head}, verified{near}: {len(self.associations)} associations on the full maps (runner-up "
                     f"{v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg) "
                     f"({self.times()}) -> "
                     f"{self.out_dir / 'match.json'}")
@@ -134,7 +137,7 @@ def search_mode_json(params: Params, answer: MatchAnswer | None) -> dict[str, An
             # theta_S and windows of the search whose hypotheses match.json lists (`MatchAnswer.searched`)
             "searched": _searched_json(answer.searched if answer and answer.searched else ap),
             "paper": ap.consistency == "distance" and ap.windows == "id" and ap.solver == "clipper"
-            and ap.position_prior_m == 0}
+            and ap.position_prior_m == 0 and not (answer and answer.tolerances == "georeference")}
 
 
 def _searched_json(ap: Any) -> dict[str, Any]:
@@ -142,7 +145,9 @@ def _searched_json(ap: Any) -> dict[str, Any]:
             # each map's window is window_length x its factor (equal-area windows; 1 and 1 the paper's)
             "window_factors": [ap.window_factor_a, ap.window_factor_b],
             "min_associations": ap.min_associations, "distance_tolerance_m": ap.distance_tolerance_m,
-            "max_size_difference": ap.max_size_difference}
+            "max_size_difference": ap.max_size_difference,
+            # > 0: only associations this near where the maps' georeferences put them (`position_prior`)
+            "position_prior_m": ap.position_prior_m}
 
 
 def _chance_text(v: Any) -> str:
@@ -160,6 +165,8 @@ def verification_json(answer: MatchAnswer | None, params: Params) -> dict[str, A
             "support": 0 if best is None else len(best.associations), "runner_up_support": int(v.runner_up_support),
             "rms_m": None if best is None else _num(best.rms_m), "num_refined": int(v.num_refined),
             "support_dof": int(v.support), "clear": bool(v.clear),
+            # with a position prior: the winner lay beyond it, where its chance test does not reach (not accepted)
+            "beyond_prior": bool(v.beyond_prior),
             # the F test of a tilt in the winner's pairs' heights (the fitted tilt is shrunk by tilt_prior_deg)
             "tilt_p": None if v.tilt_p is None else _num(v.tilt_p),
             "chance": None if v.chance is None else {**v.chance.to_dict(), "false_alarm": vp.false_alarm},

@@ -19,7 +19,8 @@ FEW_VIEWS_HEIGHT_OUTLIER_SIGMAS = 6.0
 PRESETS: dict[str, dict[str, Any]] = {
     # the search as published: id windows, 3D distance consistency, gravity checked after the solve, no prior
     "paper": {"association.consistency": "distance", "association.windows": "id",
-              "association.position_prior_m": 0.0, "association.solver": "clipper",
+              "association.position_prior_m": 0.0, "association.georeference_prior_m": 0.0,
+              "association.solver": "clipper",
               # and the front end as published: every track its own landmark, the mean metric size
               "triangulation.size_estimator": "mean", "triangulation.fuse_radius_factor": 0.0,
               "tracking.ground_band_sigmas": 0.0, "association.derive_from_maps": False,
