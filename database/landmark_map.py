@@ -116,6 +116,17 @@ def check_two_maps(path_a: str | Path, path_b: str | Path, map_a: LandmarkMap, m
     return prints
 
 
+def crs_disagreement(map_a: LandmarkMap, map_b: LandmarkMap) -> str | None:
+    """What to say when two maps are georeferenced in different EPSG codes, or None. Their coordinates are then
+    unrelated numbers to the search (it needs none), but two surveys of one site in two codes usually mean one wrong
+    label (a UTM zone or hemisphere; the thirteenth sweep: EPSG:32632 against 32732, matched and merged silently
+    with a near-identity transform)."""
+    if not (map_a.epsg and map_b.epsg) or map_a.epsg == map_b.epsg:
+        return None
+    return (f"A is georeferenced in EPSG:{map_a.epsg}, B in EPSG:{map_b.epsg}: they are searched as maps in unrelated "
+            "frames and B's georeference is not carried over; if both are surveys of one site, one label is wrong")
+
+
 def landmark_map_fingerprint(lmap: LandmarkMap) -> str:
     """A content fingerprint of a map: sha256 of its world positions, sizes and EPSG code ("sha256:...").
 

@@ -97,7 +97,8 @@ def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, p
     uniform yaw and B's centroid on a random landmark of A (over A's footprint, where the landmarks are, so the
     density chance works with is A's own); with `prior_m` (both maps in one frame, the search's putative
     associations within that radius) B moved by a uniform offset in the disc of that radius and turned by at
-    most the angle that moves B's landmarks that far: the alignments the prior lets the search find."""
+    most the angle that moves B's landmarks that far: the alignments the prior lets the search find (B's
+    centroid at A's mean height in both cases)."""
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
     if not len(pa) or not len(pb) or starts <= 0:
@@ -110,7 +111,11 @@ def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, p
         if prior_m > 0:
             yaw = rng.uniform(-1.0, 1.0) * min(np.pi, prior_m / radius_b)
             r, ang = prior_m * np.sqrt(rng.uniform()), rng.uniform(0.0, 2.0 * np.pi)
-            target = centre_b + np.array([r * np.cos(ang), r * np.sin(ang), 0.0])
+            # the prior is horizontal, and so is the search (it compares height differences, never heights):
+            # B's heights are put at A's as without a prior, since two georeferences' altitudes may differ by
+            # hundreds of metres (ellipsoid, AMSL, take-off heights) and a placement that far from A's heights
+            # pairs with nothing (it measured no chance at all; the thirteenth sweep's maps 418 m apart: p 2e-24)
+            target = np.array([centre_b[0] + r * np.cos(ang), centre_b[1] + r * np.sin(ang), pa[:, 2].mean()])
         else:
             yaw = rng.uniform(0.0, 2.0 * np.pi)
             target = np.array([*pa[rng.integers(len(pa)), :2], pa[:, 2].mean()])
@@ -121,7 +126,8 @@ def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, p
 
 def within_prior(transform: Sim3, points_b: np.ndarray, prior_m: float, gate_m: float) -> bool:
     """Whether an alignment (a_from_b) lies in the space `chance_placements` samples with `prior_m`: B's centroid
-    moved at most prior_m and B turned at most prior_m / R_B, each with one gate of slack (a refinement moves its
+    moved at most prior_m horizontally (heights are free: the prior and the search are horizontal) and B turned at
+    most prior_m / R_B, each with one gate of slack (a refinement moves its
     start by about that much). A search with a position prior still finds alignments beyond it: a turn and a shift
     that cancel near their fixed point leave the landmarks there within the prior. The chance test with the prior
     does not measure those, so they are not answers of it. True without a prior."""

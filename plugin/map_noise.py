@@ -167,6 +167,9 @@ class DerivedSearch:
     # a last search at wider windows when the derived one is refused (`window_chance`, "Wider windows";
     # `match_maps`' `wider_try`), None when the windows were not grown or a wider one is not affordable
     wider_try: AssociationParams | None = None
+    # the search near the maps' georeference, when the chance model within that prior lowers theta_S
+    # (`window_chance.DerivedWindows.near_params`; `match_maps`' `near_try`); None: the derived parameters
+    near_try: AssociationParams | None = None
 
 
 def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noise_b: MapNoise | None,
@@ -190,7 +193,8 @@ def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noi
     windows = derived_windows(points_a, sizes_a, points_b, sizes_b, tolerances)
     record["windows"] = {"from": "landmark density, size-gate fraction and theta_eps (chance model, "
                                  "association.window_chance)", **windows.to_dict()}
-    return DerivedSearch(windows.params, record, first_search_params(base, windows.params), windows.wider_params)
+    return DerivedSearch(windows.params, record, first_search_params(base, windows.params), windows.wider_params,
+                         windows.near_params)
 
 
 def first_search_params(configured: AssociationParams, derived: AssociationParams) -> AssociationParams | None:

@@ -17,12 +17,14 @@ chance-consistent associations per transform) get a last search at the next doub
 refused too (`wider_try`: a window that long detects a smaller fraction of repeating landmarks). `tolerances`
 says which search gave the answer.
 
-Maps georeferenced in one EPSG (ours, `association.georeference_prior_m`): before those searches, one search with
-the derived tolerances only among landmarks within that distance of each other where the georeferences put them,
-verified with the chance model of the alignments that near (`plugin.chance`: far fewer than over the whole maps,
-so a smaller support is significant, and the search is local, so it is fast whatever the maps' size). Only its
-refusal runs the searches above, which look everywhere: a georeference that is wrong by more than the radius
-costs one search, never the answer. A configured `position_prior_m` is a hard limit instead (every search within it).
+Maps georeferenced in one EPSG (ours, `association.georeference_prior_m`): one more search, with the derived
+tolerances, only among landmarks within that distance of each other where the georeferences put them, verified
+with the chance model of the alignments that near (`plugin.chance`: far fewer than over the whole maps, so a
+smaller support is significant). The searches above still run: an answer they accept stands (it assumes nothing
+about the georeference), and the one near the georeference is the answer only when they accept nothing and their
+best candidate elsewhere holds fewer pairs (`reconcile_near`): a georeference wrong by more than the radius
+leaves near it only partial alignments of a regular site, which can pass the chance test made for near ones.
+A configured `position_prior_m` is a hard limit instead (every search within it).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from .association import SearchResult, Transform, kernel_cache, search, search_reference
+from .chance import transforms_agree
 from .params import AssociationParams, Params
 from .verification import Verification, verify_search
 
@@ -63,7 +66,7 @@ class MatchAnswer:
 def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
                params: Params, common_frame: bool = False, exhaustive: bool = False,
                verify: bool | None = None, first_try: AssociationParams | None = None,
-               wider_try: AssociationParams | None = None) -> MatchAnswer:
+               wider_try: AssociationParams | None = None, near_try: AssociationParams | None = None) -> MatchAnswer:
     """Search the two maps and verify the result (see the module docstring).
 
     common_frame: the two maps are expressed in one world frame (both georeferenced in one EPSG), the condition
@@ -73,7 +76,9 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     first_try: tighter association parameters for a first search whose hypotheses are verified with
     `params.association` (module doc); used only with the verification on; None: one search. wider_try: the
     association parameters of a last search when the verification refuses `params.association`'s (module doc);
-    used only with the verification on.
+    used only with the verification on. near_try: the association parameters of the search near the
+    georeference (its theta_S from the chance model within the prior, `DerivedSearch.near_try`); None:
+    `params.association`'s.
     """
     compiling = kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so
     t0 = time.perf_counter()
@@ -96,26 +101,35 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         clock[stage] += time.perf_counter() - t
         return out
 
+    def run(step: AssociationParams) -> tuple[SearchResult, Verification | None]:
+        """One search and, with the verification on, its verification with the derived gate and the chance model
+        of the alignments this search could find (within its position prior, if any)."""
+        res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, step)
+        gate = dataclasses.replace(ap, position_prior_m=step.position_prior_m)
+        return res, (timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, gate,
+                           params.verification) if verify else None)
+
+    # near the georeference first (module doc), with the derived tolerances and its own theta_S
+    near_search = None
+    if near > 0:
+        near_params = dataclasses.replace(near_try or params.association, position_prior_m=near)
+        near_search = (near_params, *run(near_params))
     # the searches in order, each verified with the derived gate (`ap`) until one is accepted (module doc): the
     # first and the wider one only with the verification on, which is what decides whether the next one runs
     steps = [("first", first_try)] if verify and first_try is not None else []
     steps.append(("derived" if steps else "configured", params.association))
     if verify and wider_try is not None:
         steps.append(("wider", wider_try))
-    if near > 0:  # first near the georeference, with the derived tolerances (module doc)
-        steps.insert(0, ("georeference", dataclasses.replace(params.association, position_prior_m=near)))
     for label, step in steps:
         tolerances, searched = label, usable(step)  # of the last search that ran: the one whose answer this is
-        res = timed("search_s", fn, points_a, sizes_a, points_b, sizes_b, searched)
-        # verified with the derived gate and the chance model of the alignments this search could find
-        gate = dataclasses.replace(ap, position_prior_m=searched.position_prior_m)
-        ver = timed("verify_s", verify_search, points_a, sizes_a, points_b, sizes_b, res.hypotheses, gate,
-                    params.verification) if verify else None
+        res, ver = run(searched)
         if ver is None or ver.accepted:
             break
-    if near > 0:
-        prior = (f"georeference {near:g} m" if tolerances == "georeference" else
-                 f"georeference {near:g} m refused: searched everywhere")
+    if near_search is not None:
+        near_params, near_res, near_ver = near_search
+        prior, use_near = reconcile_near(near, near_ver, ver, points_b, ap.distance_tolerance_m)
+        if use_near:
+            tolerances, searched, res, ver = "georeference", near_params, near_res, near_ver
     if verify:
         best = ver.best
         transform = None if best is None else Transform(best.transform.rotation, best.transform.translation,
@@ -131,6 +145,36 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     if compiling:
         kernel_cache.mark_compiled()
     return answer
+
+
+def reconcile_near(radius_m: float, near: Verification, everywhere: Verification, points_b: np.ndarray,
+                   gate_m: float) -> tuple[str, bool]:
+    """The answer of two verified searches, one near the georeference and one everywhere (module doc): (what
+    `MatchAnswer.prior` says, whether the answer is the search near the georeference's).
+
+    The search everywhere needs no assumption about the georeference, so its accepted answer stands. The search
+    near it is answered only when the search everywhere accepted nothing, and its best candidate elsewhere holds
+    fewer pairs: a georeference wrong by more than the radius leaves near it only a partial alignment (rows of a
+    site one spacing apart; world 241 with B's georeference 80 m off: 32 pairs 53 m from the truth, p 6e-4 among
+    the alignments near it), which the true alignment's support elsewhere (91 pairs) shows to be none."""
+    head = f"georeference {radius_m:g} m"
+    if near.best is None or not near.accepted:
+        return f"{head}: refused there", False
+    pairs = np.asarray(near.best.associations, np.int64).reshape(-1, 2)
+    probe = np.asarray(points_b, np.float64)[pairs[:, 1]] if len(pairs) else np.asarray(points_b, np.float64)
+    other = everywhere.best
+    agree = other is not None and transforms_agree(near.best.transform, other.transform, probe, 2.0 * gate_m)
+    if everywhere.accepted:
+        if agree:
+            return f"{head}: the same answer as everywhere", False
+        theirs = np.asarray(points_b, np.float64)[np.asarray(other.associations, np.int64).reshape(-1, 2)[:, 1]]
+        offset = float(np.median(np.linalg.norm((other.transform.apply(theirs) - theirs)[:, :2], axis=1)))
+        return (f"{head}: overruled, the alignment found everywhere puts B {offset:.0f} m from where the "
+                f"georeference does"), False
+    if other is not None and not agree and len(other.associations) >= len(pairs):
+        return (f"{head}: not answered, an alignment elsewhere holds as many pairs ({len(other.associations)} "
+                f"against {len(pairs)})"), False
+    return f"{head}: answered there, nothing accepted everywhere", True
 
 
 def georeference_prior_m(params: AssociationParams, common_frame: bool, verify: bool) -> float:

@@ -6,6 +6,7 @@ winter session flown across it at 90 degrees; both in the world's frame, as two 
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,9 @@ import pytest
 
 from sosmatch.database.landmark_map import LandmarkMap, read_landmark_map, write_landmark_map
 from sosmatch.plugin.association.synthetic import survey_map_pair
-from sosmatch.plugin.chance import within_prior
+from sosmatch.plugin.chance import chance_placements, within_prior
 from sosmatch.plugin.map_noise import derived_search_params
-from sosmatch.plugin.match_answer import MatchAnswer, match_maps
+from sosmatch.plugin.match_answer import MatchAnswer, match_maps, reconcile_near
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.params import Params, preset_params, with_overrides
 from sosmatch.plugin.refinement import yaw_matrix
@@ -34,13 +35,13 @@ def _moved(points: np.ndarray, dx: float, dy: float, yaw_deg: float) -> np.ndarr
     return points @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T + np.array([dx, dy, 0.0])
 
 
-def _match(a: LandmarkMap, points_b: np.ndarray, sizes_b: np.ndarray, common: bool,
+def _match(a: LandmarkMap, b: LandmarkMap, points_b: np.ndarray, common: bool,
            params: Params | None = None) -> MatchAnswer:
-    """As `sosmatch match` does: the derived search parameters, then the answer."""
+    """As `sosmatch match` does: the derived search parameters, then the answer (B's landmarks at `points_b`)."""
     params = params or Params()
-    d = derived_search_params(params.association, a.noise, a.noise, a.positions, a.sizes, points_b, sizes_b)
-    return match_maps(a.positions, a.sizes, points_b, sizes_b, dataclasses.replace(params, association=d.params),
-                      common_frame=common, first_try=d.first_try, wider_try=d.wider_try)
+    d = derived_search_params(params.association, a.noise, b.noise, a.positions, a.sizes, points_b, b.sizes)
+    return match_maps(a.positions, a.sizes, points_b, b.sizes, dataclasses.replace(params, association=d.params),
+                      common_frame=common, first_try=d.first_try, wider_try=d.wider_try, near_try=d.near_try)
 
 
 def _offset_m(ans: MatchAnswer, points_b: np.ndarray, truth_b: np.ndarray) -> float:
@@ -51,11 +52,12 @@ def _offset_m(ans: MatchAnswer, points_b: np.ndarray, truth_b: np.ndarray) -> fl
 
 def test_a_crossing_flight_refused_among_all_alignments_is_found_near_the_georeference():
     a, b = _maps()
-    everywhere = _match(a, b.positions, b.sizes, common=False)
+    everywhere = _match(a, b, b.positions, common=False)
     # among every alignment of the two maps chance reaches the true support too often (p ~0.09)
     assert not everywhere.accepted and everywhere.tolerances == "derived"
-    near = _match(a, b.positions, b.sizes, common=True)
-    assert near.accepted and near.tolerances == "georeference" and near.prior == "georeference 50 m"
+    near = _match(a, b, b.positions, common=True)
+    assert near.accepted and near.tolerances == "georeference"
+    assert near.prior == "georeference 50 m: answered there, nothing accepted everywhere"
     assert near.searched.position_prior_m == 50.0
     assert near.verification.chance.p_value < 1e-3 < everywhere.verification.chance.p_value
     assert _offset_m(near, b.positions, b.positions) < 5.0
@@ -65,17 +67,50 @@ def test_a_crossing_flight_refused_among_all_alignments_is_found_near_the_georef
 
 def test_a_georeference_off_by_more_than_the_radius_costs_a_search_not_the_answer():
     a, b = _maps()
-    everywhere = _match(a, b.positions, b.sizes, common=False)
+    everywhere = _match(a, b, b.positions, common=False)
     far = _moved(b.positions, 150.0, -90.0, 0.0)
-    ans = _match(a, far, b.sizes, common=True)
-    assert ans.prior == "georeference 50 m refused: searched everywhere"
+    ans = _match(a, b, far, common=True)
+    assert ans.prior == "georeference 50 m: refused there"
     assert ans.tolerances == everywhere.tolerances and ans.searched.position_prior_m == 0.0
     assert ans.accepted == everywhere.accepted
     assert ans.verification.support == everywhere.verification.support
     # within the radius it is found near the georeference, at its true place
     near = _moved(b.positions, 30.0, -25.0, 3.0)
-    ans = _match(a, near, b.sizes, common=True)
-    assert ans.accepted and ans.tolerances == "georeference" and _offset_m(ans, near, b.positions) < 5.0
+    ans = _match(a, b, near, common=True)
+    assert ans.accepted and _offset_m(ans, near, b.positions) < 5.0
+    assert ans.prior in ("georeference 50 m: answered there, nothing accepted everywhere",
+                         "georeference 50 m: the same answer as everywhere")
+
+
+def test_a_partial_alignment_near_a_wrong_georeference_is_overruled_by_the_true_one_elsewhere():
+    # world 241, autumn against summer at 130 m, B's georeference 80 m off: near it the search finds 32 pairs
+    # of a partial alignment 53 m from the truth that its chance test passes (p 6e-4); over every placement the
+    # true alignment holds 91
+    a, b = read_landmark_map(DATA / "w241_autumn.sosmap"), read_landmark_map(DATA / "w241_summer_130.sosmap")
+    moved = _moved(b.positions, 80.0, 0.0, 0.0)
+    ans = _match(a, b, moved, common=True)
+    assert ans.accepted and ans.tolerances != "georeference" and _offset_m(ans, moved, b.positions) < 5.0
+    said = re.fullmatch(r"georeference 50 m: overruled, the alignment found everywhere puts B (\d+) m from where "
+                        r"the georeference does", ans.prior)
+    assert said and 70 <= int(said.group(1)) <= 90
+    # with the georeference right, both searches give one answer
+    ans = _match(a, b, b.positions, common=True)
+    assert ans.accepted and ans.prior == "georeference 50 m: the same answer as everywhere"
+
+
+def test_the_answer_near_the_georeference_needs_more_pairs_than_any_alignment_elsewhere():
+    a, b = _maps()
+    ans = _match(a, b, b.positions, common=True)
+    near, everywhere = ans.verification, _match(a, b, b.positions, common=False).verification
+    assert reconcile_near(50.0, near, everywhere, b.positions, 3.0)[1]
+    elsewhere = dataclasses.replace(everywhere, best=dataclasses.replace(
+        near.best, transform=Sim3(np.eye(3), np.array([200.0, 0.0, 0.0])),
+        associations=np.zeros((len(near.best.associations), 2), np.int64)))
+    said, used = reconcile_near(50.0, near, elsewhere, b.positions, 3.0)
+    assert not used and said.startswith("georeference 50 m: not answered, an alignment elsewhere holds as many")
+    refused_near = dataclasses.replace(near, accepted=False)
+    assert reconcile_near(50.0, refused_near, everywhere, b.positions, 3.0) == ("georeference 50 m: refused there",
+                                                                               False)
 
 
 def test_an_answer_beyond_the_prior_is_not_one_of_its_chance_test():
@@ -103,22 +138,32 @@ def test_maps_of_other_places_in_one_frame_are_refused_near_the_georeference(see
     a, _ = _maps()
     other = survey_map_pair(300, seed=seed, density_per_km2=1500.0, noise_m=0.9, size_noise=0.3)
     pb = other.points_b - other.points_b.mean(axis=0) + a.positions.mean(axis=0)  # laid over A's ground
-    ans = _match(a, pb, other.sizes_b, common=True)
-    assert not ans.accepted and ans.prior == "georeference 50 m refused: searched everywhere"
+    ans = _match(a, LandmarkMap(pb, other.sizes_b, pb.mean(axis=0).round()), pb, common=True)
+    assert not ans.accepted and ans.prior.startswith("georeference 50 m: ")
 
 
 def test_no_search_near_the_georeference_without_one_frame_a_hard_prior_or_the_verification():
     a, b = _maps()
-    assert _match(a, b.positions, b.sizes, common=False).prior == "off"
+    assert _match(a, b, b.positions, common=False).prior == "off"
     hard = with_overrides(Params(), {"association.position_prior_m": 50.0})
-    ans = _match(a, b.positions, b.sizes, common=True, params=hard)
+    ans = _match(a, b, b.positions, common=True, params=hard)
     assert ans.prior == "applied" and ans.tolerances != "georeference"
     off = with_overrides(Params(), {"verification.enabled": False})
-    ans = _match(a, b.positions, b.sizes, common=True, params=off)
+    ans = _match(a, b, b.positions, common=True, params=off)
     assert ans.prior == "off" and ans.source == "consensus"
     paper = preset_params("paper")
     assert paper.association.georeference_prior_m == 0.0
-    assert _match(a, b.positions, b.sizes, common=True, params=paper).prior == "off"
+    assert _match(a, b, b.positions, common=True, params=paper).prior == "off"
+
+
+def test_the_search_near_the_georeference_takes_its_own_theta_s():
+    a, b = _maps()
+    params = Params()
+    near_try = dataclasses.replace(params.association, min_associations=4)
+    ans = match_maps(a.positions, a.sizes, b.positions, b.sizes, params, common_frame=True, near_try=near_try)
+    assert ans.tolerances == "georeference" and ans.searched.min_associations == 4
+    assert ans.searched.position_prior_m == 50.0
+    assert min(h.size for h in ans.search.hypotheses) <= 5 < params.association.min_associations + 1
 
 
 def test_match_says_it_searched_near_the_georeference(tmp_path, capsys):
@@ -128,7 +173,40 @@ def test_match_says_it_searched_near_the_georeference(tmp_path, capsys):
     out = tmp_path / "m"
     assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(out),
                  "--no-plot"]) == 0
-    assert "verified within 50 m of the georeference: " in capsys.readouterr().out
+    assert "verified within 50 m (horizontally) of the georeference: " in capsys.readouterr().out
     mode = json.loads((out / "match.json").read_text())["search_mode"]
-    assert mode["position_prior"] == "georeference 50 m" and mode["tolerances"] == "georeference"
+    assert mode["position_prior"] == "georeference 50 m: answered there, nothing accepted everywhere"
+    assert mode["tolerances"] == "georeference"
     assert mode["searched"]["position_prior_m"] == 50.0 and not mode["paper"]
+
+
+def test_heights_on_another_datum_change_neither_the_chance_nor_the_answer(tmp_path, caplog):
+    # heights above take-off in one map, above sea level in the other: the search and the prior are horizontal,
+    # and the chance placements put B at A's heights (before, they kept B 420 m off and measured no chance: p 1e-24)
+    a, b = _maps()
+    low = b.positions + np.array([0.0, 0.0, -420.0])
+    same, moved = _match(a, b, b.positions, common=True), _match(a, b, low, common=True)
+    assert moved.accepted and moved.tolerances == same.tolerances == "georeference"
+    assert moved.verification.chance.p_value == pytest.approx(same.verification.chance.p_value, rel=0.05)
+    placements = chance_placements(a.positions, low, 32, prior_m=50.0)
+    assert all(abs(t.apply(low).mean(axis=0)[2] - a.positions[:, 2].mean()) < 1e-6 for t in placements)
+    # and `match` says the heights are on two datums
+    write_landmark_map(tmp_path / "a.sosmap", dataclasses.replace(a, epsg=32617))
+    write_landmark_map(tmp_path / "b.sosmap", dataclasses.replace(b, epsg=32617, positions=low,
+                                                                  origin=np.asarray(b.origin) - [0, 0, 420.0]))
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "m"),
+                 "--no-plot"]) == 0
+    assert re.search(r"lie 4[12]\d m below those of A", caplog.text) and "not on one datum" in caplog.text
+
+
+def test_maps_in_two_epsg_codes_are_named(tmp_path, caplog):
+    # the thirteenth sweep: a map labelled with the wrong UTM hemisphere (32732 for 32632) matched its partner with
+    # a near-identity transform and nothing said the labels differ
+    a, b = _maps()
+    write_landmark_map(tmp_path / "a.sosmap", dataclasses.replace(a, epsg=32632))
+    write_landmark_map(tmp_path / "b.sosmap", dataclasses.replace(b, epsg=32732))
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "m"),
+                 "--no-plot"]) == 0
+    assert "A is georeferenced in EPSG:32632, B in EPSG:32732" in caplog.text and "one label is wrong" in caplog.text
+    mode = json.loads((tmp_path / "m" / "match.json").read_text())["search_mode"]
+    assert mode["position_prior"] == "off"

@@ -41,6 +41,45 @@ def test_model_bounds_the_largest_chance_set_of_the_search(density):
     assert chance.largest - 3 <= found <= chance.largest
 
 
+@pytest.mark.parametrize("density", [300.0, 3000.0])
+def test_model_with_a_prior_bounds_the_largest_chance_set_of_the_search_with_it(density):
+    # maps of different worlds laid over one ground in one frame: a search with a position prior looks at far
+    # fewer transforms and window pairs, and finds chance sets no larger than the model under the prior says
+    a = survey_map_pair(400, seed=4, density_per_km2=density)
+    b = survey_map_pair(400, seed=12, density_per_km2=density)
+    pb = b.points_b - b.points_b.mean(axis=0) + a.points_a.mean(axis=0)
+    params = AssociationParams()
+    everywhere = window_chance(a.points_a, a.sizes_a, pb, b.sizes_b, params)
+    near = window_chance(a.points_a, a.sizes_a, pb, b.sizes_b, params, prior_m=50.0)
+    assert near.trials < everywhere.trials / 10 and near.largest < everywhere.largest
+    found = _largest_upright(search(a.points_a, a.sizes_a, pb, b.sizes_b,
+                                    dataclasses.replace(params, min_associations=2, position_prior_m=50.0)), params)
+    assert near.largest - 3 <= found <= near.largest
+    # a map that lies farther away than the prior shares no window pair with the other: one trial cell left
+    far = window_chance(a.points_a, a.sizes_a, pb + np.array([1e4, 0.0, 0.0]), b.sizes_b, params, prior_m=50.0)
+    assert far.trials < near.trials / 10
+
+
+def test_grown_windows_near_the_georeference_get_theta_s_from_the_prior():
+    # the sparse pair of the wider-window test below: grown windows, theta_S over the configured one
+    s = survey_map_pair(800, seed=3, density_per_km2=3000.0, missing_b=0.9, added_b=9.0, noise_m=0.4)
+    arrays = (s.points_a, s.sizes_a, s.points_b @ s.rotation.T + s.translation, s.sizes_b)
+    got = derived_windows(*arrays, AssociationParams())
+    assert got.derived is not None and got.params.min_associations > AssociationParams().min_associations
+    near = got.near_params
+    assert near is not None and got.near.trials < got.derived.trials / 10
+    assert (near.window_length, near.window_stride) == (got.params.window_length, got.params.window_stride)
+    assert AssociationParams().min_associations <= near.min_associations == max(6, got.near.largest) \
+        < got.params.min_associations
+    assert got.to_dict()["near_georeference"]["min_associations"] == near.min_associations
+    off = derived_windows(*arrays, AssociationParams(georeference_prior_m=0.0))
+    assert off.near_params is None and off.to_dict()["near_georeference"] is None
+    # windows that are not grown keep the configured theta_S near the georeference too
+    dense = survey_map_pair(600, seed=5, density_per_km2=30000.0)
+    kept = derived_windows(dense.points_a, dense.sizes_a, dense.points_b, dense.sizes_b, AssociationParams())
+    assert kept.derived is None and kept.near_params is None
+
+
 def test_chance_grows_with_the_window_and_the_tolerance():
     s = survey_map_pair(400, seed=3, density_per_km2=3000.0)
     params = AssociationParams()

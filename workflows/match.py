@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..database.atomic import write_bytes_atomic, write_text_atomic
-from ..database.landmark_map import check_two_maps, landmark_map_fingerprint
+from ..database.landmark_map import check_two_maps, crs_disagreement, landmark_map_fingerprint
 from ..database.map_loading import LoadedMap, load_map
 from ..database.match_io import MATCH_FORMAT, parse_match
 from ..database.outputs import fingerprint, open_output_dir
@@ -84,7 +84,7 @@ class MatchResult:
                 return (f"{head}, verification: no match{found} ({self.times()}) -> "
                         f"{self.out_dir / 'match.json'}")
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
-            near = (f" within {ans.searched.position_prior_m:g} m of the georeference"
+            near = (f" within {ans.searched.position_prior_m:g} m (horizontally) of the georeference"
                     if ans.tolerances == "georeference" and ans.searched is not None else "")
             return (f"{head}, verified{near}: {len(self.associations)} associations on the full maps (runner-up "
                     f"{v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg) "
@@ -292,6 +292,26 @@ def alignment_png(result: MatchResult) -> bytes:
     return buf.getvalue()
 
 
+# Ellipsoidal and sea-level heights differ by the geoid's undulation, at most ~106 m anywhere on Earth: two
+# georeferenced maps whose heights differ by more are not on one height datum (heights above take-off, feet)
+MAX_DATUM_DIFFERENCE_M = 110.0
+
+
+def _warn_height_datums(ans: Any, points_b: np.ndarray, path_b: str | Path) -> None:
+    """Warn when an accepted alignment of two maps in one EPSG moves B's landmarks vertically by more than two
+    height datums can differ (MAX_DATUM_DIFFERENCE_M): the search and the prior are horizontal, so it still finds
+    the alignment, but the maps' heights are not comparable."""
+    pairs = np.asarray(ans.associations, np.int64).reshape(-1, 2)
+    if not len(pairs) or ans.transform is None:
+        return
+    pb = np.asarray(points_b, np.float64)[pairs[:, 1]]
+    dz = float(np.median(ans.transform.apply(pb)[:, 2] - pb[:, 2]))
+    if abs(dz) > MAX_DATUM_DIFFERENCE_M:
+        log.warning("%s: its landmarks lie %.0f m %s those of A under the answer, more than ellipsoidal and sea-level "
+                    "heights differ anywhere: the two maps' altitudes are not on one datum (heights above take-off, "
+                    "or in feet?)", path_b, abs(dz), "below" if dz > 0 else "above")
+
+
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
         exhaustive: bool = False, plot: bool = True, overwrite: bool = False,
         verify: bool | None = None) -> MatchResult:
@@ -309,6 +329,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     map_a, map_b = load_map(a), load_map(b)
     la, lb = map_a.lmap, map_b.lmap
     prints = check_two_maps(a, b, la, lb, "match")
+    if (crs := crs_disagreement(la, lb)) is not None:
+        log.warning("%s", crs)
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
     # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
@@ -330,6 +352,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                             # only when there is one: outputs of maps that get no wider search keep their identity
                             **({} if derivation.wider_try is None else
                                {"wider_try": params_to_dict(derivation.wider_try)}),
+                            **({} if derivation.near_try is None else
+                               {"near_try": params_to_dict(derivation.near_try)}),
                             "verification": params_to_dict(params.verification), "seed": params.seed,
                             "exhaustive": exhaustive, "plot": plot})
     with open_output_dir(out_dir, "match", identity, inputs=[a, b], overwrite=overwrite,
@@ -339,7 +363,12 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
             log.warning("position prior ignored: the maps are not georeferenced in one EPSG (A: %s, B: %s)",
                         la.epsg, lb.epsg)
         ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
-                         exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try)
+                         exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try,
+                         near_try=derivation.near_try)
+        if "overruled" in ans.prior:  # the maps' georeferences disagree by more than the radius: say so
+            log.warning("%s: the answer is the alignment found over every placement of B", ans.prior)
+        if common and ans.accepted:
+            _warn_height_datums(ans, lb.positions, b)
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
-from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, write_landmark_map
+from ..database.landmark_map import LandmarkMap, crs_disagreement, landmark_map_fingerprint, write_landmark_map
 from ..database.map_loading import session_map_noise
 from ..database.match_io import check_match_maps, read_match, unverified_note
 from ..database.outputs import OutputDir, fingerprint, open_output_dir, resolved_path, sha256_file
@@ -435,6 +435,8 @@ def run(
     check_match_maps(match, a.landmarks, b.landmarks, match_json, names=(str(session_a), str(session_b)))
     if not match.accepted or match.transform is None:
         raise InputError("match has no accepted hypothesis: the sessions cannot be merged", match_json)
+    if (crs := crs_disagreement(a.landmarks, b.landmarks)) is not None:
+        log.warning("%s", crs)
     if b.landmarks.epsg and not a.landmarks.epsg:  # the model is in A's frame: B's georeference is not carried
         log.warning("%s is georeferenced (EPSG:%d) and %s is not: the merged model is in %s's local frame; match and "
                     "merge with the georeferenced session first to keep its georeference", session_b,

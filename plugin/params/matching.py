@@ -74,14 +74,14 @@ class AssociationParams(Checked):
     # the maps' common world frame (both georeferenced in one EPSG, or one shared local frame), are within this
     # distance (GNSS sigma x k); 0 = off (maps in unrelated frames)
     position_prior_m: float = non_negative(0.0)
-    # (ours) maps georeferenced in one EPSG are searched first only within this horizontal distance of where their
+    # (ours) maps georeferenced in one EPSG are also searched only within this horizontal distance of where their
     # georeferences put them, that search verified with the chance model of alignments that near (`plugin.chance`:
-    # a summer and a crossing winter map of world 229 hold 21 true pairs, chance p 0.1 among every alignment of the
-    # maps and 0.009 among those within 50 m); when the verification refuses it, the search runs everywhere as
-    # without a georeference, so a wrong georeference costs a search, never the answer. Two sessions' GNSS
-    # georeferences agree within a few metres (consumer receivers 2-5 m, NAIP orthophotos 6 m at 95 %, sosmatch's
-    # EKF frames 1-2 m): 50 m is ten times that. Not used with a position prior (which is a hard limit) or
-    # without the verification (nothing would say that the search near the georeference failed); 0 = off
+    # a spring and a crossing winter map of world 229 hold 21-23 true pairs, chance p 0.09 among every alignment of
+    # the maps and 6e-6 among those within 50 m). Its answer is taken only when the search everywhere accepts nothing
+    # and finds no alignment elsewhere with as many pairs (`match_answer.reconcile_near`): a georeference wrong by
+    # more than this leaves near it partial alignments of a regular site. Two sessions' GNSS georeferences agree
+    # within a few metres (consumer receivers 2-5 m, NAIP orthophotos 6 m at 95 %, sosmatch's EKF frames 1-2 m):
+    # 50 m is ten times that. Not used with a position prior (a hard limit) or without the verification; 0 = off
     georeference_prior_m: float = non_negative(50.0)
     # solver of each window pair (plugin/association/clipper.solve): "clipper" = the relaxation and greedy rounding
     # on the theta_S-core (the paper); "bounded" = a greedy clique of the highest cores bounds the answer and the

@@ -118,7 +118,8 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
             t0 = time.perf_counter()
             common = bool(lmap_a is not None and lmap_b is not None and lmap_a.epsg == lmap_b.epsg != 0)
             answer = match_maps(pa, ha, pb, hb, dataclasses.replace(params, association=assoc_params),
-                                common_frame=common, first_try=first_try, wider_try=derivation.wider_try)
+                                common_frame=common, first_try=first_try, wider_try=derivation.wider_try,
+                                near_try=derivation.near_try)
             times.append(time.perf_counter() - t0)
         result = answer.search
         # the parameters of the search whose hypotheses these are: the first of two searches keeps the configured
