@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pycolmap
 import pytest
@@ -290,3 +292,26 @@ def test_cameras_turned_far_from_their_priors_are_named():
     assert turned_images(before, before, 5.0) == []
     # well held (>= 5 observations) they are the tie points' correction of poor priors (Seneca's telemetry): not named
     assert [n for n, _ in turned_images(before, after, 5.0, (9, 9, 3, 9, 40, 3))] == ["f2.jpg"]
+
+
+def test_tie_points_the_starting_poses_cannot_triangulate_still_judge_them():
+    """The thirteenth sweep: Seneca's telemetry headings turned by 180 deg; 281 tie-point tracks, none triangulated
+    with those poses, and the refinement passed them on as "no tie points: the poses are the priors" (exit 0, the
+    rotations 168 deg off). What the poses explain of the tracks judges them, as for any refinement."""
+    from sosmatch.workflows.pose_refinement.judge import RefinementStats, judge_refinement
+
+    nan = float("nan")
+    stats = RefinementStats(images=36, points=0, observations=0, reprojection_rmse_before_px=nan,
+                            reprojection_rmse_after_px=nan, reprojection_median_before_px=nan,
+                            reprojection_median_after_px=nan, position_change_mean_m=0.0, position_change_max_m=0.0,
+                            rotation_change_mean_deg=0.0, rotation_change_max_deg=0.0, iterations=1, seconds=0.1,
+                            converged=False, explained_share=0.03, explained_share_by_image=(0.0,) * 36,
+                            observations_by_image=(20,) * 36)
+    errors, warnings = judge_refinement(stats, 5.0, 5.0, [f"IMG_{i}.JPG" for i in range(36)])
+    assert any("explain only 3%" in e for e in errors) and any("IMG_0.JPG" in e for e in errors)
+    assert warnings == ["the starting poses triangulate none of the tie points: the poses are the priors, unrefined"]
+    # no observation at all (images that share nothing): nothing to judge, said as before
+    bare = dataclasses.replace(stats, explained_share=nan, explained_share_by_image=(nan,) * 36,
+                               observations_by_image=(0,) * 36)
+    assert judge_refinement(bare, 5.0, 5.0) == ([], ["no tie points between the images: the poses are the priors, "
+                                                     "unrefined"])

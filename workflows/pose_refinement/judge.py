@@ -108,8 +108,14 @@ def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[flo
     errors: list[str] = []
     warnings: list[str] = []
     if stats.points == 0:
-        return errors, ["no tie points between the images: the poses are the priors, unrefined"]
-    if not stats.converged:
+        if not np.isfinite(stats.explained_share):  # no tie-point observation at all: nothing to judge with
+            return errors, ["no tie points between the images: the poses are the priors, unrefined"]
+        # tie points were there and the starting poses triangulated none of them (the thirteenth sweep: Seneca's
+        # telemetry headings turned by 180 deg, 281 tracks, exit 0 with "no tie points"): what the poses explain
+        # of them says whether the orientations contradict the images
+        warnings.append("the starting poses triangulate none of the tie points: the poses are the priors, "
+                        "unrefined")
+    elif not stats.converged:
         warnings.append(f"the bundle adjustment did not converge ({stats.iterations} solve(s))")
     if np.isfinite(stats.position_change_median_m) and stats.position_change_median_m > 3.0 * sigma:
         errors.append(f"it moved the cameras {stats.position_change_median_m:.1f} m (median) against a "
@@ -134,7 +140,7 @@ def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[flo
         warnings.append(f"the cameras turned {stats.rotation_change_mean_deg:.1f} deg on average (more than 3 x the "
                         f"{attitude_sigma_deg:g} deg attitude prior)")
     unknowns = 6 * stats.images + 3 * stats.points
-    if unknowns and 2 * stats.observations < 1.5 * unknowns:
+    if stats.points and 2 * stats.observations < 1.5 * unknowns:
         warnings.append(f"only {stats.points} tie points ({stats.observations} observations) for {stats.images} "
                         "images: the poses are barely constrained")
     return errors, warnings
