@@ -71,7 +71,37 @@ def crs_problem(epsg: int) -> str | None:
         return f"unknown EPSG code {epsg}"
     if not crs.is_projected:
         return f"EPSG:{epsg} ({crs.name}) is not a projected CRS in metres; poses need one (or 'local')"
+    unit = crs.axis_info[0].unit_name if crs.axis_info else "metre"
+    if unit not in ("metre", "meter"):
+        return f"EPSG:{epsg} ({crs.name}) measures in {unit}; poses need a projected CRS in metres (or 'local')"
     return None
+
+
+# A map is metric in all three axes only where its CRS keeps distances: UTM stays within 0.1 % of true inside its
+# zone; Web Mercator (EPSG:3857, a GIS export's favourite) stretches them by 1 / cos(latitude), 1.47 at 47 deg,
+# and the landmarks came out 48 m below the ground with sizes x1.46 (the thirteenth sweep)
+MAX_CRS_SCALE_ERROR = 0.01
+
+
+def crs_scale_problem(epsg: int, centers: np.ndarray) -> str | None:
+    """Why EPSG:`epsg` cannot hold a metric map at these camera centres, or None: its scale factor there departs
+    from 1 by more than MAX_CRS_SCALE_ERROR (distances stretched, heights not)."""
+    from pyproj import CRS, Proj, Transformer
+
+    crs = CRS.from_epsg(epsg)
+    x, y = np.asarray(centers, np.float64)[:, :2].mean(axis=0)
+    lon, lat = Transformer.from_crs(crs, CRS.from_epsg(4326), always_xy=True).transform(x, y)
+    if not (np.isfinite(lon) and np.isfinite(lat)):
+        return None  # outside the CRS's area: `check_within_crs_area` says so where it matters
+    factors = Proj(crs).get_factors(lon, lat)
+    scale = max(factors.meridional_scale, factors.parallel_scale, key=lambda k: abs(k - 1.0))
+    if not np.isfinite(scale) or abs(scale - 1.0) <= MAX_CRS_SCALE_ERROR:
+        return None
+    zone = int((lon + 180.0) // 6.0) % 60 + 1
+    utm = (32600 if lat >= 0 else 32700) + zone
+    return (f"EPSG:{epsg} ({crs.name}) stretches distances by {scale:.3f} at the camera centres (lat {lat:.2f}, "
+            f"lon {lon:.2f}) and heights not: the map would not be metric; give the poses in a CRS that keeps "
+            f"distances there, e.g. UTM zone {zone}{'N' if lat >= 0 else 'S'} (EPSG:{utm})")
 
 
 def name_problem(name: str) -> str | None:
@@ -214,6 +244,9 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
     degrees = None if centres_given else _look_like_degrees(poses.centers, epsg)
     if degrees:
         raise InputError(degrees, path)
+    stretched = crs_scale_problem(epsg, poses.centers) if epsg else None
+    if stretched:
+        raise InputError(stretched, path)
     return poses, epsg
 
 

@@ -86,3 +86,24 @@ def test_angles_in_a_crs_far_outside_its_area_are_refused(tmp_path):
                     + "".join(f"f{k}.jpg,{50 * k},0,300,0,-90,0\n" for k in range(3)))
     with pytest.raises(InputError, match="the camera centres lie at x 0..100"):
         read_poses_csv(path)
+
+
+@pytest.mark.parametrize("epsg, problem", [
+    (3857, r"EPSG:3857 \(WGS 84 / Pseudo-Mercator\) stretches distances by 1\.36.*UTM zone 18N \(EPSG:32618\)"),
+    (2263, r"measures in US survey foot; poses need a projected CRS in metres"),
+])
+def test_a_crs_that_does_not_keep_metres_at_the_site_is_refused(tmp_path, epsg, problem):
+    """The thirteenth sweep: UTM poses re-projected to Web Mercator (a GIS export) mapped with exit 0, the landmarks
+    48 m below the ground and 1.46 x their size; a CRS in feet would be read as metres."""
+    from pyproj import Transformer
+
+    x, y = Transformer.from_crs(4326, epsg, always_xy=True).transform(-76.9, 42.9)
+    path = tmp_path / "p.csv"
+    path.write_text(f"# crs: EPSG:{epsg}\nname,x,y,z,yaw_deg,pitch_deg,roll_deg\n"
+                    + "".join(f"f{k}.jpg,{x + 20 * k},{y},300,0,-90,0\n" for k in range(3)))
+    with pytest.raises(InputError, match=problem):
+        read_poses_csv(path)
+    utm = Transformer.from_crs(4326, 32617, always_xy=True).transform(-76.9, 42.9)
+    path.write_text("# crs: EPSG:32617\nname,x,y,z,yaw_deg,pitch_deg,roll_deg\n"
+                    + "".join(f"f{k}.jpg,{utm[0] + 20 * k},{utm[1]},300,0,-90,0\n" for k in range(3)))
+    assert read_poses_csv(path)[1] == 32617
