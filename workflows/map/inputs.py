@@ -151,7 +151,48 @@ def load_inputs(
         raise InputError(f"only {len(keep)} image(s) have a pose; need at least 2", images)
     sub = pose_list.subset([i for i, _ in keep])
     sub.names = [p.name for _, p in keep]
-    return in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources))
+    inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources))
+    if (problem := focal_against_exif(inputs)) is not None:
+        log.warning("%s", problem)
+    return inputs
+
+
+# The images' EXIF focal length against the camera given: a landmark's height scales with the focal length (the
+# flying height above it is f x baseline / disparity), so a camera 15-30 % off put the thirteenth sweep's landmarks
+# 15-30 m above or below the ground at 100 m, with exit 0 and the horizontal map (and its matches) intact. EXIF
+# focal lengths are nominal and the 35 mm equivalent whole millimetres (a few %); 10 % is what `sosmatch poses`
+# also tolerates between structure from motion and EXIF (`poses.checks.FOCAL_WARNING_FRACTION`)
+FOCAL_DISAGREEMENT = 0.10
+FOCAL_SAMPLE = 3  # images whose EXIF is read (first, middle, last): one camera per flight
+
+
+def focal_against_exif(inputs: MapInputs) -> str | None:
+    """A warning when the camera's focal length differs from the one the images' EXIF gives (FocalLength with
+    the focal plane resolution, or FocalLengthIn35mmFilm; `image_priors.camera_from_metadata`) by more than
+    FOCAL_DISAGREEMENT, naming both and the camera file; None when they agree or the EXIF has no focal length."""
+    from ...database.exif import read_image_metadata
+    from ..image_priors import camera_from_metadata
+
+    paths = inputs.image_paths
+    if not paths:
+        return None
+    picks = sorted({0, len(paths) // 2, len(paths) - 1})[:FOCAL_SAMPLE]
+    for k in picks:
+        try:
+            meta = read_image_metadata(paths[k])
+            exif, source = camera_from_metadata(meta)
+        except (InputError, OSError, ValueError):
+            continue
+        if exif.width != inputs.camera.width or exif.height != inputs.camera.height or exif.fx <= 0:
+            continue
+        change = inputs.camera.fx / exif.fx - 1.0
+        if abs(change) <= FOCAL_DISAGREEMENT:
+            return None
+        return (f"{inputs.sources.get('camera', 'the camera')}: its focal length {inputs.camera.fx:.1f} px is "
+                f"{100 * change:+.0f} % off the one the images' EXIF gives ({exif.fx:.1f} px from {source}, "
+                f"{paths[k].name}): landmark heights scale with it (at 100 m, {abs(change) * 100:.0f} m off); check "
+                "the intrinsics (a 35 mm-equivalent or a sensor size taken for the real one?)")
+    return None
 
 
 def require_keyframes(inputs: MapInputs, interval_m: float) -> None:
