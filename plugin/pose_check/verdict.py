@@ -46,7 +46,9 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
                           f"is {gate:.1f} px): wrong relative rotations or directions of motion")
     elif check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * gate:
         v.warnings.append(f"poses vs images: the poses fit the images' matches only to {check.epipolar_p50_px:.1f} px "
-                          f"(median of {check.pairs_checked} pairs; gate {gate:.1f} px): expect a sparse map")
+                          f"(median of {check.pairs_checked} pairs; gate {gate:.1f} px): expect a sparse map, or one "
+                          "metres off if the poses are wrong (each image given its neighbour's pose, or another "
+                          "flight's poses, fit like this too)")
     # the median speaks for the flight; a few images whose poses are far off hide behind it (EXIF poses whose
     # attitudes the tie points could not solve: 25 deg off, one pair 271 px beyond a 24 px gate, the rest 0.5 px)
     pair_limit = limits.warn_pair_gate_fraction * gate
