@@ -370,6 +370,10 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
             not (np.isfinite(q.block_tilt_deg) and q.block_tilt_deg > limits.max_block_tilt_deg):
         v.warnings.append(f"the ground tilts {q.ground_tilt_deg:.0f} deg under cameras tilted "
                           f"{q.view_tilt_deg:.0f} deg: a steep site, or GPS heights that drift along the flight")
+    if np.isfinite(q.flying_height_m) and q.flying_height_m > limits.warn_flying_height_m:
+        v.warnings.append(f"the cameras fly {q.flying_height_m:.0f} m above the ground they see (more than "
+                          f"{limits.warn_flying_height_m:.0f} m, beyond any mapping flight): are the poses in "
+                          "centimetres, millimetres or feet instead of metres?")
     if q.passes_without_landmarks:
         v.warnings.append(f"{q.passes_without_landmarks} of {q.passes} passes of the flight see no landmark at all "
                           "(their poses may not fit their images, e.g. a wrong heading)")

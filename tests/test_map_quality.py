@@ -235,3 +235,14 @@ def test_a_camera_sharing_no_ground_with_any_other_is_isolated():
     assert isolated_cameras(far, 100.0, 400.0, 500.0).tolist() == [len(centers), len(centers) + 2]
     assert len(isolated_cameras(far, float("nan"), 400.0, 500.0)) == 0
     assert len(isolated_cameras(far[:1], 100.0, 400.0, 500.0)) == 0
+
+
+def test_poses_in_centimetres_are_named():
+    """The thirteenth sweep: a pose CSV in centimetres read as metres gave a 100 m flight at "H 10007 m", landmarks
+    237 m across, exit 0 without a word (the images fix lengths only up to the poses' unit)."""
+    positions, sizes, obs, centers, axes = toy_flight(altitude=150.0)
+    q, v = _judge(positions * 100.0, sizes * 100.0, obs, centers * 100.0, axes)
+    assert v.ok and q.flying_height_m > 14000.0
+    assert any("centimetres, millimetres or feet" in w for w in v.warnings)
+    q, v = _judge(positions, sizes, obs, centers, axes)
+    assert not any("centimetres" in w for w in v.warnings)

@@ -227,6 +227,10 @@ class QualityParams(Checked):
     # a whole block's ground steeper than this is rare (synthetic and real maps: <= 2 deg); GPS heights that drift
     # tilt it too (a 50 m drift over a 100-frame survey: 12-27 deg)
     warn_ground_tilt_deg: float = within(20.0, 0.0, 90.0)
+    # frame cameras map from drones (tens to hundreds of metres) and aircraft (up to ~9 km); poses in centimetres
+    # or millimetres read as metres put a 100 m flight at 10-100 km, with landmarks 0.2-2.4 km across (the
+    # thirteenth sweep), which nothing else names: the images fix every length only up to the poses' unit
+    warn_flying_height_m: float = within(10_000.0, 0.0, None, lo_open=True)
     min_keyframes_with_landmarks: float = fraction(0.5)
     min_track_yield: float = fraction(0.05)
     refuse: bool = flag(True)  # False: a map beyond the limits is kept with a loud warning (run.json says so)
