@@ -202,7 +202,8 @@ def verify_alignments(
     if rigid is not None:
         best = rigid
     clear = bool(support >= min_ratio * runner_up and (chance is None or chance.p_value <= false_alarm))
-    beyond = not within_prior(best.transform, pb_all, prior_m, gate_m)
+    pairs = np.asarray(best.associations, np.int64).reshape(-1, 2)
+    beyond = not within_prior(best.transform, pb_all[pairs[:, 1]], prior_m, gate_m)
     return Verification(best, runner_up, len(refined), bool(support > min_support and clear and not beyond),
                         support, clear, chance, tilt_p, beyond)
 

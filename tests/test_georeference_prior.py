@@ -210,3 +210,13 @@ def test_maps_in_two_epsg_codes_are_named(tmp_path, caplog):
     assert "A is georeferenced in EPSG:32632, B in EPSG:32732" in caplog.text and "one label is wrong" in caplog.text
     mode = json.loads((tmp_path / "m" / "match.json").read_text())["search_mode"]
     assert mode["position_prior"] == "off"
+
+
+def test_evaluate_does_not_count_a_winner_beyond_the_prior():
+    # the diff review: evaluate took `clear` alone, so an answer the match refused as beyond its prior was scored
+    from sosmatch.workflows.evaluate.workflow import _clear_in_file
+
+    doc = {"clear": True, "beyond_prior": True}
+    assert not _clear_in_file(doc, 30, 5, Params())
+    assert _clear_in_file({"clear": True, "beyond_prior": False}, 30, 5, Params())
+    assert _clear_in_file({"clear": True}, 30, 5, Params())  # files written before the field

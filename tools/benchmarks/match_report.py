@@ -65,7 +65,7 @@ def timed(run: Callable[..., object], pa: np.ndarray, ha: np.ndarray | None, pb:
 
 
 def timed_match(pa: np.ndarray, ha: np.ndarray | None, pb: np.ndarray, hb: np.ndarray | None, params: Params,
-                 repeats: int, common_frame: bool = True) -> tuple:
+                 repeats: int, common_frame: bool = False) -> tuple:
     """The match's answer (search + verification), timed: (answer, median CPU s, median wall s)."""
     return timed(lambda a, sa, b, sb: match_maps(a, sa, b, sb, params, common_frame=common_frame),
                  pa, ha, pb, hb, repeats)

@@ -152,7 +152,7 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         verified_by_match = None if v is None else (
             None if v.best is None else v.best.transform,
             np.zeros((0, 2), np.int64) if v.best is None else v.best.associations, v.runner_up_support,
-            v.clear, answer.timings["verify_s"])
+            v.clear and not v.beyond_prior, answer.timings["verify_s"])
     verification, verified, winner = _verified_claim(verified_by_match, pb, theta_s, truth)
     out["verification"] = verification
     out["num_hypotheses"] = len(hypotheses)
@@ -212,9 +212,10 @@ def _verified_claim(verified: tuple | None, pb: np.ndarray, theta_s: int,
 
 
 def _clear_in_file(ver_doc: dict, support: int, runner_up: int, params: Params) -> bool:
-    """match.json's `verification.clear`; files written before the chance model had only the ratio test."""
+    """match.json's `verification.clear` (and not `beyond_prior`: a winner beyond the position prior is no answer
+    of its chance test, and the match refused it); files written before the chance model had only the ratio test."""
     if "clear" in ver_doc:
-        return bool(ver_doc["clear"])
+        return bool(ver_doc["clear"]) and not bool(ver_doc.get("beyond_prior", False))
     min_ratio = float((ver_doc.get("method") or {}).get("min_ratio", params.verification.min_ratio))
     return bool(support >= min_ratio * runner_up)
 
