@@ -124,6 +124,12 @@ def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, p
     return out
 
 
+def median_horizontal_move(transform: Sim3, points: np.ndarray) -> float:
+    """How far `transform` moves `points` horizontally, at the median (0 for no points)."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    return float(np.median(np.linalg.norm((transform.apply(pts) - pts)[:, :2], axis=1))) if len(pts) else 0.0
+
+
 def within_prior(transform: Sim3, points_b: np.ndarray, prior_m: float, gate_m: float) -> bool:
     """Whether an alignment (a_from_b) lies within a position prior of `prior_m`: it moves the B landmarks it pairs
     (`points_b`: the winner's supporting ones) by at most prior_m + one gate horizontally, at the median (heights are
@@ -136,8 +142,7 @@ def within_prior(transform: Sim3, points_b: np.ndarray, prior_m: float, gate_m: 
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
     if prior_m <= 0 or not len(pb):
         return True
-    moved = np.linalg.norm((transform.apply(pb) - pb)[:, :2], axis=1)
-    return bool(np.median(moved) <= prior_m + gate_m)
+    return median_horizontal_move(transform, pb) <= prior_m + gate_m
 
 
 def chance_refinements(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,

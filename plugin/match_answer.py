@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from .association import SearchResult, Transform, kernel_cache, search, search_reference
-from .chance import transforms_agree
+from .chance import median_horizontal_move, transforms_agree
 from .params import AssociationParams, Params
 from .verification import Verification, verify_search
 
@@ -168,7 +168,7 @@ def reconcile_near(radius_m: float, near: Verification, everywhere: Verification
         if agree:
             return f"{head}: the same answer as everywhere", False
         theirs = np.asarray(points_b, np.float64)[np.asarray(other.associations, np.int64).reshape(-1, 2)[:, 1]]
-        offset = float(np.median(np.linalg.norm((other.transform.apply(theirs) - theirs)[:, :2], axis=1)))
+        offset = median_horizontal_move(other.transform, theirs)
         return (f"{head}: overruled, the alignment found everywhere puts B {offset:.0f} m from where the "
                 f"georeference does"), False
     if other is not None and not agree and len(other.associations) >= len(pairs):

@@ -123,6 +123,15 @@ def full_frame_diagonal_px(width: int, height: int, sensor_aspect: float | None 
     return math.hypot(*frame)
 
 
+# How far a focal length may lie from the EXIF one (`camera_from_metadata`) before it is named: EXIF focal lengths
+# are nominal and the 35 mm equivalent whole millimetres (a few %). Beyond it, structure from motion's focal length
+# is not a calibration but a degenerate block (over flat ground a nadir camera's focal length trades against its
+# height: 24 % off on a 26-frame, 320 px synthetic flight of one line and a half; within 0.1 % on 90-frame flights;
+# `poses.checks`), and a given camera file is wrong (landmark heights scale with it: 15-30 m off at 100 m for the
+# thirteenth sweep's 15-30 %; `map.inputs.focal_against_exif`)
+EXIF_FOCAL_TOLERANCE = 0.10
+
+
 def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = None) -> tuple[Camera, str]:
     """Pinhole intrinsics of one image from its EXIF, scaled to the file's actual size, and the source used."""
     w, h = meta.width, meta.height

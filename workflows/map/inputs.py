@@ -157,27 +157,20 @@ def load_inputs(
     return inputs
 
 
-# The images' EXIF focal length against the camera given: a landmark's height scales with the focal length (the
-# flying height above it is f x baseline / disparity), so a camera 15-30 % off put the thirteenth sweep's landmarks
-# 15-30 m above or below the ground at 100 m, with exit 0 and the horizontal map (and its matches) intact. EXIF
-# focal lengths are nominal and the 35 mm equivalent whole millimetres (a few %); 10 % is what `sosmatch poses`
-# also tolerates between structure from motion and EXIF (`poses.checks.FOCAL_WARNING_FRACTION`)
-FOCAL_DISAGREEMENT = 0.10
-FOCAL_SAMPLE = 3  # images whose EXIF is read (first, middle, last): one camera per flight
-
-
 def focal_against_exif(inputs: MapInputs) -> str | None:
     """A warning when the camera's focal length differs from the one the images' EXIF gives (FocalLength with
     the focal plane resolution, or FocalLengthIn35mmFilm; `image_priors.camera_from_metadata`) by more than
-    FOCAL_DISAGREEMENT, naming both and the camera file; None when they agree or the EXIF has no focal length."""
+    `image_priors.EXIF_FOCAL_TOLERANCE`, naming both and the camera file; None when they agree or the EXIF has no
+    focal length. A landmark's height scales with the focal length (the flying height above it is f x baseline /
+    disparity), while the horizontal map and its matches stay intact. The first, middle and last images are read:
+    one camera per flight."""
     from ...database.exif import read_image_metadata
-    from ..image_priors import camera_from_metadata
+    from ..image_priors import EXIF_FOCAL_TOLERANCE, camera_from_metadata
 
     paths = inputs.image_paths
     if not paths:
         return None
-    picks = sorted({0, len(paths) // 2, len(paths) - 1})[:FOCAL_SAMPLE]
-    for k in picks:
+    for k in sorted({0, len(paths) // 2, len(paths) - 1}):
         try:
             meta = read_image_metadata(paths[k])
             exif, source = camera_from_metadata(meta)
@@ -186,7 +179,7 @@ def focal_against_exif(inputs: MapInputs) -> str | None:
         if exif.width != inputs.camera.width or exif.height != inputs.camera.height or exif.fx <= 0:
             continue
         change = inputs.camera.fx / exif.fx - 1.0
-        if abs(change) <= FOCAL_DISAGREEMENT:
+        if abs(change) <= EXIF_FOCAL_TOLERANCE:
             return None
         return (f"{inputs.sources.get('camera', 'the camera')}: its focal length {inputs.camera.fx:.1f} px is "
                 f"{100 * change:+.0f} % off the one the images' EXIF gives ({exif.fx:.1f} px from {source}, "

@@ -12,7 +12,7 @@ from ...plugin.geometry import Camera, Poses
 from ...plugin.multisession import Sim3
 from ...plugin.params import SfmParams
 from .. import sfm
-from ..image_priors import ImagePriors
+from ..image_priors import EXIF_FOCAL_TOLERANCE, ImagePriors
 from .result import _listing
 
 NOMINAL_HEIGHT_M = 100.0
@@ -117,10 +117,6 @@ def _compare(priors: ImagePriors, index: np.ndarray, poses: Poses, warnings: lis
         summary["gps_distance_max_m"] = float(np.max(cmp.position_m[has]))
     return summary
 
-# SfM's focal length this far from the EXIF one is not a calibration but a degenerate block: over flat ground a
-# nadir camera's focal length trades against its height (measured: 24 % off on a 26-frame, 320 px synthetic flight
-# of one line and a half; within 0.1 % on 90-frame flights)
-FOCAL_WARNING_FRACTION = 0.10
 
 def _check_focal_lengths(priors: ImagePriors, cameras: dict[int, Camera], warnings: list[str]) -> None:
     sources = priors.summary.get("cameras", [])
@@ -129,7 +125,7 @@ def _check_focal_lengths(priors: ImagePriors, cameras: dict[int, Camera], warnin
         if exif is None or "none in EXIF" in str(sources[k - 1].get("intrinsics_source", "")):
             continue
         change = cam.fx / exif.fx - 1.0
-        if abs(change) > FOCAL_WARNING_FRACTION:
+        if abs(change) > EXIF_FOCAL_TOLERANCE:
             warnings.append(f"camera {k}: structure from motion put the focal length {100 * change:+.0f} % off the "
                             f"EXIF one ({cam.fx:.1f} vs {exif.fx:.1f} px): the block may be degenerate (flat ground, "
                             "nadir views, few lines); heights and tilts are suspect")
