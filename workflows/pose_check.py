@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.image_matching import OrbFeatures
@@ -55,15 +57,55 @@ def gate_px(params: Params, camera: Camera) -> float:
     return float(for_image(params, camera.width, camera.height).tracking.epipolar_margin_px)
 
 
+# at most this many images' EXIF is read for their GPS fixes (evenly over the flight): the scale and the offset
+# are measured over the flight's extent, which a few hundred fixes span as well as thousands
+MAX_GPS_IMAGES = 300
+
+
+def gps_fixes(image_paths: Sequence[Path], epsg: int) -> tuple[np.ndarray, np.ndarray]:
+    """(indices, fixes): up to MAX_GPS_IMAGES images spread over `image_paths` and their EXIF GPS positions (K,2),
+    in EPSG:`epsg`'s grid, or for `epsg` 0 in the UTM zone of their median fix; NaN where an image has no fix (or
+    its EXIF cannot be read: the images are read and named later, where their pixels are needed)."""
+    from ..database.exif import read_image_metadata
+    from ..plugin.geodesy import geographic_to_grid, utm_epsg
+
+    idx = np.unique(np.linspace(0, len(image_paths) - 1, min(len(image_paths), MAX_GPS_IMAGES)).round().astype(int))
+    latlon = np.full((len(idx), 2), np.nan)
+    for k, i in enumerate(idx):
+        try:
+            meta = read_image_metadata(image_paths[i])
+        except (InputError, OSError, ValueError):
+            continue
+        if meta.has_gps:
+            latlon[k] = meta.latitude, meta.longitude
+    has = np.all(np.isfinite(latlon), axis=1)
+    fixes = np.full((len(idx), 2), np.nan)
+    if has.any():
+        if not epsg:
+            epsg = utm_epsg(*np.median(latlon[has], axis=0))
+        east, north, _ = geographic_to_grid(latlon[has, 0], latlon[has, 1], epsg)
+        fixes[has] = np.column_stack([east, north])
+    return idx, fixes
+
+
 def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params,
-          gate: float | None = None) -> tuple[PoseCheck, Verdict]:
+          gate: float | None = None, epsg: int | None = None) -> tuple[PoseCheck, Verdict]:
     """The figures of `poses` (in the order of `image_paths`, capture order) against the images, and their
     verdict. `gate`: the tracker's epipolar gate in pixels of these images (None: `gate_px(params, camera)`;
-    the map passes its own, as its parameters are already scaled to the image)."""
+    the map passes its own, as its parameters are already scaled to the image). `epsg`: the poses' CRS (0: a
+    local frame); given, the camera centres are also compared with the images' own GPS fixes
+    (`plugin.pose_check.gps`: the poses' unit, and their georeference in that CRS)."""
+    from dataclasses import replace
+
+    from ..plugin.pose_check.gps import compare_with_gps
+
     if len(image_paths) != len(poses):
         raise ValueError(f"{len(image_paths)} images for {len(poses)} poses")
     result = check_poses(poses, camera, image_features(list(image_paths), camera, params.pose_check),
                          params.pose_check, gate_px(params, camera) if gate is None else float(gate))
+    if epsg is not None:
+        idx, fixes = gps_fixes(image_paths, epsg)
+        result = replace(result, gps=compare_with_gps(poses.centers[idx], fixes, georeferenced=bool(epsg)))
     verdict = judge_poses(result, params.pose_check, poses.names)
     return result, verdict
 
@@ -108,14 +150,14 @@ def write_disabled(out: str | Path) -> None:
 
 def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path | None = None,
         refuse: bool = True, sources: dict | None = None, gate: float | None = None,
-        files: OutputFiles | None = None) -> CheckResult:
+        files: OutputFiles | None = None, epsg: int | None = None) -> CheckResult:
     """Check the poses (`check`), write the figures to `out` (JSON, atomically; None: nothing written) and raise
     PosesRefused (after writing) when they contradict the images and `refuse` is on. `files`: the OutputFiles
     that `out` is written through (`check_to_file`, a user's file); without it `out` lies in a directory the
-    caller owns (the map's output)."""
+    caller owns (the map's output). `epsg`: as `check`'s."""
     from ..database.atomic import write_text_atomic
 
-    result, verdict = check(image_paths, poses, camera, params, gate)
+    result, verdict = check(image_paths, poses, camera, params, gate, epsg)
     for warning in verdict.warnings:
         log.warning("%s", warning)
     if out is not None:
@@ -137,7 +179,8 @@ def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Param
 
 
 def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path,
-                  refuse: bool = True, sources: dict | None = None, overwrite: bool = False) -> CheckResult:
+                  refuse: bool = True, sources: dict | None = None, overwrite: bool = False,
+                  epsg: int | None = None) -> CheckResult:
     """`run` with its figures written to a user's file `out` (`sosmatch check-poses --out`): checked before any
     work by `database.output_files.OutputFiles` (never an input such as the pose file, never a file sosmatch did not
     write; one of this command's made from other inputs or settings is replaced only with `overwrite`)."""
@@ -150,4 +193,4 @@ def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, par
     identity = fingerprint({"sources": sources, "images": [Path(p).name for p in image_paths],
                             "params": params_to_dict(params)})
     files = OutputFiles([out], "check-poses", identity, inputs=inputs, overwrite=overwrite)
-    return run(image_paths, poses, camera, params, out, refuse=refuse, sources=sources, files=files)
+    return run(image_paths, poses, camera, params, out, refuse=refuse, sources=sources, files=files, epsg=epsg)

@@ -279,6 +279,19 @@ class PoseCheckParams(Checked):
     # independent, so significance alone passes structured random errors: correct EKF poses of a 40 m flight at
     # p 2e-4 with 48 % explained; true drifts and tilts 83-100 %)
     min_systematic_share: float = fraction(0.5)
+    # the camera centres against the images' own GPS fixes (`plugin.pose_check.gps`), where the images have them:
+    # the poses' length per GPS metre beyond 1 +- this by more than two of its standard deviations is refused (the
+    # map's lengths and sizes would not be metres). A receiver over a survey's extent agrees to 1-3 %; feet are
+    # 3.28, centimetres 100, an unscaled reconstruction anything
+    max_gps_scale_error: float = positive(0.1)
+    # poses in a projected CRS whose centres lie farther than this from their own fixes (median): a warning (the
+    # georeference search trusts a map's georeference to association.georeference_prior_m, 50 m; GPS puts a camera
+    # within metres, another datum 100-200 m off, another UTM zone or hemisphere hundreds of km)
+    warn_gps_offset_m: float = positive(50.0)
+    # a camera path whose similarity explains less than this share of the fixes' spread, or keeps fewer of them
+    # as inliers, does not follow them: a warning, and its scale and offset are not judged (poses of another
+    # flight, names paired with the wrong images; correct poses explain > 99 % on a 100 m track)
+    min_gps_agreement: float = fraction(0.5)
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from ..geometry import Camera, Poses
 from ..image_matching import OrbFeatures
 from ..map_quality import flight_passes
 from ..params import PoseCheckParams
+from .gps import GpsComparison
 from .matches import PairMatches, match_pair
 from .systematic import SystematicErrors, fit_systematic_errors, pair_sampson_px
 from .two_view import relative_poses, triangulation_depths
@@ -69,6 +70,8 @@ class PoseCheck:
     # (`PoseCheckParams.systematic_significance`, `min_systematic_share`)
     systematic_significance: float = 1.0
     min_systematic_share: float = 0.0
+    # the camera centres against the images' own GPS fixes (None: too few fixes, or not compared)
+    gps: GpsComparison | None = None
 
     @property
     def systematic_separable(self) -> bool:
@@ -111,6 +114,7 @@ class PoseCheck:
             "systematic_share": num(s.explained_share),
             "pairs_columns": ["a", "b", "kind", "inliers", "epipolar_px", "epipolar_fit_px", "in_front"],
             "pairs": [p.to_list() for p in self.pairs],
+            "gps": self.gps.to_dict() if self.gps is not None else None,
         }
         if names is not None:
             out["images_checked"] = sorted({names[i] for p in self.pairs for i in (p.a, p.b)})
@@ -118,18 +122,21 @@ class PoseCheck:
 
     def line(self) -> str:
         """A short summary for the map's one-line report."""
-        if not self.pairs_checked:
-            return f"poses vs images: no pair of {self.pairs_tried} matched"
         s = self.systematic
         text = f"poses vs images: epipolar {self.epipolar_p50_px:.1f} px ({self.pairs_checked} pairs), "
-        if not self.systematic_separable:  # the fit's figures mean nothing here (one straight line): do not print
+        if not self.pairs_checked:
+            text = f"poses vs images: no pair of {self.pairs_tried} matched"
+        elif not self.systematic_separable:  # the fit's figures mean nothing here (one straight line): do not print
             text += f"height drift and tilt not separable on this flight (condition index {s.condition_text})"
         elif not self.systematic_explains:  # nor here: the fit explains no more than the random errors would
             text += (f"no systematic error stands out of the random ones (F {_fmt(s.explained_f, '.1f')}, "
                      f"{_fmt(100 * s.explained_share, '.0f')} % of the misfit)")
         else:
             text += f"height drift {_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg"
-        return text + (f", {self.reversed_pairs} reversed" if self.reversed_pairs else "")
+        text += f", {self.reversed_pairs} reversed" if self.reversed_pairs else ""
+        if self.gps is not None:
+            text += f"; lengths {self.gps.scale_text}x the images' GPS ({self.gps.fixes} fixes)"
+        return text
 
 
 def _fmt(v: float, spec: str) -> str:

@@ -9,6 +9,7 @@ import numpy as np
 from ..map_quality import Verdict
 from ..params import PoseCheckParams
 from .check import PoseCheck
+from .gps import GpsComparison
 
 
 def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] | None = None) -> Verdict:
@@ -17,7 +18,7 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
 
     A systematic error is refused only when it exceeds its limit by more than two of its standard deviations
     (the evidence must be clear, not a noisy fit)."""
-    v = Verdict()
+    v = judge_gps(check.gps, limits)
     if check.pairs_checked < limits.min_pairs:
         v.warnings.append(f"poses vs images: only {check.pairs_checked} of {check.pairs_tried} image pairs matched "
                           "(too few to check the poses: little texture, or poses far off where the images are)")
@@ -96,3 +97,35 @@ def _beyond(value: float, sigma: float, limit: float) -> bool:
     if not (np.isfinite(value) and np.isfinite(limit)):
         return False
     return abs(value) - 2.0 * (sigma if np.isfinite(sigma) else np.inf) > limit
+
+
+def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
+    """The camera centres against the images' own GPS fixes (`gps.compare_with_gps`): a refusal when the poses'
+    lengths are not metres (beyond `max_gps_scale_error` by more than two of the scale's standard deviations),
+    warnings for a georeference far from the fixes and for a path that does not follow them (then nothing else is
+    judged: its scale is no measurement). Nothing without fixes."""
+    v = Verdict()
+    if gps is None:
+        return v
+    if gps.inliers < limits.min_gps_agreement * gps.fixes or not gps.explained >= limits.min_gps_agreement:
+        v.warnings.append(f"poses vs images' GPS: the camera path does not follow the images' own GPS track (a "
+                          f"similarity explains {max(gps.explained, 0.0):.0%} of its spread, {gps.inliers} of "
+                          f"{gps.fixes} fixes): poses of another flight, or names paired with the wrong images?")
+        return v  # its scale and offset are no measurement of the poses' unit or georeference
+    if _beyond(float(np.log(gps.scale)), gps.scale_sigma, float(np.log1p(limits.max_gps_scale_error))):
+        unit = gps.unit_factor
+        cause = (f"poses in {unit}?" if unit else
+                 "an unscaled reconstruction? georeference it (COLMAP's model_aligner) or let `sosmatch poses` make "
+                 "the poses")
+        v.refusals.append(f"poses vs images' GPS: the camera path is {gps.scale_text} x as long as the images' own "
+                          f"GPS track ({gps.fixes} fixes, {gps.extent_m:.0f} m rms from their centre): the poses "
+                          f"are not in metres, so neither would the map be ({cause})")
+    if np.isfinite(gps.offset_m) and gps.offset_m > limits.warn_gps_offset_m:
+        v.warnings.append(f"poses vs images' GPS: the camera centres lie {_distance(gps.offset_m)} from the images' "
+                          f"own GPS fixes in the poses' CRS (median of {gps.fixes}): the map's georeference is that "
+                          "far off (another UTM zone or hemisphere, another datum, or a shifted origin?)")
+    return v
+
+
+def _distance(metres: float) -> str:
+    return f"{metres / 1000:,.0f} km" if metres >= 10_000 else f"{metres:,.0f} m"

@@ -45,9 +45,9 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:  # a user's file: never an input, never one sosmatch did not write
         result = pose_check.check_to_file(inputs.image_paths, inputs.poses, inputs.camera, params, args.out,
                                           refuse=not args.warn_only, sources=inputs.sources,
-                                          overwrite=args.overwrite)
+                                          overwrite=args.overwrite, epsg=inputs.epsg)
     else:
         result = pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, refuse=not args.warn_only,
-                                sources=inputs.sources)
+                                sources=inputs.sources, epsg=inputs.epsg)
     print(result.line())
     return 0

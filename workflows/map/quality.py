@@ -41,7 +41,7 @@ def pose_check_stage(inputs: Any, params: Any, record: Path) -> Any:
 
     # `params` are the map's, already scaled to the image (`plugin.params.for_image`): its gate as it is
     return pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, record, refuse=False,
-                          sources=inputs.sources, gate=params.tracking.epipolar_margin_px)
+                          sources=inputs.sources, gate=params.tracking.epipolar_margin_px, epsg=inputs.epsg)
 
 
 def joined(*verdicts: Verdict | None) -> Verdict:

@@ -1,0 +1,175 @@
+"""The poses against the images' own GPS fixes (`plugin.pose_check.gps`, the map's pose check): poses not in metres
+(feet, an unscaled reconstruction) are refused, a georeference in the wrong UTM zone or hemisphere is named, and
+good poses pass, on arrays and on a rendered flight with EXIF geotags."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sosmatch.database.poses import read_poses_csv, write_poses_csv
+from sosmatch.plugin.geodesy import topocentric_to_grid
+from sosmatch.plugin.geometry import Poses
+from sosmatch.plugin.params import PoseCheckParams
+from sosmatch.plugin.pose_check.gps import compare_with_gps
+from sosmatch.plugin.pose_check.verdict import judge_gps
+from sosmatch.tools.cli import main
+
+
+def _lawnmower(lines: int = 5, per_line: int = 12, length: float = 150.0, spacing: float = 30.0) -> np.ndarray:
+    xs = np.linspace(0.0, length, per_line)
+    rows = [np.column_stack([xs if k % 2 == 0 else xs[::-1], np.full(per_line, k * spacing),
+                             np.full(per_line, 100.0)]) for k in range(lines)]
+    return np.vstack(rows)
+
+
+def _fixes(centers_m: np.ndarray, sigma: float, seed: int = 0, yaw_deg: float = 0.0,
+           offset: tuple[float, float] = (500_000.0, 4_500_000.0)) -> np.ndarray:
+    """GPS fixes of cameras at `centers_m` (metres): a rotated, shifted grid with noise `sigma` per axis."""
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    xy = centers_m[:, :2] @ np.array([[c, s], [-s, c]]) + np.asarray(offset)
+    return xy + np.random.default_rng(seed).normal(0.0, sigma, xy.shape)
+
+
+@pytest.mark.parametrize("unit, factor", [("feet", 3.28084), ("centimetres", 100.0)])
+def test_poses_in_another_unit_are_refused_and_named(unit: str, factor: float) -> None:
+    truth = _lawnmower()
+    gps = compare_with_gps(truth * factor, _fixes(truth, 2.0, yaw_deg=30.0), georeferenced=False)
+    assert gps is not None and gps.scale == pytest.approx(factor, rel=0.02)
+    assert gps.unit_factor == unit
+    verdict = judge_gps(gps, PoseCheckParams())
+    assert len(verdict.refusals) == 1 and f"poses in {unit}?" in verdict.refusals[0]
+
+
+def test_an_unscaled_reconstruction_is_refused_without_a_unit() -> None:
+    truth = _lawnmower()
+    gps = compare_with_gps(truth * 0.0731, _fixes(truth, 2.0, yaw_deg=-75.0), georeferenced=False)
+    assert gps is not None and gps.unit_factor == ""
+    refusal = judge_gps(gps, PoseCheckParams()).refusals[0]
+    assert "0.07" in refusal and "unscaled reconstruction" in refusal
+
+
+def test_metres_with_a_noisy_receiver_and_wrong_fixes_pass() -> None:
+    truth = _lawnmower()
+    fixes = _fixes(truth, 3.0, seed=1)
+    fixes[::7] += 400.0  # one fix in seven far off (jumps): the robust fit leaves them out
+    gps = compare_with_gps(truth, fixes, georeferenced=False)
+    assert gps is not None and gps.scale == pytest.approx(1.0, abs=0.05)
+    assert gps.inliers >= 0.8 * gps.fixes
+    verdict = judge_gps(gps, PoseCheckParams())
+    assert not verdict.refusals and not verdict.warnings
+
+
+def test_a_short_flight_with_a_noisy_receiver_proves_no_scale() -> None:
+    """20 % too long over a 30 m track with 6 m noise: the scale is uncertain, so no refusal on it."""
+    truth = _lawnmower(lines=2, per_line=8, length=30.0, spacing=10.0)
+    gps = compare_with_gps(truth * 1.2, _fixes(truth, 6.0, seed=2), georeferenced=False)
+    assert gps is not None and gps.scale_sigma > 0.1
+    assert not judge_gps(gps, PoseCheckParams()).refusals
+
+
+def test_no_comparison_without_enough_fixes_or_with_a_frozen_receiver() -> None:
+    truth = _lawnmower()
+    few = np.full((len(truth), 2), np.nan)
+    few[:4] = truth[:4, :2]
+    assert compare_with_gps(truth, few, georeferenced=False) is None
+    frozen = np.tile([[500_000.0, 4_500_000.0]], (len(truth), 1))
+    assert compare_with_gps(truth, frozen, georeferenced=False) is None
+    assert not judge_gps(None, PoseCheckParams()).refusals
+
+
+def test_a_georeference_far_from_the_fixes_is_named() -> None:
+    truth = _lawnmower() + np.array([500_000.0, 4_500_000.0, 0.0])
+    fixes = _fixes(truth, 2.0, offset=(0.0, 0.0))
+    good = compare_with_gps(truth, fixes, georeferenced=True)
+    assert good is not None and good.offset_m < 5.0
+    assert not judge_gps(good, PoseCheckParams()).warnings
+    south = truth + np.array([0.0, 10_000_000.0, 0.0])  # the same zone's southern false northing
+    far = compare_with_gps(south, fixes, georeferenced=True)
+    warning = judge_gps(far, PoseCheckParams()).warnings[0]
+    assert "10,000 km" in warning and "hemisphere" in warning
+    assert not judge_gps(far, PoseCheckParams()).refusals  # the map itself is sound: its georeference is named
+
+
+@settings(max_examples=40, deadline=None)
+@given(scale=st.floats(0.05, 20.0), yaw=st.floats(-180.0, 180.0), sigma=st.floats(0.0, 5.0),
+       seed=st.integers(0, 2**16))
+def test_the_scale_is_recovered_and_only_a_wrong_one_refused(scale: float, yaw: float, sigma: float,
+                                                              seed: int) -> None:
+    truth = _lawnmower()
+    gps = compare_with_gps(truth * scale, _fixes(truth, sigma, seed, yaw), georeferenced=False)
+    assert gps is not None
+    assert abs(math.log(gps.scale / scale)) <= 3.0 * gps.scale_sigma + 1e-6
+    refused = bool(judge_gps(gps, PoseCheckParams()).refusals)
+    if abs(math.log(scale)) <= math.log1p(0.1):
+        assert not refused
+    if abs(math.log(scale)) > math.log1p(0.1) + 4.0 * gps.scale_sigma:
+        assert refused
+
+
+@pytest.fixture(scope="module")
+def geotagged(tmp_path_factory) -> Path:
+    """24 frames 320x240 with EXIF GPS (1 m noise), two passes at 100 m."""
+    out = tmp_path_factory.mktemp("gpscheck") / "flight"
+    assert main(["synth", "--out", str(out), "--frames", "24", "--width", "320", "--height", "240", "--world-size",
+                 "400", "--line-length", "100", "--geotags", "exif", "-q"]) == 0
+    return out
+
+
+def _write(flight: Path, out: Path, scale: float = 1.0, epsg: int | None = None) -> Path:
+    """The flight's true poses scaled by `scale`; with `epsg`, in the UTM grid of its geotags' origin (the world's
+    centre) but labelled EPSG:`epsg`."""
+    poses, _ = read_poses_csv(flight / "poses.csv")
+    config = json.loads((flight / "session.json").read_text())["config"]
+    centers, rotations = poses.centers, poses.rotations
+    label = 0
+    if epsg is not None:
+        half = config["world_size_m"] / 2
+        lat, lon = config["geotag_origin_latlon"]
+        centers, grid_rot, label = topocentric_to_grid(centers - [half, half, 0.0], (lat, lon, 0.0))
+        rotations = np.einsum("nij,njk->nik", grid_rot, rotations)
+        label = epsg or label
+    write_poses_csv(out, Poses(poses.names, rotations, centers * scale), epsg=label)
+    return out
+
+
+def test_map_refuses_poses_in_feet(geotagged: Path, tmp_path: Path, cli_error) -> None:
+    feet = _write(geotagged, tmp_path / "feet.csv", scale=3.28084)
+    message = cli_error("map", "--images", geotagged / "images", "--poses", feet, "--camera",
+                        geotagged / "cameras.txt", "--out", tmp_path / "m", "-q")
+    assert "not in metres" in message and "feet?" in message
+    verdict = json.loads((tmp_path / "m" / "run.json").read_text())["verdict"]  # a refused map says so
+    assert verdict["status"] == "refused" and "not in metres" in verdict["refusals"][0]
+
+
+def test_check_poses_on_good_and_on_misplaced_georeferenced_poses(geotagged: Path, tmp_path: Path,
+                                                                    capsys) -> None:
+    good = _write(geotagged, tmp_path / "utm.csv", epsg=0)
+    assert main(["check-poses", "--images", str(geotagged / "images"), "--poses", str(good), "--camera",
+                 str(geotagged / "cameras.txt"), "--out", str(tmp_path / "good.json"), "-q"]) == 0
+    figures = json.loads((tmp_path / "good.json").read_text())["pose_check"]["gps"]
+    assert figures["scale"] == pytest.approx(1.0, abs=0.05) and figures["offset_m"] < 5.0
+    assert "GPS" not in " ".join(json.loads((tmp_path / "good.json").read_text())["verdict"]["warnings"])
+    capsys.readouterr()
+    south = _write(geotagged, tmp_path / "south.csv", epsg=32732)  # the north's zone 32 labelled south
+    assert main(["check-poses", "--images", str(geotagged / "images"), "--poses", str(south), "--camera",
+                 str(geotagged / "cameras.txt"), "-q"]) == 0
+    assert "10,000 km from the images' own GPS fixes" in capsys.readouterr().out
+
+
+def test_a_path_that_does_not_follow_the_fixes_is_named_not_given_a_unit() -> None:
+    """Poses paired with the wrong images (shuffled): the similarity explains nothing, so its "scale" (5-18 here)
+    is no unit; one warning says the path does not follow the fixes, and nothing is refused on it."""
+    truth = _lawnmower()
+    for seed in range(3):
+        shuffled = truth[np.random.default_rng(seed).permutation(len(truth))]
+        gps = compare_with_gps(shuffled, _fixes(truth, 2.0), georeferenced=False)
+        verdict = judge_gps(gps, PoseCheckParams())
+        assert gps is not None and gps.explained < 0.5
+        assert not verdict.refusals and "does not follow" in verdict.warnings[0]
