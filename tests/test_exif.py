@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import math
 import zlib
 from pathlib import Path
@@ -194,6 +195,36 @@ def test_telemetry_and_course_fallbacks(tmp_path):
     tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"shot_{k}.jpg,90,0,10\n" for k in range(3)))
     with pytest.raises(InputError, match="none of its 3 rows names an image"):
         pfe.poses_from_images(img, telemetry=tele)
+
+
+def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog):
+    """The thirteenth sweep: a telemetry CSV's positions (a PPK solution, the autopilot's log) were ignored
+    wherever the images had EXIF GPS. The user's file now wins, as OpenDroneMap's geo.txt does; the log says how far
+    it moved the positions, and warns when that is another flight's or another datum's distance."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(4):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)
+    exif = pfe.poses_from_images(img)
+    tele = tmp_path / "telemetry.csv"
+
+    def shifted(north_m: float) -> None:
+        rows = "".join(f"f{k}.jpg,90,0,0,{47.0 + north_m / 111_320.0!r},{-99.0 + k * 1e-4!r},512.5\n" for k in range(4))
+        tele.write_text("FileName,Heading,PitchAngle,RollAngle,GPSLatitude,GPSLongitude,GPSAltitude\n" + rows)
+
+    shifted(3.0)  # a PPK correction of 3 m north, 12.5 m in height
+    with caplog.at_level(logging.INFO):
+        res = pfe.poses_from_images(img, telemetry=tele)
+    assert res.summary["position_sources"] == {"telemetry CSV": 4}
+    moved = res.poses.centers - exif.poses.centers
+    np.testing.assert_allclose(moved[:, 1], 3.0, atol=0.05)
+    np.testing.assert_allclose(moved[:, 2], 12.5, atol=1e-6)
+    assert any("differ by 3.0 m" in r.getMessage() and r.levelno == logging.INFO for r in caplog.records)
+    caplog.clear()
+    shifted(2000.0)  # the log of another flight with the same file names
+    with caplog.at_level(logging.INFO):
+        pfe.poses_from_images(img, telemetry=tele)
+    assert any("another flight" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
 
 
 def test_missing_gps_is_a_clear_error(tmp_path, capsys):

@@ -9,7 +9,10 @@ without GPS, mixed cameras, damaged tags: they are counted in the summary and wa
 `poses_from_exif.poses_from_images` adds the checks its own job needs.
 
 World frame. Positions are full UTM coordinates (WGS84 / UTM, EPSG:326zz north or 327zz south, the zone of the
-first image with a fix unless `epsg` is given). Heights: the GPS altitude (metres, as the receiver reports it:
+first image with a fix unless `epsg` is given). A telemetry CSV's positions (GPSLatitude, GPSLongitude,
+GPSAltitude), where its row has them, take precedence over the image's own EXIF GPS: a file the user gives is
+their better positions (an autopilot's log, a PPK / RTK solution), as OpenDroneMap's geo.txt overrides the EXIF.
+Heights: the GPS altitude (metres, as the receiver reports it:
 for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
 vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off
 point), the take-off altitude + RelativeAltitude. The take-off altitude is given (`takeoff_altitude_m`) or
@@ -130,6 +133,13 @@ def full_frame_diagonal_px(width: int, height: int, sensor_aspect: float | None 
 # `poses.checks`), and a given camera file is wrong (landmark heights scale with it: 15-30 m off at 100 m for the
 # thirteenth sweep's 15-30 %; `map.inputs.focal_against_exif`)
 EXIF_FOCAL_TOLERANCE = 0.10
+# A telemetry CSV's positions replace the EXIF GPS (module doc). A copy of the same receiver's agrees to
+# centimetres (Seneca: < 1 mm), a PPK / RTK solution moves a consumer fix by metres: beyond TELEMETRY_NOTE_M
+# (median) the log says by how much; beyond TELEMETRY_WARN_M, the distance another datum (100-200 m) or another
+# flight's log with the same file names puts them, it warns (the pose check's `warn_gps_offset_m` for the same
+# reason)
+TELEMETRY_NOTE_M = 1.0
+TELEMETRY_WARN_M = 50.0
 
 
 def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = None) -> tuple[Camera, str]:
@@ -339,15 +349,26 @@ def read_image_priors(
                     + (f" ... ({len(damaged)} in all)" if len(damaged) > 3 else ""))
     lat, lon, alt = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     pos_src: Counter = Counter()
+    moved = []  # telemetry positions against the same images' EXIF GPS (m, horizontal)
     for i, m in enumerate(metas):
         t = rows[i]
-        if m.has_gps:
-            lat[i], lon[i] = m.latitude, m.longitude
-            pos_src["EXIF GPS"] += 1
-        elif "lat" in t and "lon" in t:
+        if "lat" in t and "lon" in t:  # the user's file over the images' own tags (module doc)
             lat[i], lon[i] = t["lat"], t["lon"]
+            alt[i] = t.get("alt", m.altitude if m.altitude is not None else np.nan)
             pos_src["telemetry CSV"] += 1
-        alt[i] = m.altitude if m.altitude is not None else t.get("alt", np.nan)
+            if m.has_gps:
+                moved.append(math.hypot((t["lat"] - m.latitude) * 111_320.0,
+                                        (t["lon"] - m.longitude) * 111_320.0 * math.cos(math.radians(m.latitude))))
+        elif m.has_gps:
+            lat[i], lon[i] = m.latitude, m.longitude
+            alt[i] = m.altitude if m.altitude is not None else np.nan
+            pos_src["EXIF GPS"] += 1
+    if moved and np.median(moved) > TELEMETRY_NOTE_M:
+        far = np.median(moved) > TELEMETRY_WARN_M
+        log.log(logging.WARNING if far else logging.INFO,
+                "positions from %s, not the images' EXIF GPS: they differ by %.1f m (median of %d images)%s",
+                telemetry, float(np.median(moved)), len(moved),
+                ": the telemetry of another flight, or another datum?" if far else "")
     has = np.isfinite(lat)
     east, north, north_az = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
     if has.any():
