@@ -147,6 +147,7 @@ def test_check_poses_command(flight, tmp_path, capsys, cli_error):
     write_poses_csv(bad, _yaw_fault(poses, 1))
     err = cli_error("check-poses", "--images", flight / "images", "--poses", bad, "--camera", flight / "cameras.txt")
     assert "poses refused" in err and "the images move the other way" in err
+    assert err.split(": ")[2] == str(bad)  # the error names the wrong input, the pose file
 
 
 def test_one_position_given_to_every_image_is_refused_not_ok(flight, tmp_path, capsys, cli_error):

@@ -173,8 +173,11 @@ def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Param
         else:
             write_text_atomic(out, text)
     if verdict.refusals and refuse:
-        raise PosesRefused("poses refused: " + "; ".join(r.removeprefix("poses vs images: ") for r in verdict.refusals),
-                           out if out is not None else Path(image_paths[0]).parent)
+        # the error names the poses, the input that is wrong (their source as `load_inputs` recorded it), and
+        # says where the figures are
+        where = f" (figures in {out})" if out is not None else ""
+        raise PosesRefused("poses refused: " + "; ".join(r.removeprefix("poses vs images: ") for r in verdict.refusals)
+                           + where, (sources or {}).get("poses") or Path(image_paths[0]).parent)
     return CheckResult(result, verdict, out)
 
 
