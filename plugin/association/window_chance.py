@@ -109,14 +109,19 @@ def _ordered(points: np.ndarray, params: AssociationParams) -> np.ndarray:
     return xy[hilbert_order(points)] if params.windows == "spatial" else xy
 
 
+def _disjoint_windows(xy: np.ndarray, length: int) -> list[np.ndarray]:
+    """The disjoint windows of `length` consecutive landmarks (the whole map if shorter; a remainder shorter than a
+    window is left out): what `_window_area` and `_boxes` measure."""
+    return [xy[s:s + length] for s in range(0, max(1, len(xy) - length + 1), length)]
+
+
 def _window_area(xy: np.ndarray, length: int) -> float:
-    """Median convex-hull area of the disjoint windows of `length` consecutive landmarks (the whole map if
-    shorter); 0 for degenerate (collinear) windows."""
+    """Median convex-hull area of the disjoint windows (`_disjoint_windows`); 0 for degenerate (collinear)
+    windows."""
     from scipy.spatial import ConvexHull, QhullError
 
     areas = []
-    for s in range(0, max(1, len(xy) - length + 1), length):
-        part = xy[s:s + length]
+    for part in _disjoint_windows(xy, length):
         if len(part) < 3:
             continue
         try:
@@ -182,9 +187,8 @@ def _chance(xa: np.ndarray, xb: np.ndarray, q: float, params: AssociationParams,
 
 def _boxes(xy: np.ndarray, length: int) -> np.ndarray:
     """(n, 4) horizontal bounding boxes (x0, y0, x1, y1) of the disjoint windows of `length` consecutive landmarks
-    (the windows `_window_area` measures)."""
-    parts = [xy[s:s + length] for s in range(0, max(1, len(xy) - length + 1), length)]
-    return np.array([[*p.min(axis=0), *p.max(axis=0)] for p in parts if len(p)]).reshape(-1, 4)
+    (`_disjoint_windows`)."""
+    return np.array([[*p.min(axis=0), *p.max(axis=0)] for p in _disjoint_windows(xy, length) if len(p)]).reshape(-1, 4)
 
 
 def _near_window_pairs(xa: np.ndarray, xb: np.ndarray, la: int, lb: int, prior_m: float) -> int:
