@@ -61,6 +61,9 @@ class MatchAnswer:
     # the configured windows and theta_S: its hypotheses are judged at its own theta_S); None: params.association
     searched: AssociationParams | None = None
     timings: dict[str, float] = field(default_factory=dict)  # search_s, verify_s, total_s (wall)
+    # the search everywhere overruled an accepted answer near the georeference: how far from the georeference
+    # it puts B (m, median of its paired landmarks); None otherwise (`reconcile_near`)
+    georeference_off_m: float | None = None
 
 
 def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
@@ -125,9 +128,10 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         res, ver = run(searched)
         if ver is None or ver.accepted:
             break
+    off_m = None
     if near_search is not None:
         near_params, near_res, near_ver = near_search
-        prior, use_near = reconcile_near(near, near_ver, ver, points_b, ap.distance_tolerance_m)
+        prior, use_near, off_m = reconcile_near(near, near_ver, ver, points_b, ap.distance_tolerance_m)
         if use_near:
             tolerances, searched, res, ver = "georeference", near_params, near_res, near_ver
     if verify:
@@ -142,15 +146,18 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     else:
         answer = MatchAnswer(res, None, False, None, np.zeros((0, 2), np.int64), "consensus", prior, searched=ap)
     answer.timings = {**clock, "total_s": time.perf_counter() - t0}
+    answer.georeference_off_m = off_m
     if compiling:
         kernel_cache.mark_compiled()
     return answer
 
 
 def reconcile_near(radius_m: float, near: Verification, everywhere: Verification, points_b: np.ndarray,
-                   gate_m: float) -> tuple[str, bool]:
+                   gate_m: float) -> tuple[str, bool, float | None]:
     """The answer of two verified searches, one near the georeference and one everywhere (module doc): (what
-    `MatchAnswer.prior` says, whether the answer is the search near the georeference's).
+    `MatchAnswer.prior` says, whether the answer is the search near the georeference's, and when the search
+    everywhere overruled an accepted answer near it, how far from the georeference it puts B: the maps'
+    georeferences disagree).
 
     The search everywhere needs no assumption about the georeference, so its accepted answer stands. The search
     near it is answered only when the search everywhere accepted nothing, and its best candidate elsewhere holds
@@ -159,22 +166,22 @@ def reconcile_near(radius_m: float, near: Verification, everywhere: Verification
     the alignments near it), which the true alignment's support elsewhere (91 pairs) shows to be none."""
     head = f"georeference {radius_m:g} m"
     if near.best is None or not near.accepted:
-        return f"{head}: refused there", False
+        return f"{head}: refused there", False, None
     pairs = np.asarray(near.best.associations, np.int64).reshape(-1, 2)
     probe = np.asarray(points_b, np.float64)[pairs[:, 1]] if len(pairs) else np.asarray(points_b, np.float64)
     other = everywhere.best
     agree = other is not None and transforms_agree(near.best.transform, other.transform, probe, 2.0 * gate_m)
     if everywhere.accepted:
         if agree:
-            return f"{head}: the same answer as everywhere", False
+            return f"{head}: the same answer as everywhere", False, None
         theirs = np.asarray(points_b, np.float64)[np.asarray(other.associations, np.int64).reshape(-1, 2)[:, 1]]
         offset = median_horizontal_move(other.transform, theirs)
         return (f"{head}: overruled, the alignment found everywhere puts B {offset:.0f} m from where the "
-                f"georeference does"), False
+                f"georeference does"), False, offset
     if other is not None and not agree and len(other.associations) >= len(pairs):
         return (f"{head}: not answered, an alignment elsewhere holds as many pairs ({len(other.associations)} "
-                f"against {len(pairs)})"), False
-    return f"{head}: answered there, nothing accepted everywhere", True
+                f"against {len(pairs)})"), False, None
+    return f"{head}: answered there, nothing accepted everywhere", True, None
 
 
 def georeference_prior_m(params: AssociationParams, common_frame: bool, verify: bool) -> float:

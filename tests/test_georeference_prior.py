@@ -92,10 +92,12 @@ def test_a_partial_alignment_near_a_wrong_georeference_is_overruled_by_the_true_
     assert ans.accepted and ans.tolerances != "georeference" and _offset_m(ans, moved, b.positions) < 5.0
     said = re.fullmatch(r"georeference 50 m: overruled, the alignment found everywhere puts B (\d+) m from where "
                         r"the georeference does", ans.prior)
-    assert said and 70 <= int(said.group(1)) <= 90
+    assert said and 70 <= int(said.group(1)) <= 90 and ans.georeference_off_m == pytest.approx(int(said.group(1)),
+                                                                                                  abs=0.5)
     # with the georeference right, both searches give one answer
     ans = _match(a, b, b.positions, common=True)
     assert ans.accepted and ans.prior == "georeference 50 m: the same answer as everywhere"
+    assert ans.georeference_off_m is None
 
 
 def test_the_answer_near_the_georeference_needs_more_pairs_than_any_alignment_elsewhere():
@@ -106,11 +108,11 @@ def test_the_answer_near_the_georeference_needs_more_pairs_than_any_alignment_el
     elsewhere = dataclasses.replace(everywhere, best=dataclasses.replace(
         near.best, transform=Sim3(np.eye(3), np.array([200.0, 0.0, 0.0])),
         associations=np.zeros((len(near.best.associations), 2), np.int64)))
-    said, used = reconcile_near(50.0, near, elsewhere, b.positions, 3.0)
+    said, used, _ = reconcile_near(50.0, near, elsewhere, b.positions, 3.0)
     assert not used and said.startswith("georeference 50 m: not answered, an alignment elsewhere holds as many")
     refused_near = dataclasses.replace(near, accepted=False)
     assert reconcile_near(50.0, refused_near, everywhere, b.positions, 3.0) == ("georeference 50 m: refused there",
-                                                                               False)
+                                                                               False, None)
 
 
 def test_an_answer_beyond_the_prior_is_not_one_of_its_chance_test():

@@ -365,7 +365,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
                          exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try,
                          near_try=derivation.near_try)
-        if "overruled" in ans.prior:  # the maps' georeferences disagree by more than the radius: say so
+        if ans.georeference_off_m is not None:  # the maps' georeferences disagree by more than the radius
             log.warning("%s: the answer is the alignment found over every placement of B", ans.prior)
         if common and ans.accepted:
             _warn_height_datums(ans, lb.positions, b)
