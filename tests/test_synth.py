@@ -169,6 +169,32 @@ def test_tall_objects_lean_outward_off_nadir():
     assert checked >= 1
 
 
+def test_an_oblique_survey_looks_ahead_and_its_renders_are_true_perspective():
+    """`camera_tilt_deg` (`synth --camera-tilt`): the gimbal tilted forward along the direction of travel, every
+    rendered pixel still the projection of its own hit (as at nadir), the footprint reaching ahead of the camera."""
+    cfg = SynthConfig(**{**SMALL, "camera_tilt_deg": 30.0, "altitude_m": 40.0})  # its view stays in the small world
+    world = get_world(cfg.world_config())
+    poses = session_poses(world, cfg)
+    view = poses.rotations[:, :, 2]
+    off_nadir = np.degrees(np.arccos(-view[:, 2]))
+    assert np.all(np.abs(off_nadir - 30.0) < 6.0)  # the tilt, with the airframe's 1.5 deg attitude jitter
+    travel = np.diff(poses.centers[:, :2], axis=0)
+    ahead = np.sum(view[:-1, :2] * travel, axis=1) / np.linalg.norm(travel, axis=1)
+    assert np.all(ahead > 0.3)  # the view leans along the direction of flight
+    scene = build_scene(world, "summer", session_presence(world, cfg))
+    cam = cfg.camera()
+    res = render_view(scene, np.ones_like(scene.dsm), cam, poses.rotations[0], poses.centers[0])
+    pts = res.hit.reshape(-1, 3).astype(np.float64)
+    uv, depth = project(cam, poses.rotations[0], poses.centers[0], pts)
+    rows, cols = np.nonzero(np.ones(res.labels.shape, bool))
+    assert np.percentile(np.abs(uv - np.column_stack([cols + 0.5, rows + 0.5])), 99) < 0.1
+    # the image's top row sees ground farther ahead than a nadir view's footprint reaches (H tan 32.5 deg)
+    top_reach = np.linalg.norm(res.hit[0, :, :2].astype(np.float64) - poses.centers[0, :2], axis=1)
+    assert np.median(top_reach) > 1.5 * cfg.altitude_m * math.tan(math.radians(cfg.hfov_deg / 2))
+    with pytest.raises(InputError, match="camera_tilt_deg"):
+        SynthConfig(**{**SMALL, "camera_tilt_deg": 60.0}).validate()
+
+
 def test_winter_and_summer_differ_in_look_but_not_in_geometry():
     cfg = SynthConfig(**SMALL)
     world = get_world(cfg.world_config())

@@ -49,6 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--reverse", action="store_true", help="fly the path backwards")
     g.add_argument("--rotate", type=float, default=d.rotate_deg, help="rotate the path (deg, counter-clockwise)")
     g.add_argument("--attitude-jitter", type=float, default=d.attitude_jitter_deg, help="roll/pitch std, deg")
+    g.add_argument("--camera-tilt", type=float, default=d.camera_tilt_deg, metavar="DEG",
+                   help="gimbal tilted forward from nadir, deg (an oblique survey: 30 = a -60 deg gimbal pitch)")
     g = parser.add_argument_group("camera")
     g.add_argument("--width", type=int, default=d.width)
     g.add_argument("--height", type=int, default=d.height)
@@ -104,6 +106,7 @@ def config_from_args(args: argparse.Namespace):  # noqa: ANN201 (SynthConfig, im
         frames=args.frames, spacing_m=args.spacing, altitude_m=args.altitude, line_length_m=args.line_length,
         line_spacing_m=args.line_spacing, flight_seed=args.flight_seed, shift_m=tuple(args.shift),
         reverse=args.reverse, rotate_deg=args.rotate, attitude_jitter_deg=args.attitude_jitter,
+        camera_tilt_deg=args.camera_tilt,
         width=args.width, height=args.height, hfov_deg=args.hfov, lens_k1=args.k1, lens_k2=args.k2,
         lens_p1=args.p1, lens_p2=args.p2, crop_aspect=args.crop, exposure_ev=args.exposure,
         noise_sigma=args.noise, blur_sigma_px=args.blur, jpeg_quality=args.jpeg_quality,

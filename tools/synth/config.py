@@ -31,6 +31,7 @@ FLIGHT_KINDS = ("lawnmower", "freeform")
 # Change detection needs pairs with many changed objects to measure its precision and recall with some
 # confidence (BENCHMARKS.md, Change detection); half of the objects gone is already a different landscape.
 MAX_CHANGED_FRACTION = 0.5
+MAX_CAMERA_TILT_DEG = 45.0  # an oblique survey gimbal (-45 deg pitch); beyond, a 65 deg frame reaches the horizon
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,7 @@ class SynthConfig:
     reverse: bool = False
     rotate_deg: float = 0.0
     attitude_jitter_deg: float = 1.5
+    camera_tilt_deg: float = 0.0  # forward from nadir, along the direction of travel (`flights.FlightConfig`)
     # camera
     width: int = 640
     height: int = 480  # of the sensor; `crop_aspect` may keep only a central band of it
@@ -104,7 +106,7 @@ class SynthConfig:
                             altitude_m=self.altitude_m, line_length_m=self.line_length_m,
                             line_spacing_m=self.line_spacing_m, seed=self.flight_seed,
                             shift_m=tuple(self.shift_m), reverse=self.reverse, rotate_deg=self.rotate_deg,
-                            attitude_jitter_deg=self.attitude_jitter_deg)
+                            attitude_jitter_deg=self.attitude_jitter_deg, camera_tilt_deg=self.camera_tilt_deg)
 
     def ekf_noise(self) -> EkfNoise:
         from .flights import EkfNoise
@@ -228,6 +230,9 @@ class SynthConfig:
             bad("noise, blur and jitter must be >= 0")
         if self.attitude_jitter_deg > 10:
             bad("attitude_jitter_deg must be <= 10 (the camera is nadir)")
+        if not 0.0 <= self.camera_tilt_deg <= MAX_CAMERA_TILT_DEG:
+            bad(f"camera_tilt_deg must be between 0 and {MAX_CAMERA_TILT_DEG:g} (an oblique survey; beyond, the top "
+                "of a wide frame sees the horizon)")
         if min(self.ekf_position_sigma_m, self.ekf_attitude_sigma_deg, self.ekf_drift_m_per_sqrt_m,
                self.ekf_attitude_drift_deg_per_sqrt_m) < 0:
             bad("EKF noise settings must be >= 0")

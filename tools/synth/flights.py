@@ -34,6 +34,9 @@ class FlightConfig:
     reverse: bool = False
     rotate_deg: float = 0.0  # counter-clockwise about the path's centre
     attitude_jitter_deg: float = 1.5  # std of roll and pitch
+    # the gimbal tilted forward from nadir along the direction of travel (a -60 deg gimbal pitch is 30 here):
+    # oblique surveys, where tall objects show their sides and the footprint reaches ahead
+    camera_tilt_deg: float = 0.0
     yaw_jitter_deg: float = 1.0
     position_jitter_m: float = 0.5
     altitude_jitter_m: float = 0.5
@@ -154,7 +157,7 @@ def flight_poses(cfg: FlightConfig, center_xy: tuple[float, float], ground_z: fl
     d2r = math.pi / 180.0
     yaw = heading + _ar1(rng, n, cfg.yaw_jitter_deg * d2r)
     roll = _ar1(rng, n, cfg.attitude_jitter_deg * d2r)
-    pitch = _ar1(rng, n, cfg.attitude_jitter_deg * d2r)
+    pitch = _ar1(rng, n, cfg.attitude_jitter_deg * d2r) + cfg.camera_tilt_deg * d2r
     wander = _ar1(rng, n, cfg.position_jitter_m, dims=2)
     alt = _ar1(rng, n, cfg.altitude_jitter_m)
     centers = np.column_stack([pts + wander, np.full(n, ground_z + cfg.altitude_m) + alt])
