@@ -97,16 +97,18 @@ def footprint_points_per_side(camera: Camera) -> int:
     return 1 if camera.is_pinhole else 8
 
 
-def _check_inside(world: World, camera: Camera, poses: Poses) -> None:
-    """Every image must see only the world: test the border rays at the lowest terrain height."""
+def _check_inside(world: World, camera: Camera, poses: Poses, tilted: bool = False) -> None:
+    """Every image must see only the world: test the border rays at the lowest terrain height. `tilted`: the
+    camera looks ahead (`camera_tilt_deg`), which the advice then names too."""
     size = world.config.size_m
+    tilt = "/--camera-tilt/--altitude" if tilted else ""
     flat = TerrainSampler(np.full((2, 2), float(world.terrain.min()) - 0.5, np.float32), 0.0, 0.0, size)
     for name, r, c in zip(poses.names, poses.rotations, poses.centers):
         corners = flat.footprint(camera, r, c, footprint_points_per_side(camera))
         if corners.min() < 1.0 or corners.max() > size - 1.0:
             raise InputError(
                 f"image {name} would see beyond the {size:g} m world (footprint {corners.min():.0f}.."
-                f"{corners.max():.0f} m): reduce --shift/--frames/--line-length or enlarge --world-size")
+                f"{corners.max():.0f} m): reduce --shift/--frames/--line-length{tilt} or enlarge --world-size")
 
 
 def _encode_png16(labels: np.ndarray) -> bytes:
@@ -146,7 +148,7 @@ def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, wo
     t_world = time.perf_counter() - t0
     camera = config.camera()
     poses = session_poses(world, config)
-    _check_inside(world, camera, poses)
+    _check_inside(world, camera, poses, tilted=config.camera_tilt_deg > 0)
     present = session_presence(world, config)
     t1 = time.perf_counter()
     scene = build_scene(world, config.season, present)
