@@ -124,8 +124,9 @@ def chance_placements(points_a: np.ndarray, points_b: np.ndarray, starts: int, p
     return out
 
 
-def median_horizontal_move(transform: Sim3, points: np.ndarray) -> float:
-    """How far `transform` moves `points` horizontally, at the median (0 for no points)."""
+def median_horizontal_move(transform: Sim3 | Any, points: np.ndarray) -> float:
+    """How far `transform` (a Sim3, or any transform with `apply`) moves `points` horizontally, at the median (0 for
+    no points)."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     return float(np.median(np.linalg.norm((transform.apply(pts) - pts)[:, :2], axis=1))) if len(pts) else 0.0
 

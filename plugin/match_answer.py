@@ -61,8 +61,9 @@ class MatchAnswer:
     # the configured windows and theta_S: its hypotheses are judged at its own theta_S); None: params.association
     searched: AssociationParams | None = None
     timings: dict[str, float] = field(default_factory=dict)  # search_s, verify_s, total_s (wall)
-    # the search everywhere overruled an accepted answer near the georeference: how far from the georeference
-    # it puts B (m, median of its paired landmarks); None otherwise (`reconcile_near`)
+    # maps in one frame with an accepted answer: how far it moves B from where B's georeference puts it (m,
+    # horizontal, the median over B's paired landmarks: `chance.median_horizontal_move`); None otherwise. Beyond
+    # GPS-level error the two maps' georeferences disagree (a datum, an origin), whichever search answered
     georeference_off_m: float | None = None
 
 
@@ -128,10 +129,9 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         res, ver = run(searched)
         if ver is None or ver.accepted:
             break
-    off_m = None
     if near_search is not None:
         near_params, near_res, near_ver = near_search
-        prior, use_near, off_m = reconcile_near(near, near_ver, ver, points_b, ap.distance_tolerance_m)
+        prior, use_near = reconcile_near(near, near_ver, ver, points_b, ap.distance_tolerance_m)
         if use_near:
             tolerances, searched, res, ver = "georeference", near_params, near_res, near_ver
     if verify:
@@ -146,18 +146,18 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     else:
         answer = MatchAnswer(res, None, False, None, np.zeros((0, 2), np.int64), "consensus", prior, searched=ap)
     answer.timings = {**clock, "total_s": time.perf_counter() - t0}
-    answer.georeference_off_m = off_m
+    if common_frame and answer.accepted and answer.transform is not None and len(answer.associations):
+        paired_b = np.asarray(points_b, np.float64)[np.asarray(answer.associations, np.int64)[:, 1]]
+        answer.georeference_off_m = median_horizontal_move(answer.transform, paired_b)
     if compiling:
         kernel_cache.mark_compiled()
     return answer
 
 
 def reconcile_near(radius_m: float, near: Verification, everywhere: Verification, points_b: np.ndarray,
-                   gate_m: float) -> tuple[str, bool, float | None]:
+                   gate_m: float) -> tuple[str, bool]:
     """The answer of two verified searches, one near the georeference and one everywhere (module doc): (what
-    `MatchAnswer.prior` says, whether the answer is the search near the georeference's, and when the search
-    everywhere overruled an accepted answer near it, how far from the georeference it puts B: the maps'
-    georeferences disagree).
+    `MatchAnswer.prior` says, whether the answer is the search near the georeference's).
 
     The search everywhere needs no assumption about the georeference, so its accepted answer stands. The search
     near it is answered only when the search everywhere accepted nothing, and its best candidate elsewhere holds
@@ -166,22 +166,22 @@ def reconcile_near(radius_m: float, near: Verification, everywhere: Verification
     the alignments near it), which the true alignment's support elsewhere (91 pairs) shows to be none."""
     head = f"georeference {radius_m:g} m"
     if near.best is None or not near.accepted:
-        return f"{head}: refused there", False, None
+        return f"{head}: refused there", False
     pairs = np.asarray(near.best.associations, np.int64).reshape(-1, 2)
     probe = np.asarray(points_b, np.float64)[pairs[:, 1]] if len(pairs) else np.asarray(points_b, np.float64)
     other = everywhere.best
     agree = other is not None and transforms_agree(near.best.transform, other.transform, probe, 2.0 * gate_m)
     if everywhere.accepted:
         if agree:
-            return f"{head}: the same answer as everywhere", False, None
+            return f"{head}: the same answer as everywhere", False
         theirs = np.asarray(points_b, np.float64)[np.asarray(other.associations, np.int64).reshape(-1, 2)[:, 1]]
         offset = median_horizontal_move(other.transform, theirs)
         return (f"{head}: overruled, the alignment found everywhere puts B {offset:.0f} m from where the "
-                f"georeference does"), False, offset
+                f"georeference does"), False
     if other is not None and not agree and len(other.associations) >= len(pairs):
         return (f"{head}: not answered, an alignment elsewhere holds as many pairs ({len(other.associations)} "
-                f"against {len(pairs)})"), False, None
-    return f"{head}: answered there, nothing accepted everywhere", True, None
+                f"against {len(pairs)})"), False
+    return f"{head}: answered there, nothing accepted everywhere", True
 
 
 def georeference_prior_m(params: AssociationParams, common_frame: bool, verify: bool) -> float:

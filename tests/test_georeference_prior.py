@@ -97,7 +97,7 @@ def test_a_partial_alignment_near_a_wrong_georeference_is_overruled_by_the_true_
     # with the georeference right, both searches give one answer
     ans = _match(a, b, b.positions, common=True)
     assert ans.accepted and ans.prior == "georeference 50 m: the same answer as everywhere"
-    assert ans.georeference_off_m is None
+    assert ans.georeference_off_m is not None and ans.georeference_off_m < 5.0
 
 
 def test_the_answer_near_the_georeference_needs_more_pairs_than_any_alignment_elsewhere():
@@ -108,11 +108,11 @@ def test_the_answer_near_the_georeference_needs_more_pairs_than_any_alignment_el
     elsewhere = dataclasses.replace(everywhere, best=dataclasses.replace(
         near.best, transform=Sim3(np.eye(3), np.array([200.0, 0.0, 0.0])),
         associations=np.zeros((len(near.best.associations), 2), np.int64)))
-    said, used, _ = reconcile_near(50.0, near, elsewhere, b.positions, 3.0)
+    said, used = reconcile_near(50.0, near, elsewhere, b.positions, 3.0)
     assert not used and said.startswith("georeference 50 m: not answered, an alignment elsewhere holds as many")
     refused_near = dataclasses.replace(near, accepted=False)
     assert reconcile_near(50.0, refused_near, everywhere, b.positions, 3.0) == ("georeference 50 m: refused there",
-                                                                               False, None)
+                                                                               False)
 
 
 def test_an_answer_beyond_the_prior_is_not_one_of_its_chance_test():
@@ -199,6 +199,26 @@ def test_heights_on_another_datum_change_neither_the_chance_nor_the_answer(tmp_p
     assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "m"),
                  "--no-plot"]) == 0
     assert re.search(r"lie 4[12]\d m below those of A", caplog.text) and "not on one datum" in caplog.text
+
+
+def test_match_names_georeferences_that_disagree_whichever_search_answered(tmp_path, caplog):
+    """B's georeference 200 m off (a shifted origin, another datum): the search near it finds nothing, the search
+    everywhere finds the true alignment, and `match` says the two georeferences disagree (before, only an answer
+    near the georeference that the search everywhere overruled was named; this one passed in silence)."""
+    a, b = read_landmark_map(DATA / "w241_autumn.sosmap"), read_landmark_map(DATA / "w241_summer_130.sosmap")
+    moved = _moved(b.positions, 200.0, 0.0, 0.0)
+    write_landmark_map(tmp_path / "a.sosmap", dataclasses.replace(a, epsg=32617))
+    write_landmark_map(tmp_path / "b.sosmap", dataclasses.replace(b, epsg=32617, positions=moved,
+                                                                  origin=np.asarray(b.origin) + [200.0, 0, 0]))
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "m"),
+                 "--no-plot"]) == 0
+    said = re.search(r"b\.sosmap: the answer puts it (\d+) m from where its georeference does", caplog.text)
+    assert said and 190 <= int(said.group(1)) <= 210 and "georeferences disagree" in caplog.text
+    caplog.clear()  # the same maps where they belong: nothing to say
+    write_landmark_map(tmp_path / "b2.sosmap", dataclasses.replace(b, epsg=32617))
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b2.sosmap"), "--out", str(tmp_path / "m2"),
+                 "--no-plot"]) == 0
+    assert "georeferences disagree" not in caplog.text
 
 
 def test_maps_in_two_epsg_codes_are_named(tmp_path, caplog):

@@ -297,6 +297,19 @@ def alignment_png(result: MatchResult) -> bytes:
 MAX_DATUM_DIFFERENCE_M = 110.0
 
 
+def _warn_georeferences(ans: Any, path_b: str | Path, radius_m: float) -> None:
+    """Warn when an accepted alignment of two maps in one EPSG moves B horizontally by more than the radius the
+    georeference is trusted to (`association.georeference_prior_m`; GPS puts a camera within metres): the answer
+    stands (it was found over every placement of B, or near the georeference and confirmed there), but the two
+    maps' georeferences disagree, and a merge or a GIS layer of either inherits that. 0: no such radius, no
+    warning."""
+    off = ans.georeference_off_m
+    if radius_m > 0 and off is not None and off > radius_m:
+        log.warning("%s: the answer puts it %.0f m from where its georeference does (median of its paired "
+                    "landmarks; %s): the two maps' georeferences disagree (another datum, a shifted origin, or "
+                    "poses of another site?)", path_b, off, ans.prior)
+
+
 def _warn_height_datums(ans: Any, points_b: np.ndarray, path_b: str | Path) -> None:
     """Warn when an accepted alignment of two maps in one EPSG moves B's landmarks vertically by more than two
     height datums can differ (MAX_DATUM_DIFFERENCE_M): the search and the prior are horizontal, so it still finds
@@ -365,9 +378,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
                          exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try,
                          near_try=derivation.near_try)
-        if ans.georeference_off_m is not None:  # the maps' georeferences disagree by more than the radius
-            log.warning("%s: the answer is the alignment found over every placement of B", ans.prior)
         if common and ans.accepted:
+            _warn_georeferences(ans, b, params.association.georeference_prior_m)
             _warn_height_datums(ans, lb.positions, b)
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
