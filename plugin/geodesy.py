@@ -68,3 +68,52 @@ def topocentric_to_grid(enu: np.ndarray, origin_lla: tuple[float, float, float],
     u, _, vt = np.linalg.svd(jac)
     rotations = u @ vt
     return out, rotations, int(epsg)
+
+
+# Earth-centred, Earth-fixed (EPSG:4978) camera centres lie at the Earth's radius (6,356.8 km at the poles to
+# 6,378.1 km at the equator) plus their height; a survey flies below 10 km
+ECEF_RADIUS_RANGE_M = (6_356_752.0 - 1_000.0, 6_378_137.0 + 10_000.0)
+# ... and a mapping camera looks down: towards the Earth's centre, within this angle (oblique surveys included)
+ECEF_VIEW_LIMIT_DEG = 60.0
+
+
+def looks_like_ecef(centers: np.ndarray, rotations: np.ndarray) -> bool:
+    """Whether poses of an unnamed frame are Earth-centred (ECEF) coordinates, as COLMAP's model_aligner writes
+    them with GPS references (`--alignment_type ecef`): every camera centre at the Earth's radius, and the cameras
+    looking towards the Earth's centre (a frame whose northing happens to be ~6,370 km has its cameras looking
+    along -z instead, far from the radial direction)."""
+    c = np.asarray(centers, np.float64).reshape(-1, 3)
+    if not len(c):
+        return False
+    radius = np.linalg.norm(c, axis=1)
+    if not np.all((radius >= ECEF_RADIUS_RANGE_M[0]) & (radius <= ECEF_RADIUS_RANGE_M[1])):
+        return False
+    view = np.asarray(rotations, np.float64).reshape(-1, 3, 3)[:, :, 2]  # world_from_camera: the optical axis
+    down = -c / radius[:, None]
+    cos = np.sum(view * down, axis=1)
+    return bool(np.median(cos) >= math.cos(math.radians(ECEF_VIEW_LIMIT_DEG)))
+
+
+def ecef_to_grid(centers: np.ndarray, rotations: np.ndarray,
+                 epsg: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """ECEF camera centres and world_from_camera rotations -> (grid easting, northing, ellipsoidal height (N,3),
+    grid_from_camera rotations, EPSG code: the UTM zone of their median position unless given). Exact through
+    pyproj; each camera's grid_from_ecef rotation is the polar factor of the conversion's local Jacobian, as in
+    `topocentric_to_grid`."""
+    from pyproj import Transformer
+
+    c = np.asarray(centers, np.float64).reshape(-1, 3)
+    ecef_to_geo = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    lon, lat, _ = ecef_to_geo.transform(c[:, 0], c[:, 1], c[:, 2])
+    epsg = epsg or utm_epsg(float(np.median(lat)), float(np.median(lon)))
+    geo_to_grid = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
+
+    def grid(points: np.ndarray) -> np.ndarray:
+        lo, la, h = ecef_to_geo.transform(points[:, 0], points[:, 1], points[:, 2])
+        e, n = geo_to_grid.transform(lo, la)
+        return np.column_stack([e, n, h])
+
+    out = grid(c)
+    jac = np.stack([(grid(c + 0.5 * np.eye(3)[k]) - grid(c - 0.5 * np.eye(3)[k])) for k in range(3)], axis=2)
+    u, _, vt = np.linalg.svd(jac)
+    return out, (u @ vt) @ np.asarray(rotations, np.float64).reshape(-1, 3, 3), int(epsg)

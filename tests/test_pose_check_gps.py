@@ -1,6 +1,7 @@
-"""The poses against the images' own GPS fixes (`plugin.pose_check.gps`, the map's pose check): poses not in metres
-(feet, an unscaled reconstruction) are refused, a georeference in the wrong UTM zone or hemisphere is named, and
-good poses pass, on arrays and on a rendered flight with EXIF geotags."""
+"""The poses' unit and frame: against the images' own GPS fixes (`plugin.pose_check.gps`, the map's pose check),
+poses not in metres (feet, an unscaled reconstruction) are refused, a georeference in the wrong UTM zone or
+hemisphere is named, and good poses pass, on arrays and on a rendered flight with EXIF geotags; Earth-centred
+(ECEF) poses, as COLMAP's model_aligner writes them, are mapped in their UTM zone (`plugin.geodesy`)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sosmatch.database.poses import read_poses_csv, write_poses_csv
-from sosmatch.plugin.geodesy import topocentric_to_grid
+from sosmatch.plugin.geodesy import ECEF_RADIUS_RANGE_M, ecef_to_grid, looks_like_ecef, topocentric_to_grid
 from sosmatch.plugin.geometry import Poses
 from sosmatch.plugin.params import PoseCheckParams
 from sosmatch.plugin.pose_check.gps import compare_with_gps
@@ -173,3 +174,46 @@ def test_a_path_that_does_not_follow_the_fixes_is_named_not_given_a_unit() -> No
         verdict = judge_gps(gps, PoseCheckParams())
         assert gps is not None and gps.explained < 0.5
         assert not verdict.refusals and "does not follow" in verdict.warnings[0]
+
+
+def _ecef(flight: Path) -> Poses:
+    """The flight's true poses in Earth-centred coordinates (EPSG:4978), through its geotags' origin."""
+    from pyproj import Transformer
+
+    poses, _ = read_poses_csv(flight / "poses.csv")
+    config = json.loads((flight / "session.json").read_text())["config"]
+    half = config["world_size_m"] / 2
+    lat, lon = (math.radians(v) for v in config["geotag_origin_latlon"])
+    origin = np.array(Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(
+        math.degrees(lon), math.degrees(lat), 0.0))
+    ecef_from_enu = np.array([[-math.sin(lon), -math.sin(lat) * math.cos(lon), math.cos(lat) * math.cos(lon)],
+                              [math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat) * math.sin(lon)],
+                              [0.0, math.cos(lat), math.sin(lat)]])
+    centers = origin + (poses.centers - [half, half, 0.0]) @ ecef_from_enu.T
+    return Poses(poses.names, np.einsum("ij,njk->nik", ecef_from_enu, poses.rotations), centers)
+
+
+def test_earth_centred_poses_are_mapped_in_their_utm_zone(geotagged: Path, tmp_path: Path, capsys) -> None:
+    """COLMAP's model_aligner with GPS references writes ECEF coordinates: metres, but z is not up. Before, the map
+    was refused as a 42 deg tilted block and "not in metres" (0.74 x, the track's horizontal shadow); now the poses
+    are converted to their UTM zone exactly and everything downstream sees a level frame."""
+    ecef = _ecef(geotagged)
+    utm = read_poses_csv(_write(geotagged, tmp_path / "utm.csv", epsg=0))
+    assert looks_like_ecef(ecef.centers, ecef.rotations)
+    assert not looks_like_ecef(utm[0].centers, utm[0].rotations)
+    # a local frame whose "northing" is at the Earth's radius, cameras looking along -z: not ECEF
+    far_north = utm[0].centers + [0.0, 6_370_000.0 - utm[0].centers[:, 1].mean(), 0.0]
+    radius = np.linalg.norm(far_north, axis=1)
+    assert np.all((radius >= ECEF_RADIUS_RANGE_M[0]) & (radius <= ECEF_RADIUS_RANGE_M[1]))
+    assert not looks_like_ecef(far_north, utm[0].rotations)
+    grid, rotations, epsg = ecef_to_grid(ecef.centers, ecef.rotations)
+    assert epsg == utm[1] == 32632
+    np.testing.assert_allclose(grid, utm[0].centers, atol=2e-3)
+    np.testing.assert_allclose(rotations, utm[0].rotations, atol=1e-6)
+    write_poses_csv(tmp_path / "ecef.csv", ecef, epsg=0)
+    out = tmp_path / "check.json"
+    assert main(["check-poses", "--images", str(geotagged / "images"), "--poses", str(tmp_path / "ecef.csv"),
+                 "--camera", str(geotagged / "cameras.txt"), "--out", str(out), "-q"]) == 0
+    figures = json.loads(out.read_text())["pose_check"]
+    assert figures["gps"]["scale"] == pytest.approx(1.0, abs=0.05) and figures["gps"]["offset_m"] < 5.0
+    assert capsys.readouterr().out.startswith("ok:")

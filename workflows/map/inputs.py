@@ -20,6 +20,7 @@ from ...database.opensfm import is_opensfm
 from ...database.outputs import check_finished, sha256_file
 from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
+from ...plugin.geodesy import ecef_to_grid, looks_like_ecef
 from ...plugin.geometry import Camera, Poses
 from ...plugin.keyframes import flight_order
 
@@ -110,6 +111,14 @@ def load_inputs(
         if camera is None and beside.is_file():
             cam_from_poses = _one_camera(read_cameras_txt(beside), beside)
             sources["camera"] = str(beside)
+    if not epsg and looks_like_ecef(pose_list.centers, pose_list.rotations):
+        # COLMAP's model_aligner with GPS references writes Earth-centred coordinates: metres, but z is not up,
+        # so every level-frame step (keyframes' heights, the ground, the plausibility) would be wrong. The same
+        # poses in their UTM zone are exact
+        grid, rotations, epsg = ecef_to_grid(pose_list.centers, pose_list.rotations)
+        pose_list = Poses(pose_list.names, rotations, grid)
+        log.info("%s: the poses are Earth-centred (ECEF) coordinates; mapped in UTM, EPSG:%d", poses, epsg)
+        sources["poses_frame"] = f"ECEF, converted to EPSG:{epsg}"
     if camera is not None:
         cam = read_camera_file(camera)
         sources["camera"] = str(camera)
