@@ -41,12 +41,10 @@ def topocentric_to_grid(enu: np.ndarray, origin_lla: tuple[float, float, float],
                         epsg: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Points of a topocentric frame (x east, y north, z up at `origin_lla` = latitude, longitude, ellipsoidal
     height; OpenSfM's world frame with GPS) -> (grid easting, northing, height (N,3), grid_from_topocentric
-    rotations (N,3,3), EPSG code: the UTM zone of the origin unless given). Exact through ECEF (pyproj); the
-    rotations are the polar factors of the local Jacobian (meridian convergence; the grid's scale is ~1e-4)."""
+    rotations (N,3,3), EPSG code: the UTM zone of the origin unless given). Exact through ECEF (`ecef_to_grid`)."""
     from pyproj import Transformer
 
     lat0, lon0, h0 = (float(v) for v in origin_lla)
-    epsg = epsg or utm_epsg(lat0, lon0)
     p = np.asarray(enu, dtype=np.float64).reshape(-1, 3)
     to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
     x0 = np.array(to_ecef.transform(lon0, lat0, h0))
@@ -54,20 +52,8 @@ def topocentric_to_grid(enu: np.ndarray, origin_lla: tuple[float, float, float],
     ecef_from_enu = np.array([[-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
                               [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
                               [0.0, math.cos(la), math.sin(la)]])
-    ecef_to_geo = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
-    geo_to_grid = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
-
-    def grid(points: np.ndarray) -> np.ndarray:
-        ecef = x0 + points @ ecef_from_enu.T
-        lon, lat, h = ecef_to_geo.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
-        e, n = geo_to_grid.transform(lon, lat)
-        return np.column_stack([e, n, h])
-
-    out = grid(p)
-    jac = np.stack([(grid(p + 0.5 * np.eye(3)[k]) - grid(p - 0.5 * np.eye(3)[k])) for k in range(3)], axis=2)
-    u, _, vt = np.linalg.svd(jac)
-    rotations = u @ vt
-    return out, rotations, int(epsg)
+    return ecef_to_grid(x0 + p @ ecef_from_enu.T, np.broadcast_to(ecef_from_enu, (len(p), 3, 3)),
+                        epsg or utm_epsg(lat0, lon0))
 
 
 # Earth-centred, Earth-fixed (EPSG:4978) camera centres lie at the Earth's radius (6,356.8 km at the poles to
