@@ -213,7 +213,7 @@ def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog)
         tele.write_text("FileName,Heading,PitchAngle,RollAngle,GPSLatitude,GPSLongitude,GPSAltitude\n" + rows)
 
     shifted(3.0)  # a PPK correction of 3 m north, 12.5 m in height
-    with caplog.at_level(logging.INFO):
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
         res = pfe.poses_from_images(img, telemetry=tele)
     assert res.summary["position_sources"] == {"telemetry CSV": 4}
     moved = res.poses.centers - exif.poses.centers
@@ -222,7 +222,7 @@ def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog)
     assert any("differ by 3.0 m" in r.getMessage() and r.levelno == logging.INFO for r in caplog.records)
     caplog.clear()
     shifted(2000.0)  # the log of another flight with the same file names
-    with caplog.at_level(logging.INFO):
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
         pfe.poses_from_images(img, telemetry=tele)
     assert any("another flight" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
 
