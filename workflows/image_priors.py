@@ -49,10 +49,7 @@ attitude is noisy (the remaining 138 px at ~70 m above ground is ~11 m on the gr
 frame, no better explained by a height scale, a timing shift of the positions or the neighbouring rows'
 attitude), so refine such poses (`pose_refinement`) with an attitude sigma of ~5 degrees.
 
-Intrinsics: fx = FocalLength [mm] * FocalPlaneXResolution [px/mm] * (file width / ExifImageWidth): EXIF
-describes the sensor readout, and images are often downscaled afterwards (Seneca: 4000x3000 -> 1200x900).
-Without a focal-plane resolution, `sensor_width_mm` (fx = f / sensor width * file width) or the 35 mm
-equivalent focal length are used. The 35 mm figure refers to the diagonal of the sensor's full frame, not of a
+Intrinsics: `image_cameras` (one camera per make, model and image size, from the EXIF focal length).
 """
 
 from __future__ import annotations
@@ -85,13 +82,17 @@ from ..plugin.geodesy import geographic_to_grid, topocentric_to_grid, utm_epsg  
 from ..plugin.geometry import Camera
 from ..plugin.gps_track import FROZEN_SPREAD_M, OFF_NADIR_LIMIT_DEG, frozen_fix, gps_jumps, off_nadir_deg
 from ..plugin.keyframes import flight_order
+from .image_cameras import (  # noqa: F401 (re-exported: their home before image_cameras)
+    EXIF_FOCAL_TOLERANCE,
+    FULL_FRAME_DIAGONAL_MM,
+    camera_from_metadata,
+    camera_groups,
+    full_frame_diagonal_px,
+    make_model,
+)
 
 log = logging.getLogger(__name__)
 
-FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
-# Aspect ratios (long side / short side) of photo sensors' full frames; other aspects are crops of a 4:3 frame.
-SENSOR_ASPECTS = (4.0 / 3.0, 3.0 / 2.0)
-CROPPED_FROM_ASPECT = 4.0 / 3.0
 
 
 def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
@@ -109,30 +110,6 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
     return [Path(p) for p in images]
 
 
-def full_frame_diagonal_px(width: int, height: int, sensor_aspect: float | None = None) -> float:
-    """Diagonal, in pixels of this image, of the sensor frame a 35 mm equivalent focal length refers to.
-
-    The image is the largest crop of a frame of `sensor_aspect` (long / short side; default: the image's own
-    aspect when it is a photo sensor's, 4:3 or 3:2, else 4:3) with the same pixel pitch: a wider image keeps the
-    frame's long side, a squarer one its short side."""
-    long_side, short_side = max(width, height), min(width, height)
-    aspect = long_side / short_side
-    if sensor_aspect is None:
-        sensor_aspect = next((a for a in SENSOR_ASPECTS if abs(aspect - a) <= 0.01 * a), CROPPED_FROM_ASPECT)
-    if aspect >= sensor_aspect:
-        frame = (long_side, long_side / sensor_aspect)
-    else:
-        frame = (short_side * sensor_aspect, short_side)
-    return math.hypot(*frame)
-
-
-# How far a focal length may lie from the EXIF one (`camera_from_metadata`) before it is named: EXIF focal lengths
-# are nominal and the 35 mm equivalent whole millimetres (a few %). Beyond it, structure from motion's focal length
-# is not a calibration but a degenerate block (over flat ground a nadir camera's focal length trades against its
-# height: 24 % off on a 26-frame, 320 px synthetic flight of one line and a half; within 0.1 % on 90-frame flights;
-# `poses.checks`), and a given camera file is wrong (landmark heights scale with it: 15-30 m off at 100 m for the
-# thirteenth sweep's 15-30 %; `map.inputs.focal_against_exif`)
-EXIF_FOCAL_TOLERANCE = 0.10
 # A telemetry CSV's positions replace the EXIF GPS (module doc). A copy of the same receiver's agrees to
 # centimetres (Seneca: < 1 mm), a PPK / RTK solution moves a consumer fix by metres: beyond TELEMETRY_NOTE_M
 # (median) the log says by how much; beyond TELEMETRY_WARN_M, the distance another datum (100-200 m) or another
@@ -140,40 +117,6 @@ EXIF_FOCAL_TOLERANCE = 0.10
 # reason)
 TELEMETRY_NOTE_M = 1.0
 TELEMETRY_WARN_M = 50.0
-
-
-def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = None) -> tuple[Camera, str]:
-    """Pinhole intrinsics of one image from its EXIF, scaled to the file's actual size, and the source used."""
-    w, h = meta.width, meta.height
-    if meta.focal_mm and sensor_width_mm:
-        fx = meta.focal_mm / sensor_width_mm * w
-        return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLength + given sensor width"
-    if meta.focal_mm and meta.focal_plane_px_per_mm:
-        ref_w, ref_h = meta.exif_size if meta.exif_size else (w, h)
-        px_per_mm_x, px_per_mm_y = meta.focal_plane_px_per_mm
-        source = "FocalLength + FocalPlaneX/YResolution (scaled to file size)"
-        if meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01 and abs(ref_h / ref_w - w / h) <= 0.01:
-            # the readout the EXIF describes, turned by 90 degrees (a portrait frame rotated by software, which
-            # leaves the EXIF as the camera wrote it): its width is the readout's height
-            ref_w, ref_h, px_per_mm_x, px_per_mm_y = ref_h, ref_w, px_per_mm_y, px_per_mm_x
-            source += f", the {meta.exif_size[0]}x{meta.exif_size[1]} readout turned by 90 degrees"
-        elif meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01:
-            log.warning("%s: EXIF size %dx%d and file %dx%d differ in aspect (cropped?): scaling by width",
-                        meta.path.name, ref_w, ref_h, w, h)
-        scale = w / ref_w
-        fx = meta.focal_mm * px_per_mm_x * scale
-        fy = meta.focal_mm * px_per_mm_y * scale
-        return Camera(w, h, fx, fy, w / 2.0, h / 2.0), source
-    if meta.focal_35mm:
-        fx = meta.focal_35mm / FULL_FRAME_DIAGONAL_MM * full_frame_diagonal_px(w, h)
-        return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLengthIn35mmFilm (full-frame diagonal)"
-    if meta.focal_mm:
-        advice = "give the sensor width (--sensor-width-mm)"
-    else:  # a sensor width needs a focal length in mm to go with it: without one it cannot help
-        advice = ("the images carry no focal length at all (EXIF stripped?): take poses and intrinsics from "
-                  "structure from motion (`sosmatch poses`), or give `sosmatch map` a pose CSV and --camera")
-    raise InputError("no usable focal length in EXIF (FocalLength with FocalPlaneXResolution, or "
-                     f"FocalLengthIn35mmFilm); {advice}", meta.path)
 
 
 def _course_from_neighbours(east: np.ndarray, north: np.ndarray) -> np.ndarray:
@@ -258,42 +201,6 @@ def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
             t[~ok] = np.interp(idx[~ok], idx[ok], t[ok])
         return t - t.min(), "EXIF DateTimeOriginal" + ("" if ok.all() else " (interpolated where missing)")
     return idx, "capture order (no EXIF DateTimeOriginal)"
-
-
-def _camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
-                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str], list[str]]:
-    """One camera per make + model + image size (the median focal length of its images), the camera of every
-    image and the intrinsics source of each camera. Without any usable focal length the camera gets COLMAP's
-    default guess (1.2 x the longer side) with a warning (also returned, last), or InputError when `strict`."""
-    keys = sorted({m.camera_key for m in metas}, key=lambda k: [m.camera_key for m in metas].index(k))
-    index = np.array([keys.index(m.camera_key) for m in metas], dtype=np.int64)
-    cameras, sources, warnings = [], [], []
-    for g, key in enumerate(keys):
-        members = [m for m, i in zip(metas, index) if i == g]
-        found = []
-        for m in members:
-            try:
-                found.append(camera_from_metadata(m, sensor_width_mm))
-            except InputError:
-                if strict:
-                    raise
-        w, h = key[2], key[3]
-        if not found:
-            f = 1.2 * max(w, h)
-            warnings.append(f"{f'{key[0]} {key[1]}'.strip() or 'camera'} ({w}x{h}, {len(members)} images): no usable "
-                            f"focal length in EXIF; starting from {f:.0f} px (structure from motion estimates it)")
-            log.warning("%s", warnings[-1])
-            cameras.append(Camera(w, h, f, f, w / 2.0, h / 2.0))
-            sources.append("none in EXIF (1.2 x the longer side)")
-            continue
-        fxs = np.array([c.fx for c, _ in found])
-        fys = np.array([c.fy for c, _ in found])
-        if fxs.max() > 1.01 * fxs.min():
-            log.warning("focal lengths differ between images (%.1f..%.1f px): using the median", fxs.min(), fxs.max())
-        c0 = found[0][0]
-        cameras.append(Camera(c0.width, c0.height, float(np.median(fxs)), float(np.median(fys)), c0.cx, c0.cy))
-        sources.append(found[0][1])
-    return cameras, index, sources, warnings
 
 
 def check_prior_options(mount: str | np.ndarray, sensor_width_mm: float | None, epsg: int | None,
@@ -453,7 +360,7 @@ def read_image_priors(
                                                 rotations, kind != "course", [m.path.name for m in metas])
     for text in track_warnings:
         log.warning("%s", text)
-    cameras, camera_index, intrinsics_sources, camera_warnings = _camera_groups(metas, sensor_width_mm,
+    cameras, camera_index, intrinsics_sources, camera_warnings = camera_groups(metas, sensor_width_mm,
                                                                                 strict_intrinsics)
     m0 = metas[0]
     summary = {
@@ -476,11 +383,11 @@ def read_image_priors(
         "meridian_convergence_deg": float(np.mean(north_az)),
         "intrinsics_source": intrinsics_sources[0],
         "warnings": track_warnings + camera_warnings,  # those a consumer's own record must count (poses.json)
-        "cameras": [{"make_model": _make_model(next(m for m, i in zip(metas, camera_index) if i == g)),
+        "cameras": [{"make_model": make_model(next(m for m, i in zip(metas, camera_index) if i == g)),
                      "images": int(np.sum(camera_index == g)), "width": c.width, "height": c.height,
                      "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "intrinsics_source": intrinsics_sources[g]}
                     for g, c in enumerate(cameras)],
-        "make_model": _make_model(m0),
+        "make_model": make_model(m0),
         "damaged_metadata": {m.path.name: m.problems for m in damaged},
         **track_facts,
     }
@@ -517,7 +424,3 @@ def _track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, time
     facts = {"gps_frozen": frozen, "gps_jumps": [[names[i], names[j], round(d, 1)] for i, j, d, _ in jumps],
              "tags_median_off_nadir_deg": median_off}
     return out, facts
-
-
-def _make_model(meta: ImageMetadata) -> str:
-    return meta.model if meta.model.startswith(meta.make) else f"{meta.make} {meta.model}".strip()

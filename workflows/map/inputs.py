@@ -168,13 +168,13 @@ def load_inputs(
 
 def focal_against_exif(inputs: MapInputs) -> str | None:
     """A warning when the camera's focal length differs from the one the images' EXIF gives (FocalLength with
-    the focal plane resolution, or FocalLengthIn35mmFilm; `image_priors.camera_from_metadata`) by more than
-    `image_priors.EXIF_FOCAL_TOLERANCE`, naming both and the camera file; None when they agree or the EXIF has no
+    the focal plane resolution, or FocalLengthIn35mmFilm; `image_cameras.camera_from_metadata`) by more than
+    `image_cameras.EXIF_FOCAL_TOLERANCE`, naming both and the camera file; None when they agree or the EXIF has no
     focal length. A landmark's height scales with the focal length (the flying height above it is f x baseline /
     disparity), while the horizontal map and its matches stay intact. The first, middle and last images are read:
     one camera per flight."""
     from ...database.exif import read_image_metadata
-    from ..image_priors import EXIF_FOCAL_TOLERANCE, camera_from_metadata
+    from ..image_cameras import EXIF_FOCAL_TOLERANCE, camera_from_metadata
 
     paths = inputs.image_paths
     if not paths:

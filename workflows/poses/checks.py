@@ -12,7 +12,8 @@ from ...plugin.geometry import Camera, Poses
 from ...plugin.multisession import Sim3
 from ...plugin.params import SfmParams
 from .. import sfm
-from ..image_priors import EXIF_FOCAL_TOLERANCE, ImagePriors
+from ..image_cameras import EXIF_FOCAL_TOLERANCE
+from ..image_priors import ImagePriors
 from .result import _listing
 
 NOMINAL_HEIGHT_M = 100.0
