@@ -195,6 +195,18 @@ def test_an_oblique_survey_looks_ahead_and_its_renders_are_true_perspective():
         SynthConfig(**{**SMALL, "camera_tilt_deg": 60.0}).validate()
 
 
+def test_evaluate_measures_how_oblique_a_session_is(session_dir, tmp_path):
+    """`evaluate` names an oblique session (its footprint-IoU truth counts far-field overlap): the keyframes' median
+    angle from nadir, ~30 deg for `--camera-tilt 30`, ~1 deg for the nadir session."""
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows.evaluate.ground_truth import load_ground_truth
+
+    tilted = tmp_path / "T"
+    run(tilted, SynthConfig(**{**SMALL, "camera_tilt_deg": 30.0, "altitude_m": 40.0}))
+    assert abs(load_ground_truth(Params(), tilted).off_nadir_deg - 30.0) < 4.0
+    assert load_ground_truth(Params(), session_dir).off_nadir_deg < 4.0
+
+
 def test_winter_and_summer_differ_in_look_but_not_in_geometry():
     cfg = SynthConfig(**SMALL)
     world = get_world(cfg.world_config())

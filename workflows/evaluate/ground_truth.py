@@ -38,6 +38,7 @@ class GroundTruthSession:
     all_centers: np.ndarray
     footprints: np.ndarray  # (K,) shapely polygons
     camera: Any = None  # the session's camera (cameras.txt)
+    off_nadir_deg: float = 0.0  # the keyframes' median viewing angle from straight down
 
 
 def load_ground_truth(params: Params, session: str | Path, dem: str | Path | None = None,
@@ -52,8 +53,11 @@ def load_ground_truth(params: Params, session: str | Path, dem: str | Path | Non
     keys = select_keyframes(poses.centers, params.keyframes.interval_m)
     terrain = terrain_of_session(session, dem, ground_height)
     polys = footprint_polygons(camera, poses.rotations[keys], poses.centers[keys], terrain)
+    from ...plugin.gps_track import off_nadir_deg
+
     return GroundTruthSession(session, [poses.names[k] for k in keys], keys, poses.centers[keys],
-                              list(poses.names), poses.centers, polys, camera)
+                              list(poses.names), poses.centers, polys, camera,
+                              float(np.median(off_nadir_deg(poses.rotations[keys]))) if len(keys) else 0.0)
 
 
 def check_same_ground_truth_frame(session_a: Path, session_b: Path) -> None:
