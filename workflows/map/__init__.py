@@ -1,8 +1,10 @@
 """`sosmatch map`: images + fixed poses -> a mapped session directory (SOS-Match section 1).
 
 Stages (docs/ARCHITECTURE.md, "The data walk"):
-1. inputs: poses from a pose CSV (quaternion or yaw/pitch/roll), a COLMAP model or a `sosmatch synth` session;
-   intrinsics from a cameras file, the COLMAP model or the synth session; images matched to poses by name;
+1. inputs: poses from a pose CSV (quaternion or yaw/pitch/roll), a COLMAP model, an OpenSfM reconstruction or a
+   `sosmatch synth` session (Earth-centred ones converted to their UTM zone); intrinsics from a cameras file, the
+   COLMAP model or the synth session; images matched to poses by name; then the poses checked against the images
+   (their matches, their GPS: `workflows.pose_check`);
 2. keyframes every `keyframes.interval_m` of travel;
 3. per keyframe (cached): segmentation, mask description, image-motion statistics to the previous keyframe;
 4. tracking (method.md 1.5);
