@@ -116,11 +116,11 @@ def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
         return v  # its scale and offset are no measurement of the poses' unit or georeference
     # a few fixes measure their own noise too small (3 of 5 agreeing by chance: 0.5 m for a 3 m receiver refused
     # true poses 19 % of the time, the diff review): a refusal needs MIN_FIXES_TO_REFUSE inliers, fewer warn
-    proven = gps.inliers >= MIN_FIXES_TO_REFUSE
-    if _beyond(float(np.log(gps.scale)), gps.scale_sigma, float(np.log1p(limits.max_gps_scale_error))) and not proven:
+    off_scale = _beyond(float(np.log(gps.scale)), gps.scale_sigma, float(np.log1p(limits.max_gps_scale_error)))
+    if off_scale and gps.inliers < MIN_FIXES_TO_REFUSE:
         v.warnings.append(f"poses vs images' GPS: the camera path is {gps.scale_text} x as long as the images' own "
                           f"GPS track, but only {gps.inliers} fixes agree: too few to prove the poses' unit")
-    elif _beyond(float(np.log(gps.scale)), gps.scale_sigma, float(np.log1p(limits.max_gps_scale_error))):
+    elif off_scale:
         unit = gps.unit_factor
         cause = (f"poses in {unit}?" if unit else
                  "an unscaled reconstruction? georeference it (COLMAP's model_aligner) or let `sosmatch poses` make "
