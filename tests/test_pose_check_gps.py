@@ -217,3 +217,18 @@ def test_earth_centred_poses_are_mapped_in_their_utm_zone(geotagged: Path, tmp_p
     figures = json.loads(out.read_text())["pose_check"]
     assert figures["gps"]["scale"] == pytest.approx(1.0, abs=0.05) and figures["gps"]["offset_m"] < 5.0
     assert capsys.readouterr().out.startswith("ok:")
+
+
+def test_a_handful_of_fixes_warns_but_never_refuses() -> None:
+    """rev14: with 5 fixes the robust fit kept 3 that agreed by chance, measured their noise far too small and
+    refused true poses 19 % of the time. Fewer than MIN_FIXES_TO_REFUSE agreeing fixes only warn, however clear."""
+    from sosmatch.plugin.pose_check.verdict import MIN_FIXES_TO_REFUSE
+
+    truth = _lawnmower(lines=1, per_line=MIN_FIXES_TO_REFUSE - 1, length=60.0)
+    gps = compare_with_gps(truth * 3.28084, _fixes(truth, 0.5, seed=4), georeferenced=False)
+    verdict = judge_gps(gps, PoseCheckParams())
+    assert gps is not None and gps.inliers < MIN_FIXES_TO_REFUSE
+    assert not verdict.refusals and "too few to prove" in verdict.warnings[0]
+    many = _lawnmower(lines=2, per_line=MIN_FIXES_TO_REFUSE, length=60.0)
+    assert judge_gps(compare_with_gps(many * 3.28084, _fixes(many, 0.5, seed=4), georeferenced=False),
+                     PoseCheckParams()).refusals
