@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import math
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +72,7 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
     if col["name"] is None:
         raise InputError(f"telemetry header needs an image name column (one of {_TELEMETRY_KEYS['name']})", path, 1)
     out: dict[str, dict[str, float]] = {}
+    placeholders = []  # rows whose position is no fix (module doc of `_position_is_a_fix`)
     for lineno, row in enumerate(rows[1:], start=2):
         if not row or not "".join(row).strip():
             continue
@@ -82,5 +84,23 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
                 values[key] = float(row[idx] if delimiter == "," else row[idx].replace(",", "."))
             except ValueError:
                 raise InputError(f"non-numeric {header[idx]} value {row[idx]!r}", path, lineno) from None
+        had_position = "lat" in values or "lon" in values
+        values = {k: v for k, v in values.items() if math.isfinite(v)}  # "nan", "inf": no value
+        if had_position and not _position_is_a_fix(values):
+            placeholders.append(lineno)
+            for key in ("lat", "lon", "alt"):
+                values.pop(key, None)
         out[row[col["name"]].strip()] = values
+    if placeholders:
+        log.warning("%s: %d rows hold no GPS fix (lat/lon 0,0, missing or out of range, e.g. line %d: logged before "
+                    "the receiver's lock?): their images keep their own GPS", path, len(placeholders), placeholders[0])
     return out
+
+
+def _position_is_a_fix(values: dict[str, float]) -> bool:
+    """Whether a row's lat/lon is a fix: both present and in range, and not 0,0 (autopilot logs write 0,0 or leave
+    the fields empty until the receiver locks; taken as positions, such rows overrode the images' valid EXIF GPS
+    and put the flight in the Gulf of Guinea). Its altitude is dropped with it (then 0 as well, or stale)."""
+    lat, lon = values.get("lat"), values.get("lon")
+    return (lat is not None and lon is not None and abs(lat) <= 90.0 and abs(lon) <= 180.0
+            and not (lat == 0.0 and lon == 0.0))

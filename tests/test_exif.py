@@ -227,6 +227,27 @@ def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog)
     assert any("another flight" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
 
 
+def test_telemetry_rows_without_a_fix_leave_the_exif_gps(tmp_path, caplog):
+    """rev14/rev15: rows logged before the receiver's lock (lat/lon 0,0, "nan", empty) took precedence over the
+    images' valid EXIF GPS, put the flight at 0,0 and broke `poses-from-exif`. Such rows are no fix now: their
+    images keep their own GPS, and the log counts them."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(4):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)
+    exif = pfe.poses_from_images(img)
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,Heading,PitchAngle,RollAngle,GPSLatitude,GPSLongitude,GPSAltitude\n"
+                    "f0.jpg,90,0,0,0,0,0\nf1.jpg,90,0,0,nan,nan,nan\nf2.jpg,90,0,0,0.0,0.0,\n"
+                    f"f3.jpg,90,0,0,{47.0 + 3.0 / 111_320.0!r},{-99.0 + 3e-4!r},500\n")
+    with caplog.at_level(logging.WARNING, logger="sosmatch.database.telemetry_io"):
+        res = pfe.poses_from_images(img, telemetry=tele)
+    assert res.summary["position_sources"] == {"EXIF GPS": 3, "telemetry CSV": 1}
+    np.testing.assert_allclose(res.poses.centers[:3] - exif.poses.centers[:3], 0.0, atol=1e-6)
+    assert res.poses.centers[3, 1] - exif.poses.centers[3, 1] == pytest.approx(3.0, abs=0.05)
+    assert any("3 rows hold no GPS fix" in r.getMessage() for r in caplog.records)
+
+
 def test_missing_gps_is_a_clear_error(tmp_path, capsys):
     img = tmp_path / "images"
     img.mkdir()

@@ -259,16 +259,18 @@ def read_image_priors(
     moved = []  # telemetry positions against the same images' EXIF GPS (m, horizontal)
     for i, m in enumerate(metas):
         t = rows[i]
+        exif_alt = m.altitude if m.altitude is not None else np.nan
         if "lat" in t and "lon" in t:  # the user's file over the images' own tags (module doc)
             lat[i], lon[i] = t["lat"], t["lon"]
-            alt[i] = t.get("alt", m.altitude if m.altitude is not None else np.nan)
+            alt[i] = t.get("alt", exif_alt)
             pos_src["telemetry CSV"] += 1
             if m.has_gps:
                 moved.append(math.hypot((t["lat"] - m.latitude) * 111_320.0,
                                         (t["lon"] - m.longitude) * 111_320.0 * math.cos(math.radians(m.latitude))))
         elif m.has_gps:
             lat[i], lon[i] = m.latitude, m.longitude
-            alt[i] = m.altitude if m.altitude is not None else np.nan
+            # an image without an EXIF altitude keeps its telemetry altitude (a row with an altitude but no fix)
+            alt[i] = exif_alt if np.isfinite(exif_alt) else t.get("alt", np.nan)
             pos_src["EXIF GPS"] += 1
     if moved and np.median(moved) > TELEMETRY_NOTE_M:
         far = np.median(moved) > TELEMETRY_WARN_M
