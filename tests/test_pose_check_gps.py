@@ -18,7 +18,7 @@ from sosmatch.database.poses import read_poses_csv, write_poses_csv
 from sosmatch.plugin.geodesy import ECEF_RADIUS_RANGE_M, ecef_to_grid, looks_like_ecef, topocentric_to_grid
 from sosmatch.plugin.geometry import Poses
 from sosmatch.plugin.params import PoseCheckParams
-from sosmatch.plugin.pose_check.gps import compare_with_gps
+from sosmatch.plugin.pose_check.gps import compare_with_gps, stale_fixes
 from sosmatch.plugin.pose_check.verdict import judge_gps
 from sosmatch.tools.cli import main
 
@@ -41,7 +41,7 @@ def _fixes(centers_m: np.ndarray, sigma: float, seed: int = 0, yaw_deg: float = 
 @pytest.mark.parametrize("unit, factor", [("feet", 3.28084), ("centimetres", 100.0)])
 def test_poses_in_another_unit_are_refused_and_named(unit: str, factor: float) -> None:
     truth = _lawnmower()
-    gps = compare_with_gps(truth * factor, _fixes(truth, 2.0, yaw_deg=30.0), georeferenced=False)
+    gps = compare_with_gps(truth * factor, _fixes(truth, 2.0, yaw_deg=30.0))
     assert gps is not None and gps.scale == pytest.approx(factor, rel=0.02)
     assert gps.unit_factor == unit
     verdict = judge_gps(gps, PoseCheckParams())
@@ -50,7 +50,7 @@ def test_poses_in_another_unit_are_refused_and_named(unit: str, factor: float) -
 
 def test_an_unscaled_reconstruction_is_refused_without_a_unit() -> None:
     truth = _lawnmower()
-    gps = compare_with_gps(truth * 0.0731, _fixes(truth, 2.0, yaw_deg=-75.0), georeferenced=False)
+    gps = compare_with_gps(truth * 0.0731, _fixes(truth, 2.0, yaw_deg=-75.0))
     assert gps is not None and gps.unit_factor == ""
     refusal = judge_gps(gps, PoseCheckParams()).refusals[0]
     assert "0.07" in refusal and "unscaled reconstruction" in refusal
@@ -60,7 +60,7 @@ def test_metres_with_a_noisy_receiver_and_wrong_fixes_pass() -> None:
     truth = _lawnmower()
     fixes = _fixes(truth, 3.0, seed=1)
     fixes[::7] += 400.0  # one fix in seven far off (jumps): the robust fit leaves them out
-    gps = compare_with_gps(truth, fixes, georeferenced=False)
+    gps = compare_with_gps(truth, fixes)
     assert gps is not None and gps.scale == pytest.approx(1.0, abs=0.05)
     assert gps.inliers >= 0.8 * gps.fixes
     verdict = judge_gps(gps, PoseCheckParams())
@@ -70,7 +70,7 @@ def test_metres_with_a_noisy_receiver_and_wrong_fixes_pass() -> None:
 def test_a_short_flight_with_a_noisy_receiver_proves_no_scale() -> None:
     """20 % too long over a 30 m track with 6 m noise: the scale is uncertain, so no refusal on it."""
     truth = _lawnmower(lines=2, per_line=8, length=30.0, spacing=10.0)
-    gps = compare_with_gps(truth * 1.2, _fixes(truth, 6.0, seed=2), georeferenced=False)
+    gps = compare_with_gps(truth * 1.2, _fixes(truth, 6.0, seed=2))
     assert gps is not None and gps.scale_sigma > 0.1
     assert not judge_gps(gps, PoseCheckParams()).refusals
 
@@ -79,20 +79,20 @@ def test_no_comparison_without_enough_fixes_or_with_a_frozen_receiver() -> None:
     truth = _lawnmower()
     few = np.full((len(truth), 2), np.nan)
     few[:4] = truth[:4, :2]
-    assert compare_with_gps(truth, few, georeferenced=False) is None
+    assert compare_with_gps(truth, few) is None
     frozen = np.tile([[500_000.0, 4_500_000.0]], (len(truth), 1))
-    assert compare_with_gps(truth, frozen, georeferenced=False) is None
+    assert compare_with_gps(truth, frozen) is None
     assert not judge_gps(None, PoseCheckParams()).refusals
 
 
 def test_a_georeference_far_from_the_fixes_is_named() -> None:
     truth = _lawnmower() + np.array([500_000.0, 4_500_000.0, 0.0])
     fixes = _fixes(truth, 2.0, offset=(0.0, 0.0))
-    good = compare_with_gps(truth, fixes, georeferenced=True)
+    good = compare_with_gps(truth, fixes, fixes)
     assert good is not None and good.offset_m < 5.0
     assert not judge_gps(good, PoseCheckParams()).warnings
     south = truth + np.array([0.0, 10_000_000.0, 0.0])  # the same zone's southern false northing
-    far = compare_with_gps(south, fixes, georeferenced=True)
+    far = compare_with_gps(south, fixes, fixes)
     warning = judge_gps(far, PoseCheckParams()).warnings[0]
     assert "10,000 km" in warning and "hemisphere" in warning
     assert not judge_gps(far, PoseCheckParams()).refusals  # the map itself is sound: its georeference is named
@@ -104,7 +104,7 @@ def test_a_georeference_far_from_the_fixes_is_named() -> None:
 def test_the_scale_is_recovered_and_only_a_wrong_one_refused(scale: float, yaw: float, sigma: float,
                                                               seed: int) -> None:
     truth = _lawnmower()
-    gps = compare_with_gps(truth * scale, _fixes(truth, sigma, seed, yaw), georeferenced=False)
+    gps = compare_with_gps(truth * scale, _fixes(truth, sigma, seed, yaw))
     assert gps is not None
     assert abs(math.log(gps.scale / scale)) <= 3.0 * gps.scale_sigma + 1e-6
     refused = bool(judge_gps(gps, PoseCheckParams()).refusals)
@@ -170,7 +170,7 @@ def test_a_path_that_does_not_follow_the_fixes_is_named_not_given_a_unit() -> No
     truth = _lawnmower()
     for seed in range(3):
         shuffled = truth[np.random.default_rng(seed).permutation(len(truth))]
-        gps = compare_with_gps(shuffled, _fixes(truth, 2.0), georeferenced=False)
+        gps = compare_with_gps(shuffled, _fixes(truth, 2.0))
         verdict = judge_gps(gps, PoseCheckParams())
         assert gps is not None and gps.explained < 0.5
         assert not verdict.refusals and "does not follow" in verdict.warnings[0]
@@ -225,10 +225,89 @@ def test_a_handful_of_fixes_warns_but_never_refuses() -> None:
     from sosmatch.plugin.pose_check.verdict import MIN_FIXES_TO_REFUSE
 
     truth = _lawnmower(lines=1, per_line=MIN_FIXES_TO_REFUSE - 1, length=60.0)
-    gps = compare_with_gps(truth * 3.28084, _fixes(truth, 0.5, seed=4), georeferenced=False)
+    gps = compare_with_gps(truth * 3.28084, _fixes(truth, 0.5, seed=4))
     verdict = judge_gps(gps, PoseCheckParams())
     assert gps is not None and gps.inliers < MIN_FIXES_TO_REFUSE
     assert not verdict.refusals and "too few to prove" in verdict.warnings[0]
     many = _lawnmower(lines=2, per_line=MIN_FIXES_TO_REFUSE, length=60.0)
-    assert judge_gps(compare_with_gps(many * 3.28084, _fixes(many, 0.5, seed=4), georeferenced=False),
+    assert judge_gps(compare_with_gps(many * 3.28084, _fixes(many, 0.5, seed=4)),
                      PoseCheckParams()).refusals
+
+
+def test_a_site_within_its_receivers_jitter_is_too_small_not_another_flight() -> None:
+    """rev15: true poses of an 8 x 4 m site with a 3 m receiver were told "poses of another flight?" (the fixes'
+    own jitter is most of their spread). The jitter is measured from the fixes alone: such a flight is too small
+    to check, and the summary line says so instead of printing a scale."""
+    truth = _lawnmower(lines=2, per_line=8, length=8.0, spacing=4.0)
+    for seed in range(5):
+        gps = compare_with_gps(truth, _fixes(truth, 3.0, seed=seed))
+        assert gps is not None and gps.too_small and gps.fix_noise_m == pytest.approx(3.0, rel=0.6)
+        assert not judge_gps(gps, PoseCheckParams()).warnings
+    big = _lawnmower()  # the same receiver over 150 x 120 m: not too small, and the path follows
+    assert not compare_with_gps(big, _fixes(big, 3.0)).too_small
+
+
+def test_north_east_down_poses_are_named_mirrored() -> None:
+    """rev14: poses in north-east-down (a proper rotation of east-north-up whose horizontal plane is mirrored)
+    were told "poses of another flight?", and the map was refused as cameras below the ground. A similarity with
+    a reflection fits them: the refusal names the axes."""
+    truth = _lawnmower()
+    ned = truth[:, [1, 0, 2]] * [1.0, 1.0, -1.0]
+    refusal = judge_gps(compare_with_gps(ned, _fixes(truth, 2.0, yaw_deg=20.0)), PoseCheckParams()).refusals[0]
+    assert "mirror image" in refusal and "north-east-down" in refusal
+    assert not judge_gps(compare_with_gps(truth, _fixes(truth, 2.0)), PoseCheckParams()).warnings
+
+
+def test_a_far_georeference_is_named_even_when_the_path_does_not_follow() -> None:
+    """rev15: the early return for a path that does not follow the fixes hid the offset, which needs no fit."""
+    truth = _lawnmower() + np.array([500_000.0, 4_500_000.0, 0.0])
+    fixes = _fixes(truth, 2.0, offset=(0.0, 0.0))
+    shuffled = truth[np.random.default_rng(0).permutation(len(truth))] + [0.0, 10_000_000.0, 0.0]
+    warnings = judge_gps(compare_with_gps(shuffled, fixes, fixes), PoseCheckParams()).warnings
+    assert len(warnings) == 2 and "10,000 km" in warnings[0] and "does not follow" in warnings[1]
+
+
+def test_a_receiver_drifting_along_one_line_does_not_refuse_true_poses() -> None:
+    """rev14: 12 m of drift along a 100 m line reads as a scale of 0.89 with no residual to show it (the fit
+    absorbs it); true poses were refused. The scale's uncertainty has a floor of a receiver's wander."""
+    line = np.column_stack([np.linspace(0.0, 100.0, 20), np.zeros(20), np.full(20, 80.0)])
+    fixes = line[:, :2] + np.column_stack([np.linspace(0.0, 12.0, 20), np.zeros(20)])
+    fixes += np.random.default_rng(1).normal(0.0, 0.3, fixes.shape)
+    gps = compare_with_gps(line, fixes)
+    assert gps.scale == pytest.approx(0.89, abs=0.02)
+    assert not judge_gps(gps, PoseCheckParams()).refusals
+    assert judge_gps(compare_with_gps(line * 3.28084, fixes), PoseCheckParams()).refusals  # feet still are
+
+
+def test_fixes_held_by_a_receiver_without_lock_are_left_out() -> None:
+    """rev14: a receiver that held its first position (centimetres of jitter) for the first 60 % of a flight made
+    true poses "another flight's". Those fixes are stale and left out; the rest measure the scale."""
+    truth = _lawnmower(lines=4, per_line=10, length=80.0, spacing=20.0)
+    fixes = _fixes(truth, 1.0, seed=3)
+    held = int(0.6 * len(truth))
+    fixes[:held] = fixes[0] + np.random.default_rng(3).normal(0.0, 0.05, (held, 2))
+    gps = compare_with_gps(truth, fixes)
+    assert gps.stale == held - 1 and gps.fixes == len(truth) - held + 1
+    assert gps.scale == pytest.approx(1.0, abs=0.05)
+    verdict = judge_gps(gps, PoseCheckParams())
+    assert not verdict.refusals and not verdict.warnings
+    hover = np.column_stack([np.random.default_rng(4).normal(0.0, 0.2, (30, 2)), np.full(30, 50.0)])
+    assert not stale_fixes(hover[:, :2], hover[:, :2] + [0.01, 0.0]).any()  # still cameras, still fixes: kept
+
+
+def test_the_unit_is_measured_in_the_fixes_own_utm_zone() -> None:
+    """rev15: the scale was measured against the fixes in the poses' labelled CRS, so a wrong label measured the
+    wrong grid. True poses in their zone 32 (EPSG:32632), but labelled as zone 30, three zones west, where their
+    grid stretches lengths by 0.9 %: the unit is still measured in zone 32, the label only moves the offset."""
+    from pyproj import Transformer
+
+    from sosmatch.plugin.geodesy import geographic_to_grid
+
+    truth = _lawnmower() + [500_000.0, 5_540_000.0, 0.0]
+    lon, lat = Transformer.from_crs("EPSG:32632", "EPSG:4326", always_xy=True).transform(truth[:, 0], truth[:, 1])
+    zone30 = np.column_stack(geographic_to_grid(lat, lon, 32630)[:2])
+    fixes = _fixes(truth, 0.0, offset=(0.0, 0.0))
+    gps = compare_with_gps(truth, fixes, zone30)
+    assert gps.scale == pytest.approx(1.0, abs=1e-6) and gps.offset_m > 100_000
+    stretched = compare_with_gps(truth, zone30)  # what measuring in the labelled grid read
+    assert abs(stretched.scale - 1.0) > 0.005

@@ -62,10 +62,11 @@ def gate_px(params: Params, camera: Camera) -> float:
 MAX_GPS_IMAGES = 300
 
 
-def gps_fixes(image_paths: Sequence[Path], epsg: int) -> tuple[np.ndarray, np.ndarray]:
-    """(indices, fixes): up to MAX_GPS_IMAGES images spread over `image_paths` and their EXIF GPS positions (K,2),
-    in EPSG:`epsg`'s grid, or for `epsg` 0 in the UTM zone of their median fix; NaN where an image has no fix (or
-    its EXIF cannot be read: the images are read and named later, where their pixels are needed)."""
+def gps_fixes(image_paths: Sequence[Path], epsg: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(indices, fixes, fixes in the poses' CRS): up to MAX_GPS_IMAGES images spread over `image_paths` and their
+    EXIF GPS positions (K,2) in the UTM zone of their median fix, where lengths are ground metres, and for `epsg`
+    other than 0 (georeferenced poses) also in EPSG:`epsg`'s grid (else None); NaN where an image has no fix (or its
+    EXIF cannot be read: the images are read and named later, where their pixels are needed)."""
     from ..database.exif import read_image_metadata
     from ..plugin.geodesy import geographic_to_grid, utm_epsg
 
@@ -79,13 +80,16 @@ def gps_fixes(image_paths: Sequence[Path], epsg: int) -> tuple[np.ndarray, np.nd
         if meta.has_gps:
             latlon[k] = meta.latitude, meta.longitude
     has = np.all(np.isfinite(latlon), axis=1)
-    fixes = np.full((len(idx), 2), np.nan)
-    if has.any():
-        if not epsg:
-            epsg = utm_epsg(*np.median(latlon[has], axis=0))
-        east, north, _ = geographic_to_grid(latlon[has, 0], latlon[has, 1], epsg)
-        fixes[has] = np.column_stack([east, north])
-    return idx, fixes
+
+    def grid(code: int) -> np.ndarray:
+        out = np.full((len(idx), 2), np.nan)
+        if has.any():
+            east, north, _ = geographic_to_grid(latlon[has, 0], latlon[has, 1], code)
+            out[has] = np.column_stack([east, north])
+        return out
+
+    own_zone = utm_epsg(*np.median(latlon[has], axis=0)) if has.any() else 0
+    return idx, grid(own_zone), (grid(epsg) if epsg else None)
 
 
 def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params,
@@ -104,8 +108,8 @@ def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Par
     result = check_poses(poses, camera, image_features(list(image_paths), camera, params.pose_check),
                          params.pose_check, gate_px(params, camera) if gate is None else float(gate))
     if epsg is not None:
-        idx, fixes = gps_fixes(image_paths, epsg)
-        result = replace(result, gps=compare_with_gps(poses.centers[idx], fixes, georeferenced=bool(epsg)))
+        idx, fixes, crs_fixes = gps_fixes(image_paths, epsg)
+        result = replace(result, gps=compare_with_gps(poses.centers[idx], fixes, crs_fixes))
     verdict = judge_poses(result, params.pose_check, poses.names)
     return result, verdict
 

@@ -70,6 +70,8 @@ class PoseCheck:
     # (`PoseCheckParams.systematic_significance`, `min_systematic_share`)
     systematic_significance: float = 1.0
     min_systematic_share: float = 0.0
+    # the share of the GPS fixes a camera path must follow for its scale to be judged (`min_gps_agreement`)
+    min_gps_agreement: float = 0.5
     # the camera centres against the images' own GPS fixes (None: too few fixes, or not compared)
     gps: GpsComparison | None = None
 
@@ -134,8 +136,12 @@ class PoseCheck:
         else:
             text += f"height drift {_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg"
         text += f", {self.reversed_pairs} reversed" if self.reversed_pairs else ""
-        if self.gps is not None:
+        if self.gps is not None and self.gps.follows(self.min_gps_agreement):
             text += f"; lengths {self.gps.scale_text}x the images' GPS ({self.gps.fixes} fixes)"
+        elif self.gps is not None:  # its scale is no measurement (`verdict.judge_gps`)
+            text += (f"; the flight spans too little against its GPS's jitter ({self.gps.fix_noise_m:.1f} m) to check "
+                     "its lengths" if self.gps.too_small else "; lengths not checked (the path does not follow the "
+                     "images' GPS)")
         return text
 
 
@@ -260,7 +266,8 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         share_beyond_gate=float(np.mean(med > gate_px)),
         reversed_pairs=sum(c.reversed(gate_px) for c in checks), reversed_passes=reversed_passes,
         systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index,
-        systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share)
+        systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
+        min_gps_agreement=params.min_gps_agreement)
 
 
 def _working_scale(camera: Camera, params: PoseCheckParams) -> float:

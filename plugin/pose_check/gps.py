@@ -7,16 +7,25 @@ GPS fix, which measures lengths in metres independently of the poses. So the cam
 fixes by a horizontal similarity (`georegistration.robust_horizontal_similarity`: least median of squares, then
 least squares on the 99 % inliers of the measured noise):
 
-- **unit**: the similarity's scale is the poses' length per GPS metre. Feet give 3.28, centimetres 100, an
-  unscaled structure-from-motion model whatever its first baseline was. Its uncertainty is taken as if the GPS
-  errors were fully correlated along the flight (a slowly wandering receiver): the noise over the track's
-  extent, not over its square root of images, so a noisy receiver over a short flight never proves a scale.
+- **unit**: the similarity's scale is the poses' length per GPS metre, measured against the fixes in their own
+  UTM zone (a grid whose lengths are ground metres to 0.1 %, whatever the poses' CRS says; a CRS that stretches
+  distances is refused where the poses are read, `database.poses`). Feet give 3.28, centimetres 100, an unscaled
+  structure-from-motion model whatever its first baseline was. Its uncertainty is the
+  noise about the fit over the track's extent, and never less than GNSS_WANDER_M over it: an uncorrected
+  receiver's error wanders by metres over a flight, and a wander along the track reads as scale without leaving
+  any residual, so a short flight never proves a scale its GPS cannot.
 - **georeference** (poses in a projected CRS): the median horizontal distance of the camera centres from their
   own fixes in that CRS, without any fit. GPS puts a camera within metres; another UTM zone or hemisphere puts
   it hundreds to thousands of kilometres off, another datum (NAD27, ED50) 100-200 m.
 - **agreement**: how many fixes the similarity explains, and how much of their spread; a path that follows few of
   them is not this flight's (poses of another flight, names paired with the wrong images), and its "scale" is no
-  measurement of a unit.
+  measurement of a unit. Two things can make a true path look so and are told apart: a flight whose extent is
+  within a few times its receiver's own jitter (measured from the fixes alone: their second differences along
+  the flight), and a mirrored frame (north-east-down poses: a proper rotation of east-north-up whose horizontal
+  plane is mirrored), which a similarity with a reflection fits.
+- **stale fixes**: fixes that stay within a metre while their cameras move are the receiver holding its last
+  position (lost lock, a cold start), no measurement: left out (`stale_fixes`). They made a true path look like
+  another flight's.
 """
 
 from __future__ import annotations
@@ -27,29 +36,57 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..georegistration import robust_horizontal_similarity
-from ..gps_track import frozen_fix
+from ..gps_track import FROZEN_SPREAD_M, frozen_fix
 
 MIN_FIXES = 5  # fewer images with a fix: no comparison (the fit needs a few more points than its 4 unknowns)
+# the least error an uncorrected GNSS receiver's fixes wander by over a flight, per axis (consumer receivers
+# state 2-5 m CEP; RTK/PPK fixes do better, and then only a scale error of a few tens of percent on a small site
+# goes unproven): the floor of the scale's uncertainty (module doc)
+GNSS_WANDER_M = 2.5
+# a flight whose extent is within this many times its receiver's jitter cannot show that its path follows the
+# fixes (explained share 1 - 2/k^2 at best: 0.78 at 3)
+SMALL_FLIGHT_NOISE_RATIO = 3.0
+# consecutive fixes are stale when they move less than this share of what their cameras do (relative to each
+# track's extent): a frozen receiver's fixes barely move (centimetres of jitter), a noisy one's move with the
+# aircraft
+STALE_MOVE_RATIO = 0.2
 
 
 @dataclass(frozen=True)
 class GpsComparison:
     """The camera centres against the images' GPS fixes (module doc). Lengths in metres are the GPS's."""
 
-    fixes: int  # images with a fix that were compared
+    fixes: int  # images with a fresh fix that were compared
     inliers: int  # fixes the similarity explains (within the 99 % radius of the measured noise)
-    scale: float  # the poses' length per GPS metre (1 for poses in metres)
-    scale_sigma: float  # the standard deviation of log(scale), fully correlated GPS errors (module doc)
+    scale: float  # the poses' length per ground metre (1 for poses in metres)
+    scale_sigma: float  # the standard deviation of log(scale) (module doc)
     yaw_deg: float  # rotation of the poses' horizontal axes from the fixes' grid (meaningful for georeferenced poses)
     sigma_m: float  # per-axis noise of the fixes about the fitted path
     extent_m: float  # root mean square distance of the fixes from their centre
     offset_m: float = float("nan")  # georeferenced poses: median distance of the centres from their own fixes
+    fix_noise_m: float = float("nan")  # the receiver's jitter per axis, from the fixes alone (second differences)
+    mirrored_explained: float = float("nan")  # `explained` of the best similarity with a reflection
+    stale: int = 0  # fixes left out as repeating the previous one
 
     @property
     def explained(self) -> float:
         """The share of the fixes' spread the similarity explains, 1 - residual variance / variance (2-D): near 1
         for a camera path that follows the fixes, near 0 for one that does not (whose scale is no measurement)."""
-        return 1.0 - 2.0 * self.sigma_m**2 / self.extent_m**2 if self.extent_m > 0 else float("nan")
+        return _explained(self.sigma_m, self.extent_m)
+
+    def follows(self, min_agreement: float) -> bool:
+        """Whether the camera path follows the fixes: at least `min_agreement` of them are inliers and of their
+        spread is explained (`PoseCheckParams.min_gps_agreement`), over a flight not `too_small` for its
+        receiver's jitter (where a share explained by chance is no agreement: a receiver that jittered in place
+        while the cameras flew "followed" 1 % of the time); only then is its scale a measurement."""
+        return (self.inliers >= min_agreement * self.fixes and self.explained >= min_agreement
+                and not self.too_small)
+
+    @property
+    def too_small(self) -> bool:
+        """Whether the flight spans too little against its receiver's jitter for a path to show it follows the
+        fixes (SMALL_FLIGHT_NOISE_RATIO)."""
+        return self.extent_m < SMALL_FLIGHT_NOISE_RATIO * self.fix_noise_m
 
     @property
     def scale_text(self) -> str:
@@ -70,33 +107,92 @@ class GpsComparison:
 
         return {"fixes": self.fixes, "inliers": self.inliers, "scale": num(self.scale),
                 "scale_log_sigma": num(self.scale_sigma), "yaw_deg": num(self.yaw_deg), "sigma_m": num(self.sigma_m),
-                "extent_m": num(self.extent_m), "explained": num(self.explained), "offset_m": num(self.offset_m)}
+                "extent_m": num(self.extent_m), "explained": num(self.explained), "offset_m": num(self.offset_m),
+                "fix_noise_m": num(self.fix_noise_m), "mirrored_explained": num(self.mirrored_explained),
+                "stale_fixes": self.stale}
 
 
-def compare_with_gps(centers: np.ndarray, fixes: np.ndarray, georeferenced: bool) -> GpsComparison | None:
-    """Camera `centers` (N,3, the poses' frame and unit) against the same images' GPS `fixes` (N,2, metres: in the
-    poses' projected CRS when `georeferenced`, else in any metric grid, e.g. their UTM zone). None when there is
-    nothing to compare: fewer than MIN_FIXES finite fixes, a frozen receiver, or no horizontal spread."""
+def compare_with_gps(centers: np.ndarray, fixes: np.ndarray,
+                     crs_fixes: np.ndarray | None = None) -> GpsComparison | None:
+    """Camera `centers` (N,3, the poses' frame and unit, capture order) against the same images' GPS `fixes` (N,2,
+    metres in their UTM zone, NaN where an image has none). `crs_fixes`: for georeferenced poses, the same fixes in
+    the poses' CRS (the georeference is measured there). None when there is nothing to
+    compare: fewer than MIN_FIXES fresh finite fixes, a frozen receiver, or no horizontal spread."""
     centers = np.asarray(centers, np.float64).reshape(-1, 3)
     fixes = np.asarray(fixes, np.float64).reshape(-1, 2)
+    in_crs = None if crs_fixes is None else np.asarray(crs_fixes, np.float64).reshape(-1, 2)
     ok = np.all(np.isfinite(fixes), axis=1) & np.all(np.isfinite(centers), axis=1)
+    stale = np.zeros(len(fixes), bool)
+    stale[ok] = stale_fixes(centers[ok, :2], fixes[ok])
+    ok &= ~stale
     centers, fixes = centers[ok], fixes[ok]
+    in_crs = in_crs[ok] if in_crs is not None else None
     if len(fixes) < MIN_FIXES or frozen_fix(fixes[:, 0], fixes[:, 1]):
         return None
     # the fit maps the poses onto the fixes: fixes = s R centres + t, s in GPS metres per pose unit
-    src = np.column_stack([centers[:, :2], np.zeros(len(centers))])
     dst = np.column_stack([fixes, np.zeros(len(fixes))])
     try:
-        fit = robust_horizontal_similarity(src, dst)
+        fit = robust_horizontal_similarity(np.column_stack([centers[:, :2], np.zeros(len(centers))]), dst)
+        mirrored = robust_horizontal_similarity(np.column_stack([centers[:, 0], -centers[:, 1],
+                                                                 np.zeros(len(centers))]), dst)
     except ValueError:  # every centre at one place: nothing to measure a length with
         return None
     inl = fit.inliers
-    extent = float(np.sqrt(np.mean(np.sum((fixes[inl] - fixes[inl].mean(axis=0)) ** 2, axis=1))))
+    extent = _rms_extent(fixes[inl])
     if not (fit.transform.scale > 0 and extent > 0):
         return None
     rot = fit.transform.rotation
-    offset = float(np.median(np.linalg.norm(centers[:, :2] - fixes, axis=1))) if georeferenced else float("nan")
+    offset = float("nan")
+    if in_crs is not None:
+        offset = float(np.median(np.linalg.norm(centers[:, :2] - in_crs, axis=1)))
     return GpsComparison(
         fixes=len(fixes), inliers=int(inl.sum()), scale=1.0 / fit.transform.scale,
-        scale_sigma=fit.sigma_m / extent, yaw_deg=math.degrees(math.atan2(rot[1, 0], rot[0, 0])),
-        sigma_m=fit.sigma_m, extent_m=extent, offset_m=offset)
+        scale_sigma=max(fit.sigma_m, GNSS_WANDER_M) / extent,
+        yaw_deg=math.degrees(math.atan2(rot[1, 0], rot[0, 0])), sigma_m=fit.sigma_m, extent_m=extent,
+        offset_m=offset, fix_noise_m=fix_jitter_m(fixes),
+        mirrored_explained=_explained(mirrored.sigma_m, _rms_extent(fixes[mirrored.inliers])),
+        stale=int(stale.sum()))
+
+
+def stale_fixes(centers: np.ndarray, fixes: np.ndarray) -> np.ndarray:
+    """(K,) True for the fixes of a receiver that held its position while the cameras moved: every fix after the
+    first of a run of consecutive fixes within FROZEN_SPREAD_M of it, when the run's fixes span less than
+    STALE_MOVE_RATIO of what its cameras do (both relative to their whole track, so the poses' unit does not
+    matter; a hovering drone's fixes and cameras are both still, and kept)."""
+    c = np.asarray(centers, np.float64).reshape(-1, 2)
+    f = np.asarray(fixes, np.float64).reshape(-1, 2)
+    stale = np.zeros(len(f), bool)
+    fix_extent, cam_extent = _rms_extent(f), _rms_extent(c)
+    if not (fix_extent > 0 and cam_extent > 0):
+        return stale
+    start = 0
+    while start < len(f):
+        end = start + 1
+        while end < len(f) and np.linalg.norm(f[end] - f[start]) <= FROZEN_SPREAD_M:
+            end += 1
+        if end - start >= 2:
+            fix_span = float(np.max(np.linalg.norm(f[start:end] - f[start], axis=1)))
+            cam_span = float(np.max(np.linalg.norm(c[start:end] - c[start], axis=1)))
+            if fix_span / fix_extent < STALE_MOVE_RATIO * cam_span / cam_extent:
+                stale[start + 1:end] = True
+        start = end
+    return stale
+
+
+def fix_jitter_m(fixes: np.ndarray) -> float:
+    """A receiver's per-axis jitter from its fixes alone (K,2, capture order): the robust spread of their second
+    differences, which a steady flight leaves near zero and white noise of sigma makes sqrt(6) sigma (the median
+    ignores the turns). NaN for fewer than 3 fixes."""
+    f = np.asarray(fixes, np.float64).reshape(-1, 2)
+    if len(f) < 3:
+        return float("nan")
+    second = (f[2:] - 2.0 * f[1:-1] + f[:-2]).ravel()
+    return float(1.4826 * np.median(np.abs(second)) / math.sqrt(6.0))
+
+
+def _rms_extent(xy: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1)))) if len(xy) else 0.0
+
+
+def _explained(sigma_m: float, extent_m: float) -> float:
+    return 1.0 - 2.0 * sigma_m**2 / extent_m**2 if extent_m > 0 else float("nan")

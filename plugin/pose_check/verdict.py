@@ -11,6 +11,9 @@ from ..params import PoseCheckParams
 from .check import PoseCheck
 from .gps import GpsComparison
 
+# a mirrored similarity that explains this much of the fixes' spread (where the proper one does not) names the
+# poses mirrored: NED poses give 100 %, shuffled ones under 20 %
+MIRRORED_EXPLAINED = 0.9
 MIN_FIXES_TO_REFUSE = 10  # inliers a unit refusal needs (simulated: 0.5-2 % false refusals at 8-10, none from 15)
 
 
@@ -102,18 +105,32 @@ def _beyond(value: float, sigma: float, limit: float) -> bool:
 
 
 def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
-    """The camera centres against the images' own GPS fixes (`gps.compare_with_gps`): a refusal when the poses'
-    lengths are not metres (beyond `max_gps_scale_error` by more than two of the scale's standard deviations),
-    warnings for a georeference far from the fixes and for a path that does not follow them (then nothing else is
-    judged: its scale is no measurement). Nothing without fixes."""
+    """The camera centres against the images' own GPS fixes (`gps.compare_with_gps`): a warning for a georeference
+    far from the fixes (measured without any fit, so always judged); then, for a path that follows the fixes, a
+    refusal when the poses' lengths are not ground metres (beyond `max_gps_scale_error` by more than two of the
+    scale's standard deviations); for one that does not, a warning naming why (a mirrored frame, or poses of
+    another flight), or nothing for a flight too small against its receiver's jitter to tell. Nothing without
+    fixes."""
     v = Verdict()
     if gps is None:
         return v
-    if gps.inliers < limits.min_gps_agreement * gps.fixes or not gps.explained >= limits.min_gps_agreement:
-        v.warnings.append(f"poses vs images' GPS: the camera path does not follow the images' own GPS track (a "
-                          f"similarity explains {max(gps.explained, 0.0):.0%} of its spread, {gps.inliers} of "
-                          f"{gps.fixes} fixes): poses of another flight, or names paired with the wrong images?")
-        return v  # its scale and offset are no measurement of the poses' unit or georeference
+    if np.isfinite(gps.offset_m) and gps.offset_m > limits.warn_gps_offset_m:
+        v.warnings.append(f"poses vs images' GPS: the camera centres lie {_distance(gps.offset_m)} from the images' "
+                          f"own GPS fixes in the poses' CRS (median of {gps.fixes}): the map's georeference is that "
+                          "far off (another UTM zone or hemisphere, another datum, or a shifted origin?)")
+    agreement = limits.min_gps_agreement
+    if not gps.follows(agreement):
+        if gps.mirrored_explained >= max(agreement, MIRRORED_EXPLAINED):
+            # a mirrored map matches no other session and misplaces its georeference: unusable, when clear
+            (v.refusals if gps.fixes >= MIN_FIXES_TO_REFUSE else v.warnings).append(
+                f"poses vs images' GPS: the camera path is the mirror image of the images' own GPS track (mirrored, "
+                f"a similarity explains {gps.mirrored_explained:.0%} of its spread, {gps.fixes} fixes): x and y "
+                "swapped or one axis reversed (north-east-down poses?), so the map would be mirrored too")
+        elif not gps.too_small:
+            v.warnings.append(f"poses vs images' GPS: the camera path does not follow the images' own GPS track (a "
+                              f"similarity explains {max(gps.explained, 0.0):.0%} of its spread, {gps.inliers} of "
+                              f"{gps.fixes} fixes): poses of another flight, or names paired with the wrong images?")
+        return v  # its scale is no measurement of the poses' unit
     # a few fixes measure their own noise too small (3 of 5 agreeing by chance: 0.5 m for a 3 m receiver refused
     # true poses 19 % of the time, the diff review): a refusal needs MIN_FIXES_TO_REFUSE inliers, fewer warn
     off_scale = _beyond(float(np.log(gps.scale)), gps.scale_sigma, float(np.log1p(limits.max_gps_scale_error)))
@@ -128,10 +145,6 @@ def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
         v.refusals.append(f"poses vs images' GPS: the camera path is {gps.scale_text} x as long as the images' own "
                           f"GPS track ({gps.fixes} fixes, {gps.extent_m:.0f} m rms from their centre): the poses "
                           f"are not in metres, so neither would the map be ({cause})")
-    if np.isfinite(gps.offset_m) and gps.offset_m > limits.warn_gps_offset_m:
-        v.warnings.append(f"poses vs images' GPS: the camera centres lie {_distance(gps.offset_m)} from the images' "
-                          f"own GPS fixes in the poses' CRS (median of {gps.fixes}): the map's georeference is that "
-                          "far off (another UTM zone or hemisphere, another datum, or a shifted origin?)")
     return v
 
 
