@@ -137,7 +137,10 @@ def search_mode_json(params: Params, answer: MatchAnswer | None) -> dict[str, An
             # theta_S and windows of the search whose hypotheses match.json lists (`MatchAnswer.searched`)
             "searched": _searched_json(answer.searched if answer and answer.searched else ap),
             "paper": ap.consistency == "distance" and ap.windows == "id" and ap.solver == "clipper"
-            and ap.position_prior_m == 0 and not (answer and answer.tolerances == "georeference")}
+            and ap.position_prior_m == 0 and not (answer and answer.tolerances == "georeference"),
+            # maps in one georeferenced frame: how far the accepted answer moves B from its georeference
+            **({"georeference_off_m": round(answer.georeference_off_m, 2)}
+               if answer and answer.georeference_off_m is not None else {})}
 
 
 def _searched_json(ap: Any) -> dict[str, Any]:
