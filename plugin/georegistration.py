@@ -438,7 +438,10 @@ def flight_lines(centers: np.ndarray, max_turn_deg: float = 30.0, min_images: in
     """Flight line id per image (in capture order) from the track: the steps between consecutive images are cut
     into runs wherever the direction turns by more than `max_turn_deg` from the run's mean, each image joins the
     longer of the runs of its incoming and outgoing step (a turn's diagonal step loses), and lines of fewer
-    than `min_images` images get -1."""
+    than `min_images` images get -1. So does a crossing between two lines: a run shorter than the runs before and
+    after it, across them (more than 45 deg off their axis, which they share within 45 deg). Lines are numbered
+    0, 1, ... in the order flown, as `sosmatch synth` numbers them (`--yaw-fault-lines`, session.json
+    `geo.flight_lines`: the crossings of a lawnmower flight are no lines there either)."""
     c = np.asarray(centers, float)
     n = len(c)
     ids = np.full(n, -1, dtype=np.int64)
@@ -458,10 +461,29 @@ def flight_lines(centers: np.ndarray, max_turn_deg: float = 30.0, min_images: in
     incoming = np.r_[run[0], run]  # image i's incoming step is i - 1 (image 0: its outgoing one)
     outgoing = np.r_[run, run[-1]]
     member = np.where(length[incoming] >= length[outgoing], incoming, outgoing)
+    runs = [r for r in range(len(length)) if np.sum(member == r) >= min_images]
+    step_len = np.linalg.norm(step, axis=1)
+    extent = {r: float(step_len[run == r].sum()) for r in runs}
+    axis = {r: _axis_deg(heading[run == r], step_len[run == r]) for r in runs}
+    crossing = {r for prev, r, nxt in zip(runs, runs[1:], runs[2:])
+                if _axis_angle_deg(axis[prev], axis[nxt]) <= 45.0
+                and min(_axis_angle_deg(axis[r], axis[prev]), _axis_angle_deg(axis[r], axis[nxt])) > 45.0
+                and extent[r] < min(extent[prev], extent[nxt])}
     line = 0
-    for r in range(len(length)):
-        sel = member == r
-        if sel.sum() >= min_images:
-            ids[sel] = line
+    for r in runs:
+        if r not in crossing:
+            ids[member == r] = line
             line += 1
     return ids
+
+
+def _axis_deg(heading_deg: np.ndarray, weight: np.ndarray) -> float:
+    """The mean axis (direction modulo 180 degrees) of weighted headings: a line flown either way has one axis."""
+    doubled = np.radians(2.0 * np.asarray(heading_deg, float))
+    return float(np.degrees(np.arctan2(np.sum(weight * np.sin(doubled)), np.sum(weight * np.cos(doubled)))) / 2.0)
+
+
+def _axis_angle_deg(a: float, b: float) -> float:
+    """Angle between two axes (directions modulo 180 degrees), 0-90."""
+    d = abs(float(_wrap(a - b))) % 180.0
+    return min(d, 180.0 - d)

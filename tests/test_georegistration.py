@@ -133,3 +133,19 @@ def test_flight_lines_from_the_track():
     centers, _, lines, _ = _block(n_lines=3, per_line=8)
     ids = flight_lines(centers)
     assert len(set(ids[lines == 0])) == 1 and len(set(ids.tolist()) - {-1}) == 3
+
+
+@pytest.mark.parametrize("frames, reverse, rotate", [(40, False, 0.0), (100, False, 0.0), (100, True, 30.0)])
+def test_flight_lines_are_numbered_as_synth_numbers_them(frames, reverse, rotate):
+    """`synth --yaw-fault-lines 1` faults the second line flown; `sosmatch poses` reported it as "flight line 2"
+    (the walkthrough's F10): the 3-5 frames of the crossing between two lawnmower lines counted as a line of their
+    own. The crossings are no lines in either numbering now."""
+    from sosmatch.tools.synth.flights import FlightConfig, flight_line_ids, flight_poses
+
+    cfg = FlightConfig(frames=frames, reverse=reverse, rotate_deg=rotate)
+    truth = flight_line_ids(cfg)
+    ids = flight_lines(flight_poses(cfg, (300.0, 300.0), 0.0, session_seed=3, world_seed=7).centers)
+    on_line = truth >= 0
+    assert set(ids[~on_line].tolist()) <= {-1} | set(truth.tolist())  # a crossing frame may join a line's end
+    assert np.mean(ids[on_line] == truth[on_line]) > 0.9, (ids, truth)
+    assert set(ids.tolist()) - {-1} == set(truth.tolist()) - {-1}

@@ -62,13 +62,20 @@ def test_user_error_is_one_line_exit_2(tmp_path):
     assert "Traceback" not in out.stderr
 
 
-@pytest.mark.parametrize("argv", [["map", "--no-such-flag"], ["match"], ["nosuchcommand"], ["match", "--set"]])
-def test_a_command_line_mistake_is_one_line_exit_2(argv, capsys):
+@pytest.mark.parametrize("argv, help_of", [(["map", "--no-such-flag"], "sosmatch map"), (["match"], "sosmatch match"),
+                                           (["nosuchcommand"], "sosmatch"), (["match", "--set"], "sosmatch match"),
+                                           (["match", "A", "B", "--out", "M", "--bogus"], "sosmatch match"),
+                                           (["--bogus"], "sosmatch")])
+def test_a_command_line_mistake_is_one_line_exit_2(argv, help_of, capsys):
+    """The line points to the help that lists the flags: the command's (`sosmatch map --help`), not the top-level
+    one. Before, an unknown flag after a command (argparse reports those from the top-level parser) said "see
+    'sosmatch --help'", which lists only the commands."""
     with pytest.raises(SystemExit) as exc:
         main(argv)
     err = capsys.readouterr().err
     assert exc.value.code == 2
-    assert len(err.strip().splitlines()) == 1 and "--help" in err and "error:" in err, err
+    assert len(err.strip().splitlines()) == 1 and "error:" in err, err
+    assert f"(see '{help_of} --help')" in err, err
 
 
 @pytest.mark.parametrize("user_level, verbose, expected", [(None, 0, 2), (None, 2, 0), ("1", 0, 1)])

@@ -68,6 +68,7 @@ def test_poses_of_a_geotagged_flight(flight, tmp_path, capsys):
     assert "GPS altitudes would tilt the block" in warnings and "drifts by +" in warnings
     lines = report["comparison"]["contradicting_lines"]
     assert len(lines) == 1 and report["comparison"]["images"][lines[0]["first"]]["name"] == "frame_00019.jpg"
+    assert lines[0]["line"] == 1 and "flight line 1 (" in warnings  # synth's number for it (crossings no lines)
     assert (out / "cameras.txt").read_text().count("SIMPLE_RADIAL") == 1
     assert (out / "sparse" / "images.bin").is_file() and (out / "database.db").is_file()
     # the same call again: the finished output stands (nothing recomputed), the same poses

@@ -57,8 +57,10 @@ def build_parser() -> argparse.ArgumentParser:
     verbosity.add_argument("-v", "--verbose", action="count", default=0, help="more logging (twice: debug)")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    parser.commands = {}  # name -> the command's parser, whose error() names its own --help
     for module in _command_modules():
         cmd = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP, parents=[verbosity])
+        parser.commands[module.NAME] = cmd
         module.add_arguments(cmd)
         for action in cmd._actions:  # every path argument of every command: an empty one is refused
             if action.type is Path:
@@ -103,7 +105,9 @@ def join_negative_number_lists(argv: Sequence[str]) -> list[str]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `sosmatch` console script. Returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(join_negative_number_lists(sys.argv[1:] if argv is None else argv))
+    args, unknown = parser.parse_known_args(join_negative_number_lists(sys.argv[1:] if argv is None else argv))
+    if unknown:  # argparse leaves a command's unknown flags to the top-level parser, whose help lists no flags
+        parser.commands[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     _setup_logging(args.verbose, args.quiet)
     try:
         code = args._run(args)

@@ -50,8 +50,9 @@ PIXEL_STD = np.array([58.395, 57.12, 57.375], np.float32)
 SAM_DECODER_INPUTS = {"image_embeddings", "point_coords", "point_labels", "mask_input", "has_mask_input",
                       "orig_im_size"}
 EFFICIENTSAM_DECODER_INPUTS = {"image_embeddings", "batched_point_coords", "batched_point_labels", "orig_im_size"}
-EXPORT_HINT = ("export the models as described in the README (section Segmentation: exporting SAM to ONNX) and "
-               "set segmentation.sam_encoder / sam_decoder or SOSMATCH_SAM_ENCODER / SOSMATCH_SAM_DECODER")
+EXPORT_HINT = ("export the models as described in the README (section \"Exporting SAM models to ONNX\" under "
+               "\"Segmentation\") and set segmentation.sam_encoder / sam_decoder or SOSMATCH_SAM_ENCODER / "
+               "SOSMATCH_SAM_DECODER")
 
 
 def _static(dim: object) -> int | None:

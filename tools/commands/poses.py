@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "frame's scale (m)")
     parser.add_argument("--overwrite", action="store_true", help="replace a previous `poses` output of other inputs")
     add_params_arguments(parser)
+    parser.epilog = ("Flight lines (in the warnings and poses.json) are found from the camera track and numbered 0, "
+                     "1, ... in the order flown; the short crossings between lines are no lines, as in `sosmatch "
+                     "synth --yaw-fault-lines`.")
 
 
 def run(args: argparse.Namespace) -> int:

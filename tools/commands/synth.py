@@ -85,7 +85,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="gimbal tilt error, deg")
     g.add_argument("--yaw-tag-sigma", type=float, default=d.geotag_yaw_sigma_deg, help="compass error, deg")
     g.add_argument("--yaw-fault-lines", type=_ints, default=(), metavar="I,J",
-                   help="flight lines (0 = first) whose XMP yaws are off by 180 degrees")
+                   help="flight lines whose XMP yaws are off by 180 degrees: 0 = the first line flown, the "
+                        "crossings between lines not counted (session.json geo.flight_lines; `sosmatch poses` "
+                        "numbers its flight lines the same way)")
 
 
 def _ints(text: str) -> tuple[int, ...]:
