@@ -140,13 +140,20 @@ def _write(flight: Path, out: Path, scale: float = 1.0, epsg: int | None = None)
     return out
 
 
-def test_map_refuses_poses_in_feet(geotagged: Path, tmp_path: Path, cli_error) -> None:
+def test_map_refuses_poses_in_feet_before_any_work(geotagged: Path, tmp_path: Path, cli_error) -> None:
+    """Poses in feet are a wrong input, refused from the images' EXIF alone: one line naming the pose file, and
+    nothing written (before, the refusal came after the whole map was made, segmentation included)."""
     feet = _write(geotagged, tmp_path / "feet.csv", scale=3.28084)
     message = cli_error("map", "--images", geotagged / "images", "--poses", feet, "--camera",
                         geotagged / "cameras.txt", "--out", tmp_path / "m", "-q")
-    assert "not in metres" in message and "feet?" in message
-    verdict = json.loads((tmp_path / "m" / "run.json").read_text())["verdict"]  # a refused map says so
-    assert verdict["status"] == "refused" and "not in metres" in verdict["refusals"][0]
+    assert "not in metres" in message and "feet?" in message and "feet.csv" in message
+    assert not (tmp_path / "m").exists()
+    # with refusal off the map is made and says so in its verdict, as for any refused map
+    assert main(["map", "--images", str(geotagged / "images"), "--poses", str(feet), "--camera",
+                 str(geotagged / "cameras.txt"), "--out", str(tmp_path / "k"), "--set", "quality.refuse=false",
+                 "-q"]) == 0
+    verdict = json.loads((tmp_path / "k" / "run.json").read_text())["verdict"]
+    assert verdict["status"] == "accepted_despite_refusals" and any("not in metres" in r for r in verdict["refusals"])
 
 
 def test_check_poses_on_good_and_on_misplaced_georeferenced_poses(geotagged: Path, tmp_path: Path,

@@ -28,6 +28,7 @@ from ..plugin.pose_check import PoseCheck, check_poses, judge_poses
 
 if TYPE_CHECKING:
     from ..database.output_files import OutputFiles
+    from ..plugin.pose_check.gps import GpsComparison
 
 log = logging.getLogger(__name__)
 
@@ -92,24 +93,50 @@ def gps_fixes(image_paths: Sequence[Path], epsg: int) -> tuple[np.ndarray, np.nd
     return idx, grid(own_zone), (grid(epsg) if epsg else None)
 
 
+def gps_comparison(image_paths: Sequence[Path], poses: Poses, epsg: int) -> GpsComparison | None:
+    """The camera centres of `poses` against the images' own GPS fixes (`plugin.pose_check.gps.compare_with_gps`;
+    `epsg`: the poses' CRS, 0 for a local frame). Reads only the EXIF of at most MAX_GPS_IMAGES images."""
+    from ..plugin.pose_check.gps import compare_with_gps
+
+    idx, fixes, crs_fixes = gps_fixes(image_paths, epsg)
+    return compare_with_gps(poses.centers[idx], fixes, crs_fixes)
+
+
+def refuse_by_gps(image_paths: Sequence[Path], poses: Poses, epsg: int, params: PoseCheckParams,
+                  source: str | Path) -> GpsComparison | None:
+    """The GPS part of the pose check before any work (`sosmatch map`: before the images are segmented): raises
+    PosesRefused naming `source` (the pose file) when the images' GPS refuses the poses (a unit that is not the
+    metre, a mirrored frame). A map on such poses is no map at all, and its segmentation cost minutes to hours
+    on a long flight before the refusal came. Returns the comparison, for `check` to reuse."""
+    from ..plugin.pose_check.verdict import judge_gps
+
+    if len(image_paths) != len(poses):
+        raise ValueError(f"{len(image_paths)} images for {len(poses)} poses")
+    gps = gps_comparison(image_paths, poses, epsg)
+    verdict = judge_gps(gps, params)
+    if verdict.refusals:
+        raise PosesRefused("poses refused: " + "; ".join(verdict.refusals), source)
+    return gps
+
+
 def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params,
-          gate: float | None = None, epsg: int | None = None) -> tuple[PoseCheck, Verdict]:
+          gate: float | None = None, epsg: int | None = None,
+          gps: GpsComparison | None = None) -> tuple[PoseCheck, Verdict]:
     """The figures of `poses` (in the order of `image_paths`, capture order) against the images, and their
     verdict. `gate`: the tracker's epipolar gate in pixels of these images (None: `gate_px(params, camera)`;
     the map passes its own, as its parameters are already scaled to the image). `epsg`: the poses' CRS (0: a
     local frame); given, the camera centres are also compared with the images' own GPS fixes
-    (`plugin.pose_check.gps`: the poses' unit, and their georeference in that CRS)."""
+    (`gps_comparison`: the poses' unit, and their georeference in that CRS), unless `gps` brings that
+    comparison already made (`refuse_by_gps`)."""
     from dataclasses import replace
-
-    from ..plugin.pose_check.gps import compare_with_gps
 
     if len(image_paths) != len(poses):
         raise ValueError(f"{len(image_paths)} images for {len(poses)} poses")
     result = check_poses(poses, camera, image_features(list(image_paths), camera, params.pose_check),
                          params.pose_check, gate_px(params, camera) if gate is None else float(gate))
-    if epsg is not None:
-        idx, fixes, crs_fixes = gps_fixes(image_paths, epsg)
-        result = replace(result, gps=compare_with_gps(poses.centers[idx], fixes, crs_fixes))
+    if gps is None and epsg is not None:
+        gps = gps_comparison(image_paths, poses, epsg)
+    result = replace(result, gps=gps)
     verdict = judge_poses(result, params.pose_check, poses.names)
     return result, verdict
 
@@ -154,14 +181,14 @@ def write_disabled(out: str | Path) -> None:
 
 def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path | None = None,
         refuse: bool = True, sources: dict | None = None, gate: float | None = None,
-        files: OutputFiles | None = None, epsg: int | None = None) -> CheckResult:
+        files: OutputFiles | None = None, epsg: int | None = None, gps: GpsComparison | None = None) -> CheckResult:
     """Check the poses (`check`), write the figures to `out` (JSON, atomically; None: nothing written) and raise
     PosesRefused (after writing) when they contradict the images and `refuse` is on. `files`: the OutputFiles
     that `out` is written through (`check_to_file`, a user's file); without it `out` lies in a directory the
-    caller owns (the map's output). `epsg`: as `check`'s."""
+    caller owns (the map's output). `epsg`, `gps`: as `check`'s."""
     from ..database.atomic import write_text_atomic
 
-    result, verdict = check(image_paths, poses, camera, params, gate, epsg)
+    result, verdict = check(image_paths, poses, camera, params, gate, epsg, gps)
     for warning in verdict.warnings:
         log.warning("%s", warning)
     if out is not None:

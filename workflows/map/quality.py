@@ -28,11 +28,12 @@ class MapRefused(InputError):
     """The map was made but its geometry is implausible or it is empty: the inputs (poses, camera) are wrong."""
 
 
-def pose_check_stage(inputs: Any, params: Any, record: Path) -> Any:
+def pose_check_stage(inputs: Any, params: Any, record: Path, gps: Any = None) -> Any:
     """The poses of `inputs` (MapInputs) checked against its images (`workflows.pose_check.run`, figures written
     to `record`), or None when `pose_check.enabled` is off (`record` then says so, so that no stale figures of
     an earlier run stand beside the map). Never raises on a refusal: its verdict joins the map's (`joined`), so a
-    map on poses that contradict the images is refused like an implausible one."""
+    map on poses that contradict the images is refused like an implausible one. `gps`: the comparison with the
+    images' GPS already made (`workflow.gps_precheck`)."""
     from .. import pose_check
 
     if not params.pose_check.enabled:
@@ -41,7 +42,8 @@ def pose_check_stage(inputs: Any, params: Any, record: Path) -> Any:
 
     # `params` are the map's, already scaled to the image (`plugin.params.for_image`): its gate as it is
     return pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, record, refuse=False,
-                          sources=inputs.sources, gate=params.tracking.epipolar_margin_px, epsg=inputs.epsg)
+                          sources=inputs.sources, gate=params.tracking.epipolar_margin_px, epsg=inputs.epsg,
+                          gps=gps)
 
 
 def joined(*verdicts: Verdict | None) -> Verdict:

@@ -124,6 +124,19 @@ def working_resolution(params: Params, checked: Any, camera: Any) -> tuple[Param
     return scaled, gsd
 
 
+def gps_precheck(inputs: MapInputs, params: Params) -> Any:
+    """The pose check's comparison with the images' GPS, made before the map's output directory is taken
+    (`workflows.pose_check.refuse_by_gps`): poses it refuses (not in metres, mirrored) are a one-line error
+    naming the pose file, with nothing written, when the pose check and refusal are on. Returns the comparison
+    (None when there is none to make, or the check is off) for the pose check stage."""
+    from ..pose_check import refuse_by_gps
+
+    if not (params.pose_check.enabled and params.quality.refuse):
+        return None
+    source = inputs.sources.get("poses") or inputs.image_paths[0].parent
+    return refuse_by_gps(inputs.image_paths, inputs.poses, inputs.epsg, params.pose_check, source)
+
+
 def map_origin(positions: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
     """A round-numbered origin near the data (median of the landmarks, else of the cameras; whole metres)."""
     pts = positions if len(positions) else camera_centers
@@ -172,8 +185,10 @@ def run(
         what, paths = fps["inputs"], input_paths(inputs)
         # pixel limits tuned at one image size scale with the image (run.json keeps the effective values)
         params = for_image(params, inputs.camera.width, inputs.camera.height)
+        gps = gps_precheck(inputs, params)  # before anything is written or segmented
     else:  # the poses are computed inside the taken directory: the identity is that of their source
         what, paths = source.identity(), source.input_paths()
+        gps = None  # poses made from the images' own GPS: their unit is the GPS's
     # what the outputs depend on: a complete session of another identity is replaced only with `overwrite`
     identity = fingerprint({"inputs": what, "params": params_to_dict(params), "text_model": text_model,
                             "masks": masks_source})
@@ -190,7 +205,7 @@ def run(
             params = for_image(params, inputs.camera.width, inputs.camera.height)
         timings["inputs"] = time.perf_counter() - t_start
         summary = _map_into(out, params, inputs, fps, digests, masks_source, text_model, progress,
-                            on_keyframe, workers, masks_for, timings, t_start, extra)
+                            on_keyframe, workers, masks_for, timings, t_start, extra, gps)
         out.finish(keep_staging=keep_cache)
     if keep_cache:
         log.info("per-keyframe cache kept in %s", out_dir / PARTIAL / "cache")
@@ -202,7 +217,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
               masks_source: str, text_model: bool, progress: bool,
               on_keyframe: Callable[[int], None] | None, workers: int,
               masks_for: Callable[[str, np.ndarray], Any] | None, timings: dict[str, float],
-              t_start: float, extra_outputs: tuple[str, ...] = ()) -> MapSummary:
+              t_start: float, extra_outputs: tuple[str, ...] = (), gps: Any = None) -> MapSummary:
     """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
     import pycolmap
 
@@ -216,7 +231,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     camera = inputs.camera
     t = time.perf_counter()
     # before the keyframes: its flying height sets the segmenter's working size (`working_resolution`)
-    checked = pose_check_stage(inputs, params, out.staged(POSE_CHECK))
+    checked = pose_check_stage(inputs, params, out.staged(POSE_CHECK), gps)
     timings["pose_check"] = time.perf_counter() - t
     params, ground_resolution = working_resolution(params, checked, camera)
     pdict = params_to_dict(params)
