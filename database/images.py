@@ -12,7 +12,7 @@ import logging
 import unicodedata
 import warnings
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,11 +30,29 @@ MAX_IMAGE_PIXELS = 600_000_000
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 
 
-def to_rgb_u8(array: np.ndarray) -> np.ndarray:
+# Integer data of more than 8 bits is scaled from its sensor's white level, 2^b - 1 for the smallest of these bit
+# depths that holds the data: 10-, 12- and 14-bit sensor data stored in 16 bits would otherwise be nearly black.
+SENSOR_BITS = (10, 12, 14, 16)
+# images sampled over a flight to find its sensor's bit depth (`flight_white_level`)
+WHITE_LEVEL_SAMPLES = 8
+
+
+def white_level(max_value: int) -> int:
+    """The white level of integer data whose largest value is `max_value`: 2^b - 1 for the smallest b of
+    SENSOR_BITS that holds it (32-bit data beyond 16 bits: its own maximum)."""
+    for bits in SENSOR_BITS:
+        if max_value < 2**bits:
+            return 2**bits - 1
+    return int(max_value)
+
+
+def to_rgb_u8(array: np.ndarray, white: int | None = None) -> np.ndarray:
     """Convert a decoded pixel array (H, W), (H, W, 1|2|3|4) of uint8/uint16/float to (H, W, 3) uint8 RGB.
 
-    Channel order is taken as RGB(A). 16-bit data is scaled by 1/257 (full range), or by 1/16 when the maximum
-    is below 4096 (12-bit sensor data stored in 16 bits would otherwise be nearly black). Floats are taken as
+    Channel order is taken as RGB(A). Integer data of more than 8 bits is scaled from `white` (the flight's white
+    level, `flight_white_level`) to 255; without it, from the white level of the image's own maximum
+    (`white_level`), which a dark frame of a 16-bit flight reads as 10- or 12-bit data (64 or 16 times
+    brighter than its neighbours): the readers of a flight's images pass its white level. Floats are taken as
     0..1 when their maximum is <= 1, else as 0..255.
     """
     a = np.asarray(array)
@@ -47,11 +65,8 @@ def to_rgb_u8(array: np.ndarray) -> np.ndarray:
     if a.dtype == np.uint8:
         out = a
     elif a.dtype in (np.uint16, np.int32, np.uint32, np.int64):
-        a = a.astype(np.int64)
-        if a.max(initial=0) < 4096:
-            out = np.clip(a // 16, 0, 255).astype(np.uint8)
-        else:
-            out = np.clip((a + 128) // 257, 0, 255).astype(np.uint8)
+        level = int(white) if white else white_level(int(a.max(initial=0)))
+        out = np.clip(np.rint(a.astype(np.float32) * np.float32(255.0 / max(level, 1))), 0, 255).astype(np.uint8)
     elif a.dtype == bool:
         out = a.astype(np.uint8) * 255
     elif np.issubdtype(a.dtype, np.floating):
@@ -98,13 +113,17 @@ def _check_pixels(path: Path) -> None:
         raise InputError(problem, path)
 
 
-def _read_pil(path: Path) -> np.ndarray:
+def _read_pil(path: Path) -> np.ndarray | None:
+    """The pixels as PIL decodes them; None for colour images of more than 8 bits per sample, which PIL cuts to
+    their high byte (12-bit data in a 16-bit RGB TIFF or PNG came out 16 times too dark): OpenCV keeps them."""
     Image = _pil_image()
     with warnings.catch_warnings():
         warnings.simplefilter("error", Image.DecompressionBombWarning)
         with Image.open(path) as img:
             img.load()  # decodes everything now: truncated files raise here
             mode = img.mode
+            if mode in ("RGB", "RGBA") and _bits_per_sample(img, path) > 8:
+                return None
             if mode in ("P", "PA"):
                 img = img.convert("RGBA" if "transparency" in img.info or mode == "PA" else "RGB")
             elif mode == "CMYK" or mode == "YCbCr" or mode == "LAB" or mode == "HSV":
@@ -133,9 +152,76 @@ def _read_cv2(path: Path) -> np.ndarray | None:
     return arr
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an image file as (H, W, 3) uint8 RGB; raise InputError naming the file if it cannot be read."""
+def read_image(path: str | Path, white: int | None = None) -> np.ndarray:
+    """Read an image file as (H, W, 3) uint8 RGB; raise InputError naming the file if it cannot be read.
+    `white`: the white level of the flight's integer data beyond 8 bits (`flight_white_level`; None: the image's
+    own, `to_rgb_u8`)."""
     path = Path(path)
+    arr = _decode(path)
+    try:
+        out = to_rgb_u8(arr, white)
+    except ValueError as exc:
+        raise InputError(f"unsupported image: {exc}", path) from None
+    if out.shape[0] == 0 or out.shape[1] == 0:
+        raise InputError("empty image", path)
+    return out
+
+
+def flight_white_level(paths: Sequence[str | Path]) -> int | None:
+    """The white level of a flight's images (`to_rgb_u8`): None for 8-bit images (told from the headers of
+    WHITE_LEVEL_SAMPLES images spread over the flight, nothing decoded), else `white_level` of the largest value
+    in those images. A sensor's bit depth is the camera's, not the frame's: scaled per image, a dark frame of a
+    16-bit flight came out 16 times brighter than its neighbours. Unreadable samples are skipped (the stage that
+    needs their pixels names them)."""
+    paths = list(paths)
+    if not paths:
+        return None
+    picks = sorted({round(i) for i in np.linspace(0, len(paths) - 1, min(len(paths), WHITE_LEVEL_SAMPLES))})
+    largest = None
+    for i in picks:
+        path = Path(paths[i])
+        if _header_bits(path) == 8:
+            continue
+        try:
+            arr = _decode(path)
+        except InputError:
+            continue
+        if arr.dtype in (np.uint16, np.int32, np.uint32, np.int64):
+            largest = max(largest or 0, int(arr.max(initial=0)))
+    return None if largest is None else white_level(largest)
+
+
+def _header_bits(path: Path) -> int | None:
+    """Bits per sample from the image's header, nothing decoded (None: PIL cannot read the header)."""
+    Image = _pil_image()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(path) as img:
+                return _bits_per_sample(img, path)
+    except Exception:  # any header PIL cannot read: decoded (or named) by the reader
+        return None
+
+
+def _bits_per_sample(img: Any, path: Path) -> int:
+    """Bits per sample of an open PIL image: its mode's, or for TIFF and PNG the file's own (PIL opens 16-bit
+    colour as mode RGB)."""
+    if img.mode.startswith("I;16"):
+        return 16
+    if img.mode in ("I", "F"):
+        return 32
+    if img.format == "TIFF":
+        bits = img.tag_v2.get(258, (8,))
+        return int(max(bits if isinstance(bits, tuple) else (bits,)))
+    if img.format == "PNG":
+        with open(path, "rb") as f:
+            header = f.read(25)  # signature (8), IHDR length and type (8), width, height (8), bit depth (1)
+        return int(header[24]) if len(header) == 25 else 8
+    return 8
+
+
+def _decode(path: Path) -> np.ndarray:
+    """The pixels of an image file as decoded (any dtype and channel count); InputError naming the file."""
     if not path.is_file():
         raise InputError("image file not found" if not path.exists() else "not a file", path)
     if path.stat().st_size == 0:
@@ -158,13 +244,7 @@ def read_image(path: str | Path) -> np.ndarray:
         arr = _read_cv2(path)
         if arr is None:
             raise InputError("unreadable image (not a supported image format, or corrupt)", path)
-    try:
-        out = to_rgb_u8(arr)
-    except ValueError as exc:
-        raise InputError(f"unsupported image: {exc}", path) from None
-    if out.shape[0] == 0 or out.shape[1] == 0:
-        raise InputError("empty image", path)
-    return out
+    return arr
 
 
 def check_images_decode(paths: Iterable[str | Path]) -> None:

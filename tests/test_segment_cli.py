@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sosmatch.database.images import list_images, read_image
+from sosmatch.database.images import flight_white_level, list_images, read_image
 from sosmatch.plugin.errors import InputError
 from sosmatch.tools.cli import main
 
@@ -41,6 +41,41 @@ def test_read_image_variants(tmp_path):
         assert np.array_equal(out[:, :, 0], out[:, :, 2])
     assert np.abs(read_image(tmp_path / "rgb16.png").astype(int) - rgb).max() <= 1
     assert np.abs(read_image(tmp_path / "rgb.jpg").astype(int) - rgb).mean() < 3
+
+
+@pytest.mark.parametrize("bits", [10, 12, 14])
+def test_sensor_data_in_16_bits_reads_at_its_bit_depth(tmp_path, bits):
+    """12-bit data in a 16-bit RGB TIFF or PNG came out nearly black (max 15 of 255: PIL keeps the high byte of
+    16-bit colour), and 14-bit gray at a quarter of its range: a map of such a flight was refused for want of
+    landmarks. Colour beyond 8 bits is decoded whole now and every such image is read from its sensor's white
+    level (2^bits - 1)."""
+    rgb = _scene()
+    scale = (2**bits - 1) / 255.0
+    for name, pixels in (("rgb.tif", rgb), ("rgb.png", rgb), ("gray.tif", rgb[:, :, 1]), ("gray.png", rgb[:, :, 1])):
+        data = np.rint(pixels.astype(np.float64) * scale).astype(np.uint16)
+        cv2.imwrite(str(tmp_path / name), cv2.cvtColor(data, cv2.COLOR_RGB2BGR) if data.ndim == 3 else data)
+        out = read_image(tmp_path / name)
+        want = rgb if data.ndim == 3 else np.dstack([rgb[:, :, 1]] * 3)
+        assert np.abs(out.astype(int) - want).max() <= 1, name
+        assert flight_white_level([tmp_path / name]) == 2**bits - 1
+
+
+def test_a_flights_white_level_is_the_cameras_not_the_frames(tmp_path):
+    """A dark frame of a 16-bit flight (its maximum below 4096) was read as 12-bit data, 16 times brighter than
+    its neighbours. The white level is the flight's (`flight_white_level`, from a sample of its images), so the
+    frame keeps its exposure; 8-bit flights have none (told from the headers)."""
+    gray = _scene()[:, :, 1].astype(np.float64)
+    paths = []
+    for k, gain in enumerate((257.0, 257.0, 257.0 / 20.0, 257.0)):  # the third frame 20 times darker
+        paths.append(tmp_path / f"f{k}.tif")
+        cv2.imwrite(str(paths[-1]), np.rint(gray * gain).astype(np.uint16))
+    white = flight_white_level(paths)
+    assert white == 65535
+    dark, bright = read_image(paths[2], white), read_image(paths[0], white)
+    assert abs(float(dark.mean()) * 20.0 / float(bright.mean()) - 1.0) < 0.05
+    assert read_image(paths[2]).mean() > 10 * dark.mean()  # what the frame alone says: 16x too bright
+    Image.fromarray(_scene()).save(tmp_path / "a.jpg")
+    assert flight_white_level([tmp_path / "a.jpg"]) is None and flight_white_level([]) is None
 
 
 def test_bad_images_raise_input_error_naming_the_file(tmp_path):

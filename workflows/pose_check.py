@@ -39,12 +39,14 @@ class PosesRefused(InputError):
 
 def image_features(paths: Sequence[Path], camera: Camera, params: PoseCheckParams) -> Callable[[int], OrbFeatures]:
     """`features(i)`: ORB features of image `paths[i]` at the working size (read on demand; an unreadable image or
-    one of another size than the camera is an InputError naming it)."""
-    from ..database.images import read_image
+    one of another size than the camera is an InputError naming it), at the flight's white level."""
+    from ..database.images import flight_white_level, read_image
     from ..plugin.image_matching import orb_features
 
+    white = flight_white_level(paths)
+
     def features(i: int) -> OrbFeatures:
-        image = read_image(paths[i])
+        image = read_image(paths[i], white)
         if image.shape[:2] != (camera.height, camera.width):
             raise InputError(f"image is {image.shape[1]}x{image.shape[0]} but the camera is {camera.width}x"
                              f"{camera.height}", paths[i])

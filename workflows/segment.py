@@ -167,11 +167,14 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
     report = SegmentReport()
     from tqdm import tqdm
 
+    from ..database.images import flight_white_level
+
+    white = flight_white_level(paths)  # one scale for a folder of one camera's 16-bit images
     for path in tqdm(paths, desc="segment", unit="img", disable=len(paths) < 3):
         res = ImageResult(path)
         report.images.append(res)
         try:
-            image = read_image(path)
+            image = read_image(path, white)
         except InputError as exc:  # recorded in the report; the caller says it (the CLI: once, on one line)
             res.error = str(exc)
             log.debug("%s", exc)

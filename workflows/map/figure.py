@@ -79,10 +79,11 @@ def draw_map_figure(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ...database.images import read_image
+    from ...database.images import flight_white_level, read_image
 
     positions = np.asarray(positions, np.float64).reshape(-1, 3)
     picks = pick_keyframes([o[:, 0] for o in observations], len(poses))
+    white = flight_white_level(image_paths)
     fig = plt.figure(figsize=(4.2 * max(3, len(picks)), 8.4), dpi=100)
     grid = fig.add_gridspec(2, max(3, len(picks)), height_ratios=[1.0, 1.1])
     for col, k in enumerate(picks):
@@ -91,7 +92,7 @@ def draw_map_figure(
         idx = np.array([i for i, _ in rows], np.int64)
         kps = np.array([keypoints[k][kp, :2] for _, kp in rows]).reshape(-1, 2)
         try:
-            image = read_image(image_paths[k])
+            image = read_image(image_paths[k], white)
         except Exception:  # a figure must never fail a map: an unreadable image stays blank
             image = np.zeros((camera.height, camera.width, 3), np.uint8)
         drawn = draw_keyframe(image, camera, poses.rotations[k], poses.centers[k], kps, positions[idx],

@@ -57,23 +57,25 @@ def _describe_one(
     prev_gray: np.ndarray | None = None,
     masks_for: Callable[[str, np.ndarray], Any] | None = None,
     camera: Camera | None = None,
+    white: int | None = None,
 ) -> tuple[Any, tuple[float, float], np.ndarray]:
     """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
 
     Returns (MaskFeatures, (mu_p, sigma_p), gray image). Runs in the main process or a worker process. `camera`:
     the images' lens; the motion is measured in the undistorted pixels tracking compares (`image_motion_stats`).
+    `white`: the flight's white level (`database.images.flight_white_level`).
     """
     from ...database.images import read_image
     from ...plugin.mask_features import describe_masks, segment_and_describe, to_gray_u8
     from ...plugin.motion import image_motion_stats
     from ...plugin.segmentation import get_backend
 
-    image = read_image(path)
+    image = read_image(path, white)
     if image.shape[:2] != size:
         raise InputError(f"image is {image.shape[1]}x{image.shape[0]} but the camera is {size[1]}x{size[0]}", path)
     gray = to_gray_u8(image)
     if prev_path is not None and prev_gray is None:
-        prev_gray = to_gray_u8(read_image(prev_path))
+        prev_gray = to_gray_u8(read_image(prev_path, white))
     mu_sigma = image_motion_stats(prev_gray, gray, camera=camera) if prev_path is not None else (0.0, 0.0)
     mu_sigma = (float(mu_sigma[0]), float(mu_sigma[1]))
     seg = params.segmentation
@@ -122,8 +124,14 @@ def describe_keyframes(
     """
     from tqdm import tqdm
 
+    from ...database.images import flight_white_level
+
     cache_dir.mkdir(parents=True, exist_ok=True)
     size = (inputs.camera.height, inputs.camera.width)
+    # one white level for the flight's images beyond 8 bits (none for 8-bit ones, whose cache keys stay as they were)
+    white = flight_white_level(inputs.image_paths)
+    if white is not None:
+        cache_key = f"{cache_key}:white{white}"
     results: list[tuple[Any, tuple[float, float]] | None] = [None] * len(keyframes)
     todo = []
     for k, idx in enumerate(keyframes):
@@ -146,7 +154,8 @@ def describe_keyframes(
         prev_gray, prev_k = None, -2
         for k, path, prev_path, entry, key in todo:
             feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
-                                                  prev_gray if prev_k == k - 1 else None, masks_for, inputs.camera)
+                                                  prev_gray if prev_k == k - 1 else None, masks_for, inputs.camera,
+                                                  white)
             results[k] = (feats, mu_sigma)
             prev_gray, prev_k = gray, k
             bar.update()
@@ -158,7 +167,7 @@ def describe_keyframes(
         # spawn (no fork of a process holding pycolmap/OpenCV threads); the workers die with this process
         with process_pool(workers, _worker_init) as pool:
             futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for,
-                                              inputs.camera))
+                                              inputs.camera, white))
                        for k, path, prev_path, entry, key in todo]
             try:
                 for k, fut in futures:
