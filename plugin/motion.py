@@ -1,4 +1,4 @@
-"""Image-motion statistics between consecutive keyframes (method.md 1.4).
+"""Image-motion statistics between consecutive keyframes (the method spec 1.4).
 
 SOS-Match gates track candidates on how far a mask centroid moved compared with how far the image moved:
 `| |m_i - m_j| - mu_p | / sigma_p < theta_v`. `mu_p` and `sigma_p` are the mean and standard deviation of the

@@ -1,4 +1,4 @@
-"""Segment tracking across keyframes (SOS-Match method.md 1.5): gates, pair score, one-to-one assignment.
+"""Segment tracking across keyframes (SOS-Match method spec 1.5): gates, pair score, one-to-one assignment.
 
 For each keyframe t, the candidate tracks are those whose latest observation (mask i at keyframe s) is at most
 `theta_t` keyframes old. A (track, mask j of keyframe t) pair is feasible only if every gate holds:
@@ -365,7 +365,7 @@ def track_masks(
     motion_stats: Sequence[tuple[float, float]],
     params: TrackingParams,
 ) -> TrackingResult:
-    """Track the masks of a keyframe sequence (method.md 1.5).
+    """Track the masks of a keyframe sequence (the method spec 1.5).
 
     Args:
         features: per keyframe, its mask description (centroids, sizes, SIFT sets).

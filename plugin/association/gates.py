@@ -1,4 +1,4 @@
-"""The size gate of putative associations (method.md section 2, step 2): one definition for every consumer.
+"""The size gate of putative associations (the method spec section 2, step 2): one definition for every consumer.
 
 r(h_i, h_j) = 2 |h_i - h_j| / (h_i + h_j) <= theta_r (`association.max_size_difference`) admits a landmark pair as
 a putative association, weighted by q_s = 1 + cos(pi r / theta_r). An unknown size (NaN) opens the gate (r = 0).

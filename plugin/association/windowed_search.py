@@ -1,4 +1,4 @@
-"""Windowed cross-session correspondence search (SOS-Match, method.md section 2), fast and exact.
+"""Windowed cross-session correspondence search (SOS-Match, the method spec section 2), fast and exact.
 
 What one window pair computes (`reference.py` states it as code, `search` reproduces it exactly):
   windows of theta_WL landmarks with stride theta_SL (a last window covers the tail) over each map's landmarks

@@ -1,4 +1,4 @@
-"""Windows over a map's landmark order (method.md section 2, step 1) and the landmark pairs they share."""
+"""Windows over a map's landmark order (the method spec section 2, step 1) and the landmark pairs they share."""
 
 from __future__ import annotations
 

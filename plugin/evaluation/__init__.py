@@ -1,1 +1,1 @@
-"""Evaluation protocol of SOS-Match (method.md section 3): footprints, IoU ground truth, claims, metrics."""
+"""Evaluation protocol of SOS-Match (the method spec section 3): footprints, IoU ground truth, claims, metrics."""

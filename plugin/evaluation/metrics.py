@@ -1,4 +1,4 @@
-"""Precision-recall of keyframe-pair claims against footprint-IoU ground truth (method.md section 3).
+"""Precision-recall of keyframe-pair claims against footprint-IoU ground truth (the method spec section 3).
 
 A pair with IoU > `tp_iou` (0.333) should be claimed; a claim on a pair with IoU < `fp_iou` (0.01) is a false
 positive; pairs in between count neither way. A method gives every keyframe pair a score (NaN = never

@@ -1,6 +1,7 @@
 """Every parameter of the method, with the paper's defaults, in one frozen dataclass tree.
 
-Field comments give the symbol used in SOS-Match (Thomas et al., IROS 2024) and `../shared/spec/method.md`.
+Field comments give the symbol used in SOS-Match (Thomas et al., IROS 2024) and the method's specification
+(kept outside this repository).
 Values marked *(ours)* are not fixed by the paper; the module that uses them documents how they were chosen.
 Parameters are plain data: `params_from_dict` / `params_to_dict` convert to and from nested dicts (TOML lives in
 `sosmatch.database.config_io`), and unknown keys are rejected rather than silently ignored.

@@ -7,7 +7,7 @@ Stages (docs/ARCHITECTURE.md, "The data walk"):
    (their matches, their GPS: `workflows.pose_check`);
 2. keyframes every `keyframes.interval_m` of travel;
 3. per keyframe (cached): segmentation, mask description, image-motion statistics to the previous keyframe;
-4. tracking (method.md 1.5);
+4. tracking (the method spec 1.5);
 5. COLMAP database: mask centroids as keypoints, every pair of observations of a long-enough track as a
    verified match (checked against the known poses with the Sampson distance);
 6. pycolmap triangulation with the fixed poses, points-only BA, landmark filters, metric sizes
