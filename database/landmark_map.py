@@ -116,15 +116,47 @@ def check_two_maps(path_a: str | Path, path_b: str | Path, map_a: LandmarkMap, m
     return prints
 
 
+# two maps whose landmarks' centres lie closer than this on the ground are of one site, whatever their EPSG codes
+ONE_SITE_KM = 50.0
+
+
 def crs_disagreement(map_a: LandmarkMap, map_b: LandmarkMap) -> str | None:
     """What to say when two maps are georeferenced in different EPSG codes, or None. Their coordinates are then
-    unrelated numbers to the search (it needs none), but two surveys of one site in two codes usually mean one wrong
-    label (a UTM zone or hemisphere; the thirteenth sweep: EPSG:32632 against 32732, matched and merged silently
-    with a near-identity transform)."""
+    unrelated numbers to the search (it needs none). Where each code puts its map on the ground tells the two
+    causes apart: far apart, one label is wrong (a UTM zone or hemisphere; the thirteenth sweep: EPSG:32632 against
+    32732, matched and merged silently with a near-identity transform); within ONE_SITE_KM, both can be right (a
+    site on the boundary of two UTM zones, whose flights took the zone of their first image: told "one label is
+    wrong" before)."""
     if not (map_a.epsg and map_b.epsg) or map_a.epsg == map_b.epsg:
         return None
-    return (f"A is georeferenced in EPSG:{map_a.epsg}, B in EPSG:{map_b.epsg}: they are searched as maps in unrelated "
-            "frames and B's georeference is not carried over; if both are surveys of one site, one label is wrong")
+    apart = _ground_distance_km(map_a, map_b)
+    head = f"A is georeferenced in EPSG:{map_a.epsg}, B in EPSG:{map_b.epsg}"
+    if apart is not None and apart <= ONE_SITE_KM:
+        return (f"{head}, {apart:.1f} km apart on the ground: one site in two projections (the two UTM zones of a "
+                "zone boundary?); they are searched as maps in unrelated frames, so the answer holds the change of "
+                f"projection and B's georeference is not compared; map both in one (`--epsg {map_a.epsg}`) to "
+                "compare them")
+    where = f", {apart:,.0f} km apart on the ground" if apart is not None else ""
+    return (f"{head}{where}: they are searched as maps in unrelated frames and B's georeference is not carried "
+            "over; if both are surveys of one site, one label is wrong")
+
+
+def _ground_distance_km(map_a: LandmarkMap, map_b: LandmarkMap) -> float | None:
+    """The geodesic distance between the centres of two georeferenced maps' landmarks, each placed by its own
+    EPSG code (None: a code or a position pyproj cannot place)."""
+    from pyproj import CRS, Geod, Transformer
+    from pyproj.exceptions import CRSError, ProjError
+
+    lonlat = []
+    try:
+        for lmap in (map_a, map_b):
+            centre = np.median(np.asarray(lmap.positions, np.float64).reshape(-1, 3)[:, :2], axis=0)
+            to_geo = Transformer.from_crs(CRS.from_epsg(int(lmap.epsg)), CRS.from_epsg(4326), always_xy=True)
+            lonlat.append(to_geo.transform(float(centre[0]), float(centre[1]), errcheck=True))
+        _, _, metres = Geod(ellps="WGS84").inv(*lonlat[0], *lonlat[1])
+    except (CRSError, ProjError, ValueError):
+        return None
+    return float(metres) / 1000.0 if np.isfinite(metres) else None
 
 
 def landmark_map_fingerprint(lmap: LandmarkMap) -> str:

@@ -234,6 +234,27 @@ def test_maps_in_two_epsg_codes_are_named(tmp_path, caplog):
     assert mode["position_prior"] == "off"
 
 
+def test_one_site_in_two_utm_zones_is_not_called_a_wrong_label():
+    """A site on the boundary of UTM zones 31 and 32: each flight takes the zone of its first image, so two flights
+    of one site can be mapped in two zones. Both labels are right; `match` said "one label is wrong" (nu15 of
+    this session's sweep). Where each code puts its map on the ground tells the cases apart."""
+    from pyproj import Transformer
+
+    from sosmatch.database.landmark_map import crs_disagreement
+
+    a, b = _maps()
+    lon, lat = Transformer.from_crs("EPSG:4326", "EPSG:32631", always_xy=True).transform(6.0, 47.0)
+    in31 = np.asarray(b.positions) + [lon - 150.0, lat - 150.0, 0.0]
+    x, y = Transformer.from_crs("EPSG:32631", "EPSG:32632", always_xy=True).transform(in31[:, 0], in31[:, 1])
+    map_a = dataclasses.replace(a, epsg=32631, positions=np.asarray(a.positions) + [lon - 150.0, lat - 150.0, 0.0])
+    map_b = dataclasses.replace(b, epsg=32632, positions=np.column_stack([x, y, in31[:, 2]]))
+    said = crs_disagreement(map_a, map_b)
+    assert "one site in two projections" in said and "--epsg 32631" in said and "label is wrong" not in said
+    wrong = crs_disagreement(map_a, dataclasses.replace(map_b, epsg=32732))  # the same numbers, southern zone
+    assert "one label is wrong" in wrong and "km apart" in wrong
+    assert crs_disagreement(map_a, dataclasses.replace(map_b, epsg=32631)) is None
+
+
 def test_evaluate_does_not_count_a_winner_beyond_the_prior():
     # the diff review: evaluate took `clear` alone, so an answer the match refused as beyond its prior was scored
     from sosmatch.workflows.evaluate.workflow import _clear_in_file
