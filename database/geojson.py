@@ -46,25 +46,49 @@ def check_within_crs_area(epsg: int, xy: np.ndarray, source: str | Path | None =
     bounds of the CRS's area of use: a local map stamped with a CRS (a synthetic session's 300 m coordinates as
     UTM zone 33N) converts to lon/lat without complaint, in the Gulf of Guinea. A CRS without a recorded or
     projectable area (Web Mercator's is the world) is not checked."""
-    from pyproj import CRS, Transformer
+    from pyproj import CRS
 
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    crs = CRS.from_epsg(int(epsg))
-    area = crs.area_of_use
-    if area is None or not len(xy) or area.east < area.west:
+    bounds = crs_area_bounds(epsg)
+    if bounds is None or not len(xy):
         return
-    try:
-        tf = Transformer.from_crs(CRS.from_epsg(4326), crs, always_xy=True)
-        x0, y0, x1, y1 = tf.transform_bounds(area.west, area.south, area.east, area.north)
-    except Exception:  # pyproj.ProjError and friends: no projected bounds, nothing to check against
-        return
-    if not all(np.isfinite([x0, y0, x1, y1])):
-        return
+    x0, y0, x1, y1 = bounds
     lo, hi, m = xy.min(axis=0), xy.max(axis=0), CRS_AREA_MARGIN_M
     if lo[0] < x0 - m or hi[0] > x1 + m or lo[1] < y0 - m or hi[1] > y1 + m:
         raise InputError(f"{what} lie at x {lo[0]:.0f}..{hi[0]:.0f}, y {lo[1]:.0f}..{hi[1]:.0f} m, more than "
-                         f"{m / 1000:.0f} km outside where EPSG:{epsg} ({crs.name}) is used (x {x0:.0f}..{x1:.0f}, "
-                         f"y {y0:.0f}..{y1:.0f}): a local frame given a CRS?", source)
+                         f"{m / 1000:.0f} km outside where EPSG:{epsg} ({CRS.from_epsg(int(epsg)).name}) is used "
+                         f"(x {x0:.0f}..{x1:.0f}, y {y0:.0f}..{y1:.0f}): a local frame given a CRS?", source)
+
+
+def outside_crs_area(epsg: int, xy: np.ndarray) -> np.ndarray:
+    """(N,) True for the points of `xy` (projected coordinates of EPSG:`epsg`) more than CRS_AREA_MARGIN_M
+    outside the projected bounds of the CRS's area of use (all False where it has none)."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    bounds = crs_area_bounds(epsg)
+    if bounds is None:
+        return np.zeros(len(xy), bool)
+    x0, y0, x1, y1 = bounds
+    m = CRS_AREA_MARGIN_M
+    with np.errstate(invalid="ignore"):
+        return ((xy[:, 0] < x0 - m) | (xy[:, 0] > x1 + m) | (xy[:, 1] < y0 - m) | (xy[:, 1] > y1 + m)
+                | ~np.all(np.isfinite(xy), axis=1))
+
+
+def crs_area_bounds(epsg: int) -> tuple[float, float, float, float] | None:
+    """The projected bounds (x0, y0, x1, y1) of EPSG:`epsg`'s area of use, or None: no recorded area, one across
+    the antimeridian, or none that projects (Web Mercator's is the world)."""
+    from pyproj import CRS, Transformer
+
+    crs = CRS.from_epsg(int(epsg))
+    area = crs.area_of_use
+    if area is None or area.east < area.west:
+        return None
+    try:
+        tf = Transformer.from_crs(CRS.from_epsg(4326), crs, always_xy=True)
+        bounds = tf.transform_bounds(area.west, area.south, area.east, area.north)
+    except Exception:  # pyproj.ProjError and friends: no projected bounds, nothing to check against
+        return None
+    return tuple(float(v) for v in bounds) if all(np.isfinite(bounds)) else None  # type: ignore[return-value]
 
 
 def to_wgs84(xy: np.ndarray, epsg: int) -> np.ndarray:

@@ -248,6 +248,25 @@ def test_telemetry_rows_without_a_fix_leave_the_exif_gps(tmp_path, caplog):
     assert any("3 rows hold no GPS fix" in r.getMessage() for r in caplog.records)
 
 
+def test_images_of_two_places_in_one_folder_are_a_clear_error(tmp_path, capsys):
+    """Images of a flight in France and one in Australia in one folder were projected into the first image's UTM
+    zone without a word: the Australian ones got meaningless coordinates, and `map` refused the result as a
+    mirrored flight. A fix far outside the zone's area is an error naming an image; a site on a zone boundary
+    (lon 6.0 E, zones 31 and 32) is not."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(4):
+        write_jpeg(img / f"a{k}.jpg", 47.0, 5.999 + k * 1e-3, 500.0)  # across the boundary of zones 31 and 32
+    assert pfe.poses_from_images(img).epsg == 32631
+    for k in range(3):
+        write_jpeg(img / f"b{k}.jpg", -33.9, 151.2 + k * 1e-4, 50.0)
+    with pytest.raises(InputError, match=r"3 of 7 images' GPS fixes lie more than 100 km outside where EPSG:32631 "
+                                         r"is used \(e.g. b0.jpg at -33.9000, 151.2000\): images of two places"):
+        pfe.poses_from_images(img)
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p.csv")]) == 2
+    assert not (tmp_path / "p.csv").exists()
+
+
 def test_missing_gps_is_a_clear_error(tmp_path, capsys):
     img = tmp_path / "images"
     img.mkdir()

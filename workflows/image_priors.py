@@ -286,6 +286,7 @@ def read_image_priors(
             epsg = utm_epsg(float(lat[first]), float(lon[first]))
         east[has], north[has], north_az[has] = geographic_to_grid(lat[has], lon[has], epsg)
         north_az[~has] = float(np.mean(north_az[has]))
+        _check_one_place(lat, lon, east, north, int(epsg), [m.path.name for m in metas], images)
     times, time_source = _capture_times(metas)
 
     # Heights: DJI RelativeAltitude + take-off altitude where every fixed image has it, else the GPS altitude.
@@ -395,6 +396,24 @@ def read_image_priors(
     }
     return ImagePriors(paths, metas, int(epsg or 0), positions, alt, rel, rotations, kind, times, cameras,
                        camera_index, summary)
+
+
+def _check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: np.ndarray, epsg: int,
+                     names: list[str], images: Any) -> None:
+    """InputError naming `images` when some fixes lie far outside where the poses' CRS is used (more than
+    `database.geojson.CRS_AREA_MARGIN_M` beyond its area of use): images of two places in one folder. Projected
+    into the first image's UTM zone, a second place thousands of kilometres away gets coordinates without any
+    meaning, which later checks read as a mirrored or a wildly scaled flight."""
+    from ..database.geojson import CRS_AREA_MARGIN_M, outside_crs_area
+
+    has = np.isfinite(east) & np.isfinite(north)
+    far = np.flatnonzero(has & outside_crs_area(epsg, np.column_stack([east, north])))
+    if not len(far):
+        return
+    k = int(far[0])
+    raise InputError(f"{len(far)} of {int(has.sum())} images' GPS fixes lie more than {CRS_AREA_MARGIN_M / 1000:.0f} "
+                     f"km outside where EPSG:{epsg} is used (e.g. {names[k]} at {lat[k]:.4f}, {lon[k]:.4f}): "
+                     "images of two places in one folder? map each flight on its own", images)
 
 
 def _track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times: np.ndarray, timed: bool,
