@@ -296,6 +296,32 @@ def image_files(folder: str | Path) -> list[Path]:
                   if f.suffix.lower() in IMAGE_EXTENSIONS and not f.name.startswith(".") and f.is_file())
 
 
+# files a drone or camera writes beside (or instead of) its images that no stage reads
+RAW_EXTENSIONS = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw", ".3fr", ".iiq")
+OTHER_MEDIA = {".heic": "HEIC", ".heif": "HEIF", ".mov": "video", ".mp4": "video", ".avi": "video"}
+
+
+def no_images_message(folder: str | Path) -> str:
+    """Why a folder holds no image a stage reads (for the InputError naming it): the extensions read, and what it
+    holds instead, where that tells the user what to do (camera raw files to export, images one level down as in
+    DCIM/100MEDIA, HEIC or video)."""
+    folder = Path(folder)
+    text = f"no images ({'/'.join(IMAGE_EXTENSIONS)}) in directory"
+    files = [f for f in folder.iterdir() if f.is_file() and not f.name.startswith(".")]
+    raw = [f for f in files if f.suffix.lower() in RAW_EXTENSIONS]
+    other = sorted({OTHER_MEDIA[f.suffix.lower()] for f in files if f.suffix.lower() in OTHER_MEDIA})
+    if raw:
+        return (f"{text}; its {len(raw)} {raw[0].suffix.upper().lstrip('.')} files are camera raw, which is not read: "
+                "export them as JPEG or 16-bit TIFF (keeping their EXIF) first")
+    if other:
+        return f"{text}; it holds {' and '.join(other)} files, which are not read: export frames as JPEG or TIFF"
+    below = sorted(d for d in folder.iterdir() if d.is_dir() and not d.name.startswith(".") and image_files(d))
+    if below:
+        return (f"{text}; {len(below)} folder(s) below hold images (e.g. {below[0].name}): give the folder of one "
+                "flight's images")
+    return text
+
+
 def list_images(paths: Iterable[str | Path]) -> list[Path]:
     """Expand files and directories (not recursive) into a sorted list of image files.
 

@@ -78,6 +78,26 @@ def test_a_flights_white_level_is_the_cameras_not_the_frames(tmp_path):
     assert flight_white_level([tmp_path / "a.jpg"]) is None and flight_white_level([]) is None
 
 
+def test_a_folder_without_images_says_what_it_holds_instead(tmp_path):
+    """A drone folder of raw DNG files, a DCIM folder whose images are one level down, or a folder of videos gave
+    only "no images in directory"; the error now says what to do."""
+    from sosmatch.database.images import no_images_message
+
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    for k in range(3):
+        (raw / f"DJI_{k:04d}.DNG").write_bytes(b"II*\x00")
+    assert "its 3 DNG files are camera raw" in no_images_message(raw)
+    dcim = tmp_path / "DCIM"
+    (dcim / "100MEDIA").mkdir(parents=True)
+    Image.fromarray(_scene()).save(dcim / "100MEDIA" / "a.jpg")
+    assert "folder(s) below hold images (e.g. 100MEDIA)" in no_images_message(dcim)
+    (tmp_path / "video").mkdir()
+    (tmp_path / "video" / "flight.MP4").write_bytes(b"\x00")
+    assert "video files" in no_images_message(tmp_path / "video")
+    assert main(["segment", str(raw), "--out", str(tmp_path / "o"), "-q"]) == 2
+
+
 def test_bad_images_raise_input_error_naming_the_file(tmp_path):
     Image.fromarray(_scene()).save(tmp_path / "ok.jpg", quality=90)
     data = (tmp_path / "ok.jpg").read_bytes()

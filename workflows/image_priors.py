@@ -65,7 +65,7 @@ from typing import Any
 import numpy as np
 
 from ..database.exif import ImageMetadata, read_image_metadata
-from ..database.images import IMAGE_EXTENSIONS, image_files
+from ..database.images import image_files, no_images_message
 from ..database.telemetry_io import read_telemetry_csv, telemetry_rows
 from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the tags are read with)
     DEFAULT_MOUNT,
@@ -102,7 +102,7 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
         if root.is_dir():
             paths = image_files(root)
             if not paths:
-                raise InputError(f"no images ({'/'.join(IMAGE_EXTENSIONS)}) in directory", root)
+                raise InputError(no_images_message(root), root)
             return paths
         if not root.exists():
             raise InputError("image directory not found", root)

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from ..database.atomic import atomic_path, write_text_atomic
-from ..database.images import list_images, read_image
+from ..database.images import list_images, no_images_message, read_image
 from ..database.outputs import fingerprint, open_output_dir
 from ..plugin.errors import InputError
 from ..plugin.mask_features import MaskFeatures, describe_masks, segment_and_describe
@@ -145,6 +145,9 @@ def run(
         params = replace(params, segmentation=replace(params.segmentation, backend=backend))
     paths = list_images(inputs)
     if not paths:
+        folders = [Path(p) for p in inputs if Path(p).is_dir()]
+        if len(folders) == 1:
+            raise InputError(no_images_message(folders[0]), folders[0])
         raise InputError(f"no images found in {', '.join(str(p) for p in inputs)}")
     out_dir = Path(out_dir)
     identity = fingerprint({"images": [[str(p.resolve()), *_stat(p)] for p in paths], "overlays": write_overlays,
