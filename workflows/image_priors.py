@@ -413,7 +413,8 @@ def _check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: 
     k = int(far[0])
     raise InputError(f"{len(far)} of {int(has.sum())} images' GPS fixes lie more than {CRS_AREA_MARGIN_M / 1000:.0f} "
                      f"km outside where EPSG:{epsg} is used (e.g. {names[k]} at {lat[k]:.4f}, {lon[k]:.4f}): "
-                     "images of two places in one folder? map each flight on its own", images)
+                     "images of two places in one folder? map each flight on its own (a flight that long: give "
+                     "--epsg of a CRS that holds it all)", images)
 
 
 def _track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times: np.ndarray, timed: bool,
