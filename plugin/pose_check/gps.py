@@ -66,7 +66,7 @@ class GpsComparison:
     offset_m: float = float("nan")  # georeferenced poses: median distance of the centres from their own fixes
     fix_noise_m: float = float("nan")  # the receiver's jitter per axis, from the fixes alone (second differences)
     mirrored_explained: float = float("nan")  # `explained` of the best similarity with a reflection
-    stale: int = 0  # fixes left out as repeating the previous one
+    stale: int = 0  # fixes left out as held by the receiver while the cameras moved (`stale_fixes`)
 
     @property
     def explained(self) -> float:
