@@ -9,9 +9,11 @@ without GPS, mixed cameras, damaged tags: they are counted in the summary and wa
 `poses_from_exif.poses_from_images` adds the checks its own job needs.
 
 World frame. Positions are full UTM coordinates (WGS84 / UTM, EPSG:326zz north or 327zz south, the zone of the
-first image with a fix unless `epsg` is given). A telemetry CSV's positions (GPSLatitude, GPSLongitude,
-GPSAltitude), where its row has them, take precedence over the image's own EXIF GPS: a file the user gives is
-their better positions (an autopilot's log, a PPK / RTK solution), as OpenDroneMap's geo.txt overrides the EXIF.
+flight's median fix unless `epsg` is given: two flights of one site then take one zone unless the site's middle
+lies on a zone boundary, where the first image's zone split them by where each started). A telemetry CSV's
+positions (GPSLatitude, GPSLongitude, GPSAltitude), where its row has them, take precedence over the image's own
+EXIF GPS: a file the user gives is their better positions (an autopilot's log, a PPK / RTK solution), as
+OpenDroneMap's geo.txt overrides the EXIF.
 Heights: the GPS altitude (metres, as the receiver reports it:
 for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
 vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off
@@ -281,9 +283,8 @@ def read_image_priors(
     has = np.isfinite(lat)
     east, north, north_az = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
     if has.any():
-        first = int(np.flatnonzero(has)[0])
         if epsg is None:
-            epsg = utm_epsg(float(lat[first]), float(lon[first]))
+            epsg = utm_epsg(*median_position(lat[has], lon[has]))
         east[has], north[has], north_az[has] = geographic_to_grid(lat[has], lon[has], epsg)
         north_az[~has] = float(np.mean(north_az[has]))
         _check_one_place(lat, lon, east, north, int(epsg), [m.path.name for m in metas], images)
@@ -398,11 +399,20 @@ def read_image_priors(
                        camera_index, summary)
 
 
+def median_position(lat: np.ndarray, lon: np.ndarray) -> tuple[float, float]:
+    """The median latitude and longitude of fixes (degrees); longitudes are taken relative to the first fix, so a
+    flight across the antimeridian has its median there, not on the other side of the Earth."""
+    lat, lon = np.asarray(lat, np.float64), np.asarray(lon, np.float64)
+    relative = (lon - lon[0] + 180.0) % 360.0 - 180.0
+    middle = (float(np.median(relative)) + lon[0] + 180.0) % 360.0 - 180.0
+    return float(np.median(lat)), float(middle)
+
+
 def _check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: np.ndarray, epsg: int,
                      names: list[str], images: Any) -> None:
     """InputError naming `images` when some fixes lie far outside where the poses' CRS is used (more than
     `database.geojson.CRS_AREA_MARGIN_M` beyond its area of use): images of two places in one folder. Projected
-    into the first image's UTM zone, a second place thousands of kilometres away gets coordinates without any
+    into the flight's UTM zone, a second place thousands of kilometres away gets coordinates without any
     meaning, which later checks read as a mirrored or a wildly scaled flight."""
     from ..database.geojson import CRS_AREA_MARGIN_M, outside_crs_area
 

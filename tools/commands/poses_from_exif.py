@@ -25,7 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pitch-sign", type=float, default=None, choices=[-1.0, 1.0])
     parser.add_argument("--roll-sign", type=float, default=None, choices=[-1.0, 1.0])
     parser.add_argument("--sensor-width-mm", type=float, help="sensor width when EXIF has no focal-plane resolution")
-    parser.add_argument("--epsg", type=int, help="projected CRS for the poses (default: the UTM zone of image 1)")
+    parser.add_argument("--epsg", type=int, help="projected CRS for the poses (default: the UTM zone of the "
+                        "flight's median GPS fix)")
     parser.add_argument("--refine", action="store_true",
                         help="refine the poses with ORB tie points between overlapping images, the EXIF poses "
                              "acting as priors (for consumer GPS / autopilot attitude; on by itself when images have "
