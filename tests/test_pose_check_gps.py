@@ -318,3 +318,14 @@ def test_the_unit_is_measured_in_the_fixes_own_utm_zone() -> None:
     assert gps.scale == pytest.approx(1.0, abs=1e-6) and gps.offset_m > 100_000
     stretched = compare_with_gps(truth, zone30)  # what measuring in the labelled grid read
     assert abs(stretched.scale - 1.0) > 0.005
+
+
+def test_a_corridor_with_receiver_jumps_is_not_refused_as_mirrored() -> None:
+    """rev16: a straight corridor fits its mirror image as well as itself; when a receiver's jumps failed the
+    inlier share, correct poses were refused as mirrored. A mirror must now fit clearly better than the proper fit."""
+    line = np.column_stack([np.linspace(0.0, 300.0, 60), np.r_[np.zeros(30), np.full(30, 5.0)], np.full(60, 80.0)])
+    fixes = line[:, :2] + np.random.default_rng(0).normal(0.0, 0.3, (60, 2))
+    fixes[28:] += [13.6, -4.7]  # the receiver jumps by 14 m half-way
+    gps = compare_with_gps(line, fixes)
+    assert gps.explained > 0.9
+    assert not judge_gps(gps, PoseCheckParams()).refusals

@@ -120,7 +120,10 @@ def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
                           "far off (another UTM zone or hemisphere, another datum, or a shifted origin?)")
     agreement = limits.min_gps_agreement
     if not gps.follows(agreement):
-        if gps.mirrored_explained >= max(agreement, MIRRORED_EXPLAINED):
+        # only a mirror that fits clearly better than the proper fit names the frame (a straight corridor fits both
+        # equally, and a receiver's jumps then failed the inlier share: good poses were refused, review rev16)
+        if (not gps.too_small and gps.explained < agreement
+                and gps.mirrored_explained >= max(agreement, MIRRORED_EXPLAINED, gps.explained + 0.3)):
             # a mirrored map matches no other session and misplaces its georeference: unusable, when clear
             (v.refusals if gps.fixes >= MIN_FIXES_TO_REFUSE else v.warnings).append(
                 f"poses vs images' GPS: the camera path is the mirror image of the images' own GPS track (mirrored, "
