@@ -64,7 +64,13 @@ def to_rgb_u8(array: np.ndarray, white: int | None = None) -> np.ndarray:
         raise ValueError(f"unsupported pixel array shape {a.shape}")
     if a.dtype == np.uint8:
         out = a
-    elif a.dtype in (np.uint16, np.int32, np.uint32, np.int64):
+    elif a.dtype.kind == "u" and a.dtype.itemsize == 2:  # any byte order (big-endian TIFF: >u2)
+        level = int(white) if white else white_level(int(a.max(initial=0)))
+        # a table of the 65536 values: the uint8 result is written directly (a float copy of a 24 MP RGB frame
+        # took 288 MB per temporary, review rev17)
+        lut = np.clip(np.rint(np.arange(65536) * (255.0 / max(level, 1))), 0, 255).astype(np.uint8)
+        out = lut[a.astype(np.uint16, copy=False)]
+    elif a.dtype.kind in "ui" and a.dtype.itemsize > 2:
         level = int(white) if white else white_level(int(a.max(initial=0)))
         out = np.clip(np.rint(a.astype(np.float32) * np.float32(255.0 / max(level, 1))), 0, 255).astype(np.uint8)
     elif a.dtype == bool:
@@ -180,13 +186,14 @@ def flight_white_level(paths: Sequence[str | Path]) -> int | None:
     largest = None
     for i in picks:
         path = Path(paths[i])
-        if _header_bits(path) == 8:
+        bits = _header_bits(path)
+        if bits is not None and bits <= 8:
             continue
         try:
             arr = _decode(path)
         except InputError:
             continue
-        if arr.dtype in (np.uint16, np.int32, np.uint32, np.int64):
+        if arr.dtype.kind in "ui" and arr.dtype.itemsize > 1:
             largest = max(largest or 0, int(arr.max(initial=0)))
     return None if largest is None else white_level(largest)
 

@@ -144,3 +144,13 @@ def test_cli_directory_run_skips_bad_files_and_exits_nonzero(tmp_path, capsys):
     assert main(["segment", str(src / "a.png"), "--out", str(out), "-q", "--overwrite"]) == 0
     assert main(["segment", str(tmp_path / "nothing"), "--out", str(out), "-q"]) == 2
     assert main(["segment", str(src / "a.png"), "--out", str(out), "--backend", "nope", "-q"]) == 2
+
+
+def test_big_endian_16_bit_gray_tiff_reads(tmp_path):
+    """rev17: PIL hands a big-endian 16-bit gray TIFF over as dtype >u2, which the reader refused as an
+    unsupported pixel type (before and after the white-level change)."""
+    tifffile = pytest.importorskip("tifffile")
+    gray = _scene()[:, :, 1].astype(np.uint16) * 257
+    tifffile.imwrite(tmp_path / "be.tif", gray, byteorder=">")
+    out = read_image(tmp_path / "be.tif")
+    assert np.abs(out[:, :, 0].astype(int) - _scene()[:, :, 1]).max() <= 1
