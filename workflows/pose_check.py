@@ -37,13 +37,15 @@ class PosesRefused(InputError):
     """The poses contradict the images (`plugin.pose_check.judge_poses`); the message says how."""
 
 
-def image_features(paths: Sequence[Path], camera: Camera, params: PoseCheckParams) -> Callable[[int], OrbFeatures]:
+def image_features(paths: Sequence[Path], camera: Camera, params: PoseCheckParams,
+                   white: int | None = None) -> Callable[[int], OrbFeatures]:
     """`features(i)`: ORB features of image `paths[i]` at the working size (read on demand; an unreadable image or
-    one of another size than the camera is an InputError naming it), at the flight's white level."""
+    one of another size than the camera is an InputError naming it), at the flight's white level (`white`; None:
+    found here, `database.images.flight_white_level`)."""
     from ..database.images import flight_white_level, read_image
     from ..plugin.image_matching import orb_features
 
-    white = flight_white_level(paths)
+    white = flight_white_level(paths) if white is None else white
 
     def features(i: int) -> OrbFeatures:
         image = read_image(paths[i], white)
@@ -124,18 +126,18 @@ def refuse_by_gps(image_paths: Sequence[Path], poses: Poses, epsg: int, params: 
 
 def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params,
           gate: float | None = None, epsg: int | None = None,
-          gps: GpsComparison | None = None) -> tuple[PoseCheck, Verdict]:
+          gps: GpsComparison | None = None, white: int | None = None) -> tuple[PoseCheck, Verdict]:
     """The figures of `poses` (in the order of `image_paths`, capture order) against the images, and their
     verdict. `gate`: the tracker's epipolar gate in pixels of these images (None: `gate_px(params, camera)`;
     the map passes its own, as its parameters are already scaled to the image). `epsg`: the poses' CRS (0: a
     local frame); given, the camera centres are also compared with the images' own GPS fixes
     (`gps_comparison`: the poses' unit, and their georeference in that CRS), unless `gps` brings that
-    comparison already made (`refuse_by_gps`)."""
+    comparison already made (`refuse_by_gps`). `white`: as `image_features`'."""
     from dataclasses import replace
 
     if len(image_paths) != len(poses):
         raise ValueError(f"{len(image_paths)} images for {len(poses)} poses")
-    result = check_poses(poses, camera, image_features(list(image_paths), camera, params.pose_check),
+    result = check_poses(poses, camera, image_features(list(image_paths), camera, params.pose_check, white),
                          params.pose_check, gate_px(params, camera) if gate is None else float(gate))
     if gps is None and epsg is not None:
         gps = gps_comparison(image_paths, poses, epsg)
@@ -184,14 +186,15 @@ def write_disabled(out: str | Path) -> None:
 
 def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path | None = None,
         refuse: bool = True, sources: dict | None = None, gate: float | None = None,
-        files: OutputFiles | None = None, epsg: int | None = None, gps: GpsComparison | None = None) -> CheckResult:
+        files: OutputFiles | None = None, epsg: int | None = None, gps: GpsComparison | None = None,
+        white: int | None = None) -> CheckResult:
     """Check the poses (`check`), write the figures to `out` (JSON, atomically; None: nothing written) and raise
     PosesRefused (after writing) when they contradict the images and `refuse` is on. `files`: the OutputFiles
     that `out` is written through (`check_to_file`, a user's file); without it `out` lies in a directory the
-    caller owns (the map's output). `epsg`, `gps`: as `check`'s."""
+    caller owns (the map's output). `epsg`, `gps`, `white`: as `check`'s."""
     from ..database.atomic import write_text_atomic
 
-    result, verdict = check(image_paths, poses, camera, params, gate, epsg, gps)
+    result, verdict = check(image_paths, poses, camera, params, gate, epsg, gps, white)
     for warning in verdict.warnings:
         log.warning("%s", warning)
     if out is not None:

@@ -65,6 +65,7 @@ def draw_map_figure(
     quality: MapQuality,
     verdict: Verdict,
     title: str = "",
+    white: int | None = None,
 ) -> None:
     """Write the figure to `out` (PNG; the caller makes it atomic).
 
@@ -73,6 +74,7 @@ def draw_map_figure(
         observations: per landmark, (n, 2) int (keyframe index, keypoint index).
         keypoints: per keyframe, (K, >= 2) keypoints in COLMAP pixels (the real, distorted ones).
         poses, camera, image_paths: the keyframes' poses, the real camera and the image files.
+        white: the flight's white level (`database.images.flight_white_level`; None: found here).
     """
     import matplotlib
 
@@ -83,7 +85,7 @@ def draw_map_figure(
 
     positions = np.asarray(positions, np.float64).reshape(-1, 3)
     picks = pick_keyframes([o[:, 0] for o in observations], len(poses))
-    white = flight_white_level(image_paths)
+    white = flight_white_level(image_paths) if white is None else white
     fig = plt.figure(figsize=(4.2 * max(3, len(picks)), 8.4), dpi=100)
     grid = fig.add_gridspec(2, max(3, len(picks)), height_ratios=[1.0, 1.1])
     for col, k in enumerate(picks):

@@ -109,6 +109,7 @@ def describe_keyframes(
     workers: int = 1,
     masks_for: Callable[[str, np.ndarray], Any] | None = None,
     digests: Sequence[str] | None = None,
+    white: int | None = None,
 ) -> tuple[list[Any], list[tuple[float, float]], int]:
     """Segmentation + mask description + motion statistics per keyframe, resumed from the cache.
 
@@ -121,6 +122,7 @@ def describe_keyframes(
     use ground-truth label masks; it must be picklable when `workers` > 1). `digests`: the images' contents
     (`inputs.image_digests`); with them, an entry is valid exactly while its image and the previous keyframe's
     are unchanged, so a run that failed on one bad image resumes every other keyframe once it is fixed.
+    `white`: the flight's white level (`database.images.flight_white_level`; None: found here).
     """
     from tqdm import tqdm
 
@@ -129,7 +131,7 @@ def describe_keyframes(
     cache_dir.mkdir(parents=True, exist_ok=True)
     size = (inputs.camera.height, inputs.camera.width)
     # one white level for the flight's images beyond 8 bits (none for 8-bit ones, whose cache keys stay as they were)
-    white = flight_white_level(inputs.image_paths)
+    white = flight_white_level(inputs.image_paths) if white is None else white
     if white is not None:
         cache_key = f"{cache_key}:white{white}"
     results: list[tuple[Any, tuple[float, float]] | None] = [None] * len(keyframes)

@@ -28,12 +28,12 @@ class MapRefused(InputError):
     """The map was made but its geometry is implausible or it is empty: the inputs (poses, camera) are wrong."""
 
 
-def pose_check_stage(inputs: Any, params: Any, record: Path, gps: Any = None) -> Any:
+def pose_check_stage(inputs: Any, params: Any, record: Path, gps: Any = None, white: int | None = None) -> Any:
     """The poses of `inputs` (MapInputs) checked against its images (`workflows.pose_check.run`, figures written
     to `record`), or None when `pose_check.enabled` is off (`record` then says so, so that no stale figures of
     an earlier run stand beside the map). Never raises on a refusal: its verdict joins the map's (`joined`), so a
     map on poses that contradict the images is refused like an implausible one. `gps`: the comparison with the
-    images' GPS already made (`workflow.gps_precheck`)."""
+    images' GPS already made (`workflow.gps_precheck`); `white`: the flight's white level."""
     from .. import pose_check
 
     if not params.pose_check.enabled:
@@ -43,7 +43,7 @@ def pose_check_stage(inputs: Any, params: Any, record: Path, gps: Any = None) ->
     # `params` are the map's, already scaled to the image (`plugin.params.for_image`): its gate as it is
     return pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, record, refuse=False,
                           sources=inputs.sources, gate=params.tracking.epipolar_margin_px, epsg=inputs.epsg,
-                          gps=gps)
+                          gps=gps, white=white)
 
 
 def joined(*verdicts: Verdict | None) -> Verdict:
@@ -66,10 +66,11 @@ def assess(landmarks: Any, poses: Poses, long_tracks: int) -> MapQuality:
 def quality_stage(
     landmarks: Any, poses: Poses, camera: Camera, image_paths: list[Path], keypoints: list[np.ndarray],
     long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
-    images_flying_height_m: float = float("nan"),
+    images_flying_height_m: float = float("nan"), white: int | None = None,
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
-    `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`)."""
+    `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
+    for the picture (`database.images.flight_white_level`)."""
     quality = assess(landmarks, poses, long_tracks)
     verdict = judge(quality, limits, min_landmarks, images_flying_height_m)
     alone = isolated_cameras(poses.centers, quality.flying_height_m, 0.5 * float(np.hypot(camera.width, camera.height)),
@@ -87,7 +88,7 @@ def quality_stage(
         try:
             with atomic_path(figure) as tmp:
                 draw_map_figure(tmp, landmarks.positions, landmarks.sizes_m, landmarks.observations, keypoints,
-                                poses, camera, image_paths, quality, verdict, title)
+                                poses, camera, image_paths, quality, verdict, title, white)
         except Exception as exc:  # the picture is a help, never a reason to lose the map
             log.warning("could not draw %s: %s", figure, exc)
     return quality, verdict

@@ -221,6 +221,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
     import pycolmap
 
+    from ...database.images import flight_white_level
     from ...database.session_io import format_landmarks_csv
     from ...plugin.keyframes import select_keyframes
     from ...plugin.mask_features import undistort_features
@@ -231,7 +232,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     camera = inputs.camera
     t = time.perf_counter()
     # before the keyframes: its flying height sets the segmenter's working size (`working_resolution`)
-    checked = pose_check_stage(inputs, params, out.staged(POSE_CHECK), gps)
+    # one white level for every reader of the flight's images beyond 8 bits (a 16-bit sample is decoded once)
+    white = flight_white_level(inputs.image_paths)
+    checked = pose_check_stage(inputs, params, out.staged(POSE_CHECK), gps, white)
     timings["pose_check"] = time.perf_counter() - t
     params, ground_resolution = working_resolution(params, checked, camera)
     pdict = params_to_dict(params)
@@ -244,7 +247,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     keyframes = select_keyframes(inputs.poses.centers, params.keyframes.interval_m)
     kf_poses = inputs.poses.subset(keyframes)
     features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
-                                                  progress, on_keyframe, workers, masks_for, digests)
+                                                  progress, on_keyframe, workers, masks_for, digests, white)
     timings["keyframes"] = time.perf_counter() - t
 
     from tqdm import tqdm
@@ -317,7 +320,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     quality, verdict = quality_stage(landmarks, kf_poses, camera, [inputs.image_paths[i] for i in keyframes],
                                      keypoints, long_tracks, params.quality, out.staged(FIGURE), str(out.path),
                                      params.association.min_associations + 1,
-                                     checked.check.flying_height_m if checked is not None else float("nan"))
+                                     checked.check.flying_height_m if checked is not None else float("nan"),
+                                     white)
     verdict = joined(verdict, checked.verdict if checked is not None else None)
     timings["quality"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
