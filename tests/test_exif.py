@@ -197,15 +197,20 @@ def test_telemetry_and_course_fallbacks(tmp_path):
         pfe.poses_from_images(img, telemetry=tele)
 
 
-def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog):
-    """The thirteenth sweep: a telemetry CSV's positions (a PPK solution, the autopilot's log) were ignored
-    wherever the images had EXIF GPS. The user's file now wins, as OpenDroneMap's geo.txt does; the log says how far
-    it moved the positions, and warns when that is another flight's or another datum's distance."""
+def _four_images_flying_east(tmp_path: Path) -> tuple[Path, object]:
+    """Four EXIF-tagged images 7.6 m apart flying east at 47 N, and their poses from those tags alone."""
     img = tmp_path / "images"
     img.mkdir()
     for k in range(4):
         write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)
-    exif = pfe.poses_from_images(img)
+    return img, pfe.poses_from_images(img)
+
+
+def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog):
+    """The thirteenth sweep: a telemetry CSV's positions (a PPK solution, the autopilot's log) were ignored
+    wherever the images had EXIF GPS. The user's file now wins, as OpenDroneMap's geo.txt does; the log says how far
+    it moved the positions, and warns when that is another flight's or another datum's distance."""
+    img, exif = _four_images_flying_east(tmp_path)
     tele = tmp_path / "telemetry.csv"
 
     def shifted(north_m: float) -> None:
@@ -231,11 +236,7 @@ def test_telemetry_rows_without_a_fix_leave_the_exif_gps(tmp_path, caplog):
     """rev14/rev15: rows logged before the receiver's lock (lat/lon 0,0, "nan", empty) took precedence over the
     images' valid EXIF GPS, put the flight at 0,0 and broke `poses-from-exif`. Such rows are no fix now: their
     images keep their own GPS, and the log counts them."""
-    img = tmp_path / "images"
-    img.mkdir()
-    for k in range(4):
-        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)
-    exif = pfe.poses_from_images(img)
+    img, exif = _four_images_flying_east(tmp_path)
     tele = tmp_path / "telemetry.csv"
     tele.write_text("FileName,Heading,PitchAngle,RollAngle,GPSLatitude,GPSLongitude,GPSAltitude\n"
                     "f0.jpg,90,0,0,0,0,0\nf1.jpg,90,0,0,nan,nan,nan\nf2.jpg,90,0,0,0.0,0.0,\n"
