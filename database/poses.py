@@ -88,6 +88,8 @@ def crs_scale_problem(epsg: int, centers: np.ndarray) -> str | None:
     from 1 by more than MAX_CRS_SCALE_ERROR (distances stretched, heights not)."""
     from pyproj import CRS, Proj, Transformer
 
+    from ..plugin.geodesy import utm_epsg
+
     crs = CRS.from_epsg(epsg)
     x, y = np.asarray(centers, np.float64)[:, :2].mean(axis=0)
     lon, lat = Transformer.from_crs(crs, CRS.from_epsg(4326), always_xy=True).transform(x, y)
@@ -97,11 +99,10 @@ def crs_scale_problem(epsg: int, centers: np.ndarray) -> str | None:
     scale = max(factors.meridional_scale, factors.parallel_scale, key=lambda k: abs(k - 1.0))
     if not np.isfinite(scale) or abs(scale - 1.0) <= MAX_CRS_SCALE_ERROR:
         return None
-    zone = int((lon + 180.0) // 6.0) % 60 + 1
-    utm = (32600 if lat >= 0 else 32700) + zone
+    good = utm_epsg(lat, lon)
     return (f"EPSG:{epsg} ({crs.name}) stretches distances by {scale:.3f} at the camera centres (lat {lat:.2f}, "
             f"lon {lon:.2f}) and heights not: the map would not be metric; give the poses in a CRS that keeps "
-            f"distances there, e.g. UTM zone {zone}{'N' if lat >= 0 else 'S'} (EPSG:{utm})")
+            f"distances there, e.g. {CRS.from_epsg(good).name} (EPSG:{good})")
 
 
 def name_problem(name: str) -> str | None:

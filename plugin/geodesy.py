@@ -7,9 +7,20 @@ import math
 
 import numpy as np
 
+# UTM is defined from 80 deg S to 84 deg N; beyond, the polar caps are Universal Polar Stereographic's (its
+# scale factor is 0.994 at the pole and 1 near 81 deg: ground metres within 0.6 %)
+UTM_NORTH_LIMIT_DEG, UTM_SOUTH_LIMIT_DEG = 84.0, -80.0
+UPS_NORTH_EPSG, UPS_SOUTH_EPSG = 32661, 32761
+
 
 def utm_epsg(latitude: float, longitude: float) -> int:
-    """EPSG code of the WGS84 / UTM zone containing a point (326zz north, 327zz south)."""
+    """EPSG code of the WGS84 / UTM zone containing a point (326zz north, 327zz south), or of WGS84 / UPS North
+    (32661) or South (32761) beyond UTM's latitudes (a flight at 85 deg N in a UTM zone lies outside the zone's
+    area, and any check of it against that area fails)."""
+    if latitude > UTM_NORTH_LIMIT_DEG:
+        return UPS_NORTH_EPSG
+    if latitude < UTM_SOUTH_LIMIT_DEG:
+        return UPS_SOUTH_EPSG
     zone = int(math.floor((longitude + 180.0) / 6.0)) % 60 + 1
     return (32600 if latitude >= 0 else 32700) + zone
 

@@ -277,10 +277,37 @@ def test_images_of_two_places_in_one_folder_are_a_clear_error(tmp_path, capsys):
     for k in range(3):
         write_jpeg(img / f"b{k}.jpg", -33.9, 151.2 + k * 1e-4, 50.0)
     with pytest.raises(InputError, match=r"3 of 7 images' GPS fixes lie more than 100 km outside where EPSG:3263[12] "
-                                         r"is used \(e.g. b0.jpg at -33.9000, 151.2000\): images of two places"):
+                                         r"\(WGS 84 / UTM zone 3[12]N\) is used \(e.g. b0.jpg at -33.9000, "
+                                         r"151.2000\): images of two places"):
         pfe.poses_from_images(img)
     assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p.csv")]) == 2
     assert not (tmp_path / "p.csv").exists()
+
+
+def test_flights_beyond_utm_latitudes_take_polar_stereographic(tmp_path, capsys):
+    """A flight at 85.5 N (nu15): UTM is not defined there, so its zone's area check said "images of two places
+    in one folder" and no --epsg the tool suggested worked. It takes UPS North (EPSG:32661) now; an --epsg of a
+    UTM zone is "one place, in a CRS made for another" naming UPS; a polar stereographic that stretches
+    distances there (EPSG:3413, 2.9 % at 85.5 N) is refused before any pose is written, where `map` refused the
+    written poses before."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(5):
+        write_jpeg(img / f"p{k}.jpg", 85.5 + k * 2e-4, 10.0, 300.0,
+                   {"Heading": "0", "PitchAngle": "0", "RollAngle": "0"})
+    priors = pfe.poses_from_images(img)
+    assert priors.epsg == 32661
+    north_step = np.diff(priors.poses.centers[:, :2], axis=0)
+    assert np.allclose(np.linalg.norm(north_step, axis=1), 22.3, atol=0.2)  # 2e-4 deg of latitude, UPS scale ~0.994
+    with pytest.raises(InputError, match=r"one place, in a CRS made for another; give the --epsg of its place, "
+                                         r"e.g. EPSG:32661 \(WGS 84 / UPS North \(N,E\)\)"):
+        pfe.poses_from_images(img, epsg=32632)
+    out = tmp_path / "p.csv"
+    assert main(["poses-from-exif", str(img), "--epsg", "3413", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "EPSG:3413" in err and "stretches distances" in err and "EPSG:32661" in err and "Traceback" not in err
+    assert not out.exists()
+    assert main(["poses-from-exif", str(img), "--out", str(out)]) == 0 and out.exists()
 
 
 def test_missing_gps_is_a_clear_error(tmp_path, capsys):

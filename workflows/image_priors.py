@@ -236,6 +236,7 @@ def read_image_priors(
     """Read every image's metadata (and `telemetry`) into `ImagePriors` (see the module doc for the frame, the
     attitude sources and the heights). Damaged or implausible tags are left out with one warning naming the
     images; an unreadable image file is an InputError."""
+    from ..database.poses import crs_scale_problem
     from ..plugin.georegistration import MIN_HEIGHT_DRIFT_M, fit_drift
 
     check_prior_options(mount, sensor_width_mm, epsg, takeoff_altitude_m)
@@ -288,6 +289,10 @@ def read_image_priors(
         east[has], north[has], north_az[has] = geographic_to_grid(lat[has], lon[has], epsg)
         north_az[~has] = float(np.mean(north_az[has]))
         _check_one_place(lat, lon, east, north, int(epsg), [m.path.name for m in metas], images)
+        # the pose reader refuses a CRS that stretches distances at the flight (Web Mercator, a polar
+        # stereographic of another standard parallel): refused here, before poses are written that `map` refuses
+        if (stretched := crs_scale_problem(int(epsg), np.column_stack([east[has], north[has]]))) is not None:
+            raise InputError(f"--epsg: {stretched}", images)
     times, time_source = _capture_times(metas)
 
     # Heights: DJI RelativeAltitude + take-off altitude where every fixed image has it, else the GPS altitude.
@@ -411,9 +416,12 @@ def median_position(lat: np.ndarray, lon: np.ndarray) -> tuple[float, float]:
 def _check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: np.ndarray, epsg: int,
                      names: list[str], images: Any) -> None:
     """InputError naming `images` when some fixes lie far outside where the poses' CRS is used (more than
-    `database.geojson.CRS_AREA_MARGIN_M` beyond its area of use): images of two places in one folder. Projected
-    into the flight's UTM zone, a second place thousands of kilometres away gets coordinates without any
-    meaning, which later checks read as a mirrored or a wildly scaled flight."""
+    `database.geojson.CRS_AREA_MARGIN_M` beyond its area of use). Projected into a CRS not made for them, fixes
+    get coordinates without any meaning, which later checks read as a mirrored or a wildly scaled flight. Two
+    causes are told apart by the fixes' own spread: a flight at one place in a CRS of elsewhere (an --epsg of
+    another zone), or images of two places in one folder."""
+    from pyproj import CRS
+
     from ..database.geojson import CRS_AREA_MARGIN_M, outside_crs_area
 
     has = np.isfinite(east) & np.isfinite(north)
@@ -421,10 +429,18 @@ def _check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: 
     if not len(far):
         return
     k = int(far[0])
-    raise InputError(f"{len(far)} of {int(has.sum())} images' GPS fixes lie more than {CRS_AREA_MARGIN_M / 1000:.0f} "
-                     f"km outside where EPSG:{epsg} is used (e.g. {names[k]} at {lat[k]:.4f}, {lon[k]:.4f}): "
-                     "images of two places in one folder? map each flight on its own (a flight that long: give "
-                     "--epsg of a CRS that holds it all)", images)
+    where = (f"{len(far)} of {int(has.sum())} images' GPS fixes lie more than {CRS_AREA_MARGIN_M / 1000:.0f} km "
+             f"outside where EPSG:{epsg} ({CRS.from_epsg(epsg).name}) is used (e.g. {names[k]} at {lat[k]:.4f}, "
+             f"{lon[k]:.4f})")
+    mid_lat, mid_lon = median_position(lat[has], lon[has])
+    dlon = (lon[has] - mid_lon + 180.0) % 360.0 - 180.0
+    spread_m = np.hypot((lat[has] - mid_lat) * 111_320.0, dlon * 111_320.0 * np.cos(np.radians(lat[has])))
+    own = utm_epsg(mid_lat, mid_lon)
+    if float(spread_m.max()) <= CRS_AREA_MARGIN_M and own != epsg:
+        raise InputError(f"{where}: the flight is at one place, in a CRS made for another; give the --epsg of "
+                         f"its place, e.g. EPSG:{own} ({CRS.from_epsg(own).name})", images)
+    raise InputError(f"{where}: images of two places in one folder? map each flight on its own (a flight that "
+                     "long: give --epsg of a CRS that holds it all)", images)
 
 
 def _track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times: np.ndarray, timed: bool,
