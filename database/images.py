@@ -49,11 +49,7 @@ def white_level(max_value: int) -> int:
 def to_rgb_u8(array: np.ndarray, white: int | None = None) -> np.ndarray:
     """Convert a decoded pixel array (H, W), (H, W, 1|2|3|4) of uint8/uint16/float to (H, W, 3) uint8 RGB.
 
-    Channel order is taken as RGB(A). Integer data of more than 8 bits is scaled from `white` (the flight's white
-    level, `flight_white_level`) to 255; without it, from the white level of the image's own maximum
-    (`white_level`), which a dark frame of a 16-bit flight reads as 10- or 12-bit data (64 or 16 times
-    brighter than its neighbours): the readers of a flight's images pass its white level. Floats are taken as
-    0..1 when their maximum is <= 1, else as 0..255.
+    Channel order is taken as RGB(A). Values are scaled as `to_u8` does (`white`: the flight's white level).
     """
     a = np.asarray(array)
     if a.ndim == 3 and a.shape[2] in (2, 4):  # drop alpha
@@ -62,28 +58,39 @@ def to_rgb_u8(array: np.ndarray, white: int | None = None) -> np.ndarray:
         a = a[:, :, 0]
     if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] != 3):
         raise ValueError(f"unsupported pixel array shape {a.shape}")
+    out = to_u8(a, white)
+    if out.ndim == 2:
+        out = np.repeat(out[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(out)
+
+
+def to_u8(a: np.ndarray, white: int | None = None) -> np.ndarray:
+    """Pixel values of any shape (uint8/uint16/wider integers/bool/float) as uint8 of the same shape.
+
+    Integer data of more than 8 bits is scaled from `white` (the flight's white level, `flight_white_level`) to
+    255; without it, from the white level of the array's own maximum (`white_level`), which a dark frame of a
+    16-bit flight reads as 10- or 12-bit data (64 or 16 times brighter than its neighbours): the readers of a
+    flight's images pass its white level. Floats are taken as 0..1 when their maximum is <= 1, else as 0..255.
+    """
+    a = np.asarray(a)
     if a.dtype == np.uint8:
-        out = a
-    elif a.dtype.kind == "u" and a.dtype.itemsize == 2:  # any byte order (big-endian TIFF: >u2)
+        return a
+    if a.dtype.kind == "u" and a.dtype.itemsize == 2:  # any byte order (big-endian TIFF: >u2)
         level = int(white) if white else white_level(int(a.max(initial=0)))
         # a table of the 65536 values: the uint8 result is written directly (a float copy of a 24 MP RGB frame
         # took 288 MB per temporary, review rev17)
         lut = np.clip(np.rint(np.arange(65536) * (255.0 / max(level, 1))), 0, 255).astype(np.uint8)
-        out = lut[a.astype(np.uint16, copy=False)]
-    elif a.dtype.kind in "ui" and a.dtype.itemsize > 2:
+        return lut[a.astype(np.uint16, copy=False)]
+    if a.dtype.kind in "ui" and a.dtype.itemsize > 2:
         level = int(white) if white else white_level(int(a.max(initial=0)))
-        out = np.clip(np.rint(a.astype(np.float32) * np.float32(255.0 / max(level, 1))), 0, 255).astype(np.uint8)
-    elif a.dtype == bool:
-        out = a.astype(np.uint8) * 255
-    elif np.issubdtype(a.dtype, np.floating):
+        return np.clip(np.rint(a.astype(np.float32) * np.float32(255.0 / max(level, 1))), 0, 255).astype(np.uint8)
+    if a.dtype == bool:
+        return a.astype(np.uint8) * 255
+    if np.issubdtype(a.dtype, np.floating):
         a = np.nan_to_num(a.astype(np.float64))
         scale = 255.0 if a.max(initial=0) <= 1.0 else 1.0
-        out = np.clip(np.rint(a * scale), 0, 255).astype(np.uint8)
-    else:
-        raise ValueError(f"unsupported pixel type {a.dtype}")
-    if out.ndim == 2:
-        out = np.repeat(out[:, :, None], 3, axis=2)
-    return np.ascontiguousarray(out)
+        return np.clip(np.rint(a * scale), 0, 255).astype(np.uint8)
+    raise ValueError(f"unsupported pixel type {a.dtype}")
 
 
 def _pil_image() -> Any:
@@ -262,10 +269,12 @@ def check_images_decode(paths: Iterable[str | Path]) -> None:
         read_image(path)
 
 
-def read_gray(path: str | Path) -> np.ndarray:
+def read_gray(path: str | Path, white: int | None = None) -> np.ndarray:
     """Read an image file as (H, W) uint8 gray, on its stored pixel grid like `read_image` (OpenCV's imread would
-    turn it by its EXIF Orientation tag, while the poses, the intrinsics and COLMAP see the stored grid); raise
-    InputError naming the file if it cannot be read."""
+    turn it by its EXIF Orientation tag, while the poses, the intrinsics and COLMAP see the stored grid), data of
+    more than 8 bits scaled from the flight's white level `white` (`to_u8`; OpenCV alone keeps a 16-bit value's
+    high byte, so 12-bit data came out 16 times too dark); raise InputError naming the file if it cannot be
+    read."""
     import cv2
 
     path = Path(path)
@@ -273,10 +282,14 @@ def read_gray(path: str | Path) -> np.ndarray:
         raise InputError("image file not found" if not path.exists() else "not a file", path)
     _check_pixels(path)
     data = np.fromfile(path, dtype=np.uint8)
-    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION) if data.size else None
+    flags = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION
+    gray = cv2.imdecode(data, flags) if data.size else None
     if gray is None:
         raise InputError("unreadable image (not a supported image format, or corrupt)", path)
-    return gray
+    try:
+        return np.ascontiguousarray(to_u8(gray, white))
+    except ValueError as exc:
+        raise InputError(str(exc), path) from exc
 
 
 def name_key(name: str) -> str:

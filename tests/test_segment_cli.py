@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sosmatch.database.images import flight_white_level, list_images, read_image
+from sosmatch.database.images import flight_white_level, list_images, read_gray, read_image
 from sosmatch.plugin.errors import InputError
 from sosmatch.tools.cli import main
 
@@ -58,6 +58,10 @@ def test_sensor_data_in_16_bits_reads_at_its_bit_depth(tmp_path, bits):
         want = rgb if data.ndim == 3 else np.dstack([rgb[:, :, 1]] * 3)
         assert np.abs(out.astype(int) - want).max() <= 1, name
         assert flight_white_level([tmp_path / name]) == 2**bits - 1
+        # the tie points' gray reader too (nu15: OpenCV alone kept the high byte, 12-bit data 16 times too dark)
+        gray = read_gray(tmp_path / name, 2**bits - 1)
+        want_gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if data.ndim == 3 else rgb[:, :, 1]
+        assert gray.dtype == np.uint8 and np.abs(gray.astype(int) - want_gray).max() <= 2, name
 
 
 def test_a_flights_white_level_is_the_cameras_not_the_frames(tmp_path):
@@ -154,3 +158,20 @@ def test_big_endian_16_bit_gray_tiff_reads(tmp_path):
     tifffile.imwrite(tmp_path / "be.tif", gray, byteorder=">")
     out = read_image(tmp_path / "be.tif")
     assert np.abs(out[:, :, 0].astype(int) - _scene()[:, :, 1]).max() <= 1
+
+
+def test_folders_given_together_keep_their_own_white_level(tmp_path):
+    """rev17: `segment A B` read both folders at one white level, so a 12-bit camera's images beside a 16-bit
+    camera's came out 16 times too dark and lost most of their segments. Each folder keeps its own."""
+    from sosmatch.workflows.segment import run
+
+    scene = _scene()
+    for folder, bits in (("twelve", 12), ("sixteen", 16)):
+        (tmp_path / folder).mkdir()
+        data = np.rint(scene.astype(np.float64) * (2**bits - 1) / 255.0).astype(np.uint16)
+        cv2.imwrite(str(tmp_path / folder / f"{folder}.tif"), cv2.cvtColor(data, cv2.COLOR_RGB2BGR))
+    alone = run([tmp_path / "twelve"], tmp_path / "out_alone", write_overlays=False)
+    together = run([tmp_path / "twelve", tmp_path / "sixteen"], tmp_path / "out_both", write_overlays=False)
+    masks = {r.path.name: r.num_masks for r in together.images}
+    assert alone.images[0].num_masks >= 3
+    assert masks["twelve.tif"] == alone.images[0].num_masks == masks["sixteen.tif"]

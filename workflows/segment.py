@@ -172,12 +172,17 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
 
     from ..database.images import flight_white_level
 
-    white = flight_white_level(paths)  # one scale for a folder of one camera's 16-bit images
+    # one scale per folder: a folder holds one camera's flight, and folders given together may be of cameras of
+    # other bit depths (one 16-bit scale read a 12-bit camera's images 16 times too dark)
+    folders: dict[Path, list[Path]] = {}
+    for path in paths:
+        folders.setdefault(path.parent, []).append(path)
+    white = {folder: flight_white_level(members) for folder, members in folders.items()}
     for path in tqdm(paths, desc="segment", unit="img", disable=len(paths) < 3):
         res = ImageResult(path)
         report.images.append(res)
         try:
-            image = read_image(path, white)
+            image = read_image(path, white[path.parent])
         except InputError as exc:  # recorded in the report; the caller says it (the CLI: once, on one line)
             res.error = str(exc)
             log.debug("%s", exc)

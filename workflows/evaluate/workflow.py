@@ -242,9 +242,11 @@ def error_to_identity(transform: Any, points_b: np.ndarray, truth: Sim3 | None =
 
 
 def _load_images(gt: GroundTruthSession, image_dir: Path) -> list[np.ndarray]:
-    from ...database.images import read_gray
+    from ...database.images import flight_white_level, read_gray
 
-    return [read_gray(image_dir / name) for name in gt.names]
+    paths = [image_dir / name for name in gt.names]
+    white = flight_white_level(paths)
+    return [read_gray(path, white) for path in paths]
 
 
 def _run_baseline(name: str, gt_a: GroundTruthSession, gt_b: GroundTruthSession, images_a: list[np.ndarray],

@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...database.images import read_gray
+from ...database.images import flight_white_level, read_gray
 from ...plugin.geometry import Poses, rotation_angle_deg
 from .judge import RefinementRejected, RefinementStats, judge_refinement
 from .with_colmap import point_errors, poses_of_reconstruction, refine_poses_with_colmap
@@ -78,8 +78,9 @@ def match_tie_points(
     centers = np.asarray(centers, dtype=np.float64)
     n = len(centers)
     kps, descs = [], []
+    white = flight_white_level(image_paths)  # one scale for a flight of more than 8 bits (nothing decoded at 8)
     for path in image_paths:
-        img = read_gray(path)
+        img = read_gray(path, white)
         if img.shape[1] != camera.width:
             raise ValueError(f"{path}: image width {img.shape[1]} differs from the camera's {camera.width}")
         features = orb_features(img, max_features)
