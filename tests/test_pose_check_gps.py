@@ -18,7 +18,7 @@ from sosmatch.database.poses import read_poses_csv, write_poses_csv
 from sosmatch.plugin.geodesy import ECEF_RADIUS_RANGE_M, ecef_to_grid, looks_like_ecef, topocentric_to_grid
 from sosmatch.plugin.geometry import Poses
 from sosmatch.plugin.params import PoseCheckParams
-from sosmatch.plugin.pose_check.gps import compare_with_gps, stale_fixes
+from sosmatch.plugin.pose_check.gps import compare_with_gps, fix_jitter_m, stale_fixes
 from sosmatch.plugin.pose_check.verdict import judge_gps
 from sosmatch.tools.cli import main
 
@@ -252,6 +252,46 @@ def test_a_site_within_its_receivers_jitter_is_too_small_not_another_flight() ->
         assert not judge_gps(gps, PoseCheckParams()).warnings
     big = _lawnmower()  # the same receiver over 150 x 120 m: not too small, and the path follows
     assert not compare_with_gps(big, _fixes(big, 3.0)).too_small
+
+
+def test_the_receivers_jitter_ignores_repeated_fixes_and_images_without_one() -> None:
+    """rev16: bracketed exposures (three images, one fix) and images left out (no fix, stale) made the steps of a
+    steady flight read as jitter: a straight pass shot with bracketing was "too small to check", a flight with
+    every third fix missing read its 0.5 m receiver as metres. Repeats are one fix, and the neighbours of a
+    gap are weighed by the real spacing."""
+    line = np.column_stack([np.linspace(0.0, 300.0, 31), np.zeros(31), np.full(31, 80.0)])
+    fixes = _fixes(line, 0.5, seed=2)
+    alone = fix_jitter_m(fixes)
+    assert alone == pytest.approx(0.5, rel=0.35)
+    assert fix_jitter_m(np.repeat(fixes, 3, axis=0)) == pytest.approx(alone, rel=1e-9)
+    kept = np.arange(31) % 3 != 2
+    assert fix_jitter_m(fixes[kept], np.flatnonzero(kept)) == pytest.approx(0.5, rel=0.35)
+    with_gaps = fixes.copy()
+    with_gaps[~kept] = np.nan
+    gps = compare_with_gps(line, with_gaps)
+    assert gps is not None and gps.fix_noise_m == pytest.approx(0.5, rel=0.35)
+    bracketed = np.repeat(line[:5], 3, axis=0)  # a 40 m pass, five positions, exact EXIF poses
+    gps = compare_with_gps(bracketed, np.repeat(_fixes(line[:5], 0.0), 3, axis=0))
+    assert gps is not None and not gps.too_small and gps.follows(0.5)
+
+
+def test_unsteady_fixes_are_named_not_another_flight() -> None:
+    """rev16: when most fixes scatter metres off (a receiver jumping between solutions, multipath) while the rest
+    follow the path closely, fewer than half lay within the fit's noise although the path explained all of
+    their spread, and the warning said "poses of another flight?". It names the unsteady fixes now; shuffled
+    poses still get "another flight"."""
+    truth = _lawnmower()
+    rng = np.random.default_rng(0)
+    fixes = truth[:, :2] + rng.normal(0.0, 0.3, (len(truth), 2))
+    unsteady = rng.random(len(truth)) < 0.6
+    fixes[unsteady] += rng.normal(0.0, 8.0, (int(unsteady.sum()), 2))
+    gps = compare_with_gps(truth, fixes)
+    warnings = judge_gps(gps, PoseCheckParams()).warnings
+    assert gps is not None and gps.inliers < 0.5 * gps.fixes and gps.explained > 0.9
+    assert len(warnings) == 1 and "unsteady fixes" in warnings[0] and "another flight" not in warnings[0]
+    shuffled = truth[np.random.default_rng(3).permutation(len(truth))]
+    warnings = judge_gps(compare_with_gps(shuffled, _fixes(truth, 0.3)), PoseCheckParams()).warnings
+    assert len(warnings) == 1 and "another flight" in warnings[0]
 
 
 def test_north_east_down_poses_are_named_mirrored() -> None:

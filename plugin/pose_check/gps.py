@@ -19,10 +19,12 @@ least squares on the 99 % inliers of the measured noise):
   it hundreds to thousands of kilometres off, another datum (NAD27, ED50) 100-200 m.
 - **agreement**: how many fixes the similarity explains, and how much of their spread; a path that follows few of
   them is not this flight's (poses of another flight, names paired with the wrong images), and its "scale" is no
-  measurement of a unit. Two things can make a true path look so and are told apart: a flight whose extent is
-  within a few times its receiver's own jitter (measured from the fixes alone: their second differences along
-  the flight), and a mirrored frame (north-east-down poses: a proper rotation of east-north-up whose horizontal
-  plane is mirrored), which a similarity with a reflection fits.
+  measurement of a unit. Three things can make a true path look so and are told apart: a flight whose extent is
+  within a few times its receiver's own jitter (measured from the fixes alone: their departures from the line
+  through their neighbours, `fix_jitter_m`); fixes that jump (a receiver switching solutions), where the path
+  explains the fixes' spread but fewer of them lie within its noise; and a mirrored frame (north-east-down
+  poses: a proper rotation of east-north-up whose horizontal plane is mirrored), which a similarity with a
+  reflection fits.
 - **stale fixes**: fixes that stay within a metre while their cameras move are the receiver holding its last
   position (lost lock, a cold start), no measurement: left out (`stale_fixes`). They made a true path look like
   another flight's.
@@ -50,6 +52,9 @@ SMALL_FLIGHT_NOISE_RATIO = 3.0
 # track's extent): a frozen receiver's fixes barely move (centimetres of jitter), a noisy one's move with the
 # aircraft
 STALE_MOVE_RATIO = 0.2
+# consecutive fixes closer than this are one fix repeated (a GNSS fix is given to a millimetre or coarser), not a
+# second measurement of the receiver's jitter
+REPEATED_FIX_M = 1e-3
 
 
 @dataclass(frozen=True)
@@ -64,7 +69,7 @@ class GpsComparison:
     sigma_m: float  # per-axis noise of the fixes about the fitted path
     extent_m: float  # root mean square distance of the fixes from their centre
     offset_m: float = float("nan")  # georeferenced poses: median distance of the centres from their own fixes
-    fix_noise_m: float = float("nan")  # the receiver's jitter per axis, from the fixes alone (second differences)
+    fix_noise_m: float = float("nan")  # the receiver's jitter per axis, from the fixes alone (`fix_jitter_m`)
     mirrored_explained: float = float("nan")  # `explained` of the best similarity with a reflection
     stale: int = 0  # fixes left out as held by the receiver while the cameras moved (`stale_fixes`)
 
@@ -85,8 +90,11 @@ class GpsComparison:
     @property
     def too_small(self) -> bool:
         """Whether the flight spans too little against its receiver's jitter for a path to show it follows the
-        fixes (SMALL_FLIGHT_NOISE_RATIO)."""
-        return self.extent_m < SMALL_FLIGHT_NOISE_RATIO * self.fix_noise_m
+        fixes (SMALL_FLIGHT_NOISE_RATIO). The jitter is the smaller of the fixes' own (`fix_jitter_m`) and their
+        noise about the fitted path: a flight of few images per line (every fifth image of a survey) turns at
+        most of its fixes, which the fixes alone read as 80 m of jitter, while a path that fits them to a few
+        metres bounds the receiver's noise by that (a path that does not fit leaves the fixes' own figure)."""
+        return self.extent_m < SMALL_FLIGHT_NOISE_RATIO * min(self.fix_noise_m, self.sigma_m)
 
     @property
     def scale_text(self) -> str:
@@ -149,7 +157,7 @@ def compare_with_gps(centers: np.ndarray, fixes: np.ndarray,
         fixes=len(fixes), inliers=int(inl.sum()), scale=1.0 / fit.transform.scale,
         scale_sigma=max(fit.sigma_m, GNSS_WANDER_M) / extent,
         yaw_deg=math.degrees(math.atan2(rot[1, 0], rot[0, 0])), sigma_m=fit.sigma_m, extent_m=extent,
-        offset_m=offset, fix_noise_m=fix_jitter_m(fixes),
+        offset_m=offset, fix_noise_m=fix_jitter_m(fixes, np.flatnonzero(ok)),
         mirrored_explained=_explained(mirrored.sigma_m, _rms_extent(fixes[mirrored.inliers])),
         stale=int(stale.sum()))
 
@@ -179,15 +187,26 @@ def stale_fixes(centers: np.ndarray, fixes: np.ndarray) -> np.ndarray:
     return stale
 
 
-def fix_jitter_m(fixes: np.ndarray) -> float:
-    """A receiver's per-axis jitter from its fixes alone (K,2, capture order): the robust spread of their second
-    differences, which a steady flight leaves near zero and white noise of sigma makes sqrt(6) sigma (the median
-    ignores the turns). NaN for fewer than 3 fixes."""
+def fix_jitter_m(fixes: np.ndarray, index: np.ndarray | None = None) -> float:
+    """A receiver's per-axis jitter from its fixes alone (K,2, capture order): the robust spread of each fix's
+    departure from the line through its two neighbours, which a steady flight leaves near zero and white noise
+    of sigma makes sigma sqrt(1 + a^2 + b^2) (a, b the neighbours' interpolation weights; the median ignores the
+    turns). `index`: the fixes' places in the flight (K,; default 0..K-1), so images left out (no fix, stale)
+    weigh their neighbours by the real spacing. A fix repeating its predecessor exactly (a bracketed exposure,
+    a receiver logging slower than the camera shoots) is no second measurement and is left out: the steps
+    between repeats read as jitter and a straight pass was called too small to check (review rev16). NaN for
+    fewer than 3 distinct fixes."""
     f = np.asarray(fixes, np.float64).reshape(-1, 2)
+    at = np.arange(len(f), dtype=np.float64) if index is None else np.asarray(index, np.float64).reshape(-1)
+    if len(f) > 1:
+        fresh = np.r_[True, np.any(np.abs(np.diff(f, axis=0)) > REPEATED_FIX_M, axis=1)]
+        f, at = f[fresh], at[fresh]
     if len(f) < 3:
         return float("nan")
-    second = (f[2:] - 2.0 * f[1:-1] + f[:-2]).ravel()
-    return float(1.4826 * np.median(np.abs(second)) / math.sqrt(6.0))
+    before, after = at[1:-1] - at[:-2], at[2:] - at[1:-1]
+    a, b = (after / (before + after))[:, None], (before / (before + after))[:, None]  # weights of f[:-2], f[2:]
+    departure = (f[1:-1] - a * f[:-2] - b * f[2:]) / np.sqrt(1.0 + a**2 + b**2)
+    return float(1.4826 * np.median(np.abs(departure.ravel())))
 
 
 def _rms_extent(xy: np.ndarray) -> float:

@@ -108,9 +108,9 @@ def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
     """The camera centres against the images' own GPS fixes (`gps.compare_with_gps`): a warning for a georeference
     far from the fixes (measured without any fit, so always judged); then, for a path that follows the fixes, a
     refusal when the poses' lengths are not ground metres (beyond `max_gps_scale_error` by more than two of the
-    scale's standard deviations); for one that does not, a warning naming why (a mirrored frame, or poses of
-    another flight), or nothing for a flight too small against its receiver's jitter to tell. Nothing without
-    fixes."""
+    scale's standard deviations); for one that does not, a warning naming why (a mirrored frame, unsteady
+    fixes, or poses of another flight), or nothing for a flight too small against its receiver's jitter to tell.
+    Nothing without fixes."""
     v = Verdict()
     if gps is None:
         return v
@@ -129,6 +129,13 @@ def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
                 f"poses vs images' GPS: the camera path is the mirror image of the images' own GPS track (mirrored, "
                 f"a similarity explains {gps.mirrored_explained:.0%} of its spread, {gps.fixes} fixes): x and y "
                 "swapped or one axis reversed (north-east-down poses?), so the map would be mirrored too")
+        elif not gps.too_small and gps.explained >= agreement:
+            # the path explains the fixes' spread, but most fixes lie outside its noise: unsteady fixes (a receiver
+            # jumping between solutions, multipath), not the poses of another flight (review rev16)
+            v.warnings.append(f"poses vs images' GPS: the camera path follows the images' own GPS track (a "
+                              f"similarity explains {gps.explained:.0%} of its spread), but only {gps.inliers} of "
+                              f"{gps.fixes} fixes lie within its {gps.sigma_m:.1f} m noise: unsteady fixes (a "
+                              "receiver jumping between solutions, multipath?), so the poses' unit is not checked")
         elif not gps.too_small:
             v.warnings.append(f"poses vs images' GPS: the camera path does not follow the images' own GPS track (a "
                               f"similarity explains {max(gps.explained, 0.0):.0%} of its spread, {gps.inliers} of "
