@@ -249,6 +249,29 @@ def test_telemetry_rows_without_a_fix_leave_the_exif_gps(tmp_path, caplog):
     assert any("3 rows hold no GPS fix" in r.getMessage() for r in caplog.records)
 
 
+def test_heights_from_telemetry_and_exif_share_one_datum(tmp_path, caplog):
+    """rev16: a telemetry CSV whose altitudes are above the ellipsoid (30 m over the EXIF's sea-level ones) that
+    covers only some images left the others at their EXIF altitude: the flight's heights jumped by 30 m between
+    images. The offset is measured on the images with both and the EXIF heights take it; with no image to
+    measure it on, a warning says so."""
+    img, exif = _four_images_flying_east(tmp_path)
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,Heading,PitchAngle,RollAngle,GPSLatitude,GPSLongitude,GPSAltitude\n"
+                    + "".join(f"f{k}.jpg,90,0,0,47.0,{-99.0 + k * 1e-4!r},{530.0 + k * 0.2!r}\n" for k in range(2)))
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
+        res = pfe.poses_from_images(img, telemetry=tele)
+    np.testing.assert_allclose(res.poses.centers[:, 2] - exif.poses.centers[:, 2], 30.1, atol=0.11)
+    assert any("+30.1 m" in r.getMessage() and "one vertical datum" in r.getMessage() for r in caplog.records)
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for k in range(4):
+        write_jpeg(bare / f"f{k}.jpg", 47.0 if k >= 2 else None, -99.0 + k * 1e-4, 500.0)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
+        pfe.poses_from_images(bare, telemetry=tele)
+    assert any("no image has both" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
+
+
 def test_the_utm_zone_is_the_flights_not_its_first_images(tmp_path):
     """Two flights of one site on a zone boundary took the zone of their first image, so one starting west of it
     and one east were mapped in two zones (and `match` called a label wrong). The zone is the flight's median

@@ -258,14 +258,16 @@ def read_image_priors(
                     "; ".join(f"{m.path.name}: {m.problems[0]}" for m in damaged[:3])
                     + (f" ... ({len(damaged)} in all)" if len(damaged) > 3 else ""))
     lat, lon, alt = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    tele_alt = np.array([r.get("alt", np.nan) for r in rows], dtype=np.float64)
+    exif_alt = np.array([m.altitude if m.altitude is not None else np.nan for m in metas], dtype=np.float64)
+    alt_from_telemetry = np.zeros(n, bool)
     pos_src: Counter = Counter()
     moved = []  # telemetry positions against the same images' EXIF GPS (m, horizontal)
     for i, m in enumerate(metas):
         t = rows[i]
-        exif_alt = m.altitude if m.altitude is not None else np.nan
         if "lat" in t and "lon" in t:  # the user's file over the images' own tags (module doc)
             lat[i], lon[i] = t["lat"], t["lon"]
-            alt[i] = t.get("alt", exif_alt)
+            alt_from_telemetry[i] = "alt" in t
             pos_src["telemetry CSV"] += 1
             if m.has_gps:
                 moved.append(math.hypot((t["lat"] - m.latitude) * 111_320.0,
@@ -273,8 +275,11 @@ def read_image_priors(
         elif m.has_gps:
             lat[i], lon[i] = m.latitude, m.longitude
             # an image without an EXIF altitude keeps its telemetry altitude (a row with an altitude but no fix)
-            alt[i] = exif_alt if np.isfinite(exif_alt) else t.get("alt", np.nan)
+            alt_from_telemetry[i] = not np.isfinite(exif_alt[i]) and "alt" in t
             pos_src["EXIF GPS"] += 1
+        if np.isfinite(lat[i]):
+            alt[i] = tele_alt[i] if alt_from_telemetry[i] else exif_alt[i]
+    alt = _one_vertical_datum(alt, alt_from_telemetry & np.isfinite(alt), tele_alt, exif_alt, telemetry)
     if moved and np.median(moved) > TELEMETRY_NOTE_M:
         far = np.median(moved) > TELEMETRY_WARN_M
         log.log(logging.WARNING if far else logging.INFO,
@@ -402,6 +407,37 @@ def read_image_priors(
     }
     return ImagePriors(paths, metas, int(epsg or 0), positions, alt, rel, rotations, kind, times, cameras,
                        camera_index, summary)
+
+
+# telemetry and EXIF altitudes of the same images differing by more than this are said to be of two datums
+HEIGHT_DATUM_NOTE_M = 1.0
+
+
+def _one_vertical_datum(alt: np.ndarray, from_telemetry: np.ndarray, tele_alt: np.ndarray, exif_alt: np.ndarray,
+                        telemetry: Any) -> np.ndarray:
+    """The images' altitudes (`alt`, NaN where none) in one vertical datum, the telemetry's, when some come from
+    the telemetry CSV (`from_telemetry`) and others from their EXIF: a log of heights above the ellipsoid or
+    the take-off point beside EXIF heights above sea level differ by tens of metres, and a flight whose heights
+    jump by that between images makes a map of nothing. The offset is measured on the images that have both
+    (median of telemetry - EXIF) and added to the EXIF heights; with no image to measure it on, a warning."""
+    from_exif = np.isfinite(alt) & ~from_telemetry
+    if not (from_telemetry.any() and from_exif.any()):
+        return alt
+    both = np.isfinite(tele_alt) & np.isfinite(exif_alt)
+    if not both.any():
+        log.warning("heights: %d images take their altitude from %s and %d from their EXIF GPS, and no image has "
+                    "both to measure the offset between the two (above the ellipsoid, the sea or the take-off "
+                    "point: tens of metres apart?): give every image an altitude in the telemetry",
+                    int(from_telemetry.sum()), telemetry, int(from_exif.sum()))
+        return alt
+    offset = float(np.median(tele_alt[both] - exif_alt[both]))
+    if abs(offset) > HEIGHT_DATUM_NOTE_M:
+        log.info("heights: %d images without an altitude in %s take their EXIF altitude %+.1f m, the offset of the "
+                 "telemetry's heights from the EXIF's (median of the %d images with both): one vertical datum",
+                 int(from_exif.sum()), telemetry, offset, int(both.sum()))
+    out = alt.copy()
+    out[from_exif] += offset
+    return out
 
 
 def median_position(lat: np.ndarray, lon: np.ndarray) -> tuple[float, float]:
