@@ -270,6 +270,12 @@ def test_the_receivers_jitter_ignores_repeated_fixes_and_images_without_one() ->
     with_gaps[~kept] = np.nan
     gps = compare_with_gps(line, with_gaps)
     assert gps is not None and gps.fix_noise_m == pytest.approx(0.5, rel=0.35)
+    # a sample of a long flight (the pose check reads at most 300 images' EXIF): every 3rd or 4th image
+    places = np.cumsum(np.r_[0, np.tile([3, 4], 15)])
+    flight = np.column_stack([places * 5.0, np.zeros(len(places)), np.full(len(places), 80.0)])
+    exact = _fixes(flight, 0.0)
+    sampled = compare_with_gps(flight, exact, index=places)
+    assert sampled.fix_noise_m < 1e-6 < compare_with_gps(flight, exact).fix_noise_m
     bracketed = np.repeat(line[:5], 3, axis=0)  # a 40 m pass, five positions, exact EXIF poses
     gps = compare_with_gps(bracketed, np.repeat(_fixes(line[:5], 0.0), 3, axis=0))
     assert gps is not None and not gps.too_small and gps.follows(0.5)

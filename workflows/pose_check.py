@@ -104,7 +104,7 @@ def gps_comparison(image_paths: Sequence[Path], poses: Poses, epsg: int) -> GpsC
     from ..plugin.pose_check.gps import compare_with_gps
 
     idx, fixes, crs_fixes = gps_fixes(image_paths, epsg)
-    return compare_with_gps(poses.centers[idx], fixes, crs_fixes)
+    return compare_with_gps(poses.centers[idx], fixes, crs_fixes, index=idx)
 
 
 def refuse_by_gps(image_paths: Sequence[Path], poses: Poses, epsg: int, params: PoseCheckParams,

@@ -120,15 +120,17 @@ class GpsComparison:
                 "stale_fixes": self.stale}
 
 
-def compare_with_gps(centers: np.ndarray, fixes: np.ndarray,
-                     crs_fixes: np.ndarray | None = None) -> GpsComparison | None:
+def compare_with_gps(centers: np.ndarray, fixes: np.ndarray, crs_fixes: np.ndarray | None = None,
+                     index: np.ndarray | None = None) -> GpsComparison | None:
     """Camera `centers` (N,3, the poses' frame and unit, capture order) against the same images' GPS `fixes` (N,2,
     metres in their UTM zone, NaN where an image has none). `crs_fixes`: for georeferenced poses, the same fixes in
-    the poses' CRS (the georeference is measured there). None when there is nothing to
+    the poses' CRS (the georeference is measured there). `index`: the images' places in the flight (N,; default
+    0..N-1) when they are a sample of it (`fix_jitter_m`). None when there is nothing to
     compare: fewer than MIN_FIXES fresh finite fixes, a frozen receiver, or no horizontal spread."""
     centers = np.asarray(centers, np.float64).reshape(-1, 3)
     fixes = np.asarray(fixes, np.float64).reshape(-1, 2)
     in_crs = None if crs_fixes is None else np.asarray(crs_fixes, np.float64).reshape(-1, 2)
+    places = np.arange(len(fixes)) if index is None else np.asarray(index).reshape(-1)
     ok = np.all(np.isfinite(fixes), axis=1) & np.all(np.isfinite(centers), axis=1)
     stale = np.zeros(len(fixes), bool)
     stale[ok] = stale_fixes(centers[ok, :2], fixes[ok])
@@ -157,7 +159,7 @@ def compare_with_gps(centers: np.ndarray, fixes: np.ndarray,
         fixes=len(fixes), inliers=int(inl.sum()), scale=1.0 / fit.transform.scale,
         scale_sigma=max(fit.sigma_m, GNSS_WANDER_M) / extent,
         yaw_deg=math.degrees(math.atan2(rot[1, 0], rot[0, 0])), sigma_m=fit.sigma_m, extent_m=extent,
-        offset_m=offset, fix_noise_m=fix_jitter_m(fixes, np.flatnonzero(ok)),
+        offset_m=offset, fix_noise_m=fix_jitter_m(fixes, places[ok]),
         mirrored_explained=_explained(mirrored.sigma_m, _rms_extent(fixes[mirrored.inliers])),
         stale=int(stale.sum()))
 
