@@ -178,15 +178,14 @@ def _verified(match_dir: Path, centre: np.ndarray) -> dict:
 
 def draw_naip_match(tif: Path, map_a: Path, map_b: Path, match_dir: Path, out: Path, width: int = 934) -> None:
     """A figure: both maps' landmarks on the orthophoto `tif` (A red, B cyan, circles of the landmarks' metric
-    size), the accepted consensus' associations as yellow lines from A's landmark to B's, B's landmarks moved
-    by the accepted transform (the truth is the identity, so a line's length is the pair's disagreement)."""
-    import json
-
+    size), the accepted answer's associations (`database.match_io.read_match`: the verified alignment's) as
+    yellow lines from A's landmark to B's, B's landmarks moved by the accepted transform (the truth is the
+    identity, so a line's length is the pair's disagreement)."""
     import cv2
     import rasterio
 
     from ...database.landmark_map import read_landmark_map
-    from ...plugin.multisession import Sim3
+    from ...database.match_io import read_match
 
     with rasterio.open(tif) as src:
         rgb = np.moveaxis(src.read([1, 2, 3]), 0, -1)
@@ -201,19 +200,19 @@ def draw_naip_match(tif: Path, map_a: Path, map_b: Path, match_dir: Path, out: P
 
     a = read_landmark_map(map_a / "landmarks.sosmap")
     b = read_landmark_map(map_b / "landmarks.sosmap")
-    result = json.loads((match_dir / "match.json").read_text())
-    best = result.get("consensus")
-    pb = Sim3.from_dict(best["transform"]).apply(b.positions) if best else b.positions
+    answer = read_match(match_dir)  # the answer every consumer reads: the verified alignment where there is one
+    accepted = answer.accepted and answer.transform is not None
+    pb = answer.transform.apply(b.positions) if accepted else b.positions
     for pos, sizes, colour in ((a.positions, a.sizes, (0, 0, 255)), (pb, b.sizes, (255, 255, 0))):
         for (u, v), size in zip(pixels(pos), sizes):
             cv2.circle(img, (int(u), int(v)), max(2, int(round(size / gsd * scale))), colour, 1, cv2.LINE_AA)
-    if best:
-        assoc = np.array(best["associations"]).reshape(-1, 2)
+    if accepted:
+        assoc = answer.associations.reshape(-1, 2)
         for (ua, va), (ub, vb) in zip(pixels(a.positions[assoc[:, 0]]), pixels(pb[assoc[:, 1]])):
             cv2.line(img, (int(ua), int(va)), (int(ub), int(vb)), (0, 255, 255), 3, cv2.LINE_AA)
             cv2.circle(img, (int(ua), int(va)), 9, (0, 255, 255), 2, cv2.LINE_AA)
     labels = [f"A: {len(a)} landmarks (red); B: {len(b)} (cyan), moved by the accepted transform",
-              f"{0 if not best else len(best['associations'])} consensus associations (yellow)"]
+              f"{len(answer.associations) if accepted else 0} {answer.source} associations (yellow)"]
     cv2.rectangle(img, (0, 0), (600, 48), (0, 0, 0), -1)
     for row, label in enumerate(labels):
         cv2.putText(img, label, (8, 18 + 20 * row), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
