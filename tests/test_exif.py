@@ -258,7 +258,7 @@ def test_heights_from_telemetry_and_exif_share_one_datum(tmp_path, caplog):
     tele = tmp_path / "telemetry.csv"
     tele.write_text("FileName,Heading,PitchAngle,RollAngle,GPSLatitude,GPSLongitude,GPSAltitude\n"
                     + "".join(f"f{k}.jpg,90,0,0,47.0,{-99.0 + k * 1e-4!r},{530.0 + k * 0.2!r}\n" for k in range(2)))
-    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_positions"):
         res = pfe.poses_from_images(img, telemetry=tele)
     np.testing.assert_allclose(res.poses.centers[:, 2] - exif.poses.centers[:, 2], 30.1, atol=0.11)
     assert any("+30.1 m" in r.getMessage() and "one vertical datum" in r.getMessage() for r in caplog.records)
@@ -267,7 +267,7 @@ def test_heights_from_telemetry_and_exif_share_one_datum(tmp_path, caplog):
     for k in range(4):
         write_jpeg(bare / f"f{k}.jpg", 47.0 if k >= 2 else None, -99.0 + k * 1e-4, 500.0)
     caplog.clear()
-    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_positions"):
         pfe.poses_from_images(bare, telemetry=tele)
     assert any("no image has both" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
 
@@ -276,7 +276,7 @@ def test_the_utm_zone_is_the_flights_not_its_first_images(tmp_path):
     """Two flights of one site on a zone boundary took the zone of their first image, so one starting west of it
     and one east were mapped in two zones (and `match` called a label wrong). The zone is the flight's median
     fix's now; across the antimeridian the median stays there."""
-    from sosmatch.workflows.image_priors import median_position
+    from sosmatch.workflows.image_positions import median_position
 
     img = tmp_path / "images"
     img.mkdir()

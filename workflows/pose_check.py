@@ -74,7 +74,7 @@ def gps_fixes(image_paths: Sequence[Path], epsg: int) -> tuple[np.ndarray, np.nd
     EXIF cannot be read: the images are read and named later, where their pixels are needed)."""
     from ..database.exif import read_image_metadata
     from ..plugin.geodesy import geographic_to_grid, utm_epsg
-    from .image_priors import median_position
+    from .image_positions import median_position
 
     idx = np.unique(np.linspace(0, len(image_paths) - 1, min(len(image_paths), MAX_GPS_IMAGES)).round().astype(int))
     latlon = np.full((len(idx), 2), np.nan)

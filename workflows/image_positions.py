@@ -1,0 +1,118 @@
+"""Where a folder's images were taken, as one flight in one frame (pure numpy + pyproj; `image_priors` reads the
+tags): the flight's middle (`median_position`, antimeridian-safe), fixes outside the CRS they are projected into
+(`check_one_place`: a CRS of another place, or images of two places in one folder), heights of two sources in
+one vertical datum (`one_vertical_datum`), and what the track and the attitude tags say that no aircraft does
+(`track_checks`)."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from ..plugin.errors import InputError
+from ..plugin.geodesy import utm_epsg
+from ..plugin.gps_track import FROZEN_SPREAD_M, OFF_NADIR_LIMIT_DEG, frozen_fix, gps_jumps, off_nadir_deg
+
+log = logging.getLogger(__name__)
+
+# telemetry and EXIF altitudes of the same images differing by more than this are said to be of two datums
+HEIGHT_DATUM_NOTE_M = 1.0
+
+
+def one_vertical_datum(alt: np.ndarray, from_telemetry: np.ndarray, tele_alt: np.ndarray, exif_alt: np.ndarray,
+                        telemetry: Any) -> np.ndarray:
+    """The images' altitudes (`alt`, NaN where none) in one vertical datum, the telemetry's, when some come from
+    the telemetry CSV (`from_telemetry`) and others from their EXIF: a log of heights above the ellipsoid or
+    the take-off point beside EXIF heights above sea level differ by tens of metres, and a flight whose heights
+    jump by that between images makes a map of nothing. The offset is measured on the images that have both
+    (median of telemetry - EXIF) and added to the EXIF heights; with no image to measure it on, a warning."""
+    from_exif = np.isfinite(alt) & ~from_telemetry
+    if not (from_telemetry.any() and from_exif.any()):
+        return alt
+    both = np.isfinite(tele_alt) & np.isfinite(exif_alt)
+    if not both.any():
+        log.warning("heights: %d images take their altitude from %s and %d from their EXIF GPS, and no image has "
+                    "both to measure the offset between the two (above the ellipsoid, the sea or the take-off "
+                    "point: tens of metres apart?): give every image an altitude in the telemetry",
+                    int(from_telemetry.sum()), telemetry, int(from_exif.sum()))
+        return alt
+    offset = float(np.median(tele_alt[both] - exif_alt[both]))
+    if abs(offset) > HEIGHT_DATUM_NOTE_M:
+        log.info("heights: %d images without an altitude in %s take their EXIF altitude %+.1f m, the offset of the "
+                 "telemetry's heights from the EXIF's (median of the %d images with both): one vertical datum",
+                 int(from_exif.sum()), telemetry, offset, int(both.sum()))
+    out = alt.copy()
+    out[from_exif] += offset
+    return out
+
+
+def median_position(lat: np.ndarray, lon: np.ndarray) -> tuple[float, float]:
+    """The median latitude and longitude of fixes (degrees); longitudes are taken relative to the first fix, so a
+    flight across the antimeridian has its median there, not on the other side of the Earth."""
+    lat, lon = np.asarray(lat, np.float64), np.asarray(lon, np.float64)
+    relative = (lon - lon[0] + 180.0) % 360.0 - 180.0
+    middle = (float(np.median(relative)) + lon[0] + 180.0) % 360.0 - 180.0
+    return float(np.median(lat)), float(middle)
+
+
+def check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: np.ndarray, epsg: int,
+                     names: list[str], images: Any) -> None:
+    """InputError naming `images` when some fixes lie far outside where the poses' CRS is used (more than
+    `database.geojson.CRS_AREA_MARGIN_M` beyond its area of use). Projected into a CRS not made for them, fixes
+    get coordinates without any meaning, which later checks read as a mirrored or a wildly scaled flight. Two
+    causes are told apart by the fixes' own spread: a flight at one place in a CRS of elsewhere (an --epsg of
+    another zone), or images of two places in one folder."""
+    from pyproj import CRS
+
+    from ..database.geojson import CRS_AREA_MARGIN_M, outside_crs_area
+
+    has = np.isfinite(east) & np.isfinite(north)
+    far = np.flatnonzero(has & outside_crs_area(epsg, np.column_stack([east, north])))
+    if not len(far):
+        return
+    k = int(far[0])
+    where = (f"{len(far)} of {int(has.sum())} images' GPS fixes lie more than {CRS_AREA_MARGIN_M / 1000:.0f} km "
+             f"outside where EPSG:{epsg} ({CRS.from_epsg(epsg).name}) is used (e.g. {names[k]} at {lat[k]:.4f}, "
+             f"{lon[k]:.4f})")
+    mid_lat, mid_lon = median_position(lat[has], lon[has])
+    dlon = (lon[has] - mid_lon + 180.0) % 360.0 - 180.0
+    spread_m = np.hypot((lat[has] - mid_lat) * 111_320.0, dlon * 111_320.0 * np.cos(np.radians(lat[has])))
+    own = utm_epsg(mid_lat, mid_lon)
+    if float(spread_m.max()) <= CRS_AREA_MARGIN_M and own != epsg:
+        raise InputError(f"{where}: the flight is at one place, in a CRS made for another; give the --epsg of "
+                         f"its place, e.g. EPSG:{own} ({CRS.from_epsg(own).name})", images)
+    raise InputError(f"{where}: images of two places in one folder? map each flight on its own (a flight that "
+                     "long: give --epsg of a CRS that holds it all)", images)
+
+
+def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times: np.ndarray, timed: bool,
+                  rotations: np.ndarray, tagged: np.ndarray, names: list[str]) -> tuple[list[str], dict[str, Any]]:
+    """What the GPS track and the attitude tags say that no aircraft does (`plugin.gps_track`): warnings naming
+    images, and the facts for the summary (`gps_frozen`, `gps_jumps`, `tags_median_off_nadir_deg`). Without
+    capture times (`timed` False: `times` are one second per image) there is no speed, so no jump is judged: the
+    step to the next line or battery is as long as a wrong fix."""
+    out: list[str] = []
+    frozen = frozen_fix(east, north)
+    jumps = [] if frozen or not timed else gps_jumps(east, north, times, heights)
+    if frozen:
+        fixed = int(np.sum(np.isfinite(east)))
+        out.append(f"the GPS fixes of all {fixed} images{'' if fixed == len(names) else ' with a fix'} lie within "
+                   f"{FROZEN_SPREAD_M:g} m of one point: a receiver without a lock repeats its last fix; poses from "
+                   "them have no baseline")
+    elif jumps:
+        said = ", ".join(f"{names[i]} -> {names[j]} {d:.0f} m" + (f" at {v:.0f} m/s" if timed else "")
+                         for i, j, d, v in jumps[:4])
+        out.append(f"the GPS jumps {len(jumps)} time(s) farther than the aircraft flies between two captures "
+                   f"({said}{', ...' if len(jumps) > 4 else ''}): wrong fixes; their images' positions are wrong")
+    off = off_nadir_deg(rotations[tagged]) if np.any(tagged) else np.zeros(0)
+    median_off = float(np.median(off)) if len(off) else None
+    if median_off is not None and median_off > OFF_NADIR_LIMIT_DEG:
+        out.append(f"the attitude tags turn {int(np.sum(off > OFF_NADIR_LIMIT_DEG))} of {len(off)} cameras more "
+                   f"than {OFF_NADIR_LIMIT_DEG:g} deg away from straight down (median {median_off:.0f} deg): a "
+                   "survey camera looks at the ground; tags written in another pitch convention (DJI gimbal pitch "
+                   "-90 = nadir, 0 = horizon; airframe tags: --mount, --pitch-sign)?")
+    facts = {"gps_frozen": frozen, "gps_jumps": [[names[i], names[j], round(d, 1)] for i, j, d, _ in jumps],
+             "tags_median_off_nadir_deg": median_off}
+    return out, facts
