@@ -44,6 +44,7 @@ EXIF_IFD = 0x8769
 TAG_MAKE, TAG_MODEL = 0x010F, 0x0110
 TAG_FOCAL_LENGTH = 0x920A
 TAG_FOCAL_35MM = 0xA405
+TAG_DIGITAL_ZOOM = 0xA404
 TAG_FP_XRES, TAG_FP_YRES, TAG_FP_UNIT = 0xA20E, 0xA20F, 0xA210
 TAG_EXIF_WIDTH, TAG_EXIF_HEIGHT = 0xA002, 0xA003
 TAG_DATETIME_ORIGINAL = 0x9003
@@ -73,6 +74,7 @@ class ImageMetadata:
     focal_35mm: float | None = None
     focal_plane_px_per_mm: tuple[float, float] | None = None  # (x, y) from FocalPlaneX/YResolution and unit
     exif_size: tuple[int, int] | None = None  # the size FocalPlane*Resolution refers to
+    digital_zoom: float | None = None  # EXIF DigitalZoomRatio > 1: the readout's middle scaled up by it
     make: str = ""
     model: str = ""
     datetime_original: str = ""  # EXIF "YYYY:MM:DD HH:MM:SS"
@@ -96,9 +98,9 @@ class ImageMetadata:
         return seconds + (float("0." + digits) if digits.isdigit() else 0.0)
 
     @property
-    def camera_key(self) -> tuple[str, str, int, int]:
-        """What makes images share one camera: make, model and image size."""
-        return (self.make, self.model, self.width, self.height)
+    def camera_key(self) -> tuple[str, str, int, int, float]:
+        """What makes images share one camera: make, model, image size and digital zoom (1 without)."""
+        return (self.make, self.model, self.width, self.height, self.digital_zoom or 1.0)
 
     def xmp_float(self, *names: str) -> tuple[float, str] | None:
         """The first XMP property among `names` (local names) that parses as a finite float, with its name."""
@@ -300,6 +302,8 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
             problems.append(problem)
             meta.focal_mm = meta.focal_mm if meta.focal_mm and meta.focal_mm > 0 else None
             meta.focal_35mm = meta.focal_35mm if meta.focal_35mm and meta.focal_35mm > 0 else None
+    zoom = _float(sub.get(TAG_DIGITAL_ZOOM))  # 0: no digital zoom (EXIF), and only a ratio above 1 zooms
+    meta.digital_zoom = zoom if zoom is not None and math.isfinite(zoom) and 1.0 < zoom <= 100.0 else None
     xres, yres = _float(sub.get(TAG_FP_XRES)), _float(sub.get(TAG_FP_YRES))
     unit = sub.get(TAG_FP_UNIT, 2)  # EXIF default unit: inch
     if xres and xres > 0 and unit in MM_PER_UNIT:

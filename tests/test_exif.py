@@ -113,6 +113,67 @@ def test_intrinsics_of_a_frame_turned_to_portrait_keep_the_sensor_focal_length(t
     assert "turned by 90 degrees" in source
 
 
+def test_a_focal_plane_resolution_of_another_readout_is_refused_not_taken(tmp_path):
+    """nu16: frames downscaled after the camera wrote its EXIF, whose ExifImageWidth was dropped or rewritten to
+    the new size, were taken as the readout: Seneca's 1200 px frames got fx 2775 px for 833, and a map 30-140 m
+    too low passed as ok. A focal plane resolution that puts the image on a sensor narrower than any survey
+    camera's is refused naming the cause; a 35 mm equivalent focal length stands in when there is one."""
+    from sosmatch.workflows.image_cameras import MIN_SENSOR_WIDTH_MM
+
+    stale = tmp_path / "stale.jpg"
+    write_jpeg(stale, 41.0, -83.0, size=(400, 300), exif_size=(400, 300))  # 400 px at 645 px/mm: a 0.62 mm sensor
+    with pytest.raises(InputError, match=r"on a 0.62 mm sensor, narrower than any survey camera's: the image was "
+                                         r"downscaled .*ExifImageWidth rewritten\): give the sensor width"):
+        pfe.camera_from_metadata(read_image_metadata(stale))
+    assert 400 / (16393.44 / 25.4) < MIN_SENSOR_WIDTH_MM < 4000 / (16393.44 / 25.4)
+    cam, _ = pfe.camera_from_metadata(read_image_metadata(stale), sensor_width_mm=6.2)
+    assert cam.fx == pytest.approx(4.3 / 6.2 * 400)
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(4):
+        write_jpeg(img / f"s{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0, exif_size=(400, 300))
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p.csv")]) == 2
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_digital_zoom_multiplies_the_focal_length_and_makes_another_camera(tmp_path, capsys):
+    """nu16: EXIF DigitalZoomRatio was ignored: frames zoomed x2 in the camera got half their focal length, and a
+    folder of zoomed and unzoomed frames one camera. The ratio multiplies fx, and zoomed frames are another
+    camera: `poses-from-exif`, which writes one camera, refuses the mix naming both focal lengths."""
+    img = tmp_path / "images"
+    img.mkdir()
+    write_jpeg(img / "a.jpg", 47.0, -99.0, 500.0, {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"})
+    write_jpeg(img / "b.jpg", 47.0, -99.0 + 1e-4, 500.0, {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"})
+    plain = read_image_metadata(img / "a.jpg")
+    with Image.open(img / "b.jpg") as im:  # the same frame, zoomed x2 in the camera
+        exif = im.getexif()
+        exif.get_ifd(0x8769)[0xA404] = IFDRational(2, 1)
+        im.save(img / "b.jpg", exif=exif.tobytes(), quality=80)
+    zoomed = read_image_metadata(img / "b.jpg")
+    assert zoomed.digital_zoom == 2.0 and plain.digital_zoom is None
+    assert zoomed.camera_key != plain.camera_key
+    cam_plain, _ = pfe.camera_from_metadata(plain)
+    cam_zoomed, source = pfe.camera_from_metadata(zoomed)
+    assert cam_zoomed.fx == pytest.approx(2.0 * cam_plain.fx) and "x2 digital zoom" in source
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "p.csv")]) == 2
+    assert "2 cameras of different focal lengths" in capsys.readouterr().err
+
+
+def test_images_lacking_a_focal_length_take_their_cameras(tmp_path, caplog):
+    """nu16: one image of a camera without FocalLength refused the whole folder with "the images carry no focal
+    length at all" though the others carried it. Such images take their camera's (one warning counts them)."""
+    from sosmatch.workflows.image_cameras import camera_groups
+
+    for k in range(4):
+        write_jpeg(tmp_path / f"f{k}.jpg", 47.0, -99.0, focal=4.3 if k % 2 else 0.0)
+    metas = [read_image_metadata(tmp_path / f"f{k}.jpg") for k in range(4)]
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_cameras"):
+        cameras, index, _, _ = camera_groups(metas, None, strict=True)
+    assert len(cameras) == 1 and list(index) == [0, 0, 0, 0]
+    assert cameras[0].fx == pytest.approx(pfe.camera_from_metadata(metas[1])[0].fx)
+    assert any("2 of its images have no usable focal length" in r.getMessage() for r in caplog.records)
+
+
 def _camera_dirs(R):  # noqa: N803
     return R[:, 0], R[:, 1], R[:, 2]  # image x, image y (down), optical axis in world
 

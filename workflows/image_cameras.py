@@ -52,12 +52,33 @@ def full_frame_diagonal_px(width: int, height: int, sensor_aspect: float | None 
 EXIF_FOCAL_TOLERANCE = 0.10
 
 
+# The narrowest sensor of a survey camera (1/4": 3.6 mm). A focal plane resolution that puts an image on a
+# narrower one refers to another readout than the file's: the image was downscaled after the camera wrote its
+# EXIF, and ExifImageWidth, which said from what size, was dropped or rewritten to the new one (the sixteenth
+# sweep: Seneca's 1200 px frames on a "1.86 mm" sensor gave fx 2775 px for 833, and a map 30-140 m too low
+# passed). Thermal cores this small (160 px Lepton, 1.9 mm) take --sensor-width-mm.
+MIN_SENSOR_WIDTH_MM = 3.0
+
+
 def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = None) -> tuple[Camera, str]:
-    """Pinhole intrinsics of one image from its EXIF, scaled to the file's actual size, and the source used."""
+    """Pinhole intrinsics of one image from its EXIF, scaled to the file's actual size, and the source used.
+    EXIF DigitalZoomRatio (an in-camera zoom that crops the readout and scales it back up) multiplies the focal
+    length in pixels. A focal plane resolution that puts the image on a sensor narrower than MIN_SENSOR_WIDTH_MM
+    is refused (InputError) unless a 35 mm equivalent focal length can stand in."""
+    camera, source = _camera_before_zoom(meta, sensor_width_mm)
+    zoom = meta.digital_zoom
+    if zoom and zoom > 1.0:
+        camera = Camera(camera.width, camera.height, camera.fx * zoom, camera.fy * zoom, camera.cx, camera.cy)
+        source += f", x{zoom:g} digital zoom"
+    return camera, source
+
+
+def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> tuple[Camera, str]:
     w, h = meta.width, meta.height
     if meta.focal_mm and sensor_width_mm:
         fx = meta.focal_mm / sensor_width_mm * w
         return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLength + given sensor width"
+    stale = None
     if meta.focal_mm and meta.focal_plane_px_per_mm:
         ref_w, ref_h = meta.exif_size if meta.exif_size else (w, h)
         px_per_mm_x, px_per_mm_y = meta.focal_plane_px_per_mm
@@ -68,15 +89,25 @@ def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = No
             ref_w, ref_h, px_per_mm_x, px_per_mm_y = ref_h, ref_w, px_per_mm_y, px_per_mm_x
             source += f", the {meta.exif_size[0]}x{meta.exif_size[1]} readout turned by 90 degrees"
         elif meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01:
-            log.warning("%s: EXIF size %dx%d and file %dx%d differ in aspect (cropped?): scaling by width",
-                        meta.path.name, ref_w, ref_h, w, h)
-        scale = w / ref_w
-        fx = meta.focal_mm * px_per_mm_x * scale
-        fy = meta.focal_mm * px_per_mm_y * scale
-        return Camera(w, h, fx, fy, w / 2.0, h / 2.0), source
+            source += f", EXIF size {ref_w}x{ref_h} and file {w}x{h} differ in aspect (cropped?): scaled by width"
+        # the sensor's long side in mm, as the focal plane resolution and the readout's size say
+        sensor_mm = ref_w / px_per_mm_x if ref_w >= ref_h else ref_h / px_per_mm_y
+        if sensor_mm >= MIN_SENSOR_WIDTH_MM:
+            scale = w / ref_w
+            fx = meta.focal_mm * px_per_mm_x * scale
+            fy = meta.focal_mm * px_per_mm_y * scale
+            return Camera(w, h, fx, fy, w / 2.0, h / 2.0), source
+        stale = (f"FocalPlaneXResolution ({px_per_mm_x:.0f} px/mm) puts the {ref_w} px wide "
+                 f"{'readout' if meta.exif_size else 'image'} on a {sensor_mm:.2f} mm sensor, narrower "
+                 f"than any survey camera's: the image was downscaled after the camera wrote its EXIF, which no "
+                 f"longer says from what size (ExifImageWidth {'rewritten' if meta.exif_size else 'missing'})")
     if meta.focal_35mm:
+        if stale:
+            log.debug("%s: %s; the 35 mm equivalent focal length is used", meta.path.name, stale)
         fx = meta.focal_35mm / FULL_FRAME_DIAGONAL_MM * full_frame_diagonal_px(w, h)
         return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLengthIn35mmFilm (full-frame diagonal)"
+    if stale:
+        raise InputError(f"{stale}: give the sensor width (--sensor-width-mm), or the camera (--camera)", meta.path)
     if meta.focal_mm:
         advice = "give the sensor width (--sensor-width-mm)"
     else:  # a sensor width needs a focal length in mm to go with it: without one it cannot help
@@ -87,31 +118,43 @@ def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = No
 
 
 def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
-                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str], list[str]]:
-    """One camera per make + model + image size (the median focal length of its images), the camera of every
-    image and the intrinsics source of each camera. Without any usable focal length the camera gets COLMAP's
-    default guess (1.2 x the longer side) with a warning (also returned, last), or InputError when `strict`."""
+                  strict: bool) -> tuple[list[Camera], np.ndarray, list[str], list[str]]:
+    """One camera per make + model + image size + digital zoom (the median focal length of its images), the
+    camera of every image and the intrinsics source of each camera. Images of a camera whose EXIF gives no
+    usable focal length share the others' (one warning counts them). Without any for a camera, it gets COLMAP's
+    default guess (1.2 x the longer side) with a warning (also returned, last), or InputError when `strict`
+    (the first image's reason)."""
     keys = sorted({m.camera_key for m in metas}, key=lambda k: [m.camera_key for m in metas].index(k))
     index = np.array([keys.index(m.camera_key) for m in metas], dtype=np.int64)
     cameras, sources, warnings = [], [], []
     for g, key in enumerate(keys):
         members = [m for m, i in zip(metas, index) if i == g]
-        found = []
+        found, failed = [], []
         for m in members:
             try:
                 found.append(camera_from_metadata(m, sensor_width_mm))
-            except InputError:
-                if strict:
-                    raise
+            except InputError as exc:
+                failed.append(exc)
         w, h = key[2], key[3]
+        name = f"{f'{key[0]} {key[1]}'.strip() or 'camera'} ({w}x{h}, {len(members)} images)"
         if not found:
+            if strict:
+                raise failed[0]
             f = 1.2 * max(w, h)
-            warnings.append(f"{f'{key[0]} {key[1]}'.strip() or 'camera'} ({w}x{h}, {len(members)} images): no usable "
-                            f"focal length in EXIF; starting from {f:.0f} px (structure from motion estimates it)")
+            warnings.append(f"{name}: no usable focal length in EXIF ({failed[0].problem}); starting from {f:.0f} px "
+                            "(structure from motion estimates it)")
             log.warning("%s", warnings[-1])
             cameras.append(Camera(w, h, f, f, w / 2.0, h / 2.0))
             sources.append("none in EXIF (1.2 x the longer side)")
             continue
+        if failed:
+            example = failed[0].path.name if failed[0].path else "?"
+            log.warning("%s: %d of its images have no usable focal length in EXIF (e.g. %s): they take the focal "
+                        "length of the other %d", name, len(failed), example, len(found))
+        cropped = [source for _, source in found if "cropped?" in source]
+        if cropped:
+            log.warning("%s: %d images' EXIF size and file size differ in aspect (cropped?): their focal length is "
+                        "scaled by width (EXIF size %s)", name, len(cropped), cropped[0].split(", EXIF size ")[-1])
         fxs = np.array([c.fx for c, _ in found])
         fys = np.array([c.fy for c, _ in found])
         if fxs.max() > 1.01 * fxs.min():

@@ -111,13 +111,26 @@ def poses_from_images(
         raise InputError("image has GPS latitude/longitude but no GPSAltitude", metas[int(no_height[0])].path)
     sizes = Counter((m.width, m.height) for m in metas)
     if len(sizes) > 1:
-        (w0, h0), _ = sizes.most_common(1)[0]
+        (w0, h0), n0 = sizes.most_common(1)[0]
         odd = next(m for m in metas if (m.width, m.height) != (w0, h0))
-        raise InputError(f"image is {odd.width}x{odd.height} but most are {w0}x{h0}: one camera per session, "
-                         "resize the images to one size", odd.path)
+        counts = ", ".join(f"{c} {w}x{h}" for (w, h), c in sizes.most_common())
+        if len(sizes) == 2 and (odd.width, odd.height) == (h0, w0):
+            advice = ("portrait and landscape frames mixed: turn them to one orientation (a rotation, not a resize, "
+                      "which would distort them)")
+        else:
+            advice = "map each camera's (or size's) images on their own, or bring them to one size"
+        raise InputError(f"image is {odd.width}x{odd.height}; the folder's images are of {len(sizes)} sizes "
+                         f"({counts}): one camera per session; {advice}", odd.path)
+    focals = [c.fx for c in priors.cameras]
+    if len(priors.cameras) > 1 and max(focals) > 1.01 * min(focals):
+        first = [m for m, i in zip(metas, priors.camera_index) if i != priors.camera_index[0]][0]
+        raise InputError(f"the images are of {len(focals)} cameras of different focal lengths (fx "
+                         f"{', '.join(f'{f:.0f}' for f in focals)} px: another camera, zoom or digital zoom, e.g. "
+                         f"{metas[0].path.name} and {first.path.name}): one camera per session; map each on its own",
+                         first.path)
     if len(priors.cameras) > 1:
-        log.warning("%d camera makes/models in one folder: using the first one's intrinsics for all",
-                    len(priors.cameras))
+        log.warning("%d camera makes/models in one folder, of one focal length: using the first one's intrinsics "
+                    "for all", len(priors.cameras))
     poses = Poses(priors.names, priors.rotations, priors.positions)
     return ExifPoses(poses, priors.epsg, priors.cameras[0], priors.summary, ~priors.attitude_from_tags,
                      [m.capture_time_s for m in metas])
