@@ -1,9 +1,12 @@
 """Landmarks as GeoJSON (RFC 7946: WGS84 longitude/latitude) for QGIS and web maps, written atomically.
 
 Each landmark is a Feature: a Point (longitude, latitude, height) or, with `geometry="circle"`, a Polygon of the
-landmark's metric size (diameter) drawn in the map's projected CRS and then transformed, so it has the right
-size on the ground. Properties: index, size_m, x, y, z (the map's CRS), plus any per-landmark extras given
-(e.g. num_observations). The FeatureCollection's properties carry the source CRS and origin.
+object the landmark's metric size describes: size_m is sqrt(lambda_max) of its segment, a standard deviation
+(R/2 for a disc of radius R), so the circle is the disc of that second moment, radius 2 x size_m (drawn as a
+diameter of size_m it was a quarter of the object's radius, dots inside crowns and roofs: the sixteenth
+sweep), drawn in the map's projected CRS and then transformed, so it has the right size on the ground.
+Properties: index, size_m, x, y, z (the map's CRS), plus any per-landmark extras given (e.g. num_observations).
+The FeatureCollection's properties carry the source CRS and origin.
 """
 
 from __future__ import annotations
@@ -102,6 +105,10 @@ def to_wgs84(xy: np.ndarray, epsg: int) -> np.ndarray:
     return np.column_stack([lon, lat])
 
 
+# a disc of radius R has sqrt(lambda_max) = R / 2: the circle of a landmark of size s (module doc)
+CIRCLE_RADIUS_PER_SIZE = 2.0
+
+
 def landmarks_feature_collection(
     lmap: LandmarkMap,
     epsg: int | None = None,
@@ -123,7 +130,7 @@ def landmarks_feature_collection(
     if geometry == "circle" and n:
         t = np.linspace(0.0, 2.0 * math.pi, circle_vertices, endpoint=False)
         unit = np.column_stack([np.cos(t), np.sin(t)])
-        radius = np.where(np.isfinite(lmap.sizes), lmap.sizes / 2.0, 0.5).astype(np.float64)
+        radius = np.where(np.isfinite(lmap.sizes), CIRCLE_RADIUS_PER_SIZE * lmap.sizes, 0.5).astype(np.float64)
         ring_xy = lmap.positions[:, None, :2] + radius[:, None, None] * unit[None]
         ring_ll = to_wgs84(ring_xy.reshape(-1, 2), epsg).reshape(n, circle_vertices, 2)
         rings = [np.vstack([r, r[:1]]) for r in ring_ll]

@@ -40,13 +40,15 @@ def test_points_round_trip_to_the_map_crs():
 
 
 def test_circles_have_the_landmark_size_on_the_ground():
+    """A landmark's size is sqrt(lambda_max) of its segment (R/2 for a disc of radius R): its circle has radius
+    2 x size (nu16: drawn as a diameter of size_m, it was a quarter of the object's radius)."""
     lmap = _map()
     fc = landmarks_feature_collection(lmap, geometry="circle")
     tf = Transformer.from_crs("EPSG:4326", "EPSG:32614", always_xy=True)
     ring = np.array(fc["features"][0]["geometry"]["coordinates"][0])
     xy = np.column_stack(tf.transform(ring[:, 0], ring[:, 1]))
     poly = Polygon(xy)
-    r = lmap.sizes[0] / 2
+    r = 2.0 * lmap.sizes[0]
     assert poly.area == pytest.approx(np.pi * r * r, rel=0.03)  # 24-gon
     np.testing.assert_allclose(np.array(poly.centroid.coords)[0], lmap.positions[0, :2], atol=0.05)
 
