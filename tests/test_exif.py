@@ -653,3 +653,26 @@ def test_telemetry_with_semicolons_and_omega_phi_kappa(tmp_path, caplog):
     assert read_telemetry_csv(opk) == {"f0.jpg": {"lat": 47.0, "lon": 8.0, "alt": 500.0}}
     assert "omega/phi/kappa columns" in caplog.text
 
+
+
+def test_refine_without_tie_points_keeps_the_priors_and_prints_strict_json(tmp_path, capsys):
+    """nu16: `poses-from-exif --refine` on images that give no tie points said "the poses are the priors,
+    unrefined" while the adjustment had moved every camera by one 1.95 m, and its summary held NaN, which
+    strict JSON parsers (JavaScript's JSON.parse) reject. The priors are the answer now, and the summary has
+    null where there is no number."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(5):  # random pixels: nothing ties two images together
+        write_jpeg(img / f"r{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0,
+                   {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"})
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "plain" / "poses.csv")]) == 0
+    capsys.readouterr()
+    assert main(["poses-from-exif", str(img), "--refine", "--out", str(tmp_path / "refined" / "poses.csv")]) == 0
+
+    def no_constants(name: str) -> None:
+        raise AssertionError(f"{name} in the summary")
+
+    json.loads(capsys.readouterr().out, parse_constant=no_constants)
+    plain, _ = read_poses_csv(tmp_path / "plain" / "poses.csv")
+    refined, _ = read_poses_csv(tmp_path / "refined" / "poses.csv")
+    np.testing.assert_allclose(refined.centers, plain.centers, atol=1e-6)

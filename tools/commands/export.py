@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
+from ...database.json_text import json_text
 from ._common import output_file
 
 NAME = "export"
@@ -34,5 +34,5 @@ def run(args: argparse.Namespace) -> int:
     kwargs[{"geojson": "geojson", "ply": "ply", "csv": "csv_out"}[args.format]] = args.out
     result = export(args.source, epsg=args.epsg, geometry="circle" if args.circles else "point",
                     overwrite=args.overwrite, **kwargs)
-    print(json.dumps(result))
+    print(json_text(result))
     return 0

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
+from ...database.json_text import json_text
 from ._common import output_file
 
 NAME = "poses-from-exif"
@@ -53,5 +53,5 @@ def run(args: argparse.Namespace) -> int:
         refine=args.refine, position_sigma_m=args.position_sigma, attitude_sigma_deg=args.attitude_sigma,
         refine_method=args.refine_method, overwrite=args.overwrite,
     )
-    print(json.dumps(result.summary, indent=2))
+    print(json_text(result.summary, indent=2))
     return 0

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from ...database.json_text import json_text
 
 NAME = "synth-from-ortho"
 HELP = "render a session (images, exact poses, footprints) of nadir views from a georeferenced orthophoto"
@@ -41,5 +42,5 @@ def run(args: argparse.Namespace) -> int:
                      frames=args.frames, max_tilt_deg=args.max_tilt, seed=args.seed,
                      ekf_position_sigma_m=args.ekf_position_sigma, ekf_attitude_sigma_deg=args.ekf_attitude_sigma,
                      overwrite=args.overwrite)
-    print(json.dumps(summary, indent=2))
+    print(json_text(summary, indent=2))
     return 0

@@ -1,0 +1,24 @@
+"""JSON text that strict parsers read: RFC 8259 has no NaN or Infinity (Python's json writes them; JavaScript's
+JSON.parse, Go and Rust reject the document), so non-finite numbers become null."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+
+def finite(obj: Any) -> Any:
+    """`obj` with every non-finite float (NaN, +-inf) in its dicts, lists and tuples replaced by None."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite(v) for v in obj]
+    return obj
+
+
+def json_text(obj: Any, **kwargs: Any) -> str:
+    """`json.dumps` of `obj` with non-finite numbers as null (`finite`); numpy floats pass through `default`."""
+    return json.dumps(finite(obj), allow_nan=False, **kwargs)
