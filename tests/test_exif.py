@@ -676,3 +676,22 @@ def test_refine_without_tie_points_keeps_the_priors_and_prints_strict_json(tmp_p
     plain, _ = read_poses_csv(tmp_path / "plain" / "poses.csv")
     refined, _ = read_poses_csv(tmp_path / "refined" / "poses.csv")
     np.testing.assert_allclose(refined.centers, plain.centers, atol=1e-6)
+
+
+def test_portrait_files_of_a_landscape_readout_do_not_take_its_attitude_tags(tmp_path, caplog):
+    """nu16: portrait files (a landscape readout turned by 90 degrees by software, the EXIF as the camera wrote
+    it) took the tags' heading unchanged: their poses were 90 degrees off with no warning, and `map` refused the
+    result as a tilted ground. The direction of the turn is not recorded, so such images' headings are left to
+    the images, as for images without tags, and a warning says why."""
+    from sosmatch.workflows.image_priors import read_image_priors
+
+    img = tmp_path / "images"
+    img.mkdir()
+    tags = {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"}
+    for k in range(4):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0, tags, size=(300, 400) if k % 2 else (400, 300))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img)
+    assert list(priors.attitude_from_tags) == [True, False, True, False]
+    assert any("2 of 4 images are their camera's readout turned by 90 degrees" in r.getMessage()
+               for r in caplog.records)

@@ -60,6 +60,16 @@ EXIF_FOCAL_TOLERANCE = 0.10
 MIN_SENSOR_WIDTH_MM = 3.0
 
 
+def turned_readout(meta: ImageMetadata) -> bool:
+    """Whether the file is the readout its EXIF describes turned by 90 degrees (a portrait frame rotated by
+    software, which leaves the EXIF as the camera wrote it): the aspects are each other's inverse."""
+    if not meta.exif_size or not (meta.width > 0 and meta.height > 0):
+        return False
+    ref_w, ref_h = meta.exif_size
+    w, h = meta.width, meta.height
+    return abs(ref_w / ref_h - w / h) > 0.01 and abs(ref_h / ref_w - w / h) <= 0.01
+
+
 def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = None) -> tuple[Camera, str]:
     """Pinhole intrinsics of one image from its EXIF, scaled to the file's actual size, and the source used.
     EXIF DigitalZoomRatio (an in-camera zoom that crops the readout and scales it back up) multiplies the focal
@@ -83,7 +93,7 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
         ref_w, ref_h = meta.exif_size if meta.exif_size else (w, h)
         px_per_mm_x, px_per_mm_y = meta.focal_plane_px_per_mm
         source = "FocalLength + FocalPlaneX/YResolution (scaled to file size)"
-        if meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01 and abs(ref_h / ref_w - w / h) <= 0.01:
+        if turned_readout(meta):
             # the readout the EXIF describes, turned by 90 degrees (a portrait frame rotated by software, which
             # leaves the EXIF as the camera wrote it): its width is the readout's height
             ref_w, ref_h, px_per_mm_x, px_per_mm_y = ref_h, ref_w, px_per_mm_y, px_per_mm_x

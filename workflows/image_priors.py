@@ -89,6 +89,7 @@ from .image_cameras import (  # noqa: F401 (re-exported: their home before image
     camera_groups,
     full_frame_diagonal_px,
     make_model,
+    turned_readout,
 )
 from .image_positions import check_one_place, median_position, one_vertical_datum, track_checks
 
@@ -322,6 +323,7 @@ def read_image_priors(
     kind = np.empty(n, dtype=object)
     att_src: Counter = Counter()
     course = _course_from_neighbours(east, north)
+    turned = np.array([turned_readout(m) for m in metas], dtype=bool)
     for i, m in enumerate(metas):
         t = rows[i]
         gimbal = [m.xmp_float(*k) for k in (("GimbalYawDegree", "CameraYawDegree"),
@@ -329,7 +331,9 @@ def read_image_priors(
                                             ("GimbalRollDegree", "CameraRollDegree"))]
         fixed = [m.xmp_float("Heading", "FlightYawDegree"), m.xmp_float("PitchAngle", "FlightPitchDegree"),
                  m.xmp_float("RollAngle", "FlightRollDegree")]
-        if all(gimbal):
+        if turned[i]:
+            pass  # its tags describe the unturned camera, and which way the file was turned is not recorded
+        elif all(gimbal):
             (yaw[i], _), (pitch[i], _), (roll[i], _) = gimbal  # type: ignore[misc]
             kind[i] = "gimbal"
             parrot = gimbal[0][1].startswith("Camera")  # type: ignore[index]
@@ -342,7 +346,7 @@ def read_image_priors(
             yaw[i], pitch[i], roll[i] = t["yaw"], t["pitch"], t["roll"]
             kind[i] = "fixed"
             att_src["telemetry CSV"] += 1
-        else:
+        if kind[i] is None:
             kind[i] = "course"
             if m.gps_track_deg is not None:
                 yaw[i] = m.gps_track_deg
@@ -352,6 +356,11 @@ def read_image_priors(
                 att_src["course from neighbours (level, nadir)"] += 1
             else:
                 att_src["nothing (level, nadir, heading unknown)"] += 1
+    if turned.any():
+        log.warning("%d of %d images are their camera's readout turned by 90 degrees (portrait files, e.g. %s): their "
+                    "attitude tags describe the unturned camera and which way the pixels were turned is not "
+                    "recorded, so their headings are left to the images (as for images without tags)",
+                    int(turned.sum()), n, metas[int(np.flatnonzero(turned)[0])].path.name)
     rotations = np.empty((n, 3, 3))
     for k, m_name, ps, rs in (("gimbal", "gimbal", 1.0, 1.0), ("fixed", mount, pitch_sign, roll_sign),
                               ("course", mount, 1.0, 1.0)):
