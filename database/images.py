@@ -75,6 +75,8 @@ def to_u8(a: np.ndarray, white: int | None = None) -> np.ndarray:
     a = np.asarray(a)
     if a.dtype == np.uint8:
         return a
+    if a.dtype.kind == "i" and a.dtype.itemsize == 2:  # signed 16-bit (some thermal TIFFs): no light below 0
+        a = np.clip(a, 0, None).astype(np.uint16)
     if a.dtype.kind == "u" and a.dtype.itemsize == 2:  # any byte order (big-endian TIFF: >u2)
         level = int(white) if white else white_level(int(a.max(initial=0)))
         # a table of the 65536 values: the uint8 result is written directly (a float copy of a 24 MP RGB frame

@@ -8,15 +8,17 @@ import math
 import numpy as np
 
 # UTM is defined from 80 deg S to 84 deg N; beyond, the polar caps are Universal Polar Stereographic's (its
-# scale factor is 0.994 at the pole and 1 near 81 deg: ground metres within 0.6 %)
-UTM_NORTH_LIMIT_DEG, UTM_SOUTH_LIMIT_DEG = 84.0, -80.0
+# scale factor is 0.994 at the pole and 1 near 81 deg: ground metres within 0.6 %). A flight up to 0.8 deg
+# beyond keeps its UTM zone, as it always did (the area checks allow 100 km, `database.geojson`): a site at
+# 80.001 S flown before and after would otherwise be mapped in two CRSs (review rev18)
+UTM_NORTH_LIMIT_DEG, UTM_SOUTH_LIMIT_DEG = 84.8, -80.8
 UPS_NORTH_EPSG, UPS_SOUTH_EPSG = 32661, 32761
 
 
 def utm_epsg(latitude: float, longitude: float) -> int:
     """EPSG code of the WGS84 / UTM zone containing a point (326zz north, 327zz south), or of WGS84 / UPS North
-    (32661) or South (32761) beyond UTM's latitudes (a flight at 85 deg N in a UTM zone lies outside the zone's
-    area, and any check of it against that area fails)."""
+    (32661) or South (32761) beyond UTM's latitudes and their margin (a flight at 85.5 deg N in a UTM zone lies
+    outside the zone's area, and any check of it against that area fails)."""
     if latitude > UTM_NORTH_LIMIT_DEG:
         return UPS_NORTH_EPSG
     if latitude < UTM_SOUTH_LIMIT_DEG:

@@ -392,6 +392,11 @@ def test_flights_beyond_utm_latitudes_take_polar_stereographic(tmp_path, capsys)
     assert "EPSG:3413" in err and "stretches distances" in err and "EPSG:32661" in err and "Traceback" not in err
     assert not out.exists()
     assert main(["poses-from-exif", str(img), "--out", str(out)]) == 0 and out.exists()
+    # just past UTM's limit a flight keeps its zone, as it always did (rev18: a site at 80.001 S flown before and
+    # after would be in two CRSs)
+    from sosmatch.plugin.geodesy import utm_epsg
+
+    assert utm_epsg(-80.001, 21.0) == 32734 and utm_epsg(84.2, 10.0) == 32632 and utm_epsg(-81.0, 21.0) == 32761
 
 
 def test_missing_gps_is_a_clear_error(tmp_path, capsys):

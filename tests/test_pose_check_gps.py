@@ -281,6 +281,26 @@ def test_the_receivers_jitter_ignores_repeated_fixes_and_images_without_one() ->
     assert gps is not None and not gps.too_small and gps.follows(0.5)
 
 
+def test_a_fit_of_few_fixes_does_not_bound_the_receivers_jitter() -> None:
+    """rev18: the fitted path's noise bounded the jitter from 5-12 fixes, where the robust fit keeps the few that
+    agree and measures half the receiver's noise: a 10 m pass with 12 fixes of a 5 m receiver was judged, and
+    its correct poses refused as "0.44 x ... not in metres". With fewer than 10 inliers the fit bounds nothing,
+    and beyond it never below a receiver's wander."""
+    n, size = 12, 10
+    rng = np.random.default_rng([34, n, size, 7])
+    truth = np.column_stack([np.linspace(0, size, n), rng.normal(0, 0.3, n), np.full(n, 60.0)])
+    gps = compare_with_gps(truth, truth[:, :2] + [5e5, 4.5e6] + rng.normal(0, 5.0, (n, 2)))
+    assert gps is not None and gps.too_small
+    assert not judge_gps(gps, PoseCheckParams()).refusals
+    refused = 0
+    for seed in range(100):
+        rng = np.random.default_rng([seed, n, size, 7])
+        truth = np.column_stack([np.linspace(0, size, n), rng.normal(0, 0.3, n), np.full(n, 60.0)])
+        gps = compare_with_gps(truth, truth[:, :2] + [5e5, 4.5e6] + rng.normal(0, 5.0, (n, 2)))
+        refused += bool(judge_gps(gps, PoseCheckParams()).refusals)
+    assert refused == 0
+
+
 def test_unsteady_fixes_are_named_not_another_flight() -> None:
     """rev16: when most fixes scatter metres off (a receiver jumping between solutions, multipath) while the rest
     follow the path closely, fewer than half lay within the fit's noise although the path explained all of

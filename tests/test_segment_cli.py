@@ -175,3 +175,14 @@ def test_folders_given_together_keep_their_own_white_level(tmp_path):
     masks = {r.path.name: r.num_masks for r in together.images}
     assert alone.images[0].num_masks >= 3
     assert masks["twelve.tif"] == alone.images[0].num_masks == masks["sixteen.tif"]
+
+
+def test_signed_16_bit_gray_reads_in_both_readers(tmp_path):
+    """rev18: OpenCV hands the tie points' gray reader a signed 16-bit TIFF as int16, which it refused; both
+    readers read it now (values below 0 are no light)."""
+    tifffile = pytest.importorskip("tifffile")
+    gray = _scene()[:, :, 1].astype(np.int16) * 16  # 12-bit data
+    tifffile.imwrite(tmp_path / "s.tif", gray, photometric="minisblack")
+    out = read_gray(tmp_path / "s.tif", 4095)
+    assert out.dtype == np.uint8 and np.abs(out.astype(int) - _scene()[:, :, 1]).max() <= 1
+    assert read_image(tmp_path / "s.tif").shape == (*gray.shape, 3)

@@ -52,6 +52,9 @@ SMALL_FLIGHT_NOISE_RATIO = 3.0
 # track's extent): a frozen receiver's fixes barely move (centimetres of jitter), a noisy one's move with the
 # aircraft
 STALE_MOVE_RATIO = 0.2
+# inliers the fit needs before its noise bounds the receiver's jitter (`GpsComparison.fit_noise_bound_m`; the
+# verdict's MIN_FIXES_TO_REFUSE for a unit refusal)
+MIN_FIT_INLIERS = 10
 # consecutive fixes closer than this are one fix repeated (a GNSS fix is given to a millimetre or coarser), not a
 # second measurement of the receiver's jitter
 REPEATED_FIX_M = 1e-3
@@ -90,11 +93,22 @@ class GpsComparison:
     @property
     def too_small(self) -> bool:
         """Whether the flight spans too little against its receiver's jitter for a path to show it follows the
-        fixes (SMALL_FLIGHT_NOISE_RATIO). The jitter is the smaller of the fixes' own (`fix_jitter_m`) and their
-        noise about the fitted path: a flight of few images per line (every fifth image of a survey) turns at
-        most of its fixes, which the fixes alone read as 80 m of jitter, while a path that fits them to a few
-        metres bounds the receiver's noise by that (a path that does not fit leaves the fixes' own figure)."""
-        return self.extent_m < SMALL_FLIGHT_NOISE_RATIO * min(self.fix_noise_m, self.sigma_m)
+        fixes (SMALL_FLIGHT_NOISE_RATIO). The jitter is the smaller of the fixes' own (`fix_jitter_m`) and what
+        the fitted path bounds it by (`fit_noise_bound_m`): a flight of few images per line (every fifth image
+        of a survey) turns at most of its fixes, which the fixes alone read as 80 m of jitter, while a path that
+        fits them to a few metres bounds the receiver's noise by that (a path that does not fit leaves the
+        fixes' own figure)."""
+        return self.extent_m < SMALL_FLIGHT_NOISE_RATIO * min(self.fix_noise_m, self.fit_noise_bound_m)
+
+    @property
+    def fit_noise_bound_m(self) -> float:
+        """What the fit says of the receiver's noise, as an upper bound: its noise about the path, never below
+        GNSS_WANDER_M, inflated by the share of fixes it left out; none (inf) on fewer than MIN_FIT_INLIERS
+        inliers, where a robust fit keeps the few fixes that agree and measures half the receiver's noise
+        (review rev18: 5-12 fixes of a 5 m receiver on a 10 m site then judged a meaningless scale)."""
+        if self.inliers < MIN_FIT_INLIERS:
+            return math.inf
+        return max(self.sigma_m, GNSS_WANDER_M) * math.sqrt(self.fixes / self.inliers)
 
     @property
     def scale_text(self) -> str:
