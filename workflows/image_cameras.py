@@ -117,7 +117,8 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
         fx = meta.focal_35mm / FULL_FRAME_DIAGONAL_MM * full_frame_diagonal_px(w, h)
         return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLengthIn35mmFilm (full-frame diagonal)"
     if stale:
-        raise InputError(f"{stale}: give the sensor width (--sensor-width-mm), or the camera (--camera)", meta.path)
+        raise InputError(f"{stale}: give the sensor width (--sensor-width-mm), or `map` a camera file (--camera)",
+                         meta.path)
     if meta.focal_mm:
         advice = "give the sensor width (--sensor-width-mm)"
     else:  # a sensor width needs a focal length in mm to go with it: without one it cannot help
