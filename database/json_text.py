@@ -20,5 +20,6 @@ def finite(obj: Any) -> Any:
 
 
 def json_text(obj: Any, **kwargs: Any) -> str:
-    """`json.dumps` of `obj` with non-finite numbers as null (`finite`); numpy floats pass through `default`."""
+    """`json.dumps` of `obj` with non-finite numbers as null (`finite`; numpy float64 is a float, other numpy
+    scalars and arrays need a `default`, as `json.dumps` itself does)."""
     return json.dumps(finite(obj), allow_nan=False, **kwargs)

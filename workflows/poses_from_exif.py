@@ -111,7 +111,7 @@ def poses_from_images(
         raise InputError("image has GPS latitude/longitude but no GPSAltitude", metas[int(no_height[0])].path)
     sizes = Counter((m.width, m.height) for m in metas)
     if len(sizes) > 1:
-        (w0, h0), n0 = sizes.most_common(1)[0]
+        (w0, h0), _ = sizes.most_common(1)[0]
         odd = next(m for m in metas if (m.width, m.height) != (w0, h0))
         counts = ", ".join(f"{c} {w}x{h}" for (w, h), c in sizes.most_common())
         if len(sizes) == 2 and (odd.width, odd.height) == (h0, w0):
