@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 
 def finite(obj: Any) -> Any:
@@ -17,6 +20,18 @@ def finite(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [finite(v) for v in obj]
     return obj
+
+
+def json_default(obj: Any) -> Any:
+    """`json.dumps`' `default` for the values our records hold besides Python's own: numpy scalars and arrays
+    (as Python numbers and lists) and paths (as text); anything else is an error, as without a `default`."""
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
 def json_text(obj: Any, **kwargs: Any) -> str:

@@ -17,6 +17,7 @@ import numpy as np
 
 from ...database.atomic import write_text_atomic
 from ...database.evaluation_io import read_match_hypotheses
+from ...database.json_text import json_default
 from ...database.landmark_map import check_two_maps, read_landmark_map
 from ...database.map_loading import read_map_noise, session_map_noise
 from ...database.match_io import check_match_maps, read_match_json
@@ -430,16 +431,9 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
         f"IoU > {TP_IOU}, {evaluation['protocol']['negative_pairs']} with IoU < {FP_IOU}.\n\n"
         "![precision-recall](pr.png)\n\n![map overlay](overlay.png)\n")
     write_text_atomic(out_dir / "evaluation.md", md)
-    write_text_atomic(out_dir / "evaluation.json", json.dumps(evaluation, indent=1, default=_json_default) + "\n")
+    write_text_atomic(out_dir / "evaluation.json", json.dumps(evaluation, indent=1, default=json_default) + "\n")
     return evaluation
 
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"not JSON serialisable: {type(obj)}")
 
 
 def demo_step(session_a: str | Path, session_b: str | Path, map_a: str | Path, map_b: str | Path,

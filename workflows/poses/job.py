@@ -18,6 +18,7 @@ import numpy as np
 from ...database.atomic import write_text_atomic
 from ...database.cameras import format_cameras_txt
 from ...database.images import check_images_decode
+from ...database.json_text import json_default
 from ...database.outputs import fingerprint, open_output_dir
 from ...database.poses import format_poses_csv
 from ...plugin.errors import InputError
@@ -26,7 +27,7 @@ from ...plugin.params import Params, params_to_dict
 from .. import sfm
 from ..image_priors import ImagePriors, list_images, read_image_priors
 from .checks import NOMINAL_HEIGHT_M, _check_focal_lengths, _compare, _register, _transform_model
-from .result import OUTPUTS, RECORD, PosesResult, _json_default, _listing, _refuse_cameras, load_result, map_inputs
+from .result import OUTPUTS, RECORD, PosesResult, _listing, _refuse_cameras, load_result, map_inputs
 
 log = logging.getLogger(__name__)
 MIN_IMAGES = 3  # the fewest images an incremental reconstruction (two-view start + one more) can pose
@@ -113,7 +114,7 @@ def _mark_stage(work: Path, name: str, key: str, result: dict) -> None:
     except (OSError, ValueError):
         done = {}
     done[name] = {"key": key, **result}
-    write_text_atomic(work / "stages.json", json.dumps(done, indent=1, default=_json_default) + "\n")
+    write_text_atomic(work / "stages.json", json.dumps(done, indent=1, default=json_default) + "\n")
 
 def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors, params: Params, key: str,
              nominal_height_m: float) -> PosesResult:
@@ -235,7 +236,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         "params": params_to_dict(sp), "warnings": warnings,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
-    write_text_atomic(tmp / RECORD, json.dumps(report, indent=1, default=_json_default) + "\n")
+    write_text_atomic(tmp / RECORD, json.dumps(report, indent=1, default=json_default) + "\n")
     os.replace(tmp, result_dir)
     return load_result(result_dir)
 

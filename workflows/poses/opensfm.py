@@ -12,13 +12,14 @@ import numpy as np
 
 from ...database.atomic import write_text_atomic
 from ...database.cameras import format_cameras_txt
+from ...database.json_text import json_default
 from ...database.outputs import fingerprint, open_output_dir
 from ...database.poses import format_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
 from ..image_priors import list_images
 from .job import _image_identity
-from .result import RECORD, PosesResult, _json_default, load_result
+from .result import RECORD, PosesResult, load_result
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +98,7 @@ def run_opensfm(project: str | Path, out: str | Path, images: str | Path | None 
                                        "height": cameras[c].height, "params": cameras[c].params}
                               for c, k in ids.items()},
                   "camera_of_image": {Path(n).name: ids[cam_of[n]] for n in poses.names}, "warnings": warnings}
-        write_text_atomic(taken.staged(RECORD), json.dumps(report, indent=1, default=_json_default) + "\n")
+        write_text_atomic(taken.staged(RECORD), json.dumps(report, indent=1, default=json_default) + "\n")
         (taken.path / RECORD).unlink(missing_ok=True)
         taken.publish(["poses.csv", "cameras.txt", "sparse"], last=RECORD)
         taken.finish()
