@@ -17,6 +17,14 @@ from .with_priors import refine_poses_with_priors
 
 log = logging.getLogger(__name__)
 
+# The longer side (px) of the copy the tie points are detected on. The refinement's pixel figures (`ransac_px`,
+# `pixel_sigma_px`) and the feature count were measured on Seneca's 1200 px frames; on a 4000 px copy of the same
+# frames, ORB's strongest features at full size are fine texture that does not repeat (356 tracks instead of 1027,
+# 19 images without a tie point instead of 14) and the verdict changed with the file size (the seventeenth
+# sweep). Detected at this size, a frame gives the same tie points whatever its pixel count; the thresholds are
+# then scaled to the full-size pixels the poses and the camera use (`TiePoints.pixel_scale`).
+TIE_POINT_MAX_SIDE = 1200
+
 
 def _orb_matches(desc_a: np.ndarray, desc_b: np.ndarray, kp_a: np.ndarray, kp_b: np.ndarray,
                  ransac_px: float) -> np.ndarray:
@@ -46,6 +54,7 @@ class TiePoints:
     tracks: list[np.ndarray]
     offsets: np.ndarray
     pairs_tried: int
+    pixel_scale: float = 1.0  # full-size pixels per pixel of the copy the features were detected on
 
     @property
     def observations(self) -> int:
@@ -64,26 +73,31 @@ def match_tie_points(
     ransac_px: float = 6.0,
     min_track_length: int = 3,
     max_neighbours: int = 8,
+    max_side: int | None = TIE_POINT_MAX_SIDE,
 ) -> TiePoints:
     """ORB tie points between overlapping images (image order = the order of `centers`, the camera centres).
 
-    Features per image (ORB, `max_features`); matches (ratio test + RANSAC homography at `ransac_px`) between each
-    image and the next two, and between any two images whose centres are closer than `neighbour_fraction` x 4 x the
-    median spacing of consecutive images (a typical 75% forward overlap puts ~4 spacings in a footprint; at most its
-    `max_neighbours` nearest), which links neighbouring flight lines; tracks by union-find (tracks with two features
-    in one image are dropped). The orientations play no part: the matches are what the images show.
+    Features per image (ORB, `max_features`, detected on a copy at most `max_side` px on its longer side; keypoints
+    in full-size COLMAP pixels); matches (ratio test + RANSAC homography at `ransac_px` pixels of that copy)
+    between each image and the next two, and between any two images whose centres are closer than
+    `neighbour_fraction` x 4 x the median spacing of consecutive images (a typical 75% forward overlap puts ~4
+    spacings in a footprint; at most its `max_neighbours` nearest), which links neighbouring flight lines; tracks by
+    union-find (tracks with two features in one image are dropped). The orientations play no part: the matches
+    are what the images show.
     """
     from ...plugin.image_matching import orb_features
 
     centers = np.asarray(centers, dtype=np.float64)
     n = len(centers)
     kps, descs = [], []
+    pixel_scale = 1.0
     white = flight_white_level(image_paths)  # one scale for a flight of more than 8 bits (nothing decoded at 8)
     for path in image_paths:
         img = read_gray(path, white)
         if img.shape[1] != camera.width:
             raise ValueError(f"{path}: image width {img.shape[1]} differs from the camera's {camera.width}")
-        features = orb_features(img, max_features)
+        features = orb_features(img, max_features, max_side)
+        pixel_scale = 1.0 / features.scale  # one camera: one scale for every image
         kps.append(features.colmap_points)
         descs.append(features.descriptors)
     spacing = np.median(np.linalg.norm(np.diff(centers[:, :2], axis=0), axis=1)) if n > 1 else 1.0
@@ -109,7 +123,7 @@ def match_tie_points(
 
     matched: dict[tuple[int, int], np.ndarray] = {}
     for i, j in sorted(pairs):
-        m = _orb_matches(descs[i], descs[j], kps[i], kps[j], ransac_px)
+        m = _orb_matches(descs[i], descs[j], kps[i], kps[j], ransac_px * pixel_scale)
         if len(m):
             matched[(i, j)] = m
         for a, b in m:
@@ -123,7 +137,7 @@ def match_tie_points(
     tracks = [g for g in groups if len(g) >= min_track_length and len(np.unique(img_of[g])) == len(g)]
     log.info("tie points: %d image pairs matched of %d tried, %d tracks of >= %d images", len(matched), len(pairs),
              len(tracks), min_track_length)
-    return TiePoints(kps, matched, tracks, offsets, len(pairs))
+    return TiePoints(kps, matched, tracks, offsets, len(pairs), pixel_scale)
 
 
 def reconstruction_of_tie_points(tie: TiePoints, poses: Poses, camera: object,
@@ -219,7 +233,7 @@ def refine_poses_from_images(
     camera: object,
     position_sigma_m: float | tuple[float, float, float] = 3.0,
     attitude_sigma_deg: float = 5.0,
-    pixel_sigma_px: float = 2.0,
+    pixel_sigma_px: float = 2.0,  # at the tie points' detection size (TIE_POINT_MAX_SIDE)
     max_features: int = 2000,  # matching cost grows with its square: 3000 took 80 s of knnMatch on Seneca
     method: str = "colmap",
     accept_implausible: bool = False,
@@ -244,6 +258,7 @@ def refine_poses_from_images(
     if method not in ("colmap", "scipy"):
         raise ValueError(f"unknown refinement method {method!r} (colmap or scipy)")
     tie = match_tie_points(image_paths, poses.centers, camera, max_features)
+    pixel_sigma_px *= tie.pixel_scale  # given at the tie points' detection size; the adjustment is in full pixels
     turns = np.full(len(poses), np.nan)
     if unknown_headings is not None and np.any(unknown_headings):
         poses, turns = headings_from_image_motion(tie, poses, camera, unknown_headings)
@@ -279,6 +294,14 @@ def refine_poses_from_images(
                     observations_by_image=tuple(int(n) for n in observed),
                     heading_turns_deg=tuple(float(t) for t in turns))
     errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg, poses.names)
+    blind = [nm for nm, k, guess in zip(poses.names, observed, unknown_headings if unknown_headings is not None
+                                        else np.zeros(len(poses), bool)) if k == 0 and not guess]
+    if blind and tie.tracks:
+        # their poses are the priors, untouched (the seventeenth sweep: 19 of 60 frames, telemetry headings 10-36
+        # deg off, in a refinement that said nothing); images without attitude tags are named by the caller
+        warnings.append(f"{len(blind)} of {len(poses)} images share no tie point with the others "
+                        f"({', '.join(blind[:4])}{', ...' if len(blind) > 4 else ''}): their poses are the priors, "
+                        "unrefined")
     turned = turned_images(poses, refined, attitude_sigma_deg, stats.observations_by_image)
     if turned and (accept_implausible or not errors):  # a rejected refinement: its rejection says more
         # the mean turn (judge_refinement) hid cameras that a handful of tie points turned away from their priors
