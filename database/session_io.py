@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import struct
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -193,6 +194,7 @@ def read_session(path: str | Path, name: str | None = None) -> SessionFiles:
     lmap = read_landmark_map(path / "landmarks.sosmap")
     check_map_of_record(path, lmap)
     ids = read_landmark_point_ids(path / "landmarks.csv", len(lmap))
+    check_model_of_landmarks(path, lmap, ids)
     return SessionFiles(path=path, name=name or path.resolve().name, landmarks=lmap, point3d_ids=ids)
 
 
@@ -209,6 +211,71 @@ def check_map_of_record(path: str | Path, lmap: LandmarkMap) -> None:
         raise InputError("is not the landmark map this session's run.json was written with (files of two sessions "
                          "mixed in one folder?); map the session again or copy its own landmarks.sosmap back",
                          Path(path) / "landmarks.sosmap")
+
+
+# landmarks.sosmap keeps positions as float32 offsets from an origin near the data (about 1e-4 m at a few km): a
+# point of sparse/ farther than this from its landmark belongs to another map
+MODEL_POINT_TOLERANCE_M = 0.01
+
+
+def check_model_of_landmarks(path: str | Path, lmap: LandmarkMap, point3d_ids: np.ndarray) -> None:
+    """InputError when the session's sparse/ does not hold its landmarks: each landmark with a COLMAP point id
+    (landmarks.csv) must find that point of sparse/ at its own position. Files of two sessions mixed in one folder
+    pass every other check when the sessions share image names (the nineteenth sweep: another session's sparse/
+    beside this one's map, and `merge` fused 11 landmarks instead of 98, exit 0)."""
+    from .colmap_model import load_reconstruction
+
+    have = np.flatnonzero(np.asarray(point3d_ids) >= 0)
+    if not len(have):
+        return
+    sparse = Path(path) / "sparse"
+    rec = load_reconstruction(sparse)
+    points = rec.points3D
+    if not len(points):
+        raise InputError(f"holds none of the session's {len(have)} landmarks (no 3D points"
+                         + ("" if len(rec.images) else ", no keyframes") + "): was it emptied or replaced? map the "
+                         "session again", sparse)
+    missing = [int(point3d_ids[i]) for i in have if int(point3d_ids[i]) not in points]
+    if missing:
+        raise InputError(f"holds no 3D point {missing[0]} of landmarks.csv ({len(missing)} of {len(have)} missing): "
+                         "the model of another session or run? map the session again", sparse)
+    xyz = np.array([points[int(point3d_ids[i])].xyz for i in have], dtype=np.float64)
+    off = np.linalg.norm(xyz - lmap.positions[have], axis=1)
+    worst = int(np.argmax(off))
+    if not off[worst] <= MODEL_POINT_TOLERANCE_M:
+        far = int(np.sum(~(off <= MODEL_POINT_TOLERANCE_M)))
+        raise InputError(f"its 3D points are not the session's landmarks (point {int(point3d_ids[have[worst]])} "
+                         f"lies {off[worst]:.2f} m from landmark {int(have[worst])}; {far} of {len(have)} off): the "
+                         "model of another session or run? map the session again", sparse)
+
+
+def keypoints_digest(keypoints: np.ndarray) -> str:
+    """A short content digest of one image's keypoints as database.db stores them (float32 rows): run.json
+    records one per keyframe (`database_keypoints`), so that readers of database.db know it is the map's."""
+    import hashlib
+
+    data = np.ascontiguousarray(np.asarray(keypoints, dtype="<f4")[:, :2])
+    return hashlib.sha256(struct.pack("<Q", len(data)) + data.tobytes()).hexdigest()[:16]
+
+
+def check_database_of_record(path: str | Path, names: Sequence[str], centroids: Sequence[np.ndarray]) -> None:
+    """InputError when the keypoints read from the session's database.db for the keyframes `names` are not those
+    its run.json recorded (`database_keypoints`): another session's database in this folder (the nineteenth
+    sweep: `changes` read B's segments as A's and reported 1 gone / 1 new instead of 4 / 10). Records without
+    the digests (merged models, older runs) and unreadable ones (the stage that needs them says so) pass."""
+    try:
+        record = read_map_record(path)
+    except InputError:
+        return
+    recorded = (record or {}).get("database_keypoints")
+    if not isinstance(recorded, dict):
+        return
+    for name, xy in zip(names, centroids):
+        digest = recorded.get(name)
+        if isinstance(digest, str) and digest != keypoints_digest(xy):
+            raise InputError(f"its keypoints of {name} are not those the session's map was made with (the database "
+                             "of another session or run?); map the session again or copy its own database.db back",
+                             Path(path) / "database.db")
 
 
 def check_map_of_images(map_dir: str | Path, images_dir: str | Path, samples: int = 6) -> None:
@@ -361,6 +428,7 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
         raise InputError("is a folder, not the session's COLMAP database", database)
     if with_segments and database.is_file():
         segments = tuple(read_segment_detections(database, poses.names))
+        check_database_of_record(session.path, poses.names, [seg.centroids for seg in segments])
         if with_tracks:
             tracks = _unmapped_tracks(session, database, poses.names, segments)
     support = np.array([len(names) for names in table.image_names], dtype=np.float64)

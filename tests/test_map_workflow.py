@@ -104,6 +104,40 @@ def test_a_folder_holding_another_sessions_landmark_map_is_refused(session, tmp_
     assert "two sessions" in capsys.readouterr().err and not (tmp_path / "m").exists()
 
 
+def test_a_folder_holding_another_sessions_model_or_database_is_refused(session, tmp_path):
+    """The nineteenth sweep: another session's sparse/ (or database.db) beside this one's map passed every check
+    when the sessions share image names; `merge` fused 11 landmarks instead of 98 and `changes` read the other
+    session's segments, exit 0. sparse/ must hold the landmarks where they are; database.db the keypoints
+    run.json recorded."""
+    import pycolmap
+
+    from sosmatch.database.session_io import read_session_observations
+
+    _, _, out, _ = session
+    assert len(read_session_observations(out).segments) > 0  # its own files pass
+    model = tmp_path / "model"
+    shutil.copytree(out, model)
+    rec = pycolmap.Reconstruction(str(out / "sparse"))
+    for point in rec.points3D.values():
+        point.xyz = point.xyz + np.array([0.0, 0.0, 0.5])
+    rec.write(str(model / "sparse"))
+    with pytest.raises(InputError, match="not the session's landmarks") as err:
+        read_session(model)
+    assert str(model / "sparse") in str(err.value)
+
+    database = tmp_path / "database"
+    shutil.copytree(out, database)
+    with sqlite3.connect(database / "database.db") as con:
+        image_id, rows, cols, blob = con.execute("SELECT k.image_id, k.rows, k.cols, k.data FROM keypoints k "
+                                                 "WHERE k.rows > 0 ORDER BY k.image_id LIMIT 1").fetchone()
+        kp = np.frombuffer(blob, "<f4").reshape(rows, cols).copy()
+        kp[:, :2] += 3.0  # another session's segments in the same image
+        con.execute("UPDATE keypoints SET data = ? WHERE image_id = ?", (kp.tobytes(), image_id))
+    with pytest.raises(InputError, match="not those the session's map was made with") as err:
+        read_session_observations(database)
+    assert str(database / "database.db") in str(err.value)
+
+
 def _cli(capsys, *args):
     code = main(["map", "--no-progress", *map(str, args)])
     return code, capsys.readouterr()
