@@ -281,9 +281,15 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
         _check_verified_associations(summary.associations, ver.get("support"), path)
         if summary.accepted and summary.transform is None:
             raise InputError("match file field verification is accepted without a transform", path)
+    if summary.source == "verified" and isinstance(ver.get("method"), dict) and ver["method"].get("gate_m") is not None:
+        gate = _positive(ver["method"]["gate_m"], "verification.method.gate_m", path)  # the gate its pairs passed
     summary.gate_m = gate
     if summary.source == "verified" and z_weight is not None:
         summary.gate_z_weight = z_weight
+    if kind == "rigid":  # a scale in a rigid match is an edit: merge and changes would apply it
+        for what, t in (("the answer's", summary.transform), ("the consensus'", summary.consensus_transform)):
+            if t is not None and abs(t.scale - 1.0) > 1e-9:
+                raise InputError(f"{what} transform has scale {t.scale:g} in a match of transform_kind 'rigid'", path)
     return summary
 
 
@@ -361,6 +367,7 @@ def check_match_maps(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap
             h[:, 0].max() >= len(map_a) or h[:, 1].max() >= len(map_b))]
         if too_far:
             raise InputError("match file holds landmark indices beyond its maps", path)
+        _check_answer_brings_its_pairs_together(match, map_a, map_b, path)
         return
     if (ref_a, ref_b) == (fb, fa):
         raise InputError(f"match file was computed for these maps in the other order (its map A is {names[1]}); "
@@ -369,3 +376,25 @@ def check_match_maps(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap
     verb = "differs" if len(which) == 1 else "differ"
     raise InputError(f"match file was computed for other maps (map {' and '.join(which)} {verb} from the ones "
                      "given); re-run `sosmatch match` on these", path)
+
+
+def _check_answer_brings_its_pairs_together(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap,
+                                            path: Path) -> None:
+    """Refuse a verified answer whose transform does not put its own associations within the gate they were
+    paired in (the median distance; every verified pair passed it under that transform): a transform edited by
+    hand (the nineteenth sweep: moved 50 m, `merge` fused none of 99 associations and said so only in its summary;
+    moved 3 m, `changes` reported 8 gone / 21 new instead of 4 / 10, exit 0). An unverified consensus is not
+    tested: its pairs passed the gate under each window's own transform, not under the one refitted on all of
+    them. Files that do not record their gate pass."""
+    from ..plugin.refinement import pairing_distance
+
+    assoc = match.associations
+    if match.source != "verified" or match.transform is None or not len(assoc) or match.gate_m is None:
+        return
+    d = pairing_distance(map_a.positions[assoc[:, 0]], match.transform.apply(map_b.positions[assoc[:, 1]]),
+                         match.gate_z_weight)
+    median = float(np.median(d))
+    if not median <= match.gate_m:
+        raise InputError(f"its transform puts its own {len(assoc)} associations {median:.2f} m apart (median) where "
+                         f"they were paired within {match.gate_m:.2f} m: the transform or the associations were "
+                         "edited; re-run `sosmatch match`", path)

@@ -433,3 +433,32 @@ def test_a_flight_already_in_a_merged_map_is_not_merged_again(pair, tmp_path):
         merge.merge_sessions([merged, read_session(b.path)], [Sim3.identity(), Sim3.identity()], [],
                              tmp_path / "again")
     assert not (tmp_path / "again").exists()
+
+
+def test_a_transform_edited_away_from_its_own_associations_is_refused(pair, tmp_path, capsys):
+    """The nineteenth sweep: a match.json whose transform was moved 50 m was merged (0 of 99 associations fused,
+    exit 0), and moved 3 m it gave `changes` 8 gone / 21 new instead of 4 / 10. The answer's associations were
+    paired within a recorded gate: a transform that puts them far apart (or a scale in a rigid match) is an edit."""
+    _, _, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "AB" / "match.json")
+    data = json.loads(match.read_text())
+    data["params"] = {"association": {"distance_tolerance_m": 2.0}}
+    hyp = data["hypotheses"][0]
+    data["verification"] = {"accepted": True, "transform": hyp["transform"], "associations": hyp["associations"],
+                            "support": len(hyp["associations"]), "runner_up_support": 3}
+    (tmp_path / "own.json").write_text(json.dumps(data))
+    assert main(["merge", str(a.path), str(b.path), "--match", str(tmp_path / "own.json"),
+                 "--out", str(tmp_path / "M")]) == 0
+    capsys.readouterr()
+    for name, edit, needle in (("moved", lambda t: t["translation"].__setitem__(0, t["translation"][0] + 10.0),
+                                "apart (median) where they were paired within 2.00 m"),
+                               ("scaled", lambda t: t.__setitem__("scale", 1.5), "scale 1.5 in a match of")):
+        edited = json.loads(json.dumps(data))
+        edit(edited["verification"]["transform"])
+        edited["transform_kind"] = "rigid"
+        (tmp_path / f"{name}.json").write_text(json.dumps(edited))
+        assert main(["merge", str(a.path), str(b.path), "--match", str(tmp_path / f"{name}.json"),
+                     "--out", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert needle in err and err.count("\n") == 0 and str(tmp_path / f"{name}.json") in err
+        assert not (tmp_path / name).exists()
