@@ -166,7 +166,9 @@ def read_poses_csv(path: str | Path, convention: str | None = None) -> tuple[Pos
     names: list[str] = []
     seen: set[str] = set()
     rows: list[list[float]] = []
-    reader = csv.reader(io.StringIO(text))
+    # universal newlines: a table saved on an old Mac (or as Excel's "CSV (Macintosh)") ends its lines with a bare
+    # CR, which csv refuses unless the text is read in universal-newline mode
+    reader = csv.reader(io.StringIO(text, newline=None))
     lineno = 0
     while True:
         try:

@@ -93,3 +93,20 @@ def test_unreadable_inputs_name_the_file_and_its_role(tmp_path):
     latin1.write_bytes("# caméra\n".encode("latin-1"))
     with pytest.raises(InputError, match=r"cameras\.txt: cannot read cameras file: .*(?i:utf-8)"):
         read_cameras_txt(latin1)
+
+
+@pytest.mark.parametrize("end", ["\r", "\r\n"])
+def test_pose_csv_with_old_mac_or_windows_line_ends_reads_as_written(tmp_path, end):
+    # an old-Mac editor (or Excel's "CSV (Macintosh)") ends lines with a bare CR: csv refused the whole table
+    # with "do you need universal-newline mode?"
+    poses = _random_poses(3)
+    path = tmp_path / "poses.csv"
+    write_poses_csv(path, poses)
+    path.write_bytes(path.read_bytes().replace(b"\n", end.encode()))
+    back, _ = read_poses_csv(path)
+    assert back.names == poses.names and np.allclose(back.centers, poses.centers)
+    bad = tmp_path / "bad.csv"
+    bad.write_bytes(end.join(["name,x,y,z,qw,qx,qy,qz", "ok.jpg,0,0,0,1,0,0,0", "a.jpg,1,x,3,1,0,0,0", ""]).encode())
+    with pytest.raises(InputError, match="non-numeric") as exc:  # line numbers still count CR-only lines
+        read_poses_csv(bad)
+    assert str(exc.value).startswith(f"{bad}:3: ")
