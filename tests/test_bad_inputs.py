@@ -500,3 +500,29 @@ def test_poses_refuses_a_truncated_image_as_map_does(tmp_path, cli_error):
     cut.write_bytes(cut.read_bytes()[: cut.stat().st_size // 2])
     err = cli_error("poses", tmp_path / "imgs", "--out", tmp_path / "P")
     assert f"{cut}: corrupt or truncated image" in err
+
+
+def test_two_images_or_poses_of_one_file_name_are_refused_naming_both(tmp_path, cli_error):
+    """Two flights' frames in sub-folders (`flight1/f000.jpg`, `flight2/f000.jpg`), with poses from a model or a CSV:
+    the map stores each image under its file name, and after the whole segmentation died with `RuntimeError: SQLite
+    error: constraint failed` (a traceback, a partial run). The same poses with one flat folder paired both poses
+    with one file. Both are refused before any work, naming the two."""
+    import shutil
+
+    root = _disc_flight(tmp_path / "f", frames=4)
+    poses = read_poses_csv(root / "poses.csv")[0]
+    half = [f"flight{1 + k // 2}/{n}" for k, n in enumerate(poses.names[:2] * 2)]  # frame 0, 1 in each flight
+    write_poses_csv(root / "two.csv", Poses(half, poses.rotations, poses.centers))
+    nested = tmp_path / "nested"
+    for k, name in enumerate(half):
+        (nested / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(root / "images" / poses.names[k], nested / name)
+    args = ("--poses", root / "two.csv", "--camera", root / "cameras.txt", "--out", tmp_path / "M")
+    err = cli_error("map", "--images", nested, *args)
+    first, second = nested / "flight1" / poses.names[0], nested / "flight2" / poses.names[0]
+    assert f"{nested}: images {first} and {second} share the file name {poses.names[0]!r}" in err
+    assert not (tmp_path / "M").exists()
+    err = cli_error("map", "--images", root / "images", *args)  # flat: both flights' poses pair with one file
+    assert (f"{root / 'two.csv'}: poses 'flight1/{poses.names[0]}' and 'flight2/{poses.names[0]}' both pair with "
+            f"the image {root / 'images' / poses.names[0]}") in err
+    assert not (tmp_path / "M").exists()

@@ -52,6 +52,26 @@ def _is_synth_session(path: Path) -> bool:
     return path.is_dir() and (path / "session.json").is_file() and (path / "poses.csv").is_file()
 
 
+def _refuse_shared_images(keep: list[tuple[int, Path]], names: list[str], poses: Path, images: Path) -> None:
+    """InputError naming both when two poses pair with one image file, or two image files (in sub-folders of
+    `images`) would be stored under one file name. The database holds each image once, under its file name: such
+    a pair passed here and, after the whole segmentation, failed there as "SQLite error: constraint failed" (a
+    traceback and a partial run). Two flights' `flight1/f000.jpg` and `flight2/f000.jpg` are the usual cause."""
+    by_file: dict[Path, int] = {}
+    by_name: dict[str, int] = {}
+    for i, path in keep:
+        file = path.resolve()  # one file reached as `images/x.jpg` and through a spelling or sub-path of its name
+        if file in by_file:
+            raise InputError(f"poses {names[by_file[file]]!r} and {names[i]!r} both pair with the image {path}: "
+                             "one pose per image (two flights' poses given for one folder of images?)", poses)
+        by_file[file] = i
+        if path.name in by_name:
+            other = next(p for j, p in keep if j == by_name[path.name])
+            raise InputError(f"images {other} and {path} share the file name {path.name!r}, under which a map stores "
+                             "each image: map each folder on its own, or rename the images apart", images)
+        by_name[path.name] = i
+
+
 def load_inputs(
     images: str | Path | None,
     poses: str | Path,
@@ -148,6 +168,7 @@ def load_inputs(
             keep.append((i, by_key[name_key(Path(name).name)]))
         else:
             missing.append(name)
+    _refuse_shared_images(keep, pose_list.names, poses, images)
     used = {p.name for _, p in keep}
     unposed = sorted(n for n in files if n not in used)
     for what, names in (("pose(s) without an image", missing), ("image(s) without a pose", unposed)):
