@@ -42,6 +42,33 @@ def is_colmap_model(path: str | Path) -> bool:
     return d.is_dir() and ((d / "images.bin").is_file() or (d / "images.txt").is_file())
 
 
+def _looks_like_image_line(parts: list[str]) -> bool:
+    """IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME: an int, seven numbers, an int, a name."""
+    if len(parts) < 10:
+        return False
+    try:
+        int(parts[0]), int(parts[8]), [float(v) for v in parts[1:8]]
+    except ValueError:
+        return False
+    return True
+
+
+def _points2d_problem(line: str) -> str | None:
+    """Why the line right after an image line cannot be its POINTS2D line (X Y POINT3D_ID triples; empty or
+    white space: none), or None. COLMAP reads that line as the POINTS2D line whatever it holds, so one missing (an
+    export with one line per image) made every second image line the POINTS2D line of the one before."""
+    parts = line.split()
+    # an image line has 10 fields (more only for a name with spaces, which COLMAP cuts at the first): no
+    # POINTS2D line has that many unless it ends with an integer POINT3D_ID, where an image line ends with its name
+    if _looks_like_image_line(parts) and (len(parts) % 3 or not parts[-1].lstrip("-").isdigit()):
+        return "images.txt needs a POINTS2D line (empty is fine) after every image line; this is an image line"
+    if parts and parts[0].startswith("#"):  # COLMAP fails on it; skipping it made the next image line the POINTS2D
+        return "a comment where the image line before needs its POINTS2D line (empty is fine)"
+    if len(parts) % 3:
+        return f"a POINTS2D line holds X Y POINT3D_ID triples, this one {len(parts)} fields"
+    return None
+
+
 def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, list[int]]:
     """Parse images.txt -> names, quaternions (w,x,y,z) cam_from_world, translations, camera ids."""
     names: list[str] = []
@@ -57,10 +84,12 @@ def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, lis
     # line by line: the POINTS2D lines make images.txt as large as the survey's tie points
     with handle:
         for lineno, line in bounded_lines(handle, path, "images file"):
-            if line.startswith("#"):
-                continue
-            if not expect_pose:  # the POINTS2D line that follows every pose line (may be empty)
+            if not expect_pose:  # the POINTS2D line that follows every pose line (may be empty), as COLMAP reads it
+                if (problem := _points2d_problem(line)) is not None:
+                    raise InputError(problem, path, lineno)
                 expect_pose = True
+                continue
+            if line.startswith("#"):
                 continue
             parts = line.split()
             if not parts:
@@ -108,25 +137,38 @@ def _check_text_model_file(path: Path, lines_per_record: int) -> None:
     cut inside a line as far as it goes: a points3D.txt truncated at 700 bytes gave 4 of 42 landmarks and a
     'no match' with exit 0."""
     declared, records = None, 0
+    points2d_due = False  # images.txt: the line after an image line is its POINTS2D line, even when empty
     last = ""
     try:
         handle = open(path, encoding="utf-8-sig")  # a byte order mark is not text
     except OSError as exc:
         raise InputError(f"cannot read {path.name}: {exc.strerror or exc}", path) from None
     with handle:
-        for _, line in bounded_lines(handle, path, path.name):
+        for lineno, line in bounded_lines(handle, path, path.name):
+            if points2d_due:
+                if (problem := _points2d_problem(line)) is not None:
+                    raise InputError(problem, path, lineno)
+                points2d_due = False
+                records += 1
+                continue
             if line.startswith("#"):
                 if declared is None and (m := _TEXT_COUNT.match(line)):
                     declared = int(m.group(1))
                 continue
-            if line.strip() or lines_per_record > 1:  # images.txt: an image's POINTS2D line may be empty
+            # where a record is due COLMAP skips blank and white-space lines (a model with blank lines between its
+            # records was refused as truncated)
+            if line.strip():
                 records += 1
+                points2d_due = lines_per_record > 1
     with open(path, "rb") as raw:
         if raw.seek(0, 2):
             raw.seek(-1, 2)
             last = raw.read(1).decode("latin-1")
     if last not in ("", "\n"):
         raise InputError("file ends inside a line: truncated (an interrupted copy?)", path)
+    if points2d_due:  # pycolmap drops that last image without a word
+        raise InputError("file ends with an image line without its POINTS2D line: truncated (an interrupted copy?)",
+                         path)
     if declared is not None and records != declared * lines_per_record:
         found = records // lines_per_record
         raise InputError(f"file says it holds {declared} records but holds {found}: truncated or edited", path)

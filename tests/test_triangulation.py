@@ -184,3 +184,58 @@ def test_wrong_tracks_a_flying_height_below_the_ground_are_dropped_always(tmp_pa
     assert not set(ids) & set(out.track_ids.tolist())
     assert out.counts["dropped_beyond_flying_height"] == len(ids) and out.counts["dropped_height_outlier"] == 0
     assert set(out.reconstruction.point3D_ids()) == set(out.point3d_ids.tolist())
+
+
+def _text_model(tmp_path, complete):
+    cam, poses, *_ = scene(n_frames=4, n_points=5)
+    d = tmp_path / ("complete" if complete else "pose-only")
+    write_model(build_reconstruction(cam, poses), d, text=True)
+    if not complete:
+        (d / "points3D.txt").unlink()
+    return d, poses
+
+
+@pytest.mark.parametrize("complete", [False, True])
+def test_images_txt_without_points2d_lines_is_refused_saying_so(tmp_path, complete):
+    """An images.txt with one line per image (no POINTS2D line after each): before, a pose-only model read every
+    second image line as the POINTS2D line of the one before (half the frames, 'skipping 2 image(s) without a
+    pose'), and a complete one was called 'truncated or edited'."""
+    d, _ = _text_model(tmp_path, complete)
+    images = d / "images.txt"
+    lines = images.read_text().splitlines(keepends=True)
+    images.write_text("".join(line for line in lines if line.strip()))  # the (empty) POINTS2D lines dropped
+    with pytest.raises(InputError, match=r"needs a POINTS2D line \(empty is fine\) after every image line") as exc:
+        read_colmap_model_poses(d)
+    first = next(k for k, line in enumerate(lines, 1) if line.startswith("1 "))
+    assert str(exc.value).startswith(f"{images}:{first + 1}: ")
+
+
+@pytest.mark.parametrize("complete", [False, True])
+def test_images_txt_with_blank_lines_between_records_reads_as_colmap_does(tmp_path, complete):
+    """COLMAP (3.8 and pycolmap 4) skip blank and white-space lines where an image line is due, while the line
+    right after an image line is its POINTS2D line even when empty. Before, a complete model with blank lines
+    between its records was refused as 'holds 6 records but 4: truncated or edited'."""
+    d, poses = _text_model(tmp_path, complete)
+    images = d / "images.txt"
+    lines = images.read_text().splitlines(keepends=True)
+    spaced = []
+    for k, line in enumerate(lines):
+        spaced.append(line)
+        if not line.startswith("#") and k > 0 and not lines[k - 1].startswith("#") and not line[:1].isdigit():
+            spaced.append("\n \t\n")  # after each POINTS2D line: blank and white-space lines
+    assert "".join(spaced).count("\n\n") >= len(poses.names)
+    images.write_text("".join(spaced))
+    back, _, _ = read_colmap_model_poses(d)
+    assert back.names == poses.names and np.allclose(back.centers, poses.centers)
+    # a comment where a POINTS2D line is due is refused (COLMAP fails there), not skipped: skipping it read the
+    # next image line as the POINTS2D line
+    first = next(k for k, line in enumerate(spaced) if line.startswith("1 "))
+    images.write_text("".join(spaced[:first + 1] + ["# a note\n"] + spaced[first + 1:]))
+    with pytest.raises(InputError, match=r"POINTS2D") as exc:
+        read_colmap_model_poses(d)
+    assert str(exc.value).startswith(f"{images}:{first + 2}: ")
+    if complete:  # cut right after the last image line: pycolmap drops that image without a word
+        last = max(k for k, line in enumerate(spaced) if line[:1].isdigit())
+        images.write_text("".join(spaced[:last + 1]))
+        with pytest.raises(InputError, match="ends with an image line without its POINTS2D line"):
+            read_colmap_model_poses(d)
