@@ -19,6 +19,7 @@ RADIAL_FISHEYE. Other projections (spherical, dual, fisheye62, fisheye_opencv) a
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +31,10 @@ from ..plugin.geometry import Camera, Poses
 from .cameras import camera_from_colmap
 from .text_input import read_user_text
 
+log = logging.getLogger(__name__)
+
+# ODM's name for the topocentric reconstruction once reconstruction.json is georeferenced (see find_reconstruction)
+TOPOCENTRIC = "reconstruction.topocentric.json"
 SUPPORTED = ("perspective", "simple_radial", "radial", "brown", "fisheye")
 
 
@@ -47,15 +52,41 @@ class OpenSfmReconstruction:
 
 
 def find_reconstruction(path: str | Path) -> Path:
-    """reconstruction.json itself, or the one of an OpenDroneMap / OpenSfM project directory."""
+    """The topocentric reconstruction of a reconstruction.json or of an OpenDroneMap / OpenSfM project directory.
+
+    OpenDroneMap >= 2 (stages/run_opensfm.py), once georeferenced, runs OpenSfM's `export_geocoords
+    --reconstruction --offset-x/-y` and moves the result over opensfm/reconstruction.json: UTM minus the offset of
+    odm_georeferencing/coords.txt, absolute heights. The topocentric original, the one reference_lla.json
+    describes, stays beside as reconstruction.topocentric.json: that one is read. A reconstruction.json of a
+    georeferenced ODM project without it cannot be told apart from a topocentric one by its content (ODM puts
+    reference_lla at the same offset, so the two differ by the meridian convergence), so it is refused rather
+    than guessed."""
     path = Path(path)
     if path.is_dir():
         for cand in (path / "opensfm" / "reconstruction.json", path / "reconstruction.json"):
             if cand.is_file():
-                return cand
-        raise InputError("no opensfm/reconstruction.json in the project directory", path)
-    if not path.is_file():
+                path = cand
+                break
+        else:
+            topo = path / "opensfm" / TOPOCENTRIC
+            if topo.is_file():
+                return topo
+            raise InputError("no opensfm/reconstruction.json in the project directory", path)
+    elif not path.is_file():
         raise InputError("OpenSfM reconstruction not found", path)
+    if path.name != "reconstruction.json":
+        return path  # named explicitly (reconstruction.topocentric.json, a copy): taken as given
+    topo = path.with_name(TOPOCENTRIC)
+    if topo.is_file():
+        log.info("%s is OpenDroneMap's georeferenced copy (offset UTM): reading the topocentric %s beside it",
+                 path, topo.name)
+        return topo
+    coords = next((d / "odm_georeferencing" / "coords.txt" for d in (path.parent.parent, path.parent)
+                   if (d / "odm_georeferencing" / "coords.txt").is_file()), None)
+    if coords is not None:
+        raise InputError(f"the project is georeferenced ({coords}) but {TOPOCENTRIC} is missing beside this file: "
+                         "OpenDroneMap rewrites reconstruction.json in offset UTM, so its frame is unknown; put "
+                         f"the project's {TOPOCENTRIC} back beside it", path)
     return path
 
 
@@ -63,7 +94,8 @@ def is_opensfm(path: str | Path) -> bool:
     """True for a reconstruction.json file or a project directory holding one (no parsing)."""
     path = Path(path)
     if path.is_dir():
-        return (path / "opensfm" / "reconstruction.json").is_file() or (path / "reconstruction.json").is_file()
+        return any((path / sub).is_file() for sub in ("opensfm/reconstruction.json", f"opensfm/{TOPOCENTRIC}",
+                                                       "reconstruction.json"))
     return path.is_file() and path.suffix.lower() == ".json" and path.name.startswith("reconstruction")
 
 

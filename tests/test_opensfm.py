@@ -134,3 +134,55 @@ def test_damaged_reconstruction_is_a_clear_error(tmp_path):
     p.write_text("{not json")
     with pytest.raises(InputError, match="not valid JSON"):
         read_opensfm_reconstruction(p)
+
+
+def _odm2_project(tmp_path, topocentric=True):
+    """ODM >= 2 after georeferencing (stages/run_opensfm.py): opensfm/reconstruction.json rewritten by
+    `export_geocoords --offset-x/-y` in UTM minus odm_georeferencing/coords.txt (z absolute), the topocentric one kept
+    as reconstruction.topocentric.json (dropped when `topocentric` is False, as some archives do). Returns (project,
+    names, true UTM centers)."""
+    from sosmatch.tools.synth.flights import camera_rotation
+
+    epsg, offset = 32632, (437000, 5207000)
+    lla = (47.0, 8.0, 400.0)
+    e0, n0 = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(8.001, 47.001)
+    names = [f"img_{k:03d}.jpg" for k in range(6)]
+    centers = np.array([[e0 + 7.0 * k, n0 + 3.0 * k, 520.0 + k] for k in range(6)])
+    rotations = np.stack([camera_rotation(0.3 * k, 0.02, -0.01) for k in range(6)])
+    project = _write_project(tmp_path, names, centers, rotations, epsg, lla)
+    osfm = project / "opensfm"
+    rec = json.loads((osfm / "reconstruction.json").read_text())
+    if topocentric:
+        (osfm / "reconstruction.topocentric.json").write_text(json.dumps(rec))
+    for shot, c, r_wc in zip(rec[0]["shots"].values(), centers - [*offset, 0.0], rotations):
+        shot["rotation"] = Rotation.from_matrix(r_wc.T).as_rotvec().tolist()
+        shot["translation"] = (-r_wc.T @ c).tolist()
+    (osfm / "reconstruction.json").write_text(json.dumps(rec))
+    (project / "odm_georeferencing").mkdir()
+    (project / "odm_georeferencing" / "coords.txt").write_text(f"WGS84 UTM 32N\n{offset[0]} {offset[1]}\n")
+    return project, names, centers
+
+
+def test_odm2_project_reads_the_topocentric_reconstruction(tmp_path, caplog):
+    from sosmatch.workflows.poses import opensfm_poses
+
+    project, names, centers = _odm2_project(tmp_path)
+    for given in (project, project / "opensfm" / "reconstruction.json"):
+        caplog.clear()
+        with caplog.at_level("INFO", logger="sosmatch"):
+            poses, _, _, epsg, info = opensfm_poses(given)
+        assert info["source"].endswith("reconstruction.topocentric.json")
+        assert any("reconstruction.topocentric.json" in r.getMessage() and r.levelname == "INFO"
+                   for r in caplog.records)
+        assert epsg == 32632 and poses.names == names
+        np.testing.assert_allclose(poses.centers, centers, atol=1e-3)
+
+
+def test_odm2_geocoords_reconstruction_alone_is_refused(tmp_path, capsys):
+    project, _, _ = _odm2_project(tmp_path, topocentric=False)
+    with pytest.raises(InputError, match="reconstruction.topocentric.json"):
+        read_opensfm_reconstruction(project)
+    assert main(["poses", str(tmp_path), "--opensfm", str(project), "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "reconstruction.json" in err[0]
+    assert not (tmp_path / "p").exists()
