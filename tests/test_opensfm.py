@@ -120,6 +120,8 @@ def test_poses_from_an_odm_project_are_in_utm(tmp_path, capsys):
     assert np.max(rotation_angle_deg(poses.rotations, rotations)) < 1e-2
     text = (tmp_path / "p" / "cameras.txt").read_text()
     assert "OPENCV 640 480 499.2" in text  # 0.78 x 640, rescaled to the image files
+    assert "1 other reconstruction(s) (sizes 2) ignored" in json.loads((tmp_path / "p" / "poses.json").read_text()
+                                                                    )["warnings"]
     inputs = load_inputs(images, project / "opensfm" / "reconstruction.json")
     assert inputs.epsg == epsg and inputs.camera.width == 640 and inputs.camera.model == "OPENCV"
     np.testing.assert_allclose(inputs.poses.centers, centers, atol=1e-3)
@@ -186,3 +188,25 @@ def test_odm2_geocoords_reconstruction_alone_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "reconstruction.json" in err[0]
     assert not (tmp_path / "p").exists()
+
+
+def test_smaller_reconstructions_are_named_not_dropped_silently(tmp_path, caplog):
+    """The largest reconstruction is read; the others' images would otherwise only count as unposed."""
+    from sosmatch.tools.synth.flights import camera_rotation
+
+    epsg, lla = 32632, (47.0, 8.0, 400.0)
+    e0, n0 = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(8.001, 47.001)
+    names = [f"img_{k:03d}.jpg" for k in range(6)]
+    centers = np.array([[e0 + 7.0 * k, n0 + 3.0 * k, 520.0 + k] for k in range(6)])
+    rotations = np.stack([camera_rotation(0.3 * k, 0.02, -0.01) for k in range(6)])
+    project = _write_project(tmp_path, names, centers, rotations, epsg, lla)  # a 6-shot and a 2-shot one
+    images = tmp_path / "images"
+    images.mkdir()
+    import cv2
+
+    for n in names:
+        cv2.imwrite(str(images / n), np.zeros((240, 320, 3), np.uint8))
+    with caplog.at_level("WARNING", logger="sosmatch"):
+        load_inputs(images, project)
+    assert any("1 other reconstruction(s) (sizes 2)" in r.getMessage() and "ignored" in r.getMessage()
+               and "reconstruction.json" in r.getMessage() for r in caplog.records)

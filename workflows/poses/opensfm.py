@@ -37,6 +37,11 @@ def opensfm_poses(project: str | Path, image_dir: str | Path | None = None
     poses = rec.poses
     info: dict[str, Any] = {"source": str(rec.path), "shots": len(poses), "other_reconstructions":
                             rec.other_reconstructions}
+    if rec.other_reconstructions:
+        # only the largest is read: the others' images would otherwise just count as "without a pose" later
+        log.warning("%d other reconstruction(s) (sizes %s) in %s ignored: only the largest (%d shots) is read",
+                    len(rec.other_reconstructions), ", ".join(map(str, rec.other_reconstructions)), rec.path,
+                    len(poses))
     epsg = 0
     if rec.reference_lla is not None:
         centers, grid_from_topo, epsg = topocentric_to_grid(poses.centers, rec.reference_lla)
@@ -91,6 +96,9 @@ def run_opensfm(project: str | Path, out: str | Path, images: str | Path | None 
         write_text_atomic(taken.staged("poses.csv"), format_poses_csv(named, epsg))
         write_text_atomic(taken.staged("cameras.txt"), format_cameras_txt({k: cameras[c] for c, k in ids.items()}))
         warnings = [] if epsg else ["the OpenSfM reconstruction has no reference_lla: local frame"]
+        if info["other_reconstructions"]:
+            warnings.append(f"{len(info['other_reconstructions'])} other reconstruction(s) (sizes "
+                            f"{', '.join(map(str, info['other_reconstructions']))}) ignored")
         report = {"format": "sosmatch-poses", "version": 1, "source": "opensfm", "opensfm": info,
                   "images": len(poses), "registered": len(poses), "unregistered": [], "epsg": epsg,
                   "crs": f"EPSG:{epsg}" if epsg else "local", "points": 0, "reprojection_px": 0.0,
