@@ -165,6 +165,11 @@ def load_map(path: str | Path) -> LoadedMap:
         lmap = read_landmark_map(path / "landmarks.sosmap")
         check_map_of_record(path, lmap)  # its noise figures (run.json) must be this map's
         return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap))
+    if (path / "run.json").is_file() and (path / "sparse").is_dir():  # landmarks.sosmap is not a file here
+        # a session `sosmatch map` wrote has its map in landmarks.sosmap: matched from sparse/ instead, it lost its
+        # sizes' noise figures and its checks, and every other command refused the folder (the nineteenth sweep)
+        raise InputError("mapped session without its landmarks.sosmap (deleted or moved?): map it again, or give "
+                         "its sparse/ model explicitly to match the COLMAP points", path)
     model = _model_dir(path)
     if model is not None:
         return LoadedMap(read_colmap_points(model), "colmap", model)

@@ -138,6 +138,20 @@ def test_a_folder_holding_another_sessions_model_or_database_is_refused(session,
     assert str(database / "database.db") in str(err.value)
 
 
+def test_a_mapped_session_without_its_landmark_map_is_not_matched_from_sparse(session, tmp_path):
+    """The nineteenth sweep: with landmarks.sosmap deleted, `match` read the session's sparse/ points instead
+    (without the map's noise figures or checks, exit 0) while every other command refused the folder."""
+    from sosmatch.database.map_loading import load_map
+
+    _, _, out, _ = session
+    bare = tmp_path / "bare"
+    shutil.copytree(out, bare)
+    (bare / "landmarks.sosmap").unlink()
+    with pytest.raises(InputError, match="mapped session without its landmarks.sosmap"):
+        load_map(bare)
+    assert load_map(bare / "sparse").kind == "colmap"  # asked for explicitly, the model is matched
+
+
 def _cli(capsys, *args):
     code = main(["map", "--no-progress", *map(str, args)])
     return code, capsys.readouterr()
