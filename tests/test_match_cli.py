@@ -248,3 +248,13 @@ def test_map_files_carrying_their_noise_figures_are_matched_with_derived_toleran
     assert doc["map_noise"][0]["residual_m"] == 0.95 and doc["search_mode"]["derived"]["tolerances"] != "configured"
     assert not [r for r in caplog.records if "records no noise figures" in r.getMessage()]
     assert doc["answer"] == "verified" and doc["verification"]["accepted"]
+
+
+def test_a_match_without_picture_leaves_no_previous_picture_beside_it(maps, tmp_path):
+    d, _ = maps
+    out = tmp_path / "AB"
+    argv = ["match", str(d / "a.sosmap"), str(d / "session_b"), "--out", str(out)]
+    assert main(argv) == 0 and (out / "match.png").is_file()
+    # the picture showed the previous run's maps: what stands beside match.json always comes from the same run
+    assert main([*argv, "--overwrite", "--no-plot"]) == 0  # another identity (the plot is part of it)
+    assert not (out / "match.png").exists() and (out / "match.json").is_file()

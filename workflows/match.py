@@ -396,7 +396,9 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         parse_match(doc, out_dir / "match.json")  # the reader's validation: never write what it would refuse
         write_text_atomic(out_dir / "associations.csv", associations_csv(result))
         if plot:
-            write_bytes_atomic(out_dir / "match.png", alignment_png(result))
+            write_bytes_atomic(out.staged("match.png"), alignment_png(result))
+        # not plotted: a previous run's picture (of other maps, perhaps) is removed, not left beside this match.json
+        out.publish(["match.png"], optional=("match.png",))
         write_text_atomic(out_dir / "match.json", json.dumps(doc, indent=1) + "\n")  # last: its presence = done
         out.finish()
     return result
