@@ -35,7 +35,7 @@ import hashlib
 import json
 import os
 import shutil
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -394,6 +394,7 @@ def open_output_dir(
     legacy_record: str | None = None,
     overwrite_flag: str = "--overwrite",
     earlier: Iterable[str] = (),
+    before_taking: Callable[[Path], None] | None = None,
 ) -> OutputDir:
     """Take directory `path` for one run of `command` producing the output `identity` (see the module doc).
 
@@ -403,8 +404,9 @@ def open_output_dir(
     the command's JSON record (format "sosmatch ...") that marks an output written before markers existed.
     Cleans the stale temporaries of killed runs. `overwrite_flag` is how the refusal names the command's
     option. `earlier`: the identities an earlier sosmatch gave this same output (same inputs and settings): such
-    an output is no other one, and is made again under `identity`. Returns the taken directory (a context
-    manager that releases the lock).
+    an output is no other one, and is made again under `identity`. `before_taking(path)`: the command's own checks
+    that may refuse (InputError), run under the lock before the marker changes, so that a refused run leaves a
+    previous output as it was. Returns the taken directory (a context manager that releases the lock).
     """
     path = Path(path)
     check_not_input(path, list(inputs))
@@ -425,6 +427,8 @@ def open_output_dir(
             raise InputError(f"output directory now holds a complete `sosmatch {command}` output made from other "
                              f"inputs or settings; use {overwrite_flag} to replace it", path)
         out = OutputDir(path, command, identity, again, fd, created)
+        if before_taking is not None:
+            before_taking(path)
         clean_stale_temporaries(path)
         if (path / STAGING).is_dir():
             clean_stale_temporaries(path / STAGING, recursive=True)
@@ -434,6 +438,9 @@ def open_output_dir(
         raise InputError(f"cannot write output directory: {exc.strerror or exc}", path) from None
     except BaseException:
         _release_lock(path / LOCK, fd)
+        for d in reversed(created):  # a refused run into a new directory leaves no trace
+            with contextlib.suppress(OSError):
+                d.rmdir()
         raise
     return out
 

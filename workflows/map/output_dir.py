@@ -22,11 +22,7 @@ OUTPUTS = ("database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landma
 
 def take_output_dir(out_dir: str | Path, identity: str, inputs: Iterable[Path], overwrite: bool) -> OutputDir:
     """Take SESSION_DIR for this run (see `open_output_dir` for what is refused); also refuses a database that
-    another process (e.g. COLMAP's GUI) has locked."""
-    out = open_output_dir(out_dir, COMMAND, identity, inputs=inputs, overwrite=overwrite, legacy_record=RECORD)
-    try:
-        check_database_writable(out.path / "database.db")
-    except BaseException:
-        out.close()
-        raise
-    return out
+    another process (e.g. COLMAP's GUI) has locked, before the directory is taken: a refused run leaves a previous
+    map complete, as it was."""
+    return open_output_dir(out_dir, COMMAND, identity, inputs=inputs, overwrite=overwrite, legacy_record=RECORD,
+                           before_taking=lambda path: check_database_writable(path / "database.db"))
