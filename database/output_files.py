@@ -14,7 +14,14 @@ from typing import Any
 
 from ..plugin.errors import InputError
 from .atomic import atomic_path, write_text_atomic
-from .outputs import check_not_input, check_writable_place, read_json_or_none, resolved_path, sha256_file
+from .outputs import (
+    check_not_in_output_entry,
+    check_not_input,
+    check_writable_place,
+    read_json_or_none,
+    resolved_path,
+    sha256_file,
+)
 
 FILES_REGISTRY = ".sosmatch-files.json"
 FILES_LOCK = ".sosmatch-files.lock"
@@ -39,6 +46,7 @@ class OutputFiles:
 
     def _check(self, path: Path, registry: Mapping[str, Any]) -> None:
         check_not_input(path, self.inputs)
+        check_not_in_output_entry(path)
         if path.is_dir():
             raise InputError("output path is a directory; give a file name", path)
         check_writable_place(path)

@@ -42,6 +42,7 @@ from typing import Any
 
 from ..plugin.errors import InputError
 from .atomic import clean_stale_temporaries, locked_temp_dir, write_text_atomic
+from .output_entries import check_entry_ours, check_not_in_output_entry, entry_files, recorded_entries
 from .text_input import read_user_bytes
 
 MARKER = ".sosmatch-output.json"
@@ -251,6 +252,9 @@ class OutputDir:
         self.previous = previous
         self._lock_fd: int | None = lock_fd
         self._created = list(created)  # directories this run created, outermost first
+        # what sosmatch wrote in each directory entry (kept in the marker across runs): all a replacement may delete
+        self._entries = recorded_entries(_marker(path))
+        self._complete = previous.state == "complete"
 
     @property
     def resumed(self) -> bool:
@@ -281,12 +285,28 @@ class OutputDir:
     def clear_staging(self) -> None:
         shutil.rmtree(self.path / STAGING, ignore_errors=True)
 
-    def _write_marker(self, complete: bool) -> None:
+    def _write_marker(self, complete: bool, restore: bool = False) -> None:
+        """Write the marker: this run's, or with `restore` the previous output's (its identity)."""
         from ..plugin import __version__
 
+        self._complete = complete
+        identity = self.previous.identity if restore else self.identity
         write_text_atomic(self.path / MARKER, json.dumps(
-            {"format": MARKER_FORMAT, "command": self.command, "identity": self.identity, "complete": complete,
-             "sosmatch": __version__}, indent=1) + "\n")
+            {"format": MARKER_FORMAT, "command": self.command, "identity": identity,
+             "complete": complete, "sosmatch": __version__, "entries": self._entries}, indent=1) + "\n")
+
+    def _check_entries(self, layouts: dict[str, set[str]] | None = None) -> None:
+        """Refuse (InputError naming the file) when a directory entry holds anything sosmatch did not write there.
+        Without `layouts` only recorded entries are checked (when the directory is taken, before anything
+        changes); with them (publishing: entry name -> the new entry's files) unrecorded ones too."""
+        for name in sorted(self._entries.keys() | (layouts or {}).keys()):
+            dst = self.path / name
+            if not dst.is_dir() or dst.is_symlink():
+                continue
+            if name in self._entries:
+                check_entry_ours(dst, self.command, self._entries[name])
+            elif layouts is not None and name in layouts:
+                check_entry_ours(dst, self.command, None, layouts[name])
 
     def _replace_entry(self, src: Path, name: str) -> None:
         """Move `src` onto OUT/NAME; an existing directory there (ours: this is our output) is swapped out.
@@ -295,11 +315,20 @@ class OutputDir:
         directory) was not made by this command and is refused."""
         dst = self.path / name
         exists = dst.exists() or dst.is_symlink()
+        is_dir = src.is_dir()
         if exists and (dst.is_dir() and not dst.is_symlink()) != src.is_dir():
             found, wanted = ("a directory", "a file") if dst.is_dir() else ("a file", "a directory")
             raise InputError(f"is {found} where `sosmatch {self.command}` writes {wanted}; not replaced (remove it "
                              "or choose another output directory)", dst)
-        if exists and src.is_dir():
+        if is_dir:
+            new = entry_files(src)
+            if exists:  # also checked before the run published anything; again here, for replace_dir's callers
+                check_entry_ours(dst, self.command, self._entries.get(name), set(new))
+            # recorded before the swap (old and new files both: a run killed in between leaves no file unlisted),
+            # then only the new ones
+            self._entries[name] = {**self._entries.get(name, {}), **new}
+            self._write_marker(self._complete)
+        if exists and is_dir:
             old, fd = locked_temp_dir(dst)
             try:
                 os.replace(dst, old / name)
@@ -309,6 +338,9 @@ class OutputDir:
                 os.close(fd)
         else:
             os.replace(src, dst)
+        if is_dir:
+            self._entries[name] = new
+            self._write_marker(self._complete)
 
     @contextlib.contextmanager
     def replace_dir(self, name: str) -> Iterator[Path]:
@@ -324,12 +356,22 @@ class OutputDir:
             os.close(fd)
 
     def publish(self, names: Sequence[str], last: str | None = None, optional: Sequence[str] = ()) -> None:
-        """Move the staged entries NAMES (then `last`, the record whose presence means complete) into OUT.
+        """Move the staged entries NAMES (then `last`, the record whose presence means complete) into OUT; the
+        previous record is removed first, once the directory entries are checked (a refusal changes nothing).
 
         An `optional` name (an aid such as a picture, which may fail without losing the output) that this run
         did not stage is not published, and its previous version, ours since OUT is, is removed: what stands
         beside the record always comes from the same run."""
         staging = self.path / STAGING
+        layouts = {name: set(entry_files(staging / name)) for name in names if (staging / name).is_dir()}
+        try:  # every directory entry checked before any is replaced: a refusal changes nothing
+            self._check_entries(layouts)
+        except InputError:
+            if self.previous.state == "complete":  # untouched: the previous output stands, complete as it was
+                self._write_marker(True, restore=True)
+            raise
+        if last:
+            self._remove_entry(last)  # absent while entries are swapped: what stands beside it is complete
         for name in [*names, *([last] if last else [])]:
             src = staging / name
             if name in optional and not (src.exists() or src.is_symlink()):
@@ -410,6 +452,7 @@ def open_output_dir(
     """
     path = Path(path)
     check_not_input(path, list(inputs))
+    check_not_in_output_entry(path)
     previous = _previous(path, command, legacy_record)
     same = {identity, *earlier}
     if previous.state == "complete" and previous.identity not in same and not overwrite:
@@ -427,6 +470,7 @@ def open_output_dir(
             raise InputError(f"output directory now holds a complete `sosmatch {command}` output made from other "
                              f"inputs or settings; use {overwrite_flag} to replace it", path)
         out = OutputDir(path, command, identity, again, fd, created)
+        out._check_entries()  # a user's file inside e.g. sparse/ is refused now, not when the run publishes
         if before_taking is not None:
             before_taking(path)
         clean_stale_temporaries(path)
@@ -454,6 +498,7 @@ def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | P
     is refused at once; `open_output_dir` still decides (overwrite, the lock) when the work is done."""
     path = Path(path)
     check_not_input(path, list(inputs))
+    check_not_in_output_entry(path)
     if _previous(path, command, legacy_record).state == "new" and not path.exists():
         check_writable_place(path)
 

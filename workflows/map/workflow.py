@@ -366,6 +366,5 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "noise": landmarks.noise.to_dict() if landmarks.noise is not None else None,
     }
     write_text_atomic(out.staged(RECORD), json.dumps(record, indent=2) + "\n")
-    (out.path / RECORD).unlink(missing_ok=True)  # published last: present = the outputs beside it are complete
     out.publish((*OUTPUTS, *extra_outputs), last=RECORD, optional=(FIGURE,))  # a failed picture loses nothing
     return summary

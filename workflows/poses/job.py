@@ -73,7 +73,6 @@ def run(
                                sensor_width_mm, nominal_height_m)
         for name in (*OUTPUTS, RECORD):
             os.replace(result.out_dir / name, taken.staged(name))
-        (taken.path / RECORD).unlink(missing_ok=True)  # published last: present = the outputs beside it are complete
         taken.publish(list(OUTPUTS), last=RECORD)
         taken.finish()
     return load_result(taken.path)

@@ -107,7 +107,6 @@ def run_opensfm(project: str | Path, out: str | Path, images: str | Path | None 
                               for c, k in ids.items()},
                   "camera_of_image": {Path(n).name: ids[cam_of[n]] for n in poses.names}, "warnings": warnings}
         write_text_atomic(taken.staged(RECORD), json.dumps(report, indent=1, default=json_default) + "\n")
-        (taken.path / RECORD).unlink(missing_ok=True)
         taken.publish(["poses.csv", "cameras.txt", "sparse"], last=RECORD)
         taken.finish()
     return load_result(taken.path)

@@ -1,0 +1,84 @@
+"""What sosmatch wrote inside the directory entries of an output directory (e.g. a session's `sparse/`), so that
+replacing an entry removes only that (rule 1 of `database.outputs`).
+
+The output's marker `.sosmatch-output.json` keeps, under "entries", each published directory entry's files (path
+relative to the entry, sha256). An entry found holding anything else (a user's README.txt, another command's
+output put inside, a file changed since) is not sosmatch's to delete: the run is refused, naming that file."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from ..plugin.errors import InputError
+
+
+def entry_files(folder: Path) -> dict[str, str]:
+    """relative path -> sha256 of every file below `folder` (what a run publishes there)."""
+    from .outputs import sha256_file
+
+    files: dict[str, str] = {}
+    for root, _, names in os.walk(folder):
+        for name in names:
+            p = Path(root) / name
+            files[p.relative_to(folder).as_posix()] = sha256_file(p)
+    return files
+
+
+def recorded_entries(marker: Mapping[str, Any] | None) -> dict[str, dict[str, str]]:
+    """The marker's record of its directory entries ({} when absent or malformed: an older sosmatch wrote it)."""
+    entries = (marker or {}).get("entries")
+    if not isinstance(entries, dict):
+        return {}
+    return {name: dict(files) for name, files in entries.items()
+            if isinstance(name, str) and isinstance(files, dict)
+            and all(isinstance(k, str) and isinstance(v, str) for k, v in files.items())}
+
+
+def check_entry_ours(entry: Path, command: str, record: Mapping[str, str] | None,
+                     layout: set[str] | None = None) -> None:
+    """InputError naming the first file in directory `entry` that sosmatch did not write there: one missing from
+    `record` or changed since (sha256). Without a record (an entry an older sosmatch wrote, before entries were
+    recorded), a file is taken as ours only when the new entry has one at the same place (`layout`): sosmatch's
+    own files are then replaced, anything put beside them is not."""
+    from .outputs import sha256_file
+
+    try:
+        for root, dirs, names in os.walk(entry, onerror=_raise):
+            for name in sorted(names) + sorted(d for d in dirs if os.path.islink(os.path.join(root, d))):
+                p = Path(root) / name
+                rel = p.relative_to(entry).as_posix()
+                if record is not None:
+                    ours = rel in record and not p.is_symlink() and sha256_file(p) == record[rel]
+                    why = "changed since" if rel in record else "not written by"
+                else:
+                    ours = layout is not None and rel in layout and not p.is_symlink()
+                    why = "not written by"
+                if not ours:
+                    raise InputError(f"is {why} `sosmatch {command}` inside its output {entry.name}/, which a run "
+                                     "replaces; sosmatch never deletes what it did not create: move it out of "
+                                     f"{entry} (or choose another output directory)", p)
+    except OSError as exc:
+        raise InputError(f"cannot read output directory: {exc.strerror or exc}", entry) from None
+
+
+def check_not_in_output_entry(output: str | Path) -> None:
+    """Refuse an output inside a directory entry of another sosmatch output (e.g. OUT/sparse/ of a session) or its
+    staging area: a run of that output replaces the entry, and would then refuse because of this one."""
+    from .outputs import STAGING, _marker, resolved_path
+
+    out = resolved_path(output)
+    for folder in out.parents:
+        marker = _marker(folder)
+        if marker is None:
+            continue
+        inner = out.relative_to(folder).parts[0]
+        if inner == STAGING or inner in recorded_entries(marker):
+            raise InputError(f"output is inside {folder / inner}, which a `sosmatch {marker.get('command')}` run "
+                             "replaces; write it elsewhere", output)
+
+
+def _raise(exc: OSError) -> None:
+    raise exc
