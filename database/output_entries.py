@@ -52,14 +52,16 @@ def check_entry_ours(entry: Path, command: str, record: Mapping[str, str] | None
                 rel = p.relative_to(entry).as_posix()
                 if record is not None:
                     ours = rel in record and not p.is_symlink() and sha256_file(p) == record[rel]
-                    why = "changed since" if rel in record else "not written by"
+                    changed = rel in record
                 else:
                     ours = layout is not None and rel in layout and not p.is_symlink()
-                    why = "not written by"
+                    changed = False
                 if not ours:
-                    raise InputError(f"is {why} `sosmatch {command}` inside its output {entry.name}/, which a run "
-                                     "replaces; sosmatch never deletes what it did not create: move it out of "
-                                     f"{entry} (or choose another output directory)", p)
+                    why = (f"was changed since `sosmatch {command}` wrote it" if changed else
+                           f"was not written by `sosmatch {command}`")
+                    raise InputError(f"{why}, and a run replaces {entry.name}/ with all it holds; sosmatch never "
+                                     f"deletes what it did not create: move it out of {entry} (or choose another "
+                                     "output directory)", p)
     except OSError as exc:
         raise InputError(f"cannot read output directory: {exc.strerror or exc}", entry) from None
 

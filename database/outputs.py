@@ -5,7 +5,8 @@ The rules (README "Errors"; tests/test_outputs.py keeps them):
    previous output of the same command: its marker file `.sosmatch-output.json`, written by sosmatch when it
    takes the directory, names the command. An output file is new, or a file the same command wrote before
    and nobody changed since: the directory's registry `.sosmatch-files.json` lists it with its sha256
-   (`database.output_files.OutputFiles`).
+   (`database.output_files.OutputFiles`). A directory entry the command publishes (a session's sparse/) is
+   replaced only while it holds just the files the marker records under "entries" (`database.output_entries`).
 2. An output is never an input, never inside an input, and never holds one (compared as resolved paths).
 3. Replacing a previous *complete* output of the same command made from other inputs or settings (another
    `identity`) needs `overwrite=True` (`--overwrite`). An incomplete one (a killed or failed run) is resumed or
