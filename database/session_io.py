@@ -11,7 +11,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import struct
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -249,33 +248,24 @@ def check_model_of_landmarks(path: str | Path, lmap: LandmarkMap, point3d_ids: n
                          "model of another session or run? map the session again", sparse)
 
 
-def keypoints_digest(keypoints: np.ndarray) -> str:
-    """A short content digest of one image's keypoints as database.db stores them (float32 rows): run.json
-    records one per keyframe (`database_keypoints`), so that readers of database.db know it is the map's."""
-    import hashlib
+def check_database_of_model(path: str | Path, names: Sequence[str], centroids: Sequence[np.ndarray]) -> None:
+    """InputError when the keypoints read from the session's database.db for the keyframes `names` are not the
+    2D points of those images in its sparse/ (COLMAP keeps one list: the model's points2D are the database's
+    keypoints): another session's database in this folder (the nineteenth sweep: `changes` read B's segments as
+    A's and reported 1 gone / 1 new instead of 4 / 10, exit 0). Images the model lacks are left to the caller."""
+    from .colmap_model import load_reconstruction
 
-    data = np.ascontiguousarray(np.asarray(keypoints, dtype="<f4")[:, :2])
-    return hashlib.sha256(struct.pack("<Q", len(data)) + data.tobytes()).hexdigest()[:16]
-
-
-def check_database_of_record(path: str | Path, names: Sequence[str], centroids: Sequence[np.ndarray]) -> None:
-    """InputError when the keypoints read from the session's database.db for the keyframes `names` are not those
-    its run.json recorded (`database_keypoints`): another session's database in this folder (the nineteenth
-    sweep: `changes` read B's segments as A's and reported 1 gone / 1 new instead of 4 / 10). Records without
-    the digests (merged models, older runs) and unreadable ones (the stage that needs them says so) pass."""
-    try:
-        record = read_map_record(path)
-    except InputError:
-        return
-    recorded = (record or {}).get("database_keypoints")
-    if not isinstance(recorded, dict):
-        return
+    sparse = Path(path) / "sparse"
+    images = {im.name: im for im in load_reconstruction(sparse).images.values()}
     for name, xy in zip(names, centroids):
-        digest = recorded.get(name)
-        if isinstance(digest, str) and digest != keypoints_digest(xy):
-            raise InputError(f"its keypoints of {name} are not those the session's map was made with (the database "
-                             "of another session or run?); map the session again or copy its own database.db back",
-                             Path(path) / "database.db")
+        image = images.get(name)
+        if image is None:
+            continue
+        points = np.array([p.xy for p in image.points2D], dtype=np.float64).reshape(-1, 2)
+        if len(points) != len(xy) or not np.allclose(points, xy, atol=1e-3):
+            raise InputError(f"its keypoints of {name} are not the 2D points of {name} in sparse/ ({len(xy)} against "
+                             f"{len(points)}): the database of another session or run? map the session again or copy "
+                             "its own database.db back", Path(path) / "database.db")
 
 
 def check_map_of_images(map_dir: str | Path, images_dir: str | Path, samples: int = 6) -> None:
@@ -428,7 +418,7 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
         raise InputError("is a folder, not the session's COLMAP database", database)
     if with_segments and database.is_file():
         segments = tuple(read_segment_detections(database, poses.names))
-        check_database_of_record(session.path, poses.names, [seg.centroids for seg in segments])
+        check_database_of_model(session.path, poses.names, [seg.centroids for seg in segments])
         if with_tracks:
             tracks = _unmapped_tracks(session, database, poses.names, segments)
     support = np.array([len(names) for names in table.image_names], dtype=np.float64)

@@ -107,8 +107,8 @@ def test_a_folder_holding_another_sessions_landmark_map_is_refused(session, tmp_
 def test_a_folder_holding_another_sessions_model_or_database_is_refused(session, tmp_path):
     """The nineteenth sweep: another session's sparse/ (or database.db) beside this one's map passed every check
     when the sessions share image names; `merge` fused 11 landmarks instead of 98 and `changes` read the other
-    session's segments, exit 0. sparse/ must hold the landmarks where they are; database.db the keypoints
-    run.json recorded."""
+    session's segments, exit 0. sparse/ must hold the landmarks where they are; database.db the keypoints that
+    are the model's 2D points."""
     import pycolmap
 
     from sosmatch.database.session_io import read_session_observations
@@ -133,7 +133,7 @@ def test_a_folder_holding_another_sessions_model_or_database_is_refused(session,
         kp = np.frombuffer(blob, "<f4").reshape(rows, cols).copy()
         kp[:, :2] += 3.0  # another session's segments in the same image
         con.execute("UPDATE keypoints SET data = ? WHERE image_id = ?", (kp.tobytes(), image_id))
-    with pytest.raises(InputError, match="not those the session's map was made with") as err:
+    with pytest.raises(InputError, match="are not the 2D points of") as err:
         read_session_observations(database)
     assert str(database / "database.db") in str(err.value)
 

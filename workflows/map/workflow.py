@@ -23,7 +23,6 @@ from ...database.colmap_db import (
 from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
 from ...database.outputs import OutputDir, fingerprint
-from ...database.session_io import keypoints_digest
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
@@ -355,8 +354,6 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         # metres of ground per image pixel at the measured flying height (sets the segmenter's working size)
         "ground_resolution_m": round(ground_resolution, 5) if np.isfinite(ground_resolution) else None,
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
-        # a digest of each keyframe's keypoints in database.db: readers refuse another session's database here
-        "database_keypoints": {name: keypoints_digest(kp) for name, kp in zip(kf_poses.names, keypoints)},
         # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
         "counts": counts, "quality": quality.to_dict(), "verdict": verdict_record(verdict, params.quality.refuse),
