@@ -193,3 +193,43 @@ def test_theta_n_follows_the_views_a_flight_gives():
     assert for_flight(own, 5.4).triangulation.height_outlier_sigmas == 4.0  # a user's value is kept
     paper = preset_params("paper")
     assert for_flight(paper, 5.4) is paper
+
+
+def _blob_pair(size: int, shift: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth blob (too few corners for LK or ORB: phase correlation measures it) and the blob moved."""
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float64)
+    r = size / 10.0
+
+    def blob(cx, cy):
+        return (200.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * r**2))).astype(np.uint8)
+
+    c = 0.47 * size
+    return blob(c, c), blob(c + shift[0], c + shift[1])
+
+
+def test_phase_correlation_at_or_below_the_working_size_is_unchanged():
+    # frames at or below the working size: exactly the full-frame phase correlation the fallback always ran
+    a, b = _blob_pair(256, (6.0, 8.0))
+    window = cv2.createHanningWindow(a.shape[::-1], cv2.CV_64F)
+    (dx, dy), _ = cv2.phaseCorrelate(a.astype(np.float64), b.astype(np.float64), window)
+    mu, sigma = image_motion_stats(a, b, max_corners=5)
+    assert mu == float(np.hypot(dx, dy))
+    assert sigma == max(FALLBACK_MIN_SIGMA_PX, 0.5 * mu)
+    assert image_motion_stats(a, b, max_corners=5) == (mu, sigma)  # the cached window changes nothing
+
+
+def test_large_frames_phase_correlate_on_the_working_pair(monkeypatch):
+    # native-resolution frames: phase correlation runs on the <= 1024 px working pair (not on the full frames as
+    # float64, which cost most of `map`'s time and memory at 4000x3000), the frames are shrunk once per pair, and
+    # the shift is still in full-resolution px
+    from sosmatch.plugin import motion
+
+    a, b = _blob_pair(2048, (24.0, 32.0))
+    sizes, shrinks = [], []
+    phase, working = cv2.phaseCorrelate, motion._working_pair
+    monkeypatch.setattr(motion.cv2, "phaseCorrelate", lambda p, c, w: sizes.append(p.shape) or phase(p, c, w))
+    monkeypatch.setattr(motion, "_working_pair", lambda *args, **kw: shrinks.append(1) or working(*args, **kw))
+    mu, _ = image_motion_stats(a, b, max_corners=5)
+    assert sizes and max(max(s) for s in sizes) <= motion._WORK_MAX_DIM
+    assert len(shrinks) == 1
+    assert mu == pytest.approx(40.0, abs=2.0)
