@@ -246,3 +246,39 @@ def test_poses_in_centimetres_are_named():
     assert any("centimetres, millimetres or feet" in w for w in v.warnings)
     q, v = _judge(positions, sizes, obs, centers, axes)
     assert not any("centimetres" in w for w in v.warnings)
+
+
+def test_the_figure_shows_native_resolution_keyframes_at_about_its_panel_size(tmp_path, monkeypatch):
+    """matplotlib holds float RGBA copies of what it shows: 4000x3000 keyframes cost ~1.3 GB in a figure whose
+    panels are a few hundred pixels, so they are shrunk to the panel first; smaller images pass as they are."""
+    from types import SimpleNamespace
+
+    import cv2
+    from matplotlib.axes import Axes
+
+    from sosmatch.plugin.geometry import Camera, Poses
+    from sosmatch.plugin.map_quality import Verdict
+    from sosmatch.workflows.map import figure
+
+    camera = Camera(4000, 3000, 3000.0, 3000.0, 2000.0, 1500.0)
+    path = tmp_path / "k.jpg"  # a textured native-size frame on disk, shown as all three keyframes
+    noise = np.random.default_rng(0).integers(0, 255, (300, 400, 3), np.uint8)
+    cv2.imwrite(str(path), cv2.resize(noise, (4000, 3000), interpolation=cv2.INTER_NEAREST))
+    paths = [path] * 3
+    poses = Poses(["k0.jpg", "k1.jpg", "k2.jpg"], np.repeat(np.diag([1.0, -1.0, -1.0])[None], 3, axis=0),
+                  np.array([[0.0, 0.0, 100.0], [10.0, 0.0, 100.0], [20.0, 0.0, 100.0]]))
+    positions = np.array([[10.0, 0.0, 0.0], [12.0, 3.0, 0.5], [8.0, -2.0, 0.2]])
+    observations = [np.array([[0, i], [1, i], [2, i]]) for i in range(3)]
+    keypoints = [np.array([[2000.0 + 300 * (1 - k) + 60 * i, 1500.0 + 90 * i] for i in range(3)]) for k in range(3)]
+    shown = []
+    imshow = Axes.imshow
+    monkeypatch.setattr(Axes, "imshow", lambda self, x, *a, **kw: shown.append(np.shape(x)) or imshow(self, x, *a,
+                                                                                                      **kw))
+    quality = SimpleNamespace(landmarks=3, line=lambda: "test")
+    figure.draw_map_figure(tmp_path / "q.png", positions, np.ones(3), observations, keypoints, poses, camera, paths,
+                    quality, Verdict(), white=255)
+    assert len(shown) == 3 and (tmp_path / "q.png").stat().st_size > 10_000
+    # three panels side by side in a 12.6 in figure at 100 dpi: 420 px each, shown with twice that at most
+    assert all(max(s[:2]) <= 2 * 420 and s[2] == 3 for s in shown), shown
+    small = np.zeros((240, 320, 3), np.uint8)
+    assert figure.shrink_to_panel(small, (420.0, 400.0)) is small

@@ -53,6 +53,20 @@ def draw_keyframe(image: np.ndarray, camera: Camera, r_wc: np.ndarray, center: n
     return out
 
 
+def shrink_to_panel(image: np.ndarray, panel_px: tuple[float, float], oversample: float = 2.0) -> np.ndarray:
+    """`image` resized (area interpolation, so the drawn circles and lines thin rather than vanish) to at most
+    `oversample` image pixels per pixel of the (width, height) `panel_px` it is shown in; as it is when smaller.
+    The margin covers `tight_layout` enlarging the panel and leaves matplotlib something to antialias."""
+    import cv2
+
+    h, w = image.shape[:2]
+    scale = oversample * min(panel_px[0] / w, panel_px[1] / h)
+    if not scale < 1.0:
+        return image
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
 def draw_map_figure(
     out: Path,
     positions: np.ndarray,
@@ -99,7 +113,11 @@ def draw_map_figure(
             image = np.zeros((camera.height, camera.width, 3), np.uint8)
         drawn = draw_keyframe(image, camera, poses.rotations[k], poses.centers[k], kps, positions[idx],
                               np.asarray(sizes_m, np.float64)[idx])
-        ax.imshow(drawn)
+        # matplotlib keeps float RGBA copies of what it shows: a native 4000x3000 keyframe cost ~1.3 GB to show in a
+        # panel of a few hundred pixels. Shrink it to the panel (from the figure's size and dpi) first.
+        box = ax.get_position()
+        panel_px = (box.width * fig.get_figwidth() * fig.dpi, box.height * fig.get_figheight() * fig.dpi)
+        ax.imshow(shrink_to_panel(drawn, panel_px))
         ax.set_title(f"{poses.names[k]}: {len(idx)} landmarks", fontsize=9)
         ax.axis("off")
     # local coordinates: UTM-sized numbers would end up as an axis offset nobody reads
