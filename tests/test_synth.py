@@ -491,3 +491,36 @@ def test_wrong_types_from_python_are_input_errors():
         with pytest.raises(InputError, match=fragment):
             SynthConfig(**kwargs).validate()
     SynthConfig(altitude_m=80, shift_m=[1, 2], sun_azimuth_deg=None).validate()  # ints for floats, lists: fine
+
+
+def test_point_remap_beyond_opencvs_row_limit_samples_every_point():
+    """cv2.remap takes fewer than 32767 rows: the ray march's rows of 512 points exceed that above 16.7 M points
+    (a 20 MP frame), so `_remap_points` remaps in blocks of rows; every point still gets its own sample."""
+    from sosmatch.tools.synth.render import _remap_points
+
+    src = np.arange(64 * 100, dtype=np.float32).reshape(64, 100)
+    rows = 32768  # one past OpenCV's limit
+    r = np.arange(rows, dtype=np.int32)[:, None]
+    x, y = (np.arange(512, dtype=np.int32)[None, :] * 7 + r) % 100, r % 64  # every row of points differs
+    maps = np.empty((rows, 512, 2), np.float32)
+    maps[..., 0], maps[..., 1] = x, y  # integer raster points: the bilinear sample is the value there
+    out = _remap_points(src, maps.reshape(-1, 2))
+    assert out.shape == (rows * 512,) and np.array_equal(out.reshape(rows, 512), src[y, x])
+
+
+def test_rendering_in_blocks_of_rows_is_byte_identical(monkeypatch):
+    """The blocks of rows change nothing: a frame rendered with tiny blocks equals one rendered in one call."""
+    from sosmatch.tools.synth import render
+
+    cfg = SynthConfig(**SMALL)
+    world = get_world(cfg.world_config())
+    scene = build_scene(world, "summer", session_presence(world, cfg))
+    poses = session_poses(world, cfg)
+    cam = cfg.camera()
+    light = np.ones_like(scene.dsm)
+    whole = render_view(scene, light, cam, poses.rotations[2], poses.centers[2])
+    remap = render._remap_points
+    monkeypatch.setattr(render, "_remap_points", lambda src, maps: remap(src, maps, max_rows=3))
+    blocks = render_view(scene, light, cam, poses.rotations[2], poses.centers[2])
+    for field in ("linear", "labels", "hit"):
+        assert np.array_equal(getattr(whole, field), getattr(blocks, field)), field

@@ -156,11 +156,23 @@ def conservative_dsm(scene: Scene, radius_m: float) -> tuple[np.ndarray, int]:
     return cache[key], block
 
 
-def _remap_points(src: np.ndarray, maps: np.ndarray) -> np.ndarray:
+# cv2.remap refuses maps (and sources) of SHRT_MAX = 32767 rows or more: rows of 512 points reach that at 16.7 M
+# points, i.e. a frame above ~16.7 MP (a 20 MP survey camera). Each sample depends only on its own map entry, so
+# remapping in blocks of rows gives the same samples as one call.
+_REMAP_MAX_ROWS = 16384
+
+
+def _remap_points(src: np.ndarray, maps: np.ndarray, max_rows: int = _REMAP_MAX_ROWS) -> np.ndarray:
     """Bilinear samples of `src` at N raster points given as a (rows * 512, 2) buffer whose first N rows are
-    used (rows of 512 points keep cv2's threads busy)."""
+    used (rows of 512 points keep cv2's threads busy), remapped `max_rows` rows at a time."""
     rows = len(maps) // 512
-    out = cv2.remap(src, maps.reshape(rows, 512, 2), None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    grid = maps.reshape(rows, 512, 2)
+    if rows <= max_rows:
+        return cv2.remap(src, grid, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1)
+    out = np.empty((rows, 512), src.dtype)
+    for r in range(0, rows, max_rows):
+        out[r:r + max_rows] = cv2.remap(src, grid[r:r + max_rows], None, cv2.INTER_LINEAR,
+                                        borderMode=cv2.BORDER_REPLICATE)
     return out.reshape(-1)
 
 
