@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -368,12 +369,20 @@ class KeyframeImages(Sequence):
 
 def recorded_images_dir(session: str | Path) -> Path | None:
     """The images directory a mapped session's run.json records (None when it records none or is unreadable);
-    it may no longer exist."""
+    it may no longer exist. Where the absolute path is gone, the same place relative to the session (its record's
+    `inputs_from_session`) is taken when it exists: a project folder moved or copied whole. Which images a map
+    was made from is checked by the caller (`check_map_of_images`)."""
     try:
-        recorded = ((read_map_record(Path(session)) or {}).get("inputs") or {}).get("images")
+        record = read_map_record(Path(session)) or {}
+        recorded = (record.get("inputs") or {}).get("images")
+        relative = (record.get("inputs_from_session") or {}).get("images")
     except (InputError, AttributeError):  # unreadable, or "inputs" not an object: no images known
         return None
-    return Path(recorded) if isinstance(recorded, str) and recorded else None
+    if not (isinstance(recorded, str) and recorded):
+        return None
+    if not Path(recorded).is_dir() and isinstance(relative, str) and relative and (Path(session) / relative).is_dir():
+        return Path(os.path.normpath(Path(session).absolute() / relative))
+    return Path(recorded)
 
 
 def session_images_dir(session: str | Path | SessionFiles, images_dir: str | Path | None = None) -> Path | None:

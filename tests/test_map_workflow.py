@@ -152,6 +152,24 @@ def test_a_mapped_session_without_its_landmark_map_is_not_matched_from_sparse(se
     assert load_map(bare / "sparse").kind == "colmap"  # asked for explicitly, the model is matched
 
 
+def test_a_project_moved_whole_still_finds_its_images(session, tmp_path):
+    """run.json records the images relative to the session too: a project folder moved elsewhere (sessions and
+    images together) found no images, and `changes` ran without their evidence (a warning only; the nineteenth
+    sweep: 4 gone / 10 new where the images said 1 / 6)."""
+    from sosmatch.database.session_io import recorded_images_dir, session_images_dir
+
+    root, _, out, _ = session
+    moved = tmp_path / "moved"
+    shutil.copytree(root / "images", moved / "images")
+    shutil.copytree(out, moved / "mapped")
+    record = json.loads((moved / "mapped" / "run.json").read_text())
+    assert record["inputs_from_session"]["images"] == "../images"
+    record["inputs"]["images"] = str(tmp_path / "gone" / "images")  # where the project was before the move
+    (moved / "mapped" / "run.json").write_text(json.dumps(record))
+    assert recorded_images_dir(moved / "mapped") == moved / "images"
+    assert session_images_dir(moved / "mapped") == moved / "images"  # and they are the map's images
+
+
 def _cli(capsys, *args):
     code = main(["map", "--no-progress", *map(str, args)])
     return code, capsys.readouterr()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -324,6 +325,15 @@ def recorded_sources(sources: dict[str, str]) -> dict[str, str]:
     from, and `evaluate` run from another folder read another file or none: the map's poses silently replaced by
     the truth); descriptions that are no path ("EXIF/XMP of ...") as they are."""
     return {k: str(Path(v).absolute()) if Path(v).exists() else v for k, v in sources.items()}
+
+
+def sources_from_session(sources: dict[str, str], session_dir: str | Path) -> dict[str, str]:
+    """The input sources that are paths, relative to the session directory: run.json records them beside the
+    absolute ones, so that a project folder moved or copied elsewhere (sessions and images together) still finds
+    its images (the nineteenth sweep: `changes` then ran without image evidence, a warning only, and claimed
+    4 gone / 10 new where the images said 1 / 6)."""
+    base = Path(session_dir).absolute()
+    return {k: os.path.relpath(Path(v).absolute(), base) for k, v in sources.items() if Path(v).exists()}
 
 
 def hash_json(obj: Any) -> str:

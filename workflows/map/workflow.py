@@ -35,6 +35,7 @@ from .inputs import (
     input_paths,
     recorded_sources,
     require_keyframes,
+    sources_from_session,
 )
 from .keyframes import CACHE_VERSION, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
@@ -345,7 +346,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     record = {
         "format": "sosmatch-map-run", "version": 1,
         "params": pdict, "pixel_scale": pixel_scale(params, camera.width, camera.height), "versions": _versions(),
-        "inputs": recorded_sources(inputs.sources), "fingerprints": fps,
+        "inputs": recorded_sources(inputs.sources),
+        "inputs_from_session": sources_from_session(inputs.sources, out.path), "fingerprints": fps,
         "camera": {"model": camera.model, "width": camera.width, "height": camera.height, "params": camera.params,
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
