@@ -92,3 +92,37 @@ def camera_from_pycolmap(cam: pycolmap.Camera, source: str | Path | None = None)
     """A Camera from a pycolmap Camera (cameras.bin, a model), validated like a cameras.txt line."""
     model = cam.model.name if hasattr(cam.model, "name") else str(cam.model)
     return camera_from_colmap(model, int(cam.width), int(cam.height), [float(v) for v in cam.params], source)
+
+
+# parameters equal within this relative difference are one camera: COLMAP and hloc write one camera per image
+# unless told to share them, each a copy of the same intrinsics, and a float round trip (text, binary, another
+# tool's JSON) may change the last digit; a real second camera differs by far more (a focal 0.1 % apart is ~1e-3)
+SAME_CAMERA_REL_TOL = 1e-9
+
+
+def same_camera(a: Camera, b: Camera, rel_tol: float = SAME_CAMERA_REL_TOL) -> bool:
+    """Whether two cameras are one: the same model and size, and parameters equal within `rel_tol`."""
+    return (a.model == b.model and a.width == b.width and a.height == b.height
+            and all(math.isclose(p, q, rel_tol=rel_tol, abs_tol=1e-12) for p, q in zip(a.params, b.params)))
+
+
+def distinct_cameras(cameras: Sequence[Camera]) -> list[Camera]:
+    """The cameras that differ (`same_camera`), in the order first met."""
+    distinct: list[Camera] = []
+    for cam in cameras:
+        if not any(same_camera(cam, d) for d in distinct):
+            distinct.append(cam)
+    return distinct
+
+
+def one_camera(cameras: dict, source: str | Path | None) -> Camera | None:
+    """The one camera of `cameras` (None when empty): copies of one camera (one per image, as COLMAP's and hloc's
+    default writes them) are that camera. InputError naming `source` when they really differ (images of two sizes,
+    two drones): a map is made from one camera's images."""
+    distinct = distinct_cameras(list(cameras.values()))
+    if len(distinct) > 1:
+        sizes = sorted({f"{c.width}x{c.height}" for c in distinct})
+        raise InputError(f"holds {len(distinct)} different cameras (of {len(cameras)}; sizes {', '.join(sizes)}): a "
+                         "map is made from one camera's images: map each camera's images on their own, or give "
+                         "--camera when one camera took them all", source)
+    return distinct[0] if distinct else None

@@ -17,7 +17,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses, quat_to_rotmat
 from .atomic import atomic_path, write_bytes_atomic
-from .cameras import camera_from_pycolmap, read_cameras_txt
+from .cameras import camera_from_pycolmap, distinct_cameras, read_cameras_txt
 from .colmap_binary import check_binary_model
 from .poses import UNIT_QUAT_TOLERANCE
 from .text_input import bounded_lines
@@ -253,9 +253,12 @@ def read_camera_file(path: str | Path) -> Camera:
             _, cameras, _ = read_colmap_model_poses(d)
     else:
         cameras = read_cameras_txt(path)
-    if len(cameras) != 1:
-        raise InputError(f"expected exactly one camera, found {len(cameras)} (ids {sorted(cameras)})", path)
-    return next(iter(cameras.values()))
+    # copies of one camera, one per image (COLMAP's and hloc's default), are that camera
+    distinct = distinct_cameras(list(cameras.values()))
+    if len(distinct) != 1:
+        raise InputError(f"expected one camera, found {len(distinct)} different ones among {len(cameras)} "
+                         f"(ids {sorted(cameras)[:8]}{' ...' if len(cameras) > 8 else ''})", path)
+    return distinct[0]
 
 
 def write_model(rec: pycolmap.Reconstruction, out_dir: str | Path, text: bool = False) -> None:

@@ -482,9 +482,12 @@ def test_map_inputs_name_their_session_and_their_one_camera(tmp_path, cli_error)
     assert load_inputs(None, s).sources["camera"] == str(s / "cameras.txt")
     root = _disc_flight(tmp_path / "f", frames=3)
     line = (root / "cameras.txt").read_text().strip().splitlines()[-1]
-    (root / "cameras.txt").write_text(f"{line}\n2{line[1:]}\n")
+    # a second camera of another size (an identical copy is the same camera: test_shared_cameras)
+    other = line.split()
+    other[0], other[2] = "2", str(int(other[2]) * 2)
+    (root / "cameras.txt").write_text(f"{line}\n{' '.join(other)}\n")
     err = cli_error("map", "--images", root / "images", "--poses", root / "poses.csv", "--out", tmp_path / "M")
-    assert f"{root / 'cameras.txt'}: holds 2 cameras" in err and not (tmp_path / "M").exists()
+    assert f"{root / 'cameras.txt'}: holds 2 different cameras" in err and not (tmp_path / "M").exists()
 
 
 def test_poses_refuses_a_truncated_image_as_map_does(tmp_path, cli_error):

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ...database.cameras import read_cameras_txt
+from ...database.cameras import one_camera, read_cameras_txt
 from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
 from ...database.images import IMAGE_EXTENSIONS, image_files, name_key, unique_by_key  # noqa: F401 (re-exported)
 from ...database.opensfm import is_opensfm
@@ -40,13 +40,11 @@ class MapInputs:
     sources: dict[str, str] = field(default_factory=dict)
 
 
-def _one_camera(cams: dict[int, Camera], source: Path) -> Camera | None:
-    """The one camera of `cams`; InputError naming `source` when it holds several (images of two sizes, two
-    drones: "no camera intrinsics: give --camera" sent a user after a file lying right there)."""
-    if len(cams) > 1:
-        raise InputError(f"holds {len(cams)} cameras (images of several sizes or cameras?): a map is made from one "
-                         "camera's images; map each camera's images on their own", source)
-    return next(iter(cams.values()), None)
+def _one_camera(cams: dict, source: Path) -> Camera | None:
+    """The one camera of `cams` (`database.cameras.one_camera`: copies of one camera are one); InputError naming
+    `source` when they differ (images of two sizes, two drones: "no camera intrinsics: give --camera" sent a user
+    after a file lying right there)."""
+    return one_camera(cams, source)
 
 
 def _is_synth_session(path: Path) -> bool:
@@ -121,8 +119,8 @@ def load_inputs(
 
         pose_list, opensfm_cams, _, epsg, _ = opensfm_poses(poses, images)
         sources["poses"] = str(poses)
-        if len(opensfm_cams) == 1:
-            cam_from_poses = next(iter(opensfm_cams.values()))
+        # as a COLMAP model's: two cameras said "no camera intrinsics: give --camera", not that there were two
+        cam_from_poses = _one_camera(opensfm_cams, poses) if camera is None else None
     else:
         if ekf:
             raise InputError("--ekf needs a synth session directory as --poses", poses)
