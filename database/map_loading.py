@@ -135,8 +135,30 @@ def read_colmap_points(model_dir: str | Path, database: str | Path | None = None
         sizes = track_sizes(rec, ids, database)
     else:
         sizes = np.full(len(xyz), np.nan, dtype=np.float32)
+    xyz, epsg = _earth_centred_to_grid(rec, xyz, model_dir)
     origin = xyz.mean(0) if len(xyz) else np.zeros(3)
-    return LandmarkMap(xyz, sizes, origin, epsg=0)
+    return LandmarkMap(xyz, sizes, origin, epsg=epsg)
+
+
+def _earth_centred_to_grid(rec: pycolmap.Reconstruction, xyz: np.ndarray, model_dir: Path) -> tuple[np.ndarray, int]:
+    """The points in the UTM zone `sosmatch map` gives the model's poses when those are Earth-centred (ECEF, as
+    COLMAP's `model_aligner --alignment_type ecef` writes them; `plugin.geodesy.looks_like_ecef`), with its EPSG
+    code; else as they are, EPSG 0. ECEF is metric but its z is not up: matched as a local frame, a model that
+    matched in ENU gave "no match" (the nu18 sweep), as gravity-aligned matching needs z up."""
+    from ..plugin.geodesy import ecef_to_grid, looks_like_ecef
+
+    posed = [img for img in rec.images.values() if img.has_pose]
+    if not posed or not len(xyz):
+        return xyz, 0
+    r_wc = np.array([np.asarray(img.cam_from_world().rotation.matrix()).T for img in posed])
+    centers = np.array([np.asarray(img.projection_center()) for img in posed], dtype=np.float64)
+    if not looks_like_ecef(centers, r_wc):
+        return xyz, 0
+    _, _, epsg = ecef_to_grid(centers, r_wc)  # the zone of the camera centres, as `map` chooses it
+    grid, _, _ = ecef_to_grid(xyz, np.broadcast_to(np.eye(3), (len(xyz), 3, 3)), epsg)
+    log.info("%s: the model is in Earth-centred (ECEF) coordinates; its points are matched in UTM, EPSG:%d",
+             model_dir, epsg)
+    return grid, epsg
 
 
 def load_map(path: str | Path) -> LoadedMap:
