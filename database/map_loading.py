@@ -4,7 +4,8 @@ Accepted: a `.sosmap` file; a mapped session directory (holding `landmarks.sosma
 directory (cameras/images/points3D, .bin or .txt) or a directory whose `sparse/` (or `sparse/0/`) is one. A COLMAP
 model's points become landmarks ordered by point3D id (roughly the order of triangulation); their sizes are
 estimated from the tracks when a COLMAP database with affine keypoints (as `sosmatch map` writes) lies beside the
-model, else they are NaN and the size gate is off for them. Every problem raises InputError naming the path.
+model, else they are NaN and the size gate is off for them. A model in Earth-centred coordinates (ECEF) is read
+in its cameras' UTM zone. Every problem raises InputError naming the path.
 """
 
 from __future__ import annotations
