@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .geometry import rotation_angle_deg
-from .landmark_filters import MAD_TO_SIGMA
+from .height_drift import MIN_HEIGHT_DRIFT_M, DriftFit, _robust_sigma, fit_drift  # noqa: F401 (also read from here)
 from .multisession import Sim3, umeyama
 from .refinement import fit_yaw_translation
 
@@ -48,73 +48,6 @@ AIRFRAME_SYSTEMATIC_SIGMA_DEG = NADIR_ASSUMPTION_SIGMA_DEG
 CHI2_2DOF_99 = 9.2103  # 99 % quantile of chi-square with 2 degrees of freedom
 CHI2_2DOF_MEDIAN = 1.3863  # its median
 CHI2_2DOF_9999 = 18.4207  # its 99.99 % quantile
-# A height drift smaller than this over a flight is within what the vertical of a block can explain (0.1 degree
-# over 300 m is 0.5 m) and is not followed nor warned about (it is still measured and recorded).
-MIN_HEIGHT_DRIFT_M = 1.0
-
-
-@dataclass
-class DriftFit:
-    """A robust straight line value(t) = offset + slope (t - t0) through one value per image."""
-
-    offset: float  # the value at the first image (t0)
-    slope_per_s: float
-    change: float  # slope x the flight's duration: the drift from the first to the last image
-    sigma: float  # robust standard deviation of the values about the line
-    change_sigma: float  # standard error of `change`
-    significant: bool  # |change| beyond 3 standard errors and beyond 2 sigma
-    median: float  # the median of the values (the offset to use when there is no drift)
-
-    @property
-    def reference(self) -> float:
-        """The offset that applies to the block: at the start of the flight when the value drifts, else the median."""
-        return self.offset if self.significant else self.median
-
-    def to_dict(self) -> dict:
-        return {"offset_at_start": self.offset, "median": self.median, "change_over_flight": self.change,
-                "change_sigma": self.change_sigma, "slope_per_min": self.slope_per_s * 60.0, "sigma": self.sigma,
-                "significant": self.significant}
-
-
-def _robust_sigma(residuals: np.ndarray) -> float:
-    return float(MAD_TO_SIGMA * np.median(np.abs(residuals - np.median(residuals)))) if len(residuals) else 0.0
-
-
-def fit_drift(times: np.ndarray, values: np.ndarray, min_change: float = 0.0, iterations: int = 10) -> DriftFit:
-    """Huber-weighted (k = 2 sigma) least-squares line of `values` over `times` (seconds), scale re-estimated
-    from the residuals' MAD every round; the line's change over the time span with its standard error. The
-    change is significant beyond 3 standard errors, 2 sigma and `min_change`."""
-    t = np.asarray(times, dtype=np.float64)
-    v = np.asarray(values, dtype=np.float64)
-    ok = np.isfinite(t) & np.isfinite(v)
-    t, v = t[ok], v[ok]
-    if len(v) == 0:
-        raise ValueError("no finite values to fit")
-    median = float(np.median(v))
-    t0, span = float(t.min()), float(t.max() - t.min())
-    if len(v) < 3 or span <= 0:
-        sigma = _robust_sigma(v)
-        return DriftFit(median, 0.0, 0.0, sigma, math.inf, False, median)
-    x = t - t0
-    w = np.ones(len(v))
-    coef = np.zeros(2)
-    sigma = _robust_sigma(v)
-    for _ in range(iterations):
-        a = np.stack([np.ones_like(x), x], 1) * np.sqrt(w)[:, None]
-        coef = np.linalg.lstsq(a, v * np.sqrt(w), rcond=None)[0]
-        r = v - coef[0] - coef[1] * x
-        sigma = max(_robust_sigma(r), 1e-9 * max(1.0, float(np.abs(v).max())))
-        k = 2.0 * sigma
-        w = np.where(np.abs(r) <= k, 1.0, k / np.maximum(np.abs(r), 1e-300))
-    sw = w.sum()
-    xm = (w @ x) / sw
-    sxx = float(w @ (x - xm) ** 2)
-    slope_se = sigma / math.sqrt(sxx) if sxx > 0 else math.inf
-    change, change_se = float(coef[1] * span), float(slope_se * span)
-    significant = bool(abs(change) > max(3.0 * change_se, 2.0 * sigma, min_change))
-    return DriftFit(float(coef[0]), float(coef[1]), change, float(sigma), change_se, significant, median)
-
-
 def _mean_direction(vectors: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, np.ndarray, float]:
     """Robust mean of unit vectors (N,3): (mean, inlier mask, per-vector angular sigma in degrees). Vectors
     further than 3 robust sigmas (at least 2 degrees) from the mean are left out, the mean recomputed."""

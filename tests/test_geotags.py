@@ -122,6 +122,40 @@ def test_heights_from_relative_altitude_and_drift_against_it(tmp_path, caplog):
     np.testing.assert_allclose(given.positions[:, 2], 180.0)
 
 
+@pytest.mark.parametrize("home_step", [15.0, 0.0])
+def test_two_batteries_from_two_home_points_take_their_own_take_off_altitude(tmp_path, caplog, home_step):
+    """The nu20 sweep: a folder of two batteries, the second taken off from ground 15 m higher (its
+    RelativeAltitude 15 m lower at the same GPS altitude). One line through both read the step as a GPS drift
+    (+16 m) and put the second flight's cameras 15 m low; the map said "ok". Each flight now has its own take-off
+    altitude; two flights from one home point keep one (the receiver's wander is no second home)."""
+    img = tmp_path / "images"
+    img.mkdir()
+    rng = np.random.default_rng(3)
+    for battery in range(2):
+        for k in range(12):
+            name = f"b{battery}_{k:02d}.jpg"
+            # 80 m above the first home (ground at 400 m); GPS altitude noise 1 m; the second battery 30 min later
+            meta = _meta(img / name, latitude=47.0 + k * 1e-4, longitude=8.0 + battery * 1e-4,
+                         altitude=480.0 + rng.normal(0.0, 1.0),
+                         datetime_original=f"2024:06:01 10:{30 * battery:02d}:{2 * k:02d}", subsec_original="",
+                         xmp={"GimbalYawDegree": "0", "GimbalPitchDegree": "-90", "GimbalRollDegree": "0",
+                              "RelativeAltitude": f"{80.0 - battery * home_step:+.2f}"})
+            (img / name).write_bytes(embed_metadata(_jpeg(k), meta))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img)
+    heights = priors.positions[:, 2]
+    np.testing.assert_allclose(heights, 480.0, atol=1.5)  # both flights at their true heights
+    flights = priors.summary["flights"]
+    if home_step:
+        assert [f["first_image"] for f in flights] == ["b0_00.jpg", "b1_00.jpg"]
+        assert [f["images"] for f in flights] == [12, 12]
+        assert flights[1]["takeoff_altitude_m"] - flights[0]["takeoff_altitude_m"] == pytest.approx(15.0, abs=1.5)
+        assert "2 flights that took off from different heights" in caplog.text
+        assert "drifts" not in caplog.text
+    else:
+        assert flights is None and "flights" not in caplog.text
+
+
 def test_mixed_cameras_are_grouped_and_gps_is_optional(tmp_path):
     img = tmp_path / "images"
     img.mkdir()

@@ -18,8 +18,9 @@ Heights: the GPS altitude (metres, as the receiver reports it:
 for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
 vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off
 point), the take-off altitude + RelativeAltitude. The take-off altitude is given (`takeoff_altitude_m`) or
-taken from the GPS at the start of the flight: the line of GPS altitude - RelativeAltitude over capture time
-(`plugin.georegistration.fit_drift`) at the first image, since a GPS altitude drifts from take-off on; that
+taken from the GPS at the start of each flight (a folder of several batteries may hold several home points:
+`plugin.height_drift.takeoff_altitudes`): the line of GPS altitude - RelativeAltitude over capture time
+(`plugin.height_drift.fit_drift`) at the flight's first image, since a GPS altitude drifts from take-off on; that
 drift against the barometer is measured and reported. The pose CSV header says `# crs: EPSG:<code>`; float64
 keeps UTM-sized coordinates to well under a millimetre, and the landmark map stores an origin + EPSG, so every
 output stays georeferenced.
@@ -236,7 +237,7 @@ def read_image_priors(
     attitude sources and the heights). Damaged or implausible tags are left out with one warning naming the
     images; an unreadable image file is an InputError."""
     from ..database.poses import crs_scale_problem
-    from ..plugin.georegistration import MIN_HEIGHT_DRIFT_M, fit_drift
+    from ..plugin.height_drift import MIN_HEIGHT_DRIFT_M, takeoff_altitudes
 
     check_prior_options(mount, sensor_width_mm, epsg, takeoff_altitude_m)
     paths = list_images(images)
@@ -301,21 +302,32 @@ def read_image_priors(
 
     # Heights: DJI RelativeAltitude + take-off altitude where every fixed image has it, else the GPS altitude.
     rel = np.array([v[0] if (v := m.xmp_float("RelativeAltitude")) else np.nan for m in metas])
-    heights, height_source, rel_drift = alt.copy(), "GPS altitude", None
+    heights, height_source, rel_drift, flights = alt.copy(), "GPS altitude", None, []
     fixed_alt = has & np.isfinite(alt)
     if np.isfinite(rel[has]).all() and has.any():
+        takeoff = np.full(n, np.nan if takeoff_altitude_m is None else float(takeoff_altitude_m))
         if takeoff_altitude_m is None and fixed_alt.any():
-            rel_drift = fit_drift(times[fixed_alt], alt[fixed_alt] - rel[fixed_alt], MIN_HEIGHT_DRIFT_M)
+            # one take-off altitude per flight: a folder of two batteries may hold two home points
+            takeoff, flights = takeoff_altitudes(times, np.where(fixed_alt, alt - rel, np.nan), MIN_HEIGHT_DRIFT_M)
+            rel_drift = flights[0][1]
             takeoff_altitude_m = rel_drift.reference
             height_source = "take-off altitude (GPS at the start of the flight) + XMP RelativeAltitude"
-            if rel_drift.significant:
-                log.warning("the GPS altitude drifts by %+.1f m over the flight against the XMP RelativeAltitude "
-                            "(barometric): heights from the take-off altitude %.1f m + RelativeAltitude",
-                            rel_drift.change, takeoff_altitude_m)
+            for idx, fit in flights:
+                if fit.significant:
+                    log.warning("the GPS altitude drifts by %+.1f m over the flight%s against the XMP "
+                                "RelativeAltitude (barometric): heights from the take-off altitude %.1f m + "
+                                "RelativeAltitude", fit.change, "" if len(flights) == 1 else
+                                f" from {metas[idx[0]].path.name}", fit.reference)
+            if len(flights) > 1:
+                height_source = "each flight's take-off altitude (GPS at its start) + XMP RelativeAltitude"
+                log.warning("the images are %d flights that took off from different heights (take-off altitudes "
+                            "%s, from the GPS against the XMP RelativeAltitude): heights from each flight's own",
+                            len(flights), ", ".join(f"{fit.reference:.1f} m from {metas[idx[0]].path.name} on"
+                                                     for idx, fit in flights))
         elif takeoff_altitude_m is not None:
             height_source = "given take-off altitude + XMP RelativeAltitude"
         if takeoff_altitude_m is not None:
-            heights = takeoff_altitude_m + rel
+            heights = takeoff + rel
     positions = np.stack([east, north, heights], 1)  # NaN height: a fix without altitude
 
     # Attitude, per image.
@@ -394,6 +406,10 @@ def read_image_priors(
         "altitude_source": height_source,
         "gps_altitude_vs_relative_altitude": rel_drift.to_dict() if rel_drift is not None else None,
         "takeoff_altitude_m": takeoff_altitude_m if np.isfinite(rel[has]).all() and has.any() else None,
+        # flights of different take-off heights (batteries from two home points), when there are several
+        "flights": [{"first_image": metas[idx[0]].path.name, "images": len(idx), "takeoff_altitude_m": fit.reference,
+                     "gps_altitude_vs_relative_altitude": fit.to_dict()} for idx, fit in flights]
+        if len(flights) > 1 else None,
         "attitude_sources": dict(att_src),
         "images_without_attitude": n_course,  # their headings are the course over ground (a guess)
         "images_at_turns_without_attitude": n_turns,  # ... where the course says nothing of the heading
