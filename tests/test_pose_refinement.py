@@ -222,6 +222,29 @@ def test_tie_points_do_not_depend_on_the_pixel_count_of_the_frames(tmp_path):
     assert max(float(k.max()) for k in tie_large.keypoints) > 2.5 * TIE_POINT_MAX_SIDE
 
 
+def test_the_adjustments_outlier_cut_follows_the_frames_pixel_size(tmp_path, monkeypatch):
+    """Review rev19: the pixel sigma was scaled to full-size pixels, the adjustment's outlier cut (4 px) was not:
+    on 4000 px frames it cut at 1.2 sigma and dropped good observations (406 instead of 15 on one flight)."""
+    import sosmatch.workflows.pose_refinement.with_colmap as with_colmap
+    from sosmatch.workflows.pose_refinement import refine_poses_from_images
+    from sosmatch.workflows.pose_refinement.tie_points import TIE_POINT_MAX_SIDE
+
+    cuts = []
+    real = with_colmap._drop_outlier_observations
+    monkeypatch.setattr(with_colmap, "_drop_outlier_observations", lambda rec, max_px: cuts.append(max_px) or
+                        real(rec, max_px))
+    for factor in (1, 3):
+        (tmp_path / str(factor)).mkdir()
+        paths, truth, cam, _ = _plane_views(tmp_path / str(factor), width=factor * TIE_POINT_MAX_SIDE)
+        refine_poses_from_images(paths, truth, cam, position_sigma_m=2.0, pixel_sigma_px=2.0, max_features=1500,
+                                 accept_implausible=True)
+        cuts.append(None)
+    first = cuts[:cuts.index(None)]
+    second = cuts[cuts.index(None) + 1:-1]
+    assert first and second and set(first) == {4.0}
+    assert np.allclose(second, 12.0)
+
+
 def test_images_without_a_tie_point_are_named_as_unrefined(tmp_path, caplog):
     """A frame that shares nothing with the others (here: plain grey) keeps its prior pose; the refinement used to
     say nothing about it (19 of 60 Seneca frames at 4000 px, their telemetry headings 10-36 deg off)."""

@@ -271,7 +271,9 @@ def refine_poses_from_images(
     rec = reconstruction_of_tie_points(tie, poses, camera)
     if method == "colmap":
         sigma = float(np.max(np.atleast_1d(position_sigma_m)))
-        stats = refine_poses_with_colmap(rec, poses, sigma, pixel_sigma_px)
+        # its outlier cut (4 px at 2 px sigma) is in full-size pixels too (review rev19: unscaled, it dropped
+        # good observations at 1.2 sigma on 4000 px frames)
+        stats = refine_poses_with_colmap(rec, poses, sigma, pixel_sigma_px, outlier_px=2.0 * pixel_sigma_px)
     else:
         stats = refine_poses_with_priors(rec, poses, position_sigma_m, attitude_sigma_deg, pixel_sigma_px)
     refined = poses_of_reconstruction(rec)
