@@ -118,7 +118,10 @@ def takeoff_altitudes(times: np.ndarray, offsets: np.ndarray, min_change: float 
             prev = groups[-1][np.isfinite(v[groups[-1]])]
             if len(prev):
                 before, after = fit_drift(t[prev], v[prev], min_change), fit_drift(t[fixed], v[fixed], min_change)
-                jump = after.reference - _value_at(before, float(t[prev].min()), float(t[fixed].min()))
+                # each flight's line where it has images (not extended across the break: a drift that is noise,
+                # stretched over a 5 min pause, made a step of 5 m in one flight; review rev19)
+                jump = (_value_at(after, float(t[fixed].min()), float(t[fixed].min()))
+                        - _value_at(before, float(t[prev].min()), float(t[prev].max())))
                 noise = 3.0 * math.hypot(before.sigma / math.sqrt(len(prev)), after.sigma / math.sqrt(len(fixed)))
                 if abs(jump) > max(MIN_TAKEOFF_STEP_M, noise):
                     groups.append(seg)

@@ -149,3 +149,18 @@ def test_flight_lines_are_numbered_as_synth_numbers_them(frames, reverse, rotate
     assert set(ids[~on_line].tolist()) <= {-1} | set(truth.tolist())  # a crossing frame may join a line's end
     assert np.mean(ids[on_line] == truth[on_line]) > 0.9, (ids, truth)
     assert set(ids.tolist()) - {-1} == set(truth.tolist()) - {-1}
+
+
+def test_a_pause_in_one_flight_is_not_a_second_take_off():
+    """Review rev19: the first part's drift line was extended across the break, so a drift of 2 m over a 50 s
+    line, stretched over a 5 min hover, read as a 12 m step and one flight became two take-offs."""
+    from sosmatch.plugin.height_drift import takeoff_altitudes
+
+    rng = np.random.default_rng(0)
+    t = np.concatenate([np.arange(26) * 2.0, 350.0 + np.arange(100) * 2.0])  # a 300 s pause after image 25
+    offsets = 400.0 + np.where(t < 60, 2.0 * t / 50.0, 2.0) + rng.normal(0, 0.05, len(t))
+    takeoff, flights = takeoff_altitudes(t, offsets, 1.0)
+    assert len(flights) == 1 and np.all(np.isfinite(takeoff))
+    # a second home 15 m higher after the same pause is a second take-off
+    _, two = takeoff_altitudes(t, offsets + np.where(t > 300, 15.0, 0.0), 1.0)
+    assert [len(idx) for idx, _ in two] == [26, 100]
