@@ -8,6 +8,7 @@ output put inside, a file changed since) is not sosmatch's to delete: the run is
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -27,22 +28,54 @@ def entry_files(folder: Path) -> dict[str, str]:
     return files
 
 
-def recorded_entries(marker: Mapping[str, Any] | None) -> dict[str, dict[str, str]]:
+# The files an older sosmatch (before entries were recorded) wrote in its directory entries: its COLMAP models in
+# sparse/ (binary or text) and a synthetic session's frames in images/ and labels/. A re-run that writes another
+# layout (`map --text` over a binary model, `synth` of fewer frames) replaces them; anything else stays foreign.
+LEGACY_NAMES = {
+    "sparse": re.compile(r"(cameras|images|points3D|rigs|frames)\.(bin|txt)"),
+    "images": re.compile(r"frame_\d+\.(jpg|jpeg|png|tif|tiff)"),
+    "labels": re.compile(r"frame_\d+\.png"),
+}
+
+
+def _hashes(value: Any) -> list[str] | None:
+    """A recorded file's accepted sha256 values: one, or two while a run swaps the entry (None: malformed)."""
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
+        return list(value)
+    return None
+
+
+def recorded_entries(marker: Mapping[str, Any] | None) -> dict[str, dict[str, Any]]:
     """The marker's record of its directory entries ({} when absent or malformed: an older sosmatch wrote it)."""
     entries = (marker or {}).get("entries")
     if not isinstance(entries, dict):
         return {}
     return {name: dict(files) for name, files in entries.items()
             if isinstance(name, str) and isinstance(files, dict)
-            and all(isinstance(k, str) and isinstance(v, str) for k, v in files.items())}
+            and all(isinstance(k, str) and _hashes(v) is not None for k, v in files.items())}
+
+
+def merge_entry_records(old: Mapping[str, Any], new: Mapping[str, str]) -> dict[str, Any]:
+    """The record of an entry while a run swaps it: every file of the old and of the new entry, with both hashes
+    where a name is in both. A run killed between this record and the swap leaves the old files, which must still
+    be ours (review rev19: with the new hash alone, every later run refused `sparse/images.bin` as changed)."""
+    merged: dict[str, Any] = {}
+    for rel in sorted(set(old) | set(new)):
+        hashes = (_hashes(old[rel]) or []) if rel in old else []
+        if rel in new and new[rel] not in hashes:
+            hashes.append(new[rel])
+        merged[rel] = hashes[0] if len(hashes) == 1 else hashes
+    return merged
 
 
 def check_entry_ours(entry: Path, command: str, record: Mapping[str, str] | None,
                      layout: set[str] | None = None) -> None:
     """InputError naming the first file in directory `entry` that sosmatch did not write there: one missing from
     `record` or changed since (sha256). Without a record (an entry an older sosmatch wrote, before entries were
-    recorded), a file is taken as ours only when the new entry has one at the same place (`layout`): sosmatch's
-    own files are then replaced, anything put beside them is not."""
+    recorded), a file is taken as ours when the new entry has one at the same place (`layout`) or it bears the
+    name an older sosmatch gave its files there (`LEGACY_NAMES`): those are replaced, anything beside them is not."""
     from .outputs import sha256_file
 
     try:
@@ -51,10 +84,12 @@ def check_entry_ours(entry: Path, command: str, record: Mapping[str, str] | None
                 p = Path(root) / name
                 rel = p.relative_to(entry).as_posix()
                 if record is not None:
-                    ours = rel in record and not p.is_symlink() and sha256_file(p) == record[rel]
+                    ours = rel in record and not p.is_symlink() and sha256_file(p) in (_hashes(record[rel]) or [])
                     changed = rel in record
                 else:
-                    ours = layout is not None and rel in layout and not p.is_symlink()
+                    legacy = LEGACY_NAMES.get(entry.name)
+                    ours = not p.is_symlink() and ((layout is not None and rel in layout)
+                                                   or (legacy is not None and legacy.fullmatch(rel) is not None))
                     changed = False
                 if not ours:
                     why = (f"was changed since `sosmatch {command}` wrote it" if changed else

@@ -43,7 +43,13 @@ from typing import Any
 
 from ..plugin.errors import InputError
 from .atomic import clean_stale_temporaries, locked_temp_dir, write_text_atomic
-from .output_entries import check_entry_ours, check_not_in_output_entry, entry_files, recorded_entries
+from .output_entries import (
+    check_entry_ours,
+    check_not_in_output_entry,
+    entry_files,
+    merge_entry_records,
+    recorded_entries,
+)
 from .text_input import read_user_bytes
 
 MARKER = ".sosmatch-output.json"
@@ -327,7 +333,7 @@ class OutputDir:
                 check_entry_ours(dst, self.command, self._entries.get(name), set(new))
             # recorded before the swap (old and new files both: a run killed in between leaves no file unlisted),
             # then only the new ones
-            self._entries[name] = {**self._entries.get(name, {}), **new}
+            self._entries[name] = merge_entry_records(self._entries.get(name, {}), new)
             self._write_marker(self._complete)
         if exists and is_dir:
             old, fd = locked_temp_dir(dst)

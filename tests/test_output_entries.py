@@ -90,3 +90,55 @@ def test_a_map_refused_for_a_locked_database_leaves_the_previous_map_complete(tm
     finally:
         holder.close()
     assert (out / MARKER).read_text() == before
+
+
+def test_a_run_killed_between_recording_and_swapping_an_entry_resumes(merged, monkeypatch, capsys):
+    """Review rev19: the record written before the swap kept only the new hash of a file in both entries, so a run
+    killed before the swap left sparse/'s old files "changed since" and every later run was refused."""
+    import sosmatch.database.outputs as outputs
+
+    out, other = merged
+
+    class Killed(BaseException):
+        pass
+
+    real = outputs.locked_temp_dir
+
+    def kill_at_swap(path, *args, **kwargs):
+        if path.name == "sparse":
+            raise Killed  # after the marker recorded old + new files, before the old sparse/ moved
+        return real(path, *args, **kwargs)
+
+    # the old model differs from the one the run writes (as after a change of settings), and is on record
+    marker = json.loads((out / MARKER).read_text())
+    (out / "sparse" / "points3D.bin").write_bytes((out / "sparse" / "points3D.bin").read_bytes() + b"old")
+    marker["entries"]["sparse"]["points3D.bin"] = outputs.sha256_file(out / "sparse" / "points3D.bin")
+    (out / MARKER).write_text(json.dumps(marker))
+    monkeypatch.setattr(outputs, "locked_temp_dir", kill_at_swap)
+    with pytest.raises(Killed):
+        main(other)
+    monkeypatch.setattr(outputs, "locked_temp_dir", real)
+    recorded = json.loads((out / MARKER).read_text())["entries"]["sparse"]
+    assert isinstance(recorded["points3D.bin"], list) and len(recorded["points3D.bin"]) == 2  # both, while swapping
+    capsys.readouterr()
+    assert main(other) == 0  # resumed, not refused
+    assert all(isinstance(v, str) for v in json.loads((out / MARKER).read_text())["entries"]["sparse"].values())
+
+
+def test_an_older_outputs_entry_of_another_layout_is_ours_by_its_names(tmp_path):
+    """Review rev19: an entry written before entries were recorded was judged by the new entry's layout only, so
+    `map --text` over a binary model (or `synth` of fewer frames) was refused after all its work."""
+    from sosmatch.database.output_entries import check_entry_ours
+
+    sparse = tmp_path / "sparse"
+    sparse.mkdir()
+    for name in ("cameras.bin", "images.bin", "points3D.bin", "rigs.bin", "frames.bin"):
+        (sparse / name).write_bytes(b"x")
+    check_entry_ours(sparse, "map", None, {"cameras.txt", "images.txt", "points3D.txt"})
+    (sparse / "README.txt").write_text("notes")
+    with pytest.raises(InputError, match="not written by `sosmatch map`"):
+        check_entry_ours(sparse, "map", None, {"cameras.txt", "images.txt", "points3D.txt"})
+    images = tmp_path / "images"
+    images.mkdir()
+    (images / "frame_00023.jpg").write_bytes(b"x")
+    check_entry_ours(images, "synth", None, {"frame_00000.jpg"})
