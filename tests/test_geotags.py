@@ -156,6 +156,21 @@ def test_two_batteries_from_two_home_points_take_their_own_take_off_altitude(tmp
         assert flights is None and "flights" not in caplog.text
 
 
+def test_a_camera_clock_reset_is_named(tmp_path, caplog):
+    """The nu20 sweep: the second half of a folder dated 2000-01-01 (a clock reset) reordered the flight with an
+    INFO line only."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(8):
+        stamp = f"2024:06:01 10:00:{2 * k:02d}" if k < 4 else f"2000:01:01 00:00:{2 * k:02d}"
+        meta = _meta(img / f"f{k:02d}.jpg", latitude=47.0 + k * 1e-4, longitude=8.0, datetime_original=stamp,
+                     subsec_original="")
+        (img / f"f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        read_image_priors(img)
+    assert "jump back by 8918.4 days from f03.jpg to f04.jpg (a camera clock reset?)" in caplog.text
+
+
 def test_mixed_cameras_are_grouped_and_gps_is_optional(tmp_path):
     img = tmp_path / "images"
     img.mkdir()

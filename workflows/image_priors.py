@@ -192,6 +192,11 @@ class ImagePriors:
         return self.attitude_kind != "course"
 
 
+# Capture times that go back by more than a day from one image to the next by name are a camera clock reset (to
+# its factory date, or a new battery's RTC), not a counter that wrapped within a flight (minutes).
+CLOCK_RESET_S = 86400.0
+
+
 def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
     """Capture times in seconds; images without one are placed by their order between those with one (capture
     order at one second per image when none has a time)."""
@@ -250,6 +255,14 @@ def read_image_priors(
     order, how = flight_order(np.zeros((n, 3)), None if None in stamps else np.asarray(stamps, dtype=np.float64))
     if how == "capture time":
         log.info("the images are taken in the order of their capture times (EXIF DateTimeOriginal), not by name")
+        times_by_name = np.asarray(stamps, dtype=np.float64)
+        back = np.flatnonzero(np.diff(times_by_name) < -CLOCK_RESET_S)
+        if len(back):  # the nu20 sweep: a camera clock reset to 2000-01-01 reordered the flight with no word
+            k = int(back[0])
+            log.warning("the capture times jump back by %.1f days from %s to %s (a camera clock reset?): the images "
+                        "are ordered by them, which puts the later ones first; fix the dates if that is wrong",
+                        (times_by_name[k] - times_by_name[k + 1]) / 86400.0, metas[k].path.name,
+                        metas[k + 1].path.name)
         paths, metas = [paths[i] for i in order], [metas[i] for i in order]
     rows = telemetry_rows(tele, [m.path.name for m in metas], telemetry, images)
     damaged = [m for m in metas if m.problems]
