@@ -94,15 +94,25 @@ def _write_project(tmp_path, names, centers_utm, rotations, epsg, lla):
     return tmp_path / "odm"
 
 
-def test_poses_from_an_odm_project_are_in_utm(tmp_path, capsys):
+# the six-shot flight the ODM projects below hold: UTM zone 32N, topocentric about this point
+EPSG, LLA = 32632, (47.0, 8.0, 400.0)
+
+
+def _six_shot_project(tmp_path):
+    """An ODM project of a six-shot flight (and a 2-shot second reconstruction): (project, names, true UTM
+    centres, world_from_camera rotations)."""
     from sosmatch.tools.synth.flights import camera_rotation
 
-    epsg, lla = 32632, (47.0, 8.0, 400.0)
-    e0, n0 = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(8.001, 47.001)
+    e0, n0 = Transformer.from_crs("EPSG:4326", f"EPSG:{EPSG}", always_xy=True).transform(8.001, 47.001)
     names = [f"img_{k:03d}.jpg" for k in range(6)]
     centers = np.array([[e0 + 7.0 * k, n0 + 3.0 * k, 520.0 + k] for k in range(6)])
     rotations = np.stack([camera_rotation(0.3 * k, 0.02, -0.01) for k in range(6)])
-    project = _write_project(tmp_path, names, centers, rotations, epsg, lla)
+    return _write_project(tmp_path, names, centers, rotations, EPSG, LLA), names, centers, rotations
+
+
+def test_poses_from_an_odm_project_are_in_utm(tmp_path, capsys):
+    epsg, lla = EPSG, LLA
+    project, names, centers, rotations = _six_shot_project(tmp_path)
     rec = read_opensfm_reconstruction(project)
     assert rec.reference_lla == lla and rec.other_reconstructions == [2] and len(rec.poses) == 6
     images = tmp_path / "images"
@@ -143,15 +153,8 @@ def _odm2_project(tmp_path, topocentric=True):
     `export_geocoords --offset-x/-y` in UTM minus odm_georeferencing/coords.txt (z absolute), the topocentric one kept
     as reconstruction.topocentric.json (dropped when `topocentric` is False, as some archives do). Returns (project,
     names, true UTM centers)."""
-    from sosmatch.tools.synth.flights import camera_rotation
-
-    epsg, offset = 32632, (437000, 5207000)
-    lla = (47.0, 8.0, 400.0)
-    e0, n0 = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(8.001, 47.001)
-    names = [f"img_{k:03d}.jpg" for k in range(6)]
-    centers = np.array([[e0 + 7.0 * k, n0 + 3.0 * k, 520.0 + k] for k in range(6)])
-    rotations = np.stack([camera_rotation(0.3 * k, 0.02, -0.01) for k in range(6)])
-    project = _write_project(tmp_path, names, centers, rotations, epsg, lla)
+    offset = (437000, 5207000)
+    project, names, centers, rotations = _six_shot_project(tmp_path)
     osfm = project / "opensfm"
     rec = json.loads((osfm / "reconstruction.json").read_text())
     if topocentric:
@@ -192,14 +195,7 @@ def test_odm2_geocoords_reconstruction_alone_is_refused(tmp_path, capsys):
 
 def test_smaller_reconstructions_are_named_not_dropped_silently(tmp_path, caplog):
     """The largest reconstruction is read; the others' images would otherwise only count as unposed."""
-    from sosmatch.tools.synth.flights import camera_rotation
-
-    epsg, lla = 32632, (47.0, 8.0, 400.0)
-    e0, n0 = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(8.001, 47.001)
-    names = [f"img_{k:03d}.jpg" for k in range(6)]
-    centers = np.array([[e0 + 7.0 * k, n0 + 3.0 * k, 520.0 + k] for k in range(6)])
-    rotations = np.stack([camera_rotation(0.3 * k, 0.02, -0.01) for k in range(6)])
-    project = _write_project(tmp_path, names, centers, rotations, epsg, lla)  # a 6-shot and a 2-shot one
+    project, names, _, _ = _six_shot_project(tmp_path)  # a 6-shot and a 2-shot reconstruction
     images = tmp_path / "images"
     images.mkdir()
     import cv2

@@ -347,16 +347,19 @@ def test_contact_sheet_places_frames_side_by_side(session_dir, tmp_path):
     assert np.abs(left - right).mean() < 1.0 and left.std() > 5
 
 
+def _small_summer_view_inputs() -> tuple:
+    """(scene, poses, camera, uniform light) of the SMALL world's summer session, as `render_view` takes them."""
+    cfg = SynthConfig(**SMALL)
+    world = get_world(cfg.world_config())
+    scene = build_scene(world, "summer", session_presence(world, cfg))
+    return scene, session_poses(world, cfg), cfg.camera(), np.ones_like(scene.dsm)
+
+
 def test_two_pass_march_matches_a_plain_march(monkeypatch):
     """The conservative first pass only skips empty space: a plain march from the top sees the same surface."""
     from sosmatch.tools.synth import render
 
-    cfg = SynthConfig(**SMALL)
-    world = get_world(cfg.world_config())
-    scene = build_scene(world, "summer", session_presence(world, cfg))
-    poses = session_poses(world, cfg)
-    cam = cfg.camera()
-    light = np.ones_like(scene.dsm)
+    scene, poses, cam, light = _small_summer_view_inputs()
     fast = [render_view(scene, light, cam, poses.rotations[i], poses.centers[i]) for i in (0, 5)]
     # an "infinitely high" conservative surface makes every ray start its fine march at the top of the view
     monkeypatch.setattr(render, "conservative_dsm", lambda sc, r: (np.full((4, 4), 1e6, np.float32), 4))
@@ -512,12 +515,7 @@ def test_rendering_in_blocks_of_rows_is_byte_identical(monkeypatch):
     """The blocks of rows change nothing: a frame rendered with tiny blocks equals one rendered in one call."""
     from sosmatch.tools.synth import render
 
-    cfg = SynthConfig(**SMALL)
-    world = get_world(cfg.world_config())
-    scene = build_scene(world, "summer", session_presence(world, cfg))
-    poses = session_poses(world, cfg)
-    cam = cfg.camera()
-    light = np.ones_like(scene.dsm)
+    scene, poses, cam, light = _small_summer_view_inputs()
     whole = render_view(scene, light, cam, poses.rotations[2], poses.centers[2])
     remap = render._remap_points
     monkeypatch.setattr(render, "_remap_points", lambda src, maps: remap(src, maps, max_rows=3))
