@@ -50,21 +50,28 @@ def grid_north_azimuth(easting: np.ndarray, northing: np.ndarray, epsg: int) -> 
     return geographic_to_grid(np.asarray(lat), np.asarray(lon), epsg)[2]
 
 
+def topocentric_frame(latitude: float, longitude: float, height: float) -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,) in ECEF metres, ecef_from_enu rotation (3,3)) of the topocentric frame (x east, y north, z up)
+    at a point of the WGS84 ellipsoid (degrees, ellipsoidal height): ECEF = origin + ecef_from_enu @ enu."""
+    from pyproj import Transformer
+
+    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    origin = np.array(to_ecef.transform(float(longitude), float(latitude), float(height)))
+    la, lo = math.radians(latitude), math.radians(longitude)
+    ecef_from_enu = np.array([[-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
+                              [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
+                              [0.0, math.cos(la), math.sin(la)]])
+    return origin, ecef_from_enu
+
+
 def topocentric_to_grid(enu: np.ndarray, origin_lla: tuple[float, float, float],
                         epsg: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Points of a topocentric frame (x east, y north, z up at `origin_lla` = latitude, longitude, ellipsoidal
     height; OpenSfM's world frame with GPS) -> (grid easting, northing, height (N,3), grid_from_topocentric
     rotations (N,3,3), EPSG code: the UTM zone of the origin unless given). Exact through ECEF (`ecef_to_grid`)."""
-    from pyproj import Transformer
-
     lat0, lon0, h0 = (float(v) for v in origin_lla)
     p = np.asarray(enu, dtype=np.float64).reshape(-1, 3)
-    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
-    x0 = np.array(to_ecef.transform(lon0, lat0, h0))
-    la, lo = math.radians(lat0), math.radians(lon0)
-    ecef_from_enu = np.array([[-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
-                              [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
-                              [0.0, math.cos(la), math.sin(la)]])
+    x0, ecef_from_enu = topocentric_frame(lat0, lon0, h0)
     return ecef_to_grid(x0 + p @ ecef_from_enu.T, np.broadcast_to(ecef_from_enu, (len(p), 3, 3)),
                         epsg or utm_epsg(lat0, lon0))
 

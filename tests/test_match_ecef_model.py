@@ -5,13 +5,13 @@ exit 0, where the same model in ENU matched every landmark (the nu18 sweep, x_re
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pycolmap
 from pyproj import Transformer
 
 from sosmatch.database.map_loading import load_map
+from sosmatch.plugin.geodesy import topocentric_frame
 from sosmatch.tools.cli import main
 
 LAT, LON, HEIGHT = 47.0, 8.0, 400.0  # UTM zone 32N
@@ -19,12 +19,7 @@ LAT, LON, HEIGHT = 47.0, 8.0, 400.0  # UTM zone 32N
 
 def _ecef_copy(sparse, out):
     """The model moved from its local frame (x east, y north, z up) into ECEF at (LAT, LON, HEIGHT)."""
-    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
-    x0 = np.array(to_ecef.transform(LON, LAT, HEIGHT))
-    la, lo = math.radians(LAT), math.radians(LON)
-    ecef_from_enu = np.array([[-math.sin(lo), -math.sin(la) * math.cos(lo), math.cos(la) * math.cos(lo)],
-                              [math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la) * math.sin(lo)],
-                              [0.0, math.cos(la), math.sin(la)]])
+    x0, ecef_from_enu = topocentric_frame(LAT, LON, HEIGHT)
     rec = pycolmap.Reconstruction(str(sparse))
     rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(ecef_from_enu), x0))
     out.mkdir()

@@ -185,17 +185,13 @@ def test_a_path_that_does_not_follow_the_fixes_is_named_not_given_a_unit() -> No
 
 def _ecef(flight: Path) -> Poses:
     """The flight's true poses in Earth-centred coordinates (EPSG:4978), through its geotags' origin."""
-    from pyproj import Transformer
+    from sosmatch.plugin.geodesy import topocentric_frame
 
     poses, _ = read_poses_csv(flight / "poses.csv")
     config = json.loads((flight / "session.json").read_text())["config"]
     half = config["world_size_m"] / 2
-    lat, lon = (math.radians(v) for v in config["geotag_origin_latlon"])
-    origin = np.array(Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(
-        math.degrees(lon), math.degrees(lat), 0.0))
-    ecef_from_enu = np.array([[-math.sin(lon), -math.sin(lat) * math.cos(lon), math.cos(lat) * math.cos(lon)],
-                              [math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat) * math.sin(lon)],
-                              [0.0, math.cos(lat), math.sin(lat)]])
+    lat, lon = config["geotag_origin_latlon"]
+    origin, ecef_from_enu = topocentric_frame(lat, lon, 0.0)
     centers = origin + (poses.centers - [half, half, 0.0]) @ ecef_from_enu.T
     return Poses(poses.names, np.einsum("ij,njk->nik", ecef_from_enu, poses.rotations), centers)
 
