@@ -16,16 +16,16 @@ from typing import Any
 from ..plugin.errors import InputError
 
 
+def entry_names(folder: Path) -> list[str]:
+    """The relative paths of every file below `folder` (the layout of an entry a run publishes)."""
+    return [(Path(root) / name).relative_to(folder).as_posix() for root, _, names in os.walk(folder) for name in names]
+
+
 def entry_files(folder: Path) -> dict[str, str]:
     """relative path -> sha256 of every file below `folder` (what a run publishes there)."""
     from .outputs import sha256_file
 
-    files: dict[str, str] = {}
-    for root, _, names in os.walk(folder):
-        for name in names:
-            p = Path(root) / name
-            files[p.relative_to(folder).as_posix()] = sha256_file(p)
-    return files
+    return {rel: sha256_file(folder / rel) for rel in entry_names(folder)}
 
 
 # The files an older sosmatch (before entries were recorded) wrote in its directory entries: its COLMAP models in

@@ -47,6 +47,7 @@ from .output_entries import (
     check_entry_ours,
     check_not_in_output_entry,
     entry_files,
+    entry_names,
     merge_entry_records,
     recorded_entries,
 )
@@ -315,8 +316,9 @@ class OutputDir:
             elif layouts is not None and name in layouts:
                 check_entry_ours(dst, self.command, None, layouts[name])
 
-    def _replace_entry(self, src: Path, name: str) -> None:
-        """Move `src` onto OUT/NAME; an existing directory there (ours: this is our output) is swapped out.
+    def _replace_entry(self, src: Path, name: str, checked: bool = False) -> None:
+        """Move `src` onto OUT/NAME; an existing directory there (ours: this is our output) is swapped out
+        (`checked`: its files were found ours just before, as `publish` does for all its entries at once).
 
         An entry of the other kind (a directory where the command writes a file, or a file where it writes a
         directory) was not made by this command and is refused."""
@@ -329,7 +331,7 @@ class OutputDir:
                              "or choose another output directory)", dst)
         if is_dir:
             new = entry_files(src)
-            if exists:  # also checked before the run published anything; again here, for replace_dir's callers
+            if exists and not checked:  # `publish` checked every entry before replacing any; replace_dir did not
                 check_entry_ours(dst, self.command, self._entries.get(name), set(new))
             # recorded before the swap (old and new files both: a run killed in between leaves no file unlisted),
             # then only the new ones
@@ -370,7 +372,7 @@ class OutputDir:
         did not stage is not published, and its previous version, ours since OUT is, is removed: what stands
         beside the record always comes from the same run."""
         staging = self.path / STAGING
-        layouts = {name: set(entry_files(staging / name)) for name in names if (staging / name).is_dir()}
+        layouts = {name: set(entry_names(staging / name)) for name in names if (staging / name).is_dir()}
         try:  # every directory entry checked before any is replaced: a refusal changes nothing
             self._check_entries(layouts)
         except InputError:
@@ -384,7 +386,7 @@ class OutputDir:
             if name in optional and not (src.exists() or src.is_symlink()):
                 self._remove_entry(name)
                 continue
-            self._replace_entry(src, name)
+            self._replace_entry(src, name, checked=True)
 
     def _remove_entry(self, name: str) -> None:
         """Remove OUT/NAME, an entry of this command's output (a file; a directory of another kind is refused)."""
