@@ -103,8 +103,8 @@ def takeoff_altitudes(times: np.ndarray, offsets: np.ndarray, min_change: float 
     line through both (the nu20 sweep: a second home 15 m higher, read as a GPS drift of +16 m) put the second
     flight's cameras 15 m low, landmarks 6 m low (some twice, 17 m apart), with the map's verdict "ok". So the
     images are split into flights at breaks in the capture times (`FLIGHT_BREAK_S`), and a flight joins the one
-    before unless its take-off altitude differs from that flight's line, at its start, by more than
-    `MIN_TAKEOFF_STEP_M` and 3 standard errors. One flight: the one fit of the whole folder, as before."""
+    before unless its take-off altitude (at its start) differs from that flight's line at its last image by more
+    than `MIN_TAKEOFF_STEP_M` and 3 standard errors. One flight: the one fit of the whole folder, as before."""
     t = np.asarray(times, dtype=np.float64)
     v = np.asarray(offsets, dtype=np.float64)
     order = np.argsort(t, kind="stable")
@@ -120,8 +120,7 @@ def takeoff_altitudes(times: np.ndarray, offsets: np.ndarray, min_change: float 
                 before, after = fit_drift(t[prev], v[prev], min_change), fit_drift(t[fixed], v[fixed], min_change)
                 # each flight's line where it has images (not extended across the break: a drift that is noise,
                 # stretched over a 5 min pause, made a step of 5 m in one flight; review rev19)
-                jump = (_value_at(after, float(t[fixed].min()), float(t[fixed].min()))
-                        - _value_at(before, float(t[prev].min()), float(t[prev].max())))
+                jump = after.reference - _value_at(before, float(t[prev].min()), float(t[prev].max()))
                 noise = 3.0 * math.hypot(before.sigma / math.sqrt(len(prev)), after.sigma / math.sqrt(len(fixed)))
                 if abs(jump) > max(MIN_TAKEOFF_STEP_M, noise):
                     groups.append(seg)
