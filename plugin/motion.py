@@ -84,21 +84,15 @@ def _hanning_window(shape: tuple[int, int]) -> np.ndarray:
 
 def lk_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners: int = 400) -> np.ndarray:
     """Displacement vectors (N,2) in px (full resolution) of forward-backward-consistent LK corner tracks."""
-    start, end, _ = _lk_tracks(prev_gray, cur_gray, max_corners)
+    start, end, _ = _lk_tracks(*_working_pair(prev_gray, cur_gray, same_size=True), max_corners)
     return end - start
 
 
-def _lk_tracks(prev_gray: np.ndarray, cur_gray: np.ndarray,
+def _lk_tracks(prev: np.ndarray, cur: np.ndarray, scale: float,
                max_corners: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """(start, end) pixels (N,2 each, full resolution) of the tracks of `lk_displacements`, and the number of
-    corners it started from."""
-    return _lk_tracks_on(*_working_pair(prev_gray, cur_gray, same_size=True), max_corners)
-
-
-def _lk_tracks_on(prev: np.ndarray, cur: np.ndarray, scale: float,
-                  max_corners: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """`_lk_tracks` on a working pair already made by `_working_pair` (so a caller that needs it for several
-    estimators shrinks the full-size frames once)."""
+    """(start, end) pixels (N,2 each, full resolution) of the tracks of `lk_displacements` on a working pair made
+    by `_working_pair` (a caller that needs it for several estimators shrinks the full-size frames once), and the
+    number of corners it started from."""
     min_distance = max(5.0, min(prev.shape) / 40.0)  # spread corners over the image, not on one textured patch
     corners = cv2.goodFeaturesToTrack(prev, maxCorners=int(max_corners), qualityLevel=0.01,
                                       minDistance=min_distance, blockSize=7)
@@ -123,24 +117,17 @@ def homography_displacements(prev_gray: np.ndarray, cur_gray: np.ndarray, max_fe
                              ransac_px: float = 3.0) -> np.ndarray:
     """Displacement vectors (N,2) in px (full resolution) of cross-checked ORB matches that agree with one RANSAC
     homography (large-motion fallback for `lk_displacements`). Empty when fewer than `MIN_TRACKS` agree."""
-    start, end = _homography_tracks(prev_gray, cur_gray, max_features, ransac_px)
+    start, end = _homography_tracks(*_working_pair(prev_gray, cur_gray), max_features, ransac_px)
     return end - start
 
 
-def _homography_tracks(prev_gray: np.ndarray, cur_gray: np.ndarray, max_features: int = 1500,
+def _homography_tracks(prev: np.ndarray, cur: np.ndarray, scale: float, max_features: int = 1500,
                        ransac_px: float = 3.0, camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(start, end) pixels (N,2 each, full resolution) of the matches of `homography_displacements`. With a lens
-    (`camera` not a pinhole) the matches are undistorted first and the homography is fitted to (and the pixels
-    returned in) `camera.pinhole()`: a plane maps by a homography between pinhole images only, and on distorted
-    pixels the RANSAC threshold would cut the image's rim, where the lens bends the motion most."""
-    prev, cur, scale = _working_pair(prev_gray, cur_gray)
-    return _homography_tracks_on(prev, cur, scale, max_features, ransac_px, camera)
-
-
-def _homography_tracks_on(prev: np.ndarray, cur: np.ndarray, scale: float, max_features: int = 1500,
-                          ransac_px: float = 3.0,
-                          camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """`_homography_tracks` on a working pair already made by `_working_pair`."""
+    """(start, end) pixels (N,2 each, full resolution) of the matches of `homography_displacements` on a working
+    pair made by `_working_pair`. With a lens (`camera` not a pinhole) the matches are undistorted first and the
+    homography is fitted to (and the pixels returned in) `camera.pinhole()`: a plane maps by a homography between
+    pinhole images only, and on distorted pixels the RANSAC threshold would cut the image's rim, where the lens
+    bends the motion most."""
     none = (np.zeros((0, 2)), np.zeros((0, 2)))
     f0, f1 = orb_features(prev, max_features), orb_features(cur, max_features)
     if len(f0) < MIN_TRACKS or len(f1) < MIN_TRACKS:
@@ -175,11 +162,11 @@ def image_motion_stats(prev_gray: np.ndarray, cur_gray: np.ndarray, max_corners:
     # of once per estimator, and running phase correlation on the full-size frames as float64 cost most of `map`'s
     # time and memory at native resolution (4000x3000: 1.8 GB peak). Same size-check as LK alone had.
     prev, cur, scale = _working_pair(prev_gray, cur_gray, same_size=True)
-    start, end, n_corners = _lk_tracks_on(prev, cur, scale, max_corners)
+    start, end, n_corners = _lk_tracks(prev, cur, scale, max_corners)
     if camera is not None and not camera.is_pinhole and len(start):
         start, end = camera.undistort_points(start), camera.undistort_points(end)
     if len(start) < max(MIN_TRACKS, MIN_LK_FRACTION * n_corners):
-        start, end = _homography_tracks_on(prev, cur, scale, camera=camera)  # undistorted already
+        start, end = _homography_tracks(prev, cur, scale, camera=camera)  # undistorted already
     if len(start) >= MIN_TRACKS:
         mag = np.linalg.norm(end - start, axis=1)
         return float(mag.mean()), float(mag.std())
