@@ -40,13 +40,6 @@ class MapInputs:
     sources: dict[str, str] = field(default_factory=dict)
 
 
-def _one_camera(cams: dict, source: Path) -> Camera | None:
-    """The one camera of `cams` (`database.cameras.one_camera`: copies of one camera are one); InputError naming
-    `source` when they differ (images of two sizes, two drones: "no camera intrinsics: give --camera" sent a user
-    after a file lying right there)."""
-    return one_camera(cams, source)
-
-
 def _is_synth_session(path: Path) -> bool:
     return path.is_dir() and (path / "session.json").is_file() and (path / "poses.csv").is_file()
 
@@ -105,7 +98,7 @@ def load_inputs(
         sources["poses"] = str(pose_file)
         sources["session"] = str(poses)  # the folder given: an output inside it is inside an input
         cams = read_cameras_txt(poses / "cameras.txt")
-        cam_from_poses = _one_camera(cams, poses / "cameras.txt")
+        cam_from_poses = one_camera(cams, poses / "cameras.txt")
         if cam_from_poses is not None:
             sources["camera"] = str(poses / "cameras.txt")  # was recorded as the pose file
         if images is None:
@@ -113,14 +106,14 @@ def load_inputs(
     elif is_colmap_model(poses):
         pose_list, cams, _ = read_colmap_model_poses(poses)
         sources["poses"] = str(poses)
-        cam_from_poses = _one_camera(cams, poses) if camera is None else None
+        cam_from_poses = one_camera(cams, poses) if camera is None else None
     elif is_opensfm(poses):  # OpenDroneMap / OpenSfM: poses in the UTM grid of its reference_lla
         from ..poses import opensfm_poses
 
         pose_list, opensfm_cams, _, epsg, _ = opensfm_poses(poses, images)
         sources["poses"] = str(poses)
         # as a COLMAP model's: two cameras said "no camera intrinsics: give --camera", not that there were two
-        cam_from_poses = _one_camera(opensfm_cams, poses) if camera is None else None
+        cam_from_poses = one_camera(opensfm_cams, poses) if camera is None else None
     else:
         if ekf:
             raise InputError("--ekf needs a synth session directory as --poses", poses)
@@ -128,7 +121,7 @@ def load_inputs(
         sources["poses"] = str(poses)
         beside = poses.parent / "cameras.txt"  # where `sosmatch poses-from-exif` puts the intrinsics
         if camera is None and beside.is_file():
-            cam_from_poses = _one_camera(read_cameras_txt(beside), beside)
+            cam_from_poses = one_camera(read_cameras_txt(beside), beside)
             sources["camera"] = str(beside)
     if not epsg and looks_like_ecef(pose_list.centers, pose_list.rotations):
         # COLMAP's model_aligner with GPS references writes Earth-centred coordinates: metres, but z is not up,
