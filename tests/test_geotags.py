@@ -236,6 +236,25 @@ def test_images_without_attitude_tags_get_orientations_from_the_images_not_the_c
     assert "orientations of the 24 images without attitude tags solved from tie points" in inputs.sources["poses"]
 
 
+def test_a_single_straight_line_without_attitude_tags_keeps_its_cameras_looking_down(tmp_path):
+    """One straight line of GPS fixes leaves the block's roll about the line free: position priors cannot tell a
+    camera looking down from one looking sideways with the whole block turned about the line. The COLMAP
+    adjustment came back rolled by 89.5 deg and the refinement was refused (a corridor survey could not be mapped
+    from its EXIF); the prior attitudes (level, nadir) now set that one rotation."""
+    out = tmp_path / "S"
+    assert main(["synth", "--out", str(out), "--frames", "30", "--width", "320", "--height", "240",
+                 "--line-length", "300", "--geotags", "exif", "--world-size", "400", "--world-seed", "5", "-q"]) == 0
+    lines = np.array(json.loads((out / "session.json").read_text())["geo"]["flight_lines"])
+    assert len(set(lines[lines >= 0].tolist())) == 1  # one line, no turn
+
+    from sosmatch.workflows.poses_from_exif import map_inputs_from_images
+
+    inputs = map_inputs_from_images(out / "images")
+    truth, _ = read_poses_csv(out / "poses.csv")
+    solved = rotation_angle_deg(inputs.poses.rotations, truth.rotations)
+    assert solved.max() < 5.0, solved
+
+
 def _turned_copy(src, dst) -> None:
     """The images of `src` with their pixels turned by 90 degrees clockwise (a camera mounted sideways, a portrait
     export) and their EXIF kept as written (GPS, no attitude tags)."""

@@ -380,3 +380,23 @@ def test_tie_points_the_starting_poses_cannot_triangulate_still_judge_them():
                                observations_by_image=(0,) * 36)
     assert judge_refinement(bare, 5.0, 5.0) == ([], ["no tie points between the images: the poses are the priors, "
                                                      "unrefined"])
+
+
+@pytest.mark.parametrize("line_spacing_m, roll_deg", [(0.0, 80.0), (0.0, -30.0), (60.0, 10.0)])
+def test_the_roll_position_priors_leave_free_is_set_by_the_attitudes(line_spacing_m, roll_deg):
+    """A block turned about the axis of its track: on one straight line (no spread across the axis) the prior
+    attitudes set the whole turn back; on two lines 60 m apart the positions pin it and nothing is turned."""
+    from scipy.spatial.transform import Rotation
+
+    from sosmatch.workflows.pose_refinement.with_colmap import free_roll_correction
+
+    rng = np.random.default_rng(2)
+    centers = np.array([[5.0 * k, line_spacing_m * (k % 2), 100.0] for k in range(30)]) + rng.normal(0, 0.3, (30, 3))
+    priors = rotvec_to_matrix(rng.normal(0, np.radians(2.0), (30, 3))) @ np.diag([1.0, -1.0, -1.0])
+    turn = Rotation.from_rotvec(np.radians(roll_deg) * np.array([1.0, 0.0, 0.0])).as_matrix()
+    axis, _, phi = free_roll_correction(centers, priors, turn @ priors, position_sigma_m=3.0, attitude_sigma_deg=5.0)
+    if line_spacing_m == 0.0:
+        assert abs(abs(axis[0]) - 1.0) < 1e-3
+        assert np.degrees(phi * np.sign(axis[0])) == pytest.approx(-roll_deg, abs=1.0)
+    else:
+        assert abs(np.degrees(phi)) < 0.15 * abs(roll_deg)

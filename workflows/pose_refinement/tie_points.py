@@ -273,7 +273,8 @@ def refine_poses_from_images(
         sigma = float(np.max(np.atleast_1d(position_sigma_m)))
         # its outlier cut (4 px at 2 px sigma) is in full-size pixels too (review rev19: unscaled, it dropped
         # good observations at 1.2 sigma on 4000 px frames)
-        stats = refine_poses_with_colmap(rec, poses, sigma, pixel_sigma_px, outlier_px=2.0 * pixel_sigma_px)
+        stats = refine_poses_with_colmap(rec, poses, sigma, pixel_sigma_px, outlier_px=2.0 * pixel_sigma_px,
+                                         attitude_sigma_deg=attitude_sigma_deg)
     else:
         stats = refine_poses_with_priors(rec, poses, position_sigma_m, attitude_sigma_deg, pixel_sigma_px)
     refined = poses_of_reconstruction(rec)

@@ -4,11 +4,14 @@ seconds), its outlier pruning, and the poses of a refined reconstruction."""
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ...plugin.geometry import Poses
+from ...plugin.georegistration import NADIR_ASSUMPTION_SIGMA_DEG
 from ..triangulation import fixed_camera_ba_options
 from .judge import RefinementStats, pose_changes
 from .with_priors import registered_image_ids
@@ -23,6 +26,7 @@ def refine_poses_with_colmap(
     pixel_sigma_px: float = 2.0,
     outlier_px: float = 4.0,
     rounds: int = 2,
+    attitude_sigma_deg: float = 5.0,
 ) -> RefinementStats:
     """Refine poses and points of `reconstruction` (changed in place; intrinsics fixed) with COLMAP's pose-prior
     bundle adjustment (`pycolmap.create_pose_prior_bundle_adjuster`, Ceres): reprojection residuals with a Cauchy
@@ -31,8 +35,11 @@ def refine_poses_with_colmap(
     scale of the block), so the result stays in the GPS frame; the attitude is free and follows from the tie points.
     After the first solve, observations with a reprojection error above `outlier_px` are removed (the wrong tie
     points a prior-pose triangulation cannot tell from the right ones) and the problem is solved again, `rounds`
-    times in all. Fast: Seneca (167 images, ~9000 points) takes ~15 s where `refine_poses_with_priors` takes
-    ~12 min; use that one when attitude priors matter (few images, weak geometry).
+    times in all. Position priors leave the roll of the block about the axis of its track free when the track is
+    (nearly) one straight line: that one rotation is set from the prior attitudes (`level_free_roll`), weighted
+    against what the positions say of it (`attitude_sigma_deg`). Fast: Seneca (167 images, ~9000 points) takes
+    ~15 s where `refine_poses_with_priors` takes ~12 min; use that one when attitude priors matter (few images,
+    weak geometry).
     """
     import pycolmap
 
@@ -74,6 +81,7 @@ def refine_poses_with_colmap(
     finally:  # a failed solve must not leave the caller's log level changed nor its model shifted
         pycolmap.logging.minloglevel = log_level
         rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(np.eye(3)), origin))
+    level_free_roll(rec, prior_poses, position_sigma_m, attitude_sigma_deg)
     rec.update_point_3d_errors()
     err1 = observation_errors(rec)
     after = poses_of_reconstruction(rec)
@@ -91,6 +99,68 @@ def refine_poses_with_colmap(
              stats.reprojection_median_before_px, stats.reprojection_median_after_px,
              stats.position_change_mean_m, stats.rotation_change_mean_deg)
     return stats
+
+
+def free_roll_correction(prior_centers: np.ndarray, prior_rotations: np.ndarray, rotations: np.ndarray,
+                         position_sigma_m: float, attitude_sigma_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(axis, point on it, angle in radians) of the rotation about the main axis of the prior camera centres that
+    brings the adjusted block's orientations (`rotations`, world_from_camera) towards the prior ones.
+
+    Position priors constrain a rotation of the block by phi about an axis through their centroid only through the
+    centres' distances d_i from that axis (information sum d_i^2 / sigma_pos^2): about the main axis of a single
+    straight line, nothing, so the bundle adjustment may leave the block rolled by any angle (a straight synthetic
+    line came back turned 89.5 deg, every camera looking sideways, at 0.42 px). The prior attitudes say how the
+    block should be rolled (phi_att, the least-squares rotation about the axis, from the chordal mean) with
+    information 1 / (sigma_att^2 / n + sigma_systematic^2); the adjusted block is at the positions' optimum
+    (phi = 0), so the combined estimate is phi_att weighted by the attitudes' share of the information. A block
+    spread across its axis
+    (a lawnmower flight: d_i of tens of metres) gets ~0; a straight line gets phi_att."""
+    c = prior_centers.mean(axis=0)
+    offsets = prior_centers - c
+    axis = np.linalg.svd(offsets, full_matrices=False)[2][0]
+    d2 = np.sum(offsets**2, axis=1) - (offsets @ axis) ** 2
+    info_positions = float(np.sum(d2)) / float(position_sigma_m) ** 2
+    # the attitudes' errors are partly shared by every image (the level-nadir assumption without tags, a gimbal's
+    # or airframe's mounting with them), and averaging does not remove that part
+    block_sigma_deg = math.hypot(float(attitude_sigma_deg) / math.sqrt(len(rotations)), NADIR_ASSUMPTION_SIGMA_DEG)
+    info_attitudes = 1.0 / math.radians(block_sigma_deg) ** 2
+    m = np.einsum("nij,nkj->ik", rotations, prior_rotations)  # sum of R_adjusted R_prior^T
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    # tr(Q M) for Q the rotation by phi about the axis: cos(phi) (tr M - a^T M a) + sin(phi) tr([a]x M) + a^T M a
+    phi_att = math.atan2(float(np.trace(cross @ m)), float(np.trace(m) - axis @ m @ axis))
+    return axis, c, phi_att * info_attitudes / (info_attitudes + info_positions)
+
+
+def level_free_roll(rec: object, prior_poses: Poses, position_sigma_m: float, attitude_sigma_deg: float) -> float:
+    """Turn the whole reconstruction `rec` (in place: cameras and points, so every reprojection stays) about the
+    main axis of the prior centres by `free_roll_correction`; returns the angle in degrees."""
+    import pycolmap
+
+    refined = poses_of_reconstruction(rec)
+    prior_index = {name: k for k, name in enumerate(prior_poses.names)}
+    held = {im.name for im in rec.images.values() if im.has_pose and im.num_points3D > 0}
+    both = [k for k, name in enumerate(refined.names) if name in prior_index and name in held]
+    if len(both) < 2:
+        return 0.0
+    prior = prior_poses.subset([prior_index[refined.names[k]] for k in both])
+    axis, point, phi = free_roll_correction(prior.centers, prior.rotations, refined.rotations[both],
+                                            position_sigma_m, attitude_sigma_deg)
+    if abs(phi) < 1e-9:
+        return 0.0
+    turn = Rotation.from_rotvec(phi * axis).as_matrix()
+    # images without a tie point are not part of the block the adjustment solved: they keep their priors
+    apart = {}
+    for im in rec.images.values():
+        if im.has_pose and im.num_points3D == 0:
+            pose = rec.frames[im.frame_id].rig_from_world
+            apart[im.frame_id] = (np.array(pose.rotation.matrix()), np.array(pose.translation))
+    rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(turn), point - turn @ point))
+    for frame_id, (r_cw, t_cw) in apart.items():
+        rec.frames[frame_id].rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(r_cw), t_cw)
+    if abs(math.degrees(phi)) > 1.0:
+        log.info("the camera positions leave the block's roll about its track free (a straight line): rolled by "
+                 "%.1f deg to the prior attitudes", math.degrees(phi))
+    return math.degrees(phi)
 
 
 def point_errors(rec: object, point: object) -> list[tuple[int, int, float]]:
