@@ -232,3 +232,43 @@ def test_a_pair_far_beyond_the_gate_is_named_though_the_median_is_fine(flight):
     verdict = judge_poses(bad, Params().pose_check, poses.names)
     a, b = poses.names[result.pairs[3].a], poses.names[result.pairs[3].b]
     assert verdict.refusals == [] and any(f"{a} / {b}" in w and "checked pairs miss" in w for w in verdict.warnings)
+
+
+def test_a_hover_is_not_read_as_a_pass_flown_backwards(flight, tmp_path):
+    """Eight images taken at one spot (a hover, poses within their own noise: 0.2 m, 0.1 deg) inside a flight: their
+    pairs have no baseline, every essential matrix fits their matches and the sign of their depths is noise. They
+    were read as reversed pairs (the nu22 sweep: a whole map refused as "a heading 180 deg off"); they now judge no
+    direction, and the flight's pairs still do (the yaw fault below is found with the hover in)."""
+    import shutil
+
+    from sosmatch.plugin.geometry import rotvec_to_matrix
+
+    images, poses, camera = _inputs(flight)
+    h, rng = 20, np.random.default_rng(0)
+    hover = [tmp_path / f"hover_{k}.jpg" for k in range(8)]
+    for dst in hover:
+        shutil.copy(images[h], dst)
+    rots = rotvec_to_matrix(rng.normal(0, np.radians(0.1), (8, 3))) @ poses.rotations[h]
+    centers = poses.centers[h] + rng.normal(0, 0.2, (8, 3))
+    with_hover = Poses(poses.names[:h + 1] + [p.name for p in hover] + poses.names[h + 1:],
+                       np.concatenate([poses.rotations[:h + 1], rots, poses.rotations[h + 1:]]),
+                       np.concatenate([poses.centers[:h + 1], centers, poses.centers[h + 1:]]))
+    paths = images[:h + 1] + hover + images[h + 1:]
+    result, verdict = pose_check.check(paths, with_hover, camera, Params())
+    assert verdict.refusals == [] and result.reversed_pairs == 0, result.line()
+    blind = [p for p in result.pairs if not p.sees_direction]
+    assert blind and all(min(p.a, p.b) >= h and max(p.a, p.b) <= h + 8 for p in blind)  # only the hover's pairs
+    _, verdict = pose_check.check(paths, _yaw_fault(with_hover, 1), camera, Params())
+    assert any("the images move the other way" in r for r in verdict.refusals), verdict.refusals
+
+
+def test_the_flying_height_of_a_dense_flight_comes_from_pairs_with_parallax(tmp_path):
+    """Images 0.5 m apart at 100 m, 320 px wide: a consecutive pair's parallax is about one pixel of noise and its
+    depths, kept where positive, read 81 m (the nu22 sweep). Pairs with parallax tell the height."""
+    out = tmp_path / "dense"
+    assert main(["synth", "--out", str(out), "--frames", "60", "--spacing", "0.5", "--width", "320", "--height",
+                 "240", "--world-size", "400", "--line-length", "100", "-q"]) == 0
+    images, poses, camera = _inputs(out)
+    result, verdict = pose_check.check(images, poses, camera, Params())
+    assert abs(result.flying_height_m - 100.0) < 5.0, result.flying_height_m
+    assert verdict.refusals == []

@@ -16,7 +16,14 @@ from ..params import PoseCheckParams
 from .gps import GpsComparison
 from .matches import PairMatches, match_pair
 from .systematic import SystematicErrors, fit_systematic_errors, pair_sampson_px
-from .two_view import relative_poses, triangulation_depths
+from .two_view import ray_angles, relative_poses, triangulation_depths
+
+# A pair tells the direction of motion (the sign of its depths) and the flying height only when its parallax is
+# several times the matches' pixel noise: at 5 noises a match's depth has the wrong sign with odds of ~3e-7, and the
+# median depth is that of the median parallax (depth falls monotonically with parallax). Below it the depths are
+# noise: a hover's images (baselines of the poses' own noise, 0.2 m) were read as a pass flown backwards and a
+# flight of 0.5 m steps measured 81 m of flying height for 100 m.
+MIN_PARALLAX_NOISES = 5.0
 
 
 @dataclass(frozen=True)
@@ -34,14 +41,20 @@ class PairCheck:
     epipolar_fit_px: float  # the same after the systematic errors were taken off the poses
     in_front: float  # share of inliers the poses triangulate in front of both cameras
     depth_m: float  # median depth of the inliers in camera a (the poses' triangulation): the flying height
+    # the smaller of the matches' median parallax (the rotation taken off) and the parallax the poses' baseline
+    # gives at the flying height, px
+    parallax_px: float = float("nan")
+    sees_direction: bool = True  # parallax_px >= MIN_PARALLAX_NOISES pixel noises: its depths' signs mean something
 
     def reversed(self, gate_px: float) -> bool:
-        """The matches fit the poses' epipolar geometry but lie behind the cameras: the motion is reversed."""
-        return self.in_front < 0.5 and self.epipolar_px <= gate_px
+        """The matches fit the poses' epipolar geometry but lie behind the cameras: the motion is reversed. Judged
+        only on a pair whose parallax tells the direction (`sees_direction`): without a baseline every essential
+        matrix fits the matches and the depths' signs are noise."""
+        return self.sees_direction and self.in_front < 0.5 and self.epipolar_px <= gate_px
 
     def to_list(self) -> list:
         return [self.a, self.b, self.kind, self.inliers, round(self.epipolar_px, 3), round(self.epipolar_fit_px, 3),
-                round(self.in_front, 3)]
+                round(self.in_front, 3), round(self.parallax_px, 2) if np.isfinite(self.parallax_px) else None]
 
 
 
@@ -114,7 +127,8 @@ class PoseCheck:
             "systematic_condition_index": num(s.condition_index),
             "systematic_f": num(s.explained_f), "systematic_p": num(s.explained_p),
             "systematic_share": num(s.explained_share),
-            "pairs_columns": ["a", "b", "kind", "inliers", "epipolar_px", "epipolar_fit_px", "in_front"],
+            "pairs_columns": ["a", "b", "kind", "inliers", "epipolar_px", "epipolar_fit_px", "in_front",
+                              "parallax_px"],
             "pairs": [p.to_list() for p in self.pairs],
             "gps": self.gps.to_dict() if self.gps is not None else None,
         }
@@ -237,24 +251,29 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
     rot, t = relative_poses(poses.rotations, poses.centers, np.array([p.a for p in matched]),
                             np.array([p.b for p in matched]))
     raw = np.split(pair_sampson_px(poses, matched, focal), np.cumsum([p.inliers for p in matched])[:-1])
-    depth, front = [], []
+    depth, front, measured = [], [], []
     for p, r_p, t_p in zip(matched, rot, t):
         d_a, d_b = triangulation_depths(p.x_a, p.x_b, r_p, t_p)
         ok = (d_a > 0) & (d_b > 0)
         front.append(float(np.mean(ok)))
         depth.append(float(np.median(d_a[ok])) if ok.any() else float("nan"))
+        measured.append(float(np.median(ray_angles(p.x_a, p.x_b, r_p))) * focal)
     depth_a = np.array(depth)
-    nexts = [d for d, kind in zip(depth_a, kinds) if kind == "next" and np.isfinite(d)]
-    flying = float(np.median(nexts if nexts else depth_a[np.isfinite(depth_a)])) if np.isfinite(depth_a).any() \
-        else float("nan")
+    flying = flying_height(depth_a, np.array(measured), [k == "next" for k in kinds], MIN_PARALLAX_NOISES * noise_px)
+    # the parallax the poses claim: a hover's pairs match with the parallax of the poses' attitude noise, which the
+    # rotation-compensated rays cannot tell from a baseline
+    baselines = np.array([np.linalg.norm(poses.centers[p.b] - poses.centers[p.a]) for p in matched])
+    claimed = focal * baselines / flying if np.isfinite(flying) and flying > 0 else np.full(len(matched), np.inf)
+    parallax = np.minimum(np.array(measured), claimed)
     systematic = fit_systematic_errors(poses, matched, focal, flying, noise_px)
     fitted = systematic.corrected(poses, flying)
     after = np.split(pair_sampson_px(fitted, matched, focal), np.cumsum([p.inliers for p in matched])[:-1])
     with warnings.catch_warnings():  # a pair without a baseline in the poses has only NaN distances: NaN, said
         warnings.simplefilter("ignore", RuntimeWarning)  # by the verdict, not by numpy's "All-NaN slice" on stderr
         checks = [PairCheck(p.a, p.b, kind, p.matches, p.inliers, p.flow_px, float(np.nanmedian(r)),
-                            float(np.nanpercentile(r, 90)), float(np.nanmedian(f)), fr, d)
-                  for p, kind, r, f, fr, d in zip(matched, kinds, raw, after, front, depth)]
+                            float(np.nanpercentile(r, 90)), float(np.nanmedian(f)), fr, d, float(par),
+                            bool(par >= MIN_PARALLAX_NOISES * noise_px))
+                  for p, kind, r, f, fr, d, par in zip(matched, kinds, raw, after, front, depth, parallax)]
         med = np.array([c.epipolar_px for c in checks])
         fit_med = np.array([c.epipolar_fit_px for c in checks])
         p50, p90, fit_p50 = (float(np.nanmedian(med)), float(np.nanpercentile(med, 90)),
@@ -268,6 +287,19 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index,
         systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
         min_gps_agreement=params.min_gps_agreement)
+
+
+def flying_height(depths_m: np.ndarray, parallax_px: np.ndarray, consecutive: list[bool], min_parallax_px: float
+                  ) -> float:
+    """The flying height: the median of the pairs' median depths, over the pairs whose parallax is at least
+    `min_parallax_px` (their depths are unbiased); without such a pair, over the consecutive pairs (else all), as
+    well as they can tell. NaN when no pair triangulated."""
+    finite = np.isfinite(depths_m)
+    if not finite.any():
+        return float("nan")
+    seen = finite & (np.asarray(parallax_px) >= min_parallax_px)
+    nexts = finite & np.asarray(consecutive, dtype=bool)
+    return float(np.median(depths_m[seen if seen.any() else nexts if nexts.any() else finite]))
 
 
 def _working_scale(camera: Camera, params: PoseCheckParams) -> float:

@@ -54,3 +54,12 @@ def triangulation_depths(x_a: np.ndarray, x_b: np.ndarray, rot: np.ndarray, t: n
         l_a = np.where(det > 0, (-ta * bb + ab * tb) / det, np.nan)
         l_b = np.where(det > 0, (aa * tb - ab * ta) / det, np.nan)
     return l_a, l_b
+
+
+def ray_angles(x_a: np.ndarray, x_b: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """Angles (M,) in radians between each match's two rays in camera b's frame (x_b = R x_a + t; normalised
+    coordinates): the parallax the camera rotation does not explain. Times the focal length it is in pixels."""
+    d_a = np.concatenate([x_a, np.ones((len(x_a), 1))], axis=1) @ np.asarray(rot).T
+    d_b = np.concatenate([x_b, np.ones((len(x_b), 1))], axis=1)
+    cross = np.linalg.norm(np.cross(d_a, d_b), axis=1)
+    return np.arctan2(cross, np.einsum("mi,mi->m", d_a, d_b))
