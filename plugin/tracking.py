@@ -55,7 +55,7 @@ over theta_t = 1); 5 adds little and lowers purity. For other cameras scale thet
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -176,11 +176,13 @@ def behind_camera(
     return np.isfinite(along) & (along < -slack_px)
 
 
-def _desc_index(feat: MaskFeatures) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(unit-norm descriptors sorted by owner mask, start offset per mask, count per mask)."""
+def _desc_index(feat: MaskFeatures, descriptors: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(unit-norm descriptors sorted by owner mask, start offset per mask, count per mask). `descriptors`: the
+    features' SIFT descriptors when they are not held in `feat` (read from the keyframe cache)."""
     k = len(feat)
     owner = np.asarray(feat.sift_mask, np.int64).reshape(-1)
-    desc = np.asarray(feat.sift_desc, np.float32).reshape(-1, 128)
+    desc = np.asarray(feat.sift_desc if descriptors is None else descriptors, np.float32).reshape(-1, 128)
     ok = (owner >= 0) & (owner < k)
     owner, desc = owner[ok], desc[ok]
     order = np.argsort(owner, kind="stable")
@@ -364,6 +366,7 @@ def track_masks(
     keyframe_poses: Poses,
     motion_stats: Sequence[tuple[float, float]],
     params: TrackingParams,
+    descriptors: Callable[[int], np.ndarray] | None = None,
 ) -> TrackingResult:
     """Track the masks of a keyframe sequence (the method spec 1.5).
 
@@ -375,6 +378,9 @@ def track_masks(
             `sosmatch.plugin.motion.image_motion_stats`; NaN where the motion is unknown: no motion gate
             for gaps spanning that step.
         params: tracking parameters.
+        descriptors: descriptors(t) gives keyframe t's SIFT descriptors when `features` do not hold them (a
+            flight's would not fit in memory: ~1 MB per keyframe); it is called for the keyframes of the last
+            `max_track_age_keyframes` only, and only those are kept.
 
     Returns:
         TrackingResult with a track id for every mask.
@@ -414,12 +420,12 @@ def track_masks(
             # third observation confirmed (a wrong two-view link puts its point anywhere along the epipolar line)
             band = local_ground(points[n_obs[cand] >= _GROUND_MIN_OBSERVATIONS, 2], params.ground_band_sigmas)
         if len(cand):
-            desc_cache[t] = _desc_index(feat_t)
+            desc_cache[t] = _desc_index(feat_t, None if descriptors is None else descriptors(t))
             q = np.zeros((len(cand), m))
             for s in np.unique(last_kf[cand]):
                 rows = np.flatnonzero(last_kf[cand] == s)
                 if s not in desc_cache:
-                    desc_cache[s] = _desc_index(features[s])
+                    desc_cache[s] = _desc_index(features[s], None if descriptors is None else descriptors(int(s)))
                 mu, sigma = gap_motion(motion_stats, int(s), t, params.centroid_sigma_px)
                 q[rows] = pair_scores(
                     features[s], last_mask[cand[rows]], feat_t, camera, keyframe_poses, int(s), t, mu, sigma,

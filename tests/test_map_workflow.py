@@ -382,6 +382,34 @@ def test_two_workers_describe_keyframes_identically(session, tmp_path):
         assert np.array_equal(a.centroids, b.centroids) and np.array_equal(a.sift_desc, b.sift_desc)
 
 
+def test_tracking_reads_descriptors_from_the_cache_and_the_map_holds_none(session, tmp_path):
+    """A flight's SIFT descriptors are ~95 % of its keyframes' descriptions (~1 MB a keyframe at 320 px: 1.7 GB held
+    for 1500 keyframes, the nu22 sweep). The map keeps them in the keyframe cache and tracking reads the few
+    keyframes it compares; the tracks are those of descriptors held in memory."""
+    from sosmatch.plugin.tracking import track_masks
+
+    root = session[0]
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    keyframes = np.arange(6)
+    held, motion, _ = map_workflow.describe_keyframes(inputs, keyframes, Params(), tmp_path / "c", "key",
+                                                      progress=False)
+    light, motion2, cached = map_workflow.describe_keyframes(inputs, keyframes, Params(), tmp_path / "c", "key",
+                                                             progress=False, hold_descriptors=False)
+    assert cached == 6 and motion2 == motion
+    assert all(f.sift_desc.shape == (0, 128) for f in light) and sum(len(f.sift_desc) for f in held) > 100
+    read = []
+
+    def descriptors(k: int) -> np.ndarray:
+        read.append(k)
+        return map_workflow.cached_descriptors(tmp_path / "c", inputs.poses.subset(keyframes).names)(k)
+
+    kf_poses = inputs.poses.subset(keyframes)
+    a = track_masks(held, inputs.camera, kf_poses, motion, Params().tracking)
+    b = track_masks(light, inputs.camera, kf_poses, motion2, Params().tracking, descriptors)
+    assert all(np.array_equal(x, y) for x, y in zip(a.track_ids, b.track_ids)) and a.num_tracks == b.num_tracks
+    assert sorted(set(read)) == list(range(6))
+
+
 def test_run_killed_while_publishing_resumes(session, tmp_path):
     root, _, out_ref, _ = session
     inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")

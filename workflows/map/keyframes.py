@@ -49,6 +49,19 @@ def _save_cached(path: Path, key: str, feats: Any, motion: tuple[float, float]) 
             np.savez(f, cache_key=np.array(key), motion=np.array(motion, dtype=np.float64), **arrays)
 
 
+_NO_DESCRIPTORS = np.zeros((0, 128), np.float32)
+
+
+def cached_descriptors(cache_dir: Path, names: Sequence[str]) -> Callable[[int], np.ndarray]:
+    """descriptors(k): the SIFT descriptors of keyframe k (image `names[k]`) from the cache entry that
+    `describe_keyframes` validated or wrote (only that array of the entry is read)."""
+    def descriptors(k: int) -> np.ndarray:
+        with np.load(_cache_path(cache_dir, k, names[k]), allow_pickle=False) as data:
+            return np.asarray(data["feat_sift_desc"], np.float32)
+
+    return descriptors
+
+
 _WORKER_BACKEND: dict[str, Any] = {}  # per process: the segmentation backend, built once
 
 
@@ -110,6 +123,7 @@ def describe_keyframes(
     masks_for: Callable[[str, np.ndarray], Any] | None = None,
     digests: Sequence[str] | None = None,
     white: int | None = None,
+    hold_descriptors: bool = True,
 ) -> tuple[list[Any], list[tuple[float, float]], int]:
     """Segmentation + mask description + motion statistics per keyframe, resumed from the cache.
 
@@ -123,7 +137,12 @@ def describe_keyframes(
     (`inputs.image_digests`); with them, an entry is valid exactly while its image and the previous keyframe's
     are unchanged, so a run that failed on one bad image resumes every other keyframe once it is fixed.
     `white`: the flight's white level (`database.images.flight_white_level`; None: found here).
+    `hold_descriptors` False: the features come without their SIFT descriptors (shape (0, 128)), which stay in the
+    cache (`cached_descriptors` reads them): they are ~95 % of a keyframe's description (~1 MB at 320 px), and a
+    1500-keyframe flight held 1.7 GB of them where tracking needs only the last few keyframes' at a time.
     """
+    from dataclasses import replace
+
     from tqdm import tqdm
 
     from ...database.images import flight_white_level
@@ -145,7 +164,7 @@ def describe_keyframes(
         entry = _cache_path(cache_dir, k, name)
         hit = _load_cached(entry, key) if entry.exists() else None
         if hit is not None:
-            results[k] = hit
+            results[k] = hit if hold_descriptors else (replace(hit[0], sift_desc=_NO_DESCRIPTORS), hit[1])
         else:
             prev_path = inputs.image_paths[keyframes[k - 1]] if k else None
             todo.append((k, inputs.image_paths[idx], prev_path, entry, key))
@@ -158,7 +177,7 @@ def describe_keyframes(
             feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
                                                   prev_gray if prev_k == k - 1 else None, masks_for, inputs.camera,
                                                   white)
-            results[k] = (feats, mu_sigma)
+            results[k] = (feats if hold_descriptors else replace(feats, sift_desc=_NO_DESCRIPTORS), mu_sigma)
             prev_gray, prev_k = gray, k
             bar.update()
             if on_keyframe is not None:
@@ -174,7 +193,8 @@ def describe_keyframes(
             try:
                 for k, fut in futures:
                     feats, mu_sigma, _ = fut.result()
-                    results[k] = (feats, mu_sigma)
+                    results[k] = (feats if hold_descriptors else replace(feats, sift_desc=_NO_DESCRIPTORS),
+                                  mu_sigma)
                     bar.update()
                     if on_keyframe is not None:
                         on_keyframe(k)

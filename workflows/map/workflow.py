@@ -37,7 +37,7 @@ from .inputs import (
     require_keyframes,
     sources_from_session,
 )
-from .keyframes import CACHE_VERSION, describe_keyframes
+from .keyframes import CACHE_VERSION, cached_descriptors, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
 
@@ -248,7 +248,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     keyframes = select_keyframes(inputs.poses.centers, params.keyframes.interval_m)
     kf_poses = inputs.poses.subset(keyframes)
     features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
-                                                  progress, on_keyframe, workers, masks_for, digests, white)
+                                                  progress, on_keyframe, workers, masks_for, digests, white,
+                                                  hold_descriptors=False)
+    descriptors = cached_descriptors(partial / "cache", kf_poses.names)
     timings["keyframes"] = time.perf_counter() - t
 
     from tqdm import tqdm
@@ -259,7 +261,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     # the equivalent pinhole camera; the database and the model keep the real camera and the real keypoints.
     gate_camera = camera.pinhole()
     gate_features = [undistort_features(f, camera) for f in features]
-    tracking = track_masks(gate_features, gate_camera, kf_poses, motion, params.tracking)
+    tracking = track_masks(gate_features, gate_camera, kf_poses, motion, params.tracking, descriptors)
     views = flight_views(kf_poses, motion, camera)
     flown = for_flight(params, views)
     if flown is not params:
