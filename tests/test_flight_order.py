@@ -38,3 +38,30 @@ def test_capture_times_decide_when_every_frame_has_one():
     with_missing = np.arange(len(c), dtype=float)
     with_missing[3] = np.nan  # one frame without a time: the path rule decides (in order here)
     assert flight_order(c, with_missing)[1] == "given"
+
+
+def test_a_flight_that_revisits_its_ground_stays_as_given():
+    """New-user sweep 22: a lawnmower flown again backwards over the same lines (out-and-back corridor, second
+    battery), exactly or 1.5 m aside, and a crosshatch (the grid again at right angles). Every frame has a twin
+    0-1.5 m away, so the nearest-frame distance says nothing of the spacing; before, the listed order (7 m steps)
+    was judged scrambled against it and chained through the centres, interleaving the passes: refused ("a heading
+    180 deg off"), or half the frames lost as keyframes."""
+    c = _lawnmower()
+    for again in (c[::-1], c[::-1] + [1.5, 1.0, 0.0]):
+        revisit = np.concatenate([c, again])
+        order, how = flight_order(revisit)
+        assert how == "given" and order.tolist() == list(range(len(revisit)))
+    crosshatch = np.concatenate([c, c[:, [1, 0, 2]]])
+    assert flight_order(crosshatch)[1] == "given"
+
+
+def test_shuffled_revisits_and_small_flights_are_judged_against_a_random_order():
+    """A shuffled list of a revisiting flight still steps across the site (as a random order of its centres does)
+    and is chained; a short line in order (too few frames to tell its steps from a random order's) stays."""
+    c = _lawnmower()
+    revisit = np.concatenate([c, c[::-1] + [1.5, 1.0, 0.0]])
+    perm = np.random.default_rng(1).permutation(len(revisit))
+    assert flight_order(revisit[perm])[1] == "path"
+    for n in (3, 4, 5, 8):
+        line = np.column_stack([np.arange(n) * 7.0, np.zeros(n), np.full(n, 100.0)])
+        assert flight_order(line)[1] == "given", n
