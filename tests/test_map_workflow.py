@@ -618,3 +618,22 @@ def test_pose_names_spelt_otherwise_pair_with_their_images(session, tmp_path):
     (tmp_path / "poses.csv").write_text(text)
     inputs = map_workflow.load_inputs(images, tmp_path / "poses.csv", root / "cameras.txt", strict=True)
     assert sorted(p.name for p in inputs.image_paths) == sorted(renamed.get(n, n) for n in names)
+
+
+def test_a_map_logged_to_a_file_says_how_far_its_keyframes_are(tmp_path, capsys, caplog, monkeypatch):
+    """New-user sweep 22: with stderr not a terminal (`> log 2>&1`, nohup) the map command turned progress off,
+    and a 1500-frame map printed two INFO lines and nothing during its 5.6-minute keyframe stage. Off a terminal
+    the stages now log where they are every 30 s (the clock here: 31 s per reading)."""
+    from sosmatch.workflows import progress
+
+    ticks = iter(range(0, 10**6, 31))
+    monkeypatch.setattr(progress, "_clock", lambda: float(next(ticks)))
+    render_session(tmp_path / "s", n_frames=8)
+    code = main(["map", "--poses", str(tmp_path / "s" / "poses.csv"), "--images", str(tmp_path / "s" / "images"),
+                 "--camera", str(tmp_path / "s" / "cameras.txt"), "--out", str(tmp_path / "m")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    lines = [r.getMessage() for r in caplog.records if r.name == "sosmatch.progress"]
+    assert any(line.startswith("keyframes: 1/8 kf") for line in lines), lines
+    assert any(line.startswith("keyframes: 8/8 kf (100 %), done in") for line in lines), lines
+    assert "\r" not in err  # no bar drawn into the log

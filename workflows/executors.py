@@ -27,9 +27,8 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any
 
-from tqdm import tqdm
-
 from ..plugin.processes import exit_with_parent
+from .progress import progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +132,7 @@ class LocalExecutor(Executor):
         results: dict[Hashable, TaskResult] = {}
         if not tasks:
             return results
-        with tqdm(total=len(tasks), desc=desc, unit="task", disable=not progress, leave=False) as bar:
+        with progress_bar(len(tasks), desc, "task", progress) as bar:
             if self.workers == 0:
                 for key, args in tasks.items():
                     results[key] = call_task(key, fn, args)
@@ -202,7 +201,7 @@ class DaskExecutor(Executor):
             return results
         # pure=False: a re-run of the same task after a fix must run again, not return a cached result.
         futures = [self.client.submit(call_task, key, fn, args, pure=False) for key, args in tasks.items()]
-        with tqdm(total=len(tasks), desc=desc, unit="task", disable=not progress, leave=False) as bar:
+        with progress_bar(len(tasks), desc, "task", progress) as bar:
             for fut in as_completed(futures):
                 res = fut.result()
                 results[res.key] = res

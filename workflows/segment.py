@@ -168,9 +168,8 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
                   write_overlays: bool) -> SegmentReport:
     """`run` inside its taken output directory."""
     report = SegmentReport()
-    from tqdm import tqdm
-
     from ..database.images import flight_white_level
+    from .progress import progress_iter
 
     # one scale per folder: a folder holds one camera's flight, and folders given together may be of cameras of
     # other bit depths (one 16-bit scale read a 12-bit camera's images 16 times too dark)
@@ -178,7 +177,7 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
     for path in paths:
         folders.setdefault(path.parent, []).append(path)
     white = {folder: flight_white_level(members) for folder, members in folders.items()}
-    for path in tqdm(paths, desc="segment", unit="img", disable=len(paths) < 3):
+    for path in progress_iter(paths, len(paths), "segment", "img", len(paths) >= 3):
         res = ImageResult(path)
         report.images.append(res)
         try:

@@ -167,11 +167,9 @@ def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, wo
     t2 = time.perf_counter()
 
     def tracked(results: Any) -> Any:
-        if not progress:
-            return results
-        from tqdm import tqdm
+        from .progress import progress_iter
 
-        return tqdm(results, total=len(poses), desc=f"synth {out.name}", unit="frame")
+        return progress_iter(results, len(poses), f"synth {out.name}", "frame", progress)
     tmp = taken.staging
     (tmp / "images").mkdir(parents=True)
     (tmp / "labels").mkdir()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from ...plugin.errors import InputError
@@ -78,6 +77,6 @@ def run(args: argparse.Namespace) -> int:
                                           args.strict)
     summary = map_workflow.run(params, inputs, args.out, overwrite=args.overwrite, text_model=args.text,
                                keep_cache=args.keep_cache, workers=args.workers,
-                               progress=not (args.no_progress or args.quiet) and sys.stderr.isatty())
+                               progress=not (args.no_progress or args.quiet))
     print(summary.line())
     return 0

@@ -143,9 +143,8 @@ def describe_keyframes(
     """
     from dataclasses import replace
 
-    from tqdm import tqdm
-
     from ...database.images import flight_white_level
+    from ..progress import progress_bar
 
     cache_dir.mkdir(parents=True, exist_ok=True)
     size = (inputs.camera.height, inputs.camera.width)
@@ -169,8 +168,7 @@ def describe_keyframes(
             prev_path = inputs.image_paths[keyframes[k - 1]] if k else None
             todo.append((k, inputs.image_paths[idx], prev_path, entry, key))
     cached = len(keyframes) - len(todo)
-    bar = tqdm(total=len(keyframes), initial=cached, desc="keyframes", unit="kf", disable=not progress,
-               leave=False)
+    bar = progress_bar(len(keyframes), "keyframes", "kf", progress, initial=cached)
     if workers <= 1 or len(todo) <= 1:
         prev_gray, prev_k = None, -2
         for k, path, prev_path, entry, key in todo:

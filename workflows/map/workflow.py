@@ -253,9 +253,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     descriptors = cached_descriptors(partial / "cache", kf_poses.names)
     timings["keyframes"] = time.perf_counter() - t
 
-    from tqdm import tqdm
+    from ..progress import progress_bar
 
-    stages = tqdm(total=4, desc="tracking", unit="stage", disable=not progress, leave=False)
+    stages = progress_bar(4, "tracking", "stage", progress)
     t = time.perf_counter()
     # Tracking and the epipolar check are pinhole geometry: they see undistorted centroids and covariances through
     # the equivalent pinhole camera; the database and the model keep the real camera and the real keypoints.
