@@ -78,6 +78,10 @@ class MatchSummary:
     # heights weighted by verification.z_weight, the window consensus within theta_eps in 3D (None: not recorded)
     gate_m: float | None = None
     gate_z_weight: float = 1.0
+    # match.json "answer_uncertainty" (`plugin.answer_uncertainty`): the accepted answer's predicted placement
+    # error at B's landmarks exceeds its gate (False: within it, or not recorded by an older sosmatch)
+    imprecise: bool = False
+    predicted_max_m: float | None = None  # that error's largest 95 % radius over the common area (None: not recorded)
 
 
 # --- field validation (each raises InputError naming the file and the field) -----------------------------------
@@ -286,11 +290,28 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     summary.gate_m = gate
     if summary.source == "verified" and z_weight is not None:
         summary.gate_z_weight = z_weight
+    unc = data.get("answer_uncertainty")
+    if unc is not None:
+        if not isinstance(unc, dict):
+            raise InputError("match file field answer_uncertainty must be an object or null", path)
+        summary.imprecise = _bool(unc.get("imprecise", False), "answer_uncertainty.imprecise", path)
+        summary.predicted_max_m = _float(unc.get("predicted_max_m"), "answer_uncertainty.predicted_max_m", path,
+                                         allow_none=True)
     if kind == "rigid":  # a scale in a rigid match is an edit: merge and changes would apply it
         for what, t in (("the answer's", summary.transform), ("the consensus'", summary.consensus_transform)):
             if t is not None and abs(t.scale - 1.0) > 1e-9:
                 raise InputError(f"{what} transform has scale {t.scale:g} in a match of transform_kind 'rigid'", path)
     return summary
+
+
+def imprecise_note(match: MatchSummary) -> str | None:
+    """What a consumer of `match` (merge, changes) says when its accepted answer is imprecise (None when it is
+    not): the transform may place B's landmarks farther from their true partners than the gate its pairs passed."""
+    if not match.accepted or not match.imprecise:
+        return None
+    return (f"the match's answer is imprecise: its transform may place B's landmarks up to "
+            f"{match.predicted_max_m:.1f} m from where they belong (95 %), beyond its {match.gate_m or 0:g} m gate "
+            "(few pairs, noisy against the gate, far from much of B)")
 
 
 def unverified_note(match: MatchSummary) -> str | None:

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from .answer_uncertainty import AnswerUncertainty, answer_uncertainty
 from .association import SearchResult, Transform, kernel_cache, search, search_reference
 from .chance import median_horizontal_move, transforms_agree
 from .params import AssociationParams, Params
@@ -65,6 +66,9 @@ class MatchAnswer:
     # horizontal, the median over B's paired landmarks: `chance.median_horizontal_move`); None otherwise. Beyond
     # GPS-level error the two maps' georeferences disagree (a datum, an origin), whichever search answered
     georeference_off_m: float | None = None
+    # an accepted answer: its transform's predicted placement error at B's landmarks against its gate
+    # (`answer_uncertainty`; `imprecise` when it exceeds the gate); None otherwise
+    uncertainty: AnswerUncertainty | None = None
 
 
 def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
@@ -149,6 +153,10 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     if common_frame and answer.accepted and answer.transform is not None and len(answer.associations):
         paired_b = np.asarray(points_b, np.float64)[np.asarray(answer.associations, np.int64)[:, 1]]
         answer.georeference_off_m = median_horizontal_move(answer.transform, paired_b)
+    if answer.accepted and answer.transform is not None:
+        # the gate the answer's associations passed: the verification's derived one, or the consensus' own search's
+        gate = (ap if answer.source == "verified" else answer.searched or ap).distance_tolerance_m
+        answer.uncertainty = answer_uncertainty(points_a, points_b, answer.transform, answer.associations, gate)
     if compiling:
         kernel_cache.mark_compiled()
     return answer

@@ -31,7 +31,7 @@ from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.changes_io import changes_feature_collection, format_changes_csv
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
-from ..database.match_io import check_match_maps, read_match, unverified_note
+from ..database.match_io import check_match_maps, imprecise_note, read_match, unverified_note
 from ..database.outputs import check_output_dir, fingerprint, open_output_dir
 from ..database.session_io import (
     read_session,
@@ -105,6 +105,9 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     tracks = params.changes.unmapped_objects
     dirs = [None, None]
     warnings = []  # said once every check has passed: a refused run prints its one-line error alone
+    if match is not None and (note := imprecise_note(match)) is not None:
+        warnings.append(f"{match_json}: {note}: objects near the far side of the common area may be compared "
+                        "with the wrong partners")
     if match is not None and not verified and (note := unverified_note(match)) is not None:
         warnings.append(f"{match_json}: {note}: its transform is used only because B's landmarks find "
                         "counterparts in A far more often than by chance; `sosmatch match` again verifies it")

@@ -87,8 +87,8 @@ class MatchResult:
             near = (f" within {ans.searched.position_prior_m:g} m (horizontally) of the georeference"
                     if ans.tolerances == "georeference" and ans.searched is not None else "")
             return (f"{head}, verified{near}: {len(self.associations)} associations on the full maps (runner-up "
-                    f"{v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg) "
-                    f"({self.times()}) -> "
+                    f"{v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg)"
+                    f"{_imprecise_text(ans)} ({self.times()}) -> "
                     f"{self.out_dir / 'match.json'}")
         if s.consensus is not None and not s.consensus.accepted:
             return (f"{head}, no match: the consensus of {len(s.consensus.members)} agreeing hypotheses holds "
@@ -99,7 +99,8 @@ class MatchResult:
         best = s.hypotheses[s.best]
         _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
         return (f"{head}, best |S|={best.size}, consensus {len(self.associations)} associations "
-                f"(rms {s.consensus.rms_m:.2f} m, yaw {yaw:.1f} deg), not verified ({self.times()}) -> "
+                f"(rms {s.consensus.rms_m:.2f} m, yaw {yaw:.1f} deg), not verified{_imprecise_text(ans)} "
+                f"({self.times()}) -> "
                 f"{self.out_dir / 'match.json'}")
 
 
@@ -151,6 +152,13 @@ def _searched_json(ap: Any) -> dict[str, Any]:
             "max_size_difference": ap.max_size_difference,
             # > 0: only associations this near where the maps' georeferences put them (`position_prior`)
             "position_prior_m": ap.position_prior_m}
+
+
+def _imprecise_text(ans: MatchAnswer | None) -> str:
+    """', WARNING: imprecise answer ...' when the accepted answer's predicted error at B's landmarks exceeds its gate
+    (`plugin.answer_uncertainty`), else ''."""
+    u = None if ans is None else ans.uncertainty
+    return "" if u is None or not u.imprecise else f", WARNING: {u.warning()}"
 
 
 def _chance_text(v: Any) -> str:
@@ -224,6 +232,10 @@ def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
         "accepted": s.accepted,
         "consensus": consensus,
         "verification": verification_json(result.answer, params),
+        # the accepted answer's predicted placement error at B's landmarks in the common area against its gate
+        # (`plugin.answer_uncertainty`; "imprecise": true when it exceeds the gate); null without an accepted answer
+        "answer_uncertainty": (result.answer.uncertainty.to_dict() if result.answer is not None
+                               and result.accepted and result.answer.uncertainty is not None else None),
         # the answer consumers read (database.match_io.read_match): "verified" or "consensus"
         "answer": result.answer.source if result.answer is not None else "consensus",
         # every window hypothesis, and (verified answer accepted) whether it agrees with it: an agreeing one lends
@@ -384,6 +396,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         if common and ans.accepted:
             _warn_georeferences(ans, b, params.association.georeference_prior_m)
             _warn_height_datums(ans, lb.positions, b)
+        if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
+            log.warning("%s: %s; merge and changes inherit that error", b, ans.uncertainty.warning())
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),

@@ -40,7 +40,7 @@ from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, landmark_map_fingerprint, write_landmark_map
 from ..database.map_loading import session_map_noise
-from ..database.match_io import check_match_maps, read_match, unverified_note
+from ..database.match_io import check_match_maps, imprecise_note, read_match, unverified_note
 from ..database.outputs import OutputDir, fingerprint, open_output_dir, resolved_path, sha256_file
 from ..database.session_io import MERGE_RECORD, SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
@@ -441,6 +441,8 @@ def run(
         log.warning("%s is georeferenced (EPSG:%d) and %s is not: the merged model is in %s's local frame; match and "
                     "merge with the georeferenced session first to keep its georeference", session_b,
                     b.landmarks.epsg, session_a, session_a)
+    if (note := imprecise_note(match)) is not None:
+        log.warning("%s: %s: the merged model inherits that error", match_json, note)
     if (note := unverified_note(match)) is not None:
         log.warning("%s: %s: merging its window consensus as it is; `sosmatch match` again verifies it", match_json,
                     note)
