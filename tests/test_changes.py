@@ -158,6 +158,21 @@ def test_a_verified_alignment_needs_only_to_beat_chance():
     assert not chance.plausible(max_p=1.0)
 
 
+def test_the_alignment_control_of_changes_and_merge_is_one_rule():
+    """`implausible_alignment` is what `changes` and `merge` refuse by: the sparse verified pair stands, unverified
+    it is refused (naming the rates and the control's shift); with nothing compared a verified alignment stands (its
+    verification decided) and an unverified one is not confirmed."""
+    from sosmatch.plugin.changes import AlignmentSupport, implausible_alignment
+
+    sparse = AlignmentSupport(compared=89, matched=13, displaced_rate=0.06, p_value=0.0015)
+    assert implausible_alignment(sparse, 3.0, verified=True) is None
+    said = implausible_alignment(sparse, 3.0, verified=False)
+    assert said.startswith("the transform does not bring the maps together: 15% of A's 89 compared") and "9 m" in said
+    none = AlignmentSupport(compared=0, matched=0, displaced_rate=0.0, p_value=1.0)
+    assert implausible_alignment(none, 3.0, verified=True) is None
+    assert "nothing confirms" in implausible_alignment(none, 3.0, verified=False)
+
+
 def test_presence_rate_follows_the_references_of_similar_size():
     from sosmatch.plugin.changes import presence_rate
 

@@ -462,3 +462,22 @@ def test_a_transform_edited_away_from_its_own_associations_is_refused(pair, tmp_
         err = capsys.readouterr().err.strip()
         assert needle in err and err.count("\n") == 0 and str(tmp_path / f"{name}.json") in err
         assert not (tmp_path / name).exists()
+
+
+def test_a_transform_that_does_not_bring_the_maps_together_is_refused_as_changes_refuses_it(pair, tmp_path, capsys):
+    """The twenty-first sweep: an unverified consensus (`match --no-verify`, 7 associations, yaw -72 deg, 181 m
+    off) was merged, 6 landmarks fused wrongly, exit 0 with the generic "not verified" warning, while `changes`
+    refused the same match.json as chance. merge applies the control of `changes`
+    (`changes.check_alignment` -> `plugin.changes.implausible_alignment`): one line, exit 2, nothing written."""
+    _, _, a, b = pair
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    centre = read_session(a.path).landmarks.positions.mean(0)
+    turned = Sim3(np.eye(3), centre).compose(yaw_transform(-72, (0, 0, 0))).compose(Sim3(np.eye(3), -centre))
+    wrong = toy_match_json(a, b, tmp_path / "wrong.json", transform=turned.compose(truth))
+    assert main(["merge", str(a.path), str(b.path), "--match", str(wrong), "--out", str(tmp_path / "M")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "does not bring the maps together" in err and "nothing merged" in err and str(wrong) in err
+    assert err.count("\n") == 0 and not (tmp_path / "M").exists()
+    # the same answer with its true transform, unverified too: significant, merged
+    right = toy_match_json(a, b, tmp_path / "right.json")
+    assert main(["merge", str(a.path), str(b.path), "--match", str(right), "--out", str(tmp_path / "R")]) == 0

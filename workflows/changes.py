@@ -34,13 +34,24 @@ from ..database.landmark_map import check_two_maps
 from ..database.match_io import check_match_maps, imprecise_note, read_match, unverified_note
 from ..database.outputs import check_output_dir, fingerprint, open_output_dir
 from ..database.session_io import (
+    SessionFiles,
     read_session,
     read_session_observations,
     recorded_images_dir,
     session_images_dir,
 )
 from ..plugin import __version__
-from ..plugin.changes import CONTROL_SHIFT, GONE, KEPT, NEW, UNSEEN, ChangeResult, detect_changes
+from ..plugin.changes import (
+    GONE,
+    KEPT,
+    NEW,
+    UNSEEN,
+    ChangeResult,
+    alignment_support,
+    counterpart_gate,
+    detect_changes,
+    implausible_alignment,
+)
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params import Params, params_to_dict
@@ -149,11 +160,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         raise InputError("none of A's landmarks lies where B's keyframes looked (in view of enough of them to be "
                          "compared): after alignment the flights do not overlap, or B's poses do not look at the "
                          "ground; nothing compared", match_json or session_b)
-    if sup is not None and not sup.plausible(max_p=1.0 if verified else 1e-3):
-        raise InputError(f"the transform does not bring the maps together: {sup.rate:.0%} of A's {sup.compared} "
-                         f"compared landmarks have a counterpart, {sup.displaced_rate:.0%} with B moved "
-                         f"{CONTROL_SHIFT * result.tolerance_m:.0f} m (chance): the alignment is wrong, or the "
-                         "maps share too few landmarks to confirm it; nothing compared", match_json or session_b)
+    if sup is not None and (why := implausible_alignment(sup, result.tolerance_m, verified)) is not None:
+        raise InputError(f"{why}; nothing compared", match_json or session_b)
     sources = {"session_a": str(session_a), "session_b": str(session_b),
                "match": str(match_json) if match_json is not None else "",
                "images_a": str(dirs[0] or ""), "images_b": str(dirs[1] or ""),
@@ -168,6 +176,21 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     for text in warnings:
         log.warning("%s", text)
     return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0)
+
+
+def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: Sim3, params: Params, verified: bool,
+                    association_tolerance_m: float, where: str | Path, refusing: str) -> None:
+    """InputError naming `where` (then `refusing`: what the caller did not do) when `a_from_b` does not bring the
+    two sessions' maps together by the control `compute` applies (`plugin.changes.implausible_alignment`: the
+    counterpart rate of A's landmarks that B's keyframes saw, against B displaced, at the counterpart gate of
+    `association_tolerance_m`, theta_eps of the association that aligned the maps; `verified`: match's verification
+    decided the alignment). For a transform used without change detection (`merge`: an unverified consensus 181 m
+    off was merged, 6 landmarks fused wrongly, exit 0, where `changes` refused it as chance)."""
+    obs_a = read_session_observations(session_a, with_segments=False)
+    obs_b = read_session_observations(session_b, with_segments=False).transformed(a_from_b)
+    gate = counterpart_gate(params.changes, association_tolerance_m)
+    if (why := implausible_alignment(alignment_support(obs_a, obs_b, gate, params.changes), gate, verified)):
+        raise InputError(f"{why}; {refusing}", where)
 
 
 def changes_png(result: ChangeResult, title: str = "") -> bytes:

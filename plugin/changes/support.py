@@ -37,6 +37,33 @@ class AlignmentSupport:
 
 
 CONTROL_SHIFT = 3.0  # x the counterpart gate: a displacement beyond any landmark scatter the gate allows
+# an alignment nobody verified must be significant, not merely better than chance (`implausible_alignment`)
+UNVERIFIED_MAX_P = 1e-3
+
+
+def counterpart_gate(params: ChangeParams, association_tolerance_m: float) -> float:
+    """The counterpart gate of change detection and of its alignment control: `params.tolerance_factor` x theta_eps
+    of the association that aligned the maps."""
+    return params.tolerance_factor * association_tolerance_m
+
+
+def implausible_alignment(support: AlignmentSupport, gate_m: float, verified: bool) -> str | None:
+    """Why a transform does not bring two maps together (None: it does), by its counterpart control
+    (`alignment_support` at `gate_m`): the one rule of `changes` and `merge`. A verified alignment (match's
+    verification on the full maps decided) is refused only when it pairs no more often than B displaced (1.5x the
+    chance rate) and, where none of A's landmarks was compared, stands; an unverified one (a window consensus,
+    `match --no-verify`: 7 associations can be a chance alignment 181 m off) must also be significant
+    (p < UNVERIFIED_MAX_P), and with nothing compared it is not confirmed. The text names no file: the caller does,
+    and says what it did not do."""
+    if not support.compared:
+        return None if verified else ("none of A's landmarks lies where B's keyframes looked under the transform "
+                                      "(in view of enough of them to be compared): nothing confirms the alignment")
+    if support.plausible(max_p=1.0 if verified else UNVERIFIED_MAX_P):
+        return None
+    return (f"the transform does not bring the maps together: {support.rate:.0%} of A's {support.compared} "
+            f"compared landmarks have a counterpart, {support.displaced_rate:.0%} with B moved "
+            f"{CONTROL_SHIFT * gate_m:.0f} m (chance): the alignment is wrong, or the maps share too few landmarks "
+            "to confirm it")
 
 
 def alignment_support(a: SessionObservations, b_in_a: SessionObservations, gate_m: float,

@@ -25,7 +25,7 @@ from .evidence import (
 )
 from .objectness import evenly, flat_landmarks, ground_noise_known, ring_heights, surface_heights, with_ground_places
 from .observations import SessionObservations, below_the_ground, ground_height_field, in_view, observed_area
-from .support import AlignmentSupport, alignment_support
+from .support import AlignmentSupport, alignment_support, counterpart_gate
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
 from .surface import (
     height_limit,
@@ -387,7 +387,7 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
     association that aligned the maps; the counterpart gate is `params.tolerance_factor` times it.
     """
     b_in_a = b.transformed(a_from_b)
-    gate = params.tolerance_factor * association_tolerance_m
+    gate = counterpart_gate(params, association_tolerance_m)
     all_pts = np.vstack([a.positions, b_in_a.positions])
     ground = ground_height_field(all_pts)
     heights_a, heights_b = _above(ground, a.positions), _above(ground, b_in_a.positions)
