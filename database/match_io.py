@@ -82,6 +82,12 @@ class MatchSummary:
     # error at B's landmarks exceeds its gate (False: within it, or not recorded by an older sosmatch)
     imprecise: bool = False
     predicted_max_m: float | None = None  # that error's largest 95 % radius over the common area (None: not recorded)
+    # maps in one EPSG with an accepted answer: how far it moves B from its georeference (search_mode.
+    # georeference_off_m), the radius the georeference is trusted to (params.association.georeference_prior_m) and
+    # how the search used it (search_mode.position_prior); None: not recorded (`georeference_note`)
+    georeference_off_m: float | None = None
+    georeference_radius_m: float | None = None
+    position_prior: str | None = None
 
 
 # --- field validation (each raises InputError naming the file and the field) -----------------------------------
@@ -227,7 +233,7 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     seconds = _float(seconds, "search_seconds", path, allow_none=True)
     params = data.get("params")
     theta = None
-    gate, z_weight = None, None
+    gate, z_weight, summary_radius = None, None, None
     if isinstance(params, dict):
         assoc = params.get("association")
         theta = assoc.get("min_associations") if isinstance(assoc, dict) else params.get("min_associations")
@@ -235,6 +241,8 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
                                                 MAX_ASSOCIATIONS)
         gate = _positive(assoc.get("distance_tolerance_m") if isinstance(assoc, dict) else None,
                          "params.association.distance_tolerance_m", path)
+        radius = assoc.get("georeference_prior_m") if isinstance(assoc, dict) else None
+        summary_radius = _float(radius, "params.association.georeference_prior_m", path, allow_none=True)
         ver_params = params.get("verification")
         z_weight = _positive(ver_params.get("z_weight") if isinstance(ver_params, dict) else None,
                              "params.verification.z_weight", path)
@@ -243,6 +251,14 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
                            map_b=_map_ref(data.get("map_b"), "map_b", path), seconds=seconds, min_associations=theta)
     mode = data.get("search_mode")
     summary.search_mode = mode if isinstance(mode, dict) else {}
+    summary.georeference_radius_m = summary_radius
+    off = _float(summary.search_mode.get("georeference_off_m"), "search_mode.georeference_off_m", path,
+                 allow_none=True)
+    if off is not None and off < 0:
+        raise InputError(f"{_where('search_mode.georeference_off_m')} must be >= 0, got {_short(off)}", path)
+    summary.georeference_off_m = off
+    prior = summary.search_mode.get("position_prior")
+    summary.position_prior = prior if isinstance(prior, str) else None
     searched = summary.search_mode.get("searched")
     if isinstance(searched, dict) and searched.get("min_associations") is not None:
         # theta_S of the search whose hypotheses these are (the first of two searches keeps the configured one)
@@ -321,6 +337,22 @@ def unverified_note(match: MatchSummary) -> str | None:
         return None
     return ("the match was not verified on the full maps (written by a sosmatch before the verification stage, or "
             "with --no-verify / verification.enabled = false)")
+
+
+def georeference_note(match: MatchSummary) -> str | None:
+    """What `match` said of an accepted answer that moves B farther from its georeference than the radius it is
+    trusted to: the two maps' georeferences disagree (`plugin.match_answer.georeference_disagreement`, the one
+    rule, on what match.json records), for merge and batch to repeat; None when match said nothing. A file that
+    does not record the radius: the configured default."""
+    from ..plugin.match_answer import georeference_disagreement  # (the search's modules: only when asked)
+    from ..plugin.params import AssociationParams
+
+    if not match.accepted:
+        return None
+    radius = match.georeference_radius_m
+    return georeference_disagreement(match.georeference_off_m,
+                                     AssociationParams().georeference_prior_m if radius is None else radius,
+                                     match.position_prior)
 
 
 def _check_verified_associations(assoc: np.ndarray, support: Any, path: Path) -> None:

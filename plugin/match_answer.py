@@ -162,6 +162,21 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     return answer
 
 
+def georeference_disagreement(off_m: float | None, radius_m: float | None, prior: str | None = None) -> str | None:
+    """What is said when an accepted alignment of two maps in one EPSG moves B horizontally by `off_m`
+    (`MatchAnswer.georeference_off_m`, match.json `search_mode.georeference_off_m`) more than the radius the
+    georeference is trusted to (`association.georeference_prior_m`; GPS puts a camera within metres): the answer
+    stands (it was found over every placement of B, or near the georeference and confirmed there), but the two
+    maps' georeferences disagree, and a merge or a GIS layer of either inherits that. None: they agree, or there is
+    no such figure or radius. The one rule of `match`, `merge` and `batch`; the text says "it" for B, whom the
+    caller names; `prior` is how the search used the georeference (`MatchAnswer.prior`)."""
+    if off_m is None or radius_m is None or not radius_m > 0 or not off_m > radius_m:
+        return None
+    return (f"the answer puts it {off_m:.0f} m from where its georeference does (median of its paired landmarks"
+            f"{'; ' + prior if prior else ''}): the two maps' georeferences disagree (another datum, a shifted "
+            "origin, or poses of another site?)")
+
+
 def reconcile_near(radius_m: float, near: Verification, everywhere: Verification, points_b: np.ndarray,
                    gate_m: float) -> tuple[str, bool]:
     """The answer of two verified searches, one near the georeference and one everywhere (module doc): (what

@@ -2,6 +2,7 @@
 the session graph (groups, spanning-tree transforms) and identical results on a Dask LocalCluster."""
 
 import json
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -509,3 +510,54 @@ def test_comparisons_after_the_flights_folder_moved_read_the_images_where_they_a
     assert all(s.get("resumed") for s in again.sessions) and again.pairs[0].get("resumed")
     changes = json.loads((tmp_path / "out" / "pairs" / "F1__F2" / "changes" / "changes.json").read_text())
     assert [changes["images_a"], changes["images_b"]] == [str(tmp_path / "moved" / f / "images") for f in ("F1", "F2")]
+
+
+def _georeferenced_pair_task(session_a: str, session_b: str, pair_dir: str, params: object = None) -> dict:
+    """`oracle_pair_task` for maps in one EPSG: match.json records, as `match` does, how far the answer moves B
+    from its georeference (`chance.median_horizontal_move` over B's paired landmarks) and the 50 m radius."""
+    from sosmatch.database.landmark_map import read_landmark_map
+    from sosmatch.database.match_io import read_match
+    from sosmatch.plugin.chance import median_horizontal_move
+    from sosmatch.workflows.batch import summarise_match
+
+    oracle_pair_task(session_a, session_b, pair_dir, params)
+    path = Path(pair_dir) / "match.json"
+    m, data = read_match(path), json.loads(path.read_text())
+    if m.accepted:
+        paired = read_landmark_map(Path(session_b) / "landmarks.sosmap").positions[m.associations[:, 1]]
+        data["search_mode"] = {"position_prior": "georeference 50 m: refused there",
+                               "georeference_off_m": round(median_horizontal_move(m.transform, paired), 2)}
+    data["params"] = {"association": {"georeference_prior_m": 50.0}}
+    path.write_text(json.dumps(data))
+    return summarise_match(path)
+
+
+def test_batch_repeats_that_a_pair_s_georeferences_disagree(flights, tmp_path, monkeypatch, capsys):
+    """The twenty-first sweep: two flights of one EPSG whose georeferences are 428 m apart: `match` warned (in its
+    worker), batch merged them and its report, merge.json and output said nothing (`moved_median_m 428` the only
+    trace). The pair's warning (`match_io.georeference_note`) is in report.json / .md, the merged group's merge.json
+    and the command's output."""
+    import functools
+
+    from sosmatch.database.landmark_map import LandmarkMap, read_landmark_map, write_landmark_map
+
+    root, _ = flights
+    for name in ("A", "B"):
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+        lm = read_landmark_map(tmp_path / "fl" / name / "landmarks.sosmap")
+        write_landmark_map(tmp_path / "fl" / name / "landmarks.sosmap",
+                           LandmarkMap(lm.positions, lm.sizes, lm.origin, 32632))
+    monkeypatch.setattr(batch, "run", functools.partial(batch.run, pair_fn=_georeferenced_pair_task))
+    out = tmp_path / "out"
+    assert main(["batch", str(tmp_path / "fl"), "--out", str(out), "--workers", "0", "--no-changes",
+                 "--no-progress"]) == 0
+    said = re.compile(r"pair A__B: B: the answer puts it (\d+) m from where its georeference does .*georeferences "
+                      "disagree")
+    stdout = capsys.readouterr().out
+    assert said.search(stdout) and int(said.search(stdout).group(1)) > 50
+    report = json.loads((out / "report.json").read_text())
+    assert len(report["warnings"]) == 1 and said.search(report["warnings"][0]) and report["ok"]
+    assert "## Warnings" in (out / "report.md").read_text() and said.search((out / "report.md").read_text())
+    (group,) = report["groups"]
+    merged = json.loads((out / "merged" / group["reference"] / "merge.json").read_text())
+    assert any("georeferences disagree" in w for w in merged["warnings"])

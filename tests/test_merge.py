@@ -481,3 +481,54 @@ def test_a_transform_that_does_not_bring_the_maps_together_is_refused_as_changes
     # the same answer with its true transform, unverified too: significant, merged
     right = toy_match_json(a, b, tmp_path / "right.json")
     assert main(["merge", str(a.path), str(b.path), "--match", str(right), "--out", str(tmp_path / "R")]) == 0
+
+
+def _recorded_georeference(match_json, b_path, radius_m=50.0):
+    """What `match` records of maps in one EPSG: how far the answer moves B from its georeference (the median over
+    its paired landmarks, `chance.median_horizontal_move`), the radius and how the search used it."""
+    from sosmatch.plugin.chance import median_horizontal_move
+
+    m = read_match(match_json)
+    off = median_horizontal_move(m.transform, read_landmark_map(b_path / "landmarks.sosmap").positions[
+        m.associations[:, 1]])
+    data = json.loads(match_json.read_text())
+    data["search_mode"] = {"position_prior": f"georeference {radius_m:g} m: refused there",
+                           "georeference_off_m": round(off, 2)}
+    data["params"] = {"association": {"georeference_prior_m": radius_m}}
+    match_json.write_text(json.dumps(data))
+    return off
+
+
+def test_merge_repeats_that_the_two_maps_georeferences_disagree(pair, tmp_path, caplog):
+    """The twenty-first sweep: two flights 428 m apart by their georeferences (another --geo-origin): `match` warned,
+    `merge` merged them in silence. It repeats match's warning (`match_io.georeference_note`, the rule `match` uses)
+    in its log and its merge.json; within the radius it says nothing."""
+    from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
+
+    _, _, a, b = pair
+    geo = []
+    for s in (a, b):
+        shutil.copytree(s.path, tmp_path / f"{s.path.name}geo")
+        lm = read_landmark_map(s.path / "landmarks.sosmap")
+        write_landmark_map(tmp_path / f"{s.path.name}geo" / "landmarks.sosmap",
+                           LandmarkMap(lm.positions, lm.sizes, lm.origin, 32617))
+        geo.append(s.__class__(tmp_path / f"{s.path.name}geo", s.session_from_world, s.object_ids))
+    match = toy_match_json(*geo, tmp_path / "far.json")
+    off = _recorded_georeference(match, geo[1].path)
+    assert off > 50.0
+    with caplog.at_level("WARNING"):
+        assert main(["merge", str(geo[0].path), str(geo[1].path), "--match", str(match), "--out",
+                     str(tmp_path / "M")]) == 0
+    said = f"Bgeo: the answer puts it {off:.0f} m from where its georeference does"
+    assert said in caplog.text and "georeferences disagree" in caplog.text
+    record = json.loads((tmp_path / "M" / "merge.json").read_text())
+    assert any(said in w and "georeferences disagree" in w for w in record["warnings"])
+    caplog.clear()
+    near = toy_match_json(*geo, tmp_path / "near.json")
+    _recorded_georeference(near, geo[1].path, radius_m=2 * off)
+    with caplog.at_level("WARNING"):
+        assert main(["merge", str(geo[0].path), str(geo[1].path), "--match", str(near), "--out",
+                     str(tmp_path / "N")]) == 0
+    assert "georeferences disagree" not in caplog.text
+    record = json.loads((tmp_path / "N" / "merge.json").read_text())
+    assert not any("georeferences disagree" in w for w in record.get("warnings", []))

@@ -35,7 +35,7 @@ from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import SearchMode
 from ..plugin.map_noise import derived_search_params
-from ..plugin.match_answer import MatchAnswer, match_maps
+from ..plugin.match_answer import MatchAnswer, georeference_disagreement, match_maps
 from ..plugin.params import Params, params_to_dict
 from ..plugin.verification import hypothesis_agrees
 
@@ -313,16 +313,10 @@ MAX_DATUM_DIFFERENCE_M = 110.0
 
 
 def _warn_georeferences(ans: Any, path_b: str | Path, radius_m: float) -> None:
-    """Warn when an accepted alignment of two maps in one EPSG moves B horizontally by more than the radius the
-    georeference is trusted to (`association.georeference_prior_m`; GPS puts a camera within metres): the answer
-    stands (it was found over every placement of B, or near the georeference and confirmed there), but the two
-    maps' georeferences disagree, and a merge or a GIS layer of either inherits that. 0: no such radius, no
-    warning."""
-    off = ans.georeference_off_m
-    if radius_m > 0 and off is not None and off > radius_m:
-        log.warning("%s: the answer puts it %.0f m from where its georeference does (median of its paired "
-                    "landmarks; %s): the two maps' georeferences disagree (another datum, a shifted origin, or "
-                    "poses of another site?)", path_b, off, ans.prior)
+    """Warn when the answer moves B farther from its georeference than `radius_m`
+    (`match_answer.georeference_disagreement`, the rule merge and batch repeat from match.json)."""
+    if (said := georeference_disagreement(ans.georeference_off_m, radius_m, ans.prior)) is not None:
+        log.warning("%s: %s", path_b, said)
 
 
 def _warn_height_datums(ans: Any, points_b: np.ndarray, path_b: str | Path) -> None:

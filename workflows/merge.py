@@ -40,7 +40,7 @@ from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, landmark_map_fingerprint, write_landmark_map
 from ..database.map_loading import session_map_noise
-from ..database.match_io import check_match_maps, imprecise_note, read_match, unverified_note
+from ..database.match_io import check_match_maps, georeference_note, imprecise_note, read_match, unverified_note
 from ..database.outputs import OutputDir, fingerprint, open_output_dir, resolved_path, sha256_file
 from ..database.session_io import MERGE_RECORD, SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
@@ -173,6 +173,7 @@ def merge_sessions(
     overwrite: bool = False,
     inputs: Sequence[str | Path] = (),
     earlier_records: Sequence[dict[str, Any]] = (),
+    warnings: Sequence[str] = (),
 ) -> MergeResult:
     """Combine sessions into one COLMAP model in the frame of `transforms` (reference_from_session each).
 
@@ -182,7 +183,8 @@ def merge_sessions(
     together, merge.json last, `record` added to it); returns the counts. `out_dir` is taken through
     `sosmatch.database.outputs` (`overwrite`: replace a complete merge of other inputs; `inputs`: further input
     paths besides the sessions, e.g. the match file). `earlier_records`: the records an earlier sosmatch wrote
-    for the same merge (`outputs.open_output_dir`'s `earlier`).
+    for the same merge (`outputs.open_output_dir`'s `earlier`). `warnings`: what was said of its inputs (merge.json
+    `warnings`, e.g. that two maps' georeferences disagree), recorded beside the merge, not part of its identity.
     """
     t0 = time.perf_counter()
     if len(sessions) != len(transforms) or not sessions:
@@ -201,9 +203,11 @@ def merge_sessions(
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
                          earlier=[identity_of(r) for r in earlier_records]) as out:
-        # the flights' maps it holds go into merge.json (not into the identity: earlier merges keep theirs)
+        # the flights' maps it holds and the warnings go into merge.json (not into the identity: earlier merges
+        # keep theirs)
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
-                             {**(record or {}), "flight_maps": members}, t0)
+                             {**(record or {}), "flight_maps": members, **({"warnings": list(warnings)}
+                                                                          if warnings else {})}, t0)
         out.finish()
     return result
 
@@ -444,6 +448,8 @@ def run(
                     "its georeference")
     if (note := imprecise_note(match)) is not None:
         said.append(f"{match_json}: {note}: the merged model inherits that error")
+    if (note := georeference_note(match)) is not None:  # match's warning, repeated: the merged model inherits it
+        said.append(f"{session_b}: {note}")
     if (note := unverified_note(match)) is not None:
         said.append(f"{match_json}: {note}: merging its window consensus as it is; `sosmatch match` again verifies it")
     transform = match.transform
@@ -484,6 +490,7 @@ def run(
         inputs=[match_json],
         # merges before 2026-12-05 recorded the match file as it was spelt: the same merge when spelt so again
         earlier_records=[{**record, "match": str(match_json)}],
+        warnings=said,
     )
     log.info(
         "merged %s + %s: %d images, %d points, %d fused landmarks",

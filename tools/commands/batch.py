@@ -60,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.out}: {done}/{len(report.sessions)} sessions mapped, {len(report.pairs)} pairs "
           f"({accepted} accepted; {report.changes_line()}), {len(report.groups)} groups; report "
           f"{args.out / 'report.md'}")
+    for line in report.warnings:
+        print(f"WARNING {line}")
     for line in report.failures:
         print(f"FAILED {line}")
     return 0 if report.ok else 1

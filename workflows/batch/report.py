@@ -38,6 +38,12 @@ class BatchReport:
                       if p.get("changes_status") == "failed"]
 
     @property
+    def warnings(self) -> list[str]:
+        """What the batch's results say of its inputs without failing: pairs whose maps' georeferences disagree
+        (`georeference_warning`, match's warning repeated)."""
+        return [f"pair {p['pair']}: {p['georeference_warning']}" for p in self.pairs if p.get("georeference_warning")]
+
+    @property
     def ok(self) -> bool:
         return not self.failures
 
@@ -46,6 +52,7 @@ class BatchReport:
             "format": "sosmatch batch report v1",
             "ok": self.ok,
             "failures": self.failures,
+            "warnings": self.warnings,
             "executor": self.executor,
             "seconds": round(self.seconds, 3),
             "sessions": self.sessions,
@@ -135,6 +142,7 @@ def write_report(report: BatchReport) -> None:
         "# sosmatch batch report", "",
         f"{len(report.sessions)} sessions, {len(report.pairs)} pairs, {len(report.groups)} groups; {status}; "
         f"executor: {report.executor}; {report.seconds:.1f} s", "",
+        *(["## Warnings", "", *[f"- {w}" for w in report.warnings], ""] if report.warnings else []),
         "## Sessions", "", _table(report.sessions, SESSION_COLUMNS), "",
         "## Pairs", "", "(transform a_from_b: yaw about z, how far it moves B's landmarks (median, max m), scale; "
         "landmarks gone from A, new in B, kept (of A) and unseen by the other session: pairs/A__B/changes/)", "",

@@ -119,24 +119,27 @@ def merge_task(
 ) -> dict[str, Any]:
     """Merge one connected group: sessions in the reference frame, landmarks fused along the tree edges
     (a, b, match.json path); writes out_dir (see `sosmatch.workflows.merge`)."""
-    from ...database.match_io import check_match_maps, read_match
+    from ...database.match_io import check_match_maps, georeference_note, read_match
     from ...database.session_io import read_session
     from ..merge import match_fuse_pair, merge_sessions
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3.from_dict(t) for t in transforms]
-    pairs = []
+    pairs, warnings = [], []
     for a, b, m in edges:  # the pair's match must be about these two sessions; its answer fused at its own gate
         match_json = Path(m)
         match = read_match(match_json)
         check_match_maps(match, sessions[a].landmarks, sessions[b].landmarks, match_json, names=(labels[a], labels[b]))
         pairs.append(match_fuse_pair(a, b, match))
+        if (note := georeference_note(match)) is not None:  # the merged model inherits it (merge.json)
+            warnings.append(f"{labels[b]}: {note}")
     res = merge_sessions(sessions, sims, pairs, out_dir, labels=labels, max_fuse_distance_m=max_fuse_distance_m,
                          record={"tree_edges": [[labels[a], labels[b], m] for a, b, m in edges]},
-                         inputs=[m for _, _, m in edges], overwrite=overwrite)
+                         inputs=[m for _, _, m in edges], overwrite=overwrite, warnings=warnings)
     return {
         "merged": out_dir, "images": res.num_images, "points3D": res.num_points3d,
         "landmarks": res.num_landmarks, "fused": res.num_fused, "rejected_associations": res.num_rejected,
+        **({"warnings": warnings} if warnings else {}),
     }
 
 

@@ -157,6 +157,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
             pair_tasks[key] += (verify, options.overwrite)
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                        options.progress, _valid_match)
+    _georeference_warnings(pairs)
     failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
 
     # 4: session graph (marks each pair's in_graph) and merged groups
@@ -174,6 +175,22 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
                      for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
     report.stale_outputs = _stale_outputs(out_dir, report)
     return report
+
+
+def _georeference_warnings(pairs: dict[str, dict[str, Any]]) -> None:
+    """Repeat `match`'s warning that a pair's georeferences disagree (`match_io.georeference_note`, from its
+    match.json) into the pair's record (`georeference_warning`, report.json / .md) and the batch's log: match says
+    it in its worker, whose log a batch does not show, and a resumed batch does not run it again (the twenty-first
+    sweep: two flights 428 m apart by their georeferences merged into one EPSG without a word)."""
+    from ...database.match_io import georeference_note, read_match
+
+    for key, rec in pairs.items():
+        rec.pop("georeference_warning", None)
+        if rec.get("status") != "done" or not rec.get("accepted") or not rec.get("match"):
+            continue
+        if (note := georeference_note(read_match(rec["match"]))) is not None:
+            rec["georeference_warning"] = f"{key.split(PAIR_SEP)[1]}: {note}"
+            log.warning("pair %s: %s", key, rec["georeference_warning"])
 
 
 def _stale_outputs(out_dir: Path, report: BatchReport) -> list[str]:
