@@ -272,3 +272,19 @@ def test_the_flying_height_of_a_dense_flight_comes_from_pairs_with_parallax(tmp_
     result, verdict = pose_check.check(images, poses, camera, Params())
     assert abs(result.flying_height_m - 100.0) < 5.0, result.flying_height_m
     assert verdict.refusals == []
+
+
+def test_a_reversed_pass_of_a_densely_spaced_flight_is_still_found(tmp_path):
+    """Steps of 1.2 m at 100 m: consecutive pairs have 2-4 px of parallax. Their inliers vote clearly (in_front
+    0.95-1.0 on true poses, 0.0-0.05 with the heading fault), so they judge the direction; a rule that asked for 5
+    pixel noises left half of them blind, counted them as votes for "not reversed" and let a pass flown 180 deg off
+    through (the rev20 review)."""
+    out = tmp_path / "dense"
+    assert main(["synth", "--out", str(out), "--frames", "40", "--width", "320", "--height", "240", "--spacing",
+                 "1.2", "--line-length", "24", "--line-spacing", "40", "--world-size", "300", "-q"]) == 0
+    images, poses, camera = _inputs(out)
+    assert np.bincount(flight_passes(poses.centers)).tolist() == [20, 20]
+    result, verdict = pose_check.check(images, poses, camera, Params())
+    assert verdict.refusals == [] and result.reversed_pairs == 0
+    _, verdict = pose_check.check(images, _yaw_fault(poses, 1), camera, Params())
+    assert any("the images move the other way" in r for r in verdict.refusals), verdict.refusals

@@ -18,12 +18,15 @@ from .matches import PairMatches, match_pair
 from .systematic import SystematicErrors, fit_systematic_errors, pair_sampson_px
 from .two_view import ray_angles, relative_poses, triangulation_depths
 
-# A pair tells the direction of motion (the sign of its depths) and the flying height only when its parallax is
-# several times the matches' pixel noise: at 5 noises a match's depth has the wrong sign with odds of ~3e-7, and the
-# median depth is that of the median parallax (depth falls monotonically with parallax). Below it the depths are
-# noise: a hover's images (baselines of the poses' own noise, 0.2 m) were read as a pass flown backwards and a
-# flight of 0.5 m steps measured 81 m of flying height for 100 m.
-MIN_PARALLAX_NOISES = 5.0
+# A pair tells the direction of motion (the sign of its depths) and the flying height only when its parallax rises
+# clearly above the pixel noise of one match: at 2 noises a match's depth has the wrong sign with odds of 2 %, and a
+# pair's verdict is the majority of its 30-200 inliers (clear: in_front 0.95-1.0 on true poses, 0.0-0.05 with a
+# heading fault, on 1.2 m steps); its median depth is that of its median parallax (depth falls monotonically with
+# parallax). The parallax counted is the smaller of what the matches show and what the poses' baseline gives: the
+# poses' attitude noise fakes a parallax the first cannot tell from a baseline. Without parallax the depths are
+# noise: a hover's images (baselines of the poses' own noise, 0.2 m) were read as a pass flown backwards, and a
+# flight of 0.5 m steps measured 81 m of flying height for 100 m (the nu22 sweep).
+MIN_PARALLAX_NOISES = 2.0
 
 
 @dataclass(frozen=True)
@@ -259,12 +262,17 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         depth.append(float(np.median(d_a[ok])) if ok.any() else float("nan"))
         measured.append(float(np.median(ray_angles(p.x_a, p.x_b, r_p))) * focal)
     depth_a = np.array(depth)
-    flying = flying_height(depth_a, np.array(measured), [k == "next" for k in kinds], MIN_PARALLAX_NOISES * noise_px)
-    # the parallax the poses claim: a hover's pairs match with the parallax of the poses' attitude noise, which the
-    # rotation-compensated rays cannot tell from a baseline
+    consecutive = [k == "next" for k in kinds]
+    least = MIN_PARALLAX_NOISES * noise_px
+    # the parallax the poses claim (their baseline at the flying height): a hover's pairs match with the parallax of
+    # the poses' attitude noise, which the rotation-compensated rays cannot tell from a baseline; the flying height
+    # is measured on the pairs with parallax by the matches, then again with both
     baselines = np.array([np.linalg.norm(poses.centers[p.b] - poses.centers[p.a]) for p in matched])
-    claimed = focal * baselines / flying if np.isfinite(flying) and flying > 0 else np.full(len(matched), np.inf)
-    parallax = np.minimum(np.array(measured), claimed)
+    parallax = np.array(measured)
+    flying = flying_height(depth_a, parallax, consecutive, least)
+    if np.isfinite(flying) and flying > 0:
+        parallax = np.minimum(parallax, focal * baselines / flying)
+        flying = flying_height(depth_a, parallax, consecutive, least)
     systematic = fit_systematic_errors(poses, matched, focal, flying, noise_px)
     fitted = systematic.corrected(poses, flying)
     after = np.split(pair_sampson_px(fitted, matched, focal), np.cumsum([p.inliers for p in matched])[:-1])
@@ -272,7 +280,7 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         warnings.simplefilter("ignore", RuntimeWarning)  # by the verdict, not by numpy's "All-NaN slice" on stderr
         checks = [PairCheck(p.a, p.b, kind, p.matches, p.inliers, p.flow_px, float(np.nanmedian(r)),
                             float(np.nanpercentile(r, 90)), float(np.nanmedian(f)), fr, d, float(par),
-                            bool(par >= MIN_PARALLAX_NOISES * noise_px))
+                            bool(par >= least))
                   for p, kind, r, f, fr, d, par in zip(matched, kinds, raw, after, front, depth, parallax)]
         med = np.array([c.epipolar_px for c in checks])
         fit_med = np.array([c.epipolar_fit_px for c in checks])
@@ -308,11 +316,12 @@ def _working_scale(camera: Camera, params: PoseCheckParams) -> float:
 
 def _reversed_passes(checks: list[PairCheck], poses: Poses, gate_px: float) -> list[dict]:
     """Passes of the flight (`map_quality.flight_passes`) most of whose checked pairs inside the pass (at least
-    two) are reversed: the poses say those images moved the other way."""
+    two) are reversed: the poses say those images moved the other way. Pairs without the parallax to tell the
+    direction (`PairCheck.sees_direction`) do not vote either way."""
     passes = flight_passes(poses.centers)
     out = []
     for k in np.unique(passes):
-        inside = [c for c in checks if passes[c.a] == k and passes[c.b] == k]
+        inside = [c for c in checks if passes[c.a] == k and passes[c.b] == k and c.sees_direction]
         bad = [c for c in inside if c.reversed(gate_px)]
         if len(bad) >= 2 and len(bad) > 0.5 * len(inside):
             members = np.flatnonzero(passes == k)
