@@ -561,3 +561,41 @@ def test_batch_repeats_that_a_pair_s_georeferences_disagree(flights, tmp_path, m
     (group,) = report["groups"]
     merged = json.loads((out / "merged" / group["reference"] / "merge.json").read_text())
     assert any("georeferences disagree" in w for w in merged["warnings"])
+
+
+def turned_pair_task(session_a: str, session_b: str, pair_dir: str, params: object = None) -> dict:
+    """`oracle_pair_task` whose answer for A__B is an unverified consensus turned 72 degrees about A's landmarks
+    (far off, as `match --no-verify`'s consensus of A503 and B10, 680 m off); the other pairs' true."""
+    from sosmatch.database.session_io import read_session
+    from sosmatch.tools.toy_sessions import load_toy_session, toy_match_json
+
+    a, b = load_toy_session(session_a), load_toy_session(session_b)
+    if (Path(session_a).name, Path(session_b).name) != ("A", "B"):
+        return oracle_pair_task(session_a, session_b, pair_dir, params)
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    centre = read_session(a.path).landmarks.positions.mean(0)
+    turned = Sim3(np.eye(3), centre).compose(yaw_transform(-72, (0, 0, 0))).compose(Sim3(np.eye(3), -centre))
+    path = toy_match_json(a, b, Path(pair_dir) / "match.json", transform=turned.compose(truth))
+    return batch.summarise_match(path)
+
+
+def test_a_pair_merge_would_refuse_joins_no_group(flights, tmp_path):
+    """merge refuses a transform that does not bring the maps together (`changes.check_alignment`), but batch
+    merged through `merge_sessions` directly: with --no-verify a consensus far off was fused into a group. Every
+    accepted pair now passes the same control before the session graph; a refused one is reported as refused,
+    with the reason, and joins no group; the true pair B__C is merged as before."""
+    root, _ = flights
+    for name in ("A", "B", "C"):
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    report = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0), pair_fn=turned_pair_task,
+                       options=batch.BatchOptions(progress=False))
+    pairs = {p["pair"]: p for p in report.pairs}
+    ab = pairs["A__B"]
+    assert ab["status"] == "done" and not ab["accepted"] and not ab.get("in_graph") and ab["refused_support"] > 6
+    assert "does not bring the maps together" in ab["refused"] and "left out of the session graph" in ab["refused"]
+    assert pairs["B__C"]["accepted"] and pairs["B__C"]["in_graph"] and "refused" not in pairs["B__C"]
+    groups = {tuple(sorted(g["members"])): g for g in report.groups}
+    assert set(groups) == {("A",), ("B", "C")} and groups[("B", "C")]["status"] == "done"
+    assert any("A__B refused" in w for w in report.warnings)
+    assert "does not bring the maps together" in (tmp_path / "out" / "report.md").read_text()
+    assert not (tmp_path / "out" / "pairs" / "A__B" / "changes").exists()

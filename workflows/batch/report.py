@@ -40,8 +40,10 @@ class BatchReport:
     @property
     def warnings(self) -> list[str]:
         """What the batch's results say of its inputs without failing: pairs whose maps' georeferences disagree
-        (`georeference_warning`, match's warning repeated)."""
-        return [f"pair {p['pair']}: {p['georeference_warning']}" for p in self.pairs if p.get("georeference_warning")]
+        (`georeference_warning`, match's warning repeated), and accepted answers that merge's alignment control
+        refused (`refused`: left out of the session graph)."""
+        return ([f"pair {p['pair']}: {p['georeference_warning']}" for p in self.pairs if p.get("georeference_warning")]
+                + [f"pair {p['pair']} refused: {p['refused']}" for p in self.pairs if p.get("refused")])
 
     @property
     def ok(self) -> bool:
@@ -125,7 +127,7 @@ def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
 
 
 SESSION_COLUMNS = ["name", "kind", "status", "images", "points3D", "landmarks", "seconds", "error"]
-PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "refused_support", "yaw_deg",
+PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "refused_support", "refused", "yaw_deg",
                 "moved_median_m", "moved_max_m", "scale", "changes_status", "gone", "new", "kept", "unseen", "seconds",
                 "error"]
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]

@@ -1,5 +1,5 @@
 """Batch tasks: top-level functions with picklable arguments, run in worker processes (map, match (its verification
-included), merge, changes)."""
+included), the alignment control of merge, merge, changes)."""
 
 from __future__ import annotations
 
@@ -106,6 +106,27 @@ def summarise_match(match_json: Path) -> dict[str, Any]:
         "match_associations": int(len(m.consensus_associations)),
         "runner_up_support": m.runner_up_support,
     }
+
+
+def alignment_task(session_a: str, session_b: str, match_json: str, transform: dict, params: Params) -> dict[str, Any]:
+    """The control `sosmatch merge` applies before it merges a pair (`changes.check_alignment`: does the
+    transform a_from_b bring the two maps together, by the counterpart rate of A's landmarks that B's keyframes
+    saw, at the match's own gate), for a pair before it joins the session graph: `merge_sessions` does not apply
+    it, and `batch --no-verify` fused an unverified consensus 680 m off into a group. Returns {"refused": None}
+    or {"refused": the control's one-line reason}."""
+    from ...database.match_io import read_match
+    from ...database.session_io import read_session
+    from ...plugin.errors import InputError
+    from ..changes import check_alignment
+
+    match = read_match(match_json)
+    gate = match.gate_m or params.association.distance_tolerance_m  # as merge: the answer's own gate
+    try:
+        check_alignment(read_session(session_a), read_session(session_b), Sim3.from_dict(transform), params,
+                        match.source == "verified", gate, match_json, "left out of the session graph")
+    except InputError as e:
+        return {"refused": str(e)}
+    return {"refused": None}
 
 
 def merge_task(

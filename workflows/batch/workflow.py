@@ -27,7 +27,7 @@ from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_signature, images_dir
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
-from .tasks import changes_task, map_task, merge_task, pair_task
+from .tasks import alignment_task, changes_task, map_task, merge_task, pair_task
 
 log = logging.getLogger(__name__)
 
@@ -217,7 +217,7 @@ def _graph_and_merge(
     out_dir: Path,
 ) -> list[dict[str, Any]]:
     index = {n: i for i, n in enumerate(names)}
-    edges, edge_keys = [], {}
+    sims = {}
     for key, rec in pairs.items():
         if rec["status"] != "done" or not rec["accepted"] or rec["transform"] is None:
             continue
@@ -225,7 +225,14 @@ def _graph_and_merge(
         sim = Sim3.from_dict(rec["transform"])
         if options.refine and rec.get("answer") != "verified":
             sim = _refined(sessions[a]["session"], sessions[b]["session"], rec["match"], sim, params)
-        edge = Edge(index[a], index[b], sim, float(rec["num_associations"]))
+        sims[key] = sim
+    _control_alignments(sims, sessions, pairs, pair_fps, state, executor, options, params, out_dir)
+    edges, edge_keys = [], {}
+    for key, sim in sims.items():
+        if not pairs[key]["accepted"]:  # refused by merge's control
+            continue
+        a, b = key.split(PAIR_SEP)
+        edge = Edge(index[a], index[b], sim, float(pairs[key]["num_associations"]))
         edges.append(edge)
         edge_keys[(edge.a, edge.b)] = key
     # Accepted pairs that contradict the others are dropped before the graph is used (see consistent_edges).
@@ -275,6 +282,33 @@ def _graph_and_merge(
         if group["reference"] in merged:
             group.update(merged[group["reference"]])
     return groups
+
+
+def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
+                        pair_fps: dict[str, str], state: StateStore, executor: Executor, options: BatchOptions,
+                        params: Params, out_dir: Path) -> None:
+    """`sosmatch merge`'s control of every accepted pair's alignment (`alignment_task`), before the pair can join
+    the session graph: a pair it refuses is recorded as refused (`accepted` false, its associations as
+    `refused_support`, `refused`: the reason) and said in the log, as a refused match; it is no edge, no merge, no
+    changes. A control that fails (its sessions unreadable) leaves the pair out as well."""
+    pdict = params_to_dict(params)
+    tasks, fps = {}, {}
+    for key, sim in sims.items():
+        a, b = key.split(PAIR_SEP)
+        transform = sim.to_dict()
+        fps[key] = fingerprint({"pair": pair_fps[key], "transform": transform, "changes": pdict["changes"],
+                                "eps": pdict["association"]["distance_tolerance_m"]})
+        tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(pairs[key]["match"]), transform, params)
+    done = run_stage(executor, alignment_task, tasks, fps, state, "control", out_dir, "control alignments",
+                     options.progress)
+    for key, res in done.items():
+        rec = pairs[key]
+        why = res.get("refused") if res["status"] == "done" else f"its alignment control failed: {res.get('error')}"
+        rec.pop("refused", None)
+        if why:
+            rec.update({"accepted": False, "refused": why, "refused_support": rec.get("num_associations"),
+                        "num_associations": 0, "transform": None})
+            log.warning("pair %s refused: %s", key, why)
 
 
 def _valid_changes(done: dict[str, Any]) -> bool:
