@@ -43,52 +43,53 @@ def select_keyframes(centers: np.ndarray, interval_m: float) -> np.ndarray:
     return np.asarray(keys, dtype=np.int64)
 
 
-# A flight steps about its frame spacing; frames listed in another order (file names that do not follow the capture
-# order: renamed files, counters that wrapped, a model exported by name) step across the survey, as a random
-# order of the same centres does. The listed order is judged scrambled when its median step is more than
-# SCRAMBLED_RANDOM_FRACTION of a random order's (a random pair's median distance: the site's scale) AND more than
-# SCRAMBLED_STEP_RATIO x the median distance to the nearest frame. The second condition alone was the first rule;
-# it fails on a flight that revisits its ground (a double grid, an out-and-back corridor, a second battery over
-# the same lines), where every frame has a twin 0-1.5 m away: its 7 m steps were "scrambled" and the passes were
-# interleaved by the path (new-user sweep 22). It stays as a necessary condition for short flights, whose few
-# frames give a random order steps of one or two spacings too (a line of 4 frames in order).
-SCRAMBLED_RANDOM_FRACTION = 0.5
-SCRAMBLED_STEP_RATIO = 3.0
-# All pairs up to this many frames (exact, 0.5 M distances); beyond, this many seeded random pairs.
-_RANDOM_PAIRS_EXACT_MAX = 1000
-_RANDOM_PAIRS_SAMPLED = 500_000
+# A flight steps to one of the frames nearest to where it is; frames listed in another order (file names that do not
+# follow the capture order: renamed files, counters that wrapped, a model exported by name) step across the survey,
+# as a random order of the same centres does. The listed order is judged scrambled when, for most steps, the next
+# frame is not among the SCRAMBLED_NEXT_RANK frames nearest to the current one (its rank: how many frames are
+# strictly nearer than it). The rank is local and scale-free. Two earlier rules compared the median step with one
+# scale of the whole set: with the nearest-frame distance, a flight that revisits its ground (every frame with a
+# twin 0-1.5 m away) was "scrambled" at its 7 m steps (new-user sweep 22); with a random order's step (the site's
+# scale), two blocks 2 km apart, each shuffled within, were kept as given (119 m steps against 1850 m; review 20).
+# A flight over its ground again P times has ranks up to about 2P (the twins of this frame and the next): 8 keeps
+# four passes; a shuffled block of M frames has ranks about M/2, so a list of up to ~2 x 8 frames is never judged
+# scrambled (a line of 4 frames in order stays).
+SCRAMBLED_NEXT_RANK = 8
+# The ranks of at most this many steps (evenly spaced, deterministic): each costs up to one pass over the frames.
+_RANK_STEPS_MAX = 1000
 
 
-def random_order_step(xy: np.ndarray) -> float:
-    """The median step of a random order of these points: the median distance between two distinct frames.
+def next_frame_ranks(xy: np.ndarray) -> np.ndarray:
+    """For steps i -> i+1 of the listed order: how many frames are strictly nearer to frame i than frame i+1 is.
 
     Args:
-        xy: (N, 2) horizontal camera centres in metres, N >= 2.
+        xy: (N, 2) horizontal camera centres in metres, in the listed order, N >= 2.
 
     Returns:
-        The median over all pairs (N <= 1000), else over a fixed seeded sample of pairs (deterministic).
+        (S,) int64 ranks, for every step (N - 1 <= _RANK_STEPS_MAX), else for that many evenly spaced ones.
     """
-    n = len(xy)
-    if n <= _RANDOM_PAIRS_EXACT_MAX:
-        from scipy.spatial.distance import pdist
+    from scipy.spatial import cKDTree
 
-        return float(np.median(pdist(xy)))
-    rng = np.random.default_rng(0)
-    i = rng.integers(0, n, _RANDOM_PAIRS_SAMPLED)
-    j = (i + rng.integers(1, n, _RANDOM_PAIRS_SAMPLED)) % n  # never i itself
-    return float(np.median(np.linalg.norm(xy[i] - xy[j], axis=1)))
+    steps = np.arange(len(xy) - 1)
+    if len(steps) > _RANK_STEPS_MAX:
+        steps = np.unique(np.linspace(0, len(xy) - 2, _RANK_STEPS_MAX).astype(np.int64))
+    dist = np.linalg.norm(xy[steps + 1] - xy[steps], axis=1)
+    tree = cKDTree(xy)
+    # frames within the step, the frame itself included (a ball's edge is closed: frames at exactly the step's
+    # distance are not nearer, so the radius is shrunk by a rounding margin)
+    inside = tree.query_ball_point(xy[steps], np.maximum(dist * (1.0 - 1e-9) - 1e-9, 0.0), return_length=True)
+    return np.maximum(np.asarray(inside, dtype=np.int64) - 1, 0)
 
 
 def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[np.ndarray, str]:
     """The order in which the frames were taken, and how it was found ("given", "capture time", "path").
 
     Capture times (every frame one, finite) decide when they exist (stable for equal times). Without them the
-    given order stands unless it is evidently not a flight (horizontally, the median step between consecutive
-    frames is more than SCRAMBLED_RANDOM_FRACTION x a random order's, `random_order_step`, and more than
-    SCRAMBLED_STEP_RATIO x the median distance to the nearest frame); then the frames are chained from an end of
-    the survey (the frame farthest from the centroid) to the nearest frame not yet taken, which retraces a
-    survey's lines and turns. A flight that passes over its ground again stays as given: its steps are about its
-    spacing, a small fraction of a random order's.
+    given order stands unless it is evidently not a flight (horizontally, the median `next_frame_ranks` is more
+    than SCRAMBLED_NEXT_RANK: most steps go past the frames nearest to the current one); then the frames are
+    chained from an end of the survey (the frame farthest from the centroid) to the nearest frame not yet taken,
+    which retraces a survey's lines and turns. A flight that passes over its ground again stays as given: its
+    next frame is among the few nearest (its twins are the others).
 
     Args:
         centers: (N, 3) camera centres in metres, in the given order.
@@ -105,14 +106,8 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
         return order, ("given" if np.array_equal(order, identity) else "capture time")
     if n < 3 or not np.all(np.isfinite(centers)):
         return identity, "given"
-    from scipy.spatial import cKDTree
-
     xy = centers[:, :2]
-    step = float(np.median(np.linalg.norm(np.diff(xy, axis=0), axis=1)))
-    if step == 0.0 or step <= SCRAMBLED_RANDOM_FRACTION * random_order_step(xy):
-        return identity, "given"
-    nearest = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
-    if step <= SCRAMBLED_STEP_RATIO * nearest:
+    if np.median(next_frame_ranks(xy)) <= SCRAMBLED_NEXT_RANK:
         return identity, "given"
     current = int(np.argmax(np.linalg.norm(xy - xy.mean(axis=0), axis=1)))
     taken = np.zeros(n, dtype=bool)

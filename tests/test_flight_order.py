@@ -65,3 +65,21 @@ def test_shuffled_revisits_and_small_flights_are_judged_against_a_random_order()
     for n in (3, 4, 5, 8):
         line = np.column_stack([np.arange(n) * 7.0, np.zeros(n), np.full(n, 100.0)])
         assert flight_order(line)[1] == "given", n
+
+
+def test_blocks_far_apart_each_shuffled_within_are_chained():
+    """Review 20: two 240-frame blocks 2 km apart, each shuffled within, listed one after the other. Their median
+    step (119 m) is small against a random order's over the whole site (1850 m: the site's scale, not the frame
+    spacing), so the rule of a random order kept them as given; the next frame is still no near one (its rank
+    among the current frame's neighbours is about half a block). Chained, every step is back along a line, at a
+    turn or the one jump between the blocks."""
+    c = _lawnmower(lines=6, per_line=40)
+    far = c + [2000.0, 0.0, 0.0]
+    rng = np.random.default_rng(0)
+    listed = np.concatenate([c[rng.permutation(len(c))], far[rng.permutation(len(far))]])
+    order, how = flight_order(listed)
+    assert how == "path" and sorted(order.tolist()) == list(range(len(listed)))
+    steps = np.linalg.norm(np.diff(listed[order][:, :2], axis=0), axis=1)
+    assert np.sum(steps > 30.0 + 1e-9) == 1  # the jump between the blocks, once
+    # the same blocks each in order stay as given
+    assert flight_order(np.concatenate([c, far]))[1] == "given"
