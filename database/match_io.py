@@ -313,6 +313,9 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
         summary.imprecise = _bool(unc.get("imprecise", False), "answer_uncertainty.imprecise", path)
         summary.predicted_max_m = _float(unc.get("predicted_max_m"), "answer_uncertainty.predicted_max_m", path,
                                          allow_none=True)
+        if summary.imprecise and summary.predicted_max_m is None:  # the consumers' warning says how far off
+            raise InputError("match file field answer_uncertainty.predicted_max_m is missing: an imprecise answer "
+                             "records its predicted error", path)
     if kind == "rigid":  # a scale in a rigid match is an edit: merge and changes would apply it
         for what, t in (("the answer's", summary.transform), ("the consensus'", summary.consensus_transform)):
             if t is not None and abs(t.scale - 1.0) > 1e-9:

@@ -95,3 +95,7 @@ def test_match_json_records_it_for_merge_and_changes() -> None:
     doc["answer_uncertainty"] = [1]
     with pytest.raises(InputError, match="answer_uncertainty"):
         parse_match(doc)
+    # imprecise without its predicted error: merge and changes crashed formatting None (review 20)
+    doc["answer_uncertainty"] = {"imprecise": True}
+    with pytest.raises(InputError, match="answer_uncertainty.predicted_max_m is missing"):
+        parse_match(doc)
