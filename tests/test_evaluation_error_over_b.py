@@ -41,3 +41,16 @@ def test_evaluation_table_shows_the_error_over_b() -> None:
     assert row["accepted_max_map_error_m"] == e["map_max_m"]
     table = format_table([row])
     assert f"{e['map_median_m']:.1f} / {e['map_max_m']:.1f}" in table
+
+
+def test_median_and_max_of_the_worst_answer_come_from_one_answer() -> None:
+    """Without a verification every accepted window hypothesis is an answer: the cell's median and max are those of
+    the answer with the largest max, not each the largest over the answers (review 20: they could come from two)."""
+    summary = {"average_f1": 1.0, "recall_at_p99": 1.0, "f1_at_p99": 1.0, "f1_at_r99": 1.0, "recall_reached": 1.0}
+    answers = [{"error_m": 0.5, "map_median_m": 6.0, "map_max_m": 9.0},  # evenly off
+               {"error_m": 0.2, "map_median_m": 1.0, "map_max_m": 20.0}]  # turned: small median, large max
+    res = {"curve": SimpleNamespace(summary=summary), "search_seconds": 1.0, "map_bytes": [1000, 1000],
+           "accepted_truth": answers}
+    row = row_of("case", "windows only", res)
+    assert (row["accepted_median_map_error_m"], row["accepted_max_map_error_m"]) == (1.0, 20.0)
+    assert "1.0 / 20.0" in format_table([row])
