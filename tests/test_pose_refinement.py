@@ -400,3 +400,17 @@ def test_the_roll_position_priors_leave_free_is_set_by_the_attitudes(line_spacin
         assert np.degrees(phi * np.sign(axis[0])) == pytest.approx(-roll_deg, abs=1.0)
     else:
         assert abs(np.degrees(phi)) < 0.15 * abs(roll_deg)
+
+
+def test_a_hover_has_no_free_roll_axis_to_turn_about():
+    """Every prior centre at one place (a hover-only set): the main axis of the centres is numerical noise, and
+    turning the block about it by the attitudes would be a turn about an arbitrary axis (review 20): no correction."""
+    from scipy.spatial.transform import Rotation
+
+    from sosmatch.workflows.pose_refinement.with_colmap import free_roll_correction
+
+    rng = np.random.default_rng(3)
+    centers = np.tile([10.0, 20.0, 100.0], (12, 1)) + rng.normal(0, 1e-6, (12, 3))
+    priors = rotvec_to_matrix(rng.normal(0, np.radians(2.0), (12, 3))) @ np.diag([1.0, -1.0, -1.0])
+    turn = Rotation.from_rotvec(np.radians(30.0) * np.array([0.0, 1.0, 0.0])).as_matrix()
+    assert free_roll_correction(centers, priors, turn @ priors, position_sigma_m=3.0, attitude_sigma_deg=5.0)[2] == 0.0

@@ -101,6 +101,11 @@ def refine_poses_with_colmap(
     return stats
 
 
+# Prior centres spread less than this along their main axis (the largest singular value of their offsets) are one
+# place: the axis the SVD returns is arbitrary (numerical noise), and turning the block about it corrects nothing.
+HOVER_SPREAD_M = 0.01
+
+
 def free_roll_correction(prior_centers: np.ndarray, prior_rotations: np.ndarray, rotations: np.ndarray,
                          position_sigma_m: float, attitude_sigma_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
     """(axis, point on it, angle in radians) of the rotation about the main axis of the prior camera centres that
@@ -114,10 +119,14 @@ def free_roll_correction(prior_centers: np.ndarray, prior_rotations: np.ndarray,
     information 1 / (sigma_att^2 / n + sigma_systematic^2); the adjusted block is at the positions' optimum
     (phi = 0), so the combined estimate is phi_att weighted by the attitudes' share of the information. A block
     spread across its axis
-    (a lawnmower flight: d_i of tens of metres) gets ~0; a straight line gets phi_att."""
+    (a lawnmower flight: d_i of tens of metres) gets ~0; a straight line gets phi_att; centres at one place (a
+    hover: no main axis, HOVER_SPREAD_M) get 0."""
     c = prior_centers.mean(axis=0)
     offsets = prior_centers - c
-    axis = np.linalg.svd(offsets, full_matrices=False)[2][0]
+    _, spread, vt = np.linalg.svd(offsets, full_matrices=False)
+    axis = vt[0]
+    if spread[0] < HOVER_SPREAD_M:  # one place (hovering): no axis, the block's turn about any is unconstrained
+        return axis, c, 0.0
     d2 = np.sum(offsets**2, axis=1) - (offsets @ axis) ** 2
     info_positions = float(np.sum(d2)) / float(position_sigma_m) ** 2
     # the attitudes' errors are partly shared by every image (the level-nadir assumption without tags, a gimbal's
