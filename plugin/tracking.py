@@ -406,6 +406,10 @@ def track_masks(
     n_obs = np.zeros(0, np.int64)  # per track: number of observations
     track_ids: list[np.ndarray] = []
     desc_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def descriptor_index(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return _desc_index(features[k], None if descriptors is None else descriptors(k))
+
     n_matched = 0
     for t in range(n_kf):
         feat_t = features[t]
@@ -420,12 +424,12 @@ def track_masks(
             # third observation confirmed (a wrong two-view link puts its point anywhere along the epipolar line)
             band = local_ground(points[n_obs[cand] >= _GROUND_MIN_OBSERVATIONS, 2], params.ground_band_sigmas)
         if len(cand):
-            desc_cache[t] = _desc_index(feat_t, None if descriptors is None else descriptors(t))
+            desc_cache[t] = descriptor_index(t)
             q = np.zeros((len(cand), m))
             for s in np.unique(last_kf[cand]):
                 rows = np.flatnonzero(last_kf[cand] == s)
                 if s not in desc_cache:
-                    desc_cache[s] = _desc_index(features[s], None if descriptors is None else descriptors(int(s)))
+                    desc_cache[s] = descriptor_index(int(s))
                 mu, sigma = gap_motion(motion_stats, int(s), t, params.centroid_sigma_px)
                 q[rows] = pair_scores(
                     features[s], last_mask[cand[rows]], feat_t, camera, keyframe_poses, int(s), t, mu, sigma,

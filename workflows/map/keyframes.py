@@ -146,6 +146,9 @@ def describe_keyframes(
     from ...database.images import flight_white_level
     from ..progress import progress_bar
 
+    def kept(feats: Any) -> Any:  # what this call returns of a keyframe's description
+        return feats if hold_descriptors else replace(feats, sift_desc=_NO_DESCRIPTORS)
+
     cache_dir.mkdir(parents=True, exist_ok=True)
     size = (inputs.camera.height, inputs.camera.width)
     # one white level for the flight's images beyond 8 bits (none for 8-bit ones, whose cache keys stay as they were)
@@ -163,7 +166,7 @@ def describe_keyframes(
         entry = _cache_path(cache_dir, k, name)
         hit = _load_cached(entry, key) if entry.exists() else None
         if hit is not None:
-            results[k] = hit if hold_descriptors else (replace(hit[0], sift_desc=_NO_DESCRIPTORS), hit[1])
+            results[k] = (kept(hit[0]), hit[1])
         else:
             prev_path = inputs.image_paths[keyframes[k - 1]] if k else None
             todo.append((k, inputs.image_paths[idx], prev_path, entry, key))
@@ -175,7 +178,7 @@ def describe_keyframes(
             feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
                                                   prev_gray if prev_k == k - 1 else None, masks_for, inputs.camera,
                                                   white)
-            results[k] = (feats if hold_descriptors else replace(feats, sift_desc=_NO_DESCRIPTORS), mu_sigma)
+            results[k] = (kept(feats), mu_sigma)
             prev_gray, prev_k = gray, k
             bar.update()
             if on_keyframe is not None:
@@ -191,8 +194,7 @@ def describe_keyframes(
             try:
                 for k, fut in futures:
                     feats, mu_sigma, _ = fut.result()
-                    results[k] = (feats if hold_descriptors else replace(feats, sift_desc=_NO_DESCRIPTORS),
-                                  mu_sigma)
+                    results[k] = (kept(feats), mu_sigma)
                     bar.update()
                     if on_keyframe is not None:
                         on_keyframe(k)

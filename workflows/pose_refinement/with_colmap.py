@@ -8,9 +8,8 @@ import math
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from ...plugin.geometry import Poses
+from ...plugin.geometry import Poses, rotvec_to_matrix, skew
 from ...plugin.georegistration import NADIR_ASSUMPTION_SIGMA_DEG
 from ..triangulation import fixed_camera_ba_options
 from .judge import RefinementStats, pose_changes
@@ -118,9 +117,8 @@ def free_roll_correction(prior_centers: np.ndarray, prior_rotations: np.ndarray,
     block should be rolled (phi_att, the least-squares rotation about the axis, from the chordal mean) with
     information 1 / (sigma_att^2 / n + sigma_systematic^2); the adjusted block is at the positions' optimum
     (phi = 0), so the combined estimate is phi_att weighted by the attitudes' share of the information. A block
-    spread across its axis
-    (a lawnmower flight: d_i of tens of metres) gets ~0; a straight line gets phi_att; centres at one place (a
-    hover: no main axis, HOVER_SPREAD_M) get 0."""
+    spread across its axis (a lawnmower flight: d_i of tens of metres) gets ~0; a straight line gets phi_att;
+    centres at one place (a hover: no main axis, HOVER_SPREAD_M) get 0."""
     c = prior_centers.mean(axis=0)
     offsets = prior_centers - c
     _, spread, vt = np.linalg.svd(offsets, full_matrices=False)
@@ -134,7 +132,7 @@ def free_roll_correction(prior_centers: np.ndarray, prior_rotations: np.ndarray,
     block_sigma_deg = math.hypot(float(attitude_sigma_deg) / math.sqrt(len(rotations)), NADIR_ASSUMPTION_SIGMA_DEG)
     info_attitudes = 1.0 / math.radians(block_sigma_deg) ** 2
     m = np.einsum("nij,nkj->ik", rotations, prior_rotations)  # sum of R_adjusted R_prior^T
-    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    cross = skew(axis)
     # tr(Q M) for Q the rotation by phi about the axis: cos(phi) (tr M - a^T M a) + sin(phi) tr([a]x M) + a^T M a
     phi_att = math.atan2(float(np.trace(cross @ m)), float(np.trace(m) - axis @ m @ axis))
     return axis, c, phi_att * info_attitudes / (info_attitudes + info_positions)
@@ -156,7 +154,7 @@ def level_free_roll(rec: object, prior_poses: Poses, position_sigma_m: float, at
                                             position_sigma_m, attitude_sigma_deg)
     if abs(phi) < 1e-9:
         return 0.0
-    turn = Rotation.from_rotvec(phi * axis).as_matrix()
+    turn = rotvec_to_matrix((phi * axis)[None])[0]
     # images without a tie point are not part of the block the adjustment solved: they keep their priors
     apart = {}
     for im in rec.images.values():
