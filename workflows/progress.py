@@ -111,9 +111,10 @@ def progress_bar(total: int | None, desc: str, unit: str, enabled: bool = True, 
     return tqdm(total=total, initial=initial, desc=desc, unit=unit, disable=not enabled, leave=leave)
 
 
-def progress_iter(items: Any, total: int | None, desc: str, unit: str, enabled: bool = True) -> Any:
+def progress_iter(items: Any, total: int | None, desc: str, unit: str, enabled: bool = True,
+                  leave: bool = True) -> Any:
     """Iterate over `items` while showing progress as `progress_bar` does (a generator: the bar closes at the end)."""
-    bar = progress_bar(total, desc, unit, enabled, leave=True)
+    bar = progress_bar(total, desc, unit, enabled, leave=leave)
     try:
         for item in items:
             yield item

@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from tqdm import tqdm
+
+from ...workflows.progress import progress_iter
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ def extract_with(detector: cv2.Feature2D, images: list[np.ndarray], norm: int, d
     """Run an OpenCV detector+descriptor on every image; images without features get empty arrays."""
     t0 = time.perf_counter()
     kps, descs = [], []
-    for image in tqdm(images, desc="features", unit="img", leave=False, disable=len(images) < 50):
+    for image in progress_iter(images, len(images), "features", "img", len(images) >= 50, leave=False):
         kp, desc = detector.detectAndCompute(to_gray(image), None)
         kps.append(np.array([k.pt for k in kp], dtype=np.float32).reshape(-1, 2))
         descs.append(desc if desc is not None else np.zeros((0, desc_dim), dtype=desc_dtype))
@@ -111,6 +112,6 @@ def match_all(fa: Features, fb: Features, config: BaselineConfig | None = None) 
 
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        list(tqdm(pool.map(row, range(len(fa.descriptors))), total=len(fa.descriptors), desc="baseline pairs",
-                  unit="row", leave=False, disable=out.size < 5000))
+        list(progress_iter(pool.map(row, range(len(fa.descriptors))), len(fa.descriptors), "baseline pairs", "row",
+                           out.size >= 5000, leave=False))
     return out, time.perf_counter() - t0
