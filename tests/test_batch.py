@@ -599,3 +599,29 @@ def test_a_pair_merge_would_refuse_joins_no_group(flights, tmp_path):
     assert any("A__B refused" in w for w in report.warnings)
     assert "does not bring the maps together" in (tmp_path / "out" / "report.md").read_text()
     assert not (tmp_path / "out" / "pairs" / "A__B" / "changes").exists()
+
+
+def test_each_pair_s_match_is_read_once_after_the_match_stage(flights, tmp_path, monkeypatch):
+    """The stages after matching (the georeference warning, the alignment control, the merge) share one parsed
+    match.json per accepted pair (`workflow._read_matches`): each read it again before (3 reads, plus the match
+    stage's own summary)."""
+    from collections import Counter
+
+    from sosmatch.database import match_io
+
+    root, _ = flights
+    for name in ("A", "B", "C"):
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    reads, read = Counter(), match_io.read_match
+
+    def counting(path):
+        reads[Path(path).parent.name] += 1
+        return read(path)
+
+    monkeypatch.setattr(match_io, "read_match", counting)
+    report = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                       options=batch.BatchOptions(progress=False))
+    accepted = sorted(p["pair"] for p in report.pairs if p["accepted"])
+    assert accepted == ["A__B", "B__C"] and report.groups[0]["status"] == "done"
+    # one read by the match stage's summary (`summarise_match`), one for every later stage
+    assert {key: reads[key] for key in accepted} == {"A__B": 2, "B__C": 2}

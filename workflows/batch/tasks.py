@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ...plugin.multisession import Sim3
 from ...plugin.params import Params
 from .discovery import images_dir
+
+if TYPE_CHECKING:
+    from ...database.match_io import MatchSummary
 
 log = logging.getLogger(__name__)
 
@@ -108,18 +111,20 @@ def summarise_match(match_json: Path) -> dict[str, Any]:
     }
 
 
-def alignment_task(session_a: str, session_b: str, match_json: str, transform: dict, params: Params) -> dict[str, Any]:
+def alignment_task(session_a: str, session_b: str, match_json: str, transform: dict, params: Params,
+                   match: MatchSummary | None = None) -> dict[str, Any]:
     """The control `sosmatch merge` applies before it merges a pair (`changes.check_alignment`: does the
     transform a_from_b bring the two maps together, by the counterpart rate of A's landmarks that B's keyframes
     saw, at the match's own gate), for a pair before it joins the session graph: `merge_sessions` does not apply
-    it, and `batch --no-verify` fused an unverified consensus 680 m off into a group. Returns {"refused": None}
+    it, and `batch --no-verify` fused an unverified consensus 680 m off into a group. `match`: match_json as
+    `match_io.read_match` parsed it (batch reads each pair's once; None: read here). Returns {"refused": None}
     or {"refused": the control's one-line reason}."""
     from ...database.match_io import read_match
     from ...database.session_io import read_session
     from ...plugin.errors import InputError
     from ..changes import check_alignment
 
-    match = read_match(match_json)
+    match = match if match is not None else read_match(match_json)
     gate = match.gate_m or params.association.distance_tolerance_m  # as merge: the answer's own gate
     try:
         check_alignment(read_session(session_a), read_session(session_b), Sim3.from_dict(transform), params,
@@ -137,9 +142,11 @@ def merge_task(
     out_dir: str,
     max_fuse_distance_m: float,
     overwrite: bool = False,
+    matches: list[MatchSummary] | None = None,
 ) -> dict[str, Any]:
     """Merge one connected group: sessions in the reference frame, landmarks fused along the tree edges
-    (a, b, match.json path); writes out_dir (see `sosmatch.workflows.merge`)."""
+    (a, b, match.json path); writes out_dir (see `sosmatch.workflows.merge`). `matches`: each edge's match.json
+    as `match_io.read_match` parsed it (batch reads each pair's once; None: read here)."""
     from ...database.match_io import check_match_maps, georeference_note, read_match
     from ...database.session_io import read_session
     from ..merge import match_fuse_pair, merge_sessions
@@ -147,9 +154,10 @@ def merge_task(
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3.from_dict(t) for t in transforms]
     pairs, warnings = [], []
-    for a, b, m in edges:  # the pair's match must be about these two sessions; its answer fused at its own gate
+    # the pair's match must be about these two sessions; its answer fused at its own gate
+    for k, (a, b, m) in enumerate(edges):
         match_json = Path(m)
-        match = read_match(match_json)
+        match = matches[k] if matches is not None else read_match(match_json)
         check_match_maps(match, sessions[a].landmarks, sessions[b].landmarks, match_json, names=(labels[a], labels[b]))
         pairs.append(match_fuse_pair(a, b, match))
         if (note := georeference_note(match)) is not None:  # the merged model inherits it (merge.json)

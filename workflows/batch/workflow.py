@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ...database.match_io import MatchSummary
 from ...database.outputs import open_output_dir
 from ...database.session_io import MERGE_RECORD
 from ...plugin.multisession import (
@@ -157,11 +158,12 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
             pair_tasks[key] += (verify, options.overwrite)
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                        options.progress, _valid_match)
-    _georeference_warnings(pairs)
+    matches = _read_matches(pairs)
+    _georeference_warnings(pairs, matches)
     failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
 
     # 4: session graph (marks each pair's in_graph) and merged groups
-    report.groups = _graph_and_merge(report, mapped, sessions, pairs, pair_fps, state, executor, options,
+    report.groups = _graph_and_merge(report, mapped, sessions, pairs, matches, pair_fps, state, executor, options,
                                      params, out_dir)
     # 5: what changed between the sessions of every pair the graph kept
     if options.changes:
@@ -177,18 +179,27 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     return report
 
 
-def _georeference_warnings(pairs: dict[str, dict[str, Any]]) -> None:
+def _read_matches(pairs: dict[str, dict[str, Any]]) -> dict[str, MatchSummary]:
+    """Every accepted pair's match.json, read once (`match_io.read_match`) for all the stages that use it (the
+    georeference warning, the alignment control, the merge), and handed to their tasks as it was parsed."""
+    from ...database.match_io import read_match
+
+    return {key: read_match(rec["match"]) for key, rec in pairs.items()
+            if rec.get("status") == "done" and rec.get("accepted") and rec.get("match")}
+
+
+def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary]) -> None:
     """Repeat `match`'s warning that a pair's georeferences disagree (`match_io.georeference_note`, from its
     match.json) into the pair's record (`georeference_warning`, report.json / .md) and the batch's log: match says
     it in its worker, whose log a batch does not show, and a resumed batch does not run it again (the twenty-first
     sweep: two flights 428 m apart by their georeferences merged into one EPSG without a word)."""
-    from ...database.match_io import georeference_note, read_match
+    from ...database.match_io import georeference_note
 
     for key, rec in pairs.items():
         rec.pop("georeference_warning", None)
-        if rec.get("status") != "done" or not rec.get("accepted") or not rec.get("match"):
+        if key not in matches:  # not done, not accepted, or no match file
             continue
-        if (note := georeference_note(read_match(rec["match"]))) is not None:
+        if (note := georeference_note(matches[key])) is not None:
             rec["georeference_warning"] = f"{key.split(PAIR_SEP)[1]}: {note}"
             log.warning("pair %s: %s", key, rec["georeference_warning"])
 
@@ -213,8 +224,8 @@ def _stale_outputs(out_dir: Path, report: BatchReport) -> list[str]:
 
 def _graph_and_merge(
     report: BatchReport, names: list[str], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
-    pair_fps: dict[str, str], state: StateStore, executor: Executor, options: BatchOptions, params: Params,
-    out_dir: Path,
+    matches: dict[str, MatchSummary], pair_fps: dict[str, str], state: StateStore, executor: Executor,
+    options: BatchOptions, params: Params, out_dir: Path,
 ) -> list[dict[str, Any]]:
     index = {n: i for i, n in enumerate(names)}
     sims = {}
@@ -224,9 +235,9 @@ def _graph_and_merge(
         a, b = key.split(PAIR_SEP)
         sim = Sim3.from_dict(rec["transform"])
         if options.refine and rec.get("answer") != "verified":
-            sim = _refined(sessions[a]["session"], sessions[b]["session"], rec["match"], sim, params)
+            sim = _refined(sessions[a]["session"], sessions[b]["session"], matches[key], sim, params)
         sims[key] = sim
-    _control_alignments(sims, sessions, pairs, pair_fps, state, executor, options, params, out_dir)
+    _control_alignments(sims, sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir)
     edges, edge_keys = [], {}
     for key, sim in sims.items():
         if not pairs[key]["accepted"]:  # refused by merge's control
@@ -274,7 +285,7 @@ def _graph_and_merge(
             # the group's merged model is this batch's own product of its sessions and pairs: when a flight was
             # added, removed or changed it is remade, as everything else that changed (a changed setting is
             # refused before any work by the batch's own identity unless --overwrite)
-            params.association.distance_tolerance_m, True,
+            params.association.distance_tolerance_m, True, [matches[edge_keys[(e.a, e.b)]] for e in tree],
         )
     merged = run_stage(executor, merge_task, merge_tasks, merge_fps, state, "merge", out_dir, "merge groups",
                         options.progress, _valid_merge)
@@ -285,8 +296,8 @@ def _graph_and_merge(
 
 
 def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
-                        pair_fps: dict[str, str], state: StateStore, executor: Executor, options: BatchOptions,
-                        params: Params, out_dir: Path) -> None:
+                        matches: dict[str, MatchSummary], pair_fps: dict[str, str], state: StateStore,
+                        executor: Executor, options: BatchOptions, params: Params, out_dir: Path) -> None:
     """`sosmatch merge`'s control of every accepted pair's alignment (`alignment_task`), before the pair can join
     the session graph: a pair it refuses is recorded as refused (`accepted` false, its associations as
     `refused_support`, `refused`: the reason) and said in the log, as a refused match; it is no edge, no merge, no
@@ -298,7 +309,8 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
         transform = sim.to_dict()
         fps[key] = fingerprint({"pair": pair_fps[key], "transform": transform, "changes": pdict["changes"],
                                 "eps": pdict["association"]["distance_tolerance_m"]})
-        tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(pairs[key]["match"]), transform, params)
+        tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(pairs[key]["match"]), transform, params,
+                      matches[key])
     done = run_stage(executor, alignment_task, tasks, fps, state, "control", out_dir, "control alignments",
                      options.progress)
     for key, res in done.items():
@@ -340,12 +352,10 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
             pairs[key]["changes_error"] = rec.get("error", "")
 
 
-def _refined(session_a: str, session_b: str, match_json: str, sim: Sim3, params: Params) -> Sim3:
-    from ...database.match_io import read_match
+def _refined(session_a: str, session_b: str, m: MatchSummary, sim: Sim3, params: Params) -> Sim3:
     from ...database.session_io import read_session
     from ..merge import refine_transform
 
-    m = read_match(match_json)
     refined, _ = refine_transform(read_session(session_a), read_session(session_b), m.associations, sim,
                                   params.association.transform == "similarity", params.association.distance_tolerance_m)
     return refined
