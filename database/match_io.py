@@ -323,6 +323,15 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     return summary
 
 
+def answer_gate(match: MatchSummary | None, configured_m: float) -> float:
+    """The association tolerance (theta_eps) of the match that produced a transform: what its answer's pairs
+    passed (`MatchSummary.gate_m`: the tolerance match derived from the maps, or the verification's gate), at which
+    every consumer judges the transform (the alignment control of changes, merge and batch; merge's refinement and
+    fusion). `configured_m`, the configured theta_eps, only when there is no match or it records none: maps of
+    20 m objects (NAIP, theta_eps 8.2 m) have 1 counterpart in 142 at 2 m at their true alignment."""
+    return match.gate_m if match is not None and match.gate_m is not None else configured_m
+
+
 def imprecise_note(match: MatchSummary) -> str | None:
     """What a consumer of `match` (merge, changes) says when its accepted answer is imprecise (None when it is
     not): the transform may place B's landmarks farther from their true partners than the gate its pairs passed."""

@@ -421,3 +421,45 @@ def test_a_merged_model_is_refused(toy, tmp_path, cli_error):
     out = tmp_path / "C"
     err = cli_error("changes", tmp_path / "M", root / "B", "--match", match, "--out", out)
     assert f"{tmp_path / 'M'}: a merged model (merge.json)" in err and not out.exists()
+
+
+def test_the_alignment_control_runs_at_the_match_s_gate_as_merge_runs_it(toy, tmp_path):
+    """`changes` judged the alignment at the configured theta_eps (2 m: counterpart gate 3 m), merge and batch at
+    the gate of the match that produced it (match.json's theta_eps, `match_io.answer_gate`): a transform 4 m off,
+    the landmark scatter of a match that derived theta_eps 3.5 m from its maps, was merged, and refused by
+    `changes` as not bringing the maps together. One answer now. The classification keeps its configured gate; where
+    the maps scatter beyond it (1 % of A's compared landmarks with a counterpart there) `changes` says so and what
+    to set, instead of claiming every object gone (two NAIP maps: 113 gone, 126 new, 7 + 4 kept, exit 0). A
+    transform given without its match's gate is judged at the configured one."""
+    from sosmatch.database.match_io import read_match
+    from sosmatch.plugin.params import Params, with_overrides
+    from sosmatch.workflows import changes, merge
+
+    _, _, a, b, *_ = toy
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+
+    def match_off(metres):
+        transform = yaw_transform(0, (metres, 0.0, 0.0)).compose(truth)
+        path = toy_match_json(a, b, tmp_path / f"AB{metres:g}" / "match.json", transform=transform)
+        doc = json.loads(path.read_text())
+        doc["params"] = {"association": {"distance_tolerance_m": 3.5}}
+        path.write_text(json.dumps(doc))
+        assert read_match(path).gate_m == 3.5
+        return path, transform
+
+    far, off = match_off(4.0)
+    merge.run(a.path, b.path, far, tmp_path / "M")  # merge's control passes at the match's gate
+    with pytest.raises(InputError, match=r"scatter beyond the counterpart gate .*distance_tolerance_m=3.5; nothing"):
+        changes.compute(a.path, b.path, far)
+    with pytest.raises(InputError, match="scatter beyond"):  # batch hands its match's gate with the transform
+        changes.compute(a.path, b.path, None, a_from_b=off, answer_gate_m=3.5)
+    with pytest.raises(InputError, match="does not bring the maps together"):  # a transform from elsewhere
+        changes.compute(a.path, b.path, None, a_from_b=off)
+    wide = changes.compute(a.path, b.path, far, with_overrides(Params(), {"association.distance_tolerance_m": 3.5}))
+    assert wide.result.tolerance_m == wide.control_gate_m == 5.25
+    near, _ = match_off(1.5)  # within both gates: compared at 3 m, its control at the match's 5.25 m
+    run = changes.compute(a.path, b.path, near)
+    assert run.control_gate_m == 5.25 and run.control.rate > 0.9 and run.result.tolerance_m == 3.0
+    changes.write_outputs(run, tmp_path, Params())
+    record = json.loads((tmp_path / "changes.json").read_text())
+    assert record["alignment_control"]["gate_m"] == 5.25 and record["counterpart_gate_m"] == 3.0

@@ -31,7 +31,7 @@ from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.changes_io import changes_feature_collection, format_changes_csv
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
-from ..database.match_io import check_match_maps, imprecise_note, read_match, unverified_note
+from ..database.match_io import answer_gate, check_match_maps, imprecise_note, read_match, unverified_note
 from ..database.outputs import check_output_dir, fingerprint, open_output_dir
 from ..database.session_io import (
     SessionFiles,
@@ -46,6 +46,7 @@ from ..plugin.changes import (
     KEPT,
     NEW,
     UNSEEN,
+    AlignmentSupport,
     ChangeResult,
     alignment_support,
     counterpart_gate,
@@ -71,6 +72,9 @@ class ChangesRun:
     epsg: int
     sources: dict[str, str]
     seconds: float = 0.0
+    # the alignment control (`check_alignment`'s rule) at the counterpart gate of the match's own theta_eps
+    control: AlignmentSupport | None = None
+    control_gate_m: float | None = None
 
     def summary(self) -> str:
         return self.result.summary()
@@ -78,14 +82,18 @@ class ChangesRun:
 
 def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path | None, params: Params | None = None,
             a_from_b: Sim3 | None = None, verified: bool = False, images_a: str | Path | None = None,
-            images_b: str | Path | None = None) -> ChangesRun:
+            images_b: str | Path | None = None, answer_gate_m: float | None = None) -> ChangesRun:
     """Read, check and classify; nothing is written. The match must be accepted and computed for exactly these
     two maps (`match_io.check_match_maps`). `a_from_b` overrides the match's transform (batch passes its verified
-    alignment with `verified=True`); `match_json` may then be None.
+    alignment with `verified=True`, and its match's gate as `answer_gate_m`); `match_json` may then be None.
 
     Whether the alignment is right has one answer, match's verification on the full maps: a verified alignment
     is refused here only when its counterparts are no more frequent than chance (B displaced); an unverified one
-    (a match.json from before the verification stage, or a transform from elsewhere) must also be significant."""
+    (a match.json from before the verification stage, or a transform from elsewhere) must also be significant.
+    That control runs at the gate of the match that produced the transform (`match_io.answer_gate`, as merge and
+    batch run it: `check_alignment`); only without one (a transform given otherwise and no `answer_gate_m`, or a
+    match.json that records none) at the configured theta_eps. The classification's counterpart gate is the
+    configured theta_eps's (`params.association.distance_tolerance_m`, where it was calibrated)."""
     params = params or Params()
     t0 = time.perf_counter()
     match = None
@@ -160,8 +168,26 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         raise InputError("none of A's landmarks lies where B's keyframes looked (in view of enough of them to be "
                          "compared): after alignment the flights do not overlap, or B's poses do not look at the "
                          "ground; nothing compared", match_json or session_b)
-    if sup is not None and (why := implausible_alignment(sup, result.tolerance_m, verified)) is not None:
+    # the control at the gate of the association that aligned the maps: with tolerances derived from the maps
+    # (theta_eps 8.2 m on NAIP) the configured 2 m finds 1 counterpart in 142 at the true alignment
+    tolerance = (answer_gate_m if answer_gate_m is not None
+                 else answer_gate(match, params.association.distance_tolerance_m))
+    control_gate = counterpart_gate(params.changes, tolerance)
+    control = sup if sup is None or control_gate == result.tolerance_m else alignment_support(
+        obs_a, obs_b.transformed(a_from_b), control_gate, params.changes)
+    if control is not None and (why := implausible_alignment(control, control_gate, verified)) is not None:
         raise InputError(f"{why}; nothing compared", match_json or session_b)
+    if control is not sup and implausible_alignment(sup, result.tolerance_m, verified) is not None:
+        # the alignment holds, but not at the classification's own gate: its landmarks scatter beyond it, so a
+        # kept object has no counterpart there and would be claimed gone (two NAIP maps, theta_eps 8.2 m: 113 gone
+        # and 126 new against 7 + 4 kept, 1 counterpart in 141 at 3 m, 17 at 12.4 m)
+        raise InputError(
+            f"these maps' landmarks scatter beyond the counterpart gate of the change classification: within "
+            f"{result.tolerance_m:g} m ({params.changes.tolerance_factor:g} x the configured theta_eps "
+            f"{params.association.distance_tolerance_m:g} m) {sup.rate:.0%} of A's {sup.compared} compared landmarks "
+            f"have a counterpart, {sup.displaced_rate:.0%} with B displaced, while at the match's own theta_eps "
+            f"({tolerance:g} m) {control.rate:.0%} do: kept and gone cannot be told apart; compare them with "
+            f"--set association.distance_tolerance_m={tolerance:g}; nothing compared", match_json or session_b)
     sources = {"session_a": str(session_a), "session_b": str(session_b),
                "match": str(match_json) if match_json is not None else "",
                "images_a": str(dirs[0] or ""), "images_b": str(dirs[1] or ""),
@@ -175,7 +201,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
             epsg = 0
     for text in warnings:
         log.warning("%s", text)
-    return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0)
+    return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0, control, control_gate)
 
 
 def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: Sim3, params: Params, verified: bool,
@@ -183,9 +209,10 @@ def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: 
     """InputError naming `where` (then `refusing`: what the caller did not do) when `a_from_b` does not bring the
     two sessions' maps together by the control `compute` applies (`plugin.changes.implausible_alignment`: the
     counterpart rate of A's landmarks that B's keyframes saw, against B displaced, at the counterpart gate of
-    `association_tolerance_m`, theta_eps of the association that aligned the maps; `verified`: match's verification
-    decided the alignment). For a transform used without change detection (`merge`: an unverified consensus 181 m
-    off was merged, 6 landmarks fused wrongly, exit 0, where `changes` refused it as chance)."""
+    `association_tolerance_m`, theta_eps of the association that aligned the maps: `match_io.answer_gate`;
+    `verified`: match's verification decided the alignment). For a transform used without change detection
+    (`merge`: an unverified consensus 181 m off was merged, 6 landmarks fused wrongly, exit 0, where `changes`
+    refused it as chance)."""
     obs_a = read_session_observations(session_a, with_segments=False)
     obs_b = read_session_observations(session_b, with_segments=False).transformed(a_from_b)
     gate = counterpart_gate(params.changes, association_tolerance_m)
@@ -253,6 +280,12 @@ def changes_png(result: ChangeResult, title: str = "") -> bytes:
     return buf.getvalue()
 
 
+def _support_record(support: AlignmentSupport | None) -> dict[str, Any] | None:
+    return None if support is None else {
+        "compared": support.compared, "matched": support.matched, "rate": round(support.rate, 4),
+        "displaced_rate": round(support.displaced_rate, 4), "p_value": support.p_value}
+
+
 def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
     """The changes.json document."""
     res = run.result
@@ -263,10 +296,10 @@ def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
         "observed_area_ha": {"a": round(float(res.observed_a.area) / 1e4, 4),
                              "b": round(float(res.observed_b.area) / 1e4, 4)},
         "counterpart_gate_m": res.tolerance_m,
-        "alignment_support": None if res.support is None else {
-            "compared": res.support.compared, "matched": res.support.matched,
-            "rate": round(res.support.rate, 4), "displaced_rate": round(res.support.displaced_rate, 4),
-            "p_value": res.support.p_value},
+        "alignment_support": _support_record(res.support),
+        # what the alignment control judged (`compute`): at the gate of the match's own theta_eps
+        "alignment_control": None if run.control is None else {"gate_m": run.control_gate_m,
+                                                                **_support_record(run.control)},
         "params": {"changes": params_to_dict(params.changes),
                    "association.distance_tolerance_m": params.association.distance_tolerance_m},
         "summary": res.summary(), "seconds": round(run.seconds, 3),

@@ -40,7 +40,14 @@ from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, landmark_map_fingerprint, write_landmark_map
 from ..database.map_loading import session_map_noise
-from ..database.match_io import check_match_maps, georeference_note, imprecise_note, read_match, unverified_note
+from ..database.match_io import (
+    answer_gate,
+    check_match_maps,
+    georeference_note,
+    imprecise_note,
+    read_match,
+    unverified_note,
+)
 from ..database.outputs import OutputDir, fingerprint, open_output_dir, resolved_path, sha256_file
 from ..database.session_io import MERGE_RECORD, SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
@@ -454,8 +461,8 @@ def run(
         said.append(f"{match_json}: {note}: merging its window consensus as it is; `sosmatch match` again verifies it")
     transform = match.transform
     # the answer's own gate (recorded in match.json: the tolerance the match derived from the maps), for the
-    # refinement and the fusion alike; a match.json without it: the configured one
-    gate = match.gate_m or params.association.distance_tolerance_m
+    # refinement, the control and the fusion alike; a match.json without it: the configured one
+    gate = answer_gate(match, params.association.distance_tolerance_m)
     used, dof = 0, 0
     if refine:
         ap = params.association

@@ -119,13 +119,13 @@ def alignment_task(session_a: str, session_b: str, match_json: str, transform: d
     it, and `batch --no-verify` fused an unverified consensus 680 m off into a group. `match`: match_json as
     `match_io.read_match` parsed it (batch reads each pair's once; None: read here). Returns {"refused": None}
     or {"refused": the control's one-line reason}."""
-    from ...database.match_io import read_match
+    from ...database.match_io import answer_gate, read_match
     from ...database.session_io import read_session
     from ...plugin.errors import InputError
     from ..changes import check_alignment
 
     match = match if match is not None else read_match(match_json)
-    gate = match.gate_m or params.association.distance_tolerance_m  # as merge: the answer's own gate
+    gate = answer_gate(match, params.association.distance_tolerance_m)  # as merge: the answer's own gate
     try:
         check_alignment(read_session(session_a), read_session(session_b), Sim3.from_dict(transform), params,
                         match.source == "verified", gate, match_json, "left out of the session graph")
@@ -174,18 +174,19 @@ def merge_task(
 
 def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, params: Params,
                  overwrite: bool = False, verified: bool = True, images_a: str | None = None,
-                 images_b: str | None = None) -> dict[str, Any]:
+                 images_b: str | None = None, answer_gate_m: float | None = None) -> dict[str, Any]:
     """Change detection of one accepted pair with its alignment a_from_b into out_dir
     (`sosmatch.workflows.changes`); returns the counts for the report. `overwrite`: replace a complete changes
     output of other inputs there (BatchOptions.overwrite); `verified`: the match's answer is its verification's
     (`changes.compute` then trusts it unless its counterparts are at chance level). `images_a`, `images_b`: where
     the flights' images are now (a flights folder moved after mapping; None: where the session's run.json
-    recorded them)."""
+    recorded them). `answer_gate_m`: the pair's match's theta_eps (`match_io.answer_gate`), the gate of the
+    alignment control as in `alignment_task` (None: the configured one)."""
     from ...database.outputs import open_output_dir
     from .. import changes
 
     run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform), verified=verified,
-                          images_a=images_a, images_b=images_b)
+                          images_a=images_a, images_b=images_b, answer_gate_m=answer_gate_m)
     with open_output_dir(out_dir, "changes", changes.output_identity(run, params, True),
                          inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json") as out:
         changes.write_outputs(run, out.path, params)

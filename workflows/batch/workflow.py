@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ...database.match_io import MatchSummary
+from ...database.match_io import MatchSummary, answer_gate
 from ...database.outputs import open_output_dir
 from ...database.session_io import MERGE_RECORD
 from ...plugin.multisession import (
@@ -169,7 +169,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     if options.changes:
         # where each flight's images are now: a map resumed after the flights folder moved records the old place
         images = {f.name: None if f.kind == "mapped" else images_dir(f.path) for f in flights}
-        _changes(sessions, pairs, pair_fps, state, executor, options, params, out_dir, images)
+        _changes(sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir, images)
     report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
                     for key, rec in pairs.items()]
     report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
@@ -327,10 +327,11 @@ def _valid_changes(done: dict[str, Any]) -> bool:
     return Path(done.get("changes", "")).is_file()
 
 
-def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]], pair_fps: dict[str, str],
-             state: StateStore, executor: Executor, options: BatchOptions, params: Params, out_dir: Path,
-             images: dict[str, Path | None]) -> None:
-    """Run `changes_task` for every accepted pair in the session graph; its counts go into the pair's record."""
+def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary],
+             pair_fps: dict[str, str], state: StateStore, executor: Executor, options: BatchOptions, params: Params,
+             out_dir: Path, images: dict[str, Path | None]) -> None:
+    """Run `changes_task` for every accepted pair in the session graph; its counts go into the pair's record. Its
+    alignment control runs at the pair's match's gate, as the control stage's (`alignment_task`)."""
     tasks, fps = {}, {}
     pdict = params_to_dict(params)
     for key, rec in pairs.items():
@@ -341,7 +342,8 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
                                 "eps": pdict["association"]["distance_tolerance_m"]})
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
                       rec["transform"], params, True, rec.get("answer") == "verified",  # the batch's own, as merge
-                      *(None if images[n] is None else str(images[n]) for n in (a, b)))
+                      *(None if images[n] is None else str(images[n]) for n in (a, b)),
+                      answer_gate(matches[key], params.association.distance_tolerance_m))
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
                      options.progress, _valid_changes)
     for key, rec in done.items():
