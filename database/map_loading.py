@@ -21,7 +21,7 @@ from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
 from .colmap_db import keypoint_sizes_px
 from .landmark_map import LandmarkMap, read_landmark_map
-from .outputs import check_input_finished
+from .output_markers import check_input_finished
 
 if TYPE_CHECKING:
     import pycolmap

@@ -24,7 +24,7 @@ from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params.matching import MAX_ASSOCIATIONS
 from .landmark_map import LandmarkMap, landmark_map_fingerprint
-from .outputs import check_finished
+from .output_markers import check_finished
 from .text_input import read_user_text
 
 MATCH_FORMAT = "sosmatch match v1"

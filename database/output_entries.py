@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
+from .output_markers import STAGING, output_marker, resolved_path, sha256_file
 
 
 def entry_names(folder: Path) -> list[str]:
@@ -23,8 +24,6 @@ def entry_names(folder: Path) -> list[str]:
 
 def entry_files(folder: Path) -> dict[str, str]:
     """relative path -> sha256 of every file below `folder` (what a run publishes there)."""
-    from .outputs import sha256_file
-
     return {rel: sha256_file(folder / rel) for rel in entry_names(folder)}
 
 
@@ -76,8 +75,6 @@ def check_entry_ours(entry: Path, command: str, record: Mapping[str, str] | None
     `record` or changed since (sha256). Without a record (an entry an older sosmatch wrote, before entries were
     recorded), a file is taken as ours when the new entry has one at the same place (`layout`) or it bears the
     name an older sosmatch gave its files there (`LEGACY_NAMES`): those are replaced, anything beside them is not."""
-    from .outputs import sha256_file
-
     try:
         for root, dirs, names in os.walk(entry, onerror=_raise):
             for name in sorted(names) + sorted(d for d in dirs if os.path.islink(os.path.join(root, d))):
@@ -104,11 +101,9 @@ def check_entry_ours(entry: Path, command: str, record: Mapping[str, str] | None
 def check_not_in_output_entry(output: str | Path) -> None:
     """Refuse an output inside a directory entry of another sosmatch output (e.g. OUT/sparse/ of a session) or its
     staging area: a run of that output replaces the entry, and would then refuse because of this one."""
-    from .outputs import STAGING, _marker, resolved_path
-
     out = resolved_path(output)
     for folder in out.parents:
-        marker = _marker(folder)
+        marker = output_marker(folder)
         if marker is None:
             continue
         inner = out.relative_to(folder).parts[0]

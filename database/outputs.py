@@ -26,20 +26,21 @@ Python:
 
     files = OutputFiles([geojson], "export", identity, inputs=[source])   # database.output_files: single files,
     files.write(geojson, text)                                             # checked before any work
+
+What an output directory is to its readers (the marker, `check_finished`, the identities `fingerprint` and
+`sha256_file`, `check_not_input`) is `database.output_markers`; this module takes and writes them.
 """
 
 from __future__ import annotations
 
 import contextlib
 import fcntl
-import hashlib
 import json
 import os
 import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from ..plugin.errors import InputError
 from .atomic import clean_stale_temporaries, locked_temp_dir, write_text_atomic
@@ -51,105 +52,17 @@ from .output_entries import (
     merge_entry_records,
     recorded_entries,
 )
-from .text_input import read_user_bytes
+from .output_markers import (
+    LOCK,
+    MARKER,
+    MARKER_FORMAT,
+    STAGING,
+    check_not_input,
+    output_marker,
+    read_json_or_none,
+)
 
-MARKER = ".sosmatch-output.json"
-LOCK = ".sosmatch-output.lock"
-STAGING = ".partial"
-MARKER_FORMAT = "sosmatch output v1"
 _OURS = {MARKER, LOCK}  # present in a directory that is otherwise empty: still empty
-
-
-def fingerprint(obj: Any) -> str:
-    """sha256 of the canonical JSON of `obj` (keys sorted; other objects by str): an output's identity."""
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def sha256_file(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def resolved_path(path: str | Path) -> Path:
-    return Path(os.path.realpath(os.path.expanduser(str(path))))
-
-
-def _inside(path: Path, folder: Path) -> bool:
-    return path == folder or folder in path.parents
-
-
-def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
-    """Refuse an output that is an input, lies inside an input directory or holds an input (resolved paths)."""
-    out = resolved_path(output)
-    for inp in inputs:
-        if inp is None:
-            continue
-        src = resolved_path(inp)
-        if out == src:
-            raise InputError("output is also an input; write it elsewhere", output)
-        if src.is_dir() and _inside(out, src):
-            raise InputError(f"output is inside the input {inp}; write it elsewhere", output)
-        if _inside(src, out):
-            raise InputError(f"output would hold the input {inp}; write it elsewhere", output)
-
-
-def read_json_or_none(path: Path) -> dict[str, Any] | None:
-    """A marker or registry file: None when missing, {} when unreadable (then nothing it would allow is allowed)."""
-    if not path.exists():
-        return None
-    try:
-        data = json.loads(read_user_bytes(path, "output record"))
-    except (InputError, ValueError, RecursionError):
-        return {}
-    return data if isinstance(data, dict) else {}
-
-
-def _marker(path: str | Path) -> dict[str, Any] | None:
-    """Directory `path`'s output marker when it is one sosmatch wrote (its format), else None."""
-    marker = read_json_or_none(Path(path) / MARKER)
-    return marker if marker is not None and marker.get("format") == MARKER_FORMAT else None
-
-
-def output_command(path: str | Path) -> str | None:
-    """The sosmatch command whose output directory `path` is (its marker), else None."""
-    command = (_marker(path) or {}).get("command")
-    return command if isinstance(command, str) else None
-
-
-def unfinished_output(path: str | Path) -> str | None:
-    """The command whose run in directory `path` has not finished (its marker says incomplete: interrupted, or
-    running now), else None. What such a directory holds may be an earlier run's, made from other inputs."""
-    marker = _marker(path)
-    if marker is None or marker.get("complete") is not False:
-        return None
-    return output_command(path) or "?"
-
-
-def check_input_finished(path: str | Path) -> None:
-    """`check_finished` of the sosmatch output that holds the input `path`: the nearest of `path` (a directory)
-    and its parents, up to three levels (a model's points3D.bin in sparse/0 of a merged model), with an output
-    marker. Only that output decides: a finished session inside a folder of the user's is not refused for the
-    folder's sake."""
-    real = resolved_path(path)
-    for folder in ([real] if real.is_dir() else []) + list(real.parents)[:3]:
-        if _marker(folder) is not None:
-            check_finished(folder, None if folder == real else path)
-            return
-
-
-def check_finished(path: str | Path, named: str | Path | None = None) -> None:
-    """InputError (naming `named`, default `path`) when a run of sosmatch into directory `path` has not finished
-    (interrupted, or running now): what it holds may be an earlier run's beside its unfinished successor (a killed
-    `match --overwrite` leaves the new associations.csv beside the old match.json). Every reader of an input that
-    a sosmatch command wrote asks this of the directory that holds it."""
-    if (command := unfinished_output(path)) is not None:
-        where = "this directory" if named is None else f"its directory {Path(path)}"
-        raise InputError(f"a `sosmatch {command}` run into {where} has not finished (interrupted, or still "
-                         "running): re-run the same command to finish it before using it",
-                         path if named is None else named)
 
 
 def _holds_files(folder: Path) -> bool:
@@ -261,7 +174,7 @@ class OutputDir:
         self._lock_fd: int | None = lock_fd
         self._created = list(created)  # directories this run created, outermost first
         # what sosmatch wrote in each directory entry (kept in the marker across runs): all a replacement may delete
-        self._entries = recorded_entries(_marker(path))
+        self._entries = recorded_entries(output_marker(path))
         self._complete = previous.state == "complete"
 
     @property

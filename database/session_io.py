@@ -166,7 +166,7 @@ def check_session_usable(path: str | Path) -> None:
     sessions) pass. Also when a run of sosmatch into `path` has not finished (interrupted, or running now): what
     the directory holds may be an earlier run's, from other inputs (a killed `map --overwrite` leaves the old
     map beside its unfinished successor)."""
-    from .outputs import check_finished
+    from .output_markers import check_finished
 
     check_finished(path)
     try:

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from sosmatch.database.atomic import write_text_atomic
-from sosmatch.database.outputs import MARKER, open_output_dir
+from sosmatch.database.output_markers import MARKER, sha256_file
+from sosmatch.database.outputs import open_output_dir
 from sosmatch.plugin.errors import InputError
 from sosmatch.tools.cli import main
 from sosmatch.workflows.map.output_dir import take_output_dir
@@ -112,7 +113,7 @@ def test_a_run_killed_between_recording_and_swapping_an_entry_resumes(merged, mo
     # the old model differs from the one the run writes (as after a change of settings), and is on record
     marker = json.loads((out / MARKER).read_text())
     (out / "sparse" / "points3D.bin").write_bytes((out / "sparse" / "points3D.bin").read_bytes() + b"old")
-    marker["entries"]["sparse"]["points3D.bin"] = outputs.sha256_file(out / "sparse" / "points3D.bin")
+    marker["entries"]["sparse"]["points3D.bin"] = sha256_file(out / "sparse" / "points3D.bin")
     (out / MARKER).write_text(json.dumps(marker))
     monkeypatch.setattr(outputs, "locked_temp_dir", kill_at_swap)
     with pytest.raises(Killed):

@@ -22,7 +22,8 @@ import pytest
 from sosmatch.database.atomic import TMP_LOCK, atomic_path, write_text_atomic
 from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
 from sosmatch.database.output_files import OutputFiles
-from sosmatch.database.outputs import MARKER, open_output_dir
+from sosmatch.database.output_markers import MARKER
+from sosmatch.database.outputs import open_output_dir
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.processes import descendants, is_alive
 from sosmatch.tools.cli import main

@@ -32,7 +32,8 @@ from ..database.changes_io import changes_feature_collection, format_changes_csv
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
 from ..database.match_io import answer_gate, check_match_maps, imprecise_note, read_match, unverified_note
-from ..database.outputs import check_output_dir, fingerprint, open_output_dir
+from ..database.output_markers import fingerprint
+from ..database.outputs import check_output_dir, open_output_dir
 from ..database.session_io import (
     SessionFiles,
     read_session,

@@ -180,7 +180,8 @@ def run_demo(out: str | Path, frames: int = DEMO_FRAMES, force: bool = False) ->
 
     `out` is taken through `sosmatch.database.outputs`; a demo made with another frame count is redone only
     with `force` (which also re-runs every step)."""
-    from ..database.outputs import fingerprint, open_output_dir
+    from ..database.output_markers import fingerprint
+    from ..database.outputs import open_output_dir
 
     identity = fingerprint({"frames": frames})
     with open_output_dir(out, "demo", identity, overwrite=force, legacy_record="sessions/summer/session.json",

@@ -21,7 +21,7 @@ import numpy as np
 from ..database.geojson import check_projected_crs, check_within_crs_area, geojson_text, to_wgs84
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map
 from ..database.output_files import OutputFiles
-from ..database.outputs import check_input_finished, fingerprint
+from ..database.output_markers import check_input_finished, fingerprint
 from ..database.session_io import check_map_of_record, check_session_usable, read_landmark_table
 from ..plugin.errors import InputError
 

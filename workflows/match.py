@@ -30,7 +30,8 @@ from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.landmark_map import check_two_maps, crs_disagreement, landmark_map_fingerprint
 from ..database.map_loading import LoadedMap, load_map
 from ..database.match_io import MATCH_FORMAT, parse_match
-from ..database.outputs import fingerprint, open_output_dir
+from ..database.output_markers import fingerprint
+from ..database.outputs import open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import SearchMode

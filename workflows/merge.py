@@ -48,7 +48,8 @@ from ..database.match_io import (
     read_match,
     unverified_note,
 )
-from ..database.outputs import OutputDir, fingerprint, open_output_dir, resolved_path, sha256_file
+from ..database.output_markers import fingerprint, resolved_path, sha256_file
+from ..database.outputs import OutputDir, open_output_dir
 from ..database.session_io import MERGE_RECORD, SessionFiles, read_session, write_landmarks_csv
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError

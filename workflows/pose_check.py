@@ -225,7 +225,7 @@ def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, par
     work by `database.output_files.OutputFiles` (never an input such as the pose file, never a file sosmatch did not
     write; one of this command's made from other inputs or settings is replaced only with `overwrite`)."""
     from ..database.output_files import OutputFiles
-    from ..database.outputs import fingerprint
+    from ..database.output_markers import fingerprint
     from ..plugin.params import params_to_dict
 
     sources = sources or {}

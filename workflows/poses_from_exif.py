@@ -30,7 +30,7 @@ import numpy as np
 
 from ..database.cameras import format_cameras_txt
 from ..database.output_files import OutputFiles
-from ..database.outputs import fingerprint
+from ..database.output_markers import fingerprint
 from ..database.poses import format_poses_csv
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses

@@ -25,7 +25,8 @@ import numpy as np
 
 from ..database.atomic import atomic_path, write_text_atomic
 from ..database.images import list_images, no_images_message, read_image
-from ..database.outputs import fingerprint, open_output_dir
+from ..database.output_markers import fingerprint
+from ..database.outputs import open_output_dir
 from ..plugin.errors import InputError
 from ..plugin.mask_features import MaskFeatures, describe_masks, segment_and_describe
 from ..plugin.params import Params, params_to_dict

@@ -26,7 +26,8 @@ import numpy as np
 
 from ..database.cameras import write_cameras_txt
 from ..database.exif import embed_metadata
-from ..database.outputs import OutputDir, fingerprint, open_output_dir
+from ..database.output_markers import fingerprint
+from ..database.outputs import OutputDir, open_output_dir
 from ..database.poses import write_poses_csv
 from ..database.synth_session import (
     OBJECT_DTYPE,

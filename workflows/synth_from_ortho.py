@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from ..database.cameras import format_cameras_txt
-from ..database.outputs import fingerprint, open_output_dir
+from ..database.output_markers import fingerprint
+from ..database.outputs import open_output_dir
 from ..database.poses import format_poses_csv
 from ..plugin.errors import InputError
 from ..plugin.geometry import Poses

@@ -108,7 +108,7 @@ def map_dir(work: Path, world: int, name: str, tag: str, overrides: list[str], f
             shutil.copytree(src, out / ".partial" / "cache")
             # an unfinished `map` output holding that cache (resumed by the run below), not a foreign directory,
             # which `map` refuses to write into (database/outputs.py)
-            from sosmatch.database.outputs import MARKER, MARKER_FORMAT
+            from sosmatch.database.output_markers import MARKER, MARKER_FORMAT
 
             (out / MARKER).write_text(json.dumps({"format": MARKER_FORMAT, "command": "map", "identity": None,
                                                   "complete": False}) + "\n")

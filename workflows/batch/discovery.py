@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...database.images import image_files
-from ...database.outputs import output_command, unfinished_output
+from ...database.output_markers import output_command, unfinished_output
 from ...plugin.errors import InputError
 
 log = logging.getLogger(__name__)

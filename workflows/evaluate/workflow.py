@@ -21,7 +21,8 @@ from ...database.json_text import json_default
 from ...database.landmark_map import check_two_maps, read_landmark_map
 from ...database.map_loading import read_map_noise, session_map_noise
 from ...database.match_io import check_match_maps, read_match_json
-from ...database.outputs import check_finished, fingerprint, open_output_dir
+from ...database.output_markers import check_finished, fingerprint
+from ...database.outputs import open_output_dir
 from ...database.session_io import check_map_of_images, check_session_usable
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (

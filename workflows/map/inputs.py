@@ -18,7 +18,7 @@ from ...database.cameras import one_camera, read_cameras_txt
 from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
 from ...database.images import IMAGE_EXTENSIONS, image_files, name_key, unique_by_key  # noqa: F401 (re-exported)
 from ...database.opensfm import is_opensfm
-from ...database.outputs import check_finished, sha256_file
+from ...database.output_markers import check_finished, sha256_file
 from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geodesy import ecef_to_grid, looks_like_ecef

@@ -22,7 +22,8 @@ from ...database.colmap_db import (
 )
 from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
-from ...database.outputs import OutputDir, fingerprint
+from ...database.output_markers import fingerprint
+from ...database.outputs import OutputDir
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale

@@ -13,7 +13,8 @@ import numpy as np
 from ...database.atomic import write_text_atomic
 from ...database.cameras import format_cameras_txt
 from ...database.json_text import json_default
-from ...database.outputs import fingerprint, open_output_dir
+from ...database.output_markers import fingerprint
+from ...database.outputs import open_output_dir
 from ...database.poses import format_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
