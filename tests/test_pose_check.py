@@ -22,7 +22,7 @@ from sosmatch.plugin.pose_check import (
     sampson_distances,
     triangulation_depths,
 )
-from sosmatch.plugin.pose_check.verdict import judge_poses
+from sosmatch.plugin.pose_check.verdict import judge_poses, poses_fit_images
 from sosmatch.tools.cli import main
 from sosmatch.workflows import pose_check
 
@@ -288,3 +288,17 @@ def test_a_reversed_pass_of_a_densely_spaced_flight_is_still_found(tmp_path):
     assert verdict.refusals == [] and result.reversed_pairs == 0
     _, verdict = pose_check.check(images, _yaw_fault(poses, 1), camera, Params())
     assert any("the images move the other way" in r for r in verdict.refusals), verdict.refusals
+
+
+def test_a_check_that_could_check_only_a_small_share_of_its_pairs_says_so(flight):
+    """The 23rd new-user sweep: Seneca 2 stops darker, 13 of 64 pairs checked (the clean images' check had found
+    2 misfitting pose pairs among 25 of 53), passed without a word because 13 >= min_pairs."""
+    images, poses, camera = _inputs(flight)
+    result, verdict = pose_check.check(images, poses, camera, Params())
+    assert result.pairs_checked >= 10 and not any("could be checked" in w for w in verdict.warnings)
+    few = replace(result, pairs_tried=4 * result.pairs_checked)  # as if 3 of 4 attempted pairs had found no match
+    warned = [w for w in judge_poses(few, Params().pose_check, poses.names).warnings if "could be checked" in w]
+    assert len(warned) == 1 and f"only {result.pairs_checked} of {4 * result.pairs_checked}" in warned[0]
+    assert "may go unseen" in warned[0]
+    assert poses_fit_images(result, Params().pose_check)  # exact poses, every pair fitting
+    assert not poses_fit_images(replace(result, pairs_checked=5), Params().pose_check)

@@ -255,6 +255,11 @@ class PoseCheckParams(Checked):
     max_wide_offset: int = count(10, 1)
     cross_radius: float = positive(0.5)  # cross-line partners within this fraction of the footprint's short side
     min_pairs: int = count(10, 1)  # fewer checked pairs: a warning that the check saw too little
+    # ... and a warning when fewer than this share of the attempted pairs could be checked (misfitting poses among
+    # the others go unseen). Clean flights: 0.40-0.75 (Seneca's first 50 frames 25 of 53, whose cross and wide
+    # pairs in the turns do not overlap: half would warn on them); 2 stops darker 0.10 (synthetic) and 0.20
+    # (Seneca, 13 of 64, where the clean images showed 2 misfitting pairs), JPEG quality 15 0.32, blur 1.5 px 0.24
+    min_pair_share: float = fraction(1 / 3)
     # refusals / warnings (plugin.pose_check.judge_poses); systematic errors only beyond 2 sigma of their fit
     max_epipolar_gate_fraction: float = positive(1.0)  # median pair error beyond the tracker's epipolar gate
     warn_epipolar_gate_fraction: float = positive(0.25)
