@@ -34,6 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .image_quality import FlightImages, blank_warning, image_causes
 from .landmark_filters import neighbour_height_residuals
 from .params import QualityParams
 
@@ -324,16 +325,39 @@ def isolated_cameras(centers: np.ndarray, flying_height_m: float, half_diagonal_
     return np.flatnonzero(nearest[:, 1] > reach)
 
 
+def _likely_cause(poses: str, poses_fit: str, causes: list[str]) -> str:
+    """The cause a warning names: the images when they measure poor, the poses otherwise, but never the poses
+    alone when the pose check found them fitting (`poses_fit`, its phrase)."""
+    if causes:
+        short = ", ".join(c.split(":")[0] for c in causes)  # the figures stand in the images' own warning
+        return f"more likely the images: {short}" + (f"; {poses_fit}" if poses_fit else "")
+    if poses_fit:
+        return f"{poses}, though {poses_fit}: poor images?"
+    return poses
+
+
 def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
-          images_flying_height_m: float = float("nan")) -> Verdict:
+          images_flying_height_m: float = float("nan"), poses_fit: str = "",
+          images: FlightImages | None = None) -> Verdict:
     """Refusals and warnings for a map's figures (limits and their reasons: `QualityParams`). `min_landmarks`:
     fewer make no usable map (`sosmatch map` passes association.min_associations + 1: a match needs more than
     theta_S landmarks in common). `images_flying_height_m`: the flying height the pose check's own matches
-    triangulate to (NaN: not checked), which the map's must agree with."""
+    triangulate to (NaN: not checked), which the map's must agree with. `poses_fit`: the pose check's phrase
+    when it found the poses fitting the images (`pose_check.poses_fit_images`, "" otherwise); `images`: the
+    keyframes' image figures (`plugin.image_quality`). With them, warnings about a thin map name the images
+    (blank keyframes, noise, blur) rather than the poses."""
     v = Verdict()
+    causes = image_causes(images, limits.min_image_contrast_to_noise, limits.min_image_sharpness)
+    blank = blank_warning(images, q.keyframes)
+    if blank:
+        v.warnings.append(blank)
     if q.landmarks == 0:
-        v.refusals.append("the map has no landmarks")
+        v.refusals.append("the map has no landmarks" + (f" ({'; '.join(causes)})" if causes else "")
+                          + (f" ({blank.split(' (')[0]})" if blank else ""))
         return v
+    if causes:
+        v.warnings.append(f"{'; '.join(causes)}: expect a thin map (here {q.landmarks_per_keyframe:.2f} landmarks "
+                          f"per keyframe, {q.landmarks} in all)")
     if q.landmarks < min_landmarks:
         v.refusals.append(f"only {q.landmarks} landmark(s): a map needs at least {min_landmarks} to be matched")
     if q.landmarks_under_cameras and \
@@ -365,7 +389,8 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
             v.refusals.append(f"{said} (at most {offset_limit:.1f} m, {limits.max_pass_offset:.0%} of the flying "
                               "height): the passes' poses disagree (altitude drift?)")
         else:
-            v.warnings.append(f"{said}: the passes' poses differ a little (drifting odometry?)")
+            v.warnings.append(f"{said}: " + _likely_cause("the passes' poses differ a little (drifting odometry?)",
+                                                           poses_fit, causes))
     if np.isfinite(q.ground_tilt_deg) and q.ground_tilt_deg > limits.warn_ground_tilt_deg and \
             not (np.isfinite(q.block_tilt_deg) and q.block_tilt_deg > limits.max_block_tilt_deg):
         v.warnings.append(f"the ground tilts {q.ground_tilt_deg:.0f} deg under cameras tilted "
@@ -375,10 +400,12 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
                           f"{limits.warn_flying_height_m:.0f} m, beyond any mapping flight): are the poses in "
                           "centimetres, millimetres or feet instead of metres?")
     if q.passes_without_landmarks:
+        cause = _likely_cause("their poses may not fit their images, e.g. a wrong heading", poses_fit, causes)
         v.warnings.append(f"{q.passes_without_landmarks} of {q.passes} passes of the flight see no landmark at all "
-                          "(their poses may not fit their images, e.g. a wrong heading)")
+                          f"({cause})")
     if np.isfinite(q.keyframes_with_landmarks) and q.keyframes_with_landmarks < limits.min_keyframes_with_landmarks:
         v.warnings.append(f"only {q.keyframes_with_landmarks:.0%} of the keyframes see a landmark")
     if np.isfinite(q.track_yield) and q.track_yield < limits.min_track_yield:
-        v.warnings.append(f"only {q.track_yield:.0%} of the long tracks triangulated (poses or camera doubtful)")
+        cause = _likely_cause("poses or camera doubtful", poses_fit, causes)
+        v.warnings.append(f"only {q.track_yield:.0%} of the long tracks triangulated ({cause})")
     return v

@@ -1,9 +1,12 @@
 """Map plausibility (`plugin.map_quality`): consistent maps pass over any terrain and with any camera tilt, maps
 whose poses disagree between passes, rotated blocks and landmarks above the cameras are refused."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from sosmatch.plugin.image_quality import flight_images, image_figures
 from sosmatch.plugin.map_quality import (
     assess_map,
     flight_passes,
@@ -282,3 +285,90 @@ def test_the_figure_shows_native_resolution_keyframes_at_about_its_panel_size(tm
     assert all(max(s[:2]) <= 2 * 420 and s[2] == 3 for s in shown), shown
     small = np.zeros((240, 320, 3), np.uint8)
     assert figure.shrink_to_panel(small, (420.0, 400.0)) is small
+
+
+# the keyframes' image figures (`plugin.image_quality`) in the verdict (the 23rd new-user sweep)
+FIT = "the pose check found the poses fitting the images (100 of 140 pairs checked, median 1.0 px on a 12 px gate)"
+
+
+def _ground(seed: int = 0, size: int = 240) -> np.ndarray:
+    """A textured 8-bit 'ground': blobs of a few pixels to tens, smooth enough that Immerkaer's estimate sees
+    ~1 DN of noise on it."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    img = np.zeros((size, size), np.float32)
+    for sigma, amp in ((0.7, 6.0), (1.5, 10.0), (4.0, 25.0), (12.0, 40.0)):
+        img += amp * cv2.GaussianBlur(rng.normal(0, 1, (size, size)).astype(np.float32), (0, 0), sigma) * sigma
+    img = 128 + img * (30.0 / img.std())
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def _noisy(img: np.ndarray, sigma: float, seed: int = 1) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.clip(img + rng.normal(0, sigma, img.shape), 0, 255).astype(np.uint8)
+
+
+def test_noise_contrast_and_sharpness_are_measured():
+    import cv2
+
+    clean = image_figures(_ground(), 400)
+    noisy = image_figures(_noisy(_ground(), 40.0), 400)
+    blurred = image_figures(cv2.GaussianBlur(_ground(), (0, 0), 3.0), 400)
+    assert clean[0] < 5 and 20 < noisy[0] < 50  # Immerkaer: the added noise, clipped at 0 / 255
+    assert clean[1] / clean[0] > 3 > noisy[1] / noisy[0]
+    assert blurred[2] < 0.15 < clean[2]
+    for blank in (np.zeros((240, 320), np.uint8), np.full((240, 320), 255, np.uint8),
+                  np.random.default_rng(3).integers(0, 256, (240, 320)).astype(np.uint8)):
+        assert flight_images([image_figures(blank, 400)], ["x"]).blank() == ["x"]  # no contrast above the noise
+
+
+def _thin_quality():
+    positions, sizes, obs, centers, axes = toy_flight()
+    first = np.flatnonzero(flight_passes(centers) == 0)
+    # a map thinned to a few landmarks, its first pass left without any
+    keep = [i for i in range(0, len(positions), 12) if not np.isin(obs[i], first).any()]
+    return assess_map(positions[keep], sizes[keep], np.full(len(keep), 2.0), [obs[i] for i in keep], centers, axes,
+                      long_tracks=40 * len(keep))
+
+
+def test_a_thin_map_over_noisy_images_names_the_images_not_poses_found_fitting():
+    """Gaussian noise sigma 40 on unchanged EKF poses: 20 landmarks of 108, no warning; `synth --noise 25`: 'their
+    poses may not fit their images, e.g. a wrong heading' though the pose check found them fitting."""
+    q = _thin_quality()
+    assert q.passes_without_landmarks and q.track_yield < QualityParams().min_track_yield
+    blamed = judge(q, QualityParams())  # no pose check, no image figures: the poses are the suspects, as before
+    assert any("wrong heading" in w for w in blamed.warnings)
+    fitting = judge(q, QualityParams(), poses_fit=FIT)
+    for w in fitting.warnings:
+        assert "wrong heading" not in w or FIT in w
+    names = [f"f{k}.jpg" for k in range(q.keyframes)]
+    noisy = flight_images([image_figures(_noisy(_ground(k), 40.0, k), 400) for k in range(q.keyframes)], names)
+    v = judge(q, QualityParams(), poses_fit=FIT, images=noisy)
+    assert any(w.startswith("images noisy: sigma") and "DN of contrast" in w for w in v.warnings)
+    passes = [w for w in v.warnings if "see no landmark" in w]
+    assert passes and "more likely the images: images noisy" in passes[0] and "wrong heading" not in passes[0]
+    clean = flight_images([image_figures(_ground(k), 400) for k in range(q.keyframes)], names)
+    assert not any(w.startswith("images ") or "more likely the images" in w
+                   for w in judge(q, QualityParams(), images=clean).warnings)
+    assert clean.to_dict()["blank_keyframes"] == [] and clean.to_dict()["keyframes_measured"] == q.keyframes
+
+
+def test_blank_and_featureless_keyframes_are_named_and_explain_an_empty_map():
+    """All-black frames: 'map refused: the map has no landmarks' without a hint; 10 random-noise frames of 60: no
+    message at all."""
+    positions, sizes, obs, centers, axes = toy_flight()
+    q = assess_map(positions, sizes, np.full(len(positions), 2.0), obs, centers, axes, long_tracks=len(positions))
+    names = [f"f{k}.jpg" for k in range(q.keyframes)]
+    rng = np.random.default_rng(5)
+    figs = [image_figures(rng.integers(0, 256, (120, 160)).astype(np.uint8) if k % 6 == 3 else _ground(k, 120), 400)
+            for k in range(q.keyframes)]
+    v = judge(q, QualityParams(), images=flight_images(figs, names))
+    blank = [w for w in v.warnings if "blank or featureless" in w]
+    assert v.ok and len(blank) == 1 and blank[0].startswith(f"{q.keyframes // 6 + (q.keyframes % 6 > 3)} of ")
+    assert "f3.jpg, f9.jpg" in blank[0]
+    empty = replace(q, landmarks=0)
+    black = flight_images([np.zeros(3)] * q.keyframes, names)
+    refused = judge(empty, QualityParams(), images=black)
+    assert refused.refusals == [f"the map has no landmarks ({q.keyframes} of {q.keyframes} keyframes are blank or "
+                                "featureless)"]

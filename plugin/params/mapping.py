@@ -233,6 +233,14 @@ class QualityParams(Checked):
     warn_flying_height_m: float = within(10_000.0, 0.0, None, lo_open=True)
     min_keyframes_with_landmarks: float = fraction(0.5)
     min_track_yield: float = fraction(0.05)
+    # the keyframes' images (`plugin.image_quality`, at the segmenter's working size, medians over the flight):
+    # contrast over Immerkaer's noise sigma. Clean synthetic flights 22, the real Seneca frames 7.8 (their texture
+    # counts as noise: per frame down to 2.5); Gaussian noise of sigma 20 on the synthetic images 1.75, 40 0.92,
+    # `synth --noise 25` 0.69. Below it the map's thinness is put down to the images
+    min_image_contrast_to_noise: float = positive(3.0)
+    # fine detail over contrast: clean synthetic 0.41, Seneca 0.51; Gaussian blur of 1.5 px 0.095, 3 px 0.052,
+    # 9 px motion blur 0.17 (its map kept 66 of 108 landmarks)
+    min_image_sharpness: float = positive(0.15)
     refuse: bool = flag(True)  # False: a map beyond the limits is kept with a loud warning (run.json says so)
 
 

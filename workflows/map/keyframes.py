@@ -19,7 +19,7 @@ from .inputs import MapInputs
 
 log = logging.getLogger(__name__)
 
-CACHE_VERSION = 2  # 2: image motion measured between undistorted track ends (lens cameras)
+CACHE_VERSION = 3  # 2: image motion measured between undistorted track ends (lens cameras); 3: image figures
 
 
 def _cache_path(cache_dir: Path, k: int, name: str) -> Path:
@@ -41,12 +41,14 @@ def _load_cached(path: Path, key: str) -> tuple[Any, tuple[float, float]] | None
         return None
 
 
-def _save_cached(path: Path, key: str, feats: Any, motion: tuple[float, float]) -> None:
+def _save_cached(path: Path, key: str, feats: Any, motion: tuple[float, float],
+                 figures: np.ndarray | None = None) -> None:
     # Optional fields that are None become object arrays, which np.load refuses without pickle: leave them out.
     arrays = {"feat_" + k: v for k, v in feats.to_npz_dict().items() if v.dtype != object}
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
-            np.savez(f, cache_key=np.array(key), motion=np.array(motion, dtype=np.float64), **arrays)
+            extra = {} if figures is None else {"image_figures": np.asarray(figures, np.float64)}
+            np.savez(f, cache_key=np.array(key), motion=np.array(motion, dtype=np.float64), **extra, **arrays)
 
 
 _NO_DESCRIPTORS = np.zeros((0, 128), np.float32)
@@ -60,6 +62,19 @@ def cached_descriptors(cache_dir: Path, names: Sequence[str]) -> Callable[[int],
             return np.asarray(data["feat_sift_desc"], np.float32)
 
     return descriptors
+
+
+def cached_image_figures(cache_dir: Path, names: Sequence[str]) -> list[np.ndarray]:
+    """Per keyframe, its image figures (`plugin.image_quality.image_figures`) from the cache entry that
+    `describe_keyframes` validated or wrote; NaN where the entry holds none."""
+    out = []
+    for k, name in enumerate(names):
+        try:
+            with np.load(_cache_path(cache_dir, k, name), allow_pickle=False) as data:
+                out.append(np.asarray(data["image_figures"], np.float64).reshape(3))
+        except (OSError, KeyError, ValueError, EOFError):
+            out.append(np.full(3, np.nan))
+    return out
 
 
 _WORKER_BACKEND: dict[str, Any] = {}  # per process: the segmentation backend, built once
@@ -79,6 +94,7 @@ def _describe_one(
     `white`: the flight's white level (`database.images.flight_white_level`).
     """
     from ...database.images import read_image
+    from ...plugin.image_quality import image_figures
     from ...plugin.mask_features import describe_masks, segment_and_describe, to_gray_u8
     from ...plugin.motion import image_motion_stats
     from ...plugin.segmentation import get_backend
@@ -101,7 +117,9 @@ def _describe_one(
             _WORKER_BACKEND[cache_name] = get_backend(seg.backend, seg)
         # the SIFT detection runs in a second thread while the backend segments (same features)
         _, feats = segment_and_describe(image, _WORKER_BACKEND[cache_name], seg)
-    _save_cached(entry, key, feats, mu_sigma)
+    # noise and sharpness as the segmenter sees them (its working size), from the grey image already decoded
+    figures = image_figures(gray, min(seg.classical_max_side, max(size)))
+    _save_cached(entry, key, feats, mu_sigma, figures)
     return feats, mu_sigma, gray
 
 

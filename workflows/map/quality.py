@@ -17,6 +17,7 @@ import numpy as np
 from ...database.atomic import atomic_path
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
+from ...plugin.image_quality import FlightImages
 from ...plugin.map_quality import MapQuality, Verdict, assess_map, isolated_cameras, judge
 from ...plugin.params import QualityParams
 
@@ -66,13 +67,15 @@ def assess(landmarks: Any, poses: Poses, long_tracks: int) -> MapQuality:
 def quality_stage(
     landmarks: Any, poses: Poses, camera: Camera, image_paths: list[Path], keypoints: list[np.ndarray],
     long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
-    images_flying_height_m: float = float("nan"), white: int | None = None,
+    images_flying_height_m: float = float("nan"), white: int | None = None, poses_fit: str = "",
+    images: FlightImages | None = None,
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
-    for the picture (`database.images.flight_white_level`)."""
+    for the picture (`database.images.flight_white_level`); `poses_fit`, `images`: the pose check's phrase when it
+    found the poses fitting, and the keyframes' image figures (`judge`)."""
     quality = assess(landmarks, poses, long_tracks)
-    verdict = judge(quality, limits, min_landmarks, images_flying_height_m)
+    verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images)
     alone = isolated_cameras(poses.centers, quality.flying_height_m, 0.5 * float(np.hypot(camera.width, camera.height)),
                              float(camera.fx))
     if len(alone):

@@ -38,7 +38,7 @@ from .inputs import (
     require_keyframes,
     sources_from_session,
 )
-from .keyframes import CACHE_VERSION, cached_descriptors, describe_keyframes
+from .keyframes import CACHE_VERSION, cached_descriptors, cached_image_figures, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
 
@@ -139,6 +139,16 @@ def gps_precheck(inputs: MapInputs, params: Params) -> Any:
     return refuse_by_gps(inputs.image_paths, inputs.poses, inputs.epsg, params.pose_check, source)
 
 
+def poses_fit(checked: Any, params: Params) -> str:
+    """The pose check's phrase when it found the poses fitting the images (`plugin.pose_check.poses_fit_images`),
+    "" when it did not, refused them, or did not run."""
+    from ...plugin.pose_check import poses_fit_images
+
+    if checked is None or not checked.verdict.ok:
+        return ""
+    return poses_fit_images(checked.check, params.pose_check)
+
+
 def map_origin(positions: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
     """A round-numbered origin near the data (median of the landmarks, else of the cameras; whole metres)."""
     pts = positions if len(positions) else camera_centers
@@ -225,6 +235,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
 
     from ...database.images import flight_white_level
     from ...database.session_io import format_landmarks_csv
+    from ...plugin.image_quality import flight_images
     from ...plugin.keyframes import select_keyframes
     from ...plugin.mask_features import undistort_features
     from ...plugin.tracking import track_masks
@@ -252,6 +263,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                                   progress, on_keyframe, workers, masks_for, digests, white,
                                                   hold_descriptors=False)
     descriptors = cached_descriptors(partial / "cache", kf_poses.names)
+    images = flight_images(cached_image_figures(partial / "cache", kf_poses.names), kf_poses.names)
     timings["keyframes"] = time.perf_counter() - t
 
     from ..progress import progress_bar
@@ -325,7 +337,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                      keypoints, long_tracks, params.quality, out.staged(FIGURE), str(out.path),
                                      params.association.min_associations + 1,
                                      checked.check.flying_height_m if checked is not None else float("nan"),
-                                     white)
+                                     white, poses_fit(checked, params), images)
     verdict = joined(verdict, checked.verdict if checked is not None else None)
     timings["quality"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
@@ -361,7 +373,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
-        "counts": counts, "quality": quality.to_dict(), "verdict": verdict_record(verdict, params.quality.refuse),
+        "counts": counts, "quality": {**quality.to_dict(), "images": images.to_dict()},
+        "verdict": verdict_record(verdict, params.quality.refuse),
         "pose_check": checked.summary() if checked is not None else None,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         # the map's own noise (plugin.map_noise): `sosmatch match` derives its tolerances from it
