@@ -80,9 +80,10 @@ def test_presets_layer_under_config_file_and_set(tmp_path):
                                      "association.derive_from_maps",
                                      "association.equal_area_windows",
                                      "triangulation.size_estimator", "triangulation.fuse_radius_factor",
-                                     "triangulation.min_observations_from_views", "tracking.ground_band_sigmas"}
+                                     "triangulation.min_observations_from_views", "tracking.ground_band_sigmas",
+                                     "triangulation.whole_masks_only"}
     assert dataclasses.replace(paper.triangulation, size_estimator="nadir", fuse_radius_factor=2.0,
-                               min_observations_from_views=True) == Params().triangulation
+                               min_observations_from_views=True, whole_masks_only=True) == Params().triangulation
     survey = preset_params("survey")
     for dotted, value in PRESETS["survey"].items():
         section, key = dotted.split(".")

@@ -239,3 +239,53 @@ def test_images_txt_with_blank_lines_between_records_reads_as_colmap_does(tmp_pa
         images.write_text("".join(spaced[:last + 1]))
         with pytest.raises(InputError, match="ends with an image line without its POINTS2D line"):
             read_colmap_model_poses(d)
+
+
+def clipped_disc(cam, r_wc, center, middle, radius_m, n=4000):
+    """Centroid and pixel covariance of the part inside the image of a ground disc (what a segmenter returns
+    for an object the frame cuts)."""
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    rad = radius_m * np.sqrt((np.arange(n) + 0.5) / n)  # a sunflower disc: uniform area sampling
+    pts = middle[None] + np.stack([rad * np.cos(ang * 137.508), rad * np.sin(ang * 137.508), np.zeros(n)], 1)
+    uv, _ = project(cam, r_wc, center, pts)
+    uv = uv[(uv[:, 0] > 0) & (uv[:, 0] < cam.width) & (uv[:, 1] > 0) & (uv[:, 1] < cam.height)]
+    if len(uv) < 3:
+        return np.full(2, np.nan), np.full((2, 2), np.nan)
+    return uv.mean(0), np.cov(uv.T)
+
+
+def test_masks_cut_by_the_image_border_do_not_locate_the_landmark(tmp_path):
+    """An object entering the frame is cut by its border: the visible part's centroid slides with the camera, so
+    triangulated with the whole views it lands metres below the ground (nu22: 2 m keyframes, 12 % of landmarks
+    > 5 m below). The whole views locate it (`located_from_whole_masks`); the cut ones stay in its track."""
+    cam = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
+    r_wc = np.diag([1.0, -1.0, -1.0])
+    n = 40
+    centers = np.stack([np.arange(n) * 2.0, np.zeros(n), np.full(n, 100.0)], 1)
+    poses = Poses([f"f{i:03d}.jpg" for i in range(n)], np.repeat(r_wc[None], n, 0), centers)
+    middle = np.array([100.0, 0.0, 0.0])  # a disc of 20 m radius (100 px) entering the frame during the flight
+    cents, covs, tids, sizes = [], [], [], []
+    for k in range(n):
+        c, cov = clipped_disc(cam, r_wc, centers[k], middle, 20.0)
+        seen = int(np.isfinite(cov).all() and c[0] < cam.width - 20)  # a sliver at the border is no mask
+        cents.append(c[None][:seen])
+        covs.append(cov[None][:seen])
+        tids.append(np.zeros(seen, np.int64))
+        sizes.append(np.sqrt(np.linalg.eigvalsh(cov[None][:seen])[:, -1]))
+    kps = [affine_keypoints(c, v) for c, v in zip(cents, covs)]
+    write_colmap_database(tmp_path / "d.db", cam, poses.names, kps, track_associations(tids, "all", 5))
+
+    def landmark(whole_masks_only):
+        params = TriangulationParams(duplicate_radius_factor=0.0, fuse_radius_factor=0.0,
+                                     whole_masks_only=whole_masks_only)
+        lm = triangulate_landmarks(tmp_path / "d.db", cam, poses, sizes, tids, params, centroids_px=cents,
+                                   covariances_px=covs)
+        assert len(lm) == 1
+        point = lm.reconstruction.points3D[int(lm.point3d_ids[0])]
+        assert np.allclose(point.xyz, lm.positions[0])  # sparse/ holds the landmark where the map has it
+        return lm.positions[0], lm.num_observations[0]
+
+    (x_all, n_all), (x_whole, n_whole) = landmark(False), landmark(True)
+    assert x_all[2] < -10.0 and np.linalg.norm(x_all[:2] - middle[:2]) > 5.0  # what this guards against: -35 m
+    assert abs(x_whole[2]) < 0.5 and np.linalg.norm(x_whole[:2] - middle[:2]) < 0.5
+    assert n_whole == n_all  # the cut views are still observations of the landmark
