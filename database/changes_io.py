@@ -10,12 +10,17 @@ size minus this one's), `views` (keyframes of the other session that should have
 track pieces, `sosmatch.plugin.changes.unmapped`; its `index` counts those objects of its session). Rows: A's
 landmarks in order, then B's, then A's and B's objects never mapped. Empty cells are unknown values.
 The reader applies the same validation the writer's rows satisfy.
+
+changes.json (the run's record, written last by `sosmatch changes` and batch): `parse_changes_record` is its one
+validation (the writer runs it on what it is about to write; `read_changes_record` reads one back), and its
+`warnings` the run's warnings (a record written before they were kept has none: read as []).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from pathlib import Path
 
@@ -25,6 +30,8 @@ from ..plugin.changes import CLASSES, EVIDENCE, ChangeResult, LandmarkChanges
 from ..plugin.errors import InputError
 from .geojson import to_wgs84
 from .text_input import read_user_text
+
+CHANGES_FORMAT = "sosmatch changes v1"
 
 CHANGE_COLUMNS = ["class", "session", "index", "x", "y", "z", "size_m", "confidence", "counterpart",
                   "counterpart_distance_m", "size_change_m", "views", "evidence", "height_above_ground_m", "source"]
@@ -135,3 +142,32 @@ def _features(session: str, source: str, verdict: LandmarkChanges, pos: np.ndarr
                            "y": round(float(pos[i, 1]), 3), "z": round(float(pos[i, 2]), 3)},
         })
     return out
+
+
+def parse_changes_record(doc: object, path: str | Path = "<changes.json>") -> dict:
+    """Validate a changes.json document (a JSON object of format CHANGES_FORMAT, `warnings` a list of strings when
+    present) and return it with `warnings` always a list; InputError naming the file otherwise."""
+    path = Path(path)
+    if not isinstance(doc, dict):
+        raise InputError("changes record must hold a JSON object", path)
+    if doc.get("format") != CHANGES_FORMAT:
+        raise InputError(f"not a record of `sosmatch changes` (format {str(doc.get('format'))[:40]!r}, this sosmatch "
+                         f"reads {CHANGES_FORMAT!r})", path)
+    warnings = doc.get("warnings", [])
+    if not isinstance(warnings, list) or not all(isinstance(w, str) for w in warnings):
+        raise InputError("changes record field warnings must be a list of strings", path)
+    return {**doc, "warnings": list(warnings)}
+
+
+def read_changes_record(path: str | Path) -> dict:
+    """changes.json (or the folder holding it) -> its validated document (`parse_changes_record`)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "changes.json"
+    text = read_user_text(path, "changes record")
+    try:
+        doc = json.loads(text)
+    except (ValueError, RecursionError):
+        raise InputError("cannot read changes record: not valid JSON, truncated or another kind of file", path) \
+            from None
+    return parse_changes_record(doc, path)

@@ -143,6 +143,12 @@ def test_batch_stages_failures_and_groups(flights, local_run):
         assert (out / "pairs" / key / "changes" / "changes.csv").is_file()
         assert done[key]["kept"] > 0 and done[key]["gone"] == done[key]["new"] == 0
     assert not (out / "pairs" / "A__D" / "changes").exists()
+    # what change detection warned of (the toy sessions record no images) is the pair's and the report's
+    for key in ("A__B", "B__C"):
+        assert any("no surface evidence" in w for w in done[key]["changes_warnings"])
+        assert f"pair {key} changes: {done[key]['changes_warnings'][0]}" in report.warnings
+    assert json.loads((out / "report.json").read_text())["warnings"] == report.warnings
+    assert "pair A__B changes: " in (out / "report.md").read_text()
     for name in ("report.md", "report.json", "sessions.csv", "pairs.csv", "session_graph.png"):
         assert (out / name).stat().st_size > 0
     assert "| A__B | done | True |" in (out / "report.md").read_text()
@@ -162,6 +168,9 @@ def test_resume_skips_finished_tasks(flights, local_run, tmp_path):
     assert all(s.get("resumed") for s in again.sessions if s["status"] == "done")
     assert all(g.get("resumed") for g in again.groups if g.get("status") == "done")
     assert all(p.get("changes") for p in again.pairs if p.get("in_graph"))
+    # a finished comparison read by a resumed batch says its warnings again
+    assert all(p.get("changes_warnings") for p in again.pairs if p.get("in_graph"))
+    assert [w for w in again.warnings if "changes: " in w] == [w for w in first.warnings if "changes: " in w]
     assert _normalised(copy / "report.json", copy) == _normalised(out / "report.json", out)
 
 

@@ -87,6 +87,32 @@ def test_changes_end_to_end(toy, tmp_path, capsys):
     assert run([root / "A", root / "B", *other, "--overwrite"], capsys)[0] == 0
 
 
+def test_the_run_s_warnings_are_kept_in_its_record_and_on_its_plot(toy, tmp_path, capsys):
+    """A doubted result is no plain success: what `changes` warned of (here: no images, the segments alone
+    decide) stays in changes.json (`warnings`, read back by `read_changes_record`) and in the plot's title; the
+    twenty-fourth sweep found "B's images show no relief" only in the log."""
+    from sosmatch.database.changes_io import parse_changes_record, read_changes_record
+    from sosmatch.workflows.changes import compute, png_title
+
+    root = toy[0]
+    out = tmp_path / "C"
+    assert run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", out], capsys)[0] == 0
+    warnings = read_changes_record(out)["warnings"]
+    assert any("no surface evidence" in w for w in warnings) and any("no database.db" in w for w in warnings)
+    assert json.loads((out / "changes.json").read_text())["warnings"] == warnings
+    seen = compute(root / "A", root / "B", root / "AB" / "match.json")
+    assert seen.warnings == warnings
+    title = png_title(seen.result, seen.warnings)
+    assert title.startswith(seen.result.summary()[:20]) and "WARNING: the images of session A" in title
+    # a record from before warnings were kept reads as none; a damaged one is named
+    doc = json.loads((out / "changes.json").read_text())
+    assert parse_changes_record({k: v for k, v in doc.items() if k != "warnings"})["warnings"] == []
+    with pytest.raises(InputError, match="warnings must be a list of strings"):
+        parse_changes_record({**doc, "warnings": "no relief"})
+    with pytest.raises(InputError, match="not a record of `sosmatch changes`"):
+        parse_changes_record({**doc, "format": "sosmatch merge v1"})
+
+
 def test_min_confidence_one_reports_no_change(toy, tmp_path, capsys):
     root = toy[0]
     out = tmp_path / "C"

@@ -9,8 +9,9 @@ input leaves nothing behind; then, atomically, into `out_dir`:
                       (`sosmatch.database.changes_io`)
     changes.geojson   the same as WGS84 points, when A's map is georeferenced (EPSG code)
     changes.png       top view: both sessions' observed areas, kept grey, gone red, new green
-    changes.json      counts, the transform, the gate, parameters, inputs and the summary line (written last:
-                      its presence means the run finished)
+    changes.json      counts, the transform, the gate, parameters, inputs, the summary line and the run's
+                      warnings (written last: its presence means the run finished;
+                      `database.changes_io.read_changes_record` reads it back)
 `compute(...)` is the same without writing (batch writes each accepted pair's result into its pair folder).
 """
 
@@ -21,14 +22,19 @@ import json
 import logging
 import textwrap
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..database.atomic import write_bytes_atomic, write_text_atomic
-from ..database.changes_io import changes_feature_collection, format_changes_csv
+from ..database.changes_io import (
+    CHANGES_FORMAT,
+    changes_feature_collection,
+    format_changes_csv,
+    parse_changes_record,
+)
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
 from ..database.match_io import answer_gate, check_match_maps, imprecise_note, read_match, unverified_note
@@ -60,7 +66,6 @@ from ..plugin.params import Params, params_to_dict
 
 log = logging.getLogger(__name__)
 
-CHANGES_FORMAT = "sosmatch changes v1"
 OUTPUT_FILES = ("changes.csv", "changes.geojson", "changes.png", "changes.json")
 
 
@@ -76,6 +81,9 @@ class ChangesRun:
     # the alignment control (`check_alignment`'s rule) at the counterpart gate of the match's own theta_eps
     control: AlignmentSupport | None = None
     control_gate_m: float | None = None
+    # what `compute` warned of (a result it doubts is no plain success): kept in changes.json, on the plot, and
+    # carried into a batch's report
+    warnings: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         return self.result.summary()
@@ -202,7 +210,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
             epsg = 0
     for text in warnings:
         log.warning("%s", text)
-    return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0, control, control_gate)
+    return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0, control, control_gate, warnings)
 
 
 def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: Sim3, params: Params, verified: bool,
@@ -221,9 +229,16 @@ def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: 
         raise InputError(f"{why}; {refusing}", where)
 
 
+def png_title(result: ChangeResult, warnings: list[str]) -> str:
+    """The plot's title: the summary line, then each warning of the run (a plot read alone must say them)."""
+    return "\n".join([textwrap.fill(result.summary(), 110),
+                      *(textwrap.fill(f"WARNING: {w}", 110) for w in warnings)])
+
+
 def changes_png(result: ChangeResult, title: str = "") -> bytes:
     """Top view in A's frame: the observed areas of A and B, kept landmarks grey, gone red, new green (marker
-    size grows with the landmark's size; objects a session never mapped as diamonds), unseen ones faint."""
+    size grows with the landmark's size; objects a session never mapped as diamonds), unseen ones faint.
+    `title`: as given (`png_title`: the summary and the warnings), else the summary line."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -273,7 +288,7 @@ def changes_png(result: ChangeResult, title: str = "") -> bytes:
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m] (A's frame)")
     ax.set_ylabel("y [m]")
-    ax.set_title(textwrap.fill(title or result.summary(), 110), fontsize=9)
+    ax.set_title(title or textwrap.fill(result.summary(), 110), fontsize=9, loc="left")
     ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", bbox_inches="tight")
@@ -288,9 +303,9 @@ def _support_record(support: AlignmentSupport | None) -> dict[str, Any] | None:
 
 
 def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
-    """The changes.json document."""
+    """The changes.json document (validated by `changes_io.parse_changes_record`, as its reader does)."""
     res = run.result
-    return {
+    return parse_changes_record({
         "format": CHANGES_FORMAT, "version": __version__, **run.sources,
         "a_from_b": run.a_from_b.to_dict(), "epsg": run.epsg,
         "counts": res.counts(), "common_area_ha": round(float(res.common_area.area) / 1e4, 4),
@@ -303,8 +318,8 @@ def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
                                                                 **_support_record(run.control)},
         "params": {"changes": params_to_dict(params.changes),
                    "association.distance_tolerance_m": params.association.distance_tolerance_m},
-        "summary": res.summary(), "seconds": round(run.seconds, 3),
-    }
+        "summary": res.summary(), "warnings": list(run.warnings), "seconds": round(run.seconds, 3),
+    })
 
 
 def check_output_entries(out_dir: str | Path) -> None:
@@ -333,7 +348,7 @@ def write_outputs(run: ChangesRun, out_dir: str | Path, params: Params, plot: bo
                                                   separators=(",", ":")) + "\n")
     if plot:
         written.append(out_dir / "changes.png")
-        write_bytes_atomic(written[-1], changes_png(run.result))
+        write_bytes_atomic(written[-1], changes_png(run.result, png_title(run.result, run.warnings)))
     for stale in OUTPUT_FILES:
         if out_dir / stale not in written and stale != "changes.json":
             (out_dir / stale).unlink(missing_ok=True)

@@ -350,8 +350,28 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
         pairs[key]["changes_status"] = rec["status"]
         if rec["status"] == "done":
             pairs[key].update({k: rec[k] for k in ("changes", "gone", "new", "kept", "unseen", "changes_summary")})
+            _changes_warnings(key, pairs[key])
         else:
             pairs[key]["changes_error"] = rec.get("error", "")
+
+
+def _changes_warnings(key: str, rec: dict[str, Any]) -> None:
+    """Repeat what a pair's change detection warned of (changes.json `warnings`, `changes_io.read_changes_record`)
+    into its record (`changes_warnings`, report.json / .md) and the batch's log, for a comparison run now (its
+    worker's log is not the batch's) and one a resumed batch reads finished (the twenty-fourth sweep: B's images
+    "show no relief", its 5 "new" claims all false, and report.json said "warnings": [])."""
+    from ...database.changes_io import read_changes_record
+    from ...plugin.errors import InputError
+
+    rec.pop("changes_warnings", None)
+    try:
+        warnings = read_changes_record(rec["changes"])["warnings"]
+    except InputError as e:  # the record was there a moment ago (`_valid_changes`): say what is wrong with it now
+        warnings = [f"its changes record cannot be read: {e}"]
+    if warnings:
+        rec["changes_warnings"] = warnings
+        for text in warnings:
+            log.warning("pair %s changes: %s", key, text)
 
 
 def _refined(session_a: str, session_b: str, m: MatchSummary, sim: Sim3, params: Params) -> Sim3:
