@@ -24,6 +24,7 @@ from sosmatch.plugin.changes.surface import (
     height_limit,
     height_log_ratio,
     heights_above_ground,
+    relief_levels,
     shows_relief,
     spread_views,
     stands_above_ground,
@@ -278,6 +279,22 @@ def test_relief_is_what_the_ground_noise_alone_would_not_raise():
     assert shows_relief(trees, 0.01)
     assert shows_relief(np.concatenate([ground[:190], rng.uniform(3.0, 15.0, 10)]), 0.01)  # 5 % stand
     assert not shows_relief(trees, 1.0) and not shows_relief(np.array([np.nan]), 0.01)
+
+
+def test_a_few_places_far_above_the_noise_are_relief_and_a_few_just_above_it_are_not():
+    """The twenty-fourth sweep: 3 of 52 reference places stood 3-9 m up against a 1.03 m limit (noise 0.44 m);
+    counted at the limit alone (binomial tail 0.0155 against rate p) that was "no relief", and the session's 5
+    new claims, made without the objectness test, were all false. Far above the noise, where ground noise rises
+    at rate p^2 or p^3, three are no chance."""
+    rng = np.random.default_rng(5)
+    ground = np.round(rng.normal(0.0, 0.44, 49) * 2) / 2
+    assert shows_relief(np.concatenate([ground, [3.5, 6.0, 9.0]]), 0.01)
+    # the same three just above the limit are what noise raises now and then
+    assert not shows_relief(np.concatenate([ground, [1.1, 1.2, 1.1]]), 0.01)
+    assert [relief_levels(n, 0.01) for n in (1, 52, 200, 5000)] == [2, 3, 3, 4]
+    # bare ground: its highest places are noise at each level (the noise measured on a few tens of places: t)
+    for n in (52, 200):
+        assert sum(shows_relief(np.random.default_rng(seed).normal(0.0, 0.5, n), 0.01) for seed in range(100)) <= 3
 
 
 def test_the_ground_field_is_where_the_sweep_starts(scene):
