@@ -48,6 +48,12 @@ def _fmt(value: float, digits: int) -> str:
     return "" if not math.isfinite(value) else f"{value:.{digits}f}"
 
 
+def shown_confidence(value: float) -> float:
+    """A confidence as changes.csv and changes.geojson show it: rounded DOWN to 3 decimals, so that a row shown at
+    c passes `--min-confidence c` (rounded to nearest, 0.9996 showed as 1.000 yet `--min-confidence 1` dropped it)."""
+    return math.floor(value * 1000.0 + 1e-9) / 1000.0 if math.isfinite(value) else value
+
+
 def _parts(result: ChangeResult) -> list[tuple[str, str, LandmarkChanges, np.ndarray, np.ndarray]]:
     """(session, source, verdicts, positions, sizes) of every row group, in row order."""
     parts = [("A", "landmark", result.a, result.positions_a, result.sizes_a),
@@ -64,8 +70,9 @@ def change_rows(result: ChangeResult) -> list[list[str]]:
     rows = []
     for session, source, verdict, pos, sizes in _parts(result):
         for i in range(len(pos)):
+            shown = shown_confidence(float(verdict.confidence[i]))
             rows.append([str(verdict.label[i]), session, str(i), _fmt(pos[i, 0], 3), _fmt(pos[i, 1], 3),
-                         _fmt(pos[i, 2], 3), _fmt(float(sizes[i]), 3), _fmt(float(verdict.confidence[i]), 3),
+                         _fmt(pos[i, 2], 3), _fmt(float(sizes[i]), 3), _fmt(shown, 3),
                          str(int(verdict.counterpart[i])), _fmt(float(verdict.distance_m[i]), 3),
                          _fmt(float(verdict.size_change_m[i]), 3), str(int(verdict.views[i])),
                          str(verdict.evidence[i]), _fmt(float(verdict.height_above_ground_m[i]), 2), source])
@@ -137,7 +144,8 @@ def _features(session: str, source: str, verdict: LandmarkChanges, pos: np.ndarr
                                                           round(float(pos[i, 2]), 3)]},
             "properties": {"class": str(verdict.label[i]), "session": session, "index": i, "source": source,
                            "size_m": round(size, 3) if math.isfinite(size) else None,
-                           "confidence": round(float(verdict.confidence[i]), 3), "evidence": str(verdict.evidence[i]),
+                           "confidence": shown_confidence(float(verdict.confidence[i])),
+                           "evidence": str(verdict.evidence[i]),
                            "counterpart": int(verdict.counterpart[i]), "x": round(float(pos[i, 0]), 3),
                            "y": round(float(pos[i, 1]), 3), "z": round(float(pos[i, 2]), 3)},
         })

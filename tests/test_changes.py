@@ -458,3 +458,23 @@ def test_the_presence_rate_of_a_landmark_follows_how_often_its_own_session_shows
     again = detect_changes(a2, b, a_from_b, params, 2.0)
     assert np.all(again.a.label[target] == GONE)
     assert np.all(again.a.confidence[target] < res.a.confidence[target] - 1e-6)
+
+
+def test_a_claim_shown_at_a_confidence_passes_min_confidence_at_that_value(pair):
+    """changes.csv rounded confidences to nearest: a claim at 0.9996 read "1.000" while `--min-confidence 1`
+    dropped it (nu24). Shown values are rounded down, so every row shown at c passes c."""
+    import csv
+    import io
+
+    from sosmatch.database.changes_io import format_changes_csv, shown_confidence
+
+    *_, a, ids_a, b, ids_b, a_from_b = pair
+    res = detect_changes(a, b, a_from_b, ChangeParams(min_confidence=0.0), 2.0)
+    claimed = res.a.label == GONE
+    assert claimed.any()
+    res.a.confidence[np.flatnonzero(claimed)[0]] = 0.99962
+    rows = list(csv.DictReader(io.StringIO(format_changes_csv(res))))
+    for row, conf in zip(rows, res.a.confidence):
+        if row["confidence"]:
+            assert float(row["confidence"]) <= conf  # shown never above the value --min-confidence compares
+    assert "0.999" in {r["confidence"] for r in rows} and shown_confidence(0.57) == 0.57

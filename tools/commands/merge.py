@@ -30,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
                     overwrite=args.overwrite)
     print(
         f"{args.out}: {res.num_images} images, {res.num_points3d} points, {res.num_landmarks} landmarks "
-        f"({res.num_fused} fused, {res.num_rejected} associations not fused){' [refined]' if res.refined else ''}"
+        f"({res.num_fused} fused, {res.num_rejected} {'association' if res.num_rejected == 1 else 'associations'} "
+        f"not fused){' [refined]' if res.refined else ''}"
     )
     return 0
