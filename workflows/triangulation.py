@@ -321,17 +321,20 @@ def triangulate_landmarks(
             "duplicate": 0, "height_outlier": 0, "beyond_flying_height": 0}
     locate_whole = params.whole_masks_only and centroids_px is not None and covariances_px is not None
     rows = []
+
+    def behind_a_camera(kf: np.ndarray, x: np.ndarray) -> bool:
+        return bool(np.any(r_cw[kf, 2, :] @ x + t_cw[kf, 2] <= 0))
+
     for pid in sorted(rec.point3D_ids()):
         point = rec.points3D[pid]
         obs = _observations(rec, pid)
         xyz = np.asarray(point.xyz, dtype=np.float64)
-        depth = np.einsum("nj,nj->n", r_cw[obs[:, 0], 2, :], np.broadcast_to(xyz, (len(obs), 3))) + t_cw[obs[:, 0], 2]
         reason = None
         if len(obs) <= params.min_observations:
             reason = "few_observations"
         elif not np.isfinite(point.error) or point.error > params.max_reprojection_error_px:
             reason = "reprojection"
-        elif np.any(depth <= 0):
+        elif behind_a_camera(obs[:, 0], xyz):
             reason = "behind_camera"
         elif _max_ray_angles_deg(poses.centers[obs[:, 0]], xyz) < params.min_triangulation_angle_deg:
             reason = "small_angle"
@@ -343,9 +346,7 @@ def triangulate_landmarks(
             elif located is not xyz:
                 xyz = located
                 point.xyz = xyz  # sparse/ holds the landmark where the map has it
-                depth = np.einsum("nj,nj->n", r_cw[obs[:, 0], 2, :], np.broadcast_to(xyz, (len(obs), 3))) \
-                    + t_cw[obs[:, 0], 2]
-                if np.any(depth <= 0):
+                if behind_a_camera(obs[:, 0], xyz):
                     reason = "behind_camera"
         if reason is not None:
             drop[reason] += 1
