@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from pathlib import Path
 
@@ -29,7 +28,7 @@ import numpy as np
 from ..plugin.changes import CLASSES, EVIDENCE, ChangeResult, LandmarkChanges
 from ..plugin.errors import InputError
 from .geojson import to_wgs84
-from .text_input import read_user_text
+from .text_input import read_user_json, read_user_text
 
 CHANGES_FORMAT = "sosmatch changes v1"
 
@@ -172,10 +171,4 @@ def read_changes_record(path: str | Path) -> dict:
     path = Path(path)
     if path.is_dir():
         path = path / "changes.json"
-    text = read_user_text(path, "changes record")
-    try:
-        doc = json.loads(text)
-    except (ValueError, RecursionError):
-        raise InputError("cannot read changes record: not valid JSON, truncated or another kind of file", path) \
-            from None
-    return parse_changes_record(doc, path)
+    return parse_changes_record(read_user_json(path, "changes record", redo="re-run `sosmatch changes`"), path)

@@ -12,7 +12,6 @@ the match was computed for its maps: match.json names each map by a content fing
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +24,7 @@ from ..plugin.multisession import Sim3
 from ..plugin.params.matching import MAX_ASSOCIATIONS
 from .landmark_map import LandmarkMap, landmark_map_fingerprint
 from .output_markers import check_finished
-from .text_input import read_user_text
+from .text_input import read_user_json
 
 MATCH_FORMAT = "sosmatch match v1"
 MAX_INDEX = 2**31 - 1  # landmark indices are int32-sized (a map of 2^31 landmarks would be 30 GB)
@@ -390,19 +389,7 @@ def read_match_json(path: str | Path) -> dict[str, Any]:
                              path)
         path = path / "match.json"
     check_finished(path.parent, path)  # a killed `match --overwrite` leaves the old match.json beside new files
-    text = read_user_text(path, "match file")
-    if not text.strip():
-        raise InputError("match file is empty (an interrupted copy?); re-run `sosmatch match`", path)
-    try:
-        data = json.loads(text)
-    except RecursionError:
-        raise InputError("cannot read match file: nested too deeply", path) from None
-    except ValueError as exc:  # JSONDecodeError, and integers of more than 4300 digits
-        raise InputError(f"cannot read match file: not valid JSON, truncated or another kind of file "
-                         f"({str(exc).splitlines()[0]})", path) from None
-    if not isinstance(data, dict):
-        raise InputError("match file must hold a JSON object", path)
-    return data
+    return read_user_json(path, "match file", redo="re-run `sosmatch match`")
 
 
 def read_match(path: str | Path) -> MatchSummary:

@@ -18,7 +18,6 @@ RADIAL_FISHEYE. Other projections (spherical, dual, fisheye62, fisheye_opencv) a
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from dataclasses import dataclass, field
@@ -29,7 +28,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from .cameras import camera_from_colmap
-from .text_input import read_user_text
+from .text_input import read_user_json
 
 log = logging.getLogger(__name__)
 
@@ -155,10 +154,7 @@ def read_opensfm_reconstruction(path: str | Path) -> OpenSfmReconstruction:
     """The largest reconstruction of an OpenSfM reconstruction.json (or a project directory); every defect is an
     InputError naming the file and the shot or camera."""
     path = find_reconstruction(path)
-    try:
-        data = json.loads(read_user_text(path, "OpenSfM reconstruction"))
-    except ValueError as exc:
-        raise InputError(f"not valid JSON ({exc})", path) from None
+    data = read_user_json(path, "OpenSfM reconstruction", (list, dict))
     if isinstance(data, dict):
         data = [data]
     recs = [r for r in data if isinstance(r, dict) and isinstance(r.get("shots"), dict)] if isinstance(data, list) \
@@ -197,10 +193,7 @@ def read_opensfm_reconstruction(path: str | Path) -> OpenSfmReconstruction:
     ref = rec.get("reference_lla")
     beside = path.parent / "reference_lla.json"
     if not isinstance(ref, dict) and beside.is_file():
-        try:
-            ref = json.loads(read_user_text(beside, "OpenSfM reference_lla.json"))
-        except ValueError as exc:
-            raise InputError(f"not valid JSON ({exc})", beside) from None
+        ref = read_user_json(beside, "OpenSfM reference_lla.json")
     lla = None
     if isinstance(ref, dict):
         lla = tuple(_number(ref, k, "reference_lla", path) for k in ("latitude", "longitude", "altitude"))

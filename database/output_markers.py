@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
-from .text_input import read_user_bytes
+from .text_input import read_user_json
 
 MARKER = ".sosmatch-output.json"
 LOCK = ".sosmatch-output.lock"
@@ -69,10 +69,9 @@ def read_json_or_none(path: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
     try:
-        data = json.loads(read_user_bytes(path, "output record"))
-    except (InputError, ValueError, RecursionError):
+        return read_user_json(path, "output record")
+    except InputError:
         return {}
-    return data if isinstance(data, dict) else {}
 
 
 def output_marker(path: str | Path) -> dict[str, Any] | None:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import os
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -23,7 +22,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from .atomic import write_text_atomic
 from .landmark_map import MAX_WORLD_COORD_M, LandmarkMap, landmark_map_fingerprint, read_landmark_map
-from .text_input import read_user_text
+from .text_input import read_user_json, read_user_text
 
 if TYPE_CHECKING:
     from ..plugin.changes import SessionObservations
@@ -126,14 +125,7 @@ def read_map_record(map_dir: str | Path) -> dict | None:
     path = Path(map_dir) / "run.json"
     if not path.is_file():
         return None
-    text = read_user_text(path, "session record")
-    try:
-        record = json.loads(text)
-    except (ValueError, RecursionError) as exc:
-        raise InputError(f"session record is not JSON: {str(exc).splitlines()[0]}", path) from None
-    if not isinstance(record, dict):
-        raise InputError("session record must hold a JSON object", path)
-    return record
+    return read_user_json(path, "session record", redo="re-run `sosmatch map`")
 
 
 def map_keyframe_names(map_dir: str | Path) -> list[str] | None:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +25,7 @@ from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses, pixel_rays
 from .cameras import read_cameras_txt
 from .poses import read_poses_csv
-from .text_input import read_user_npz, read_user_text
+from .text_input import read_user_json, read_user_npz, read_user_text
 
 SESSION_FORMAT = "sosmatch-synth-session"
 SESSION_VERSION = 1
@@ -147,14 +146,10 @@ class SynthSession:
         return self.objects[self.objects["present"]]
 
 
-def _read_json(path: Path) -> Any:
+def _read_json(path: Path, expect: type) -> Any:
     if not path.exists():
         raise InputError("file not found (not a complete synthetic session?)", path)
-    text = read_user_text(path, "session file")
-    try:
-        return json.loads(text)
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"cannot read JSON: {exc}", path) from None
+    return read_user_json(path, "session file", expect, redo="re-run `sosmatch synth` (or `synth-from-ortho`)")
 
 
 def read_objects_csv(path: str | Path) -> np.ndarray:
@@ -225,8 +220,8 @@ def load_synth_session(path: str | Path) -> SynthSession:
     path = Path(path)
     if not path.is_dir():
         raise InputError("synthetic session directory not found", path)
-    meta = _read_json(path / "session.json")
-    if not isinstance(meta, dict) or meta.get("format") != SESSION_FORMAT:
+    meta = _read_json(path / "session.json", dict)
+    if meta.get("format") != SESSION_FORMAT:
         raise InputError(f"not a synthetic session (format must be {SESSION_FORMAT!r})", path / "session.json")
     if meta.get("version") != SESSION_VERSION:
         raise InputError(f"unsupported session version {meta.get('version')!r}", path / "session.json")
@@ -238,8 +233,8 @@ def load_synth_session(path: str | Path) -> SynthSession:
     if ekf.names != poses.names:
         raise InputError("poses_ekf.csv must list the same images as poses.csv", path / "poses_ekf.csv")
     objects = read_objects_csv(path / "objects.csv")
-    frames = _read_json(path / "frames.json")
-    if not isinstance(frames, list) or [f.get("name") if isinstance(f, dict) else None for f in frames] != poses.names:
+    frames = _read_json(path / "frames.json", list)
+    if [f.get("name") if isinstance(f, dict) else None for f in frames] != poses.names:
         raise InputError("frames.json must list one entry per image of poses.csv, same order", path / "frames.json")
     for f in frames:
         if not isinstance(f.get("visible_object_ids"), list) or not isinstance(f.get("footprint"), list):
@@ -261,9 +256,7 @@ def ground_truth_crs(path: str | Path) -> tuple[int, np.ndarray] | None:
     path = Path(path)
     if not (path / "session.json").is_file():
         return None
-    meta = _read_json(path / "session.json")
-    if not isinstance(meta, dict):
-        raise InputError("session.json must hold an object", path / "session.json")
+    meta = _read_json(path / "session.json", dict)
     geo = meta.get("geo") if meta.get("source") != "orthophoto" else {"epsg": meta.get("epsg")}
     if not isinstance(geo, dict) or not geo.get("epsg"):
         return 0, np.zeros(3)
@@ -287,8 +280,8 @@ def ground_truth_frame(path: str | Path) -> str | None:
     path = Path(path)
     if not (path / "session.json").is_file():
         return None
-    meta = _read_json(path / "session.json")
-    if not isinstance(meta, dict) or meta.get("format") != SESSION_FORMAT:
+    meta = _read_json(path / "session.json", dict)
+    if meta.get("format") != SESSION_FORMAT:
         raise InputError(f"not a synthetic session (format must be {SESSION_FORMAT!r})", path / "session.json")
     if meta.get("source") == "orthophoto":
         return f"orthophoto in EPSG:{meta.get('epsg')}"

@@ -2,19 +2,21 @@
 InputError, and that reads no more than a bound, whatever the path is.
 
 Every whole-file input (pose and telemetry tables, cameras files, match.json, run.json, config TOML, landmark
-maps) is read here. A file is read with a cap instead of after a `stat`, because the size of what a path
-names is not always known in advance: `--match /dev/zero` (or a pipe that never ends) filled memory until
-Python raised MemoryError with a traceback. The caps are far above what the format holds for any real
-survey (a pose table of a million frames is about 100 MB), so they only ever stop a wrong path.
+maps) is read here, every JSON document through `read_user_json`. A file is read with a cap instead of after a
+`stat`, because the size of what a path names is not always known in advance: `--match /dev/zero` (or a pipe
+that never ends) filled memory until Python raised MemoryError with a traceback. The caps are far above what the
+format holds for any real survey (a pose table of a million frames is about 100 MB), so they only ever stop a
+wrong path.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import stat
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 
@@ -85,6 +87,40 @@ def read_user_text(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_BY
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(f"cannot read {what}: not UTF-8 text (byte {exc.start})", path) from None
+
+
+# How a one-line error names what a JSON document holds (Python's type of the parsed value).
+_JSON_KINDS = {dict: "a JSON object", list: "a JSON array", str: "a string", int: "a number", float: "a number",
+               bool: "true or false", type(None): "null"}
+
+
+def read_user_json(path: str | Path, what: str, expect: type | tuple[type, ...] | None = dict, *, redo: str = "",
+                   limit_bytes: int = TEXT_LIMIT_BYTES) -> Any:
+    """The parsed JSON document of `path` (`read_user_text`' checks and bound); InputError naming the file when it
+    is empty, not JSON (the line, in the error's place, and the column of the first syntax error), nested too
+    deeply, or not of the type `expect` (None: any). The format's own validation is the caller's.
+
+    `redo` is what to do about an empty or unparsable file when another command wrote it ("re-run `sosmatch
+    match`"): such a file is a truncated copy or an interrupted write."""
+    path = Path(path)
+    text = read_user_text(path, what, limit_bytes)
+    hint = f"; {redo}" if redo else ""
+    if not text.strip():
+        raise InputError(f"{what} is empty (an interrupted copy?){hint}", path)
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"cannot read {what}: not valid JSON, truncated or another kind of file ({exc.msg}, "
+                         f"column {exc.colno}){hint}", path, exc.lineno) from None
+    except RecursionError:
+        raise InputError(f"cannot read {what}: nested too deeply", path) from None
+    except ValueError as exc:  # integers of more than 4300 digits
+        raise InputError(f"cannot read {what}: {str(exc).splitlines()[0]}", path) from None
+    if expect is not None and not isinstance(data, expect):
+        wanted = " or ".join(_JSON_KINDS.get(t, t.__name__) for t in (expect if isinstance(expect, tuple)
+                                                                        else (expect,)))
+        raise InputError(f"{what} must hold {wanted}, not {_JSON_KINDS.get(type(data), type(data).__name__)}", path)
+    return data
 
 
 def read_user_npz(path: str | Path, what: str, limit_bytes: int = NPZ_LIMIT_BYTES) -> dict[str, np.ndarray]:

@@ -51,6 +51,7 @@ from ..database.match_io import (
 from ..database.output_markers import fingerprint, resolved_path, sha256_file
 from ..database.outputs import OutputDir, open_output_dir
 from ..database.session_io import MERGE_RECORD, SessionFiles, read_session, write_landmarks_csv
+from ..database.text_input import read_user_json
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
@@ -222,11 +223,12 @@ def merge_sessions(
 
 def flight_maps(session: SessionFiles) -> list[str]:
     """The landmark maps (content fingerprints) of the flights a session holds: a merged session's as its
-    merge.json records them (`flight_maps`), a flight's its own."""
-    try:
-        recorded = json.loads((session.path / MERGE_RECORD).read_text(encoding="utf-8")).get("flight_maps")
-    except (OSError, ValueError, AttributeError):
-        recorded = None
+    merge.json records them (`flight_maps`), a flight's its own (and a merged session's of an older sosmatch, whose
+    record has none). InputError naming merge.json when it is unreadable: a merged session taken for one flight
+    would let a flight it holds be merged into it again."""
+    record = session.path / MERGE_RECORD
+    recorded = read_user_json(record, "merge record", redo="re-run `sosmatch merge`").get("flight_maps") \
+        if record.is_file() else None
     if isinstance(recorded, list) and recorded and all(isinstance(f, str) for f in recorded):
         return sorted(set(recorded))
     return [landmark_map_fingerprint(session.landmarks)]

@@ -3,13 +3,13 @@ result (`map_inputs`); shared helpers of the package."""
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ...database.text_input import read_user_json
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
 from ..image_priors import list_images
@@ -55,10 +55,7 @@ def load_result(out_dir: str | Path) -> PosesResult:
 
     out_dir = Path(out_dir)
     record = out_dir / RECORD
-    try:
-        report = json.loads(record.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"unreadable poses record: {exc}", record) from None
+    report = read_user_json(record, "poses record", redo="re-run `sosmatch poses`")
     poses, epsg = read_poses_csv(out_dir / "poses.csv")
     cameras = read_cameras_txt(out_dir / "cameras.txt")
     return PosesResult(out_dir, poses, cameras, {k: int(v) for k, v in report.get("camera_of_image", {}).items()},
