@@ -3,11 +3,12 @@ writes them; its module doc has the rules).
 
 An output directory holds the marker `.sosmatch-output.json` (format `MARKER_FORMAT`: the command, the output's
 identity, whether the run finished, the files of its directory entries), written by the command that took it.
-Here: the marker's names and reading (`output_marker`, `output_command`, `unfinished_output`), the check every
-reader of a sosmatch output makes before using it (`check_finished`, `check_input_finished`: a run into it that
-has not finished may leave an earlier run's files beside its own), the identities (`fingerprint` of the inputs
-and settings, `sha256_file`) and how outputs and inputs may lie (`resolved_path`, `check_not_input`). Nothing
-here writes.
+Here: the marker's names and reading (`output_marker`, `output_command`, `unfinished_run`: with the lock file,
+`database.output_lock`, whether it is being written now or was interrupted), the check every reader of a
+sosmatch output makes before using it (`check_finished`, `check_input_finished`: a run into it that has not
+finished may leave an earlier run's files beside its own), the identities (`fingerprint` of the inputs and
+settings, `sha256_file`) and how outputs and inputs may lie (`resolved_path`, `check_not_input`). Nothing here
+writes.
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ import hashlib
 import json
 import os
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
+from .output_lock import LockHolder, holder_state, read_lock_holder
 from .text_input import read_user_json
 
 MARKER = ".sosmatch-output.json"
@@ -86,13 +89,44 @@ def output_command(path: str | Path) -> str | None:
     return command if isinstance(command, str) else None
 
 
-def unfinished_output(path: str | Path) -> str | None:
-    """The command whose run in directory `path` has not finished (its marker says incomplete: interrupted, or
-    running now), else None. What such a directory holds may be an earlier run's, made from other inputs."""
+@dataclass(frozen=True)
+class UnfinishedRun:
+    """A run into an output directory that has not finished (its marker says incomplete)."""
+
+    command: str  # "?" when the marker does not say
+    state: str  # "running" (being written now), "interrupted" (killed or failed), "unknown" (output_lock)
+    holder: LockHolder | None  # the process the lock file names (None: no lock file)
+
+    def status(self) -> str:
+        """What became of it, for a message: "being written now by pid 12", "interrupted; ...", ..."""
+        if self.state == "running" and self.holder is not None:
+            return f"being written now by pid {self.holder.pid}"
+        if self.state == "interrupted":
+            return "interrupted; no process writes it any more"
+        where = "" if self.holder is None or self.holder.pid is None else f" as {self.holder.describe()}"
+        return f"interrupted, or still running{where}"
+
+
+def unfinished_run(path: str | Path) -> UnfinishedRun | None:
+    """The run into directory `path` that has not finished (its marker says incomplete), and whether it is being
+    written now (`output_lock.holder_state`), else None. What such a directory holds may be an earlier run's,
+    made from other inputs."""
+    path = Path(path)
     marker = output_marker(path)
     if marker is None or marker.get("complete") is not False:
         return None
-    return output_command(path) or "?"
+    holder = read_lock_holder(path / LOCK)
+    if holder is None and (output_marker(path) or {}).get("complete") is not False:
+        return None  # finished between the two reads: a run removes its lock file after marking it complete
+    command = marker.get("command")
+    state = {"running": "running", "gone": "interrupted"}.get(holder_state(holder), "unknown")
+    return UnfinishedRun(command if isinstance(command, str) else "?", state, holder)
+
+
+def unfinished_output(path: str | Path) -> str | None:
+    """The command whose run in directory `path` has not finished (`unfinished_run`), else None."""
+    run = unfinished_run(path)
+    return None if run is None else run.command
 
 
 def check_input_finished(path: str | Path) -> None:
@@ -108,12 +142,15 @@ def check_input_finished(path: str | Path) -> None:
 
 
 def check_finished(path: str | Path, named: str | Path | None = None) -> None:
-    """InputError (naming `named`, default `path`) when a run of sosmatch into directory `path` has not finished
-    (interrupted, or running now): what it holds may be an earlier run's beside its unfinished successor (a killed
-    `match --overwrite` leaves the new associations.csv beside the old match.json). Every reader of an input that
-    a sosmatch command wrote asks this of the directory that holds it."""
-    if (command := unfinished_output(path)) is not None:
+    """InputError (naming `named`, default `path`) when a run of sosmatch into directory `path` has not finished:
+    what it holds may be an earlier run's beside its unfinished successor (a killed `match --overwrite` leaves
+    the new associations.csv beside the old match.json). The error says whether to wait (being written now) or
+    to re-run it (interrupted; `unfinished_run`). Every reader of an input that a sosmatch command wrote asks
+    this of the directory that holds it."""
+    if (run := unfinished_run(path)) is not None:
         where = "this directory" if named is None else f"its directory {Path(path)}"
-        raise InputError(f"a `sosmatch {command}` run into {where} has not finished (interrupted, or still "
-                         "running): re-run the same command to finish it before using it",
+        todo = ("wait for it to finish before using it" if run.state == "running" else
+                "re-run the same command to finish it before using it" if run.state == "interrupted" else
+                "once it is not running any more, re-run the same command to finish it before using it")
+        raise InputError(f"a `sosmatch {run.command}` run into {where} has not finished ({run.status()}): {todo}",
                          path if named is None else named)

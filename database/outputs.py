@@ -13,7 +13,9 @@ The rules (README "Errors"; tests/test_outputs.py keeps them):
    restarted without it: a failed run never blocks its own retry. The same identity replaces freely: the
    outputs are deterministic, so nothing is lost.
 4. One run at a time per output directory: an exclusive lock (flock on `.sosmatch-output.lock`, present while
-   a run holds it; the kernel releases it when the process dies) refuses a second concurrent run.
+   a run holds it; the kernel releases it when the process dies) refuses a second concurrent run. The file names
+   the run's process (`database.output_lock`), so that a reader can tell a run being written now from one that
+   was killed.
 5. Files are written atomically (`sosmatch.database.atomic`); the one place where a directory is replaced is
    here (`OutputDir.replace_dir`, `OutputDir.publish`), and only inside a directory the command owns.
    Temporaries of killed runs are removed by the next run.
@@ -52,6 +54,7 @@ from .output_entries import (
     merge_entry_records,
     recorded_entries,
 )
+from .output_lock import LockHolder, lock_record, read_lock_holder
 from .output_markers import (
     LOCK,
     MARKER,
@@ -118,13 +121,6 @@ def _previous(path: Path, command: str, legacy_record: str | None) -> PreviousOu
     return PreviousOutput("incomplete", marker.get("identity"))
 
 
-def _lock_holder(lock_path: Path) -> str:
-    try:
-        return lock_path.read_text(encoding="utf-8").strip() or "another process"
-    except OSError:
-        return "another process"
-
-
 def _acquire_lock(lock_path: Path, what: str) -> int:
     """flock `lock_path` exclusively without waiting; InputError naming the holder if another run has it.
 
@@ -138,7 +134,7 @@ def _acquire_lock(lock_path: Path, what: str) -> int:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            holder = _lock_holder(lock_path)
+            holder = (read_lock_holder(lock_path) or LockHolder()).describe()
             os.close(fd)
             raise InputError(f"output directory is in use by {holder}; wait for it to finish (or stop it)",
                              lock_path.parent) from None
@@ -150,7 +146,7 @@ def _acquire_lock(lock_path: Path, what: str) -> int:
             break
         os.close(fd)
     os.ftruncate(fd, 0)
-    os.write(fd, f"sosmatch {what} (pid {os.getpid()})\n".encode())
+    os.write(fd, lock_record(what).encode())
     return fd
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...database.images import image_files
-from ...database.output_markers import output_command, unfinished_output
+from ...database.output_markers import output_command, unfinished_run
 from ...plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -101,9 +101,11 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
             continue
         kind = classify_flight(folder)
         if kind is None:
-            if (unfinished := unfinished_output(folder)) is not None:  # e.g. a killed `synth`: only its staging
-                log.warning("%s: a `sosmatch %s` run into it has not finished; not a flight until it is re-run",
-                            folder, unfinished)
+            if (unfinished := unfinished_run(folder)) is not None:  # e.g. a killed `synth`: only its staging
+                todo = ("wait for it to finish, then run batch again" if unfinished.state == "running" else
+                        "re-run it" if unfinished.state == "interrupted" else "re-run it once it is not running")
+                log.warning("%s: a `sosmatch %s` run into it has not finished (%s); not a flight: %s", folder,
+                            unfinished.command, unfinished.status(), todo)
             elif (folder / "poses.csv").is_file():
                 log.warning("%s: a pose file but no images (looked in %s/images and %s itself); not a flight",
                             folder, folder, folder)
