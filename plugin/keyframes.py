@@ -82,17 +82,21 @@ def next_frame_ranks(xy: np.ndarray) -> np.ndarray:
 
 
 def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[np.ndarray, str]:
-    """The order in which the frames were taken, and how it was found ("given", "capture time", "path").
+    """The order in which the frames were taken, and how it was found (`FLIGHT_ORDER_HOWS`).
 
-    Capture times (every frame one, finite) decide when they exist (stable for equal times). Without them the
-    given order stands unless it is evidently not a flight (horizontally, the median `next_frame_ranks` is more
-    than SCRAMBLED_NEXT_RANK: most steps go past the frames nearest to the current one); then the frames are
-    chained from an end of the survey (the frame farthest from the centroid) to the nearest frame not yet taken,
-    which retraces a survey's lines and turns. A flight that passes over its ground again stays as given: its
-    next frame is among the few nearest (its twins are the others).
+    Capture times (every frame one, finite) decide where they differ. Frames that share a time (a clock in whole
+    seconds under bursts of several frames a second, a tool that rewrote the dates) are in no order by it: within
+    each such time they keep their given order unless a path through their camera centres is shorter
+    (`_paths_within_equal_times`; "capture time + path"). Times that are all one carry no order at all and count
+    as none. Without times the given order stands unless it is evidently not a flight (horizontally, the median
+    `next_frame_ranks` is more than SCRAMBLED_NEXT_RANK: most steps go past the frames nearest to the current
+    one); then the frames are chained from an end of the survey (the frame farthest from the centroid) to the
+    nearest frame not yet taken, which retraces a survey's lines and turns ("path"). A flight that passes over
+    its ground again stays as given: its next frame is among the few nearest (its twins are the others).
 
     Args:
-        centers: (N, 3) camera centres in metres, in the given order.
+        centers: (N, 3) camera centres in metres, in the given order (only the horizontal ones are used; frames
+            of one time keep their given order when any centre is not finite).
         times: (N,) capture times in seconds, or None.
 
     Returns:
@@ -102,20 +106,112 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
     n = len(centers)
     identity = np.arange(n, dtype=np.int64)
     if times is not None and len(times) == n and n > 1 and np.all(np.isfinite(times)):
-        order = np.argsort(np.asarray(times, dtype=np.float64), kind="stable").astype(np.int64)
-        return order, ("given" if np.array_equal(order, identity) else "capture time")
+        t = np.asarray(times, dtype=np.float64)
+        if np.ptp(t) > 0:
+            order = np.argsort(t, kind="stable").astype(np.int64)
+            order, path_within = _paths_within_equal_times(centers[:, :2], t, order)
+            if path_within:
+                return order, "capture time + path"
+            return order, ("given" if np.array_equal(order, identity) else "capture time")
+        # one time on every frame (the nu25 sweep: mapped in the shuffled names' order, 64 landmarks of 75, no
+        # word): no order in it, as without times
     if n < 3 or not np.all(np.isfinite(centers)):
         return identity, "given"
     xy = centers[:, :2]
     if np.median(next_frame_ranks(xy)) <= SCRAMBLED_NEXT_RANK:
         return identity, "given"
     current = int(np.argmax(np.linalg.norm(xy - xy.mean(axis=0), axis=1)))
-    taken = np.zeros(n, dtype=bool)
-    order = [current]
-    taken[current] = True
-    for _ in range(n - 1):  # O(N^2) in all, one row at a time (memory O(N))
-        row = np.where(taken, np.inf, np.linalg.norm(xy - xy[current], axis=1))
-        current = int(np.argmin(row))  # ties: the lowest index (deterministic)
-        order.append(current)
-        taken[current] = True
-    return np.asarray(order, dtype=np.int64), "path"
+    return np.asarray(_chain(xy, np.arange(n), current), dtype=np.int64), "path"
+
+
+# How `flight_order` found the order: as listed, by capture time, by capture time with the frames of one time along
+# the path through their centres, or along that path alone.
+FLIGHT_ORDER_HOWS = ("given", "capture time", "capture time + path", "path")
+
+
+def _chain(xy: np.ndarray, members: np.ndarray, start: int) -> list[int]:
+    """`members` (indices into `xy`) chained from `start` (one of them) to the nearest one not yet taken, each in
+    turn (ties: the first listed; deterministic). O(M^2) in all, one row at a time (memory O(M))."""
+    pts = xy[members]
+    taken = np.zeros(len(members), dtype=bool)
+    k = int(np.flatnonzero(members == start)[0])
+    out = [int(members[k])]
+    taken[k] = True
+    for _ in range(len(members) - 1):
+        k = int(np.argmin(np.where(taken, np.inf, np.linalg.norm(pts - pts[k], axis=1))))
+        out.append(int(members[k]))
+        taken[k] = True
+    return out
+
+
+def _travel(xy: np.ndarray, seq: np.ndarray, before: np.ndarray | None, after: np.ndarray | None) -> float:
+    """Horizontal distance flown through `seq` (indices into `xy`), from the point `before` and on to the
+    nearest of the points `after` (either None: no such leg)."""
+    pts = xy[seq]
+    d = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    if before is not None:
+        d += float(np.linalg.norm(pts[0] - before))
+    if after is not None:
+        d += float(np.min(np.linalg.norm(after - pts[-1], axis=1)))
+    return d
+
+
+def _paths_within_equal_times(xy: np.ndarray, t: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, bool]:
+    """`order` (stable by capture time) with the frames of each shared time reordered along a path through their
+    centres where that path is shorter than their given order (and whether any was).
+
+    Frames taken within one clock tick are in no order by it. Among the orders of such a run, the flight is a
+    short one: the aircraft went from the frame before the run through the run and on to the frames of the next
+    time. The path candidate starts at the run's frame nearest the frame before and steps to the nearest frame
+    left (the first run, with no frame before, is chained from its frame nearest the next time's frames and
+    reversed). It replaces the given order only when it flies less, counting the legs from the frame before and
+    to the next time: frames listed in flight order keep it (a line: equal; a run in a turn or over its ground
+    again: the given order is the shorter or equal one), shuffled names do not."""
+    if not np.all(np.isfinite(xy)):
+        return order, False
+    ts = t[order]
+    starts = np.flatnonzero(np.r_[True, ts[1:] != ts[:-1]])
+    bounds = np.r_[starts, len(order)]
+    out = order.copy()
+    changed = False
+    for g in range(len(starts)):
+        a, b = int(bounds[g]), int(bounds[g + 1])
+        if b - a < 2:
+            continue
+        given = out[a:b].copy()
+        before = xy[out[a - 1]] if a > 0 else None
+        after = xy[order[b:int(bounds[g + 2])]] if g + 1 < len(starts) else None
+        if before is not None:
+            path = _chain(xy, given, int(given[np.argmin(np.linalg.norm(xy[given] - before, axis=1))]))
+        else:  # the first time: end at the next time's frames (there is one: the times differ)
+            near = [np.min(np.linalg.norm(after - xy[i], axis=1)) for i in given]
+            path = _chain(xy, given, int(given[int(np.argmin(near))]))[::-1]
+        path_arr = np.asarray(path, dtype=np.int64)
+        shorter = _travel(xy, path_arr, before, after) < _travel(xy, given, before, after) * (1 - 1e-9) - 1e-9
+        if shorter:
+            out[a:b] = path_arr
+            changed = True
+    return out, changed
+
+
+def flight_order_message(how: str, times: np.ndarray | None) -> tuple[bool, str] | None:
+    """What the log says of `flight_order`'s `how` (None: nothing, the order is as listed), and whether it is a
+    warning (an order found along the camera path is a guess). `times`: the capture times it was given."""
+    if how == "given":
+        return None
+    if how == "capture time":
+        return False, "the frames are ordered by their capture times (EXIF DateTimeOriginal), not as listed"
+    if how == "capture time + path":
+        t = np.asarray(times, dtype=np.float64)
+        _, inverse, counts = np.unique(t, return_inverse=True, return_counts=True)
+        shared = int(np.sum(counts[inverse] > 1))
+        return True, (f"{shared} of {len(t)} frames share their capture time with others (EXIF DateTimeOriginal "
+                      "in whole seconds without SubSecTimeOriginal, or dates rewritten by a tool?) and are not "
+                      "listed in flight order within it: they are ordered by capture time, and the frames of one "
+                      "time along a path through their camera centres")
+    if times is not None and len(times) > 0 and bool(np.all(np.isfinite(times))):
+        why = f"and all {len(times)} images carry one capture time, which orders nothing"
+    else:
+        why = "and not every image carries a capture time"
+    return True, (f"the frames are not listed in flight order (consecutive frames lie far apart, {why}): they are "
+                  "ordered along a path through their camera centres")

@@ -465,6 +465,33 @@ def test_images_whose_names_do_not_follow_the_flight_are_read_in_capture_order(t
     assert np.all(top[:, 1] > 0.99), top
 
 
+def test_images_of_one_capture_second_are_read_along_their_path(tmp_path, caplog):
+    """The nu25 sweep: names shuffled, and several images per DateTimeOriginal (two a second in whole seconds; or
+    one instant on every image, a tool that rewrote the dates). A stable sort on the times kept the shuffled names'
+    order within each second (or everywhere): course over ground and poses across the survey, no word. Within a
+    time the images are read along the path through their positions, with a warning."""
+    from sosmatch.workflows.image_priors import read_image_priors
+
+    rng = np.random.default_rng(0)
+    n = 40
+    names = [f"DJI_{k:04d}.jpg" for k in rng.choice(np.arange(1000, 9999), n, replace=False)]  # taken in this order
+    cases = {"burst": (lambda k: f"2024:05:01 10:00:{k // 2:02d}", "share their capture time", [names]),
+             # one instant orders nothing: the path runs from an end of the line, either one
+             "same": (lambda k: "2024:05:01 10:00:00", "carry one capture time", [names, names[::-1]])}
+    for case, (stamp, said, read_as) in cases.items():
+        img = tmp_path / case
+        img.mkdir()
+        for k, name in enumerate(names):  # flying north 20 m per image
+            write_jpeg(img / name, 41.0 + k * 20 / 111_000, -83.0, 300.0, size=(64, 48), when=stamp(k))
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            priors = read_image_priors(img)
+        assert priors.names in read_as, case
+        assert said in caplog.text, case
+        top = -priors.rotations[:, :, 1]  # headed along the course: north (south when read backwards)
+        assert np.all(np.abs(top[:, 1]) > 0.99), case
+
+
 def test_refine_option_runs_and_keeps_poses_without_tie_points(tmp_path):
     # Independent noise images share no tie points: refinement must leave the EXIF poses where they are.
     img = tmp_path / "images"

@@ -83,3 +83,66 @@ def test_blocks_far_apart_each_shuffled_within_are_chained():
     assert np.sum(steps > 30.0 + 1e-9) == 1  # the jump between the blocks, once
     # the same blocks each in order stay as given
     assert flight_order(np.concatenate([c, far]))[1] == "given"
+
+
+def _walked_steps(c, listed_perm, order):
+    """Horizontal steps of the true flight `c` as recovered: `listed_perm` listed it, `order` reorders the list."""
+    return np.linalg.norm(np.diff(c[listed_perm[order]][:, :2], axis=0), axis=1)
+
+
+def test_one_capture_time_on_every_frame_orders_nothing():
+    """The nu25 sweep: every DateTimeOriginal rewritten to one instant, names shuffled. A stable sort on equal times
+    returned the shuffled names' order as "given": mapped across the survey (696 matches against 1189, 64
+    landmarks of 75), exit 0, no word. One time orders nothing: as without times, the path decides."""
+    c = _lawnmower()
+    perm = np.random.default_rng(2).permutation(len(c))
+    same = np.full(len(c), 1.717e9)
+    order, how = flight_order(c[perm], same)
+    assert how == "path" and sorted(order.tolist()) == list(range(len(c)))
+    assert np.all(_walked_steps(c, perm, order) <= 30.0 + 1e-9)
+    assert flight_order(c, same)[1] == "given"  # listed in flight order: it stays
+
+
+def test_frames_sharing_a_clock_second_are_ordered_along_the_path_within_it():
+    """Bursts of 3 frames a second stamped in whole seconds (no SubSecTimeOriginal), names shuffled: the seconds
+    order the bursts, and within each the listed (random) order stood. Within a time the frames now follow the
+    path from the frame before; listed in flight order, they keep it."""
+    c = _lawnmower()
+    t = np.floor(np.arange(len(c)) * 0.34)  # 3 frames in most seconds
+    perm = np.random.default_rng(3).permutation(len(c))
+    order, how = flight_order(c[perm], t[perm])
+    assert how == "capture time + path"
+    assert np.array_equal(perm[order], np.arange(len(c)))  # the flight exactly (every step one spacing or a turn)
+    assert np.all(np.diff(t[perm[order]]) >= 0)  # the times still rule between seconds
+    order, how = flight_order(c, t)
+    assert how == "given" and np.array_equal(order, np.arange(len(c)))
+    # the first second too, which has no frame before it: it ends next to the following second's frames
+    first = np.array([2, 0, 1] + list(range(3, len(c))))
+    order, how = flight_order(c[first], t[first])
+    assert how == "capture time + path" and np.array_equal(first[order], np.arange(len(c)))
+
+
+def test_a_real_time_order_stays_authoritative_over_the_path():
+    """Times that differ decide, however far the frames between them lie (a flight that revisits its ground, or
+    one whose order the path would take otherwise): only frames of one time are reordered."""
+    c = _lawnmower()
+    revisit = np.concatenate([c, c[::-1] + [1.5, 1.0, 0.0]])
+    t = np.arange(len(revisit), dtype=float) * 2.0
+    perm = np.random.default_rng(4).permutation(len(revisit))
+    order, how = flight_order(revisit[perm], t[perm])
+    assert how == "capture time" and np.array_equal(perm[order], np.arange(len(revisit)))
+    # a pair of frames of one second in a turn, listed in flight order: the given order is no longer, it stays
+    turn = np.array([[0.0, 0.0, 100.0], [7.0, 0.0, 100.0], [7.0, 7.0, 100.0], [0.0, 7.0, 100.0], [-7.0, 7.0, 100.0]])
+    assert flight_order(turn, np.array([0.0, 1.0, 1.0, 2.0, 3.0]))[1] == "given"
+
+
+def test_the_order_is_told_in_the_log():
+    from sosmatch.plugin.keyframes import flight_order_message
+
+    assert flight_order_message("given", None) is None
+    assert flight_order_message("capture time", np.arange(3.0))[0] is False
+    warn, text = flight_order_message("capture time + path", np.array([0.0, 0.0, 0.0, 1.0, 2.0, 2.0]))
+    assert warn and text.startswith("5 of 6 frames share their capture time")
+    warn, text = flight_order_message("path", np.zeros(4))
+    assert warn and "not listed in flight order" in text and "all 4 images carry one capture time" in text
+    assert "not every image carries a capture time" in flight_order_message("path", None)[1]

@@ -82,7 +82,7 @@ from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the 
 from ..plugin.errors import InputError
 from ..plugin.geodesy import geographic_to_grid, topocentric_to_grid, utm_epsg  # noqa: F401 (re-exported)
 from ..plugin.geometry import Camera
-from ..plugin.keyframes import flight_order
+from ..plugin.keyframes import flight_order, flight_order_message
 from .image_cameras import (  # noqa: F401 (re-exported: their home before image_cameras)
     EXIF_FOCAL_TOLERANCE,
     FULL_FRAME_DIAGONAL_MM,
@@ -197,6 +197,26 @@ class ImagePriors:
 CLOCK_RESET_S = 86400.0
 
 
+def _capture_order(metas: list[ImageMetadata], centers: np.ndarray) -> np.ndarray | None:
+    """The order the images were taken in (`plugin.keyframes.flight_order` of their capture times and `centers`,
+    NaN without a fix), said in the log; None: as listed."""
+    stamps = [m.capture_time_s for m in metas]
+    times = None if None in stamps else np.asarray(stamps, dtype=np.float64)
+    order, how = flight_order(centers, times)
+    said = flight_order_message(how, times)
+    if said is None:
+        return None
+    log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
+    if times is not None and how != "path":
+        back = np.flatnonzero(np.diff(times) < -CLOCK_RESET_S)
+        if len(back):  # the nu20 sweep: a camera clock reset to 2000-01-01 reordered the flight with no word
+            k = int(back[0])
+            log.warning("the capture times jump back by %.1f days from %s to %s (a camera clock reset?): the images "
+                        "are ordered by them, which puts the later ones first; fix the dates if that is wrong",
+                        (times[k] - times[k + 1]) / 86400.0, metas[k].path.name, metas[k + 1].path.name)
+    return order
+
+
 def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
     """Capture times in seconds; images without one are placed by their order between those with one (capture
     order at one second per image when none has a time)."""
@@ -249,21 +269,6 @@ def read_image_priors(
     tele = read_telemetry_csv(telemetry) if telemetry is not None else {}
     metas = [read_image_metadata(p) for p in paths]
     n = len(metas)
-    # capture order, not file-name order (renamed files, a wrapped counter): the course over ground, the pairs
-    # of consecutive images and the poses' order all follow it
-    stamps = [m.capture_time_s for m in metas]
-    order, how = flight_order(np.zeros((n, 3)), None if None in stamps else np.asarray(stamps, dtype=np.float64))
-    if how == "capture time":
-        log.info("the images are taken in the order of their capture times (EXIF DateTimeOriginal), not by name")
-        times_by_name = np.asarray(stamps, dtype=np.float64)
-        back = np.flatnonzero(np.diff(times_by_name) < -CLOCK_RESET_S)
-        if len(back):  # the nu20 sweep: a camera clock reset to 2000-01-01 reordered the flight with no word
-            k = int(back[0])
-            log.warning("the capture times jump back by %.1f days from %s to %s (a camera clock reset?): the images "
-                        "are ordered by them, which puts the later ones first; fix the dates if that is wrong",
-                        (times_by_name[k] - times_by_name[k + 1]) / 86400.0, metas[k].path.name,
-                        metas[k + 1].path.name)
-        paths, metas = [paths[i] for i in order], [metas[i] for i in order]
     rows = telemetry_rows(tele, [m.path.name for m in metas], telemetry, images)
     damaged = [m for m in metas if m.problems]
     if damaged:
@@ -311,6 +316,12 @@ def read_image_priors(
         # stereographic of another standard parallel): refused here, before poses are written that `map` refuses
         if (stretched := crs_scale_problem(int(epsg), np.column_stack([east[has], north[has]]))) is not None:
             raise InputError(f"--epsg: {stretched}", images)
+    # capture order, not file-name order (renamed files, a wrapped counter, frames of one clock second): the
+    # course over ground, the pairs of consecutive images and the poses' order all follow it
+    order = _capture_order(metas, np.column_stack([east, north, np.zeros(n)]))
+    if order is not None:
+        paths, metas, rows = [paths[i] for i in order], [metas[i] for i in order], [rows[i] for i in order]
+        lat, lon, alt, east, north, north_az, has = (a[order] for a in (lat, lon, alt, east, north, north_az, has))
     times, time_source = _capture_times(metas)
 
     # Heights: DJI RelativeAltitude + take-off altitude where every fixed image has it, else the GPS altitude.

@@ -23,7 +23,7 @@ from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geodesy import ecef_to_grid, looks_like_ecef
 from ...plugin.geometry import Camera, Poses
-from ...plugin.keyframes import flight_order
+from ...plugin.keyframes import flight_order, flight_order_message
 
 log = logging.getLogger(__name__)
 
@@ -229,9 +229,10 @@ def require_keyframes(inputs: MapInputs, interval_m: float) -> None:
 
 def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | None = None) -> MapInputs:
     """The inputs in the order the frames were taken (`plugin.keyframes.flight_order`): by the images' EXIF
-    capture times when every image has one, else as given unless that order is evidently not a flight (then along
-    the camera path). Keyframes and tracks follow this order: frames mapped in file-name order when the names do
-    not follow the flight lost two thirds of the landmarks (tracks broken at every jump), without a word.
+    capture times when every image has one (the frames of one time along the camera path where their given order
+    is not), else as given unless that order is evidently not a flight (then along the camera path). Keyframes
+    and tracks follow this order: frames mapped in file-name order when the names do not follow the flight lost
+    two thirds of the landmarks (tracks broken at every jump), without a word.
     `capture_times`: each image's capture time (None without one) when the caller has read its EXIF already
     (`map --images`: `read_image_priors`); else it is read here."""
     from ...database.exif import read_image_metadata
@@ -244,13 +245,10 @@ def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | N
             times.append(None)
     t = None if any(x is None for x in times) else np.asarray(times, dtype=np.float64)
     order, how = flight_order(inputs.poses.centers, t)
-    if how == "given":
+    said = flight_order_message(how, t)
+    if said is None:
         return inputs
-    if how == "capture time":
-        log.info("the frames are mapped in the order of their capture times (EXIF DateTimeOriginal), not as listed")
-    else:
-        log.warning("the frames are not listed in flight order (consecutive frames lie far apart, and the images "
-                    "carry no capture times): they are mapped in the order of a path through their camera centres")
+    log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     poses = inputs.poses.subset(order)
     return MapInputs([inputs.image_paths[i] for i in order], poses, inputs.camera, inputs.epsg,
                      inputs.sources)
