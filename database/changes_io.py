@@ -27,7 +27,7 @@ import numpy as np
 
 from ..plugin.changes import CLASSES, EVIDENCE, ChangeResult, LandmarkChanges
 from ..plugin.errors import InputError
-from .geojson import to_wgs84
+from .geojson import HEIGHT_REFERENCE, to_wgs84
 from .text_input import read_user_json, read_user_text
 
 CHANGES_FORMAT = "sosmatch changes v1"
@@ -121,14 +121,16 @@ def _parse(value: str, dtype: np.dtype) -> object:
 
 
 def changes_feature_collection(result: ChangeResult, epsg: int) -> dict:
-    """GeoJSON FeatureCollection (WGS84 points with height) of every landmark of both maps, with class, session,
-    index, size, confidence, evidence and the counterpart as properties; `epsg`: the CRS of A's frame."""
+    """GeoJSON FeatureCollection (WGS84 points with height: z of A's frame, unconverted, see
+    `geojson.HEIGHT_REFERENCE`) of every landmark of both maps, with class, session, index, size, confidence,
+    evidence and the counterpart as properties; `epsg`: the CRS of A's frame."""
     features = []
     for session, source, verdict, pos, sizes in _parts(result):
         lonlat = to_wgs84(pos[:, :2], epsg) if len(pos) else np.zeros((0, 2))
         features.extend(_features(session, source, verdict, pos, sizes, lonlat))
     return {"type": "FeatureCollection",
-            "properties": {"source_crs": f"EPSG:{epsg}", "classes": list(CLASSES), **result.counts()},
+            "properties": {"source_crs": f"EPSG:{epsg}", "height_reference": HEIGHT_REFERENCE,
+                           "classes": list(CLASSES), **result.counts()},
             "features": features}
 
 

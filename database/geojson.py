@@ -6,7 +6,14 @@ object the landmark's metric size describes: size_m is sqrt(lambda_max) of its s
 diameter of size_m it was a quarter of the object's radius, dots inside crowns and roofs: the sixteenth
 sweep), drawn in the map's projected CRS and then transformed, so it has the right size on the ground.
 Properties: index, size_m, x, y, z (the map's CRS), plus any per-landmark extras given (e.g. num_observations).
-The FeatureCollection's properties carry the source CRS and origin.
+The FeatureCollection's properties carry the source CRS and origin, and `height_reference` (HEIGHT_REFERENCE).
+A polygon that crosses the antimeridian is cut there into a MultiPolygon (`polygon_geometry`, RFC 7946 3.1.9).
+
+Heights. The third coordinate is the map's z as it is: the height datum of the poses the map was made from, not
+converted. RFC 7946 means the height above the WGS84 ellipsoid; a map from the images' own tags (`map --images`)
+has the EXIF GPSAltitude / DJI AbsoluteAltitude, which are above mean sea level (a take-off altitude +
+RelativeAltitude is that datum too). The two differ by the geoid undulation (-106..+85 m over the earth, e.g.
++48 m in central Europe); converting needs a geoid grid (EGM96/EGM2008), which this package does not carry.
 """
 
 from __future__ import annotations
@@ -105,6 +112,50 @@ def to_wgs84(xy: np.ndarray, epsg: int) -> np.ndarray:
     return np.column_stack([lon, lat])
 
 
+def polygon_geometry(ring: np.ndarray, digits: int = 8) -> dict:
+    """A GeoJSON Polygon of a closed ring of (longitude, latitude) degrees, cut at the antimeridian into a
+    MultiPolygon where it crosses it (RFC 7946 3.1.9), coordinates rounded to `digits` decimals.
+
+    A ring is taken as the small shape it is on the ground: from vertex to vertex it goes the short way round
+    (less than 180 degrees of longitude). Drawn as given, a circle a metre across the antimeridian had vertices at
+    both +-179.99999 and spanned 360 degrees to a planar GIS (the nu25 sweep: 7 of 75 circles, invalid to
+    shapely). Cut, each part lies within -180..180 and the parts meet on the antimeridian. A ring around a pole
+    (its longitudes go once round) becomes the cap it bounds, closed along the pole's latitude. Rings that
+    cross nothing are written vertex for vertex as given."""
+    import shapely
+    from shapely.affinity import translate
+    from shapely.geometry import box
+    from shapely.geometry.polygon import orient
+
+    ring = np.asarray(ring, dtype=np.float64).reshape(-1, 2)
+    lon = np.unwrap(ring[:, 0], period=360.0)
+    if lon.min() >= -180.0 and lon.max() <= 180.0 and abs(lon[-1] - lon[0]) < 180.0:
+        return {"type": "Polygon", "coordinates": [np.round(ring, digits).tolist()]}
+    pts = np.column_stack([lon, ring[:, 1]])
+    turns = round((lon[-1] - lon[0]) / 360.0)
+    if turns:  # around a pole: along the ring, then back at the pole's latitude
+        pole = math.copysign(90.0, float(np.mean(ring[:, 1])))
+        pts = np.vstack([pts, [[lon[-1], pole], [lon[0], pole]]])
+    shape = shapely.make_valid(shapely.Polygon(pts))
+    # the unwrapped shape lies within a turn of -180..180 either way: its part in each 360-degree band, moved back
+    parts = [translate(shape.intersection(box(k * 360.0 - 180.0, -90.0, k * 360.0 + 180.0, 90.0)), -k * 360.0)
+             for k in (-1, 0, 1)]
+    merged = shapely.union_all([p for p in parts if not p.is_empty])
+    polys = [orient(g, sign=1.0) for g in getattr(merged, "geoms", [merged]) if isinstance(g, shapely.Polygon)
+             and not g.is_empty]
+    coords = [[np.round(np.asarray(r.coords), digits).tolist() for r in (g.exterior, *g.interiors)] for g in polys]
+    if len(coords) == 1:
+        return {"type": "Polygon", "coordinates": coords[0]}
+    return {"type": "MultiPolygon", "coordinates": coords}
+
+
+# What the third coordinate is (module doc), written into every FeatureCollection's properties: a GIS that takes
+# it for RFC 7946's ellipsoidal height puts the landmarks tens of metres too low or too high
+HEIGHT_REFERENCE = ("z of the map's frame, unconverted: the vertical datum of the poses it was made from (from "
+                    "images' EXIF/DJI GPS altitudes: above mean sea level), not the WGS84 ellipsoidal height of "
+                    "RFC 7946")
+
+
 # a disc of radius R has sqrt(lambda_max) = R / 2: the circle of a landmark of size s (module doc)
 CIRCLE_RADIUS_PER_SIZE = 2.0
 
@@ -117,7 +168,8 @@ def landmarks_feature_collection(
     circle_vertices: int = 24,
 ) -> dict:
     """A GeoJSON FeatureCollection (dict) of the landmarks. `epsg` overrides the map's own (needed when the map
-    says 0, a local frame). Coordinates are rounded to 1e-8 degrees (~1 mm)."""
+    says 0, a local frame). Coordinates are rounded to 1e-8 degrees (~1 mm); heights are the map's z
+    (HEIGHT_REFERENCE: not ellipsoidal); circles across the antimeridian are MultiPolygons (`polygon_geometry`)."""
     epsg = int(epsg or lmap.epsg)
     if not epsg:
         raise InputError("the landmark map has no geographic reference (EPSG 0, a local frame): "
@@ -148,11 +200,11 @@ def landmarks_feature_collection(
             geom = {"type": "Point", "coordinates": [round(float(lonlat[i, 0]), 8), round(float(lonlat[i, 1]), 8),
                                                      round(z, 3)]}
         else:
-            geom = {"type": "Polygon", "coordinates": [np.round(rings[i], 8).tolist()]}
+            geom = polygon_geometry(rings[i])
         features.append({"type": "Feature", "id": i, "geometry": geom, "properties": props})
     return {"type": "FeatureCollection",
             "properties": {"source_crs": f"EPSG:{epsg}", "origin": [float(v) for v in lmap.origin],
-                           "landmarks": n},
+                           "landmarks": n, "height_reference": HEIGHT_REFERENCE},
             "features": features}
 
 

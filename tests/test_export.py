@@ -37,6 +37,8 @@ def test_points_round_trip_to_the_map_crs():
     assert fc["features"][3]["properties"]["size_m"] is None
     assert fc["features"][0]["properties"]["size_m"] == pytest.approx(float(lmap.sizes[0]), abs=1e-3)
     assert fc["properties"]["source_crs"] == "EPSG:32614"
+    # RFC 7946 means ellipsoidal heights; these are the map's z (above sea level from EXIF): said in the file
+    assert "not the WGS84 ellipsoidal height" in fc["properties"]["height_reference"]
 
 
 def test_circles_have_the_landmark_size_on_the_ground():
@@ -123,3 +125,61 @@ def test_another_crs_than_the_one_the_map_records_is_refused(tmp_path, cli_error
     err = cli_error("export", "--geojson", path, "--epsg", "32615", "--out", tmp_path / "x.geojson")
     assert "records its frame as EPSG:32614" in err and not (tmp_path / "x.geojson").exists()
     assert main(["export", "--geojson", str(path), "--epsg", "32614", "--out", str(tmp_path / "y.geojson")]) == 0
+
+
+def _geodesic_area(geometry: dict) -> float:
+    from pyproj import Geod
+    from shapely.geometry import shape
+
+    s = shape(geometry)
+    return sum(abs(Geod(ellps="WGS84").geometry_area_perimeter(p)[0]) for p in getattr(s, "geoms", [s]))
+
+
+def test_circles_across_the_antimeridian_are_cut_into_multipolygons():
+    """The nu25 sweep (Fiji, UTM 60S): circles a metre across the antimeridian had vertices at both +-179.99999, a
+    360-degree-wide polygon to a planar GIS, invalid to shapely. RFC 7946 3.1.9: cut into a MultiPolygon whose
+    parts each lie within -180..180 and meet on the antimeridian; the area on the ground stays."""
+    from shapely.geometry import shape
+
+    lon = np.array([179.99999, -179.99999, 179.9, -179.9, 180.0])
+    lat = np.full(len(lon), -17.8)
+    x, y = Transformer.from_crs("EPSG:4326", "EPSG:32760", always_xy=True).transform(lon, lat)
+    lmap = LandmarkMap(np.column_stack([x, y, np.zeros(len(x))]), np.full(len(x), 2.0, np.float32),
+                       origin=np.array([x[0], y[0], 0.0]).round(), epsg=32760)
+    fc = landmarks_feature_collection(lmap, geometry="circle")
+    n = 24  # the circle is a 24-gon of radius 2 x size
+    polygon_area = 0.5 * n * np.sin(2 * np.pi / n) * 4.0**2
+    kinds = []
+    for f in fc["features"]:
+        g = f["geometry"]
+        kinds.append(g["type"])
+        s = shape(g)
+        assert s.is_valid, f["id"]
+        for part in getattr(s, "geoms", [s]):
+            x0, _, x1, _ = part.bounds
+            assert -180.0 <= x0 and x1 <= 180.0 and x1 - x0 < 1e-3, (f["id"], part.bounds)
+        if g["type"] == "MultiPolygon":
+            edges = sorted(round(p.bounds[0] if p.bounds[0] < 0 else p.bounds[2], 6) for p in s.geoms)
+            assert edges == [-180.0, 180.0]  # the parts meet on the antimeridian
+        assert _geodesic_area(g) == pytest.approx(polygon_area, rel=0.01)
+    assert kinds == ["MultiPolygon", "MultiPolygon", "Polygon", "Polygon", "MultiPolygon"]
+
+
+def test_polygon_geometry_keeps_other_rings_and_closes_a_polar_cap():
+    """A ring that crosses nothing is written vertex for vertex; one around a pole (a landmark at the South Pole in
+    UPS) becomes the cap it bounds, one polygon from -180 to 180 closed along latitude -90."""
+    from shapely.geometry import shape
+
+    from sosmatch.database.geojson import polygon_geometry
+
+    ring = np.array([[10.0, 47.0], [10.001, 47.0], [10.001, 47.001], [10.0, 47.0]])
+    assert polygon_geometry(ring) == {"type": "Polygon", "coordinates": [ring.tolist()]}
+    t = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    xy = np.column_stack([2e6 + 4.0 * np.cos(t), 2e6 + 4.0 * np.sin(t)])
+    lon, lat = Transformer.from_crs("EPSG:32761", "EPSG:4326", always_xy=True).transform(xy[:, 0], xy[:, 1])
+    cap = polygon_geometry(np.vstack([np.column_stack([lon, lat]), [[lon[0], lat[0]]]]))
+    s = shape(cap)
+    assert cap["type"] == "Polygon" and s.is_valid
+    assert s.bounds[0] == -180.0 and s.bounds[2] == 180.0 and s.bounds[1] == -90.0
+    # UPS grid metres are 0.994 ground metres at the pole (its scale factor)
+    assert _geodesic_area(cap) == pytest.approx(0.5 * 24 * np.sin(2 * np.pi / 24) * 16.0 / 0.994**2, rel=0.01)
