@@ -336,6 +336,23 @@ def test_cli_takes_negative_coordinate_lists_in_the_southern_and_western_hemisph
     assert abs(tags.latitude + 33.45) < 0.01 and abs(tags.longitude + 70.66) < 0.01
 
 
+def test_a_survey_beyond_utm_latitudes_is_rendered_in_ups(tmp_path):
+    """`map` reads tags beyond UTM's latitudes in UPS (`geodesy.utm_epsg`), but synth refused an origin beyond
+    +-80 deg, so the test bed could not render the flights that path reads (nu25: north Svalbard, Greenland, the
+    poles; maps at 86 N, 89.9995 N and 88 S equal the 47 N map to 4 cm)."""
+    from sosmatch.database.exif import read_image_metadata
+
+    for origin, epsg in (("86,20", 32661), ("-88,30", 32761)):
+        out = subprocess.run(
+            [SOSMATCH, "synth", "--out", str(tmp_path / origin), "--world-seed", "3", "--world-size", "240",
+             "--frames", "2", "--width", "160", "--height", "120", "--line-length", "40", "--geotags", "exif",
+             f"--geo-origin={origin}", "-q"], capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr
+        assert f'"epsg": {epsg}' in (tmp_path / origin / "session.json").read_text()
+        tags = read_image_metadata(next((tmp_path / origin / "images").glob("*.jpg")))
+        assert abs(tags.latitude - float(origin.split(",")[0])) < 0.01
+
+
 def test_contact_sheet_places_frames_side_by_side(session_dir, tmp_path):
     from sosmatch.workflows.demo import contact_sheet
 

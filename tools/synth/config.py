@@ -243,8 +243,9 @@ class SynthConfig:
         if self.geotags not in GEOTAG_KINDS:
             bad(f"geotags must be one of exif, dji (or empty for none), got {self.geotags!r}")
         lat, lon = self.geotag_origin_latlon
-        if not (abs(lat) <= 80 and abs(lon) <= 180):
-            bad("geotag origin must be a latitude within +-80 (UTM) and a longitude within +-180 degrees")
+        # beyond UTM's latitudes the tags are placed in UPS (`geodesy.utm_epsg`), as `map` reads them
+        if not (abs(lat) <= 90 and abs(lon) <= 180):
+            bad("geotag origin must be a latitude within +-90 and a longitude within +-180 degrees")
         if min(self.geotag_gps_sigma_m, self.geotag_altitude_sigma_m, self.geotag_attitude_sigma_deg,
                self.geotag_yaw_sigma_deg) < 0 or not math.isfinite(self.geotag_altitude_drift_m):
             bad("geotag noise settings must be >= 0 (the drift may have either sign)")
