@@ -414,3 +414,35 @@ def test_a_hover_has_no_free_roll_axis_to_turn_about():
     priors = rotvec_to_matrix(rng.normal(0, np.radians(2.0), (12, 3))) @ np.diag([1.0, -1.0, -1.0])
     turn = Rotation.from_rotvec(np.radians(30.0) * np.array([0.0, 1.0, 0.0])).as_matrix()
     assert free_roll_correction(centers, priors, turn @ priors, position_sigma_m=3.0, attitude_sigma_deg=5.0)[2] == 0.0
+
+
+def test_a_refinement_that_tilts_gimbal_cameras_far_off_their_tags_is_refused():
+    """The 26th new-user sweep: a barrel lens (k1 -0.2) taken as PINHOLE from DJI tags; the refinement fitted the
+    tie points to 0.39 px by tilting the cameras 4-19 deg towards the block's centre (median tilt change 10 deg,
+    mean turn 12.5 deg against a 5 deg prior: below 3 sigma, said nothing) over a ground lifted 26 m. A gimbal holds
+    its tilt: its tags' tilt judges the refinement; a heading turn does not change the tilt."""
+    from sosmatch.plugin.geometry import rotvec_to_matrix
+    from sosmatch.workflows.pose_refinement.judge import RefinementStats, judge_refinement, pose_changes
+
+    n = 20
+    nadir = np.repeat(np.diag([1.0, -1.0, -1.0])[None], n, axis=0)  # world_from_camera, looking straight down
+    centers = np.zeros((n, 3))
+    headings = rotvec_to_matrix(np.column_stack([np.zeros(n), np.zeros(n), np.radians(np.linspace(-20, 20, n))]))
+    assert pose_changes(nadir, centers, headings @ nadir, centers)["tilt_change_median_deg"] < 1e-6
+    tilts = rotvec_to_matrix(np.column_stack([np.radians(np.linspace(-15, 15, n)), np.zeros((n, 2))]))
+    changes = pose_changes(nadir, centers, tilts @ nadir, centers)
+    assert changes["tilt_change_median_deg"] == pytest.approx(7.9, abs=0.1)
+    assert changes["block_tilt_change_deg"] < 1.0  # towards the centre from both sides: no tilt of the block
+
+    stats = RefinementStats(images=n, points=500, observations=3000, reprojection_rmse_before_px=8.0,
+                            reprojection_rmse_after_px=0.6, reprojection_median_before_px=6.5,
+                            reprojection_median_after_px=0.4, position_change_mean_m=4.5, position_change_max_m=11.0,
+                            rotation_change_mean_deg=12.5, rotation_change_max_deg=21.6, iterations=2, seconds=4.0,
+                            converged=True, position_change_median_m=4.9, block_tilt_change_deg=1.1,
+                            tilt_change_median_deg=changes["tilt_change_median_deg"], explained_share=0.998)
+    errors, _ = judge_refinement(stats, 3.0, 5.0)
+    assert errors == []  # without a gimbal's tilt (airframe angles, no tags) the tilt is not judged
+    errors, _ = judge_refinement(stats, 3.0, 5.0, tilt_sigma_deg=2.0)
+    assert len(errors) == 1 and "tilted the cameras 7.9 deg (median)" in errors[0]
+    held = dataclasses.replace(stats, tilt_change_median_deg=1.3)  # the sweep's good gimbal refinements: 0.5-1.3 deg
+    assert judge_refinement(held, 3.0, 5.0, tilt_sigma_deg=2.0)[0] == []

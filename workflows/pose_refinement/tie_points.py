@@ -238,6 +238,7 @@ def refine_poses_from_images(
     method: str = "colmap",
     accept_implausible: bool = False,
     unknown_headings: np.ndarray | None = None,
+    tilt_sigma_deg: float | None = None,
 ) -> tuple[Poses, RefinementStats]:
     """Refine GPS/telemetry poses BEFORE mapping, with ORB tie points between overlapping images and the pose
     priors (`tie_point_reconstruction`, then `refine_poses_with_colmap` (method "colmap", the default: COLMAP's
@@ -254,7 +255,8 @@ def refine_poses_from_images(
     the share of the tie-point observations the refined poses explain within 2 pixel sigmas, every track
     triangulated anew with them, so tracks the starting poses could not triangulate count too): warnings are
     logged and kept in the stats; errors raise RefinementRejected unless `accept_implausible` (then they are
-    logged as warnings)."""
+    logged as warnings). `tilt_sigma_deg`: how well the priors give the cameras' tilt off the vertical (gimbal
+    tags: `judge.GIMBAL_TILT_SIGMA_DEG`; None: not judged)."""
     if method not in ("colmap", "scipy"):
         raise ValueError(f"unknown refinement method {method!r} (colmap or scipy)")
     tie = match_tie_points(image_paths, poses.centers, camera, max_features)
@@ -288,7 +290,8 @@ def refine_poses_from_images(
         # one 1.95 m while the log said "the priors, unrefined"); the priors are the answer, as the log says
         refined = poses
         stats = replace(stats, position_change_mean_m=0.0, position_change_max_m=0.0, rotation_change_mean_deg=0.0,
-                        rotation_change_max_deg=0.0, position_change_median_m=0.0)
+                        rotation_change_max_deg=0.0, position_change_median_m=0.0,
+                        tilt_change_median_deg=0.0)
     explained, observed = explained_by_image(tie, refined, camera, 2.0 * pixel_sigma_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         per_image = np.where(observed > 0, explained / np.maximum(observed, 1), np.nan)
@@ -296,7 +299,7 @@ def refine_poses_from_images(
                     explained_share_by_image=tuple(float(v) for v in per_image),
                     observations_by_image=tuple(int(n) for n in observed),
                     heading_turns_deg=tuple(float(t) for t in turns))
-    errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg, poses.names)
+    errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg, poses.names, tilt_sigma_deg)
     blind = [nm for nm, k, guess in zip(poses.names, observed, unknown_headings if unknown_headings is not None
                                         else np.zeros(len(poses), bool)) if k == 0 and not guess]
     if blind and tie.tracks:
