@@ -157,7 +157,8 @@ def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[flo
             and stats.tilt_change_median_deg > 3.0 * tilt_sigma_deg):
         errors.append(f"it tilted the cameras {stats.tilt_change_median_deg:.1f} deg (median) off the tilt their "
                       f"gimbal tags give (held to {tilt_sigma_deg:g} deg; at most 3 sigma): the tie points bend the "
-                      "block, e.g. a lens distortion the camera does not model")
+                      "block, e.g. a lens distortion the camera does not model (structure from motion estimates it: "
+                      "`map --pose-source sfm`)")
     if stats.position_change_max_m > 5.0 * sigma:
         warnings.append(f"some cameras moved up to {stats.position_change_max_m:.1f} m (more than 5 x the "
                         f"{sigma:g} m prior): a wrong GPS fix or wrong tie points")
