@@ -208,7 +208,8 @@ def test_meridian_convergence_is_measured():
     assert az[0] == pytest.approx((-81.0 - -83.3) * math.sin(math.radians(41.0)), abs=0.05)
 
 
-def test_poses_from_images_dji_gimbal_and_files(tmp_path):
+def test_poses_from_images_dji_gimbal_and_files(tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="sosmatch.workflows.poses_from_exif")
     img = tmp_path / "images"
     img.mkdir()
     lats = 47.0 + np.arange(4) * 1e-4  # flying north, ~11 m apart
@@ -231,6 +232,11 @@ def test_poses_from_images_dji_gimbal_and_files(tmp_path):
     conv = res.summary["meridian_convergence_deg"]
     assert math.degrees(math.atan2(top[0], top[1])) == pytest.approx(conv, abs=1e-6)
     assert res.summary["attitude_sources"] == {"XMP GimbalYaw/Pitch/RollDegree": 4}
+    assert res.gimbal_attitudes  # a refinement of these poses is judged by the tilt the gimbal holds
+    # the map of these tags says what would fit them better when the pose check finds them loose (26th sweep)
+    assert pfe.map_inputs_from_images(img).remedy == pfe.UNREFINED_REMEDY
+    # the tags carry no lens model: said once per reading, at info level (26th sweep: a barrel lens, no word)
+    assert any("no lens model" in r.getMessage() and r.levelname == "INFO" for r in caplog.records)
     cams = read_cameras_txt(out.parent / "cameras.txt")
     assert cams[1].width == 400 and cams[1].fx == pytest.approx(277.5, rel=1e-2)
 
@@ -242,6 +248,7 @@ def test_telemetry_and_course_fallbacks(tmp_path):
         write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)  # flying east, no XMP
     res = pfe.poses_from_images(img)
     assert res.summary["attitude_sources"] == {"course from neighbours (level, nadir)": 3}
+    assert not res.gimbal_attitudes
     top = -res.poses.rotations[:, :, 1]
     np.testing.assert_allclose(top[:, 0], 1.0, atol=1e-6)  # image top along the flight direction (east)
     tele = tmp_path / "telemetry.csv"

@@ -302,3 +302,42 @@ def test_a_check_that_could_check_only_a_small_share_of_its_pairs_says_so(flight
     assert "may go unseen" in warned[0]
     assert poses_fit_images(result, Params().pose_check)  # exact poses, every pair fitting
     assert not poses_fit_images(replace(result, pairs_checked=5), Params().pose_check)
+
+
+def test_loose_poses_name_the_remedy_once(flight):
+    """The 26th new-user sweep: a zoom drone's DJI tags fitted to 11.7 px on a 12 px gate, the map was refused for 6
+    landmarks, and nothing named `--refine` (197 landmarks with it). The map's inputs say what would give better
+    poses; the pose check says it with the first words on a loose fit, and only then."""
+    from sosmatch.plugin.pose_check import poses_loose
+
+    images, poses, camera = _inputs(flight)
+    result, verdict = pose_check.check(images, poses, camera, Params(), remedy="try --refine")
+    limits = Params().pose_check
+    assert not poses_loose(result, limits) and not any("try --refine" in w for w in verdict.warnings)
+    loose = replace(result, epipolar_p50_px=0.97 * result.gate_px,
+                    pairs=[replace(p, epipolar_px=3.0 * result.gate_px) for p in result.pairs[:2]] + result.pairs[2:])
+    assert poses_loose(loose, limits)
+    words = judge_poses(loose, limits, poses.names, remedy="try --refine").warnings
+    assert sum("try --refine" in w for w in words) == 1 and "fit the images' matches only" in words[0]
+    assert "try --refine" in words[0]
+    assert not any("try --refine" in w for w in judge_poses(loose, limits, poses.names).warnings)
+
+
+def test_a_refused_map_says_the_remedy_of_loose_poses(tmp_path):
+    """`raise_if_refused` adds the inputs' remedy (`workflow.pose_remedy`: only when the pose check found them
+    loose) to the refusal."""
+    from types import SimpleNamespace
+
+    from sosmatch.plugin.map_quality import Verdict
+    from sosmatch.workflows.map.quality import MapRefused, raise_if_refused
+    from sosmatch.workflows.map.workflow import pose_remedy
+
+    params = Params()
+    tight = SimpleNamespace(check=SimpleNamespace(pairs_checked=100, epipolar_p50_px=1.0, gate_px=12.0, pairs=[]))
+    loose = SimpleNamespace(check=SimpleNamespace(pairs_checked=100, epipolar_p50_px=11.7, gate_px=12.0, pairs=[]))
+    inputs = SimpleNamespace(remedy="try --refine")
+    assert pose_remedy(inputs, tight, params) == "" and pose_remedy(inputs, None, params) == ""
+    assert pose_remedy(SimpleNamespace(remedy=""), loose, params) == ""
+    remedy = pose_remedy(inputs, loose, params)
+    with pytest.raises(MapRefused, match=r"only 6 landmark\(s\); try --refine \(see"):
+        raise_if_refused(Verdict(refusals=["only 6 landmark(s)"]), params.quality, tmp_path, remedy)

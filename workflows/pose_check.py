@@ -126,13 +126,14 @@ def refuse_by_gps(image_paths: Sequence[Path], poses: Poses, epsg: int, params: 
 
 def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params,
           gate: float | None = None, epsg: int | None = None,
-          gps: GpsComparison | None = None, white: int | None = None) -> tuple[PoseCheck, Verdict]:
+          gps: GpsComparison | None = None, white: int | None = None,
+          remedy: str = "") -> tuple[PoseCheck, Verdict]:
     """The figures of `poses` (in the order of `image_paths`, capture order) against the images, and their
     verdict. `gate`: the tracker's epipolar gate in pixels of these images (None: `gate_px(params, camera)`;
     the map passes its own, as its parameters are already scaled to the image). `epsg`: the poses' CRS (0: a
     local frame); given, the camera centres are also compared with the images' own GPS fixes
     (`gps_comparison`: the poses' unit, and their georeference in that CRS), unless `gps` brings that
-    comparison already made (`refuse_by_gps`). `white`: as `image_features`'."""
+    comparison already made (`refuse_by_gps`). `white`: as `image_features`'. `remedy`: `judge_poses`'."""
     from dataclasses import replace
 
     if len(image_paths) != len(poses):
@@ -142,7 +143,7 @@ def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Par
     if gps is None and epsg is not None:
         gps = gps_comparison(image_paths, poses, epsg)
     result = replace(result, gps=gps)
-    verdict = judge_poses(result, params.pose_check, poses.names)
+    verdict = judge_poses(result, params.pose_check, poses.names, remedy)
     return result, verdict
 
 
@@ -187,14 +188,14 @@ def write_disabled(out: str | Path) -> None:
 def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path | None = None,
         refuse: bool = True, sources: dict | None = None, gate: float | None = None,
         files: OutputFiles | None = None, epsg: int | None = None, gps: GpsComparison | None = None,
-        white: int | None = None) -> CheckResult:
+        white: int | None = None, remedy: str = "") -> CheckResult:
     """Check the poses (`check`), write the figures to `out` (JSON, atomically; None: nothing written) and raise
     PosesRefused (after writing) when they contradict the images and `refuse` is on. `files`: the OutputFiles
     that `out` is written through (`check_to_file`, a user's file); without it `out` lies in a directory the
-    caller owns (the map's output). `epsg`, `gps`, `white`: as `check`'s."""
+    caller owns (the map's output). `epsg`, `gps`, `white`, `remedy`: as `check`'s."""
     from ..database.atomic import write_text_atomic
 
-    result, verdict = check(image_paths, poses, camera, params, gate, epsg, gps, white)
+    result, verdict = check(image_paths, poses, camera, params, gate, epsg, gps, white, remedy)
     for warning in verdict.warnings:
         log.warning("%s", warning)
     if out is not None:

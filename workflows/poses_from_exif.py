@@ -68,6 +68,9 @@ class ExifPoses:
     # replaces by what the image motion says
     headings_guessed: np.ndarray | None = None
     capture_times: list[float | None] | None = None  # (N,) EXIF capture times as read (None: the image has none)
+    # every image's attitude is a stabilised gimbal's absolute angles (DJI XMP Gimbal*Degree): its tilt off the
+    # vertical is what the gimbal holds, so a refinement may not tilt the cameras far from it
+    gimbal_attitudes: bool = False
 
 
 def poses_from_images(
@@ -131,9 +134,16 @@ def poses_from_images(
     if len(priors.cameras) > 1:
         log.warning("%d camera makes/models in one folder, of one focal length: using the first one's intrinsics "
                     "for all", len(priors.cameras))
+    if priors.cameras[0].is_pinhole:
+        # one line, not a warning: the tags never carry a lens model, and most survey lenses are near-rectilinear;
+        # a strong one (a barrel k1 -0.2) put the ground 3.8 m low unrefined and, refined, bent the block (26th
+        # new-user sweep), where structure from motion recovered its k1 to 1 %
+        log.info("the tags carry no lens model: the lens is taken as distortion-free (PINHOLE); with a distorting "
+                 "(wide, fisheye, barrel) lens let structure from motion estimate it (`map --pose-source sfm`) or "
+                 "give its cameras.txt (`poses-from-exif`, then `map --poses POSES.csv --camera cameras.txt`)")
     poses = Poses(priors.names, priors.rotations, priors.positions)
     return ExifPoses(poses, priors.epsg, priors.cameras[0], priors.summary, ~priors.attitude_from_tags,
-                     [m.capture_time_s for m in metas])
+                     [m.capture_time_s for m in metas], bool(np.all(priors.attitude_kind == "gimbal")))
 
 
 def run(
@@ -196,6 +206,11 @@ def _stat(path: str | Path) -> list[int]:
     return [st.st_size, st.st_mtime_ns]
 
 
+# said with the pose check's words when the tags fit the images loosely (`map.MapInputs.remedy`)
+UNREFINED_REMEDY = ("the poses are the images' own tags, unrefined: `--refine` fits them to tie points between the "
+                    "images first, or let structure from motion make them (`--pose-source sfm`)")
+
+
 def map_inputs_from_images(
     images: str | Path,
     telemetry: str | Path | None = None,
@@ -214,9 +229,10 @@ def map_inputs_from_images(
         _refine(result, images, position_sigma_m, guessed=guessed)
         source += (f", orientations of the {guessed} images without attitude tags solved from tie points" if guessed
                    else ", refined from tie points")
+    remedy = "" if refine or guessed else UNREFINED_REMEDY
     return in_flight_order(MapInputs(_image_paths(images, result.poses), result.poses, result.camera, result.epsg,
-                                     {"poses": source, "camera": f"EXIF of {images}", "images": str(images)}),
-                           result.capture_times)
+                                     {"poses": source, "camera": f"EXIF of {images}", "images": str(images)},
+                                     remedy), result.capture_times)
 
 
 def _image_paths(images: str | Path, poses: Poses) -> list[Path]:
@@ -244,11 +260,14 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
     orientations: its failure, or no tie points at all, is an error saying so (and pointing to structure from
     motion)."""
     from .pose_refinement import RefinementRejected, refine_poses_from_images
+    from .pose_refinement.judge import GIMBAL_TILT_SIGMA_DEG
 
     try:
         result.poses, stats = refine_poses_from_images(_image_paths(images, result.poses), result.poses,
                                                        result.camera, position_sigma_m, attitude_sigma_deg,
-                                                       method=method, unknown_headings=result.headings_guessed)
+                                                       method=method, unknown_headings=result.headings_guessed,
+                                                       tilt_sigma_deg=(GIMBAL_TILT_SIGMA_DEG if result.gimbal_attitudes
+                                                                       else None))
     except (RefinementRejected, ValueError) as error:
         if not guessed:
             raise

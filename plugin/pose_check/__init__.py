@@ -38,10 +38,10 @@ from .check import PairCheck, PoseCheck, anchor_images, check_poses, cross_partn
 from .matches import PairMatches, match_pair
 from .systematic import SystematicErrors, fit_systematic_errors, pair_sampson_px
 from .two_view import essential_matrices, relative_poses, sampson_distances, triangulation_depths
-from .verdict import judge_poses, poses_fit_images
+from .verdict import judge_poses, poses_fit_images, poses_loose
 
 __all__ = [
     "PairCheck", "PairMatches", "PoseCheck", "SystematicErrors", "anchor_images", "check_poses", "cross_partners",
     "essential_matrices", "fit_systematic_errors", "judge_poses", "match_pair", "pair_sampson_px", "poses_fit_images",
-    "relative_poses", "sampson_distances", "triangulation_depths", "wide_offset",
+    "poses_loose", "relative_poses", "sampson_distances", "triangulation_depths", "wide_offset",
 ]

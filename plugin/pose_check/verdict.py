@@ -17,9 +17,21 @@ MIRRORED_EXPLAINED = 0.9
 MIN_FIXES_TO_REFUSE = 10  # inliers a unit refusal needs (simulated: 0.5-2 % false refusals at 8-10, none from 15)
 
 
-def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] | None = None) -> Verdict:
+def poses_loose(check: PoseCheck, limits: PoseCheckParams) -> bool:
+    """The check saw enough to say that the poses fit the images loosely or not at all: the median epipolar
+    residual beyond the warning fraction of the gate, or a pair beyond its warning limit."""
+    if check.pairs_checked < limits.min_pairs or not np.isfinite(check.epipolar_p50_px):
+        return False
+    gate = check.gate_px
+    return bool(check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * gate
+                or any(p.epipolar_px > limits.warn_pair_gate_fraction * gate for p in check.pairs))
+
+
+def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] | None = None,
+                remedy: str = "") -> Verdict:
     """Refusals (the poses contradict the images) and warnings (they fit them loosely); limits: PoseCheckParams.
-    `names`: the images' names (capture order), to name the pairs whose poses do not fit them.
+    `names`: the images' names (capture order), to name the pairs whose poses do not fit them. `remedy`: what
+    would give better poses (the map of EXIF tags: `--refine`), added to the first words on a loose or wrong fit.
 
     A systematic error is refused only when it exceeds its limit by more than two of its standard deviations
     (the evidence must be clear, not a noisy fit)."""
@@ -34,6 +46,11 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
                           f"checked (fewer than {limits.min_pair_share:.0%}: dark, noisy, blurred or featureless "
                           "images?): misfitting poses among the others may go unseen")
     gate = check.gate_px
+    unsaid = [remedy] if remedy else []
+
+    def then() -> str:  # the remedy, once
+        return f"; {unsaid.pop()}" if unsaid else ""
+
     if not np.isfinite(check.epipolar_p50_px):
         # no pair has a baseline in the poses (E = 0, the Sampson distance undefined): the epipolar test cannot run,
         # so "ok" would be a verdict on nothing
@@ -53,12 +70,12 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
     if check.epipolar_p50_px > limits.max_epipolar_gate_fraction * gate:
         v.refusals.append(f"poses vs images: the poses' epipolar geometry misses the images' matches by "
                           f"{check.epipolar_p50_px:.1f} px (median of {check.pairs_checked} pairs; the tracker's gate "
-                          f"is {gate:.1f} px): wrong relative rotations or directions of motion")
+                          f"is {gate:.1f} px): wrong relative rotations or directions of motion{then()}")
     elif check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * gate:
         v.warnings.append(f"poses vs images: the poses fit the images' matches only to {check.epipolar_p50_px:.1f} px "
                           f"(median of {check.pairs_checked} pairs; gate {gate:.1f} px): expect a sparse map, or one "
                           "metres off if the poses are wrong (each image given its neighbour's pose, or another "
-                          "flight's poses, fit like this too)")
+                          f"flight's poses, fit like this too){then()}")
     # the median speaks for the flight; a few images whose poses are far off hide behind it (EXIF poses whose
     # attitudes the tie points could not solve: 25 deg off, one pair 271 px beyond a 24 px gate, the rest 0.5 px)
     pair_limit = limits.warn_pair_gate_fraction * gate
@@ -70,7 +87,7 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
         more = ", ..." if len(far) > 3 else ""
         v.warnings.append(f"poses vs images: {len(far)} of {check.pairs_checked} checked pairs miss their matches by "
                           f"more than {pair_limit:.0f} px, {limits.warn_pair_gate_fraction:g} x the gate ({shown}"
-                          f"{more}): those images' poses do not fit them")
+                          f"{more}): those images' poses do not fit them{then()}")
     s, h = check.systematic, check.flying_height_m
     if not check.systematic_separable:
         v.warnings.append(f"poses vs images: the flight's geometry cannot tell a height drift, a tilt of the heights "

@@ -38,6 +38,9 @@ class MapInputs:
     camera: Camera
     epsg: int = 0
     sources: dict[str, str] = field(default_factory=dict)
+    # what would give better poses, said when the pose check finds these loose (EXIF tags: `--refine`); not part of
+    # the inputs' identity
+    remedy: str = ""
 
 
 def _is_synth_session(path: Path) -> bool:
@@ -251,7 +254,7 @@ def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | N
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     poses = inputs.poses.subset(order)
     return MapInputs([inputs.image_paths[i] for i in order], poses, inputs.camera, inputs.epsg,
-                     inputs.sources)
+                     inputs.sources, inputs.remedy)
 
 
 def image_digests(inputs: MapInputs) -> list[str]:

@@ -44,7 +44,7 @@ def pose_check_stage(inputs: Any, params: Any, record: Path, gps: Any = None, wh
     # `params` are the map's, already scaled to the image (`plugin.params.for_image`): its gate as it is
     return pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, record, refuse=False,
                           sources=inputs.sources, gate=params.tracking.epipolar_margin_px, epsg=inputs.epsg,
-                          gps=gps, white=white)
+                          gps=gps, white=white, remedy=inputs.remedy)
 
 
 def joined(*verdicts: Verdict | None) -> Verdict:
@@ -103,11 +103,13 @@ def verdict_record(verdict: Verdict, enforced: bool) -> dict[str, Any]:
     return {"status": status, "refusals": list(verdict.refusals), "warnings": list(verdict.warnings)}
 
 
-def raise_if_refused(verdict: Verdict, limits: QualityParams, out_dir: Path) -> None:
-    """MapRefused (one line, naming the session) when the verdict refuses the map and refusal is on."""
+def raise_if_refused(verdict: Verdict, limits: QualityParams, out_dir: Path, remedy: str = "") -> None:
+    """MapRefused (one line, naming the session) when the verdict refuses the map and refusal is on; `remedy`
+    (`MapSummary.remedy`) is said with it."""
     if verdict.ok:
         return
     if not limits.refuse:
         log.warning("%s: accepted although %s (quality.refuse is off)", out_dir, "; ".join(verdict.refusals))
         return
-    raise MapRefused(f"map refused: {'; '.join(verdict.refusals)} (see {FIGURE} and run.json)", out_dir)
+    then = f"; {remedy}" if remedy else ""
+    raise MapRefused(f"map refused: {'; '.join(verdict.refusals)}{then} (see {FIGURE} and run.json)", out_dir)

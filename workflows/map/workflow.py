@@ -75,6 +75,7 @@ class MapSummary:
     quality: MapQuality | None = None
     verdict: Verdict | None = None
     pose_check: Any = None  # workflows.pose_check.CheckResult (None: the check was off)
+    remedy: str = ""  # MapInputs.remedy, when the pose check found the poses loose: said with a refusal
 
     def line(self) -> str:
         """The one-line summary printed at the end of `sosmatch map`."""
@@ -149,6 +150,17 @@ def poses_fit(checked: Any, params: Params) -> str:
     return poses_fit_images(checked.check, params.pose_check)
 
 
+def pose_remedy(inputs: MapInputs, checked: Any, params: Params) -> str:
+    """`inputs.remedy` when the pose check found the poses loose (`plugin.pose_check.poses_loose`), else "": a map
+    refused for few landmarks on EXIF tags that barely fit names `--refine` (the 26th new-user sweep: a zoom
+    drone's tags at 11.7 px on a 12 px gate, 6 landmarks; refined, 197)."""
+    from ...plugin.pose_check import poses_loose
+
+    if not inputs.remedy or checked is None or not poses_loose(checked.check, params.pose_check):
+        return ""
+    return inputs.remedy
+
+
 def map_origin(positions: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
     """A round-numbered origin near the data (median of the landmarks, else of the cameras; whole metres)."""
     pts = positions if len(positions) else camera_centers
@@ -221,7 +233,7 @@ def run(
         out.finish(keep_staging=keep_cache)
     if keep_cache:
         log.info("per-keyframe cache kept in %s", out_dir / PARTIAL / "cache")
-    raise_if_refused(summary.verdict, params.quality, out_dir)
+    raise_if_refused(summary.verdict, params.quality, out_dir, summary.remedy)
     return summary
 
 
@@ -357,7 +369,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         checked = replace(checked, out=out.path / POSE_CHECK)
     summary = MapSummary(out.path, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
                          len(landmarks), map_bytes, timings["total"], cached, counts, timings, quality, verdict,
-                         checked)
+                         checked, pose_remedy(inputs, checked, params))
     record = {
         "format": "sosmatch-map-run", "version": 1,
         "params": pdict, "pixel_scale": pixel_scale(params, camera.width, camera.height), "versions": _versions(),
