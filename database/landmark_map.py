@@ -159,6 +159,40 @@ def _ground_distance_km(map_a: LandmarkMap, map_b: LandmarkMap) -> float | None:
     return float(metres) / 1000.0 if np.isfinite(metres) else None
 
 
+def georeference_offset_m(map_a: LandmarkMap, map_b: LandmarkMap, transform: object,
+                          associations: np.ndarray) -> float | None:
+    """How far an alignment a_from_b (`transform`, anything with `apply`) puts B's paired landmarks from where B's
+    own georeference puts them, horizontally, at the median over `associations` (K, 2): the figure `match` records
+    as `search_mode.georeference_off_m` and `plugin.match_answer.georeference_disagreement` judges. Maps in one
+    EPSG: the move in grid metres (`chance.median_horizontal_move`, as `match_answer` computes it). Maps in two
+    codes (`crs_disagreement`): each place on the ground by its own code, the geodesic distance, so a wrong label
+    (the Swiss flight tagged in Fiji: 16,684 km) is measured while one site in two UTM zones, whose answer holds
+    only the change of projection, is not (centimetres). None: a map without a georeference, no pairs, or a
+    position pyproj cannot place."""
+    from ..plugin.chance import median_horizontal_move
+
+    pairs = np.asarray(associations, np.int64).reshape(-1, 2)
+    if not (map_a.epsg and map_b.epsg) or not len(pairs):
+        return None
+    paired_b = np.asarray(map_b.positions, np.float64)[pairs[:, 1]]
+    if map_a.epsg == map_b.epsg:
+        return median_horizontal_move(transform, paired_b)
+    from pyproj import CRS, Geod, Transformer
+    from pyproj.exceptions import CRSError, ProjError
+
+    placed = transform.apply(paired_b)  # type: ignore[attr-defined]  # in A's grid
+    try:
+        lonlat = []
+        for epsg, xy in ((map_a.epsg, placed), (map_b.epsg, paired_b)):
+            to_geo = Transformer.from_crs(CRS.from_epsg(int(epsg)), CRS.from_epsg(4326), always_xy=True)
+            lonlat.append(to_geo.transform(xy[:, 0], xy[:, 1], errcheck=True))
+        _, _, metres = Geod(ellps="WGS84").inv(*lonlat[0], *lonlat[1])
+    except (CRSError, ProjError, ValueError):
+        return None
+    metres = np.asarray(metres, np.float64)
+    return float(np.median(metres)) if np.all(np.isfinite(metres)) else None
+
+
 def landmark_map_fingerprint(lmap: LandmarkMap) -> str:
     """A content fingerprint of a map: sha256 of its world positions, sizes and EPSG code ("sha256:...").
 

@@ -22,7 +22,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params.matching import MAX_ASSOCIATIONS
-from .landmark_map import LandmarkMap, landmark_map_fingerprint
+from .landmark_map import LandmarkMap, georeference_offset_m, landmark_map_fingerprint
 from .output_markers import check_finished
 from .text_input import read_user_json
 
@@ -87,6 +87,7 @@ class MatchSummary:
     georeference_off_m: float | None = None
     georeference_radius_m: float | None = None
     position_prior: str | None = None
+    warnings: list[str] = field(default_factory=list)  # what `match` warned of (match.json "warnings", since fix15)
 
 
 # --- field validation (each raises InputError naming the file and the field) -----------------------------------
@@ -258,6 +259,10 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     summary.georeference_off_m = off
     prior = summary.search_mode.get("position_prior")
     summary.position_prior = prior if isinstance(prior, str) else None
+    said = data.get("warnings", [])
+    if not isinstance(said, list) or not all(isinstance(w, str) for w in said):
+        raise InputError(f"{_where('warnings')} must be a list of texts, got {_short(said)}", path)
+    summary.warnings = list(said)
     searched = summary.search_mode.get("searched")
     if isinstance(searched, dict) and searched.get("min_associations") is not None:
         # theta_S of the search whose hypotheses these are (the first of two searches keeps the configured one)
@@ -350,19 +355,24 @@ def unverified_note(match: MatchSummary) -> str | None:
             "with --no-verify / verification.enabled = false)")
 
 
-def georeference_note(match: MatchSummary) -> str | None:
+def georeference_note(match: MatchSummary, map_a: LandmarkMap | None = None,
+                       map_b: LandmarkMap | None = None) -> str | None:
     """What `match` said of an accepted answer that moves B farther from its georeference than the radius it is
-    trusted to: the two maps' georeferences disagree (`plugin.match_answer.georeference_disagreement`, the one
-    rule, on what match.json records), for merge and batch to repeat; None when match said nothing. A file that
-    does not record the radius: the configured default."""
+    trusted to: the images agree, the two maps' georeferences do not (`plugin.match_answer.
+    georeference_disagreement`, the one rule, on what match.json records), for merge to refuse and batch to keep
+    apart; None when they agree. A file that does not record the radius: the configured default. A file that
+    does not record the offset (a sosmatch before it was measured across two EPSG codes, or at all): measured
+    here from the two maps, when given (`landmark_map.georeference_offset_m`, as `match` measures it)."""
     from ..plugin.match_answer import georeference_disagreement  # (the search's modules: only when asked)
     from ..plugin.params import AssociationParams
 
     if not match.accepted:
         return None
     radius = match.georeference_radius_m
-    return georeference_disagreement(match.georeference_off_m,
-                                     AssociationParams().georeference_prior_m if radius is None else radius,
+    off = match.georeference_off_m
+    if off is None and map_a is not None and map_b is not None and match.transform is not None:
+        off = georeference_offset_m(map_a, map_b, match.transform, match.associations)
+    return georeference_disagreement(off, AssociationParams().georeference_prior_m if radius is None else radius,
                                      match.position_prior)
 
 

@@ -163,18 +163,27 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
 
 
 def georeference_disagreement(off_m: float | None, radius_m: float | None, prior: str | None = None) -> str | None:
-    """What is said when an accepted alignment of two maps in one EPSG moves B horizontally by `off_m`
-    (`MatchAnswer.georeference_off_m`, match.json `search_mode.georeference_off_m`) more than the radius the
-    georeference is trusted to (`association.georeference_prior_m`; GPS puts a camera within metres): the answer
-    stands (it was found over every placement of B, or near the georeference and confirmed there), but the two
-    maps' georeferences disagree, and a merge or a GIS layer of either inherits that. None: they agree, or there is
-    no such figure or radius. The one rule of `match`, `merge` and `batch`; the text says "it" for B, whom the
-    caller names; `prior` is how the search used the georeference (`MatchAnswer.prior`)."""
+    """What is said when an accepted alignment of two georeferenced maps puts B's paired landmarks `off_m`
+    horizontally from where B's georeference does (`MatchAnswer.georeference_off_m`, or across two EPSG codes
+    `database.landmark_map.georeference_offset_m`; match.json `search_mode.georeference_off_m`) farther than the
+    radius the georeference is trusted to (`association.georeference_prior_m`, the radius of the search near it
+    and of `chance.within_prior`; GPS puts a camera within metres): the images agree (the answer was found over
+    every placement of B, or near the georeference and confirmed there), the georeferences do not, so one of them
+    is wrong, and a merge or a GIS layer of either inherits that (`merge` refuses it without --trust-images,
+    `batch` keeps the two flights apart). None: they agree, or there is no such figure or radius. The one rule of
+    `match`, `merge` and `batch`; the text says "it" for B, whom the caller names; `prior` is how the search used
+    the georeference (`MatchAnswer.prior`; "off": not said)."""
     if off_m is None or radius_m is None or not radius_m > 0 or not off_m > radius_m:
         return None
-    return (f"the answer puts it {off_m:.0f} m from where its georeference does (median of its paired landmarks"
-            f"{'; ' + prior if prior else ''}): the two maps' georeferences disagree (another datum, a shifted "
-            "origin, or poses of another site?)")
+    how = f"; {prior}" if prior and prior != "off" else ""
+    return (f"images agree, georeferences disagree by {ground_distance_text(off_m)}: one georeference is wrong (the "
+            f"answer puts it that far from where its own does, beyond the {radius_m:g} m one is trusted to{how}; a "
+            "datum, an origin, a UTM zone or hemisphere?)")
+
+
+def ground_distance_text(metres: float) -> str:
+    """'428 m', or '16,684 km' from 10 km on."""
+    return f"{metres:.0f} m" if metres < 10_000 else f"{metres / 1000:,.0f} km"
 
 
 def reconcile_near(radius_m: float, near: Verification, everywhere: Verification, points_b: np.ndarray,

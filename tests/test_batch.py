@@ -541,35 +541,42 @@ def _georeferenced_pair_task(session_a: str, session_b: str, pair_dir: str, para
     return summarise_match(path)
 
 
-def test_batch_repeats_that_a_pair_s_georeferences_disagree(flights, tmp_path, monkeypatch, capsys):
+def test_batch_keeps_apart_flights_whose_images_agree_and_georeferences_do_not(flights, tmp_path, monkeypatch,
+                                                                               capsys):
     """The twenty-first sweep: two flights of one EPSG whose georeferences are 428 m apart: `match` warned (in its
-    worker), batch merged them and its report, merge.json and output said nothing (`moved_median_m 428` the only
-    trace). The pair's warning (`match_io.georeference_note`) is in report.json / .md, the merged group's merge.json
-    and the command's output."""
+    worker), batch merged them and said nothing; the twenty-fifth: a flight tagged in Switzerland and its copy
+    tagged in Fiji (two EPSG codes, 16,684 km) were merged into one group, the Swiss landmarks placed in Fiji. The
+    pair (`match_io.georeference_note`) is now said in report.json / .md and the output, and left out of the
+    session graph: the two flights stay in separate groups, nothing merged. A match.json that records no offset
+    (older, or across two codes before) is measured from the sessions' maps."""
     import functools
 
     from sosmatch.database.landmark_map import LandmarkMap, read_landmark_map, write_landmark_map
 
     root, _ = flights
-    for name in ("A", "B"):
-        shutil.copytree(root / name, tmp_path / "fl" / name)
-        lm = read_landmark_map(tmp_path / "fl" / name / "landmarks.sosmap")
-        write_landmark_map(tmp_path / "fl" / name / "landmarks.sosmap",
-                           LandmarkMap(lm.positions, lm.sizes, lm.origin, 32632))
-    monkeypatch.setattr(batch, "run", functools.partial(batch.run, pair_fn=_georeferenced_pair_task))
-    out = tmp_path / "out"
-    assert main(["batch", str(tmp_path / "fl"), "--out", str(out), "--workers", "0", "--no-changes",
-                 "--no-progress"]) == 0
-    said = re.compile(r"pair A__B: B: the answer puts it (\d+) m from where its georeference does .*georeferences "
-                      "disagree")
-    stdout = capsys.readouterr().out
-    assert said.search(stdout) and int(said.search(stdout).group(1)) > 50
-    report = json.loads((out / "report.json").read_text())
-    assert len(report["warnings"]) == 1 and said.search(report["warnings"][0]) and report["ok"]
-    assert "## Warnings" in (out / "report.md").read_text() and said.search((out / "report.md").read_text())
-    (group,) = report["groups"]
-    merged = json.loads((out / "merged" / group["reference"] / "merge.json").read_text())
-    assert any("georeferences disagree" in w for w in merged["warnings"])
+    for name, epsg, fl in (("A", 32632, "fl"), ("B", 32632, "fl"), ("A", 32632, "fl2"), ("B", 32732, "fl2")):
+        shutil.copytree(root / name, tmp_path / fl / name)
+        lm = read_landmark_map(tmp_path / fl / name / "landmarks.sosmap")
+        write_landmark_map(tmp_path / fl / name / "landmarks.sosmap", LandmarkMap(lm.positions, lm.sizes, lm.origin,
+                                                                                  epsg))
+    runs = (("fl", _georeferenced_pair_task, r"(\d+) m"), ("fl2", oracle_pair_task, r"\d{1,2},\d{3} km"))
+    run = batch.run
+    for fl, task, distance in runs:
+        monkeypatch.setattr(batch, "run", functools.partial(run, pair_fn=task))
+        out = tmp_path / f"out_{fl}"
+        assert main(["batch", str(tmp_path / fl), "--out", str(out), "--workers", "0", "--no-changes",
+                     "--no-progress"]) == 0
+        said = re.compile(rf"pair A__B: B: images agree, georeferences disagree by {distance}: one georeference is "
+                          "wrong .*left out of the session graph")
+        stdout = capsys.readouterr().out
+        assert said.search(stdout), stdout
+        report = json.loads((out / "report.json").read_text())
+        assert len(report["warnings"]) == 1 and said.search(report["warnings"][0]) and report["ok"]
+        assert said.search((out / "report.md").read_text())
+        (pair,) = report["pairs"]
+        assert pair["accepted"] and pair["in_graph"] is False
+        assert sorted(g["members"] for g in report["groups"]) == [["A"], ["B"]]
+        assert all(g["status"] == "single" for g in report["groups"]) and not (out / "merged").exists()
 
 
 def turned_pair_task(session_a: str, session_b: str, pair_dir: str, params: object = None) -> dict:

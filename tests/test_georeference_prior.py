@@ -210,8 +210,10 @@ def test_match_names_georeferences_that_disagree_whichever_search_answered(tmp_p
                                                                   origin=np.asarray(b.origin) + [200.0, 0, 0]))
     assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "m"),
                  "--no-plot"]) == 0
-    said = re.search(r"b\.sosmap: the answer puts it (\d+) m from where its georeference does", caplog.text)
-    assert said and 190 <= int(said.group(1)) <= 210 and "georeferences disagree" in caplog.text
+    said = re.search(r"b\.sosmap: images agree, georeferences disagree by (\d+) m: one georeference is wrong",
+                     caplog.text)
+    assert said and 190 <= int(said.group(1)) <= 210
+    assert any(said.group(0) in w for w in json.loads((tmp_path / "m" / "match.json").read_text())["warnings"])
     mode = json.loads((tmp_path / "m" / "match.json").read_text())["search_mode"]
     assert mode["georeference_off_m"] == pytest.approx(int(said.group(1)), abs=0.5)
     caplog.clear()  # the same maps where they belong: nothing to say
@@ -221,17 +223,62 @@ def test_match_names_georeferences_that_disagree_whichever_search_answered(tmp_p
     assert "georeferences disagree" not in caplog.text
 
 
-def test_maps_in_two_epsg_codes_are_named(tmp_path, caplog):
-    # the thirteenth sweep: a map labelled with the wrong UTM hemisphere (32732 for 32632) matched its partner with
-    # a near-identity transform and nothing said the labels differ
-    a, b = _maps()
-    write_landmark_map(tmp_path / "a.sosmap", dataclasses.replace(a, epsg=32632))
-    write_landmark_map(tmp_path / "b.sosmap", dataclasses.replace(b, epsg=32732))
+def _w241() -> tuple[LandmarkMap, LandmarkMap]:
+    """Two maps the search everywhere aligns (no prior needed)."""
+    return read_landmark_map(DATA / "w241_autumn.sosmap"), read_landmark_map(DATA / "w241_summer_130.sosmap")
+
+
+def _placed(lmap: LandmarkMap, east: float, north: float, epsg: int) -> LandmarkMap:
+    """`lmap` moved by (east, north) in the grid of `epsg` (its origin with it: the file stores offsets)."""
+    shift = np.array([east, north, 0.0])
+    return dataclasses.replace(lmap, epsg=epsg, positions=np.asarray(lmap.positions) + shift,
+                               origin=np.asarray(lmap.origin) + shift)
+
+
+def test_maps_in_two_epsg_codes_are_named(tmp_path, caplog, capsys):
+    """The thirteenth sweep: a map labelled with the wrong UTM hemisphere (32732 for 32632) matched its partner with
+    a near-identity transform and nothing said the labels differ. The twenty-fifth: a Swiss flight and its copy
+    tagged in Fiji (16,684 km) were said to be in two codes on stderr only, and merged by batch. Where each code
+    puts B on the ground is measured (`landmark_map.georeference_offset_m`: here the same numbers at 47 N and
+    43 S, ~10,000 km) and judged by the rule of one EPSG: match.json records it (`search_mode.georeference_off_m`,
+    `warnings`) and the command's line says it."""
+    a, b = _w241()
+    write_landmark_map(tmp_path / "a.sosmap", _placed(a, 430000.0, 5200000.0, 32632))
+    write_landmark_map(tmp_path / "b.sosmap", _placed(b, 430000.0, 5200000.0, 32732))
+    capsys.readouterr()
     assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "m"),
                  "--no-plot"]) == 0
     assert "A is georeferenced in EPSG:32632, B in EPSG:32732" in caplog.text and "one label is wrong" in caplog.text
-    mode = json.loads((tmp_path / "m" / "match.json").read_text())["search_mode"]
-    assert mode["position_prior"] == "off"
+    doc = json.loads((tmp_path / "m" / "match.json").read_text())
+    assert doc["search_mode"]["position_prior"] == "off" and doc["verification"]["accepted"]
+    assert 9.9e6 < doc["search_mode"]["georeference_off_m"] < 10.1e6
+    said = re.compile(r"images agree, georeferences disagree by (9,9|10,0)\d\d km: one georeference is wrong")
+    assert said.search(caplog.text) and any(said.search(w) for w in doc["warnings"])
+    assert said.search(capsys.readouterr().out)  # the command's own line, not only the log
+
+
+def test_one_site_in_two_utm_zones_is_matched_without_a_georeference_disagreement(tmp_path, caplog):
+    """Flights of one site on either side of a UTM zone edge, each in its own zone: the answer holds the change of
+    projection, and where each code puts B on the ground agrees with the answer (centimetres), so match records
+    the offset and says no disagreement (the rule that refuses a wrong label leaves two right ones alone)."""
+    from pyproj import Transformer
+
+    a, b = _w241()
+    east, north = Transformer.from_crs("EPSG:4326", "EPSG:32631", always_xy=True).transform(6.0, 47.0)
+    map_a = _placed(a, east - 300.0, north - 300.0, 32631)
+    in31 = _placed(b, east - 300.0, north - 300.0, 32631)
+    x, y = Transformer.from_crs("EPSG:32631", "EPSG:32632", always_xy=True).transform(
+        np.asarray(in31.positions)[:, 0], np.asarray(in31.positions)[:, 1])
+    placed = np.column_stack([x, y, np.asarray(in31.positions)[:, 2]])
+    map_b = dataclasses.replace(b, epsg=32632, positions=placed, origin=np.round(placed.mean(0)))
+    write_landmark_map(tmp_path / "a.sosmap", map_a)
+    write_landmark_map(tmp_path / "b.sosmap", map_b)
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "m"),
+                 "--no-plot"]) == 0
+    doc = json.loads((tmp_path / "m" / "match.json").read_text())
+    assert doc["verification"]["accepted"] and doc["search_mode"]["georeference_off_m"] < 5.0
+    assert "one site in two projections" in caplog.text and "georeferences disagree" not in caplog.text
+    assert not any("georeferences disagree" in w for w in doc["warnings"])
 
 
 def test_one_site_in_two_utm_zones_is_not_called_a_wrong_label():

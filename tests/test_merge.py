@@ -4,6 +4,7 @@ opens in pycolmap and in COLMAP 3.8."""
 
 import json
 import os
+import re
 import shutil
 import subprocess
 
@@ -499,10 +500,13 @@ def _recorded_georeference(match_json, b_path, radius_m=50.0):
     return off
 
 
-def test_merge_repeats_that_the_two_maps_georeferences_disagree(pair, tmp_path, caplog):
+def test_merge_refuses_maps_whose_georeferences_disagree_unless_told_to_trust_the_images(pair, tmp_path, capsys,
+                                                                                        caplog):
     """The twenty-first sweep: two flights 428 m apart by their georeferences (another --geo-origin): `match` warned,
-    `merge` merged them in silence. It repeats match's warning (`match_io.georeference_note`, the rule `match` uses)
-    in its log and its merge.json; within the radius it says nothing."""
+    `merge` merged them in silence; the twenty-fifth: it merged a Swiss flight into its copy tagged in Fiji. The
+    images agree and the georeferences do not (`match_io.georeference_note`, the rule `match` uses): one is wrong,
+    so merge refuses in one line (exit 2, nothing written) unless --trust-images, which merges and says so in its
+    log and merge.json; within the radius it says nothing."""
     from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
 
     _, _, a, b = pair
@@ -516,13 +520,17 @@ def test_merge_repeats_that_the_two_maps_georeferences_disagree(pair, tmp_path, 
     match = toy_match_json(*geo, tmp_path / "far.json")
     off = _recorded_georeference(match, geo[1].path)
     assert off > 50.0
+    command = ["merge", str(geo[0].path), str(geo[1].path), "--match", str(match)]
+    capsys.readouterr()
+    assert main([*command, "--out", str(tmp_path / "M")]) == 2
+    err = capsys.readouterr().err
+    said = f"images agree, georeferences disagree by {off:.0f} m: one georeference is wrong"
+    assert said in err and "--trust-images" in err and err.count("\n") == 1 and not (tmp_path / "M").exists()
     with caplog.at_level("WARNING"):
-        assert main(["merge", str(geo[0].path), str(geo[1].path), "--match", str(match), "--out",
-                     str(tmp_path / "M")]) == 0
-    said = f"Bgeo: the answer puts it {off:.0f} m from where its georeference does"
-    assert said in caplog.text and "georeferences disagree" in caplog.text
-    record = json.loads((tmp_path / "M" / "merge.json").read_text())
-    assert any(said in w and "georeferences disagree" in w for w in record["warnings"])
+        assert main([*command, "--out", str(tmp_path / "T"), "--trust-images"]) == 0
+    assert said in caplog.text
+    record = json.loads((tmp_path / "T" / "merge.json").read_text())
+    assert any(said in w and "--trust-images" in w for w in record["warnings"])
     caplog.clear()
     near = toy_match_json(*geo, tmp_path / "near.json")
     _recorded_georeference(near, geo[1].path, radius_m=2 * off)
@@ -532,3 +540,25 @@ def test_merge_repeats_that_the_two_maps_georeferences_disagree(pair, tmp_path, 
     assert "georeferences disagree" not in caplog.text
     record = json.loads((tmp_path / "N" / "merge.json").read_text())
     assert not any("georeferences disagree" in w for w in record.get("warnings", []))
+
+
+def test_merge_measures_the_georeferences_of_an_older_match_across_two_epsg_codes(pair, tmp_path, capsys):
+    """A match.json that records no georeference offset (written before it was measured across two EPSG codes):
+    merge measures it from the two maps (`landmark_map.georeference_offset_m`), so a map labelled in the other
+    hemisphere (32617 against 32717: the same numbers 10,000 km apart) is refused as match would have said."""
+    from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
+
+    _, _, a, b = pair
+    geo = []
+    for s, epsg in ((a, 32617), (b, 32717)):
+        shutil.copytree(s.path, tmp_path / f"{s.path.name}geo")
+        lm = read_landmark_map(s.path / "landmarks.sosmap")
+        write_landmark_map(tmp_path / f"{s.path.name}geo" / "landmarks.sosmap",
+                           LandmarkMap(lm.positions, lm.sizes, lm.origin, epsg))
+        geo.append(s.__class__(tmp_path / f"{s.path.name}geo", s.session_from_world, s.object_ids))
+    match = toy_match_json(*geo, tmp_path / "m.json")
+    assert "georeference_off_m" not in json.loads(match.read_text()).get("search_mode", {})
+    capsys.readouterr()
+    assert main(["merge", str(geo[0].path), str(geo[1].path), "--match", str(match), "--out",
+                 str(tmp_path / "M")]) == 2
+    assert re.search(r"georeferences disagree by \d{1,2},\d{3} km", capsys.readouterr().err)

@@ -27,7 +27,12 @@ from typing import Any
 import numpy as np
 
 from ..database.atomic import write_bytes_atomic, write_text_atomic
-from ..database.landmark_map import check_two_maps, crs_disagreement, landmark_map_fingerprint
+from ..database.landmark_map import (
+    check_two_maps,
+    crs_disagreement,
+    georeference_offset_m,
+    landmark_map_fingerprint,
+)
 from ..database.map_loading import LoadedMap, load_map
 from ..database.match_io import MATCH_FORMAT, parse_match
 from ..database.output_markers import fingerprint
@@ -36,7 +41,7 @@ from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import SearchMode
 from ..plugin.map_noise import derived_search_params
-from ..plugin.match_answer import MatchAnswer, georeference_disagreement, match_maps
+from ..plugin.match_answer import MatchAnswer, georeference_disagreement, ground_distance_text, match_maps
 from ..plugin.params import Params, params_to_dict
 from ..plugin.verification import hypothesis_agrees
 
@@ -56,6 +61,8 @@ class MatchResult:
     seconds: float  # wall time of the whole run (loading, search, verification, outputs)
     answer: MatchAnswer | None = None
     cpu_seconds: float = float("nan")  # CPU time of the same (all threads): the honest figure on a shared machine
+    # the accepted answer contradicts the two maps' georeferences (`match_answer.georeference_disagreement`)
+    georeferences_disagree: bool = False
 
     @property
     def accepted(self) -> bool:
@@ -66,6 +73,14 @@ class MatchResult:
         shared machine the wall time also counts the waits for a core)."""
         cpu = f", CPU {self.cpu_seconds:.2f} s" if math.isfinite(self.cpu_seconds) else ""
         return f"{self.seconds:.2f} s{cpu}"
+
+    def _georeference_text(self) -> str:
+        """', WARNING: images agree, georeferences disagree by X: ...' when they do (the log says why), else ''."""
+        if not self.georeferences_disagree or self.answer is None or self.answer.georeference_off_m is None:
+            return ""
+        return (f", WARNING: images agree, georeferences disagree by "
+                f"{ground_distance_text(self.answer.georeference_off_m)}: one georeference is wrong (`merge` "
+                "refuses it without --trust-images, `batch` keeps the two apart)")
 
     def summary(self) -> str:
         """The one-line summary the command prints."""
@@ -89,7 +104,7 @@ class MatchResult:
                     if ans.tolerances == "georeference" and ans.searched is not None else "")
             return (f"{head}, verified{near}: {len(self.associations)} associations on the full maps (runner-up "
                     f"{v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg)"
-                    f"{_imprecise_text(ans)} ({self.times()}) -> "
+                    f"{_imprecise_text(ans)}{self._georeference_text()} ({self.times()}) -> "
                     f"{self.out_dir / 'match.json'}")
         if s.consensus is not None and not s.consensus.accepted:
             return (f"{head}, no match: the consensus of {len(s.consensus.members)} agreeing hypotheses holds "
@@ -100,7 +115,8 @@ class MatchResult:
         best = s.hypotheses[s.best]
         _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
         return (f"{head}, best |S|={best.size}, consensus {len(self.associations)} associations "
-                f"(rms {s.consensus.rms_m:.2f} m, yaw {yaw:.1f} deg), not verified{_imprecise_text(ans)} "
+                f"(rms {s.consensus.rms_m:.2f} m, yaw {yaw:.1f} deg), not verified{_imprecise_text(ans)}"
+                f"{self._georeference_text()} "
                 f"({self.times()}) -> "
                 f"{self.out_dir / 'match.json'}")
 
@@ -140,7 +156,8 @@ def search_mode_json(params: Params, answer: MatchAnswer | None) -> dict[str, An
             "searched": _searched_json(answer.searched if answer and answer.searched else ap),
             "paper": ap.consistency == "distance" and ap.windows == "id" and ap.solver == "clipper"
             and ap.position_prior_m == 0 and not (answer and answer.tolerances == "georeference"),
-            # maps in one georeferenced frame: how far the accepted answer moves B from its georeference
+            # georeferenced maps (one EPSG, or two: `landmark_map.georeference_offset_m`): how far the accepted
+            # answer moves B from where its georeference puts it; what merge and batch judge (`georeference_note`)
             **({"georeference_off_m": round(answer.georeference_off_m, 2)}
                if answer and answer.georeference_off_m is not None else {})}
 
@@ -313,26 +330,28 @@ def alignment_png(result: MatchResult) -> bytes:
 MAX_DATUM_DIFFERENCE_M = 110.0
 
 
-def _warn_georeferences(ans: Any, path_b: str | Path, radius_m: float) -> None:
-    """Warn when the answer moves B farther from its georeference than `radius_m`
-    (`match_answer.georeference_disagreement`, the rule merge and batch repeat from match.json)."""
+def _georeference_warning(ans: Any, path_b: str | Path, radius_m: float) -> str | None:
+    """The warning when the answer moves B farther from its georeference than `radius_m`
+    (`match_answer.georeference_disagreement`, the rule merge and batch repeat from match.json), else None."""
     if (said := georeference_disagreement(ans.georeference_off_m, radius_m, ans.prior)) is not None:
-        log.warning("%s: %s", path_b, said)
+        return f"{path_b}: {said}"
+    return None
 
 
-def _warn_height_datums(ans: Any, points_b: np.ndarray, path_b: str | Path) -> None:
-    """Warn when an accepted alignment of two maps in one EPSG moves B's landmarks vertically by more than two
-    height datums can differ (MAX_DATUM_DIFFERENCE_M): the search and the prior are horizontal, so it still finds
-    the alignment, but the maps' heights are not comparable."""
+def _height_datum_warning(ans: Any, points_b: np.ndarray, path_b: str | Path) -> str | None:
+    """The warning when an accepted alignment of two maps in one EPSG moves B's landmarks vertically by more than
+    two height datums can differ (MAX_DATUM_DIFFERENCE_M): the search and the prior are horizontal, so it still
+    finds the alignment, but the maps' heights are not comparable. None: within that."""
     pairs = np.asarray(ans.associations, np.int64).reshape(-1, 2)
     if not len(pairs) or ans.transform is None:
-        return
+        return None
     pb = np.asarray(points_b, np.float64)[pairs[:, 1]]
     dz = float(np.median(ans.transform.apply(pb)[:, 2] - pb[:, 2]))
     if abs(dz) > MAX_DATUM_DIFFERENCE_M:
-        log.warning("%s: its landmarks lie %.0f m %s those of A under the answer, more than ellipsoidal and sea-level "
-                    "heights differ anywhere: the two maps' altitudes are not on one datum (heights above take-off, "
-                    "or in feet?)", path_b, abs(dz), "below" if dz > 0 else "above")
+        return (f"{path_b}: its landmarks lie {abs(dz):.0f} m {'below' if dz > 0 else 'above'} those of A under the "
+                "answer, more than ellipsoidal and sea-level heights differ anywhere: the two maps' altitudes are not "
+                "on one datum (heights above take-off, or in feet?)")
+    return None
 
 
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
@@ -352,8 +371,14 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     map_a, map_b = load_map(a), load_map(b)
     la, lb = map_a.lmap, map_b.lmap
     prints = check_two_maps(a, b, la, lb, "match")
-    if (crs := crs_disagreement(la, lb)) is not None:
-        log.warning("%s", crs)
+    said: list[str] = []  # every warning, logged and recorded in match.json `warnings`
+
+    def warn(text: str | None) -> None:
+        if text is not None:
+            log.warning("%s", text)
+            said.append(text)
+
+    warn(crs_disagreement(la, lb))
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
     # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
@@ -362,9 +387,9 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     if params.association.derive_from_maps:
         for name, m in (("A", map_a), ("B", map_b)):
             if m.noise is None:
-                log.warning("map %s (%s) records no noise figures (a COLMAP model, or a .sosmap written before "
-                            "map files carried them): the configured tolerances are used, not ones derived from the "
-                            "maps; give its mapped session directory to derive them", name, m.path)
+                warn(f"map {name} ({m.path}) records no noise figures (a COLMAP model, or a .sosmap written before "
+                     "map files carried them): the configured tolerances are used, not ones derived from the "
+                     "maps; give its mapped session directory to derive them")
     derivation = derived_search_params(params.association, map_a.noise, map_b.noise, la.positions, la.sizes,
                                        lb.positions, lb.sizes)
     first_try = derivation.first_try
@@ -383,25 +408,31 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                          legacy_record="match.json") as out:
         common = la.epsg == lb.epsg != 0
         if params.association.position_prior_m > 0 and not common:
-            log.warning("position prior ignored: the maps are not georeferenced in one EPSG (A: %s, B: %s)",
-                        la.epsg, lb.epsg)
+            warn(f"position prior ignored: the maps are not georeferenced in one EPSG (A: {la.epsg}, B: {lb.epsg})")
         ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
                          exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try,
                          near_try=derivation.near_try)
+        if ans.accepted and not common and ans.transform is not None:
+            # two EPSG codes: where each puts B on the ground (`georeference_offset_m`; None without both codes),
+            # judged by the rule of one EPSG: a wrong label is a wrong georeference, one site in two zones is not
+            ans.georeference_off_m = georeference_offset_m(la, lb, ans.transform, ans.associations)
+        geo_warning = _georeference_warning(ans, b, params.association.georeference_prior_m) if ans.accepted else None
+        warn(geo_warning)
         if common and ans.accepted:
-            _warn_georeferences(ans, b, params.association.georeference_prior_m)
-            _warn_height_datums(ans, lb.positions, b)
+            warn(_height_datum_warning(ans, lb.positions, b))
         if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
-            log.warning("%s: %s; merge and changes inherit that error", b, ans.uncertainty.warning())
+            warn(f"{b}: {ans.uncertainty.warning()}; merge and changes inherit that error")
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
                              ans.transform if ans.accepted else None, 0.0, ans)
+        result.georeferences_disagree = geo_warning is not None
         result.seconds, result.cpu_seconds = time.perf_counter() - t0, time.process_time() - cpu0
         doc = match_to_json(result, params)
         doc["search_mode"]["derived"] = derivation.record
         doc["seconds_total"] = result.seconds
         doc["cpu_seconds_total"] = result.cpu_seconds
+        doc["warnings"] = said
         parse_match(doc, out_dir / "match.json")  # the reader's validation: never write what it would refuse
         write_text_atomic(out_dir / "associations.csv", associations_csv(result))
         if plot:

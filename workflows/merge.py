@@ -433,6 +433,7 @@ def run(
     refine: bool = False,
     labels: tuple[str, str] | None = None,
     overwrite: bool = False,
+    trust_images: bool = False,
 ) -> MergeResult:
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
@@ -443,7 +444,10 @@ def run(
     hypothesis' associations are still the ones fused (those the refined transform explains within the gate).
     Raises InputError when match.json was computed for other maps (`match_io.check_match_maps`) or has no
     accepted hypothesis, or when its transform (refined or not) does not bring the maps together
-    (`changes.check_alignment`). `overwrite`: replace a complete merge of other inputs in `out_dir`.
+    (`changes.check_alignment`), or when the images agree but the two maps' georeferences do not
+    (`match_io.georeference_note`: one of them is wrong, and the merged model would place B's landmarks by A's)
+    unless `trust_images` (then said, and recorded in merge.json). `overwrite`: replace a complete merge of other
+    inputs in `out_dir`.
     """
     params = params or Params()
     a, b = read_session(session_a), read_session(session_b)
@@ -458,8 +462,12 @@ def run(
                     "its georeference")
     if (note := imprecise_note(match)) is not None:
         said.append(f"{match_json}: {note}: the merged model inherits that error")
-    if (note := georeference_note(match)) is not None:  # match's warning, repeated: the merged model inherits it
-        said.append(f"{session_b}: {note}")
+    if (note := georeference_note(match, a.landmarks, b.landmarks)) is not None:
+        if not trust_images:  # a probably wrong result is no success: the user decides which georeference stands
+            raise InputError(f"B: {note}; nothing merged (--trust-images merges it all the same, in A's frame and "
+                             "georeference)", match_json)
+        said.append(f"{session_b}: {note}; merged all the same (--trust-images): the model keeps {session_a}'s "
+                    "georeference")
     if (note := unverified_note(match)) is not None:
         said.append(f"{match_json}: {note}: merging its window consensus as it is; `sosmatch match` again verifies it")
     transform = match.transform

@@ -20,6 +20,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="re-estimate the transform on all associations it explains (least squares)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a complete `sosmatch merge` output of other inputs in --out")
+    parser.add_argument("--trust-images", action="store_true",
+                        help="merge even when the match's images agree but the two maps' georeferences disagree "
+                             "beyond association.georeference_prior_m (one of them is wrong; the merged model keeps "
+                             "A's); refused without it")
     add_params_arguments(parser)
 
 
@@ -27,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     from ...workflows import merge
 
     res = merge.run(args.session_a, args.session_b, args.match, args.out, params_from_args(args), refine=args.refine,
-                    overwrite=args.overwrite)
+                    overwrite=args.overwrite, trust_images=args.trust_images)
     print(
         f"{args.out}: {res.num_images} images, {res.num_points3d} points, {res.num_landmarks} landmarks "
         f"({res.num_fused} fused, {res.num_rejected} {'association' if res.num_rejected == 1 else 'associations'} "

@@ -159,7 +159,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                        options.progress, _valid_match)
     matches = _read_matches(pairs)
-    _georeference_warnings(pairs, matches)
+    _georeference_warnings(pairs, matches, sessions)
     failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
 
     # 4: session graph (marks each pair's in_graph) and merged groups
@@ -188,19 +188,29 @@ def _read_matches(pairs: dict[str, dict[str, Any]]) -> dict[str, MatchSummary]:
             if rec.get("status") == "done" and rec.get("accepted") and rec.get("match")}
 
 
-def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary]) -> None:
-    """Repeat `match`'s warning that a pair's georeferences disagree (`match_io.georeference_note`, from its
-    match.json) into the pair's record (`georeference_warning`, report.json / .md) and the batch's log: match says
-    it in its worker, whose log a batch does not show, and a resumed batch does not run it again (the twenty-first
-    sweep: two flights 428 m apart by their georeferences merged into one EPSG without a word)."""
+def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary],
+                           sessions: dict[str, dict[str, Any]]) -> None:
+    """Pairs whose images agree and whose maps' georeferences do not (`match_io.georeference_note`, from its
+    match.json; measured from the sessions' maps when an older match.json records no offset): one georeference is
+    wrong, so the pair is kept out of the session graph (`in_graph` false: no group, no merge, no changes) and
+    said in its record (`georeference_warning`, report.json / .md) and the batch's log. match says it in its
+    worker, whose log a batch does not show, and a resumed batch does not run it again (the twenty-first sweep:
+    two flights 428 m apart by their georeferences merged into one EPSG without a word; the twenty-fifth: a
+    flight tagged in Switzerland and its copy tagged in Fiji, 16,684 km apart, merged into one group)."""
+    from ...database.landmark_map import read_landmark_map
     from ...database.match_io import georeference_note
 
     for key, rec in pairs.items():
         rec.pop("georeference_warning", None)
         if key not in matches:  # not done, not accepted, or no match file
             continue
-        if (note := georeference_note(matches[key])) is not None:
-            rec["georeference_warning"] = f"{key.split(PAIR_SEP)[1]}: {note}"
+        a, b = key.split(PAIR_SEP)
+        maps: tuple[Any, ...] = ()
+        if matches[key].georeference_off_m is None and sessions[a].get("epsg") and sessions[b].get("epsg"):
+            maps = tuple(read_landmark_map(Path(sessions[n]["session"]) / "landmarks.sosmap") for n in (a, b))
+        if (note := georeference_note(matches[key], *maps)) is not None:
+            rec["georeference_warning"] = (f"{b}: {note}; left out of the session graph: {a} and {b} are not "
+                                           "merged into one group")
             log.warning("pair %s: %s", key, rec["georeference_warning"])
 
 
@@ -232,6 +242,8 @@ def _graph_and_merge(
     for key, rec in pairs.items():
         if rec["status"] != "done" or not rec["accepted"] or rec["transform"] is None:
             continue
+        if rec.get("georeference_warning"):  # images agree, georeferences do not: kept apart (no control either)
+            continue
         a, b = key.split(PAIR_SEP)
         sim = Sim3.from_dict(rec["transform"])
         if options.refine and rec.get("answer") != "verified":
@@ -251,7 +263,7 @@ def _graph_and_merge(
     edges, dropped = consistent_edges(len(names), edges, probes, options.edge_tolerance_m)
     for rec in pairs.values():
         if rec["status"] == "done" and rec["accepted"]:
-            rec["in_graph"] = True
+            rec["in_graph"] = not rec.get("georeference_warning")
     for e in dropped:
         pairs[edge_keys[(e.a, e.b)]]["in_graph"] = False
         log.warning("pair %s contradicts the other accepted pairs; left out of the session graph",
