@@ -134,8 +134,8 @@ def crs_disagreement(map_a: LandmarkMap, map_b: LandmarkMap) -> str | None:
     if apart is not None and apart <= ONE_SITE_KM:
         return (f"{head}, {apart:.1f} km apart on the ground: one site in two projections (the two UTM zones of a "
                 "zone boundary?); they are searched as maps in unrelated frames, so the answer holds the change of "
-                f"projection and B's georeference is not compared; map both in one (`--epsg {map_a.epsg}`) to "
-                "compare them")
+                "projection and no search near the georeference runs; map both in one CRS to match them in one "
+                f"frame (`sosmatch map`, `batch` or `poses-from-exif` with `--epsg {map_a.epsg}`)")
     where = f", {apart:,.0f} km apart on the ground" if apart is not None else ""
     return (f"{head}{where}: they are searched as maps in unrelated frames and B's georeference is not carried "
             "over; if both are surveys of one site, one label is wrong")

@@ -641,3 +641,24 @@ def test_each_pair_s_match_is_read_once_after_the_match_stage(flights, tmp_path,
     assert accepted == ["A__B", "B__C"] and report.groups[0]["status"] == "done"
     # one read by the match stage's summary (`summarise_match`), one for every later stage
     assert {key: reads[key] for key in accepted} == {"A__B": 2, "B__C": 2}
+
+
+def test_batch_maps_flights_of_photos_in_the_crs_it_is_given(tmp_path, monkeypatch):
+    """`batch --epsg` (the advice of `match` for one site across a UTM zone edge): a flight of photos is mapped
+    with its structure-from-motion poses in that CRS (`PosesFromImages.epsg`); without it, as before."""
+    import sosmatch.workflows.map as map_workflow
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows.batch.tasks import map_task
+
+    (tmp_path / "F" / "images").mkdir(parents=True)
+    seen = []
+
+    def stop(params, inputs, out, **kwargs):
+        seen.append(inputs.epsg)
+        raise InputError("stop here")
+
+    monkeypatch.setattr(map_workflow, "run", stop)
+    for epsg in (32760, None):
+        with pytest.raises(InputError, match="stop here"):
+            map_task("F", "images", str(tmp_path / "F"), str(tmp_path / "s"), Params(), False, False, epsg)
+    assert seen == [32760, None]

@@ -19,6 +19,7 @@ from sosmatch.database.exif import read_image_metadata
 from sosmatch.database.poses import read_poses_csv
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.gps_track import frozen_fix, gps_jumps, off_nadir_deg
+from sosmatch.plugin.params import Params
 from sosmatch.tools.cli import main
 from sosmatch.workflows import poses_from_exif as pfe
 
@@ -734,3 +735,43 @@ def test_portrait_files_of_a_landscape_readout_do_not_take_its_attitude_tags(tmp
     assert list(priors.attitude_from_tags) == [True, False, True, False]
     assert any("2 of 4 images are their camera's readout turned by 90 degrees" in r.getMessage()
                for r in caplog.records)
+
+
+def test_map_and_poses_take_the_projected_crs_of_the_poses(tmp_path, capsys, monkeypatch):
+    """The twenty-fifth sweep: `match` advised mapping two flights of one site across a UTM zone edge in one CRS
+    (`--epsg`), which only poses-from-exif offered. `map` (EXIF and structure-from-motion pose sources) and `poses`
+    take it; the default (each flight's zone) keeps the identity of sessions mapped before the option."""
+    from sosmatch.workflows import poses as poses_workflow
+    from sosmatch.workflows.poses import job
+
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(3):  # at the edge of zones 14 and 15, in 14 by their median fix
+        write_jpeg(img / f"f{k}.jpg", 47.0, -96.0005 + k * 3e-4, 500.0,
+                   {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"})
+    assert main(["map", "--images", str(img), "--pose-source", "exif", "--epsg", "32615", "--out",
+                 str(tmp_path / "s"), "--no-progress"]) == 2  # noise images: refused, but run.json records the CRS
+    assert json.loads((tmp_path / "s" / "run.json").read_text())["epsg"] == 32615
+    capsys.readouterr()
+    assert main(["map", "--images", str(img), "--poses", str(tmp_path / "s" / "run.json"), "--epsg", "32615",
+                 "--out", str(tmp_path / "s2")]) == 2
+    assert "--epsg apply only without --poses" in capsys.readouterr().err
+    assert main(["map", "--images", str(img), "--pose-source", "exif", "--epsg", "4326", "--out",
+                 str(tmp_path / "s3")]) == 2
+    assert "--epsg: EPSG:4326 (WGS 84) is not a projected CRS" in capsys.readouterr().err
+    # structure from motion: the priors it georegisters on are read in the chosen CRS
+    seen = []
+
+    def stop(image_dir, work, params, identity, *args):
+        seen.append(args[-1].epsg)
+        raise InputError("stop here")
+
+    monkeypatch.setattr(job, "compute_poses", stop)
+    for argv in (["map", "--images", str(img), "--epsg", "32615", "--out", str(tmp_path / "s4"), "--no-progress"],
+                 ["poses", str(img), "--epsg", "32615", "--out", str(tmp_path / "p")]):
+        assert main(argv) == 2 and "stop here" in capsys.readouterr().err
+    assert seen == [32615, 32615]
+    plain = poses_workflow.PosesFromImages(img, Params())
+    assert plain.identity() == job.identity_of(img, Params(), telemetry=None, takeoff=None, sensor=None,
+                                               nominal_height_m=job.NOMINAL_HEIGHT_M)
+    assert poses_workflow.PosesFromImages(img, Params(), epsg=32615).identity() != plain.identity()

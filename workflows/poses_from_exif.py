@@ -216,13 +216,15 @@ def map_inputs_from_images(
     telemetry: str | Path | None = None,
     refine: bool = False,
     position_sigma_m: float = 3.0,
+    epsg: int | None = None,
 ) -> object:
     """`sosmatch map --images DIR` without `--poses`: the images' EXIF/XMP (and `telemetry`) poses and camera as
     `workflows.map.MapInputs`, refined from tie points first when `refine` (see `run`). Nothing is written; the
-    map's fingerprint covers the poses as used, so a re-run resumes."""
+    map's fingerprint covers the poses as used, so a re-run resumes. `epsg`: the projected CRS of the poses (None:
+    the UTM zone of the flight's median fix), as `run`'s."""
     from .map import MapInputs, in_flight_order
 
-    result = poses_from_images(images, telemetry)
+    result = poses_from_images(images, telemetry, epsg=epsg)
     source = f"EXIF/XMP of {images}" + (f" + {telemetry}" if telemetry else "")
     guessed = orientations_from_images(result)
     if refine or guessed:

@@ -31,6 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-merge", action="store_true", help="stop after the session graph")
     parser.add_argument("--no-changes", action="store_true",
                         help="skip change detection of the accepted pairs (pairs/A__B/changes/)")
+    parser.add_argument("--epsg", type=int,
+                        help="the projected CRS (EPSG code) of the flights of photos' poses (default: each flight's "
+                             "UTM zone of its median GPS fix); flights of one site on either side of a UTM zone edge "
+                             "are mapped in one")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace outputs in --out made with other parameters or from changed flights (without "
@@ -51,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     if args.refine and not args.no_verify:
         raise InputError("--refine only applies with --no-verify (verification already refines its winner)")
     options = batch.BatchOptions(nearest=args.nearest, ekf=args.ekf, merge=not args.no_merge, refine=args.refine,
-                                 verify=not args.no_verify, changes=not args.no_changes,
+                                 verify=not args.no_verify, changes=not args.no_changes, epsg=args.epsg,
                                  progress=not (args.no_progress or args.quiet), overwrite=args.overwrite)
     with make_executor(args.workers, args.scheduler, args.dask_local) as executor:
         report = batch.run(args.flights_dir, args.out, params, executor, options)

@@ -28,6 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine", action="store_true",
                         help="--pose-source exif: refine the EXIF poses from tie points first (poses-from-exif "
                              "--refine)")
+    parser.add_argument("--epsg", type=int,
+                        help="without --poses: the projected CRS of the poses, an EPSG code (default: the UTM zone "
+                             "of the flight's median GPS fix); give flights of one site on either side of a UTM zone "
+                             "edge the same one, as `match` advises")
     parser.add_argument("--camera", type=Path,
                         help="intrinsics: cameras.txt, cameras.bin or a COLMAP model (default: from --poses)")
     parser.add_argument("--out", type=Path, required=True, help="session directory to write")
@@ -54,8 +58,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     params = params_from_args(args)
     # options of the other pose source would be silently ignored: say so instead
-    if args.poses is not None and (args.telemetry is not None or args.refine or args.pose_source):
-        raise InputError("--pose-source, --telemetry and --refine apply only without --poses (poses from the images)")
+    if args.poses is not None and (args.telemetry is not None or args.refine or args.pose_source or args.epsg):
+        raise InputError("--pose-source, --telemetry, --refine and --epsg apply only without --poses (poses from the "
+                         "images; a pose file keeps its own CRS)")
     if args.refine and args.pose_source != "exif":
         raise InputError("--refine refines EXIF/XMP poses: give --pose-source exif (structure from motion, the "
                          "default, needs no refinement)")
@@ -67,11 +72,11 @@ def run(args: argparse.Namespace) -> int:
         if args.pose_source == "exif":
             from ...workflows.poses_from_exif import map_inputs_from_images
 
-            inputs = map_inputs_from_images(args.images, args.telemetry, args.refine)
+            inputs = map_inputs_from_images(args.images, args.telemetry, args.refine, epsg=args.epsg)
         else:
             from ...workflows.poses import PosesFromImages
 
-            inputs = PosesFromImages(args.images, params, telemetry=args.telemetry)
+            inputs = PosesFromImages(args.images, params, telemetry=args.telemetry, epsg=args.epsg)
     else:
         inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention, args.ekf,
                                           args.strict)

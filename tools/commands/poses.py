@@ -29,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--nominal-height", type=float, default=100.0,
                         help="without GPS and RelativeAltitude: the flight height above ground that sets the local "
                              "frame's scale (m)")
+    parser.add_argument("--epsg", type=int,
+                        help="the projected CRS of the poses, an EPSG code (default: the UTM zone of the flight's "
+                             "median GPS fix); flights of one site on either side of a UTM zone edge: the same one")
     parser.add_argument("--overwrite", action="store_true", help="replace a previous `poses` output of other inputs")
     add_params_arguments(parser)
     parser.epilog = ("Flight lines (in the warnings and poses.json) are found from the camera track and numbered 0, "
@@ -41,12 +44,14 @@ def run(args: argparse.Namespace) -> int:
     from ...workflows import poses
 
     if args.opensfm is not None:
+        if args.epsg is not None:  # OpenSfM's reference_lla gives the CRS; the option would be ignored in silence
+            raise InputError("--epsg applies to an image directory, not to --opensfm (its poses keep their CRS)")
         print(poses.run_opensfm(args.opensfm, args.out, args.images, overwrite=args.overwrite).line())
         return 0
     if args.images is None:
         raise InputError("give an image directory (or --opensfm PROJECT)")
     result = poses.run(args.images, args.out, params_from_args(args), telemetry=args.telemetry,
                        takeoff_altitude_m=args.takeoff_altitude, sensor_width_mm=args.sensor_width_mm,
-                       nominal_height_m=args.nominal_height, overwrite=args.overwrite)
+                       nominal_height_m=args.nominal_height, overwrite=args.overwrite, epsg=args.epsg)
     print(result.line())
     return 0

@@ -39,10 +39,11 @@ def _session_summary(name: str, kind: str, session_dir: Path) -> dict[str, Any]:
 
 
 def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params, ekf: bool,
-             overwrite: bool = False) -> dict[str, Any]:
+             overwrite: bool = False, epsg: int | None = None) -> dict[str, Any]:
     """Map one flight into `session_dir` (or adopt an already mapped one) and summarise the session.
 
-    `overwrite`: replace a complete session of other inputs or parameters there (BatchOptions.overwrite)."""
+    `overwrite`: replace a complete session of other inputs or parameters there (BatchOptions.overwrite). `epsg`:
+    the projected CRS of a folder of photos' poses (BatchOptions.epsg; None: the UTM zone of its median fix)."""
     from .. import map as map_workflow
 
     flight_path, out = Path(flight), Path(session_dir)
@@ -59,7 +60,7 @@ def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params
     elif kind == "images":  # structure from motion inside the session directory (OUT/sessions/NAME/poses)
         from ..poses import PosesFromImages
 
-        inputs = PosesFromImages(images_dir(flight_path), params)
+        inputs = PosesFromImages(images_dir(flight_path), params, epsg=epsg)
     else:
         raise ValueError(f"unknown flight kind {kind!r}")
     map_workflow.run(params, inputs, out, overwrite=overwrite, progress=False)

@@ -47,6 +47,9 @@ class BatchOptions:
     verify: bool = True
     edge_tolerance_m: float = 5.0  # (ours) two accepted pairs agree if they place sessions within this distance
     changes: bool = True  # change detection of every pair in the session graph (OUT/pairs/A__B/changes/)
+    # the projected CRS of the flights of photos (poses from structure from motion; None: each flight's UTM zone of
+    # its median fix): flights of one site on either side of a zone edge mapped in one (`match` advises it)
+    epsg: int | None = None
     progress: bool = True
     # replace complete outputs made with other parameters or options (OUT itself, and each session, pair and merged
     # model whose inputs changed); without it such a run is refused (sosmatch.database.outputs)
@@ -104,8 +107,10 @@ def run(
     executor = executor or LocalExecutor(1)
     flights = discover_flights(flights_dir, exclude=(out_dir,))
     pdict = params_to_dict(params)
+    # (the CRS only when chosen: batches run before the option keep their identity and resume)
     identity = fingerprint({"params": pdict, "matcher": (pair_fn or pair_task).__qualname__, **{
-        k: v for k, v in dataclasses.asdict(options).items() if k not in ("progress", "overwrite")}})
+        k: v for k, v in dataclasses.asdict(options).items()
+        if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)}})
     try:
         with open_output_dir(out_dir, "batch", identity, inputs=[f.path for f in flights],
                              overwrite=options.overwrite, legacy_record="report.json") as taken:
@@ -132,10 +137,14 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         contents = {"kind": f.kind, "ekf": options.ekf, "contents": flight_signature(f.path)}
         # an adopted session is used where it lies: its place is part of it (a copy elsewhere is another session)
         where = {"flight": str(f.path.resolve())} if f.kind == "mapped" else {}
-        fps[f.name] = fingerprint({"map": 2, **contents, **where, "params": mapping_params(params)})
+        crs = {"epsg": options.epsg} if options.epsg is not None and f.kind == "images" else {}
+        fps[f.name] = fingerprint({"map": 2, **contents, **where, **crs, "params": mapping_params(params)})
         earlier[f.name] = fingerprint({"flight": str(f.path.resolve()), **contents, "params": pdict})
         tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf,
-                         options.overwrite)
+                         options.overwrite, options.epsg if f.kind == "images" else None)
+    if options.epsg is not None and (own := [f.name for f in flights if f.kind != "images"]):
+        log.warning("--epsg applies to flights of photos (poses from structure from motion); %s keep the CRS of "
+                    "their poses or sessions", ", ".join(own))
     sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
                           options.progress, _valid_session, earlier)
     report.sessions = [{"name": f.name, "kind": f.kind, **sessions[f.name]} for f in flights]

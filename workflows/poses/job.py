@@ -56,8 +56,10 @@ def run(
     sensor_width_mm: float | None = None,
     nominal_height_m: float = NOMINAL_HEIGHT_M,
     overwrite: bool = False,
+    epsg: int | None = None,
 ) -> PosesResult:
-    """Poses of the images in directory `images` into directory `out` (see the module doc)."""
+    """Poses of the images in directory `images` into directory `out` (see the module doc). `epsg`: their
+    projected CRS (None: the UTM zone of the flight's median fix)."""
     params = params or Params()
     image_dir = Path(images)
     if not image_dir.is_dir():
@@ -65,13 +67,16 @@ def run(
     if not (math.isfinite(nominal_height_m) and nominal_height_m > 0):  # scales a block without GPS heights
         raise InputError(f"the nominal height must be a positive number of metres, got {nominal_height_m!r}")
     options = {"telemetry": telemetry, "takeoff": takeoff_altitude_m, "sensor": sensor_width_mm,
-               "nominal_height_m": nominal_height_m}
+               "nominal_height_m": nominal_height_m,
+               **({} if epsg is None else {"epsg": epsg})}  # only when chosen: earlier outputs keep their identity
     identity = identity_of(image_dir, params, **options)
     with open_output_dir(out, "poses", identity, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
         if taken.was_complete and (taken.path / RECORD).is_file():
             return load_result(taken.path)  # the same inputs and settings: the outputs stand
+        priors = read_image_priors(image_dir, telemetry, sensor_width_mm=sensor_width_mm,
+                                   takeoff_altitude_m=takeoff_altitude_m, epsg=epsg)
         result = compute_poses(image_dir, taken.staging / "work", params, identity, telemetry, takeoff_altitude_m,
-                               sensor_width_mm, nominal_height_m)
+                               sensor_width_mm, nominal_height_m, priors)
         for name in (*OUTPUTS, RECORD):
             os.replace(result.out_dir / name, taken.staged(name))
         taken.publish(list(OUTPUTS), last=RECORD)
@@ -252,10 +257,14 @@ class PosesFromImages:
     sensor_width_mm: float | None = None
     nominal_height_m: float = NOMINAL_HEIGHT_M
     result: PosesResult | None = None  # after `resolve`
+    # the projected CRS of the poses (None: the UTM zone of the flight's median fix, `image_priors`): flights of
+    # one site across a zone edge mapped in one (`map --epsg`, `batch --epsg`)
+    epsg: int | None = None
 
     def _options(self) -> dict[str, Any]:
+        # the CRS only when chosen: sessions mapped before the option keep their identity (and resume)
         return {"telemetry": self.telemetry, "takeoff": self.takeoff_altitude_m, "sensor": self.sensor_width_mm,
-                "nominal_height_m": self.nominal_height_m}
+                "nominal_height_m": self.nominal_height_m, **({} if self.epsg is None else {"epsg": self.epsg})}
 
     def identity(self) -> str:
         if not Path(self.images).is_dir():
@@ -270,7 +279,7 @@ class PosesFromImages:
         result directory is staged as OUT/.partial/poses."""
         image_dir = Path(self.images)
         priors = read_image_priors(image_dir, self.telemetry, sensor_width_mm=self.sensor_width_mm,
-                                   takeoff_altitude_m=self.takeoff_altitude_m)
+                                   takeoff_altitude_m=self.takeoff_altitude_m, epsg=self.epsg)
         if len(priors.cameras) > 1:  # before the structure from motion: map takes one camera
             _refuse_cameras([f"{c.width}x{c.height}" for c in priors.cameras], image_dir)
         work = out.staging / "poses_work"
