@@ -376,6 +376,38 @@ def georeference_note(match: MatchSummary, map_a: LandmarkMap | None = None,
                                      match.position_prior)
 
 
+def no_match_text(best_support: int | None, runner_up: int, chance_p: float | None = None,
+                  chance_mean: float | None = None, beyond_prior: bool = False) -> str:
+    """What `sosmatch match` says of a verification that found no match: "verification: no match (the best
+    candidate holds 13 associations, B placed elsewhere 13, chance p 1 (mean 12.3))"; `best_support` None: no
+    candidate. The runner-up is the best alignment that puts B elsewhere, chance placements included: it may hold
+    more pairs than the best candidate ("best support 6, runner-up 8" read as a contradiction)."""
+    if best_support is None:
+        return "verification: no match"
+    chance = "" if chance_p is None else f", chance p {chance_p:.1g} (mean {chance_mean or 0:.1f})"
+    return (f"verification: no match (the best candidate holds {best_support} associations, B placed elsewhere "
+            f"{runner_up}{chance}{', beyond the position prior' if beyond_prior else ''})")
+
+
+def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
+    """Why a match.json holds no accepted answer, in `match`'s words (`no_match_text` for a verified one), for a
+    consumer's report (batch's `refused` column); None when it holds one. `doc`: the file as read
+    (`read_match_json`), `match`: as parsed from it (`parse_match`)."""
+    if match.accepted:
+        return None
+    ver = doc.get("verification")
+    if match.source != "verified" or not isinstance(ver, dict):
+        theta = "" if match.min_associations is None else f", fewer than theta_S {match.min_associations}"
+        return f"no match, not verified (its best candidate holds {len(match.associations)} associations{theta})"
+    chance = ver.get("chance") if isinstance(ver.get("chance"), dict) else {}
+    p, mean = chance.get("p_value"), chance.get("mean")
+    numeric = all(isinstance(x, (int, float)) and math.isfinite(x) for x in (p, mean))
+    # a verification without a best candidate records support 0 and no rms (`workflows.match.verification_json`)
+    best = None if ver.get("rms_m") is None and not len(match.associations) else len(match.associations)
+    return no_match_text(best, match.runner_up_support or 0, p if numeric else None, mean if numeric else None,
+                         bool(ver.get("beyond_prior", False)))
+
+
 def _check_verified_associations(assoc: np.ndarray, support: Any, path: Path) -> None:
     """The verification's associations are mutual nearest neighbours (each landmark at most once) and its support
     is their number: an edited list (a landmark paired twice, pairs removed) was merged and compared without a

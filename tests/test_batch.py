@@ -152,6 +152,12 @@ def test_batch_stages_failures_and_groups(flights, local_run):
     for name in ("report.md", "report.json", "sessions.csv", "pairs.csv", "session_graph.png"):
         assert (out / name).stat().st_size > 0
     assert "| A__B | done | True |" in (out / "report.md").read_text()
+    # a pair without an accepted answer says why in its `refused` column (the oracle's matches are not verified),
+    # and is no warning: most pairs of a folder of flights do not overlap
+    assert done["A__D"]["refused"] == "no match, not verified (its best candidate holds 0 associations)"
+    assert done["A__D"]["refused_by"] == "match" and not any("A__D" in w for w in report.warnings)
+    row = next(line for line in (out / "report.md").read_text().splitlines() if line.startswith("| A__D |"))
+    assert "| no match, not verified (its best candidate holds 0 associations) |" in row
 
 
 def test_resume_skips_finished_tasks(flights, local_run, tmp_path):

@@ -34,7 +34,7 @@ from ..database.landmark_map import (
     landmark_map_fingerprint,
 )
 from ..database.map_loading import LoadedMap, load_map
-from ..database.match_io import MATCH_FORMAT, parse_match
+from ..database.match_io import MATCH_FORMAT, no_match_text, parse_match
 from ..database.output_markers import fingerprint
 from ..database.outputs import open_output_dir
 from ..plugin import __version__
@@ -90,15 +90,11 @@ class MatchResult:
         ans = self.answer
         if ans is not None and ans.verification is not None:
             v = ans.verification
-            if not v.accepted:
-                # the runner-up is the best alignment that puts B elsewhere, chance placements included: it may
-                # hold more pairs than the best candidate ("best support 6, runner-up 8" read as a contradiction)
-                found = ("" if v.best is None else
-                         f" (the best candidate holds {len(v.best.associations)} associations, B placed elsewhere "
-                         f"{v.runner_up_support}{_chance_text(v)}"
-                         f"{', beyond the position prior' if v.beyond_prior else ''})")
-                return (f"{head}, verification: no match{found} ({self.times()}) -> "
-                        f"{self.out_dir / 'match.json'}")
+            if not v.accepted:  # in the words batch repeats from match.json (`match_io.refusal_note`)
+                said = no_match_text(None if v.best is None else len(v.best.associations), v.runner_up_support,
+                                     None if v.chance is None else v.chance.p_value,
+                                     None if v.chance is None else v.chance.mean, v.beyond_prior)
+                return f"{head}, {said} ({self.times()}) -> {self.out_dir / 'match.json'}"
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
             near = (f" within {ans.searched.position_prior_m:g} m (horizontally) of the georeference"
                     if ans.tolerances == "georeference" and ans.searched is not None else "")

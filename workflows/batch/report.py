@@ -41,10 +41,12 @@ class BatchReport:
     def warnings(self) -> list[str]:
         """What the batch's results say of its inputs without failing: pairs whose maps' georeferences disagree
         (`georeference_warning`, match's warning repeated), and accepted answers that merge's alignment control
-        refused (`refused`: left out of the session graph), and what a pair's change detection warned of
-        (`changes_warnings`, from its changes.json)."""
+        refused (`refused`, `refused_by` "control": left out of the session graph; a match's own "no match" is
+        its table row's, not a warning), and what a pair's change detection warned of (`changes_warnings`, from
+        its changes.json)."""
         return ([f"pair {p['pair']}: {p['georeference_warning']}" for p in self.pairs if p.get("georeference_warning")]
-                + [f"pair {p['pair']} refused: {p['refused']}" for p in self.pairs if p.get("refused")]
+                + [f"pair {p['pair']} refused: {p['refused']}" for p in self.pairs
+                   if p.get("refused") and p.get("refused_by", "control") == "control"]
                 + [f"pair {p['pair']} changes: {w}" for p in self.pairs for w in p.get("changes_warnings", ())])
 
     @property

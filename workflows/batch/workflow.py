@@ -167,6 +167,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
             pair_tasks[key] += (verify, options.overwrite)
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                        options.progress, _valid_match)
+    _match_refusals(pairs)
     matches = _read_matches(pairs)
     _georeference_warnings(pairs, matches, sessions)
     failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
@@ -195,6 +196,27 @@ def _read_matches(pairs: dict[str, dict[str, Any]]) -> dict[str, MatchSummary]:
 
     return {key: read_match(rec["match"]) for key, rec in pairs.items()
             if rec.get("status") == "done" and rec.get("accepted") and rec.get("match")}
+
+
+def _match_refusals(pairs: dict[str, dict[str, Any]]) -> None:
+    """Why each matched pair holds no accepted answer, in `match`'s words from its match.json
+    (`match_io.refusal_note`: best support, runner-up, chance p), as the pair's `refused` (`refused_by` "match"):
+    report.md showed only the support (13 against a runner-up of 13, p ~ 1, unsaid). Read here, for a pair matched
+    now and one a resumed batch reads finished alike; not a warning (most pairs of a folder of flights do not
+    overlap)."""
+    from ...database.match_io import parse_match, read_match_json, refusal_note
+    from ...plugin.errors import InputError
+
+    for rec in pairs.values():
+        if rec.get("status") != "done" or rec.get("accepted") or not rec.get("match"):
+            continue
+        try:
+            doc = read_match_json(rec["match"])
+            why = refusal_note(doc, parse_match(doc, Path(rec["match"])))
+        except InputError as e:  # it was read by the match stage a moment ago: say what is wrong with it now
+            why = f"its match.json cannot be read: {e}"
+        if why:
+            rec.update({"refused": why, "refused_by": "match"})
 
 
 def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary],
@@ -337,9 +359,10 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
     for key, res in done.items():
         rec = pairs[key]
         why = res.get("refused") if res["status"] == "done" else f"its alignment control failed: {res.get('error')}"
-        rec.pop("refused", None)
+        rec.pop("refused", None), rec.pop("refused_by", None)
         if why:
-            rec.update({"accepted": False, "refused": why, "refused_support": rec.get("num_associations"),
+            rec.update({"accepted": False, "refused": why, "refused_by": "control",
+                        "refused_support": rec.get("num_associations"),
                         "num_associations": 0, "transform": None})
             log.warning("pair %s refused: %s", key, why)
 
