@@ -668,3 +668,64 @@ def test_batch_maps_flights_of_photos_in_the_crs_it_is_given(tmp_path, monkeypat
         with pytest.raises(InputError, match="stop here"):
             map_task("F", "images", str(tmp_path / "F"), str(tmp_path / "s"), Params(), False, False, epsg)
     assert seen == [32760, None]
+
+
+def test_a_control_that_breaks_fails_its_pair_and_the_batch_and_a_rerun_redoes_it(tmp_path, monkeypatch, capsys):
+    """nu26: the code changed under a running batch, and 14 of 21 pairs were recorded as "refused: its alignment
+    control failed: ImportError: cannot import name 'read_user_json'", nothing merged, "ok", exit 0. An exception
+    that is no InputError says nothing of the pair: it fails (as a failed match), the batch exits 1, and the
+    re-run controls it again (its match resumed). The trigger is that ImportError, in-process: the readers the
+    control calls turn every corrupt file tried (truncated or garbage COLMAP binaries, landmark map and table,
+    a session without sparse/) into an InputError, so no input reaches it. A far flight's pairs, refused by
+    `match`'s verification, say why in report.md in match's words."""
+    from sosmatch.workflows import changes
+
+    world = make_world(260, extent_m=600, seed=11)
+    boxes = {"F1": (20, 140, 20, 140), "F2": (60, 180, 40, 160), "F3": (440, 560, 440, 560)}
+    for k, (name, box) in enumerate(boxes.items()):
+        write_toy_session(tmp_path / "flights" / name, world, lawnmower(*box, 60, 40, 12),
+                          yaw_transform(20 * k, (3 * k, 0, 0)), seed=k)
+    out = tmp_path / "out"
+    args = ["batch", str(tmp_path / "flights"), "--out", str(out), "--workers", "0", "--no-progress",
+            "--set", "association.window_stride=25"]
+    monkeypatch.delattr(changes, "check_alignment")  # `from ..changes import check_alignment`: ImportError
+    assert main(args) == 1
+    stdout = capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    pair = {p["pair"]: p for p in report["pairs"]}["F1__F2"]
+    assert pair["status"] == "failed" and not pair["accepted"] and "refused" not in pair
+    assert pair["error"].startswith("its alignment control failed: ImportError: cannot import name 'check_alignment'")
+    assert not report["ok"] and report["failures"] == [f"pair F1__F2: {pair['error']}"]
+    assert "FAILED pair F1__F2: its alignment control failed: ImportError" in stdout
+    assert not any("F1__F2" in w for w in report["warnings"])
+    assert "ImportError" in (out / "logs" / "control-F1__F2.log").read_text()
+    md = (out / "report.md").read_text()
+    assert "1 failure(s)" in md.splitlines()[2] and "| F1__F2 | failed | False |" in md
+    assert all(g["status"] == "single" for g in report["groups"])  # nothing merged on a pair nobody controlled
+    for key in ("F1__F3", "F2__F3"):
+        refused = {p["pair"]: p for p in report["pairs"]}[key]
+        assert refused["status"] == "done" and not refused["accepted"]
+        assert refused["refused"].startswith("verification: no match") and refused["refused_by"] == "match"
+        assert f"| {key} | done | False |" in md and f"| {refused['refused']} |" in md
+
+    monkeypatch.undo()  # the code is whole again: the re-run redoes the control, not the match
+    assert main(args) == 0
+    again = {p["pair"]: p for p in json.loads((out / "report.json").read_text())["pairs"]}
+    assert again["F1__F2"]["status"] == "done" and again["F1__F2"]["accepted"] and again["F1__F2"]["in_graph"]
+    assert all(p.get("resumed") for p in again.values())  # every match kept
+    groups = json.loads((out / "report.json").read_text())["groups"]
+    assert any(sorted(g["members"]) == ["F1", "F2"] and g["status"] == "done" for g in groups)
+
+
+def test_the_alignment_control_refuses_a_pair_whose_match_file_is_corrupt(flights, tmp_path):
+    """`alignment_task` reading the match itself (no parsed one given): a corrupt match.json is an InputError of
+    the pair's inputs, a refusal with its reason (it escaped the task before, and batch now reports any
+    exception that escapes as a failed pair)."""
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows.batch.tasks import alignment_task
+
+    root, _ = flights
+    bad = tmp_path / "match.json"
+    bad.write_text('{"format": "sosmatch match v1", "hypotheses": [')
+    res = alignment_task(str(root / "A"), str(root / "B"), str(bad), Sim3.identity().to_dict(), Params())
+    assert str(bad) in res["refused"]

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     with make_executor(args.workers, args.scheduler, args.dask_local) as executor:
         report = batch.run(args.flights_dir, args.out, params, executor, options)
     done = sum(s["status"] == "done" for s in report.sessions)
-    accepted = sum(bool(p.get("accepted")) for p in report.pairs)
+    accepted = sum(p["status"] == "done" and bool(p.get("accepted")) for p in report.pairs)
     print(f"{args.out}: {done}/{len(report.sessions)} sessions mapped, {len(report.pairs)} pairs "
           f"({accepted} accepted; {report.changes_line()}), {len(report.groups)} groups; report "
           f"{args.out / 'report.md'}")

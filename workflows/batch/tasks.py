@@ -119,15 +119,16 @@ def alignment_task(session_a: str, session_b: str, match_json: str, transform: d
     saw, at the match's own gate), for a pair before it joins the session graph: `merge_sessions` does not apply
     it, and `batch --no-verify` fused an unverified consensus 680 m off into a group. `match`: match_json as
     `match_io.read_match` parsed it (batch reads each pair's once; None: read here). Returns {"refused": None}
-    or {"refused": the control's one-line reason}."""
+    or {"refused": the control's one-line reason, also for an InputError of the pair's files}; anything else
+    raised is no verdict on the pair and fails the task (the batch reports the pair failed)."""
     from ...database.match_io import answer_gate, read_match
     from ...database.session_io import read_session
     from ...plugin.errors import InputError
     from ..changes import check_alignment
 
-    match = match if match is not None else read_match(match_json)
-    gate = answer_gate(match, params.association.distance_tolerance_m)  # as merge: the answer's own gate
     try:
+        match = match if match is not None else read_match(match_json)
+        gate = answer_gate(match, params.association.distance_tolerance_m)  # as merge: the answer's own gate
         check_alignment(read_session(session_a), read_session(session_b), Sim3.from_dict(transform), params,
                         match.source == "verified", gate, match_json, "left out of the session graph")
     except InputError as e:

@@ -283,7 +283,7 @@ def _graph_and_merge(
     _control_alignments(sims, sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir)
     edges, edge_keys = [], {}
     for key, sim in sims.items():
-        if not pairs[key]["accepted"]:  # refused by merge's control
+        if pairs[key]["status"] != "done" or not pairs[key]["accepted"]:  # refused by merge's control, or it failed
             continue
         a, b = key.split(PAIR_SEP)
         edge = Edge(index[a], index[b], sim, float(pairs[key]["num_associations"]))
@@ -342,9 +342,13 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
                         matches: dict[str, MatchSummary], pair_fps: dict[str, str], state: StateStore,
                         executor: Executor, options: BatchOptions, params: Params, out_dir: Path) -> None:
     """`sosmatch merge`'s control of every accepted pair's alignment (`alignment_task`), before the pair can join
-    the session graph: a pair it refuses is recorded as refused (`accepted` false, its associations as
-    `refused_support`, `refused`: the reason) and said in the log, as a refused match; it is no edge, no merge, no
-    changes. A control that fails (its sessions unreadable) leaves the pair out as well."""
+    the session graph: a pair it refuses (its verdict, or an InputError: a file of the pair's that cannot be read)
+    is recorded as refused (`accepted` false, its associations as `refused_support`, `refused`: the reason,
+    `refused_by` "control") and said in the log and the report's warnings; it is no edge, no merge, no changes.
+    A control that raises anything else (a bug, an ImportError of code changed under the run, a MemoryError) has
+    said nothing of the pair: the pair failed (`status` "failed", `error`, traceback in OUT/logs/), as a failed
+    match, counted in the report's failures and the exit code, and not saved as finished, so a re-run controls it
+    again (nu26: 14 of 21 pairs "refused" by an ImportError, nothing merged, "ok", exit 0)."""
     pdict = params_to_dict(params)
     tasks, fps = {}, {}
     for key, sim in sims.items():
@@ -358,12 +362,13 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
                      options.progress)
     for key, res in done.items():
         rec = pairs[key]
-        why = res.get("refused") if res["status"] == "done" else f"its alignment control failed: {res.get('error')}"
         rec.pop("refused", None), rec.pop("refused_by", None)
-        if why:
+        if res["status"] != "done":  # `record_result` logged it and wrote its traceback
+            rec.update({"status": "failed", "error": f"its alignment control failed: {res.get('error')}",
+                        "accepted": False, "num_associations": 0, "transform": None})
+        elif why := res.get("refused"):
             rec.update({"accepted": False, "refused": why, "refused_by": "control",
-                        "refused_support": rec.get("num_associations"),
-                        "num_associations": 0, "transform": None})
+                        "refused_support": rec.get("num_associations"), "num_associations": 0, "transform": None})
             log.warning("pair %s refused: %s", key, why)
 
 
