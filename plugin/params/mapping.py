@@ -60,8 +60,18 @@ class SegmentationParams(Checked):
     # keep their detail), as does imagery coarser than this (orthophoto views: no working size reaches it). 0.33:
     # the 0.32 m of the synthetic 100 m sessions the classical parameters were tuned on, with room for the 3 % by
     # which the measured flying height moves with the scene (features on crowns over snow: 96 m at 100 m), so those
-    # sessions keep their 400 px. 0 = always `classical_max_side`.
+    # sessions keep their 400 px. 0 = no ceiling.
     classical_ground_resolution_m: float = non_negative(0.33)
+    # (ours) the least ground one working pixel may cover (m): where `classical_max_side` would make working pixels
+    # finer than this (zoom cameras, low flights), the working size shrinks to image side x ground resolution /
+    # this and `classical_min_area_px` keeps its working pixels. The merge costs and kernels count working pixels,
+    # so finer ones split crowns into their lit, shaded and leafy parts: a zoom camera at 0.16 m mapped a 6 m
+    # crown as 12 landmarks of 0.4-1.3 m, at 0.31 m as one (BENCHMARKS.md, "A floor under the working pixel").
+    # 0.21: under Seneca's 0.227 m (real, 70 m) with room for the measured flying height's 3 % scatter, so
+    # Seneca keeps its 400 px: at 0.24 m, where synthetic zoom flights map crowns whole (size / (R/2) 1.06 against
+    # 0.40 at 0.21 m), the survey preset's Seneca map lost 11 % of its landmarks (370 -> 328), and at 0.32 m 40 %.
+    # A compromise: at 0.21 m crowns still come in 1-7 pieces (12 at 0.16 m). 0 = no floor.
+    classical_min_ground_resolution_m: float = non_negative(0.21)
     # median filter (working px) that removes leaf / furrow texture
     classical_median_ksize: int = count(5, 1, 255, odd=True)
     classical_smooth_sigma_color: float = non_negative(40.0)  # bilateral filter colour sigma (0..255 units)

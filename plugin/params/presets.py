@@ -113,30 +113,48 @@ MAX_WORK_SIDE_FACTOR = 2
 
 
 def for_ground_resolution(params: Params, ground_resolution_m: float, width: int, height: int) -> Params:
-    """`params` with the classical segmenter's working pixel no coarser than `classical_ground_resolution_m`.
+    """`params` with the classical segmenter's working pixel within [`classical_min_ground_resolution_m`,
+    `classical_ground_resolution_m`] of ground where resampling can reach that range.
 
-    `ground_resolution_m`: metres of ground per full-resolution pixel (flying height / focal length). Where the
-    fixed working size (`classical_max_side`) would make a working pixel cover more ground than the target, the
-    working longer side grows to max(width, height) x ground_resolution_m / target (at most the full size and
-    MAX_WORK_SIDE_FACTOR x the fixed one), and `classical_min_area_px` (full-resolution pixels) shrinks so that it
-    keeps its number of working pixels. A coarser working pixel merges neighbouring crowns and widens boundaries, so
-    the same objects came out larger from higher flights (130 m against 100 m: crowns 4-16 % larger); a finer one
-    changes sizes little and keeps the detail of low flights (Seneca at 0.22 m per working pixel: a rule that also
-    coarsened it to 0.32 m left 227 landmarks instead of 372; BENCHMARKS.md, "One working pixel, one ground size").
+    `ground_resolution_m`: metres of ground per full-resolution pixel (flying height / focal length). The working
+    longer side becomes max(width, height) x ground_resolution_m / bound for the bound the fixed working size
+    (`classical_max_side`) crosses, and `classical_min_area_px` (full-resolution pixels) scales so that it keeps
+    its number of working pixels: the segmenter's pixel-valued parameters (merge costs, kernels, smallest region)
+    keep the ground size they were tuned at.
 
-    The same object when the backend is not `classical`, the target is 0, the ground resolution is unknown, the
-    fixed size already meets the target, or the images are coarser than the target: no resampling reaches it
-    there, and the fixed size is what such imagery was measured with (the NAIP views at 2.5 m/px segmented at
-    their full size instead moved the 2009 / 2015 answer from 2.4 to 5.7 m off)."""
+    Ceiling (coarser than `classical_ground_resolution_m`): the side grows, at most to the full size and
+    MAX_WORK_SIDE_FACTOR x the fixed one. A coarser working pixel merges neighbouring crowns and widens
+    boundaries, so the same objects came out larger from higher flights (130 m against 100 m: crowns 4-16 %
+    larger; BENCHMARKS.md, "One working pixel, one ground size").
+
+    Floor (finer than `classical_min_ground_resolution_m`): the side shrinks. The Ward merge cost counts working
+    pixels and the median and texture kernels span a fixed number of them, so at a finer working pixel a crown's
+    lit and shaded parts and its leaf clumps stay apart: a zoom camera at 0.16 m per working pixel mapped one
+    6 m crown as 12 landmarks of 0.4-1.3 m (size / (R/2) 0.32 against ~1.05 at 0.31 m; BENCHMARKS.md, "A floor
+    under the working pixel"). The floor sits under Seneca's 0.227 m, whose landmarks a coarser pixel cost (at
+    0.24 m 11 %, at 0.32 m 40 %), so it is a compromise: at 0.21 m a crown still comes in up to 7 pieces.
+
+    The same object when the backend is not `classical`, the ground resolution is unknown, the fixed size's
+    working pixel is already within the bounds (a bound of 0 is off), or the images are coarser than the
+    ceiling: no resampling reaches it there, and the fixed size is what such imagery was measured with (the NAIP
+    views at 2.5 m/px segmented at their full size instead moved the 2009 / 2015 answer from 2.4 to 5.7 m off)."""
     seg = params.segmentation
-    target = seg.classical_ground_resolution_m
-    if seg.backend != "classical" or not target > 0 or not (np.isfinite(ground_resolution_m)
-                                                             and 0 < ground_resolution_m <= target):
+    ceiling, floor = seg.classical_ground_resolution_m, seg.classical_min_ground_resolution_m
+    if ceiling > 0:
+        floor = min(floor, ceiling)  # an inverted pair: the ceiling (the tuned pixel) wins
+    gsd = float(ground_resolution_m)
+    if seg.backend != "classical" or not (np.isfinite(gsd) and gsd > 0):
         return params
     full = max(int(width), int(height))
     fixed = min(full, seg.classical_max_side)
-    side = min(full, MAX_WORK_SIDE_FACTOR * fixed, int(np.ceil(full * float(ground_resolution_m) / target - 1e-9)))
-    if side <= fixed:  # the fixed size's working pixel is already no coarser than the target
+    working = gsd * full / fixed
+    if ceiling > 0 and ceiling < working and gsd <= ceiling:
+        side = min(full, MAX_WORK_SIDE_FACTOR * fixed, int(np.ceil(full * gsd / ceiling - 1e-9)))
+    elif floor > 0 and working < floor:
+        side = max(1, int(np.floor(full * gsd / floor + 1e-9)))  # the largest side at or above the floor
+    else:
+        return params
+    if side == fixed:
         return params
     area = int(round(seg.classical_min_area_px * (fixed / side) ** 2))
     return with_overrides(params, {"segmentation.classical_max_side": side, "segmentation.classical_min_area_px": area})

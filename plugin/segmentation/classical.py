@@ -1,8 +1,9 @@
 """`classical`: an open-set region segmenter from well-kept libraries (OpenCV, NumPy, SciPy); no weights.
 
 Pipeline, at a reduced working resolution (`classical_max_side`, 400 px; `sosmatch map` raises it from the flying
-height it measures where a working pixel would cover more than `classical_ground_resolution_m` of ground,
-`plugin.params.for_ground_resolution`):
+height it measures where a working pixel would cover more than `classical_ground_resolution_m` of ground, and lowers
+it where one would cover less than `classical_min_ground_resolution_m`: merge costs and kernels count working
+pixels, `plugin.params.for_ground_resolution`):
 1. smoothing: median filter (removes leaf / furrow texture finer than the kernel) then a bilateral filter;
 2. over-segmentation: marker-controlled watershed (OpenCV) seeded by the flat zones of the CIELAB gradient and
    by its minima deeper than the flat level (`classical_minima_depth`: a textured crown, bush or boulder on snow);
