@@ -120,7 +120,7 @@ def for_ground_resolution(params: Params, ground_resolution_m: float, width: int
     longer side becomes max(width, height) x ground_resolution_m / bound for the bound the fixed working size
     (`classical_max_side`) crosses, and `classical_min_area_px` (full-resolution pixels) scales so that it keeps
     its number of working pixels: the segmenter's pixel-valued parameters (merge costs, kernels, smallest region)
-    keep the ground size they were tuned at.
+    then cover the ground they cover at that bound.
 
     Ceiling (coarser than `classical_ground_resolution_m`): the side grows, at most to the full size and
     MAX_WORK_SIDE_FACTOR x the fixed one. A coarser working pixel merges neighbouring crowns and widens
