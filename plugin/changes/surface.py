@@ -296,15 +296,55 @@ def height_log_ratio(own_h: np.ndarray, other_h: np.ndarray, ref_own_h: np.ndarr
     return out
 
 
+def ground_noise_fit(ref_heights: np.ndarray) -> tuple[float, float, int]:
+    """The sweep's ground noise from reference places' heights above the ground: its standard deviation sigma (m),
+    the degrees of freedom of a normal sample that would measure it as precisely, and the number of places whose
+    level is at or below the ground's.
+
+    The sweep's heights are its levels, SWEEP_STEP_M apart (`heights_above_ground` takes the best level, it does
+    not interpolate), so a 0 stands for anything within half a step of the ground, half of it above. Objects only
+    ever add height, so only the places at or below the ground's level are ground alone. sigma is the maximum
+    likelihood fit of a zero-mean normal rounded to the levels (the bottom level holds all below it), given that
+    the level is at most the ground's: exact for such heights. (The root mean square of the heights at or below 0
+    counts every 0 as a whole place below the ground and measures sigma at 0.87 of it at 0.5 m; Sheppard's
+    correction, - step^2 / 12, would lower it further.) The degrees of freedom are n x the Fisher information per
+    place on log sigma / 2, which is n for unrounded heights: a level says less than the height it rounds."""
+    from scipy.stats import norm
+
+    h = np.asarray(ref_heights, dtype=np.float64)
+    bottom = int(round(SWEEP_BELOW_M / SWEEP_STEP_M))
+    depth = np.minimum(-np.round(h[np.isfinite(h)] / SWEEP_STEP_M), bottom)  # levels below the ground's
+    depth = depth[depth >= 0].astype(np.int64)
+    n = len(depth)
+    if not np.any(depth > 0):  # all within half a step of the ground: no noise the levels can show
+        return 0.0, float(n), n
+    counts = np.bincount(depth, minlength=bottom + 1)
+    lower = (np.arange(bottom + 2) - 0.5) * SWEEP_STEP_M  # depth j: the ground lies (j +- 1/2) steps above
+    lower[-1] = np.inf  # the bottom level: everything deeper
+
+    def log_p(log_sigma: np.ndarray) -> np.ndarray:
+        """(S, bottom + 1) log P(depth j | depth >= 0) at each sigma."""
+        tail = norm.logsf(lower[None, :] / np.exp(log_sigma)[:, None])  # log P(depth above lower edge j)
+        with np.errstate(divide="ignore"):
+            cell = tail[:, :-1] + np.log(-np.expm1(tail[:, 1:] - tail[:, :-1]))
+        return cell - tail[:, :1]
+
+    grid = np.linspace(np.log(1e-3), np.log(1e2), 1101)  # 1 % apart, then the parabola's vertex
+    like = log_p(grid) @ counts
+    i = int(np.clip(np.argmax(like), 1, len(grid) - 2))
+    log_sigma = grid[i] + _parabola(like[i - 1], like[i], like[i + 1]) * (grid[1] - grid[0])
+    q = np.exp(log_p(np.array([log_sigma])))[0]
+    d = np.diff(log_p(log_sigma + np.array([-1e-4, 1e-4])), axis=0)[0] / 2e-4  # d log P / d log sigma
+    info = float(np.sum(q * d * d))  # per place; 2 for an unrounded half-normal
+    return float(np.exp(log_sigma)), n * info / 2.0, n
+
+
 def ground_sweep_noise(ref_heights: np.ndarray, min_places: int = 10) -> float:
     """The standard deviation of the sweep's height at places of bare ground, from reference places' heights above
-    the ground in one session: the root mean square of those at or below the ground (objects only ever add height,
-    so that half is ground alone, mirrored). NaN with fewer than `min_places` such heights."""
-    h = np.asarray(ref_heights, dtype=np.float64)
-    low = h[np.isfinite(h) & (h <= 0.0)]
-    if len(low) < min_places:
-        return float("nan")
-    return float(np.sqrt(np.mean(low * low)))
+    the ground in one session (`ground_noise_fit`: objects only ever add height, so the places at or below the
+    ground are ground alone; the heights are the sweep's levels). NaN with fewer than `min_places` such places."""
+    sigma, _, n = ground_noise_fit(ref_heights)
+    return sigma if n >= min_places else float("nan")
 
 
 def footprint_places(points: np.ndarray, sizes: np.ndarray, ring: int) -> np.ndarray:
@@ -378,16 +418,24 @@ def shows_relief(ref_heights: np.ndarray, p: float) -> bool:
     h = h[np.isfinite(h)]
     if p >= 1.0 or not len(h):
         return False
-    sigma, low = ground_sweep_noise(h), int(np.count_nonzero(h <= 0.0))
+    sigma, dof = ground_sweep_noise(h), max(ground_noise_fit(h)[1], 1.0)
     levels = relief_levels(len(h), p)
     for level in range(1, levels + 1):
-        rate = p ** level
+        rate = chance = p ** level
         if np.isfinite(sigma):
-            # the noise is measured on `low` places: a new place's height over it is Student-t with that many
-            # degrees of freedom, whose tail far out is much heavier than the normal's on a few tens of places
-            standing = int(np.count_nonzero(h > max(float(t.isf(rate, low)) * sigma, SWEEP_STEP_M)))
+            # the noise is measured on a few tens of places: a new place's height over it is Student-t with the
+            # fit's degrees of freedom, whose tail far out is much heavier than the normal's
+            limit = max(float(t.isf(rate, dof)) * sigma, SWEEP_STEP_M)
+            standing = int(np.count_nonzero(h > limit))
+            if sigma > 0:
+                # a height is a level: the ground stands above the limit wherever it rounds to the first level
+                # above it, which starts up to half a step below the limit (at sigma 0.5 m and p 0.05: rate 0.067,
+                # not 0.05, so 300 places of bare ground showed relief in a quarter of the sessions); never
+                # taken below the level's rate, which the floor of one step and the untested tails far out keep
+                first = (np.floor(limit / SWEEP_STEP_M + 1e-9) + 0.5) * SWEEP_STEP_M
+                chance = max(rate, float(t.sf(first / sigma, dof)))
         else:  # too few ground places to measure the noise: every place stands (as `stands_above_ground`)
             standing = len(h)
-        if binom.sf(standing - 1, len(h), rate) < p / levels:
+        if binom.sf(standing - 1, len(h), chance) < p / levels:
             return True
     return False
