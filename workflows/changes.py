@@ -37,7 +37,14 @@ from ..database.changes_io import (
 )
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
-from ..database.match_io import answer_gate, check_match_maps, imprecise_note, read_match, unverified_note
+from ..database.match_io import (
+    answer_gate,
+    check_match_maps,
+    georeference_note,
+    imprecise_note,
+    read_match,
+    unverified_note,
+)
 from ..database.output_markers import fingerprint
 from ..database.outputs import check_output_dir, open_output_dir
 from ..database.session_io import (
@@ -91,7 +98,8 @@ class ChangesRun:
 
 def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path | None, params: Params | None = None,
             a_from_b: Sim3 | None = None, verified: bool = False, images_a: str | Path | None = None,
-            images_b: str | Path | None = None, answer_gate_m: float | None = None) -> ChangesRun:
+            images_b: str | Path | None = None, answer_gate_m: float | None = None,
+            trust_images: bool = False) -> ChangesRun:
     """Read, check and classify; nothing is written. The match must be accepted and computed for exactly these
     two maps (`match_io.check_match_maps`). `a_from_b` overrides the match's transform (batch passes its verified
     alignment with `verified=True`, and its match's gate as `answer_gate_m`); `match_json` may then be None.
@@ -102,7 +110,12 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     That control runs at the gate of the match that produced the transform (`match_io.answer_gate`, as merge and
     batch run it: `check_alignment`); only without one (a transform given otherwise and no `answer_gate_m`, or a
     match.json that records none) at the configured theta_eps. The classification's counterpart gate is the
-    configured theta_eps's (`params.association.distance_tolerance_m`, where it was calibrated)."""
+    configured theta_eps's (`params.association.distance_tolerance_m`, where it was calibrated).
+
+    A match whose images agree while the two maps' georeferences do not (`match_io.georeference_note`, the rule
+    of `match`, `merge` and `batch`) is refused unless `trust_images` (then said in the warnings): one
+    georeference is wrong, or the images agree on another site that looks alike, and changes.geojson would place
+    the verdicts by A's."""
     params = params or Params()
     t0 = time.perf_counter()
     match = None
@@ -133,6 +146,12 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     tracks = params.changes.unmapped_objects
     dirs = [None, None]
     warnings = []  # said once every check has passed: a refused run prints its one-line error alone
+    if match is not None and (note := georeference_note(match, files_a.landmarks, files_b.landmarks)) is not None:
+        if not trust_images:  # as merge: which georeference stands (or whether the images do) is the user's call
+            raise InputError(f"B: {note}; nothing compared (--trust-images compares them all the same, in A's frame "
+                             "and georeference)", match_json)
+        warnings.append(f"{session_b}: {note}; compared all the same (--trust-images): changes.geojson is placed by "
+                        f"{session_a}'s georeference")
     if match is not None and (note := imprecise_note(match)) is not None:
         warnings.append(f"{match_json}: {note}: objects near the far side of the common area may be compared "
                         "with the wrong partners")
@@ -367,13 +386,15 @@ def output_identity(run: ChangesRun, params: Params, plot: bool) -> str:
 
 def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, out_dir: str | Path,
         params: Params | None = None, plot: bool = True, overwrite: bool = False,
-        images_a: str | Path | None = None, images_b: str | Path | None = None) -> ChangesRun:
+        images_a: str | Path | None = None, images_b: str | Path | None = None,
+        trust_images: bool = False) -> ChangesRun:
     """Classify every landmark of A and B against the other session and write the outputs (module docstring).
 
     Raises InputError, with nothing written, for a match without an accepted transform, a match of other maps,
     the same session (or map) twice, a map without landmarks, sessions without keyframe poses or ground
     footprints, no common observed ground, or an output directory that is an input or not ours
-    (`database.outputs`, checked before any work; `overwrite` replaces a complete changes output of other inputs).
+    (`database.outputs`, checked before any work; `overwrite` replaces a complete changes output of other inputs),
+    or a match whose images agree while the maps' georeferences do not, unless `trust_images` (`compute`).
     """
     params = params or Params()
     out_dir = Path(out_dir)
@@ -382,7 +403,8 @@ def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, ou
     check_output_dir(out_dir, "changes", legacy_record="changes.json",
                      inputs=[p for p in (session_a, session_b, match_json, *images) if p is not None])
     check_output_entries(out_dir)
-    changes = compute(session_a, session_b, match_json, params, images_a=images_a, images_b=images_b)
+    changes = compute(session_a, session_b, match_json, params, images_a=images_a, images_b=images_b,
+                      trust_images=trust_images)
     with open_output_dir(out_dir, "changes", output_identity(changes, params, plot),
                          inputs=[session_a, session_b, match_json], overwrite=overwrite,
                          legacy_record="changes.json") as out:

@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plot", action="store_true", help="skip changes.png")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a complete `sosmatch changes` output in --out made from other inputs")
+    parser.add_argument("--trust-images", action="store_true",
+                        help="compare even when the match's images agree but the two maps' georeferences disagree "
+                             "beyond association.georeference_prior_m (one of them is wrong; changes.geojson keeps "
+                             "A's); refused without it")
     add_params_arguments(parser)
 
 
@@ -43,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--min-confidence must be between 0 and 1, got {args.min_confidence}")
         params = with_overrides(params, {"changes.min_confidence": float(args.min_confidence)})
     result = run_changes(args.session_a, args.session_b, args.match, args.out, params, plot=not args.no_plot,
-                         overwrite=args.overwrite, images_a=args.images_a, images_b=args.images_b)
+                         overwrite=args.overwrite, images_a=args.images_a, images_b=args.images_b,
+                         trust_images=args.trust_images)
     print(f"changes: {result.summary()} -> {args.out / 'changes.csv'}")
     return 0
