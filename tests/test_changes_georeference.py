@@ -3,7 +3,6 @@ refuses it (one line, exit 2, nothing written) unless --trust-images, which comp
 The fixtures are those of test_merge.py's georeference test."""
 
 import json
-import shutil
 
 import pytest
 
