@@ -180,6 +180,38 @@ def test_a_pair_without_positive_keyframe_pairs_is_refused(sessions, tmp_path, c
     write_poses_csv(b / "poses.csv", poses)
     err = cli_error("evaluate", a, b, "--methods", "sosmatch", "--repeats", "1", "--out", tmp_path / "e")
     assert "IoU > 0.333" in err and "largest 0.0" in err and not (tmp_path / "e").exists()
+    assert "mostly by the heights" in err and "IoU cannot exceed 0.0" in err
+
+
+def test_a_pair_of_other_lenses_is_refused_for_its_fields_of_view(sessions, tmp_path, cli_error):
+    """The twenty-sixth sweep: a wide-angle flight (84 deg across, 80 m) against a zoom (30 deg, 120 m) was refused
+    as flights that "differ this much in height"; the footprints' areas differ by the lenses, and the refusal says
+    so with both figures. B here has A's heights and a 3.5x longer lens."""
+    import shutil
+
+    root, a, b0, _ = sessions
+    b = tmp_path / "B"
+    shutil.copytree(b0, b)
+    write_cameras_txt(b / "cameras.txt", {1: Camera(200, 150, 3.5 * CAM.fx, 3.5 * CAM.fy, CAM.cx, CAM.cy)})
+    err = cli_error("evaluate", a, b, "--methods", "sosmatch", "--repeats", "1", "--out", tmp_path / "e")
+    assert "IoU > 0.333" in err and "mostly by the fields of view (85 and 29 deg across" in err
+    assert "differ this much in height" not in err and not (tmp_path / "e").exists()
+
+
+def test_flights_that_do_not_overlap_are_told_so(sessions, tmp_path, cli_error):
+    """Footprints of one size far apart: not their sizes, their places."""
+    import shutil
+
+    from sosmatch.database.poses import read_poses_csv
+
+    root, a, b0, _ = sessions
+    b = tmp_path / "B"
+    shutil.copytree(b0, b)
+    poses, _ = read_poses_csv(b / "poses.csv")
+    poses.centers[:, 1] += 2000.0
+    write_poses_csv(b / "poses.csv", poses)
+    err = cli_error("evaluate", a, b, "--methods", "sosmatch", "--repeats", "1", "--out", tmp_path / "e")
+    assert "largest 0.00" in err and "the flights do not overlap enough" in err and not (tmp_path / "e").exists()
 
 
 def test_a_refused_verification_claims_nothing(sessions, tmp_path):

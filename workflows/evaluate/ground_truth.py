@@ -39,6 +39,7 @@ class GroundTruthSession:
     footprints: np.ndarray  # (K,) shapely polygons
     camera: Any = None  # the session's camera (cameras.txt)
     off_nadir_deg: float = 0.0  # the keyframes' median viewing angle from straight down
+    height_m: float = float("nan")  # the keyframes' median camera height above the terrain
 
 
 def load_ground_truth(params: Params, session: str | Path, dem: str | Path | None = None,
@@ -55,9 +56,12 @@ def load_ground_truth(params: Params, session: str | Path, dem: str | Path | Non
     polys = footprint_polygons(camera, poses.rotations[keys], poses.centers[keys], terrain)
     from ...plugin.gps_track import off_nadir_deg
 
-    return GroundTruthSession(session, [poses.names[k] for k in keys], keys, poses.centers[keys],
+    centers = poses.centers[keys]
+    return GroundTruthSession(session, [poses.names[k] for k in keys], keys, centers,
                               list(poses.names), poses.centers, polys, camera,
-                              float(np.median(off_nadir_deg(poses.rotations[keys]))) if len(keys) else 0.0)
+                              float(np.median(off_nadir_deg(poses.rotations[keys]))) if len(keys) else 0.0,
+                              float(np.median(centers[:, 2] - terrain(centers[:, 0], centers[:, 1])))
+                              if len(keys) else float("nan"))
 
 
 def check_same_ground_truth_frame(session_a: Path, session_b: Path) -> None:
@@ -70,10 +74,37 @@ def check_same_ground_truth_frame(session_a: Path, session_b: Path) -> None:
                          "sessions share no ground truth to score a match against", session_b / "session.json")
 
 
+def _across_deg(camera: Any) -> float:
+    """The camera's field of view across its width through the principal point (degrees; NaN when unknown)."""
+    if camera is None:
+        return float("nan")
+    x = camera.cam_from_img(np.array([[0.0, camera.cy], [float(camera.width), camera.cy]]))[:, 0]
+    return float(np.degrees(np.arctan(x[1]) - np.arctan(x[0])))
+
+
+def footprint_size_cause(gt_a: GroundTruthSession, gt_b: GroundTruthSession, area_a: float, area_b: float) -> str:
+    """Why two sessions' footprints differ in area, as measured: a footprint grows with the square of the camera's
+    height above the ground and with its lens' field of view, so B's area over A's is the heights' factor (h_B /
+    h_A)^2 times the rest (the fields of view, and how obliquely the cameras look); the larger of the two is named
+    first (factors of B's area over A's). A wide-angle flight at 80 m against a zoom at 120 m was told they
+    "differ this much in height"."""
+    fov = f"{_across_deg(gt_a.camera):.0f} and {_across_deg(gt_b.camera):.0f} deg across"
+    heights = f"{gt_a.height_m:.0f} and {gt_b.height_m:.0f} m above ground"
+    if not (gt_a.height_m > 0 and gt_b.height_m > 0 and area_a > 0 and area_b > 0):
+        return f"fields of view {fov}, heights {heights}"
+    by_height = (gt_b.height_m / gt_a.height_m) ** 2
+    by_lens = area_b / area_a / by_height
+    parts = [(abs(np.log(by_height)), f"the heights ({heights}: x{by_height:.2f})"),
+             (abs(np.log(by_lens)), f"the fields of view ({fov}: x{by_lens:.2f})")]
+    parts.sort(key=lambda p: -p[0])
+    return f"mostly by {parts[0][1]}, less by {parts[1][1]}"
+
+
 def check_positive_pairs(gt_a: GroundTruthSession, gt_b: GroundTruthSession, iou: np.ndarray, where: Path) -> None:
     """Refuse a pair without one keyframe pair of IoU > TP_IOU: recall and F1 are undefined there, and the table
     said 0.000 with exit 0, also for a right alignment. IoU cannot exceed the ratio of the footprints' areas, so
-    flights at very different heights (80 m and 150 m: 0.23) never reach it, nor do flights that do not overlap."""
+    flights at very different heights (80 m and 150 m: 0.23) or with very different lenses (84 and 30 deg across:
+    0.20) never reach it, nor do flights that do not overlap; the message names which of these it measured."""
     if iou.size and np.any(iou > TP_IOU):
         return
     import shapely
@@ -81,9 +112,15 @@ def check_positive_pairs(gt_a: GroundTruthSession, gt_b: GroundTruthSession, iou
     area_a, area_b = (float(np.median(shapely.area(g.footprints))) if len(g.footprints) else 0.0
                       for g in (gt_a, gt_b))
     largest = float(iou.max()) if iou.size else 0.0
-    raise InputError(f"no keyframe pair of the two sessions overlaps by IoU > {TP_IOU:.3f} (largest {largest:.2f}; "
-                     f"median footprints {area_a:.0f} and {area_b:.0f} m^2): the protocol's recall and F1 are "
-                     "undefined for flights that do not overlap or differ this much in height", where)
+    head = f"no keyframe pair of the two sessions overlaps by IoU > {TP_IOU:.3f} (largest {largest:.2f})"
+    cap = min(area_a, area_b) / max(area_a, area_b) if min(area_a, area_b) > 0 else 0.0
+    if cap > TP_IOU or not min(area_a, area_b) > 0:  # the sizes allow it: where the footprints lie does not
+        raise InputError(f"{head}; median footprints {area_a:.0f} and {area_b:.0f} m^2, whose sizes allow IoU up to "
+                         f"{cap:.2f}: the flights do not overlap enough; the protocol's recall and F1 are undefined "
+                         "for flights that do not overlap", where)
+    raise InputError(f"{head}: median footprints {area_a:.0f} and {area_b:.0f} m^2 (IoU cannot exceed {cap:.2f}), "
+                     f"{footprint_size_cause(gt_a, gt_b, area_a, area_b)}: the protocol's recall and F1 are undefined "
+                     "for footprints this different in size", where)
 
 
 def _keyframe_of_names(gt: GroundTruthSession, names: Sequence[str], where: Path) -> np.ndarray:
