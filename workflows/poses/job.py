@@ -27,7 +27,7 @@ from ...plugin.geometry import Poses
 from ...plugin.params import Params, params_to_dict
 from .. import sfm
 from ..image_priors import ImagePriors, list_images, read_image_priors
-from .checks import NOMINAL_HEIGHT_M, _check_focal_lengths, _compare, _register, _transform_model
+from .checks import NOMINAL_HEIGHT_M, _check_focal_lengths, _compare, _register, _transform_model, flying_height_m
 from .result import OUTPUTS, RECORD, PosesResult, _listing, _refuse_cameras, load_result, map_inputs
 
 log = logging.getLogger(__name__)
@@ -206,7 +206,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
             index = np.array([priors.names.index(n) for n in names])
     comparison = _compare(priors, index, poses, warnings)
     cameras = sfm.camera_of_model(model)
-    _check_focal_lengths(priors, cameras, warnings)
+    _check_focal_lengths(priors, cameras, warnings, flying_height_m(model.reconstruction))
     camera_of_image = {im.name: int(im.camera_id) for im in model.reconstruction.images.values() if im.has_pose}
     rec = model.reconstruction
     reprojection = float(np.mean([p.error for p in rec.points3D.values()])) if rec.num_points3D() else 0.0
