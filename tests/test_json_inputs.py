@@ -18,7 +18,7 @@ from sosmatch.database.session_io import read_map_record
 from sosmatch.database.synth_session import ground_truth_frame, load_synth_session
 from sosmatch.database.text_input import TEXT_LIMIT_BYTES
 from sosmatch.plugin.errors import InputError
-from sosmatch.workflows.merge import flight_maps
+from sosmatch.workflows.merge_pairs import flight_maps
 from sosmatch.workflows.poses import load_result
 
 # format -> (the file's name in its folder, the reader called on the folder or the file)

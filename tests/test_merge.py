@@ -26,7 +26,7 @@ from sosmatch.tools.toy_sessions import (
     write_toy_session,
     yaw_transform,
 )
-from sosmatch.workflows import merge
+from sosmatch.workflows import merge, merge_pairs
 
 
 @pytest.fixture(scope="module")
@@ -326,8 +326,8 @@ def test_merge_refine_iterates_where_one_refit_cannot(pair, tmp_path):
     bad = about.compose(truth)
     match = toy_match_json(a, b, tmp_path / "match.json", transform=bad)
     pts = read_session(b.path).landmarks.positions
-    one, _ = merge.refine_transform(read_session(a.path), read_session(b.path), read_match(match).associations, bad,
-                                    False, 2.0)
+    one, _ = merge_pairs.refine_transform(read_session(a.path), read_session(b.path),
+                                          read_match(match).associations, bad, False, 2.0)
     refined = merge.run(a.path, b.path, match, tmp_path / "refined", refine=True)
     err_one, err_iter = transform_error(one, truth, pts), transform_error(refined.transforms[1], truth, pts)
     assert err_iter[0] < 0.1 and err_iter[1] < 0.1
@@ -428,8 +428,8 @@ def test_a_flight_already_in_a_merged_map_is_not_merged_again(pair, tmp_path):
     root, world, a, b = pair
     merge.run(a.path, b.path, toy_match_json(a, b, tmp_path / "match.json"), tmp_path / "M")
     merged = read_session(tmp_path / "M")
-    flights = [merge.flight_maps(read_session(p)) for p in (a.path, b.path)]
-    assert merge.flight_maps(merged) == sorted(flights[0] + flights[1])
+    flights = [merge_pairs.flight_maps(read_session(p)) for p in (a.path, b.path)]
+    assert merge_pairs.flight_maps(merged) == sorted(flights[0] + flights[1])
     with pytest.raises(InputError, match="holds a flight that .* holds already"):
         merge.merge_sessions([merged, read_session(b.path)], [Sim3.identity(), Sim3.identity()], [],
                              tmp_path / "again")

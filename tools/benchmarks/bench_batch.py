@@ -253,13 +253,13 @@ def evaluate(report: dict, flights: dict[str, Path], pair_truth: object, footpri
 def step_errors(report: dict, pair_truth: object) -> list[str]:
     """Table rows: what each refinement step does to the match's consensus transform, per pair (errors as in the
     main table: m / deg, then horizontal m / yaw deg). Steps: the consensus (one group of agreeing windows);
-    `merge.refine_transform` (one 6-DOF refit on the consensus' associations within theta_eps);
+    `merge_pairs.refine_transform` (one 6-DOF refit on the consensus' associations within theta_eps);
     `refine_alignment` 6-DOF and 4-DOF (iterated mutual nearest neighbours on the full maps, size-gated, Huber)."""
     from ...database.match_io import read_match
     from ...database.session_io import read_session
     from ...plugin.params import Params
     from ...plugin.refinement import refine_alignment
-    from ...workflows.merge import refine_transform
+    from ...workflows.merge_pairs import refine_transform
 
     ap = Params().association
     sessions = {s["name"]: s["session"] for s in report["sessions"]}
@@ -410,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
         lines += [
             "", "Each refinement step applied to the match's consensus transform (error m / deg, in brackets "
             "horizontal m / yaw deg; right only where the consensus was right):", "",
-            "| pair | consensus \\|S\\| | consensus | one 6-DOF refit (merge.refine_transform) | "
+            "| pair | consensus \\|S\\| | consensus | one 6-DOF refit (merge_pairs.refine_transform) | "
             "full-map ICP 6-DOF | full-map ICP 4-DOF |", "|---|---|---|---|---|---|", *steps,
         ]
     text = "\n".join(lines)

@@ -151,7 +151,8 @@ def merge_task(
     as `match_io.read_match` parsed it (batch reads each pair's once; None: read here)."""
     from ...database.match_io import check_match_maps, georeference_note, read_match
     from ...database.session_io import read_session
-    from ..merge import match_fuse_pair, merge_sessions
+    from ..merge import merge_sessions
+    from ..merge_pairs import match_fuse_pair
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3.from_dict(t) for t in transforms]

@@ -425,7 +425,7 @@ def _changes_warnings(key: str, rec: dict[str, Any]) -> None:
 
 def _refined(session_a: str, session_b: str, m: MatchSummary, sim: Sim3, params: Params) -> Sim3:
     from ...database.session_io import read_session
-    from ..merge import refine_transform
+    from ..merge_pairs import refine_transform
 
     refined, _ = refine_transform(read_session(session_a), read_session(session_b), m.associations, sim,
                                   params.association.transform == "similarity", params.association.distance_tolerance_m)
