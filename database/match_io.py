@@ -376,6 +376,19 @@ def georeference_note(match: MatchSummary, map_a: LandmarkMap | None = None,
                                      match.position_prior)
 
 
+def check_georeferences(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap, match_json: str | Path,
+                        trust_images: bool, done: str, doing: str) -> str | None:
+    """The rule of `merge` and `changes` for an answer whose images agree and whose maps' georeferences do not
+    (`georeference_note`): InputError naming `match_json` unless `trust_images` ("B: ...; nothing `done`
+    (--trust-images `doing` all the same, in A's frame and georeference)"): which georeference stands, or whether
+    the images do, is the user's call. Returns the note when trusted (for the caller's warning), else None."""
+    note = georeference_note(match, map_a, map_b)
+    if note is not None and not trust_images:
+        raise InputError(f"B: {note}; nothing {done} (--trust-images {doing} all the same, in A's frame and "
+                         "georeference)", match_json)
+    return note
+
+
 def no_match_text(best_support: int | None, runner_up: int, chance_p: float | None = None,
                   chance_mean: float | None = None, beyond_prior: bool = False) -> str:
     """What `sosmatch match` says of a verification that found no match: "verification: no match (the best

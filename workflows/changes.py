@@ -39,8 +39,8 @@ from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
 from ..database.match_io import (
     answer_gate,
+    check_georeferences,
     check_match_maps,
-    georeference_note,
     imprecise_note,
     read_match,
     unverified_note,
@@ -146,10 +146,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     tracks = params.changes.unmapped_objects
     dirs = [None, None]
     warnings = []  # said once every check has passed: a refused run prints its one-line error alone
-    if match is not None and (note := georeference_note(match, files_a.landmarks, files_b.landmarks)) is not None:
-        if not trust_images:  # as merge: which georeference stands (or whether the images do) is the user's call
-            raise InputError(f"B: {note}; nothing compared (--trust-images compares them all the same, in A's frame "
-                             "and georeference)", match_json)
+    if match is not None and (note := check_georeferences(match, files_a.landmarks, files_b.landmarks, match_json,
+                                                          trust_images, "compared", "compares them")) is not None:
         warnings.append(f"{session_b}: {note}; compared all the same (--trust-images): changes.geojson is placed by "
                         f"{session_a}'s georeference")
     if match is not None and (note := imprecise_note(match)) is not None:

@@ -42,8 +42,8 @@ from ..database.landmark_map import LandmarkMap, crs_disagreement, write_landmar
 from ..database.map_loading import session_map_noise
 from ..database.match_io import (
     answer_gate,
+    check_georeferences,
     check_match_maps,
-    georeference_note,
     imprecise_note,
     read_match,
     unverified_note,
@@ -363,10 +363,9 @@ def run(
                     "its georeference")
     if (note := imprecise_note(match)) is not None:
         said.append(f"{match_json}: {note}: the merged model inherits that error")
-    if (note := georeference_note(match, a.landmarks, b.landmarks)) is not None:
-        if not trust_images:  # a probably wrong result is no success: the user decides which georeference stands
-            raise InputError(f"B: {note}; nothing merged (--trust-images merges it all the same, in A's frame and "
-                             "georeference)", match_json)
+    # a probably wrong result is no success: the user decides which georeference stands
+    if (note := check_georeferences(match, a.landmarks, b.landmarks, match_json, trust_images, "merged",
+                                    "merges it")) is not None:
         said.append(f"{session_b}: {note}; merged all the same (--trust-images): the model keeps {session_a}'s "
                     "georeference")
     if (note := unverified_note(match)) is not None:
