@@ -21,6 +21,9 @@ from sosmatch.tools.cli import main
 from sosmatch.tools.toy_sessions import (
     lawnmower,
     make_world,
+    overlapping_pair,
+    record_georeference_offset,
+    stamp_epsg,
     toy_match_json,
     true_associations,
     write_toy_session,
@@ -32,12 +35,7 @@ from sosmatch.workflows import merge, merge_pairs
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
     root = tmp_path_factory.mktemp("pair")
-    world = make_world(260, seed=11)
-    a = write_toy_session(root / "A", world, lawnmower(20, 140, 20, 140, 60, 40, 10), Sim3.identity(), seed=1)
-    b = write_toy_session(
-        root / "B", world, lawnmower(90, 220, 90, 220, 60, 40, 10), yaw_transform(40, (15, -8, 3)), seed=2
-    )
-    return root, world, a, b
+    return (root, *overlapping_pair(root))
 
 
 def test_umeyama_recovers_similarity():
@@ -484,22 +482,6 @@ def test_a_transform_that_does_not_bring_the_maps_together_is_refused_as_changes
     assert main(["merge", str(a.path), str(b.path), "--match", str(right), "--out", str(tmp_path / "R")]) == 0
 
 
-def _recorded_georeference(match_json, b_path, radius_m=50.0):
-    """What `match` records of maps in one EPSG: how far the answer moves B from its georeference (the median over
-    its paired landmarks, `chance.median_horizontal_move`), the radius and how the search used it."""
-    from sosmatch.plugin.chance import median_horizontal_move
-
-    m = read_match(match_json)
-    off = median_horizontal_move(m.transform, read_landmark_map(b_path / "landmarks.sosmap").positions[
-        m.associations[:, 1]])
-    data = json.loads(match_json.read_text())
-    data["search_mode"] = {"position_prior": f"georeference {radius_m:g} m: refused there",
-                           "georeference_off_m": round(off, 2)}
-    data["params"] = {"association": {"georeference_prior_m": radius_m}}
-    match_json.write_text(json.dumps(data))
-    return off
-
-
 def test_merge_refuses_maps_whose_georeferences_disagree_unless_told_to_trust_the_images(pair, tmp_path, capsys,
                                                                                         caplog):
     """The twenty-first sweep: two flights 428 m apart by their georeferences (another --geo-origin): `match` warned,
@@ -507,18 +489,14 @@ def test_merge_refuses_maps_whose_georeferences_disagree_unless_told_to_trust_th
     images agree and the georeferences do not (`match_io.georeference_note`, the rule `match` uses): one is wrong,
     so merge refuses in one line (exit 2, nothing written) unless --trust-images, which merges and says so in its
     log and merge.json; within the radius it says nothing."""
-    from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
-
     _, _, a, b = pair
     geo = []
     for s in (a, b):
         shutil.copytree(s.path, tmp_path / f"{s.path.name}geo")
-        lm = read_landmark_map(s.path / "landmarks.sosmap")
-        write_landmark_map(tmp_path / f"{s.path.name}geo" / "landmarks.sosmap",
-                           LandmarkMap(lm.positions, lm.sizes, lm.origin, 32617))
+        stamp_epsg(tmp_path / f"{s.path.name}geo", 32617)
         geo.append(s.__class__(tmp_path / f"{s.path.name}geo", s.session_from_world, s.object_ids))
     match = toy_match_json(*geo, tmp_path / "far.json")
-    off = _recorded_georeference(match, geo[1].path)
+    off = record_georeference_offset(match, geo[1].path)
     assert off > 50.0
     command = ["merge", str(geo[0].path), str(geo[1].path), "--match", str(match)]
     capsys.readouterr()
@@ -533,7 +511,7 @@ def test_merge_refuses_maps_whose_georeferences_disagree_unless_told_to_trust_th
     assert any(said in w and "--trust-images" in w for w in record["warnings"])
     caplog.clear()
     near = toy_match_json(*geo, tmp_path / "near.json")
-    _recorded_georeference(near, geo[1].path, radius_m=2 * off)
+    record_georeference_offset(near, geo[1].path, radius_m=2 * off)
     with caplog.at_level("WARNING"):
         assert main(["merge", str(geo[0].path), str(geo[1].path), "--match", str(near), "--out",
                      str(tmp_path / "N")]) == 0

@@ -367,3 +367,40 @@ def render_nadir_images(poses: Poses, camera: Camera, positions: np.ndarray, siz
             img[box] = np.where(r <= 2.0 * sizes[i], tex, img[box])
         images.append(np.clip(gain * img + offset + noise.normal(0.0, 3.0, img.shape), 0, 255).astype(np.float32))
     return images
+
+
+def record_georeference_offset(match_json: str | Path, b_path: str | Path, radius_m: float = 50.0) -> float:
+    """Write into a toy match.json what `match` records of maps in one EPSG: how far the answer moves B from its
+    georeference (the median over its paired landmarks, `chance.median_horizontal_move`), the radius it is trusted
+    to and how the search used it; returns that offset (m). For the georeference rule of merge, changes, batch."""
+    from ..database.match_io import read_match
+    from ..plugin.chance import median_horizontal_move
+
+    match_json = Path(match_json)
+    m = read_match(match_json)
+    off = median_horizontal_move(m.transform, read_landmark_map(Path(b_path) / "landmarks.sosmap").positions[
+        m.associations[:, 1]])
+    data = json.loads(match_json.read_text())
+    data["search_mode"] = {"position_prior": f"georeference {radius_m:g} m: refused there",
+                           "georeference_off_m": round(off, 2)}
+    data["params"] = {"association": {"georeference_prior_m": radius_m}}
+    match_json.write_text(json.dumps(data))
+    return off
+
+
+def overlapping_pair(root: str | Path) -> tuple[ToyWorld, ToySession, ToySession]:
+    """Two toy sessions of one 260-object world that overlap in part (B turned 40 deg and shifted against the
+    world), in ROOT/A and ROOT/B: the pair of the merge, changes and georeference tests."""
+    root = Path(root)
+    world = make_world(260, seed=11)
+    a = write_toy_session(root / "A", world, lawnmower(20, 140, 20, 140, 60, 40, 10), Sim3.identity(), seed=1)
+    b = write_toy_session(root / "B", world, lawnmower(90, 220, 90, 220, 60, 40, 10), yaw_transform(40, (15, -8, 3)),
+                          seed=2)
+    return world, a, b
+
+
+def stamp_epsg(session_dir: str | Path, epsg: int) -> None:
+    """Give a toy session's landmark map the EPSG code `epsg` (positions unchanged): a georeferenced map."""
+    path = Path(session_dir) / "landmarks.sosmap"
+    lm = read_landmark_map(path)
+    write_landmark_map(path, LandmarkMap(lm.positions, lm.sizes, lm.origin, epsg))
