@@ -123,12 +123,6 @@ def unfinished_run(path: str | Path) -> UnfinishedRun | None:
     return UnfinishedRun(command if isinstance(command, str) else "?", state, holder)
 
 
-def unfinished_output(path: str | Path) -> str | None:
-    """The command whose run in directory `path` has not finished (`unfinished_run`), else None."""
-    run = unfinished_run(path)
-    return None if run is None else run.command
-
-
 def check_input_finished(path: str | Path) -> None:
     """`check_finished` of the sosmatch output that holds the input `path`: the nearest of `path` (a directory)
     and its parents, up to three levels (a model's points3D.bin in sparse/0 of a merged model), with an output
