@@ -125,15 +125,12 @@ def poses_fit_images(check: PoseCheck, limits: PoseCheckParams) -> str:
     (passes without landmarks, few tracks triangulated, passes disagreeing) quote it, so that a map thinned by
     its images is not blamed on poses that were measured to fit (the 23rd new-user sweep: Gaussian noise on the
     images of unchanged EKF poses was reported as "a wrong heading")."""
-    gate = check.gate_px
     if check.pairs_checked < limits.min_pairs or not np.isfinite(check.epipolar_p50_px) or check.reversed_passes:
         return ""
-    if check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * gate:
-        return ""
-    if any(p.epipolar_px > limits.warn_pair_gate_fraction * gate for p in check.pairs):
+    if poses_loose(check, limits):
         return ""
     return (f"the pose check found the poses fitting the images ({check.pairs_checked} of {check.pairs_tried} pairs "
-            f"checked, median {check.epipolar_p50_px:.1f} px on a {gate:.0f} px gate)")
+            f"checked, median {check.epipolar_p50_px:.1f} px on a {check.gate_px:.0f} px gate)")
 
 
 def _beyond(value: float, sigma: float, limit: float) -> bool:
