@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import pytest
 
 from sosmatch.plugin.geometry import Camera
@@ -13,8 +11,8 @@ from sosmatch.workflows.poses.checks import _check_focal_lengths
 SOURCE_35 = "FocalLengthIn35mmFilm (full-frame diagonal)"
 
 
-def _priors(exif: Camera, source: str) -> SimpleNamespace:
-    return SimpleNamespace(cameras=[exif], summary={"cameras": [{"intrinsics_source": source}]})
+def _priors(exif: Camera, source: str) -> dict[int, tuple[Camera, str]]:
+    return {1: (exif, source)}
 
 
 def test_exif_focal_uncertainty_counts_the_35mm_rounding():

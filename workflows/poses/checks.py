@@ -130,23 +130,22 @@ def flying_height_m(rec: Any) -> float | None:
     return height if height > 0 else None
 
 
-def _check_focal_lengths(priors: ImagePriors, cameras: dict[int, Camera], warnings: list[str],
-                         height_m: float | None = None) -> None:
-    """A warning per camera whose SfM focal length differs from the EXIF one by more than twice the EXIF one's own
-    uncertainty (`exif_focal_uncertainty`, a relative sigma): with the scale fixed by the GPS, every depth scales
-    with the focal length, so the landmarks lie too low (SfM's longer) or too high by about that fraction of
-    `height_m` if the EXIF one is right (nu25: +5.7 % at ~100 m, landmarks 3.9 m too low, said nothing under the
-    10 % level)."""
-    sources = priors.summary.get("cameras", [])
+def _check_focal_lengths(exif_cameras: dict[int, tuple[Camera, str]], cameras: dict[int, Camera],
+                         warnings: list[str], height_m: float | None = None) -> None:
+    """A warning per camera whose SfM focal length differs from the EXIF one (`exif_focal_priors`) by more than
+    twice the EXIF one's own uncertainty (`exif_focal_uncertainty`, a relative sigma): with the scale fixed by
+    the GPS, every depth scales with the focal length, so the landmarks lie too low (SfM's longer) or too high
+    by about that fraction of `height_m` if the EXIF one is right (nu25: +5.7 % at ~100 m, landmarks 3.9 m too
+    low, said nothing under the 10 % level). Since `weigh_focal_lengths`, a focal length this far off is one the
+    images themselves insist on."""
     for k, cam in cameras.items():
-        exif = priors.cameras[k - 1] if 0 < k <= len(priors.cameras) else None
-        source = str(sources[k - 1].get("intrinsics_source", "")) if k - 1 < len(sources) else ""
-        if exif is None or "none in EXIF" in source:
+        if k not in exif_cameras:
             continue
+        exif, source = exif_cameras[k]
         change = cam.fx / exif.fx - 1.0
         known = exif_focal_uncertainty(exif, source)
-        # two of its sigmas: SfM's own focal length is uncertain too (unmeasured here), and one sigma alone would
-        # warn on a third of the flights whose EXIF value is merely rounded (Seneca: +2.1 % against +-2.0 %)
+        # two of its sigmas: one alone would warn on a third of the flights whose EXIF value is merely rounded
+        # (Seneca: +2.1 % against +-2.0 %, a focal length its images know to +-0.03 %)
         if abs(change) <= 2.0 * known:
             continue
         where = "low" if change > 0 else "high"

@@ -1,0 +1,122 @@
+"""An SfM block's focal length weighed against EXIF's (plugin.focal_prior, workflows.poses.focal): real pycolmap
+bundle adjustments on reconstructions built here."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pycolmap
+import pytest
+
+from sosmatch.plugin.focal_prior import combine_focal, images_focal_sigma, residual_variance
+from sosmatch.plugin.geometry import Camera, project, rotvec_to_matrix
+from sosmatch.workflows.poses.focal import weigh_focal_lengths
+
+TRUE_F = 500.0
+SOURCE = "FocalLength + FocalPlaneX/YResolution"  # a lens marking: +-2 %
+ORIGIN = np.array([486000.0, 5207000.0, 0.0])
+
+
+def test_a_flat_profile_leaves_the_exif_value_and_a_steep_one_the_images():
+    assert math.isinf(images_focal_sigma(530.0, 100.0, 500.0, 100.0, 0.1))  # holding costs nothing
+    sigma = images_focal_sigma(530.0, 100.0, 500.0, 100.0 + 0.1 * 900.0, 0.1)  # chi-square 900 -> 30 / 30
+    assert sigma == pytest.approx(1.0)
+    flat = combine_focal(1, 500.0, 0.02, 530.0, math.inf, 0.0)
+    assert flat.taken_px == 500.0 and flat.images_weight == 0.0
+    steep = combine_focal(1, 500.0, 0.02, 530.0, 1.0, 900.0)  # EXIF +-10 px against the images' +-1
+    assert steep.taken_px == pytest.approx(530.0 - 30.0 / 101.0)
+    assert steep.images_weight == pytest.approx(100.0 / 101.0)
+    equal = combine_focal(1, 500.0, 0.02, 530.0, 10.0, 9.0)
+    assert equal.taken_px == pytest.approx(515.0) and equal.taken_sigma_px == pytest.approx(10.0 / math.sqrt(2))
+    assert residual_variance(300.0, 100, 50) == pytest.approx(2.0)
+    assert math.isnan(residual_variance(0.0, 100, 50))
+
+
+def _nadir(heading_deg: float) -> np.ndarray:
+    h = np.radians(heading_deg)
+    top = np.array([np.sin(h), np.cos(h), 0.0])
+    y, z = -top, np.array([0.0, 0.0, -1.0])
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def _block(relief_m: float, tilt_deg: float, model_f: float, seed: int = 0) -> pycolmap.Reconstruction:
+    """Two flight lines at 80 m over points with `relief_m` of height spread, cameras tilted by `tilt_deg` (std),
+    observed with 0.5 px noise by a camera of TRUE_F; the model holds the true poses and the camera at
+    `model_f`, its points intersected with that focal length (as an SfM block that found `model_f`)."""
+    rng = np.random.default_rng(seed)
+    true_cam = Camera(640, 480, TRUE_F, TRUE_F, 320.0, 240.0)
+    centers, rots = [], []
+    for line, north in enumerate([0.0, 35.0]):
+        for k in range(14):
+            centers.append(ORIGIN + [k * 10.0, north, 80.0])
+            turn = rotvec_to_matrix(rng.normal(0, np.radians(tilt_deg), (1, 3)))[0] if tilt_deg else np.eye(3)
+            rots.append(turn @ _nadir(90 if line == 0 else 270))
+    pts = ORIGIN + np.column_stack([rng.uniform(-30, 160, 500), rng.uniform(-35, 70, 500),
+                                    rng.uniform(0, relief_m, 500) if relief_m else np.zeros(500)])
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model="SIMPLE_RADIAL", width=640, height=480,
+                                                    params=[model_f, 320.0, 240.0, 0.0], camera_id=1))
+    obs: dict[int, list] = {}
+    for i, (r, c) in enumerate(zip(rots, centers)):
+        uv, depth = project(true_cam, r, c, pts)
+        idx = np.flatnonzero((depth > 0) & (uv[:, 0] > 0) & (uv[:, 0] < 640) & (uv[:, 1] > 0) & (uv[:, 1] < 480))
+        uvn = uv[idx] + rng.normal(0, 0.5, (len(idx), 2))
+        im = pycolmap.Image(name=f"f{i:03d}.jpg", camera_id=1, image_id=i + 1,
+                            points2D=pycolmap.Point2DList([pycolmap.Point2D(p) for p in uvn]))
+        rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(pycolmap.Rotation3d(r.T), -r.T @ c))
+        for k, j in enumerate(idx):
+            obs.setdefault(int(j), []).append((i, k, uvn[k]))
+    kinv = np.linalg.inv(np.array([[model_f, 0, 320.0], [0, model_f, 240.0], [0, 0, 1]]))
+    for track_obs in obs.values():
+        if len(track_obs) < 3:
+            continue
+        a, b = np.zeros((3, 3)), np.zeros(3)
+        for i, _, uv in track_obs:
+            d = rots[i] @ kinv @ np.array([uv[0], uv[1], 1.0])
+            m = np.eye(3) - np.outer(d, d) / (d @ d)
+            a += m
+            b += m @ (centers[i] - ORIGIN)
+        track = pycolmap.Track()
+        for i, k, _ in track_obs:
+            track.add_element(i + 1, k)
+        rec.add_point3D(np.linalg.solve(a, b) + ORIGIN, track)
+    return rec
+
+
+def _ground(rec: pycolmap.Reconstruction) -> float:
+    return float(np.median([p.xyz[2] for p in rec.points3D.values()]))
+
+
+def test_over_flat_ground_seen_straight_down_the_exif_focal_length_is_taken():
+    """nu25: a flat, nadir block left its focal length free and SfM moved it +5.7 % (the ground 4-6 m low): the
+    images cannot tell f from the depths, so the EXIF value is kept and the ground comes back up."""
+    rec = _block(relief_m=0.0, tilt_deg=0.0, model_f=TRUE_F * 1.06)
+    assert _ground(rec) < -4.0  # the block as SfM left it: 6 % of 80 m below the true ground
+    exif = Camera(640, 480, TRUE_F, TRUE_F, 320.0, 240.0)
+    estimates, changed = weigh_focal_lengths(rec, {1: (exif, SOURCE)}, anchor_sigma_m=3.0)
+    (est,) = estimates
+    assert est.images_sigma_px > 2 * est.exif_sigma_px  # the images know f worse than the lens marking
+    assert changed and abs(est.taken_px / TRUE_F - 1) < 0.02
+    assert rec.cameras[1].params[0] == pytest.approx(est.taken_px)
+    assert abs(_ground(rec)) < 1.6  # within 2 % of the 80 m
+
+
+def test_with_relief_and_tilted_views_the_images_focal_length_stands_against_a_wrong_exif_one():
+    """Relief and tilts break the trade of f against depth: the images know f to a fraction of a per cent and a
+    6 % wrong EXIF value moves it by less than the two know it together: the block is left as it was."""
+    rec = _block(relief_m=30.0, tilt_deg=4.0, model_f=TRUE_F)
+    before = [im.cam_from_world().translation.copy() for im in rec.images.values()]
+    wrong = Camera(640, 480, TRUE_F * 1.06, TRUE_F * 1.06, 320.0, 240.0)
+    estimates, changed = weigh_focal_lengths(rec, {1: (wrong, SOURCE)}, anchor_sigma_m=3.0)
+    (est,) = estimates
+    assert est.images_weight > 0.95 and est.chi2_of_exif > 100
+    assert abs(est.taken_px / TRUE_F - 1) < 0.005
+    assert not changed and rec.cameras[1].params[0] == TRUE_F
+    assert all(np.array_equal(b, im.cam_from_world().translation) for b, im in zip(before, rec.images.values()))
+
+
+def test_cameras_without_an_exif_focal_length_are_left_alone():
+    rec = _block(relief_m=0.0, tilt_deg=0.0, model_f=TRUE_F * 1.06)
+    assert weigh_focal_lengths(rec, {}, anchor_sigma_m=3.0) == ([], False)
+    assert rec.cameras[1].params[0] == TRUE_F * 1.06
