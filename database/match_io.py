@@ -390,13 +390,18 @@ def check_georeferences(match: MatchSummary, map_a: LandmarkMap, map_b: Landmark
 
 
 def no_match_text(best_support: int | None, runner_up: int, chance_p: float | None = None,
-                  chance_mean: float | None = None, beyond_prior: bool = False) -> str:
+                  chance_mean: float | None = None, beyond_prior: bool = False,
+                  min_associations: int | None = None) -> str:
     """What `sosmatch match` says of a verification that found no match: "verification: no match (the best
     candidate holds 13 associations, B placed elsewhere 13, chance p 1 (mean 12.3))"; `best_support` None: no
-    candidate. The runner-up is the best alignment that puts B elsewhere, chance placements included: it may hold
-    more pairs than the best candidate ("best support 6, runner-up 8" read as a contradiction)."""
+    candidate, because no window hypothesis held more than theta_S (`min_associations`, when known) associations.
+    The runner-up is the best alignment that puts B elsewhere, chance placements included: it may hold more pairs
+    than the best candidate ("best support 6, runner-up 8" read as a contradiction)."""
     if best_support is None:
-        return "verification: no match"
+        # said, not left bare: a user saw "no match" on maps of 3-6 landmarks and could not tell why (nu27)
+        theta = "" if min_associations is None else f" = {min_associations}"
+        return ("verification: no match (no candidate: no window hypothesis holds more than "
+                f"theta_S{theta} associations)")
     chance = "" if chance_p is None else f", chance p {chance_p:.1g} (mean {chance_mean or 0:.1f})"
     return (f"verification: no match (the best candidate holds {best_support} associations, B placed elsewhere "
             f"{runner_up}{chance}{', beyond the position prior' if beyond_prior else ''})")
@@ -418,7 +423,7 @@ def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
     # a verification without a best candidate records support 0 and no rms (`workflows.match.verification_json`)
     best = None if ver.get("rms_m") is None and not len(match.associations) else len(match.associations)
     return no_match_text(best, match.runner_up_support or 0, p if numeric else None, mean if numeric else None,
-                         bool(ver.get("beyond_prior", False)))
+                         bool(ver.get("beyond_prior", False)), match.min_associations)
 
 
 def _check_verified_associations(assoc: np.ndarray, support: Any, path: Path) -> None:

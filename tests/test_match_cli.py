@@ -258,3 +258,28 @@ def test_a_match_without_picture_leaves_no_previous_picture_beside_it(maps, tmp_
     # the picture showed the previous run's maps: what stands beside match.json always comes from the same run
     assert main([*argv, "--overwrite", "--no-plot"]) == 0  # another identity (the plot is part of it)
     assert not (out / "match.png").exists() and (out / "match.json").is_file()
+
+
+def test_a_map_too_small_to_align_is_named_by_its_file(maps, tmp_path, capsys):
+    """nu27: "map A has 2 landmarks; at least 3 are needed" named neither file; the error names the one that is."""
+    d, _ = maps
+    tiny = tmp_path / "two_trees.sosmap"
+    write_landmark_map(tiny, LandmarkMap(np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]), np.ones(2)))
+    assert main(["match", str(d / "a.sosmap"), str(tiny), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"{tiny}: holds 2 landmark(s); at least 3 are needed" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_maps_too_small_for_theta_s_say_why_there_is_no_match(tmp_path, capsys):
+    """nu27: two maps of 5 trees ended in a bare "verification: no match": no window can hold more than theta_S
+    associations, and the line says so."""
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0, 40, (5, 3)) * [1, 1, 0.05]
+    write_landmark_map(tmp_path / "a.sosmap", LandmarkMap(pts, np.full(5, 2.0)))
+    write_landmark_map(tmp_path / "b.sosmap", LandmarkMap(pts + [3.0, 1.0, 0.0], np.full(5, 2.0)))
+    assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "o"),
+                 "--no-plot"]) == 0
+    out = capsys.readouterr().out
+    assert "verification: no match (no candidate: no window hypothesis holds more than theta_S = 6 associations)" in out
+

@@ -40,12 +40,14 @@ from ..database.outputs import open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import SearchMode
+from ..plugin.errors import InputError
 from ..plugin.map_noise import derived_search_params
 from ..plugin.match_answer import MatchAnswer, georeference_disagreement, ground_distance_text, match_maps
 from ..plugin.params import Params, params_to_dict
 from ..plugin.verification import hypothesis_agrees
 
 log = logging.getLogger(__name__)
+MIN_LANDMARKS_TO_ALIGN = 3  # a rigid transform in 3-D needs three non-collinear points
 
 
 @dataclass
@@ -93,7 +95,8 @@ class MatchResult:
             if not v.accepted:  # in the words batch repeats from match.json (`match_io.refusal_note`)
                 said = no_match_text(None if v.best is None else len(v.best.associations), v.runner_up_support,
                                      None if v.chance is None else v.chance.p_value,
-                                     None if v.chance is None else v.chance.mean, v.beyond_prior)
+                                     None if v.chance is None else v.chance.mean, v.beyond_prior,
+                                     None if ans.searched is None else ans.searched.min_associations)
                 return f"{head}, {said} ({self.times()}) -> {self.out_dir / 'match.json'}"
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
             near = (f" within {ans.searched.position_prior_m:g} m (horizontally) of the georeference"
@@ -367,6 +370,11 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     map_a, map_b = load_map(a), load_map(b)
     la, lb = map_a.lmap, map_b.lmap
     prints = check_two_maps(a, b, la, lb, "match")
+    for m in (map_a, map_b):
+        # named here, at the edge: the search's own check knows the map only as "A" or "B" (nu27)
+        if len(m.lmap) < MIN_LANDMARKS_TO_ALIGN:
+            raise InputError(f"holds {len(m.lmap)} landmark(s); at least {MIN_LANDMARKS_TO_ALIGN} are needed to "
+                             "match it with another map (a rigid transform needs 3 points)", m.path)
     said: list[str] = []  # every warning, logged and recorded in match.json `warnings`
 
     def warn(text: str | None) -> None:
