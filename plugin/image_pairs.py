@@ -57,3 +57,31 @@ def select_pairs(
     how.append(f"{window} successors in capture order")
     out = np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
     return out, " + ".join(how)
+
+
+def line_spacing_m(positions: np.ndarray, lines: np.ndarray) -> float | None:
+    """The median horizontal distance from an image to the nearest image of another flight line (`positions`
+    (N,2+) in capture order, NaN rows without a fix; `lines` the line id per image, -1 for none, as
+    `georegistration.flight_lines` gives them): how far apart neighbouring lines are flown. None with fewer than
+    two lines."""
+    xy = np.asarray(positions, dtype=np.float64).reshape(len(positions), -1)[:, :2]
+    ok = np.all(np.isfinite(xy), axis=1) & (np.asarray(lines) >= 0)
+    ids = np.asarray(lines)[ok]
+    if len(np.unique(ids)) < 2:
+        return None
+    pts = xy[ok]
+    d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)
+    d[ids[:, None] == ids[None, :]] = np.inf
+    return float(np.median(d.min(axis=1)))
+
+
+def overlap_cap_m(footprint_diagonal_m: float | None, spacing_m: float | None) -> float | None:
+    """The distance cap of `select_pairs` from a footprint diagonal, or None (no cap) when that footprint would
+    not reach the neighbouring flight line (`line_spacing_m`): a survey is flown so that neighbouring lines
+    overlap, so a footprint narrower than their spacing says the height it came from is wrong (DJI's
+    RelativeAltitude is above the take-off point: a take-off on a ridge 90 m above the survey gave 24 m
+    footprints for lines 30 m apart, and no pair across lines)."""
+    if footprint_diagonal_m is None or spacing_m is None or footprint_diagonal_m > spacing_m:
+        return footprint_diagonal_m
+    return None
+

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..plugin.errors import InputError
-from ..plugin.image_pairs import select_pairs
+from ..plugin.image_pairs import line_spacing_m, overlap_cap_m, select_pairs
 from ..plugin.params import SfmParams
 
 if TYPE_CHECKING:
@@ -141,10 +141,27 @@ def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.
     """Choose the pairs to match (`plugin.image_pairs.select_pairs`, images in capture order) and write them as
     COLMAP's pair list (`name_a name_b` per line). Returns the index pairs and how they were chosen."""
     from ..database.atomic import write_text_atomic
+    from ..plugin.georegistration import flight_lines
 
     order = np.argsort(priors.times_s, kind="stable")
+    footprint = footprint_diagonal_m(priors)
+    cap = footprint
+    if footprint is not None:
+        xy = priors.positions[order, :2]
+        has = np.all(np.isfinite(xy), axis=1)
+        lines = np.full(len(xy), -1, dtype=np.int64)
+        lines[has] = flight_lines(xy[has])
+        spacing = line_spacing_m(xy, lines)
+        cap = overlap_cap_m(footprint, spacing)
+        if cap is None:
+            log.warning("the images' RelativeAltitude (%.0f m above the take-off point) gives %.0f m footprints, "
+                        "narrower than the %.0f m between neighbouring flight lines: the take-off point lies above "
+                        "the surveyed ground; image pairs are chosen without a distance cap",
+                        float(np.nanmedian(priors.relative_altitude)), footprint, spacing)
     pairs, how = select_pairs(priors.positions[order, :2], params.neighbours, params.sequential,
-                              footprint_diagonal_m(priors), params.exhaustive_up_to, params.sequential_without_gps)
+                              cap, params.exhaustive_up_to, params.sequential_without_gps)
+    if footprint is not None and cap is None:
+        how += f" (no distance cap: RelativeAltitude's {footprint:.0f} m footprints miss the neighbouring lines)"
     pairs = np.sort(order[pairs], axis=1)
     names = priors.names
     write_text_atomic(path, "".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
