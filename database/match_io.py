@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..plugin.errors import InputError
+from ..plugin.layout_rivals import LayoutRival
 from ..plugin.multisession import Sim3
 from ..plugin.params.matching import MAX_ASSOCIATIONS
 from .landmark_map import LandmarkMap, georeference_offset_m, landmark_map_fingerprint
@@ -390,21 +391,30 @@ def check_georeferences(match: MatchSummary, map_a: LandmarkMap, map_b: Landmark
 
 
 def no_match_text(best_support: int | None, runner_up: int, chance_p: float | None = None,
-                  chance_mean: float | None = None, beyond_prior: bool = False,
+                  chance_mean: float | None = None, beyond_prior: bool = False, layout: str | None = None,
                   min_associations: int | None = None) -> str:
     """What `sosmatch match` says of a verification that found no match: "verification: no match (the best
     candidate holds 13 associations, B placed elsewhere 13, chance p 1 (mean 12.3))"; `best_support` None: no
     candidate, because no window hypothesis held more than theta_S (`min_associations`, when known) associations.
     The runner-up is the best alignment that puts B elsewhere, chance placements included: it may hold more pairs
-    than the best candidate ("best support 6, runner-up 8" read as a contradiction)."""
+    than the best candidate ("best support 6, runner-up 8" read as a contradiction). `layout`: how the maps' own
+    layout placed that runner-up ("B moved 20 m", `plugin.layout_rivals.LayoutRival.text`), said first: a site
+    that repeats (trees on a grid) is why, not chance."""
     if best_support is None:
         # said, not left bare: a user saw "no match" on maps of 3-6 landmarks and could not tell why (nu27)
         theta = "" if min_associations is None else f" = {min_associations}"
         return ("verification: no match (no candidate: no window hypothesis holds more than "
                 f"theta_S{theta} associations)")
     chance = "" if chance_p is None else f", chance p {chance_p:.1g} (mean {chance_mean or 0:.1f})"
+    prior = ", beyond the position prior" if beyond_prior else ""
+    if layout and runner_up <= 2 * best_support:  # about as good: the site repeats itself
+        return (f"verification: no match (the layout repeats: {layout} explains {runner_up} pairs against the best "
+                f"candidate's {best_support}{chance}{prior})")
+    if layout:  # far better: the search missed it (a wrong candidate on a sparse or repetitive site)
+        return (f"verification: no match (the best candidate holds {best_support} associations, {layout} "
+                f"{runner_up}: a placement the maps' layout offers, which the search missed{chance}{prior})")
     return (f"verification: no match (the best candidate holds {best_support} associations, B placed elsewhere "
-            f"{runner_up}{chance}{', beyond the position prior' if beyond_prior else ''})")
+            f"{runner_up}{chance}{prior})")
 
 
 def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
@@ -423,7 +433,19 @@ def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
     # a verification without a best candidate records support 0 and no rms (`workflows.match.verification_json`)
     best = None if ver.get("rms_m") is None and not len(match.associations) else len(match.associations)
     return no_match_text(best, match.runner_up_support or 0, p if numeric else None, mean if numeric else None,
-                         bool(ver.get("beyond_prior", False)), match.min_associations)
+                         bool(ver.get("beyond_prior", False)), _layout_text(ver.get("layout_rival")),
+                         match.min_associations)
+
+
+def _layout_text(rival: Any) -> str | None:
+    """'B moved 20 m and turned 90 deg' from match.json's verification.layout_rival (None: absent or malformed;
+    files written before it existed have none)."""
+    if not isinstance(rival, dict):
+        return None
+    shift, turn = rival.get("shift_m"), rival.get("turn_deg")
+    if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in (shift, turn)):
+        return None
+    return LayoutRival(0, float(shift), float(turn)).text()
 
 
 def _check_verified_associations(assoc: np.ndarray, support: Any, path: Path) -> None:

@@ -15,11 +15,13 @@ from .chance import (
     ChanceModel,
     chance_pairs,
     chance_supports,
+    chance_test,
     converged_to_winner,
     sequential_chance,
     transforms_agree,
     within_prior,
 )
+from .layout_rivals import LayoutRival, layout_starts
 from .multisession import Sim3
 from .refinement import (
     Alignment,
@@ -46,6 +48,10 @@ class Verification:
     # with a position prior: the winner lies beyond it (`chance.within_prior`), where its chance test does not
     # reach, so it is not accepted
     beyond_prior: bool = False
+    # the best rival the maps' own layout offered (`plugin.layout_rivals`) when it is the runner-up and beyond
+    # chance: B moved by a displacement that repeats in A's layout or turned by one of its symmetries (None: another
+    # rival is, or chance reaches it)
+    layout_rival: LayoutRival | None = None
 
 
 class _NearTried:
@@ -192,6 +198,18 @@ def verify_alignments(
                                                   max_size_difference, displaced, dof, z_weight,
                                                   winner_pairs=winner_pairs, tree_a=tree_a,
                                                   coarse_factor=coarse_factor))
+    # the placements the layout itself offers: on a grid, B a period further or a quarter turn round explains
+    # about as many pairs as the winner, and the controls above do not aim there (a plantation's maps were verified
+    # 40 m = two periods off, 25 pairs against a runner-up of 1)
+    layout_best = None
+    for start in layout_starts(best.transform, pa_all, pb_all, best.associations, gate_m):
+        got = chance_supports(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, gate_m, max_size_difference,
+                              [start.transform], dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a,
+                              coarse_factor=coarse_factor)
+        if len(got) and (layout_best is None or int(got[0]) > layout_best.support):
+            layout_best = LayoutRival(int(got[0]), start.shift_m, start.turn_deg)
+    if layout_best is not None:
+        rivals.append(layout_best.support)
     chance = None
     if chance_starts > 0:
         chance, samples = sequential_chance(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support,
@@ -204,8 +222,15 @@ def verify_alignments(
     clear = bool(support >= min_ratio * runner_up and (chance is None or chance.p_value <= false_alarm))
     pairs = np.asarray(best.associations, np.int64).reshape(-1, 2)
     beyond = not within_prior(best.transform, pb_all[pairs[:, 1]], prior_m, gate_m)
+    # named as the layout's repeat only when it is the runner-up and more than chance reaches (on a random
+    # layout the layout's starts are chance placements like the others, and a real pair refused at 17 against 17
+    # is refused by chance, not by a repeat)
+    layout_rival = None
+    if layout_best is not None and layout_best.support >= max(runner_up, 1) and (
+            chance is None or chance_test(samples, layout_best.support, chance.trials).p_value <= false_alarm):
+        layout_rival = layout_best
     return Verification(best, runner_up, len(refined), bool(support > min_support and clear and not beyond),
-                        support, clear, chance, tilt_p, beyond)
+                        support, clear, chance, tilt_p, beyond, layout_rival)
 
 
 CONTROL_SHIFT_GATES = 3.0  # the displaced controls: B moved this many gates (beyond any landmark scatter)

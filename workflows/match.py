@@ -96,6 +96,7 @@ class MatchResult:
                 said = no_match_text(None if v.best is None else len(v.best.associations), v.runner_up_support,
                                      None if v.chance is None else v.chance.p_value,
                                      None if v.chance is None else v.chance.mean, v.beyond_prior,
+                                     None if v.layout_rival is None else v.layout_rival.text(),
                                      None if ans.searched is None else ans.searched.min_associations)
                 return f"{head}, {said} ({self.times()}) -> {self.out_dir / 'match.json'}"
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
@@ -195,6 +196,9 @@ def verification_json(answer: MatchAnswer | None, params: Params) -> dict[str, A
             "support_dof": int(v.support), "clear": bool(v.clear),
             # with a position prior: the winner lay beyond it, where its chance test does not reach (not accepted)
             "beyond_prior": bool(v.beyond_prior),
+            # the runner-up when the maps' own layout placed it (a shift by a repeat of A's layout, a turn by one of
+            # its symmetries; `plugin.layout_rivals`): {"support", "shift_m", "turn_deg"}; None: another rival
+            "layout_rival": None if v.layout_rival is None else v.layout_rival.to_dict(),
             # the F test of a tilt in the winner's pairs' heights (the fitted tilt is shrunk by tilt_prior_deg)
             "tilt_p": None if v.tilt_p is None else _num(v.tilt_p),
             "chance": None if v.chance is None else {**v.chance.to_dict(), "false_alarm": vp.false_alarm},
