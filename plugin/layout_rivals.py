@@ -27,6 +27,7 @@ LAYOUT_SHIFTS = 6  # moved placements kept (those that land most of B on A): one
 LAYOUT_TURNS = 3  # turned placements kept (likewise): one refinement each
 QUARTER_TURNS_DEG = (90.0, 180.0, 270.0)  # always candidate turns: the symmetries of a square grid and a row
 TURN_MERGE_DEG = 5.0  # candidate turns closer than this are one
+TURN_MOVES = 12  # the best-landing moves that give the turns' angles and the moves tried with each turn
 
 
 @dataclass(frozen=True)
@@ -78,9 +79,10 @@ def layout_starts(winner: Sim3, points_a: np.ndarray, points_b: np.ndarray, pair
     Moves: from the LAYOUT_PROBES paired A landmarks nearest the pairs' centroid to their LAYOUT_NEIGHBOURS nearest
     landmarks of A, one per cell of 2 gates; without a turn only those beyond 2 gates (nearer is the winner's own
     basin, `chance.converged_to_winner`). Turns: QUARTER_TURNS_DEG and the angles between two moves of about equal
-    length (a lattice's rotations), about the paired A landmark nearest the centroid (a lattice point on a lattice:
-    a turn about it maps the lattice onto itself), each with no move or one of the moves (a turned B's footprint
-    lands on another part of the lattice, which a refinement does not reach from a period away)."""
+    length among the TURN_MOVES best-landing moves (a lattice's rotations), about the paired A landmark nearest the
+    centroid (a lattice point on a lattice: a turn about it maps the lattice onto itself), each with no move or one
+    of those moves (a turned B's footprint lands on another part of the lattice, which a refinement does not reach
+    from a period away)."""
     from scipy.spatial import cKDTree
 
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
@@ -98,9 +100,24 @@ def layout_starts(winner: Sim3, points_a: np.ndarray, points_b: np.ndarray, pair
     for v in vecs[np.linalg.norm(vecs, axis=1) > 0.5 * gate_m]:
         cells.setdefault((int(np.floor(v[0] / (2 * gate_m))), int(np.floor(v[1] / (2 * gate_m)))), v)
     moves = list(cells.values())
+    placed = winner.apply(pb)[:, :2]
+    probe_b = winner.apply(pb[ij[:, 1]])[:, :2]
+    pivot = probes[0]
+    Row = tuple[int, float, int, np.ndarray, float, np.ndarray]
+
+    def rows(ang: float, vs: list[np.ndarray]) -> list[Row]:
+        rot = yaw_matrix(np.radians(ang))[:2, :2]
+        base, base_probe = (placed - pivot) @ rot.T + pivot, (probe_b - pivot) @ rot.T + pivot
+        return [(_on_a(tree, base + v, gate_m), float(np.linalg.norm(v)), k, v, ang, base_probe + v)
+                for k, v in enumerate(vs) if ang or np.linalg.norm(v) > 2.0 * gate_m]
+
+    shifted = sorted(rows(0.0, moves), key=lambda r: (-r[0], r[1], r[2]))
+    # the turns and their moves come from the best-landing moves only: a lattice's period vectors are among them,
+    # and on a random layout (128 distinct moves, thousands of angles between them) the cost stays bounded
+    top = [r[3] for r in shifted[:TURN_MOVES]]
     angles = list(QUARTER_TURNS_DEG)
-    for i, vi in enumerate(moves):
-        for vj in moves[i + 1:]:
+    for i, vi in enumerate(top):
+        for vj in top[i + 1:]:
             if abs(np.linalg.norm(vi) - np.linalg.norm(vj)) <= gate_m:
                 angles.append(float(np.degrees(np.arctan2(vj[1], vj[0]) - np.arctan2(vi[1], vi[0]))) % 360.0)
     turns: list[float] = []
@@ -108,25 +125,12 @@ def layout_starts(winner: Sim3, points_a: np.ndarray, points_b: np.ndarray, pair
         if min(ang, 360.0 - ang) >= TURN_MERGE_DEG and all(
                 abs((ang - t + 180.0) % 360.0 - 180.0) >= TURN_MERGE_DEG for t in turns):
             turns.append(ang)
-    placed = winner.apply(pb)[:, :2]
-    probe_b = winner.apply(pb[ij[:, 1]])[:, :2]
-    pivot = probes[0]
-    shifted: list[tuple[int, float, int, np.ndarray, float, np.ndarray]] = []
-    turned: list[tuple[int, float, int, np.ndarray, float, np.ndarray]] = []
-    for ang in [0.0, *turns]:
-        rot = yaw_matrix(np.radians(ang))[:2, :2]
-        base = (placed - pivot) @ rot.T + pivot
-        base_probe = (probe_b - pivot) @ rot.T + pivot
-        for k, v in enumerate([np.zeros(2), *moves] if ang else moves):
-            if not ang and np.linalg.norm(v) <= 2.0 * gate_m:
-                continue
-            row = (_on_a(tree, base + v, gate_m), float(np.linalg.norm(v)), k, v, ang, base_probe + v)
-            (turned if ang else shifted).append(row)
+    turned = sorted((r for ang in turns for r in rows(ang, [np.zeros(2), *top])),
+                    key=lambda r: (-r[0], r[1], min(r[4], 360.0 - r[4]), r[2]))
     out: list[LayoutStart] = []
-    for rows, limit in ((shifted, LAYOUT_SHIFTS), (turned, LAYOUT_TURNS)):
-        rows.sort(key=lambda r: (-r[0], r[1], r[4], r[2]))
-        kept: list[tuple[int, float, int, np.ndarray, float, np.ndarray]] = []
-        for r in rows:
+    for ranked, limit in ((shifted, LAYOUT_SHIFTS), (turned, LAYOUT_TURNS)):
+        kept: list[Row] = []
+        for r in ranked:
             if len(kept) == limit:
                 break
             if all(np.max(np.linalg.norm(r[5] - q[5], axis=1)) > 2.0 * gate_m for q in kept):
