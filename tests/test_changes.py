@@ -136,6 +136,37 @@ def test_ground_follows_the_low_landmarks():
     np.testing.assert_allclose(field(probe[:, 0], probe[:, 1]), 0.02 * probe[:, 0] + 5.0, atol=0.6)
 
 
+def test_ground_follows_a_slope():
+    # a hillside (30 % grade across, 15 % along): the heights of the 30 nearest landmarks span +-5 m there, so
+    # their low quantile is the ground downhill, 3 m under the place (nu28 relief 80); a plane through them is not
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 200, (500, 2))
+
+    def plane(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return 0.3 * x - 0.15 * y + 40.0
+
+    objects = rng.random(500) < 0.3
+    z = plane(xy[:, 0], xy[:, 1]) + np.where(objects, rng.uniform(2, 15, 500), rng.normal(0, 0.3, 500))
+    field = ground_height_field(np.column_stack([xy, z]))
+    px, py = (a.ravel() for a in np.meshgrid(np.linspace(30, 170, 8), np.linspace(30, 170, 8)))
+    err = field(px, py) - plane(px, py)
+    assert abs(float(np.median(err))) < 0.5 and np.all(np.abs(err) < 1.0)
+    # beyond the landmarks the ground is held, not extrapolated along a slope that is known only where they are
+    far = field(np.array([-150.0, 350.0]), np.array([100.0, 100.0]))
+    assert z.min() - 1.0 < far.min() and far.max() < z.max()
+
+
+def test_ground_of_landmarks_along_a_line_stays_level_across_it():
+    # one flight line of landmarks: the slope across it is unknown, so the ground beside the line is its own
+    rng = np.random.default_rng(4)
+    x = rng.uniform(0, 200, 200)
+    z = 0.1 * x + rng.normal(0, 0.2, 200)
+    field = ground_height_field(np.column_stack([x, np.full(200, 50.0), z]))
+    np.testing.assert_allclose(field(np.array([100.0]), np.array([60.0])), field(np.array([100.0]), np.array([50.0])),
+                               atol=0.3)
+    assert abs(float(field(100.0, 50.0)) - 10.0) < 0.6
+
+
 def test_logistic_fit_recovers_a_monotone_rate():
     rng = np.random.default_rng(1)
     x = rng.normal(0, 1, (400, 1))
