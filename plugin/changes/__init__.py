@@ -59,8 +59,9 @@ session and ground in the other, a fragment of a kept one high in both; a place 
 texture, a shadow, a flat object) gets no evidence either way.
 
 The ground under the landmarks (for heights above ground and the keyframes' ground footprints) is a coarse
-height field of a low quantile of the nearby landmarks' heights (`ground_height_field`): most landmarks of a
-survey are ground texture, and objects only stand above it. A landmark lower than it by more than
+height field of a low quantile of the nearby landmarks' heights about their local slope (`ground_height_field`,
+a median plane: on a hillside the level quantile would lie downhill): most landmarks of a survey are ground
+texture, and objects only stand above it. A landmark lower than it by more than
 `max_depth_sigmas` robust standard deviations of its map's heights is a wrong triangulation and is compared with
 nothing (`below_the_ground`; unseen, evidence `height`).
 
