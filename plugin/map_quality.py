@@ -37,6 +37,7 @@ import numpy as np
 from .image_quality import FlightImages, blank_warning, image_causes
 from .landmark_filters import neighbour_height_residuals
 from .params import QualityParams
+from .pass_heights import PassOffset, pass_height_offset
 
 _UP = np.array([0.0, 0.0, 1.0])
 
@@ -64,6 +65,10 @@ class MapQuality:
     ground_tilt_deg: float
     view_tilt_deg: float
     block_tilt_deg: float
+    # the passes' own triangulations of their common landmarks (`plugin.pass_heights`): the worst pair's offset
+    # in height and that offset over its standard error (NaN: no observation rays given, or no such pair)
+    pass_height_offset_m: float = float("nan")
+    pass_height_offset_z: float = float("nan")
 
     def to_dict(self) -> dict[str, float | int]:
         return {k: (round(v, 4) if isinstance(v, float) and np.isfinite(v) else v if not isinstance(v, float)
@@ -139,6 +144,8 @@ def assess_map(
     camera_axes: np.ndarray,
     long_tracks: int,
     neighbours: int = 8,
+    observation_rays: list[np.ndarray] | None = None,
+    pass_offset_margin: float = 5.0,
 ) -> MapQuality:
     """The quality figures of a map.
 
@@ -149,6 +156,9 @@ def assess_map(
         camera_centers: (K, 3) keyframe centres; camera_axes: (K, 3) viewing directions (camera z in the world).
         long_tracks: tracks long enough to become landmarks (more than theta_n observations).
         neighbours: landmarks whose median height is a landmark's local ground.
+        observation_rays: per landmark, (n, 3) world directions of its observations (order of
+            `observed_keyframes`); with them the passes' heights are compared landmark by landmark
+            (`pass_heights.pass_height_offset`, reporting the pair beyond `pass_offset_margin` standard errors).
     """
     p = np.asarray(positions, np.float64).reshape(-1, 3)
     centers = np.asarray(camera_centers, np.float64).reshape(-1, 3)
@@ -172,6 +182,8 @@ def assess_map(
     above, under = _landmarks_above_cameras(p, np.asarray(sizes_m, np.float64), centers)
     passes = flight_passes(centers)
     disagreement, pass_offset = pass_disagreement(p, sizes_m, observed_keyframes, passes, neighbours)
+    offset = pass_height_offset(observed_keyframes, observation_rays, p, centers, passes, margin=pass_offset_margin) \
+        if observation_rays is not None else PassOffset(nan, nan, 0)
     long_passes = [k for k in np.unique(passes) if np.count_nonzero(passes == k) >= 3]
     empty = sum(1 for k in long_passes if not seen[passes == k].any()) if n_l else 0
     mean_axis = axes.sum(axis=0)
@@ -193,6 +205,7 @@ def assess_map(
         landmarks_under_cameras=under, passes=len(long_passes), passes_without_landmarks=empty,
         pass_disagreement=disagreement, pass_offset_m=pass_offset,
         ground_tilt_deg=ground_tilt, view_tilt_deg=view_tilt, block_tilt_deg=block_tilt,
+        pass_height_offset_m=offset.offset_m, pass_height_offset_z=offset.z,
     )
 
 
@@ -391,6 +404,13 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
         else:
             v.warnings.append(f"{said}: " + _likely_cause("the passes' poses differ a little (drifting odometry?)",
                                                            poses_fit, causes))
+    offset_limit = limits.max_pass_offset * abs(q.flying_height_m)
+    if np.isfinite(q.pass_height_offset_z) and q.pass_height_offset_z > limits.pass_offset_margin and \
+            np.isfinite(offset_limit) and q.pass_height_offset_m > offset_limit:
+        v.refusals.append(f"two passes of the flight, each triangulating the landmarks both saw, put them "
+                          f"{q.pass_height_offset_m:.1f} m apart in height ({q.pass_height_offset_z:.0f} standard "
+                          f"errors; at most {offset_limit:.1f} m, {limits.max_pass_offset:.0%} of the flying "
+                          "height): the passes' poses disagree in height (altitude drift, tilted or offset heights)")
     if np.isfinite(q.ground_tilt_deg) and q.ground_tilt_deg > limits.warn_ground_tilt_deg and \
             not (np.isfinite(q.block_tilt_deg) and q.block_tilt_deg > limits.max_block_tilt_deg):
         v.warnings.append(f"the ground tilts {q.ground_tilt_deg:.0f} deg under cameras tilted "

@@ -230,6 +230,11 @@ class QualityParams(Checked):
     # 98 m, ratio 6.1; the matcher's derived tolerances absorb it: a warning); the lines 30 m apart above: 27.7 m,
     # 27 % (bench_plausibility; the 50 m pose-CSV drift was not re-measured in metres)
     max_pass_offset: float = fraction(0.05)
+    # ... and the same limit in metres on the passes' own triangulations of their common landmarks
+    # (`plugin.pass_heights`, the terrain cancels), refused when the offset is also beyond this many standard
+    # errors (its own scatter): nu28 consistent maps 0.3-2.2 m at 5.0 % H = 5-6.6 m (98 maps of nu21/22/26: at
+    # most 2.8 m), heights tilted 15 deg along 30 deg or drifting 30 m over the flight 8-12 m at 8-19 errors
+    pass_offset_margin: float = positive(5.0)
     # p90 of |landmark height - its 8 neighbours' median| over the flying height: beyond 1 a tenth of the map sits
     # farther from its neighbours' ground than the cameras fly above it (a drone flies above what it maps; a pit
     # that deep under a tenth of the landmarks is no survey site); consistent maps 0.03-0.07, Seneca 0.04

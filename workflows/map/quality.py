@@ -16,7 +16,7 @@ import numpy as np
 
 from ...database.atomic import atomic_path
 from ...plugin.errors import InputError
-from ...plugin.geometry import Camera, Poses
+from ...plugin.geometry import Camera, Poses, pixel_rays
 from ...plugin.image_quality import FlightImages
 from ...plugin.map_quality import MapQuality, Verdict, assess_map, isolated_cameras, judge
 from ...plugin.params import QualityParams
@@ -57,11 +57,24 @@ def joined(*verdicts: Verdict | None) -> Verdict:
     return out
 
 
-def assess(landmarks: Any, poses: Poses, long_tracks: int) -> MapQuality:
-    """The quality figures of triangulated `landmarks` (workflows.triangulation.Landmarks) on keyframe `poses`."""
+def assess(landmarks: Any, poses: Poses, long_tracks: int, camera: Camera | None = None,
+           keypoints: list[np.ndarray] | None = None, limits: QualityParams | None = None) -> MapQuality:
+    """The quality figures of triangulated `landmarks` (workflows.triangulation.Landmarks) on keyframe `poses`;
+    with the `camera` and the keyframes' `keypoints` (COLMAP pixels, indexed by the observations' mask index) the
+    passes' own heights of their common landmarks too (`plugin.pass_heights`)."""
+    rays = None
+    if camera is not None and keypoints is not None:
+        rays = [_world_rays(pixel_rays(camera, np.array([keypoints[k][m, :2] for k, m in o]).reshape(-1, 2),
+                                       np.eye(3)), poses.rotations[o[:, 0]]) for o in landmarks.observations]
+    margin = (limits or QualityParams()).pass_offset_margin
     return assess_map(landmarks.positions, landmarks.sizes_m, landmarks.errors_px,
                       [o[:, 0] for o in landmarks.observations], poses.centers, poses.rotations[:, :, 2],
-                      long_tracks)
+                      long_tracks, observation_rays=rays, pass_offset_margin=margin)
+
+
+def _world_rays(cam_rays: np.ndarray, r_wc: np.ndarray) -> np.ndarray:
+    """(n, 3) camera-frame rays turned into the world by each observation's (n, 3, 3) world-from-camera rotation."""
+    return np.einsum("nij,nj->ni", r_wc, cam_rays)
 
 
 def quality_stage(
@@ -74,7 +87,7 @@ def quality_stage(
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
     for the picture (`database.images.flight_white_level`); `poses_fit`, `images`: the pose check's phrase when it
     found the poses fitting, and the keyframes' image figures (`judge`)."""
-    quality = assess(landmarks, poses, long_tracks)
+    quality = assess(landmarks, poses, long_tracks, camera, keypoints, limits)
     verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images)
     alone = isolated_cameras(poses.centers, quality.flying_height_m, 0.5 * float(np.hypot(camera.width, camera.height)),
                              float(camera.fx))
