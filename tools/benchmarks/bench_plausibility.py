@@ -171,8 +171,11 @@ def figures(path: Path) -> dict[str, Any]:
     run.json's counts (so sessions mapped by older code, or elsewhere, are judged alike)."""
     import pycolmap
 
+    from ...database.cameras import camera_from_pycolmap
     from ...database.session_io import read_landmark_table
+    from ...plugin.geometry import pixel_rays
     from ...plugin.map_quality import assess_map
+    from ...plugin.params import QualityParams
 
     run = json.loads((path / "run.json").read_text())
     rec = pycolmap.Reconstruction(str(path / "sparse"))
@@ -185,7 +188,14 @@ def figures(path: Path) -> dict[str, Any]:
     pos = np.array([p.xyz for p in points]).reshape(-1, 3)
     errors = np.array([p.error for p in points])
     obs = [np.array([index[e.image_id] for e in p.track.elements]) for p in points]
-    q = assess_map(pos, table.sizes, errors, obs, centers, axes, run["counts"].get("tracks_long", len(pos)))
+    # the observations' world rays, as the map's own quality stage has them (`workflows.map.quality.assess`): the
+    # passes' own heights of their common landmarks (`plugin.pass_heights`) need them
+    camera = camera_from_pycolmap(next(iter(rec.cameras.values())))
+    world_from_cam = {i: np.asarray(rec.images[i].cam_from_world().rotation.matrix()).T for i in ids}
+    rays = [np.concatenate([pixel_rays(camera, np.asarray(rec.images[e.image_id].points2D[e.point2D_idx].xy)[None],
+                                       world_from_cam[e.image_id]) for e in p.track.elements]) for p in points]
+    q = assess_map(pos, table.sizes, errors, obs, centers, axes, run["counts"].get("tracks_long", len(pos)),
+                   observation_rays=rays, pass_offset_margin=QualityParams().pass_offset_margin)
     return q.to_dict()
 
 
