@@ -37,6 +37,8 @@ def single_pass_heights(rays: np.ndarray, centers: np.ndarray, point: np.ndarray
     (n, 3) along directions `rays` (n, 3), weighted by 1 / range^2 (the ranges to `point`, the map's landmark):
     an angular error moves a ray by range x angle at the point. (NaN, inf) for parallel rays, a point behind a
     camera, or a baseline (the centres' widest distance) under `min_base_ratio` x the mean range."""
+    if not (np.all(np.isfinite(rays)) and np.all(np.isfinite(centers)) and np.all(np.isfinite(point))):
+        return float("nan"), float("inf")  # a pixel the lens model cannot lift (rev21: eigvalsh raised on NaN)
     d = rays / np.linalg.norm(rays, axis=1, keepdims=True)
     rng = np.linalg.norm(point - centers, axis=1)
     base = float(np.max(np.linalg.norm(centers[:, None] - centers[None], axis=2)))
@@ -86,8 +88,9 @@ def pass_height_offset(observed_keyframes: list[np.ndarray], rays: list[np.ndarr
             directions of those observations (`geometry.pixel_rays`); positions: (L, 3) the map's landmarks.
         centers: (K, 3) keyframe centres; passes: (K,) pass number of every keyframe.
         min_landmarks: a pair of passes needs this many landmarks triangulated by both (two observations each).
-        margin: the pair reported is the one whose offset exceeds `margin` standard errors by the most metres
-            (the largest |offset| - margin x SE); it may still be within its noise (then `z` <= margin).
+        margin: the pair reported is, among those whose offset exceeds `margin` standard errors, the one
+            furthest apart in metres; without such a pair, the one with the largest |offset| - margin x SE (then
+            `z` <= margin).
         min_base_ratio: a pass's height of a landmark counts only from a baseline of at least this many times its
             range (base-to-height ratio). The frames' attitude errors are shared by all the landmarks a pass
             sees, so they do not average out, and they grow into height by range / base: nu28's EKF poses (within
@@ -113,15 +116,20 @@ def pass_height_offset(observed_keyframes: list[np.ndarray], rays: list[np.ndarr
         for ia, a in enumerate(ks):
             for b in ks[ia + 1:]:
                 by_pair.setdefault((a, b), []).append((heights[a][0] - heights[b][0], heights[a][1] + heights[b][1]))
+    # among the pairs beyond `margin` standard errors, the one furthest apart in metres (a sharper pair just under
+    # the metre limit must not hide one beyond it: rev21, a third pass made a refused map acceptable); without
+    # such a pair, the one closest to standing out
     best = PassOffset(float("nan"), float("nan"), 0)
-    best_excess = -np.inf
-    for rows in by_pair.values():
+    best_key = (False, -np.inf)
+    for pair in sorted(by_pair):
+        rows = by_pair[pair]
         if len(rows) < min_landmarks:
             continue
         diff, var = np.array(rows).T
         mean, se = _huber_mean(diff, 1.0 / var)
-        excess = abs(mean) - margin * se
-        if excess > best_excess:
-            best_excess = excess
+        significant = abs(mean) > margin * se
+        key = (significant, abs(mean) if significant else abs(mean) - margin * se)
+        if key > best_key:
+            best_key = key
             best = PassOffset(abs(mean), abs(mean) / max(se, 1e-12), len(rows))
     return best

@@ -95,3 +95,44 @@ def test_judge_needs_both_significance_and_metres():
         assert not any("two passes of the flight" in r for r in judge(figures, limits).refusals)
     both = replace(q, pass_height_offset_m=0.2 * q.flying_height_m, pass_height_offset_z=9.0)
     assert any("two passes of the flight" in r for r in judge(both, limits).refusals)
+
+
+def _three_passes(seed: int = 1):
+    """Three lines 40 m apart at 100 m; passes 0/1 put their common landmarks 8 m apart with 3 m of noise, passes
+    1/2 theirs 4.8 m apart with 5 cm (rev21's case)."""
+    rng = np.random.default_rng(seed)
+    xs = np.arange(0, 201, 10.0)
+    centers = np.concatenate([np.column_stack([xs, np.full_like(xs, y), np.full_like(xs, 100.0)])
+                              for y in (0, 40, 80)])
+    passes = np.repeat([0, 1, 2], len(xs))
+    obs, rays, pos = [], [], []
+    for y, pa, pb, dz_b, sd in ((20, 0, 1, 8.0, 3.0), (60, 1, 2, 4.8, 0.05)):
+        for x in rng.uniform(30, 170, 40):
+            p = np.array([x, y, 0.0])
+            kf, r = [], []
+            for pas, dz in ((pa, rng.normal(0, sd)), (pb, dz_b + rng.normal(0, sd))):
+                ks = np.flatnonzero(passes == pas)
+                ks = ks[np.argsort(np.abs(centers[ks, 0] - x))[:5]]
+                kf += list(ks)
+                r += list(p + [0, 0, dz] - centers[ks])
+            obs.append(np.array(kf))
+            rays.append(np.array(r))
+            pos.append(p)
+    return obs, rays, np.array(pos), centers, passes
+
+
+def test_a_sharper_pair_under_the_metre_limit_does_not_hide_one_beyond_it():
+    """rev21: the pair reported was the largest |offset| - 5 SE, so passes 1/2 (4.8 m, 456 SE) hid passes 0/1
+    (8.1 m, 10 SE) and a third pass made a refused map acceptable."""
+    obs, rays, pos, centers, passes = _three_passes()
+    both = pass_height_offset(obs, rays, pos, centers, passes)
+    only01 = pass_height_offset(obs[:40], rays[:40], pos[:40], centers, passes)
+    assert only01.offset_m > 7.0 and only01.z > 5.0
+    assert both.offset_m == only01.offset_m and both.z == only01.z
+
+
+def test_a_ray_the_lens_cannot_lift_gives_no_height():
+    centers = np.array([[0.0, 0.0, 100.0], [20.0, 0.0, 100.0], [40.0, 0.0, 100.0]])
+    rays = np.array([[0.0, 0.0, -1.0], [np.nan, np.nan, 1.0], [-0.4, 0.0, -1.0]])
+    z, var = single_pass_heights(rays, centers, np.array([0.0, 0.0, 0.0]))
+    assert np.isnan(z) and var == np.inf
