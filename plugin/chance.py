@@ -213,12 +213,14 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
                       sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, support: int, gate_m: float,
                       max_size_difference: float, starts: int, false_alarm: float, prior_m: float = 0.0,
                       dof: int = 4, z_weight: float = 0.5,
-                      winner_pairs: np.ndarray | None = None, tree_a: Any = None) -> tuple[ChanceModel, np.ndarray]:
+                      winner_pairs: np.ndarray | None = None,
+                      tree_a: Any = None) -> tuple[ChanceModel, np.ndarray, np.ndarray]:
     """`chance_test` of the winner's support on up to `starts` chance placements, refined CHANCE_BATCH at a time:
     it stops once the answer cannot be in doubt (p_value <= false_alarm x CHANCE_MARGIN: a true alignment many
     decades above chance, as every dense map pair; or p_value >= CHANCE_CLEARLY_CHANCE), which keeps the cost
     of a clear case at one batch. The placements are fixed in advance, so the result is deterministic.
-    Returns the model and the chance supports. `tree_a`: as `chance_refinements`."""
+    Returns the model, the chance supports and their opportunities (`chance_opportunity`: another support is
+    judged against the same placements with `chance_test`). `tree_a`: as `chance_refinements`."""
     placements = chance_placements(points_a, points_b, starts, prior_m)
     trials = effective_trials(points_a, points_b, gate_m, prior_m)
     tree_a_xy = horizontal_tree(points_a)
@@ -237,7 +239,7 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
         low, high = chance_interval(samples, support, trials, opportunities)
         if high <= false_alarm * CHANCE_MARGIN or low >= CHANCE_CLEARLY_CHANCE:
             break
-    return chance, samples
+    return chance, samples, opportunities
 
 
 CHANCE_RESAMPLES = 100  # bootstrap resamples of `chance_interval`

@@ -212,9 +212,9 @@ def verify_alignments(
         rivals.append(layout_best.support)
     chance = None
     if chance_starts > 0:
-        chance, samples = sequential_chance(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support,
-                                            gate_m, max_size_difference, chance_starts, false_alarm, prior_m, dof,
-                                            z_weight, winner_pairs=winner_pairs, tree_a=tree_a)
+        chance, samples, opportunities = sequential_chance(
+            pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support, gate_m, max_size_difference,
+            chance_starts, false_alarm, prior_m, dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a)
         rivals.extend(int(s) for s in samples)
     runner_up = max(rivals, default=0)
     if rigid is not None:
@@ -222,12 +222,14 @@ def verify_alignments(
     clear = bool(support >= min_ratio * runner_up and (chance is None or chance.p_value <= false_alarm))
     pairs = np.asarray(best.associations, np.int64).reshape(-1, 2)
     beyond = not within_prior(best.transform, pb_all[pairs[:, 1]], prior_m, gate_m)
-    # named as the layout's repeat only when it is the runner-up and more than chance reaches (on a random
-    # layout the layout's starts are chance placements like the others, and a real pair refused at 17 against 17
-    # is refused by chance, not by a repeat)
+    # named as the layout's repeat only when the winner is not clear, the repeat is the runner-up and it is more
+    # than chance reaches, judged as the winner is, with the placements' opportunities (on a random layout the
+    # layout's starts are chance placements like the others, and a real pair refused at 17 against 17 is refused
+    # by chance, not by a repeat; a clear winner refused beyond the position prior was said to "repeat": rev21)
     layout_rival = None
-    if layout_best is not None and layout_best.support >= max(runner_up, 1) and (
-            chance is None or chance_test(samples, layout_best.support, chance.trials).p_value <= false_alarm):
+    if layout_best is not None and not clear and layout_best.support >= max(runner_up, 1) and (
+            chance is None
+            or chance_test(samples, layout_best.support, chance.trials, opportunities).p_value <= false_alarm):
         layout_rival = layout_best
     return Verification(best, runner_up, len(refined), bool(support > min_support and clear and not beyond),
                         support, clear, chance, tilt_p, beyond, layout_rival)

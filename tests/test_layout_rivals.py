@@ -107,3 +107,20 @@ def test_the_refusal_words():
     # a match.json written before the field existed reads as before
     assert no_match_text(13, 12) == ("verification: no match (the best candidate holds 13 associations, B placed "
                                      "elsewhere 12)")
+
+
+def test_a_clear_winner_refused_for_another_reason_is_not_blamed_on_the_layout():
+    """rev21: a winner clear of every rival (a grid with as many irregular landmarks beside it), refused only
+    because it lies beyond the position prior, was said to be refused because "the layout repeats"."""
+    rng = np.random.default_rng(5)
+    a, b = _site(2, lattice=True)
+    extra = np.column_stack([rng.uniform(20, 100, (80, 2)), 6.0 + rng.normal(0, 0.2, 80)])
+    a = np.vstack([a, extra + rng.normal(0, 0.3, extra.shape) * [1, 1, 0.5]])
+    b = np.vstack([b, (extra + rng.normal(0, 0.3, extra.shape) * [1, 1, 0.5] - TRUE.translation) @ TRUE.rotation])
+    cand = refine_alignment(a, None, b, None, TRUE, 2.0, 0.4)
+    free = verify_alignments(a, None, b, None, [(cand.transform, cand.associations[:, 1])], 2.0, 0.4, 8)
+    assert free.accepted and free.clear  # clear of the grid's repeats
+    near = verify_alignments(a, None, b, None, [(cand.transform, cand.associations[:, 1])], 2.0, 0.4, 8,
+                             prior_m=5.0)  # TRUE moves B 32 m: beyond a 5 m prior
+    assert near.beyond_prior and not near.accepted and near.clear
+    assert near.layout_rival is None
