@@ -120,3 +120,14 @@ def test_cameras_without_an_exif_focal_length_are_left_alone():
     rec = _block(relief_m=0.0, tilt_deg=0.0, model_f=TRUE_F * 1.06)
     assert weigh_focal_lengths(rec, {}, anchor_sigma_m=3.0) == ([], False)
     assert rec.cameras[1].params[0] == TRUE_F * 1.06
+
+
+def test_a_camera_with_two_focal_lengths_keeps_its_aspect():
+    """rev21: holding f set fx and fy to one value, so a PINHOLE / OPENCV camera with fy != fx lost its aspect."""
+    rec = _block(relief_m=0.0, tilt_deg=0.0, model_f=TRUE_F * 1.06)
+    rec.cameras[1] = pycolmap.Camera(model="PINHOLE", width=640, height=480,
+                                     params=[TRUE_F * 1.06, TRUE_F * 1.06 * 1.01, 320.0, 240.0], camera_id=1)
+    exif = Camera(640, 480, TRUE_F, TRUE_F, 320.0, 240.0)
+    (est,), changed = weigh_focal_lengths(rec, {1: (exif, SOURCE)}, anchor_sigma_m=3.0)
+    fx, fy = rec.cameras[1].params[:2]
+    assert changed and fx == pytest.approx(est.taken_px) and fy / fx == pytest.approx(1.01, abs=1e-9)
