@@ -155,8 +155,9 @@ def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.
         cap = overlap_cap_m(footprint, spacing)
         if cap is None:
             log.warning("the images' RelativeAltitude (%.0f m above the take-off point) gives %.0f m footprints, "
-                        "narrower than the %.0f m between neighbouring flight lines: the take-off point lies above "
-                        "the surveyed ground; image pairs are chosen without a distance cap",
+                        "narrower than the %.0f m between neighbouring flight lines: the take-off point probably lies "
+                        "above the surveyed ground (or the lines are flown apart); image pairs are chosen without "
+                        "a distance cap",
                         float(np.nanmedian(priors.relative_altitude)), footprint, spacing)
     pairs, how = select_pairs(priors.positions[order, :2], params.neighbours, params.sequential,
                               cap, params.exhaustive_up_to, params.sequential_without_gps)
