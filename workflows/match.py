@@ -39,7 +39,7 @@ from ..database.output_markers import fingerprint
 from ..database.outputs import open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
-from ..plugin.association.hypotheses import SearchMode
+from ..plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN, SearchMode
 from ..plugin.errors import InputError
 from ..plugin.map_noise import derived_search_params
 from ..plugin.match_answer import MatchAnswer, georeference_disagreement, ground_distance_text, match_maps
@@ -47,7 +47,6 @@ from ..plugin.params import Params, params_to_dict
 from ..plugin.verification import hypothesis_agrees
 
 log = logging.getLogger(__name__)
-MIN_LANDMARKS_TO_ALIGN = 3  # a rigid transform in 3-D needs three non-collinear points
 
 
 @dataclass

@@ -139,12 +139,16 @@ def make_hypotheses(points_a: np.ndarray, points_b: np.ndarray, params: Associat
     return out
 
 
+MIN_LANDMARKS_TO_ALIGN = 3  # a rigid transform in 3-D needs three non-collinear points
+
+
 def check_inputs(points: np.ndarray, sizes: np.ndarray | None, name: str) -> tuple[np.ndarray, np.ndarray]:
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
         raise InputError(f"map {name}: positions must be an (N, 3) array, got shape {p.shape}")
-    if len(p) < 3:
-        raise InputError(f"map {name} has {len(p)} landmarks; at least 3 are needed to estimate a transform")
+    if len(p) < MIN_LANDMARKS_TO_ALIGN:
+        raise InputError(f"map {name} has {len(p)} landmarks; at least {MIN_LANDMARKS_TO_ALIGN} are needed to "
+                         "estimate a transform")
     if not np.all(np.isfinite(p)):
         raise InputError(f"map {name} holds NaN or infinite landmark positions")
     h = np.full(len(p), np.nan) if sizes is None else np.asarray(sizes, dtype=np.float64).reshape(-1)

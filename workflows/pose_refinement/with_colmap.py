@@ -56,11 +56,8 @@ def refine_poses_with_colmap(
         im = rec.images[iid]
         if im.name not in prior_index:
             continue
-        prior = pycolmap.PosePrior(position=prior_poses.centers[prior_index[im.name]] - origin,
-                                   position_covariance=np.eye(3) * float(position_sigma_m) ** 2,
-                                   coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN)
-        prior.corr_data_id = im.data_id
-        priors.append(prior)
+        priors.append(position_prior(prior_poses.centers[prior_index[im.name]] - origin, position_sigma_m,
+                                     im.data_id))
     options = fixed_camera_ba_options(pycolmap.LossFunctionType.CAUCHY, pixel_sigma_px, refine_poses=True)
     prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
     converged, iterations = False, 0
@@ -136,6 +133,18 @@ def free_roll_correction(prior_centers: np.ndarray, prior_rotations: np.ndarray,
     # tr(Q M) for Q the rotation by phi about the axis: cos(phi) (tr M - a^T M a) + sin(phi) tr([a]x M) + a^T M a
     phi_att = math.atan2(float(np.trace(cross @ m)), float(np.trace(m) - axis @ m @ axis))
     return axis, c, phi_att * info_attitudes / (info_attitudes + info_positions)
+
+
+def position_prior(position: np.ndarray, sigma_m: float, data_id: object) -> object:
+    """A pycolmap PosePrior on an image's centre alone (Cartesian, isotropic `sigma_m`), for the image whose
+    `data_id` it is: the gauge of a pose-prior bundle adjustment."""
+    import pycolmap
+
+    prior = pycolmap.PosePrior(position=np.asarray(position, np.float64),
+                               position_covariance=np.eye(3) * float(sigma_m) ** 2,
+                               coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN)
+    prior.corr_data_id = data_id
+    return prior
 
 
 def level_free_roll(rec: object, prior_poses: Poses, position_sigma_m: float, attitude_sigma_deg: float) -> float:

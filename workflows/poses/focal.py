@@ -15,7 +15,7 @@ from ...plugin.focal_prior import FocalEstimate, combine_focal, images_focal_sig
 from ...plugin.geometry import Camera
 from ..image_cameras import exif_focal_uncertainty
 from ..image_priors import ImagePriors
-from ..pose_refinement.with_colmap import observation_errors
+from ..pose_refinement.with_colmap import observation_errors, position_prior
 
 log = logging.getLogger(__name__)
 
@@ -96,14 +96,8 @@ def _adjusted_misfit(rec: Any, camera_id: int, focal_px: float | None,
             idx = list(camera.focal_length_idxs())
             params[idx] *= focal_px / params[idx[0]]
             camera.params = params
-        priors = []
-        for iid in image_ids:
-            image = rec.images[iid]
-            prior = pycolmap.PosePrior(position=np.asarray(image.projection_center()),
-                                       position_covariance=np.eye(3) * float(anchor_sigma_m) ** 2,
-                                       coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN)
-            prior.corr_data_id = image.data_id
-            priors.append(prior)
+        priors = [position_prior(rec.images[i].projection_center(), anchor_sigma_m, rec.images[i].data_id)
+                  for i in image_ids]
         options = pycolmap.BundleAdjustmentOptions()
         options.refine_focal_length = focal_px is None
         options.refine_principal_point = False
