@@ -2,6 +2,7 @@
 
     from sosmatch.workflows import sfm
     sfm.create_database(db, priors, params.sfm)                # one camera per group, images with fixed ids
+    image_dir = sfm.colmap_image_dir(image_dir, priors.names, work / "images8")  # 8-bit copies of 16-bit data
     sfm.extract_features(db, image_dir, priors, params.sfm)     # SIFT at a bounded size
     pairs = sfm.write_pairs(pairs_txt, priors, params.sfm)      # the pairs GPS says may overlap
     sfm.match_pairs(db, pairs_txt, params.sfm)                  # SIFT matching + two-view geometry
@@ -86,6 +87,41 @@ def create_database(database: Path, priors: ImagePriors, params: SfmParams) -> N
     finally:
         db.close()
     tmp.replace(database)
+
+
+def colmap_image_dir(image_dir: Path, names: list[str], work_dir: Path) -> Path:
+    """The folder COLMAP reads the images from: `image_dir` itself for 8-bit images (nothing copied), else
+    `work_dir` holding 8-bit copies under the same names, scaled from the flight's white level
+    (`database.images.flight_white_level`), as ODM does for 16-bit images. COLMAP's reader scales 16-bit data
+    from the container's maximum, so 12-bit data stored in 16 bits reached its SIFT at 1/16 of the contrast (a
+    MicaSense band: one featureless image, 0 registered, while every other stage reads it white-levelled). The
+    copies are written atomically and reused by a re-run (the work folder belongs to these image files); the
+    names stay the user's, so the database and the model name the user's files."""
+    from ..database.images import flight_white_level, read_image
+
+    white = flight_white_level([image_dir / n for n in names])
+    if white is None:
+        return image_dir
+    import cv2
+
+    t0 = time.perf_counter()
+    written = 0
+    for name in names:
+        target = work_dir / name
+        if target.is_file():
+            continue
+        rgb = read_image(image_dir / name, white)
+        pixels = rgb[:, :, 0] if np.array_equal(rgb[:, :, 0], rgb[:, :, 1]) and np.array_equal(
+            rgb[:, :, 0], rgb[:, :, 2]) else rgb[:, :, ::-1]  # single band stays gray; OpenCV writes BGR
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(f".tmp-{target.name}")  # the extension kept: it chooses the format
+        if not cv2.imwrite(str(tmp), pixels):
+            raise InputError(f"could not write an 8-bit copy for COLMAP to {tmp}", image_dir / name)
+        tmp.replace(target)
+        written += 1
+    log.info("images of more than 8 bits: COLMAP reads 8-bit copies scaled from the flight's white level %d "
+             "(%d written in %.1f s, %s)", white, written, time.perf_counter() - t0, work_dir)
+    return work_dir
 
 
 def extract_features(database: Path, image_dir: Path, priors: ImagePriors, params: SfmParams) -> dict[str, Any]:

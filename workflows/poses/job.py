@@ -8,7 +8,8 @@ import math
 import os
 import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -123,6 +124,17 @@ def _mark_stage(work: Path, name: str, key: str, result: dict) -> None:
     done[name] = {"key": key, **result}
     write_text_atomic(work / "stages.json", json.dumps(done, indent=1, default=json_default) + "\n")
 
+@contextmanager
+def _named_as(colmap_dir: Path, image_dir: Path) -> Iterator[None]:
+    """COLMAP's errors name the user's folder, not the 8-bit copies it read (`sfm.colmap_image_dir`)."""
+    try:
+        yield
+    except InputError as exc:
+        if exc.path != colmap_dir:
+            raise
+        raise InputError(exc.problem, image_dir, exc.line) from None
+
+
 def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors, params: Params, key: str,
              nominal_height_m: float) -> PosesResult:
     """Features, pairs, matches (resumable), mapping, georegistration, comparison; the files into `result_dir`."""
@@ -136,10 +148,13 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     if len(priors.names) < MIN_IMAGES:  # said before the work: COLMAP would report "0 registered", not why
         raise InputError(f"{len(priors.names)} image(s): structure from motion needs at least {MIN_IMAGES} "
                          "overlapping images", image_dir)
+    # COLMAP reads 8-bit images: data of more than 8 bits as white-levelled copies (also for the mapper's colours)
+    colmap_dir = sfm.colmap_image_dir(image_dir, priors.names, work / "images8")
     matched = _stage_done(work, "match", key)
     if matched is None or not db.is_file():
         sfm.create_database(db, priors, sp)  # kept from an interrupted run: extraction resumes
-        features = sfm.extract_features(db, image_dir, priors, sp)
+        with _named_as(colmap_dir, image_dir):
+            features = sfm.extract_features(db, colmap_dir, priors, sp)
         timings["features"] = features["seconds"]
         pairs, how = sfm.write_pairs(work / "pairs.txt", priors, sp)
         matching = sfm.match_pairs(db, work / "pairs.txt", sp, params.seed)
@@ -154,7 +169,8 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     if use_priors:
         sfm.write_pose_priors(db, priors, origin, sp)
     shutil.rmtree(work / "models", ignore_errors=True)
-    model = sfm.reconstruct(db, image_dir, work / "models", priors, sp, params.seed, use_priors)
+    with _named_as(colmap_dir, image_dir):
+        model = sfm.reconstruct(db, colmap_dir, work / "models", priors, sp, params.seed, use_priors)
     timings["mapping"] = model.seconds
     n_all = len(priors.names)
     _check_registered(len(model.registered), n_all, sp, image_dir, "registered")
