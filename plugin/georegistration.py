@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .geometry import rotation_angle_deg
+from .gps_lag import LagFit, corrected, fit_lag, track_velocity
 from .height_drift import MIN_HEIGHT_DRIFT_M, DriftFit, _robust_sigma, fit_drift  # noqa: F401 (also read from here)
 from .multisession import Sim3, umeyama
 from .refinement import fit_yaw_translation
@@ -234,6 +235,10 @@ class Georegistration:
     gps_altitude: DriftFit | None  # of GPS altitude - registered heights (the GPS altitude drift)
     gps_indices: np.ndarray  # the images (indices into the inputs) with a GPS fix used
     warnings: list[str] = field(default_factory=list)
+    lag: LagFit | None = None  # the GPS lag measured (`plugin.gps_lag`; None: not measurable)
+    # per image (N,3): what was added to its GPS x, y and reference height (the lag, where significant), for the
+    # users of the same positions downstream; None: nothing
+    position_shift: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         h, v = self.horizontal, self.vertical
@@ -248,6 +253,7 @@ class Georegistration:
             "gps_altitudes_consistent": v.gps_consistent,
             "height_offset": self.height_offset.to_dict(),
             "gps_altitude_drift": None if self.gps_altitude is None else self.gps_altitude.to_dict(),
+            "gps_lag": None if self.lag is None else self.lag.to_dict(),
             "warnings": list(self.warnings),
         }
 
@@ -267,16 +273,37 @@ def georegister(
     as the receiver gave it (NaN: no fix, or no altitude; needs >= 2 horizontal fixes), prior rotations and
     which came from tags, capture times (s), and `reference_heights` (N,) to register the height on instead of
     the GPS altitude (DJI RelativeAltitude + take-off altitude). The GPS altitude's drift against the result is
-    measured either way. ValueError when fewer than 2 images have a fix."""
+    measured either way. A significant GPS lag (`plugin.gps_lag`) is corrected in the GPS positions and the
+    heights before anything else is fitted on them (`position_shift`). ValueError when fewer than 2 images have
+    a fix."""
     c = np.asarray(sfm_centers, float)
     gps = np.asarray(gps, float)
     has = np.all(np.isfinite(gps[:, :2]), axis=1)  # a horizontal fix (the altitude may be missing)
     idx = np.flatnonzero(has)
     if len(idx) < 2:
         raise ValueError(f"{len(idx)} registered image(s) with a GPS position; georegistration needs 2")
+    warnings: list[str] = []
     # the GPS fixes that fit horizontally (block levelled by the priors alone) check the vertical
     first = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags,
                               tag_systematic_deg=tag_systematic_deg)
+    # the lag first: uncorrected, the lines flown one way would be taken as outliers of the others
+    track = track_velocity(gps[idx], np.asarray(times_s, float)[idx])
+    lag = fit_lag(c[idx] @ level_rotation(first.up).T, gps[idx], track, seed)
+    shift = None
+    if lag is not None and lag.significant:
+        vel = np.full_like(gps, np.nan)
+        vel[idx] = track.velocity
+        shift = np.zeros_like(gps)
+        shift[idx, :2] = lag.dt * np.nan_to_num(vel[idx, :2])
+        gps = corrected(gps, vel, lag.dt)
+        if reference_heights is not None:  # their own rate of climb (a relative altitude is not the GPS's)
+            ref = np.asarray(reference_heights, float)
+            vz = track_velocity(np.column_stack([gps[idx, :2], ref[idx]]), np.asarray(times_s, float)[idx])
+            shift[idx, 2] = lag.dt * np.nan_to_num(vz.velocity[:, 2])
+            reference_heights = ref + shift[:, 2]
+        else:
+            shift[idx, 2] = lag.dt * np.nan_to_num(vel[idx, 2])
+        warnings.append(f"the GPS positions {lag.shift()}: corrected (camera trigger latency or a time offset)")
     hfit = robust_horizontal_similarity(c[idx] @ level_rotation(first.up).T, gps[idx], seed)
     checked = np.full_like(gps, np.nan)
     checked[idx[hfit.inliers]] = gps[idx[hfit.inliers]]
@@ -290,7 +317,6 @@ def georegister(
     heights = gps[:, 2] if reference_heights is None else np.asarray(reference_heights, float)
     inl = idx[hfit.inliers]
     use = inl[np.isfinite(heights[inl])]
-    warnings: list[str] = []
     if len(use) == 0:
         offset = DriftFit(0.0, 0.0, 0.0, 0.0, math.inf, False, 0.0)
         warnings.append("no image has a height reference: heights are relative to the SfM origin")
@@ -323,7 +349,7 @@ def georegister(
     if vert.images_rejected and vert.source.startswith("attitude tags"):  # (off-nadir views are no fault)
         warnings.append(f"{len(vert.images_rejected)} image(s) have attitude tags whose vertical contradicts "
                         "the others'")
-    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings)
+    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift)
 
 
 @dataclass

@@ -77,6 +77,20 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
                     f"origin on the ground under the flight, scale {how})")
     return transform, {"frame": "local", "scale_from": how, "vertical_source": vert.source}, None
 
+def lag_corrected(priors: ImagePriors, index: np.ndarray, geo: Any) -> ImagePriors:
+    """`priors` with the GPS lag the georegistration corrected (`Georegistration.position_shift`, for the images
+    `index`) applied to their positions and GPS altitudes: every later comparison with the GPS (outliers, the
+    per-image distances) is made with the positions the registration used."""
+    import dataclasses
+
+    shift = None if geo is None else geo.position_shift
+    if shift is None:
+        return priors
+    positions, altitude = priors.positions.copy(), priors.gps_altitude.copy()
+    positions[index] += shift
+    altitude[index] += shift[:, 2]  # the climb in the lag, whichever height it was measured on
+    return dataclasses.replace(priors, positions=positions, gps_altitude=altitude)
+
 def _compare(priors: ImagePriors, index: np.ndarray, poses: Poses, warnings: list[str]) -> dict:
     """Registered poses against the GPS and the tags, per image; contradicting flight lines are warnings."""
     from ...plugin.georegistration import compare_with_priors, flight_lines

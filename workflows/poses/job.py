@@ -29,7 +29,15 @@ from ...plugin.params import Params, params_to_dict
 from .. import sfm
 from ..image_priors import ImagePriors, list_images, read_image_priors
 from ..pose_refinement.with_colmap import poses_of_reconstruction
-from .checks import NOMINAL_HEIGHT_M, _check_focal_lengths, _compare, _register, _transform_model, flying_height_m
+from .checks import (
+    NOMINAL_HEIGHT_M,
+    _check_focal_lengths,
+    _compare,
+    _register,
+    _transform_model,
+    flying_height_m,
+    lag_corrected,
+)
 from .focal import exif_focal_priors, weigh_focal_lengths
 from .result import OUTPUTS, RECORD, PosesResult, _listing, _refuse_cameras, load_result, map_inputs
 
@@ -191,6 +199,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     index = np.array([priors.names.index(n) for n in names])
     transform, geo_report, geo = _register(priors, index, r_sfm, c_sfm, model, nominal_height_m, params.seed, sp,
                                            warnings)
+    priors = lag_corrected(priors, index, geo)
     _transform_model(model.reconstruction, transform)
     world_r = np.einsum("ij,njk->nik", transform.rotation, r_sfm)
     world_c = transform.apply(c_sfm)

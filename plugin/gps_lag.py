@@ -1,0 +1,190 @@
+"""GPS lag (camera trigger latency or a clock offset) in the georegistration (pure numpy).
+
+A photo is often tagged with the drone's position a fraction of a second before (or after) the exposure: the tag
+is dt * v away from the camera along the track. On a lawnmower the error flips sign with the flight direction, so
+a similarity cannot absorb it: the robust horizontal fit (`georegistration.robust_horizontal_similarity`) keeps
+the lines flown one way and drops the others as outliers, and the whole map lies dt * v off (the 30th new-user
+sweep: 5 m of latency, the map 4.85 m off with verdict ok). Modelled instead: the camera was at gps_i + dt * v_i,
+v_i the drone's velocity from the GPS track itself, and dt is a fifth unknown of the (still linear) horizontal fit
+s R src + t = gps + dt v. dt is kept only when it is significant (`LAG_SIGNIFICANCE_SIGMAS` standard errors of
+the fit), so a flight without lag is registered exactly as before.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+# dt is applied only beyond this many of its standard errors: GPS noise correlated along a line makes the formal
+# error optimistic, and a lag that is not there must never be "corrected" into a flight
+LAG_SIGNIFICANCE_SIGMAS = 5.0
+# a step this many times the median capture interval (or step length) is a gap (another flight, a battery swap):
+# no velocity is taken across it
+GAP_FACTOR = 3.0
+# 99 % quantile and median of chi-square with 2 degrees of freedom (georegistration's inlier radius)
+_CHI2_2DOF_99 = 9.2103
+_CHI2_2DOF_MEDIAN = 1.3863
+
+
+@dataclass
+class TrackVelocity:
+    """The drone's velocity per image from its GPS track."""
+
+    velocity: np.ndarray  # (N,3) per `unit` (NaN: unknown, e.g. a lone image between gaps; z NaN without altitude)
+    unit: str  # "s" (capture times resolve the interval) or "image" (per image step)
+    interval_s: float  # the median capture interval (NaN without capture times)
+
+
+def _times_resolve(times: np.ndarray) -> bool:
+    """Capture times good for velocities: finite, strictly increasing, finer than the interval (whole seconds
+    at an interval of a few seconds make the speed wrong by tens of percent)."""
+    if len(times) < 2 or not np.all(np.isfinite(times)):
+        return False
+    d = np.diff(times)
+    if np.any(d <= 0):
+        return False
+    whole = np.allclose(times - times[0], np.round(times - times[0]), atol=1e-3)
+    return not (whole and float(np.median(d)) < 5.0)
+
+
+def track_velocity(positions: np.ndarray, times_s: np.ndarray) -> TrackVelocity:
+    """Velocity of each image (N,3 positions, NaN altitude allowed) from its neighbours in capture order (the
+    times' order; given order without times): a central difference, one-sided at the ends and at gaps, NaN for
+    an image alone between gaps. Per second when the capture times resolve the interval, else per image step."""
+    p = np.asarray(positions, float)
+    t = np.asarray(times_s, float)
+    n = len(p)
+    vel = np.full((n, 3), np.nan)
+    order = np.argsort(t, kind="stable") if np.all(np.isfinite(t)) else np.arange(n)
+    ts = t[order]
+    resolved = _times_resolve(ts)
+    interval = float(np.median(np.diff(ts))) if n >= 2 and np.all(np.isfinite(ts)) else math.nan
+    if n < 2:
+        return TrackVelocity(vel, "s" if resolved else "image", interval)
+    x = p[order]
+    clock = ts if resolved else np.arange(n, dtype=float)
+    dt = np.diff(clock)
+    length = np.linalg.norm(np.diff(x[:, :2], axis=0), axis=1)
+    ok = (dt <= GAP_FACTOR * np.median(dt)) & (length <= GAP_FACTOR * max(float(np.median(length)), 1e-9))
+    ok &= np.all(np.isfinite(np.diff(x[:, :2], axis=0)), axis=1)
+    for k in range(n):
+        lo = k - 1 if k > 0 and ok[k - 1] else k
+        hi = k + 1 if k < n - 1 and ok[k] else k
+        if hi > lo:
+            vel[order[k]] = (x[hi] - x[lo]) / (clock[hi] - clock[lo])
+    return TrackVelocity(vel, "s" if resolved else "image", interval)
+
+
+@dataclass
+class LagFit:
+    """The horizontal similarity with a lag: s R src + t = gps + dt v."""
+
+    dt: float  # in the velocity's unit
+    sigma_dt: float  # its standard error (inf when not observable)
+    significant: bool
+    unit: str  # "s" or "image"
+    seconds: float  # dt in seconds (NaN when the capture times do not tell)
+    metres: float  # dt at the median horizontal speed
+    speed: float  # median horizontal speed, m per `unit`
+    inliers: np.ndarray  # bool (N,)
+    sigma_m: float  # per-axis noise of the positions with the lag modelled
+
+    def shift(self) -> str:
+        """"lag the images by 0.42 s (4.9 m along the track at 11.7 m/s)", for a warning."""
+        verb = "lag" if self.dt > 0 else "lead"
+        if self.unit == "s":
+            when, speed = f"{abs(self.dt):.2f} s", f" at {self.speed:.1f} m/s"
+        else:
+            when = f"{abs(self.dt):.2f} image interval(s)" + (
+                f" (~{abs(self.seconds):.2f} s)" if math.isfinite(self.seconds) else "")
+            speed = ""
+        return f"{verb} the images by {when} ({abs(self.metres):.1f} m along the track{speed})"
+
+    def to_dict(self) -> dict:
+        return {"dt": self.dt, "sigma_dt": self.sigma_dt if math.isfinite(self.sigma_dt) else None,
+                "unit": self.unit, "seconds": self.seconds if math.isfinite(self.seconds) else None,
+                "metres": self.metres, "speed": self.speed, "significant": self.significant,
+                "inliers": int(self.inliers.sum()), "sigma_m": self.sigma_m}
+
+
+def _design(src: np.ndarray, vel: np.ndarray) -> np.ndarray:
+    """Rows (2N, 5) of the linear model [a, b, tx, ty, dt]: a x - b y + tx - dt vx = gx, b x + a y + ty - dt vy
+    = gy (s R = [[a, -b], [b, a]])."""
+    n = len(src)
+    a = np.zeros((2 * n, 5))
+    a[0::2] = np.column_stack([src[:, 0], -src[:, 1], np.ones(n), np.zeros(n), -vel[:, 0]])
+    a[1::2] = np.column_stack([src[:, 1], src[:, 0], np.zeros(n), np.ones(n), -vel[:, 1]])
+    return a
+
+
+def _solve(src: np.ndarray, dst: np.ndarray, vel: np.ndarray) -> np.ndarray | None:
+    a = _design(src, vel)
+    if np.linalg.matrix_rank(a) < 5:
+        return None
+    return np.linalg.lstsq(a, dst[:, :2].reshape(-1), rcond=None)[0]
+
+
+def _residuals(params: np.ndarray, src: np.ndarray, dst: np.ndarray, vel: np.ndarray) -> np.ndarray:
+    return np.linalg.norm((_design(src, vel) @ params - dst[:, :2].reshape(-1)).reshape(-1, 2), axis=1)
+
+
+def fit_lag(src: np.ndarray, dst: np.ndarray, track: TrackVelocity, seed: int = 0, samples: int = 500,
+            min_sigma_m: float = 1e-3) -> LagFit | None:
+    """The lag of GPS positions `dst` (N,3) behind levelled block centres `src` (N,3), with `track` their
+    velocities: least median of squares over 3-point samples of the 5-unknown linear fit (the lines flown either
+    way are in one model), then least squares on the 99 % inliers of the measured sigma, iterated. None when
+    fewer than 3 positions have a velocity or the lag is not observable (every image flown one way)."""
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    have = np.all(np.isfinite(track.velocity[:, :2]), axis=1) & np.all(np.isfinite(dst[:, :2]), axis=1)
+    idx = np.flatnonzero(have)
+    if len(idx) < 3:
+        return None
+    # centred: in UTM coordinates (10^6 m) the normal equations lose the lag's digits
+    s, d, v = src[idx] - src[idx].mean(0), dst[idx] - dst[idx].mean(0), track.velocity[idx]
+    n = len(idx)
+    rng = np.random.default_rng(seed)
+    best, best_med = None, math.inf
+    for _ in range(samples):
+        pick = rng.choice(n, 3, replace=False)
+        p = _solve(s[pick], d[pick], v[pick])
+        if p is None or math.hypot(p[0], p[1]) <= 0:
+            continue
+        med = float(np.median(_residuals(p, s, d, v) ** 2))
+        if med < best_med:
+            best, best_med = p, med
+    if best is None:
+        return None
+    params, inl = best, np.ones(n, bool)
+    sigma = max(math.sqrt(best_med / _CHI2_2DOF_MEDIAN), min_sigma_m)
+    for _ in range(10):
+        new = _residuals(params, s, d, v) ** 2 <= _CHI2_2DOF_99 * sigma**2
+        p = _solve(s[new], d[new], v[new]) if new.sum() >= 3 else None
+        if p is None:
+            break
+        params = p
+        r = _residuals(params, s, d, v)
+        sigma = max(math.sqrt(float(np.sum(r[new] ** 2)) / max(2 * int(new.sum()) - 5, 1)), min_sigma_m)
+        if np.array_equal(new, inl):
+            break
+        inl = new
+    a = _design(s[inl], v[inl])
+    normal = a.T @ a
+    sigma_dt = math.inf
+    if np.linalg.cond(normal) < 1e12:
+        sigma_dt = sigma * math.sqrt(float(np.linalg.inv(normal)[4, 4]))
+    dt = float(params[4])
+    speed = float(np.median(np.linalg.norm(v[:, :2], axis=1)))
+    seconds = dt if track.unit == "s" else dt * track.interval_s
+    inliers = np.zeros(len(src), bool)
+    inliers[idx[inl]] = True
+    significant = math.isfinite(sigma_dt) and abs(dt) > LAG_SIGNIFICANCE_SIGMAS * sigma_dt
+    return LagFit(dt, sigma_dt, significant, track.unit, seconds, dt * speed, speed, inliers, sigma)
+
+
+def corrected(values: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:
+    """values + dt * velocity where the velocity is known (elsewhere unchanged): the camera's position from a
+    lagging GPS position (any columns: x, y, altitude)."""
+    v = np.asarray(velocity, float)
+    return np.where(np.isfinite(v), np.asarray(values, float) + dt * np.nan_to_num(v), values)
