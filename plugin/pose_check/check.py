@@ -15,7 +15,7 @@ from ..map_quality import flight_passes
 from ..params import PoseCheckParams
 from .gps import GpsComparison
 from .matches import PairMatches, match_pair
-from .systematic import SystematicErrors, fit_systematic_errors, pair_sampson_px
+from .systematic import SystematicErrors, fit_systematic_errors, lag_along_track_m, pair_sampson_px, track_in_camera
 from .two_view import ray_angles, relative_poses, triangulation_depths
 
 # A pair tells the direction of motion (the sign of its depths) and the flying height only when its parallax rises
@@ -90,6 +90,15 @@ class PoseCheck:
     min_gps_agreement: float = 0.5
     # the camera centres against the images' own GPS fixes (None: too few fixes, or not compared)
     gps: GpsComparison | None = None
+    # the flight direction in the camera frame (`systematic.track_in_camera`): to name an attitude bias that a
+    # lag along the track would give as well
+    track_camera: tuple[float, float, float] = (float("nan"),) * 3
+
+    @property
+    def lag_along_track_m(self) -> float:
+        """The lag along the track the images cannot tell from the attitude bias (`systematic.lag_along_track_m`;
+        NaN when the bias is no pitch along the flight direction)."""
+        return lag_along_track_m(self.systematic, np.asarray(self.track_camera), self.flying_height_m)
 
     @property
     def systematic_separable(self) -> bool:
@@ -310,7 +319,8 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         reversed_pairs=sum(c.reversed(gate_px) for c in checks), reversed_passes=reversed_passes,
         systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index,
         systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
-        min_gps_agreement=params.min_gps_agreement)
+        min_gps_agreement=params.min_gps_agreement,
+        track_camera=tuple(float(v) for v in track_in_camera(poses)))
 
 
 def flying_height(depths_m: np.ndarray, parallax_px: np.ndarray, consecutive: list[bool], min_parallax_px: float

@@ -60,6 +60,46 @@ class SystematicErrors:
 
 
 
+# the attitude bias reads as a lag along the track when this share (at least) of the shift it gives the view
+# direction lies along the track (within ~25 deg of it)
+ALONG_TRACK_SHARE = 0.9
+
+
+def track_in_camera(poses: Poses) -> np.ndarray:
+    """The flight direction in the camera frame (x right, z view; unit), the mean of the horizontal steps between
+    consecutive images (capture order), each turned into its image's camera frame; NaN when the steps do not
+    agree there (mean shorter than half a step: a camera whose yaw does not follow the heading, or a hover)."""
+    steps = np.diff(poses.centers, axis=0)
+    steps[:, 2] = 0.0
+    length = np.linalg.norm(steps, axis=1)
+    keep = length > 1e-6 * max(float(np.max(length, initial=0.0)), 1e-12)
+    if keep.sum() < 2:
+        return np.full(3, np.nan)
+    in_camera = np.einsum("nji,nj->ni", poses.rotations[:-1][keep], steps[keep] / length[keep, None])
+    mean = in_camera.mean(axis=0)
+    norm = float(np.linalg.norm(mean))
+    return mean / norm if norm >= 0.5 else np.full(3, np.nan)
+
+
+def lag_along_track_m(errors: SystematicErrors, track_camera: np.ndarray, flying_height_m: float) -> float:
+    """The lag of the positions along the track (m; > 0 behind, < 0 ahead) that moves the ground in the images as
+    the fitted attitude bias does, when that bias is a pitch along the flight direction (its shift of the view
+    direction lies along `track_camera`, `ALONG_TRACK_SHARE`): over flat ground at a constant height H, a pitch
+    theta and a lag of H tan(theta) move every ground point alike, and both turn with the heading in the camera
+    frame, so the images cannot tell a log time offset or a trigger latency from a wrong attitude. NaN otherwise."""
+    w = np.asarray(errors.parameters[3:6] if len(errors.parameters) >= 6 else [np.nan] * 3, np.float64)
+    t = np.asarray(track_camera, np.float64)
+    if not (np.all(np.isfinite(w)) and np.all(np.isfinite(t)) and np.isfinite(flying_height_m)):
+        return float("nan")
+    z = np.array([0.0, 0.0, 1.0])
+    shift = _rotations(w) @ z - z  # the view direction as the images put it, minus as the poses do
+    along = float(shift @ t)
+    if np.linalg.norm(shift) == 0.0 or abs(along) < ALONG_TRACK_SHARE * float(np.linalg.norm(shift)):
+        return float("nan")
+    # the images see the ground further ahead than the poses say: the camera was further ahead, the positions behind
+    return float(np.sign(along) * flying_height_m * np.tan(np.radians(errors.attitude_bias_deg)))
+
+
 def _rotations(w: np.ndarray) -> np.ndarray:
     """Rotation matrix of one rotation vector."""
     from scipy.spatial.transform import Rotation

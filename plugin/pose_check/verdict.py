@@ -108,13 +108,18 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
          f"{limits.max_height_tilt_deg:g} deg", "the camera centres lie on a tilted plane"),
         (s.attitude_bias_deg, s.attitude_bias_sigma_deg, limits.max_attitude_bias_deg, limits.warn_attitude_bias_deg,
          f"the cameras share an attitude error of {s.attitude_bias_deg:.1f} deg (+-{s.attitude_bias_sigma_deg:.1f})",
-         f"{limits.max_attitude_bias_deg:g} deg", "a wrong mounting or heading convention?"),
+         f"{limits.max_attitude_bias_deg:g} deg",
+         "a wrong mounting or heading convention?" if not np.isfinite(check.lag_along_track_m) else
+         "a camera trigger latency, a log time offset, or a wrong mounting?"),
     ]
-    for value, sigma, limit, warn, what, at_most, cause in systematic:
+    for k, (value, sigma, limit, warn, what, at_most, cause) in enumerate(systematic):
+        # the attitude bias (last) may be a lag along the track as well: both named
+        alternative = _or_lag(check.lag_along_track_m) if k == len(systematic) - 1 else ""
         if _beyond(value, sigma, limit):
-            v.refusals.append(f"poses vs images: {what} against what the images show (at most {at_most}): {cause}")
+            v.refusals.append(f"poses vs images: {what} against what the images show (at most {at_most})"
+                              f"{alternative}: {cause}")
         elif _beyond(value, sigma, warn):
-            v.warnings.append(f"poses vs images: {what} against the images")
+            v.warnings.append(f"poses vs images: {what} against the images{alternative}")
     return v
 
 
@@ -131,6 +136,14 @@ def poses_fit_images(check: PoseCheck, limits: PoseCheckParams) -> str:
         return ""
     return (f"the pose check found the poses fitting the images ({check.pairs_checked} of {check.pairs_tried} pairs "
             f"checked, median {check.epipolar_p50_px:.1f} px on a {check.gate_px:.0f} px gate)")
+
+
+def _or_lag(lag_m: float) -> str:
+    """The lag along the track the images cannot tell from the attitude bias, in words ("" for none)."""
+    if not np.isfinite(lag_m):
+        return ""
+    return (f", or positions {abs(lag_m):.1f} m {'behind' if lag_m > 0 else 'ahead'} along the track (a camera "
+            "trigger latency or a log time offset: over flat ground the images cannot tell them apart)")
 
 
 def _beyond(value: float, sigma: float, limit: float) -> bool:
