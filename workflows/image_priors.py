@@ -93,6 +93,7 @@ from .image_cameras import (  # noqa: F401 (re-exported: their home before image
     turned_readout,
 )
 from .image_positions import check_one_place, median_position, one_vertical_datum, track_checks
+from .image_rigs import one_image_per_capture
 
 log = logging.getLogger(__name__)
 
@@ -268,6 +269,10 @@ def read_image_priors(
     paths = list_images(images)
     tele = read_telemetry_csv(telemetry) if telemetry is not None else {}
     metas = [read_image_metadata(p) for p in paths]
+    # one image per capture: a multispectral camera's bands share one time and position (`image_rigs`)
+    keep = one_image_per_capture(metas, images if isinstance(images, (str, Path)) else paths[0].parent)
+    if len(keep) < len(metas):
+        paths, metas = [paths[i] for i in keep], [metas[i] for i in keep]
     n = len(metas)
     rows = telemetry_rows(tele, [m.path.name for m in metas], telemetry, images)
     damaged = [m for m in metas if m.problems]

@@ -1,0 +1,62 @@
+"""Several images per capture (`workflows.image_rigs`): a MicaSense-style folder (five bands per trigger, one
+time and position) is refused naming the cause; a DJI P4 Multispectral-style folder (one RGB JPEG beside five
+TIFF bands) is read as its JPEGs; a plain flight is read whole."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sosmatch.database.exif import encode_exif, read_image_metadata
+from sosmatch.plugin.errors import InputError
+from sosmatch.tools.cli import main
+from sosmatch.workflows.image_priors import read_image_priors
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("rigs") / "flight"
+    assert main(["synth", "--out", str(out), "--frames", "12", "--width", "160", "--height", "120", "--world-size",
+                 "400", "--line-length", "60", "--geotags", "dji", "-q"]) == 0
+    return out
+
+
+def _bands(flight: Path, folder: Path, rgb_too: bool) -> None:
+    """Per frame five 16-bit band TIFFs carrying its tags (and, `rgb_too`, its JPEG), as a multispectral
+    camera writes them: every file of a trigger the same time and position."""
+    folder.mkdir()
+    for i, jpg in enumerate(sorted((flight / "images").glob("*.jpg"))):
+        exif = Image.Exif()
+        exif.load(b"Exif\x00\x00" + encode_exif(read_image_metadata(jpg)))
+        rgb = np.asarray(Image.open(jpg).convert("RGB"), dtype=np.uint16)
+        if rgb_too:
+            (folder / f"DJI_{10 * i + 10:04d}.JPG").write_bytes(jpg.read_bytes())
+        for k in range(5):
+            band = rgb[:, :, min(k, 2)] * 16
+            name = f"DJI_{10 * i + 11 + k:04d}.TIF" if rgb_too else f"IMG_{i:04d}_{k + 1}.tif"
+            Image.fromarray(band).save(folder / name, exif=exif)
+
+
+def test_a_multispectral_folder_is_refused_naming_the_cause(flight, tmp_path, cli_error):
+    _bands(flight, tmp_path / "mica", rgb_too=False)
+    with pytest.raises(InputError, match=r"mica: 5 images per capture \(same time and position\): a multispectral "
+                                         r"or multi-camera rig\? map one band's images"):
+        read_image_priors(tmp_path / "mica")
+    err = cli_error("map", "--images", tmp_path / "mica", "--pose-source", "exif", "--out", tmp_path / "m")
+    assert "5 images per capture" in err and not (tmp_path / "m").exists()
+
+
+def test_the_rgb_image_of_each_capture_is_used_and_the_bands_named(flight, tmp_path, caplog):
+    _bands(flight, tmp_path / "p4m", rgb_too=True)
+    with caplog.at_level(logging.INFO):
+        priors = read_image_priors(tmp_path / "p4m")
+    assert len(priors.names) == 12 and all(n.endswith(".JPG") for n in priors.names)
+    assert "6 images per capture" in caplog.text and "the 60 band images (.TIF) are left out" in caplog.text
+
+
+def test_a_flight_of_one_image_per_capture_is_read_whole(flight):
+    assert len(read_image_priors(flight / "images").names) == 12
