@@ -41,6 +41,9 @@ class MapInputs:
     # what would give better poses, said when the pose check finds these loose (EXIF tags: `--refine`); not part of
     # the inputs' identity
     remedy: str = ""
+    # what the pose source found doubtful (the georegistration's warnings of structure from motion): the map's
+    # verdict says them, run.json and the summary line, not only the poses' record; not part of the identity
+    warnings: list[str] = field(default_factory=list)
 
 
 def _is_synth_session(path: Path) -> bool:
@@ -254,7 +257,7 @@ def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | N
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     poses = inputs.poses.subset(order)
     return MapInputs([inputs.image_paths[i] for i in order], poses, inputs.camera, inputs.epsg,
-                     inputs.sources, inputs.remedy)
+                     inputs.sources, inputs.remedy, inputs.warnings)
 
 
 def image_digests(inputs: MapInputs) -> list[str]:

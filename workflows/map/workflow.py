@@ -350,7 +350,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                      params.association.min_associations + 1,
                                      checked.check.flying_height_m if checked is not None else float("nan"),
                                      white, poses_fit(checked, params), images)
-    verdict = joined(verdict, checked.verdict if checked is not None else None)
+    # the poses' doubts (a georegistration leaving GPS fixes out, a lag corrected) are the map's too
+    verdict = joined(Verdict(warnings=list(inputs.warnings)), verdict, checked.verdict if checked is not None else None)
     timings["quality"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
 

@@ -70,8 +70,10 @@ def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
         _refuse_cameras([f"{c.model} {c.width}x{c.height}" for c in result.cameras.values()], image_dir)
     paths = {p.name: p for p in list_images(image_dir)}
     camera = next(iter(result.cameras.values()))
+    geo = result.report.get("georegistration") or {}
     return MapInputs([paths[n] for n in result.poses.names], result.poses, camera, result.epsg,
-                     {"poses": source, "camera": source, "images": str(image_dir)})
+                     {"poses": source, "camera": source, "images": str(image_dir)},
+                     warnings=[f"poses: {w}" for w in geo.get("warnings", [])])
 
 def _refuse_cameras(listing: list[str], image_dir: Path) -> None:
     raise InputError(f"the images come from {len(listing)} cameras ({', '.join(listing)}); map takes one camera: "
