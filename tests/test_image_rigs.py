@@ -60,3 +60,14 @@ def test_the_rgb_image_of_each_capture_is_used_and_the_bands_named(flight, tmp_p
 
 def test_a_flight_of_one_image_per_capture_is_read_whole(flight):
     assert len(read_image_priors(flight / "images").names) == 12
+
+
+def test_bracketed_colour_exposures_at_one_fix_are_no_rig(flight, tmp_path):
+    """Three colour frames per position and clock second (exposure bracketing, or a GPS that updates slower than
+    the camera shoots) were mapped before the rig check; they must not be refused as a multispectral camera."""
+    folder = tmp_path / "bracketed"
+    folder.mkdir()
+    for i, jpg in enumerate(sorted((flight / "images").glob("*.jpg"))):
+        for k in range(3):
+            (folder / f"DJI_{3 * i + k:04d}.JPG").write_bytes(jpg.read_bytes())
+    assert len(read_image_priors(folder).names) == 36

@@ -2,7 +2,8 @@
 per band (MicaSense: IMG_0001_1.tif .. _5.tif), a multi-camera rig one per camera. Their images of a capture
 share a position but not a viewpoint (the lenses sit centimetres apart, each band its own lens), so neither
 structure from motion nor the tags' poses make one camera of them: the nu30 sweep's MicaSense folder was refused
-with "orientations could not be solved from tie points", which misses the cause."""
+with "orientations could not be solved from tie points", which misses the cause. Repeated colour frames at one
+time and fix (bracketed exposures, a GPS slower than the shutter) are no rig: a rig is told by its band images."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 from ..database.exif import ImageMetadata
+from ..database.images import header_bands
 from ..plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -35,6 +37,10 @@ def one_image_per_capture(metas: list[ImageMetadata], folder: str | Path) -> lis
             groups[(float(m.capture_time_s), float(m.latitude), float(m.longitude))].append(i)  # type: ignore[arg-type]
     shared = [g for g in groups.values() if len(g) > 1]
     if sum(map(len, shared)) < RIG_SHARE * len(metas) or len(shared) < MIN_RIG_CAPTURES:
+        return list(range(len(metas)))
+    # a rig's captures hold band images (one channel each); repeated colour frames of one camera at one fix are
+    # bracketed exposures or a GPS that updates slower than the camera shoots, and are mapped as they are
+    if not any(header_bands(metas[i].path) == 1 for g in shared for i in g):
         return list(range(len(metas)))
     per_capture = Counter(len(g) for g in shared).most_common(1)[0][0]
     chosen = [_odd_one(g, metas) for g in shared]
