@@ -170,6 +170,7 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
     """`run` inside its taken output directory."""
     report = SegmentReport()
     from ..database.images import flight_white_level
+    from ..plugin.flight_contrast import flight_contrast
     from .progress import progress_iter
 
     # one scale per folder: a folder holds one camera's flight, and folders given together may be of cameras of
@@ -178,6 +179,13 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
     for path in paths:
         folders.setdefault(path.parent, []).append(path)
     white = {folder: flight_white_level(members) for folder, members in folders.items()}
+    # and one contrast gain per folder (`plugin.flight_contrast`), as `sosmatch map` gives a flight: a hazy
+    # folder is segmented as the map would segment it, and every image of it alike
+    contrast = {folder: flight_contrast(members, params.segmentation.contrast_reference, white[folder])
+                for folder, members in folders.items()}
+    for folder, c in contrast.items():
+        if c.stretched:
+            log.warning("%s: %s", folder, c.message().replace("the flight's", "the images'"))
     for path in progress_iter(paths, len(paths), "segment", "img", len(paths) >= 3):
         res = ImageResult(path)
         report.images.append(res)
@@ -189,7 +197,7 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
             continue
         res.height, res.width = image.shape[:2]
         t0 = time.perf_counter()
-        masks = seg_backend(image)
+        masks = seg_backend(contrast[path.parent].apply(image))  # described and drawn on the image as read
         t1 = time.perf_counter()
         feats = describe_masks(image, masks, params.segmentation)
         t2 = time.perf_counter()

@@ -48,6 +48,13 @@ class SegmentationParams(Checked):
     sift_max_keypoints: int = count(2000, 0)
     # (ours) OpenCV's 0.04 finds ~100 keypoints on low-contrast NIR frames
     sift_contrast_threshold: float = non_negative(0.01)
+    # (ours) the luminance range (grey levels 0..255, median over sampled frames of their 1-99 % range) the
+    # segmenter's absolute contrast criteria were tuned for: a flight of less contrast (haze) is stretched up to it
+    # by one linear gain for segmentation (`plugin.flight_contrast`; 0: never). Normal flights measured: synthetic
+    # summer 130-150, winter 121-143, spring / autumn at 100 and 130 m 123-148, sun at 5-10 deg 127-135, Seneca 120,
+    # NAIP orthophoto views 94 (2015) and 115; 90, below all of them, leaves each unchanged. Haze 0.3 / 0.5 on a
+    # summer flight: 96 / 69.
+    contrast_reference: float = non_negative(90.0)
     # -- backend `classical` (sosmatch.plugin.segmentation.classical; all ours, tuned on synthetic + Seneca) --
     classical_max_side: int = count(400, 1)  # working resolution (longer side, px); masks are mapped back to full size
     # (ours) the most ground one working pixel may cover (m): when the map measures its flying height (the pose

@@ -86,12 +86,15 @@ def _describe_one(
     masks_for: Callable[[str, np.ndarray], Any] | None = None,
     camera: Camera | None = None,
     white: int | None = None,
+    contrast: Any = None,
 ) -> tuple[Any, tuple[float, float], np.ndarray]:
     """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
 
     Returns (MaskFeatures, (mu_p, sigma_p), gray image). Runs in the main process or a worker process. `camera`:
     the images' lens; the motion is measured in the undistorted pixels tracking compares (`image_motion_stats`).
-    `white`: the flight's white level (`database.images.flight_white_level`).
+    `white`: the flight's white level (`database.images.flight_white_level`). `contrast`: the flight's
+    (`plugin.flight_contrast.FlightContrast`; None: as read): the segmenter sees the image through its gain, the
+    masks are described on the image as read.
     """
     from ...database.images import read_image
     from ...plugin.image_quality import image_figures
@@ -115,12 +118,20 @@ def _describe_one(
         if cache_name not in _WORKER_BACKEND:
             _WORKER_BACKEND.clear()
             _WORKER_BACKEND[cache_name] = get_backend(seg.backend, seg)
+        backend = _WORKER_BACKEND[cache_name]
+        if contrast is not None and contrast.stretched:
+            backend = _through(contrast, backend)
         # the SIFT detection runs in a second thread while the backend segments (same features)
-        _, feats = segment_and_describe(image, _WORKER_BACKEND[cache_name], seg)
+        _, feats = segment_and_describe(image, backend, seg)
     # noise and sharpness as the segmenter sees them (its working size), from the grey image already decoded
     figures = image_figures(gray, min(seg.classical_max_side, max(size)))
     _save_cached(entry, key, feats, mu_sigma, figures)
     return feats, mu_sigma, gray
+
+
+def _through(contrast: Any, backend: Callable[[np.ndarray], Any]) -> Callable[[np.ndarray], Any]:
+    """`backend` segmenting the image as the flight's contrast gain makes it."""
+    return lambda image: backend(contrast.apply(image))
 
 
 def _worker_init() -> None:
@@ -142,6 +153,7 @@ def describe_keyframes(
     digests: Sequence[str] | None = None,
     white: int | None = None,
     hold_descriptors: bool = True,
+    contrast: Any = None,
 ) -> tuple[list[Any], list[tuple[float, float]], int]:
     """Segmentation + mask description + motion statistics per keyframe, resumed from the cache.
 
@@ -158,6 +170,8 @@ def describe_keyframes(
     `hold_descriptors` False: the features come without their SIFT descriptors (shape (0, 128)), which stay in the
     cache (`cached_descriptors` reads them): they are ~95 % of a keyframe's description (~1 MB at 320 px), and a
     1500-keyframe flight held 1.7 GB of them where tracking needs only the last few keyframes' at a time.
+    `contrast`: the flight's contrast (`plugin.flight_contrast.FlightContrast`; None or gain 1: the segmenter sees
+    the images as read).
     """
     from dataclasses import replace
 
@@ -173,6 +187,8 @@ def describe_keyframes(
     white = flight_white_level(inputs.image_paths) if white is None else white
     if white is not None:
         cache_key = f"{cache_key}:white{white}"
+    if contrast is not None and contrast.stretched:  # (a flight at gain 1 keeps its cache keys)
+        cache_key = f"{cache_key}:contrast{contrast.gain:.6f}:{contrast.centre:.3f}:{contrast.range:.3f}"
     results: list[tuple[Any, tuple[float, float]] | None] = [None] * len(keyframes)
     todo = []
     for k, idx in enumerate(keyframes):
@@ -195,7 +211,7 @@ def describe_keyframes(
         for k, path, prev_path, entry, key in todo:
             feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
                                                   prev_gray if prev_k == k - 1 else None, masks_for, inputs.camera,
-                                                  white)
+                                                  white, contrast)
             results[k] = (kept(feats), mu_sigma)
             prev_gray, prev_k = gray, k
             bar.update()
@@ -207,7 +223,7 @@ def describe_keyframes(
         # spawn (no fork of a process holding pycolmap/OpenCV threads); the workers die with this process
         with process_pool(workers, _worker_init) as pool:
             futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for,
-                                              inputs.camera, white))
+                                              inputs.camera, white, contrast))
                        for k, path, prev_path, entry, key in todo]
             try:
                 for k, fut in futures:

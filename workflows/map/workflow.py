@@ -247,6 +247,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
 
     from ...database.images import flight_white_level
     from ...database.session_io import format_landmarks_csv
+    from ...plugin.flight_contrast import flight_contrast
     from ...plugin.image_quality import flight_images
     from ...plugin.keyframes import select_keyframes
     from ...plugin.mask_features import undistort_features
@@ -259,6 +260,11 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     # before the keyframes: its flying height sets the segmenter's working size (`working_resolution`)
     # one white level for every reader of the flight's images beyond 8 bits (a 16-bit sample is decoded once)
     white = flight_white_level(inputs.image_paths)
+    # one contrast gain for the flight's segmentation (none where masks come from elsewhere, or at normal contrast)
+    contrast = None if masks_for is not None else flight_contrast(inputs.image_paths,
+                                                                    params.segmentation.contrast_reference, white)
+    if contrast is not None and contrast.stretched:
+        log.warning("%s", contrast.message())
     checked = pose_check_stage(inputs, params, out.staged(POSE_CHECK), gps, white)
     timings["pose_check"] = time.perf_counter() - t
     params, ground_resolution = working_resolution(params, checked, camera)
@@ -273,7 +279,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     kf_poses = inputs.poses.subset(keyframes)
     features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
                                                   progress, on_keyframe, workers, masks_for, digests, white,
-                                                  hold_descriptors=False)
+                                                  hold_descriptors=False, contrast=contrast)
     descriptors = cached_descriptors(partial / "cache", kf_poses.names)
     images = flight_images(cached_image_figures(partial / "cache", kf_poses.names), kf_poses.names)
     timings["keyframes"] = time.perf_counter() - t
@@ -383,6 +389,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "landmarks_fingerprint": landmark_map_fingerprint(read_landmark_map(partial / "landmarks.sosmap")),
         # metres of ground per image pixel at the measured flying height (sets the segmenter's working size)
         "ground_resolution_m": round(ground_resolution, 5) if np.isfinite(ground_resolution) else None,
+        # the flight's luminance range and the gain the segmenter saw its images through (plugin.flight_contrast)
+        "contrast": contrast.to_dict() if contrast is not None else None,
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
