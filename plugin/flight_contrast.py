@@ -78,11 +78,11 @@ class FlightContrast:
         return {"range": round(self.range, 2), "centre": round(self.centre, 2), "reference": self.reference,
                 "gain": round(self.gain, 4), "samples": self.samples}
 
-    def message(self) -> str:
-        """The line said when a gain is applied."""
-        return (f"the flight's contrast is {self.range / self.reference:.2f} of what the segmenter was tuned for "
-                f"(luminance range {self.range:.0f} of {self.reference:g} grey levels, hazy or flat light?): its "
-                f"images are stretched by {self.gain:.2f} for segmentation")
+    def message(self, whose: str = "the flight's") -> str:
+        """The line said when a gain is applied (`whose`: what was measured, "the flight's" or a folder's)."""
+        return (f"{whose} contrast is {self.range / self.reference:.2f} of what the segmenter was tuned for "
+                f"(luminance range {self.range:.0f} of {self.reference:g} grey levels: haze or flat light?): "
+                f"stretched by {self.gain:.2f} for segmentation")
 
 
 def contrast_of(ranges: Sequence[tuple[float, float]], reference: float) -> FlightContrast:

@@ -185,7 +185,7 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
                 for folder, members in folders.items()}
     for folder, c in contrast.items():
         if c.stretched:
-            log.warning("%s: %s", folder, c.message().replace("the flight's", "the images'"))
+            log.warning("%s", c.message(f"{folder}: the images'"))
     for path in progress_iter(paths, len(paths), "segment", "img", len(paths) >= 3):
         res = ImageResult(path)
         report.images.append(res)
