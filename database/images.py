@@ -219,19 +219,6 @@ def _header_bits(path: Path) -> int | None:
         return None
 
 
-def header_bands(path: str | Path) -> int | None:
-    """Bands (channels) of an image from its header, nothing decoded: 1 for a gray or single-band image (a
-    multispectral camera's band, a thermal frame), 3 for colour; None when PIL cannot read the header."""
-    Image = _pil_image()
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            with Image.open(path) as img:
-                return len(img.getbands())
-    except Exception:  # any header PIL cannot read: decoded (or named) by the reader
-        return None
-
-
 def _bits_per_sample(img: Any, path: Path) -> int:
     """Bits per sample of an open PIL image: its mode's, or for TIFF and PNG the file's own (PIL opens 16-bit
     colour as mode RGB)."""

@@ -71,3 +71,18 @@ def test_bracketed_colour_exposures_at_one_fix_are_no_rig(flight, tmp_path):
         for k in range(3):
             (folder / f"DJI_{3 * i + k:04d}.JPG").write_bytes(jpg.read_bytes())
     assert len(read_image_priors(folder).names) == 36
+
+
+@pytest.mark.parametrize("mode", ["L", "RGB"])
+def test_one_gray_or_colour_camera_shooting_faster_than_its_clock_is_no_rig(flight, tmp_path, mode):
+    """rev22: a lone NIR or thermal camera (one band) at 2 frames per second with whole-second EXIF times and a 1 Hz
+    GPS gives two frames per (second, fix); it was refused as "a multispectral or multi-camera rig"."""
+    folder = tmp_path / f"cam_{mode}"
+    folder.mkdir()
+    for i, jpg in enumerate(sorted((flight / "images").glob("*.jpg"))):
+        exif = Image.Exif()
+        exif.load(b"Exif\x00\x00" + encode_exif(read_image_metadata(jpg)))
+        img = Image.open(jpg).convert(mode)
+        for k in range(2):
+            img.save(folder / f"NIR_{2 * i + k:04d}.jpg", exif=exif)
+    assert len(read_image_priors(folder).names) == 24

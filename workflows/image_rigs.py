@@ -2,17 +2,18 @@
 per band (MicaSense: IMG_0001_1.tif .. _5.tif), a multi-camera rig one per camera. Their images of a capture
 share a position but not a viewpoint (the lenses sit centimetres apart, each band its own lens), so neither
 structure from motion nor the tags' poses make one camera of them: the nu30 sweep's MicaSense folder was refused
-with "orientations could not be solved from tie points", which misses the cause. Repeated colour frames at one
-time and fix (bracketed exposures, a GPS slower than the shutter) are no rig: a rig is told by its band images."""
+with "orientations could not be solved from tie points", which misses the cause. Repeated frames at one
+time and fix (bracketed exposures, a GPS slower than the shutter, one gray camera shooting faster than its clock
+ticks) are no rig: a rig is told by its images being different sensors'."""
 
 from __future__ import annotations
 
 import logging
+import re
 from collections import Counter, defaultdict
 from pathlib import Path
 
 from ..database.exif import ImageMetadata
-from ..database.images import header_bands
 from ..plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -35,12 +36,10 @@ def one_image_per_capture(metas: list[ImageMetadata], folder: str | Path) -> lis
     for i, m in enumerate(metas):
         if m.has_gps and m.capture_time_s is not None:
             groups[(float(m.capture_time_s), float(m.latitude), float(m.longitude))].append(i)  # type: ignore[arg-type]
-    shared = [g for g in groups.values() if len(g) > 1]
+    # a rig's capture holds different sensors' images; repeated frames of one camera at one fix (bracketed
+    # exposures, a GPS or a clock slower than the shutter, a gray NIR camera at 2 fps) are mapped as they are
+    shared = [g for g in groups.values() if len(g) > 1 and _sensors_differ(g, metas)]
     if sum(map(len, shared)) < RIG_SHARE * len(metas) or len(shared) < MIN_RIG_CAPTURES:
-        return list(range(len(metas)))
-    # a rig's captures hold band images (one channel each); repeated colour frames of one camera at one fix are
-    # bracketed exposures or a GPS that updates slower than the camera shoots, and are mapped as they are
-    if not any(header_bands(metas[i].path) == 1 for g in shared for i in g):
         return list(range(len(metas)))
     per_capture = Counter(len(g) for g in shared).most_common(1)[0][0]
     chosen = [_odd_one(g, metas) for g in shared]
@@ -55,6 +54,23 @@ def one_image_per_capture(metas: list[ImageMetadata], folder: str | Path) -> lis
              "capture, of their own file type) are used; the %d band images (%s) are left out", per_capture,
              len(chosen), metas[chosen[0]].path.suffix, sum(map(len, shared)) - len(chosen), ", ".join(skipped))
     return keep
+
+
+# MicaSense / Altum names a capture's bands IMG_0001_1.tif .. IMG_0001_6.tif: one stem, a band index of 1-2 digits
+_BAND_SUFFIX = re.compile(r"^(?P<stem>.+)_(?P<band>\d{1,2})$")
+
+
+def _sensors_differ(group: list[int], metas: list[ImageMetadata]) -> bool:
+    """Whether the images of one capture come from different sensors (bands or cameras) rather than being repeated
+    frames of one camera: different XMP band names (MicaSense, DJI multispectral write `BandName`), different
+    file types (DJI P4 Multispectral: an RGB JPEG beside TIFF bands), or one name stem with band indices."""
+    bands = {metas[i].xmp.get("BandName") for i in group}
+    if len(bands - {None}) > 1:
+        return True
+    if len({metas[i].path.suffix.lower() for i in group}) > 1:
+        return True
+    names = [_BAND_SUFFIX.match(metas[i].path.stem) for i in group]
+    return all(names) and len({m["stem"] for m in names if m}) == 1 and len({m["band"] for m in names if m}) > 1
 
 
 def _odd_one(group: list[int], metas: list[ImageMetadata]) -> int | None:
