@@ -60,3 +60,19 @@ def test_8_bit_copies_are_white_levelled_and_reused_and_8_bit_folders_are_read_i
     jpgs = [p.name for p in sorted((flight / "images").glob("*.jpg"))]
     assert sfm.colmap_image_dir(flight / "images", jpgs, tmp_path / "none") == flight / "images"
     assert not (tmp_path / "none").exists()  # an 8-bit flight costs nothing
+
+
+def test_a_copy_is_made_again_when_its_image_changes(flight, tmp_path):
+    """rev22: the copies were reused by name alone, so after the user replaced an image a re-run fed COLMAP the old
+    pixels."""
+    images = tmp_path / "band"
+    names = _twelve_bit_tiffs(flight, images)[:3]
+    work = tmp_path / "work"
+    sfm.colmap_image_dir(images, names, work)
+    before = np.asarray(Image.open(work / names[0])).astype(int)
+    exif = Image.open(images / names[0]).getexif()
+    dark = np.asarray(Image.open(images / names[0])).astype(np.float64) / 4
+    Image.fromarray(np.rint(dark).astype(np.uint16)).save(images / names[0], exif=exif)
+    sfm.colmap_image_dir(images, names, work)
+    after = np.asarray(Image.open(work / names[0])).astype(int)
+    assert abs(after.mean() - before.mean() / 4) < 2  # the new image's pixels, not the old copy

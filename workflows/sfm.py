@@ -95,20 +95,35 @@ def colmap_image_dir(image_dir: Path, names: list[str], work_dir: Path) -> Path:
     (`database.images.flight_white_level`), as ODM does for 16-bit images. COLMAP's reader scales 16-bit data
     from the container's maximum, so 12-bit data stored in 16 bits reached its SIFT at 1/16 of the contrast (a
     MicaSense band: one featureless image, 0 registered, while every other stage reads it white-levelled). The
-    copies are written atomically and reused by a re-run (the work folder belongs to these image files); the
-    names stay the user's, so the database and the model name the user's files."""
+    copies are written atomically and reused by a re-run while their image (size, modification time) and the
+    white level are the same (`copies.json`); the names stay the user's, so the database and the model name the
+    user's files."""
     from ..database.images import flight_white_level, read_image
 
     white = flight_white_level([image_dir / n for n in names])
     if white is None:
         return image_dir
+    import json
+
     import cv2
+
+    from ..database.atomic import write_text_atomic
 
     t0 = time.perf_counter()
     written = 0
+    # what each copy was made from: a re-run after the user replaced an image, or added images that raise the
+    # flight's white level, must not feed COLMAP the old pixels or a mix of white levels (rev22)
+    manifest_path = work_dir / "copies.json"
+    try:
+        made = json.loads(manifest_path.read_text())
+    except (OSError, ValueError):
+        made = {}
+    made = made if isinstance(made, dict) else {}
     for name in names:
         target = work_dir / name
-        if target.is_file():
+        st = (image_dir / name).stat()
+        source = [st.st_size, st.st_mtime_ns, white]
+        if target.is_file() and made.get(name) == source:
             continue
         rgb = read_image(image_dir / name, white)
         pixels = rgb[:, :, 0] if np.array_equal(rgb[:, :, 0], rgb[:, :, 1]) and np.array_equal(
@@ -118,7 +133,10 @@ def colmap_image_dir(image_dir: Path, names: list[str], work_dir: Path) -> Path:
         if not cv2.imwrite(str(tmp), pixels):
             raise InputError(f"could not write an 8-bit copy for COLMAP to {tmp}", image_dir / name)
         tmp.replace(target)
+        made[name] = source
         written += 1
+    if written:
+        write_text_atomic(manifest_path, json.dumps(made, indent=0) + "\n")
     log.info("images of more than 8 bits: COLMAP reads 8-bit copies scaled from the flight's white level %d "
              "(%d written in %.1f s, %s)", white, written, time.perf_counter() - t0, work_dir)
     return work_dir
