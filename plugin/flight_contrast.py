@@ -27,6 +27,9 @@ log = logging.getLogger(__name__)
 CONTRAST_SAMPLES = 12
 #: the robust luminance range of an image: between these percentiles of its grey levels
 RANGE_PERCENTILES = (1.0, 99.0)
+#: the largest gain: the sensor's noise is stretched alike, and beyond ~3 (a haze of two thirds, or a flight over
+#: snow, water or sand of 10-30 grey levels) it would be segmented as texture; such a flight is said, not rescued
+MAX_GAIN = 3.0
 #: images are measured at this longer side at most (the segmenter's working size; the range hardly depends on it)
 MEASURE_SIDE = 400
 
@@ -49,7 +52,7 @@ class FlightContrast:
 
     `range`: the median over the sampled images of their luminance range (grey levels, 0..255); `centre`: the
     median of those ranges' mid-points; `reference`: the range the segmenter was tuned for
-    (`SegmentationParams.contrast_reference`; 0: never stretch); `gain`: max(1, reference / range);
+    (`SegmentationParams.contrast_reference`; 0: never stretch); `gain`: max(1, reference / range), at most `MAX_GAIN`;
     `samples`: images measured (0: none could be read, gain 1)."""
 
     range: float
@@ -80,9 +83,11 @@ class FlightContrast:
 
     def message(self, whose: str = "the flight's") -> str:
         """The line said when a gain is applied (`whose`: what was measured, "the flight's" or a folder's)."""
+        capped = self.gain * self.range < self.reference - 1e-9
         return (f"{whose} contrast is {self.range / self.reference:.2f} of what the segmenter was tuned for "
                 f"(luminance range {self.range:.0f} of {self.reference:g} grey levels: haze or flat light?): "
-                f"stretched by {self.gain:.2f} for segmentation")
+                f"stretched by {self.gain:.2f} for segmentation"
+                + (f" (at most {MAX_GAIN:g}: the sensor's noise grows alike; expect a sparse map)" if capped else ""))
 
 
 def contrast_of(ranges: Sequence[tuple[float, float]], reference: float) -> FlightContrast:
@@ -93,7 +98,7 @@ def contrast_of(ranges: Sequence[tuple[float, float]], reference: float) -> Flig
     width = float(np.median(arr[:, 1] - arr[:, 0]))
     centre = float(np.median(arr.mean(axis=1)))
     # a flat frame (width 0: fog, a lens cap) gets no infinite gain: nothing there to stretch
-    gain = max(1.0, reference / width) if reference > 0 and width > 0 else 1.0
+    gain = min(MAX_GAIN, max(1.0, reference / width)) if reference > 0 and width > 0 else 1.0
     return FlightContrast(width, centre, reference, gain, len(arr))
 
 

@@ -11,7 +11,7 @@ import pytest
 from sosmatch.database.cameras import write_cameras_txt
 from sosmatch.database.landmark_map import read_landmark_map
 from sosmatch.database.poses import write_poses_csv
-from sosmatch.plugin.flight_contrast import contrast_of, flight_contrast, luminance_range
+from sosmatch.plugin.flight_contrast import MAX_GAIN, contrast_of, flight_contrast, luminance_range
 from sosmatch.plugin.geometry import Camera, Poses
 from sosmatch.plugin.params import Params, with_overrides
 
@@ -131,3 +131,11 @@ def test_a_normal_flight_maps_byte_for_byte_as_before(flights, tmp_path):
     assert contrast["gain"] == 1.0
     assert (tmp_path / "on" / "landmarks.sosmap").read_bytes() == (tmp_path / "off" / "landmarks.sosmap").read_bytes()
     assert len(read_landmark_map(tmp_path / "on" / "landmarks.sosmap").positions) > 0
+
+
+def test_the_gain_is_capped_and_the_cap_said():
+    """rev22: a flight of 10-20 grey levels (snow, water, fog) got x4.5-9, its sensor noise stretched alike into
+    the segmenter's absolute criteria."""
+    flat = contrast_of([(120.0, 130.0)] * 5, 90.0)
+    assert flat.gain == MAX_GAIN and "at most 3" in flat.message()
+    assert "at most" not in contrast_of([(100.0, 160.0)] * 5, 90.0).message()
