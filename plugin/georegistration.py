@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .geometry import rotation_angle_deg
-from .gps_lag import LagFit, corrected, fit_lag, track_velocity
+from .gps_lag import LagFit, TrackVelocity, corrected, fit_lag, track_velocity
 from .height_drift import MIN_HEIGHT_DRIFT_M, DriftFit, _robust_sigma, fit_drift  # noqa: F401 (also read from here)
 from .multisession import Sim3, umeyama
 from .refinement import fit_yaw_translation
@@ -46,6 +46,12 @@ NADIR_ASSUMPTION_SIGMA_DEG = 3.0
 # uncertain as the nadir assumption.
 ATTITUDE_SYSTEMATIC_SIGMA_DEG = 0.5
 AIRFRAME_SYSTEMATIC_SIGMA_DEG = NADIR_ASSUMPTION_SIGMA_DEG
+# a GPS lag is corrected only when the corrected positions fit the block materially better (`_lag_decision`): a
+# per-axis sigma this much lower, or this fraction of the positions more among the inliers (at least 2)
+LAG_MIN_SIGMA_GAIN = 0.10
+LAG_MIN_INLIER_GAIN = 0.03
+# the largest plausible lag when the capture interval is unknown: a trigger latency is a fraction of a second
+LAG_MAX_S = 2.0
 CHI2_2DOF_99 = 9.2103  # 99 % quantile of chi-square with 2 degrees of freedom
 CHI2_2DOF_MEDIAN = 1.3863  # its median
 CHI2_2DOF_9999 = 18.4207  # its 99.99 % quantile
@@ -239,6 +245,7 @@ class Georegistration:
     # per image (N,3): what was added to its GPS x, y and reference height (the lag, where significant), for the
     # users of the same positions downstream; None: nothing
     position_shift: np.ndarray | None = None
+    lag_applied: bool = False  # the lag was significant, plausible and improved the fit: corrected
 
     def to_dict(self) -> dict:
         h, v = self.horizontal, self.vertical
@@ -253,7 +260,7 @@ class Georegistration:
             "gps_altitudes_consistent": v.gps_consistent,
             "height_offset": self.height_offset.to_dict(),
             "gps_altitude_drift": None if self.gps_altitude is None else self.gps_altitude.to_dict(),
-            "gps_lag": None if self.lag is None else self.lag.to_dict(),
+            "gps_lag": None if self.lag is None else {**self.lag.to_dict(), "applied": self.lag_applied},
             "warnings": list(self.warnings),
         }
 
@@ -268,14 +275,16 @@ def georegister(
     reference_heights: np.ndarray | None = None,
     seed: int = 0,
     tag_systematic_deg: float = ATTITUDE_SYSTEMATIC_SIGMA_DEG,
+    times_known: bool = True,
 ) -> Georegistration:
     """world_from_sfm for registered images: SfM centres (N,3) and rotations sfm_from_cam (N,3,3), GPS (N,3)
     as the receiver gave it (NaN: no fix, or no altitude; needs >= 2 horizontal fixes), prior rotations and
     which came from tags, capture times (s), and `reference_heights` (N,) to register the height on instead of
     the GPS altitude (DJI RelativeAltitude + take-off altitude). The GPS altitude's drift against the result is
     measured either way. A significant GPS lag (`plugin.gps_lag`) is corrected in the GPS positions and the
-    heights before anything else is fitted on them (`position_shift`). ValueError when fewer than 2 images have
-    a fix."""
+    heights before anything else is fitted on them (`position_shift`) when it improves the fit and is plausible
+    (`_lag_decision`). `times_known` False: `times_s` is only the capture order (no EXIF time), and a lag is
+    said in image intervals. ValueError when fewer than 2 images have a fix."""
     c = np.asarray(sfm_centers, float)
     gps = np.asarray(gps, float)
     has = np.all(np.isfinite(gps[:, :2]), axis=1)  # a horizontal fix (the altitude may be missing)
@@ -287,10 +296,13 @@ def georegister(
     first = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags,
                               tag_systematic_deg=tag_systematic_deg)
     # the lag first: uncorrected, the lines flown one way would be taken as outliers of the others
-    track = track_velocity(gps[idx], np.asarray(times_s, float)[idx])
+    track = track_velocity(gps[idx], np.asarray(times_s, float)[idx], times_known)
     lag = fit_lag(c[idx] @ level_rotation(first.up).T, gps[idx], track, seed)
     shift = None
-    if lag is not None and lag.significant:
+    lag_applied, lag_note = _lag_decision(lag, track, c[idx] @ level_rotation(first.up).T, gps[idx], seed)
+    if lag_note:
+        warnings.append(lag_note)
+    if lag is not None and lag_applied:
         vel = np.full_like(gps, np.nan)
         vel[idx] = track.velocity
         shift = np.zeros_like(gps)
@@ -298,7 +310,8 @@ def georegister(
         gps = corrected(gps, vel, lag.dt)
         if reference_heights is not None:  # their own rate of climb (a relative altitude is not the GPS's)
             ref = np.asarray(reference_heights, float)
-            vz = track_velocity(np.column_stack([gps[idx, :2], ref[idx]]), np.asarray(times_s, float)[idx])
+            vz = track_velocity(np.column_stack([gps[idx, :2], ref[idx]]), np.asarray(times_s, float)[idx],
+                                times_known)
             shift[idx, 2] = lag.dt * np.nan_to_num(vz.velocity[:, 2])
             reference_heights = ref + shift[:, 2]
         else:
@@ -349,7 +362,32 @@ def georegister(
     if vert.images_rejected and vert.source.startswith("attitude tags"):  # (off-nadir views are no fault)
         warnings.append(f"{len(vert.images_rejected)} image(s) have attitude tags whose vertical contradicts "
                         "the others'")
-    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift)
+    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift, lag_applied)
+
+
+def _lag_decision(lag: LagFit | None, track: TrackVelocity, levelled: np.ndarray, gps: np.ndarray,
+                  seed: int) -> tuple[bool, str]:
+    """Whether a significant lag is applied, and a warning when it is not for being implausible. Applied only
+    when the corrected positions fit the block materially better than the raw ones (the robust horizontal fit of
+    each: more inliers, or a per-axis sigma lower by LAG_MIN_SIGMA_GAIN; a lag of the size `fit_lag` requires
+    raises the raw sigma by 18 % or more, or drops the lines flown one way), and when |dt| is within one capture
+    interval (LAG_MAX_S when no interval is known): beyond it the GPS log and the images disagree by more than a
+    trigger latency can, e.g. a clock or log offset, which is said, not corrected."""
+    if lag is None or not lag.significant:
+        return False, ""
+    interval = 1.0 if lag.unit == "image" else (track.interval_s if math.isfinite(track.interval_s) else LAG_MAX_S)
+    if abs(lag.dt) > interval:
+        limit = "one image interval" if lag.unit == "image" else (
+            f"one capture interval ({interval:.2f} s)" if math.isfinite(track.interval_s) else f"{LAG_MAX_S:.0f} s")
+        return False, (f"the GPS positions and the images disagree along the track by {abs(lag.metres):.1f} m "
+                       f"(the GPS positions would {lag.shift()}, more than {limit}): not corrected; a clock or log "
+                       "offset between the GPS and the camera?")
+    raw = robust_horizontal_similarity(levelled, gps, seed)
+    moved = np.where(np.isfinite(track.velocity[:, :2]), gps[:, :2] + lag.dt * np.nan_to_num(track.velocity[:, :2]),
+                     gps[:, :2])
+    fixed = robust_horizontal_similarity(levelled, np.column_stack([moved, gps[:, 2]]), seed)
+    more = int(fixed.inliers.sum()) - int(raw.inliers.sum()) >= max(2, math.ceil(LAG_MIN_INLIER_GAIN * len(gps)))
+    return more or fixed.sigma_m <= (1.0 - LAG_MIN_SIGMA_GAIN) * raw.sigma_m, ""
 
 
 @dataclass

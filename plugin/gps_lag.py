@@ -6,20 +6,29 @@ a similarity cannot absorb it: the robust horizontal fit (`georegistration.robus
 the lines flown one way and drops the others as outliers, and the whole map lies dt * v off (the 30th new-user
 sweep: 5 m of latency, the map 4.85 m off with verdict ok). Modelled instead: the camera was at gps_i + dt * v_i,
 v_i the drone's velocity from the GPS track itself, and dt is a fifth unknown of the (still linear) horizontal fit
-s R src + t = gps + dt v. dt is kept only when it is significant (`LAG_SIGNIFICANCE_SIGMAS` standard errors of
-the fit), so a flight without lag is registered exactly as before.
+s R src + t = gps + dt v. dt is significant only beyond `LAG_SIGNIFICANCE_SIGMAS` standard errors, the error
+the larger of the formal one and the scatter between the passes of the track (the GPS error wanders slowly, so
+the passes, not the images, are the independent measurements: rev22 found 2-9 % of clean flights "lagging" on the
+formal error alone), and only when dt * speed is large enough for a map to see (`MIN_LAG_M`, the fit's noise).
+`georegistration.georegister` then applies it only when it is plausible and improves the fit, so a flight
+without lag is registered exactly as before.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 # dt is applied only beyond this many of its standard errors: GPS noise correlated along a line makes the formal
 # error optimistic, and a lag that is not there must never be "corrected" into a flight
 LAG_SIGNIFICANCE_SIGMAS = 5.0
+# a lag is set right only when dt * speed is at least this (and the fit's per-axis noise): less changes nothing a
+# landmark map can see
+MIN_LAG_M = 0.5
+# passes (lines flown one way, `TrackVelocity.passes`) needed to measure a lag's error honestly
+MIN_PASSES = 3
 # a step this many times the median capture interval (or step length) is a gap (another flight, a battery swap):
 # no velocity is taken across it
 GAP_FACTOR = 3.0
@@ -34,7 +43,11 @@ class TrackVelocity:
 
     velocity: np.ndarray  # (N,3) per `unit` (NaN: unknown, e.g. a lone image between gaps; z NaN without altitude)
     unit: str  # "s" (capture times resolve the interval) or "image" (per image step)
-    interval_s: float  # the median capture interval (NaN without capture times)
+    interval_s: float  # the mean capture interval within gap-free stretches (NaN when the times are not known)
+    # (N,) the pass of each image: a run of the track in capture order flown one way, cut at gaps and where the
+    # direction reverses (a line with its turn); -1 without a velocity. The GPS error wanders slowly, nearly
+    # constant along a pass: passes, not images, are the independent units of a lag's error (`fit_lag`)
+    passes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def _times_resolve(times: np.ndarray) -> bool:
@@ -49,32 +62,68 @@ def _times_resolve(times: np.ndarray) -> bool:
     return not (whole and float(np.median(d)) < 5.0)
 
 
-def track_velocity(positions: np.ndarray, times_s: np.ndarray) -> TrackVelocity:
+def _mean_interval(times: np.ndarray, steady: np.ndarray) -> float:
+    """The mean step of sorted `times` over the steps `steady` (no gap): per gap-free stretch (last - first) /
+    (n - 1), pooled. Whole-second times at 1.4 s give steps of 1 and 2 s whose median (1 s) is 30 % off; the
+    mean of a stretch is off by at most 1 s / its steps."""
+    d = np.diff(times)
+    keep = steady & np.isfinite(d)
+    return float(np.sum(d[keep]) / keep.sum()) if keep.any() else math.nan
+
+
+def _passes(velocity: np.ndarray, steady: np.ndarray) -> np.ndarray:
+    """Pass id per image in capture order (velocity (n,2) in that order, `steady` the n-1 steps without a gap):
+    a new pass after a gap and where the heading is more than 120 deg from the pass's first (a lawnmower's turn
+    of 90 deg stays with its line; the next line, flown back, starts a pass)."""
+    n = len(velocity)
+    ids = np.full(n, -1, np.int64)
+    current, ref = -1, None
+    for k in range(n):
+        v = velocity[k]
+        if not np.all(np.isfinite(v)) or np.hypot(*v) <= 0:
+            ref = None
+            continue
+        u = v / np.hypot(*v)
+        if ref is None or (k > 0 and not steady[k - 1]) or float(u @ ref) < math.cos(math.radians(120.0)):
+            current, ref = current + 1, u
+        ids[k] = current
+    return ids
+
+
+def track_velocity(positions: np.ndarray, times_s: np.ndarray, times_known: bool = True) -> TrackVelocity:
     """Velocity of each image (N,3 positions, NaN altitude allowed) from its neighbours in capture order (the
     times' order; given order without times): a central difference, one-sided at the ends and at gaps, NaN for
-    an image alone between gaps. Per second when the capture times resolve the interval, else per image step."""
+    an image alone between gaps. Per second when the capture times resolve the interval, else per image step.
+    `times_known` False: `times_s` is only the capture order (no EXIF time), so no interval in seconds."""
     p = np.asarray(positions, float)
     t = np.asarray(times_s, float)
     n = len(p)
     vel = np.full((n, 3), np.nan)
     order = np.argsort(t, kind="stable") if np.all(np.isfinite(t)) else np.arange(n)
     ts = t[order]
-    resolved = _times_resolve(ts)
-    interval = float(np.median(np.diff(ts))) if n >= 2 and np.all(np.isfinite(ts)) else math.nan
+    resolved = times_known and _times_resolve(ts)
     if n < 2:
-        return TrackVelocity(vel, "s" if resolved else "image", interval)
+        return TrackVelocity(vel, "s" if resolved else "image", math.nan, np.full(n, -1, np.int64))
     x = p[order]
     clock = ts if resolved else np.arange(n, dtype=float)
     dt = np.diff(clock)
     length = np.linalg.norm(np.diff(x[:, :2], axis=0), axis=1)
     ok = (dt <= GAP_FACTOR * np.median(dt)) & (length <= GAP_FACTOR * max(float(np.median(length)), 1e-9))
     ok &= np.all(np.isfinite(np.diff(x[:, :2], axis=0)), axis=1)
+    if times_known and not resolved and np.all(np.isfinite(ts)):
+        # a gap in time, even where the times are too coarse for speeds (whole seconds: steps of 0 or 1 s at
+        # 0.5 s, so nothing below a second is a gap)
+        steps = np.diff(ts)
+        ok &= steps <= GAP_FACTOR * max(float(np.median(steps)), 1.0)
     for k in range(n):
         lo = k - 1 if k > 0 and ok[k - 1] else k
         hi = k + 1 if k < n - 1 and ok[k] else k
         if hi > lo:
             vel[order[k]] = (x[hi] - x[lo]) / (clock[hi] - clock[lo])
-    return TrackVelocity(vel, "s" if resolved else "image", interval)
+    interval = _mean_interval(ts, ok) if times_known else math.nan
+    passes = np.full(n, -1, np.int64)
+    passes[order] = _passes(vel[order, :2], ok)
+    return TrackVelocity(vel, "s" if resolved else "image", interval, passes)
 
 
 @dataclass
@@ -82,14 +131,17 @@ class LagFit:
     """The horizontal similarity with a lag: s R src + t = gps + dt v."""
 
     dt: float  # in the velocity's unit
-    sigma_dt: float  # its standard error (inf when not observable)
-    significant: bool
+    sigma_dt: float  # its standard error: the larger of the formal and the passes' (inf when not observable)
+    significant: bool  # beyond LAG_SIGNIFICANCE_SIGMAS of sigma_dt and large enough to matter (`MIN_LAG_M`)
     unit: str  # "s" or "image"
     seconds: float  # dt in seconds (NaN when the capture times do not tell)
     metres: float  # dt at the median horizontal speed
     speed: float  # median horizontal speed, m per `unit`
     inliers: np.ndarray  # bool (N,)
     sigma_m: float  # per-axis noise of the positions with the lag modelled
+    sigma_dt_formal: float = math.inf  # least squares, every image independent
+    sigma_dt_passes: float = math.inf  # jackknife over the passes (inf: fewer than MIN_PASSES)
+    passes: int = 0  # passes with inliers
 
     def shift(self) -> str:
         """"lag the images by 0.42 s (4.9 m along the track at 11.7 m/s)", for a warning."""
@@ -97,14 +149,17 @@ class LagFit:
         if self.unit == "s":
             when, speed = f"{abs(self.dt):.2f} s", f" at {self.speed:.1f} m/s"
         else:
-            when = f"{abs(self.dt):.2f} image interval(s)" + (
+            when = f"{abs(self.dt):.2f} image intervals" + (
                 f" (~{abs(self.seconds):.2f} s)" if math.isfinite(self.seconds) else "")
             speed = ""
         return f"{verb} the images by {when} ({abs(self.metres):.1f} m along the track{speed})"
 
     def to_dict(self) -> dict:
-        return {"dt": self.dt, "sigma_dt": self.sigma_dt if math.isfinite(self.sigma_dt) else None,
-                "unit": self.unit, "seconds": self.seconds if math.isfinite(self.seconds) else None,
+        def finite(x: float) -> float | None:
+            return x if math.isfinite(x) else None
+        return {"dt": self.dt, "sigma_dt": finite(self.sigma_dt), "sigma_dt_formal": finite(self.sigma_dt_formal),
+                "sigma_dt_passes": finite(self.sigma_dt_passes), "passes": self.passes,
+                "unit": self.unit, "seconds": finite(self.seconds),
                 "metres": self.metres, "speed": self.speed, "significant": self.significant,
                 "inliers": int(self.inliers.sum()), "sigma_m": self.sigma_m}
 
@@ -171,16 +226,44 @@ def fit_lag(src: np.ndarray, dst: np.ndarray, track: TrackVelocity, seed: int = 
         inl = new
     a = _design(s[inl], v[inl])
     normal = a.T @ a
-    sigma_dt = math.inf
+    formal = math.inf
     if np.linalg.cond(normal) < 1e12:
-        sigma_dt = sigma * math.sqrt(float(np.linalg.inv(normal)[4, 4]))
+        formal = sigma * math.sqrt(float(np.linalg.inv(normal)[4, 4]))
+    passes = track.passes[idx] if len(track.passes) == len(src) else np.zeros(n, np.int64)
+    by_passes, n_passes = _jackknife_dt(s, d, v, inl, passes)
+    sigma_dt = max(formal, by_passes)
     dt = float(params[4])
     speed = float(np.median(np.linalg.norm(v[:, :2], axis=1)))
     seconds = dt if track.unit == "s" else dt * track.interval_s
     inliers = np.zeros(len(src), bool)
     inliers[idx[inl]] = True
-    significant = math.isfinite(sigma_dt) and abs(dt) > LAG_SIGNIFICANCE_SIGMAS * sigma_dt
-    return LagFit(dt, sigma_dt, significant, track.unit, seconds, dt * speed, speed, inliers, sigma)
+    # a lag smaller than the noise of one fix changes nothing a landmark map can see: lines flown either way are
+    # 2 dt v apart, and are set right only when that is beyond 2 sigma of a fix (and half a metre)
+    matters = abs(dt * speed) >= max(MIN_LAG_M, sigma)
+    significant = math.isfinite(sigma_dt) and abs(dt) > LAG_SIGNIFICANCE_SIGMAS * sigma_dt and matters
+    return LagFit(dt, sigma_dt, significant, track.unit, seconds, dt * speed, speed, inliers, sigma, formal,
+                  by_passes, n_passes)
+
+
+def _jackknife_dt(s: np.ndarray, d: np.ndarray, v: np.ndarray, inl: np.ndarray,
+                  passes: np.ndarray) -> tuple[float, int]:
+    """Standard error of dt from the scatter between passes (delete-one-pass jackknife on the inliers), and the
+    number of passes. The GPS error wanders slowly, nearly constant along a pass and changing between passes,
+    so dt is measured by the passes' offsets, not by independent images: the formal error was 2.7x too small
+    on clean flights with 1-2 m of wander (rev22). inf with fewer than MIN_PASSES passes (two passes flown
+    either way cannot tell a lag from the GPS wandering between them)."""
+    ids = [p for p in np.unique(passes[inl]) if p >= 0]
+    if len(ids) < MIN_PASSES:
+        return math.inf, len(ids)
+    dts = []
+    for p in ids:
+        keep = inl & (passes != p)
+        q = _solve(s[keep], d[keep], v[keep]) if keep.sum() >= 3 else None
+        if q is None:  # without this pass the lag is not observable: the passes do not measure it
+            return math.inf, len(ids)
+        dts.append(float(q[4]))
+    g = len(dts)
+    return math.sqrt((g - 1) / g * float(np.sum((np.array(dts) - np.mean(dts)) ** 2))), g
 
 
 def corrected(values: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:

@@ -120,3 +120,101 @@ def test_the_georegistrations_warnings_reach_the_map_inputs(tmp_path):
     assert inputs.warnings == [f"poses: {said}"]
     assert map_inputs(PosesResult(tmp_path / "p", poses, result.cameras, {}, 0, []), tmp_path / "img",
                       "sfm").warnings == []
+
+
+def _wander(times, seed, white=0.05, std=1.0, tau=120.0):
+    """GPS error of a real receiver: a slow Gauss-Markov wander (std `std`, correlation time `tau`), nearly constant
+    along a line and changing between lines, plus a little white noise; no altitude error."""
+    rng = np.random.default_rng(seed)
+    x, prev, out = rng.normal(0, std, 2), times[0], []
+    for t in times:
+        a = np.exp(-(t - prev) / tau)
+        x = a * x + np.sqrt(1 - a * a) * rng.normal(0, std, 2)
+        out.append(x.copy())
+        prev = t
+    e = np.array(out) + rng.normal(0, white, (len(times), 2))
+    return np.column_stack([e, np.zeros(len(times))])
+
+
+def test_the_lags_error_comes_from_the_passes_not_the_images():
+    """rev22: a clean flight (no lag) with 1 m of GPS wander: the formal error, every image independent, was 2.7x
+    too small and this seed gave a "significant" lag of 0.04 s (z 9). The passes measure it: z 2."""
+    centers, _, times, vel = _lawnmower(n_lines=10, per_line=20, speed=8.0, interval_s=1.9)
+    gps = centers + _wander(times, 34)
+    track = track_velocity(gps, times)
+    assert track.passes.max() + 1 == 10  # a line with its turn is one pass
+    fit = fit_lag(centers - centers.mean(0), gps, track, samples=200)
+    assert fit.unit == "s" and fit.passes == 10 and fit.sigma_dt_passes > 2.0 * fit.sigma_dt_formal
+    assert abs(fit.dt) < 5.0 * fit.sigma_dt and not fit.significant
+    # a true lag through the same wander is still found
+    lagged = centers - 0.3 * vel + _wander(times, 34)
+    fit = fit_lag(centers - centers.mean(0), lagged, track_velocity(lagged, times), samples=200)
+    assert fit.significant and abs(fit.dt - 0.3) < 3.0 * fit.sigma_dt
+
+
+def test_a_lag_smaller_than_a_map_can_see_is_not_significant():
+    """0.06 s at 5 m/s is 0.3 m along the track: measurable through 5 cm of noise, but nothing a landmark map sees."""
+    centers, _, times, vel = _lawnmower()
+    gps = centers - 0.06 * vel + np.random.default_rng(3).normal(0, 0.05, centers.shape)
+    fit = fit_lag(centers - centers.mean(0), gps, track_velocity(gps, times))
+    assert abs(fit.dt - 0.06) < 0.01 and abs(fit.dt) > 5.0 * fit.sigma_dt
+    assert not fit.significant
+
+
+def test_two_passes_cannot_tell_a_lag_from_the_gps_wandering_between_them():
+    centers, _, times, vel = _lawnmower(n_lines=2)
+    gps = _gps(centers, vel, 0.5)
+    fit = fit_lag(centers - centers.mean(0), gps, track_velocity(gps, times))
+    assert fit.passes == 2 and fit.sigma_dt_passes == np.inf and not fit.significant
+
+
+def test_a_lag_beyond_the_capture_interval_is_said_not_corrected():
+    """3 s at a 1.4 s interval is no trigger latency: the GPS log and the images are off (a clock or log offset)."""
+    centers, rots, times, vel = _lawnmower()
+    gps = _gps(centers, vel, 3.0)
+    c_sfm, r_sfm = _sfm(centers, rots)
+    geo = georegister(c_sfm, r_sfm, gps, rots, np.ones(len(rots), bool), times)
+    assert geo.lag is not None and geo.lag.significant and geo.lag.dt == pytest.approx(3.0, abs=0.2)
+    assert not geo.lag_applied and geo.position_shift is None
+    said = [w for w in geo.warnings if "disagree along the track by 15." in w]
+    assert len(said) == 1 and "not corrected" in said[0] and "clock or log offset" in said[0]
+    assert not any("corrected (camera trigger" in w for w in geo.warnings)
+    assert geo.to_dict()["gps_lag"]["applied"] is False
+
+
+def test_a_lag_that_does_not_improve_the_fit_is_not_applied():
+    """The decision compares the robust fits of the raw and the corrected positions: a 'lag' the raw positions
+    fit as well without is not applied."""
+    import dataclasses
+
+    from sosmatch.plugin.georegistration import _lag_decision
+
+    centers, _, times, vel = _lawnmower()
+    gps = _gps(centers, vel, 0.0)
+    track = track_velocity(gps, times)
+    fit = fit_lag(centers - centers.mean(0), gps, track)
+    assert not fit.significant
+    claimed = dataclasses.replace(fit, dt=0.3, significant=True, metres=1.5)
+    assert _lag_decision(claimed, track, centers - centers.mean(0), gps, 0) == (False, "")
+    lagged = _gps(centers, vel, 0.3)
+    fit = fit_lag(centers - centers.mean(0), lagged, track_velocity(lagged, times))
+    assert _lag_decision(fit, track_velocity(lagged, times), centers - centers.mean(0), lagged, 0) == (True, "")
+
+
+def test_the_seconds_of_a_lag_are_measured_or_not_claimed():
+    """Whole-second times at 1.4 s: the interval is the mean over gap-free stretches (the median of whole-second
+    steps said 1 s, so 0.5 s became "~0.35 s"); capture order without times: image intervals, no seconds."""
+    centers, rots, times, vel = _lawnmower(n_lines=6, per_line=20)
+    gps = _gps(centers, vel, 0.5)
+    whole = track_velocity(gps, np.round(times))
+    assert whole.unit == "image" and whole.interval_s == pytest.approx(1.4, abs=0.03)
+    fit = fit_lag(centers - centers.mean(0), gps, whole)
+    assert fit.seconds == pytest.approx(0.5, abs=0.05)
+    order = np.arange(len(centers), dtype=float)
+    c_sfm, r_sfm = _sfm(centers, rots)
+    geo = georegister(c_sfm, r_sfm, gps, rots, np.ones(len(rots), bool), order, times_known=False)
+    assert geo.lag_applied and geo.lag.unit == "image" and np.isnan(geo.lag.seconds)
+    said = [w for w in geo.warnings if "corrected (camera trigger" in w]
+    assert len(said) == 1 and "image intervals (2.5 m along the track)" in said[0] and " s" not in said[0].split("(")[0]
+    assert geo.to_dict()["gps_lag"]["seconds"] is None
+
