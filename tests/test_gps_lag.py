@@ -218,3 +218,13 @@ def test_the_seconds_of_a_lag_are_measured_or_not_claimed():
     assert len(said) == 1 and "image intervals (2.5 m along the track)" in said[0] and " s" not in said[0].split("(")[0]
     assert geo.to_dict()["gps_lag"]["seconds"] is None
 
+
+def test_priors_say_when_their_times_are_only_the_capture_order():
+    from types import SimpleNamespace
+
+    from sosmatch.workflows.image_priors import ImagePriors
+
+    def known(source):
+        return ImagePriors.times_known.fget(SimpleNamespace(summary={"capture_times": source}))
+    assert known("EXIF DateTimeOriginal") and known("EXIF DateTimeOriginal (interpolated where missing)")
+    assert not known("capture order (no EXIF DateTimeOriginal)")

@@ -189,6 +189,11 @@ class ImagePriors:
         return np.all(np.isfinite(self.positions), axis=1)
 
     @property
+    def times_known(self) -> bool:
+        """False when `times_s` is only the capture order (no image has an EXIF capture time): no seconds."""
+        return not str(self.summary.get("capture_times", "")).startswith("capture order")
+
+    @property
     def attitude_from_tags(self) -> np.ndarray:
         return self.attitude_kind != "course"
 

@@ -49,7 +49,7 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
     reference = priors.positions[index, 2] if relative else None
     if np.sum(np.all(np.isfinite(gps[:, :2]), axis=1)) >= 2:
         geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference, seed,
-                          systematic)
+                          systematic, priors.times_known)
         warnings.extend(geo.warnings)
         noisy = gps_noise_warning(geo.horizontal.sigma_m, sp.gps_sigma_m)
         if noisy:
