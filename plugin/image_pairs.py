@@ -62,7 +62,7 @@ def select_pairs(
 def line_spacing_m(positions: np.ndarray, lines: np.ndarray) -> float | None:
     """The median horizontal distance from an image to the nearest image of another flight line (`positions`
     (N,2+) in capture order, NaN rows without a fix; `lines` the line id per image, -1 for none, as
-    `georegistration.flight_lines` gives them): how far apart neighbouring lines are flown. None with fewer than
+    `flight_lines.flight_lines` gives them): how far apart neighbouring lines are flown. None with fewer than
     two lines."""
     xy = np.asarray(positions, dtype=np.float64).reshape(len(positions), -1)[:, :2]
     ok = np.all(np.isfinite(xy), axis=1) & (np.asarray(lines) >= 0)

@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from sosmatch.plugin.flight_lines import compare_with_priors, flight_lines
 from sosmatch.plugin.geometry import rotation_angle_deg
 from sosmatch.plugin.georegistration import (
-    compare_with_priors,
     fit_drift,
-    flight_lines,
     georegister,
     level_rotation,
     robust_horizontal_similarity,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sosmatch.plugin.georegistration import flight_lines
+from sosmatch.plugin.flight_lines import flight_lines
 from sosmatch.plugin.image_pairs import line_spacing_m, overlap_cap_m, select_pairs
 
 

@@ -195,7 +195,7 @@ def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.
     """Choose the pairs to match (`plugin.image_pairs.select_pairs`, images in capture order) and write them as
     COLMAP's pair list (`name_a name_b` per line). Returns the index pairs and how they were chosen."""
     from ..database.atomic import write_text_atomic
-    from ..plugin.georegistration import flight_lines
+    from ..plugin.flight_lines import flight_lines
 
     order = np.argsort(priors.times_s, kind="stable")
     footprint = footprint_diagonal_m(priors)

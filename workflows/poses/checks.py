@@ -93,7 +93,7 @@ def lag_corrected(priors: ImagePriors, index: np.ndarray, geo: Any) -> ImagePrio
 
 def _compare(priors: ImagePriors, index: np.ndarray, poses: Poses, warnings: list[str]) -> dict:
     """Registered poses against the GPS and the tags, per image; contradicting flight lines are warnings."""
-    from ...plugin.georegistration import compare_with_priors, flight_lines
+    from ...plugin.flight_lines import compare_with_priors, flight_lines
 
     gps = priors.positions[index]
     order = np.argsort(priors.times_s[index], kind="stable")
