@@ -10,33 +10,85 @@ import numpy as np
 from ..evaluation.footprints import HeightField
 from ..params import ChangeParams
 from .observations import SessionObservations
+from .surface import (
+    PATCH_HALF_M,
+    footprint_places,
+    ground_sweep_noise,
+    height_limit,
+    heights_above_ground,
+    stands_above_ground,
+)
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
-from .surface import footprint_places, ground_sweep_noise, heights_above_ground, stands_above_ground
 
 
 def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: SessionObservations,
           ground: HeightField, ref_heights: np.ndarray,
-          params: ChangeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          params: ChangeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which landmarks have no object standing in their footprint in their own session: neither at their place
     (`heights`, already swept) nor at any of `params.object_height_ring` places around it
     (`surface.footprint_places`, swept here only for those whose place does not stand), the highest tested at the
     limit for all those places (`surface.stands_above_ground`). Also, per landmark, where its object stands: -1
-    its own place, k the k-th place of its ring (the highest, where only the ring stands), and the own session's
-    height there."""
+    its own place, k the k-th place of its ring (the highest, where only the ring stands), the own session's
+    height there, and the (N, ring) own session's heights on the ring (NaN where not swept)."""
     places = 1 + params.object_height_ring
     flat = ~stands_above_ground(heights, ref_heights, params.object_height_p, places)
     pick = np.full(len(flat), -1, dtype=np.int64)
     high = np.asarray(heights, dtype=np.float64).copy()
+    ring = np.full((len(flat), params.object_height_ring), np.nan)
     low = np.flatnonzero(flat & (np.asarray(sizes) > 0))
     if params.object_height_ring and len(low):
         around = ring_heights(points[low], sizes[low], own, ground, params)
+        ring[low] = around
         flat[low] = ~stands_above_ground(np.column_stack([heights[low], around]), ref_heights,
                                          params.object_height_p, places)
         stands = ~flat[low]
         best = np.argmax(np.where(np.isfinite(around), around, -np.inf), axis=1)
         pick[low[stands]] = best[stands]
         high[low[stands]] = around[stands, best[stands]]
-    return flat, pick, high
+    return flat, pick, high, ring
+
+
+def beside_kept_objects(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, ring: np.ndarray,
+                        kept_points: np.ndarray, kept_sizes: np.ndarray, own: SessionObservations,
+                        ground: HeightField, ref_heights: np.ndarray, params: ChangeParams) -> np.ndarray:
+    """Which landmarks stand in their own session only where an object present in both sessions stands: every
+    place of theirs that stands (their own place where it does, else the places of their ring that do; `heights`
+    and `ring` as `flat_landmarks` swept them) lies within the swept patch's reach (`surface.PATCH_HALF_M`) of
+    the footprint (radius 2 h) of a kept landmark (`kept_points`, `kept_sizes`: those with a counterpart) whose
+    own surface stands too. Such a landmark is that object's neighbourhood, not an object of its own: a cast
+    shadow beside a crown whose 2 x 2 m patch catches the crown's edge stands in the noon images and not in the
+    overcast ones, where the same edge, without the shadow's contrast, sweeps to the ground. False where nothing
+    stands (those are flat anyway) or where any standing place lies beyond every kept object's reach."""
+    n = len(points)
+    out = np.zeros(n, dtype=bool)
+    kept_points = np.asarray(kept_points, dtype=np.float64).reshape(-1, 3)
+    if not n or not len(kept_points):
+        return out
+    places = 1 + params.object_height_ring
+    limit = height_limit(ref_heights, params.object_height_p, places)
+    if not np.isfinite(limit):
+        return out
+    h = np.asarray(heights, dtype=np.float64)
+    own_stands = np.isfinite(h) & (h > limit)
+    ring_xyz = footprint_places(points, sizes, params.object_height_ring)
+    ring_stands = ~own_stands[:, None] & np.isfinite(ring) & (ring > limit)
+    # the standing places: (landmark, x, y)
+    who = np.concatenate([np.flatnonzero(own_stands), np.nonzero(ring_stands)[0]])
+    xy = np.vstack([np.asarray(points, dtype=np.float64)[own_stands, :2], ring_xyz[ring_stands][:, :2]])
+    if not len(who):
+        return out
+    reach = 2.0 * np.nan_to_num(np.asarray(kept_sizes, dtype=np.float64), nan=0.0) + PATCH_HALF_M
+    near = np.linalg.norm(xy[:, None, :] - kept_points[None, :, :2], axis=2) <= reach[None, :]
+    # the kept objects within reach must stand themselves (a kept patch of ground texture explains no height)
+    asked = np.flatnonzero(near.any(axis=0))
+    if not len(asked):
+        return out
+    standing = np.zeros(len(kept_points), dtype=bool)
+    standing[asked] = stands_above_ground(session_heights(kept_points[asked], own, ground, params), ref_heights,
+                                          params.object_height_p)
+    explained = (near & standing[None, :]).any(axis=1)
+    unexplained = np.bincount(who[~explained], minlength=n)
+    return (np.bincount(who, minlength=n) > 0) & (unexplained == 0)
 
 
 def evenly(indices: np.ndarray, limit: int) -> np.ndarray:

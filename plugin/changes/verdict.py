@@ -23,8 +23,22 @@ from .evidence import (
     segment_hits,
     view_correlation,
 )
-from .objectness import evenly, flat_landmarks, ground_noise_known, ring_heights, surface_heights, with_ground_places
-from .observations import SessionObservations, below_the_ground, ground_height_field, in_view, observed_area
+from .objectness import (
+    beside_kept_objects,
+    evenly,
+    flat_landmarks,
+    ground_noise_known,
+    ring_heights,
+    surface_heights,
+    with_ground_places,
+)
+from .observations import (
+    SessionObservations,
+    below_the_ground,
+    ground_height_field,
+    in_view,
+    observed_area,
+)
 from .support import AlignmentSupport, alignment_support, counterpart_gate
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
 from .surface import (
@@ -221,6 +235,8 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     by_segments = np.zeros(n, dtype=bool)
     surface, doubted, flat = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     relief, ground_noise = None, None
+    swept = None  # (landmarks, own place heights, own ring heights) where the objectness test swept them
+    kept = references
     if references is None:
         references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
     asked = compared & ((index < 0) & (other.segments is not None) | params.surface_overrules_links)
@@ -242,8 +258,9 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         if params.object_height_p < 1.0:  # the objectness test is on
             shown = shows_relief(surface_references[0], params.object_height_p)
             if shown:
-                flat[idx], pick, place_h = flat_landmarks(own_pos[idx], own_h[idx], own_heights, own, ground,
-                                                 surface_references[0], params)
+                flat[idx], pick, place_h, own_ring = flat_landmarks(own_pos[idx], own_h[idx], own_heights, own,
+                                                                    ground, surface_references[0], params)
+                swept = (idx, own_heights, own_ring)
                 # a landmark whose object stands beside its place (on its ring) is judged where it stands: the
                 # other session's surface is swept at the same places, and the heights' evidence is read at the
                 # place that stands
@@ -274,6 +291,15 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
             # (nor is a containment link, a compatible landmark nearby too: `_judge`)
             doubted = asked & (surface + counterpart_log_ratio > 0)
             index = np.where(doubted, -1, index)
+    if swept is not None:
+        # a landmark that stands only within reach of an object both sessions have (a kept landmark that stands)
+        # is that object's neighbourhood, such as a cast shadow whose patch catches the crown's edge: no object of
+        # its own to have gone or come, whatever the other session's images make of that edge
+        if kept is None:
+            kept = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
+        at, place_heights, ring_heights_own = swept
+        flat[at] |= beside_kept_objects(own_pos[at], own_h[at], place_heights, ring_heights_own, *kept, own,
+                                        ground, surface_references[0], params)
     tested = compared & (index < 0) & (other.segments is not None)
     if np.any(tested):
         idx = np.flatnonzero(tested)
