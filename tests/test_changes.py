@@ -430,6 +430,25 @@ def test_the_two_directions_are_judged_alike(pair):
     assert np.allclose(ab.a.confidence, ba.b.confidence, atol=0.05)
 
 
+def test_a_fragment_far_above_the_surface_its_images_show_is_a_wrong_triangulation():
+    # nu29: a track no landmark holds, triangulated 9 m above a conifer's tip (16.7 m above the ground where B's
+    # own sweep reads 0.5 m), was claimed new at 0.999. Landmark heights scatter by 1.5 m (MAD), the sweep by 0.4 m
+    from sosmatch.plugin.changes.observations import above_the_surface
+
+    rng = np.random.default_rng(5)
+    map_h = np.concatenate([rng.normal(0.0, 1.0, 200), rng.uniform(2.0, 12.0, 100)])
+    scale = np.hypot(1.4826 * np.median(np.abs(map_h - np.median(map_h))), 0.4)
+    heights = np.array([16.65, 8.0, 8.0, 16.65, np.nan, 16.65])
+    surface = np.array([0.5, 7.0, 0.0, 15.0, 0.0, np.nan])
+    far = above_the_surface(heights, surface, map_h, 4.0, 0.4)
+    assert 4.0 * scale < 16.0  # the fragment is far above; a tree's fragment at its top is not
+    assert far.tolist() == [True, False, bool(8.0 > 4.0 * scale), False, False, False]
+    # a map of flat ground (no scatter of landmark heights): the sweep's noise alone scales the test
+    flat = np.zeros(50)
+    assert above_the_surface(np.array([1.0, 3.0]), np.zeros(2), flat, 4.0, 0.4).tolist() == [False, True]
+    assert not above_the_surface(np.array([3.0]), np.zeros(1), flat, 4.0, float("nan"))[0]  # noise unknown
+
+
 def test_a_landmark_below_the_ground_is_compared_with_nothing(pair):
     """A ground patch triangulated tens of metres deep (two patches linked into one track) lies under the
     ground its session looked at: its place is as wrong as its height, and it fell inside the other session's

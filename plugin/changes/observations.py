@@ -187,6 +187,25 @@ def below_the_ground(heights: np.ndarray, map_heights: np.ndarray, max_sigmas: f
         return np.isfinite(h) & (h < -max_sigmas * scale)
 
 
+def above_the_surface(heights: np.ndarray, surface: np.ndarray, map_heights: np.ndarray, max_sigmas: float,
+                      sweep_noise: float) -> np.ndarray:
+    """Which heights above the ground lie higher than `max_sigmas` robust standard deviations of the map's
+    landmark heights (as `below_the_ground`) above the surface their own session's images show at their place
+    (`surface`, its sweep's height above the ground there), the two scatters combined with the sweep's own noise
+    (`sweep_noise`, `surface.ground_sweep_noise`: a map of flat ground has landmark heights of no scatter): what a
+    camera saw lies on that surface, so a point floating far above it is a wrong triangulation (a track joining
+    two objects' segments), as one under the ground is. Unknown heights, surfaces or noise are not above."""
+    h = np.asarray(heights, dtype=np.float64).reshape(-1)
+    top = np.asarray(surface, dtype=np.float64).reshape(-1)
+    ref = np.asarray(map_heights, dtype=np.float64).reshape(-1)
+    ref = ref[np.isfinite(ref)]
+    if not len(ref):
+        return np.zeros(len(h), dtype=bool)
+    scale = np.hypot(1.4826 * float(np.median(np.abs(ref - np.median(ref)))), sweep_noise)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(h) & np.isfinite(top) & np.isfinite(scale) & (h - top > max_sigmas * scale)
+
+
 def observed_area(poses: Poses, cameras: Sequence[Camera], ground: HeightField) -> object:
     """Union of the keyframes' ground footprints (shapely geometry, world x, y)."""
     import shapely

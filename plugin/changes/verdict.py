@@ -29,11 +29,13 @@ from .objectness import (
     flat_landmarks,
     ground_noise_known,
     ring_heights,
+    session_heights,
     surface_heights,
     with_ground_places,
 )
 from .observations import (
     SessionObservations,
+    above_the_surface,
     below_the_ground,
     ground_height_field,
     in_view,
@@ -42,6 +44,7 @@ from .observations import (
 from .support import AlignmentSupport, alignment_support, counterpart_gate
 from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
 from .surface import (
+    ground_sweep_noise,
     height_limit,
     height_log_ratio,
     shows_relief,
@@ -460,6 +463,13 @@ def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direc
     heights = _above(ground, objs.positions)
     keep = np.flatnonzero(~below_the_ground(heights, own_heights, params.max_depth_sigmas))
     objs, heights = objs.subset(keep), heights[keep]
+    if params.surface_evidence and own.images is not None and mine.surface_references is not None and len(objs):
+        # far above the surface its session's images show at its place (nu29: 9 m above a conifer's tip, new at
+        # 0.999 beside the tree's kept landmarks): a wrong triangulation too
+        surface = session_heights(objs.positions, own, ground, params)
+        noise = ground_sweep_noise(mine.surface_references[0])
+        keep = np.flatnonzero(~above_the_surface(heights, surface, own_heights, params.max_depth_sigmas, noise))
+        objs, heights = objs.subset(keep), heights[keep]
     # its own segments must show it, as the other session's must show a landmark to keep it (the same test, with
     # this session's landmarks as the references of presence): a piece of track alone is no object
     nothing = np.zeros((0, 3))
