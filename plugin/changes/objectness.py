@@ -50,23 +50,28 @@ def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, o
 
 def beside_kept_objects(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, ring: np.ndarray,
                         kept_points: np.ndarray, kept_sizes: np.ndarray, own: SessionObservations,
-                        ground: HeightField, ref_heights: np.ndarray, params: ChangeParams) -> np.ndarray:
+                        other: SessionObservations, ground: HeightField,
+                        references: tuple[np.ndarray, np.ndarray], params: ChangeParams) -> np.ndarray:
     """Which landmarks stand in their own session only where an object present in both sessions stands: every
     place of theirs that stands (their own place where it does, else the places of their ring that do; `heights`
     and `ring` as `flat_landmarks` swept them) lies within the swept patch's reach (`surface.PATCH_HALF_M`) of
-    the footprint (radius 2 h) of a kept landmark (`kept_points`, `kept_sizes`: those with a counterpart) whose
-    own surface stands too. Such a landmark is that object's neighbourhood, not an object of its own: a cast
-    shadow beside a crown whose 2 x 2 m patch catches the crown's edge stands in the noon images and not in the
-    overcast ones, where the same edge, without the shadow's contrast, sweeps to the ground. False where nothing
-    stands (those are flat anyway) or where any standing place lies beyond every kept object's reach."""
+    the footprint (radius 2 h) of a kept landmark (`kept_points`, `kept_sizes`: those with a counterpart), outside
+    which the landmark lies and whose
+    surface stands in both sessions (`references`: the own and the other session's reference heights): a
+    counterpart alone can be a chance pairing (a new crown's landmark with a ground patch of the other map), and
+    a kept patch of ground texture explains no height. Such a landmark is that object's neighbourhood, not an
+    object of its own: a cast shadow beside a crown whose 2 x 2 m patch catches the crown's edge stands in the
+    noon images and not in the overcast ones, where the same edge, without the shadow's contrast, sweeps to the
+    ground. False where nothing stands (those are flat anyway) or where any standing place lies beyond every kept
+    object's reach."""
     n = len(points)
     out = np.zeros(n, dtype=bool)
     kept_points = np.asarray(kept_points, dtype=np.float64).reshape(-1, 3)
     if not n or not len(kept_points):
         return out
     places = 1 + params.object_height_ring
-    limit = height_limit(ref_heights, params.object_height_p, places)
-    if not np.isfinite(limit):
+    limit = height_limit(references[0], params.object_height_p, places)
+    if not (np.isfinite(limit) and np.isfinite(height_limit(references[1], params.object_height_p))):
         return out
     h = np.asarray(heights, dtype=np.float64)
     own_stands = np.isfinite(h) & (h > limit)
@@ -77,15 +82,20 @@ def beside_kept_objects(points: np.ndarray, sizes: np.ndarray, heights: np.ndarr
     xy = np.vstack([np.asarray(points, dtype=np.float64)[own_stands, :2], ring_xyz[ring_stands][:, :2]])
     if not len(who):
         return out
-    reach = 2.0 * np.nan_to_num(np.asarray(kept_sizes, dtype=np.float64), nan=0.0) + PATCH_HALF_M
-    near = np.linalg.norm(xy[:, None, :] - kept_points[None, :, :2], axis=2) <= reach[None, :]
-    # the kept objects within reach must stand themselves (a kept patch of ground texture explains no height)
+    footprint = 2.0 * np.nan_to_num(np.asarray(kept_sizes, dtype=np.float64), nan=0.0)
+    near = np.linalg.norm(xy[:, None, :] - kept_points[None, :, :2], axis=2) <= footprint[None, :] + PATCH_HALF_M
+    # beside, not inside: a landmark within a kept one's footprint may be an object on or in it (a new bush in a
+    # kept field), which the nesting and part links judge; only one outside it can be its edge's neighbourhood
+    centre = np.asarray(points, dtype=np.float64)[who, :2]
+    near &= np.linalg.norm(centre[:, None, :] - kept_points[None, :, :2], axis=2) > footprint[None, :]
+    # the kept objects within reach must stand in both sessions' images: an object that is there in both
     asked = np.flatnonzero(near.any(axis=0))
     if not len(asked):
         return out
     standing = np.zeros(len(kept_points), dtype=bool)
-    standing[asked] = stands_above_ground(session_heights(kept_points[asked], own, ground, params), ref_heights,
-                                          params.object_height_p)
+    mine, theirs = surface_heights(kept_points[asked], own, other, ground, params)
+    standing[asked] = (stands_above_ground(mine, references[0], params.object_height_p)
+                       & stands_above_ground(theirs, references[1], params.object_height_p))
     explained = (near & standing[None, :]).any(axis=1)
     unexplained = np.bincount(who[~explained], minlength=n)
     return (np.bincount(who, minlength=n) > 0) & (unexplained == 0)

@@ -295,14 +295,15 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
             doubted = asked & (surface + counterpart_log_ratio > 0)
             index = np.where(doubted, -1, index)
     if swept is not None:
-        # a landmark that stands only within reach of an object both sessions have (a kept landmark that stands)
+        # a landmark that stands only within reach of an object both sessions have (a kept landmark standing in
+        # both sessions' images)
         # is that object's neighbourhood, such as a cast shadow whose patch catches the crown's edge: no object of
         # its own to have gone or come, whatever the other session's images make of that edge
         if kept is None:
             kept = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
         at, place_heights, ring_heights_own = swept
         flat[at] |= beside_kept_objects(own_pos[at], own_h[at], place_heights, ring_heights_own, *kept, own,
-                                        ground, surface_references[0], params)
+                                        other, ground, surface_references, params)
     tested = compared & (index < 0) & (other.segments is not None)
     if np.any(tested):
         idx = np.flatnonzero(tested)
