@@ -258,3 +258,34 @@ def test_a_lag_that_fits_fewer_positions_tighter_is_not_applied():
     fit = fit_lag(centers - centers.mean(0), gps, track, seed=0, samples=200)
     assert fit.significant and fit.inliers.sum() == 104  # the case as rev22 found it
     assert _lag_decision(fit, track, centers - centers.mean(0), gps, 0) == (False, "")
+
+
+def test_a_poses_csv_of_a_poses_output_brings_its_registrations_warnings(tmp_path):
+    """rev22: `map --poses DIR/poses.csv` (the poses of a `sosmatch poses` run) lost the georegistration's
+    warnings that `map --images` (SfM inline) puts in the map's verdict; a CSV of another origin brings none."""
+    import json
+
+    from sosmatch.database.cameras import write_cameras_txt
+    from sosmatch.database.poses import write_poses_csv
+    from sosmatch.plugin.geometry import Camera, Poses
+    from sosmatch.workflows.map.inputs import load_inputs
+
+    (tmp_path / "img").mkdir()
+    names = ["a.jpg", "b.jpg", "c.jpg"]
+    for name in names:
+        (tmp_path / "img" / name).write_bytes(b"\xff\xd8\xff\xd9")
+    out = tmp_path / "poses"
+    out.mkdir()
+    centres = np.array([[0.0, 0.0, 100.0], [10.0, 0.0, 100.0], [20.0, 0.0, 100.0]])
+    write_poses_csv(out / "poses.csv", Poses(names, np.stack([np.diag([1.0, -1.0, -1.0])] * 3), centres))
+    write_cameras_txt(out / "cameras.txt", {1: Camera(320, 240, 250.0, 250.0, 160.0, 120.0)})
+    said = "the GPS positions lag the images by 0.28 s (1.9 m along the track at 6.6 m/s): corrected"
+    (out / "poses.json").write_text(json.dumps({"format": "sosmatch-poses", "version": 1,
+                                                "georegistration": {"warnings": [said]}}))
+    inputs = load_inputs(tmp_path / "img", out / "poses.csv", None)
+    assert inputs.warnings == [f"poses: {said}"]
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "poses.csv").write_bytes((out / "poses.csv").read_bytes())
+    (other / "cameras.txt").write_bytes((out / "cameras.txt").read_bytes())
+    assert load_inputs(tmp_path / "img", other / "poses.csv", None).warnings == []

@@ -179,7 +179,13 @@ def load_inputs(
         raise InputError(f"only {len(keep)} image(s) have a pose; need at least 2", images)
     sub = pose_list.subset([i for i, _ in keep])
     sub.names = [p.name for _, p in keep]
-    inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources))
+    # a poses.csv of `sosmatch poses`: its georegistration's doubts are the map's, as when map runs SfM itself
+    doubts = []
+    if sources.get("poses") == str(poses) and Path(poses).is_file():
+        from ..poses.result import registration_warnings_beside
+
+        doubts = registration_warnings_beside(Path(poses))
+    inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources, warnings=doubts))
     if (problem := focal_against_exif(inputs)) is not None:
         log.warning("%s", problem)
     return inputs

@@ -3,6 +3,7 @@ result (`map_inputs`); shared helpers of the package."""
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -70,10 +71,31 @@ def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
         _refuse_cameras([f"{c.model} {c.width}x{c.height}" for c in result.cameras.values()], image_dir)
     paths = {p.name: p for p in list_images(image_dir)}
     camera = next(iter(result.cameras.values()))
-    geo = result.report.get("georegistration") or {}
     return MapInputs([paths[n] for n in result.poses.names], result.poses, camera, result.epsg,
                      {"poses": source, "camera": source, "images": str(image_dir)},
-                     warnings=[f"poses: {w}" for w in geo.get("warnings", [])])
+                     warnings=registration_warnings(result.report))
+
+
+def registration_warnings(report: dict) -> list[str]:
+    """The georegistration's warnings of a `poses` record (poses.json), as the map's verdict says them: what the
+    poses' source found doubtful (GPS fixes left out, a lag corrected or a clock offset) is the map's doubt too."""
+    geo = report.get("georegistration") if isinstance(report, dict) else None
+    warnings = geo.get("warnings", []) if isinstance(geo, dict) else []
+    return [f"poses: {w}" for w in warnings if isinstance(w, str)]
+
+
+def registration_warnings_beside(poses_csv: Path) -> list[str]:
+    """`registration_warnings` of the `poses` output a poses.csv was taken from (its poses.json beside it); none
+    for a CSV of another origin or a record that cannot be read (the CSV itself is what the map uses)."""
+    record = poses_csv.parent / RECORD
+    if poses_csv.name != "poses.csv" or not record.is_file():
+        return []
+    try:
+        report = json.loads(record.read_text())
+    except (OSError, ValueError):
+        return []
+    ours = isinstance(report, dict) and report.get("format") == "sosmatch-poses"
+    return registration_warnings(report) if ours else []
 
 def _refuse_cameras(listing: list[str], image_dir: Path) -> None:
     raise InputError(f"the images come from {len(listing)} cameras ({', '.join(listing)}); map takes one camera: "
