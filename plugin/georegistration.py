@@ -294,11 +294,12 @@ def georegister(
     # the GPS fixes that fit horizontally (block levelled by the priors alone) check the vertical
     first = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags,
                               tag_systematic_deg=tag_systematic_deg)
+    levelled_first = c[idx] @ level_rotation(first.up).T  # (the lag's fits and the first horizontal fit)
     # the lag first: uncorrected, the lines flown one way would be taken as outliers of the others
     track = track_velocity(gps[idx], np.asarray(times_s, float)[idx], times_known)
-    lag = fit_lag(c[idx] @ level_rotation(first.up).T, gps[idx], track, seed)
+    lag = fit_lag(levelled_first, gps[idx], track, seed)
     shift = None
-    lag_applied, lag_note = _lag_decision(lag, track, c[idx] @ level_rotation(first.up).T, gps[idx], seed)
+    lag_applied, lag_note = _lag_decision(lag, track, levelled_first, gps[idx], seed)
     if lag_note:
         warnings.append(lag_note)
     if lag is not None and lag_applied:
@@ -316,7 +317,7 @@ def georegister(
         else:
             shift[idx, 2] = lag.dt * np.nan_to_num(vel[idx, 2])
         warnings.append(f"the GPS positions {lag.shift()}: corrected (camera trigger latency or a time offset)")
-    hfit = robust_horizontal_similarity(c[idx] @ level_rotation(first.up).T, gps[idx], seed)
+    hfit = robust_horizontal_similarity(levelled_first, gps[idx], seed)
     checked = np.full_like(gps, np.nan)
     checked[idx[hfit.inliers]] = gps[idx[hfit.inliers]]
     vert = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags, c, checked, tag_systematic_deg)
@@ -382,16 +383,15 @@ def _lag_decision(lag: LagFit | None, track: TrackVelocity, levelled: np.ndarray
                        f"(the GPS positions would {lag.shift()}, more than {limit}): not corrected; a clock or log "
                        "offset between the GPS and the camera?")
     raw = robust_horizontal_similarity(levelled, gps, seed)
-    moved = np.where(np.isfinite(track.velocity[:, :2]), gps[:, :2] + lag.dt * np.nan_to_num(track.velocity[:, :2]),
-                     gps[:, :2])
-    fixed = robust_horizontal_similarity(levelled, np.column_stack([moved, gps[:, 2]]), seed)
+    moved = np.column_stack([corrected(gps[:, :2], track.velocity[:, :2], lag.dt), gps[:, 2]])
+    fixed = robust_horizontal_similarity(levelled, moved, seed)
     if int(fixed.inliers.sum()) - int(raw.inliers.sum()) >= max(2, math.ceil(LAG_MIN_INLIER_GAIN * len(gps))):
         return True, ""  # the corrected positions bring in lines the raw fit had to leave out
     # else the sigmas on the same positions, the raw fit's inliers: each fit's own sigma is over its own inliers,
     # and a lower one bought by leaving positions out is no improvement (rev22 seed 5049, a clean flight with GPS
     # wander: the lag's fifth unknown fit 6 of 10 lines tighter, 104 of 190 inliers at 0.34 m against 126 at 0.45)
     keep = raw.inliers
-    on_raw = fit_yaw_translation(levelled[keep], np.column_stack([moved, gps[:, 2]])[keep], with_scale=True)
-    r = np.linalg.norm((on_raw.apply(levelled[keep]) - np.column_stack([moved, gps[:, 2]])[keep])[:, :2], axis=1)
+    on_raw = fit_yaw_translation(levelled[keep], moved[keep], with_scale=True)
+    r = np.linalg.norm((on_raw.apply(levelled[keep]) - moved[keep])[:, :2], axis=1)
     sigma_fixed = math.sqrt(float(np.sum(r**2)) / max(2 * int(keep.sum()) - 4, 1))
     return sigma_fixed <= (1.0 - LAG_MIN_SIGMA_GAIN) * raw.sigma_m, ""
