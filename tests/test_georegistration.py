@@ -182,3 +182,24 @@ def test_gps_heights_on_a_narrow_block_are_judged_by_its_width():
         world_r = np.einsum("ij,njk->nik", geo.transform.rotation, sfm_r)
         assert np.median(rotation_angle_deg(world_r, rots)) < 1.0
     assert flagged <= 1  # 0.27 % expected at the 3-sigma level
+
+
+def test_attitude_tags_contradict_the_vertical_only_beyond_noise():
+    """A sound flight's tags scatter about the vertical; the largest of 60 often lies beyond 3 sigmas (left out of
+    the mean) without being wrong. Only a tag beyond the 1-in-10^4 radius contradicts the others (nu32: a flight
+    with 0.58 deg of spread was told one image's tags contradicted the vertical for 2.1 deg)."""
+    from sosmatch.plugin.georegistration import vertical_in_frame
+
+    centers, rots, _, _ = _block()
+    sfm_c, sfm_r, _ = _to_sfm(centers, rots)
+    rng = np.random.default_rng(3)
+    tilt = np.radians(rng.normal(0, 0.575, (len(rots), 3))) * [1, 1, 0]  # 0.575 deg per axis, as nu32's
+    tilt[5] = np.radians([2.1, 0.0, 0.0])  # 3.7 sigmas: noise's tail, left out of the mean
+    tilt[20] = np.radians([0.0, 6.0, 0.0])  # a wrong tag
+    prior = Rotation.from_rotvec(tilt).as_matrix() @ rots
+    vert = vertical_in_frame(sfm_r, prior, np.ones(len(rots), bool))
+    assert 5 in vert.images_rejected and 20 in vert.images_rejected
+    assert vert.images_contradicting == [20]
+    geo = georegister(sfm_c, sfm_r, centers + rng.normal(0, 0.3, centers.shape), prior, np.ones(len(rots), bool),
+                      np.arange(len(rots)) * 2.0)
+    assert sum("contradicts" in w for w in geo.warnings) == 1 and "1 image(s)" in " ".join(geo.warnings)
