@@ -36,6 +36,13 @@ from .gps_lag import LagFit, TrackVelocity, corrected, fit_lag, track_velocity
 from .height_drift import MIN_HEIGHT_DRIFT_M, DriftFit, _robust_sigma, fit_drift  # noqa: F401 (also read from here)
 from .multisession import Sim3, umeyama
 from .refinement import fit_yaw_translation
+from .robust_fit import (  # noqa: F401 (the constants are also read from here)
+    CHI2_2DOF_99,
+    CHI2_2DOF_9973,
+    CHI2_2DOF_9999,
+    CHI2_2DOF_MEDIAN,
+    lmeds_then_least_squares,
+)
 
 # A level nadir camera is what survey flights aim for; fixed-wing airframes fly a few degrees nose-up and
 # multirotor gimbals hold nadir to a degree: the uncertainty of the mean view direction as the vertical.
@@ -51,10 +58,6 @@ LAG_MIN_SIGMA_GAIN = 0.10
 LAG_MIN_INLIER_GAIN = 0.03
 # the largest plausible lag when the capture interval is unknown: a trigger latency is a fraction of a second
 LAG_MAX_S = 2.0
-CHI2_2DOF_99 = 9.2103  # 99 % quantile of chi-square with 2 degrees of freedom
-CHI2_2DOF_MEDIAN = 1.3863  # its median
-CHI2_2DOF_9999 = 18.4207  # its 99.99 % quantile
-CHI2_2DOF_9973 = 11.8290  # its 99.73 % quantile (3 sigma in one dimension)
 
 
 def _mean_direction(vectors: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, np.ndarray, float]:
@@ -205,36 +208,22 @@ def robust_horizontal_similarity(src: np.ndarray, dst: np.ndarray, seed: int = 0
     def residuals(t: Sim3) -> np.ndarray:
         return np.linalg.norm((t.apply(src) - dst)[:, :2], axis=1)
 
-    best, best_med = None, math.inf
-    for i, j in pairs:
+    def candidate(i: int, j: int) -> Sim3 | None:
         if np.linalg.norm(src[i, :2] - src[j, :2]) < 1e-9:
-            continue
+            return None
         try:
             cand = fit_yaw_translation(src[[i, j]], dst[[i, j]], with_scale=True)
         except ValueError:
-            continue
-        if not cand.scale > 0:
-            continue
-        med = float(np.median(residuals(cand) ** 2))
-        if med < best_med:
-            best, best_med = cand, med
-    if best is None:
+            return None
+        return cand if cand.scale > 0 else None
+
+    fitted = lmeds_then_least_squares(
+        (candidate(i, j) for i, j in pairs),
+        lambda inl: fit_yaw_translation(src[inl], dst[inl], with_scale=True),
+        residuals, n, unknowns=4, min_points=2, min_sigma=min_sigma_m)
+    if fitted is None:
         raise ValueError("the positions have no horizontal spread")
-    fit = best
-    inliers = np.ones(n, bool)
-    sigma = max(math.sqrt(best_med / CHI2_2DOF_MEDIAN), min_sigma_m)
-    for _ in range(10):
-        r = residuals(fit)
-        new = r**2 <= CHI2_2DOF_99 * sigma**2
-        if new.sum() < 2:
-            break
-        fit = fit_yaw_translation(src[new], dst[new], with_scale=True)
-        r = residuals(fit)
-        dof = max(2 * int(new.sum()) - 4, 1)
-        sigma = max(math.sqrt(float(np.sum(r[new] ** 2)) / dof), min_sigma_m)
-        if np.array_equal(new, inliers):
-            break
-        inliers = new
+    fit, inliers, sigma = fitted
     return HorizontalFit(fit, inliers, sigma, residuals(fit))
 
 

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .robust_fit import lmeds_then_least_squares
+
 # dt is applied only beyond this many of its standard errors: GPS noise correlated along a line makes the formal
 # error optimistic, and a lag that is not there must never be "corrected" into a flight
 LAG_SIGNIFICANCE_SIGMAS = 5.0
@@ -32,9 +34,6 @@ MIN_PASSES = 3
 # a step this many times the median capture interval (or step length) is a gap (another flight, a battery swap):
 # no velocity is taken across it
 GAP_FACTOR = 3.0
-# 99 % quantile and median of chi-square with 2 degrees of freedom (georegistration's inlier radius)
-_CHI2_2DOF_99 = 9.2103
-_CHI2_2DOF_MEDIAN = 1.3863
 
 
 @dataclass
@@ -200,30 +199,18 @@ def fit_lag(src: np.ndarray, dst: np.ndarray, track: TrackVelocity, seed: int = 
     s, d, v = src[idx] - src[idx].mean(0), dst[idx] - dst[idx].mean(0), track.velocity[idx]
     n = len(idx)
     rng = np.random.default_rng(seed)
-    best, best_med = None, math.inf
-    for _ in range(samples):
+
+    def candidate() -> np.ndarray | None:
         pick = rng.choice(n, 3, replace=False)
         p = _solve(s[pick], d[pick], v[pick])
-        if p is None or math.hypot(p[0], p[1]) <= 0:
-            continue
-        med = float(np.median(_residuals(p, s, d, v) ** 2))
-        if med < best_med:
-            best, best_med = p, med
-    if best is None:
+        return p if p is not None and math.hypot(p[0], p[1]) > 0 else None
+
+    fitted = lmeds_then_least_squares(
+        (candidate() for _ in range(samples)), lambda inl: _solve(s[inl], d[inl], v[inl]),
+        lambda p: _residuals(p, s, d, v), n, unknowns=5, min_points=3, min_sigma=min_sigma_m)
+    if fitted is None:
         return None
-    params, inl = best, np.ones(n, bool)
-    sigma = max(math.sqrt(best_med / _CHI2_2DOF_MEDIAN), min_sigma_m)
-    for _ in range(10):
-        new = _residuals(params, s, d, v) ** 2 <= _CHI2_2DOF_99 * sigma**2
-        p = _solve(s[new], d[new], v[new]) if new.sum() >= 3 else None
-        if p is None:
-            break
-        params = p
-        r = _residuals(params, s, d, v)
-        sigma = max(math.sqrt(float(np.sum(r[new] ** 2)) / max(2 * int(new.sum()) - 5, 1)), min_sigma_m)
-        if np.array_equal(new, inl):
-            break
-        inl = new
+    params, inl, sigma = fitted
     a = _design(s[inl], v[inl])
     normal = a.T @ a
     formal = math.inf
