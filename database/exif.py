@@ -388,7 +388,10 @@ def encode_exif(meta: ImageMetadata) -> bytes:
             gps[GPS_ALT] = _rational(abs(meta.altitude), 1000)
         if meta.gps_track_deg is not None:
             gps[GPS_TRACK] = _rational(meta.gps_track_deg % 360.0, 100)
-    return exif.tobytes()
+    tiff = exif.tobytes()
+    # Pillow (>= 8) puts the APP1 identifier in front of the TIFF bytes; the segment writer adds its own, and
+    # two of them made "Exif\0\0Exif\0\0MM..." that Pillow tolerates but exiftool and COLMAP do not (nu35)
+    return tiff[len(EXIF_APP1_HEADER):] if tiff.startswith(EXIF_APP1_HEADER) else tiff
 
 
 def encode_xmp(properties: dict[str, str], namespace: tuple[str, str] = DJI_XMP_NAMESPACE) -> bytes:

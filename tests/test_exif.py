@@ -775,3 +775,27 @@ def test_map_and_poses_take_the_projected_crs_of_the_poses(tmp_path, capsys, mon
     assert plain.identity() == job.identity_of(img, Params(), telemetry=None, takeoff=None, sensor=None,
                                                nominal_height_m=job.NOMINAL_HEIGHT_M)
     assert poses_workflow.PosesFromImages(img, Params(), epsg=32615).identity() != plain.identity()
+
+
+def test_embedded_exif_is_one_app1_segment_with_a_tiff_header(tmp_path):
+    """`embed_metadata` (the synthetic world's geotagger) writes "Exif\\0\\0" then the TIFF header, as a camera
+    does: Pillow's own identifier in front of the TIFF bytes made "Exif\\0\\0Exif\\0\\0MM...", which Pillow read
+    but strict readers (exiftool, COLMAP) do not (nu35)."""
+    import io
+
+    from PIL import Image
+
+    from sosmatch.database.exif import ImageMetadata, embed_metadata
+
+    buf = io.BytesIO()
+    Image.new("L", (32, 24), 128).save(buf, "JPEG")
+    meta = ImageMetadata(tmp_path / "a.jpg", 32, 24, latitude=41.5, longitude=-83.25, altitude=300.0, focal_mm=4.5,
+                         make="DJI", model="FC6310")
+    data = embed_metadata(buf.getvalue(), meta)
+    assert data[2:4] == b"\xff\xe1"
+    payload = data[6:6 + int.from_bytes(data[4:6], "big") - 2]
+    assert payload[:6] == b"Exif\x00\x00" and payload[6:10] in (b"MM\x00*", b"II*\x00")
+    (tmp_path / "a.jpg").write_bytes(data)
+    back = read_image_metadata(tmp_path / "a.jpg")
+    assert back.latitude == pytest.approx(41.5, abs=1e-6) and back.longitude == pytest.approx(-83.25, abs=1e-6)
+    assert back.focal_mm == pytest.approx(4.5) and back.make == "DJI"

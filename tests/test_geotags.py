@@ -62,7 +62,7 @@ def test_damaged_exif_and_xmp_are_problems_not_errors(tmp_path):
     p = tmp_path / "a.jpg"
     data = bytearray(embed_metadata(_jpeg(), _meta(p)))
     i = data.find(b"Exif\x00\x00")
-    data[i + 14:i + 40] = b"\xab" * 26  # garble the first IFD
+    data[i + 10:i + 40] = b"\xab" * 30  # garble the TIFF header's offset of the first IFD, and the IFD
     j = data.find(b"<rdf:Description")
     data[j + 1:j + 5] = b"<<<<"  # XMP no longer well-formed
     p.write_bytes(bytes(data))
