@@ -345,7 +345,26 @@ def georegister(
                         f"deg against the vertical of the {vert.source}, beyond both uncertainties (GPS heights "
                         f"+-{vert.gps_sigma_deg:.1f} deg across the block, {vert.prior_sigma_deg:.1f} deg): not "
                         "followed; the GPS altitude drifts or the reconstruction is bent")
-    if gps_alt is not None and gps_alt.significant:
+    source = "GPS altitude jumps" if reference_heights is None else "reference heights (RelativeAltitude-based) jump"
+    if offset.kind == "step":
+        # one datum for the block: the kept segment's level, not a line through the step (nu34 mAmix2)
+        with_gps = (reference_heights is not None and gps_alt is not None and gps_alt.kind == "step"
+                    and abs(gps_alt.change - offset.change) < 0.5 * abs(offset.change))
+        warnings.append(f"the {source} by {offset.change:+.1f} m at image {_image_at(times_s, use, offset)} "
+                        f"against the reconstruction: the block is held to the {_kept_count(offset)} images "
+                        f"{offset.kept} the jump (one datum)"
+                        + ("; the GPS altitude jumps with them: its height datum changed, not the take-off height"
+                           if with_gps else ""))
+    elif offset.significant and reference_heights is not None and not (gps_alt is not None and gps_alt.significant):
+        warnings.append(f"the relative altitude (barometric) drifts by {offset.change:+.1f} m over the flight against "
+                        "the reconstruction, the GPS altitude does not: heights referenced to the start of the flight")
+    if gps_alt is not None and gps_alt.kind == "step":
+        if not (offset.kind == "step" and reference_heights is None):  # (else said just above)
+            at = _image_at(times_s, alt, gps_alt)
+            warnings.append(f"the GPS altitude jumps by {gps_alt.change:+.1f} m at image {at} against the "
+                            "reconstruction (another height datum of the receiver?): measured, not followed"
+                            + ("" if reference_heights is None else "; heights from the relative altitude"))
+    elif gps_alt is not None and gps_alt.significant:
         warnings.append(f"the GPS altitude drifts by {gps_alt.change:+.1f} m over the flight against the "
                         f"reconstruction ({gps_alt.slope_per_s * 60:+.2f} m/min): measured, not followed"
                         + ("" if reference_heights is None else "; heights from the relative altitude")
@@ -361,6 +380,19 @@ def georegister(
         warnings.append(f"{len(vert.images_contradicting)} image(s) have attitude tags whose vertical contradicts "
                         "the others'")
     return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift, lag_applied)
+
+
+def _kept_count(fit: DriftFit) -> int:
+    """The number of values on the kept side of a step."""
+    return (fit.counts or (0, 0))[0 if fit.kept == "before" else 1]
+
+
+def _image_at(times_s: np.ndarray, used: np.ndarray, fit: DriftFit) -> str:
+    """'k of N' (capture order, 1-based, of the images given) of the first image at or after a fit's step."""
+    t = np.asarray(times_s, float)
+    later = used[t[used] >= (fit.step_time if fit.step_time is not None else -math.inf)]
+    k = int(later[np.argmin(t[later])]) if len(later) else int(used[-1])
+    return f"{int(np.sum(t < t[k])) + 1} of {len(t)}"
 
 
 def _lag_decision(lag: LagFit | None, track: TrackVelocity, levelled: np.ndarray, gps: np.ndarray,

@@ -1,6 +1,6 @@
-"""Heights over a flight: a robust line through one value per image (`fit_drift`: how a GPS altitude drifts
-against the barometer or the block, over capture time), and the take-off altitude each image's barometric height
-is measured from when a folder holds several flights (`takeoff_altitudes`)."""
+"""Heights over a flight: a robust line, or a step, through one value per image (`fit_drift`: how a GPS altitude
+drifts or jumps against the barometer or the block, over capture time), and the take-off altitude each image's
+barometric height is measured from when a folder holds several flights (`takeoff_altitudes`)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,14 @@ from .landmark_filters import MAD_TO_SIGMA
 # A height drift smaller than this over a flight is within what the vertical of a block can explain (0.1 degree
 # over 300 m is 0.5 m) and is not followed nor warned about (it is still measured and recorded).
 MIN_HEIGHT_DRIFT_M = 1.0
+# A step (one change point: an RTK receiver losing its fix and reporting another height datum, nu34: 30 m) is
+# taken instead of the line only when its residuals' robust sigma is at most this fraction of the line's (a
+# ramp, the best step through it leaves change/7 of misfit where the line leaves only the noise, so a drift is
+# never read as a step) and the step stands STEP_NOISE_SIGMAS of its own noise out: a line through a step
+# extrapolates to the first image a quarter of the step off (nu34 mAmix1: +36.9 m for a 30 m step).
+STEP_SIGMA_RATIO = 0.5
+STEP_NOISE_SIGMAS = 10.0
+MIN_STEP_SIDE = 3  # images on each side of a step: fewer are outliers, not a segment
 
 
 @dataclass
@@ -27,30 +35,67 @@ class DriftFit:
     change_sigma: float  # standard error of `change`
     significant: bool  # |change| beyond 3 standard errors and beyond 2 sigma
     median: float  # the median of the values (the offset to use when there is no drift)
+    # a step instead of a line (`kind` "step"; `change` is then the step, after - before, and `offset` the level
+    # of the segment kept, `kept`): the time of the first value after it, the levels and numbers of values of
+    # the two segments
+    step_time: float | None = None
+    levels: tuple[float, float] | None = None
+    counts: tuple[int, int] | None = None
+    kept: str | None = None  # "before" or "after": the segment whose level is the reference
+
+    @property
+    def kind(self) -> str:
+        """"step" (one change point), "drift" (a significant line) or "constant"."""
+        return "step" if self.step_time is not None else ("drift" if self.significant else "constant")
 
     @property
     def reference(self) -> float:
-        """The offset that applies to the block: at the start of the flight when the value drifts, else the median."""
+        """The offset that applies to the block: at the start of the flight when the value drifts, the kept
+        segment's level across a step (one datum for all, never a line through the step), else the median."""
         return self.offset if self.significant else self.median
 
+    def value_at(self, t0: float, t: float) -> float:
+        """The fitted value at time `t` of a fit whose first time is `t0`."""
+        if self.levels is not None and self.step_time is not None:
+            return self.levels[0] if t < self.step_time else self.levels[1]
+        return self.offset + self.slope_per_s * (t - t0) if self.significant else self.median
+
     def to_dict(self) -> dict:
-        return {"offset_at_start": self.offset, "median": self.median, "change_over_flight": self.change,
-                "change_sigma": self.change_sigma, "slope_per_min": self.slope_per_s * 60.0, "sigma": self.sigma,
-                "significant": self.significant}
+        d = {"model": self.kind, "offset_at_start": self.offset, "median": self.median,
+             "change_over_flight": self.change, "change_sigma": self.change_sigma,
+             "slope_per_min": self.slope_per_s * 60.0, "sigma": self.sigma, "significant": self.significant}
+        if self.levels is not None:
+            d.update(step_at_s=self.step_time, levels=list(self.levels), counts=list(self.counts or ()),
+                     kept=self.kept)
+        return d
 
 
 def _robust_sigma(residuals: np.ndarray) -> float:
     return float(MAD_TO_SIGMA * np.median(np.abs(residuals - np.median(residuals)))) if len(residuals) else 0.0
 
 
-def fit_drift(times: np.ndarray, values: np.ndarray, min_change: float = 0.0, iterations: int = 10) -> DriftFit:
+def fit_drift(times: np.ndarray, values: np.ndarray, min_change: float = 0.0, iterations: int = 10,
+              value_sigma: np.ndarray | None = None) -> DriftFit:
     """Huber-weighted (k = 2 sigma) least-squares line of `values` over `times` (seconds), scale re-estimated
     from the residuals' MAD every round; the line's change over the time span with its standard error. The
-    change is significant beyond 3 standard errors, 2 sigma and `min_change`."""
+    change is significant beyond 3 standard errors, 2 sigma and `min_change`. When a step (`fit_step`) fits
+    the values far better than the line (module constants), the step is returned instead: `value_sigma` (per
+    value, its a-priori standard deviation, e.g. an RTK receiver's RtkStdHgt; NaN unknown) chooses the segment
+    whose level is the reference (`_kept_segment`)."""
     t = np.asarray(times, dtype=np.float64)
     v = np.asarray(values, dtype=np.float64)
+    q = np.full(len(v), np.nan) if value_sigma is None else np.asarray(value_sigma, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(v)
-    t, v = t[ok], v[ok]
+    t, v, q = t[ok], v[ok], q[ok]
+    line = _fit_line(t, v, min_change, iterations)
+    step = fit_step(t, v, q, min_change)
+    if step is not None and step.sigma <= STEP_SIGMA_RATIO * line.sigma:
+        return step
+    return line
+
+
+def _fit_line(t: np.ndarray, v: np.ndarray, min_change: float, iterations: int) -> DriftFit:
+    """`fit_drift`'s line, on finite values."""
     if len(v) == 0:
         raise ValueError("no finite values to fit")
     median = float(np.median(v))
@@ -78,6 +123,53 @@ def fit_drift(times: np.ndarray, values: np.ndarray, min_change: float = 0.0, it
     return DriftFit(float(coef[0]), float(coef[1]), change, float(sigma), change_se, significant, median)
 
 
+def _kept_segment(q_before: np.ndarray, q_after: np.ndarray, n_before: int, n_after: int) -> str:
+    """Which side of a step gives the reference level: the one whose values are known to be better (a-priori
+    sigmas, median, at least 2x apart: an RTK fixed altitude of 2 cm over a single-point fix of metres), else
+    the one with more values, else the first (the take-off's)."""
+    qb = float(np.nanmedian(q_before)) if np.isfinite(q_before).any() else math.nan
+    qa = float(np.nanmedian(q_after)) if np.isfinite(q_after).any() else math.nan
+    if math.isfinite(qb) and math.isfinite(qa) and max(qa, qb) >= 2.0 * min(qa, qb):
+        return "before" if qb < qa else "after"
+    return "after" if n_after > n_before else "before"
+
+
+def fit_step(times: np.ndarray, values: np.ndarray, value_sigma: np.ndarray | None = None,
+             min_change: float = 0.0) -> DriftFit | None:
+    """The best single step (change point) of `values` over `times`: the split (>= MIN_STEP_SIDE values each
+    side, in time order) of least squared misfit about the two segments' means, then each segment's level its
+    median and the noise the MAD of the residuals. None when there is no room for one or the step does not
+    stand out: |step| beyond STEP_NOISE_SIGMAS sigma, 3 standard errors and `min_change`."""
+    t = np.asarray(times, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    q = np.full(len(v), np.nan) if value_sigma is None else np.asarray(value_sigma, dtype=np.float64)
+    order = np.argsort(t, kind="stable")
+    t, v, q = t[order], v[order], q[order]
+    n = len(v)
+    if n < 2 * MIN_STEP_SIDE:
+        return None
+    # squared misfit about the means of [0, k) and [k, n) for every k, from cumulative sums
+    c1, c2 = np.cumsum(v - v.mean()), np.cumsum((v - v.mean()) ** 2)
+    k = np.arange(MIN_STEP_SIDE, n - MIN_STEP_SIDE + 1)
+    left = c2[k - 1] - c1[k - 1] ** 2 / k
+    right = (c2[-1] - c2[k - 1]) - (c1[-1] - c1[k - 1]) ** 2 / (n - k)
+    split = int(k[np.argmin(left + right)])
+    while split < n and split > MIN_STEP_SIDE and t[split] == t[split - 1]:
+        split -= 1  # values of one time on one side
+    before, after = float(np.median(v[:split])), float(np.median(v[split:]))
+    r = np.concatenate([v[:split] - before, v[split:] - after])
+    sigma = max(_robust_sigma(r), 1e-9 * max(1.0, float(np.abs(v).max())))
+    # a median's standard error is 1.25 x a mean's
+    step_se = 1.25 * sigma * math.sqrt(1.0 / split + 1.0 / (n - split))
+    step = after - before
+    if not abs(step) > max(STEP_NOISE_SIGMAS * sigma, 3.0 * step_se, min_change):
+        return None
+    kept = _kept_segment(q[:split], q[split:], split, n - split)
+    level = before if kept == "before" else after
+    return DriftFit(level, 0.0, step, sigma, step_se, True, float(np.median(v)), float(t[split]),
+                    (before, after), (split, n - split), kept)
+
+
 # A break in the capture times longer than this (and than 20 of the flight's own intervals) is a landing: a
 # battery change takes minutes, survey images come every few seconds.
 FLIGHT_BREAK_S = 60.0
@@ -88,12 +180,8 @@ FLIGHT_BREAK_S = 60.0
 MIN_TAKEOFF_STEP_M = 5.0
 
 
-def _value_at(fit: DriftFit, t0: float, t: float) -> float:
-    """The fitted offset at time `t` (a line fitted from `t0`; the median when it does not drift)."""
-    return fit.offset + fit.slope_per_s * (t - t0) if fit.significant else fit.median
-
-
 def takeoff_altitudes(times: np.ndarray, offsets: np.ndarray, min_change: float = 0.0,
+                      value_sigma: np.ndarray | None = None,
                       ) -> tuple[np.ndarray, list[tuple[np.ndarray, DriftFit]]]:
     """Per image, the altitude its barometric height (DJI RelativeAltitude, above the take-off point) is measured
     from, and the flights: [(image indices, their `fit_drift` of GPS altitude - RelativeAltitude)], in capture
@@ -104,9 +192,12 @@ def takeoff_altitudes(times: np.ndarray, offsets: np.ndarray, min_change: float 
     flight's cameras 15 m low, landmarks 6 m low (some twice, 17 m apart), with the map's verdict "ok". So the
     images are split into flights at breaks in the capture times (`FLIGHT_BREAK_S`), and a flight joins the one
     before unless its take-off altitude (at its start) differs from that flight's line at its last image by more
-    than `MIN_TAKEOFF_STEP_M` and 3 standard errors. One flight: the one fit of the whole folder, as before."""
+    than `MIN_TAKEOFF_STEP_M` and 3 standard errors. One flight: the one fit of the whole folder, as before.
+    Within a flight the barometer does not restart: a step there is the GPS's (`fit_drift`'s step; its
+    take-off altitude the level of the segment `value_sigma`, per image, says is better, else the longer)."""
     t = np.asarray(times, dtype=np.float64)
     v = np.asarray(offsets, dtype=np.float64)
+    q = np.full(len(v), np.nan) if value_sigma is None else np.asarray(value_sigma, dtype=np.float64)
     order = np.argsort(t, kind="stable")
     dt = np.diff(t[order])
     step = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
@@ -117,10 +208,12 @@ def takeoff_altitudes(times: np.ndarray, offsets: np.ndarray, min_change: float 
         if groups and len(fixed):
             prev = groups[-1][np.isfinite(v[groups[-1]])]
             if len(prev):
-                before, after = fit_drift(t[prev], v[prev], min_change), fit_drift(t[fixed], v[fixed], min_change)
+                before = fit_drift(t[prev], v[prev], min_change, value_sigma=q[prev])
+                after = fit_drift(t[fixed], v[fixed], min_change, value_sigma=q[fixed])
                 # each flight's line where it has images (not extended across the break: a drift that is noise,
                 # stretched over a 5 min pause, made a step of 5 m in one flight; review rev19)
-                jump = after.reference - _value_at(before, float(t[prev].min()), float(t[prev].max()))
+                t1 = float(t[fixed].min())
+                jump = after.value_at(t1, t1) - before.value_at(float(t[prev].min()), float(t[prev].max()))
                 noise = 3.0 * math.hypot(before.sigma / math.sqrt(len(prev)), after.sigma / math.sqrt(len(fixed)))
                 if abs(jump) > max(MIN_TAKEOFF_STEP_M, noise):
                     groups.append(seg)
@@ -137,7 +230,7 @@ def takeoff_altitudes(times: np.ndarray, offsets: np.ndarray, min_change: float 
             if flights:
                 takeoff[idx] = takeoff[flights[-1][0][0]]
             continue
-        fit = fit_drift(t[fixed], v[fixed], min_change)
+        fit = fit_drift(t[fixed], v[fixed], min_change, value_sigma=q[fixed])
         takeoff[idx] = fit.reference
         flights.append((idx, fit))  # in capture order: idx[0] is the flight's first image
     return takeoff, flights

@@ -268,7 +268,7 @@ def read_image_priors(
     attitude sources and the heights). Damaged or implausible tags are left out with one warning naming the
     images; an unreadable image file is an InputError."""
     from ..database.poses import crs_scale_problem
-    from ..plugin.height_drift import MIN_HEIGHT_DRIFT_M, takeoff_altitudes
+    from .prior_heights import prior_heights, rtk_tags
 
     check_prior_options(mount, sensor_width_mm, epsg, takeoff_altitude_m)
     paths = list_images(images)
@@ -334,34 +334,15 @@ def read_image_priors(
         lat, lon, alt, east, north, north_az, has = (a[order] for a in (lat, lon, alt, east, north, north_az, has))
     times, time_source = _capture_times(metas)
 
-    # Heights: DJI RelativeAltitude + take-off altitude where every fixed image has it, else the GPS altitude.
+    # Heights: DJI RelativeAltitude + take-off altitude where every fixed image has it (an RTK fixed altitude over
+    # it), else the GPS altitude (`prior_heights`).
     rel = np.array([v[0] if (v := m.xmp_float("RelativeAltitude")) else np.nan for m in metas])
-    heights, height_source, rel_drift, flights = alt.copy(), "GPS altitude", None, []
-    fixed_alt = has & np.isfinite(alt)
-    if np.isfinite(rel[has]).all() and has.any():
-        takeoff = np.full(n, np.nan if takeoff_altitude_m is None else float(takeoff_altitude_m))
-        if takeoff_altitude_m is None and fixed_alt.any():
-            # one take-off altitude per flight: a folder of two batteries may hold two home points
-            takeoff, flights = takeoff_altitudes(times, np.where(fixed_alt, alt - rel, np.nan), MIN_HEIGHT_DRIFT_M)
-            rel_drift = flights[0][1]
-            takeoff_altitude_m = rel_drift.reference
-            height_source = "take-off altitude (GPS at the start of the flight) + XMP RelativeAltitude"
-            for idx, fit in flights:
-                if fit.significant:
-                    log.warning("the GPS altitude drifts by %+.1f m over the flight%s against the XMP "
-                                "RelativeAltitude (barometric): heights from the take-off altitude %.1f m + "
-                                "RelativeAltitude", fit.change, "" if len(flights) == 1 else
-                                f" from {metas[idx[0]].path.name}", fit.reference)
-            if len(flights) > 1:
-                height_source = "each flight's take-off altitude (GPS at its start) + XMP RelativeAltitude"
-                log.warning("the images are %d flights that took off from different heights (take-off altitudes "
-                            "%s, from the GPS against the XMP RelativeAltitude): heights from each flight's own",
-                            len(flights), ", ".join(f"{fit.reference:.1f} m from {metas[idx[0]].path.name} on"
-                                                     for idx, fit in flights))
-        elif takeoff_altitude_m is not None:
-            height_source = "given take-off altitude + XMP RelativeAltitude"
-        if takeoff_altitude_m is not None:
-            heights = takeoff + rel
+    rtk_flags, rtk_sigma = rtk_tags(metas)
+    ph = prior_heights(alt, rel, has, times, [m.path.name for m in metas], rtk_flags, rtk_sigma, takeoff_altitude_m)
+    for text in ph.warnings:
+        log.warning("%s", text)
+    heights, height_source, rel_drift, flights = ph.heights, ph.source, ph.rel_drift, ph.flights
+    takeoff_altitude_m = ph.takeoff_altitude_m
     positions = np.stack([east, north, heights], 1)  # NaN height: a fix without altitude
 
     # Attitude, per image.
@@ -438,6 +419,7 @@ def read_image_priors(
         "origin_latlon": [float(lat[has][0]), float(lon[has][0])] if has.any() else None,
         "position_sources": dict(pos_src),
         "altitude_source": height_source,
+        "heights_consistent": ph.consistent,  # one datum the block can be held to (RelativeAltitude or RTK fixed)
         "gps_altitude_vs_relative_altitude": rel_drift.to_dict() if rel_drift is not None else None,
         "takeoff_altitude_m": takeoff_altitude_m if np.isfinite(rel[has]).all() and has.any() else None,
         # flights of different take-off heights (batteries from two home points), when there are several

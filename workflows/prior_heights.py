@@ -1,0 +1,140 @@
+"""The images' reference heights (`prior_heights`): which source to trust for them, the GPS altitude or DJI's
+barometric RelativeAltitude + a take-off altitude, and what the one says of the other.
+
+A barometer does not restart within a flight, a GPS altitude can: an RTK receiver that loses its fix falls
+back to a single-point solution, often in another height datum (nu34: ellipsoidal -> orthometric, a 30 m
+step). So GPS altitude - RelativeAltitude per flight is fitted as a line or a step (`fit_drift`), and the
+take-off altitude is the level of one segment, never a line through the step. Which source moves is named
+where it is known: an RTK fixed altitude (DJI RtkFlag 50, RtkStdHgt of centimetres) is better than any
+barometer, so when every fix is one the heights are the GPS altitude and a drift between the two is the
+barometer's. Without RTK tags which of the two moves is left to the reconstruction (the georegistration
+measures each against the block)."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..database.exif import ImageMetadata
+from ..plugin.height_drift import MIN_HEIGHT_DRIFT_M, DriftFit, takeoff_altitudes
+
+# DJI RtkFlag: 0 no position, 16 single point, 34 float, 50 fixed. Where RtkStdHgt is missing, the vertical
+# standard deviation each status typically has (a single fix: metres; float: decimetres; fixed: centimetres).
+RTK_FIXED = 50
+FLAG_HEIGHT_SIGMA_M = {16: 3.0, 34: 0.5, 50: 0.05}
+# a fixed solution whose own vertical sigma is above this is not the centimetre altitude it is trusted as
+RTK_FIXED_MAX_SIGMA_M = 0.1
+
+
+def rtk_tags(metas: Sequence[ImageMetadata]) -> tuple[np.ndarray, np.ndarray]:
+    """Per image, DJI's RtkFlag (-1 without) and the altitude's a-priori standard deviation in metres
+    (RtkStdHgt, else the flag's typical one, NaN when neither is tagged)."""
+    flags = np.full(len(metas), -1, dtype=np.int64)
+    sigma = np.full(len(metas), np.nan)
+    for i, m in enumerate(metas):
+        if (f := m.xmp_float("RtkFlag")) is not None:
+            flags[i] = int(f[0])
+        if (s := m.xmp_float("RtkStdHgt")) is not None and s[0] > 0:
+            sigma[i] = s[0]
+        elif flags[i] in FLAG_HEIGHT_SIGMA_M:
+            sigma[i] = FLAG_HEIGHT_SIGMA_M[int(flags[i])]
+    return flags, sigma
+
+
+@dataclass
+class PriorHeights:
+    """What `prior_heights` decided."""
+
+    heights: np.ndarray  # (N,) reference heights (NaN where none)
+    source: str  # said in the summary's altitude_source
+    consistent: bool  # one datum the block can be held to (RelativeAltitude-based, or an RTK fixed altitude)
+    rel_drift: DriftFit | None  # GPS altitude - RelativeAltitude of the first flight
+    flights: list[tuple[np.ndarray, DriftFit]]
+    takeoff_altitude_m: float | None
+    warnings: list[str]
+
+
+def _flag_change(flags: np.ndarray, before: np.ndarray, after: np.ndarray) -> str:
+    """'RtkFlag 50 -> 16' when the most frequent RTK status differs on the two sides, else ''."""
+    fb, fa = flags[before][flags[before] >= 0], flags[after][flags[after] >= 0]
+    if not len(fb) or not len(fa):
+        return ""
+    mb, ma = Counter(fb.tolist()).most_common(1)[0][0], Counter(fa.tolist()).most_common(1)[0][0]
+    return f"RtkFlag {mb} -> {ma}" if mb != ma else ""
+
+
+def prior_heights(alt: np.ndarray, rel: np.ndarray, has: np.ndarray, times: np.ndarray, names: Sequence[str],
+                  flags: np.ndarray, sigma: np.ndarray, takeoff_altitude_m: float | None) -> PriorHeights:
+    """The reference heights of images with GPS altitudes `alt`, RelativeAltitudes `rel` (NaN without), a fix
+    `has`, capture `times` (s), RTK `flags` and altitude `sigma` (`rtk_tags`), and a given take-off altitude
+    (None: from the GPS). See the module doc; the warnings name the source that moves and what was done."""
+    n = len(alt)
+    fixed_alt = has & np.isfinite(alt)
+    out = PriorHeights(alt.copy(), "GPS altitude", False, None, [], takeoff_altitude_m, [])
+    if not (has.any() and np.isfinite(rel[has]).all()):
+        return out
+    rtk = bool(fixed_alt.any() and np.all(flags[fixed_alt] == RTK_FIXED)
+               and np.all(np.nan_to_num(sigma[fixed_alt], nan=0.0) <= RTK_FIXED_MAX_SIGMA_M))
+    takeoff = np.full(n, np.nan if takeoff_altitude_m is None else float(takeoff_altitude_m))
+    if takeoff_altitude_m is not None:
+        out.source, out.consistent = "given take-off altitude + XMP RelativeAltitude", True
+        out.heights = takeoff + rel
+        return out
+    if not fixed_alt.any():
+        return out
+    # one take-off altitude per flight: a folder of two batteries may hold two home points
+    takeoff, flights = takeoff_altitudes(times, np.where(fixed_alt, alt - rel, np.nan), MIN_HEIGHT_DRIFT_M, sigma)
+    out.flights, out.rel_drift = flights, flights[0][1]
+    out.takeoff_altitude_m = out.rel_drift.reference
+    out.consistent = True
+    if rtk:
+        # an RTK fixed altitude of centimetres over a barometer: what moves between the two is the barometer
+        out.source = "GPS altitude (RTK fixed, RtkFlag 50)"
+        for idx, fit in flights:
+            if fit.significant:
+                what = (f"jumps by {-fit.change:+.1f} m at {names[_first_after(idx, times, fit)]}"
+                        if fit.kind == "step" else f"drifts by {-fit.change:+.1f} m over the flight")
+                out.warnings.append(f"the XMP RelativeAltitude (barometric) {what} against the RTK fixed GPS "
+                                    "altitude (RtkFlag 50): heights from the GPS altitude")
+        return out
+    out.source = "take-off altitude (GPS at the start of the flight) + XMP RelativeAltitude"
+    for idx, fit in flights:
+        where = "" if len(flights) == 1 else f" from {names[idx[0]]}"
+        if fit.kind == "step":
+            k = _first_after(idx, times, fit)
+            before, after = idx[times[idx] < fit.step_time], idx[times[idx] >= fit.step_time]
+            change = _flag_change(flags, before, after)
+            kept = before if fit.kept == "before" else after
+            why = (f"{change}: the receiver changed its fix, another height datum?" if change
+                   else "another height datum of the receiver, or a barometer reset?")
+            good = (" (RTK fixed)" if np.all(flags[kept] == RTK_FIXED) else "")
+            out.warnings.append(
+                f"the GPS altitude jumps by {fit.change:+.1f} m at {names[k]}{where} against the XMP "
+                f"RelativeAltitude (barometric; {why}): heights from the take-off altitude {fit.reference:.1f} m of "
+                f"the {len(kept)} images {fit.kept} the jump{good} + RelativeAltitude, one datum for the flight")
+        elif fit.significant:
+            out.warnings.append(
+                f"the GPS altitude and the XMP RelativeAltitude (barometric) drift apart by {fit.change:+.1f} m "
+                f"over the flight{where} (which of them moves, the reconstruction shows): heights from the take-off "
+                f"altitude {fit.reference:.1f} m (GPS at the start) + RelativeAltitude")
+    if len(flights) > 1:
+        out.source = "each flight's take-off altitude (GPS at its start) + XMP RelativeAltitude"
+        changes = [c for (a, _), (b, _) in zip(flights, flights[1:]) if (c := _flag_change(flags, a, b))]
+        out.warnings.append(
+            f"the images are {len(flights)} flights whose take-off altitudes differ (take-off altitudes "
+            + ", ".join(f"{fit.reference:.1f} m from {names[idx[0]]} on" for idx, fit in flights)
+            + ", from the GPS against the XMP RelativeAltitude): another home point"
+            + (f", or another height datum of the GPS ({'; '.join(changes)})" if changes else "")
+            + "? heights from each flight's own take-off altitude")
+    out.heights = takeoff + rel
+    return out
+
+
+def _first_after(idx: np.ndarray, times: np.ndarray, fit: DriftFit) -> int:
+    """The first image of `idx` (capture order) at or after the fit's step."""
+    later = idx[times[idx] >= (fit.step_time if fit.step_time is not None else -math.inf)]
+    return int(later[0]) if len(later) else int(idx[-1])
