@@ -19,7 +19,8 @@ each part:
 3. **Height** (`fit_drift`): the offset between reference heights (DJI RelativeAltitude + take-off altitude,
    else the GPS altitude) and the levelled block, fitted as a line in capture time. A significant slope is the
    reference drifting against the reconstruction: it is reported, and the heights are referenced to the start
-   of the flight (drift accumulates from take-off), not bent to follow it.
+   of the flight (drift accumulates from take-off), not bent to follow it. A step (a receiver changing its height
+   datum) is fitted as a step: the block is held to one side's level, and the jump is said as one.
 
 Then `plugin.flight_lines.compare_with_priors` measures every image's orientation against its tags and finds
 flight lines whose tags contradict the images (a 180 degree yaw).
@@ -355,6 +356,13 @@ def georegister(
                         f"{offset.kept} the jump (one datum)"
                         + ("; the GPS altitude jumps with them: its height datum changed, not the take-off height"
                            if with_gps else ""))
+    elif len(every := idx[np.isfinite(heights[idx])]) > len(use) and (whole := fit_drift(
+            times_s[every], heights[every] - registered_z[every], MIN_HEIGHT_DRIFT_M)).kind == "step":
+        # the images whose horizontal fixes were left out carry a jump of the heights too (nu34 mAmix2: a second
+        # battery's single fixes, another datum, read as another take-off height): the block does not follow it
+        warnings.append(f"the {source} by {whole.change:+.1f} m at image {_image_at(times_s, every, whole)} "
+                        "against the reconstruction, in images whose GPS positions are left out of the fit: the "
+                        f"block is held to the {len(use)} others' heights (another height datum of those fixes?)")
     elif offset.significant and reference_heights is not None and not (gps_alt is not None and gps_alt.significant):
         warnings.append(f"the relative altitude (barometric) drifts by {offset.change:+.1f} m over the flight against "
                         "the reconstruction, the GPS altitude does not: heights referenced to the start of the flight")

@@ -103,3 +103,21 @@ def test_georegister_holds_the_block_to_one_side_of_a_step_in_the_heights():
     assert geo.height_offset.kind == "step"
     assert any("GPS altitude jumps by -30" in w and "36 of 60" in w for w in geo.warnings)
     assert not any("drifts by" in w for w in geo.warnings)
+
+
+def test_a_jump_in_heights_whose_fixes_are_left_out_is_said():
+    """nu34 mAmix2: the second battery's single fixes (metres off horizontally: left out) carried heights 30 m
+    off (another datum read as another take-off height); the block followed the others, and no line said so."""
+    rng = np.random.default_rng(6)
+    n = 60
+    centers = np.column_stack([np.repeat([0.0, 40.0, 80.0], 20), np.tile(np.arange(20) * 10.0, 3),
+                               100.0 + rng.normal(0, 0.5, n)]) + [500000.0, 5200000.0, 300.0]
+    rots = np.repeat(np.diag([1.0, -1.0, -1.0])[None], n, axis=0)
+    times = np.arange(n) * 2.0
+    gps = centers + rng.normal(0, 0.05, centers.shape)
+    gps[40:, :2] += rng.normal(0, 3.0, (20, 2))  # single fixes: left out of the horizontal fit
+    reference = centers[:, 2] - 30.0 * (times >= 80.0)
+    geo = georegister(centers - centers.mean(0), rots, gps, rots, np.ones(n, bool), times, reference)
+    dz = geo.transform.apply(centers - centers.mean(0))[:, 2] - centers[:, 2]
+    assert np.abs(dz).max() < 0.2
+    assert any("jump by -30" in w and "left out" in w and "41 of 60" in w for w in geo.warnings)
