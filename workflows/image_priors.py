@@ -21,7 +21,9 @@ point), the take-off altitude + RelativeAltitude. The take-off altitude is given
 taken from the GPS at the start of each flight (a folder of several batteries may hold several home points:
 `plugin.height_drift.takeoff_altitudes`): the line of GPS altitude - RelativeAltitude over capture time
 (`plugin.height_drift.fit_drift`) at the flight's first image, since a GPS altitude drifts from take-off on; that
-drift against the barometer is measured and reported. The pose CSV header says `# crs: EPSG:<code>`; float64
+drift against the barometer is measured and reported; a step of it (an RTK fix lost, another datum) gives the
+level of one segment; every fix RTK fixed: the GPS altitude itself (`workflows.prior_heights`).
+The pose CSV header says `# crs: EPSG:<code>`; float64
 keeps UTM-sized coordinates to well under a millimetre, and the landmark map stores an origin + EPSG, so every
 output stays georeferenced.
 Rotations are expressed in the UTM grid: the heading of an image (from true north) is turned into a grid
