@@ -121,3 +121,19 @@ def test_a_jump_in_heights_whose_fixes_are_left_out_is_said():
     dz = geo.transform.apply(centers - centers.mean(0))[:, 2] - centers[:, 2]
     assert np.abs(dz).max() < 0.2
     assert any("jump by -30" in w and "left out" in w and "41 of 60" in w for w in geo.warnings)
+
+
+def test_a_drifting_barometer_is_named_against_the_block_when_the_gps_holds():
+    """nu34 D4 without RTK tags: the priors cannot tell which source moves; the block can, and the warning
+    names the barometer (the GPS altitude does not drift against the block)."""
+    rng = np.random.default_rng(7)
+    n = 60
+    centers = np.column_stack([np.repeat([0.0, 40.0, 80.0], 20), np.tile(np.arange(20) * 10.0, 3),
+                               100.0 + rng.normal(0, 0.5, n)]) + [500000.0, 5200000.0, 300.0]
+    rots = np.repeat(np.diag([1.0, -1.0, -1.0])[None], n, axis=0)
+    times = np.arange(n) * 2.0
+    gps = centers + rng.normal(0, 0.1, centers.shape)
+    reference = centers[:, 2] + 2.5 * times / times.max() + rng.normal(0, 0.05, n)
+    geo = georegister(centers - centers.mean(0), rots, gps, rots, np.ones(n, bool), times, reference)
+    assert any(w.startswith("the relative altitude (barometric) drifts by +2.5") for w in geo.warnings)
+    assert not any("GPS altitude drifts" in w for w in geo.warnings)
