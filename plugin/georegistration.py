@@ -410,7 +410,14 @@ def _lag_decision(lag: LagFit | None, track: TrackVelocity, levelled: np.ndarray
     each: more inliers, or on the raw fit's inliers a per-axis sigma lower by LAG_MIN_SIGMA_GAIN; a lag of the
     size `fit_lag` requires raises the raw sigma by 18 % or more, or drops the lines flown one way), and when |dt|
     is within one capture interval (LAG_MAX_S when no interval is known): beyond it the GPS log and the images
-    disagree by more than a trigger latency can, e.g. a clock or log offset, which is said, not corrected."""
+    disagree by more than a trigger latency can, e.g. a clock or log offset, which is said, not corrected. A lag
+    measured on too few passes to verify it (`LagFit.unverified`) is said, never applied."""
+    if lag is not None and lag.unverified:
+        return False, (f"the GPS positions would {lag.shift()}, {abs(lag.dt) / lag.sigma_dt_formal:.0f} times its "
+                       f"formal error and {abs(lag.metres) / lag.sigma_m:.0f} times the fixes' measured noise "
+                       f"({lag.sigma_m:.2f} m), but only {lag.passes} pass(es) of the track measure it, too few to "
+                       "tell a trigger latency from the GPS wandering between them: not corrected; camera centres "
+                       "may lie that far off along the track")
     if lag is None or not lag.significant:
         return False, ""
     interval = 1.0 if lag.unit == "image" else (track.interval_s if math.isfinite(track.interval_s) else LAG_MAX_S)

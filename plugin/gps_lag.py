@@ -9,9 +9,12 @@ v_i the drone's velocity from the GPS track itself, and dt is a fifth unknown of
 s R src + t = gps + dt v. dt is significant only beyond `LAG_SIGNIFICANCE_SIGMAS` standard errors, the error
 the larger of the formal one and the scatter between the passes of the track (the GPS error wanders slowly, so
 the passes, not the images, are the independent measurements: rev22 found 2-9 % of clean flights "lagging" on the
-formal error alone), and only when dt * speed is large enough for a map to see (`MIN_LAG_M`, the fit's noise).
+formal error alone), and only when dt * speed is beyond the fit's own noise (what a map can see depends on how
+precise the positions are: 0.4 m of lag is nothing on a 1.5 m GPS and ten times the noise of an RTK fix).
 `georegistration.georegister` then applies it only when it is plausible and improves the fit, so a flight
-without lag is registered exactly as before.
+without lag is registered exactly as before. With fewer passes than the jackknife needs a lag cannot be verified
+(two passes flown either way cannot tell it from the GPS wandering between them); one formally far beyond the
+noise is then `unverified`: said, not applied.
 """
 
 from __future__ import annotations
@@ -26,9 +29,6 @@ from .robust_fit import lmeds_then_least_squares
 # dt is applied only beyond this many of its standard errors: GPS noise correlated along a line makes the formal
 # error optimistic, and a lag that is not there must never be "corrected" into a flight
 LAG_SIGNIFICANCE_SIGMAS = 5.0
-# a lag is set right only when dt * speed is at least this (and the fit's per-axis noise): less changes nothing a
-# landmark map can see
-MIN_LAG_M = 0.5
 # passes (lines flown one way, `TrackVelocity.passes`) needed to measure a lag's error honestly
 MIN_PASSES = 3
 # a step this many times the median capture interval (or step length) is a gap (another flight, a battery swap):
@@ -131,7 +131,7 @@ class LagFit:
 
     dt: float  # in the velocity's unit
     sigma_dt: float  # its standard error: the larger of the formal and the passes' (inf when not observable)
-    significant: bool  # beyond LAG_SIGNIFICANCE_SIGMAS of sigma_dt and large enough to matter (`MIN_LAG_M`)
+    significant: bool  # beyond LAG_SIGNIFICANCE_SIGMAS of sigma_dt and dt * speed beyond the fit's noise
     unit: str  # "s" or "image"
     seconds: float  # dt in seconds (NaN when the capture times do not tell)
     metres: float  # dt at the median horizontal speed
@@ -141,6 +141,9 @@ class LagFit:
     sigma_dt_formal: float = math.inf  # least squares, every image independent
     sigma_dt_passes: float = math.inf  # jackknife over the passes (inf: fewer than MIN_PASSES)
     passes: int = 0  # passes with inliers
+    # too few passes to verify (sigma_dt_passes inf) but beyond LAG_SIGNIFICANCE_SIGMAS of the formal error and
+    # the fit's noise: measured, to be said, never applied
+    unverified: bool = False
 
     def shift(self) -> str:
         """"lag the images by 0.42 s (4.9 m along the track at 11.7 m/s)", for a warning."""
@@ -160,6 +163,7 @@ class LagFit:
                 "sigma_dt_passes": finite(self.sigma_dt_passes), "passes": self.passes,
                 "unit": self.unit, "seconds": finite(self.seconds),
                 "metres": self.metres, "speed": self.speed, "significant": self.significant,
+                "unverified": self.unverified,
                 "inliers": int(self.inliers.sum()), "sigma_m": self.sigma_m}
 
 
@@ -225,11 +229,20 @@ def fit_lag(src: np.ndarray, dst: np.ndarray, track: TrackVelocity, seed: int = 
     inliers = np.zeros(len(src), bool)
     inliers[idx[inl]] = True
     # a lag smaller than the noise of one fix changes nothing a landmark map can see: lines flown either way are
-    # 2 dt v apart, and are set right only when that is beyond 2 sigma of a fix (and half a metre)
-    matters = abs(dt * speed) >= max(MIN_LAG_M, sigma)
+    # 2 dt v apart, and are set right only when that is beyond 2 sigma of a fix. The fit's own noise, not a fixed
+    # floor: an RTK flight (4 cm) sees 0.4 m of lag that a 1.5 m GPS flight cannot
+    matters = abs(dt * speed) >= sigma
     significant = math.isfinite(sigma_dt) and abs(dt) > LAG_SIGNIFICANCE_SIGMAS * sigma_dt and matters
+    # too few passes for the jackknife: each pass is then one measurement whose offset is as uncertain as one fix
+    # (the wander is nearly constant along it, so averaging its images does not help), and the lag, half the
+    # offset between two passes, has the standard error sigma / sqrt(2). Beyond LAG_SIGNIFICANCE_SIGMAS of that
+    # (and of the formal error) it is said. Measured on 2-pass clean flights (fix36): 0 of 100 with RTK-like noise
+    # and wander, 2-3 of 100 with 1-2 m of wander (the wander between passes exceeds the one within them)
+    unverified = (not math.isfinite(by_passes) and n_passes < MIN_PASSES and matters
+                  and abs(dt) > LAG_SIGNIFICANCE_SIGMAS * formal
+                  and abs(dt * speed) > LAG_SIGNIFICANCE_SIGMAS * sigma / math.sqrt(2.0))
     return LagFit(dt, sigma_dt, significant, track.unit, seconds, dt * speed, speed, inliers, sigma, formal,
-                  by_passes, n_passes)
+                  by_passes, n_passes, unverified)
 
 
 def _jackknife_dt(s: np.ndarray, d: np.ndarray, v: np.ndarray, inl: np.ndarray,
