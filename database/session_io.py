@@ -128,6 +128,23 @@ def read_map_record(map_dir: str | Path) -> dict | None:
     return read_user_json(path, "session record", redo="re-run `sosmatch map`")
 
 
+def georeference_sigma_m(map_dir: str | Path) -> float | None:
+    """The measured horizontal noise (m, per axis) of the GPS positions a session was georegistered on:
+    MAP_DIR/poses/poses.json's `georegistration.gps_horizontal_sigma_m`, which `sosmatch map` of a folder of
+    photos writes (structure from motion inside the session). None when not known: a map of given poses, a merged
+    model, a local frame, or a record that does not read (the georeference is then not ranked by it)."""
+    path = Path(map_dir) / "poses" / "poses.json"
+    if not path.is_file():
+        return None
+    try:
+        record = read_user_json(path, "poses record")
+    except InputError:
+        return None
+    geo = record.get("georegistration") if isinstance(record, dict) else None
+    sigma = geo.get("gps_horizontal_sigma_m") if isinstance(geo, dict) else None
+    return float(sigma) if isinstance(sigma, (int, float)) and np.isfinite(sigma) and sigma > 0 else None
+
+
 def map_keyframe_names(map_dir: str | Path) -> list[str] | None:
     """The keyframes (image names, flight order) the map in MAP_DIR was built from: run.json's `keyframes`; None
     for directories without a record or a record without them (merged models, older runs). InputError naming

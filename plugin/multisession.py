@@ -10,7 +10,7 @@ For a session pair (A, B) the stored transform is `a_from_b` (B's landmarks into
 from __future__ import annotations
 
 import heapq
-from collections.abc import Collection, Iterable, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -141,16 +141,26 @@ def connected_groups(num_nodes: int, edges: Iterable[Edge]) -> list[list[int]]:
     return sorted(groups.values(), key=lambda g: g[0])
 
 
-def spanning_transforms(group: Sequence[int], edges: Sequence[Edge],
-                        preferred: Collection[int] = ()) -> tuple[int, dict[int, Sim3], list[Edge]]:
+# a georeference counts as more precise than another only when its measured noise is less than 1 / this of the
+# other's: one flight's measured noise is itself uncertain by tens of percent, and among comparable ones the
+# session most others agree with directly anchors the group
+PRECISE_GEOREFERENCE_FACTOR = 2.0
+
+
+def spanning_transforms(group: Sequence[int], edges: Sequence[Edge], preferred: Collection[int] = (),
+                        noise_m: Mapping[int, float] | None = None) -> tuple[int, dict[int, Sim3], list[Edge]]:
     """Bring every session of a connected group into one reference frame along a maximum spanning tree.
 
     The reference is the session with the largest total edge weight (ties: the smallest index), so the frame
     that most sessions agree with directly anchors the group; when some members are `preferred` (georeferenced
     sessions: their frame is a map projection, any other is arbitrary), it is the strongest of those, so the
     merged model keeps the group's georeference (a local reference dropped it: a DJI-tagged flight merged with
-    five local ones gave a model no GIS could place). The tree keeps the heaviest edges (most associations),
-    because a composed transform is only as good as its weakest link (a maximum spanning tree from any reference).
+    five local ones gave a model no GIS could place). `noise_m`: the measured noise of a preferred session's
+    georeference (its GPS positions'; absent: not known): one more than `PRECISE_GEOREFERENCE_FACTOR` times
+    noisier than the most precise, or of unknown noise, is not the reference (nu34: an RTK session, 0.05 m,
+    merged in the frame of a 1.4 m GPS session named first, its landmarks 0.56 m off instead of 0.26). The tree
+    keeps the heaviest edges (most associations), because a composed transform is only as good as its weakest
+    link (a maximum spanning tree from any reference).
     Returns (reference, {session: reference_from_session}, tree edges).
     """
     members = set(group)
@@ -159,7 +169,12 @@ def spanning_transforms(group: Sequence[int], edges: Sequence[Edge],
     for e in inner:
         strength[e.a] += e.weight
         strength[e.b] += e.weight
-    reference = min([i for i in group if i in preferred] or group, key=lambda i: (-strength[i], i))
+    candidates = [i for i in group if i in preferred] or list(group)
+    known = [noise_m[i] for i in candidates if noise_m and i in noise_m]
+    if known and noise_m:  # a georeference of unknown precision is not known to be as good as the best measured
+        best = min(known)
+        candidates = [i for i in candidates if i in noise_m and noise_m[i] <= PRECISE_GEOREFERENCE_FACTOR * best]
+    reference = min(candidates, key=lambda i: (-strength[i], i))
     adjacency: dict[int, list[tuple[int, Edge]]] = {i: [] for i in group}
     for k, e in enumerate(inner):
         adjacency[e.a].append((k, e))

@@ -349,6 +349,41 @@ def test_a_changed_flight_is_redone_and_a_relative_flights_dir_resumes(flights, 
     assert third.pairs[0]["num_associations"] != first.pairs[0]["num_associations"]
 
 
+def test_the_most_precise_georeference_anchors_a_group(flights, tmp_path):
+    """nu34 D3: a batch of a 1.4 m GPS session (named first) and an RTK one (0.049 m) merged in the GPS one's frame,
+    the RTK landmarks 0.56 m off instead of 0.26, nothing said. The measured noise of each georeference (the
+    session's poses/poses.json) ranks them; comparable ones (within a factor 2), and all when none is known, are
+    ranked by their edges as before."""
+    from types import SimpleNamespace
+
+    from sosmatch.database.landmark_map import LandmarkMap, read_landmark_map, write_landmark_map
+    from sosmatch.workflows.batch.tasks import _session_summary
+    from sosmatch.workflows.merge import precision_note
+
+    t = yaw_transform(10, (1, 0, 0))
+    edges = [Edge(0, 1, t, 10), Edge(1, 2, t, 8)]
+    assert spanning_transforms([0, 1, 2], edges, {0, 1, 2})[0] == 1  # the strongest
+    assert spanning_transforms([0, 1, 2], edges, {0, 1, 2}, {1: 1.4, 2: 0.049})[0] == 2
+    assert spanning_transforms([0, 1, 2], edges, {0, 1, 2}, {1: 1.4, 2: 0.9})[0] == 1  # comparable
+    assert spanning_transforms([0, 1, 2], edges, {0, 1, 2}, {2: 0.049})[0] == 2  # 1's noise not known
+    assert spanning_transforms([0, 1, 2], edges, {0, 1}, {1: 1.4, 2: 0.049})[0] == 1  # 2 not georeferenced
+    root, _ = flights
+    sessions = {}
+    for name, sigma in (("A", 1.4), ("B", 0.049)):
+        shutil.copytree(root / name, tmp_path / name)
+        lm = read_landmark_map(tmp_path / name / "landmarks.sosmap")
+        write_landmark_map(tmp_path / name / "landmarks.sosmap", LandmarkMap(lm.positions, lm.sizes, lm.origin, 32632))
+        (tmp_path / name / "poses").mkdir()
+        (tmp_path / name / "poses" / "poses.json").write_text(
+            json.dumps({"georegistration": {"gps_horizontal_sigma_m": sigma}}))
+        assert _session_summary(name, "mapped", tmp_path / name)["georeference_sigma_m"] == sigma
+        sessions[name] = SimpleNamespace(path=tmp_path / name, landmarks=SimpleNamespace(epsg=32632))
+    note = precision_note(sessions["A"], sessions["B"], "A", "B")
+    assert note is not None and "B's georeference is more precise (GPS noise 0.05 m measured) than A's" in note
+    assert "keeps A's" in note and precision_note(sessions["B"], sessions["A"], "B", "A") is None
+    assert _session_summary("C", "mapped", root / "C")["georeference_sigma_m"] is None
+
+
 def test_a_group_with_a_georeferenced_session_is_merged_in_its_frame(flights, tmp_path):
     """The reference of a merged group is its best-connected session among the georeferenced ones: with the
     best-connected one (B, local), a group holding a georeferenced flight (C, here EPSG:32632) was merged into a

@@ -50,11 +50,17 @@ from ..database.match_io import (
 )
 from ..database.output_markers import fingerprint, resolved_path
 from ..database.outputs import OutputDir, open_output_dir
-from ..database.session_io import MERGE_RECORD, SessionFiles, read_session, write_landmarks_csv
+from ..database.session_io import (
+    MERGE_RECORD,
+    SessionFiles,
+    georeference_sigma_m,
+    read_session,
+    write_landmarks_csv,
+)
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
-from ..plugin.multisession import Sim3, fusion_groups
+from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, fusion_groups
 from ..plugin.params import Params
 from ..plugin.refinement import refine_alignment
 from .changes import check_alignment
@@ -325,6 +331,20 @@ def _write_merge_record(path: Path, result: MergeResult, extra: dict[str, Any]) 
     write_text_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
+def precision_note(a: SessionFiles, b: SessionFiles, label_a: str, label_b: str) -> str | None:
+    """What to say when B's georeference is much more precise than A's (`PRECISE_GEOREFERENCE_FACTOR`, measured
+    GPS noise of each, `session_io.georeference_sigma_m`): the merged model is in A's frame and keeps A's (nu34: an
+    RTK session merged into a 1.4 m GPS one, its landmarks 0.56 m off instead of 0.26, nothing said)."""
+    if not (a.landmarks.epsg and b.landmarks.epsg):
+        return None
+    sa, sb = georeference_sigma_m(a.path), georeference_sigma_m(b.path)
+    if sa is None or sb is None or sb * PRECISE_GEOREFERENCE_FACTOR > sa:
+        return None
+    return (f"{label_b}'s georeference is more precise (GPS noise {sb:.2f} m measured) than {label_a}'s "
+            f"({sa:.2f} m): the merged model keeps {label_a}'s; match and merge with {label_b} as the first session "
+            "to keep its georeference")
+
+
 def run(
     session_a: str | Path,
     session_b: str | Path,
@@ -361,6 +381,8 @@ def run(
         said.append(f"{session_b} is georeferenced (EPSG:{b.landmarks.epsg}) and {session_a} is not: the merged model "
                     f"is in {session_a}'s local frame; match and merge with the georeferenced session first to keep "
                     "its georeference")
+    if (note := precision_note(a, b, str(session_a), str(session_b))) is not None:
+        said.append(note)
     if (note := imprecise_note(match)) is not None:
         said.append(f"{match_json}: {note}: the merged model inherits that error")
     # a probably wrong result is no success: the user decides which georeference stands

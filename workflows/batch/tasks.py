@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 
 def _session_summary(name: str, kind: str, session_dir: Path) -> dict[str, Any]:
     from ...database.colmap_model import load_reconstruction
-    from ...database.session_io import read_session
+    from ...database.session_io import georeference_sigma_m, read_session
 
     s = read_session(session_dir, name)
     rec = load_reconstruction(s.sparse_dir)
@@ -34,6 +34,9 @@ def _session_summary(name: str, kind: str, session_dir: Path) -> dict[str, Any]:
         "points3D": int(rec.num_points3D()),
         "landmarks": len(s.landmarks),
         "epsg": int(s.landmarks.epsg),
+        # how precise its georeference is (the measured GPS noise; None: not known): a merged group keeps the
+        # most precise one
+        "georeference_sigma_m": georeference_sigma_m(session_dir) if s.landmarks.epsg else None,
         "center": centres.mean(0).tolist() if len(centres) else None,
     }
 

@@ -302,11 +302,15 @@ def _graph_and_merge(
     groups = []
     merge_tasks, merge_fps = {}, {}
     georeferenced = {index[n] for n in names if sessions[n].get("epsg")}  # a merged group keeps a georeference
+    # ... the most precise one (the measured GPS noise of each session's georeference, where known)
+    noise = {index[n]: float(sessions[n]["georeference_sigma_m"]) for n in names
+             if isinstance(sessions[n].get("georeference_sigma_m"), (int, float))}
     for members in connected_groups(len(names), edges):
-        ref, ref_from, tree = spanning_transforms(members, edges, georeferenced)
+        ref, ref_from, tree = spanning_transforms(members, edges, georeferenced, noise)
         order = [ref] + [m for m in members if m != ref]
         group = {
             "reference": names[ref],
+            "reference_georeference_sigma_m": noise.get(ref),
             "members": [names[m] for m in order],
             "tree": [edge_keys[(e.a, e.b)] for e in tree],
             "reference_from_session": {names[m]: ref_from[m].to_dict() for m in order},
