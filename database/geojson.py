@@ -11,9 +11,12 @@ A polygon that crosses the antimeridian is cut there into a MultiPolygon (`polyg
 
 Heights. The third coordinate is the map's z as it is: the height datum of the poses the map was made from, not
 converted. RFC 7946 means the height above the WGS84 ellipsoid; a map from the images' own tags (`map --images`)
-has the EXIF GPSAltitude / DJI AbsoluteAltitude, which are above mean sea level (a take-off altitude +
-RelativeAltitude is that datum too). The two differ by the geoid undulation (-106..+85 m over the earth, e.g.
-+48 m in central Europe); converting needs a geoid grid (EGM96/EGM2008), which this package does not carry.
+has the altitude as the receiver reported it (EXIF GPSAltitude / DJI AbsoluteAltitude; a take-off altitude +
+RelativeAltitude is that datum too): above mean sea level for most consumer drones' GPS, but RTK / PPK receivers
+often report the ellipsoidal height, and the tags do not say which. The two differ by the geoid undulation
+(-106..+85 m over the earth, e.g. +48 m in central Europe); converting needs a geoid grid (EGM96/EGM2008), which
+this package does not carry. So the file says what is known (nu34: it claimed "above mean sea level" for RTK
+flights whose heights were ellipsoidal).
 """
 
 from __future__ import annotations
@@ -152,8 +155,9 @@ def polygon_geometry(ring: np.ndarray, digits: int = 8) -> dict:
 # What the third coordinate is (module doc), written into every FeatureCollection's properties: a GIS that takes
 # it for RFC 7946's ellipsoidal height puts the landmarks tens of metres too low or too high
 HEIGHT_REFERENCE = ("z of the map's frame, unconverted: the vertical datum of the poses it was made from (from "
-                    "images' EXIF/DJI GPS altitudes: above mean sea level), not the WGS84 ellipsoidal height of "
-                    "RFC 7946")
+                    "images' EXIF/DJI GPS altitudes: the altitude as the receiver reported it, above mean sea level "
+                    "for most drones' GPS, often the ellipsoidal height for RTK/PPK receivers), not converted to the "
+                    "WGS84 ellipsoidal height of RFC 7946")
 
 
 # a disc of radius R has sqrt(lambda_max) = R / 2: the circle of a landmark of size s (module doc)
@@ -169,7 +173,8 @@ def landmarks_feature_collection(
 ) -> dict:
     """A GeoJSON FeatureCollection (dict) of the landmarks. `epsg` overrides the map's own (needed when the map
     says 0, a local frame). Coordinates are rounded to 1e-8 degrees (~1 mm); heights are the map's z
-    (HEIGHT_REFERENCE: not ellipsoidal); circles across the antimeridian are MultiPolygons (`polygon_geometry`)."""
+    (HEIGHT_REFERENCE: not converted to ellipsoidal); circles across the antimeridian are MultiPolygons
+    (`polygon_geometry`)."""
     epsg = int(epsg or lmap.epsg)
     if not epsg:
         raise InputError("the landmark map has no geographic reference (EPSG 0, a local frame): "

@@ -37,8 +37,10 @@ def test_points_round_trip_to_the_map_crs():
     assert fc["features"][3]["properties"]["size_m"] is None
     assert fc["features"][0]["properties"]["size_m"] == pytest.approx(float(lmap.sizes[0]), abs=1e-3)
     assert fc["properties"]["source_crs"] == "EPSG:32614"
-    # RFC 7946 means ellipsoidal heights; these are the map's z (above sea level from EXIF): said in the file
-    assert "not the WGS84 ellipsoidal height" in fc["properties"]["height_reference"]
+    # RFC 7946 means ellipsoidal heights; these are the map's z (as the receiver reported it): said in the file
+    assert "not converted to the WGS84 ellipsoidal height" in fc["properties"]["height_reference"]
+    # nu34 D5: RTK receivers often report ellipsoidal heights: no claim that may be wrong
+    assert "often the ellipsoidal height for RTK" in fc["properties"]["height_reference"]
 
 
 def test_circles_have_the_landmark_size_on_the_ground():
