@@ -130,15 +130,44 @@ def crs_disagreement(map_a: LandmarkMap, map_b: LandmarkMap) -> str | None:
     if not (map_a.epsg and map_b.epsg) or map_a.epsg == map_b.epsg:
         return None
     apart = _ground_distance_km(map_a, map_b)
-    head = f"A is georeferenced in EPSG:{map_a.epsg}, B in EPSG:{map_b.epsg}"
+    head = f"A is georeferenced in EPSG:{map_a.epsg}{_crs_name(map_a.epsg)}, B in EPSG:{map_b.epsg}" \
+           f"{_crs_name(map_b.epsg)}"
     if apart is not None and apart <= ONE_SITE_KM:
-        return (f"{head}, {apart:.1f} km apart on the ground: one site in two projections (the two UTM zones of a "
-                "zone boundary?); they are searched as maps in unrelated frames, so the answer holds the change of "
+        return (f"{head}, {apart:.1f} km apart on the ground: one site in two projections"
+                f"{_why_two_projections(map_a.epsg, map_b.epsg)}; they are searched as maps in unrelated frames, so "
+                "the answer holds the change of "
                 "projection and no search near the georeference runs; map both in one CRS to match them in one "
                 f"frame (`sosmatch map`, `batch` or `poses-from-exif` with `--epsg {map_a.epsg}`)")
     where = f", {apart:,.0f} km apart on the ground" if apart is not None else ""
     return (f"{head}{where}: they are searched as maps in unrelated frames and B's georeference is not carried "
             "over; if both are surveys of one site, one label is wrong")
+
+
+def _crs_name(epsg: int) -> str:
+    """" (WGS 84 / UTM zone 32N)": the CRS's name for a message, "" when pyproj does not know the code."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        return f" ({CRS.from_epsg(epsg).name})"
+    except CRSError:
+        return ""
+
+
+def _why_two_projections(epsg_a: int, epsg_b: int) -> str:
+    """The likely cause of one site in two CRSs, by what they are: two UTM zones of one hemisphere are a site on
+    their boundary whose flights took the zone of their first image; any other pair (a national grid and UTM,
+    nu34: EPSG:2056 against 32632, told "the two UTM zones of a zone boundary?") were chosen so."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        zones = [CRS.from_epsg(e).utm_zone for e in (epsg_a, epsg_b)]
+    except CRSError:
+        return ""
+    if all(zones) and zones[0][-1] == zones[1][-1]:
+        return f" (UTM zones {zones[0]} and {zones[1]}: a site on a zone boundary?)"
+    return " (maps made in different CRSs)"
 
 
 def _ground_distance_km(map_a: LandmarkMap, map_b: LandmarkMap) -> float | None:

@@ -300,6 +300,12 @@ def test_one_site_in_two_utm_zones_is_not_called_a_wrong_label():
     wrong = crs_disagreement(map_a, dataclasses.replace(map_b, epsg=32732))  # the same numbers, southern zone
     assert "one label is wrong" in wrong and "km apart" in wrong
     assert crs_disagreement(map_a, dataclasses.replace(map_b, epsg=32631)) is None
+    assert "(UTM zones 31N and 32N: a site on a zone boundary?)" in said and "(WGS 84 / UTM zone 31N)" in said
+    # nu34 D7: a national grid against UTM was asked "(the two UTM zones of a zone boundary?)": said by what they are
+    lv = Transformer.from_crs("EPSG:32631", "EPSG:2056", always_xy=True).transform(in31[:, 0], in31[:, 1])
+    said = crs_disagreement(dataclasses.replace(map_b, epsg=2056, positions=np.column_stack([*lv, in31[:, 2]])), map_b)
+    assert "one site in two projections (maps made in different CRSs)" in said and "UTM zones" not in said
+    assert "EPSG:2056 (CH1903+ / LV95)" in said and "EPSG:32632 (WGS 84 / UTM zone 32N)" in said
 
 
 def test_evaluate_does_not_count_a_winner_beyond_the_prior():
