@@ -196,6 +196,8 @@ def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Param
     from ..database.atomic import write_text_atomic
 
     result, verdict = check(image_paths, poses, camera, params, gate, epsg, gps, white, remedy)
+    if result.fixed_in_frame_text:  # no fault of the poses, but the user should know what the images carry
+        log.warning("pose check: %s", result.fixed_in_frame_text)
     for warning in verdict.warnings:
         log.warning("%s", warning)
     if out is not None:

@@ -9,8 +9,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..fixed_in_frame import FixedInFrame, learn_fixed_in_frame
 from ..geometry import Camera, Poses
-from ..image_matching import OrbFeatures
+from ..image_matching import OrbFeatures, ratio_matches
 from ..map_quality import flight_passes
 from ..params import PoseCheckParams
 from .gps import GpsComparison
@@ -93,6 +94,10 @@ class PoseCheck:
     # the flight direction in the camera frame (`systematic.track_in_camera`): to name an attitude bias that a
     # lag along the track would give as well
     track_camera: tuple[float, float, float] = (float("nan"),) * 3
+    # regions fixed in the image frame whose matches were left out (`plugin.fixed_in_frame`): boxes (x0, x1, y0, y1)
+    # in full-size pixels, and the line that names them ('' when none)
+    fixed_in_frame: list[tuple[int, int, int, int]] = field(default_factory=list)
+    fixed_in_frame_text: str = ""
 
     @property
     def lag_along_track_m(self) -> float:
@@ -143,6 +148,7 @@ class PoseCheck:
                               "parallax_px"],
             "pairs": [p.to_list() for p in self.pairs],
             "gps": self.gps.to_dict() if self.gps is not None else None,
+            "fixed_in_frame_px": [list(b) for b in self.fixed_in_frame],
         }
         if names is not None:
             out["images_checked"] = sorted({names[i] for p in self.pairs for i in (p.a, p.b)})
@@ -175,6 +181,8 @@ class PoseCheck:
             text += (f"; the flight spans too little against its GPS's jitter ({self.gps.fix_noise_m:.1f} m) to check "
                      "its lengths" if self.gps.too_small else "; lengths not checked (the path does not follow the "
                      "images' GPS)")
+        if self.fixed_in_frame_text:
+            text += f"; {self.fixed_in_frame_text}"
         return text
 
 
@@ -245,17 +253,22 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
 
     tried: set[tuple[int, int]] = set()
     found: dict[tuple[int, int], tuple[str, PairMatches]] = {}
+    ratio: dict[tuple[int, int], np.ndarray] = {}  # the consecutive pairs' ratio matches, made once
 
     def attempt(a: int, b: int, kind: str) -> PairMatches | None:
         if (a, b) in tried or a == b:
             return found.get((a, b), ("", None))[1]
         tried.add((a, b))
-        pm = match_pair(a, b, feat(a), feat(b), camera, params)
+        pm = match_pair(a, b, feat(a), feat(b), camera, params, fixed if fixed else None, ratio.get((a, b)))
         if pm is not None:
             found[(a, b)] = (kind, pm)
         return pm
 
     anchors = anchor_images(n, params.max_pairs // 3)
+    # learned from the consecutive pairs before any pair is judged: every pair leaves their matches out
+    fixed = _fixed_in_frame(anchors, feat, camera, params, ratio)
+    fixed_figures = {"fixed_in_frame": fixed.boxes(1.0 / feat(int(anchors[0])).scale) if fixed else [],
+                     "fixed_in_frame_text": fixed.describe(1.0 / feat(int(anchors[0])).scale) if fixed else ""}
     flows = [pm.flow_px for i in anchors if (pm := attempt(int(i), int(i) + 1, "next")) is not None]
     short = float(min(camera.width, camera.height))
     k = wide_offset(flows, short, params.wide_shift, params.max_wide_offset)
@@ -275,7 +288,7 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
     matched = [found[key][1] for key in keys]
     if not matched:
         return PoseCheck(n, len(tried), 0, focal, gate_px, float("nan"), float("nan"), float("nan"), float("nan"),
-                         float("nan"), 0)
+                         float("nan"), 0, **fixed_figures)
     rot, t = relative_poses(poses.rotations, poses.centers, np.array([p.a for p in matched]),
                             np.array([p.b for p in matched]))
     raw = np.split(pair_sampson_px(poses, matched, focal), np.cumsum([p.inliers for p in matched])[:-1])
@@ -320,7 +333,21 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index,
         systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
         min_gps_agreement=params.min_gps_agreement,
-        track_camera=tuple(float(v) for v in track_in_camera(poses)))
+        track_camera=tuple(float(v) for v in track_in_camera(poses)), **fixed_figures)
+
+
+def _fixed_in_frame(anchors: np.ndarray, feat: Callable[[int], OrbFeatures], camera: Camera,
+                    params: PoseCheckParams, ratio: dict[tuple[int, int], np.ndarray]) -> FixedInFrame:
+    """The regions fixed in the image frame (`plugin.fixed_in_frame`), learned from the ratio matches of the
+    anchors' consecutive pairs (kept in `ratio` for their own check), in pixels of the working size."""
+    pairs = []
+    for i in anchors:
+        a, b = int(i), int(i) + 1
+        fa, fb = feat(a), feat(b)
+        m = ratio[(a, b)] = ratio_matches(fa.descriptors, fb.descriptors, params.ratio)
+        pairs.append((fa.points[m[:, 0]], fb.points[m[:, 1]]))
+    scale = feat(int(anchors[0])).scale if len(anchors) else 1.0
+    return learn_fixed_in_frame(pairs, camera.width * scale, camera.height * scale)
 
 
 def flying_height(depths_m: np.ndarray, parallax_px: np.ndarray, consecutive: list[bool], min_parallax_px: float

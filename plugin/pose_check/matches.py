@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..fixed_in_frame import FixedInFrame
 from ..geometry import Camera
 from ..image_matching import OrbFeatures, fundamental_inliers, ratio_matches
 from ..params import PoseCheckParams
@@ -30,10 +31,15 @@ class PairMatches:
 
 
 def match_pair(a: int, b: int, feat_a: OrbFeatures, feat_b: OrbFeatures, camera: Camera,
-               params: PoseCheckParams) -> PairMatches | None:
+               params: PoseCheckParams, fixed: FixedInFrame | None = None,
+               ratio: np.ndarray | None = None) -> PairMatches | None:
     """The pose-free matches of two images (None when fewer than `params.min_inliers` agree on one fundamental
-    matrix): ratio test, then RANSAC on the undistorted pixels, the threshold given at the working size."""
-    m = ratio_matches(feat_a.descriptors, feat_b.descriptors, params.ratio)
+    matrix): ratio test (`ratio`: its matches when already made), matches with an end in a region `fixed` in the
+    image frame left out (`plugin.fixed_in_frame`, in pixels of the working size), then RANSAC on the undistorted
+    pixels, the threshold given at the working size."""
+    m = ratio_matches(feat_a.descriptors, feat_b.descriptors, params.ratio) if ratio is None else ratio
+    if fixed is not None and len(m):
+        m = m[fixed.keep(feat_a.points[m[:, 0]], feat_b.points[m[:, 1]])]
     if len(m) < params.min_inliers:
         return None
     uv_a = camera.undistort_points(feat_a.colmap_points[m[:, 0]])

@@ -38,6 +38,9 @@ class RefinementStats:
     explained_share_by_image: tuple[float, ...] = ()  # the same per image, of its own observations (NaN: none)
     observations_by_image: tuple[int, ...] = ()  # how many tie-point observations each image has
     heading_turns_deg: tuple[float, ...] = ()  # per image: heading turned from the course by the image motion
+    # regions fixed in the image frame (burned-in text, a logo, drone parts) whose tie points were left out: boxes
+    # (x0, x1, y0, y1) in full-size pixels (`plugin.fixed_in_frame`)
+    fixed_in_frame_px: tuple[tuple[int, int, int, int], ...] = ()
     warnings: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:

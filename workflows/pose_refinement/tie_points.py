@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...database.images import flight_white_level, read_gray
+from ...plugin.fixed_in_frame import FixedInFrame, learn_fixed_in_frame
 from ...plugin.geometry import Poses, rotation_angle_deg
 from .judge import RefinementRejected, RefinementStats, judge_refinement
 from .with_colmap import point_errors, poses_of_reconstruction, refine_poses_with_colmap
@@ -26,15 +27,20 @@ log = logging.getLogger(__name__)
 TIE_POINT_MAX_SIDE = 1200
 
 
-def _orb_matches(desc_a: np.ndarray, desc_b: np.ndarray, kp_a: np.ndarray, kp_b: np.ndarray,
-                 ransac_px: float) -> np.ndarray:
-    """Indices (M, 2) of ORB matches between two images that pass Lowe's ratio test and a RANSAC homography
-    (the ground is nearly flat, so a homography is the right image-only model; parallax outliers are dropped)."""
-    from ...plugin.image_matching import homography_inliers, ratio_matches
+def _ratio_matches(desc_a: np.ndarray, desc_b: np.ndarray) -> np.ndarray:
+    """Indices (M, 2) of ORB matches between two images that pass Lowe's ratio test."""
+    from ...plugin.image_matching import ratio_matches
 
     if desc_a is None or desc_b is None or len(desc_a) < 8 or len(desc_b) < 8:
         return np.zeros((0, 2), dtype=int)
-    good = ratio_matches(desc_a, desc_b, 0.8)
+    return ratio_matches(desc_a, desc_b, 0.8)
+
+
+def _orb_matches(good: np.ndarray, kp_a: np.ndarray, kp_b: np.ndarray, ransac_px: float) -> np.ndarray:
+    """The ratio-test matches `good` (M, 2) of two images that pass a RANSAC homography (the ground is nearly
+    flat, so a homography is the right image-only model; parallax outliers are dropped)."""
+    from ...plugin.image_matching import homography_inliers
+
     if len(good) < 12:
         return np.zeros((0, 2), dtype=int)
     inl = homography_inliers(kp_a[good[:, 0]], kp_b[good[:, 1]], ransac_px)
@@ -55,6 +61,8 @@ class TiePoints:
     offsets: np.ndarray
     pairs_tried: int
     pixel_scale: float = 1.0  # full-size pixels per pixel of the copy the features were detected on
+    # regions fixed in the image frame whose matches were left out (`plugin.fixed_in_frame`; None: not learned)
+    fixed_in_frame: FixedInFrame | None = None
 
     @property
     def observations(self) -> int:
@@ -121,9 +129,22 @@ def match_tie_points(
             parent[a], a = root, parent[a]
         return root
 
+    # features fixed in the image frame (a burned-in stamp, a logo, the landing gear) match in every pair with no
+    # displacement: points at infinity that pull all cameras toward one attitude, and in a pair of little ground
+    # overlap the homography's identity (the nu35 sweep); learned from all pairs before any is kept, at the
+    # detection size, and left out of every pair
+    ratio = {(i, j): _ratio_matches(descs[i], descs[j]) for i, j in sorted(pairs)}
+    work = [k / pixel_scale - 0.5 for k in kps]  # pixels of the detection copy, as detected
+    fixed = learn_fixed_in_frame([(work[i][m[:, 0]], work[j][m[:, 1]]) for (i, j), m in ratio.items()],
+                                 camera.width / pixel_scale, camera.height / pixel_scale)
+    if fixed:
+        log.warning("tie points: %s", fixed.describe(pixel_scale))
     matched: dict[tuple[int, int], np.ndarray] = {}
     for i, j in sorted(pairs):
-        m = _orb_matches(descs[i], descs[j], kps[i], kps[j], ransac_px * pixel_scale)
+        good = ratio[(i, j)]
+        if fixed and len(good):
+            good = good[fixed.keep(work[i][good[:, 0]], work[j][good[:, 1]])]
+        m = _orb_matches(good, kps[i], kps[j], ransac_px * pixel_scale)
         if len(m):
             matched[(i, j)] = m
         for a, b in m:
@@ -137,7 +158,7 @@ def match_tie_points(
     tracks = [g for g in groups if len(g) >= min_track_length and len(np.unique(img_of[g])) == len(g)]
     log.info("tie points: %d image pairs matched of %d tried, %d tracks of >= %d images", len(matched), len(pairs),
              len(tracks), min_track_length)
-    return TiePoints(kps, matched, tracks, offsets, len(pairs), pixel_scale)
+    return TiePoints(kps, matched, tracks, offsets, len(pairs), pixel_scale, fixed if fixed else None)
 
 
 def reconstruction_of_tie_points(tie: TiePoints, poses: Poses, camera: object,
@@ -298,7 +319,8 @@ def refine_poses_from_images(
     stats = replace(stats, explained_share=float(explained.sum() / observed.sum()) if observed.sum() else float("nan"),
                     explained_share_by_image=tuple(float(v) for v in per_image),
                     observations_by_image=tuple(int(n) for n in observed),
-                    heading_turns_deg=tuple(float(t) for t in turns))
+                    heading_turns_deg=tuple(float(t) for t in turns),
+                    fixed_in_frame_px=tuple(tie.fixed_in_frame.boxes(tie.pixel_scale)) if tie.fixed_in_frame else ())
     errors, warnings = judge_refinement(stats, position_sigma_m, attitude_sigma_deg, poses.names, tilt_sigma_deg)
     blind = [nm for nm, k, guess in zip(poses.names, observed, unknown_headings if unknown_headings is not None
                                         else np.zeros(len(poses), bool)) if k == 0 and not guess]
