@@ -82,6 +82,15 @@ def test_the_map_measures_its_ground_resolution_and_segments_by_it(session):
     assert seg["classical_max_side"] == expected.segmentation.classical_max_side == 400
 
 
+def test_the_map_records_its_images_jpeg_quality_and_says_nothing_of_a_mild_one(session):
+    """run.json keeps the flight's JPEG quality from its files' tables (render_session writes quality 95); a
+    flight compressed that little is no cause of anything."""
+    _, _, out, summary = session
+    record = json.loads((out / "run.json").read_text())
+    assert record["quality"]["images"]["jpeg"] == {"quality": 95.0, "lowest": 95, "samples": 12, "jpeg": 12}
+    assert not any("compressed" in w for w in summary.verdict.warnings)
+
+
 def test_a_folder_holding_another_sessions_landmark_map_is_refused(session, tmp_path, capsys):
     """run.json records the fingerprint of the landmarks.sosmap it was written with: a folder whose map was
     replaced by another session's (its model and database are this one's) is refused by every reader."""

@@ -249,6 +249,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     from ...database.session_io import format_landmarks_csv
     from ...plugin.flight_contrast import flight_contrast
     from ...plugin.image_quality import flight_images
+    from ...plugin.jpeg_quality import flight_compression
     from ...plugin.keyframes import select_keyframes
     from ...plugin.mask_features import undistort_features
     from ...plugin.tracking import track_masks
@@ -281,7 +282,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                                   progress, on_keyframe, workers, masks_for, digests, white,
                                                   hold_descriptors=False, contrast=contrast)
     descriptors = cached_descriptors(partial / "cache", kf_poses.names)
-    images = flight_images(cached_image_figures(partial / "cache", kf_poses.names), kf_poses.names)
+    # the JPEG quality from the files' headers: compression fools the image figures (`plugin.jpeg_quality`)
+    images = flight_images(cached_image_figures(partial / "cache", kf_poses.names), kf_poses.names,
+                           flight_compression(inputs.image_paths))
     timings["keyframes"] = time.perf_counter() - t
 
     from ..progress import progress_bar
