@@ -360,7 +360,8 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
     keyframes' image figures (`plugin.image_quality`). With them, warnings about a thin map name the images
     (blank keyframes, noise, blur) rather than the poses."""
     v = Verdict()
-    causes = image_causes(images, limits.min_image_contrast_to_noise, limits.min_image_sharpness)
+    causes = image_causes(images, limits.min_image_contrast_to_noise, limits.min_image_sharpness,
+                          limits.min_jpeg_quality)
     blank = blank_warning(images, q.keyframes)
     if blank:
         v.warnings.append(blank)

@@ -372,3 +372,27 @@ def test_blank_and_featureless_keyframes_are_named_and_explain_an_empty_map():
     refused = judge(empty, QualityParams(), images=black)
     assert refused.refusals == [f"the map has no landmarks ({q.keyframes} of {q.keyframes} keyframes are blank or "
                                 "featureless)"]
+
+
+def test_a_heavily_compressed_flight_is_said_by_the_map_s_verdict():
+    """`synth --jpeg-quality 15`: 160 of 205 landmarks, exit 0 and no word, its noise and sharpness figures reading
+    better than the clean flight's. The flight's JPEG quality (its quantization tables) is said below the limit."""
+    from sosmatch.plugin.image_quality import image_causes
+    from sosmatch.plugin.jpeg_quality import FlightCompression
+
+    positions, sizes, obs, centers, axes = toy_flight()
+    q = assess_map(positions, sizes, np.full(len(positions), 2.0), obs, centers, axes, long_tracks=len(positions))
+    names = [f"f{k}.jpg" for k in range(q.keyframes)]
+    figs = [image_figures(_ground(k), 400) for k in range(q.keyframes)]
+    limit = QualityParams().min_jpeg_quality
+    for quality, said in ((15.0, True), (limit - 1, True), (limit, False), (88.0, False), (None, False)):
+        images = flight_images(figs, names, FlightCompression(quality, None if quality is None else int(quality),
+                                                              12, 0 if quality is None else 12))
+        v = judge(q, QualityParams(), images=images)
+        warned = [w for w in v.warnings if w.startswith("images heavily compressed: JPEG quality")]
+        assert v.ok and bool(warned) == said, (quality, v.warnings)
+        if said:
+            assert "noise and sharpness figures read the compression" in warned[0] and "expect a thin map" in warned[0]
+        assert images.to_dict()["jpeg"]["quality"] == quality
+    assert "jpeg" not in flight_images(figs, names).to_dict()
+    assert not image_causes(flight_images(figs, names, FlightCompression(5.0, 5, 12, 12)), 3.0, 0.15, 0.0)
