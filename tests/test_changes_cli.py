@@ -493,3 +493,31 @@ def test_the_alignment_control_runs_at_the_match_s_gate_as_merge_runs_it(toy, tm
     changes.write_outputs(run, tmp_path, Params())
     record = json.loads((tmp_path / "changes.json").read_text())
     assert record["alignment_control"]["gate_m"] == 5.25 and record["counterpart_gate_m"] == 3.0
+
+
+@pytest.mark.parametrize("quality", [15, 88])
+def test_claims_of_a_heavily_compressed_session_are_said_to_be_doubtful(toy, tmp_path, caplog, quality):
+    """B at JPEG quality 15 of a place where nothing changed: 11 claims at confidences up to 0.999, exit 0 and no
+    word (the 35th new-user sweep). The session's quality (run.json `quality.images.jpeg`, else its images'
+    headers) is named with the claims it puts in doubt; at quality 88 nothing is said."""
+    import logging
+
+    from sosmatch.plugin.params import ChangeParams
+    from sosmatch.workflows.changes import compute
+
+    root = toy[0]
+    b = tmp_path / "B"
+    shutil.copytree(root / "B", b)
+    jpeg = {"quality": quality, "lowest": quality, "samples": 12, "jpeg": 12}
+    (b / "run.json").write_text(json.dumps({"quality": {"images": {"jpeg": jpeg}}}))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.changes"):
+        run_ = compute(root / "A", b, root / "AB" / "match.json")
+    c = run_.result.counts()
+    assert c["gone"] + c["new"] > 0  # the toy pair has removed and added objects
+    said = [w for w in run_.warnings if "heavily JPEG-compressed" in w]
+    if quality < ChangeParams().min_jpeg_quality:
+        assert len(said) == 1 and f"{b} (session B of the comparison)" in said[0] and f"quality {quality}," in said[0]
+        assert f"{c['gone'] + c['new']} landmark(s)" in said[0] and said[0] in caplog.text
+        assert ("gone A#" in said[0]) == (c["gone"] > 0)
+    else:
+        assert not said
