@@ -70,9 +70,9 @@ class ChangeParams(Checked):
     min_confidence: float = fraction(0.8)
     # (ours) A session whose images are JPEG-compressed below this quality (`plugin.jpeg_quality`; 0: never said)
     # loses small objects and segments block artefacts as objects: its claims are named as doubtful in a warning.
-    # World 7, nothing changed, B (`synth --jpeg-quality Q`) against A at 88: false gone + new claims at Q 15 1 + 10,
-    # 25 1 + 0 (re-encoded from 88: 3 + 3), 40 0 + 3, 50 1 + 1, 60 1 + 3 (confidences to 0.999); none at 75 and 88; seed 3 at 20
-    # 3 + 1. Cameras write 90-97 (Seneca 90)
+    # World 7, nothing changed, B (`synth --jpeg-quality Q`) against A at 88: false gone + new claims at Q 15
+    # 1 + 10, 25 1 + 0 (re-encoded from 88: 3 + 3), 40 0 + 3, 50 1 + 1, 60 1 + 3 (confidences to 0.999); none at 75
+    # and 88; seed 3 at 20 3 + 1. Cameras write 90-97 (Seneca 90)
     min_jpeg_quality: float = within(75.0, 0.0, 100.0)
     # (ours) The surface heights as evidence (`plugin.changes.surface`): at each tested landmark (compared, no
     # counterpart) each session's surface height above the local ground from its own keyframes alone (a plane

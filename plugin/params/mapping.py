@@ -273,9 +273,9 @@ class QualityParams(Checked):
     # 9 px motion blur 0.17 (its map kept 66 of 108 landmarks)
     min_image_sharpness: float = positive(0.15)
     # the flight's JPEG quality (`plugin.jpeg_quality`, from its files' quantization tables; 0: never said). World 7
-    # session B (640 x 480, `synth --jpeg-quality Q`, EKF poses), landmarks against 205 at the default 88: Q 75 181,
-    # 60 173, 50 188, 40 177, 25 152, 15 160 (seed 3: 218 at 88, 164 at 20); below 75 its comparison with a clean session
-    # also made false claims (`ChangeParams.min_jpeg_quality`). Cameras write 90-97 (Seneca 90): never said there
+    # session B (640 x 480, `synth --jpeg-quality Q`, EKF poses), landmarks against 205 at the default 88: Q 75
+    # 181, 60 173, 50 188, 40 177, 25 152, 15 160 (seed 3: 218 at 88, 164 at 20); below 75 its comparison with a
+    # clean session also made false claims (`ChangeParams.min_jpeg_quality`). Cameras write 90-97 (Seneca 90)
     min_jpeg_quality: float = within(75.0, 0.0, 100.0)
     refuse: bool = flag(True)  # False: a map beyond the limits is kept with a loud warning (run.json says so)
 
