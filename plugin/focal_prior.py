@@ -12,6 +12,12 @@ on intrinsics (OpenSfM's has one, `exif_focal_sd`), so the prior is applied to i
   free (SSE_free at f_free) and held at the EXIF value (SSE_exif); near its minimum the profile is a parabola,
   so the images alone know f to sigma_free = |f_exif - f_free| / sqrt(delta chi^2), with
   delta chi^2 = (SSE_exif - SSE_free) / sigma_px^2 and sigma_px^2 the fit's own variance per coordinate;
+- that curvature counts every observation as independent, and they are not: a flight's errors are correlated
+  along it (the same ground, the same attitude episode, the tracker's biases on one patch), so where the
+  images barely know f the curvature claims several times what they know (nu32's wind flights and nu26's wide
+  cameras: 0.8-2 % claimed, 3-6 % off). The images' sigma is therefore the larger of it and a grouped jackknife
+  of the free focal length over contiguous blocks of the flight (`contiguous_blocks`, `jackknife_sigma`): the
+  scatter of f with one stretch of the flight left out at a time, which carries the correlation in it;
 - the EXIF focal length is a Gaussian prior of its own relative uncertainty (`exif_focal_uncertainty`);
 - the focal length taken is the two combined by their inverse variances (the maximum a posteriori of the
   parabola times the prior).
@@ -22,6 +28,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 from typing import Any
+
+import numpy as np
 
 
 def residual_variance(sse_px2: float, observations: int, parameters: int) -> float:
@@ -46,6 +54,25 @@ def images_focal_sigma(f_free: float, sse_free: float, f_fixed: float, sse_fixed
     return abs(f_fixed - f_free) / math.sqrt(rise)
 
 
+def contiguous_blocks(count: int, blocks: int) -> np.ndarray:
+    """Block id (0 .. blocks-1) per position 0 .. count-1: `blocks` runs of consecutive positions of nearly
+    equal length (fewer blocks when there are fewer positions)."""
+    blocks = max(1, min(int(blocks), int(count)))
+    return np.arange(int(count)) * blocks // max(int(count), 1)
+
+
+def jackknife_sigma(leave_one_out: Any) -> float:
+    """The delete-one-group jackknife's standard error of an estimate from its values with each group left out
+    in turn: sqrt((g - 1) / g * sum (v_i - mean)^2). inf with fewer than 3 groups (one or two leave-one-out
+    values say nothing of the scatter) or a value that is not finite (without that group the estimate is not
+    determined)."""
+    v = np.asarray(leave_one_out, dtype=np.float64).reshape(-1)
+    if len(v) < 3 or not np.all(np.isfinite(v)):
+        return math.inf
+    g = len(v)
+    return math.sqrt((g - 1) / g * float(np.sum((v - v.mean()) ** 2)))
+
+
 @dataclass(frozen=True)
 class FocalEstimate:
     """One camera's focal length: the EXIF prior, what the images alone say, and the one taken (all px)."""
@@ -58,6 +85,20 @@ class FocalEstimate:
     taken_px: float
     taken_sigma_px: float
     chi2_of_exif: float  # the misfit rise of holding f at the EXIF value, in units of the fit's variance
+    curvature_sigma_px: float = math.nan  # the misfit curvature's sigma (every observation independent)
+    blocks_sigma_px: float = math.nan  # the jackknife's over contiguous blocks (NaN: not needed, not run)
+    blocks: int = 0  # the blocks of that jackknife
+
+    @property
+    def disagreement_sigmas(self) -> float:
+        """How far the images' optimum and the EXIF value lie apart in units of what the two know together (the
+        standard deviation of their difference): beyond 2, one of them is wrong by more than it admits, and
+        the focal length taken (and every depth) is a compromise between contradicting sources. 0 where the
+        images carry no information on f."""
+        if not math.isfinite(self.images_sigma_px):
+            return 0.0
+        spread = math.hypot(self.images_sigma_px, self.exif_sigma_px)
+        return abs(self.images_px - self.exif_px) / spread if spread > 0 else math.inf
 
     @property
     def images_weight(self) -> float:
@@ -72,13 +113,20 @@ class FocalEstimate:
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
         out["images_weight"] = self.images_weight
+        out["disagreement_sigmas"] = self.disagreement_sigmas
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
 
 
 def combine_focal(camera_id: int, exif_px: float, exif_sigma_rel: float, images_px: float,
-                  images_sigma_px: float, chi2_of_exif: float) -> FocalEstimate:
+                  images_sigma_px: float, chi2_of_exif: float, blocks_sigma_px: float = math.nan,
+                  blocks: int = 0) -> FocalEstimate:
     """The focal length taken: the EXIF value (relative sigma `exif_sigma_rel`) and the images' optimum
-    (`images_sigma_px`, inf for none) combined by their inverse variances."""
+    combined by their inverse variances. The images' sigma is the larger of the misfit curvature's
+    (`images_sigma_px`, inf for none) and the blocks' jackknife (`blocks_sigma_px` over `blocks` blocks; NaN
+    when it was not run)."""
+    curvature = images_sigma_px
+    if not math.isnan(blocks_sigma_px):
+        images_sigma_px = max(images_sigma_px, blocks_sigma_px)
     exif_sigma = abs(exif_px) * exif_sigma_rel
     if not math.isfinite(images_sigma_px):
         taken, sigma = exif_px, exif_sigma
@@ -89,4 +137,5 @@ def combine_focal(camera_id: int, exif_px: float, exif_sigma_rel: float, images_
         taken = (w_img * images_px + w_exif * exif_px) / (w_img + w_exif)
         sigma = 1.0 / math.sqrt(w_img + w_exif)
     return FocalEstimate(int(camera_id), float(exif_px), float(exif_sigma), float(images_px),
-                         float(images_sigma_px), float(taken), float(sigma), float(chi2_of_exif))
+                         float(images_sigma_px), float(taken), float(sigma), float(chi2_of_exif), float(curvature),
+                         float(blocks_sigma_px), int(blocks))

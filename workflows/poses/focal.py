@@ -1,17 +1,26 @@
 """The SfM block's focal lengths weighed against EXIF's (`weigh_focal_lengths`): two bundle adjustments per camera
-(focal length free, and held at the EXIF value) measure how well the images know it (`plugin.focal_prior`), and
-where the EXIF prior pulls it away from the images' optimum the block is adjusted again with the combined value."""
+(focal length free, and held at the EXIF value) and, where it can matter, a jackknife of the free one over
+contiguous blocks of the flight measure how well the images know it (`plugin.focal_prior`), and where the EXIF
+prior pulls it away from the images' optimum the block is adjusted again with the combined value."""
 
 from __future__ import annotations
 
 import copy
 import logging
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from ...plugin.focal_prior import FocalEstimate, combine_focal, images_focal_sigma, residual_variance
+from ...plugin.focal_prior import (
+    FocalEstimate,
+    combine_focal,
+    contiguous_blocks,
+    images_focal_sigma,
+    jackknife_sigma,
+    residual_variance,
+)
 from ...plugin.geometry import Camera
 from ..image_cameras import exif_focal_uncertainty
 from ..image_priors import ImagePriors
@@ -26,14 +35,24 @@ ADJUST_ROUNDS = 1
 # estimate's sigmas from the images' optimum: a smaller pull is within what the two sources know together, and
 # the block (the mapper's optimum) stays as it was, byte for byte (Seneca: 0.005 px against +-0.29 px).
 APPLY_SIGMAS = 0.5
+# Contiguous stretches of the flight (capture order) left out in turn by the jackknife of the free focal length:
+# one extra bundle adjustment each. Stretches, not flight lines: nu32's and nu26's flights have 2-4 lines, too
+# few for a scatter (1-3 degrees of freedom), and the errors are correlated along a line as well as between
+# lines. Six leave 5 degrees of freedom (the sigma known to ~30 %) at 6 fits per camera.
+JACKKNIFE_BLOCKS = 6
+# The fewest images of a block: with fewer, a block is not a stretch of flight whose correlated errors could show
+MIN_BLOCK_IMAGES = 3
 
 
-def weigh_focal_lengths(rec: Any, exif_cameras: dict[int, tuple[Camera, str]],
-                        anchor_sigma_m: float) -> tuple[list[FocalEstimate], bool]:
+def weigh_focal_lengths(rec: Any, exif_cameras: dict[int, tuple[Camera, str]], anchor_sigma_m: float,
+                        order: Sequence[str] | None = None) -> tuple[list[FocalEstimate], bool]:
     """For each camera of `rec` (a georegistered pycolmap Reconstruction) with an EXIF camera in `exif_cameras`
     (camera id -> the EXIF camera and the source of its intrinsics, `exif_focal_priors`): the focal length the
     images alone give and how well (`images_focal_sigma`, from adjustments with it free and held at the EXIF
-    value), combined with the EXIF one (`combine_focal`, its uncertainty from `exif_focal_uncertainty`). Where
+    value; and, unless the images' optimum lies so near the EXIF value that no sigma of theirs could move the
+    block, the larger of that and the jackknife over `JACKKNIFE_BLOCKS` contiguous stretches of the flight in
+    `order`, the image names in capture order, by name when None), combined with the EXIF one
+    (`combine_focal`, its uncertainty from `exif_focal_uncertainty`). Where
     the EXIF prior pulls the combination away from the images' optimum (by more than `APPLY_SIGMAS` of its
     sigma), `rec` is adjusted again with it held (changed in place; the second value says whether it was).
     The camera centres are tied to where they are by Gaussian priors of `anchor_sigma_m` (the gauge: the block
@@ -53,16 +72,47 @@ def weigh_focal_lengths(rec: Any, exif_cameras: dict[int, tuple[Camera, str]],
         variance = residual_variance(sse_free, n_obs, n_par)
         sigma = images_focal_sigma(f_free, sse_free, exif.fx, sse_held, variance)
         chi2 = (sse_held - sse_free) / variance if variance > 0 else float("nan")
-        est = combine_focal(k, exif.fx, exif_focal_uncertainty(exif, source), f_free, sigma, chi2)
+        exif_rel = exif_focal_uncertainty(exif, source)
+        blocks_sigma, blocks = math.nan, 0
+        # the pull can exceed APPLY_SIGMAS of the taken sigma only where the images' optimum lies beyond that
+        # many of EXIF's own sigmas from it (the limit as the images' sigma grows): nearer, the jackknife could
+        # not change the block and is not run (B_nar60, H_high: 27-60 s of CPU saved)
+        if abs(f_free - exif.fx) > APPLY_SIGMAS * exif_rel * exif.fx and math.isfinite(sigma):
+            blocks_sigma, blocks = _blocks_focal_sigma(free, k, order, anchor_sigma_m)
+        est = combine_focal(k, exif.fx, exif_rel, f_free, sigma, chi2, blocks_sigma, blocks)
         if abs(est.taken_px - est.images_px) > APPLY_SIGMAS * est.taken_sigma_px:
             _adjusted_misfit(rec, k, est.taken_px, anchor_sigma_m)
             changed = True
-            log.info("camera %d: the images know the focal length to +-%.1f %% (holding the EXIF one costs "
-                     "chi-square %.1f): %.1f px taken (EXIF %.1f, images alone %.1f)", k,
+            log.info("camera %d: the images know the focal length to +-%.1f %% (the misfit's curvature: +-%.1f %%, "
+                     "holding the EXIF one costs chi-square %.1f): %.1f px taken (EXIF %.1f, images alone %.1f)",
+                     k, 100 * est.images_sigma_px / exif.fx if math.isfinite(est.images_sigma_px) else math.inf,
                      100 * sigma / exif.fx if math.isfinite(sigma) else math.inf, chi2, est.taken_px, exif.fx,
                      f_free)
         estimates.append(est)
     return estimates, changed
+
+
+def _blocks_focal_sigma(free: Any, camera_id: int, order: Sequence[str] | None,
+                        anchor_sigma_m: float) -> tuple[float, int]:
+    """The jackknife's sigma (px) of camera `camera_id`'s free focal length over contiguous stretches of the
+    flight, and their number: `free` (adjusted with f free; not changed) adjusted again with each stretch's
+    images left out (their frames deregistered: points seen by fewer than two others go with them). inf where
+    the flight is too short for three stretches of `MIN_BLOCK_IMAGES`."""
+    images = [im for im in free.images.values() if im.has_pose and im.camera_id == camera_id]
+    rank = {n: i for i, n in enumerate(order)} if order is not None else {}
+    images.sort(key=lambda im: (rank.get(im.name, len(rank)), im.name))
+    count = min(JACKKNIFE_BLOCKS, len(images) // MIN_BLOCK_IMAGES)
+    if count < 3:
+        return math.inf, count
+    block = contiguous_blocks(len(images), count)
+    values = []
+    for b in range(count):
+        rec = copy.deepcopy(free)
+        for im, m in zip(images, block):
+            if m == b:
+                rec.deregister_frame(im.frame_id)
+        values.append(_adjusted_misfit(rec, camera_id, None, anchor_sigma_m)[0])
+    return jackknife_sigma(values), count
 
 
 def exif_focal_priors(priors: ImagePriors) -> dict[int, tuple[Camera, str]]:

@@ -235,7 +235,8 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     # know them, and a free one moves every depth (nu25: +5.7 %, the ground 4-6 m low)
     t = time.perf_counter()
     exif_cameras = exif_focal_priors(priors)
-    focal_estimates, refitted = weigh_focal_lengths(model.reconstruction, exif_cameras, sp.gps_sigma_m)
+    focal_estimates, refitted = weigh_focal_lengths(model.reconstruction, exif_cameras, sp.gps_sigma_m,
+                                                    order=priors.names)
     timings["focal_lengths"] = time.perf_counter() - t
     if refitted:
         poses = poses_of_reconstruction(model.reconstruction)
