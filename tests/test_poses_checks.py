@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import pytest
 
+from sosmatch.plugin.focal_prior import FocalEstimate, combine_focal
 from sosmatch.plugin.geometry import Camera
 from sosmatch.workflows.image_cameras import exif_focal_uncertainty
-from sosmatch.workflows.poses.checks import _check_focal_lengths
+from sosmatch.workflows.poses.checks import focal_length_warnings
+from sosmatch.workflows.poses.result import registration_warnings
 
 SOURCE_35 = "FocalLengthIn35mmFilm (full-frame diagonal)"
 
@@ -21,27 +23,62 @@ def test_exif_focal_uncertainty_counts_the_35mm_rounding():
     assert exif_focal_uncertainty(cam, "FocalLength + FocalPlaneX/YRes") == pytest.approx(0.02)
 
 
+def _warnings(exif: Camera, images_fx: float, images_sigma_rel: float, height_m: float | None = None,
+              source: str = SOURCE_35) -> tuple[list[str], FocalEstimate]:
+    """The focal check of one camera whose images put f at `images_fx` +- `images_sigma_rel` (and the block at
+    the focal length taken from that and EXIF)."""
+    est = combine_focal(1, exif.fx, exif_focal_uncertainty(exif, source), images_fx, images_sigma_rel * exif.fx,
+                        chi2_of_exif=10.0)
+    taken = Camera(320, 240, est.taken_px, est.taken_px, 160.0, 120.0)
+    return focal_length_warnings([est], _priors(exif, source), {1: taken}, height_m), est
+
+
 @pytest.mark.parametrize("sfm_fx, expected", [(263.8, "about 6.0 m too low at the cameras' 105 m"),
                                               (234.0, "about 6.6 m too high at the cameras' 105 m"),
                                               (252.1, None), (237.1, None)])
 def test_a_focal_length_off_exif_beyond_its_uncertainty_is_named_with_the_height_error(sfm_fx, expected):
     """nu25: SfM refined a 27 mm equivalent's 249.6 px to 263.8 (+5.7 %, under the old 10 % level): the
-    landmarks of the map lay 3.9 m too low at ~100 m and nothing said so. Warned beyond two of EXIF's sigmas
-    (+-2.7 % here): -5.0 % is within them."""
+    landmarks of the map lay 3.9 m too low at ~100 m and nothing said so. Images that know their focal length
+    (+-0.01 %) against EXIF's +-2.7 %: warned beyond two sigmas of the two together, -5.0 % is within them."""
     exif = Camera(320, 240, 249.6, 249.6, 160.0, 120.0)
-    warnings: list[str] = []
-    _check_focal_lengths(_priors(exif, SOURCE_35), {1: Camera(320, 240, sfm_fx, sfm_fx, 160.0, 120.0)}, warnings,
-                         104.9)
+    warnings, _ = _warnings(exif, sfm_fx, 0.0001, 104.9)
     if expected is None:
         assert warnings == []
     else:
         assert len(warnings) == 1 and expected in warnings[0] and "known to +-2.7 %" in warnings[0]
+        assert f"the images' {sfm_fx:.1f} px" in warnings[0] and "EXIF's 249.6 px" in warnings[0]
         assert "degenerate" not in warnings[0]  # that is said beyond 10 % only
 
 
 def test_a_focal_length_far_off_exif_also_says_the_block_may_be_degenerate():
     exif = Camera(320, 240, 249.6, 249.6, 160.0, 120.0)
-    warnings: list[str] = []
-    _check_focal_lengths(_priors(exif, SOURCE_35), {1: Camera(320, 240, 310.0, 310.0, 160.0, 120.0)}, warnings)
+    warnings, _ = _warnings(exif, 310.0, 0.001)
     assert len(warnings) == 1 and "+24.2 % off" in warnings[0] and "24.2 % of the cameras' height" in warnings[0]
     assert "degenerate" in warnings[0]
+
+
+def test_a_compromise_between_contradicting_focal_lengths_is_not_passed_as_agreement():
+    """The images put f 5.2 % above EXIF's and know it to +-1.2 %, EXIF to +-2 %: the focal length taken is a
+    compromise 3.8 % above EXIF's, within the old check's level (the focal length taken against two of EXIF's
+    sigmas), which said nothing though one of the two sources is wrong by more than it admits and the landmarks
+    lie 3.8 m (EXIF right) or 1.3 m (images right) off at 100 m. The two are 2.2 sigmas of their difference
+    apart: said, naming both and the height error of each."""
+    exif = Camera(320, 240, 249.6, 249.6, 160.0, 120.0)
+    source = "FocalLength + FocalPlaneX/YRes"
+    warnings, est = _warnings(exif, 249.6 * 1.052, 0.012, 100.0, source)
+    assert abs(est.taken_px / exif.fx - 1) < 2 * 0.02  # within what the old check let pass
+    assert len(warnings) == 1 and "by 2.2 sigmas" in warnings[0] and "known to +-2.0 %" in warnings[0]
+    assert "if the EXIF one is right the landmarks lie about 3.8 m too low" in warnings[0]
+    assert "if the images' is, about 1.3 m too high" in warnings[0]
+    # images that know f no better than EXIF does, as far off it: within what the two know together
+    assert _warnings(exif, 249.6 * 1.052, 0.02, 100.0, source)[0] == []
+
+
+def test_the_focal_warning_reaches_the_map_like_the_georegistrations():
+    """poses.json kept the focal check's warning in its top-level `warnings`, which the map does not read: `map
+    --images` and `map --poses DIR/poses.csv` reported a plain "ok" over landmarks 4-6 m off in height."""
+    said = "camera 1: the images and EXIF contradict each other on the focal length by 3.4 sigmas"
+    report = {"georegistration": {"warnings": ["a lag"]}, "focal_length_warnings": [said],
+              "warnings": ["a lag", said, "3 image(s) are oriented more than 10 deg away from their tags"]}
+    assert registration_warnings(report) == ["poses: a lag", f"poses: {said}"]
+    assert registration_warnings({"focal_length_warnings": "not a list"}) == []

@@ -8,11 +8,12 @@ from typing import Any
 
 import numpy as np
 
+from ...plugin.focal_prior import FocalEstimate
 from ...plugin.geometry import Camera, Poses
 from ...plugin.multisession import Sim3
 from ...plugin.params import SfmParams
 from .. import sfm
-from ..image_cameras import EXIF_FOCAL_TOLERANCE, exif_focal_uncertainty
+from ..image_cameras import EXIF_FOCAL_TOLERANCE
 from ..image_priors import ImagePriors
 from .result import _listing
 
@@ -20,6 +21,9 @@ NOMINAL_HEIGHT_M = 100.0
 
 # a registered orientation this far from its tags (and not explained by a contradicting line) is reported
 ORIENTATION_WARNING_DEG = 10.0
+# the images' focal length and EXIF's this far apart (in sigmas of their difference) contradict each other: beyond
+# two, one of them is wrong by more than it admits (one alone would warn on a third of the flights by chance)
+FOCAL_DISAGREEMENT_SIGMAS = 2.0
 
 
 def _transform_model(rec: Any, transform: Sim3) -> None:
@@ -144,33 +148,43 @@ def flying_height_m(rec: Any) -> float | None:
     return height if height > 0 else None
 
 
-def _check_focal_lengths(exif_cameras: dict[int, tuple[Camera, str]], cameras: dict[int, Camera],
-                         warnings: list[str], height_m: float | None = None) -> None:
-    """A warning per camera whose SfM focal length differs from the EXIF one (`exif_focal_priors`) by more than
-    twice the EXIF one's own uncertainty (`exif_focal_uncertainty`, a relative sigma): with the scale fixed by
-    the GPS, every depth scales with the focal length, so the landmarks lie too low (SfM's longer) or too high
-    by about that fraction of `height_m` if the EXIF one is right (nu25: +5.7 % at ~100 m, landmarks 3.9 m too
-    low, said nothing under the 10 % level). Since `weigh_focal_lengths`, a focal length this far off is one the
-    images themselves insist on."""
-    for k, cam in cameras.items():
-        if k not in exif_cameras:
+def focal_length_warnings(estimates: list[FocalEstimate], exif_cameras: dict[int, tuple[Camera, str]],
+                          cameras: dict[int, Camera], height_m: float | None = None) -> list[str]:
+    """A warning per camera whose images and EXIF contradict each other on the focal length: the images' optimum
+    and the EXIF value (`weigh_focal_lengths`' `estimates`) more than `FOCAL_DISAGREEMENT_SIGMAS` apart in units
+    of what the two know together (`FocalEstimate.disagreement_sigmas`). One of them is then wrong by more than
+    it admits and the block's focal length (`cameras`, as adjusted) is a compromise or the images' own; with the
+    scale fixed by the GPS every depth scales with it, so the warning names both focal lengths and how far the
+    landmarks lie from where each would put them at `height_m`, the cameras' height above them (nu25: +5.7 % at
+    ~100 m, landmarks 3.9 m too low and nothing said; nu26 A_wide100: the images at +2.8 % claiming +-0.8 %
+    against EXIF's -1.2 %, a compromise that a fixed level on the focal length taken let pass)."""
+    out = []
+    for est in estimates:
+        if est.camera_id not in exif_cameras or est.camera_id not in cameras:
             continue
-        exif, source = exif_cameras[k]
-        change = cam.fx / exif.fx - 1.0
-        known = exif_focal_uncertainty(exif, source)
-        # two of its sigmas: one alone would warn on a third of the flights whose EXIF value is merely rounded
-        # (Seneca: +2.1 % against +-2.0 %, a focal length its images know to +-0.03 %)
-        if abs(change) <= 2.0 * known:
+        if not est.disagreement_sigmas > FOCAL_DISAGREEMENT_SIGMAS:
             continue
-        where = "low" if change > 0 else "high"
-        height = (f"about {abs(change) * height_m:.1f} m too {where} at the cameras' {height_m:.0f} m above them"
-                  if height_m else f"too {where} by {100 * abs(change):.1f} % of the cameras' height above them")
-        warnings.append(f"camera {k}: structure from motion put the focal length {100 * change:+.1f} % off the "
-                        f"EXIF one ({cam.fx:.1f} vs {exif.fx:.1f} px from {source or 'EXIF'}, known to "
-                        f"+-{100 * known:.1f} %): depths scale with it, so if the EXIF one is right the landmarks "
-                        f"lie {height}"
-                        + ("; the block may be degenerate (flat ground, nadir views, few lines): heights and tilts "
-                           "are suspect" if abs(change) > EXIF_FOCAL_TOLERANCE else ""))
+        _, source = exif_cameras[est.camera_id]
+        f = cameras[est.camera_id].fx
+        change = f / est.exif_px - 1.0
+        by_images = f / est.images_px - 1.0
+        known = est.exif_sigma_px / est.exif_px
+
+        def off(rel: float) -> str:
+            where = "low" if rel > 0 else "high"
+            return (f"about {abs(rel) * height_m:.1f} m too {where} at the cameras' {height_m:.0f} m above them"
+                    if height_m else f"too {where} by {100 * abs(rel):.1f} % of the cameras' height above them")
+
+        out.append(f"camera {est.camera_id}: the images and EXIF contradict each other on the focal length by "
+                   f"{est.disagreement_sigmas:.1f} sigmas (the images' {est.images_px:.1f} px +-"
+                   f"{100 * est.images_sigma_px / est.exif_px:.1f} %, EXIF's {est.exif_px:.1f} px from "
+                   f"{source or 'EXIF'}, known to +-{100 * known:.1f} %); {f:.1f} px was used, {100 * change:+.1f} % "
+                   f"off the EXIF one: depths scale with it, so if the EXIF one is right the landmarks lie "
+                   f"{off(change)}"
+                   + (f", if the images' is, {off(by_images)}" if abs(by_images) > 0.001 else "")
+                   + ("; the block may be degenerate (flat ground, nadir views, few lines): heights and tilts "
+                      "are suspect" if abs(change) > EXIF_FOCAL_TOLERANCE else ""))
+    return out
 
 
 def gps_noise_warning(sigma_m: float, expected_m: float) -> str | None:

@@ -31,11 +31,11 @@ from ..image_priors import ImagePriors, list_images, read_image_priors
 from ..pose_refinement.with_colmap import poses_of_reconstruction
 from .checks import (
     NOMINAL_HEIGHT_M,
-    _check_focal_lengths,
     _compare,
     _register,
     _transform_model,
     flying_height_m,
+    focal_length_warnings,
     lag_corrected,
 )
 from .focal import exif_focal_priors, weigh_focal_lengths
@@ -243,7 +243,9 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         poses = poses.subset([poses.names.index(n) for n in names])
     comparison = _compare(priors, index, poses, warnings)
     cameras = sfm.camera_of_model(model)
-    _check_focal_lengths(exif_cameras, cameras, warnings, flying_height_m(model.reconstruction))
+    focal_warnings = focal_length_warnings(focal_estimates, exif_cameras, cameras,
+                                           flying_height_m(model.reconstruction))
+    warnings.extend(focal_warnings)
     camera_of_image = {im.name: int(im.camera_id) for im in model.reconstruction.images.values() if im.has_pose}
     rec = model.reconstruction
     reprojection = float(np.mean([p.error for p in rec.points3D.values()])) if rec.num_points3D() else 0.0
@@ -273,7 +275,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         "cameras": {str(k): {"model": c.model, "width": c.width, "height": c.height, "params": c.params}
                     for k, c in cameras.items()},
         "camera_of_image": camera_of_image,
-        "focal_lengths": [e.to_dict() for e in focal_estimates],
+        "focal_lengths": [e.to_dict() for e in focal_estimates], "focal_length_warnings": focal_warnings,
         "priors": priors.summary, "matching": matched, "gps_priors_in_bundle_adjustment": use_priors,
         "georegistration": geo_report, "comparison": comparison,
         "params": params_to_dict(sp), "warnings": warnings,

@@ -77,10 +77,16 @@ def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
 
 
 def registration_warnings(report: dict) -> list[str]:
-    """The georegistration's warnings of a `poses` record (poses.json), as the map's verdict says them: what the
-    poses' source found doubtful (GPS fixes left out, a lag corrected or a clock offset) is the map's doubt too."""
-    geo = report.get("georegistration") if isinstance(report, dict) else None
-    warnings = geo.get("warnings", []) if isinstance(geo, dict) else []
+    """The georegistration's and the focal-length check's warnings of a `poses` record (poses.json), as the map's
+    verdict says them: what the poses' source found doubtful (GPS fixes left out, a lag corrected or a clock
+    offset; the images and EXIF contradicting each other on the focal length, which scales every landmark's
+    height) is the map's doubt too. The record's other warnings (images left out, lines off their tags) stay in it."""
+    if not isinstance(report, dict):
+        return []
+    geo = report.get("georegistration")
+    warnings = list(geo.get("warnings", [])) if isinstance(geo, dict) else []
+    focal = report.get("focal_length_warnings", [])
+    warnings += focal if isinstance(focal, list) else []
     return [f"poses: {w}" for w in warnings if isinstance(w, str)]
 
 
