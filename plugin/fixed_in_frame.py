@@ -77,6 +77,15 @@ class FixedInFrame:
         """(N,) bool: the matches (points_a[k] <-> points_b[k]) with neither end in a fixed cell."""
         return ~(self.contains(points_a) | self.contains(points_b))
 
+    def detection_mask(self) -> np.ndarray:
+        """uint8 (rows, cols) image of `height` x `width` pixels (those it was learned in): 0 in the fixed cells,
+        255 elsewhere (a pixel in the cell `contains` puts its keypoint in); for `image_matching.orb_features`'s
+        `mask`, so that the feature budget goes to the ground."""
+        rows, cols = int(np.ceil(self.height)), int(np.ceil(self.width))
+        r = np.minimum(np.arange(rows) // self.cell_px, self.cells.shape[0] - 1).astype(int)
+        c = np.minimum(np.arange(cols) // self.cell_px, self.cells.shape[1] - 1).astype(int)
+        return np.where(self.cells[r[:, None], c[None, :]], 0, 255).astype(np.uint8)
+
     def boxes(self, scale: float = 1.0) -> list[tuple[int, int, int, int]]:
         """The fixed regions as boxes (x0, x1, y0, y1) in pixels of `scale` x the pixels given (full-size pixels:
         1 / the detection scale), one per connected group of fixed cells, largest first."""

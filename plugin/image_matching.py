@@ -63,11 +63,16 @@ class OrbFeatures:
         return (self.points + 0.5) / self.scale
 
 
-def orb_features(gray: np.ndarray, max_features: int, max_side: int | None = None) -> OrbFeatures:
+def orb_features(gray: np.ndarray, max_features: int, max_side: int | None = None,
+                 mask: np.ndarray | None = None) -> OrbFeatures:
     """ORB features (OpenCV's defaults, `max_features` strongest) of a grey image, detected at most `max_side`
-    pixels on the longer side (None: at full resolution)."""
+    pixels on the longer side (None: at full resolution). `mask` (uint8, any size; resized to the working image,
+    nearest neighbour): features only where it is non-zero, so that a region known to be no ground (an overlay,
+    `plugin.fixed_in_frame`) does not take the feature budget (ORB keeps a fixed number per pyramid level)."""
     work, scale = downscale(gray_u8(gray), max_side)
-    keypoints, descriptors = cv2.ORB_create(int(max_features)).detectAndCompute(work, None)
+    if mask is not None and mask.shape != work.shape:
+        mask = cv2.resize(np.asarray(mask, np.uint8), (work.shape[1], work.shape[0]), interpolation=cv2.INTER_NEAREST)
+    keypoints, descriptors = cv2.ORB_create(int(max_features)).detectAndCompute(work, mask)
     points = np.array([k.pt for k in keypoints], dtype=np.float64).reshape(-1, 2)
     return OrbFeatures(points, descriptors if len(points) else None, scale)
 

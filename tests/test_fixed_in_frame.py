@@ -87,3 +87,33 @@ def test_tie_points_of_a_clean_flight_are_unchanged(tmp_path):
     centers = np.column_stack([np.arange(len(paths)) * 2.4, np.zeros(len(paths)), np.full(len(paths), 50.0)])
     tie = match_tie_points(paths, centers, Cam(), max_features=1000)
     assert tie.pair_matches and tie.fixed_in_frame is None
+
+
+def test_the_stamp_does_not_take_the_feature_budget(tmp_path):
+    """ORB keeps a fixed number of features per pyramid level: a stamp's glyphs took two thirds of them on nu35's
+    stamp flight, and the refined block tilted. Detected again with the stamp masked out, the ground gets them."""
+    from sosmatch.workflows.pose_refinement.tie_points import match_tie_points
+
+    class Cam:
+        width, height = W, H
+
+    centers = np.column_stack([np.arange(8) * 2.4, np.zeros(8), np.full(8, 50.0)])
+    (tmp_path / "clean").mkdir()
+    (tmp_path / "stamp").mkdir()
+    clean = match_tie_points(_flight(tmp_path / "clean", stamp=False), centers, Cam(), max_features=300)
+    tie = match_tie_points(_flight(tmp_path / "stamp"), centers, Cam(), max_features=300)
+    fixed = tie.fixed_in_frame
+    assert fixed is not None
+    inside = [int(fixed.contains(k / tie.pixel_scale - 0.5).sum()) for k in tie.keypoints]
+    assert sum(inside) == 0  # no keypoint left where only the stamp's matches were
+    ground = [int((~fixed.contains(k - 0.5)).sum()) for k in clean.keypoints]
+    assert sum(len(k) for k in tie.keypoints) >= 0.9 * sum(ground)  # as many as the clean flight has there
+
+
+def test_detection_mask_matches_the_cells():
+    fixed = learn_fixed_in_frame(_pairs(np.random.default_rng(0), 10, 30.0, (40.0, 220.0)), W, H)
+    mask = fixed.detection_mask()
+    assert mask.shape == (H, W)
+    ys, xs = np.mgrid[0:H, 0:W]
+    inside = fixed.contains(np.column_stack([xs.ravel(), ys.ravel()])).reshape(H, W)
+    assert np.array_equal(mask == 0, inside) and inside.any()
