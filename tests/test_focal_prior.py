@@ -164,3 +164,17 @@ def test_a_camera_with_two_focal_lengths_keeps_its_aspect():
     (est,), changed = weigh_focal_lengths(rec, {1: (exif, SOURCE)}, anchor_sigma_m=3.0)
     fx, fy = rec.cameras[1].params[:2]
     assert changed and fx == pytest.approx(est.taken_px) and fy / fx == pytest.approx(1.01, abs=1e-9)
+
+
+def test_a_flight_too_short_for_the_jackknife_keeps_what_its_images_know():
+    """rev23: with fewer than 9 images the jackknife had no three stretches and returned an infinite sigma, so
+    the images' knowledge of f was thrown away: a wrong EXIF value was taken and the focal warning could not fire.
+    Too short a flight for the jackknife keeps the curvature's sigma."""
+    rec = _block(relief_m=30.0, tilt_deg=4.0, model_f=TRUE_F)
+    for image_id in sorted(rec.images)[8:]:
+        rec.deregister_frame(rec.images[image_id].frame_id)
+    wrong = Camera(640, 480, TRUE_F * 1.06, TRUE_F * 1.06, 320.0, 240.0)
+    (est,), _ = weigh_focal_lengths(rec, {1: (wrong, SOURCE)}, anchor_sigma_m=3.0)
+    assert est.blocks < 3 and math.isnan(est.blocks_sigma_px)
+    assert est.images_sigma_px == est.curvature_sigma_px and math.isfinite(est.images_sigma_px)
+    assert abs(est.taken_px / TRUE_F - 1) < 0.01 and est.disagreement_sigmas > 2.0
