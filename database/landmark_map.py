@@ -165,6 +165,8 @@ def _why_two_projections(epsg_a: int, epsg_b: int) -> str:
         zones = [CRS.from_epsg(e).utm_zone for e in (epsg_a, epsg_b)]
     except CRSError:
         return ""
+    if all(zones) and zones[0] == zones[1]:  # rev23: WGS 84 / UTM 32N against ETRS89 / UTM 32N
+        return f" (UTM zone {zones[0]} in two datums)"
     if all(zones) and zones[0][-1] == zones[1][-1]:
         return f" (UTM zones {zones[0]} and {zones[1]}: a site on a zone boundary?)"
     return " (maps made in different CRSs)"

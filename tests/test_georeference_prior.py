@@ -248,7 +248,8 @@ def test_maps_in_two_epsg_codes_are_named(tmp_path, caplog, capsys):
     capsys.readouterr()
     assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / "b.sosmap"), "--out", str(tmp_path / "m"),
                  "--no-plot"]) == 0
-    assert "A is georeferenced in EPSG:32632, B in EPSG:32732" in caplog.text and "one label is wrong" in caplog.text
+    assert "A is georeferenced in EPSG:32632 (WGS 84 / UTM zone 32N), B in EPSG:32732 (WGS 84 / UTM zone 32S)" \
+        in caplog.text and "one label is wrong" in caplog.text
     doc = json.loads((tmp_path / "m" / "match.json").read_text())
     assert doc["search_mode"]["position_prior"] == "off" and doc["verification"]["accepted"]
     assert 9.9e6 < doc["search_mode"]["georeference_off_m"] < 10.1e6
@@ -306,6 +307,9 @@ def test_one_site_in_two_utm_zones_is_not_called_a_wrong_label():
     said = crs_disagreement(dataclasses.replace(map_b, epsg=2056, positions=np.column_stack([*lv, in31[:, 2]])), map_b)
     assert "one site in two projections (maps made in different CRSs)" in said and "UTM zones" not in said
     assert "EPSG:2056 (CH1903+ / LV95)" in said and "EPSG:32632 (WGS 84 / UTM zone 32N)" in said
+    # rev23: one zone in two datums (WGS 84 and ETRS89, within a metre in Europe) is no zone boundary
+    said = crs_disagreement(dataclasses.replace(map_b, epsg=25832), map_b)
+    assert "(UTM zone 32N in two datums)" in said and "zone boundary" not in said
 
 
 def test_evaluate_does_not_count_a_winner_beyond_the_prior():
