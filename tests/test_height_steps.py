@@ -137,3 +137,39 @@ def test_a_drifting_barometer_is_named_against_the_block_when_the_gps_holds():
     geo = georegister(centers - centers.mean(0), rots, gps, rots, np.ones(n, bool), times, reference)
     assert any(w.startswith("the relative altitude (barometric) drifts by +2.5") for w in geo.warnings)
     assert not any("GPS altitude drifts" in w for w in geo.warnings)
+
+
+def test_a_drift_of_altitudes_in_whole_metres_is_not_a_step():
+    """rev23: altitudes recorded in whole metres leave most residuals about a segment's median exactly 0 (MAD 0),
+    so a 4 m drift 'stood out' as a datum jump in 30 % of flights. The residuals' resolution bounds their noise."""
+    rng = np.random.default_rng(1)
+    t = np.arange(80) * 3.0
+    kinds = [fit_drift(t, np.round(100 + rng.normal(0, 0.1, 80) + 4.0 * t / t[-1]), 1.0).kind for _ in range(50)]
+    assert kinds.count("step") == 0 and kinds.count("drift") == 50
+    jump = np.round(100 + rng.normal(0, 0.3, 80) + np.where(t >= 120.0, 30.0, 0.0))  # a true jump, whole metres
+    fit = fit_drift(t, jump, 1.0)
+    assert fit.kind == "step" and fit.change == pytest.approx(30.0, abs=1.0)
+
+
+def test_a_flight_after_a_jump_of_the_datum_rejoins_the_level_it_shares():
+    """rev23: battery 1 loses its RTK fix (+30 m) and battery 2 regains it: the second flight's take-off altitude
+    is the first flight's level before the jump, not another home point."""
+    rng = np.random.default_rng(0)
+    t = np.r_[np.arange(40) * 3.0, 400 + np.arange(40) * 3.0]
+    offsets = 300 + rng.normal(0, 0.3, len(t))
+    offsets[25:40] += 30.0
+    _, flights = takeoff_altitudes(t, offsets, 1.0)
+    assert len(flights) == 1
+
+
+def test_an_rtk_image_without_an_altitude_keeps_its_barometric_height():
+    from sosmatch.workflows.prior_heights import prior_heights
+
+    n = 40
+    t = np.arange(n) * 3.0
+    rel = np.full(n, 60.0)
+    alt = 300 + rel + np.random.default_rng(0).normal(0, 0.02, n)
+    alt[5] = np.nan
+    ph = prior_heights(alt, rel, np.ones(n, bool), t, [f"i{k}.jpg" for k in range(n)], np.full(n, 50),
+                       np.full(n, 0.02), None)
+    assert "RTK" in ph.source and ph.heights[5] == pytest.approx(360.0, abs=0.1)

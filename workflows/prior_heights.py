@@ -94,6 +94,8 @@ def prior_heights(alt: np.ndarray, rel: np.ndarray, has: np.ndarray, times: np.n
     if rtk:
         # an RTK fixed altitude of centimetres over a barometer: what moves between the two is the barometer
         out.source = "GPS altitude (RTK fixed, RtkFlag 50)"
+        # a fix without an altitude keeps the barometric height on its flight's take-off altitude (rev23: NaN)
+        out.heights = np.where(np.isfinite(alt), alt, takeoff + rel)
         for idx, fit in flights:
             if fit.significant:
                 what = (f"jumps by {-fit.change:+.1f} m at {names[_first_after(idx, times, fit)]}"
