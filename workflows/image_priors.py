@@ -199,6 +199,13 @@ class ImagePriors:
     def attitude_from_tags(self) -> np.ndarray:
         return self.attitude_kind != "course"
 
+    @property
+    def heights_consistent(self) -> bool:
+        """Whether the heights are one datum the block can be held to (RelativeAltitude-based, or an RTK fixed
+        altitude: `prior_heights`), not a GPS altitude that may drift. Priors of an older summary: by the source."""
+        return bool(self.summary.get("heights_consistent",
+                                     "RelativeAltitude" in str(self.summary.get("altitude_source", ""))))
+
 
 # Capture times that go back by more than a day from one image to the next by name are a camera clock reset (to
 # its factory date, or a new battery's RTC), not a counter that wrapped within a flight (minutes).

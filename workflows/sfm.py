@@ -245,13 +245,6 @@ def match_pairs(database: Path, pairs_txt: Path, params: SfmParams, seed: int = 
     return {"pairs_matched": int(matched), "pairs_verified": int(verified), "seconds": time.perf_counter() - t0}
 
 
-def _heights_consistent(priors: ImagePriors) -> bool:
-    """Whether the priors' heights are one datum the block can be held to (RelativeAltitude-based or an RTK
-    fixed altitude, `prior_heights`), not a GPS altitude that may drift."""
-    return bool(priors.summary.get("heights_consistent",
-                                   "RelativeAltitude" in str(priors.summary.get("altitude_source", ""))))
-
-
 def write_pose_priors(database: Path, priors: ImagePriors, origin: np.ndarray, params: SfmParams) -> int:
     """GPS positions (minus `origin`) as COLMAP pose priors of the images with a fix: horizontal sigma
     `gps_sigma_m`; vertical the same when the heights come from RelativeAltitude (or an RTK fixed altitude),
@@ -259,7 +252,7 @@ def write_pose_priors(database: Path, priors: ImagePriors, origin: np.ndarray, p
     Returns the number written."""
     import pycolmap
 
-    relative = _heights_consistent(priors)
+    relative = priors.heights_consistent
     sigma_z = params.gps_sigma_m if relative else 1e3
     cov = np.diag([params.gps_sigma_m**2, params.gps_sigma_m**2, sigma_z**2])
     index = {n: i for i, n in enumerate(priors.names)}
@@ -317,7 +310,7 @@ class SfmModel:
 def gps_priors_apply(priors: ImagePriors, params: SfmParams) -> bool:
     """Whether the GPS goes into the bundle adjustment as pose priors (`SfmParams.use_gps_priors`)."""
     if params.use_gps_priors == "auto":
-        return bool(priors.has_gps.sum() >= 3 and _heights_consistent(priors))
+        return bool(priors.has_gps.sum() >= 3 and priors.heights_consistent)
     return params.use_gps_priors == "on" and bool(priors.has_gps.sum() >= 3)
 
 

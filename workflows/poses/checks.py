@@ -49,6 +49,7 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
     # the GPS as the receiver gave it (its altitude checks the vertical and is measured for drift); the heights
     # to register on are the priors' (RelativeAltitude-based where DJI gives it)
     gps = np.column_stack([priors.positions[index, :2], priors.gps_altitude[index]])
+    # (not `priors.heights_consistent`: an RTK fixed altitude is consistent too, and is the GPS altitude itself)
     relative = "RelativeAltitude" in str(priors.summary.get("altitude_source", ""))
     reference = priors.positions[index, 2] if relative else None
     if np.sum(np.all(np.isfinite(gps[:, :2]), axis=1)) >= 2:
