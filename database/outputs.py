@@ -374,8 +374,11 @@ def open_output_dir(
     previous = _previous(path, command, legacy_record)
     same = {identity, *earlier}
     if previous.state == "complete" and previous.identity not in same and not overwrite:
+        # an output's identity holds every setting, so a sosmatch with a new setting (even at its default) sees
+        # an earlier version's output as another one (nu36): said, so that nobody hunts for a changed input
         raise InputError(f"output directory holds a complete `sosmatch {command}` output made from other inputs or "
-                         f"settings; use {overwrite_flag} to replace it (or choose another directory)", path)
+                         f"settings, or by another version of sosmatch (whose settings differ); use {overwrite_flag} "
+                         "to replace it (or choose another directory)", path)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
     try:
         path.mkdir(parents=True, exist_ok=True)
