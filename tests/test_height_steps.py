@@ -15,6 +15,15 @@ T = np.arange(50) * 3.0  # one flight, an image every 3 s
 STEP = T >= 75.0  # frames 25-49
 
 
+def _three_lines(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A nadir block of 3 lines x 20 images at ~100 m (UTM-sized coordinates), an image every 2 s: true centres,
+    rotations (world_from_cam) and capture times."""
+    n = 60
+    centers = np.column_stack([np.repeat([0.0, 40.0, 80.0], 20), np.tile(np.arange(20) * 10.0, 3),
+                               100.0 + rng.normal(0, 0.5, n)]) + [500000.0, 5200000.0, 300.0]
+    return centers, np.repeat(np.diag([1.0, -1.0, -1.0])[None], n, axis=0), np.arange(n) * 2.0
+
+
 def test_a_step_is_fitted_as_a_step_and_a_ramp_as_a_drift():
     """nu34 mAmix1: a 30 m step read as a line put the take-off altitude a quarter of the step off (6.9 m)."""
     rng = np.random.default_rng(0)
@@ -88,11 +97,8 @@ def test_georegister_holds_the_block_to_one_side_of_a_step_in_the_heights():
     """GPS heights (no RelativeAltitude) 30 m lower from the middle of the flight on: the block on the first
     half's datum (its longer side), not on a line through the step; the jump is said as a jump."""
     rng = np.random.default_rng(5)
-    n = 60
-    centers = np.column_stack([np.repeat([0.0, 40.0, 80.0], 20), np.tile(np.arange(20) * 10.0, 3),
-                               100.0 + rng.normal(0, 0.5, n)]) + [500000.0, 5200000.0, 300.0]
-    rots = np.repeat(np.diag([1.0, -1.0, -1.0])[None], n, axis=0)
-    times = np.arange(n) * 2.0
+    centers, rots, times = _three_lines(rng)
+    n = len(times)
     to_sfm = Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix()
     sfm_c, sfm_r = (centers - centers.mean(0)) @ to_sfm.T * 0.05, np.einsum("ij,njk->nik", to_sfm, rots)
     gps = centers + rng.normal(0, 0.05, centers.shape)
@@ -109,11 +115,8 @@ def test_a_jump_in_heights_whose_fixes_are_left_out_is_said():
     """nu34 mAmix2: the second battery's single fixes (metres off horizontally: left out) carried heights 30 m
     off (another datum read as another take-off height); the block followed the others, and no line said so."""
     rng = np.random.default_rng(6)
-    n = 60
-    centers = np.column_stack([np.repeat([0.0, 40.0, 80.0], 20), np.tile(np.arange(20) * 10.0, 3),
-                               100.0 + rng.normal(0, 0.5, n)]) + [500000.0, 5200000.0, 300.0]
-    rots = np.repeat(np.diag([1.0, -1.0, -1.0])[None], n, axis=0)
-    times = np.arange(n) * 2.0
+    centers, rots, times = _three_lines(rng)
+    n = len(times)
     gps = centers + rng.normal(0, 0.05, centers.shape)
     gps[40:, :2] += rng.normal(0, 3.0, (20, 2))  # single fixes: left out of the horizontal fit
     reference = centers[:, 2] - 30.0 * (times >= 80.0)
@@ -127,11 +130,8 @@ def test_a_drifting_barometer_is_named_against_the_block_when_the_gps_holds():
     """nu34 D4 without RTK tags: the priors cannot tell which source moves; the block can, and the warning
     names the barometer (the GPS altitude does not drift against the block)."""
     rng = np.random.default_rng(7)
-    n = 60
-    centers = np.column_stack([np.repeat([0.0, 40.0, 80.0], 20), np.tile(np.arange(20) * 10.0, 3),
-                               100.0 + rng.normal(0, 0.5, n)]) + [500000.0, 5200000.0, 300.0]
-    rots = np.repeat(np.diag([1.0, -1.0, -1.0])[None], n, axis=0)
-    times = np.arange(n) * 2.0
+    centers, rots, times = _three_lines(rng)
+    n = len(times)
     gps = centers + rng.normal(0, 0.1, centers.shape)
     reference = centers[:, 2] + 2.5 * times / times.max() + rng.normal(0, 0.05, n)
     geo = georegister(centers - centers.mean(0), rots, gps, rots, np.ones(n, bool), times, reference)
@@ -163,8 +163,6 @@ def test_a_flight_after_a_jump_of_the_datum_rejoins_the_level_it_shares():
 
 
 def test_an_rtk_image_without_an_altitude_keeps_its_barometric_height():
-    from sosmatch.workflows.prior_heights import prior_heights
-
     n = 40
     t = np.arange(n) * 3.0
     rel = np.full(n, 60.0)
