@@ -49,6 +49,7 @@ from ..database.output_markers import fingerprint
 from ..database.outputs import check_output_dir, open_output_dir
 from ..database.session_io import (
     SessionFiles,
+    read_map_record,
     read_session,
     read_session_observations,
     recorded_images_dir,
@@ -242,11 +243,11 @@ def session_compression(session: Path, images_dir: Path | None) -> FlightCompres
     from ..plugin.jpeg_quality import flight_compression
 
     try:
-        rec = json.loads((Path(session) / "run.json").read_text())["quality"]["images"]["jpeg"]
+        rec = (read_map_record(session) or {})["quality"]["images"]["jpeg"]
         q = rec["quality"]
         return FlightCompression(None if q is None else float(q), rec["lowest"], int(rec["samples"]),
                                  int(rec["jpeg"]))
-    except (OSError, ValueError, KeyError, TypeError):
+    except (InputError, ValueError, KeyError, TypeError):
         pass
     if images_dir is None:
         return None
