@@ -398,8 +398,7 @@ def _kept_count(fit: DriftFit) -> int:
 def _image_at(times_s: np.ndarray, used: np.ndarray, fit: DriftFit) -> str:
     """'k of N' (capture order, 1-based, of the images given) of the first image at or after a fit's step."""
     t = np.asarray(times_s, float)
-    later = used[t[used] >= (fit.step_time if fit.step_time is not None else -math.inf)]
-    k = int(later[np.argmin(t[later])]) if len(later) else int(used[-1])
+    k = fit.first_at_step(used, t)
     return f"{int(np.sum(t < t[k])) + 1} of {len(t)}"
 
 

@@ -54,6 +54,14 @@ class DriftFit:
         segment's level across a step (one datum for all, never a line through the step), else the median."""
         return self.offset if self.significant else self.median
 
+    def first_at_step(self, indices: np.ndarray, times: np.ndarray) -> int:
+        """Of the values `indices` (into `times`, seconds), the earliest at or after the step (the last one given
+        when none is, or for a fit without a step): the image a jump is named at."""
+        idx = np.asarray(indices)
+        t = np.asarray(times, float)
+        later = idx[t[idx] >= (self.step_time if self.step_time is not None else -math.inf)]
+        return int(later[np.argmin(t[later])]) if len(later) else int(idx[-1])
+
     def value_at(self, t0: float, t: float) -> float:
         """The fitted value at time `t` of a fit whose first time is `t0`."""
         if self.levels is not None and self.step_time is not None:

@@ -12,7 +12,6 @@ measures each against the block)."""
 
 from __future__ import annotations
 
-import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -98,7 +97,7 @@ def prior_heights(alt: np.ndarray, rel: np.ndarray, has: np.ndarray, times: np.n
         out.heights = np.where(np.isfinite(alt), alt, takeoff + rel)
         for idx, fit in flights:
             if fit.significant:
-                what = (f"jumps by {-fit.change:+.1f} m at {names[_first_after(idx, times, fit)]}"
+                what = (f"jumps by {-fit.change:+.1f} m at {names[fit.first_at_step(idx, times)]}"
                         if fit.kind == "step" else f"drifts by {-fit.change:+.1f} m over the flight")
                 out.warnings.append(f"the XMP RelativeAltitude (barometric) {what} against the RTK fixed GPS "
                                     "altitude (RtkFlag 50): heights from the GPS altitude")
@@ -107,7 +106,7 @@ def prior_heights(alt: np.ndarray, rel: np.ndarray, has: np.ndarray, times: np.n
     for idx, fit in flights:
         where = "" if len(flights) == 1 else f" from {names[idx[0]]}"
         if fit.kind == "step":
-            k = _first_after(idx, times, fit)
+            k = fit.first_at_step(idx, times)
             before, after = idx[times[idx] < fit.step_time], idx[times[idx] >= fit.step_time]
             change = _flag_change(flags, before, after)
             kept = before if fit.kept == "before" else after
@@ -135,8 +134,3 @@ def prior_heights(alt: np.ndarray, rel: np.ndarray, has: np.ndarray, times: np.n
     out.heights = takeoff + rel
     return out
 
-
-def _first_after(idx: np.ndarray, times: np.ndarray, fit: DriftFit) -> int:
-    """The first image of `idx` (capture order) at or after the fit's step."""
-    later = idx[times[idx] >= (fit.step_time if fit.step_time is not None else -math.inf)]
-    return int(later[0]) if len(later) else int(idx[-1])
