@@ -16,7 +16,7 @@ on intrinsics (OpenSfM's has one, `exif_focal_sd`), so the prior is applied to i
   along it (the same ground, the same attitude episode, the tracker's biases on one patch), so where the
   images barely know f the curvature claims several times what they know (nu32's wind flights and nu26's wide
   cameras: 0.8-2 % claimed, 3-6 % off). The images' sigma is therefore the larger of it and a grouped jackknife
-  of the free focal length over contiguous blocks of the flight (`contiguous_blocks`, `jackknife_sigma`): the
+  of the free focal length over contiguous blocks of the flight (`contiguous_blocks`, `robust_fit.jackknife_sigma`): the
   scatter of f with one stretch of the flight left out at a time, which carries the correlation in it;
 - the EXIF focal length is a Gaussian prior of its own relative uncertainty (`exif_focal_uncertainty`);
 - the focal length taken is the two combined by their inverse variances (the maximum a posteriori of the
@@ -59,18 +59,6 @@ def contiguous_blocks(count: int, blocks: int) -> np.ndarray:
     equal length (fewer blocks when there are fewer positions)."""
     blocks = max(1, min(int(blocks), int(count)))
     return np.arange(int(count)) * blocks // max(int(count), 1)
-
-
-def jackknife_sigma(leave_one_out: Any) -> float:
-    """The delete-one-group jackknife's standard error of an estimate from its values with each group left out
-    in turn: sqrt((g - 1) / g * sum (v_i - mean)^2). inf with fewer than 3 groups (one or two leave-one-out
-    values say nothing of the scatter) or a value that is not finite (without that group the estimate is not
-    determined)."""
-    v = np.asarray(leave_one_out, dtype=np.float64).reshape(-1)
-    if len(v) < 3 or not np.all(np.isfinite(v)):
-        return math.inf
-    g = len(v)
-    return math.sqrt((g - 1) / g * float(np.sum((v - v.mean()) ** 2)))
 
 
 @dataclass(frozen=True)

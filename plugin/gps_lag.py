@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .robust_fit import lmeds_then_least_squares
+from .robust_fit import jackknife_sigma, lmeds_then_least_squares
 
 # dt is applied only beyond this many of its standard errors: GPS noise correlated along a line makes the formal
 # error optimistic, and a lag that is not there must never be "corrected" into a flight
@@ -262,8 +262,7 @@ def _jackknife_dt(s: np.ndarray, d: np.ndarray, v: np.ndarray, inl: np.ndarray,
         if q is None:  # without this pass the lag is not observable: the passes do not measure it
             return math.inf, len(ids)
         dts.append(float(q[4]))
-    g = len(dts)
-    return math.sqrt((g - 1) / g * float(np.sum((np.array(dts) - np.mean(dts)) ** 2))), g
+    return jackknife_sigma(dts), len(dts)
 
 
 def corrected(values: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:

@@ -1,13 +1,15 @@
 """Robust least squares of positions in the plane (pure numpy): least median of squares over minimal samples,
 then least squares on the inliers of the measured noise, iterated. One loop for every fit of the georegistration
 (the block's similarity to the GPS fixes, and the same with the GPS lag as a fifth unknown), so that they judge
-inliers and measure their noise alike.
+inliers and measure their noise alike. And the delete-one-group jackknife (`jackknife_sigma`) by which an
+estimate from a flight's images is judged where their errors are correlated along it (the GPS lag over the
+passes, the focal length over stretches of the flight).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import TypeVar
 
 import numpy as np
@@ -62,3 +64,15 @@ def lmeds_then_least_squares(
             break
         inliers = new
     return model, inliers, sigma
+
+
+def jackknife_sigma(leave_one_out: Sequence[float] | np.ndarray) -> float:
+    """The delete-one-group jackknife's standard error of an estimate from its values with each group left out
+    in turn: sqrt((g - 1) / g * sum (v_i - mean)^2). inf with fewer than 3 groups (one or two leave-one-out
+    values say nothing of the scatter) or a value that is not finite (without that group the estimate is not
+    determined)."""
+    v = np.asarray(leave_one_out, dtype=np.float64).reshape(-1)
+    if len(v) < 3 or not np.all(np.isfinite(v)):
+        return math.inf
+    g = len(v)
+    return math.sqrt((g - 1) / g * float(np.sum((v - v.mean()) ** 2)))

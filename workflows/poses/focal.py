@@ -18,10 +18,10 @@ from ...plugin.focal_prior import (
     combine_focal,
     contiguous_blocks,
     images_focal_sigma,
-    jackknife_sigma,
     residual_variance,
 )
 from ...plugin.geometry import Camera
+from ...plugin.robust_fit import jackknife_sigma
 from ..image_cameras import exif_focal_uncertainty
 from ..image_priors import ImagePriors
 from ..pose_refinement.with_colmap import observation_errors, position_prior
