@@ -3,7 +3,6 @@ result (`map_inputs`); shared helpers of the package."""
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -97,8 +96,8 @@ def registration_warnings_beside(poses_csv: Path) -> list[str]:
     if poses_csv.name != "poses.csv" or not record.is_file():
         return []
     try:
-        report = json.loads(record.read_text())
-    except (OSError, ValueError):
+        report = read_user_json(record, "poses record")
+    except InputError:
         return []
     ours = isinstance(report, dict) and report.get("format") == "sosmatch-poses"
     return registration_warnings(report) if ours else []
