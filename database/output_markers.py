@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,6 +34,26 @@ MARKER_FORMAT = "sosmatch output v1"
 def fingerprint(obj: Any) -> str:
     """sha256 of the canonical JSON of `obj` (keys sorted; other objects by str): an output's identity."""
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class VersionedIdentity:
+    """An output's identity (`today`), the identities earlier sosmatch versions gave the same output (`same_as`)
+    and, for a refusal, the settings that behave otherwise than in earlier versions (`note`)."""
+
+    today: str
+    same_as: tuple[str, ...] = ()
+    note: str = ""
+
+
+def versioned_identity(build: Callable[[Callable[[Any], dict[str, Any]]], Any],
+                       digest: Callable[[Any], str] = fingerprint) -> VersionedIdentity:
+    """The identity of `build(as_dict)` (its Params and sections given as `as_dict(section)`), today's and
+    earlier versions' (`plugin.params.identity_versions`), each as `digest` (default `fingerprint`)."""
+    from ..plugin.params.identity import identity_versions
+
+    v = identity_versions(build)
+    return VersionedIdentity(digest(v.today), tuple(digest(o) for o in v.earlier), v.changed_note())
 
 
 def sha256_file(path: str | Path) -> str:

@@ -60,6 +60,7 @@ from .output_markers import (
     MARKER,
     MARKER_FORMAT,
     STAGING,
+    VersionedIdentity,
     check_not_input,
     output_marker,
     read_json_or_none,
@@ -162,11 +163,12 @@ class OutputDir:
     """An output directory taken by one run of one command (see the module doc); use `open_output_dir`."""
 
     def __init__(self, path: Path, command: str, identity: str, previous: PreviousOutput, lock_fd: int,
-                 created: Sequence[Path] = ()) -> None:
+                 created: Sequence[Path] = (), same_as: Iterable[str] = ()) -> None:
         self.path = path
         self.command = command
         self.identity = identity
         self.previous = previous
+        self._same_as = frozenset(same_as)  # earlier versions' identities of this very output
         self._lock_fd: int | None = lock_fd
         self._created = list(created)  # directories this run created, outermost first
         # what sosmatch wrote in each directory entry (kept in the marker across runs): all a replacement may delete
@@ -180,8 +182,10 @@ class OutputDir:
 
     @property
     def was_complete(self) -> bool:
-        """True when the directory already held this very output (same identity), complete."""
-        return self.previous.state == "complete" and self.previous.identity == self.identity
+        """True when the directory already held this very output (same identity, or an earlier version's of it),
+        complete."""
+        return self.previous.state == "complete" and (self.previous.identity == self.identity
+                                                      or self.previous.identity in self._same_as)
 
     @property
     def staging(self) -> Path:
@@ -347,13 +351,15 @@ class OutputDir:
 def open_output_dir(
     path: str | Path,
     command: str,
-    identity: str,
+    identity: str | VersionedIdentity,
     *,
     inputs: Iterable[str | Path | None] = (),
     overwrite: bool = False,
     legacy_record: str | None = None,
     overwrite_flag: str = "--overwrite",
     earlier: Iterable[str] = (),
+    same_as: Iterable[str] = (),
+    version_note: str = "",
     before_taking: Callable[[Path], None] | None = None,
 ) -> OutputDir:
     """Take directory `path` for one run of `command` producing the output `identity` (see the module doc).
@@ -364,20 +370,27 @@ def open_output_dir(
     the command's JSON record (format "sosmatch ...") that marks an output written before markers existed.
     Cleans the stale temporaries of killed runs. `overwrite_flag` is how the refusal names the command's
     option. `earlier`: the identities an earlier sosmatch gave this same output (same inputs and settings): such
-    an output is no other one, and is made again under `identity`. `before_taking(path)`: the command's own checks
+    an output is no other one, and is made again under `identity`. `same_as`: the identities earlier sosmatch versions
+    gave this very output (`plugin.params.identity_versions`): such a complete output is this one (resumed, its
+    marker re-written under `identity`). `version_note`: what the refusal of another output adds (the settings that
+    behave otherwise than in earlier versions). `before_taking(path)`: the command's own checks
     that may refuse (InputError), run under the lock before the marker changes, so that a refused run leaves a
     previous output as it was. Returns the taken directory (a context manager that releases the lock).
     """
     path = Path(path)
+    if isinstance(identity, VersionedIdentity):  # today's, with earlier versions' identities of the same output
+        identity, same_as, version_note = identity.today, (*same_as, *identity.same_as), version_note or identity.note
     check_not_input(path, list(inputs))
     check_not_in_output_entry(path)
     previous = _previous(path, command, legacy_record)
-    same = {identity, *earlier}
+    same_as = frozenset(same_as)
+    same = {identity, *earlier, *same_as}
     if previous.state == "complete" and previous.identity not in same and not overwrite:
-        # an output's identity holds every setting, so a sosmatch with a new setting (even at its default) sees
-        # an earlier version's output as another one (nu36): said, so that nobody hunts for a changed input
+        # identities of earlier versions' same outputs are in `same_as` (nu36): what is left is another output,
+        # or one of a version that behaved otherwise: said, so that nobody hunts for a changed input
+        note = f" ({version_note})" if version_note else ""
         raise InputError(f"output directory holds a complete `sosmatch {command}` output made from other inputs or "
-                         f"settings, or by another version of sosmatch (whose settings differ); use {overwrite_flag} "
+                         f"settings, or by another version of sosmatch{note}; use {overwrite_flag} "
                          "to replace it (or choose another directory)", path)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
     try:
@@ -390,7 +403,7 @@ def open_output_dir(
         if again != previous and again.state == "complete" and again.identity not in same and not overwrite:
             raise InputError(f"output directory now holds a complete `sosmatch {command}` output made from other "
                              f"inputs or settings; use {overwrite_flag} to replace it", path)
-        out = OutputDir(path, command, identity, again, fd, created)
+        out = OutputDir(path, command, identity, again, fd, created, same_as)
         out._check_entries()  # a user's file inside e.g. sparse/ is refused now, not when the run publishes
         if before_taking is not None:
             before_taking(path)

@@ -45,7 +45,7 @@ from ..database.match_io import (
     read_match,
     unverified_note,
 )
-from ..database.output_markers import fingerprint
+from ..database.output_markers import VersionedIdentity, versioned_identity
 from ..database.outputs import check_output_dir, open_output_dir
 from ..database.session_io import (
     SessionFiles,
@@ -425,12 +425,13 @@ def write_outputs(run: ChangesRun, out_dir: str | Path, params: Params, plot: bo
     return written
 
 
-def output_identity(run: ChangesRun, params: Params, plot: bool) -> str:
-    """What determines the outputs: both maps (content fingerprints), the transform and the parameters."""
-    return fingerprint({"maps": [run.sources["map_a"], run.sources["map_b"]], "a_from_b": run.a_from_b.to_dict(),
-                        "changes": params_to_dict(params.changes),
-                        "images": [run.sources["images_a"], run.sources["images_b"]],
-                        "eps": params.association.distance_tolerance_m, "plot": plot})
+def output_identity(run: ChangesRun, params: Params, plot: bool) -> VersionedIdentity:
+    """What determines the outputs: both maps (content fingerprints), the transform and the parameters (today's
+    identity and earlier versions' of the same output)."""
+    return versioned_identity(lambda as_dict: {
+        "maps": [run.sources["map_a"], run.sources["map_b"]], "a_from_b": run.a_from_b.to_dict(),
+        "changes": as_dict(params.changes), "images": [run.sources["images_a"], run.sources["images_b"]],
+        "eps": params.association.distance_tolerance_m, "plot": plot})
 
 
 def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, out_dir: str | Path,

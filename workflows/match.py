@@ -35,7 +35,7 @@ from ..database.landmark_map import (
 )
 from ..database.map_loading import LoadedMap, load_map
 from ..database.match_io import MATCH_FORMAT, no_match_text, parse_match
-from ..database.output_markers import fingerprint
+from ..database.output_markers import versioned_identity
 from ..database.outputs import open_output_dir
 from ..plugin import __version__
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
@@ -401,16 +401,13 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                                        lb.positions, lb.sizes)
     first_try = derivation.first_try
     params = dataclasses.replace(params, association=derivation.params)
-    identity = fingerprint({"a": prints[0], "b": prints[1],
-                            "association": params_to_dict(params.association),
-                            "first_try": None if first_try is None else params_to_dict(first_try),
-                            # only when there is one: outputs of maps that get no wider search keep their identity
-                            **({} if derivation.wider_try is None else
-                               {"wider_try": params_to_dict(derivation.wider_try)}),
-                            **({} if derivation.near_try is None else
-                               {"near_try": params_to_dict(derivation.near_try)}),
-                            "verification": params_to_dict(params.verification), "seed": params.seed,
-                            "exhaustive": exhaustive, "plot": plot})
+    identity = versioned_identity(lambda as_dict: {
+        "a": prints[0], "b": prints[1], "association": as_dict(params.association),
+        "first_try": None if first_try is None else as_dict(first_try),
+        # only when there is one: outputs of maps that get no wider search keep their identity
+        **({} if derivation.wider_try is None else {"wider_try": as_dict(derivation.wider_try)}),
+        **({} if derivation.near_try is None else {"near_try": as_dict(derivation.near_try)}),
+        "verification": as_dict(params.verification), "seed": params.seed, "exhaustive": exhaustive, "plot": plot})
     with open_output_dir(out_dir, "match", identity, inputs=[a, b], overwrite=overwrite,
                          legacy_record="match.json") as out:
         common = la.epsg == lb.epsg != 0

@@ -25,11 +25,11 @@ import numpy as np
 
 from ..database.atomic import atomic_path, write_text_atomic
 from ..database.images import list_images, no_images_message, read_image
-from ..database.output_markers import fingerprint
+from ..database.output_markers import versioned_identity
 from ..database.outputs import open_output_dir
 from ..plugin.errors import InputError
 from ..plugin.mask_features import MaskFeatures, describe_masks, segment_and_describe
-from ..plugin.params import Params, params_to_dict
+from ..plugin.params import Params
 from ..plugin.segmentation import MaskSet, get_backend
 
 log = logging.getLogger(__name__)
@@ -151,8 +151,9 @@ def run(
             raise InputError(no_images_message(folders[0]), folders[0])
         raise InputError(f"no images found in {', '.join(str(p) for p in inputs)}")
     out_dir = Path(out_dir)
-    identity = fingerprint({"images": [[str(p.resolve()), *_stat(p)] for p in paths], "overlays": write_overlays,
-                            "segmentation": params_to_dict(params.segmentation)})
+    identity = versioned_identity(lambda as_dict: {
+        "images": [[str(p.resolve()), *_stat(p)] for p in paths], "overlays": write_overlays,
+        "segmentation": as_dict(params.segmentation)})
     seg_backend = get_backend(params.segmentation.backend, params.segmentation)
     with open_output_dir(out_dir, "segment", identity, inputs=inputs, overwrite=overwrite) as taken:
         report = _segment_into(taken.path, paths, params, seg_backend, write_overlays)

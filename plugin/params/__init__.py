@@ -26,6 +26,7 @@ from .checks import (
     valid_values,
     within,
 )
+from .identity import ADDED, IdentityVersions, identity_versions, params_identity
 from .mapping import (
     ImageParams,
     KeyframeParams,
@@ -50,6 +51,10 @@ from .presets import (
 from .tree import LATER_SECTIONS, Params, mapping_params, params_from_dict, params_to_dict, with_overrides
 
 __all__ = [
+    "ADDED",
+    "IdentityVersions",
+    "identity_versions",
+    "params_identity",
     "AssociationParams",
     "ChangeParams",
     "Checked",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,12 +51,13 @@ def params_to_dict(params: Any) -> dict[str, Any]:
 LATER_SECTIONS = ("association", "verification", "changes")  # the stages that read a map, never make one
 
 
-def mapping_params(params: Params) -> dict[str, Any]:
+def mapping_params(params: Params, as_dict: Callable[[Any], dict[str, Any]] = params_to_dict) -> dict[str, Any]:
     """The parameters a map depends on, as a nested dict: every section but those of the stages after it
     (`LATER_SECTIONS`), and the one figure of theirs a map uses (theta_S, `association.min_associations`: the
     quality check counts the landmarks a match needs). A batch resumes a flight's map while these are
-    unchanged, so a setting of matching or change detection does not map every flight again."""
-    out = {k: v for k, v in params_to_dict(params).items() if k not in LATER_SECTIONS}
+    unchanged, so a setting of matching or change detection does not map every flight again. `as_dict`: how
+    Params becomes a dict (an identity's: `identity.params_identity`, or an earlier version's)."""
+    out = {k: v for k, v in as_dict(params).items() if k not in LATER_SECTIONS}
     out["association.min_associations"] = params.association.min_associations
     return out
 

@@ -82,24 +82,30 @@ def record_result(result: TaskResult, log_dir: Path, stage: str, key: str) -> di
 
 
 def run_stage(
-    executor: Executor, fn: Any, tasks: dict[str, tuple], fingerprints: dict[str, str], state: StateStore,
-    stage: str, out_dir: Path, desc: str, progress: bool, still_valid: Any = None,
-    earlier: dict[str, str] | None = None,
+    executor: Executor, fn: Any, tasks: dict[str, tuple], fingerprints: dict[str, list[str | None]],
+    state: StateStore, stage: str, out_dir: Path, desc: str, progress: bool, still_valid: Any = None,
+    earlier: dict[str, list[str]] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Skip tasks whose state matches, run the rest, save the state of those that succeed.
 
-    `earlier`: the fingerprint an earlier version of the batch gave the same task (its state is taken as this
-    one's and re-saved under `fingerprints`), so an output made before a fingerprint changed resumes."""
+    `fingerprints`: each task's fingerprint per version of sosmatch (`plugin.params.build_versions`: today's
+    first, then earlier versions', None where a version cannot have made it); `earlier`: further fingerprints an
+    earlier version of the batch gave the same task. A state saved under an earlier one is taken as this one's and
+    re-saved under today's, so an output made before a fingerprint changed resumes."""
     records: dict[str, dict[str, Any]] = {}
     todo = {}
+    today = {key: fingerprints[key][0] for key in tasks}
     for key, args in tasks.items():
-        done = state.get(stage, key, fingerprints[key])
-        migrated = done is None and earlier is not None and key in earlier
-        if migrated:
-            done = state.get(stage, key, earlier[key])
+        done = state.get(stage, key, today[key])
+        migrated = False
+        for old in [*fingerprints[key][1:], *(earlier or {}).get(key, [])]:
+            if done is not None:
+                break
+            if old is not None and old != today[key]:
+                done, migrated = state.get(stage, key, old), True
         if done is not None and (still_valid is None or still_valid(done)):
             if migrated:  # re-saved under today's fingerprint
-                state.put(stage, key, fingerprints[key], done)
+                state.put(stage, key, today[key], done)
             records[key] = {**done, "status": "done", "resumed": True}
         else:
             todo[key] = args
@@ -108,6 +114,6 @@ def run_stage(
         for key, res in results.items():
             rec = record_result(res, out_dir / "logs", stage, key)
             if res.ok:
-                state.put(stage, key, fingerprints[key], {k: v for k, v in rec.items() if k != "status"})
+                state.put(stage, key, today[key], {k: v for k, v in rec.items() if k != "status"})
             records[key] = rec
     return {key: records[key] for key in tasks}

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ...database.match_io import MatchSummary, answer_gate
+from ...database.output_markers import versioned_identity
 from ...database.outputs import open_output_dir
 from ...database.session_io import MERGE_RECORD
 from ...plugin.multisession import (
@@ -24,6 +25,7 @@ from ...plugin.multisession import (
     spanning_transforms,
 )
 from ...plugin.params import Params, mapping_params, params_to_dict
+from ...plugin.params.identity import build_versions
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_signature, images_dir
 from .report import BatchReport, write_report
@@ -108,9 +110,10 @@ def run(
     flights = discover_flights(flights_dir, exclude=(out_dir,))
     pdict = params_to_dict(params)
     # (the CRS only when chosen: batches run before the option keep their identity and resume)
-    identity = fingerprint({"params": pdict, "matcher": (pair_fn or pair_task).__qualname__, **{
-        k: v for k, v in dataclasses.asdict(options).items()
-        if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)}})
+    identity = versioned_identity(lambda as_dict: {
+        "params": as_dict(params), "matcher": (pair_fn or pair_task).__qualname__,
+        **{k: v for k, v in dataclasses.asdict(options).items()
+           if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)}})
     try:
         with open_output_dir(out_dir, "batch", identity, inputs=[f.path for f in flights],
                              overwrite=options.overwrite, legacy_record="report.json") as taken:
@@ -138,8 +141,13 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         # an adopted session is used where it lies: its place is part of it (a copy elsewhere is another session)
         where = {"flight": str(f.path.resolve())} if f.kind == "mapped" else {}
         crs = {"epsg": options.epsg} if options.epsg is not None and f.kind == "images" else {}
-        fps[f.name] = fingerprint({"map": 2, **contents, **where, **crs, "params": mapping_params(params)})
-        earlier[f.name] = fingerprint({"flight": str(f.path.resolve()), **contents, "params": pdict})
+        # each version's fingerprint (`identity_eras`): a batch of an earlier sosmatch resumes
+        fixed = {**contents, **where, **crs}
+        fps[f.name] = build_versions(lambda as_dict, fixed=fixed: fingerprint(
+            {"map": 2, **fixed, "params": mapping_params(params, as_dict)}))
+        before = {"flight": str(f.path.resolve()), **contents}  # before 88ab9e6: the folder and every setting
+        earlier[f.name] = [p for p in build_versions(lambda as_dict, before=before: fingerprint(
+            {**before, "params": as_dict(params)})) if p is not None]
         tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf,
                          options.overwrite, options.epsg if f.kind == "images" else None)
     if options.epsg is not None and (own := [f.name for f in flights if f.kind != "images"]):
@@ -159,9 +167,11 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     for a, b in chosen:
         key = f"{a}{PAIR_SEP}{b}"
         # what `sosmatch match` depends on (its own identity: both maps, association, verification, seed)
-        pair_fps[key] = fingerprint({"a": fps[a], "b": fps[b], "association": pdict["association"],
-                                      "verification": pdict["verification"], "seed": pdict["seed"],
-                                      "matcher": matcher.__qualname__, "verify": verify})
+        pair_fps[key] = [None if fa is None or fb is None or sections is None else fingerprint(
+            {"a": fa, "b": fb, "association": sections[0], "verification": sections[1], "seed": pdict["seed"],
+             "matcher": matcher.__qualname__, "verify": verify})
+            for fa, fb, sections in zip(fps[a], fps[b], build_versions(
+                lambda as_dict: (as_dict(params.association), as_dict(params.verification))))]
         pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
         if matcher is pair_task:
             pair_tasks[key] += (verify, options.overwrite)
@@ -265,7 +275,7 @@ def _stale_outputs(out_dir: Path, report: BatchReport) -> list[str]:
 
 def _graph_and_merge(
     report: BatchReport, names: list[str], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
-    matches: dict[str, MatchSummary], pair_fps: dict[str, str], state: StateStore, executor: Executor,
+    matches: dict[str, MatchSummary], pair_fps: dict[str, list[str | None]], state: StateStore, executor: Executor,
     options: BatchOptions, params: Params, out_dir: Path,
 ) -> list[dict[str, Any]]:
     index = {n: i for i, n in enumerate(names)}
@@ -322,10 +332,11 @@ def _graph_and_merge(
         pos = {m: k for k, m in enumerate(order)}
         tree_edges = [(pos[e.a], pos[e.b], _associations_file(pairs[edge_keys[(e.a, e.b)]])) for e in tree]
         key = names[ref]
-        merge_fps[key] = fingerprint({"members": [names[m] for m in order],  # contents: in the pair fps
-                                       "pairs": [pair_fps[edge_keys[(e.a, e.b)]] for e in tree],
-                                       "transforms": [ref_from[m].to_dict() for m in order],
-                                       "eps": params.association.distance_tolerance_m})
+        per_version = zip(*[pair_fps[edge_keys[(e.a, e.b)]] for e in tree])  # each version's pair fps
+        merge_fps[key] = [None if None in prints else fingerprint(
+            {"members": [names[m] for m in order],  # contents: in the pair fps
+             "pairs": list(prints), "transforms": [ref_from[m].to_dict() for m in order],
+             "eps": params.association.distance_tolerance_m}) for prints in per_version]
         merge_tasks[key] = (
             [sessions[names[m]]["session"] for m in order], [names[m] for m in order],
             [ref_from[m].to_dict() for m in order], tree_edges, str(out_dir / "merged" / key),
@@ -343,7 +354,7 @@ def _graph_and_merge(
 
 
 def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
-                        matches: dict[str, MatchSummary], pair_fps: dict[str, str], state: StateStore,
+                        matches: dict[str, MatchSummary], pair_fps: dict[str, list[str | None]], state: StateStore,
                         executor: Executor, options: BatchOptions, params: Params, out_dir: Path) -> None:
     """`sosmatch merge`'s control of every accepted pair's alignment (`alignment_task`), before the pair can join
     the session graph: a pair it refuses (its verdict, or an InputError: a file of the pair's that cannot be read)
@@ -353,13 +364,13 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
     said nothing of the pair: the pair failed (`status` "failed", `error`, traceback in OUT/logs/), as a failed
     match, counted in the report's failures and the exit code, and not saved as finished, so a re-run controls it
     again (nu26: 14 of 21 pairs "refused" by an ImportError, nothing merged, "ok", exit 0)."""
-    pdict = params_to_dict(params)
     tasks, fps = {}, {}
     for key, sim in sims.items():
         a, b = key.split(PAIR_SEP)
         transform = sim.to_dict()
-        fps[key] = fingerprint({"pair": pair_fps[key], "transform": transform, "changes": pdict["changes"],
-                                "eps": pdict["association"]["distance_tolerance_m"]})
+        fps[key] = [None if pair is None or chg is None else fingerprint(
+            {"pair": pair, "transform": transform, "changes": chg, "eps": params.association.distance_tolerance_m})
+            for pair, chg in zip(pair_fps[key], build_versions(lambda as_dict: as_dict(params.changes)))]
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(pairs[key]["match"]), transform, params,
                       matches[key])
     done = run_stage(executor, alignment_task, tasks, fps, state, "control", out_dir, "control alignments",
@@ -381,18 +392,19 @@ def _valid_changes(done: dict[str, Any]) -> bool:
 
 
 def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary],
-             pair_fps: dict[str, str], state: StateStore, executor: Executor, options: BatchOptions, params: Params,
-             out_dir: Path, images: dict[str, Path | None]) -> None:
+             pair_fps: dict[str, list[str | None]], state: StateStore, executor: Executor, options: BatchOptions,
+             params: Params, out_dir: Path, images: dict[str, Path | None]) -> None:
     """Run `changes_task` for every accepted pair in the session graph; its counts go into the pair's record. Its
     alignment control runs at the pair's match's gate, as the control stage's (`alignment_task`)."""
     tasks, fps = {}, {}
-    pdict = params_to_dict(params)
     for key, rec in pairs.items():
         if rec["status"] != "done" or not rec.get("accepted") or not rec.get("in_graph") or not rec.get("transform"):
             continue
         a, b = key.split(PAIR_SEP)
-        fps[key] = fingerprint({"pair": pair_fps[key], "transform": rec["transform"], "changes": pdict["changes"],
-                                "eps": pdict["association"]["distance_tolerance_m"]})
+        fps[key] = [None if pair is None or chg is None else fingerprint(
+            {"pair": pair, "transform": rec["transform"], "changes": chg,
+             "eps": params.association.distance_tolerance_m})
+            for pair, chg in zip(pair_fps[key], build_versions(lambda as_dict: as_dict(params.changes)))]
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
                       rec["transform"], params, True, rec.get("answer") == "verified",  # the batch's own, as merge
                       *(None if images[n] is None else str(images[n]) for n in (a, b)),

@@ -11,6 +11,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from ...database.colmap_db import check_database_writable
+from ...database.output_markers import VersionedIdentity
 from ...database.outputs import OutputDir, open_output_dir
 
 COMMAND = "map"
@@ -20,7 +21,8 @@ POSE_CHECK = "pose_check.json"  # the poses against the images (`workflows.pose_
 OUTPUTS = ("database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "quality.png", POSE_CHECK)
 
 
-def take_output_dir(out_dir: str | Path, identity: str, inputs: Iterable[Path], overwrite: bool) -> OutputDir:
+def take_output_dir(out_dir: str | Path, identity: str | VersionedIdentity, inputs: Iterable[Path],
+                    overwrite: bool) -> OutputDir:
     """Take SESSION_DIR for this run (see `open_output_dir` for what is refused); also refuses a database that
     another process (e.g. COLMAP's GUI) has locked, before the directory is taken: a refused run leaves a previous
     map complete, as it was."""

@@ -1,0 +1,179 @@
+"""The parameters as part of an output's identity, and the settings added since outputs recorded one.
+
+Every sosmatch output records the identity of its inputs and settings (`database.output_markers.fingerprint` of
+dicts of `Params` sections); a re-run of the same identity resumes, another one is refused. A new setting would
+change every identity, so an upgrade refused every earlier output (nu36) although the new setting, at the value
+registered here, behaves as the earlier version did. Hence:
+
+- `ADDED` lists each setting added after outputs existed: its dotted name, the commit that added it, and its
+  neutral value (the one at which the code does what the earlier version did on every input; `NO_NEUTRAL` when
+  no value does, e.g. a new refusal that cannot be switched off).
+- `params_identity` is the identity dict of a Params or one section: a registered setting at its neutral value is
+  left out, so an identity is the same before and after the setting existed, and a new setting at a neutral
+  default changes no identity. A setting at another value (a default that changes behaviour, or a value set by
+  the user) stays in, as it changes the output.
+- `identity_versions` builds an identity object the way today's and each earlier sosmatch built it (outputs made
+  before this module recorded every setting, the registered ones too), so a command resumes them all.
+
+When to add an entry: whenever a field is added to a Params section (also renamed: both names), with the value
+that reproduces the earlier behaviour; keep the list in the order of addition. The entries are what keep earlier
+outputs resumable: never remove one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+NO_NEUTRAL = object()  # no value of the setting behaves as the earlier version did
+
+
+@dataclass(frozen=True)
+class Added:
+    """A setting added after outputs existed: `name` (dotted), `since` (the commit adding it), `neutral` (the value
+    that reproduces the earlier behaviour, or NO_NEUTRAL), `change` (what it changes, for a refusal's message)."""
+
+    name: str
+    since: str
+    neutral: Any
+    change: str
+
+    def is_neutral(self, value: Any) -> bool:
+        return self.neutral is not NO_NEUTRAL and value == self.neutral
+
+
+# Settings added since 2026-12-05 (git log -p plugin/params), in order of addition. Warning thresholds are neutral at
+# their default (an output is the same; only what is said of it is new); a setting that changes results or adds a
+# refusal is neutral only at the value that switches it off.
+ADDED: tuple[Added, ...] = (
+    Added("association.georeference_prior_m", "8177bae", 0.0, "georeferenced maps are searched near their "
+          "georeference first"),
+    Added("quality.warn_flying_height_m", "316458b", 10_000.0, "a warning"),
+    Added("pose_check.max_gps_scale_error", "e87af00", NO_NEUTRAL, "poses are refused when their lengths are not "
+          "the GPS's metres"),
+    Added("pose_check.warn_gps_offset_m", "e87af00", 50.0, "a warning"),
+    Added("pose_check.min_gps_agreement", "e87af00", NO_NEUTRAL, "poses are refused when their lengths are not "
+          "the GPS's metres"),
+    Added("pose_check.min_pair_share", "51572a4", 1 / 3, "a warning"),
+    Added("quality.min_image_contrast_to_noise", "de5092e", 3.0, "a warning"),
+    Added("quality.min_image_sharpness", "de5092e", 0.15, "a warning"),
+    Added("triangulation.whole_masks_only", "21d9831", False, "landmarks are located from the views that see "
+          "their mask whole"),
+    Added("segmentation.classical_min_ground_resolution_m", "093ffad", 0.0, "a floor under the segmenter's "
+          "working pixel"),
+    Added("quality.pass_offset_margin", "20ed52f", NO_NEUTRAL, "maps whose passes disagree in height are refused"),
+    # added at 90 and lowered to 70 in dc36258: an output of 90 is another one
+    Added("segmentation.contrast_reference", "d5251b0", 0.0, "a low-contrast (hazy) flight is stretched before "
+          "segmenting"),
+    Added("quality.min_jpeg_quality", "d1c47fd", 75.0, "a warning"),
+    Added("changes.min_jpeg_quality", "cd668d0", 75.0, "a warning"),
+)
+
+_BY_NAME = {a.name: a for a in ADDED}
+
+
+def _section_name(obj: Any) -> str:
+    """The dotted prefix of a Params (``""``) or of one of its sections (``"association."``)."""
+    from .tree import Params
+
+    if isinstance(obj, Params):
+        return ""
+    for f in dataclasses.fields(Params):
+        if isinstance(getattr(Params(), f.name), type(obj)):
+            return f.name + "."
+    raise TypeError(f"{type(obj).__name__} is not a Params section")
+
+
+class _NotThisVersion(Exception):
+    """A setting the version did not have is at a non-neutral value: it cannot have made this output."""
+
+
+def _identity_dict(params: Any, keep: frozenset[str], absent: frozenset[str], met: dict[str, Added]) -> dict[str, Any]:
+    """The identity dict: registered settings in `keep` always in, in `absent` never (and then they must be
+    neutral), the others in unless neutral. `met` collects the registered settings found at a non-neutral value."""
+    out = dataclasses.asdict(params)
+    prefix = _section_name(params)
+    for added in ADDED:
+        if not added.name.startswith(prefix):
+            continue
+        *sections, key = added.name[len(prefix):].split(".")
+        node = out
+        for s in sections:
+            node = node[s]
+        value = node[key]
+        if not added.is_neutral(value):
+            met[added.name] = added
+        if added.name in keep:
+            continue
+        if added.name in absent:
+            if not added.is_neutral(value):
+                raise _NotThisVersion(added.name)
+            del node[key]
+        elif added.is_neutral(value):
+            del node[key]
+    return out
+
+
+def params_identity(params: Any) -> dict[str, Any]:
+    """The identity dict of a Params or one of its sections: `dataclasses.asdict` without the registered settings
+    (`ADDED`) at their neutral value, so that outputs made before such a setting existed keep their identity."""
+    return _identity_dict(params, frozenset(), frozenset(), {})
+
+
+@dataclass(frozen=True)
+class IdentityVersions:
+    """An identity object as today's sosmatch builds it (`today`), as earlier ones built it for the same inputs
+    and settings (`earlier`: distinct from `today`), and the registered settings it met at a value none of the
+    versions before them had (`changed`: why an earlier output may be another one)."""
+
+    today: Any
+    earlier: list[Any]
+    changed: list[Added]
+
+    def changed_note(self) -> str:
+        """For a refusal: the settings here that changed the behaviour of earlier versions ("" when none)."""
+        if not self.changed:
+            return ""
+        said = "; ".join(f"{a.name} (since {a.since}: {a.change}"
+                         + ("" if a.neutral is NO_NEUTRAL else f"; --set {a.name}={a.neutral!r} as before") + ")"
+                         for a in self.changed)
+        return f"settings that behave otherwise than in earlier versions: {said}"
+
+
+def identity_eras() -> list[Callable[[Any], dict[str, Any]]]:
+    """How each version turns Params (or a section) into its identity dict: today's (`params_identity`) first,
+    then the versions before each registered setting (without it and the later ones, which must then be
+    neutral: else the version could not have made the output and the function raises) and the versions between
+    the first entries and this module (every setting in, as `dataclasses.asdict` gave them), newest first. A
+    chain of identities (a batch's map -> pair -> changes) builds each link with the same era."""
+    names = [a.name for a in ADDED]
+    eras: list[Callable[[Any], dict[str, Any]]] = [params_identity]
+    for k in range(len(names), -1, -1):  # versions with the first k registered settings, recorded at any value
+        keep, absent = frozenset(names[:k]), frozenset(names[k:])
+        eras.append(lambda p, keep=keep, absent=absent: _identity_dict(p, keep, absent, {}))
+    return eras
+
+
+def build_versions(build: Callable[[Callable[[Any], dict[str, Any]]], Any]) -> list[Any]:
+    """`build(as_dict)` for each of `identity_eras` (None where that version cannot have made it)."""
+    out = []
+    for as_dict in identity_eras():
+        try:
+            out.append(build(as_dict))
+        except _NotThisVersion:
+            out.append(None)
+    return out
+
+
+def identity_versions(build: Callable[[Callable[[Any], dict[str, Any]]], Any]) -> IdentityVersions:
+    """`build(as_dict)` -> an identity object, each Params or section in it given as `as_dict(section)`: built
+    with `params_identity` (today), and as each earlier version built it (`identity_eras`)."""
+    met: dict[str, Added] = {}
+    today = build(lambda p: _identity_dict(p, frozenset(), frozenset(), met))
+    earlier: list[Any] = []
+    for obj in build_versions(build)[1:]:
+        if obj is not None and obj != today and obj not in earlier:
+            earlier.append(obj)
+    return IdentityVersions(today, earlier, [a for a in ADDED if a.name in met])

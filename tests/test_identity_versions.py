@@ -1,0 +1,118 @@
+"""Outputs of an earlier sosmatch (before a registered setting existed) resume; a setting at another value does not."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from sosmatch.database.output_markers import MARKER, fingerprint, versioned_identity
+from sosmatch.database.outputs import open_output_dir
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.params import ADDED, Params, params_identity, params_to_dict, with_overrides
+from sosmatch.workflows.batch.state import StateStore, run_stage
+
+
+def _without(d: dict, dotted: str) -> dict:
+    """The params dict as a version before `dotted` existed recorded it."""
+    d = json.loads(json.dumps(d))
+    *sections, key = dotted.split(".")
+    node = d
+    for s in sections:
+        node = node[s]
+    del node[key]
+    return d
+
+
+def _changes_identity(params: Params) -> object:
+    return versioned_identity(lambda as_dict: {"maps": ["a", "b"], "changes": as_dict(params.changes)})
+
+
+def _make_output(path: Path, identity: str) -> None:
+    with open_output_dir(path, "changes", identity) as out:
+        (out.path / "changes.json").write_text("{}")
+        out.finish()
+
+
+def test_registry_names_real_settings_once():
+    names = [a.name for a in ADDED]
+    assert len(names) == len(set(names))
+    flat = params_to_dict(Params())
+    for name in names:
+        node = flat
+        for part in name.split("."):
+            node = node[part]  # KeyError: a registered setting that is no setting
+
+
+def test_neutral_setting_is_left_out_and_other_values_stay():
+    d = params_identity(Params())
+    assert "min_jpeg_quality" not in d["changes"] and "min_jpeg_quality" not in d["quality"]
+    assert d["triangulation"]["whole_masks_only"] is True  # a default that changed behaviour stays in
+    d50 = params_identity(with_overrides(Params(), {"changes.min_jpeg_quality": 50.0}))
+    assert d50["changes"]["min_jpeg_quality"] == 50.0
+    assert params_identity(Params().changes) == d["changes"]  # a section alone: the same rule
+
+
+def test_output_of_a_version_without_the_setting_resumes(tmp_path):
+    params = Params()
+    # an earlier version: its changes section had no min_jpeg_quality, its identity its asdict
+    old = fingerprint({"maps": ["a", "b"], "changes": _without(dataclasses.asdict(params.changes),
+                                                               "min_jpeg_quality")})
+    _make_output(tmp_path / "out", old)
+    with open_output_dir(tmp_path / "out", "changes", _changes_identity(params)) as out:
+        assert out.was_complete  # resumed, not made again
+        out.finish()
+    marker = json.loads((tmp_path / "out" / MARKER).read_text())
+    assert marker["identity"] == _changes_identity(params).today  # re-marked under today's identity
+
+
+def test_output_of_the_version_recording_every_setting_resumes(tmp_path):
+    params = Params()  # sosmatch before the registry: dataclasses.asdict, the registered settings in too
+    _make_output(tmp_path / "out", fingerprint({"maps": ["a", "b"], "changes": dataclasses.asdict(params.changes)}))
+    with open_output_dir(tmp_path / "out", "changes", _changes_identity(params)) as out:
+        assert out.was_complete
+
+
+def test_setting_at_another_value_is_another_output(tmp_path):
+    params = Params()
+    old = fingerprint({"maps": ["a", "b"], "changes": _without(dataclasses.asdict(params.changes),
+                                                               "min_jpeg_quality")})
+    _make_output(tmp_path / "out", old)
+    other = with_overrides(params, {"changes.min_jpeg_quality": 50.0})
+    assert _changes_identity(other).today != _changes_identity(params).today
+    with pytest.raises(InputError, match="another version of sosmatch"):
+        open_output_dir(tmp_path / "out", "changes", _changes_identity(other))
+
+
+def test_behaviour_change_is_refused_and_named(tmp_path):
+    params = Params()  # contrast_reference's default 70 stretches hazy flights: an earlier map is another one
+    seg = _without(dataclasses.asdict(params.segmentation), "contrast_reference")
+    _make_output(tmp_path / "out", fingerprint({"segmentation": seg}))
+    ident = versioned_identity(lambda as_dict: {"segmentation": as_dict(params.segmentation)})
+    with pytest.raises(InputError, match="segmentation.contrast_reference"):
+        open_output_dir(tmp_path / "out", "changes", ident)
+    # set to the neutral value, the earlier output is this one
+    neutral = with_overrides(params, {"segmentation.contrast_reference": 0.0})
+    ident0 = versioned_identity(lambda as_dict: {"segmentation": as_dict(neutral.segmentation)})
+    with open_output_dir(tmp_path / "out", "changes", ident0) as out:
+        assert out.was_complete
+
+
+class _NoRun:
+    def run(self, fn, todo, desc="", progress=False):  # noqa: ARG002
+        raise AssertionError(f"ran {sorted(todo)} again")
+
+
+def test_batch_stage_of_an_earlier_version_resumes(tmp_path):
+    from sosmatch.plugin.params.identity import build_versions
+
+    params = Params()
+    state = StateStore(tmp_path / "state", tmp_path)
+    old = fingerprint({"changes": _without(dataclasses.asdict(params.changes), "min_jpeg_quality")})
+    state.put("changes", "A__B", old, {"n": 1})
+    fps = {"A__B": build_versions(lambda as_dict: fingerprint({"changes": as_dict(params.changes)}))}
+    done = run_stage(_NoRun(), None, {"A__B": ()}, fps, state, "changes", tmp_path, "x", False)
+    assert done["A__B"]["resumed"] and done["A__B"]["n"] == 1
+    assert state.get("changes", "A__B", fps["A__B"][0]) is not None  # re-saved under today's fingerprint
