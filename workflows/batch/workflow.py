@@ -113,7 +113,7 @@ def run(
     identity = versioned_identity(lambda as_dict: {
         "params": as_dict(params), "matcher": (pair_fn or pair_task).__qualname__,
         **{k: v for k, v in dataclasses.asdict(options).items()
-           if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)}})
+           if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)}}, fingerprint)
     try:
         with open_output_dir(out_dir, "batch", identity, inputs=[f.path for f in flights],
                              overwrite=options.overwrite, legacy_record="report.json") as taken:
