@@ -15,9 +15,11 @@ registered here, behaves as the earlier version did. Hence:
 - `identity_versions` builds an identity object the way today's and each earlier sosmatch built it (outputs made
   before this module recorded every setting, the registered ones too), so a command resumes them all.
 
-When to add an entry: whenever a field is added to a Params section (also renamed: both names), with the value
-that reproduces the earlier behaviour; keep the list in the order of addition. The entries are what keep earlier
-outputs resumable: never remove one.
+When to add an entry: whenever a field is added to a Params section, with the value that reproduces the earlier
+behaviour; keep the list in the order of addition (tests/test_identity_registry.py fails for a setting that is
+neither here nor among those Params had when this registry was made). The entries are what keep earlier outputs
+resumable: never remove one. A removed or renamed setting is not handled (earlier outputs recorded it); that test
+fails for it too.
 """
 
 from __future__ import annotations
