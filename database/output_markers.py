@@ -38,12 +38,17 @@ def fingerprint(obj: Any) -> str:
 
 @dataclass(frozen=True)
 class VersionedIdentity:
-    """An output's identity (`today`), the identities earlier sosmatch versions gave the same output (`same_as`)
-    and, for a refusal, the settings that behave otherwise than in earlier versions (`note`)."""
+    """An output's identity (`today`), the identities earlier sosmatch versions gave the same output (`same_as`),
+    and those they gave it with today's settings where some behave otherwise in them (`otherwise`: identity ->
+    what a refusal says of such an output, `plugin.params.identity.otherwise_note`)."""
 
     today: str
     same_as: tuple[str, ...] = ()
-    note: str = ""
+    otherwise: tuple[tuple[str, str], ...] = ()
+
+    def refusal_note(self, previous: str | None) -> str:
+        """What the refusal of the output `previous` (its identity) adds: "" unless an earlier version made it."""
+        return dict(self.otherwise).get(previous or "", "")
 
 
 def versioned_identity(build: Callable[[Callable[[Any], dict[str, Any]]], Any],
@@ -53,7 +58,8 @@ def versioned_identity(build: Callable[[Callable[[Any], dict[str, Any]]], Any],
     from ..plugin.params.identity import identity_versions
 
     v = identity_versions(build)
-    return VersionedIdentity(digest(v.today), tuple(digest(o) for o in v.earlier), v.changed_note())
+    return VersionedIdentity(digest(v.today), tuple(digest(o) for o in v.earlier),
+                             tuple((digest(o), note) for o, note in v.otherwise))
 
 
 def sha256_file(path: str | Path) -> str:

@@ -358,8 +358,6 @@ def open_output_dir(
     legacy_record: str | None = None,
     overwrite_flag: str = "--overwrite",
     earlier: Iterable[str] = (),
-    same_as: Iterable[str] = (),
-    version_note: str = "",
     before_taking: Callable[[Path], None] | None = None,
 ) -> OutputDir:
     """Take directory `path` for one run of `command` producing the output `identity` (see the module doc).
@@ -370,28 +368,27 @@ def open_output_dir(
     the command's JSON record (format "sosmatch ...") that marks an output written before markers existed.
     Cleans the stale temporaries of killed runs. `overwrite_flag` is how the refusal names the command's
     option. `earlier`: the identities an earlier sosmatch gave this same output (same inputs and settings): such
-    an output is no other one, and is made again under `identity`. `same_as`: the identities earlier sosmatch versions
-    gave this very output (`plugin.params.identity_versions`): such a complete output is this one (resumed, its
-    marker re-written under `identity`). `version_note`: what the refusal of another output adds (the settings that
-    behave otherwise than in earlier versions). `before_taking(path)`: the command's own checks
+    an output is no other one, and is made again under `identity`. A `VersionedIdentity` `identity` also holds the
+    identities earlier sosmatch versions gave this very output (`plugin.params.identity_versions`): such a complete
+    output is this one (resumed, its marker re-written under today's identity); and what a refusal says of an
+    earlier version's output whose settings behave otherwise today. `before_taking(path)`: the command's own checks
     that may refuse (InputError), run under the lock before the marker changes, so that a refused run leaves a
     previous output as it was. Returns the taken directory (a context manager that releases the lock).
     """
     path = Path(path)
-    if isinstance(identity, VersionedIdentity):  # today's, with earlier versions' identities of the same output
-        identity, same_as, version_note = identity.today, (*same_as, *identity.same_as), version_note or identity.note
+    versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
+    identity, same_as = versions.today, frozenset(versions.same_as)  # earlier versions' identities of this output
     check_not_input(path, list(inputs))
     check_not_in_output_entry(path)
     previous = _previous(path, command, legacy_record)
-    same_as = frozenset(same_as)
     same = {identity, *earlier, *same_as}
     if previous.state == "complete" and previous.identity not in same and not overwrite:
         # identities of earlier versions' same outputs are in `same_as` (nu36): what is left is another output,
         # or one of a version that behaved otherwise: said, so that nobody hunts for a changed input
-        note = f" ({version_note})" if version_note else ""
-        raise InputError(f"output directory holds a complete `sosmatch {command}` output made from other inputs or "
-                         f"settings, or by another version of sosmatch{note}; use {overwrite_flag} "
-                         "to replace it (or choose another directory)", path)
+        what = versions.refusal_note(previous.identity) or ("an output made from other inputs or settings, or by "
+                                                            "another version of sosmatch")
+        raise InputError(f"output directory holds a complete `sosmatch {command}` output: {what}; use "
+                         f"{overwrite_flag} to replace it (or choose another directory)", path)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
     try:
         path.mkdir(parents=True, exist_ok=True)

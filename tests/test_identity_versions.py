@@ -82,8 +82,35 @@ def test_setting_at_another_value_is_another_output(tmp_path):
     _make_output(tmp_path / "out", old)
     other = with_overrides(params, {"changes.min_jpeg_quality": 50.0})
     assert _changes_identity(other).today != _changes_identity(params).today
-    with pytest.raises(InputError, match="another version of sosmatch"):
+    with pytest.raises(InputError, match="changes.min_jpeg_quality=75.0 would resume it"):
         open_output_dir(tmp_path / "out", "changes", _changes_identity(other))
+
+
+def test_refusal_names_the_set_that_resumes_only_where_one_does(tmp_path):
+    params = Params()  # today's output at the default: a user's value is refused, with the --set that resumes it
+    _make_output(tmp_path / "out", _changes_identity(params).today)
+    other = with_overrides(params, {"changes.min_jpeg_quality": 50.0})
+    with pytest.raises(InputError, match="changes.min_jpeg_quality=75.0 would resume it"):
+        open_output_dir(tmp_path / "out", "changes", _changes_identity(other))
+    other_maps = versioned_identity(lambda as_dict: {"maps": ["a", "c"], "changes": as_dict(other.changes)})
+    with pytest.raises(InputError, match="other inputs or settings") as refused:  # no setting would resume it
+        open_output_dir(tmp_path / "out", "changes", other_maps)
+    assert "min_jpeg_quality" not in str(refused.value)
+
+
+def test_the_named_set_gives_the_neutral_value():
+    from sosmatch.database.config_io import parse_override
+    from sosmatch.plugin.params.identity import NO_NEUTRAL, otherwise_note
+
+    for added in ADDED:
+        if added.neutral is NO_NEUTRAL:
+            continue
+        flag = otherwise_note([added]).split("--set ")[1].removesuffix(" would resume it")
+        params = with_overrides(Params(), dict([parse_override(flag)]))
+        node = params
+        for part in added.name.split("."):
+            node = getattr(node, part)
+        assert added.is_neutral(node), (flag, node)
 
 
 def test_behaviour_change_is_refused_and_named(tmp_path):

@@ -25,6 +25,7 @@ fails for it too.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -92,9 +93,11 @@ class _NotThisVersion(Exception):
     """A setting the version did not have is at a non-neutral value: it cannot have made this output."""
 
 
-def _identity_dict(params: Any, keep: frozenset[str], absent: frozenset[str], met: dict[str, Added]) -> dict[str, Any]:
+def _identity_dict(params: Any, keep: frozenset[str], absent: frozenset[str], met: dict[str, Added],
+                   strict: bool = True) -> dict[str, Any]:
     """The identity dict: registered settings in `keep` always in, in `absent` never (and then they must be
-    neutral), the others in unless neutral. `met` collects the registered settings found at a non-neutral value."""
+    neutral, unless not `strict`), the others in unless neutral. `met` collects the registered settings found at a
+    non-neutral value."""
     out = dataclasses.asdict(params)
     prefix = _section_name(params)
     for added in ADDED:
@@ -110,7 +113,7 @@ def _identity_dict(params: Any, keep: frozenset[str], absent: frozenset[str], me
         if added.name in keep:
             continue
         if added.name in absent:
-            if not added.is_neutral(value):
+            if strict and not added.is_neutral(value):
                 raise _NotThisVersion(added.name)
             del node[key]
         elif added.is_neutral(value):
@@ -127,21 +130,24 @@ def params_identity(params: Any) -> dict[str, Any]:
 @dataclass(frozen=True)
 class IdentityVersions:
     """An identity object as today's sosmatch builds it (`today`), as earlier ones built it for the same inputs
-    and settings (`earlier`: distinct from `today`), and the registered settings it met at a value none of the
-    versions before them had (`changed`: why an earlier output may be another one)."""
+    and settings (`earlier`: distinct from `today`), and as earlier versions built it for the same inputs and
+    today's settings where some of them behave otherwise than in that version (`otherwise`: each object with the
+    note a refusal of that version's output gives, `otherwise_note`)."""
 
     today: Any
     earlier: list[Any]
-    changed: list[Added]
+    otherwise: list[tuple[Any, str]]
 
-    def changed_note(self) -> str:
-        """For a refusal: the settings here that changed the behaviour of earlier versions ("" when none)."""
-        if not self.changed:
-            return ""
-        said = "; ".join(f"{a.name} (since {a.since}: {a.change}"
-                         + ("" if a.neutral is NO_NEUTRAL else f"; --set {a.name}={a.neutral!r} as before") + ")"
-                         for a in self.changed)
-        return f"settings that behave otherwise than in earlier versions: {said}"
+
+def otherwise_note(changed: list[Added]) -> str:
+    """Why an output with the behaviour of before some settings existed (an earlier version's, or one made at their
+    neutral values) is another one: those settings, which behave otherwise at their values here, and the `--set`s
+    that would give that behaviour again (and so resume the output)."""
+    said = "; ".join(f"{a.name} (since {a.since}: {a.change})" for a in changed)
+    stuck = [a.name for a in changed if a.neutral is NO_NEUTRAL]
+    how = (f"no value of {', '.join(stuck)} behaves as before" if stuck else
+           " ".join(f"--set {a.name}={json.dumps(a.neutral)}" for a in changed) + " would resume it")
+    return f"one made with the behaviour from before settings that behave otherwise here: {said}; {how}"
 
 
 def identity_eras() -> list[Callable[[Any], dict[str, Any]]]:
@@ -178,4 +184,12 @@ def identity_versions(build: Callable[[Callable[[Any], dict[str, Any]]], Any]) -
     for obj in build_versions(build)[1:]:
         if obj is not None and obj != today and obj not in earlier:
             earlier.append(obj)
-    return IdentityVersions(today, earlier, [a for a in ADDED if a.name in met])
+    otherwise: list[tuple[Any, str]] = []
+    names = [a.name for a in ADDED]
+    for k in range(len(ADDED)):  # the version before ADDED[k], had it today's settings of before
+        changed = [a for a in ADDED[k:] if a.name in met]
+        keep, absent = frozenset(names[:k]), frozenset(names[k:])
+        obj = build(lambda p, keep=keep, absent=absent: _identity_dict(p, keep, absent, {}, strict=False))
+        if changed and obj != today and obj not in earlier and obj not in [o for o, _ in otherwise]:
+            otherwise.append((obj, otherwise_note(changed)))
+    return IdentityVersions(today, earlier, otherwise)
