@@ -87,12 +87,16 @@ def test_setting_at_another_value_is_another_output(tmp_path):
 
 
 def test_refusal_names_the_set_that_resumes_only_where_one_does(tmp_path):
+    def identity(params: Params, maps: tuple[str, str] = ("a", "b")) -> object:  # every section, as a map's
+        return versioned_identity(lambda as_dict: {"maps": maps, "params": as_dict(params)})
+
     params = Params()  # today's output at the default: a user's value is refused, with the --set that resumes it
-    _make_output(tmp_path / "out", _changes_identity(params).today)
-    other = with_overrides(params, {"changes.min_jpeg_quality": 50.0})
-    with pytest.raises(InputError, match="changes.min_jpeg_quality=75.0 would resume it"):
-        open_output_dir(tmp_path / "out", "changes", _changes_identity(other))
-    other_maps = versioned_identity(lambda as_dict: {"maps": ["a", "c"], "changes": as_dict(other.changes)})
+    _make_output(tmp_path / "out", identity(params).today)
+    other = with_overrides(params, {"quality.min_jpeg_quality": 50.0})
+    with pytest.raises(InputError, match=r"quality.min_jpeg_quality \(since d1c47fd: a warning\); --set "
+                                         "quality.min_jpeg_quality=75.0 would resume it"):
+        open_output_dir(tmp_path / "out", "changes", identity(other))
+    other_maps = identity(other, ("a", "c"))
     with pytest.raises(InputError, match="other inputs or settings") as refused:  # no setting would resume it
         open_output_dir(tmp_path / "out", "changes", other_maps)
     assert "min_jpeg_quality" not in str(refused.value)

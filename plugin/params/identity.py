@@ -186,9 +186,12 @@ def identity_versions(build: Callable[[Callable[[Any], dict[str, Any]]], Any]) -
             earlier.append(obj)
     otherwise: list[tuple[Any, str]] = []
     names = [a.name for a in ADDED]
-    for k in range(len(ADDED)):  # the version before ADDED[k], had it today's settings of before
-        changed = [a for a in ADDED[k:] if a.name in met]
-        keep, absent = frozenset(names[:k]), frozenset(names[k:])
+    # the version before ADDED[k] with today's values of the settings it had; today's with one setting met at its
+    # neutral value (an output made at the default, refused for a user's value)
+    behaviours = [(frozenset(names[:k]), frozenset(names[k:])) for k in range(len(ADDED))]
+    behaviours += [(frozenset(), frozenset({name})) for name in met]
+    for keep, absent in behaviours:
+        changed = [a for a in ADDED if a.name in absent and a.name in met]
         obj = build(lambda p, keep=keep, absent=absent: _identity_dict(p, keep, absent, {}, strict=False))
         if changed and obj != today and obj not in earlier and obj not in [o for o, _ in otherwise]:
             otherwise.append((obj, otherwise_note(changed)))
