@@ -764,3 +764,33 @@ def test_the_alignment_control_refuses_a_pair_whose_match_file_is_corrupt(flight
     bad.write_text('{"format": "sosmatch match v1", "hypotheses": [')
     res = alignment_task(str(root / "A"), str(root / "B"), str(bad), Sim3.identity().to_dict(), Params())
     assert str(bad) in res["refused"]
+
+
+def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path):
+    """The batch marker's identity is the batch's own 16-digit fingerprint (state.fingerprint): an earlier version's
+    identity (here: before quality/changes.min_jpeg_quality existed, every other setting recorded) must be rebuilt
+    with that digest too, else the whole batch is refused after an upgrade (a2d633f)."""
+    import dataclasses
+
+    from sosmatch.database.output_markers import MARKER
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows.batch.state import fingerprint
+
+    root, _ = flights
+    for name in ("A", "B"):
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    out = tmp_path / "out"
+    options = batch.BatchOptions(progress=False, merge=False, changes=False)
+    batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    params = dataclasses.asdict(Params())
+    del params["quality"]["min_jpeg_quality"], params["changes"]["min_jpeg_quality"]
+    earlier = fingerprint({"params": params, "matcher": oracle_pair_task.__qualname__,
+                           **{k: v for k, v in dataclasses.asdict(options).items()
+                              if k not in ("progress", "overwrite", "epsg")}})
+    marker = json.loads((out / MARKER).read_text())
+    today = marker["identity"]
+    assert earlier != today
+    (out / MARKER).write_text(json.dumps({**marker, "identity": earlier}))
+    again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    assert all(s.get("resumed") for s in again.sessions) and again.pairs and all(p.get("resumed") for p in again.pairs)
+    assert json.loads((out / MARKER).read_text())["identity"] == today  # re-marked under today's identity
