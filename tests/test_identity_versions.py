@@ -93,7 +93,7 @@ def test_refusal_names_the_set_that_resumes_only_where_one_does(tmp_path):
     params = Params()  # today's output at the default: a user's value is refused, with the --set that resumes it
     _make_output(tmp_path / "out", identity(params).today)
     other = with_overrides(params, {"quality.min_jpeg_quality": 50.0})
-    with pytest.raises(InputError, match=r"quality.min_jpeg_quality \(since d1c47fd: a warning\); --set "
+    with pytest.raises(InputError, match=r"quality.min_jpeg_quality \(d1c47fd: a warning\); --set "
                                          "quality.min_jpeg_quality=75.0 would resume it"):
         open_output_dir(tmp_path / "out", "changes", identity(other))
     other_maps = identity(other, ("a", "c"))

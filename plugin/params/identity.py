@@ -142,12 +142,14 @@ class IdentityVersions:
 def otherwise_note(changed: list[Added]) -> str:
     """Why an output with the behaviour of before some settings existed (an earlier version's, or one made at their
     neutral values) is another one: those settings, which behave otherwise at their values here, and the `--set`s
-    that would give that behaviour again (and so resume the output)."""
-    said = "; ".join(f"{a.name} (since {a.since}: {a.change})" for a in changed)
+    that would give that behaviour again (and so resume the output). Short: an InputError is cut at 400 characters,
+    so what changes is said for one setting only."""
+    said = (f"{changed[0].name} ({changed[0].since}: {changed[0].change})" if len(changed) == 1 else
+            ", ".join(a.name for a in changed))
     stuck = [a.name for a in changed if a.neutral is NO_NEUTRAL]
     how = (f"no value of {', '.join(stuck)} behaves as before" if stuck else
            " ".join(f"--set {a.name}={json.dumps(a.neutral)}" for a in changed) + " would resume it")
-    return f"one made with the behaviour from before settings that behave otherwise here: {said}; {how}"
+    return f"one made with the behaviour from before {said}; {how}"
 
 
 def identity_eras() -> list[Callable[[Any], dict[str, Any]]]:
