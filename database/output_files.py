@@ -15,7 +15,7 @@ from typing import Any
 from ..plugin.errors import InputError
 from .atomic import atomic_path, write_text_atomic
 from .output_entries import check_not_in_output_entry
-from .output_markers import check_not_input, read_json_or_none, resolved_path, sha256_file
+from .output_markers import VersionedIdentity, check_not_input, read_json_or_none, resolved_path, sha256_file
 from .outputs import check_writable_place
 
 FILES_REGISTRY = ".sosmatch-files.json"
@@ -27,11 +27,13 @@ class OutputFiles:
     """Output files of one run of one command (see the module doc, rule 1): checked when made, before any work,
     and again when each is written."""
 
-    def __init__(self, paths: Iterable[str | Path], command: str, identity: str, *,
+    def __init__(self, paths: Iterable[str | Path], command: str, identity: str | VersionedIdentity, *,
                  inputs: Iterable[str | Path | None] = (), overwrite: bool = False) -> None:
         self.paths = [Path(p) for p in paths]
         self.command = command
-        self.identity = identity
+        # a VersionedIdentity: a file an earlier sosmatch wrote of the same inputs and settings is this output
+        self.versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
+        self.identity = self.versions.today
         self.inputs = list(inputs)
         self.overwrite = overwrite
         if len({resolved_path(p) for p in self.paths}) != len(self.paths):
@@ -54,9 +56,12 @@ class OutputFiles:
             raise InputError(f"output file exists and was not written by `sosmatch {self.command}` (or was changed "
                              "since); sosmatch never replaces what it did not create: remove it or choose another "
                              "name", path)
-        if entry.get("identity") != self.identity and not self.overwrite:
-            raise InputError(f"output file holds a `sosmatch {self.command}` output made from other inputs or "
-                             "settings; use --overwrite to replace it", path)
+        previous = entry.get("identity")
+        if previous != self.identity and previous not in self.versions.same_as and not self.overwrite:
+            note = self.versions.refusal_note(previous)
+            what = f": {note}" if note else " made from other inputs or settings"
+            raise InputError(f"output file holds a `sosmatch {self.command}` output{what}; use --overwrite to "
+                             "replace it", path)
 
     def write(self, path: str | Path, data: bytes | str) -> None:
         """Write one of the output files atomically and record it in its directory's registry."""

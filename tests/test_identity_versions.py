@@ -82,7 +82,7 @@ def test_setting_at_another_value_is_another_output(tmp_path):
     _make_output(tmp_path / "out", old)
     other = with_overrides(params, {"changes.min_jpeg_quality": 50.0})
     assert _changes_identity(other).today != _changes_identity(params).today
-    with pytest.raises(InputError, match="changes.min_jpeg_quality=75.0 would resume it"):
+    with pytest.raises(InputError, match="changes.min_jpeg_quality=75.0 would accept it"):
         open_output_dir(tmp_path / "out", "changes", _changes_identity(other))
 
 
@@ -94,10 +94,10 @@ def test_refusal_names_the_set_that_resumes_only_where_one_does(tmp_path):
     _make_output(tmp_path / "out", identity(params).today)
     other = with_overrides(params, {"quality.min_jpeg_quality": 50.0})
     with pytest.raises(InputError, match=r"quality.min_jpeg_quality \(d1c47fd: a warning\); --set "
-                                         "quality.min_jpeg_quality=75.0 would resume it"):
+                                         "quality.min_jpeg_quality=75.0 would accept it"):
         open_output_dir(tmp_path / "out", "changes", identity(other))
     other_maps = identity(other, ("a", "c"))
-    with pytest.raises(InputError, match="other inputs or settings") as refused:  # no setting would resume it
+    with pytest.raises(InputError, match="other inputs or settings") as refused:  # no setting would accept it
         open_output_dir(tmp_path / "out", "changes", other_maps)
     assert "min_jpeg_quality" not in str(refused.value)
 
@@ -109,7 +109,7 @@ def test_the_named_set_gives_the_neutral_value():
     for added in ADDED:
         if added.neutral is NO_NEUTRAL:
             continue
-        flag = otherwise_note([added]).split("--set ")[1].removesuffix(" would resume it")
+        flag = otherwise_note([added]).split("--set ")[1].removesuffix(" would accept it")
         params = with_overrides(Params(), dict([parse_override(flag)]))
         node = params
         for part in added.name.split("."):
@@ -147,3 +147,27 @@ def test_batch_stage_of_an_earlier_version_resumes(tmp_path):
     done = run_stage(_NoRun(), None, {"A__B": ()}, fps, state, "changes", tmp_path, "x", False)
     assert done["A__B"]["resumed"] and done["A__B"]["n"] == 1
     assert state.get("changes", "A__B", fps["A__B"][0]) is not None  # re-saved under today's fingerprint
+
+
+def test_no_registered_setting_in_the_poses_identity():
+    # workflows/poses/job.identity_of (the sfm section and the seed) builds today's identity only
+    assert not [a.name for a in ADDED if a.name.startswith("sfm.") or a.name == "seed"], (
+        "a registered sfm setting: build workflows/poses/job.identity_of with versioned_identity, so that poses of "
+        "earlier versions resume")
+
+
+def test_a_file_of_an_earlier_version_is_this_output(tmp_path):
+    from sosmatch.database.output_files import OutputFiles
+
+    params = Params()  # check-poses: a file written before min_jpeg_quality existed is the same output
+    old = fingerprint({"params": _without(_without(dataclasses.asdict(params), "quality.min_jpeg_quality"),
+                                          "changes.min_jpeg_quality")})
+    OutputFiles([tmp_path / "check.json"], "check-poses", old).write(tmp_path / "check.json", "{}")
+
+    def identity(p: Params) -> object:
+        return versioned_identity(lambda as_dict: {"params": as_dict(p)})
+
+    OutputFiles([tmp_path / "check.json"], "check-poses", identity(params))  # not refused
+    other = with_overrides(params, {"quality.min_jpeg_quality": 50.0})
+    with pytest.raises(InputError, match="quality.min_jpeg_quality=75.0 would accept it"):
+        OutputFiles([tmp_path / "check.json"], "check-poses", identity(other))

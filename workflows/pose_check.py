@@ -228,12 +228,12 @@ def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, par
     work by `database.output_files.OutputFiles` (never an input such as the pose file, never a file sosmatch did not
     write; one of this command's made from other inputs or settings is replaced only with `overwrite`)."""
     from ..database.output_files import OutputFiles
-    from ..database.output_markers import fingerprint
-    from ..plugin.params import params_to_dict
+    from ..database.output_markers import versioned_identity
 
     sources = sources or {}
     inputs = [Path(v) for v in sources.values() if v] + sorted({Path(p).parent for p in image_paths})
-    identity = fingerprint({"sources": sources, "images": [Path(p).name for p in image_paths],
-                            "params": params_to_dict(params)})
+    # every setting: a file of an earlier sosmatch (before a registered setting) is this one (identity_versions)
+    identity = versioned_identity(lambda as_dict: {"sources": sources, "images": [Path(p).name for p in image_paths],
+                                                   "params": as_dict(params)})
     files = OutputFiles([out], "check-poses", identity, inputs=inputs, overwrite=overwrite)
     return run(image_paths, poses, camera, params, out, refuse=refuse, sources=sources, files=files, epsg=epsg)

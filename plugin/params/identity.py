@@ -148,7 +148,7 @@ def otherwise_note(changed: list[Added]) -> str:
             ", ".join(a.name for a in changed))
     stuck = [a.name for a in changed if a.neutral is NO_NEUTRAL]
     how = (f"no value of {', '.join(stuck)} behaves as before" if stuck else
-           " ".join(f"--set {a.name}={json.dumps(a.neutral)}" for a in changed) + " would resume it")
+           " ".join(f"--set {a.name}={json.dumps(a.neutral)}" for a in changed) + " would accept it")
     return f"one made with the behaviour from before {said}; {how}"
 
 
