@@ -177,6 +177,12 @@ def build_versions(build: Callable[[Callable[[Any], dict[str, Any]]], Any]) -> l
     return out
 
 
+def each_version(make: Callable[..., Any], *parts: list[Any]) -> list[Any]:
+    """A chained identity per version: `make(*each version's parts)` over lists in `build_versions` order (the
+    chain's earlier links); None where a version cannot have made one of the parts."""
+    return [None if any(p is None for p in ps) else make(*ps) for ps in zip(*parts)]
+
+
 def identity_versions(build: Callable[[Callable[[Any], dict[str, Any]]], Any]) -> IdentityVersions:
     """`build(as_dict)` -> an identity object, each Params or section in it given as `as_dict(section)`: built
     with `params_identity` (today), and as each earlier version built it (`identity_eras`)."""

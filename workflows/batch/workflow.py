@@ -25,7 +25,7 @@ from ...plugin.multisession import (
     spanning_transforms,
 )
 from ...plugin.params import Params, mapping_params, params_to_dict
-from ...plugin.params.identity import build_versions
+from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_signature, images_dir
 from .report import BatchReport, write_report
@@ -167,11 +167,10 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     for a, b in chosen:
         key = f"{a}{PAIR_SEP}{b}"
         # what `sosmatch match` depends on (its own identity: both maps, association, verification, seed)
-        pair_fps[key] = [None if fa is None or fb is None or sections is None else fingerprint(
+        pair_fps[key] = each_version(lambda fa, fb, sections: fingerprint(
             {"a": fa, "b": fb, "association": sections[0], "verification": sections[1], "seed": pdict["seed"],
-             "matcher": matcher.__qualname__, "verify": verify})
-            for fa, fb, sections in zip(fps[a], fps[b], build_versions(
-                lambda as_dict: (as_dict(params.association), as_dict(params.verification))))]
+             "matcher": matcher.__qualname__, "verify": verify}),
+            fps[a], fps[b], build_versions(lambda as_dict: (as_dict(params.association), as_dict(params.verification))))
         pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
         if matcher is pair_task:
             pair_tasks[key] += (verify, options.overwrite)
@@ -332,11 +331,10 @@ def _graph_and_merge(
         pos = {m: k for k, m in enumerate(order)}
         tree_edges = [(pos[e.a], pos[e.b], _associations_file(pairs[edge_keys[(e.a, e.b)]])) for e in tree]
         key = names[ref]
-        per_version = zip(*[pair_fps[edge_keys[(e.a, e.b)]] for e in tree])  # each version's pair fps
-        merge_fps[key] = [None if None in prints else fingerprint(
-            {"members": [names[m] for m in order],  # contents: in the pair fps
-             "pairs": list(prints), "transforms": [ref_from[m].to_dict() for m in order],
-             "eps": params.association.distance_tolerance_m}) for prints in per_version]
+        group_fp = {"members": [names[m] for m in order], "transforms": [ref_from[m].to_dict() for m in order],
+                    "eps": params.association.distance_tolerance_m}  # contents: in the pair fps
+        merge_fps[key] = each_version(lambda *prints, g=group_fp: fingerprint({**g, "pairs": list(prints)}),
+                                      *[pair_fps[edge_keys[(e.a, e.b)]] for e in tree])
         merge_tasks[key] = (
             [sessions[names[m]]["session"] for m in order], [names[m] for m in order],
             [ref_from[m].to_dict() for m in order], tree_edges, str(out_dir / "merged" / key),
@@ -368,9 +366,7 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
     for key, sim in sims.items():
         a, b = key.split(PAIR_SEP)
         transform = sim.to_dict()
-        fps[key] = [None if pair is None or chg is None else fingerprint(
-            {"pair": pair, "transform": transform, "changes": chg, "eps": params.association.distance_tolerance_m})
-            for pair, chg in zip(pair_fps[key], build_versions(lambda as_dict: as_dict(params.changes)))]
+        fps[key] = _after_pair_fingerprints(pair_fps[key], transform, params)
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(pairs[key]["match"]), transform, params,
                       matches[key])
     done = run_stage(executor, alignment_task, tasks, fps, state, "control", out_dir, "control alignments",
@@ -387,6 +383,14 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
             log.warning("pair %s refused: %s", key, why)
 
 
+def _after_pair_fingerprints(pair: list[str | None], transform: dict[str, Any], params: Params) -> list[str | None]:
+    """Each version's fingerprint of a stage on an accepted pair (its control, its changes): the pair's, the
+    transform, the changes section and theta_eps."""
+    return each_version(lambda fp, changes: fingerprint(
+        {"pair": fp, "transform": transform, "changes": changes, "eps": params.association.distance_tolerance_m}),
+        pair, build_versions(lambda as_dict: as_dict(params.changes)))
+
+
 def _valid_changes(done: dict[str, Any]) -> bool:
     return Path(done.get("changes", "")).is_file()
 
@@ -401,10 +405,7 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
         if rec["status"] != "done" or not rec.get("accepted") or not rec.get("in_graph") or not rec.get("transform"):
             continue
         a, b = key.split(PAIR_SEP)
-        fps[key] = [None if pair is None or chg is None else fingerprint(
-            {"pair": pair, "transform": rec["transform"], "changes": chg,
-             "eps": params.association.distance_tolerance_m})
-            for pair, chg in zip(pair_fps[key], build_versions(lambda as_dict: as_dict(params.changes)))]
+        fps[key] = _after_pair_fingerprints(pair_fps[key], rec["transform"], params)
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
                       rec["transform"], params, True, rec.get("answer") == "verified",  # the batch's own, as merge
                       *(None if images[n] is None else str(images[n]) for n in (a, b)),
