@@ -272,6 +272,24 @@ def write_pose_priors(database: Path, priors: ImagePriors, origin: np.ndarray, p
     return written
 
 
+def publish_database(database: Path, target: Path) -> None:
+    """Move COLMAP's database `database` to `target` as a compacted copy whose bytes depend on its content alone.
+    COLMAP's extraction and matching threads write the rows in the order they finish, so the pages of the same
+    content lay out differently run to run (40 Seneca frames: 4 runs, 4 files, the same rows); SQLite's
+    `VACUUM INTO` rewrites every table in key order (167 Seneca frames, 55 MB: 0.2 s)."""
+    import sqlite3
+
+    tmp = target.with_name(target.name + ".tmp")
+    tmp.unlink(missing_ok=True)
+    db = sqlite3.connect(database)  # only read: VACUUM INTO leaves its source as it is
+    try:
+        db.execute("VACUUM INTO ?", (str(tmp),))
+    finally:
+        db.close()
+    tmp.replace(target)
+    database.unlink()
+
+
 @dataclass
 class SfmModel:
     """The largest reconstruction and what became of every image."""

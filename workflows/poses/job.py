@@ -262,7 +262,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     epsg = priors.epsg if geo is not None else 0
     write_text_atomic(tmp / "poses.csv", format_poses_csv(poses, epsg))
     write_text_atomic(tmp / "cameras.txt", format_cameras_txt(cameras))
-    os.replace(db, tmp / "database.db")  # the work directory's copy is not needed any more
+    sfm.publish_database(db, tmp / "database.db")  # the work directory's copy is not needed any more
     timings["total"] = time.perf_counter() - t0
     report = {
         "format": "sosmatch-poses", "version": 1,
