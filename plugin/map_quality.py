@@ -361,7 +361,7 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
     (blank keyframes, noise, blur) rather than the poses."""
     v = Verdict()
     causes = image_causes(images, limits.min_image_contrast_to_noise, limits.min_image_sharpness,
-                          limits.min_jpeg_quality)
+                          limits.min_jpeg_quality, limits.max_motion_smear_px)
     blank = blank_warning(images, q.keyframes)
     if blank:
         v.warnings.append(blank)

@@ -277,6 +277,12 @@ class QualityParams(Checked):
     # 181, 60 173, 50 188, 40 177, 25 152, 15 160 (seed 3: 218 at 88, 164 at 20); below 75 its comparison with a
     # clean session also made false claims (`ChangeParams.min_jpeg_quality`). Cameras write 90-97 (Seneca 90)
     min_jpeg_quality: float = within(75.0, 0.0, 100.0)
+    # the flight's smear along its track (`plugin.motion_blur`, working px, median of the keyframes; 0: never
+    # said). A ground texture whose detail fades smoothly along the track fits at most ~2 px; clean flights (10
+    # synthetic worlds, turned and reversed lawnmowers, freeform; nu21/nu22 outputs) 0-0.5, world 7 B with a linear
+    # blur along the track of 3 / 6 / 12 full px (x 0.625 to working px) 1.75 / 3.5 / 7.5 (12 px: 120 of 205
+    # landmarks, and false change claims against a clean session: `ChangeParams.max_motion_smear_px`)
+    max_motion_smear_px: float = within(2.0, 0.0, None)
     refuse: bool = flag(True)  # False: a map beyond the limits is kept with a loud warning (run.json says so)
 
 

@@ -38,7 +38,7 @@ from .inputs import (
     require_keyframes,
     sources_from_session,
 )
-from .keyframes import CACHE_VERSION, cached_descriptors, cached_image_figures, describe_keyframes
+from .keyframes import CACHE_VERSION, cached_descriptors, cached_image_figures, cached_motion_smears, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
 
@@ -284,7 +284,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     descriptors = cached_descriptors(partial / "cache", kf_poses.names)
     # the JPEG quality from the files' headers: compression fools the image figures (`plugin.jpeg_quality`)
     images = flight_images(cached_image_figures(partial / "cache", kf_poses.names), kf_poses.names,
-                           flight_compression(inputs.image_paths))
+                           flight_compression(inputs.image_paths),
+                           cached_motion_smears(partial / "cache", kf_poses.names))
     timings["keyframes"] = time.perf_counter() - t
 
     from ..progress import progress_bar
