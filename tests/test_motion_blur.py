@@ -77,3 +77,21 @@ def test_the_verdict_names_a_smeared_flight_and_records_it(flight):
     clean = flight_images(figures, ["k"] * len(grays), None, [motion_smear(g, SIDE, d) for g, d in zip(grays, dirs)])
     assert image_causes(clean, 3.0, 0.15, 75.0, 2.0) == []
     assert flight_images(figures, ["k"] * len(grays)).to_dict()["motion_smear_px"] is None  # not measured
+
+
+def test_changes_names_the_claims_a_smeared_session_puts_in_doubt(tmp_path):
+    import json
+    from types import SimpleNamespace
+
+    from sosmatch.plugin.changes import GONE, NEW
+    from sosmatch.workflows.changes import blur_note, session_smear
+
+    (tmp_path / "run.json").write_text(json.dumps({"quality": {"images": {"motion_smear_px": 7.5}}}))
+    assert session_smear(tmp_path) == 7.5
+    assert np.isnan(session_smear(tmp_path / "nothing"))  # a map made before the smear was recorded
+    result = SimpleNamespace(a=SimpleNamespace(label=np.array([GONE, 0])), b=SimpleNamespace(label=np.array([NEW])),
+                             tracks_a=None, tracks_b=None)
+    note = blur_note(result, "B", "maps/B", 7.5, 2.0)
+    assert "motion-blurred (the ground smeared 7.5 working px" in note and "2 landmark(s) (gone A#0, new B#0)" in note
+    assert blur_note(result, "B", "maps/B", 0.5, 2.0) == ""  # a clean flight
+    assert blur_note(result, "B", "maps/B", float("nan"), 2.0) == ""  # not recorded: nothing said

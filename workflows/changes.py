@@ -179,6 +179,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         if (note := compression_note(result, name, path, session_compression(files.path, d),
                                      params.changes.min_jpeg_quality)):
             warnings.append(note)
+        if (note := blur_note(result, name, path, session_smear(files.path), params.changes.max_motion_smear_px)):
+            warnings.append(note)
     for name in result.without_relief:
         path = session_a if name == "A" else session_b
         warnings.append(f"the images of {path} (session {name} of the comparison) show no relief at its reference "
@@ -266,12 +268,9 @@ def compression_note(result: ChangeResult, name: str, path: str | Path, compress
     calibrated on the pair's own kept landmarks, which compression leaves alike, so they cannot show it."""
     if compression is None or not compression.below(min_quality):
         return ""
-    claims = [f"gone A#{i}" for i in np.flatnonzero(result.a.label == GONE)] + \
-        [f"new B#{i}" for i in np.flatnonzero(result.b.label == NEW)]
-    unmapped = sum(t.count(c) for t, c in ((result.tracks_a, GONE), (result.tracks_b, NEW)) if t is not None)
+    claims, shown, unmapped = _claims(result)
     if not claims and not unmapped:
         return ""
-    shown = ", ".join(claims[:8]) + (", ..." if len(claims) > 8 else "")
     return (f"the images of {path} (session {name} of the comparison) are heavily JPEG-compressed (quality "
             f"{compression.quality:.0f}, below {min_quality:g}): compression hides small objects from its segments "
             f"and cuts its ground into block-shaped segments that are mapped as objects, so its claims may be "
@@ -279,6 +278,42 @@ def compression_note(result: ChangeResult, name: str, path: str | Path, compress
             + (f" and {unmapped} object(s) never mapped" if unmapped else "")
             + f" (a pair of world 7 where nothing changed made 1-11 such claims at confidences up to 0.999 at "
               f"qualities 15-60, none at 75 and 88); compare images written at quality {min_quality:g} or more")
+
+
+def _claims(result: ChangeResult) -> tuple[list[str], str, int]:
+    """The gone and new landmark claims ("gone A#3"), the first of them shown, and the objects never mapped."""
+    claims = [f"gone A#{i}" for i in np.flatnonzero(result.a.label == GONE)] + \
+        [f"new B#{i}" for i in np.flatnonzero(result.b.label == NEW)]
+    unmapped = sum(t.count(c) for t, c in ((result.tracks_a, GONE), (result.tracks_b, NEW)) if t is not None)
+    return claims, ", ".join(claims[:8]) + (", ..." if len(claims) > 8 else ""), unmapped
+
+
+def session_smear(session: Path) -> float:
+    """A mapped session's smear along its track (working px) as its run.json records it
+    (`quality.images.motion_smear_px`, `plugin.motion_blur`); NaN when not recorded (maps made before it was)."""
+    try:
+        v = (read_map_record(session) or {})["quality"]["images"]["motion_smear_px"]
+        return float("nan") if v is None else float(v)
+    except (InputError, ValueError, KeyError, TypeError):
+        return float("nan")
+
+
+def blur_note(result: ChangeResult, name: str, path: str | Path, smear_px: float, max_smear_px: float) -> str:
+    """The warning for a session smeared along its track beyond `max_smear_px` (`ChangeParams.max_motion_smear_px`),
+    naming the claims it puts in doubt, "" otherwise. A smear merges small objects with their surroundings (gone
+    from its segments) and splits or displaces others along the track, as compression does (`compression_note`);
+    the confidences, calibrated on the pair's kept landmarks, cannot show it."""
+    if not (max_smear_px > 0 and np.isfinite(smear_px) and smear_px > max_smear_px):
+        return ""
+    claims, shown, unmapped = _claims(result)
+    if not claims and not unmapped:
+        return ""
+    return (f"the images of {path} (session {name} of the comparison) are motion-blurred (the ground smeared "
+            f"{smear_px:.1f} working px along the track, above {max_smear_px:g}): the smear hides small objects "
+            f"from its segments and merges or splits others, so its claims may be artefacts, not changes: "
+            f"{len(claims)} landmark(s) ({shown})" + (f" and {unmapped} object(s) never mapped" if unmapped else "")
+            + " (world 7, nothing changed, a 12 px blur along the track (7.5 working px): 4 false claims at high "
+              "confidence); compare a flight with a shorter exposure or a slower speed")
 
 
 def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: Sim3, params: Params, verified: bool,

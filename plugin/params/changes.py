@@ -74,6 +74,11 @@ class ChangeParams(Checked):
     # 1 + 10, 25 1 + 0 (re-encoded from 88: 3 + 3), 40 0 + 3, 50 1 + 1, 60 1 + 3 (confidences to 0.999); none at 75
     # and 88; seed 3 at 20 3 + 1. Cameras write 90-97 (Seneca 90)
     min_jpeg_quality: float = within(75.0, 0.0, 100.0)
+    # (ours) A session whose images are smeared along its track by more than this (working px, as its run.json
+    # records it: `plugin.motion_blur`, `QualityParams.max_motion_smear_px`; 0: never said) has its claims named
+    # as doubtful. World 7, nothing changed, B blurred 12 px along the track (7.5 working px) against A: 4 false
+    # claims at high confidence; clean flights measure 0-0.5
+    max_motion_smear_px: float = within(2.0, 0.0, None)
     # (ours) The surface heights as evidence (`plugin.changes.surface`): at each tested landmark (compared, no
     # counterpart) each session's surface height above the local ground from its own keyframes alone (a plane
     # sweep of a 2 m patch in `surface_views` keyframes of wide baselines, registered on the ground around the
