@@ -40,6 +40,11 @@ _MODELS = np.log10((np.sinc(_LENGTHS[:, None, None] * _F[None, None, :]) ** 2 + 
 _MIN_EXPLAINED = 0.5
 # a frame smaller than this (working px) holds too few bands of each direction to fit
 _MIN_SIDE = 32
+#: the directions measured per image (`smears_by_angle`), every 180 / ANGLES degrees: the motion's direction comes
+#: from the poses, which enter no cache key of the image, so each keyframe's entry holds the smear along every bin
+#: and a run with other poses picks another bin, as a fresh run would. 3 degrees: a 16 px smear measured 1.5
+#: degrees off its direction moves 0.4 px across it
+ANGLES = 60
 
 
 def motion_directions(poses: Poses) -> np.ndarray:
@@ -60,39 +65,29 @@ def motion_directions(poses: Poses) -> np.ndarray:
     return out
 
 
-def _band_spectra(g: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The windowed power spectrum of `g` summed into `_BANDS` bands of |f| along `direction` and across it,
-    over the same disc, so an isotropic image gives P = Q."""
+def _band_spectra(g: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """The windowed power spectrum of `g` summed into `_BANDS` bands of |f| along each of `directions` ((D, 2)
+    unit vectors), over the disc |f| <= 0.5, so an isotropic image gives the same bands along every direction.
+    Returns (D, bands); the spectrum is taken once (the half plane fx >= 0: a real image's is symmetric)."""
     g = g - g.mean()
     h, w = g.shape
-    spec = np.abs(np.fft.fft2(g * np.outer(np.hanning(h), np.hanning(w)))) ** 2
+    spec = np.abs(np.fft.rfft2(g * np.outer(np.hanning(h), np.hanning(w)))) ** 2
     fy = np.fft.fftfreq(h)[:, None]
-    fx = np.fft.fftfreq(w)[None, :]
+    fx = np.fft.rfftfreq(w)[None, :]
     r = np.hypot(fx, fy)
     inside = (r <= 0.5) & (r > 0)
     power = spec[inside]
-    out = []
-    for proj in (np.abs(fx * direction[0] + fy * direction[1]), np.abs(fy * direction[0] - fx * direction[1])):
-        band = np.minimum((proj[inside] / 0.5 * _BANDS).astype(int), _BANDS - 1)
-        out.append(np.bincount(band, power, _BANDS) / np.maximum(np.bincount(band, None, _BANDS), 1))
-    return out[0], out[1]
+    fx, fy = np.broadcast_to(fx, r.shape)[inside], np.broadcast_to(fy, r.shape)[inside]
+    out = np.empty((len(directions), _BANDS))
+    for i, (dx, dy) in enumerate(np.asarray(directions, np.float64)):
+        band = np.minimum((np.abs(fx * dx + fy * dy) * (2 * _BANDS)).astype(int), _BANDS - 1)
+        out[i] = np.bincount(band, power, _BANDS) / np.maximum(np.bincount(band, None, _BANDS), 1)
+    return out
 
 
-def motion_smear(gray: np.ndarray, max_side: int, direction: np.ndarray | None) -> float:
-    """The smear (working px) of an 8-bit grey image along `direction` (unit image-plane vector of the camera's
-    motion, `motion_directions`), at the working size `max_side` (area downscale); NaN when the direction is
-    unknown, the frame too small or without contrast."""
-    import cv2
-
-    if direction is None or not np.all(np.isfinite(direction)):
-        return float("nan")
-    g = np.asarray(gray, np.float32)
-    scale = max_side / max(g.shape[:2])
-    if scale < 1.0:
-        g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    if min(g.shape[:2]) < _MIN_SIDE or float(g.std()) < 1e-3:
-        return float("nan")
-    p, q = _band_spectra(g.astype(np.float64), np.asarray(direction, np.float64))
+def _fit_smear(p: np.ndarray, q: np.ndarray) -> float:
+    """The smear (px) that the along / across band spectra `p`, `q` show; 0 when no smear explains enough of
+    their ratio, NaN when a band holds no power."""
     if not (np.all(p > 0) and np.all(q > 0)):
         return float("nan")
     y = np.log10(p / q)
@@ -102,6 +97,52 @@ def motion_smear(gray: np.ndarray, max_side: int, direction: np.ndarray | None) 
     if err[li].min() > (1.0 - _MIN_EXPLAINED) * err[0].min():
         return 0.0
     return float(_LENGTHS[li])
+
+
+def angle_directions() -> np.ndarray:
+    """(`ANGLES`, 2) the unit image-plane directions (x right, y down) at which `smears_by_angle` measures: bin i
+    is i * 180 / `ANGLES` degrees from the image's x axis (a smear has no sign, so half a turn covers all)."""
+    a = np.deg2rad(np.arange(ANGLES) * 180.0 / ANGLES)
+    return np.stack([np.cos(a), np.sin(a)], axis=1)
+
+
+def smears_by_angle(gray: np.ndarray, max_side: int) -> np.ndarray:
+    """(`ANGLES`,) the smear (working px) of an 8-bit grey image along each direction of `angle_directions`, at the
+    working size `max_side` (area downscale); all NaN when the frame is too small or without contrast.
+
+    What depends on the image alone, so that a keyframe's cache entry holds it whatever the poses say:
+    `smear_along` picks the direction of the camera's motion from it."""
+    import cv2
+
+    g = np.asarray(gray, np.float32)
+    scale = max_side / max(g.shape[:2])
+    if scale < 1.0:
+        g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    if min(g.shape[:2]) < _MIN_SIDE or float(g.std()) < 1e-3:
+        return np.full(ANGLES, np.nan)
+    # the bins are half a turn: the one across bin i is bin i + ANGLES / 2
+    p = _band_spectra(g.astype(np.float64), angle_directions())
+    return np.array([_fit_smear(p[i], p[(i + ANGLES // 2) % ANGLES]) for i in range(ANGLES)])
+
+
+def smear_along(by_angle: np.ndarray, direction: np.ndarray | None) -> float:
+    """The smear (working px) along `direction` (unit image-plane vector of the camera's motion,
+    `motion_directions`) from a keyframe's `smears_by_angle`: the nearest angle bin's; NaN when the direction is
+    unknown or the image was not measured."""
+    by_angle = np.asarray(by_angle, np.float64).reshape(-1)
+    if direction is None or not np.all(np.isfinite(direction)) or len(by_angle) != ANGLES:
+        return float("nan")
+    deg = float(np.degrees(np.arctan2(direction[1], direction[0]))) % 180.0
+    return float(by_angle[int(np.floor(deg / (180.0 / ANGLES) + 0.5)) % ANGLES])
+
+
+def motion_smear(gray: np.ndarray, max_side: int, direction: np.ndarray | None) -> float:
+    """The smear (working px) of an 8-bit grey image along `direction` (unit image-plane vector of the camera's
+    motion, `motion_directions`), at the working size `max_side` (area downscale), measured along the nearest
+    angle bin (`smears_by_angle`); NaN when the direction is unknown, the frame too small or without contrast."""
+    if direction is None or not np.all(np.isfinite(direction)):
+        return float("nan")
+    return smear_along(smears_by_angle(gray, max_side), direction)
 
 
 def flight_smear(smears: np.ndarray) -> float:

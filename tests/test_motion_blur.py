@@ -95,3 +95,40 @@ def test_changes_names_the_claims_a_smeared_session_puts_in_doubt(tmp_path):
     assert "motion-blurred (the ground smeared 7.5 working px" in note and "2 landmark(s) (gone A#0, new B#0)" in note
     assert blur_note(result, "B", "maps/B", 0.5, 2.0) == ""  # a clean flight
     assert blur_note(result, "B", "maps/B", float("nan"), 2.0) == ""  # not recorded: nothing said
+
+
+def test_a_cached_keyframe_gives_the_smear_along_the_new_poses_motion_as_a_fresh_run_does(flight, tmp_path):
+    """The direction of motion comes from the poses, which enter no cache key: a map re-run with other poses for
+    the same images (`--overwrite` with a new pose file) must read the smear along its own direction, not the one
+    measured along the first poses' (same inputs -> same outputs, with or without a cache)."""
+    from sosmatch.database.cameras import write_cameras_txt
+    from sosmatch.database.poses import write_poses_csv
+    from sosmatch.plugin.geometry import Camera, Poses
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows import map as map_workflow
+    from sosmatch.workflows.map.keyframes import cached_motion_smears
+
+    grays, _ = flight
+    names = [f"f{i:03d}.jpg" for i in range(len(grays))]
+    (tmp_path / "images").mkdir()
+    for name, g in zip(names, grays):  # smeared 8 px along the image's x axis
+        cv2.imwrite(str(tmp_path / "images" / name), _smeared(g, np.array([1.0, 0.0]), 8),
+                    [cv2.IMWRITE_JPEG_QUALITY, 95])
+    write_cameras_txt(tmp_path / "cameras.txt", {1: Camera(320, 240, 256.0, 256.0, 160.0, 120.0)})
+    centers = np.stack([np.arange(len(names)) * 8.0, np.zeros(len(names)), np.full(len(names), 60.0)], 1)
+    nadir = np.diag([1.0, -1.0, -1.0])  # camera x along the world's x: the motion is along the image's x
+    turned = nadir @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # ... along its y
+    keyframes = np.arange(len(names))
+
+    def smears(rotation: np.ndarray, cache: str) -> np.ndarray:
+        poses = Poses(names, np.repeat(rotation[None], len(names), 0), centers)
+        write_poses_csv(tmp_path / "poses.csv", poses)
+        inputs = map_workflow.load_inputs(tmp_path / "images", tmp_path / "poses.csv", tmp_path / "cameras.txt")
+        map_workflow.describe_keyframes(inputs, keyframes, Params(), tmp_path / cache, "key", progress=False)
+        return cached_motion_smears(tmp_path / cache, names, motion_directions(poses))
+
+    along = smears(nadir, "reused")
+    reused = smears(turned, "reused")  # every keyframe from the cache the first poses filled
+    fresh = smears(turned, "fresh")
+    assert abs(flight_smear(along) - 8) <= 1.6 and flight_smear(fresh) < 1.0
+    assert np.array_equal(reused, fresh, equal_nan=True)

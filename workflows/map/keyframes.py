@@ -19,8 +19,8 @@ from .inputs import MapInputs
 
 log = logging.getLogger(__name__)
 
-CACHE_VERSION = 4  # 2: image motion measured between undistorted track ends (lens cameras); 3: image figures;
-# 4: motion smear
+CACHE_VERSION = 5  # 2: image motion measured between undistorted track ends (lens cameras); 3: image figures;
+# 4: motion smear; 5: the smear along every direction (the poses' direction of motion enters no key)
 
 
 def _cache_path(cache_dir: Path, k: int, name: str) -> Path:
@@ -43,13 +43,14 @@ def _load_cached(path: Path, key: str) -> tuple[Any, tuple[float, float]] | None
 
 
 def _save_cached(path: Path, key: str, feats: Any, motion: tuple[float, float],
-                 figures: np.ndarray | None = None, smear: float = float("nan")) -> None:
+                 figures: np.ndarray | None = None, smears: np.ndarray | None = None) -> None:
     # Optional fields that are None become object arrays, which np.load refuses without pickle: leave them out.
     arrays = {"feat_" + k: v for k, v in feats.to_npz_dict().items() if v.dtype != object}
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             extra = {} if figures is None else {"image_figures": np.asarray(figures, np.float64)}
-            extra["motion_smear"] = np.array(smear, np.float64)
+            if smears is not None:
+                extra["motion_smears_by_angle"] = np.asarray(smears, np.float64)
             np.savez(f, cache_key=np.array(key), motion=np.array(motion, dtype=np.float64), **extra, **arrays)
 
 
@@ -79,14 +80,19 @@ def cached_image_figures(cache_dir: Path, names: Sequence[str]) -> list[np.ndarr
     return out
 
 
-def cached_motion_smears(cache_dir: Path, names: Sequence[str]) -> np.ndarray:
-    """Per keyframe, its smear along the motion (`plugin.motion_blur.motion_smear`, working px) from the cache
-    entry that `describe_keyframes` validated or wrote; NaN where the entry holds none."""
+def cached_motion_smears(cache_dir: Path, names: Sequence[str], directions: np.ndarray) -> np.ndarray:
+    """Per keyframe, its smear along its direction of motion (`directions[k]`, `plugin.motion_blur.
+    motion_directions` of the keyframes' poses; working px) from the smears along every direction that the cache
+    entry `describe_keyframes` validated or wrote holds (`plugin.motion_blur.smears_by_angle`); NaN where the entry
+    holds none or the direction is unknown. The entry depends on the image alone, so other poses for the same
+    images read the smear along their own direction, as a fresh run would."""
+    from ...plugin.motion_blur import smear_along
+
     out = np.full(len(names), np.nan)
     for k, name in enumerate(names):
         try:
             with np.load(_cache_path(cache_dir, k, name), allow_pickle=False) as data:
-                out[k] = float(data["motion_smear"])
+                out[k] = smear_along(data["motion_smears_by_angle"], directions[k])
         except (OSError, KeyError, ValueError, EOFError):
             pass
     return out
@@ -102,7 +108,6 @@ def _describe_one(
     camera: Camera | None = None,
     white: int | None = None,
     contrast: Any = None,
-    direction: np.ndarray | None = None,
 ) -> tuple[Any, tuple[float, float], np.ndarray]:
     """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
 
@@ -116,7 +121,7 @@ def _describe_one(
     from ...plugin.image_quality import image_figures
     from ...plugin.mask_features import describe_masks, segment_and_describe, to_gray_u8
     from ...plugin.motion import image_motion_stats
-    from ...plugin.motion_blur import motion_smear
+    from ...plugin.motion_blur import smears_by_angle
     from ...plugin.segmentation import get_backend
 
     image = read_image(path, white)
@@ -143,8 +148,9 @@ def _describe_one(
     # noise and sharpness as the segmenter sees them (its working size), from the grey image already decoded
     working = min(seg.classical_max_side, max(size))
     figures = image_figures(gray, working)
-    # the smear along the track, which the isotropic sharpness above barely sees (`plugin.motion_blur`)
-    _save_cached(entry, key, feats, mu_sigma, figures, motion_smear(gray, working, direction))
+    # the smear along every direction (the track's, from the poses, is picked by `cached_motion_smears`), which
+    # the isotropic sharpness above barely sees (`plugin.motion_blur`)
+    _save_cached(entry, key, feats, mu_sigma, figures, smears_by_angle(gray, working))
     return feats, mu_sigma, gray
 
 
@@ -195,7 +201,6 @@ def describe_keyframes(
     from dataclasses import replace
 
     from ...database.images import flight_white_level
-    from ...plugin.motion_blur import motion_directions
     from ..progress import progress_bar
 
     def kept(feats: Any) -> Any:  # what this call returns of a keyframe's description
@@ -210,7 +215,6 @@ def describe_keyframes(
     if contrast is not None and contrast.stretched:  # (a flight at gain 1 keeps its cache keys)
         cache_key = f"{cache_key}:contrast{contrast.gain:.6f}:{contrast.centre:.3f}:{contrast.range:.3f}"
     results: list[tuple[Any, tuple[float, float]] | None] = [None] * len(keyframes)
-    directions = motion_directions(inputs.poses.subset(keyframes))
     todo = []
     for k, idx in enumerate(keyframes):
         name = inputs.poses.names[idx]
@@ -225,7 +229,6 @@ def describe_keyframes(
         else:
             prev_path = inputs.image_paths[keyframes[k - 1]] if k else None
             todo.append((k, inputs.image_paths[idx], prev_path, entry, key))
-    # the direction enters no cache key: new poses for the same images seldom turn a keyframe's track
     cached = len(keyframes) - len(todo)
     bar = progress_bar(len(keyframes), "keyframes", "kf", progress, initial=cached)
     if workers <= 1 or len(todo) <= 1:
@@ -233,7 +236,7 @@ def describe_keyframes(
         for k, path, prev_path, entry, key in todo:
             feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
                                                   prev_gray if prev_k == k - 1 else None, masks_for, inputs.camera,
-                                                  white, contrast, directions[k])
+                                                  white, contrast)
             results[k] = (kept(feats), mu_sigma)
             prev_gray, prev_k = gray, k
             bar.update()
@@ -245,7 +248,7 @@ def describe_keyframes(
         # spawn (no fork of a process holding pycolmap/OpenCV threads); the workers die with this process
         with process_pool(workers, _worker_init) as pool:
             futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for,
-                                              inputs.camera, white, contrast, directions[k]))
+                                              inputs.camera, white, contrast))
                        for k, path, prev_path, entry, key in todo]
             try:
                 for k, fut in futures:

@@ -252,6 +252,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     from ...plugin.jpeg_quality import flight_compression
     from ...plugin.keyframes import select_keyframes
     from ...plugin.mask_features import undistort_features
+    from ...plugin.motion_blur import motion_directions
     from ...plugin.tracking import track_masks
     from ..triangulation import triangulate_landmarks
 
@@ -285,7 +286,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     # the JPEG quality from the files' headers: compression fools the image figures (`plugin.jpeg_quality`)
     images = flight_images(cached_image_figures(partial / "cache", kf_poses.names), kf_poses.names,
                            flight_compression(inputs.image_paths),
-                           cached_motion_smears(partial / "cache", kf_poses.names))
+                           cached_motion_smears(partial / "cache", kf_poses.names, motion_directions(kf_poses)))
     timings["keyframes"] = time.perf_counter() - t
 
     from ..progress import progress_bar
