@@ -5,7 +5,7 @@
   (GPSAltitude, negative when GPSAltitudeRef is 1), GPSTrack (course over ground, degrees from north) if present;
 - camera (EXIF IFD 0x8769): FocalLength (mm), FocalPlaneX/YResolution with their unit (pixels per inch or cm),
   the image size those refer to (ExifImageWidth/Height: the sensor readout, often larger than the file when
-  images were downscaled after capture), Make/Model;
+  images were downscaled after capture), Make/Model, ExposureTime (s);
 - capture time: DateTimeOriginal + SubSecTimeOriginal (`capture_time_s`, seconds since 1970 in the camera's
   clock; only differences matter);
 - XMP: every simple property of every rdf:Description of the x:xmpmeta packet(s) in the JPEG's APP1 segments
@@ -45,6 +45,7 @@ TAG_MAKE, TAG_MODEL = 0x010F, 0x0110
 TAG_FOCAL_LENGTH = 0x920A
 TAG_FOCAL_35MM = 0xA405
 TAG_DIGITAL_ZOOM = 0xA404
+TAG_EXPOSURE_TIME = 0x829A
 TAG_FP_XRES, TAG_FP_YRES, TAG_FP_UNIT = 0xA20E, 0xA20F, 0xA210
 TAG_EXIF_WIDTH, TAG_EXIF_HEIGHT = 0xA002, 0xA003
 TAG_DATETIME_ORIGINAL = 0x9003
@@ -75,6 +76,7 @@ class ImageMetadata:
     focal_plane_px_per_mm: tuple[float, float] | None = None  # (x, y) from FocalPlaneX/YResolution and unit
     exif_size: tuple[int, int] | None = None  # the size FocalPlane*Resolution refers to
     digital_zoom: float | None = None  # EXIF DigitalZoomRatio > 1: the readout's middle scaled up by it
+    exposure_s: float | None = None  # EXIF ExposureTime (s): how long the ground moved across the sensor
     make: str = ""
     model: str = ""
     datetime_original: str = ""  # EXIF "YYYY:MM:DD HH:MM:SS"
@@ -304,6 +306,8 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
             meta.focal_35mm = meta.focal_35mm if meta.focal_35mm and meta.focal_35mm > 0 else None
     zoom = _float(sub.get(TAG_DIGITAL_ZOOM))  # 0: no digital zoom (EXIF), and only a ratio above 1 zooms
     meta.digital_zoom = zoom if zoom is not None and math.isfinite(zoom) and 1.0 < zoom <= 100.0 else None
+    exposure = _float(sub.get(TAG_EXPOSURE_TIME))  # (1 min: longer is no survey frame)
+    meta.exposure_s = exposure if exposure is not None and math.isfinite(exposure) and 0 < exposure <= 60 else None
     xres, yres = _float(sub.get(TAG_FP_XRES)), _float(sub.get(TAG_FP_YRES))
     unit = sub.get(TAG_FP_UNIT, 2)  # EXIF default unit: inch
     if xres and xres > 0 and unit in MM_PER_UNIT:

@@ -75,12 +75,14 @@ def _blank(noise_dn: float, contrast_dn: float) -> bool:
 class FlightImages:
     """The keyframes' image figures (K, 3: `FIGURES`, NaN where not measured) and their names; `compression`: the
     flight's JPEG quality (`plugin.jpeg_quality`; None: not measured); `smear_px`: the flight's median smear
-    along its track (`plugin.motion_blur.flight_smear`, working px; NaN: not measured)."""
+    along its track (`plugin.motion_blur.flight_smear`, working px; NaN: not measured); `predicted_smear_px`: the
+    smear its speed and exposure predict (`plugin.motion_blur.exposure_smear`; NaN: no ExposureTime or times)."""
 
     figures: np.ndarray
     names: tuple[str, ...]
     compression: FlightCompression | None = None
     smear_px: float = float("nan")
+    predicted_smear_px: float = float("nan")
 
     def _measured(self) -> np.ndarray:
         f = np.asarray(self.figures, np.float64).reshape(-1, 3)
@@ -110,6 +112,8 @@ class FlightImages:
         if self.compression is not None:
             out["jpeg"] = self.compression.to_dict()
         out["motion_smear_px"] = round(self.smear_px, 2) if np.isfinite(self.smear_px) else None
+        p = self.predicted_smear_px
+        out["motion_smear_predicted_px"] = round(p, 3) if np.isfinite(p) else None
         return out
 
 
@@ -130,7 +134,7 @@ def image_causes(images: FlightImages | None, min_contrast_to_noise: float, min_
                       "segments that are no objects; the noise and sharpness figures read the compression's "
                       "smoothing and block edges, not the scene)")
     if max_smear_px > 0 and np.isfinite(images.smear_px) and images.smear_px > max_smear_px:
-        causes.append(motion_blur_phrase(images.smear_px, max_smear_px))
+        causes.append(motion_blur_phrase(images.smear_px, max_smear_px, images.predicted_smear_px))
     if np.isfinite(m["contrast_to_noise"]) and m["contrast_to_noise"] < min_contrast_to_noise:
         causes.append(f"images noisy: sigma {m['noise_dn']:.0f} DN against {m['contrast_dn']:.0f} DN of contrast "
                       f"(median of the keyframes; at least {min_contrast_to_noise:g} x the noise expected)")
@@ -141,12 +145,18 @@ def image_causes(images: FlightImages | None, min_contrast_to_noise: float, min_
     return causes
 
 
-def motion_blur_phrase(smear_px: float, max_smear_px: float) -> str:
-    """The phrase naming a flight smeared by `smear_px` working px along its track (limit `max_smear_px`)."""
+def motion_blur_phrase(smear_px: float, max_smear_px: float, predicted_px: float = float("nan")) -> str:
+    """The phrase naming a flight smeared by `smear_px` working px along its track (limit `max_smear_px`); the
+    smear its speed and exposure predict (`predicted_px`) is said when it agrees (within a factor 2), as the
+    physical cause; one that does not agree stays in the record only (either may be off: a wrong height, a
+    shutter that does not write its time)."""
+    cause = ""
+    if np.isfinite(predicted_px) and smear_px / 2 <= predicted_px <= 2 * smear_px:
+        cause = f", as the speed and exposure time predict ({predicted_px:.1f} px)"
     return (f"images motion-blurred: the ground is smeared {smear_px:.1f} working px along the track (median of the "
-            f"keyframes, from the spectrum along the motion; at most {max_smear_px:g} expected): objects narrower "
-            "than the smear merge with their surroundings and boundaries along the track are lost (a 7.5 px smear "
-            "kept 120 of 205 landmarks of a clean flight)")
+            f"keyframes, from the spectrum along the motion; at most {max_smear_px:g} expected{cause}): objects "
+            "narrower than the smear merge with their surroundings and boundaries along the track are lost (a 7.5 px "
+            "smear kept 120 of 205 landmarks of a clean flight)")
 
 
 def blank_warning(images: FlightImages | None, keyframes: int) -> str:
@@ -161,12 +171,14 @@ def blank_warning(images: FlightImages | None, keyframes: int) -> str:
 
 def flight_images(figures: Sequence[np.ndarray], names: Sequence[str],
                   compression: FlightCompression | None = None,
-                  smears: Sequence[float] | np.ndarray | None = None) -> FlightImages:
+                  smears: Sequence[float] | np.ndarray | None = None,
+                  predicted_smear_px: float = float("nan")) -> FlightImages:
     """`FlightImages` from per-keyframe figures (each 3 values, NaN where not measured), the flight's JPEG
     compression (`plugin.jpeg_quality.flight_compression`; None: not measured) and the keyframes' smears along
-    the track (`plugin.motion_blur.motion_smear`, working px; None: not measured)."""
+    the track (`plugin.motion_blur.motion_smear`, working px; None: not measured) and the smear the speed and
+    exposure predict (`plugin.motion_blur.exposure_smear`; NaN: not known)."""
     from .motion_blur import flight_smear
 
     arr = np.array([np.asarray(f, np.float64).reshape(3) for f in figures]) if len(figures) else np.zeros((0, 3))
     smear = flight_smear(np.asarray(smears, np.float64)) if smears is not None else float("nan")
-    return FlightImages(arr, tuple(names), compression, smear)
+    return FlightImages(arr, tuple(names), compression, smear, predicted_smear_px)

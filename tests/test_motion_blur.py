@@ -132,3 +132,32 @@ def test_a_cached_keyframe_gives_the_smear_along_the_new_poses_motion_as_a_fresh
     fresh = smears(turned, "fresh")
     assert abs(flight_smear(along) - 8) <= 1.6 and flight_smear(fresh) < 1.0
     assert np.array_equal(reused, fresh, equal_nan=True)
+
+
+def test_the_exposure_s_prediction_is_recorded_and_said_only_where_it_agrees(tmp_path):
+    """speed x ExposureTime over the ground of a working pixel: physical evidence beside the spectrum's measure."""
+    from PIL import Image
+
+    from sosmatch.database.exif import read_image_metadata
+    from sosmatch.plugin.motion_blur import exposure_smear
+
+    img = Image.new("RGB", (64, 48))
+    exif = img.getexif()
+    exif.get_ifd(0x8769)[0x829A] = 0.003125  # 1/320 s, as Seneca's camera
+    img.save(tmp_path / "a.jpg", exif=exif)
+    assert read_image_metadata(tmp_path / "a.jpg").exposure_s == pytest.approx(0.003125)
+    # 10 m/s (10 m between frames a second apart) x 1/100 s over 0.05 m per working pixel: 2 px
+    centers = np.stack([np.arange(5) * 10.0, np.zeros(5), np.full(5, 60.0)], 1)
+    assert exposure_smear(centers, [0, 1, 2, 3, 4], [0.01] * 5, 0.05) == pytest.approx(2.0)
+    assert np.isnan(exposure_smear(centers, [None] * 5, [0.01] * 5, 0.05))  # no capture times: no speed
+    assert np.isnan(exposure_smear(centers, [0, 1, 2, 3, 4], [None] * 5, 0.05))  # no ExposureTime
+
+    figures = [np.array([1.0, 30.0, 0.4])] * 3
+    agree = flight_images(figures, ["a", "b", "c"], None, [7.5] * 3, 6.0)
+    assert "as the speed and exposure time predict (6.0 px)" in image_causes(agree, 3.0, 0.15, 75.0, 2.0)[0]
+    assert agree.to_dict()["motion_smear_predicted_px"] == 6.0
+    apart = flight_images(figures, ["a", "b", "c"], None, [7.5] * 3, 0.1)  # a wrong height, a stuck shutter tag
+    (cause,) = image_causes(apart, 3.0, 0.15, 75.0, 2.0)
+    assert "predict" not in cause and apart.to_dict()["motion_smear_predicted_px"] == 0.1
+    # a large prediction with a clean spectrum: recorded, no warning
+    assert image_causes(flight_images(figures, ["a", "b", "c"], None, [0.0] * 3, 6.0), 3.0, 0.15, 75.0, 2.0) == []

@@ -264,3 +264,28 @@ def describe_keyframes(
     features = [r[0] for r in results]  # type: ignore[index]
     motion = [r[1] for r in results]  # type: ignore[index]
     return features, motion, cached
+
+
+def shutter_smear(inputs: MapInputs, ground_resolution: float, working_side: int) -> float:
+    """The smear (working px) the flight's speed and its images' EXIF ExposureTime predict
+    (`plugin.motion_blur.exposure_smear`; speed from the poses' centres and the EXIF capture times), with
+    `ground_resolution` the ground one full pixel covers (m) and `working_side` the segmenter's working size;
+    NaN where the images carry no exposure or capture time (or the ground resolution is not known)."""
+    from ...database.exif import read_image_metadata
+    from ...plugin.errors import InputError
+    from ...plugin.motion_blur import exposure_smear
+
+    times: list[float | None] = []
+    exposures: list[float | None] = []
+    for path in inputs.image_paths:
+        try:
+            meta = read_image_metadata(path)
+            times.append(meta.capture_time_s)
+            exposures.append(meta.exposure_s)
+        except InputError:  # an unreadable image is named where its pixels are read
+            times.append(None)
+            exposures.append(None)
+    if all(e is None for e in exposures):
+        return float("nan")
+    full_side = max(inputs.camera.width, inputs.camera.height)
+    return exposure_smear(inputs.poses.centers, times, exposures, ground_resolution * full_side / working_side)

@@ -38,7 +38,14 @@ from .inputs import (
     require_keyframes,
     sources_from_session,
 )
-from .keyframes import CACHE_VERSION, cached_descriptors, cached_image_figures, cached_motion_smears, describe_keyframes
+from .keyframes import (
+    CACHE_VERSION,
+    cached_descriptors,
+    cached_image_figures,
+    cached_motion_smears,
+    describe_keyframes,
+    shutter_smear,
+)
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
 
@@ -286,7 +293,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     # the JPEG quality from the files' headers: compression fools the image figures (`plugin.jpeg_quality`)
     images = flight_images(cached_image_figures(partial / "cache", kf_poses.names), kf_poses.names,
                            flight_compression(inputs.image_paths),
-                           cached_motion_smears(partial / "cache", kf_poses.names, motion_directions(kf_poses)))
+                           cached_motion_smears(partial / "cache", kf_poses.names, motion_directions(kf_poses)),
+                           shutter_smear(inputs, ground_resolution, min(params.segmentation.classical_max_side,
+                                                                        max(camera.width, camera.height))))
     timings["keyframes"] = time.perf_counter() - t
 
     from ..progress import progress_bar
