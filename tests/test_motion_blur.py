@@ -84,7 +84,7 @@ def test_changes_names_the_claims_a_smeared_session_puts_in_doubt(tmp_path):
     from types import SimpleNamespace
 
     from sosmatch.plugin.changes import GONE, NEW
-    from sosmatch.workflows.changes import blur_note, session_smear
+    from sosmatch.workflows.changes_images import blur_note, session_smear
 
     (tmp_path / "run.json").write_text(json.dumps({"quality": {"images": {"motion_smear_px": 7.5}}}))
     assert session_smear(tmp_path) == 7.5
