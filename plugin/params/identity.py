@@ -72,6 +72,8 @@ ADDED: tuple[Added, ...] = (
           "segmenting"),
     Added("quality.min_jpeg_quality", "d1c47fd", 75.0, "a warning"),
     Added("changes.min_jpeg_quality", "cd668d0", 75.0, "a warning"),
+    Added("quality.max_motion_smear_px", "debb177", 2.0, "a warning"),
+    Added("changes.max_motion_smear_px", "af76afa", 2.0, "a warning"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}
