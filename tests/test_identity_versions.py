@@ -15,14 +15,19 @@ from sosmatch.plugin.params import ADDED, Params, params_identity, params_to_dic
 from sosmatch.workflows.batch.state import StateStore, run_stage
 
 
-def _without(d: dict, dotted: str) -> dict:
-    """The params dict as a version before `dotted` existed recorded it."""
+def _before(d: dict, name: str, section: str = "") -> dict:
+    """`d` (the params dict, or its `section` "changes." etc.) as the version before the registered setting `name`
+    recorded it: without that setting and without every one registered after it (that version had none of them)."""
     d = json.loads(json.dumps(d))
-    *sections, key = dotted.split(".")
-    node = d
-    for s in sections:
-        node = node[s]
-    del node[key]
+    names = [a.name for a in ADDED]
+    for dotted in names[names.index(name):]:
+        if not dotted.startswith(section):
+            continue
+        *sections, key = dotted[len(section):].split(".")
+        node = d
+        for s in sections:
+            node = node[s]
+        del node[key]
     return d
 
 
@@ -58,8 +63,8 @@ def test_neutral_setting_is_left_out_and_other_values_stay():
 def test_output_of_a_version_without_the_setting_resumes(tmp_path):
     params = Params()
     # an earlier version: its changes section had no min_jpeg_quality, its identity its asdict
-    old = fingerprint({"maps": ["a", "b"], "changes": _without(dataclasses.asdict(params.changes),
-                                                               "min_jpeg_quality")})
+    old = fingerprint({"maps": ["a", "b"], "changes": _before(dataclasses.asdict(params.changes),
+                                                              "changes.min_jpeg_quality", "changes.")})
     _make_output(tmp_path / "out", old)
     with open_output_dir(tmp_path / "out", "changes", _changes_identity(params)) as out:
         assert out.was_complete  # resumed, not made again
@@ -69,16 +74,17 @@ def test_output_of_a_version_without_the_setting_resumes(tmp_path):
 
 
 def test_output_of_the_version_recording_every_setting_resumes(tmp_path):
-    params = Params()  # sosmatch before the registry: dataclasses.asdict, the registered settings in too
-    _make_output(tmp_path / "out", fingerprint({"maps": ["a", "b"], "changes": dataclasses.asdict(params.changes)}))
+    params = Params()  # sosmatch before the registry (ac8cd72): dataclasses.asdict, the settings it had all in
+    recorded = _before(dataclasses.asdict(params.changes), "changes.max_motion_smear_px", "changes.")
+    _make_output(tmp_path / "out", fingerprint({"maps": ["a", "b"], "changes": recorded}))
     with open_output_dir(tmp_path / "out", "changes", _changes_identity(params)) as out:
         assert out.was_complete
 
 
 def test_setting_at_another_value_is_another_output(tmp_path):
     params = Params()
-    old = fingerprint({"maps": ["a", "b"], "changes": _without(dataclasses.asdict(params.changes),
-                                                               "min_jpeg_quality")})
+    old = fingerprint({"maps": ["a", "b"], "changes": _before(dataclasses.asdict(params.changes),
+                                                              "changes.min_jpeg_quality", "changes.")})
     _make_output(tmp_path / "out", old)
     other = with_overrides(params, {"changes.min_jpeg_quality": 50.0})
     assert _changes_identity(other).today != _changes_identity(params).today
@@ -119,7 +125,7 @@ def test_the_named_set_gives_the_neutral_value():
 
 def test_behaviour_change_is_refused_and_named(tmp_path):
     params = Params()  # contrast_reference's default 70 stretches hazy flights: an earlier map is another one
-    seg = _without(dataclasses.asdict(params.segmentation), "contrast_reference")
+    seg = _before(dataclasses.asdict(params.segmentation), "segmentation.contrast_reference", "segmentation.")
     _make_output(tmp_path / "out", fingerprint({"segmentation": seg}))
     ident = versioned_identity(lambda as_dict: {"segmentation": as_dict(params.segmentation)})
     with pytest.raises(InputError, match="segmentation.contrast_reference"):
@@ -141,7 +147,7 @@ def test_batch_stage_of_an_earlier_version_resumes(tmp_path):
 
     params = Params()
     state = StateStore(tmp_path / "state", tmp_path)
-    old = fingerprint({"changes": _without(dataclasses.asdict(params.changes), "min_jpeg_quality")})
+    old = fingerprint({"changes": _before(dataclasses.asdict(params.changes), "changes.min_jpeg_quality", "changes.")})
     state.put("changes", "A__B", old, {"n": 1})
     fps = {"A__B": build_versions(lambda as_dict: fingerprint({"changes": as_dict(params.changes)}))}
     done = run_stage(_NoRun(), None, {"A__B": ()}, fps, state, "changes", tmp_path, "x", False)
@@ -160,8 +166,7 @@ def test_a_file_of_an_earlier_version_is_this_output(tmp_path):
     from sosmatch.database.output_files import OutputFiles
 
     params = Params()  # check-poses: a file written before min_jpeg_quality existed is the same output
-    old = fingerprint({"params": _without(_without(dataclasses.asdict(params), "quality.min_jpeg_quality"),
-                                          "changes.min_jpeg_quality")})
+    old = fingerprint({"params": _before(dataclasses.asdict(params), "quality.min_jpeg_quality")})
     OutputFiles([tmp_path / "check.json"], "check-poses", old).write(tmp_path / "check.json", "{}")
 
     def identity(p: Params) -> object:
