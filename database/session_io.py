@@ -378,9 +378,11 @@ class KeyframeImages(Sequence):
 
 def recorded_images_dir(session: str | Path) -> Path | None:
     """The images directory a mapped session's run.json records (None when it records none or is unreadable);
-    it may no longer exist. Where the absolute path is gone, the same place relative to the session (its record's
-    `inputs_from_session`) is taken when it exists: a project folder moved or copied whole. Which images a map
-    was made from is checked by the caller (`check_map_of_images`)."""
+    it may no longer exist. The place relative to the session (its record's `inputs_from_session`) is taken first
+    when it exists: it moves with a project folder moved or copied whole (a copy whose absolute path still names
+    the original's images read those, and edits there changed the copy's results). The absolute path otherwise:
+    a session folder moved alone. Which images a map was made from is checked by the caller
+    (`check_map_of_images`)."""
     try:
         record = read_map_record(Path(session)) or {}
         recorded = (record.get("inputs") or {}).get("images")
@@ -389,7 +391,7 @@ def recorded_images_dir(session: str | Path) -> Path | None:
         return None
     if not (isinstance(recorded, str) and recorded):
         return None
-    if not Path(recorded).is_dir() and isinstance(relative, str) and relative and (Path(session) / relative).is_dir():
+    if isinstance(relative, str) and relative and (Path(session) / relative).is_dir():
         return Path(os.path.normpath(Path(session).absolute() / relative))
     return Path(recorded)
 

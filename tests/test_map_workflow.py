@@ -646,3 +646,23 @@ def test_a_map_logged_to_a_file_says_how_far_its_keyframes_are(tmp_path, capsys,
     assert any(line.startswith("keyframes: 1/8 kf") for line in lines), lines
     assert any(line.startswith("keyframes: 8/8 kf (100 %), done in") for line in lines), lines
     assert "\r" not in err  # no bar drawn into the log
+
+
+def test_a_copied_project_reads_its_own_images_not_the_originals(tmp_path):
+    """nu37 D2: after `cp -a project project.copy` the copy's run.json still records the original's absolute
+    images path, which exists; the copy read the original's images (edits there changed the copy's results).
+    The place relative to the session moves with the project and is taken first when it exists; the absolute path
+    only when it does not (a session folder moved alone)."""
+    from sosmatch.database.session_io import recorded_images_dir
+
+    for project in ("project", "project.copy"):
+        (tmp_path / project / "images").mkdir(parents=True)
+        (tmp_path / project / "mapped").mkdir()
+        (tmp_path / project / "mapped" / "run.json").write_text(json.dumps({
+            "inputs": {"images": str(tmp_path / "project" / "images")},
+            "inputs_from_session": {"images": "../images"}}))
+    assert recorded_images_dir(tmp_path / "project.copy" / "mapped") == tmp_path / "project.copy" / "images"
+    assert recorded_images_dir(tmp_path / "project" / "mapped") == tmp_path / "project" / "images"
+    alone = tmp_path / "elsewhere" / "mapped"  # the session folder moved alone: its ../images is not there
+    shutil.copytree(tmp_path / "project.copy" / "mapped", alone)
+    assert recorded_images_dir(alone) == tmp_path / "project" / "images"
