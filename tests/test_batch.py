@@ -2,6 +2,8 @@
 the session graph (groups, spanning-tree transforms) and identical results on a Dask LocalCluster."""
 
 import json
+import logging
+import os
 import re
 import shutil
 import subprocess
@@ -797,3 +799,43 @@ def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path
     again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
     assert all(s.get("resumed") for s in again.sessions) and again.pairs and all(p.get("resumed") for p in again.pairs)
     assert json.loads((out / MARKER).read_text())["identity"] == today  # re-marked under today's identity
+
+
+def test_flights_touched_but_unchanged_are_not_mapped_again(flights, tmp_path, caplog):
+    """nu37 D3: tar, zip or FAT copies keep mtimes to whole seconds (2 s), `cp` without -p not at all, and every
+    flight was mapped again (hours on real flights). A listing that differs only in mtimes is checked by content
+    (sha256 recorded when the flight was mapped): the same bytes resume the map and the stages after it; other
+    bytes of the same size still map it again."""
+    root, _ = flights
+    for name in "AB":
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    out = tmp_path / "out"
+    options = batch.BatchOptions(progress=False, merge=False, changes=False)
+
+    def run():
+        return batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+
+    def touch(offset_s):
+        for path in (tmp_path / "fl").rglob("*"):
+            if path.is_file():
+                t = int(path.stat().st_mtime) + offset_s
+                os.utime(path, (t, t))
+
+    run()
+    touch(-100)  # whole seconds, as tar or zip restore them
+    with caplog.at_level(logging.INFO, logger="sosmatch"):
+        again = run()
+    assert all(s.get("resumed") for s in again.sessions)
+    assert all(p.get("resumed") for p in again.pairs if p["status"] == "done")
+    assert "same contents" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="sosmatch"):
+        third = run()  # the touched listing is known to hold the same bytes now: not read again
+    assert all(s.get("resumed") for s in third.sessions) and "same contents" not in caplog.text
+    changed = tmp_path / "fl" / "A" / "poses.csv"
+    data = bytearray(changed.read_bytes())
+    data[-2] = ord("7") if data[-2] != ord("7") else ord("8")  # another digit: same size, other bytes
+    changed.write_bytes(bytes(data))
+    touch(-200)
+    fourth = run()
+    assert {s["name"]: bool(s.get("resumed")) for s in fourth.sessions} == {"A": False, "B": True}

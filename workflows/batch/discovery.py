@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 from dataclasses import dataclass
@@ -49,8 +50,9 @@ def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
     """(relative path, size, mtime in ns) of every file under a flight folder, sorted: what the map stage's
     fingerprint knows of the flight's contents, so that re-running a batch redoes a flight whose images, poses or
     mapped session changed (and every pair, merge and comparison of it) instead of resuming stale results. A
-    listing, not a digest: re-reading every image on every re-run would cost what the skip saves; a touched but
-    unchanged flight is mapped again and gives the same files."""
+    listing, not a digest: re-reading every image on every re-run would cost what the skip saves; a listing that
+    differs only in mtimes (a tar, zip or FAT copy, `cp` without -p) is checked by content (`flight_digest`,
+    `workflow.contents_seen`) before the flight is mapped again."""
     entries = []
     for path in sorted(folder.rglob("*")):
         try:
@@ -60,6 +62,25 @@ def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
         if path.is_file():
             entries.append((path.relative_to(folder).as_posix(), st.st_size, st.st_mtime_ns))
     return entries
+
+
+def flight_digest(folder: Path, listing: list) -> str | None:
+    """sha256 over the relative path, size and bytes of every file of `listing` (`flight_signature`) under
+    `folder`, in its order; None when one of them no longer reads or its size changed."""
+    h = hashlib.sha256()
+    for rel, size, _ in listing:
+        h.update(f"{rel}\0{size}\0".encode())
+        n = 0
+        try:
+            with open(folder / rel, "rb") as f:
+                for chunk in iter(lambda f=f: f.read(1 << 20), b""):
+                    h.update(chunk)
+                    n += len(chunk)
+        except OSError:
+            return None
+        if n != size:
+            return None
+    return h.hexdigest()
 
 
 NOT_FLIGHTS = (".", "_")  # folder names that are never flights: hidden ones, and those put aside with "_"

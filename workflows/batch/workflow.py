@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import time
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ...database.atomic import write_text_atomic
 from ...database.match_io import MatchSummary, answer_gate
 from ...database.output_markers import versioned_identity
 from ...database.outputs import open_output_dir
@@ -27,7 +29,7 @@ from ...plugin.multisession import (
 from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
-from .discovery import PAIR_SEP, discover_flights, flight_signature, images_dir
+from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
 from .tasks import alignment_task, changes_task, map_task, merge_task, pair_task
@@ -133,11 +135,12 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     state = StateStore(out_dir / "state", out_dir)
     report = BatchReport(out_dir, executor=executor.describe())
     # 1-2: map
-    fps, earlier, tasks = {}, {}, {}
+    fps, earlier, tasks, listings = {}, {}, {}, {}
     for f in flights:
         # what a flight's map depends on: its contents (not where the folder is: a moved flights folder resumes)
         # and the mapping parameters (a setting of matching or change detection does not map it again)
-        contents = {"kind": f.kind, "ekf": options.ekf, "contents": flight_signature(f.path)}
+        listings[f.name] = contents_seen(out_dir, f)
+        contents = {"kind": f.kind, "ekf": options.ekf, "contents": listings[f.name][0]}
         # an adopted session is used where it lies: its place is part of it (a copy elsewhere is another session)
         where = {"flight": str(f.path.resolve())} if f.kind == "mapped" else {}
         crs = {"epsg": options.epsg} if options.epsg is not None and f.kind == "images" else {}
@@ -155,6 +158,9 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
                     "their poses or sessions", ", ".join(own))
     sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
                           options.progress, _valid_session, earlier)
+    for f in flights:
+        if sessions[f.name]["status"] == "done" and not sessions[f.name].get("resumed"):
+            record_contents(out_dir, f, *listings[f.name])
     report.sessions = [{"name": f.name, "kind": f.kind, **sessions[f.name]} for f in flights]
     mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
 
@@ -196,6 +202,54 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
                      for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
     report.stale_outputs = _stale_outputs(out_dir, report)
     return report
+
+
+def _contents_path(out_dir: Path, name: str) -> Path:
+    return out_dir / "state" / "contents" / f"{name}.json"
+
+
+def _listing(entries: Any) -> list[list[Any]] | None:
+    """A listing as JSON gives it back (lists, not tuples); None when it is not one."""
+    if not isinstance(entries, list) or not all(isinstance(e, (list, tuple)) and len(e) == 3 for e in entries):
+        return None
+    return [list(e) for e in entries]
+
+
+def contents_seen(out_dir: Path, flight: Any) -> tuple[list[list[Any]], list[list[Any]]]:
+    """(the listing the flight's map fingerprint is made from, its listing now). They differ where the flight's
+    files differ from those it was mapped from only in mtimes (same names and sizes: a tar, zip or FAT copy keeps
+    whole seconds, `cp` without -p none) and hold the same bytes (sha256 recorded when it was mapped,
+    OUT/state/contents/F.json): the map and every stage after it resume instead of mapping the flight again (the
+    nu37 sweep: 40 s of CPU for 1 s; hours on real flights). Names or sizes or bytes differing: the listing now."""
+    now = [list(e) for e in flight_signature(flight.path)]
+    try:
+        rec = json.loads(_contents_path(out_dir, flight.name).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return now, now
+    if not isinstance(rec, dict) or (mapped := _listing(rec.get("listing"))) is None or mapped == now:
+        return now, now
+    if _listing(rec.get("same_contents")) == now:  # verified by an earlier run
+        return mapped, now
+    if [e[:2] for e in mapped] != [e[:2] for e in now] or not isinstance(rec.get("sha256"), str):
+        return now, now
+    if flight_digest(flight.path, now) != rec["sha256"]:
+        return now, now
+    log.info("%s: files touched since it was mapped (only their mtimes differ), same contents by sha256: its map "
+             "is kept", flight.name)
+    write_text_atomic(_contents_path(out_dir, flight.name), json.dumps({**rec, "same_contents": now}) + "\n")
+    return mapped, now
+
+
+def record_contents(out_dir: Path, flight: Any, mapped: list[list[Any]], now: list[list[Any]]) -> None:
+    """After a flight is mapped: the listing its fingerprint was made from and the sha256 of its files'
+    contents (`contents_seen`), unless its files changed while it was mapped."""
+    if mapped != now:  # mapped again for another reason (settings) from a listing verified by content
+        return  # its record (`contents_seen`) holds both listings already
+    digest = flight_digest(flight.path, now)
+    if digest is None or [list(e) for e in flight_signature(flight.path)] != now:
+        _contents_path(out_dir, flight.name).unlink(missing_ok=True)
+        return
+    write_text_atomic(_contents_path(out_dir, flight.name), json.dumps({"listing": now, "sha256": digest}) + "\n")
 
 
 def _read_matches(pairs: dict[str, dict[str, Any]]) -> dict[str, MatchSummary]:
