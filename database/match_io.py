@@ -474,6 +474,22 @@ def read_match_json(path: str | Path) -> dict[str, Any]:
     return read_user_json(path, "match file", redo="re-run `sosmatch match`")
 
 
+def match_content(match: MatchSummary) -> str:
+    """What a match says, not where its file lies: its maps (content fingerprints), its answer (transform,
+    associations, gate, source). An output made from a match names it by this in its identity, so that the same
+    project moved or copied elsewhere is the same output (nu37 D1), and a match.json written again by a re-run of
+    `match` (other timings) too."""
+    import hashlib
+
+    from .output_markers import fingerprint
+
+    assoc = hashlib.sha256(np.ascontiguousarray(match.associations, dtype="<i8").tobytes()).hexdigest()
+    return fingerprint({"map_a": match.map_a.fingerprint, "map_b": match.map_b.fingerprint,
+                        "accepted": match.accepted, "source": match.source, "kind": match.transform_kind,
+                        "transform": None if match.transform is None else match.transform.to_dict(),
+                        "associations": assoc, "gate_m": match.gate_m, "gate_z_weight": match.gate_z_weight})
+
+
 def read_match(path: str | Path) -> MatchSummary:
     """Read and validate match.json (or a directory holding it): the hypothesis to merge with, every hypothesis,
     the maps it was computed for. Use `check_match_maps` before trusting its indices for your maps."""

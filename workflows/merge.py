@@ -45,6 +45,7 @@ from ..database.match_io import (
     check_georeferences,
     check_match_maps,
     imprecise_note,
+    match_content,
     read_match,
     unverified_note,
 )
@@ -143,6 +144,7 @@ def merge_sessions(
     inputs: Sequence[str | Path] = (),
     earlier_records: Sequence[dict[str, Any]] = (),
     warnings: Sequence[str] = (),
+    identity_record: dict[str, Any] | None = None,
 ) -> MergeResult:
     """Combine sessions into one COLMAP model in the frame of `transforms` (reference_from_session each).
 
@@ -154,6 +156,7 @@ def merge_sessions(
     paths besides the sessions, e.g. the match file). `earlier_records`: the records an earlier sosmatch wrote
     for the same merge (`outputs.open_output_dir`'s `earlier`). `warnings`: what was said of its inputs (merge.json
     `warnings`, e.g. that two maps' georeferences disagree), recorded beside the merge, not part of its identity.
+    `identity_record`: the record as the identity holds it (default `record`), e.g. its inputs by their content.
     """
     t0 = time.perf_counter()
     if len(sessions) != len(transforms) or not sessions:
@@ -167,7 +170,7 @@ def merge_sessions(
         return fingerprint({"sessions": prints, "labels": labels, "transforms": [t.to_dict() for t in transforms],
                             "eps": max_fuse_distance_m, "record": rec, "pairs": fused})
 
-    identity = identity_of(record)
+    identity = identity_of(record if identity_record is None else identity_record)
     members = distinct_flights(sessions)
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
@@ -415,6 +418,8 @@ def run(
     for text in said:
         log.warning("%s", text)
     # the match file by its real path: another spelling of it is the same input (and the same merge)
+    # merge.json records the match file by its real path; the identity names the match by its content (what it
+    # says, `match_content`), so that a project moved or copied whole is the same merge (nu37 D1)
     record = {"refined": bool(refine and used), "match": str(resolved_path(match_json)),
               "match_transform": match.transform.to_dict(),
               "refine": {"requested": refine, "associations_used": used, "dof": dof}}
@@ -428,8 +433,10 @@ def run(
         record=record,
         overwrite=overwrite,
         inputs=[match_json],
-        # merges before 2026-12-05 recorded the match file as it was spelt: the same merge when spelt so again
-        earlier_records=[{**record, "match": str(match_json)}],
+        identity_record={**record, "match": match_content(match)},
+        # merges until nu37 named the match by its real path, before 2026-12-05 as it was spelt: the same merge
+        # when it lies there again
+        earlier_records=[record, {**record, "match": str(match_json)}],
         warnings=said,
     )
     log.info(
