@@ -43,6 +43,7 @@ import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from ..plugin.errors import InputError
 from .atomic import clean_stale_temporaries, locked_temp_dir, write_text_atomic
@@ -382,13 +383,7 @@ def open_output_dir(
     check_not_in_output_entry(path)
     previous = _previous(path, command, legacy_record)
     same = {identity, *earlier, *same_as}
-    if previous.state == "complete" and previous.identity not in same and not overwrite:
-        # identities of earlier versions' same outputs are in `same_as` (nu36): what is left is another output,
-        # or one of a version that behaved otherwise: said, so that nobody hunts for a changed input
-        what = versions.refusal_note(previous.identity) or ("an output made from other inputs or settings, or by "
-                                                            "another version of sosmatch")
-        raise InputError(f"output directory holds a complete `sosmatch {command}` output: {what}; use "
-                         f"{overwrite_flag} to replace it (or choose another directory)", path)
+    _refuse_another(path, command, previous, versions, same, overwrite, overwrite_flag)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
     try:
         path.mkdir(parents=True, exist_ok=True)
@@ -420,17 +415,37 @@ def open_output_dir(
     return out
 
 
+def _refuse_another(path: Path, command: str, previous: Any, versions: VersionedIdentity, same: set[str],
+                    overwrite: bool, overwrite_flag: str) -> None:
+    """InputError when `path` holds a complete output of an identity not in `same`, unless `overwrite`."""
+    if previous.state == "complete" and previous.identity not in same and not overwrite:
+        # identities of earlier versions' same outputs are in `same_as` (nu36): what is left is another output,
+        # or one of a version that behaved otherwise: said, so that nobody hunts for a changed input
+        what = versions.refusal_note(previous.identity) or ("an output made from other inputs or settings, or by "
+                                                            "another version of sosmatch")
+        raise InputError(f"output directory holds a complete `sosmatch {command}` output: {what}; use "
+                         f"{overwrite_flag} to replace it (or choose another directory)", path)
+
+
 def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | Path | None] = (),
-                     legacy_record: str | None = None) -> None:
+                     legacy_record: str | None = None, identity: str | VersionedIdentity | None = None,
+                     overwrite: bool = False, overwrite_flag: str = "--overwrite") -> None:
     """What `open_output_dir` refuses whatever the run produces, checked before any work and changing nothing:
     an input (or inside one, or holding one), a path that is a file, a non-empty directory that is not this
     command's output, or a new directory that cannot be made (a file or a read-only folder on its way). A command
     whose output identity is known only after its work (`sosmatch changes`) calls this first, so a bad `--out`
-    is refused at once; `open_output_dir` still decides (overwrite, the lock) when the work is done."""
+    is refused at once; `open_output_dir` still decides (overwrite, the lock) when the work is done. `identity`:
+    the output's, when the command can know it before its work: a complete output of another one is refused
+    now too (unless `overwrite`), as `open_output_dir` would refuse it after the work."""
     path = Path(path)
     check_not_input(path, list(inputs))
     check_not_in_output_entry(path)
-    if _previous(path, command, legacy_record).state == "new" and not path.exists():
+    previous = _previous(path, command, legacy_record)
+    if identity is not None:
+        versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
+        _refuse_another(path, command, previous, versions, {versions.today, *versions.same_as}, overwrite,
+                        overwrite_flag)
+    if previous.state == "new" and not path.exists():
         check_writable_place(path)
 
 

@@ -521,3 +521,47 @@ def test_claims_of_a_heavily_compressed_session_are_said_to_be_doubtful(toy, tmp
         assert ("gone A#" in said[0]) == (c["gone"] > 0)
     else:
         assert not said
+
+
+def test_the_images_are_named_by_their_content_not_their_place(tmp_path):
+    """nu37 D1: a project moved whole read its images from another directory, so `changes` refused its own output
+    as "made from other inputs"; the identity names them by the keyframe digests the map records. The identity of
+    before (the directories' paths) is one of the same output's earlier ones."""
+    from sosmatch.database.output_markers import versioned_identity
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows.changes import ChangesRun, output_identity
+
+    for s in ("A", "B"):
+        (tmp_path / s).mkdir()
+        (tmp_path / s / "run.json").write_text(json.dumps({"keyframe_images": {f"{s}1.jpg": "0" * 64}}))
+
+    def identity(place):
+        sources = {"session_a": str(tmp_path / "A"), "session_b": str(tmp_path / "B"), "map_a": "sha256:a",
+                   "map_b": "sha256:b", "images_a": f"{place}/fa", "images_b": f"{place}/fb"}
+        return output_identity(ChangesRun(None, Sim3.identity(), 0, sources), Params(), True)
+
+    here, moved = identity("/project"), identity("/project.moved")
+    assert here.today == moved.today
+    params = Params()
+    by_path = versioned_identity(lambda as_dict: {
+        "maps": ["sha256:a", "sha256:b"], "a_from_b": Sim3.identity().to_dict(), "changes": as_dict(params.changes),
+        "images": ["/project/fa", "/project/fb"], "eps": params.association.distance_tolerance_m, "plot": True})
+    assert by_path.today in here.same_as and by_path.today not in moved.same_as
+
+
+def test_another_output_is_refused_before_the_comparison(toy, tmp_path, cli_error, capsys, monkeypatch):
+    """nu37 D1: the refusal of a complete output of other settings came after the whole comparison (5.6 s); its
+    identity depends on the inputs and settings alone, so the directory is checked first."""
+    import sosmatch.workflows.changes as changes_module
+
+    root = toy[0]
+    out = tmp_path / "C"
+    args = [root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", out]
+    assert run(args, capsys)[0] == 0
+    assert run(args, capsys)[0] == 0  # the same output: resumed
+
+    def no_work(*a, **k):
+        raise AssertionError("compared before the output directory was checked")
+
+    monkeypatch.setattr(changes_module, "compute", no_work)
+    assert "made from other inputs or settings" in cli_error("changes", *args, "--min-confidence", "0.3")
