@@ -70,6 +70,23 @@ def sha256_file(path: str | Path) -> str:
     return h.hexdigest()
 
 
+def content_fingerprint(path: str | Path) -> str:
+    """What a file or folder holds, not where it lies: sha256 of a file, or of a folder's files (by their path
+    inside it and their sha256; hidden entries, e.g. an output's marker, lock and staging area, left out). For an
+    output's identity, so that a project moved or copied whole names the same inputs (nu37 D1)."""
+    path = Path(path)
+    if not path.is_dir():
+        return sha256_file(path) if path.is_file() else f"missing:{path.name}"
+    files = {}
+    for root, dirs, names in os.walk(path):
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        for name in names:
+            if not name.startswith("."):
+                f = Path(root) / name
+                files[f.relative_to(path).as_posix()] = sha256_file(f) if f.is_file() else "not a file"
+    return fingerprint(files)
+
+
 def resolved_path(path: str | Path) -> Path:
     return Path(os.path.realpath(os.path.expanduser(str(path))))
 

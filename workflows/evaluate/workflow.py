@@ -21,7 +21,7 @@ from ...database.json_text import json_default
 from ...database.landmark_map import check_two_maps, read_landmark_map
 from ...database.map_loading import read_map_noise, session_map_noise
 from ...database.match_io import check_match_maps, read_match_json
-from ...database.output_markers import check_finished, versioned_identity
+from ...database.output_markers import VersionedIdentity, check_finished, content_fingerprint, versioned_identity
 from ...database.outputs import open_output_dir
 from ...database.session_io import check_map_of_images, check_session_usable
 from ...plugin.errors import InputError
@@ -340,10 +340,19 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     check_two_sessions(session_a, session_b, map_a, map_b, "sosmatch" in methods)
     case = case or f"{session_a.name} vs {session_b.name}"
     inputs = [session_a, session_b, map_a, map_b, match_dir, dem]
-    identity = versioned_identity(lambda as_dict: {
-        "inputs": [None if p is None else str(Path(p).resolve()) for p in inputs],
-        "params": as_dict(params), "methods": list(methods), "case": case, "ground_height": ground_height,
-        "sweep_floor": sweep_floor, "repeats": repeats, "max_observers": max_observers, "overlap_test": overlap_test})
+
+    def identity_of(named: list[str | None]) -> Any:
+        return versioned_identity(lambda as_dict: {
+            "inputs": named, "params": as_dict(params), "methods": list(methods), "case": case,
+            "ground_height": ground_height, "sweep_floor": sweep_floor, "repeats": repeats,
+            "max_observers": max_observers, "overlap_test": overlap_test})
+
+    # the inputs by what they hold, so that a project moved or copied whole is the same evaluation (nu37 D1);
+    # until then by their real paths: such an output (not moved) is this one too
+    identity = identity_of([None if p is None else content_fingerprint(p) for p in inputs])
+    by_path = identity_of([None if p is None else str(Path(p).resolve()) for p in inputs])
+    identity = VersionedIdentity(identity.today, (*identity.same_as, by_path.today, *by_path.same_as),
+                                 (*identity.otherwise, *by_path.otherwise))
     with open_output_dir(out_dir, "evaluate", identity, inputs=inputs, overwrite=overwrite,
                          legacy_record="evaluation.json") as taken:
         evaluation = _evaluate(params, session_a, session_b, out_dir, map_a, map_b, match_dir, methods, case, dem,
