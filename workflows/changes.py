@@ -49,6 +49,7 @@ from ..database.output_markers import VersionedIdentity, fingerprint, versioned_
 from ..database.outputs import check_output_dir, open_output_dir
 from ..database.session_io import (
     SessionFiles,
+    read_map_record,
     read_session,
     read_session_observations,
     recorded_images_dir,
