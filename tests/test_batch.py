@@ -839,3 +839,26 @@ def test_flights_touched_but_unchanged_are_not_mapped_again(flights, tmp_path, c
     touch(-200)
     fourth = run()
     assert {s["name"]: bool(s.get("resumed")) for s in fourth.sessions} == {"A": False, "B": True}
+
+
+def test_a_flight_whose_images_changed_is_mapped_again_not_failed(tmp_path):
+    """nu37 D6: after one image of a flight the batch had mapped was re-exported, the re-run failed that flight
+    ("holds a complete `sosmatch map` output made from other inputs ...; use --overwrite") and dropped its pairs,
+    against the README's "redoes only what changed". The session folder is the batch's own product (a changed
+    setting is refused before any work by the batch's own identity), so it is made again, as merges and
+    comparisons are."""
+    from PIL import Image
+
+    for k in (1, 2):
+        assert main(["synth", "-q", "--world-seed", "7", "--session-seed", str(k), "--frames", "24", "--width", "320",
+                     "--height", "240", "--out", str(tmp_path / "fl" / f"F{k}")]) == 0
+    options = batch.BatchOptions(progress=False, merge=False, changes=False)
+    first = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0), options=options)
+    assert not first.failures and all(s["status"] == "done" for s in first.sessions)
+    image = sorted((tmp_path / "fl" / "F2" / "images").glob("*.jpg"))[5]
+    Image.open(image).point(lambda v: min(255, v + 20)).save(image, quality=90)
+    again = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0), options=options)
+    assert not again.failures, again.failures
+    status = {s["name"]: (s["status"], bool(s.get("resumed"))) for s in again.sessions}
+    assert status == {"F1": ("done", True), "F2": ("done", False)}
+    assert again.pairs and all(p["status"] == "done" and not p.get("resumed") for p in again.pairs)

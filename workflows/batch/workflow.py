@@ -151,8 +151,10 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         before = {"flight": str(f.path.resolve()), **contents}  # before 88ab9e6: the folder and every setting
         earlier[f.name] = [p for p in build_versions(lambda as_dict, before=before: fingerprint(
             {**before, "params": as_dict(params)})) if p is not None]
+        # the session folder is the batch's own product, as merges and comparisons are: a flight whose contents
+        # changed is mapped again into it (a changed setting is refused before any work by the batch's identity)
         tasks[f.name] = (f.name, f.kind, str(f.path), str(out_dir / "sessions" / f.name), params, options.ekf,
-                         options.overwrite, options.epsg if f.kind == "images" else None)
+                         True, options.epsg if f.kind == "images" else None)
     if options.epsg is not None and (own := [f.name for f in flights if f.kind != "images"]):
         log.warning("--epsg applies to flights of photos (poses from structure from motion); %s keep the CRS of "
                     "their poses or sessions", ", ".join(own))
@@ -179,7 +181,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
             fps[a], fps[b], build_versions(lambda as_dict: (as_dict(params.association), as_dict(params.verification))))
         pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
         if matcher is pair_task:
-            pair_tasks[key] += (verify, options.overwrite)
+            pair_tasks[key] += (verify, True)  # the batch's own, as the sessions
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                        options.progress, _valid_match)
     _match_refusals(pairs)
