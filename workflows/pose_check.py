@@ -233,7 +233,7 @@ def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, par
     sources = sources or {}
     inputs = [Path(v) for v in sources.values() if v] + sorted({Path(p).parent for p in image_paths})
     # every setting: a file of an earlier sosmatch (before a registered setting) is this one (identity_versions)
-    identity = versioned_identity(lambda as_dict: {"sources": sources, "images": [Path(p).name for p in image_paths],
-                                                   "params": as_dict(params)})
+    names = [Path(p).name for p in image_paths]  # once: the identity is built for every version
+    identity = versioned_identity(lambda as_dict: {"sources": sources, "images": names, "params": as_dict(params)})
     files = OutputFiles([out], "check-poses", identity, inputs=inputs, overwrite=overwrite)
     return run(image_paths, poses, camera, params, out, refuse=refuse, sources=sources, files=files, epsg=epsg)

@@ -151,9 +151,9 @@ def run(
             raise InputError(no_images_message(folders[0]), folders[0])
         raise InputError(f"no images found in {', '.join(str(p) for p in inputs)}")
     out_dir = Path(out_dir)
+    images = [[str(p.resolve()), *_stat(p)] for p in paths]  # once: the identity is built for every version
     identity = versioned_identity(lambda as_dict: {
-        "images": [[str(p.resolve()), *_stat(p)] for p in paths], "overlays": write_overlays,
-        "segmentation": as_dict(params.segmentation)})
+        "images": images, "overlays": write_overlays, "segmentation": as_dict(params.segmentation)})
     seg_backend = get_backend(params.segmentation.backend, params.segmentation)
     with open_output_dir(out_dir, "segment", identity, inputs=inputs, overwrite=overwrite) as taken:
         report = _segment_into(taken.path, paths, params, seg_backend, write_overlays)

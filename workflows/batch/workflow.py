@@ -172,13 +172,14 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     # a custom matcher (pair_fn) returns its own summary; the default one is `sosmatch match` (verified)
     verify = bool(options.verify) if matcher is pair_task else None
     pair_fps, pair_tasks = {}, {}
+    # each version's association and verification sections: the same for every pair
+    match_sections = build_versions(lambda as_dict: (as_dict(params.association), as_dict(params.verification)))
     for a, b in chosen:
         key = f"{a}{PAIR_SEP}{b}"
         # what `sosmatch match` depends on (its own identity: both maps, association, verification, seed)
         pair_fps[key] = each_version(lambda fa, fb, sections: fingerprint(
             {"a": fa, "b": fb, "association": sections[0], "verification": sections[1], "seed": pdict["seed"],
-             "matcher": matcher.__qualname__, "verify": verify}),
-            fps[a], fps[b], build_versions(lambda as_dict: (as_dict(params.association), as_dict(params.verification))))
+             "matcher": matcher.__qualname__, "verify": verify}), fps[a], fps[b], match_sections)
         pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
         if matcher is pair_task:
             pair_tasks[key] += (verify, True)  # the batch's own, as the sessions
