@@ -50,6 +50,12 @@ class VersionedIdentity:
         """What the refusal of the output `previous` (its identity) adds: "" unless an earlier version made it."""
         return dict(self.otherwise).get(previous or "", "")
 
+    def accepting(self, earlier: VersionedIdentity) -> VersionedIdentity:
+        """This identity, also taking the output that `earlier` (the same inputs named as an earlier sosmatch
+        named them, e.g. by their paths) identifies, in any of its versions, as this one."""
+        same = tuple(i for i in (*self.same_as, earlier.today, *earlier.same_as) if i != self.today)
+        return VersionedIdentity(self.today, same, (*self.otherwise, *earlier.otherwise))
+
 
 def versioned_identity(build: Callable[[Callable[[Any], dict[str, Any]]], Any],
                        digest: Callable[[Any], str] = fingerprint) -> VersionedIdentity:

@@ -412,10 +412,8 @@ def _identity(maps: list[str], a_from_b: Sim3, sessions: list[str | Path], image
             "maps": list(maps), "a_from_b": a_from_b.to_dict(), "changes": as_dict(params.changes), "images": seen,
             "eps": params.association.distance_tolerance_m, "plot": plot}
 
-    today = versioned_identity(build([images_content(s, d) for s, d in zip(sessions, images)]))
-    by_path = versioned_identity(build([str(d or "") for d in images]))
-    earlier = tuple(i for i in (by_path.today, *by_path.same_as) if i != today.today)
-    return VersionedIdentity(today.today, (*today.same_as, *earlier), (*today.otherwise, *by_path.otherwise))
+    return versioned_identity(build([images_content(s, d) for s, d in zip(sessions, images)])).accepting(
+        versioned_identity(build([str(d or "") for d in images])))
 
 
 def _identity_before(session_a: str | Path, session_b: str | Path, match_json: str | Path, params: Params,

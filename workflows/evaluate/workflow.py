@@ -341,7 +341,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     case = case or f"{session_a.name} vs {session_b.name}"
     inputs = [session_a, session_b, map_a, map_b, match_dir, dem]
 
-    def identity_of(named: list[str | None]) -> Any:
+    def identity_of(named: list[str | None]) -> VersionedIdentity:
         return versioned_identity(lambda as_dict: {
             "inputs": named, "params": as_dict(params), "methods": list(methods), "case": case,
             "ground_height": ground_height, "sweep_floor": sweep_floor, "repeats": repeats,
@@ -349,10 +349,8 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
 
     # the inputs by what they hold, so that a project moved or copied whole is the same evaluation (nu37 D1);
     # until then by their real paths: such an output (not moved) is this one too
-    identity = identity_of([None if p is None else content_fingerprint(p) for p in inputs])
-    by_path = identity_of([None if p is None else str(Path(p).resolve()) for p in inputs])
-    identity = VersionedIdentity(identity.today, (*identity.same_as, by_path.today, *by_path.same_as),
-                                 (*identity.otherwise, *by_path.otherwise))
+    identity = identity_of([None if p is None else content_fingerprint(p) for p in inputs]).accepting(
+        identity_of([None if p is None else str(Path(p).resolve()) for p in inputs]))
     with open_output_dir(out_dir, "evaluate", identity, inputs=inputs, overwrite=overwrite,
                          legacy_record="evaluation.json") as taken:
         evaluation = _evaluate(params, session_a, session_b, out_dir, map_a, map_b, match_dir, methods, case, dem,
