@@ -67,17 +67,24 @@ def cached_descriptors(cache_dir: Path, names: Sequence[str]) -> Callable[[int],
     return descriptors
 
 
-def cached_image_figures(cache_dir: Path, names: Sequence[str]) -> list[np.ndarray]:
-    """Per keyframe, its image figures (`plugin.image_quality.image_figures`) from the cache entry that
-    `describe_keyframes` validated or wrote; NaN where the entry holds none."""
-    out = []
+def _cached_arrays(cache_dir: Path, names: Sequence[str], key: str) -> list[np.ndarray | None]:
+    """Per keyframe, the array `key` of the cache entry that `describe_keyframes` validated or wrote (only that
+    array is read); None where the entry holds none."""
+    out: list[np.ndarray | None] = []
     for k, name in enumerate(names):
         try:
             with np.load(_cache_path(cache_dir, k, name), allow_pickle=False) as data:
-                out.append(np.asarray(data["image_figures"], np.float64).reshape(3))
+                out.append(np.asarray(data[key], np.float64))
         except (OSError, KeyError, ValueError, EOFError):
-            out.append(np.full(3, np.nan))
+            out.append(None)
     return out
+
+
+def cached_image_figures(cache_dir: Path, names: Sequence[str]) -> list[np.ndarray]:
+    """Per keyframe, its image figures (`plugin.image_quality.image_figures`) from the cache entry that
+    `describe_keyframes` validated or wrote; NaN where the entry holds none."""
+    return [np.full(3, np.nan) if a is None else a.reshape(3)
+            for a in _cached_arrays(cache_dir, names, "image_figures")]
 
 
 def cached_motion_smears(cache_dir: Path, names: Sequence[str], directions: np.ndarray) -> np.ndarray:
@@ -88,14 +95,8 @@ def cached_motion_smears(cache_dir: Path, names: Sequence[str], directions: np.n
     images read the smear along their own direction, as a fresh run would."""
     from ...plugin.motion_blur import smear_along
 
-    out = np.full(len(names), np.nan)
-    for k, name in enumerate(names):
-        try:
-            with np.load(_cache_path(cache_dir, k, name), allow_pickle=False) as data:
-                out[k] = smear_along(data["motion_smears_by_angle"], directions[k])
-        except (OSError, KeyError, ValueError, EOFError):
-            pass
-    return out
+    arrays = _cached_arrays(cache_dir, names, "motion_smears_by_angle")
+    return np.array([np.nan if a is None else smear_along(a, directions[k]) for k, a in enumerate(arrays)])
 
 
 _WORKER_BACKEND: dict[str, Any] = {}  # per process: the segmentation backend, built once
