@@ -58,24 +58,26 @@ def compression_note(result: ChangeResult, name: str, path: str | Path, compress
     calibrated on the pair's own kept landmarks, which compression leaves alike, so they cannot show it."""
     if compression is None or not compression.below(min_quality):
         return ""
-    claims, shown, unmapped = _claims(result)
-    if not claims and not unmapped:
+    if not (doubted := _doubted_claims(result)):
         return ""
     return (f"the images of {path} (session {name} of the comparison) are heavily JPEG-compressed (quality "
             f"{compression.quality:.0f}, below {min_quality:g}): compression hides small objects from its segments "
             f"and cuts its ground into block-shaped segments that are mapped as objects, so its claims may be "
-            f"artefacts, not changes: {len(claims)} landmark(s) ({shown})"
-            + (f" and {unmapped} object(s) never mapped" if unmapped else "")
+            f"artefacts, not changes: {doubted}"
             + f" (a pair of world 7 where nothing changed made 1-11 such claims at confidences up to 0.999 at "
               f"qualities 15-60, none at 75 and 88); compare images written at quality {min_quality:g} or more")
 
 
-def _claims(result: ChangeResult) -> tuple[list[str], str, int]:
-    """The gone and new landmark claims ("gone A#3"), the first of them shown, and the objects never mapped."""
+def _doubted_claims(result: ChangeResult) -> str:
+    """The gone and new claims a session's images put in doubt, as the notes name them ("2 landmark(s) (gone A#3,
+    new B#7) and 1 object(s) never mapped"; the first 8 shown); "" when there is none."""
     claims = [f"gone A#{i}" for i in np.flatnonzero(result.a.label == GONE)] + \
         [f"new B#{i}" for i in np.flatnonzero(result.b.label == NEW)]
     unmapped = sum(t.count(c) for t, c in ((result.tracks_a, GONE), (result.tracks_b, NEW)) if t is not None)
-    return claims, ", ".join(claims[:8]) + (", ..." if len(claims) > 8 else ""), unmapped
+    if not claims and not unmapped:
+        return ""
+    shown = ", ".join(claims[:8]) + (", ..." if len(claims) > 8 else "")
+    return f"{len(claims)} landmark(s) ({shown})" + (f" and {unmapped} object(s) never mapped" if unmapped else "")
 
 
 def session_smear(session: Path) -> float:
@@ -95,12 +97,10 @@ def blur_note(result: ChangeResult, name: str, path: str | Path, smear_px: float
     the confidences, calibrated on the pair's kept landmarks, cannot show it."""
     if not (max_smear_px > 0 and np.isfinite(smear_px) and smear_px > max_smear_px):
         return ""
-    claims, shown, unmapped = _claims(result)
-    if not claims and not unmapped:
+    if not (doubted := _doubted_claims(result)):
         return ""
     return (f"the images of {path} (session {name} of the comparison) are motion-blurred (the ground smeared "
             f"{smear_px:.1f} working px along the track, above {max_smear_px:g}): the smear hides small objects "
-            f"from its segments and merges or splits others, so its claims may be artefacts, not changes: "
-            f"{len(claims)} landmark(s) ({shown})" + (f" and {unmapped} object(s) never mapped" if unmapped else "")
+            f"from its segments and merges or splits others, so its claims may be artefacts, not changes: {doubted}"
             + " (world 7, nothing changed, a 12 px blur along the track (7.5 working px): 4 false claims at high "
               "confidence); compare a flight with a shorter exposure or a slower speed")
