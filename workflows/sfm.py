@@ -279,14 +279,14 @@ def publish_database(database: Path, target: Path) -> None:
     `VACUUM INTO` rewrites every table in key order (167 Seneca frames, 55 MB: 0.2 s)."""
     import sqlite3
 
-    tmp = target.with_name(target.name + ".tmp")
-    tmp.unlink(missing_ok=True)
-    db = sqlite3.connect(database)  # only read: VACUUM INTO leaves its source as it is
-    try:
-        db.execute("VACUUM INTO ?", (str(tmp),))
-    finally:
-        db.close()
-    tmp.replace(target)
+    from ..database.atomic import atomic_path
+
+    with atomic_path(target) as tmp:  # VACUUM INTO writes a new file: the temporary path does not exist yet
+        db = sqlite3.connect(database)  # only read: VACUUM INTO leaves its source as it is
+        try:
+            db.execute("VACUUM INTO ?", (str(tmp),))
+        finally:
+            db.close()
     database.unlink()
 
 
