@@ -43,3 +43,22 @@ def cli_error(capsys):
         return err
 
     return run
+
+
+@pytest.fixture
+def run_moved(capsys, monkeypatch):
+    """run_moved(project, moved, argv): runs the command line inside `project`, moves the project to `moved`
+    (`shutil.move`, as `mv`) and runs the same command line inside it; both must succeed (a project moved whole is
+    the same project: its finished outputs are this run's, not "made from other inputs")."""
+    import shutil
+
+    from sosmatch.tools.cli import main
+
+    def run(project: Path, moved: Path, argv: list[str]) -> None:
+        monkeypatch.chdir(project)
+        assert main(argv) == 0, capsys.readouterr().err
+        shutil.move(project, moved)
+        monkeypatch.chdir(moved)
+        assert main(argv) == 0, capsys.readouterr().err
+
+    return run

@@ -343,23 +343,14 @@ def test_a_session_against_itself_or_a_refused_map_is_refused(sessions, tmp_path
     assert "`sosmatch map` refused this session" in err and not (tmp_path / "e3").exists()
 
 
-def test_an_evaluation_in_a_project_moved_whole_is_the_same_evaluation(sessions, tmp_path, capsys):
+def test_an_evaluation_in_a_project_moved_whole_is_the_same_evaluation(sessions, tmp_path, run_moved):
     """nu37 D1: `mv project project.moved` and the same `evaluate` again inside it was refused as "made from other
     inputs" (its identity held the inputs' real paths); the inputs are named by their content now."""
-    import os
     import shutil
 
     root, a, b, _ = sessions
     project = tmp_path / "project"
     for s in (a, b):
         shutil.copytree(s, project / s.name)
-    args = ["evaluate", a.name, b.name, "--out", "ev", "--methods", "sosmatch", "--repeats", "1"]
-    cwd = os.getcwd()
-    try:
-        os.chdir(project)
-        assert main(args) == 0, capsys.readouterr().err
-        shutil.move(project, tmp_path / "moved")
-        os.chdir(tmp_path / "moved")
-        assert main(args) == 0, capsys.readouterr().err
-    finally:
-        os.chdir(cwd)
+    run_moved(project, tmp_path / "moved",
+              ["evaluate", a.name, b.name, "--out", "ev", "--methods", "sosmatch", "--repeats", "1"])

@@ -542,20 +542,12 @@ def test_merge_measures_the_georeferences_of_an_older_match_across_two_epsg_code
     assert re.search(r"georeferences disagree by \d{1,2},\d{3} km", capsys.readouterr().err)
 
 
-def test_a_merge_in_a_project_moved_whole_is_the_same_merge(tmp_path, capsys):
+def test_a_merge_in_a_project_moved_whole_is_the_same_merge(tmp_path, run_moved):
     """nu37 D1: `mv project project.moved` and the same `merge` again inside it: the same inputs by content, so
     the finished merge is resumed, not refused as "made from other inputs" (its identity held the match's path)."""
     project = tmp_path / "project"
     _, a, b = overlapping_pair(project)
     toy_match_json(a, b, project / "m12" / "match.json")
-    args = ["merge", os.path.relpath(a.path, project), os.path.relpath(b.path, project), "--match",
-            "m12/match.json", "--out", "merged"]
-    cwd = os.getcwd()
-    try:
-        os.chdir(project)
-        assert main(args) == 0, capsys.readouterr().err
-        shutil.move(project, tmp_path / "moved")
-        os.chdir(tmp_path / "moved")
-        assert main(args) == 0, capsys.readouterr().err
-    finally:
-        os.chdir(cwd)
+    run_moved(project, tmp_path / "moved", ["merge", os.path.relpath(a.path, project),
+                                            os.path.relpath(b.path, project), "--match", "m12/match.json",
+                                            "--out", "merged"])
