@@ -68,11 +68,21 @@ def versioned_identity(build: Callable[[Callable[[Any], dict[str, Any]]], Any],
                              tuple((digest(o), note) for o, note in v.otherwise))
 
 
-def sha256_file(path: str | Path) -> str:
-    h = hashlib.sha256()
+def hash_file_into(h: Any, path: str | Path) -> int:
+    """Feed the bytes of `path` to the hash `h` in 1 MiB chunks (bounded memory on a file of any size); the
+    number of bytes read. OSError when it does not read."""
+    n = 0
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
+            n += len(chunk)
+    return n
+
+
+def sha256_file(path: str | Path) -> str:
+    """sha256 of a file's contents, streamed (every content digest of sosmatch: images, inputs, flights)."""
+    h = hashlib.sha256()
+    hash_file_into(h, path)
     return h.hexdigest()
 
 

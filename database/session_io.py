@@ -284,7 +284,7 @@ def check_map_of_images(map_dir: str | Path, images_dir: str | Path, samples: in
 
     Sessions of one flight path share their image names, so names alone cannot tell a summer map from a
     winter one; a map without the record (an older sosmatch, a merged model) is not checked."""
-    import hashlib
+    from .output_markers import sha256_file
 
     map_dir, images_dir = Path(map_dir), Path(images_dir)
     try:
@@ -298,8 +298,7 @@ def check_map_of_images(map_dir: str | Path, images_dir: str | Path, samples: in
     for name, digest in picks:
         image = images_dir / str(name)
         try:
-            with open(image, "rb") as handle:  # streamed: an image file of any size in bounded memory
-                actual = hashlib.file_digest(handle, "sha256").hexdigest()
+            actual = sha256_file(image)  # the digest `run.json` recorded, by the same reader
         except OSError:
             raise InputError(f"map was made from images that are not in {images_dir} (no {name}); is it this "
                              "session's map?", map_dir) from None

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...database.images import image_files
-from ...database.output_markers import output_command, unfinished_run
+from ...database.output_markers import hash_file_into, output_command, unfinished_run
 from ...plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -70,12 +70,8 @@ def flight_digest(folder: Path, listing: list) -> str | None:
     h = hashlib.sha256()
     for rel, size, _ in listing:
         h.update(f"{rel}\0{size}\0".encode())
-        n = 0
         try:
-            with open(folder / rel, "rb") as f:
-                for chunk in iter(lambda f=f: f.read(1 << 20), b""):
-                    h.update(chunk)
-                    n += len(chunk)
+            n = hash_file_into(h, folder / rel)
         except OSError:
             return None
         if n != size:
