@@ -35,6 +35,43 @@ class LoadedMap:
     kind: str  # "sosmap", "session" or "colmap"
     path: Path  # the file or model directory actually read
     noise: MapNoise | None = None  # the map's own noise figures (its file's, or its session's run.json), None: unknown
+    # the settings that define its landmarks' metric sizes (`size_definition`), None: unknown (a bare map file)
+    size_definition: dict[str, str] | None = None
+
+
+# mapping settings that change what a landmark's metric size measures, not only which landmarks there are: the
+# size estimator ("mean" of h_px x depth / f, the paper's, reads 0.94 of "nadir" on common landmarks, 0.81 on
+# conifers: sweep nu39) and the segmenter (where a mask's boundary lies). Maps that differ in them are compared with
+# the search's size gate (theta_r, 20 % by default) all the same.
+SIZE_SETTINGS = (("triangulation", "size_estimator"), ("segmentation", "backend"))
+
+
+def size_definition(record: dict | None) -> dict[str, str] | None:
+    """The size-defining settings (`SIZE_SETTINGS`) a map's run.json records in its params, as
+    {"section.key": value}; None when the record or its params are missing (a map of an older version keeps the
+    settings it had then, which `sosmatch config dump` does not know)."""
+    params = record.get("params") if isinstance(record, dict) else None
+    if not isinstance(params, dict):
+        return None
+    found = {f"{section}.{key}": str(params[section][key]) for section, key in SIZE_SETTINGS
+             if isinstance(params.get(section), dict) and key in params[section]}
+    return found or None
+
+
+def size_definition_disagreement(a: LoadedMap, b: LoadedMap) -> str | None:
+    """One line when both maps record how their sizes are defined and the definitions differ (the search compares
+    the two maps' sizes within theta_r: a few percent of systematic difference costs associations and, on a kind of
+    object, all of them), else None."""
+    if a.size_definition is None or b.size_definition is None:
+        return None
+    differ = [k for k in sorted(set(a.size_definition) & set(b.size_definition))
+              if a.size_definition[k] != b.size_definition[k]]
+    if not differ:
+        return None
+    said = ", ".join(f"{k} {a.size_definition[k]!r} in A, {b.size_definition[k]!r} in B" for k in differ)
+    return (f"the maps define landmark sizes differently ({said}): the same object's size differs systematically "
+            "between them, and the search compares sizes within a few tens of percent; map both sessions with the "
+            "same setting (`--set " + differ[0] + "=...`)")
 
 
 def session_map_noise(session: Path, lmap: LandmarkMap) -> MapNoise | None:
@@ -187,7 +224,10 @@ def load_map(path: str | Path) -> LoadedMap:
         check_session_usable(path)
         lmap = read_landmark_map(path / "landmarks.sosmap")
         check_map_of_record(path, lmap)  # its noise figures (run.json) must be this map's
-        return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap))
+        from .session_io import read_map_record
+
+        return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap),
+                         size_definition(read_map_record(path)))
     if (path / "run.json").is_file() and (path / "sparse").is_dir():  # landmarks.sosmap is not a file here
         # a session `sosmatch map` wrote has its map in landmarks.sosmap: matched from sparse/ instead, it lost its
         # sizes' noise figures and its checks, and every other command refused the folder (the nineteenth sweep)

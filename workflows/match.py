@@ -33,7 +33,7 @@ from ..database.landmark_map import (
     georeference_offset_m,
     landmark_map_fingerprint,
 )
-from ..database.map_loading import LoadedMap, load_map
+from ..database.map_loading import LoadedMap, load_map, size_definition_disagreement
 from ..database.match_io import MATCH_FORMAT, no_match_text, parse_match
 from ..database.output_markers import versioned_identity
 from ..database.outputs import open_output_dir
@@ -386,6 +386,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
             said.append(text)
 
     warn(crs_disagreement(la, lb))
+    warn(size_definition_disagreement(map_a, map_b))
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
     # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
