@@ -49,6 +49,7 @@ class PairCheck:
     # gives at the flying height, px
     parallax_px: float = float("nan")
     sees_direction: bool = True  # parallax_px >= MIN_PARALLAX_NOISES pixel noises: its depths' signs mean something
+    beyond_gate: float = float("nan")  # share of its inliers further off their epipolar line than the tracker's gate
 
     def reversed(self, gate_px: float) -> bool:
         """The matches fit the poses' epipolar geometry but lie behind the cameras: the motion is reversed. Judged
@@ -100,6 +101,17 @@ class PoseCheck:
     fixed_in_frame_text: str = ""
 
     @property
+    def matches_beyond_gate(self) -> float:
+        """The share of all checked pairs' inlier matches (true correspondences: they fit a fundamental matrix)
+        that the poses put further off their epipolar line than the tracker's gate: the share of true tracks the
+        tracker would lose on these poses. NaN without checked pairs or the figure."""
+        known = [(p.inliers, p.beyond_gate) for p in self.pairs if np.isfinite(p.beyond_gate)]
+        if not known:
+            return float("nan")
+        weights, shares = np.array(known, np.float64).T
+        return float(np.sum(weights * shares) / max(np.sum(weights), 1.0))
+
+    @property
     def lag_along_track_m(self) -> float:
         """The lag along the track the images cannot tell from the attitude bias (`systematic.lag_along_track_m`;
         NaN when the bias is no pitch along the flight direction)."""
@@ -135,6 +147,7 @@ class PoseCheck:
             "flying_height_m": num(self.flying_height_m), "epipolar_p50_px": num(self.epipolar_p50_px),
             "epipolar_p90_px": num(self.epipolar_p90_px), "epipolar_p50_deg": num(self.epipolar_p50_deg),
             "epipolar_fit_p50_px": num(self.epipolar_fit_p50_px), "share_beyond_gate": num(self.share_beyond_gate),
+            "matches_beyond_gate": num(self.matches_beyond_gate),
             "reversed_pairs": self.reversed_pairs, "reversed_passes": self.reversed_passes,
             "height_drift_m": num(s.height_drift_m), "height_drift_sigma_m": num(s.height_drift_sigma_m),
             "height_tilt_deg": num(s.height_tilt_deg), "height_tilt_sigma_deg": num(s.height_tilt_sigma_deg),
@@ -318,7 +331,7 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         warnings.simplefilter("ignore", RuntimeWarning)  # by the verdict, not by numpy's "All-NaN slice" on stderr
         checks = [PairCheck(p.a, p.b, kind, p.matches, p.inliers, p.flow_px, float(np.nanmedian(r)),
                             float(np.nanpercentile(r, 90)), float(np.nanmedian(f)), fr, d, float(par),
-                            bool(par >= least))
+                            bool(par >= least), _share_beyond(r, gate_px))
                   for p, kind, r, f, fr, d, par in zip(matched, kinds, raw, after, front, depth, parallax)]
         med = np.array([c.epipolar_px for c in checks])
         fit_med = np.array([c.epipolar_fit_px for c in checks])
@@ -334,6 +347,12 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
         min_gps_agreement=params.min_gps_agreement,
         track_camera=tuple(float(v) for v in track_in_camera(poses)), **fixed_figures)
+
+
+def _share_beyond(distances_px: np.ndarray, gate_px: float) -> float:
+    """The share of the finite distances beyond `gate_px` (NaN when none is finite: a pair without a baseline)."""
+    finite = distances_px[np.isfinite(distances_px)]
+    return float(np.mean(finite > gate_px)) if len(finite) else float("nan")
 
 
 def _fixed_in_frame(anchors: np.ndarray, feat: Callable[[int], OrbFeatures], camera: Camera,

@@ -17,13 +17,24 @@ MIRRORED_EXPLAINED = 0.9
 MIN_FIXES_TO_REFUSE = 10  # inliers a unit refusal needs (simulated: 0.5-2 % false refusals at 8-10, none from 15)
 
 
+def median_loose(check: PoseCheck, limits: PoseCheckParams) -> bool:
+    """The flight's matches fit the poses loosely: more than `warn_matches_beyond_gate` of the checked pairs' true
+    matches lie beyond the tracker's gate (the tracks it would lose; the gate keeps >99 % of them on the EKF poses
+    it was made for, so a median at a fixed fraction of it sits at their noise); the median beyond
+    `warn_epipolar_gate_fraction` of the gate where that share is unknown."""
+    share = check.matches_beyond_gate
+    if np.isfinite(share):
+        return bool(share > limits.warn_matches_beyond_gate)
+    return bool(check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * check.gate_px)
+
+
 def poses_loose(check: PoseCheck, limits: PoseCheckParams) -> bool:
-    """The check saw enough to say that the poses fit the images loosely or not at all: the median epipolar
-    residual beyond the warning fraction of the gate, or a pair beyond its warning limit."""
+    """The check saw enough to say that the poses fit the images loosely or not at all: the flight's matches
+    loose (`median_loose`), or a pair beyond its warning limit."""
     if check.pairs_checked < limits.min_pairs or not np.isfinite(check.epipolar_p50_px):
         return False
     gate = check.gate_px
-    return bool(check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * gate
+    return bool(median_loose(check, limits)
                 or any(p.epipolar_px > limits.warn_pair_gate_fraction * gate for p in check.pairs))
 
 
@@ -71,10 +82,12 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
         v.refusals.append(f"poses vs images: the poses' epipolar geometry misses the images' matches by "
                           f"{check.epipolar_p50_px:.1f} px (median of {check.pairs_checked} pairs; the tracker's gate "
                           f"is {gate:.1f} px): wrong relative rotations or directions of motion{then()}")
-    elif check.epipolar_p50_px > limits.warn_epipolar_gate_fraction * gate:
+    elif median_loose(check, limits):
+        lost = (f", {check.matches_beyond_gate:.0%} of their matches beyond it"
+                if np.isfinite(check.matches_beyond_gate) else "")
         v.warnings.append(f"poses vs images: the poses fit the images' matches only to {check.epipolar_p50_px:.1f} px "
-                          f"(median of {check.pairs_checked} pairs; gate {gate:.1f} px): expect a sparse map, or one "
-                          "metres off if the poses are wrong (each image given its neighbour's pose, or another "
+                          f"(median of {check.pairs_checked} pairs; gate {gate:.1f} px{lost}): expect a sparse map, "
+                          "or one metres off if the poses are wrong (each image given its neighbour's pose, or another "
                           f"flight's poses, fit like this too){then()}")
     # the median speaks for the flight; a few images whose poses are far off hide behind it (EXIF poses whose
     # attitudes the tie points could not solve: 25 deg off, one pair 271 px beyond a 24 px gate, the rest 0.5 px)
