@@ -75,7 +75,7 @@ ADDED: tuple[Added, ...] = (
     Added("changes.min_jpeg_quality", "cd668d0", 75.0, "a warning"),
     Added("quality.max_motion_smear_px", "debb177", 2.0, "a warning"),
     Added("changes.max_motion_smear_px", "af76afa", 2.0, "a warning"),
-    Added("changes.untested_object_rate", "6aa17c0", 1.0, "claims not tested for a standing object (no images) "
+    Added("changes.untested_object_rate", "e04497c", 1.0, "claims not tested for a standing object (no images) "
           "have their confidence lowered"),
 )
 
