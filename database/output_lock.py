@@ -13,6 +13,12 @@ the host, the kernel's boot, the pid namespace and the process's start time, bec
 after a reboot, or once the pids wrap, pid N is another process, alive. A process on another host, in another
 pid namespace (a container sharing the file system), or of a record without these (an older sosmatch, a lock
 file still being written) cannot be checked from here: `holder_state` then says "unknown".
+
+The record also names the folder the lock was taken for (its resolved path, device and inode): a copy of a
+directory taken while its run was writing it (cp -a, rsync of a project in use) carries the lock file along, and
+its pid names a live process that writes the original, never the copy. A lock whose folder differs from the one
+it is found in both by path and by (device, inode) is such a copy's ("elsewhere"); either alone is not enough: a
+folder moved while its run writes keeps its inode, and one path may be another mount of the same folder.
 """
 
 from __future__ import annotations
@@ -75,6 +81,20 @@ class LockHolder:
     boot_id: str | None = None
     pid_namespace: str | None = None
     started: int | None = None  # clock ticks after boot (/proc/PID/stat field 22)
+    folder: str | None = None  # the resolved path of the directory the lock was taken for
+    folder_id: tuple[int, int] | None = None  # its (st_dev, st_ino)
+
+    def taken_elsewhere(self, folder: str | Path) -> bool:
+        """Whether this lock was taken for another directory than `folder` (on this host), which it was found in:
+        a copy of `folder` made while its run was writing. False when the record does not say."""
+        if self.folder is None or self.folder_id is None or self.host != socket.gethostname():
+            return False  # another host's paths and devices mean nothing here
+        try:
+            here = Path(folder).resolve()
+            st = os.stat(here)
+        except (OSError, RuntimeError):
+            return False
+        return str(here) != self.folder and (st.st_dev, st.st_ino) != self.folder_id
 
     def describe(self) -> str:
         """"sosmatch map (pid 123)", with the host when it is not this one; "another process" when unknown."""
@@ -84,13 +104,18 @@ class LockHolder:
         return text if self.host in (None, socket.gethostname()) else f"{text} on host {self.host}"
 
 
-def lock_record(command: str) -> str:
-    """The record the run of `command` that takes a lock writes into the lock file: this process, named so that
-    `holder_state` can tell it from a later process with the same pid."""
+def lock_record(command: str, folder: str | Path | None = None) -> str:
+    """The record the run of `command` that takes a lock on directory `folder` writes into the lock file: this
+    process, named so that `holder_state` can tell it from a later process with the same pid, and the folder, so
+    that a copy of the directory is not taken for the one this process writes (None: not recorded)."""
     start = _process_start(os.getpid())
-    return json.dumps({"format": LOCK_FORMAT, "command": command, "pid": os.getpid(), "host": socket.gethostname(),
-                       "boot_id": _boot_id(), "pid_namespace": _pid_namespace(),
-                       "started": start[1] if start else None}) + "\n"
+    record = {"format": LOCK_FORMAT, "command": command, "pid": os.getpid(), "host": socket.gethostname(),
+              "boot_id": _boot_id(), "pid_namespace": _pid_namespace(), "started": start[1] if start else None}
+    if folder is not None:
+        real = Path(folder).resolve()
+        st = os.stat(real)
+        record.update({"folder": str(real), "folder_dev": st.st_dev, "folder_ino": st.st_ino})
+    return json.dumps(record) + "\n"
 
 
 def read_lock_holder(lock_path: str | Path) -> LockHolder | None:
@@ -116,8 +141,11 @@ def read_lock_holder(lock_path: str | Path) -> LockHolder | None:
         value = data.get(key)
         return value if isinstance(value, kind) and not isinstance(value, bool) else None
 
+    dev, ino = typed("folder_dev", int), typed("folder_ino", int)
+    folder_id = (dev, ino) if dev is not None and ino is not None else None
     return LockHolder(typed("command", str), typed("pid", int), typed("host", str), typed("boot_id", str),
-                      typed("pid_namespace", str), typed("started", int))  # type: ignore[arg-type]
+                      typed("pid_namespace", str), typed("started", int), typed("folder", str),
+                      folder_id)  # type: ignore[arg-type]
 
 
 def holder_state(holder: LockHolder | None) -> str:

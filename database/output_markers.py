@@ -155,11 +155,15 @@ class UnfinishedRun:
     command: str  # "?" when the marker does not say
     state: str  # "running" (being written now), "interrupted" (killed or failed), "unknown" (output_lock)
     holder: LockHolder | None  # the process the lock file names (None: no lock file)
+    copied: bool = False  # interrupted because the lock was taken for another folder: this one is a copy
 
     def status(self) -> str:
         """What became of it, for a message: "being written now by pid 12", "interrupted; ...", ..."""
         if self.state == "running" and self.holder is not None:
             return f"being written now by pid {self.holder.pid}"
+        if self.copied and self.holder is not None:
+            return (f"copied while {self.holder.describe()} was writing {self.holder.folder}; its lock file came "
+                    "along, but no process writes this copy")
         if self.state == "interrupted":
             return "interrupted; no process writes it any more"
         where = "" if self.holder is None or self.holder.pid is None else f" as {self.holder.describe()}"
@@ -178,8 +182,11 @@ def unfinished_run(path: str | Path) -> UnfinishedRun | None:
     if holder is None and (output_marker(path) or {}).get("complete") is not False:
         return None  # finished between the two reads: a run removes its lock file after marking it complete
     command = marker.get("command")
+    command = command if isinstance(command, str) else "?"
+    if holder is not None and holder.taken_elsewhere(path):  # whatever its pid does, it does not write here
+        return UnfinishedRun(command, "interrupted", holder, copied=True)
     state = {"running": "running", "gone": "interrupted"}.get(holder_state(holder), "unknown")
-    return UnfinishedRun(command if isinstance(command, str) else "?", state, holder)
+    return UnfinishedRun(command, state, holder)
 
 
 def check_input_finished(path: str | Path) -> None:

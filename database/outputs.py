@@ -148,7 +148,7 @@ def _acquire_lock(lock_path: Path, what: str) -> int:
             break
         os.close(fd)
     os.ftruncate(fd, 0)
-    os.write(fd, lock_record(what).encode())
+    os.write(fd, lock_record(what, lock_path.parent).encode())
     return fd
 
 

@@ -30,8 +30,15 @@ from sosmatch.plugin.changes.surface import (
     stands_above_ground,
 )
 from sosmatch.plugin.geometry import Camera, Poses, rotvec_to_matrix
-from sosmatch.plugin.params import ChangeParams
+from sosmatch.plugin.params import ChangeParams as _ChangeParams
 from sosmatch.tools.toy_sessions import change_session, lawnmower, render_nadir_images, yaw_transform
+
+
+def ChangeParams(**kw):  # noqa: N802 - stands in for the class in these tests
+    """The detector's parameters with the segments' probability as the confidence: these toy observations have
+    no relief to test for a standing object (`untested_object_rate`, tested in test_changes_cli)."""
+    return _ChangeParams(**{"untested_object_rate": 1.0, **kw})
+
 
 CAM = Camera(320, 240, 200.0, 200.0, 160.0, 120.0)  # 0.23 m a pixel from 45 m
 

@@ -21,8 +21,15 @@ from sosmatch.plugin.changes import (
     segment_evidence,
     tracks_from_matches,
 )
-from sosmatch.plugin.params import ChangeParams
+from sosmatch.plugin.params import ChangeParams as _ChangeParams
 from sosmatch.tools.toy_sessions import CHANGE_CAMERA, nadir_poses, toy_change_pair, yaw_transform
+
+
+def ChangeParams(**kw):  # noqa: N802 - stands in for the class in these tests
+    """The detector's parameters with the segments' probability as the confidence: these toy observations have
+    no relief to test for a standing object (`untested_object_rate`, tested in test_changes_cli)."""
+    return _ChangeParams(**{"untested_object_rate": 1.0, **kw})
+
 
 CAM = CHANGE_CAMERA
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -107,3 +108,36 @@ def test_a_holder_that_cannot_be_checked_from_here_is_interrupted_or_still_runni
         assert "once it is not running any more, re-run the same command" in err, err
     assert f"still running as sosmatch map (pid {os.getpid()}) on host another-host)" in \
         _refusal(tmp_path / "other_host")
+
+
+def test_a_copy_made_while_a_run_writes_is_not_taken_for_the_live_run(tmp_path: Path) -> None:
+    """The lock file of a directory copied mid-run (cp -a, rsync) names a live process, which writes the
+    original: the copy will never finish by waiting. A folder moved while its run writes is still that run's, and
+    a second run into the very folder is still refused by the flock."""
+    from sosmatch.database.outputs import open_output_dir
+
+    flight = tmp_path / "flights" / "f1"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(flight)], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        copy = tmp_path / "copy" / "f1"
+        shutil.copytree(flight, copy)
+        run = unfinished_run(copy)
+        assert run is not None and run.state == "interrupted" and run.copied
+        err = _refusal(copy)
+        assert f"(copied while sosmatch map (pid {holder.pid}) was writing {flight.resolve()}; its lock file came " \
+               "along, but no process writes this copy): re-run the same command" in err, err
+        assert "being written now" not in err
+        with pytest.raises(InputError, match=f"in use by sosmatch map \\(pid {holder.pid}\\)"):
+            with open_output_dir(flight, "map", "x"):  # two runs into one folder still exclude each other
+                pass
+        moved = tmp_path / "moved"
+        flight.parent.rename(moved)  # same inode: the run writes it wherever it is now
+        run = unfinished_run(moved / "f1")
+        assert run is not None and run.state == "running" and not run.copied
+        with open_output_dir(copy, "map", "x"):  # the copy's stale lock does not keep a re-run out
+            pass
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()

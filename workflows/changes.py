@@ -71,7 +71,7 @@ from ..plugin.changes import (
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params import Params, params_to_dict
-from .changes_images import image_notes
+from .changes_images import image_notes, untested_note
 
 log = logging.getLogger(__name__)
 
@@ -98,10 +98,13 @@ class ChangesRun:
         return self.result.summary()
 
 
+IMAGES_ADVICE = "give --images-a / --images-b"  # `sosmatch changes`'s options; batch says its own
+
+
 def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path | None, params: Params | None = None,
             a_from_b: Sim3 | None = None, verified: bool = False, images_a: str | Path | None = None,
             images_b: str | Path | None = None, answer_gate_m: float | None = None,
-            trust_images: bool = False) -> ChangesRun:
+            trust_images: bool = False, images_advice: str = IMAGES_ADVICE) -> ChangesRun:
     """Read, check and classify; nothing is written. The match must be accepted and computed for exactly these
     two maps (`match_io.check_match_maps`). `a_from_b` overrides the match's transform (batch passes its verified
     alignment with `verified=True`, and its match's gate as `answer_gate_m`); `match_json` may then be None.
@@ -117,7 +120,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     A match whose images agree while the two maps' georeferences do not (`match_io.georeference_note`, the rule
     of `match`, `merge` and `batch`) is refused unless `trust_images` (then said in the warnings): one
     georeference is wrong, or the images agree on another site that looks alike, and changes.geojson would place
-    the verdicts by A's."""
+    the verdicts by A's. `images_advice`: how the caller's user gives the images when they are not found (batch
+    has its own)."""
     params = params or Params()
     t0 = time.perf_counter()
     match = None
@@ -164,8 +168,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
             missing = " and ".join(f"{name} ({path})" for name, path, d in (("A", session_a, dirs[0]),
                                                                             ("B", session_b, dirs[1])) if d is None)
             warnings.append(f"the images of session {missing} are not available (no run.json recording them, or "
-                            "the directory it records is gone; give --images-a / --images-b): no surface evidence, "
-                            "the segments alone decide")
+                            f"the directory it records is gone; {images_advice}): no surface evidence, "
+                            f"the segments alone decide{untested_note(params.changes)}")
             dirs = [None, None]
     obs_a = read_session_observations(files_a, with_tracks=tracks, images_dir=dirs[0])
     obs_b = read_session_observations(files_b, with_tracks=tracks, images_dir=dirs[1])
@@ -181,7 +185,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         path = session_a if name == "A" else session_b
         warnings.append(f"the images of {path} (session {name} of the comparison) show no relief at its reference "
                         "places (views of an orthophoto, bare fields, or too coarse for a height?): its objects "
-                        "cannot be told from ground texture, so its changes are claimed without that test")
+                        f"cannot be told from ground texture, so its changes are claimed without that test"
+                        f"{untested_note(params.changes)}")
     for name in result.without_ground_noise:
         path = session_a if name == "A" else session_b
         warnings.append(f"{path} (session {name} of the comparison): too few places at ground level to measure "

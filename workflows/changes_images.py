@@ -104,3 +104,16 @@ def blur_note(result: ChangeResult, name: str, path: str | Path, smear_px: float
             f"from its segments and merges or splits others, so its claims may be artefacts, not changes: {doubted}"
             + " (world 7, nothing changed, a 12 px blur along the track (7.5 working px): 4 false claims at high "
               "confidence); compare a flight with a shorter exposure or a slower speed")
+
+
+def untested_note(params: ChangeParams) -> str:
+    """The end of the warning that claims could not be tested for an object standing there (no images, or images
+    without relief): what that does to their confidences and to `--min-confidence`; "" when it does nothing."""
+    rate = params.untested_object_rate
+    if rate >= 1.0:
+        return ""
+    held = (f"so at --min-confidence {params.min_confidence:g} none is reported; lower it below {rate:g} to list "
+            "the candidates" if params.min_confidence > rate else "so every claim is a candidate to check")
+    return (f", and they cannot tell a change of looks (a moved shadow, ground texture) from an object that went: "
+            f"each claim's confidence is P(absent | segments) x {rate:g} (changes.untested_object_rate, the share "
+            f"of such claims on an object), {held}")

@@ -47,7 +47,10 @@ neighbouring keyframes see an object alike, so n views are fewer independent loo
 into a probability at prior odds 1. A claim below `min_confidence` (0.8 by default) is reported as unseen: the
 other session's images do not say that the object went. Without the other session's database (no segments)
 the confidence falls back to the pair's re-observation rate of landmarks like this one (`confidence`: logistic
-in log size, log views, height above ground and support, fitted on the compared landmarks).
+in log size, log views, height above ground and support, fitted on the compared landmarks). A claim that could
+not be tested for an object standing there (no images of either session, or images without relief) has its
+confidence multiplied by `untested_object_rate`, the measured ratio of such claims' precision to tested ones'
+(most are changes of looks), so the default `min_confidence` reports none of them.
 
 Surface heights (`surface`, `changes.surface_evidence`, with both sessions' images): removed and added trees,
 buildings and boulders change the surface, moved shadows and ground texture do not. At each tested landmark each

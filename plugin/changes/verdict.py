@@ -196,7 +196,7 @@ class _Direct:
     # the reference places' surface heights above the ground (own session, other session), None: not measured
     surface_references: tuple[np.ndarray, np.ndarray] | None = None
     # swept places whose surface in their own session stands no higher than the ground (`stands_above_ground`):
-    # no object of theirs to have gone (all False where nothing was swept)
+    # no object of theirs to have gone (all False where nothing was swept; None: the test did not run)
     flat: np.ndarray | None = None
     # whether the own session's images show relief at its references (`shows_relief`); None: not measured here
     relief: bool | None = None
@@ -316,7 +316,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
                             & (absent[idx] < 0.5))
     return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments, surface, doubted,
-                   surface_references, flat, relief, ground_noise)
+                   surface_references, None if swept is None else flat, relief, ground_noise)
 
 
 def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,
@@ -385,6 +385,8 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
         feats = reobservation_features(own_h[idx], views[idx], heights[idx],
                                        None if own.support is None else own.support[idx])
         confidence[idx] = predict_logistic(fit_logistic(feats, label[idx] == KEPT), feats)
+    if mine.flat is None:  # not tested for an object standing there: most such claims are changes of looks
+        confidence[open_] *= params.untested_object_rate
     label[open_] = change_label
     evidence[open_] = NO_EVIDENCE
     if mine.flat is not None:

@@ -107,6 +107,16 @@ class ChangeParams(Checked):
     # no more of its reference places stand than this p lets the noise raise (`surface.shows_relief`: an
     # orthophoto's views, bare fields). 1 = off (needs both sessions' images, as surface_evidence).
     object_height_p: float = fraction(0.01)
+    # (ours) Where that test could not run (either session's images missing, `surface_evidence` off, images
+    # without relief, object_height_p 1), a claim's confidence is P(absent | segments) times this: nothing tells
+    # a change of looks (a moved shadow, ground texture segmented otherwise) from an object that went, and such
+    # claims are right this much less often than claims that passed it. Measured (fix46) as the precision of
+    # every claimed landmark without image evidence (surface_evidence off) over that with it, on the same pairs:
+    # 6 pairs of worlds 3, 7 at --changed 0.10 (bench_changes --cached, 100 frames) 0.11 (23/211) / 0.31 (20/64)
+    # = 0.35 (0.32 at confidences >= 0.95); 40-frame pairs of world 37 (--changed 0.1 and 0) 0.25 (9/36) / 0.31
+    # (4/13), nu37 D4's 0.14 (3/22) / 0.33 (2/6); all pooled 0.13 / 0.31 = 0.42. 1 = the segments' probability
+    # alone (before: on D4's pair 19 of 22 claims false at up to 0.999).
+    untested_object_rate: float = fraction(0.4)
     # (ours) the landmark's own session's surface is swept at its place and, where that does not stand, at this
     # many places on a ring at half its footprint's radius (`surface.footprint_places`); the highest is tested at
     # the limit for that many places (Sidak, so bare ground passes as rarely as one place does at

@@ -76,6 +76,8 @@ ADDED: tuple[Added, ...] = (
     Added("quality.max_motion_smear_px", "debb177", 2.0, "a warning"),
     Added("changes.max_motion_smear_px", "af76afa", 2.0, "a warning"),
     Added("pose_check.warn_matches_beyond_gate", "75b6bd8", 0.03, "a warning"),
+    Added("changes.untested_object_rate", "e04497c", 1.0, "claims not tested for a standing object (no images) "
+          "have their confidence lowered"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}

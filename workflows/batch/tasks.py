@@ -178,6 +178,12 @@ def merge_task(
     }
 
 
+# batch has no --images-a / --images-b: it reads a flight's images in its folder, a mapped session's where its
+# run.json records them
+BATCH_IMAGES_ADVICE = ("batch reads a mapped session's images in the directory its run.json records: put them back "
+                       "there, or give batch the flight folder (images with poses) in place of the mapped session")
+
+
 def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, params: Params,
                  overwrite: bool = False, verified: bool = True, images_a: str | None = None,
                  images_b: str | None = None, answer_gate_m: float | None = None) -> dict[str, Any]:
@@ -192,7 +198,8 @@ def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, 
     from .. import changes
 
     run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform), verified=verified,
-                          images_a=images_a, images_b=images_b, answer_gate_m=answer_gate_m)
+                          images_a=images_a, images_b=images_b, answer_gate_m=answer_gate_m,
+                          images_advice=BATCH_IMAGES_ADVICE)
     with open_output_dir(out_dir, "changes", changes.output_identity(run, params, True),
                          inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json") as out:
         changes.write_outputs(run, out.path, params)
