@@ -17,9 +17,13 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..database.images import Levels
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +106,7 @@ def contrast_of(ranges: Sequence[tuple[float, float]], reference: float) -> Flig
     return FlightContrast(width, centre, reference, gain, len(arr))
 
 
-def flight_contrast(paths: Sequence[str | Path], reference: float, white: int | None = None) -> FlightContrast:
+def flight_contrast(paths: Sequence[str | Path], reference: float, white: Levels | int | None = None) -> FlightContrast:
     """The contrast of the flight of `paths` (`FlightContrast`) from `CONTRAST_SAMPLES` images spread over it.
 
     Why the median of per-image ranges and not one pooled histogram: the segmenter works frame by frame, and a
