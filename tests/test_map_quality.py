@@ -396,3 +396,21 @@ def test_a_heavily_compressed_flight_is_said_by_the_map_s_verdict():
         assert images.to_dict()["jpeg"]["quality"] == quality
     assert "jpeg" not in flight_images(figs, names).to_dict()
     assert not image_causes(flight_images(figs, names, FlightCompression(5.0, 5, 12, 12)), 3.0, 0.15, 0.0)
+
+
+def test_a_refused_session_is_refused_with_the_refusals_own_advice(tmp_path):
+    """nu39: `match` on a session refused for want of landmarks (low contrast) advised "fix its poses or camera"
+    whatever the refusal was; the refusal names its cause and the advice leaves it at that."""
+    import json
+
+    import pytest
+
+    from sosmatch.database.session_io import check_session_usable
+    from sosmatch.plugin.errors import InputError
+
+    reason = "the map has no landmarks (images of low contrast: contrast to noise 1.2)"
+    (tmp_path / "run.json").write_text(json.dumps({"verdict": {"status": "refused", "refusals": [reason]}}))
+    with pytest.raises(InputError) as err:
+        check_session_usable(tmp_path)
+    said = str(err.value)
+    assert reason in said and "poses or camera" not in said and "map it again" in said
