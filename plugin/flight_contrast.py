@@ -80,6 +80,13 @@ class FlightContrast:
         out = (image.astype(np.float32) - self.centre) * self.gain + target
         return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
+    def cause(self) -> str:
+        """The flight's low contrast as the cause of a thin map ("" at normal contrast: not stretched)."""
+        if not self.stretched:
+            return ""
+        return (f"the images' contrast is low (luminance range {self.range:.0f} of the {self.reference:g} grey "
+                f"levels the segmenter was tuned for, stretched by {self.gain:.2f}): fewer regions stand out")
+
     def to_dict(self) -> dict:
         """The record run.json keeps."""
         return {"range": round(self.range, 2), "centre": round(self.centre, 2), "reference": self.reference,

@@ -88,14 +88,15 @@ def quality_stage(
     landmarks: Any, poses: Poses, camera: Camera, image_paths: list[Path], keypoints: list[np.ndarray],
     long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
     images_flying_height_m: float = float("nan"), white: Levels | int | None = None, poses_fit: str = "",
-    images: FlightImages | None = None,
+    images: FlightImages | None = None, contrast: str = "",
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
     for the picture (`database.images.flight_white_level`); `poses_fit`, `images`: the pose check's phrase when it
-    found the poses fitting, and the keyframes' image figures (`judge`)."""
+    found the poses fitting, and the keyframes' image figures (`judge`); `contrast`: the flight's low contrast
+    as a cause (`FlightContrast.cause`)."""
     quality = assess(landmarks, poses, long_tracks, camera, keypoints, limits)
-    verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images)
+    verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images, contrast)
     alone = isolated_cameras(poses.centers, quality.flying_height_m, 0.5 * float(np.hypot(camera.width, camera.height)),
                              float(camera.fx))
     if len(alone):

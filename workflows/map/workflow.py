@@ -369,7 +369,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                      keypoints, long_tracks, params.quality, out.staged(FIGURE), str(out.path),
                                      params.association.min_associations + 1,
                                      checked.check.flying_height_m if checked is not None else float("nan"),
-                                     white, poses_fit(checked, params), images)
+                                     white, poses_fit(checked, params), images,
+                                     contrast.cause() if contrast is not None else "")
     # the poses' doubts (a georegistration leaving GPS fixes out, a lag corrected) are the map's too
     verdict = joined(Verdict(warnings=list(inputs.warnings)), verdict, checked.verdict if checked is not None else None)
     timings["quality"] = time.perf_counter() - t
