@@ -75,7 +75,7 @@ ADDED: tuple[Added, ...] = (
     Added("changes.min_jpeg_quality", "cd668d0", 75.0, "a warning"),
     Added("quality.max_motion_smear_px", "debb177", 2.0, "a warning"),
     Added("changes.max_motion_smear_px", "af76afa", 2.0, "a warning"),
-    Added("quality.warn_landmarks_per_keyframe", "39e6c0f", 0.0, "a warning"),
+    Added("quality.warn_landmarks_per_keyframe", "39e6c0f", 0.3, "a warning"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}
