@@ -61,3 +61,23 @@ def test_a_flat_flight_beyond_8_bits_gets_no_division_by_zero(tmp_path):
     assert isinstance(levels, Levels) and levels.white > levels.black
     assert read_image(tmp_path / "f.tif", levels).shape == (40, 40, 3)
 
+
+
+def test_colmaps_copies_of_a_thermal_flight_use_its_levels_and_are_made_again_when_they_change(tmp_path):
+    """COLMAP reads 8-bit copies (`sfm.colmap_image_dir`): a thermal flight's are read between its own levels,
+    and copies.json records them, so copies made at other levels are not reused."""
+    import json
+
+    from sosmatch.workflows import sfm
+
+    images = tmp_path / "images"
+    images.mkdir()
+    names = [f"t{k}.tif" for k in range(3)]
+    for k, name in enumerate(names):
+        cv2.imwrite(str(images / name), _temperatures(seed=k))
+    work = tmp_path / "work"
+    assert sfm.colmap_image_dir(images, names, work) == work
+    copy = cv2.imread(str(work / names[0]), cv2.IMREAD_UNCHANGED).astype(int)
+    assert copy.max() - copy.min() > 180  # before: 7 grey levels
+    levels = str(flight_white_level([images / n for n in names]))
+    assert all(source[2] == levels for source in json.loads((work / "copies.json").read_text()).values())
