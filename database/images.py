@@ -13,6 +13,7 @@ import unicodedata
 import warnings
 from collections import Counter
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,8 +34,18 @@ IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 # Integer data of more than 8 bits is scaled from its sensor's white level, 2^b - 1 for the smallest of these bit
 # depths that holds the data: 10-, 12- and 14-bit sensor data stored in 16 bits would otherwise be nearly black.
 SENSOR_BITS = (10, 12, 14, 16)
-# images sampled over a flight to find its sensor's bit depth (`flight_white_level`)
+# images sampled over a flight to find its sensor's bit depth and range (`flight_white_level`)
 WHITE_LEVEL_SAMPLES = 8
+# values kept of each sample (evenly strided) for the flight's range: its percentiles hardly move beyond this
+LEVEL_SAMPLE_VALUES = 250_000
+# the flight's robust range: these percentiles of its sampled values (hot pixels, a sun glint or a dead column
+# left out)
+LEVEL_PERCENTILES = (0.1, 99.9)
+# a flight whose robust range spans less than this fraction of its sensor's range (64 of 255 grey levels) is read
+# from its own range: below it the 8-bit reading keeps fewer grey levels than the contrast stretch
+# (`plugin.flight_contrast`, at most 3) can bring to the segmenter's reference (70 levels), while data that span
+# more read exactly as before (the camera's exposure kept)
+MIN_SPAN = 0.25
 
 
 def white_level(max_value: int) -> int:
@@ -46,7 +57,29 @@ def white_level(max_value: int) -> int:
     return int(max_value)
 
 
-def to_rgb_u8(array: np.ndarray, white: int | None = None) -> np.ndarray:
+@dataclass(frozen=True)
+class Levels:
+    """The black and white level an image of more than 8 bits is read between (to 0 and 255): one pair per
+    flight (`flight_white_level`), so every frame gets the same mapping and a region the same grey in each."""
+
+    black: int
+    white: int
+
+    def __str__(self) -> str:
+        # the keyframe cache key and log lines: a flight read from its own range is never mixed with one read
+        # from its sensor's white level (a bare number, as before, for those)
+        return f"{self.white}" if self.black == 0 else f"{self.black}-{self.white}"
+
+
+def _levels(white: Levels | int | None, a: np.ndarray) -> tuple[int, int]:
+    """(black, white) for `to_u8`: the flight's `Levels`, a bare white level (black 0), or the white level of
+    the array's own maximum."""
+    if isinstance(white, Levels):
+        return white.black, white.white
+    return 0, int(white) if white else white_level(int(a.max(initial=0)))
+
+
+def to_rgb_u8(array: np.ndarray, white: Levels | int | None = None) -> np.ndarray:
     """Convert a decoded pixel array (H, W), (H, W, 1|2|3|4) of uint8/uint16/float to (H, W, 3) uint8 RGB.
 
     Channel order is taken as RGB(A). Values are scaled as `to_u8` does (`white`: the flight's white level).
@@ -64,13 +97,14 @@ def to_rgb_u8(array: np.ndarray, white: int | None = None) -> np.ndarray:
     return np.ascontiguousarray(out)
 
 
-def to_u8(a: np.ndarray, white: int | None = None) -> np.ndarray:
+def to_u8(a: np.ndarray, white: Levels | int | None = None) -> np.ndarray:
     """Pixel values of any shape (uint8/uint16/wider integers/bool/float) as uint8 of the same shape.
 
-    Integer data of more than 8 bits is scaled from `white` (the flight's white level, `flight_white_level`) to
-    255; without it, from the white level of the array's own maximum (`white_level`), which a dark frame of a
-    16-bit flight reads as 10- or 12-bit data (64 or 16 times brighter than its neighbours): the readers of a
-    flight's images pass its white level. Floats are taken as 0..1 when their maximum is <= 1, else as 0..255.
+    Integer data of more than 8 bits is scaled by `white`, what the flight's data are read between
+    (`flight_white_level`): `Levels` (black to 0, white to 255) or a bare white level (to 255, black 0); without
+    it, from the white level of the array's own maximum (`white_level`), which a dark frame of a 16-bit flight
+    reads as 10- or 12-bit data (64 or 16 times brighter than its neighbours): the readers of a flight's images
+    pass its levels. Floats are taken as 0..1 when their maximum is <= 1, else as 0..255.
     """
     a = np.asarray(a)
     if a.dtype == np.uint8:
@@ -78,14 +112,15 @@ def to_u8(a: np.ndarray, white: int | None = None) -> np.ndarray:
     if a.dtype.kind == "i" and a.dtype.itemsize == 2:  # signed 16-bit (some thermal TIFFs): no light below 0
         a = np.clip(a, 0, None).astype(np.uint16)
     if a.dtype.kind == "u" and a.dtype.itemsize == 2:  # any byte order (big-endian TIFF: >u2)
-        level = int(white) if white else white_level(int(a.max(initial=0)))
+        black, level = _levels(white, a)
         # a table of the 65536 values: the uint8 result is written directly (a float copy of a 24 MP RGB frame
         # took 288 MB per temporary, review rev17)
-        lut = np.clip(np.rint(np.arange(65536) * (255.0 / max(level, 1))), 0, 255).astype(np.uint8)
+        lut = np.clip(np.rint((np.arange(65536) - black) * (255.0 / max(level - black, 1))), 0, 255).astype(np.uint8)
         return lut[a.astype(np.uint16, copy=False)]
     if a.dtype.kind in "ui" and a.dtype.itemsize > 2:
-        level = int(white) if white else white_level(int(a.max(initial=0)))
-        return np.clip(np.rint(a.astype(np.float32) * np.float32(255.0 / max(level, 1))), 0, 255).astype(np.uint8)
+        black, level = _levels(white, a)
+        scaled = (a.astype(np.float64) - black) * (255.0 / max(level - black, 1))
+        return np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
     if a.dtype == bool:
         return a.astype(np.uint8) * 255
     if np.issubdtype(a.dtype, np.floating):
@@ -167,7 +202,7 @@ def _read_cv2(path: Path) -> np.ndarray | None:
     return arr
 
 
-def read_image(path: str | Path, white: int | None = None) -> np.ndarray:
+def read_image(path: str | Path, white: Levels | int | None = None) -> np.ndarray:
     """Read an image file as (H, W, 3) uint8 RGB; raise InputError naming the file if it cannot be read.
     `white`: the white level of the flight's integer data beyond 8 bits (`flight_white_level`; None: the image's
     own, `to_rgb_u8`)."""
@@ -182,17 +217,23 @@ def read_image(path: str | Path, white: int | None = None) -> np.ndarray:
     return out
 
 
-def flight_white_level(paths: Sequence[str | Path]) -> int | None:
-    """The white level of a flight's images (`to_rgb_u8`): None for 8-bit images (told from the headers of
-    WHITE_LEVEL_SAMPLES images spread over the flight, nothing decoded), else `white_level` of the largest value
-    in those images. A sensor's bit depth is the camera's, not the frame's: scaled per image, a dark frame of a
-    16-bit flight came out 16 times brighter than its neighbours. Unreadable samples are skipped (the stage that
-    needs their pixels names them)."""
+def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
+    """What a flight's images of more than 8 bits are read between (`to_rgb_u8`): None for 8-bit images (told
+    from the headers of WHITE_LEVEL_SAMPLES images spread over the flight, nothing decoded); else measured once
+    over those samples, so that every frame gets the same mapping (a dark frame of a 16-bit flight, scaled by
+    itself, came out 16 times brighter than its neighbours): the sensor's white level (`white_level` of the
+    largest value, black 0: the camera's exposure kept), or, for a flight whose values span less than
+    `MIN_SPAN` of that range, `Levels` at the flight's own robust range (`LEVEL_PERCENTILES` of all the samples'
+    values). Unreadable samples are skipped (the stage that needs their pixels names them).
+
+    Why the flight's own range: a radiometric thermal file holds temperatures (DJI's Thermal SDK and FLIR tools
+    write centi-kelvin: 20-40 degC is 29315-31315), not light from 0 up; read from 0 to its white level it had 6
+    grey levels and its map no landmarks. Thermal cameras show such data between the scene's own limits."""
     paths = list(paths)
     if not paths:
         return None
     picks = sorted({round(i) for i in np.linspace(0, len(paths) - 1, min(len(paths), WHITE_LEVEL_SAMPLES))})
-    largest = None
+    values = []
     for i in picks:
         path = Path(paths[i])
         bits = _header_bits(path)
@@ -203,8 +244,21 @@ def flight_white_level(paths: Sequence[str | Path]) -> int | None:
         except InputError:
             continue
         if arr.dtype.kind in "ui" and arr.dtype.itemsize > 1:
-            largest = max(largest or 0, int(arr.max(initial=0)))
-    return None if largest is None else white_level(largest)
+            flat = arr.reshape(-1)
+            values.append(flat[:: max(1, flat.size // LEVEL_SAMPLE_VALUES)].astype(np.int64))
+    if not values:
+        return None
+    pooled = np.concatenate(values)
+    white = white_level(int(pooled.max(initial=0)))
+    lo, hi = (int(round(v)) for v in np.percentile(pooled, LEVEL_PERCENTILES))
+    if hi - lo >= MIN_SPAN * white:
+        return white
+    # a flat flight (one value throughout) keeps a span of 1: read as mid-grey steps, not divided by zero
+    levels = Levels(max(0, lo), max(hi, lo + 1))
+    log.warning("the images' values span only %d-%d of their %d-bit range 0-%d (%.1f %%): a radiometric "
+                "(thermal) file? read between the flight's own levels %s", lo, hi, white.bit_length(), white,
+                100.0 * (hi - lo) / white, levels)
+    return levels
 
 
 def _header_bits(path: Path) -> int | None:
@@ -271,7 +325,7 @@ def check_images_decode(paths: Iterable[str | Path]) -> None:
         read_image(path)
 
 
-def read_gray(path: str | Path, white: int | None = None) -> np.ndarray:
+def read_gray(path: str | Path, white: Levels | int | None = None) -> np.ndarray:
     """Read an image file as (H, W) uint8 gray, on its stored pixel grid like `read_image` (OpenCV's imread would
     turn it by its EXIF Orientation tag, while the poses, the intrinsics and COLMAP see the stored grid), data of
     more than 8 bits scaled from the flight's white level `white` (`to_u8`; OpenCV alone keeps a 16-bit value's

@@ -185,8 +185,11 @@ def check_session_usable(path: str | Path) -> None:
     verdict = (record or {}).get("verdict") or {}
     if isinstance(verdict, dict) and verdict.get("status") == "refused":
         reasons = "; ".join(str(r) for r in verdict.get("refusals", [])) or "no reason recorded"
-        raise InputError(f"`sosmatch map` refused this session ({reasons}); fix its poses or camera and map "
-                         "it again", path)
+        # the advice is the refusal's own: it may lie in the images (no landmarks at low contrast or blur) as
+        # well as in the poses or camera, and the reasons say which (nu39: "fix its poses or camera" was said of
+        # a thermal flight whose poses were right)
+        raise InputError(f"`sosmatch map` refused this session ({reasons}); remedy what the refusal names and "
+                         "map it again (see quality.png and run.json there)", path)
 
 
 def read_session(path: str | Path, name: str | None = None) -> SessionFiles:

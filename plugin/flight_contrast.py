@@ -17,9 +17,13 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..database.images import Levels
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +80,13 @@ class FlightContrast:
         out = (image.astype(np.float32) - self.centre) * self.gain + target
         return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
+    def cause(self) -> str:
+        """The flight's low contrast as the cause of a thin map ("" at normal contrast: not stretched)."""
+        if not self.stretched:
+            return ""
+        return (f"the images' contrast is low (luminance range {self.range:.0f} of the {self.reference:g} grey "
+                f"levels the segmenter was tuned for, stretched by {self.gain:.2f}): fewer regions stand out")
+
     def to_dict(self) -> dict:
         """The record run.json keeps."""
         return {"range": round(self.range, 2), "centre": round(self.centre, 2), "reference": self.reference,
@@ -102,7 +113,7 @@ def contrast_of(ranges: Sequence[tuple[float, float]], reference: float) -> Flig
     return FlightContrast(width, centre, reference, gain, len(arr))
 
 
-def flight_contrast(paths: Sequence[str | Path], reference: float, white: int | None = None) -> FlightContrast:
+def flight_contrast(paths: Sequence[str | Path], reference: float, white: Levels | int | None = None) -> FlightContrast:
     """The contrast of the flight of `paths` (`FlightContrast`) from `CONTRAST_SAMPLES` images spread over it.
 
     Why the median of per-image ranges and not one pooled histogram: the segmenter works frame by frame, and a

@@ -377,14 +377,15 @@ def _likely_cause(poses: str, poses_fit: str, causes: list[str]) -> str:
 
 def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
           images_flying_height_m: float = float("nan"), poses_fit: str = "",
-          images: FlightImages | None = None) -> Verdict:
+          images: FlightImages | None = None, contrast: str = "") -> Verdict:
     """Refusals and warnings for a map's figures (limits and their reasons: `QualityParams`). `min_landmarks`:
     fewer make no usable map (`sosmatch map` passes association.min_associations + 1: a match needs more than
     theta_S landmarks in common). `images_flying_height_m`: the flying height the pose check's own matches
     triangulate to (NaN: not checked), which the map's must agree with. `poses_fit`: the pose check's phrase
     when it found the poses fitting the images (`pose_check.poses_fit_images`, "" otherwise); `images`: the
     keyframes' image figures (`plugin.image_quality`). With them, warnings about a thin map name the images
-    (blank keyframes, noise, blur) rather than the poses."""
+    (blank keyframes, noise, blur) rather than the poses. `contrast`: the flight's low contrast as a cause
+    (`FlightContrast.cause`, "" when it was normal), said when the map is thin."""
     v = Verdict()
     causes = image_causes(images, limits.min_image_contrast_to_noise, limits.min_image_sharpness,
                           limits.min_jpeg_quality, limits.max_motion_smear_px)
@@ -392,12 +393,20 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
     if blank:
         v.warnings.append(blank)
     if q.landmarks == 0:
-        v.refusals.append("the map has no landmarks" + (f" ({'; '.join(causes)})" if causes else "")
+        said = causes + ([contrast] if contrast else [])
+        v.refusals.append("the map has no landmarks" + (f" ({'; '.join(said)})" if said else "")
                           + (f" ({blank.split(' (')[0]})" if blank else ""))
         return v
-    if causes:
-        v.warnings.append(f"{'; '.join(causes)}: expect a thin map (here {q.landmarks_per_keyframe:.2f} landmarks "
+    # a thin map may still match, but the user must know it is thin, and why, before trusting a "no match"
+    thin = 0 < q.landmarks_per_keyframe < limits.warn_landmarks_per_keyframe
+    said = causes + ([contrast] if contrast and thin else [])
+    if said:
+        v.warnings.append(f"{'; '.join(said)}: expect a thin map (here {q.landmarks_per_keyframe:.2f} landmarks "
                           f"per keyframe, {q.landmarks} in all)")
+    elif thin:
+        v.warnings.append(f"a thin map: {q.landmarks_per_keyframe:.2f} landmarks per keyframe, {q.landmarks} in "
+                          f"all (normal maps have {limits.warn_landmarks_per_keyframe:g} or more): few distinct "
+                          "objects on the ground, or images that do not show them (see the figure)")
     if q.landmarks < min_landmarks:
         v.refusals.append(f"only {q.landmarks} landmark(s): a map needs at least {min_landmarks} to be matched")
     if q.landmarks_under_cameras and \

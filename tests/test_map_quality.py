@@ -414,3 +414,42 @@ def test_a_heavily_compressed_flight_is_said_by_the_map_s_verdict():
         assert images.to_dict()["jpeg"]["quality"] == quality
     assert "jpeg" not in flight_images(figs, names).to_dict()
     assert not image_causes(flight_images(figs, names, FlightCompression(5.0, 5, 12, 12)), 3.0, 0.15, 0.0)
+
+
+def test_a_refused_session_is_refused_with_the_refusals_own_advice(tmp_path):
+    """nu39: `match` on a session refused for want of landmarks (low contrast) advised "fix its poses or camera"
+    whatever the refusal was; the refusal names its cause and the advice leaves it at that."""
+    import json
+
+    import pytest
+
+    from sosmatch.database.session_io import check_session_usable
+    from sosmatch.plugin.errors import InputError
+
+    reason = "the map has no landmarks (images of low contrast: contrast to noise 1.2)"
+    (tmp_path / "run.json").write_text(json.dumps({"verdict": {"status": "refused", "refusals": [reason]}}))
+    with pytest.raises(InputError) as err:
+        check_session_usable(tmp_path)
+    said = str(err.value)
+    assert reason in said and "poses or camera" not in said and "map it again" in said
+
+
+def test_a_thin_map_is_said_with_the_cause_the_map_knows():
+    """nu39 D4: a low-contrast thermal flight mapped to 0.18 landmarks per keyframe (RGB of the same flight
+    1.6-1.9) with verdict ok and nothing said, while a blurred flight was told "expect a thin map". Below the
+    thinnest normal maps (`QualityParams.warn_landmarks_per_keyframe`) the map is said to be thin, with the low
+    contrast as its cause when the segmenter had to stretch the flight; normal maps and the neutral 0 say
+    nothing."""
+    from sosmatch.plugin.flight_contrast import contrast_of
+
+    q, v = _judge(*toy_flight(0.0, 0.0))
+    assert v.ok and not any("thin map" in w for w in v.warnings)
+    thin = replace(q, landmarks_per_keyframe=0.18)
+    low = contrast_of([(100.0, 148.5)] * 5, 70.0)
+    said = judge(thin, QualityParams(), contrast=low.cause())
+    assert said.ok and any("contrast is low" in w and "expect a thin map (here 0.18" in w for w in said.warnings)
+    bare = judge(thin, QualityParams())
+    assert bare.ok and any(w.startswith("a thin map: 0.18 landmarks per keyframe") for w in bare.warnings)
+    assert not any("thin map" in w for w in judge(thin, replace(QualityParams(), warn_landmarks_per_keyframe=0.0),
+                                                  contrast=low.cause()).warnings)
+    assert contrast_of([(0.0, 150.0)] * 5, 70.0).cause() == ""  # normal contrast is no cause

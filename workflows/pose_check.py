@@ -27,6 +27,7 @@ from ..plugin.params import Params, PoseCheckParams, for_image
 from ..plugin.pose_check import PoseCheck, check_poses, judge_poses
 
 if TYPE_CHECKING:
+    from ..database.images import Levels
     from ..database.output_files import OutputFiles
     from ..plugin.pose_check.gps import GpsComparison
 
@@ -38,7 +39,7 @@ class PosesRefused(InputError):
 
 
 def image_features(paths: Sequence[Path], camera: Camera, params: PoseCheckParams,
-                   white: int | None = None) -> Callable[[int], OrbFeatures]:
+                   white: Levels | int | None = None) -> Callable[[int], OrbFeatures]:
     """`features(i)`: ORB features of image `paths[i]` at the working size (read on demand; an unreadable image or
     one of another size than the camera is an InputError naming it), at the flight's white level (`white`; None:
     found here, `database.images.flight_white_level`)."""
@@ -126,7 +127,7 @@ def refuse_by_gps(image_paths: Sequence[Path], poses: Poses, epsg: int, params: 
 
 def check(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params,
           gate: float | None = None, epsg: int | None = None,
-          gps: GpsComparison | None = None, white: int | None = None,
+          gps: GpsComparison | None = None, white: Levels | int | None = None,
           remedy: str = "") -> tuple[PoseCheck, Verdict]:
     """The figures of `poses` (in the order of `image_paths`, capture order) against the images, and their
     verdict. `gate`: the tracker's epipolar gate in pixels of these images (None: `gate_px(params, camera)`;
@@ -188,7 +189,7 @@ def write_disabled(out: str | Path) -> None:
 def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path | None = None,
         refuse: bool = True, sources: dict | None = None, gate: float | None = None,
         files: OutputFiles | None = None, epsg: int | None = None, gps: GpsComparison | None = None,
-        white: int | None = None, remedy: str = "") -> CheckResult:
+        white: Levels | int | None = None, remedy: str = "") -> CheckResult:
     """Check the poses (`check`), write the figures to `out` (JSON, atomically; None: nothing written) and raise
     PosesRefused (after writing) when they contradict the images and `refuse` is on. `files`: the OutputFiles
     that `out` is written through (`check_to_file`, a user's file); without it `out` lies in a directory the

@@ -122,7 +122,7 @@ def colmap_image_dir(image_dir: Path, names: list[str], work_dir: Path) -> Path:
     for name in names:
         target = work_dir / name
         st = (image_dir / name).stat()
-        source = [st.st_size, st.st_mtime_ns, white]
+        source = [st.st_size, st.st_mtime_ns, white if isinstance(white, int) else str(white)]
         if target.is_file() and made.get(name) == source:
             continue
         rgb = read_image(image_dir / name, white)
@@ -137,7 +137,7 @@ def colmap_image_dir(image_dir: Path, names: list[str], work_dir: Path) -> Path:
         written += 1
     if written:
         write_text_atomic(manifest_path, json.dumps(made, indent=0) + "\n")
-    log.info("images of more than 8 bits: COLMAP reads 8-bit copies scaled from the flight's white level %d "
+    log.info("images of more than 8 bits: COLMAP reads 8-bit copies scaled from the flight's white level %s "
              "(%d written in %.1f s, %s)", white, written, time.perf_counter() - t0, work_dir)
     return work_dir
 

@@ -78,6 +78,7 @@ ADDED: tuple[Added, ...] = (
     Added("pose_check.warn_matches_beyond_gate", "75b6bd8", 0.03, "a warning"),
     Added("changes.untested_object_rate", "e04497c", 1.0, "claims not tested for a standing object (no images) "
           "have their confidence lowered"),
+    Added("quality.warn_landmarks_per_keyframe", "39e6c0f", 0.3, "a warning"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}

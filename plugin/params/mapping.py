@@ -285,6 +285,11 @@ class QualityParams(Checked):
     # blur along the track of 3 / 6 / 12 full px (x 0.625 to working px) 1.75 / 3.5 / 7.5 (12 px: 120 of 205
     # landmarks, and false change claims against a clean session: `ChangeParams.max_motion_smear_px`)
     max_motion_smear_px: float = within(2.0, 0.0, None)
+    # below this many landmarks per keyframe a map is said to be thin, with the cause the map knows (low contrast
+    # stretched for segmentation, or none found; 0: never said). Warning-free maps in nu21-nu39 (209: worlds,
+    # altitudes, cameras) had 0.98 and more (5th percentile 1.16), the real Seneca flight 0.38-0.51 over its 166
+    # keyframes; low-contrast thermal flights (nu39, luminance range 48-50 of 70) 0.18-0.20 with nothing said
+    warn_landmarks_per_keyframe: float = within(0.3, 0.0, None)
     refuse: bool = flag(True)  # False: a map beyond the limits is kept with a loud warning (run.json says so)
 
 

@@ -10,11 +10,15 @@ landmarks above the cameras or layers of landmarks at different heights stand ou
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ...plugin.geometry import Camera, Poses, project
 from ...plugin.map_quality import MapQuality, Verdict, robust_plane_normal
+
+if TYPE_CHECKING:
+    from ...database.images import Levels
 
 
 def pick_keyframes(observed_keyframes: list[np.ndarray], num_keyframes: int, count: int = 3) -> list[int]:
@@ -79,7 +83,7 @@ def draw_map_figure(
     quality: MapQuality,
     verdict: Verdict,
     title: str = "",
-    white: int | None = None,
+    white: Levels | int | None = None,
 ) -> None:
     """Write the figure to `out` (PNG; the caller makes it atomic).
 

@@ -7,7 +7,7 @@ import json
 import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,6 +16,9 @@ from ...plugin.errors import InputError
 from ...plugin.geometry import Camera
 from ...plugin.params import Params, params_to_dict
 from .inputs import MapInputs
+
+if TYPE_CHECKING:
+    from ...database.images import Levels
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +110,7 @@ def _describe_one(
     prev_gray: np.ndarray | None = None,
     masks_for: Callable[[str, np.ndarray], Any] | None = None,
     camera: Camera | None = None,
-    white: int | None = None,
+    white: Levels | int | None = None,
     contrast: Any = None,
 ) -> tuple[Any, tuple[float, float], np.ndarray]:
     """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
@@ -177,7 +180,7 @@ def describe_keyframes(
     workers: int = 1,
     masks_for: Callable[[str, np.ndarray], Any] | None = None,
     digests: Sequence[str] | None = None,
-    white: int | None = None,
+    white: Levels | int | None = None,
     hold_descriptors: bool = True,
     contrast: Any = None,
 ) -> tuple[list[Any], list[tuple[float, float]], int]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from ...plugin.image_quality import FlightImages
 from ...plugin.map_quality import MapQuality, Verdict, assess_map, isolated_cameras, judge
 from ...plugin.params import QualityParams
 
+if TYPE_CHECKING:
+    from ...database.images import Levels
+
 log = logging.getLogger(__name__)
 FIGURE = "quality.png"
 
@@ -29,7 +32,7 @@ class MapRefused(InputError):
     """The map was made but its geometry is implausible or it is empty: the inputs (poses, camera) are wrong."""
 
 
-def pose_check_stage(inputs: Any, params: Any, record: Path, gps: Any = None, white: int | None = None) -> Any:
+def pose_check_stage(inputs: Any, params: Any, record: Path, gps: Any = None, white: Levels | int | None = None) -> Any:
     """The poses of `inputs` (MapInputs) checked against its images (`workflows.pose_check.run`, figures written
     to `record`), or None when `pose_check.enabled` is off (`record` then says so, so that no stale figures of
     an earlier run stand beside the map). Never raises on a refusal: its verdict joins the map's (`joined`), so a
@@ -84,15 +87,16 @@ def _world_rays(cam_rays: np.ndarray, r_wc: np.ndarray) -> np.ndarray:
 def quality_stage(
     landmarks: Any, poses: Poses, camera: Camera, image_paths: list[Path], keypoints: list[np.ndarray],
     long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
-    images_flying_height_m: float = float("nan"), white: int | None = None, poses_fit: str = "",
-    images: FlightImages | None = None,
+    images_flying_height_m: float = float("nan"), white: Levels | int | None = None, poses_fit: str = "",
+    images: FlightImages | None = None, contrast: str = "",
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
     for the picture (`database.images.flight_white_level`); `poses_fit`, `images`: the pose check's phrase when it
-    found the poses fitting, and the keyframes' image figures (`judge`)."""
+    found the poses fitting, and the keyframes' image figures (`judge`); `contrast`: the flight's low contrast
+    as a cause (`FlightContrast.cause`)."""
     quality = assess(landmarks, poses, long_tracks, camera, keypoints, limits)
-    verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images)
+    verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images, contrast)
     alone = isolated_cameras(poses.centers, quality.flying_height_m, 0.5 * float(np.hypot(camera.width, camera.height)),
                              float(camera.fx))
     if len(alone):

@@ -252,7 +252,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
     import pycolmap
 
-    from ...database.images import flight_white_level
+    from ...database.images import Levels, flight_white_level
     from ...database.session_io import format_landmarks_csv
     from ...plugin.flight_contrast import flight_contrast
     from ...plugin.image_quality import flight_images
@@ -369,7 +369,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                      keypoints, long_tracks, params.quality, out.staged(FIGURE), str(out.path),
                                      params.association.min_associations + 1,
                                      checked.check.flying_height_m if checked is not None else float("nan"),
-                                     white, poses_fit(checked, params), images)
+                                     white, poses_fit(checked, params), images,
+                                     contrast.cause() if contrast is not None else "")
     # the poses' doubts (a georegistration leaving GPS fixes out, a lag corrected) are the map's too
     verdict = joined(Verdict(warnings=list(inputs.warnings)), verdict, checked.verdict if checked is not None else None)
     timings["quality"] = time.perf_counter() - t
@@ -405,6 +406,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "ground_resolution_m": round(ground_resolution, 5) if np.isfinite(ground_resolution) else None,
         # the flight's luminance range and the gain the segmenter saw its images through (plugin.flight_contrast)
         "contrast": contrast.to_dict() if contrast is not None else None,
+        # what images beyond 8 bits were read between, [black, white] (database.images.flight_white_level)
+        "image_levels": None if white is None else ([white.black, white.white] if isinstance(white, Levels)
+                                                      else [0, int(white)]),
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},

@@ -1,0 +1,83 @@
+"""Images of more than 8 bits whose values fill only a sliver of their range (radiometric thermal TIFFs) are read
+between the flight's own levels; data that use their range read from the sensor's white level as before."""
+
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+
+from sosmatch.database.images import Levels, flight_white_level, read_gray, read_image, to_u8
+
+
+def _temperatures(h: int = 120, w: int = 160, seed: int = 0, warm: float = 0.0) -> np.ndarray:
+    """A radiometric thermal frame in centi-kelvin, as DJI's Thermal SDK and FLIR tools write: 20-40 degC with
+    a 0.05 K sensor noise (values ~29300-31300 of 65535)."""
+    rng = np.random.default_rng(seed)
+    t = np.full((h, w), 25.0)
+    cv2.circle(t, (50, 50), 20, 38.0, -1)
+    cv2.rectangle(t, (90, 60), (140, 110), 21.0, -1)
+    t += warm + rng.normal(0, 0.05, t.shape)
+    return np.rint((t + 273.15) * 100).astype(np.uint16)
+
+
+def test_a_radiometric_thermal_flight_is_read_between_its_own_levels(tmp_path, caplog):
+    """nu39 D3: read from 0 to its white level 65535 such a flight had 6 grey levels, and its map was refused
+    ("no landmarks"). Its levels are the flight's (every frame read alike: a warmer frame stays warmer), the
+    range fills the 8 bits, and the user is told why."""
+    paths = []
+    for k, warm in enumerate((0.0, 0.0, 2.0, 0.0)):
+        paths.append(tmp_path / f"t{k}.tif")
+        cv2.imwrite(str(paths[-1]), _temperatures(seed=k, warm=warm))
+    with caplog.at_level(logging.WARNING):
+        levels = flight_white_level(paths)
+    assert isinstance(levels, Levels) and 29400 < levels.black < levels.white < 31400
+    assert "radiometric (thermal) file?" in caplog.text
+    frame = read_image(paths[0], levels)[:, :, 0].astype(int)
+    assert frame.max() - frame.min() > 180  # before: 6 grey levels
+    # one mapping for the flight: the 2 K warmer frame reads brighter by the same step everywhere
+    warmer = read_image(paths[2], levels)[:, :, 0].astype(int)
+    step = 200 * 255 / (levels.white - levels.black)
+    assert abs(float(np.median(warmer[100:, :40] - frame[100:, :40])) - step) < 3
+    gray = read_gray(paths[0], levels).astype(int)
+    assert np.abs(gray - frame).max() <= 1
+
+
+def test_data_that_use_their_range_keep_the_sensors_white_level(tmp_path):
+    """The camera's exposure is kept where the data span their range: 12-bit data read from 4095, black 0."""
+    gray = np.linspace(0, 4000, 160 * 120).reshape(120, 160).astype(np.uint16)
+    cv2.imwrite(str(tmp_path / "a.tif"), gray)
+    assert flight_white_level([tmp_path / "a.tif"]) == 4095
+    assert to_u8(np.array([0, 4095], np.uint16), Levels(0, 4095)).tolist() == [0, 255]
+    assert to_u8(np.array([100, 180, 300], np.uint16), Levels(100, 300)).tolist() == [0, 102, 255]
+    assert to_u8(np.array([100, 180, 300], np.uint32), Levels(100, 300)).tolist() == [0, 102, 255]
+    assert str(Levels(0, 4095)) == "4095" and str(Levels(100, 300)) == "100-300"
+
+
+def test_a_flat_flight_beyond_8_bits_gets_no_division_by_zero(tmp_path):
+    cv2.imwrite(str(tmp_path / "f.tif"), np.full((40, 40), 30000, np.uint16))
+    levels = flight_white_level([tmp_path / "f.tif"])
+    assert isinstance(levels, Levels) and levels.white > levels.black
+    assert read_image(tmp_path / "f.tif", levels).shape == (40, 40, 3)
+
+
+
+def test_colmaps_copies_of_a_thermal_flight_use_its_levels_and_are_made_again_when_they_change(tmp_path):
+    """COLMAP reads 8-bit copies (`sfm.colmap_image_dir`): a thermal flight's are read between its own levels,
+    and copies.json records them, so copies made at other levels are not reused."""
+    import json
+
+    from sosmatch.workflows import sfm
+
+    images = tmp_path / "images"
+    images.mkdir()
+    names = [f"t{k}.tif" for k in range(3)]
+    for k, name in enumerate(names):
+        cv2.imwrite(str(images / name), _temperatures(seed=k))
+    work = tmp_path / "work"
+    assert sfm.colmap_image_dir(images, names, work) == work
+    copy = cv2.imread(str(work / names[0]), cv2.IMREAD_UNCHANGED).astype(int)
+    assert copy.max() - copy.min() > 180  # before: 7 grey levels
+    levels = str(flight_white_level([images / n for n in names]))
+    assert all(source[2] == levels for source in json.loads((work / "copies.json").read_text()).values())
