@@ -862,3 +862,44 @@ def test_a_flight_whose_images_changed_is_mapped_again_not_failed(tmp_path):
     status = {s["name"]: (s["status"], bool(s.get("resumed"))) for s in again.sessions}
     assert status == {"F1": ("done", True), "F2": ("done", False)}
     assert again.pairs and all(p["status"] == "done" and not p.get("resumed") for p in again.pairs)
+
+
+def test_a_group_keeps_its_reference_as_flights_are_added(flights, tmp_path, caplog):
+    """nu40: a sixth flight added to a finished batch of five moved the merged model's reference from f1 to f5 (the
+    best-connected session changes with every flight), left merged/f1 behind and guessed at flights removed. The
+    reference of the previous run stays while it is in the group; when it cannot, the log says the actual cause."""
+    root, _ = flights
+    for name in "AB":
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    out = tmp_path / "out"
+    options = batch.BatchOptions(progress=False, changes=False)
+    first = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    assert [g["reference"] for g in first.groups] == ["A"]
+    shutil.copytree(root / "C", tmp_path / "fl" / "C")  # C links to B only: B is now the best connected
+    again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    (group,) = again.groups
+    assert group["reference"] == "A" and sorted(group["members"]) == ["A", "B", "C"] and group["status"] == "done"
+    assert again.stale_outputs == [] and "reference_note" not in group
+    fresh = batch.run(tmp_path / "fl", tmp_path / "fresh", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                      options=options)
+    assert [g["reference"] for g in fresh.groups] == ["B"]  # a first run: the best-connected session
+    shutil.rmtree(tmp_path / "fl" / "B")  # A and C are no longer linked: merged/B has a cause, said
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        gone = batch.run(tmp_path / "fl", tmp_path / "fresh", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                         options=options)
+    assert "merged/B" in gone.stale_outputs
+    assert "merged/B (flight B is no longer in the flights folder)" in caplog.text
+    assert "--nearest no longer chooses?" not in caplog.text
+
+
+def test_spanning_transforms_keeps_an_earlier_reference_while_it_is_eligible():
+    from sosmatch.plugin.multisession import Edge, Sim3, spanning_transforms
+
+    one = Sim3.identity()
+    edges = [Edge(0, 1, one, 50.0), Edge(1, 2, one, 50.0)]
+    assert spanning_transforms([0, 1, 2], edges)[0] == 1  # the strongest
+    assert spanning_transforms([0, 1, 2], edges, keep={0})[0] == 0
+    assert spanning_transforms([0, 1, 2], edges, keep={0, 2}, preferred={2})[0] == 2  # a georeference first
+    assert spanning_transforms([0, 1, 2], edges, keep={0, 2})[0] == 0  # two groups joined: ties by index
+

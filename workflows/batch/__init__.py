@@ -21,8 +21,9 @@ processes, or a Dask cluster):
    rotation; see BENCHMARKS.md, Multi-session;
 4. session graph: sessions are nodes, accepted pairs are edges carrying a_from_b and |S|; accepted pairs
    that contradict others linking the same groups are left out (`plugin.multisession.consistent_edges`); each connected
-   group is brought into the frame of its best-connected session (georeferenced sessions first) along a maximum
-   spanning tree
+   group is brought into the frame of its best-connected session (georeferenced sessions first; in a batch run
+   again, e.g. with flights added, the previous run's reference while it is in the group, so the merged model
+   keeps its frame and folder: `graph.previous_references`) along a maximum spanning tree
    (`sosmatch.plugin.multisession.spanning_transforms`) and merged (`sosmatch.workflows.merge.merge_sessions`)
    -> OUT/merged/REFERENCE/;
 5. changes (BatchOptions.changes, on by default): every accepted pair in the graph is compared object by object
