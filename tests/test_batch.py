@@ -1,6 +1,7 @@
 """Batch: discovery, map/match/merge stages over several flights, failures reported per flight, resume,
 the session graph (groups, spanning-tree transforms) and identical results on a Dask LocalCluster."""
 
+import io
 import json
 import logging
 import os
@@ -903,3 +904,44 @@ def test_spanning_transforms_keeps_an_earlier_reference_while_it_is_eligible():
     assert spanning_transforms([0, 1, 2], edges, keep={0, 2}, preferred={2})[0] == 2  # a georeference first
     assert spanning_transforms([0, 1, 2], edges, keep={0, 2})[0] == 0  # two groups joined: ties by index
 
+
+def test_nearest_also_matches_each_flight_with_its_neighbours_in_time(monkeypatch):
+    """nu40: 6 flights of one site, --nearest 2 chose by camera position only and dropped 2-3, 3-4, 4-5 and 5-6,
+    the consecutive surveys. With capture times, each flight's previous and next overlapping flight is matched."""
+    from sosmatch.workflows.batch import pairs as pairs_mod
+
+    centres = {"f1": (294.0, 295.2), "f2": (302.3, 290.0), "f3": (288.0, 301.0), "f4": (298.6, 299.7),
+               "f5": (288.9, 290.3), "f6": (297.3, 297.7)}  # the sessions' mean camera positions in nu40
+    names = list(centres)
+    sessions = {n: {"center": [x, y, 100.0], "epsg": 0, "session": n} for n, (x, y) in centres.items()}
+    boxes = {n: (0.0, 0.0, 600.0, 600.0) for n in names} | {"far": (2000.0, 0.0, 2600.0, 600.0)}
+    monkeypatch.setattr(pairs_mod, "_footprint", boxes.get)
+    by_position = batch.workflow._choose_pairs(names, sessions, 2)
+    assert ("f2", "f3") not in by_position and ("f5", "f6") not in by_position
+    times = {n: 86400.0 * k for k, n in enumerate(names)}
+    chosen, added = pairs_mod.choose_pairs(names, sessions, 2, times)
+    assert added == [("f2", "f3"), ("f3", "f4"), ("f4", "f5"), ("f5", "f6")]
+    assert sorted(chosen) == sorted(set(by_position) | set(added))
+    # a flight of another site flown in between is no one's neighbour, and does not hide f3 from f4
+    sessions["far"] = {"center": [2300.0, 300.0, 100.0], "epsg": 0, "session": "far"}
+    times["far"] = 2.5 * 86400.0
+    assert pairs_mod.time_neighbour_pairs(names + ["far"], times, boxes) == [
+        ("f1", "f2"), ("f2", "f3"), ("f3", "f4"), ("f4", "f5"), ("f5", "f6")]
+    assert pairs_mod.choose_pairs(names, sessions, 2, {})[1] == []  # no capture times: by position only
+    assert pairs_mod.choose_pairs(names, sessions, None, times)[1] == []  # every pair anyway
+
+
+def test_a_flight_s_time_is_its_images_exif_capture_time(tmp_path):
+    from PIL import Image
+
+    from sosmatch.database.exif import ImageMetadata, embed_metadata
+    from sosmatch.workflows.batch.pairs import flight_time
+
+    (tmp_path / "images").mkdir()
+    for k, stamp in enumerate(("2026:05:01 10:00:00", "2026:05:01 10:05:00", "2026:05:01 10:10:00")):
+        buf = io.BytesIO()
+        Image.new("RGB", (8, 8)).save(buf, format="JPEG")
+        jpeg = embed_metadata(buf.getvalue(), ImageMetadata("x.jpg", 8, 8, datetime_original=stamp))
+        (tmp_path / "images" / f"img_{k}.jpg").write_bytes(jpeg)
+    assert flight_time(tmp_path / "images") == pytest.approx(1777629900.0)  # 10:05 UTC, the median
+    assert flight_time(None) is None

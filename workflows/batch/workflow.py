@@ -11,18 +11,16 @@ from itertools import combinations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ...database.atomic import write_text_atomic
 from ...database.match_io import MatchSummary, answer_gate
 from ...database.output_markers import versioned_identity
 from ...database.outputs import open_output_dir
-from ...plugin.multisession import nearest_pairs
 from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir
 from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs
+from .pairs import choose_pairs, flight_time
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
 from .tasks import changes_task, map_task, pair_task
@@ -62,16 +60,10 @@ def _valid_match(done: dict[str, Any]) -> bool:
     return Path(done.get("match", "")).is_file()
 
 
-def _choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None) -> list[tuple[str, str]]:
-    all_pairs = list(combinations(names, 2))
-    if nearest is None:
-        return all_pairs
-    centres = [sessions[n].get("center") for n in names]
-    epsgs = {sessions[n].get("epsg") for n in names}
-    if any(c is None for c in centres) or len(epsgs) > 1:
-        log.warning("--nearest needs every session's position in one frame; matching all %d pairs", len(all_pairs))
-        return all_pairs
-    return [(names[i], names[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)]
+def _choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
+                  times: dict[str, float | None] | None = None) -> list[tuple[str, str]]:
+    """The session pairs to match (`pairs.choose_pairs`)."""
+    return choose_pairs(names, sessions, nearest, times)[0]
 
 
 def run(
@@ -151,7 +143,10 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
 
     # 3: match
-    chosen = _choose_pairs(mapped, sessions, options.nearest)
+    # with --nearest, each flight's neighbours in time are matched too (read only then: 3 EXIF reads a flight)
+    times = {f.name: flight_time(None if f.kind == "mapped" else images_dir(f.path)) for f in flights
+             if f.name in mapped} if options.nearest is not None else {}
+    chosen, by_time = choose_pairs(mapped, sessions, options.nearest, times)
     matcher = pair_fn or pair_task
     # a custom matcher (pair_fn) returns its own summary; the default one is `sosmatch match` (verified)
     verify = bool(options.verify) if matcher is pair_task else None
@@ -169,6 +164,8 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
             pair_tasks[key] += (verify, True)  # the batch's own, as the sessions
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                        options.progress, _valid_match)
+    for a, b in by_time:  # said in report.json: why a pair --nearest would not choose was matched
+        pairs[f"{a}{PAIR_SEP}{b}"]["chosen_by"] = "consecutive flights by capture time"
     _match_refusals(pairs)
     matches = _read_matches(pairs)
     _georeference_warnings(pairs, matches, sessions)
