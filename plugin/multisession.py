@@ -148,7 +148,8 @@ PRECISE_GEOREFERENCE_FACTOR = 2.0
 
 
 def spanning_transforms(group: Sequence[int], edges: Sequence[Edge], preferred: Collection[int] = (),
-                        noise_m: Mapping[int, float] | None = None) -> tuple[int, dict[int, Sim3], list[Edge]]:
+                        noise_m: Mapping[int, float] | None = None,
+                        keep: Collection[int] = ()) -> tuple[int, dict[int, Sim3], list[Edge]]:
     """Bring every session of a connected group into one reference frame along a maximum spanning tree.
 
     The reference is the session with the largest total edge weight (ties: the smallest index), so the frame
@@ -160,7 +161,11 @@ def spanning_transforms(group: Sequence[int], edges: Sequence[Edge], preferred: 
     noisier than the most precise, or of unknown noise, is not the reference (nu34: an RTK session, 0.05 m,
     merged in the frame of a 1.4 m GPS session named first, its landmarks 0.56 m off instead of 0.26). The tree
     keeps the heaviest edges (most associations), because a composed transform is only as good as its weakest
-    link (a maximum spanning tree from any reference).
+    link (a maximum spanning tree from any reference). `keep`: sessions that were the reference of an earlier
+    run of the same output (a batch resumed with flights added): the reference stays one of them while it is as
+    eligible as above (the strongest of them), because strength depends on which flights there are, and a
+    reference that moves with every added flight moves the merged model into another frame and another folder
+    (nu40: f6 added to five flights moved it from f1 to f5).
     Returns (reference, {session: reference_from_session}, tree edges).
     """
     members = set(group)
@@ -174,6 +179,7 @@ def spanning_transforms(group: Sequence[int], edges: Sequence[Edge], preferred: 
     if known and noise_m:  # a georeference of unknown precision is not known to be as good as the best measured
         best = min(known)
         candidates = [i for i in candidates if i in noise_m and noise_m[i] <= PRECISE_GEOREFERENCE_FACTOR * best]
+    candidates = [i for i in candidates if i in keep] or candidates
     reference = min(candidates, key=lambda i: (-strength[i], i))
     adjacency: dict[int, list[tuple[int, Edge]]] = {i: [] for i in group}
     for k, e in enumerate(inner):

@@ -1,6 +1,7 @@
 """Batch: discovery, map/match/merge stages over several flights, failures reported per flight, resume,
 the session graph (groups, spanning-tree transforms) and identical results on a Dask LocalCluster."""
 
+import io
 import json
 import logging
 import os
@@ -867,3 +868,85 @@ def test_a_flight_whose_images_changed_is_mapped_again_not_failed(tmp_path):
     status = {s["name"]: (s["status"], bool(s.get("resumed"))) for s in again.sessions}
     assert status == {"F1": ("done", True), "F2": ("done", False)}
     assert again.pairs and all(p["status"] == "done" and not p.get("resumed") for p in again.pairs)
+
+
+def test_a_group_keeps_its_reference_as_flights_are_added(flights, tmp_path, caplog):
+    """nu40: a sixth flight added to a finished batch of five moved the merged model's reference from f1 to f5 (the
+    best-connected session changes with every flight), left merged/f1 behind and guessed at flights removed. The
+    reference of the previous run stays while it is in the group; when it cannot, the log says the actual cause."""
+    root, _ = flights
+    for name in "AB":
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    out = tmp_path / "out"
+    options = batch.BatchOptions(progress=False, changes=False)
+    first = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    assert [g["reference"] for g in first.groups] == ["A"]
+    shutil.copytree(root / "C", tmp_path / "fl" / "C")  # C links to B only: B is now the best connected
+    again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    (group,) = again.groups
+    assert group["reference"] == "A" and sorted(group["members"]) == ["A", "B", "C"] and group["status"] == "done"
+    assert again.stale_outputs == [] and "reference_note" not in group
+    fresh = batch.run(tmp_path / "fl", tmp_path / "fresh", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                      options=options)
+    assert [g["reference"] for g in fresh.groups] == ["B"]  # a first run: the best-connected session
+    shutil.rmtree(tmp_path / "fl" / "B")  # A and C are no longer linked: merged/B has a cause, said
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        gone = batch.run(tmp_path / "fl", tmp_path / "fresh", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                         options=options)
+    assert "merged/B" in gone.stale_outputs
+    assert "merged/B (flight B is no longer in the flights folder)" in caplog.text
+    assert "--nearest no longer chooses?" not in caplog.text
+
+
+def test_spanning_transforms_keeps_an_earlier_reference_while_it_is_eligible():
+    from sosmatch.plugin.multisession import Edge, Sim3, spanning_transforms
+
+    one = Sim3.identity()
+    edges = [Edge(0, 1, one, 50.0), Edge(1, 2, one, 50.0)]
+    assert spanning_transforms([0, 1, 2], edges)[0] == 1  # the strongest
+    assert spanning_transforms([0, 1, 2], edges, keep={0})[0] == 0
+    assert spanning_transforms([0, 1, 2], edges, keep={0, 2}, preferred={2})[0] == 2  # a georeference first
+    assert spanning_transforms([0, 1, 2], edges, keep={0, 2})[0] == 0  # two groups joined: ties by index
+
+
+def test_nearest_also_matches_each_flight_with_its_neighbours_in_time(monkeypatch):
+    """nu40: 6 flights of one site, --nearest 2 chose by camera position only and dropped 2-3, 3-4, 4-5 and 5-6,
+    the consecutive surveys. With capture times, each flight's previous and next overlapping flight is matched."""
+    from sosmatch.workflows.batch import pairs as pairs_mod
+
+    centres = {"f1": (294.0, 295.2), "f2": (302.3, 290.0), "f3": (288.0, 301.0), "f4": (298.6, 299.7),
+               "f5": (288.9, 290.3), "f6": (297.3, 297.7)}  # the sessions' mean camera positions in nu40
+    names = list(centres)
+    sessions = {n: {"center": [x, y, 100.0], "epsg": 0, "session": n} for n, (x, y) in centres.items()}
+    boxes = {n: (0.0, 0.0, 600.0, 600.0) for n in names} | {"far": (2000.0, 0.0, 2600.0, 600.0)}
+    monkeypatch.setattr(pairs_mod, "_footprint", boxes.get)
+    by_position = batch.workflow._choose_pairs(names, sessions, 2)
+    assert ("f2", "f3") not in by_position and ("f5", "f6") not in by_position
+    times = {n: 86400.0 * k for k, n in enumerate(names)}
+    chosen, added = pairs_mod.choose_pairs(names, sessions, 2, times)
+    assert added == [("f2", "f3"), ("f3", "f4"), ("f4", "f5"), ("f5", "f6")]
+    assert sorted(chosen) == sorted(set(by_position) | set(added))
+    # a flight of another site flown in between is no one's neighbour, and does not hide f3 from f4
+    sessions["far"] = {"center": [2300.0, 300.0, 100.0], "epsg": 0, "session": "far"}
+    times["far"] = 2.5 * 86400.0
+    assert pairs_mod.time_neighbour_pairs(names + ["far"], times, boxes) == [
+        ("f1", "f2"), ("f2", "f3"), ("f3", "f4"), ("f4", "f5"), ("f5", "f6")]
+    assert pairs_mod.choose_pairs(names, sessions, 2, {})[1] == []  # no capture times: by position only
+    assert pairs_mod.choose_pairs(names, sessions, None, times)[1] == []  # every pair anyway
+
+
+def test_a_flight_s_time_is_its_images_exif_capture_time(tmp_path):
+    from PIL import Image
+
+    from sosmatch.database.exif import ImageMetadata, embed_metadata
+    from sosmatch.workflows.batch.pairs import flight_time
+
+    (tmp_path / "images").mkdir()
+    for k, stamp in enumerate(("2026:05:01 10:00:00", "2026:05:01 10:05:00", "2026:05:01 10:10:00")):
+        buf = io.BytesIO()
+        Image.new("RGB", (8, 8)).save(buf, format="JPEG")
+        jpeg = embed_metadata(buf.getvalue(), ImageMetadata("x.jpg", 8, 8, datetime_original=stamp))
+        (tmp_path / "images" / f"img_{k}.jpg").write_bytes(jpeg)
+    assert flight_time(tmp_path / "images") == pytest.approx(1777629900.0)  # 10:05 UTC, the median
+    assert flight_time(None) is None

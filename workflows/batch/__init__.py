@@ -13,7 +13,10 @@ processes, or a Dask cluster):
 2. map: each flight -> OUT/sessions/NAME (`sosmatch.workflows.map`);
 3. match: every pair of mapped sessions, or with `nearest=k` only pairs where one session is among the k
    nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the
-   same local frame) -> OUT/pairs/A__B/match.json (`sosmatch match`, which, unless BatchOptions.verify is off,
+   same local frame), and then also each flight with the flight flown before and the one after it among those
+   that overlap it (by the EXIF capture time of its images, where they have one: `pairs.choose_pairs`; the
+   flights of one site all overlap, and consecutive surveys are the comparisons a site manager wants)
+   -> OUT/pairs/A__B/match.json (`sosmatch match`, which, unless BatchOptions.verify is off,
    checks every window hypothesis on the FULL maps and refines the best supported one:
    `plugin.verification.verify_search`); its answer's decision, transform and associations
    (`database.match_io.read_match`) are what the graph and the merge use. Why verify: across seasons one window
@@ -21,8 +24,9 @@ processes, or a Dask cluster):
    rotation; see BENCHMARKS.md, Multi-session;
 4. session graph: sessions are nodes, accepted pairs are edges carrying a_from_b and |S|; accepted pairs
    that contradict others linking the same groups are left out (`plugin.multisession.consistent_edges`); each connected
-   group is brought into the frame of its best-connected session (georeferenced sessions first) along a maximum
-   spanning tree
+   group is brought into the frame of its best-connected session (georeferenced sessions first; in a batch run
+   again, e.g. with flights added, the previous run's reference while it is in the group, so the merged model
+   keeps its frame and folder: `graph.previous_references`) along a maximum spanning tree
    (`sosmatch.plugin.multisession.spanning_transforms`) and merged (`sosmatch.workflows.merge.merge_sessions`)
    -> OUT/merged/REFERENCE/;
 5. changes (BatchOptions.changes, on by default): every accepted pair in the graph is compared object by object

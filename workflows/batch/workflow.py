@@ -11,28 +11,19 @@ from itertools import combinations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ...database.atomic import write_text_atomic
 from ...database.match_io import MatchSummary, answer_gate
 from ...database.output_markers import versioned_identity
 from ...database.outputs import open_output_dir
-from ...database.session_io import MERGE_RECORD
-from ...plugin.multisession import (
-    Edge,
-    Sim3,
-    connected_groups,
-    consistent_edges,
-    nearest_pairs,
-    spanning_transforms,
-)
 from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir
+from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs
+from .pairs import choose_pairs, flight_time
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
-from .tasks import alignment_task, changes_task, map_task, merge_task, pair_task
+from .tasks import changes_task, map_task, pair_task
 
 log = logging.getLogger(__name__)
 
@@ -69,25 +60,10 @@ def _valid_match(done: dict[str, Any]) -> bool:
     return Path(done.get("match", "")).is_file()
 
 
-def _associations_file(rec: dict[str, Any]) -> str:
-    """The file whose answer a merge fuses: the pair's match.json (its verified alignment, unless unverified)."""
-    return rec["match"]
-
-
-def _valid_merge(done: dict[str, Any]) -> bool:
-    return (Path(done.get("merged", "")) / MERGE_RECORD).is_file()
-
-
-def _choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None) -> list[tuple[str, str]]:
-    all_pairs = list(combinations(names, 2))
-    if nearest is None:
-        return all_pairs
-    centres = [sessions[n].get("center") for n in names]
-    epsgs = {sessions[n].get("epsg") for n in names}
-    if any(c is None for c in centres) or len(epsgs) > 1:
-        log.warning("--nearest needs every session's position in one frame; matching all %d pairs", len(all_pairs))
-        return all_pairs
-    return [(names[i], names[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)]
+def _choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
+                  times: dict[str, float | None] | None = None) -> list[tuple[str, str]]:
+    """The session pairs to match (`pairs.choose_pairs`)."""
+    return choose_pairs(names, sessions, nearest, times)[0]
 
 
 def run(
@@ -167,7 +143,10 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
 
     # 3: match
-    chosen = _choose_pairs(mapped, sessions, options.nearest)
+    # with --nearest, each flight's neighbours in time are matched too (read only then: 3 EXIF reads a flight)
+    times = {f.name: flight_time(None if f.kind == "mapped" else images_dir(f.path)) for f in flights
+             if f.name in mapped} if options.nearest is not None else {}
+    chosen, by_time = choose_pairs(mapped, sessions, options.nearest, times)
     matcher = pair_fn or pair_task
     # a custom matcher (pair_fn) returns its own summary; the default one is `sosmatch match` (verified)
     verify = bool(options.verify) if matcher is pair_task else None
@@ -185,6 +164,8 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
             pair_tasks[key] += (verify, True)  # the batch's own, as the sessions
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                        options.progress, _valid_match)
+    for a, b in by_time:  # said in report.json: why a pair --nearest would not choose was matched
+        pairs[f"{a}{PAIR_SEP}{b}"]["chosen_by"] = "consecutive flights by capture time"
     _match_refusals(pairs)
     matches = _read_matches(pairs)
     _georeference_warnings(pairs, matches, sessions)
@@ -203,7 +184,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
                       "error": "a session failed to map"}
                      for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
-    report.stale_outputs = _stale_outputs(out_dir, report)
+    report.stale_outputs = _stale_outputs(out_dir, report, options.nearest)
     return report
 
 
@@ -311,143 +292,6 @@ def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, 
             log.warning("pair %s: %s", key, rec["georeference_warning"])
 
 
-def _stale_outputs(out_dir: Path, report: BatchReport) -> list[str]:
-    """The batch's outputs (OUT/sessions/F, OUT/pairs/A__B, OUT/merged/R) that this run neither made nor read: of
-    flights removed from the flights folder since an earlier run, or of a group whose reference changed. They are
-    left in place (a user may still want them) but named, so that nobody reads them as part of this batch."""
-    current = {"sessions": {s["name"] for s in report.sessions}, "pairs": {p["pair"] for p in report.pairs},
-               "merged": {g["reference"] for g in report.groups if g.get("status") not in ("single", "not merged")}}
-    stale = []
-    for folder, names in current.items():
-        if (out_dir / folder).is_dir():
-            stale += [f"{folder}/{p.name}" for p in sorted((out_dir / folder).iterdir())
-                      if p.is_dir() and p.name not in names]
-    if stale:
-        log.warning("%d output(s) in %s belong to no flight, pair or group of this run (flights removed "
-                    "since an earlier run, or pairs --nearest no longer chooses?): %s%s; left in place, not part "
-                    "of this report", len(stale), out_dir, ", ".join(stale[:6]), " ..." if len(stale) > 6 else "")
-    return stale
-
-
-def _graph_and_merge(
-    report: BatchReport, names: list[str], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
-    matches: dict[str, MatchSummary], pair_fps: dict[str, list[str | None]], state: StateStore, executor: Executor,
-    options: BatchOptions, params: Params, out_dir: Path,
-) -> list[dict[str, Any]]:
-    index = {n: i for i, n in enumerate(names)}
-    sims = {}
-    for key, rec in pairs.items():
-        if rec["status"] != "done" or not rec["accepted"] or rec["transform"] is None:
-            continue
-        if rec.get("georeference_warning"):  # images agree, georeferences do not: kept apart (no control either)
-            continue
-        a, b = key.split(PAIR_SEP)
-        sim = Sim3.from_dict(rec["transform"])
-        if options.refine and rec.get("answer") != "verified":
-            sim = _refined(sessions[a]["session"], sessions[b]["session"], matches[key], sim, params)
-        sims[key] = sim
-    _control_alignments(sims, sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir)
-    edges, edge_keys = [], {}
-    for key, sim in sims.items():
-        if pairs[key]["status"] != "done" or not pairs[key]["accepted"]:  # refused by merge's control, or it failed
-            continue
-        a, b = key.split(PAIR_SEP)
-        edge = Edge(index[a], index[b], sim, float(pairs[key]["num_associations"]))
-        edges.append(edge)
-        edge_keys[(edge.a, edge.b)] = key
-    # Accepted pairs that contradict the others are dropped before the graph is used (see consistent_edges).
-    probes = [np.asarray(sessions[n].get("center") or [0.0, 0.0, 0.0]) for n in names]
-    edges, dropped = consistent_edges(len(names), edges, probes, options.edge_tolerance_m)
-    for rec in pairs.values():
-        if rec["status"] == "done" and rec["accepted"]:
-            rec["in_graph"] = not rec.get("georeference_warning")
-    for e in dropped:
-        pairs[edge_keys[(e.a, e.b)]]["in_graph"] = False
-        log.warning("pair %s contradicts the other accepted pairs; left out of the session graph",
-                    edge_keys[(e.a, e.b)])
-    groups = []
-    merge_tasks, merge_fps = {}, {}
-    georeferenced = {index[n] for n in names if sessions[n].get("epsg")}  # a merged group keeps a georeference
-    # ... the most precise one (the measured GPS noise of each session's georeference, where known)
-    noise = {index[n]: float(sessions[n]["georeference_sigma_m"]) for n in names
-             if isinstance(sessions[n].get("georeference_sigma_m"), (int, float))}
-    for members in connected_groups(len(names), edges):
-        ref, ref_from, tree = spanning_transforms(members, edges, georeferenced, noise)
-        order = [ref] + [m for m in members if m != ref]
-        group = {
-            "reference": names[ref],
-            "reference_georeference_sigma_m": noise.get(ref),
-            "members": [names[m] for m in order],
-            "tree": [edge_keys[(e.a, e.b)] for e in tree],
-            "reference_from_session": {names[m]: ref_from[m].to_dict() for m in order},
-        }
-        groups.append(group)
-        if len(members) < 2 or not options.merge:
-            group["status"] = "single" if len(members) < 2 else "not merged"
-            continue
-        pos = {m: k for k, m in enumerate(order)}
-        tree_edges = [(pos[e.a], pos[e.b], _associations_file(pairs[edge_keys[(e.a, e.b)]])) for e in tree]
-        key = names[ref]
-        group_fp = {"members": [names[m] for m in order], "transforms": [ref_from[m].to_dict() for m in order],
-                    "eps": params.association.distance_tolerance_m}  # contents: in the pair fps
-        merge_fps[key] = each_version(lambda *prints, g=group_fp: fingerprint({**g, "pairs": list(prints)}),
-                                      *[pair_fps[edge_keys[(e.a, e.b)]] for e in tree])
-        merge_tasks[key] = (
-            [sessions[names[m]]["session"] for m in order], [names[m] for m in order],
-            [ref_from[m].to_dict() for m in order], tree_edges, str(out_dir / "merged" / key),
-            # the group's merged model is this batch's own product of its sessions and pairs: when a flight was
-            # added, removed or changed it is remade, as everything else that changed (a changed setting is
-            # refused before any work by the batch's own identity unless --overwrite)
-            params.association.distance_tolerance_m, True, [matches[edge_keys[(e.a, e.b)]] for e in tree],
-        )
-    merged = run_stage(executor, merge_task, merge_tasks, merge_fps, state, "merge", out_dir, "merge groups",
-                        options.progress, _valid_merge)
-    for group in groups:
-        if group["reference"] in merged:
-            group.update(merged[group["reference"]])
-    return groups
-
-
-def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
-                        matches: dict[str, MatchSummary], pair_fps: dict[str, list[str | None]], state: StateStore,
-                        executor: Executor, options: BatchOptions, params: Params, out_dir: Path) -> None:
-    """`sosmatch merge`'s control of every accepted pair's alignment (`alignment_task`), before the pair can join
-    the session graph: a pair it refuses (its verdict, or an InputError: a file of the pair's that cannot be read)
-    is recorded as refused (`accepted` false, its associations as `refused_support`, `refused`: the reason,
-    `refused_by` "control") and said in the log and the report's warnings; it is no edge, no merge, no changes.
-    A control that raises anything else (a bug, an ImportError of code changed under the run, a MemoryError) has
-    said nothing of the pair: the pair failed (`status` "failed", `error`, traceback in OUT/logs/), as a failed
-    match, counted in the report's failures and the exit code, and not saved as finished, so a re-run controls it
-    again (nu26: 14 of 21 pairs "refused" by an ImportError, nothing merged, "ok", exit 0)."""
-    tasks, fps = {}, {}
-    for key, sim in sims.items():
-        a, b = key.split(PAIR_SEP)
-        transform = sim.to_dict()
-        fps[key] = _after_pair_fingerprints(pair_fps[key], transform, params)
-        tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(pairs[key]["match"]), transform, params,
-                      matches[key])
-    done = run_stage(executor, alignment_task, tasks, fps, state, "control", out_dir, "control alignments",
-                     options.progress)
-    for key, res in done.items():
-        rec = pairs[key]
-        rec.pop("refused", None), rec.pop("refused_by", None)
-        if res["status"] != "done":  # `record_result` logged it and wrote its traceback
-            rec.update({"status": "failed", "error": f"its alignment control failed: {res.get('error')}",
-                        "accepted": False, "num_associations": 0, "transform": None})
-        elif why := res.get("refused"):
-            rec.update({"accepted": False, "refused": why, "refused_by": "control",
-                        "refused_support": rec.get("num_associations"), "num_associations": 0, "transform": None})
-            log.warning("pair %s refused: %s", key, why)
-
-
-def _after_pair_fingerprints(pair: list[str | None], transform: dict[str, Any], params: Params) -> list[str | None]:
-    """Each version's fingerprint of a stage on an accepted pair (its control, its changes): the pair's, the
-    transform, the changes section and theta_eps."""
-    return each_version(lambda fp, changes: fingerprint(
-        {"pair": fp, "transform": transform, "changes": changes, "eps": params.association.distance_tolerance_m}),
-        pair, build_versions(lambda as_dict: as_dict(params.changes)))
-
-
 def _valid_changes(done: dict[str, Any]) -> bool:
     return Path(done.get("changes", "")).is_file()
 
@@ -495,12 +339,3 @@ def _changes_warnings(key: str, rec: dict[str, Any]) -> None:
         rec["changes_warnings"] = warnings
         for text in warnings:
             log.warning("pair %s changes: %s", key, text)
-
-
-def _refined(session_a: str, session_b: str, m: MatchSummary, sim: Sim3, params: Params) -> Sim3:
-    from ...database.session_io import read_session
-    from ..merge_pairs import refine_transform
-
-    refined, _ = refine_transform(read_session(session_a), read_session(session_b), m.associations, sim,
-                                  params.association.transform == "similarity", params.association.distance_tolerance_m)
-    return refined
