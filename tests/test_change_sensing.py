@@ -50,3 +50,18 @@ def test_sessions_that_see_alike_keep_full_weight():
     llr = absence_log_ratio(np.array([0, 0]), np.array([30, 30]), np.array([0.01, 0.01]), np.array([0.6, 0.6]),
                             2.0, np.array([0.0, 1.0]))
     assert abs(llr[0]) < 1e-9 and llr[1] > 10
+
+
+def test_a_session_that_sees_few_objects_is_named_in_a_warning():
+    """The thin session is named with its counts; sessions that see alike raise no such warning."""
+    from sosmatch.plugin.changes import detect_changes
+    from sosmatch.workflows.changes import sensing_notes
+
+    a, b, a_from_b = _unchanged_pair(0.2)
+    res = detect_changes(a, b, a_from_b, ChangeParams(), 2.0)
+    notes = sensing_notes(res, "mapA", "mapB")
+    assert len(notes) == 1 and notes[0].startswith("mapB (session B): its map holds")
+    assert "do not see alike" in notes[0] and "absent from it are weak" in notes[0]
+    assert res.sensing_a.visible < 0.5 <= res.sensing_b.visible
+    a, b, a_from_b = _unchanged_pair(1.0)
+    assert sensing_notes(detect_changes(a, b, a_from_b, ChangeParams(), 2.0), "mapA", "mapB") == []

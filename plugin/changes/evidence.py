@@ -4,6 +4,7 @@ segments of its keyframes (with the local chance rate of such segments)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -271,3 +272,23 @@ def visible_share(sizes: np.ndarray, mine: tuple[np.ndarray, np.ndarray, np.ndar
     _, v_theirs = seen_shares(sizes, *theirs, bandwidth)
     s_other = np.minimum(1.0, v_mine / v_theirs)
     return np.clip(1.0 - (1.0 - s_other) / np.maximum(1.0 - d, 1e-9), 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Sensing:
+    """How the other session sees one map's landmarks over the common area (pooled over sizes): `compared`
+    landmarks of this map in its view, the share it `mapped` (a counterpart), the share it `shows` (counterpart
+    or segments above chance) and `visible`, the weight its absence of hits gets (`visible_share`)."""
+
+    compared: int
+    mapped: float
+    shows: float
+    visible: float
+
+
+def sensing(mine: tuple[np.ndarray, np.ndarray, np.ndarray], theirs: tuple[np.ndarray, np.ndarray, np.ndarray],
+            bandwidth: float) -> Sensing:
+    """`Sensing` of the map whose compared landmarks are `mine` by the session whose map's are `theirs`."""
+    pooled = np.array([np.nan])  # an unknown size takes the pooled shares
+    d, v = seen_shares(pooled, *mine, bandwidth)
+    return Sensing(len(mine[0]), float(d[0]), float(v[0]), float(visible_share(pooled, mine, theirs, bandwidth)[0]))

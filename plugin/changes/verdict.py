@@ -13,6 +13,7 @@ from ..multisession import Sim3
 from ..params import ChangeParams
 from .confidence import fit_logistic, predict_logistic, reobservation_features
 from .evidence import (
+    Sensing,
     absence_log_ratio,
     binomial_tail,
     counterparts,
@@ -23,6 +24,7 @@ from .evidence import (
     presence_rate,
     segment_evidence,
     segment_hits,
+    sensing,
     view_correlation,
     visible_share,
 )
@@ -107,6 +109,9 @@ class ChangeResult:
     without_relief: tuple[str, ...] = ()
     # sessions whose sweep's ground noise could not be measured: their claims were made without that test too
     without_ground_noise: tuple[str, ...] = ()
+    # how B sees A's landmarks and A sees B's (`evidence.sensing`); None: not measured (no segments)
+    sensing_a: Sensing | None = None
+    sensing_b: Sensing | None = None
 
     @property
     def common_area(self) -> object:
@@ -496,6 +501,8 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
         without_relief=tuple(name for name, d in (("A", direct_a), ("B", direct_b)) if d.relief is False),
         without_ground_noise=tuple(name for name, d in (("A", direct_a), ("B", direct_b))
                                    if d.ground_noise is False),
+        sensing_a=sensing(direct_a.seen, direct_b.seen, bw) if b.segments is not None else None,
+        sensing_b=sensing(direct_b.seen, direct_a.seen, bw) if a.segments is not None else None,
     )
 
 
