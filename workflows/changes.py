@@ -192,6 +192,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         warnings.append(f"{path} (session {name} of the comparison): too few places at ground level to measure "
                         "how its surface heights scatter on bare ground: its claims are not tested for an object "
                         "standing there (expect false changes of moved shadows and re-segmented ground)")
+    warnings += sensing_notes(result, str(session_a), str(session_b))
     for name, area, path in (("A", result.observed_a, session_a), ("B", result.observed_b, session_b)):
         if not area.area > 0:
             raise InputError(f"session {name}'s keyframes see no ground (no footprint): nothing to compare", path)
@@ -237,6 +238,24 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     for text in warnings:
         log.warning("%s", text)
     return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0, control, control_gate, warnings)
+
+
+def sensing_notes(result: ChangeResult, session_a: str, session_b: str) -> list[str]:
+    """A warning for each session that sees the other's objects so unlike it that their absence weighs less than
+    half (`ChangeResult.sensing_a/b`, `evidence.visible_share` < 1/2): its claims of absence are weak."""
+    notes = []
+    for seen, other, mine, path, other_path in ((result.sensing_a, result.sensing_b, "A", session_b, session_a),
+                                                (result.sensing_b, result.sensing_a, "B", session_a, session_b)):
+        if seen is None or other is None or not seen.visible < 0.5:
+            continue
+        name = "B" if mine == "A" else "A"
+        notes.append(f"{path} (session {name}): its map holds {other.compared} landmarks over the common area "
+                     f"against {mine}'s {seen.compared}; it shows about {100 * seen.shows:.0f} % of {mine}'s "
+                     f"landmarks (maps {100 * seen.mapped:.0f} %), against {100 * other.shows:.0f} % of its own "
+                     f"that {other_path} shows: the sessions do not see alike (another sensor, low contrast?); "
+                     f"claims that {mine}'s objects are absent from it are weak (their weight "
+                     f"{seen.visible:.2f} of a session that sees alike)")
+    return notes
 
 
 def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: Sim3, params: Params, verified: bool,

@@ -4,6 +4,7 @@ segments of its keyframes (with the local chance rate of such segments)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -209,15 +210,19 @@ def dispersion(views: np.ndarray, rho: float) -> np.ndarray:
 
 
 def absence_log_ratio(hits: np.ndarray, views: np.ndarray, chance: np.ndarray, present: np.ndarray,
-                      dispersion_factor: float | np.ndarray = 1.0) -> np.ndarray:
+                      dispersion_factor: float | np.ndarray = 1.0, visible: float | np.ndarray = 1.0) -> np.ndarray:
     """log P(hits | the object is absent) - log P(hits | present), divided by the dispersion factor (per count,
     `dispersion`): hits are binomial over the views with the local chance rate (absent: only ground texture and
-    neighbours show such segments) or with the presence rate of objects of its size (present). Positive: the
-    segments say absent."""
+    neighbours show such segments) or with the presence rate of objects of its size (present). `visible`: the
+    share of present objects without a counterpart that the other session sees at all (`visible_share`); the
+    rest show at the chance rate, so the present rate is visible x presence + (1 - visible) x chance (at 0 the
+    segments say nothing). Positive: the segments say absent."""
     from scipy.stats import binom
 
     h = np.asarray(hits)
     n = np.asarray(views)
+    w = np.clip(np.asarray(visible, dtype=np.float64), 0.0, 1.0)
+    present = w * np.asarray(present, dtype=np.float64) + (1.0 - w) * np.asarray(chance, dtype=np.float64)
     lo = binom.logpmf(h, n, np.clip(chance, 1e-6, 1 - 1e-6))
     lp = binom.logpmf(h, n, np.clip(present, 1e-6, 1 - 1e-6))
     return (lo - lp) / np.maximum(np.asarray(dispersion_factor, dtype=np.float64), 1.0)
@@ -229,3 +234,61 @@ def binomial_tail(hits: np.ndarray, trials: np.ndarray, rate: np.ndarray) -> np.
 
     hits = np.asarray(hits)
     return np.where(hits <= 0, 1.0, binom.sf(hits - 1, trials, rate))
+
+
+def seen_shares(sizes: np.ndarray, reference_sizes: np.ndarray, matched: np.ndarray, shown: np.ndarray,
+                bandwidth: float) -> tuple[np.ndarray, np.ndarray]:
+    """How much of one map the other session sees, per size: of the map's compared landmarks (`reference_sizes`:
+    well in the other session's view), the share it mapped (`matched`: a counterpart; its detection rate d) and
+    the share it shows at all (`shown`: a counterpart, or its segments significantly above chance; v), pooled
+    with a Gaussian kernel of `bandwidth` in log size, with a Laplace prior. Unknown sizes take the pooled shares.
+    Returns (d, v)."""
+    s = np.log(np.asarray(sizes, dtype=np.float64).reshape(-1))
+    rs = np.log(np.asarray(reference_sizes, dtype=np.float64).reshape(-1))
+    m = np.asarray(matched, dtype=np.float64).reshape(-1)
+    v = np.maximum(np.asarray(shown, dtype=np.float64).reshape(-1), m)
+    ok = np.isfinite(rs)
+    rs, m, v = rs[ok], m[ok], v[ok]
+    wt = np.exp(-0.5 * ((s[:, None] - rs[None, :]) / bandwidth) ** 2)
+    wt = np.where(np.isfinite(s)[:, None], wt, 1.0)
+    total = wt.sum(1) + 2.0
+    return (wt @ m + 1.0) / total, (wt @ v + 1.0) / total
+
+
+def visible_share(sizes: np.ndarray, mine: tuple[np.ndarray, np.ndarray, np.ndarray],
+                  theirs: tuple[np.ndarray, np.ndarray, np.ndarray], bandwidth: float) -> np.ndarray:
+    """Per size, the share of objects present without a counterpart that the other session sees at all.
+
+    A present object the other session neither maps nor segments (a thermal camera on a bush as warm as the
+    grass, a low-contrast flight) looks exactly as a removed one there, so the absence of hits is evidence of
+    change only in proportion to how reliably that session sees such objects. It is measured on the pair, in
+    both directions (`mine`, `theirs`: sizes, matched, shown of each map's compared landmarks, `seen_shares`):
+    v_mine = (1 - gone) s_other and v_theirs = (1 - new) s_own for the sessions' sensing rates s; with as many
+    objects gone as new, s_other / s_own = v_mine / v_theirs, and the better-seeing session is taken to see
+    everything (so alike sessions stay at 1 whatever their share of changes). The other session misses
+    1 - s_other of the objects, all of them among those it did not map (1 - d): visible = 1 - (1 - s) / (1 - d).
+    """
+    d, v_mine = seen_shares(sizes, *mine, bandwidth)
+    _, v_theirs = seen_shares(sizes, *theirs, bandwidth)
+    s_other = np.minimum(1.0, v_mine / v_theirs)
+    return np.clip(1.0 - (1.0 - s_other) / np.maximum(1.0 - d, 1e-9), 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Sensing:
+    """How the other session sees one map's landmarks over the common area (pooled over sizes): `compared`
+    landmarks of this map in its view, the share it `mapped` (a counterpart), the share it `shows` (counterpart
+    or segments above chance) and `visible`, the weight its absence of hits gets (`visible_share`)."""
+
+    compared: int
+    mapped: float
+    shows: float
+    visible: float
+
+
+def sensing(mine: tuple[np.ndarray, np.ndarray, np.ndarray], theirs: tuple[np.ndarray, np.ndarray, np.ndarray],
+            bandwidth: float) -> Sensing:
+    """`Sensing` of the map whose compared landmarks are `mine` by the session whose map's are `theirs`."""
+    pooled = np.array([np.nan])  # an unknown size takes the pooled shares
+    d, v = seen_shares(pooled, *mine, bandwidth)
+    return Sensing(len(mine[0]), float(d[0]), float(v[0]), float(visible_share(pooled, mine, theirs, bandwidth)[0]))

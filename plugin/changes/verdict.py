@@ -2,26 +2,26 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
 from ..evaluation.footprints import HeightField
 from ..multisession import Sim3
 from ..params import ChangeParams
+from .absence import REFERENCE_LIMIT, absence_probability, presence, probability  # noqa: F401
 from .confidence import fit_logistic, predict_logistic, reobservation_features
 from .evidence import (
-    absence_log_ratio,
+    Sensing,
     binomial_tail,
     counterparts,
-    dispersion,
     holder_pairs,
     inside_larger,
-    landmark_presence_rate,
-    presence_rate,
     segment_evidence,
-    segment_hits,
-    view_correlation,
+    sensing,
+    visible_share,
 )
 from .objectness import (
     beside_kept_objects,
@@ -104,6 +104,9 @@ class ChangeResult:
     without_relief: tuple[str, ...] = ()
     # sessions whose sweep's ground noise could not be measured: their claims were made without that test too
     without_ground_noise: tuple[str, ...] = ()
+    # how B sees A's landmarks and A sees B's (`evidence.sensing`); None: not measured (no segments)
+    sensing_a: Sensing | None = None
+    sensing_b: Sensing | None = None
 
     @property
     def common_area(self) -> object:
@@ -135,45 +138,6 @@ class ChangeResult:
 
 
 
-REFERENCE_LIMIT = 400  # reference landmarks for the presence rate (evenly spaced): bounded cost on large maps
-
-
-def absence_probability(sizes: np.ndarray, ref_positions: np.ndarray, ref_sizes: np.ndarray, hits: np.ndarray,
-                        views: np.ndarray, chance: np.ndarray, other: SessionObservations, gate_m: float,
-                        params: ChangeParams, own: SessionObservations | None = None,
-                        positions: np.ndarray | None = None, log_ratio: np.ndarray | float = 0.0) -> np.ndarray:
-    """P(absent | the other session's segments) for objects of the given sizes, from their segment hits in the
-    other session's keyframes: binomial with the local chance rate if the object is absent, with the presence rate
-    of objects of its size if present (`presence_rate`, measured on the reference landmarks of its map, those with
-    a counterpart), the log-likelihood ratio divided by the dispersion of a count of that many views (`dispersion`,
-    with the views' correlation measured on the references: neighbouring keyframes are not independent looks),
-    prior odds 1. With `own` (the landmarks' own session, with its segments) and their `positions`, the presence
-    rate is each landmark's own (`landmark_presence_rate`): scaled by how often its own session shows it.
-    `log_ratio`: further evidence of absence (a log-likelihood ratio: the surface heights',
-    `surface.height_log_ratio`), added to the segments'."""
-    ref = np.arange(len(ref_positions))
-    if len(ref) > REFERENCE_LIMIT:
-        ref = ref[np.linspace(0, len(ref) - 1, REFERENCE_LIMIT).round().astype(np.int64)]
-    ref_h = ref_sizes[ref]
-    ref_hits, ref_views = segment_hits(ref_positions[ref], ref_h, other.poses, other.cameras, other.segments,
-                                       gate_m, params.max_size_difference)
-    bw = params.presence_bandwidth
-    if own is not None and own.segments is not None and positions is not None:
-        # the presence rate of each landmark from how often its own session shows it (the references' too)
-        ref_own = segment_hits(ref_positions[ref], ref_h, own.poses, own.cameras, own.segments, gate_m,
-                               params.max_size_difference)
-        mine = segment_hits(positions, sizes, own.poses, own.cameras, own.segments, gate_m,
-                            params.max_size_difference)
-        ref_rate = landmark_presence_rate(ref_h, *ref_own, ref_h, ref_hits, ref_views, *ref_own, bw)
-        rate = landmark_presence_rate(sizes, *mine, ref_h, ref_hits, ref_views, *ref_own, bw)
-    else:
-        ref_rate = presence_rate(ref_h, ref_h, ref_hits, ref_views, bw)
-        rate = presence_rate(sizes, ref_h, ref_hits, ref_views, bw)
-    rho = view_correlation(ref_hits, ref_views, ref_rate)
-    llr = absence_log_ratio(hits, views, chance, rate, dispersion(views, rho)) + log_ratio
-    return 1.0 / (1.0 + np.exp(-np.clip(llr, -30.0, 30.0)))  # below 1: --min-confidence 1 reports nothing
-
-
 @dataclass(frozen=True)
 class _Direct:
     """What the other session shows of one map's landmarks directly, before any containment link: how often it
@@ -203,6 +167,26 @@ class _Direct:
     # False: the sweep's ground noise could not be measured (too few places at ground level even with the bare
     # places added), so the objectness test let every place stand; None: measured, or not measured here
     ground_noise: bool | None = None
+    # what `reweigh` needs: per landmark the segments' presence rate and dispersion (where tested) and whether
+    # its hits are significantly above chance; and how the other session sees this map (`visible_share`'s
+    # sizes, matched, shown of the compared landmarks)
+    rate: np.ndarray | None = None
+    spread: np.ndarray | None = None
+    above: np.ndarray | None = None
+    seen: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def reweigh(self, visible: np.ndarray) -> _Direct:
+        """The same evidence with the absence probability of the tested landmarks at `visible` (per landmark, the
+        share of present objects without a counterpart that the other session sees; `visible_share`)."""
+        if self.rate is None or not np.any(self.tested):
+            return self
+        idx = np.flatnonzero(self.tested)
+        absent = self.absent.copy()
+        absent[idx] = probability(self.hits[idx], self.trials[idx], self.chance[idx], self.rate[idx],
+                                   self.spread[idx], self.surface[idx], visible[idx])
+        by_segments = self.by_segments.copy()
+        by_segments[idx] = self.above[idx] & (absent[idx] < 0.5)
+        return replace(self, absent=absent, by_segments=by_segments)
 
     @property
     def established(self) -> np.ndarray:
@@ -215,7 +199,8 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
             deep: np.ndarray | None = None, own: SessionObservations | None = None,
             ground: HeightField | None = None,
             surface_references: tuple[np.ndarray, np.ndarray] | None = None,
-            counterpart_log_ratio: float = 0.0) -> _Direct:
+            counterpart_log_ratio: float = 0.0,
+            visible: Callable[[np.ndarray], np.ndarray] | None = None) -> _Direct:
     """`references`: positions and sizes of the own map's landmarks with a counterpart (for the presence rate);
     None: those among own_pos. `deep`: landmarks below the ground (`below_the_ground`), compared with nothing.
     `own`: the session these landmarks belong to (its segments give each one's own presence rate). With the
@@ -223,7 +208,8 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     calibrated on `surface_references` (None: measured here on the landmarks with a counterpart); with
     `params.surface_overrules_links`, every compared landmark's, and a counterpart they contradict more than
     it supports presence (`counterpart_log_ratio`: log P(counterpart | absent) / P(counterpart | present))
-    is none."""
+    is none. `visible`: per size, the share of present objects without a counterpart that the other session sees
+    (`visible_share`); None: every one (the pair's landmarks are `reweigh`ed once both directions are measured)."""
     n = len(own_pos)
     seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
     views = seen.sum(0)
@@ -235,6 +221,7 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     index = np.where(compared, index, -1)
     hits, trials = np.zeros(n, np.int64), np.zeros(n, np.int64)
     chance, absent = np.full(n, np.nan), np.zeros(n)
+    rate, spread, above = np.full(n, np.nan), np.ones(n), np.zeros(n, dtype=bool)
     by_segments = np.zeros(n, dtype=bool)
     surface, doubted, flat = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     relief, ground_noise = None, None
@@ -310,13 +297,18 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         hits[idx], trials[idx], chance[idx] = segment_evidence(
             own_pos[idx], own_h[idx], other.poses, other.cameras, other.segments, gate_m,
             params.max_size_difference, params.probe_count, params.probe_radius_factor)
-        absent[idx] = absence_probability(own_h[idx], *references, hits[idx], trials[idx], chance[idx], other,
-                                          gate_m, params, own, own_pos[idx], surface[idx])
+        rate[idx], spread[idx] = presence(own_h[idx], trials[idx], *references, other, gate_m, params, own,
+                                           own_pos[idx])
+        absent[idx] = probability(hits[idx], trials[idx], chance[idx], rate[idx], spread[idx], surface[idx],
+                                   1.0 if visible is None else visible(own_h[idx]))
         # shown: more hits than chance would give, and more like an object that is there than like its absence
-        by_segments[idx] = ((binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p)
-                            & (absent[idx] < 0.5))
+        above[idx] = binomial_tail(hits[idx], trials[idx], chance[idx]) < params.segment_evidence_p
+        by_segments[idx] = above[idx] & (absent[idx] < 0.5)
+    matched = (index >= 0)[compared]
+    seen = (own_h[compared], matched, matched | above[compared])
     return _Direct(views, compared, index, hits, trials, chance, absent, tested, by_segments, surface, doubted,
-                   surface_references, None if swept is None else flat, relief, ground_noise)
+                   surface_references, None if swept is None else flat, relief, ground_noise, rate, spread, above,
+                   seen)
 
 
 def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations,
@@ -430,12 +422,18 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
                        own=a, ground=ground, counterpart_log_ratio=cp)
     direct_b = _direct(b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, gate, params, deep=deep_b,
                        own=b_in_a, ground=ground, counterpart_log_ratio=cp)
+    # a present object the other session does not see looks there as a removed one: the absence of hits counts
+    # only as far as that session sees such objects, measured on the pair both ways (the same for either order)
+    bw = params.presence_bandwidth
+    sees_a = partial(visible_share, mine=direct_a.seen, theirs=direct_b.seen, bandwidth=bw)  # B sees A's objects
+    sees_b = partial(visible_share, mine=direct_b.seen, theirs=direct_a.seen, bandwidth=bw)
+    direct_a, direct_b = direct_a.reweigh(sees_a(a.sizes)), direct_b.reweigh(sees_b(b_in_a.sizes))
     res_a = _judge(a, a.positions, a.sizes, b_in_a, b_in_a.positions, b_in_a.sizes, heights_a, GONE, gate, params,
                    direct_a, direct_b)
     res_b = _judge(b_in_a, b_in_a.positions, b_in_a.sizes, a, a.positions, a.sizes, heights_b, NEW, gate, params,
                    direct_b, direct_a)
-    unmapped_a, tracks_a = _unmapped(a, b_in_a, direct_a, direct_b, ground, heights_a, GONE, gate, params, cp)
-    unmapped_b, tracks_b = _unmapped(b_in_a, a, direct_b, direct_a, ground, heights_b, NEW, gate, params, cp)
+    unmapped_a, tracks_a = _unmapped(a, b_in_a, direct_a, direct_b, ground, heights_a, GONE, gate, params, cp, sees_a)
+    unmapped_b, tracks_b = _unmapped(b_in_a, a, direct_b, direct_a, ground, heights_b, NEW, gate, params, cp, sees_b)
     return ChangeResult(
         a=res_a, b=res_b, positions_a=a.positions, positions_b=b_in_a.positions, sizes_a=a.sizes,
         sizes_b=b_in_a.sizes, tolerance_m=gate, ground=ground,
@@ -446,12 +444,15 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
         without_relief=tuple(name for name, d in (("A", direct_a), ("B", direct_b)) if d.relief is False),
         without_ground_noise=tuple(name for name, d in (("A", direct_a), ("B", direct_b))
                                    if d.ground_noise is False),
+        sensing_a=sensing(direct_a.seen, direct_b.seen, bw) if b.segments is not None else None,
+        sensing_b=sensing(direct_b.seen, direct_a.seen, bw) if a.segments is not None else None,
     )
 
 
 def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direct, theirs: _Direct,
               ground: HeightField, own_heights: np.ndarray, change_label: str, gate_m: float, params: ChangeParams,
-              counterpart_log_ratio: float = 0.0) -> tuple[UnmappedObjects, LandmarkChanges | None]:
+              counterpart_log_ratio: float = 0.0, visible: Callable[[np.ndarray], np.ndarray] | None = None,
+              ) -> tuple[UnmappedObjects, LandmarkChanges | None]:
     """The objects `own` saw but never mapped (`unmapped.unmapped_objects`) and their verdicts against `other`,
     judged as landmarks are but by direct evidence alone: a counterpart landmark, a holder of the other map that
     this session shows, the other session's segments, else a change with the absence probability (presence rates
@@ -483,7 +484,8 @@ def _unmapped(own: SessionObservations, other: SessionObservations, mine: _Direc
     reference = mine.compared & (mine.index >= 0)
     direct = _direct(objs.positions, objs.sizes, other, other.positions, other.sizes, gate_m, params,
                      (own.positions[reference], own.sizes[reference]), own=own, ground=ground,
-                     surface_references=mine.surface_references, counterpart_log_ratio=counterpart_log_ratio)
+                     surface_references=mine.surface_references, counterpart_log_ratio=counterpart_log_ratio,
+                     visible=visible)
     return objs, _judge(own, objs.positions, objs.sizes, other, other.positions, other.sizes, heights, change_label,
                         gate_m, replace(params, part_max_ratio=0.0), direct, theirs)
 
