@@ -233,7 +233,7 @@ def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
     if not paths:
         return None
     picks = sorted({round(i) for i in np.linspace(0, len(paths) - 1, min(len(paths), WHITE_LEVEL_SAMPLES))})
-    values = []
+    values, largest = [], 0
     for i in picks:
         path = Path(paths[i])
         bits = _header_bits(path)
@@ -244,17 +244,29 @@ def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
         except InputError:
             continue
         if arr.dtype.kind in "ui" and arr.dtype.itemsize > 1:
-            flat = arr.reshape(-1)
-            values.append(flat[:: max(1, flat.size // LEVEL_SAMPLE_VALUES)].astype(np.int64))
+            # whole pixels, every channel: a stride over the flattened values reads one channel only whenever it
+            # is a multiple of the channel count (3 at 640x512 RGB), and a narrow red band set the levels (rev24)
+            pixels = arr.reshape(arr.shape[0] * arr.shape[1], -1) if arr.ndim == 3 else arr.reshape(-1, 1)
+            values.append(pixels[:: max(1, len(pixels) * pixels.shape[1] // LEVEL_SAMPLE_VALUES)]
+                          .reshape(-1).astype(np.int64))
+            # the white level from every value, as before the sampled levels: a few highlights at 4000 in a
+            # 12-bit flight's sample-missed pixels made it 1023, and the flight read 4x too bright (rev24)
+            largest = max(largest, int(arr.max(initial=0)))
     if not values:
         return None
     pooled = np.concatenate(values)
-    white = white_level(int(pooled.max(initial=0)))
+    white = white_level(largest)
     lo, hi = (int(round(v)) for v in np.percentile(pooled, LEVEL_PERCENTILES))
-    if hi - lo >= MIN_SPAN * white:
+    # a narrow range near zero is a dark exposure (kept, as the README promises); one that sits far above zero, by
+    # more than its own width, is data offset from zero (temperatures): only that is read between its own levels
+    if hi - lo >= MIN_SPAN * white or (lo < hi - lo and hi > lo):
         return white
-    # a flat flight (one value throughout) keeps a span of 1: read as mid-grey steps, not divided by zero
+    # a flat flight (one value throughout) keeps a span of 1, not divided by zero: it reads black, and the stages
+    # that need texture refuse it
     levels = Levels(max(0, lo), max(hi, lo + 1))
+    if hi == lo:
+        log.warning("the images hold one value (%d) in every sampled pixel: blank frames?", lo)
+        return levels
     log.warning("the images' values span only %d-%d of their %d-bit range 0-%d (%.1f %%): a radiometric "
                 "(thermal) file? read between the flight's own levels %s", lo, hi, white.bit_length(), white,
                 100.0 * (hi - lo) / white, levels)

@@ -81,3 +81,20 @@ def test_colmaps_copies_of_a_thermal_flight_use_its_levels_and_are_made_again_wh
     assert copy.max() - copy.min() > 180  # before: 7 grey levels
     levels = str(flight_white_level([images / n for n in names]))
     assert all(source[2] == levels for source in json.loads((work / "copies.json").read_text()).values())
+
+
+def test_levels_are_measured_on_every_channel_and_the_white_level_on_every_value(tmp_path):
+    """rev24: the sample strode over the flattened values, so at 640x512 RGB (a stride of 3) it read the red
+    channel alone, and a flight whose red band was narrow got that band as its levels (green and blue clipped);
+    and the white level came from the sample, so a 12-bit flight's highlights outside it made it 1023, not 4095."""
+    rng = np.random.default_rng(3)
+    rgb = np.empty((512, 640, 3), np.uint16)
+    rgb[..., 0] = rng.integers(1000, 1100, (512, 640))  # cv2 writes BGR: this is blue, the narrow band
+    rgb[..., 1:] = rng.integers(1000, 3000, (512, 640, 2))
+    cv2.imwrite(str(tmp_path / "rgb.png"), rgb)
+    assert flight_white_level([tmp_path / "rgb.png"]) == 4095  # the data use their range: read from the white level
+
+    frame = rng.integers(0, 1000, (1500, 2000)).astype(np.uint16)  # a dark exposure: kept dark, not stretched
+    frame.reshape(-1)[1] = 4000  # one highlight between the sampled values
+    cv2.imwrite(str(tmp_path / "grey.png"), frame)
+    assert flight_white_level([tmp_path / "grey.png"]) == 4095
