@@ -31,13 +31,6 @@ def _before(d: dict, name: str, section: str = "") -> dict:
     return d
 
 
-def _today() -> Params:
-    """Today's defaults with the later settings whose default changes outputs (changes.untested_object_rate)
-    at their neutral value: these tests are about settings of neutral defaults, which must not change an
-    identity; a default that changes outputs changes it by design (test_setting_at_another_value_...)."""
-    return with_overrides(Params(), {"changes.untested_object_rate": 1.0})
-
-
 def _changes_identity(params: Params) -> object:
     return versioned_identity(lambda as_dict: {"maps": ["a", "b"], "changes": as_dict(params.changes)})
 
@@ -68,7 +61,7 @@ def test_neutral_setting_is_left_out_and_other_values_stay():
 
 
 def test_output_of_a_version_without_the_setting_resumes(tmp_path):
-    params = _today()
+    params = Params()
     # an earlier version: its changes section had no min_jpeg_quality, its identity its asdict
     old = fingerprint({"maps": ["a", "b"], "changes": _before(dataclasses.asdict(params.changes),
                                                               "changes.min_jpeg_quality", "changes.")})
@@ -81,7 +74,7 @@ def test_output_of_a_version_without_the_setting_resumes(tmp_path):
 
 
 def test_output_of_the_version_recording_every_setting_resumes(tmp_path):
-    params = _today()  # sosmatch before the registry (ac8cd72): dataclasses.asdict, the settings it had all in
+    params = Params()  # sosmatch before the registry (ac8cd72): dataclasses.asdict, the settings it had all in
     recorded = _before(dataclasses.asdict(params.changes), "changes.max_motion_smear_px", "changes.")
     _make_output(tmp_path / "out", fingerprint({"maps": ["a", "b"], "changes": recorded}))
     with open_output_dir(tmp_path / "out", "changes", _changes_identity(params)) as out:
@@ -89,7 +82,7 @@ def test_output_of_the_version_recording_every_setting_resumes(tmp_path):
 
 
 def test_setting_at_another_value_is_another_output(tmp_path):
-    params = _today()
+    params = Params()
     old = fingerprint({"maps": ["a", "b"], "changes": _before(dataclasses.asdict(params.changes),
                                                               "changes.min_jpeg_quality", "changes.")})
     _make_output(tmp_path / "out", old)
@@ -152,7 +145,7 @@ class _NoRun:
 def test_batch_stage_of_an_earlier_version_resumes(tmp_path):
     from sosmatch.plugin.params.identity import build_versions
 
-    params = _today()
+    params = Params()
     state = StateStore(tmp_path / "state", tmp_path)
     old = fingerprint({"changes": _before(dataclasses.asdict(params.changes), "changes.min_jpeg_quality", "changes.")})
     state.put("changes", "A__B", old, {"n": 1})
@@ -172,7 +165,7 @@ def test_no_registered_setting_in_the_poses_identity():
 def test_a_file_of_an_earlier_version_is_this_output(tmp_path):
     from sosmatch.database.output_files import OutputFiles
 
-    params = _today()  # check-poses: a file written before min_jpeg_quality existed is the same output
+    params = Params()  # check-poses: a file written before min_jpeg_quality existed is the same output
     old = fingerprint({"params": _before(dataclasses.asdict(params), "quality.min_jpeg_quality")})
     OutputFiles([tmp_path / "check.json"], "check-poses", old).write(tmp_path / "check.json", "{}")
 
