@@ -776,7 +776,7 @@ def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path
     import dataclasses
 
     from sosmatch.database.output_markers import MARKER
-    from sosmatch.plugin.params import ADDED, Params, with_overrides
+    from sosmatch.plugin.params import ADDED, Params
     from sosmatch.workflows.batch.state import fingerprint
 
     root, _ = flights
@@ -784,12 +784,8 @@ def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path
         shutil.copytree(root / name, tmp_path / "fl" / name)
     out = tmp_path / "out"
     options = batch.BatchOptions(progress=False, merge=False, changes=False)
-    # a later setting whose default changes outputs (changes.untested_object_rate) changes the identity by design:
-    # at its neutral value here, so that only the settings of neutral defaults are left out of the earlier one
-    today_params = with_overrides(Params(), {"changes.untested_object_rate": 1.0})
-    batch.run(tmp_path / "fl", out, today_params, executor=LocalExecutor(0), pair_fn=oracle_pair_task,
-              options=options)
-    params = dataclasses.asdict(today_params)
+    batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    params = dataclasses.asdict(Params())
     names = [a.name for a in ADDED]
     for dotted in names[names.index("quality.min_jpeg_quality"):]:  # that version had none of the later ones either
         section, key = dotted.split(".")
@@ -801,8 +797,7 @@ def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path
     today = marker["identity"]
     assert earlier != today
     (out / MARKER).write_text(json.dumps({**marker, "identity": earlier}))
-    again = batch.run(tmp_path / "fl", out, today_params, executor=LocalExecutor(0), pair_fn=oracle_pair_task,
-                      options=options)
+    again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
     assert all(s.get("resumed") for s in again.sessions) and again.pairs and all(p.get("resumed") for p in again.pairs)
     assert json.loads((out / MARKER).read_text())["identity"] == today  # re-marked under today's identity
 
