@@ -26,6 +26,7 @@ from .text_input import read_user_json, read_user_text
 
 if TYPE_CHECKING:
     from ..plugin.changes import SessionObservations
+    from .images import Levels
 
 MAX_ROWS = 2**31 - 1
 MERGE_RECORD = "merge.json"  # a merged session's record (`sosmatch merge`, written last: it marks one)
@@ -350,8 +351,11 @@ class KeyframeImages(Sequence):
     bounded memory on any survey; the cache changes only the speed, never a value)."""
 
     def __init__(self, images_dir: Path, names: Sequence[str], sizes: Sequence[tuple[int, int]],
-                 max_bytes: int = 512 * 2**20) -> None:
+                 max_bytes: int = 512 * 2**20, levels: Levels | int | None = None) -> None:
         self.images_dir, self.names, self.sizes, self.max_bytes = Path(images_dir), list(names), list(sizes), max_bytes
+        # what the map read the flight's images beyond 8 bits between (`recorded_levels`): the same grey levels
+        # here as there, not each image scaled by itself (a thermal flight read at 12 grey levels: rev24)
+        self.levels = levels
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self._bytes = 0
 
@@ -365,7 +369,7 @@ class KeyframeImages(Sequence):
         from .images import read_image
 
         path = self.images_dir / self.names[k]
-        rgb = read_image(path)
+        rgb = read_image(path, self.levels)
         if (rgb.shape[1], rgb.shape[0]) != tuple(self.sizes[k]):
             raise InputError(f"image is {rgb.shape[1]} x {rgb.shape[0]} px but the map's camera of this keyframe is "
                              f"{self.sizes[k][0]} x {self.sizes[k][1]}: images of another session?", path)
@@ -376,6 +380,25 @@ class KeyframeImages(Sequence):
             _, old = self._cache.popitem(last=False)
             self._bytes -= old.nbytes
         return grey
+
+
+def recorded_levels(session: str | Path) -> Levels | int | None:
+    """What `sosmatch map` read the session's images beyond 8 bits between (run.json "image_levels", the one
+    measurement of `images.flight_white_level`): `Levels` for data offset from zero, the white level for others,
+    None for 8-bit images or a record without it (an earlier map: each image read by its own white level)."""
+    from .images import Levels
+
+    try:
+        record = read_map_record(session)
+    except InputError:
+        return None
+    levels = record.get("image_levels") if isinstance(record, dict) else None
+    if not (isinstance(levels, list) and len(levels) == 2 and all(isinstance(v, int) for v in levels)):
+        return None
+    black, white = levels
+    if not 0 <= black < white:
+        return None
+    return Levels(black, white) if black > 0 else white
 
 
 def recorded_images_dir(session: str | Path) -> Path | None:
@@ -447,7 +470,8 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
     lmap = session.landmarks
     cams = tuple(cameras[camera_of[n]] for n in poses.names)
     images = None if images_dir is None else KeyframeImages(Path(images_dir), poses.names,
-                                                             [(c.width, c.height) for c in cams])
+                                                             [(c.width, c.height) for c in cams],
+                                                             levels=recorded_levels(session.path))
     return SessionObservations(lmap.positions, lmap.sizes.astype(np.float64), poses, cams, segments, support,
                                tracks, images, map_min_observations(session.path))
 

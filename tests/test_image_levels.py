@@ -98,3 +98,22 @@ def test_levels_are_measured_on_every_channel_and_the_white_level_on_every_value
     frame.reshape(-1)[1] = 4000  # one highlight between the sampled values
     cv2.imwrite(str(tmp_path / "grey.png"), frame)
     assert flight_white_level([tmp_path / "grey.png"]) == 4095
+
+
+def test_change_detection_reads_a_session_s_images_between_the_levels_its_map_recorded(tmp_path):
+    """rev24: change detection read each keyframe by its own white level, so a radiometric flight its map read
+    at 0-255 came to the surface sweep at ~12 grey levels. It now reads them between run.json's image_levels."""
+    import json
+
+    from sosmatch.database.session_io import KeyframeImages, recorded_levels
+
+    cv2.imwrite(str(tmp_path / "t0.tif"), _temperatures())
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": [29400, 31300]}))
+    levels = recorded_levels(tmp_path)
+    assert levels == Levels(29400, 31300)
+    grey = KeyframeImages(tmp_path, ["t0.tif"], [(160, 120)], levels=levels)[0]
+    assert grey.max() - grey.min() > 180
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": [0, 4095]}))
+    assert recorded_levels(tmp_path) == 4095  # data from zero: the white level, as the map read them
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": None}))
+    assert recorded_levels(tmp_path) is None

@@ -76,7 +76,12 @@ ADDED: tuple[Added, ...] = (
     Added("quality.max_motion_smear_px", "debb177", 2.0, "a warning"),
     Added("changes.max_motion_smear_px", "af76afa", 2.0, "a warning"),
     Added("pose_check.warn_matches_beyond_gate", "75b6bd8", 0.03, "a warning"),
-    Added("changes.untested_object_rate", "e04497c", 1.0, "claims not tested for a standing object (no images) "
+    # a calibration of confidences, registered at its default like fix48's reweighing of absences (no setting):
+    # it acts only on claims not tested for a standing object (images missing), and an earlier `changes` or batch
+    # output (made with images nearly always) is resumed as it is; `--overwrite` recomputes its claims. At 1.0
+    # (its value before) every identity named it: an upgrade refused every batch and, through the full
+    # parameters of a map's identity, every map (rev24)
+    Added("changes.untested_object_rate", "e04497c", 0.4, "claims not tested for a standing object (no images) "
           "have their confidence lowered"),
     Added("quality.warn_landmarks_per_keyframe", "39e6c0f", 0.3, "a warning"),
 )
