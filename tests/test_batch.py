@@ -19,6 +19,7 @@ from sosmatch.plugin.multisession import Edge, Sim3, connected_groups, nearest_p
 from sosmatch.tools.cli import main
 from sosmatch.tools.toy_sessions import lawnmower, make_world, oracle_pair_task, write_toy_session, yaw_transform
 from sosmatch.workflows import batch
+from sosmatch.workflows.batch.pairs import choose_pairs
 from sosmatch.workflows.executors import DaskExecutor, LocalExecutor
 
 # A, B and C overlap in a chain (A-B, B-C; A-C too little to accept): C reaches A's frame only through B.
@@ -263,11 +264,11 @@ def test_cli_batch_with_the_real_association_search(tmp_path):
 
 def test_nearest_pairs_need_one_frame():
     sessions = {n: {"center": [x, 0.0, 50.0], "epsg": 0} for n, x in zip("ABCD", (0.0, 10.0, 100.0, 110.0))}
-    assert batch.workflow._choose_pairs(list("ABCD"), sessions, None) == [tuple(p) for p in
-                                                                ("AB", "AC", "AD", "BC", "BD", "CD")]
-    assert batch.workflow._choose_pairs(list("ABCD"), sessions, 1) == [("A", "B"), ("C", "D")]
+    assert choose_pairs(list("ABCD"), sessions, None)[0] == [tuple(p) for p in
+                                                             ("AB", "AC", "AD", "BC", "BD", "CD")]
+    assert choose_pairs(list("ABCD"), sessions, 1)[0] == [("A", "B"), ("C", "D")]
     sessions["D"]["epsg"] = 32617  # not one frame: positions say nothing, so every pair is matched
-    assert len(batch.workflow._choose_pairs(list("ABCD"), sessions, 1)) == 6
+    assert len(choose_pairs(list("ABCD"), sessions, 1)[0]) == 6
 
 
 def test_contradicting_pairs_are_left_out_of_the_graph():
@@ -916,7 +917,7 @@ def test_nearest_also_matches_each_flight_with_its_neighbours_in_time(monkeypatc
     sessions = {n: {"center": [x, y, 100.0], "epsg": 0, "session": n} for n, (x, y) in centres.items()}
     boxes = {n: (0.0, 0.0, 600.0, 600.0) for n in names} | {"far": (2000.0, 0.0, 2600.0, 600.0)}
     monkeypatch.setattr(pairs_mod, "_footprint", boxes.get)
-    by_position = batch.workflow._choose_pairs(names, sessions, 2)
+    by_position = choose_pairs(names, sessions, 2)[0]
     assert ("f2", "f3") not in by_position and ("f5", "f6") not in by_position
     times = {n: 86400.0 * k for k, n in enumerate(names)}
     chosen, added = pairs_mod.choose_pairs(names, sessions, 2, times)

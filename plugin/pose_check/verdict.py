@@ -138,11 +138,11 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
 
 def poses_fit_images(check: PoseCheck, limits: PoseCheckParams) -> str:
     """A phrase saying that the check found the poses fitting the images ("" when it did not, or saw too little
-    to say): at least `min_pairs` pairs checked, no pass reversed, the median within the warning fraction of the
-    gate and no single pair beyond its warning limit. The map's own warnings that would otherwise name the poses
-    (passes without landmarks, few tracks triangulated, passes disagreeing) quote it, so that a map thinned by
-    its images is not blamed on poses that were measured to fit (the 23rd new-user sweep: Gaussian noise on the
-    images of unchanged EKF poses was reported as "a wrong heading")."""
+    to say): at least `min_pairs` pairs checked, no pass reversed, the matches not loose (`median_loose`: few of
+    them beyond the gate) and no single pair beyond its warning limit. The map's own warnings that would otherwise
+    name the poses (passes without landmarks, few tracks triangulated, passes disagreeing) quote it, so that a map
+    thinned by its images is not blamed on poses that were measured to fit (the 23rd new-user sweep: Gaussian noise
+    on the images of unchanged EKF poses was reported as "a wrong heading")."""
     if check.pairs_checked < limits.min_pairs or not np.isfinite(check.epipolar_p50_px) or check.reversed_passes:
         return ""
     if poses_loose(check, limits):

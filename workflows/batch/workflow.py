@@ -60,12 +60,6 @@ def _valid_match(done: dict[str, Any]) -> bool:
     return Path(done.get("match", "")).is_file()
 
 
-def _choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
-                  times: dict[str, float | None] | None = None) -> list[tuple[str, str]]:
-    """The session pairs to match (`pairs.choose_pairs`)."""
-    return choose_pairs(names, sessions, nearest, times)[0]
-
-
 def run(
     flights_dir: str | Path,
     out_dir: str | Path,
