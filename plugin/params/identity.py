@@ -228,3 +228,31 @@ def identity_versions(build: Callable[[Callable[[Any], dict[str, Any]]], Any]) -
         if changed and obj != today and obj not in earlier and obj not in [o for o, _ in otherwise]:
             otherwise.append((obj, otherwise_note(changed)))
     return IdentityVersions(today, earlier, otherwise)
+
+
+
+def later_stages_at_rest(params: Any) -> list[Any]:
+    """`params` as a map made by an earlier version may have been made with it: the sections of the stages after a
+    map (`tree.LATER_SECTIONS`) at their defaults, but for the one figure of theirs a map uses
+    (`association.min_associations`, as `tree.mapping_params`), and the registered settings (`ADDED`) of those
+    sections that the version did not have at their neutral values (it behaved as they do). One Params per
+    distinct form, the version with every setting first. A map's identity held every setting until fix51: a map
+    made with these is a map of `params`, whatever its later settings are now (no later setting changes a map)."""
+    from .tree import LATER_SECTIONS, Params
+
+    default = Params()
+    base = {name: getattr(default, name) for name in LATER_SECTIONS}
+    base["association"] = dataclasses.replace(base["association"],
+                                              min_associations=params.association.min_associations)
+    later = [a for a in ADDED if a.name.partition(".")[0] in base and a.neutral is not NO_NEUTRAL
+             and a.name != "association.min_associations"]
+    forms: list[Any] = []
+    for k in range(len(later), -1, -1):  # the version without later[k:]
+        sections = dict(base)
+        for added in later[k:]:
+            name, _, key = added.name.partition(".")
+            sections[name] = dataclasses.replace(sections[name], **{key: added.neutral})
+        form = dataclasses.replace(params, **sections)
+        if form not in forms:
+            forms.append(form)
+    return forms

@@ -57,7 +57,13 @@ def mapping_params(params: Params, as_dict: Callable[[Any], dict[str, Any]] = pa
     quality check counts the landmarks a match needs). A batch resumes a flight's map while these are
     unchanged, so a setting of matching or change detection does not map every flight again. `as_dict`: how
     Params becomes a dict (an identity's: `identity.params_identity`, or an earlier version's)."""
-    out = {k: v for k, v in as_dict(params).items() if k not in LATER_SECTIONS}
+    # section by section: a later section never reaches `as_dict`, so an earlier version's (which refuses a setting
+    # it did not have at a non-neutral value) is not refused for a setting no map reads
+    out = {}
+    for f in dataclasses.fields(params):
+        if f.name not in LATER_SECTIONS:
+            value = getattr(params, f.name)
+            out[f.name] = as_dict(value) if dataclasses.is_dataclass(value) else value
     out["association.min_associations"] = params.association.min_associations
     return out
 

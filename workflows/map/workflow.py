@@ -22,7 +22,6 @@ from ...database.colmap_db import (
 )
 from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
-from ...database.output_markers import versioned_identity
 from ...database.outputs import OutputDir
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
@@ -46,7 +45,7 @@ from .keyframes import (
     describe_keyframes,
     shutter_smear,
 )
-from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, take_output_dir
+from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, map_identity, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
 
 log = logging.getLogger(__name__)
@@ -221,8 +220,7 @@ def run(
         what, paths = source.identity(), source.input_paths()
         gps = None  # poses made from the images' own GPS: their unit is the GPS's
     # what the outputs depend on: a complete session of another identity is replaced only with `overwrite`
-    identity = versioned_identity(lambda as_dict: {"inputs": what, "params": as_dict(params), "text_model": text_model,
-                                                   "masks": masks_source})
+    identity = map_identity(what, params, text_model, masks_source)
     with take_output_dir(out_dir, identity, paths, overwrite) as out:
         extra: tuple[str, ...] = ()
         if source is not None:
