@@ -117,6 +117,13 @@ def test_change_detection_reads_a_session_s_images_between_the_levels_its_map_re
     assert recorded_levels(tmp_path) == 4095  # data from zero: the white level, as the map read them
     (tmp_path / "run.json").write_text(json.dumps({"image_levels": None}))
     assert recorded_levels(tmp_path) is None
+    # signed data below zero and float degC (nu41 D5): their own levels come back as the map read them
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": [-113, 146]}))
+    assert recorded_levels(tmp_path) == Levels(-113, 146)
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": [13.69, 39.616]}))
+    assert recorded_levels(tmp_path) == Levels(13.69, 39.616)
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": [0, 40.5]}))
+    assert recorded_levels(tmp_path) == Levels(0, 40.5)
 
 
 def _thermal_flight(tmp_path, edit, n: int = 4) -> list:
