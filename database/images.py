@@ -285,13 +285,14 @@ def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
     white: float = (1.0 if pooled.max() <= 1.0 else 255.0) if floats else white_level(largest)
     lo, hi, clipped, outliers = flight_levels(pooled)
     p5, p95 = np.percentile(pooled, (5, 95))
-    # below zero the data are not light from 0 up (signed deci-degC, float degC): read from 0 they lost every
-    # value below it (65 % of a winter scene black). Otherwise a narrow range near zero is a dark exposure (kept,
-    # as the README promises); one whose central 5-95 % sits above zero by more than its own width is data offset
-    # from zero (temperatures): only that is read between its own levels. Central statistics, not the tails: a
-    # row of zeros in 1 of 240 rows (0.4 %) set the 0.1 % tail and flipped a thermal flight to 6 grey levels.
-    negative = float(np.mean(pooled < 0))
-    if negative < 0.001 and (hi - lo >= MIN_SPAN * white or (p5 < p95 - p5 and hi > lo)):
+    # below zero (signed deci-degC, float degC) or above 255 (float centi-kelvin) the data are not light in the
+    # range they would be read in: read so, they lost every value outside it (65 % of a winter scene black).
+    # Otherwise a narrow range near zero is a dark exposure (kept, as the README promises); one whose central
+    # 5-95 % sits above zero by more than its own width is data offset from zero (temperatures): only that is read
+    # between its own levels. Central statistics, not the tails: a row of zeros in 1 of 240 rows (0.4 %) set the
+    # 0.1 % tail and flipped a thermal flight to 6 grey levels.
+    lost = float(np.mean((pooled < 0) | (pooled > white)))
+    if lost < 0.001 and (hi - lo >= MIN_SPAN * white or (p5 < p95 - p5 and hi > lo)):
         if floats:
             return None
         return white
@@ -305,7 +306,8 @@ def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
         # stages that need texture refuse it
         log.warning("the images hold one value (%s) in every sampled pixel: blank frames?", lo)
         return levels
-    why = (f"{100 * negative:.0f} % of their values are below zero, which a reading from 0 loses" if negative >= 0.001
+    why = (f"{100 * lost:.0f} % of their values lie outside 0-{white:g} (below zero or beyond), which a reading "
+           f"in that range loses" if lost >= 0.001
            else f"their values span only {lo:g}-{hi:g} of their range 0-{white:g} "
                 f"({100.0 * (hi - lo) / white:.1f} %): a radiometric (thermal) file?")
     extra = ""

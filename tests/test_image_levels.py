@@ -186,7 +186,7 @@ def test_signed_data_below_zero_are_read_between_their_own_levels(tmp_path, capl
     with caplog.at_level(logging.WARNING):
         levels = flight_white_level([tmp_path / "w.tif"])
     assert isinstance(levels, Levels) and levels.black < 0 < levels.white, levels
-    assert "below zero" in caplog.text
+    assert "below zero or beyond" in caplog.text
     grey = read_image(tmp_path / "w.tif", levels)[:, :, 0].astype(int)
     assert np.ptp(grey) > 180 and np.mean(grey == 0) < 0.05  # before: most of the frame 0
     assert np.abs(read_gray(tmp_path / "w.tif", levels).astype(int) - grey).max() <= 1
@@ -206,3 +206,8 @@ def test_float_temperatures_are_read_between_their_own_levels(tmp_path):
     # float data that are light (0..1) read as before
     cv2.imwrite(str(tmp_path / "l.tif"), np.linspace(0, 1, 120 * 160).reshape(120, 160).astype(np.float32))
     assert flight_white_level([tmp_path / "l.tif"]) is None
+    # float centi-kelvin, beyond 255: read as 0..255 every pixel was white
+    cv2.imwrite(str(tmp_path / "k.tif"), _temperatures().astype(np.float32))
+    levels = flight_white_level([tmp_path / "k.tif"])
+    assert isinstance(levels, Levels) and 29000 < levels.black < levels.white < 31500, levels
+    assert np.ptp(read_image(tmp_path / "k.tif", levels)[:, :, 0].astype(int)) > 180
