@@ -62,8 +62,9 @@ class Levels:
     """The black and white level an image of more than 8 bits is read between (to 0 and 255): one pair per
     flight (`flight_white_level`), so every frame gets the same mapping and a region the same grey in each."""
 
-    black: int
-    white: int
+    # int for integer data; float for float data (degC), whose levels are fractions of a unit
+    black: float
+    white: float
 
     def __str__(self) -> str:
         # the keyframe cache key and log lines: a flight read from its own range is never mixed with one read
@@ -71,7 +72,7 @@ class Levels:
         return f"{self.white}" if self.black == 0 else f"{self.black}-{self.white}"
 
 
-def _levels(white: Levels | int | None, a: np.ndarray) -> tuple[int, int]:
+def _levels(white: Levels | int | None, a: np.ndarray) -> tuple[float, float]:
     """(black, white) for `to_u8`: the flight's `Levels`, a bare white level (black 0), or the white level of
     the array's own maximum."""
     if isinstance(white, Levels):
@@ -104,12 +105,20 @@ def to_u8(a: np.ndarray, white: Levels | int | None = None) -> np.ndarray:
     (`flight_white_level`): `Levels` (black to 0, white to 255) or a bare white level (to 255, black 0); without
     it, from the white level of the array's own maximum (`white_level`), which a dark frame of a 16-bit flight
     reads as 10- or 12-bit data (64 or 16 times brighter than its neighbours): the readers of a flight's images
-    pass its levels. Floats are taken as 0..1 when their maximum is <= 1, else as 0..255.
+    pass its levels. Signed 16-bit data and floats are read between `Levels` when given (`flight_white_level`
+    gives them for data below zero or offset from it); else signed data from 0 (values below it black) and floats
+    as 0..1 when their maximum is <= 1, else as 0..255.
     """
     a = np.asarray(a)
     if a.dtype == np.uint8:
         return a
-    if a.dtype.kind == "i" and a.dtype.itemsize == 2:  # signed 16-bit (some thermal TIFFs): no light below 0
+    if a.dtype.kind == "i" and a.dtype.itemsize == 2 and isinstance(white, Levels):
+        # signed 16-bit between the flight's levels (deci-degC thermal TIFFs, below zero in winter): a table of
+        # the 65536 values as for unsigned data, indexed from -32768
+        black, level = white.black, white.white
+        lut = np.clip(np.rint((np.arange(65536) - 32768 - black) * (255.0 / max(level - black, 1))), 0, 255)
+        return lut.astype(np.uint8)[(a.astype(np.int32) + 32768)]
+    if a.dtype.kind == "i" and a.dtype.itemsize == 2:  # signed 16-bit without the flight's levels: light from 0
         a = np.clip(a, 0, None).astype(np.uint16)
     if a.dtype.kind == "u" and a.dtype.itemsize == 2:  # any byte order (big-endian TIFF: >u2)
         black, level = _levels(white, a)
@@ -123,6 +132,11 @@ def to_u8(a: np.ndarray, white: Levels | int | None = None) -> np.ndarray:
         return np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
     if a.dtype == bool:
         return a.astype(np.uint8) * 255
+    if np.issubdtype(a.dtype, np.floating) and isinstance(white, Levels):
+        # float data between the flight's levels (degC thermal TIFFs); NaN (no data) reads black
+        a = np.nan_to_num(a.astype(np.float64), nan=white.black, posinf=white.white, neginf=white.black)
+        span = white.white - white.black
+        return np.clip(np.rint((a - white.black) * (255.0 / (span if span > 0 else 1.0))), 0, 255).astype(np.uint8)
     if np.issubdtype(a.dtype, np.floating):
         a = np.nan_to_num(a.astype(np.float64))
         scale = 255.0 if a.max(initial=0) <= 1.0 else 1.0
@@ -222,18 +236,20 @@ def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
     from the headers of WHITE_LEVEL_SAMPLES images spread over the flight, nothing decoded); else measured once
     over those samples, so that every frame gets the same mapping (a dark frame of a 16-bit flight, scaled by
     itself, came out 16 times brighter than its neighbours): the sensor's white level (`white_level` of the
-    largest value, black 0: the camera's exposure kept), or, for a flight whose values span less than
-    `MIN_SPAN` of that range, `Levels` at the flight's own robust range (`LEVEL_PERCENTILES` of all the samples'
-    values). Unreadable samples are skipped (the stage that needs their pixels names them).
+    largest value, black 0: the camera's exposure kept), or `Levels` at the flight's own robust range
+    (`flight_levels`) for data offset far from zero in a narrow range, for signed data reaching below zero and
+    for float data that are not light in 0..1 or 0..255. Unreadable samples are skipped (the stage that needs
+    their pixels names them).
 
     Why the flight's own range: a radiometric thermal file holds temperatures (DJI's Thermal SDK and FLIR tools
-    write centi-kelvin: 20-40 degC is 29315-31315), not light from 0 up; read from 0 to its white level it had 6
-    grey levels and its map no landmarks. Thermal cameras show such data between the scene's own limits."""
+    write centi-kelvin: 20-40 degC is 29315-31315; others deci-degC in signed 16 bits, or degC as float), not
+    light from 0 up; read from 0 to its white level it had 6 grey levels and its map no landmarks. Thermal
+    cameras show such data between the scene's own limits."""
     paths = list(paths)
     if not paths:
         return None
     picks = sorted({round(i) for i in np.linspace(0, len(paths) - 1, min(len(paths), WHITE_LEVEL_SAMPLES))})
-    values, largest = [], 0
+    values, kinds, largest, nodata, total = [], set(), 0, 0, 0
     for i in picks:
         path = Path(paths[i])
         bits = _header_bits(path)
@@ -243,34 +259,105 @@ def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
             arr = _decode(path)
         except InputError:
             continue
-        if arr.dtype.kind in "ui" and arr.dtype.itemsize > 1:
+        if (arr.dtype.kind in "ui" and arr.dtype.itemsize > 1) or arr.dtype.kind == "f":
             # whole pixels, every channel: a stride over the flattened values reads one channel only whenever it
             # is a multiple of the channel count (3 at 640x512 RGB), and a narrow red band set the levels (rev24)
             pixels = arr.reshape(arr.shape[0] * arr.shape[1], -1) if arr.ndim == 3 else arr.reshape(-1, 1)
-            values.append(pixels[:: max(1, len(pixels) * pixels.shape[1] // LEVEL_SAMPLE_VALUES)]
-                          .reshape(-1).astype(np.int64))
-            # the white level from every value, as before the sampled levels: a few highlights at 4000 in a
-            # 12-bit flight's sample-missed pixels made it 1023, and the flight read 4x too bright (rev24)
-            largest = max(largest, int(arr.max(initial=0)))
+            sample = pixels[:: max(1, len(pixels) * pixels.shape[1] // LEVEL_SAMPLE_VALUES)].reshape(-1)
+            valid = _valid_values(sample)
+            total += sample.size
+            nodata += sample.size - valid.size
+            values.append(valid.astype(np.float64 if arr.dtype.kind == "f" else np.int64))
+            kinds.add(arr.dtype.kind)
+            if arr.dtype.kind in "ui":
+                # the white level from every value, as before the sampled levels: a few highlights at 4000 in a
+                # 12-bit flight's sample-missed pixels made it 1023, and the flight read 4x too bright (rev24)
+                largest = max(largest, int(arr.max(initial=0)))
     if not values:
         return None
     pooled = np.concatenate(values)
-    white = white_level(largest)
-    lo, hi = (int(round(v)) for v in np.percentile(pooled, LEVEL_PERCENTILES))
-    # a narrow range near zero is a dark exposure (kept, as the README promises); one that sits far above zero, by
-    # more than its own width, is data offset from zero (temperatures): only that is read between its own levels
-    if hi - lo >= MIN_SPAN * white or (lo < hi - lo and hi > lo):
+    if pooled.size == 0:
+        log.warning("the images hold only no-data values (0 or their type's maximum) in every sampled pixel: "
+                    "blank frames?")
+        return None if kinds == {"f"} else white_level(largest)
+    floats = "f" in kinds
+    # the nominal range other data are read in (`to_u8`): the sensor's white level, or 0..1 / 0..255 for floats
+    white: float = (1.0 if pooled.max() <= 1.0 else 255.0) if floats else white_level(largest)
+    lo, hi, clipped, outliers = flight_levels(pooled)
+    p5, p95 = np.percentile(pooled, (5, 95))
+    # below zero (signed deci-degC, float degC) or above 255 (float centi-kelvin) the data are not light in the
+    # range they would be read in: read so, they lost every value outside it (65 % of a winter scene black).
+    # Otherwise a narrow range near zero is a dark exposure (kept, as the README promises); one whose central
+    # 5-95 % sits above zero by more than its own width is data offset from zero (temperatures): only that is read
+    # between its own levels. Central statistics, not the tails: a row of zeros in 1 of 240 rows (0.4 %) set the
+    # 0.1 % tail and flipped a thermal flight to 6 grey levels.
+    lost = float(np.mean((pooled < 0) | (pooled > white)))
+    if lost < 0.001 and (hi - lo >= MIN_SPAN * white or (p5 < p95 - p5 and hi > lo)):
+        if floats:
+            return None
         return white
-    # a flat flight (one value throughout) keeps a span of 1, not divided by zero: it reads black, and the stages
-    # that need texture refuse it
-    levels = Levels(max(0, lo), max(hi, lo + 1))
+    if floats:
+        # six significant digits: the levels of degC data as the log and run.json show them, not 13.6899995803833
+        levels = Levels(float(f"{lo:.6g}"), float(f"{max(hi, lo + white / 255.0):.6g}"))
+    else:
+        levels = Levels(int(lo), int(max(hi, lo + 1)))
     if hi == lo:
-        log.warning("the images hold one value (%d) in every sampled pixel: blank frames?", lo)
+        # a flat flight (one value throughout) keeps a span of 1, not divided by zero: it reads black, and the
+        # stages that need texture refuse it
+        log.warning("the images hold one value (%s) in every sampled pixel: blank frames?", lo)
         return levels
-    log.warning("the images' values span only %d-%d of their %d-bit range 0-%d (%.1f %%): a radiometric "
-                "(thermal) file? read between the flight's own levels %s", lo, hi, white.bit_length(), white,
-                100.0 * (hi - lo) / white, levels)
+    why = (f"{100 * lost:.0f} % of their values lie outside 0-{white:g} (below zero or beyond), which a reading "
+           f"in that range loses" if lost >= 0.001
+           else f"their values span only {lo:g}-{hi:g} of their range 0-{white:g} "
+                f"({100.0 * (hi - lo) / white:.1f} %): a radiometric (thermal) file?")
+    extra = ""
+    if clipped:
+        extra += f"; {100 * clipped / pooled.size:.2f} % of the sampled values lie beyond them and clip"
+    if outliers:
+        extra += (f" ({100 * outliers / pooled.size:.2f} % far beyond the rest: a hot object or dead pixels, "
+                  "left out of the levels)")
+    if nodata:
+        extra += (f"; {100 * nodata / total:.2f} % are no-data or saturated (0 or the type's maximum) and "
+                  "set no level")
+    log.warning("the images are read between the flight's own levels %s: %s%s", levels, why, extra)
     return levels
+
+
+# The flight's bulk: values in these percentiles, and a value farther beyond them than the bulk is wide is an
+# outlier (a hot object, a dead pixel cluster), clipped rather than stretching every frame's grey levels (Tukey's
+# fences, on the 1-99 % range instead of the quartiles: a thermal scene's own tails reach 0.5 of its 1-99 % width
+# beyond it, a 20x20 patch at 87 degC in 3 of 40 frames 4 widths)
+LEVEL_BULK = (1.0, 99.0)
+LEVEL_FENCE = 1.0
+
+
+def _valid_values(sample: np.ndarray) -> np.ndarray:
+    """The values of a sample that can set a flight's levels: not no-data or saturated, which is exactly 0 or the
+    type's maximum for unsigned data (a rectified frame's zero-filled corners, a blank line, a dead column), the
+    type's minimum or maximum for signed data (0 is a temperature there), and for floats not NaN, infinite or
+    exactly 0."""
+    if sample.dtype.kind == "u":
+        return sample[(sample != 0) & (sample != np.iinfo(sample.dtype).max)]
+    if sample.dtype.kind == "i":
+        info = np.iinfo(sample.dtype)
+        return sample[(sample != info.min) & (sample != info.max)]
+    return sample[np.isfinite(sample) & (sample != 0)]
+
+
+def flight_levels(values: np.ndarray) -> tuple[float, float, int, int]:
+    """(black, white, clipped, outliers) of a flight's valid sampled values: the LEVEL_PERCENTILES of the values
+    within LEVEL_FENCE bulk widths of the bulk (LEVEL_BULK), rounded for integer data; how many values lie beyond
+    them (they clip to 0 or 255), and how many lie beyond the fence (outliers). A small hot object then clips
+    instead of setting the white level of the whole flight, while a scene without outliers gets the
+    LEVEL_PERCENTILES of all its values, as before."""
+    b_lo, b_hi = np.percentile(values, LEVEL_BULK)
+    width = b_hi - b_lo
+    inside = values[(values >= b_lo - LEVEL_FENCE * width) & (values <= b_hi + LEVEL_FENCE * width)]
+    lo, hi = np.percentile(inside, LEVEL_PERCENTILES)
+    if values.dtype.kind in "ui":
+        lo, hi = float(round(lo)), float(round(hi))
+    clipped = int(np.count_nonzero((values < lo) | (values > hi)))
+    return float(lo), float(hi), clipped, int(values.size - inside.size)
 
 
 def _header_bits(path: Path) -> int | None:

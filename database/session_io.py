@@ -393,12 +393,15 @@ def recorded_levels(session: str | Path) -> Levels | int | None:
     except InputError:
         return None
     levels = record.get("image_levels") if isinstance(record, dict) else None
-    if not (isinstance(levels, list) and len(levels) == 2 and all(isinstance(v, int) for v in levels)):
+    if not (isinstance(levels, list) and len(levels) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in levels)):
         return None
     black, white = levels
-    if not 0 <= black < white:
+    if not black < white:
         return None
-    return Levels(black, white) if black > 0 else white
+    # a bare white level only for unsigned integer data read from 0; signed data below zero and float data
+    # (degC) were read between their own levels
+    return white if black == 0 and isinstance(white, int) else Levels(black, white)
 
 
 def recorded_images_dir(session: str | Path) -> Path | None:

@@ -117,3 +117,97 @@ def test_change_detection_reads_a_session_s_images_between_the_levels_its_map_re
     assert recorded_levels(tmp_path) == 4095  # data from zero: the white level, as the map read them
     (tmp_path / "run.json").write_text(json.dumps({"image_levels": None}))
     assert recorded_levels(tmp_path) is None
+    # signed data below zero and float degC (nu41 D5): their own levels come back as the map read them
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": [-113, 146]}))
+    assert recorded_levels(tmp_path) == Levels(-113, 146)
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": [13.69, 39.616]}))
+    assert recorded_levels(tmp_path) == Levels(13.69, 39.616)
+    (tmp_path / "run.json").write_text(json.dumps({"image_levels": [0, 40.5]}))
+    assert recorded_levels(tmp_path) == Levels(0, 40.5)
+
+
+def _thermal_flight(tmp_path, edit, n: int = 4) -> list:
+    """`n` thermal frames (`_temperatures`), frame k changed by edit(k, frame)."""
+    paths = []
+    for k in range(n):
+        paths.append(tmp_path / f"e{k}.tif")
+        cv2.imwrite(str(paths[-1]), edit(k, _temperatures(seed=k)))
+    return paths
+
+
+def _set(frame: np.ndarray, where, value: int) -> np.ndarray:
+    frame[where] = value
+    return frame
+
+
+def test_no_data_and_saturated_values_set_no_level(tmp_path, caplog):
+    """nu41 D1: one row of zeros per frame (a no-data line), zero-filled corners or a dead column at 0 or 65535
+    made a thermal flight read from 0 to 65535 again (6 grey levels, no landmarks): the 0.1 % tail fell on them
+    and flipped the offset-vs-dark decision. Values at exactly 0 or the type's maximum set no level; the
+    decision comes from the central 5-95 %."""
+    (tmp_path / "ref").mkdir()
+    reference = flight_white_level(_thermal_flight(tmp_path / "ref", lambda k, f: f))
+    edits = {"row": lambda k, f: _set(f, (0, slice(None)), 0),
+             "corners": lambda k, f: _set(_set(f, (slice(0, 12), slice(0, 12)), 0),
+                                          (slice(-12, None), slice(-12, None)), 0),
+             "dead0": lambda k, f: _set(f, (slice(None), 70), 0),
+             "dead65535": lambda k, f: _set(f, (slice(None), 70), 65535)}
+    for name, edit in edits.items():
+        (tmp_path / name).mkdir()
+        with caplog.at_level(logging.WARNING):
+            levels = flight_white_level(_thermal_flight(tmp_path / name, edit))
+        assert isinstance(levels, Levels), name
+        assert abs(levels.black - reference.black) <= 2 and abs(levels.white - reference.white) <= 2, name
+        assert "no-data or saturated" in caplog.text
+        assert np.ptp(read_image(tmp_path / name / "e0.tif", levels)[60:, :, 0].astype(int)) > 180, name
+
+
+def test_a_small_hot_object_clips_rather_than_stretching_the_flight(tmp_path, caplog):
+    """nu41 D1: a 20x20 patch at 87 degC in 3 of 40 frames stretched the flight's levels to 28684-36000 (21
+    landmarks instead of 36). Values beyond the flight's bulk by more than its width are left out of the levels
+    and clip, and the log says how many."""
+    (tmp_path / "ref").mkdir()
+    reference = flight_white_level(_thermal_flight(tmp_path / "ref", lambda k, f: f))
+    (tmp_path / "hot").mkdir()
+    paths = _thermal_flight(tmp_path / "hot", lambda k, f: _set(f, (slice(5, 17), slice(5, 17)), 36000) if k in (0, 2)
+                            else f)
+    with caplog.at_level(logging.WARNING):
+        levels = flight_white_level(paths)
+    assert isinstance(levels, Levels) and abs(levels.white - reference.white) <= 2, levels
+    assert "a hot object or dead pixels" in caplog.text and "clip" in caplog.text
+    assert read_image(paths[0], levels)[5:17, 5:17, 0].min() == 255  # the hot patch clips to white
+
+
+def test_signed_data_below_zero_are_read_between_their_own_levels(tmp_path, caplog):
+    """nu41 D5: signed 16-bit deci-degC of a winter scene (-15..+20 degC) read from 0: 65 % of it black, and
+    nothing said so. Read between the flight's own levels, and told why."""
+    deci = (_temperatures().astype(np.int32) - 29315 - 1600) // 10  # deci-degC, about -150..+60
+    cv2.imwrite(str(tmp_path / "w.tif"), deci.astype(np.int16))
+    with caplog.at_level(logging.WARNING):
+        levels = flight_white_level([tmp_path / "w.tif"])
+    assert isinstance(levels, Levels) and levels.black < 0 < levels.white, levels
+    assert "below zero or beyond" in caplog.text
+    grey = read_image(tmp_path / "w.tif", levels)[:, :, 0].astype(int)
+    assert np.ptp(grey) > 180 and np.mean(grey == 0) < 0.05  # before: most of the frame 0
+    assert np.abs(read_gray(tmp_path / "w.tif", levels).astype(int) - grey).max() <= 1
+    assert to_u8(np.array([-100, 0, 155], np.int16), Levels(-100, 155)).tolist() == [0, 100, 255]
+
+
+def test_float_temperatures_are_read_between_their_own_levels(tmp_path):
+    """nu41 D5: float32 degC (14..40) read as grey 0..255 had 25 grey levels."""
+    degc = (_temperatures().astype(np.float64) / 100 - 273.15).astype(np.float32)
+    cv2.imwrite(str(tmp_path / "f.tif"), degc)
+    levels = flight_white_level([tmp_path / "f.tif"])
+    assert isinstance(levels, Levels) and 20 < levels.black < levels.white < 40, levels
+    grey = read_image(tmp_path / "f.tif", levels)[:, :, 0].astype(int)
+    # the 21 degC field and the 25 degC ground: 4 grey levels apart before
+    assert np.ptp(grey) > 180 and np.median(grey[:10, :]) - np.median(grey[70:100, 100:130]) > 40
+    assert np.abs(read_gray(tmp_path / "f.tif", levels).astype(int) - grey).max() <= 1
+    # float data that are light (0..1) read as before
+    cv2.imwrite(str(tmp_path / "l.tif"), np.linspace(0, 1, 120 * 160).reshape(120, 160).astype(np.float32))
+    assert flight_white_level([tmp_path / "l.tif"]) is None
+    # float centi-kelvin, beyond 255: read as 0..255 every pixel was white
+    cv2.imwrite(str(tmp_path / "k.tif"), _temperatures().astype(np.float32))
+    levels = flight_white_level([tmp_path / "k.tif"])
+    assert isinstance(levels, Levels) and 29000 < levels.black < levels.white < 31500, levels
+    assert np.ptp(read_image(tmp_path / "k.tif", levels)[:, :, 0].astype(int)) > 180
