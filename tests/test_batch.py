@@ -1034,3 +1034,32 @@ def test_flights_without_a_usable_time_are_said_in_one_warning(tmp_path, caplog)
     assert "b (no image carries a capture time" in lines[0] and "c (its images' clocks were reset" in lines[0]
     assert "m (a mapped session" in lines[0]
     assert "d carry their cameras' clock times without a zone" in lines[1]
+
+
+def test_a_flight_s_camera_zone_comes_from_its_gps_times(tmp_path):
+    """Images with both GPS and camera times whole hours apart give the camera's zone to its images that carry the
+    camera time only; a camera clock reset to 2000-01-01 (whole hours from the GPS time too) is no zone."""
+    from PIL import Image
+    from PIL.TiffImagePlugin import IFDRational
+
+    from sosmatch.workflows.batch.pairs import read_flight_time
+
+    def flight(folder, stamps):
+        folder.mkdir()
+        for k, (local, gps) in enumerate(stamps):
+            exif = Image.Exif()
+            exif.get_ifd(0x8769)[0x9003] = local
+            if gps is not None:
+                exif.get_ifd(0x8825).update({0x1D: "2026:05:02", 0x07: tuple(IFDRational(v, 1) for v in gps)})
+            Image.new("RGB", (8, 8)).save(folder / f"img_{k}.jpg", format="JPEG", exif=exif)
+        return folder
+
+    # camera at +02:00 (and 30 s fast); two of three images lost the GPS time: all three UTC, 10:00-10:02
+    zoned = flight(tmp_path / "a", [("2026:05:02 12:00:30", (10, 0, 0)), ("2026:05:02 12:01:30", None),
+                                    ("2026:05:02 12:02:30", None)])
+    ft = read_flight_time(zoned)
+    assert ft.utc and ft.seconds == pytest.approx(1777716000.0 + 90.0)
+    reset = flight(tmp_path / "b", [("2000:01:01 00:00:00", (10, 0, 0)), ("2026:05:02 12:01:00", None),
+                                    ("2026:05:02 12:02:00", None)])
+    ft = read_flight_time(reset)  # no zone: the GPS time alone (UTC), the clock-only images left aside
+    assert ft.utc and ft.seconds == pytest.approx(1777716000.0)

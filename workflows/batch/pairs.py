@@ -27,6 +27,7 @@ CLOCK_RESET_WINDOW_S = 31 * 86400.0
 FLIGHT_SPAN_S = 12 * 3600.0
 FLIGHT_TIME_SAMPLES = 9  # images read per flight, spread evenly over it by name
 ZONE_STEP_S = 900.0  # time zones are whole quarter hours from UTC
+MAX_ZONE_S = 14 * 3600.0  # and within 14 h of it (UTC+14, Line Islands)
 
 
 @dataclass(frozen=True)
@@ -71,9 +72,11 @@ def read_flight_time(images: Path | None) -> FlightTime:
         except InputError:  # the map stage reports an image it cannot read
             continue
     # the camera's zone, from images carrying both its clock and the receiver's UTC (off by whole quarter hours)
-    zones = [round(d / ZONE_STEP_S) * ZONE_STEP_S for m in metas if m.gps_time_utc_s is not None
-             and m.capture_time_s is not None and _reset_date(m.gps_time_utc_s) is None
-             and abs((d := m.capture_time_s - m.gps_time_utc_s) - round(d / ZONE_STEP_S) * ZONE_STEP_S) <= 120.0]
+    # (a zone is within 14 h: a reset camera clock can lie whole quarter hours, years, from the GPS time)
+    zones = [z for m in metas if m.gps_time_utc_s is not None and m.capture_time_s is not None
+             and _reset_date(m.gps_time_utc_s) is None
+             and abs(z := round((d := m.capture_time_s - m.gps_time_utc_s) / ZONE_STEP_S) * ZONE_STEP_S) <= MAX_ZONE_S
+             and abs(d - z) <= 120.0]
     zone = statistics.median_low(zones) if zones else None
     utc, local, resets = [], [], []
     for m in metas:
