@@ -185,7 +185,7 @@ def choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest:
     footprints = {n: _footprint(sessions[n]["session"]) for n in timed if sessions[n].get("session")}
     added = [p for p in time_neighbour_pairs(names, times or {}, footprints) if p not in set(chosen)]
     if added:
-        log.info("--nearest %d: %d pair(s) of flights consecutive in capture time (EXIF DateTimeOriginal) among "
+        log.info("--nearest %d: %d pair(s) of flights consecutive in capture time (EXIF) among "
                  "overlapping ones matched too: %s", nearest, len(added), ", ".join(f"{a}-{b}" for a, b in added))
     rank = {p: k for k, p in enumerate(all_pairs)}
     return sorted(chosen + added, key=rank.__getitem__), added
