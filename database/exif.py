@@ -7,7 +7,10 @@
   the image size those refer to (ExifImageWidth/Height: the sensor readout, often larger than the file when
   images were downscaled after capture), Make/Model, ExposureTime (s);
 - capture time: DateTimeOriginal + SubSecTimeOriginal (`capture_time_s`, seconds since 1970 in the camera's
-  clock; only differences matter);
+  clock; only differences matter; the date written "YYYY:MM:DD", "YYYY-MM-DD" or "YYYY/MM/DD", a "T" or a space
+  before the time), and where the image says how, the same instant in UTC (`capture_time_utc`): GPSDateStamp +
+  GPSTimeStamp (UTC by definition) first, else DateTimeOriginal shifted by OffsetTimeOriginal / OffsetTime;
+  `read_capture_time(path)` reads only these tags (headers, no pixels);
 - XMP: every simple property of every rdf:Description of the x:xmpmeta packet(s) in the JPEG's APP1 segments
   (DJI `drone-dji:GimbalYawDegree`, `RelativeAltitude`..., senseFly `Heading`/`PitchAngle`/`RollAngle`...), keyed
   by local name.
@@ -26,7 +29,7 @@ from __future__ import annotations
 
 import calendar
 import math
-import time
+import re
 import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -50,6 +53,8 @@ TAG_FP_XRES, TAG_FP_YRES, TAG_FP_UNIT = 0xA20E, 0xA20F, 0xA210
 TAG_EXIF_WIDTH, TAG_EXIF_HEIGHT = 0xA002, 0xA003
 TAG_DATETIME_ORIGINAL = 0x9003
 TAG_SUBSEC_ORIGINAL = 0x9291
+TAG_OFFSET_TIME, TAG_OFFSET_TIME_ORIGINAL = 0x9010, 0x9011
+GPS_TIMESTAMP, GPS_DATESTAMP = 0x07, 0x1D
 GPS_LAT_REF, GPS_LAT, GPS_LON_REF, GPS_LON, GPS_ALT_REF, GPS_ALT = 1, 2, 3, 4, 5, 6
 GPS_TRACK = 0x0F
 XMP_APP1_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
@@ -58,6 +63,38 @@ RDF_NS = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
 MM_PER_UNIT = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}  # FocalPlaneResolutionUnit: inch, cm, mm, um
 DJI_XMP_NAMESPACE = ("drone-dji", "http://www.dji.com/drone-dji/1.0/")
 EXIF_DATETIME_FORMAT = "%Y:%m:%d %H:%M:%S"
+# EXIF's "YYYY:MM:DD HH:MM:SS" and the variants software writes into it (dashes or slashes in the date, a "T",
+# fractional seconds, an ISO zone suffix): nu41, a dashed date left a flight untimed without a word
+_DATETIME_RE = re.compile(r"^(\d{4})[:\-/.](\d{1,2})[:\-/.](\d{1,2})[ T]+(\d{1,2}):(\d{2})(?::(\d{2})(\.\d+)?)?"
+                          r"\s*(Z|[+-]\d{2}:?\d{2})?$")
+_OFFSET_RE = re.compile(r"^([+-])(\d{2}):?(\d{2})$")
+
+
+def parse_exif_datetime(text: str) -> tuple[float, float | None] | None:
+    """(seconds since 1970 of the wall-clock time written, the zone offset in seconds east of UTC when the text
+    ends with one, else None) of an EXIF date-time in any of the common variants, or None when it is not one
+    (blank, "0000:00:00 00:00:00", a month 13)."""
+    m = _DATETIME_RE.match(text.strip())
+    if m is None:
+        return None
+    year, month, day, hour, minute = (int(v) for v in m.group(1, 2, 3, 4, 5))
+    second = int(m.group(6) or 0)
+    if not (year >= 1 and 1 <= month <= 12 and 1 <= day <= calendar.monthrange(year, month)[1] and hour < 24
+            and minute < 60 and second <= 60):
+        return None
+    seconds = float(calendar.timegm((year, month, day, hour, minute, second, 0, 0, 0))) + float(m.group(7) or 0.0)
+    zone = m.group(8)
+    return seconds, (0.0 if zone == "Z" else parse_exif_offset(zone)) if zone else None
+
+
+def parse_exif_offset(text: str) -> float | None:
+    """An EXIF OffsetTime* value ("+09:00", "-05:30", "+0530") as seconds east of UTC, or None (blank "   :  ",
+    beyond +-14 h)."""
+    m = _OFFSET_RE.match(text.strip())
+    if m is None or int(m.group(3)) >= 60:
+        return None
+    seconds = (int(m.group(2)) * 3600 + int(m.group(3)) * 60) * (-1 if m.group(1) == "-" else 1)
+    return float(seconds) if abs(seconds) <= 14 * 3600 else None
 
 
 @dataclass
@@ -81,6 +118,8 @@ class ImageMetadata:
     model: str = ""
     datetime_original: str = ""  # EXIF "YYYY:MM:DD HH:MM:SS"
     subsec_original: str = ""  # EXIF SubSecTimeOriginal: the digits of the fraction of a second
+    offset_time: str = ""  # EXIF OffsetTimeOriginal (else OffsetTime): the camera clock's zone, "+09:00"
+    gps_time_utc_s: float | None = None  # EXIF GPSDateStamp + GPSTimeStamp: the receiver's UTC (seconds since 1970)
     xmp: dict[str, str] = field(default_factory=dict)
     sources: dict[str, str] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)  # damaged or implausible metadata that was left out
@@ -92,12 +131,30 @@ class ImageMetadata:
     @property
     def capture_time_s(self) -> float | None:
         """DateTimeOriginal (+ SubSecTimeOriginal) as seconds since 1970 of the camera's clock, or None."""
-        try:
-            seconds = float(calendar.timegm(time.strptime(self.datetime_original.strip(), EXIF_DATETIME_FORMAT)))
-        except ValueError:
+        parsed = parse_exif_datetime(self.datetime_original)
+        if parsed is None:
             return None
         digits = self.subsec_original.strip()
-        return seconds + (float("0." + digits) if digits.isdigit() else 0.0)
+        return parsed[0] + (float("0." + digits) if digits.isdigit() and parsed[0] % 1 == 0 else 0.0)
+
+    @property
+    def capture_offset_s(self) -> float | None:
+        """The camera clock's zone in seconds east of UTC, as DateTimeOriginal's own suffix or OffsetTimeOriginal
+        (else OffsetTime) says it, or None."""
+        parsed = parse_exif_datetime(self.datetime_original)
+        if parsed is not None and parsed[1] is not None:
+            return parsed[1]
+        return parse_exif_offset(self.offset_time)
+
+    @property
+    def capture_time_utc(self) -> tuple[float, str] | None:
+        """(the capture time in UTC, seconds since 1970; the tags it comes from), or None when the image does not
+        say its zone: GPSDateStamp + GPSTimeStamp first (UTC by definition, and a camera's own clock is often set
+        by hand), else DateTimeOriginal shifted by its zone (`capture_offset_s`)."""
+        if self.gps_time_utc_s is not None:
+            return self.gps_time_utc_s, "GPSDateStamp/GPSTimeStamp"
+        local, offset = self.capture_time_s, self.capture_offset_s
+        return (local - offset, "DateTimeOriginal + its zone") if local is not None and offset is not None else None
 
     @property
     def camera_key(self) -> tuple[str, str, int, int, float]:
@@ -240,6 +297,46 @@ def check_metadata(meta: ImageMetadata) -> list[str]:
     return problems
 
 
+def _gps_time(gps: dict) -> float | None:
+    """GPSDateStamp ("YYYY:MM:DD") + GPSTimeStamp (hours, minutes, seconds as rationals) in seconds since 1970
+    (UTC), or None when either is missing or not a time."""
+    parsed = parse_exif_datetime(_text(gps.get(GPS_DATESTAMP)) + " 00:00:00")
+    try:
+        h, m, s = (float(v) for v in gps.get(GPS_TIMESTAMP))  # type: ignore[union-attr]
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    if parsed is None or not (0 <= h < 24 and 0 <= m < 60 and 0 <= s < 61):
+        return None
+    return parsed[0] + h * 3600.0 + m * 60.0 + s
+
+
+def _read_times(meta: ImageMetadata, sub: dict, gps: dict) -> None:
+    meta.datetime_original = _text(sub.get(TAG_DATETIME_ORIGINAL))
+    meta.subsec_original = _text(sub.get(TAG_SUBSEC_ORIGINAL))
+    meta.offset_time = _text(sub.get(TAG_OFFSET_TIME_ORIGINAL)) or _text(sub.get(TAG_OFFSET_TIME))
+    meta.gps_time_utc_s = _gps_time(gps)
+
+
+def read_capture_time(path: str | Path) -> ImageMetadata:
+    """Only the capture-time tags of one image (DateTimeOriginal, SubSecTimeOriginal, OffsetTime*, GPS date and
+    time), from its header: no pixels, no XMP scan of the file. Unreadable images raise InputError."""
+    path = Path(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a damaged EXIF block gives no time: the caller says so
+            with Image.open(path) as img:
+                width, height = img.size
+                exif = img.getexif()
+                gps, sub = exif.get_ifd(GPS_IFD), exif.get_ifd(EXIF_IFD)
+    except FileNotFoundError:
+        raise InputError("image not found", path) from None
+    except Exception as exc:  # noqa: BLE001 (Pillow raises assorted errors on a damaged file or EXIF block)
+        raise InputError(f"cannot read image: {exc}", path) from None
+    meta = ImageMetadata(path=path, width=int(width), height=int(height))
+    _read_times(meta, sub, gps)
+    return meta
+
+
 def read_image_metadata(path: str | Path) -> ImageMetadata:
     """Read GPS, camera and XMP metadata of one image (no pixel decoding). Unreadable images raise InputError;
     damaged metadata is left out and listed in `problems` (see the module doc)."""
@@ -262,8 +359,7 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
         raise InputError(f"cannot read image metadata: {exc}", path) from None
     meta = ImageMetadata(path=path, width=int(width), height=int(height))
     meta.make, meta.model = _text(exif.get(TAG_MAKE)), _text(exif.get(TAG_MODEL))
-    meta.datetime_original = _text(sub.get(TAG_DATETIME_ORIGINAL))
-    meta.subsec_original = _text(sub.get(TAG_SUBSEC_ORIGINAL))
+    _read_times(meta, sub, gps)
 
     lat, lon = _dms(gps.get(GPS_LAT)), _dms(gps.get(GPS_LON))
     lat_ref, lon_ref = _text(gps.get(GPS_LAT_REF)).strip().upper()[:1], _text(gps.get(GPS_LON_REF)).strip().upper()[:1]
@@ -368,6 +464,8 @@ def encode_exif(meta: ImageMetadata) -> bytes:
     sub = exif.get_ifd(EXIF_IFD)
     if meta.datetime_original:
         sub[TAG_DATETIME_ORIGINAL] = meta.datetime_original
+    if meta.offset_time:
+        sub[TAG_OFFSET_TIME_ORIGINAL] = meta.offset_time
     if meta.subsec_original:
         sub[TAG_SUBSEC_ORIGINAL] = meta.subsec_original
     if meta.focal_mm is not None:

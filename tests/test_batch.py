@@ -946,3 +946,120 @@ def test_a_flight_s_time_is_its_images_exif_capture_time(tmp_path):
         (tmp_path / "images" / f"img_{k}.jpg").write_bytes(jpeg)
     assert flight_time(tmp_path / "images") == pytest.approx(1777629900.0)  # 10:05 UTC, the median
     assert flight_time(None) is None
+
+
+def _timed_flight(folder, stamps, offset=None, gps=None):
+    """A folder of 8x8 JPEGs written by PIL with these EXIF DateTimeOriginal values (None: no tag), an
+    OffsetTimeOriginal and GPS date/time ("YYYY:MM:DD", (h, m, s)) on every image when given."""
+    from PIL import Image
+    from PIL.TiffImagePlugin import IFDRational
+
+    folder.mkdir(parents=True)
+    for k, stamp in enumerate(stamps):
+        exif = Image.Exif()
+        sub = exif.get_ifd(0x8769)
+        if stamp is not None:
+            sub[0x9003] = stamp
+        if offset is not None:
+            sub[0x9011] = offset
+        if gps is not None:
+            exif.get_ifd(0x8825).update({0x1D: gps[0], 0x07: tuple(IFDRational(v, 1) for v in gps[1])})
+        Image.new("RGB", (8, 8)).save(folder / f"img_{k:02d}.jpg", format="JPEG", exif=exif)
+    return folder
+
+
+def test_a_flight_s_time_is_utc_where_its_images_say_their_zone(tmp_path):
+    """nu41: OffsetTimeOriginal was ignored, so a flight of a camera in +09:00 flown at 11:00 UTC was put at 20:00
+    and the flights were paired out of order (truth 1-2-3-4; chosen 1-3, 2-4, 3-4). GPS date and time are UTC and
+    come first; a camera clock whole hours from them is the camera's zone."""
+    from sosmatch.workflows.batch.pairs import read_flight_time
+
+    day = 1777593600.0  # 2026-05-01 00:00 UTC
+    plus9 = read_flight_time(_timed_flight(tmp_path / "a", ["2026:05:01 20:00:00"] * 3, offset="+09:00"))
+    assert plus9.seconds == pytest.approx(day + 11 * 3600) and plus9.utc
+    minus = read_flight_time(_timed_flight(tmp_path / "b", ["2026:05:01 07:30:00"] * 3, offset="-04:30"))
+    assert minus.seconds == pytest.approx(day + 12 * 3600)
+    gps = read_flight_time(_timed_flight(tmp_path / "c", ["2026:05:01 22:00:00"] * 3, gps=("2026:05:01", (13, 0, 0))))
+    assert gps.seconds == pytest.approx(day + 13 * 3600) and gps.utc  # the GPS time, not the camera's clock
+    clock = read_flight_time(_timed_flight(tmp_path / "d", ["2026:05:01 10:00:00"] * 3))
+    assert clock.seconds == pytest.approx(day + 10 * 3600) and not clock.utc  # no zone said: the camera clock
+
+
+def test_a_flight_s_time_ignores_reset_clocks_and_a_minority_of_wrong_ones(tmp_path):
+    """nu41: a clock reset to 2000-01-01 after the first image dated the flight 2000 (its pair with the flight
+    before dropped silently); one image without a time and one at 2000 averaged to a 2013 flight time."""
+    from sosmatch.workflows.batch.pairs import read_flight_time
+
+    day2 = 1777680000.0  # 2026-05-02 00:00 UTC
+    reset = ["2026:05:02 10:00:00"] + [f"2000:01:01 00:0{k}:00" for k in range(4)]
+    assert read_flight_time(_timed_flight(tmp_path / "a", reset)).seconds == pytest.approx(day2 + 10 * 3600)
+    mixed = [None, "2026:05:02 10:00:00", "2000:01:01 00:00:05", "2026:05:02 10:01:00", "2026:05:02 10:02:00"]
+    assert read_flight_time(_timed_flight(tmp_path / "b", mixed)).seconds == pytest.approx(day2 + 10 * 3600 + 60)
+    # a wrong clock far from the flight's own majority is an outlier (median of the rest), not data
+    odd = ["2026:05:02 10:00:00"] * 4 + ["2019:07:14 15:00:00"] * 2 + ["2026:05:02 10:04:00"] * 3
+    assert read_flight_time(_timed_flight(tmp_path / "c", odd)).seconds == pytest.approx(day2 + 10 * 3600)
+    # the dates software writes with dashes (or a "T") are dates too
+    dashed = read_flight_time(_timed_flight(tmp_path / "d", ["2026-05-02 10:00:00", "2026-05-02T10:00:00"]))
+    assert dashed.seconds == pytest.approx(day2 + 10 * 3600)
+    # without a majority, or with only reset clocks, the flight has no time, and says why
+    split = read_flight_time(_timed_flight(tmp_path / "e", ["2026:05:02 10:00:00", "2025:01:01 10:00:00"]))
+    assert split.seconds is None and "disagree" in split.why
+    only_reset = read_flight_time(_timed_flight(tmp_path / "f", ["2000:01:01 00:00:00"] * 3))
+    assert only_reset.seconds is None and "2000-01-01" in only_reset.why
+
+
+def test_a_flight_s_time_reads_up_to_9_images_spread_over_it(tmp_path, monkeypatch):
+    from sosmatch.database import exif
+    from sosmatch.workflows.batch.pairs import read_flight_time
+
+    read = []
+    monkeypatch.setattr(exif, "read_capture_time", lambda p, f=exif.read_capture_time: read.append(p.name) or f(p))
+    stamps = ["2000:01:01 00:00:00"] * 20 + ["2026:05:02 10:00:00"] * 21  # the first half's clock was reset
+    assert read_flight_time(_timed_flight(tmp_path / "a", stamps)).seconds == pytest.approx(1777716000.0)
+    assert read == [f"img_{k:02d}.jpg" for k in (0, 5, 10, 15, 20, 25, 30, 35, 40)]
+
+
+def test_flights_without_a_usable_time_are_said_in_one_warning(tmp_path, caplog):
+    from sosmatch.workflows.batch.pairs import flight_times
+
+    good = _timed_flight(tmp_path / "a", ["2026:05:01 10:00:00"] * 2, offset="+00:00")
+    none = _timed_flight(tmp_path / "b", [None, None])
+    reset = _timed_flight(tmp_path / "c", ["2000:01:01 00:00:00"] * 2)
+    clock = _timed_flight(tmp_path / "d", ["2026:05:03 10:00:00"] * 2)
+    with caplog.at_level("WARNING"):
+        times = flight_times({"a": good, "b": none, "c": reset, "m": None, "d": clock})
+    assert times["a"] is not None and times["b"] is None and times["c"] is None and times["m"] is None
+    lines = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(lines) == 2
+    assert "b (no image carries a capture time" in lines[0] and "c (its images' clocks were reset" in lines[0]
+    assert "m (a mapped session" in lines[0]
+    assert "d carry their cameras' clock times without a zone" in lines[1]
+
+
+def test_a_flight_s_camera_zone_comes_from_its_gps_times(tmp_path):
+    """Images with both GPS and camera times whole hours apart give the camera's zone to its images that carry the
+    camera time only; a camera clock reset to 2000-01-01 (whole hours from the GPS time too) is no zone."""
+    from PIL import Image
+    from PIL.TiffImagePlugin import IFDRational
+
+    from sosmatch.workflows.batch.pairs import read_flight_time
+
+    def flight(folder, stamps):
+        folder.mkdir()
+        for k, (local, gps) in enumerate(stamps):
+            exif = Image.Exif()
+            exif.get_ifd(0x8769)[0x9003] = local
+            if gps is not None:
+                exif.get_ifd(0x8825).update({0x1D: "2026:05:02", 0x07: tuple(IFDRational(v, 1) for v in gps)})
+            Image.new("RGB", (8, 8)).save(folder / f"img_{k}.jpg", format="JPEG", exif=exif)
+        return folder
+
+    # camera at +02:00 (and 30 s fast); two of three images lost the GPS time: all three UTC, 10:00-10:02
+    zoned = flight(tmp_path / "a", [("2026:05:02 12:00:30", (10, 0, 0)), ("2026:05:02 12:01:30", None),
+                                    ("2026:05:02 12:02:30", None)])
+    ft = read_flight_time(zoned)
+    assert ft.utc and ft.seconds == pytest.approx(1777716000.0 + 90.0)
+    reset = flight(tmp_path / "b", [("2000:01:01 00:00:00", (10, 0, 0)), ("2026:05:02 12:01:00", None),
+                                    ("2026:05:02 12:02:00", None)])
+    ft = read_flight_time(reset)  # no zone: the GPS time alone (UTC), the clock-only images left aside
+    assert ft.utc and ft.seconds == pytest.approx(1777716000.0)

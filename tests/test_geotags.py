@@ -349,3 +349,26 @@ def test_a_camera_whose_focal_length_the_exif_contradicts_is_named(tmp_path, cap
     with caplog.at_level("WARNING"):
         load_inputs(out / "images", out / "poses.csv", wrong)
     assert f"{wrong}: its focal length" in caplog.text and "-20 % off the one the images' EXIF gives" in caplog.text
+
+
+def test_capture_times_in_the_variants_software_writes():
+    """nu41: DateTimeOriginal "2026-05-02 10:00:00" (dashes) gave no time at all, and OffsetTimeOriginal was never
+    read: the camera clock's zone, to order flights of cameras set to different zones."""
+    from sosmatch.database.exif import ImageMetadata
+
+    def meta(stamp, offset=""):
+        return ImageMetadata("x.jpg", 8, 8, datetime_original=stamp, offset_time=offset)
+
+    ten = 1777716000.0  # 2026-05-02 10:00:00
+    for stamp in ("2026:05:02 10:00:00", "2026-05-02 10:00:00", "2026/05/02 10:00:00", "2026-05-02T10:00:00",
+                  "2026:05:02 10:00"):
+        assert meta(stamp).capture_time_s == pytest.approx(ten), stamp
+    assert meta("2026-05-02T10:00:00.25").capture_time_s == pytest.approx(ten + 0.25)
+    for stamp in ("", "0000:00:00 00:00:00", "2026:13:02 10:00:00", "2026:02:30 10:00:00", "    :  :     :  :  "):
+        assert meta(stamp).capture_time_s is None, stamp
+    assert meta("2026:05:02 10:00:00").capture_time_utc is None  # no zone said
+    assert meta("2026:05:02 19:00:00", "+09:00").capture_time_utc == (pytest.approx(ten), "DateTimeOriginal + its zone")
+    assert meta("2026:05:02 04:30:00", "-0530").capture_time_utc[0] == pytest.approx(ten)
+    assert meta("2026-05-02T12:00:00+02:00").capture_time_utc[0] == pytest.approx(ten)
+    assert meta("2026-05-02T10:00:00Z").capture_time_utc[0] == pytest.approx(ten)
+    assert meta("2026:05:02 10:00:00", "   :  ").capture_time_utc is None  # a blank offset says nothing

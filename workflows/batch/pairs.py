@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import logging
 import statistics
+import time
+from dataclasses import dataclass
 from itertools import combinations
 from pathlib import Path
 from typing import Any
@@ -16,26 +18,113 @@ from ...plugin.multisession import nearest_pairs
 log = logging.getLogger(__name__)
 
 
-def flight_time(images: Path | None) -> float | None:
-    """When a flight was flown: the median EXIF DateTimeOriginal (seconds since 1970, camera clock) of its first,
-    middle and last image by name, or None when none of them carries one (or there are no images: an adopted
-    mapped session). Three reads, not all: a flight's time only orders flights flown hours or days apart, and a
-    batch re-run reads it again."""
-    from ...database.exif import read_image_metadata
+# Dates a camera's clock falls back to when it loses power (the Unix, DOS/FAT and GPS epochs, and 2000-01-01 of
+# many cameras' real-time clocks): a capture time within a month after one is a reset clock, not when it flew
+CLOCK_RESET_DATES = {"1970-01-01": 0.0, "1980-01-01": 315532800.0, "1980-01-06": 315964800.0,
+                     "2000-01-01": 946684800.0}
+CLOCK_RESET_WINDOW_S = 31 * 86400.0
+# one flight's images are taken within hours: one further from the flight's median than this has a wrong clock
+FLIGHT_SPAN_S = 12 * 3600.0
+FLIGHT_TIME_SAMPLES = 9  # images read per flight, spread evenly over it by name
+ZONE_STEP_S = 900.0  # time zones are whole quarter hours from UTC
+MAX_ZONE_S = 14 * 3600.0  # and within 14 h of it (UTC+14, Line Islands)
+
+
+@dataclass(frozen=True)
+class FlightTime:
+    """When a flight was flown (`seconds`, since 1970: UTC when its images say their zone, `utc`; else the
+    camera's clock), or why not (`seconds` None, `why`)."""
+
+    seconds: float | None
+    utc: bool = False
+    why: str = ""
+
+
+def _reset_date(t: float) -> str | None:
+    return next((name for name, epoch in CLOCK_RESET_DATES.items() if epoch <= t < epoch + CLOCK_RESET_WINDOW_S),
+                None)
+
+
+def _sample(files: list[Path], k: int = FLIGHT_TIME_SAMPLES) -> list[Path]:
+    """Up to `k` of `files`, evenly spread (the first and the last included)."""
+    n = len(files)
+    return [files[i] for i in sorted({round(j * (n - 1) / (k - 1)) for j in range(k)})] if n else []
+
+
+def read_flight_time(images: Path | None) -> FlightTime:
+    """When a flight was flown, from the capture times of up to 9 of its images spread over it (headers only):
+    each image's time in UTC where it says how (GPSDateStamp/GPSTimeStamp, else DateTimeOriginal and its
+    OffsetTimeOriginal; a flight whose images carry both GPS and camera times whole quarter hours apart takes that
+    difference as its camera's zone for the images with the camera time only), else its camera clock. Times a
+    reset clock gives (`CLOCK_RESET_DATES`) are left out, and so are those more than 12 h from the median of the
+    rest; the flight's time is the median of the remaining ones if they are a majority of its timed images.
+    Otherwise, or without images (an adopted mapped session), `seconds` is None and `why` says why."""
+    from ...database.exif import read_capture_time
     from ...database.images import image_files
     from ...plugin.errors import InputError
 
     if images is None:
-        return None
-    files = sorted(image_files(images))
-    stamps = []
-    for path in {files[0], files[len(files) // 2], files[-1]} if files else ():
+        return FlightTime(None, why="a mapped session, no images to read")
+    metas = []
+    for path in _sample(sorted(image_files(images))):
         try:
-            if (t := read_image_metadata(path).capture_time_s) is not None:
-                stamps.append(t)
+            metas.append(read_capture_time(path))
         except InputError:  # the map stage reports an image it cannot read
             continue
-    return statistics.median(stamps) if stamps else None
+    # the camera's zone, from images carrying both its clock and the receiver's UTC (off by whole quarter hours)
+    # (a zone is within 14 h: a reset camera clock can lie whole quarter hours, years, from the GPS time)
+    zones = [z for m in metas if m.gps_time_utc_s is not None and m.capture_time_s is not None
+             and _reset_date(m.gps_time_utc_s) is None
+             and abs(z := round((d := m.capture_time_s - m.gps_time_utc_s) / ZONE_STEP_S) * ZONE_STEP_S) <= MAX_ZONE_S
+             and abs(d - z) <= 120.0]
+    zone = statistics.median_low(zones) if zones else None
+    utc, local, resets = [], [], []
+    for m in metas:
+        # this image's times, best first: the receiver's UTC, the camera's clock in its zone, the clock alone
+        stamps = [(m.gps_time_utc_s, True)] if m.gps_time_utc_s is not None else []
+        if (t := m.capture_time_s) is not None:
+            offset = m.capture_offset_s if m.capture_offset_s is not None else zone
+            stamps.append((t - offset, True) if offset is not None else (t, False))
+        good = [(t, is_utc) for t, is_utc in stamps if _reset_date(t) is None]
+        if good:
+            (utc if good[0][1] else local).append(good[0][0])
+        else:
+            resets += [r for t, _ in stamps if (r := _reset_date(t)) is not None]
+    # UTC times where a flight has them: its camera-clock-only times are off by the unknown zone
+    stamps, is_utc = (utc, True) if utc else (local, False)
+    if not stamps:
+        if resets:
+            return FlightTime(None, why=f"its images' clocks were reset (dated {', '.join(sorted(set(resets)))})")
+        return FlightTime(None, why="no image carries a capture time (EXIF DateTimeOriginal)" if metas
+                          else "no readable images")
+    median = statistics.median(stamps)
+    kept = [t for t in stamps if abs(t - median) <= FLIGHT_SPAN_S]
+    if 2 * len(kept) <= len(stamps):
+        dates = sorted({time.strftime("%Y-%m-%d", time.gmtime(t)) for t in stamps})
+        return FlightTime(None, why=f"its images' clocks disagree ({', '.join(dates)}, no majority within 12 h)")
+    return FlightTime(statistics.median(kept), utc=is_utc)
+
+
+def flight_time(images: Path | None) -> float | None:
+    """`read_flight_time(images).seconds`: when a flight was flown, or None."""
+    return read_flight_time(images).seconds
+
+
+def flight_times(images: dict[str, Path | None]) -> dict[str, float | None]:
+    """Each flight's time (`read_flight_time`) by name; the flights without one are said in one warning line
+    with why (their neighbours in time are not chosen), and when some flights' times are UTC and others' only
+    their cameras' clocks (zone unknown), so is that their order within 14 h is uncertain."""
+    found = {name: read_flight_time(path) for name, path in images.items()}
+    untimed = [f"{name} ({ft.why})" for name, ft in sorted(found.items()) if ft.seconds is None]
+    if untimed:
+        log.warning("--nearest: no usable capture time for %s; no flight is chosen for them as their neighbour in "
+                    "time", "; ".join(untimed))
+    timed = {name: ft for name, ft in found.items() if ft.seconds is not None}
+    if any(ft.utc for ft in timed.values()) and (clock := sorted(n for n, ft in timed.items() if not ft.utc)):
+        log.warning("--nearest: %s carry their cameras' clock times without a zone (no OffsetTimeOriginal, no GPS "
+                    "time), taken as UTC: their order against the other flights within 14 h is uncertain",
+                    ", ".join(clock))
+    return {name: ft.seconds for name, ft in found.items()}
 
 
 def _footprint(session: str) -> tuple[float, float, float, float] | None:
@@ -96,7 +185,7 @@ def choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest:
     footprints = {n: _footprint(sessions[n]["session"]) for n in timed if sessions[n].get("session")}
     added = [p for p in time_neighbour_pairs(names, times or {}, footprints) if p not in set(chosen)]
     if added:
-        log.info("--nearest %d: %d pair(s) of flights consecutive in capture time (EXIF DateTimeOriginal) among "
+        log.info("--nearest %d: %d pair(s) of flights consecutive in capture time (EXIF) among "
                  "overlapping ones matched too: %s", nearest, len(added), ", ".join(f"{a}-{b}" for a, b in added))
     rank = {p: k for k, p in enumerate(all_pairs)}
     return sorted(chosen + added, key=rank.__getitem__), added

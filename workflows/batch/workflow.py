@@ -20,7 +20,7 @@ from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir
 from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs
-from .pairs import choose_pairs, flight_time
+from .pairs import choose_pairs, flight_times
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
 from .tasks import changes_task, map_task, pair_task
@@ -137,9 +137,9 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
 
     # 3: match
-    # with --nearest, each flight's neighbours in time are matched too (read only then: 3 EXIF reads a flight)
-    times = {f.name: flight_time(None if f.kind == "mapped" else images_dir(f.path)) for f in flights
-             if f.name in mapped} if options.nearest is not None else {}
+    # with --nearest, each flight's neighbours in time are matched too (read only then: <= 9 EXIF headers a flight)
+    times = flight_times({f.name: None if f.kind == "mapped" else images_dir(f.path) for f in flights
+                          if f.name in mapped}) if options.nearest is not None else {}
     chosen, by_time = choose_pairs(mapped, sessions, options.nearest, times)
     matcher = pair_fn or pair_task
     # a custom matcher (pair_fn) returns its own summary; the default one is `sosmatch match` (verified)
