@@ -20,9 +20,8 @@ Damaged metadata never stops a flight: an EXIF block Pillow reports as corrupt, 
 well-formed XML or a value out of range (a latitude beyond 90 degrees) is left out and named in
 `ImageMetadata.problems`, which the pose workflows summarise in one warning.
 
-`embed_metadata(jpeg_bytes, meta)` is the writer (the synthetic world geotags its JPEGs with it): EXIF GPS,
-focal lengths, make/model and capture time, and the XMP properties as attributes of one rdf:Description in the
-DJI namespace; `check_metadata` is the one validation of positions and focal lengths, used by both directions.
+`database.exif_write.embed_metadata(jpeg_bytes, meta)` is the writer (the synthetic world geotags its JPEGs with
+it); `check_metadata` is the one validation of positions and focal lengths, used by both directions.
 """
 
 from __future__ import annotations
@@ -34,10 +33,8 @@ import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
 
 from PIL import Image, UnidentifiedImageError
-from PIL.TiffImagePlugin import IFDRational
 
 from ..plugin.errors import InputError
 
@@ -432,95 +429,3 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
             problems.append(f"XMP {name} {meta.xmp.pop(name)} is not an angle")
     meta.problems = problems
     return meta
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Writing (the synthetic world's geotagged JPEGs)
-# ---------------------------------------------------------------------------------------------------------------
-def _rational(value: float, denominator: int) -> IFDRational:
-    return IFDRational(int(round(value * denominator)), denominator)
-
-
-def _dms_rationals(degrees: float) -> tuple[IFDRational, IFDRational, IFDRational]:
-    """Decimal degrees (unsigned) as EXIF degrees, minutes and seconds (1e-6 arc-second resolution: ~3e-8 m)."""
-    degrees = abs(degrees)
-    d = int(degrees)
-    m = int((degrees - d) * 60.0)
-    s = (degrees - d - m / 60.0) * 3600.0
-    return IFDRational(d, 1), IFDRational(m, 1), _rational(s, 1_000_000)
-
-
-def encode_exif(meta: ImageMetadata) -> bytes:
-    """The EXIF block (TIFF bytes, as Pillow's `exif=` takes them) of `meta`'s GPS, focal lengths, make/model,
-    capture time and focal-plane resolution. ValueError when `check_metadata` finds a problem."""
-    problems = check_metadata(meta)
-    if problems:
-        raise ValueError("; ".join(problems))
-    exif = Image.Exif()
-    if meta.make:
-        exif[TAG_MAKE] = meta.make
-    if meta.model:
-        exif[TAG_MODEL] = meta.model
-    sub = exif.get_ifd(EXIF_IFD)
-    if meta.datetime_original:
-        sub[TAG_DATETIME_ORIGINAL] = meta.datetime_original
-    if meta.offset_time:
-        sub[TAG_OFFSET_TIME_ORIGINAL] = meta.offset_time
-    if meta.subsec_original:
-        sub[TAG_SUBSEC_ORIGINAL] = meta.subsec_original
-    if meta.focal_mm is not None:
-        sub[TAG_FOCAL_LENGTH] = _rational(meta.focal_mm, 1000)
-    if meta.focal_35mm is not None:
-        sub[TAG_FOCAL_35MM] = int(round(meta.focal_35mm))  # EXIF: a SHORT, whole millimetres
-    if meta.focal_plane_px_per_mm is not None:
-        sub[TAG_FP_XRES] = _rational(meta.focal_plane_px_per_mm[0], 1000)
-        sub[TAG_FP_YRES] = _rational(meta.focal_plane_px_per_mm[1], 1000)
-        sub[TAG_FP_UNIT] = 4  # millimetres
-    if meta.exif_size is not None:
-        sub[TAG_EXIF_WIDTH], sub[TAG_EXIF_HEIGHT] = (int(v) for v in meta.exif_size)
-    if meta.latitude is not None and meta.longitude is not None:
-        gps = exif.get_ifd(GPS_IFD)
-        gps[0] = b"\x02\x03\x00\x00"  # GPSVersionID 2.3
-        gps[GPS_LAT_REF] = "N" if meta.latitude >= 0 else "S"
-        gps[GPS_LAT] = _dms_rationals(meta.latitude)
-        gps[GPS_LON_REF] = "E" if meta.longitude >= 0 else "W"
-        gps[GPS_LON] = _dms_rationals(meta.longitude)
-        if meta.altitude is not None:
-            gps[GPS_ALT_REF] = b"\x01" if meta.altitude < 0 else b"\x00"
-            gps[GPS_ALT] = _rational(abs(meta.altitude), 1000)
-        if meta.gps_track_deg is not None:
-            gps[GPS_TRACK] = _rational(meta.gps_track_deg % 360.0, 100)
-    tiff = exif.tobytes()
-    # Pillow (>= 8) puts the APP1 identifier in front of the TIFF bytes; the segment writer adds its own, and
-    # two of them made "Exif\0\0Exif\0\0MM..." that Pillow tolerates but exiftool and COLMAP do not (nu35)
-    return tiff[len(EXIF_APP1_HEADER):] if tiff.startswith(EXIF_APP1_HEADER) else tiff
-
-
-def encode_xmp(properties: dict[str, str], namespace: tuple[str, str] = DJI_XMP_NAMESPACE) -> bytes:
-    """An XMP packet with `properties` (local name -> text) as attributes of one rdf:Description in `namespace`
-    (prefix, URI), the way DJI writes `drone-dji:GimbalYawDegree="+12.30"`."""
-    prefix, uri = namespace
-    attrs = "".join(f"\n   {prefix}:{k}={quoteattr(str(v))}" for k, v in properties.items())
-    return ("<?xpacket begin='\ufeff' id='W5M0MpCehiHzreSzNTczkc9d'?>\n"
-            "<x:xmpmeta xmlns:x='adobe:ns:meta/'>\n <rdf:RDF xmlns:rdf='http://www.w3.org/1999/02/22-rdf-syntax-ns#'>\n"
-            f"  <rdf:Description rdf:about='' xmlns:{prefix}='{uri}'{attrs}/>\n"
-            " </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end='w'?>").encode()
-
-
-def _app1(payload: bytes) -> bytes:
-    if len(payload) + 2 > 0xFFFF:
-        raise ValueError(f"metadata segment of {len(payload)} bytes does not fit one JPEG APP1 segment")
-    return b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload
-
-
-def embed_metadata(jpeg: bytes, meta: ImageMetadata) -> bytes:
-    """`jpeg` with `meta` written into it: an EXIF APP1 segment (`encode_exif`) and, when `meta.xmp` has
-    properties, an XMP APP1 segment (`encode_xmp`), both right after the start-of-image marker (any metadata
-    segments already there follow them, and readers take the first). The pixels are untouched."""
-    if jpeg[:2] != b"\xff\xd8":
-        raise ValueError("not a JPEG byte string")
-    segments = _app1(EXIF_APP1_HEADER + encode_exif(meta))
-    if meta.xmp:
-        segments += _app1(XMP_APP1_HEADER + encode_xmp(meta.xmp))
-    return jpeg[:2] + segments + jpeg[2:]
-

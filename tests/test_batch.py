@@ -935,7 +935,8 @@ def test_nearest_also_matches_each_flight_with_its_neighbours_in_time(monkeypatc
 def test_a_flight_s_time_is_its_images_exif_capture_time(tmp_path):
     from PIL import Image
 
-    from sosmatch.database.exif import ImageMetadata, embed_metadata
+    from sosmatch.database.exif import ImageMetadata
+    from sosmatch.database.exif_write import embed_metadata
     from sosmatch.workflows.batch.pairs import flight_time
 
     (tmp_path / "images").mkdir()

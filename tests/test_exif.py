@@ -785,7 +785,8 @@ def test_embedded_exif_is_one_app1_segment_with_a_tiff_header(tmp_path):
 
     from PIL import Image
 
-    from sosmatch.database.exif import ImageMetadata, embed_metadata
+    from sosmatch.database.exif import ImageMetadata
+    from sosmatch.database.exif_write import embed_metadata
 
     buf = io.BytesIO()
     Image.new("L", (32, 24), 128).save(buf, "JPEG")

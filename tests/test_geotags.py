@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from sosmatch.database.cameras import read_cameras_txt, write_cameras_txt
-from sosmatch.database.exif import ImageMetadata, embed_metadata, read_image_metadata
+from sosmatch.database.exif import ImageMetadata, read_image_metadata
+from sosmatch.database.exif_write import embed_metadata
 from sosmatch.database.poses import read_poses_csv
 from sosmatch.plugin.geometry import rotation_angle_deg
 from sosmatch.tools.cli import main

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sosmatch.database.exif import encode_exif, read_image_metadata
+from sosmatch.database.exif import read_image_metadata
+from sosmatch.database.exif_write import encode_exif
 from sosmatch.plugin.errors import InputError
 from sosmatch.tools.cli import main
 from sosmatch.workflows.image_priors import read_image_priors

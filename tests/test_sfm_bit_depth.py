@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sosmatch.database.exif import encode_exif, read_image_metadata
+from sosmatch.database.exif import read_image_metadata
+from sosmatch.database.exif_write import encode_exif
 from sosmatch.plugin.params import Params, with_overrides
 from sosmatch.tools.cli import main
 from sosmatch.workflows import poses as poses_wf

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from ..database.cameras import write_cameras_txt
-from ..database.exif import embed_metadata
+from ..database.exif_write import embed_metadata
 from ..database.output_markers import fingerprint
 from ..database.outputs import OutputDir, open_output_dir
 from ..database.poses import write_poses_csv

@@ -119,7 +119,7 @@ def session_geotags(
     spacing_m: float,
     seeds: tuple[int, int],
 ) -> list[ImageMetadata]:
-    """Per image, the metadata to embed (`database.exif.embed_metadata`). `sensor_size_px` is the full sensor
+    """Per image, the metadata to embed (`database.exif_write.embed_metadata`). `sensor_size_px` is the full sensor
     frame (the 35 mm figure refers to its diagonal even when the images are a crop of it), `takeoff_height_m`
     the world height of the take-off point, `seeds` (world seed, session seed)."""
     from pyproj import Transformer
