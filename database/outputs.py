@@ -15,7 +15,8 @@ The rules (README "Errors"; tests/test_outputs.py keeps them):
 4. One run at a time per output directory: an exclusive lock (flock on `.sosmatch-output.lock`, present while
    a run holds it; the kernel releases it when the process dies) refuses a second concurrent run. The file names
    the run's process (`database.output_lock`), so that a reader can tell a run being written now from one that
-   was killed.
+   was killed. The lock moves with the directory: a directory moved or deleted under its run stops the run in
+   one line (`database.taken.OutputMoved`), and nothing is written or re-created at its old place.
 5. Files are written atomically (`sosmatch.database.atomic`); the one place where a directory is replaced is
    here (`OutputDir.replace_dir`, `OutputDir.publish`), and only inside a directory the command owns.
    Temporaries of killed runs are removed by the next run.
@@ -362,7 +363,8 @@ class OutputDir:
         return self
 
     def __exit__(self, exc_type: object, *exc: object) -> None:
-        moved = exc_type is not None and not self._place.here()
+        # (an interrupt stays one: Ctrl-C is not the move)
+        moved = isinstance(exc_type, type) and issubclass(exc_type, Exception) and not self._place.here()
         if moved:
             # whatever failed (a write by path into the vanished directory, a FileNotFoundError deep in a stage,
             # in a worker) failed because the directory went away: said as that, in one line

@@ -25,8 +25,9 @@ class OutputMoved(InputError):
 
     def __init__(self, path: Path, command: str, now: Path | None = None) -> None:
         where = f" (now {now})" if now is not None else ""
+        again = "" if now is not None else " (or here to start again)"
         super().__init__(f"was moved or deleted while sosmatch {command} was writing it{where}: re-run the same "
-                         "command on its new place to resume", path)
+                         f"command on its new place to resume{again}", path)
 
 
 class Place:

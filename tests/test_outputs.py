@@ -417,3 +417,20 @@ def test_a_taken_folder_moved_under_its_run_is_said_in_one_line_and_not_re_creat
                 raise OSError("any failure")
     assert (out / ".sosmatch-output.lock").read_text() == (out / MARKER).read_text() == "another run"
     assert not (moved / ".sosmatch-output.lock").exists()  # this run's own lock, where it went, released
+
+
+def test_a_taken_folder_deleted_under_its_run_is_said_and_not_re_created(tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match="was moved or deleted while sosmatch match was writing it: re-run the same "
+                                         r"command on its new place to resume \(or here to start again\)"):
+        with open_output_dir(out, "match", "x") as taken:
+            (taken.staging / "cache").mkdir()
+            shutil.rmtree(out)
+            write_text_atomic(out / ".partial" / "cache" / "e.txt", "x")
+    assert not out.exists()
+    with pytest.raises(KeyboardInterrupt):  # an interrupt stays one (exit 130), moved or not
+        with open_output_dir(out, "match", "x"):
+            out.rename(tmp_path / "moved")
+            raise KeyboardInterrupt
