@@ -22,6 +22,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ..plugin.errors import InputError
+from .taken import check_place
 
 TMP_SUFFIX = ".tmp"
 TMP_LOCK = ".sosmatch-tmp.lock"  # inside a temporary: held by its live writer
@@ -95,15 +96,19 @@ def locked_temp_dir(path: Path) -> tuple[Path, int]:
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
+def atomic_path(path: str | Path, make_parents: bool = True) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success it is renamed onto `path`, on error removed.
 
     The caller creates a file, or a directory, at the yielded path. A file replaces an existing file; a
     directory may only be created (an existing directory target raises `TargetIsDirectory`, as does a file
-    write onto a directory). Stale temporaries of earlier, killed writes of `path` are removed first.
+    write onto a directory). Stale temporaries of earlier, killed writes of `path` are removed first. The
+    folders on the way to `path` are created, unless `make_parents` is False (the folder must then exist).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    # never re-create a taken output directory that was moved away under its run (`database.taken`)
+    check_place(path.parent)
+    if make_parents:
+        path.parent.mkdir(parents=True, exist_ok=True)
     for stale in temp_siblings(path):
         remove_if_stale(stale)
     tmp, fd = locked_temp_dir(path)

@@ -15,7 +15,8 @@ The rules (README "Errors"; tests/test_outputs.py keeps them):
 4. One run at a time per output directory: an exclusive lock (flock on `.sosmatch-output.lock`, present while
    a run holds it; the kernel releases it when the process dies) refuses a second concurrent run. The file names
    the run's process (`database.output_lock`), so that a reader can tell a run being written now from one that
-   was killed.
+   was killed. The lock moves with the directory: a directory moved or deleted under its run stops the run in
+   one line (`database.taken.OutputMoved`), and nothing is written or re-created at its old place.
 5. Files are written atomically (`sosmatch.database.atomic`); the one place where a directory is replaced is
    here (`OutputDir.replace_dir`, `OutputDir.publish`), and only inside a directory the command owns.
    Temporaries of killed runs are removed by the next run.
@@ -66,6 +67,7 @@ from .output_markers import (
     output_marker,
     read_json_or_none,
 )
+from .taken import OutputMoved, Place, check_place
 
 _OURS = {MARKER, LOCK}  # present in a directory that is otherwise empty: still empty
 
@@ -152,9 +154,15 @@ def _acquire_lock(lock_path: Path, what: str) -> int:
     return fd
 
 
-def _release_lock(lock_path: Path, fd: int) -> None:
+def _release_lock(lock_path: Path, fd: int, dir_fd: int | None = None) -> None:
+    """Remove the lock file while still holding it (a waiting run then finds the file gone and retries), then
+    release it. `dir_fd`: the locked directory itself, where the file is looked up (the directory may have been
+    moved: the lock moved with it); only the file this run locked is removed, never another run's."""
+    name = lock_path.name if dir_fd is not None else lock_path
     try:
-        os.unlink(lock_path)  # while still held: a waiting run then finds the file gone and retries
+        st = os.stat(name, dir_fd=dir_fd)
+        if (st.st_dev, st.st_ino) == (os.fstat(fd).st_dev, os.fstat(fd).st_ino):
+            os.unlink(name, dir_fd=dir_fd)
     except OSError:
         pass
     os.close(fd)
@@ -175,6 +183,7 @@ class OutputDir:
         # what sosmatch wrote in each directory entry (kept in the marker across runs): all a replacement may delete
         self._entries = recorded_entries(output_marker(path))
         self._complete = previous.state == "complete"
+        self._place = Place(path, command)  # the directory itself: a move under the run is noticed (`taken`)
 
     @property
     def resumed(self) -> bool:
@@ -191,6 +200,7 @@ class OutputDir:
     @property
     def staging(self) -> Path:
         """OUT/.partial: where a command builds what it publishes at the end (kept across a killed run)."""
+        self.check_place()
         d = self.path / STAGING
         d.mkdir(exist_ok=True)
         return d
@@ -204,13 +214,20 @@ class OutputDir:
             p.unlink()
         return p
 
+    def check_place(self) -> None:
+        """Raise `OutputMoved` (one line, exit 2) when the directory was moved or deleted while this run holds it:
+        nothing is then written at its old place."""
+        self._place.check()
+
     def clear_staging(self) -> None:
+        self.check_place()
         shutil.rmtree(self.path / STAGING, ignore_errors=True)
 
     def _write_marker(self, complete: bool, restore: bool = False) -> None:
         """Write the marker: this run's, or with `restore` the previous output's (its identity)."""
         from ..plugin import __version__
 
+        self.check_place()
         self._complete = complete
         identity = self.previous.identity if restore else self.identity
         write_text_atomic(self.path / MARKER, json.dumps(
@@ -285,6 +302,7 @@ class OutputDir:
         An `optional` name (an aid such as a picture, which may fail without losing the output) that this run
         did not stage is not published, and its previous version, ours since OUT is, is removed: what stands
         beside the record always comes from the same run."""
+        self.check_place()
         staging = self.path / STAGING
         layouts = {name: set(entry_names(staging / name)) for name in names if (staging / name).is_dir()}
         try:  # every directory entry checked before any is replaced: a refusal changes nothing
@@ -318,13 +336,14 @@ class OutputDir:
     def close(self) -> None:
         """Release the directory (idempotent)."""
         if self._lock_fd is not None:
-            _release_lock(self.path / LOCK, self._lock_fd)
+            _release_lock(self.path / LOCK, self._lock_fd, self._place.fd)
             self._lock_fd = None
+        self._place.release()
 
     def _discard_if_untouched(self) -> None:
         """After a failed run: remove what this run created if it wrote nothing else (a bad input then leaves
         no trace); a directory holding anything more (e.g. a resumable cache) stays."""
-        if not self._created:
+        if not self._created or not self._place.here():  # moved: what is at the old place is not ours
             return
         staging = self.path / STAGING
         if not _holds_files(staging):  # only empty folders (a stage's work directory made before the refusal)
@@ -344,9 +363,17 @@ class OutputDir:
         return self
 
     def __exit__(self, exc_type: object, *exc: object) -> None:
+        # (an interrupt stays one: Ctrl-C is not the move)
+        moved = isinstance(exc_type, type) and issubclass(exc_type, Exception) and not self._place.here()
+        if moved:
+            # whatever failed (a write by path into the vanished directory, a FileNotFoundError deep in a stage,
+            # in a worker) failed because the directory went away: said as that, in one line
+            error = OutputMoved(self._place.path, self.command, self._place.now())
         if exc_type is not None:
             self._discard_if_untouched()
         self.close()
+        if moved:  # (also over a worker's OutputMoved, which cannot say where the directory went)
+            raise error from None
 
 
 def open_output_dir(
@@ -385,11 +412,13 @@ def open_output_dir(
     same = {identity, *earlier, *same_as}
     _refuse_another(path, command, previous, versions, same, overwrite, overwrite_flag)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
+    check_place(path)  # inside another run's output (batch's maps) that was moved away: not re-created
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create output directory: {exc.strerror or exc}", path) from None
     fd = _acquire_lock(path / LOCK, command)
+    out: OutputDir | None = None
     try:
         again = _previous(path, command, legacy_record)  # under the lock: a run that just finished counts
         if again != previous and again.state == "complete" and again.identity not in same and not overwrite:
@@ -405,9 +434,13 @@ def open_output_dir(
         out._write_marker(complete=out.was_complete)
     except OSError as exc:
         _release_lock(path / LOCK, fd)
+        if out is not None:
+            out._place.release()
         raise InputError(f"cannot write output directory: {exc.strerror or exc}", path) from None
     except BaseException:
         _release_lock(path / LOCK, fd)
+        if out is not None:
+            out._place.release()
         for d in reversed(created):  # a refused run into a new directory leaves no trace
             with contextlib.suppress(OSError):
                 d.rmdir()

@@ -1064,3 +1064,25 @@ def test_a_flight_s_camera_zone_comes_from_its_gps_times(tmp_path):
                                     ("2026:05:02 12:02:00", None)])
     ft = read_flight_time(reset)  # no zone: the GPS time alone (UTC), the clock-only images left aside
     assert ft.utc and ft.seconds == pytest.approx(1777716000.0)
+
+
+def test_a_batch_folder_moved_mid_run_stops_it_in_one_line_and_nothing_comes_back(flights, tmp_path):
+    """`mv OUT NEW` while the batch runs: one line naming OUT and the new place (exit 2 from the CLI), no folder
+    re-created at OUT by a later stage (the pairs, the state), and the same batch on NEW resumes its maps."""
+    root, _ = flights
+    shutil.copytree(root / "A", tmp_path / "fl" / "A")
+    shutil.copytree(root / "B", tmp_path / "fl" / "B")
+    out, moved = tmp_path / "out", tmp_path / "moved"
+
+    def move_then_match(*args):
+        if out.exists():
+            out.rename(moved)
+        return oracle_pair_task(*args)
+
+    with pytest.raises(InputError, match=f"^{out}: was moved or deleted while sosmatch batch was writing it "
+                                         rf"\(now {moved}\)"):
+        batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), options=batch.BatchOptions(progress=False),
+                  pair_fn=move_then_match)
+    assert not out.exists() and not (moved / ".sosmatch-output.lock").exists()
+    again = _run(tmp_path / "fl", moved, LocalExecutor(0))
+    assert all(s.get("resumed") for s in again.sessions) and not again.failures

@@ -666,3 +666,49 @@ def test_a_copied_project_reads_its_own_images_not_the_originals(tmp_path):
     alone = tmp_path / "elsewhere" / "mapped"  # the session folder moved alone: its ../images is not there
     shutil.copytree(tmp_path / "project.copy" / "mapped", alone)
     assert recorded_images_dir(alone) == tmp_path / "project" / "images"
+
+
+def test_an_output_folder_moved_mid_run_stops_it_in_one_line_and_nothing_comes_back(session, tmp_path, capsys,
+                                                                                    monkeypatch):
+    """`mv OUT NEW` while map writes OUT: exit 2 with one line naming OUT and the new place, nothing re-created at
+    OUT (a re-run there would refuse it as a folder sosmatch did not make), and the same command on NEW resumes."""
+    from sosmatch.workflows.map import keyframes
+
+    root = session[0]
+    out, moved = tmp_path / "out", tmp_path / "moved"
+    describe_one = keyframes._describe_one
+
+    def move_at_the_fourth(*args, **kwargs):
+        if args[4].name.startswith("00003_"):  # the cache entry of keyframe 3: OUT is moved before it is written
+            os.rename(out, moved)
+        return describe_one(*args, **kwargs)
+
+    monkeypatch.setattr(keyframes, "_describe_one", move_at_the_fourth)
+    args = ["--images", root / "images", "--poses", root / "poses.csv", "--camera", root / "cameras.txt"]
+    code, cap = _cli(capsys, *args, "--workers", 1, "--out", out)
+    assert code == 2, cap.err
+    assert cap.err.strip() == (f"sosmatch map: error: {out}: was moved or deleted while sosmatch map was writing it "
+                               f"(now {moved}): re-run the same command on its new place to resume")
+    assert not out.exists()
+    assert not (moved / ".sosmatch-output.lock").exists()  # the run's lock moved with the folder, and was released
+    assert len(list((moved / ".partial" / "cache").glob("*.npz"))) == 3
+    monkeypatch.setattr(keyframes, "_describe_one", describe_one)
+    code, cap = _cli(capsys, *args, "--out", moved)
+    assert code == 0, cap.err
+    assert (moved / "landmarks.sosmap").read_bytes() == (session[2] / "landmarks.sosmap").read_bytes()
+
+
+def test_an_output_folder_moved_while_workers_describe_keyframes_is_not_re_created(session, tmp_path):
+    """The pool workers write the cache entries by path: after the move they re-create nothing at the old place."""
+    root = session[0]
+    out, moved = tmp_path / "out", tmp_path / "moved"
+
+    def move(k):
+        if k == 1:
+            os.rename(out, moved)
+
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    with pytest.raises(InputError, match=f"^{out}: was moved or deleted while sosmatch map was writing it "
+                                         rf"\(now {moved}\)"):
+        map_workflow.run(Params(), inputs, out, progress=False, on_keyframe=move, workers=2)
+    assert not out.exists() and not (moved / ".sosmatch-output.lock").exists()

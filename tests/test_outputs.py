@@ -387,3 +387,50 @@ def test_a_full_disk_mid_run_is_one_line_and_the_run_resumes(tmp_path, capsys):
         assert len(list((disk / "S").glob("*.png"))) == 4
     finally:
         subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+
+
+def test_a_taken_folder_moved_under_its_run_is_said_in_one_line_and_not_re_created(tmp_path):
+    """A write that fails because the folder went away (a pool worker's, by path) is reported as the move; no write
+    re-creates the old place; a folder the user makes there afterwards, and the lock of a run in it, are not ours."""
+    out, moved = tmp_path / "out", tmp_path / "moved"
+    with pytest.raises(InputError, match=f"^{out}: was moved or deleted while sosmatch match was writing it "
+                                         rf"\(now {moved}\): re-run the same command on its new place"):
+        with open_output_dir(out, "match", "x") as taken:
+            (taken.staging / "cache").mkdir()
+            out.rename(moved)
+            (out / ".partial" / "cache" / "e.npz").write_bytes(b"")  # FileNotFoundError: as a worker's write
+    assert not out.exists() and sorted(p.name for p in moved.iterdir()) == [".partial", MARKER]
+    with open_output_dir(moved, "match", "x") as taken:
+        moved.rename(out)
+        for write in (lambda: write_text_atomic(moved / ".partial" / "cache" / "e.txt", "x"),
+                      lambda: taken.staging, lambda: taken.finish()):
+            with pytest.raises(InputError, match="was moved or deleted"):
+                write()
+        assert not moved.exists()
+    with open_output_dir(out, "match", "x") as taken:
+        out.rename(moved)
+        out.mkdir()  # the user's new folder at the old place, and another run's lock and marker in it
+        (out / ".sosmatch-output.lock").write_text("another run")
+        (out / MARKER).write_text("another run")
+        with pytest.raises(InputError, match="was moved or deleted"):
+            with taken:
+                raise OSError("any failure")
+    assert (out / ".sosmatch-output.lock").read_text() == (out / MARKER).read_text() == "another run"
+    assert not (moved / ".sosmatch-output.lock").exists()  # this run's own lock, where it went, released
+
+
+def test_a_taken_folder_deleted_under_its_run_is_said_and_not_re_created(tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match="was moved or deleted while sosmatch match was writing it: re-run the same "
+                                         r"command on its new place to resume \(or here to start again\)"):
+        with open_output_dir(out, "match", "x") as taken:
+            (taken.staging / "cache").mkdir()
+            shutil.rmtree(out)
+            write_text_atomic(out / ".partial" / "cache" / "e.txt", "x")
+    assert not out.exists()
+    with pytest.raises(KeyboardInterrupt):  # an interrupt stays one (exit 130), moved or not
+        with open_output_dir(out, "match", "x"):
+            out.rename(tmp_path / "moved")
+            raise KeyboardInterrupt

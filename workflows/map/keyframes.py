@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...database.atomic import atomic_path
+from ...database.taken import check_place
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera
 from ...plugin.params import Params, params_to_dict
@@ -49,7 +50,9 @@ def _save_cached(path: Path, key: str, feats: Any, motion: tuple[float, float],
                  figures: np.ndarray | None = None, smears: np.ndarray | None = None) -> None:
     # Optional fields that are None become object arrays, which np.load refuses without pickle: leave them out.
     arrays = {"feat_" + k: v for k, v in feats.to_npz_dict().items() if v.dtype != object}
-    with atomic_path(path) as tmp:
+    # the cache folder is made (and a moved output directory noticed) by `describe_keyframes`: a pool worker never
+    # re-creates it, even when the folder is moved away between its check and its write
+    with atomic_path(path, make_parents=False) as tmp:
         with open(tmp, "wb") as f:
             extra = {} if figures is None else {"image_figures": np.asarray(figures, np.float64)}
             if smears is not None:
@@ -210,6 +213,7 @@ def describe_keyframes(
     def kept(feats: Any) -> Any:  # what this call returns of a keyframe's description
         return feats if hold_descriptors else replace(feats, sift_desc=_NO_DESCRIPTORS)
 
+    check_place(cache_dir)  # an output directory moved away under its run is not re-created at its old place
     cache_dir.mkdir(parents=True, exist_ok=True)
     size = (inputs.camera.height, inputs.camera.width)
     # one white level for the flight's images beyond 8 bits (none for 8-bit ones, whose cache keys stay as they were)

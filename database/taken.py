@@ -1,0 +1,118 @@
+"""The output directories this process has taken, and whether each is still where it was taken.
+
+A user may move (`mv OUT NEW`) or delete an output directory while a command writes it. The run's lock moves
+with the directory (a second run on NEW is refused), but every later write by path would either fail deep in a
+stage (a traceback) or, worse, re-create folders at the old place (`mkdir(parents=True)`), which a re-run then
+refuses as a folder sosmatch did not create. So a taken directory is remembered by its identity (device and
+inode, from a descriptor held open while it is taken): before a write creates folders at or below it, the
+directory at its path must still be that one (`check_place`); otherwise the run stops with `OutputMoved`, one
+line naming the new place when the kernel knows it. The taken directories are also kept in the environment
+(`ENV`), so that the processes a run starts (pool workers, which write into it by path and may take directories
+below it: batch's maps) check them too.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from ..plugin.errors import InputError
+
+
+class OutputMoved(InputError):
+    """The output directory of a running command was moved or deleted under it (the user's to resolve)."""
+
+    def __init__(self, path: Path, command: str, now: Path | None = None) -> None:
+        where = f" (now {now})" if now is not None else ""
+        again = "" if now is not None else " (or here to start again)"
+        super().__init__(f"was moved or deleted while sosmatch {command} was writing it{where}: re-run the same "
+                         f"command on its new place to resume{again}", path)
+
+
+class Place:
+    """One taken directory: its path, the command writing it, and a descriptor of the directory itself."""
+
+    def __init__(self, path: Path, command: str) -> None:
+        self.path = Path(os.path.abspath(path))
+        self.command = command
+        self.fd = os.open(self.path, os.O_RDONLY | os.O_DIRECTORY)
+        st = os.fstat(self.fd)
+        self._id = (st.st_dev, st.st_ino)
+        _TAKEN[self.path] = self
+        _export()
+
+    def here(self) -> bool:
+        """True while the directory at the taken path is still the one taken (not moved, deleted or replaced)."""
+        try:
+            st = os.stat(self.path)
+        except OSError:
+            return False
+        return (st.st_dev, st.st_ino) == self._id
+
+    def now(self) -> Path | None:
+        """Where the taken directory is now (Linux /proc; None when deleted or unknown)."""
+        try:
+            now = os.readlink(f"/proc/self/fd/{self.fd}")
+        except OSError:
+            return None
+        return None if now.endswith(" (deleted)") or not now.startswith("/") else Path(now)
+
+    def check(self) -> None:
+        """Raise `OutputMoved` when the directory is no longer at its path."""
+        if not self.here():
+            raise OutputMoved(self.path, self.command, self.now())
+
+    def release(self) -> None:
+        """Forget the directory (idempotent)."""
+        if _TAKEN.get(self.path) is self:
+            del _TAKEN[self.path]
+            _export()
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+_TAKEN: dict[Path, Place] = {}
+ENV = "SOSMATCH_TAKEN_OUTPUTS"  # [[path, device, inode, command], ...]: this process's and its parents' taken dirs
+
+
+def _parse(text: str | None) -> list[tuple[Path, tuple[int, int], str]]:
+    """`ENV`'s directories as (path, identity, command)."""
+    try:
+        return [(Path(p), (int(dev), int(ino)), str(cmd)) for p, dev, ino, cmd in json.loads(text or "[]")]
+    except (ValueError, TypeError):
+        return []
+
+
+# what the processes that started this one had taken, read once (`ENV` then also holds this process's own)
+_PARENTS = _parse(os.environ.get(ENV))
+
+
+def _export() -> None:
+    """Keep `ENV` = the inherited directories and this process's own, for the processes it starts."""
+    own = {place.path: (place._id, place.command) for place in _TAKEN.values()}
+    rows = [[str(p), *ident, cmd] for p, ident, cmd in _PARENTS if p not in own]
+    rows += [[str(p), *ident, cmd] for p, (ident, cmd) in own.items()]
+    if rows:
+        os.environ[ENV] = json.dumps(rows)
+    else:
+        os.environ.pop(ENV, None)
+
+
+def check_place(path: str | Path) -> None:
+    """Before creating `path` (or folders on its way): raise `OutputMoved` when a directory this process took at
+    or above `path` is no longer there, so that a write never re-creates folders at a taken directory's old place."""
+    p = Path(os.path.abspath(path))
+    for place in list(_TAKEN.values()):
+        if p == place.path or place.path in p.parents:
+            place.check()
+    for taken, ident, command in _PARENTS:  # taken by a parent process: no descriptor, the identity only
+        if taken not in _TAKEN and (p == taken or taken in p.parents):
+            try:
+                st = os.stat(taken)
+                here = (st.st_dev, st.st_ino) == ident
+            except OSError:
+                here = False
+            if not here:
+                raise OutputMoved(taken, command)
