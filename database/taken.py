@@ -6,14 +6,14 @@ stage (a traceback) or, worse, re-create folders at the old place (`mkdir(parent
 refuses as a folder sosmatch did not create. So a taken directory is remembered by its identity (device and
 inode, from a descriptor held open while it is taken): before a write creates folders at or below it, the
 directory at its path must still be that one (`check_place`); otherwise the run stops with `OutputMoved`, one
-line naming the new place when the kernel knows it. The taken directories are also kept in the environment
-(`ENV`), so that the processes a run starts (pool workers, which write into it by path and may take directories
-below it: batch's maps) check them too.
+line naming the new place when the kernel knows it. Only the process that took a directory checks it: the
+processes a run starts (pool and Dask workers, started before or reused across runs) would hold another run's
+identities (rev25: a worker reused by a second run took the first run's folder for moved), so a worker's write under
+a moved directory fails as it did before, and its run reports the move from here (`OutputDir.__exit__`).
 """
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -40,7 +40,6 @@ class Place:
         st = os.fstat(self.fd)
         self._id = (st.st_dev, st.st_ino)
         _TAKEN[self.path] = self
-        _export()
 
     def here(self) -> bool:
         """True while the directory at the taken path is still the one taken (not moved, deleted or replaced)."""
@@ -67,37 +66,12 @@ class Place:
         """Forget the directory (idempotent)."""
         if _TAKEN.get(self.path) is self:
             del _TAKEN[self.path]
-            _export()
         if self.fd >= 0:
             os.close(self.fd)
             self.fd = -1
 
 
-_TAKEN: dict[Path, Place] = {}
-ENV = "SOSMATCH_TAKEN_OUTPUTS"  # [[path, device, inode, command], ...]: this process's and its parents' taken dirs
-
-
-def _parse(text: str | None) -> list[tuple[Path, tuple[int, int], str]]:
-    """`ENV`'s directories as (path, identity, command)."""
-    try:
-        return [(Path(p), (int(dev), int(ino)), str(cmd)) for p, dev, ino, cmd in json.loads(text or "[]")]
-    except (ValueError, TypeError):
-        return []
-
-
-# what the processes that started this one had taken, read once (`ENV` then also holds this process's own)
-_PARENTS = _parse(os.environ.get(ENV))
-
-
-def _export() -> None:
-    """Keep `ENV` = the inherited directories and this process's own, for the processes it starts."""
-    own = {place.path: (place._id, place.command) for place in _TAKEN.values()}
-    rows = [[str(p), *ident, cmd] for p, ident, cmd in _PARENTS if p not in own]
-    rows += [[str(p), *ident, cmd] for p, (ident, cmd) in own.items()]
-    if rows:
-        os.environ[ENV] = json.dumps(rows)
-    else:
-        os.environ.pop(ENV, None)
+_TAKEN: dict[Path, Place] = {}  # this process's taken directories, by path
 
 
 def check_place(path: str | Path) -> None:
@@ -107,12 +81,3 @@ def check_place(path: str | Path) -> None:
     for place in list(_TAKEN.values()):
         if p == place.path or place.path in p.parents:
             place.check()
-    for taken, ident, command in _PARENTS:  # taken by a parent process: no descriptor, the identity only
-        if taken not in _TAKEN and (p == taken or taken in p.parents):
-            try:
-                st = os.stat(taken)
-                here = (st.st_dev, st.st_ino) == ident
-            except OSError:
-                here = False
-            if not here:
-                raise OutputMoved(taken, command)

@@ -434,3 +434,31 @@ def test_a_taken_folder_deleted_under_its_run_is_said_and_not_re_created(tmp_pat
         with open_output_dir(out, "match", "x"):
             out.rename(tmp_path / "moved")
             raise KeyboardInterrupt
+
+
+def _check_place_in_worker(path: str) -> str:
+    from sosmatch.database.taken import check_place
+
+    check_place(path)
+    return "ok"
+
+
+def test_a_worker_reused_by_a_later_run_does_not_take_its_folder_for_moved(tmp_path):
+    """rev25: the taken folders went to worker processes through the environment, read once when the worker
+    started; a LocalExecutor reused by a second run (the Python API) kept the first run's folder identity, and
+    the second run into a new folder at that path was stopped as "moved". Only the taking process checks now."""
+    from sosmatch.workflows.executors import LocalExecutor
+
+    out = tmp_path / "out"
+    out.mkdir()
+    executor = LocalExecutor(1)
+    try:
+        with open_output_dir(out, "batch", "first") as taken:
+            first = executor.run(_check_place_in_worker, {"a": (str(out / "maps" / "x"),)}, progress=False)
+            taken.finish()
+        out.rename(tmp_path / "out.old")  # put aside, and a new batch started at the same path
+        out.mkdir()
+        second = executor.run(_check_place_in_worker, {"a": (str(out / "maps" / "x"),)}, progress=False)
+    finally:
+        executor.close()
+    assert [getattr(r["a"], "value", r["a"]) for r in (first, second)] == ["ok", "ok"]
