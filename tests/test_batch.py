@@ -1086,3 +1086,14 @@ def test_a_batch_folder_moved_mid_run_stops_it_in_one_line_and_nothing_comes_bac
     assert not out.exists() and not (moved / ".sosmatch-output.lock").exists()
     again = _run(tmp_path / "fl", moved, LocalExecutor(0))
     assert all(s.get("resumed") for s in again.sessions) and not again.failures
+
+
+def test_a_reset_clock_is_judged_before_its_zone_moves_it(tmp_path):
+    """rev25: the reset test ran on the time shifted to UTC, so 2000-01-01 00:12 at +09:00 (1999-12-31 in UTC)
+    was taken for a real time and dated the flight."""
+    from sosmatch.workflows.batch.pairs import read_flight_time
+
+    day2 = 1777680000.0  # 2026-05-02 00:00 UTC
+    stamps = ["2026:05:02 19:00:00"] + ["2000:01:01 00:12:00"] * 4  # +09:00: 10:00 UTC, then the reset clock
+    ft = read_flight_time(_timed_flight(tmp_path / "a", stamps, offset="+09:00"))
+    assert ft.seconds == pytest.approx(day2 + 10 * 3600) and ft.utc

@@ -81,15 +81,17 @@ def read_flight_time(images: Path | None) -> FlightTime:
     utc, local, resets = [], [], []
     for m in metas:
         # this image's times, best first: the receiver's UTC, the camera's clock in its zone, the clock alone
-        stamps = [(m.gps_time_utc_s, True)] if m.gps_time_utc_s is not None else []
+        # (time, in UTC, the clock's own reading: a reset is judged on that, before any zone moves it out of the
+        # reset date's window: 2000-01-01 00:12 at +09:00 is 1999-12-31 in UTC, rev25)
+        stamps = [(m.gps_time_utc_s, True, m.gps_time_utc_s)] if m.gps_time_utc_s is not None else []
         if (t := m.capture_time_s) is not None:
             offset = m.capture_offset_s if m.capture_offset_s is not None else zone
-            stamps.append((t - offset, True) if offset is not None else (t, False))
-        good = [(t, is_utc) for t, is_utc in stamps if _reset_date(t) is None]
+            stamps.append((t - offset, True, t) if offset is not None else (t, False, t))
+        good = [(t, is_utc) for t, is_utc, clock in stamps if _reset_date(clock) is None]
         if good:
             (utc if good[0][1] else local).append(good[0][0])
         else:
-            resets += [r for t, _ in stamps if (r := _reset_date(t)) is not None]
+            resets += [r for _, _, clock in stamps if (r := _reset_date(clock)) is not None]
     # UTC times where a flight has them: its camera-clock-only times are off by the unknown zone
     stamps, is_utc = (utc, True) if utc else (local, False)
     if not stamps:
