@@ -292,9 +292,12 @@ def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
     # between its own levels. Central statistics, not the tails: a row of zeros in 1 of 240 rows (0.4 %) set the
     # 0.1 % tail and flipped a thermal flight to 6 grey levels.
     lost = float(np.mean((pooled < 0) | (pooled > white)))
-    if lost < 0.001 and (hi - lo >= MIN_SPAN * white or (p5 < p95 - p5 and hi > lo)):
-        if floats:
-            return None
+    # floats beyond 0..1 are measurements (degC, kelvin), not light of a known white: always their own levels, so
+    # that a spring flight (5-40 degC) and a winter one (-5-30) of one site read alike (rev25: 36 grey levels
+    # against 256, by whether a pixel fell below zero)
+    if floats and white == 1.0 and lost < 0.001:
+        return None
+    if not floats and lost < 0.001 and (hi - lo >= MIN_SPAN * white or (p5 < p95 - p5 and hi > lo)):
         return white
     if floats:
         # six significant digits: the levels of degC data as the log and run.json show them, not 13.6899995803833
@@ -334,14 +337,14 @@ LEVEL_FENCE = 1.0
 def _valid_values(sample: np.ndarray) -> np.ndarray:
     """The values of a sample that can set a flight's levels: not no-data or saturated, which is exactly 0 or the
     type's maximum for unsigned data (a rectified frame's zero-filled corners, a blank line, a dead column), the
-    type's minimum or maximum for signed data (0 is a temperature there), and for floats not NaN, infinite or
-    exactly 0."""
+    type's minimum or maximum for signed data (0 is a temperature there), and for floats not NaN or infinite (0.0
+    is a temperature too, and `to_u8` reads it as one: rev25)."""
     if sample.dtype.kind == "u":
         return sample[(sample != 0) & (sample != np.iinfo(sample.dtype).max)]
     if sample.dtype.kind == "i":
         info = np.iinfo(sample.dtype)
         return sample[(sample != info.min) & (sample != info.max)]
-    return sample[np.isfinite(sample) & (sample != 0)]
+    return sample[np.isfinite(sample)]
 
 
 def flight_levels(values: np.ndarray) -> tuple[float, float, int, int]:

@@ -211,3 +211,17 @@ def test_float_temperatures_are_read_between_their_own_levels(tmp_path):
     levels = flight_white_level([tmp_path / "k.tif"])
     assert isinstance(levels, Levels) and 29000 < levels.black < levels.white < 31500, levels
     assert np.ptp(read_image(tmp_path / "k.tif", levels)[:, :, 0].astype(int)) > 180
+
+
+def test_float_measurements_are_read_between_their_own_levels_above_zero_too(tmp_path):
+    """rev25: float degC of a spring scene (5-40) were read as grey 0..255 (36 levels) while a winter one (-5-30)
+    got its own levels (256): one site read two ways by whether a pixel fell below zero. Zero is a temperature."""
+    rng = np.random.default_rng(5)
+    for name, low in (("spring", 5.0), ("winter", -5.0)):
+        frame = (low + 35.0 * rng.random((120, 160))).astype(np.float32)
+        frame[:10, :10] = 0.0  # 0 degC: a value, not no-data
+        cv2.imwrite(str(tmp_path / f"{name}.tif"), frame)
+        levels = flight_white_level([tmp_path / f"{name}.tif"])
+        assert isinstance(levels, Levels) and levels.black <= low + 0.5 and levels.white > low + 34.0
+        grey = read_image(tmp_path / f"{name}.tif", levels)[:, :, 0].astype(int)
+        assert grey.max() - grey.min() > 200
