@@ -27,7 +27,7 @@ from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from .atomic import atomic_path
 from .cameras import pycolmap_camera
-from .taken import check_place
+from .taken import make_dirs
 
 if TYPE_CHECKING:
     from ..plugin.changes import KeyframeSegments
@@ -370,8 +370,7 @@ def write_colmap_database(
     if len(keypoints) != len(image_names):
         raise ValueError(f"{len(image_names)} images but {len(keypoints)} keypoint arrays")
     try:
-        check_place(path.parent)  # a taken output directory moved away under its run is not re-created
-        path.parent.mkdir(parents=True, exist_ok=True)
+        make_dirs(path.parent)  # a taken output directory moved away under its run is not re-created
     except OSError as exc:
         raise InputError(f"cannot create output directory: {exc.strerror}", path.parent) from None
     num_matches = 0

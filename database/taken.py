@@ -81,3 +81,12 @@ def check_place(path: str | Path) -> None:
     for place in list(_TAKEN.values()):
         if p == place.path or place.path in p.parents:
             place.check()
+
+
+def make_dirs(path: str | Path) -> Path:
+    """`mkdir -p path` for a folder at or below a taken output directory, after `check_place`: the one way a stage
+    creates folders there, so that no writer re-creates a moved directory's old place (rev25: five writers each
+    paired the check with their own mkdir)."""
+    check_place(path)
+    Path(path).mkdir(parents=True, exist_ok=True)
+    return Path(path)

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..database.taken import check_place
+from ..database.taken import make_dirs
 from ..plugin.errors import InputError
 from ..plugin.image_pairs import line_spacing_m, overlap_cap_m, select_pairs
 from ..plugin.params import SfmParams
@@ -129,8 +129,7 @@ def colmap_image_dir(image_dir: Path, names: list[str], work_dir: Path) -> Path:
         rgb = read_image(image_dir / name, white)
         pixels = rgb[:, :, 0] if np.array_equal(rgb[:, :, 0], rgb[:, :, 1]) and np.array_equal(
             rgb[:, :, 0], rgb[:, :, 2]) else rgb[:, :, ::-1]  # single band stays gray; OpenCV writes BGR
-        check_place(target.parent)  # a taken output directory moved away under its run is not re-created
-        target.parent.mkdir(parents=True, exist_ok=True)
+        make_dirs(target.parent)  # a taken output directory moved away under its run is not re-created
         tmp = target.with_name(f".tmp-{target.name}")  # the extension kept: it chooses the format
         if not cv2.imwrite(str(tmp), pixels):
             raise InputError(f"could not write an 8-bit copy for COLMAP to {tmp}", image_dir / name)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...database.atomic import atomic_path
-from ...database.taken import check_place
+from ...database.taken import make_dirs
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera
 from ...plugin.params import Params, params_to_dict
@@ -213,8 +213,7 @@ def describe_keyframes(
     def kept(feats: Any) -> Any:  # what this call returns of a keyframe's description
         return feats if hold_descriptors else replace(feats, sift_desc=_NO_DESCRIPTORS)
 
-    check_place(cache_dir)  # an output directory moved away under its run is not re-created at its old place
-    cache_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(cache_dir)  # an output directory moved away under its run is not re-created at its old place
     size = (inputs.camera.height, inputs.camera.width)
     # one white level for the flight's images beyond 8 bits (none for 8-bit ones, whose cache keys stay as they were)
     white = flight_white_level(inputs.image_paths) if white is None else white

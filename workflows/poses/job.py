@@ -23,7 +23,7 @@ from ...database.json_text import json_default
 from ...database.output_markers import fingerprint
 from ...database.outputs import open_output_dir
 from ...database.poses import format_poses_csv
-from ...database.taken import check_place
+from ...database.taken import make_dirs
 from ...plugin.errors import InputError
 from ...plugin.geometry import Poses
 from ...plugin.params import Params, params_to_dict
@@ -104,8 +104,7 @@ def compute_poses(image_dir: Path, work: Path, params: Params, identity: str,
     """The stages in directory `work` (created; features and matches of an interrupted run with the same
     `identity` are reused); the outputs end up in `work/result` (a finished result there is returned as is).
     `priors`: the images' metadata when the caller has read it already (with these options)."""
-    check_place(work)  # a taken output directory moved away under its run is not re-created
-    work.mkdir(parents=True, exist_ok=True)
+    make_dirs(work)  # a taken output directory moved away under its run is not re-created
     result_dir = work / "result"
     done = _stage_done(work, "result", identity)
     if done is not None and (result_dir / RECORD).is_file():
