@@ -165,7 +165,7 @@ class _Direct:
     flat: np.ndarray | None = None
     # whether the own session's images show relief at its references (`shows_relief`); None: not measured here
     relief: bool | None = None
-    # False: the sweep's ground noise could not be measured (too few places at ground level even with the bare
+    # False: the sweep's ground noise could not be measured (no place at ground level even with the bare
     # places added), so the objectness test let every place stand; None: measured, or not measured here
     ground_noise: bool | None = None
     # what `reweigh` needs: per landmark the segments' presence rate and dispersion (where tested) and whether
