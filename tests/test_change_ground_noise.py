@@ -4,12 +4,15 @@
 import numpy as np
 import pytest
 
+from sosmatch.plugin.changes.objectness import ground_noise_known
 from sosmatch.plugin.changes.surface import (
     SWEEP_BELOW_M,
     SWEEP_STEP_M,
     ground_noise_fit,
     ground_sweep_noise,
+    height_limit,
     shows_relief,
+    stands_above_ground,
 )
 
 
@@ -58,3 +61,31 @@ def test_a_few_objects_among_the_levels_are_still_relief():
         h[:5] = rng.uniform(2.0, 5.0, 5)  # 5 % stand 2-5 m up
         found += shows_relief(swept(h), 0.01)
     assert found >= 48
+
+
+@pytest.mark.parametrize(("sigma", "places"), [(0.5, 3), (1.0, 3), (1.0, 6)])
+def test_a_few_ground_places_make_a_test_that_bare_ground_passes_at_its_rate(sigma, places):
+    # below 10 places at ground level the limit was NaN and every place stood (rate 1): on small pairs which
+    # session set the frame decided whether the test was made (nu39: 3 vs 24 false claims in the two orders).
+    # The fit's sigma is measured on the few: the normal quantile over it let bare ground stand at 4-6 x p;
+    # Student-t with the fit's degrees of freedom keeps it near p
+    rng = np.random.default_rng(11)
+    p, trials, stood = 0.01, 1500, 0
+    for _ in range(trials):
+        ref = swept(rng.normal(0.0, sigma, 2 * places))  # about `places` of them at or below the ground
+        stood += bool(stands_above_ground(swept(rng.normal(0.0, sigma, 1)), ref, p)[0])
+    assert stood / trials < 2.5 * p
+
+
+def test_the_limit_widens_as_the_ground_places_thin_and_is_never_off():
+    rng = np.random.default_rng(12)
+    ground = swept(rng.normal(0.0, 1.0, 4000))
+    ground = ground[ground <= 0]
+    limits = [height_limit(ground[:n], 0.01) for n in (2, 3, 5, 10, 40, len(ground))]
+    assert np.all(np.isfinite(limits))
+    assert limits[0] > limits[-1] * 1.5  # a handful of places: a stricter test, not none
+    assert limits[-1] == pytest.approx(2.326, rel=0.1)  # on many, the normal's quantile
+    # an object far above the ground stands over the few places' limit
+    assert stands_above_ground(np.array([15.0, 0.0]), ground[:3], 0.01).tolist() == [True, False]
+    assert ground_noise_known((ground[:2], np.array([-0.5, 4.0])))
+    assert not ground_noise_known((ground[:2], np.array([2.0, 4.0])))  # no place at ground level in one

@@ -189,7 +189,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
                         f"{untested_note(params.changes)}")
     for name in result.without_ground_noise:
         path = session_a if name == "A" else session_b
-        warnings.append(f"{path} (session {name} of the comparison): too few places at ground level to measure "
+        warnings.append(f"{path} (session {name} of the comparison): no place at ground level to measure "
                         "how its surface heights scatter on bare ground: its claims are not tested for an object "
                         "standing there (expect false changes of moved shadows and re-segmented ground)")
     warnings += sensing_notes(result, str(session_a), str(session_b))

@@ -13,6 +13,7 @@ from .observations import SessionObservations
 from .surface import (
     PATCH_HALF_M,
     footprint_places,
+    ground_noise_fit,
     ground_sweep_noise,
     height_limit,
     heights_above_ground,
@@ -109,9 +110,17 @@ def evenly(indices: np.ndarray, limit: int) -> np.ndarray:
 
 
 def ground_noise_known(references: tuple[np.ndarray, np.ndarray]) -> bool:
-    """Whether both sessions' reference heights hold enough places at ground level to measure the sweep's ground
-    noise (`surface.ground_sweep_noise`), the scale of the objectness test."""
-    return all(np.isfinite(ground_sweep_noise(r)) for r in references)
+    """Whether both sessions' reference heights hold a place at ground level to measure the sweep's ground noise
+    on (`surface.ground_noise_limit`), the scale of the objectness test: with any, the test is made, its limit
+    widened by how little the places tell."""
+    return all(ground_noise_fit(r)[2] > 0 for r in references)
+
+
+def ground_noise_loose(references: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether either session's reference heights hold fewer places at ground level than `ground_sweep_noise`
+    asks of a scale: worth sweeping bare places beside the compared landmarks (`with_ground_places`) to narrow
+    the objectness test's limit, which a thin fit widens."""
+    return not all(np.isfinite(ground_sweep_noise(r)) for r in references)
 
 
 def with_ground_places(references: tuple[np.ndarray, np.ndarray], points: np.ndarray, sizes: np.ndarray,

@@ -342,9 +342,31 @@ def ground_noise_fit(ref_heights: np.ndarray) -> tuple[float, float, int]:
 def ground_sweep_noise(ref_heights: np.ndarray, min_places: int = 10) -> float:
     """The standard deviation of the sweep's height at places of bare ground, from reference places' heights above
     the ground in one session (`ground_noise_fit`: objects only ever add height, so the places at or below the
-    ground are ground alone; the heights are the sweep's levels). NaN with fewer than `min_places` such places."""
+    ground are ground alone; the heights are the sweep's levels). NaN with fewer than `min_places` such places
+    (a scale for a test that has no use for the fit's precision; `ground_noise_limit` tests with any number)."""
     sigma, _, n = ground_noise_fit(ref_heights)
     return sigma if n >= min_places else float("nan")
+
+
+def ground_noise_limit(ref_heights: np.ndarray, rate: float) -> float:
+    """The height above the ground that a new place of bare ground exceeds at one-sided rate `rate`, by the
+    sweep's ground noise as measured on the session's reference places (`ground_noise_fit`), and at least one
+    sweep step. NaN only where no reference place lies at or below the ground's level (no fit at all).
+
+    sigma is measured, not known: the new place's height over it is Student-t with the fit's degrees of freedom,
+    not normal. The quantile widens as the ground places thin (so a fit on a handful of places still makes a
+    test, a stricter one) and reaches the normal's on many; a count below which the noise counts as unmeasured
+    switched the test off whole, and on small pairs that count sat at their ground places' number, so which
+    session set the frame decided whether every place stood (nu39: 11 vs 9 ground places in the two orders of
+    one unchanged pair, 3 vs 24 false claims)."""
+    from scipy.stats import t
+
+    sigma, dof, n = ground_noise_fit(ref_heights)
+    if not n or not 0.0 < rate < 1.0:
+        return float("nan")
+    # dof < n on the levels (a level says less than the height it rounds); sigma 0 (no place below the ground's
+    # level) leaves the floor of one step
+    return max(float(t.isf(rate, max(dof, 1e-3))) * sigma if sigma > 0 else 0.0, SWEEP_STEP_M)
 
 
 def footprint_places(points: np.ndarray, sizes: np.ndarray, ring: int) -> np.ndarray:
@@ -362,17 +384,15 @@ def footprint_places(points: np.ndarray, sizes: np.ndarray, ring: int) -> np.nda
 
 
 def height_limit(ref_heights: np.ndarray, p: float, places: int = 1) -> float:
-    """The height above the ground that the ground's sweep noise (`ground_sweep_noise` of the session's reference
-    places) exceeds with one-sided probability p over `places` places (Sidak: each at 1 - (1 - p)^(1/places), so
-    the highest of several sweeps of bare ground passes as rarely as one sweep does at p), and at least one sweep
-    step. NaN when the test cannot be made (p >= 1, or too few reference places to measure the noise)."""
-    from scipy.stats import norm
-
-    sigma = ground_sweep_noise(ref_heights)
-    if p >= 1.0 or not np.isfinite(sigma):
+    """The height above the ground that the ground's sweep noise (`ground_noise_limit` of the session's reference
+    places: a Student-t quantile with the noise fit's degrees of freedom) exceeds with one-sided probability p
+    over `places` places (Sidak: each at 1 - (1 - p)^(1/places), so the highest of several sweeps of bare ground
+    passes as rarely as one sweep does at p), and at least one sweep step. NaN when the test cannot be made
+    (p >= 1, or no reference place at ground level to measure the noise on)."""
+    if p >= 1.0:
         return float("nan")
     each = -np.expm1(np.log1p(-p) / max(int(places), 1))
-    return max(float(norm.isf(each)) * sigma, SWEEP_STEP_M)
+    return ground_noise_limit(ref_heights, each)
 
 
 def stands_above_ground(heights: np.ndarray, ref_heights: np.ndarray, p: float, places: int = 1) -> np.ndarray:
@@ -380,7 +400,7 @@ def stands_above_ground(heights: np.ndarray, ref_heights: np.ndarray, p: float, 
     higher than `height_limit` at one-sided significance p. `heights` (N,) one place per landmark, or (N, K) the
     sweeps of K places of each (its centroid and `footprint_places`): the highest known one is tested, at the
     limit for `places` places. An unknown height (NaN everywhere) does not stand; p >= 1 lets every place stand
-    (the test is off), and so do too few reference places to measure the noise."""
+    (the test is off), and so do all where no reference place lies at ground level to measure the noise on."""
     h = np.asarray(heights, dtype=np.float64)
     limit = height_limit(ref_heights, p, places)
     if not np.isfinite(limit):
@@ -418,14 +438,15 @@ def shows_relief(ref_heights: np.ndarray, p: float) -> bool:
     h = h[np.isfinite(h)]
     if p >= 1.0 or not len(h):
         return False
-    sigma, dof = ground_sweep_noise(h), max(ground_noise_fit(h)[1], 1.0)
+    sigma, dof, ground = ground_noise_fit(h)
     levels = relief_levels(len(h), p)
     for level in range(1, levels + 1):
         rate = chance = p ** level
-        if np.isfinite(sigma):
+        if ground:
             # the noise is measured on a few tens of places: a new place's height over it is Student-t with the
             # fit's degrees of freedom, whose tail far out is much heavier than the normal's
-            limit = max(float(t.isf(rate, dof)) * sigma, SWEEP_STEP_M)
+            limit = ground_noise_limit(h, rate)
+            dof = max(dof, 1e-3)
             standing = int(np.count_nonzero(h > limit))
             if sigma > 0:
                 # a height is a level: the ground stands above the limit wherever it rounds to the first level
@@ -434,7 +455,7 @@ def shows_relief(ref_heights: np.ndarray, p: float) -> bool:
                 # taken below the level's rate, which the floor of one step and the untested tails far out keep
                 first = (np.floor(limit / SWEEP_STEP_M + 1e-9) + 0.5) * SWEEP_STEP_M
                 chance = max(rate, float(t.sf(first / sigma, dof)))
-        else:  # too few ground places to measure the noise: every place stands (as `stands_above_ground`)
+        else:  # no place at ground level to measure the noise on: every place stands (as `stands_above_ground`)
             standing = len(h)
         if binom.sf(standing - 1, len(h), chance) < p / levels:
             return True

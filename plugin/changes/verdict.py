@@ -28,6 +28,7 @@ from .objectness import (
     evenly,
     flat_landmarks,
     ground_noise_known,
+    ground_noise_loose,
     ring_heights,
     session_heights,
     surface_heights,
@@ -164,7 +165,7 @@ class _Direct:
     flat: np.ndarray | None = None
     # whether the own session's images show relief at its references (`shows_relief`); None: not measured here
     relief: bool | None = None
-    # False: the sweep's ground noise could not be measured (too few places at ground level even with the bare
+    # False: the sweep's ground noise could not be measured (no place at ground level even with the bare
     # places added), so the objectness test let every place stand; None: measured, or not measured here
     ground_noise: bool | None = None
     # what `reweigh` needs: per landmark the segments' presence rate and dispersion (where tested) and whether
@@ -236,10 +237,11 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         if surface_references is None:
             ref = evenly(np.flatnonzero(compared & (index >= 0)), SURFACE_REFERENCES)
             surface_references = surface_heights(own_pos[ref], own, other, ground, params)
-            if params.object_height_p < 1.0 and not ground_noise_known(surface_references):
-                # too few reference places at ground level to measure the sweep's ground noise (a small or
-                # cross-season pair keeps few counterparts, most of them objects): without it the objectness
-                # test would let every place stand. Bare places beside the compared landmarks add ground
+            if params.object_height_p < 1.0 and ground_noise_loose(surface_references):
+                # few reference places at ground level to measure the sweep's ground noise on (a small or
+                # cross-season pair keeps few counterparts, most of them objects): the objectness test's limit
+                # widens with so thin a fit, and without any it lets every place stand. Bare places beside the
+                # compared landmarks add ground
                 surface_references = with_ground_places(surface_references, own_pos[compared], own_h[compared],
                                                          own, other, ground, gate_m, params)
         idx = np.flatnonzero(asked)
