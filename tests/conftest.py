@@ -1,5 +1,6 @@
 """Test-wide settings (the synthetic world cache out of the user's home directory) and shared fixtures."""
 
+import logging
 import os
 import tempfile
 from pathlib import Path
@@ -10,6 +11,18 @@ import pytest
 # Shared by all test workers and runs (entries are keyed by code version and written atomically), so a
 # repeated `make test` reuses rendered worlds instead of filling ~/.cache.
 os.environ.setdefault("SOSMATCH_CACHE_DIR", str(Path(tempfile.gettempdir()) / "sosmatch-test-cache"))
+
+
+@pytest.fixture(autouse=True)
+def _sosmatch_log_level():
+    """Each test starts with the "sosmatch" logger at its library default (NOTSET: the root's level decides). The
+    CLI sets it for the whole process (-q: WARNING), so a test that captures INFO records
+    (`caplog.at_level(logging.INFO)`) saw them or not by which CLI call ran before it in its worker, a module
+    fixture's `synth -q` included (test_image_rigs failed by test order under xdist, s51)."""
+    logger = logging.getLogger("sosmatch")
+    logger.setLevel(logging.NOTSET)
+    yield
+    logger.setLevel(logging.NOTSET)
 
 
 @pytest.fixture(scope="module")
