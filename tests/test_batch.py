@@ -937,7 +937,7 @@ def test_a_flight_s_time_is_its_images_exif_capture_time(tmp_path):
 
     from sosmatch.database.exif import ImageMetadata
     from sosmatch.database.exif_write import embed_metadata
-    from sosmatch.workflows.batch.pairs import flight_time
+    from sosmatch.workflows.batch.pairs import read_flight_time
 
     (tmp_path / "images").mkdir()
     for k, stamp in enumerate(("2026:05:01 10:00:00", "2026:05:01 10:05:00", "2026:05:01 10:10:00")):
@@ -945,8 +945,8 @@ def test_a_flight_s_time_is_its_images_exif_capture_time(tmp_path):
         Image.new("RGB", (8, 8)).save(buf, format="JPEG")
         jpeg = embed_metadata(buf.getvalue(), ImageMetadata("x.jpg", 8, 8, datetime_original=stamp))
         (tmp_path / "images" / f"img_{k}.jpg").write_bytes(jpeg)
-    assert flight_time(tmp_path / "images") == pytest.approx(1777629900.0)  # 10:05 UTC, the median
-    assert flight_time(None) is None
+    assert read_flight_time(tmp_path / "images").seconds == pytest.approx(1777629900.0)  # 10:05 UTC, the median
+    assert read_flight_time(None).seconds is None
 
 
 def _timed_flight(folder, stamps, offset=None, gps=None):

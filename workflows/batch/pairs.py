@@ -107,11 +107,6 @@ def read_flight_time(images: Path | None) -> FlightTime:
     return FlightTime(statistics.median(kept), utc=is_utc)
 
 
-def flight_time(images: Path | None) -> float | None:
-    """`read_flight_time(images).seconds`: when a flight was flown, or None."""
-    return read_flight_time(images).seconds
-
-
 def flight_times(images: dict[str, Path | None]) -> dict[str, float | None]:
     """Each flight's time (`read_flight_time`) by name; the flights without one are said in one warning line
     with why (their neighbours in time are not chosen), and when some flights' times are UTC and others' only
@@ -169,7 +164,7 @@ def choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest:
                  times: dict[str, float | None] | None = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
     """(the session pairs to match, those of them added for their capture times). Every pair, or with `nearest`
     the pairs where one session is among the k nearest of the other by mean camera position, plus each flight's
-    neighbours in time (`time_neighbour_pairs`; `times`: each flight's capture time, `flight_time`): the flights
+    neighbours in time (`time_neighbour_pairs`; `times`: each flight's capture time, `flight_times`): the flights
     of one site all overlap, so the nearest by position are arbitrary among them (nu40, 6 flights, --nearest 2:
     1-2..1-6, 2-6, 3-5, 3-6, 4-6 kept and 2-3, 3-4, 4-5, the consecutive surveys, dropped)."""
     all_pairs = list(combinations(names, 2))
@@ -185,7 +180,8 @@ def choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest:
     if len(timed) < 2:
         return chosen, []
     footprints = {n: _footprint(sessions[n]["session"]) for n in timed if sessions[n].get("session")}
-    added = [p for p in time_neighbour_pairs(names, times or {}, footprints) if p not in set(chosen)]
+    known = set(chosen)
+    added = [p for p in time_neighbour_pairs(names, times or {}, footprints) if p not in known]
     if added:
         log.info("--nearest %d: %d pair(s) of flights consecutive in capture time (EXIF) among "
                  "overlapping ones matched too: %s", nearest, len(added), ", ".join(f"{a}-{b}" for a, b in added))
