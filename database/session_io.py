@@ -382,6 +382,17 @@ class KeyframeImages(Sequence):
         return grey
 
 
+def levels_record(levels: Levels | int | None) -> list[float] | None:
+    """run.json's "image_levels" for what a flight's images beyond 8 bits are read between
+    (`images.flight_white_level`): [black, white], [0, white] for a bare white level, None for 8-bit images; what
+    `recorded_levels` reads back."""
+    from .images import Levels
+
+    if levels is None:
+        return None
+    return [levels.black, levels.white] if isinstance(levels, Levels) else [0, int(levels)]
+
+
 def recorded_levels(session: str | Path) -> Levels | int | None:
     """What `sosmatch map` read the session's images beyond 8 bits between (run.json "image_levels", the one
     measurement of `images.flight_white_level`): `Levels` for data offset from zero, the white level for others,

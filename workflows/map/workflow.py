@@ -250,8 +250,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
     import pycolmap
 
-    from ...database.images import Levels, flight_white_level
-    from ...database.session_io import format_landmarks_csv
+    from ...database.images import flight_white_level
+    from ...database.session_io import format_landmarks_csv, levels_record
     from ...plugin.flight_contrast import flight_contrast
     from ...plugin.image_quality import flight_images
     from ...plugin.jpeg_quality import flight_compression
@@ -405,8 +405,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         # the flight's luminance range and the gain the segmenter saw its images through (plugin.flight_contrast)
         "contrast": contrast.to_dict() if contrast is not None else None,
         # what images beyond 8 bits were read between, [black, white] (database.images.flight_white_level)
-        "image_levels": None if white is None else ([white.black, white.white] if isinstance(white, Levels)
-                                                      else [0, int(white)]),
+        "image_levels": levels_record(white),
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
