@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..plugin.errors import InputError
+from ..plugin.sampling import evenly_spaced
 
 log = logging.getLogger(__name__)
 
@@ -248,7 +249,7 @@ def flight_white_level(paths: Sequence[str | Path]) -> Levels | int | None:
     paths = list(paths)
     if not paths:
         return None
-    picks = sorted({round(i) for i in np.linspace(0, len(paths) - 1, min(len(paths), WHITE_LEVEL_SAMPLES))})
+    picks = evenly_spaced(len(paths), WHITE_LEVEL_SAMPLES)
     values, kinds, largest, nodata, total = [], set(), 0, 0, 0
     for i in picks:
         path = Path(paths[i])

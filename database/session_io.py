@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..plugin.errors import InputError
+from ..plugin.sampling import evenly_spaced
 from .atomic import write_text_atomic
 from .landmark_map import MAX_WORLD_COORD_M, LandmarkMap, landmark_map_fingerprint, read_landmark_map
 from .text_input import read_user_json, read_user_text
@@ -298,7 +299,7 @@ def check_map_of_images(map_dir: str | Path, images_dir: str | Path, samples: in
     items = sorted(digests.items()) if isinstance(digests, dict) else []
     if not items:
         return
-    picks = [items[int(i)] for i in np.linspace(0, len(items) - 1, min(samples, len(items))).round()]
+    picks = [items[i] for i in evenly_spaced(len(items), samples)]
     for name, digest in picks:
         image = images_dir / str(name)
         try:

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..evaluation.footprints import HeightField
 from ..params import ChangeParams
+from ..sampling import evenly_spaced
 from .observations import SessionObservations
 from .surface import (
     PATCH_HALF_M,
@@ -104,9 +105,7 @@ def beside_kept_objects(points: np.ndarray, sizes: np.ndarray, heights: np.ndarr
 
 def evenly(indices: np.ndarray, limit: int) -> np.ndarray:
     """At most `limit` of `indices`, evenly spaced over them (bounded cost on large maps)."""
-    if len(indices) <= limit:
-        return indices
-    return indices[np.linspace(0, len(indices) - 1, limit).round().astype(np.int64)]
+    return indices[np.asarray(evenly_spaced(len(indices), limit), dtype=np.int64)]
 
 
 def ground_noise_known(references: tuple[np.ndarray, np.ndarray]) -> bool:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ...plugin.multisession import nearest_pairs
+from ...plugin.sampling import evenly_spaced
 
 log = logging.getLogger(__name__)
 
@@ -45,12 +46,6 @@ def _reset_date(t: float) -> str | None:
                 None)
 
 
-def _sample(files: list[Path], k: int = FLIGHT_TIME_SAMPLES) -> list[Path]:
-    """Up to `k` of `files`, evenly spread (the first and the last included)."""
-    n = len(files)
-    return [files[i] for i in sorted({round(j * (n - 1) / (k - 1)) for j in range(k)})] if n else []
-
-
 def read_flight_time(images: Path | None) -> FlightTime:
     """When a flight was flown, from the capture times of up to 9 of its images spread over it (headers only):
     each image's time in UTC where it says how (GPSDateStamp/GPSTimeStamp, else DateTimeOriginal and its
@@ -66,7 +61,8 @@ def read_flight_time(images: Path | None) -> FlightTime:
     if images is None:
         return FlightTime(None, why="a mapped session, no images to read")
     metas = []
-    for path in _sample(sorted(image_files(images))):
+    files = sorted(image_files(images))
+    for path in (files[i] for i in evenly_spaced(len(files), FLIGHT_TIME_SAMPLES)):
         try:
             metas.append(read_capture_time(path))
         except InputError:  # the map stage reports an image it cannot read
