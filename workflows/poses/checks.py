@@ -10,6 +10,7 @@ import numpy as np
 
 from ...plugin.focal_prior import FocalEstimate
 from ...plugin.geometry import Camera, Poses
+from ...plugin.gps_track import with_quantisation
 from ...plugin.multisession import Sim3
 from ...plugin.params import SfmParams
 from .. import sfm
@@ -56,7 +57,8 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
         geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference, seed,
                           systematic, priors.times_known)
         warnings.extend(geo.warnings)
-        noisy = gps_noise_warning(geo.horizontal.sigma_m, sp.gps_sigma_m)
+        # rounded fixes scatter by their grid too (`image_positions.coarse_fixes`): not the block's fault
+        noisy = gps_noise_warning(geo.horizontal.sigma_m, with_quantisation(sp.gps_sigma_m, priors.summary))
         if noisy:
             warnings.append(noisy)
         report = geo.to_dict()
