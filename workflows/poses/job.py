@@ -247,7 +247,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     if refitted:
         poses = poses_of_reconstruction(model.reconstruction)
         poses = poses.subset([poses.names.index(n) for n in names])
-    comparison = _compare(priors, index, poses, warnings)
+    comparison = _compare(priors, index, poses, warnings, local_frame=geo is None)
     cameras = sfm.camera_of_model(model)
     focal_warnings = focal_length_warnings(focal_estimates, exif_cameras, cameras,
                                            flying_height_m(model.reconstruction))
