@@ -32,6 +32,7 @@ from ..database.cameras import format_cameras_txt
 from ..database.output_files import OutputFiles
 from ..database.output_markers import fingerprint
 from ..database.poses import format_poses_csv
+from ..database.xmp_sidecar import sidecars_with_gps
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.gps_track import OFF_NADIR_LIMIT_DEG, with_quantisation
@@ -95,9 +96,13 @@ def poses_from_images(
     if len(no_fix):
         first = metas[int(no_fix[0])]
         hemisphere = any("hemisphere" in p for p in first.problems)
+        # GPS kept in sidecars by a photo editor: say where it is (nu42 D6: "50 of 50 ... no GPS", not a word
+        # of the 50 .xmp files beside them)
+        sidecars = sidecars_with_gps([metas[int(i)].path for i in no_fix])
         raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude"
                          + (", here without its N/S/E/W refs" if hemisphere else "") + f"), e.g. {first.path.name}; "
-                         "give a telemetry CSV with positions or a poses.csv", first.path)
+                         + (f"{sidecars}; or " if sidecars else "")
+                         + "give a telemetry CSV with positions or a poses.csv", first.path)
     # the GPS positions and tags are these poses: where no aircraft flies or looks like that, they are unusable
     if priors.summary.get("gps_frozen"):
         raise InputError(f"the GPS fixes of all {n} images lie at one point (a receiver without a lock): no poses "

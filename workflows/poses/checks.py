@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ...database.xmp_sidecar import sidecars_with_gps
 from ...plugin.focal_prior import FocalEstimate
 from ...plugin.geometry import Camera, Poses
 from ...plugin.gps_track import with_quantisation
@@ -80,8 +81,9 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
         how = f"nominal: the cameras {nominal_height_m:g} m above the ground (no GPS, no RelativeAltitude)"
     centre = np.r_[np.median(cams[:, :2], axis=0), ground]
     transform = Sim3(level, -scale * centre, scale)
+    sidecars = sidecars_with_gps(priors.paths)  # GPS a photo editor kept beside the images
     warnings.append(f"no GPS positions: the poses are in a local frame (levelled by the {vert.source}, "
-                    f"origin on the ground under the flight, scale {how})")
+                    f"origin on the ground under the flight, scale {how})" + (f"; {sidecars}" if sidecars else ""))
     return transform, {"frame": "local", "scale_from": how, "vertical_source": vert.source}, None
 
 def lag_corrected(priors: ImagePriors, index: np.ndarray, geo: Any) -> ImagePriors:
