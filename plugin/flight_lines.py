@@ -73,6 +73,19 @@ def compare_with_priors(
     return PriorComparison(angle, yaw, tilt, pos, bias, contradicting, lines)
 
 
+def frame_yaw_deg(world_from_cam: np.ndarray, prior_world_from_cam: np.ndarray) -> float:
+    """The rotation about the vertical (degrees, counter-clockwise) that turns the registered orientations onto
+    the priors' yaw: the offset most images agree on within 90 degrees (their circular mean), so that a
+    flight line of contradicting tags does not pull it. For a frame whose yaw is unknown (a local frame without
+    GPS), where only the tags' yaw relative to one another can be checked. 0 without images."""
+    if not len(world_from_cam):
+        return 0.0
+    yaw = _wrap(_heading_deg(prior_world_from_cam) - _heading_deg(world_from_cam))
+    near = np.abs(_wrap(yaw[:, None] - yaw[None, :])) <= 90.0
+    mode = yaw[int(np.argmax(near.sum(axis=1)))]
+    return _circular_mean_deg(yaw[np.abs(_wrap(yaw - mode)) <= 90.0])
+
+
 def flight_lines(centers: np.ndarray, max_turn_deg: float = 30.0, min_images: int = 3) -> np.ndarray:
     """Flight line id per image (in capture order) from the track: the steps between consecutive images are cut
     into runs wherever the direction turns by more than `max_turn_deg` from the run's mean, each image joins the

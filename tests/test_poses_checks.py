@@ -82,3 +82,54 @@ def test_the_focal_warning_reaches_the_map_like_the_georegistrations():
               "warnings": ["a lag", said, "3 image(s) are oriented more than 10 deg away from their tags"]}
     assert registration_warnings(report) == ["poses: a lag", f"poses: {said}"]
     assert registration_warnings({"focal_length_warnings": "not a list"}) == []
+
+
+def _local_block(turn_deg: float, reversed_line: int | None = None):
+    """Two flight lines (east, then back west) of 8 nadir images each whose tags are right (the yaw along the
+    track), and the same block as structure from motion leaves it in a local frame: turned by `turn_deg` about
+    the vertical. `reversed_line`: that line's tags are 180 deg off (a real contradiction)."""
+    import math
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from sosmatch.plugin.attitude import camera_rotations
+    from sosmatch.plugin.geometry import Poses
+
+    n = 16
+    east = np.r_[np.arange(8) * 10.0, 70.0 - np.arange(8) * 10.0]
+    north = np.r_[np.zeros(8), np.full(8, 40.0)]
+    yaw = np.r_[np.full(8, 90.0), np.full(8, 270.0)]
+    rng = np.random.default_rng(0)
+    truth = camera_rotations(yaw, np.full(n, -90.0), np.zeros(n), "gimbal", 1.0, 1.0, np.zeros(n))
+    tags_yaw = yaw + rng.normal(0.0, 1.0, n)  # right tags, 1 deg of noise
+    if reversed_line is not None:
+        tags_yaw[8 * reversed_line:8 * reversed_line + 8] += 180.0
+    tags = camera_rotations(tags_yaw, np.full(n, -90.0), np.zeros(n), "gimbal", 1.0, 1.0, np.zeros(n))
+    c, s = math.cos(math.radians(turn_deg)), math.sin(math.radians(turn_deg))
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    centers = np.column_stack([east, north, np.full(n, 100.0)]) @ turn.T
+    names = [f"f{k:02d}.jpg" for k in range(n)]
+    priors = SimpleNamespace(positions=np.full((n, 3), np.nan), times_s=np.arange(n, dtype=float) * 2.0,
+                             rotations=tags, attitude_from_tags=np.ones(n, bool), names=names)
+    return priors, np.arange(n), Poses(names, np.einsum("ij,njk->nik", turn, truth), centers)
+
+
+def test_a_local_frame_is_compared_with_the_tags_up_to_its_unknown_yaw():
+    """nu42 D6: GPS only in sidecars, so `poses` made a local frame, and every line's right tags were said to
+    contradict the images by +147 deg: the local frame's yaw is arbitrary."""
+    from sosmatch.workflows.poses.checks import _compare
+
+    priors, index, poses = _local_block(147.0)
+    warnings: list[str] = []
+    summary = _compare(priors, index, poses, warnings, local_frame=True)
+    assert warnings == [] and summary["contradicting_lines"] == []
+    assert summary["local_frame_turned_to_tags_deg"] == pytest.approx(-147.0, abs=1.0)
+    assert summary["rotation_to_tags_median_deg"] < 3.0
+    # a georegistered frame's yaw is known: the same turn is a contradiction there
+    assert _compare(priors, index, poses, [], local_frame=False)["contradicting_lines"]
+    # one line of reversed tags is still found in a local frame
+    priors, index, poses = _local_block(147.0, reversed_line=1)
+    warnings = []
+    summary = _compare(priors, index, poses, warnings, local_frame=True)
+    assert [ln["line"] for ln in summary["contradicting_lines"]] == [1] and len(warnings) == 1

@@ -7,13 +7,24 @@ one vertical datum (`one_vertical_datum`), and what the track and the attitude t
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.geodesy import utm_epsg
-from ..plugin.gps_track import FROZEN_SPREAD_M, OFF_NADIR_LIMIT_DEG, frozen_fix, gps_jumps, off_nadir_deg
+from ..plugin.gps_track import (
+    FROZEN_SPREAD_M,
+    MOVING_STEP_M,
+    OFF_NADIR_LIMIT_DEG,
+    QUANTISATION_WARN_SIGMA_M,
+    frozen_fix,
+    gps_jumps,
+    off_nadir_deg,
+    quantisation,
+    repeated_fixes,
+)
 
 log = logging.getLogger(__name__)
 
@@ -87,10 +98,42 @@ def check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: n
                      "long: give --epsg of a CRS that holds it all)", images)
 
 
+def coarse_fixes(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: np.ndarray) -> tuple[str | None,
+                                                                                                 dict | None]:
+    """Fixes coarser than the receiver gives them (`plugin.gps_track.quantisation`): rounded to a grid of latitude
+    and longitude, or repeated exactly while the aircraft flies on. Returns the one warning and the summary's
+    `gps_quantisation` (its `sigma_m`, step / sqrt(12), is added to the GPS noise every consumer assumes:
+    `gps_track.with_quantisation`), or (None, None)."""
+    repeats, moving_m = repeated_fixes(east, north)
+    q = quantisation(lat, lon)
+    fixed = int(np.sum(np.isfinite(east) & np.isfinite(north)))
+    if q is not None and q.sigma_m < QUANTISATION_WARN_SIGMA_M:
+        log.info("the GPS positions lie on a grid of %.2g x %.2g deg latitude x longitude (%.1f m north x %.1f m "
+                 "east): rounded by the tool that wrote them; counted as GPS noise of %.2f m more", q.step_lat_deg,
+                 q.step_lon_deg, q.step_north_m, q.step_east_m, q.sigma_m)
+        return None, {**q.to_dict(), "repeated_fixes": repeats}
+    if q is not None:
+        again = f"; {repeats} images repeat the previous image's fix" if repeats else ""
+        return (f"the GPS positions of all {fixed} images with a fix lie on a grid of {q.step_lat_deg:.2g} x "
+                f"{q.step_lon_deg:.2g} deg latitude x longitude ({q.step_north_m:.1f} m north x {q.step_east_m:.1f} "
+                f"m east{again}): rounded or truncated by the tool that wrote them (a privacy tool, an export to few "
+                f"decimals?), each fix up to a step off; counted as GPS noise of {q.sigma_m:.1f} m more (step / "
+                "sqrt(12)); the originals' fixes are better", {**q.to_dict(), "repeated_fixes": repeats})
+    if repeats >= 2 and np.isfinite(moving_m) and moving_m > MOVING_STEP_M:
+        sigma = moving_m / math.sqrt(12.0)
+        return (f"{repeats} of {fixed} images repeat the previous image's GPS fix exactly while the aircraft moves "
+                f"{moving_m:.1f} m between captures (median): a receiver updating slower than the camera; their "
+                f"positions lag by up to that, counted as GPS noise of {sigma:.1f} m more",
+                {"repeated_fixes": repeats, "step_along_track_m": round(moving_m, 3), "sigma_m": round(sigma, 3)})
+    return None, None
+
+
 def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times: np.ndarray, timed: bool,
-                  rotations: np.ndarray, tagged: np.ndarray, names: list[str]) -> tuple[list[str], dict[str, Any]]:
+                  rotations: np.ndarray, tagged: np.ndarray, names: list[str],
+                  lat: np.ndarray | None = None, lon: np.ndarray | None = None) -> tuple[list[str], dict[str, Any]]:
     """What the GPS track and the attitude tags say that no aircraft does (`plugin.gps_track`): warnings naming
-    images, and the facts for the summary (`gps_frozen`, `gps_jumps`, `tags_median_off_nadir_deg`). Without
+    images, and the facts for the summary (`gps_frozen`, `gps_jumps`, `gps_quantisation` with `lat`/`lon`, the
+    fixes in degrees, `tags_median_off_nadir_deg`). Without
     capture times (`timed` False: `times` are one second per image) there is no speed, so no jump is judged: the
     step to the next line or battery is as long as a wrong fix."""
     out: list[str] = []
@@ -106,6 +149,9 @@ def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times
                          for i, j, d, v in jumps[:4])
         out.append(f"the GPS jumps {len(jumps)} time(s) farther than the aircraft flies between two captures "
                    f"({said}{', ...' if len(jumps) > 4 else ''}): wrong fixes; their images' positions are wrong")
+    coarse, quantised = (None, None) if frozen or lat is None or lon is None else coarse_fixes(lat, lon, east, north)
+    if coarse:
+        out.append(coarse)
     off = off_nadir_deg(rotations[tagged]) if np.any(tagged) else np.zeros(0)
     median_off = float(np.median(off)) if len(off) else None
     if median_off is not None and median_off > OFF_NADIR_LIMIT_DEG:
@@ -113,6 +159,7 @@ def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times
                    f"than {OFF_NADIR_LIMIT_DEG:g} deg away from straight down (median {median_off:.0f} deg): a "
                    "survey camera looks at the ground; tags written in another pitch convention (DJI gimbal pitch "
                    "-90 = nadir, 0 = horizon; airframe tags: --mount, --pitch-sign)?")
-    facts = {"gps_frozen": frozen, "gps_jumps": [[names[i], names[j], round(d, 1)] for i, j, d, _ in jumps],
+    facts = {"gps_frozen": frozen, "gps_quantisation": quantised,
+             "gps_jumps": [[names[i], names[j], round(d, 1)] for i, j, d, _ in jumps],
              "tags_median_off_nadir_deg": median_off}
     return out, facts

@@ -414,7 +414,7 @@ def read_image_priors(
                  "of the heading)", n_course, n, n_turns)
 
     track_warnings, track_facts = track_checks(east, north, positions[:, 2], times, time_source.startswith("EXIF"),
-                                                rotations, kind != "course", [m.path.name for m in metas])
+                                                rotations, kind != "course", [m.path.name for m in metas], lat, lon)
     for text in track_warnings:
         log.warning("%s", text)
     cameras, camera_index, intrinsics_sources, camera_warnings = camera_groups(metas, sensor_width_mm,

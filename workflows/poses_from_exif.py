@@ -32,9 +32,10 @@ from ..database.cameras import format_cameras_txt
 from ..database.output_files import OutputFiles
 from ..database.output_markers import fingerprint
 from ..database.poses import format_poses_csv
+from ..database.xmp_sidecar import sidecars_with_gps
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
-from ..plugin.gps_track import OFF_NADIR_LIMIT_DEG
+from ..plugin.gps_track import OFF_NADIR_LIMIT_DEG, with_quantisation
 from .image_priors import (  # noqa: F401 (re-exported: the conventions' historical home)
     DEFAULT_MOUNT,
     DEFAULT_PITCH_SIGN,
@@ -95,9 +96,13 @@ def poses_from_images(
     if len(no_fix):
         first = metas[int(no_fix[0])]
         hemisphere = any("hemisphere" in p for p in first.problems)
+        # GPS kept in sidecars by a photo editor: say where it is (nu42 D6: "50 of 50 ... no GPS", not a word
+        # of the 50 .xmp files beside them)
+        sidecars = sidecars_with_gps([metas[int(i)].path for i in no_fix])
         raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude"
                          + (", here without its N/S/E/W refs" if hemisphere else "") + f"), e.g. {first.path.name}; "
-                         "give a telemetry CSV with positions or a poses.csv", first.path)
+                         + (f"{sidecars}; or " if sidecars else "")
+                         + "give a telemetry CSV with positions or a poses.csv", first.path)
     # the GPS positions and tags are these poses: where no aircraft flies or looks like that, they are unusable
     if priors.summary.get("gps_frozen"):
         raise InputError(f"the GPS fixes of all {n} images lie at one point (a receiver without a lock): no poses "
@@ -232,9 +237,11 @@ def map_inputs_from_images(
         source += (f", orientations of the {guessed} images without attitude tags solved from tie points" if guessed
                    else ", refined from tie points")
     remedy = "" if refine or guessed else UNREFINED_REMEDY
+    # what the tags showed doubtful (rounded or jumping fixes, ...) is the map's verdict's too, not a log line only
+    # (nu42: fixes rounded to 1e-4 deg, landmarks 6 m off, run.json "ok" without a warning)
     return in_flight_order(MapInputs(_image_paths(images, result.poses), result.poses, result.camera, result.epsg,
                                      {"poses": source, "camera": f"EXIF of {images}", "images": str(images)},
-                                     remedy), result.capture_times)
+                                     remedy, list(result.summary.get("warnings", []))), result.capture_times)
 
 
 def _image_paths(images: str | Path, poses: Poses) -> list[Path]:
@@ -264,6 +271,9 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
     from .pose_refinement import RefinementRejected, refine_poses_from_images
     from .pose_refinement.judge import GIMBAL_TILT_SIGMA_DEG
 
+    # fixes rounded to a coarse grid are that much noisier: the prior must not hold the cameras to the grid
+    # (`image_positions.coarse_fixes`)
+    position_sigma_m = with_quantisation(position_sigma_m, result.summary)
     try:
         result.poses, stats = refine_poses_from_images(_image_paths(images, result.poses), result.poses,
                                                        result.camera, position_sigma_m, attitude_sigma_deg,

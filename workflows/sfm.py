@@ -248,14 +248,19 @@ def match_pairs(database: Path, pairs_txt: Path, params: SfmParams, seed: int = 
 
 def write_pose_priors(database: Path, priors: ImagePriors, origin: np.ndarray, params: SfmParams) -> int:
     """GPS positions (minus `origin`) as COLMAP pose priors of the images with a fix: horizontal sigma
-    `gps_sigma_m`; vertical the same when the heights come from RelativeAltitude (or an RTK fixed altitude),
+    `gps_sigma_m` (with the rounding of fixes written to a coarse grid added: `gps_track.with_quantisation`);
+    vertical `gps_sigma_m` when the heights come from RelativeAltitude (or an RTK fixed altitude),
     else effectively free (a GPS altitude may drift by tens of metres, which a prior would bend the block to).
     Returns the number written."""
     import pycolmap
 
+    from ..plugin.gps_track import with_quantisation
+
     relative = priors.heights_consistent
+    # fixes rounded to a coarse grid are that much noisier (`image_positions.coarse_fixes`)
+    sigma = with_quantisation(params.gps_sigma_m, priors.summary)
     sigma_z = params.gps_sigma_m if relative else 1e3
-    cov = np.diag([params.gps_sigma_m**2, params.gps_sigma_m**2, sigma_z**2])
+    cov = np.diag([sigma**2, sigma**2, sigma_z**2])
     index = {n: i for i, n in enumerate(priors.names)}
     db = pycolmap.Database.open(database)
     written = 0

@@ -8,8 +8,10 @@ from typing import Any
 
 import numpy as np
 
+from ...database.xmp_sidecar import sidecars_with_gps
 from ...plugin.focal_prior import FocalEstimate
 from ...plugin.geometry import Camera, Poses
+from ...plugin.gps_track import with_quantisation
 from ...plugin.multisession import Sim3
 from ...plugin.params import SfmParams
 from .. import sfm
@@ -56,7 +58,8 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
         geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference, seed,
                           systematic, priors.times_known)
         warnings.extend(geo.warnings)
-        noisy = gps_noise_warning(geo.horizontal.sigma_m, sp.gps_sigma_m)
+        # rounded fixes scatter by their grid too (`image_positions.coarse_fixes`): not the block's fault
+        noisy = gps_noise_warning(geo.horizontal.sigma_m, with_quantisation(sp.gps_sigma_m, priors.summary))
         if noisy:
             warnings.append(noisy)
         report = geo.to_dict()
@@ -78,8 +81,9 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
         how = f"nominal: the cameras {nominal_height_m:g} m above the ground (no GPS, no RelativeAltitude)"
     centre = np.r_[np.median(cams[:, :2], axis=0), ground]
     transform = Sim3(level, -scale * centre, scale)
+    sidecars = sidecars_with_gps(priors.paths)  # GPS a photo editor kept beside the images
     warnings.append(f"no GPS positions: the poses are in a local frame (levelled by the {vert.source}, "
-                    f"origin on the ground under the flight, scale {how})")
+                    f"origin on the ground under the flight, scale {how})" + (f"; {sidecars}" if sidecars else ""))
     return transform, {"frame": "local", "scale_from": how, "vertical_source": vert.source}, None
 
 def lag_corrected(priors: ImagePriors, index: np.ndarray, geo: Any) -> ImagePriors:
@@ -96,16 +100,26 @@ def lag_corrected(priors: ImagePriors, index: np.ndarray, geo: Any) -> ImagePrio
     altitude[index] += shift[:, 2]  # the climb in the lag, whichever height it was measured on
     return dataclasses.replace(priors, positions=positions, gps_altitude=altitude)
 
-def _compare(priors: ImagePriors, index: np.ndarray, poses: Poses, warnings: list[str]) -> dict:
-    """Registered poses against the GPS and the tags, per image; contradicting flight lines are warnings."""
-    from ...plugin.flight_lines import compare_with_priors, flight_lines
+def _compare(priors: ImagePriors, index: np.ndarray, poses: Poses, warnings: list[str],
+             local_frame: bool = False) -> dict:
+    """Registered poses against the GPS and the tags, per image; contradicting flight lines are warnings. In a
+    `local_frame` (no GPS to register on) the frame's yaw is arbitrary: the orientations are compared after the
+    one turn about the vertical that best brings them onto the tags (`frame_yaw_deg`, in the summary), so only
+    what the tags say of the images relative to one another is judged (nu42: every line "contradicted by
+    +147 deg" with right tags)."""
+    from ...plugin.flight_lines import compare_with_priors, flight_lines, frame_yaw_deg
 
     gps = priors.positions[index]
     order = np.argsort(priors.times_s[index], kind="stable")
     lines = np.full(len(index), -1, dtype=np.int64)
     lines[order] = flight_lines(poses.centers[order])
-    cmp = compare_with_priors(poses.rotations, poses.centers, priors.rotations[index], gps, lines)
     tags = priors.attitude_from_tags[index]
+    rotations, turn = poses.rotations, None
+    if local_frame and tags.any():
+        turn = frame_yaw_deg(poses.rotations[tags], priors.rotations[index][tags])
+        c, s = math.cos(math.radians(turn)), math.sin(math.radians(turn))
+        rotations = np.einsum("ij,njk->nik", np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), rotations)
+    cmp = compare_with_priors(rotations, poses.centers, priors.rotations[index], gps, lines)
     per_image = []
     for k, i in enumerate(index):
         entry = {"name": priors.names[i], "line": int(lines[k]),
@@ -127,6 +141,8 @@ def _compare(priors: ImagePriors, index: np.ndarray, poses: Poses, warnings: lis
         warnings.append(f"{len(odd)} image(s) are oriented more than {ORIENTATION_WARNING_DEG:g} deg away from their "
                         "attitude tags: " + _listing([names[k] for k in odd]))
     summary: dict[str, Any] = {"images": per_image, "contradicting_lines": cmp.lines}
+    if turn is not None:
+        summary["local_frame_turned_to_tags_deg"] = turn
     if tags.any():
         agree = tags & ~cmp.contradicting
         summary.update(tags_yaw_bias_deg=cmp.yaw_bias_deg,

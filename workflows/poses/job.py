@@ -26,6 +26,7 @@ from ...database.poses import format_poses_csv
 from ...database.taken import make_dirs
 from ...plugin.errors import InputError
 from ...plugin.geometry import Poses
+from ...plugin.gps_track import with_quantisation
 from ...plugin.params import Params, params_to_dict
 from .. import sfm
 from ..image_priors import ImagePriors, list_images, read_image_priors
@@ -217,7 +218,8 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         flagged = [n for n in (geo_report or {}).get("gps_outliers", []) if n in added]
         # left out only beyond a gross-error bound (10 GPS sigmas, at least the configured receiver's): the
         # outlier limit (~3 sigma) also flags ~1 % of good images by the GPS noise alone
-        sigma = max(float(geo.horizontal.sigma_m) if geo is not None else 0.0, sp.gps_sigma_m)
+        sigma = max(float(geo.horizontal.sigma_m) if geo is not None else 0.0,
+                    with_quantisation(sp.gps_sigma_m, priors.summary))
         fix = {n: priors.positions[priors.names.index(n), :2] for n in flagged}
         miss = {n: float(np.linalg.norm(poses.centers[names.index(n), :2] - fix[n])) for n in flagged}
         off = [n for n in flagged if miss[n] > GROSS_GPS_SIGMAS * sigma]
@@ -238,13 +240,14 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     # know them, and a free one moves every depth (nu25: +5.7 %, the ground 4-6 m low)
     t = time.perf_counter()
     exif_cameras = exif_focal_priors(priors)
-    focal_estimates, refitted = weigh_focal_lengths(model.reconstruction, exif_cameras, sp.gps_sigma_m,
+    focal_estimates, refitted = weigh_focal_lengths(model.reconstruction, exif_cameras,
+                                                    with_quantisation(sp.gps_sigma_m, priors.summary),
                                                     order=priors.names)
     timings["focal_lengths"] = time.perf_counter() - t
     if refitted:
         poses = poses_of_reconstruction(model.reconstruction)
         poses = poses.subset([poses.names.index(n) for n in names])
-    comparison = _compare(priors, index, poses, warnings)
+    comparison = _compare(priors, index, poses, warnings, local_frame=geo is None)
     cameras = sfm.camera_of_model(model)
     focal_warnings = focal_length_warnings(focal_estimates, exif_cameras, cameras,
                                            flying_height_m(model.reconstruction))
