@@ -16,7 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--images", type=Path, help="image directory (default: the synth session's images/)")
     parser.add_argument("--poses", type=Path,
                         help="pose CSV (quaternion or yaw/pitch/roll), COLMAP model (dir or images.bin/.txt), "
-                             "or a `sosmatch synth` session directory (default: made from the images, see --pose-source)")
+                             "or a `sosmatch synth` session directory (default: made from the images, see "
+                             "--pose-source)")
     parser.add_argument("--pose-source", choices=["sfm", "exif"], default=None,
                         help="without --poses: sfm (default) = COLMAP structure from motion georegistered on the "
                              "GPS, as `sosmatch poses` (its outputs go to OUT/poses); exif = the EXIF/XMP poses as "
