@@ -312,4 +312,8 @@ def write_landmark_map(path: str | Path, lmap: LandmarkMap) -> int:
 
 
 def read_landmark_map(path: str | Path) -> LandmarkMap:
+    """Read and validate a .sosmap file (version 1 or 2, see docs/ARCHITECTURE.md "Landmark map format"): world
+    positions (origin + float32 offsets), sizes (NaN where the map has none), EPSG code and, in version 2, the
+    map's noise figures. A missing, unreadable, oversized (> 1 GiB) or malformed file raises InputError naming
+    `path`. A mapped session's folder or a COLMAP model: `database.map_loading.load_map`."""
     return decode_landmark_map(read_user_bytes(path, "landmark map", LANDMARK_MAP_LIMIT_BYTES), path)

@@ -16,7 +16,7 @@ from ..plugin.errors import InputError
 from .atomic import atomic_path, write_text_atomic
 from .output_entries import check_not_in_output_entry
 from .output_markers import VersionedIdentity, check_not_input, read_json_or_none, resolved_path, sha256_file
-from .outputs import check_writable_place
+from .outputs import OVERWRITE_HINT, check_writable_place
 
 FILES_REGISTRY = ".sosmatch-files.json"
 FILES_LOCK = ".sosmatch-files.lock"
@@ -60,8 +60,8 @@ class OutputFiles:
         if previous != self.identity and previous not in self.versions.same_as and not self.overwrite:
             note = self.versions.refusal_note(previous)
             what = f": {note}" if note else " made from other inputs or settings"
-            raise InputError(f"output file holds a `sosmatch {self.command}` output{what}; use --overwrite to "
-                             "replace it", path)
+            raise InputError(f"output file holds a `sosmatch {self.command}` output{what}; use {OVERWRITE_HINT} "
+                             "to replace it", path)
 
     def write(self, path: str | Path, data: bytes | str) -> None:
         """Write one of the output files atomically and record it in its directory's registry."""

@@ -69,6 +69,10 @@ from .output_markers import (
 )
 from .taken import OutputMoved, Place, check_place
 
+# how a refusal names the option that replaces another output: the same refusal reaches the command line
+# (`--overwrite`) and Python callers of the workflows (`overwrite=True`)
+OVERWRITE_HINT = "--overwrite (overwrite=True in Python)"
+
 _OURS = {MARKER, LOCK}  # present in a directory that is otherwise empty: still empty
 
 
@@ -384,7 +388,7 @@ def open_output_dir(
     inputs: Iterable[str | Path | None] = (),
     overwrite: bool = False,
     legacy_record: str | None = None,
-    overwrite_flag: str = "--overwrite",
+    overwrite_flag: str = OVERWRITE_HINT,
     earlier: Iterable[str] = (),
     before_taking: Callable[[Path], None] | None = None,
 ) -> OutputDir:
@@ -462,7 +466,7 @@ def _refuse_another(path: Path, command: str, previous: Any, versions: Versioned
 
 def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | Path | None] = (),
                      legacy_record: str | None = None, identity: str | VersionedIdentity | None = None,
-                     overwrite: bool = False, overwrite_flag: str = "--overwrite") -> None:
+                     overwrite: bool = False, overwrite_flag: str = OVERWRITE_HINT) -> None:
     """What `open_output_dir` refuses whatever the run produces, checked before any work and changing nothing:
     an input (or inside one, or holding one), a path that is a file, a non-empty directory that is not this
     command's output, or a new directory that cannot be made (a file or a read-only folder on its way). A command

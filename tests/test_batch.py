@@ -19,7 +19,7 @@ from sosmatch.plugin.multisession import Edge, Sim3, connected_groups, nearest_p
 from sosmatch.tools.cli import main
 from sosmatch.tools.toy_sessions import lawnmower, make_world, oracle_pair_task, write_toy_session, yaw_transform
 from sosmatch.workflows import batch
-from sosmatch.workflows.batch.pairs import choose_pairs
+from sosmatch.workflows.batch.pairs import choose_pairs, pairs_chosen_by
 from sosmatch.workflows.executors import DaskExecutor, LocalExecutor
 
 # A, B and C overlap in a chain (A-B, B-C; A-C too little to accept): C reaches A's frame only through B.
@@ -244,6 +244,7 @@ def test_cli_batch_with_the_real_association_search(tmp_path):
     assert main(args) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["ok"] and [p["accepted"] for p in report["pairs"]] == [True, True, True]
+    assert [p["chosen_by"] for p in report["pairs"]] == ["every pair"] * 3
     for p in report["pairs"]:  # verified on the full maps by `match`: more support than the window consensus
         doc = json.loads((out / "pairs" / p["pair"] / "match.json").read_text())
         ver = doc["verification"]
@@ -267,8 +268,14 @@ def test_nearest_pairs_need_one_frame():
     assert choose_pairs(list("ABCD"), sessions, None)[0] == [tuple(p) for p in
                                                              ("AB", "AC", "AD", "BC", "BD", "CD")]
     assert choose_pairs(list("ABCD"), sessions, 1)[0] == [("A", "B"), ("C", "D")]
+    # report.json's chosen_by names why each pair is matched, not only the pairs added for their capture times
+    assert set(pairs_chosen_by(list("ABCD"), sessions, None).values()) == {"every pair"}
+    assert pairs_chosen_by(list("ABCD"), sessions, 1) == {
+        ("A", "B"): "nearest by camera position (--nearest 1)", ("C", "D"): "nearest by camera position (--nearest 1)"}
     sessions["D"]["epsg"] = 32617  # not one frame: positions say nothing, so every pair is matched
     assert len(choose_pairs(list("ABCD"), sessions, 1)[0]) == 6
+    assert all(why.startswith("every pair (--nearest needs") for why in
+               pairs_chosen_by(list("ABCD"), sessions, 1).values())
 
 
 def test_contradicting_pairs_are_left_out_of_the_graph():
@@ -928,6 +935,9 @@ def test_nearest_also_matches_each_flight_with_its_neighbours_in_time(monkeypatc
     times["far"] = 2.5 * 86400.0
     assert pairs_mod.time_neighbour_pairs(names + ["far"], times, boxes) == [
         ("f1", "f2"), ("f2", "f3"), ("f3", "f4"), ("f4", "f5"), ("f5", "f6")]
+    reasons = pairs_mod.pairs_chosen_by(names, sessions, 2, times)
+    assert [p for p, why in reasons.items() if why == "consecutive flights by capture time"] == added
+    assert all(reasons[p] == "nearest by camera position (--nearest 2)" for p in by_position)
     assert pairs_mod.choose_pairs(names, sessions, 2, {})[1] == []  # no capture times: by position only
     assert pairs_mod.choose_pairs(names, sessions, None, times)[1] == []  # every pair anyway
 

@@ -138,7 +138,7 @@ def test_unfinished_output_is_resumed_without_overwrite(tmp_path):
     with open_output_dir(out, "match", "other settings") as taken:  # no overwrite needed: nothing was complete
         assert taken.resumed
         taken.finish()
-    with pytest.raises(InputError, match="use --overwrite"):
+    with pytest.raises(InputError, match=r"use --overwrite \(overwrite=True in Python\)"):  # CLI and Python
         open_output_dir(out, "match", "third settings")
 
 

@@ -16,8 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--images", type=Path, help="image directory (default: the synth session's images/)")
     parser.add_argument("--poses", type=Path,
                         help="pose CSV (quaternion or yaw/pitch/roll), COLMAP model (dir or images.bin/.txt), "
-                             "or a `sosmatch synth` session directory (default: from the images' EXIF/XMP, as "
-                             "`sosmatch poses-from-exif`)")
+                             "or a `sosmatch synth` session directory (default: made from the images, see "
+                             "--pose-source)")
     parser.add_argument("--pose-source", choices=["sfm", "exif"], default=None,
                         help="without --poses: sfm (default) = COLMAP structure from motion georegistered on the "
                              "GPS, as `sosmatch poses` (its outputs go to OUT/poses); exif = the EXIF/XMP poses as "
@@ -41,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--strict", action="store_true",
                         help="images without a pose or poses without an image are an error, not a warning")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace a session made from other inputs / write into a non-empty directory")
+                        help="replace a session made from other inputs or settings in --out (a folder that is not a "
+                             "`sosmatch map` output is refused all the same)")
     parser.add_argument("--text", action="store_true", help="write sparse/ as a COLMAP text model")
     parser.add_argument("--keep-cache", action="store_true",
                         help="keep the per-keyframe cache (OUT/.partial/cache) after a successful run")

@@ -195,49 +195,50 @@ class SynthConfig:
         if not 16 <= self.width <= 8192 or not 16 <= self.height <= 8192:
             bad("image width and height must be between 16 and 8192 pixels")
         if not 10.0 <= self.hfov_deg <= 120.0:
-            bad("hfov_deg must be between 10 and 120 degrees")
+            bad("hfov_deg (--hfov) must be between 10 and 120 degrees")
         if self.crop_aspect:
             try:
                 _aspect(self.crop_aspect)
             except ValueError as exc:
                 bad(str(exc))
             if not 16 <= self.crop_height() < self.height:
-                bad(f"crop_aspect {self.crop_aspect} must keep a band narrower than the {self.width}x{self.height} "
-                    "sensor (a W:H wider than the sensor's) and at least 16 rows")
+                bad(f"crop_aspect (--crop) {self.crop_aspect} must keep a band narrower than the "
+                    f"{self.width}x{self.height} sensor (a W:H wider than the sensor's) and at least 16 rows")
         if max(abs(self.lens_k1), abs(self.lens_k2)) > 1.0 or max(abs(self.lens_p1), abs(self.lens_p2)) > 0.05:
             bad("lens distortion out of range (|k1|, |k2| <= 1, |p1|, |p2| <= 0.05)")
         if self.sensor_camera().lens_folds():
             bad("the lens distortion folds the image over (rays are not one-to-one with pixels inside the sensor): "
                 "use a smaller |k1| / |k2| or a narrower --hfov")
         if not self.spacing_m > 0 or not self.line_length_m > 0 or not self.line_spacing_m > 0:
-            bad("spacing_m, line_length_m and line_spacing_m must be positive")
+            bad("spacing_m, line_length_m and line_spacing_m (--spacing, --line-length, --line-spacing) must be "
+                "positive")
         if not 40.0 <= self.altitude_m <= 1000.0:
-            bad("altitude_m must be between 40 and 1000 m (objects are up to 25 m tall)")
+            bad("altitude_m (--altitude) must be between 40 and 1000 m (objects are up to 25 m tall)")
         if not 50.0 <= self.world_size_m <= 3000.0:
-            bad("world_size_m must be between 50 and 3000 m")
+            bad("world_size_m (--world-size) must be between 50 and 3000 m")
         if not 0.05 <= self.world_resolution_m <= 1.0:
-            bad("world_resolution_m must be between 0.05 and 1.0 m")
+            bad("world_resolution_m (--world-resolution) must be between 0.05 and 1.0 m")
         if self.world_size_m / self.world_resolution_m > 30000:
-            bad("world_size_m / world_resolution_m must stay below 30000 cells")
+            bad("world_size_m / world_resolution_m (--world-size / --world-resolution) must stay below 30000 cells")
         if not 0.0 <= self.changed_fraction <= MAX_CHANGED_FRACTION:
-            bad(f"changed_fraction must be between 0 and {MAX_CHANGED_FRACTION}")
+            bad(f"changed_fraction (--changed) must be between 0 and {MAX_CHANGED_FRACTION}")
         el = self.sun()[1]
         if not 5.0 <= el <= 90.0:
             bad("sun elevation must be between 5 and 90 degrees")
         if not 1 <= self.jpeg_quality <= 100:
-            bad("jpeg_quality must be between 1 and 100")
+            bad("jpeg_quality (--jpeg-quality) must be between 1 and 100")
         if self.noise_sigma < 0 or self.blur_sigma_px < 0 or self.attitude_jitter_deg < 0:
             bad("noise, blur and jitter must be >= 0")
         if self.attitude_jitter_deg > 10:
-            bad("attitude_jitter_deg must be <= 10 (the camera is nadir)")
+            bad("attitude_jitter_deg (--attitude-jitter) must be <= 10 (the camera is nadir)")
         if not 0.0 <= self.camera_tilt_deg <= MAX_CAMERA_TILT_DEG:
-            bad(f"camera_tilt_deg must be between 0 and {MAX_CAMERA_TILT_DEG:g} (an oblique survey; beyond, the top "
-                "of a wide frame sees the horizon)")
+            bad(f"camera_tilt_deg (--camera-tilt) must be between 0 and {MAX_CAMERA_TILT_DEG:g} (an oblique survey; "
+                "beyond, the top of a wide frame sees the horizon)")
         if min(self.ekf_position_sigma_m, self.ekf_attitude_sigma_deg, self.ekf_drift_m_per_sqrt_m,
                self.ekf_attitude_drift_deg_per_sqrt_m) < 0:
             bad("EKF noise settings must be >= 0")
         if self.exposure_ev is not None and abs(self.exposure_ev) > 4:
-            bad("exposure_ev must be within +-4")
+            bad("exposure_ev (--exposure) must be within +-4")
         from .geotags import GEOTAG_KINDS
 
         if self.geotags not in GEOTAG_KINDS:

@@ -156,30 +156,46 @@ def time_neighbour_pairs(names: list[str], times: dict[str, float | None],
     return sorted(chosen, key=lambda p: (rank[p[0]], rank[p[1]]))
 
 
-def choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
-                 times: dict[str, float | None] | None = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
-    """(the session pairs to match, those of them added for their capture times). Every pair, or with `nearest`
-    the pairs where one session is among the k nearest of the other by mean camera position, plus each flight's
-    neighbours in time (`time_neighbour_pairs`; `times`: each flight's capture time, `flight_times`): the flights
-    of one site all overlap, so the nearest by position are arbitrary among them (nu40, 6 flights, --nearest 2:
-    1-2..1-6, 2-6, 3-5, 3-6, 4-6 kept and 2-3, 3-4, 4-5, the consecutive surveys, dropped)."""
+# why a pair was matched (report.json's `chosen_by` of every pair)
+CHOSEN_ALL = "every pair"
+CHOSEN_ALL_NO_FRAME = "every pair (--nearest needs every session's position in one frame)"
+CHOSEN_NEAREST = "nearest by camera position"
+CHOSEN_BY_TIME = "consecutive flights by capture time"
+
+
+def pairs_chosen_by(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
+                    times: dict[str, float | None] | None = None) -> dict[tuple[str, str], str]:
+    """The session pairs to match, in the order of `combinations(names, 2)`, each with why it was chosen (one of
+    the CHOSEN_* reasons). Every pair, or with `nearest` the pairs where one session is among the k nearest of the
+    other by mean camera position, plus each flight's neighbours in time (`time_neighbour_pairs`; `times`: each
+    flight's capture time, `flight_times`): the flights of one site all overlap, so the nearest by position are
+    arbitrary among them (nu40, 6 flights, --nearest 2: 1-2..1-6, 2-6, 3-5, 3-6, 4-6 kept and 2-3, 3-4, 4-5, the
+    consecutive surveys, dropped)."""
     all_pairs = list(combinations(names, 2))
     if nearest is None:
-        return all_pairs, []
+        return dict.fromkeys(all_pairs, CHOSEN_ALL)
     centres = [sessions[n].get("center") for n in names]
     epsgs = {sessions[n].get("epsg") for n in names}
     if any(c is None for c in centres) or len(epsgs) > 1:
         log.warning("--nearest needs every session's position in one frame; matching all %d pairs", len(all_pairs))
-        return all_pairs, []
-    chosen = [(names[i], names[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)]
+        return dict.fromkeys(all_pairs, CHOSEN_ALL_NO_FRAME)
+    reasons = dict.fromkeys([(names[i], names[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)],
+                            f"{CHOSEN_NEAREST} (--nearest {nearest})")
     timed = [n for n in names if (times or {}).get(n) is not None]
-    if len(timed) < 2:
-        return chosen, []
-    footprints = {n: _footprint(sessions[n]["session"]) for n in timed if sessions[n].get("session")}
-    known = set(chosen)
-    added = [p for p in time_neighbour_pairs(names, times or {}, footprints) if p not in known]
-    if added:
-        log.info("--nearest %d: %d pair(s) of flights consecutive in capture time (EXIF) among "
-                 "overlapping ones matched too: %s", nearest, len(added), ", ".join(f"{a}-{b}" for a, b in added))
+    if len(timed) >= 2:
+        footprints = {n: _footprint(sessions[n]["session"]) for n in timed if sessions[n].get("session")}
+        added = [p for p in time_neighbour_pairs(names, times or {}, footprints) if p not in reasons]
+        if added:
+            log.info("--nearest %d: %d pair(s) of flights consecutive in capture time (EXIF) among overlapping "
+                     "ones matched too: %s", nearest, len(added), ", ".join(f"{a}-{b}" for a, b in added))
+        reasons.update(dict.fromkeys(added, CHOSEN_BY_TIME))
     rank = {p: k for k, p in enumerate(all_pairs)}
-    return sorted(chosen + added, key=rank.__getitem__), added
+    return {p: reasons[p] for p in sorted(reasons, key=rank.__getitem__)}
+
+
+def choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
+                 times: dict[str, float | None] | None = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+    """(the session pairs to match, those of them added for their capture times): `pairs_chosen_by` without the
+    reasons."""
+    reasons = pairs_chosen_by(names, sessions, nearest, times)
+    return list(reasons), [p for p, why in reasons.items() if why == CHOSEN_BY_TIME]

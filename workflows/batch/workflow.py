@@ -20,7 +20,7 @@ from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir
 from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs
-from .pairs import choose_pairs, flight_times
+from .pairs import flight_times, pairs_chosen_by
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
 from .tasks import changes_task, map_task, pair_task
@@ -140,7 +140,8 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     # with --nearest, each flight's neighbours in time are matched too (read only then: <= 9 EXIF headers a flight)
     times = flight_times({f.name: None if f.kind == "mapped" else images_dir(f.path) for f in flights
                           if f.name in mapped}) if options.nearest is not None else {}
-    chosen, by_time = choose_pairs(mapped, sessions, options.nearest, times)
+    chosen_by = pairs_chosen_by(mapped, sessions, options.nearest, times)
+    chosen = list(chosen_by)
     matcher = pair_fn or pair_task
     # a custom matcher (pair_fn) returns its own summary; the default one is `sosmatch match` (verified)
     verify = bool(options.verify) if matcher is pair_task else None
@@ -158,8 +159,8 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
             pair_tasks[key] += (verify, True)  # the batch's own, as the sessions
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                        options.progress, _valid_match)
-    for a, b in by_time:  # said in report.json: why a pair --nearest would not choose was matched
-        pairs[f"{a}{PAIR_SEP}{b}"]["chosen_by"] = "consecutive flights by capture time"
+    for (a, b), why in chosen_by.items():  # said in report.json: why each pair was matched (a resumed pair too)
+        pairs[f"{a}{PAIR_SEP}{b}"]["chosen_by"] = why
     _match_refusals(pairs)
     matches = _read_matches(pairs)
     _georeference_warnings(pairs, matches, sessions)
