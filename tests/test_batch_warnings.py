@@ -16,6 +16,7 @@ from sosmatch.workflows.executors import LocalExecutor
 from sosmatch.workflows.map.quality import recorded_verdict_warnings
 
 FOCAL = "poses: camera 1: the images and EXIF contradict each other on the focal length by 9.8 sigmas"
+REPEATED = "1 image(s) repeat another's exposure: frame_3-Edit.jpg (= frame_3.jpg)"
 IMPRECISE = "imprecise answer: B's 101 landmarks may lie up to 1.2 m from where it puts them"
 
 
@@ -38,6 +39,10 @@ def flights(tmp_path):
         write_toy_session(tmp_path / "fl" / name, world, lawnmower(*box, 60, 35, 10), tf, seed=10 + k)
     verdict = {"status": "ok", "refusals": [], "warnings": [FOCAL]}
     (tmp_path / "fl" / "A" / "run.json").write_text(json.dumps({"verdict": verdict}))
+    # its poses' record (structure from motion in the session): the verdict repeats the focal length's warning
+    (tmp_path / "fl" / "A" / "poses").mkdir()
+    (tmp_path / "fl" / "A" / "poses" / "poses.json").write_text(json.dumps(
+        {"format": "sosmatch-poses", "warnings": [FOCAL.removeprefix("poses: "), REPEATED]}))
     return tmp_path / "fl"
 
 
@@ -49,17 +54,17 @@ def _run(flights: Path, out: Path) -> batch.BatchReport:
 def test_the_report_says_every_warning_of_a_session_s_map_and_a_pair_s_match(flights, tmp_path):
     out = tmp_path / "out"
     report = _run(flights, out)
-    said = [f"session A: {FOCAL}", f"pair A__B match: {flights / 'B'}: {IMPRECISE}"]
-    assert report.warnings == said and report.ok and report.status == "2 warning(s)"
+    said = [f"session A: {FOCAL}", f"session A: poses: {REPEATED}", f"pair A__B match: {flights / 'B'}: {IMPRECISE}"]
+    assert report.warnings == said and report.ok and report.status == "3 warning(s)"
     data = json.loads((out / "report.json").read_text())
-    assert data["warnings"] == said and data["status"] == "2 warning(s)"
+    assert data["warnings"] == said and data["status"] == "3 warning(s)"
     sessions = {s["name"]: s for s in data["sessions"]}
-    assert sessions["A"]["warnings"] == [FOCAL] and "warnings" not in sessions["B"]
+    assert sessions["A"]["warnings"] == [FOCAL, f"poses: {REPEATED}"] and "warnings" not in sessions["B"]
     assert data["pairs"][0]["match_warnings"] == [f"{flights / 'B'}: {IMPRECISE}"]
     md = (out / "report.md").read_text()
-    assert "2 warning(s)" in md and "; ok;" not in md and all(f"- {w}" in md for w in said)
+    assert "3 warning(s)" in md and "; ok;" not in md and all(f"- {w}" in md for w in said)
     rows = {r["name"]: r["warnings"] for r in csv.DictReader((out / "sessions.csv").open())}
-    assert rows == {"A": "1", "B": "0"}
+    assert rows == {"A": "2", "B": "0"}
     assert [r["warnings"] for r in csv.DictReader((out / "pairs.csv").open())] == ["1"]
 
     # a resumed batch (every stage finished, also one whose state an earlier sosmatch wrote without them) says
@@ -76,6 +81,7 @@ def test_the_report_says_every_warning_of_a_session_s_map_and_a_pair_s_match(fli
 
 def test_a_batch_without_warnings_is_plainly_ok(flights, tmp_path):
     (flights / "A" / "run.json").unlink()
+    shutil.rmtree(flights / "A" / "poses")
     report = batch.run(flights, tmp_path / "out", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
                        options=batch.BatchOptions(progress=False, changes=False))
     assert report.warnings == [] and report.status == "ok"

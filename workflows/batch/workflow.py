@@ -295,12 +295,14 @@ def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, 
 
 def _session_warnings(sessions: dict[str, dict[str, Any]]) -> None:
     """Repeat what `sosmatch map` warned of for each mapped session (run.json's verdict,
-    `map.quality.recorded_verdict_warnings`: its poses', quality's and pose check's warnings) into its record
+    `map.quality.recorded_verdict_warnings`: its poses', quality's and pose check's warnings; and its poses.json's,
+    `poses.result.recorded_pose_warnings`) into its record
     (`warnings`, report.json / .md) and the batch's log, for a session mapped now (its worker's log is not the
     batch's) and one a resumed batch adopts finished (nu42: a flight whose images and EXIF contradict each other on
     the focal length, its landmarks 18 m off in height, was "ok" in report.json, said only in its run.json)."""
     from ...plugin.errors import InputError
     from ..map.quality import recorded_verdict_warnings
+    from ..poses.result import recorded_pose_warnings
 
     for name, rec in sessions.items():
         rec.pop("warnings", None)
@@ -308,7 +310,11 @@ def _session_warnings(sessions: dict[str, dict[str, Any]]) -> None:
             continue
         try:
             said = recorded_verdict_warnings(rec["session"])
-        except InputError as e:  # mapped a moment ago: say what is wrong with its record now
+            # its poses' own record (structure from motion inside the session): the verdict repeats only some
+            # of them ("poses: ..."), the others (images left out or repeated) are said once here
+            said += [f"poses: {w}" for w in recorded_pose_warnings(Path(rec["session"]) / "poses")
+                     if f"poses: {w}" not in said]
+        except InputError as e:  # mapped a moment ago: say what is wrong with its records now
             said = [f"its session record cannot be read: {e}"]
         if said:
             rec["warnings"] = said
