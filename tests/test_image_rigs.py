@@ -63,15 +63,27 @@ def test_a_flight_of_one_image_per_capture_is_read_whole(flight):
     assert len(read_image_priors(flight / "images").names) == 12
 
 
-def test_bracketed_colour_exposures_at_one_fix_are_no_rig(flight, tmp_path):
-    """Three colour frames per position and clock second (exposure bracketing, or a GPS that updates slower than
-    the camera shoots) were mapped before the rig check; they must not be refused as a multispectral camera."""
+def _with_exposure(jpg: Path, seconds: float | None) -> Image.Exif:
+    """`jpg`'s tags, with ExposureTime `seconds` (None: none)."""
+    exif = Image.Exif()
+    exif.load(b"Exif\x00\x00" + encode_exif(read_image_metadata(jpg)))
+    if seconds is not None:
+        exif.get_ifd(0x8769)[0x829A] = seconds
+    return exif
+
+
+def test_bracketed_colour_exposures_at_one_fix_are_no_rig(flight, tmp_path, caplog):
+    """Three colour frames per position and clock second (exposure bracketing: one view, three exposure times)
+    were mapped before the rig check; they must not be refused as a multispectral camera, nor left out as
+    copies of one exposure (their exposure times differ)."""
     folder = tmp_path / "bracketed"
     folder.mkdir()
     for i, jpg in enumerate(sorted((flight / "images").glob("*.jpg"))):
         for k in range(3):
-            (folder / f"DJI_{3 * i + k:04d}.JPG").write_bytes(jpg.read_bytes())
-    assert len(read_image_priors(folder).names) == 36
+            Image.open(jpg).save(folder / f"DJI_{3 * i + k:04d}.JPG", exif=_with_exposure(jpg, 1 / (250 * 2 ** k)))
+    with caplog.at_level(logging.WARNING):
+        assert len(read_image_priors(folder).names) == 36
+    assert "exposure" not in caplog.text
 
 
 @pytest.mark.parametrize("mode", ["L", "RGB"])
@@ -83,7 +95,37 @@ def test_one_gray_or_colour_camera_shooting_faster_than_its_clock_is_no_rig(flig
     for i, jpg in enumerate(sorted((flight / "images").glob("*.jpg"))):
         exif = Image.Exif()
         exif.load(b"Exif\x00\x00" + encode_exif(read_image_metadata(jpg)))
-        img = Image.open(jpg).convert(mode)
-        for k in range(2):
-            img.save(folder / f"NIR_{2 * i + k:04d}.jpg", exif=exif)
+        img = np.asarray(Image.open(jpg).convert(mode))
+        for k in range(2):  # the second frame half a second on: the ground moved 6 px across it
+            Image.fromarray(np.roll(img, 6 * k, axis=1)).save(folder / f"NIR_{2 * i + k:04d}.jpg", exif=exif)
     assert len(read_image_priors(folder).names) == 24
+
+
+def test_an_edited_copy_of_an_image_is_one_exposure_left_out_and_named(flight, tmp_path, caplog):
+    """nu42 D7: Lightroom-style copies ('frame_00010-Edit.jpg': auto-contrast, the original's tags) beside their
+    originals replaced them as keyframes without a word (byte-identical copies were warned of, these were not).
+    Same capture time, position and exposure and the same view: one exposure; the original is kept whatever the
+    order of the names ('-' sorts before '.'), and the warning names both."""
+    from PIL import ImageOps
+
+    folder = tmp_path / "edited"
+    folder.mkdir()
+    jpgs = sorted((flight / "images").glob("*.jpg"))
+    for i, jpg in enumerate(jpgs):
+        (folder / jpg.name).write_bytes(jpg.read_bytes())
+        if i in (3, 7):
+            ImageOps.autocontrast(Image.open(jpg), cutoff=2).save(folder / f"{jpg.stem}-Edit.jpg",
+                                                                  exif=_with_exposure(jpg, None))
+    with caplog.at_level(logging.WARNING):
+        priors = read_image_priors(folder)
+    assert priors.names == [j.name for j in jpgs]
+    said = [w for w in priors.summary["warnings"] if "repeat another's exposure" in w]
+    assert len(said) == 1 and f"{jpgs[3].stem}-Edit.jpg (= {jpgs[3].name})" in said[0] and said[0] in caplog.text
+
+
+def test_the_original_of_one_exposure_is_the_name_the_others_derive_from():
+    from sosmatch.workflows.image_rigs import _original
+
+    assert _original(["frame_00010-Edit.jpg", "frame_00010.jpg"]) == 1
+    assert _original(["copy of DJI_0001.JPG", "DJI_0001.JPG", "DJI_0001 (1).JPG"]) == 1
+    assert _original(["b.jpg", "a.jpg"]) == 1  # renamed: the shortest, then the first by name

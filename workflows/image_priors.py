@@ -95,7 +95,7 @@ from .image_cameras import (  # noqa: F401 (re-exported: their home before image
     turned_readout,
 )
 from .image_positions import check_one_place, median_position, one_vertical_datum, track_checks
-from .image_rigs import one_image_per_capture
+from .image_rigs import one_image_per_capture, one_image_per_exposure
 
 log = logging.getLogger(__name__)
 
@@ -287,6 +287,10 @@ def read_image_priors(
     keep = one_image_per_capture(metas, images if isinstance(images, (str, Path)) else paths[0].parent)
     if len(keep) < len(metas):
         paths, metas = [paths[i] for i in keep], [metas[i] for i in keep]
+    # one image per exposure: an edited copy beside its original is one picture with two poses
+    keep, repeated = one_image_per_exposure(metas)  # (its warning: poses.json's, as the track's)
+    if len(keep) < len(metas):
+        paths, metas = [paths[i] for i in keep], [metas[i] for i in keep]
     n = len(metas)
     rows = telemetry_rows(tele, [m.path.name for m in metas], telemetry, images)
     damaged = [m for m in metas if m.problems]
@@ -444,7 +448,8 @@ def read_image_priors(
         "roll_sign": roll_sign,
         "meridian_convergence_deg": float(np.mean(north_az)),
         "intrinsics_source": intrinsics_sources[0],
-        "warnings": track_warnings + camera_warnings,  # those a consumer's own record must count (poses.json)
+        # those a consumer's own record must count (poses.json)
+        "warnings": repeated + track_warnings + camera_warnings,
         "cameras": [{"make_model": make_model(next(m for m, i in zip(metas, camera_index) if i == g)),
                      "images": int(np.sum(camera_index == g)), "width": c.width, "height": c.height,
                      "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "intrinsics_source": intrinsics_sources[g]}

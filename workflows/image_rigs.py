@@ -78,3 +78,75 @@ def _odd_one(group: list[int], metas: list[ImageMetadata]) -> int | None:
     kinds = Counter(metas[i].path.suffix.lower() for i in group)
     odd = [i for i in group if kinds[metas[i].path.suffix.lower()] == 1]
     return odd[0] if len(odd) == 1 and len(kinds) == 2 else None
+
+
+def one_image_per_exposure(metas: list[ImageMetadata]) -> tuple[list[int], list[str]]:
+    """(the indices of `metas` to use, the warning said) for one image per exposure: two images of one camera
+    with the same capture time (to the fraction of a second where recorded), the same GPS position and the same
+    exposure time, which show the same view (`_same_view`: no image motion between them), are one exposure under
+    two names, whatever their bytes (an edited copy, "frame-Edit.jpg", auto-contrast: nu42, its three copies
+    replaced their originals as keyframes without a word). Said in one warning naming both files; the one kept
+    is `_original`. Frames of one clock second at one fix that show the camera moved (a GPS slower than the
+    shutter), bracketed exposures (their exposure times differ) and a rig's bands (other sensors,
+    `one_image_per_capture`) are kept."""
+    groups: dict[tuple, list[int]] = defaultdict(list)
+    for i, m in enumerate(metas):
+        if m.has_gps and m.capture_time_s is not None:
+            groups[(float(m.capture_time_s), float(m.latitude), float(m.longitude),  # type: ignore[arg-type]
+                    m.altitude, m.exposure_s, m.make, m.model)].append(i)
+    drop: set[int] = set()
+    said = []
+    for group in groups.values():
+        if len(group) < 2 or _sensors_differ(group, metas):
+            continue
+        keep = _original([metas[i].path.name for i in group])
+        kept = group[keep]
+        copies = [i for i in group if i != kept and _same_view(metas[kept].path, metas[i].path)]
+        drop.update(copies)
+        said += [f"{metas[i].path.name} (= {metas[kept].path.name})" for i in copies]
+    warnings = []
+    if said:
+        warnings.append(f"{len(said)} image(s) repeat another's exposure (same capture time, GPS position and "
+                        "exposure, the same view) under another name (a copy, edited or not?): "
+                        + "; ".join(said[:5]) + (f" ... ({len(said)} in all)" if len(said) > 5 else "")
+                        + "; each is left out, its original kept (the name the others derive from); remove the copies")
+        log.warning("%s", warnings[0])
+    return [i for i in range(len(metas)) if i not in drop], warnings
+
+
+def _original(names: list[str]) -> int:
+    """Which of one exposure's file names is the original, by a rule no editor's naming decides: a copy's name is
+    made from its original's (an editor appends "-Edit", "_edited", " (1)", prepends "copy of "), so the original
+    is the name whose stem every other name contains; failing that (renamed copies), the shortest name, then the
+    first in name order. (File times say nothing: a copy made by `cp` is newer, one restored from a backup older.)"""
+    stems = [Path(n).stem for n in names]
+    derived_from = [k for k, s in enumerate(stems) if all(s in n for j, n in enumerate(names) if j != k)]
+    candidates = derived_from or list(range(len(names)))
+    return min(candidates, key=lambda k: (len(names[k]), names[k]))
+
+
+# the image motion (working pixels) below which two images show the same view: the measurement's own precision
+SAME_VIEW_PX = 1.0
+SAME_VIEW_WIDTH = 512  # the working width the two are compared at (pixels)
+
+
+def _same_view(a: Path, b: Path) -> bool:
+    """Whether two images show the same view: the same size, and phase correlation of their gray levels (blind to
+    a change of tone or contrast) finds no motion between them; an image that does not read is not judged the
+    same (it is named where its pixels are read)."""
+    import cv2
+
+    from ..database.images import read_gray
+
+    try:
+        ga, gb = read_gray(a), read_gray(b)
+    except InputError:
+        return False
+    if ga.shape != gb.shape:
+        return False
+    scale = min(1.0, SAME_VIEW_WIDTH / ga.shape[1])
+    size = (max(1, round(ga.shape[1] * scale)), max(1, round(ga.shape[0] * scale)))
+    wa, wb = (cv2.resize(g.astype("float64"), size, interpolation=cv2.INTER_AREA) for g in (ga, gb))
+    window = cv2.createHanningWindow(size, cv2.CV_64F)
+    (dx, dy), _ = cv2.phaseCorrelate(wa, wb, window)
+    return bool((dx * dx + dy * dy) ** 0.5 < SAME_VIEW_PX)

@@ -42,13 +42,16 @@ where it stopped; changing parameters redoes what they affect. Folders of OUT th
 of the run (flights removed since) are named in the report (`BatchReport.stale_outputs`), not deleted.
 A failing task is reported with its error
 (traceback in OUT/logs/), the tasks that need its output are reported as skipped, and every other task goes
-on. `BatchReport.ok` (and the command's exit code) says whether anything failed.
+on. `BatchReport.ok` (and the command's exit code) says whether anything failed; `BatchReport.status` ("ok" only
+without failures and warnings) and `warnings` what the sessions' maps, the pairs' matches, the alignment control
+and change detection warned of, each named by its session or pair (read from their records after every stage, so
+a resumed batch says them again).
 """
 
 from __future__ import annotations
 
 from .discovery import PAIR_SEP, Flight, classify_flight, discover_flights
-from .report import BatchReport, plot_session_graph, write_report
+from .report import BatchReport, pair_warnings, plot_session_graph, session_warnings, write_report
 from .state import StateStore
 from .tasks import changes_task, map_task, merge_task, pair_task, read_associations, summarise_match
 from .workflow import BatchOptions, run
@@ -56,6 +59,6 @@ from .workflow import BatchOptions, run
 __all__ = [
     "PAIR_SEP", "BatchOptions", "BatchReport", "Flight", "StateStore", "changes_task", "classify_flight",
     "discover_flights",
-    "map_task", "merge_task", "pair_task", "plot_session_graph", "read_associations", "run", "summarise_match",
-    "write_report",
+    "map_task", "merge_task", "pair_task", "pair_warnings", "plot_session_graph", "read_associations", "run",
+    "session_warnings", "summarise_match", "write_report",
 ]

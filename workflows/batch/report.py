@@ -39,15 +39,17 @@ class BatchReport:
 
     @property
     def warnings(self) -> list[str]:
-        """What the batch's results say of its inputs without failing: pairs whose maps' georeferences disagree
-        (`georeference_warning`, match's warning repeated), and accepted answers that merge's alignment control
-        refused (`refused`, `refused_by` "control": left out of the session graph; a match's own "no match" is
-        its table row's, not a warning), and what a pair's change detection warned of (`changes_warnings`, from
-        its changes.json)."""
-        return ([f"pair {p['pair']}: {p['georeference_warning']}" for p in self.pairs if p.get("georeference_warning")]
-                + [f"pair {p['pair']} refused: {p['refused']}" for p in self.pairs
-                   if p.get("refused") and p.get("refused_by", "control") == "control"]
-                + [f"pair {p['pair']} changes: {w}" for p in self.pairs for w in p.get("changes_warnings", ())])
+        """What the batch's results say of its inputs without failing, each named by its session or pair
+        (`session_warnings`, `pair_warnings`), sessions first."""
+        return ([w for s in self.sessions for w in session_warnings(s)]
+                + [w for p in self.pairs for w in pair_warnings(p)])
+
+    @property
+    def status(self) -> str:
+        """One line: "ok" only without failures and warnings (a result with warnings is no plain success)."""
+        said = [f"{len(self.failures)} failure(s)"] if self.failures else []
+        said += [f"{len(self.warnings)} warning(s)"] if self.warnings else []
+        return ", ".join(said) or "ok"
 
     @property
     def ok(self) -> bool:
@@ -56,7 +58,8 @@ class BatchReport:
     def to_dict(self) -> dict[str, Any]:
         return {
             "format": "sosmatch batch report v1",
-            "ok": self.ok,
+            "ok": self.ok,  # no failure (the exit code); `status` also counts the warnings
+            "status": self.status,
             "failures": self.failures,
             "warnings": self.warnings,
             "executor": self.executor,
@@ -77,6 +80,25 @@ class BatchReport:
         gone, new = (sum(int(p.get(k) or 0) for p in ran) for k in ("gone", "new"))
         line = f"{gone} landmarks gone, {new} new in {len(ran)} pair(s)"
         return line + (f", change detection failed on {failed}" if failed else "")
+
+
+def session_warnings(session: dict[str, Any]) -> list[str]:
+    """What a session's map warned of (its record's `warnings`, from its run.json verdict), named by it."""
+    return [f"session {session['name']}: {w}" for w in session.get("warnings", ())]
+
+
+def pair_warnings(pair: dict[str, Any]) -> list[str]:
+    """What a pair's record says of its inputs without failing, named by it: what its match warned of
+    (`match_warnings`, its match.json), that its maps' georeferences disagree (`georeference_warning`, match's
+    warning repeated with what batch did), that merge's alignment control refused its accepted answer (`refused`,
+    `refused_by` "control": left out of the session graph; a match's own "no match" is its table row's, not a
+    warning), and what its change detection warned of (`changes_warnings`, from its changes.json)."""
+    key = pair["pair"]
+    said = [f"pair {key} match: {w}" for w in pair.get("match_warnings", ())]
+    said += [f"pair {key}: {pair['georeference_warning']}"] if pair.get("georeference_warning") else []
+    if pair.get("refused") and pair.get("refused_by", "control") == "control":
+        said.append(f"pair {key} refused: {pair['refused']}")
+    return said + [f"pair {key} changes: {w}" for w in pair.get("changes_warnings", ())]
 
 
 def _table(rows: list[dict[str, Any]], columns: list[str]) -> str:
@@ -130,10 +152,10 @@ def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
     return rows
 
 
-SESSION_COLUMNS = ["name", "kind", "status", "images", "points3D", "landmarks", "seconds", "error"]
-PAIR_COLUMNS = ["pair", "status", "accepted", "in_graph", "num_associations", "refused_support", "refused", "yaw_deg",
-                "moved_median_m", "moved_max_m", "scale", "changes_status", "gone", "new", "kept", "unseen", "seconds",
-                "error"]
+SESSION_COLUMNS = ["name", "kind", "status", "warnings", "images", "points3D", "landmarks", "seconds", "error"]
+PAIR_COLUMNS = ["pair", "status", "warnings", "accepted", "in_graph", "num_associations", "refused_support", "refused",
+                "yaw_deg", "moved_median_m", "moved_max_m", "scale", "changes_status", "gone", "new", "kept", "unseen",
+                "seconds", "error"]
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]
 
 
@@ -141,15 +163,17 @@ def write_report(report: BatchReport) -> None:
     """OUT/report.json, OUT/report.md, OUT/sessions.csv, OUT/pairs.csv and OUT/session_graph.png."""
     out = report.out_dir
     write_text_atomic(out / "report.json", json.dumps(report.to_dict(), indent=2) + "\n")
-    pair_rows = _pair_rows(report)
+    # each row's number of warnings (the texts: report.md's Warnings, report.json's records)
+    pair_rows = [{**p, "warnings": len(pair_warnings(p))} for p in _pair_rows(report)]
+    session_rows = [{**s, "warnings": len(session_warnings(s))} for s in report.sessions]
     groups = [{**g, "members": " ".join(g["members"])} for g in report.groups]
-    status = "ok" if report.ok else f"{len(report.failures)} failure(s)"
+    status = report.status
     md = [
         "# sosmatch batch report", "",
         f"{len(report.sessions)} sessions, {len(report.pairs)} pairs, {len(report.groups)} groups; {status}; "
         f"executor: {report.executor}; {report.seconds:.1f} s", "",
         *(["## Warnings", "", *[f"- {w}" for w in report.warnings], ""] if report.warnings else []),
-        "## Sessions", "", _table(report.sessions, SESSION_COLUMNS), "",
+        "## Sessions", "", _table(session_rows, SESSION_COLUMNS), "",
         "## Pairs", "", "(transform a_from_b: yaw about z, how far it moves B's landmarks (median, max m), scale; "
         "landmarks gone from A, new in B, kept (of A) and unseen by the other session: pairs/A__B/changes/)", "",
         _table(pair_rows, PAIR_COLUMNS), "",
@@ -160,7 +184,7 @@ def write_report(report: BatchReport) -> None:
         md += ["## Outputs of no flight or group of this run (left in place, not read)", "",
                *[f"- {name}" for name in report.stale_outputs], ""]
     write_text_atomic(out / "report.md", "\n".join(md))
-    tables = (("sessions.csv", report.sessions, SESSION_COLUMNS), ("pairs.csv", pair_rows, PAIR_COLUMNS))
+    tables = (("sessions.csv", session_rows, SESSION_COLUMNS), ("pairs.csv", pair_rows, PAIR_COLUMNS))
     for name, rows, cols in tables:
         buf = io.StringIO()
         w = csv.DictWriter(buf, cols, extrasaction="ignore", lineterminator="\n")

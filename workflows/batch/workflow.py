@@ -133,6 +133,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     for f in flights:
         if sessions[f.name]["status"] == "done" and not sessions[f.name].get("resumed"):
             record_contents(out_dir, f, *listings[f.name])
+    _session_warnings(sessions)
     report.sessions = [{"name": f.name, "kind": f.kind, **sessions[f.name]} for f in flights]
     mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
 
@@ -164,6 +165,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     _match_refusals(pairs)
     matches = _read_matches(pairs)
     _georeference_warnings(pairs, matches, sessions)
+    _match_warnings(pairs, matches)
     failed = [f.name for f in flights if sessions[f.name]["status"] != "done"]
 
     # 4: session graph (marks each pair's in_graph) and merged groups
@@ -252,11 +254,16 @@ def _match_refusals(pairs: dict[str, dict[str, Any]]) -> None:
     for rec in pairs.values():
         if rec.get("status") != "done" or rec.get("accepted") or not rec.get("match"):
             continue
+        rec.pop("match_warnings", None)
         try:
             doc = read_match_json(rec["match"])
-            why = refusal_note(doc, parse_match(doc, Path(rec["match"])))
+            summary = parse_match(doc, Path(rec["match"]))
+            why = refusal_note(doc, summary)
         except InputError as e:  # it was read by the match stage a moment ago: say what is wrong with it now
             why = f"its match.json cannot be read: {e}"
+        else:
+            if summary.warnings:  # what match warned of (CRS, noise figures), for a pair without an answer too
+                rec["match_warnings"] = list(summary.warnings)
         if why:
             rec.update({"refused": why, "refused_by": "match"})
 
@@ -285,6 +292,53 @@ def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, 
             rec["georeference_warning"] = (f"{b}: {note}; left out of the session graph: {a} and {b} are not "
                                            "merged into one group")
             log.warning("pair %s: %s", key, rec["georeference_warning"])
+
+
+def _session_warnings(sessions: dict[str, dict[str, Any]]) -> None:
+    """Repeat what `sosmatch map` warned of for each mapped session (run.json's verdict,
+    `map.quality.recorded_verdict_warnings`: its poses', quality's and pose check's warnings; and its poses.json's,
+    `poses.result.recorded_pose_warnings`) into its record
+    (`warnings`, report.json / .md) and the batch's log, for a session mapped now (its worker's log is not the
+    batch's) and one a resumed batch adopts finished (nu42: a flight whose images and EXIF contradict each other on
+    the focal length, its landmarks 18 m off in height, was "ok" in report.json, said only in its run.json)."""
+    from ...plugin.errors import InputError
+    from ..map.quality import recorded_verdict_warnings
+    from ..poses.result import recorded_pose_warnings
+
+    for name, rec in sessions.items():
+        rec.pop("warnings", None)
+        if rec.get("status") != "done":
+            continue
+        try:
+            said = recorded_verdict_warnings(rec["session"])
+            # its poses' own record (structure from motion inside the session): the verdict repeats only some
+            # of them ("poses: ..."), the others (images left out or repeated) are said once here
+            said += [f"poses: {w}" for w in recorded_pose_warnings(Path(rec["session"]) / "poses")
+                     if f"poses: {w}" not in said]
+        except InputError as e:  # mapped a moment ago: say what is wrong with its records now
+            said = [f"its session record cannot be read: {e}"]
+        if said:
+            rec["warnings"] = said
+            for text in said:
+                log.warning("session %s: %s", name, text)
+
+
+def _match_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary]) -> None:
+    """Repeat what `match` warned of for each accepted pair (match.json `warnings`, as `_read_matches` parsed it:
+    an imprecise answer, heights on two datums, a CRS disagreement) into its record (`match_warnings`, report.json
+    / .md) and the batch's log; a pair without an answer gets its own from `_match_refusals`. The georeference
+    disagreement is said once, by `georeference_warning`, with what batch did about it (nu42: B__cropc's "imprecise
+    answer", B moved 9.6 m vertically, was missing from report.json)."""
+    for key, match in matches.items():
+        rec = pairs[key]
+        rec.pop("match_warnings", None)
+        geo = rec.get("georeference_warning") or ""
+        # match's text is "PATH_B: NOTE", batch's "B: NOTE; left out ...": the same NOTE is one warning
+        said = [w for w in match.warnings if not (geo and w.partition(": ")[2] and w.partition(": ")[2] in geo)]
+        if said:
+            rec["match_warnings"] = said
+            for text in said:
+                log.warning("pair %s match: %s", key, text)
 
 
 def _valid_changes(done: dict[str, Any]) -> bool:

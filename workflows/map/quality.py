@@ -124,6 +124,28 @@ def verdict_record(verdict: Verdict, enforced: bool) -> dict[str, Any]:
     return {"status": status, "refusals": list(verdict.refusals), "warnings": list(verdict.warnings)}
 
 
+def recorded_verdict_warnings(map_dir: str | Path) -> list[str]:
+    """What `sosmatch map` warned of in MAP_DIR (run.json's "verdict", written by `verdict_record`): its warnings
+    (the poses' among them, "poses: ..."), and each refusal of a map accepted despite them (quality.refuse off),
+    for the stages that report on a mapped session (batch). [] for a directory without a record or a verdict (a
+    merged model, an older session). InputError naming run.json when the record does not read or its verdict is
+    not what `verdict_record` writes (edited by hand)."""
+    from ...database.session_io import read_map_record
+
+    verdict = (read_map_record(map_dir) or {}).get("verdict")
+    if verdict is None:
+        return []
+    if not isinstance(verdict, dict) or not all(
+            isinstance(v, list) and all(isinstance(t, str) for t in v)
+            for v in (verdict.get("warnings", []), verdict.get("refusals", []))):
+        raise InputError("session record's verdict is not an object with lists of texts (`warnings`, `refusals`)",
+                         Path(map_dir) / "run.json")
+    said = list(verdict.get("warnings", []))
+    if verdict.get("status") == "accepted_despite_refusals":
+        said += [f"accepted although {r} (quality.refuse is off)" for r in verdict.get("refusals", [])]
+    return said
+
+
 def raise_if_refused(verdict: Verdict, limits: QualityParams, out_dir: Path, remedy: str = "") -> None:
     """MapRefused (one line, naming the session) when the verdict refuses the map and refusal is on; `remedy`
     (`MapSummary.remedy`) is said with it."""

@@ -89,6 +89,21 @@ def registration_warnings(report: dict) -> list[str]:
     return [f"poses: {w}" for w in warnings if isinstance(w, str)]
 
 
+def recorded_pose_warnings(out_dir: str | Path) -> list[str]:
+    """Every warning a `poses` output recorded (OUT_DIR/poses.json `warnings`: images left out or repeated,
+    lines off their tags, the georegistration's), for the stages that report on a session (batch); [] without a
+    record (a map of given poses). InputError naming poses.json when it does not read or its `warnings` is not a
+    list of texts."""
+    record = Path(out_dir) / RECORD
+    if not record.is_file():
+        return []
+    report = read_user_json(record, "poses record", redo="re-run `sosmatch poses`")
+    said = report.get("warnings", []) if isinstance(report, dict) else None
+    if not isinstance(said, list) or not all(isinstance(w, str) for w in said):
+        raise InputError("poses record's `warnings` is not a list of texts", record)
+    return list(said)
+
+
 def registration_warnings_beside(poses_csv: Path) -> list[str]:
     """`registration_warnings` of the `poses` output a poses.csv was taken from (its poses.json beside it); none
     for a CSV of another origin or a record that cannot be read (the CSV itself is what the map uses)."""
