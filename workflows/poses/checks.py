@@ -167,6 +167,9 @@ def focal_length_warnings(estimates: list[FocalEstimate], exif_cameras: dict[int
             continue
         _, source = exif_cameras[est.camera_id]
         f = cameras[est.camera_id].fx
+        if est.exif_set_aside:
+            out.append(_exif_set_aside_warning(est, source, f, height_m))
+            continue
         change = f / est.exif_px - 1.0
         by_images = f / est.images_px - 1.0
         known = est.exif_sigma_px / est.exif_px
@@ -186,6 +189,23 @@ def focal_length_warnings(estimates: list[FocalEstimate], exif_cameras: dict[int
                    + ("; the block may be degenerate (flat ground, nadir views, few lines): heights and tilts "
                       "are suspect" if abs(change) > EXIF_FOCAL_TOLERANCE else ""))
     return out
+
+
+def _exif_set_aside_warning(est: FocalEstimate, source: str, f: float, height_m: float | None) -> str:
+    """The warning for a camera whose EXIF focal length the images contradict so far that it was set aside
+    (`FocalEstimate.exif_set_aside`): EXIF's value named as wrong, with the likely cause and what it would have
+    done to the heights."""
+    change = est.exif_px / f - 1.0
+    where = "low" if change > 0 else "high"  # a longer focal length puts the ground farther: lower
+    at = (f"about {abs(change) * height_m:.1f} m too {where} at the cameras' {height_m:.0f} m above them"
+          if height_m else f"too {where} by {100 * abs(change):.1f} % of the cameras' height above them")
+    return (f"camera {est.camera_id}: EXIF's focal length ({est.exif_px:.1f} px from {source or 'EXIF'}, known to "
+            f"+-{100 * est.exif_sigma_px / est.exif_px:.1f} %) does not describe these images: they measure "
+            f"{est.images_px:.1f} px +-{100 * est.images_sigma_px / est.images_px:.1f} % "
+            f"({100 * (est.images_px / est.exif_px - 1.0):+.1f} %), {est.disagreement_sigmas:.1f} sigmas of the two "
+            f"together apart, so the images' {f:.1f} px was used; the files were probably resized or cropped after "
+            f"capture (or the tag is another lens's or zoom setting's): with EXIF's value the landmarks would lie "
+            f"{at}")
 
 
 def gps_noise_warning(sigma_m: float, expected_m: float) -> str | None:
