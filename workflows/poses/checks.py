@@ -56,10 +56,13 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
         geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference, seed,
                           systematic, priors.times_known)
         warnings.extend(geo.warnings)
-        noisy = gps_noise_warning(geo.horizontal.sigma_m, sp.gps_sigma_m)
-        if noisy:
-            warnings.append(noisy)
+        # the fit of the block to the GPS: also the map's doubt (`result.registration_warnings` reads the
+        # record's georegistration warnings), not only this command's
+        doubts = [w for w in (gps_noise_warning(geo.horizontal.sigma_m, sp.gps_sigma_m),
+                              camera_frame_offset_warning(geo, c_sfm, r_sfm, gps, sp.gps_sigma_m)) if w]
+        warnings.extend(doubts)
         report = geo.to_dict()
+        report["warnings"] = report["warnings"] + doubts
         report["gps_outliers"] = [priors.names[index[geo.gps_indices[k]]]
                                   for k in np.flatnonzero(~geo.horizontal.inliers)]
         return geo.transform, report, geo
@@ -206,6 +209,34 @@ def _exif_set_aside_warning(est: FocalEstimate, source: str, f: float, height_m:
             f"together apart, so the images' {f:.1f} px was used; the files were probably resized or cropped after "
             f"capture (or the tag is another lens's or zoom setting's): with EXIF's value the landmarks would lie "
             f"{at}")
+
+
+def camera_frame_offset_warning(geo: Any, c_sfm: np.ndarray, r_sfm: np.ndarray, gps: np.ndarray,
+                                expected_m: float) -> str | None:
+    """A warning when the GPS positions the georegistration `geo` kept sit off the registered camera centres by
+    an offset fixed in the cameras' frame (`plugin.gps_offset`) that is significant (beyond 99.99 % of the
+    residuals' scatter) and larger than `expected_m`, the receiver's noise: the reconstruction's geometry, not the
+    GPS, is off by more than the GPS is (nu42 crops: the principal point 40 px off, the camera centres 7 m off,
+    nothing said). `c_sfm`, `r_sfm`: the SfM centres and sfm_from_cam rotations; `gps`: the receiver's positions
+    (N,3) as given to `georegister` (its lag correction is added here)."""
+    from ...plugin.gps_offset import camera_frame_offset
+    from ...plugin.robust_fit import CHI2_2DOF_9999
+
+    idx = geo.gps_indices[geo.horizontal.inliers]
+    target = np.asarray(gps, float)[idx, :2]
+    if geo.position_shift is not None:
+        target = target + geo.position_shift[idx, :2]
+    t = geo.transform
+    residual = target - t.apply(np.asarray(c_sfm, float)[idx])[:, :2]
+    fit = camera_frame_offset(residual, t.rotation @ np.asarray(r_sfm, float)[idx])
+    if fit is None or not (fit.chi2 > CHI2_2DOF_9999 and fit.size_m > expected_m):
+        return None
+    return (f"the GPS positions sit {fit.size_m:.1f} m off the camera centres in the cameras' own frame "
+            f"({fit.right_m:+.1f} m toward the images' right, {fit.top_m:+.1f} m toward their top; "
+            f"{math.sqrt(fit.chi2):.0f} times its error, the receiver's noise about {expected_m:g} m), the same "
+            f"whichever way the images face: the reconstruction does not fit the positions, and camera centres "
+            f"and landmarks may be metres off. A principal point off the image centre does this (the photos "
+            f"cropped on one side after capture), as do a GPS lag left uncorrected or an antenna far from the camera")
 
 
 def gps_noise_warning(sigma_m: float, expected_m: float) -> str | None:
