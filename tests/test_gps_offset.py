@@ -8,9 +8,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from sosmatch.plugin.geometry import Camera
 from sosmatch.plugin.gps_offset import camera_frame_offset
 from sosmatch.plugin.multisession import Sim3
-from sosmatch.workflows.poses.checks import camera_frame_offset_warning
+from sosmatch.workflows.poses.checks import camera_frame_offset_warning, cropped_frames
 
 
 def _nadir(heading_deg: float) -> np.ndarray:
@@ -60,7 +61,12 @@ def test_a_camera_frame_offset_beyond_the_receivers_noise_is_said_with_its_likel
     centers, rots, gps = _flight(7.0)
     said = camera_frame_offset_warning(_geo(centers, rots, gps), centers, rots, gps, 3.0)
     assert said is not None and "7." in said and "toward the images' right" in said
-    assert "principal point" in said and "cropped" in said
+    assert "principal point" in said and "cropped" in said and "aspect" not in said
+    cropped = camera_frame_offset_warning(_geo(centers, rots, gps), centers, rots, gps, 3.0,
+                                          [Camera(560, 480, 500.0, 500.0, 280.0, 240.0)])
+    assert "the images' 560x480 is no sensor's aspect" in cropped
+    assert cropped_frames([Camera(640, 480, 1, 1, 0, 0), Camera(3000, 4000, 1, 1, 0, 0), Camera(1920, 1080, 1, 1, 0, 0),
+                           Camera(5472, 3648, 1, 1, 0, 0), Camera(480, 360, 1, 1, 0, 0)]) == []
     # a significant offset smaller than what the receiver itself is off by: within the GPS's own error
     centers, rots, gps = _flight(1.5, noise_m=0.3)
     assert camera_frame_offset_warning(_geo(centers, rots, gps), centers, rots, gps, 3.0) is None
@@ -81,7 +87,8 @@ def test_the_offset_warning_reaches_the_georegistration_record_the_map_reads():
     centers, rots, gps = _flight(7.0)
     n = len(centers)
     priors = ImagePriors([Path(f"f{i:03d}.jpg") for i in range(n)], [], 32632, gps, gps[:, 2].copy(),
-                         np.full(n, np.nan), rots, np.full(n, "gimbal"), np.arange(n) * 2.0, [], np.zeros(n, int),
+                         np.full(n, np.nan), rots, np.full(n, "gimbal"), np.arange(n) * 2.0,
+                         [Camera(640, 480, 500.0, 500.0, 320.0, 240.0)], np.zeros(n, int),
                          {"altitude_source": "GPS altitude", "capture_times": "DateTimeOriginal"})
     warnings: list[str] = []
     _, report, _ = _register(priors, np.arange(n), rots, centers, None, 100.0, 0, SfmParams(), warnings)

@@ -4,6 +4,7 @@ the plausibility warnings (GPS noise, focal length)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -58,8 +59,9 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
         warnings.extend(geo.warnings)
         # the fit of the block to the GPS: also the map's doubt (`result.registration_warnings` reads the
         # record's georegistration warnings), not only this command's
+        cameras = [priors.cameras[i] for i in sorted(set(priors.camera_index[index].tolist()))]
         doubts = [w for w in (gps_noise_warning(geo.horizontal.sigma_m, sp.gps_sigma_m),
-                              camera_frame_offset_warning(geo, c_sfm, r_sfm, gps, sp.gps_sigma_m)) if w]
+                              camera_frame_offset_warning(geo, c_sfm, r_sfm, gps, sp.gps_sigma_m, cameras)) if w]
         warnings.extend(doubts)
         report = geo.to_dict()
         report["warnings"] = report["warnings"] + doubts
@@ -211,14 +213,31 @@ def _exif_set_aside_warning(est: FocalEstimate, source: str, f: float, height_m:
             f"{at}")
 
 
+# width:height of the sensors' readouts (either way up): a frame of none of them was cropped after capture
+SENSOR_ASPECTS = (1.0, 5 / 4, 4 / 3, 3 / 2, 16 / 9)
+
+
+def cropped_frames(cameras: Sequence[Camera]) -> list[str]:
+    """The image sizes ("560x480") of `cameras` whose aspect is within 0.5 % of no sensor's (`SENSOR_ASPECTS`):
+    cut after capture, so the centre of the file need not be the optical axis's."""
+    out = []
+    for cam in cameras:
+        if cam.width > 0 and cam.height > 0:
+            aspect = max(cam.width, cam.height) / min(cam.width, cam.height)
+            if all(abs(aspect / a - 1.0) > 0.005 for a in SENSOR_ASPECTS):
+                out.append(f"{cam.width}x{cam.height}")
+    return out
+
+
 def camera_frame_offset_warning(geo: Any, c_sfm: np.ndarray, r_sfm: np.ndarray, gps: np.ndarray,
-                                expected_m: float) -> str | None:
+                                expected_m: float, cameras: Sequence[Camera] = ()) -> str | None:
     """A warning when the GPS positions the georegistration `geo` kept sit off the registered camera centres by
     an offset fixed in the cameras' frame (`plugin.gps_offset`) that is significant (beyond 99.99 % of the
     residuals' scatter) and larger than `expected_m`, the receiver's noise: the reconstruction's geometry, not the
     GPS, is off by more than the GPS is (nu42 crops: the principal point 40 px off, the camera centres 7 m off,
     nothing said). `c_sfm`, `r_sfm`: the SfM centres and sfm_from_cam rotations; `gps`: the receiver's positions
-    (N,3) as given to `georegister` (its lag correction is added here)."""
+    (N,3) as given to `georegister` (its lag correction is added here). `cameras` whose frame has no sensor's
+    aspect (`cropped_frames`) are named as the likely cause."""
     from ...plugin.gps_offset import camera_frame_offset
     from ...plugin.robust_fit import CHI2_2DOF_9999
 
@@ -231,12 +250,14 @@ def camera_frame_offset_warning(geo: Any, c_sfm: np.ndarray, r_sfm: np.ndarray, 
     fit = camera_frame_offset(residual, t.rotation @ np.asarray(r_sfm, float)[idx])
     if fit is None or not (fit.chi2 > CHI2_2DOF_9999 and fit.size_m > expected_m):
         return None
+    crops = cropped_frames(cameras)
     return (f"the GPS positions sit {fit.size_m:.1f} m off the camera centres in the cameras' own frame "
             f"({fit.right_m:+.1f} m toward the images' right, {fit.top_m:+.1f} m toward their top; "
             f"{math.sqrt(fit.chi2):.0f} times its error, the receiver's noise about {expected_m:g} m), the same "
             f"whichever way the images face: the reconstruction does not fit the positions, and camera centres "
             f"and landmarks may be metres off. A principal point off the image centre does this (the photos "
-            f"cropped on one side after capture), as do a GPS lag left uncorrected or an antenna far from the camera")
+            f"cropped on one side after capture), as do a GPS lag left uncorrected or an antenna far from the camera"
+            + (f"; the images' {', '.join(crops)} is no sensor's aspect: cropped" if crops else ""))
 
 
 def gps_noise_warning(sigma_m: float, expected_m: float) -> str | None:
