@@ -20,7 +20,12 @@ on intrinsics (OpenSfM's has one, `exif_focal_sd`), so the prior is applied to i
   scatter of f with one stretch of the flight left out at a time, which carries the correlation in it;
 - the EXIF focal length is a Gaussian prior of its own relative uncertainty (`exif_focal_uncertainty`);
 - the focal length taken is the two combined by their inverse variances (the maximum a posteriori of the
-  parabola times the prior).
+  parabola times the prior), unless the two contradict each other beyond what their uncertainties allow: an
+  EXIF value is then more probably not about these pixels at all (the files resized or cropped after capture:
+  a focal length in pixels scales with a resize, and a crop changes the frame a 35 mm equivalent refers to) and
+  the images' own value is taken (`exif_unrelated_probability`). Averaging two estimates 10-20 sigmas apart
+  gives a value both sources exclude (nu42: photos resized by half, EXIF's width updated: 502 px against the
+  images' 247 +- 6 px, 315 px taken and the landmarks 22 m low).
 """
 
 from __future__ import annotations
@@ -54,6 +59,33 @@ def images_focal_sigma(f_free: float, sse_free: float, f_fixed: float, sse_fixed
     return abs(f_fixed - f_free) / math.sqrt(rise)
 
 
+# The prior probability that a focal length read from EXIF does not describe the pixels of the files at all
+# (resized or cropped after capture, the tag of another lens or zoom setting), and the ratios to the true
+# focal length such a value leaves equally likely (a factor of this either way, uniform in log f). The images'
+# value is taken where this hypothesis explains their optimum better than EXIF's Gaussian error does: at 4.0
+# sigmas of the two together for images and EXIF known to +-2.4 % and 2 % (3.7-4.3 for a spread of 10-1 %; 3.4
+# at a prior of 10 %, 4.6 at 0.1 %: the switch barely depends on either figure). Every s47 case lies within 2.4
+# sigmas (nu26 D_wide80, whose images are 4 % off claiming 1.2 %): their EXIF prior holds as before.
+EXIF_UNRELATED_PRIOR = 0.01
+UNRELATED_RATIO = 4.0
+
+
+def exif_unrelated_probability(exif_px: float, images_px: float, spread_px: float) -> float:
+    """The posterior probability that the EXIF focal length `exif_px` does not describe the images at all,
+    given the images' own optimum `images_px` and `spread_px`, the standard deviation of their difference when
+    EXIF is right (the images' and EXIF's sigmas together). Two hypotheses: EXIF right within its Gaussian error
+    (prior 1 - `EXIF_UNRELATED_PRIOR`), or unrelated, the true focal length anywhere within `UNRELATED_RATIO`
+    of it, uniformly in log f. In log f (relative units) both are densities of the same difference. 0 where the
+    images know nothing of f (an infinite or NaN spread) or a value is not positive."""
+    if not (exif_px > 0 and images_px > 0 and math.isfinite(spread_px) and spread_px > 0):
+        return 0.0
+    d = math.log(images_px / exif_px)
+    s = spread_px / exif_px
+    right = (1.0 - EXIF_UNRELATED_PRIOR) * math.exp(-0.5 * (d / s) ** 2) / (math.sqrt(2.0 * math.pi) * s)
+    unrelated = EXIF_UNRELATED_PRIOR / (2.0 * math.log(UNRELATED_RATIO))
+    return unrelated / (unrelated + right)
+
+
 def contiguous_blocks(count: int, blocks: int) -> np.ndarray:
     """Block id (0 .. blocks-1) per position 0 .. count-1: `blocks` runs of consecutive positions of nearly
     equal length (fewer blocks when there are fewer positions)."""
@@ -76,6 +108,8 @@ class FocalEstimate:
     curvature_sigma_px: float = math.nan  # the misfit curvature's sigma (every observation independent)
     blocks_sigma_px: float = math.nan  # the jackknife's over contiguous blocks (NaN: not needed, not run)
     blocks: int = 0  # the blocks of that jackknife
+    exif_unrelated: float = 0.0  # the probability that EXIF's value is not about these pixels at all
+    exif_set_aside: bool = False  # it was the more probable: the images' value taken alone
 
     @property
     def disagreement_sigmas(self) -> float:
@@ -91,6 +125,8 @@ class FocalEstimate:
     @property
     def images_weight(self) -> float:
         """The share of the images in the focal length taken (0: the EXIF value, 1: the images' optimum)."""
+        if self.exif_set_aside:
+            return 1.0
         if not math.isfinite(self.images_sigma_px):
             return 0.0
         if self.images_sigma_px <= 0:
@@ -111,13 +147,19 @@ def combine_focal(camera_id: int, exif_px: float, exif_sigma_rel: float, images_
     """The focal length taken: the EXIF value (relative sigma `exif_sigma_rel`) and the images' optimum
     combined by their inverse variances. The images' sigma is the larger of the misfit curvature's
     (`images_sigma_px`, inf for none) and the blocks' jackknife (`blocks_sigma_px` over `blocks` blocks; NaN
-    when it was not run)."""
+    when it was not run). Where the two contradict each other so far that EXIF's value is more probably not
+    about these pixels at all (`exif_unrelated_probability` above one half), the images' value is taken alone."""
     curvature = images_sigma_px
     if not math.isnan(blocks_sigma_px):
         images_sigma_px = max(images_sigma_px, blocks_sigma_px)
     exif_sigma = abs(exif_px) * exif_sigma_rel
+    unrelated = exif_unrelated_probability(exif_px, images_px, math.hypot(images_sigma_px, exif_sigma))
+    set_aside = unrelated > 0.5
     if not math.isfinite(images_sigma_px):
         taken, sigma = exif_px, exif_sigma
+    elif set_aside:
+        # averaging would give a value both sources exclude: the images measure these pixels, EXIF may not
+        taken, sigma = images_px, images_sigma_px
     elif images_sigma_px <= 0 or exif_sigma <= 0:
         taken, sigma = images_px, max(images_sigma_px, 0.0)
     else:
@@ -126,4 +168,4 @@ def combine_focal(camera_id: int, exif_px: float, exif_sigma_rel: float, images_
         sigma = 1.0 / math.sqrt(w_img + w_exif)
     return FocalEstimate(int(camera_id), float(exif_px), float(exif_sigma), float(images_px),
                          float(images_sigma_px), float(taken), float(sigma), float(chi2_of_exif), float(curvature),
-                         float(blocks_sigma_px), int(blocks))
+                         float(blocks_sigma_px), int(blocks), float(unrelated), bool(set_aside))

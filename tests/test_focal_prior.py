@@ -178,3 +178,41 @@ def test_a_flight_too_short_for_the_jackknife_keeps_what_its_images_know():
     assert est.blocks < 3 and math.isnan(est.blocks_sigma_px)
     assert est.images_sigma_px == est.curvature_sigma_px and math.isfinite(est.images_sigma_px)
     assert abs(est.taken_px / TRUE_F - 1) < 0.01 and est.disagreement_sigmas > 2.0
+
+
+@pytest.mark.parametrize("exif, exif_rel, images, images_sigma", [
+    (502.3, 0.02, 246.8, 6.0),  # nu42 rc_rs50_upd: resized by half, EXIF's width updated (315 px was taken)
+    (374.4, 0.027, 511.9, 9.4),  # nu42 cropc: a centre crop, the 35 mm equivalent of the cropped frame (448)
+])
+def test_an_exif_focal_length_contradicted_far_beyond_both_uncertainties_is_set_aside_not_averaged(
+        exif, exif_rel, images, images_sigma):
+    """Two estimates 10-20 sigmas apart cannot be averaged: the blend is a value both exclude (the landmarks
+    22 m low and 7 m high). The images measure these pixels; EXIF's value is taken for not being about them."""
+    est = combine_focal(1, exif, exif_rel, images, images_sigma, chi2_of_exif=1000.0)
+    assert est.disagreement_sigmas > 9 and est.exif_set_aside and est.exif_unrelated > 0.999
+    assert est.taken_px == images and est.taken_sigma_px == images_sigma and est.images_weight == 1.0
+    assert est.to_dict()["exif_set_aside"] is True
+
+
+def test_a_contradiction_within_what_the_images_sigma_may_hide_still_combines():
+    """s47's cases stay as they were: nu26 D_wide80 (images +4.4 % claiming 1.2 %, EXIF -1.2 % +- 2 %: 2.4
+    sigmas, the images the wrong one), a flat block whose images know f to 4 %, one that knows nothing of it."""
+    wide = combine_focal(1, 355.4 * 0.988, 0.02, 355.4 * 1.044, 355.4 * 0.012, chi2_of_exif=19.9)
+    assert not wide.exif_set_aside and wide.exif_unrelated < 0.01
+    assert wide.images_px > wide.taken_px > wide.exif_px
+    flat = combine_focal(1, 249.6, 0.027, 249.6 * 1.054, 249.6 * 0.039, chi2_of_exif=2.0)
+    assert not flat.exif_set_aside and flat.taken_px < 249.6 * 1.03
+    none = combine_focal(1, 500.0, 0.02, 250.0, math.inf, 0.0)
+    assert not none.exif_set_aside and none.taken_px == 500.0 and none.exif_unrelated == 0.0
+
+
+def test_an_exif_focal_length_of_another_image_size_leaves_the_block_as_the_images_made_it():
+    """A block whose images know f (relief, tilted views) against an EXIF value twice it (the files halved after
+    capture, the tag not): the images' value is taken and the block stays as it was, byte for byte."""
+    rec = _block(relief_m=30.0, tilt_deg=4.0, model_f=TRUE_F)
+    before = [im.cam_from_world().translation.copy() for im in rec.images.values()]
+    stale = Camera(640, 480, TRUE_F * 2, TRUE_F * 2, 320.0, 240.0)
+    (est,), changed = weigh_focal_lengths(rec, {1: (stale, SOURCE)}, anchor_sigma_m=3.0)
+    assert est.exif_set_aside and est.taken_px == est.images_px and abs(est.taken_px / TRUE_F - 1) < 0.005
+    assert not changed and rec.cameras[1].params[0] == TRUE_F
+    assert all(np.array_equal(b, im.cam_from_world().translation) for b, im in zip(before, rec.images.values()))

@@ -51,10 +51,23 @@ def test_a_focal_length_off_exif_beyond_its_uncertainty_is_named_with_the_height
 
 
 def test_a_focal_length_far_off_exif_also_says_the_block_may_be_degenerate():
+    """Images that know f to 0.5 % put it 11 % above EXIF's (+-2.7 %): 4.0 sigmas, not yet far enough for
+    EXIF to be more probably unrelated than wrong by that much: combined, and the value taken lies so far from
+    EXIF's that the block may be degenerate."""
     exif = Camera(320, 240, 249.6, 249.6, 160.0, 120.0)
-    warnings, _ = _warnings(exif, 310.0, 0.001)
-    assert len(warnings) == 1 and "+24.2 % off" in warnings[0] and "24.2 % of the cameras' height" in warnings[0]
+    warnings, est = _warnings(exif, 249.6 * 1.11, 0.005)
+    assert not est.exif_set_aside
+    assert len(warnings) == 1 and "+10.6 % off" in warnings[0] and "10.6 % of the cameras' height" in warnings[0]
     assert "degenerate" in warnings[0]
+
+
+def test_a_focal_length_far_off_exif_that_the_images_know_sets_exif_aside():
+    """Images that know f to 0.1 % put it 24 % above EXIF's (+-2.7 %): EXIF's value is named as not about
+    these pixels, the images' used."""
+    exif = Camera(320, 240, 249.6, 249.6, 160.0, 120.0)
+    warnings, est = _warnings(exif, 310.0, 0.001)
+    assert est.exif_set_aside and len(warnings) == 1 and "does not describe these images" in warnings[0]
+    assert "(+24.2 %)" in warnings[0] and "19.5 % of the cameras' height" in warnings[0]
 
 
 def test_a_compromise_between_contradicting_focal_lengths_is_not_passed_as_agreement():
@@ -133,3 +146,18 @@ def test_a_local_frame_is_compared_with_the_tags_up_to_its_unknown_yaw():
     warnings = []
     summary = _compare(priors, index, poses, warnings, local_frame=True)
     assert [ln["line"] for ln in summary["contradicting_lines"]] == [1] and len(warnings) == 1
+
+
+def test_an_exif_focal_length_set_aside_is_named_as_wrong_with_its_likely_cause():
+    """nu42 rc_rs50_upd: EXIF's 502.3 px against the images' 246.8 +- 6 px: the images' value is used and the
+    one warning says EXIF's is not about these pixels (resized or cropped after capture) and where it would have
+    put the landmarks."""
+    exif = Camera(640, 480, 502.3, 502.3, 320.0, 240.0)
+    source = "FocalLength + FocalPlaneX/YRes"
+    est = combine_focal(1, exif.fx, exif_focal_uncertainty(exif, source), 246.8, 6.0, chi2_of_exif=2391.0)
+    taken = Camera(640, 480, est.taken_px, est.taken_px, 320.0, 240.0)
+    (warning,) = focal_length_warnings([est], _priors(exif, source), {1: taken}, 122.0)
+    assert "EXIF's focal length (502.3 px" in warning and "does not describe these images" in warning
+    assert "they measure 246.8 px" in warning and "the images' 246.8 px was used" in warning
+    assert "resized or cropped after capture" in warning
+    assert f"about {122.0 * (502.3 / 246.8 - 1):.1f} m too low" in warning

@@ -4,6 +4,7 @@ the plausibility warnings (GPS noise, focal length)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -58,11 +59,16 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
         geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference, seed,
                           systematic, priors.times_known)
         warnings.extend(geo.warnings)
-        # rounded fixes scatter by their grid too (`image_positions.coarse_fixes`): not the block's fault
-        noisy = gps_noise_warning(geo.horizontal.sigma_m, with_quantisation(sp.gps_sigma_m, priors.summary))
-        if noisy:
-            warnings.append(noisy)
+        # the fit of the block to the GPS: also the map's doubt (`result.registration_warnings` reads the
+        # record's georegistration warnings), not only this command's; rounded fixes scatter by their grid too
+        # (`image_positions.coarse_fixes`): not the block's fault
+        gps_sigma_m = with_quantisation(sp.gps_sigma_m, priors.summary)
+        cameras = [priors.cameras[i] for i in sorted(set(priors.camera_index[index].tolist()))]
+        doubts = [w for w in (gps_noise_warning(geo.horizontal.sigma_m, gps_sigma_m),
+                              camera_frame_offset_warning(geo, c_sfm, r_sfm, gps, gps_sigma_m, cameras)) if w]
+        warnings.extend(doubts)
         report = geo.to_dict()
+        report["warnings"] = report["warnings"] + doubts
         report["gps_outliers"] = [priors.names[index[geo.gps_indices[k]]]
                                   for k in np.flatnonzero(~geo.horizontal.inliers)]
         return geo.transform, report, geo
@@ -183,6 +189,9 @@ def focal_length_warnings(estimates: list[FocalEstimate], exif_cameras: dict[int
             continue
         _, source = exif_cameras[est.camera_id]
         f = cameras[est.camera_id].fx
+        if est.exif_set_aside:
+            out.append(_exif_set_aside_warning(est, source, f, height_m))
+            continue
         change = f / est.exif_px - 1.0
         by_images = f / est.images_px - 1.0
         known = est.exif_sigma_px / est.exif_px
@@ -202,6 +211,70 @@ def focal_length_warnings(estimates: list[FocalEstimate], exif_cameras: dict[int
                    + ("; the block may be degenerate (flat ground, nadir views, few lines): heights and tilts "
                       "are suspect" if abs(change) > EXIF_FOCAL_TOLERANCE else ""))
     return out
+
+
+def _exif_set_aside_warning(est: FocalEstimate, source: str, f: float, height_m: float | None) -> str:
+    """The warning for a camera whose EXIF focal length the images contradict so far that it was set aside
+    (`FocalEstimate.exif_set_aside`): EXIF's value named as wrong, with the likely cause and what it would have
+    done to the heights."""
+    change = est.exif_px / f - 1.0
+    where = "low" if change > 0 else "high"  # a longer focal length puts the ground farther: lower
+    at = (f"about {abs(change) * height_m:.1f} m too {where} at the cameras' {height_m:.0f} m above them"
+          if height_m else f"too {where} by {100 * abs(change):.1f} % of the cameras' height above them")
+    return (f"camera {est.camera_id}: EXIF's focal length ({est.exif_px:.1f} px from {source or 'EXIF'}, known to "
+            f"+-{100 * est.exif_sigma_px / est.exif_px:.1f} %) does not describe these images: they measure "
+            f"{est.images_px:.1f} px +-{100 * est.images_sigma_px / est.images_px:.1f} % "
+            f"({100 * (est.images_px / est.exif_px - 1.0):+.1f} %), {est.disagreement_sigmas:.1f} sigmas of the two "
+            f"together apart, so the images' {f:.1f} px was used; the files were probably resized or cropped after "
+            f"capture (or the tag is another lens's or zoom setting's): with EXIF's value the landmarks would lie "
+            f"{at}")
+
+
+# width:height of the sensors' readouts (either way up): a frame of none of them was cropped after capture
+SENSOR_ASPECTS = (1.0, 5 / 4, 4 / 3, 3 / 2, 16 / 9)
+
+
+def cropped_frames(cameras: Sequence[Camera]) -> list[str]:
+    """The image sizes ("560x480") of `cameras` whose aspect is within 0.5 % of no sensor's (`SENSOR_ASPECTS`):
+    cut after capture, so the centre of the file need not be the optical axis's."""
+    out = []
+    for cam in cameras:
+        if cam.width > 0 and cam.height > 0:
+            aspect = max(cam.width, cam.height) / min(cam.width, cam.height)
+            if all(abs(aspect / a - 1.0) > 0.005 for a in SENSOR_ASPECTS):
+                out.append(f"{cam.width}x{cam.height}")
+    return out
+
+
+def camera_frame_offset_warning(geo: Any, c_sfm: np.ndarray, r_sfm: np.ndarray, gps: np.ndarray,
+                                expected_m: float, cameras: Sequence[Camera] = ()) -> str | None:
+    """A warning when the GPS positions the georegistration `geo` kept sit off the registered camera centres by
+    an offset fixed in the cameras' frame (`plugin.gps_offset`) that is significant (beyond 99.99 % of the
+    residuals' scatter) and larger than `expected_m`, the receiver's noise: the reconstruction's geometry, not the
+    GPS, is off by more than the GPS is (nu42 crops: the principal point 40 px off, the camera centres 7 m off,
+    nothing said). `c_sfm`, `r_sfm`: the SfM centres and sfm_from_cam rotations; `gps`: the receiver's positions
+    (N,3) as given to `georegister` (its lag correction is added here). `cameras` whose frame has no sensor's
+    aspect (`cropped_frames`) are named as the likely cause."""
+    from ...plugin.gps_offset import camera_frame_offset
+    from ...plugin.robust_fit import CHI2_2DOF_9999
+
+    idx = geo.gps_indices[geo.horizontal.inliers]
+    target = np.asarray(gps, float)[idx, :2]
+    if geo.position_shift is not None:
+        target = target + geo.position_shift[idx, :2]
+    t = geo.transform
+    residual = target - t.apply(np.asarray(c_sfm, float)[idx])[:, :2]
+    fit = camera_frame_offset(residual, t.rotation @ np.asarray(r_sfm, float)[idx])
+    if fit is None or not (fit.chi2 > CHI2_2DOF_9999 and fit.size_m > expected_m):
+        return None
+    crops = cropped_frames(cameras)
+    return (f"the GPS positions sit {fit.size_m:.1f} m off the camera centres in the cameras' own frame "
+            f"({fit.right_m:+.1f} m toward the images' right, {fit.top_m:+.1f} m toward their top; "
+            f"{math.sqrt(fit.chi2):.0f} times its error, the receiver's noise about {expected_m:g} m), the same "
+            f"whichever way the images face: the reconstruction does not fit the positions, and camera centres "
+            f"and landmarks may be metres off. A principal point off the image centre does this (the photos "
+            f"cropped on one side after capture), as do a GPS lag left uncorrected or an antenna far from the camera"
+            + (f"; the images' {', '.join(crops)} is no sensor's aspect: cropped" if crops else ""))
 
 
 def gps_noise_warning(sigma_m: float, expected_m: float) -> str | None:
