@@ -87,7 +87,7 @@ ADDED: tuple[Added, ...] = (
     # registered at its default as untested_object_rate is: at False (its behaviour before) every identity would
     # name it, and through a map's full parameters an upgrade would refuse every map; an earlier `changes` output
     # is resumed as it is, `--overwrite` recomputes its verdicts
-    Added("changes.object_height_mean", "fix57", True, "landmarks whose footprint stands by its mean sweep are "
+    Added("changes.object_height_mean", "41ab82a", True, "landmarks whose footprint stands by its mean sweep are "
           "no longer flat"),
 )
 
