@@ -13,6 +13,7 @@ from ..sampling import evenly_spaced
 from .observations import SessionObservations
 from .surface import (
     PATCH_HALF_M,
+    SWEEP_STEP_M,
     footprint_places,
     ground_noise_fit,
     ground_sweep_noise,
@@ -33,21 +34,58 @@ def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, o
     its own place, k the k-th place of its ring (the highest, where only the ring stands), the own session's
     height there, and the (N, ring) own session's heights on the ring (NaN where not swept)."""
     places = 1 + params.object_height_ring
-    flat = ~stands_above_ground(heights, ref_heights, params.object_height_p, places)
+    by_mean = params.object_height_mean and params.object_height_ring > 0
+    # two tests of one place (its highest and its mean sweep): each at half the level (Bonferroni), so bare ground
+    # passes either as rarely as it passed the one
+    p = params.object_height_p / 2.0 if by_mean else params.object_height_p
+    flat = ~stands_above_ground(heights, ref_heights, p, places)
     pick = np.full(len(flat), -1, dtype=np.int64)
     high = np.asarray(heights, dtype=np.float64).copy()
     ring = np.full((len(flat), params.object_height_ring), np.nan)
+    wide = np.zeros(len(flat), dtype=bool)
     low = np.flatnonzero(flat & (np.asarray(sizes) > 0))
     if params.object_height_ring and len(low):
         around = ring_heights(points[low], sizes[low], own, ground, params)
         ring[low] = around
-        flat[low] = ~stands_above_ground(np.column_stack([heights[low], around]), ref_heights,
-                                         params.object_height_p, places)
+        both = np.column_stack([heights[low], around])
+        flat[low] = ~stands_above_ground(both, ref_heights, p, places)
         stands = ~flat[low]
         best = np.argmax(np.where(np.isfinite(around), around, -np.inf), axis=1)
         pick[low[stands]] = best[stands]
         high[low[stands]] = around[stands, best[stands]]
-    return flat, pick, high, ring
+        if by_mean:
+            means = footprint_means(both)
+            over = np.isfinite(means) & (means > footprint_mean_limit(means, p, places)) & flat[low]
+            wide[low[over]] = True
+            flat[low[over]] = False
+    return flat, pick, high, ring, wide
+
+
+def footprint_means(heights: np.ndarray) -> np.ndarray:
+    """(N,) the mean of each row of (N, K) sweeps of one landmark's footprint (its place and its ring), NaN where
+    fewer than half of them have a height."""
+    h = np.asarray(heights, dtype=np.float64)
+    known = np.isfinite(h)
+    count = known.sum(axis=1)
+    total = np.where(known, h, 0.0).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(2 * count >= h.shape[1], total / np.maximum(count, 1), np.nan)
+
+
+def footprint_mean_limit(means: np.ndarray, p: float, places: int) -> float:
+    """The mean footprint height (`footprint_means` of `places` sweeps) that bare ground exceeds at one-sided p:
+    the noise of such means measured on the same means, those at or below the ground (objects only add height,
+    so the means that do not are ground alone; `surface.ground_noise_fit` on the grid of a mean of `places`
+    levels), a Student-t quantile with the fit's degrees of freedom, and at least one sweep step. A low bush's
+    flat top fills most of its footprint: one 2 m patch reads it against the ground noise of one patch, the
+    mean of its footprint's places against the noise of a mean, which the overlap of the patches and the ground
+    under a shadow's ring leave to be measured, not assumed. NaN without any mean at ground level."""
+    from scipy.stats import t
+
+    sigma, dof, n = ground_noise_fit(means, SWEEP_STEP_M / max(int(places), 1))
+    if not n or not 0.0 < p < 1.0:
+        return float("nan")
+    return max(float(t.isf(p, max(dof, 1e-3))) * sigma if sigma > 0 else 0.0, SWEEP_STEP_M)
 
 
 def beside_kept_objects(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, ring: np.ndarray,
@@ -163,3 +201,21 @@ def ring_heights(points: np.ndarray, sizes: np.ndarray, session: SessionObservat
     the same places in either session."""
     ring = footprint_places(points, sizes, params.object_height_ring)
     return session_heights(ring.reshape(-1, 3), session, ground, params).reshape(len(ring), -1)
+
+
+def other_footprint_stands(points: np.ndarray, sizes: np.ndarray, other_place: np.ndarray, own_place: np.ndarray,
+                           own_ring: np.ndarray, other: SessionObservations, ground: HeightField,
+                           other_references: np.ndarray, params: ChangeParams) -> np.ndarray:
+    """For landmarks that stand by their footprint's mean in their own session (`flat_landmarks`' `wide`):
+    whether the other session's surface stands on the same places too, by the highest (the limit for all of
+    them) or by their mean (`footprint_mean_limit` of the own session's swept footprints, `own_place` and
+    `own_ring` of every landmark swept there): something stands in both, no change of an object."""
+    places = 1 + params.object_height_ring
+    p = params.object_height_p / 2.0
+    around = ring_heights(points, sizes, other, ground, params)
+    theirs = np.column_stack([other_place, around])
+    swept = np.isfinite(own_ring).any(axis=1)
+    limit = footprint_mean_limit(footprint_means(np.column_stack([own_place, own_ring])[swept]), p, places)
+    means = footprint_means(theirs)
+    return (stands_above_ground(theirs, other_references, p, places)
+            | (np.isfinite(means) & (means > limit)))

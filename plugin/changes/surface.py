@@ -296,7 +296,7 @@ def height_log_ratio(own_h: np.ndarray, other_h: np.ndarray, ref_own_h: np.ndarr
     return out
 
 
-def ground_noise_fit(ref_heights: np.ndarray) -> tuple[float, float, int]:
+def ground_noise_fit(ref_heights: np.ndarray, step: float = SWEEP_STEP_M) -> tuple[float, float, int]:
     """The sweep's ground noise from reference places' heights above the ground: its standard deviation sigma (m),
     the degrees of freedom of a normal sample that would measure it as precisely, and the number of places whose
     level is at or below the ground's.
@@ -308,18 +308,19 @@ def ground_noise_fit(ref_heights: np.ndarray) -> tuple[float, float, int]:
     the level is at most the ground's: exact for such heights. (The root mean square of the heights at or below 0
     counts every 0 as a whole place below the ground and measures sigma at 0.87 of it at 0.5 m; Sheppard's
     correction, - step^2 / 12, would lower it further.) The degrees of freedom are n x the Fisher information per
-    place on log sigma / 2, which is n for unrounded heights: a level says less than the height it rounds."""
+    place on log sigma / 2, which is n for unrounded heights: a level says less than the height it rounds.
+    `step`: the grid the heights lie on (a mean of k levels lies on one of SWEEP_STEP_M / k)."""
     from scipy.stats import norm
 
     h = np.asarray(ref_heights, dtype=np.float64)
-    bottom = int(round(SWEEP_BELOW_M / SWEEP_STEP_M))
-    depth = np.minimum(-np.round(h[np.isfinite(h)] / SWEEP_STEP_M), bottom)  # levels below the ground's
+    bottom = int(round(SWEEP_BELOW_M / step))
+    depth = np.minimum(-np.round(h[np.isfinite(h)] / step), bottom)  # levels below the ground's
     depth = depth[depth >= 0].astype(np.int64)
     n = len(depth)
     if not np.any(depth > 0):  # all within half a step of the ground: no noise the levels can show
         return 0.0, float(n), n
     counts = np.bincount(depth, minlength=bottom + 1)
-    lower = (np.arange(bottom + 2) - 0.5) * SWEEP_STEP_M  # depth j: the ground lies (j +- 1/2) steps above
+    lower = (np.arange(bottom + 2) - 0.5) * step  # depth j: the ground lies (j +- 1/2) steps above
     lower[-1] = np.inf  # the bottom level: everything deeper
 
     def log_p(log_sigma: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ from .objectness import (
     flat_landmarks,
     ground_noise_known,
     ground_noise_loose,
+    other_footprint_stands,
     ring_heights,
     session_heights,
     surface_heights,
@@ -250,8 +251,8 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         if params.object_height_p < 1.0:  # the objectness test is on
             shown = shows_relief(surface_references[0], params.object_height_p)
             if shown:
-                flat[idx], pick, place_h, own_ring = flat_landmarks(own_pos[idx], own_h[idx], own_heights, own,
-                                                                    ground, surface_references[0], params)
+                flat[idx], pick, place_h, own_ring, wide = flat_landmarks(own_pos[idx], own_h[idx], own_heights,
+                                                                          own, ground, surface_references[0], params)
                 swept = (idx, own_heights, own_ring)
                 # a landmark whose object stands beside its place (on its ring) is judged where it stands: the
                 # other session's surface is swept at the same places, and the heights' evidence is read at the
@@ -273,6 +274,10 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                         flat[idx[moved]] |= stands_above_ground(np.column_stack([other_heights[moved], around]),
                                                                 surface_references[1], params.object_height_p,
                                                                 1 + params.object_height_ring)
+                    if np.any(wide):  # standing by its footprint's mean: the other's same places must not
+                        flat[idx[wide]] |= other_footprint_stands(own_pos[idx[wide]], own_h[idx[wide]],
+                                                                  other_heights[wide], own_heights, own_ring,
+                                                                  other, ground, surface_references[1], params)
             relief = shown if measured_here else None
             if measured_here and not ground_noise_known(surface_references):
                 ground_noise = False  # the test could not be made: every place stands (said by the caller)

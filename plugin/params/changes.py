@@ -127,6 +127,13 @@ class ChangeParams(Checked):
     # a shadow that moved) it is `flat`. 0 = the landmark's own place only (the other session's surface is still
     # tested there).
     object_height_ring: int = count(6, 0, 360)
+    # (ours) a landmark whose place and ring do not stand is also tested by the mean of those sweeps against
+    # the noise of such means, measured on the pair's swept footprints (`objectness.footprint_mean_limit`); the
+    # highest and the mean each at half object_height_p (Bonferroni): a low crown or bush stands in several places
+    # of its footprint by less than the 7-place limit. Found 3 more of 30 changed objects across seasons on
+    # worlds 23, 61 (at the same precision, fewer false changes / ha), none more in the same season
+    # (BENCHMARKS.md, Change detection, thirteenth round). False = the highest only, at object_height_p.
+    object_height_mean: bool = flag(True)
     # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
     # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least
     # min_views keyframes, are judged against the other session as its landmarks are (direct evidence only; they

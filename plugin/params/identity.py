@@ -84,6 +84,11 @@ ADDED: tuple[Added, ...] = (
     Added("changes.untested_object_rate", "e04497c", 0.4, "claims not tested for a standing object (no images) "
           "have their confidence lowered"),
     Added("quality.warn_landmarks_per_keyframe", "39e6c0f", 0.3, "a warning"),
+    # registered at its default as untested_object_rate is: at False (its behaviour before) every identity would
+    # name it, and through a map's full parameters an upgrade would refuse every map; an earlier `changes` output
+    # is resumed as it is, `--overwrite` recomputes its verdicts
+    Added("changes.object_height_mean", "41ab82a", True, "landmarks whose footprint stands by its mean sweep are "
+          "no longer flat"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}
