@@ -100,3 +100,38 @@ def test_poses_from_exif_refuses_contradicting_exif_and_writes_nothing(tmp_path,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "f0.jpg" in err[0] and "disagree x2.01" in err[0]
     assert not out.exists()
+
+
+def test_a_map_whose_ground_lies_far_from_the_recorded_height_above_take_off_is_said():
+    """D1/D2: a focal length x2 (resize) or x0.75 (centre crop, EXIF unchanged) puts the map's cameras 203 or 77 m
+    above its ground where DJI's RelativeAltitude records 100 m: the warning names both heights and the focal
+    length the recorded one implies. Within the take-off ground's and the EXIF's tolerance nothing is said, nor
+    without recorded heights."""
+    from sosmatch.workflows.map.recorded_height import height_against_takeoff
+
+    rel = np.full(20, 100.0)
+    said = height_against_takeoff(203.0, rel, 502.3)
+    assert said is not None and "203 m above its ground" in said and "100 m above the take-off" in said
+    assert "103 m below" in said and "x2.03" in said and "for 247.4" in said
+    assert "23 m above" in (height_against_takeoff(77.0, rel, 374.4) or "")
+    assert height_against_takeoff(104.0, rel, 502.3) is None
+    assert height_against_takeoff(85.0, rel, 502.3) is None
+    assert height_against_takeoff(440.0, np.full(20, 400.0), 502.3) is None  # 10 % of a high flight
+    assert height_against_takeoff(203.0, np.full(20, np.nan), 502.3) is None
+
+
+def test_recorded_heights_read_the_dji_relative_altitude(tmp_path):
+    from sosmatch.workflows.map.recorded_height import recorded_heights
+
+    plain = tmp_path / "plain.jpg"
+    _jpeg(plain, (64, 48), (64, 48), 0)
+    data = plain.read_bytes()
+    packet = (b"<?xpacket begin=''?><x:xmpmeta xmlns:x='adobe:ns:meta/'><rdf:RDF "
+              b"xmlns:rdf='http://www.w3.org/1999/02/22-rdf-syntax-ns#'><rdf:Description rdf:about='' "
+              b"xmlns:drone-dji='http://www.dji.com/drone-dji/1.0/' drone-dji:RelativeAltitude='+99.80'/>"
+              b"</rdf:RDF></x:xmpmeta><?xpacket end='w'?>")
+    payload = b"http://ns.adobe.com/xap/1.0/\x00" + packet
+    tagged = tmp_path / "tagged.jpg"
+    tagged.write_bytes(data[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + data[2:])
+    heights = recorded_heights([tagged, plain, tmp_path / "missing.jpg"])
+    assert heights[0] == pytest.approx(99.8) and np.isnan(heights[1]) and np.isnan(heights[2])
