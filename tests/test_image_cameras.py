@@ -135,3 +135,33 @@ def test_recorded_heights_read_the_dji_relative_altitude(tmp_path):
     tagged.write_bytes(data[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + data[2:])
     heights = recorded_heights([tagged, plain, tmp_path / "missing.jpg"])
     assert heights[0] == pytest.approx(99.8) and np.isnan(heights[1]) and np.isnan(heights[2])
+
+
+def test_match_names_a_vertical_move_that_inherits_a_maps_ground_off_its_recorded_heights(tmp_path):
+    """nu42 D1: match moved B 102.6 m vertically by a map 100 m low, within two height datums' difference, and
+    said nothing. The map records its ground against its RelativeAltitude (run.json "height_above_takeoff");
+    match names a vertical move made beside a map whose ground lies beyond the tolerance."""
+    import json
+
+    from sosmatch.workflows.map.recorded_height import takeoff_record
+    from sosmatch.workflows.match import _takeoff_height_warning
+
+    class Shift:
+        def apply(self, p: np.ndarray) -> np.ndarray:
+            return p + np.array([0.0, 0.0, -102.6])
+
+    class Answer:
+        associations = np.array([[0, 0], [1, 1], [2, 2]])
+        transform = Shift()
+
+    points = np.zeros((3, 3))
+    a, b = tmp_path / "a", tmp_path / "b"
+    for d, height in ((a, 203.0), (b, 100.5)):
+        d.mkdir()
+        (d / "run.json").write_text(json.dumps({"height_above_takeoff": takeoff_record(height, np.full(5, 100.0))}))
+    said = _takeoff_height_warning(Answer(), points, a, b)
+    assert said is not None and "-102.6 m vertically" in said and f"{a}'s ground lies 103 m below" in said
+    assert str(b) not in said
+    (a / "run.json").write_text(json.dumps({"height_above_takeoff": takeoff_record(104.0, np.full(5, 100.0))}))
+    assert _takeoff_height_warning(Answer(), points, a, b) is None
+    assert _takeoff_height_warning(Answer(), points, tmp_path / "x.sosmap", b) is None

@@ -42,6 +42,30 @@ def recorded_heights(paths: list[Path]) -> np.ndarray:
     return out
 
 
+def takeoff_record(map_height_m: float, relative_m: np.ndarray) -> dict[str, float] | None:
+    """run.json's "height_above_takeoff": the map's flying height, the median recorded height above take-off and
+    the map's ground against where the recorded heights put it (m, + above); None without recorded heights or a
+    flying height (`height_against_takeoff` says when they disagree)."""
+    rel = relative_m[np.isfinite(relative_m)]
+    if not np.isfinite(map_height_m) or not len(rel):
+        return None
+    recorded = float(np.median(rel))
+    return {"map_flying_height_m": round(float(map_height_m), 2), "relative_altitude_m": round(recorded, 2),
+            "ground_off_m": round(recorded - float(map_height_m), 2)}
+
+
+def ground_off_beyond(record: object) -> float | None:
+    """The "ground_off_m" of a run.json "height_above_takeoff" record when it lies beyond the tolerance of
+    `height_against_takeoff` (the map's ground that far from where the recorded heights put it), else None."""
+    if not isinstance(record, dict):
+        return None
+    try:
+        off, recorded = float(record["ground_off_m"]), float(record["relative_altitude_m"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return off if abs(off) > max(TAKEOFF_GROUND_M, EXIF_FOCAL_TOLERANCE * recorded) else None
+
+
 def height_against_takeoff(map_height_m: float, relative_m: np.ndarray, camera_fx: float) -> str | None:
     """A warning when the map's flying height (`map_height_m`, cameras above the ground their landmarks make)
     and the median recorded height above take-off (`relative_m`, NaN: none) disagree beyond the larger of
