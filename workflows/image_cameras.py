@@ -155,8 +155,9 @@ def _refuse_disagreement(meta: ImageMetadata, by_plane: Camera, by_35: Camera) -
     raise InputError(
         f"EXIF focal lengths disagree x{ratio:.2f}: FocalLength x FocalPlaneXResolution gives {by_plane.fx:.1f} px, "
         f"FocalLengthIn35mmFilm {by_35.fx:.1f} px for the {meta.width}x{meta.height} file ({size}); resized after "
-        "capture (the 35 mm one holds) or cropped (the focal plane one)? Give --camera or --sensor-width-mm, or "
-        "take intrinsics from structure from motion (`sosmatch poses`)", meta.path)
+        "capture (the 35 mm one holds) or cropped (the focal plane one)? Give the sensor's width "
+        "(poses-from-exif --sensor-width-mm, then map --poses) or a camera file (map --camera), or let structure "
+        "from motion estimate it (map without --pose-source exif)", meta.path)
 
 
 def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> tuple[Camera, str]:
