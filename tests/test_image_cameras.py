@@ -70,7 +70,9 @@ def test_frames_of_a_cameras_aspect_are_not_called_cropped(size):
     assert camera_groups([meta], None, strict=True)[3] == []
 
 
-def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int) -> None:
+def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int,
+          dji: dict[str, str] | None = None) -> None:
+    """A JPEG of the 1-inch camera's EXIF at `size`, north of 47 N by `k` seconds, with DJI XMP `dji`."""
     img = Image.fromarray(np.random.default_rng(k).integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
     exif = Image.Exif()
     exif[0x010F], exif[0x0110] = "DJI", "FC"
@@ -87,7 +89,16 @@ def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int)
     gps[6] = IFDRational(500, 1)
     buf = io.BytesIO()
     img.save(buf, "JPEG", exif=exif.tobytes(), quality=80)
-    path.write_bytes(buf.getvalue())
+    data = buf.getvalue()
+    if dji:
+        attrs = " ".join(f"drone-dji:{k}='{v}'" for k, v in dji.items())
+        packet = ("<?xpacket begin=''?><x:xmpmeta xmlns:x='adobe:ns:meta/'><rdf:RDF "
+                  "xmlns:rdf='http://www.w3.org/1999/02/22-rdf-syntax-ns#'><rdf:Description rdf:about='' "
+                  f"xmlns:drone-dji='http://www.dji.com/drone-dji/1.0/' {attrs}/></rdf:RDF></x:xmpmeta>"
+                  "<?xpacket end='w'?>").encode()
+        payload = b"http://ns.adobe.com/xap/1.0/\x00" + packet
+        data = data[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + data[2:]
+    path.write_bytes(data)
 
 
 def test_poses_from_exif_refuses_contradicting_exif_and_writes_nothing(tmp_path, capsys):
@@ -125,14 +136,8 @@ def test_recorded_heights_read_the_dji_relative_altitude(tmp_path):
 
     plain = tmp_path / "plain.jpg"
     _jpeg(plain, (64, 48), (64, 48), 0)
-    data = plain.read_bytes()
-    packet = (b"<?xpacket begin=''?><x:xmpmeta xmlns:x='adobe:ns:meta/'><rdf:RDF "
-              b"xmlns:rdf='http://www.w3.org/1999/02/22-rdf-syntax-ns#'><rdf:Description rdf:about='' "
-              b"xmlns:drone-dji='http://www.dji.com/drone-dji/1.0/' drone-dji:RelativeAltitude='+99.80'/>"
-              b"</rdf:RDF></x:xmpmeta><?xpacket end='w'?>")
-    payload = b"http://ns.adobe.com/xap/1.0/\x00" + packet
     tagged = tmp_path / "tagged.jpg"
-    tagged.write_bytes(data[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + data[2:])
+    _jpeg(tagged, (64, 48), (64, 48), 0, {"RelativeAltitude": "+99.80"})
     heights = recorded_heights([tagged, plain, tmp_path / "missing.jpg"])
     assert heights[0] == pytest.approx(99.8) and np.isnan(heights[1]) and np.isnan(heights[2])
 
@@ -165,3 +170,18 @@ def test_match_names_a_vertical_move_that_inherits_a_maps_ground_off_its_recorde
     (a / "run.json").write_text(json.dumps({"height_above_takeoff": takeoff_record(104.0, np.full(5, 100.0))}))
     assert _takeoff_height_warning(Answer(), points, a, b) is None
     assert _takeoff_height_warning(Answer(), points, tmp_path / "x.sosmap", b) is None
+
+
+def test_a_map_on_exif_intrinsics_repeats_their_warnings(tmp_path):
+    """D3: a 7:6 frame's unknown principal point was logged by poses-from-exif, but `map --pose-source exif`'s
+    verdict (run.json) did not carry it: the map's only word was a shared attitude error."""
+    from sosmatch.workflows.poses_from_exif import map_inputs_from_images
+
+    images = tmp_path / "images"
+    images.mkdir()
+    nadir = {"GimbalYawDegree": "0", "GimbalPitchDegree": "-90", "GimbalRollDegree": "0",
+             "RelativeAltitude": "100"}
+    for k in range(4):
+        _jpeg(images / f"f{k}.jpg", (560, 480), (640, 480), k, nadir)  # 80 px cut off, EXIF unchanged
+    inputs = map_inputs_from_images(images)
+    assert any("principal point is unknown" in w for w in inputs.warnings)

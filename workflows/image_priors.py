@@ -445,6 +445,7 @@ def read_image_priors(
         "meridian_convergence_deg": float(np.mean(north_az)),
         "intrinsics_source": intrinsics_sources[0],
         "warnings": track_warnings + camera_warnings,  # those a consumer's own record must count (poses.json)
+        "intrinsics_warnings": camera_warnings,  # of them, the camera's: a map on these intrinsics repeats them
         "cameras": [{"make_model": make_model(next(m for m, i in zip(metas, camera_index) if i == g)),
                      "images": int(np.sum(camera_index == g)), "width": c.width, "height": c.height,
                      "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "intrinsics_source": intrinsics_sources[g]}

@@ -234,7 +234,8 @@ def map_inputs_from_images(
     remedy = "" if refine or guessed else UNREFINED_REMEDY
     return in_flight_order(MapInputs(_image_paths(images, result.poses), result.poses, result.camera, result.epsg,
                                      {"poses": source, "camera": f"EXIF of {images}", "images": str(images)},
-                                     remedy), result.capture_times)
+                                     remedy, warnings=list(result.summary.get("intrinsics_warnings", []))),
+                           result.capture_times)
 
 
 def _image_paths(images: str | Path, poses: Poses) -> list[Path]:
