@@ -5,6 +5,11 @@ describes the sensor readout, and images are often downscaled afterwards (Seneca
 Without a focal-plane resolution, `sensor_width_mm` (fx = f / sensor width * file width) or the 35 mm
 equivalent focal length are used. The 35 mm figure refers to the diagonal of the sensor's full frame, not of a
 crop of it (a DJI 16:9 still is a band of a 4:3 sensor: `full_frame_diagonal_px`).
+
+Where the EXIF gives both, the two routes are checked against each other: a photo resized after capture keeps
+the 35 mm ratio but not the pixel pitch, a cropped one the pixel pitch but not the frame, so where they disagree
+the focal length in pixels is unknown (`_refuse_disagreement`). A frame of no camera's aspect was cropped, and
+its principal point is unknown (`odd_aspect`).
 """
 
 from __future__ import annotations
@@ -76,6 +81,29 @@ def exif_focal_uncertainty(camera: Camera, source: str) -> float:
 MIN_SENSOR_WIDTH_MM = 3.0
 
 
+# Aspects (long / short side) of camera frames: photo sensors' full frames and their usual in-camera crops
+# (16:9, 16:10, 5:4 and square stills; 5:4 thermal cores such as 640x512). 336x256 cores (21:16) lie within
+# ASPECT_TOLERANCE of 4:3.
+CAMERA_ASPECTS = (1.0, 5.0 / 4.0, 4.0 / 3.0, 3.0 / 2.0, 16.0 / 10.0, 16.0 / 9.0)
+ASPECT_TOLERANCE = 0.02
+
+
+def odd_aspect(meta: ImageMetadata) -> str | None:
+    """What a frame of an aspect no camera makes says (a 640x480 frame with 80 px cut from one side: 7:6), None
+    for a camera's aspect or a file of the size its EXIF records. Such a frame was cropped after capture, and the
+    EXIF does not say where: its principal point is unknown (the image centre is taken; up to half the cut off,
+    which reads as a shared attitude error of the cameras), and a 35 mm equivalent is taken as of a 4:3 frame."""
+    w, h = meta.width, meta.height
+    if w <= 0 or h <= 0 or (meta.exif_size and (tuple(meta.exif_size) in ((w, h), (h, w)))):
+        return None
+    aspect = max(w, h) / min(w, h)
+    if any(abs(aspect - a) <= ASPECT_TOLERANCE * a for a in CAMERA_ASPECTS):
+        return None
+    return (f"its {w}x{h} frames have an aspect ({aspect:.3f}) no camera makes: cropped after capture? Their "
+            "principal point is unknown (the image centre is taken, which a one-sided crop moves: poses and "
+            "heights off by up to half the cut's angle); map the uncropped frames, or give the camera (--camera)")
+
+
 def turned_readout(meta: ImageMetadata) -> bool:
     """Whether the file is the readout its EXIF describes turned by 90 degrees (a portrait frame rotated by
     software, which leaves the EXIF as the camera wrote it): the aspects are each other's inverse."""
@@ -99,6 +127,39 @@ def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = No
     return camera, source
 
 
+def _readout_aspect(meta: ImageMetadata) -> float | None:
+    """The aspect (long / short side) of the readout the EXIF records when it is a photo sensor's (the frame a
+    35 mm equivalent refers to, also for a file cropped from it), else None."""
+    if not meta.exif_size or min(meta.exif_size) <= 0:
+        return None
+    aspect = max(meta.exif_size) / min(meta.exif_size)
+    return next((a for a in SENSOR_ASPECTS if abs(aspect - a) <= 0.01 * a), None)
+
+
+def _by_35mm(meta: ImageMetadata) -> Camera:
+    w, h = meta.width, meta.height
+    fx = meta.focal_35mm / FULL_FRAME_DIAGONAL_MM * full_frame_diagonal_px(w, h, _readout_aspect(meta))
+    return Camera(w, h, fx, fx, w / 2.0, h / 2.0)
+
+
+def _refuse_disagreement(meta: ImageMetadata, by_plane: Camera, by_35: Camera) -> None:
+    """InputError when the focal plane route and the 35 mm route of one image's EXIF disagree beyond
+    EXIF_FOCAL_TOLERANCE (their nominal marking and whole-millimetre rounding are a few per cent). A resize after
+    capture keeps the 35 mm figure (a ratio to the frame) right but not the pixel pitch the focal plane resolution
+    gives, when ExifImageWidth was rewritten to the new size; a crop keeps the pixel pitch but not the frame the
+    35 mm figure refers to. Which happened, the EXIF cannot say: the camera's focal length in pixels is unknown."""
+    ratio = by_plane.fx / by_35.fx
+    if abs(math.log(ratio)) <= math.log1p(EXIF_FOCAL_TOLERANCE):
+        return
+    size = f"ExifImageWidth {meta.exif_size[0]}x{meta.exif_size[1]}" if meta.exif_size else "no ExifImageWidth"
+    raise InputError(
+        f"EXIF focal lengths disagree x{ratio:.2f}: FocalLength x FocalPlaneXResolution gives {by_plane.fx:.1f} px, "
+        f"FocalLengthIn35mmFilm {by_35.fx:.1f} px for the {meta.width}x{meta.height} file ({size}); resized after "
+        "capture (the 35 mm one holds) or cropped (the focal plane one)? Give the sensor's width "
+        "(poses-from-exif --sensor-width-mm, then map --poses) or a camera file (map --camera), or let structure "
+        "from motion estimate it (map without --pose-source exif)", meta.path)
+
+
 def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> tuple[Camera, str]:
     w, h = meta.width, meta.height
     if meta.focal_mm and sensor_width_mm:
@@ -115,14 +176,21 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
             ref_w, ref_h, px_per_mm_x, px_per_mm_y = ref_h, ref_w, px_per_mm_y, px_per_mm_x
             source += f", the {meta.exif_size[0]}x{meta.exif_size[1]} readout turned by 90 degrees"
         elif meta.exif_size and abs(ref_w / ref_h - w / h) > 0.01:
-            source += f", EXIF size {ref_w}x{ref_h} and file {w}x{h} differ in aspect (cropped?): scaled by width"
+            source += (f", EXIF size {ref_w}x{ref_h} and file {w}x{h} differ in aspect (cropped?): scaled by the "
+                       "side cut least")
         # the sensor's long side in mm, as the focal plane resolution and the readout's size say
         sensor_mm = ref_w / px_per_mm_x if ref_w >= ref_h else ref_h / px_per_mm_y
         if sensor_mm >= MIN_SENSOR_WIDTH_MM:
-            scale = w / ref_w
+            # A resize scales both sides alike and a crop only shortens them, so the file's scale against the
+            # readout is at least each side's ratio: the larger one (exact when one side was left whole). By width
+            # alone, a 640x480 readout with 80 px cut from its width got fx x0.875.
+            scale = max(w / ref_w, h / ref_h)
             fx = meta.focal_mm * px_per_mm_x * scale
             fy = meta.focal_mm * px_per_mm_y * scale
-            return Camera(w, h, fx, fy, w / 2.0, h / 2.0), source
+            by_plane = Camera(w, h, fx, fy, w / 2.0, h / 2.0)
+            if meta.focal_35mm:
+                _refuse_disagreement(meta, by_plane, _by_35mm(meta))
+            return by_plane, source
         stale = (f"FocalPlaneXResolution ({px_per_mm_x:.0f} px/mm) puts the {ref_w} px wide "
                  f"{'readout' if meta.exif_size else 'image'} on a {sensor_mm:.2f} mm sensor, narrower "
                  f"than any survey camera's: the image was downscaled after the camera wrote its EXIF, which no "
@@ -130,8 +198,7 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
     if meta.focal_35mm:
         if stale:
             log.debug("%s: %s; the 35 mm equivalent focal length is used", meta.path.name, stale)
-        fx = meta.focal_35mm / FULL_FRAME_DIAGONAL_MM * full_frame_diagonal_px(w, h)
-        return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLengthIn35mmFilm (full-frame diagonal)"
+        return _by_35mm(meta), "FocalLengthIn35mmFilm (full-frame diagonal)"
     if stale:
         raise InputError(f"{stale}: give the sensor width (--sensor-width-mm), or `map` a camera file (--camera)",
                          meta.path)
@@ -180,8 +247,14 @@ def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
                         "length of the other %d", name, len(failed), example, len(found))
         cropped = [source for _, source in found if "cropped?" in source]
         if cropped:
-            log.warning("%s: %d images' EXIF size and file size differ in aspect (cropped?): their focal length is "
-                        "scaled by width (EXIF size %s)", name, len(cropped), cropped[0].split(", EXIF size ")[-1])
+            sizes = cropped[0].split(", EXIF size ")[-1].split(" differ")[0]
+            warnings.append(f"{name}: {len(cropped)} images' EXIF size and file size differ in aspect (cropped?): "
+                            f"their focal length is scaled by the side cut least, their principal point is unknown "
+                            f"(the image centre taken; EXIF size {sizes})")
+            log.warning("%s", warnings[-1])
+        elif (odd := odd_aspect(members[0])) is not None:
+            warnings.append(f"{name}: {odd}")
+            log.warning("%s", warnings[-1])
         fxs = np.array([c.fx for c, _ in found])
         fys = np.array([c.fy for c, _ in found])
         if fxs.max() > 1.01 * fxs.min():

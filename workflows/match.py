@@ -356,6 +356,34 @@ def _height_datum_warning(ans: Any, points_b: np.ndarray, path_b: str | Path) ->
     return None
 
 
+def _takeoff_height_warning(ans: Any, points_b: np.ndarray, a: str | Path, b: str | Path) -> str | None:
+    """The warning when an accepted answer moves B vertically while a map's ground lies far from where its
+    recorded heights above take-off put it (run.json "height_above_takeoff", `map.recorded_height`): a focal
+    length off scales that map's heights, and the vertical move carries the error (nu42: B moved 102.6 m by a
+    map 100 m low, within two height datums' difference, so `_height_datum_warning` was silent). None otherwise."""
+    from ..database.session_io import read_map_record
+    from .map.recorded_height import ground_off_beyond
+
+    pairs = np.asarray(ans.associations, np.int64).reshape(-1, 2)
+    if not len(pairs) or ans.transform is None:
+        return None
+    off = []
+    for path in (a, b):
+        try:
+            record = read_map_record(path) if Path(path).is_dir() else None
+        except InputError:
+            record = None
+        if (ground := ground_off_beyond((record or {}).get("height_above_takeoff"))) is not None:
+            off.append(f"{path}'s ground lies {abs(ground):.0f} m {'above' if ground > 0 else 'below'}")
+    if not off:
+        return None
+    pb = np.asarray(points_b, np.float64)[pairs[:, 1]]
+    dz = float(np.median(ans.transform.apply(pb)[:, 2] - pb[:, 2]))
+    return (f"the answer moves B {dz:+.1f} m vertically, and {' and '.join(off)} where its recorded heights above "
+            "take-off put it (its map's warning: a focal length off?): the vertical part of this answer, and heights "
+            "compared across these maps, inherit that error")
+
+
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
         exhaustive: bool = False, plot: bool = True, overwrite: bool = False,
         verify: bool | None = None) -> MatchResult:
@@ -425,6 +453,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         warn(geo_warning)
         if common and ans.accepted:
             warn(_height_datum_warning(ans, lb.positions, b))
+            warn(_takeoff_height_warning(ans, lb.positions, a, b))
         if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
             warn(f"{b}: {ans.uncertainty.warning()}; merge and changes inherit that error")
         # a refused answer names no associations (match.json's verification keeps what was tried)

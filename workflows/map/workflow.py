@@ -47,6 +47,7 @@ from .keyframes import (
 )
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, map_identity, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
+from .recorded_height import height_against_takeoff, recorded_heights, takeoff_record
 
 log = logging.getLogger(__name__)
 
@@ -371,6 +372,12 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                      contrast.cause() if contrast is not None else "")
     # the poses' doubts (a georegistration leaving GPS fixes out, a lag corrected) are the map's too
     verdict = joined(Verdict(warnings=list(inputs.warnings)), verdict, checked.verdict if checked is not None else None)
+    # the recorded height above take-off: a check of the focal scale independent of the images and pose source
+    relative = recorded_heights([inputs.image_paths[i] for i in keyframes])
+    said = height_against_takeoff(quality.flying_height_m, relative, float(camera.fx))
+    if said is not None:
+        log.warning("%s: %s", out.path, said)
+        verdict.warnings.append(said)
     timings["quality"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
 
@@ -411,6 +418,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
         "counts": counts, "quality": {**quality.to_dict(), "images": images.to_dict()},
         "verdict": verdict_record(verdict, params.quality.refuse),
+        # the flying height against the recorded height above take-off (match judges a vertical move by it)
+        "height_above_takeoff": takeoff_record(quality.flying_height_m, relative),
         "pose_check": checked.summary() if checked is not None else None,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         # the map's own noise (plugin.map_noise): `sosmatch match` derives its tolerances from it

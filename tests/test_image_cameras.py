@@ -1,0 +1,187 @@
+"""Cameras from EXIF of photos resized or cropped after capture (the forty-second sweep's D1-D3): the EXIF's own
+routes to the focal length checked against each other, the crop's scale, and frames of no camera's aspect."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from PIL.TiffImagePlugin import IFDRational
+
+from sosmatch.database.exif import ImageMetadata
+from sosmatch.plugin.errors import InputError
+from sosmatch.tools.cli import main
+from sosmatch.workflows.image_cameras import camera_from_metadata, camera_groups, odd_aspect
+
+# A 1-inch camera as the sweep's: 10.36 mm on a 13.2 mm wide 640 px readout (48.48 px/mm), 27 mm equivalent.
+FOCAL_MM, PX_PER_MM, F35 = 10.36, 640 / 13.2, 27.0
+TRUE_FX_640 = FOCAL_MM * PX_PER_MM  # 502.3 px at 640 px wide
+
+
+def _meta(width: int, height: int, exif_size: tuple[int, int] | None, plane: bool = True,
+          f35: float | None = F35) -> ImageMetadata:
+    return ImageMetadata(Path(f"/x/{width}x{height}.jpg"), width, height, focal_mm=FOCAL_MM,
+                         focal_plane_px_per_mm=(PX_PER_MM, PX_PER_MM) if plane else None, focal_35mm=f35,
+                         exif_size=exif_size, make="DJI", model="FC")
+
+
+def test_a_resize_whose_exif_width_was_rewritten_is_refused_naming_both_focal_lengths():
+    """D1: 640x480 frames resized to 320x240 with ExifImageWidth rewritten to 320: the focal plane resolution (of
+    the 640 px readout) gave fx 502.3 px for 251, and a map 100 m too low passed. The 35 mm figure says 249.6 px:
+    the two disagree x2, and which one holds (resize or crop) the EXIF cannot say."""
+    with pytest.raises(InputError, match=r"disagree x2\.01: .* gives 502\.3 px, FocalLengthIn35mmFilm 249\.6 px "
+                                         r"for the 320x240 file \(ExifImageWidth 320x240\)"):
+        camera_from_metadata(_meta(320, 240, (320, 240)))
+    # the same resize with ExifImageWidth left at the readout's: both routes agree on the true 251 px
+    cam, _ = camera_from_metadata(_meta(320, 240, (640, 480)))
+    assert cam.fx == pytest.approx(TRUE_FX_640 / 2, rel=1e-6)
+    # an unedited frame: the routes agree within their rounding, no refusal
+    assert camera_from_metadata(_meta(640, 480, (640, 480)))[0].fx == pytest.approx(TRUE_FX_640, rel=1e-6)
+    # where structure from motion estimates the focal length (not strict), the images decide, with a warning
+    cameras, _, _, warnings = camera_groups([_meta(320, 240, (320, 240))], None, strict=False)
+    assert warnings and "disagree" in warnings[0] and cameras[0].fx == pytest.approx(1.2 * 320)
+    with pytest.raises(InputError, match="disagree"):
+        camera_groups([_meta(320, 240, (320, 240))], None, strict=True)
+
+
+def test_a_one_sided_crop_keeps_the_pixel_pitch_and_says_its_principal_point_is_unknown():
+    """D3: 80 px cut from the right of a 640x480 readout (EXIF unchanged): a crop keeps the pixel pitch, so fx is
+    the readout's (scaling by width gave x0.875), and the principal point is unknown, said in a warning."""
+    meta = _meta(560, 480, (640, 480))
+    cam, _ = camera_from_metadata(meta)
+    assert cam.fx == pytest.approx(TRUE_FX_640, rel=1e-6)
+    _, _, _, warnings = camera_groups([meta], None, strict=True)
+    assert len(warnings) == 1 and "principal point is unknown" in warnings[0] and "640x480" in warnings[0]
+    # without ExifImageWidth (the sweep's synth frames: FocalLength and the 35 mm figure only), the 7:6 aspect says it
+    bare = _meta(560, 480, None, plane=False)
+    assert "aspect (1.167) no camera makes" in (odd_aspect(bare) or "")
+    _, _, _, warnings = camera_groups([bare], None, strict=True)
+    assert len(warnings) == 1 and "principal point is unknown" in warnings[0]
+
+
+@pytest.mark.parametrize("size", [(640, 480), (600, 400), (640, 360), (640, 400), (640, 512), (480, 480),
+                                  (336, 256), (480, 640)])
+def test_frames_of_a_cameras_aspect_are_not_called_cropped(size):
+    meta = _meta(*size, None, plane=False)
+    assert odd_aspect(meta) is None
+    assert camera_groups([meta], None, strict=True)[3] == []
+
+
+def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int,
+          dji: dict[str, str] | None = None) -> None:
+    """A JPEG of the 1-inch camera's EXIF at `size`, north of 47 N by `k` seconds, with DJI XMP `dji`."""
+    img = Image.fromarray(np.random.default_rng(k).integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
+    exif = Image.Exif()
+    exif[0x010F], exif[0x0110] = "DJI", "FC"
+    sub = exif.get_ifd(0x8769)
+    sub[0x920A] = IFDRational(round(FOCAL_MM * 100), 100)
+    sub[0xA20E] = sub[0xA20F] = IFDRational(round(PX_PER_MM * 10 * 100), 100)  # px per cm
+    sub[0xA210] = 3
+    sub[0xA405] = int(F35)
+    sub[0xA002], sub[0xA003] = exif_size
+    gps = exif.get_ifd(0x8825)
+    gps[1], gps[3], gps[5] = "N", "E", 0
+    gps[2] = (IFDRational(47, 1), IFDRational(0, 1), IFDRational(k * 10000, 10000))
+    gps[4] = (IFDRational(8, 1), IFDRational(0, 1), IFDRational(0, 1))
+    gps[6] = IFDRational(500, 1)
+    buf = io.BytesIO()
+    img.save(buf, "JPEG", exif=exif.tobytes(), quality=80)
+    data = buf.getvalue()
+    if dji:
+        attrs = " ".join(f"drone-dji:{k}='{v}'" for k, v in dji.items())
+        packet = ("<?xpacket begin=''?><x:xmpmeta xmlns:x='adobe:ns:meta/'><rdf:RDF "
+                  "xmlns:rdf='http://www.w3.org/1999/02/22-rdf-syntax-ns#'><rdf:Description rdf:about='' "
+                  f"xmlns:drone-dji='http://www.dji.com/drone-dji/1.0/' {attrs}/></rdf:RDF></x:xmpmeta>"
+                  "<?xpacket end='w'?>").encode()
+        payload = b"http://ns.adobe.com/xap/1.0/\x00" + packet
+        data = data[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + data[2:]
+    path.write_bytes(data)
+
+
+def test_poses_from_exif_refuses_contradicting_exif_and_writes_nothing(tmp_path, capsys):
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(4):
+        _jpeg(images / f"f{k}.jpg", (320, 240), (320, 240), k)
+    out = tmp_path / "p" / "poses.csv"
+    assert main(["poses-from-exif", str(images), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "f0.jpg" in err[0] and "disagree x2.01" in err[0]
+    assert not out.exists()
+
+
+def test_a_map_whose_ground_lies_far_from_the_recorded_height_above_take_off_is_said():
+    """D1/D2: a focal length x2 (resize) or x0.75 (centre crop, EXIF unchanged) puts the map's cameras 203 or 77 m
+    above its ground where DJI's RelativeAltitude records 100 m: the warning names both heights and the focal
+    length the recorded one implies. Within the take-off ground's and the EXIF's tolerance nothing is said, nor
+    without recorded heights."""
+    from sosmatch.workflows.map.recorded_height import height_against_takeoff
+
+    rel = np.full(20, 100.0)
+    said = height_against_takeoff(203.0, rel, 502.3)
+    assert said is not None and "203 m above its ground" in said and "100 m above the take-off" in said
+    assert "103 m below" in said and "x2.03" in said and "for 247.4" in said
+    assert "23 m above" in (height_against_takeoff(77.0, rel, 374.4) or "")
+    assert height_against_takeoff(104.0, rel, 502.3) is None
+    assert height_against_takeoff(85.0, rel, 502.3) is None
+    assert height_against_takeoff(440.0, np.full(20, 400.0), 502.3) is None  # 10 % of a high flight
+    assert height_against_takeoff(203.0, np.full(20, np.nan), 502.3) is None
+
+
+def test_recorded_heights_read_the_dji_relative_altitude(tmp_path):
+    from sosmatch.workflows.map.recorded_height import recorded_heights
+
+    plain = tmp_path / "plain.jpg"
+    _jpeg(plain, (64, 48), (64, 48), 0)
+    tagged = tmp_path / "tagged.jpg"
+    _jpeg(tagged, (64, 48), (64, 48), 0, {"RelativeAltitude": "+99.80"})
+    heights = recorded_heights([tagged, plain, tmp_path / "missing.jpg"])
+    assert heights[0] == pytest.approx(99.8) and np.isnan(heights[1]) and np.isnan(heights[2])
+
+
+def test_match_names_a_vertical_move_that_inherits_a_maps_ground_off_its_recorded_heights(tmp_path):
+    """nu42 D1: match moved B 102.6 m vertically by a map 100 m low, within two height datums' difference, and
+    said nothing. The map records its ground against its RelativeAltitude (run.json "height_above_takeoff");
+    match names a vertical move made beside a map whose ground lies beyond the tolerance."""
+    import json
+
+    from sosmatch.workflows.map.recorded_height import takeoff_record
+    from sosmatch.workflows.match import _takeoff_height_warning
+
+    class Shift:
+        def apply(self, p: np.ndarray) -> np.ndarray:
+            return p + np.array([0.0, 0.0, -102.6])
+
+    class Answer:
+        associations = np.array([[0, 0], [1, 1], [2, 2]])
+        transform = Shift()
+
+    points = np.zeros((3, 3))
+    a, b = tmp_path / "a", tmp_path / "b"
+    for d, height in ((a, 203.0), (b, 100.5)):
+        d.mkdir()
+        (d / "run.json").write_text(json.dumps({"height_above_takeoff": takeoff_record(height, np.full(5, 100.0))}))
+    said = _takeoff_height_warning(Answer(), points, a, b)
+    assert said is not None and "-102.6 m vertically" in said and f"{a}'s ground lies 103 m below" in said
+    assert str(b) not in said
+    (a / "run.json").write_text(json.dumps({"height_above_takeoff": takeoff_record(104.0, np.full(5, 100.0))}))
+    assert _takeoff_height_warning(Answer(), points, a, b) is None
+    assert _takeoff_height_warning(Answer(), points, tmp_path / "x.sosmap", b) is None
+
+
+def test_a_map_on_exif_intrinsics_repeats_their_warnings(tmp_path):
+    """D3: a 7:6 frame's unknown principal point was logged by poses-from-exif, but `map --pose-source exif`'s
+    verdict (run.json) did not carry it: the map's only word was a shared attitude error."""
+    from sosmatch.workflows.poses_from_exif import map_inputs_from_images
+
+    images = tmp_path / "images"
+    images.mkdir()
+    nadir = {"GimbalYawDegree": "0", "GimbalPitchDegree": "-90", "GimbalRollDegree": "0",
+             "RelativeAltitude": "100"}
+    for k in range(4):
+        _jpeg(images / f"f{k}.jpg", (560, 480), (640, 480), k, nadir)  # 80 px cut off, EXIF unchanged
+    inputs = map_inputs_from_images(images)
+    assert any("principal point is unknown" in w for w in inputs.warnings)
