@@ -14,8 +14,11 @@ from .exif import parse_xmp
 
 # "42,30.123N" (degrees, decimal minutes) or "42,30,7.38N" (degrees, minutes, seconds), as XMP's exif: schema
 _XMP_COORDINATE = re.compile(r"^\s*(\d+),(\d+(?:\.\d*)?)(?:,(\d+(?:\.\d*)?))?\s*([NSEW])\s*$", re.IGNORECASE)
-# the copy back into the images, with the same names the sidecars bear
-EXIFTOOL_COPY = "exiftool -tagsfromfile %d%f.xmp -gps:all DIR"
+# the copy back into the images, from the sidecars' names ({name}: exiftool's %d%f.xmp for `<stem>.xmp`,
+# %d%f.%e.xmp for darktable's `<image>.xmp`): a sidecar holds the position as XMP-exif tags, which `-gps:all`
+# alone does not read; the references (N/S, E/W) come from exiftool's composite tags
+EXIFTOOL_COPY = ('exiftool -tagsfromfile {name} "-GPS:all<XMP-exif:all" "-GPS:GPSLatitudeRef<Composite:GPSLatitudeRef" '
+                 '"-GPS:GPSLongitudeRef<Composite:GPSLongitudeRef" DIR')
 
 
 def sidecar_of(image: Path) -> Path | None:
@@ -55,6 +58,7 @@ def sidecars_with_gps(images: Sequence[Path]) -> str | None:
              and (pos := sidecar_position(side)) is not None]
     if not found:
         return None
-    _, side, (lat, lon) = found[0]
+    image, side, (lat, lon) = found[0]
+    name = "%d%f.%e.xmp" if side.name.lower() == image.name.lower() + ".xmp" else "%d%f.xmp"
     return (f"their .xmp sidecars hold GPS ({len(found)} of them, e.g. {side.name}: {lat:.6f}, {lon:.6f}), which "
-            f"sosmatch does not read: copy it into the images, e.g. {EXIFTOOL_COPY}")
+            f"sosmatch does not read: copy it into the images, e.g. {EXIFTOOL_COPY.format(name=name)}")

@@ -45,9 +45,12 @@ def test_missing_gps_names_the_sidecars_that_hold_it(tmp_path):
     (img / "f1.jpg.xmp").write_text(SIDECAR.format(lat="46,59.96N", lon="7,59.99E"))  # darktable's naming
     assert sidecar_of(img / "f1.jpg") == img / "f1.jpg.xmp" and sidecar_of(img / "f2.jpg") is None
     with pytest.raises(InputError, match=r"3 of 3 images have no GPS .*their \.xmp sidecars hold GPS \(2 of them, "
-                                         r"e\.g\. f0\.xmp: 46\.999277, 7\.999822\).*exiftool -tagsfromfile"):
+                                         r"e\.g\. f0\.xmp: 46\.999277, 7\.999822\).*exiftool -tagsfromfile %d%f\.xmp "
+                                         r"\"-GPS:all<XMP-exif:all\""):
         pfe.run(img, tmp_path / "o" / "poses.csv")
     assert not (tmp_path / "o").exists()
     assert sidecars_with_gps([img / "f2.jpg"]) is None
+    # darktable's `<image>.xmp` sidecars are named so in the copy (exiftool's %e: the image's extension)
+    assert "-tagsfromfile %d%f.%e.xmp " in sidecars_with_gps([img / "f1.jpg"])
     (img / "f2.xmp").write_text("<x:xmpmeta broken")  # a damaged sidecar is no GPS, not a crash
     assert sidecars_with_gps([img / "f2.jpg"]) is None
