@@ -123,12 +123,46 @@ def test_a_map_whose_ground_lies_far_from_the_recorded_height_above_take_off_is_
     rel = np.full(20, 100.0)
     said = height_against_takeoff(203.0, rel, 502.3)
     assert said is not None and "203 m above its ground" in said and "100 m above the take-off" in said
-    assert "103 m below" in said and "x2.03" in said and "for 247.4" in said
+    assert "103 m below the take-off point" in said and "x2.03" in said and "would be 247.4" in said
+    assert "cannot be told apart" in said  # neither cause asserted
     assert "23 m above" in (height_against_takeoff(77.0, rel, 374.4) or "")
     assert height_against_takeoff(104.0, rel, 502.3) is None
     assert height_against_takeoff(85.0, rel, 502.3) is None
     assert height_against_takeoff(440.0, np.full(20, 400.0), 502.3) is None  # 10 % of a high flight
     assert height_against_takeoff(203.0, np.full(20, np.nan), 502.3) is None
+
+
+def test_match_repeats_the_maps_own_take_off_verdict_and_no_other():
+    """rev26: the run.json record carried a ground offset whenever a height existed, and match judged it without
+    the map's rules: a take-off 150 m above the survey (RelativeAltitude -50) or only 10 of 50 keyframes
+    recording a height left the map silent and made match warn. The record now carries the map's verdict."""
+    from sosmatch.workflows.map.recorded_height import ground_off_beyond, height_against_takeoff, takeoff_record
+
+    for height, rel in ((100.0, np.full(50, -50.0)), (60.0, np.r_[np.full(10, 100.0), np.full(40, np.nan)])):
+        assert height_against_takeoff(height, rel, 3000.0) is None
+        assert ground_off_beyond(takeoff_record(height, rel)) is None
+    record = takeoff_record(203.0, np.full(20, 100.0))
+    assert record is not None and record["beyond"] is True and ground_off_beyond(record) == pytest.approx(-103.0)
+    # a run.json written before the verdict was recorded: no warning
+    assert ground_off_beyond({k: v for k, v in record.items() if k != "beyond"}) is None
+
+
+def test_the_flying_height_against_take_off_is_measured_to_the_ground_not_the_canopy():
+    """rev26: the map's flying height runs to the landmarks' median, and over a forest they are tree tops: a
+    correct flight at 100 m over 25 m trees read 75 m, "focal length x0.75 off". The ground under a keyframe is
+    a low quantile of the landmarks it sees."""
+    from sosmatch.workflows.map.recorded_height import ground_flying_height, height_against_takeoff
+
+    rng = np.random.default_rng(0)
+    centers = np.c_[np.arange(10) * 20.0, np.zeros(10), np.full(10, 100.0)]
+    xy = rng.uniform(0, 180, (400, 2))
+    z = np.where(rng.random(400) < 0.8, 25.0, 0.0) + rng.normal(0, 0.3, 400)  # 80 % canopy, 20 % ground
+    positions = np.c_[xy, z]
+    observed = [np.flatnonzero(np.abs(centers[:, 0] - x) < 40) for x in xy[:, 0]]
+    height = ground_flying_height(positions, observed, centers)
+    assert height == pytest.approx(100.0, abs=1.5)
+    assert height_against_takeoff(height, np.full(10, 100.0), 3000.0) is None
+    assert np.isnan(ground_flying_height(np.zeros((0, 3)), [], centers))
 
 
 def test_recorded_heights_read_the_dji_relative_altitude(tmp_path):
