@@ -13,6 +13,7 @@ from PIL.TiffImagePlugin import IFDRational
 
 from sosmatch.database.exif import ImageMetadata
 from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.geometry import Camera
 from sosmatch.tools.cli import main
 from sosmatch.workflows.image_cameras import camera_from_metadata, camera_groups, odd_aspect
 
@@ -68,6 +69,34 @@ def test_frames_of_a_cameras_aspect_are_not_called_cropped(size):
     meta = _meta(*size, None, plane=False)
     assert odd_aspect(meta) is None
     assert camera_groups([meta], None, strict=True)[3] == []
+
+
+REAL_SENSOR_SIZES = [
+    (640, 512), (336, 256), (382, 288), (160, 120),  # thermal cores
+    (1280, 960), (1600, 1300), (2064, 1544), (2464, 2056), (4112, 3008),  # multispectral and their pans
+    (4032, 3024), (4000, 2250),  # phones
+    (5472, 3648), (4000, 3000), (5280, 3956), (4096, 2160), (3840, 2160), (5120, 2700), (2048, 1080),  # DJI
+    (1920, 1200), (1920, 1080),
+]
+
+
+@pytest.mark.parametrize("size", REAL_SENSOR_SIZES)
+def test_no_real_sensors_frame_is_called_cropped_by_either_check(size):
+    """rev26: odd_aspect (2 %) called DJI's DCI 4K and MicaSense pans cropped, cropped_frames (0.5 %, another
+    list) the 336x256 thermal core and the P4 Multispectral's 1600x1300: one list and tolerance for both."""
+    from sosmatch.workflows.poses.checks import cropped_frames
+
+    w, h = size
+    for width, height in ((w, h), (h, w)):
+        assert odd_aspect(_meta(width, height, None, plane=False)) is None
+        assert cropped_frames([Camera(width, height, 1.0, 1.0, width / 2, height / 2)]) == []
+
+
+def test_a_seven_by_six_crop_is_called_cropped_by_both_checks():
+    from sosmatch.workflows.poses.checks import cropped_frames
+
+    assert odd_aspect(_meta(560, 480, None, plane=False)) is not None
+    assert cropped_frames([Camera(560, 480, 1.0, 1.0, 280.0, 240.0)]) == ["560x480"]
 
 
 def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int,
