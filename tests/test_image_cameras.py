@@ -71,6 +71,20 @@ def test_frames_of_a_cameras_aspect_are_not_called_cropped(size):
     assert camera_groups([meta], None, strict=True)[3] == []
 
 
+def test_a_zoomed_frame_whose_35mm_figure_includes_the_zoom_is_not_refused():
+    """rev26: the 35 mm figure of a frame zoomed x2 in the camera often includes the zoom (54 mm for 27), the focal
+    plane route does not (the zoom is applied afterwards): the two were compared unlike and the frame refused."""
+    for f35 in (2 * F35, F35):  # the zoom in the 35 mm figure, or not: either is the camera's own EXIF
+        meta = _meta(640, 480, (640, 480), f35=f35)
+        meta.digital_zoom = 2.0
+        cam, source = camera_from_metadata(meta)
+        assert cam.fx == pytest.approx(2 * TRUE_FX_640, rel=1e-6) and "x2 digital zoom" in source
+    meta = _meta(640, 480, (640, 480), f35=4 * F35)  # beyond either reading: still refused
+    meta.digital_zoom = 2.0
+    with pytest.raises(InputError, match="disagree"):
+        camera_from_metadata(meta)
+
+
 REAL_SENSOR_SIZES = [
     (640, 512), (336, 256), (382, 288), (160, 120),  # thermal cores
     (1280, 960), (1600, 1300), (2064, 1544), (2464, 2056), (4112, 3008),  # multispectral and their pans

@@ -160,9 +160,14 @@ def _refuse_disagreement(meta: ImageMetadata, by_plane: Camera, by_35: Camera) -
     EXIF_FOCAL_TOLERANCE (their nominal marking and whole-millimetre rounding are a few per cent). A resize after
     capture keeps the 35 mm figure (a ratio to the frame) right but not the pixel pitch the focal plane resolution
     gives, when ExifImageWidth was rewritten to the new size; a crop keeps the pixel pitch but not the frame the
-    35 mm figure refers to. Which happened, the EXIF cannot say: the camera's focal length in pixels is unknown."""
+    35 mm figure refers to. Which happened, the EXIF cannot say: the camera's focal length in pixels is unknown.
+
+    Both routes are compared before a digital zoom (`camera_from_metadata` applies DigitalZoomRatio afterwards),
+    but many cameras write a 35 mm figure that includes it: a zoomed frame agrees when either its 35 mm figure
+    or the focal plane one multiplied by the zoom is like the other."""
     ratio = by_plane.fx / by_35.fx
-    if abs(math.log(ratio)) <= math.log1p(EXIF_FOCAL_TOLERANCE):
+    zoom = meta.digital_zoom if meta.digital_zoom and meta.digital_zoom > 1.0 else 1.0
+    if min(abs(math.log(ratio)), abs(math.log(ratio * zoom))) <= math.log1p(EXIF_FOCAL_TOLERANCE):
         return
     size = f"ExifImageWidth {meta.exif_size[0]}x{meta.exif_size[1]}" if meta.exif_size else "no ExifImageWidth"
     raise InputError(
