@@ -118,8 +118,9 @@ def height_against_takeoff(map_height_m: float, relative_m: np.ndarray, camera_f
         return None
     recorded, off = judged
     scale = map_height_m / recorded
+    where, why = ("below", "a take-off from a hill or a roof") if off > 0 else ("above", "a take-off in a valley")
     return (f"the map puts the cameras {map_height_m:.0f} m above its ground, the images' RelativeAltitude "
             f"{recorded:.0f} m above the take-off point. Either the surveyed ground lies {abs(off):.0f} m "
-            f"{'below' if off > 0 else 'above'} the take-off point (a take-off from a hill or a roof, or a valley), "
+            f"{where} the take-off point ({why}), "
             f"or the focal length is x{scale:.2f} off (fx {camera_fx:.1f} px would be {camera_fx / scale:.1f}: "
             "photos resized or cropped after capture?); from one flying height the two cannot be told apart")
