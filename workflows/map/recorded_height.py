@@ -1,11 +1,13 @@
 """The map's flying height against the height above take-off the flight recorded (DJI XMP RelativeAltitude).
 
-The map's flying height (cameras over the ground their landmarks make) scales with the camera's focal length:
+The map's flying height (cameras over their ground, `ground_flying_height`) scales with the camera's focal length:
 a focal length 2x too long (a photo resized after capture whose EXIF was rewritten) put the ground 100 m too
 low and every check passed, since poses, matches and georeference are all horizontal or scale-free. The
 barometer's height above the take-off point is independent of the images and of the focal length: where the
 surveyed ground lies near the take-off point's height it should match the map's flying height. It is a warning,
-not a refusal: the take-off point may lie well above or below the surveyed ground (a valley, a roof).
+not a refusal: the take-off point may lie well above or below the surveyed ground (a valley, a roof), which
+one flying height cannot tell from a focal scale. The map's verdict is recorded in run.json and match repeats
+it (`ground_off_beyond`) rather than judging anew.
 """
 
 from __future__ import annotations
