@@ -13,6 +13,7 @@ from PIL.TiffImagePlugin import IFDRational
 
 from sosmatch.database.exif import ImageMetadata
 from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.geometry import Camera
 from sosmatch.tools.cli import main
 from sosmatch.workflows.image_cameras import camera_from_metadata, camera_groups, odd_aspect
 
@@ -70,6 +71,48 @@ def test_frames_of_a_cameras_aspect_are_not_called_cropped(size):
     assert camera_groups([meta], None, strict=True)[3] == []
 
 
+def test_a_zoomed_frame_whose_35mm_figure_includes_the_zoom_is_not_refused():
+    """rev26: the 35 mm figure of a frame zoomed x2 in the camera often includes the zoom (54 mm for 27), the focal
+    plane route does not (the zoom is applied afterwards): the two were compared unlike and the frame refused."""
+    for f35 in (2 * F35, F35):  # the zoom in the 35 mm figure, or not: either is the camera's own EXIF
+        meta = _meta(640, 480, (640, 480), f35=f35)
+        meta.digital_zoom = 2.0
+        cam, source = camera_from_metadata(meta)
+        assert cam.fx == pytest.approx(2 * TRUE_FX_640, rel=1e-6) and "x2 digital zoom" in source
+    meta = _meta(640, 480, (640, 480), f35=4 * F35)  # beyond either reading: still refused
+    meta.digital_zoom = 2.0
+    with pytest.raises(InputError, match="disagree"):
+        camera_from_metadata(meta)
+
+
+REAL_SENSOR_SIZES = [
+    (640, 512), (336, 256), (382, 288), (160, 120),  # thermal cores
+    (1280, 960), (1600, 1300), (2064, 1544), (2464, 2056), (4112, 3008),  # multispectral and their pans
+    (4032, 3024), (4000, 2250),  # phones
+    (5472, 3648), (4000, 3000), (5280, 3956), (4096, 2160), (3840, 2160), (5120, 2700), (2048, 1080),  # DJI
+    (1920, 1200), (1920, 1080),
+]
+
+
+@pytest.mark.parametrize("size", REAL_SENSOR_SIZES)
+def test_no_real_sensors_frame_is_called_cropped_by_either_check(size):
+    """rev26: odd_aspect (2 %) called DJI's DCI 4K and MicaSense pans cropped, cropped_frames (0.5 %, another
+    list) the 336x256 thermal core and the P4 Multispectral's 1600x1300: one list and tolerance for both."""
+    from sosmatch.workflows.poses.checks import cropped_frames
+
+    w, h = size
+    for width, height in ((w, h), (h, w)):
+        assert odd_aspect(_meta(width, height, None, plane=False)) is None
+        assert cropped_frames([Camera(width, height, 1.0, 1.0, width / 2, height / 2)]) == []
+
+
+def test_a_seven_by_six_crop_is_called_cropped_by_both_checks():
+    from sosmatch.workflows.poses.checks import cropped_frames
+
+    assert odd_aspect(_meta(560, 480, None, plane=False)) is not None
+    assert cropped_frames([Camera(560, 480, 1.0, 1.0, 280.0, 240.0)]) == ["560x480"]
+
+
 def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int,
           dji: dict[str, str] | None = None) -> None:
     """A JPEG of the 1-inch camera's EXIF at `size`, north of 47 N by `k` seconds, with DJI XMP `dji`."""
@@ -123,12 +166,48 @@ def test_a_map_whose_ground_lies_far_from_the_recorded_height_above_take_off_is_
     rel = np.full(20, 100.0)
     said = height_against_takeoff(203.0, rel, 502.3)
     assert said is not None and "203 m above its ground" in said and "100 m above the take-off" in said
-    assert "103 m below" in said and "x2.03" in said and "for 247.4" in said
-    assert "23 m above" in (height_against_takeoff(77.0, rel, 374.4) or "")
+    assert "103 m below the take-off point" in said and "x2.03" in said and "would be 247.4" in said
+    assert "cannot be told apart" in said  # neither cause asserted
+    assert "hill" in said
+    low = height_against_takeoff(77.0, rel, 374.4) or ""
+    assert "23 m above the take-off point (a take-off in a valley)" in low and "x0.77" in low
     assert height_against_takeoff(104.0, rel, 502.3) is None
     assert height_against_takeoff(85.0, rel, 502.3) is None
     assert height_against_takeoff(440.0, np.full(20, 400.0), 502.3) is None  # 10 % of a high flight
     assert height_against_takeoff(203.0, np.full(20, np.nan), 502.3) is None
+
+
+def test_match_repeats_the_maps_own_take_off_verdict_and_no_other():
+    """rev26: the run.json record carried a ground offset whenever a height existed, and match judged it without
+    the map's rules: a take-off 150 m above the survey (RelativeAltitude -50) or only 10 of 50 keyframes
+    recording a height left the map silent and made match warn. The record now carries the map's verdict."""
+    from sosmatch.workflows.map.recorded_height import ground_off_beyond, height_against_takeoff, takeoff_record
+
+    for height, rel in ((100.0, np.full(50, -50.0)), (60.0, np.r_[np.full(10, 100.0), np.full(40, np.nan)])):
+        assert height_against_takeoff(height, rel, 3000.0) is None
+        assert ground_off_beyond(takeoff_record(height, rel)) is None
+    record = takeoff_record(203.0, np.full(20, 100.0))
+    assert record is not None and record["beyond"] is True and ground_off_beyond(record) == pytest.approx(-103.0)
+    # a run.json written before the verdict was recorded: no warning
+    assert ground_off_beyond({k: v for k, v in record.items() if k != "beyond"}) is None
+
+
+def test_the_flying_height_against_take_off_is_measured_to_the_ground_not_the_canopy():
+    """rev26: the map's flying height runs to the landmarks' median, and over a forest they are tree tops: a
+    correct flight at 100 m over 25 m trees read 75 m, "focal length x0.75 off". The ground under a keyframe is
+    a low quantile of the landmarks it sees."""
+    from sosmatch.workflows.map.recorded_height import ground_flying_height, height_against_takeoff
+
+    rng = np.random.default_rng(0)
+    centers = np.c_[np.arange(10) * 20.0, np.zeros(10), np.full(10, 100.0)]
+    xy = rng.uniform(0, 180, (400, 2))
+    z = np.where(rng.random(400) < 0.8, 25.0, 0.0) + rng.normal(0, 0.3, 400)  # 80 % canopy, 20 % ground
+    positions = np.c_[xy, z]
+    observed = [np.flatnonzero(np.abs(centers[:, 0] - x) < 40) for x in xy[:, 0]]
+    height = ground_flying_height(positions, observed, centers)
+    assert height == pytest.approx(100.0, abs=1.5)
+    assert height_against_takeoff(height, np.full(10, 100.0), 3000.0) is None
+    assert np.isnan(ground_flying_height(np.zeros((0, 3)), [], centers))
 
 
 def test_recorded_heights_read_the_dji_relative_altitude(tmp_path):

@@ -81,11 +81,24 @@ def exif_focal_uncertainty(camera: Camera, source: str) -> float:
 MIN_SENSOR_WIDTH_MM = 3.0
 
 
-# Aspects (long / short side) of camera frames: photo sensors' full frames and their usual in-camera crops
-# (16:9, 16:10, 5:4 and square stills; 5:4 thermal cores such as 640x512). 336x256 cores (21:16) lie within
-# ASPECT_TOLERANCE of 4:3.
-CAMERA_ASPECTS = (1.0, 5.0 / 4.0, 4.0 / 3.0, 3.0 / 2.0, 16.0 / 10.0, 16.0 / 9.0)
+# Aspects (long / short side) of camera frames: photo sensors' full frames and their usual in-camera crops,
+# the one list for every check that calls a frame cropped (`odd_aspect`, `poses.checks.cropped_frames`; two lists
+# had called DJI DCI 4K and the P4 Multispectral's 1600x1300 cropped): square stills, 6:5 (MicaSense 2464x2056
+# panchromatic), 5:4 (thermal 640x512, 1280x1024; P4 Multispectral 1600x1300 within the tolerance), 4:3 (thermal
+# 336x256 and 382x288 within it), 4112x3008 (MicaSense Altum-PT panchromatic), 3:2, 16:10, 16:9 and 17:9 (DCI
+# 4096x2160, 5120x2700). 7:6 (a 640x480 frame cut by 80 px, nu42) lies beyond the tolerance of 6:5.
+CAMERA_ASPECTS = (1.0, 6.0 / 5.0, 5.0 / 4.0, 4.0 / 3.0, 4112.0 / 3008.0, 3.0 / 2.0, 16.0 / 10.0, 16.0 / 9.0,
+                  17.0 / 9.0)
 ASPECT_TOLERANCE = 0.02
+
+
+def camera_aspect(width: int, height: int) -> bool:
+    """Whether a `width` x `height` frame (either way up) has a camera's aspect (`CAMERA_ASPECTS`, within
+    ASPECT_TOLERANCE); False for an empty size."""
+    if width <= 0 or height <= 0:
+        return False
+    aspect = max(width, height) / min(width, height)
+    return any(abs(aspect - a) <= ASPECT_TOLERANCE * a for a in CAMERA_ASPECTS)
 
 
 def odd_aspect(meta: ImageMetadata) -> str | None:
@@ -96,9 +109,9 @@ def odd_aspect(meta: ImageMetadata) -> str | None:
     w, h = meta.width, meta.height
     if w <= 0 or h <= 0 or (meta.exif_size and (tuple(meta.exif_size) in ((w, h), (h, w)))):
         return None
-    aspect = max(w, h) / min(w, h)
-    if any(abs(aspect - a) <= ASPECT_TOLERANCE * a for a in CAMERA_ASPECTS):
+    if camera_aspect(w, h):
         return None
+    aspect = max(w, h) / min(w, h)
     return (f"its {w}x{h} frames have an aspect ({aspect:.3f}) no camera makes: cropped after capture? Their "
             "principal point is unknown (the image centre is taken, which a one-sided crop moves: poses and "
             "heights off by up to half the cut's angle); map the uncropped frames, or give the camera (--camera)")
@@ -147,9 +160,14 @@ def _refuse_disagreement(meta: ImageMetadata, by_plane: Camera, by_35: Camera) -
     EXIF_FOCAL_TOLERANCE (their nominal marking and whole-millimetre rounding are a few per cent). A resize after
     capture keeps the 35 mm figure (a ratio to the frame) right but not the pixel pitch the focal plane resolution
     gives, when ExifImageWidth was rewritten to the new size; a crop keeps the pixel pitch but not the frame the
-    35 mm figure refers to. Which happened, the EXIF cannot say: the camera's focal length in pixels is unknown."""
+    35 mm figure refers to. Which happened, the EXIF cannot say: the camera's focal length in pixels is unknown.
+
+    Both routes are compared before a digital zoom (`camera_from_metadata` applies DigitalZoomRatio afterwards),
+    but many cameras write a 35 mm figure that includes it: a zoomed frame agrees when either its 35 mm figure
+    or the focal plane one multiplied by the zoom is like the other."""
     ratio = by_plane.fx / by_35.fx
-    if abs(math.log(ratio)) <= math.log1p(EXIF_FOCAL_TOLERANCE):
+    zoom = meta.digital_zoom if meta.digital_zoom and meta.digital_zoom > 1.0 else 1.0
+    if min(abs(math.log(ratio)), abs(math.log(ratio * zoom))) <= math.log1p(EXIF_FOCAL_TOLERANCE):
         return
     size = f"ExifImageWidth {meta.exif_size[0]}x{meta.exif_size[1]}" if meta.exif_size else "no ExifImageWidth"
     raise InputError(

@@ -380,8 +380,9 @@ def _takeoff_height_warning(ans: Any, points_b: np.ndarray, a: str | Path, b: st
     pb = np.asarray(points_b, np.float64)[pairs[:, 1]]
     dz = float(np.median(ans.transform.apply(pb)[:, 2] - pb[:, 2]))
     return (f"the answer moves B {dz:+.1f} m vertically, and {' and '.join(off)} where its recorded heights above "
-            "take-off put it (its map's warning: a focal length off?): the vertical part of this answer, and heights "
-            "compared across these maps, inherit that error")
+            "take-off put it (its map's warning: ground that far from the take-off point's, or a focal length off): if "
+            "the focal length, the vertical part of this answer, and heights compared across these maps, inherit that "
+            "error")
 
 
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,

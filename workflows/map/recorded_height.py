@@ -1,11 +1,13 @@
 """The map's flying height against the height above take-off the flight recorded (DJI XMP RelativeAltitude).
 
-The map's flying height (cameras over the ground their landmarks make) scales with the camera's focal length:
+The map's flying height (cameras over their ground, `ground_flying_height`) scales with the camera's focal length:
 a focal length 2x too long (a photo resized after capture whose EXIF was rewritten) put the ground 100 m too
 low and every check passed, since poses, matches and georeference are all horizontal or scale-free. The
 barometer's height above the take-off point is independent of the images and of the focal length: where the
 surveyed ground lies near the take-off point's height it should match the map's flying height. It is a warning,
-not a refusal: the take-off point may lie well above or below the surveyed ground (a valley, a roof).
+not a refusal: the take-off point may lie well above or below the surveyed ground (a valley, a roof), which
+one flying height cannot tell from a focal scale. The map's verdict is recorded in run.json and match repeats
+it (`ground_off_beyond`) rather than judging anew.
 """
 
 from __future__ import annotations
@@ -23,6 +25,9 @@ log = logging.getLogger(__name__)
 # larger of this many metres (the take-off point's ground against the surveyed one: a few metres on flat land)
 # and the EXIF focal length's own tolerance as a share of the height (a focal length within it is not in doubt).
 TAKEOFF_GROUND_M = 20.0
+# The share of a keyframe's landmarks below its ground (`ground_flying_height`): low enough to pass the canopy
+# and the roofs, high enough to leave a few landmarks triangulated too deep.
+GROUND_QUANTILE = 10.0
 
 
 def recorded_heights(paths: list[Path]) -> np.ndarray:
@@ -42,47 +47,82 @@ def recorded_heights(paths: list[Path]) -> np.ndarray:
     return out
 
 
-def takeoff_record(map_height_m: float, relative_m: np.ndarray) -> dict[str, float] | None:
-    """run.json's "height_above_takeoff": the map's flying height, the median recorded height above take-off and
-    the map's ground against where the recorded heights put it (m, + above); None without recorded heights or a
-    flying height (`height_against_takeoff` says when they disagree)."""
-    rel = relative_m[np.isfinite(relative_m)]
+def ground_flying_height(positions: np.ndarray, observed_keyframes: list[np.ndarray], centers: np.ndarray) -> float:
+    """The cameras' height above the ground they see: per keyframe its centre's height over the GROUND_QUANTILE
+    of the heights of the landmarks it observes, the median over keyframes (NaN without any). The map quality's
+    flying height measures to the landmarks' median, and landmarks are objects (tree tops, roofs): over a forest
+    that reads 20 m low, which alone is the tolerance. A low quantile is the ground wherever some of it shows."""
+    z = np.asarray(positions, np.float64).reshape(-1, 3)[:, 2]
+    centers = np.asarray(centers, np.float64).reshape(-1, 3)
+    seen: list[list[float]] = [[] for _ in range(len(centers))]
+    for i, kfs in enumerate(observed_keyframes):
+        for k in np.asarray(kfs, np.int64):
+            seen[k].append(z[i])
+    heights = [centers[k, 2] - np.percentile(g, GROUND_QUANTILE) for k, g in enumerate(seen) if g]
+    return float(np.median(heights)) if heights else float("nan")
+
+
+def _judged(map_height_m: float, relative_m: np.ndarray) -> tuple[float, float] | None:
+    """(median recorded height, map height - recorded) when the two can be compared: a positive flying height,
+    at least half the keyframes recording a height, and their median above the take-off point (a take-off above
+    the surveyed ground records heights at or below 0, saying nothing of the focal length); None otherwise. The
+    one rule for the map's warning and for its run.json record, which match reads."""
+    rel = np.asarray(relative_m, np.float64)
+    finite = rel[np.isfinite(rel)]
+    if not np.isfinite(map_height_m) or map_height_m <= 0 or len(finite) < max(1, len(rel) / 2):
+        return None
+    recorded = float(np.median(finite))
+    return (recorded, float(map_height_m) - recorded) if recorded > 0 else None
+
+
+def _beyond(recorded: float, off: float) -> bool:
+    return abs(off) > max(TAKEOFF_GROUND_M, EXIF_FOCAL_TOLERANCE * recorded)
+
+
+def takeoff_record(map_height_m: float, relative_m: np.ndarray) -> dict[str, float | bool] | None:
+    """run.json's "height_above_takeoff": the map's flying height (over its ground), the median recorded height
+    above take-off, the map's ground against where the recorded heights put it (m, + above) and "beyond": the
+    map's own verdict (`height_against_takeoff` warned), the only thing match reads; None without recorded
+    heights or a flying height."""
+    rel = np.asarray(relative_m, np.float64)
+    rel = rel[np.isfinite(rel)]
     if not np.isfinite(map_height_m) or not len(rel):
         return None
     recorded = float(np.median(rel))
+    judged = _judged(map_height_m, relative_m)
     return {"map_flying_height_m": round(float(map_height_m), 2), "relative_altitude_m": round(recorded, 2),
-            "ground_off_m": round(recorded - float(map_height_m), 2)}
+            "ground_off_m": round(recorded - float(map_height_m), 2),
+            "beyond": judged is not None and _beyond(*judged)}
 
 
 def ground_off_beyond(record: object) -> float | None:
-    """The "ground_off_m" of a run.json "height_above_takeoff" record when it lies beyond the tolerance of
-    `height_against_takeoff` (the map's ground that far from where the recorded heights put it), else None."""
-    if not isinstance(record, dict):
+    """The "ground_off_m" of a run.json "height_above_takeoff" record whose map warned ("beyond"), else None:
+    match repeats the map's verdict rather than judging anew (a record written before "beyond" existed: None)."""
+    if not isinstance(record, dict) or record.get("beyond") is not True:
         return None
     try:
-        off, recorded = float(record["ground_off_m"]), float(record["relative_altitude_m"])
+        return float(record["ground_off_m"])
     except (KeyError, TypeError, ValueError):
         return None
-    return off if abs(off) > max(TAKEOFF_GROUND_M, EXIF_FOCAL_TOLERANCE * recorded) else None
 
 
 def height_against_takeoff(map_height_m: float, relative_m: np.ndarray, camera_fx: float) -> str | None:
-    """A warning when the map's flying height (`map_height_m`, cameras above the ground their landmarks make)
-    and the median recorded height above take-off (`relative_m`, NaN: none) disagree beyond the larger of
-    TAKEOFF_GROUND_M and EXIF_FOCAL_TOLERANCE of it; None when they agree, or when fewer than half the images
-    record a height (or the heights are not above the take-off point)."""
-    rel = relative_m[np.isfinite(relative_m)]
-    if not np.isfinite(map_height_m) or map_height_m <= 0 or len(rel) < max(1, len(relative_m) / 2):
+    """A warning when the map's flying height (`map_height_m`, cameras above their ground,
+    `ground_flying_height`) and the median recorded height above take-off (`relative_m`, NaN: none) disagree
+    beyond the larger of TAKEOFF_GROUND_M and EXIF_FOCAL_TOLERANCE of it; None when they agree, or when they
+    cannot be compared (`_judged`).
+
+    Two causes fit: a focal length off scales every height (the cameras' and the relief's), a take-off point
+    above or below the surveyed ground adds a constant. Over flat ground, from one flying height, they cannot be
+    told apart, so the warning states what each would have to be and asserts neither."""
+    judged = _judged(map_height_m, relative_m)
+    if judged is None or not _beyond(*judged):
         return None
-    recorded = float(np.median(rel))
-    if recorded <= 0:
-        return None
-    off = map_height_m - recorded
-    if abs(off) <= max(TAKEOFF_GROUND_M, EXIF_FOCAL_TOLERANCE * recorded):
-        return None
+    recorded, off = judged
     scale = map_height_m / recorded
+    where, why = ("below", "a take-off from a hill or a roof") if off > 0 else ("above", "a take-off in a valley")
     return (f"the map puts the cameras {map_height_m:.0f} m above its ground, the images' RelativeAltitude "
-            f"{recorded:.0f} m above the take-off point: the landmarks lie {abs(off):.0f} m "
-            f"{'below' if off > 0 else 'above'} where the recorded heights put the ground. A focal length x{scale:.2f} "
-            f"off (fx {camera_fx:.1f} px; for {camera_fx / scale:.1f}: photos resized or cropped after capture?), "
-            "or surveyed ground that far from the take-off point's")
+            f"{recorded:.0f} m above the take-off point. Either the surveyed ground lies {abs(off):.0f} m "
+            f"{where} the take-off point ({why}), "
+            f"or the focal length is x{scale:.2f} off (fx {camera_fx:.1f} px would be {camera_fx / scale:.1f}: "
+            "photos resized or cropped after capture?); from one flying height the two cannot be told apart")

@@ -47,7 +47,7 @@ from .keyframes import (
 )
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, map_identity, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
-from .recorded_height import height_against_takeoff, recorded_heights, takeoff_record
+from .recorded_height import ground_flying_height, height_against_takeoff, recorded_heights, takeoff_record
 
 log = logging.getLogger(__name__)
 
@@ -374,7 +374,10 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     verdict = joined(Verdict(warnings=list(inputs.warnings)), verdict, checked.verdict if checked is not None else None)
     # the recorded height above take-off: a check of the focal scale independent of the images and pose source
     relative = recorded_heights([inputs.image_paths[i] for i in keyframes])
-    said = height_against_takeoff(quality.flying_height_m, relative, float(camera.fx))
+    # measured to the ground, not to the landmarks' median: tree tops and roofs would read a correct flight low
+    over_ground = ground_flying_height(landmarks.positions, [o[:, 0] for o in landmarks.observations],
+                                       kf_poses.centers)
+    said = height_against_takeoff(over_ground, relative, float(camera.fx))
     if said is not None:
         log.warning("%s: %s", out.path, said)
         verdict.warnings.append(said)
@@ -419,7 +422,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "counts": counts, "quality": {**quality.to_dict(), "images": images.to_dict()},
         "verdict": verdict_record(verdict, params.quality.refuse),
         # the flying height against the recorded height above take-off (match judges a vertical move by it)
-        "height_above_takeoff": takeoff_record(quality.flying_height_m, relative),
+        "height_above_takeoff": takeoff_record(over_ground, relative),
         "pose_check": checked.summary() if checked is not None else None,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         # the map's own noise (plugin.map_noise): `sosmatch match` derives its tolerances from it

@@ -16,7 +16,7 @@ from ...plugin.gps_track import with_quantisation
 from ...plugin.multisession import Sim3
 from ...plugin.params import SfmParams
 from .. import sfm
-from ..image_cameras import EXIF_FOCAL_TOLERANCE
+from ..image_cameras import EXIF_FOCAL_TOLERANCE, camera_aspect
 from ..image_priors import ImagePriors
 from .result import _listing
 
@@ -230,20 +230,11 @@ def _exif_set_aside_warning(est: FocalEstimate, source: str, f: float, height_m:
             f"{at}")
 
 
-# width:height of the sensors' readouts (either way up): a frame of none of them was cropped after capture
-SENSOR_ASPECTS = (1.0, 5 / 4, 4 / 3, 3 / 2, 16 / 9)
-
-
 def cropped_frames(cameras: Sequence[Camera]) -> list[str]:
-    """The image sizes ("560x480") of `cameras` whose aspect is within 0.5 % of no sensor's (`SENSOR_ASPECTS`):
-    cut after capture, so the centre of the file need not be the optical axis's."""
-    out = []
-    for cam in cameras:
-        if cam.width > 0 and cam.height > 0:
-            aspect = max(cam.width, cam.height) / min(cam.width, cam.height)
-            if all(abs(aspect / a - 1.0) > 0.005 for a in SENSOR_ASPECTS):
-                out.append(f"{cam.width}x{cam.height}")
-    return out
+    """The image sizes ("560x480") of `cameras` of no camera's aspect (`image_cameras.camera_aspect`, the list
+    `odd_aspect` judges by too): cut after capture, so the centre of the file need not be the optical axis's."""
+    return [f"{cam.width}x{cam.height}" for cam in cameras
+            if cam.width > 0 and cam.height > 0 and not camera_aspect(cam.width, cam.height)]
 
 
 def camera_frame_offset_warning(geo: Any, c_sfm: np.ndarray, r_sfm: np.ndarray, gps: np.ndarray,
