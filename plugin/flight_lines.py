@@ -81,9 +81,17 @@ def frame_yaw_deg(world_from_cam: np.ndarray, prior_world_from_cam: np.ndarray) 
     if not len(world_from_cam):
         return 0.0
     yaw = _wrap(_heading_deg(prior_world_from_cam) - _heading_deg(world_from_cam))
-    near = np.abs(_wrap(yaw[:, None] - yaw[None, :])) <= 90.0
-    mode = yaw[int(np.argmax(near.sum(axis=1)))]
+    mode = yaw[int(np.argmax(_within_90_counts(yaw)))]
     return _circular_mean_deg(yaw[np.abs(_wrap(yaw - mode)) <= 90.0])
+
+
+def _within_90_counts(yaw: np.ndarray) -> np.ndarray:
+    """For each offset (degrees, wrapped), how many offsets lie within 90 degrees of it around the circle, itself
+    included. Counted on the sorted offsets with their copies a turn below and above (a window of 180 degrees
+    holds each offset once), in N log N time and memory N: the N x N comparison took 3.2 GB at 20 000 images."""
+    ring = np.sort(yaw)
+    ring = np.concatenate([ring - 360.0, ring, ring + 360.0])
+    return np.searchsorted(ring, yaw + 90.0, side="right") - np.searchsorted(ring, yaw - 90.0, side="left")
 
 
 def flight_lines(centers: np.ndarray, max_turn_deg: float = 30.0, min_images: int = 3) -> np.ndarray:

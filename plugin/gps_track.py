@@ -157,18 +157,39 @@ def quantisation(lat: np.ndarray, lon: np.ndarray) -> Quantisation | None:
     return q if max(q.step_north_m, q.step_east_m) > QUANTISATION_NOTE_M else None
 
 
-def repeated_fixes(east: np.ndarray, north: np.ndarray) -> tuple[int, float]:
+def repeated_fixes(east: np.ndarray, north: np.ndarray, times: np.ndarray | None = None,
+                   exposures: np.ndarray | None = None) -> tuple[int, float]:
     """How many fixes (in capture order) repeat the previous one exactly, and the median distance between the
     consecutive fixes that differ (m; NaN with none): a receiver updating slower than the camera repeats its fix
     while the aircraft flies on; a hovering aircraft's repeats come with differing fixes only as far apart as the
-    GPS noise."""
-    xy = np.column_stack([east, north])
-    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    GPS noise. A repeat is that evidence only if the aircraft moved between the two captures, so with capture
+    `times` (s) a repeat counts only when it comes at least half the flight's pace between places (the median time
+    from one fix to the next) after the previous capture and the flight's speed (its differing fixes over the time
+    between them) carries it `MOVING_STEP_M` beyond where the fix last changed: shots of a burst or a bracket at
+    each waypoint are one place, not a lag. A repeat whose `exposures` (s) differ from the previous image's is
+    exposure bracketing (AEB: one place, several exposure times) and never counts."""
+    ok = np.isfinite(east) & np.isfinite(north)
+    xy = np.column_stack([east, north])[ok]
     if len(xy) < 2:
         return 0, float("nan")
     step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     moved = step[step > 0]
-    return int(np.sum(step == 0)), float(np.median(moved)) if len(moved) else float("nan")
+    repeat = step == 0
+    if exposures is not None:
+        e = np.asarray(exposures, np.float64)[ok]
+        repeat &= ~(np.isfinite(e[1:]) & np.isfinite(e[:-1]) & (e[1:] != e[:-1]))
+    if times is not None and repeat.any() and len(moved):
+        t = np.asarray(times, np.float64)[ok]
+        # index of the image where each image's fix first appeared
+        since = np.maximum.accumulate(np.where(np.r_[True, step > 0], np.arange(len(t)), 0))
+        change = np.flatnonzero(step > 0) + 1
+        pace = t[change] - t[since[change - 1]]
+        good = np.isfinite(pace) & (pace > 0)
+        if good.any():
+            speed = float(np.median(step[change - 1][good] / pace[good]))
+            gap, lag = np.diff(t), t[1:] - t[since[:-1]]
+            repeat &= (gap >= 0.5 * float(np.median(pace[good]))) & (speed * lag > MOVING_STEP_M)
+    return int(np.sum(repeat)), float(np.median(moved)) if len(moved) else float("nan")
 
 
 def with_quantisation(sigma_m: float, summary: dict | None) -> float:

@@ -100,3 +100,13 @@ def test_a_map_accepted_despite_refusals_is_a_warning_and_a_bad_verdict_is_named
     assert recorded_verdict_warnings(tmp_path) == []
     shutil.rmtree(tmp_path)
     assert recorded_verdict_warnings(tmp_path) == []
+
+
+def test_a_verdict_that_repeats_every_poses_warning_is_said_once(flights, tmp_path):
+    """rev26: the map's verdict now holds all its poses.json's warnings (`poses.result.map_warnings`); batch, which
+    also reads poses.json, says each once."""
+    verdict = {"status": "ok", "refusals": [], "warnings": [FOCAL, f"poses: {REPEATED}"]}
+    (flights / "A" / "run.json").write_text(json.dumps({"verdict": verdict}))
+    report = _run(flights, tmp_path / "out")
+    assert report.warnings == [f"session A: {FOCAL}", f"session A: poses: {REPEATED}",
+                               f"pair A__B match: {flights / 'B'}: {IMPRECISE}"]

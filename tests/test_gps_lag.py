@@ -117,7 +117,8 @@ def test_the_georegistrations_warnings_reach_the_map_inputs(tmp_path):
     result = PosesResult(tmp_path / "p", poses, {1: Camera(320, 240, 250.0, 250.0, 160.0, 120.0)}, {}, 32632, [],
                          {"georegistration": {"warnings": [said]}}, [said, "another image warning"])
     inputs = map_inputs(result, tmp_path / "img", "sfm")
-    assert inputs.warnings == [f"poses: {said}"]
+    # rev26: the record's other warnings are the map's too (README), each once
+    assert inputs.warnings == [f"poses: {said}", "poses: another image warning"]
     assert map_inputs(PosesResult(tmp_path / "p", poses, result.cameras, {}, 0, []), tmp_path / "img",
                       "sfm").warnings == []
 
@@ -314,9 +315,11 @@ def test_a_poses_csv_of_a_poses_output_brings_its_registrations_warnings(tmp_pat
     write_cameras_txt(out / "cameras.txt", {1: Camera(320, 240, 250.0, 250.0, 160.0, 120.0)})
     said = "the GPS positions lag the images by 0.28 s (1.9 m along the track at 6.6 m/s): corrected"
     (out / "poses.json").write_text(json.dumps({"format": "sosmatch-poses", "version": 1,
-                                                "georegistration": {"warnings": [said]}}))
+                                                "georegistration": {"warnings": [said]},
+                                                "warnings": [said, "another image warning"]}))
     inputs = load_inputs(tmp_path / "img", out / "poses.csv", None)
-    assert inputs.warnings == [f"poses: {said}"]
+    # rev26: the record's other warnings are the map's too (README), each once
+    assert inputs.warnings == [f"poses: {said}", "poses: another image warning"]
     other = tmp_path / "other"
     other.mkdir()
     (other / "poses.csv").write_bytes((out / "poses.csv").read_bytes())

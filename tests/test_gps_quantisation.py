@@ -118,3 +118,33 @@ def test_poses_from_exif_and_map_say_the_grid_and_the_refinement_counts_it(tmp_p
     with pytest.raises(ValueError, match="stop here"):
         pfe._refine(res, img, 3.0)
     assert seen["sigma"] == pytest.approx(math.hypot(3.0, 11.132 / math.sqrt(12.0)), abs=1e-3)
+
+
+def test_bursts_and_brackets_at_one_place_are_no_slow_receiver():
+    """rev26: three shots at each waypoint (a burst, or AEB's three exposure times) repeat one fix because they are
+    at one place; they were said to be a receiver lagging 25 m and added 7.25 m of GPS noise."""
+    rng = np.random.default_rng(0)
+    east = np.repeat(np.arange(30) * 25.0 + rng.normal(0, 0.5, 30), 3)
+    north = np.repeat(rng.normal(0, 0.5, 30), 3)
+    lat, lon = LAT0 + north / 111_320.0, LON0 + east / (111_320.0 * math.cos(math.radians(LAT0)))
+    # a burst: 0.3 s between its shots, 6 s from one waypoint to the next
+    burst_t = np.repeat(np.arange(30) * 6.6, 3) + np.tile([0.0, 0.3, 0.6], 30)
+    assert coarse_fixes(lat, lon, east, north, burst_t) == (None, None)
+    # AEB: the three exposures in one clock second, their exposure times differ
+    aeb_t, aeb_e = np.repeat(np.arange(30) * 5.0, 3), np.tile([1 / 250, 1 / 500, 1 / 1000], 30)
+    assert coarse_fixes(lat, lon, east, north, aeb_t, aeb_e) == (None, None)
+    assert coarse_fixes(lat, lon, east, north, None, aeb_e) == (None, None)  # without times too
+
+
+def test_a_slow_receiver_and_a_grid_are_still_found_with_times_and_exposures():
+    lat, lon = _track()
+    times, exposures = np.arange(50) * 2.0, np.full(50, 1 / 500)  # a capture every 2 s, 12 m apart
+    stale_lat, stale_lon = lat.copy(), lon.copy()
+    stale_lat[1::2], stale_lon[1::2] = lat[::2], lon[::2]  # a receiver at half the camera's rate
+    text, facts = coarse_fixes(stale_lat, stale_lon, *_en(stale_lat, stale_lon), times, exposures)
+    assert text is not None and "25 of 50 images repeat" in text and facts["sigma_m"] > 3.0
+    # nu42: fixes rounded to 1e-4 deg
+    lat4, lon4 = np.trunc(lat * 1e4) / 1e4, np.trunc(lon * 1e4) / 1e4
+    text, facts = coarse_fixes(lat4, lon4, *_en(lat4, lon4), times, exposures)
+    assert text is not None and "grid of 0.0001 x 0.0001 deg" in text
+    assert facts["sigma_m"] == pytest.approx(3.214, abs=1e-3)

@@ -82,8 +82,12 @@ def test_bracketed_colour_exposures_at_one_fix_are_no_rig(flight, tmp_path, capl
         for k in range(3):
             Image.open(jpg).save(folder / f"DJI_{3 * i + k:04d}.JPG", exif=_with_exposure(jpg, 1 / (250 * 2 ** k)))
     with caplog.at_level(logging.WARNING):
-        assert len(read_image_priors(folder).names) == 36
+        priors = read_image_priors(folder)
+    assert len(priors.names) == 36
     assert "exposure" not in caplog.text
+    # rev26: nor a receiver updating slower than the camera, with GPS noise added for it
+    assert "repeat the previous image's GPS fix" not in caplog.text
+    assert priors.summary["gps_quantisation"] is None
 
 
 @pytest.mark.parametrize("mode", ["L", "RGB"])

@@ -98,13 +98,15 @@ def check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: n
                      "long: give --epsg of a CRS that holds it all)", images)
 
 
-def coarse_fixes(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: np.ndarray) -> tuple[str | None,
-                                                                                                 dict | None]:
+def coarse_fixes(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: np.ndarray,
+                 times: np.ndarray | None = None, exposures: np.ndarray | None = None) -> tuple[str | None,
+                                                                                               dict | None]:
     """Fixes coarser than the receiver gives them (`plugin.gps_track.quantisation`): rounded to a grid of latitude
     and longitude, or repeated exactly while the aircraft flies on. Returns the one warning and the summary's
     `gps_quantisation` (its `sigma_m`, step / sqrt(12), is added to the GPS noise every consumer assumes:
-    `gps_track.with_quantisation`), or (None, None)."""
-    repeats, moving_m = repeated_fixes(east, north)
+    `gps_track.with_quantisation`), or (None, None). Capture `times` and `exposures` (s) tell a burst or a
+    bracket at one place from a lagging receiver (`gps_track.repeated_fixes`)."""
+    repeats, moving_m = repeated_fixes(east, north, times, exposures)
     q = quantisation(lat, lon)
     fixed = int(np.sum(np.isfinite(east) & np.isfinite(north)))
     if q is not None and q.sigma_m < QUANTISATION_WARN_SIGMA_M:
@@ -130,10 +132,11 @@ def coarse_fixes(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: np.n
 
 def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times: np.ndarray, timed: bool,
                   rotations: np.ndarray, tagged: np.ndarray, names: list[str],
-                  lat: np.ndarray | None = None, lon: np.ndarray | None = None) -> tuple[list[str], dict[str, Any]]:
+                  lat: np.ndarray | None = None, lon: np.ndarray | None = None,
+                  exposures: np.ndarray | None = None) -> tuple[list[str], dict[str, Any]]:
     """What the GPS track and the attitude tags say that no aircraft does (`plugin.gps_track`): warnings naming
     images, and the facts for the summary (`gps_frozen`, `gps_jumps`, `gps_quantisation` with `lat`/`lon`, the
-    fixes in degrees, `tags_median_off_nadir_deg`). Without
+    fixes in degrees, `tags_median_off_nadir_deg`; `exposures`, s, tell bracketing from a lagging receiver). Without
     capture times (`timed` False: `times` are one second per image) there is no speed, so no jump is judged: the
     step to the next line or battery is as long as a wrong fix."""
     out: list[str] = []
@@ -149,7 +152,8 @@ def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times
                          for i, j, d, v in jumps[:4])
         out.append(f"the GPS jumps {len(jumps)} time(s) farther than the aircraft flies between two captures "
                    f"({said}{', ...' if len(jumps) > 4 else ''}): wrong fixes; their images' positions are wrong")
-    coarse, quantised = (None, None) if frozen or lat is None or lon is None else coarse_fixes(lat, lon, east, north)
+    coarse, quantised = (None, None) if frozen or lat is None or lon is None else coarse_fixes(
+        lat, lon, east, north, times if timed else None, exposures)
     if coarse:
         out.append(coarse)
     off = off_nadir_deg(rotations[tagged]) if np.any(tagged) else np.zeros(0)

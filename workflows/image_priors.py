@@ -418,7 +418,9 @@ def read_image_priors(
                  "of the heading)", n_course, n, n_turns)
 
     track_warnings, track_facts = track_checks(east, north, positions[:, 2], times, time_source.startswith("EXIF"),
-                                                rotations, kind != "course", [m.path.name for m in metas], lat, lon)
+                                                rotations, kind != "course", [m.path.name for m in metas], lat, lon,
+                                                np.array([np.nan if m.exposure_s is None else m.exposure_s
+                                                          for m in metas]))
     for text in track_warnings:
         log.warning("%s", text)
     cameras, camera_index, intrinsics_sources, camera_warnings = camera_groups(metas, sensor_width_mm,

@@ -72,14 +72,31 @@ def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
     camera = next(iter(result.cameras.values()))
     return MapInputs([paths[n] for n in result.poses.names], result.poses, camera, result.epsg,
                      {"poses": source, "camera": source, "images": str(image_dir)},
-                     warnings=registration_warnings(result.report))
+                     warnings=map_warnings(result))
+
+
+def map_warnings(result: PosesResult) -> list[str]:
+    """The map's verdict's share of a `poses` run (README "Loud, not quiet"): the georegistration's and focal
+    length's doubts (`registration_warnings`) and every other warning its record holds (an exposure under two
+    names, rounded or lagging GPS, a camera of no sensor's aspect), each once: they doubt the poses the map is
+    built on, and on the default path (structure from motion) the map's run.json was their only verdict. The record
+    lists the georegistration's among its own, so one text is said once (batch's report reads the verdict and
+    skips what it already says: `batch.workflow._session_warnings`)."""
+    return _with_record_warnings(registration_warnings(result.report), result.warnings)
+
+
+def _with_record_warnings(said: list[str], record: Any) -> list[str]:
+    for text in record if isinstance(record, list) else []:
+        if isinstance(text, str) and f"poses: {text}" not in said:
+            said.append(f"poses: {text}")
+    return said
 
 
 def registration_warnings(report: dict) -> list[str]:
     """The georegistration's and the focal-length check's warnings of a `poses` record (poses.json), as the map's
     verdict says them: what the poses' source found doubtful (GPS fixes left out, a lag corrected or a clock
     offset; the images and EXIF contradicting each other on the focal length, which scales every landmark's
-    height) is the map's doubt too. The record's other warnings (images left out, lines off their tags) stay in it."""
+    height) is the map's doubt too; `map_warnings` adds the record's others."""
     if not isinstance(report, dict):
         return []
     geo = report.get("georegistration")
@@ -105,7 +122,7 @@ def recorded_pose_warnings(out_dir: str | Path) -> list[str]:
 
 
 def registration_warnings_beside(poses_csv: Path) -> list[str]:
-    """`registration_warnings` of the `poses` output a poses.csv was taken from (its poses.json beside it); none
+    """`map_warnings` of the `poses` output a poses.csv was taken from (its poses.json beside it); none
     for a CSV of another origin or a record that cannot be read (the CSV itself is what the map uses)."""
     record = poses_csv.parent / RECORD
     if poses_csv.name != "poses.csv" or not record.is_file():
@@ -115,7 +132,7 @@ def registration_warnings_beside(poses_csv: Path) -> list[str]:
     except InputError:
         return []
     ours = isinstance(report, dict) and report.get("format") == "sosmatch-poses"
-    return registration_warnings(report) if ours else []
+    return _with_record_warnings(registration_warnings(report), report.get("warnings")) if ours else []
 
 def _refuse_cameras(listing: list[str], image_dir: Path) -> None:
     raise InputError(f"the images come from {len(listing)} cameras ({', '.join(listing)}); map takes one camera: "
