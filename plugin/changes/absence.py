@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..params import ChangeParams
+from ..sampling import evenly_spaced
 from .evidence import (
     absence_log_ratio,
     dispersion,
@@ -51,9 +52,7 @@ def presence(sizes: np.ndarray, views: np.ndarray, ref_positions: np.ndarray, re
              own: SessionObservations | None = None,
              positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """`absence_probability`'s presence rate per landmark and the dispersion of its count of `views`."""
-    ref = np.arange(len(ref_positions))
-    if len(ref) > REFERENCE_LIMIT:
-        ref = ref[np.linspace(0, len(ref) - 1, REFERENCE_LIMIT).round().astype(np.int64)]
+    ref = np.asarray(evenly_spaced(len(ref_positions), REFERENCE_LIMIT), dtype=np.int64)
     ref_h = ref_sizes[ref]
     ref_hits, ref_views = segment_hits(ref_positions[ref], ref_h, other.poses, other.cameras, other.segments,
                                        gate_m, params.max_size_difference)

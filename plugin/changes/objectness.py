@@ -16,6 +16,7 @@ from .surface import (
     SWEEP_STEP_M,
     footprint_places,
     ground_noise_fit,
+    ground_noise_limit,
     ground_sweep_noise,
     height_limit,
     heights_above_ground,
@@ -26,13 +27,14 @@ from .surface import REFERENCE_LIMIT as SURFACE_REFERENCES
 
 def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, own: SessionObservations,
           ground: HeightField, ref_heights: np.ndarray,
-          params: ChangeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+          params: ChangeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which landmarks have no object standing in their footprint in their own session: neither at their place
     (`heights`, already swept) nor at any of `params.object_height_ring` places around it
     (`surface.footprint_places`, swept here only for those whose place does not stand), the highest tested at the
     limit for all those places (`surface.stands_above_ground`). Also, per landmark, where its object stands: -1
     its own place, k the k-th place of its ring (the highest, where only the ring stands), the own session's
-    height there, and the (N, ring) own session's heights on the ring (NaN where not swept)."""
+    height there, the (N, ring) own session's heights on the ring (NaN where not swept), and whether it stands
+    only by its footprint's mean sweep (`changes.object_height_mean`: `footprint_mean_limit`)."""
     places = 1 + params.object_height_ring
     by_mean = params.object_height_mean and params.object_height_ring > 0
     # two tests of one place (its highest and its mean sweep): each at half the level (Bonferroni), so bare ground
@@ -80,12 +82,7 @@ def footprint_mean_limit(means: np.ndarray, p: float, places: int) -> float:
     flat top fills most of its footprint: one 2 m patch reads it against the ground noise of one patch, the
     mean of its footprint's places against the noise of a mean, which the overlap of the patches and the ground
     under a shadow's ring leave to be measured, not assumed. NaN without any mean at ground level."""
-    from scipy.stats import t
-
-    sigma, dof, n = ground_noise_fit(means, SWEEP_STEP_M / max(int(places), 1))
-    if not n or not 0.0 < p < 1.0:
-        return float("nan")
-    return max(float(t.isf(p, max(dof, 1e-3))) * sigma if sigma > 0 else 0.0, SWEEP_STEP_M)
+    return ground_noise_limit(means, p, SWEEP_STEP_M / max(int(places), 1))
 
 
 def beside_kept_objects(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, ring: np.ndarray,

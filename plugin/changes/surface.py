@@ -349,10 +349,11 @@ def ground_sweep_noise(ref_heights: np.ndarray, min_places: int = 10) -> float:
     return sigma if n >= min_places else float("nan")
 
 
-def ground_noise_limit(ref_heights: np.ndarray, rate: float) -> float:
+def ground_noise_limit(ref_heights: np.ndarray, rate: float, step: float = SWEEP_STEP_M) -> float:
     """The height above the ground that a new place of bare ground exceeds at one-sided rate `rate`, by the
-    sweep's ground noise as measured on the session's reference places (`ground_noise_fit`), and at least one
-    sweep step. NaN only where no reference place lies at or below the ground's level (no fit at all).
+    sweep's ground noise as measured on the session's reference places (`ground_noise_fit`, on the grid `step`
+    the heights lie on: a mean of k sweeps lies on one of SWEEP_STEP_M / k), and at least one sweep step. NaN only
+    where no reference place lies at or below the ground's level (no fit at all).
 
     sigma is measured, not known: the new place's height over it is Student-t with the fit's degrees of freedom,
     not normal. The quantile widens as the ground places thin (so a fit on a handful of places still makes a
@@ -362,7 +363,7 @@ def ground_noise_limit(ref_heights: np.ndarray, rate: float) -> float:
     one unchanged pair, 3 vs 24 false claims)."""
     from scipy.stats import t
 
-    sigma, dof, n = ground_noise_fit(ref_heights)
+    sigma, dof, n = ground_noise_fit(ref_heights, step)
     if not n or not 0.0 < rate < 1.0:
         return float("nan")
     # dof < n on the levels (a level says less than the height it rounds); sigma 0 (no place below the ground's
