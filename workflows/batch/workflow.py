@@ -303,18 +303,17 @@ def _session_warnings(sessions: dict[str, dict[str, Any]]) -> None:
     the focal length, its landmarks 18 m off in height, was "ok" in report.json, said only in its run.json)."""
     from ...plugin.errors import InputError
     from ..map.quality import recorded_verdict_warnings
-    from ..poses.result import recorded_pose_warnings
+    from ..poses.result import recorded_pose_warnings, with_pose_warnings
 
     for name, rec in sessions.items():
         rec.pop("warnings", None)
         if rec.get("status") != "done":
             continue
         try:
-            said = recorded_verdict_warnings(rec["session"])
-            # its poses' own record (structure from motion inside the session): the verdict repeats only some
-            # of them ("poses: ..."), the others (images left out or repeated) are said once here
-            said += [f"poses: {w}" for w in recorded_pose_warnings(Path(rec["session"]) / "poses")
-                     if f"poses: {w}" not in said]
+            # its poses' own record (structure from motion inside the session): a verdict of an earlier version
+            # repeats only some of them ("poses: ..."), the others (images left out or repeated) are said once here
+            said = with_pose_warnings(recorded_verdict_warnings(rec["session"]),
+                                      recorded_pose_warnings(Path(rec["session"]) / "poses"))
         except InputError as e:  # mapped a moment ago: say what is wrong with its records now
             said = [f"its session record cannot be read: {e}"]
         if said:

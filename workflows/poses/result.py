@@ -76,20 +76,23 @@ def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
 
 
 def map_warnings(result: PosesResult) -> list[str]:
-    """The map's verdict's share of a `poses` run (README "Loud, not quiet"): the georegistration's and focal
-    length's doubts (`registration_warnings`) and every other warning its record holds (an exposure under two
-    names, rounded or lagging GPS, a camera of no sensor's aspect), each once: they doubt the poses the map is
-    built on, and on the default path (structure from motion) the map's run.json was their only verdict. The record
-    lists the georegistration's among its own, so one text is said once (batch's report reads the verdict and
-    skips what it already says: `batch.workflow._session_warnings`)."""
-    return _with_record_warnings(registration_warnings(result.report), result.warnings)
+    """The map's verdict's share of a `poses` run (README "Loud, not quiet"): the georegistration's
+    and focal length's doubts (`registration_warnings`) and every other warning the record holds (an exposure
+    under two names, rounded or lagging GPS, a camera of no sensor's aspect), each once: they doubt the poses the
+    map is built on, and on the default path (structure from motion) the map's run.json was their only verdict.
+    The record lists the georegistration's among its own, so one text is said once (batch's report reads the
+    verdict and skips what it already says: `batch.workflow._session_warnings`)."""
+    return with_pose_warnings(registration_warnings(result.report), result.warnings)
 
 
-def _with_record_warnings(said: list[str], record: Any) -> list[str]:
+def with_pose_warnings(said: list[str], record: Any) -> list[str]:
+    """`said` (a map's verdict, as "poses: ..." for its poses' doubts) and each text of a poses record's
+    `warnings` (`record`; anything but a list adds nothing) it does not hold yet, as "poses: TEXT"."""
+    out = list(said)
     for text in record if isinstance(record, list) else []:
-        if isinstance(text, str) and f"poses: {text}" not in said:
-            said.append(f"poses: {text}")
-    return said
+        if isinstance(text, str) and f"poses: {text}" not in out:
+            out.append(f"poses: {text}")
+    return out
 
 
 def registration_warnings(report: dict) -> list[str]:
@@ -132,7 +135,7 @@ def registration_warnings_beside(poses_csv: Path) -> list[str]:
     except InputError:
         return []
     ours = isinstance(report, dict) and report.get("format") == "sosmatch-poses"
-    return _with_record_warnings(registration_warnings(report), report.get("warnings")) if ours else []
+    return with_pose_warnings(registration_warnings(report), report.get("warnings")) if ours else []
 
 def _refuse_cameras(listing: list[str], image_dir: Path) -> None:
     raise InputError(f"the images come from {len(listing)} cameras ({', '.join(listing)}); map takes one camera: "
