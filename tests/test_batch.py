@@ -19,7 +19,7 @@ from sosmatch.plugin.multisession import Edge, Sim3, connected_groups, nearest_p
 from sosmatch.tools.cli import main
 from sosmatch.tools.toy_sessions import lawnmower, make_world, oracle_pair_task, write_toy_session, yaw_transform
 from sosmatch.workflows import batch
-from sosmatch.workflows.batch.pairs import choose_pairs, pairs_chosen_by
+from sosmatch.workflows.batch.pairs import CHOSEN_BY_TIME, pairs_chosen_by
 from sosmatch.workflows.executors import DaskExecutor, LocalExecutor
 
 # A, B and C overlap in a chain (A-B, B-C; A-C too little to accept): C reaches A's frame only through B.
@@ -46,6 +46,12 @@ def flights(tmp_path_factory):
     (broken / "poses.csv").write_text("name,x,y,z\nframe_00000.jpg,1,2\n")
     (root / "notes").mkdir()  # not a flight: ignored
     return root, truth
+
+
+def choose_pairs(names, sessions, nearest, times=None):
+    """(the pairs batch matches, those of them added for their capture times), from `pairs_chosen_by`."""
+    reasons = pairs_chosen_by(names, sessions, nearest, times)
+    return list(reasons), [p for p, why in reasons.items() if why == CHOSEN_BY_TIME]
 
 
 def _normalised(report_path, out_dir):
@@ -928,7 +934,7 @@ def test_nearest_also_matches_each_flight_with_its_neighbours_in_time(monkeypatc
     by_position = choose_pairs(names, sessions, 2)[0]
     assert ("f2", "f3") not in by_position and ("f5", "f6") not in by_position
     times = {n: 86400.0 * k for k, n in enumerate(names)}
-    chosen, added = pairs_mod.choose_pairs(names, sessions, 2, times)
+    chosen, added = choose_pairs(names, sessions, 2, times)
     assert added == [("f2", "f3"), ("f3", "f4"), ("f4", "f5"), ("f5", "f6")]
     assert sorted(chosen) == sorted(set(by_position) | set(added))
     # a flight of another site flown in between is no one's neighbour, and does not hide f3 from f4
@@ -939,8 +945,8 @@ def test_nearest_also_matches_each_flight_with_its_neighbours_in_time(monkeypatc
     reasons = pairs_mod.pairs_chosen_by(names, sessions, 2, times)
     assert [p for p, why in reasons.items() if why == "consecutive flights by capture time"] == added
     assert all(reasons[p] == "nearest by camera position (--nearest 2)" for p in by_position)
-    assert pairs_mod.choose_pairs(names, sessions, 2, {})[1] == []  # no capture times: by position only
-    assert pairs_mod.choose_pairs(names, sessions, None, times)[1] == []  # every pair anyway
+    assert choose_pairs(names, sessions, 2, {})[1] == []  # no capture times: by position only
+    assert choose_pairs(names, sessions, None, times)[1] == []  # every pair anyway
 
 
 def test_a_flight_s_time_is_its_images_exif_capture_time(tmp_path):

@@ -14,7 +14,7 @@ processes, or a Dask cluster):
 3. match: every pair of mapped sessions, or with `nearest=k` only pairs where one session is among the k
    nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the
    same local frame), and then also each flight with the flight flown before and the one after it among those
-   that overlap it (by the EXIF capture time of its images, where they have one: `pairs.choose_pairs`; the
+   that overlap it (by the EXIF capture time of its images, where they have one: `pairs.pairs_chosen_by`; the
    flights of one site all overlap, and consecutive surveys are the comparisons a site manager wants)
    -> OUT/pairs/A__B/match.json (`sosmatch match`, which, unless BatchOptions.verify is off,
    checks every window hypothesis on the FULL maps and refines the best supported one:

@@ -1,5 +1,5 @@
 """Batch stage 3's choice of session pairs: every pair, or with --nearest K the pairs of nearby sessions plus each
-flight's neighbours in time (see `choose_pairs`)."""
+flight's neighbours in time, each with why it was chosen (`pairs_chosen_by`)."""
 
 from __future__ import annotations
 
@@ -191,11 +191,3 @@ def pairs_chosen_by(names: list[str], sessions: dict[str, dict[str, Any]], neare
         reasons.update(dict.fromkeys(added, CHOSEN_BY_TIME))
     rank = {p: k for k, p in enumerate(all_pairs)}
     return {p: reasons[p] for p in sorted(reasons, key=rank.__getitem__)}
-
-
-def choose_pairs(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
-                 times: dict[str, float | None] | None = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
-    """(the session pairs to match, those of them added for their capture times): `pairs_chosen_by` without the
-    reasons."""
-    reasons = pairs_chosen_by(names, sessions, nearest, times)
-    return list(reasons), [p for p, why in reasons.items() if why == CHOSEN_BY_TIME]
