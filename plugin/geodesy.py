@@ -13,6 +13,9 @@ import numpy as np
 # 80.001 S flown before and after would otherwise be mapped in two CRSs (review rev18)
 UTM_NORTH_LIMIT_DEG, UTM_SOUTH_LIMIT_DEG = 84.8, -80.8
 UPS_NORTH_EPSG, UPS_SOUTH_EPSG = 32661, 32761
+# metres of a degree of latitude (and of longitude at the equator): the small-distance approximation the checks
+# of a flight's fixes use (their spread, a telemetry file against the EXIF, a rounding grid), within 0.6 %
+METRES_PER_DEGREE = 111_320.0
 
 
 def utm_epsg(latitude: float, longitude: float) -> int:

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geodesy import METRES_PER_DEGREE
+
 FROZEN_SPREAD_M = 1.0  # fixes of >= 3 images all within this of their median: the receiver did not move
 # consecutive distinct fixes farther apart than this (median) are a moving aircraft, not a hover's GPS noise: an
 # exact repeat of a fix between them is a receiver slower than the camera
@@ -79,7 +81,6 @@ MIN_GRID_VALUES = 6
 # steps tried (the smallest difference / 1 .. this): even so many tries leave a chance grid unlikely
 # (MAX_GRID_DIVISIONS x 0.02 ** (MIN_GRID_VALUES - 1) ~ 3e-5)
 MAX_GRID_DIVISIONS = 10_000
-METRES_PER_DEGREE = 111_320.0
 
 
 def grid_step(values: np.ndarray, min_step: float) -> tuple[float, bool] | None:

@@ -31,6 +31,13 @@ SENSOR_ASPECTS = (4.0 / 3.0, 3.0 / 2.0)
 CROPPED_FROM_ASPECT = 4.0 / 3.0
 
 
+def photo_sensor_aspect(width: int, height: int) -> float | None:
+    """The photo sensor's full-frame aspect (`SENSOR_ASPECTS`, long / short side, within 1 %) of a `width` x
+    `height` frame, either way up; None for any other aspect (a crop of a frame)."""
+    aspect = max(width, height) / min(width, height)
+    return next((a for a in SENSOR_ASPECTS if abs(aspect - a) <= 0.01 * a), None)
+
+
 def full_frame_diagonal_px(width: int, height: int, sensor_aspect: float | None = None) -> float:
     """Diagonal, in pixels of this image, of the sensor frame a 35 mm equivalent focal length refers to.
 
@@ -40,7 +47,7 @@ def full_frame_diagonal_px(width: int, height: int, sensor_aspect: float | None 
     long_side, short_side = max(width, height), min(width, height)
     aspect = long_side / short_side
     if sensor_aspect is None:
-        sensor_aspect = next((a for a in SENSOR_ASPECTS if abs(aspect - a) <= 0.01 * a), CROPPED_FROM_ASPECT)
+        sensor_aspect = photo_sensor_aspect(width, height) or CROPPED_FROM_ASPECT
     if aspect >= sensor_aspect:
         frame = (long_side, long_side / sensor_aspect)
     else:
@@ -145,8 +152,7 @@ def _readout_aspect(meta: ImageMetadata) -> float | None:
     35 mm equivalent refers to, also for a file cropped from it), else None."""
     if not meta.exif_size or min(meta.exif_size) <= 0:
         return None
-    aspect = max(meta.exif_size) / min(meta.exif_size)
-    return next((a for a in SENSOR_ASPECTS if abs(aspect - a) <= 0.01 * a), None)
+    return photo_sensor_aspect(*meta.exif_size)
 
 
 def _by_35mm(meta: ImageMetadata) -> Camera:

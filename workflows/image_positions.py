@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..plugin.errors import InputError
-from ..plugin.geodesy import utm_epsg
+from ..plugin.geodesy import METRES_PER_DEGREE, utm_epsg
 from ..plugin.gps_track import (
     FROZEN_SPREAD_M,
     MOVING_STEP_M,
@@ -89,7 +89,8 @@ def check_one_place(lat: np.ndarray, lon: np.ndarray, east: np.ndarray, north: n
              f"{lon[k]:.4f})")
     mid_lat, mid_lon = median_position(lat[has], lon[has])
     dlon = (lon[has] - mid_lon + 180.0) % 360.0 - 180.0
-    spread_m = np.hypot((lat[has] - mid_lat) * 111_320.0, dlon * 111_320.0 * np.cos(np.radians(lat[has])))
+    spread_m = np.hypot((lat[has] - mid_lat) * METRES_PER_DEGREE,
+                        dlon * METRES_PER_DEGREE * np.cos(np.radians(lat[has])))
     own = utm_epsg(mid_lat, mid_lon)
     if float(spread_m.max()) <= CRS_AREA_MARGIN_M and own != epsg:
         raise InputError(f"{where}: the flight is at one place, in a CRS made for another; give the --epsg of "

@@ -82,7 +82,12 @@ from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the 
     ned_from_body,
 )
 from ..plugin.errors import InputError
-from ..plugin.geodesy import geographic_to_grid, topocentric_to_grid, utm_epsg  # noqa: F401 (re-exported)
+from ..plugin.geodesy import (  # noqa: F401 (re-exported)
+    METRES_PER_DEGREE,
+    geographic_to_grid,
+    topocentric_to_grid,
+    utm_epsg,
+)
 from ..plugin.geometry import Camera
 from ..plugin.keyframes import flight_order, flight_order_message
 from .image_cameras import (  # noqa: F401 (re-exported: their home before image_cameras)
@@ -311,8 +316,8 @@ def read_image_priors(
             alt_from_telemetry[i] = "alt" in t
             pos_src["telemetry CSV"] += 1
             if m.has_gps:
-                moved.append(math.hypot((t["lat"] - m.latitude) * 111_320.0,
-                                        (t["lon"] - m.longitude) * 111_320.0 * math.cos(math.radians(m.latitude))))
+                moved.append(math.hypot((t["lat"] - m.latitude) * METRES_PER_DEGREE, (t["lon"] - m.longitude)
+                                        * METRES_PER_DEGREE * math.cos(math.radians(m.latitude))))
         elif m.has_gps:
             lat[i], lon[i] = m.latitude, m.longitude
             # an image without an EXIF altitude keeps its telemetry altitude (a row with an altitude but no fix)
