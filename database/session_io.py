@@ -385,7 +385,7 @@ class KeyframeImages(Sequence):
 
 def levels_record(levels: Levels | int | None) -> list[float] | None:
     """run.json's "image_levels" for what a flight's images beyond 8 bits are read between
-    (`images.flight_white_level`): [black, white], [0, white] for a bare white level, None for 8-bit images; what
+    (`flight_levels.flight_white_level`): [black, white], [0, white] for a bare white level, None for 8-bit images; what
     `recorded_levels` reads back."""
     from .images import Levels
 
@@ -396,7 +396,7 @@ def levels_record(levels: Levels | int | None) -> list[float] | None:
 
 def recorded_levels(session: str | Path) -> Levels | int | None:
     """What `sosmatch map` read the session's images beyond 8 bits between (run.json "image_levels", the one
-    measurement of `images.flight_white_level`): `Levels` for data offset from zero, the white level for others,
+    measurement of `flight_levels.flight_white_level`): `Levels` for data offset from zero, the white level for others,
     None for 8-bit images or a record without it (an earlier map: each image read by its own white level)."""
     from .images import Levels
 

@@ -7,7 +7,7 @@ Why: the classical segmenter's criteria are absolute CIELAB differences (`classi
 landmarks, with exit 0 and nothing said, while the matches stayed right. Stretching the images back restored them.
 
 The gain is the flight's, not the frame's: measured once over images sampled across the flight (as
-`database.images.flight_white_level` is), so a region has the same contrast, and masks the same sizes, in every
+`database.flight_levels.flight_white_level` is), so a region has the same contrast, and masks the same sizes, in every
 frame. It is never below 1, so a flight of normal contrast is segmented from its images exactly as before.
 """
 
@@ -119,7 +119,7 @@ def flight_contrast(paths: Sequence[str | Path], reference: float, white: Levels
     Why the median of per-image ranges and not one pooled histogram: the segmenter works frame by frame, and a
     flight whose frames drift in exposure (or pass from forest to fields) pools to a wider range than any of its
     frames has. Unreadable samples are skipped (the stage that needs their pixels names them). `white`: the
-    flight's white level (`database.images.flight_white_level`)."""
+    flight's white level (`database.flight_levels.flight_white_level`)."""
     from ..database.images import read_image
     from .errors import InputError
 

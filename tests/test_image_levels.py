@@ -8,7 +8,8 @@ import logging
 import cv2
 import numpy as np
 
-from sosmatch.database.images import Levels, flight_white_level, read_gray, read_image, to_u8
+from sosmatch.database.flight_levels import flight_white_level
+from sosmatch.database.images import Levels, read_gray, read_image, to_u8
 
 
 def _temperatures(h: int = 120, w: int = 160, seed: int = 0, warm: float = 0.0) -> np.ndarray:

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sosmatch.database.images import flight_white_level, list_images, read_gray, read_image
+from sosmatch.database.flight_levels import flight_white_level
+from sosmatch.database.images import list_images, read_gray, read_image
 from sosmatch.plugin.errors import InputError
 from sosmatch.tools.cli import main
 

@@ -42,8 +42,9 @@ def image_features(paths: Sequence[Path], camera: Camera, params: PoseCheckParam
                    white: Levels | int | None = None) -> Callable[[int], OrbFeatures]:
     """`features(i)`: ORB features of image `paths[i]` at the working size (read on demand; an unreadable image or
     one of another size than the camera is an InputError naming it), at the flight's white level (`white`; None:
-    found here, `database.images.flight_white_level`)."""
-    from ..database.images import flight_white_level, read_image
+    found here, `database.flight_levels.flight_white_level`)."""
+    from ..database.flight_levels import flight_white_level
+    from ..database.images import read_image
     from ..plugin.image_matching import orb_features
 
     white = flight_white_level(paths) if white is None else white

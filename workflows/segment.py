@@ -170,7 +170,7 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
                   write_overlays: bool) -> SegmentReport:
     """`run` inside its taken output directory."""
     report = SegmentReport()
-    from ..database.images import flight_white_level
+    from ..database.flight_levels import flight_white_level
     from ..plugin.flight_contrast import flight_contrast
     from .progress import progress_iter
 

@@ -93,13 +93,14 @@ def create_database(database: Path, priors: ImagePriors, params: SfmParams) -> N
 def colmap_image_dir(image_dir: Path, names: list[str], work_dir: Path) -> Path:
     """The folder COLMAP reads the images from: `image_dir` itself for 8-bit images (nothing copied), else
     `work_dir` holding 8-bit copies under the same names, scaled from the flight's white level
-    (`database.images.flight_white_level`), as ODM does for 16-bit images. COLMAP's reader scales 16-bit data
+    (`database.flight_levels.flight_white_level`), as ODM does for 16-bit images. COLMAP's reader scales 16-bit data
     from the container's maximum, so 12-bit data stored in 16 bits reached its SIFT at 1/16 of the contrast (a
     MicaSense band: one featureless image, 0 registered, while every other stage reads it white-levelled). The
     copies are written atomically and reused by a re-run while their image (size, modification time) and the
     white level are the same (`copies.json`); the names stay the user's, so the database and the model name the
     user's files."""
-    from ..database.images import flight_white_level, read_image
+    from ..database.flight_levels import flight_white_level
+    from ..database.images import read_image
 
     white = flight_white_level([image_dir / n for n in names])
     if white is None:

@@ -255,7 +255,8 @@ def error_to_identity(transform: Any, points_b: np.ndarray, truth: Sim3 | None =
 
 
 def _load_images(gt: GroundTruthSession, image_dir: Path) -> list[np.ndarray]:
-    from ...database.images import flight_white_level, read_gray
+    from ...database.flight_levels import flight_white_level
+    from ...database.images import read_gray
 
     paths = [image_dir / name for name in gt.names]
     white = flight_white_level(paths)

@@ -92,14 +92,15 @@ def draw_map_figure(
         observations: per landmark, (n, 2) int (keyframe index, keypoint index).
         keypoints: per keyframe, (K, >= 2) keypoints in COLMAP pixels (the real, distorted ones).
         poses, camera, image_paths: the keyframes' poses, the real camera and the image files.
-        white: the flight's white level (`database.images.flight_white_level`; None: found here).
+        white: the flight's white level (`database.flight_levels.flight_white_level`; None: found here).
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ...database.images import flight_white_level, read_image
+    from ...database.flight_levels import flight_white_level
+    from ...database.images import read_image
 
     positions = np.asarray(positions, np.float64).reshape(-1, 3)
     picks = pick_keyframes([o[:, 0] for o in observations], len(poses))

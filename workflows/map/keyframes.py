@@ -120,7 +120,7 @@ def _describe_one(
 
     Returns (MaskFeatures, (mu_p, sigma_p), gray image). Runs in the main process or a worker process. `camera`:
     the images' lens; the motion is measured in the undistorted pixels tracking compares (`image_motion_stats`).
-    `white`: the flight's white level (`database.images.flight_white_level`). `contrast`: the flight's
+    `white`: the flight's white level (`database.flight_levels.flight_white_level`). `contrast`: the flight's
     (`plugin.flight_contrast.FlightContrast`; None: as read): the segmenter sees the image through its gain, the
     masks are described on the image as read.
     """
@@ -198,7 +198,7 @@ def describe_keyframes(
     use ground-truth label masks; it must be picklable when `workers` > 1). `digests`: the images' contents
     (`inputs.image_digests`); with them, an entry is valid exactly while its image and the previous keyframe's
     are unchanged, so a run that failed on one bad image resumes every other keyframe once it is fixed.
-    `white`: the flight's white level (`database.images.flight_white_level`; None: found here).
+    `white`: the flight's white level (`database.flight_levels.flight_white_level`; None: found here).
     `hold_descriptors` False: the features come without their SIFT descriptors (shape (0, 128)), which stay in the
     cache (`cached_descriptors` reads them): they are ~95 % of a keyframe's description (~1 MB at 320 px), and a
     1500-keyframe flight held 1.7 GB of them where tracking needs only the last few keyframes' at a time.
@@ -207,7 +207,7 @@ def describe_keyframes(
     """
     from dataclasses import replace
 
-    from ...database.images import flight_white_level
+    from ...database.flight_levels import flight_white_level
     from ..progress import progress_bar
 
     def kept(feats: Any) -> Any:  # what this call returns of a keyframe's description

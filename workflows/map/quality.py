@@ -92,8 +92,8 @@ def quality_stage(
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
-    for the picture (`database.images.flight_white_level`); `poses_fit`, `images`: the pose check's phrase when it
-    found the poses fitting, and the keyframes' image figures (`judge`); `contrast`: the flight's low contrast
+    for the picture (`database.flight_levels.flight_white_level`); `poses_fit`, `images`: the pose check's phrase
+    when it found the poses fitting, and the keyframes' image figures (`judge`); `contrast`: the flight's low contrast
     as a cause (`FlightContrast.cause`)."""
     quality = assess(landmarks, poses, long_tracks, camera, keypoints, limits)
     verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images, contrast)

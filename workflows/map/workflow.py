@@ -251,7 +251,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
     import pycolmap
 
-    from ...database.images import flight_white_level
+    from ...database.flight_levels import flight_white_level
     from ...database.session_io import format_landmarks_csv, levels_record
     from ...plugin.flight_contrast import flight_contrast
     from ...plugin.image_quality import flight_images
@@ -414,7 +414,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "ground_resolution_m": round(ground_resolution, 5) if np.isfinite(ground_resolution) else None,
         # the flight's luminance range and the gain the segmenter saw its images through (plugin.flight_contrast)
         "contrast": contrast.to_dict() if contrast is not None else None,
-        # what images beyond 8 bits were read between, [black, white] (database.images.flight_white_level)
+        # what images beyond 8 bits were read between, [black, white] (database.flight_levels.flight_white_level)
         "image_levels": levels_record(white),
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
         # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)

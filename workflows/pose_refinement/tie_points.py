@@ -9,7 +9,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...database.images import flight_white_level, read_gray
+from ...database.flight_levels import flight_white_level
+from ...database.images import read_gray
 from ...plugin.fixed_in_frame import FixedInFrame, learn_fixed_in_frame
 from ...plugin.geometry import Poses, rotation_angle_deg
 from .judge import RefinementRejected, RefinementStats, judge_refinement
