@@ -20,10 +20,9 @@ from typing import Any
 import numpy as np
 
 from ..plugin.errors import InputError
-from ..plugin.layout_rivals import LayoutRival
 from ..plugin.multisession import Sim3
 from ..plugin.params.matching import MAX_ASSOCIATIONS
-from .landmark_map import LandmarkMap, georeference_offset_m, landmark_map_fingerprint
+from .landmark_map import LandmarkMap, landmark_map_fingerprint
 from .output_markers import check_finished
 from .text_input import read_user_json
 
@@ -335,117 +334,6 @@ def answer_gate(match: MatchSummary | None, configured_m: float) -> float:
     fusion). `configured_m`, the configured theta_eps, only when there is no match or it records none: maps of
     20 m objects (NAIP, theta_eps 8.2 m) have 1 counterpart in 142 at 2 m at their true alignment."""
     return match.gate_m if match is not None and match.gate_m is not None else configured_m
-
-
-def imprecise_note(match: MatchSummary) -> str | None:
-    """What a consumer of `match` (merge, changes) says when its accepted answer is imprecise (None when it is
-    not): the transform may place B's landmarks farther from their true partners than the gate its pairs passed."""
-    if not match.accepted or not match.imprecise:
-        return None
-    return (f"the match's answer is imprecise: its transform may place B's landmarks up to "
-            f"{match.predicted_max_m:.1f} m from where they belong (95 %), beyond its {match.gate_m or 0:g} m gate "
-            "(few pairs, noisy against the gate, far from much of B)")
-
-
-def unverified_note(match: MatchSummary) -> str | None:
-    """What a consumer of `match` (merge, changes) says when its answer was not verified on the full maps (None
-    when it was): across seasons one window's consensus can be a chance alignment."""
-    if match.source == "verified":
-        return None
-    return ("the match was not verified on the full maps (written by a sosmatch before the verification stage, or "
-            "with --no-verify / verification.enabled = false)")
-
-
-def georeference_note(match: MatchSummary, map_a: LandmarkMap | None = None,
-                       map_b: LandmarkMap | None = None) -> str | None:
-    """What `match` said of an accepted answer that moves B farther from its georeference than the radius it is
-    trusted to: the images agree, the two maps' georeferences do not (`plugin.match_answer.
-    georeference_disagreement`, the one rule, on what match.json records), for merge to refuse and batch to keep
-    apart; None when they agree. A file that does not record the radius: the configured default. A file that
-    does not record the offset (a sosmatch before it was measured across two EPSG codes, or at all): measured
-    here from the two maps, when given (`landmark_map.georeference_offset_m`, as `match` measures it)."""
-    from ..plugin.match_answer import georeference_disagreement  # (the search's modules: only when asked)
-    from ..plugin.params import AssociationParams
-
-    if not match.accepted:
-        return None
-    radius = match.georeference_radius_m
-    off = match.georeference_off_m
-    if off is None and map_a is not None and map_b is not None and match.transform is not None:
-        off = georeference_offset_m(map_a, map_b, match.transform, match.associations)
-    return georeference_disagreement(off, AssociationParams().georeference_prior_m if radius is None else radius,
-                                     match.position_prior)
-
-
-def check_georeferences(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap, match_json: str | Path,
-                        trust_images: bool, done: str, doing: str) -> str | None:
-    """The rule of `merge` and `changes` for an answer whose images agree and whose maps' georeferences do not
-    (`georeference_note`): InputError naming `match_json` unless `trust_images` ("B: ...; nothing `done`
-    (--trust-images `doing` all the same, in A's frame and georeference)"): which georeference stands, or whether
-    the images do, is the user's call. Returns the note when trusted (for the caller's warning), else None."""
-    note = georeference_note(match, map_a, map_b)
-    if note is not None and not trust_images:
-        raise InputError(f"B: {note}; nothing {done} (--trust-images {doing} all the same, in A's frame and "
-                         "georeference)", match_json)
-    return note
-
-
-def no_match_text(best_support: int | None, runner_up: int, chance_p: float | None = None,
-                  chance_mean: float | None = None, beyond_prior: bool = False, layout: str | None = None,
-                  min_associations: int | None = None) -> str:
-    """What `sosmatch match` says of a verification that found no match: "verification: no match (the best
-    candidate holds 13 associations, B placed elsewhere 13, chance p 1 (mean 12.3))"; `best_support` None: no
-    candidate, because no window hypothesis held more than theta_S (`min_associations`, when known) associations.
-    The runner-up is the best alignment that puts B elsewhere, chance placements included: it may hold more pairs
-    than the best candidate ("best support 6, runner-up 8" read as a contradiction). `layout`: how the maps' own
-    layout placed that runner-up ("B moved 20 m", `plugin.layout_rivals.LayoutRival.text`), said first: a site
-    that repeats (trees on a grid) is why, not chance."""
-    if best_support is None:
-        # said, not left bare: a user saw "no match" on maps of 3-6 landmarks and could not tell why (nu27)
-        theta = "" if min_associations is None else f" = {min_associations}"
-        return ("verification: no match (no candidate: no window hypothesis holds more than "
-                f"theta_S{theta} associations)")
-    chance = "" if chance_p is None else f", chance p {chance_p:.1g} (mean {chance_mean or 0:.1f})"
-    prior = ", beyond the position prior" if beyond_prior else ""
-    if layout and runner_up <= 2 * best_support:  # about as good: the site repeats itself
-        return (f"verification: no match (the layout repeats: {layout} explains {runner_up} pairs against the best "
-                f"candidate's {best_support}{chance}{prior})")
-    if layout:  # far better: the search missed it (a wrong candidate on a sparse or repetitive site)
-        return (f"verification: no match (the best candidate holds {best_support} associations, {layout} "
-                f"{runner_up}: a placement the maps' layout offers, which the search missed{chance}{prior})")
-    return (f"verification: no match (the best candidate holds {best_support} associations, B placed elsewhere "
-            f"{runner_up}{chance}{prior})")
-
-
-def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
-    """Why a match.json holds no accepted answer, in `match`'s words (`no_match_text` for a verified one), for a
-    consumer's report (batch's `refused` column); None when it holds one. `doc`: the file as read
-    (`read_match_json`), `match`: as parsed from it (`parse_match`)."""
-    if match.accepted:
-        return None
-    ver = doc.get("verification")
-    if match.source != "verified" or not isinstance(ver, dict):
-        theta = "" if match.min_associations is None else f", fewer than theta_S {match.min_associations}"
-        return f"no match, not verified (its best candidate holds {len(match.associations)} associations{theta})"
-    chance = ver.get("chance") if isinstance(ver.get("chance"), dict) else {}
-    p, mean = chance.get("p_value"), chance.get("mean")
-    numeric = all(isinstance(x, (int, float)) and math.isfinite(x) for x in (p, mean))
-    # a verification without a best candidate records support 0 and no rms (`workflows.match.verification_json`)
-    best = None if ver.get("rms_m") is None and not len(match.associations) else len(match.associations)
-    return no_match_text(best, match.runner_up_support or 0, p if numeric else None, mean if numeric else None,
-                         bool(ver.get("beyond_prior", False)), _layout_text(ver.get("layout_rival")),
-                         match.min_associations)
-
-
-def _layout_text(rival: Any) -> str | None:
-    """'B moved 20 m and turned 90 deg' from match.json's verification.layout_rival (None: absent or malformed;
-    files written before it existed have none)."""
-    if not isinstance(rival, dict):
-        return None
-    shift, turn = rival.get("shift_m"), rival.get("turn_deg")
-    if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in (shift, turn)):
-        return None
-    return LayoutRival(0, float(shift), float(turn)).text()
 
 
 def _check_verified_associations(assoc: np.ndarray, support: Any, path: Path) -> None:

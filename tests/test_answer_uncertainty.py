@@ -76,7 +76,8 @@ def test_match_json_records_it_for_merge_and_changes() -> None:
     or a match.json without the field (an older sosmatch) none; a malformed field is refused."""
     import pytest
 
-    from sosmatch.database.match_io import imprecise_note, parse_match
+    from sosmatch.database.match_io import parse_match
+    from sosmatch.database.match_notes import imprecise_note
     from sosmatch.plugin.errors import InputError
 
     t = {"rotation": np.eye(3).tolist(), "translation": [0.0, 0.0, 0.0], "scale": 1.0}

@@ -605,7 +605,7 @@ def test_batch_keeps_apart_flights_whose_images_agree_and_georeferences_do_not(f
     """The twenty-first sweep: two flights of one EPSG whose georeferences are 428 m apart: `match` warned (in its
     worker), batch merged them and said nothing; the twenty-fifth: a flight tagged in Switzerland and its copy
     tagged in Fiji (two EPSG codes, 16,684 km) were merged into one group, the Swiss landmarks placed in Fiji. The
-    pair (`match_io.georeference_note`) is now said in report.json / .md and the output, and left out of the
+    pair (`match_notes.georeference_note`) is now said in report.json / .md and the output, and left out of the
     session graph: the two flights stay in separate groups, nothing merged. A match.json that records no offset
     (older, or across two codes before) is measured from the sessions' maps."""
     import functools

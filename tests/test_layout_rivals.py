@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from sosmatch.database.landmark_map import LandmarkMap, write_landmark_map
-from sosmatch.database.match_io import no_match_text, parse_match, read_match_json, refusal_note
+from sosmatch.database.match_io import parse_match, read_match_json
+from sosmatch.database.match_notes import no_match_text, refusal_note
 from sosmatch.plugin.layout_rivals import layout_starts
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.refinement import refine_alignment, yaw_matrix

@@ -486,7 +486,7 @@ def test_merge_refuses_maps_whose_georeferences_disagree_unless_told_to_trust_th
                                                                                         caplog):
     """The twenty-first sweep: two flights 428 m apart by their georeferences (another --geo-origin): `match` warned,
     `merge` merged them in silence; the twenty-fifth: it merged a Swiss flight into its copy tagged in Fiji. The
-    images agree and the georeferences do not (`match_io.georeference_note`, the rule `match` uses): one is wrong,
+    images agree and the georeferences do not (`match_notes.georeference_note`, the rule `match` uses): one is wrong,
     so merge refuses in one line (exit 2, nothing written) unless --trust-images, which merges and says so in its
     log and merge.json; within the radius it says nothing."""
     _, _, a, b = pair

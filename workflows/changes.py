@@ -37,14 +37,8 @@ from ..database.changes_io import (
 )
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
-from ..database.match_io import (
-    answer_gate,
-    check_georeferences,
-    check_match_maps,
-    imprecise_note,
-    read_match,
-    unverified_note,
-)
+from ..database.match_io import answer_gate, check_match_maps, read_match
+from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import VersionedIdentity, fingerprint, versioned_identity
 from ..database.outputs import check_output_dir, open_output_dir
 from ..database.session_io import (
@@ -117,7 +111,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     match.json that records none) at the configured theta_eps. The classification's counterpart gate is the
     configured theta_eps's (`params.association.distance_tolerance_m`, where it was calibrated).
 
-    A match whose images agree while the two maps' georeferences do not (`match_io.georeference_note`, the rule
+    A match whose images agree while the two maps' georeferences do not (`match_notes.georeference_note`, the rule
     of `match`, `merge` and `batch`) is refused unless `trust_images` (then said in the warnings): one
     georeference is wrong, or the images agree on another site that looks alike, and changes.geojson would place
     the verdicts by A's. `images_advice`: how the caller's user gives the images when they are not found (batch

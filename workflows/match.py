@@ -34,7 +34,8 @@ from ..database.landmark_map import (
     landmark_map_fingerprint,
 )
 from ..database.map_loading import LoadedMap, load_map, size_definition_disagreement
-from ..database.match_io import MATCH_FORMAT, no_match_text, parse_match
+from ..database.match_io import MATCH_FORMAT, parse_match
+from ..database.match_notes import no_match_text
 from ..database.output_markers import versioned_identity
 from ..database.outputs import open_output_dir
 from ..plugin import __version__
@@ -91,7 +92,7 @@ class MatchResult:
         ans = self.answer
         if ans is not None and ans.verification is not None:
             v = ans.verification
-            if not v.accepted:  # in the words batch repeats from match.json (`match_io.refusal_note`)
+            if not v.accepted:  # in the words batch repeats from match.json (`match_notes.refusal_note`)
                 said = no_match_text(None if v.best is None else len(v.best.associations), v.runner_up_support,
                                      None if v.chance is None else v.chance.p_value,
                                      None if v.chance is None else v.chance.mean, v.beyond_prior,

@@ -40,15 +40,8 @@ from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, write_landmark_map
 from ..database.map_loading import session_map_noise
-from ..database.match_io import (
-    answer_gate,
-    check_georeferences,
-    check_match_maps,
-    imprecise_note,
-    match_content,
-    read_match,
-    unverified_note,
-)
+from ..database.match_io import answer_gate, check_match_maps, match_content, read_match
+from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
 from ..database.outputs import OutputDir, open_output_dir
 from ..database.session_io import (
@@ -369,7 +362,7 @@ def run(
     Raises InputError when match.json was computed for other maps (`match_io.check_match_maps`) or has no
     accepted hypothesis, or when its transform (refined or not) does not bring the maps together
     (`changes.check_alignment`), or when the images agree but the two maps' georeferences do not
-    (`match_io.georeference_note`: one of them is wrong, and the merged model would place B's landmarks by A's)
+    (`match_notes.georeference_note`: one of them is wrong, and the merged model would place B's landmarks by A's)
     unless `trust_images` (then said, and recorded in merge.json). `overwrite`: replace a complete merge of other
     inputs in `out_dir`.
     """

@@ -152,7 +152,8 @@ def merge_task(
     """Merge one connected group: sessions in the reference frame, landmarks fused along the tree edges
     (a, b, match.json path); writes out_dir (see `sosmatch.workflows.merge`). `matches`: each edge's match.json
     as `match_io.read_match` parsed it (batch reads each pair's once; None: read here)."""
-    from ...database.match_io import check_match_maps, georeference_note, read_match
+    from ...database.match_io import check_match_maps, read_match
+    from ...database.match_notes import georeference_note
     from ...database.session_io import read_session
     from ..merge import merge_sessions
     from ..merge_pairs import match_fuse_pair

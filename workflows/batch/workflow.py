@@ -244,11 +244,12 @@ def _read_matches(pairs: dict[str, dict[str, Any]]) -> dict[str, MatchSummary]:
 
 def _match_refusals(pairs: dict[str, dict[str, Any]]) -> None:
     """Why each matched pair holds no accepted answer, in `match`'s words from its match.json
-    (`match_io.refusal_note`: best support, runner-up, chance p), as the pair's `refused` (`refused_by` "match"):
+    (`match_notes.refusal_note`: best support, runner-up, chance p), as the pair's `refused` (`refused_by` "match"):
     report.md showed only the support (13 against a runner-up of 13, p ~ 1, unsaid). Read here, for a pair matched
     now and one a resumed batch reads finished alike; not a warning (most pairs of a folder of flights do not
     overlap)."""
-    from ...database.match_io import parse_match, read_match_json, refusal_note
+    from ...database.match_io import parse_match, read_match_json
+    from ...database.match_notes import refusal_note
     from ...plugin.errors import InputError
 
     for rec in pairs.values():
@@ -270,7 +271,7 @@ def _match_refusals(pairs: dict[str, dict[str, Any]]) -> None:
 
 def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary],
                            sessions: dict[str, dict[str, Any]]) -> None:
-    """Pairs whose images agree and whose maps' georeferences do not (`match_io.georeference_note`, from its
+    """Pairs whose images agree and whose maps' georeferences do not (`match_notes.georeference_note`, from its
     match.json; measured from the sessions' maps when an older match.json records no offset): one georeference is
     wrong, so the pair is kept out of the session graph (`in_graph` false: no group, no merge, no changes) and
     said in its record (`georeference_warning`, report.json / .md) and the batch's log. match says it in its
@@ -278,7 +279,7 @@ def _georeference_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, 
     two flights 428 m apart by their georeferences merged into one EPSG without a word; the twenty-fifth: a
     flight tagged in Switzerland and its copy tagged in Fiji, 16,684 km apart, merged into one group)."""
     from ...database.landmark_map import read_landmark_map
-    from ...database.match_io import georeference_note
+    from ...database.match_notes import georeference_note
 
     for key, rec in pairs.items():
         rec.pop("georeference_warning", None)
