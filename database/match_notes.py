@@ -70,14 +70,17 @@ def check_georeferences(match: MatchSummary, map_a: LandmarkMap, map_b: Landmark
 
 def no_match_text(best_support: int | None, runner_up: int, chance_p: float | None = None,
                   chance_mean: float | None = None, beyond_prior: bool = False, layout: str | None = None,
-                  min_associations: int | None = None) -> str:
+                  min_associations: int | None = None, tested_support: int | None = None) -> str:
     """What `sosmatch match` says of a verification that found no match: "verification: no match (the best
     candidate holds 13 associations, B placed elsewhere 13, chance p 1 (mean 12.3))"; `best_support` None: no
     candidate, because no window hypothesis held more than theta_S (`min_associations`, when known) associations.
     The runner-up is the best alignment that puts B elsewhere, chance placements included: it may hold more pairs
     than the best candidate ("best support 6, runner-up 8" read as a contradiction). `layout`: how the maps' own
     layout placed that runner-up ("B moved 20 m", `plugin.layout_rivals.LayoutRival.text`), said first: a site
-    that repeats (trees on a grid) is why, not chance."""
+    that repeats (trees on a grid) is why, not chance. `tested_support`: the support the ratio and chance tests
+    compared (match.json `support_dof`, the `dof` fit's, before the winner's tilt refit), said beside the refit's
+    when they differ: "holds 10 associations, B placed elsewhere 8, chance p 0.002" passes both documented tests
+    on its face, and the ratio test refused 9 < 1.2 x 8 (nu44)."""
     if best_support is None:
         # said, not left bare: a user saw "no match" on maps of 3-6 landmarks and could not tell why (nu27)
         theta = "" if min_associations is None else f" = {min_associations}"
@@ -85,14 +88,16 @@ def no_match_text(best_support: int | None, runner_up: int, chance_p: float | No
                 f"theta_S{theta} associations)")
     chance = "" if chance_p is None else f", chance p {chance_p:.1g} (mean {chance_mean or 0:.1f})"
     prior = ", beyond the position prior" if beyond_prior else ""
+    tested = (f" ({tested_support} as tested, before its tilt refit)"
+              if tested_support is not None and tested_support != best_support else "")
     if layout and runner_up <= 2 * best_support:  # about as good: the site repeats itself
         return (f"verification: no match (the layout repeats: {layout} explains {runner_up} pairs against the best "
-                f"candidate's {best_support}{chance}{prior})")
+                f"candidate's {best_support}{tested}{chance}{prior})")
     if layout:  # far better: the search missed it (a wrong candidate on a sparse or repetitive site)
-        return (f"verification: no match (the best candidate holds {best_support} associations, {layout} "
+        return (f"verification: no match (the best candidate holds {best_support} associations{tested}, {layout} "
                 f"{runner_up}: a placement the maps' layout offers, which the search missed{chance}{prior})")
-    return (f"verification: no match (the best candidate holds {best_support} associations, B placed elsewhere "
-            f"{runner_up}{chance}{prior})")
+    return (f"verification: no match (the best candidate holds {best_support} associations{tested}, B placed "
+            f"elsewhere {runner_up}{chance}{prior})")
 
 
 def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
@@ -110,9 +115,11 @@ def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
     numeric = all(isinstance(x, (int, float)) and math.isfinite(x) for x in (p, mean))
     # a verification without a best candidate records support 0 and no rms (`workflows.match.verification_json`)
     best = None if ver.get("rms_m") is None and not len(match.associations) else len(match.associations)
+    tested = ver.get("support_dof")  # absent from files written before it was recorded
     return no_match_text(best, match.runner_up_support or 0, p if numeric else None, mean if numeric else None,
                          bool(ver.get("beyond_prior", False)), _layout_text(ver.get("layout_rival")),
-                         match.min_associations)
+                         match.min_associations,
+                         tested if isinstance(tested, int) and not isinstance(tested, bool) else None)
 
 
 def _layout_text(rival: Any) -> str | None:

@@ -113,12 +113,15 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = False) ->
 
 @dataclass(frozen=True)
 class Edge:
-    """An accepted session pair: `a_from_b` maps session b's frame into session a's; weight ranks reliability."""
+    """An accepted session pair: `a_from_b` maps session b's frame into session a's; weight ranks reliability.
+    `imprecise`: the pair's own predicted error at B's landmarks exceeds its gate (match.json's
+    `answer_uncertainty.imprecise`), so alone it may not join two groups (`consistent_edges`)."""
 
     a: int
     b: int
     a_from_b: Sim3
     weight: float
+    imprecise: bool = False
 
 
 def connected_groups(num_nodes: int, edges: Iterable[Edge]) -> list[list[int]]:
@@ -264,7 +267,7 @@ def nearest_pairs(centers: np.ndarray, k: int) -> list[tuple[int, int]]:
 
 def consistent_edges(
     num_nodes: int, edges: Sequence[Edge], probes: Sequence[np.ndarray], tolerance_m: float
-) -> tuple[list[Edge], list[Edge]]:
+) -> tuple[list[Edge], list[Edge], list[Edge]]:
     """Keep the edges of the session graph that agree with each other; drop the ones that contradict.
 
     One wrong accepted pair is enough to put a session in the wrong place, and the spanning tree alone cannot
@@ -272,19 +275,25 @@ def consistent_edges(
     first), and when several edges connect the same two components, each proposes where the second component
     lies in the first one's frame; two proposals agree when they place every probe point of the second component
     (e.g. its sessions' mean camera positions) within `tolerance_m` of each other. A lone edge is taken as it is
-    (nothing contradicts it). Otherwise the proposal agreed by the most edges (then the most weight) wins if at
-    least two edges agree on it and no disagreeing proposal is agreed by as many; its agreeing edges are kept,
-    the rest rejected. Wrong pairs rarely agree with each other, so corroboration, not |S|, decides. Without a
-    winner the components are not joined and all those edges are rejected: two sessions left apart are better
-    than a merged model that is wrong.
-    `probes[i]`: (P,3) points in session i's frame. Returns (kept, rejected).
+    (nothing contradicts it), unless it is `imprecise`: an answer that cannot place B within its own gate is no
+    evidence enough to join two groups on its own (nu44: two disjoint tiles of one map verified, p 0.001, B up
+    to 58 m off by the answer's own uncertainty); it joins only when another edge agrees with it. Imprecise edges
+    are therefore taken after every precise one, so a path of precise edges between their sessions can
+    corroborate (or contradict) them. Otherwise the proposal agreed by the most edges (then the most weight)
+    wins if at least two edges agree on it and no disagreeing proposal is agreed by as many; its agreeing edges
+    are kept, the rest rejected. Wrong pairs rarely agree with each other, so corroboration, not |S|, decides.
+    Without a winner the components are not joined and all those edges are rejected: two sessions left apart are
+    better than a merged model that is wrong. Graphs of precise edges only are treated exactly as before.
+    `probes[i]`: (P,3) points in session i's frame. Returns (kept, contradicted, uncorroborated): the edges
+    joined, those rejected because others disagree, and lone imprecise edges left out for want of support.
     """
     comp = list(range(num_nodes))
     members = {i: [i] for i in range(num_nodes)}
     root_from = [Sim3.identity() for _ in range(num_nodes)]  # component root from node
     kept: list[Edge] = []
     rejected: list[Edge] = []
-    remaining = sorted(edges, key=lambda e: (-e.weight, e.a, e.b))
+    uncorroborated: list[Edge] = []
+    remaining = sorted(edges, key=lambda e: (e.imprecise, -e.weight, e.a, e.b))
     while remaining:
         first = remaining[0]
         c1, c2 = comp[first.a], comp[first.b]
@@ -313,6 +322,9 @@ def consistent_edges(
         if (count[best] == 1 and len(between) > 1) or rivals:  # contradicted and not corroborated: keep apart
             rejected.extend(between)
             continue
+        if len(between) == 1 and between[0].imprecise:  # nothing contradicts it, nothing supports it either
+            uncorroborated.append(between[0])
+            continue
         kept.extend(e for e, ok in zip(between, agree[best]) if ok)
         rejected.extend(e for e, ok in zip(between, agree[best]) if not ok)
         r1_from_r2 = proposals[best]
@@ -320,4 +332,4 @@ def consistent_edges(
             root_from[n] = r1_from_r2.compose(root_from[n])
             comp[n] = c1
         members[c1].extend(members.pop(c2))
-    return kept, rejected
+    return kept, rejected, uncorroborated

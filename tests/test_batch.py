@@ -299,18 +299,55 @@ def test_contradicting_pairs_are_left_out_of_the_graph():
     probes = [np.array([[50.0, 50.0, 0.0], [150.0, 80.0, 0.0]])] * 4
     good = [edge(0, 1, 100), edge(2, 3, 80), edge(0, 2, 6), edge(1, 3, 5)]
     wrong = edge(0, 3, 9, wrong=True)
-    kept, dropped = consistent_edges(4, good + [wrong], probes, 5.0)
-    assert dropped == [wrong] and len(kept) == 4
+    kept, dropped, alone = consistent_edges(4, good + [wrong], probes, 5.0)
+    assert dropped == [wrong] and len(kept) == 4 and not alone
     ref, ref_from, _ = spanning_transforms([0, 1, 2, 3], kept)
     for i in range(4):  # every session lands where the truth puts it
         want = frames[ref].compose(frames[i].inverse())
         assert np.allclose(ref_from[i].apply(probes[0]), want.apply(probes[0]), atol=1e-6)
     # Only contradicting links between two groups: the groups stay apart.
-    kept, dropped = consistent_edges(4, good[:2] + [edge(0, 2, 6, wrong=True), edge(1, 3, 5)], probes, 5.0)
+    kept, dropped, _ = consistent_edges(4, good[:2] + [edge(0, 2, 6, wrong=True), edge(1, 3, 5)], probes, 5.0)
     assert len(dropped) == 2 and connected_groups(4, kept) == [[0, 1], [2, 3]]
     # A single edge between two groups has nothing to contradict it.
-    kept, dropped = consistent_edges(3, [edge(0, 1, 10), edge(1, 2, 3)], probes, 5.0)
-    assert not dropped and len(kept) == 2
+    kept, dropped, alone = consistent_edges(3, [edge(0, 1, 10), edge(1, 2, 3)], probes, 5.0)
+    assert not dropped and not alone and len(kept) == 2
+
+
+def test_a_lone_imprecise_edge_joins_nothing_unless_corroborated():
+    """nu44: an imprecise answer (its own predicted error beyond its gate: two disjoint tiles of one map, B up to
+    58 m off) is no evidence enough to join two groups alone; another agreeing edge, direct or through a path of
+    precise ones, corroborates it; a precise lone edge joins as before."""
+    from dataclasses import replace
+
+    from sosmatch.plugin.multisession import consistent_edges
+
+    frames = [yaw_transform(30 * i, (10 * i, -5 * i, 0)) for i in range(3)]  # session_from_world
+
+    def edge(a, b, w, imprecise=False):
+        return Edge(a, b, frames[a].compose(frames[b].inverse()), w, imprecise)
+
+    probes = [np.array([[50.0, 50.0, 0.0], [150.0, 80.0, 0.0]])] * 3
+    lone = edge(0, 1, 9, imprecise=True)
+    kept, dropped, alone = consistent_edges(2, [lone], probes, 5.0)
+    assert alone == [lone] and not kept and not dropped
+    assert connected_groups(2, kept) == [[0], [1]]
+    # the same edge precise: joined, as every lone edge before
+    kept, dropped, alone = consistent_edges(2, [replace(lone, imprecise=False)], probes, 5.0)
+    assert len(kept) == 1 and not dropped and not alone
+    # corroborated by a second agreeing edge between the same sessions (another match of the pair, e.g. B, A)
+    twin = edge(0, 1, 4, imprecise=True)
+    kept, dropped, alone = consistent_edges(2, [lone, twin], probes, 5.0)
+    assert len(kept) == 2 and not dropped and not alone
+    # corroborated through precise edges 0-2 and 2-1, though it is the heaviest edge of all
+    kept, dropped, alone = consistent_edges(3, [lone, edge(0, 2, 6), edge(2, 1, 5)], probes, 5.0)
+    assert len(kept) == 3 and not dropped and not alone and connected_groups(3, kept) == [[0, 1, 2]]
+    # wrong and alone (its pair's other sessions matched nothing): kept apart, not merged 40 m off
+    off = replace(lone, a_from_b=yaw_transform(60, (40, 0, 0)).compose(lone.a_from_b))
+    kept, dropped, alone = consistent_edges(3, [off, edge(0, 2, 6)], probes, 5.0)
+    assert alone == [off] and len(kept) == 1 and connected_groups(3, kept) == [[0, 2], [1]]
+    # wrong and contradicted by a precise path: that join is contested, as before (both left out)
+    kept, dropped, alone = consistent_edges(3, [off, edge(0, 2, 6), edge(2, 1, 5)], probes, 5.0)
+    assert len(dropped) == 2 and off in dropped and not alone and connected_groups(3, kept) == [[0, 2], [1]]
 
 
 def test_cli_batch_exit_code_says_a_flight_failed(tmp_path):

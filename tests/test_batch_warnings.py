@@ -110,3 +110,30 @@ def test_a_verdict_that_repeats_every_poses_warning_is_said_once(flights, tmp_pa
     report = _run(flights, tmp_path / "out")
     assert report.warnings == [f"session A: {FOCAL}", f"session A: poses: {REPEATED}",
                                f"pair A__B match: {flights / 'B'}: {IMPRECISE}"]
+
+
+def uncertain_pair_task(session_a: str, session_b: str, pair_dir: str, params: object = None) -> dict:
+    """`oracle_pair_task` whose answer records itself imprecise (its predicted error beyond its gate), as match
+    writes it."""
+    oracle_pair_task(session_a, session_b, pair_dir, params)
+    path = Path(pair_dir) / "match.json"
+    doc = json.loads(path.read_text())
+    doc["answer_uncertainty"] = {"predicted_max_m": 58.1, "gate_m": 2.81, "imprecise": True}
+    path.write_text(json.dumps(doc))
+    return batch.summarise_match(path)
+
+
+def test_a_lone_imprecise_pair_joins_no_group_and_the_report_says_why(flights, tmp_path):
+    """nu44 D2: two disjoint tiles of one map were verified (p 0.001) with an answer whose own uncertainty put B up
+    to 58 m off, and batch merged them on that one edge. Uncorroborated, it is kept apart and said; the same pair
+    precise is merged as before."""
+    report = batch.run(flights, tmp_path / "out", executor=LocalExecutor(0), pair_fn=uncertain_pair_task,
+                       options=batch.BatchOptions(progress=False, changes=False))
+    (pair,) = report.pairs
+    assert pair["accepted"] and pair["in_graph"] is False and "uncorroborated: kept apart" in pair["left_out"]
+    assert f"pair A__B: {pair['left_out']}" in report.warnings and "sosmatch merge" in pair["left_out"]
+    assert sorted(g["members"] for g in report.groups) == [["A"], ["B"]]
+    assert not (tmp_path / "out" / "merged").exists() or not any((tmp_path / "out" / "merged").iterdir())
+    precise = batch.run(flights, tmp_path / "out2", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                        options=batch.BatchOptions(progress=False, changes=False))
+    assert precise.pairs[0]["in_graph"] and "left_out" not in precise.pairs[0] and len(precise.groups) == 1

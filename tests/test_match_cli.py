@@ -29,6 +29,24 @@ def maps(tmp_path_factory):
     return d, s
 
 
+def test_an_imprecise_answer_is_said_at_the_verdict(maps, tmp_path):
+    """nu44: the summary line of an answer that may place B 58 m off read "verified: 9 associations ...", its
+    warning at the far end of a long line; the verdict itself now says "verified, imprecise"."""
+    from dataclasses import replace
+
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows import match
+
+    d, _ = maps
+    res = match.run(Params(), d / "a.sosmap", d / "session_b", tmp_path / "out", plot=False)
+    u = res.answer.uncertainty
+    assert res.accepted and not u.imprecise and ", verified: " in res.summary() and "WARNING" not in res.summary()
+    # the same answer, had its predicted error exceeded its gate (as the tiles' 58.1 m against 2.81 m)
+    res.answer.uncertainty = replace(u, predicted_max_m=58.1, imprecise=True)
+    line = res.summary()
+    assert ", verified, imprecise: " in line and "WARNING: imprecise answer" in line and "58.1 m" in line
+
+
 def test_match_end_to_end(maps, tmp_path, capsys):
     d, s = maps
     out = tmp_path / "out"

@@ -97,13 +97,17 @@ class MatchResult:
                                      None if v.chance is None else v.chance.p_value,
                                      None if v.chance is None else v.chance.mean, v.beyond_prior,
                                      None if v.layout_rival is None else v.layout_rival.text(),
-                                     None if ans.searched is None else ans.searched.min_associations)
+                                     None if ans.searched is None else ans.searched.min_associations,
+                                     None if v.best is None else v.support)
                 return f"{head}, {said} ({self.times()}) -> {self.out_dir / 'match.json'}"
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
             near = (f" within {ans.searched.position_prior_m:g} m (horizontally) of the georeference"
                     if ans.tolerances == "georeference" and ans.searched is not None else "")
-            return (f"{head}, verified{near}: {len(self.associations)} associations on the full maps (runner-up "
-                    f"{v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg)"
+            # an imprecise answer is said at the verdict, not only at the end of the line: "verified" alone was
+            # read as a clean answer while B may lie 58 m off (nu44); it passed the tests, so exit 0 stays
+            imprecise = ", imprecise" if ans.uncertainty is not None and ans.uncertainty.imprecise else ""
+            return (f"{head}, verified{near}{imprecise}: {len(self.associations)} associations on the full maps "
+                    f"(runner-up {v.runner_up_support}{_chance_text(v)}, rms {v.best.rms_m:.2f} m, yaw {yaw:.1f} deg)"
                     f"{_imprecise_text(ans)}{self._georeference_text()} ({self.times()}) -> "
                     f"{self.out_dir / 'match.json'}")
         if s.consensus is not None and not s.consensus.accepted:

@@ -23,7 +23,8 @@ processes, or a Dask cluster):
    pair's |S| is no larger for a true hypothesis than for chance ones, and one window's 8-20 inliers give a noisy
    rotation; see BENCHMARKS.md, Multi-session;
 4. session graph: sessions are nodes, accepted pairs are edges carrying a_from_b and |S|; accepted pairs
-   that contradict others linking the same groups are left out (`plugin.multisession.consistent_edges`); each connected
+   that contradict others linking the same groups are left out, and an imprecise answer that no other pair
+   corroborates (`plugin.multisession.consistent_edges`; the pair's `left_out` says why); each connected
    group is brought into the frame of its best-connected session (georeferenced sessions first; in a batch run
    again, e.g. with flights added, the previous run's reference while it is in the group, so the merged model
    keeps its frame and folder: `graph.previous_references`) along a maximum spanning tree

@@ -27,6 +27,11 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+# why an accepted pair is left out of the session graph (`consistent_edges`), as its record's `left_out` says it
+CONTRADICTED = "contradicts the other accepted pairs linking its groups; left out of the session graph"
+UNCORROBORATED = ("imprecise answer, uncorroborated: kept apart (no other accepted pair agrees with it); "
+                  "`sosmatch merge` it by hand if you trust it")
+
 
 def _associations_file(rec: dict[str, Any]) -> str:
     """The file whose answer a merge fuses: the pair's match.json (its verified alignment, unless unverified)."""
@@ -136,19 +141,21 @@ def _graph_and_merge(
         if pairs[key]["status"] != "done" or not pairs[key]["accepted"]:  # refused by merge's control, or it failed
             continue
         a, b = key.split(PAIR_SEP)
-        edge = Edge(index[a], index[b], sim, float(pairs[key]["num_associations"]))
+        edge = Edge(index[a], index[b], sim, float(pairs[key]["num_associations"]), matches[key].imprecise)
         edges.append(edge)
         edge_keys[(edge.a, edge.b)] = key
     # Accepted pairs that contradict the others are dropped before the graph is used (see consistent_edges).
     probes = [np.asarray(sessions[n].get("center") or [0.0, 0.0, 0.0]) for n in names]
-    edges, dropped = consistent_edges(len(names), edges, probes, options.edge_tolerance_m)
+    edges, dropped, alone = consistent_edges(len(names), edges, probes, options.edge_tolerance_m)
     for rec in pairs.values():
+        rec.pop("left_out", None)
         if rec["status"] == "done" and rec["accepted"]:
             rec["in_graph"] = not rec.get("georeference_warning")
-    for e in dropped:
-        pairs[edge_keys[(e.a, e.b)]]["in_graph"] = False
-        log.warning("pair %s contradicts the other accepted pairs; left out of the session graph",
-                    edge_keys[(e.a, e.b)])
+    for why, left in ((CONTRADICTED, dropped), (UNCORROBORATED, alone)):
+        for e in left:  # out of the graph, and why: the pair's `left_out`, a warning of the report
+            key = edge_keys[(e.a, e.b)]
+            pairs[key].update({"in_graph": False, "left_out": why})
+            log.warning("pair %s: %s", key, why)
     groups = []
     merge_tasks, merge_fps = {}, {}
     georeferenced = {index[n] for n in names if sessions[n].get("epsg")}  # a merged group keeps a georeference

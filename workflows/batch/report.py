@@ -90,12 +90,15 @@ def session_warnings(session: dict[str, Any]) -> list[str]:
 def pair_warnings(pair: dict[str, Any]) -> list[str]:
     """What a pair's record says of its inputs without failing, named by it: what its match warned of
     (`match_warnings`, its match.json), that its maps' georeferences disagree (`georeference_warning`, match's
-    warning repeated with what batch did), that merge's alignment control refused its accepted answer (`refused`,
+    warning repeated with what batch did), that the session graph left it out (`left_out`: it contradicts the
+    other pairs, or it is an imprecise answer nothing corroborates), that merge's alignment control refused its
+    accepted answer (`refused`,
     `refused_by` "control": left out of the session graph; a match's own "no match" is its table row's, not a
     warning), and what its change detection warned of (`changes_warnings`, from its changes.json)."""
     key = pair["pair"]
     said = [f"pair {key} match: {w}" for w in pair.get("match_warnings", ())]
     said += [f"pair {key}: {pair['georeference_warning']}"] if pair.get("georeference_warning") else []
+    said += [f"pair {key}: {pair['left_out']}"] if pair.get("left_out") else []
     if pair.get("refused") and pair.get("refused_by", "control") == "control":
         said.append(f"pair {key} refused: {pair['refused']}")
     return said + [f"pair {key} changes: {w}" for w in pair.get("changes_warnings", ())]
@@ -241,7 +244,7 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
     """Two panels, readable however much the flights overlap. Left, the geography: every session's keyframe
     ground footprints (outline, light fill) and flight path in one frame (`_placement`), one colour per session,
     named in the legend. Right, the graph: sessions on a circle (names outside it), accepted pairs solid green
-    labelled with |S| and the landmarks gone / new, pairs contradicted by the others orange dash-dot, rejected
+    labelled with |S| and the landmarks gone / new, pairs left out of the graph (`left_out`) orange dash-dot, rejected
     dashed grey, failed dotted red; a node's outline colour is its merged group."""
     import matplotlib
 
@@ -308,7 +311,7 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
         edge = "tab:red" if s["status"] != "done" else group_colours(group_of.get(s["name"], 0) % 8)
         graph.scatter([x], [y], s=260, color=colour[s["name"]], zorder=2, edgecolors=[edge], linewidths=2.5)
         graph.annotate(s["name"], (1.22 * x, 1.22 * y), fontsize=9, ha="center", va="center")
-    graph.set_title("session graph: accepted (|S|, landmarks gone / new), contradicted (orange),\n"
+    graph.set_title("session graph: accepted (|S|, landmarks gone / new), left out (orange),\n"
                     "rejected (dashed), failed (dotted red); node outline = merged group", fontsize=8)
     graph.set_xlim(-1.5, 1.5)
     graph.set_ylim(-1.5, 1.5)
