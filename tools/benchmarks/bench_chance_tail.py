@@ -99,26 +99,13 @@ def capture_pair(maps: Path, tag: str, a: str, b: str, work: Path, seeds: int) -
 def capture_null(seed: int, starts: int, work: Path, seeds: int) -> dict:
     """bench_negatives' null pair `seed` (the same maps, gate and best of `starts`), its chance samples cached."""
     from ...plugin.chance import effective_trials
-    from ...plugin.multisession import Sim3
-    from ...plugin.refinement import refine_alignment, yaw_matrix
     from ...plugin.verification import verify_alignments
-    from .bench_negatives import _null_field
+    from .bench_negatives import null_pair
 
     cache = work / "cache" / f"null{seed}_{starts}.npz"
     if cache.exists():
         return dict(np.load(cache, allow_pickle=True)["case"].item())
-    rng = np.random.default_rng(1000 + seed)
-    clustered = seed % 2 == 1
-    a, sa = _null_field(rng, int(rng.integers(150, 400)), 250.0, clustered)
-    b, sb = _null_field(rng, int(rng.integers(50, 200)), 200.0, clustered)
-    gate = float(rng.uniform(2.0, 4.0))
-    best = None
-    for _ in range(starts):
-        turn = yaw_matrix(rng.uniform(0, 2 * np.pi))
-        target = np.r_[rng.uniform(0, 250, 2), 0.0]
-        aligned = refine_alignment(a, sa, b, sb, Sim3(turn, target - turn @ b.mean(0)), gate, 0.4)
-        if best is None or len(aligned.associations) > len(best.associations):
-            best = aligned
+    a, sa, b, sb, gate, best = null_pair(seed, starts)
     got = _captured(lambda: verify_alignments(a, sa, b, sb, [(best.transform, best.associations[:, 1])], gate,
                                               0.4, 6))
     v = got["result"]
