@@ -274,12 +274,13 @@ def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int) -> tuple:
     The variance grows in proportion to the mean, not with its square (the NB1 form, size mu_i / phi): chance
     pairs come in small clusters (a refinement that pairs one landmark pulls its neighbours in), a compound Poisson
     whose clusters are Poisson in the opportunity. Binned by opportunity, the chance supports of the seasons
-    benchmark's maps keep var / mean at 1.1-1.3 from means of 1 to 7; the form that fitted one 1/k for every
-    mean (variance mu + mu^2 / k) read that spread of the small means as a gamma tail under the large ones, and
-    over 4,096 placements per pair expected several times the supports >= 13-16 observed (BENCHMARKS.md,
-    "Issue 16: the chance test's tail"). phi is the moment estimate sum((x - mu)^2 - mu) / sum(mu): each
-    placement weighted by its mean, so neither a few placements of large mean (the 1/k estimate divided by
-    sum(mu^2)) nor one of near-zero opportunity that happened to pair (a likelihood would chase it) sets it."""
+    benchmark's sparse winter maps keep var / mean at 1.1-1.3 from means of 1 to 4 (the dense pairs' are
+    Poisson); the form that fitted one 1/k for every mean (variance mu + mu^2 / k) read that spread of the small
+    means as a gamma tail under the large ones, and over 4,096 placements of a crossing flight expected 2-5x the
+    supports >= 10-15 observed (BENCHMARKS.md, "Issue 16: the chance test's tail"). phi is the moment estimate
+    sum((x - mu)^2 - mu) / sum(mu): each placement weighted by its mean, so neither a few placements of large mean
+    (the 1/k estimate divided by sum(mu^2)) nor one of near-zero opportunity that happened to pair (a likelihood
+    would chase it) sets it."""
     from scipy import stats
 
     total = o.sum(axis=1)
