@@ -215,7 +215,7 @@ MODELS = ("nb-moments", "poisson-mix", "nb-ml", "nb1-ml", "nb1-moments")
 
 def q_of(name: str, x: np.ndarray, o: np.ndarray, support: int) -> float:
     """One chance alignment's tail at `support` under model `name` fitted on (x, o); "nb1-moments" is the
-    verification's own (`chance.chance_test`)."""
+    verification's own (`chance.chance_test`: on a checkout with another chance model, that model)."""
     if name == "nb1-moments":
         from ...plugin.chance import chance_test
 
