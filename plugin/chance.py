@@ -41,8 +41,9 @@ class ChanceModel:
     trials: float  # N_eff: effectively independent alignments the search could have found
     tail: float  # q: probability that one chance alignment reaches the winner's support
     p_value: float  # 1 - (1 - q)^N_eff: probability that the best of N_eff chance alignments reaches it
-    # 1/k of the negative binomial left once each placement's opportunity is accounted for (0: Poisson); NaN:
-    # no opportunities measured (the unconditioned model)
+    # phi: the chance support at a placement of mean mu has variance (1 + phi) mu once its opportunity is
+    # accounted for (a negative binomial of size mu / phi; 0: Poisson); NaN: no opportunities measured (the
+    # unconditioned model, whose spread is in `variance`)
     overdispersion: float = float("nan")
 
     def to_dict(self) -> dict[str, float]:
@@ -266,17 +267,29 @@ def chance_interval(samples: np.ndarray, support: int, trials: float,
 
 def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int) -> tuple:
     """q of `chance_test` with opportunities for each row of x (supports) and o (opportunities), and each row's
-    overdispersion: the negative binomial with mean beta o_i and the moment dispersion of what remains, mixed
-    over the row's placements (Poisson where nothing remains). Rows with no opportunity are never passed."""
+    overdispersion phi: at each placement a negative binomial with mean mu_i = beta o_i and variance
+    (1 + phi) mu_i, mixed over the row's placements (Poisson where phi is 0). Rows with no opportunity are never
+    passed.
+
+    The variance grows in proportion to the mean, not with its square (the NB1 form, size mu_i / phi): chance
+    pairs come in small clusters (a refinement that pairs one landmark pulls its neighbours in), a compound Poisson
+    whose clusters are Poisson in the opportunity. Binned by opportunity, the chance supports of the seasons
+    benchmark's sparse winter maps keep var / mean at 1.1-1.3 from means of 1 to 4 (the dense pairs' are
+    Poisson); the form that fitted one 1/k for every mean (variance mu + mu^2 / k) read that spread of the small
+    means as a gamma tail under the large ones, and over 4,096 placements of a crossing flight expected 2-5x the
+    supports >= 10-15 observed (BENCHMARKS.md, "Issue 16: the chance test's tail"). phi is the moment estimate
+    sum((x - mu)^2 - mu) / sum(mu): each placement weighted by its mean, so neither a few placements of large mean
+    (the 1/k estimate divided by sum(mu^2)) nor one of near-zero opportunity that happened to pair (a likelihood
+    would chase it) sets it."""
     from scipy import stats
 
     total = o.sum(axis=1)
     beta = (x.sum(axis=1) + 1.0) / (total + total / x.shape[1])  # one pseudo-sample at the mean opportunity
     mu = np.maximum(beta[:, None] * o, 1e-9)
     extra = np.sum((x - mu) ** 2 - mu, axis=1)
-    overdispersion = np.maximum(0.0, extra / np.sum(mu**2, axis=1))
-    k = 1.0 / np.where(overdispersion > 0, overdispersion, 1.0)[:, None]
-    tails = np.where(overdispersion > 0, np.mean(stats.nbinom.sf(support - 1, k, k / (k + mu)), axis=1),
+    overdispersion = np.maximum(0.0, extra / np.sum(mu, axis=1))
+    phi = np.where(overdispersion > 0, overdispersion, 1.0)[:, None]
+    tails = np.where(overdispersion > 0, np.mean(stats.nbinom.sf(support - 1, mu / phi, 1.0 / (1.0 + phi)), axis=1),
                      np.mean(stats.poisson.sf(support - 1, mu), axis=1))
     return tails, overdispersion
 
@@ -312,10 +325,11 @@ def chance_test(samples: np.ndarray, support: int, trials: float,
     The chance supports (`chance_refinements`) are counts, overdispersed because placements differ in how much of
     B lies over A and how dense A is there. With each sample's `opportunity` (`chance_opportunity`) that part is
     measured, not guessed: sample i is negative binomial with mean beta o_i (beta = sum x / sum o, the Poisson
-    estimate) and the dispersion k that the moments of what remains give (none left: Poisson), and one chance
-    alignment reaches the support with q = the mean over the samples of P(X_i >= support), the mixture over the
-    placements chance actually makes. Without opportunities (or none measured) the whole spread is fitted by its
-    moments as one negative binomial (a gamma mixture of Poissons), whose unbounded gamma tail overstates what a
+    estimate) and variance (1 + phi) times that, phi what the moments of the rest give (none left: Poisson;
+    `_opportunity_tails`), and one chance alignment reaches the support with q = the mean over the samples of
+    P(X_i >= support), the mixture over the placements chance actually makes. Without opportunities (or none
+    measured) the whole spread is fitted by its moments as one negative binomial (a gamma mixture of Poissons),
+    whose unbounded gamma tail overstates what a
     bounded overlap can reach: across seasons it refused true pairs (world 7: support 46 against a chance maximum
     of 31 in 512 placements, p 0.20; with opportunities 1e-7), because a few placements over A's dense core
     inflate the variance. The best of N_eff independent trials reaches it with 1 - (1 - q)^N_eff. The tail is

@@ -177,6 +177,29 @@ def _null_field(rng: object, n: int, span: float, clustered: bool) -> tuple:
     return np.column_stack([xy, rng.normal(0, 0.5, n)]), rng.lognormal(1.0, 0.5, n)
 
 
+def null_pair(seed: int, starts: int) -> tuple:
+    """Null pair `seed` of `null_calibration`: (a, sizes_a, b, sizes_b, gate_m, best), `best` the refined
+    alignment with the most pairs among `starts` random placements (deterministic)."""
+    import numpy as np
+
+    from ...plugin.multisession import Sim3
+    from ...plugin.refinement import refine_alignment, yaw_matrix
+
+    rng = np.random.default_rng(1000 + seed)
+    clustered = seed % 2 == 1
+    a, sa = _null_field(rng, int(rng.integers(150, 400)), 250.0, clustered)
+    b, sb = _null_field(rng, int(rng.integers(50, 200)), 200.0, clustered)
+    gate = float(rng.uniform(2.0, 4.0))
+    best = None
+    for _ in range(starts):
+        turn = yaw_matrix(rng.uniform(0, 2 * np.pi))
+        target = np.r_[rng.uniform(0, 250, 2), 0.0]
+        aligned = refine_alignment(a, sa, b, sb, Sim3(turn, target - turn @ b.mean(0)), gate, 0.4)
+        if best is None or len(aligned.associations) > len(best.associations):
+            best = aligned
+    return a, sa, b, sb, gate, best
+
+
 def null_calibration(pairs_n: int, starts: int) -> str:
     """The chance model on pairs of unrelated maps (150-400 x 50-200 landmarks, uniform or in groves, gates
     2-4 m, sizes with the verification's gate 0.4): the best of `starts` random refinements is offered to
@@ -185,24 +208,12 @@ def null_calibration(pairs_n: int, starts: int) -> str:
     calibrated tail: about that fraction of the pairs, fewer when the starts converge to shared optima)."""
     import numpy as np
 
-    from ...plugin.multisession import Sim3
-    from ...plugin.refinement import refine_alignment, yaw_matrix
     from ...plugin.verification import verify_alignments
 
     lines, mq, accepted = [], [], 0
     for seed in range(pairs_n):
-        rng = np.random.default_rng(1000 + seed)
+        a, sa, b, sb, gate, best = null_pair(seed, starts)
         clustered = seed % 2 == 1
-        a, sa = _null_field(rng, int(rng.integers(150, 400)), 250.0, clustered)
-        b, sb = _null_field(rng, int(rng.integers(50, 200)), 200.0, clustered)
-        gate = float(rng.uniform(2.0, 4.0))
-        best = None
-        for _ in range(starts):
-            turn = yaw_matrix(rng.uniform(0, 2 * np.pi))
-            target = np.r_[rng.uniform(0, 250, 2), 0.0]
-            aligned = refine_alignment(a, sa, b, sb, Sim3(turn, target - turn @ b.mean(0)), gate, 0.4)
-            if best is None or len(aligned.associations) > len(best.associations):
-                best = aligned
         v = verify_alignments(a, sa, b, sb, [(best.transform, best.associations[:, 1])], gate, 0.4, 6)
         accepted += int(v.accepted)
         mq.append(starts * v.chance.tail if v.chance else float("inf"))
