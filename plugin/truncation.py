@@ -65,16 +65,14 @@ def truncated_size_scores(ref_sizes: np.ndarray, ref_whole: np.ndarray, sizes_t:
     """(n, m) q_s (`tracking.size_scores`) with cut views as lower bounds: r counts only the difference that a cut
     view cannot explain (a cut candidate smaller than a whole reference, a whole candidate larger than a cut one);
     between two cut views r = 0."""
+    from .tracking import size_scores
+
     hi = np.asarray(ref_sizes, np.float64)[:, None]
     hj = np.asarray(sizes_t, np.float64)[None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = 2.0 * np.abs(hi - hj) / (hi + hj)
-    r = np.where(np.isfinite(r), r, np.inf)
     whole_i = np.asarray(ref_whole, bool)[:, None]
     cut_j = np.asarray(cut_t, bool)[None, :]
     explained = (whole_i & cut_j & (hj <= hi)) | (~whole_i & ~cut_j & (hj >= hi)) | (~whole_i & cut_j)
-    r = np.where(explained, 0.0, r)
-    return np.where(r < theta_h, 1.0 + np.cos(np.pi * np.minimum(r, theta_h) / theta_h), 0.0)
+    return np.where(explained, 2.0, size_scores(ref_sizes, sizes_t, theta_h))  # r = 0: the full score
 
 
 def relaxed_position_gates(
