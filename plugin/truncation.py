@@ -137,6 +137,9 @@ def truncated_pairs(
     todo = size_ok & ~ok & (row_cut[:, None] | truncated.cut_t[None, :])
     xy_s = np.asarray(feat_s.centroids, np.float64)[masks_s]
     cov_s = np.asarray(feat_s.covariances, np.float64)[masks_s]
+    if todo.any():
+        todo &= _within_reach(feat_t, camera, poses, s, t, mu, sigma, params, xy_s, cov_s, row_cut, has_point,
+                              predicted_xy, truncated)
     for i in np.flatnonzero(todo.any(axis=1)):
         cols = np.flatnonzero(todo[i])
         obj = np.maximum(truncated.ref_sizes[i], np.asarray(feat_t.sizes, np.float64)[cols])
@@ -148,6 +151,45 @@ def truncated_pairs(
             None if not has_point[i] else predicted_xy[i], mu, sigma, band if not has_point[i] else None,
             params.epipolar_margin_px, params.motion_gate_sigmas, params.cheirality_check)
     return out
+
+
+def _within_reach(
+    feat_t: MaskFeatures, camera: Camera, poses: Poses, s: int, t: int, mu: float, sigma: float,
+    params: TrackingParams, xy_s: np.ndarray, cov_s: np.ndarray, row_cut: np.ndarray, has_point: np.ndarray,
+    predicted_xy: np.ndarray | None, truncated: TruncatedViews,
+) -> np.ndarray:
+    """(n, m) the pairs that the relaxed gates could pass at all, from the observed centroids and the whole shifts
+    (S = |shift_s| + |shift_t|, twice the slack the relaxed gates grant): only those are tested one row at a time
+    (`relaxed_position_gates`; a cut mask is a candidate of every row, and testing them all cost 100x the
+    tracking's time). Exact for the point-transfer and motion gates (the box centres lie within S / 2 of the
+    centroids); for the epipolar gate, which moves with both points, 2 S."""
+    from .tracking import epipolar_distances
+
+    n, m = len(xy_s), len(feat_t)
+    ref = np.asarray(truncated.ref_sizes, np.float64)
+    reach = np.zeros((n, m))
+    rows = np.flatnonzero(row_cut)
+    if len(rows):
+        reach[rows] += np.linalg.norm(outward_shifts(camera, xy_s[rows], cov_s[rows], ref[rows]), axis=1)[:, None]
+    cols = np.flatnonzero(truncated.cut_t)
+    if len(cols):
+        obj = np.maximum(ref[:, None], np.asarray(feat_t.sizes, np.float64)[None, cols])
+        xy = np.broadcast_to(feat_t.centroids[cols][None], (n, len(cols), 2)).reshape(-1, 2)
+        cov = np.broadcast_to(feat_t.covariances[cols][None], (n, len(cols), 2, 2)).reshape(-1, 2, 2)
+        reach[:, cols] += np.linalg.norm(outward_shifts(camera, xy, cov, obj.ravel()), axis=1).reshape(n, len(cols))
+    xy_t = np.asarray(feat_t.centroids, np.float64)
+    margin = params.epipolar_margin_px
+    point = has_point[:, None]
+    ok = np.ones((n, m), bool)
+    if has_point.any():
+        transfer = np.linalg.norm(np.where(point, predicted_xy, 0.0)[:, None, :] - xy_t[None, :, :], axis=2)
+        ok &= ~point | (transfer <= margin + reach)
+    if np.isfinite(mu) and np.isfinite(sigma):
+        disp = np.linalg.norm(xy_s[:, None, :] - xy_t[None, :, :], axis=2)
+        ok &= point | (np.abs(disp - mu) < params.motion_gate_sigmas * max(sigma, 1e-9) + reach)
+    if (ok & ~point).any():
+        ok &= point | (epipolar_distances(camera, poses, s, t, xy_s, xy_t) <= margin + 2.0 * reach)
+    return ok
 
 
 def truncation_state(ref_size: np.ndarray, ref_whole: np.ndarray, last_cut: np.ndarray, n_new: int,
