@@ -306,18 +306,27 @@ def verify_associations(
     centroids: Sequence[np.ndarray],
     pairs: dict[tuple[int, int], np.ndarray],
     max_error_px: float,
+    shifts: Sequence[np.ndarray] | None = None,
 ) -> tuple[dict[tuple[int, int], np.ndarray], int]:
     """Drop associations whose centroids violate the epipolar geometry of the known poses.
 
     Unverified outliers written as inliers make wrong COLMAP tracks (shared notes), so every pair is checked
-    with the Sampson distance against `max_error_px`. Returns the kept pairs (empty ones dropped) and the
-    number of associations removed.
+    with the Sampson distance against `max_error_px`. `shifts`, optional (per keyframe, (K, 2)): the outward box
+    by which the image border may have shifted each centroid (`plugin.truncation.track_shifts`); such a pair is
+    checked at the boxes' centres with the tolerance widened by their half-diagonals, as the tracker gated it.
+    Returns the kept pairs (empty ones dropped) and the number of associations removed.
     """
     kept: dict[tuple[int, int], np.ndarray] = {}
     removed = 0
     for (a, b), m in pairs.items():
-        err = epipolar_errors_px(camera, poses, a, b, centroids[a][m[:, 0]], centroids[b][m[:, 1]])
-        ok = err <= max_error_px
+        xy_a, xy_b = centroids[a][m[:, 0]], centroids[b][m[:, 1]]
+        tolerance: float | np.ndarray = max_error_px
+        if shifts is not None:
+            sa, sb = shifts[a][m[:, 0]], shifts[b][m[:, 1]]
+            xy_a, xy_b = xy_a + 0.5 * sa, xy_b + 0.5 * sb
+            tolerance = max_error_px + 0.5 * (np.linalg.norm(sa, axis=1) + np.linalg.norm(sb, axis=1))
+        err = epipolar_errors_px(camera, poses, a, b, xy_a, xy_b)
+        ok = err <= tolerance
         removed += int(np.count_nonzero(~ok))
         if np.any(ok):
             kept[(a, b)] = m[ok]

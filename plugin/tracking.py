@@ -65,6 +65,7 @@ from .geometry import Camera, Poses, pixel_rays, project
 from .ground_band import band_distances, band_segments, local_ground
 from .mask_features import MaskFeatures
 from .params import TrackingParams
+from .truncation import TruncatedViews, cut_masks, truncated_pairs, truncated_size_scores, truncation_state
 
 logger = logging.getLogger(__name__)
 
@@ -281,6 +282,7 @@ def pair_scores(
     desc_t: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     predicted_xy: np.ndarray | None = None,
     band: tuple[float, float] | None = None,
+    truncated: TruncatedViews | None = None,
 ) -> np.ndarray:
     """(n, m) score q of masks `masks_s` of keyframe s against all masks of keyframe t; 0 where infeasible.
 
@@ -289,7 +291,10 @@ def pair_scores(
     track point projects in keyframe t (NaN: no point yet); such rows are gated by the distance to it (point
     transfer gate, module docstring) instead of the motion, epipolar and cheirality gates. `band`, optional:
     the (lowest, highest) height of the local ground (`plugin.ground_band`); rows without a point must then lie
-    within `epipolar_margin_px` of the stretch of the epipolar line between those heights.
+    within `epipolar_margin_px` of the stretch of the epipolar line between those heights. `truncated`, optional
+    (`TrackingParams.truncation_aware`): which views are cut by the image border; the size gate is then one-sided
+    against each row's reference size and a pair with a cut view passes the position gates anywhere in the box
+    its truncation could have shifted the centroid by (`plugin.truncation`).
     """
     n, m = len(masks_s), len(feat_t)
     q = np.zeros((n, m))
@@ -297,7 +302,11 @@ def pair_scores(
         return q
     xy_s = np.asarray(feat_s.centroids, np.float64)[masks_s]
     xy_t = np.asarray(feat_t.centroids, np.float64)
-    qs = size_scores(np.asarray(feat_s.sizes)[masks_s], feat_t.sizes, params.size_tolerance)
+    if truncated is None:
+        qs = size_scores(np.asarray(feat_s.sizes)[masks_s], feat_t.sizes, params.size_tolerance)
+    else:
+        qs = truncated_size_scores(truncated.ref_sizes, truncated.ref_whole, feat_t.sizes, truncated.cut_t,
+                                   params.size_tolerance)
     has_point = (np.isfinite(predicted_xy[:, 0]) if predicted_xy is not None else np.zeros(n, bool))[:, None]
     ok = qs > 0
     if has_point.any():
@@ -306,7 +315,7 @@ def pair_scores(
     disp = np.linalg.norm(xy_s[:, None, :] - xy_t[None, :, :], axis=2)
     if np.isfinite(mu) and np.isfinite(sigma):  # unknown image motion (NaN from a caller): no motion gate
         ok &= has_point | (np.abs(disp - mu) < params.motion_gate_sigmas * max(sigma, 1e-9))
-    if not ok.any():
+    if not ok.any() and truncated is None:
         return q
     ok &= has_point | (epipolar_distances(camera, poses, s, t, xy_s, xy_t) <= params.epipolar_margin_px)
     if params.cheirality_check and ok.any():
@@ -316,6 +325,9 @@ def pair_scores(
         if len(rows):
             dist = band_distances(band_segments(camera, poses, s, t, xy_s[rows], band), xy_t)
             ok[rows] &= ~(dist > params.epipolar_margin_px)  # NaN (no prediction for that ray): no band gate
+    if truncated is not None:
+        ok |= truncated_pairs(feat_s, masks_s, feat_t, camera, poses, s, t, mu, sigma, params, qs > 0, ok,
+                               predicted_xy, band, truncated)
     ii, jj = np.nonzero(ok)
     if len(ii) == 0:
         return q
@@ -404,6 +416,12 @@ def track_masks(
     last_kf = np.zeros(0, np.int64)  # per track: keyframe of its latest observation
     last_mask = np.zeros(0, np.int64)  # per track: mask index of its latest observation
     n_obs = np.zeros(0, np.int64)  # per track: number of observations
+    aware = bool(params.truncation_aware)
+    # (truncation_aware) per track: the size of its latest whole view (or the largest cut one while it has none),
+    # whether it has a whole view, and whether its latest observation is cut; per keyframe, its cut masks
+    ref_size = np.zeros(0)
+    ref_whole = np.zeros(0, bool)
+    last_cut = np.zeros(0, bool)
     track_ids: list[np.ndarray] = []
     desc_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
@@ -416,6 +434,7 @@ def track_masks(
         m = len(feat_t)
         ids = np.full(m, -1, np.int64)
         cand = np.flatnonzero(last_kf >= t - max_age) if m else np.zeros(0, np.int64)
+        cut_t = cut_masks(camera, feat_t) if aware else np.zeros(m, bool)
         predicted, band = None, None
         if point_gate and len(cand):
             predicted, points = _predict_track_points(ray_a[cand], ray_b[cand], origin, camera, keyframe_poses, t,
@@ -431,9 +450,11 @@ def track_masks(
                 if s not in desc_cache:
                     desc_cache[s] = descriptor_index(int(s))
                 mu, sigma = gap_motion(motion_stats, int(s), t, params.centroid_sigma_px)
+                tracks = cand[rows]
+                views = TruncatedViews(ref_size[tracks], ref_whole[tracks], last_cut[tracks], cut_t) if aware else None
                 q[rows] = pair_scores(
-                    features[s], last_mask[cand[rows]], feat_t, camera, keyframe_poses, int(s), t, mu, sigma,
-                    params, desc_cache[s], desc_cache[t], None if predicted is None else predicted[rows], band,
+                    features[s], last_mask[tracks], feat_t, camera, keyframe_poses, int(s), t, mu, sigma,
+                    params, desc_cache[s], desc_cache[t], None if predicted is None else predicted[rows], band, views,
                 )
             r_any = np.flatnonzero(q.max(axis=1) > 0)
             c_any = np.flatnonzero(q.max(axis=0) > 0)
@@ -450,14 +471,19 @@ def track_masks(
         last_mask = np.concatenate([last_mask, np.zeros(len(new), np.int64)])
         n_obs = np.concatenate([n_obs, np.zeros(len(new), np.int64)])
         n_obs[ids] += 1
+        if aware:
+            ref_size, ref_whole, last_cut = truncation_state(ref_size, ref_whole, last_cut, len(new), ids, cut_t,
+                                                              np.asarray(feat_t.sizes, np.float64))
         if point_gate and m:
             ray_a = np.concatenate([ray_a, np.zeros((len(new), 3, 3))])
             ray_b = np.concatenate([ray_b, np.zeros((len(new), 3))])
-            d = pixel_rays(camera, feat_t.centroids, keyframe_poses.rotations[t])
+            # (truncation_aware) a cut view's centroid slides with the camera: the point is the whole views'
+            seen = np.flatnonzero(~cut_t)
+            d = pixel_rays(camera, feat_t.centroids[seen], keyframe_poses.rotations[t])
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-            np.add.at(ray_a, ids, proj)
-            np.add.at(ray_b, ids, proj @ (keyframe_poses.centers[t] - origin))
+            np.add.at(ray_a, ids[seen], proj)
+            np.add.at(ray_b, ids[seen], proj @ (keyframe_poses.centers[t] - origin))
         last_kf[ids] = t
         last_mask[ids] = np.arange(m)
         track_ids.append(ids)

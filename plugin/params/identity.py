@@ -89,6 +89,8 @@ ADDED: tuple[Added, ...] = (
     # is resumed as it is, `--overwrite` recomputes its verdicts
     Added("changes.object_height_mean", "41ab82a", True, "landmarks whose footprint stands by its mean sweep are "
           "no longer flat"),
+    Added("tracking.truncation_aware", "13d672e", False, "masks cut by the image border are tracked as truncated "
+          "views"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}

@@ -166,6 +166,12 @@ class TrackingParams(Checked):
     # often unmeasurable it decides (Seneca, survey preset: 184 -> 283 landmarks); with the paper's 2 m keyframes
     # it changes little (BENCHMARKS.md, "The ground band"; the seasons worlds). Off (0) in the "paper" preset.
     ground_band_sigmas: float = non_negative(6.0)
+    # (ours) a mask cut by the image border is a truncated view (`plugin.truncation`): its size a lower bound, its
+    # centroid shifted inward. On: the size gate is one-sided against the track's latest whole view, the position
+    # gates (and the database's check of the links) accept the centroid anywhere in the outward box the truncation
+    # could have shifted it by, and a track's point comes from its whole views. A third to a half of the links of
+    # one crown fail at the frame edge otherwise (BENCHMARKS.md, "crowns cut off at the frame edge"). Off for now.
+    truncation_aware: bool = flag(False)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,236 @@
+"""Masks cut by the image border as truncated views (ours; `TrackingParams.truncation_aware`).
+
+A mask whose extent reaches past the image border (`landmark_size.cut_by_border`: its 2-sigma extent) shows only
+the part of its object inside the frame: its size is a lower bound of the object's, and its centroid lies inward
+of the object's, by at most the object's half-extent less the visible part's along each axis where it is cut
+(`outward_shifts`). The tracker's gates read a cut view that way:
+
+- **size** (`truncated_size_scores`): one-sided against the track's latest whole view: a cut candidate may be
+  smaller than it, not larger by more than theta_h; a track seen only cut gives a lower bound; two cut views
+  carry no size evidence.
+- **position** (`relaxed_position_gates`): the point-transfer, epipolar, cheirality, motion and ground-band gates
+  accept the centroid anywhere in the outward box the truncation could have shifted it by: they are evaluated at
+  the box's centre with the margin widened by its half-diagonal (the disc around the centre that holds the box).
+  The database's verification of the links does the same (`track_shifts`).
+- **the track's point** (in `tracking.track_masks`): from whole views only, as a landmark is located
+  (`triangulation.located_from_whole_masks`).
+
+Why: on world 229's and 331's summer maps (BENCHMARKS.md, "one crown, one segment?") a third to a half of the
+whole-to-whole links of one crown fail, 63-80 % of the size failures and 51-64 % of the epipolar ones at the frame
+edge: the tracks break at every pass's edge and the crowns never reach theta_n observations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import Camera, Poses
+from .ground_band import band_distances, band_segments
+from .landmark_size import cut_by_border
+from .mask_features import MaskFeatures
+from .params import TrackingParams
+
+_EXTENT_SIGMAS = 2.0  # a disc of radius R has sigma R / 2 and h = sqrt(lambda_max) = R / 2: extent = 2 sigma
+
+
+def cut_masks(camera: Camera, feat: MaskFeatures) -> np.ndarray:
+    """(K,) True for the masks of one keyframe cut by the image border (`landmark_size.cut_by_border`)."""
+    if not len(feat):
+        return np.zeros(0, bool)
+    return cut_by_border(camera, feat.centroids, feat.covariances, _EXTENT_SIGMAS)
+
+
+def outward_shifts(camera: Camera, centroids: np.ndarray, covariances: np.ndarray,
+                   object_sizes: np.ndarray) -> np.ndarray:
+    """(n, 2) the outward corner of the box the truncation could have shifted each centroid by (0 for a mask not
+    cut): along each axis where the mask's extent passes the border, towards that border, by the object's
+    half-extent (2 x `object_sizes`, the sizes h of whole views) less the visible part's (2 sigma on that axis);
+    nothing on an axis cut on both sides (the object spans the frame: no direction)."""
+    c = np.asarray(centroids, np.float64).reshape(-1, 2)
+    sig = np.sqrt(np.maximum(np.diagonal(np.asarray(covariances, np.float64).reshape(-1, 2, 2), axis1=1, axis2=2),
+                             0.0))
+    ext = _EXTENT_SIGMAS * sig
+    low = c - ext < 0
+    high = c + ext > np.array([camera.width, camera.height], np.float64)
+    direction = high.astype(np.float64) - low.astype(np.float64)  # both sides cut: 0
+    reach = np.maximum(_EXTENT_SIGMAS * np.asarray(object_sizes, np.float64).reshape(-1, 1) - ext, 0.0)
+    return direction * reach
+
+
+def truncated_size_scores(ref_sizes: np.ndarray, ref_whole: np.ndarray, sizes_t: np.ndarray, cut_t: np.ndarray,
+                          theta_h: float) -> np.ndarray:
+    """(n, m) q_s (`tracking.size_scores`) with cut views as lower bounds: r counts only the difference that a cut
+    view cannot explain (a cut candidate smaller than a whole reference, a whole candidate larger than a cut one);
+    between two cut views r = 0."""
+    from .tracking import size_scores
+
+    hi = np.asarray(ref_sizes, np.float64)[:, None]
+    hj = np.asarray(sizes_t, np.float64)[None, :]
+    whole_i = np.asarray(ref_whole, bool)[:, None]
+    cut_j = np.asarray(cut_t, bool)[None, :]
+    explained = (whole_i & cut_j & (hj <= hi)) | (~whole_i & ~cut_j & (hj >= hi)) | (~whole_i & cut_j)
+    return np.where(explained, 2.0, size_scores(ref_sizes, sizes_t, theta_h))  # r = 0: the full score
+
+
+def relaxed_position_gates(
+    camera: Camera, poses: Poses, s: int, t: int, xy_s: np.ndarray, shift_s: np.ndarray, xy_t: np.ndarray,
+    shift_t: np.ndarray, predicted: np.ndarray | None, mu: float, sigma: float, band: tuple[float, float] | None,
+    margin_px: float, motion_sigmas: float, cheirality: bool,
+) -> np.ndarray:
+    """(m,) whether one track's last observation (`xy_s` (2,), its outward shift `shift_s` (2,)) may be the
+    candidates `xy_t` (m, 2) with shifts `shift_t` (m, 2) under the tracker's position gates (module docstring).
+
+    `predicted` (2,): where the track's point (from whole views) projects in keyframe t, NaN or None without one:
+    then only the point-transfer gate applies, as in `tracking.pair_scores`."""
+    from .tracking import behind_camera, epipolar_distances
+
+    ct = np.asarray(xy_t, np.float64).reshape(-1, 2) + 0.5 * shift_t
+    rho_t = 0.5 * np.linalg.norm(shift_t, axis=1)
+    if predicted is not None and np.all(np.isfinite(predicted)):
+        return np.linalg.norm(ct - predicted[None, :], axis=1) <= margin_px + rho_t
+    cs = (np.asarray(xy_s, np.float64) + 0.5 * shift_s).reshape(1, 2)
+    slack = 0.5 * float(np.linalg.norm(shift_s)) + rho_t
+    ok = np.ones(len(ct), bool)
+    if np.isfinite(mu) and np.isfinite(sigma):
+        disp = np.linalg.norm(cs - ct, axis=1)
+        ok &= np.abs(disp - mu) < motion_sigmas * max(sigma, 1e-9) + slack
+    ok &= epipolar_distances(camera, poses, s, t, cs, ct)[0] <= margin_px + slack
+    if cheirality and ok.any():
+        ok &= ~behind_camera(camera, poses, s, t, cs, ct, margin_px + slack)[0]
+    if band is not None and ok.any():
+        dist = band_distances(band_segments(camera, poses, s, t, cs, band), ct)[0]
+        ok &= ~(dist > margin_px + slack)  # NaN (no prediction for that ray): no band gate
+    return ok
+
+
+@dataclass(frozen=True)
+class TruncatedViews:
+    """What `pair_scores` needs to read views cut by the image border as truncated (`plugin.truncation`).
+
+    `ref_sizes` (n,): per row, the size of its track's latest whole view, or the largest of its cut views when it
+    has none (`ref_whole` False: a lower bound); `cut_s` (n,): whether the row's last observation is cut; `cut_t`
+    (m,): whether each mask of keyframe t is cut."""
+
+    ref_sizes: np.ndarray
+    ref_whole: np.ndarray
+    cut_s: np.ndarray
+    cut_t: np.ndarray
+
+
+def truncated_pairs(
+    feat_s: MaskFeatures, masks_s: np.ndarray, feat_t: MaskFeatures, camera: Camera, poses: Poses, s: int, t: int,
+    mu: float, sigma: float, params: TrackingParams, size_ok: np.ndarray, ok: np.ndarray,
+    predicted_xy: np.ndarray | None, band: tuple[float, float] | None, truncated: TruncatedViews,
+) -> np.ndarray:
+    """(n, m) the pairs with a cut view that pass the size gate and the position gates relaxed by the truncation
+    (`truncation.relaxed_position_gates`), beyond those `ok` already holds. The object's size for a cut
+    candidate's box is the larger of the row's reference and the candidate's; for the row's own (cut) last view,
+    the row's reference."""
+    n, m = size_ok.shape
+    out = np.zeros((n, m), bool)
+    has_point = np.isfinite(predicted_xy[:, 0]) if predicted_xy is not None else np.zeros(n, bool)
+    # a row with a point is gated by the projection of its point (whole views): only a cut candidate can relax it
+    row_cut = truncated.cut_s & ~has_point
+    todo = size_ok & ~ok & (row_cut[:, None] | truncated.cut_t[None, :])
+    xy_s = np.asarray(feat_s.centroids, np.float64)[masks_s]
+    cov_s = np.asarray(feat_s.covariances, np.float64)[masks_s]
+    if todo.any():
+        todo &= _within_reach(feat_t, camera, poses, s, t, mu, sigma, params, xy_s, cov_s, row_cut, has_point,
+                              predicted_xy, truncated)
+    for i in np.flatnonzero(todo.any(axis=1)):
+        cols = np.flatnonzero(todo[i])
+        obj = np.maximum(truncated.ref_sizes[i], np.asarray(feat_t.sizes, np.float64)[cols])
+        shift_t = outward_shifts(camera, feat_t.centroids[cols], feat_t.covariances[cols], obj)
+        shift_s = (outward_shifts(camera, xy_s[i:i + 1], cov_s[i:i + 1], truncated.ref_sizes[i:i + 1])[0]
+                   if row_cut[i] else np.zeros(2))
+        out[i, cols] = relaxed_position_gates(
+            camera, poses, s, t, xy_s[i], shift_s, feat_t.centroids[cols], shift_t,
+            None if not has_point[i] else predicted_xy[i], mu, sigma, band if not has_point[i] else None,
+            params.epipolar_margin_px, params.motion_gate_sigmas, params.cheirality_check)
+    return out
+
+
+def _within_reach(
+    feat_t: MaskFeatures, camera: Camera, poses: Poses, s: int, t: int, mu: float, sigma: float,
+    params: TrackingParams, xy_s: np.ndarray, cov_s: np.ndarray, row_cut: np.ndarray, has_point: np.ndarray,
+    predicted_xy: np.ndarray | None, truncated: TruncatedViews,
+) -> np.ndarray:
+    """(n, m) the pairs that the relaxed gates could pass at all, from the observed centroids and the whole shifts
+    (S = |shift_s| + |shift_t|, twice the slack the relaxed gates grant): only those are tested one row at a time
+    (`relaxed_position_gates`; a cut mask is a candidate of every row, and testing them all cost 100x the
+    tracking's time). Exact for the point-transfer and motion gates (the box centres lie within S / 2 of the
+    centroids); for the epipolar gate, which moves with both points, 2 S."""
+    from .tracking import epipolar_distances
+
+    n, m = len(xy_s), len(feat_t)
+    ref = np.asarray(truncated.ref_sizes, np.float64)
+    reach = np.zeros((n, m))
+    rows = np.flatnonzero(row_cut)
+    if len(rows):
+        reach[rows] += np.linalg.norm(outward_shifts(camera, xy_s[rows], cov_s[rows], ref[rows]), axis=1)[:, None]
+    cols = np.flatnonzero(truncated.cut_t)
+    if len(cols):
+        obj = np.maximum(ref[:, None], np.asarray(feat_t.sizes, np.float64)[None, cols])
+        xy = np.broadcast_to(feat_t.centroids[cols][None], (n, len(cols), 2)).reshape(-1, 2)
+        cov = np.broadcast_to(feat_t.covariances[cols][None], (n, len(cols), 2, 2)).reshape(-1, 2, 2)
+        reach[:, cols] += np.linalg.norm(outward_shifts(camera, xy, cov, obj.ravel()), axis=1).reshape(n, len(cols))
+    xy_t = np.asarray(feat_t.centroids, np.float64)
+    margin = params.epipolar_margin_px
+    point = has_point[:, None]
+    ok = np.ones((n, m), bool)
+    if has_point.any():
+        transfer = np.linalg.norm(np.where(point, predicted_xy, 0.0)[:, None, :] - xy_t[None, :, :], axis=2)
+        ok &= ~point | (transfer <= margin + reach)
+    if np.isfinite(mu) and np.isfinite(sigma):
+        disp = np.linalg.norm(xy_s[:, None, :] - xy_t[None, :, :], axis=2)
+        ok &= point | (np.abs(disp - mu) < params.motion_gate_sigmas * max(sigma, 1e-9) + reach)
+    if (ok & ~point).any():
+        ok &= point | (epipolar_distances(camera, poses, s, t, xy_s, xy_t) <= margin + 2.0 * reach)
+    return ok
+
+
+def truncation_state(ref_size: np.ndarray, ref_whole: np.ndarray, last_cut: np.ndarray, n_new: int,
+                      ids: np.ndarray, cut_t: np.ndarray, sizes_t: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tracks' (reference size, has a whole view, latest view cut) after keyframe t's masks joined tracks
+    `ids` (`n_new` of them new): a whole view sets the reference; a cut one raises it while the track has no whole
+    view (the largest lower bound) and leaves it otherwise."""
+    ref_size = np.concatenate([ref_size, np.zeros(n_new)])
+    ref_whole = np.concatenate([ref_whole, np.zeros(n_new, bool)])
+    last_cut = np.concatenate([last_cut, np.zeros(n_new, bool)])
+    whole = ~cut_t
+    ref_size[ids[whole]] = sizes_t[whole]
+    ref_whole[ids[whole]] = True
+    lower = cut_t & ~ref_whole[ids]
+    ref_size[ids[lower]] = np.maximum(ref_size[ids[lower]], sizes_t[lower])
+    last_cut[ids] = cut_t
+    return ref_size, ref_whole, last_cut
+
+
+def track_shifts(camera: Camera, features: Sequence[MaskFeatures], track_ids: Sequence[np.ndarray]
+                 ) -> list[np.ndarray]:
+    """Per keyframe, (K, 2) the outward shift (`outward_shifts`) of every mask, its object's size taken from its
+    track: the largest size among the track's whole views, or among all its views when none is whole (a lower
+    bound). For the database's verification of the tracker's links (`colmap_db.verify_associations`)."""
+    cut = [cut_masks(camera, f) for f in features]
+    n_tracks = int(max((int(t.max()) + 1 for t in track_ids if len(t)), default=0))
+    whole_size = np.full(n_tracks, -np.inf)
+    any_size = np.full(n_tracks, -np.inf)
+    for f, c, tid in zip(features, cut, track_ids):
+        tid = np.asarray(tid, np.int64)
+        ok = tid >= 0
+        np.maximum.at(any_size, tid[ok], np.asarray(f.sizes, np.float64)[ok])
+        np.maximum.at(whole_size, tid[ok & ~c], np.asarray(f.sizes, np.float64)[ok & ~c])
+    size = np.where(np.isfinite(whole_size), whole_size, any_size)
+    out = []
+    for f, c, tid in zip(features, cut, track_ids):
+        tid = np.asarray(tid, np.int64)
+        shifts = np.zeros((len(f), 2))
+        sel = np.flatnonzero(c & (tid >= 0))
+        if len(sel):
+            shifts[sel] = outward_shifts(camera, f.centroids[sel], f.covariances[sel], size[tid[sel]])
+        out.append(shifts)
+    return out
