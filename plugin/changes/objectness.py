@@ -35,11 +35,8 @@ def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, o
     its own place, k the k-th place of its ring (the highest, where only the ring stands), the own session's
     height there, the (N, ring) own session's heights on the ring (NaN where not swept), and whether it stands
     only by its footprint's mean sweep (`changes.object_height_mean`: `footprint_mean_limit`)."""
-    places = 1 + params.object_height_ring
+    p, places = footprint_level(params)
     by_mean = params.object_height_mean and params.object_height_ring > 0
-    # two tests of one place (its highest and its mean sweep): each at half the level (Bonferroni), so bare ground
-    # passes either as rarely as it passed the one
-    p = params.object_height_p / 2.0 if by_mean else params.object_height_p
     flat = ~stands_above_ground(heights, ref_heights, p, places)
     pick = np.full(len(flat), -1, dtype=np.int64)
     high = np.asarray(heights, dtype=np.float64).copy()
@@ -61,6 +58,14 @@ def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, o
             wide[low[over]] = True
             flat[low[over]] = False
     return flat, pick, high, ring, wide
+
+
+def footprint_level(params: ChangeParams) -> tuple[float, int]:
+    """The one-sided level and the number of places at which `flat_landmarks` tests a footprint's highest sweep."""
+    # two tests of one place (its highest and its mean sweep): each at half the level (Bonferroni), so bare ground
+    # passes either as rarely as it passed the one
+    by_mean = params.object_height_mean and params.object_height_ring > 0
+    return (params.object_height_p / 2.0 if by_mean else params.object_height_p), 1 + params.object_height_ring
 
 
 def footprint_means(heights: np.ndarray) -> np.ndarray:
@@ -216,3 +221,36 @@ def other_footprint_stands(points: np.ndarray, sizes: np.ndarray, other_place: n
     means = footprint_means(theirs)
     return (stands_above_ground(theirs, other_references, p, places)
             | (np.isfinite(means) & (means > limit)))
+
+
+def flat_counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
+                      own: SessionObservations, other: SessionObservations, ground: HeightField,
+                      references: tuple[np.ndarray, np.ndarray], params: ChangeParams) -> np.ndarray:
+    """Which landmark-counterpart pairs differ in what they stand on, by the objectness test a claim passes: the
+    landmark's own session stands at its place (the limit of all its footprint's places, as `flat_landmarks`
+    tests a place), the other session does not stand there (one place's limit, as a claim's other session is
+    tested at the place that stands), and the counterpart's own footprint (its place and ring, in the other
+    session's images) is flat (`flat_landmarks` with the other session's reference heights). A counterpart is a
+    landmark of compatible size within the gate, which a ground patch where a removed object stood (or before an
+    added one came) is as often as chance allows: an object standing in one session paired with flat ground of
+    the other is no evidence that the object is in both. `references`: the own and the other session's heights at
+    the pair's reference places (`surface_heights`), the scale of both sessions' tests. Only the landmarks whose
+    place stands are asked further (each costs the other session's sweeps at its place and the counterpart's
+    footprint)."""
+    n = len(np.asarray(points).reshape(-1, 3))
+    out = np.zeros(n, dtype=bool)
+    if not n:
+        return out
+    stands = stands_above_ground(session_heights(points, own, ground, params), references[0],
+                                 *footprint_level(params))
+    ask = np.flatnonzero(stands)
+    if not len(ask):
+        return out
+    bare = ~stands_above_ground(session_heights(points[ask], other, ground, params), references[1],
+                                params.object_height_p)
+    ask = ask[bare]
+    if not len(ask):
+        return out
+    theirs = session_heights(other_points[ask], other, ground, params)
+    out[ask] = flat_landmarks(other_points[ask], other_sizes[ask], theirs, other, ground, references[1], params)[0]
+    return out
