@@ -228,15 +228,14 @@ def flat_counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.nd
                       references: tuple[np.ndarray, np.ndarray], params: ChangeParams) -> np.ndarray:
     """Which landmark-counterpart pairs differ in what they stand on, by the objectness test a claim passes: the
     landmark's own session stands at its place (the limit of all its footprint's places, as `flat_landmarks`
-    tests a place), the other session does not stand there (one place's limit, as a claim's other session is
-    tested at the place that stands), and the counterpart's own footprint (its place and ring, in the other
-    session's images) is flat (`flat_landmarks` with the other session's reference heights). A counterpart is a
-    landmark of compatible size within the gate, which a ground patch where a removed object stood (or before an
-    added one came) is as often as chance allows: an object standing in one session paired with flat ground of
-    the other is no evidence that the object is in both. `references`: the own and the other session's heights at
-    the pair's reference places (`surface_heights`), the scale of both sessions' tests. Only the landmarks whose
-    place stands are asked further (each costs the other session's sweeps at its place and the counterpart's
-    footprint)."""
+    tests a place), and in the other session's images nothing stands at that place (one place's limit, as a
+    claim's other session is tested there), and both the landmark's footprint (its place and ring) and the
+    counterpart's own footprint are flat (`flat_landmarks` with the other session's reference heights). A
+    counterpart is a landmark of compatible size within the gate, which a ground patch where a removed object
+    stood (or before an added one came) is as often as chance allows: an object standing in one session paired
+    with flat ground of the other is no evidence that the object is in both. `references`: the own and the other
+    session's heights at the pair's reference places (`surface_heights`), the scale of both sessions' tests. Each
+    test asks only the pairs that passed the ones before (the sweeps of the other session's footprints cost)."""
     n = len(np.asarray(points).reshape(-1, 3))
     out = np.zeros(n, dtype=bool)
     if not n:
@@ -246,9 +245,15 @@ def flat_counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.nd
     ask = np.flatnonzero(stands)
     if not len(ask):
         return out
-    bare = ~stands_above_ground(session_heights(points[ask], other, ground, params), references[1],
-                                params.object_height_p)
-    ask = ask[bare]
+    # the other session's surface: nothing at the place (one place's limit, as a claim's other session is tested
+    # where its own stands) and nothing on the footprint either (a crown's edge or a sweep's miss at the place of
+    # an object that is there still stands on its ring)
+    there = session_heights(points[ask], other, ground, params)
+    bare = ~stands_above_ground(there, references[1], params.object_height_p)
+    ask, there = ask[bare], there[bare]
+    if not len(ask):
+        return out
+    ask = ask[flat_landmarks(points[ask], sizes[ask], there, other, ground, references[1], params)[0]]
     if not len(ask):
         return out
     theirs = session_heights(other_points[ask], other, ground, params)
