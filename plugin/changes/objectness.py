@@ -35,8 +35,11 @@ def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, o
     its own place, k the k-th place of its ring (the highest, where only the ring stands), the own session's
     height there, the (N, ring) own session's heights on the ring (NaN where not swept), and whether it stands
     only by its footprint's mean sweep (`changes.object_height_mean`: `footprint_mean_limit`)."""
-    p, places = footprint_level(params)
+    places = 1 + params.object_height_ring
     by_mean = params.object_height_mean and params.object_height_ring > 0
+    # two tests of one place (its highest and its mean sweep): each at half the level (Bonferroni), so bare ground
+    # passes either as rarely as it passed the one
+    p = params.object_height_p / 2.0 if by_mean else params.object_height_p
     flat = ~stands_above_ground(heights, ref_heights, p, places)
     pick = np.full(len(flat), -1, dtype=np.int64)
     high = np.asarray(heights, dtype=np.float64).copy()
@@ -58,14 +61,6 @@ def flat_landmarks(points: np.ndarray, sizes: np.ndarray, heights: np.ndarray, o
             wide[low[over]] = True
             flat[low[over]] = False
     return flat, pick, high, ring, wide
-
-
-def footprint_level(params: ChangeParams) -> tuple[float, int]:
-    """The one-sided level and the number of places at which `flat_landmarks` tests a footprint's highest sweep."""
-    # two tests of one place (its highest and its mean sweep): each at half the level (Bonferroni), so bare ground
-    # passes either as rarely as it passed the one
-    by_mean = params.object_height_mean and params.object_height_ring > 0
-    return (params.object_height_p / 2.0 if by_mean else params.object_height_p), 1 + params.object_height_ring
 
 
 def footprint_means(heights: np.ndarray) -> np.ndarray:
@@ -221,41 +216,3 @@ def other_footprint_stands(points: np.ndarray, sizes: np.ndarray, other_place: n
     means = footprint_means(theirs)
     return (stands_above_ground(theirs, other_references, p, places)
             | (np.isfinite(means) & (means > limit)))
-
-
-def flat_counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
-                      own: SessionObservations, other: SessionObservations, ground: HeightField,
-                      references: tuple[np.ndarray, np.ndarray], params: ChangeParams) -> np.ndarray:
-    """Which landmark-counterpart pairs differ in what they stand on, by the objectness test a claim passes: the
-    landmark's own session stands at its place (the limit of all its footprint's places, as `flat_landmarks`
-    tests a place), and in the other session's images nothing stands at that place (one place's limit, as a
-    claim's other session is tested there), and both the landmark's footprint (its place and ring) and the
-    counterpart's own footprint are flat (`flat_landmarks` with the other session's reference heights). A
-    counterpart is a landmark of compatible size within the gate, which a ground patch where a removed object
-    stood (or before an added one came) is as often as chance allows: an object standing in one session paired
-    with flat ground of the other is no evidence that the object is in both. `references`: the own and the other
-    session's heights at the pair's reference places (`surface_heights`), the scale of both sessions' tests. Each
-    test asks only the pairs that passed the ones before (the sweeps of the other session's footprints cost)."""
-    n = len(np.asarray(points).reshape(-1, 3))
-    out = np.zeros(n, dtype=bool)
-    if not n:
-        return out
-    stands = stands_above_ground(session_heights(points, own, ground, params), references[0],
-                                 *footprint_level(params))
-    ask = np.flatnonzero(stands)
-    if not len(ask):
-        return out
-    # the other session's surface: nothing at the place (one place's limit, as a claim's other session is tested
-    # where its own stands) and nothing on the footprint either (a crown's edge or a sweep's miss at the place of
-    # an object that is there still stands on its ring)
-    there = session_heights(points[ask], other, ground, params)
-    bare = ~stands_above_ground(there, references[1], params.object_height_p)
-    ask, there = ask[bare], there[bare]
-    if not len(ask):
-        return out
-    ask = ask[flat_landmarks(points[ask], sizes[ask], there, other, ground, references[1], params)[0]]
-    if not len(ask):
-        return out
-    theirs = session_heights(other_points[ask], other, ground, params)
-    out[ask] = flat_landmarks(other_points[ask], other_sizes[ask], theirs, other, ground, references[1], params)[0]
-    return out

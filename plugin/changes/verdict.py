@@ -26,7 +26,6 @@ from .evidence import (
 from .objectness import (
     beside_kept_objects,
     evenly,
-    flat_counterparts,
     flat_landmarks,
     ground_noise_known,
     ground_noise_loose,
@@ -230,12 +229,12 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
     relief, ground_noise = None, None
     swept = None  # (landmarks, own place heights, own ring heights) where the objectness test swept them
     kept = references
-    unlinked = np.zeros(n, dtype=bool)  # counterparts that were flat ground where this landmark stands
+    if references is None:
+        references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
     asked = compared & ((index < 0) & (other.segments is not None) | params.surface_overrules_links)
-    imaged = (params.surface_evidence and ground is not None and own is not None and own.images is not None
-              and other.images is not None)
-    measured_here = surface_references is None
-    if imaged and (np.any(asked) or (params.flat_counterparts and np.any(compared & (index >= 0)))):
+    if (params.surface_evidence and ground is not None and own is not None and own.images is not None
+            and other.images is not None and np.any(asked)):
+        measured_here = surface_references is None
         if surface_references is None:
             ref = evenly(np.flatnonzero(compared & (index >= 0)), SURFACE_REFERENCES)
             surface_references = surface_heights(own_pos[ref], own, other, ground, params)
@@ -246,16 +245,6 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
                 # compared landmarks add ground
                 surface_references = with_ground_places(surface_references, own_pos[compared], own_h[compared],
                                                          own, other, ground, gate_m, params)
-        if (params.flat_counterparts and params.object_height_p < 1.0 and ground_noise_known(surface_references)
-                and shows_relief(surface_references[0], params.object_height_p)):
-            # an object standing here paired with flat ground of the other map: no evidence it is in both
-            linked = np.flatnonzero(compared & (index >= 0))
-            unlinked[linked] = flat_counterparts(own_pos[linked], own_h[linked], other_pos[index[linked]],
-                                                 other_h[index[linked]], own, other, ground, surface_references,
-                                                 params)
-            index = np.where(unlinked, -1, index)
-            asked |= unlinked & (other.segments is not None)
-    if imaged and np.any(asked):
         idx = np.flatnonzero(asked)
         own_heights, other_heights = surface_heights(own_pos[idx], own, other, ground, params)
         surface[idx] = height_log_ratio(own_heights, other_heights, *surface_references)
@@ -299,7 +288,6 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
             # (nor is a containment link, a compatible landmark nearby too: `_judge`)
             doubted = asked & (surface + counterpart_log_ratio > 0)
             index = np.where(doubted, -1, index)
-    doubted |= unlinked  # nor does a containment link keep it (`_judge`)
     if swept is not None:
         # a landmark that stands only within reach of an object both sessions have (a kept landmark standing in
         # both sessions' images)
@@ -310,17 +298,12 @@ def _direct(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObservations, 
         at, place_heights, ring_heights_own = swept
         flat[at] |= beside_kept_objects(own_pos[at], own_h[at], place_heights, ring_heights_own, *kept, own,
                                         other, ground, surface_references, params)
-    if references is None:
-        references = (own_pos[compared & (index >= 0)], own_h[compared & (index >= 0)])
     tested = compared & (index < 0) & (other.segments is not None)
     if np.any(tested):
         idx = np.flatnonzero(tested)
         hits[idx], trials[idx], chance[idx] = segment_evidence(
             own_pos[idx], own_h[idx], other.poses, other.cameras, other.segments, gate_m,
             params.max_size_difference, params.probe_count, params.probe_radius_factor)
-        # the other session's segments where its counterpart was flat ground are that ground patch's own: no
-        # evidence of the object either way (the heights alone judge it)
-        hits[unlinked], trials[unlinked] = 0, 0
         rate[idx], spread[idx] = presence(own_h[idx], trials[idx], *references, other, gate_m, params, own,
                                            own_pos[idx])
         absent[idx] = probability(hits[idx], trials[idx], chance[idx], rate[idx], spread[idx], surface[idx],

@@ -134,13 +134,6 @@ class ChangeParams(Checked):
     # worlds 23, 61 (at the same precision, fewer false changes / ha), none more in the same season
     # (BENCHMARKS.md, Change detection, thirteenth round). False = the highest only, at object_height_p.
     object_height_mean: bool = flag(True)
-    # (ours) a counterpart vouches only for what it stands on: where the landmark's own session stands at its place
-    # (the objectness test's limit), the other session does not, and the counterpart's own footprint is flat in
-    # the other session's images (`objectness.flat_counterparts`), the pair is a removed (added) object's place
-    # and a ground patch of the other map: judged as a landmark without a counterpart, no containment link keeps
-    # it, and the other session's segments there (the ground patch's own) are no evidence either way.
-    # False = every counterpart vouches.
-    flat_counterparts: bool = flag(False)
     # (ours) objects a session saw but never mapped (`plugin.changes.unmapped`): the tracks of its database that
     # no landmark holds, triangulated, not explained by its own map and shown by its own segments in at least
     # min_views keyframes, are judged against the other session as its landmarks are (direct evidence only; they

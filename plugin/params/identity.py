@@ -89,8 +89,6 @@ ADDED: tuple[Added, ...] = (
     # is resumed as it is, `--overwrite` recomputes its verdicts
     Added("changes.object_height_mean", "41ab82a", True, "landmarks whose footprint stands by its mean sweep are "
           "no longer flat"),
-    Added("changes.flat_counterparts", "4661e13", False, "a counterpart that is flat ground where its landmark "
-          "stands no longer keeps it"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}
