@@ -279,11 +279,16 @@ def consistent_edges(
     evidence enough to join two groups on its own (nu44: two disjoint tiles of one map verified, p 0.001, B up
     to 58 m off by the answer's own uncertainty); it joins only when another edge agrees with it. Imprecise edges
     are therefore taken after every precise one, so a path of precise edges between their sessions can
-    corroborate (or contradict) them. Otherwise the proposal agreed by the most edges (then the most weight)
-    wins if at least two edges agree on it and no disagreeing proposal is agreed by as many; its agreeing edges
-    are kept, the rest rejected. Wrong pairs rarely agree with each other, so corroboration, not |S|, decides.
-    Without a winner the components are not joined and all those edges are rejected: two sessions left apart are
-    better than a merged model that is wrong. Graphs of precise edges only are treated exactly as before.
+    corroborate (or contradict) them, and one set aside is judged again with any edge that later connects the
+    same two groups. Otherwise the proposal agreed by the most edges (then the most weight) wins if at least two
+    edges agree on it and no disagreeing proposal is agreed by as many; its agreeing edges are kept, the rest
+    rejected. Where precise edges connect the two groups, they alone decide: an imprecise answer may miss by more
+    than the tolerance by its own account, so it neither blocks nor outvotes them (kept when it agrees with their
+    winner, rejected otherwise; rev27: one imprecise edge 8 m off kept a precise join apart). Wrong pairs rarely
+    agree with each other, so corroboration, not |S|, decides. Without a winner the components are not joined and
+    all those edges are rejected: two sessions left apart are better than a merged model that is wrong. Graphs of
+    precise edges only are treated exactly as before. (Three imprecise edges that close a triangle and nothing
+    else are all left out: none of them ever connects two groups another edge connects.)
     `probes[i]`: (P,3) points in session i's frame. Returns (kept, contradicted, uncorroborated): the edges
     joined, those rejected because others disagree, and lone imprecise edges left out for want of support.
     """
@@ -292,7 +297,7 @@ def consistent_edges(
     root_from = [Sim3.identity() for _ in range(num_nodes)]  # component root from node
     kept: list[Edge] = []
     rejected: list[Edge] = []
-    uncorroborated: list[Edge] = []
+    deferred: list[Edge] = []  # lone imprecise edges set aside, judged again if another edge joins their groups
     remaining = sorted(edges, key=lambda e: (e.imprecise, -e.weight, e.a, e.b))
     while remaining:
         first = remaining[0]
@@ -301,9 +306,10 @@ def consistent_edges(
             remaining.pop(0)
             kept.append(first)
             continue
-        between = [e for e in remaining if {comp[e.a], comp[e.b]} == {c1, c2}]
+        between = [e for e in remaining + deferred if {comp[e.a], comp[e.b]} == {c1, c2}]
         taken = {id(e) for e in between}  # identity: Edge equality would compare numpy arrays
         remaining = [e for e in remaining if id(e) not in taken]
+        deferred = [e for e in deferred if id(e) not in taken]
         proposals = []
         for e in between:
             if comp[e.a] == c1:  # r1_from_r2 = r1_from_a ∘ a_from_b ∘ b_from_r2
@@ -315,15 +321,19 @@ def consistent_edges(
                          for n in members[c2]])
         placed = [p.apply(pts) for p in proposals]
         agree = np.array([[np.max(np.linalg.norm(pi - pj, axis=1)) <= tolerance_m for pj in placed] for pi in placed])
-        weights = np.array([e.weight for e in between])
-        count = agree.sum(axis=1)
-        best = max(range(len(between)), key=lambda k: (count[k], agree[k] @ weights, -k))
-        rivals = [k for k in range(len(between)) if not agree[best, k] and count[k] >= count[best]]
-        if (count[best] == 1 and len(between) > 1) or rivals:  # contradicted and not corroborated: keep apart
+        # the edges that decide: the precise ones where there are any (an imprecise one may miss by more than the
+        # tolerance by its own account), else all
+        judges = np.array([not e.imprecise for e in between]) if any(not e.imprecise for e in between) \
+            else np.ones(len(between), bool)
+        weights = np.array([e.weight for e in between]) * judges
+        count = (agree & judges[None, :]).sum(axis=1)
+        best = max(np.flatnonzero(judges), key=lambda k: (count[k], agree[k] @ weights, -k))
+        rivals = [k for k in np.flatnonzero(judges) if not agree[best, k] and count[k] >= count[best]]
+        if (count[best] == 1 and judges.sum() > 1) or rivals:  # contradicted and not corroborated: keep apart
             rejected.extend(between)
             continue
         if len(between) == 1 and between[0].imprecise:  # nothing contradicts it, nothing supports it either
-            uncorroborated.append(between[0])
+            deferred.append(between[0])
             continue
         kept.extend(e for e, ok in zip(between, agree[best]) if ok)
         rejected.extend(e for e, ok in zip(between, agree[best]) if not ok)
@@ -332,4 +342,4 @@ def consistent_edges(
             root_from[n] = r1_from_r2.compose(root_from[n])
             comp[n] = c1
         members[c1].extend(members.pop(c2))
-    return kept, rejected, uncorroborated
+    return kept, rejected, deferred

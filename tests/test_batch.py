@@ -334,7 +334,8 @@ def test_a_lone_imprecise_edge_joins_nothing_unless_corroborated():
     # the same edge precise: joined, as every lone edge before
     kept, dropped, alone = consistent_edges(2, [replace(lone, imprecise=False)], probes, 5.0)
     assert len(kept) == 1 and not dropped and not alone
-    # corroborated by a second agreeing edge between the same sessions (another match of the pair, e.g. B, A)
+    # corroborated by a second agreeing edge between the same sessions (a stand-in for another session's path:
+    # batch matches each pair once)
     twin = edge(0, 1, 4, imprecise=True)
     kept, dropped, alone = consistent_edges(2, [lone, twin], probes, 5.0)
     assert len(kept) == 2 and not dropped and not alone
@@ -345,9 +346,15 @@ def test_a_lone_imprecise_edge_joins_nothing_unless_corroborated():
     off = replace(lone, a_from_b=yaw_transform(60, (40, 0, 0)).compose(lone.a_from_b))
     kept, dropped, alone = consistent_edges(3, [off, edge(0, 2, 6)], probes, 5.0)
     assert alone == [off] and len(kept) == 1 and connected_groups(3, kept) == [[0, 2], [1]]
-    # wrong and contradicted by a precise path: that join is contested, as before (both left out)
+    # wrong and contradicted by a precise path: the precise edge decides, the imprecise one is rejected and
+    # blocks nothing (rev27: both had been left out, and the sessions kept apart)
     kept, dropped, alone = consistent_edges(3, [off, edge(0, 2, 6), edge(2, 1, 5)], probes, 5.0)
-    assert len(dropped) == 2 and off in dropped and not alone and connected_groups(3, kept) == [[0, 2], [1]]
+    assert dropped == [off] and not alone and connected_groups(3, kept) == [[0, 1, 2]]
+    # set aside while alone, judged again when another edge connects its groups: imprecise 0-1 (heaviest) is
+    # alone first; two agreeing imprecise edges then join {1, 2}; imprecise 0-2 meets the set-aside 0-1, they agree
+    chain = [lone, edge(1, 2, 8, imprecise=True), edge(1, 2, 3, imprecise=True), edge(0, 2, 1, imprecise=True)]
+    kept, dropped, alone = consistent_edges(3, chain, probes, 5.0)
+    assert not alone and not dropped and len(kept) == 4 and connected_groups(3, kept) == [[0, 1, 2]]
 
 
 def test_cli_batch_exit_code_says_a_flight_failed(tmp_path):
