@@ -259,6 +259,12 @@ def chance_interval(samples: np.ndarray, support: int, trials: float,
         p = chance_test(samples, support, trials, opportunities).p_value
         return p, p
     rows = np.random.default_rng(CHANCE_SEED).integers(0, len(x), (CHANCE_RESAMPLES, len(x)))
+    # a resample of placements that all had no opportunity measures no rate (its beta 1 / 0): left out, as the
+    # point estimate leaves out such a sample set (rev27: one NaN row made the whole interval NaN)
+    rows = rows[o[rows].sum(axis=1) > 0]
+    if not len(rows):
+        p = chance_test(samples, support, trials, opportunities).p_value
+        return p, p
     tails, _ = _opportunity_tails(x[rows], o[rows], support)
     p = _best_of(tails, trials)
     low, high = np.quantile(p, [(1.0 - CHANCE_INTERVAL) / 2.0, (1.0 + CHANCE_INTERVAL) / 2.0])
@@ -288,10 +294,16 @@ def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int) -> tuple:
     mu = np.maximum(beta[:, None] * o, 1e-9)
     extra = np.sum((x - mu) ** 2 - mu, axis=1)
     overdispersion = np.maximum(0.0, extra / np.sum(mu, axis=1))
+    # below MIN_OVERDISPERSION: Poisson. A phi left by rounding (1e-16 where the moments agree exactly) made
+    # 1 / (1 + phi) exactly 1, and the negative binomial's tail 0: p 0, any support accepted (rev27)
+    overdispersion = np.where(overdispersion > MIN_OVERDISPERSION, overdispersion, 0.0)
     phi = np.where(overdispersion > 0, overdispersion, 1.0)[:, None]
     tails = np.where(overdispersion > 0, np.mean(stats.nbinom.sf(support - 1, mu / phi, 1.0 / (1.0 + phi)), axis=1),
                      np.mean(stats.poisson.sf(support - 1, mu), axis=1))
     return tails, overdispersion
+
+
+MIN_OVERDISPERSION = 1e-6  # phi of `_opportunity_tails` below which the chance supports are taken as Poisson
 
 
 def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, prior_m: float = 0.0) -> float:

@@ -266,3 +266,25 @@ def test_the_dispersion_is_per_unit_of_mean_so_the_far_tail_follows_the_largest_
         dispersions.append(c.overdispersion)
     assert truth / 3 < np.median(tails) < 3 * truth
     assert 0.15 < np.median(dispersions) < 0.45
+
+
+def test_a_dispersion_left_by_rounding_is_poisson_not_a_zero_tail():
+    """rev27: supports whose moments agree to rounding (phi 1e-16) took the negative binomial branch, where
+    1 / (1 + phi) is exactly 1 and the tail 0: p 0, any support accepted. Below MIN_OVERDISPERSION it is Poisson."""
+    from scipy import stats
+
+    x, o = np.array([3, 1, 3, 3]), np.array([0.1, 0.3, 1.1, 0.7])
+    chance = chance_test(x, 8, 1e5, o)
+    beta = (x.sum() + 1.0) / (o.sum() + o.sum() / len(x))
+    assert chance.tail > 0 and chance.overdispersion == 0.0
+    assert np.isclose(chance.tail, np.mean(stats.poisson.sf(7, beta * o)))
+    assert chance.p_value > 0.5
+
+
+def test_the_interval_leaves_out_resamples_without_opportunity():
+    """rev27: a bootstrap resample drawn only from placements of zero opportunity had no rate, and its NaN made
+    the whole interval NaN (the early stop never fired). Such resamples are left out."""
+    x = np.array([0, 0, 0, 0, 0, 0, 0, 0, 0, 1])
+    o = np.array([0.0] * 9 + [2.0])
+    low, high = chance_interval(x, 6, 1e3, o)
+    assert np.isfinite(low) and np.isfinite(high) and low <= high
