@@ -45,7 +45,8 @@ def white_level(max_value: int) -> int:
 @dataclass(frozen=True)
 class Levels:
     """The black and white level an image of more than 8 bits is read between (to 0 and 255): one pair per
-    flight (`flight_white_level`), so every frame gets the same mapping and a region the same grey in each."""
+    flight (`flight_levels.flight_white_level`), so every frame gets the same mapping and a region the same grey
+    in each."""
 
     # int for integer data; float for float data (degC), whose levels are fractions of a unit
     black: float
@@ -87,12 +88,12 @@ def to_u8(a: np.ndarray, white: Levels | int | None = None) -> np.ndarray:
     """Pixel values of any shape (uint8/uint16/wider integers/bool/float) as uint8 of the same shape.
 
     Integer data of more than 8 bits is scaled by `white`, what the flight's data are read between
-    (`flight_white_level`): `Levels` (black to 0, white to 255) or a bare white level (to 255, black 0); without
-    it, from the white level of the array's own maximum (`white_level`), which a dark frame of a 16-bit flight
-    reads as 10- or 12-bit data (64 or 16 times brighter than its neighbours): the readers of a flight's images
-    pass its levels. Signed 16-bit data and floats are read between `Levels` when given (`flight_white_level`
-    gives them for data below zero or offset from it); else signed data from 0 (values below it black) and floats
-    as 0..1 when their maximum is <= 1, else as 0..255.
+    (`flight_levels.flight_white_level`): `Levels` (black to 0, white to 255) or a bare white level (to 255,
+    black 0); without it, from the white level of the array's own maximum (`white_level`), which a dark frame of
+    a 16-bit flight reads as 10- or 12-bit data (64 or 16 times brighter than its neighbours): the readers of a
+    flight's images pass its levels. Signed 16-bit data and floats are read between `Levels` when given
+    (`flight_levels.flight_white_level` gives them for data below zero or offset from it); else signed data from
+    0 (values below it black) and floats as 0..1 when their maximum is <= 1, else as 0..255.
     """
     a = np.asarray(a)
     if a.dtype == np.uint8:
@@ -203,8 +204,8 @@ def _read_cv2(path: Path) -> np.ndarray | None:
 
 def read_image(path: str | Path, white: Levels | int | None = None) -> np.ndarray:
     """Read an image file as (H, W, 3) uint8 RGB; raise InputError naming the file if it cannot be read.
-    `white`: the white level of the flight's integer data beyond 8 bits (`flight_white_level`; None: the image's
-    own, `to_rgb_u8`)."""
+    `white`: the white level of the flight's integer data beyond 8 bits (`flight_levels.flight_white_level`;
+    None: the image's own, `to_rgb_u8`)."""
     path = Path(path)
     arr = decode(path)
     try:
