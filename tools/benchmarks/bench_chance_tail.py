@@ -166,9 +166,11 @@ def alpha_ml(x: np.ndarray, o: np.ndarray) -> float:
 
 
 def phi_moments(x: np.ndarray, o: np.ndarray) -> float:
-    """The NB1 dispersion (variance (1 + phi) mu) by moments: what `chance._opportunity_tails` fits."""
-    mu = _mu(x, o)
-    return float(max(0.0, np.sum((x - mu) ** 2 - mu) / np.sum(mu)))
+    """The NB1 dispersion (variance (1 + phi) mu) by moments: what `chance._opportunity_tails` fits (its own
+    estimate, so the goodness table and the stability columns measure one model on any checkout; rev27)."""
+    from ...plugin.chance import _opportunity_tails
+
+    return float(_opportunity_tails(np.asarray(x, np.float64)[None], np.asarray(o, np.float64)[None], 1)[1][0])
 
 
 def phi_ml(x: np.ndarray, o: np.ndarray) -> float:
