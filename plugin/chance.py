@@ -89,7 +89,12 @@ CHANCE_SEED = 0  # the random placements of the chance model (fixed: the same ma
 
 
 CHANCE_BATCH = 16  # chance placements refined per step of `sequential_chance`
-CHANCE_MARGIN = 1e-3  # it stops early when p_value <= false_alarm x this or p_value >= CHANCE_CLEARLY_CHANCE
+# it stops early when p_value <= false_alarm x CHANCE_MARGIN or p_value >= CHANCE_CLEARLY_CHANCE, the interval with
+# it. 1e-3 while the accepting stop's interval could not show a spread its samples lacked (it needed a margin of
+# decades); with the dispersion the samples cannot exclude (`dispersion_bound`) a tenth is as safe on constructed
+# near-threshold chance (0 of 210 accepted what their 512 samples refuse; 1e-3 without the bound: 4), at about the
+# old cost on the clear pairs (1e-3 with the bound: 3-8x; BENCHMARKS.md, "the accepting early stop")
+CHANCE_MARGIN = 1e-1
 CHANCE_CLEARLY_CHANCE = 0.5
 
 
@@ -217,11 +222,13 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
                       winner_pairs: np.ndarray | None = None,
                       tree_a: Any = None) -> tuple[ChanceModel, np.ndarray, np.ndarray]:
     """`chance_test` of the winner's support on up to `starts` chance placements, refined CHANCE_BATCH at a time:
-    it stops once the answer cannot be in doubt (p_value <= false_alarm x CHANCE_MARGIN: a true alignment many
-    decades above chance, as every dense map pair; or p_value >= CHANCE_CLEARLY_CHANCE), which keeps the cost
-    of a clear case at one batch. The placements are fixed in advance, so the result is deterministic.
+    it stops once the answer cannot be in doubt (p_value and its interval <= false_alarm x CHANCE_MARGIN: a true
+    alignment well above chance, as every dense map pair; or >= CHANCE_CLEARLY_CHANCE), which keeps the cost of a
+    clear case at one to a few batches. The placements are fixed in advance, so the result is deterministic.
     Returns the model, the chance supports and their opportunities (`chance_opportunity`: another support is
-    judged against the same placements with `chance_test`). `tree_a`: as `chance_refinements`."""
+    judged against the same placements with `chance_test`). `tree_a`: as `chance_refinements`. The accepting stop
+    assumes the dispersion at its upper confidence bound (`dispersion_bound`), which shrinks as samples accrue, so
+    a first batch whose spread happens to be small cannot end the test on a tail it does not support."""
     placements = chance_placements(points_a, points_b, starts, prior_m)
     trials = effective_trials(points_a, points_b, gate_m, prior_m)
     tree_a_xy = horizontal_tree(points_a)
@@ -233,13 +240,20 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
                                           winner_pairs, tree_a, tree_a_xy)
         samples, opportunities = np.concatenate([samples, more]), np.concatenate([opportunities, more_o])
         chance = chance_test(samples, support, trials, opportunities)
-        if not (chance.p_value <= false_alarm * CHANCE_MARGIN or chance.p_value >= CHANCE_CLEARLY_CHANCE):
-            continue
-        # the point estimate is past a stop; stop only if the whole interval is (a tail extrapolated from 16-64
-        # samples swings by decades: 1.8e-9 after 16 placements, 2.4e-4 after 256 on one pair)
-        low, high = chance_interval(samples, support, trials, opportunities)
-        if high <= false_alarm * CHANCE_MARGIN or low >= CHANCE_CLEARLY_CHANCE:
-            break
+        if chance.p_value >= CHANCE_CLEARLY_CHANCE:
+            # past the refusing stop; stop only if the whole interval is (a tail extrapolated from 16-64 samples
+            # swings by decades: 1.8e-9 after 16 placements, 2.4e-4 after 256 on one pair)
+            if chance_interval(samples, support, trials, opportunities)[0] >= CHANCE_CLEARLY_CHANCE:
+                break
+        elif chance.p_value <= false_alarm * CHANCE_MARGIN:
+            # past the accepting stop: so must the interval be under the largest dispersion the samples so far do
+            # not exclude (`dispersion_bound`). A bootstrap cannot show a spread its samples lack: a first batch
+            # that happened to look Poisson ended the test at p 8.8e-13 where 512 samples give 2e-4 to 5e-3
+            # (w229's crossing flight, chance seed 4; BENCHMARKS.md, "the accepting early stop")
+            high = chance_interval(samples, support, trials, opportunities,
+                                   dispersion_bound(samples, opportunities))[1]
+            if high <= false_alarm * CHANCE_MARGIN:
+                break
     return chance, samples, opportunities
 
 
@@ -247,12 +261,14 @@ CHANCE_RESAMPLES = 100  # bootstrap resamples of `chance_interval`
 CHANCE_INTERVAL = 0.9  # its two-sided level
 
 
-def chance_interval(samples: np.ndarray, support: int, trials: float,
-                    opportunities: np.ndarray | None) -> tuple[float, float]:
+def chance_interval(samples: np.ndarray, support: int, trials: float, opportunities: np.ndarray | None,
+                    min_dispersion: float = 0.0) -> tuple[float, float]:
     """A bootstrap interval (level CHANCE_INTERVAL, CHANCE_RESAMPLES resamples of the (support, opportunity)
     pairs, seeded: deterministic) of `chance_test`'s p_value: how far it could move with other placements of the
-    same kind. The early stops of `sequential_chance` decide on it, so a few dozen samples whose spread happens
-    to be small cannot end the test on a tail they do not support. Without opportunities: the point estimate."""
+    same kind. The early stops of `sequential_chance` decide on it, so a few dozen samples whose mean happens to
+    be small cannot end the test on a tail they do not support. `min_dispersion`: each resample's phi at least
+    this (`_opportunity_tails`; the accepting stop passes `dispersion_bound`, since resamples cannot show a spread
+    the samples lack). Without opportunities: the point estimate."""
     x = np.asarray(samples, np.float64).reshape(-1)
     o = None if opportunities is None else np.asarray(opportunities, np.float64).reshape(-1)
     if o is None or len(o) != len(x) or len(x) < 2 or o.sum() <= 0:
@@ -265,17 +281,17 @@ def chance_interval(samples: np.ndarray, support: int, trials: float,
     if not len(rows):
         p = chance_test(samples, support, trials, opportunities).p_value
         return p, p
-    tails, _ = _opportunity_tails(x[rows], o[rows], support)
+    tails, _ = _opportunity_tails(x[rows], o[rows], support, min_dispersion)
     p = _best_of(tails, trials)
     low, high = np.quantile(p, [(1.0 - CHANCE_INTERVAL) / 2.0, (1.0 + CHANCE_INTERVAL) / 2.0])
     return float(low), float(high)
 
 
-def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int) -> tuple:
+def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int, min_dispersion: float = 0.0) -> tuple:
     """q of `chance_test` with opportunities for each row of x (supports) and o (opportunities), and each row's
-    overdispersion phi: at each placement a negative binomial with mean mu_i = beta o_i and variance
-    (1 + phi) mu_i, mixed over the row's placements (Poisson where phi is 0). Rows with no opportunity are never
-    passed.
+    overdispersion phi: at each placement a negative binomial with mean mu_i = beta o_i (`_placement_means`) and
+    variance (1 + phi) mu_i, mixed over the row's placements (Poisson where phi is 0; phi at least
+    `min_dispersion`). Rows with no opportunity are never passed.
 
     The variance grows in proportion to the mean, not with its square (the NB1 form, size mu_i / phi): chance
     pairs come in small clusters (a refinement that pairs one landmark pulls its neighbours in), a compound Poisson
@@ -289,11 +305,9 @@ def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int) -> tuple:
     would chase it) sets it."""
     from scipy import stats
 
-    total = o.sum(axis=1)
-    beta = (x.sum(axis=1) + 1.0) / (total + total / x.shape[1])  # one pseudo-sample at the mean opportunity
-    mu = np.maximum(beta[:, None] * o, 1e-9)
+    mu = _placement_means(x, o)
     extra = np.sum((x - mu) ** 2 - mu, axis=1)
-    overdispersion = np.maximum(0.0, extra / np.sum(mu, axis=1))
+    overdispersion = np.maximum(min_dispersion, extra / np.sum(mu, axis=1))
     # below MIN_OVERDISPERSION: Poisson. A phi left by rounding (1e-16 where the moments agree exactly) made
     # 1 / (1 + phi) exactly 1, and the negative binomial's tail 0: p 0, any support accepted (rev27)
     overdispersion = np.where(overdispersion > MIN_OVERDISPERSION, overdispersion, 0.0)
@@ -304,6 +318,41 @@ def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int) -> tuple:
 
 
 MIN_OVERDISPERSION = 1e-6  # phi of `_opportunity_tails` below which the chance supports are taken as Poisson
+
+
+def _placement_means(x: np.ndarray, o: np.ndarray) -> np.ndarray:
+    """mu_i = beta o_i for each row of x (supports) and o (opportunities): beta the rate per unit of opportunity,
+    with one pseudo-sample of 1 at the mean opportunity (`chance_test` says why)."""
+    total = o.sum(axis=1)
+    beta = (x.sum(axis=1) + 1.0) / (total + total / x.shape[1])
+    return np.maximum(beta[:, None] * o, 1e-9)
+
+
+DISPERSION_LEVEL = 0.95  # one-sided level of `dispersion_bound`
+
+
+def dispersion_bound(samples: np.ndarray, opportunities: np.ndarray | None) -> float:
+    """The largest NB1 dispersion phi (`_opportunity_tails`) that the chance samples so far do not exclude: an
+    upper confidence bound of level DISPERSION_LEVEL. The moment statistic S = sum((x - mu)^2) / sum(mu) estimates
+    1 + phi; it is taken as (1 + phi) chi2_nu / nu, nu its effective degrees of freedom (Satterthwaite: 2 (sum
+    k2)^2 / sum(k4 + 2 k2^2) with the negative binomial's cumulants k2, k4 at the estimate, one less for beta), so
+    1 + phi <= S nu / chi2_nu(1 - level). The bound shrinks as samples accrue: 16 Poisson-looking samples of mean
+    ~2 leave phi ~1.3 possible, 512 leave ~0.13; on simulated NB1 samples it lies below the true phi in 2-5 % of
+    draws at 16-512 samples. 0 without opportunities or with fewer than 2 samples (`chance_interval` then decides
+    on the point estimate)."""
+    from scipy import stats
+
+    x = np.asarray(samples, np.float64).reshape(1, -1)
+    o = None if opportunities is None else np.asarray(opportunities, np.float64).reshape(1, -1)
+    if o is None or o.shape != x.shape or x.shape[1] < 2 or o.sum() <= 0:
+        return 0.0
+    mu = _placement_means(x, o)[0]
+    s = float(np.sum((x[0] - mu) ** 2) / np.sum(mu))
+    phi = max(0.0, s - 1.0)
+    k2 = (1.0 + phi) * mu
+    k4 = (1.0 + phi) * (1.0 + 6.0 * phi + 6.0 * phi**2) * mu
+    nu = max(0.5, 2.0 * np.sum(k2) ** 2 / np.sum(k4 + 2.0 * k2**2) - 1.0)
+    return max(0.0, s * nu / float(stats.chi2.ppf(1.0 - DISPERSION_LEVEL, nu)) - 1.0)
 
 
 def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, prior_m: float = 0.0) -> float:

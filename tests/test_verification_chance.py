@@ -219,8 +219,11 @@ def test_an_early_stop_needs_the_whole_interval_past_it():
     """Chance supports with a real extra spread (negative binomial, k 1.5, over the opportunities): the first 16
     placements can miss the tail, so their point estimate calls a support of 16 a 1e-6 event among 1.6e5
     alignments while all 2048 placements say chance reaches it (p 1). The old early stop accepted there (p <=
-    false_alarm x CHANCE_MARGIN after one batch); the bootstrap interval of those 16 reaches above that, so the
-    test goes on. With many samples the interval closes around the point estimate."""
+    false_alarm x CHANCE_MARGIN after one batch); the bootstrap interval of those 16 under the dispersion they
+    cannot exclude (the accepting stop's) reaches above that, so the test goes on. With many samples the interval
+    closes around the point estimate."""
+    from sosmatch.plugin.chance import dispersion_bound
+
     false_alarm, trials = 1e-2, 1.6e5
     fooled = 0
     for seed in range(40):
@@ -233,7 +236,8 @@ def test_an_early_stop_needs_the_whole_interval_past_it():
         assert low <= first <= high
         if first <= false_alarm * CHANCE_MARGIN:
             fooled += 1
-            assert high > false_alarm * CHANCE_MARGIN
+            bound = dispersion_bound(x[:16], o[:16])
+            assert chance_interval(x[:16], 16, trials, o[:16], bound)[1] > false_alarm * CHANCE_MARGIN
     assert fooled >= 2
     # a clear chance case over many samples: a narrow interval that lies wholly past the refusal stop
     low, high = chance_interval(x, 16, trials, o)
@@ -288,3 +292,68 @@ def test_the_interval_leaves_out_resamples_without_opportunity():
     o = np.array([0.0] * 9 + [2.0])
     low, high = chance_interval(x, 6, 1e3, o)
     assert np.isfinite(low) and np.isfinite(high) and low <= high
+
+
+def _nb1_placements(monkeypatch, phi):
+    """`chance_refinements` replaced by an overdispersed chance source: each placement's support negative binomial
+    with variance (1 + phi) x its mean 0.15 o, o uniform in 1-25, both fixed by where the placement puts B."""
+    import sosmatch.plugin.chance as chance
+
+    def refinements(pa, sa, pb, sb, winner, probe, gate, max_size, placements, *args):
+        x, o = [], []
+        for p in placements:
+            rng = np.random.default_rng(int(np.abs(p.translation).sum() * 1e6) % 2**32)
+            o.append(rng.uniform(1, 25))
+            x.append(rng.negative_binomial(0.15 * o[-1] / phi, 1 / (1 + phi)))
+        return np.asarray(x, np.int64), np.asarray(o)
+
+    monkeypatch.setattr(chance, "chance_refinements", refinements)
+    return refinements
+
+
+def test_a_first_batch_that_looks_poisson_does_not_end_the_test(monkeypatch):
+    """Chance supports with a spread of 1.25 x their mean (1.5e5 trials; a support of 19 is chance at p 0.002-0.05
+    from 512 samples, by placement seed). Under seed 3 the first 16 samples happen to look Poisson (phi 0): the
+    bootstrap of those 16 cannot show a spread they lack, and the test accepted there at p 1e-7 where its 512
+    samples give 0.018. The accepting stop now assumes the dispersion the samples cannot exclude
+    (`dispersion_bound`): no seed accepts on fewer samples what its 512 refuse, and a clear support (50) still
+    stops after one or two batches."""
+    import sosmatch.plugin.chance as chance
+
+    refinements = _nb1_placements(monkeypatch, 0.25)
+    rng = np.random.default_rng(0)
+    a = np.column_stack([rng.uniform(0, 250, (300, 2)), np.zeros(300)])
+    b = np.column_stack([rng.uniform(0, 200, (100, 2)), np.zeros(100)])
+    ident = Sim3(np.eye(3), np.zeros(3))
+    trials = effective_trials(a, b, 3.0)
+    for seed in range(6):
+        monkeypatch.setattr(chance, "CHANCE_SEED", seed)
+        x, o = refinements(a, None, b, None, ident, b[:5], 3.0, 0.4, chance.chance_placements(a, b, 512))
+        full = chance_test(x, 19, trials, o).p_value
+        model, samples, _ = chance.sequential_chance(a, None, b, None, ident, b[:5], 19, 3.0, 0.4, 512, 0.01)
+        if seed == 3:
+            assert full > 0.01 and chance_test(x[:16], 19, trials, o[:16]).p_value < 1e-5  # the fooling batch
+        assert model.p_value > 0.01 or full <= 0.01, (seed, len(samples), model.p_value, full)
+        _, clear, _ = chance.sequential_chance(a, None, b, None, ident, b[:5], 50, 3.0, 0.4, 512, 0.01)
+        assert len(clear) <= 2 * chance.CHANCE_BATCH
+
+
+def test_the_dispersion_bound_covers_the_true_dispersion_and_shrinks_with_samples():
+    """`dispersion_bound` on NB1 samples (phi 0.25) lies below the true phi in few draws (nominal 5 %) at 16 and
+    at 256 samples, and is tighter with more; Poisson samples (phi 0) leave a large phi open after 16."""
+    from sosmatch.plugin.chance import dispersion_bound
+
+    bounds = {16: [], 256: []}
+    poisson16 = []
+    for seed in range(100):
+        rng = np.random.default_rng(seed)
+        o = rng.uniform(1, 25, 256)
+        x = rng.negative_binomial(0.15 * o / 0.25, 1 / 1.25)
+        for n in bounds:
+            bounds[n].append(dispersion_bound(x[:n], o[:n]))
+        poisson16.append(dispersion_bound(rng.poisson(0.15 * o[:16]), o[:16]))
+    for n, got in bounds.items():
+        assert np.mean(np.asarray(got) < 0.25) <= 0.1, n
+    assert np.median(bounds[256]) < 0.7 < np.median(bounds[16])
+    assert np.median(poisson16) > 0.5
+    assert dispersion_bound(np.array([1, 2, 3]), None) == 0.0
