@@ -271,13 +271,12 @@ def chance_interval(samples: np.ndarray, support: int, trials: float, opportunit
     the samples lack). Without opportunities: the point estimate."""
     x = np.asarray(samples, np.float64).reshape(-1)
     o = None if opportunities is None else np.asarray(opportunities, np.float64).reshape(-1)
-    if o is None or len(o) != len(x) or len(x) < 2 or o.sum() <= 0:
-        p = chance_test(samples, support, trials, opportunities).p_value
-        return p, p
-    rows = np.random.default_rng(CHANCE_SEED).integers(0, len(x), (CHANCE_RESAMPLES, len(x)))
-    # a resample of placements that all had no opportunity measures no rate (its beta 1 / 0): left out, as the
-    # point estimate leaves out such a sample set (rev27: one NaN row made the whole interval NaN)
-    rows = rows[o[rows].sum(axis=1) > 0]
+    rows = np.zeros((0, len(x)), np.int64)
+    if o is not None and len(o) == len(x) and len(x) >= 2 and o.sum() > 0:
+        rows = np.random.default_rng(CHANCE_SEED).integers(0, len(x), (CHANCE_RESAMPLES, len(x)))
+        # a resample of placements that all had no opportunity measures no rate (its beta 1 / 0): left out, as
+        # the point estimate leaves out such a sample set (rev27: one NaN row made the whole interval NaN)
+        rows = rows[o[rows].sum(axis=1) > 0]
     if not len(rows):
         p = chance_test(samples, support, trials, opportunities).p_value
         return p, p

@@ -129,9 +129,10 @@ def _save(path: Path, case: dict) -> None:
 # ---- the tail models: q(x, o, support) for one set of samples, and per-sample expected sf for the goodness ----
 
 def _mu(x: np.ndarray, o: np.ndarray) -> np.ndarray:
-    total = o.sum()
-    beta = (x.sum() + 1.0) / (total + total / len(x))
-    return np.maximum(beta * o, 1e-9)
+    """Each placement's chance mean beta o_i, as the chance test takes it (`chance._placement_means`)."""
+    from ...plugin.chance import _placement_means
+
+    return _placement_means(np.asarray(x, np.float64)[None], np.asarray(o, np.float64)[None])[0]
 
 
 def _nb_sf(k_minus_1: int, mu: np.ndarray, alpha: float) -> np.ndarray:
