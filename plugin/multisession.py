@@ -323,8 +323,8 @@ def consistent_edges(
         agree = np.array([[np.max(np.linalg.norm(pi - pj, axis=1)) <= tolerance_m for pj in placed] for pi in placed])
         # the edges that decide: the precise ones where there are any (an imprecise one may miss by more than the
         # tolerance by its own account), else all
-        judges = np.array([not e.imprecise for e in between]) if any(not e.imprecise for e in between) \
-            else np.ones(len(between), bool)
+        precise = np.array([not e.imprecise for e in between])
+        judges = precise if precise.any() else np.ones(len(between), bool)
         weights = np.array([e.weight for e in between]) * judges
         count = (agree & judges[None, :]).sum(axis=1)
         best = max(np.flatnonzero(judges), key=lambda k: (count[k], agree[k] @ weights, -k))
