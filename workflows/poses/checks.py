@@ -15,6 +15,7 @@ from ...plugin.geometry import Camera, Poses
 from ...plugin.gps_track import with_quantisation
 from ...plugin.multisession import Sim3
 from ...plugin.params import SfmParams
+from ...plugin.refinement import yaw_matrix
 from .. import sfm
 from ..image_cameras import EXIF_FOCAL_TOLERANCE, camera_aspect
 from ..image_priors import ImagePriors
@@ -123,8 +124,7 @@ def _compare(priors: ImagePriors, index: np.ndarray, poses: Poses, warnings: lis
     rotations, turn = poses.rotations, None
     if local_frame and tags.any():
         turn = frame_yaw_deg(poses.rotations[tags], priors.rotations[index][tags])
-        c, s = math.cos(math.radians(turn)), math.sin(math.radians(turn))
-        rotations = np.einsum("ij,njk->nik", np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), rotations)
+        rotations = yaw_matrix(math.radians(turn)) @ rotations
     cmp = compare_with_priors(rotations, poses.centers, priors.rotations[index], gps, lines)
     per_image = []
     for k, i in enumerate(index):

@@ -154,6 +154,8 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     timings: dict[str, float] = {}
     db = work / "database.db"
     sp = params.sfm
+    # the receiver's sigma with the rounding of the fixes (`gps_track.with_quantisation`): one figure for the run
+    gps_sigma_m = with_quantisation(sp.gps_sigma_m, priors.summary)
     # the priors' own warnings count too (a camera without a focal length in EXIF was printed but not counted)
     warnings: list[str] = list(priors.summary.get("warnings", []))
 
@@ -218,8 +220,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
         flagged = [n for n in (geo_report or {}).get("gps_outliers", []) if n in added]
         # left out only beyond a gross-error bound (10 GPS sigmas, at least the configured receiver's): the
         # outlier limit (~3 sigma) also flags ~1 % of good images by the GPS noise alone
-        sigma = max(float(geo.horizontal.sigma_m) if geo is not None else 0.0,
-                    with_quantisation(sp.gps_sigma_m, priors.summary))
+        sigma = max(float(geo.horizontal.sigma_m) if geo is not None else 0.0, gps_sigma_m)
         fix = {n: priors.positions[priors.names.index(n), :2] for n in flagged}
         miss = {n: float(np.linalg.norm(poses.centers[names.index(n), :2] - fix[n])) for n in flagged}
         off = [n for n in flagged if miss[n] > GROSS_GPS_SIGMAS * sigma]
@@ -240,8 +241,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     # know them, and a free one moves every depth (nu25: +5.7 %, the ground 4-6 m low)
     t = time.perf_counter()
     exif_cameras = exif_focal_priors(priors)
-    focal_estimates, refitted = weigh_focal_lengths(model.reconstruction, exif_cameras,
-                                                    with_quantisation(sp.gps_sigma_m, priors.summary),
+    focal_estimates, refitted = weigh_focal_lengths(model.reconstruction, exif_cameras, gps_sigma_m,
                                                     order=priors.names)
     timings["focal_lengths"] = time.perf_counter() - t
     if refitted:
