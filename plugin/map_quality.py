@@ -29,6 +29,7 @@ camera, the terrain or the flying height:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import NamedTuple
 
@@ -137,6 +138,19 @@ def shared_tilt_deg(ground_up: np.ndarray, camera_up: np.ndarray) -> float:
     return float(np.degrees(np.arcsin(min(1.0, s))))
 
 
+def heights_seen_by_keyframe(heights: np.ndarray, observed_keyframes: Sequence[np.ndarray],
+                             num_keyframes: int) -> list[list[float]]:
+    """Per keyframe, the heights of the landmarks it observes (`heights[i]` for landmark i, observed in the
+    keyframes `observed_keyframes[i]`); empty for a keyframe that observes none. The map's flying height above
+    what each keyframe sees is read from these (`assess_map`: their median; the take-off check of `map`: a low
+    quantile)."""
+    seen: list[list[float]] = [[] for _ in range(num_keyframes)]
+    for i, kfs in enumerate(observed_keyframes):
+        for k in np.asarray(kfs, np.int64):
+            seen[k].append(heights[i])
+    return seen
+
+
 def assess_map(
     positions: np.ndarray,
     sizes_m: np.ndarray,
@@ -169,12 +183,8 @@ def assess_map(
     nan = float("nan")
     errors = np.asarray(errors_px, np.float64)
     p50, p90 = (float(v) for v in np.percentile(errors, [50, 90])) if n_l else (nan, nan)
-    seen = np.zeros(n_k, bool)
-    ground_of_kf: list[list[float]] = [[] for _ in range(n_k)]
-    for i, kfs in enumerate(observed_keyframes):
-        for k in np.asarray(kfs, np.int64):
-            seen[k] = True
-            ground_of_kf[k].append(p[i, 2])
+    ground_of_kf = heights_seen_by_keyframe(p[:, 2], observed_keyframes, n_k)
+    seen = np.array([bool(g) for g in ground_of_kf], bool)
     agl = np.array([centers[k, 2] - np.median(g) for k, g in enumerate(ground_of_kf) if g])
     flying = float(np.median(agl)) if len(agl) else nan
     agl_spread = float((np.percentile(agl, 90) - np.percentile(agl, 10)) / abs(flying)) \

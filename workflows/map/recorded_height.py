@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...plugin.map_quality import heights_seen_by_keyframe
 from ..image_cameras import EXIF_FOCAL_TOLERANCE
 
 log = logging.getLogger(__name__)
@@ -54,10 +55,7 @@ def ground_flying_height(positions: np.ndarray, observed_keyframes: list[np.ndar
     that reads 20 m low, which alone is the tolerance. A low quantile is the ground wherever some of it shows."""
     z = np.asarray(positions, np.float64).reshape(-1, 3)[:, 2]
     centers = np.asarray(centers, np.float64).reshape(-1, 3)
-    seen: list[list[float]] = [[] for _ in range(len(centers))]
-    for i, kfs in enumerate(observed_keyframes):
-        for k in np.asarray(kfs, np.int64):
-            seen[k].append(z[i])
+    seen = heights_seen_by_keyframe(z, observed_keyframes, len(centers))
     heights = [centers[k, 2] - np.percentile(g, GROUND_QUANTILE) for k, g in enumerate(seen) if g]
     return float(np.median(heights)) if heights else float("nan")
 
