@@ -16,8 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from .geometry import hull_area
 from .multisession import Sim3
-from .refinement import Alignment, refine_alignment, yaw_matrix
+from .refinement import Alignment, pairing_tree, refine_alignment, yaw_matrix
 
 
 def transforms_agree(t1: Sim3, t2: Sim3, points: np.ndarray, tolerance_m: float) -> bool:
@@ -228,7 +229,13 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
     Returns the model, the chance supports and their opportunities (`chance_opportunity`: another support is
     judged against the same placements with `chance_test`). `tree_a`: as `chance_refinements`. The accepting stop
     assumes the dispersion at its upper confidence bound (`dispersion_bound`), which shrinks as samples accrue, so
-    a first batch whose spread happens to be small cannot end the test on a tail it does not support."""
+    a first batch whose spread happens to be small cannot end the test on a tail it does not support.
+    The test is one of the pair, not of the order its maps are given in: the map of the smaller footprint is the
+    one placed (`placed_map_is_a`), so `match A B` and `match B A` decide alike."""
+    if placed_map_is_a(points_a, points_b):
+        points_a, sizes_a, points_b, sizes_b, winner, probe, winner_pairs = placed_over_b(
+            points_a, sizes_a, points_b, sizes_b, winner, probe, winner_pairs)
+        tree_a = pairing_tree(points_a, z_weight)
     placements = chance_placements(points_a, points_b, starts, prior_m)
     trials = effective_trials(points_a, points_b, gate_m, prior_m)
     tree_a_xy = horizontal_tree(points_a)
@@ -255,6 +262,30 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
             if high <= false_alarm * CHANCE_MARGIN:
                 break
     return chance, samples, opportunities
+
+
+def placed_map_is_a(points_a: np.ndarray, points_b: np.ndarray) -> bool:
+    """Whether the chance model should place A over B rather than B over A: A's footprint (the convex hull of its
+    landmarks' horizontal positions) is the smaller one (ties: A has fewer landmarks). The smaller map moved over
+    the larger is what N_eff counts (`effective_trials`: translations over the fixed map's footprint, turns at
+    the moved map's radius); the other way round the placements where a large moved map covers a small fixed one
+    everywhere are left out, and the samples fall where the moved map hangs over the fixed one's edges. Measured
+    on the suite's crossing pair (297 and 85 landmarks), the two orders gave p 0.003 and 1e-5."""
+    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
+    pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    area_a, area_b = hull_area(pa[:, :2]), hull_area(pb[:, :2])
+    return bool((area_a, len(pa)) < (area_b, len(pb)))
+
+
+def placed_over_b(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
+                  sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray,
+                  winner_pairs: np.ndarray | None) -> tuple:
+    """The chance model's arguments with the roles swapped, A the map placed over B (`placed_map_is_a`): the
+    maps, the winner inverted, its probe and its pairs (B, A). The winner maps B's supporting landmarks `probe`
+    onto their A partners, so those partners are where it puts them, and a refinement that brings them back within
+    2 gates of `probe` found the winner again (`converged_to_winner`), as from the other side."""
+    pairs = None if winner_pairs is None else np.ascontiguousarray(np.asarray(winner_pairs)[:, ::-1])
+    return points_b, sizes_b, points_a, sizes_a, winner.inverse(), winner.apply(probe), pairs
 
 
 CHANCE_RESAMPLES = 100  # bootstrap resamples of `chance_interval`
@@ -364,9 +395,12 @@ def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, 
     smaller) hold area / (2 gate_m)^2 independent cells, and the yaws (a full turn; with a prior at most
     +-prior_m / R_B) hold yaw range / (2 gate_m / R_B) of them. A 220 m x 240 m map at a 2.9 m gate and R_B
     ~90 m: ~1,600 x ~100 = 1.6e5. (Counting the search's 48 yaw slices instead would ignore that within one
-    slice a turn of 7.5 degrees moves far landmarks by ten gates.)"""
+    slice a turn of 7.5 degrees moves far landmarks by ten gates.) A count of the pair, whatever the order: the
+    map of the smaller footprint is the one placed (`placed_map_is_a`)."""
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    if placed_map_is_a(pa, pb):
+        pa, pb = pb, pa
     cell = 2.0 * gate_m
     span = np.ptp(pa[:, :2], axis=0) if len(pa) else np.zeros(2)
     area = float(span[0] * span[1])

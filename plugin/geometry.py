@@ -298,3 +298,17 @@ def matrix_to_rotvec(r: np.ndarray) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     return Rotation.from_matrix(r).as_rotvec()
+
+
+def hull_area(xy: np.ndarray) -> float:
+    """The area of the convex hull of (N, 2) points, in their units squared (0 for fewer than 3 points or points
+    on one line)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = np.asarray(xy, np.float64).reshape(-1, 2)
+    if len(pts) < 3:
+        return 0.0
+    try:
+        return float(ConvexHull(pts).volume)  # 2D: volume is the area
+    except QhullError:
+        return 0.0

@@ -129,7 +129,8 @@ def verify_alignments(
     refit fitted the EKF frames' local distortion: 1.5 deg of tilt between maps that agree within 0.4 deg).
     None: keep the `dof` fit. `tilt_significance` (the F test of a tilt in those heights) is reported.
     Chance (`sequential_chance`, `chance_test`): up to `chance_starts` refinements from random placements of B over A
-    (within `prior_m` of where it is when both maps share one frame, 0: anywhere) measure the support chance
+    (the map of the smaller footprint over the other, `chance.placed_map_is_a`; within `prior_m` of where it is
+    when both maps share one frame, 0: anywhere) measure the support chance
     reaches; the winner must be improbable as the best of the N_eff alignments the search had
     (`effective_trials`): p_value <= `false_alarm`. Those chance alignments are rivals too. 0 starts: no chance
     test (the ratio alone, as before).

@@ -77,6 +77,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry import hull_area
 from ..params import AssociationParams
 from .windows import hilbert_order
 
@@ -118,16 +119,7 @@ def _disjoint_windows(xy: np.ndarray, length: int) -> list[np.ndarray]:
 def _window_area(xy: np.ndarray, length: int) -> float:
     """Median convex-hull area of the disjoint windows (`_disjoint_windows`); 0 for degenerate (collinear)
     windows."""
-    from scipy.spatial import ConvexHull, QhullError
-
-    areas = []
-    for part in _disjoint_windows(xy, length):
-        if len(part) < 3:
-            continue
-        try:
-            areas.append(float(ConvexHull(part).volume))  # 2D: volume is the area
-        except QhullError:
-            areas.append(0.0)
+    areas = [hull_area(part) for part in _disjoint_windows(xy, length) if len(part) >= 3]
     return float(np.median(areas)) if areas else 0.0
 
 

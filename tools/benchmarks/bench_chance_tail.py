@@ -54,6 +54,10 @@ def _draw(args: tuple, kwargs: dict, seeds: int) -> tuple[np.ndarray, np.ndarray
     import sosmatch.plugin.chance as chance
 
     (pa, sa, pb, sb, winner, probe, support, gate, max_size, starts, false_alarm, prior_m, dof, z_weight) = args[:14]
+    pairs, tree_a = kwargs.get("winner_pairs"), kwargs.get("tree_a")
+    if chance.placed_map_is_a(pa, pb):  # the roles `sequential_chance` gives them
+        pa, sa, pb, sb, winner, probe, pairs = chance.placed_over_b(pa, sa, pb, sb, winner, probe, pairs)
+        tree_a = None
     xs, os_ = -np.ones((seeds, PLACEMENTS)), -np.ones((seeds, PLACEMENTS))
     tree_xy = chance.horizontal_tree(pa)
     saved = chance.CHANCE_SEED
@@ -62,7 +66,7 @@ def _draw(args: tuple, kwargs: dict, seeds: int) -> tuple[np.ndarray, np.ndarray
             chance.CHANCE_SEED = s
             placements = chance.chance_placements(pa, pb, PLACEMENTS, prior_m)
             x, o = chance.chance_refinements(pa, sa, pb, sb, winner, probe, gate, max_size, placements, dof,
-                                             z_weight, kwargs.get("winner_pairs"), kwargs.get("tree_a"), tree_xy)
+                                             z_weight, pairs, tree_a, tree_xy)
             xs[s, :len(x)], os_[s, :len(o)] = x, o
     finally:
         chance.CHANCE_SEED = saved
