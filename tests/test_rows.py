@@ -3,6 +3,7 @@ verify (nu44 D1), the same corner seen twice must, and maps without rows keep th
 
 import numpy as np
 
+from sosmatch.database.match_notes import no_match_text
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.refinement import yaw_matrix
 from sosmatch.plugin.rows import find_rows, row_chance, with_rows
@@ -85,3 +86,9 @@ def test_maps_without_rows_keep_their_p():
                       np.zeros(3), np.ones(3), v.chance) is None
     assert with_rows(v.chance, None) is v.chance
     assert v.chance.to_dict()["row_placements"] == 0
+
+
+def test_a_refusal_says_rows_laid_on_rows_reached_the_support():
+    said = no_match_text(22, 10, 1.0, 0.8, row_placements=344.3)
+    assert "chance p 1 (mean 0.8; 344 placements laying rows on rows)" in said
+    assert no_match_text(22, 10, 1.0, 0.8, row_placements=0.0) == no_match_text(22, 10, 1.0, 0.8)
