@@ -28,6 +28,10 @@ ROW_TOL_GATES = 0.75
 # The largest gap along a row: the outer radius of the annulus in which the chance model counts the density
 # around a landmark (`chance.OPPORTUNITY_GATES`); pieces further apart are separate rows to it as well.
 ROW_GAP_GATES = OPPORTUNITY_GATES[1]
+# The largest gap bridged along the line of a row already found: the annulus's diameter. The strip of such a gap
+# (1.5 x 12 gates) holds what the flanks' density puts there, below one landmark in a map sparse enough for rows to
+# matter, and the whole row must still pass the contrast test.
+ROW_BRIDGE_GATES = 2.0 * OPPORTUNITY_GATES[1]
 # The flanks whose density a row is judged against: as wide as that annulus (4 gates), either side of the strip.
 ROW_FLANK_GATES = OPPORTUNITY_GATES[1] - OPPORTUNITY_GATES[0]
 # A row holds at least ROW_MIN landmarks, ROW_CONTRAST times what the density beside it (its flanks') puts in its
@@ -128,6 +132,15 @@ def find_rows(points: np.ndarray, gate_m: float) -> list[Row]:
                 break
         if not _contrast_ok(rel, d, best, tol, gate_m):
             break
+        # along an established row's line a gap of up to ROW_BRIDGE_GATES is a gateway or trees not detected, not
+        # the row's end: the pieces beyond it, too short to be found alone, are the same row to a map laid on it
+        # (fragments left the laid-on trees to the isotropic rate: a corner overlay of nu44's at p 0.009)
+        wide = inl[_chain(rel[inl] @ d, float(np.median(rel[best] @ d)), ROW_BRIDGE_GATES * gate_m)]
+        if len(wide) > len(best) and _contrast_ok(rel, d, wide, tol, gate_m):
+            best = wide
+            centre = pts[best].mean(axis=0)
+            d = np.linalg.svd(pts[best] - centre)[2][0]
+            rel = pts - centre
         s = rel[best] @ d
         rows.append(Row(left[best], centre, d, float(s.min()), float(s.max())))
         left = np.delete(left, best)

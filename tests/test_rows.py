@@ -92,3 +92,13 @@ def test_a_refusal_says_rows_laid_on_rows_reached_the_support():
     said = no_match_text(22, 10, 1.0, 0.8, row_placements=344.3)
     assert "chance p 1 (mean 0.8; 344 placements laying rows on rows)" in said
     assert no_match_text(22, 10, 1.0, 0.8, row_placements=0.0) == no_match_text(22, 10, 1.0, 0.8)
+
+
+def test_a_row_is_one_across_a_gateway():
+    # 10 trees 6 m apart, a 26 m gateway (beyond ROW_GAP_GATES), then 6 more: the 6, too few to be a row alone, are
+    # the same row (left out, a map laid on them had its pairs there judged at the isotropic rate)
+    x = np.concatenate([np.arange(10) * 6.0, 80.0 + np.arange(6) * 6.0])
+    rng = np.random.default_rng(1)
+    line = np.column_stack([x, rng.normal(0, 0.5, len(x)), rng.normal(10, 3, len(x))])
+    rows = find_rows(line, GATE)
+    assert [len(r.members) for r in rows] == [16]
