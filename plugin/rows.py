@@ -117,6 +117,8 @@ def find_rows(points: np.ndarray, gate_m: float) -> list[Row]:
             d = (pts[j] - pts[i]) / (np.linalg.norm(pts[j] - pts[i]) + 1e-12)
             rel = pts - pts[i]
             inl = np.flatnonzero(np.abs(_perp(rel, d)) < tol)
+            if best is not None and len(inl) <= len(best):  # its chain (a part of inl) cannot be longer
+                continue
             chain = inl[_chain(rel[inl] @ d, 0.0, gap)]
             if (best is None or len(chain) > len(best)) and _contrast_ok(rel, d, chain, tol, gate_m):
                 best = chain
