@@ -204,6 +204,15 @@ def _cell_tail(p_on: dict[int, float], support: int, rest_mean: float, dispersio
     return float(min(1.0, np.sum(pmf * np.where(need <= 0, 1.0, rest))))
 
 
+def _row_pair_placements(length_a: float, length_b: float, gate_m: float, prior_m: float) -> float:
+    """Row-on-row placements of two rows: 2 orientations x their slides one along the other, one per cell of 2
+    gates ((L_A + L_B) / (2 gate)); with a position prior one orientation and at most prior_m / gate slides."""
+    slides = (length_a + length_b) / (2.0 * gate_m)
+    if prior_m > 0:
+        return min(slides, prior_m / gate_m)
+    return 2.0 * slides
+
+
 @dataclass(frozen=True)
 class RowChance:
     """What the two maps' rows contribute to the chance test (`row_chance`)."""
@@ -214,7 +223,8 @@ class RowChance:
 
 def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
                winner: Sim3, support: int, gate_m: float, max_size_difference: float, z_weight: float,
-               samples: np.ndarray, opportunities: np.ndarray, chance: ChanceModel) -> RowChance | None:
+               samples: np.ndarray, opportunities: np.ndarray, chance: ChanceModel,
+               prior_m: float = 0.0) -> RowChance | None:
     """The row-on-row placements of two maps and their tail at the winner (None: no row pair, nothing changes).
 
     Rows: `find_rows` in each map, and the landmarks of each map the winner lays along the other's rows (at least
@@ -224,7 +234,9 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     landmarks on A's rows, A's on B's; the larger), the rest at the chance model's rate (`chance.chance_rate` of
     its samples, its overdispersion). Every structured placement is given the winner's q_s: an upper bound (most
     align one arm, not a corner), which is what refuses a corner overlay that one cell's model leaves at
-    p <= 0.01 (8 of 24 of nu44's pairs)."""
+    p <= 0.01 (8 of 24 of nu44's pairs). With a position prior of `prior_m` (both maps in one frame) a row slides
+    along another by at most the prior's diameter (prior_m / gate cells) and is not reversed (the search's turns
+    are then small): the placements the prior lets the search find, as `chance.effective_trials` counts them."""
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
     rows_a, rows_b = find_rows(pa, gate_m), find_rows(pb, gate_m)
@@ -234,7 +246,7 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     on_a, laid_b = _laid_on(rows_a, pa, sizes_a, placed_b, sizes_b, gate_m, max_size_difference, z_weight)
     on_b, laid_a = _laid_on(rows_b, pb, sizes_b, placed_a, sizes_a, gate_m, max_size_difference, z_weight)
     lengths_a, lengths_b = _lengths(rows_a, laid_a), _lengths(rows_b, laid_b)
-    n_s = float(sum((la + lb) / gate_m for la in lengths_a for lb in lengths_b))
+    n_s = float(sum(_row_pair_placements(la, lb, gate_m, prior_m) for la in lengths_a for lb in lengths_b))
     if n_s <= 0:
         return None
     rate = chance_rate(samples, opportunities)

@@ -219,7 +219,8 @@ def verify_alignments(
         # rows of landmarks laid on rows (tree-lined field edges): placements the uniform samples do not reach
         # (`plugin.rows`); nothing changes for maps without rows
         chance = with_rows(chance, row_chance(pa_all, sizes_a, pb_all, sizes_b, best.transform, support, gate_m,
-                                              max_size_difference, z_weight, samples, opportunities, chance))
+                                              max_size_difference, z_weight, samples, opportunities, chance,
+                                              prior_m))
         rivals.extend(int(s) for s in samples)
     runner_up = max(rivals, default=0)
     if rigid is not None:

@@ -102,3 +102,16 @@ def test_a_row_is_one_across_a_gateway():
     line = np.column_stack([x, rng.normal(0, 0.5, len(x)), rng.normal(10, 3, len(x))])
     rows = find_rows(line, GATE)
     assert [len(r.members) for r in rows] == [16]
+
+
+def test_a_position_prior_bounds_the_row_placements():
+    pa, sa = corner(11)
+    pb, sb = corner(12)
+    placed = B_FROM_CORNER.apply(pb)
+    v = verify_at_corner(pa, sa, placed, sb)
+    args = (pa, sa, placed, sb, B_FROM_CORNER.inverse(), v.support, GATE, SIZE_GATE, 0.5, np.ones(16), np.ones(16),
+            v.chance)
+    free, near = row_chance(*args), row_chance(*args, prior_m=10.0)
+    assert free.tail == near.tail
+    # two rows each in A and B: 4 row pairs, each at most 10 m / gate slides in one orientation
+    assert near.placements <= 4 * 10.0 / GATE < free.placements
