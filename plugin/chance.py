@@ -45,8 +45,8 @@ class ChanceModel:
     # accounted for (a negative binomial of size mu / phi; 0: Poisson); NaN: no opportunities measured (the
     # unconditioned model, whose spread is in `variance`)
     overdispersion: float = float("nan")
-    # N_s and q_s of `rows.with_rows`: row-on-row placements of two maps' rows of landmarks, counted in the
-    # best-of-N_eff with their own tail (0, 0: no row pair; p_value is then the uniform placements' alone)
+    # N_s and the largest q_c of `rows.with_rows`: row-on-row placements of two maps' rows of landmarks, counted in
+    # the best-of-N_eff each with its own tail (0, 0: no row pair; p_value is then the uniform placements' alone)
     row_placements: float = 0.0
     row_tail: float = 0.0
 
@@ -210,14 +210,20 @@ def chance_opportunity(tree_a_xy: Any, placed_b: np.ndarray, gate_m: float) -> f
     that the winner's own partners do not raise the winner's opportunity: the same measure for the winner and for
     chance). A placement with half of B off A, or over a sparse part of it, has a fraction of the opportunity of
     one over A's dense core."""
+    return float(np.sum(landmark_opportunities(tree_a_xy, placed_b, gate_m)))
+
+
+def landmark_opportunities(tree_a_xy: Any, placed_b: np.ndarray, gate_m: float) -> np.ndarray:
+    """Each placed B landmark's term of `chance_opportunity`: min(1, pi gate^2 rho), rho A's density in the
+    annulus OPPORTUNITY_GATES around it."""
     inner, outer = (g * gate_m for g in OPPORTUNITY_GATES)
     xy = np.asarray(placed_b, np.float64).reshape(-1, 3)[:, :2]
     if not len(xy):
-        return 0.0
+        return np.zeros(0)
     counts = (tree_a_xy.query_ball_point(xy, outer, return_length=True)
               - tree_a_xy.query_ball_point(xy, inner, return_length=True))
     density = counts / (np.pi * (outer**2 - inner**2))
-    return float(np.sum(np.minimum(1.0, np.pi * gate_m**2 * density)))
+    return np.minimum(1.0, np.pi * gate_m**2 * density)
 
 
 def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,

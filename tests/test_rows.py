@@ -2,11 +2,12 @@
 verify (nu44 D1), the same corner seen twice must, and maps without rows keep their p."""
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from sosmatch.database.match_notes import no_match_text
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.refinement import yaw_matrix
-from sosmatch.plugin.rows import find_rows, row_chance, with_rows
+from sosmatch.plugin.rows import ROW_GAP_GATES, ROW_MIN, ROW_TOL_GATES, _proposals, find_rows, row_chance, with_rows
 from sosmatch.plugin.verification import verify_alignments
 
 GATE = 2.67  # the derived gate of nu44's maps
@@ -105,13 +106,37 @@ def test_a_row_is_one_across_a_gateway():
 
 
 def test_a_position_prior_bounds_the_row_placements():
+    # two corners in one frame, laid on each other where they lie: with a prior of 10 m a row slides along another
+    # by at most 10 m either way (10 / GATE cells of 2 gates), in the orientation of no turn, and a row crossing
+    # another at a right angle is not laid on it (the search turns by at most 10 m / B's radius)
     pa, sa = corner(11)
     pb, sb = corner(12)
-    placed = B_FROM_CORNER.apply(pb)
-    v = verify_at_corner(pa, sa, placed, sb)
-    args = (pa, sa, placed, sb, B_FROM_CORNER.inverse(), v.support, GATE, SIZE_GATE, 0.5, np.ones(16), np.ones(16),
-            v.chance)
+    v = verify_at_corner(pa, sa, pb, sb)
+    args = (pa, sa, pb, sb, Sim3.identity(), v.support, GATE, SIZE_GATE, 0.5, np.ones(16), np.ones(16), v.chance)
     free, near = row_chance(*args), row_chance(*args, prior_m=10.0)
-    assert free.tail == near.tail
-    # two rows each in A and B: 4 row pairs, each at most 10 m / gate slides in one orientation
-    assert near.placements <= 4 * 10.0 / GATE < free.placements
+    assert 0 < near.placements <= 2 * np.ceil(2 * 10.0 / (2 * GATE)) < free.placements
+    assert near.keep >= free.keep  # fewer cells: the chance that none reaches the support is no smaller
+
+
+def test_the_proposals_are_every_pair_whose_line_holds_a_chain_of_a_row():
+    # `_proposals` looks only at each landmark's neighbourhood: it must keep every pair whose line holds a chain
+    # of ROW_MIN through it in the whole map (those `find_rows` can find a row from), and no other
+    rng = np.random.default_rng(4)
+    pa, _ = corner(11)
+    pts = np.vstack([pa[:, :2], rng.uniform(-30, 150, (200, 2))])
+    tol, gap = ROW_TOL_GATES * GATE, ROW_GAP_GATES * GATE
+    want = []
+    for i, j in sorted(cKDTree(pts).query_pairs(gap)):
+        d = (pts[j] - pts[i]) / (np.linalg.norm(pts[j] - pts[i]) + 1e-12)
+        rel = pts - pts[i]
+        s = np.sort(rel[np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0]) < tol] @ d)
+        k = int(np.searchsorted(s, 0.0))
+        lo = hi = k
+        while lo > 0 and s[lo] - s[lo - 1] <= gap:
+            lo -= 1
+        while hi < len(s) - 1 and s[hi + 1] - s[hi] <= gap:
+            hi += 1
+        if hi - lo + 1 >= ROW_MIN:
+            want.append((i, j))
+    got = [tuple(int(v) for v in p) for p in _proposals(pts, tol, gap)]
+    assert want and got == want
