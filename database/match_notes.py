@@ -70,7 +70,8 @@ def check_georeferences(match: MatchSummary, map_a: LandmarkMap, map_b: Landmark
 
 def no_match_text(best_support: int | None, runner_up: int, chance_p: float | None = None,
                   chance_mean: float | None = None, beyond_prior: bool = False, layout: str | None = None,
-                  min_associations: int | None = None, tested_support: int | None = None) -> str:
+                  min_associations: int | None = None, tested_support: int | None = None,
+                  row_placements: float | None = None) -> str:
     """What `sosmatch match` says of a verification that found no match: "verification: no match (the best
     candidate holds 13 associations, B placed elsewhere 13, chance p 1 (mean 12.3))"; `best_support` None: no
     candidate, because no window hypothesis held more than theta_S (`min_associations`, when known) associations.
@@ -80,13 +81,16 @@ def no_match_text(best_support: int | None, runner_up: int, chance_p: float | No
     that repeats (trees on a grid) is why, not chance. `tested_support`: the support the ratio and chance tests
     compared (match.json `support_dof`, the `dof` fit's, before the winner's tilt refit), said beside the refit's
     when they differ: "holds 10 associations, B placed elsewhere 8, chance p 0.002" passes both documented tests
-    on its face, and the ratio test refused 9 < 1.2 x 8 (nu44)."""
+    on its face, and the ratio test refused 9 < 1.2 x 8 (nu44). `row_placements`: the chance test's placements laying
+    a row of landmarks on a row (`plugin.rows`; match.json's `row_placements`), said when there were any: "chance p 1
+    (mean 0.8)" of 22 pairs reads as a contradiction when rows laid on rows are what reach them."""
     if best_support is None:
         # said, not left bare: a user saw "no match" on maps of 3-6 landmarks and could not tell why (nu27)
         theta = "" if min_associations is None else f" = {min_associations}"
         return ("verification: no match (no candidate: no window hypothesis holds more than "
                 f"theta_S{theta} associations)")
-    chance = "" if chance_p is None else f", chance p {chance_p:.1g} (mean {chance_mean or 0:.1f})"
+    rows = f"; {row_placements:.0f} placements laying rows on rows" if row_placements else ""
+    chance = "" if chance_p is None else f", chance p {chance_p:.1g} (mean {chance_mean or 0:.1f}{rows})"
     prior = ", beyond the position prior" if beyond_prior else ""
     tested = (f" ({tested_support} as tested, before its tilt refit)"
               if tested_support is not None and tested_support != best_support else "")
@@ -116,10 +120,12 @@ def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
     # a verification without a best candidate records support 0 and no rms (`workflows.match.verification_json`)
     best = None if ver.get("rms_m") is None and not len(match.associations) else len(match.associations)
     tested = ver.get("support_dof")  # absent from files written before it was recorded
+    rows = chance.get("row_placements")  # absent from files written before rows entered the chance test
     return no_match_text(best, match.runner_up_support or 0, p if numeric else None, mean if numeric else None,
                          bool(ver.get("beyond_prior", False)), _layout_text(ver.get("layout_rival")),
                          match.min_associations,
-                         tested if isinstance(tested, int) and not isinstance(tested, bool) else None)
+                         tested if isinstance(tested, int) and not isinstance(tested, bool) else None,
+                         rows if isinstance(rows, (int, float)) and math.isfinite(rows) else None)
 
 
 def _layout_text(rival: Any) -> str | None:

@@ -46,11 +46,16 @@ class ChanceModel:
     # accounted for (a negative binomial of size mu / phi; 0: Poisson); NaN: no opportunities measured (the
     # unconditioned model, whose spread is in `variance`)
     overdispersion: float = float("nan")
+    # N_s and the largest q_c of `rows.with_rows`: row-on-row placements of two maps' rows of landmarks, counted in
+    # the best-of-N_eff each with its own tail (0, 0: no row pair; p_value is then the uniform placements' alone)
+    row_placements: float = 0.0
+    row_tail: float = 0.0
 
     def to_dict(self) -> dict[str, float]:
         return {"samples": self.samples, "mean": self.mean, "variance": self.variance, "trials": self.trials,
                 "tail": self.tail, "p_value": self.p_value,
-                "overdispersion": None if np.isnan(self.overdispersion) else self.overdispersion}
+                "overdispersion": None if np.isnan(self.overdispersion) else self.overdispersion,
+                "row_placements": self.row_placements, "row_tail": self.row_tail}
 
 
 def converged_to_winner(winner: Sim3, probe: np.ndarray, gate_m: float, winner_pairs: np.ndarray | None,
@@ -206,14 +211,20 @@ def chance_opportunity(tree_a_xy: Any, placed_b: np.ndarray, gate_m: float) -> f
     that the winner's own partners do not raise the winner's opportunity: the same measure for the winner and for
     chance). A placement with half of B off A, or over a sparse part of it, has a fraction of the opportunity of
     one over A's dense core."""
+    return float(np.sum(landmark_opportunities(tree_a_xy, placed_b, gate_m)))
+
+
+def landmark_opportunities(tree_a_xy: Any, placed_b: np.ndarray, gate_m: float) -> np.ndarray:
+    """Each placed B landmark's term of `chance_opportunity`: min(1, pi gate^2 rho), rho A's density in the
+    annulus OPPORTUNITY_GATES around it."""
     inner, outer = (g * gate_m for g in OPPORTUNITY_GATES)
     xy = np.asarray(placed_b, np.float64).reshape(-1, 3)[:, :2]
     if not len(xy):
-        return 0.0
+        return np.zeros(0)
     counts = (tree_a_xy.query_ball_point(xy, outer, return_length=True)
               - tree_a_xy.query_ball_point(xy, inner, return_length=True))
     density = counts / (np.pi * (outer**2 - inner**2))
-    return float(np.sum(np.minimum(1.0, np.pi * gate_m**2 * density)))
+    return np.minimum(1.0, np.pi * gate_m**2 * density)
 
 
 def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
@@ -345,6 +356,19 @@ def _opportunity_tails(x: np.ndarray, o: np.ndarray, support: int, min_dispersio
     tails = np.where(overdispersion > 0, np.mean(stats.nbinom.sf(support - 1, mu / phi, 1.0 / (1.0 + phi)), axis=1),
                      np.mean(stats.poisson.sf(support - 1, mu), axis=1))
     return tails, overdispersion
+
+
+def chance_rate(samples: np.ndarray, opportunities: np.ndarray) -> Any:
+    """beta: chance pairs per unit of opportunity (`chance_opportunity`), sum x / sum o over the last axis with one
+    pseudo-sample of 1 at the mean opportunity (`chance_test` says why); NaN when no opportunity was measured."""
+    x = np.asarray(samples, np.float64)
+    o = np.asarray(opportunities, np.float64)
+    if not x.shape[-1]:
+        return float("nan")
+    total = o.sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        beta = (x.sum(axis=-1) + 1.0) / (total + total / x.shape[-1])
+    return np.where(total > 0, beta, np.nan) if np.ndim(beta) else (float(beta) if total > 0 else float("nan"))
 
 
 MIN_OVERDISPERSION = 1e-6  # phi of `_opportunity_tails` below which the chance supports are taken as Poisson

@@ -31,6 +31,7 @@ from .refinement import (
     refine_alignment,
     yaw_matrix,
 )
+from .rows import row_chance, with_rows
 
 
 @dataclass(frozen=True)
@@ -216,6 +217,11 @@ def verify_alignments(
         chance, samples, opportunities = sequential_chance(
             pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support, gate_m, max_size_difference,
             chance_starts, false_alarm, prior_m, dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a)
+        # rows of landmarks laid on rows (tree-lined field edges): placements the uniform samples do not reach
+        # (`plugin.rows`); nothing changes for maps without rows
+        chance = with_rows(chance, row_chance(pa_all, sizes_a, pb_all, sizes_b, best.transform, support, gate_m,
+                                              max_size_difference, z_weight, samples, opportunities, chance,
+                                              prior_m))
         rivals.extend(int(s) for s in samples)
     runner_up = max(rivals, default=0)
     if rigid is not None:

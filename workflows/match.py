@@ -98,7 +98,8 @@ class MatchResult:
                                      None if v.chance is None else v.chance.mean, v.beyond_prior,
                                      None if v.layout_rival is None else v.layout_rival.text(),
                                      None if ans.searched is None else ans.searched.min_associations,
-                                     None if v.best is None else v.support)
+                                     None if v.best is None else v.support,
+                                     None if v.chance is None else v.chance.row_placements)
                 return f"{head}, {said} ({self.times()}) -> {self.out_dir / 'match.json'}"
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
             near = (f" within {ans.searched.position_prior_m:g} m (horizontally) of the georeference"

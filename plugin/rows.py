@@ -1,0 +1,456 @@
+"""Rows of landmarks (trees along a hedge, a field edge, an avenue) and the chance of laying one map's rows on
+another's: the structured coincidence the chance model's uniform placements do not sample.
+
+Two maps of different places, each with a field corner lined by trees, were verified with the corners laid on
+each other (BENCHMARKS.md, "Tree-lined corners"): a B tree laid on an A row finds a partner within the gate with
+probability 1 - exp(-lambda x chord) (lambda the row's trees per metre), 0.3-0.5 on those maps, eight times what
+the isotropic density of `chance.chance_opportunity` predicts, and a uniform placement lays a row along a row
+almost never (~rows / N_eff), so the chance samples never see it. Here the rows are found in each map
+(`find_rows`), the winner's support is judged as a row-on-row placement would reach it (`row_chance`: a 1-D model
+of the rows at the winner plus the chance model's own rate for the rest), and the count of such placements the
+two maps' rows offer is N_s; `with_rows` puts both into the best-of-N_eff. Maps without rows are unchanged.
+Pure numpy + scipy; a part of `plugin.verification`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .association.gates import size_ratio
+from .chance import (
+    OPPORTUNITY_GATES,
+    ChanceModel,
+    _horizontal_radius,
+    chance_rate,
+    horizontal_tree,
+    landmark_opportunities,
+)
+from .multisession import Sim3
+from .refinement import mutual_nearest, pairing_tree, yaw_matrix
+
+# A row's landmarks lie within this many gates of its line: a tree of one row laid on another row's line then
+# stays within the gate of the line's trees (3/4 gate of scatter leaves a quarter for the other row's).
+ROW_TOL_GATES = 0.75
+# The largest gap along a row: the outer radius of the annulus in which the chance model counts the density
+# around a landmark (`chance.OPPORTUNITY_GATES`); pieces further apart are separate rows to it as well.
+ROW_GAP_GATES = OPPORTUNITY_GATES[1]
+# The largest gap bridged along the line of a row already found: the annulus's diameter. The strip of such a gap
+# (1.5 x 12 gates) holds what the flanks' density puts there, below one landmark in a map sparse enough for rows to
+# matter, and the whole row must still pass the contrast test.
+ROW_BRIDGE_GATES = 2.0 * OPPORTUNITY_GATES[1]
+# The flanks whose density a row is judged against: as wide as that annulus (4 gates), either side of the strip.
+ROW_FLANK_GATES = OPPORTUNITY_GATES[1] - OPPORTUNITY_GATES[0]
+# A row holds at least ROW_MIN landmarks, ROW_CONTRAST times what the density beside it (its flanks') puts in its
+# strip. Together: where the flanks put at most one landmark in the strip, a chain of 8 is a Poisson(1) count
+# reaching 8, P = 1e-5 per proposed line, so a uniform map (a few thousand proposals) rarely shows one and a
+# dense patch or grove (its flanks as dense as the strip) never; a row that passes gives a laid-on landmark a
+# partner rate of about ROW_TOL_GATES x ROW_CONTRAST = 6 times the isotropic density's, the excess the chance
+# model does not sample. A spurious row only adds structured placements: p rises (power), it never accepts.
+ROW_MIN = 8
+ROW_CONTRAST = 8.0
+# Landmarks of one map the winner lays within a gate of the other's row, at least this many: a row of their map
+# too (a line by construction, though their map alone may be too sparse for `find_rows`, as a map seen at 50-70 %
+# detection often is). Fewer than 4 cannot be told from the rest's chance pairs near a row.
+LAID_ROW_MIN = 4
+# Row-on-row cells whose tail, bounded from above (`row_chance`), stays below ROW_NEGLIGIBLE / N_s are given that
+# bound without pairing their landmarks one by one: together they add at most this to p, a hundredth of the
+# default false alarm (0.01), and only ever raise it.
+ROW_NEGLIGIBLE = 1e-4
+# log P(no row-on-row cell reaches the support) below which p = 1 - exp(that) is 1 in double precision (exp(-40)
+# = 4e-18): the cells left are not computed (most of a corner overlay's hundreds, each at q ~ 1)
+SURE_LOG = -40.0
+
+
+@dataclass(frozen=True)
+class Row:
+    """A straight row of one map's landmarks: `members` (indices), a point and unit direction of its line (x, y),
+    and its extent along the line (`start` <= `end`, metres from `centre`)."""
+
+    members: np.ndarray
+    centre: np.ndarray
+    direction: np.ndarray
+    start: float
+    end: float
+
+    @property
+    def length(self) -> float:
+        """Its extent along the line (m)."""
+        return self.end - self.start
+
+
+def _perp(rel: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Signed distance of 2-D offsets `rel` from the line through 0 along unit `d`."""
+    return rel[:, 0] * d[1] - rel[:, 1] * d[0]
+
+
+def _chain(s: np.ndarray, seed: float, max_gap: float) -> np.ndarray:
+    """Mask of the contiguous chain (gaps <= max_gap) of positions s that holds the position nearest `seed`."""
+    order = np.argsort(s, kind="stable")
+    ss = s[order]
+    k = min(int(np.searchsorted(ss, seed)), len(ss) - 1)
+    lo = hi = k
+    while lo > 0 and ss[lo] - ss[lo - 1] <= max_gap:
+        lo -= 1
+    while hi < len(ss) - 1 and ss[hi + 1] - ss[hi] <= max_gap:
+        hi += 1
+    mask = np.zeros(len(s), bool)
+    mask[order[lo:hi + 1]] = True
+    return mask
+
+
+def _contrast_ok(rel: np.ndarray, d: np.ndarray, members: np.ndarray, tol: float, gate_m: float) -> bool:
+    """Whether a chain is a row, not a chance chain through a dense patch: at least ROW_MIN members and
+    ROW_CONTRAST times what the density of its flanks (ROW_FLANK_GATES wide either side of the strip +-tol, over
+    the chain's extent) puts in the strip (+1 flank landmark: an empty flank is no density 0)."""
+    if len(members) < ROW_MIN:
+        return False
+    along = rel @ d
+    perp = np.abs(_perp(rel, d))
+    inside = (along >= along[members].min()) & (along <= along[members].max())
+    width = ROW_FLANK_GATES * gate_m
+    flank = int(np.sum(inside & (perp >= tol) & (perp < tol + width)))
+    return len(members) >= ROW_CONTRAST * (flank + 1) / (2.0 * width) * 2.0 * tol
+
+
+def _proposals(xy: np.ndarray, tol: float, gap: float) -> np.ndarray:
+    """The pairs (i < j, sorted) of landmarks within `gap` of each other whose line can hold a row: a chain of at
+    least ROW_MIN landmarks within `tol` of it, gaps <= `gap`, through i. Such a chain holds ROW_MIN consecutive
+    members with i among them, all within (ROW_MIN - 1) gaps along the line and `tol` across, so within that
+    radius of i, and contiguous there too: the chain through i among i's neighbours in that radius alone is at
+    least ROW_MIN long. Testing that (a few hundred neighbours, not the whole map, for every pair) keeps the same
+    proposals `find_rows` would find a row from and bounds the work by the map's density, not its size (a 20,000-
+    landmark map: 27 s of CPU before)."""
+    from scipy.spatial import cKDTree
+
+    if len(xy) < 2:
+        return np.zeros((0, 2), np.int64)
+    tree = cKDTree(xy)
+    pairs = tree.query_pairs(gap, output_type="ndarray").astype(np.int64)
+    if not len(pairs):
+        return np.zeros((0, 2), np.int64)
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    radius = (ROW_MIN - 1) * gap + 2.0 * tol
+    firsts, starts = np.unique(pairs[:, 0], return_index=True)
+    ends = np.r_[starts[1:], len(pairs)]
+    keep = np.zeros(len(pairs), bool)
+    for i, lo, hi in zip(firsts, starts, ends):
+        near = np.asarray(tree.query_ball_point(xy[i], radius), np.int64)
+        rel = xy[near] - xy[i]
+        v = xy[pairs[lo:hi, 1]] - xy[i]
+        d = v / (np.linalg.norm(v, axis=1) + 1e-12)[:, None]  # as `find_rows` computes it
+        perp = np.abs(np.outer(d[:, 1], rel[:, 0]) - np.outer(d[:, 0], rel[:, 1]))
+        along = d @ rel.T
+        inl = perp < tol
+        length = np.ones(len(d), np.int64)
+        for side in (1.0, -1.0):  # the chain from i outwards, each way: its leading run of gaps <= gap
+            s = np.sort(np.where(inl & (side * along > 0), side * along, np.inf), axis=1)
+            with np.errstate(invalid="ignore"):  # inf - inf past the inliers: NaN, no step
+                steps = np.diff(np.column_stack([np.zeros(len(d)), s]), axis=1)
+            length += np.cumprod(steps <= gap, axis=1).sum(axis=1)
+        keep[lo:hi] = length >= ROW_MIN
+    return pairs[keep]
+
+
+def find_rows(points: np.ndarray, gate_m: float) -> list[Row]:
+    """The straight rows of a map's landmarks (horizontal positions), deterministic: every pair of landmarks
+    within ROW_GAP_GATES gates whose line can hold a row (`_proposals`) proposes it; its landmarks within
+    ROW_TOL_GATES gates of it form chains with gaps of at most ROW_GAP_GATES gates; the longest chain through the
+    pair that passes the contrast test is a row, refitted (principal axis, the chain taken again, twice) and
+    removed; repeated until none is left."""
+    xy = np.asarray(points, np.float64).reshape(-1, 3)[:, :2]
+    tol, gap = ROW_TOL_GATES * gate_m, ROW_GAP_GATES * gate_m
+    left = np.arange(len(xy))
+    rows: list[Row] = []
+    proposals = _proposals(xy, tol, gap)
+    while len(left) >= ROW_MIN:
+        pts = xy[left]
+        best = None
+        alive = np.zeros(len(xy), bool)
+        alive[left] = True
+        proposals = proposals[alive[proposals[:, 0]] & alive[proposals[:, 1]]]  # a removed landmark proposes none
+        for i, j in np.searchsorted(left, proposals):
+            d = (pts[j] - pts[i]) / (np.linalg.norm(pts[j] - pts[i]) + 1e-12)
+            rel = pts - pts[i]
+            inl = np.flatnonzero(np.abs(_perp(rel, d)) < tol)
+            if best is not None and len(inl) <= len(best):  # its chain (a part of inl) cannot be longer
+                continue
+            chain = inl[_chain(rel[inl] @ d, 0.0, gap)]
+            if (best is None or len(chain) > len(best)) and _contrast_ok(rel, d, chain, tol, gate_m):
+                best = chain
+        if best is None:
+            break
+        for _ in range(2):  # the principal axis of the chain, and the chain along it again
+            centre = pts[best].mean(axis=0)
+            d = np.linalg.svd(pts[best] - centre)[2][0]
+            rel = pts - centre
+            inl = np.flatnonzero(np.abs(_perp(rel, d)) < tol)
+            best = inl[_chain(rel[inl] @ d, float(np.median(rel[best] @ d)), gap)]
+            if len(best) < ROW_MIN:
+                break
+        if not _contrast_ok(rel, d, best, tol, gate_m):
+            break
+        # along an established row's line a gap of up to ROW_BRIDGE_GATES is a gateway or trees not detected, not
+        # the row's end: the pieces beyond it, too short to be found alone, are the same row to a map laid on it
+        # (fragments left the laid-on trees to the isotropic rate: a corner overlay of nu44's at p 0.009)
+        wide = inl[_chain(rel[inl] @ d, float(np.median(rel[best] @ d)), ROW_BRIDGE_GATES * gate_m)]
+        if len(wide) > len(best) and _contrast_ok(rel, d, wide, tol, gate_m):
+            best = wide
+            centre = pts[best].mean(axis=0)
+            d = np.linalg.svd(pts[best] - centre)[2][0]
+            rel = pts - centre
+        s = rel[best] @ d
+        rows.append(Row(left[best], centre, d, float(s.min()), float(s.max())))
+        left = np.delete(left, best)
+    return rows
+
+
+def _fit(xy: np.ndarray, members: np.ndarray) -> Row:
+    """The row through landmarks `members` of positions xy: their mean, principal axis and extent along it."""
+    centre = xy[members].mean(axis=0)
+    d = np.linalg.svd(xy[members] - centre)[2][0]
+    s = (xy[members] - centre) @ d
+    return Row(np.asarray(members, np.int64), centre, d, float(s.min()), float(s.max()))
+
+
+def _on_rows(rows: list[Row], xy: np.ndarray, gate_m: float) -> list[np.ndarray]:
+    """For each row, the landmarks at xy on its strip: within a gate of its line (where a tree laid on the line
+    finds the line's trees within the gate), from a gap (ROW_GAP_GATES) before its start to a gap after its end
+    (as far as its chain would have reached): its members and the landmarks beside them, part of the same 1-D
+    structure to a map laid on it (members alone left a corner overlay's pairs with trees 1.5-2 m off the fitted
+    line to the isotropic rate, and nu44's LA/LB verified at p 0.008)."""
+    out = []
+    reach = ROW_GAP_GATES * gate_m
+    for row in rows:
+        rel = xy[:, :2] - row.centre
+        perp, along = _perp(rel, row.direction), rel @ row.direction
+        out.append(np.flatnonzero((np.abs(perp) <= gate_m) & (along >= row.start - reach)
+                                  & (along <= row.end + reach)))
+    return out
+
+
+def _laid_rows(rows: list[Row], placed: np.ndarray, own_rows: list[Row], gate_m: float) -> list[np.ndarray]:
+    """Rows of another map made of its landmarks `placed` (in this map's frame) on the strips of `rows`
+    (`_on_rows`), at least LAID_ROW_MIN of them, unless they are mostly a row of their map already found
+    (`own_rows`): a line by construction, though their map alone may be too sparse for `find_rows` (a map seen at
+    50-70 % detection often is). Their line is fitted in their own map's frame by the caller."""
+    found = [set(int(k) for k in r.members) for r in own_rows]
+    return [on for on in _on_rows(rows, placed, gate_m)
+            if len(on) >= LAID_ROW_MIN and all(2 * len(set(on.tolist()) & m) < len(on) for m in found)]
+
+
+def _scaled(points: np.ndarray, z_weight: float) -> np.ndarray:
+    """Positions in the metric of the gate: (x, y, z_weight z), within gate_m of each other = within the gate."""
+    return np.column_stack([points[:, :2], z_weight * points[:, 2]])
+
+
+def _slide_pairs(row_a: np.ndarray, sizes_a: np.ndarray | None, row_b: np.ndarray, sizes_b: np.ndarray | None,
+                 direction: np.ndarray, slides: np.ndarray, gate_m: float, max_size_difference: float) -> np.ndarray:
+    """For B's row landmarks `row_b` (gate metric, placed at slide 0) moved by each of `slides` (m) along
+    `direction`: the pairs of A's row landmarks `row_a` within the gate (sizes gated), as min(B landmarks with a
+    partner, A landmarks with one), the one-to-one count bounded. Each (a, b) pair is within the gate over one
+    interval of slides (a quadratic in the slide), so all slides are counted at once."""
+    step = np.array([direction[0], direction[1], 0.0])
+    rel = row_b[None, :, :] - row_a[:, None, :]  # (A, B, 3)
+    c1 = rel @ step
+    c0 = np.sum(rel**2, axis=2) - gate_m**2
+    disc = c1**2 - c0  # |rel + u step|^2 <= g^2  <=>  u in -c1 +- sqrt(disc)
+    ok = disc > 0
+    if sizes_a is not None and sizes_b is not None:
+        ratio = size_ratio(np.repeat(np.asarray(sizes_a, np.float64), len(row_b)),
+                           np.tile(np.asarray(sizes_b, np.float64), len(row_a))).reshape(ok.shape)
+        ok &= ratio <= max_size_difference
+    ia, ib = np.nonzero(ok)
+    if not len(ia):
+        return np.zeros(len(slides), np.int64)
+    root = np.sqrt(disc[ia, ib])
+    lo, hi = -c1[ia, ib] - root, -c1[ia, ib] + root
+    active = (slides[None, :] >= lo[:, None]) & (slides[None, :] <= hi[:, None])  # (pairs, slides)
+    has_b = np.zeros((row_b.shape[0], len(slides)), bool)
+    has_a = np.zeros((row_a.shape[0], len(slides)), bool)
+    np.logical_or.at(has_b, ib, active)
+    np.logical_or.at(has_a, ia, active)
+    return np.minimum(has_b.sum(axis=0), has_a.sum(axis=0))
+
+
+@dataclass(frozen=True)
+class RowChance:
+    """What the two maps' rows contribute to the chance test (`row_chance`)."""
+
+    placements: float  # N_s: row-on-row cells (each row pair, 2 orientations, slides 2 gates apart)
+    tail: float  # the largest cell's tail: P(one placement of that cell reaches the winner's support) (of the cells
+    # computed: once those make p 1 (SURE_LOG) the others are not)
+    keep: float  # log of prod over the cells of (1 - q_c): P(no row-on-row cell reaches the support) = exp(keep)
+
+
+def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
+               winner: Sim3, support: int, gate_m: float, max_size_difference: float, z_weight: float,
+               samples: np.ndarray, opportunities: np.ndarray, chance: ChanceModel,
+               prior_m: float = 0.0) -> RowChance | None:
+    """The row-on-row placements of two maps and the chance that one reaches the winner's support (None: no row
+    pair, nothing changes).
+
+    Rows: `find_rows` in each map, and the landmarks of each map the winner lays along the other's rows
+    (`_laid_rows`): symmetric in A and B. Cells: for every row of A and row of B, 2 orientations x slides of one
+    along the other 2 gates apart (the cell of `chance.effective_trials`): B turned so that its row lies on A's
+    row's line. In each cell the pairs between the two maps' row landmarks (all rows: a cell that lays one corner on
+    another lays both arms) are counted from the geometry itself at the best slide within the cell (+-1 gate,
+    quarter-gate steps: the refinement's choice), R_c, not modelled: regular rows pair all or nothing by phase, and
+    a binomial per laid tree left a third of nu44's corner overlays at p <= 0.01. The rest of B (its landmarks not
+    so paired) gets the chance model's own negative binomial at that placement (rate `chance.chance_rate` x
+    `chance_opportunity`, its dispersion), and q_c = P(rest >= support - R_c): rows that align give their pairs for
+    free (structure both places have), so a winner laid row on row must show support beyond what the rows give.
+    The winner's own cell is among them: a corner overlay, its support nearly all row pairs, gets q_c ~ 1; a true
+    alignment whose pairs off the rows carry it keeps its p. With a position prior of `prior_m` (both maps in one
+    frame) a row slides along another by at most the prior's reach and is not reversed (the search's turns are then
+    small): the placements the prior lets the search find, as `chance.effective_trials` counts them."""
+    from scipy import stats
+
+    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
+    pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    rows_a, rows_b = find_rows(pa, gate_m), find_rows(pb, gate_m)
+    if not rows_a and not rows_b:
+        return None
+    rows_a = rows_a + [_fit(pa[:, :2], m) for m in _laid_rows(rows_b, winner.inverse().apply(pa), rows_a, gate_m)]
+    rows_b = rows_b + [_fit(pb[:, :2], m) for m in _laid_rows(rows_a, winner.apply(pb), rows_b, gate_m)]
+    if not rows_a or not rows_b:
+        return None
+    rate = chance_rate(samples, opportunities)
+    dispersion = 0.0 if np.isnan(chance.overdispersion) else chance.overdispersion
+    # the landmarks of the rows: their members and the others on their strips (`_on_rows`)
+    mem_a = np.unique(np.concatenate([r.members for r in rows_a] + _on_rows(rows_a, pa, gate_m)))
+    mem_b = np.unique(np.concatenate([r.members for r in rows_b] + _on_rows(rows_b, pb, gate_m)))
+    row_a = _scaled(pa[mem_a], z_weight)
+    sz_a = None if sizes_a is None else np.asarray(sizes_a, np.float64)[mem_a]
+    sz_b = None if sizes_b is None else np.asarray(sizes_b, np.float64)[mem_b]
+    tree_a = horizontal_tree(pa)
+    pair_tree = pairing_tree(pa[mem_a], z_weight)
+    groups = _cells(rows_a, rows_b, pb, winner, row_a, sz_a, mem_b, sz_b, gate_m, max_size_difference, z_weight,
+                    prior_m)
+    cells = sum(len(g.counts) for g in groups)
+    if cells == 0:
+        return None
+
+    def tail(need: np.ndarray, mu: np.ndarray) -> np.ndarray:
+        """P(rest >= need), the rest negative binomial of mean mu and the chance model's dispersion."""
+        mu = np.maximum(mu, 1e-9)
+        if dispersion > 0:
+            q = stats.nbinom.sf(need - 1, mu / dispersion, 1.0 / (1.0 + dispersion))
+        else:
+            q = stats.poisson.sf(need - 1, mu)
+        return np.where(need <= 0, 1.0, q)
+
+    def rest_mean(each: np.ndarray, r_c: np.ndarray) -> np.ndarray:
+        """The rest's mean: every landmark of B at the opportunity of `chance_opportunity` (`each`, per cell and
+        landmark), less what the row pairs took (r_c of B's row landmarks' share, at most one each)."""
+        opp = np.maximum(0.0, each.sum(axis=1) - r_c * each[:, mem_b].mean(axis=1))
+        return (chance.mean * opp / max(len(pb), 1)) if np.isnan(rate) else rate * opp
+
+    qs, keep = [], 0.0
+    for g in groups:
+        n, f = g.slides.shape
+        pick = g.counts.argmax(axis=1)
+        t, s = np.divmod(pick, f)
+        placed = np.stack([g.bases[t[c]] + np.r_[g.slides[c, s[c]] * g.direction, 0.0] for c in range(n)])
+        each = landmark_opportunities(tree_a, placed.reshape(-1, 3), gate_m).reshape(n, -1)
+        bound = g.counts[np.arange(n), pick]
+        # the count of `_slide_pairs` bounds the pairs from above and the rest's mean without them is the larger:
+        # a cell whose tail is negligible even so keeps that bound (all such cells together add at most
+        # ROW_NEGLIGIBLE to p) and is not paired landmark by landmark
+        q = tail(support - bound, rest_mean(each, np.zeros(n)))
+        for c in np.flatnonzero(q > ROW_NEGLIGIBLE / cells):
+            # the pairs themselves: the mutual nearest neighbours the verification counts, at the best of the
+            # cell's slides and turns in the order of the bound (a bound at or below the best found cannot beat it)
+            r_c = 0
+            for k in np.argsort(-g.counts[c], kind="stable"):
+                if g.counts[c, k] <= r_c:
+                    break
+                tk, sk = divmod(int(k), f)
+                moved = g.bases[tk][mem_b] + np.r_[g.slides[c, sk] * g.direction, 0.0]
+                got = len(mutual_nearest(pa[mem_a], sz_a, moved, sz_b, gate_m, max_size_difference, z_weight,
+                                         tree_a=pair_tree)[0])
+                r_c = max(r_c, got)
+            # the rest's opportunity where the bound peaked: the same cell, within a gate of the pairs' best
+            q[c] = tail(np.array([support - r_c]), rest_mean(each[c][None], np.array([float(r_c)])))[0]
+        qs.append(q)
+        keep = float(np.sum(np.log1p(-np.minimum(np.concatenate(qs), 1.0 - 1e-16))))
+        if keep < SURE_LOG:  # p is 1 to double precision whatever the other cells hold: refused, not counted on
+            break
+    q = np.concatenate(qs)
+    return RowChance(float(cells), float(q.max()), keep)
+
+
+@dataclass(frozen=True)
+class _Cells:
+    """One row of A with one of B in one orientation: B placed at slide 0 for each turn within the cell
+    (`bases`), the slides (m along `direction`, A's row's) of each cell, and the bound of `_slide_pairs` for every
+    cell x (turn, slide)."""
+
+    bases: list
+    direction: np.ndarray
+    slides: np.ndarray  # (cells, slides within a cell)
+    counts: np.ndarray  # (cells, turns x slides within a cell)
+
+
+def _cells(rows_a: list[Row], rows_b: list[Row], pb: np.ndarray, winner: Sim3, row_a: np.ndarray,
+           sz_a: np.ndarray | None, mem_b: np.ndarray, sz_b: np.ndarray | None, gate_m: float,
+           max_size_difference: float, z_weight: float, prior_m: float) -> list[_Cells]:
+    """The row-on-row cells of `row_chance`: every row of A with every row of B, 2 orientations (with a position
+    prior one, turned no further than the search turns within it), slides 2 gates apart over the rows' overlap
+    (with a prior, as far as it reaches from where B's row lies unmoved); within each cell slides of +-1 gate in
+    quarter gates and turns of +-1 gate at B's radius in half gates (the cells of `chance.effective_trials`: the
+    refinement chooses within them; two arms of a corner are never both exactly parallel, and it turns to lay
+    both). B is turned so that its row lies along A's row, its row's centre on A's row's line, heights as the
+    winner places them."""
+    scale = winner.scale
+    radius = _horizontal_radius(pb)
+    max_turn = prior_m / radius if prior_m > 0 else np.pi  # `chance.effective_trials`' yaw range
+    fine = np.arange(-4, 5) * gate_m / 4.0
+    turns = np.arange(-2, 3) * 0.5 * gate_m / radius
+    out = []
+    for ra in rows_a:
+        for rb in rows_b:
+            for sign in ((1.0,) if prior_m > 0 else (1.0, -1.0)):
+                db = sign * rb.direction
+                yaw = np.arctan2(ra.direction[1], ra.direction[0]) - np.arctan2(db[1], db[0])
+                if prior_m > 0:  # not reversed, and turned no further than the search turns within the prior
+                    yaw = np.arctan2(np.sin(yaw), np.cos(yaw))
+                    if abs(yaw) > np.pi / 2:
+                        yaw += np.pi
+                        sign = -sign
+                    if abs(np.arctan2(np.sin(yaw), np.cos(yaw))) > max_turn:
+                        continue
+                cb = np.r_[rb.centre, float(pb[rb.members, 2].mean())]
+                z0 = float(winner.apply(cb)[2])
+                ext = np.sort(sign * scale * np.array([rb.start, rb.end]))
+                lo, hi = ra.start - ext[1], ra.end - ext[0]  # slides at which the rows overlap
+                if prior_m > 0:  # only as far as the prior reaches from where B's row lies unmoved
+                    rel = np.asarray(cb[:2]) - ra.centre
+                    if abs(float(_perp(rel[None], ra.direction)[0])) > prior_m + gate_m:
+                        continue
+                    here = float(rel @ ra.direction)
+                    lo, hi = max(lo, here - prior_m), min(hi, here + prior_m)
+                    if hi < lo:
+                        continue
+                n = max(1, int(np.ceil((hi - lo) / (2.0 * gate_m))))
+                centres = (lo + hi) / 2.0 + (np.arange(n) - (n - 1) / 2.0) * 2.0 * gate_m
+                slides = centres[:, None] + fine[None, :]
+                bases, counts = [], []
+                for dyaw in turns:
+                    base = Sim3(yaw_matrix(float(yaw + dyaw)), np.zeros(3), scale).apply(pb - cb) + np.r_[ra.centre, z0]
+                    bases.append(base)
+                    counts.append(_slide_pairs(row_a, sz_a, _scaled(base[mem_b], z_weight), sz_b, ra.direction,
+                                               slides.reshape(-1), gate_m, max_size_difference).reshape(n, len(fine)))
+                out.append(_Cells(bases, ra.direction, slides, np.stack(counts, axis=1).reshape(n, -1)))
+    return out
+
+
+def with_rows(chance: ChanceModel, rows: RowChance | None) -> ChanceModel:
+    """The chance model with the row-on-row cells in its best-of-N_eff: p = 1 - (1 - q_u)^(N_eff - N_s)
+    prod_c (1 - q_c) (N_s at most N_eff: they are some of the alignments the search chooses from). None: as is."""
+    if rows is None:
+        return chance
+    n_s = min(rows.placements, chance.trials)
+    log_keep = (chance.trials - n_s) * np.log1p(-min(chance.tail, 1.0 - 1e-16)) + rows.keep
+    return replace(chance, p_value=float(-np.expm1(log_keep)), row_placements=n_s, row_tail=rows.tail)
