@@ -375,11 +375,9 @@ MIN_OVERDISPERSION = 1e-6  # phi of `_opportunity_tails` below which the chance 
 
 
 def _placement_means(x: np.ndarray, o: np.ndarray) -> np.ndarray:
-    """mu_i = beta o_i for each row of x (supports) and o (opportunities): beta the rate per unit of opportunity,
-    with one pseudo-sample of 1 at the mean opportunity (`chance_test` says why)."""
-    total = o.sum(axis=1)
-    beta = (x.sum(axis=1) + 1.0) / (total + total / x.shape[1])
-    return np.maximum(beta[:, None] * o, 1e-9)
+    """mu_i = beta o_i for each row of x (supports) and o (opportunities): beta the rate per unit of opportunity
+    (`chance_rate`)."""
+    return np.maximum(np.asarray(chance_rate(x, o))[:, None] * o, 1e-9)
 
 
 DISPERSION_LEVEL = 0.95  # one-sided level of `dispersion_bound`
