@@ -312,7 +312,7 @@ def verify_associations(
 
     Unverified outliers written as inliers make wrong COLMAP tracks (shared notes), so every pair is checked
     with the Sampson distance against `max_error_px`. `shifts`, optional (per keyframe, (K, 2)): the outward box
-    by which the image border may have shifted each centroid (`plugin.truncation.track_shifts`); such a pair is
+    by which the image border may have shifted each centroid (`TrackingResult.shifts`); such a pair is
     checked at the boxes' centres with the tolerance widened by their half-diagonals, as the tracker gated it.
     Returns the kept pairs (empty ones dropped) and the number of associations removed.
     """

@@ -65,7 +65,14 @@ from .geometry import Camera, Poses, pixel_rays, project
 from .ground_band import band_distances, band_segments, local_ground
 from .mask_features import MaskFeatures
 from .params import TrackingParams
-from .truncation import TruncatedViews, cut_masks, truncated_pairs, truncated_size_scores, truncation_state
+from .truncation import (
+    TruncatedViews,
+    cut_masks,
+    joined_shifts,
+    truncated_pairs,
+    truncated_size_scores,
+    truncation_state,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -80,10 +87,14 @@ class TrackingResult:
 
     `track_ids[t][k]` is the track of mask k of keyframe t. Ids start at 0 and increase with first sighting
     (keyframe, then mask index). Every mask has a track; a track holds at most one mask per keyframe.
+    `shifts[t]` (K, 2), with `TrackingParams.truncation_aware`: the outward box each mask of keyframe t was gated
+    with when it joined its track (0 for a mask not cut by the border; `truncation.joined_shifts`), for the
+    database's check of the links (`colmap_db.verify_associations`); None without.
     """
 
     track_ids: list[np.ndarray]
     num_tracks: int
+    shifts: list[np.ndarray] | None = None
     _obs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     def _index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -415,13 +426,16 @@ def track_masks(
     min_eig = 1.0 - np.cos(np.radians(params.point_gate_min_ray_angle_deg))
     last_kf = np.zeros(0, np.int64)  # per track: keyframe of its latest observation
     last_mask = np.zeros(0, np.int64)  # per track: mask index of its latest observation
-    n_obs = np.zeros(0, np.int64)  # per track: number of observations
+    n_rays = np.zeros(0, np.int64)  # per track: observations whose rays are in its point (all, or the whole ones)
     aware = bool(params.truncation_aware)
     # (truncation_aware) per track: the size of its latest whole view (or the largest cut one while it has none),
-    # whether it has a whole view, and whether its latest observation is cut; per keyframe, its cut masks
+    # whether it has a whole view, whether its latest observation is cut and that observation's outward box; per
+    # keyframe, every mask's box as it joined its track
     ref_size = np.zeros(0)
     ref_whole = np.zeros(0, bool)
     last_cut = np.zeros(0, bool)
+    last_shift = np.zeros((0, 2))
+    shifts: list[np.ndarray] = []
     track_ids: list[np.ndarray] = []
     desc_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
@@ -440,8 +454,9 @@ def track_masks(
             predicted, points = _predict_track_points(ray_a[cand], ray_b[cand], origin, camera, keyframe_poses, t,
                                                       min_eig)
             # the ground under the recent keyframes: the points of the candidate tracks (seen within theta_t) that a
-            # third observation confirmed (a wrong two-view link puts its point anywhere along the epipolar line)
-            band = local_ground(points[n_obs[cand] >= _GROUND_MIN_OBSERVATIONS, 2], params.ground_band_sigmas)
+            # third ray confirmed (a wrong two-view link puts its point anywhere along the epipolar line; a cut view
+            # adds no ray to the point, so it confirms nothing)
+            band = local_ground(points[n_rays[cand] >= _GROUND_MIN_OBSERVATIONS, 2], params.ground_band_sigmas)
         if len(cand):
             desc_cache[t] = descriptor_index(t)
             q = np.zeros((len(cand), m))
@@ -451,7 +466,8 @@ def track_masks(
                     desc_cache[s] = descriptor_index(int(s))
                 mu, sigma = gap_motion(motion_stats, int(s), t, params.centroid_sigma_px)
                 tracks = cand[rows]
-                views = TruncatedViews(ref_size[tracks], ref_whole[tracks], last_cut[tracks], cut_t) if aware else None
+                views = (TruncatedViews(ref_size[tracks], ref_whole[tracks], last_cut[tracks], cut_t,
+                                        last_shift[tracks]) if aware else None)
                 q[rows] = pair_scores(
                     features[s], last_mask[tracks], feat_t, camera, keyframe_poses, int(s), t, mu, sigma,
                     params, desc_cache[s], desc_cache[t], None if predicted is None else predicted[rows], band, views,
@@ -469,9 +485,14 @@ def track_masks(
         ids[new] = len(last_kf) + np.arange(len(new))
         last_kf = np.concatenate([last_kf, np.full(len(new), t, np.int64)])
         last_mask = np.concatenate([last_mask, np.zeros(len(new), np.int64)])
-        n_obs = np.concatenate([n_obs, np.zeros(len(new), np.int64)])
-        n_obs[ids] += 1
+        n_rays = np.concatenate([n_rays, np.zeros(len(new), np.int64)])
+        n_rays[ids[~cut_t]] += 1
         if aware:
+            # each cut mask's box as it joins: from its track's reference before this keyframe (0: a new track)
+            shift_t = joined_shifts(camera, feat_t, cut_t, np.concatenate([ref_size, np.zeros(len(new))])[ids])
+            last_shift = np.concatenate([last_shift, np.zeros((len(new), 2))])
+            last_shift[ids] = shift_t
+            shifts.append(shift_t)
             ref_size, ref_whole, last_cut = truncation_state(ref_size, ref_whole, last_cut, len(new), ids, cut_t,
                                                               np.asarray(feat_t.sizes, np.float64))
         if point_gate and m:
@@ -491,4 +512,4 @@ def track_masks(
             del desc_cache[old]
     logger.info("tracked %d masks over %d keyframes into %d tracks (%d matches)",
                 sum(len(x) for x in track_ids), n_kf, len(last_kf), n_matched)
-    return TrackingResult(track_ids=track_ids, num_tracks=len(last_kf))
+    return TrackingResult(track_ids=track_ids, num_tracks=len(last_kf), shifts=shifts if aware else None)

@@ -11,7 +11,12 @@ of the object's, by at most the object's half-extent less the visible part's alo
 - **position** (`relaxed_position_gates`): the point-transfer, epipolar, cheirality, motion and ground-band gates
   accept the centroid anywhere in the outward box the truncation could have shifted it by: they are evaluated at
   the box's centre with the margin widened by its half-diagonal (the disc around the centre that holds the box).
-  The database's verification of the links does the same (`track_shifts`).
+  A cut view's box is fixed when it joins its track (`box_object_sizes`: the larger of the track's reference
+  size then and its own); the tracker keeps it (`TrackingResult.shifts`) for the view's later links and the
+  database's verification of the links uses the same boxes, so the check cannot drop a link the tracker made for
+  want of box.
+- **the ground band** (in `tracking.track_masks`): a track's point describes the ground once three whole views
+  meet in it (a cut view adds no ray to the point, so it confirms nothing).
 - **the track's point** (in `tracking.track_masks`): from whole views only, as a landmark is located
   (`triangulation.located_from_whole_masks`).
 
@@ -22,7 +27,6 @@ edge: the tracks break at every pass's edge and the crowns never reach theta_n o
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +62,26 @@ def outward_shifts(camera: Camera, centroids: np.ndarray, covariances: np.ndarra
     direction = high.astype(np.float64) - low.astype(np.float64)  # both sides cut: 0
     reach = np.maximum(_EXTENT_SIGMAS * np.asarray(object_sizes, np.float64).reshape(-1, 1) - ext, 0.0)
     return direction * reach
+
+
+def box_object_sizes(reference: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """The object size h behind a cut view's outward box (`outward_shifts`): the larger of its track's reference
+    size when the view joins it (`TruncatedViews.ref_sizes`; 0 for a view that starts a track) and the view's
+    own size (the size gate lets a cut view exceed a whole reference by up to theta_h). The one rule for the
+    tracker's gates and the database's check of its links (module docstring)."""
+    return np.maximum(np.asarray(reference, np.float64), np.asarray(own, np.float64))
+
+
+def joined_shifts(camera: Camera, feat: MaskFeatures, cut: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(K, 2) the outward box of each mask of one keyframe as it joins its track (0 for a whole mask): the object
+    size by `box_object_sizes` from `reference` (K,), its track's reference size before this keyframe (0 for a
+    new track)."""
+    out = np.zeros((len(feat), 2))
+    sel = np.flatnonzero(np.asarray(cut, bool))
+    if len(sel):
+        obj = box_object_sizes(np.asarray(reference, np.float64)[sel], np.asarray(feat.sizes, np.float64)[sel])
+        out[sel] = outward_shifts(camera, feat.centroids[sel], feat.covariances[sel], obj)
+    return out
 
 
 def truncated_size_scores(ref_sizes: np.ndarray, ref_whole: np.ndarray, sizes_t: np.ndarray, cut_t: np.ndarray,
@@ -112,12 +136,14 @@ class TruncatedViews:
 
     `ref_sizes` (n,): per row, the size of its track's latest whole view, or the largest of its cut views when it
     has none (`ref_whole` False: a lower bound); `cut_s` (n,): whether the row's last observation is cut; `cut_t`
-    (m,): whether each mask of keyframe t is cut."""
+    (m,): whether each mask of keyframe t is cut; `shift_s` (n, 2): the outward box of the row's last observation,
+    fixed when it joined the track (`joined_shifts`; 0 for a whole one)."""
 
     ref_sizes: np.ndarray
     ref_whole: np.ndarray
     cut_s: np.ndarray
     cut_t: np.ndarray
+    shift_s: np.ndarray
 
 
 def truncated_pairs(
@@ -126,9 +152,9 @@ def truncated_pairs(
     predicted_xy: np.ndarray | None, band: tuple[float, float] | None, truncated: TruncatedViews,
 ) -> np.ndarray:
     """(n, m) the pairs with a cut view that pass the size gate and the position gates relaxed by the truncation
-    (`truncation.relaxed_position_gates`), beyond those `ok` already holds. The object's size for a cut
-    candidate's box is the larger of the row's reference and the candidate's; for the row's own (cut) last view,
-    the row's reference."""
+    (`truncation.relaxed_position_gates`), beyond those `ok` already holds. A cut candidate's box: the object
+    size by `box_object_sizes` from the row's reference; the row's own (cut) last view: the box it joined with
+    (`TruncatedViews.shift_s`)."""
     n, m = size_ok.shape
     out = np.zeros((n, m), bool)
     has_point = np.isfinite(predicted_xy[:, 0]) if predicted_xy is not None else np.zeros(n, bool)
@@ -136,18 +162,16 @@ def truncated_pairs(
     row_cut = truncated.cut_s & ~has_point
     todo = size_ok & ~ok & (row_cut[:, None] | truncated.cut_t[None, :])
     xy_s = np.asarray(feat_s.centroids, np.float64)[masks_s]
-    cov_s = np.asarray(feat_s.covariances, np.float64)[masks_s]
+    row_shift = np.where(row_cut[:, None], np.asarray(truncated.shift_s, np.float64), 0.0)
     if todo.any():
-        todo &= _within_reach(feat_t, camera, poses, s, t, mu, sigma, params, xy_s, cov_s, row_cut, has_point,
+        todo &= _within_reach(feat_t, camera, poses, s, t, mu, sigma, params, xy_s, row_shift, has_point,
                               predicted_xy, truncated)
     for i in np.flatnonzero(todo.any(axis=1)):
         cols = np.flatnonzero(todo[i])
-        obj = np.maximum(truncated.ref_sizes[i], np.asarray(feat_t.sizes, np.float64)[cols])
+        obj = box_object_sizes(truncated.ref_sizes[i], np.asarray(feat_t.sizes, np.float64)[cols])
         shift_t = outward_shifts(camera, feat_t.centroids[cols], feat_t.covariances[cols], obj)
-        shift_s = (outward_shifts(camera, xy_s[i:i + 1], cov_s[i:i + 1], truncated.ref_sizes[i:i + 1])[0]
-                   if row_cut[i] else np.zeros(2))
         out[i, cols] = relaxed_position_gates(
-            camera, poses, s, t, xy_s[i], shift_s, feat_t.centroids[cols], shift_t,
+            camera, poses, s, t, xy_s[i], row_shift[i], feat_t.centroids[cols], shift_t,
             None if not has_point[i] else predicted_xy[i], mu, sigma, band if not has_point[i] else None,
             params.epipolar_margin_px, params.motion_gate_sigmas, params.cheirality_check)
     return out
@@ -155,7 +179,7 @@ def truncated_pairs(
 
 def _within_reach(
     feat_t: MaskFeatures, camera: Camera, poses: Poses, s: int, t: int, mu: float, sigma: float,
-    params: TrackingParams, xy_s: np.ndarray, cov_s: np.ndarray, row_cut: np.ndarray, has_point: np.ndarray,
+    params: TrackingParams, xy_s: np.ndarray, row_shift: np.ndarray, has_point: np.ndarray,
     predicted_xy: np.ndarray | None, truncated: TruncatedViews,
 ) -> np.ndarray:
     """(n, m) the pairs that the relaxed gates could pass at all, from the observed centroids and the whole shifts
@@ -167,13 +191,10 @@ def _within_reach(
 
     n, m = len(xy_s), len(feat_t)
     ref = np.asarray(truncated.ref_sizes, np.float64)
-    reach = np.zeros((n, m))
-    rows = np.flatnonzero(row_cut)
-    if len(rows):
-        reach[rows] += np.linalg.norm(outward_shifts(camera, xy_s[rows], cov_s[rows], ref[rows]), axis=1)[:, None]
+    reach = np.zeros((n, m)) + np.linalg.norm(row_shift, axis=1)[:, None]
     cols = np.flatnonzero(truncated.cut_t)
     if len(cols):
-        obj = np.maximum(ref[:, None], np.asarray(feat_t.sizes, np.float64)[None, cols])
+        obj = box_object_sizes(ref[:, None], np.asarray(feat_t.sizes, np.float64)[None, cols])
         xy = np.broadcast_to(feat_t.centroids[cols][None], (n, len(cols), 2)).reshape(-1, 2)
         cov = np.broadcast_to(feat_t.covariances[cols][None], (n, len(cols), 2, 2)).reshape(-1, 2, 2)
         reach[:, cols] += np.linalg.norm(outward_shifts(camera, xy, cov, obj.ravel()), axis=1).reshape(n, len(cols))
@@ -208,29 +229,3 @@ def truncation_state(ref_size: np.ndarray, ref_whole: np.ndarray, last_cut: np.n
     ref_size[ids[lower]] = np.maximum(ref_size[ids[lower]], sizes_t[lower])
     last_cut[ids] = cut_t
     return ref_size, ref_whole, last_cut
-
-
-def track_shifts(camera: Camera, features: Sequence[MaskFeatures], track_ids: Sequence[np.ndarray]
-                 ) -> list[np.ndarray]:
-    """Per keyframe, (K, 2) the outward shift (`outward_shifts`) of every mask, its object's size taken from its
-    track: the largest size among the track's whole views, or among all its views when none is whole (a lower
-    bound). For the database's verification of the tracker's links (`colmap_db.verify_associations`)."""
-    cut = [cut_masks(camera, f) for f in features]
-    n_tracks = int(max((int(t.max()) + 1 for t in track_ids if len(t)), default=0))
-    whole_size = np.full(n_tracks, -np.inf)
-    any_size = np.full(n_tracks, -np.inf)
-    for f, c, tid in zip(features, cut, track_ids):
-        tid = np.asarray(tid, np.int64)
-        ok = tid >= 0
-        np.maximum.at(any_size, tid[ok], np.asarray(f.sizes, np.float64)[ok])
-        np.maximum.at(whole_size, tid[ok & ~c], np.asarray(f.sizes, np.float64)[ok & ~c])
-    size = np.where(np.isfinite(whole_size), whole_size, any_size)
-    out = []
-    for f, c, tid in zip(features, cut, track_ids):
-        tid = np.asarray(tid, np.int64)
-        shifts = np.zeros((len(f), 2))
-        sel = np.flatnonzero(c & (tid >= 0))
-        if len(sel):
-            shifts[sel] = outward_shifts(camera, f.centroids[sel], f.covariances[sel], size[tid[sel]])
-        out.append(shifts)
-    return out

@@ -7,12 +7,12 @@ import dataclasses
 
 import numpy as np
 
-from sosmatch.database.colmap_db import verify_associations
-from sosmatch.plugin.geometry import Camera, Poses
+from sosmatch.database.colmap_db import track_associations, verify_associations
+from sosmatch.plugin.geometry import Camera, Poses, project
 from sosmatch.plugin.mask_features import MaskFeatures
 from sosmatch.plugin.params import TrackingParams
 from sosmatch.plugin.tracking import track_masks
-from sosmatch.plugin.truncation import cut_masks, outward_shifts, track_shifts, truncated_size_scores
+from sosmatch.plugin.truncation import cut_masks, outward_shifts, truncated_size_scores
 
 CAM = Camera(640, 480, 800.0, 800.0, 320.0, 240.0)
 NADIR = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # world_from_camera, looking down
@@ -134,10 +134,69 @@ def test_database_check_of_a_cut_view_uses_its_box():
     assert removed == 0 and kept[(0, 1)].tolist() == [[0, 0]]
 
 
-def test_track_shifts_take_the_object_size_from_the_whole_views():
-    feats, _, _ = _edge_pair()
-    shifts = track_shifts(CAM, feats, [np.array([0]), np.array([0])])
-    assert np.allclose(shifts[0], 0.0) and np.allclose(shifts[1], [[-18.0, 0.0]])
-    # a track seen only cut: its own size (a lower bound): 2 x 9 - 2 x 6
-    shifts = track_shifts(CAM, feats, [np.array([0]), np.array([1])])
-    assert np.allclose(shifts[1], [[-6.0, 0.0]])
+def _masks(items) -> MaskFeatures:
+    """Several masks in one keyframe: `items` of (xy, sigmas, desc) as `_mask`."""
+    parts = [_mask(*it) for it in items]
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in parts])
+
+    return MaskFeatures(
+        centroids=cat("centroids"), covariances=cat("covariances"), sizes=cat("sizes"), areas=cat("areas"),
+        scores=cat("scores"), sift_xy=cat("sift_xy"), sift_desc=cat("sift_desc"),
+        sift_mask=np.concatenate([p.sift_mask + k for k, p in enumerate(parts)]).astype(np.int32),
+    )
+
+
+def test_database_check_keeps_the_links_the_tracker_made():
+    """A crown whole near the top border in keyframe 0 (size 10 px) and cut by it in keyframe 1, its visible part
+    larger (12 px: the size gate allows a cut view up to theta_h above a whole one) and 18 px inward. The tracker
+    gates the link with the box of the larger size; the database's check uses the same box (the tracker's
+    `shifts`) and keeps the link, where a box from the track's whole view (10 px) would drop it."""
+    desc, noisy = _crown(7)
+    poses = Poses(["a", "b"], np.stack([NADIR, NADIR]), np.array([[0.0, 0, 100], [10.0, -5.25, 100]]))
+    ground = np.array([[0.0, 26.0, 0.0]])
+    uv0 = project(CAM, poses.rotations[0], poses.centers[0], ground)[0][0]  # (320, 32)
+    uv1 = project(CAM, poses.rotations[1], poses.centers[1], ground)[0][0]  # (240, -10): above the frame
+    feats = [_mask(uv0, [10.0, 10.0], noisy()), _mask([uv1[0], 8.0], [12.0, 5.0], noisy())]
+    params = dataclasses.replace(AWARE, epipolar_margin_px=3.0)
+    res = track_masks(feats, CAM, poses, [(0.0, 0.0), (np.nan, np.nan)], params)
+    assert res.num_tracks == 1
+    # the box the link was gated with: object size max(10, 12), towards the top border
+    assert np.allclose(res.shifts[0], 0.0) and np.allclose(res.shifts[1], [[0.0, -(2 * 12.0 - 2 * 5.0)]])
+    pairs = track_associations(res.track_ids, "all", 1)
+    centroids = [f.centroids for f in feats]
+    kept, removed = verify_associations(CAM, poses, centroids, pairs, 3.0, res.shifts)
+    assert removed == 0 and kept[(0, 1)].tolist() == [[0, 0]]
+    whole_box = [np.zeros((1, 2)), outward_shifts(CAM, feats[1].centroids, feats[1].covariances, np.array([10.0]))]
+    assert verify_associations(CAM, poses, centroids, pairs, 3.0, whole_box)[1] == 1
+    assert track_masks(feats, CAM, poses, [(0.0, 0.0), (np.nan, np.nan)], TrackingParams()).shifts is None
+
+
+def test_a_cut_view_confirms_no_ground_point():
+    """Eleven ground crowns seen whole from keyframes 0 and 1 (their rays meet: points on the ground) and cut by
+    the left border in keyframe 2: three observations, two rays. A tree top 15 m up, seen whole from keyframes 2
+    and 3, is 5.6 px off where the ground under its keyframe-2 ray would put it. Those two-ray points do not make
+    a ground band (a third ray would confirm them): the tree top is linked; counted with their cut views, they
+    made a band at the ground and the band gate refused it."""
+    rng = np.random.default_rng(11)
+    centers = np.array([[0.0, 0, 100], [4.0, 0, 100], [8.0, 0, 100], [12.0, 0, 100]])
+    poses = Poses(list("abcd"), np.stack([NADIR] * 4), centers)
+    ground = np.array([[-30.0, 25.0 - 5.0 * k, 0.0] for k in range(11)])  # x = -30: u 80, 48, 16 in keyframes 0-2
+    descs = [_unit(rng.standard_normal((10, 128))) for _ in range(12)]
+    tree = np.array([[10.0, 0.0, 15.0]])
+
+    def uv(k, pts):
+        return project(CAM, poses.rotations[k], poses.centers[k], pts)[0]
+
+    feats = [_masks([(uv(k, ground)[i], [10.0, 10.0], descs[i]) for i in range(11)]) for k in (0, 1)]
+    # cut: the visible half at the border, its centroid where the crown's is (nothing for the box to explain)
+    feats.append(_masks([(uv(2, ground)[i], [9.0, 10.0], descs[i]) for i in range(11)]
+                        + [(uv(2, tree)[0], [10.0, 10.0], descs[11])]))
+    feats.append(_mask(uv(3, tree)[0], [10.0, 10.0], descs[11]))
+    assert cut_masks(CAM, feats[2])[:11].all() and not cut_masks(CAM, feats[1]).any()
+    motion = [(0.0, 0.0)] + [(np.nan, np.nan)] * 3
+    params = dataclasses.replace(AWARE, epipolar_margin_px=3.0, point_gate_min_ray_angle_deg=2.0)
+    res = track_masks(feats, CAM, poses, motion, params)
+    assert res.num_tracks == 12  # every ground crown one track over the three keyframes
+    assert res.track_ids[3][0] == res.track_ids[2][11]  # the tree top linked

@@ -260,7 +260,6 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     from ...plugin.mask_features import undistort_features
     from ...plugin.motion_blur import motion_directions
     from ...plugin.tracking import track_masks
-    from ...plugin.truncation import track_shifts
     from ..triangulation import triangulate_landmarks
 
     partial = out.staging
@@ -326,10 +325,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     shortest = tri.min_observations if tri.fuse_radius_factor <= 0 else min(tri.min_observations,
                                                                              tri.min_piece_observations - 1)
     pairs = track_associations(tracking.track_ids, "all", shortest)
-    # (truncation_aware) the links of cut views are checked as the tracker gated them (`plugin.truncation`)
-    shifts = track_shifts(gate_camera, gate_features, tracking.track_ids) if params.tracking.truncation_aware else None
+    # (truncation_aware) the links of cut views are checked with the boxes the tracker gated them with
     pairs, rejected = verify_associations(gate_camera, kf_poses, centroids, pairs,
-                                          params.tracking.epipolar_margin_px, shifts)
+                                          params.tracking.epipolar_margin_px, tracking.shifts)
     keypoints = [affine_keypoints(f.centroids, f.covariances) for f in features]
     db_summary = write_colmap_database(out.staged("database.db"), camera, kf_poses.names, keypoints, pairs)
     timings["database"] = time.perf_counter() - t
