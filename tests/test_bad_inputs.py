@@ -390,6 +390,16 @@ def test_an_empty_path_argument_is_refused(tmp_path, monkeypatch, capsys, argv):
     assert "empty path (an unset shell variable?)" in err and list(tmp_path.iterdir()) == []
 
 
+def test_quiet_before_the_command_says_where_it_goes(capsys):
+    """nu45: `sosmatch -q config check` said "config: unrecognized arguments: -q", though config has -q: every
+    command's -q / -v follow the command's name."""
+    with pytest.raises(SystemExit) as stop:
+        main(["-q", "config", "check"])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1
+    assert "-q goes after the command: sosmatch config -q" in err
+
+
 @pytest.mark.parametrize("argv", [
     ["export", "{src}", "--csv", "--out", "{tmp}/newdir/"],
     ["check-poses", "--poses", "{src}", "--out", "{tmp}/figures/"],
