@@ -416,6 +416,16 @@ def test_a_file_output_given_as_a_folder_is_refused(tmp_path, capsys, argv):
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
+def test_circles_without_geojson_is_refused(toy, tmp_path, cli_error):
+    """nu45: `export --ply --circles` exported points and exit 0: the option was ignored (and recorded, so a
+    later `export --ply` of the same map to that file needed --overwrite)."""
+    _, a, _, _ = toy
+    for fmt in ("--ply", "--csv"):
+        err = cli_error("export", a.path, fmt, "--circles", "--out", tmp_path / "x.out")
+        assert "--circles draws GeoJSON polygons" in err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_session_whose_run_has_not_finished_is_not_used(toy, tmp_path, cli_error):
     """The eighth new-user sweep killed `map --overwrite` (after editing the camera): the directory kept the old
     complete map beside the unfinished run, and match, changes and export used it as the new one."""
