@@ -375,3 +375,12 @@ def test_capture_times_in_the_variants_software_writes():
     assert meta("2026-05-02T12:00:00+02:00").capture_time_utc[0] == pytest.approx(ten)
     assert meta("2026-05-02T10:00:00Z").capture_time_utc[0] == pytest.approx(ten)
     assert meta("2026:05:02 10:00:00", "   :  ").capture_time_utc is None  # a blank offset says nothing
+
+
+def test_a_yaw_fault_on_a_line_the_flight_does_not_have_is_refused(tmp_path, cli_error):
+    """nu45: `--yaw-fault-lines 99` on a one-line flight rendered a session without any fault, exit 0: a test of
+    `sosmatch poses` on it passed for want of a fault. Refused before the scene is built, nothing written."""
+    err = cli_error("synth", "--out", tmp_path / "S", "--frames", "3", "--width", "64", "--height", "48",
+                    "--world-size", "400", "--geotags", "dji", "--yaw-fault-lines", "0,99")
+    assert "--yaw-fault-lines 99: the flight has no such line" in err and "flight line(s): 0)" in err
+    assert not (tmp_path / "S").exists()
