@@ -812,3 +812,12 @@ def test_a_take_off_altitude_beyond_the_earth_is_refused_before_any_work():
     for bad in (1e9, 1e7, -2e5, float("nan")):
         with pytest.raises(InputError, match="take-off altitude"):
             check_prior_options("top_forward", None, None, bad)
+
+
+def test_an_empty_list_of_images_is_a_user_error():
+    """nu45: `poses_from_images([])` (the README's Python call) was an IndexError."""
+    from sosmatch.plugin.errors import InputError
+    from sosmatch.workflows.poses_from_exif import poses_from_images
+
+    with pytest.raises(InputError, match="no images given"):
+        poses_from_images([])

@@ -117,7 +117,9 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
         if not root.exists():
             raise InputError("image directory not found", root)
         return [root]
-    return [Path(p) for p in images]
+    if not (paths := [Path(p) for p in images]):  # an empty list was an IndexError deep inside the callers
+        raise InputError("no images given: an empty list of image paths")
+    return paths
 
 
 # A telemetry CSV's positions replace the EXIF GPS (module doc). A copy of the same receiver's agrees to
