@@ -218,6 +218,9 @@ def load_map(path: str | Path) -> LoadedMap:
         if path.name.startswith("points3D."):
             return LoadedMap(read_colmap_points(path.parent), "colmap", path.parent)
         raise InputError("not a landmark map (.sosmap), session directory or COLMAP model", path)
+    if not path.is_dir():  # a device, a pipe, a socket: neither a map file nor a folder of one (nu45: /dev/zero)
+        raise InputError("not a file or directory (a device or a pipe?): a landmark map (.sosmap), session "
+                         "directory or COLMAP model is expected", path)
     if (path / "landmarks.sosmap").is_file():
         from .session_io import check_map_of_record, check_session_usable
 

@@ -49,6 +49,32 @@ def _read_capped(handle: IO[bytes], limit_bytes: int, chunk_bytes: int = MIB) ->
     return bytes(out)
 
 
+FIFO_WAIT_S = 30.0  # how long a named pipe given as an input may take to get a writer
+
+
+def open_without_waiting(path: str | Path) -> IO[bytes]:
+    """`open(path, "rb")` that does not wait forever for a writer: a named pipe (FIFO) is opened non-blocking and
+    given FIFO_WAIT_S for a writer to connect (a plain `open` blocked until one did: forever, for a pipe given by
+    mistake); then reads block again, so a pipe with a writer (`<(zcat poses.csv.gz)`, or a writer started just
+    after) is read to its end. Raises TimeoutError when none came. Regular files and devices open as with `open`."""
+    import fcntl
+    import select
+
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        if stat.S_ISFIFO(os.fstat(fd).st_mode):
+            # Linux reports no event on a FIFO no writer ever opened, POLLIN / POLLHUP once one did
+            poller = select.poll()
+            poller.register(fd, select.POLLIN | select.POLLHUP)
+            if not poller.poll(FIFO_WAIT_S * 1000):
+                raise TimeoutError(f"a named pipe nobody wrote to within {FIFO_WAIT_S:g} s")
+        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def read_user_bytes(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_BYTES) -> bytes:
     """The bytes of `path`, at most `limit_bytes`; raises InputError naming the file when it is missing, a
     folder, unreadable or larger than the limit (read with a cap, so a device or a pipe cannot fill memory).
@@ -58,7 +84,7 @@ def read_user_bytes(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_B
     """
     path = Path(path)
     try:
-        with open(path, "rb") as handle:
+        with open_without_waiting(path) as handle:
             info = os.fstat(handle.fileno())
             if stat.S_ISREG(info.st_mode):  # its size is known: a file over the limit is not read at all
                 data = b"" if info.st_size > limit_bytes else handle.read()
@@ -70,6 +96,8 @@ def read_user_bytes(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_B
         raise InputError(f"{what} not found", path) from None
     except IsADirectoryError:
         raise InputError(f"{what} is a folder, not a file", path) from None
+    except TimeoutError as exc:
+        raise InputError(f"{what} is {exc}", path) from None
     except OSError as exc:
         raise InputError(f"cannot read {what}: {exc.strerror or exc}", path) from None
     if too_large:

@@ -390,6 +390,16 @@ def test_an_empty_path_argument_is_refused(tmp_path, monkeypatch, capsys, argv):
     assert "empty path (an unset shell variable?)" in err and list(tmp_path.iterdir()) == []
 
 
+def test_quiet_before_the_command_says_where_it_goes(capsys):
+    """nu45: `sosmatch -q config check` said "config: unrecognized arguments: -q", though config has -q: every
+    command's -q / -v follow the command's name."""
+    with pytest.raises(SystemExit) as stop:
+        main(["-q", "config", "check"])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1
+    assert "-q goes after the command: sosmatch config -q" in err
+
+
 @pytest.mark.parametrize("argv", [
     ["export", "{src}", "--csv", "--out", "{tmp}/newdir/"],
     ["check-poses", "--poses", "{src}", "--out", "{tmp}/figures/"],
@@ -404,6 +414,16 @@ def test_a_file_output_given_as_a_folder_is_refused(tmp_path, capsys, argv):
     assert stop.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
     assert "ends in a separator, a folder: give a file name" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_circles_without_geojson_is_refused(toy, tmp_path, cli_error):
+    """nu45: `export --ply --circles` exported points and exit 0: the option was ignored (and recorded, so a
+    later `export --ply` of the same map to that file needed --overwrite)."""
+    _, a, _, _ = toy
+    for fmt in ("--ply", "--csv"):
+        err = cli_error("export", a.path, fmt, "--circles", "--out", tmp_path / "x.out")
+        assert "--circles draws GeoJSON polygons" in err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_session_whose_run_has_not_finished_is_not_used(toy, tmp_path, cli_error):

@@ -1158,3 +1158,13 @@ def test_a_reset_clock_is_judged_before_its_zone_moves_it(tmp_path):
     stamps = ["2026:05:02 19:00:00"] + ["2000:01:01 00:12:00"] * 4  # +09:00: 10:00 UTC, then the reset clock
     ft = read_flight_time(_timed_flight(tmp_path / "a", stamps, offset="+09:00"))
     assert ft.seconds == pytest.approx(day2 + 10 * 3600) and ft.utc
+
+
+def test_an_epsg_that_is_no_projected_crs_is_refused_whatever_the_flights(tmp_path, cli_error):
+    """nu45: `batch --epsg 99999` (or 4326) on flights with their own poses ran to the end, exit 0, with only a
+    warning that no flight of photos used it; `map --epsg` and `poses --epsg` refuse the same codes."""
+    (tmp_path / "F").mkdir()
+    for code in ("99999", "4326"):
+        err = cli_error("batch", tmp_path / "F", "--out", tmp_path / "O", "--epsg", code)
+        assert "--epsg: EPSG" in err
+    assert not (tmp_path / "O").exists()

@@ -112,3 +112,33 @@ def test_an_image_declaring_more_pixels_than_the_limit_is_refused_before_decodin
         peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
         assert peak < 16 << 20
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs named pipes")
+def test_a_named_pipe_nobody_writes_to_is_refused_not_waited_on_forever(tmp_path: Path, monkeypatch) -> None:
+    """A FIFO given by mistake blocked `open()` until a writer came (forever; nu45): it is now given
+    FIFO_WAIT_S for one, and a writer that starts a moment after the reader is still read to its end."""
+    import time
+
+    import sosmatch.database.text_input as text_input
+
+    monkeypatch.setattr(text_input, "FIFO_WAIT_S", 0.5)
+    pipe = tmp_path / "poses.csv"
+    os.mkfifo(pipe)
+    t0 = time.monotonic()
+    with pytest.raises(InputError, match=r"poses\.csv: pose file is a named pipe nobody wrote to within 0\.5 s"):
+        read_user_bytes(pipe, "pose file")
+    assert time.monotonic() - t0 < 5.0
+
+    def writer() -> None:
+        time.sleep(0.1)
+        with open(pipe, "wb") as handle:
+            for _ in range(3):
+                handle.write(b"name,x,y,z\n")
+                handle.flush()
+                time.sleep(0.05)
+
+    thread = threading.Thread(target=writer)
+    thread.start()
+    assert read_user_bytes(pipe, "pose file") == b"name,x,y,z\n" * 3
+    thread.join()

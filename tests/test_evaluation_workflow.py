@@ -354,3 +354,9 @@ def test_an_evaluation_in_a_project_moved_whole_is_the_same_evaluation(sessions,
         shutil.copytree(s, project / s.name)
     run_moved(project, tmp_path / "moved",
               ["evaluate", a.name, b.name, "--out", "ev", "--methods", "sosmatch", "--repeats", "1"])
+
+
+def test_no_method_is_a_user_error(tmp_path, cli_error):
+    """nu45: `evaluate --methods ''` evaluated nothing, wrote an evaluation without a row and exited 0."""
+    err = cli_error("evaluate", tmp_path / "A", tmp_path / "B", "--out", tmp_path / "eval", "--methods", "")
+    assert "no method to evaluate" in err and list(tmp_path.iterdir()) == []

@@ -800,3 +800,24 @@ def test_embedded_exif_is_one_app1_segment_with_a_tiff_header(tmp_path):
     back = read_image_metadata(tmp_path / "a.jpg")
     assert back.latitude == pytest.approx(41.5, abs=1e-6) and back.longitude == pytest.approx(-83.25, abs=1e-6)
     assert back.focal_mm == pytest.approx(4.5) and back.make == "DJI"
+
+
+def test_a_take_off_altitude_beyond_the_earth_is_refused_before_any_work():
+    """nu45: `poses --takeoff-altitude 1e9` ran the whole structure from motion, then the pose writer's ValueError
+    was a traceback (exit 1); 1e7 m was taken."""
+    from sosmatch.plugin.errors import InputError
+    from sosmatch.workflows.image_priors import check_prior_options
+
+    check_prior_options("top_forward", None, None, -420.0)  # the Dead Sea shore
+    for bad in (1e9, 1e7, -2e5, float("nan")):
+        with pytest.raises(InputError, match="take-off altitude"):
+            check_prior_options("top_forward", None, None, bad)
+
+
+def test_an_empty_list_of_images_is_a_user_error():
+    """nu45: `poses_from_images([])` (the README's Python call) was an IndexError."""
+    from sosmatch.plugin.errors import InputError
+    from sosmatch.workflows.poses_from_exif import poses_from_images
+
+    with pytest.raises(InputError, match="no images given"):
+        poses_from_images([])

@@ -348,8 +348,10 @@ def test_a_camera_whose_focal_length_the_exif_contradicts_is_named(tmp_path, cap
     wrong = tmp_path / "cameras.txt"
     write_cameras_txt(wrong, {1: dataclasses.replace(cam, fx=cam.fx * 0.8, fy=cam.fy * 0.8)})
     with caplog.at_level("WARNING"):
-        load_inputs(out / "images", out / "poses.csv", wrong)
+        inputs = load_inputs(out / "images", out / "poses.csv", wrong)
     assert f"{wrong}: its focal length" in caplog.text and "-20 % off the one the images' EXIF gives" in caplog.text
+    # nu45: it was only logged; the map's verdict (run.json, a batch's report) is built from the inputs' warnings
+    assert any("-20 % off the one the images' EXIF gives" in w for w in inputs.warnings)
 
 
 def test_capture_times_in_the_variants_software_writes():
@@ -373,3 +375,12 @@ def test_capture_times_in_the_variants_software_writes():
     assert meta("2026-05-02T12:00:00+02:00").capture_time_utc[0] == pytest.approx(ten)
     assert meta("2026-05-02T10:00:00Z").capture_time_utc[0] == pytest.approx(ten)
     assert meta("2026:05:02 10:00:00", "   :  ").capture_time_utc is None  # a blank offset says nothing
+
+
+def test_a_yaw_fault_on_a_line_the_flight_does_not_have_is_refused(tmp_path, cli_error):
+    """nu45: `--yaw-fault-lines 99` on a one-line flight rendered a session without any fault, exit 0: a test of
+    `sosmatch poses` on it passed for want of a fault. Refused before the scene is built, nothing written."""
+    err = cli_error("synth", "--out", tmp_path / "S", "--frames", "3", "--width", "64", "--height", "48",
+                    "--world-size", "400", "--geotags", "dji", "--yaw-fault-lines", "0,99")
+    assert "--yaw-fault-lines 99: the flight has no such line" in err and "flight line(s): 0)" in err
+    assert not (tmp_path / "S").exists()

@@ -105,3 +105,19 @@ def test_a_search_that_must_compile_says_so_once(tmp_path: Path) -> None:
     assert f"({total - 2} of {total}, up to ~" in lines[1]  # sym_csr and the _sym_csr it calls are cached now
     # kernels that never get an entry of their own (callees, paths of their own) do not repeat the message
     assert "after the search: False True" in out.stdout
+
+
+def test_warm_kernels_help_prints_usage_without_compiling(capsys, monkeypatch) -> None:
+    """`python -m sosmatch.tools.warm_kernels --help` ran the warm-up (minutes of CPU on a cold cache; nu45)."""
+    import pytest
+
+    import sosmatch.tools.warm_kernels as warm
+
+    def must_not_run() -> tuple[int, int, float]:
+        raise AssertionError("--help compiled the kernels")
+
+    monkeypatch.setattr(warm, "warm_kernels", must_not_run)
+    monkeypatch.setattr(warm.kernel_cache, "compiled_for_these_sources", lambda: False)
+    with pytest.raises(SystemExit) as done:
+        warm.main(["--help"])
+    assert done.value.code == 0 and "usage:" in capsys.readouterr().out

@@ -149,6 +149,10 @@ def test_bad_input_one_line_exit_2(maps, tmp_path):
     assert main(["match", str(tiny), str(d / "a.sosmap"), "--out", str(tmp_path / "o")]) == 2
     assert main(["match", str(d / "a.sosmap"), str(d / "session_b"), "--out", str(tmp_path / "o"),
                  "--set", "association.transform=affine"]) == 2
+    if Path("/dev/zero").exists():  # a device is neither a map file nor a folder (it was called a "directory")
+        r = subprocess.run([SOSMATCH, "match", "/dev/zero", str(d / "a.sosmap"), "--out", str(tmp_path / "o")],
+                           capture_output=True, text=True)
+        assert r.returncode == 2 and "not a file or directory" in r.stderr and "directory holds" not in r.stderr
     assert not (tmp_path / "o").exists()
 
 

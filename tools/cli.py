@@ -107,7 +107,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args, unknown = parser.parse_known_args(join_negative_number_lists(sys.argv[1:] if argv is None else argv))
     if unknown:  # argparse leaves a command's unknown flags to the top-level parser, whose help lists no flags
-        parser.commands[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
+        # -q / -v are every command's own options: given before the command they reach no parser that knows them
+        early = [t for t in unknown if t in ("-q", "--quiet", "--verbose") or re.fullmatch(r"-v+", t)]
+        where = f" ({' '.join(early)} goes after the command: sosmatch {args.command} {' '.join(early)} ...)" \
+            if early else ""
+        parser.commands[args.command].error(f"unrecognized arguments: {' '.join(unknown)}{where}")
     _setup_logging(args.verbose, args.quiet)
     try:
         code = args._run(args)

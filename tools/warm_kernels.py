@@ -58,7 +58,13 @@ def _wrong_pairs(n_a: int, n_b: int, m: int) -> np.ndarray:
     return np.stack([rng.integers(0, n_a, m), rng.integers(0, n_b, m)], 1).astype(np.int64)
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    argparse.ArgumentParser(prog="python -m sosmatch.tools.warm_kernels",
+                            description="Compile the search kernels into numba's on-disk cache ahead of the first "
+                                        "match (make install runs this); a no-op when they are cached already."
+                            ).parse_args(argv)
     total, missing = len(kernel_cache.kernels()), len(kernel_cache.uncompiled_kernels())
     if kernel_cache.compiled_for_these_sources() or not missing:
         print(f"sosmatch: the search kernels are compiled already ({total - missing} of {total} cached)", flush=True)

@@ -98,6 +98,10 @@ def run(
     """
     if geojson is None and ply is None and csv_out is None:
         raise InputError("nothing to export: give --geojson, --ply and/or --csv")
+    if geometry not in ("point", "circle"):
+        raise InputError(f"geometry must be 'point' or 'circle', got {geometry!r}")
+    if geometry == "circle" and geojson is None:  # PLY and CSV hold points: it was ignored there, and recorded
+        raise InputError("--circles draws GeoJSON polygons: give it with --geojson (PLY and CSV hold points)")
     targets = {name: Path(p) for name, p in (("geojson", geojson), ("ply", ply), ("csv", csv_out)) if p is not None}
     lmap, extras = load_map(source)
     if epsg and lmap.epsg and int(epsg) != int(lmap.epsg):

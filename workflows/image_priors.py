@@ -117,7 +117,9 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
         if not root.exists():
             raise InputError("image directory not found", root)
         return [root]
-    return [Path(p) for p in images]
+    if not (paths := [Path(p) for p in images]):  # an empty list was an IndexError deep inside the callers
+        raise InputError("no images given: an empty list of image paths")
+    return paths
 
 
 # A telemetry CSV's positions replace the EXIF GPS (module doc). A copy of the same receiver's agrees to
@@ -263,8 +265,10 @@ def check_prior_options(mount: str | np.ndarray, sensor_width_mm: float | None, 
         raise InputError(f"the sensor width must be a positive number of millimetres, got {sensor_width_mm!r}")
     if epsg is not None and (problem := crs_problem(int(epsg))) is not None:
         raise InputError(f"--epsg: {problem}")
-    if takeoff_altitude_m is not None and not math.isfinite(takeoff_altitude_m):
-        raise InputError(f"the take-off altitude must be a finite number of metres, got {takeoff_altitude_m!r}")
+    # within 100 km (as `evaluate --ground-height`): 1e9 was a traceback from the pose writer after the whole SfM run
+    if takeoff_altitude_m is not None and not (math.isfinite(takeoff_altitude_m) and abs(takeoff_altitude_m) <= 1e5):
+        raise InputError("the take-off altitude must be a finite number of metres (within 100 km), got "
+                         f"{takeoff_altitude_m!r}")
 
 
 def read_image_priors(

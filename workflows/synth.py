@@ -150,6 +150,11 @@ def _render(taken: OutputDir, out: Path, config: SynthConfig, progress: bool, wo
     camera = config.camera()
     poses = session_poses(world, config)
     _check_inside(world, camera, poses, tilted=config.camera_tilt_deg > 0)
+    if config.geotag_yaw_fault_lines:  # a line the flight does not have got no fault, and the session looked sound
+        flown = sorted({int(v) for v in flight_line_ids(config.flight_config()) if v >= 0})
+        if absent := sorted(set(config.geotag_yaw_fault_lines) - set(flown)):
+            raise InputError(f"--yaw-fault-lines {','.join(map(str, absent))}: the flight has no such line (its "
+                             f"{len(flown)} flight line(s): {', '.join(map(str, flown)) or 'none'})")
     present = session_presence(world, config)
     t1 = time.perf_counter()
     scene = build_scene(world, config.season, present)

@@ -25,7 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--case", help="case name for the table")
     parser.add_argument("--dem", type=Path, help="elevation raster for the footprints (default: terrain.npz or "
                         "flat ground)")
-    parser.add_argument("--ground-height", type=float, default=0.0, help="height of the flat ground (m)")
+    parser.add_argument("--ground-height", type=float, default=0.0, help="height of the flat ground (m, default 0) "
+                        "for sessions without terrain.npz when no --dem is given (unused otherwise)")
     parser.add_argument("--sweep-floor", type=int, help="theta_S floor of the precision-recall sweep (default: the "
                         "configured theta_S; lower extends the curve at a much higher cost)")
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats of the search (median)")

@@ -31,9 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="refine the poses with ORB tie points between overlapping images, the EXIF poses "
                              "acting as priors (for consumer GPS / autopilot attitude; on by itself when images have "
                              "no attitude tags: their orientations come from the tie points)")
-    parser.add_argument("--position-sigma", type=float, default=3.0, help="--refine: GPS sigma, metres")
+    parser.add_argument("--position-sigma", type=float, default=3.0, help="--refine: GPS sigma, metres (default 3)")
     parser.add_argument("--attitude-sigma", type=float, default=5.0,
-                        help="--refine with --refine-method scipy: attitude sigma, degrees")
+                        help="--refine: attitude sigma of the tags, degrees (default 5; either method): a block the "
+                             "refinement tilts beyond 3 sigma is refused, cameras it turns beyond 3 sigma are "
+                             "named; with --refine-method scipy also the sigma of the attitude priors")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace pose/camera files this command wrote before from other images or options")
     parser.add_argument("--refine-method", choices=["colmap", "scipy"], default="colmap",

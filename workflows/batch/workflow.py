@@ -15,6 +15,8 @@ from ...database.atomic import write_text_atomic
 from ...database.match_io import MatchSummary, answer_gate
 from ...database.output_markers import versioned_identity
 from ...database.outputs import open_output_dir
+from ...database.poses import crs_problem
+from ...plugin.errors import InputError
 from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
@@ -76,6 +78,9 @@ def run(
     t0 = time.perf_counter()
     params = params or Params()
     options = options or BatchOptions()
+    if options.epsg is not None and (problem := crs_problem(int(options.epsg))) is not None:
+        # refused as `map --epsg` and `poses --epsg` refuse it: a batch of mapped or posed flights took any code
+        raise InputError(f"--epsg: {problem}")
     out_dir = Path(out_dir)
     own_executor = executor is None
     executor = executor or LocalExecutor(1)

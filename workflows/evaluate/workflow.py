@@ -337,6 +337,8 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
+    if not methods:  # `--methods ''` wrote an evaluation without a row, exit 0
+        raise InputError(f"no method to evaluate: give one or more of {', '.join(METHODS)}")
     check_options(ground_height, sweep_floor, repeats, max_observers, baseline_threads)
     check_two_sessions(session_a, session_b, map_a, map_b, "sosmatch" in methods)
     case = case or f"{session_a.name} vs {session_b.name}"

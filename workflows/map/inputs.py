@@ -188,6 +188,8 @@ def load_inputs(
     inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources, warnings=doubts))
     if (problem := focal_against_exif(inputs)) is not None:
         log.warning("%s", problem)
+        # the map's verdict too (run.json, the summary line, a batch's report): landmark heights scale with it
+        inputs.warnings.append(problem)
     return inputs
 
 
