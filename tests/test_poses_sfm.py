@@ -3,6 +3,7 @@ and its bad inputs (no GPS, too few images, mixed cameras, damaged metadata). Sm
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -106,7 +107,10 @@ def test_outputs_do_not_depend_on_the_order_colmap_threads_finish(flight, tmp_pa
     match = sfm_wf.match_pairs
 
     def match_after_rewriting(database, *args, **kwargs):
-        with sqlite3.connect(database) as db:
+        # closed before COLMAP opens the file: `with sqlite3.connect()` only commits, and a connection of Python's
+        # SQLite left open while pycolmap's own SQLite writes the same file (one process, two libraries: closing
+        # either drops the other's POSIX locks) failed once under load with "database disk image is malformed"
+        with contextlib.closing(sqlite3.connect(database)) as db, db:
             for table in ("keypoints", "descriptors"):
                 rows = db.execute(f"SELECT * FROM {table} ORDER BY image_id DESC").fetchall()
                 db.execute(f"DELETE FROM {table}")
