@@ -831,11 +831,13 @@ def test_the_alignment_control_refuses_a_pair_whose_match_file_is_corrupt(flight
 def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path):
     """The batch marker's identity is the batch's own 16-digit fingerprint (state.fingerprint): an earlier version's
     identity (here: before quality/changes.min_jpeg_quality existed, every other setting recorded) must be rebuilt
-    with that digest too, else the whole batch is refused after an upgrade (a2d633f)."""
+    with that digest too, else the whole batch is refused after an upgrade (a2d633f). At that version's behaviour:
+    tracking.truncation_aware, registered later, was off (on by default since fix76, it changes the maps: at
+    today's defaults such a batch is refused, naming the --set that resumes it)."""
     import dataclasses
 
     from sosmatch.database.output_markers import MARKER
-    from sosmatch.plugin.params import ADDED, Params
+    from sosmatch.plugin.params import ADDED, Params, with_overrides
     from sosmatch.workflows.batch.state import fingerprint
 
     root, _ = flights
@@ -843,8 +845,9 @@ def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path
         shutil.copytree(root / name, tmp_path / "fl" / name)
     out = tmp_path / "out"
     options = batch.BatchOptions(progress=False, merge=False, changes=False)
-    batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
-    params = dataclasses.asdict(Params())
+    then = with_overrides(Params(), {"tracking.truncation_aware": False})
+    batch.run(tmp_path / "fl", out, then, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    params = dataclasses.asdict(then)
     names = [a.name for a in ADDED]
     for dotted in names[names.index("quality.min_jpeg_quality"):]:  # that version had none of the later ones either
         section, key = dotted.split(".")
@@ -856,7 +859,10 @@ def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path
     today = marker["identity"]
     assert earlier != today
     (out / MARKER).write_text(json.dumps({**marker, "identity": earlier}))
-    again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    with pytest.raises(InputError, match="--set tracking.truncation_aware=false would accept it"):
+        batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
+    again = batch.run(tmp_path / "fl", out, then, executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                      options=options)
     assert all(s.get("resumed") for s in again.sessions) and again.pairs and all(p.get("resumed") for p in again.pairs)
     assert json.loads((out / MARKER).read_text())["identity"] == today  # re-marked under today's identity
 

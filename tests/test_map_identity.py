@@ -80,3 +80,14 @@ def test_map_before_a_registered_mapping_setting_is_still_refused_with_its_note(
                                                "masks": "backend"}))
     with pytest.raises(InputError, match="triangulation.whole_masks_only"):
         _resumes(out, params)
+
+
+def test_map_made_with_truncation_aware_off_is_refused_with_the_set_that_resumes_it(tmp_path):
+    # truncation_aware went on by default (fix76) and changes a map: a map made with it off (its default before,
+    # the registered neutral value) is not today's map, and the refusal names the --set that resumes it as made
+    off = with_overrides(Params(), {"tracking.truncation_aware": False})
+    assert Params().tracking.truncation_aware
+    out = _made(tmp_path / "map", map_identity(INPUTS, off, False, "backend").today)
+    with pytest.raises(InputError, match="--set tracking.truncation_aware=false would accept it"):
+        _resumes(out, Params())
+    assert _resumes(out, off)

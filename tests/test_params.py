@@ -68,20 +68,22 @@ def test_presets_layer_under_config_file_and_set(tmp_path):
 
     # the paper's method differs from the defaults only in how the search forms and solves its graphs, in its
     # fixed tolerances (not derived from the maps' noise) and same-length windows in both maps, in the front end's
-    # track fusion, size estimator and fixed theta_n and in tracking's ground band gate
+    # track fusion, size estimator and fixed theta_n and in tracking's ground band gate and cut (truncated) views
     paper = preset_params("paper")
     base = Params()
     assert dataclasses.replace(paper, association=base.association, triangulation=base.triangulation,
                                tracking=base.tracking) == base
-    assert dataclasses.replace(paper.tracking, ground_band_sigmas=base.tracking.ground_band_sigmas) == base.tracking
+    assert dataclasses.replace(paper.tracking, ground_band_sigmas=base.tracking.ground_band_sigmas,
+                               truncation_aware=True) == base.tracking
     assert paper.tracking.ground_band_sigmas == 0.0 < base.tracking.ground_band_sigmas
+    assert not paper.tracking.truncation_aware and base.tracking.truncation_aware  # cut views: ours, on (fix76)
     assert set(PRESETS["paper"]) == {"association.consistency", "association.windows", "association.position_prior_m",
                                      "association.georeference_prior_m", "association.solver",
                                      "association.derive_from_maps",
                                      "association.equal_area_windows",
                                      "triangulation.size_estimator", "triangulation.fuse_radius_factor",
                                      "triangulation.min_observations_from_views", "tracking.ground_band_sigmas",
-                                     "triangulation.whole_masks_only"}
+                                     "triangulation.whole_masks_only", "tracking.truncation_aware"}
     assert dataclasses.replace(paper.triangulation, size_estimator="nadir", fuse_radius_factor=2.0,
                                min_observations_from_views=True, whole_masks_only=True) == Params().triangulation
     survey = preset_params("survey")

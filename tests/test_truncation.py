@@ -16,7 +16,8 @@ from sosmatch.plugin.truncation import cut_masks, outward_shifts, truncated_size
 
 CAM = Camera(640, 480, 800.0, 800.0, 320.0, 240.0)
 NADIR = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # world_from_camera, looking down
-AWARE = TrackingParams(truncation_aware=True)
+AWARE = TrackingParams(truncation_aware=True)  # the default since fix76
+OFF = TrackingParams(truncation_aware=False)  # the tracking of before (and of the "paper" preset)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -71,7 +72,7 @@ def test_size_gate_is_one_sided_against_a_whole_view():
 
 def test_crown_cut_by_the_border_is_linked_only_when_truncation_aware():
     feats, poses, motion = _edge_pair()
-    assert track_masks(feats, CAM, poses, motion, TrackingParams()).num_tracks == 2  # size r 0.5 > theta_h
+    assert track_masks(feats, CAM, poses, motion, OFF).num_tracks == 2  # size r 0.5 > theta_h
     assert track_masks(feats, CAM, poses, motion, AWARE).num_tracks == 1
 
 
@@ -170,7 +171,7 @@ def test_database_check_keeps_the_links_the_tracker_made():
     assert removed == 0 and kept[(0, 1)].tolist() == [[0, 0]]
     whole_box = [np.zeros((1, 2)), outward_shifts(CAM, feats[1].centroids, feats[1].covariances, np.array([10.0]))]
     assert verify_associations(CAM, poses, centroids, pairs, 3.0, whole_box)[1] == 1
-    assert track_masks(feats, CAM, poses, [(0.0, 0.0), (np.nan, np.nan)], TrackingParams()).shifts is None
+    assert track_masks(feats, CAM, poses, [(0.0, 0.0), (np.nan, np.nan)], OFF).shifts is None
 
 
 def test_a_cut_view_confirms_no_ground_point():

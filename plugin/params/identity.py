@@ -89,6 +89,13 @@ ADDED: tuple[Added, ...] = (
     # is resumed as it is, `--overwrite` recomputes its verdicts
     Added("changes.object_height_mean", "41ab82a", True, "landmarks whose footprint stands by its mean sweep are "
           "no longer flat"),
+    # neutral at False although its default is True since fix76: unlike untested_object_rate and
+    # object_height_mean (settings of stages after a map, which through a map's full parameters refused maps they
+    # do not change), it changes the map itself (which views are linked, where landmarks are). Registered at True,
+    # a map made with the flag off would have today's identity and a `map` run today would take it as done: a
+    # flag-off map silently given out as a flag-on one (and so a batch's). At False, as whole_masks_only and
+    # contrast_reference (behaviour-changing defaults of the mapping stages), such a map is refused with the note
+    # "--set tracking.truncation_aware=false would accept it", which resumes it as it was made
     Added("tracking.truncation_aware", "13d672e", False, "masks cut by the image border are tracked as truncated "
           "views"),
 )

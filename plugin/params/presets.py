@@ -25,7 +25,7 @@ PRESETS: dict[str, dict[str, Any]] = {
               "triangulation.size_estimator": "mean", "triangulation.fuse_radius_factor": 0.0,
               "tracking.ground_band_sigmas": 0.0, "association.derive_from_maps": False,
               "association.equal_area_windows": False, "triangulation.min_observations_from_views": False,
-              "triangulation.whole_masks_only": False},
+              "triangulation.whole_masks_only": False, "tracking.truncation_aware": False},
     # Photogrammetric survey flights: one frame every 30-40 m (55-75 % forward overlap), ~1200 px images, poses
     # from GPS + autopilot refined by `poses-from-exif --refine`. Measured on Seneca (BENCHMARKS.md, "Seneca end
     # to end"). An object is in only 2-3 frames of a flight line, so a landmark needs 3 observations (theta_n = 2)
