@@ -26,6 +26,7 @@ from .chance import (
     chance_rate,
     horizontal_tree,
     landmark_opportunities,
+    placed_map_is_a,
 )
 from .multisession import Sim3
 from .refinement import mutual_nearest, pairing_tree, yaw_matrix
@@ -304,11 +305,19 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     The winner's own cell is among them: a corner overlay, its support nearly all row pairs, gets q_c ~ 1; a true
     alignment whose pairs off the rows carry it keeps its p. With a position prior of `prior_m` (both maps in one
     frame) a row slides along another by at most the prior's reach and is not reversed (the search's turns are then
-    small): the placements the prior lets the search find, as `chance.effective_trials` counts them."""
+    small): the placements the prior lets the search find, as `chance.effective_trials` counts them.
+
+    The roles are those `chance.sequential_chance` drew `samples` and `opportunities` in (the map of the smaller
+    footprint placed, `chance.placed_map_is_a`; the winner then inverted): the rate, the dispersion, the turns at
+    the placed map's radius and the rest's mean are all of that map, so the answer is one of the pair, not of the
+    order its maps are given in (in the caller's roles the two orders of one corner pair gave p up to 10x apart:
+    rev29)."""
     from scipy import stats
 
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    if placed_map_is_a(pa, pb):
+        pa, sizes_a, pb, sizes_b, winner = pb, sizes_b, pa, sizes_a, winner.inverse()
     rows_a, rows_b = find_rows(pa, gate_m), find_rows(pb, gate_m)
     if not rows_a and not rows_b:
         return None
