@@ -5,9 +5,19 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sosmatch.database.match_notes import no_match_text
+from sosmatch.plugin.chance import ChanceModel
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.refinement import yaw_matrix
-from sosmatch.plugin.rows import ROW_GAP_GATES, ROW_MIN, ROW_TOL_GATES, _proposals, find_rows, row_chance, with_rows
+from sosmatch.plugin.rows import (
+    ROW_GAP_GATES,
+    ROW_MIN,
+    ROW_TOL_GATES,
+    RowChance,
+    _proposals,
+    find_rows,
+    row_chance,
+    with_rows,
+)
 from sosmatch.plugin.verification import verify_alignments
 
 GATE = 2.67  # the derived gate of nu44's maps
@@ -158,3 +168,26 @@ def test_the_row_part_is_one_of_the_pair_not_of_its_order():
     ba = verify_alignments(pb, sb, pa, sa, [(B_FROM_CORNER, np.arange(len(pa)))], GATE, SIZE_GATE, 6)
     assert ab.chance.row_placements > 0
     assert np.isclose(ab.chance.p_value, ba.chance.p_value, rtol=1e-6), (ab.chance, ba.chance)
+
+
+def test_rows_never_lower_p():
+    # cells whose q_c lies below the uniform placements' q (B half off A in them) replace uniform trials: p must
+    # not fall (rev29: an orchard pair's 3,084 cells at q_c 1e-9 took p from 0.0101, refused, to 0.0098)
+    q_u, n_eff = 1.015e-7, 1.0e5
+    uniform = ChanceModel(512, 2.0, 3.0, n_eff, q_u, float(-np.expm1(n_eff * np.log1p(-q_u))))
+    low = with_rows(uniform, RowChance(3084.0, 1e-9, float(3084 * np.log1p(-1e-9))))
+    assert low.p_value == uniform.p_value and low.row_placements == 3084.0
+    high = with_rows(uniform, RowChance(10.0, 0.5, float(10 * np.log1p(-0.5))))
+    assert high.p_value > uniform.p_value
+
+
+def test_rows_are_not_judged_once_the_uniform_placements_refuse():
+    # rows only raise p, so a winner the uniform placements already refuse needs none of their work: the corner pair
+    # that is judged on its rows at the default false alarm is not at a false alarm its uniform p already exceeds
+    pa, sa = corner(11)
+    pb, sb = corner(12)
+    args = (pa, sa, B_FROM_CORNER.apply(pb), sb, [(B_FROM_CORNER.inverse(), np.arange(len(pb)))], GATE, SIZE_GATE, 6)
+    judged = verify_alignments(*args)
+    assert judged.chance.row_placements > 0
+    strict = verify_alignments(*args, false_alarm=1e-300)
+    assert not strict.accepted and strict.chance.row_placements == 0 and strict.chance.row_tail == 0
