@@ -14,6 +14,7 @@ from sosmatch.plugin.rows import (
     ROW_TOL_GATES,
     RowChance,
     _proposals,
+    _slide_pairs,
     find_rows,
     row_chance,
     with_rows,
@@ -191,3 +192,24 @@ def test_rows_are_not_judged_once_the_uniform_placements_refuse():
     assert judged.chance.row_placements > 0
     strict = verify_alignments(*args, false_alarm=1e-300)
     assert not strict.accepted and strict.chance.row_placements == 0 and strict.chance.row_tail == 0
+
+
+def test_slide_pairs_counts_what_a_scatter_of_the_pairs_counts():
+    # `_slide_pairs` groups the pairs by landmark with reduceat; the plain scatter-or over the same intervals is the
+    # reference (rows of random landmarks, sizes gated, slides over both rows' length)
+    rng = np.random.default_rng(8)
+    row_a = np.column_stack([rng.uniform(0, 60, 40), rng.normal(0, 1, 40), rng.normal(5, 1, 40)])
+    row_b = np.column_stack([rng.uniform(-30, 30, 30), rng.normal(0, 1, 30), rng.normal(5, 1, 30)])
+    sa, sb = rng.uniform(1, 3, 40), rng.uniform(1, 3, 30)
+    slides = np.linspace(-20, 90, 200)
+    got = _slide_pairs(row_a, sa, row_b, sb, np.array([1.0, 0.0]), slides, GATE, SIZE_GATE)
+    has_a, has_b = np.zeros((40, len(slides)), bool), np.zeros((30, len(slides)), bool)
+    for i in range(40):
+        for j in range(30):
+            if 2.0 * abs(sa[i] - sb[j]) / (sa[i] + sb[j]) > SIZE_GATE:  # `gates.size_ratio`
+                continue
+            moved = row_b[j] + np.column_stack([slides, np.zeros((len(slides), 2))])
+            near = np.linalg.norm(moved - row_a[i], axis=1) <= GATE
+            has_a[i] |= near
+            has_b[j] |= near
+    assert got.max() > 3 and np.array_equal(got, np.minimum(has_a.sum(axis=0), has_b.sum(axis=0)))
