@@ -62,6 +62,11 @@ ROW_NEGLIGIBLE = 1e-4
 # log P(no row-on-row cell reaches the support) below which p = 1 - exp(that) is 1 in double precision (exp(-40)
 # = 4e-18): the cells left are not computed (most of a corner overlay's hundreds, each at q ~ 1)
 SURE_LOG = -40.0
+# The work `row_chance` counts its cells with, in units of (row landmark of A) x (row landmark of B) x turn x (1 +
+# slides / 64), at most this much (~20 ns a unit: 1-2 s of CPU); the cells beyond it get a bound instead
+# (`row_chance`). Tied to the work, not to a map: a bocage of 20 hedgerows a map (N_s 37,798) took 75 s counted in
+# full, two 300-landmark orchards 5 s (fix78).
+ROW_WORK_BUDGET = 7.5e7
 
 
 @dataclass(frozen=True)
@@ -288,6 +293,7 @@ class RowChance:
     tail: float  # the largest cell's tail: P(one placement of that cell reaches the winner's support) (of the cells
     # computed: once those make p 1 (SURE_LOG) the others are not)
     keep: float  # log of prod over the cells of (1 - q_c): P(no row-on-row cell reaches the support) = exp(keep)
+    bounded: bool = False  # cells beyond ROW_WORK_BUDGET were given the conservative bound, not counted
 
 
 def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
@@ -360,8 +366,18 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         opp = np.maximum(0.0, each.sum(axis=1) - r_c * each[:, mem_b].mean(axis=1))
         return (chance.mean * opp / max(len(pb), 1)) if np.isnan(rate) else rate * opp
 
-    top, keep = 0.0, 0.0
-    for lay in layouts:  # counted one at a time: once p is sure (SURE_LOG) the rest are never built
+    top, keep, work = 0.0, 0.0, 0.0
+    for done, lay in enumerate(layouts):  # counted one at a time: once p is sure (SURE_LOG) the rest are never built
+        work += len(CELL_TURNS_GATES) * len(mem_a) * len(mem_b) * (1.0 + lay.slides.size / 64.0)
+        if work > ROW_WORK_BUDGET:
+            # too many to count in the time a verification has (a hedgerow landscape's thousands): each cell left
+            # gets what no cell can exceed, every row landmark paired and the rest of B all at an opportunity of
+            # 1, so p only rises (a winner among many rows may then be refused; never a chance one accepted)
+            q_max = tail(np.array([support - min(len(mem_a), len(mem_b))]),
+                         rest_mean(np.ones((1, len(pb))), np.zeros(1)))[0]
+            left = sum(len(rest.slides) for rest in layouts[done:])
+            top, keep = max(top, float(q_max)), keep + left * float(np.log1p(-min(q_max, 1.0 - 1e-16)))
+            return RowChance(float(cells), top, keep, bounded=True)
         g = _counted(lay, pb, winner.scale, row_a, sz_a, mem_b, sz_b, gate_m, max_size_difference, z_weight)
         n, f = g.slides.shape
         pick = g.counts.argmax(axis=1)
@@ -494,4 +510,4 @@ def with_rows(chance: ChanceModel, rows: RowChance | None) -> ChanceModel:
     n_s = min(rows.placements, chance.trials)
     log_keep = (chance.trials - n_s) * np.log1p(-min(chance.tail, 1.0 - 1e-16)) + rows.keep
     p_value = max(chance.p_value, float(-np.expm1(log_keep)))
-    return replace(chance, p_value=p_value, row_placements=n_s, row_tail=rows.tail)
+    return replace(chance, p_value=p_value, row_placements=n_s, row_tail=rows.tail, row_bounded=rows.bounded)

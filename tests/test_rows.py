@@ -213,3 +213,23 @@ def test_slide_pairs_counts_what_a_scatter_of_the_pairs_counts():
             has_a[i] |= near
             has_b[j] |= near
     assert got.max() > 3 and np.array_equal(got, np.minimum(has_a.sum(axis=0), has_b.sum(axis=0)))
+
+
+def test_cells_beyond_the_work_budget_get_a_bound_that_only_raises_p(monkeypatch):
+    # a map pair with more row-on-row cells than a verification can count (a hedgerow landscape) gets, for the cells
+    # beyond ROW_WORK_BUDGET, a tail no cell can exceed: p no lower than counted in full, and match.json says so
+    import sosmatch.plugin.rows as rows
+
+    place = corner(107)
+    (pa, sa), (pb, sb) = seen(*place, 108), seen(*place, 109)
+    x, o = np.array([3, 4, 5, 2]), np.array([10.0, 12.0, 11.0, 9.0])
+    v = verify_at_corner(pa, sa, B_FROM_CORNER.apply(pb), sb)
+    args = (pa, sa, B_FROM_CORNER.apply(pb), sb, B_FROM_CORNER.inverse(), v.support, GATE, SIZE_GATE, 0.5, x, o,
+            v.chance)
+    full = row_chance(*args)
+    monkeypatch.setattr(rows, "ROW_WORK_BUDGET", 0.0)
+    bounded = row_chance(*args)
+    assert not full.bounded and bounded.bounded
+    assert bounded.placements == full.placements and bounded.keep <= full.keep and bounded.tail >= full.tail
+    said = with_rows(v.chance, bounded)
+    assert said.p_value >= with_rows(v.chance, full).p_value and said.to_dict()["row_bounded"] is True
