@@ -170,21 +170,44 @@ def find_rows(points: np.ndarray, gate_m: float) -> list[Row]:
     left = np.arange(len(xy))
     rows: list[Row] = []
     proposals = _proposals(xy, tol, gap)
+    # what each proposal's chain is known to be: an upper bound of its length (`most`: its inliers or an earlier
+    # chain; removing landmarks never lengthens a chain) and, while `exact`, the chain (`chains`: landmark indices)
+    # and its verdict, kept until a removed row takes a landmark of its band (the chain, or its flanks within the
+    # chain's extent: all its chain and contrast depend on). The choice is the scan's own (the first of the longest
+    # that passes); rescanning every proposal against the whole map per row found made an orchard quadratic
+    most = np.full(len(proposals), np.iinfo(np.int64).max)
+    exact = np.zeros(len(proposals), bool)
+    passes = np.zeros(len(proposals), bool)
+    chains: dict[int, np.ndarray] = {}
+    band_of, band_at = np.zeros(0, np.int64), np.zeros(0, np.int64)  # (proposal, landmark) of the exact ones' bands
+    flank = ROW_FLANK_GATES * gate_m
     while len(left) >= ROW_MIN:
         pts = xy[left]
-        best = None
         alive = np.zeros(len(xy), bool)
         alive[left] = True
-        proposals = proposals[alive[proposals[:, 0]] & alive[proposals[:, 1]]]  # a removed landmark proposes none
-        for i, j in np.searchsorted(left, proposals):
-            d = (pts[j] - pts[i]) / (np.linalg.norm(pts[j] - pts[i]) + 1e-12)
-            rel = pts - pts[i]
-            inl = np.flatnonzero(np.abs(_perp(rel, d)) < tol)
-            if best is not None and len(inl) <= len(best):  # its chain (a part of inl) cannot be longer
+        best, longest, new_of, new_at = None, -1, [band_of], [band_at]
+        for k in np.flatnonzero(alive[proposals[:, 0]] & alive[proposals[:, 1]]):  # a removed landmark proposes none
+            if most[k] <= longest:  # its chain cannot be longer than the best's
                 continue
-            chain = inl[_chain(rel[inl] @ d, 0.0, gap)]
-            if (best is None or len(chain) > len(best)) and _contrast_ok(rel, d, chain, tol, gate_m):
-                best = chain
+            if not exact[k]:
+                i, j = np.searchsorted(left, proposals[k])
+                d = (pts[j] - pts[i]) / (np.linalg.norm(pts[j] - pts[i]) + 1e-12)
+                rel = pts - pts[i]
+                perp = np.abs(_perp(rel, d))
+                inl = np.flatnonzero(perp < tol)
+                most[k] = len(inl)
+                if len(inl) <= longest:  # its chain (a part of inl) cannot be longer
+                    continue
+                chain = inl[_chain(rel[inl] @ d, 0.0, gap)]
+                along = rel @ d
+                band = left[(along >= along[chain].min()) & (along <= along[chain].max()) & (perp < tol + flank)]
+                chains[int(k)], most[k], exact[k] = left[chain], len(chain), True
+                passes[k] = _contrast_ok(rel, d, chain, tol, gate_m)
+                new_of.append(np.full(len(band), k))
+                new_at.append(band)
+            if passes[k] and most[k] > longest:
+                best, longest = np.searchsorted(left, chains[int(k)]), int(most[k])
+        band_of, band_at = np.concatenate(new_of), np.concatenate(new_at)
         if best is None:
             break
         for _ in range(2):  # the principal axis of the chain, and the chain along it again
@@ -208,6 +231,11 @@ def find_rows(points: np.ndarray, gate_m: float) -> list[Row]:
             rel = pts - centre
         s = rel[best] @ d
         rows.append(Row(left[best], centre, d, float(s.min()), float(s.max())))
+        gone = np.zeros(len(xy), bool)
+        gone[left[best]] = True
+        exact[band_of[gone[band_at]]] = False  # their chains are bounds now, recomputed when they could win
+        kept = exact[band_of]
+        band_of, band_at = band_of[kept], band_at[kept]
         left = np.delete(left, best)
     return rows
 

@@ -233,3 +233,15 @@ def test_cells_beyond_the_work_budget_get_a_bound_that_only_raises_p(monkeypatch
     assert bounded.placements == full.placements and bounded.keep <= full.keep and bounded.tail >= full.tail
     said = with_rows(v.chance, bounded)
     assert said.p_value >= with_rows(v.chance, full).p_value and said.to_dict()["row_bounded"] is True
+
+
+def test_find_rows_finds_every_row_of_an_orchard():
+    # `find_rows` keeps each proposal's chain until a found row takes a landmark of it: after each row the others
+    # must still be found whole (rows 15 m apart, trees 3 m apart along them)
+    rng = np.random.default_rng(2)
+    x, y = np.meshgrid(np.arange(40) * 3.0, np.arange(6) * 15.0)
+    xy = np.column_stack([x.ravel(), y.ravel()]) + rng.normal(0, 0.3, (240, 2))
+    rows = find_rows(np.column_stack([xy, rng.normal(10, 1, 240)]), 2.9)
+    assert sorted(sorted(set(np.round(xy[r.members, 1] / 15.0).astype(int).tolist())) for r in rows) == [
+        [k] for k in range(6)]
+    assert all(len(r.members) == 40 for r in rows)
