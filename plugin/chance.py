@@ -50,12 +50,15 @@ class ChanceModel:
     # the best-of-N_eff each with its own tail (0, 0: no row pair; p_value is then the uniform placements' alone)
     row_placements: float = 0.0
     row_tail: float = 0.0
+    # True: more row-on-row cells than `rows.ROW_WORK_BUDGET` lets be counted; those beyond it were given an upper
+    # bound of their tail (p only rises)
+    row_bounded: bool = False
 
     def to_dict(self) -> dict[str, float]:
         return {"samples": self.samples, "mean": self.mean, "variance": self.variance, "trials": self.trials,
                 "tail": self.tail, "p_value": self.p_value,
                 "overdispersion": None if np.isnan(self.overdispersion) else self.overdispersion,
-                "row_placements": self.row_placements, "row_tail": self.row_tail}
+                "row_placements": self.row_placements, "row_tail": self.row_tail, "row_bounded": self.row_bounded}
 
 
 def converged_to_winner(winner: Sim3, probe: np.ndarray, gate_m: float, winner_pairs: np.ndarray | None,

@@ -26,6 +26,7 @@ from .chance import (
     chance_rate,
     horizontal_tree,
     landmark_opportunities,
+    placed_map_is_a,
 )
 from .multisession import Sim3
 from .refinement import mutual_nearest, pairing_tree, yaw_matrix
@@ -61,6 +62,11 @@ ROW_NEGLIGIBLE = 1e-4
 # log P(no row-on-row cell reaches the support) below which p = 1 - exp(that) is 1 in double precision (exp(-40)
 # = 4e-18): the cells left are not computed (most of a corner overlay's hundreds, each at q ~ 1)
 SURE_LOG = -40.0
+# The work `row_chance` counts its cells with, in units of (row landmark of A) x (row landmark of B) x turn x (1 +
+# slides / 64), at most this much (~20 ns a unit: 1-2 s of CPU); the cells beyond it get a bound instead
+# (`row_chance`). Tied to the work, not to a map: a bocage of 20 hedgerows a map (N_s 37,798) took 75 s counted in
+# full, two 300-landmark orchards 5 s (fix78).
+ROW_WORK_BUDGET = 7.5e7
 
 
 @dataclass(frozen=True)
@@ -164,21 +170,44 @@ def find_rows(points: np.ndarray, gate_m: float) -> list[Row]:
     left = np.arange(len(xy))
     rows: list[Row] = []
     proposals = _proposals(xy, tol, gap)
+    # what each proposal's chain is known to be: an upper bound of its length (`most`: its inliers or an earlier
+    # chain; removing landmarks never lengthens a chain) and, while `exact`, the chain (`chains`: landmark indices)
+    # and its verdict, kept until a removed row takes a landmark of its band (the chain, or its flanks within the
+    # chain's extent: all its chain and contrast depend on). The choice is the scan's own (the first of the longest
+    # that passes); rescanning every proposal against the whole map per row found made an orchard quadratic
+    most = np.full(len(proposals), np.iinfo(np.int64).max)
+    exact = np.zeros(len(proposals), bool)
+    passes = np.zeros(len(proposals), bool)
+    chains: dict[int, np.ndarray] = {}
+    band_of, band_at = np.zeros(0, np.int64), np.zeros(0, np.int64)  # (proposal, landmark) of the exact ones' bands
+    flank = ROW_FLANK_GATES * gate_m
     while len(left) >= ROW_MIN:
         pts = xy[left]
-        best = None
         alive = np.zeros(len(xy), bool)
         alive[left] = True
-        proposals = proposals[alive[proposals[:, 0]] & alive[proposals[:, 1]]]  # a removed landmark proposes none
-        for i, j in np.searchsorted(left, proposals):
-            d = (pts[j] - pts[i]) / (np.linalg.norm(pts[j] - pts[i]) + 1e-12)
-            rel = pts - pts[i]
-            inl = np.flatnonzero(np.abs(_perp(rel, d)) < tol)
-            if best is not None and len(inl) <= len(best):  # its chain (a part of inl) cannot be longer
+        best, longest, new_of, new_at = None, -1, [band_of], [band_at]
+        for k in np.flatnonzero(alive[proposals[:, 0]] & alive[proposals[:, 1]]):  # a removed landmark proposes none
+            if most[k] <= longest:  # its chain cannot be longer than the best's
                 continue
-            chain = inl[_chain(rel[inl] @ d, 0.0, gap)]
-            if (best is None or len(chain) > len(best)) and _contrast_ok(rel, d, chain, tol, gate_m):
-                best = chain
+            if not exact[k]:
+                i, j = np.searchsorted(left, proposals[k])
+                d = (pts[j] - pts[i]) / (np.linalg.norm(pts[j] - pts[i]) + 1e-12)
+                rel = pts - pts[i]
+                perp = np.abs(_perp(rel, d))
+                inl = np.flatnonzero(perp < tol)
+                most[k] = len(inl)
+                if len(inl) <= longest:  # its chain (a part of inl) cannot be longer
+                    continue
+                chain = inl[_chain(rel[inl] @ d, 0.0, gap)]
+                along = rel @ d
+                band = left[(along >= along[chain].min()) & (along <= along[chain].max()) & (perp < tol + flank)]
+                chains[int(k)], most[k], exact[k] = left[chain], len(chain), True
+                passes[k] = _contrast_ok(rel, d, chain, tol, gate_m)
+                new_of.append(np.full(len(band), k))
+                new_at.append(band)
+            if passes[k] and most[k] > longest:
+                best, longest = np.searchsorted(left, chains[int(k)]), int(most[k])
+        band_of, band_at = np.concatenate(new_of), np.concatenate(new_at)
         if best is None:
             break
         for _ in range(2):  # the principal axis of the chain, and the chain along it again
@@ -202,6 +231,11 @@ def find_rows(points: np.ndarray, gate_m: float) -> list[Row]:
             rel = pts - centre
         s = rel[best] @ d
         rows.append(Row(left[best], centre, d, float(s.min()), float(s.max())))
+        gone = np.zeros(len(xy), bool)
+        gone[left[best]] = True
+        exact[band_of[gone[band_at]]] = False  # their chains are bounds now, recomputed when they could win
+        kept = exact[band_of]
+        band_of, band_at = band_of[kept], band_at[kept]
         left = np.delete(left, best)
     return rows
 
@@ -267,11 +301,16 @@ def _slide_pairs(row_a: np.ndarray, sizes_a: np.ndarray | None, row_b: np.ndarra
     root = np.sqrt(disc[ia, ib])
     lo, hi = -c1[ia, ib] - root, -c1[ia, ib] + root
     active = (slides[None, :] >= lo[:, None]) & (slides[None, :] <= hi[:, None])  # (pairs, slides)
-    has_b = np.zeros((row_b.shape[0], len(slides)), bool)
-    has_a = np.zeros((row_a.shape[0], len(slides)), bool)
-    np.logical_or.at(has_b, ib, active)
-    np.logical_or.at(has_a, ia, active)
-    return np.minimum(has_b.sum(axis=0), has_a.sum(axis=0))
+    return np.minimum(_partnered(ib, active), _partnered(ia, active))
+
+
+def _partnered(owner: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Per slide (column of `active`, pairs x slides), how many distinct landmarks `owner` (one per pair) have an
+    active pair: the pairs grouped by owner and or-ed with one `reduceat` (a scatter-or, `np.logical_or.at`, did the
+    same at 4x the CPU: 85 % of `row_chance` on an orchard pair, rev29)."""
+    order = np.argsort(owner, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(owner[order]) != 0])
+    return np.logical_or.reduceat(active[order], starts, axis=0).sum(axis=0)
 
 
 @dataclass(frozen=True)
@@ -282,6 +321,7 @@ class RowChance:
     tail: float  # the largest cell's tail: P(one placement of that cell reaches the winner's support) (of the cells
     # computed: once those make p 1 (SURE_LOG) the others are not)
     keep: float  # log of prod over the cells of (1 - q_c): P(no row-on-row cell reaches the support) = exp(keep)
+    bounded: bool = False  # cells beyond ROW_WORK_BUDGET were given the conservative bound, not counted
 
 
 def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
@@ -304,11 +344,19 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     The winner's own cell is among them: a corner overlay, its support nearly all row pairs, gets q_c ~ 1; a true
     alignment whose pairs off the rows carry it keeps its p. With a position prior of `prior_m` (both maps in one
     frame) a row slides along another by at most the prior's reach and is not reversed (the search's turns are then
-    small): the placements the prior lets the search find, as `chance.effective_trials` counts them."""
+    small): the placements the prior lets the search find, as `chance.effective_trials` counts them.
+
+    The roles are those `chance.sequential_chance` drew `samples` and `opportunities` in (the map of the smaller
+    footprint placed, `chance.placed_map_is_a`; the winner then inverted): the rate, the dispersion, the turns at
+    the placed map's radius and the rest's mean are all of that map, so the answer is one of the pair, not of the
+    order its maps are given in (in the caller's roles the two orders of one corner pair gave p up to 10x apart:
+    rev29)."""
     from scipy import stats
 
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
+    if placed_map_is_a(pa, pb):
+        pa, sizes_a, pb, sizes_b, winner = pb, sizes_b, pa, sizes_a, winner.inverse()
     rows_a, rows_b = find_rows(pa, gate_m), find_rows(pb, gate_m)
     if not rows_a and not rows_b:
         return None
@@ -326,9 +374,8 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     sz_b = None if sizes_b is None else np.asarray(sizes_b, np.float64)[mem_b]
     tree_a = horizontal_tree(pa)
     pair_tree = pairing_tree(pa[mem_a], z_weight)
-    groups = _cells(rows_a, rows_b, pb, winner, row_a, sz_a, mem_b, sz_b, gate_m, max_size_difference, z_weight,
-                    prior_m)
-    cells = sum(len(g.counts) for g in groups)
+    layouts = _layouts(rows_a, rows_b, pb, winner, gate_m, prior_m)
+    cells = sum(len(lay.slides) for lay in layouts)
     if cells == 0:
         return None
 
@@ -347,8 +394,19 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
         opp = np.maximum(0.0, each.sum(axis=1) - r_c * each[:, mem_b].mean(axis=1))
         return (chance.mean * opp / max(len(pb), 1)) if np.isnan(rate) else rate * opp
 
-    qs, keep = [], 0.0
-    for g in groups:
+    top, keep, work = 0.0, 0.0, 0.0
+    for done, lay in enumerate(layouts):  # counted one at a time: once p is sure (SURE_LOG) the rest are never built
+        work += len(CELL_TURNS_GATES) * len(mem_a) * len(mem_b) * (1.0 + lay.slides.size / 64.0)
+        if work > ROW_WORK_BUDGET:
+            # too many to count in the time a verification has (a hedgerow landscape's thousands): each cell left
+            # gets what no cell can exceed, every row landmark paired and the rest of B all at an opportunity of
+            # 1, so p only rises (a winner among many rows may then be refused; never a chance one accepted)
+            q_max = tail(np.array([support - min(len(mem_a), len(mem_b))]),
+                         rest_mean(np.ones((1, len(pb))), np.zeros(1)))[0]
+            left = sum(len(rest.slides) for rest in layouts[done:])
+            top, keep = max(top, float(q_max)), keep + left * float(np.log1p(-min(q_max, 1.0 - 1e-16)))
+            return RowChance(float(cells), top, keep, bounded=True)
+        g = _counted(lay, pb, winner.scale, row_a, sz_a, mem_b, sz_b, gate_m, max_size_difference, z_weight)
         n, f = g.slides.shape
         pick = g.counts.argmax(axis=1)
         t, s = np.divmod(pick, f)
@@ -373,18 +431,30 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
                 r_c = max(r_c, got)
             # the rest's opportunity where the bound peaked: the same cell, within a gate of the pairs' best
             q[c] = tail(np.array([support - r_c]), rest_mean(each[c][None], np.array([float(r_c)])))[0]
-        qs.append(q)
-        keep = float(np.sum(np.log1p(-np.minimum(np.concatenate(qs), 1.0 - 1e-16))))
+        top, keep = max(top, float(q.max())), keep + float(np.sum(np.log1p(-np.minimum(q, 1.0 - 1e-16))))
         if keep < SURE_LOG:  # p is 1 to double precision whatever the other cells hold: refused, not counted on
             break
-    q = np.concatenate(qs)
-    return RowChance(float(cells), float(q.max()), keep)
+    return RowChance(float(cells), top, keep)
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """One row of A with one of B in one orientation, before any pair is counted: B's row's centre `cb` (B's
+    frame, its height the members' mean), turned by `yaw` and put at A's row's centre `anchor` (height `z0`, where
+    the winner places it), then slid along `direction` (A's row's) by `slides` (m, cells x slides within a cell)."""
+
+    anchor: np.ndarray
+    direction: np.ndarray
+    yaw: float
+    cb: np.ndarray
+    z0: float
+    slides: np.ndarray  # (cells, slides within a cell)
 
 
 @dataclass(frozen=True)
 class _Cells:
-    """One row of A with one of B in one orientation: B placed at slide 0 for each turn within the cell
-    (`bases`), the slides (m along `direction`, A's row's) of each cell, and the bound of `_slide_pairs` for every
+    """The cells of one `_Layout`, counted (`_counted`): B placed at slide 0 for each turn within the cell (`bases`),
+    the slides (m along `direction`, A's row's) of each cell, and the bound of `_slide_pairs` for every
     cell x (turn, slide)."""
 
     bases: list
@@ -393,21 +463,23 @@ class _Cells:
     counts: np.ndarray  # (cells, turns x slides within a cell)
 
 
-def _cells(rows_a: list[Row], rows_b: list[Row], pb: np.ndarray, winner: Sim3, row_a: np.ndarray,
-           sz_a: np.ndarray | None, mem_b: np.ndarray, sz_b: np.ndarray | None, gate_m: float,
-           max_size_difference: float, z_weight: float, prior_m: float) -> list[_Cells]:
-    """The row-on-row cells of `row_chance`: every row of A with every row of B, 2 orientations (with a position
-    prior one, turned no further than the search turns within it), slides 2 gates apart over the rows' overlap
-    (with a prior, as far as it reaches from where B's row lies unmoved); within each cell slides of +-1 gate in
-    quarter gates and turns of +-1 gate at B's radius in half gates (the cells of `chance.effective_trials`: the
-    refinement chooses within them; two arms of a corner are never both exactly parallel, and it turns to lay
-    both). B is turned so that its row lies along A's row, its row's centre on A's row's line, heights as the
-    winner places them."""
+CELL_SLIDES_GATES = np.arange(-4, 5) / 4.0  # the slides within a cell (gates): +-1 gate in quarter gates
+CELL_TURNS_GATES = np.arange(-2, 3) * 0.5  # and the turns (gates at B's radius): +-1 gate in half gates
+
+
+def _layouts(rows_a: list[Row], rows_b: list[Row], pb: np.ndarray, winner: Sim3, gate_m: float,
+             prior_m: float) -> list[_Layout]:
+    """The row-on-row cells of `row_chance`, not yet counted: every row of A with every row of B, 2 orientations
+    (with a position prior one, turned no further than the search turns within it), slides 2 gates apart over the
+    rows' overlap (with a prior, as far as it reaches from where B's row lies unmoved); within each cell slides of
+    +-1 gate in quarter gates and turns of +-1 gate at B's radius in half gates (the cells of
+    `chance.effective_trials`: the refinement chooses within them; two arms of a corner are never both exactly
+    parallel, and it turns to lay both). B is turned so that its row lies along A's row, its row's centre on A's
+    row's line, heights as the winner places them. Cheap (no pairs): N_s is known before any cell is counted."""
     scale = winner.scale
     radius = _horizontal_radius(pb)
     max_turn = prior_m / radius if prior_m > 0 else np.pi  # `chance.effective_trials`' yaw range
-    fine = np.arange(-4, 5) * gate_m / 4.0
-    turns = np.arange(-2, 3) * 0.5 * gate_m / radius
+    fine = CELL_SLIDES_GATES * gate_m
     out = []
     for ra in rows_a:
         for rb in rows_b:
@@ -435,22 +507,35 @@ def _cells(rows_a: list[Row], rows_b: list[Row], pb: np.ndarray, winner: Sim3, r
                         continue
                 n = max(1, int(np.ceil((hi - lo) / (2.0 * gate_m))))
                 centres = (lo + hi) / 2.0 + (np.arange(n) - (n - 1) / 2.0) * 2.0 * gate_m
-                slides = centres[:, None] + fine[None, :]
-                bases, counts = [], []
-                for dyaw in turns:
-                    base = Sim3(yaw_matrix(float(yaw + dyaw)), np.zeros(3), scale).apply(pb - cb) + np.r_[ra.centre, z0]
-                    bases.append(base)
-                    counts.append(_slide_pairs(row_a, sz_a, _scaled(base[mem_b], z_weight), sz_b, ra.direction,
-                                               slides.reshape(-1), gate_m, max_size_difference).reshape(n, len(fine)))
-                out.append(_Cells(bases, ra.direction, slides, np.stack(counts, axis=1).reshape(n, -1)))
+                out.append(_Layout(ra.centre, ra.direction, float(yaw), cb, z0, centres[:, None] + fine[None, :]))
     return out
+
+
+def _counted(lay: _Layout, pb: np.ndarray, scale: float, row_a: np.ndarray, sz_a: np.ndarray | None,
+             mem_b: np.ndarray, sz_b: np.ndarray | None, gate_m: float, max_size_difference: float,
+             z_weight: float) -> _Cells:
+    """The cells of `lay` with the bound of `_slide_pairs` at every turn and slide within each."""
+    n, f = lay.slides.shape
+    radius = _horizontal_radius(pb)
+    bases, counts = [], []
+    for dyaw in CELL_TURNS_GATES * gate_m / radius:
+        base = Sim3(yaw_matrix(float(lay.yaw + dyaw)), np.zeros(3), scale).apply(pb - lay.cb) + np.r_[lay.anchor,
+                                                                                                     lay.z0]
+        bases.append(base)
+        counts.append(_slide_pairs(row_a, sz_a, _scaled(base[mem_b], z_weight), sz_b, lay.direction,
+                                   lay.slides.reshape(-1), gate_m, max_size_difference).reshape(n, f))
+    return _Cells(bases, lay.direction, lay.slides, np.stack(counts, axis=1).reshape(n, -1))
 
 
 def with_rows(chance: ChanceModel, rows: RowChance | None) -> ChanceModel:
     """The chance model with the row-on-row cells in its best-of-N_eff: p = 1 - (1 - q_u)^(N_eff - N_s)
-    prod_c (1 - q_c) (N_s at most N_eff: they are some of the alignments the search chooses from). None: as is."""
+    prod_c (1 - q_c) (N_s at most N_eff: they are some of the alignments the search chooses from), and never below
+    the uniform placements' p: a cell's q_c below q_u (B half off A in it) would otherwise lower p where rows were
+    found, and a spurious row must only add placements (an orchard pair's 3,084 cells at q_c 1e-9 took p from 0.0101,
+    refused, to 0.0098, accepted: rev29). None: as is."""
     if rows is None:
         return chance
     n_s = min(rows.placements, chance.trials)
     log_keep = (chance.trials - n_s) * np.log1p(-min(chance.tail, 1.0 - 1e-16)) + rows.keep
-    return replace(chance, p_value=float(-np.expm1(log_keep)), row_placements=n_s, row_tail=rows.tail)
+    p_value = max(chance.p_value, float(-np.expm1(log_keep)))
+    return replace(chance, p_value=p_value, row_placements=n_s, row_tail=rows.tail, row_bounded=rows.bounded)

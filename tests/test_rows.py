@@ -5,9 +5,20 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sosmatch.database.match_notes import no_match_text
+from sosmatch.plugin.chance import ChanceModel
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.refinement import yaw_matrix
-from sosmatch.plugin.rows import ROW_GAP_GATES, ROW_MIN, ROW_TOL_GATES, _proposals, find_rows, row_chance, with_rows
+from sosmatch.plugin.rows import (
+    ROW_GAP_GATES,
+    ROW_MIN,
+    ROW_TOL_GATES,
+    RowChance,
+    _proposals,
+    _slide_pairs,
+    find_rows,
+    row_chance,
+    with_rows,
+)
 from sosmatch.plugin.verification import verify_alignments
 
 GATE = 2.67  # the derived gate of nu44's maps
@@ -146,3 +157,91 @@ def test_the_proposals_are_every_pair_whose_line_holds_a_chain_of_a_row():
             want.append((i, j))
     got = [tuple(int(v) for v in p) for p in _proposals(pts, tol, gap)]
     assert want and got == want
+
+
+def test_the_row_part_is_one_of_the_pair_not_of_its_order():
+    # the row cells are judged in the roles the uniform samples were drawn in (the smaller footprint placed): in the
+    # caller's roles the two orders of this pair gave p 4.2e-9 and 4.2e-8 (rev29, sym_fix.py)
+    place = corner(107)
+    (pa, sa), (pb, sb) = seen(*place, 108), seen(*place, 109)
+    pb = B_FROM_CORNER.apply(pb)
+    ab = verify_alignments(pa, sa, pb, sb, [(B_FROM_CORNER.inverse(), np.arange(len(pb)))], GATE, SIZE_GATE, 6)
+    ba = verify_alignments(pb, sb, pa, sa, [(B_FROM_CORNER, np.arange(len(pa)))], GATE, SIZE_GATE, 6)
+    assert ab.chance.row_placements > 0
+    assert np.isclose(ab.chance.p_value, ba.chance.p_value, rtol=1e-6), (ab.chance, ba.chance)
+
+
+def test_rows_never_lower_p():
+    # cells whose q_c lies below the uniform placements' q (B half off A in them) replace uniform trials: p must
+    # not fall (rev29: an orchard pair's 3,084 cells at q_c 1e-9 took p from 0.0101, refused, to 0.0098)
+    q_u, n_eff = 1.015e-7, 1.0e5
+    uniform = ChanceModel(512, 2.0, 3.0, n_eff, q_u, float(-np.expm1(n_eff * np.log1p(-q_u))))
+    low = with_rows(uniform, RowChance(3084.0, 1e-9, float(3084 * np.log1p(-1e-9))))
+    assert low.p_value == uniform.p_value and low.row_placements == 3084.0
+    high = with_rows(uniform, RowChance(10.0, 0.5, float(10 * np.log1p(-0.5))))
+    assert high.p_value > uniform.p_value
+
+
+def test_rows_are_not_judged_once_the_uniform_placements_refuse():
+    # rows only raise p, so a winner the uniform placements already refuse needs none of their work: the corner pair
+    # that is judged on its rows at the default false alarm is not at a false alarm its uniform p already exceeds
+    pa, sa = corner(11)
+    pb, sb = corner(12)
+    args = (pa, sa, B_FROM_CORNER.apply(pb), sb, [(B_FROM_CORNER.inverse(), np.arange(len(pb)))], GATE, SIZE_GATE, 6)
+    judged = verify_alignments(*args)
+    assert judged.chance.row_placements > 0
+    strict = verify_alignments(*args, false_alarm=1e-300)
+    assert not strict.accepted and strict.chance.row_placements == 0 and strict.chance.row_tail == 0
+
+
+def test_slide_pairs_counts_what_a_scatter_of_the_pairs_counts():
+    # `_slide_pairs` groups the pairs by landmark with reduceat; the plain scatter-or over the same intervals is the
+    # reference (rows of random landmarks, sizes gated, slides over both rows' length)
+    rng = np.random.default_rng(8)
+    row_a = np.column_stack([rng.uniform(0, 60, 40), rng.normal(0, 1, 40), rng.normal(5, 1, 40)])
+    row_b = np.column_stack([rng.uniform(-30, 30, 30), rng.normal(0, 1, 30), rng.normal(5, 1, 30)])
+    sa, sb = rng.uniform(1, 3, 40), rng.uniform(1, 3, 30)
+    slides = np.linspace(-20, 90, 200)
+    got = _slide_pairs(row_a, sa, row_b, sb, np.array([1.0, 0.0]), slides, GATE, SIZE_GATE)
+    has_a, has_b = np.zeros((40, len(slides)), bool), np.zeros((30, len(slides)), bool)
+    for i in range(40):
+        for j in range(30):
+            if 2.0 * abs(sa[i] - sb[j]) / (sa[i] + sb[j]) > SIZE_GATE:  # `gates.size_ratio`
+                continue
+            moved = row_b[j] + np.column_stack([slides, np.zeros((len(slides), 2))])
+            near = np.linalg.norm(moved - row_a[i], axis=1) <= GATE
+            has_a[i] |= near
+            has_b[j] |= near
+    assert got.max() > 3 and np.array_equal(got, np.minimum(has_a.sum(axis=0), has_b.sum(axis=0)))
+
+
+def test_cells_beyond_the_work_budget_get_a_bound_that_only_raises_p(monkeypatch):
+    # a map pair with more row-on-row cells than a verification can count (a hedgerow landscape) gets, for the cells
+    # beyond ROW_WORK_BUDGET, a tail no cell can exceed: p no lower than counted in full, and match.json says so
+    import sosmatch.plugin.rows as rows
+
+    place = corner(107)
+    (pa, sa), (pb, sb) = seen(*place, 108), seen(*place, 109)
+    x, o = np.array([3, 4, 5, 2]), np.array([10.0, 12.0, 11.0, 9.0])
+    v = verify_at_corner(pa, sa, B_FROM_CORNER.apply(pb), sb)
+    args = (pa, sa, B_FROM_CORNER.apply(pb), sb, B_FROM_CORNER.inverse(), v.support, GATE, SIZE_GATE, 0.5, x, o,
+            v.chance)
+    full = row_chance(*args)
+    monkeypatch.setattr(rows, "ROW_WORK_BUDGET", 0.0)
+    bounded = row_chance(*args)
+    assert not full.bounded and bounded.bounded
+    assert bounded.placements == full.placements and bounded.keep <= full.keep and bounded.tail >= full.tail
+    said = with_rows(v.chance, bounded)
+    assert said.p_value >= with_rows(v.chance, full).p_value and said.to_dict()["row_bounded"] is True
+
+
+def test_find_rows_finds_every_row_of_an_orchard():
+    # `find_rows` keeps each proposal's chain until a found row takes a landmark of it: after each row the others
+    # must still be found whole (rows 15 m apart, trees 3 m apart along them)
+    rng = np.random.default_rng(2)
+    x, y = np.meshgrid(np.arange(40) * 3.0, np.arange(6) * 15.0)
+    xy = np.column_stack([x.ravel(), y.ravel()]) + rng.normal(0, 0.3, (240, 2))
+    rows = find_rows(np.column_stack([xy, rng.normal(10, 1, 240)]), 2.9)
+    assert sorted(sorted(set(np.round(xy[r.members, 1] / 15.0).astype(int).tolist())) for r in rows) == [
+        [k] for k in range(6)]
+    assert all(len(r.members) == 40 for r in rows)

@@ -11,7 +11,8 @@ parameters (plus `--set`); its row goes to `WORK/rows/A--B.json` (an existing ro
 interrupted run resumes; `--fresh` recomputes). Truth: sessions of one world share its frame, so the true A_from_B
 is the identity up to each map's EKF drift (`workflows.evaluate.error_to_identity`, at the centroid of the
 answer's B landmarks); pairs of different worlds have no true alignment. The chance model's CPU per pair is
-measured by running it again (`plugin.chance.sequential_chance`, process time); `--cost` also measures it
+measured by running it again (`plugin.verification.winner_chance`: the uniform placements and the rows; process
+time); `--cost` also measures it
 side by side on the search benchmark's dense, sparse and aerial maps (`chance_cost`). `--null` calibrates the
 chance model itself (`null_calibration`): unrelated random maps, the best of M random refinements offered as the
 winner; its tail q says how often one chance alignment reaches that support, so M q is (about) the probability
@@ -55,8 +56,8 @@ def map_path(maps: Path, tag: str, name: str) -> Path:
 def run_pair(maps: Path, tag: str, work: Path, a: str, b: str, same: bool, overrides: list[str]) -> dict:
     from ...database.config_io import parse_override
     from ...database.landmark_map import read_landmark_map
-    from ...plugin.chance import sequential_chance
     from ...plugin.params import Params, with_overrides
+    from ...plugin.verification import winner_chance
     from ...workflows.evaluate import error_to_identity
     from ...workflows.match import run
 
@@ -82,11 +83,12 @@ def run_pair(maps: Path, tag: str, work: Path, a: str, b: str, same: bool, overr
         if same:
             err = error_to_identity(best.transform, lb.positions[best.associations[:, 1]])
             row.update(error_m=err["error_m"], yaw_deg=err["yaw_deg"])
-        # the chance model's CPU: the part of the verification it adds (its placements refined again)
+        # the chance model's CPU: the part of the verification it adds (its placements refined again, and the
+        # rows laid on rows when those are judged)
         la = read_landmark_map(pa_dir / "landmarks.sosmap")
         vp, ap = params.verification, doc["params"]["association"]
         t1 = time.process_time()
-        sequential_chance(la.positions, la.sizes, lb.positions, lb.sizes, best.transform,
+        winner_chance(la.positions, la.sizes, lb.positions, lb.sizes, best.transform,
                           lb.positions[best.associations[:, 1]], ans.verification.support, ap["distance_tolerance_m"],
                           vp.max_size_difference, vp.chance_starts, vp.false_alarm, ap["position_prior_m"], vp.dof,
                           vp.z_weight)
