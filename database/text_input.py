@@ -11,6 +11,7 @@ wrong path.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import stat
@@ -53,26 +54,44 @@ FIFO_WAIT_S = 30.0  # how long a named pipe given as an input may take to get a 
 
 
 def open_without_waiting(path: str | Path) -> IO[bytes]:
-    """`open(path, "rb")` that does not wait forever for a writer: a named pipe (FIFO) is opened non-blocking and
-    given FIFO_WAIT_S for a writer to connect (a plain `open` blocked until one did: forever, for a pipe given by
-    mistake); then reads block again, so a pipe with a writer (`<(zcat poses.csv.gz)`, or a writer started just
-    after) is read to its end. Raises TimeoutError when none came. Regular files and devices open as with `open`."""
-    import fcntl
-    import select
+    """`open(path, "rb")` that does not wait forever for a writer: a named pipe (FIFO) gets FIFO_WAIT_S for one
+    to connect (a plain `open` blocked until one did: forever, for a pipe given by mistake), then it is read as
+    `open` reads it, however slowly the writer sends (`slow-command | sosmatch ... --poses /dev/stdin`,
+    `<(ssh host cat poses.csv)`). Raises TimeoutError when no writer came. Anything else opens as with `open`.
 
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    The wait is for the writer, not for data (rev30: waiting for the first byte refused a connected writer that
+    was quiet for 30 s): the blocking open, which returns once a writer connects (an anonymous pipe at once),
+    runs in a thread; on time-out this process opens the FIFO for writing itself to release it."""
+    import threading
+
+    probe = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # never blocks: only says what the path is
     try:
-        if stat.S_ISFIFO(os.fstat(fd).st_mode):
-            # Linux reports no event on a FIFO no writer ever opened, POLLIN / POLLHUP once one did
-            poller = select.poll()
-            poller.register(fd, select.POLLIN | select.POLLHUP)
-            if not poller.poll(FIFO_WAIT_S * 1000):
-                raise TimeoutError(f"a named pipe nobody wrote to within {FIFO_WAIT_S:g} s")
-        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
-        return os.fdopen(fd, "rb")
-    except BaseException:
-        os.close(fd)
-        raise
+        is_fifo = stat.S_ISFIFO(os.fstat(probe).st_mode)
+    finally:
+        os.close(probe)
+    if not is_fifo:
+        return open(path, "rb")
+    got: dict[str, Any] = {}
+
+    def wait_for_writer() -> None:
+        try:
+            got["fd"] = os.open(path, os.O_RDONLY)
+        except OSError as exc:
+            got["error"] = exc
+
+    waiter = threading.Thread(target=wait_for_writer, daemon=True)
+    waiter.start()
+    waiter.join(FIFO_WAIT_S)
+    if waiter.is_alive():
+        with contextlib.suppress(OSError):  # be the writer that lets the waiting open return
+            os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+        waiter.join()
+        if "fd" in got:
+            os.close(got["fd"])
+        raise TimeoutError(f"a named pipe nobody opened for writing within {FIFO_WAIT_S:g} s")
+    if "error" in got:
+        raise got["error"]
+    return os.fdopen(got["fd"], "rb")
 
 
 def read_user_bytes(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_BYTES) -> bytes:

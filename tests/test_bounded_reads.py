@@ -117,7 +117,8 @@ def test_an_image_declaring_more_pixels_than_the_limit_is_refused_before_decodin
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs named pipes")
 def test_a_named_pipe_nobody_writes_to_is_refused_not_waited_on_forever(tmp_path: Path, monkeypatch) -> None:
     """A FIFO given by mistake blocked `open()` until a writer came (forever; nu45): it is now given
-    FIFO_WAIT_S for one, and a writer that starts a moment after the reader is still read to its end."""
+    FIFO_WAIT_S for one, and a writer that starts a moment after the reader, or that connects at once and sends
+    its first byte only after FIFO_WAIT_S, is still read to its end."""
     import time
 
     import sosmatch.database.text_input as text_input
@@ -126,7 +127,8 @@ def test_a_named_pipe_nobody_writes_to_is_refused_not_waited_on_forever(tmp_path
     pipe = tmp_path / "poses.csv"
     os.mkfifo(pipe)
     t0 = time.monotonic()
-    with pytest.raises(InputError, match=r"poses\.csv: pose file is a named pipe nobody wrote to within 0\.5 s"):
+    with pytest.raises(InputError, match=r"poses\.csv: pose file is a named pipe nobody opened for writing within "
+                                          r"0\.5 s"):
         read_user_bytes(pipe, "pose file")
     assert time.monotonic() - t0 < 5.0
 
@@ -141,4 +143,14 @@ def test_a_named_pipe_nobody_writes_to_is_refused_not_waited_on_forever(tmp_path
     thread = threading.Thread(target=writer)
     thread.start()
     assert read_user_bytes(pipe, "pose file") == b"name,x,y,z\n" * 3
+    thread.join()
+
+    def quiet_writer() -> None:  # connected at once, its first byte long after the wait (rev30: was refused)
+        with open(pipe, "wb") as handle:
+            time.sleep(1.0)
+            handle.write(b"name,x,y,z\n")
+
+    thread = threading.Thread(target=quiet_writer)
+    thread.start()
+    assert read_user_bytes(pipe, "pose file") == b"name,x,y,z\n"
     thread.join()
