@@ -70,10 +70,10 @@ def crs_problem(epsg: int) -> str | None:
     except CRSError:
         return f"unknown EPSG code {epsg}"
     if not crs.is_projected:
-        return f"EPSG:{epsg} ({crs.name}) is not a projected CRS in metres; poses need one (or 'local')"
+        return f"EPSG:{epsg} ({crs.name}) is not a projected CRS in metres; poses need one (or a local frame)"
     unit = crs.axis_info[0].unit_name if crs.axis_info else "metre"
     if unit not in ("metre", "meter"):
-        return f"EPSG:{epsg} ({crs.name}) measures in {unit}; poses need a projected CRS in metres (or 'local')"
+        return f"EPSG:{epsg} ({crs.name}) measures in {unit}; poses need a projected CRS in metres (or a local frame)"
     return None
 
 

@@ -187,7 +187,7 @@ def otherwise_note(changed: list[Added]) -> str:
     stuck = [a.name for a in changed if a.neutral is NO_NEUTRAL]
     how = (f"no value of {', '.join(stuck)} behaves as before" if stuck else
            " ".join(f"--set {a.name}={json.dumps(a.neutral)}" for a in changed) + " would accept it")
-    return f"one made with the behaviour from before {said}; {how}"
+    return f"one made with the earlier behaviour of {said}; {how}"
 
 
 def identity_eras() -> list[Callable[[Any], dict[str, Any]]]:
