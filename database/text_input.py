@@ -59,17 +59,24 @@ def open_without_waiting(path: str | Path) -> IO[bytes]:
     `open` reads it, however slowly the writer sends (`slow-command | sosmatch ... --poses /dev/stdin`,
     `<(ssh host cat poses.csv)`). Raises TimeoutError when no writer came. Anything else opens as with `open`.
 
-    The wait is for the writer, not for data (rev30: waiting for the first byte refused a connected writer that
-    was quiet for 30 s): the blocking open, which returns once a writer connects (an anonymous pipe at once),
-    runs in a thread; on time-out this process opens the FIFO for writing itself to release it."""
+    The wait is for the writer, not for data (rev30: waiting for the first byte refused a connected writer quiet
+    for 30 s). The pipe is read through the non-blocking descriptor opened first, kept open throughout: a writer
+    that connects to it, writes and closes before anything else happens leaves its data there (a pipe whose
+    every end closed drops it). A writer is known to have come when a blocking open in a thread returns (it does
+    once one connects) or the pipe shows data or a hang-up; the thread is then released by opening the FIFO for
+    writing from here."""
+    import select
     import threading
+    import time
 
-    probe = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # never blocks: only says what the path is
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # never blocks
     try:
-        is_fifo = stat.S_ISFIFO(os.fstat(probe).st_mode)
-    finally:
-        os.close(probe)
+        is_fifo = stat.S_ISFIFO(os.fstat(fd).st_mode)
+    except BaseException:
+        os.close(fd)
+        raise
     if not is_fifo:
+        os.close(fd)
         return open(path, "rb")
     got: dict[str, Any] = {}
 
@@ -81,17 +88,29 @@ def open_without_waiting(path: str | Path) -> IO[bytes]:
 
     waiter = threading.Thread(target=wait_for_writer, daemon=True)
     waiter.start()
-    waiter.join(FIFO_WAIT_S)
-    if waiter.is_alive():
-        with contextlib.suppress(OSError):  # be the writer that lets the waiting open return
+    poller = select.poll()
+    poller.register(fd, select.POLLIN | select.POLLHUP)
+    deadline = time.monotonic() + FIFO_WAIT_S
+    came = False
+    while not came and time.monotonic() < deadline:
+        # Linux shows no event on a FIFO no writer ever opened; POLLIN / POLLHUP once one did
+        came = not waiter.is_alive() or bool(poller.poll(50))
+    came = came or not waiter.is_alive()
+    while waiter.is_alive():
+        # be the writer that lets the waiting open return; again until it has (the thread may not have reached its
+        # open yet when the first of these came and went)
+        with contextlib.suppress(OSError):
             os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
-        waiter.join()
-        if "fd" in got:
-            os.close(got["fd"])
+        waiter.join(0.05)
+    if "fd" in got:
+        os.close(got["fd"])
+    if not came:
+        os.close(fd)
         raise TimeoutError(f"a named pipe nobody opened for writing within {FIFO_WAIT_S:g} s")
-    if "error" in got:
-        raise got["error"]
-    return os.fdopen(got["fd"], "rb")
+    import fcntl
+
+    fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
+    return os.fdopen(fd, "rb")
 
 
 def read_user_bytes(path: str | Path, what: str, limit_bytes: int = TEXT_LIMIT_BYTES) -> bytes:

@@ -154,3 +154,13 @@ def test_a_named_pipe_nobody_writes_to_is_refused_not_waited_on_forever(tmp_path
     thread.start()
     assert read_user_bytes(pipe, "pose file") == b"name,x,y,z\n"
     thread.join()
+
+    # a writer let in by the reader's first (non-blocking) open that writes and closes at once: its data stays in
+    # the pipe for the reader (closing that open first dropped it: the pipe waited 30 s for another writer)
+    for k in range(20):
+        quick = tmp_path / f"quick{k}.csv"
+        os.mkfifo(quick)
+        thread = threading.Thread(target=lambda q=quick: q.write_bytes(b"name,x,y,z\n" * 100))
+        thread.start()
+        assert read_user_bytes(quick, "pose file") == b"name,x,y,z\n" * 100
+        thread.join()
