@@ -7,6 +7,7 @@ pose exports often are) is parsed here with the same validation as the pose CSV 
 
 from __future__ import annotations
 
+import io
 import math
 import re
 from pathlib import Path
@@ -20,7 +21,7 @@ from .atomic import atomic_path, write_bytes_atomic
 from .cameras import camera_from_pycolmap, distinct_cameras, read_cameras_txt
 from .colmap_binary import check_binary_model
 from .poses import UNIT_QUAT_TOLERANCE
-from .text_input import bounded_lines
+from .text_input import bounded_lines, open_without_waiting
 
 if TYPE_CHECKING:
     import pycolmap
@@ -78,7 +79,7 @@ def _read_images_txt(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, lis
     seen: set[str] = set()
     expect_pose = True
     try:
-        handle = open(path, encoding="utf-8-sig")  # a byte order mark is not text
+        handle = io.TextIOWrapper(open_without_waiting(path), encoding="utf-8-sig")  # a BOM is not text
     except OSError as exc:
         raise InputError(f"cannot read images file: {exc.strerror or exc}", path) from None
     # line by line: the POINTS2D lines make images.txt as large as the survey's tie points
@@ -140,7 +141,7 @@ def _check_text_model_file(path: Path, lines_per_record: int) -> None:
     points2d_due = False  # images.txt: the line after an image line is its POINTS2D line, even when empty
     last = ""
     try:
-        handle = open(path, encoding="utf-8-sig")  # a byte order mark is not text
+        handle = io.TextIOWrapper(open_without_waiting(path), encoding="utf-8-sig")  # a BOM is not text
     except OSError as exc:
         raise InputError(f"cannot read {path.name}: {exc.strerror or exc}", path) from None
     with handle:

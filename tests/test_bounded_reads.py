@@ -164,3 +164,17 @@ def test_a_named_pipe_nobody_writes_to_is_refused_not_waited_on_forever(tmp_path
         thread.start()
         assert read_user_bytes(quick, "pose file") == b"name,x,y,z\n" * 100
         thread.join()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs named pipes")
+def test_images_txt_read_line_by_line_does_not_wait_forever_on_a_pipe(tmp_path: Path, monkeypatch) -> None:
+    """images.txt is read line by line, not through `read_user_bytes`: its opens waited on a writer-less FIFO
+    forever; they share `open_without_waiting` now."""
+    import sosmatch.database.text_input as text_input
+    from sosmatch.database.colmap_model import _read_images_txt
+
+    monkeypatch.setattr(text_input, "FIFO_WAIT_S", 0.3)
+    pipe = tmp_path / "images.txt"
+    os.mkfifo(pipe)
+    with pytest.raises(InputError, match=r"images\.txt: cannot read images file: a named pipe nobody opened"):
+        _read_images_txt(pipe)
