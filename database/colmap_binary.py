@@ -22,6 +22,7 @@ from pathlib import Path
 from ..plugin.camera_models import CAMERA_MODELS
 from ..plugin.errors import InputError
 from .cameras import MAX_IMAGE_SIDE
+from .text_input import open_without_waiting
 
 INVALID_POINT3D_ID = 2**64 - 1
 SENSOR_CAMERA, SENSOR_IMU = 0, 1
@@ -83,7 +84,7 @@ def _read(path: Path) -> _Reader:
     """The file mapped into memory, not read: a model's points3D.bin and images.bin grow with the survey (GBs for
     large ones) and the walk touches each byte once, so the pages it needs come and go (bounded memory)."""
     try:
-        with open(path, "rb") as handle:
+        with open_without_waiting(path) as handle:
             if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
                 raise InputError("COLMAP model file is not a regular file", path)
             if os.fstat(handle.fileno()).st_size == 0:

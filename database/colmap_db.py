@@ -28,6 +28,7 @@ from ..plugin.geometry import Camera, Poses
 from .atomic import atomic_path
 from .cameras import pycolmap_camera
 from .taken import make_dirs
+from .text_input import open_without_waiting
 
 if TYPE_CHECKING:
     from ..plugin.changes import KeyframeSegments
@@ -136,7 +137,7 @@ def open_colmap_database(path: str | Path) -> DatabaseReader:
     The SQLite header is checked first, so that a file of another kind is named as such."""
     path = Path(path)
     try:
-        with open(path, "rb") as f:
+        with open_without_waiting(path) as f:
             head = f.read(len(SQLITE_MAGIC))
     except FileNotFoundError:
         raise InputError("COLMAP database not found", path) from None

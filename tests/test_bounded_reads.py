@@ -168,8 +168,9 @@ def test_a_named_pipe_nobody_writes_to_is_refused_not_waited_on_forever(tmp_path
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs named pipes")
 def test_images_txt_read_line_by_line_does_not_wait_forever_on_a_pipe(tmp_path: Path, monkeypatch) -> None:
-    """images.txt is read line by line, not through `read_user_bytes`: its opens waited on a writer-less FIFO
-    forever; they share `open_without_waiting` now."""
+    """images.txt (read line by line), a binary model's files (memory-mapped) and a COLMAP database are not read
+    through `read_user_bytes`: their opens waited on a writer-less FIFO forever; they share
+    `open_without_waiting` now."""
     import sosmatch.database.text_input as text_input
     from sosmatch.database.colmap_model import _read_images_txt
 
@@ -178,3 +179,11 @@ def test_images_txt_read_line_by_line_does_not_wait_forever_on_a_pipe(tmp_path: 
     os.mkfifo(pipe)
     with pytest.raises(InputError, match=r"images\.txt: cannot read images file: a named pipe nobody opened"):
         _read_images_txt(pipe)
+    # and the other user files opened without `read_user_bytes`: a binary model's files, a COLMAP database
+    from sosmatch.database.colmap_binary import _read
+    from sosmatch.database.colmap_db import open_colmap_database
+
+    with pytest.raises(InputError, match=r"cannot read COLMAP model file: a named pipe nobody opened"):
+        _read(pipe)
+    with pytest.raises(InputError, match=r"cannot read COLMAP database: a named pipe nobody opened"):
+        open_colmap_database(pipe)
