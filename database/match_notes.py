@@ -82,8 +82,8 @@ def no_match_text(best_support: int | None, runner_up: int, chance_p: float | No
     compared (match.json `support_dof`, the `dof` fit's, before the winner's tilt refit), said beside the refit's
     when they differ: "holds 10 associations, B placed elsewhere 8, chance p 0.002" passes both documented tests
     on its face, and the ratio test refused 9 < 1.2 x 8 (nu44). `row_placements`: the chance test's placements laying
-    a row of landmarks on a row (`plugin.rows`; match.json's `row_placements`), said when there were any: "chance p 1
-    (mean 0.8)" of 22 pairs reads as a contradiction when rows laid on rows are what reach them."""
+    a row of landmarks on a row (`plugin.row_placements`; match.json's `row_placements`), said when there were any:
+    "chance p 1 (mean 0.8)" of 22 pairs reads as a contradiction when rows laid on rows are what reach them."""
     if best_support is None:
         # said, not left bare: a user saw "no match" on maps of 3-6 landmarks and could not tell why (nu27)
         theta = "" if min_associations is None else f" = {min_associations}"

@@ -46,12 +46,13 @@ class ChanceModel:
     # accounted for (a negative binomial of size mu / phi; 0: Poisson); NaN: no opportunities measured (the
     # unconditioned model, whose spread is in `variance`)
     overdispersion: float = float("nan")
-    # N_s and the largest q_c of `rows.with_rows`: row-on-row placements of two maps' rows of landmarks, counted in
-    # the best-of-N_eff each with its own tail (0, 0: no row pair; p_value is then the uniform placements' alone)
+    # N_s and the largest q_c of `row_placements.with_rows`: row-on-row placements of two maps' rows of landmarks,
+    # counted in the best-of-N_eff each with its own tail (0, 0: no row pair; p_value is then the uniform
+    # placements' alone)
     row_placements: float = 0.0
     row_tail: float = 0.0
-    # True: more row-on-row cells than `rows.ROW_WORK_BUDGET` lets be counted; those beyond it were given an upper
-    # bound of their tail (p only rises)
+    # True: more row-on-row cells than `row_placements.ROW_WORK_BUDGET` lets be counted; those beyond it were given
+    # an upper bound of their tail (p only rises)
     row_bounded: bool = False
 
     def to_dict(self) -> dict[str, float]:

@@ -31,7 +31,7 @@ from .refinement import (
     refine_alignment,
     yaw_matrix,
 )
-from .rows import row_chance, with_rows
+from .row_placements import row_chance, with_rows
 
 
 @dataclass(frozen=True)
@@ -243,10 +243,11 @@ def winner_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
                   winner_pairs: np.ndarray | None = None,
                   tree_a: Any = None) -> tuple[ChanceModel, np.ndarray, np.ndarray]:
     """The chance test of a winner: `chance.sequential_chance`'s uniform placements, then rows of landmarks laid on
-    rows (tree-lined field edges: placements the uniform samples do not reach, `plugin.rows`; nothing changes for
-    maps without rows). Rows only raise p (`rows.with_rows`), so a winner the uniform placements already refuse is
-    not judged on them (their work, seconds on an orchard, is saved). Returns the model and the uniform samples
-    and opportunities, as `sequential_chance` (the benchmarks time this, the verification's whole chance test)."""
+    rows (tree-lined field edges: placements the uniform samples do not reach, `plugin.row_placements`; nothing
+    changes for maps without rows). Rows only raise p (`row_placements.with_rows`), so a winner the uniform
+    placements already refuse is not judged on them (their work, seconds on an orchard, is saved). Returns the model
+    and the uniform samples and opportunities, as `sequential_chance` (the benchmarks time this, the verification's
+    whole chance test)."""
     chance, samples, opportunities = sequential_chance(
         points_a, sizes_a, points_b, sizes_b, winner, probe, support, gate_m, max_size_difference, starts,
         false_alarm, prior_m, dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a)

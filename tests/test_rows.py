@@ -1,5 +1,5 @@
-"""Rows of landmarks in the chance test (`plugin.rows`): tree-lined field corners of different places must not
-verify (nu44 D1), the same corner seen twice must, and maps without rows keep their p."""
+"""Rows of landmarks in the chance test (`plugin.rows`, `plugin.row_placements`): tree-lined field corners of
+different places must not verify (nu44 D1), the same corner seen twice must, and maps without rows keep their p."""
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -8,17 +8,8 @@ from sosmatch.database.match_notes import no_match_text
 from sosmatch.plugin.chance import ChanceModel
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.plugin.refinement import yaw_matrix
-from sosmatch.plugin.rows import (
-    ROW_GAP_GATES,
-    ROW_MIN,
-    ROW_TOL_GATES,
-    RowChance,
-    _proposals,
-    _slide_pairs,
-    find_rows,
-    row_chance,
-    with_rows,
-)
+from sosmatch.plugin.row_placements import RowChance, _slide_pairs, row_chance, with_rows
+from sosmatch.plugin.rows import ROW_GAP_GATES, ROW_MIN, ROW_TOL_GATES, _proposals, find_rows
 from sosmatch.plugin.verification import verify_alignments
 
 GATE = 2.67  # the derived gate of nu44's maps
@@ -218,7 +209,7 @@ def test_slide_pairs_counts_what_a_scatter_of_the_pairs_counts():
 def test_cells_beyond_the_work_budget_get_a_bound_that_only_raises_p(monkeypatch):
     # a map pair with more row-on-row cells than a verification can count (a hedgerow landscape) gets, for the cells
     # beyond ROW_WORK_BUDGET, a tail no cell can exceed: p no lower than counted in full, and match.json says so
-    import sosmatch.plugin.rows as rows
+    import sosmatch.plugin.row_placements as placements
 
     place = corner(107)
     (pa, sa), (pb, sb) = seen(*place, 108), seen(*place, 109)
@@ -227,7 +218,7 @@ def test_cells_beyond_the_work_budget_get_a_bound_that_only_raises_p(monkeypatch
     args = (pa, sa, B_FROM_CORNER.apply(pb), sb, B_FROM_CORNER.inverse(), v.support, GATE, SIZE_GATE, 0.5, x, o,
             v.chance)
     full = row_chance(*args)
-    monkeypatch.setattr(rows, "ROW_WORK_BUDGET", 0.0)
+    monkeypatch.setattr(placements, "ROW_WORK_BUDGET", 0.0)
     bounded = row_chance(*args)
     assert not full.bounded and bounded.bounded
     assert bounded.placements == full.placements and bounded.keep <= full.keep and bounded.tail >= full.tail
