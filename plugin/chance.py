@@ -235,8 +235,8 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
                       sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray, support: int, gate_m: float,
                       max_size_difference: float, starts: int, false_alarm: float, prior_m: float = 0.0,
                       dof: int = 4, z_weight: float = 0.5,
-                      winner_pairs: np.ndarray | None = None,
-                      tree_a: Any = None) -> tuple[ChanceModel, np.ndarray, np.ndarray]:
+                      winner_pairs: np.ndarray | None = None, tree_a: Any = None,
+                      a_is_placed: bool | None = None) -> tuple[ChanceModel, np.ndarray, np.ndarray]:
     """`chance_test` of the winner's support on up to `starts` chance placements, refined CHANCE_BATCH at a time:
     it stops once the answer cannot be in doubt (p_value and its interval <= false_alarm x CHANCE_MARGIN: a true
     alignment well above chance, as every dense map pair; or >= CHANCE_CLEARLY_CHANCE), which keeps the cost of a
@@ -246,13 +246,14 @@ def sequential_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b
     assumes the dispersion at its upper confidence bound (`dispersion_bound`), which shrinks as samples accrue, so
     a first batch whose spread happens to be small cannot end the test on a tail it does not support.
     The test is one of the pair, not of the order its maps are given in: the map of the smaller footprint is the
-    one placed (`placed_map_is_a`), so `match A B` and `match B A` decide alike."""
-    if placed_map_is_a(points_a, points_b):
+    one placed (`placed_map_is_a`), so `match A B` and `match B A` decide alike. `a_is_placed`: that answer when
+    the caller has it (`verification.winner_chance` decides the roles once for the whole test); None: decided here."""
+    if placed_map_is_a(points_a, points_b) if a_is_placed is None else a_is_placed:
         points_a, sizes_a, points_b, sizes_b, winner, probe, winner_pairs = placed_over_b(
             points_a, sizes_a, points_b, sizes_b, winner, probe, winner_pairs)
         tree_a = pairing_tree(points_a, z_weight)
     placements = chance_placements(points_a, points_b, starts, prior_m)
-    trials = effective_trials(points_a, points_b, gate_m, prior_m)
+    trials = effective_trials(points_a, points_b, gate_m, prior_m, a_is_placed=False)  # B is the placed map now
     tree_a_xy = horizontal_tree(points_a)
     samples, opportunities = np.zeros(0, np.int64), np.zeros(0, np.float64)
     chance = chance_test(samples, support, trials, opportunities)
@@ -293,14 +294,15 @@ def placed_map_is_a(points_a: np.ndarray, points_b: np.ndarray) -> bool:
 
 
 def placed_over_b(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,
-                  sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray,
-                  winner_pairs: np.ndarray | None) -> tuple:
+                  sizes_b: np.ndarray | None, winner: Sim3, probe: np.ndarray | None = None,
+                  winner_pairs: np.ndarray | None = None) -> tuple:
     """The chance model's arguments with the roles swapped, A the map placed over B (`placed_map_is_a`): the
-    maps, the winner inverted, its probe and its pairs (B, A). The winner maps B's supporting landmarks `probe`
-    onto their A partners, so those partners are where it puts them, and a refinement that brings them back within
-    2 gates of `probe` found the winner again (`converged_to_winner`), as from the other side."""
+    maps, the winner inverted, its probe and its pairs (B, A; None where not given). The winner maps B's supporting
+    landmarks `probe` onto their A partners, so those partners are where it puts them, and a refinement that brings
+    them back within 2 gates of `probe` found the winner again (`converged_to_winner`), as from the other side."""
     pairs = None if winner_pairs is None else np.ascontiguousarray(np.asarray(winner_pairs)[:, ::-1])
-    return points_b, sizes_b, points_a, sizes_a, winner.inverse(), winner.apply(probe), pairs
+    moved = None if probe is None else winner.apply(probe)
+    return points_b, sizes_b, points_a, sizes_a, winner.inverse(), moved, pairs
 
 
 CHANCE_RESAMPLES = 100  # bootstrap resamples of `chance_interval`
@@ -411,7 +413,8 @@ def dispersion_bound(samples: np.ndarray, opportunities: np.ndarray | None) -> f
     return max(0.0, s * nu / float(stats.chi2.ppf(1.0 - DISPERSION_LEVEL, nu)) - 1.0)
 
 
-def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, prior_m: float = 0.0) -> float:
+def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, prior_m: float = 0.0,
+                     a_is_placed: bool | None = None) -> float:
     """N_eff: how many effectively independent alignments the search chooses its winner from.
 
     Two placements of B share no chance pair once B moved by more than a gate diameter (2 gate_m: every
@@ -422,10 +425,11 @@ def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, 
     +-prior_m / R_B) hold yaw range / (2 gate_m / R_B) of them. A 220 m x 240 m map at a 2.9 m gate and R_B
     ~90 m: ~1,600 x ~100 = 1.6e5. (Counting the search's 48 yaw slices instead would ignore that within one
     slice a turn of 7.5 degrees moves far landmarks by ten gates.) A count of the pair, whatever the order: the
-    map of the smaller footprint is the one placed (`placed_map_is_a`)."""
+    map of the smaller footprint is the one placed (`placed_map_is_a`; `a_is_placed`: that answer when the caller
+    has it, None: decided here)."""
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
-    if placed_map_is_a(pa, pb):
+    if placed_map_is_a(pa, pb) if a_is_placed is None else a_is_placed:
         pa, pb = pb, pa
     cell = 2.0 * gate_m
     span = np.ptp(pa[:, :2], axis=0) if len(pa) else np.zeros(2)

@@ -26,6 +26,7 @@ from .chance import (
     horizontal_tree,
     landmark_opportunities,
     placed_map_is_a,
+    placed_over_b,
 )
 from .multisession import Sim3
 from .refinement import mutual_nearest, pairing_tree, yaw_matrix
@@ -98,7 +99,7 @@ class RowChance:
 def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
                winner: Sim3, support: int, gate_m: float, max_size_difference: float, z_weight: float,
                samples: np.ndarray, opportunities: np.ndarray, chance: ChanceModel,
-               prior_m: float = 0.0) -> RowChance | None:
+               prior_m: float = 0.0, a_is_placed: bool | None = None) -> RowChance | None:
     """The row-on-row placements of two maps and the chance that one reaches the winner's support (None: no row
     pair, nothing changes).
 
@@ -121,13 +122,14 @@ def row_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     footprint placed, `chance.placed_map_is_a`; the winner then inverted): the rate, the dispersion, the turns at
     the placed map's radius and the rest's mean are all of that map, so the answer is one of the pair, not of the
     order its maps are given in (in the caller's roles the two orders of one corner pair gave p up to 10x apart:
-    rev29)."""
+    rev29). `a_is_placed`: the answer of `placed_map_is_a` when the caller has it (`verification.winner_chance`);
+    None: decided here."""
     from scipy import stats
 
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
-    if placed_map_is_a(pa, pb):
-        pa, sizes_a, pb, sizes_b, winner = pb, sizes_b, pa, sizes_a, winner.inverse()
+    if placed_map_is_a(pa, pb) if a_is_placed is None else a_is_placed:
+        pa, sizes_a, pb, sizes_b, winner = placed_over_b(pa, sizes_a, pb, sizes_b, winner)[:5]
     rows_a, rows_b = find_rows(pa, gate_m), find_rows(pb, gate_m)
     if not rows_a and not rows_b:
         return None

@@ -17,6 +17,7 @@ from .chance import (
     chance_supports,
     chance_test,
     converged_to_winner,
+    placed_map_is_a,
     sequential_chance,
     transforms_agree,
     within_prior,
@@ -247,14 +248,16 @@ def winner_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
     changes for maps without rows). Rows only raise p (`row_placements.with_rows`), so a winner the uniform
     placements already refuse is not judged on them (their work, seconds on an orchard, is saved). Returns the model
     and the uniform samples and opportunities, as `sequential_chance` (the benchmarks time this, the verification's
-    whole chance test)."""
+    whole chance test). Which map the chance samples place (`chance.placed_map_is_a`) is decided here, once, and
+    both parts take it."""
+    a_is_placed = placed_map_is_a(points_a, points_b)
     chance, samples, opportunities = sequential_chance(
         points_a, sizes_a, points_b, sizes_b, winner, probe, support, gate_m, max_size_difference, starts,
-        false_alarm, prior_m, dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a)
+        false_alarm, prior_m, dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a, a_is_placed=a_is_placed)
     if chance.p_value <= false_alarm:
         chance = with_rows(chance, row_chance(points_a, sizes_a, points_b, sizes_b, winner, support, gate_m,
                                               max_size_difference, z_weight, samples, opportunities, chance,
-                                              prior_m))
+                                              prior_m, a_is_placed=a_is_placed))
     return chance, samples, opportunities
 
 
