@@ -31,14 +31,8 @@ For each keyframe t, the candidate tracks are those whose latest observation (ma
   ground.
 - **Score** (`theta_q`): `q = sqrt(q_s q_f) >= min_score`, with the size score
   `q_s = 1 + cos(pi r / theta_h)` if `r = 2|h_i - h_j| / (h_i + h_j) < theta_h` else 0 (in [0, 2] as in the
-  paper) and the feature score q_f defined below.
-
-**q_f** *(ours, the paper says "fraction of SIFT features of A_i and A_j that survive Lowe's ratio test")*: match
-A_i against A_j with the ratio test in both directions (nearest / second-nearest descriptor distance within the
-other mask's set < `sift_ratio`; a set with a single descriptor has no second neighbour and passes the ratio test
-trivially) and keep mutual nearest neighbours; every kept match makes one feature of A_i and one of A_j survive, so
-`q_f = 2 |matches| / (|A_i| + |A_j|)` (a Dice coefficient, in [0, 1]; 0 when either mask has no SIFT feature).
-Descriptors are L2-normalised first, so the ratio test is scale-free.
+  paper) and the feature score q_f, the Dice fraction of mutual ratio-test matches between the two masks' SIFT
+  sets (both scores: `plugin.mask_scores`). The epipolar distances and the cheirality test: `plugin.epipolar`.
 
 Feasible pairs are assigned one-to-one by the Hungarian algorithm maximising the sum of q over all candidate tracks
 (of every age) at once; unmatched masks start new tracks. Only pairs that pass the cheap matrix gates get SIFT
@@ -61,9 +55,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from .epipolar import behind_camera, epipolar_distances
 from .geometry import Camera, Poses, pixel_rays, project
 from .ground_band import band_distances, band_segments, local_ground
 from .mask_features import MaskFeatures
+from .mask_scores import desc_index, feature_scores, size_scores
 from .params import TrackingParams
 from .truncation import (
     TruncatedViews,
@@ -76,9 +72,7 @@ from .truncation import (
 
 logger = logging.getLogger(__name__)
 
-_MIN_BASELINE_M = 1e-6  # below this the two poses share a centre; fall back to the rotation homography
 _GROUND_MIN_OBSERVATIONS = 3  # tracks whose points describe the ground for the ground band gate
-_PAIR_CHUNK_ELEMS = 4_000_000  # padded pairs x rows x cols per batched descriptor product (~16 MB float32)
 
 
 @dataclass
@@ -126,164 +120,6 @@ class TrackingResult:
     def tracks_longer_than(self, n: int) -> np.ndarray:
         """Ids of the tracks with MORE than n observations (theta_n semantics), ascending."""
         return np.flatnonzero(self._index()[3] > n).astype(np.int64)
-
-
-def fundamental_matrix(camera: Camera, poses: Poses, s: int, t: int) -> np.ndarray:
-    """F with x_t^T F x_s = 0 for pixels (COLMAP convention) of keyframes s and t of `poses`."""
-    r_cw, t_cw = poses.cam_from_world()
-    r_rel = r_cw[t] @ r_cw[s].T
-    t_rel = t_cw[t] - r_rel @ t_cw[s]
-    tx = np.array([[0.0, -t_rel[2], t_rel[1]], [t_rel[2], 0.0, -t_rel[0]], [-t_rel[1], t_rel[0], 0.0]])
-    k_inv = np.linalg.inv(camera.K)
-    f = k_inv.T @ tx @ r_rel @ k_inv
-    return f / max(np.linalg.norm(f), 1e-300)
-
-
-def _homog(xy: np.ndarray) -> np.ndarray:
-    return np.concatenate([np.asarray(xy, np.float64).reshape(-1, 2), np.ones((len(xy), 1))], axis=1)
-
-
-def epipolar_distances(camera: Camera, poses: Poses, s: int, t: int, xy_s: np.ndarray, xy_t: np.ndarray) -> np.ndarray:
-    """(n, m) symmetric epipolar distance (px, max of the two point-to-line distances) of all centroid pairs."""
-    hs, ht = _homog(xy_s), _homog(xy_t)
-    baseline = np.linalg.norm(poses.centers[t] - poses.centers[s])
-    if baseline < _MIN_BASELINE_M:
-        r_cw, _ = poses.cam_from_world()
-        h = camera.K @ r_cw[t] @ r_cw[s].T @ np.linalg.inv(camera.K)
-        p = hs @ h.T
-        p = p[:, :2] / p[:, 2:3]
-        return np.linalg.norm(p[:, None, :] - ht[None, :, :2], axis=2)
-    f = fundamental_matrix(camera, poses, s, t)
-    lines_t = hs @ f.T  # (n, 3): epipolar lines in image t of the s points
-    lines_s = ht @ f  # (m, 3): epipolar lines in image s of the t points
-    alg = hs @ f.T @ ht.T  # (n, m): x_t^T F x_s, the shared numerator
-    alg = np.abs(alg)
-    d_t = alg / np.maximum(np.linalg.norm(lines_t[:, :2], axis=1), 1e-300)[:, None]
-    d_s = alg / np.maximum(np.linalg.norm(lines_s[:, :2], axis=1), 1e-300)[None, :]
-    return np.maximum(d_t, d_s)
-
-
-def behind_camera(
-    camera: Camera, poses: Poses, s: int, t: int, xy_s: np.ndarray, xy_t: np.ndarray, slack_px: float
-) -> np.ndarray:
-    """(n, m) True where m_j lies beyond the vanishing point of the ray of m_i, i.e. at negative depth.
-
-    The ray of pixel x_i from camera s is X(Z) = C_s + Z d (Z > 0: in front of camera s). In image t it projects
-    to pi(e + Z v), with e the epipole (image of C_s) and v the image of the direction d (its vanishing point).
-    pi(e + Z v) - pi(v) = w / (v_2 (e_2 + Z v_2)) with w = v_2 e_xy - e_2 v_xy, so points at positive depth that are
-    visible in t (e_2 + Z v_2 > 0) lie on the sign(v_2) w side of the vanishing point, negative depths on the other.
-    The test is made in pixels along that direction; `slack_px` absorbs centroid and pose noise near zero parallax.
-    """
-    r_cw, t_cw = poses.cam_from_world()
-    k = camera.K
-    rays_s = _homog(xy_s) @ np.linalg.inv(k).T  # camera-s directions with unit depth
-    v = rays_s @ (k @ r_cw[t] @ r_cw[s].T).T  # (n, 3) vanishing points in image t (homogeneous)
-    e = k @ (r_cw[t] @ poses.centers[s] + t_cw[t])  # (3,) epipole in image t (homogeneous)
-    w = v[:, 2:3] * e[None, :2] - e[2] * v[:, :2]  # (n, 2) direction of positive depth from the vanishing point
-    w *= np.sign(v[:, 2:3])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        vp = v[:, :2] / v[:, 2:3]
-        w_unit = w / np.linalg.norm(w, axis=1, keepdims=True)
-        along = np.einsum("nmk,nk->nm", np.asarray(xy_t, np.float64)[None, :, :] - vp[:, None, :], w_unit)
-    return np.isfinite(along) & (along < -slack_px)
-
-
-def _desc_index(feat: MaskFeatures, descriptors: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(unit-norm descriptors sorted by owner mask, start offset per mask, count per mask). `descriptors`: the
-    features' SIFT descriptors when they are not held in `feat` (read from the keyframe cache)."""
-    k = len(feat)
-    owner = np.asarray(feat.sift_mask, np.int64).reshape(-1)
-    desc = np.asarray(feat.sift_desc if descriptors is None else descriptors, np.float32).reshape(-1, 128)
-    ok = (owner >= 0) & (owner < k)
-    owner, desc = owner[ok], desc[ok]
-    order = np.argsort(owner, kind="stable")
-    desc = desc[order]
-    desc = desc / np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
-    counts = np.bincount(owner, minlength=k).astype(np.int64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    return desc.astype(np.float32), starts, counts
-
-
-def feature_scores(
-    desc_a: tuple[np.ndarray, np.ndarray, np.ndarray],
-    desc_b: tuple[np.ndarray, np.ndarray, np.ndarray],
-    pairs_a: np.ndarray,
-    pairs_b: np.ndarray,
-    ratio: float,
-) -> np.ndarray:
-    """q_f of mask pairs (pairs_a[p] in set a, pairs_b[p] in set b): Dice fraction of mutual ratio-test matches.
-
-    `desc_*` come from `_desc_index`. All pairs are evaluated together as padded (P, n, m) distance tensors,
-    chunked to bound memory.
-    """
-    da, sa, ca = desc_a
-    db, sb, cb = desc_b
-    n_a, n_b = ca[pairs_a], cb[pairs_b]
-    out = np.zeros(len(pairs_a))
-    live = np.flatnonzero((n_a > 0) & (n_b > 0))
-    if len(live) == 0:
-        return out
-    # Chunk pairs of similar size together so padding stays small.
-    live = live[np.argsort(n_a[live] * n_b[live], kind="stable")]
-    i = 0
-    while i < len(live):
-        nmax, mmax = n_a[live[i]], n_b[live[i]]
-        j = i + 1
-        while j < len(live):
-            nn, mm = max(nmax, n_a[live[j]]), max(mmax, n_b[live[j]])
-            if (j - i + 1) * nn * mm > _PAIR_CHUNK_ELEMS:
-                break
-            nmax, mmax, j = nn, mm, j + 1
-        chunk = live[i:j]
-        out[chunk] = _feature_scores_padded(
-            da, sa[pairs_a[chunk]], n_a[chunk], db, sb[pairs_b[chunk]], n_b[chunk], int(nmax), int(mmax), ratio
-        )
-        i = j
-    return out
-
-
-def _feature_scores_padded(
-    da: np.ndarray, start_a: np.ndarray, n_a: np.ndarray, db: np.ndarray, start_b: np.ndarray, n_b: np.ndarray,
-    nmax: int, mmax: int, ratio: float,
-) -> np.ndarray:
-    ra, rb = np.arange(nmax), np.arange(mmax)
-    valid_a = ra[None, :] < n_a[:, None]  # (P, nmax)
-    valid_b = rb[None, :] < n_b[:, None]
-    ia = np.where(valid_a, start_a[:, None] + ra[None, :], 0)
-    ib = np.where(valid_b, start_b[:, None] + rb[None, :], 0)
-    a, b = da[ia], db[ib]  # (P, nmax, 128), (P, mmax, 128)
-    # contiguous (P, 128, mmax): numpy's stacked matmul takes a slow non-BLAS loop on a transposed view (~40x)
-    dot = np.matmul(a, np.ascontiguousarray(b.transpose(0, 2, 1)))
-    dist = np.sqrt(np.maximum(2.0 - 2.0 * dot, 0.0))
-    dist[~(valid_a[:, :, None] & valid_b[:, None, :])] = np.inf
-
-    def nn_ratio(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Nearest index along the last axis, and whether it passes the ratio test."""
-        nn = np.argmin(d, axis=-1)
-        if d.shape[-1] >= 2:
-            two = np.partition(d, 1, axis=-1)
-            d1, d2 = two[..., 0], two[..., 1]
-        else:
-            d1, d2 = d[..., 0], np.full(d.shape[:-1], np.inf)
-        return nn, np.isfinite(d1) & ((d1 < ratio * d2) | ~np.isfinite(d2))
-
-    nn_ab, ok_ab = nn_ratio(dist)  # (P, nmax): for each feature of A, its partner in B
-    nn_ba, ok_ba = nn_ratio(dist.transpose(0, 2, 1))  # (P, mmax)
-    back = np.take_along_axis(nn_ba, nn_ab, axis=1)  # partner's partner
-    ok_back = np.take_along_axis(ok_ba, nn_ab, axis=1)
-    mutual = ok_ab & ok_back & (back == ra[None, :]) & valid_a
-    return 2.0 * mutual.sum(axis=1) / (n_a + n_b)
-
-
-def size_scores(h_i: np.ndarray, h_j: np.ndarray, theta_h: float) -> np.ndarray:
-    """(n, m) q_s = 1 + cos(pi r / theta_h) for r < theta_h else 0, r = 2|h_i - h_j| / (h_i + h_j)."""
-    hi = np.asarray(h_i, np.float64)[:, None]
-    hj = np.asarray(h_j, np.float64)[None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = 2.0 * np.abs(hi - hj) / (hi + hj)
-    r = np.where(np.isfinite(r), r, np.inf)
-    return np.where(r < theta_h, 1.0 + np.cos(np.pi * np.minimum(r, theta_h) / theta_h), 0.0)
 
 
 def pair_scores(
@@ -342,8 +178,8 @@ def pair_scores(
     ii, jj = np.nonzero(ok)
     if len(ii) == 0:
         return q
-    desc_s = desc_s if desc_s is not None else _desc_index(feat_s)
-    desc_t = desc_t if desc_t is not None else _desc_index(feat_t)
+    desc_s = desc_s if desc_s is not None else desc_index(feat_s)
+    desc_t = desc_t if desc_t is not None else desc_index(feat_t)
     qf = feature_scores(desc_s, desc_t, np.asarray(masks_s)[ii], jj, params.sift_ratio)
     qq = np.sqrt(qs[ii, jj] * qf)
     keep = qq >= params.min_score
@@ -440,7 +276,7 @@ def track_masks(
     desc_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def descriptor_index(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return _desc_index(features[k], None if descriptors is None else descriptors(k))
+        return desc_index(features[k], None if descriptors is None else descriptors(k))
 
     n_matched = 0
     for t in range(n_kf):

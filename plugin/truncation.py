@@ -31,10 +31,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .epipolar import behind_camera, epipolar_distances
 from .geometry import Camera, Poses
 from .ground_band import band_distances, band_segments
 from .landmark_size import cut_by_border
 from .mask_features import MaskFeatures
+from .mask_scores import size_scores
 from .params import TrackingParams
 
 _EXTENT_SIGMAS = 2.0  # a disc of radius R has sigma R / 2 and h = sqrt(lambda_max) = R / 2: extent = 2 sigma
@@ -86,11 +88,9 @@ def joined_shifts(camera: Camera, feat: MaskFeatures, cut: np.ndarray, reference
 
 def truncated_size_scores(ref_sizes: np.ndarray, ref_whole: np.ndarray, sizes_t: np.ndarray, cut_t: np.ndarray,
                           theta_h: float) -> np.ndarray:
-    """(n, m) q_s (`tracking.size_scores`) with cut views as lower bounds: r counts only the difference that a cut
+    """(n, m) q_s (`mask_scores.size_scores`) with cut views as lower bounds: r counts only the difference that a cut
     view cannot explain (a cut candidate smaller than a whole reference, a whole candidate larger than a cut one);
     between two cut views r = 0."""
-    from .tracking import size_scores
-
     hi = np.asarray(ref_sizes, np.float64)[:, None]
     hj = np.asarray(sizes_t, np.float64)[None, :]
     whole_i = np.asarray(ref_whole, bool)[:, None]
@@ -109,8 +109,6 @@ def relaxed_position_gates(
 
     `predicted` (2,): where the track's point (from whole views) projects in keyframe t, NaN or None without one:
     then only the point-transfer gate applies, as in `tracking.pair_scores`."""
-    from .tracking import behind_camera, epipolar_distances
-
     ct = np.asarray(xy_t, np.float64).reshape(-1, 2) + 0.5 * shift_t
     rho_t = 0.5 * np.linalg.norm(shift_t, axis=1)
     if predicted is not None and np.all(np.isfinite(predicted)):
@@ -187,8 +185,6 @@ def _within_reach(
     (`relaxed_position_gates`; a cut mask is a candidate of every row, and testing them all cost 100x the
     tracking's time). Exact for the point-transfer and motion gates (the box centres lie within S / 2 of the
     centroids); for the epipolar gate, which moves with both points, 2 S."""
-    from .tracking import epipolar_distances
-
     n, m = len(xy_s), len(feat_t)
     ref = np.asarray(truncated.ref_sizes, np.float64)
     reach = np.zeros((n, m)) + np.linalg.norm(row_shift, axis=1)[:, None]

@@ -2,7 +2,8 @@
 assignment, determinism. The scene is built here (no shared data): objects on a plane with relief, a straight
 survey leg at 100 m, centroids projected with 3 px noise, sizes from radius * f / depth, SIFT descriptors as random
 unit vectors per object (noisy, partially re-detected per observation), plus per-frame clutter masks. The ground
-band gate (plugin/ground_band.py) at the end."""
+band gate (plugin/ground_band.py) at the end. Also the gates' geometry (plugin/epipolar.py) and the pair scores
+(plugin/mask_scores.py)."""
 
 from __future__ import annotations
 
@@ -11,18 +12,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from sosmatch.plugin.epipolar import behind_camera, epipolar_distances, fundamental_matrix
 from sosmatch.plugin.geometry import Camera, Poses, pixel_rays, project
 from sosmatch.plugin.ground_band import MIN_GROUND_POINTS, band_distances, band_segments, local_ground
 from sosmatch.plugin.mask_features import MaskFeatures
+from sosmatch.plugin.mask_scores import desc_index, feature_scores, size_scores
 from sosmatch.plugin.params import TrackingParams
-from sosmatch.plugin.tracking import (
-    behind_camera,
-    epipolar_distances,
-    feature_scores,
-    fundamental_matrix,
-    size_scores,
-    track_masks,
-)
+from sosmatch.plugin.tracking import track_masks
 
 CAM = Camera(640, 480, 800.0, 800.0, 320.0, 240.0)
 NADIR = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # world_from_camera, looking down
@@ -255,9 +251,8 @@ def test_feature_score():
     same = _unit(a[:8] + rng.normal(0, 0.03, (8, 128)))
     f1 = _features([[0, 0], [5, 5], [9, 9]], [5, 5, 5], [a, b, np.zeros((0, 128))])
     f2 = _features([[0, 0], [5, 5]], [5, 5], [same, b[:1]])
-    from sosmatch.plugin.tracking import _desc_index
 
-    qf = feature_scores(_desc_index(f1), _desc_index(f2), np.array([0, 1, 0, 2]), np.array([0, 0, 1, 0]), 0.8)
+    qf = feature_scores(desc_index(f1), desc_index(f2), np.array([0, 1, 0, 2]), np.array([0, 0, 1, 0]), 0.8)
     assert qf[0] == pytest.approx(2 * 8 / 20)  # 8 of a's 12 re-detected: all 8 survive on both sides
     assert qf[1] < 0.15  # unrelated sets: the ratio test kills almost everything
     assert qf[2] <= 2 / 13 + 1e-9  # one unrelated descriptor: at most one mutual match

@@ -217,7 +217,9 @@ def true_pair_gates(data: dict, pose_set: str, params: TrackingParams) -> dict:
     Returns percentiles (50, 95, 99) of the epipolar distance (px) and the motion z-score, and the fraction of
     true links each gate would cut at `params`: the evidence for choosing theta_a against pose noise.
     """
-    from ...plugin.tracking import _desc_index, epipolar_distances, feature_scores, gap_motion, size_scores
+    from ...plugin.epipolar import epipolar_distances
+    from ...plugin.mask_scores import desc_index, feature_scores, size_scores
+    from ...plugin.tracking import gap_motion
 
     feats, objs, cam, poses = data["features"], data["objects"], data["camera"], data[pose_set]
     epi, mot, qs, qf = [], [], [], []
@@ -235,7 +237,7 @@ def true_pair_gates(data: dict, pose_set: str, params: TrackingParams) -> dict:
         mu, sigma = gap_motion(data["motion"], t - 1, t, params.centroid_sigma_px)
         mot.append(np.abs(np.linalg.norm(xs - xt, axis=1) - mu) / sigma)
         qs.append(np.diag(size_scores(feats[t - 1].sizes[i], feats[t].sizes[j], params.size_tolerance)))
-        qf.append(feature_scores(_desc_index(feats[t - 1]), _desc_index(feats[t]), i, j, params.sift_ratio))
+        qf.append(feature_scores(desc_index(feats[t - 1]), desc_index(feats[t]), i, j, params.sift_ratio))
     epi, mot, qs, qf = (np.concatenate(x) if x else np.zeros(0) for x in (epi, mot, qs, qf))
     q = np.sqrt(qs * qf)
     return {
