@@ -347,7 +347,7 @@ def test_the_ground_field_is_where_the_sweep_starts(scene):
 def test_keyframe_images_are_read_on_demand_within_a_memory_bound(tmp_path):
     import cv2
 
-    from sosmatch.database.session_io import KeyframeImages
+    from sosmatch.database.session_images import KeyframeImages
     from sosmatch.plugin.errors import InputError
 
     rng = np.random.default_rng(1)

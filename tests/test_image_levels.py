@@ -106,7 +106,7 @@ def test_change_detection_reads_a_session_s_images_between_the_levels_its_map_re
     at 0-255 came to the surface sweep at ~12 grey levels. It now reads them between run.json's image_levels."""
     import json
 
-    from sosmatch.database.session_io import KeyframeImages, recorded_levels
+    from sosmatch.database.session_images import KeyframeImages, recorded_levels
 
     cv2.imwrite(str(tmp_path / "t0.tif"), _temperatures())
     (tmp_path / "run.json").write_text(json.dumps({"image_levels": [29400, 31300]}))

@@ -165,7 +165,7 @@ def test_a_project_moved_whole_still_finds_its_images(session, tmp_path):
     """run.json records the images relative to the session too: a project folder moved elsewhere (sessions and
     images together) found no images, and `changes` ran without their evidence (a warning only; the nineteenth
     sweep: 4 gone / 10 new where the images said 1 / 6)."""
-    from sosmatch.database.session_io import recorded_images_dir, session_images_dir
+    from sosmatch.database.session_images import recorded_images_dir, session_images_dir
 
     root, _, out, _ = session
     moved = tmp_path / "moved"
@@ -653,7 +653,7 @@ def test_a_copied_project_reads_its_own_images_not_the_originals(tmp_path):
     images path, which exists; the copy read the original's images (edits there changed the copy's results).
     The place relative to the session moves with the project and is taken first when it exists; the absolute path
     only when it does not (a session folder moved alone)."""
-    from sosmatch.database.session_io import recorded_images_dir
+    from sosmatch.database.session_images import recorded_images_dir
 
     for project in ("project", "project.copy"):
         (tmp_path / project / "images").mkdir(parents=True)

@@ -41,14 +41,8 @@ from ..database.match_io import answer_gate, check_match_maps, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import VersionedIdentity, fingerprint, versioned_identity
 from ..database.outputs import check_output_dir, open_output_dir
-from ..database.session_io import (
-    SessionFiles,
-    read_map_record,
-    read_session,
-    read_session_observations,
-    recorded_images_dir,
-    session_images_dir,
-)
+from ..database.session_images import recorded_images_dir, session_images_dir
+from ..database.session_io import SessionFiles, read_map_record, read_session, read_session_observations
 from ..plugin import __version__
 from ..plugin.changes import (
     GONE,

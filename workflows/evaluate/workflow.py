@@ -23,7 +23,8 @@ from ...database.map_loading import read_map_noise, session_map_noise
 from ...database.match_io import check_match_maps, read_match_json
 from ...database.output_markers import VersionedIdentity, check_finished, content_fingerprint, versioned_identity
 from ...database.outputs import open_output_dir
-from ...database.session_io import check_map_of_images, check_session_usable
+from ...database.session_images import check_map_of_images
+from ...database.session_io import check_session_usable
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (
     Hypothesis,

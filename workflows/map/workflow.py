@@ -252,7 +252,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     import pycolmap
 
     from ...database.flight_levels import flight_white_level
-    from ...database.session_io import format_landmarks_csv, levels_record
+    from ...database.session_images import levels_record
+    from ...database.session_io import format_landmarks_csv
     from ...plugin.flight_contrast import flight_contrast
     from ...plugin.image_quality import flight_images
     from ...plugin.jpeg_quality import flight_compression
@@ -418,7 +419,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         # what images beyond 8 bits were read between, [black, white] (database.flight_levels.flight_white_level)
         "image_levels": levels_record(white),
         "keyframes": [kf_poses.names[i] for i in range(len(kf_poses))],
-        # sha256 of each keyframe's image: which images a map was made from (session_io.check_map_of_images)
+        # sha256 of each keyframe's image: which images a map was made from (session_images.check_map_of_images)
         "keyframe_images": {inputs.poses.names[k]: digests[k] for k in keyframes},
         "counts": counts, "quality": {**quality.to_dict(), "images": images.to_dict()},
         "verdict": verdict_record(verdict, params.quality.refuse),
