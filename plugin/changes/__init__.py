@@ -71,7 +71,8 @@ nothing (`below_the_ground`; unseen, evidence `height`).
 Modules: `observations` (what a session saw), `evidence` (what the other session shows at a place, and how
 often it shows present objects), `surface` (each session's surface height at a place from its own images),
 `confidence` (the re-observation model, the fallback without segments), `support` (is the alignment plausible),
-`verdict` (`detect_changes`, `absence_probability`).
+`direct` (what the other session shows of each landmark before any containment link), `verdict` (`detect_changes`,
+`absence_probability`).
 """
 
 from .confidence import fit_logistic, predict_logistic, reobservation_features
