@@ -68,6 +68,30 @@ def versioned_identity(build: Callable[[Callable[[Any], dict[str, Any]]], Any],
                              tuple((digest(o), note) for o, note in v.otherwise))
 
 
+def read_settings_identity(envelope: Callable[[dict[str, Any]], Any], params: Any,
+                           read: tuple[str, ...]) -> VersionedIdentity:
+    """The identity `envelope(settings)` of an output of a command that reads only the settings `read` of `params`
+    (`settings`: those settings' identity dict, `plugin.params.read_params`), so that a setting it does not read
+    neither refuses nor changes its outputs. Also taken as this output: one the command made while its identity
+    held every setting (`envelope(every setting's dict)`), made with `params` as given, or with the settings it
+    does not read at their defaults, those registered later at the neutral values of the versions before them
+    (`plugin.params.identity.settings_at_rest`), in any version. A refusal's note (of an output made with other
+    behaviour of a registered setting) is kept only for an identity no such form accepts: else it could name a
+    setting the command does not read."""
+    from ..plugin.params import read_params
+    from ..plugin.params.identity import settings_at_rest
+
+    def build(as_settings: Callable[[Callable[[Any], dict[str, Any]]], dict[str, Any]]) -> Callable:
+        return lambda as_dict: envelope(as_settings(as_dict))
+
+    identity = versioned_identity(build(lambda as_dict: read_params(params, read, as_dict)))
+    for form in [*settings_at_rest(params, read), params]:
+        identity = identity.accepting(versioned_identity(build(lambda as_dict, form=form: as_dict(form))))
+    same = tuple(dict.fromkeys(i for i in identity.same_as if i != identity.today))
+    notes = tuple((i, note) for i, note in identity.otherwise if i not in same and i != identity.today)
+    return VersionedIdentity(identity.today, same, notes)
+
+
 def hash_file_into(h: Any, path: str | Path) -> int:
     """Feed the bytes of `path` to the hash `h` in 1 MiB chunks (bounded memory on a file of any size); the
     number of bytes read. OSError when it does not read."""

@@ -549,3 +549,43 @@ def test_two_images_or_poses_of_one_file_name_are_refused_naming_both(tmp_path, 
     assert (f"{root / 'two.csv'}: poses 'flight1/{poses.names[0]}' and 'flight2/{poses.names[0]}' both pair with "
             f"the image {root / 'images' / poses.names[0]}") in err
     assert not (tmp_path / "M").exists()
+
+
+@pytest.mark.parametrize("value", ["-1e9", "-1E+9", "-1_000_000.", "-inf"])
+def test_a_negative_number_in_any_float_form_reaches_the_options_own_check(tmp_path, cli_error, value):
+    """nu45: `--takeoff-altitude -1e3` was "expected one argument": argparse takes a token starting with a minus
+    for a value only in its "-1" / "-1.5" forms. Every such value now reaches the option, whose own check judges
+    it (here: beyond 100 km, or not finite)."""
+    import cv2
+
+    (tmp_path / "imgs").mkdir()
+    cv2.imwrite(str(tmp_path / "imgs" / "a.jpg"), np.zeros((8, 8, 3), np.uint8))
+    err = cli_error("poses", tmp_path / "imgs", "--out", tmp_path / "p", "--takeoff-altitude", value)
+    assert "take-off altitude must be a finite number of metres" in err and not (tmp_path / "p").exists()
+
+
+def test_every_numeric_option_takes_a_negative_value_in_any_float_form(capsys):
+    """Each float / int option of every command given a negative value in scientific, leading-dot and trailing-dot
+    form: the value reaches the option (its type parses it, or says it is not an int), never "expected one
+    argument"."""
+    from sosmatch.tools.cli import build_parser, join_negative_numbers
+
+    parser = build_parser()
+    checked = 0
+    for name, command in parser.commands.items():
+        for action in command._actions:
+            if action.type not in (float, int) or not action.option_strings or action.nargs is not None:
+                continue
+            values = ("-1e3", "-.5", "-2.", "-3") if action.type is float else ("-3",)
+            for value in ("-1e0",) if action.choices else values:  # --pitch-sign / --roll-sign: -1 or 1
+                argv = [name, action.option_strings[-1], value]
+                try:
+                    args, _ = parser.parse_known_args(join_negative_numbers(argv))
+                except SystemExit:  # a required positional is missing: the option itself was read
+                    err = capsys.readouterr().err
+                    assert "expected one argument" not in err and action.option_strings[-1] not in err, (argv, err)
+                else:
+                    assert getattr(args, action.dest) == action.type(value), argv
+                checked += 1
+    assert checked > 50
+    assert join_negative_numbers(["--a", "-1e3", "--", "-x", "-5"]) == ["--a=-1e3", "--", "-x", "-5"]

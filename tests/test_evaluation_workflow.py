@@ -324,6 +324,22 @@ def test_evaluate_options_that_make_no_evaluation_are_one_line(sessions, tmp_pat
     assert fragment in err and not (tmp_path / "E").exists()
 
 
+def test_a_sweep_floor_that_would_change_nothing_is_refused(sessions, tmp_path, cli_error):
+    """nu45: `--sweep-floor 100` (above the pair's theta_S, 6 here) was ignored silently, exit 0; so was any floor
+    with `--match` (the file's hypotheses are scored) or without the sosmatch method. Each is refused, nothing
+    written; a floor below theta_S extends the curve."""
+    _, a, b, _ = sessions
+    err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--methods", "sosmatch", "--repeats", "1",
+                    "--sweep-floor", "7")
+    assert "--sweep-floor 7 is above this pair's theta_S (6" in err and not (tmp_path / "E").exists()
+    err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--methods", "orb_ransac", "--sweep-floor", "3")
+    assert "give --methods sosmatch" in err and not (tmp_path / "E").exists()
+    err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--match", tmp_path / "m", "--sweep-floor", "3")
+    assert "a --match file is scored with the hypotheses its search kept" in err and not (tmp_path / "E").exists()
+    ev = run(Params(), a, b, tmp_path / "F", methods=["sosmatch"], repeats=1, sweep_floor=6)  # at theta_S: as none
+    assert ev["methods"]["sosmatch"]["curve_floor_theta_S"] == 6
+
+
 def test_a_session_against_itself_or_a_refused_map_is_refused(sessions, tmp_path, cli_error):
     """The eighth new-user sweep: `evaluate S1 S1` (and S1 against a byte copy) scored average F1 1.000, and a map
     that `sosmatch map` refused was scored F1 0 "limited by the front end"; match refuses both."""

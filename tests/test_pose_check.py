@@ -439,3 +439,35 @@ def test_poses_as_noisy_as_the_gate_was_made_for_are_not_called_loose(flight):
         said = [w for w in verdict.warnings if "fit the images' matches only" in w]
         assert len(said) == 1 and "of their matches beyond it" in said[0], verdict.warnings
         assert not poses_fit_images(result, limits)
+
+
+def test_a_setting_the_check_does_not_read_neither_refuses_nor_changes_its_output(flight, tmp_path, cli_error):
+    """nu45: check-poses' identity held every setting, so when tracking.truncation_aware's default flipped (fix76),
+    every earlier check-poses output was refused as made with other settings, though the check never reads it. Its
+    identity now holds the settings it reads (`CHECK_READS`); one of these at another value is still refused."""
+    out = tmp_path / "pose_check.json"
+    argv = ["check-poses", "--poses", str(flight), "--out", str(out), "-q"]
+    assert main([*argv, "--set", "tracking.truncation_aware=false", "--set", "changes.min_confidence=0.9"]) == 0
+    assert main(argv) == 0
+    err = cli_error(*argv, "--set", "pose_check.ratio=0.7")
+    assert "other inputs or settings" in err
+
+
+def test_a_check_poses_file_of_an_earlier_version_resumes_at_today_s_defaults(tmp_path):
+    """A file written before fix76 (truncation_aware off, as then) under the identity of every setting: the check
+    does not read that setting, so at today's defaults it is this output; with a setting it reads changed (the
+    epipolar gate it judges against, its own ratio) it is not, nor is one made with that setting so."""
+    from sosmatch.database.output_files import OutputFiles
+    from sosmatch.database.output_markers import fingerprint
+    from sosmatch.plugin.errors import InputError
+    from sosmatch.plugin.params import params_identity
+
+    sources, names = {"poses": "P.csv"}, ["a.jpg", "b.jpg"]
+    then = with_overrides(Params(), {"tracking.truncation_aware": False})
+    path = tmp_path / "check.json"
+    old = fingerprint({"sources": sources, "images": names, "params": params_identity(then)})
+    OutputFiles([path], "check-poses", old).write(path, "{}")
+    OutputFiles([path], "check-poses", pose_check.check_identity(sources, names, Params()))  # not refused
+    for read in ({"tracking.epipolar_margin_px": 9.0}, {"pose_check.ratio": 0.7}):
+        with pytest.raises(InputError, match="other inputs or settings"):
+            OutputFiles([path], "check-poses", pose_check.check_identity(sources, names, with_overrides(then, read)))

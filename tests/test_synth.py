@@ -539,3 +539,22 @@ def test_rendering_in_blocks_of_rows_is_byte_identical(monkeypatch):
     blocks = render_view(scene, light, cam, poses.rotations[2], poses.centers[2])
     for field in ("linear", "labels", "hit"):
         assert np.array_equal(getattr(whole, field), getattr(blocks, field)), field
+
+
+def test_a_demo_too_short_to_map_is_refused_before_rendering(tmp_path, cli_error):
+    """nu45: `demo --frames 1` rendered both sessions, then failed in map ("only 1 image(s) have a pose"; 2-5
+    frames: "the map has no landmarks"). The fewest frames follow from theta_n and the keyframe spacing: a landmark
+    needs theta_n + 1 keyframes (6 at the defaults, the demo's frames lying 7 m apart, beyond the 2 m interval)."""
+    from sosmatch.plugin.params import Params, with_overrides
+    from sosmatch.workflows.demo import DemoContext, fewest_frames
+
+    demo = DemoContext(tmp_path / "unused", 80)
+    theta_n = Params().triangulation.min_observations
+    assert fewest_frames(demo.summer, Params()) == fewest_frames(demo.winter, Params()) == theta_n + 1
+    assert fewest_frames(demo.summer, with_overrides(Params(), {"triangulation.min_observations": 3})) == 4
+    # frames 1.5 m apart: a keyframe every second frame (3 m of travel >= 2 m)
+    assert fewest_frames(SynthConfig(spacing_m=1.5), Params()) == 2 * theta_n + 1
+    for frames in (1, theta_n):
+        err = cli_error("demo", "--out", tmp_path / "d", "--frames", frames)
+        assert f"--frames {frames} is too few to map" in err and f"give at least {theta_n + 1} frames" in err
+        assert not (tmp_path / "d").exists()

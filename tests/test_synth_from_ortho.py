@@ -137,6 +137,21 @@ def test_settings_that_cannot_make_a_session_are_one_line(tmp_path, cli_error, f
     assert fragment in err and not (tmp_path / "x").exists()
 
 
+def test_altitude_and_gsd_together_are_refused(tmp_path, capsys):
+    """nu45: `--altitude 100 --gsd 2.5` rendered at 100 m (0.18 m/px): --gsd was silently ignored. Each sets the
+    other, so the pair is a usage error (and an InputError from Python), with nothing written."""
+    tif = write_geotiff(tmp_path / "geo.tif")
+    with pytest.raises(SystemExit) as stop:
+        main(["synth-from-ortho", str(tif), "--out", str(tmp_path / "x"), "--altitude", "100", "--gsd", "2.5"])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1 and "--gsd: not allowed with argument --altitude" in err
+    with pytest.raises(InputError, match="not both"):
+        synth_from_ortho(tif, tmp_path / "x", altitude_m=100.0, gsd_m=2.5)
+    assert not (tmp_path / "x").exists()
+    summary = synth_from_ortho(tif, tmp_path / "y", path="line", width=160, height=120, frames=2)  # neither: 2.5
+    assert summary["gsd_m"] == pytest.approx(2.5)
+
+
 def test_an_image_without_georeference_is_one_line_without_rasterio_s_warning(tmp_path):
     """In a process of its own, as a user runs it (pytest would catch the warning): before, rasterio's
     NotGeoreferencedWarning and its source line stood above the error."""

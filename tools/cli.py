@@ -84,19 +84,33 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
         colmap_log.minloglevel = int(os.environ["GLOG_minloglevel"])
 
 
-# A comma list of numbers whose first is negative ("-33.45,-70.66"): argparse takes any other token that starts
-# with "-" for an option, so `--geo-origin -33.45,-70.66` (the southern or western hemisphere) and `--shift -20,10`
-# failed with "expected one argument".
-_NEGATIVE_NUMBER_LIST = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)+$")
+# A value that starts with a minus: argparse takes a token for a value only when it looks like "-1" or "-1.5" (its
+# own pattern), so `--takeoff-altitude -1e3`, `--x -.5`, `--x -inf` and a comma list whose first number is negative
+# (`--geo-origin -33.45,-70.66`, the southern or western hemisphere; `--shift -20,10`) failed with "expected one
+# argument". argparse documents `--opt=VALUE` for such values; this pre-pass writes them so.
+def _is_negative_number(token: str) -> bool:
+    """A token starting with a minus that Python reads as a number, or as a comma list of numbers (no option's name
+    does)."""
+    if not token.startswith("-") or token.startswith("--"):
+        return False
+    try:
+        for part in token.split(","):
+            float(part)
+    except ValueError:
+        return False
+    return True
 
 
-def join_negative_number_lists(argv: Sequence[str]) -> list[str]:
-    """`--opt -1.5,2` -> `--opt=-1.5,2`: a long option followed by a comma list of numbers starting with a minus
-    gets it as its value (what the user meant; no option looks like that)."""
+def join_negative_numbers(argv: Sequence[str]) -> list[str]:
+    """`--opt -1e3` -> `--opt=-1e3`, `--opt -1.5,2` -> `--opt=-1.5,2`: an option followed by a number (or a comma
+    list of numbers) starting with a minus, in any form Python's float() reads, gets it as its value (what the user
+    meant); its own check then judges the value. Tokens after `--` are left alone."""
     out: list[str] = []
     for token in argv:
-        if out and out[-1].startswith("--") and "=" not in out[-1] and _NEGATIVE_NUMBER_LIST.match(token):
-            out[-1] = f"{out[-1]}={token}"
+        prev = out[-1] if out else ""
+        if "--" not in out and prev.startswith("-") and "=" not in prev and not _is_negative_number(prev) \
+                and _is_negative_number(token):
+            out[-1] = f"{prev}={token}"
         else:
             out.append(token)
     return out
@@ -105,7 +119,7 @@ def join_negative_number_lists(argv: Sequence[str]) -> list[str]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `sosmatch` console script. Returns the exit code."""
     parser = build_parser()
-    args, unknown = parser.parse_known_args(join_negative_number_lists(sys.argv[1:] if argv is None else argv))
+    args, unknown = parser.parse_known_args(join_negative_numbers(sys.argv[1:] if argv is None else argv))
     if unknown:  # argparse leaves a command's unknown flags to the top-level parser, whose help lists no flags
         # -q / -v are every command's own options: given before the command they reach no parser that knows them
         early = [t for t in unknown if t in ("-q", "--quiet", "--verbose") or re.fullmatch(r"-v+", t)]

@@ -22,6 +22,7 @@ Steps so far:
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -30,6 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from ..database.atomic import write_bytes_atomic
+from ..plugin.errors import InputError
+from ..plugin.params import Params
 from ..tools.synth.config import SynthConfig
 
 log = logging.getLogger(__name__)
@@ -134,7 +137,6 @@ def map_dir(ctx: DemoContext, which: str) -> Path:
 
 def _map(which: str) -> Callable[[DemoContext], object]:
     def step(ctx: DemoContext) -> object:
-        from ..plugin.params import Params
         from . import map as map_workflow
 
         inputs = map_workflow.load_inputs(None, getattr(ctx, f"{which}_dir"))
@@ -146,7 +148,6 @@ def _map(which: str) -> Callable[[DemoContext], object]:
 
 
 def _match(ctx: DemoContext) -> object:
-    from ..plugin.params import Params
     from . import match as match_workflow
 
     result = match_workflow.run(Params(), map_dir(ctx, "summer"), map_dir(ctx, "winter"), ctx.out / "match",
@@ -175,6 +176,23 @@ def demo_steps(ctx: DemoContext) -> list[DemoStep]:
     ]
 
 
+def fewest_frames(config: SynthConfig, params: Params) -> int:
+    """The fewest frames of the demo's flight that `map` makes a map of: a landmark needs more than theta_n
+    observations, one per keyframe, so theta_n + 1 keyframes on the first line must see its object. Keyframes lie
+    `keyframes.interval_m` of travel apart (every frame when the frames lie further apart), and theta_n is the
+    configured one as `map` lowers it for the flight's views per pass (`params.for_flight`, from the image's
+    extent along the track over the motion per keyframe; the synthetic camera's image top points along it)."""
+    from ..plugin.motion import views_per_pass
+    from ..plugin.params import for_flight
+
+    per_keyframe = max(1, math.ceil(params.keyframes.interval_m / config.spacing_m))
+    camera = config.camera()
+    motion_px = per_keyframe * config.spacing_m * camera.fx / config.altitude_m
+    views = views_per_pass(np.array([motion_px]), np.array([[0.0, -1.0]]), camera.width, camera.height)
+    theta_n = for_flight(params, views).triangulation.min_observations
+    return theta_n * per_keyframe + 1
+
+
 def run_demo(out: str | Path, frames: int = DEMO_FRAMES, force: bool = False) -> list[tuple[str, str, float]]:
     """Run every demo step into `out`; returns (step, "done" | "skipped", seconds) per step.
 
@@ -183,6 +201,12 @@ def run_demo(out: str | Path, frames: int = DEMO_FRAMES, force: bool = False) ->
     from ..database.output_markers import fingerprint
     from ..database.outputs import open_output_dir
 
+    # before rendering: a flight too short for any landmark failed in map, after both sessions were rendered (nu45)
+    configs = DemoContext(Path(out), frames)
+    needed = max(fewest_frames(c, Params()) for c in (configs.summer, configs.winter))
+    if frames < needed:
+        raise InputError(f"--frames {frames} is too few to map: a landmark needs more than theta_n views, one per "
+                         f"keyframe, on the flight's first line; give at least {needed} frames")
     identity = fingerprint({"frames": frames})
     with open_output_dir(out, "demo", identity, overwrite=force, legacy_record="sessions/summer/session.json",
                          overwrite_flag="--force") as taken:

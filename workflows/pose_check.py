@@ -29,6 +29,7 @@ from ..plugin.pose_check import PoseCheck, check_poses, judge_poses
 if TYPE_CHECKING:
     from ..database.images import Levels
     from ..database.output_files import OutputFiles
+    from ..database.output_markers import VersionedIdentity
     from ..plugin.pose_check.gps import GpsComparison
 
 log = logging.getLogger(__name__)
@@ -57,6 +58,13 @@ def image_features(paths: Sequence[Path], camera: Camera, params: PoseCheckParam
         return orb_features(image, params.max_features, params.max_image_side_px)
 
     return features
+
+
+# the settings the check reads (the identity of check-poses' outputs, `check_to_file`): its own section, and the
+# tracker's epipolar gate that it judges the poses against, scaled to the image by `image.reference_size_px`
+# (`gate_px`). Until fix81 the identity held every setting, so a mapping default that changed (fix76:
+# tracking.truncation_aware) refused every earlier check-poses output; a setting the check comes to read goes here.
+CHECK_READS = ("pose_check", "tracking.epipolar_margin_px", "image.reference_size_px")
 
 
 def gate_px(params: Params, camera: Camera) -> float:
@@ -223,6 +231,16 @@ def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Param
     return CheckResult(result, verdict, out)
 
 
+def check_identity(sources: dict, names: list[str], params: Params) -> VersionedIdentity:
+    """The identity of a check-poses output: its inputs (`sources`, the images' `names`) and the settings the check
+    reads (`CHECK_READS`). A file of an earlier sosmatch (whose identity held every setting, in any version) is this
+    one when made with these settings and the others as given or at rest (`read_settings_identity`)."""
+    from ..database.output_markers import read_settings_identity
+
+    return read_settings_identity(lambda settings: {"sources": sources, "images": names, "params": settings},
+                                  params, CHECK_READS)
+
+
 def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path,
                   refuse: bool = True, sources: dict | None = None, overwrite: bool = False,
                   epsg: int | None = None) -> CheckResult:
@@ -230,12 +248,9 @@ def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, par
     work by `database.output_files.OutputFiles` (never an input such as the pose file, never a file sosmatch did not
     write; one of this command's made from other inputs or settings is replaced only with `overwrite`)."""
     from ..database.output_files import OutputFiles
-    from ..database.output_markers import versioned_identity
 
     sources = sources or {}
     inputs = [Path(v) for v in sources.values() if v] + sorted({Path(p).parent for p in image_paths})
-    # every setting: a file of an earlier sosmatch (before a registered setting) is this one (identity_versions)
-    names = [Path(p).name for p in image_paths]  # once: the identity is built for every version
-    identity = versioned_identity(lambda as_dict: {"sources": sources, "images": names, "params": as_dict(params)})
+    identity = check_identity(sources, [Path(p).name for p in image_paths], params)
     files = OutputFiles([out], "check-poses", identity, inputs=inputs, overwrite=overwrite)
     return run(image_paths, poses, camera, params, out, refuse=refuse, sources=sources, files=files, epsg=epsg)

@@ -64,9 +64,10 @@ def noisy_poses(poses: Poses, position_sigma_m: float, attitude_sigma_deg: float
 
 MAX_PLAN_FRAMES = 100_000  # as `sosmatch synth`: a plan beyond this is a wrong spacing, not a survey
 MAX_TILT_DEG = 45.0
+DEFAULT_GSD_M = 2.5  # m/px when neither the altitude nor the GSD is given
 
 
-def check_settings(altitude_m: float | None, gsd_m: float, width: int, height: int, hfov_deg: float,
+def check_settings(altitude_m: float | None, gsd_m: float | None, width: int, height: int, hfov_deg: float,
                    frame_spacing_m: float | None, line_spacing_m: float | None, heading_deg: float | None,
                    offset_m: float, frames: int | None, max_tilt_deg: float, seed: int, jpeg_quality: int,
                    ekf_position_sigma_m: float, ekf_attitude_sigma_deg: float) -> None:
@@ -76,6 +77,9 @@ def check_settings(altitude_m: float | None, gsd_m: float, width: int, height: i
     numbers = {"altitude": altitude_m, "gsd": gsd_m, "hfov": hfov_deg, "frame spacing": frame_spacing_m,
                "line spacing": line_spacing_m, "heading": heading_deg, "offset": offset_m, "max tilt": max_tilt_deg,
                "ekf position sigma": ekf_position_sigma_m, "ekf attitude sigma": ekf_attitude_sigma_deg}
+    if altitude_m is not None and gsd_m is not None:  # each sets the other: one of them would be ignored
+        raise InputError(f"give the altitude ({altitude_m!r} m) or the GSD ({gsd_m!r} m/px), not both: the altitude "
+                         "sets the GSD (altitude / focal length in px)")
     for name, value in numbers.items():
         if value is not None and not math.isfinite(value):
             raise InputError(f"{name} must be a finite number, got {value!r}")
@@ -160,7 +164,7 @@ def run(
     out: str | Path,
     path: str = "lawnmower",
     altitude_m: float | None = None,
-    gsd_m: float = 2.5,
+    gsd_m: float | None = None,
     width: int = 640,
     height: int = 480,
     hfov_deg: float = 60.0,
@@ -179,7 +183,8 @@ def run(
     """Render the session into `out` (built in OUT/.partial, published at the end; `overwrite` replaces a session
     this command rendered with other settings, see `sosmatch.database.outputs`) and return a summary.
 
-    `altitude_m` wins over `gsd_m` (GSD = altitude / focal length in px). `frames` caps the number of frames
+    `altitude_m` or `gsd_m` (not both; neither: 2.5 m/px) sets the flight height (GSD = altitude / focal length in
+    px). `frames` caps the number of frames
     (the first ones along the path). `max_tilt_deg` adds a seeded random tilt to every view (poses stay exact).
     `ekf_*_sigma` put seeded Gaussian noise on poses_ekf.csv (independent per frame; poses.csv stays exact).
     """
@@ -190,7 +195,7 @@ def run(
     ortho = read_orthophoto(geotiff)
     camera = osess.camera_for(width, height, hfov_deg)
     if altitude_m is None:
-        altitude_m = gsd_m * camera.fx
+        altitude_m = (DEFAULT_GSD_M if gsd_m is None else gsd_m) * camera.fx
     try:
         # Tilted views shift their footprint by up to altitude * tan(tilt) per axis: keep that margin too.
         margin = altitude_m * math.tan(math.radians(max(max_tilt_deg, 0.0))) * math.sqrt(2.0)

@@ -48,7 +48,16 @@ from .presets import (
     pixel_scale,
     preset_params,
 )
-from .tree import LATER_SECTIONS, Params, mapping_params, params_from_dict, params_to_dict, with_overrides
+from .tree import (
+    LATER_SECTIONS,
+    MAP_READS,
+    Params,
+    mapping_params,
+    params_from_dict,
+    params_to_dict,
+    read_params,
+    with_overrides,
+)
 
 __all__ = [
     "ADDED",
@@ -61,6 +70,7 @@ __all__ = [
     "ImageParams",
     "KeyframeParams",
     "LATER_SECTIONS",
+    "MAP_READS",
     "MAX_COUNT",
     "PIXEL_AREAS",
     "PIXEL_LENGTHS",
@@ -81,6 +91,7 @@ __all__ = [
     "for_image",
     "fraction",
     "mapping_params",
+    "read_params",
     "non_negative",
     "one_of",
     "params_from_dict",

@@ -245,25 +245,33 @@ def identity_versions(build: Callable[[Callable[[Any], dict[str, Any]]], Any]) -
 
 
 
-def later_stages_at_rest(params: Any) -> list[Any]:
-    """`params` as a map made by an earlier version may have been made with it: the sections of the stages after a
-    map (`tree.LATER_SECTIONS`) at their defaults, but for the one figure of theirs a map uses
-    (`association.min_associations`, as `tree.mapping_params`), and the registered settings (`ADDED`) of those
-    sections that the version did not have at their neutral values (it behaved as they do). One Params per
-    distinct form, the version with every setting first. A map's identity held every setting until fix51: a map
-    made with these is a map of `params`, whatever its later settings are now (no later setting changes a map)."""
-    from .tree import LATER_SECTIONS, Params
+def settings_at_rest(params: Any, read: tuple[str, ...]) -> list[Any]:
+    """`params` as an earlier version may have made, with it, an output of a command that reads only `read`
+    (`tree.read_params`: section names, the seed, dotted settings) while its identity held every setting: the
+    settings it does not read at their defaults, and the registered ones (`ADDED`) among them that the version did
+    not have at their neutral values (it behaved as they do). One Params per distinct form, the version with every
+    setting first. Such an output is one of `params`, whatever the settings it does not read are now (a map's
+    identity held every setting until fix51; check-poses' until fix81)."""
+    from .tree import Params
+
+    def reads(name: str) -> bool:
+        return name in read or name.partition(".")[0] in read
 
     default = Params()
-    base = {name: getattr(default, name) for name in LATER_SECTIONS}
-    base["association"] = dataclasses.replace(base["association"],
-                                              min_associations=params.association.min_associations)
-    later = [a for a in ADDED if a.name.partition(".")[0] in base and a.neutral is not NO_NEUTRAL
-             and a.name != "association.min_associations"]
+    rest: dict[str, Any] = {}
+    for f in dataclasses.fields(Params):
+        if f.name in read:
+            continue
+        value = getattr(default, f.name)
+        if dataclasses.is_dataclass(value):  # the dotted settings of a section that are read keep their values
+            kept = {name.partition(".")[2] for name in read if name.partition(".")[0] == f.name}
+            value = dataclasses.replace(value, **{k: getattr(getattr(params, f.name), k) for k in kept})
+        rest[f.name] = value
+    unread = [a for a in ADDED if not reads(a.name) and a.neutral is not NO_NEUTRAL]
     forms: list[Any] = []
-    for k in range(len(later), -1, -1):  # the version without later[k:]
-        sections = dict(base)
-        for added in later[k:]:
+    for k in range(len(unread), -1, -1):  # the version without unread[k:]
+        sections = dict(rest)
+        for added in unread[k:]:
             name, _, key = added.name.partition(".")
             sections[name] = dataclasses.replace(sections[name], **{key: added.neutral})
         form = dataclasses.replace(params, **sections)

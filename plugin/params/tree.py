@@ -51,21 +51,36 @@ def params_to_dict(params: Any) -> dict[str, Any]:
 LATER_SECTIONS = ("association", "verification", "changes")  # the stages that read a map, never make one
 
 
-def mapping_params(params: Params, as_dict: Callable[[Any], dict[str, Any]] = params_to_dict) -> dict[str, Any]:
-    """The parameters a map depends on, as a nested dict: every section but those of the stages after it
-    (`LATER_SECTIONS`), and the one figure of theirs a map uses (theta_S, `association.min_associations`: the
-    quality check counts the landmarks a match needs). A batch resumes a flight's map while these are
-    unchanged, so a setting of matching or change detection does not map every flight again. `as_dict`: how
-    Params becomes a dict (an identity's: `identity.params_identity`, or an earlier version's)."""
-    # section by section: a later section never reaches `as_dict`, so an earlier version's (which refuses a setting
-    # it did not have at a non-neutral value) is not refused for a setting no map reads
+def read_params(params: Params, read: tuple[str, ...],
+                as_dict: Callable[[Any], dict[str, Any]] = params_to_dict) -> dict[str, Any]:
+    """The settings a command reads (`read`: top-level names, i.e. sections and the seed, and dotted settings of
+    other sections) as a nested dict, for the identity of its outputs: a setting it does not read then neither
+    refuses nor changes them. `as_dict`: how a section becomes a dict (an identity's: `identity.params_identity`,
+    or an earlier version's); section by section, so that a section not read never reaches it (an earlier
+    version's refuses a setting it did not have at a non-neutral value)."""
     out = {}
     for f in dataclasses.fields(params):
-        if f.name not in LATER_SECTIONS:
+        if f.name in read:
             value = getattr(params, f.name)
             out[f.name] = as_dict(value) if dataclasses.is_dataclass(value) else value
-    out["association.min_associations"] = params.association.min_associations
+    for name in read:
+        if "." in name:
+            section, key = name.split(".")
+            out[name] = getattr(getattr(params, section), key)
     return out
+
+
+# what a map reads: every section but those of the stages after it (`LATER_SECTIONS`), and the one figure of theirs
+# a map uses (theta_S, `association.min_associations`: the quality check counts the landmarks a match needs)
+MAP_READS = (*(f.name for f in dataclasses.fields(Params) if f.name not in LATER_SECTIONS),
+             "association.min_associations")
+
+
+def mapping_params(params: Params, as_dict: Callable[[Any], dict[str, Any]] = params_to_dict) -> dict[str, Any]:
+    """The parameters a map depends on (`MAP_READS`), as a nested dict (`read_params`). A batch resumes a flight's
+    map while these are unchanged, so a setting of matching or change detection does not map every flight again.
+    `as_dict`: how Params becomes a dict (an identity's: `identity.params_identity`, or an earlier version's)."""
+    return read_params(params, MAP_READS, as_dict)
 
 
 def _coerce(value: Any, annotation: Any, where: str) -> Any:

@@ -11,7 +11,8 @@ HELP = "run the end-to-end demo (summer and winter sessions, contact sheet, then
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("demo_out"), help="output directory (default demo_out)")
-    parser.add_argument("--frames", type=int, default=80, help="frames per synthetic session (default 80)")
+    parser.add_argument("--frames", type=int, default=80, help="frames per synthetic session (default 80; at least "
+                        "theta_n + 1, 6 at the defaults, so that map finds landmarks)")
     parser.add_argument("--force", action="store_true",
                         help="re-run steps whose outputs already exist, replacing them (also needed to redo a demo "
                              "made with another --frames)")

@@ -28,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-height", type=float, default=0.0, help="height of the flat ground (m, default 0) "
                         "for sessions without terrain.npz when no --dem is given (unused otherwise)")
     parser.add_argument("--sweep-floor", type=int, help="theta_S floor of the precision-recall sweep (default: the "
-                        "configured theta_S; lower extends the curve at a much higher cost)")
+                        "search's theta_S; lower extends the curve at a much higher cost; above it, with --match or "
+                        "without the sosmatch method: refused)")
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats of the search (median)")
     parser.add_argument("--max-observers", type=int, help="claims use only the N observers nearest each landmark")
     parser.add_argument("--no-overlap-test", action="store_true",

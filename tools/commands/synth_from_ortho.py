@@ -17,8 +17,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a session this command rendered there with other settings")
     parser.add_argument("--path", default="lawnmower", choices=["lawnmower", "line", "cross"])
-    parser.add_argument("--altitude", type=float, help="metres above the ground (default: from --gsd)")
-    parser.add_argument("--gsd", type=float, default=2.5, help="ground sampling distance in m/px (default 2.5)")
+    height = parser.add_mutually_exclusive_group()  # each sets the other (GSD = altitude / focal length in px)
+    height.add_argument("--altitude", type=float, help="metres above the ground (default: from --gsd)")
+    height.add_argument("--gsd", type=float, help="ground sampling distance in m/px, sets the altitude (default 2.5; "
+                        "not with --altitude)")
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--hfov", type=float, default=60.0, help="horizontal field of view, degrees")

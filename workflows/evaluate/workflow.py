@@ -127,6 +127,7 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
                                 common_frame=common, first_try=first_try, wider_try=derivation.wider_try,
                                 near_try=derivation.near_try)
             times.append(time.perf_counter() - t0)
+            _check_sweep_floor(sweep_floor, (answer.searched or assoc_params).min_associations)
         result = answer.search
         # the parameters of the search whose hypotheses these are: the first of two searches keeps the configured
         # windows and theta_S (`first_search_params`), so its operating point is the configured theta_S
@@ -288,18 +289,32 @@ def _jsonable(res: dict) -> dict:
     return keep
 
 
+def _check_sweep_floor(sweep_floor: int | None, theta_s: int) -> None:
+    """A floor above the search's theta_S (derived per pair, so known only once the search has run) would change
+    nothing: the curve already starts at theta_S (nu45: `--sweep-floor 100` was ignored silently)."""
+    if sweep_floor is not None and sweep_floor > theta_s:
+        raise InputError(f"--sweep-floor {sweep_floor} is above this pair's theta_S ({theta_s}, where the curve "
+                         "already starts): a floor only extends the curve below theta_S; give a smaller one or "
+                         "leave it out")
+
+
 def check_options(ground_height: float, sweep_floor: int | None, repeats: int, max_observers: int | None,
-                  baseline_threads: int) -> None:
+                  baseline_threads: int, methods: Sequence[str] = METHODS, match_dir: str | Path | None = None) -> None:
     """Refuse (one-line InputError naming the option) values that make no evaluation. Before: --max-observers 0
     left every landmark without an observer and scored F1 0.000 'limited by front end' with exit 0, a negative
     one sliced observers off the wrong end, a NaN ground height gave NaN footprints, and --repeats / --sweep-floor
-    / --baseline-threads below their meaning were taken silently."""
+    / --baseline-threads below their meaning were taken silently; --sweep-floor is refused where no search of
+    evaluate's own runs (it was ignored)."""
     if not math.isfinite(ground_height) or abs(ground_height) > 1e5:
         raise InputError(f"--ground-height must be a finite height in metres (within 100 km), got {ground_height!r}")
     if max_observers is not None and max_observers < 1:
         raise InputError(f"--max-observers must be at least 1 (or left out: every observer), got {max_observers}")
     if sweep_floor is not None and sweep_floor < 2:
         raise InputError(f"--sweep-floor must be at least 2 (the smallest theta_S), got {sweep_floor}")
+    if sweep_floor is not None and ("sosmatch" not in methods or match_dir is not None):
+        raise InputError("--sweep-floor sets the floor of evaluate's own sosmatch search: " + (
+            "a --match file is scored with the hypotheses its search kept" if match_dir is not None else
+            "give --methods sosmatch (or leave --sweep-floor out)"))
     if repeats < 1:
         raise InputError(f"--repeats must be at least 1, got {repeats}")
     if baseline_threads < 0:
@@ -340,7 +355,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         raise InputError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
     if not methods:  # `--methods ''` wrote an evaluation without a row, exit 0
         raise InputError(f"no method to evaluate: give one or more of {', '.join(METHODS)}")
-    check_options(ground_height, sweep_floor, repeats, max_observers, baseline_threads)
+    check_options(ground_height, sweep_floor, repeats, max_observers, baseline_threads, methods, match_dir)
     check_two_sessions(session_a, session_b, map_a, map_b, "sosmatch" in methods)
     case = case or f"{session_a.name} vs {session_b.name}"
     inputs = [session_a, session_b, map_a, map_b, match_dir, dem]

@@ -12,10 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from ...database.colmap_db import check_database_writable
-from ...database.output_markers import VersionedIdentity, versioned_identity
+from ...database.output_markers import VersionedIdentity, read_settings_identity
 from ...database.outputs import OutputDir, open_output_dir
-from ...plugin.params import Params, mapping_params
-from ...plugin.params.identity import later_stages_at_rest
+from ...plugin.params import MAP_READS, Params
 
 COMMAND = "map"
 RECORD = "run.json"  # written last: the run's record (parameters, fingerprints, counts)
@@ -35,25 +34,14 @@ def take_output_dir(out_dir: str | Path, identity: str | VersionedIdentity, inpu
 
 def map_identity(inputs: Any, params: Params, text_model: bool, masks: str) -> VersionedIdentity:
     """A map's identity: its inputs (`inputs`: their fingerprint, or the identity of the source its poses are made
-    from), the parameters a map depends on (`plugin.params.mapping_params`: no setting of matching or change
-    detection), the sparse model's format and where the masks come from.
+    from), the parameters a map depends on (`plugin.params.MAP_READS`, `mapping_params`: no setting of matching or
+    change detection), the sparse model's format and where the masks come from.
 
     Until fix51 it held every parameter, so a map re-run with another later-stage setting was refused, and a
     later-stage setting registered with a non-neutral default (`plugin.params.identity.ADDED`) refused every
     earlier map (rev24). Such a map is this one when made with the later settings given now, or at their defaults
-    (those its version lacked at their neutral values, `later_stages_at_rest`): those identities, in every earlier
+    (those its version lacked at their neutral values, `settings_at_rest`): those identities, in every earlier
     version, are among its own (`same_as`); a refusal names a registered mapping setting that behaves otherwise
-    here, as before."""
-
-    def build(as_params: Any) -> Any:
-        return lambda as_dict: {"inputs": inputs, "params": as_params(as_dict), "text_model": text_model,
-                                "masks": masks}
-
-    identity = versioned_identity(build(lambda as_dict: mapping_params(params, as_dict)))
-    forms = [*later_stages_at_rest(params), params]
-    for form in forms:
-        identity = identity.accepting(versioned_identity(build(lambda as_dict, form=form: as_dict(form))))
-    same = tuple(dict.fromkeys(i for i in identity.same_as if i != identity.today))
-    # a form's refusal note for an identity another form accepts would name a later setting: never given
-    notes = tuple((i, note) for i, note in identity.otherwise if i not in same and i != identity.today)
-    return VersionedIdentity(identity.today, same, notes)
+    here, as before (`database.output_markers.read_settings_identity`)."""
+    return read_settings_identity(lambda settings: {"inputs": inputs, "params": settings, "text_model": text_model,
+                                                    "masks": masks}, params, MAP_READS)
