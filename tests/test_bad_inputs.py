@@ -589,3 +589,19 @@ def test_every_numeric_option_takes_a_negative_value_in_any_float_form(capsys):
                 checked += 1
     assert checked > 50
     assert join_negative_numbers(["--a", "-1e3", "--", "-x", "-5"]) == ["--a=-1e3", "--", "-x", "-5"]
+
+
+def test_a_flag_taking_no_value_leaves_a_negative_looking_positional_alone():
+    """`export --csv -1 --out y.csv` (a map folder named -1): --csv takes no value, so -1 stays the positional
+    (joined as --csv=-1, argparse refused it: 'ignored explicit argument'); a valued option, also abbreviated, still
+    takes its negative number."""
+    from sosmatch.tools.cli import _command_takes_value, build_parser, join_negative_numbers
+
+    parser = build_parser()
+    for argv, source in ((["export", "--csv", "-1", "--out", "y.csv"], "-1"),
+                         (["export", "--csv", "-q", "-1", "--out", "y.csv"], "-1")):
+        args = parser.parse_args(join_negative_numbers(argv, _command_takes_value(parser, argv)))
+        assert str(args.source) == source and args.out.name == "y.csv", argv
+    argv = ["export", "map", "--csv", "--out", "y.csv", "--eps", "-5"]
+    args, _ = parser.parse_known_args(join_negative_numbers(argv, _command_takes_value(parser, argv)))
+    assert args.epsg == -5

@@ -15,7 +15,7 @@ import os
 import pkgutil
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NoReturn
 
@@ -101,25 +101,53 @@ def _is_negative_number(token: str) -> bool:
     return True
 
 
-def join_negative_numbers(argv: Sequence[str]) -> list[str]:
-    """`--opt -1e3` -> `--opt=-1e3`, `--opt -1.5,2` -> `--opt=-1.5,2`: an option followed by a number (or a comma
-    list of numbers) starting with a minus, in any form Python's float() reads, gets it as its value (what the user
-    meant); its own check then judges the value. Tokens after `--` are left alone."""
+def value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """The option strings of `parser` that take a value (not the flags such as -q, --csv, --ekf)."""
+    return {name for action in parser._actions if action.nargs != 0 for name in action.option_strings}
+
+
+def join_negative_numbers(argv: Sequence[str], takes_value: Callable[[str], bool] | None = None) -> list[str]:
+    """`--opt -1e3` -> `--opt=-1e3`, `--opt -1.5,2` -> `--opt=-1.5,2`: an option that takes a value followed by a
+    number (or a comma list of numbers) starting with a minus, in any form Python's float() reads, gets it as its
+    value (what the user meant); its own check then judges the value. A flag taking no value (`takes_value` says
+    which: by default any option) leaves the token alone, as a positional (a folder named -1 after --csv). Tokens
+    after `--` are left alone."""
     out: list[str] = []
+    past_separator = False  # one flag, not a scan of `out` per token: argv may hold tens of thousands of paths
     for token in argv:
         prev = out[-1] if out else ""
-        if "--" not in out and prev.startswith("-") and "=" not in prev and not _is_negative_number(prev) \
-                and _is_negative_number(token):
+        if not past_separator and prev.startswith("-") and "=" not in prev and not _is_negative_number(prev) \
+                and _is_negative_number(token) and (takes_value is None or takes_value(prev)):
             out[-1] = f"{prev}={token}"
         else:
             out.append(token)
+            past_separator = past_separator or token == "--"
     return out
+
+
+def _command_takes_value(parser: argparse.ArgumentParser, argv: Sequence[str]) -> Callable[[str], bool]:
+    """Which option strings of the command named in `argv` take a value; an abbreviation (argparse takes unique
+    prefixes) counts when every option it may stand for takes one."""
+    command = next((t for t in argv if not t.startswith("-")), None)
+    sub = parser.commands.get(command) if command is not None else None
+    if sub is None:
+        return lambda option: False
+    valued = value_options(sub)
+    every = {name for action in sub._actions for name in action.option_strings}
+
+    def takes_value(option: str) -> bool:
+        if option in every:
+            return option in valued
+        candidates = [name for name in every if option.startswith("--") and name.startswith(option)]
+        return bool(candidates) and all(name in valued for name in candidates)
+    return takes_value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `sosmatch` console script. Returns the exit code."""
     parser = build_parser()
-    args, unknown = parser.parse_known_args(join_negative_numbers(sys.argv[1:] if argv is None else argv))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args, unknown = parser.parse_known_args(join_negative_numbers(argv, _command_takes_value(parser, argv)))
     if unknown:  # argparse leaves a command's unknown flags to the top-level parser, whose help lists no flags
         # -q / -v are every command's own options: given before the command they reach no parser that knows them
         early = [t for t in unknown if t in ("-q", "--quiet", "--verbose") or re.fullmatch(r"-v+", t)]
