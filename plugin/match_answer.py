@@ -88,6 +88,17 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     georeference (its theta_S from the chance model within the prior, `DerivedSearch.near_try`); None:
     `params.association`'s.
     """
+    # one process at a time compiles into numba's shared cache (`kernel_cache.compile_lock`): a no-op once compiled
+    with kernel_cache.compile_lock():
+        return _match_maps(points_a, sizes_a, points_b, sizes_b, params, common_frame, exhaustive, verify, first_try,
+                           wider_try, near_try)
+
+
+def _match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,
+                params: Params, common_frame: bool = False, exhaustive: bool = False,
+                verify: bool | None = None, first_try: AssociationParams | None = None,
+                wider_try: AssociationParams | None = None, near_try: AssociationParams | None = None) -> MatchAnswer:
+    """`match_maps` inside the kernels' compile lock."""
     compiling = kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so
     t0 = time.perf_counter()
     prior = "off"

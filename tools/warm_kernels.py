@@ -27,6 +27,12 @@ log = logging.getLogger(__name__)
 
 def warm_kernels() -> tuple[int, int, float]:
     """Compile the searches' kernels; returns (kernels without a cache entry before, after, CPU seconds)."""
+    with kernel_cache.compile_lock():  # another process compiling: wait, then find them cached
+        return _warm_kernels()
+
+
+def _warm_kernels() -> tuple[int, int, float]:
+    """`warm_kernels` inside the compile lock."""
     from ..plugin.association import associate
     from ..plugin.association.synthetic import survey_map_pair
     from ..plugin.match_answer import match_maps

@@ -13,6 +13,12 @@ runs once per process, under a file lock (pytest-xdist and pool workers import c
 `announce_compile()` says so, once, before a search would compile the kernels (the first match after an install
 or a change of their sources: minutes of CPU, for maps that then match in seconds); `tools.warm_kernels`
 compiles them ahead (`make install` runs it). Either writes a marker with the sources' digest when done.
+
+`compile_lock()` lets one process at a time compile into the cache: numba's cache is not safe when two processes
+write entries of one function at once (numba issue #4807; two pytest-xdist workers compiling on a cold cache left
+an index naming another signature's machine code, and the next search segfaulted in `windowed_search`). A
+`batch --workers 2` or two `sosmatch match` started together after an install without `make install` are the
+users' case. Once the kernels are compiled for these sources the lock is not taken.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import importlib
 import logging
 import os
 import pkgutil
+from collections.abc import Iterator
 from pathlib import Path
 
 logger = logging.getLogger(__name__)
@@ -36,6 +43,8 @@ COMPILED_NAME = "sosmatch-kernels.compiled"  # the sources' digest, once the sea
 COMPILE_CPU_S_PER_KERNEL = 1.5
 _refreshed: set[Path] = set()
 _announced: list[bool] = []
+COMPILE_LOCK_NAME = "sosmatch-kernels.compile.lock"
+_compile_lock_depth: list[int] = [0]  # this process holds the lock while > 0 (a flock is not re-entrant)
 
 
 def sources_digest(package_dir: Path = PACKAGE_DIR) -> str:
@@ -154,6 +163,37 @@ def announce_compile() -> bool:
         return False
     logger.info("%s (`make install` compiles them ahead)", compile_message(len(missing), len(kernels())))
     return True
+
+
+@contextlib.contextmanager
+def compile_lock(package_dir: Path = PACKAGE_DIR) -> Iterator[None]:
+    """Hold the package's compile lock while this process may compile kernels into the shared cache (module doc):
+    a second process that needs them waits, then loads what the first compiled. No lock once the kernels are
+    compiled for these sources, or when the cache directory cannot hold one (numba then compiles as before).
+    Re-entrant within a process (a match inside `tools.warm_kernels`)."""
+    if _compile_lock_depth[0] or compiled_for_these_sources(package_dir):
+        _compile_lock_depth[0] += 1
+        try:
+            yield
+        finally:
+            _compile_lock_depth[0] -= 1
+        return
+    try:
+        directory = cache_dir(package_dir)
+        directory.mkdir(parents=True, exist_ok=True)
+        lock = open(directory / COMPILE_LOCK_NAME, "a")  # noqa: SIM115 - held across the yield
+    except OSError as error:
+        logger.debug("kernel compile lock not taken: %s", error)
+        lock = None
+    try:
+        if lock is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        _compile_lock_depth[0] += 1
+        yield
+    finally:
+        _compile_lock_depth[0] = max(0, _compile_lock_depth[0] - 1)
+        if lock is not None:
+            lock.close()  # closing the descriptor releases the flock
 
 
 def refresh(package_dir: Path = PACKAGE_DIR) -> None:
