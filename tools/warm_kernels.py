@@ -28,7 +28,9 @@ log = logging.getLogger(__name__)
 def warm_kernels() -> tuple[int, int, float]:
     """Compile the searches' kernels; returns (kernels without a cache entry before, after, CPU seconds)."""
     with kernel_cache.compile_lock():  # another process compiling: wait, then find them cached
-        return _warm_kernels()
+        counts = _warm_kernels()
+        kernel_cache.mark_compiled()  # inside the lock: a process waiting for it then finds them compiled
+        return counts
 
 
 def _warm_kernels() -> tuple[int, int, float]:
