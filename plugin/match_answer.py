@@ -89,9 +89,12 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     `params.association`'s.
     """
     # one process at a time compiles into numba's shared cache (`kernel_cache.compile_lock`): a no-op once compiled
-    with kernel_cache.compile_lock():
-        return _match_maps(points_a, sizes_a, points_b, sizes_b, params, common_frame, exhaustive, verify, first_try,
-                           wider_try, near_try)
+    with kernel_cache.compile_lock() as holding:
+        answer = _match_maps(points_a, sizes_a, points_b, sizes_b, params, common_frame, exhaustive, verify,
+                             first_try, wider_try, near_try)
+        if holding:  # compiled under the lock: the next process need not take it (even when nothing was announced)
+            kernel_cache.mark_compiled()
+    return answer
 
 
 def _match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,

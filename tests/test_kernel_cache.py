@@ -123,16 +123,20 @@ def test_warm_kernels_help_prints_usage_without_compiling(capsys, monkeypatch) -
     assert done.value.code == 0 and "usage:" in capsys.readouterr().out
 
 
-def test_a_process_compiling_into_the_cache_holds_the_others_until_it_is_done(tmp_path, monkeypatch):
+def test_a_process_compiling_into_the_cache_holds_the_others_until_it_is_done(tmp_path, monkeypatch, caplog):
     """Two processes compiling into numba's cache at once can leave entries that segfault on load (numba #4807:
     two xdist workers on a cold cache). While another process holds the compile lock, a search that must compile
-    waits for it: the child writes `released` before it lets go, so the lock's holder here always finds it; the
-    lock is re-entrant in one process (warm_kernels runs match_maps inside it)."""
+    says so and waits for it: the child writes `released` before it lets go, so the lock's holder here always
+    finds it. Compiled meanwhile (here: once released), the waiter does not keep the lock (rev32 K4: N workers
+    then waited for N - 1 whole matches). Re-entrant in one thread (warm_kernels runs match_maps inside it)."""
+    import logging
     import time
 
-    monkeypatch.setattr(kernel_cache, "compiled_for_these_sources", lambda package_dir=None: False)
+    released = tmp_path / "released"
+    compiled = [False]
+    monkeypatch.setattr(kernel_cache, "compiled_for_these_sources", lambda package_dir=None: compiled[0])
     monkeypatch.setattr(kernel_cache, "cache_dir", lambda package_dir=None: tmp_path)
-    ready, released = tmp_path / "ready", tmp_path / "released"
+    ready = tmp_path / "ready"
     child = subprocess.Popen([sys.executable, "-c", (
         "import fcntl, pathlib, sys, time\n"
         f"lock = open({str(tmp_path / kernel_cache.COMPILE_LOCK_NAME)!r}, 'a')\n"
@@ -144,10 +148,30 @@ def test_a_process_compiling_into_the_cache_holds_the_others_until_it_is_done(tm
         while not ready.exists() and child.poll() is None:
             time.sleep(0.01)
         assert ready.exists()
-        with kernel_cache.compile_lock():
-            assert released.exists()
-            with kernel_cache.compile_lock():  # re-entrant: no deadlock on its own lock
-                pass
+        with caplog.at_level(logging.INFO, logger=kernel_cache.__name__), kernel_cache.compile_lock() as holding:
+            assert released.exists() and holding
+            with kernel_cache.compile_lock() as inner:  # re-entrant: no deadlock on its own lock
+                assert not inner
+        assert "waiting for another sosmatch process" in caplog.text
     finally:
         child.wait(timeout=60)
     assert child.returncode == 0
+    # compiled by the process waited for: the waiter goes on without the lock
+    released.unlink()
+    ready.unlink()
+    child = subprocess.Popen([sys.executable, "-c", (
+        "import fcntl, pathlib, time\n"
+        f"lock = open({str(tmp_path / kernel_cache.COMPILE_LOCK_NAME)!r}, 'a')\n"
+        "fcntl.flock(lock, fcntl.LOCK_EX)\n"
+        f"pathlib.Path({str(ready)!r}).touch()\n"
+        "time.sleep(1.0)\n"
+        f"pathlib.Path({str(released)!r}).touch()\n")])
+    try:
+        while not ready.exists() and child.poll() is None:
+            time.sleep(0.01)
+        monkeypatch.setattr(kernel_cache, "compiled_for_these_sources",
+                            lambda package_dir=None: compiled[0] or released.exists())
+        with kernel_cache.compile_lock() as holding:
+            assert released.exists() and not holding
+    finally:
+        child.wait(timeout=60)

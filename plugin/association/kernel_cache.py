@@ -30,6 +30,7 @@ import importlib
 import logging
 import os
 import pkgutil
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -44,7 +45,7 @@ COMPILE_CPU_S_PER_KERNEL = 1.5
 _refreshed: set[Path] = set()
 _announced: list[bool] = []
 COMPILE_LOCK_NAME = "sosmatch-kernels.compile.lock"
-_compile_lock_depth: list[int] = [0]  # this process holds the lock while > 0 (a flock is not re-entrant)
+_lock_depth = threading.local()  # n > 0: this thread is inside compile_lock (a flock is not re-entrant)
 
 
 def sources_digest(package_dir: Path = PACKAGE_DIR) -> str:
@@ -166,32 +167,40 @@ def announce_compile() -> bool:
 
 
 @contextlib.contextmanager
-def compile_lock(package_dir: Path = PACKAGE_DIR) -> Iterator[None]:
+def compile_lock(package_dir: Path = PACKAGE_DIR) -> Iterator[bool]:
     """Hold the package's compile lock while this process may compile kernels into the shared cache (module doc):
-    a second process that needs them waits, then loads what the first compiled. No lock once the kernels are
-    compiled for these sources, or when the cache directory cannot hold one (numba then compiles as before).
-    Re-entrant within a process (a match inside `tools.warm_kernels`)."""
-    if _compile_lock_depth[0] or compiled_for_these_sources(package_dir):
-        _compile_lock_depth[0] += 1
-        try:
-            yield
-        finally:
-            _compile_lock_depth[0] -= 1
+    a second process that needs them says so in one line, waits, then loads what the first compiled. Yields
+    whether this call holds the lock (the caller then `mark_compiled` when done, inside it). No lock once the
+    kernels are compiled for these sources (checked again after a wait), nor where the cache directory cannot hold
+    one (no flock there: numba then compiles as before). Re-entrant within a thread (a match inside
+    `tools.warm_kernels`); another thread of the process waits like another process."""
+    if getattr(_lock_depth, "n", 0) or compiled_for_these_sources(package_dir):
+        yield False
         return
+    lock = None
     try:
         directory = cache_dir(package_dir)
         directory.mkdir(parents=True, exist_ok=True)
         lock = open(directory / COMPILE_LOCK_NAME, "a")  # noqa: SIM115 - held across the yield
-    except OSError as error:
-        logger.debug("kernel compile lock not taken: %s", error)
-        lock = None
-    try:
-        if lock is not None:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            logger.info("waiting for another sosmatch process that is compiling the search kernels (once per "
+                        "install)")
             fcntl.flock(lock, fcntl.LOCK_EX)
-        _compile_lock_depth[0] += 1
-        yield
+    except OSError as error:  # no lock file, or a file system without flock (some NFS / Lustre mounts)
+        logger.debug("kernel compile lock not taken: %s", error)
+        if lock is not None:
+            lock.close()
+        lock = None
+    if lock is not None and compiled_for_these_sources(package_dir):  # compiled while this process waited
+        lock.close()
+        lock = None
+    _lock_depth.n = getattr(_lock_depth, "n", 0) + 1
+    try:
+        yield lock is not None
     finally:
-        _compile_lock_depth[0] = max(0, _compile_lock_depth[0] - 1)
+        _lock_depth.n -= 1
         if lock is not None:
             lock.close()  # closing the descriptor releases the flock
 
