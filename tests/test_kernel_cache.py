@@ -137,13 +137,7 @@ def test_a_process_compiling_into_the_cache_holds_the_others_until_it_is_done(tm
     monkeypatch.setattr(kernel_cache, "compiled_for_these_sources", lambda package_dir=None: compiled[0])
     monkeypatch.setattr(kernel_cache, "cache_dir", lambda package_dir=None: tmp_path)
     ready = tmp_path / "ready"
-    child = subprocess.Popen([sys.executable, "-c", (
-        "import fcntl, pathlib, sys, time\n"
-        f"lock = open({str(tmp_path / kernel_cache.COMPILE_LOCK_NAME)!r}, 'a')\n"
-        "fcntl.flock(lock, fcntl.LOCK_EX)\n"
-        f"pathlib.Path({str(ready)!r}).touch()\n"
-        "time.sleep(1.0)\n"
-        f"pathlib.Path({str(released)!r}).touch()\n")])
+    child = _hold_the_lock(tmp_path, ready, released)
     try:
         while not ready.exists() and child.poll() is None:
             time.sleep(0.01)
@@ -159,13 +153,7 @@ def test_a_process_compiling_into_the_cache_holds_the_others_until_it_is_done(tm
     # compiled by the process waited for: the waiter goes on without the lock
     released.unlink()
     ready.unlink()
-    child = subprocess.Popen([sys.executable, "-c", (
-        "import fcntl, pathlib, time\n"
-        f"lock = open({str(tmp_path / kernel_cache.COMPILE_LOCK_NAME)!r}, 'a')\n"
-        "fcntl.flock(lock, fcntl.LOCK_EX)\n"
-        f"pathlib.Path({str(ready)!r}).touch()\n"
-        "time.sleep(1.0)\n"
-        f"pathlib.Path({str(released)!r}).touch()\n")])
+    child = _hold_the_lock(tmp_path, ready, released)
     try:
         while not ready.exists() and child.poll() is None:
             time.sleep(0.01)
@@ -175,3 +163,15 @@ def test_a_process_compiling_into_the_cache_holds_the_others_until_it_is_done(tm
             assert released.exists() and not holding
     finally:
         child.wait(timeout=60)
+
+
+def _hold_the_lock(tmp_path: Path, ready: Path, released: Path) -> subprocess.Popen:
+    """A child process that takes the compile lock in `tmp_path`, touches `ready`, holds it a second, then touches
+    `released` before it exits (and so lets go)."""
+    return subprocess.Popen([sys.executable, "-c", (
+        "import fcntl, pathlib, time\n"
+        f"lock = open({str(tmp_path / kernel_cache.COMPILE_LOCK_NAME)!r}, 'a')\n"
+        "fcntl.flock(lock, fcntl.LOCK_EX)\n"
+        f"pathlib.Path({str(ready)!r}).touch()\n"
+        "time.sleep(1.0)\n"
+        f"pathlib.Path({str(released)!r}).touch()\n")])
