@@ -420,8 +420,8 @@ def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, 
     Two placements of B share no chance pair once B moved by more than a gate diameter (2 gate_m: every
     landmark's gate disc has left its old one), or turned by more than 2 gate_m / R_B (R_B: the RMS horizontal
     distance of B's landmarks from their centroid, so a typical landmark moved that far). So the translations
-    over A's footprint (its horizontal bounding box; with a position prior the disc of radius `prior_m`, if
-    smaller) hold area / (2 gate_m)^2 independent cells, and the yaws (a full turn; with a prior at most
+    over A's footprint (its horizontal bounding box; with a position prior the disc of radius `prior_m` that the
+    chance samples cover) hold area / (2 gate_m)^2 independent cells, and the yaws (a full turn; with a prior at most
     +-prior_m / R_B) hold yaw range / (2 gate_m / R_B) of them. A 220 m x 240 m map at a 2.9 m gate and R_B
     ~90 m: ~1,600 x ~100 = 1.6e5. (Counting the search's 48 yaw slices instead would ignore that within one
     slice a turn of 7.5 degrees moves far landmarks by ten gates.) A count of the pair, whatever the order: the
@@ -437,7 +437,10 @@ def effective_trials(points_a: np.ndarray, points_b: np.ndarray, gate_m: float, 
     radius_b = _horizontal_radius(pb)
     yaw_range = 2.0 * np.pi
     if prior_m > 0:
-        area = min(area, np.pi * prior_m**2)
+        # the disc the samples cover (`chance_placements`: B moved anywhere within the prior), also where it
+        # reaches past A's footprint: q is their mean over the whole disc, placements off A included, so N_eff
+        # counts the same measure (min(box, disc) undercounted small maps' trials by up to disc / box: rev32 F3)
+        area = np.pi * prior_m**2
         yaw_range = min(yaw_range, 2.0 * prior_m / radius_b)
     return float(max(1.0, area / cell**2) * max(1.0, yaw_range * radius_b / cell))
 
