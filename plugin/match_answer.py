@@ -89,10 +89,10 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     `params.association`'s.
     """
     # one process at a time compiles into numba's shared cache (`kernel_cache.compile_lock`): a no-op once compiled
-    with kernel_cache.compile_lock() as holding:
+    with kernel_cache.compile_lock() as compiling:
         answer = _match_maps(points_a, sizes_a, points_b, sizes_b, params, common_frame, exhaustive, verify,
                              first_try, wider_try, near_try)
-        if holding:  # compiled under the lock: the next process need not take it (even when nothing was announced)
+        if compiling:  # the next process need not take the lock (even when nothing was announced)
             kernel_cache.mark_compiled()
     return answer
 
@@ -102,7 +102,7 @@ def _match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.n
                 verify: bool | None = None, first_try: AssociationParams | None = None,
                 wider_try: AssociationParams | None = None, near_try: AssociationParams | None = None) -> MatchAnswer:
     """`match_maps` inside the kernels' compile lock."""
-    compiling = kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so
+    kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so
     t0 = time.perf_counter()
     prior = "off"
     if params.association.position_prior_m > 0:
@@ -171,8 +171,6 @@ def _match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.n
         # the gate the answer's associations passed: the verification's derived one, or the consensus' own search's
         gate = (ap if answer.source == "verified" else answer.searched or ap).distance_tolerance_m
         answer.uncertainty = answer_uncertainty(points_a, points_b, answer.transform, answer.associations, gate)
-    if compiling:
-        kernel_cache.mark_compiled()
     return answer
 
 

@@ -24,8 +24,7 @@ def _kernels_compiled_once():
     from sosmatch.tools.warm_kernels import warm_kernels
 
     if not kernel_cache.compiled_for_these_sources():
-        warm_kernels()
-        kernel_cache.mark_compiled()
+        warm_kernels()  # marks them compiled, inside the lock
     yield
 
 

@@ -92,7 +92,7 @@ def test_a_search_that_must_compile_says_so_once(tmp_path: Path) -> None:
         sym_csr(3, np.array([0, 1]), np.array([1, 2]), np.array([1.0, 1.0]))
         kernel_cache._announced.clear()
         kernel_cache.announce_compile()
-        kernel_cache.mark_compiled()  # what a search that announced does when it is done
+        kernel_cache.mark_compiled()  # what the search that compiles does when it is done
         kernel_cache._announced.clear()
         print("after the search:", kernel_cache.announce_compile(), kernel_cache.compiled_for_these_sources())
     """)

@@ -27,8 +27,8 @@ log = logging.getLogger(__name__)
 
 def warm_kernels() -> tuple[int, int, float]:
     """Compile the searches' kernels; returns (kernels without a cache entry before, after, CPU seconds)."""
-    with kernel_cache.compile_lock():  # another process compiling: wait, then find them cached
-        if kernel_cache.compiled_for_these_sources():  # by the process this one waited for
+    with kernel_cache.compile_lock() as compiling:  # another process compiling: wait, then find them cached
+        if not compiling:  # compiled by the process this one waited for
             left = len(kernel_cache.uncompiled_kernels())
             return left, left, 0.0
         counts = _warm_kernels()

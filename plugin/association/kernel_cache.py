@@ -152,8 +152,8 @@ def mark_compiled(package_dir: Path = PACKAGE_DIR) -> None:
 
 def announce_compile() -> bool:
     """Log `compile_message` (once per process) before a search that must compile the kernels first: nothing has
-    compiled them since their sources changed. Returns True when it did; the caller then `mark_compiled` after
-    its search, so the next process starts without the message."""
+    compiled them since their sources changed. Returns True when it did. The search that compiles marks them
+    compiled after it (`compile_lock` says which call that is), so the next process starts without the message."""
     if _announced:
         return False
     _announced.append(True)
@@ -170,9 +170,10 @@ def announce_compile() -> bool:
 def compile_lock(package_dir: Path = PACKAGE_DIR) -> Iterator[bool]:
     """Hold the package's compile lock while this process may compile kernels into the shared cache (module doc):
     a second process that needs them says so in one line, waits, then loads what the first compiled. Yields
-    whether this call holds the lock (the caller then `mark_compiled` when done, inside it). No lock once the
-    kernels are compiled for these sources (checked again after a wait), nor where the cache directory cannot hold
-    one (no flock there: numba then compiles as before). Re-entrant within a thread (a match inside
+    whether this call is the one that compiles (the kernels are not compiled for these sources, also after a wait;
+    not nested in another compile_lock): the caller then `mark_compiled` when done, inside it, and it alone. No
+    lock once the kernels are compiled, nor where the cache directory cannot hold one (no flock there: numba then
+    compiles as before, and the call still compiles). Re-entrant within a thread (a match inside
     `tools.warm_kernels`); another thread of the process waits like another process."""
     if getattr(_lock_depth, "n", 0) or compiled_for_these_sources(package_dir):
         yield False
@@ -193,12 +194,13 @@ def compile_lock(package_dir: Path = PACKAGE_DIR) -> Iterator[bool]:
         if lock is not None:
             lock.close()
         lock = None
-    if lock is not None and compiled_for_these_sources(package_dir):  # compiled while this process waited
+    compiling = lock is None or not compiled_for_these_sources(package_dir)  # else compiled while this one waited
+    if not compiling:
         lock.close()
         lock = None
     _lock_depth.n = getattr(_lock_depth, "n", 0) + 1
     try:
-        yield lock is not None
+        yield compiling
     finally:
         _lock_depth.n -= 1
         if lock is not None:
