@@ -136,12 +136,12 @@ def test_maps_or_match_of_the_other_session_are_refused(sessions, tmp_path, caps
         shutil.copytree(src, dst)
         digests = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted((dst / "images").iterdir())}
         (dst / "run.json").write_text(json.dumps({"keyframe_images": digests}))  # as `sosmatch map` records it
-    args = ["evaluate", str(a), str(b), "--methods", "sosmatch", "--repeats", "1"]
-    assert main([*args, "--map-a", str(b), "--map-b", str(a), "--out", str(tmp_path / "e1")]) == 2
+    args = ["evaluate", str(a), str(b), "--methods", "sosmatch"]
+    assert main([*args, "--repeats", "1", "--map-a", str(b), "--map-b", str(a), "--out", str(tmp_path / "e1")]) == 2
     err = capsys.readouterr().err
     assert "other images" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "e1").exists()
     match_workflow.run(Params(), b, a, tmp_path / "ba", workers=1, plot=False)  # B first
-    assert main([*args, "--match", str(tmp_path / "ba"), "--out", str(tmp_path / "e2")]) == 2
+    assert main([*args, "--match", str(tmp_path / "ba"), "--out", str(tmp_path / "e2")]) == 2  # (no --repeats)
     assert "in the other order" in capsys.readouterr().err
 
 
@@ -338,6 +338,25 @@ def test_a_sweep_floor_that_would_change_nothing_is_refused(sessions, tmp_path, 
     assert "a --match file is scored with the hypotheses its search kept" in err and not (tmp_path / "E").exists()
     ev = run(Params(), a, b, tmp_path / "F", methods=["sosmatch"], repeats=1, sweep_floor=6)  # at theta_S: as none
     assert ev["methods"]["sosmatch"]["curve_floor_theta_S"] == 6
+
+
+def test_repeats_where_no_search_of_evaluate_runs_are_refused(sessions, tmp_path, cli_error, capsys):
+    """fix81 left: `--repeats 5 --match M` timed nothing (the file's search time was reported), exit 0; so did
+    --repeats without the sosmatch method. Refused like --sweep-floor there, nothing written; the default (no
+    --repeats given) is not, and is the 3 repeats of before where the search runs."""
+    _, a, b, _ = sessions
+    err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--match", tmp_path / "m", "--repeats", "5")
+    assert "--repeats times evaluate's own sosmatch search: a --match file is scored with the search time it " \
+           "records" in err and not (tmp_path / "E").exists()
+    err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--methods", "orb_ransac", "--repeats", "3")
+    assert "give --methods sosmatch (or leave --repeats out)" in err and not (tmp_path / "E").exists()
+    err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--match", tmp_path / "m")  # not given: not refused
+    assert "--repeats" not in err and not (tmp_path / "E").exists()
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--help"])
+    from sosmatch.workflows.evaluate.workflow import DEFAULT_REPEATS
+
+    assert f"default {DEFAULT_REPEATS};" in " ".join(capsys.readouterr().out.split())
 
 
 def test_a_session_against_itself_or_a_refused_map_is_refused(sessions, tmp_path, cli_error):

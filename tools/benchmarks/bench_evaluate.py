@@ -90,6 +90,12 @@ def map_session(synth_dir: Path, out: Path, extra: tuple[str, ...] = ()) -> Path
     return out
 
 
+def _own_search(methods: list[str], repeats: int) -> int | None:
+    """`repeats` where evaluate runs a search of its own (the sosmatch method), else None: evaluate refuses timing
+    repeats of a search that does not run."""
+    return repeats if "sosmatch" in methods else None
+
+
 def run_case(case: Case, work: Path, methods: list[str], repeats: int = 3, reuse: bool = False) -> dict:
     """Build, map and evaluate one case; returns the evaluation dict (with `reuse`, a finished one is read)."""
     from ...plugin.params import Params
@@ -107,7 +113,7 @@ def run_case(case: Case, work: Path, methods: list[str], repeats: int = 3, reuse
         map_a = map_session(a, work / "maps" / _slug(case.synth_a))
         map_b = map_session(b, work / "maps" / _slug(case.synth_b))
     return evaluate(Params(), a, b, work / case.name / "eval", map_a=map_a, map_b=map_b, methods=methods,
-                    case=case.name, repeats=repeats)
+                    case=case.name, repeats=_own_search(methods, repeats))
 
 
 def real_cases(data_root: Path, work: Path) -> list[dict]:
@@ -226,7 +232,7 @@ def main(argv: list[str] | None = None) -> None:
             evaluations.append(evaluate(Params(), rc["session_a"], rc["session_b"], args.work / "real" / rc["case"],
                                         map_a=rc.get("map_a"), map_b=rc.get("map_b"), methods=methods,
                                         case=rc["case"], dem=rc.get("dem"), ground_height=rc.get("ground_height", 0.0),
-                                        repeats=args.repeats))
+                                        repeats=_own_search(methods, args.repeats)))
     import sys
 
     shown, skip = [], False

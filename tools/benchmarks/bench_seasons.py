@@ -133,7 +133,7 @@ def baseline_eval(work: Path, world: int, case: Case) -> dict | None:
         from ...workflows.evaluate import run as evaluate
 
         a, b = session_dir(work, world, case.a), session_dir(work, world, case.b)
-        evaluate(_params([]), a, b, out, methods=["orb_ransac", "sift_ransac"], case=case.name, repeats=1)
+        evaluate(_params([]), a, b, out, methods=["orb_ransac", "sift_ransac"], case=case.name)
     return json.loads(done.read_text(encoding="utf-8"))
 
 

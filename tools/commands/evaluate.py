@@ -30,7 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sweep-floor", type=int, help="theta_S floor of the precision-recall sweep (default: the "
                         "search's theta_S; lower extends the curve at a much higher cost; above it, with --match or "
                         "without the sosmatch method: refused)")
-    parser.add_argument("--repeats", type=int, default=3, help="timing repeats of the search (median)")
+    # no default here (None: `workflows.evaluate.workflow.DEFAULT_REPEATS`, not imported: it loads the kernels):
+    # a --repeats given where no search of evaluate's own runs is refused, the default is not
+    parser.add_argument("--repeats", type=int, help="timing repeats of the search (median; default 3; with --match "
+                        "or without the sosmatch method: refused)")
     parser.add_argument("--max-observers", type=int, help="claims use only the N observers nearest each landmark")
     parser.add_argument("--no-overlap-test", action="store_true",
                         help="an association claims every pair of its observers, also pairs it places too far apart "

@@ -57,6 +57,8 @@ log = logging.getLogger(__name__)
 OBLIQUE_NOTE_DEG = 15.0
 
 METHODS = ("sosmatch", "orb_ransac", "sift_ransac")
+# timing repeats of evaluate's own search when none are given (`run(repeats=None)`, `evaluate` without --repeats)
+DEFAULT_REPEATS = 3
 
 
 def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSession, map_a: Path, map_b: Path,
@@ -298,13 +300,13 @@ def _check_sweep_floor(sweep_floor: int | None, theta_s: int) -> None:
                          "leave it out")
 
 
-def check_options(ground_height: float, sweep_floor: int | None, repeats: int, max_observers: int | None,
+def check_options(ground_height: float, sweep_floor: int | None, repeats: int | None, max_observers: int | None,
                   baseline_threads: int, methods: Sequence[str] = METHODS, match_dir: str | Path | None = None) -> None:
     """Refuse (one-line InputError naming the option) values that make no evaluation. Before: --max-observers 0
     left every landmark without an observer and scored F1 0.000 'limited by front end' with exit 0, a negative
     one sliced observers off the wrong end, a NaN ground height gave NaN footprints, and --repeats / --sweep-floor
-    / --baseline-threads below their meaning were taken silently; --sweep-floor is refused where no search of
-    evaluate's own runs (it was ignored)."""
+    / --baseline-threads below their meaning were taken silently; --sweep-floor and a given --repeats (`repeats`
+    not None; None: `DEFAULT_REPEATS`) are refused where no search of evaluate's own runs (they were ignored)."""
     if not math.isfinite(ground_height) or abs(ground_height) > 1e5:
         raise InputError(f"--ground-height must be a finite height in metres (within 100 km), got {ground_height!r}")
     if max_observers is not None and max_observers < 1:
@@ -315,8 +317,12 @@ def check_options(ground_height: float, sweep_floor: int | None, repeats: int, m
         raise InputError("--sweep-floor sets the floor of evaluate's own sosmatch search: " + (
             "a --match file is scored with the hypotheses its search kept" if match_dir is not None else
             "give --methods sosmatch (or leave --sweep-floor out)"))
-    if repeats < 1:
+    if repeats is not None and repeats < 1:
         raise InputError(f"--repeats must be at least 1, got {repeats}")
+    if repeats is not None and ("sosmatch" not in methods or match_dir is not None):
+        raise InputError("--repeats times evaluate's own sosmatch search: " + (
+            "a --match file is scored with the search time it records" if match_dir is not None else
+            "give --methods sosmatch (or leave --repeats out)"))
     if baseline_threads < 0:
         raise InputError(f"--baseline-threads must be 0 (one per core) or more, got {baseline_threads}")
 
@@ -324,7 +330,8 @@ def check_options(ground_height: float, sweep_floor: int | None, repeats: int, m
 def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: str | Path,
         map_a: str | Path | None = None, map_b: str | Path | None = None, match_dir: str | Path | None = None,
         methods: Sequence[str] = METHODS, case: str | None = None, dem: str | Path | None = None,
-        ground_height: float = 0.0, sweep_floor: int | None = None, repeats: int = 3, max_observers: int | None = None,
+        ground_height: float = 0.0, sweep_floor: int | None = None, repeats: int | None = None,
+        max_observers: int | None = None,
         overlap_test: bool = True, baseline_threads: int = 0, overwrite: bool = False) -> dict:
     """Evaluate SOS-Match and the baselines on one session pair; returns the evaluation dict (also written).
 
@@ -341,7 +348,8 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         dem: an elevation raster for the footprints (instead of terrain.npz / flat ground at `ground_height`).
         sweep_floor: theta_S used to collect hypotheses for the curve (None: the configured theta_S, i.e. the
             timed search's own hypotheses; lower values extend the curve but can cost many times the search);
-            repeats: timing repeats of our search.
+            repeats: timing repeats of our search (None: `DEFAULT_REPEATS`; a number is refused with `match_dir`
+            or without "sosmatch", where no search of evaluate's own runs).
         max_observers: per landmark, keep only this many observers (nearest) when forming claims.
         overlap_test: an association claims only the observer pairs it places close enough to overlap
             (`plugin.evaluation.claims`, ObserverGeometry); False: every observer pair (the earlier rule).
@@ -356,6 +364,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     if not methods:  # `--methods ''` wrote an evaluation without a row, exit 0
         raise InputError(f"no method to evaluate: give one or more of {', '.join(METHODS)}")
     check_options(ground_height, sweep_floor, repeats, max_observers, baseline_threads, methods, match_dir)
+    repeats = DEFAULT_REPEATS if repeats is None else repeats  # (in the identity as before: 3 when not given)
     check_two_sessions(session_a, session_b, map_a, map_b, "sosmatch" in methods)
     case = case or f"{session_a.name} vs {session_b.name}"
     inputs = [session_a, session_b, map_a, map_b, match_dir, dem]
