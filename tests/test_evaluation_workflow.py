@@ -340,6 +340,29 @@ def test_a_sweep_floor_that_would_change_nothing_is_refused(sessions, tmp_path, 
     assert ev["methods"]["sosmatch"]["curve_floor_theta_S"] == 6
 
 
+def test_a_sweep_floor_on_a_map_too_small_to_search_is_refused(sessions, tmp_path, cli_error):
+    """fix81 left: with a map of fewer than 3 landmarks no search runs (the method claims nothing), and
+    `--sweep-floor 3` was ignored silently, exit 0. Refused before any work, naming the map; without the floor the
+    pair is still evaluated (an honest zero)."""
+    import shutil
+
+    from sosmatch.database.landmark_map import read_landmark_map
+
+    _, a, b0, _ = sessions
+    b = tmp_path / "B"
+    shutil.copytree(b0, b)
+    lmap = read_landmark_map(b / "landmarks.sosmap")
+    write_landmark_map(b / "landmarks.sosmap", LandmarkMap(lmap.positions[:2], lmap.sizes[:2]))
+    lines = (b / "landmarks.csv").read_text().splitlines()
+    (b / "landmarks.csv").write_text("\n".join(lines[:3]) + "\n")
+    err = cli_error("evaluate", a, b, "--out", tmp_path / "E", "--methods", "sosmatch", "--sweep-floor", "3")
+    assert f"{b}: --sweep-floor 3: this map has 2 landmark(s), fewer than the 3 a transform needs" in err
+    assert not (tmp_path / "E").exists()
+    ev = run(Params(), a, b, tmp_path / "F", methods=["sosmatch"], repeats=1)
+    n_a = len(read_landmark_map(a / "landmarks.sosmap"))
+    assert ev["methods"]["sosmatch"]["note"] == f"maps have {n_a} and 2 landmarks" and ev["rows"]
+
+
 def test_repeats_where_no_search_of_evaluate_runs_are_refused(sessions, tmp_path, cli_error, capsys):
     """fix81 left: `--repeats 5 --match M` timed nothing (the file's search time was reported), exit 0; so did
     --repeats without the sosmatch method. Refused like --sweep-floor there, nothing written; the default (no

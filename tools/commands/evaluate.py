@@ -28,8 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-height", type=float, default=0.0, help="height of the flat ground (m, default 0) "
                         "for sessions without terrain.npz when no --dem is given (unused otherwise)")
     parser.add_argument("--sweep-floor", type=int, help="theta_S floor of the precision-recall sweep (default: the "
-                        "search's theta_S; lower extends the curve at a much higher cost; above it, with --match or "
-                        "without the sosmatch method: refused)")
+                        "search's theta_S; lower extends the curve at a much higher cost; above it, with --match, "
+                        "without the sosmatch method or on a map of fewer than 3 landmarks: refused)")
     # no default here (None: `workflows.evaluate.workflow.DEFAULT_REPEATS`, not imported: it loads the kernels):
     # a --repeats given where no search of evaluate's own runs is refused, the default is not
     parser.add_argument("--repeats", type=int, help="timing repeats of the search (median; default 3; with --match "

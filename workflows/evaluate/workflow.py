@@ -25,6 +25,7 @@ from ...database.output_markers import VersionedIdentity, check_finished, conten
 from ...database.outputs import open_output_dir
 from ...database.session_images import check_map_of_images
 from ...database.session_io import check_session_usable
+from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import (
     Hypothesis,
@@ -109,8 +110,9 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         verified_by_match = None if ver_doc is None else (
             hyps.match.transform, hyps.match.associations, hyps.match.runner_up_support or 0,
             _clear_in_file(ver_doc, len(hyps.match.associations), hyps.match.runner_up_support or 0, params), None)
-    elif min(len(pa), len(pb)) < 3:
-        # Too few landmarks for any transform: the method claims nothing (an honest zero, not an error).
+    elif min(len(pa), len(pb)) < MIN_LANDMARKS_TO_ALIGN:
+        # Too few landmarks for any transform: the method claims nothing (an honest zero, not an error; a
+        # --sweep-floor was refused before, `check_sweep_floor_maps`).
         log.warning("maps have %d and %d landmarks: SOS-Match can claim nothing", len(pa), len(pb))
         hypotheses = []
         theta_s = assoc_params.min_associations
@@ -366,6 +368,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     check_options(ground_height, sweep_floor, repeats, max_observers, baseline_threads, methods, match_dir)
     repeats = DEFAULT_REPEATS if repeats is None else repeats  # (in the identity as before: 3 when not given)
     check_two_sessions(session_a, session_b, map_a, map_b, "sosmatch" in methods)
+    check_sweep_floor_maps(sweep_floor, _map_dirs(session_a, session_b, map_a, map_b))
     case = case or f"{session_a.name} vs {session_b.name}"
     inputs = [session_a, session_b, map_a, map_b, match_dir, dem]
 
@@ -398,13 +401,36 @@ def check_two_sessions(session_a: Path, session_b: Path, map_a: str | Path | Non
                          session_b)
     if not with_maps:
         return
-    maps = [Path(m) if m is not None else s for m, s in ((map_a, session_a), (map_b, session_b))]
+    maps = _map_dirs(session_a, session_b, map_a, map_b)
     for m in maps:
         check_finished(m)  # a killed map leaves only its staging: say so, not "no landmarks.csv"
         if (m / "landmarks.sosmap").is_file():
             check_session_usable(m)
     if all((m / "landmarks.sosmap").is_file() for m in maps):
         check_two_maps(maps[0], maps[1], *(read_landmark_map(m / "landmarks.sosmap") for m in maps), "evaluate")
+
+
+def _map_dirs(session_a: Path, session_b: Path, map_a: str | Path | None,
+              map_b: str | Path | None) -> tuple[Path, Path]:
+    """The mapped sessions the sosmatch method scores: `map_a` / `map_b`, else the session directories."""
+    return (Path(map_a) if map_a is not None else session_a, Path(map_b) if map_b is not None else session_b)
+
+
+def check_sweep_floor_maps(sweep_floor: int | None, maps: Sequence[Path]) -> None:
+    """InputError naming the map, before any work, when a --sweep-floor is given and a map has fewer landmarks than
+    a transform needs: no search runs (the method claims nothing, an honest zero), so there is no curve for a floor
+    to extend (it was ignored silently, exit 0). The other refusals of the floor: `check_options` (with --match or
+    without the sosmatch method, which `run` checks first) and `_check_sweep_floor` (above theta_S)."""
+    if sweep_floor is None:
+        return
+    for m in maps:
+        if not (m / "landmarks.csv").exists():
+            continue  # not a mapped session: `_evaluate` says so
+        n = len(_map_arrays(m)[0])
+        if n < MIN_LANDMARKS_TO_ALIGN:
+            raise InputError(f"--sweep-floor {sweep_floor}: this map has {n} landmark(s), fewer than the "
+                             f"{MIN_LANDMARKS_TO_ALIGN} a transform needs, so no search runs and there is no curve "
+                             "for a floor to extend; leave --sweep-floor out", m)
 
 
 def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, map_a: str | Path | None,
@@ -429,8 +455,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
                         "understates the match (BENCHMARKS.md, Oblique surveys)", gt.path, gt.off_nadir_deg)
     results: dict[str, dict] = {}
     if "sosmatch" in methods:
-        ma = Path(map_a) if map_a is not None else session_a
-        mb = Path(map_b) if map_b is not None else session_b
+        ma, mb = _map_dirs(session_a, session_b, map_a, map_b)
         for m, session in ((ma, session_a), (mb, session_b)):
             if not (m / "landmarks.csv").exists():
                 raise InputError("not a mapped session (no landmarks.csv); run `sosmatch map` first", m)
