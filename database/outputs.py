@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
-from .atomic import clean_stale_temporaries, locked_temp_dir, write_text_atomic
+from .atomic import clean_stale_temporaries, locked_temp_dir, write_bytes_atomic, write_text_atomic
 from .output_entries import (
     check_entry_ours,
     check_not_in_output_entry,
@@ -89,6 +89,14 @@ def _holds_files(folder: Path) -> bool:
 
 def _raise(exc: OSError) -> None:
     raise exc
+
+
+def _bytes_or_none(path: Path) -> bytes | None:
+    """The file's bytes, None when it is absent (another error is raised: absent is what lets a restore remove it)."""
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        return None
 
 
 @dataclass(frozen=True)
@@ -188,6 +196,8 @@ class OutputDir:
         self._entries = recorded_entries(output_marker(path))
         self._complete = previous.state == "complete"
         self._place = Place(path, command)  # the directory itself: a move under the run is noticed (`taken`)
+        # the marker as the run found it (read under the lock, before the run re-writes it): `restore_previous`
+        self._marker_before = _bytes_or_none(path / MARKER)
 
     @property
     def resumed(self) -> bool:
@@ -227,16 +237,29 @@ class OutputDir:
         self.check_place()
         shutil.rmtree(self.path / STAGING, ignore_errors=True)
 
-    def _write_marker(self, complete: bool, restore: bool = False) -> None:
-        """Write the marker: this run's, or with `restore` the previous output's (its identity)."""
+    def _write_marker(self, complete: bool) -> None:
+        """Write this run's marker."""
         from ..plugin import __version__
 
         self.check_place()
         self._complete = complete
-        identity = self.previous.identity if restore else self.identity
         write_text_atomic(self.path / MARKER, json.dumps(
-            {"format": MARKER_FORMAT, "command": self.command, "identity": identity,
+            {"format": MARKER_FORMAT, "command": self.command, "identity": self.identity,
              "complete": complete, "sosmatch": __version__, "entries": self._entries}, indent=1) + "\n")
+
+    def restore_previous(self) -> None:
+        """For a run refused (a user error) before it wrote anything into the directory: put back the marker as the
+        run found it, so that the directory is exactly as it was (a complete earlier output, also one replaced
+        under `overwrite`, complete and of its own identity again; no marker where there was none). Taking the
+        directory re-wrote the marker as this run's, incomplete: left so, it called the untouched earlier output
+        unfinished (rev31 F3: `evaluate --overwrite --sweep-floor` refused after its search). A directory moved
+        away under the run is not written (`check_place`)."""
+        self.check_place()
+        if self._marker_before is None:
+            (self.path / MARKER).unlink(missing_ok=True)
+        else:
+            write_bytes_atomic(self.path / MARKER, self._marker_before)
+        self._complete = self.previous.state == "complete"
 
     def _check_entries(self, layouts: dict[str, set[str]] | None = None) -> None:
         """Refuse (InputError naming the file) when a directory entry holds anything sosmatch did not write there.
@@ -313,7 +336,7 @@ class OutputDir:
             self._check_entries(layouts)
         except InputError:
             if self.previous.state == "complete":  # untouched: the previous output stands, complete as it was
-                self._write_marker(True, restore=True)
+                self.restore_previous()
             raise
         if last:
             self._remove_entry(last)  # absent while entries are swapped: what stands beside it is complete

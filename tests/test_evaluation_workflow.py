@@ -382,6 +382,24 @@ def test_repeats_where_no_search_of_evaluate_runs_are_refused(sessions, tmp_path
     assert f"default {DEFAULT_REPEATS};" in " ".join(capsys.readouterr().out.split())
 
 
+def test_an_overwrite_refused_after_the_search_leaves_the_earlier_evaluation_as_it_was(sessions, tmp_path,
+                                                                                        cli_error):
+    """rev31 F3: `evaluate --overwrite --sweep-floor 7` (above the pair's theta_S, 6, known after the search) was
+    refused with the earlier evaluation's files unchanged but its marker re-written incomplete: readers took the
+    complete evaluation for an unfinished one. Now the folder is exactly as it was, the evaluation complete."""
+    from sosmatch.database.output_markers import check_finished
+
+    _, a, b, _ = sessions
+    out = tmp_path / "E"
+    run(Params(), a, b, out, methods=["sosmatch"], repeats=1)
+    before = {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+    err = cli_error("evaluate", a, b, "--out", out, "--methods", "sosmatch", "--repeats", "2", "--sweep-floor", "7",
+                    "--overwrite")
+    assert "--sweep-floor 7 is above this pair's theta_S (6" in err
+    assert {p.name: p.read_bytes() for p in sorted(out.iterdir())} == before
+    check_finished(out)  # complete: readable as the earlier evaluation
+
+
 def test_a_session_against_itself_or_a_refused_map_is_refused(sessions, tmp_path, cli_error):
     """The eighth new-user sweep: `evaluate S1 S1` (and S1 against a byte copy) scored average F1 1.000, and a map
     that `sosmatch map` refused was scored F1 0 "limited by the front end"; match refuses both."""

@@ -142,6 +142,32 @@ def test_unfinished_output_is_resumed_without_overwrite(tmp_path):
         open_output_dir(out, "match", "third settings")
 
 
+def test_a_run_refused_before_writing_restores_the_marker_it_found(tmp_path):
+    """rev31 F3: taking a directory re-writes its marker as the run's, incomplete; a run then refused for a user
+    error (`evaluate --overwrite --sweep-floor` above the theta_S its search derives) left an earlier complete
+    output called unfinished. `restore_previous` puts back the marker as found: byte for byte, or none."""
+    out = tmp_path / "o"
+    with open_output_dir(out, "evaluate", "earlier settings") as taken:
+        write_text_atomic(out / "evaluation.json", "{}\n")
+        taken.finish()
+    before = (out / MARKER).read_bytes()
+    with pytest.raises(InputError, match="refused"):
+        with open_output_dir(out, "evaluate", "other settings", overwrite=True) as taken:
+            assert not json.loads((out / MARKER).read_text())["complete"]  # taken: this run's, unfinished
+            taken.restore_previous()
+            raise InputError("refused")
+    assert (out / MARKER).read_bytes() == before and sorted(p.name for p in out.iterdir()) == [MARKER,
+                                                                                           "evaluation.json"]
+    with open_output_dir(out, "evaluate", "earlier settings") as taken:  # the earlier output, complete as it was
+        assert taken.was_complete
+    new = tmp_path / "n" / "o"
+    with pytest.raises(InputError):
+        with open_output_dir(new, "evaluate", "x") as taken:
+            taken.restore_previous()  # no marker before: none after, and the new folders go as before
+            raise InputError("refused")
+    assert not (tmp_path / "n").exists()
+
+
 def test_a_failed_run_that_wrote_nothing_leaves_nothing(tmp_path):
     out = tmp_path / "a" / "b"
     with pytest.raises(InputError):

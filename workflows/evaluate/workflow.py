@@ -9,7 +9,7 @@ import logging
 import math
 import statistics
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -384,8 +384,16 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         identity_of([None if p is None else str(Path(p).resolve()) for p in inputs]))
     with open_output_dir(out_dir, "evaluate", identity, inputs=inputs, overwrite=overwrite,
                          legacy_record="evaluation.json") as taken:
-        evaluation = _evaluate(params, session_a, session_b, out_dir, map_a, map_b, match_dir, methods, case, dem,
-                               ground_height, sweep_floor, repeats, max_observers, baseline_threads, overlap_test)
+        try:
+            evaluation, write = _evaluate(params, session_a, session_b, out_dir, map_a, map_b, match_dir, methods,
+                                          case, dem, ground_height, sweep_floor, repeats, max_observers,
+                                          baseline_threads, overlap_test)
+        except InputError:
+            # refused before anything is written (a --sweep-floor above the theta_S known only after the search,
+            # a match file of other maps): an evaluation this one was to --overwrite stands, complete, as it was
+            taken.restore_previous()
+            raise
+        write()
         taken.finish()
     return evaluation
 
@@ -436,8 +444,10 @@ def check_sweep_floor_maps(sweep_floor: int | None, maps: Sequence[Path]) -> Non
 def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, map_a: str | Path | None,
               map_b: str | Path | None, match_dir: str | Path | None, methods: Sequence[str], case: str,
               dem: str | Path | None, ground_height: float, sweep_floor: int | None, repeats: int,
-              max_observers: int | None, baseline_threads: int, overlap_test: bool = True) -> dict:
-    """`run` inside its taken output directory."""
+              max_observers: int | None, baseline_threads: int,
+              overlap_test: bool = True) -> tuple[dict, Callable[[], None]]:
+    """`run` inside its taken output directory: the evaluation, and what writes it (evaluation.json / .md, pr.png,
+    overlay.png). Nothing is written before the call: a refusal (InputError) leaves the directory untouched."""
     from ...tools.baselines.base import BaselineConfig
 
     t0 = time.perf_counter()
@@ -496,15 +506,18 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
         "rows": rows,
         "methods": {m: _jsonable(res) for m, res in results.items()},
     }
-    plot_pr({m: r["curve"] for m, r in results.items()}, out_dir / "pr.png", case)
-    plot_overlay(gt_a, gt_b, results.get("sosmatch"), out_dir / "overlay.png", case)
     md = f"# Evaluation: {case}\n\n" + format_table(rows) + (
         f"\nKeyframes {len(gt_a.names)} x {len(gt_b.names)}; {evaluation['protocol']['positive_pairs']} pairs with "
         f"IoU > {TP_IOU}, {evaluation['protocol']['negative_pairs']} with IoU < {FP_IOU}.\n\n"
         "![precision-recall](pr.png)\n\n![map overlay](overlay.png)\n")
-    write_text_atomic(out_dir / "evaluation.md", md)
-    write_text_atomic(out_dir / "evaluation.json", json.dumps(evaluation, indent=1, default=json_default) + "\n")
-    return evaluation
+
+    def write() -> None:
+        plot_pr({m: r["curve"] for m, r in results.items()}, out_dir / "pr.png", case)
+        plot_overlay(gt_a, gt_b, results.get("sosmatch"), out_dir / "overlay.png", case)
+        write_text_atomic(out_dir / "evaluation.md", md)
+        write_text_atomic(out_dir / "evaluation.json", json.dumps(evaluation, indent=1, default=json_default) + "\n")
+
+    return evaluation, write
 
 
 
