@@ -18,7 +18,7 @@ from ..database.output_markers import fingerprint, sha256_file
 from ..database.session_io import MERGE_RECORD, SessionFiles
 from ..database.text_input import read_user_json
 from ..plugin.errors import InputError
-from ..plugin.multisession import Sim3, umeyama
+from ..plugin.multisession import Sim3, one_to_one, umeyama
 from ..plugin.refinement import pairing_distance
 
 
@@ -45,10 +45,15 @@ def filter_associations(
     sessions: list[SessionFiles], transforms: list[Sim3], pairs: Sequence[FusePair | tuple[int, int, np.ndarray]],
     max_dist: float
 ) -> tuple[list[tuple[int, int, np.ndarray]], int]:
-    """Keep associations whose two landmarks pass their pair's gate (`FusePair`; plain (a, b, associations):
-    within max_dist in 3D) and have 3D points. The distance is measured in the frame of the pair's session a, whose
-    metres the gate is in (the match paired them there); in the reference frame a similarity transform's scale
-    multiplied it (rev33: 138 / 52 / 21 of 138 fused at reference scale 1 / 2 / 3)."""
+    """Keep, of each pair's associations, a one-to-one set (`one_to_one`, nearest first, in that order) whose two
+    landmarks pass their pair's gate (`FusePair`; plain (a, b, associations): within max_dist in 3D) and have 3D
+    points; returns (kept pairs, number of associations left out).
+
+    The distance is measured in the frame of the pair's session a, whose metres the gate is in (the match paired
+    them there); in the reference frame a similarity transform's scale multiplied it (rev33: 138 / 52 / 21 of 138
+    fused at reference scale 1 / 2 / 3). One-to-one: an unverified match (a window consensus) may pair one
+    landmark with several, and grouping them all chained landmarks no association links (rev33: 5.7 m apart under
+    a 2.95 m gate)."""
     kept, rejected = [], 0
     for pair in pairs:
         a, b, assoc, gate, z_weight = FusePair(*pair)
@@ -64,10 +69,12 @@ def filter_associations(
         a_from_b = transforms[a].inverse().compose(transforms[b])
         pa = sessions[a].landmarks.positions[assoc[:, 0]]
         pb = a_from_b.apply(sessions[b].landmarks.positions[assoc[:, 1]])
-        ok = pairing_distance(pa, pb, z_weight) <= gate
+        dist = pairing_distance(pa, pb, z_weight)
+        ok = dist <= gate
         ok &= (sessions[a].point3d_ids[assoc[:, 0]] >= 0) & (sessions[b].point3d_ids[assoc[:, 1]] >= 0)
-        rejected += int(np.count_nonzero(~ok))
-        kept.append((a, b, assoc[ok]))
+        taken = one_to_one(assoc, dist, ok)
+        rejected += len(assoc) - len(taken)
+        kept.append((a, b, assoc[taken]))
     return kept, rejected
 
 
