@@ -169,15 +169,16 @@ def merge_sessions(
                             "eps": max_fuse_distance_m, "record": rec, "pairs": fused})
 
     identity = identity_of(record if identity_record is None else identity_record)
-    members = distinct_flights(sessions)
+    flights = distinct_flights(sessions)
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
                          earlier=[identity_of(r) for r in earlier_records]) as out:
-        # the flights' maps it holds and the warnings go into merge.json (not into the identity: earlier merges
-        # keep theirs)
+        # the flights it holds (their maps and images: `merge_pairs.session_flights`; `flight_maps` for an older
+        # sosmatch) and the warnings go into merge.json (not into the identity: earlier merges keep theirs)
+        said = {"warnings": list(warnings)} if warnings else {}
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
-                             {**(record or {}), "flight_maps": members, **({"warnings": list(warnings)}
-                                                                          if warnings else {})}, t0)
+                             {**(record or {}), "flight_maps": sorted({f["map"] for f in flights}),
+                              "flights": flights, **said}, t0)
         out.finish()
     return result
 
