@@ -213,19 +213,47 @@ def spanning_transforms(group: Sequence[int], edges: Sequence[Edge], preferred: 
     return reference, ref_from, tree
 
 
+def one_to_one(associations: np.ndarray, distances: np.ndarray, admissible: np.ndarray | None = None) -> np.ndarray:
+    """Indices of a one-to-one subset of (K,2) `associations` (landmark in a, landmark in b), nearest first.
+
+    Greedy by ascending distance (ties: the smaller a index, then b index): an association is taken when neither
+    of its landmarks is taken already, so each one taken is the mutual nearest of what remains. An unverified
+    match (a window consensus) may pair one landmark of A with three of B; grouped as they come, a chain of such
+    pairs fused two landmarks 5.7 m apart under a 2.95 m gate (rev33). `admissible` (bool per association): only
+    those may be taken (e.g. within the gate). Returns the taken indices in the order taken (nearest first)."""
+    assoc = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
+    dist = np.asarray(distances, dtype=np.float64).reshape(-1)
+    ok = np.ones(len(assoc), bool) if admissible is None else np.asarray(admissible, bool).reshape(-1)
+    taken_a: set[int] = set()
+    taken_b: set[int] = set()
+    out = []
+    for k in np.lexsort((assoc[:, 1], assoc[:, 0], dist)):
+        ia, ib = int(assoc[k, 0]), int(assoc[k, 1])
+        if ok[k] and ia not in taken_a and ib not in taken_b:
+            taken_a.add(ia)
+            taken_b.add(ib)
+            out.append(int(k))
+    return np.asarray(out, dtype=np.int64)
+
+
 def fusion_groups(pairs: Iterable[tuple[int, int, np.ndarray]]) -> list[list[tuple[int, int]]]:
     """Group landmarks that associations say are the same object.
 
     `pairs`: (session a, session b, (K,2) int array of landmark index pairs (index in a, index in b)).
     Returns groups of (session, landmark index) with more than one member, each sorted, in sorted order.
-    A group never holds two landmarks of one session when the pairs come from a spanning tree with one-to-one
-    associations; for other inputs such groups are split off (the later landmark of that session is dropped
-    from the group) so that a fused point never merges two observations of the same object within a session.
+    Associations are taken in the order given (each pair's, pair after pair): one joins its two landmarks' groups
+    only when they hold no session in common, so a group never holds two landmarks of one session (a fused point
+    never merges two objects of one session) and every association is either inside one group or refused whole
+    (`associations_not_fused` counts those; before rev33's mend a group kept the first landmark of each session,
+    associated or not).
     """
     parent: dict[tuple[int, int], tuple[int, int]] = {}
+    sessions_of: dict[tuple[int, int], set[int]] = {}
 
     def find(x: tuple[int, int]) -> tuple[int, int]:
-        parent.setdefault(x, x)
+        if x not in parent:
+            parent[x] = x
+            sessions_of[x] = {x[0]}
         while parent[x] != x:
             parent[x] = parent[parent[x]]
             x = parent[x]
@@ -234,22 +262,26 @@ def fusion_groups(pairs: Iterable[tuple[int, int, np.ndarray]]) -> list[list[tup
     for a, b, assoc in pairs:
         for ia, ib in np.asarray(assoc, dtype=np.int64).reshape(-1, 2):
             ra, rb = find((a, int(ia))), find((b, int(ib)))
-            if ra != rb:
-                parent[max(ra, rb)] = min(ra, rb)
+            if ra != rb and not sessions_of[ra] & sessions_of[rb]:
+                root, other = min(ra, rb), max(ra, rb)
+                parent[other] = root
+                sessions_of[root] |= sessions_of.pop(other)
     groups: dict[tuple[int, int], list[tuple[int, int]]] = {}
     for x in parent:
         groups.setdefault(find(x), []).append(x)
-    out = []
-    for members in groups.values():
-        seen: set[int] = set()
-        kept = []
-        for s, i in sorted(members):
-            if s not in seen:
-                seen.add(s)
-                kept.append((s, i))
-        if len(kept) > 1:
-            out.append(kept)
-    return sorted(out)
+    return sorted(sorted(members) for members in groups.values() if len(members) > 1)
+
+
+def associations_not_fused(pairs: Iterable[tuple[int, int, np.ndarray]], groups: Sequence[Sequence[tuple[int, int]]]
+                           ) -> int:
+    """How many of `pairs`' associations do not have both landmarks in one of `groups` (`fusion_groups`)."""
+    group_of = {member: g for g, members in enumerate(groups) for member in members}
+    missed = 0
+    for a, b, assoc in pairs:
+        for ia, ib in np.asarray(assoc, dtype=np.int64).reshape(-1, 2):
+            ga, gb = group_of.get((a, int(ia))), group_of.get((b, int(ib)))
+            missed += ga is None or ga != gb
+    return missed
 
 
 def nearest_pairs(centers: np.ndarray, k: int) -> list[tuple[int, int]]:

@@ -11,8 +11,11 @@ image names are prefixed with the session label (`LABEL/frame_00000.jpg`) so the
 of associated landmarks becomes ONE 3D point whose track holds every session's observations
 (`Reconstruction.merge_points3D`: the position is the track-length-weighted mean). Associations whose landmarks
 no longer pass their match's own test after alignment (`FusePair`: the gate and height weight match.json records
-for its answer; else `max_fuse_distance_m` in 3D) are not fused (an outlier association would otherwise drag two
-distinct objects into one point); they are counted in merge.json.
+for its answer, measured in the frame of the pair's first session, whose metres it is in; else
+`max_fuse_distance_m` in 3D) are not fused (an outlier association would otherwise drag two distinct objects into
+one point); of the rest, each pair fuses a one-to-one set (nearest first: an unverified match may pair one
+landmark with several), and a group never takes two landmarks of one session. Every association not fused is
+counted in merge.json.
 
 Output directory (a "merged session", readable by match/merge again):
     sparse/            COLMAP binary model (opens in pycolmap 4.x and COLMAP 3.8)
@@ -54,7 +57,7 @@ from ..database.session_io import (
 from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
-from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, fusion_groups
+from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, associations_not_fused, fusion_groups
 from ..plugin.params import Params
 from ..plugin.refinement import refine_alignment
 from .changes import check_alignment
@@ -78,7 +81,9 @@ class MergeResult:
     num_points3d: int = 0
     num_landmarks: int = 0
     num_fused: int = 0  # fusion groups that became one 3D point
-    num_rejected: int = 0  # associations not fused (too far apart after alignment, or without a 3D point)
+    # associations not fused: too far apart after alignment, without a 3D point, not one-to-one (a landmark
+    # paired with several), or joining two landmarks of one session
+    num_rejected: int = 0
     refined: bool = False
     seconds: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
@@ -164,15 +169,16 @@ def merge_sessions(
                             "eps": max_fuse_distance_m, "record": rec, "pairs": fused})
 
     identity = identity_of(record if identity_record is None else identity_record)
-    members = distinct_flights(sessions)
+    flights = distinct_flights(sessions)
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
                          earlier=[identity_of(r) for r in earlier_records]) as out:
-        # the flights' maps it holds and the warnings go into merge.json (not into the identity: earlier merges
-        # keep theirs)
+        # the flights it holds (their maps and images: `merge_pairs.session_flights`; `flight_maps` for an older
+        # sosmatch) and the warnings go into merge.json (not into the identity: earlier merges keep theirs)
+        said = {"warnings": list(warnings)} if warnings else {}
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
-                             {**(record or {}), "flight_maps": members, **({"warnings": list(warnings)}
-                                                                          if warnings else {})}, t0)
+                             {**(record or {}), "flight_maps": sorted({f["map"] for f in flights}),
+                              "flights": flights, **said}, t0)
         out.finish()
     return result
 
@@ -186,6 +192,8 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
     out_dir = out.path
     pairs, rejected = filter_associations(sessions, transforms, pairs, max_fuse_distance_m)
     groups = fusion_groups(pairs)
+    # associations the groups could not hold (one would join two landmarks of one session): not fused either
+    rejected += associations_not_fused(pairs, groups)
 
     merged = pycolmap.Reconstruction()
     point_map: list[dict[int, int]] = []  # per session: old point3D id -> new id

@@ -20,7 +20,7 @@ from ...plugin.errors import InputError
 from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
-from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir
+from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir, one_session_per_flight
 from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs
 from .pairs import flight_times, pairs_chosen_by
 from .report import BatchReport, write_report
@@ -139,8 +139,9 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         if sessions[f.name]["status"] == "done" and not sessions[f.name].get("resumed"):
             record_contents(out_dir, f, *listings[f.name])
     _session_warnings(sessions)
+    # one session of each flight: two maps of one flight (other settings) would put its images twice into a model
+    mapped = one_session_per_flight([f.name for f in flights if sessions[f.name]["status"] == "done"], sessions)
     report.sessions = [{"name": f.name, "kind": f.kind, **sessions[f.name]} for f in flights]
-    mapped = [f.name for f in flights if sessions[f.name]["status"] == "done"]
 
     # 3: match
     # with --nearest, each flight's neighbours in time are matched too (read only then: <= 9 EXIF headers a flight)

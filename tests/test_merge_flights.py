@@ -1,0 +1,95 @@
+"""A flight is merged once (rev33): two maps of one flight made with different settings (other landmarks, the
+same photos) are refused by merge and left out, said, by batch; two flights whose photos share only their file
+names are two flights."""
+
+import hashlib
+import json
+
+import pytest
+
+from sosmatch.database.session_io import read_session
+from sosmatch.plugin.errors import InputError
+from sosmatch.plugin.multisession import Sim3
+from sosmatch.tools.cli import main
+from sosmatch.tools.toy_sessions import lawnmower, make_world, oracle_pair_task, toy_match_json, write_toy_session
+from sosmatch.workflows import batch, merge, merge_pairs
+from sosmatch.workflows.executors import LocalExecutor
+
+
+def _digest(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def record_images(session, photos: dict[str, str], folder: str) -> None:
+    """run.json as `sosmatch map` records a flight's images: the folder's digest (`fingerprints.images`) and each
+    keyframe's contents (`keyframe_images`); `photos`: name -> what the photo shows (its bytes' stand-in)."""
+    run = {"format": "sosmatch-map-run", "version": 1, "fingerprints": {"images": _digest(folder)},
+           "keyframe_images": {name: _digest(content) for name, content in photos.items()}}
+    (session.path / "run.json").write_text(json.dumps(run) + "\n")
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    """F1 and F1_again: one flight mapped twice (other landmark noise: other maps; the same photos). F2: another
+    flight over the same ground whose photos have the same names (DJI_0001.JPG ...) and other contents. F1_half:
+    half of F1's photos in a folder of their own (another folder digest, the same photos)."""
+    root = tmp_path_factory.mktemp("flights")
+    world = make_world(260, seed=11)
+    path = lawnmower(20, 140, 20, 140, 60, 40, 10)
+    made = {name: write_toy_session(root / name, world, path, Sim3.identity(), seed=seed)
+            for name, seed in (("F1", 1), ("F1_again", 3), ("F2", 5), ("F1_half", 7))}
+    names = [f"DJI_{k:04d}.JPG" for k in range(1, 21)]
+    record_images(made["F1"], {n: f"flight 1 {n}" for n in names}, "folder of flight 1")
+    record_images(made["F1_again"], {n: f"flight 1 {n}" for n in names[::2]}, "folder of flight 1")
+    record_images(made["F2"], {n: f"flight 2 {n}" for n in names}, "folder of flight 2")
+    record_images(made["F1_half"], {n: f"flight 1 {n}" for n in names[10:]}, "half of flight 1")
+    return root, made
+
+
+def test_two_maps_of_one_flight_are_refused_by_merge_naming_both(flights, tmp_path, capsys):
+    """rev33: maps/main/summer and maps/border/summer (one flight, two settings): match accepted 234
+    associations, merge wrote 200 images (every photo twice), exit 0: the flight was known by its landmark map."""
+    _, made = flights
+    f1 = made["F1"]
+    for other, why in (("F1_again", "the same images"), ("F1_half", "10 of its images, by content")):
+        match = toy_match_json(f1, made[other], tmp_path / other / "match.json")
+        with pytest.raises(InputError, match=rf"holds a flight that .*F1 holds already \({why}\)"):
+            merge.run(f1.path, made[other].path, match, tmp_path / f"M_{other}")
+        assert not (tmp_path / f"M_{other}").exists()
+    match = tmp_path / "F1_again" / "match.json"
+    code = main(["merge", str(f1.path), str(made["F1_again"].path), "--match", str(match), "--out",
+                 str(tmp_path / "M_cli")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "F1_again" in err[0] and "/F1 holds already" in err[0]
+
+
+def test_flights_whose_photos_share_only_their_names_merge_and_merge_json_records_the_images(flights, tmp_path):
+    _, made = flights
+    res = merge.run(made["F1"].path, made["F2"].path, toy_match_json(made["F1"], made["F2"], tmp_path / "m.json"),
+                    tmp_path / "M")
+    assert res.num_fused > 20
+    merged = read_session(tmp_path / "M")
+    recorded = merge_pairs.session_flights(merged)
+    assert [f["images"] for f in recorded] == [_digest("folder of flight 1"), _digest("folder of flight 2")]
+    # a merged session holding F1 refuses F1 mapped again, by its images (not its landmark map, which differs)
+    with pytest.raises(InputError, match=r"holds a flight that .*M holds already \(the same images\)"):
+        merge_pairs.distinct_flights([merged, read_session(made["F1_again"].path)])
+
+
+def test_batch_leaves_a_second_map_of_a_flight_out_and_says_so(flights, tmp_path):
+    """rev33: a batch over a folder holding two maps of one flight merged them (every photo twice) and said "ok".
+    It keeps the first by name, leaves the other out of matching and merging, and warns."""
+    root, made = flights
+    folder = tmp_path / "flights"
+    folder.mkdir()
+    for name in ("F1", "F1_again"):
+        (folder / name).symlink_to(made[name].path)
+    with LocalExecutor(1) as ex:
+        report = batch.run(folder, tmp_path / "out", executor=ex,
+                           options=batch.BatchOptions(progress=False, changes=False), pair_fn=oracle_pair_task)
+    assert report.pairs == []
+    again = next(s for s in report.sessions if s["name"] == "F1_again")
+    assert again["same_flight_as"] == "F1"
+    assert any("F1_again: the same flight as F1 (the same images)" in w for w in report.warnings)
+    assert report.status != "ok"
+    assert all(len(g["members"]) == 1 for g in report.groups)
