@@ -347,32 +347,6 @@ def test_a_holder_vouches_only_when_this_session_shows_it_too():
     assert unshown.a.label[1] == GONE and unshown.a.label[0] == GONE
 
 
-def test_links_in_3d_hold_only_landmarks_at_their_own_height():
-    """A maps a crown (2 m, 8 m above the ground) that B no longer has; under it, 1 m aside, both map a ground
-    patch (4 m) at ground level. In ground distance the patch's footprint holds the crown (B's patch as a holder,
-    A's own patch as a whole), so by default the crown is kept; with `links_in_3d` a footprint is a disc at its
-    landmark's height, 8 m below the crown (0.5 x 8 m beyond the 3 m gate), and the crown is gone. Holder and
-    whole are tested apart (nest_max_ratio 0 leaves the part link alone)."""
-    centers = np.column_stack([np.linspace(-20.0, 40.0, 12), np.zeros(12), np.full(12, 60.0)])
-    poses = nadir_poses(centers)
-    rng = np.random.default_rng(5)
-    ground = np.column_stack([rng.uniform([-30, -20], [50, 20], (80, 2)), np.zeros(80)])
-    ground = ground[np.hypot(ground[:, 0] - 10.0, ground[:, 1]) > 15.0][:30]
-    crown, patch = np.array([[10.0, 0.0, 8.0]]), np.array([[11.0, 0.0, 0.0]])
-    pos_a, size_a = np.vstack([crown, patch, ground]), np.r_[2.0, 4.0, np.full(30, 1.5)]
-    pos_b, size_b = np.vstack([patch + 0.2, ground + 0.2]), np.r_[4.0, np.full(30, 1.5)]
-    a = SessionObservations(pos_a, size_a, poses, CAM, _segments_of(pos_a, size_a, poses, rng))
-    b = SessionObservations(pos_b, size_b, poses, CAM, _segments_of(pos_b, size_b, poses, rng))
-    same = yaw_transform(0.0, (0.0, 0.0, 0.0))
-    for nest, link in ((2.0, "nested"), (0.0, "part")):
-        flat = detect_changes(a, b, same, ChangeParams(nest_max_ratio=nest), 2.0)
-        assert flat.a.label[0] == KEPT and flat.a.evidence[0] == link
-        assert flat.a.label[1] == KEPT and flat.a.evidence[1] == "landmark"
-        level = detect_changes(a, b, same, ChangeParams(nest_max_ratio=nest, links_in_3d=True), 2.0)
-        assert level.a.label[0] == GONE and level.a.confidence[0] > 0.9
-        assert np.array_equal(level.a.label[1:], flat.a.label[1:]) and np.array_equal(level.b.label, flat.b.label)
-
-
 def test_tracks_are_the_connected_matches_of_one_segment_per_keyframe():
     # keyframe a, keyframe b, matched keypoints: one 3-view track (0:1, 1:0, 2:2), one 2-view track (0:0, 1:1) and
     # a component that holds two keypoints of keyframe 2 (no track of one segment)
