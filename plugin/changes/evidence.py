@@ -48,17 +48,10 @@ def nested_pairs(points: np.ndarray, sizes: np.ndarray, holders: np.ndarray, hol
     standing in a mapped field or meadow rises above the field's landmark and is not nested in it, so only the
     height, not a size limit, keeps ground regions from holding the objects on them."""
     i, j = holder_pairs(points, sizes, holders, holder_sizes, np.inf, same_map)
-    ok = at_one_height(points, holders, i, j, gate_m, z_weight)
-    return i[ok], j[ok]
-
-
-def at_one_height(points: np.ndarray, holders: np.ndarray, i: np.ndarray, j: np.ndarray, gate_m: float,
-                  z_weight: float) -> np.ndarray:
-    """Per pair (i, j): landmark i of `points` and j of `holders` lie at one height, z_weight x |dz| <= gate_m
-    (the counterpart gate's metric in height)."""
     zi = np.asarray(points, dtype=np.float64).reshape(-1, 3)[i, 2]
     zj = np.asarray(holders, dtype=np.float64).reshape(-1, 3)[j, 2]
-    return z_weight * np.abs(zi - zj) <= gate_m
+    ok = z_weight * np.abs(zi - zj) <= gate_m
+    return i[ok], j[ok]
 
 
 def counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
@@ -87,19 +80,14 @@ def counterparts(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray
 
 
 def inside_larger(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarray, other_sizes: np.ndarray,
-                  max_ratio: float, eligible: np.ndarray | None = None,
-                  level: tuple[float, float] | None = None) -> np.ndarray:
+                  max_ratio: float, eligible: np.ndarray | None = None) -> np.ndarray:
     """For each landmark, the nearest landmark of the other map that holds it (`holder_pairs`): the other session
     mapped the object as a whole (or a bigger part of it) where this map has a part; a removed object leaves, at
-    most, smaller ground patches. `level` (gate_m, z_weight): only a holder at the landmark's height
-    (`at_one_height`). Returns (N,) index or -1."""
+    most, smaller ground patches. Returns (N,) index or -1."""
     out = np.full(len(np.asarray(points).reshape(-1, 3)), -1, dtype=np.int64)
     i, j = holder_pairs(points, sizes, other_points, other_sizes, max_ratio)
     if eligible is not None:
         keep = np.asarray(eligible, dtype=bool)[j]
-        i, j = i[keep], j[keep]
-    if level is not None:
-        keep = at_one_height(points, other_points, i, j, *level)
         i, j = i[keep], j[keep]
     first = np.r_[True, i[1:] != i[:-1]] if len(i) else np.zeros(0, bool)  # sorted by i, then distance
     out[i[first]] = j[first]

@@ -17,7 +17,6 @@ from .confidence import fit_logistic, predict_logistic, reobservation_features
 from .direct import DirectEvidence, direct_evidence
 from .evidence import (
     Sensing,
-    at_one_height,
     counterparts,
     holder_pairs,
     inside_larger,
@@ -134,15 +133,13 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
     n = len(own_pos)
     views, compared, index = mine.views, mine.compared, mine.index
     holder = np.full(n, -1, dtype=np.int64)
-    # `links_in_3d`: a footprint is a disc at its landmark's height, holding nothing far above or below it
-    level = (gate_m, params.z_weight) if params.links_in_3d else None
     if params.nest_max_ratio >= 1:
         # the holder must itself be established in this session (a counterpart here, or this session's
         # segments show it): a ground patch that the other session sees where this map's object stood is no
         # whole of that object
         holder = np.where(compared & (index < 0) & ~mine.doubted,
                           inside_larger(own_pos, own_h, other_pos, other_h, params.nest_max_ratio,
-                                        theirs.established, level), -1)
+                                        theirs.established), -1)
     label = np.full(n, UNSEEN, dtype=object)
     evidence = np.full(n, TOO_FEW_VIEWS, dtype=object)
     evidence[(views >= other.views_needed(params.min_views)) & ~compared] = BELOW_GROUND
@@ -156,9 +153,6 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
     link = np.full(n, -1, dtype=np.int64)
     if params.part_max_ratio >= 1:
         part, whole = holder_pairs(own_pos, own_h, own_pos, own_h, params.part_max_ratio, same_map=True)
-        if level is not None:
-            level_ = at_one_height(own_pos, own_pos, part, whole, *level)
-            part, whole = part[level_], whole[level_]
         hit = compared[part] & ~direct[part] & ~mine.doubted[part] & (mine.established | direct)[whole]
         hp, hw = part[hit], whole[hit]  # sorted by part, then distance: the nearest whole first
         first = np.r_[True, hp[1:] != hp[:-1]] if len(hp) else np.zeros(0, bool)
@@ -174,9 +168,6 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
         matched_other, _ = counterparts(other_pos, other_h, own_pos, own_h, gate_m, params.max_size_difference,
                                         params.z_weight)
         j, i = holder_pairs(other_pos, other_h, own_pos, own_h, params.part_max_ratio)
-        if level is not None:
-            same_level = at_one_height(other_pos, own_pos, j, i, *level)
-            j, i = j[same_level], i[same_level]
         ok = open_[i] & ~mine.doubted[i] & (matched_other[j] >= 0)
         i, j = i[ok], j[ok]
         order = np.lexsort((j, i))

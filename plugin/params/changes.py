@@ -48,12 +48,6 @@ class ChangeParams(Checked):
     # removed 5 of 6 false same-season new claims for 2 of 15 found). A wider reach lets large ground regions
     # and neighbouring crowns hold objects that really went. 0 = off.
     part_max_ratio: float = non_negative(2.5)
-    # (ours) the containment links above (a holder of the other map, a whole of the own map, the other map's parts
-    # in a whole) hold only landmarks at their own height: within the counterpart gate in z_weight x |dz|, the
-    # metric a counterpart is judged by (`evidence.nested_pairs`). A footprint is a disc at its landmark's height;
-    # a ground patch 6 m under a removed crown's landmark, or a crown above a removed bush's, is no whole of it.
-    # False: in ground distance only (BENCHMARKS.md, Change detection, sixteenth round: tried, not kept)
-    links_in_3d: bool = flag(False)
     # A place without a counterpart landmark is still called occupied when the other session's own segments
     # (every mask in its database, tracked or not) show a size-compatible segment at the landmark's projection
     # in significantly more of its keyframes than at probe points around it: binomial tail probability below this

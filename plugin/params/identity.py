@@ -96,7 +96,6 @@ ADDED: tuple[Added, ...] = (
     # flag-off map silently given out as a flag-on one (and so a batch's). At False, as whole_masks_only and
     # contrast_reference (behaviour-changing defaults of the mapping stages), such a map is refused with the note
     # "--set tracking.truncation_aware=false would accept it", which resumes it as it was made
-    Added("changes.links_in_3d", "HEAD", False, "containment links hold only landmarks at their own height"),
     Added("tracking.truncation_aware", "13d672e", False, "masks cut by the image border are tracked as truncated "
           "views"),
 )
