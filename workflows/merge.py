@@ -40,7 +40,7 @@ from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, write_landmark_map
 from ..database.map_loading import session_map_noise
-from ..database.match_io import answer_gate, check_match_maps, match_content, read_match
+from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
 from ..database.outputs import OutputDir, open_output_dir
@@ -51,12 +51,12 @@ from ..database.session_io import (
     read_session,
     write_landmarks_csv,
 )
-from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
 from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, fusion_groups
 from ..plugin.params import Params
-from ..plugin.refinement import refine_alignment
+from ..plugin.refinement import refine_alignment, yaw_matrix
+from ..plugin.verification import tilted_alignment
 from .changes import check_alignment
 from .merge_pairs import FusePair, distinct_flights, filter_associations, match_fuse_pair, session_fingerprint
 
@@ -341,6 +341,67 @@ def precision_note(a: SessionFiles, b: SessionFiles, label_a: str, label_b: str)
             "to keep its georeference")
 
 
+@dataclass(frozen=True)
+class Refinement:
+    """An answer's transform refined on the full maps (`refined_answer`)."""
+
+    transform: Sim3  # a_from_b: the refined one, or the answer's own when it was kept
+    used: int  # the mutual nearest neighbours that support the refined transform (0: the answer's kept)
+    dof: int  # 4: yaw + translation (then tilted by the pairs' heights), 6: rigid / similarity, 0: not refitted
+    note: str | None = None  # why the answer's own transform was kept
+
+
+def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: Params) -> Refinement:
+    """`merge --refine` and `batch --refine`: the match's answer a_from_b refined on every landmark the two maps
+    share, by the match's own recorded settings. One answer for both (rev33: batch refitted once on the window
+    associations at the configured 2 m, merge refined at another size gate, and batch's changes used neither).
+
+    A verified answer is kept as it is: it is already the verification's fit on the full maps, and refitting it
+    with other settings only made it worse (rev33: merge refitted it yaw-only, dropping its tilt, at the default
+    size gate 0.2: 126 instead of 138 pairs, landmarks 2.03 -> 2.51 m from the truth). An unverified answer (the
+    window consensus, `match --no-verify`) is refined as the verification refines its winner: at the answer's gate
+    (`answer_gate`), with match.json's recorded verification settings (`MatchSummary.refinement`: size gate,
+    dof, the final tilt and its prior, z_weight, coarse factor; the configured `params.verification` for any it
+    does not record): `refinement.refine_alignment`, then for a 4-DOF fit `verification.tilted_alignment`; a
+    similarity match a 6-DOF fit with scale. The 4-DOF fit keeps the answer's tilt (`_tilt_of`) and fits yaw and
+    translation to B turned by it, so a level answer is refined as the verification refines its winner and a tilted
+    one keeps its tilt (the final tilt corrects it by what the pairs' heights show). Fewer than 3 supporting pairs:
+    the answer's own transform, kept."""
+    if match.transform is None:
+        raise ValueError("the match has no transform to refine")
+    if match.source == "verified":
+        return Refinement(match.transform, 0, 0, "the verified answer is already refined on the full maps (the "
+                          "match's verification): --refine keeps it as it is")
+    vp = dataclasses.replace(params.verification, **match.refinement)
+    gate = answer_gate(match, params.association.distance_tolerance_m)
+    with_scale = match.transform_kind == "similarity"
+    dof = 6 if with_scale else vp.dof
+    # the 4-DOF fit holds the answer's own tilt (B turned by it first): a yaw-only fit from the answer dropped
+    # it, and the tilted fit's prior then kept a consensus of maps tilted 3 / 8 / 15 deg at 1.5 / 3.1 / 3.3 deg
+    # (rev33's A and B turned about x: landmarks 1.5 / 3.7 / 9.3 m off; held: 0.4 m at every tilt)
+    held = _tilt_of(match.transform.rotation) if dof == 4 else np.eye(3)
+    pb = b.positions @ held.T
+    start = Sim3(match.transform.rotation @ held.T, match.transform.translation, match.transform.scale)
+    aligned = refine_alignment(a.positions, a.sizes, pb, b.sizes, start, gate, vp.max_size_difference, dof=dof,
+                               with_scale=with_scale, z_weight=vp.z_weight, coarse_factor=vp.coarse_factor)
+    if dof == 4 and vp.final_dof == 6 and len(aligned.associations) >= 3:
+        aligned = tilted_alignment(a.positions, a.sizes, pb, b.sizes, aligned, gate, vp.max_size_difference,
+                                   vp.tilt_prior_deg, vp.z_weight)
+    if len(aligned.associations) < 3:
+        return Refinement(match.transform, 0, 0, f"the refinement found {len(aligned.associations)} supporting "
+                          "pairs: the answer's transform is kept")
+    refined = aligned.transform
+    return Refinement(Sim3(refined.rotation @ held, refined.translation, refined.scale), len(aligned.associations),
+                      dof)
+
+
+def _tilt_of(rotation: np.ndarray) -> np.ndarray:
+    """The roll/pitch part T of a rotation R = Rz(yaw) T (yaw: the heading of R's x axis): what a yaw +
+    translation fit of B turned by T leaves as the answer's tilt."""
+    yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
+    return yaw_matrix(-yaw) @ rotation
+
+
 def run(
     session_a: str | Path,
     session_b: str | Path,
@@ -354,10 +415,8 @@ def run(
 ) -> MergeResult:
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
-    With `refine`, the transform is re-estimated on the full maps (`plugin.refinement.refine_alignment`:
-    size-gated mutual nearest neighbours within the match's gate (match.json's theta_eps, else
-    `params.association.distance_tolerance_m`), refitted until they
-    stop changing; yaw + translation for gravity-aligned rigid matches, else rigid / similarity). The
+    With `refine`, an unverified answer's transform is refined on the full maps as the match's verification
+    refines an alignment (`refined_answer`); a verified answer is that refinement already and is kept (said). The
     hypothesis' associations are still the ones fused (those the refined transform explains within the gate).
     Raises InputError when match.json was computed for other maps (`match_io.check_match_maps`) or has no
     accepted hypothesis, or when its transform (refined or not) does not bring the maps together
@@ -392,18 +451,12 @@ def run(
     # the answer's own gate (recorded in match.json: the tolerance the match derived from the maps), for the
     # refinement, the control and the fusion alike; a match.json without it: the configured one
     gate = answer_gate(match, params.association.distance_tolerance_m)
+    refinement = refined_answer(a.landmarks, b.landmarks, match, params) if refine else None
     used, dof = 0, 0
-    if refine:
-        ap = params.association
-        with_scale = match.transform_kind == "similarity" or not np.isclose(transform.scale, 1.0)
-        # gravity-aligned maps (the match's own gravity check): yaw + translation only, which keeps the
-        # landmarks' metre-level height noise out of the rotation; otherwise a full rigid / similarity fit
-        dof = 4 if not with_scale and tilt_deg(transform.rotation) <= ap.max_gravity_angle_deg else 6
-        la, lb = a.landmarks, b.landmarks
-        aligned = refine_alignment(la.positions, la.sizes, lb.positions, lb.sizes, transform,
-                                   gate, ap.max_size_difference, dof=dof, with_scale=with_scale)
-        if len(aligned.associations) >= 3:
-            transform, used = aligned.transform, len(aligned.associations)
+    if refinement is not None:
+        transform, used, dof = refinement.transform, refinement.used, refinement.dof
+        if refinement.note:
+            log.info("%s: %s", match_json, refinement.note)
     # the control of `changes` (a merge never fuses what it refuses as chance), at the answer's own gate: maps of
     # 20 m objects (NAIP, theta_eps 8 m) have no counterparts at the configured 2 m even at the true alignment;
     # said before any warning, so that a refusal is one line
@@ -415,7 +468,8 @@ def run(
     # says, `match_content`), so that a project moved or copied whole is the same merge (nu37 D1)
     record = {"refined": bool(refine and used), "match": str(resolved_path(match_json)),
               "match_transform": match.transform.to_dict(),
-              "refine": {"requested": refine, "associations_used": used, "dof": dof}}
+              "refine": {"requested": refine, "associations_used": used, "dof": dof,
+                         **({"kept": refinement.note} if refinement is not None and refinement.note else {})}}
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],
