@@ -55,7 +55,7 @@ from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
 from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, fusion_groups
 from ..plugin.params import Params
-from ..plugin.refinement import refine_alignment, yaw_matrix
+from ..plugin.refinement import Alignment, refine_alignment, yaw_matrix
 from ..plugin.verification import tilted_alignment
 from .changes import check_alignment
 from .merge_pairs import FusePair, distinct_flights, filter_associations, match_fuse_pair, session_fingerprint
@@ -363,10 +363,10 @@ def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: 
     (`answer_gate`), with match.json's recorded verification settings (`MatchSummary.refinement`: size gate,
     dof, the final tilt and its prior, z_weight, coarse factor; the configured `params.verification` for any it
     does not record): `refinement.refine_alignment`, then for a 4-DOF fit `verification.tilted_alignment`; a
-    similarity match a 6-DOF fit with scale. The 4-DOF fit keeps the answer's tilt (`_tilt_of`) and fits yaw and
-    translation to B turned by it, so a level answer is refined as the verification refines its winner and a tilted
-    one keeps its tilt (the final tilt corrects it by what the pairs' heights show). Fewer than 3 supporting pairs:
-    the answer's own transform, kept."""
+    similarity match a 6-DOF fit with scale. A 4-DOF fit runs from the answer levelled (as the verification's) and
+    from B turned by the answer's tilt (`_tilt_of`), each then tilted by what its pairs' heights show against the
+    recorded prior of level maps; the one with more pairs stands. Fewer than 3 supporting pairs: the answer's own
+    transform, kept."""
     if match.transform is None:
         raise ValueError("the match has no transform to refine")
     if match.source == "verified":
@@ -376,23 +376,42 @@ def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: 
     gate = answer_gate(match, params.association.distance_tolerance_m)
     with_scale = match.transform_kind == "similarity"
     dof = 6 if with_scale else vp.dof
-    # the 4-DOF fit holds the answer's own tilt (B turned by it first): a yaw-only fit from the answer dropped
-    # it, and the tilted fit's prior then kept a consensus of maps tilted 3 / 8 / 15 deg at 1.5 / 3.1 / 3.3 deg
-    # (rev33's A and B turned about x: landmarks 1.5 / 3.7 / 9.3 m off; held: 0.4 m at every tilt)
-    held = _tilt_of(match.transform.rotation) if dof == 4 else np.eye(3)
-    pb = b.positions @ held.T
-    start = Sim3(match.transform.rotation @ held.T, match.transform.translation, match.transform.scale)
-    aligned = refine_alignment(a.positions, a.sizes, pb, b.sizes, start, gate, vp.max_size_difference, dof=dof,
-                               with_scale=with_scale, z_weight=vp.z_weight, coarse_factor=vp.coarse_factor)
-    if dof == 4 and vp.final_dof == 6 and len(aligned.associations) >= 3:
-        aligned = tilted_alignment(a.positions, a.sizes, pb, b.sizes, aligned, gate, vp.max_size_difference,
-                                   vp.tilt_prior_deg, vp.z_weight)
-    if len(aligned.associations) < 3:
-        return Refinement(match.transform, 0, 0, f"the refinement found {len(aligned.associations)} supporting "
-                          "pairs: the answer's transform is kept")
-    refined = aligned.transform
-    return Refinement(Sim3(refined.rotation @ held, refined.translation, refined.scale), len(aligned.associations),
-                      dof)
+    # the 4-DOF fit from the answer levelled (the verification's way) and from B turned by the answer's own tilt:
+    # levelled, the fit paired fewer the farther the maps are tilted (rev33's A and B turned 3 / 8 / 15 deg about
+    # x: 130 / 99 / 53 pairs against 132 held), held, it kept a tilt the window consensus had fitted wrongly (rev33's
+    # B and C: consensus 2.8 deg, verified 0.8 deg; held 2.0 deg, 125 pairs, C's landmarks 2.3 m from the truth;
+    # levelled 0.8 deg, 127 pairs, 1.6 m). The one with more pairs, as `refine_alignment`'s two stages (ties: level)
+    helds = [np.eye(3)] + ([_tilt_of(match.transform.rotation)] if dof == 4 else [])
+    fits = [_fit(a, b, match.transform, held, gate, vp, dof, with_scale) for held in helds]
+    best = max(fits, key=lambda f: len(f.associations))
+    if len(best.associations) < 3:
+        return Refinement(match.transform, 0, 0, f"the refinement found {len(best.associations)} supporting pairs: "
+                          "the answer's transform is kept")
+    return Refinement(best.transform, len(best.associations), dof)
+
+
+def _fit(a: LandmarkMap, b: LandmarkMap, start: Sim3, held: np.ndarray, gate: float, vp: Any, dof: int,
+         with_scale: bool) -> Alignment:
+    """One refinement of `refined_answer`: `refine_alignment` of B turned by `held` (3x3) from `start`, then, for
+    a 4-DOF fit with the final tilt on, the tilt its pairs' heights show against the prior of level maps, from its
+    level version (`_level`: the verification's `tilted_alignment`). a_from_b in B's own frame."""
+    t = Sim3(start.rotation @ held.T, start.translation, start.scale)
+    aligned = refine_alignment(a.positions, a.sizes, b.positions @ held.T, b.sizes, t, gate, vp.max_size_difference,
+                               dof=dof, with_scale=with_scale, z_weight=vp.z_weight, coarse_factor=vp.coarse_factor)
+    t, pairs = aligned.transform, aligned.associations
+    refined = Sim3(t.rotation @ held, t.translation, t.scale)
+    if dof != 4 or vp.final_dof != 6 or len(pairs) < 3:
+        return Alignment(refined, pairs, aligned.rms_m, aligned.iterations)
+    level = _level(refined, b.positions[pairs[:, 1]].mean(axis=0))
+    return tilted_alignment(a.positions, a.sizes, b.positions, b.sizes,
+                            Alignment(level, pairs, aligned.rms_m, aligned.iterations), gate, vp.max_size_difference,
+                            vp.tilt_prior_deg, vp.z_weight)
+
+
+def _level(transform: Sim3, centre: np.ndarray) -> Sim3:
+    """`transform` without its roll and pitch (its yaw, `_tilt_of`), placing `centre` (B's frame) where it does."""
+    turn = transform.rotation @ _tilt_of(transform.rotation).T
+    return Sim3(turn, transform.apply(centre) - transform.scale * turn @ centre, transform.scale)
 
 
 def _tilt_of(rotation: np.ndarray) -> np.ndarray:
