@@ -77,3 +77,18 @@ def test_refine_of_an_unverified_answer_holds_its_tilt_and_uses_the_recorded_set
     strict = _recorded(toy_match_json(a, b, tmp_path / "strict.json", transform=start), size_gate=1e-9)
     kept = merge.run(a.path, b.path, strict, tmp_path / "S", refine=True)
     assert not kept.refined and np.allclose(kept.transforms[1].matrix(), start.matrix())
+
+
+def test_a_recorded_refinement_setting_out_of_range_names_its_field(tilted_pair, tmp_path):
+    from sosmatch.database.match_io import read_match
+    from sosmatch.plugin.errors import InputError
+
+    a, b, truth = tilted_pair
+    match = _recorded(toy_match_json(a, b, tmp_path / "match.json"))
+    assert read_match(match).refinement == {"dof": 4, "final_dof": 6, "tilt_prior_deg": 1.0, "z_weight": 0.5,
+                                            "max_size_difference": 0.4, "coarse_factor": 2.0}
+    doc = json.loads(match.read_text())
+    doc["params"]["verification"]["dof"] = 5
+    match.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="params.verification.dof"):
+        read_match(match)
