@@ -88,6 +88,10 @@ class MatchSummary:
     georeference_radius_m: float | None = None
     position_prior: str | None = None
     warnings: list[str] = field(default_factory=list)  # what `match` warned of (match.json "warnings", since fix15)
+    # how the match refines an alignment on the full maps: its recorded verification section's dof, final_dof,
+    # tilt_prior_deg, z_weight, max_size_difference and coarse_factor (params.verification; those missing: not
+    # recorded); `merge --refine` and batch refine an unverified answer with them (`merge.refined_answer`)
+    refinement: dict[str, float] = field(default_factory=dict)
 
 
 # --- field validation (each raises InputError naming the file and the field) -----------------------------------
@@ -233,7 +237,7 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     seconds = _float(seconds, "search_seconds", path, allow_none=True)
     params = data.get("params")
     theta = None
-    gate, z_weight, summary_radius = None, None, None
+    gate, z_weight, summary_radius, refinement = None, None, None, {}
     if isinstance(params, dict):
         assoc = params.get("association")
         theta = assoc.get("min_associations") if isinstance(assoc, dict) else params.get("min_associations")
@@ -246,11 +250,13 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
         ver_params = params.get("verification")
         z_weight = _positive(ver_params.get("z_weight") if isinstance(ver_params, dict) else None,
                              "params.verification.z_weight", path)
+        refinement = _refinement(ver_params if isinstance(ver_params, dict) else {}, path)
     summary = MatchSummary(False, None, np.zeros((0, 2), np.int64), kind, len(hyps), hypotheses=hyps,
                            map_a=_map_ref(data.get("map_a"), "map_a", path),
                            map_b=_map_ref(data.get("map_b"), "map_b", path), seconds=seconds, min_associations=theta)
     mode = data.get("search_mode")
     summary.search_mode = mode if isinstance(mode, dict) else {}
+    summary.refinement = refinement
     summary.georeference_radius_m = summary_radius
     off = _float(summary.search_mode.get("georeference_off_m"), "search_mode.georeference_off_m", path,
                  allow_none=True)
@@ -325,6 +331,26 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
             if t is not None and abs(t.scale - 1.0) > 1e-9:
                 raise InputError(f"{what} transform has scale {t.scale:g} in a match of transform_kind 'rigid'", path)
     return summary
+
+
+# the recorded verification settings a refinement of the answer uses (`MatchSummary.refinement`): name -> (lo, hi)
+REFINEMENT_FIELDS = {"dof": (4, 6), "final_dof": (0, 6), "tilt_prior_deg": (0.0, 30.0), "z_weight": (0.0, 100.0),
+                     "max_size_difference": (0.0, 1.0), "coarse_factor": (1.0, 100.0)}
+
+
+def _refinement(section: dict[str, Any], path: Path) -> dict[str, float]:
+    """The verification settings a match.json records for refining an alignment (`REFINEMENT_FIELDS`), each
+    checked (InputError naming the field); those it does not record are left out."""
+    out: dict[str, float] = {}
+    for name, (lo, hi) in REFINEMENT_FIELDS.items():
+        if section.get(name) is None:
+            continue
+        value = _float(section[name], f"params.verification.{name}", path)
+        if not lo <= value <= hi or (name in ("dof", "final_dof") and value not in (0, 4, 6)):
+            raise InputError(f"{_where('params.verification.' + name)} must be within [{lo}, {hi}], got "
+                             f"{_short(section[name])}", path)
+        out[name] = int(value) if name in ("dof", "final_dof") else value
+    return out
 
 
 def answer_gate(match: MatchSummary | None, configured_m: float) -> float:

@@ -173,14 +173,8 @@ def verify_alignments(
     rigid, winner_pairs, tilt_p = None, None, None
     if final_dof == 6 and dof != 6 and support >= 3:
         tilt_p = tilt_significance(pa_all, pb_all, best)
-        first = tilted_fit(pa_all, pb_all, best, tilt_prior_deg, z_weight)
-        # then the pairs under that transform: landmarks the 4-DOF fit could not reach because the frames are
-        # tilted (1-2 deg between EKF frames is metres of height at the far end of a map) join its support
-        assoc, dist = mutual_nearest(pa_all, sizes_a, first.transform.apply(pb_all), sizes_b, gate_m,
-                                     max_size_difference, z_weight, tree_a)
-        rigid = first
-        if len(assoc) >= len(first.associations):
-            rigid = Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
+        rigid = tilted_alignment(pa_all, sizes_a, pb_all, sizes_b, best, gate_m, max_size_difference,
+                                 tilt_prior_deg, z_weight, tree_a)
         # the pairs of the rigid alignment the winner belongs to, over the whole overlap (the judge of which
         # other refinements found the winner again; the answer keeps the fit above)
         winner_pairs = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, rigid.transform, gate_m,
@@ -381,6 +375,23 @@ def tilted_fit(pa: np.ndarray, pb: np.ndarray, aligned: Alignment, prior_deg: fl
     transform = Sim3(turn, h.centre - turn @ h.centre, 1.0).compose(aligned.transform)
     res = pairing_distance(transform.apply(pb[assoc[:, 1]]), pa[assoc[:, 0]], z_weight)
     return Alignment(transform, assoc, float(np.sqrt(np.mean(res**2))), aligned.iterations)
+
+
+def tilted_alignment(pa: np.ndarray, sizes_a: np.ndarray | None, pb: np.ndarray, sizes_b: np.ndarray | None,
+                     aligned: Alignment, gate_m: float, max_size_difference: float, prior_deg: float,
+                     z_weight: float, tree_a: Any = None) -> Alignment:
+    """The last stage of the verification's fit (`verify_alignments`' `final_dof` 6) of a gravity-aligned (4-DOF)
+    alignment on the full maps: tilted by its pairs' heights (`tilted_fit`, shrunk towards level by `prior_deg`),
+    then its support the mutual nearest neighbours under that transform (`mutual_nearest`), when they are at
+    least as many: landmarks the 4-DOF fit could not reach because the frames are tilted (1-2 deg between EKF
+    frames is metres of height at the far end of a map) join it. Also `merge --refine`'s for an unverified
+    answer (`workflows.merge.refined_answer`): one refinement of an alignment on the full maps."""
+    first = tilted_fit(pa, pb, aligned, prior_deg, z_weight)
+    assoc, dist = mutual_nearest(pa, sizes_a, first.transform.apply(pb), sizes_b, gate_m, max_size_difference,
+                                 z_weight, tree_a)
+    if len(assoc) >= len(first.associations):
+        return Alignment(first.transform, assoc, float(np.sqrt(np.mean(dist**2))), first.iterations)
+    return first
 
 
 def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray,

@@ -51,10 +51,11 @@ from ..plugin.changes import (
     UNSEEN,
     AlignmentSupport,
     ChangeResult,
-    alignment_support,
     counterpart_gate,
     detect_changes,
     implausible_alignment,
+    implausible_pair,
+    pair_support,
 )
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
@@ -76,8 +77,9 @@ class ChangesRun:
     sources: dict[str, str]
     seconds: float = 0.0
     # the alignment control (`check_alignment`'s rule) at the counterpart gate of the match's own theta_eps
-    control: AlignmentSupport | None = None
+    control: AlignmentSupport | None = None  # A's landmarks against B
     control_gate_m: float | None = None
+    control_b: AlignmentSupport | None = None  # ... and B's against A (`pair_support`: both must pass)
     # what `compute` warned of (a result it doubts is no plain success): kept in changes.json, on the plot, and
     # carried into a batch's report
     warnings: list[str] = field(default_factory=list)
@@ -197,21 +199,26 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     tolerance = (answer_gate_m if answer_gate_m is not None
                  else answer_gate(match, params.association.distance_tolerance_m))
     control_gate = counterpart_gate(params.changes, tolerance)
-    control = sup if sup is None or control_gate == result.tolerance_m else alignment_support(
-        obs_a, obs_b.transformed(a_from_b), control_gate, params.changes)
-    if control is not None and (why := implausible_alignment(control, control_gate, verified)) is not None:
+    # the control of the pair, both directions (`implausible_pair`), as merge and batch apply it (`check_alignment`)
+    control = None if sup is None else pair_support(obs_a, obs_b, a_from_b, control_gate, params.changes)
+    if control is not None and (why := implausible_pair(control, control_gate, verified)) is not None:
         raise InputError(f"{why}; nothing compared", match_json or session_b)
-    if control is not sup and implausible_alignment(sup, result.tolerance_m, verified) is not None:
+    fine = () if control is None or control_gate == result.tolerance_m else pair_support(
+        obs_a, obs_b, a_from_b, result.tolerance_m, params.changes)
+    for k, name in enumerate("AB"[:len(fine)]):
+        if implausible_alignment(fine[k], result.tolerance_m, verified) is None:
+            continue
         # the alignment holds, but not at the classification's own gate: its landmarks scatter beyond it, so a
         # kept object has no counterpart there and would be claimed gone (two NAIP maps, theta_eps 8.2 m: 113 gone
         # and 126 new against 7 + 4 kept, 1 counterpart in 141 at 3 m, 17 at 12.4 m)
         raise InputError(
             f"these maps' landmarks scatter beyond the counterpart gate of the change classification: within "
             f"{result.tolerance_m:g} m ({params.changes.tolerance_factor:g} x the configured theta_eps "
-            f"{params.association.distance_tolerance_m:g} m) {sup.rate:.0%} of A's {sup.compared} compared landmarks "
-            f"have a counterpart, {sup.displaced_rate:.0%} with B displaced, while at the match's own theta_eps "
-            f"({tolerance:g} m) {control.rate:.0%} do: kept and gone cannot be told apart; compare them with "
-            f"--set association.distance_tolerance_m={tolerance:g}; nothing compared", match_json or session_b)
+            f"{params.association.distance_tolerance_m:g} m) {fine[k].rate:.0%} of {name}'s {fine[k].compared} "
+            f"compared landmarks have a counterpart, {fine[k].displaced_rate:.0%} with {'AB'[1 - k]} displaced, "
+            f"while at the match's own theta_eps ({tolerance:g} m) {control[k].rate:.0%} do: kept and gone cannot "
+            f"be told apart; compare them with --set association.distance_tolerance_m={tolerance:g}; nothing "
+            "compared", match_json or session_b)
     sources = {"session_a": str(session_a), "session_b": str(session_b),
                "match": str(match_json) if match_json is not None else "",
                "images_a": str(dirs[0] or ""), "images_b": str(dirs[1] or ""),
@@ -225,7 +232,9 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
             epsg = 0
     for text in warnings:
         log.warning("%s", text)
-    return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0, control, control_gate, warnings)
+    control_a, control_b = control or (None, None)
+    return ChangesRun(result, a_from_b, epsg, sources, time.perf_counter() - t0, control_a, control_gate,
+                      control_b, warnings)
 
 
 def sensing_notes(result: ChangeResult, session_a: str, session_b: str) -> list[str]:
@@ -249,16 +258,17 @@ def sensing_notes(result: ChangeResult, session_a: str, session_b: str) -> list[
 def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: Sim3, params: Params, verified: bool,
                     association_tolerance_m: float, where: str | Path, refusing: str) -> None:
     """InputError naming `where` (then `refusing`: what the caller did not do) when `a_from_b` does not bring the
-    two sessions' maps together by the control `compute` applies (`plugin.changes.implausible_alignment`: the
-    counterpart rate of A's landmarks that B's keyframes saw, against B displaced, at the counterpart gate of
+    two sessions' maps together by the control `compute` applies (`plugin.changes.implausible_pair`: the
+    counterpart rate of A's landmarks that B's keyframes saw, against B displaced, and of B's that A's keyframes
+    saw, against A displaced, each in its own frame: the pair's verdict, whichever is named first; at the gate of
     `association_tolerance_m`, theta_eps of the association that aligned the maps: `match_io.answer_gate`;
     `verified`: match's verification decided the alignment). For a transform used without change detection
     (`merge`: an unverified consensus 181 m off was merged, 6 landmarks fused wrongly, exit 0, where `changes`
     refused it as chance)."""
     obs_a = read_session_observations(session_a, with_segments=False)
-    obs_b = read_session_observations(session_b, with_segments=False).transformed(a_from_b)
+    obs_b = read_session_observations(session_b, with_segments=False)
     gate = counterpart_gate(params.changes, association_tolerance_m)
-    if (why := implausible_alignment(alignment_support(obs_a, obs_b, gate, params.changes), gate, verified)):
+    if (why := implausible_pair(pair_support(obs_a, obs_b, a_from_b, gate, params.changes), gate, verified)):
         raise InputError(f"{why}; {refusing}", where)
 
 
@@ -348,7 +358,8 @@ def changes_record(run: ChangesRun, params: Params) -> dict[str, Any]:
         "alignment_support": _support_record(res.support),
         # what the alignment control judged (`compute`): at the gate of the match's own theta_eps
         "alignment_control": None if run.control is None else {"gate_m": run.control_gate_m,
-                                                                **_support_record(run.control)},
+                                                                **_support_record(run.control),
+                                                                "b_against_a": _support_record(run.control_b)},
         "params": {"changes": params_to_dict(params.changes),
                    "association.distance_tolerance_m": params.association.distance_tolerance_m},
         "summary": res.summary(), "warnings": list(run.warnings), "seconds": round(run.seconds, 3),

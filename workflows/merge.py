@@ -43,7 +43,7 @@ from ..database.atomic import write_text_atomic
 from ..database.colmap_model import load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, write_landmark_map
 from ..database.map_loading import session_map_noise
-from ..database.match_io import answer_gate, check_match_maps, match_content, read_match
+from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
 from ..database.outputs import OutputDir, open_output_dir
@@ -54,12 +54,12 @@ from ..database.session_io import (
     read_session,
     write_landmarks_csv,
 )
-from ..plugin.association.rigid import tilt_deg
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
 from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, associations_not_fused, fusion_groups
 from ..plugin.params import Params
-from ..plugin.refinement import refine_alignment
+from ..plugin.refinement import Alignment, refine_alignment, yaw_matrix
+from ..plugin.verification import tilted_alignment
 from .changes import check_alignment
 from .merge_pairs import FusePair, distinct_flights, filter_associations, match_fuse_pair, session_fingerprint
 
@@ -349,6 +349,86 @@ def precision_note(a: SessionFiles, b: SessionFiles, label_a: str, label_b: str)
             "to keep its georeference")
 
 
+@dataclass(frozen=True)
+class Refinement:
+    """An answer's transform refined on the full maps (`refined_answer`)."""
+
+    transform: Sim3  # a_from_b: the refined one, or the answer's own when it was kept
+    used: int  # the mutual nearest neighbours that support the refined transform (0: the answer's kept)
+    dof: int  # 4: yaw + translation (then tilted by the pairs' heights), 6: rigid / similarity, 0: not refitted
+    note: str | None = None  # why the answer's own transform was kept
+
+
+def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: Params) -> Refinement:
+    """`merge --refine` and `batch --refine`: the match's answer a_from_b refined on every landmark the two maps
+    share, by the match's own recorded settings. One answer for both (rev33: batch refitted once on the window
+    associations at the configured 2 m, merge refined at another size gate, and batch's changes used neither).
+
+    A verified answer is kept as it is: it is already the verification's fit on the full maps, and refitting it
+    with other settings only made it worse (rev33: merge refitted it yaw-only, dropping its tilt, at the default
+    size gate 0.2: 126 instead of 138 pairs, landmarks 2.03 -> 2.51 m from the truth). An unverified answer (the
+    window consensus, `match --no-verify`) is refined as the verification refines its winner: at the answer's gate
+    (`answer_gate`), with match.json's recorded verification settings (`MatchSummary.refinement`: size gate,
+    dof, the final tilt and its prior, z_weight, coarse factor; the configured `params.verification` for any it
+    does not record): `refinement.refine_alignment`, then for a 4-DOF fit `verification.tilted_alignment`; a
+    similarity match a 6-DOF fit with scale. A 4-DOF fit runs from the answer levelled (as the verification's) and
+    from B turned by the answer's tilt (`_tilt_of`), each then tilted by what its pairs' heights show against the
+    recorded prior of level maps; the one with more pairs stands. Fewer than 3 supporting pairs: the answer's own
+    transform, kept."""
+    if match.transform is None:
+        raise ValueError("the match has no transform to refine")
+    if match.source == "verified":
+        return Refinement(match.transform, 0, 0, "the verified answer is already refined on the full maps (the "
+                          "match's verification): --refine keeps it as it is")
+    vp = dataclasses.replace(params.verification, **match.refinement)
+    gate = answer_gate(match, params.association.distance_tolerance_m)
+    with_scale = match.transform_kind == "similarity"
+    dof = 6 if with_scale else vp.dof
+    # the 4-DOF fit from the answer levelled (the verification's way) and from B turned by the answer's own tilt:
+    # levelled, the fit paired fewer the farther the maps are tilted (rev33's A and B turned 3 / 8 / 15 deg about
+    # x: 130 / 99 / 53 pairs against 132 held), held, it kept a tilt the window consensus had fitted wrongly (rev33's
+    # B and C: consensus 2.8 deg, verified 0.8 deg; held 2.0 deg, 125 pairs, C's landmarks 2.3 m from the truth;
+    # levelled 0.8 deg, 127 pairs, 1.6 m). The one with more pairs, as `refine_alignment`'s two stages (ties: level)
+    helds = [np.eye(3)] + ([_tilt_of(match.transform.rotation)] if dof == 4 else [])
+    fits = [_fit(a, b, match.transform, held, gate, vp, dof, with_scale) for held in helds]
+    best = max(fits, key=lambda f: len(f.associations))
+    if len(best.associations) < 3:
+        return Refinement(match.transform, 0, 0, f"the refinement found {len(best.associations)} supporting pairs: "
+                          "the answer's transform is kept")
+    return Refinement(best.transform, len(best.associations), dof)
+
+
+def _fit(a: LandmarkMap, b: LandmarkMap, start: Sim3, held: np.ndarray, gate: float, vp: Any, dof: int,
+         with_scale: bool) -> Alignment:
+    """One refinement of `refined_answer`: `refine_alignment` of B turned by `held` (3x3) from `start`, then, for
+    a 4-DOF fit with the final tilt on, the tilt its pairs' heights show against the prior of level maps, from its
+    level version (`_level`: the verification's `tilted_alignment`). a_from_b in B's own frame."""
+    t = Sim3(start.rotation @ held.T, start.translation, start.scale)
+    aligned = refine_alignment(a.positions, a.sizes, b.positions @ held.T, b.sizes, t, gate, vp.max_size_difference,
+                               dof=dof, with_scale=with_scale, z_weight=vp.z_weight, coarse_factor=vp.coarse_factor)
+    t, pairs = aligned.transform, aligned.associations
+    refined = Sim3(t.rotation @ held, t.translation, t.scale)
+    if dof != 4 or vp.final_dof != 6 or len(pairs) < 3:
+        return Alignment(refined, pairs, aligned.rms_m, aligned.iterations)
+    level = _level(refined, b.positions[pairs[:, 1]].mean(axis=0))
+    return tilted_alignment(a.positions, a.sizes, b.positions, b.sizes,
+                            Alignment(level, pairs, aligned.rms_m, aligned.iterations), gate, vp.max_size_difference,
+                            vp.tilt_prior_deg, vp.z_weight)
+
+
+def _level(transform: Sim3, centre: np.ndarray) -> Sim3:
+    """`transform` without its roll and pitch (its yaw, `_tilt_of`), placing `centre` (B's frame) where it does."""
+    turn = transform.rotation @ _tilt_of(transform.rotation).T
+    return Sim3(turn, transform.apply(centre) - transform.scale * turn @ centre, transform.scale)
+
+
+def _tilt_of(rotation: np.ndarray) -> np.ndarray:
+    """The roll/pitch part T of a rotation R = Rz(yaw) T (yaw: the heading of R's x axis): what a yaw +
+    translation fit of B turned by T leaves as the answer's tilt."""
+    yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
+    return yaw_matrix(-yaw) @ rotation
+
+
 def run(
     session_a: str | Path,
     session_b: str | Path,
@@ -362,10 +442,8 @@ def run(
 ) -> MergeResult:
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
-    With `refine`, the transform is re-estimated on the full maps (`plugin.refinement.refine_alignment`:
-    size-gated mutual nearest neighbours within the match's gate (match.json's theta_eps, else
-    `params.association.distance_tolerance_m`), refitted until they
-    stop changing; yaw + translation for gravity-aligned rigid matches, else rigid / similarity). The
+    With `refine`, an unverified answer's transform is refined on the full maps as the match's verification
+    refines an alignment (`refined_answer`); a verified answer is that refinement already and is kept (said). The
     hypothesis' associations are still the ones fused (those the refined transform explains within the gate).
     Raises InputError when match.json was computed for other maps (`match_io.check_match_maps`) or has no
     accepted hypothesis, or when its transform (refined or not) does not bring the maps together
@@ -400,18 +478,12 @@ def run(
     # the answer's own gate (recorded in match.json: the tolerance the match derived from the maps), for the
     # refinement, the control and the fusion alike; a match.json without it: the configured one
     gate = answer_gate(match, params.association.distance_tolerance_m)
+    refinement = refined_answer(a.landmarks, b.landmarks, match, params) if refine else None
     used, dof = 0, 0
-    if refine:
-        ap = params.association
-        with_scale = match.transform_kind == "similarity" or not np.isclose(transform.scale, 1.0)
-        # gravity-aligned maps (the match's own gravity check): yaw + translation only, which keeps the
-        # landmarks' metre-level height noise out of the rotation; otherwise a full rigid / similarity fit
-        dof = 4 if not with_scale and tilt_deg(transform.rotation) <= ap.max_gravity_angle_deg else 6
-        la, lb = a.landmarks, b.landmarks
-        aligned = refine_alignment(la.positions, la.sizes, lb.positions, lb.sizes, transform,
-                                   gate, ap.max_size_difference, dof=dof, with_scale=with_scale)
-        if len(aligned.associations) >= 3:
-            transform, used = aligned.transform, len(aligned.associations)
+    if refinement is not None:
+        transform, used, dof = refinement.transform, refinement.used, refinement.dof
+        if refinement.note:
+            log.info("%s: %s", match_json, refinement.note)
     # the control of `changes` (a merge never fuses what it refuses as chance), at the answer's own gate: maps of
     # 20 m objects (NAIP, theta_eps 8 m) have no counterparts at the configured 2 m even at the true alignment;
     # said before any warning, so that a refusal is one line
@@ -423,7 +495,8 @@ def run(
     # says, `match_content`), so that a project moved or copied whole is the same merge (nu37 D1)
     record = {"refined": bool(refine and used), "match": str(resolved_path(match_json)),
               "match_transform": match.transform.to_dict(),
-              "refine": {"requested": refine, "associations_used": used, "dof": dof}}
+              "refine": {"requested": refine, "associations_used": used, "dof": dof,
+                         **({"kept": refinement.note} if refinement is not None and refinement.note else {})}}
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],

@@ -98,7 +98,15 @@ from .observations import (
     in_view,
     observed_area,
 )
-from .support import CONTROL_SHIFT, AlignmentSupport, alignment_support, counterpart_gate, implausible_alignment
+from .support import (
+    CONTROL_SHIFT,
+    AlignmentSupport,
+    alignment_support,
+    counterpart_gate,
+    implausible_alignment,
+    implausible_pair,
+    pair_support,
+)
 from .surface import ground_sweep_noise, height_log_ratio, heights_above_ground, stands_above_ground
 from .unmapped import UnmappedObjects, no_unmapped_objects, tracks_from_matches, unmapped_objects
 from .verdict import (
@@ -128,6 +136,7 @@ __all__ = ["BELOW_GROUND", "BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS"
            "SessionObservations", "UnmappedObjects", "absence_log_ratio", "alignment_support", "below_the_ground",
            "binomial_tail", "counterpart_gate", "counterparts", "detect_changes", "dispersion", "fit_logistic",
            "ground_height_field", "ground_sweep_noise", "height_log_ratio", "heights_above_ground", "holder_pairs",
-           "implausible_alignment", "in_view", "inside_larger", "landmark_presence_rate", "no_unmapped_objects",
-           "observed_area", "predict_logistic", "presence_rate", "reobservation_features", "segment_evidence",
+           "implausible_alignment", "implausible_pair", "in_view", "inside_larger", "landmark_presence_rate",
+           "no_unmapped_objects", "observed_area", "pair_support", "predict_logistic", "presence_rate",
+           "reobservation_features", "segment_evidence",
            "segment_hits", "stands_above_ground", "tracks_from_matches", "unmapped_objects", "view_correlation"]

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..multisession import Sim3
 from ..params import ChangeParams
 from .evidence import binomial_tail, counterparts
 from .observations import SessionObservations, in_view
@@ -47,23 +48,54 @@ def counterpart_gate(params: ChangeParams, association_tolerance_m: float) -> fl
     return params.tolerance_factor * association_tolerance_m
 
 
-def implausible_alignment(support: AlignmentSupport, gate_m: float, verified: bool) -> str | None:
-    """Why a transform does not bring two maps together (None: it does), by its counterpart control
-    (`alignment_support` at `gate_m`): the one rule of `changes` and `merge`. A verified alignment (match's
+def implausible_alignment(support: AlignmentSupport, gate_m: float, verified: bool,
+                          names: tuple[str, str] = ("A", "B")) -> str | None:
+    """Why a transform does not bring two maps together (None: it does), by one direction's counterpart control
+    (`alignment_support` at `gate_m`: the landmarks of the first of `names` against the second): the rule of
+    `changes` and `merge`, which apply it to both directions (`implausible_pair`). A verified alignment (match's
     verification on the full maps decided) is refused only when it pairs no more often than B displaced (1.5x the
     chance rate) and, where none of A's landmarks was compared, stands; an unverified one (a window consensus,
     `match --no-verify`: 7 associations can be a chance alignment 181 m off) must also be significant
     (p < UNVERIFIED_MAX_P), and with nothing compared it is not confirmed. The text names no file: the caller does,
     and says what it did not do."""
+    mine, other = names
     if not support.compared:
-        return None if verified else ("none of A's landmarks lies where B's keyframes looked under the transform "
-                                      "(in view of enough of them to be compared): nothing confirms the alignment")
+        return None if verified else (f"none of {mine}'s landmarks lies where {other}'s keyframes looked under the "
+                                      "transform (in view of enough of them to be compared): nothing confirms the "
+                                      "alignment")
     if support.plausible(max_p=1.0 if verified else UNVERIFIED_MAX_P):
         return None
-    return (f"the transform does not bring the maps together: {support.rate:.0%} of A's {support.compared} "
-            f"compared landmarks have a counterpart, {support.displaced_rate:.0%} with B moved "
+    return (f"the transform does not bring the maps together: {support.rate:.0%} of {mine}'s {support.compared} "
+            f"compared landmarks have a counterpart, {support.displaced_rate:.0%} with {other} moved "
             f"{CONTROL_SHIFT * gate_m:.0f} m (chance): the alignment is wrong, or the maps share too few landmarks "
             "to confirm it")
+
+
+def pair_support(a: SessionObservations, b: SessionObservations, a_from_b: Sim3, gate_m: float,
+                 params: ChangeParams) -> tuple[AlignmentSupport, AlignmentSupport]:
+    """The counterpart control of an alignment in both directions, each in its own map's frame: A's landmarks that
+    B's keyframes saw against B moved by a_from_b (`alignment_support`), and B's that A's keyframes saw against A
+    moved by its inverse. The pair (B, A) with the inverse transform gives the same two, swapped: each direction's
+    count, chance level (B displaced along 6 directions of its own frame) and p do not depend on which session is
+    named first (rev33: one direction alone checked 328 landmarks of A at a chance rate of 0.11 and passed, the
+    other order 156 of W at 0.24 and refused the same alignment)."""
+    return (alignment_support(a, b.transformed(a_from_b), gate_m, params),
+            alignment_support(b, a.transformed(a_from_b.inverse()), gate_m, params))
+
+
+def implausible_pair(supports: tuple[AlignmentSupport, AlignmentSupport], gate_m: float,
+                     verified: bool) -> str | None:
+    """Why an alignment does not bring the two maps together (None: it does), by both directions of its control
+    (`pair_support`): each must pass `implausible_alignment`. Each direction alone tests the same null hypothesis
+    (the transform pairs no better than chance) with its own landmarks, and the alignment is claimed only when both
+    reject it: an intersection-union test, whose false-alarm rate is at most each direction's, with no correction,
+    and whose verdict is the pair's, not the argument order's. The two counts are not pooled: one counterpart pair
+    is mostly counted in both (the gate and the size ratio are symmetric), so a pooled binomial p would count its
+    evidence twice."""
+    for support, names in zip(supports, (("A", "B"), ("B", "A"))):
+        if (why := implausible_alignment(support, gate_m, verified, names)) is not None:
+            return why
+    return None
 
 
 def alignment_support(a: SessionObservations, b_in_a: SessionObservations, gate_m: float,

@@ -26,8 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="take each pair's match consensus as is instead of verifying every window hypothesis "
                              "on the full maps (the default; see README)")
     parser.add_argument("--refine", action="store_true",
-                        help="with --no-verify: refit each accepted transform on all associations (verification "
-                             "already refines its winner)")
+                        help="with --no-verify: refine each accepted consensus on the full maps as `merge "
+                             "--refine` does (verification already refines its winner)")
     parser.add_argument("--no-merge", action="store_true", help="stop after the session graph")
     parser.add_argument("--no-changes", action="store_true",
                         help="skip change detection of the accepted pairs (pairs/A__B/changes/)")

@@ -17,8 +17,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--match", type=Path, required=True, help="match.json of `sosmatch match A B`")
     parser.add_argument("--out", type=Path, required=True, help="output directory (sparse/, landmarks, merge.json)")
     parser.add_argument("--refine", action="store_true",
-                        help="re-estimate the transform on the full maps: size-gated mutual nearest "
-                        "neighbours within the match's gate, refitted until they stop changing")
+                        help="refine an unverified answer (match --no-verify) on the full maps as the "
+                        "match's verification refines its winner (a verified answer is kept: it is that already)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a complete `sosmatch merge` output of other inputs in --out")
     parser.add_argument("--trust-images", action="store_true",

@@ -131,10 +131,10 @@ def _graph_and_merge(
         if rec.get("georeference_warning"):  # images agree, georeferences do not: kept apart (no control either)
             continue
         a, b = key.split(PAIR_SEP)
-        sim = Sim3.from_dict(rec["transform"])
+        rec.pop("refine", None)
         if options.refine and rec.get("answer") != "verified":
-            sim = _refined(sessions[a]["session"], sessions[b]["session"], matches[key], sim, params)
-        sims[key] = sim
+            _refine_pair(rec, sessions[a]["session"], sessions[b]["session"], matches[key], params)
+        sims[key] = Sim3.from_dict(rec["transform"])
     _control_alignments(sims, sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir)
     edges, edge_keys = [], {}
     for key, sim in sims.items():
@@ -247,10 +247,14 @@ def _after_pair_fingerprints(pair: list[str | None], transform: dict[str, Any], 
         pair, build_versions(lambda as_dict: as_dict(params.changes)))
 
 
-def _refined(session_a: str, session_b: str, m: MatchSummary, sim: Sim3, params: Params) -> Sim3:
+def _refine_pair(rec: dict[str, Any], session_a: str, session_b: str, m: MatchSummary, params: Params) -> None:
+    """`--refine`: the pair's unverified answer refined on the full maps as `sosmatch merge --refine` refines it
+    (`merge.refined_answer`), into the pair's record: its `transform` is then the refined one, which the graph, the
+    control, the merge, the changes and the report all read (rev33: the graph and the merge used a refit, the
+    changes and the report the consensus, 0.5 m apart), and `refine` says what the fit used."""
     from ...database.session_io import read_session
-    from ..merge_pairs import refine_transform
+    from ..merge import refined_answer
 
-    refined, _ = refine_transform(read_session(session_a), read_session(session_b), m.associations, sim,
-                                  params.association.transform == "similarity", params.association.distance_tolerance_m)
-    return refined
+    got = refined_answer(read_session(session_a).landmarks, read_session(session_b).landmarks, m, params)
+    rec["refine"] = {"associations_used": got.used, "dof": got.dof, **({"kept": got.note} if got.note else {})}
+    rec["transform"] = got.transform.to_dict()

@@ -1,0 +1,56 @@
+"""`batch --no-verify --refine`: one refined transform per pair, the one `sosmatch merge --refine` makes
+(`merge.refined_answer`), shared by the graph, the merge, the changes and the report (rev33: the merge used a
+refit on the consensus' associations, the changes and the report the consensus itself, 0.5 m apart)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from sosmatch.database.match_io import read_match
+from sosmatch.database.session_io import read_session
+from sosmatch.plugin.multisession import Sim3, transform_error
+from sosmatch.plugin.params import Params
+from sosmatch.tools.toy_sessions import lawnmower, load_toy_session, make_world, toy_match_json, write_toy_session
+from sosmatch.tools.toy_sessions import yaw_transform as turned
+from sosmatch.workflows import batch, merge
+from sosmatch.workflows.executors import LocalExecutor
+
+
+def off_consensus_task(session_a: str, session_b: str, pair_dir: str, params: object = None) -> dict:
+    """A matcher whose unverified answer (the window consensus) is 0.8 deg and ~0.6 m off the truth."""
+    a, b = load_toy_session(session_a), load_toy_session(session_b)
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    centre = read_session(a.path).landmarks.positions.mean(0)
+    off = Sim3(np.eye(3), centre).compose(turned(0.8, (0.4, -0.4, 0.2))).compose(Sim3(np.eye(3), -centre))
+    return batch.summarise_match(toy_match_json(a, b, Path(pair_dir) / "match.json", transform=off.compose(truth)))
+
+
+def test_a_refined_pair_has_one_transform_in_graph_merge_changes_and_report(tmp_path):
+    world = make_world(400, extent_m=300, seed=5)
+    boxes = {"B": ((20, 140, 20, 140), Sim3.identity()), "C": ((80, 200, 60, 180), turned(-60, (-30, 25, -2)))}
+    truth = {}
+    for k, (name, (box, tf)) in enumerate(boxes.items()):
+        truth[name] = write_toy_session(tmp_path / "fl" / name, world, lawnmower(*box, 60, 35, 10), tf,
+                                        seed=10 + k).session_from_world
+    out = tmp_path / "out"
+    report = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=off_consensus_task,
+                       options=batch.BatchOptions(progress=False, verify=False, refine=True))
+    rec = {p["pair"]: p for p in report.pairs}["B__C"]
+    assert rec["accepted"] and rec["in_graph"] and rec["refine"]["associations_used"] > 20
+    pair = Sim3.from_dict(rec["transform"])
+    # the one refinement of merge --refine
+    match = read_match(rec["match"])
+    one = merge.refined_answer(read_session(tmp_path / "fl" / "B").landmarks,
+                               read_session(tmp_path / "fl" / "C").landmarks, match, Params())
+    assert np.allclose(pair.matrix(), one.transform.matrix())
+    pts = read_session(tmp_path / "fl" / "C").landmarks.positions
+    assert transform_error(pair, truth["B"].compose(truth["C"].inverse()), pts)[0] < 0.15
+    # ... which the merge and the changes used
+    group = report.groups[0]
+    ref_from = {n: Sim3.from_dict(t) for n, t in group["reference_from_session"].items()}
+    assert np.allclose(ref_from["B"].inverse().compose(ref_from["C"]).matrix(), pair.matrix(), atol=1e-9)
+    merged = json.loads((out / "merged" / group["reference"] / "merge.json").read_text())
+    assert merged["reference_from_session"] == [ref_from[n].to_dict() for n in group["members"]]
+    changes = json.loads(Path(rec["changes"]).read_text())
+    assert np.allclose(Sim3.from_dict(changes["a_from_b"]).matrix(), pair.matrix())

@@ -1,0 +1,94 @@
+"""`merge --refine` (`merge.refined_answer`): a verified answer is kept as it is (it is the verification's fit on
+the full maps already), an unverified one is refined by the settings its match.json records, holding its tilt
+(rev33: the verified answer of maps tilted a few degrees was refitted yaw-only at the default size gate)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sosmatch.database.session_io import read_session
+from sosmatch.plugin.association.rigid import rotation_from_rpy_deg, tilt_deg
+from sosmatch.plugin.multisession import Sim3, transform_error
+from sosmatch.tools.toy_sessions import (
+    lawnmower,
+    make_world,
+    toy_match_json,
+    true_associations,
+    write_toy_session,
+)
+from sosmatch.workflows import merge
+
+TILT_DEG = 3.0
+
+
+@pytest.fixture(scope="module")
+def tilted_pair(tmp_path_factory):
+    """Two toy sessions of one world whose frames are tilted 3 deg against each other (B's about x)."""
+    root = tmp_path_factory.mktemp("tilted")
+    world = make_world(260, seed=11)
+    a = write_toy_session(root / "A", world, lawnmower(20, 140, 20, 140, 60, 40, 10), Sim3.identity(), seed=1)
+    b_from_world = Sim3(rotation_from_rpy_deg(TILT_DEG, 0.0, 40.0), np.array([15.0, -8.0, 3.0]), 1.0)
+    b = write_toy_session(root / "B", world, lawnmower(60, 200, 60, 200, 60, 40, 10), b_from_world, seed=2)
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    return a, b, truth
+
+
+def _recorded(path, size_gate=0.4, verified=None):
+    """The match.json at `path` with the settings a match records (params), and, with `verified` (a Sim3), the
+    verification's answer with the toy's true associations."""
+    doc = json.loads(path.read_text())
+    doc["params"] = {"association": {"distance_tolerance_m": 2.0, "max_size_difference": 0.2, "min_associations": 6},
+                     "verification": {"dof": 4, "final_dof": 6, "tilt_prior_deg": 1.0, "z_weight": 0.5,
+                                      "max_size_difference": size_gate, "coarse_factor": 2.0}}
+    if verified is not None:
+        assoc = doc["hypotheses"][0]["associations"]
+        doc["verification"] = {"accepted": True, "transform": verified.to_dict(), "associations": assoc,
+                               "support": len(assoc), "runner_up_support": 0, "method": {"gate_m": 2.0}}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_refine_keeps_a_verified_answer_and_its_tilt(tilted_pair, tmp_path):
+    a, b, truth = tilted_pair
+    assert len(true_associations(a, b)) > 20 and tilt_deg(truth.rotation) > TILT_DEG - 0.1
+    match = _recorded(toy_match_json(a, b, tmp_path / "match.json"), verified=truth)
+    res = merge.run(a.path, b.path, match, tmp_path / "M", refine=True)
+    # the verified answer is the refined fit already: kept exactly, and merge.json says why
+    assert np.allclose(res.transforms[1].matrix(), truth.matrix(), atol=1e-12) and not res.refined
+    record = json.loads((tmp_path / "M" / "merge.json").read_text())["refine"]
+    assert record["requested"] and record["associations_used"] == 0 and "verified" in record["kept"]
+
+
+def test_refine_of_an_unverified_answer_holds_its_tilt_and_uses_the_recorded_settings(tilted_pair, tmp_path):
+    a, b, truth = tilted_pair
+    pts = read_session(b.path).landmarks.positions
+    centre = read_session(a.path).landmarks.positions.mean(0)
+    # the window consensus 0.8 deg and ~0.6 m off the truth, its tilt the maps' own
+    about = Sim3(rotation_from_rpy_deg(0.0, 0.0, 0.8), np.array([0.4, -0.4, 0.2]), 1.0)
+    start = Sim3(np.eye(3), centre).compose(about).compose(Sim3(np.eye(3), -centre)).compose(truth)
+    match = _recorded(toy_match_json(a, b, tmp_path / "match.json", transform=start))
+    assert transform_error(start, truth, pts)[0] > 0.5
+    res = merge.run(a.path, b.path, match, tmp_path / "M", refine=True)
+    err_m, err_deg = transform_error(res.transforms[1], truth, pts)
+    assert res.refined and err_m < 0.15 and err_deg < 0.2  # the 3 deg tilt kept (yaw-only: metres off)
+    assert abs(tilt_deg(res.transforms[1].rotation) - TILT_DEG) < 0.2
+    # the size gate is the one match.json records: one that no landmark pair passes leaves the answer as it is
+    strict = _recorded(toy_match_json(a, b, tmp_path / "strict.json", transform=start), size_gate=1e-9)
+    kept = merge.run(a.path, b.path, strict, tmp_path / "S", refine=True)
+    assert not kept.refined and np.allclose(kept.transforms[1].matrix(), start.matrix())
+
+
+def test_a_recorded_refinement_setting_out_of_range_names_its_field(tilted_pair, tmp_path):
+    from sosmatch.database.match_io import read_match
+    from sosmatch.plugin.errors import InputError
+
+    a, b, truth = tilted_pair
+    match = _recorded(toy_match_json(a, b, tmp_path / "match.json"))
+    assert read_match(match).refinement == {"dof": 4, "final_dof": 6, "tilt_prior_deg": 1.0, "z_weight": 0.5,
+                                            "max_size_difference": 0.4, "coarse_factor": 2.0}
+    doc = json.loads(match.read_text())
+    doc["params"]["verification"]["dof"] = 5
+    match.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="params.verification.dof"):
+        read_match(match)
