@@ -45,10 +45,10 @@ def _call(root: Path) -> int:
 def test_a_changed_callee_recompiles_its_cached_caller(tmp_path: Path) -> None:
     package = _write_package(tmp_path, increment=1)
     assert _call(tmp_path) == 20
-    assert list((package / "__pycache__").glob("caller.*.nbc")), "numba cached the caller"
+    assert list(kernel_cache.cache_dir(package).glob("caller.*.nbc")), "numba cached the caller"
     _write_package(tmp_path, increment=2)  # only the callee's module changes
     assert _call(tmp_path) == 30  # numba alone would load the caller with the old callee inlined: 20
-    stamp = (package / "__pycache__" / kernel_cache.STAMP_NAME).read_text().strip()
+    stamp = (kernel_cache.cache_dir(package) / kernel_cache.STAMP_NAME).read_text().strip()
     assert stamp == kernel_cache.sources_digest(package)
 
 

@@ -38,6 +38,7 @@ import logging
 import os
 import pkgutil
 import threading
+import types
 from pathlib import Path
 from typing import IO
 
@@ -72,15 +73,18 @@ def _probe() -> None:  # a function of this package, to ask numba where the pack
 
 
 def cache_dir(package_dir: Path = PACKAGE_DIR) -> Path:
-    """The directory numba caches this package's functions in (its own locator: __pycache__, NUMBA_CACHE_DIR, or
-    the user-wide cache when the package is read-only)."""
-    if package_dir == PACKAGE_DIR:
-        try:
-            from numba.core.caching import FunctionCache
+    """The directory numba caches the functions of `package_dir` in (its own locator: __pycache__, NUMBA_CACHE_DIR,
+    or the user-wide cache when the package is read-only)."""
+    try:
+        from numba.core.caching import FunctionCache
 
-            return Path(FunctionCache(_probe)._cache_path)  # numba's own choice of directory
-        except Exception as error:  # noqa: BLE001 - any failure of a private API: fall back to numba's default
-            logger.debug("numba cache locator unavailable (%s); assuming __pycache__", error)
+        probe = _probe
+        if package_dir != PACKAGE_DIR:  # the same function, as numba sees one defined in that package
+            probe = types.FunctionType(_probe.__code__.replace(co_filename=str(package_dir / "__init__.py")),
+                                       {"__name__": "probe"})
+        return Path(FunctionCache(probe)._cache_path)  # numba's own choice of directory
+    except Exception as error:  # noqa: BLE001 - any failure of a private API: fall back to numba's default
+        logger.debug("numba cache locator unavailable (%s); assuming __pycache__", error)
     return package_dir / "__pycache__"
 
 
