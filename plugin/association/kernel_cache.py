@@ -24,8 +24,8 @@ listener `CompileLock`, registered when this module is imported (before any kern
 an exclusive flock beside the cache from the process's outermost start of that lock to its outermost end: any
 kernel, on any path (a position prior, the paper preset, `--exhaustive`, the parallel graph build, a test that
 calls a kernel directly), is read, compiled and written by one process at a time, and a second process that
-needs it waits, then loads what the first wrote. A warm cache costs one flock per kernel a process loads; a file
-system without flock leaves numba unlocked, as before, with a debug log.
+needs it waits, then loads what the first wrote. A warm cache costs one flock per top-level kernel a process loads
+(14 for a default match, ~1 ms); a file system without flock leaves numba unlocked, as before, with a debug log.
 """
 
 from __future__ import annotations
