@@ -129,7 +129,8 @@ def test_any_compile_waits_while_another_process_holds_the_compile_lock(tmp_path
     xdist workers on a cold cache). Every compile or cache load of any kernel, not only the searches' (here a
     throwaway one, on two threads at once, calling another), takes the lock beside the cache: while another
     process holds it the compile waits. The holder touches `released` before it lets go, so the compile always
-    finds it; afterwards this process holds nothing (the threads' nested starts and ends are counted)."""
+    finds it, and says once that it waits; afterwards this process holds nothing (the threads' nested starts and
+    ends are counted)."""
     (tmp_path / "throwaway.py").write_text(textwrap.dedent("""
         from numba import njit
         @njit(cache=True)
@@ -140,8 +141,10 @@ def test_any_compile_waits_while_another_process_holds_the_compile_lock(tmp_path
             return g(x) * 2
     """))
     script = textwrap.dedent(f"""
-        import fcntl, pathlib, sys, threading, time
+        import fcntl, logging, pathlib, sys, threading, time
         from sosmatch.plugin.association import kernel_cache
+        logging.basicConfig(level=logging.INFO, format="%(message)s")
+        kernel_cache.WAIT_NOTICE_S = 0.2  # the holder keeps the lock 1.5 s: the wait is said, once
         tmp = pathlib.Path({str(tmp_path)!r})
         sys.path.insert(0, str(tmp))
         import throwaway
@@ -173,6 +176,7 @@ def test_any_compile_waits_while_another_process_holds_the_compile_lock(tmp_path
         if holder is not None:
             holder.wait(timeout=60)
     assert "compiled after the release: True" in out and "lock free: 6 7.0" in out, out + err
+    assert err.count("waiting for another process that is compiling numba kernels") == 1, err
 
 
 def test_a_child_forked_while_the_lock_is_held_does_not_keep_it(tmp_path: Path) -> None:

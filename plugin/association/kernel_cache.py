@@ -230,18 +230,21 @@ class CompileLock(event.Listener):
             return None
 
     def _wait(self, lock: IO[str]) -> None:
-        """Wait for the flock; say so once per process when another process keeps it a while (it is compiling:
-        loading a cached kernel holds it for milliseconds)."""
-        level = logging.DEBUG if self._told else logging.INFO
-        self._told = True
-        notice = threading.Timer(WAIT_NOTICE_S, logger.log, (level, "waiting for another process that is compiling "
-                                                                  "numba kernels into the shared cache"))
+        """Wait for the flock; say so when another process keeps it a while (it is compiling: loading a cached
+        kernel holds it for milliseconds)."""
+        notice = threading.Timer(WAIT_NOTICE_S, self._tell)
         notice.daemon = True
         notice.start()
         try:
             fcntl.flock(lock, fcntl.LOCK_EX)
         finally:
             notice.cancel()
+
+    def _tell(self) -> None:
+        """The wait's notice: once per process at INFO (a cold cache makes a process wait once per kernel)."""
+        logger.log(logging.DEBUG if self._told else logging.INFO,
+                   "waiting for another process that is compiling numba kernels into the shared cache")
+        self._told = True
 
     def after_fork_in_child(self) -> None:
         """A child forked while a thread here held the flock shares its open file (a flock belongs to the open
