@@ -88,12 +88,11 @@ def match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.nd
     georeference (its theta_S from the chance model within the prior, `DerivedSearch.near_try`); None:
     `params.association`'s.
     """
-    # one process at a time compiles into numba's shared cache (`kernel_cache.compile_lock`): a no-op once compiled
-    with kernel_cache.compile_lock() as compiling:
-        answer = _match_maps(points_a, sizes_a, points_b, sizes_b, params, common_frame, exhaustive, verify,
-                             first_try, wider_try, near_try)
-        if compiling:  # the next process need not take the lock (even when nothing was announced)
-            kernel_cache.mark_compiled()
+    compiling = kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so
+    answer = _match_maps(points_a, sizes_a, points_b, sizes_b, params, common_frame, exhaustive, verify, first_try,
+                         wider_try, near_try)
+    if compiling:  # the next process starts without the notice
+        kernel_cache.mark_compiled()
     return answer
 
 
@@ -101,8 +100,7 @@ def _match_maps(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.n
                 params: Params, common_frame: bool = False, exhaustive: bool = False,
                 verify: bool | None = None, first_try: AssociationParams | None = None,
                 wider_try: AssociationParams | None = None, near_try: AssociationParams | None = None) -> MatchAnswer:
-    """`match_maps` inside the kernels' compile lock."""
-    kernel_cache.announce_compile()  # a fresh install compiles the kernels first (minutes): say so
+    """`match_maps` after its compile notice."""
     t0 = time.perf_counter()
     prior = "off"
     if params.association.position_prior_m > 0:

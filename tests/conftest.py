@@ -13,21 +13,6 @@ import pytest
 os.environ.setdefault("SOSMATCH_CACHE_DIR", str(Path(tempfile.gettempdir()) / "sosmatch-test-cache"))
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _kernels_compiled_once():
-    """On a cold kernel cache (a new checkout or a change of the association sources, before `make install`), one
-    test worker compiles every kernel under the compile lock while the others wait, instead of each compiling
-    into the same cache files at once (numba issue #4807: two xdist workers left a cache whose next load
-    segfaulted in `windowed_search`). A no-op of milliseconds on a warm cache. Tests that call kernels directly
-    (test_association_*) are protected here; `match_maps` and `associate` take the lock themselves."""
-    from sosmatch.plugin.association import kernel_cache
-    from sosmatch.tools.warm_kernels import warm_kernels
-
-    if not kernel_cache.compiled_for_these_sources():
-        warm_kernels()  # marks them compiled, inside the lock
-    yield
-
-
 @pytest.fixture(autouse=True)
 def _sosmatch_log_level():
     """Each test starts with the "sosmatch" logger at its library default (NOTSET: the root's level decides). The

@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 from sosmatch.plugin.association import kernel_cache
@@ -44,10 +45,10 @@ def _call(root: Path) -> int:
 def test_a_changed_callee_recompiles_its_cached_caller(tmp_path: Path) -> None:
     package = _write_package(tmp_path, increment=1)
     assert _call(tmp_path) == 20
-    assert list((package / "__pycache__").glob("caller.*.nbc")), "numba cached the caller"
+    assert list(kernel_cache.cache_dir(package).glob("caller.*.nbc")), "numba cached the caller"
     _write_package(tmp_path, increment=2)  # only the callee's module changes
     assert _call(tmp_path) == 30  # numba alone would load the caller with the old callee inlined: 20
-    stamp = (package / "__pycache__" / kernel_cache.STAMP_NAME).read_text().strip()
+    stamp = (kernel_cache.cache_dir(package) / kernel_cache.STAMP_NAME).read_text().strip()
     assert stamp == kernel_cache.sources_digest(package)
 
 
@@ -123,55 +124,114 @@ def test_warm_kernels_help_prints_usage_without_compiling(capsys, monkeypatch) -
     assert done.value.code == 0 and "usage:" in capsys.readouterr().out
 
 
-def test_a_process_compiling_into_the_cache_holds_the_others_until_it_is_done(tmp_path, monkeypatch, caplog):
-    """Two processes compiling into numba's cache at once can leave entries that segfault on load (numba #4807:
-    two xdist workers on a cold cache). While another process holds the compile lock, a search that must compile
-    says so and waits for it: the child writes `released` before it lets go, so the lock's holder here always
-    finds it. Compiled meanwhile (here: once released), the waiter does not keep the lock (rev32 K4: N workers
-    then waited for N - 1 whole matches). Re-entrant in one thread (warm_kernels runs match_maps inside it)."""
+def test_any_compile_waits_while_another_process_holds_the_compile_lock(tmp_path: Path) -> None:
+    """Two processes compiling into numba's cache at once can leave entries that segfault on load (numba #4807: two
+    xdist workers on a cold cache). Every compile or cache load of any kernel, not only the searches' (here a
+    throwaway one, on two threads at once, calling another), takes the lock beside the cache: while another
+    process holds it the compile waits. The holder touches `released` before it lets go, so the compile always
+    finds it, and says once that it waits; afterwards this process holds nothing (the threads' nested starts and
+    ends are counted)."""
+    (tmp_path / "throwaway.py").write_text(textwrap.dedent("""
+        from numba import njit
+        @njit(cache=True)
+        def g(x):
+            return x + 1
+        @njit(cache=True)
+        def f(x):
+            return g(x) * 2
+    """))
+    script = textwrap.dedent(f"""
+        import fcntl, logging, pathlib, sys, threading, time
+        from sosmatch.plugin.association import kernel_cache
+        logging.basicConfig(level=logging.INFO, format="%(message)s")
+        kernel_cache.WAIT_NOTICE_S = 0.2  # the holder keeps the lock 1.5 s: the wait is said, once
+        tmp = pathlib.Path({str(tmp_path)!r})
+        sys.path.insert(0, str(tmp))
+        import throwaway
+        path = kernel_cache.cache_dir() / kernel_cache.COMPILE_LOCK_NAME
+        (tmp / "path").write_text(str(path))
+        while not (tmp / "ready").exists():
+            time.sleep(0.01)
+        threads = [threading.Thread(target=throwaway.f, args=(value,)) for value in (1, 1.0)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        print("compiled after the release:", (tmp / "released").exists())
+        with open(path, "a") as probe:
+            fcntl.flock(probe, fcntl.LOCK_EX | fcntl.LOCK_NB)  # BlockingIOError if still held here
+        print("lock free:", throwaway.f(2), throwaway.f(2.5))
+    """)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    compiler = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+    holder = None
+    try:
+        while not (tmp_path / "path").exists() and compiler.poll() is None:
+            time.sleep(0.01)
+        holder = _hold_the_lock(Path((tmp_path / "path").read_text()), tmp_path / "ready", tmp_path / "released")
+        out, err = compiler.communicate(timeout=120)
+    finally:
+        compiler.kill()
+        if holder is not None:
+            holder.wait(timeout=60)
+    assert "compiled after the release: True" in out and "lock free: 6 7.0" in out, out + err
+    assert err.count("waiting for another process that is compiling numba kernels") == 1, err
+
+
+def test_a_child_forked_while_the_lock_is_held_does_not_keep_it(tmp_path: Path) -> None:
+    """A flock belongs to the open file, which a forked child shares: a pool worker forked while a thread here held
+    the lock would hold it for as long as it lives, and a later compile here would wait for that worker, which
+    waits for this process. The child lets go of its copy."""
+    script = textwrap.dedent("""
+        import fcntl, os
+        from sosmatch.plugin.association import kernel_cache
+        lock = kernel_cache.COMPILE_LOCK
+        lock.on_start(None)  # as numba's compiler lock announces itself: the flock is held from here
+        read, write = os.pipe()
+        started, running = os.pipe()
+        child = os.fork()
+        if child == 0:
+            os.write(running, b"x")  # after the fork's hooks ran
+            os.read(read, 1)  # a worker that lives on
+            os._exit(0)
+        os.read(started, 1)
+        lock.on_end(None)
+        try:
+            with open(lock.path, "a") as probe:
+                fcntl.flock(probe, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            print("lock free")
+        finally:
+            os.write(write, b"x")
+            os.waitpid(child, 0)
+    """)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "lock free", out.stdout + out.stderr
+
+
+def test_a_lock_that_cannot_be_taken_leaves_numba_unlocked(tmp_path: Path, caplog) -> None:
+    """Where the lock file cannot be opened or locked (a read-only directory, a file system without flock), numba
+    compiles as it would without the lock: one debug line, no error, no retry per kernel."""
     import logging
-    import time
 
-    released = tmp_path / "released"
-    compiled = [False]
-    monkeypatch.setattr(kernel_cache, "compiled_for_these_sources", lambda package_dir=None: compiled[0])
-    monkeypatch.setattr(kernel_cache, "cache_dir", lambda package_dir=None: tmp_path)
-    ready = tmp_path / "ready"
-    child = _hold_the_lock(tmp_path, ready, released)
-    try:
-        while not ready.exists() and child.poll() is None:
-            time.sleep(0.01)
-        assert ready.exists()
-        with caplog.at_level(logging.INFO, logger=kernel_cache.__name__), kernel_cache.compile_lock() as holding:
-            assert released.exists() and holding
-            with kernel_cache.compile_lock() as inner:  # re-entrant: no deadlock on its own lock
-                assert not inner
-        assert "waiting for another sosmatch process" in caplog.text
-    finally:
-        child.wait(timeout=60)
-    assert child.returncode == 0
-    # compiled by the process waited for: the waiter goes on without the lock
-    released.unlink()
-    ready.unlink()
-    child = _hold_the_lock(tmp_path, ready, released)
-    try:
-        while not ready.exists() and child.poll() is None:
-            time.sleep(0.01)
-        monkeypatch.setattr(kernel_cache, "compiled_for_these_sources",
-                            lambda package_dir=None: compiled[0] or released.exists())
-        with kernel_cache.compile_lock() as holding:
-            assert released.exists() and not holding
-    finally:
-        child.wait(timeout=60)
+    lock = kernel_cache.CompileLock(tmp_path / "missing" / kernel_cache.COMPILE_LOCK_NAME)
+    with caplog.at_level(logging.DEBUG, logger=kernel_cache.__name__):
+        for _ in range(2):
+            lock.on_start(None)
+            lock.on_start(None)  # nested
+            lock.on_end(None)
+            lock.on_end(None)
+    assert lock.path is None and caplog.text.count("numba compiles unlocked") == 1
 
 
-def _hold_the_lock(tmp_path: Path, ready: Path, released: Path) -> subprocess.Popen:
-    """A child process that takes the compile lock in `tmp_path`, touches `ready`, holds it a second, then touches
-    `released` before it exits (and so lets go)."""
+def _hold_the_lock(path: Path, ready: Path, released: Path) -> subprocess.Popen:
+    """A child process that takes the compile lock `path`, touches `ready`, holds it 1.5 s, then touches `released`
+    before it exits (and so lets go)."""
     return subprocess.Popen([sys.executable, "-c", (
         "import fcntl, pathlib, time\n"
-        f"lock = open({str(tmp_path / kernel_cache.COMPILE_LOCK_NAME)!r}, 'a')\n"
+        f"lock = open({str(path)!r}, 'a')\n"
         "fcntl.flock(lock, fcntl.LOCK_EX)\n"
         f"pathlib.Path({str(ready)!r}).touch()\n"
-        "time.sleep(1.0)\n"
+        "time.sleep(1.5)\n"
         f"pathlib.Path({str(released)!r}).touch()\n")])

@@ -26,18 +26,9 @@ log = logging.getLogger(__name__)
 
 
 def warm_kernels() -> tuple[int, int, float]:
-    """Compile the searches' kernels; returns (kernels without a cache entry before, after, CPU seconds)."""
-    with kernel_cache.compile_lock() as compiling:  # another process compiling: wait, then find them cached
-        if not compiling:  # compiled by the process this one waited for
-            left = len(kernel_cache.uncompiled_kernels())
-            return left, left, 0.0
-        counts = _warm_kernels()
-        kernel_cache.mark_compiled()  # inside the lock: a process waiting for it then finds them compiled
-        return counts
-
-
-def _warm_kernels() -> tuple[int, int, float]:
-    """`warm_kernels` inside the compile lock."""
+    """Compile the searches' kernels and mark them compiled; returns (kernels without a cache entry before, after,
+    CPU seconds). Another process compiling meanwhile is waited for kernel by kernel (`kernel_cache.CompileLock`):
+    what it compiled is loaded here, not compiled again."""
     from ..plugin.association import associate
     from ..plugin.association.synthetic import survey_map_pair
     from ..plugin.match_answer import match_maps
@@ -60,6 +51,7 @@ def _warm_kernels() -> tuple[int, int, float]:
             pairs = truth if serial else np.concatenate([truth, _wrong_pairs(len(pair.points_a), len(pair.points_b),
                                                                              600)])
             associate(pair.points_a, pair.points_b, pairs)
+    kernel_cache.mark_compiled()
     return before, len(kernel_cache.uncompiled_kernels()), time.process_time() - t0
 
 
@@ -86,7 +78,6 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as error:  # noqa: BLE001 - an install never fails on this: the first match compiles instead
         print(f"sosmatch: kernels not compiled ahead ({error}); the first match compiles them", file=sys.stderr)
         return 0
-    kernel_cache.mark_compiled()
     print(f"sosmatch: {before - after} kernels compiled in {cpu:.0f} s of CPU"
           + (f" ({after} others are compiled into their callers, or on a path of their own)" if after else ""),
           flush=True)

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from . import kernel_cache
 from .kernels_cliques import core_numbers as _core_numbers
 from .kernels_csr import sym_csr
 from .kernels_graph import PROBLEM_PAIRS, PROBLEM_POINTS_A, PROBLEM_POINTS_B
@@ -159,8 +158,7 @@ def solve(graph: ConsistencyGraph, tol_u: float = 1e-6, max_outer: int = 60, max
 def associate(points_a: np.ndarray, points_b: np.ndarray, pairs: np.ndarray, weights: np.ndarray | None = None,
               eps: float = 2.0, sigma: float = 1.0) -> ClipperResult:
     """Affinity + solve in one call: returns the selected association indices (into `pairs`) and the score."""
-    with kernel_cache.compile_lock():  # one process at a time compiles into numba's shared cache
-        return solve(affinity_graph(points_a, points_b, pairs, weights, eps, sigma))
+    return solve(affinity_graph(points_a, points_b, pairs, weights, eps, sigma))
 
 
 def core_numbers(graph: ConsistencyGraph) -> np.ndarray:

@@ -12,13 +12,20 @@ runs once per process, under a file lock (pytest-xdist and pool workers import c
 
 `announce_compile()` says so, once, before a search would compile the kernels (the first match after an install
 or a change of their sources: minutes of CPU, for maps that then match in seconds); `tools.warm_kernels`
-compiles them ahead (`make install` runs it). Either writes a marker with the sources' digest when done.
+compiles them ahead (`make install` runs it). Either writes a marker with the sources' digest when done, so that
+the next process does not say it again.
 
-`compile_lock()` lets one process at a time compile into the cache: numba's cache is not safe when two processes
-write entries of one function at once (numba issue #4807; two pytest-xdist workers compiling on a cold cache left
-an index naming another signature's machine code, and the next search segfaulted in `windowed_search`). A
-`batch --workers 2` or two `sosmatch match` started together after an install without `make install` are the
-users' case. Once the kernels are compiled for these sources the lock is not taken.
+One process at a time compiles or loads a cached kernel: numba's cache is not safe when two processes write
+entries of one function at once (numba issue #4807; two pytest-xdist workers compiling on a cold cache left an
+index naming another signature's machine code, and the next search segfaulted in `windowed_search`). numba does
+every compile of a dispatcher, its cache look-up (`load_overload`) and its cache write (`save_overload`) inside
+its in-process `global_compiler_lock`, and announces each acquisition with the event `numba:compiler_lock`. The
+listener `CompileLock`, registered when this module is imported (before any kernel of the package loads), holds
+an exclusive flock beside the cache from the process's outermost start of that lock to its outermost end: any
+kernel, on any path (a position prior, the paper preset, `--exhaustive`, the parallel graph build, a test that
+calls a kernel directly), is read, compiled and written by one process at a time, and a second process that
+needs it waits, then loads what the first wrote. A warm cache costs one flock per top-level kernel a process loads
+(14 for a default match, ~1 ms); a file system without flock leaves numba unlocked, as before, with a debug log.
 """
 
 from __future__ import annotations
@@ -31,8 +38,11 @@ import logging
 import os
 import pkgutil
 import threading
-from collections.abc import Iterator
+import types
 from pathlib import Path
+from typing import IO
+
+from numba.core import event
 
 logger = logging.getLogger(__name__)
 
@@ -45,7 +55,7 @@ COMPILE_CPU_S_PER_KERNEL = 1.5
 _refreshed: set[Path] = set()
 _announced: list[bool] = []
 COMPILE_LOCK_NAME = "sosmatch-kernels.compile.lock"
-_lock_depth = threading.local()  # n > 0: this thread is inside compile_lock (a flock is not re-entrant)
+WAIT_NOTICE_S = 2.0  # a wait on the compile lock longer than this is said (once per process)
 
 
 def sources_digest(package_dir: Path = PACKAGE_DIR) -> str:
@@ -63,15 +73,18 @@ def _probe() -> None:  # a function of this package, to ask numba where the pack
 
 
 def cache_dir(package_dir: Path = PACKAGE_DIR) -> Path:
-    """The directory numba caches this package's functions in (its own locator: __pycache__, NUMBA_CACHE_DIR, or
-    the user-wide cache when the package is read-only)."""
-    if package_dir == PACKAGE_DIR:
-        try:
-            from numba.core.caching import FunctionCache
+    """The directory numba caches the functions of `package_dir` in (its own locator: __pycache__, NUMBA_CACHE_DIR,
+    or the user-wide cache when the package is read-only)."""
+    try:
+        from numba.core.caching import FunctionCache
 
-            return Path(FunctionCache(_probe)._cache_path)  # numba's own choice of directory
-        except Exception as error:  # noqa: BLE001 - any failure of a private API: fall back to numba's default
-            logger.debug("numba cache locator unavailable (%s); assuming __pycache__", error)
+        probe = _probe
+        if package_dir != PACKAGE_DIR:  # the same function, as numba sees one defined in that package
+            probe = types.FunctionType(_probe.__code__.replace(co_filename=str(package_dir / "__init__.py")),
+                                       {"__name__": "probe"})
+        return Path(FunctionCache(probe)._cache_path)  # numba's own choice of directory
+    except Exception as error:  # noqa: BLE001 - any failure of a private API: fall back to numba's default
+        logger.debug("numba cache locator unavailable (%s); assuming __pycache__", error)
     return package_dir / "__pycache__"
 
 
@@ -152,8 +165,8 @@ def mark_compiled(package_dir: Path = PACKAGE_DIR) -> None:
 
 def announce_compile() -> bool:
     """Log `compile_message` (once per process) before a search that must compile the kernels first: nothing has
-    compiled them since their sources changed. Returns True when it did. The search that compiles marks them
-    compiled after it (`compile_lock` says which call that is), so the next process starts without the message."""
+    compiled them since their sources changed. Returns True when it did: the caller then `mark_compiled` after its
+    search, so the next process starts without the message (also for kernels no search of it compiles)."""
     if _announced:
         return False
     _announced.append(True)
@@ -166,45 +179,97 @@ def announce_compile() -> bool:
     return True
 
 
-@contextlib.contextmanager
-def compile_lock(package_dir: Path = PACKAGE_DIR) -> Iterator[bool]:
-    """Hold the package's compile lock while this process may compile kernels into the shared cache (module doc):
-    a second process that needs them says so in one line, waits, then loads what the first compiled. Yields
-    whether this call is the one that compiles (the kernels are not compiled for these sources, also after a wait;
-    not nested in another compile_lock): the caller then `mark_compiled` when done, inside it, and it alone. No
-    lock once the kernels are compiled, nor where the cache directory cannot hold one (no flock there: numba then
-    compiles as before, and the call still compiles). Re-entrant within a thread (a match inside
-    `tools.warm_kernels`); another thread of the process waits like another process."""
-    if getattr(_lock_depth, "n", 0) or compiled_for_these_sources(package_dir):
-        yield False
-        return
-    lock = None
-    try:
-        directory = cache_dir(package_dir)
-        directory.mkdir(parents=True, exist_ok=True)
-        lock = open(directory / COMPILE_LOCK_NAME, "a")  # noqa: SIM115 - held across the yield
+class CompileLock(event.Listener):
+    """Holds an exclusive flock on `path` while this process is inside numba's compiler lock (module doc).
+
+    numba's lock is re-entrant (a kernel's compile compiles the kernels it calls) and fires its start event before
+    it is taken, so another thread may start while one holds it: the count is process-wide, under a threading lock,
+    and the flock is taken on its first start and let go on its last end. While the flock is held this process
+    waits on no other (a waiter blocks before numba's lock, holding nothing another process needs). A path that
+    cannot be locked (no flock on the file system, a read-only directory) is given up with a debug log: numba
+    then compiles unlocked, as without this listener."""
+
+    def __init__(self, path: Path | None) -> None:
+        self.path = path
+        self._guard = threading.Lock()
+        self._depth = 0
+        self._held: IO[str] | None = None
+        self._told = False
+
+    def on_start(self, event: object) -> None:  # noqa: ARG002 - numba's Listener interface
+        with self._guard:
+            if self._depth == 0:
+                self._held = self._acquire()  # before counting: an interrupted wait leaves the count as it was
+            self._depth += 1
+
+    def on_end(self, event: object) -> None:  # noqa: ARG002 - numba's Listener interface
+        with self._guard:
+            if self._depth == 0:  # an end whose start came before the listener was registered
+                return
+            self._depth -= 1
+            if self._depth == 0 and self._held is not None:
+                self._held.close()  # closing the descriptor releases the flock
+                self._held = None
+
+    def _acquire(self) -> IO[str] | None:
+        if self.path is None:
+            return None
+        lock = None
         try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            logger.info("waiting for another sosmatch process that is compiling the search kernels (once per "
-                        "install)")
+            lock = open(self.path, "a")  # noqa: SIM115 - held until the outermost end
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                self._wait(lock)
+            return lock
+        except OSError as error:  # a file system without flock (some NFS / Lustre mounts), a read-only directory
+            logger.debug("numba compile lock %s not taken (%s): numba compiles unlocked", self.path, error)
+            self.path = None  # given up for the process: one log line, no retry per kernel
+            if lock is not None:
+                lock.close()
+            return None
+
+    def _wait(self, lock: IO[str]) -> None:
+        """Wait for the flock; say so when another process keeps it a while (it is compiling: loading a cached
+        kernel holds it for milliseconds)."""
+        notice = threading.Timer(WAIT_NOTICE_S, self._tell)
+        notice.daemon = True
+        notice.start()
+        try:
             fcntl.flock(lock, fcntl.LOCK_EX)
-    except OSError as error:  # no lock file, or a file system without flock (some NFS / Lustre mounts)
-        logger.debug("kernel compile lock not taken: %s", error)
-        if lock is not None:
-            lock.close()
-        lock = None
-    compiling = lock is None or not compiled_for_these_sources(package_dir)  # else compiled while this one waited
-    if not compiling:
-        lock.close()
-        lock = None
-    _lock_depth.n = getattr(_lock_depth, "n", 0) + 1
+        finally:
+            notice.cancel()
+
+    def _tell(self) -> None:
+        """The wait's notice: once per process at INFO (a cold cache makes a process wait once per kernel)."""
+        logger.log(logging.DEBUG if self._told else logging.INFO,
+                   "waiting for another process that is compiling numba kernels into the shared cache")
+        self._told = True
+
+    def after_fork_in_child(self) -> None:
+        """A child forked while a thread here held the flock shares its open file (a flock belongs to the open
+        file): it closes its copy, so the parent's release still lets go, and counts from zero (the holding
+        thread is not in the child)."""
+        if self._held is not None:
+            self._held.close()
+        self._held = None
+        self._depth = 0
+        self._guard = threading.Lock()
+
+
+def install_compile_lock() -> CompileLock:
+    """Register the process's `CompileLock` beside the package's cache (once, when this module is imported)."""
+    path: Path | None = None
     try:
-        yield compiling
-    finally:
-        _lock_depth.n -= 1
-        if lock is not None:
-            lock.close()  # closing the descriptor releases the flock
+        directory = cache_dir()
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / COMPILE_LOCK_NAME
+    except OSError as error:
+        logger.debug("numba compile lock not set up: %s", error)
+    lock = CompileLock(path)
+    event.register("numba:compiler_lock", lock)
+    os.register_at_fork(after_in_child=lock.after_fork_in_child)
+    return lock
 
 
 def refresh(package_dir: Path = PACKAGE_DIR) -> None:
@@ -226,3 +291,4 @@ def refresh(package_dir: Path = PACKAGE_DIR) -> None:
 
 
 refresh()
+COMPILE_LOCK = install_compile_lock()  # before any kernel of the package loads
