@@ -210,6 +210,30 @@ def test_a_child_forked_while_the_lock_is_held_does_not_keep_it(tmp_path: Path) 
     assert out.stdout.strip() == "lock free", out.stdout + out.stderr
 
 
+def test_the_module_loaded_twice_keeps_one_listener(tmp_path: Path) -> None:
+    """A second copy of this module (a reload, or run as `__main__`) must not register a second listener: it would
+    open the lock file again and, inside numba's next compile, wait forever for the first listener's flock. The
+    child compiles a throwaway cached kernel after a reload; a timeout is the deadlock."""
+    script = textwrap.dedent("""
+        import importlib
+        from numba.core import event
+        from sosmatch.plugin.association import kernel_cache
+        first = kernel_cache.COMPILE_LOCK
+        importlib.reload(kernel_cache)
+        assert kernel_cache.COMPILE_LOCK is first
+        from numba import njit
+        @njit(cache=True)
+        def twice(x):
+            return 2 * x
+        print(twice(21), len(event._registered["numba:compiler_lock"]))
+    """)
+    script_path = tmp_path / "twice.py"  # a file, so that numba can cache the throwaway kernel beside it
+    script_path.write_text(script)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    out = subprocess.run([sys.executable, str(script_path)], env=env, capture_output=True, text=True, timeout=120)
+    assert out.stdout.split() == ["42", "1"], out.stdout + out.stderr
+
+
 def test_a_lock_that_cannot_be_taken_leaves_numba_unlocked(tmp_path: Path, caplog) -> None:
     """Where the lock file cannot be opened or locked (a read-only directory, a file system without flock), numba
     compiles as it would without the lock: one debug line, no error, no retry per kernel."""

@@ -55,6 +55,7 @@ COMPILE_CPU_S_PER_KERNEL = 1.5
 _refreshed: set[Path] = set()
 _announced: list[bool] = []
 COMPILE_LOCK_NAME = "sosmatch-kernels.compile.lock"
+REGISTERED_ATTR = "_sosmatch_compile_lock"  # where the process's CompileLock is kept (`install_compile_lock`)
 WAIT_NOTICE_S = 2.0  # a wait on the compile lock longer than this is said (once per process)
 
 
@@ -258,7 +259,12 @@ class CompileLock(event.Listener):
 
 
 def install_compile_lock() -> CompileLock:
-    """Register the process's `CompileLock` beside the package's cache (once, when this module is imported)."""
+    """Register the process's `CompileLock` beside the package's cache (once, when this module is imported). Once
+    per process, also when this module is loaded a second time (a reload, or run as `__main__`): a second listener
+    would open the lock file again and wait, forever, on the first one's flock (a flock belongs to the open file)."""
+    registered = getattr(event, REGISTERED_ATTR, None)
+    if isinstance(registered, event.Listener):
+        return registered  # type: ignore[return-value]
     path: Path | None = None
     try:
         directory = cache_dir()
@@ -269,6 +275,7 @@ def install_compile_lock() -> CompileLock:
     lock = CompileLock(path)
     event.register("numba:compiler_lock", lock)
     os.register_at_fork(after_in_child=lock.after_fork_in_child)
+    setattr(event, REGISTERED_ATTR, lock)  # on numba's module: one per process, whichever copy of this one asks
     return lock
 
 
