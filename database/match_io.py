@@ -333,23 +333,31 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     return summary
 
 
-# the recorded verification settings a refinement of the answer uses (`MatchSummary.refinement`): name -> (lo, hi)
-REFINEMENT_FIELDS = {"dof": (4, 6), "final_dof": (0, 6), "tilt_prior_deg": (0.0, 30.0), "z_weight": (0.0, 100.0),
-                     "max_size_difference": (0.0, 1.0), "coarse_factor": (1.0, 100.0)}
+# the recorded verification settings a refinement of the answer uses (`MatchSummary.refinement`), valid as
+# `VerificationParams` declares them (one check: a value `match` itself can write is never refused here)
+REFINEMENT_FIELDS = ("dof", "final_dof", "tilt_prior_deg", "z_weight", "max_size_difference", "coarse_factor")
+_INTEGER_FIELDS = ("dof", "final_dof")
 
 
 def _refinement(section: dict[str, Any], path: Path) -> dict[str, float]:
     """The verification settings a match.json records for refining an alignment (`REFINEMENT_FIELDS`), each
-    checked (InputError naming the field); those it does not record are left out."""
+    checked against `VerificationParams`' own declaration (InputError naming the field); those it does not record
+    are left out."""
+    from ..plugin.params.checks import valid_values
+    from ..plugin.params.matching import VerificationParams
+
     out: dict[str, float] = {}
-    for name, (lo, hi) in REFINEMENT_FIELDS.items():
+    for name in REFINEMENT_FIELDS:
         if section.get(name) is None:
             continue
-        value = _float(section[name], f"params.verification.{name}", path)
-        if not lo <= value <= hi or (name in ("dof", "final_dof") and value not in (0, 4, 6)):
-            raise InputError(f"{_where('params.verification.' + name)} must be within [{lo}, {hi}], got "
+        value: float = _float(section[name], f"params.verification.{name}", path)  # type: ignore[assignment]
+        if name in _INTEGER_FIELDS and value == int(value):
+            value = int(value)
+        valid = valid_values(VerificationParams, name)
+        if valid is not None and not valid.accepts(value):
+            raise InputError(f"{_where('params.verification.' + name)} must be {valid.describe()}, got "
                              f"{_short(section[name])}", path)
-        out[name] = int(value) if name in ("dof", "final_dof") else value
+        out[name] = value
     return out
 
 

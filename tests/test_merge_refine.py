@@ -92,3 +92,25 @@ def test_a_recorded_refinement_setting_out_of_range_names_its_field(tilted_pair,
     match.write_text(json.dumps(doc))
     with pytest.raises(InputError, match="params.verification.dof"):
         read_match(match)
+
+
+@pytest.mark.parametrize(("name", "value", "accepted"), [("coarse_factor", 150.0, True), ("final_dof", 4, False),
+                                                          ("final_dof", 0, True), ("z_weight", 0.0, False)])
+def test_recorded_settings_are_valid_as_the_params_declare_them(tilted_pair, tmp_path, name, value, accepted):
+    """One check of a recorded verification setting, the params' own (rev34): every reader of match.json refused a
+    coarse_factor of 150, which the params accept and `match` writes, and took a final_dof of 4, which they refuse
+    (merge --refine then failed without naming the file)."""
+    from sosmatch.database.match_io import read_match
+    from sosmatch.plugin.errors import InputError
+
+    a, b, _ = tilted_pair
+    match = _recorded(toy_match_json(a, b, tmp_path / "match.json"))
+    doc = json.loads(match.read_text())
+    doc["params"]["verification"][name] = value
+    match.write_text(json.dumps(doc))
+    if accepted:
+        assert read_match(match).refinement[name] == value
+    else:
+        with pytest.raises(InputError, match=f"params.verification.{name}") as refused:
+            read_match(match)
+        assert "match.json" in str(refused.value)
