@@ -210,6 +210,45 @@ def test_a_child_forked_while_the_lock_is_held_does_not_keep_it(tmp_path: Path) 
     assert out.stdout.strip() == "lock free", out.stdout + out.stderr
 
 
+def test_a_child_forked_while_a_thread_waits_for_the_lock_does_not_keep_it(tmp_path: Path) -> None:
+    """A thread here waits for the lock (another process holds it) when the process forks: the child shares the
+    file being waited on, so the lock the parent gets later would be the child's too, held for as long as it lives
+    (rev34). The child closes that file as well; the parent's release then frees the lock."""
+    script = textwrap.dedent("""
+        import fcntl, os, subprocess, sys, threading, time
+        from sosmatch.plugin.association import kernel_cache
+        lock = kernel_cache.COMPILE_LOCK
+        holder = subprocess.Popen([sys.executable, "-c", "import fcntl, sys, time; f = open(sys.argv[1], 'a'); "
+                                   "fcntl.flock(f, fcntl.LOCK_EX); print('held', flush=True); time.sleep(1.5)",
+                                   str(lock.path)], stdout=subprocess.PIPE, text=True)
+        holder.stdout.readline()
+        waiting = threading.Thread(target=lock.on_start, args=(None,))
+        waiting.start()
+        while lock._pending is None:  # the thread has opened the lock file and waits on it
+            time.sleep(0.01)
+        read, write = os.pipe()
+        child = os.fork()
+        if child == 0:
+            os.read(read, 1)  # a worker that lives on
+            os._exit(0)
+        waiting.join()
+        lock.on_end(None)
+        try:
+            with open(lock.path, "a") as probe:
+                fcntl.flock(probe, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            print("lock free")
+        except BlockingIOError:
+            print("held by the child")
+        finally:
+            os.write(write, b"x")
+            os.waitpid(child, 0)
+            holder.wait()
+    """)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "lock free", out.stdout + out.stderr
+
+
 def test_the_module_loaded_twice_keeps_one_listener(tmp_path: Path) -> None:
     """A second copy of this module (a reload, or run as `__main__`) must not register a second listener: it would
     open the lock file again and, inside numba's next compile, wait forever for the first listener's flock. The

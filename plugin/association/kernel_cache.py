@@ -195,6 +195,7 @@ class CompileLock(event.Listener):
         self._guard = threading.Lock()
         self._depth = 0
         self._held: IO[str] | None = None
+        self._pending: IO[str] | None = None  # the lock file opened by a wait not yet granted (`after_fork_in_child`)
         self._told = False
 
     def on_start(self, event: object) -> None:  # noqa: ARG002 - numba's Listener interface
@@ -217,18 +218,26 @@ class CompileLock(event.Listener):
             return None
         lock = None
         try:
-            lock = open(self.path, "a")  # noqa: SIM115 - held until the outermost end
+            lock = self._pending = open(self.path, "a")  # noqa: SIM115 - held until the outermost end
             try:
                 fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 self._wait(lock)
+            self._pending = None
             return lock
         except OSError as error:  # a file system without flock (some NFS / Lustre mounts), a read-only directory
             logger.debug("numba compile lock %s not taken (%s): numba compiles unlocked", self.path, error)
             self.path = None  # given up for the process: one log line, no retry per kernel
-            if lock is not None:
-                lock.close()
+            self._release_pending(lock)
             return None
+        except BaseException:  # interrupted (Ctrl-C) in or right after the wait: a file left open in the
+            self._release_pending(lock)  # traceback could hold the flock, and the next compile here wait on itself
+            raise
+
+    def _release_pending(self, lock: IO[str] | None) -> None:
+        self._pending = None
+        if lock is not None:
+            lock.close()
 
     def _wait(self, lock: IO[str]) -> None:
         """Wait for the flock; say so when another process keeps it a while (it is compiling: loading a cached
@@ -251,9 +260,10 @@ class CompileLock(event.Listener):
         """A child forked while a thread here held the flock shares its open file (a flock belongs to the open
         file): it closes its copy, so the parent's release still lets go, and counts from zero (the holding
         thread is not in the child)."""
-        if self._held is not None:
-            self._held.close()
-        self._held = None
+        for file in (self._held, self._pending):  # also a file a parent's thread is still waiting to lock: the
+            if file is not None:                     # lock the parent gets later would be this child's too (rev34)
+                file.close()
+        self._held = self._pending = None
         self._depth = 0
         self._guard = threading.Lock()
 
