@@ -1,8 +1,7 @@
 """What a merge fuses and from which flights (`workflows.merge`, and batch's merge stage): the landmark pairs of
-each session pair and the test they must pass after alignment (`FusePair`, `filter_associations`), a transform
-refitted on the pairs it already explains (`refine_transform`), and the flights a session holds, so that no flight
-is merged twice (`session_flights`, `same_flight`, `distinct_flights`), with the fingerprint a merge of a session
-depends on (`session_fingerprint`)."""
+each session pair and the test they must pass after alignment (`FusePair`, `filter_associations`), and the flights
+a session holds, so that no flight is merged twice (`session_flights`, `same_flight`, `distinct_flights`), with the
+fingerprint a merge of a session depends on (`session_fingerprint`)."""
 
 from __future__ import annotations
 
@@ -165,7 +164,9 @@ def session_fingerprint(session: SessionFiles) -> str:
 def refine_transform(
     a: SessionFiles, b: SessionFiles, associations: np.ndarray, initial: Sim3, with_scale: bool, gate_m: float
 ) -> tuple[Sim3, int]:
-    """Re-estimate a_from_b by least squares on every association that `initial` already explains within gate_m.
+    """Re-estimate a_from_b by least squares on every association that `initial` already explains within gate_m:
+    one refit, not what `merge --refine` / `batch --refine` do (`merge.refined_answer`); kept as the baseline the
+    batch benchmark's refinement table and a test compare that refinement with.
 
     Returns (transform, number of associations used); keeps `initial` when fewer than 3 survive the gate.
     """
