@@ -4,9 +4,11 @@ names are two flights."""
 
 import hashlib
 import json
+import shutil
 
 import pytest
 
+from sosmatch.database.colmap_model import load_reconstruction
 from sosmatch.database.session_io import read_session
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.multisession import Sim3
@@ -93,3 +95,44 @@ def test_batch_leaves_a_second_map_of_a_flight_out_and_says_so(flights, tmp_path
     assert any("F1_again: the same flight as F1 (the same images)" in w for w in report.warnings)
     assert report.status != "ok"
     assert all(len(g["members"]) == 1 for g in report.groups)
+
+
+def _as_mapped(made, tmp_path, name: str, flight: str, folder: str):
+    """A copy of the toy session `name` whose run.json records the photos of its model's images (by their names
+    there) as `flight`'s and its image folder as `folder`."""
+    copy = tmp_path / name
+    shutil.copytree(made[name].path, copy)
+    names = [img.name for img in load_reconstruction(copy / "sparse").images.values()]
+    record_images(read_session(copy), {n: f"{flight} {n}" for n in names}, folder)
+    return read_session(copy)
+
+
+def test_an_older_merged_session_is_known_by_its_sessions_records_and_else_warned_of_by_image_names(flights,
+                                                                                                      tmp_path):
+    """rev34: a merge.json of an older sosmatch records the flights' maps only (`flight_maps`, no `flights`):
+    F1 mapped again (other landmarks, the same photos) was merged into it with every photo twice, exit 0. Its
+    input sessions, found where it names them and still holding the maps merged, say which images it holds; once
+    F1 is gone, the names in its model are all that is left: they warn, and never refuse (F2's photos have F1's
+    names)."""
+    _, made = flights
+    f1 = _as_mapped(made, tmp_path, "F1", "flight 1", "folder of flight 1")
+    f2 = _as_mapped(made, tmp_path, "F2", "flight 2", "folder of flight 2")
+    again = _as_mapped(made, tmp_path, "F1_again", "flight 1", "folder of flight 1")
+    merge.run(f1.path, f2.path, toy_match_json(made["F1"], made["F2"], tmp_path / "m.json"), tmp_path / "M")
+    record = json.loads((tmp_path / "M" / "merge.json").read_text())
+    del record["flights"]  # as an older sosmatch wrote it
+    (tmp_path / "M" / "merge.json").write_text(json.dumps(record))
+    merged = read_session(tmp_path / "M")
+    with pytest.raises(InputError, match=r"holds a flight that .*M holds already \(the same images\)"):
+        merge_pairs.distinct_flights([merged, again])
+
+    (tmp_path / "F1").rename(tmp_path / "F1_moved")
+    names = len(load_reconstruction(again.path / "sparse").images)
+    other = _as_mapped(made, tmp_path, "F1_half", "flight 3", "folder of flight 3")  # F1's names, other photos
+    for session in (again, other):
+        held, notes = merge_pairs.distinct_flights([merged, session])
+        assert len(held) == 3 and len(notes) == 1
+        assert f"hold flights with {names} image names in common" in notes[0] and "records no images" in notes[0]
+    # F2, still where M names it, is known by its photos; F1 by its map and its images' names in M's model
+    assert [(f["images"], len(f["names"])) for f in held[:2]] == [(_digest("folder of flight 2"), names),
+                                                                  (None, names)]

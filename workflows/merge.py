@@ -169,7 +169,10 @@ def merge_sessions(
                             "eps": max_fuse_distance_m, "record": rec, "pairs": fused})
 
     identity = identity_of(record if identity_record is None else identity_record)
-    flights = distinct_flights(sessions)
+    flights, notes = distinct_flights(sessions)
+    for note in notes:  # an older merge.json's flights known by their names only: said, never refused on names
+        log.warning("%s", note)
+    warnings = [*warnings, *notes]
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
                          earlier=[identity_of(r) for r in earlier_records]) as out:

@@ -87,15 +87,17 @@ def flight_maps(session: SessionFiles) -> list[str]:
     return sorted({f["map"] for f in session_flights(session)})
 
 
-def session_flights(session: SessionFiles) -> list[dict[str, Any]]:
+def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset()) -> list[dict[str, Any]]:
     """The flights a session holds, each as what identifies it: `map`, its landmark map (content fingerprint);
     `images`, the digest of its image folder (names and contents: run.json `fingerprints.images`, the same for two
     maps of one folder made with different settings, wherever the project lies) or None; `keyframes`, the content
     digests of the images in its model (run.json `keyframe_images`, first `IMAGE_DIGEST_CHARS` hex digits,
-    sorted: images, not names, so that two flights' DJI_0001.JPG are two photos). A flight without run.json (an
-    older sosmatch): its map only. A merged session's as its merge.json records them (`flights`; of an older
-    sosmatch `flight_maps`, maps only). InputError naming merge.json or run.json when it is unreadable: a merged
-    session taken for one flight would let a flight it holds be merged into it again."""
+    sorted: images, not names, so that two flights' DJI_0001.JPG are two photos); `names`, the names of those
+    images (or, for a flight whose contents no record holds, the names they are among: `name_overlap`). A flight
+    without run.json (an older sosmatch): its map and names. A merged session's as its merge.json records them
+    (`flights`); of an older sosmatch, which recorded no images, as `older_merged_flights` recovers them.
+    InputError naming merge.json or run.json when it is unreadable: a merged session taken for one flight would let
+    a flight it holds be merged into it again."""
     record = session.path / MERGE_RECORD
     if record.is_file():
         merged = read_user_json(record, "merge record", redo="re-run `sosmatch merge`")
@@ -103,15 +105,69 @@ def session_flights(session: SessionFiles) -> list[dict[str, Any]]:
         if isinstance(flights, list) and flights and all(isinstance(f, dict) and isinstance(f.get("map"), str)
                                                          for f in flights):
             return [{"map": f["map"], "images": f.get("images") if isinstance(f.get("images"), str) else None,
-                     "keyframes": sorted(str(k) for k in f.get("keyframes") or [])} for f in flights]
-        recorded = merged.get("flight_maps")
-        if isinstance(recorded, list) and recorded and all(isinstance(f, str) for f in recorded):
-            return [{"map": f, "images": None, "keyframes": []} for f in sorted(set(recorded))]
+                     "keyframes": sorted(str(k) for k in f.get("keyframes") or []),
+                     "names": sorted(str(n) for n in f.get("names") or [])} for f in flights]
+        return older_merged_flights(session, merged, _seen | {session.path.resolve()})
     run = read_map_record(session.path) or {}
     images = (run.get("fingerprints") or {}).get("images") if isinstance(run.get("fingerprints"), dict) else None
     keyframes = run.get("keyframe_images") if isinstance(run.get("keyframe_images"), dict) else {}
+    names = sorted(keyframes) if keyframes else sorted(_model_names(session))
     return [{"map": landmark_map_fingerprint(session.landmarks), "images": images if isinstance(images, str) else None,
-             "keyframes": sorted({str(d)[:IMAGE_DIGEST_CHARS] for d in keyframes.values()})}]
+             "keyframes": sorted({str(d)[:IMAGE_DIGEST_CHARS] for d in keyframes.values()}), "names": names}]
+
+
+def _model_names(session: SessionFiles) -> list[str]:
+    """The names of the images in a session's model (a merged model's: `label/name`, its session's label first)."""
+    from ..database.colmap_model import load_reconstruction
+
+    return [img.name for img in load_reconstruction(session.sparse_dir).images.values()]
+
+
+def older_merged_flights(session: SessionFiles, merged: dict[str, Any], seen: frozenset[Path]
+                         ) -> list[dict[str, Any]]:
+    """The flights of a merged session whose merge.json (an older sosmatch: `flight_maps` at most) records no
+    images (rev34): each input session merge.json names (`sessions`, as given then: relative to the working
+    directory, or beside the merged session) that is still the flight merged (its landmark maps are among
+    `flight_maps`) by its own record (`session_flights`: images by content); the others by their maps and the
+    names of their images in the merged model (`label/name`), which alone never refuse a flight (two flights'
+    DJI_0001.JPG are two photos) but warn (`name_overlap`). A merge.json without `flight_maps` (older still) cannot
+    tell an input that was mapped again since from the one merged: its flights are the merged map only."""
+    recorded = merged.get("flight_maps")
+    maps = set(recorded) if isinstance(recorded, list) and all(isinstance(f, str) for f in recorded) else set()
+    paths, labels = merged.get("sessions"), merged.get("labels")
+    inputs = list(zip(paths, labels)) if (isinstance(paths, list) and isinstance(labels, list)
+                                          and len(paths) == len(labels)) else []
+    found: list[dict[str, Any]] = []
+    unknown: list[str] = []
+    for path, label in inputs:
+        flights = _still_merged(session, str(path), maps, seen) if maps else None
+        if flights is None:
+            unknown.append(str(label))
+        else:
+            found += flights
+    left = sorted(maps - {f["map"] for f in found}) or ([] if maps else [landmark_map_fingerprint(session.landmarks)])
+    labelled = [name.partition("/") for name in _model_names(session)]
+    names = sorted({name for label, _, name in labelled if not inputs or label in unknown})
+    return found + [{"map": m, "images": None, "keyframes": [], "names": names} for m in left]
+
+
+def _still_merged(merged: SessionFiles, path: str, maps: set[str], seen: frozenset[Path]
+                  ) -> list[dict[str, Any]] | None:
+    """The flights (`session_flights`) of the input session `path` of the merged session `merged` when it is
+    found (as recorded, or by its folder's name beside `merged`) and still holds what was merged (every landmark
+    map among `maps`); None otherwise (moved, deleted or mapped again since)."""
+    from ..database.session_io import read_session
+
+    for candidate in (Path(path), merged.path.parent / Path(path).name):
+        try:
+            if not candidate.is_dir() or candidate.resolve() in seen:
+                continue
+            flights = session_flights(read_session(candidate), seen)
+        except (InputError, OSError):
+            continue
+        if flights and all(f["map"] in maps for f in flights):
+            return flights
+    return None
 
 
 def same_flight(f: dict[str, Any], g: dict[str, Any]) -> str | None:
@@ -127,6 +183,15 @@ def same_flight(f: dict[str, Any], g: dict[str, Any]) -> str | None:
     return None
 
 
+def name_overlap(f: dict[str, Any], g: dict[str, Any]) -> int:
+    """How many image names two flights (`session_flights`) share when one of them has no record of its images'
+    contents (an older merge.json's: `older_merged_flights`), so that names are all that might tell they are one;
+    0 when both have one (their contents decide: `same_flight`)."""
+    if (f["keyframes"] or f["images"]) and (g["keyframes"] or g["images"]):
+        return 0
+    return len(set(f["names"]) & set(g["names"]))
+
+
 def repeated_flight(flights: Sequence[dict[str, Any]], held: Sequence[tuple[dict[str, Any], Any]]
                     ) -> tuple[Any, str] | None:
     """(holder, why) when one of `flights` (`session_flights`) is a flight of `held` ((flight, holder) each, e.g.
@@ -138,19 +203,27 @@ def repeated_flight(flights: Sequence[dict[str, Any]], held: Sequence[tuple[dict
     return None
 
 
-def distinct_flights(sessions: Sequence[SessionFiles]) -> list[dict[str, Any]]:
-    """The flights of all `sessions` (`session_flights`), as merge.json records them (`flights`); InputError when
-    one flight is in two of them (`repeated_flight`; its images would be in the model twice): the eleventh sweep, a
-    flight merged into a season map that already held it; rev33, two maps of one flight made with different
-    settings (other landmarks, the same photos), merged with every photo twice, exit 0."""
+def distinct_flights(sessions: Sequence[SessionFiles]) -> tuple[list[dict[str, Any]], list[str]]:
+    """The flights of all `sessions` (`session_flights`), as merge.json records them (`flights`), and a warning
+    for each flight that shares image names with one of whose images no record holds the contents (`name_overlap`:
+    an older merge.json; names alone do not refuse). InputError when one flight is in two of them
+    (`repeated_flight`; its images would be in the model twice): the eleventh sweep, a flight merged into a season
+    map that already held it; rev33, two maps of one flight made with different settings (other landmarks, the
+    same photos), merged with every photo twice, exit 0."""
     held: list[tuple[dict[str, Any], Path]] = []
+    notes: list[str] = []
     for s in sessions:
         flights = session_flights(s)
         if (repeat := repeated_flight(flights, held)) is not None:
             raise InputError(f"holds a flight that {repeat[0]} holds already ({repeat[1]}): merging it again would "
                              "put its images into the model twice", s.path)
+        notes += [f"{s.path} and {holder} hold flights with {n} image names in common, and an older sosmatch's "
+                  "merge.json there records no images of its flight (its session is no longer found as merged): "
+                  "names alone do not tell a photo; if it is one flight mapped twice, its images are in the model "
+                  "twice"
+                  for f in flights for g, holder in held if (n := name_overlap(f, g))][:1]
         held += [(f, s.path) for f in flights]
-    return [f for f, _ in held]
+    return [f for f, _ in held], notes
 
 
 def session_fingerprint(session: SessionFiles) -> str:
