@@ -1,6 +1,7 @@
 """What a merge fuses and from which flights (`workflows.merge`, and batch's merge stage): the landmark pairs of
 each session pair and the test they must pass after alignment (`FusePair`, `filter_associations`), and the flights
-a session holds, so that no flight is merged twice (`session_flights`, `same_flight`, `distinct_flights`), with the
+a session holds, so that no flight is merged twice (`session_flights`, `same_flight`, `distinct_flights`; of an
+older merge.json, `older_merged_flights`), with the
 fingerprint a merge of a session depends on (`session_fingerprint`)."""
 
 from __future__ import annotations
@@ -140,7 +141,7 @@ def older_merged_flights(session: SessionFiles, merged: dict[str, Any], seen: fr
     found: list[dict[str, Any]] = []
     unknown: list[str] = []
     for path, label in inputs:
-        flights = _still_merged(session, str(path), maps, seen) if maps else None
+        flights = _still_merged(session, str(path), maps - {f["map"] for f in found}, seen) if maps else None
         if flights is None:
             unknown.append(str(label))
         else:
@@ -155,7 +156,8 @@ def _still_merged(merged: SessionFiles, path: str, maps: set[str], seen: frozens
                   ) -> list[dict[str, Any]] | None:
     """The flights (`session_flights`) of the input session `path` of the merged session `merged` when it is
     found (as recorded, or by its folder's name beside `merged`) and still holds what was merged (every landmark
-    map among `maps`); None otherwise (moved, deleted or mapped again since)."""
+    map among `maps`, those of the inputs not found yet: two inputs of one folder name are not one found twice);
+    None otherwise (moved, deleted or mapped again since)."""
     from ..database.session_io import read_session
 
     for candidate in (Path(path), merged.path.parent / Path(path).name):
@@ -218,9 +220,9 @@ def distinct_flights(sessions: Sequence[SessionFiles]) -> tuple[list[dict[str, A
             raise InputError(f"holds a flight that {repeat[0]} holds already ({repeat[1]}): merging it again would "
                              "put its images into the model twice", s.path)
         notes += [f"{s.path} and {holder} hold flights with {n} image names in common, and an older sosmatch's "
-                  "merge.json there records no images of its flight (its session is no longer found as merged): "
-                  "names alone do not tell a photo; if it is one flight mapped twice, its images are in the model "
-                  "twice"
+                  "merge.json records no images of one (nor is its session found as merged: moved, deleted or "
+                  "mapped again): names alone do not tell a photo; if it is one flight mapped twice, its images are "
+                  "in the model twice"
                   for f in flights for g, holder in held if (n := name_overlap(f, g))][:1]
         held += [(f, s.path) for f in flights]
     return [f for f, _ in held], notes
