@@ -94,8 +94,8 @@ def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset())
     maps of one folder made with different settings, wherever the project lies) or None; `keyframes`, the content
     digests of the images in its model (run.json `keyframe_images`, first `IMAGE_DIGEST_CHARS` hex digits,
     sorted: images, not names, so that two flights' DJI_0001.JPG are two photos); `names`, the names of those
-    images (or, for a flight whose contents no record holds, the names they are among: `name_overlap`). A flight
-    without run.json (an older sosmatch): its map and names. A merged session's as its merge.json records them
+    images (or, for a flight of an older merge.json, the names they are among: `name_overlap`). A flight without
+    run.json (an older sosmatch): its map only. A merged session's as its merge.json records them
     (`flights`); of an older sosmatch, which recorded no images, as `older_merged_flights` recovers them.
     InputError naming merge.json or run.json when it is unreadable: a merged session taken for one flight would let
     a flight it holds be merged into it again."""
@@ -112,9 +112,9 @@ def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset())
     run = read_map_record(session.path) or {}
     images = (run.get("fingerprints") or {}).get("images") if isinstance(run.get("fingerprints"), dict) else None
     keyframes = run.get("keyframe_images") if isinstance(run.get("keyframe_images"), dict) else {}
-    names = sorted(keyframes) if keyframes else sorted(_model_names(session))
     return [{"map": landmark_map_fingerprint(session.landmarks), "images": images if isinstance(images, str) else None,
-             "keyframes": sorted({str(d)[:IMAGE_DIGEST_CHARS] for d in keyframes.values()}), "names": names}]
+             "keyframes": sorted({str(d)[:IMAGE_DIGEST_CHARS] for d in keyframes.values()}),
+             "names": sorted(str(n) for n in keyframes)}]
 
 
 def _model_names(session: SessionFiles) -> list[str]:
