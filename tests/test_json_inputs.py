@@ -75,5 +75,10 @@ def test_a_syntax_error_is_located_by_line_and_column(tmp_path: Path) -> None:
 
 
 def test_a_merged_sessions_record_names_its_flights(tmp_path: Path) -> None:
+    import pycolmap
+
     (tmp_path / "merge.json").write_text('{"format": "sosmatch merge v1", "flight_maps": ["b", "a", "b"]}\n')
-    assert flight_maps(SimpleNamespace(path=tmp_path)) == ["a", "b"]  # type: ignore[arg-type]
+    (tmp_path / "sparse").mkdir()
+    pycolmap.Reconstruction().write(str(tmp_path / "sparse"))  # a merged session's model (its images' names)
+    session = SimpleNamespace(path=tmp_path, sparse_dir=tmp_path / "sparse")
+    assert flight_maps(session) == ["a", "b"]  # type: ignore[arg-type]
