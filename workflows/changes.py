@@ -199,12 +199,14 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     tolerance = (answer_gate_m if answer_gate_m is not None
                  else answer_gate(match, params.association.distance_tolerance_m))
     control_gate = counterpart_gate(params.changes, tolerance)
-    # the control of the pair, both directions (`implausible_pair`), as merge and batch apply it (`check_alignment`)
-    control = None if sup is None else pair_support(obs_a, obs_b, a_from_b, control_gate, params.changes)
+    # the control of the pair, both directions (`implausible_pair`), as merge and batch apply it (`check_alignment`);
+    # A's direction at the classification's gate is the classification's own (`sup`), not computed again
+    control = None if sup is None else pair_support(obs_a, obs_b, a_from_b, control_gate, params.changes,
+                                                    a_side=sup if control_gate == result.tolerance_m else None)
     if control is not None and (why := implausible_pair(control, control_gate, verified)) is not None:
         raise InputError(f"{why}; nothing compared", match_json or session_b)
     fine = () if control is None or control_gate == result.tolerance_m else pair_support(
-        obs_a, obs_b, a_from_b, result.tolerance_m, params.changes)
+        obs_a, obs_b, a_from_b, result.tolerance_m, params.changes, a_side=sup)
     for k, name in enumerate("AB"[:len(fine)]):
         if implausible_alignment(fine[k], result.tolerance_m, verified) is None:
             continue

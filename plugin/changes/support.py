@@ -72,15 +72,18 @@ def implausible_alignment(support: AlignmentSupport, gate_m: float, verified: bo
 
 
 def pair_support(a: SessionObservations, b: SessionObservations, a_from_b: Sim3, gate_m: float,
-                 params: ChangeParams) -> tuple[AlignmentSupport, AlignmentSupport]:
+                 params: ChangeParams, a_side: AlignmentSupport | None = None
+                 ) -> tuple[AlignmentSupport, AlignmentSupport]:
     """The counterpart control of an alignment in both directions, each in its own map's frame: A's landmarks that
     B's keyframes saw against B moved by a_from_b (`alignment_support`), and B's that A's keyframes saw against A
     moved by its inverse. The pair (B, A) with the inverse transform gives the same two, swapped: each direction's
     count, chance level (B displaced along 6 directions of its own frame) and p do not depend on which session is
     named first (rev33: one direction alone checked 328 landmarks of A at a chance rate of 0.11 and passed, the
-    other order 156 of W at 0.24 and refused the same alignment)."""
-    return (alignment_support(a, b.transformed(a_from_b), gate_m, params),
-            alignment_support(b, a.transformed(a_from_b.inverse()), gate_m, params))
+    other order 156 of W at 0.24 and refused the same alignment). `a_side`: A's direction at this gate where the
+    caller has it already (`detect_changes`' own `ChangeResult.support`), not computed again."""
+    if a_side is None:
+        a_side = alignment_support(a, b.transformed(a_from_b), gate_m, params)
+    return a_side, alignment_support(b, a.transformed(a_from_b.inverse()), gate_m, params)
 
 
 def implausible_pair(supports: tuple[AlignmentSupport, AlignmentSupport], gate_m: float,
