@@ -15,6 +15,7 @@ from sosmatch.plugin.multisession import Sim3
 from sosmatch.tools.cli import main
 from sosmatch.tools.toy_sessions import lawnmower, make_world, oracle_pair_task, toy_match_json, write_toy_session
 from sosmatch.workflows import batch, merge, merge_pairs
+from sosmatch.workflows.batch.discovery import one_session_per_flight
 from sosmatch.workflows.executors import LocalExecutor
 
 
@@ -95,6 +96,25 @@ def test_batch_leaves_a_second_map_of_a_flight_out_and_says_so(flights, tmp_path
     assert any("F1_again: the same flight as F1 (the same images)" in w for w in report.warnings)
     assert report.status != "ok"
     assert all(len(g["members"]) == 1 for g in report.groups)
+
+
+def test_merge_and_batch_take_their_answers_from_one_walk_of_the_flights(flights):
+    """Which session repeats a flight of an earlier one, and why, is one walk (`merge_pairs.walk_flights`): merge
+    refuses the first repeat, batch leaves each out and goes on; a repeat's flights are not held."""
+    _, made = flights
+    order = ["F1", "F2", "F1_again", "F1_half"]
+    checks = list(merge_pairs.walk_flights((n, merge_pairs.session_flights(read_session(made[n].path)))
+                                           for n in order))
+    assert [(c.holder, c.repeat, c.notes) for c in checks] == [
+        ("F1", None, []), ("F2", None, []), ("F1_again", ("F1", "the same images"), []),
+        ("F1_half", ("F1", "10 of its images, by content"), [])]
+    sessions = {n: {"session": str(made[n].path)} for n in order}
+    assert one_session_per_flight(order, sessions) == ["F1", "F2"]
+    assert [sessions[n].get("same_flight_as") for n in order] == [None, None, "F1", "F1"]
+    for name, check in zip(order[2:], checks[2:]):
+        assert f"the same flight as F1 ({check.repeat[1]})" in sessions[name]["warnings"][0]
+        with pytest.raises(InputError, match=rf"holds a flight that .*F1 holds already \({check.repeat[1]}\)"):
+            merge_pairs.distinct_flights([read_session(made[n].path) for n in ("F1", "F2", name)])
 
 
 def _as_mapped(made, tmp_path, name: str, flight: str, folder: str):

@@ -1,13 +1,14 @@
 """What a merge fuses and from which flights (`workflows.merge`, and batch's merge stage): the landmark pairs of
 each session pair and the test they must pass after alignment (`FusePair`, `filter_associations`), and the flights
-a session holds, so that no flight is merged twice (`session_flights`, `same_flight`, `distinct_flights`; of an
-older merge.json, `older_merged_flights`), with the
+a session holds, so that no flight is merged twice (`session_flights`, `same_flight`; `walk_flights`, the one walk
+of merge's `distinct_flights` and batch's `one_session_per_flight`; of an older merge.json, `older_merged_flights`),
+with the
 fingerprint a merge of a session depends on (`session_fingerprint`)."""
 
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -205,27 +206,50 @@ def repeated_flight(flights: Sequence[dict[str, Any]], held: Sequence[tuple[dict
     return None
 
 
+class FlightCheck(NamedTuple):
+    """One session's flights against those of the sessions before it (`walk_flights`)."""
+
+    holder: Any  # the session, as the caller names it (merge: its path; batch: its flight's name)
+    flights: list[dict[str, Any]]  # its flights (`session_flights`)
+    repeat: tuple[Any, str] | None  # (holder, why) of an earlier session holding one of them (`repeated_flight`)
+    notes: list[str]  # image names shared with an earlier session's flight known by its names only (`name_overlap`)
+
+
+def walk_flights(sessions: Iterable[tuple[Any, Sequence[dict[str, Any]]]]) -> Iterator[FlightCheck]:
+    """Each of `sessions` ((holder, its flights: `session_flights`), in order) checked against the flights of the
+    ones before it that repeated none (`FlightCheck`): the one walk of merge (`distinct_flights`: a repeat is
+    refused) and batch (`batch.discovery.one_session_per_flight`: a repeat is left out, said), whose names-only
+    notes both say. A repeat's flights are not held (batch leaves it out); it gets no notes (it is not taken)."""
+    held: list[tuple[dict[str, Any], Any]] = []
+    for holder, flights in sessions:
+        if (repeat := repeated_flight(flights, held)) is not None:
+            yield FlightCheck(holder, list(flights), repeat, [])
+            continue
+        notes = [f"{holder} and {other} hold flights with {n} image names in common, and an older sosmatch's "
+                 "merge.json records no images of one (nor is its session found as merged: moved, deleted or "
+                 "mapped again): names alone do not tell a photo; if it is one flight mapped twice, its images are "
+                 "in the model twice"
+                 for f in flights for g, other in held if (n := name_overlap(f, g))][:1]
+        held += [(f, holder) for f in flights]
+        yield FlightCheck(holder, list(flights), None, notes)
+
+
 def distinct_flights(sessions: Sequence[SessionFiles]) -> tuple[list[dict[str, Any]], list[str]]:
     """The flights of all `sessions` (`session_flights`), as merge.json records them (`flights`), and a warning
     for each flight that shares image names with one of whose images no record holds the contents (`name_overlap`:
     an older merge.json; names alone do not refuse). InputError when one flight is in two of them
     (`repeated_flight`; its images would be in the model twice): the eleventh sweep, a flight merged into a season
     map that already held it; rev33, two maps of one flight made with different settings (other landmarks, the
-    same photos), merged with every photo twice, exit 0."""
-    held: list[tuple[dict[str, Any], Path]] = []
+    same photos), merged with every photo twice, exit 0. The walk is batch's too (`walk_flights`)."""
+    flights: list[dict[str, Any]] = []
     notes: list[str] = []
-    for s in sessions:
-        flights = session_flights(s)
-        if (repeat := repeated_flight(flights, held)) is not None:
-            raise InputError(f"holds a flight that {repeat[0]} holds already ({repeat[1]}): merging it again would "
-                             "put its images into the model twice", s.path)
-        notes += [f"{s.path} and {holder} hold flights with {n} image names in common, and an older sosmatch's "
-                  "merge.json records no images of one (nor is its session found as merged: moved, deleted or "
-                  "mapped again): names alone do not tell a photo; if it is one flight mapped twice, its images are "
-                  "in the model twice"
-                  for f in flights for g, holder in held if (n := name_overlap(f, g))][:1]
-        held += [(f, s.path) for f in flights]
-    return [f for f, _ in held], notes
+    for check in walk_flights((s.path, session_flights(s)) for s in sessions):
+        if check.repeat is not None:
+            raise InputError(f"holds a flight that {check.repeat[0]} holds already ({check.repeat[1]}): merging it "
+                             "again would put its images into the model twice", check.holder)
+        flights += check.flights
+        notes += check.notes
+    return flights, notes
 
 
 def session_fingerprint(session: SessionFiles) -> str:

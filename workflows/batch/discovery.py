@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -140,29 +141,32 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
 
 def one_session_per_flight(mapped: list[str], sessions: dict[str, dict[str, Any]]) -> list[str]:
     """The mapped flights (names, in order) less those that are a flight an earlier one is (`merge_pairs`'
-    `session_flights`, `repeated_flight`: the same landmark map, image folder or images by content), each of those
+    `walk_flights`, merge's walk: the same landmark map, image folder or images by content), each of those
     left out of matching and merging with a warning in its record (`warnings`, `same_flight_as`) and the log:
     rev33, two maps of one flight made with different settings in one flights folder were matched (234
     associations) and merged with every photo twice, and batch said "ok"."""
     from ...database.session_io import read_session
-    from ..merge_pairs import repeated_flight, session_flights
+    from ..merge_pairs import session_flights, walk_flights
+
+    def flights_of() -> Iterator[tuple[str, list[dict[str, Any]]]]:
+        for name in mapped:
+            try:
+                yield name, session_flights(read_session(sessions[name]["session"]))
+            except InputError as e:  # said where the session is read for its match; nothing to compare it by here
+                log.debug("%s: its flights cannot be read: %s", name, e)
+                yield name, []  # no flights: kept, and held against none
+
+    def say(name: str, text: str) -> None:
+        log.warning("session %s: %s", name, text)
+        sessions[name]["warnings"] = [*sessions[name].get("warnings", []), text]
 
     kept: list[str] = []
-    held: list[tuple[dict[str, Any], str]] = []
-    for name in mapped:
-        try:
-            flights = session_flights(read_session(sessions[name]["session"]))
-        except InputError as e:  # said where the session is read for its match; nothing to compare it by here
-            log.debug("%s: its flights cannot be read: %s", name, e)
+    for check in walk_flights(flights_of()):
+        name = check.holder
+        if check.repeat is None:
             kept.append(name)
             continue
-        if (repeat := repeated_flight(flights, held)) is None:
-            kept.append(name)
-            held += [(f, name) for f in flights]
-            continue
-        said = (f"the same flight as {repeat[0]} ({repeat[1]}): left out of matching and merging (its images would "
-                "be in the merged model twice); keep one map of each flight in the flights folder")
-        log.warning("session %s: %s", name, said)
-        sessions[name]["warnings"] = [*sessions[name].get("warnings", []), said]
-        sessions[name]["same_flight_as"] = repeat[0]
+        say(name, f"the same flight as {check.repeat[0]} ({check.repeat[1]}): left out of matching and merging (its "
+            "images would be in the merged model twice); keep one map of each flight in the flights folder")
+        sessions[name]["same_flight_as"] = check.repeat[0]
     return kept
