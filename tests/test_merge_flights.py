@@ -4,11 +4,15 @@ names are two flights."""
 
 import hashlib
 import json
+import logging
 import shutil
+from pathlib import Path
 
 import pytest
 
 from sosmatch.database.colmap_model import load_reconstruction
+from sosmatch.database.landmark_map import landmark_map_fingerprint
+from sosmatch.database.output_markers import MARKER
 from sosmatch.database.session_io import read_session
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.multisession import Sim3
@@ -127,6 +131,19 @@ def _as_mapped(made, tmp_path, name: str, flight: str, folder: str):
     return read_session(copy)
 
 
+def _older_merge(made, tmp_path):
+    """M: F1 and F2 (as mapped: `_as_mapped`) merged, its merge.json as an older sosmatch wrote it (no `flights`),
+    and F1_again as mapped (F1's photos, another landmark map); returns (M, F1_again)."""
+    f1 = _as_mapped(made, tmp_path, "F1", "flight 1", "folder of flight 1")
+    f2 = _as_mapped(made, tmp_path, "F2", "flight 2", "folder of flight 2")
+    again = _as_mapped(made, tmp_path, "F1_again", "flight 1", "folder of flight 1")
+    merge.run(f1.path, f2.path, toy_match_json(made["F1"], made["F2"], tmp_path / "m.json"), tmp_path / "M")
+    record = json.loads((tmp_path / "M" / "merge.json").read_text())
+    del record["flights"]  # as an older sosmatch wrote it
+    (tmp_path / "M" / "merge.json").write_text(json.dumps(record))
+    return read_session(tmp_path / "M"), again
+
+
 def test_an_older_merged_session_is_known_by_its_sessions_records_and_else_warned_of_by_image_names(flights,
                                                                                                       tmp_path):
     """rev34: a merge.json of an older sosmatch records the flights' maps only (`flight_maps`, no `flights`):
@@ -135,14 +152,7 @@ def test_an_older_merged_session_is_known_by_its_sessions_records_and_else_warne
     F1 is gone, the names in its model are all that is left: they warn, and never refuse (F2's photos have F1's
     names)."""
     _, made = flights
-    f1 = _as_mapped(made, tmp_path, "F1", "flight 1", "folder of flight 1")
-    f2 = _as_mapped(made, tmp_path, "F2", "flight 2", "folder of flight 2")
-    again = _as_mapped(made, tmp_path, "F1_again", "flight 1", "folder of flight 1")
-    merge.run(f1.path, f2.path, toy_match_json(made["F1"], made["F2"], tmp_path / "m.json"), tmp_path / "M")
-    record = json.loads((tmp_path / "M" / "merge.json").read_text())
-    del record["flights"]  # as an older sosmatch wrote it
-    (tmp_path / "M" / "merge.json").write_text(json.dumps(record))
-    merged = read_session(tmp_path / "M")
+    merged, again = _older_merge(made, tmp_path)
     with pytest.raises(InputError, match=r"holds a flight that .*M holds already \(the same images\)"):
         merge_pairs.distinct_flights([merged, again])
 
@@ -156,3 +166,41 @@ def test_an_older_merged_session_is_known_by_its_sessions_records_and_else_warne
     # F2, still where M names it, is known by its photos; F1 by its map and its images' names in M's model
     assert [(f["images"], len(f["names"])) for f in held[:2]] == [(_digest("folder of flight 2"), names),
                                                                   (None, names)]
+
+
+def _no_answer(session_a: str, session_b: str, pair_dir: str, params: object = None) -> dict:
+    """A matcher (`batch.pair_task`'s signature) that finds no answer: match.json of the two maps, refused."""
+    refs = {}
+    for key, path in (("map_a", session_a), ("map_b", session_b)):
+        lmap = read_session(path).landmarks
+        refs[key] = {"path": path, "landmarks": len(lmap), "fingerprint": landmark_map_fingerprint(lmap)}
+    doc = {"format": "sosmatch match v1", **refs, "transform_kind": "rigid", "best": 0,
+           "hypotheses": [{"associations": [], "transform": Sim3.identity().to_dict(), "accepted": False}]}
+    (Path(pair_dir) / "match.json").parent.mkdir(parents=True, exist_ok=True)
+    (Path(pair_dir) / "match.json").write_text(json.dumps(doc) + "\n")
+    return batch.summarise_match(Path(pair_dir) / "match.json")
+
+
+def test_batch_says_what_merge_says_of_flights_known_by_their_image_names_only(flights, tmp_path, caplog):
+    """Two flights sharing image names, one of them known by its names only (an older merged session whose input
+    is gone), may be one flight mapped twice: merge says so and merges; batch said nothing (fix91's closing
+    note). It keeps both and says the same, in its log and its report, of the later one."""
+    _, made = flights
+    merged, again = _older_merge(made, tmp_path)
+    (tmp_path / "F1").rename(tmp_path / "F1_moved")
+    (merged.path / MARKER).unlink()  # an older sosmatch's merge, taken by batch for a mapped session
+    folder = tmp_path / "flights"
+    folder.mkdir()
+    (folder / "M").symlink_to(merged.path)
+    (folder / "X").symlink_to(again.path)
+    held, said = merge_pairs.distinct_flights([read_session(folder / "M"), read_session(folder / "X")])
+    assert len(held) == 3 and len(said) == 1
+    with caplog.at_level(logging.WARNING, logger="sosmatch"), LocalExecutor(1) as ex:
+        report = batch.run(folder, tmp_path / "out", executor=ex, pair_fn=_no_answer,
+                           options=batch.BatchOptions(progress=False, changes=False))
+    x = next(s for s in report.sessions if s["name"] == "X")
+    assert "same_flight_as" not in x and x["warnings"] == [said[0].replace(str(folder / "X"), "X")
+                                                           .replace(str(folder / "M"), "M")]
+    assert [p["pair"] for p in report.pairs] == ["M__X"]
+    assert f"session X: {x['warnings'][0]}" in report.warnings and report.status != "ok"
+    assert any(r.levelno == logging.WARNING and x["warnings"][0] in r.getMessage() for r in caplog.records)

@@ -144,7 +144,9 @@ def one_session_per_flight(mapped: list[str], sessions: dict[str, dict[str, Any]
     `walk_flights`, merge's walk: the same landmark map, image folder or images by content), each of those
     left out of matching and merging with a warning in its record (`warnings`, `same_flight_as`) and the log:
     rev33, two maps of one flight made with different settings in one flights folder were matched (234
-    associations) and merged with every photo twice, and batch said "ok"."""
+    associations) and merged with every photo twice, and batch said "ok". What merge says of two flights that share
+    image names, one known by its names only (an older merge.json), batch says too (the record's `warnings`, the
+    log), and keeps both."""
     from ...database.session_io import read_session
     from ..merge_pairs import session_flights, walk_flights
 
@@ -163,6 +165,8 @@ def one_session_per_flight(mapped: list[str], sessions: dict[str, dict[str, Any]
     kept: list[str] = []
     for check in walk_flights(flights_of()):
         name = check.holder
+        for note in check.notes:
+            say(name, note)
         if check.repeat is None:
             kept.append(name)
             continue
