@@ -3,6 +3,7 @@ the full maps already), an unverified one is refined by the settings its match.j
 (rev33: the verified answer of maps tilted a few degrees was refitted yaw-only at the default size gate)."""
 
 import json
+import logging
 
 import numpy as np
 import pytest
@@ -49,11 +50,16 @@ def _recorded(path, size_gate=0.4, verified=None):
     return path
 
 
-def test_refine_keeps_a_verified_answer_and_its_tilt(tilted_pair, tmp_path):
+def test_refine_keeps_a_verified_answer_and_its_tilt(tilted_pair, tmp_path, caplog):
     a, b, truth = tilted_pair
     assert len(true_associations(a, b)) > 20 and tilt_deg(truth.rotation) > TILT_DEG - 0.1
     match = _recorded(toy_match_json(a, b, tmp_path / "match.json"), verified=truth)
-    res = merge.run(a.path, b.path, match, tmp_path / "M", refine=True)
+    with caplog.at_level(logging.INFO, logger="sosmatch"):
+        res = merge.run(a.path, b.path, match, tmp_path / "M", refine=True)
+    # the user asked for --refine and gets none: one warning says the verified answer was kept and why (at INFO,
+    # `-q` hid it and nothing else told a user it had changed nothing)
+    said = [r for r in caplog.records if "--refine" in r.getMessage()]
+    assert [r.levelno for r in said] == [logging.WARNING] and "verified answer is already refined" in said[0].message
     # the verified answer is the refined fit already: kept exactly, and merge.json says why
     assert np.allclose(res.transforms[1].matrix(), truth.matrix(), atol=1e-12) and not res.refined
     record = json.loads((tmp_path / "M" / "merge.json").read_text())["refine"]

@@ -485,14 +485,16 @@ def run(
     used, dof = 0, 0
     if refinement is not None:
         transform, used, dof = refinement.transform, refinement.used, refinement.dof
-        if refinement.note:
-            log.info("%s: %s", match_json, refinement.note)
     # the control of `changes` (a merge never fuses what it refuses as chance), at the answer's own gate: maps of
     # 20 m objects (NAIP, theta_eps 8 m) have no counterparts at the configured 2 m even at the true alignment;
     # said before any warning, so that a refusal is one line
     check_alignment(a, b, transform, params, match.source == "verified", gate, match_json, "nothing merged")
     for text in said:
         log.warning("%s", text)
+    if refinement is not None and refinement.note:
+        # --refine asked for and nothing refined: a warning, as match says of an option it ignores (at INFO, `-q`
+        # hid it and the output line alone did not tell it); after the control, so that a refusal is one line
+        log.warning("%s: %s", match_json, refinement.note)
     # the match file by its real path: another spelling of it is the same input (and the same merge)
     # merge.json records the match file by its real path; the identity names the match by its content (what it
     # says, `match_content`), so that a project moved or copied whole is the same merge (nu37 D1)
