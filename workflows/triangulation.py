@@ -5,7 +5,8 @@ plugin/. Steps:
 1. a `pycolmap.Reconstruction` with the one camera and every keyframe registered at its known pose
    (cam_from_world; frame ids equal the database's image ids);
 2. `pycolmap.triangulate_points` from the verified pairs (frames and intrinsics held fixed), with reprojection
-   thresholds raised from COLMAP's 4 px to `max_reprojection_error_px` because centroid noise is ~3 px;
+   thresholds raised from COLMAP's 4 px to `max_reprojection_error_px` because centroid noise is ~3 px, and
+   two-view tracks triangulated only where the parameters admit them (`fewest_observations`);
 3. a points-only bundle adjustment: every pose and intrinsic constant, Huber loss at 2 x `pixel_sigma_px`;
 4. filtering: a landmark needs more than `min_observations` observations (theta_n), a mean reprojection error
    within `max_reprojection_error_px`, positive depth in every observing camera and a largest ray angle of at
@@ -236,6 +237,15 @@ def fuse_split_tracks(rec: pycolmap.Reconstruction, camera: Camera, poses: Poses
     return merges
 
 
+def fewest_observations(params: TriangulationParams) -> int:
+    """The fewest observations of a track that triangulation uses: theta_n + 1 for a landmark of its own, and
+    `min_piece_observations` for a piece when fusion is on (pieces of one object become one landmark, to which
+    theta_n applies). The map writes the matches of these tracks to the database, and pycolmap triangulates
+    two-view tracks only when this is 2 (COLMAP ignores them otherwise: they cannot show a bad observation)."""
+    fewest = params.min_observations + 1
+    return fewest if params.fuse_radius_factor <= 0 else min(fewest, params.min_piece_observations)
+
+
 def _drop_rows(rec: pycolmap.Reconstruction, rows: list, keep: np.ndarray) -> tuple[list, int]:
     """Keep the landmark rows where `keep` (row[1] = point id); the others are deleted from `rec` too, so
     sparse/ and the landmark map agree. Returns (kept rows, number dropped)."""
@@ -276,7 +286,9 @@ def triangulate_landmarks(
     options.triangulation.merge_max_reproj_error = params.max_reprojection_error_px
     options.triangulation.complete_max_reproj_error = params.max_reprojection_error_px
     options.triangulation.min_angle = params.min_triangulation_angle_deg
-    options.triangulation.ignore_two_view_tracks = True
+    # theta_n = 1 or pieces of two observations admit two-view tracks (README, "Triangulation"); without either
+    # setting none is written to the database anyway
+    options.triangulation.ignore_two_view_tracks = fewest_observations(params) > 2
     options.triangulation.random_seed = seed
     options.mapper.filter_max_reproj_error = params.max_reprojection_error_px
     options.mapper.filter_min_tri_angle = params.min_triangulation_angle_deg
