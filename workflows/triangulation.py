@@ -41,7 +41,7 @@ from ..plugin.landmark_filters import beyond_flying_height, height_outliers
 from ..plugin.landmark_size import SIZE_ESTIMATORS, mean_size, nadir_size
 from ..plugin.map_noise import MapNoise, measure_map_noise
 from ..plugin.params import TriangulationParams
-from ..plugin.track_fusion import TrackPiece, fuse_tracks
+from ..plugin.track_fusion import TrackPiece, candidate_pairs, fuse_tracks
 
 if TYPE_CHECKING:
     import pycolmap
@@ -151,14 +151,11 @@ def suppress_duplicates(
     keep = np.ones(n, dtype=bool)
     if n < 2 or radius_factor <= 0:
         return keep
-    from scipy.spatial import cKDTree
-
     xy = np.asarray(positions, dtype=np.float64)[:, :2]
     sizes = np.asarray(sizes_m, dtype=np.float64)
-    pairs = cKDTree(xy).query_pairs(radius_factor * float(sizes.max()), output_type="ndarray")
-    if len(pairs) == 0:
+    i, j = candidate_pairs(xy, radius_factor * sizes)
+    if len(i) == 0:
         return keep
-    i, j = pairs[:, 0], pairs[:, 1]
     dup = np.linalg.norm(xy[i] - xy[j], axis=1) <= radius_factor * np.maximum(sizes[i], sizes[j])
     i, j = i[dup], j[dup]
     order = np.lexsort((np.arange(n), np.asarray(errors_px, np.float64), -np.asarray(num_observations)))
