@@ -12,6 +12,7 @@ from sosmatch.database.colmap_model import (
 )
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Camera, Poses, project
+from sosmatch.plugin.landmark_size import cut_by_border
 from sosmatch.plugin.params import TriangulationParams
 from sosmatch.workflows.triangulation import build_reconstruction, triangulate_landmarks
 
@@ -283,9 +284,19 @@ def test_masks_cut_by_the_image_border_do_not_locate_the_landmark(tmp_path):
         assert len(lm) == 1
         point = lm.reconstruction.points3D[int(lm.point3d_ids[0])]
         assert np.allclose(point.xyz, lm.positions[0])  # sparse/ holds the landmark where the map has it
-        return lm.positions[0], lm.num_observations[0]
+        assert point.error == lm.errors_px[0]  # and its error
+        return lm.positions[0], lm.num_observations[0], lm.errors_px[0]
 
-    (x_all, n_all), (x_whole, n_whole) = landmark(False), landmark(True)
+    (x_all, n_all, _), (x_whole, n_whole, e_whole) = landmark(False), landmark(True)
+    # the error of the moved landmark is its position's over the views that locate it (the whole ones), not the
+    # bundle-adjusted point's over all views, which stayed recorded
+    obs = [(k, 0) for k in range(n) if len(cents[k])]
+    pix = np.array([cents[k][0] for k, _ in obs])
+    cut = cut_by_border(cam, pix, np.array([covs[k][0] for k, _ in obs]))
+    reproj = np.array([np.linalg.norm(project(cam, r_wc, centers[k], x_whole[None])[0][0] - p)
+                       for (k, _), p in zip(obs, pix)])
+    assert cut.sum() > 3 and e_whole == pytest.approx(reproj[~cut].mean(), abs=1e-3)  # keypoints: float32
+    assert e_whole < 1.0 < reproj[cut].mean()
     assert x_all[2] < -10.0 and np.linalg.norm(x_all[:2] - middle[:2]) > 5.0  # what this guards against: -35 m
     assert abs(x_whole[2]) < 0.5 and np.linalg.norm(x_whole[:2] - middle[:2]) < 0.5
     assert n_whole == n_all  # the cut views are still observations of the landmark

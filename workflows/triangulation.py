@@ -11,7 +11,8 @@ plugin/. Steps:
 4. filtering: a landmark needs more than `min_observations` observations (theta_n), a mean reprojection error
    within `max_reprojection_error_px`, positive depth in every observing camera and a largest ray angle of at
    least `min_triangulation_angle_deg`; the point is then located from the views that see its mask whole
-   (`located_from_whole_masks`, `whole_masks_only`). Dropped points are deleted from the reconstruction too, so
+   (`located_from_whole_masks`, `whole_masks_only`), and a point moved there records its error over those
+   views (the filter judged the bundle-adjusted one). Dropped points are deleted from the reconstruction too, so
    sparse/ and the landmark map agree;
 5. metric size per landmark (`plugin.landmark_size`, `size_estimator`): the paper's mean of h_px x depth / f
    over the observations, or (default) the nadir-equivalent size fitted over them;
@@ -58,7 +59,8 @@ class Landmarks:
     num_observations: np.ndarray  # (L,)
     point3d_ids: np.ndarray  # (L,) ids in the pycolmap reconstruction / sparse model
     track_ids: np.ndarray  # (L,) smallest tracker track id of the observations (first sighting)
-    errors_px: np.ndarray  # (L,) mean reprojection error after the points-only BA
+    errors_px: np.ndarray  # (L,) mean reprojection error of the point: after the points-only BA, or over the
+    # whole views for a landmark they locate (`located_from_whole_masks`)
     observations: list[np.ndarray]  # per landmark: (n, 2) int (keyframe index, mask index), keyframe order
     counts: dict[str, int] = field(default_factory=dict)  # triangulated / dropped_* / kept
     noise: MapNoise | None = None  # the map's own noise figures (`plugin.map_noise`), with centroids + covariances
@@ -174,8 +176,9 @@ def suppress_duplicates(
 
 def located_from_whole_masks(camera: Camera, poses: Poses, obs: np.ndarray, point: np.ndarray,
                              centroids_px: list[np.ndarray], covariances_px: list[np.ndarray],
-                             min_angle_deg: float) -> np.ndarray | None:
-    """A landmark's point from the views that see its mask whole; None when they cannot fix one.
+                             min_angle_deg: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """A landmark's point from the views that see its mask whole, and which of `obs` those are (bool (n,));
+    None when they cannot fix one.
 
     A mask cut by the image border (`landmark_size.cut_by_border`) shows only the part of its object inside the
     frame, so its centroid slides with the camera instead of staying on one ground point: with the whole views
@@ -185,21 +188,35 @@ def located_from_whole_masks(camera: Camera, poses: Poses, obs: np.ndarray, poin
     `point` itself when no view is cut, the least-squares point of the whole views (`track_fusion.
     intersect_rays`) when at least two of them span `min_angle_deg`, else None. `camera` is the pinhole
     camera of the undistorted `centroids_px` / `covariances_px` (per keyframe, per mask); obs (n, 2) rows of
-    (keyframe, mask)."""
+    (keyframe, mask). The point returned is `point` itself (the same object) when no view is cut."""
     from ..plugin.landmark_size import cut_by_border
     from ..plugin.track_fusion import intersect_rays
 
     pixels = np.array([centroids_px[k][i] for k, i in obs], dtype=np.float64).reshape(-1, 2)
     cut = cut_by_border(camera, pixels, np.array([covariances_px[k][i] for k, i in obs]).reshape(-1, 2, 2))
     if not cut.any():
-        return point
+        return point, ~cut
     whole = obs[~cut, 0]
     if len(whole) < 2:
         return None
     located = intersect_rays(camera, poses, whole, pixels[~cut])
     if not np.all(np.isfinite(located)) or _max_ray_angles_deg(poses.centers[whole], located) < min_angle_deg:
         return None
-    return located
+    return located, ~cut
+
+
+def mean_reprojection_error(rec: pycolmap.Reconstruction, obs: np.ndarray, xyz: np.ndarray) -> float:
+    """Mean pixel distance between the keypoints of observations `obs` ((n, 2) rows of (keyframe, mask); image id
+    = keyframe + 1) and the projection of `xyz` through the reconstruction's camera (COLMAP's point error, over
+    these observations); inf when a camera sees the point behind it."""
+    errors = []
+    for k, i in obs:
+        image = rec.images[int(k) + 1]
+        uv = image.project_point(np.asarray(xyz, np.float64))
+        if uv is None:
+            return float("inf")
+        errors.append(np.linalg.norm(np.asarray(uv).ravel() - np.asarray(image.points2D[int(i)].xy)))
+    return float(np.mean(errors))
 
 
 def _observations(rec: pycolmap.Reconstruction, pid: int) -> np.ndarray:
@@ -352,9 +369,15 @@ def triangulate_landmarks(
                                                params.min_triangulation_angle_deg)
             if located is None:
                 reason = "cut_by_border"
-            elif located is not xyz:
-                xyz = located
+            elif located[0] is not xyz:
+                xyz, whole = located
                 point.xyz = xyz  # sparse/ holds the landmark where the map has it
+                # and its error is the one over the views that located it (errors_px, the quality line, run.json
+                # read it): a cut view's centroid is off by design, by metres at the border, so over all views
+                # the error measures the cut, not the landmark. The filter above judged the bundle-adjusted
+                # point, as before the landmark moved (BENCHMARKS.md, "Errors of landmarks located from whole
+                # views").
+                point.error = mean_reprojection_error(rec, obs[whole], xyz)
                 if behind_a_camera(obs[:, 0], xyz):
                     reason = "behind_camera"
         if reason is not None:
