@@ -12,6 +12,7 @@ from sosmatch.database.colmap_model import (
 )
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Camera, Poses, project
+from sosmatch.plugin.landmark_size import cut_by_border
 from sosmatch.plugin.params import TriangulationParams
 from sosmatch.workflows.triangulation import build_reconstruction, triangulate_landmarks
 
@@ -283,9 +284,58 @@ def test_masks_cut_by_the_image_border_do_not_locate_the_landmark(tmp_path):
         assert len(lm) == 1
         point = lm.reconstruction.points3D[int(lm.point3d_ids[0])]
         assert np.allclose(point.xyz, lm.positions[0])  # sparse/ holds the landmark where the map has it
-        return lm.positions[0], lm.num_observations[0]
+        assert point.error == lm.errors_px[0]  # and its error
+        return lm.positions[0], lm.num_observations[0], lm.errors_px[0]
 
-    (x_all, n_all), (x_whole, n_whole) = landmark(False), landmark(True)
+    (x_all, n_all, _), (x_whole, n_whole, e_whole) = landmark(False), landmark(True)
+    # the error of the moved landmark is its position's over the views that locate it (the whole ones), not the
+    # bundle-adjusted point's over all views, which stayed recorded
+    obs = [(k, 0) for k in range(n) if len(cents[k])]
+    pix = np.array([cents[k][0] for k, _ in obs])
+    cut = cut_by_border(cam, pix, np.array([covs[k][0] for k, _ in obs]))
+    reproj = np.array([np.linalg.norm(project(cam, r_wc, centers[k], x_whole[None])[0][0] - p)
+                       for (k, _), p in zip(obs, pix)])
+    assert cut.sum() > 3 and e_whole == pytest.approx(reproj[~cut].mean(), abs=1e-3)  # keypoints: float32
+    assert e_whole < 1.0 < reproj[cut].mean()
     assert x_all[2] < -10.0 and np.linalg.norm(x_all[:2] - middle[:2]) > 5.0  # what this guards against: -35 m
     assert abs(x_whole[2]) < 0.5 and np.linalg.norm(x_whole[:2] - middle[:2]) < 0.5
     assert n_whole == n_all  # the cut views are still observations of the landmark
+
+
+def two_view_pieces(tids, per_piece=2):
+    """Track ids with every track split into pieces of `per_piece` observations that never share a keyframe and
+    span the track (piece j: observations j, j + m, ...; m = pieces), each piece with its own id; a landmark's
+    piece ids are its point id x 1000 + j."""
+    seen = {}
+    for k, ids in enumerate(tids):
+        for i, t in enumerate(ids):
+            seen.setdefault(int(t), []).append((k, i))
+    out = [np.full(len(ids), -1, np.int64) for ids in tids]
+    for t, rows in seen.items():
+        m = len(rows) // per_piece
+        for j in range(m):
+            for k, i in rows[j:m * per_piece:m]:
+                out[k][i] = t * 1000 + j
+    return out
+
+
+def test_two_view_tracks_are_triangulated_where_the_parameters_admit_them(tmp_path):
+    """theta_n = 1 makes a two-view track a landmark and min_piece_observations = 2 makes it a piece that fusion
+    joins with the object's other pieces (both documented; both were accepted and ignored: pycolmap skipped
+    every two-view track)."""
+    cam, poses, pts, cents, tids, sizes = scene(noise_px=1.0)
+    kps = [affine_keypoints(c, np.repeat(np.eye(2)[None] * 9, len(c), 0)) for c in cents]
+    split = two_view_pieces(tids)
+    write_colmap_database(tmp_path / "d.db", cam, poses.names, kps, track_associations(split, "all", 1))
+
+    def landmarks(**kw):
+        params = TriangulationParams(duplicate_radius_factor=0.0, **kw)
+        return triangulate_landmarks(tmp_path / "d.db", cam, poses, sizes, split, params)
+
+    pairs = landmarks(min_observations=1, fuse_radius_factor=0.0)  # every piece a landmark of two views
+    assert len(pairs) > 100 and np.all(pairs.num_observations == 2)
+    assert np.median(np.linalg.norm(pairs.positions - pts[pairs.track_ids // 1000], axis=1)) < 2.0
+    fused = landmarks(min_observations=5, min_piece_observations=2)  # the pieces of an object fused into one
+    assert len(fused) > 20 and np.all(fused.num_observations > 5)
+    assert np.median(np.linalg.norm(fused.positions - pts[fused.track_ids // 1000], axis=1)) < 0.5
+    assert len(landmarks(min_observations=5)) == 0  # pieces of 3 observations (the default): none here

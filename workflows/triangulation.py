@@ -5,12 +5,14 @@ plugin/. Steps:
 1. a `pycolmap.Reconstruction` with the one camera and every keyframe registered at its known pose
    (cam_from_world; frame ids equal the database's image ids);
 2. `pycolmap.triangulate_points` from the verified pairs (frames and intrinsics held fixed), with reprojection
-   thresholds raised from COLMAP's 4 px to `max_reprojection_error_px` because centroid noise is ~3 px;
+   thresholds raised from COLMAP's 4 px to `max_reprojection_error_px` because centroid noise is ~3 px, and
+   two-view tracks triangulated only where the parameters admit them (`fewest_observations`);
 3. a points-only bundle adjustment: every pose and intrinsic constant, Huber loss at 2 x `pixel_sigma_px`;
 4. filtering: a landmark needs more than `min_observations` observations (theta_n), a mean reprojection error
    within `max_reprojection_error_px`, positive depth in every observing camera and a largest ray angle of at
    least `min_triangulation_angle_deg`; the point is then located from the views that see its mask whole
-   (`located_from_whole_masks`, `whole_masks_only`). Dropped points are deleted from the reconstruction too, so
+   (`located_from_whole_masks`, `whole_masks_only`), and a point moved there records its error over those
+   views (the filter judged the bundle-adjusted one). Dropped points are deleted from the reconstruction too, so
    sparse/ and the landmark map agree;
 5. metric size per landmark (`plugin.landmark_size`, `size_estimator`): the paper's mean of h_px x depth / f
    over the observations, or (default) the nadir-equivalent size fitted over them;
@@ -40,7 +42,7 @@ from ..plugin.landmark_filters import beyond_flying_height, height_outliers
 from ..plugin.landmark_size import SIZE_ESTIMATORS, mean_size, nadir_size
 from ..plugin.map_noise import MapNoise, measure_map_noise
 from ..plugin.params import TriangulationParams
-from ..plugin.track_fusion import TrackPiece, fuse_tracks
+from ..plugin.track_fusion import TrackPiece, candidate_pairs, fuse_tracks
 
 if TYPE_CHECKING:
     import pycolmap
@@ -57,7 +59,8 @@ class Landmarks:
     num_observations: np.ndarray  # (L,)
     point3d_ids: np.ndarray  # (L,) ids in the pycolmap reconstruction / sparse model
     track_ids: np.ndarray  # (L,) smallest tracker track id of the observations (first sighting)
-    errors_px: np.ndarray  # (L,) mean reprojection error after the points-only BA
+    errors_px: np.ndarray  # (L,) mean reprojection error of the point: after the points-only BA, or over the
+    # whole views for a landmark they locate (`located_from_whole_masks`)
     observations: list[np.ndarray]  # per landmark: (n, 2) int (keyframe index, mask index), keyframe order
     counts: dict[str, int] = field(default_factory=dict)  # triangulated / dropped_* / kept
     noise: MapNoise | None = None  # the map's own noise figures (`plugin.map_noise`), with centroids + covariances
@@ -150,14 +153,11 @@ def suppress_duplicates(
     keep = np.ones(n, dtype=bool)
     if n < 2 or radius_factor <= 0:
         return keep
-    from scipy.spatial import cKDTree
-
     xy = np.asarray(positions, dtype=np.float64)[:, :2]
     sizes = np.asarray(sizes_m, dtype=np.float64)
-    pairs = cKDTree(xy).query_pairs(radius_factor * float(sizes.max()), output_type="ndarray")
-    if len(pairs) == 0:
+    i, j = candidate_pairs(xy, radius_factor * sizes)
+    if len(i) == 0:
         return keep
-    i, j = pairs[:, 0], pairs[:, 1]
     dup = np.linalg.norm(xy[i] - xy[j], axis=1) <= radius_factor * np.maximum(sizes[i], sizes[j])
     i, j = i[dup], j[dup]
     order = np.lexsort((np.arange(n), np.asarray(errors_px, np.float64), -np.asarray(num_observations)))
@@ -176,8 +176,9 @@ def suppress_duplicates(
 
 def located_from_whole_masks(camera: Camera, poses: Poses, obs: np.ndarray, point: np.ndarray,
                              centroids_px: list[np.ndarray], covariances_px: list[np.ndarray],
-                             min_angle_deg: float) -> np.ndarray | None:
-    """A landmark's point from the views that see its mask whole; None when they cannot fix one.
+                             min_angle_deg: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """A landmark's point from the views that see its mask whole, and which of `obs` those are (bool (n,));
+    None when they cannot fix one.
 
     A mask cut by the image border (`landmark_size.cut_by_border`) shows only the part of its object inside the
     frame, so its centroid slides with the camera instead of staying on one ground point: with the whole views
@@ -187,21 +188,35 @@ def located_from_whole_masks(camera: Camera, poses: Poses, obs: np.ndarray, poin
     `point` itself when no view is cut, the least-squares point of the whole views (`track_fusion.
     intersect_rays`) when at least two of them span `min_angle_deg`, else None. `camera` is the pinhole
     camera of the undistorted `centroids_px` / `covariances_px` (per keyframe, per mask); obs (n, 2) rows of
-    (keyframe, mask)."""
+    (keyframe, mask). The point returned is `point` itself (the same object) when no view is cut."""
     from ..plugin.landmark_size import cut_by_border
     from ..plugin.track_fusion import intersect_rays
 
     pixels = np.array([centroids_px[k][i] for k, i in obs], dtype=np.float64).reshape(-1, 2)
     cut = cut_by_border(camera, pixels, np.array([covariances_px[k][i] for k, i in obs]).reshape(-1, 2, 2))
     if not cut.any():
-        return point
+        return point, ~cut
     whole = obs[~cut, 0]
     if len(whole) < 2:
         return None
     located = intersect_rays(camera, poses, whole, pixels[~cut])
     if not np.all(np.isfinite(located)) or _max_ray_angles_deg(poses.centers[whole], located) < min_angle_deg:
         return None
-    return located
+    return located, ~cut
+
+
+def mean_reprojection_error(rec: pycolmap.Reconstruction, obs: np.ndarray, xyz: np.ndarray) -> float:
+    """Mean pixel distance between the keypoints of observations `obs` ((n, 2) rows of (keyframe, mask); image id
+    = keyframe + 1) and the projection of `xyz` through the reconstruction's camera (COLMAP's point error, over
+    these observations); inf when a camera sees the point behind it."""
+    errors = []
+    for k, i in obs:
+        image = rec.images[int(k) + 1]
+        uv = image.project_point(np.asarray(xyz, np.float64))
+        if uv is None:
+            return float("inf")
+        errors.append(np.linalg.norm(np.asarray(uv).ravel() - np.asarray(image.points2D[int(i)].xy)))
+    return float(np.mean(errors))
 
 
 def _observations(rec: pycolmap.Reconstruction, pid: int) -> np.ndarray:
@@ -234,6 +249,15 @@ def fuse_split_tracks(rec: pycolmap.Reconstruction, camera: Camera, poses: Poses
     if merges:
         refine_points_only(rec, params.pixel_sigma_px)
     return merges
+
+
+def fewest_observations(params: TriangulationParams) -> int:
+    """The fewest observations of a track that triangulation uses: theta_n + 1 for a landmark of its own, and
+    `min_piece_observations` for a piece when fusion is on (pieces of one object become one landmark, to which
+    theta_n applies). The map writes the matches of these tracks to the database, and pycolmap triangulates
+    two-view tracks only when this is 2 (COLMAP ignores them otherwise: they cannot show a bad observation)."""
+    fewest = params.min_observations + 1
+    return fewest if params.fuse_radius_factor <= 0 else min(fewest, params.min_piece_observations)
 
 
 def _drop_rows(rec: pycolmap.Reconstruction, rows: list, keep: np.ndarray) -> tuple[list, int]:
@@ -276,7 +300,9 @@ def triangulate_landmarks(
     options.triangulation.merge_max_reproj_error = params.max_reprojection_error_px
     options.triangulation.complete_max_reproj_error = params.max_reprojection_error_px
     options.triangulation.min_angle = params.min_triangulation_angle_deg
-    options.triangulation.ignore_two_view_tracks = True
+    # theta_n = 1 or pieces of two observations admit two-view tracks (README, "Triangulation"); without either
+    # setting none is written to the database anyway
+    options.triangulation.ignore_two_view_tracks = fewest_observations(params) > 2
     options.triangulation.random_seed = seed
     options.mapper.filter_max_reproj_error = params.max_reprojection_error_px
     options.mapper.filter_min_tri_angle = params.min_triangulation_angle_deg
@@ -343,9 +369,15 @@ def triangulate_landmarks(
                                                params.min_triangulation_angle_deg)
             if located is None:
                 reason = "cut_by_border"
-            elif located is not xyz:
-                xyz = located
+            elif located[0] is not xyz:
+                xyz, whole = located
                 point.xyz = xyz  # sparse/ holds the landmark where the map has it
+                # and its error is the one over the views that located it (errors_px, the quality line, run.json
+                # read it): a cut view's centroid is off by design, by metres at the border, so over all views
+                # the error measures the cut, not the landmark. The filter above judged the bundle-adjusted
+                # point, as before the landmark moved (BENCHMARKS.md, "Errors of landmarks located from whole
+                # views").
+                point.error = mean_reprojection_error(rec, obs[whole], xyz)
                 if behind_a_camera(obs[:, 0], xyz):
                     reason = "behind_camera"
         if reason is not None:

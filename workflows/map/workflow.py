@@ -261,7 +261,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     from ...plugin.mask_features import undistort_features
     from ...plugin.motion_blur import motion_directions
     from ...plugin.tracking import track_masks
-    from ..triangulation import triangulate_landmarks
+    from ..triangulation import fewest_observations, triangulate_landmarks
 
     partial = out.staging
     camera = inputs.camera
@@ -323,9 +323,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     tri = params.triangulation
     centroids = [f.centroids for f in gate_features]
     # tracks long enough to be pieces of a landmark (fused in triangulation; theta_n applies afterwards)
-    shortest = tri.min_observations if tri.fuse_radius_factor <= 0 else min(tri.min_observations,
-                                                                             tri.min_piece_observations - 1)
-    pairs = track_associations(tracking.track_ids, "all", shortest)
+    pairs = track_associations(tracking.track_ids, "all", fewest_observations(tri) - 1)
     # (truncation_aware) the links of cut views are checked with the boxes the tracker gated them with
     pairs, rejected = verify_associations(gate_camera, kf_poses, centroids, pairs,
                                           params.tracking.epipolar_margin_px, tracking.shifts)
