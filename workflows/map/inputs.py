@@ -15,7 +15,12 @@ from typing import Any
 import numpy as np
 
 from ...database.cameras import one_camera, read_cameras_txt
-from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
+from ...database.colmap_model import (
+    is_colmap_model,
+    read_camera_file,
+    read_colmap_model_poses,
+    text_model_name_problem,
+)
 from ...database.images import (  # noqa: F401 (IMAGE_EXTENSIONS re-exported)
     IMAGE_EXTENSIONS,
     image_files,
@@ -71,6 +76,14 @@ def _refuse_shared_images(keep: list[tuple[int, Path]], names: list[str], poses:
     if (shared := shared_file_name(path for _, path in keep)) is not None:
         raise InputError(f"images {shared[0]} and {shared[1]} share the file name {shared[1].name!r}, under which a "
                          "map stores each image: map each folder on its own, or rename the images apart", images)
+
+
+def refuse_text_model_names(image_paths: Sequence[Path]) -> None:
+    """InputError naming the first image whose file name (the name the map stores it under) a COLMAP text model
+    cannot hold (`colmap_model.text_model_name_problem`): `map --text` refuses it before any work. The map
+    reported success and wrote images.txt that pycolmap read back as 40 images all named 'DJI'."""
+    if (problem := text_model_name_problem([p.name for p in image_paths])) is not None:
+        raise InputError(problem[1], image_paths[problem[0]])
 
 
 def load_inputs(
