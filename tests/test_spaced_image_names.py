@@ -1,6 +1,6 @@
-"""Image names that hold spaces (DJI's `DJI 00000.jpg`), commas or quotes: landmarks.csv keeps them whole, its
-readers count a landmark's support from num_observations, and `map --text` refuses names COLMAP's text model
-cannot hold (rev35)."""
+"""Image names that hold spaces (`DJI 00000.jpg`), commas or quotes: landmarks.csv keeps them whole, its readers
+count a landmark's support from num_observations, and `map --text` and structure from motion refuse names that
+COLMAP's text files (images.txt, pairs.txt) cannot hold (rev35)."""
 
 import shutil
 
@@ -113,6 +113,18 @@ def test_map_text_refuses_image_names_with_white_space_before_any_work(tmp_path,
     # poses made from the images (structure from motion): refused before they are made
     err = cli_error("map", "--images", root / "images", "--out", tmp_path / "M", "--text")
     assert f"{first}: image name 'DJI 00000.jpg' holds white space" in err and not (tmp_path / "M").exists()
+
+
+def test_structure_from_motion_refuses_image_names_with_white_space_before_any_work(tmp_path, cli_error):
+    """COLMAP's pair list (pairs.txt) ends a name at its first blank: after the whole feature extraction COLMAP
+    matched no pair ("Image DJI does not exist" in its log). `poses` and `map` without poses refuse them up front."""
+    root = _spaced_flight(tmp_path / "f")
+    first = root / "images" / "DJI 00000.jpg"
+    for argv in (("poses", root / "images", "--out", tmp_path / "P"), ("map", "--images", root / "images", "--out",
+                                                                       tmp_path / "P")):
+        err = cli_error(*argv)
+        assert f"{first}: image name 'DJI 00000.jpg' holds white space, which COLMAP's list of image pairs" in err
+        assert not (tmp_path / "P").exists()
 
 
 def test_the_text_model_writer_refuses_names_it_cannot_hold(tmp_path):
