@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import math
 import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -262,8 +263,30 @@ def read_camera_file(path: str | Path) -> Camera:
     return distinct[0]
 
 
+# COLMAP's text files that hold image names between blanks, and what a name with a blank does there
+TEXT_MODEL = ("a COLMAP text model (images.txt ends a name at its first blank; the model would read back with wrong "
+              "names)")
+PAIR_LIST = ("COLMAP's list of image pairs to match (pairs.txt ends a name at its first blank: COLMAP finds no such "
+             "image and matches no pair)")
+
+
+def colmap_text_name_problem(names: Sequence[str], listing: str) -> tuple[int, str] | None:
+    """(index, why) of the first image name that `listing` (TEXT_MODEL, PAIR_LIST) cannot hold, or None when it
+    holds them all: COLMAP reads a name there up to its first blank. pycolmap read a text model of `DJI 00000.jpg`
+    ... back as 40 images all named 'DJI' (and `changes` then found none of them in the database); matching a
+    pair list of them matched nothing. The binary model and the database keep any name."""
+    for i, name in enumerate(names):
+        if any(c.isspace() for c in name):
+            return i, f"image name {name!r} holds white space, which {listing} cannot hold"
+    return None
+
+
 def write_model(rec: pycolmap.Reconstruction, out_dir: str | Path, text: bool = False) -> None:
-    """Write a pycolmap Reconstruction atomically as a COLMAP model directory (binary, or text if asked)."""
+    """Write a pycolmap Reconstruction atomically as a COLMAP model directory (binary, or text if asked).
+    ValueError for a text model of names it cannot hold (`colmap_text_name_problem`: callers refuse them first)."""
+    names = [im.name for im in rec.images.values()]
+    if text and (problem := colmap_text_name_problem(names, TEXT_MODEL)) is not None:
+        raise ValueError(problem[1])
     with atomic_path(out_dir) as tmp:
         tmp.mkdir(parents=True)
         if text:

@@ -372,6 +372,19 @@ def list_images(paths: Iterable[str | Path]) -> list[Path]:
     return out
 
 
+def shared_file_name(paths: Iterable[str | Path]) -> tuple[Path, Path] | None:
+    """The first two of `paths` that share a file name, or None. COLMAP keeps an image under its file name (a
+    map's database, `segment`'s outputs NAME.json / NAME.png), so two such images would be stored as one: the
+    earlier one's record silently replaced by the later's."""
+    seen: dict[str, Path] = {}
+    for p in paths:
+        p = Path(p)
+        if p.name in seen:
+            return seen[p.name], p
+        seen[p.name] = p
+    return None
+
+
 def image_size(path: str | Path) -> tuple[int, int]:
     """(width, height) of an image from its header (no decoding); InputError naming the file if unreadable."""
     from PIL import Image, UnidentifiedImageError

@@ -2,14 +2,16 @@
 the landmark -> COLMAP 3D point table (landmarks.csv), read with validation; landmarks.csv written atomically.
 
 A mapped session (docs/ARCHITECTURE.md) holds `sparse/`, `landmarks.sosmap` and `landmarks.csv`
-(index,point3d_id,x,y,z,size_m,num_observations,image_names). A merged model written by `sosmatch merge` has the
-same three, so it can itself be matched and merged again. A session's keyframe images: `database.session_images`.
+(index,point3d_id,x,y,z,size_m,num_observations,image_names_json: `LANDMARK_CSV_COLUMNS`). A merged model written
+by `sosmatch merge` has the same three, so it can itself be matched and merged again. A session's keyframe
+images: `database.session_images`.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +29,13 @@ if TYPE_CHECKING:
 
 MAX_ROWS = 2**31 - 1
 MERGE_RECORD = "merge.json"  # a merged session's record (`sosmatch merge`, written last: it marks one)
-LANDMARK_CSV_COLUMNS = ["index", "point3d_id", "x", "y", "z", "size_m", "num_observations", "image_names"]
+# image_names_json: the observing keyframes' image names as a JSON list (["DJI 00000.jpg", "DJI 00001.jpg"]): any
+# file name reads back whole. Earlier versions wrote the column `image_names`, the names joined by spaces, which a
+# name holding a space cut apart (8 observations of `DJI 00000.jpg`... read back as 16 names 'DJI', '00000.jpg', ..);
+# the column's name tells the two formats apart, and an older sosmatch refuses a new table (no `image_names`)
+# rather than misreading it
+LANDMARK_CSV_COLUMNS = ["index", "point3d_id", "x", "y", "z", "size_m", "num_observations", "image_names_json"]
+LEGACY_NAMES_COLUMN = "image_names"  # space separated (written up to this change)
 
 
 @dataclass
@@ -58,23 +66,65 @@ class LandmarkTable:
     image_names: list[list[str]]  # observing keyframes per landmark
     point3d_ids: np.ndarray  # (N,) COLMAP point3D id (-1 when absent or not recorded)
     num_observations: np.ndarray | None = None  # (N,) when the table has the column
+    # why `image_names` are not the keyframes' names (a table of an earlier sosmatch whose names held spaces,
+    # which its format cut apart), or None; the counts (`support`) stand all the same
+    names_problem: str | None = None
+
+    @property
+    def support(self) -> np.ndarray:
+        """(N,) each landmark's number of observations: the num_observations column, else (tables without it)
+        the number of its image names."""
+        if self.num_observations is not None:
+            return self.num_observations.astype(np.float64)
+        return np.array([len(names) for names in self.image_names], dtype=np.float64)
+
+    def names_or_raise(self, path: str | Path) -> list[list[str]]:
+        """`image_names`, or InputError naming `path` when they are not the keyframes' names (`names_problem`)."""
+        if self.names_problem is not None:
+            raise InputError(self.names_problem, path)
+        return self.image_names
+
+
+def image_names_problem(names: object) -> str | None:
+    """Why `names` is not a landmark's list of image names (the reader and the writer of landmarks.csv alike):
+    a list of non-empty strings; None when it is."""
+    if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names):
+        return "image_names_json is not a JSON list of image names"
+    return None
+
+
+def _read_names(field: str, legacy: bool) -> list[str] | str:
+    """A row's image names: a JSON list, or (the legacy column) names separated by white space; or why the field
+    holds none."""
+    if legacy:
+        return field.split()
+    try:
+        names = json.loads(field)
+    except ValueError:
+        return "image_names_json is not JSON"
+    return image_names_problem(names) or names
 
 
 def read_landmark_table(path: str | Path) -> LandmarkTable:
-    """Read landmarks.csv (LANDMARK_CSV_COLUMNS; point3d_id and num_observations may be absent).
+    """Read landmarks.csv (LANDMARK_CSV_COLUMNS; point3d_id and num_observations may be absent; an earlier
+    sosmatch's `image_names`, space separated, in place of image_names_json).
 
     Rows may come in any order but their indices must be 0..N-1 without gaps or repeats.
     """
     path = Path(path)
     text = read_user_text(path, "landmark table")
     header = None
+    legacy = False
+    cut = None  # the first legacy row whose names do not count its observations: names that held spaces
     rows: dict[int, tuple[list[float], list[str], int, int]] = {}
     for lineno, row in enumerate(csv.reader(io.StringIO(text)), start=1):
         if not row or row[0].lstrip().startswith("#"):
             continue
         if header is None:
             header = [c.strip() for c in row]
-            missing = [c for c in ("index", "x", "y", "z", "size_m", "image_names") if c not in header]
+            legacy = LANDMARK_CSV_COLUMNS[-1] not in header and LEGACY_NAMES_COLUMN in header
+            names_column = LEGACY_NAMES_COLUMN if legacy else LANDMARK_CSV_COLUMNS[-1]
+            missing = [c for c in ("index", "x", "y", "z", "size_m", names_column) if c not in header]
             if missing:
                 raise InputError(f"landmark table lacks column(s) {', '.join(missing)}", path, lineno)
             col = {c: header.index(c) for c in header}
@@ -82,11 +132,15 @@ def read_landmark_table(path: str | Path) -> LandmarkTable:
         try:
             idx = int(row[col["index"]])
             vals = [float(row[col[c]]) if row[col[c]].strip() else float("nan") for c in ("x", "y", "z", "size_m")]
-            names = row[col["image_names"]].split()
+            field = row[col[names_column]]
             pid = int(row[col["point3d_id"]]) if "point3d_id" in col else -1
             nobs = int(row[col["num_observations"]]) if "num_observations" in col else 0
         except (ValueError, IndexError):
             raise InputError("malformed landmark row", path, lineno) from None
+        if isinstance(names := _read_names(field, legacy), str):
+            raise InputError(f"malformed landmark row: {names}", path, lineno)
+        if legacy and cut is None and "num_observations" in col and len(names) != nobs:
+            cut = (lineno, len(names), nobs)
         if not all(np.isfinite(vals[:3])) or np.abs(vals[:3]).max() > MAX_WORLD_COORD_M or not (
                 np.isnan(vals[3]) or 0 <= vals[3] < np.inf):  # the writer rounds sizes to mm
             raise InputError("landmark row holds a non-finite or far-off position or a negative or infinite size",
@@ -104,7 +158,11 @@ def read_landmark_table(path: str | Path) -> LandmarkTable:
     vals = np.array([rows[i][0] for i in range(n)], dtype=np.float64).reshape(-1, 4)
     ids = np.array([rows[i][2] for i in range(n)], dtype=np.int64)
     nobs = np.array([rows[i][3] for i in range(n)], dtype=np.int64) if "num_observations" in col else None
-    return LandmarkTable(vals[:, :3], vals[:, 3], [rows[i][1] for i in range(n)], ids, nobs)
+    problem = None
+    if cut is not None:
+        problem = (f"holds image names of an earlier sosmatch that cut names with spaces apart (line {cut[0]}: "
+                   f"{cut[1]} names for {cut[2]} observations): map the session again")
+    return LandmarkTable(vals[:, :3], vals[:, 3], [rows[i][1] for i in range(n)], ids, nobs, problem)
 
 
 def read_landmark_point_ids(path: str | Path, count: int | None = None) -> np.ndarray:
@@ -282,7 +340,8 @@ def check_database_of_model(path: str | Path, names: Sequence[str], centroids: S
 def format_landmarks_csv(
     lmap: LandmarkMap, point3d_ids: np.ndarray, num_observations: np.ndarray, image_names: list[list[str]]
 ) -> str:
-    """The landmarks.csv text (columns LANDMARK_CSV_COLUMNS; image names space separated)."""
+    """The landmarks.csv text (columns LANDMARK_CSV_COLUMNS; each landmark's image names a JSON list).
+    ValueError for names the reader would refuse (`image_names_problem`)."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(LANDMARK_CSV_COLUMNS)
@@ -296,10 +355,18 @@ def format_landmarks_csv(
                 f"{xyz[2]:.4f}",
                 "nan" if not np.isfinite(size) else f"{float(size):.3f}",
                 int(num_observations[i]),
-                " ".join(image_names[i]),
+                _names_field(image_names[i]),
             ]
         )
     return buf.getvalue()
+
+
+def _names_field(names: Sequence[str]) -> str:
+    """One landmark's image names as landmarks.csv holds them (JSON, non-ASCII kept as it is: the file is UTF-8)."""
+    names = list(names)
+    if (problem := image_names_problem(names)) is not None:
+        raise ValueError(problem)
+    return json.dumps(names, ensure_ascii=False)
 
 
 def write_landmarks_csv(
@@ -342,7 +409,7 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
         check_database_of_model(session.path, poses.names, [seg.centroids for seg in segments])
         if with_tracks:
             tracks = _unmapped_tracks(session, database, poses.names, segments)
-    support = np.array([len(names) for names in table.image_names], dtype=np.float64)
+    support = table.support  # counted, not the names split (a name with a space was two observations)
     lmap = session.landmarks
     cams = tuple(cameras[camera_of[n]] for n in poses.names)
     images = None if images_dir is None else KeyframeImages(Path(images_dir), poses.names,

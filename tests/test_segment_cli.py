@@ -129,18 +129,18 @@ def test_cli_directory_run_skips_bad_files_and_exits_nonzero(tmp_path, capsys):
     code = main(["segment", str(src), "--out", str(out), "-q"])
     err = capsys.readouterr().err
     assert code == 2 and "d_corrupt.jpg" in err
-    for stem in ("a", "b_gray", "c_black"):
-        assert (out / f"{stem}.png").is_file()
-        doc = json.loads((out / f"{stem}.json").read_text())
-        assert doc["width"] == 320 or stem == "c_black"
-    a = json.loads((out / "a.json").read_text())
+    for name in ("a.png", "b_gray.png", "c_black.png"):
+        assert (out / f"{name}.png").is_file()
+        doc = json.loads((out / f"{name}.json").read_text())
+        assert doc["width"] == 320 or name == "c_black.png"
+    a = json.loads((out / "a.png.json").read_text())
     assert len(a["masks"]) >= 3
     # the white disc at (220, 150) (OpenCV) is (220.5, 150.5) in COLMAP pixels
     assert min(np.hypot(m["centroid"][0] - 220.5, m["centroid"][1] - 150.5) for m in a["masks"]) < 1.5
-    assert json.loads((out / "c_black.json").read_text())["masks"] == []
+    assert json.loads((out / "c_black.png.json").read_text())["masks"] == []
     rows = (out / "summary.csv").read_text().splitlines()
     assert len(rows) == 5 and "d_corrupt.jpg" in rows[-1]
-    overlay = cv2.imread(str(out / "a.png"))
+    overlay = cv2.imread(str(out / "a.png.png"))
     assert overlay.shape == (240, 320, 3) and not np.array_equal(overlay[..., ::-1], _scene(seed=1))
     # only good files: exit 0 (another set of images over a complete output needs --overwrite); a missing input is
     # a one-line user error
@@ -149,6 +149,44 @@ def test_cli_directory_run_skips_bad_files_and_exits_nonzero(tmp_path, capsys):
     assert main(["segment", str(src / "a.png"), "--out", str(out), "-q", "--overwrite"]) == 0
     assert main(["segment", str(tmp_path / "nothing"), "--out", str(out), "-q"]) == 2
     assert main(["segment", str(src / "a.png"), "--out", str(out), "--backend", "nope", "-q"]) == 2
+
+
+def test_images_of_one_stem_keep_their_own_outputs_and_summary_rows_are_csv(tmp_path):
+    """rev35: outputs were named by the stem, so x.jpg's x.json and overlay x.png were overwritten by x.png's
+    (exit 0, summary.csv listing both); and summary.csv was joined by hand, so `a,b.jpg` made a 10-field row under
+    the 9-field header. Outputs are named by the whole file name now (as COLMAP names an image's outputs) and the
+    summary is written by the csv module."""
+    import csv
+
+    src = tmp_path / "in"
+    src.mkdir()
+    Image.fromarray(_scene(seed=1)).save(src / "x.jpg", quality=95)
+    Image.fromarray(_scene(seed=2, h=200)).save(src / "x.png")
+    Image.fromarray(_scene(seed=3)).save(src / "a,b.jpg", quality=95)
+    out = tmp_path / "out"
+    assert main(["segment", str(src), "--out", str(out), "-q"]) == 0
+    assert json.loads((out / "x.jpg.json").read_text())["image"] == "x.jpg"
+    assert json.loads((out / "x.png.json").read_text())["height"] == 200
+    assert cv2.imread(str(out / "x.jpg.png")).shape[0] == 240 and cv2.imread(str(out / "x.png.png")).shape[0] == 200
+    with open(out / "summary.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    assert {len(r) for r in rows} == {9} and sorted(r[0] for r in rows[1:]) == ["a,b.jpg", "x.jpg", "x.png"]
+
+
+def test_images_of_one_file_name_in_two_folders_are_refused_up_front(tmp_path, capsys):
+    """rev35: `segment a b` with a/x.jpg and b/x.jpg wrote one x.json holding b's image, exit 0. Refused now
+    before anything is written, as `map` refuses them: one line naming both images."""
+    for folder, seed in (("a", 1), ("b", 2)):
+        (tmp_path / folder).mkdir()
+        Image.fromarray(_scene(seed=seed)).save(tmp_path / folder / "x.jpg", quality=95)
+    out = tmp_path / "out"
+    assert main(["segment", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(tmp_path / "a" / "x.jpg") in err[0] and str(tmp_path / "b" / "x.jpg") in err[0]
+    assert not out.exists()
+    # one image given twice (a folder and a file of it): said so, not as two images
+    assert main(["segment", str(tmp_path / "a"), str(tmp_path / "a" / "x.jpg"), "--out", str(out), "-q"]) == 2
+    assert "given twice" in capsys.readouterr().err and not out.exists()
 
 
 def test_big_endian_16_bit_gray_tiff_reads(tmp_path):

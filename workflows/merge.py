@@ -21,7 +21,7 @@ Output directory (a "merged session", readable by match/merge again):
     sparse/            COLMAP binary model (opens in pycolmap 4.x and COLMAP 3.8)
     landmarks.sosmap   merged landmark map: the reference session's landmarks in order (fused ones at the
                        reference's index), then each other session's unfused landmarks in order
-    landmarks.csv      index,point3d_id,x,y,z,size_m,num_observations,image_names
+    landmarks.csv      index,point3d_id,x,y,z,size_m,num_observations,image_names_json (a JSON list)
     merge.json         sessions, transforms, counts (written last: its presence means the merge finished)
 """
 

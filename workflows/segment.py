@@ -5,14 +5,16 @@ Python use:
 from sosmatch.workflows import segment
 report = segment.run(["frames/"], "out/", backend="classical")
 ```
-Writes, per image `NAME.EXT`: `OUT/NAME.png` (overlay: masks coloured, boundaries, centroids, 2-sigma
-covariance ellipses) and `OUT/NAME.json` (per-mask centroid, covariance, size, area, score, SIFT count),
+Writes, per image `NAME.EXT`: `OUT/NAME.EXT.png` (overlay: masks coloured, boundaries, centroids, 2-sigma
+covariance ellipses) and `OUT/NAME.EXT.json` (per-mask centroid, covariance, size, area, score, SIFT count),
 plus `OUT/summary.csv` (one line per image). Every file is written atomically; a re-run of the same images and
 settings replaces them (other ones need `overwrite`).
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import logging
 import time
@@ -24,7 +26,7 @@ import cv2
 import numpy as np
 
 from ..database.atomic import atomic_path, write_text_atomic
-from ..database.images import list_images, no_images_message, read_image
+from ..database.images import list_images, no_images_message, read_image, shared_file_name
 from ..database.output_markers import versioned_identity
 from ..database.outputs import open_output_dir
 from ..plugin.errors import InputError
@@ -150,6 +152,7 @@ def run(
         if len(folders) == 1:
             raise InputError(no_images_message(folders[0]), folders[0])
         raise InputError(f"no images found in {', '.join(str(p) for p in inputs)}")
+    _refuse_shared_names(paths)
     out_dir = Path(out_dir)
     images = [[str(p.resolve()), *_stat(p)] for p in paths]  # once: the identity is built for every version
     identity = versioned_identity(lambda as_dict: {
@@ -159,6 +162,22 @@ def run(
         report = _segment_into(taken.path, paths, params, seg_backend, write_overlays)
         taken.finish()
     return report
+
+
+def _refuse_shared_names(paths: list[Path]) -> None:
+    """InputError naming both when two images share a file name, before anything is written: their outputs
+    NAME.json / NAME.png would be one file, the first image's silently replaced by the second's (exit 0, and
+    summary.csv listing both). The file name is the image's name as COLMAP keeps it, and as `sosmatch map`
+    refuses two of them (`database.images.shared_file_name`)."""
+    shared = shared_file_name(paths)
+    if shared is None:
+        return
+    first, second = shared
+    if first.resolve() == second.resolve():
+        raise InputError(f"image {second} is given twice (as {first} and {second}): give each image once", second)
+    raise InputError(f"images {first} and {second} share the file name {second.name!r}, under which segment writes "
+                     "each image's outputs: segment each folder into its own --out, or rename the images apart",
+                     second.parent)
 
 
 def _stat(path: Path) -> list[int]:
@@ -206,19 +225,28 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
         res.num_masks, res.num_sift = len(feats), len(feats.sift_mask)
         if len(feats):
             res.median_size_px = float(np.median(feats.sizes))
-        stem = path.stem
-        write_text_atomic(out_dir / f"{stem}.json",
+        # named by the whole file name, as COLMAP names an image's outputs (stereo/depth_maps/x.jpg.geometric.bin):
+        # by the stem, x.jpg's and x.png's were one file holding the second image's
+        write_text_atomic(out_dir / f"{path.name}.json",
                           _features_json(path.name, feats, res.width, res.height, params.segmentation.backend))
         if write_overlays:
             overlay = render_overlay(image, masks, feats)
-            with atomic_path(out_dir / f"{stem}.png") as tmp:
+            with atomic_path(out_dir / f"{path.name}.png") as tmp:
                 ok, buf = cv2.imencode(".png", cv2.cvtColor(overlay, cv2.COLOR_RGB2BGR))
                 tmp.write_bytes(buf.tobytes())
         log.info("%s: %d masks, %d SIFT, %.2f s", path.name, res.num_masks, res.num_sift, t2 - t0)
-    lines = ["image,width,height,num_masks,num_sift,median_size_px,seconds_segment,seconds_describe,error"]
-    for r in report.images:
-        err = (r.error or "").replace('"', "'")
-        lines.append(f"{r.path.name},{r.width},{r.height},{r.num_masks},{r.num_sift},{r.median_size_px:.2f},"
-                     f"{r.seconds_segment:.3f},{r.seconds_describe:.3f},\"{err}\"")
-    write_text_atomic(out_dir / "summary.csv", "\n".join(lines) + "\n")
+    write_text_atomic(out_dir / "summary.csv", _summary_csv(report))
     return report
+
+
+def _summary_csv(report: SegmentReport) -> str:
+    """summary.csv: one row per image, written by the csv module (a file name or error holding a comma or a
+    quote is one quoted field; joined by hand, `a,b.jpg` made a row of 10 fields under a header of 9)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["image", "width", "height", "num_masks", "num_sift", "median_size_px", "seconds_segment",
+                     "seconds_describe", "error"])
+    for r in report.images:
+        writer.writerow([r.path.name, r.width, r.height, r.num_masks, r.num_sift, f"{r.median_size_px:.2f}",
+                         f"{r.seconds_segment:.3f}", f"{r.seconds_describe:.3f}", r.error or ""])
+    return buf.getvalue()

@@ -18,12 +18,14 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..database.colmap_model import PAIR_LIST, colmap_text_name_problem
 from ..database.taken import make_dirs
 from ..plugin.errors import InputError
 from ..plugin.image_pairs import line_spacing_m, overlap_cap_m, select_pairs
@@ -193,6 +195,16 @@ def footprint_diagonal_m(priors: ImagePriors) -> float | None:
     return 1.5 * float(np.median(rel)) * math.hypot(cam.width, cam.height) / cam.fx
 
 
+def refuse_pair_list_names(image_paths: Sequence[Path]) -> None:
+    """InputError naming the first image whose file name COLMAP's pair list cannot hold (`write_pairs`;
+    `colmap_model.colmap_text_name_problem`), before any work: matching a list of `DJI 00000.jpg` ... matched no
+    pair ("Image DJI does not exist" in COLMAP's log) after the whole feature extraction."""
+    names = [Path(p).name for p in image_paths]
+    if (problem := colmap_text_name_problem(names, PAIR_LIST)) is not None:
+        raise InputError(f"{problem[1]}: rename the images (`map --poses` with given poses keeps any name)",
+                         image_paths[problem[0]])
+
+
 def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.ndarray, str]:
     """Choose the pairs to match (`plugin.image_pairs.select_pairs`, images in capture order) and write them as
     COLMAP's pair list (`name_a name_b` per line). Returns the index pairs and how they were chosen."""
@@ -221,6 +233,8 @@ def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.
         how += f" (no distance cap: RelativeAltitude's {footprint:.0f} m footprints miss the neighbouring lines)"
     pairs = np.sort(order[pairs], axis=1)
     names = priors.names
+    if (problem := colmap_text_name_problem(names, PAIR_LIST)) is not None:  # the callers refuse them first
+        raise ValueError(problem[1])
     write_text_atomic(path, "".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
     return pairs, how
 

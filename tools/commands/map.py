@@ -70,6 +70,10 @@ def run(args: argparse.Namespace) -> int:
     if args.poses is None:
         if args.images is None:
             raise InputError("give --poses, or --images (poses by structure from motion or from EXIF/XMP)")
+        if args.text and Path(args.images).is_dir():  # before the poses are made (the map's own check: its inputs)
+            from ...database.images import image_files
+
+            map_workflow.refuse_text_model_names(image_files(args.images))
         if args.pose_source == "exif":
             from ...workflows.poses_from_exif import map_inputs_from_images
 

@@ -183,10 +183,11 @@ def _observers(gt: GroundTruthSession, map_dir: Path, max_observers: int | None,
                centers: np.ndarray) -> tuple[Any, Any]:
     """Each landmark's observing keyframes; `centers`: the keyframes' centres in the map's frame."""
     table = read_landmark_table(map_dir / "landmarks.csv")
-    flat = [n for names in table.image_names for n in names]
+    image_names = table.names_or_raise(map_dir / "landmarks.csv")  # not names an older format cut apart
+    flat = [n for names in image_names for n in names]
     kf = _keyframe_of_names(gt, flat, map_dir / "landmarks.csv")
-    splits = np.cumsum([len(n) for n in table.image_names])[:-1]
-    obs = np.split(kf, splits) if len(table.image_names) else []
+    splits = np.cumsum([len(n) for n in image_names])[:-1]
+    obs = np.split(kf, splits) if len(image_names) else []
     return observer_matrix(obs, len(gt.names), table.positions[:, :2], centers[:, :2], max_observers), table
 
 

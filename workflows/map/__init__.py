@@ -23,12 +23,20 @@ and ends with the same outputs. A complete session made from other inputs or par
 """
 
 from ...plugin.errors import InputError
-from .inputs import IMAGE_EXTENSIONS, MapInputs, in_flight_order, input_fingerprints, load_inputs
+from .inputs import (
+    IMAGE_EXTENSIONS,
+    MapInputs,
+    in_flight_order,
+    input_fingerprints,
+    load_inputs,
+    refuse_text_model_names,
+)
 from .keyframes import cached_descriptors, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL
 from .workflow import MapSummary, map_origin, run
 
 __all__ = [
     "IMAGE_EXTENSIONS", "OUTPUTS", "PARTIAL", "InputError", "MapInputs", "MapSummary", "cached_descriptors",
-    "describe_keyframes", "in_flight_order", "input_fingerprints", "load_inputs", "map_origin", "run",
+    "describe_keyframes", "in_flight_order", "input_fingerprints", "load_inputs", "map_origin",
+    "refuse_text_model_names", "run",
 ]

@@ -15,8 +15,20 @@ from typing import Any
 import numpy as np
 
 from ...database.cameras import one_camera, read_cameras_txt
-from ...database.colmap_model import is_colmap_model, read_camera_file, read_colmap_model_poses
-from ...database.images import IMAGE_EXTENSIONS, image_files, name_key, unique_by_key  # noqa: F401 (re-exported)
+from ...database.colmap_model import (
+    TEXT_MODEL,
+    colmap_text_name_problem,
+    is_colmap_model,
+    read_camera_file,
+    read_colmap_model_poses,
+)
+from ...database.images import (  # noqa: F401 (IMAGE_EXTENSIONS re-exported)
+    IMAGE_EXTENSIONS,
+    image_files,
+    name_key,
+    shared_file_name,
+    unique_by_key,
+)
 from ...database.opensfm import is_opensfm
 from ...database.output_markers import check_finished, sha256_file
 from ...database.poses import read_poses_csv
@@ -56,18 +68,24 @@ def _refuse_shared_images(keep: list[tuple[int, Path]], names: list[str], poses:
     a pair passed here and, after the whole segmentation, failed there as "SQLite error: constraint failed" (a
     traceback and a partial run). Two flights' `flight1/f000.jpg` and `flight2/f000.jpg` are the usual cause."""
     by_file: dict[Path, int] = {}
-    by_name: dict[str, int] = {}
     for i, path in keep:
         file = path.resolve()  # one file reached as `images/x.jpg` and through a spelling or sub-path of its name
         if file in by_file:
             raise InputError(f"poses {names[by_file[file]]!r} and {names[i]!r} both pair with the image {path}: "
                              "one pose per image (two flights' poses given for one folder of images?)", poses)
         by_file[file] = i
-        if path.name in by_name:
-            other = next(p for j, p in keep if j == by_name[path.name])
-            raise InputError(f"images {other} and {path} share the file name {path.name!r}, under which a map stores "
-                             "each image: map each folder on its own, or rename the images apart", images)
-        by_name[path.name] = i
+    if (shared := shared_file_name(path for _, path in keep)) is not None:
+        raise InputError(f"images {shared[0]} and {shared[1]} share the file name {shared[1].name!r}, under which a "
+                         "map stores each image: map each folder on its own, or rename the images apart", images)
+
+
+def refuse_text_model_names(image_paths: Sequence[Path]) -> None:
+    """InputError naming the first image whose file name (the name the map stores it under) a COLMAP text model
+    cannot hold (`colmap_model.colmap_text_name_problem`): `map --text` refuses it before any work. The map
+    reported success and wrote images.txt that pycolmap read back as 40 images all named 'DJI'."""
+    if (problem := colmap_text_name_problem([p.name for p in image_paths], TEXT_MODEL)) is not None:
+        raise InputError(f"{problem[1]}: drop --text (the binary model keeps any name), or rename the images",
+                         image_paths[problem[0]])
 
 
 def load_inputs(

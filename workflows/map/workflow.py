@@ -34,6 +34,7 @@ from .inputs import (
     input_fingerprints,
     input_paths,
     recorded_sources,
+    refuse_text_model_names,
     require_keyframes,
     sources_from_session,
 )
@@ -209,6 +210,8 @@ def run(
     masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
     source = None if isinstance(inputs, MapInputs) else inputs
     if source is None:
+        if text_model:  # before anything is written: the text model would come back with other names
+            refuse_text_model_names(inputs.image_paths)
         inputs = in_flight_order(inputs)
         require_keyframes(inputs, params.keyframes.interval_m)
         digests = image_digests(inputs)

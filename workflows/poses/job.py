@@ -84,6 +84,7 @@ def run(
     options = {"telemetry": telemetry, "takeoff": takeoff_altitude_m, "sensor": sensor_width_mm,
                "nominal_height_m": nominal_height_m,
                **({} if epsg is None else {"epsg": epsg})}  # only when chosen: earlier outputs keep their identity
+    sfm.refuse_pair_list_names(list_images(image_dir))  # before anything is written
     identity = identity_of(image_dir, params, **options)
     with open_output_dir(out, "poses", identity, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
         if taken.was_complete and (taken.path / RECORD).is_file():
@@ -313,8 +314,11 @@ class PosesFromImages:
                 "nominal_height_m": self.nominal_height_m, **({} if self.epsg is None else {"epsg": self.epsg})}
 
     def identity(self) -> str:
+        """What the poses depend on; and the inputs' refusals that need no work (map asks before it takes its
+        output directory)."""
         if not Path(self.images).is_dir():
             raise InputError("image directory not found", self.images)
+        sfm.refuse_pair_list_names(list_images(Path(self.images)))
         return identity_of(Path(self.images), self.params, **self._options())
 
     def input_paths(self) -> list[Path]:
