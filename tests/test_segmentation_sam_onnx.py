@@ -408,3 +408,26 @@ def test_map_with_another_model_is_another_map_and_reuses_no_cached_masks(models
     with pytest.raises(InputError, match="other inputs or settings"):
         map_workflow.run(params, inputs, out, progress=False)
     assert json.loads((out / "run.json").read_text())["segmentation_models"] == {**record}
+
+
+def test_a_batch_with_another_model_is_another_batch_and_maps_again(models, tmp_path, monkeypatch):
+    from sosmatch.plugin.params import Params, with_overrides
+    from sosmatch.workflows import batch
+    from sosmatch.workflows.executors import LocalExecutor
+
+    _session(tmp_path / "flights" / "F")
+    params = with_overrides(Params(), {"segmentation.backend": "sam-onnx", "segmentation.sam_points_per_side": 4,
+                                       "quality.refuse": False, "pose_check.enabled": False})
+    options = batch.BatchOptions(progress=False, merge=False, changes=False)
+    out = tmp_path / "out"
+    _from_environment(monkeypatch, models, models["enc_hwc"])
+    batch.run(tmp_path / "flights", out, params, executor=LocalExecutor(0), options=options)
+    other = _other_model(models["enc_hwc"], tmp_path / "other.onnx")
+    _from_environment(monkeypatch, models, other)
+    with pytest.raises(InputError, match="other inputs or settings"):
+        batch.run(tmp_path / "flights", out, params, executor=LocalExecutor(0), options=options)
+    again = batch.run(tmp_path / "flights", out, params, executor=LocalExecutor(0),
+                      options=batch.BatchOptions(progress=False, merge=False, changes=False, overwrite=True))
+    assert not again.sessions[0].get("resumed")  # mapped again, with the other model
+    record = json.loads((out / "sessions" / "F" / "run.json").read_text())["segmentation_models"]
+    assert record["sam_encoder"]["sha256"] == sha256_file(other)
