@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from sosmatch.database.output_markers import fingerprint, versioned_identity
+from sosmatch.database.segmentation_models import SegmentationModels
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.params import ADDED, Params, with_overrides
 from sosmatch.plugin.params import identity as registry
@@ -91,3 +92,22 @@ def test_map_made_with_truncation_aware_off_is_refused_with_the_set_that_resumes
     with pytest.raises(InputError, match="--set tracking.truncation_aware=false would accept it"):
         _resumes(out, Params())
     assert _resumes(out, off)
+
+
+def test_a_map_of_other_model_files_or_of_unknown_ones_is_another_map(tmp_path):
+    """The segmentation backend's model files are part of a map's identity (their sha256, whatever setting or
+    environment variable named them): a map made with other files, or by a version that did not record them, is
+    not resumed as this one; a backend without model files keeps the identity it had."""
+    sam = with_overrides(Params(), {"segmentation.backend": "sam-onnx"})
+    x, y = (SegmentationModels(sha256={"sam_encoder": e * 64, "sam_decoder": "d" * 64}) for e in "xy")
+    made = _made(tmp_path / "x", map_identity(INPUTS, sam, False, "backend", x))
+    with take_output_dir(made, map_identity(INPUTS, sam, False, "backend", x), [], False) as out:
+        assert out.was_complete
+    for name, earlier, said in (("y", map_identity(INPUTS, sam, False, "backend", y), "other inputs or settings"),
+                                ("unknown", map_identity(INPUTS, sam, False, "backend"), "which model made it")):
+        out = _made(tmp_path / name, earlier)
+        with pytest.raises(InputError, match=said), \
+                take_output_dir(out, map_identity(INPUTS, sam, False, "backend", x), [], False):
+            pass
+    assert (map_identity(INPUTS, Params(), False, "backend", SegmentationModels())
+            == map_identity(INPUTS, Params(), False, "backend"))

@@ -712,3 +712,26 @@ def test_an_output_folder_moved_while_workers_describe_keyframes_is_not_re_creat
                                          rf"\(now {moved}\)"):
         map_workflow.run(Params(), inputs, out, progress=False, on_keyframe=move, workers=2)
     assert not out.exists() and not (moved / ".sosmatch-output.lock").exists()
+
+
+class _NoMasks:
+    """A `masks_for` object (as the benchmarks' ground-truth masks): no mask in any image."""
+
+    def __call__(self, name, image):
+        from sosmatch.plugin.segmentation import MaskSet
+
+        return MaskSet.empty(image.shape[:2])
+
+
+def test_masks_from_a_callable_object_are_named_by_its_class_not_its_address(session, tmp_path):
+    """The identity and cache key of a map whose masks come from a callable object held its repr (with its memory
+    address) until fix98: the same command again was refused as another map, and its cache never reused."""
+    root = session[0]
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    params = with_overrides(Params(), {"quality.refuse": False, "pose_check.enabled": False})
+    out = tmp_path / "gt"
+    map_workflow.run(params, inputs, out, progress=False, masks_for=_NoMasks())
+    summary = map_workflow.run(params, inputs, out, progress=False, masks_for=_NoMasks(), keep_cache=True)
+    assert json.loads((out / "run.json").read_text())["masks"] == "_NoMasks"
+    again = map_workflow.run(params, inputs, out, progress=False, masks_for=_NoMasks())
+    assert again.keyframes_from_cache == summary.num_keyframes > 0

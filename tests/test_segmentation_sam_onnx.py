@@ -4,11 +4,15 @@ The fake decoder answers a point prompt with concentric discs around the point (
 real preprocessing, coordinate transforms, batching, filtering, upsampling and NMS all run and can be checked.
 """
 
+import json
+from dataclasses import replace
+
 import numpy as np
 import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
+from sosmatch.database.output_markers import sha256_file
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.params import SegmentationParams
 from sosmatch.plugin.segmentation import MaskSet, get_backend
@@ -288,3 +292,142 @@ def test_efficientsam_variant(models):
     # an EfficientSAM encoder with SAM's decoder is refused
     with pytest.raises(InputError, match="different model families"):
         get_backend("sam-onnx", SegmentationParams(sam_encoder=str(enc), sam_decoder=str(models["dec"])))
+
+
+# -- which model made an output: the files' contents are part of its identity and cache keys ----------------------
+
+def _other_model(path, out):
+    """The model at `path` saved again with another doc string: same behaviour, other contents."""
+    model = onnx.load(str(path))
+    model.doc_string = f"another model: {out.name}"
+    onnx.save(model, str(out))
+    return out
+
+
+def _from_environment(monkeypatch, models, enc):
+    monkeypatch.setenv("SOSMATCH_SAM_ENCODER", str(enc))
+    monkeypatch.setenv("SOSMATCH_SAM_DECODER", str(models["dec"]))
+
+
+def _images(folder, n=2, size=(96, 128)):
+    import cv2
+
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for i in range(n):
+        cv2.imwrite(str(folder / f"frame_{i:05d}.png"), rng.integers(0, 255, (*size, 3), dtype=np.uint8))
+    return folder
+
+
+def test_segment_with_another_model_from_the_environment_is_another_output(models, tmp_path, monkeypatch):
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows import segment
+
+    images = _images(tmp_path / "frames")
+    params = Params(segmentation=SegmentationParams(backend="sam-onnx", sam_points_per_side=4))
+    _from_environment(monkeypatch, models, models["enc_hwc"])
+    segment.run([images], tmp_path / "seg", params)
+    record = json.loads((tmp_path / "seg" / "frame_00000.png.json").read_text())["models"]
+    assert record["sam_encoder"]["path"] == str(models["enc_hwc"].resolve())
+    assert record["sam_encoder"]["sha256"] == sha256_file(models["enc_hwc"])
+    segment.run([images], tmp_path / "seg", params)  # the same model: the same output, run again
+    _from_environment(monkeypatch, models, _other_model(models["enc_hwc"], tmp_path / "other.onnx"))
+    with pytest.raises(InputError, match="other inputs or settings"):
+        segment.run([images], tmp_path / "seg", params)
+    segment.run([images], tmp_path / "seg", params, overwrite=True)
+    record = json.loads((tmp_path / "seg" / "frame_00000.png.json").read_text())["models"]
+    assert record["sam_encoder"]["path"] == str((tmp_path / "other.onnx").resolve())
+
+
+def test_segment_notices_a_model_replaced_at_its_configured_path(models, tmp_path):
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows import segment
+
+    images = _images(tmp_path / "frames")
+    enc = tmp_path / "enc.onnx"
+    enc.write_bytes(models["enc_hwc"].read_bytes())
+    params = Params(segmentation=replace(_params(models), sam_encoder=str(enc)))
+    segment.run([images], tmp_path / "seg", params)
+    _other_model(models["enc_hwc"], enc)
+    with pytest.raises(InputError, match="other inputs or settings"):
+        segment.run([images], tmp_path / "seg", params)
+
+
+def test_classical_identity_and_cache_key_hold_no_models(monkeypatch):
+    from sosmatch.database.segmentation_models import segmentation_models
+
+    monkeypatch.setenv("SOSMATCH_SAM_ENCODER", "/nonexistent.onnx")  # read by sam-onnx only
+    models = segmentation_models(SegmentationParams())
+    assert models.identity() == {} and models.record() is None
+    assert models.params(SegmentationParams()) == SegmentationParams()
+
+
+def _session(root, n=8):
+    """A straight flight (2 m steps) over noise images: enough for keyframes, tracks are not the point here."""
+    from sosmatch.database.cameras import write_cameras_txt
+    from sosmatch.database.poses import write_poses_csv
+    from sosmatch.plugin.geometry import Camera, Poses
+
+    images = _images(root / "images", n, (96, 128))
+    names = sorted(p.name for p in images.iterdir())
+    centers = np.stack([np.arange(n) * 2.0, np.zeros(n), np.full(n, 60.0)], 1)
+    write_poses_csv(root / "poses.csv", Poses(names, np.repeat(np.diag([1.0, -1.0, -1.0])[None], n, 0), centers))
+    write_cameras_txt(root / "cameras.txt", {1: Camera(128, 96, 100.0, 100.0, 64.0, 48.0)})
+    return root
+
+
+def test_map_with_another_model_is_another_map_and_reuses_no_cached_masks(models, tmp_path, monkeypatch):
+    from sosmatch.plugin.params import Params, with_overrides
+    from sosmatch.workflows import map as map_workflow
+
+    root = _session(tmp_path / "s")
+    inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt")
+    params = with_overrides(Params(), {"segmentation.backend": "sam-onnx", "segmentation.sam_points_per_side": 4,
+                                       "quality.refuse": False, "pose_check.enabled": False})
+    other = _other_model(models["enc_hwc"], tmp_path / "other.onnx")
+
+    class Stop(Exception):
+        pass
+
+    def stop_at_2(k):
+        if k == 2:
+            raise Stop
+
+    _from_environment(monkeypatch, models, models["enc_hwc"])
+    out = tmp_path / "map"
+    with pytest.raises(Stop):  # interrupted, its cache kept in .partial
+        map_workflow.run(params, inputs, out, progress=False, on_keyframe=stop_at_2)
+    _from_environment(monkeypatch, models, other)
+    summary = map_workflow.run(params, inputs, out, progress=False)
+    assert summary.keyframes_from_cache == 0  # masks of the first model are not this map's
+    record = json.loads((out / "run.json").read_text())["segmentation_models"]
+    assert record["sam_encoder"] == {"path": str(other.resolve()), "bytes": other.stat().st_size,
+                                     "sha256": sha256_file(other)}
+    assert record["sam_decoder"]["sha256"] == sha256_file(models["dec"])
+    _from_environment(monkeypatch, models, models["enc_hwc"])  # the same command with the first model
+    with pytest.raises(InputError, match="other inputs or settings"):
+        map_workflow.run(params, inputs, out, progress=False)
+    assert json.loads((out / "run.json").read_text())["segmentation_models"] == {**record}
+
+
+def test_a_batch_with_another_model_is_another_batch_and_maps_again(models, tmp_path, monkeypatch):
+    from sosmatch.plugin.params import Params, with_overrides
+    from sosmatch.workflows import batch
+    from sosmatch.workflows.executors import LocalExecutor
+
+    _session(tmp_path / "flights" / "F")
+    params = with_overrides(Params(), {"segmentation.backend": "sam-onnx", "segmentation.sam_points_per_side": 4,
+                                       "quality.refuse": False, "pose_check.enabled": False})
+    options = batch.BatchOptions(progress=False, merge=False, changes=False)
+    out = tmp_path / "out"
+    _from_environment(monkeypatch, models, models["enc_hwc"])
+    batch.run(tmp_path / "flights", out, params, executor=LocalExecutor(0), options=options)
+    other = _other_model(models["enc_hwc"], tmp_path / "other.onnx")
+    _from_environment(monkeypatch, models, other)
+    with pytest.raises(InputError, match="other inputs or settings"):
+        batch.run(tmp_path / "flights", out, params, executor=LocalExecutor(0), options=options)
+    again = batch.run(tmp_path / "flights", out, params, executor=LocalExecutor(0),
+                      options=batch.BatchOptions(progress=False, merge=False, changes=False, overwrite=True))
+    assert not again.sessions[0].get("resumed")  # mapped again, with the other model
+    record = json.loads((out / "sessions" / "F" / "run.json").read_text())["segmentation_models"]
+    assert record["sam_encoder"]["sha256"] == sha256_file(other)

@@ -8,7 +8,9 @@ report = segment.run(["frames/"], "out/", backend="classical")
 Writes, per image `NAME.EXT`: `OUT/NAME.EXT.png` (overlay: masks coloured, boundaries, centroids, 2-sigma
 covariance ellipses) and `OUT/NAME.EXT.json` (per-mask centroid, covariance, size, area, score, SIFT count),
 plus `OUT/summary.csv` (one line per image). Every file is written atomically; a re-run of the same images and
-settings replaces them (other ones need `overwrite`).
+settings replaces them (other ones need `overwrite`). A backend's model files count as settings by their contents
+(`database.segmentation_models`): another model, named by the environment or replaced at its path, needs
+`overwrite` too, and NAME.json names the files ("models").
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from ..database.atomic import atomic_path, write_text_atomic
 from ..database.images import list_images, no_images_message, read_image, shared_file_name
 from ..database.output_markers import versioned_identity
 from ..database.outputs import open_output_dir
+from ..database.segmentation_models import keyed_by_models, segmentation_models
 from ..plugin.errors import InputError
 from ..plugin.mask_features import MaskFeatures, describe_masks, segment_and_describe
 from ..plugin.params import Params
@@ -102,7 +105,8 @@ class SegmentReport:
         return [r for r in self.images if r.error is not None]
 
 
-def _features_json(name: str, feats: MaskFeatures, width: int, height: int, backend: str) -> str:
+def _features_json(name: str, feats: MaskFeatures, width: int, height: int, backend: str,
+                   models: dict[str, Any] | None = None) -> str:
     masks = []
     counts = np.bincount(feats.sift_mask, minlength=len(feats)) if len(feats) else np.zeros(0, int)
     for k in range(len(feats)):
@@ -116,6 +120,8 @@ def _features_json(name: str, feats: MaskFeatures, width: int, height: int, back
         })
     head = {"image": name, "width": width, "height": height, "backend": backend, "num_masks": len(masks),
             "pixel_convention": "COLMAP (centre of the top-left pixel is (0.5, 0.5)); covariance as xx, xy, yy"}
+    if models:  # which model files made the masks (path, bytes, sha256); none for classical
+        head["models"] = models
     # one mask per line: readable and diff-friendly
     body = ",\n".join("  " + json.dumps(m) for m in masks)
     return json.dumps(head)[:-1] + ', "masks": [\n' + body + ("\n" if masks else "") + "]}\n"
@@ -155,11 +161,13 @@ def run(
     _refuse_shared_names(paths)
     out_dir = Path(out_dir)
     images = [[str(p.resolve()), *_stat(p)] for p in paths]  # once: the identity is built for every version
-    identity = versioned_identity(lambda as_dict: {
-        "images": images, "overlays": write_overlays, "segmentation": as_dict(params.segmentation)})
-    seg_backend = get_backend(params.segmentation.backend, params.segmentation)
+    # the backend's model files (settings, else environment), fingerprinted once: the settings may not name them
+    models = segmentation_models(params.segmentation)
+    identity = keyed_by_models(lambda extra: versioned_identity(lambda as_dict: {
+        "images": images, "overlays": write_overlays, "segmentation": as_dict(params.segmentation), **extra}), models)
+    seg_backend = get_backend(params.segmentation.backend, models.params(params.segmentation))
     with open_output_dir(out_dir, "segment", identity, inputs=inputs, overwrite=overwrite) as taken:
-        report = _segment_into(taken.path, paths, params, seg_backend, write_overlays)
+        report = _segment_into(taken.path, paths, params, seg_backend, write_overlays, models.record())
         taken.finish()
     return report
 
@@ -186,8 +194,8 @@ def _stat(path: Path) -> list[int]:
 
 
 def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend: Any,
-                  write_overlays: bool) -> SegmentReport:
-    """`run` inside its taken output directory."""
+                  write_overlays: bool, models: dict[str, Any] | None = None) -> SegmentReport:
+    """`run` inside its taken output directory (`models`: the backend's model files as NAME.json records them)."""
     report = SegmentReport()
     from ..database.flight_levels import flight_white_level
     from ..plugin.flight_contrast import flight_contrast
@@ -228,7 +236,8 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
         # named by the whole file name, as COLMAP names an image's outputs (stereo/depth_maps/x.jpg.geometric.bin):
         # by the stem, x.jpg's and x.png's were one file holding the second image's
         write_text_atomic(out_dir / f"{path.name}.json",
-                          _features_json(path.name, feats, res.width, res.height, params.segmentation.backend))
+                          _features_json(path.name, feats, res.width, res.height, params.segmentation.backend,
+                                         models))
         if write_overlays:
             overlay = render_overlay(image, masks, feats)
             with atomic_path(out_dir / f"{path.name}.png") as tmp:

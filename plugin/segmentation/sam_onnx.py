@@ -80,6 +80,13 @@ def resolve_model_path(configured: str, env: str, role: str) -> Path:
     return path
 
 
+def model_files(params: SegmentationParams) -> dict[str, Path]:
+    """The encoder and decoder files `params` names (or the environment, when unset), by the setting naming each,
+    as absolute paths: what a run records and keys its outputs by (`database.segmentation_models`)."""
+    return {"sam_encoder": resolve_model_path(params.sam_encoder, "SOSMATCH_SAM_ENCODER", "encoder").resolve(),
+            "sam_decoder": resolve_model_path(params.sam_decoder, "SOSMATCH_SAM_DECODER", "decoder").resolve()}
+
+
 def _session(path: Path, threads: int) -> object:
     import onnxruntime as ort
 
@@ -259,8 +266,8 @@ class SamOnnxBackend:
 
     def __init__(self, params: SegmentationParams) -> None:
         self.params = params
-        enc = resolve_model_path(params.sam_encoder, "SOSMATCH_SAM_ENCODER", "encoder")
-        dec = resolve_model_path(params.sam_decoder, "SOSMATCH_SAM_DECODER", "decoder")
+        files = model_files(params)
+        enc, dec = files["sam_encoder"], files["sam_decoder"]
         self.encoder = SamEncoder.load(enc, params.sam_threads)
         self.decoder = SamDecoder.load(dec, params.sam_threads)
         if (self.encoder.kind == "efficientsam") != (self.decoder.kind == "efficientsam"):

@@ -16,6 +16,7 @@ from ...database.match_io import MatchSummary, answer_gate
 from ...database.output_markers import versioned_identity
 from ...database.outputs import open_output_dir
 from ...database.poses import crs_problem
+from ...database.segmentation_models import SegmentationModels, keyed_by_models, segmentation_models
 from ...plugin.errors import InputError
 from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
@@ -86,15 +87,19 @@ def run(
     executor = executor or LocalExecutor(1)
     flights = discover_flights(flights_dir, exclude=(out_dir,))
     pdict = params_to_dict(params)
+    # the segmentation's model files, by their contents, when a flight is to be segmented (`map`'s identity holds
+    # them too): another model named by the environment is another batch, and maps again
+    models = (segmentation_models(params.segmentation) if any(f.kind != "mapped" for f in flights)
+              else SegmentationModels())
     # (the CRS only when chosen: batches run before the option keep their identity and resume)
-    identity = versioned_identity(lambda as_dict: {
+    identity = keyed_by_models(lambda extra: versioned_identity(lambda as_dict: {
         "params": as_dict(params), "matcher": (pair_fn or pair_task).__qualname__,
         **{k: v for k, v in dataclasses.asdict(options).items()
-           if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)}}, fingerprint)
+           if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)}, **extra}, fingerprint), models)
     try:
         with open_output_dir(out_dir, "batch", identity, inputs=[f.path for f in flights],
                              overwrite=options.overwrite, legacy_record="report.json") as taken:
-            report = _run_batch(flights, out_dir, params, pdict, executor, options, pair_fn)
+            report = _run_batch(flights, out_dir, params, pdict, executor, options, pair_fn, models)
             report.seconds = time.perf_counter() - t0
             write_report(report)
             taken.finish()
@@ -105,8 +110,8 @@ def run(
 
 
 def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, Any], executor: Executor,
-               options: BatchOptions, pair_fn: Any) -> BatchReport:
-    """The stages of `run` inside its taken output directory."""
+               options: BatchOptions, pair_fn: Any, models: SegmentationModels | None = None) -> BatchReport:
+    """The stages of `run` inside its taken output directory (`models`: the segmentation's model files)."""
     state = StateStore(out_dir / "state", out_dir)
     report = BatchReport(out_dir, executor=executor.describe())
     # 1-2: map
@@ -119,8 +124,11 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         # an adopted session is used where it lies: its place is part of it (a copy elsewhere is another session)
         where = {"flight": str(f.path.resolve())} if f.kind == "mapped" else {}
         crs = {"epsg": options.epsg} if options.epsg is not None and f.kind == "images" else {}
+        # the model files a flight is segmented with (none: a backend without any, or an adopted session, whose
+        # fingerprints stay those of earlier versions)
+        seg = {"models": models.identity()} if models is not None and models.identity() and f.kind != "mapped" else {}
         # each version's fingerprint (`identity_eras`): a batch of an earlier sosmatch resumes
-        fixed = {**contents, **where, **crs}
+        fixed = {**contents, **where, **crs, **seg}
         fps[f.name] = build_versions(lambda as_dict, fixed=fixed: fingerprint(
             {"map": 2, **fixed, "params": mapping_params(params, as_dict)}))
         before = {"flight": str(f.path.resolve()), **contents}  # before 88ab9e6: the folder and every setting

@@ -115,6 +115,7 @@ def _describe_one(
     camera: Camera | None = None,
     white: Levels | int | None = None,
     contrast: Any = None,
+    backend_key: str = "",
 ) -> tuple[Any, tuple[float, float], np.ndarray]:
     """One keyframe: read, segment, describe, motion to the previous keyframe; store in the cache atomically.
 
@@ -122,7 +123,9 @@ def _describe_one(
     the images' lens; the motion is measured in the undistorted pixels tracking compares (`image_motion_stats`).
     `white`: the flight's white level (`database.flight_levels.flight_white_level`). `contrast`: the flight's
     (`plugin.flight_contrast.FlightContrast`; None: as read): the segmenter sees the image through its gain, the
-    masks are described on the image as read.
+    masks are described on the image as read. `backend_key`: the run's cache key, which holds the contents of the
+    backend's model files: the backend this process built for a run is reused by another only when both the
+    settings and the model files are the same (a model file replaced at its path is read again).
     """
     from ...database.images import read_image
     from ...plugin.image_quality import image_figures
@@ -143,7 +146,7 @@ def _describe_one(
     if masks_for is not None:
         feats = describe_masks(image, masks_for(path.name, image), seg)
     else:
-        cache_name = json.dumps(params_to_dict(seg), sort_keys=True)
+        cache_name = json.dumps(params_to_dict(seg), sort_keys=True) + backend_key
         if cache_name not in _WORKER_BACKEND:
             _WORKER_BACKEND.clear()
             _WORKER_BACKEND[cache_name] = get_backend(seg.backend, seg)
@@ -214,6 +217,7 @@ def describe_keyframes(
         return feats if hold_descriptors else replace(feats, sift_desc=_NO_DESCRIPTORS)
 
     make_dirs(cache_dir)  # an output directory moved away under its run is not re-created at its old place
+    backend_key = cache_key
     size = (inputs.camera.height, inputs.camera.width)
     # one white level for the flight's images beyond 8 bits (none for 8-bit ones, whose cache keys stay as they were)
     white = flight_white_level(inputs.image_paths) if white is None else white
@@ -243,7 +247,7 @@ def describe_keyframes(
         for k, path, prev_path, entry, key in todo:
             feats, mu_sigma, gray = _describe_one(path, prev_path, size, params, entry, key,
                                                   prev_gray if prev_k == k - 1 else None, masks_for, inputs.camera,
-                                                  white, contrast)
+                                                  white, contrast, backend_key)
             results[k] = (kept(feats), mu_sigma)
             prev_gray, prev_k = gray, k
             bar.update()
@@ -255,7 +259,7 @@ def describe_keyframes(
         # spawn (no fork of a process holding pycolmap/OpenCV threads); the workers die with this process
         with process_pool(workers, _worker_init) as pool:
             futures = [(k, pool.submit(_describe_one, path, prev_path, size, params, entry, key, None, masks_for,
-                                              inputs.camera, white, contrast))
+                                              inputs.camera, white, contrast, backend_key))
                        for k, path, prev_path, entry, key in todo]
             try:
                 for k, fut in futures:

@@ -14,6 +14,7 @@ from typing import Any
 from ...database.colmap_db import check_database_writable
 from ...database.output_markers import VersionedIdentity, read_settings_identity
 from ...database.outputs import OutputDir, open_output_dir
+from ...database.segmentation_models import SegmentationModels, keyed_by_models
 from ...plugin.params import MAP_READS, Params
 
 COMMAND = "map"
@@ -32,10 +33,15 @@ def take_output_dir(out_dir: str | Path, identity: str | VersionedIdentity, inpu
                            before_taking=lambda path: check_database_writable(path / "database.db"))
 
 
-def map_identity(inputs: Any, params: Params, text_model: bool, masks: str) -> VersionedIdentity:
+def map_identity(inputs: Any, params: Params, text_model: bool, masks: str,
+                 models: SegmentationModels | None = None) -> VersionedIdentity:
     """A map's identity: its inputs (`inputs`: their fingerprint, or the identity of the source its poses are made
     from), the parameters a map depends on (`plugin.params.MAP_READS`, `mapping_params`: no setting of matching or
-    change detection), the sparse model's format and where the masks come from.
+    change detection), the sparse model's format, where the masks come from and the contents of the segmentation
+    backend's model files (`models`, `database.segmentation_models.keyed_by_models`: its settings may be empty, the
+    environment naming the files, or name a file since replaced). Without model files (`classical`) the identity is
+    that of earlier versions; a map an earlier version made with model files is another map (which model made it is
+    not known).
 
     Until fix51 it held every parameter, so a map re-run with another later-stage setting was refused, and a
     later-stage setting registered with a non-neutral default (`plugin.params.identity.ADDED`) refused every
@@ -43,5 +49,6 @@ def map_identity(inputs: Any, params: Params, text_model: bool, masks: str) -> V
     (those its version lacked at their neutral values, `settings_at_rest`): those identities, in every earlier
     version, are among its own (`same_as`); a refusal names a registered mapping setting that behaves otherwise
     here, as before (`database.output_markers.read_settings_identity`)."""
-    return read_settings_identity(lambda settings: {"inputs": inputs, "params": settings, "text_model": text_model,
-                                                    "masks": masks}, params, MAP_READS)
+    return keyed_by_models(lambda extra: read_settings_identity(
+        lambda settings: {"inputs": inputs, "params": settings, "text_model": text_model, "masks": masks, **extra},
+        params, MAP_READS), models or SegmentationModels())

@@ -23,6 +23,7 @@ from ...database.colmap_db import (
 from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
 from ...database.outputs import OutputDir
+from ...database.segmentation_models import SegmentationModels, segmentation_models
 from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
@@ -175,6 +176,14 @@ def map_origin(positions: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
     return np.round(np.median(pts, axis=0)) if len(pts) else np.zeros(3)
 
 
+def _masks_source(masks_for: Callable[[str, np.ndarray], Any] | None) -> str:
+    """Where a map's masks come from, as its identity and run.json name it: "backend", or `masks_for`'s qualified
+    name (its class's for a callable object: an object's repr holds its address, another at every run)."""
+    if masks_for is None:
+        return "backend"
+    return getattr(masks_for, "__qualname__", None) or type(masks_for).__qualname__
+
+
 def run(
     params: Params,
     inputs: MapInputs | PosesSource,
@@ -202,12 +211,17 @@ def run(
         on_keyframe: callback after each newly computed keyframe (tests use it to interrupt a run).
         workers: processes for the per-keyframe stage (segmentation dominates the run time).
         masks_for: `(image_name, image) -> MaskSet` instead of the segmentation backend (benchmarks: ground
-            truth masks). Recorded in run.json; the cache is kept apart from backend results.
+            truth masks). Recorded in run.json and keyed by its qualified name (`__qualname__`, or its class's
+            for a callable object; not its code or state): the cache is kept apart from backend results, but two
+            callables of one name share a key, so give each its own SESSION_DIR.
     """
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     out_dir = Path(out_dir)
-    masks_source = getattr(masks_for, "__qualname__", repr(masks_for)) if masks_for is not None else "backend"
+    masks_source = _masks_source(masks_for)
+    # the backend's model files, resolved (settings, else environment) and fingerprinted once: the identity, the
+    # cache key and run.json hold them, and every keyframe is segmented with them
+    models = segmentation_models(params.segmentation) if masks_for is None else SegmentationModels()
     source = None if isinstance(inputs, MapInputs) else inputs
     if source is None:
         if text_model:  # before anything is written: the text model would come back with other names
@@ -224,7 +238,7 @@ def run(
         what, paths = source.identity(), source.input_paths()
         gps = None  # poses made from the images' own GPS: their unit is the GPS's
     # what the outputs depend on: a complete session of another identity is replaced only with `overwrite`
-    identity = map_identity(what, params, text_model, masks_source)
+    identity = map_identity(what, params, text_model, masks_source, models)
     with take_output_dir(out_dir, identity, paths, overwrite) as out:
         extra: tuple[str, ...] = ()
         if source is not None:
@@ -238,7 +252,7 @@ def run(
             params = for_image(params, inputs.camera.width, inputs.camera.height)
         timings["inputs"] = time.perf_counter() - t_start
         summary = _map_into(out, params, inputs, fps, digests, masks_source, text_model, progress,
-                            on_keyframe, workers, masks_for, timings, t_start, extra, gps)
+                            on_keyframe, workers, masks_for, timings, t_start, extra, gps, models)
         out.finish(keep_staging=keep_cache)
     if keep_cache:
         log.info("per-keyframe cache kept in %s", out_dir / PARTIAL / "cache")
@@ -250,7 +264,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
               masks_source: str, text_model: bool, progress: bool,
               on_keyframe: Callable[[int], None] | None, workers: int,
               masks_for: Callable[[str, np.ndarray], Any] | None, timings: dict[str, float],
-              t_start: float, extra_outputs: tuple[str, ...] = (), gps: Any = None) -> MapSummary:
+              t_start: float, extra_outputs: tuple[str, ...] = (), gps: Any = None,
+              models: SegmentationModels | None = None) -> MapSummary:
     """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
     import pycolmap
 
@@ -283,13 +298,17 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     pdict = params_to_dict(params)
     # the lens enters the cached image motion (measured in undistorted pixels); a pinhole's focal length does not
     lens = None if camera.is_pinhole else [camera.model, list(camera.params)]
+    models = models or SegmentationModels()
+    # the models' contents, not the settings naming them (classical has none: its keys are those of earlier versions)
+    with_models = {"models": models.identity()} if models.identity() else {}
     cache_key = hash_json({"v": CACHE_VERSION, "seg": pdict["segmentation"], "kf": pdict["keyframes"],
-                           "masks": masks_source, "size": [camera.width, camera.height], "lens": lens})
+                           "masks": masks_source, "size": [camera.width, camera.height], "lens": lens, **with_models})
 
     t = time.perf_counter()
     keyframes = select_keyframes(inputs.poses.centers, params.keyframes.interval_m)
     kf_poses = inputs.poses.subset(keyframes)
-    features, motion, cached = describe_keyframes(inputs, keyframes, params, partial / "cache", cache_key,
+    segmented = replace(params, segmentation=models.params(params.segmentation))  # the files fingerprinted
+    features, motion, cached = describe_keyframes(inputs, keyframes, segmented, partial / "cache", cache_key,
                                                   progress, on_keyframe, workers, masks_for, digests, white,
                                                   hold_descriptors=False, contrast=contrast)
     descriptors = cached_descriptors(partial / "cache", kf_poses.names)
@@ -411,6 +430,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "camera": {"model": camera.model, "width": camera.width, "height": camera.height, "params": camera.params,
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "epsg": inputs.epsg, "map_origin": origin.tolist(), "masks": masks_source,
+        # the segmentation backend's model files (path, bytes, sha256; null for a backend without any)
+        "segmentation_models": models.record(),
         # the content of landmarks.sosmap as written: readers refuse a folder whose map is another session's
         "landmarks_fingerprint": landmark_map_fingerprint(read_landmark_map(partial / "landmarks.sosmap")),
         # metres of ground per image pixel at the measured flying height (sets the segmenter's working size)
