@@ -65,12 +65,24 @@ def plane_covariances(camera: Camera, rotations_wc: np.ndarray, centers: np.ndar
     return inv @ np.asarray(covariances_px, np.float64) @ np.transpose(inv, (0, 2, 1))
 
 
-def cut_by_border(camera: Camera, centroids: np.ndarray, covariances_px: np.ndarray, sigmas: float = 2.0) -> np.ndarray:
-    """(n,) True where the mask's `sigmas`-sigma extent reaches past the image border: a mask cut by it."""
+def border_sides(camera: Camera, centroids: np.ndarray, covariances_px: np.ndarray,
+                 sigmas: float = 2.0) -> np.ndarray:
+    """(n, 2, 2) bool, [mask, axis (x, y), side (low, high)]: whether the mask's `sigmas`-sigma extent reaches past
+    that border of `camera`'s image, [0, width] x [0, height]. The one test of "cut by the image border": it
+    holds in the image the masks were segmented in, so a lens camera's masks are tested in the real (distorted)
+    image (`mask_features.undistort_features` keeps the answer beside the undistorted masks, whose pinhole
+    rectangle is not the real image's border: barrel distortion pushes that border outward, pincushion inward)."""
     c = np.asarray(centroids, np.float64).reshape(-1, 2)
-    ext = sigmas * np.sqrt(np.maximum(np.diagonal(np.asarray(covariances_px, np.float64), axis1=1, axis2=2), 0))
+    ext = sigmas * np.sqrt(np.maximum(np.diagonal(np.asarray(covariances_px, np.float64).reshape(-1, 2, 2),
+                                                  axis1=1, axis2=2), 0))
     lo, hi = c - ext, c + ext
-    return (lo[:, 0] < 0) | (lo[:, 1] < 0) | (hi[:, 0] > camera.width) | (hi[:, 1] > camera.height)
+    return np.stack([lo < 0, hi > np.array([camera.width, camera.height], np.float64)], axis=2)
+
+
+def cut_by_border(camera: Camera, centroids: np.ndarray, covariances_px: np.ndarray, sigmas: float = 2.0) -> np.ndarray:
+    """(n,) True where the mask's `sigmas`-sigma extent reaches past the image border: a mask cut by it
+    (`border_sides` on any side)."""
+    return border_sides(camera, centroids, covariances_px, sigmas).any(axis=(1, 2))
 
 
 def fit_nadir_covariance(plane_cov: np.ndarray, directions: np.ndarray, tan_theta: np.ndarray) -> np.ndarray:
@@ -96,15 +108,18 @@ def fit_nadir_covariance(plane_cov: np.ndarray, directions: np.ndarray, tan_thet
 
 
 def nadir_size(camera: Camera, rotations_wc: np.ndarray, centers: np.ndarray, point: np.ndarray,
-               centroids: np.ndarray, covariances_px: np.ndarray, min_observations: int = 3) -> float:
+               centroids: np.ndarray, covariances_px: np.ndarray, min_observations: int = 3,
+               cut: np.ndarray | None = None) -> float:
     """Metric size sqrt(lambda_max(Sigma_0)) of a landmark at `point` from its n mask observations (module doc).
 
     rotations_wc (n, 3, 3) and centers (n, 3): world_from_camera poses of the observing keyframes; centroids
-    (n, 2) and covariances_px (n, 2, 2): the masks in COLMAP pixels. Falls back to the mean of the observations'
-    own sqrt(lambda_max) on the plane when the fit is degenerate (fewer than 2 observations, a non-positive
-    Sigma_0)."""
+    (n, 2) and covariances_px (n, 2, 2): the masks in COLMAP pixels of the pinhole `camera`. `cut` (n,): which
+    observations the real image's border cuts (`MaskFeatures.border`, tested where the masks were segmented);
+    None: `cut_by_border` against `camera`'s own image, right only for a camera without distortion. Falls back
+    to the mean of the observations' own sqrt(lambda_max) on the plane when the fit is degenerate (fewer than 2
+    observations, a non-positive Sigma_0)."""
     cov = plane_covariances(camera, rotations_wc, centers, point, covariances_px)
-    keep = ~cut_by_border(camera, centroids, covariances_px)
+    keep = ~(cut_by_border(camera, centroids, covariances_px) if cut is None else np.asarray(cut, bool))
     if np.count_nonzero(keep) < max(2, min_observations):
         keep = np.ones(len(cov), bool)
     cov = cov[keep]

@@ -1,9 +1,10 @@
 """Masks cut by the image border as truncated views (ours; `TrackingParams.truncation_aware`).
 
-A mask whose extent reaches past the image border (`landmark_size.cut_by_border`: its 2-sigma extent) shows only
-the part of its object inside the frame: its size is a lower bound of the object's, and its centroid lies inward
-of the object's, by at most the object's half-extent less the visible part's along each axis where it is cut
-(`outward_shifts`). The tracker's gates read a cut view that way:
+A mask whose extent reaches past the image border (`landmark_size.border_sides`: its 2-sigma extent, tested in the
+real image: `mask_features.border_of`) shows only the part of its object inside the frame: its size is a lower
+bound of the object's, and its centroid lies inward of the object's, by at most the object's half-extent less the
+visible part's along each axis where it is cut (`outward_shifts`, towards the sides of the real border that cut
+it). The tracker's gates read a cut view that way:
 
 - **size** (`truncated_size_scores`): one-sided against the track's latest whole view: a cut candidate may be
   smaller than it, not larger by more than theta_h; a track seen only cut gives a lower bound; two cut views
@@ -34,8 +35,7 @@ import numpy as np
 from .epipolar import behind_camera, epipolar_distances
 from .geometry import Camera, Poses
 from .ground_band import band_distances, band_segments
-from .landmark_size import cut_by_border
-from .mask_features import MaskFeatures
+from .mask_features import MaskFeatures, border_of
 from .mask_scores import size_scores
 from .params import TrackingParams
 
@@ -43,25 +43,23 @@ _EXTENT_SIGMAS = 2.0  # a disc of radius R has sigma R / 2 and h = sqrt(lambda_m
 
 
 def cut_masks(camera: Camera, feat: MaskFeatures) -> np.ndarray:
-    """(K,) True for the masks of one keyframe cut by the image border (`landmark_size.cut_by_border`)."""
+    """(K,) True for the masks of one keyframe cut by the real image's border (`mask_features.border_of`)."""
     if not len(feat):
         return np.zeros(0, bool)
-    return cut_by_border(camera, feat.centroids, feat.covariances, _EXTENT_SIGMAS)
+    return border_of(feat, camera).any(axis=(1, 2))
 
 
-def outward_shifts(camera: Camera, centroids: np.ndarray, covariances: np.ndarray,
-                   object_sizes: np.ndarray) -> np.ndarray:
+def outward_shifts(border: np.ndarray, covariances: np.ndarray, object_sizes: np.ndarray) -> np.ndarray:
     """(n, 2) the outward corner of the box the truncation could have shifted each centroid by (0 for a mask not
-    cut): along each axis where the mask's extent passes the border, towards that border, by the object's
-    half-extent (2 x `object_sizes`, the sizes h of whole views) less the visible part's (2 sigma on that axis);
+    cut): along each axis where the mask's extent passes the border (`border` (n, 2, 2), the sides that cut it in
+    the real image: `mask_features.border_of`), towards that border, by the object's half-extent (2 x
+    `object_sizes`, the sizes h of whole views) less the visible part's (2 sigma of `covariances` on that axis);
     nothing on an axis cut on both sides (the object spans the frame: no direction)."""
-    c = np.asarray(centroids, np.float64).reshape(-1, 2)
     sig = np.sqrt(np.maximum(np.diagonal(np.asarray(covariances, np.float64).reshape(-1, 2, 2), axis1=1, axis2=2),
                              0.0))
     ext = _EXTENT_SIGMAS * sig
-    low = c - ext < 0
-    high = c + ext > np.array([camera.width, camera.height], np.float64)
-    direction = high.astype(np.float64) - low.astype(np.float64)  # both sides cut: 0
+    sides = np.asarray(border, bool).reshape(-1, 2, 2)
+    direction = sides[:, :, 1].astype(np.float64) - sides[:, :, 0].astype(np.float64)  # both sides cut: 0
     reach = np.maximum(_EXTENT_SIGMAS * np.asarray(object_sizes, np.float64).reshape(-1, 1) - ext, 0.0)
     return direction * reach
 
@@ -82,7 +80,7 @@ def joined_shifts(camera: Camera, feat: MaskFeatures, cut: np.ndarray, reference
     sel = np.flatnonzero(np.asarray(cut, bool))
     if len(sel):
         obj = box_object_sizes(np.asarray(reference, np.float64)[sel], np.asarray(feat.sizes, np.float64)[sel])
-        out[sel] = outward_shifts(camera, feat.centroids[sel], feat.covariances[sel], obj)
+        out[sel] = outward_shifts(border_of(feat, camera)[sel], feat.covariances[sel], obj)
     return out
 
 
@@ -164,10 +162,11 @@ def truncated_pairs(
     if todo.any():
         todo &= _within_reach(feat_t, camera, poses, s, t, mu, sigma, params, xy_s, row_shift, has_point,
                               predicted_xy, truncated)
+    border_t = border_of(feat_t, camera)
     for i in np.flatnonzero(todo.any(axis=1)):
         cols = np.flatnonzero(todo[i])
         obj = box_object_sizes(truncated.ref_sizes[i], np.asarray(feat_t.sizes, np.float64)[cols])
-        shift_t = outward_shifts(camera, feat_t.centroids[cols], feat_t.covariances[cols], obj)
+        shift_t = outward_shifts(border_t[cols], feat_t.covariances[cols], obj)
         out[i, cols] = relaxed_position_gates(
             camera, poses, s, t, xy_s[i], row_shift[i], feat_t.centroids[cols], shift_t,
             None if not has_point[i] else predicted_xy[i], mu, sigma, band if not has_point[i] else None,
@@ -191,9 +190,9 @@ def _within_reach(
     cols = np.flatnonzero(truncated.cut_t)
     if len(cols):
         obj = box_object_sizes(ref[:, None], np.asarray(feat_t.sizes, np.float64)[None, cols])
-        xy = np.broadcast_to(feat_t.centroids[cols][None], (n, len(cols), 2)).reshape(-1, 2)
+        sides = np.broadcast_to(border_of(feat_t, camera)[cols][None], (n, len(cols), 2, 2)).reshape(-1, 2, 2)
         cov = np.broadcast_to(feat_t.covariances[cols][None], (n, len(cols), 2, 2)).reshape(-1, 2, 2)
-        reach[:, cols] += np.linalg.norm(outward_shifts(camera, xy, cov, obj.ravel()), axis=1).reshape(n, len(cols))
+        reach[:, cols] += np.linalg.norm(outward_shifts(sides, cov, obj.ravel()), axis=1).reshape(n, len(cols))
     xy_t = np.asarray(feat_t.centroids, np.float64)
     margin = params.epipolar_margin_px
     point = has_point[:, None]

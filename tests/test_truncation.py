@@ -9,7 +9,7 @@ import numpy as np
 
 from sosmatch.database.colmap_db import track_associations, verify_associations
 from sosmatch.plugin.geometry import Camera, Poses, project
-from sosmatch.plugin.mask_features import MaskFeatures
+from sosmatch.plugin.mask_features import MaskFeatures, border_of
 from sosmatch.plugin.params import TrackingParams
 from sosmatch.plugin.tracking import track_masks
 from sosmatch.plugin.truncation import cut_masks, outward_shifts, truncated_size_scores
@@ -55,9 +55,9 @@ def test_cut_masks_and_their_outward_box():
     feats, _, _ = _edge_pair()
     assert cut_masks(CAM, feats[0]).tolist() == [False] and cut_masks(CAM, feats[1]).tolist() == [True]
     # the object's half-extent (2 x 15) less the visible part's (2 x 6), towards the left border; nothing along y
-    shift = outward_shifts(CAM, feats[1].centroids, feats[1].covariances, np.array([15.0]))
+    shift = outward_shifts(border_of(feats[1], CAM), feats[1].covariances, np.array([15.0]))
     assert np.allclose(shift, [[-18.0, 0.0]])
-    assert np.allclose(outward_shifts(CAM, feats[0].centroids, feats[0].covariances, np.array([15.0])), 0.0)
+    assert np.allclose(outward_shifts(border_of(feats[0], CAM), feats[0].covariances, np.array([15.0])), 0.0)
 
 
 def test_size_gate_is_one_sided_against_a_whole_view():
@@ -169,7 +169,7 @@ def test_database_check_keeps_the_links_the_tracker_made():
     centroids = [f.centroids for f in feats]
     kept, removed = verify_associations(CAM, poses, centroids, pairs, 3.0, res.shifts)
     assert removed == 0 and kept[(0, 1)].tolist() == [[0, 0]]
-    whole_box = [np.zeros((1, 2)), outward_shifts(CAM, feats[1].centroids, feats[1].covariances, np.array([10.0]))]
+    whole_box = [np.zeros((1, 2)), outward_shifts(border_of(feats[1], CAM), feats[1].covariances, np.array([10.0]))]
     assert verify_associations(CAM, poses, centroids, pairs, 3.0, whole_box)[1] == 1
     assert track_masks(feats, CAM, poses, [(0.0, 0.0), (np.nan, np.nan)], OFF).shifts is None
 

@@ -39,7 +39,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.landmark_filters import beyond_flying_height, height_outliers
-from ..plugin.landmark_size import SIZE_ESTIMATORS, mean_size, nadir_size
+from ..plugin.landmark_size import SIZE_ESTIMATORS, cut_by_border, mean_size, nadir_size
 from ..plugin.map_noise import MapNoise, measure_map_noise
 from ..plugin.params import TriangulationParams
 from ..plugin.track_fusion import TrackPiece, candidate_pairs, fuse_tracks
@@ -175,25 +175,25 @@ def suppress_duplicates(
 
 
 def located_from_whole_masks(camera: Camera, poses: Poses, obs: np.ndarray, point: np.ndarray,
-                             centroids_px: list[np.ndarray], covariances_px: list[np.ndarray],
+                             centroids_px: list[np.ndarray], cut_px: list[np.ndarray],
                              min_angle_deg: float) -> tuple[np.ndarray, np.ndarray] | None:
     """A landmark's point from the views that see its mask whole, and which of `obs` those are (bool (n,));
     None when they cannot fix one.
 
-    A mask cut by the image border (`landmark_size.cut_by_border`) shows only the part of its object inside the
-    frame, so its centroid slides with the camera instead of staying on one ground point: with the whole views
-    of its track it pulls the point metres down (nu22, keyframes 2 m apart: 46 of 396 landmarks > 5 m below the
-    ground, their views cut 87 % of the time against 4 % for the others). The cut views stay observations of
-    the track (its evidence that the segment persists: theta_n counts them); only the whole ones locate it:
-    `point` itself when no view is cut, the least-squares point of the whole views (`track_fusion.
-    intersect_rays`) when at least two of them span `min_angle_deg`, else None. `camera` is the pinhole
-    camera of the undistorted `centroids_px` / `covariances_px` (per keyframe, per mask); obs (n, 2) rows of
-    (keyframe, mask). The point returned is `point` itself (the same object) when no view is cut."""
-    from ..plugin.landmark_size import cut_by_border
+    A mask cut by the image border (`cut_px`: per keyframe, per mask, from `truncation.cut_masks`, tested in
+    the real image) shows only the part of its object inside the frame, so its centroid slides with the camera
+    instead of staying on one ground point: with the whole views of its track it pulls the point metres down
+    (nu22, keyframes 2 m apart: 46 of 396 landmarks > 5 m below the ground, their views cut 87 % of the time
+    against 4 % for the others). The cut views stay observations of the track (its evidence that the segment
+    persists: theta_n counts them); only the whole ones locate it: `point` itself when no view is cut, the
+    least-squares point of the whole views (`track_fusion.intersect_rays`) when at least two of them span
+    `min_angle_deg`, else None. `camera` is the pinhole camera of the undistorted `centroids_px` (per keyframe,
+    per mask); obs (n, 2) rows of (keyframe, mask). The point returned is `point` itself (the same object) when
+    no view is cut."""
     from ..plugin.track_fusion import intersect_rays
 
     pixels = np.array([centroids_px[k][i] for k, i in obs], dtype=np.float64).reshape(-1, 2)
-    cut = cut_by_border(camera, pixels, np.array([covariances_px[k][i] for k, i in obs]).reshape(-1, 2, 2))
+    cut = np.array([cut_px[k][i] for k, i in obs], dtype=bool).reshape(-1)
     if not cut.any():
         return point, ~cut
     whole = obs[~cut, 0]
@@ -278,6 +278,7 @@ def triangulate_landmarks(
     seed: int = 0,
     centroids_px: list[np.ndarray] | None = None,
     covariances_px: list[np.ndarray] | None = None,
+    cut_px: list[np.ndarray] | None = None,
 ) -> Landmarks:
     """Triangulate the landmarks of a session database written by `write_colmap_database`.
 
@@ -292,9 +293,18 @@ def triangulate_landmarks(
         centroids_px, covariances_px: per keyframe, the centroid (k, 2) and pixel covariance (k, 2, 2) of every
             mask, undistorted (pixels of `camera.pinhole()`, like `sizes_px`); needed by the "nadir" size
             estimator (without them the paper's mean is used).
+        cut_px: per keyframe, (k,) whether the real image's border cuts each mask (`truncation.cut_masks` of
+            the undistorted features: tested where the masks were segmented). None: tested on `centroids_px` /
+            `covariances_px` against the pinhole's image, which is the real one only for a camera without
+            distortion (a lens camera without them is refused: its undistorted image is not that rectangle).
     """
     import pycolmap
 
+    if cut_px is None and centroids_px is not None and covariances_px is not None:
+        if not camera.is_pinhole:
+            raise ValueError("triangulate_landmarks: a lens camera's cut masks are tested in the real image: "
+                             "pass cut_px (truncation.cut_masks of the undistorted features)")
+        cut_px = [cut_by_border(camera, c, v) for c, v in zip(centroids_px, covariances_px)]
     rec = build_reconstruction(camera, poses)
     options = pycolmap.IncrementalPipelineOptions()
     options.triangulation.merge_max_reproj_error = params.max_reprojection_error_px
@@ -338,7 +348,8 @@ def triangulate_landmarks(
         if nadir:
             return nadir_size(pinhole, poses.rotations[kf], poses.centers[kf], xyz,
                               np.array([centroids_px[k][i] for k, i in obs]),
-                              np.array([covariances_px[k][i] for k, i in obs]), params.min_observations + 1)
+                              np.array([covariances_px[k][i] for k, i in obs]), params.min_observations + 1,
+                              np.array([cut_px[k][i] for k, i in obs], dtype=bool))
         return mean_size(pinhole, poses.rotations[kf], poses.centers[kf], xyz,
                          np.array([sizes_px[k][i] for k, i in obs], dtype=np.float64))
 
@@ -365,7 +376,7 @@ def triangulate_landmarks(
         elif _max_ray_angles_deg(poses.centers[obs[:, 0]], xyz) < params.min_triangulation_angle_deg:
             reason = "small_angle"
         elif locate_whole:
-            located = located_from_whole_masks(pinhole, poses, obs, xyz, centroids_px, covariances_px,
+            located = located_from_whole_masks(pinhole, poses, obs, xyz, centroids_px, cut_px,
                                                params.min_triangulation_angle_deg)
             if located is None:
                 reason = "cut_by_border"

@@ -279,6 +279,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     from ...plugin.mask_features import undistort_features
     from ...plugin.motion_blur import motion_directions
     from ...plugin.tracking import track_masks
+    from ...plugin.truncation import cut_masks
     from ..triangulation import fewest_observations, triangulate_landmarks
 
     partial = out.staging
@@ -325,7 +326,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     stages = progress_bar(4, "tracking", "stage", progress)
     t = time.perf_counter()
     # Tracking and the epipolar check are pinhole geometry: they see undistorted centroids and covariances through
-    # the equivalent pinhole camera; the database and the model keep the real camera and the real keypoints.
+    # the equivalent pinhole camera; the database and the model keep the real camera and the real keypoints. Which
+    # masks the image border cuts is decided in the real image and travels with them (`MaskFeatures.border`).
     gate_camera = camera.pinhole()
     gate_features = [undistort_features(f, camera) for f in features]
     tracking = track_masks(gate_features, gate_camera, kf_poses, motion, params.tracking, descriptors)
@@ -359,7 +361,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1 if log.isEnabledFor(logging.DEBUG) else 2)
     landmarks = triangulate_landmarks(partial / "database.db", camera, kf_poses,
                                       [f.sizes for f in gate_features], tracking.track_ids, tri, seed=params.seed,
-                                      centroids_px=centroids, covariances_px=[f.covariances for f in gate_features])
+                                      centroids_px=centroids, covariances_px=[f.covariances for f in gate_features],
+                                      cut_px=[cut_masks(gate_camera, f) for f in gate_features])
     timings["triangulation"] = time.perf_counter() - t
     stages.update()
     stages.set_description("outputs")
