@@ -118,6 +118,8 @@ def _matches_off_the_exact_rule(database: Path) -> dict[tuple[int, int], tuple[i
                 for i, r, c, d in db.execute("SELECT image_id, rows, cols, data FROM descriptors")}
         stored = {divmod(p, 2147483647): np.frombuffer(d or b"", np.uint32).reshape(-1, 2)
                   for p, d in db.execute("SELECT pair_id, data FROM matches")}
+    # COLMAP searches exactly (FAISS IndexFlatL2) below 512 features per image, approximately (IVF) above
+    assert max(len(d) for d in desc.values()) < 512, "too many features for COLMAP's exact search"
     off = {}
     for (i, j), got in stored.items():
         a, b = desc[i], desc[j]
