@@ -240,13 +240,20 @@ def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.
 
 
 def match_pairs(database: Path, pairs_txt: Path, params: SfmParams, seed: int = 0) -> dict[str, Any]:
-    """SIFT matching of the listed pairs and their two-view geometry (RANSAC seeded: deterministic)."""
+    """SIFT matching of the listed pairs and their two-view geometry (RANSAC seeded), in one thread: the same
+    matches whatever the thread timing."""
     import pycolmap
 
     _quiet()
     t0 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = _threads()
+    # One thread: COLMAP 4.2's multi-threaded CPU matcher (its threads share FAISS descriptor indexes) now and then
+    # loses matches of a pair, in about 3 runs of 1000 on 26 images with 8 threads (e.g. 44 of a pair's 170 exact
+    # matches), which moved the poses (a CI flake); in one thread it gave the same exact matches 600 times of 600.
+    # The raw matching is ~90 % of this stage's CPU on real photos (4000 features), so matching in one thread and
+    # verifying on every core (`geometric_verification`) would save little, and it writes no two-view geometry
+    # for pairs without matches (a different database).
+    matching.num_threads = 1
     pairing = pycolmap.ImportedPairingOptions()
     pairing.match_list_path = pairs_txt
     verification = pycolmap.TwoViewGeometryOptions()
@@ -387,7 +394,8 @@ def _mapped(database: Path, image_dir: Path, work_dir: Path, priors: ImagePriors
     work_dir.mkdir(parents=True, exist_ok=True)
     # One thread: COLMAP's multi-threaded bundle adjustment sums in a scheduling-dependent order, so the poses
     # depended on the machine's core count (and, rarely, on the run): the same photos gave other bytes. The
-    # features and matches before it are the same with any thread count and keep them.
+    # features before it are the same with any thread count and keep them (the matching runs in one thread too:
+    # `match_pairs`).
     if mapper == "global":
         options = pycolmap.GlobalPipelineOptions()
         options.num_threads = 1
