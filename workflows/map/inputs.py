@@ -287,7 +287,8 @@ def distinct_images(inputs: MapInputs) -> tuple[MapInputs, list[str]]:
     found = warn_duplicate_images(inputs.image_paths, digests, inputs.poses.centers)
     if not found.warnings:
         return inputs, digests
-    keep = [i for i in range(len(digests)) if i not in set(found.left_out)]
+    out = set(found.left_out)
+    keep = [i for i in range(len(digests)) if i not in out]
     return (MapInputs([inputs.image_paths[i] for i in keep], inputs.poses.subset(keep), inputs.camera, inputs.epsg,
                       inputs.sources, inputs.remedy, [*inputs.warnings, *found.warnings]),
             [digests[i] for i in keep])
@@ -311,7 +312,7 @@ def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.nda
     replace its original as a keyframe, so each copy is left out, its original kept (`image_rigs.original_name`).
     Images at one recorded position whose views differ (the camera moved or turned between them) are a pose fault:
     the later one is named, its position repeating the earlier's (a GPS updating slower than the camera), in a
-    second warning; both are kept (the keyframes skip the repeat: no distance between them)."""
+    second warning; both are kept (which of the two positions is wrong the images cannot say)."""
     from ..image_rigs import original_name, same_view
 
     groups: dict[str, list[int]] = {}
