@@ -385,9 +385,15 @@ def _likely_cause(poses: str, poses_fit: str, causes: list[str]) -> str:
     return poses
 
 
+def landmark_views(theta_n: int | None = None) -> str:
+    """What a landmark needs, in words: the demo's refusal of too few frames and the map's of no landmarks on too
+    few keyframes say it alike (`theta_n`: the value, when known)."""
+    return f"a landmark needs more than theta_n{'' if theta_n is None else f' = {theta_n}'} views, one per keyframe"
+
+
 def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
           images_flying_height_m: float = float("nan"), poses_fit: str = "",
-          images: FlightImages | None = None, contrast: str = "") -> Verdict:
+          images: FlightImages | None = None, contrast: str = "", min_observations: int = 0) -> Verdict:
     """Refusals and warnings for a map's figures (limits and their reasons: `QualityParams`). `min_landmarks`:
     fewer make no usable map (`sosmatch map` passes association.min_associations + 1: a match needs more than
     theta_S landmarks in common). `images_flying_height_m`: the flying height the pose check's own matches
@@ -395,13 +401,20 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
     when it found the poses fitting the images (`pose_check.poses_fit_images`, "" otherwise); `images`: the
     keyframes' image figures (`plugin.image_quality`). With them, warnings about a thin map name the images
     (blank keyframes, noise, blur) rather than the poses. `contrast`: the flight's low contrast as a cause
-    (`FlightContrast.cause`, "" when it was normal), said when the map is thin."""
+    (`FlightContrast.cause`, "" when it was normal), said when the map is thin. `min_observations`: the theta_n the
+    map was made with (0: unknown); a map of no more keyframes than that can hold no landmark, which is said as the
+    cause."""
     v = Verdict()
     causes = image_causes(images, limits.min_image_contrast_to_noise, limits.min_image_sharpness,
                           limits.min_jpeg_quality, limits.max_motion_smear_px)
     blank = blank_warning(images, q.keyframes)
     if blank:
         v.warnings.append(blank)
+    if q.landmarks == 0 and 0 < q.keyframes <= min_observations:
+        # the cause is certain, whatever the images (nu49: a 5-frame flight refused with no cause named)
+        v.refusals.append(f"the map has no landmarks: {landmark_views(min_observations)}, and the flight has "
+                          f"{q.keyframes} keyframes (fly more frames, or set triangulation.min_observations lower)")
+        return v
     if q.landmarks == 0:
         said = causes + ([contrast] if contrast else [])
         v.refusals.append("the map has no landmarks" + (f" ({'; '.join(said)})" if said else "")

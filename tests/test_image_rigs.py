@@ -128,8 +128,8 @@ def test_an_edited_copy_of_an_image_is_one_exposure_left_out_and_named(flight, t
 
 
 def test_the_original_of_one_exposure_is_the_name_the_others_derive_from():
-    from sosmatch.workflows.image_rigs import _original
+    from sosmatch.workflows.image_rigs import original_name
 
-    assert _original(["frame_00010-Edit.jpg", "frame_00010.jpg"]) == 1
-    assert _original(["copy of DJI_0001.JPG", "DJI_0001.JPG", "DJI_0001 (1).JPG"]) == 1
-    assert _original(["b.jpg", "a.jpg"]) == 1  # renamed: the shortest, then the first by name
+    assert original_name(["frame_00010-Edit.jpg", "frame_00010.jpg"]) == 1
+    assert original_name(["copy of DJI_0001.JPG", "DJI_0001.JPG", "DJI_0001 (1).JPG"]) == 1
+    assert original_name(["b.jpg", "a.jpg"]) == 1  # renamed: the shortest, then the first by name

@@ -600,9 +600,9 @@ def test_byte_identical_images_are_named(tmp_path, caplog):
 
     paths = [tmp_path / n for n in ("a.jpg", "b.jpg", "a_copy.jpg")]
     with caplog.at_level("WARNING"):
-        assert warn_duplicate_images(paths, ["x", "y", "x"]) == [["a.jpg", "a_copy.jpg"]]
+        assert warn_duplicate_images(paths, ["x", "y", "x"]).copies == [["a.jpg", "a_copy.jpg"]]
     assert "a.jpg = a_copy.jpg" in caplog.text
-    assert warn_duplicate_images(paths, ["x", "y", "z"]) == []
+    assert warn_duplicate_images(paths, ["x", "y", "z"]).copies == []
 
 
 def test_pose_names_spelt_otherwise_pair_with_their_images(session, tmp_path):

@@ -471,3 +471,24 @@ def test_a_check_poses_file_of_an_earlier_version_resumes_at_today_s_defaults(tm
     for read in ({"tracking.epipolar_margin_px": 9.0}, {"pose_check.ratio": 0.7}):
         with pytest.raises(InputError, match="other inputs or settings"):
             OutputFiles([path], "check-poses", pose_check.check_identity(sources, names, with_overrides(then, read)))
+
+
+def test_a_pair_without_baseline_stays_out_of_the_systematic_fit(flight):
+    """nu49: one pose row repeating the previous frame's position (a GPS updating slower than the camera) gave a
+    checked pair without baseline; its NaN epipolar distances entered the systematic fit as 1e3 px per match, which
+    a height drift "explained" by moving the two centres apart (F 2721, 99.7 % of the misfit, "height drift -0.9 m,
+    tilt 0.7 deg" printed as a measurement). Such a pair constrains nothing: the fit is that of the other pairs."""
+    from sosmatch.plugin.pose_check import anchor_images
+
+    images, poses, camera = _inputs(flight)
+    clean, _ = pose_check.check(images, poses, camera, Params())
+    h = int(anchor_images(len(poses), Params().pose_check.max_pairs // 3)[4])  # a checked consecutive pair
+    centers = poses.centers.copy()
+    centers[h + 1] = centers[h]
+    result, verdict = pose_check.check(images, Poses(poses.names, poses.rotations, centers), camera, Params())
+    pair = next(p for p in result.pairs if (p.a, p.b) == (h, h + 1))
+    assert result.systematic.explained_share < 0.5 and not result.systematic_explains, result.line()
+    assert "height drift" not in result.line() and verdict.refusals == []
+    assert np.isnan(pair.epipolar_px) and np.isnan(pair.epipolar_fit_px)  # no epipolar geometry, no misfit
+    # the fit sees the other pairs as the clean check does, except those of image h + 1 (its position is off)
+    assert abs(result.systematic.explained_f - clean.systematic.explained_f) < 2.0

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..database.atomic import write_bytes_atomic
 from ..plugin.errors import InputError
+from ..plugin.map_quality import landmark_views
 from ..plugin.params import Params
 from ..tools.synth.config import SynthConfig
 
@@ -205,8 +206,8 @@ def run_demo(out: str | Path, frames: int = DEMO_FRAMES, force: bool = False) ->
     configs = DemoContext(Path(out), frames)
     needed = max(fewest_frames(c, Params()) for c in (configs.summer, configs.winter))
     if frames < needed:
-        raise InputError(f"--frames {frames} is too few to map: a landmark needs more than theta_n views, one per "
-                         f"keyframe, on the flight's first line; give at least {needed} frames")
+        raise InputError(f"--frames {frames} is too few to map: {landmark_views()}, on the flight's first line; "
+                         f"give at least {needed} frames")
     identity = fingerprint({"frames": frames})
     with open_output_dir(out, "demo", identity, overwrite=force, legacy_record="sessions/summer/session.json",
                          overwrite_flag="--force") as taken:

@@ -83,10 +83,10 @@ def _odd_one(group: list[int], metas: list[ImageMetadata]) -> int | None:
 def one_image_per_exposure(metas: list[ImageMetadata]) -> tuple[list[int], list[str]]:
     """(the indices of `metas` to use, the warning said) for one image per exposure: two images of one camera
     with the same capture time (to the fraction of a second where recorded), the same GPS position and the same
-    exposure time, which show the same view (`_same_view`: no image motion between them), are one exposure under
+    exposure time, which show the same view (`same_view`: no image motion between them), are one exposure under
     two names, whatever their bytes (an edited copy, "frame-Edit.jpg", auto-contrast: nu42, its three copies
     replaced their originals as keyframes without a word). Said in one warning naming both files; the one kept
-    is `_original`. Frames of one clock second at one fix that show the camera moved (a GPS slower than the
+    is `original_name`. Frames of one clock second at one fix that show the camera moved (a GPS slower than the
     shutter), bracketed exposures (their exposure times differ) and a rig's bands (other sensors,
     `one_image_per_capture`) are kept."""
     groups: dict[tuple, list[int]] = defaultdict(list)
@@ -99,9 +99,9 @@ def one_image_per_exposure(metas: list[ImageMetadata]) -> tuple[list[int], list[
     for group in groups.values():
         if len(group) < 2 or _sensors_differ(group, metas):
             continue
-        keep = _original([metas[i].path.name for i in group])
+        keep = original_name([metas[i].path.name for i in group])
         kept = group[keep]
-        copies = [i for i in group if i != kept and _same_view(metas[kept].path, metas[i].path)]
+        copies = [i for i in group if i != kept and same_view(metas[kept].path, metas[i].path)]
         drop.update(copies)
         said += [f"{metas[i].path.name} (= {metas[kept].path.name})" for i in copies]
     warnings = []
@@ -114,7 +114,7 @@ def one_image_per_exposure(metas: list[ImageMetadata]) -> tuple[list[int], list[
     return [i for i in range(len(metas)) if i not in drop], warnings
 
 
-def _original(names: list[str]) -> int:
+def original_name(names: list[str]) -> int:
     """Which of one exposure's file names is the original, by a rule no editor's naming decides: a copy's name is
     made from its original's (an editor appends "-Edit", "_edited", " (1)", prepends "copy of "), so the original
     is the name whose stem every other name contains; failing that (renamed copies), the shortest name, then the
@@ -130,7 +130,7 @@ SAME_VIEW_PX = 1.0
 SAME_VIEW_WIDTH = 512  # the working width the two are compared at (pixels)
 
 
-def _same_view(a: Path, b: Path) -> bool:
+def same_view(a: Path, b: Path) -> bool:
     """Whether two images show the same view: the same size, and phase correlation of their gray levels (blind to
     a change of tone or contrast) finds no motion between them; an image that does not read is not judged the
     same (it is named where its pixels are read)."""

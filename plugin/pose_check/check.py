@@ -324,9 +324,16 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
     if np.isfinite(flying) and flying > 0:
         parallax = np.minimum(parallax, focal * baselines / flying)
         flying = flying_height(depth_a, parallax, consecutive, least)
-    systematic = fit_systematic_errors(poses, matched, focal, flying, noise_px)
+    # a pair whose poses stand at one position (a repeated pose row, a copy of an image) has no epipolar geometry:
+    # its distances are undefined (NaN), it constrains no systematic error, and in the fit it stood in as 1e3 px per
+    # match that a drift "explained" by moving the two centres apart (nu49: F 2721, 99.7 % "explained", a drift
+    # printed as measured). It is left out of the fit; the map's inputs name such images (`inputs.same_position`)
+    has_baseline = ~without_baseline(baselines)
+    systematic = fit_systematic_errors(poses, [p for p, b in zip(matched, has_baseline) if b], focal, flying,
+                                       noise_px)
     fitted = systematic.corrected(poses, flying)
     after = np.split(pair_sampson_px(fitted, matched, focal), np.cumsum([p.inliers for p in matched])[:-1])
+    after = [f if b else np.full_like(f, np.nan) for f, b in zip(after, has_baseline)]  # nothing fitted there
     with warnings.catch_warnings():  # a pair without a baseline in the poses has only NaN distances: NaN, said
         warnings.simplefilter("ignore", RuntimeWarning)  # by the verdict, not by numpy's "All-NaN slice" on stderr
         checks = [PairCheck(p.a, p.b, kind, p.matches, p.inliers, p.flow_px, float(np.nanmedian(r)),
@@ -347,6 +354,14 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
         min_gps_agreement=params.min_gps_agreement,
         track_camera=tuple(float(v) for v in track_in_camera(poses)), **fixed_figures)
+
+
+def without_baseline(baselines_m: np.ndarray) -> np.ndarray:
+    """Which pairs' poses put both cameras at one position (boolean, per pair): a baseline of at most a millionth
+    of the longest checked one (a repeated position is exactly zero; a hover's noise, 0.2 m on 1-10 m steps, is
+    far above this and keeps its pairs, whose direction the check does not judge: `PairCheck.sees_direction`)."""
+    b = np.asarray(baselines_m, np.float64)
+    return b <= 1e-6 * float(np.max(b, initial=0.0))
 
 
 def _share_beyond(distances_px: np.ndarray, gate_px: float) -> float:

@@ -294,23 +294,87 @@ def image_digests(inputs: MapInputs) -> list[str]:
             digests.append(sha256_file(p))
         except OSError as exc:
             raise InputError(f"cannot read image: {exc.strerror or exc}", p) from None
-    warn_duplicate_images(inputs.image_paths, digests)
     return digests
 
 
-def warn_duplicate_images(paths: list[Path], digests: list[str]) -> list[list[str]]:
-    """Groups of images with the same contents under different names (a copy made twice), said in one warning:
-    two poses for one picture, and the pose check reads the identical pair as 'reversed' (it has no baseline in
-    the images)."""
-    groups: dict[str, list[str]] = {}
-    for p, d in zip(paths, digests):
-        groups.setdefault(d, []).append(p.name)
-    same = [names for names in groups.values() if len(names) > 1]
-    if same:
-        log.warning("%d image(s) are byte-identical copies of others (%s): the same picture under two names, "
-                    "with two poses; remove the copies", sum(len(g) - 1 for g in same),
-                    "; ".join(" = ".join(g) for g in same[:3]) + (" ..." if len(same) > 3 else ""))
-    return same
+def distinct_images(inputs: MapInputs) -> tuple[MapInputs, list[str]]:
+    """(`inputs` without the copies of other images, their `image_digests`): the copies `warn_duplicate_images`
+    finds are left out (the original of each picture kept), and its warnings join `inputs.warnings` (the map's
+    verdict: run.json and the summary line)."""
+    digests = image_digests(inputs)
+    found = warn_duplicate_images(inputs.image_paths, digests, inputs.poses.centers)
+    if not found.warnings:
+        return inputs, digests
+    out = set(found.left_out)
+    keep = [i for i in range(len(digests)) if i not in out]
+    return (MapInputs([inputs.image_paths[i] for i in keep], inputs.poses.subset(keep), inputs.camera, inputs.epsg,
+                      inputs.sources, inputs.remedy, [*inputs.warnings, *found.warnings]),
+            [digests[i] for i in keep])
+
+
+@dataclass(frozen=True)
+class Duplicates:
+    """What `warn_duplicate_images` found: groups of names showing one picture (the kept original first), the
+    indices of the copies left out, and the warnings said."""
+
+    copies: list[list[str]]
+    left_out: list[int]
+    warnings: list[str]
+
+
+def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.ndarray | None = None) -> Duplicates:
+    """Images that are one picture under several names, said in one warning: byte-identical files (a copy made
+    twice), and, among images the poses put at exactly one position (`centers`, capture order), those that show
+    the same view (`image_rigs.same_view`: a PNG written from the JPEG beside it, a re-encoded copy). One picture
+    with two poses: the pose check's pair of them has no baseline (undefined epipolar geometry) and a copy can
+    replace its original as a keyframe, so each copy is left out, its original kept (`image_rigs.original_name`).
+    Images at one recorded position whose views differ (the camera moved or turned between them) are a pose fault:
+    the later one is named, its position repeating the earlier's (a GPS updating slower than the camera), in a
+    second warning; both are kept (which of the two positions is wrong the images cannot say)."""
+    from ..image_rigs import original_name, same_view
+
+    groups: dict[str, list[int]] = {}
+    for i, d in enumerate(digests):
+        groups.setdefault(d, []).append(i)
+    same_as = {i: g[0] for g in groups.values() for i in g}  # each image -> the first of its picture
+    repeated: list[tuple[int, int]] = []  # (image, the earlier image whose recorded position it repeats)
+    if centers is not None:
+        at: dict[tuple[float, ...], list[int]] = {}
+        for i, c in enumerate(np.asarray(centers, np.float64)):
+            at.setdefault(tuple(c.tolist()), []).append(i)
+        for members in (m for m in at.values() if len(m) > 1):
+            for k, j in enumerate(members[1:], 1):
+                if same_as[j] != j:
+                    continue  # byte-identical to an earlier image
+                twin = next((i for i in members[:k] if same_as[i] == i and same_view(paths[i], paths[j])), None)
+                if twin is None:
+                    repeated.append((j, members[k - 1]))
+                else:
+                    same_as[j] = twin
+    pictures: dict[int, list[int]] = {}
+    for i in range(len(paths)):
+        pictures.setdefault(same_as[i], []).append(i)
+    copies, left_out = [], []
+    for members in (m for m in pictures.values() if len(m) > 1):
+        kept = members[original_name([paths[i].name for i in members])]
+        copies.append([paths[kept].name] + [paths[i].name for i in members if i != kept])
+        left_out += [i for i in members if i != kept]
+    warnings = []
+    if copies:
+        warnings.append(f"{len(left_out)} image(s) are copies of others (byte-identical, or the same view at the same "
+                        "recorded position, another name or format): "
+                        + "; ".join(" = ".join(g) for g in copies[:3]) + (" ..." if len(copies) > 3 else "")
+                        + ": one picture under two names; each copy is left out, its original (first) kept; remove "
+                        "the copies")
+    if repeated:
+        listing = "; ".join(f"{paths[j].name} repeats {paths[i].name}'s" for j, i in repeated[:5])
+        warnings.append(f"{len(repeated)} image(s) are given the recorded position of another whose view differs "
+                        f"({listing}{' ...' if len(repeated) > 5 else ''}): the camera moved between them, so "
+                        "one of each pair's positions is wrong (a GPS updating slower than the camera?); their pair "
+                        "has no baseline to check against the images")
+    for w in warnings:
+        log.warning("%s", w)
+    return Duplicates(copies, sorted(left_out), warnings)
 
 
 def input_fingerprints(inputs: MapInputs, digests: list[str] | None = None) -> dict[str, str]:

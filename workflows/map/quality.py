@@ -88,15 +88,16 @@ def quality_stage(
     landmarks: Any, poses: Poses, camera: Camera, image_paths: list[Path], keypoints: list[np.ndarray],
     long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
     images_flying_height_m: float = float("nan"), white: Levels | int | None = None, poses_fit: str = "",
-    images: FlightImages | None = None, contrast: str = "",
+    images: FlightImages | None = None, contrast: str = "", min_observations: int = 0,
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
     for the picture (`database.flight_levels.flight_white_level`); `poses_fit`, `images`: the pose check's phrase
     when it found the poses fitting, and the keyframes' image figures (`judge`); `contrast`: the flight's low contrast
-    as a cause (`FlightContrast.cause`)."""
+    as a cause (`FlightContrast.cause`); `min_observations`: the map's theta_n (`judge`)."""
     quality = assess(landmarks, poses, long_tracks, camera, keypoints, limits)
-    verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images, contrast)
+    verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images, contrast,
+                    min_observations)
     alone = isolated_cameras(poses.centers, quality.flying_height_m, 0.5 * float(np.hypot(camera.width, camera.height)),
                              float(camera.fx))
     if len(alone):

@@ -29,8 +29,8 @@ from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
 from .inputs import (
     MapInputs,
+    distinct_images,
     hash_json,
-    image_digests,
     in_flight_order,
     input_fingerprints,
     input_paths,
@@ -227,8 +227,8 @@ def run(
         if text_model:  # before anything is written: the text model would come back with other names
             refuse_text_model_names(inputs.image_paths)
         inputs = in_flight_order(inputs)
+        inputs, digests = distinct_images(inputs)  # a copy of an image is left out before anything else
         require_keyframes(inputs, params.keyframes.interval_m)
-        digests = image_digests(inputs)
         fps = input_fingerprints(inputs, digests)
         what, paths = fps["inputs"], input_paths(inputs)
         # pixel limits tuned at one image size scale with the image (run.json keeps the effective values)
@@ -245,9 +245,9 @@ def run(
             t = time.perf_counter()
             inputs, extra = source.resolve(out)
             inputs = in_flight_order(inputs)
+            inputs, digests = distinct_images(inputs)
             require_keyframes(inputs, params.keyframes.interval_m)
             timings["poses"] = time.perf_counter() - t
-            digests = image_digests(inputs)
             fps = input_fingerprints(inputs, digests)
             params = for_image(params, inputs.camera.width, inputs.camera.height)
         timings["inputs"] = time.perf_counter() - t_start
@@ -394,7 +394,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                      params.association.min_associations + 1,
                                      checked.check.flying_height_m if checked is not None else float("nan"),
                                      white, poses_fit(checked, params), images,
-                                     contrast.cause() if contrast is not None else "")
+                                     contrast.cause() if contrast is not None else "",
+                                     params.triangulation.min_observations)
     # the poses' doubts (a georegistration leaving GPS fixes out, a lag corrected) are the map's too
     verdict = joined(Verdict(warnings=list(inputs.warnings)), verdict, checked.verdict if checked is not None else None)
     # the recorded height above take-off: a check of the focal scale independent of the images and pose source

@@ -1,0 +1,75 @@
+"""Images at one recorded position (nu49): a copy of an image (byte-identical, or the same pixels in another
+format) is named and left out; a pose row repeating the previous frame's position while the camera moved (a GPS
+updating slower than the camera) is named as a pose fault. Real synthetic flights (`sosmatch synth`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from sosmatch.database.poses import read_poses_csv, write_poses_csv
+from sosmatch.plugin.geometry import Poses
+from sosmatch.tools.cli import main
+from sosmatch.workflows.map.inputs import distinct_images, load_inputs
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("repeated") / "flight"
+    assert main(["synth", "--out", str(out), "--frames", "12", "--width", "320", "--height", "240", "-q"]) == 0
+    return out
+
+
+def _folder(flight: Path, root: Path, png_copies: tuple[int, ...] = (), repeat: int | None = None) -> Path:
+    """The flight's images and poses in `root`: PNG copies of some images beside them (their poses those of the
+    originals), and optionally image `repeat` + 1 given image `repeat`'s position."""
+    poses, epsg = read_poses_csv(flight / "poses.csv")
+    (root / "images").mkdir(parents=True)
+    for n in poses.names:
+        (root / "images" / n).write_bytes((flight / "images" / n).read_bytes())
+    names, rotations, centers = list(poses.names), list(poses.rotations), list(poses.centers.copy())
+    for i in png_copies:
+        png = Path(poses.names[i]).stem + ".png"
+        cv2.imwrite(str(root / "images" / png), cv2.imread(str(flight / "images" / poses.names[i])))
+        names.append(png)
+        rotations.append(poses.rotations[i])
+        centers.append(poses.centers[i].copy())
+    if repeat is not None:
+        centers[repeat + 1] = centers[repeat].copy()
+    write_poses_csv(root / "poses.csv", Poses(names, np.array(rotations), np.array(centers)), epsg=epsg)
+    return root
+
+
+def test_a_copy_in_another_format_is_named_and_left_out_once(flight, tmp_path, caplog):
+    """nu49: PNG copies (pixel-identical, other bytes) beside their JPEGs, with the same poses, were mapped without a
+    word (only byte-identical copies were named): each made a pair without baseline for the pose check."""
+    root = _folder(flight, tmp_path / "png", png_copies=(3, 7))
+    inputs = load_inputs(root / "images", root / "poses.csv", flight / "cameras.txt")
+    with caplog.at_level("WARNING"):
+        kept, digests = distinct_images(inputs)
+    names = sorted(p.name for p in kept.image_paths)
+    assert names == sorted(read_poses_csv(flight / "poses.csv")[0].names) and len(digests) == len(names)
+    said = [w for w in kept.warnings if "copies of others" in w]
+    assert len(said) == 1 and "frame_00003.jpg = frame_00003.png" in said[0] and said[0] in caplog.text
+    assert not any("recorded position of another" in w for w in kept.warnings)
+
+
+def test_a_repeated_position_of_a_moving_camera_is_named(flight, tmp_path):
+    """nu49: one pose row repeating the previous frame's position: the image whose pose is off was never named."""
+    root = _folder(flight, tmp_path / "rep", repeat=5)
+    inputs = load_inputs(root / "images", root / "poses.csv", flight / "cameras.txt")
+    kept, _ = distinct_images(inputs)
+    assert len(kept.image_paths) == len(inputs.image_paths)  # both kept: a pose fault, not a copy
+    said = [w for w in kept.warnings if "recorded position of another" in w]
+    names = inputs.poses.names
+    assert len(said) == 1 and f"{names[6]} repeats {names[5]}'s" in said[0], kept.warnings
+    assert not any("copies of others" in w for w in kept.warnings)
+
+
+def test_a_clean_flight_keeps_every_image_without_a_word(flight):
+    inputs = load_inputs(flight / "images", flight / "poses.csv", flight / "cameras.txt")
+    kept, digests = distinct_images(inputs)
+    assert kept is inputs and len(digests) == len(inputs.image_paths) and kept.warnings == []
