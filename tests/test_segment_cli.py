@@ -173,6 +173,26 @@ def test_images_of_one_stem_keep_their_own_outputs_and_summary_rows_are_csv(tmp_
     assert {len(r) for r in rows} == {9} and sorted(r[0] for r in rows[1:]) == ["a,b.jpg", "x.jpg", "x.png"]
 
 
+def test_a_re_run_replaces_the_outputs_an_earlier_version_named_by_the_stem(tmp_path):
+    """rev36: a re-run over an output of an earlier sosmatch (NAME.json / NAME.png, the same identity) wrote
+    NAME.EXT.json / .png beside the old files, which stayed (one holding the wrong image where x.png's had replaced
+    x.jpg's). The old outputs of an image of the run go; a file segment did not make for it stays."""
+    src = tmp_path / "in"
+    src.mkdir()
+    Image.fromarray(_scene(seed=1)).save(src / "f0.jpg", quality=95)
+    Image.fromarray(_scene(seed=2)).save(src / "f1.jpg", quality=95)
+    out = tmp_path / "out"
+    assert main(["segment", str(src), "--out", str(out), "-q"]) == 0
+    for name in ("f0", "f1"):  # as an earlier version named them
+        (out / f"{name}.jpg.json").rename(out / f"{name}.json")
+        (out / f"{name}.jpg.png").rename(out / f"{name}.png")
+    (out / "f1.json").write_text(json.dumps({"image": "other.jpg"}))  # not made for an image of this run
+    assert main(["segment", str(src), "--out", str(out), "-q"]) == 0
+    left = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    assert "f0.json" not in left and "f0.png" not in left
+    assert {"f0.jpg.json", "f0.jpg.png", "f1.jpg.json", "f1.jpg.png", "f1.json", "f1.png"} <= set(left)
+
+
 def test_images_of_one_file_name_in_two_folders_are_refused_up_front(tmp_path, capsys):
     """rev35: `segment a b` with a/x.jpg and b/x.jpg wrote one x.json holding b's image, exit 0. Refused now
     before anything is written, as `map` refuses them: one line naming both images."""

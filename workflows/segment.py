@@ -10,7 +10,8 @@ covariance ellipses) and `OUT/NAME.EXT.json` (per-mask centroid, covariance, siz
 plus `OUT/summary.csv` (one line per image). Every file is written atomically; a re-run of the same images and
 settings replaces them (other ones need `overwrite`). A backend's model files count as settings by their contents
 (`database.segmentation_models`): another model, named by the environment or replaced at its path, needs
-`overwrite` too, and NAME.json names the files ("models").
+`overwrite` too, and NAME.EXT.json names the files ("models"). Outputs an earlier sosmatch named by the stem
+(`NAME.json`, `NAME.png`) are replaced by the re-run too.
 """
 
 from __future__ import annotations
@@ -195,7 +196,7 @@ def _stat(path: Path) -> list[int]:
 
 def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend: Any,
                   write_overlays: bool, models: dict[str, Any] | None = None) -> SegmentReport:
-    """`run` inside its taken output directory (`models`: the backend's model files as NAME.json records them)."""
+    """`run` inside its taken output directory (`models`: the backend's model files as NAME.EXT.json records them)."""
     report = SegmentReport()
     from ..database.flight_levels import flight_white_level
     from ..plugin.flight_contrast import flight_contrast
@@ -243,9 +244,31 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
             with atomic_path(out_dir / f"{path.name}.png") as tmp:
                 ok, buf = cv2.imencode(".png", cv2.cvtColor(overlay, cv2.COLOR_RGB2BGR))
                 tmp.write_bytes(buf.tobytes())
+        _remove_stem_named_outputs(out_dir, path.name)
         log.info("%s: %d masks, %d SIFT, %.2f s", path.name, res.num_masks, res.num_sift, t2 - t0)
     write_text_atomic(out_dir / "summary.csv", _summary_csv(report))
     return report
+
+
+def _remove_stem_named_outputs(out_dir: Path, image_name: str) -> None:
+    """Remove this image's outputs as an earlier sosmatch named them (`STEM.json`, `STEM.png`) once its outputs
+    under the whole file name are written: a re-run replaces an image's outputs, and the older ones would stay
+    beside the new (rev36). Only a `STEM.json` that segment wrote for this very image goes (its "image" field
+    names it; the folder is segment's own, taken by its marker), with the overlay beside it."""
+    stem = Path(image_name).stem
+    old = out_dir / f"{stem}.json"
+    if stem == image_name or not old.is_file():
+        return
+    try:
+        made_for = json.loads(old.read_text()).get("image")
+    except (OSError, ValueError, AttributeError):
+        return  # not a segment output this run can recognise: left as it is
+    if made_for != image_name:
+        return
+    overlay = out_dir / f"{stem}.png"
+    old.unlink()
+    if overlay.is_file() and overlay.name != f"{image_name}.png":
+        overlay.unlink()
 
 
 def _summary_csv(report: SegmentReport) -> str:
