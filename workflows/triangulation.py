@@ -366,6 +366,9 @@ def triangulate_landmarks(
         point = rec.points3D[pid]
         obs = _observations(rec, pid)
         xyz = np.asarray(point.xyz, dtype=np.float64)
+        # the bundle-adjusted point's error: what the filter below and duplicate suppression judge (over all the
+        # track's views, as before a landmark moved); a moved landmark records another (its whole views')
+        adjusted_error = float(point.error)
         reason = None
         if len(obs) <= params.min_observations:
             reason = "few_observations"
@@ -400,10 +403,10 @@ def triangulate_landmarks(
         # a fused landmark holds several tracks: it takes its first sighting's (the smallest id), so that two
         # maps flown over one path order an object by the same pass (the search's windows are id ranges)
         track = int(tids.min()) if len(tids) else -1
-        rows.append((track, pid, xyz, size_of(obs, xyz), len(obs), float(point.error), obs))
+        rows.append((track, pid, xyz, size_of(obs, xyz), len(obs), float(point.error), obs, adjusted_error))
     if rows and params.duplicate_radius_factor > 0:
         keep = suppress_duplicates(np.array([r[2] for r in rows]), np.array([r[3] for r in rows]),
-                                   np.array([r[4] for r in rows]), np.array([r[5] for r in rows]),
+                                   np.array([r[4] for r in rows]), np.array([r[7] for r in rows]),
                                    params.duplicate_radius_factor)
         rows, drop["duplicate"] = _drop_rows(rec, rows, keep)
     if rows and params.height_outlier_sigmas > 0:
