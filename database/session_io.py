@@ -139,7 +139,7 @@ def read_landmark_table(path: str | Path) -> LandmarkTable:
             raise InputError("malformed landmark row", path, lineno) from None
         if isinstance(names := _read_names(field, legacy), str):
             raise InputError(f"malformed landmark row: {names}", path, lineno)
-        if legacy and cut is None and "num_observations" in col and len(names) != nobs:
+        if legacy and cut is None and "num_observations" in col and len(names) > nobs:
             cut = (lineno, len(names), nobs)
         if not all(np.isfinite(vals[:3])) or np.abs(vals[:3]).max() > MAX_WORLD_COORD_M or not (
                 np.isnan(vals[3]) or 0 <= vals[3] < np.inf):  # the writer rounds sizes to mm
