@@ -3,8 +3,10 @@ and fingerprinted by their contents.
 
 A backend such as `sam-onnx` takes its models from settings that may be empty (the environment names the files
 then) or name a path whose file may be replaced: the settings alone do not say which model made an output. So an
-output's identity and its caches are keyed by the files' sha256 (what the model is, not where it lies: a model
-file moved or copied is the same model), and its record names the files (path, size, sha256). A backend without
+output's identity and its caches are keyed by the files' sha256 (what the model is), and its record names the
+files (path, size, sha256). A model named by the environment may move or be copied and stays the same model; one
+named by a setting (`segmentation.sam_encoder=PATH`) is also keyed by that setting, as every setting is, so the
+same model at another configured path is another output (`--overwrite`). A backend without
 model files (`classical`) adds nothing: its outputs' identities and cache keys are those of earlier versions.
 Cost: sha256 streams at ~1.9 GB/s of CPU here, ~0.2 s for a 400 MB ViT-B encoder, once per run (BENCHMARKS
 "SAM model files in a run's identity").
