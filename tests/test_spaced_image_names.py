@@ -64,6 +64,12 @@ def test_an_earlier_sosmatchs_table_still_reads_and_says_when_its_names_were_cut
     with pytest.raises(InputError, match=r"line 2: 4 names for 2 observations") as err:
         table.names_or_raise(path)
     assert str(err.value).startswith(f"{path}: ")
+    # an older merge wrote a fused landmark's images once each but counted every observation: fewer names than
+    # observations is no cut name (splitting at spaces only adds names)
+    path.write_text(head + "0,5,4,5,6,1.5,3,a.jpg b.jpg\n")
+    table = read_landmark_table(path)
+    assert table.names_problem is None and table.names_or_raise(path) == [["a.jpg", "b.jpg"]]
+    assert table.support.tolist() == [3]
     # without num_observations (older still): the names are all there is to count
     path.write_text("index,x,y,z,size_m,image_names\n0,1,2,3,1,a.jpg b.jpg c.jpg\n")
     assert read_landmark_table(path).support.tolist() == [3]
