@@ -125,7 +125,8 @@ def refine_alignment(
     Iterates (ICP with a size gate): move B by the current transform, pair landmarks by `mutual_nearest`
     within `gate_m`, refit with Huber weights (residuals beyond gate_m / 2 count less, so a wrong pair near the
     gate pulls little), until the set of pairs stops changing. `dof` 4 fits yaw + translation
-    (`fit_yaw_translation`, for gravity-aligned maps); 6 a rigid (or with `with_scale` a similarity) transform.
+    (`fit_yaw_translation`, for gravity-aligned maps); 6 a rigid transform; `with_scale` adds a scale to either
+    (5 and 7 degrees of freedom, which `dof` 5 and 7 also say: the verification's callers pass one figure through).
     Keeps `initial` (and its supporting pairs) when fewer than 3 pairs are found. `tree_a`: as `mutual_nearest`.
     `coarse_factor` > 1: also the same iteration first at a gate of coarse_factor x gate_m, then at gate_m from
     where it converged (coarse to fine), and the one of the two with more pairs (ties: the one-gate result). At
@@ -136,8 +137,9 @@ def refine_alignment(
     partners of the whole overlap at once; its optimum is not always the one-gate optimum, hence the better of
     the two.
     """
-    if dof not in (4, 6):
-        raise ValueError(f"dof must be 4 or 6, got {dof}")
+    if dof not in (4, 5, 6, 7):
+        raise ValueError(f"dof must be 4, 5, 6 or 7, got {dof}")
+    with_scale, dof = with_scale or dof in (5, 7), 4 if dof in (4, 5) else 6
     fine = _refine_at_gate(points_a, sizes_a, points_b, sizes_b, initial, gate_m, max_size_difference, dof,
                            with_scale, max_iterations, z_weight, tree_a)
     if coarse_factor <= 1.0:
@@ -165,7 +167,7 @@ def _refine_at_gate(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: 
         w = huber_weights(dist, gate_m)
         try:
             if dof == 4:
-                new = fit_yaw_translation(pb[assoc[:, 1]], pa[assoc[:, 0]], w)
+                new = fit_yaw_translation(pb[assoc[:, 1]], pa[assoc[:, 0]], w, with_scale)
             else:
                 new = weighted_umeyama(pb[assoc[:, 1]], pa[assoc[:, 0]], w, with_scale)
         except ValueError:
