@@ -24,19 +24,21 @@ hull) is the answer's predicted error; when its largest value exceeds the gate t
 Measured on the sweeps' accepted synthetic pairs (summer/winter, crossings, other cameras, 50-200 landmarks): at
 most 0.6 x the gate; the NAIP pairs at 0 and 600 m offset: 4 x and more.
 
-The fit's own model can be wrong too, which its noise does not show: two maps whose scales differ (a GPS-less
-flight scaled from a nominal height, a COLMAP model) leave residuals that grow with the distance from the pairs'
-centre, and the pairs found are only those near it (nu49: B scaled by 1.10, 85 of 274 landmarks paired, B's far
-landmarks 15 m off against 1.75 m predicted). So the same pairs are fitted with a scale too (`scale_check`: a
-yaw + translation + scale fit against the yaw + translation one, an F test on the horizontal residuals); where the
-scale is significant (p <= SCALE_FALSE_ALARM) its systematic error |s - 1| |p - c| joins the radius at every
-landmark, and the answer is imprecise when that reaches the gate, so a 1-2 % disagreement of EKF frames, which
-moves B's landmarks less than the gate, is no flag. A similarity answer (`association.transform` "similarity")
-fits its scale already: the test finds none left, and `scale_sd` states the uncertainty of its scale. And heights
-that anti-correlate (`height_flip`: B's placed heights fall where A's rise, one-sided p <= HEIGHT_FALSE_ALARM) are
-one map upside down (a NED / ENU mix-up): horizontally right, its heights tens of metres off; imprecise too.
-They are compared on B's landmarks paired with A's by horizontal position alone under the answer (the answer's
-own pairs passed a height gate, which keeps only the heights a flip happens to leave in place).
+The fit's own model can be wrong too, which its noise does not show: two maps whose scales differ (a GPS-less flight
+scaled from a nominal height, a COLMAP model) leave residuals that grow with the distance from the pairs' centre,
+and the pairs found are only those near it (nu49: B scaled by 1.10, 85 of 274 landmarks paired, B's far landmarks 15
+m off against 1.75 m predicted). So the same pairs are fitted with a scale too (`scale_check`: a yaw + translation +
+scale fit against the yaw + translation one, an F test on the horizontal residuals); where the scale is significant
+(p <= SCALE_FALSE_ALARM) its systematic error |s - 1| |p - c| joins the radius at every landmark, and the answer is
+imprecise when that reaches the gate, so a 1-2 % disagreement of EKF frames, which moves B's landmarks less than the
+gate, is no flag. The pairs a rigid answer keeps lie where the scale moved B least, and include wrong pairs beyond
+that, so their ratio understates a large disagreement (B scaled by 1.10: the pairs fit 1.024, 3.2 m of a true 15 m):
+flagged, at least that far off. A similarity answer (`association.transform` "similarity") fits its scale already:
+the test finds none left, and `scale_sd` states the uncertainty of its scale. And heights that anti-correlate
+(`height_flip`: B's placed heights fall where A's rise, one-sided p <= HEIGHT_FALSE_ALARM) are one map upside down
+(a NED / ENU mix-up): horizontally right, its heights tens of metres off; imprecise too. They are compared on B's
+landmarks paired with A's by horizontal position alone under the answer (the answer's own pairs passed a height
+gate, which keeps only the heights a flip happens to leave in place).
 """
 
 from __future__ import annotations
@@ -85,7 +87,7 @@ class AnswerUncertainty:
     def warning(self) -> str:
         """The sentence `match` prints when the answer is imprecise."""
         if self.predicted_max_m <= self.gate_m:  # only the heights are wrong
-            return f"imprecise answer: B's heights ({self.reason})"
+            return f"imprecise answer: {self.reason}"
         return (f"imprecise answer: B's {self.landmarks} landmarks in the common area may lie up to "
                 f"{self.predicted_max_m:.1f} m (median {self.predicted_median_m:.1f} m, 95 %) from where it puts "
                 f"them, beyond its {self.gate_m:g} m gate ({self.reason})")
@@ -167,13 +169,14 @@ def answer_uncertainty(points_a: np.ndarray, points_b: np.ndarray, transform: An
     reasons = []
     if scale_error > 0.0 and worst > gate_m:
         reasons.append(f"the maps' scales disagree: B's pairs fit x {ratio:.4f} +- {ratio_sd:.2g} of the answer's "
-                       f"scale (p {scale_p:.1g}), {scale_error:.1f} m at B's far landmarks; match with --set "
+                       f"scale (p {scale_p:.1g}), at least {scale_error:.1f} m at B's far landmarks; match with --set "
                        "association.transform=similarity, or check the poses' scale")
     elif worst > gate_m:
         reasons.append(f"pair noise {sigma:.1f} m, yaw +- {np.degrees(sigma / np.sqrt(spread)):.2f} deg")
     if flipped:
-        reasons.append(f"heights anti-correlate (r {height_r:.2f}, p {flip_p:.1g}): one map is upside down (z down "
-                       "against z up, NED / ENU?), its heights wrong by tens of metres")
+        reasons.append(f"B's heights anti-correlate with A's on landmarks paired by position (r {height_r:.2f}, p "
+                       f"{flip_p:.1g}): one map is upside down (z down against z up: NED / ENU?), its heights wrong "
+                       "by up to twice their spread")
     return AnswerUncertainty(sigma, float(np.degrees(sigma / np.sqrt(spread))), float(np.median(radius)), worst,
                              int(inside.sum()), float(gate_m), bool(worst > gate_m or flipped), ratio, scale_p,
                              scale, scale * ratio_sd, scale_error, height_r, flipped, "; ".join(reasons))

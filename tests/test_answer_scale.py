@@ -107,7 +107,7 @@ def test_upside_down_heights_are_flagged(map_a) -> None:
     ans = match_maps(pa, sa, _copy(pa, flip=True), sa, _params())
     u = ans.uncertainty
     assert ans.accepted and u.height_flip and u.height_r < -0.9 and u.imprecise
-    assert "upside down" in u.warning() and "heights" in u.warning()
+    assert "upside down" in u.warning() and "heights anti-correlate" in u.warning()
     note = imprecise_note(MatchSummary(True, None, np.zeros((0, 2), np.int64), imprecise=True,
                                        predicted_max_m=u.predicted_max_m, gate_m=u.gate_m, imprecise_reason=u.reason))
     assert note is not None and "upside down" in note
