@@ -111,3 +111,18 @@ def test_upside_down_heights_are_flagged(map_a) -> None:
     note = imprecise_note(MatchSummary(True, None, np.zeros((0, 2), np.int64), imprecise=True,
                                        predicted_max_m=u.predicted_max_m, gate_m=u.gate_m, imprecise_reason=u.reason))
     assert note is not None and "upside down" in note
+
+
+def test_a_refinement_keeps_a_scale_only_where_it_explains_more_pairs(map_a) -> None:
+    """`refine_alignment` with a scale (dof 5): on maps of one scale the scale-free fit pairs no more landmarks
+    than the rigid one, and the rigid answer (scale exactly 1) is kept; on B scaled by 1.05 the scale is."""
+    from sosmatch.plugin.multisession import Sim3
+    from sosmatch.plugin.refinement import refine_alignment
+
+    pa, sa = map_a
+    start = Sim3(TURN.T, -TURN.T @ SHIFT, 1.0)  # the true turn and shift, scale 1
+    same = refine_alignment(pa, sa, _copy(pa), sa, start, 2.8, 0.4, dof=5)
+    assert same.transform.scale == 1.0 and len(same.associations) > 250
+    scaled = refine_alignment(pa, sa, _copy(pa, 1.05), sa * 1.05, Sim3(TURN.T, -TURN.T @ SHIFT / 1.05, 1 / 1.05),
+                              2.8, 0.4, dof=5)
+    assert abs(scaled.transform.scale - 1 / 1.05) < 0.002 and len(scaled.associations) > 250
