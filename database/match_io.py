@@ -81,6 +81,7 @@ class MatchSummary:
     # error at B's landmarks exceeds its gate (False: within it, or not recorded by an older sosmatch)
     imprecise: bool = False
     predicted_max_m: float | None = None  # that error's largest 95 % radius over the common area (None: not recorded)
+    imprecise_reason: str = ""  # answer_uncertainty.reason: why (a scale disagreement, flipped heights; "": not said)
     # maps in one EPSG with an accepted answer: how far it moves B from its georeference (search_mode.
     # georeference_off_m), the radius the georeference is trusted to (params.association.georeference_prior_m) and
     # how the search used it (search_mode.position_prior); None: not recorded (`georeference_note`)
@@ -323,6 +324,10 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
         summary.imprecise = _bool(unc.get("imprecise", False), "answer_uncertainty.imprecise", path)
         summary.predicted_max_m = _float(unc.get("predicted_max_m"), "answer_uncertainty.predicted_max_m", path,
                                          allow_none=True)
+        reason = unc.get("reason", "")
+        if not isinstance(reason, str):
+            raise InputError("match file field answer_uncertainty.reason must be a string", path)
+        summary.imprecise_reason = reason
         if summary.imprecise and summary.predicted_max_m is None:  # the consumers' warning says how far off
             raise InputError("match file field answer_uncertainty.predicted_max_m is missing: an imprecise answer "
                              "records its predicted error", path)

@@ -20,9 +20,12 @@ def imprecise_note(match: MatchSummary) -> str | None:
     not): the transform may place B's landmarks farther from their true partners than the gate its pairs passed."""
     if not match.accepted or not match.imprecise:
         return None
+    why = match.imprecise_reason or "few pairs, noisy against the gate, far from much of B"
+    if match.gate_m is not None and match.predicted_max_m <= match.gate_m:  # its heights only (flipped)
+        return f"the match's answer is imprecise: {why}"
     return (f"the match's answer is imprecise: its transform may place B's landmarks up to "
             f"{match.predicted_max_m:.1f} m from where they belong (95 %), beyond its {match.gate_m or 0:g} m gate "
-            "(few pairs, noisy against the gate, far from much of B)")
+            f"({why})")
 
 
 def unverified_note(match: MatchSummary) -> str | None:

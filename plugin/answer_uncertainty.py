@@ -23,6 +23,22 @@ freedom on the larger eigenvalue, conservative) at B's landmarks in the common a
 hull) is the answer's predicted error; when its largest value exceeds the gate the answer is `imprecise`.
 Measured on the sweeps' accepted synthetic pairs (summer/winter, crossings, other cameras, 50-200 landmarks): at
 most 0.6 x the gate; the NAIP pairs at 0 and 600 m offset: 4 x and more.
+
+The fit's own model can be wrong too, which its noise does not show: two maps whose scales differ (a GPS-less flight
+scaled from a nominal height, a COLMAP model) leave residuals that grow with the distance from the pairs' centre,
+and the pairs found are only those near it (nu49: B scaled by 1.10, 85 of 274 landmarks paired, B's far landmarks 15
+m off against 1.75 m predicted). So the same pairs are fitted with a scale too (`scale_check`: a yaw + translation +
+scale fit against the yaw + translation one, an F test on the horizontal residuals); where the scale is significant
+(p <= SCALE_FALSE_ALARM) its systematic error |s - 1| |p - c| joins the radius at every landmark, and the answer is
+imprecise when that reaches the gate, so a 1-2 % disagreement of EKF frames, which moves B's landmarks less than the
+gate, is no flag. The pairs a rigid answer keeps lie where the scale moved B least, and include wrong pairs beyond
+that, so their ratio understates a large disagreement (B scaled by 1.10: the pairs fit 1.024, 3.2 m of a true 15 m):
+flagged, at least that far off. A similarity answer (`association.transform` "similarity") fits its scale already:
+the test finds none left, and `scale_sd` states the uncertainty of its scale. And heights that anti-correlate
+(`height_flip`: B's placed heights fall where A's rise, one-sided p <= HEIGHT_FALSE_ALARM) are one map upside down
+(a NED / ENU mix-up): horizontally right, its heights tens of metres off; imprecise too. They are compared on B's
+landmarks paired with A's by horizontal position alone under the answer (the answer's own pairs passed a height
+gate, which keeps only the heights a flip happens to leave in place).
 """
 
 from __future__ import annotations
@@ -32,8 +48,12 @@ from typing import Any
 
 import numpy as np
 
+from .refinement import fit_yaw_translation, mutual_nearest
+
 CHI2_2D_95 = 5.991  # the 95 % quantile of chi-square with 2 degrees of freedom
 MAX_SIGMA_GATES = 10.0  # the truncated fit's sigma is searched up to this many gates (beyond: residuals uniform)
+SCALE_FALSE_ALARM = 1e-3  # p of the scale test below which a scale disagreement is measured, not noise
+HEIGHT_FALSE_ALARM = 1e-3  # p of anti-correlated heights below which one map is upside down
 
 
 @dataclass(frozen=True)
@@ -46,18 +66,31 @@ class AnswerUncertainty:
     predicted_max_m: float  # and largest
     landmarks: int  # B's landmarks it was evaluated at (those in the common area; all of B when none)
     gate_m: float  # what the answer claims: its associations' gate (theta_eps)
-    imprecise: bool  # predicted_max_m > gate_m: the answer cannot place B within its own gate
+    imprecise: bool  # predicted_max_m > gate_m (with a significant scale's error), or heights flipped
+    # the pairs' own scale relative to the answer's (a similarity fit of them after the answer; 1: none) and its
+    # standard deviation and the F test's p (`scale_check`); the answer's scale (`transform.scale`) and its
+    # standard deviation (relative sd x scale)
+    scale_ratio: float = 1.0
+    scale_p: float = 1.0
+    scale: float = 1.0
+    scale_sd: float = 0.0
+    scale_error_max_m: float = 0.0  # the significant scale's systematic error at B's landmarks (0: not significant)
+    height_r: float = 0.0  # correlation of the pairs' heights, A against B placed (`height_flip`)
+    height_flip: bool = False  # significantly negative: one map upside down
+    reason: str = ""  # what makes it imprecise, in words (consumers repeat it); "" when precise
 
     def to_dict(self) -> dict[str, Any]:
-        """match.json `verification.uncertainty`."""
-        return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(self).items()}
+        """match.json `answer_uncertainty`."""
+        return {k: (round(v, 4) if isinstance(v, float) and k not in ("scale_p", "scale", "scale_sd", "scale_ratio")
+                    else v) for k, v in asdict(self).items()}
 
     def warning(self) -> str:
         """The sentence `match` prints when the answer is imprecise."""
+        if self.predicted_max_m <= self.gate_m:  # only the heights are wrong
+            return f"imprecise answer: {self.reason}"
         return (f"imprecise answer: B's {self.landmarks} landmarks in the common area may lie up to "
                 f"{self.predicted_max_m:.1f} m (median {self.predicted_median_m:.1f} m, 95 %) from where it puts "
-                f"them, beyond its {self.gate_m:g} m gate (pair noise {self.sigma_m:.1f} m, yaw +- "
-                f"{self.yaw_sd_deg:.2f} deg)")
+                f"them, beyond its {self.gate_m:g} m gate ({self.reason})")
 
 
 def truncated_sigma(distances: np.ndarray, gate_m: float) -> float:
@@ -97,16 +130,18 @@ def common_area(placed_b: np.ndarray, points_a: np.ndarray) -> np.ndarray:
 
 def answer_uncertainty(points_a: np.ndarray, points_b: np.ndarray, transform: Any, associations: np.ndarray,
                        gate_m: float) -> AnswerUncertainty | None:
-    """The predicted placement error of the alignment `transform` (A_from_B, `apply`) fitted on `associations`
-    ((K, 2) index pairs A, B) at B's landmarks in the common area, against its `gate_m` (module doc). None with
-    fewer than 3 pairs or pairs without horizontal spread (nothing to propagate)."""
+    """The predicted placement error of the alignment `transform` (A_from_B, `apply`; a `Sim3`) fitted on
+    `associations` ((K, 2) index pairs A, B) at B's landmarks in the common area, against its `gate_m`, with the
+    scale and height checks of its pairs (module doc). None with fewer than 3 pairs or pairs without horizontal
+    spread (nothing to propagate)."""
     pairs = np.asarray(associations, np.int64).reshape(-1, 2)
     pa = np.asarray(points_a, np.float64).reshape(-1, 3)
     pb = np.asarray(points_b, np.float64).reshape(-1, 3)
     n = len(pairs)
     if n < 3:
         return None
-    placed_pairs = transform.apply(pb[pairs[:, 1]])[:, :2]
+    placed_3d = transform.apply(pb[pairs[:, 1]])
+    placed_pairs = placed_3d[:, :2]
     resid = np.linalg.norm(pa[pairs[:, 0], :2] - placed_pairs, axis=1) * np.sqrt(2 * n / (2 * n - 3))
     centre = placed_pairs.mean(axis=0)
     spread = float(np.sum((placed_pairs - centre) ** 2))
@@ -116,8 +151,75 @@ def answer_uncertainty(points_a: np.ndarray, points_b: np.ndarray, transform: An
     placed = transform.apply(pb)
     inside = common_area(placed, pa)
     lever2 = np.sum((placed[inside, :2] - centre) ** 2, axis=1)
-    # the larger eigenvalue of sigma^2 / n I + sigma^2 lever^2 / spread u u^T
+    # the larger eigenvalue of sigma^2 / n I + sigma^2 lever^2 / spread u u^T (a similarity's scale adds the same
+    # variance along p - c, so the larger eigenvalue is the same)
     radius = np.sqrt(CHI2_2D_95 * sigma**2 * (1.0 / n + lever2 / spread))
+    ratio, ratio_sd, scale_p = scale_check(placed_3d, pa[pairs[:, 0]])
+    bias = abs(ratio - 1.0) * np.sqrt(lever2) if scale_p <= SCALE_FALSE_ALARM else np.zeros(len(lever2))
+    radius = radius + bias  # a measured scale disagreement moves B's far landmarks by this, whatever the noise
     worst = float(radius.max())
+    # heights are compared on pairs made by horizontal position alone: the answer's own pairs passed a gate on
+    # their heights too, which keeps only the landmarks where a flipped map's heights happen to agree (nu49: r 0.03
+    # on 184 pairs of an upside-down B; r -0.99 on 274 pairs by position)
+    flat, _ = mutual_nearest(pa, None, placed, None, gate_m, np.inf, 0.0)
+    height_r, flip_p = height_flip(placed[flat[:, 1], 2], pa[flat[:, 0], 2])
+    flipped = flip_p <= HEIGHT_FALSE_ALARM
+    scale = float(getattr(transform, "scale", 1.0))
+    scale_error = float(bias.max(initial=0.0))
+    reasons = []
+    if scale_error > 0.0 and worst > gate_m:
+        reasons.append(f"the maps' scales disagree: B's pairs fit x {ratio:.4f} +- {ratio_sd:.2g} of the answer's "
+                       f"scale (p {scale_p:.1g}), at least {scale_error:.1f} m at B's far landmarks; match with --set "
+                       "association.transform=similarity, or check the poses' scale")
+    elif worst > gate_m:
+        reasons.append(f"pair noise {sigma:.1f} m, yaw +- {np.degrees(sigma / np.sqrt(spread)):.2f} deg")
+    if flipped:
+        reasons.append(f"B's heights anti-correlate with A's on landmarks paired by position (r {height_r:.2f}, p "
+                       f"{flip_p:.1g}): one map is upside down (z down against z up: NED / ENU?), its heights wrong "
+                       "by up to twice their spread")
     return AnswerUncertainty(sigma, float(np.degrees(sigma / np.sqrt(spread))), float(np.median(radius)), worst,
-                             int(inside.sum()), float(gate_m), bool(worst > gate_m))
+                             int(inside.sum()), float(gate_m), bool(worst > gate_m or flipped), ratio, scale_p,
+                             scale, scale * ratio_sd, scale_error, height_r, flipped, "; ".join(reasons))
+
+
+def scale_check(placed_b: np.ndarray, partners_a: np.ndarray) -> tuple[float, float, float]:
+    """Do an answer's pairs show a scale the answer lacks? (ratio, its standard deviation, p): the pairs' B
+    landmarks as the answer placed them ((n, 3)) fitted to their partners in A ((n, 3)) by yaw + translation and by
+    yaw + translation + scale (`refinement.fit_yaw_translation`), least squares on the horizontal coordinates; the
+    F(1, 2n - 4) test of the scale on the residual sums. The ratio is the second fit's scale (1: the answer's
+    own), its sd the residual noise over the pairs' horizontal spread. (1, 0, 1) when there is nothing to test
+    (fewer than 5 pairs, no spread)."""
+    from scipy.stats import f as f_dist
+
+    n = len(placed_b)
+    if n < 5:
+        return 1.0, 0.0, 1.0
+    try:
+        rigid = fit_yaw_translation(placed_b, partners_a)
+        similar = fit_yaw_translation(placed_b, partners_a, with_scale=True)
+    except ValueError:
+        return 1.0, 0.0, 1.0
+    rss_r = float(np.sum((rigid.apply(placed_b) - partners_a)[:, :2] ** 2))
+    rss_s = float(np.sum((similar.apply(placed_b) - partners_a)[:, :2] ** 2))
+    spread = float(np.sum((placed_b[:, :2] - placed_b[:, :2].mean(axis=0)) ** 2))
+    dof = 2 * n - 4
+    if rss_s <= 0.0 or spread <= 0.0:
+        return float(similar.scale), 0.0, (0.0 if abs(similar.scale - 1.0) > 1e-9 else 1.0)
+    sd = float(np.sqrt(rss_s / dof / spread))
+    return float(similar.scale), sd, float(f_dist.sf(max(rss_r - rss_s, 0.0) / (rss_s / dof), 1, dof))
+
+
+def height_flip(placed_z: np.ndarray, partner_z: np.ndarray) -> tuple[float, float]:
+    """Are two maps' heights upside down? (Pearson r of B's placed heights against their partners' in A,
+    the one-sided p of a negative r). Same-way heights correlate positively (crowns, terrain) or not at all (flat,
+    heights within their noise); a map whose z axis points down gives r near -1. (0, 1) with fewer than 5 pairs
+    or heights without spread."""
+    from scipy.stats import t as t_dist
+
+    n = len(placed_z)
+    if n < 5 or np.std(placed_z) <= 0.0 or np.std(partner_z) <= 0.0:
+        return 0.0, 1.0
+    r = float(np.clip(np.corrcoef(placed_z, partner_z)[0, 1], -1.0, 1.0))
+    if abs(r) >= 1.0:  # exactly (anti-)correlated: no scatter to test against
+        return r, (0.0 if r < 0 else 1.0)
+    return r, float(t_dist.cdf(r * np.sqrt((n - 2) / (1.0 - r * r)), n - 2))

@@ -108,7 +108,7 @@ def verify_alignments(
     candidates: Sequence[tuple[Any, np.ndarray]], gate_m: float, max_size_difference: float,
     min_support: int, min_ratio: float = 1.2, dof: int = 4, z_weight: float = 0.5, final_dof: int | None = 6,
     chance_starts: int = 512, false_alarm: float = 1e-2, prior_m: float = 0.0, coarse_factor: float = 2.0,
-    tilt_prior_deg: float = 1.0,
+    tilt_prior_deg: float = 1.0, with_scale: bool = False,
 ) -> Verification:
     """Choose among a pair's window hypotheses by their support on the FULL maps, and refine the winner.
 
@@ -144,7 +144,12 @@ def verify_alignments(
     capture radius is half a cell). A coarse first stage would make each sample the best of ~8 cells while
     N_eff still counts cells (chance means 1.4 -> 3.0-3.7 on world 97's crossing flights). Polishing the winner
     selects among alignments the null already counts, so it keeps the test valid.
+    `with_scale` (`association.transform` "similarity"): every refinement here, the winner's, its rivals' and the
+    chance placements', fits a scale too (`refine_alignment`'s `dof` 5 / 7), so the answer is the similarity its
+    pairs show (a rigid refit dropped the search's scale: nu49, B scaled by 1.10 was placed 15 m off with the
+    window consensus' 0.909 at hand) and chance is judged with the same freedom.
     """
+    fit_dof = dof + 1 if with_scale else dof  # `refine_alignment`: 5 / 7 add the scale to 4 / 6
     pb_all = np.asarray(points_b, dtype=np.float64).reshape(-1, 3)
     pa_all = np.asarray(points_a, dtype=np.float64).reshape(-1, 3)
     tree_a = pairing_tree(pa_all, z_weight)  # every refinement below pairs B, placed somewhere, with this A
@@ -157,7 +162,7 @@ def verify_alignments(
         start = transform if isinstance(transform, Sim3) else Sim3(transform.rotation, transform.translation,
                                                                    transform.scale)
         refined.append(refine_alignment(pa_all, sizes_a, pb_all, sizes_b, start, gate_m,
-                                        max_size_difference, dof=dof, z_weight=z_weight, tree_a=tree_a,
+                                        max_size_difference, dof=fit_dof, z_weight=z_weight, tree_a=tree_a,
                                         coarse_factor=coarse_factor))
         near_tried.tried(c, start)
         near_tried.tried(c, refined[-1].transform)
@@ -178,7 +183,8 @@ def verify_alignments(
         # the pairs of the rigid alignment the winner belongs to, over the whole overlap (the judge of which
         # other refinements found the winner again; the answer keeps the fit above)
         winner_pairs = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, rigid.transform, gate_m,
-                                        max_size_difference, dof=6, z_weight=z_weight, tree_a=tree_a).associations
+                                        max_size_difference, dof=7 if with_scale else 6, z_weight=z_weight,
+                                        tree_a=tree_a).associations
     # A rival counts the pairs the winner does not explain (`chance_pairs`), as the chance placements and the
     # displaced controls below do: a candidate refined to the edge of the winner's basin (turned a few degrees
     # about the winner's pairs) holds many of them and is no evidence that B lies elsewhere (a held-out world's
@@ -192,7 +198,7 @@ def verify_alignments(
     # density and these gates: the winner must beat it by min_ratio too.
     displaced = _displaced_starts(best.transform, pb_all, gate_m)
     rivals.extend(int(s) for s in chance_supports(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, gate_m,
-                                                  max_size_difference, displaced, dof, z_weight,
+                                                  max_size_difference, displaced, fit_dof, z_weight,
                                                   winner_pairs=winner_pairs, tree_a=tree_a,
                                                   coarse_factor=coarse_factor))
     # the placements the layout itself offers: on a grid, B a period further or a quarter turn round explains
@@ -201,7 +207,7 @@ def verify_alignments(
     layout_best = None
     for start in layout_starts(best.transform, pa_all, pb_all, best.associations, gate_m):
         got = chance_supports(pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, gate_m, max_size_difference,
-                              [start.transform], dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a,
+                              [start.transform], fit_dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a,
                               coarse_factor=coarse_factor)
         if len(got) and (layout_best is None or int(got[0]) > layout_best.support):
             layout_best = LayoutRival(int(got[0]), start.shift_m, start.turn_deg)
@@ -211,7 +217,7 @@ def verify_alignments(
     if chance_starts > 0:
         chance, samples, opportunities = winner_chance(
             pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support, gate_m, max_size_difference,
-            chance_starts, false_alarm, prior_m, dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a)
+            chance_starts, false_alarm, prior_m, fit_dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a)
         rivals.extend(int(s) for s in samples)
     runner_up = max(rivals, default=0)
     if rigid is not None:
@@ -401,8 +407,9 @@ def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
 
     `hypotheses`: the search's `WindowHypothesis` list; every one with a transform that passes the gravity check
     is a candidate, largest |S| first (at most `verification.max_candidates`), and `verify_alignments` chooses
-    among them with the search's theta_eps, the verification's size gate and support > theta_S. `association`,
-    `verification`: `AssociationParams`, `VerificationParams`.
+    among them with the search's theta_eps, the verification's size gate and support > theta_S, fitting a scale when
+    `association.transform` is "similarity". `association`, `verification`: `AssociationParams`,
+    `VerificationParams`.
     """
     sims = verification_candidates(hypotheses, association.max_gravity_angle_deg, verification.max_candidates)
     return verify_alignments(np.asarray(points_a, np.float64), sizes_a, np.asarray(points_b, np.float64), sizes_b,
@@ -411,4 +418,5 @@ def verify_search(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np
                              z_weight=verification.z_weight, final_dof=verification.final_dof or None,
                              chance_starts=verification.chance_starts, false_alarm=verification.false_alarm,
                              prior_m=association.position_prior_m, coarse_factor=verification.coarse_factor,
-                             tilt_prior_deg=verification.tilt_prior_deg)
+                             tilt_prior_deg=verification.tilt_prior_deg,
+                             with_scale=association.transform == "similarity")

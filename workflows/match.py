@@ -208,7 +208,9 @@ def verification_json(answer: MatchAnswer | None, params: Params) -> dict[str, A
             "tilt_p": None if v.tilt_p is None else _num(v.tilt_p),
             "chance": None if v.chance is None else {**v.chance.to_dict(), "false_alarm": vp.false_alarm},
             "associations": answer.associations.tolist(),
-            "method": {"dof": vp.dof, "final_dof": vp.final_dof, "tilt_prior_deg": vp.tilt_prior_deg,
+            # with_scale: every refinement fitted a scale too (association.transform "similarity")
+            "method": {"dof": vp.dof, "with_scale": params.association.transform == "similarity",
+                       "final_dof": vp.final_dof, "tilt_prior_deg": vp.tilt_prior_deg,
                        "min_ratio": vp.min_ratio, "z_weight": vp.z_weight,
                        "max_candidates": vp.max_candidates, "gate_m": params.association.distance_tolerance_m,
                        "max_size_difference": vp.max_size_difference, "chance_starts": vp.chance_starts,
