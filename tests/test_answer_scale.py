@@ -126,3 +126,19 @@ def test_a_refinement_keeps_a_scale_only_where_it_explains_more_pairs(map_a) -> 
     scaled = refine_alignment(pa, sa, _copy(pa, 1.05), sa * 1.05, Sim3(TURN.T, -TURN.T @ SHIFT / 1.05, 1 / 1.05),
                               2.8, 0.4, dof=5)
     assert abs(scaled.transform.scale - 1 / 1.05) < 0.002 and len(scaled.associations) > 250
+
+
+def test_one_odd_pair_on_flat_ground_is_no_flip() -> None:
+    """rev37: on flat ground (heights within their noise) one pair with A on a 15 m crown and B on a wrong track
+    8 m below the ground gave Pearson r -0.95 (p 1e-31) over 60 pairs: a true answer called upside down. By rank it
+    weighs as one pair; a real flip (every height mirrored) stays near -1."""
+    from sosmatch.plugin.answer_uncertainty import HEIGHT_FALSE_ALARM, height_flip
+
+    rng = np.random.default_rng(3)
+    za, zb = rng.normal(0.0, 0.3, 60), rng.normal(0.0, 0.3, 60)
+    za[0], zb[0] = 15.0, -8.0
+    r, p = height_flip(zb, za)
+    assert p > HEIGHT_FALSE_ALARM and r > -0.3
+    terrain = rng.uniform(0.0, 20.0, 60)
+    r, p = height_flip(300.0 - (terrain + rng.normal(0.0, 0.3, 60)), terrain)
+    assert p <= HEIGHT_FALSE_ALARM and r < -0.9
