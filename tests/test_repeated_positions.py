@@ -52,9 +52,11 @@ def test_a_copy_in_another_format_is_named_and_left_out_once(flight, tmp_path, c
         kept, digests = distinct_images(inputs)
     names = sorted(p.name for p in kept.image_paths)
     assert names == sorted(read_poses_csv(flight / "poses.csv")[0].names) and len(digests) == len(names)
-    said = [w for w in kept.warnings if "copies of others" in w]
+    said = [w for w in kept.warnings if "same view as another at the same recorded position" in w]
     assert len(said) == 1 and "frame_00003.jpg = frame_00003.png" in said[0] and said[0] in caplog.text
-    assert not any("recorded position of another" in w for w in kept.warnings)
+    # not told to remove them as copies: a hovering drone's next exposure shows the same view too (rev37)
+    assert "remove the copies" not in said[0] and "hover" in said[0]
+    assert not any("recorded position of another" in w or "copies of others" in w for w in kept.warnings)
 
 
 def test_a_repeated_position_of_a_moving_camera_is_named(flight, tmp_path):
