@@ -305,6 +305,10 @@ def test_a_check_that_could_check_only_a_small_share_of_its_pairs_says_so(flight
     assert "may go unseen" in warned[0]
     assert poses_fit_images(result, Params().pose_check)  # exact poses, every pair fitting
     assert not poses_fit_images(replace(result, pairs_checked=5), Params().pose_check)
+    # no pair tried at all is no short flight whose pairs all matched (rev37: "only 0 image pairs ..., all matched")
+    none = replace(result, pairs_tried=0, pairs_checked=0, pairs=[], epipolar_p50_px=float("nan"))
+    said = judge_poses(none, Params().pose_check, poses.names).warnings
+    assert not any("all matched" in w for w in said) and any("only 0 of 0" in w for w in said)
 
 
 def test_loose_poses_name_the_remedy_once(flight):

@@ -47,7 +47,7 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
     A systematic error is refused only when it exceeds its limit by more than two of its standard deviations
     (the evidence must be clear, not a noisy fit)."""
     v = judge_gps(check.gps, limits)
-    if check.pairs_checked < limits.min_pairs and check.pairs_checked == check.pairs_tried:
+    if 0 < check.pairs_checked < limits.min_pairs and check.pairs_checked == check.pairs_tried:
         # every pair matched: the flight is short, not its images or poses bad (nu49: 4 of 4 pairs of a 5-frame flight
         # were blamed on "little texture, or poses far off")
         v.warnings.append(f"poses vs images: only {check.pairs_checked} image pairs to check in a flight of "
