@@ -23,9 +23,11 @@ def flight(tmp_path_factory) -> Path:
     return out
 
 
-def _folder(flight: Path, root: Path, png_copies: tuple[int, ...] = (), repeat: int | None = None) -> Path:
+def _folder(flight: Path, root: Path, png_copies: tuple[int, ...] = (), repeat: int | None = None,
+            turn_deg: float = 0.0) -> Path:
     """The flight's images and poses in `root`: PNG copies of some images beside them (their poses those of the
-    originals), and optionally image `repeat` + 1 given image `repeat`'s position."""
+    originals), and optionally image `repeat` + 1 given image `repeat`'s position (its recorded attitude turned
+    by `turn_deg` about the vertical)."""
     poses, epsg = read_poses_csv(flight / "poses.csv")
     (root / "images").mkdir(parents=True)
     for n in poses.names:
@@ -39,6 +41,9 @@ def _folder(flight: Path, root: Path, png_copies: tuple[int, ...] = (), repeat: 
         centers.append(poses.centers[i].copy())
     if repeat is not None:
         centers[repeat + 1] = centers[repeat].copy()
+        t = np.radians(turn_deg)
+        yaw = np.array([[np.cos(t), -np.sin(t), 0.0], [np.sin(t), np.cos(t), 0.0], [0.0, 0.0, 1.0]])
+        rotations[repeat + 1] = rotations[repeat + 1] @ yaw.T  # camera-from-world after a turn about the vertical
     write_poses_csv(root / "poses.csv", Poses(names, np.array(rotations), np.array(centers)), epsg=epsg)
     return root
 
@@ -69,6 +74,19 @@ def test_a_repeated_position_of_a_moving_camera_is_named(flight, tmp_path):
     names = inputs.poses.names
     assert len(said) == 1 and f"{names[6]} repeats {names[5]}'s" in said[0], kept.warnings
     assert not any("copies of others" in w for w in kept.warnings)
+
+
+def test_a_turn_at_one_recorded_position_is_not_called_a_wrong_position(flight, tmp_path):
+    """rev37: a drone turning in place at one recorded position (its attitude recorded, changed) was told one of the
+    two positions is wrong; it is named as a turn, both kept."""
+    root = _folder(flight, tmp_path / "turn", repeat=5, turn_deg=30.0)
+    inputs = load_inputs(root / "images", root / "poses.csv", flight / "cameras.txt")
+    kept, _ = distinct_images(inputs)
+    assert len(kept.image_paths) == len(inputs.image_paths)
+    names = inputs.poses.names
+    said = [w for w in kept.warnings if "different recorded attitude" in w]
+    assert len(said) == 1 and f"{names[6]} at {names[5]}'s, turned 30 deg" in said[0], kept.warnings
+    assert not any("whose view differs" in w for w in kept.warnings)
 
 
 def test_a_clean_flight_keeps_every_image_without_a_word(flight):

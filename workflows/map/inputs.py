@@ -302,7 +302,7 @@ def distinct_images(inputs: MapInputs) -> tuple[MapInputs, list[str]]:
     finds are left out (the original of each picture kept), and its warnings join `inputs.warnings` (the map's
     verdict: run.json and the summary line)."""
     digests = image_digests(inputs)
-    found = warn_duplicate_images(inputs.image_paths, digests, inputs.poses.centers)
+    found = warn_duplicate_images(inputs.image_paths, digests, inputs.poses.centers, inputs.poses.rotations)
     if not found.warnings:
         return inputs, digests
     out = set(found.left_out)
@@ -322,15 +322,28 @@ class Duplicates:
     warnings: list[str]
 
 
-def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.ndarray | None = None) -> Duplicates:
+TURN_IN_PLACE_DEG = 1.0  # recorded attitudes further apart than this: the camera turned at the position
+
+
+def _turn_deg(rotations: np.ndarray | None, a: int, b: int) -> float:
+    """The angle between two images' recorded rotations (degrees; 0 without rotations)."""
+    if rotations is None:
+        return 0.0
+    r = np.asarray(rotations[a], np.float64).T @ np.asarray(rotations[b], np.float64)
+    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.ndarray | None = None,
+                          rotations: np.ndarray | None = None) -> Duplicates:
     """Images that are one picture under several names, said in one warning: byte-identical files (a copy made
     twice), and, among images the poses put at exactly one position (`centers`, capture order), those that show
     the same view (`image_rigs.same_view`: a PNG written from the JPEG beside it, a re-encoded copy). One picture
     with two poses: the pose check's pair of them has no baseline (undefined epipolar geometry) and a copy can
     replace its original as a keyframe, so each copy is left out, its original kept (`image_rigs.original_name`).
-    Images at one recorded position whose views differ (the camera moved or turned between them) are a pose fault:
-    the later one is named, its position repeating the earlier's (a GPS updating slower than the camera), in a
-    second warning; both are kept (which of the two positions is wrong the images cannot say)."""
+    Images at one recorded position whose views differ are named, both kept: with one recorded attitude (`rotations`
+    within TURN_IN_PLACE_DEG) as a pose fault, the later one's position repeating the earlier's (a GPS updating
+    slower than the camera; which of the two is wrong the images cannot say); with attitudes that differ, as a turn
+    at one position (a hover turning in place: the position may be right)."""
     from ..image_rigs import original_name, same_view
 
     groups: dict[str, list[int]] = {}
@@ -338,7 +351,7 @@ def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.nda
         groups.setdefault(d, []).append(i)
     same_as = {i: g[0] for g in groups.values() for i in g}  # each image -> the first of its picture
     repeated: list[tuple[int, int]] = []  # (image, the earlier image whose recorded position it repeats)
-    viewed: set[int] = set()  # same view as an earlier image at its position, other bytes
+    turned: list[tuple[int, int, float]] = []  # (image, the earlier one at its position, degrees between them)
     if centers is not None:
         at: dict[tuple[float, ...], list[int]] = {}
         for i, c in enumerate(np.asarray(centers, np.float64)):
@@ -351,10 +364,13 @@ def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.nda
                     continue  # byte-identical to an earlier image
                 if last is not None and same_view(paths[last], paths[j]):
                     same_as[j] = last
-                    viewed.add(j)
                     continue
                 if last is not None:
-                    repeated.append((j, members[k - 1]))
+                    turn = _turn_deg(rotations, last, j)
+                    if turn > TURN_IN_PLACE_DEG:  # the recorded attitudes differ: a hover turning in place, not
+                        turned.append((j, last, turn))  # necessarily a wrong position (rev37)
+                    else:
+                        repeated.append((j, members[k - 1]))
                 last = j
     pictures: dict[int, list[int]] = {}
     for i in range(len(paths)):
@@ -384,6 +400,12 @@ def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.nda
                         f"({listing}{' ...' if len(repeated) > 5 else ''}): the camera moved between them, so "
                         "one of each pair's positions is wrong (a GPS updating slower than the camera?); their pair "
                         "has no baseline to check against the images")
+    if turned:
+        listing = "; ".join(f"{paths[j].name} at {paths[i].name}'s, turned {deg:.0f} deg" for j, i, deg in turned[:5])
+        warnings.append(f"{len(turned)} image(s) are given the recorded position of another with a different recorded "
+                        f"attitude ({listing}{' ...' if len(turned) > 5 else ''}): a hover turning in place, or a GPS "
+                        "updating slower than the camera; their pair has no baseline to check against the images; "
+                        "both kept")
     for w in warnings:
         log.warning("%s", w)
     return Duplicates(copies, sorted(left_out), warnings)
