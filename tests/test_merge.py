@@ -93,6 +93,30 @@ def test_merge_pair(pair, tmp_path):
     assert record["counts"]["fused"] == n_assoc and record["labels"] == ["A", "B"]
 
 
+def test_a_landmark_not_fused_keeps_the_error_its_session_recorded(pair, tmp_path):
+    """A landmark located from its whole views records its error over those views (fix97); the merge recomputed
+    every point's error over all its views, so the merged model read the old way for it. Only fused points are
+    recomputed now."""
+    import shutil
+
+    root, world, a, b = pair
+    a_copy = tmp_path / "A"
+    shutil.copytree(a.path, a_copy)
+    rec_a = pycolmap.Reconstruction(str(a_copy / "sparse"))
+    ids_a = read_landmark_point_ids(a.path / "landmarks.csv", len(a.object_ids))
+    fused_a = {int(ids_a[i]) for i, _ in true_associations(a, b)}
+    lone = next(pid for pid in sorted(rec_a.points3D) if pid not in fused_a)
+    rec_a.points3D[lone].error = 0.123  # as a landmark moved to its whole views records it
+    rec_a.write(str(a_copy / "sparse"))
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    merge.run(a_copy, b.path, match, tmp_path / "M")
+    rec = pycolmap.Reconstruction(str(tmp_path / "M" / "sparse"))
+    xyz = rec_a.points3D[lone].xyz
+    merged = [p for p in rec.points3D.values() if np.allclose(p.xyz, xyz, atol=1e-6)]
+    assert len(merged) == 1 and merged[0].error == pytest.approx(0.123)
+    assert all(p.error >= 0 for p in rec.points3D.values())
+
+
 def test_refine_recovers_perturbed_transform_and_rejects_outliers(pair, tmp_path):
     root, world, a, b = pair
     truth = a.session_from_world.compose(b.session_from_world.inverse())

@@ -200,6 +200,7 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
 
     merged = pycolmap.Reconstruction()
     point_map: list[dict[int, int]] = []  # per session: old point3D id -> new id
+    own_error: dict[int, float] = {}  # new point3D id -> the error its session recorded
     image_names: dict[int, str] = {}
     next_camera, next_image = 1, 1
     for session, transform, label in zip(sessions, transforms, labels):
@@ -244,6 +245,7 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
             if track.length() == 0:
                 continue
             pmap[pid] = merged.add_point3D(pt.xyz, track, pt.color)
+            own_error[pmap[pid]] = float(pt.error)
         point_map.append(pmap)
 
     # Fuse: each group of associated landmarks becomes one point; remember where every member landed.
@@ -266,6 +268,12 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
         members_of[current] = list(group)
         num_fused += 1
     merged.update_point_3d_errors()
+    # a landmark not fused keeps the error its session recorded: for one located from the views that see its mask
+    # whole that is the error over those views (`triangulation.located_from_whole_masks`), which recomputing over
+    # all its views (cut ones included, off by design) would undo; a fused point's error is over all its members'
+    for pid, error in own_error.items():
+        if pid not in members_of and pid in merged.points3D:
+            merged.points3D[pid].error = error
 
     # Merged landmark map: session order, fused landmarks once (at their first member's place).
     positions, sizes, pids_out, nobs, names = [], [], [], [], []
