@@ -281,6 +281,14 @@ def colmap_text_name_problem(names: Sequence[str], listing: str) -> tuple[int, s
     return None
 
 
+def refuse_names_colmap_cannot_hold(image_paths: Sequence[Path], listing: str, remedy: str) -> None:
+    """InputError naming the first image whose file name `listing` (TEXT_MODEL, PAIR_LIST) cannot hold
+    (`colmap_text_name_problem`), with `remedy`: the commands that would write such a file refuse it before any
+    work."""
+    if (problem := colmap_text_name_problem([Path(p).name for p in image_paths], listing)) is not None:
+        raise InputError(f"{problem[1]}: {remedy}", image_paths[problem[0]])
+
+
 def write_model(rec: pycolmap.Reconstruction, out_dir: str | Path, text: bool = False) -> None:
     """Write a pycolmap Reconstruction atomically as a COLMAP model directory (binary, or text if asked).
     ValueError for a text model of names it cannot hold (`colmap_text_name_problem`: callers refuse them first)."""

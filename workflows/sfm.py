@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..database.colmap_model import PAIR_LIST, colmap_text_name_problem
+from ..database.colmap_model import PAIR_LIST, colmap_text_name_problem, refuse_names_colmap_cannot_hold
 from ..database.taken import make_dirs
 from ..plugin.errors import InputError
 from ..plugin.image_pairs import line_spacing_m, overlap_cap_m, select_pairs
@@ -199,10 +199,8 @@ def refuse_pair_list_names(image_paths: Sequence[Path]) -> None:
     """InputError naming the first image whose file name COLMAP's pair list cannot hold (`write_pairs`;
     `colmap_model.colmap_text_name_problem`), before any work: matching a list of `DJI 00000.jpg` ... matched no
     pair ("Image DJI does not exist" in COLMAP's log) after the whole feature extraction."""
-    names = [Path(p).name for p in image_paths]
-    if (problem := colmap_text_name_problem(names, PAIR_LIST)) is not None:
-        raise InputError(f"{problem[1]}: rename the images (`map --poses` with given poses keeps any name)",
-                         image_paths[problem[0]])
+    refuse_names_colmap_cannot_hold(image_paths, PAIR_LIST,
+                                    "rename the images (`map --poses` with given poses keeps any name)")
 
 
 def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.ndarray, str]:

@@ -17,10 +17,10 @@ import numpy as np
 from ...database.cameras import one_camera, read_cameras_txt
 from ...database.colmap_model import (
     TEXT_MODEL,
-    colmap_text_name_problem,
     is_colmap_model,
     read_camera_file,
     read_colmap_model_poses,
+    refuse_names_colmap_cannot_hold,
 )
 from ...database.images import (  # noqa: F401 (IMAGE_EXTENSIONS re-exported)
     IMAGE_EXTENSIONS,
@@ -83,9 +83,8 @@ def refuse_text_model_names(image_paths: Sequence[Path]) -> None:
     """InputError naming the first image whose file name (the name the map stores it under) a COLMAP text model
     cannot hold (`colmap_model.colmap_text_name_problem`): `map --text` refuses it before any work. The map
     reported success and wrote images.txt that pycolmap read back as 40 images all named 'DJI'."""
-    if (problem := colmap_text_name_problem([p.name for p in image_paths], TEXT_MODEL)) is not None:
-        raise InputError(f"{problem[1]}: drop --text (the binary model keeps any name), or rename the images",
-                         image_paths[problem[0]])
+    refuse_names_colmap_cannot_hold(image_paths, TEXT_MODEL,
+                                    "drop --text (the binary model keeps any name), or rename the images")
 
 
 def load_inputs(
