@@ -265,9 +265,9 @@ def _remove_stem_named_outputs(out_dir: Path, image_name: str) -> None:
         return  # not a segment output this run can recognise: left as it is
     if made_for != image_name:
         return
-    overlay = out_dir / f"{stem}.png"
+    overlay = out_dir / f"{stem}.png"  # never the new overlay, NAME.EXT.png: the stem differs from the name
     old.unlink()
-    if overlay.is_file() and overlay.name != f"{image_name}.png":
+    if overlay.is_file():
         overlay.unlink()
 
 

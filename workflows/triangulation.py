@@ -372,7 +372,7 @@ def triangulate_landmarks(
         reason = None
         if len(obs) <= params.min_observations:
             reason = "few_observations"
-        elif not np.isfinite(point.error) or point.error > params.max_reprojection_error_px:
+        elif not np.isfinite(adjusted_error) or adjusted_error > params.max_reprojection_error_px:
             reason = "reprojection"
         elif behind_a_camera(obs[:, 0], xyz):
             reason = "behind_camera"

@@ -327,7 +327,8 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
     # a pair whose poses stand at one position (a repeated pose row, a copy of an image) has no epipolar geometry:
     # its distances are undefined (NaN), it constrains no systematic error, and in the fit it stood in as 1e3 px per
     # match that a drift "explained" by moving the two centres apart (nu49: F 2721, 99.7 % "explained", a drift
-    # printed as measured). It is left out of the fit; the map's inputs name such images (`inputs.same_position`)
+    # printed as measured). It is left out of the fit; the map's inputs name such images
+    # (`map.inputs.warn_duplicate_images`)
     has_baseline = ~without_baseline(baselines)
     systematic = fit_systematic_errors(poses, [p for p, b in zip(matched, has_baseline) if b], focal, flying,
                                        noise_px)
