@@ -254,10 +254,12 @@ def parse_xmp(packet: bytes) -> dict[str, str]:
     return out
 
 
-# XMP attitude tags (degrees) the pose workflows read: a value beyond one turn is a damaged tag, not an angle
-# (a yaw of 1e308 would otherwise be taken as a heading)
-XMP_ANGLE_TAGS = ("GimbalYawDegree", "GimbalPitchDegree", "GimbalRollDegree", "FlightYawDegree", "FlightPitchDegree",
-                  "FlightRollDegree", "Heading", "PitchAngle", "RollAngle")
+# XMP attitude tags (degrees) the pose workflows read (`workflows.image_priors`: DJI gimbal and airframe, Parrot
+# camera, senseFly): a value beyond one turn is a damaged tag, not an angle (a yaw of 1e308 would otherwise be taken
+# as a heading; rev38: Parrot's were missing, so theirs was)
+XMP_ANGLE_TAGS = ("GimbalYawDegree", "GimbalPitchDegree", "GimbalRollDegree", "CameraYawDegree", "CameraPitchDegree",
+                  "CameraRollDegree", "FlightYawDegree", "FlightPitchDegree", "FlightRollDegree", "Heading",
+                  "PitchAngle", "RollAngle")
 
 
 def _bad_angle(value: object) -> bool:

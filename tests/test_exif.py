@@ -22,6 +22,7 @@ from sosmatch.plugin.gps_track import frozen_fix, gps_jumps, off_nadir_deg
 from sosmatch.plugin.params import Params
 from sosmatch.tools.cli import main
 from sosmatch.workflows import poses_from_exif as pfe
+from sosmatch.workflows.image_priors import read_image_priors
 
 
 def _dms(deg: float) -> tuple:
@@ -659,6 +660,28 @@ def test_a_jump_is_named_and_parrot_tags_are_gimbal_angles(tmp_path, caplog):
     assert any("GPS jumps 2 time(s)" in w and "f2.jpg -> f3.jpg" in w for w in res.summary["warnings"])
     assert res.summary["attitude_sources"] == {"XMP CameraYaw/Pitch/RollDegree (Parrot)": 6}
     np.testing.assert_allclose(res.poses.rotations[:, :, 2], [[0, 0, -1]] * 6, atol=1e-9)
+
+
+def test_a_damaged_parrot_camera_angle_is_left_out_like_a_gimbal_one(tmp_path):
+    """rev38: Parrot's CameraYaw/Pitch/RollDegree were not among the checked angle tags, so a yaw of 1e300 was
+    taken as a heading (an arbitrary one) and never listed as damaged; the writer took it too."""
+    from sosmatch.database.exif_write import encode_exif
+
+    img = tmp_path / "parrot"
+    img.mkdir()
+    for k in range(4):
+        yaw = "1e300" if k == 2 else "+0.0"
+        write_jpeg(img / f"f{k}.jpg", 47.0 + k * 1e-4, 8.0, 500.0,
+                   {"CameraYawDegree": yaw, "CameraPitchDegree": "-90.0", "CameraRollDegree": "0.0"},
+                   xmp_as_elements=True)
+    meta = read_image_metadata(img / "f2.jpg")
+    assert "CameraYawDegree" not in meta.xmp and any("CameraYawDegree" in p for p in meta.problems)
+    priors = read_image_priors(img)
+    assert list(priors.summary["damaged_metadata"]) == ["f2.jpg"]
+    assert priors.attitude_kind[priors.names.index("f2.jpg")] == "course"  # its other sources, not the damaged yaw
+    meta.xmp["CameraPitchDegree"] = "-1e300"
+    with pytest.raises(ValueError, match="CameraPitchDegree"):
+        encode_exif(meta)
 
 
 def test_a_gps_position_without_its_hemisphere_is_left_out(tmp_path):
