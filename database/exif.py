@@ -181,13 +181,29 @@ def _float(value: object) -> float | None:
     return number if math.isfinite(number) else None
 
 
-def _dms(value: object) -> float | None:
-    """EXIF degrees/minutes/seconds (3 rationals) -> decimal degrees."""
+_DMS_PARTS = ("degrees", "minutes", "seconds")
+
+
+def _dms(value: object, tag: str = "GPS coordinate") -> tuple[float | None, str | None]:
+    """EXIF GPSLatitude/GPSLongitude (degrees, minutes, seconds: 3 rationals) -> (decimal degrees, None); (None,
+    None) when it holds no value (absent, or every part x/0: what a device with its GPS switched off writes, as
+    others write 0, 0: no fix); (None, the problem naming `tag` and its parts) when some parts are x/0 beside
+    others with a value (seconds 0/0 beside degrees and decimal minutes: exiftool drops such a coordinate too).
+    Pillow reads a rational x/0 as NaN, which was reported as a position "nan ... off the globe" (rev38)."""
     try:
-        d, m, s = (float(v) for v in value)  # type: ignore[union-attr]
+        raw = list(value)  # type: ignore[call-overload]
+        parts = [float(v) for v in raw]
     except (TypeError, ValueError, ZeroDivisionError):
-        return _float(value)
-    return d + m / 60.0 + s / 3600.0
+        return _float(value), None
+    if len(parts) != 3:
+        return None, None
+    empty = [f"{name} {getattr(v, 'numerator', 0)}/0" for name, v, f in zip(_DMS_PARTS, raw, parts) if math.isnan(f)]
+    if len(empty) == 3:
+        return None, None
+    if empty:
+        return None, f"{tag} {' and '.join(empty)}"
+    d, m, s = parts
+    return d + m / 60.0 + s / 3600.0, None
 
 
 def _text(value: object) -> str:
@@ -360,7 +376,12 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
     meta.make, meta.model = _text(exif.get(TAG_MAKE)), _text(exif.get(TAG_MODEL))
     _read_times(meta, sub, gps)
 
-    lat, lon = _dms(gps.get(GPS_LAT)), _dms(gps.get(GPS_LON))
+    (lat, lat_problem), (lon, lon_problem) = _dms(gps.get(GPS_LAT), "GPSLatitude"), _dms(gps.get(GPS_LON),
+                                                                                          "GPSLongitude")
+    if lat_problem or lon_problem:  # a coordinate without part of its value: the position is left out, said so
+        problems.append(", ".join(p for p in (lat_problem, lon_problem) if p) + " (a rational without a value): "
+                        "GPS position left out")
+        lat = lon = None
     lat_ref, lon_ref = _text(gps.get(GPS_LAT_REF)).strip().upper()[:1], _text(gps.get(GPS_LON_REF)).strip().upper()[:1]
     if lat is not None and lon is not None and (lat_ref not in ("N", "S") or lon_ref not in ("E", "W")):
         # the hemisphere is part of the position (EXIF requires the refs): without it a flight in the south or

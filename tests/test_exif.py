@@ -700,6 +700,40 @@ def test_a_gps_position_without_its_hemisphere_is_left_out(tmp_path):
     assert meta.latitude is None and any("without its hemisphere" in p for p in meta.problems)
 
 
+def _with_gps(src: Path, dst: Path, **tags: tuple) -> None:
+    """`src` saved as `dst` with the given GPS IFD tags (by id: lat=2, lon=4) replaced."""
+    with Image.open(src) as im:
+        exif = im.getexif()
+        gps = exif.get_ifd(0x8825)
+        gps.update({{"lat": 2, "lon": 4}[k]: v for k, v in tags.items()})
+        im.save(dst, exif=exif.tobytes())
+
+
+def test_a_gps_rational_0_over_0_is_no_fix_or_named_not_a_position_off_the_globe(tmp_path, capsys):
+    """rev38: Pillow reads a rational 0/0 as NaN, so a GPS switched off (every part 0/0) and seconds written 0/0
+    beside valid degrees and minutes were both "GPS position nan, nan is off the globe". All 0/0 is no fix (as
+    0, 0 is: no problem listed); a partial 0/0 leaves the position out with a problem naming the tag and part."""
+    empty = (IFDRational(0, 0),) * 3
+    minutes = (IFDRational(46, 1), IFDRational(599569, 10000), IFDRational(0, 0))  # degrees, decimal minutes, 0/0
+    src = tmp_path / "src.jpg"
+    write_jpeg(src, 47.0, 8.0, 500.0)
+    _with_gps(src, tmp_path / "off.jpg", lat=empty, lon=empty)
+    off = read_image_metadata(tmp_path / "off.jpg")
+    assert off.latitude is None and off.longitude is None and off.problems == []
+    _with_gps(src, tmp_path / "sec.jpg", lat=minutes)
+    sec = read_image_metadata(tmp_path / "sec.jpg")
+    assert sec.latitude is None and sec.longitude is None
+    assert sec.problems == ["GPSLatitude seconds 0/0 (a rational without a value): GPS position left out"]
+    img = tmp_path / "flight"
+    img.mkdir()
+    for k in range(3):
+        write_jpeg(src, 47.0 + k * 1e-4, 8.0, 500.0)
+        _with_gps(src, img / f"f{k}.jpg", lat=minutes, lon=minutes)
+    assert main(["poses-from-exif", str(img), "--out", str(tmp_path / "o" / "poses.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "here GPSLatitude seconds 0/0, GPSLongitude seconds 0/0" in err and "nan" not in err
+
+
 def test_telemetry_with_semicolons_and_omega_phi_kappa(tmp_path, caplog):
     from sosmatch.database.telemetry_io import read_telemetry_csv
 

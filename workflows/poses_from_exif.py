@@ -96,11 +96,14 @@ def poses_from_images(
     if len(no_fix):
         first = metas[int(no_fix[0])]
         hemisphere = any("hemisphere" in p for p in first.problems)
+        # a rational 0/0 in its coordinates (rev38): say which, not only that the position is missing
+        empty = next((p.split(" (")[0] for p in first.problems if "a rational without a value" in p), None)
         # GPS kept in sidecars by a photo editor: say where it is (nu42 D6: "50 of 50 ... no GPS", not a word
         # of the 50 .xmp files beside them)
         sidecars = sidecars_with_gps([metas[int(i)].path for i in no_fix])
         raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude"
-                         + (", here without its N/S/E/W refs" if hemisphere else "") + f"), e.g. {first.path.name}; "
+                         + (", here without its N/S/E/W refs" if hemisphere else "")
+                         + (f", here {empty}" if empty else "") + f"), e.g. {first.path.name}; "
                          + (f"{sidecars}; or " if sidecars else "")
                          + "give a telemetry CSV with positions or a poses.csv", first.path)
     # the GPS positions and tags are these poses: where no aircraft flies or looks like that, they are unusable
