@@ -25,6 +25,13 @@ _TELEMETRY_KEYS = {
     "lon": ("gpslongitude", "longitude", "lon"),
     "alt": ("gpsaltitude", "altitude", "alt"),
 }
+# The hemisphere columns of an export that keeps EXIF's unsigned coordinates beside their refs (exiftool's -csv of
+# GPSLatitude/GPSLongitude and their Ref tags): (aliases, the positive and the negative letter). rev38: they were
+# not read, so a flight in the west was placed in the east (Seneca, Ohio, in China) with exit 0.
+_REF_KEYS = {
+    "lat": (("gpslatituderef", "latituderef", "latref", "lat_ref"), "NS"),
+    "lon": (("gpslongituderef", "longituderef", "lonref", "lon_ref"), "EW"),
+}
 
 
 def telemetry_rows(tele: dict[str, dict[str, float]], names: list[str], telemetry: str | Path | None,
@@ -52,7 +59,10 @@ def telemetry_rows(tele: dict[str, dict[str, float]], names: list[str], telemetr
 
 def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
     """Per image name: yaw/pitch/roll (and lat/lon/alt where present) from a telemetry CSV (header names as in
-    Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...; case-insensitive)."""
+    Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...; case-insensitive).
+    Latitudes and longitudes are signed (south, west negative), or signed by a GPSLatitudeRef / GPSLongitudeRef
+    column (N/S, E/W, or North/South...: `_REF_KEYS`); a ref that is none of these, or a negative value beside N
+    or E, is an InputError naming the line."""
     path = Path(path)
     text = read_user_text(path, "telemetry file")
     lines = text.splitlines()
@@ -71,6 +81,8 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
                                                                            for k in ("yaw", "pitch", "roll")))
     if col["name"] is None:
         raise InputError(f"telemetry header needs an image name column (one of {_TELEMETRY_KEYS['name']})", path, 1)
+    refs = {key: (idx, letters) for key, (aliases, letters) in _REF_KEYS.items()
+            if (idx := next((header.index(a) for a in aliases if a in header), None)) is not None}
     out: dict[str, dict[str, float]] = {}
     placeholders = []  # rows whose position is no fix (module doc of `_position_is_a_fix`)
     for lineno, row in enumerate(rows[1:], start=2):
@@ -84,6 +96,10 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
                 values[key] = float(row[idx] if delimiter == "," else row[idx].replace(",", "."))
             except ValueError:
                 raise InputError(f"non-numeric {header[idx]} value {row[idx]!r}", path, lineno) from None
+        for key, (idx, letters) in refs.items():
+            if key in values and idx < len(row) and row[idx].strip():
+                values[key] = _signed_by_ref(values[key], row[idx], letters, header[col[key]], header[idx], path,
+                                             lineno)
         had_position = "lat" in values or "lon" in values
         values = {k: v for k, v in values.items() if math.isfinite(v)}  # "nan", "inf": no value
         if had_position and not _position_is_a_fix(values):
@@ -95,6 +111,22 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
         log.warning("%s: %d rows hold no GPS fix (lat/lon 0,0, missing or out of range, e.g. line %d: logged before "
                     "the receiver's lock?): their images keep their own GPS", path, len(placeholders), placeholders[0])
     return out
+
+
+def _signed_by_ref(value: float, ref: str, letters: str, name: str, ref_name: str, path: Path,
+                   lineno: int) -> float:
+    """`value` signed by its hemisphere `ref` (`letters`: the positive and the negative one; "North", "w" read by
+    their first letter). A value already negative beside the negative letter stays so (an export of signed values
+    beside their refs); one beside the positive letter contradicts it: InputError."""
+    letter = ref.strip().upper()[:1]
+    if letter not in letters:
+        raise InputError(f"{ref_name} {ref.strip()!r} is not {letters[0]} or {letters[1]}", path, lineno)
+    if letter == letters[1]:
+        return -abs(value)
+    if value < 0:
+        raise InputError(f"{name} {value!r} is negative beside {ref_name} {ref.strip()!r}: which hemisphere?", path,
+                         lineno)
+    return value
 
 
 def _position_is_a_fix(values: dict[str, float]) -> bool:

@@ -319,6 +319,31 @@ def test_telemetry_rows_without_a_fix_leave_the_exif_gps(tmp_path, caplog):
     assert any("3 rows hold no GPS fix" in r.getMessage() for r in caplog.records)
 
 
+def test_telemetry_hemisphere_columns_sign_its_coordinates(tmp_path):
+    """rev38: a telemetry CSV of unsigned coordinates beside GPSLatitudeRef / GPSLongitudeRef columns (exiftool's
+    -csv keeps EXIF's values so) was read as north and east: Seneca, in Ohio, was posed in China with exit 0. The
+    refs now sign the values; a ref that is no hemisphere, or contradicts a signed value, is refused."""
+    from sosmatch.database.telemetry_io import read_telemetry_csv
+
+    img, exif = _four_images_flying_east(tmp_path)  # 47 N, 99 W
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,GPSLatitude,GPSLatitudeRef,GPSLongitude,GPSLongitudeRef,GPSAltitude\n"
+                    + "".join(f"f{k}.jpg,47.0,N,{99.0 - k * 1e-4!r},{'W' if k else 'West'},500\n" for k in range(4)))
+    res = pfe.poses_from_images(img, telemetry=tele)
+    assert res.summary["position_sources"] == {"telemetry CSV": 4} and res.epsg == exif.epsg
+    np.testing.assert_allclose(res.poses.centers, exif.poses.centers, atol=1e-3)
+    south = tmp_path / "south.csv"
+    south.write_text("filename,lat,lat_ref,lon,lon_ref\na.jpg,33.9,S,-70.6,W\nb.jpg,33.9,s,70.6,E\n")
+    rows = read_telemetry_csv(south)
+    assert (rows["a.jpg"]["lat"], rows["a.jpg"]["lon"], rows["b.jpg"]["lon"]) == (-33.9, -70.6, 70.6)
+    south.write_text("filename,lat,lat_ref,lon,lon_ref\na.jpg,33.9,X,70.6,W\n")
+    with pytest.raises(InputError, match="lat_ref 'X' is not N or S"):
+        read_telemetry_csv(south)
+    south.write_text("filename,lat,lat_ref,lon,lon_ref\na.jpg,33.9,S,-70.6,E\n")
+    with pytest.raises(InputError, match="negative beside lon_ref 'E'"):
+        read_telemetry_csv(south)
+
+
 def test_heights_from_telemetry_and_exif_share_one_datum(tmp_path, caplog):
     """rev16: a telemetry CSV whose altitudes are above the ellipsoid (30 m over the EXIF's sea-level ones) that
     covers only some images left the others at their EXIF altitude: the flight's heights jumped by 30 m between
