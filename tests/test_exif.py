@@ -296,10 +296,40 @@ def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog)
     np.testing.assert_allclose(moved[:, 2], 12.5, atol=1e-6)
     assert any("differ by 3.0 m" in r.getMessage() and r.levelno == logging.INFO for r in caplog.records)
     caplog.clear()
-    shifted(2000.0)  # the log of another flight with the same file names
+    shifted(300.0)  # another datum, or the log of another flight with the same file names
     with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
-        pfe.poses_from_images(img, telemetry=tele)
+        res = pfe.poses_from_images(img, telemetry=tele)
     assert any("another flight" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
+    # rev38: the warning was in the log only; the summary's warnings are what poses.json / run.json record
+    assert any("differ by 300.0 m" in w and "another flight" in w for w in res.summary["warnings"])
+    shifted(2000.0)  # beyond any GPS error or datum: refused (image_priors.TELEMETRY_REFUSE_M)
+    with pytest.raises(InputError, match=r"telemetry.csv: its positions lie 2000 m from the images' own EXIF GPS"):
+        pfe.poses_from_images(img, telemetry=tele)
+
+
+def test_telemetry_on_another_continent_is_refused_unless_the_exif_fixes_are_frozen(tmp_path, capsys):
+    """rev38: Seneca's telemetry with its longitudes unsigned (the W in a column the reader did not read) moved
+    every image 14,000 km from its own EXIF GPS, to China; one log line said so and the poses were written, exit 0.
+    Now that is one line naming the file, exit 2, nothing written. A camera whose own fixes all lie at one point
+    (no lock) is what such a file mends: its positions are taken, with a warning the summary records."""
+    img, _ = _four_images_flying_east(tmp_path)  # 47 N, 99 W
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,GPSLatitude,GPSLongitude,GPSAltitude\n"
+                    + "".join(f"f{k}.jpg,47.0,{99.0 - k * 1e-4!r},500\n" for k in range(4)))  # the sign lost
+    out = tmp_path / "o" / "poses.csv"
+    assert main(["poses-from-exif", str(img), "--telemetry", str(tele), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{tele}: its positions lie " in err and "remove its latitude" in err
+    assert not out.exists() and not (out.parent / "cameras.txt").exists()
+    frozen = tmp_path / "frozen"
+    frozen.mkdir()
+    for k in range(4):
+        write_jpeg(frozen / f"f{k}.jpg", 47.05, -99.0, 500.0)  # a stale fix 5.6 km north of the flight
+    tele.write_text("FileName,GPSLatitude,GPSLongitude,GPSAltitude\n"
+                    + "".join(f"f{k}.jpg,47.0,{-99.0 + k * 1e-4!r},500\n" for k in range(4)))
+    res = pfe.poses_from_images(frozen, telemetry=tele)
+    assert res.summary["position_sources"] == {"telemetry CSV": 4}
+    assert any("all lie at one point" in w for w in res.summary["warnings"])
 
 
 def test_telemetry_rows_without_a_fix_leave_the_exif_gps(tmp_path, caplog):

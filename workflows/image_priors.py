@@ -13,7 +13,8 @@ flight's median fix unless `epsg` is given: two flights of one site then take on
 lies on a zone boundary, where the first image's zone split them by where each started). A telemetry CSV's
 positions (GPSLatitude, GPSLongitude, GPSAltitude), where its row has them, take precedence over the image's own
 EXIF GPS: a file the user gives is their better positions (an autopilot's log, a PPK / RTK solution), as
-OpenDroneMap's geo.txt overrides the EXIF.
+OpenDroneMap's geo.txt overrides the EXIF; how far it moves them is judged (`_telemetry_against_exif`: a warning
+beyond TELEMETRY_WARN_M, refused beyond TELEMETRY_REFUSE_M).
 Heights: the GPS altitude (metres, as the receiver reports it:
 for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
 vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off
@@ -89,6 +90,7 @@ from ..plugin.geodesy import (  # noqa: F401 (re-exported)
     utm_epsg,
 )
 from ..plugin.geometry import Camera
+from ..plugin.gps_track import frozen_fix
 from ..plugin.keyframes import flight_order, flight_order_message
 from .image_cameras import (  # noqa: F401 (re-exported: their home before image_cameras)
     EXIF_FOCAL_TOLERANCE,
@@ -129,6 +131,13 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
 # reason)
 TELEMETRY_NOTE_M = 1.0
 TELEMETRY_WARN_M = 50.0
+# Beyond this median disagreement the telemetry's positions are not these images' positions corrected: no GPS error
+# (metres; tens with multipath) or datum still met on a receiver or an autopilot's log (WGS84 against NAD27,
+# ED50, Pulkovo 1942: 0.1-0.2 km; against the Tokyo datum, the largest: ~0.5 km) moves a fix by a kilometre.
+# A whole flight moved further is a wrong file: another site's log under the same file names, coordinates without
+# their sign (rev38: Seneca posed in China, 14,000 km off, exit 0). Refused; between the two bounds, a warning.
+# Not relative to the flight's extent: neither a datum's shift nor a GPS error grows with the flight.
+TELEMETRY_REFUSE_M = 1000.0
 
 
 def _course_from_neighbours(east: np.ndarray, north: np.ndarray) -> np.ndarray:
@@ -252,6 +261,33 @@ def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
     return idx, "capture order (no EXIF DateTimeOriginal)"
 
 
+def _telemetry_against_exif(telemetry: str | Path | None, moved: np.ndarray, exif_ll: np.ndarray) -> list[str]:
+    """Judge how far a telemetry CSV's positions moved the images' own EXIF fixes (`moved`, metres, per image with
+    both; `exif_ll` those fixes' lat, lon): logged beyond TELEMETRY_NOTE_M (median), a warning returned for the
+    summary beyond TELEMETRY_WARN_M (it was in the log only: poses.json and run.json never said it), an InputError
+    beyond TELEMETRY_REFUSE_M. Unless the EXIF fixes all lie at one point (`frozen_fix`: a camera whose receiver
+    had no lock, the case a telemetry file mends), then it is a warning whatever the distance."""
+    if not len(moved) or (median := float(np.median(moved))) <= TELEMETRY_NOTE_M:
+        return []
+    said = f"positions from {telemetry}, not the images' EXIF GPS: they differ by {median:.1f} m (median of " \
+           f"{len(moved)} images)"
+    if median <= TELEMETRY_WARN_M:
+        log.info("%s", said)
+        return []
+    lat, lon = exif_ll[:, 0], exif_ll[:, 1]
+    frozen = frozen_fix(lon * METRES_PER_DEGREE * np.cos(np.radians(lat)), lat * METRES_PER_DEGREE)
+    if median > TELEMETRY_REFUSE_M and not frozen:
+        raise InputError(f"its positions lie {median:.0f} m from the images' own EXIF GPS (median of {len(moved)} "
+                         f"images), beyond any GPS error or datum shift ({TELEMETRY_REFUSE_M:.0f} m): the log of "
+                         "another flight under the same file names, or coordinates without their sign (a missing "
+                         "S/W, a GPSLongitudeRef column)? Fix the file, or remove its latitude/longitude columns "
+                         "to take only its attitude", telemetry)
+    said += (": the images' own fixes all lie at one point (a receiver without a lock), so the telemetry's are "
+             "taken" if frozen else ": the telemetry of another flight, or another datum?")
+    log.warning("%s", said)
+    return [said]
+
+
 def check_prior_options(mount: str | np.ndarray, sensor_width_mm: float | None, epsg: int | None,
                         takeoff_altitude_m: float | None) -> None:
     """Refuse (one-line InputError) options the images' metadata cannot be read with, before any image is read.
@@ -313,6 +349,7 @@ def read_image_priors(
     alt_from_telemetry = np.zeros(n, bool)
     pos_src: Counter = Counter()
     moved = []  # telemetry positions against the same images' EXIF GPS (m, horizontal)
+    exif_ll = []  # ... and those EXIF fixes (lat, lon)
     for i, m in enumerate(metas):
         t = rows[i]
         if "lat" in t and "lon" in t:  # the user's file over the images' own tags (module doc)
@@ -322,6 +359,7 @@ def read_image_priors(
             if m.has_gps:
                 moved.append(math.hypot((t["lat"] - m.latitude) * METRES_PER_DEGREE, (t["lon"] - m.longitude)
                                         * METRES_PER_DEGREE * math.cos(math.radians(m.latitude))))
+                exif_ll.append((m.latitude, m.longitude))
         elif m.has_gps:
             lat[i], lon[i] = m.latitude, m.longitude
             # an image without an EXIF altitude keeps its telemetry altitude (a row with an altitude but no fix)
@@ -329,13 +367,8 @@ def read_image_priors(
             pos_src["EXIF GPS"] += 1
         if np.isfinite(lat[i]):
             alt[i] = tele_alt[i] if alt_from_telemetry[i] else exif_alt[i]
+    tele_warnings = _telemetry_against_exif(telemetry, np.asarray(moved), np.asarray(exif_ll))
     alt = one_vertical_datum(alt, alt_from_telemetry & np.isfinite(alt), tele_alt, exif_alt, telemetry)
-    if moved and np.median(moved) > TELEMETRY_NOTE_M:
-        far = np.median(moved) > TELEMETRY_WARN_M
-        log.log(logging.WARNING if far else logging.INFO,
-                "positions from %s, not the images' EXIF GPS: they differ by %.1f m (median of %d images)%s",
-                telemetry, float(np.median(moved)), len(moved),
-                ": the telemetry of another flight, or another datum?" if far else "")
     has = np.isfinite(lat)
     east, north, north_az = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
     if has.any():
@@ -460,7 +493,7 @@ def read_image_priors(
         "meridian_convergence_deg": float(np.mean(north_az)),
         "intrinsics_source": intrinsics_sources[0],
         # those a consumer's own record must count (poses.json)
-        "warnings": repeated + track_warnings + camera_warnings,
+        "warnings": repeated + tele_warnings + track_warnings + camera_warnings,
         "cameras": [{"make_model": make_model(next(m for m, i in zip(metas, camera_index) if i == g)),
                      "images": int(np.sum(camera_index == g)), "width": c.width, "height": c.height,
                      "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "intrinsics_source": intrinsics_sources[g]}
