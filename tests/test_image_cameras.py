@@ -264,3 +264,14 @@ def test_a_map_on_exif_intrinsics_repeats_their_warnings(tmp_path):
         _jpeg(images / f"f{k}.jpg", (560, 480), (640, 480), k, nadir)  # 80 px cut off, EXIF unchanged
     inputs = map_inputs_from_images(images)
     assert any("principal point is unknown" in w for w in inputs.warnings)
+
+
+def test_a_given_sensor_width_spans_the_files_long_side_either_way_up():
+    """rev38: --sensor-width-mm divided into the file's width, for a portrait file the sensor's short side: fx
+    25 % short (2188 px for 2917). A sensor's width is its long side, which the file's long side spans."""
+    landscape = ImageMetadata(Path("/x/l.jpg"), 4000, 3000, focal_mm=4.5)
+    portrait = ImageMetadata(Path("/x/p.jpg"), 3000, 4000, focal_mm=4.5)
+    truth = 4.5 / 6.17 * 4000
+    for meta in (landscape, portrait):
+        cam, source = camera_from_metadata(meta, sensor_width_mm=6.17)
+        assert cam.fx == pytest.approx(truth, rel=1e-9) and cam.fy == cam.fx and "given sensor width" in source

@@ -2,9 +2,9 @@
 
 Intrinsics: fx = FocalLength [mm] * FocalPlaneXResolution [px/mm] * (file width / ExifImageWidth): EXIF
 describes the sensor readout, and images are often downscaled afterwards (Seneca: 4000x3000 -> 1200x900).
-Without a focal-plane resolution, `sensor_width_mm` (fx = f / sensor width * file width) or the 35 mm
-equivalent focal length are used. The 35 mm figure refers to the diagonal of the sensor's full frame, not of a
-crop of it (a DJI 16:9 still is a band of a 4:3 sensor: `full_frame_diagonal_px`).
+Without a focal-plane resolution, `sensor_width_mm` (the sensor's long side: fx = f / sensor width * the file's
+long side) or the 35 mm equivalent focal length are used. The 35 mm figure refers to the diagonal of the sensor's
+full frame, not of a crop of it (a DJI 16:9 still is a band of a 4:3 sensor: `full_frame_diagonal_px`).
 
 Where the EXIF gives both, the two routes are checked against each other: a photo resized after capture keeps
 the 35 mm ratio but not the pixel pitch, a cropped one the pixel pitch but not the frame, so where they disagree
@@ -187,7 +187,9 @@ def _refuse_disagreement(meta: ImageMetadata, by_plane: Camera, by_35: Camera) -
 def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> tuple[Camera, str]:
     w, h = meta.width, meta.height
     if meta.focal_mm and sensor_width_mm:
-        fx = meta.focal_mm / sensor_width_mm * w
+        # A sensor's width is its long side (spec sheets, and the focal plane route here), and the file's long side
+        # spans it whichever way the file is turned: by the file's width, a portrait file got fx 25 % short (rev38)
+        fx = meta.focal_mm / sensor_width_mm * max(w, h)
         return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLength + given sensor width"
     stale = None
     if meta.focal_mm and meta.focal_plane_px_per_mm:
