@@ -114,16 +114,17 @@ def test_a_seven_by_six_crop_is_called_cropped_by_both_checks():
 
 
 def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int,
-          dji: dict[str, str] | None = None) -> None:
-    """A JPEG of the 1-inch camera's EXIF at `size`, north of 47 N by `k` seconds, with DJI XMP `dji`."""
+          dji: dict[str, str] | None = None, zoom: int = 1) -> None:
+    """A JPEG of the 1-inch camera's EXIF at `size`, north of 47 N by `k` seconds, with DJI XMP `dji`, its lens
+    zoomed optically by `zoom` (FocalLength and the 35 mm figure multiplied)."""
     img = Image.fromarray(np.random.default_rng(k).integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
     exif = Image.Exif()
     exif[0x010F], exif[0x0110] = "DJI", "FC"
     sub = exif.get_ifd(0x8769)
-    sub[0x920A] = IFDRational(round(FOCAL_MM * 100), 100)
+    sub[0x920A] = IFDRational(round(FOCAL_MM * zoom * 100), 100)
     sub[0xA20E] = sub[0xA20F] = IFDRational(round(PX_PER_MM * 10 * 100), 100)  # px per cm
     sub[0xA210] = 3
-    sub[0xA405] = int(F35)
+    sub[0xA405] = int(F35) * zoom
     sub[0xA002], sub[0xA003] = exif_size
     gps = exif.get_ifd(0x8825)
     gps[1], gps[3], gps[5] = "N", "E", 0
@@ -275,3 +276,62 @@ def test_a_given_sensor_width_spans_the_files_long_side_either_way_up():
     for meta in (landscape, portrait):
         cam, source = camera_from_metadata(meta, sensor_width_mm=6.17)
         assert cam.fx == pytest.approx(truth, rel=1e-9) and cam.fy == cam.fx and "given sensor width" in source
+
+
+def _zoomed(meta: ImageMetadata, zoom: float) -> ImageMetadata:
+    meta.focal_mm *= zoom
+    meta.focal_35mm = meta.focal_35mm * zoom if meta.focal_35mm else None
+    return meta
+
+
+def test_one_camera_at_two_focal_lengths_is_two_cameras():
+    """rev38: an optical zoom (or another lens on one body) keeps make, model and size; its frames at 502 and
+    1005 px became one camera of the median 749 px, wrong for every image. Each setting is a camera of its own,
+    and tag-rounding differences (within FOCAL_GROUP_TOLERANCE) stay one camera."""
+    metas = [_zoomed(_meta(640, 480, (640, 480)), 2.0 if k % 2 else 1.0) for k in range(6)]
+    metas.append(_zoomed(_meta(640, 480, (640, 480)), 1.004))  # the tag's rounding: the unzoomed camera
+    cameras, index, sources, warnings = camera_groups(metas, None, strict=True)
+    assert [c.fx for c in cameras] == pytest.approx([TRUE_FX_640, 2 * TRUE_FX_640], rel=0.005)
+    assert index.tolist() == [0, 1, 0, 1, 0, 1, 0] and len(sources) == 2 and warnings == []
+    # the images' order does not change the grouping (settings in the order of their first images)
+    cameras_r, index_r, _, _ = camera_groups(metas[::-1], None, strict=True)
+    assert [c.fx for c in cameras_r] == pytest.approx([TRUE_FX_640, 2 * TRUE_FX_640], rel=0.005)
+    assert index_r.tolist() == [0, 1, 0, 1, 0, 1, 0]
+    # a chain of close zoom steps is not merged end to end: no camera spans more than the tolerance
+    chain = [_zoomed(_meta(640, 480, (640, 480)), 1.0 + 0.006 * k) for k in range(5)]
+    cameras, index, _, _ = camera_groups(chain, None, strict=True)
+    assert index.tolist() == [0, 0, 1, 1, 2]
+
+
+def test_an_image_without_a_focal_length_beside_a_zoom_is_not_given_a_setting():
+    """Images without a usable focal length take their camera's; at two settings, which is theirs is unknown:
+    refused where the intrinsics are final (strict), else a camera of their own that structure from motion
+    estimates from the 1.2 x guess."""
+    bare = ImageMetadata(Path("/x/bare.jpg"), 640, 480, make="DJI", model="FC")
+    one = [_meta(640, 480, (640, 480)), bare]
+    cameras, index, _, _ = camera_groups(one, None, strict=True)  # one setting: it takes that one
+    assert len(cameras) == 1 and index.tolist() == [0, 0]
+    two = [_meta(640, 480, (640, 480)), _zoomed(_meta(640, 480, (640, 480)), 2.0), bare]
+    with pytest.raises(InputError, match=r"bare\.jpg: no usable focal length .* at 2 focal lengths"):
+        camera_groups(two, None, strict=True)
+    cameras, index, sources, warnings = camera_groups(two, None, strict=False)
+    assert index.tolist() == [0, 1, 2] and cameras[2].fx == pytest.approx(1.2 * 640)
+    assert "none in EXIF" in sources[2] and len(warnings) == 1 and "1 images" in warnings[0]
+
+
+def test_poses_from_exif_refuses_a_zoomed_flight_instead_of_averaging_it(tmp_path, capsys):
+    """rev38 r1_zoom end to end: poses-from-exif wrote fx 748.8 px for every image of a flight alternating 2x
+    optical zoom, exit 0; one camera file cannot hold both: refused in one line naming both focal lengths."""
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(4):
+        _jpeg(images / f"f{k}.jpg", (640, 480), (640, 480), k, zoom=2 if k % 2 else 1)
+    out = tmp_path / "p" / "poses.csv"
+    assert main(["poses-from-exif", str(images), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "2 cameras of different focal lengths (fx 502, 1005 px" in err[0]
+    assert not out.exists()
+    # map takes one camera: its structure from motion path refuses before any work, naming both settings
+    assert main(["map", "--images", str(images), "--out", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "2 cameras (640x480 fx 502 px, 640x480 fx 1005 px)" in err[-1]

@@ -1,4 +1,4 @@
-"""A folder of survey images' cameras from their EXIF: one camera per make, model and image size.
+"""A folder of survey images' cameras from their EXIF: one camera per make, model, image size and focal length.
 
 Intrinsics: fx = FocalLength [mm] * FocalPlaneXResolution [px/mm] * (file width / ExifImageWidth): EXIF
 describes the sensor readout, and images are often downscaled afterwards (Seneca: 4000x3000 -> 1200x900).
@@ -237,57 +237,108 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
                      f"FocalLengthIn35mmFilm); {advice}", meta.path)
 
 
+# Images of one make, model and size whose focal lengths differ by more than this are cameras of their own: an
+# optical zoom, or another lens on the same body (a Zenmuse P1 with its 24 and 35 mm lenses: one model name, one
+# size). One camera at the median focal length was wrong for every image (rev38: a flight alternating 502 and
+# 1005 px became one camera of 749 px; structure from motion put the centres 34 m off, blaming the GPS). One
+# setting repeats its tags exactly (FocalLength a rational, the 35 mm figure whole millimetres), and the next
+# setting differs by at least a step of the tag (0.1 mm at 4.3 mm: 2.3 %; 1 mm at 27 mm: 3.7 %); what is left
+# within 1 % (float noise, a tag that jitters with focus) moves fx less than the lens marking's own 2 %
+# (EXIF_NOMINAL_FOCAL_SIGMA), so it stays one camera at the median.
+FOCAL_GROUP_TOLERANCE = 0.01
+
+
+def focal_clusters(fxs: list[float]) -> list[list[int]]:
+    """Indices into `fxs` (focal lengths, px) grouped into settings: in ascending order, a group takes focal
+    lengths within FOCAL_GROUP_TOLERANCE of its shortest, so no group spans more than that (a chain of close
+    zoom steps is not merged end to end), and the grouping does not depend on the images' order."""
+    order = sorted(range(len(fxs)), key=lambda i: (fxs[i], i))
+    groups: list[list[int]] = []
+    for i in order:
+        if groups and fxs[i] <= fxs[groups[-1][0]] * (1.0 + FOCAL_GROUP_TOLERANCE):
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    return [sorted(g) for g in groups]
+
+
 def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str], list[str]]:
-    """One camera per make + model + image size + digital zoom (the median focal length of its images), the
-    camera of every image and the intrinsics source of each camera. Images of a camera whose EXIF gives no
-    usable focal length share the others' (one warning counts them). Without any for a camera, it gets COLMAP's
-    default guess (1.2 x the longer side) with a warning (also returned, last), or InputError when `strict`
-    (the first image's reason)."""
-    keys = sorted({m.camera_key for m in metas}, key=lambda k: [m.camera_key for m in metas].index(k))
-    index = np.array([keys.index(m.camera_key) for m in metas], dtype=np.int64)
-    cameras, sources, warnings = [], [], []
-    for g, key in enumerate(keys):
-        members = [m for m, i in zip(metas, index) if i == g]
-        found, failed = [], []
-        for m in members:
+    """One camera per make + model + image size + digital zoom + focal length (`FOCAL_GROUP_TOLERANCE`: a zoom's
+    or swapped lens's settings are cameras of their own; the median focal length of its images), the camera of
+    every image and the intrinsics source of each camera, in the order of their first images. Images of a camera
+    whose EXIF gives no usable focal length share the others' (one warning counts them); where those others are
+    at several focal lengths, which is theirs is unknown: InputError when `strict`, else a camera of their own.
+    Without any for a camera, it gets COLMAP's default guess (1.2 x the longer side) with a warning (also
+    returned, last), or InputError when `strict` (the first image's reason)."""
+    by_key: dict[tuple, list[int]] = {}
+    for i, m in enumerate(metas):
+        by_key.setdefault(m.camera_key, []).append(i)
+    groups: list[tuple[list[int], list[tuple[Camera, str]], list[InputError]]] = []
+    for members in by_key.values():
+        found: list[tuple[int, tuple[Camera, str]]] = []
+        failed: list[tuple[int, InputError]] = []
+        for i in members:
             try:
-                found.append(camera_from_metadata(m, sensor_width_mm))
+                found.append((i, camera_from_metadata(metas[i], sensor_width_mm)))
             except InputError as exc:
-                failed.append(exc)
-        w, h = key[2], key[3]
-        name = f"{f'{key[0]} {key[1]}'.strip() or 'camera'} ({w}x{h}, {len(members)} images)"
-        if not found:
+                failed.append((i, exc))
+        settings = [[found[k] for k in c] for c in focal_clusters([cam.fx for _, (cam, _) in found])]
+        if len(settings) > 1:
+            m0 = metas[members[0]]
+            log.info("%s (%dx%d): images at %d focal lengths (fx %s px; a zoom or another lens): a camera for each",
+                     make_model(m0) or "camera", m0.width, m0.height, len(settings),
+                     ", ".join(f"{float(np.median([c.fx for _, (c, _) in s])):.0f}" for s in settings))
+        if failed and len(settings) > 1:
             if strict:
-                raise failed[0]
+                i, exc = failed[0]
+                raise InputError(f"no usable focal length in EXIF ({exc.problem}), and the other images of its "
+                                 f"camera are at {len(settings)} focal lengths (a zoom or another lens): which is "
+                                 f"its is unknown; give a camera file (map --camera) or let structure from motion "
+                                 f"estimate it (`sosmatch poses`)", metas[i].path)
+            groups += [([i for i, _ in s], [r for _, r in s], []) for s in settings]
+            groups.append(([i for i, _ in failed], [], [e for _, e in failed]))
+        elif settings:
+            groups += [([i for i, _ in s] + ([i for i, _ in failed] if g == 0 else []), [r for _, r in s],
+                        [e for _, e in failed] if g == 0 else []) for g, s in enumerate(settings)]
+        else:
+            groups.append(([i for i, _ in failed], [], [e for _, e in failed]))
+    groups.sort(key=lambda g: min(g[0]))
+    index = np.empty(len(metas), dtype=np.int64)
+    cameras, sources, warnings = [], [], []
+    for g, (images, found_cams, failed_exc) in enumerate(groups):
+        index[images] = g
+        m0 = metas[min(images)]
+        w, h = m0.width, m0.height
+        name = f"{make_model(m0) or 'camera'} ({w}x{h}, {len(images)} images)"
+        if not found_cams:
+            if strict:
+                raise failed_exc[0]
             f = 1.2 * max(w, h)
-            warnings.append(f"{name}: no usable focal length in EXIF ({failed[0].problem}); starting from {f:.0f} px "
-                            "(structure from motion estimates it)")
+            warnings.append(f"{name}: no usable focal length in EXIF ({failed_exc[0].problem}); starting from "
+                            f"{f:.0f} px (structure from motion estimates it)")
             log.warning("%s", warnings[-1])
             cameras.append(Camera(w, h, f, f, w / 2.0, h / 2.0))
             sources.append("none in EXIF (1.2 x the longer side)")
             continue
-        if failed:
-            example = failed[0].path.name if failed[0].path else "?"
+        if failed_exc:
+            example = failed_exc[0].path.name if failed_exc[0].path else "?"
             log.warning("%s: %d of its images have no usable focal length in EXIF (e.g. %s): they take the focal "
-                        "length of the other %d", name, len(failed), example, len(found))
-        cropped = [source for _, source in found if "cropped?" in source]
+                        "length of the other %d", name, len(failed_exc), example, len(found_cams))
+        cropped = [source for _, source in found_cams if "cropped?" in source]
         if cropped:
             sizes = cropped[0].split(", EXIF size ")[-1].split(" differ")[0]
             warnings.append(f"{name}: {len(cropped)} images' EXIF size and file size differ in aspect (cropped?): "
                             f"their focal length is scaled by the side cut least, their principal point is unknown "
                             f"(the image centre taken; EXIF size {sizes})")
             log.warning("%s", warnings[-1])
-        elif (odd := odd_aspect(members[0])) is not None:
+        elif (odd := odd_aspect(m0)) is not None:
             warnings.append(f"{name}: {odd}")
             log.warning("%s", warnings[-1])
-        fxs = np.array([c.fx for c, _ in found])
-        fys = np.array([c.fy for c, _ in found])
-        if fxs.max() > 1.01 * fxs.min():
-            log.warning("focal lengths differ between images (%.1f..%.1f px): using the median", fxs.min(), fxs.max())
-        c0 = found[0][0]
-        cameras.append(Camera(c0.width, c0.height, float(np.median(fxs)), float(np.median(fys)), c0.cx, c0.cy))
-        sources.append(found[0][1])
+        c0 = found_cams[0][0]
+        cameras.append(Camera(c0.width, c0.height, float(np.median([c.fx for c, _ in found_cams])),
+                              float(np.median([c.fy for c, _ in found_cams])), c0.cx, c0.cy))
+        sources.append(found_cams[0][1])
     return cameras, index, sources, warnings
 
 
