@@ -335,3 +335,28 @@ def test_poses_from_exif_refuses_a_zoomed_flight_instead_of_averaging_it(tmp_pat
     assert main(["map", "--images", str(images), "--out", str(tmp_path / "m")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "2 cameras (640x480 fx 502 px, 640x480 fx 1005 px)" in err[-1]
+
+
+def _canon(width: int, exif_width: int) -> ImageMetadata:
+    """Seneca's Canon tags (4.3 mm on a 4000 px readout at 645.41 px/mm: 6.198 mm wide; no 35 mm figure), the file
+    `width` px wide (4:3) and ExifImageWidth `exif_width` (an export that rewrites it: the file's)."""
+    return ImageMetadata(Path(f"/x/{width}.jpg"), width, width * 3 // 4, focal_mm=4.3,
+                         focal_plane_px_per_mm=(645.41, 645.41), exif_size=(exif_width, exif_width * 3 // 4),
+                         make="Canon", model="Canon PowerShot ELPH 300 HS")
+
+
+def test_a_resize_that_puts_a_photo_sensor_below_any_real_one_is_refused():
+    """rev38 r6: a 2000 px export of Seneca's Canon with ExifImageWidth rewritten to 2000 read as a 3.1 mm sensor
+    (over the 3 mm floor) and got fx 2775 px for 1387, silently. 1.5 um pixels are a photo sensor's, and none is
+    narrower than 1/3.2" (4.5 mm): refused. Thermal cores (12 um pixels) keep the 3 mm floor."""
+    truth = 4.3 / (4000 / 645.41)
+    assert camera_from_metadata(_canon(4000, 4000))[0].fx == pytest.approx(truth * 4000, rel=1e-9)
+    assert camera_from_metadata(_canon(1200, 4000))[0].fx == pytest.approx(truth * 1200, rel=1e-9)  # Seneca's files
+    assert camera_from_metadata(_canon(2000, 4000))[0].fx == pytest.approx(truth * 2000, rel=1e-9)
+    with pytest.raises(InputError, match=r"on a 3\.10 mm sensor, .*ExifImageWidth rewritten; 1\.5 um pixels are a "
+                                         r"photo sensor's, none narrower than 4\.5 mm\): give the sensor width"):
+        camera_from_metadata(_canon(2000, 2000))
+    # a 320 px thermal core at 12 um (3.84 mm) is a real one
+    core = ImageMetadata(Path("/x/t.jpg"), 320, 256, focal_mm=9.1, focal_plane_px_per_mm=(1000 / 12, 1000 / 12),
+                         exif_size=(320, 256))
+    assert camera_from_metadata(core)[0].fx == pytest.approx(9.1 * 1000 / 12, rel=1e-9)

@@ -80,12 +80,28 @@ def exif_focal_uncertainty(camera: Camera, source: str) -> float:
     return math.hypot(EXIF_NOMINAL_FOCAL_SIGMA, rounding)
 
 
-# The narrowest sensor of a survey camera (1/4": 3.6 mm). A focal plane resolution that puts an image on a
-# narrower one refers to another readout than the file's: the image was downscaled after the camera wrote its
-# EXIF, and ExifImageWidth, which said from what size, was dropped or rewritten to the new one (the sixteenth
-# sweep: Seneca's 1200 px frames on a "1.86 mm" sensor gave fx 2775 px for 833, and a map 30-140 m too low
-# passed). Thermal cores this small (160 px Lepton, 1.9 mm) take --sensor-width-mm.
+# The narrowest sensors, by their pixel pitch, which the focal plane resolution gives and which an export that
+# rewrites ExifImageWidth leaves as the camera's. A focal plane resolution that puts an image on a narrower sensor
+# refers to another readout than the file's: the image was downscaled after the camera wrote its EXIF, and
+# ExifImageWidth, which said from what size, was dropped or rewritten to the new one (the sixteenth sweep:
+# Seneca's 1200 px frames on a "1.86 mm" sensor gave fx 2775 px for 833, and a map 30-140 m too low passed).
+# - A photo sensor (pixels finer than PHOTO_SENSOR_MAX_PITCH_UM: CMOS and CCD, 0.8-8.5 um) is no narrower than
+#   1/3.2" (4.54 mm; phones' and compacts' smallest, survey cameras are 1/2.3", 6.2 mm, and up). With 3 mm for
+#   all, exports of Seneca's Canon (4000 px, 6.2 mm, no 35 mm figure to check against) down to 1936 px passed
+#   with fx up to 2x too long (rev38): now those below 2900 px (x1.38) are refused. A milder downscale (x1.33 at
+#   3000 px: "4.65 mm") still reads as a real sensor: the tags cannot tell it from one.
+# - A thermal core (microbolometer pixels of 10-17 um) is no narrower than 3 mm (a 320 px core at 12 um: 3.8
+#   mm); smaller ones (160 px Lepton, 1.9 mm) take --sensor-width-mm.
+PHOTO_SENSOR_MAX_PITCH_UM = 10.0
+MIN_PHOTO_SENSOR_WIDTH_MM = 4.5
 MIN_SENSOR_WIDTH_MM = 3.0
+
+
+def min_sensor_width_mm(px_per_mm: float) -> float:
+    """The narrowest real sensor of pixels `px_per_mm` apart (on its long side): a photo sensor's or a thermal
+    core's (`MIN_PHOTO_SENSOR_WIDTH_MM`, `MIN_SENSOR_WIDTH_MM`)."""
+    photo = 1000.0 / px_per_mm < PHOTO_SENSOR_MAX_PITCH_UM
+    return MIN_PHOTO_SENSOR_WIDTH_MM if photo else MIN_SENSOR_WIDTH_MM
 
 
 # Aspects (long / short side) of camera frames: photo sensors' full frames and their usual in-camera crops,
@@ -137,8 +153,9 @@ def turned_readout(meta: ImageMetadata) -> bool:
 def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = None) -> tuple[Camera, str]:
     """Pinhole intrinsics of one image from its EXIF, scaled to the file's actual size, and the source used.
     EXIF DigitalZoomRatio (an in-camera zoom that crops the readout and scales it back up) multiplies the focal
-    length in pixels. A focal plane resolution that puts the image on a sensor narrower than MIN_SENSOR_WIDTH_MM
-    is refused (InputError) unless a 35 mm equivalent focal length can stand in."""
+    length in pixels. A focal plane resolution that puts the image on a sensor narrower than any real one of its
+    pixel pitch (`min_sensor_width_mm`) is refused (InputError) unless a 35 mm equivalent focal length can stand
+    in."""
     camera, source = _camera_before_zoom(meta, sensor_width_mm)
     zoom = meta.digital_zoom
     if zoom and zoom > 1.0:
@@ -205,8 +222,10 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
             source += (f", EXIF size {ref_w}x{ref_h} and file {w}x{h} differ in aspect (cropped?): scaled by the "
                        "side cut least")
         # the sensor's long side in mm, as the focal plane resolution and the readout's size say
-        sensor_mm = ref_w / px_per_mm_x if ref_w >= ref_h else ref_h / px_per_mm_y
-        if sensor_mm >= MIN_SENSOR_WIDTH_MM:
+        long_px_per_mm = px_per_mm_x if ref_w >= ref_h else px_per_mm_y
+        sensor_mm = (ref_w if ref_w >= ref_h else ref_h) / long_px_per_mm
+        narrowest = min_sensor_width_mm(long_px_per_mm)
+        if sensor_mm >= narrowest:
             # A resize scales both sides alike and a crop only shortens them, so the file's scale against the
             # readout is at least each side's ratio: the larger one (exact when one side was left whole). By width
             # alone, a 640x480 readout with 80 px cut from its width got fx x0.875.
@@ -217,10 +236,12 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
             if meta.focal_35mm:
                 _refuse_disagreement(meta, by_plane, _by_35mm(meta))
             return by_plane, source
+        kind = "photo sensor" if narrowest == MIN_PHOTO_SENSOR_WIDTH_MM else "thermal core"
         stale = (f"FocalPlaneXResolution ({px_per_mm_x:.0f} px/mm) puts the {ref_w} px wide "
                  f"{'readout' if meta.exif_size else 'image'} on a {sensor_mm:.2f} mm sensor, narrower "
                  f"than any survey camera's: the image was downscaled after the camera wrote its EXIF, which no "
-                 f"longer says from what size (ExifImageWidth {'rewritten' if meta.exif_size else 'missing'})")
+                 f"longer says from what size (ExifImageWidth {'rewritten' if meta.exif_size else 'missing'}; "
+                 f"{1000.0 / long_px_per_mm:.1f} um pixels are a {kind}'s, none narrower than {narrowest:g} mm)")
     if meta.focal_35mm:
         if stale:
             log.debug("%s: %s; the 35 mm equivalent focal length is used", meta.path.name, stale)
