@@ -360,3 +360,20 @@ def test_a_resize_that_puts_a_photo_sensor_below_any_real_one_is_refused():
     core = ImageMetadata(Path("/x/t.jpg"), 320, 256, focal_mm=9.1, focal_plane_px_per_mm=(1000 / 12, 1000 / 12),
                          exif_size=(320, 256))
     assert camera_from_metadata(core)[0].fx == pytest.approx(9.1 * 1000 / 12, rel=1e-9)
+
+
+def test_the_pair_distance_cap_is_the_widest_settings_footprint():
+    """Structure from motion caps image pairs at the footprint diagonal; of a zoom's cameras (one size) the first
+    one's was taken: a flight whose first frame was at the long setting cut its wide frames' pairs at half their
+    overlap. The widest view sets the cap, whichever camera comes first."""
+    from types import SimpleNamespace
+
+    from sosmatch.workflows.sfm import footprint_diagonal_m
+
+    wide = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
+    long_ = Camera(640, 480, 1000.0, 1000.0, 320.0, 240.0)
+    rel = np.full(4, 100.0)
+    expected = 1.5 * 100.0 * 800.0 / 500.0
+    for cameras in ([wide, long_], [long_, wide]):
+        priors = SimpleNamespace(relative_altitude=rel, cameras=cameras)
+        assert footprint_diagonal_m(priors) == pytest.approx(expected)
