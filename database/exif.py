@@ -155,7 +155,8 @@ class ImageMetadata:
 
     @property
     def camera_key(self) -> tuple[str, str, int, int, float]:
-        """What makes images share one camera: make, model, image size and digital zoom (1 without)."""
+        """What makes images share one camera: make, model, image size and digital zoom (1 without);
+        `workflows.image_cameras.camera_groups` splits the images of one key further by focal length (a zoom)."""
         return (self.make, self.model, self.width, self.height, self.digital_zoom or 1.0)
 
     def xmp_float(self, *names: str) -> tuple[float, str] | None:

@@ -125,7 +125,7 @@ def test_a_focal_plane_resolution_of_another_readout_is_refused_not_taken(tmp_pa
     stale = tmp_path / "stale.jpg"
     write_jpeg(stale, 41.0, -83.0, size=(400, 300), exif_size=(400, 300))  # 400 px at 645 px/mm: a 0.62 mm sensor
     with pytest.raises(InputError, match=r"on a 0.62 mm sensor, narrower than any survey camera's: the image was "
-                                         r"downscaled .*ExifImageWidth rewritten\): give the sensor width"):
+                                         r"downscaled .*ExifImageWidth rewritten; .*\): give the sensor width"):
         pfe.camera_from_metadata(read_image_metadata(stale))
     assert 400 / (16393.44 / 25.4) < MIN_SENSOR_WIDTH_MM < 4000 / (16393.44 / 25.4)
     cam, _ = pfe.camera_from_metadata(read_image_metadata(stale), sensor_width_mm=6.2)

@@ -114,16 +114,17 @@ def test_a_seven_by_six_crop_is_called_cropped_by_both_checks():
 
 
 def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int,
-          dji: dict[str, str] | None = None) -> None:
-    """A JPEG of the 1-inch camera's EXIF at `size`, north of 47 N by `k` seconds, with DJI XMP `dji`."""
+          dji: dict[str, str] | None = None, zoom: int = 1) -> None:
+    """A JPEG of the 1-inch camera's EXIF at `size`, north of 47 N by `k` seconds, with DJI XMP `dji`, its lens
+    zoomed optically by `zoom` (FocalLength and the 35 mm figure multiplied)."""
     img = Image.fromarray(np.random.default_rng(k).integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
     exif = Image.Exif()
     exif[0x010F], exif[0x0110] = "DJI", "FC"
     sub = exif.get_ifd(0x8769)
-    sub[0x920A] = IFDRational(round(FOCAL_MM * 100), 100)
+    sub[0x920A] = IFDRational(round(FOCAL_MM * zoom * 100), 100)
     sub[0xA20E] = sub[0xA20F] = IFDRational(round(PX_PER_MM * 10 * 100), 100)  # px per cm
     sub[0xA210] = 3
-    sub[0xA405] = int(F35)
+    sub[0xA405] = int(F35) * zoom
     sub[0xA002], sub[0xA003] = exif_size
     gps = exif.get_ifd(0x8825)
     gps[1], gps[3], gps[5] = "N", "E", 0
@@ -264,3 +265,115 @@ def test_a_map_on_exif_intrinsics_repeats_their_warnings(tmp_path):
         _jpeg(images / f"f{k}.jpg", (560, 480), (640, 480), k, nadir)  # 80 px cut off, EXIF unchanged
     inputs = map_inputs_from_images(images)
     assert any("principal point is unknown" in w for w in inputs.warnings)
+
+
+def test_a_given_sensor_width_spans_the_files_long_side_either_way_up():
+    """rev38: --sensor-width-mm divided into the file's width, for a portrait file the sensor's short side: fx
+    25 % short (2188 px for 2917). A sensor's width is its long side, which the file's long side spans."""
+    landscape = ImageMetadata(Path("/x/l.jpg"), 4000, 3000, focal_mm=4.5)
+    portrait = ImageMetadata(Path("/x/p.jpg"), 3000, 4000, focal_mm=4.5)
+    truth = 4.5 / 6.17 * 4000
+    for meta in (landscape, portrait):
+        cam, source = camera_from_metadata(meta, sensor_width_mm=6.17)
+        assert cam.fx == pytest.approx(truth, rel=1e-9) and cam.fy == cam.fx and "given sensor width" in source
+
+
+def _zoomed(meta: ImageMetadata, zoom: float) -> ImageMetadata:
+    meta.focal_mm *= zoom
+    meta.focal_35mm = meta.focal_35mm * zoom if meta.focal_35mm else None
+    return meta
+
+
+def test_one_camera_at_two_focal_lengths_is_two_cameras():
+    """rev38: an optical zoom (or another lens on one body) keeps make, model and size; its frames at 502 and
+    1005 px became one camera of the median 749 px, wrong for every image. Each setting is a camera of its own,
+    and tag-rounding differences (within FOCAL_GROUP_TOLERANCE) stay one camera."""
+    metas = [_zoomed(_meta(640, 480, (640, 480)), 2.0 if k % 2 else 1.0) for k in range(6)]
+    metas.append(_zoomed(_meta(640, 480, (640, 480)), 1.004))  # the tag's rounding: the unzoomed camera
+    cameras, index, sources, warnings = camera_groups(metas, None, strict=True)
+    assert [c.fx for c in cameras] == pytest.approx([TRUE_FX_640, 2 * TRUE_FX_640], rel=0.005)
+    assert index.tolist() == [0, 1, 0, 1, 0, 1, 0] and len(sources) == 2 and warnings == []
+    # the images' order does not change the grouping (settings in the order of their first images)
+    cameras_r, index_r, _, _ = camera_groups(metas[::-1], None, strict=True)
+    assert [c.fx for c in cameras_r] == pytest.approx([TRUE_FX_640, 2 * TRUE_FX_640], rel=0.005)
+    assert index_r.tolist() == [0, 1, 0, 1, 0, 1, 0]
+    # a chain of close zoom steps is not merged end to end: no camera spans more than the tolerance
+    chain = [_zoomed(_meta(640, 480, (640, 480)), 1.0 + 0.006 * k) for k in range(5)]
+    cameras, index, _, _ = camera_groups(chain, None, strict=True)
+    assert index.tolist() == [0, 0, 1, 1, 2]
+
+
+def test_an_image_without_a_focal_length_beside_a_zoom_is_not_given_a_setting():
+    """Images without a usable focal length take their camera's; at two settings, which is theirs is unknown:
+    refused where the intrinsics are final (strict), else a camera of their own that structure from motion
+    estimates from the 1.2 x guess."""
+    bare = ImageMetadata(Path("/x/bare.jpg"), 640, 480, make="DJI", model="FC")
+    one = [_meta(640, 480, (640, 480)), bare]
+    cameras, index, _, _ = camera_groups(one, None, strict=True)  # one setting: it takes that one
+    assert len(cameras) == 1 and index.tolist() == [0, 0]
+    two = [_meta(640, 480, (640, 480)), _zoomed(_meta(640, 480, (640, 480)), 2.0), bare]
+    with pytest.raises(InputError, match=r"bare\.jpg: no usable focal length .* at 2 focal lengths"):
+        camera_groups(two, None, strict=True)
+    cameras, index, sources, warnings = camera_groups(two, None, strict=False)
+    assert index.tolist() == [0, 1, 2] and cameras[2].fx == pytest.approx(1.2 * 640)
+    assert "none in EXIF" in sources[2] and len(warnings) == 1 and "1 images" in warnings[0]
+
+
+def test_poses_from_exif_refuses_a_zoomed_flight_instead_of_averaging_it(tmp_path, capsys):
+    """rev38 r1_zoom end to end: poses-from-exif wrote fx 748.8 px for every image of a flight alternating 2x
+    optical zoom, exit 0; one camera file cannot hold both: refused in one line naming both focal lengths."""
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(4):
+        _jpeg(images / f"f{k}.jpg", (640, 480), (640, 480), k, zoom=2 if k % 2 else 1)
+    out = tmp_path / "p" / "poses.csv"
+    assert main(["poses-from-exif", str(images), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "2 cameras of different focal lengths (fx 502, 1005 px" in err[0]
+    assert not out.exists()
+    # map takes one camera: its structure from motion path refuses before any work, naming both settings
+    assert main(["map", "--images", str(images), "--out", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "2 cameras (640x480 fx 502 px, 640x480 fx 1005 px)" in err[-1]
+
+
+def _canon(width: int, exif_width: int) -> ImageMetadata:
+    """Seneca's Canon tags (4.3 mm on a 4000 px readout at 645.41 px/mm: 6.198 mm wide; no 35 mm figure), the file
+    `width` px wide (4:3) and ExifImageWidth `exif_width` (an export that rewrites it: the file's)."""
+    return ImageMetadata(Path(f"/x/{width}.jpg"), width, width * 3 // 4, focal_mm=4.3,
+                         focal_plane_px_per_mm=(645.41, 645.41), exif_size=(exif_width, exif_width * 3 // 4),
+                         make="Canon", model="Canon PowerShot ELPH 300 HS")
+
+
+def test_a_resize_that_puts_a_photo_sensor_below_any_real_one_is_refused():
+    """rev38 r6: a 2000 px export of Seneca's Canon with ExifImageWidth rewritten to 2000 read as a 3.1 mm sensor
+    (over the 3 mm floor) and got fx 2775 px for 1387, silently. 1.5 um pixels are a photo sensor's, and none is
+    narrower than 1/3.2" (4.5 mm): refused. Thermal cores (12 um pixels) keep the 3 mm floor."""
+    truth = 4.3 / (4000 / 645.41)
+    assert camera_from_metadata(_canon(4000, 4000))[0].fx == pytest.approx(truth * 4000, rel=1e-9)
+    assert camera_from_metadata(_canon(1200, 4000))[0].fx == pytest.approx(truth * 1200, rel=1e-9)  # Seneca's files
+    assert camera_from_metadata(_canon(2000, 4000))[0].fx == pytest.approx(truth * 2000, rel=1e-9)
+    with pytest.raises(InputError, match=r"on a 3\.10 mm sensor, .*ExifImageWidth rewritten; 1\.5 um pixels are a "
+                                         r"photo sensor's, none narrower than 4\.5 mm\): give the sensor width"):
+        camera_from_metadata(_canon(2000, 2000))
+    # a 320 px thermal core at 12 um (3.84 mm) is a real one
+    core = ImageMetadata(Path("/x/t.jpg"), 320, 256, focal_mm=9.1, focal_plane_px_per_mm=(1000 / 12, 1000 / 12),
+                         exif_size=(320, 256))
+    assert camera_from_metadata(core)[0].fx == pytest.approx(9.1 * 1000 / 12, rel=1e-9)
+
+
+def test_the_pair_distance_cap_is_the_widest_settings_footprint():
+    """Structure from motion caps image pairs at the footprint diagonal; of a zoom's cameras (one size) the first
+    one's was taken: a flight whose first frame was at the long setting cut its wide frames' pairs at half their
+    overlap. The widest view sets the cap, whichever camera comes first."""
+    from types import SimpleNamespace
+
+    from sosmatch.workflows.sfm import footprint_diagonal_m
+
+    wide = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
+    long_ = Camera(640, 480, 1000.0, 1000.0, 320.0, 240.0)
+    rel = np.full(4, 100.0)
+    expected = 1.5 * 100.0 * 800.0 / 500.0
+    for cameras in ([wide, long_], [long_, wide]):
+        priors = SimpleNamespace(relative_altitude=rel, cameras=cameras)
+        assert footprint_diagonal_m(priors) == pytest.approx(expected)

@@ -1,10 +1,10 @@
-"""A folder of survey images' cameras from their EXIF: one camera per make, model and image size.
+"""A folder of survey images' cameras from their EXIF: one camera per make, model, image size and focal length.
 
 Intrinsics: fx = FocalLength [mm] * FocalPlaneXResolution [px/mm] * (file width / ExifImageWidth): EXIF
 describes the sensor readout, and images are often downscaled afterwards (Seneca: 4000x3000 -> 1200x900).
-Without a focal-plane resolution, `sensor_width_mm` (fx = f / sensor width * file width) or the 35 mm
-equivalent focal length are used. The 35 mm figure refers to the diagonal of the sensor's full frame, not of a
-crop of it (a DJI 16:9 still is a band of a 4:3 sensor: `full_frame_diagonal_px`).
+Without a focal-plane resolution, `sensor_width_mm` (the sensor's long side: fx = f / sensor width * the file's
+long side) or the 35 mm equivalent focal length are used. The 35 mm figure refers to the diagonal of the sensor's
+full frame, not of a crop of it (a DJI 16:9 still is a band of a 4:3 sensor: `full_frame_diagonal_px`).
 
 Where the EXIF gives both, the two routes are checked against each other: a photo resized after capture keeps
 the 35 mm ratio but not the pixel pitch, a cropped one the pixel pitch but not the frame, so where they disagree
@@ -80,12 +80,28 @@ def exif_focal_uncertainty(camera: Camera, source: str) -> float:
     return math.hypot(EXIF_NOMINAL_FOCAL_SIGMA, rounding)
 
 
-# The narrowest sensor of a survey camera (1/4": 3.6 mm). A focal plane resolution that puts an image on a
-# narrower one refers to another readout than the file's: the image was downscaled after the camera wrote its
-# EXIF, and ExifImageWidth, which said from what size, was dropped or rewritten to the new one (the sixteenth
-# sweep: Seneca's 1200 px frames on a "1.86 mm" sensor gave fx 2775 px for 833, and a map 30-140 m too low
-# passed). Thermal cores this small (160 px Lepton, 1.9 mm) take --sensor-width-mm.
+# The narrowest sensors, by their pixel pitch, which the focal plane resolution gives and which an export that
+# rewrites ExifImageWidth leaves as the camera's. A focal plane resolution that puts an image on a narrower sensor
+# refers to another readout than the file's: the image was downscaled after the camera wrote its EXIF, and
+# ExifImageWidth, which said from what size, was dropped or rewritten to the new one (the sixteenth sweep:
+# Seneca's 1200 px frames on a "1.86 mm" sensor gave fx 2775 px for 833, and a map 30-140 m too low passed).
+# - A photo sensor (pixels finer than PHOTO_SENSOR_MAX_PITCH_UM: CMOS and CCD, 0.8-8.5 um) is no narrower than
+#   1/3.2" (4.54 mm; phones' and compacts' smallest, survey cameras are 1/2.3", 6.2 mm, and up). With 3 mm for
+#   all, exports of Seneca's Canon (4000 px, 6.2 mm, no 35 mm figure to check against) down to 1936 px passed
+#   with fx up to 2x too long (rev38): now those below 2900 px (x1.38) are refused. A milder downscale (x1.33 at
+#   3000 px: "4.65 mm") still reads as a real sensor: the tags cannot tell it from one.
+# - A thermal core (microbolometer pixels of 10-17 um) is no narrower than 3 mm (a 320 px core at 12 um: 3.8
+#   mm); smaller ones (160 px Lepton, 1.9 mm) take --sensor-width-mm.
+PHOTO_SENSOR_MAX_PITCH_UM = 10.0
+MIN_PHOTO_SENSOR_WIDTH_MM = 4.5
 MIN_SENSOR_WIDTH_MM = 3.0
+
+
+def min_sensor_width_mm(px_per_mm: float) -> float:
+    """The narrowest real sensor of pixels `px_per_mm` apart (on its long side): a photo sensor's or a thermal
+    core's (`MIN_PHOTO_SENSOR_WIDTH_MM`, `MIN_SENSOR_WIDTH_MM`)."""
+    photo = 1000.0 / px_per_mm < PHOTO_SENSOR_MAX_PITCH_UM
+    return MIN_PHOTO_SENSOR_WIDTH_MM if photo else MIN_SENSOR_WIDTH_MM
 
 
 # Aspects (long / short side) of camera frames: photo sensors' full frames and their usual in-camera crops,
@@ -137,8 +153,9 @@ def turned_readout(meta: ImageMetadata) -> bool:
 def camera_from_metadata(meta: ImageMetadata, sensor_width_mm: float | None = None) -> tuple[Camera, str]:
     """Pinhole intrinsics of one image from its EXIF, scaled to the file's actual size, and the source used.
     EXIF DigitalZoomRatio (an in-camera zoom that crops the readout and scales it back up) multiplies the focal
-    length in pixels. A focal plane resolution that puts the image on a sensor narrower than MIN_SENSOR_WIDTH_MM
-    is refused (InputError) unless a 35 mm equivalent focal length can stand in."""
+    length in pixels. A focal plane resolution that puts the image on a sensor narrower than any real one of its
+    pixel pitch (`min_sensor_width_mm`) is refused (InputError) unless a 35 mm equivalent focal length can stand
+    in."""
     camera, source = _camera_before_zoom(meta, sensor_width_mm)
     zoom = meta.digital_zoom
     if zoom and zoom > 1.0:
@@ -187,7 +204,9 @@ def _refuse_disagreement(meta: ImageMetadata, by_plane: Camera, by_35: Camera) -
 def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> tuple[Camera, str]:
     w, h = meta.width, meta.height
     if meta.focal_mm and sensor_width_mm:
-        fx = meta.focal_mm / sensor_width_mm * w
+        # A sensor's width is its long side (spec sheets, and the focal plane route here), and the file's long side
+        # spans it whichever way the file is turned: by the file's width, a portrait file got fx 25 % short (rev38)
+        fx = meta.focal_mm / sensor_width_mm * max(w, h)
         return Camera(w, h, fx, fx, w / 2.0, h / 2.0), "FocalLength + given sensor width"
     stale = None
     if meta.focal_mm and meta.focal_plane_px_per_mm:
@@ -203,8 +222,10 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
             source += (f", EXIF size {ref_w}x{ref_h} and file {w}x{h} differ in aspect (cropped?): scaled by the "
                        "side cut least")
         # the sensor's long side in mm, as the focal plane resolution and the readout's size say
-        sensor_mm = ref_w / px_per_mm_x if ref_w >= ref_h else ref_h / px_per_mm_y
-        if sensor_mm >= MIN_SENSOR_WIDTH_MM:
+        long_px_per_mm = px_per_mm_x if ref_w >= ref_h else px_per_mm_y
+        sensor_mm = (ref_w if ref_w >= ref_h else ref_h) / long_px_per_mm
+        narrowest = min_sensor_width_mm(long_px_per_mm)
+        if sensor_mm >= narrowest:
             # A resize scales both sides alike and a crop only shortens them, so the file's scale against the
             # readout is at least each side's ratio: the larger one (exact when one side was left whole). By width
             # alone, a 640x480 readout with 80 px cut from its width got fx x0.875.
@@ -215,10 +236,12 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
             if meta.focal_35mm:
                 _refuse_disagreement(meta, by_plane, _by_35mm(meta))
             return by_plane, source
+        kind = "photo sensor" if narrowest == MIN_PHOTO_SENSOR_WIDTH_MM else "thermal core"
         stale = (f"FocalPlaneXResolution ({px_per_mm_x:.0f} px/mm) puts the {ref_w} px wide "
                  f"{'readout' if meta.exif_size else 'image'} on a {sensor_mm:.2f} mm sensor, narrower "
                  f"than any survey camera's: the image was downscaled after the camera wrote its EXIF, which no "
-                 f"longer says from what size (ExifImageWidth {'rewritten' if meta.exif_size else 'missing'})")
+                 f"longer says from what size (ExifImageWidth {'rewritten' if meta.exif_size else 'missing'}; "
+                 f"{1000.0 / long_px_per_mm:.1f} um pixels are a {kind}'s, none narrower than {narrowest:g} mm)")
     if meta.focal_35mm:
         if stale:
             log.debug("%s: %s; the 35 mm equivalent focal length is used", meta.path.name, stale)
@@ -235,57 +258,108 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
                      f"FocalLengthIn35mmFilm); {advice}", meta.path)
 
 
+# Images of one make, model and size whose focal lengths differ by more than this are cameras of their own: an
+# optical zoom, or another lens on the same body (a Zenmuse P1 with its 24 and 35 mm lenses: one model name, one
+# size). One camera at the median focal length was wrong for every image (rev38: a flight alternating 502 and
+# 1005 px became one camera of 749 px; structure from motion put the centres 34 m off, blaming the GPS). One
+# setting repeats its tags exactly (FocalLength a rational, the 35 mm figure whole millimetres), and the next
+# setting differs by at least a step of the tag (0.1 mm at 4.3 mm: 2.3 %; 1 mm at 27 mm: 3.7 %); what is left
+# within 1 % (float noise, a tag that jitters with focus) moves fx less than the lens marking's own 2 %
+# (EXIF_NOMINAL_FOCAL_SIGMA), so it stays one camera at the median.
+FOCAL_GROUP_TOLERANCE = 0.01
+
+
+def focal_clusters(fxs: list[float]) -> list[list[int]]:
+    """Indices into `fxs` (focal lengths, px) grouped into settings: in ascending order, a group takes focal
+    lengths within FOCAL_GROUP_TOLERANCE of its shortest, so no group spans more than that (a chain of close
+    zoom steps is not merged end to end), and the grouping does not depend on the images' order."""
+    order = sorted(range(len(fxs)), key=lambda i: (fxs[i], i))
+    groups: list[list[int]] = []
+    for i in order:
+        if groups and fxs[i] <= fxs[groups[-1][0]] * (1.0 + FOCAL_GROUP_TOLERANCE):
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    return [sorted(g) for g in groups]
+
+
 def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str], list[str]]:
-    """One camera per make + model + image size + digital zoom (the median focal length of its images), the
-    camera of every image and the intrinsics source of each camera. Images of a camera whose EXIF gives no
-    usable focal length share the others' (one warning counts them). Without any for a camera, it gets COLMAP's
-    default guess (1.2 x the longer side) with a warning (also returned, last), or InputError when `strict`
-    (the first image's reason)."""
-    keys = sorted({m.camera_key for m in metas}, key=lambda k: [m.camera_key for m in metas].index(k))
-    index = np.array([keys.index(m.camera_key) for m in metas], dtype=np.int64)
-    cameras, sources, warnings = [], [], []
-    for g, key in enumerate(keys):
-        members = [m for m, i in zip(metas, index) if i == g]
-        found, failed = [], []
-        for m in members:
+    """One camera per make + model + image size + digital zoom + focal length (`FOCAL_GROUP_TOLERANCE`: a zoom's
+    or swapped lens's settings are cameras of their own; the median focal length of its images), the camera of
+    every image and the intrinsics source of each camera, in the order of their first images. Images of a camera
+    whose EXIF gives no usable focal length share the others' (one warning counts them); where those others are
+    at several focal lengths, which is theirs is unknown: InputError when `strict`, else a camera of their own.
+    Without any for a camera, it gets COLMAP's default guess (1.2 x the longer side) with a warning (also
+    returned, last), or InputError when `strict` (the first image's reason)."""
+    by_key: dict[tuple, list[int]] = {}
+    for i, m in enumerate(metas):
+        by_key.setdefault(m.camera_key, []).append(i)
+    groups: list[tuple[list[int], list[tuple[Camera, str]], list[InputError]]] = []
+    for members in by_key.values():
+        found: list[tuple[int, tuple[Camera, str]]] = []
+        failed: list[tuple[int, InputError]] = []
+        for i in members:
             try:
-                found.append(camera_from_metadata(m, sensor_width_mm))
+                found.append((i, camera_from_metadata(metas[i], sensor_width_mm)))
             except InputError as exc:
-                failed.append(exc)
-        w, h = key[2], key[3]
-        name = f"{f'{key[0]} {key[1]}'.strip() or 'camera'} ({w}x{h}, {len(members)} images)"
-        if not found:
+                failed.append((i, exc))
+        settings = [[found[k] for k in c] for c in focal_clusters([cam.fx for _, (cam, _) in found])]
+        if len(settings) > 1:
+            m0 = metas[members[0]]
+            log.info("%s (%dx%d): images at %d focal lengths (fx %s px; a zoom or another lens): a camera for each",
+                     make_model(m0) or "camera", m0.width, m0.height, len(settings),
+                     ", ".join(f"{float(np.median([c.fx for _, (c, _) in s])):.0f}" for s in settings))
+        if failed and len(settings) > 1:
             if strict:
-                raise failed[0]
+                i, exc = failed[0]
+                raise InputError(f"no usable focal length in EXIF ({exc.problem}), and the other images of its "
+                                 f"camera are at {len(settings)} focal lengths (a zoom or another lens): which is "
+                                 f"its is unknown; give a camera file (map --camera) or let structure from motion "
+                                 f"estimate it (`sosmatch poses`)", metas[i].path)
+            groups += [([i for i, _ in s], [r for _, r in s], []) for s in settings]
+            groups.append(([i for i, _ in failed], [], [e for _, e in failed]))
+        elif settings:
+            groups += [([i for i, _ in s] + ([i for i, _ in failed] if g == 0 else []), [r for _, r in s],
+                        [e for _, e in failed] if g == 0 else []) for g, s in enumerate(settings)]
+        else:
+            groups.append(([i for i, _ in failed], [], [e for _, e in failed]))
+    groups.sort(key=lambda g: min(g[0]))
+    index = np.empty(len(metas), dtype=np.int64)
+    cameras, sources, warnings = [], [], []
+    for g, (images, found_cams, failed_exc) in enumerate(groups):
+        index[images] = g
+        m0 = metas[min(images)]
+        w, h = m0.width, m0.height
+        name = f"{make_model(m0) or 'camera'} ({w}x{h}, {len(images)} images)"
+        if not found_cams:
+            if strict:
+                raise failed_exc[0]
             f = 1.2 * max(w, h)
-            warnings.append(f"{name}: no usable focal length in EXIF ({failed[0].problem}); starting from {f:.0f} px "
-                            "(structure from motion estimates it)")
+            warnings.append(f"{name}: no usable focal length in EXIF ({failed_exc[0].problem}); starting from "
+                            f"{f:.0f} px (structure from motion estimates it)")
             log.warning("%s", warnings[-1])
             cameras.append(Camera(w, h, f, f, w / 2.0, h / 2.0))
             sources.append("none in EXIF (1.2 x the longer side)")
             continue
-        if failed:
-            example = failed[0].path.name if failed[0].path else "?"
+        if failed_exc:
+            example = failed_exc[0].path.name if failed_exc[0].path else "?"
             log.warning("%s: %d of its images have no usable focal length in EXIF (e.g. %s): they take the focal "
-                        "length of the other %d", name, len(failed), example, len(found))
-        cropped = [source for _, source in found if "cropped?" in source]
+                        "length of the other %d", name, len(failed_exc), example, len(found_cams))
+        cropped = [source for _, source in found_cams if "cropped?" in source]
         if cropped:
             sizes = cropped[0].split(", EXIF size ")[-1].split(" differ")[0]
             warnings.append(f"{name}: {len(cropped)} images' EXIF size and file size differ in aspect (cropped?): "
                             f"their focal length is scaled by the side cut least, their principal point is unknown "
                             f"(the image centre taken; EXIF size {sizes})")
             log.warning("%s", warnings[-1])
-        elif (odd := odd_aspect(members[0])) is not None:
+        elif (odd := odd_aspect(m0)) is not None:
             warnings.append(f"{name}: {odd}")
             log.warning("%s", warnings[-1])
-        fxs = np.array([c.fx for c, _ in found])
-        fys = np.array([c.fy for c, _ in found])
-        if fxs.max() > 1.01 * fxs.min():
-            log.warning("focal lengths differ between images (%.1f..%.1f px): using the median", fxs.min(), fxs.max())
-        c0 = found[0][0]
-        cameras.append(Camera(c0.width, c0.height, float(np.median(fxs)), float(np.median(fys)), c0.cx, c0.cy))
-        sources.append(found[0][1])
+        c0 = found_cams[0][0]
+        cameras.append(Camera(c0.width, c0.height, float(np.median([c.fx for c, _ in found_cams])),
+                              float(np.median([c.fy for c, _ in found_cams])), c0.cx, c0.cy))
+        sources.append(found_cams[0][1])
     return cameras, index, sources, warnings
 
 

@@ -194,7 +194,7 @@ class ImagePriors:
     rotations: np.ndarray  # (N,3,3) prior world_from_camera (level nadir + course where no tags say)
     attitude_kind: np.ndarray  # (N,) "gimbal" | "fixed" (airframe angles) | "course" (no attitude tags)
     times_s: np.ndarray  # (N,) capture time (DateTimeOriginal; capture order where missing)
-    cameras: list[Camera]  # one per make + model + image size
+    cameras: list[Camera]  # one per make + model + image size + focal length (`image_cameras.camera_groups`)
     camera_index: np.ndarray  # (N,) index into `cameras`
     summary: dict = field(default_factory=dict)
 

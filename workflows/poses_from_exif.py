@@ -36,6 +36,7 @@ from ..database.xmp_sidecar import sidecars_with_gps
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.gps_track import OFF_NADIR_LIMIT_DEG, with_quantisation
+from .image_cameras import FOCAL_GROUP_TOLERANCE
 from .image_priors import (  # noqa: F401 (re-exported: the conventions' historical home)
     DEFAULT_MOUNT,
     DEFAULT_PITCH_SIGN,
@@ -133,7 +134,7 @@ def poses_from_images(
         raise InputError(f"image is {odd.width}x{odd.height}; the folder's images are of {len(sizes)} sizes "
                          f"({counts}): one camera per session; {advice}", odd.path)
     focals = [c.fx for c in priors.cameras]
-    if len(priors.cameras) > 1 and max(focals) > 1.01 * min(focals):
+    if len(priors.cameras) > 1 and max(focals) > (1.0 + FOCAL_GROUP_TOLERANCE) * min(focals):
         first = [m for m, i in zip(metas, priors.camera_index) if i != priors.camera_index[0]][0]
         raise InputError(f"the images are of {len(focals)} cameras of different focal lengths (fx "
                          f"{', '.join(f'{f:.0f}' for f in focals)} px: another camera, zoom or digital zoom, e.g. "

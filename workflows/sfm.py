@@ -190,9 +190,12 @@ def footprint_diagonal_m(priors: ImagePriors) -> float | None:
     rel = priors.relative_altitude[np.isfinite(priors.relative_altitude)]
     if len(rel) == 0 or np.median(rel) <= 0:
         return None
-    cam = priors.cameras[0]
-    # 1.5 x: the ground may lie lower than the take-off point and the camera may look off nadir
-    return 1.5 * float(np.median(rel)) * math.hypot(cam.width, cam.height) / cam.fx
+    # the widest view of the cameras (diagonal / focal length): a zoom's settings are cameras of one size
+    # (`image_cameras.camera_groups`), and the first one's, when it was the long setting, would have cut the wide
+    # images' pairs at half their overlap. 1.5 x: the ground may lie lower than the take-off point and the camera
+    # may look off nadir
+    view = max(math.hypot(cam.width, cam.height) / cam.fx for cam in priors.cameras)
+    return 1.5 * float(np.median(rel)) * view
 
 
 def refuse_pair_list_names(image_paths: Sequence[Path]) -> None:

@@ -25,7 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--takeoff-altitude", type=float,
                         help="altitude of the take-off point (m, the GPS datum): heights = this + DJI "
                              "RelativeAltitude (default: from the GPS at the start of the flight)")
-    parser.add_argument("--sensor-width-mm", type=float, help="sensor width when EXIF has no focal-plane resolution")
+    parser.add_argument("--sensor-width-mm", type=float,
+                        help="the sensor's width, mm: its long side, whichever way the files are turned (when EXIF "
+                             "has no focal-plane resolution)")
     parser.add_argument("--nominal-height", type=float, default=100.0,
                         help="without GPS and RelativeAltitude: the flight height above ground that sets the local "
                              "frame's scale (m)")

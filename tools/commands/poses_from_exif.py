@@ -24,7 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "top_backward, left_forward")
     parser.add_argument("--pitch-sign", type=float, default=None, choices=[-1.0, 1.0])
     parser.add_argument("--roll-sign", type=float, default=None, choices=[-1.0, 1.0])
-    parser.add_argument("--sensor-width-mm", type=float, help="sensor width when EXIF has no focal-plane resolution")
+    parser.add_argument("--sensor-width-mm", type=float,
+                        help="the sensor's width, mm: its long side, whichever way the files are turned (when EXIF "
+                             "has no focal-plane resolution)")
     parser.add_argument("--epsg", type=int, help="projected CRS for the poses (default: the UTM zone of the "
                         "flight's median GPS fix)")
     parser.add_argument("--refine", action="store_true",

@@ -331,7 +331,8 @@ class PosesFromImages:
         priors = read_image_priors(image_dir, self.telemetry, sensor_width_mm=self.sensor_width_mm,
                                    takeoff_altitude_m=self.takeoff_altitude_m, epsg=self.epsg)
         if len(priors.cameras) > 1:  # before the structure from motion: map takes one camera
-            _refuse_cameras([f"{c.width}x{c.height}" for c in priors.cameras], image_dir)
+            # the focal length named too: a zoom's settings are cameras of one size (`camera_groups`)
+            _refuse_cameras([f"{c.width}x{c.height} fx {c.fx:.0f} px" for c in priors.cameras], image_dir)
         work = out.staging / "poses_work"
         result = compute_poses(image_dir, work, self.params, self.identity(), self.telemetry,
                                self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m, priors)
