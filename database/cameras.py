@@ -66,6 +66,12 @@ def camera_from_colmap(model: str, width: int, height: int, params: Sequence[flo
     return camera
 
 
+# How far (a share of the side) a principal point may lie from its frame's centre for the frame to be taken as the
+# full frame of the images at another resolution: real lenses' lie within a few per cent of it; a file whose size
+# was edited without its parameters (640x480 around a 320x240 calibration) has its pp 25 % off (nu50)
+RESCALE_MAX_PP_OFFSET = 0.10
+
+
 def _resize_of(w0: int, h0: int, width: int, height: int) -> bool:
     """Whether `width` x `height` is `w0` x `h0` resized: a scale s with |w0 s - width| <= 1 and |h0 s - height|
     <= 1 (each side rounded or floored on its own; a crop of a pixel row more is not)."""
@@ -76,23 +82,30 @@ def camera_for_images(camera: Camera, width: int, height: int, source: str | Pat
                       what: str = "the camera") -> Camera:
     """`camera` in pixels of the `width` x `height` images it is to map: itself when the sizes agree; rescaled
     (`Camera.resized`, as COLMAP's `Camera::Rescale`; one warning line) when the images are a resize of its frame,
-    the same aspect within each side's rounding to whole pixels (a calibration of the full-resolution images, the
-    images downscaled); InputError naming `source` (the cameras file) and `what` otherwise: a crop, or turned by
-    90 degrees, whose principal point no scale gives. The one decision for every camera met with images (`map --camera`,
+    the same aspect within each side's rounding to whole pixels, and its principal point near the frame's centre
+    (`RESCALE_MAX_PP_OFFSET`): a calibration of the full-resolution images, the images downscaled. Otherwise an
+    InputError naming `source` (the cameras file) and `what`: a crop, or a frame turned by 90 degrees, whose
+    principal point no scale gives. The one decision for every camera met with images (`map --camera`,
     `check-poses`, an OpenSfM project's cameras)."""
     w0, h0 = camera.width, camera.height
     if (width, height) == (w0, h0):
         return camera
-    if _resize_of(w0, h0, width, height):
-        log.warning("%s: %s is %dx%d, the images %dx%d: taken as its calibration of the images at another "
-                    "resolution and rescaled x%.4g (focal length, principal point; the distortion coefficients stay)",
-                    source, what, w0, h0, width, height, width / w0)
-        return camera.resized(width, height)
-    turned = " (turned by 90 degrees against it)" if _resize_of(h0, w0, width, height) else ""
-    raise InputError(f"{what} is {w0}x{h0} but the images are {width}x{height}{turned}: another aspect ratio, so "
-                     "neither these images' calibration nor theirs at another resolution (that is rescaled); cropped "
-                     "from the calibrated frame? A crop moves the principal point by an unknown amount: give the "
-                     "calibration of these images", source)
+    if not _resize_of(w0, h0, width, height):
+        turned = " (turned by 90 degrees against it)" if _resize_of(h0, w0, width, height) else ""
+        raise InputError(f"{what} is {w0}x{h0} but the images are {width}x{height}{turned}: another aspect ratio, "
+                         "so neither these images' calibration nor theirs at another resolution (that is rescaled); "
+                         "cropped from the calibrated frame? A crop moves the principal point by an unknown amount: "
+                         "give the calibration of these images", source)
+    off = max(abs(camera.cx / w0 - 0.5), abs(camera.cy / h0 - 0.5))
+    if off > RESCALE_MAX_PP_OFFSET:
+        raise InputError(f"{what} is {w0}x{h0} with its principal point ({camera.cx:g}, {camera.cy:g}) "
+                         f"{100 * off:.0f} % of the frame off its centre, and the images are {width}x{height}: not "
+                         "taken for a calibration of these images at another resolution (its size edited without "
+                         "its parameters? a crop's calibration?); give the calibration of these images", source)
+    log.warning("%s: %s is %dx%d, the images %dx%d: taken as its calibration of the images at another resolution "
+                "and rescaled x%.4g (focal length, principal point; the distortion coefficients stay)", source, what,
+                w0, h0, width, height, width / w0)
+    return camera.resized(width, height)
 
 
 def read_cameras_txt(path: str | Path) -> dict[int, Camera]:

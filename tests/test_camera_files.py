@@ -82,6 +82,12 @@ def test_camera_for_images_rescales_a_resize_and_refuses_a_crop(caplog):
         cameras_io.camera_for_images(cam, 640, 360, "cameras.txt")
     with pytest.raises(InputError, match="480x640 .turned by 90 degrees"):
         cameras_io.camera_for_images(cam, 480, 640, "cameras.txt")
+    # a 320x240 calibration whose size alone was edited to 640x480: its pp a quarter of the frame off the centre is
+    # no full frame's, so no rescale is guessed (rescaled, a pinhole's poses were refused for a 39 deg attitude
+    # error and a GPS height drift: the errors that blamed GPS and mounting for a pp off the image)
+    edited = Camera(640, 480, 251.0, 251.0, 160.0, 120.0, "SIMPLE_RADIAL", (-0.2,))
+    with pytest.raises(InputError, match=r"principal point \(160, 120\) 25 % of the frame off its centre"):
+        cameras_io.camera_for_images(edited, 320, 240, "cameras.txt")
 
 
 def _disc_flight(root):

@@ -197,7 +197,11 @@ def load_inputs(
         raise InputError(f"only {len(keep)} image(s) have a pose; need at least 2", images)
     # the camera in these images' pixels: a calibration of the full-resolution frames rescaled to downscaled
     # copies, another size refused naming the cameras file (it named an image, deep in the run: nu50)
-    fitted = camera_for_images(cam, *image_size(keep[0][1]), sources["camera"])
+    try:
+        size = image_size(keep[0][1])
+    except InputError:  # unreadable: named where it is read (the pose check, the keyframes), as any other image
+        size = (cam.width, cam.height)
+    fitted = camera_for_images(cam, *size, sources["camera"])
     if fitted != cam:  # recorded in run.json beside the file it came from
         sources["camera_rescaled"] = f"{cam.width}x{cam.height} -> {fitted.width}x{fitted.height}"
         cam = fitted
