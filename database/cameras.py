@@ -2,17 +2,21 @@
 
 One validation (`camera_from_colmap`) serves the text reader, the pycolmap reader (cameras.bin, models) and
 every writer's input: a known perspective or fisheye model (`plugin.camera_models`; the spherical EQUIRECTANGULAR
-is refused), COLMAP's parameter count, positive size and focal lengths, finite parameters, a distortion that does
-not fold the image over (`Camera.lens_folds`).
+is refused), COLMAP's parameter count, finite parameters (the one not finite named), positive size and focal
+lengths, a principal point on the image, a distortion that does not fold the image over (`Camera.lens_folds`).
+Errors name the file, its line and the camera id. One decision (`camera_for_images`) fits a camera to the images
+it maps: the same size, or a resize of its frame (rescaled, as COLMAP does), else refused naming the cameras file.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..plugin.camera_models import camera_model
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera
 from .atomic import write_text_atomic
@@ -21,27 +25,87 @@ from .text_input import read_user_text
 if TYPE_CHECKING:
     import pycolmap
 
+log = logging.getLogger(__name__)
+
 MAX_IMAGE_SIDE = 1_000_000  # pixels: no camera has a longer side
 
 
 def camera_from_colmap(model: str, width: int, height: int, params: Sequence[float],
-                       source: str | Path | None = None, line: int | None = None) -> Camera:
-    """A Camera from COLMAP's model name, size and parameter list; InputError (naming `source`) if invalid."""
+                       source: str | Path | None = None, line: int | None = None,
+                       camera_id: int | None = None) -> Camera:
+    """A Camera from COLMAP's model name, size and parameter list; InputError (naming `source` and `camera_id`)
+    if invalid."""
+    who = f"camera {camera_id}: " if camera_id is not None else ""
     try:
-        camera = Camera.from_colmap(model, width, height, params)
+        spec = camera_model(model)
+        p = [float(v) for v in params]
+        if len(p) == spec.num_params:
+            # before anything compares them: a NaN focal length read "one focal length, got fx=nan fy=nan"
+            bad = next(((name, v) for name, v in zip(spec.param_names, p) if not math.isfinite(v)), None)
+            if bad is not None:
+                raise InputError(f"{who}the {model} parameter {bad[0]} is {bad[1]}, not a finite number", source,
+                                 line)
+        camera = Camera.from_colmap(model, width, height, p)
     except ValueError as exc:
-        raise InputError(str(exc), source, line) from None
+        raise InputError(f"{who}{exc}", source, line) from None
     if camera.width <= 0 or camera.height <= 0 or camera.fx <= 0 or camera.fy <= 0:
-        raise InputError("camera size and focal length must be positive", source, line)
+        raise InputError(f"{who}camera size and focal length must be positive", source, line)
     if max(camera.width, camera.height) > MAX_IMAGE_SIDE:
-        raise InputError(f"camera size {camera.width}x{camera.height} is beyond {MAX_IMAGE_SIDE} pixels", source, line)
-    if not all(math.isfinite(p) for p in camera.params):
-        raise InputError("NaN or infinite camera parameter", source, line)
+        raise InputError(f"{who}camera size {camera.width}x{camera.height} is beyond {MAX_IMAGE_SIDE} pixels", source,
+                         line)
+    if not (0.0 <= camera.cx <= camera.width and 0.0 <= camera.cy <= camera.height):
+        # COLMAP takes any principal point, but a calibration's lies on its image (a crop's far off the centre,
+        # still on it): outside, the run failed later blaming the GPS, the mounting or the distortion (nu50)
+        raise InputError(f"{who}the principal point ({camera.cx:g}, {camera.cy:g}) lies outside the "
+                         f"{camera.width}x{camera.height} image (COLMAP pixels span 0..{camera.width}, "
+                         f"0..{camera.height}): parameters of another image size, or in another order?", source, line)
     if camera.lens_folds():  # no pixel-to-ray map exists: mapping would fail deep inside (a LinAlgError)
-        raise InputError(f"the {camera.model} distortion {list(camera.extra)} folds the image over (pixels inside "
-                         f"the {camera.width}x{camera.height} sensor do not lift to one ray each): a wrong sign or "
-                         "scale of the distortion parameters?", source, line)
+        raise InputError(f"{who}the {camera.model} distortion {list(camera.extra)} folds the image over (pixels "
+                         f"inside the {camera.width}x{camera.height} sensor do not lift to one ray each): a wrong "
+                         "sign or scale of the distortion parameters?", source, line)
     return camera
+
+
+# How far (a share of the side) a principal point may lie from its frame's centre for the frame to be taken as the
+# full frame of the images at another resolution: real lenses' lie within a few per cent of it; a file whose size
+# was edited without its parameters (640x480 around a 320x240 calibration) has its pp 25 % off (nu50)
+RESCALE_MAX_PP_OFFSET = 0.10
+
+
+def _resize_of(w0: int, h0: int, width: int, height: int) -> bool:
+    """Whether `width` x `height` is `w0` x `h0` resized: a scale s with |w0 s - width| <= 1 and |h0 s - height|
+    <= 1 (each side rounded or floored on its own; a crop of a pixel row more is not)."""
+    return max((width - 1) / w0, (height - 1) / h0) <= min((width + 1) / w0, (height + 1) / h0)
+
+
+def camera_for_images(camera: Camera, width: int, height: int, source: str | Path | None,
+                      what: str = "the camera") -> Camera:
+    """`camera` in pixels of the `width` x `height` images it is to map: itself when the sizes agree; rescaled
+    (`Camera.resized`, as COLMAP's `Camera::Rescale`; one warning line) when the images are a resize of its frame,
+    the same aspect within each side's rounding to whole pixels, and its principal point near the frame's centre
+    (`RESCALE_MAX_PP_OFFSET`): a calibration of the full-resolution images, the images downscaled. Otherwise an
+    InputError naming `source` (the cameras file) and `what`: a crop, or a frame turned by 90 degrees, whose
+    principal point no scale gives. The one decision for every camera met with images (`map --camera`,
+    `check-poses`, an OpenSfM project's cameras)."""
+    w0, h0 = camera.width, camera.height
+    if (width, height) == (w0, h0):
+        return camera
+    if not _resize_of(w0, h0, width, height):
+        turned = " (turned by 90 degrees against it)" if _resize_of(h0, w0, width, height) else ""
+        raise InputError(f"{what} is {w0}x{h0} but the images are {width}x{height}{turned}: another aspect ratio, "
+                         "so neither these images' calibration nor theirs at another resolution (that is rescaled); "
+                         "cropped from the calibrated frame? A crop moves the principal point by an unknown amount: "
+                         "give the calibration of these images", source)
+    off = max(abs(camera.cx / w0 - 0.5), abs(camera.cy / h0 - 0.5))
+    if off > RESCALE_MAX_PP_OFFSET:
+        raise InputError(f"{what} is {w0}x{h0} with its principal point ({camera.cx:g}, {camera.cy:g}) "
+                         f"{100 * off:.0f} % of the frame off its centre, and the images are {width}x{height}: not "
+                         "taken for a calibration of these images at another resolution (its size edited without "
+                         "its parameters? a crop's calibration?); give the calibration of these images", source)
+    log.warning("%s: %s is %dx%d, the images %dx%d: taken as its calibration of the images at another resolution "
+                "and rescaled x%.4g (focal length, principal point; the distortion coefficients stay)", source, what,
+                w0, h0, width, height, width / w0)
+    return camera.resized(width, height)
 
 
 def read_cameras_txt(path: str | Path) -> dict[int, Camera]:
@@ -62,7 +126,7 @@ def read_cameras_txt(path: str | Path) -> dict[int, Camera]:
             raise InputError(f"duplicate camera id {cam_id}", path, lineno)
         if not 0 <= cam_id < 2**32:
             raise InputError(f"camera id {cam_id} is not a COLMAP camera id (0..2^32-1)", path, lineno)
-        cameras[cam_id] = camera_from_colmap(model, width, height, params, path, lineno)
+        cameras[cam_id] = camera_from_colmap(model, width, height, params, path, lineno, cam_id)
     if not cameras:
         raise InputError("no camera in file", path)
     return cameras
@@ -91,7 +155,8 @@ def pycolmap_camera(camera: Camera, camera_id: int = 1) -> pycolmap.Camera:
 def camera_from_pycolmap(cam: pycolmap.Camera, source: str | Path | None = None) -> Camera:
     """A Camera from a pycolmap Camera (cameras.bin, a model), validated like a cameras.txt line."""
     model = cam.model.name if hasattr(cam.model, "name") else str(cam.model)
-    return camera_from_colmap(model, int(cam.width), int(cam.height), [float(v) for v in cam.params], source)
+    return camera_from_colmap(model, int(cam.width), int(cam.height), [float(v) for v in cam.params], source,
+                              camera_id=int(cam.camera_id))
 
 
 # parameters equal within this relative difference are one camera: COLMAP and hloc write one camera per image

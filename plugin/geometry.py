@@ -100,12 +100,19 @@ class Camera:
         return Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
 
     def scaled(self, factor: float) -> Camera:
-        """The same camera for an image resized by `factor` (COLMAP convention keeps cx = factor * cx; distortion
-        parameters act on normalised coordinates and do not change)."""
-        return Camera(
-            round(self.width * factor), round(self.height * factor),
-            self.fx * factor, self.fy * factor, self.cx * factor, self.cy * factor, self.model, self.extra,
-        )
+        """The same camera for an image resized by `factor`: `resized` to the rounded size, as COLMAP's
+        `Camera::Rescale(scale)`."""
+        return self.resized(round(self.width * factor), round(self.height * factor))
+
+    def resized(self, width: int, height: int) -> Camera:
+        """The same camera for the image resized to `width` x `height`, as COLMAP's `Camera::Rescale`: focal
+        lengths and principal point scale with their axis (pixels in COLMAP's convention, where the image spans
+        0..width, so cx scales as it is; a one-focal model's f by the mean of the two scales); the distortion
+        parameters act on normalised coordinates in every model (`plugin.camera_models`) and stay."""
+        sx, sy = width / self.width, height / self.height
+        fx, fy = (self.fx * sx, self.fy * sy) if camera_model(self.model).num_focal == 2 else \
+            (self.fx * (sx + sy) / 2.0,) * 2
+        return Camera(int(width), int(height), fx, fy, self.cx * sx, self.cy * sy, self.model, self.extra)
 
     def cropped(self, left: float, top: float, width: int, height: int) -> Camera:
         """The camera of the `width` x `height` crop whose top-left corner is at pixel (left, top)."""

@@ -111,6 +111,23 @@ def test_scaled_and_cropped_cameras_see_the_same_rays():
     assert np.allclose(crop.cam_from_img(uv - [0, 75]), cam.cam_from_img(uv), atol=1e-12)
 
 
+@pytest.mark.parametrize("model", sorted(CAMERA_MODELS))
+def test_a_resized_camera_is_colmaps_rescale_and_sees_the_same_rays(model):
+    """`Camera.resized` (a calibration of full-resolution frames fitted to downscaled images:
+    `database.cameras.camera_for_images`) is COLMAP's `Camera::Rescale` for every model, and every model's
+    distortion acts on normalised coordinates: at a pure scale the same ray lands at s x the pixel."""
+    cam = _camera(model)
+    for size in ((320, 240), (1280, 960), (321, 240)):  # a half, a double, and a side rounded differently
+        ours = cam.resized(*size)
+        theirs = pycolmap_camera(cam)
+        theirs.rescale(*size)
+        assert (ours.width, ours.height) == size and ours.extra == cam.extra
+        np.testing.assert_allclose(ours.params, theirs.params, rtol=1e-12)
+    half = cam.resized(320, 240)
+    rays = np.array([[0.0, 0.0, 1.0], [0.3, -0.2, 1.0], [-0.5, 0.35, 1.0]])
+    np.testing.assert_allclose(half.img_from_cam(rays), 0.5 * cam.img_from_cam(rays), rtol=1e-9, atol=1e-9)
+
+
 def test_covariances_follow_the_lens_to_first_order():
     cam = _camera("OPENCV", 1000, 750)
     rng = np.random.default_rng(3)

@@ -67,7 +67,7 @@ def test_cameras_txt_round_trip_and_refusal(tmp_path):
     for line, fragment in [("1 OPENCV 640 480 500 500 320 240 0.1 0 0\n", "OPENCV takes 8 parameters"),
                            ("1 EQUIRECTANGULAR 640 480 640 480\n", "spherical"),
                            ("1 NO_SUCH_MODEL 640 480 500 320 240\n", "unknown camera model"),
-                           ("1 SIMPLE_RADIAL 640 480 500 320 240 nan\n", "NaN or infinite"),
+                           ("1 SIMPLE_RADIAL 640 480 500 320 240 nan\n", "parameter k is nan"),
                            ("1 SIMPLE_RADIAL 640 480 -500 320 240 0.1\n", "positive")]:
         path.write_text("# a comment\n" + line)
         with pytest.raises(InputError, match=fragment) as exc:

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ...database.cameras import one_camera, read_cameras_txt
+from ...database.cameras import camera_for_images, one_camera, read_cameras_txt
 from ...database.colmap_model import (
     TEXT_MODEL,
     is_colmap_model,
@@ -25,6 +25,7 @@ from ...database.colmap_model import (
 from ...database.images import (  # noqa: F401 (IMAGE_EXTENSIONS re-exported)
     IMAGE_EXTENSIONS,
     image_files,
+    image_size,
     name_key,
     shared_file_name,
     unique_by_key,
@@ -194,6 +195,16 @@ def load_inputs(
             log.warning("skipping %d %s: %s", len(names), what, listing)
     if len(keep) < 2:
         raise InputError(f"only {len(keep)} image(s) have a pose; need at least 2", images)
+    # the camera in these images' pixels: a calibration of the full-resolution frames rescaled to downscaled
+    # copies, another size refused naming the cameras file (it named an image, deep in the run: nu50)
+    try:
+        size = image_size(keep[0][1])
+    except InputError:  # unreadable: named where it is read (the pose check, the keyframes), as any other image
+        size = (cam.width, cam.height)
+    fitted = camera_for_images(cam, *size, sources["camera"])
+    if fitted != cam:  # recorded in run.json beside the file it came from
+        sources["camera_rescaled"] = f"{cam.width}x{cam.height} -> {fitted.width}x{fitted.height}"
+        cam = fitted
     sub = pose_list.subset([i for i, _ in keep])
     sub.names = [p.name for _, p in keep]
     # a poses.csv of `sosmatch poses`: its georegistration's doubts are the map's, as when map runs SfM itself

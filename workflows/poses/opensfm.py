@@ -11,12 +11,11 @@ from typing import Any
 import numpy as np
 
 from ...database.atomic import write_text_atomic
-from ...database.cameras import format_cameras_txt
+from ...database.cameras import camera_for_images, format_cameras_txt
 from ...database.json_text import json_default
 from ...database.output_markers import fingerprint
 from ...database.outputs import open_output_dir
 from ...database.poses import format_poses_csv
-from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
 from ..image_priors import list_images
 from .job import _image_identity
@@ -60,10 +59,7 @@ def opensfm_poses(project: str | Path, image_dir: str | Path | None = None
                 continue
             w, h = image_size(files[Path(shot).name])
             if (w, h) != (cam.width, cam.height):
-                if abs(w / h - cam.width / cam.height) > 0.01:
-                    raise InputError(f"image is {w}x{h} but OpenSfM camera {cam_id!r} is {cam.width}x{cam.height}"
-                                     " (another aspect ratio)", files[Path(shot).name])
-                cameras[cam_id] = cam.scaled(w / cam.width)
+                cameras[cam_id] = camera_for_images(cam, w, h, rec.path, f"OpenSfM camera {cam_id!r}")
                 info.setdefault("rescaled_cameras", {})[cam_id] = [cam.width, cam.height, w, h]
     return poses, cameras, dict(rec.camera_of_shot), epsg, info
 
