@@ -530,3 +530,22 @@ def test_check_poses_leaves_out_copies_of_images_as_the_map_does(flight, tmp_pat
     warning = "5 image(s) are byte-identical copies of others: frame_00001.jpg = frame_00001_copy.jpg"
     assert figures["copies"]["verdict"]["warnings"][0].startswith(warning)
     assert line.startswith("ok: ") and warning in line
+
+
+def test_one_position_read_with_rounding_is_still_one_position(flight, tmp_path, cli_error):
+    """One position given to every image, read with 1e-9 m of rounding between the rows: the pairs' "baselines"
+    of nanometres were above a millionth of the longest (also nanometres), so they were judged: "a heading 180 deg
+    off", epipolar 12.8 px, a 56 deg height tilt. Within `geometry.SAME_POSITION` they have no baseline, and the
+    refusal says what is wrong."""
+    from sosmatch.plugin.pose_check.check import without_baseline
+
+    assert without_baseline(np.array([1e-9, 2e-9, 0.0])).all()
+    assert without_baseline(np.array([1e-9, 0.5, 10.0])).tolist() == [True, False, False]
+    _, poses, _ = _inputs(flight)
+    rng = np.random.default_rng(0)
+    same = tmp_path / "same.csv"
+    write_poses_csv(same, Poses(poses.names, poses.rotations,
+                                poses.centers[:1] + rng.normal(0, 1e-9, (len(poses), 3))))
+    err = cli_error("check-poses", "--images", flight / "images", "--poses", same, "--camera",
+                    flight / "cameras.txt")
+    assert "at one position, but the images move by" in err and "180 deg" not in err, err
