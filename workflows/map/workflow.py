@@ -24,7 +24,6 @@ from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
 from ...database.outputs import OutputDir
 from ...database.segmentation_models import SegmentationModels, segmentation_models
-from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
 from .inputs import (
@@ -104,7 +103,11 @@ def _versions() -> dict[str, str]:
     import pycolmap
     import scipy
 
-    return {"sosmatch": __version__, "python": platform.python_version(), "numpy": np.__version__,
+    from ...database.code_version import code_versions
+
+    # the source digest too: the package version does not change with the code (`database.code_version`); a batch
+    # that keeps this map after an upgrade names both (`batch.workflow`)
+    return {**code_versions(), "python": platform.python_version(), "numpy": np.__version__,
             "scipy": scipy.__version__, "opencv": cv2.__version__, "pycolmap": pycolmap.__version__}
 
 
