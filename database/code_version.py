@@ -49,6 +49,8 @@ def code_versions() -> dict[str, str]:
 def describe(versions: dict[str, Any]) -> str:
     """"sosmatch 0.1.0 (source 9d2e43e721bc03ed)"; a record made before the digest was recorded says so."""
     source = versions.get("sosmatch_source")
+    if not versions.get("sosmatch"):
+        return "an earlier sosmatch (its version was not recorded)"
     return (f"sosmatch {versions.get('sosmatch', '?')} "
             f"({f'source {source}' if source else 'an earlier sosmatch: its source was not recorded'})")
 

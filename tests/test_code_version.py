@@ -73,3 +73,37 @@ def test_a_batch_says_which_sessions_an_earlier_version_made_and_maps_them_again
     assert not [r for r in caplog.records if "kept as made by" in r.getMessage()]
     run()
     assert not [r for r in caplog.records if "kept as made by" in r.getMessage()]
+
+
+def test_a_resumed_map_names_cache_entries_an_earlier_version_made(tmp_path, caplog):
+    """The per-keyframe cache key holds the settings, not the code: a map resumed after an upgrade (or kept with
+    --keep-cache) reused the earlier code's segmentation without a word. Now it says so once, naming the cache,
+    both versions and --overwrite, which computes them again."""
+    import numpy as np
+
+    from sosmatch.plugin.params import Params, with_overrides
+    from sosmatch.workflows import map as map_workflow
+
+    assert main(["synth", "-q", "--frames", "12", "--width", "320", "--height", "240", "--out",
+                 str(tmp_path / "s")]) == 0
+    inputs = map_workflow.load_inputs(None, tmp_path / "s")
+    params = with_overrides(Params(), {"quality.refuse": False, "pose_check.enabled": False})
+    out = tmp_path / "m"
+    first = map_workflow.run(params, inputs, out, progress=False, keep_cache=True)
+    entry = sorted((out / ".partial" / "cache").glob("*.npz"))[1]
+    with np.load(entry, allow_pickle=False) as data:  # as an entry of sosmatch before entries recorded their maker
+        arrays = {k: data[k] for k in data.files if k != "made_by"}
+    np.savez(entry, **arrays)
+    with caplog.at_level(logging.WARNING):
+        again = map_workflow.run(params, inputs, out, progress=False, keep_cache=True)
+    said = [r.getMessage() for r in caplog.records if "resumed from cache entries made by" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith(f"{out / '.partial' / 'cache'}: 1 of {first.num_keyframes} ")
+    assert "an earlier sosmatch (its version was not recorded)" in said[0] and "--overwrite" in said[0]
+    assert again.keyframes_from_cache == first.num_keyframes
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        renewed = map_workflow.run(params, inputs, out, progress=False, keep_cache=True, overwrite=True)
+    assert renewed.keyframes_from_cache == first.num_keyframes - 1
+    assert not [r for r in caplog.records if "resumed from cache entries" in r.getMessage()]
+    with np.load(entry, allow_pickle=False) as data:
+        assert json.loads(str(data["made_by"])) == code_versions()
