@@ -66,3 +66,10 @@ def other_version(record: dict[str, Any] | None) -> str | None:
     if all(made.get(k) == v for k, v in today.items()):
         return None
     return describe(made)
+
+
+def kept_message(where: object, made_by: str, redo: str) -> str:
+    """The warning of an output kept as another sosmatch made it (`made_by`, `other_version`'s), once per output:
+    "WHERE: kept as made by ..., with the same inputs and settings; this is ...: --overwrite REDO with this one"."""
+    return (f"{where}: kept as made by {made_by}, with the same inputs and settings; this is "
+            f"{describe(code_versions())} (another version may make it otherwise): --overwrite {redo} with this one")

@@ -67,7 +67,7 @@ def _kept_session(out_dir: Path, overwrite: bool, renewed: set[str]) -> Any:
     `renewed` (its pairs, merges and comparisons are then made again too). Its identity keys the inputs and
     settings, not the code, so an upgrade resumes it: re-mapping every flight is what a resume saves, and a map of
     the same settings is usually fine, but the user should know what made it."""
-    from ...database.code_version import code_versions, describe, other_version
+    from ...database.code_version import kept_message, other_version
     from ...database.output_markers import read_json_or_none
 
     def kept(done: dict[str, Any]) -> bool:
@@ -84,9 +84,7 @@ def _kept_session(out_dir: Path, overwrite: bool, renewed: set[str]) -> Any:
             log.info("%s: made by %s; mapped again with this one (--overwrite)", where, made_by)
             renewed.add(str(done.get("name", session.name)))
             return False
-        log.warning("%s: kept as made by %s, with the same inputs and settings; this is %s (another version may map "
-                    "it otherwise): --overwrite maps it again with this one", where, made_by,
-                    describe(code_versions()))
+        log.warning("%s", kept_message(where, made_by, "maps it again"))
         return True
 
     return kept
