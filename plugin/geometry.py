@@ -319,3 +319,43 @@ def hull_area(xy: np.ndarray) -> float:
         return float(ConvexHull(pts).volume)  # 2D: volume is the area
     except QhullError:
         return 0.0
+
+
+# Two recorded camera positions closer than this (pose units: metres for georeferenced or GPS-checked poses) are
+# one position, differing by rounding alone. A float's rounding of coordinates as large as UTM or Earth-centred
+# ones is ~1e-9 m (one ulp below 1.7e7 m is at most 1.9e-9 m; a conversion such as ECEF -> UTM or a quaternion
+# round trip a few ulps), three orders below; the finest position a survey records (an RTK fix to a millimetre, an
+# EXIF GPS rational to ~1 cm) and any baseline a pair can map from are three orders above or more. Not the
+# receiver's jitter (centimetres to metres): a hover's positions that differ by its noise are distinct recorded
+# positions (their pairs' direction is not judged, `pose_check.PairCheck.sees_direction`), and with a jitter-sized
+# tolerance a slow flight's consecutive frames would be one position. In feet, or in the units of an unscaled
+# reconstruction (extent ~1), the margins hold within a factor of a few hundred.
+SAME_POSITION = 1e-6
+
+
+def position_groups(centers: np.ndarray, tol: float = SAME_POSITION) -> list[list[int]]:
+    """The recorded positions (N, D) grouped into one per place: indices in order, each group the positions within
+    `tol` (Euclidean) of its first, groups in order of their first index (singletons included; a non-finite
+    position is its own group). Linear time: a grid of `tol` cells, each position compared with the groups whose
+    first lies in the 3^D cells around it."""
+    c = np.asarray(centers, np.float64)
+    c = c.reshape(len(c), -1)
+    groups: list[list[int]] = []
+    firsts: dict[tuple[int, ...], list[int]] = {}  # grid cell -> the groups whose first position lies in it
+    around = np.stack(np.meshgrid(*[[-1, 0, 1]] * c.shape[1], indexing="ij"), -1).reshape(-1, c.shape[1])
+    for i, p in enumerate(c):
+        if not np.all(np.isfinite(p)):
+            groups.append([i])
+            continue
+        cell = np.floor(p / tol).astype(np.int64)
+        found = None
+        for d in around:
+            for g in firsts.get(tuple((cell + d).tolist()), []):
+                if np.linalg.norm(c[groups[g][0]] - p) <= tol and (found is None or g < found):
+                    found = g
+        if found is None:
+            firsts.setdefault(tuple(cell.tolist()), []).append(len(groups))
+            groups.append([i])
+        else:
+            groups[found].append(i)
+    return groups

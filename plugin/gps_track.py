@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geodesy import METRES_PER_DEGREE
+from .geometry import SAME_POSITION
 
 FROZEN_SPREAD_M = 1.0  # fixes of >= 3 images all within this of their median: the receiver did not move
 # consecutive distinct fixes farther apart than this (median) are a moving aircraft, not a hover's GPS noise: an
@@ -160,30 +161,31 @@ def quantisation(lat: np.ndarray, lon: np.ndarray) -> Quantisation | None:
 
 def repeated_fixes(east: np.ndarray, north: np.ndarray, times: np.ndarray | None = None,
                    exposures: np.ndarray | None = None) -> tuple[int, float]:
-    """How many fixes (in capture order) repeat the previous one exactly, and the median distance between the
-    consecutive fixes that differ (m; NaN with none): a receiver updating slower than the camera repeats its fix
-    while the aircraft flies on; a hovering aircraft's repeats come with differing fixes only as far apart as the
-    GPS noise. A repeat is that evidence only if the aircraft moved between the two captures, so with capture
-    `times` (s) a repeat counts only when it comes at least half the flight's pace between places (the median time
-    from one fix to the next) after the previous capture and the flight's speed (its differing fixes over the time
-    between them) carries it `MOVING_STEP_M` beyond where the fix last changed: shots of a burst or a bracket at
-    each waypoint are one place, not a lag. A repeat whose `exposures` (s) differ from the previous image's is
-    exposure bracketing (AEB: one place, several exposure times) and never counts."""
+    """How many fixes (in capture order) repeat the previous one (within rounding, `geometry.SAME_POSITION`), and the
+    median distance between the consecutive fixes that differ (m; NaN with none): a receiver updating slower than the
+    camera repeats its fix while the aircraft flies on; a hovering aircraft's repeats come with differing fixes only
+    as far apart as the GPS noise. A repeat is that evidence only if the aircraft moved between the two captures, so
+    with capture `times` (s) a repeat counts only when it comes at least half the flight's pace between places (the
+    median time from one fix to the next) after the previous capture and the flight's speed (its differing fixes over
+    the time between them) carries it `MOVING_STEP_M` beyond where the fix last changed: shots of a burst or a
+    bracket at each waypoint are one place, not a lag. A repeat whose `exposures` (s) differ from the previous
+    image's is exposure bracketing (AEB: one place, several exposure times) and never counts."""
     ok = np.isfinite(east) & np.isfinite(north)
     xy = np.column_stack([east, north])[ok]
     if len(xy) < 2:
         return 0, float("nan")
     step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
-    moved = step[step > 0]
-    repeat = step == 0
+    changed = step > SAME_POSITION  # a fix repeated is one within rounding (`geometry.SAME_POSITION`)
+    moved = step[changed]
+    repeat = ~changed
     if exposures is not None:
         e = np.asarray(exposures, np.float64)[ok]
         repeat &= ~(np.isfinite(e[1:]) & np.isfinite(e[:-1]) & (e[1:] != e[:-1]))
     if times is not None and repeat.any() and len(moved):
         t = np.asarray(times, np.float64)[ok]
         # index of the image where each image's fix first appeared
-        since = np.maximum.accumulate(np.where(np.r_[True, step > 0], np.arange(len(t)), 0))
-        change = np.flatnonzero(step > 0) + 1
+        since = np.maximum.accumulate(np.where(np.r_[True, changed], np.arange(len(t)), 0))
+        change = np.flatnonzero(changed) + 1
         pace = t[change] - t[since[change - 1]]
         good = np.isfinite(pace) & (pace > 0)
         if good.any():

@@ -148,3 +148,15 @@ def test_a_slow_receiver_and_a_grid_are_still_found_with_times_and_exposures():
     text, facts = coarse_fixes(lat4, lon4, *_en(lat4, lon4), times, exposures)
     assert text is not None and "grid of 0.0001 x 0.0001 deg" in text
     assert facts["sigma_m"] == pytest.approx(3.214, abs=1e-3)
+
+
+def test_a_fix_repeated_within_rounding_is_a_repeat():
+    """A receiver at half the camera's rate whose repeated fixes differ from the first by 1e-9 m (interpolated
+    telemetry, a conversion's rounding): `repeated_fixes` counted only exact repeats, so none."""
+    from sosmatch.plugin.gps_track import repeated_fixes
+
+    east, north = np.arange(20) * 5.0 + 523_456.0, np.full(20, 4_712_345.0)
+    east[1::2] = east[::2] + 1e-9
+    north[1::2] += 2e-9
+    count, step = repeated_fixes(east, north)
+    assert count == 10 and step == pytest.approx(10.0)

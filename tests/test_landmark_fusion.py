@@ -6,7 +6,7 @@ import pytest
 from sosmatch.database.colmap_db import affine_keypoints, track_associations, write_colmap_database
 from sosmatch.plugin.geometry import Camera, Poses, project
 from sosmatch.plugin.params import TriangulationParams
-from sosmatch.workflows.triangulation import suppress_duplicates, triangulate_landmarks
+from sosmatch.workflows.triangulation import LandmarkRow, duplicates_kept, suppress_duplicates, triangulate_landmarks
 
 pycolmap = pytest.importorskip("pycolmap")
 pycolmap.logging.minloglevel = 2
@@ -81,3 +81,17 @@ def test_triangulation_fuses_nested_mask_landmarks(tmp_path):
     write_colmap_database(tmp_path / "d2.db", cam, poses.names, kps,
                           track_associations(tids, "all", off.min_observations))
     assert len(triangulate_landmarks(tmp_path / "d2.db", cam, poses, sizes, tids, off)) == len(pts)
+
+
+def test_duplicates_ranked_by_bundle_adjusted_error_not_recorded_one():
+    """A landmark moved to its whole views records an error over those views only; duplicate suppression ranks
+    by the bundle-adjusted error over all views (the one the error filter judged), so the two orders disagree
+    here on purpose: landmark 0 is better by the recorded error, landmark 1 by the bundle-adjusted one."""
+    obs = np.zeros((5, 2), dtype=np.int64)
+    rows = [LandmarkRow(0, 10, np.array([0.0, 0.0, 5.0]), SIZE_M, 5, 0.5, obs, 3.0),
+            LandmarkRow(1, 11, np.array([0.5 * SIZE_M, 0.0, 5.0]), SIZE_M, 5, 2.0, obs, 1.0),
+            LandmarkRow(2, 12, np.array([50.0, 0.0, 5.0]), SIZE_M, 5, 1.0, obs, 1.0)]
+    assert duplicates_kept(rows, 1.5).tolist() == [False, True, True]
+    # the same landmarks with recorded = bundle-adjusted error: the ranking follows it
+    same = [r._replace(adjusted_error_px=r.error_px) for r in rows]
+    assert duplicates_kept(same, 1.5).tolist() == [True, False, True]

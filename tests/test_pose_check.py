@@ -496,3 +496,56 @@ def test_a_pair_without_baseline_stays_out_of_the_systematic_fit(flight):
     assert np.isnan(pair.epipolar_px) and np.isnan(pair.epipolar_fit_px)  # no epipolar geometry, no misfit
     # the fit sees the other pairs as the clean check does, except those of image h + 1 (its position is off)
     assert abs(result.systematic.explained_f - clean.systematic.explained_f) < 2.0
+
+
+def test_check_poses_leaves_out_copies_of_images_as_the_map_does(flight, tmp_path, capsys):
+    """Copies of images with their original's pose row: check-poses kept them, so each copy made a pair without
+    baseline with its original, took a share of the pair budget and moved which pairs were checked (every fourth of
+    this flight copied: 109 pairs checked instead of 83, a height drift of 0.03 m instead of 0.08 m), and nothing said
+    so. Now it leaves them out before the check, as `map` does (`map.inputs.distinct_images`, its warning): the
+    figures are those of the flight without copies."""
+    import shutil
+
+    images, poses, _ = _inputs(flight)
+    folder = tmp_path / "images"
+    shutil.copytree(flight / "images", folder)
+    order = []
+    for i, name in enumerate(poses.names):
+        order.append((name, i))
+        if i % 8 == 1:  # a copy under another name, right after its original, at its pose
+            shutil.copy(images[i], folder / name.replace(".jpg", "_copy.jpg"))
+            order.append((name.replace(".jpg", "_copy.jpg"), i))
+    idx = [i for _, i in order]
+    write_poses_csv(tmp_path / "poses.csv", Poses([n for n, _ in order], poses.rotations[idx], poses.centers[idx]))
+    figures = {}
+    for what, folder_, pose_file in (("clean", flight / "images", flight / "poses.csv"),
+                                     ("copies", folder, tmp_path / "poses.csv")):
+        out = tmp_path / f"{what}.json"
+        assert main(["check-poses", "--images", str(folder_), "--poses", str(pose_file), "--camera",
+                     str(flight / "cameras.txt"), "--out", str(out), "-q"]) == 0
+        figures[what] = json.loads(out.read_text())
+    line = capsys.readouterr().out.splitlines()[-1]
+    assert figures["copies"]["pose_check"] == figures["clean"]["pose_check"]
+    assert figures["copies"]["images"] == figures["clean"]["images"]  # the originals kept
+    warning = "5 image(s) are byte-identical copies of others: frame_00001.jpg = frame_00001_copy.jpg"
+    assert figures["copies"]["verdict"]["warnings"][0].startswith(warning)
+    assert line.startswith("ok: ") and warning in line
+
+
+def test_one_position_read_with_rounding_is_still_one_position(flight, tmp_path, cli_error):
+    """One position given to every image, read with 1e-9 m of rounding between the rows: the pairs' "baselines"
+    of nanometres were above a millionth of the longest (also nanometres), so they were judged: "a heading 180 deg
+    off", epipolar 12.8 px, a 56 deg height tilt. Within `geometry.SAME_POSITION` they have no baseline, and the
+    refusal says what is wrong."""
+    from sosmatch.plugin.pose_check.check import without_baseline
+
+    assert without_baseline(np.array([1e-9, 2e-9, 0.0])).all()
+    assert without_baseline(np.array([1e-9, 0.5, 10.0])).tolist() == [True, False, False]
+    _, poses, _ = _inputs(flight)
+    rng = np.random.default_rng(0)
+    same = tmp_path / "same.csv"
+    write_poses_csv(same, Poses(poses.names, poses.rotations,
+                                poses.centers[:1] + rng.normal(0, 1e-9, (len(poses), 3))))
+    err = cli_error("check-poses", "--images", flight / "images", "--poses", same, "--camera",
+                    flight / "cameras.txt")
+    assert "at one position, but the images move by" in err and "180 deg" not in err, err

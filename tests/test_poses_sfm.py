@@ -300,3 +300,31 @@ def test_images_left_out_leave_the_model_and_the_poses(flight, tmp_path):
     assert not any(rec.images[el.image_id].name in gone for p in rec.points3D.values() for el in p.track.elements)
     i = poses.names.index(kept.names[5])
     assert np.array_equal(kept.centers[5], poses.centers[i])
+
+
+def test_poses_another_sosmatch_made_are_kept_with_a_word_and_remade_with_overwrite(flight, tmp_path, caplog):
+    """A finished `poses` output of the same images and settings is kept as it stands (nothing recomputed); one
+    an earlier sosmatch made was kept without a word (the identity keys the settings, not the code), and
+    --overwrite did not compute it again. poses.json now records its maker."""
+    import logging
+
+    from sosmatch.database.code_version import code_versions
+
+    out = tmp_path / "poses"
+    poses_wf.run(flight / "images", out, _params())
+    record = out / "poses.json"
+    report = json.loads(record.read_text())
+    assert report["versions"] == code_versions()
+    del report["versions"]  # as poses.json of sosmatch before it recorded its maker
+    record.write_text(json.dumps(report))
+    with caplog.at_level(logging.WARNING):
+        poses_wf.run(flight / "images", out, _params())
+    said = [r.getMessage() for r in caplog.records if "kept as made by" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith(f"{out}: kept as made by an earlier sosmatch") and \
+        "--overwrite" in said[0]
+    assert "versions" not in json.loads(record.read_text())  # kept as it was
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        poses_wf.run(flight / "images", out, _params(), overwrite=True)
+    assert json.loads(record.read_text())["versions"] == code_versions()
+    assert not [r for r in caplog.records if "kept as made by" in r.getMessage()]

@@ -24,10 +24,11 @@ def flight(tmp_path_factory) -> Path:
 
 
 def _folder(flight: Path, root: Path, png_copies: tuple[int, ...] = (), repeat: int | None = None,
-            turn_deg: float = 0.0) -> Path:
+            turn_deg: float = 0.0, rounding_m: float = 0.0) -> Path:
     """The flight's images and poses in `root`: PNG copies of some images beside them (their poses those of the
     originals), and optionally image `repeat` + 1 given image `repeat`'s position (its recorded attitude turned
-    by `turn_deg` about the vertical)."""
+    by `turn_deg` about the vertical). `rounding_m`: the copied positions differ from their originals' by this
+    much along each axis (rounding of a CSV or a conversion)."""
     poses, epsg = read_poses_csv(flight / "poses.csv")
     (root / "images").mkdir(parents=True)
     for n in poses.names:
@@ -38,9 +39,9 @@ def _folder(flight: Path, root: Path, png_copies: tuple[int, ...] = (), repeat: 
         cv2.imwrite(str(root / "images" / png), cv2.imread(str(flight / "images" / poses.names[i])))
         names.append(png)
         rotations.append(poses.rotations[i])
-        centers.append(poses.centers[i].copy())
+        centers.append(poses.centers[i] + rounding_m)
     if repeat is not None:
-        centers[repeat + 1] = centers[repeat].copy()
+        centers[repeat + 1] = centers[repeat] + rounding_m
         t = np.radians(turn_deg)
         yaw = np.array([[np.cos(t), -np.sin(t), 0.0], [np.sin(t), np.cos(t), 0.0], [0.0, 0.0, 1.0]])
         rotations[repeat + 1] = rotations[repeat + 1] @ yaw.T  # camera-from-world after a turn about the vertical
@@ -93,3 +94,35 @@ def test_a_clean_flight_keeps_every_image_without_a_word(flight):
     inputs = load_inputs(flight / "images", flight / "poses.csv", flight / "cameras.txt")
     kept, digests = distinct_images(inputs)
     assert kept is inputs and len(digests) == len(inputs.image_paths) and kept.warnings == []
+
+
+def test_positions_that_differ_by_rounding_are_one_position(flight, tmp_path):
+    """Positions were one only when exactly equal: a PNG copy whose pose row differs from its original's by 1e-9 m
+    (a CSV's or a conversion's rounding) was kept, and a row repeating the previous frame's position to within
+    1e-9 m was not named. Within `geometry.SAME_POSITION` (1 um) they are one position."""
+    root = _folder(flight, tmp_path / "png", png_copies=(3,), rounding_m=1e-9)
+    inputs = load_inputs(root / "images", root / "poses.csv", flight / "cameras.txt")
+    assert not np.array_equal(inputs.poses.centers[inputs.poses.names.index("frame_00003.png")],
+                              inputs.poses.centers[inputs.poses.names.index("frame_00003.jpg")])  # read as written
+    kept, _ = distinct_images(inputs)
+    assert "frame_00003.png" not in [p.name for p in kept.image_paths]
+    root = _folder(flight, tmp_path / "rep", repeat=5, rounding_m=1e-9)
+    inputs = load_inputs(root / "images", root / "poses.csv", flight / "cameras.txt")
+    kept, _ = distinct_images(inputs)
+    names = inputs.poses.names
+    assert any(f"{names[6]} repeats {names[5]}'s" in w for w in kept.warnings), kept.warnings
+
+
+def test_one_position_is_rounding_not_the_receivers_jitter():
+    """`position_groups` at UTM magnitudes: 1e-9 m apart (about one ulp there) is one position; 0.1 mm apart (an
+    RTK hover's jitter) are two, as are a slow flight's frames 1 m apart."""
+    from sosmatch.plugin.geometry import SAME_POSITION, position_groups
+
+    base = np.array([523_456.789, 4_712_345.678, 312.5])
+    c = np.array([base, base + [1e-9, -1e-9, 0.0], base + [1e-4, 0.0, 0.0], base + [1.0, 0.0, 0.0],
+                  base + [0.0, 0.0, 2e-9], base + [1.0, 0.0, 3e-9]])
+    assert position_groups(c) == [[0, 1, 4], [2], [3, 5]]
+    # a group is the positions within the tolerance of its first: no chain of near ones grows it
+    chain = base + np.outer(np.arange(4), [0.6 * SAME_POSITION, 0.0, 0.0])
+    assert position_groups(chain) == [[0, 1], [2, 3]]
+    assert position_groups(np.array([[np.nan, 0.0], [np.nan, 0.0]])) == [[0], [1]]

@@ -198,11 +198,13 @@ def write_disabled(out: str | Path) -> None:
 def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path | None = None,
         refuse: bool = True, sources: dict | None = None, gate: float | None = None,
         files: OutputFiles | None = None, epsg: int | None = None, gps: GpsComparison | None = None,
-        white: Levels | int | None = None, remedy: str = "") -> CheckResult:
+        white: Levels | int | None = None, remedy: str = "", input_warnings: Sequence[str] = ()) -> CheckResult:
     """Check the poses (`check`), write the figures to `out` (JSON, atomically; None: nothing written) and raise
     PosesRefused (after writing) when they contradict the images and `refuse` is on. `files`: the OutputFiles
     that `out` is written through (`check_to_file`, a user's file); without it `out` lies in a directory the
-    caller owns (the map's output). `epsg`, `gps`, `white`, `remedy`: as `check`'s."""
+    caller owns (the map's output). `epsg`, `gps`, `white`, `remedy`: as `check`'s. `input_warnings`: what reading
+    the inputs found (`check-poses`: the copies `map.inputs.distinct_images` left out), logged where found; they
+    lead the verdict's warnings in the record and the result's line."""
     from ..database.atomic import write_text_atomic
 
     result, verdict = check(image_paths, poses, camera, params, gate, epsg, gps, white, remedy)
@@ -210,6 +212,8 @@ def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Param
         log.warning("pose check: %s", result.fixed_in_frame_text)
     for warning in verdict.warnings:
         log.warning("%s", warning)
+    if input_warnings:
+        verdict = Verdict(list(verdict.refusals), [*input_warnings, *verdict.warnings])
     if out is not None:
         out = Path(out)
         record = {"format": FORMAT, "version": 1, "inputs": sources or {},
@@ -243,7 +247,7 @@ def check_identity(sources: dict, names: list[str], params: Params) -> Versioned
 
 def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Params, out: str | Path,
                   refuse: bool = True, sources: dict | None = None, overwrite: bool = False,
-                  epsg: int | None = None) -> CheckResult:
+                  epsg: int | None = None, input_warnings: Sequence[str] = ()) -> CheckResult:
     """`run` with its figures written to a user's file `out` (`sosmatch check-poses --out`): checked before any
     work by `database.output_files.OutputFiles` (never an input such as the pose file, never a file sosmatch did not
     write; one of this command's made from other inputs or settings is replaced only with `overwrite`)."""
@@ -253,4 +257,5 @@ def check_to_file(image_paths: Sequence[Path], poses: Poses, camera: Camera, par
     inputs = [Path(v) for v in sources.values() if v] + sorted({Path(p).parent for p in image_paths})
     identity = check_identity(sources, [Path(p).name for p in image_paths], params)
     files = OutputFiles([out], "check-poses", identity, inputs=inputs, overwrite=overwrite)
-    return run(image_paths, poses, camera, params, out, refuse=refuse, sources=sources, files=files, epsg=epsg)
+    return run(image_paths, poses, camera, params, out, refuse=refuse, sources=sources, files=files, epsg=epsg,
+               input_warnings=input_warnings)

@@ -32,7 +32,7 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -260,6 +260,32 @@ def fewest_observations(params: TriangulationParams) -> int:
     return fewest if params.fuse_radius_factor <= 0 else min(fewest, params.min_piece_observations)
 
 
+class LandmarkRow(NamedTuple):
+    """One landmark kept by the per-point filters of `triangulate_landmarks`, before the map-wide ones."""
+
+    track: int  # smallest tracker track id of the observations (-1: untracked)
+    point_id: int  # id in the pycolmap reconstruction
+    xyz: np.ndarray  # (3,) where the map has it (moved to its whole views, `located_from_whole_masks`)
+    size_m: float
+    num_observations: int
+    error_px: float  # recorded error: over the whole views for a moved landmark, else the bundle-adjusted one
+    observations: np.ndarray  # (n, 2) (keyframe index, mask index)
+    adjusted_error_px: float  # the bundle-adjusted point's error over all the track's views
+
+
+def duplicates_kept(rows: list[LandmarkRow], radius_factor: float) -> np.ndarray:
+    """`suppress_duplicates` over landmark rows: the boolean keep mask.
+
+    Duplicates are ranked by the bundle-adjusted error (over all of each track's views), the error the
+    reprojection filter judged, not the recorded one: a landmark moved to its whole views records an error over
+    fewer, different views, and comparing errors over different views ranked moved landmarks too well (rev36: s1
+    at duplicate_radius_factor 2 kept 74 landmarks instead of 79; commit aae0162).
+    """
+    return suppress_duplicates(np.array([r.xyz for r in rows]).reshape(-1, 3), np.array([r.size_m for r in rows]),
+                               np.array([r.num_observations for r in rows]),
+                               np.array([r.adjusted_error_px for r in rows]), radius_factor)
+
+
 def _drop_rows(rec: pycolmap.Reconstruction, rows: list, keep: np.ndarray) -> tuple[list, int]:
     """Keep the landmark rows where `keep` (row[1] = point id); the others are deleted from `rec` too, so
     sparse/ and the landmark map agree. Returns (kept rows, number dropped)."""
@@ -357,7 +383,7 @@ def triangulate_landmarks(
     drop = {"few_observations": 0, "reprojection": 0, "behind_camera": 0, "small_angle": 0, "cut_by_border": 0,
             "duplicate": 0, "height_outlier": 0, "beyond_flying_height": 0}
     locate_whole = params.whole_masks_only and centroids_px is not None and covariances_px is not None
-    rows = []
+    rows: list[LandmarkRow] = []
 
     def behind_a_camera(kf: np.ndarray, x: np.ndarray) -> bool:
         return bool(np.any(r_cw[kf, 2, :] @ x + t_cw[kf, 2] <= 0))
@@ -403,11 +429,9 @@ def triangulate_landmarks(
         # a fused landmark holds several tracks: it takes its first sighting's (the smallest id), so that two
         # maps flown over one path order an object by the same pass (the search's windows are id ranges)
         track = int(tids.min()) if len(tids) else -1
-        rows.append((track, pid, xyz, size_of(obs, xyz), len(obs), float(point.error), obs, adjusted_error))
+        rows.append(LandmarkRow(track, pid, xyz, size_of(obs, xyz), len(obs), float(point.error), obs, adjusted_error))
     if rows and params.duplicate_radius_factor > 0:
-        keep = suppress_duplicates(np.array([r[2] for r in rows]), np.array([r[3] for r in rows]),
-                                   np.array([r[4] for r in rows]), np.array([r[7] for r in rows]),
-                                   params.duplicate_radius_factor)
+        keep = duplicates_kept(rows, params.duplicate_radius_factor)
         rows, drop["duplicate"] = _drop_rows(rec, rows, keep)
     if rows and params.height_outlier_sigmas > 0:
         bad = height_outliers(np.array([r[2] for r in rows]), params.height_outlier_neighbours,

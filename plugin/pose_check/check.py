@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..fixed_in_frame import FixedInFrame, learn_fixed_in_frame
-from ..geometry import Camera, Poses
+from ..geometry import SAME_POSITION, Camera, Poses
 from ..image_matching import OrbFeatures, ratio_matches
 from ..map_quality import flight_passes
 from ..params import PoseCheckParams
@@ -358,11 +358,13 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
 
 
 def without_baseline(baselines_m: np.ndarray) -> np.ndarray:
-    """Which pairs' poses put both cameras at one position (boolean, per pair): a baseline of at most a millionth
-    of the longest checked one (a repeated position is exactly zero; a hover's noise, 0.2 m on 1-10 m steps, is
-    far above this and keeps its pairs, whose direction the check does not judge: `PairCheck.sees_direction`)."""
+    """Which pairs' poses put both cameras at one position (boolean, per pair): a baseline within rounding of zero
+    (`geometry.SAME_POSITION`: one position given to every image, read with 1e-9 m of rounding, was judged on those
+    nanometres: "a heading 180 deg off", a 56 deg "height tilt") or of at most a millionth of the longest checked
+    one (a hover's noise, 0.2 m on 1-10 m steps, is far above both and keeps its pairs, whose direction the check
+    does not judge: `PairCheck.sees_direction`)."""
     b = np.asarray(baselines_m, np.float64)
-    return b <= 1e-6 * float(np.max(b, initial=0.0))
+    return b <= max(SAME_POSITION, 1e-6 * float(np.max(b, initial=0.0)))
 
 
 def _share_beyond(distances_px: np.ndarray, gate_px: float) -> float:

@@ -7,13 +7,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import SAME_POSITION
+
 
 def relative_poses(r_wc: np.ndarray, centers: np.ndarray, a: np.ndarray, b: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t) of camera b from camera a for index arrays `a`, `b` (P,): x_b = R x_a + t, shapes (P,3,3), (P,3)."""
+    """(R, t) of camera b from camera a for index arrays `a`, `b` (P,): x_b = R x_a + t, shapes (P,3,3), (P,3).
+    t is exactly zero for two cameras at one recorded position within rounding (`geometry.SAME_POSITION`): a
+    direction of nanometres is noise, and every use of t (E = 0, Sampson distances NaN, no depths) says "no
+    baseline" as it does for equal positions."""
     r_b = r_wc[b]
     rot = np.einsum("pji,pjk->pik", r_b, r_wc[a])  # R_b^T R_a
-    t = np.einsum("pji,pj->pi", r_b, centers[a] - centers[b])  # R_b^T (C_a - C_b)
+    step = centers[a] - centers[b]
+    step = np.where(np.linalg.norm(step, axis=-1, keepdims=True) <= SAME_POSITION, 0.0, step)
+    t = np.einsum("pji,pj->pi", r_b, step)  # R_b^T (C_a - C_b)
     return rot, t
 
 

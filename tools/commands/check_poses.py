@@ -32,6 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from ...plugin.errors import InputError
     from ...workflows import map as map_workflow
     from ...workflows import pose_check
+    from ...workflows.map.inputs import distinct_images
 
     if args.poses is None:
         if args.images is None:
@@ -41,13 +42,20 @@ def run(args: argparse.Namespace) -> int:
         inputs = map_inputs_from_images(args.images)
     else:
         inputs = map_workflow.load_inputs(args.images, args.poses, args.camera, args.convention)
+    # as `map` does before anything else: a copy of an image (or a repeated view at one recorded position) is
+    # left out, with the map's warning. Kept, its pair with the original has no baseline, spends the check's pair
+    # budget, shifts which pairs are checked, and check-poses' figures differed from the map's own check of the
+    # same inputs (BENCHMARKS.md, "check-poses and copies of images")
+    said = len(inputs.warnings)
+    inputs, _ = distinct_images(inputs)
     params = params_from_args(args)
     if args.out is not None:  # a user's file: never an input, never one sosmatch did not write
         result = pose_check.check_to_file(inputs.image_paths, inputs.poses, inputs.camera, params, args.out,
                                           refuse=not args.warn_only, sources=inputs.sources,
-                                          overwrite=args.overwrite, epsg=inputs.epsg)
+                                          overwrite=args.overwrite, epsg=inputs.epsg,
+                                          input_warnings=inputs.warnings[said:])
     else:
         result = pose_check.run(inputs.image_paths, inputs.poses, inputs.camera, params, refuse=not args.warn_only,
-                                sources=inputs.sources, epsg=inputs.epsg)
+                                sources=inputs.sources, epsg=inputs.epsg, input_warnings=inputs.warnings[said:])
     print(result.line())
     return 0

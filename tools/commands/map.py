@@ -42,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="images without a pose or poses without an image are an error, not a warning")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a session made from other inputs or settings in --out (a folder that is not a "
-                             "`sosmatch map` output is refused all the same)")
+                             "`sosmatch map` output is refused all the same); also compute again cached keyframes "
+                             "another sosmatch version made")
     parser.add_argument("--text", action="store_true", help="write sparse/ as a COLMAP text model")
     parser.add_argument("--keep-cache", action="store_true",
                         help="keep the per-keyframe cache (OUT/.partial/cache) after a successful run")

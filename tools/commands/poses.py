@@ -34,7 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epsg", type=int,
                         help="the projected CRS of the poses, an EPSG code (default: the UTM zone of the flight's "
                              "median GPS fix); flights of one site on either side of a UTM zone edge: the same one")
-    parser.add_argument("--overwrite", action="store_true", help="replace a previous `poses` output of other inputs")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a previous `poses` output of other inputs, or of the same ones made by another "
+                             "sosmatch version")
     add_params_arguments(parser)
     parser.epilog = ("Flight lines (in the warnings and poses.json) are found from the camera track and numbered 0, "
                      "1, ... in the order flown; the short crossings between lines are no lines, as in `sosmatch "

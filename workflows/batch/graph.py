@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Collection, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -121,7 +122,7 @@ def _reference_note(names: list[str], members: list[int], ref: int, before: list
 def _graph_and_merge(
     report: BatchReport, names: list[str], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
     matches: dict[str, MatchSummary], pair_fps: dict[str, list[str | None]], state: StateStore, executor: Executor,
-    options: BatchOptions, params: Params, out_dir: Path,
+    options: BatchOptions, params: Params, out_dir: Path, renewed: Collection[str] = (),
 ) -> list[dict[str, Any]]:
     index = {n: i for i, n in enumerate(names)}
     sims = {}
@@ -135,7 +136,7 @@ def _graph_and_merge(
         if options.refine and rec.get("answer") != "verified":
             _refine_pair(rec, sessions[a]["session"], sessions[b]["session"], matches[key], params)
         sims[key] = Sim3.from_dict(rec["transform"])
-    _control_alignments(sims, sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir)
+    _control_alignments(sims, sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir, renewed)
     edges, edge_keys = [], {}
     for key, sim in sims.items():
         if pairs[key]["status"] != "done" or not pairs[key]["accepted"]:  # refused by merge's control, or it failed
@@ -199,17 +200,26 @@ def _graph_and_merge(
             # refused before any work by the batch's own identity unless --overwrite)
             params.association.distance_tolerance_m, True, [matches[edge_keys[(e.a, e.b)]] for e in tree],
         )
+    # a group with a session mapped again by this version (`batch.workflow._kept_session`) is merged again
+    remerge = {key for key, task in merge_tasks.items() if set(task[1]) & set(renewed)}
     merged = run_stage(executor, merge_task, merge_tasks, merge_fps, state, "merge", out_dir, "merge groups",
-                        options.progress, _valid_merge)
+                        options.progress, _valid_merge, redo=remerge)
     for group in groups:
         if group["reference"] in merged:
             group.update(merged[group["reference"]])
     return groups
 
 
+def of_sessions(keys: Iterable[str], renewed: Collection[str]) -> set[str]:
+    """The pair keys (A__B) of `keys` with a session in `renewed` (mapped again by this version,
+    `batch.workflow._kept_session`): made again after it."""
+    return {k for k in keys if set(k.split(PAIR_SEP)) & set(renewed)}
+
+
 def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]],
                         matches: dict[str, MatchSummary], pair_fps: dict[str, list[str | None]], state: StateStore,
-                        executor: Executor, options: BatchOptions, params: Params, out_dir: Path) -> None:
+                        executor: Executor, options: BatchOptions, params: Params, out_dir: Path,
+                        renewed: Collection[str] = ()) -> None:
     """`sosmatch merge`'s control of every accepted pair's alignment (`alignment_task`), before the pair can join
     the session graph: a pair it refuses (its verdict, or an InputError: a file of the pair's that cannot be read)
     is recorded as refused (`accepted` false, its associations as `refused_support`, `refused`: the reason,
@@ -226,7 +236,7 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(pairs[key]["match"]), transform, params,
                       matches[key])
     done = run_stage(executor, alignment_task, tasks, fps, state, "control", out_dir, "control alignments",
-                     options.progress)
+                     options.progress, redo=of_sessions(tasks, renewed))
     for key, res in done.items():
         rec = pairs[key]
         rec.pop("refused", None), rec.pop("refused_by", None)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -84,9 +85,10 @@ def record_result(result: TaskResult, log_dir: Path, stage: str, key: str) -> di
 def run_stage(
     executor: Executor, fn: Any, tasks: dict[str, tuple], fingerprints: dict[str, list[str | None]],
     state: StateStore, stage: str, out_dir: Path, desc: str, progress: bool, still_valid: Any = None,
-    earlier: dict[str, list[str]] | None = None,
+    earlier: dict[str, list[str]] | None = None, redo: Collection[str] = (),
 ) -> dict[str, dict[str, Any]]:
-    """Skip tasks whose state matches, run the rest, save the state of those that succeed.
+    """Skip tasks whose state matches, run the rest, save the state of those that succeed. The tasks `redo` run
+    whatever their state (made from a session mapped again by this version: `batch.workflow._kept_session`).
 
     `fingerprints`: each task's fingerprint per version of sosmatch (`plugin.params.build_versions`: today's
     first, then earlier versions', None where a version cannot have made it); `earlier`: further fingerprints an
@@ -96,6 +98,9 @@ def run_stage(
     todo = {}
     today = {key: fingerprints[key][0] for key in tasks}
     for key, args in tasks.items():
+        if key in redo:
+            todo[key] = args
+            continue
         done = state.get(stage, key, today[key])
         migrated = False
         for old in [*fingerprints[key][1:], *(earlier or {}).get(key, [])]:

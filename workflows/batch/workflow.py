@@ -6,6 +6,7 @@ import dataclasses
 import json
 import logging
 import time
+from collections.abc import Collection
 from dataclasses import dataclass
 from itertools import combinations
 from pathlib import Path
@@ -22,7 +23,7 @@ from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir, one_session_per_flight
-from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs
+from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs, of_sessions
 from .pairs import flight_times, pairs_chosen_by
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
@@ -57,6 +58,36 @@ class BatchOptions:
 def _valid_session(done: dict[str, Any]) -> bool:
     p = Path(done.get("session", ""))
     return (p / "landmarks.sosmap").is_file() and (p / "sparse").is_dir()
+
+
+def _kept_session(out_dir: Path, overwrite: bool, renewed: set[str]) -> Any:
+    """`_valid_session`, and for a session the batch mapped (not an adopted one: the user's, used as it is) whose
+    run.json says another sosmatch made it (`database.code_version.other_version`): kept, said once in a warning
+    naming the folder, both versions and the remedy; with `overwrite` mapped again instead, its name added to
+    `renewed` (its pairs, merges and comparisons are then made again too). Its identity keys the inputs and
+    settings, not the code, so an upgrade resumes it: re-mapping every flight is what a resume saves, and a map of
+    the same settings is usually fine, but the user should know what made it."""
+    from ...database.code_version import kept_message, other_version
+    from ...database.output_markers import read_json_or_none
+
+    def kept(done: dict[str, Any]) -> bool:
+        if not _valid_session(done):
+            return False
+        session = Path(done["session"])
+        if done.get("kind") == "mapped" or (made_by := other_version(read_json_or_none(session / "run.json"))) is None:
+            return True
+        try:
+            where = session.relative_to(out_dir).as_posix()
+        except ValueError:
+            where = str(session)
+        if overwrite:
+            log.info("%s: made by %s; mapped again with this one (--overwrite)", where, made_by)
+            renewed.add(str(done.get("name", session.name)))
+            return False
+        log.warning("%s", kept_message(where, made_by, "maps it again"))
+        return True
+
+    return kept
 
 
 def _valid_match(done: dict[str, Any]) -> bool:
@@ -141,8 +172,9 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     if options.epsg is not None and (own := [f.name for f in flights if f.kind != "images"]):
         log.warning("--epsg applies to flights of photos (poses from structure from motion); %s keep the CRS of "
                     "their poses or sessions", ", ".join(own))
+    renewed: set[str] = set()  # sessions another sosmatch made, mapped again (--overwrite): all made of them too
     sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
-                          options.progress, _valid_session, earlier)
+                          options.progress, _kept_session(out_dir, options.overwrite, renewed), earlier)
     for f in flights:
         if sessions[f.name]["status"] == "done" and not sessions[f.name].get("resumed"):
             record_contents(out_dir, f, *listings[f.name])
@@ -173,7 +205,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         if matcher is pair_task:
             pair_tasks[key] += (verify, True)  # the batch's own, as the sessions
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
-                       options.progress, _valid_match)
+                       options.progress, _valid_match, redo=of_sessions(pair_tasks, renewed))
     for (a, b), why in chosen_by.items():  # said in report.json: why each pair was matched (a resumed pair too)
         pairs[f"{a}{PAIR_SEP}{b}"]["chosen_by"] = why
     _match_refusals(pairs)
@@ -184,12 +216,12 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
 
     # 4: session graph (marks each pair's in_graph) and merged groups
     report.groups = _graph_and_merge(report, mapped, sessions, pairs, matches, pair_fps, state, executor, options,
-                                     params, out_dir)
+                                     params, out_dir, renewed)
     # 5: what changed between the sessions of every pair the graph kept
     if options.changes:
         # where each flight's images are now: a map resumed after the flights folder moved records the old place
         images = {f.name: None if f.kind == "mapped" else images_dir(f.path) for f in flights}
-        _changes(sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir, images)
+        _changes(sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir, images, renewed)
     report.pairs = [{"pair": key, "a": key.split(PAIR_SEP)[0], "b": key.split(PAIR_SEP)[1], **rec}
                     for key, rec in pairs.items()]
     report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
@@ -361,7 +393,7 @@ def _valid_changes(done: dict[str, Any]) -> bool:
 
 def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSummary],
              pair_fps: dict[str, list[str | None]], state: StateStore, executor: Executor, options: BatchOptions,
-             params: Params, out_dir: Path, images: dict[str, Path | None]) -> None:
+             params: Params, out_dir: Path, images: dict[str, Path | None], renewed: Collection[str] = ()) -> None:
     """Run `changes_task` for every accepted pair in the session graph; its counts go into the pair's record. Its
     alignment control runs at the pair's match's gate, as the control stage's (`alignment_task`)."""
     tasks, fps = {}, {}
@@ -375,7 +407,7 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
                       *(None if images[n] is None else str(images[n]) for n in (a, b)),
                       answer_gate(matches[key], params.association.distance_tolerance_m))
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
-                     options.progress, _valid_changes)
+                     options.progress, _valid_changes, redo=of_sessions(tasks, renewed))
     for key, rec in done.items():
         pairs[key]["changes_status"] = rec["status"]
         if rec["status"] == "done":

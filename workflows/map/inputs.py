@@ -35,7 +35,7 @@ from ...database.output_markers import check_finished, sha256_file
 from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geodesy import ecef_to_grid, looks_like_ecef
-from ...plugin.geometry import Camera, Poses
+from ...plugin.geometry import Camera, Poses, position_groups
 from ...plugin.keyframes import flight_order, flight_order_message
 
 log = logging.getLogger(__name__)
@@ -346,7 +346,8 @@ def _turn_deg(rotations: np.ndarray | None, a: int, b: int) -> float:
 def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.ndarray | None = None,
                           rotations: np.ndarray | None = None) -> Duplicates:
     """Images that are one picture under several names, said in one warning: byte-identical files (a copy made
-    twice), and, among images the poses put at exactly one position (`centers`, capture order), those that show
+    twice), and, among images the poses put at one position (`centers`, capture order; within rounding,
+    `geometry.position_groups`), those that show
     the same view (`image_rigs.same_view`: a PNG written from the JPEG beside it, a re-encoded copy). One picture
     with two poses: the pose check's pair of them has no baseline (undefined epipolar geometry) and a copy can
     replace its original as a keyframe, so each copy is left out, its original kept (`image_rigs.original_name`).
@@ -363,10 +364,9 @@ def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.nda
     repeated: list[tuple[int, int]] = []  # (image, the earlier image whose recorded position it repeats)
     turned: list[tuple[int, int, float]] = []  # (image, the earlier one at its position, degrees between them)
     if centers is not None:
-        at: dict[tuple[float, ...], list[int]] = {}
-        for i, c in enumerate(np.asarray(centers, np.float64)):
-            at.setdefault(tuple(c.tolist()), []).append(i)
-        for members in (m for m in at.values() if len(m) > 1):
+        # one recorded position within rounding (`geometry.SAME_POSITION`): rows read from a CSV or converted from
+        # EXIF or ECEF that differ by 1e-9 m are one position, as exact equality did not say
+        for members in (m for m in position_groups(centers) if len(m) > 1):
             last = None  # the latest distinct picture at this position: each image is compared with it alone, so
             # a long stall reads every image twice, not every pair (rev37: 100 frames at 20 MP were ~18 min of CPU)
             for k, j in enumerate(members):

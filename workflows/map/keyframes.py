@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...database.atomic import atomic_path
+from ...database.code_version import code_versions, describe, other_version
 from ...database.taken import make_dirs
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera
@@ -31,7 +32,9 @@ def _cache_path(cache_dir: Path, k: int, name: str) -> Path:
     return cache_dir / f"{k:05d}_{Path(name).stem}.npz"
 
 
-def _load_cached(path: Path, key: str) -> tuple[Any, tuple[float, float]] | None:
+def _load_cached(path: Path, key: str) -> tuple[Any, tuple[float, float], dict[str, Any]] | None:
+    """(features, motion, the versions of the sosmatch that wrote the entry ({} before they were recorded)), or
+    None when the entry is of another key or unreadable."""
     from ...plugin.mask_features import MaskFeatures
 
     try:
@@ -40,7 +43,8 @@ def _load_cached(path: Path, key: str) -> tuple[Any, tuple[float, float]] | None
                 return None
             motion = (float(data["motion"][0]), float(data["motion"][1]))
             feats = MaskFeatures.from_npz_dict({k[5:]: data[k] for k in data.files if k.startswith("feat_")})
-            return feats, motion
+            made = json.loads(str(data["made_by"])) if "made_by" in data.files else {}
+            return feats, motion, made if isinstance(made, dict) else {}
     except (OSError, KeyError, ValueError, EOFError) as exc:  # a damaged entry is recomputed, never trusted
         log.debug("cache entry %s unusable (%s); recomputing", path, exc)
         return None
@@ -57,7 +61,10 @@ def _save_cached(path: Path, key: str, feats: Any, motion: tuple[float, float],
             extra = {} if figures is None else {"image_figures": np.asarray(figures, np.float64)}
             if smears is not None:
                 extra["motion_smears_by_angle"] = np.asarray(smears, np.float64)
-            np.savez(f, cache_key=np.array(key), motion=np.array(motion, dtype=np.float64), **extra, **arrays)
+            # which code made it: a resumed map says when an earlier sosmatch's entries are reused
+            # (`describe_keyframes`), as the key holds the settings, not the code
+            np.savez(f, cache_key=np.array(key), motion=np.array(motion, dtype=np.float64),
+                     made_by=np.array(json.dumps(code_versions(), sort_keys=True)), **extra, **arrays)
 
 
 _NO_DESCRIPTORS = np.zeros((0, 128), np.float32)
@@ -189,6 +196,7 @@ def describe_keyframes(
     white: Levels | int | None = None,
     hold_descriptors: bool = True,
     contrast: Any = None,
+    renew_other_versions: bool = False,
 ) -> tuple[list[Any], list[tuple[float, float]], int]:
     """Segmentation + mask description + motion statistics per keyframe, resumed from the cache.
 
@@ -206,7 +214,9 @@ def describe_keyframes(
     cache (`cached_descriptors` reads them): they are ~95 % of a keyframe's description (~1 MB at 320 px), and a
     1500-keyframe flight held 1.7 GB of them where tracking needs only the last few keyframes' at a time.
     `contrast`: the flight's contrast (`plugin.flight_contrast.FlightContrast`; None or gain 1: the segmenter sees
-    the images as read).
+    the images as read). The key holds the settings, not the code: entries another sosmatch wrote (an interrupted
+    run resumed after an upgrade, `--keep-cache`) are reused and said once in a warning naming the cache, both
+    versions and `--overwrite`; with `renew_other_versions` (map's `overwrite`) they are computed again.
     """
     from dataclasses import replace
 
@@ -227,6 +237,7 @@ def describe_keyframes(
         cache_key = f"{cache_key}:contrast{contrast.gain:.6f}:{contrast.centre:.3f}:{contrast.range:.3f}"
     results: list[tuple[Any, tuple[float, float]] | None] = [None] * len(keyframes)
     todo = []
+    others: dict[str, int] = {}  # entries reused that another sosmatch wrote: its description -> how many
     for k, idx in enumerate(keyframes):
         name = inputs.poses.names[idx]
         prev_name = inputs.poses.names[keyframes[k - 1]] if k else ""
@@ -235,12 +246,22 @@ def describe_keyframes(
             key += f":{digests[idx]}:{digests[keyframes[k - 1]] if k else ''}"
         entry = _cache_path(cache_dir, k, name)
         hit = _load_cached(entry, key) if entry.exists() else None
+        made_by = other_version({"versions": hit[2]}) if hit is not None else None
+        if hit is not None and made_by is not None and renew_other_versions:
+            hit = None
         if hit is not None:
             results[k] = (kept(hit[0]), hit[1])
+            if made_by is not None:
+                others[made_by] = others.get(made_by, 0) + 1
         else:
             prev_path = inputs.image_paths[keyframes[k - 1]] if k else None
             todo.append((k, inputs.image_paths[idx], prev_path, entry, key))
     cached = len(keyframes) - len(todo)
+    if others:
+        log.warning("%s: %s of %d keyframes resumed from cache entries made by %s, with the same settings; this is %s "
+                    "(another version may segment them otherwise): --overwrite computes them again with this one",
+                    cache_dir, sum(others.values()), len(keyframes), " and ".join(sorted(others)),
+                    describe(code_versions()))
     bar = progress_bar(len(keyframes), "keyframes", "kf", progress, initial=cached)
     if workers <= 1 or len(todo) <= 1:
         prev_gray, prev_k = None, -2

@@ -24,7 +24,6 @@ from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
 from ...database.outputs import OutputDir
 from ...database.segmentation_models import SegmentationModels, segmentation_models
-from ...plugin import __version__
 from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
 from .inputs import (
@@ -104,7 +103,11 @@ def _versions() -> dict[str, str]:
     import pycolmap
     import scipy
 
-    return {"sosmatch": __version__, "python": platform.python_version(), "numpy": np.__version__,
+    from ...database.code_version import code_versions
+
+    # the source digest too: the package version does not change with the code (`database.code_version`); a batch
+    # that keeps this map after an upgrade names both (`batch.workflow`)
+    return {**code_versions(), "python": platform.python_version(), "numpy": np.__version__,
             "scipy": scipy.__version__, "opencv": cv2.__version__, "pycolmap": pycolmap.__version__}
 
 
@@ -204,7 +207,8 @@ def run(
             poses), resolved inside the taken directory (structure from motion in its staging area, resumable)
             and published with the map (SESSION_DIR/poses).
         out_dir: the session directory (created; see the module doc for resume and refusal rules).
-        overwrite: replace a complete session made from other inputs or parameters.
+        overwrite: replace a complete session made from other inputs or parameters; per-keyframe cache entries
+            another sosmatch made (a resumed run, `keep_cache`) are computed again instead of reused (and named).
         text_model: write sparse/ as a text model instead of binary.
         keep_cache: keep the per-keyframe cache (SESSION_DIR/.partial/cache) after success (default: delete).
         progress: show tqdm progress bars.
@@ -252,7 +256,7 @@ def run(
             params = for_image(params, inputs.camera.width, inputs.camera.height)
         timings["inputs"] = time.perf_counter() - t_start
         summary = _map_into(out, params, inputs, fps, digests, masks_source, text_model, progress,
-                            on_keyframe, workers, masks_for, timings, t_start, extra, gps, models)
+                            on_keyframe, workers, masks_for, timings, t_start, extra, gps, models, overwrite)
         out.finish(keep_staging=keep_cache)
     if keep_cache:
         log.info("per-keyframe cache kept in %s", out_dir / PARTIAL / "cache")
@@ -265,8 +269,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
               on_keyframe: Callable[[int], None] | None, workers: int,
               masks_for: Callable[[str, np.ndarray], Any] | None, timings: dict[str, float],
               t_start: float, extra_outputs: tuple[str, ...] = (), gps: Any = None,
-              models: SegmentationModels | None = None) -> MapSummary:
-    """The stages of `run` inside the taken output directory: build in its staging area, then publish."""
+              models: SegmentationModels | None = None, overwrite: bool = False) -> MapSummary:
+    """The stages of `run` inside the taken output directory: build in its staging area, then publish
+    (`overwrite`: per-keyframe cache entries another sosmatch made are computed again, `describe_keyframes`)."""
     import pycolmap
 
     from ...database.flight_levels import flight_white_level
@@ -311,7 +316,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     segmented = replace(params, segmentation=models.params(params.segmentation))  # the files fingerprinted
     features, motion, cached = describe_keyframes(inputs, keyframes, segmented, partial / "cache", cache_key,
                                                   progress, on_keyframe, workers, masks_for, digests, white,
-                                                  hold_descriptors=False, contrast=contrast)
+                                                  hold_descriptors=False, contrast=contrast,
+                                                  renew_other_versions=overwrite)
     descriptors = cached_descriptors(partial / "cache", kf_poses.names)
     # the JPEG quality from the files' headers: compression fools the image figures (`plugin.jpeg_quality`)
     images = flight_images(cached_image_figures(partial / "cache", kf_poses.names), kf_poses.names,

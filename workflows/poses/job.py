@@ -18,9 +18,10 @@ import numpy as np
 
 from ...database.atomic import write_text_atomic
 from ...database.cameras import format_cameras_txt
+from ...database.code_version import code_versions, kept_message, other_version
 from ...database.images import check_images_decode
 from ...database.json_text import json_default
-from ...database.output_markers import fingerprint
+from ...database.output_markers import fingerprint, read_json_or_none
 from ...database.outputs import open_output_dir
 from ...database.poses import format_poses_csv
 from ...database.taken import make_dirs
@@ -88,7 +89,13 @@ def run(
     identity = identity_of(image_dir, params, **options)
     with open_output_dir(out, "poses", identity, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
         if taken.was_complete and (taken.path / RECORD).is_file():
-            return load_result(taken.path)  # the same inputs and settings: the outputs stand
+            # the same inputs and settings: the outputs stand, also those of another sosmatch (the identity keys
+            # the settings, not the code), said once; --overwrite computes them again with this one
+            made_by = other_version(read_json_or_none(taken.path / RECORD))
+            if made_by is None or not overwrite:
+                if made_by is not None:
+                    log.warning("%s", kept_message(taken.path, made_by, "computes it again"))
+                return load_result(taken.path)
         priors = read_image_priors(image_dir, telemetry, sensor_width_mm=sensor_width_mm,
                                    takeoff_altitude_m=takeoff_altitude_m, epsg=epsg)
         result = compute_poses(image_dir, taken.staging / "work", params, identity, telemetry, takeoff_altitude_m,
@@ -270,7 +277,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     sfm.publish_database(db, tmp / "database.db")  # the work directory's copy is not needed any more
     timings["total"] = time.perf_counter() - t0
     report = {
-        "format": "sosmatch-poses", "version": 1,
+        "format": "sosmatch-poses", "version": 1, "versions": code_versions(),  # which sosmatch made them
         "images": n_all, "registered": len(names), "unregistered": model.unregistered,
         "left_out_off_gps": sorted(set(model.registered) - set(names)),
         "other_models": model.other_models,
