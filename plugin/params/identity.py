@@ -103,7 +103,7 @@ ADDED: tuple[Added, ...] = (
     Added("quality.lens_check", "9eab6db", False, "maps whose camera lens the images contradict are refused"),
     Added("quality.lens_shift_margin", "9eab6db", 5.0, "the lens check's significance"),
     Added("quality.max_lens_height_shift", "9eab6db", 0.10, "the lens check's refusal"),
-    Added("quality.warn_lens_height_shift", "9eab6db", 0.05, "a warning"),
+    Added("quality.warn_lens_height_shift", "9eab6db", 0.06, "a warning"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}

@@ -268,7 +268,7 @@ class QualityParams(Checked):
     # own pull, segments' centroids drifting with the view); a 100 deg lens with flipped distortion signs 31 %,
     # left out (PINHOLE) 17 % (BENCHMARKS.md, "The lens against the images")
     max_lens_height_shift: float = fraction(0.10)
-    warn_lens_height_shift: float = fraction(0.05)
+    warn_lens_height_shift: float = fraction(0.06)
     # p90 of |landmark height - its 8 neighbours' median| over the flying height: beyond 1 a tenth of the map sits
     # farther from its neighbours' ground than the cameras fly above it (a drone flies above what it maps; a pit
     # that deep under a tenth of the landmarks is no survey site); consistent maps 0.03-0.07, Seneca 0.04

@@ -11,8 +11,8 @@ import numpy as np
 from ...plugin.geometry import Camera
 from ...plugin.lens_check import LensCheck, jackknife_se, landmark_groups, lens_displacement_px, refit_camera
 
-GROUPS = 8  # jackknife blocks: enough for a standard error, 1 + 2 x 8 small solves
-MAX_LANDMARKS = 2000  # a larger map is checked on this many landmarks spread over it (the cost stays small)
+GROUPS = 8  # jackknife blocks: enough for a standard error; 2 + 8 solves in all
+MAX_LANDMARKS = 1000  # a larger map is checked on this many landmarks spread over it (the cost stays small)
 
 
 def _solve(rec: Any, refine_lens: bool, loss_scale_px: float) -> None:
@@ -86,27 +86,25 @@ def check_lens(rec: Any, camera: Camera, camera_file: str, flying_height_m: floa
     loss = 2.0 * pixel_sigma_px  # the points-only refinement's Huber scale (`triangulation.refine_points_only`)
     start = refit_camera(camera)
 
-    def fit(drop: list[int]) -> Camera:
+    def fit(drop: list[int]) -> tuple[Camera, Any]:
+        """The lens fit with the points `drop` left out, and the reconstruction holding the rest at its optimum
+        (the points where that lens triangulates them)."""
         part = _with_camera(rec, start, drop)
         _solve(part, True, loss)
-        return _camera_of(part, start)
-
-    def retriangulated(lens: Camera) -> Any:
-        whole = _with_camera(rec, lens)
-        _solve(whole, False, loss)
-        return whole
+        return _camera_of(part, start), part
 
     # both lenses' heights from the same solve (the map's own points may be placed otherwise: whole masks only)
-    given = retriangulated(start)
+    given = _with_camera(rec, start)
+    _solve(given, False, loss)
     z0 = _heights(given, ids)
-    fitted = fit([])
-    whole = retriangulated(fitted)
+    fitted, whole = fit([])
     shift = float(np.median(_heights(whole, ids) - z0))
     block = landmark_groups(len(ids), groups)
     leave_outs = []
-    for g in range(groups):
-        lens = fit([p for p, b in zip(ids, block) if b == g])
-        leave_outs.append(float(np.median(_heights(retriangulated(lens), ids) - z0)))
+    for g in range(groups):  # the statistic on the rest, as the jackknife takes it
+        rest = [p for p, b in zip(ids, block) if b != g]
+        _, part = fit([p for p, b in zip(ids, block) if b == g])
+        leave_outs.append(float(np.median(_heights(part, rest) - z0[block != g])))
     return LensCheck(camera_file, camera, fitted, shift, jackknife_se(np.array(leave_outs)), flying_height_m,
                      lens_displacement_px(start, fitted), _rms(given, ids, loss),
                      _rms(whole, ids, loss), len(ids), time.process_time() - t0)
