@@ -74,6 +74,15 @@ def test_flipped_distortion_is_refused_with_its_height_error(flight):
     assert lens["fitted"]["params"][-1] < 0  # the refit finds the barrel lens back
 
 
+def test_forgotten_distortion_is_said(flight):
+    # PINHOLE for the barrel lens: refit as OPENCV, the map about 8 % of its flying height low, a warning
+    run, refused = _map(flight, "pinhole", Camera(WIDTH, HEIGHT, *K))
+    lens = run["lens_check"]
+    assert not refused and lens["fitted"]["model"] == "OPENCV" and lens["height_shift_m"] > 0
+    said = [w for w in run["verdict"]["warnings"] if "pinhole.txt puts the map" in w]
+    assert len(said) == 1 and "check the camera file's distortion" in said[0]
+
+
 def test_forgotten_distortion_is_refit_in_a_lens_model():
     pinhole = Camera(WIDTH, HEIGHT, *K)
     start = refit_camera(pinhole)

@@ -265,7 +265,7 @@ class QualityParams(Checked):
     lens_shift_margin: float = positive(5.0)
     # ... and beyond this fraction of the flying height a refusal (the map's heights are that wrong), beyond
     # warn_lens_height_shift a warning. Correct lenses of 10 synthetic flights and Seneca: at most 4.1 % (the refit's
-    # own pull: segments' centroids are not points), at up to 4.3 standard errors, so this limit keeps them silent;
+    # own pull: segments' centroids are not points), at up to 4.9 standard errors, so this limit keeps them silent;
     # 100 deg lenses with flipped distortion 31-37 %, left out (PINHOLE) 17-23 %, k1 -0.2 at 65 deg left out 8.9 %
     # (BENCHMARKS.md, "The lens against the images")
     max_lens_height_shift: float = fraction(0.10)
