@@ -3,15 +3,24 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any
 
 import numpy as np
 
 from ...plugin.geometry import Camera
-from ...plugin.lens_check import LensCheck, jackknife_se, landmark_groups, lens_displacement_px, refit_camera
+from ...plugin.lens_check import (
+    CHECKED_MODELS,
+    LensCheck,
+    jackknife_se,
+    landmark_groups,
+    lens_displacement_px,
+    refit_camera,
+)
 from ...plugin.params import Params
 
+log = logging.getLogger(__name__)
 GROUPS = 8  # jackknife blocks: enough for a standard error; 2 + 2 x 8 solves in all
 MAX_LANDMARKS = 500  # a larger map is checked on this many landmarks spread over it (the cost stays small)
 
@@ -75,8 +84,12 @@ def _rms(rec: Any, ids: list[int], loss_scale_px: float) -> float:
 def check_lens(rec: Any, camera: Camera, camera_file: str, flying_height_m: float, pixel_sigma_px: float,
                groups: int = GROUPS) -> LensCheck | None:
     """The lens check of a map's reconstruction `rec` (its points triangulated through `camera`, the poses
-    fixed; it is not changed), or None when the map has too few landmarks for `groups` blocks of them."""
+    fixed; it is not changed), or None when the map has too few landmarks for `groups` blocks of them or its
+    camera's model is not checked (`plugin.lens_check.CHECKED_MODELS`)."""
     t0 = time.process_time()
+    start = refit_camera(camera)
+    if start is None:
+        return None
     ids = sorted(rec.points3D)
     if len(ids) > MAX_LANDMARKS:  # evenly over the landmark order (flight order), the same on every run
         ids_keep = set(ids[i] for i in np.linspace(0, len(ids) - 1, MAX_LANDMARKS).round().astype(int))
@@ -85,7 +98,6 @@ def check_lens(rec: Any, camera: Camera, camera_file: str, flying_height_m: floa
     if len(ids) < 2 * groups:
         return None
     loss = 2.0 * pixel_sigma_px  # the points-only refinement's Huber scale (`triangulation.refine_points_only`)
-    start = refit_camera(camera)
 
     def fit(drop: list[int]) -> tuple[Camera, Any]:
         """The lens fit with the points `drop` left out, and the reconstruction holding the rest at its optimum
@@ -126,6 +138,9 @@ def lens_stage(landmarks: Any, camera: Camera, camera_file: str, flying_height_m
     if not params.quality.lens_check or rec is None or not len(landmarks):
         return None, [], []
     check = check_lens(rec, camera, camera_file, flying_height_m, params.triangulation.pixel_sigma_px)
+    if check is None:
+        log.info("the lens is not checked against the images: %s", f"{len(landmarks)} landmarks" if
+                 camera.model in CHECKED_MODELS else f"a {camera.model} camera's terms are not fixed by a map")
     q = params.quality
     warnings, refusals = judge_lens(check, q.lens_shift_margin, q.warn_lens_height_shift, q.max_lens_height_shift)
     return check, warnings, refusals
