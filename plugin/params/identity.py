@@ -98,6 +98,12 @@ ADDED: tuple[Added, ...] = (
     # "--set tracking.truncation_aware=false would accept it", which resumes it as it was made
     Added("tracking.truncation_aware", "13d672e", False, "masks cut by the image border are tracked as truncated "
           "views"),
+    # neutral at False as truncation_aware: it adds a refusal, so an output made before it is another one unless
+    # the check is off ("--set quality.lens_check=false would accept it"); its limits act only when it is on
+    Added("quality.lens_check", "9eab6db", False, "maps whose camera lens the images contradict are refused"),
+    Added("quality.lens_shift_margin", "9eab6db", 5.0, "the lens check's significance"),
+    Added("quality.max_lens_height_shift", "9eab6db", 0.10, "the lens check's refusal"),
+    Added("quality.warn_lens_height_shift", "9eab6db", 0.06, "a warning"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}

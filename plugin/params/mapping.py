@@ -258,6 +258,18 @@ class QualityParams(Checked):
     # errors (its own scatter): nu28 consistent maps 0.3-2.2 m at 5.0 % H = 5-6.6 m (98 maps of nu21/22/26: at
     # most 2.8 m), heights tilted 15 deg along 30 deg or drifting 30 m over the flight 8-12 m at 8-19 errors
     pass_offset_margin: float = positive(5.0)
+    # (ours) the lens in the camera file against the lens the map's own observations fit with the poses fixed
+    # (`plugin.lens_check`; off: not checked): the median landmark height change with the refit lens, judged when
+    # beyond lens_shift_margin jackknife standard errors (the images prove another lens) ...
+    lens_check: bool = flag(True)
+    lens_shift_margin: float = positive(5.0)
+    # ... and beyond this fraction of the flying height a refusal (the map's heights are that wrong), beyond
+    # warn_lens_height_shift a warning. Correct lenses of 10 synthetic flights and Seneca: at most 4.1 % (the refit's
+    # own pull: segments' centroids are not points), at up to 4.9 standard errors, so this limit keeps them silent;
+    # 100 deg lenses with flipped distortion 31-37 %, left out (PINHOLE) 17-23 %, k1 -0.2 at 65 deg left out 8.9 %
+    # (BENCHMARKS.md, "The lens against the images")
+    max_lens_height_shift: float = fraction(0.10)
+    warn_lens_height_shift: float = fraction(0.06)
     # p90 of |landmark height - its 8 neighbours' median| over the flying height: beyond 1 a tenth of the map sits
     # farther from its neighbours' ground than the cameras fly above it (a drone flies above what it maps; a pit
     # that deep under a tenth of the landmarks is no survey site); consistent maps 0.03-0.07, Seneca 0.04

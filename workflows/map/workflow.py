@@ -46,6 +46,7 @@ from .keyframes import (
     describe_keyframes,
     shutter_smear,
 )
+from .lens import lens_stage
 from .output_dir import OUTPUTS, PARTIAL, POSE_CHECK, RECORD, map_identity, take_output_dir
 from .quality import FIGURE, joined, pose_check_stage, quality_stage, raise_if_refused, verdict_record
 from .recorded_height import ground_flying_height, height_against_takeoff, recorded_heights, takeoff_record
@@ -84,6 +85,7 @@ class MapSummary:
     verdict: Verdict | None = None
     pose_check: Any = None  # workflows.pose_check.CheckResult (None: the check was off)
     remedy: str = ""  # MapInputs.remedy, when the pose check found the poses loose: said with a refusal
+    lens: Any = None  # plugin.lens_check.LensCheck (None: too few landmarks to check the lens)
 
     def line(self) -> str:
         """The one-line summary printed at the end of `sosmatch map`."""
@@ -93,6 +95,8 @@ class MapSummary:
             line += f"; {self.quality.line()}"
         if self.pose_check is not None:
             line += f"; {self.pose_check.check.line()}"
+        if self.lens is not None:
+            line += f"; {self.lens.line()}"
         if self.verdict is not None and self.verdict.warnings:
             line += f"; WARNING: {'; '.join(self.verdict.warnings)}"
         return line
@@ -414,6 +418,15 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         log.warning("%s: %s", out.path, said)
         verdict.warnings.append(said)
     timings["quality"] = time.perf_counter() - t
+    t = time.perf_counter()
+    # the lens against the images with the poses fixed: a wrong distortion moves the whole map in height, which
+    # nothing above sees when the flight recorded no height above take-off (`plugin.lens_check`)
+    lens, lens_warnings, lens_refusals = lens_stage(landmarks, camera, inputs.sources.get("camera", "the camera"),
+                                                    quality.flying_height_m, params)
+    for said in lens_warnings + lens_refusals:
+        log.warning("%s: %s", out.path, said)
+    verdict = joined(verdict, Verdict(refusals=lens_refusals, warnings=lens_warnings))
+    timings["lens_check"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
 
     counts = {
@@ -431,7 +444,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         checked = replace(checked, out=out.path / POSE_CHECK)
     summary = MapSummary(out.path, len(inputs.image_paths), len(keyframes), counts["masks"], counts["tracks"],
                          len(landmarks), map_bytes, timings["total"], cached, counts, timings, quality, verdict,
-                         checked, pose_remedy(inputs, checked, params))
+                         checked, pose_remedy(inputs, checked, params), lens)
     record = {
         "format": "sosmatch-map-run", "version": 1,
         "params": pdict, "pixel_scale": pixel_scale(params, camera.width, camera.height), "versions": _versions(),
@@ -458,6 +471,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         # the flying height against the recorded height above take-off (match judges a vertical move by it)
         "height_above_takeoff": takeoff_record(over_ground, relative),
         "pose_check": checked.summary() if checked is not None else None,
+        # the camera's distortion refit on the map's observations, poses fixed (plugin.lens_check)
+        "lens_check": lens.to_dict() if lens is not None else None,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         # the map's own noise (plugin.map_noise): `sosmatch match` derives its tolerances from it
         "noise": landmarks.noise.to_dict() if landmarks.noise is not None else None,
