@@ -166,9 +166,8 @@ def test_a_file_of_an_earlier_version_is_this_output(tmp_path):
     from sosmatch.database.output_files import OutputFiles
 
     # check-poses: a file written before min_jpeg_quality existed is the same output, at the behaviour of that
-    # version: truncation_aware and lens_check, registered later, were then off (their defaults are on and change
-    # maps or their verdicts)
-    params = with_overrides(Params(), {"tracking.truncation_aware": False, "quality.lens_check": False})
+    # version: truncation_aware, registered later, was then off (its default is on since fix76 and changes maps)
+    params = with_overrides(Params(), {"tracking.truncation_aware": False})
     old = fingerprint({"params": _before(dataclasses.asdict(params), "quality.min_jpeg_quality")})
     OutputFiles([tmp_path / "check.json"], "check-poses", old).write(tmp_path / "check.json", "{}")
 
@@ -177,8 +176,7 @@ def test_a_file_of_an_earlier_version_is_this_output(tmp_path):
 
     OutputFiles([tmp_path / "check.json"], "check-poses", identity(params))  # not refused
     # the identity holds every setting: at today's defaults the file is refused, naming the --set that resumes it
-    with pytest.raises(InputError,
-                       match="tracking.truncation_aware=false --set quality.lens_check=false would accept it"):
+    with pytest.raises(InputError, match="tracking.truncation_aware=false would accept it"):
         OutputFiles([tmp_path / "check.json"], "check-poses", identity(Params()))
     other = with_overrides(params, {"quality.min_jpeg_quality": 50.0})
     with pytest.raises(InputError, match="quality.min_jpeg_quality=75.0 would accept it"):

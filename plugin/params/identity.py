@@ -98,9 +98,11 @@ ADDED: tuple[Added, ...] = (
     # "--set tracking.truncation_aware=false would accept it", which resumes it as it was made
     Added("tracking.truncation_aware", "13d672e", False, "masks cut by the image border are tracked as truncated "
           "views"),
-    # neutral at False as truncation_aware: it adds a refusal, so an output made before it is another one unless
-    # the check is off ("--set quality.lens_check=false would accept it"); its limits act only when it is on
-    Added("quality.lens_check", "9eab6db", False, "maps whose camera lens the images contradict are refused"),
+    # registered at its default as untested_object_rate is, not at False as truncation_aware: the check changes no
+    # map, it only adds a warning or a refusal. At False every identity would name it, and through a map's full
+    # parameters an upgrade would refuse every map and batch made before it (a map made then and resumed is
+    # named by `database.code_version`'s notice of other code, which is what says it was never checked)
+    Added("quality.lens_check", "9eab6db", True, "maps whose camera lens the images contradict are refused"),
     Added("quality.lens_shift_margin", "9eab6db", 5.0, "the lens check's significance"),
     Added("quality.max_lens_height_shift", "9eab6db", 0.10, "the lens check's refusal"),
     Added("quality.warn_lens_height_shift", "9eab6db", 0.06, "a warning"),
