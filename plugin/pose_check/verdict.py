@@ -22,7 +22,7 @@ MIN_FIXES_TO_REFUSE = 10  # inliers a unit refusal needs (simulated: 0.5-2 % fal
 # cameras of a pair on one straight pass alike and leaves their relative pose as it was, a pitch turns their
 # baseline in the camera frame. Measured (40-frame synthetic lawnmowers, nadir and 35 deg oblique; nu51's relief
 # runs): lags of 5-60 m 1.17-1.32 (the fit makes them worse), exact poses 0.97-1.03, pitch errors of 5 / 10 deg
-# 0.86 / 0.81, 12-35 deg 0.25-0.54 (the oblique camera recorded as nadir: 0.25 and 0.50)
+# 0.86 / 0.81, 12-70 deg 0.21-0.54 (the oblique camera recorded as nadir: 0.25 and 0.50; BENCHMARKS.md)
 PITCH_AXIS_SHARE = 0.9
 CONSECUTIVE_EXPLAINED = 0.75
 MIN_CONSECUTIVE = 6  # consecutive pairs the comparison needs (the systematic fit's own minimum)
