@@ -5,6 +5,7 @@ two-view geometry against a direct computation."""
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -411,6 +412,38 @@ def test_a_lag_along_the_track_is_named_with_the_attitude_error_it_looks_like(fl
     said = [w for w in verdict.warnings + verdict.refusals if "attitude error of" in w]
     assert len(said) == 1 and "along the track" not in said[0], said
     assert not np.isfinite(result.lag_along_track_m)
+
+
+@pytest.fixture(scope="module")
+def tilted_flight(tmp_path_factory) -> Path:
+    """`flight` with the camera tilted 35 deg forward (an oblique survey), over a world large enough for its view."""
+    out = tmp_path_factory.mktemp("posecheck") / "tilted"
+    assert main(["synth", "--out", str(out), "--frames", "40", "--width", "320", "--height", "240", "--world-size",
+                 "600", "--line-length", "100", "--camera-tilt", "35", "-q"]) == 0
+    return out
+
+
+def test_an_oblique_camera_recorded_as_nadir_is_named_as_the_pitch_not_a_lag(tilted_flight, flight):
+    """The nu51 sweep: a 35 deg oblique flight whose poses lack the gimbal pitch (recorded as nadir) was refused as
+    "31.8 deg ..., or positions 86.2 m behind along the track ...: a camera trigger latency, a log time offset, or
+    a wrong mounting?". A lag moves both cameras of a consecutive pair alike and leaves their fit as it was; a
+    pitch does not, and the fit that takes the consecutive pairs' misfit off names the camera's pitch first, with
+    its angle. A lag along the track (nadir flight, 20 m) still reads as a lag."""
+    images, poses, camera = _inputs(tilted_flight)
+    nadir = Poses(poses.names, poses.rotations @ _rot("x", -35.0), poses.centers)  # the gimbal pitch left out
+    _, verdict = pose_check.check(images, nadir, camera, Params())
+    said = [r for r in verdict.refusals if "attitude error of" in r]
+    assert len(said) == 1 and "\n" not in said[0], verdict.refusals
+    assert "trigger latency" not in said[0] and "behind along the track" not in said[0], said
+    assert said[0].endswith(": the camera's pitch (an oblique camera recorded as nadir, or a gimbal pitch left out or "
+                            "wrong)?"), said
+    seen = re.search(r"a pitch of ([0-9.]+) deg towards the image top", said[0])
+    assert seen and 30.0 < float(seen.group(1)) < 40.0, said
+    images, poses, camera = _inputs(flight)
+    _, verdict = pose_check.check(images, _lagging(poses, 20.0), camera, Params())
+    said = [w for w in verdict.warnings + verdict.refusals if "attitude error of" in w]
+    assert len(said) == 1 and "m behind along the track (a camera trigger latency" in said[0], said
+    assert "the camera's pitch" not in said[0] and "a pitch of" not in said[0], said
 
 
 def _attitude_noise(poses: Poses, deg: float, seed: int = 0) -> Poses:

@@ -479,6 +479,46 @@ def test_world_cache_keeps_the_most_recently_used_entries(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w1", "w2", "w4"]
 
 
+def test_a_world_cache_entry_another_run_wrote_first_is_used_without_a_warning(tmp_path, monkeypatch, caplog):
+    """Two `synth` runs of one new world at once (the nu51 sweep): both build it and the second's rename finds the
+    first's entry in place. Complete and equal, it is the cache working: no warning ("cannot write the world cache
+    X: X: exists and is a directory; not replaced" before), the entry used. A different entry there still warns,
+    naming the path once."""
+    import contextlib
+    import logging
+    import shutil
+
+    wcfg = WorldConfig(seed=3, size_m=240.0)
+    monkeypatch.setenv("SOSMATCH_CACHE_DIR", str(tmp_path / "cache"))
+    get_world.cache_clear()
+    world = get_world(wcfg)
+    get_world.cache_clear()
+    entry = world_cache.entry_dir(wcfg)
+    other = tmp_path / "other_run"
+    shutil.move(entry, other)  # what the other run will have written
+    real = world_cache.atomic_path
+
+    @contextlib.contextmanager
+    def racing(path, *args, **kwargs):
+        with real(path, *args, **kwargs) as tmp:
+            yield tmp
+            shutil.copytree(other, path)  # the other run renames its entry into place first
+
+    monkeypatch.setattr(world_cache, "atomic_path", racing)
+    with caplog.at_level(logging.DEBUG, logger=world_cache.__name__):
+        world_cache.save_world(world)
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING], caplog.text
+    assert "another run wrote the world cache" in caplog.text
+    assert world.cache_entry == entry and world_cache.load_world(wcfg) is not None
+    # a genuine failure: what stands there is not this world's entry
+    shutil.rmtree(entry)
+    (other / "world.json").write_text("{}")
+    caplog.clear()
+    world_cache.save_world(world)
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(said) == 1 and said[0].count(str(entry)) == 1 and "not replaced" in said[0], said
+
+
 def test_object_ids_the_evaluation_counts_by_are_checked(session_dir, tmp_path):
     """frames.json's visible_object_ids and objects.csv's ids are what the evaluation counts sightings and kinds
     by. Before: an id 'x' was a ValueError traceback out of `evaluate`, 1.5 counted as object 1, and a second

@@ -14,7 +14,8 @@ it the first time that season is rendered (`albedo_<season>.npy` + `albedo_<seas
   one is written), so code edits and setting changes do not fill the disk. Delete the directory at any time.
 - safety: entries are written atomically (temporary sibling + rename); an entry that fails to load or whose
   CRC does not match is rebuilt and rewritten; a cache that cannot be written only logs a warning. A cached
-  world is bit-identical to a freshly built one, so sessions do not depend on the cache.
+  world is bit-identical to a freshly built one, so sessions do not depend on the cache. Two runs of one new
+  world at once both build it; the second finds the first's entry complete and equal and uses it (DEBUG only).
 """
 
 from __future__ import annotations
@@ -153,25 +154,48 @@ def save_world(world: World) -> None:
     arrays = {"terrain_coarse": world.terrain_sampler.heights, "terrain": world.terrain, "cover": world.cover,
               "cell": world.cell, "cp_cls": p.cls, "cp_crop": p.crop, "cp_theta": p.theta, "cp_period": p.period,
               "cp_phase": p.phase, "cp_bright": p.bright}
+    crc = {name: zlib.crc32(_npy_bytes(a)) for name, a in arrays.items()}
     try:
-        if entry.exists():  # an entry `load_world` found unusable: the cache's own, so it removes it
-            shutil.rmtree(entry, ignore_errors=True)
-        with atomic_path(entry) as tmp:
-            tmp.mkdir()
-            crc = {}
-            for name, a in arrays.items():
-                data = _npy_bytes(a)
-                crc[name] = zlib.crc32(data)
-                (tmp / f"{name}.npy").write_bytes(data)
-            meta = {"key": entry.name, "config": dataclasses.asdict(world.config), "crc": crc,
-                    "roads": [[k, float(w), np.asarray(pts, np.float64).tolist()] for k, w, pts in world.roads],
-                    "objects": [_object_dict(o) for o in world.objects]}
-            (tmp / "world.json").write_text(json.dumps(meta), encoding="utf-8")
+        if _complete_and_equal(entry, crc):  # another run wrote it since this one looked (`_complete_and_equal`)
+            log.debug("another run wrote the world cache %s first; using it", entry)
+        else:
+            if entry.exists():  # an entry `load_world` found unusable: the cache's own, so it removes it
+                shutil.rmtree(entry, ignore_errors=True)
+            with atomic_path(entry) as tmp:
+                tmp.mkdir()
+                for name, a in arrays.items():
+                    (tmp / f"{name}.npy").write_bytes(_npy_bytes(a))
+                meta = {"key": entry.name, "config": dataclasses.asdict(world.config), "crc": crc,
+                        "roads": [[k, float(w), np.asarray(pts, np.float64).tolist()] for k, w, pts in world.roads],
+                        "objects": [_object_dict(o) for o in world.objects]}
+                (tmp / "world.json").write_text(json.dumps(meta), encoding="utf-8")
         prune(entry.parent)
     except OSError as exc:
-        log.warning("cannot write the world cache %s: %s", entry, exc)
-        return
+        # two `synth` runs of one new world at once: both build it, the first renames its entry into place and
+        # the second's rename finds a directory there (the nu51 sweep: "cannot write the world cache X: X: exists
+        # and is a directory; not replaced", harmless yet read as a failure). The same key builds the same bytes,
+        # so an entry that is complete and equal to this world's is the cache working; anything else is a failure
+        if _complete_and_equal(entry, crc):
+            log.debug("another run wrote the world cache %s first; using it", entry)
+        else:
+            log.warning("cannot write the world cache %s: %s", entry, getattr(exc, "problem", None) or exc.strerror
+                        or exc)
+            return
     world.cache_entry = entry
+
+
+def _complete_and_equal(entry: Path, crc: dict[str, int]) -> bool:
+    """Whether `entry` holds a complete cache entry of this key whose rasters are the ones with checksums `crc`
+    (each file read and checked, as `load_world` does): what another run of the same world writes."""
+    try:
+        meta = json.loads((entry / "world.json").read_text(encoding="utf-8"))
+        if meta.get("key") != entry.name or meta.get("crc") != crc:
+            return False
+        for name, value in crc.items():
+            _load_npy(entry / f"{name}.npy", value)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, json.JSONDecodeError):
+        return False
+    return True
 
 
 def _object_dict(o: Any) -> dict:
