@@ -4,14 +4,16 @@ One validation (`camera_from_colmap`) serves the text reader, the pycolmap reade
 every writer's input: a known perspective or fisheye model (`plugin.camera_models`; the spherical EQUIRECTANGULAR
 is refused), COLMAP's parameter count, finite parameters (the one not finite named), positive size and focal
 lengths, a principal point on the image, a distortion that does not fold the image over (`Camera.lens_folds`).
-Errors name the file, its line and the camera id. One decision (`camera_for_images`) fits a camera to the images
-it maps: the same size, or a resize of its frame (rescaled, as COLMAP does), else refused naming the cameras file.
+Errors name the file, its line and the camera id. One decision (`camera_for_image_files`) fits a camera to the
+images it maps: images of one size only (else the odd one is named), that of the camera or a resize of its frame
+(rescaled, as COLMAP does), else refused naming the cameras file.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -85,8 +87,8 @@ def camera_for_images(camera: Camera, width: int, height: int, source: str | Pat
     the same aspect within each side's rounding to whole pixels, and its principal point near the frame's centre
     (`RESCALE_MAX_PP_OFFSET`): a calibration of the full-resolution images, the images downscaled. Otherwise an
     InputError naming `source` (the cameras file) and `what`: a crop, or a frame turned by 90 degrees, whose
-    principal point no scale gives. The one decision for every camera met with images (`map --camera`,
-    `check-poses`, an OpenSfM project's cameras)."""
+    principal point no scale gives. Given the images' files, `camera_for_image_files` decides their size and
+    calls this."""
     w0, h0 = camera.width, camera.height
     if (width, height) == (w0, h0):
         return camera
@@ -106,6 +108,48 @@ def camera_for_images(camera: Camera, width: int, height: int, source: str | Pat
                 "and rescaled x%.4g (focal length, principal point; the distortion coefficients stay)", source, what,
                 w0, h0, width, height, width / w0)
     return camera.resized(width, height)
+
+
+def camera_for_image_files(camera: Camera, paths: Sequence[str | Path], source: str | Path | None,
+                           what: str = "the camera") -> Camera:
+    """`camera` fitted (`camera_for_images`) to the size that all of `paths` share, read from every image's header
+    (`database.images.image_size`: no decoding, well under a millisecond an image). Images of more than one size
+    are an InputError naming the first odd one (against the size most of them have; on a tie, the camera's, else
+    the first image's) before any rescale: a camera fitted to the first image's size refused every image that
+    matched the cameras file when only the first was odd (rev39). Unreadable images are left out, to be named
+    where their pixels are read (the pose check, the keyframes); with none readable `camera` is returned as it
+    is. The one decision for every camera met with images (`map`, `check-poses`, an OpenSfM project's cameras)."""
+    from .images import image_size
+
+    sizes: dict[Path, tuple[int, int]] = {}
+    for p in paths:
+        try:
+            sizes[Path(p)] = image_size(p)
+        except InputError:
+            continue
+    if not sizes:
+        return camera
+    counts = Counter(sizes.values())
+    if len(counts) == 1:
+        return camera_for_images(camera, *next(iter(counts)), source, what)
+    own = (camera.width, camera.height)
+    top = max(counts.values())
+    # most images' size; on a tie the camera's (the calibration the user gave), else the first image's (dicts
+    # keep order, so the answer does not depend on a set's order)
+    tied = [s for s in dict.fromkeys(sizes.values()) if counts[s] == top]
+    usual = own if own in tied else tied[0]
+    odd = [p for p, s in sizes.items() if s != usual]
+    first = sizes[odd[0]]
+    fmt = "{0}x{1}".format
+    as_camera = f" (the size of {what} in {source})" if usual == own else ""
+    theirs = f" (the size of {what} in {source})" if first == own else ""
+    more = ""
+    if len(odd) > 1:
+        listed = ", ".join(f"{p.name} {fmt(*sizes[p])}" for p in odd[1:9])
+        more = f"; {len(odd) - 1} more odd: {listed}" + (" ..." if len(odd) > 9 else "")
+    raise InputError(f"image is {fmt(*first)}{theirs} but {counts[usual]} of the {len(sizes)} images are "
+                     f"{fmt(*usual)}{as_camera}{more}: a map is made from one camera's images at one size (a "
+                     "thumbnail or a re-export among them?); remove or resize the odd image(s)", odd[0])
 
 
 def read_cameras_txt(path: str | Path) -> dict[int, Camera]:

@@ -130,3 +130,43 @@ def test_map_and_check_poses_refuse_a_bad_camera_file_before_any_work(tmp_path, 
     err = cli_error(command, "--images", root / "images", "--poses", root / "poses.csv", "--camera", bad,
                     "--out", out)
     assert f"error: {bad}:" in err and fragment in err and not out.exists()
+
+
+def _resize_images(images, names, size):
+    import cv2
+
+    for n in names:
+        cv2.imwrite(str(images / n), cv2.resize(cv2.imread(str(images / n)), size, interpolation=cv2.INTER_AREA))
+
+
+@pytest.mark.parametrize("command", ["map", "check-poses"])
+def test_one_odd_sized_image_is_named_not_the_ones_that_match_the_camera(tmp_path, cli_error, command):
+    """Only the first image halved (a thumbnail among full frames): the camera was rescaled to the first image's
+    size, then every other image (which matched the cameras file) refused, naming one of those (rev39). Now every
+    image's size is read and the odd one named against the others and the camera, before any rescale."""
+    root, _ = _disc_flight(tmp_path / "f")
+    images = root / "images"
+    _resize_images(images, ["frame_00000.jpg"], (80, 60))
+    out = tmp_path / ("M" if command == "map" else "check.json")
+    err = cli_error(command, "--images", images, "--poses", root / "poses.csv", "--camera", root / "cameras.txt",
+                    "--out", out)
+    assert (f"error: {images / 'frame_00000.jpg'}: image is 80x60 but 3 of the 4 images are 160x120 (the size of "
+            f"the camera in {root / 'cameras.txt'})") in err
+    assert "rescaled" not in err and not out.exists()
+
+
+def test_an_odd_image_matching_the_camera_is_named_as_such(tmp_path):
+    """Images downscaled but one left at the calibrated size: no rescale to either size; the odd image is named,
+    saying the camera has its size."""
+    from sosmatch.workflows.map import load_inputs
+
+    root, camera = _disc_flight(tmp_path / "f")
+    images = root / "images"
+    _resize_images(images, ["frame_00000.jpg", "frame_00001.jpg", "frame_00003.jpg"], (80, 60))
+    with pytest.raises(InputError) as err:
+        load_inputs(images, root / "poses.csv", root / "cameras.txt")
+    assert str(err.value).startswith(f"{images / 'frame_00002.jpg'}: image is 160x120 (the size of the camera "
+                                     f"in {root / 'cameras.txt'}) but 3 of the 4 images are 80x60: ")
+    # all downscaled alike: the one size they share is the camera's frame resized, so rescaled
+    _resize_images(images, ["frame_00002.jpg"], (80, 60))
+    assert load_inputs(images, root / "poses.csv", root / "cameras.txt").camera == camera.resized(80, 60)

@@ -206,3 +206,24 @@ def test_smaller_reconstructions_are_named_not_dropped_silently(tmp_path, caplog
         load_inputs(images, project)
     assert any("1 other reconstruction(s) (sizes 2)" in r.getMessage() and "ignored" in r.getMessage()
                and "reconstruction.json" in r.getMessage() for r in caplog.records)
+
+
+def test_an_odd_sized_image_of_an_odm_project_is_named(tmp_path):
+    """An OpenSfM camera is fitted to the size all its shots' images share, as map's and check-poses' cameras
+    (one function): with the first image full size and one other halved, the camera was rescaled to the first
+    image and the odd ones left to fail in map, naming the camera size. The first odd one is named, the others
+    listed."""
+    import cv2
+
+    project, names, _, _ = _six_shot_project(tmp_path)
+    images = tmp_path / "images"
+    images.mkdir()
+    for n in names:
+        size = (240, 320, 3) if n in (names[3], names[5]) else (480, 640, 3)
+        cv2.imwrite(str(images / n), np.zeros(size, np.uint8))
+    with pytest.raises(InputError) as err:
+        load_inputs(images, project / "opensfm" / "reconstruction.json")
+    text = str(err.value)
+    assert text.startswith(f"{images / names[3]}: image is 320x240 (the size of OpenSfM camera 'v2 test 640 480 "
+                           f"brown 0.78' in {project / 'opensfm' / 'reconstruction.json'}) but 4 of the 6 images "
+                           f"are 640x480; 1 more odd: {names[5]} 320x240: ")

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ...database.cameras import camera_for_images, one_camera, read_cameras_txt
+from ...database.cameras import camera_for_image_files, one_camera, read_cameras_txt
 from ...database.colmap_model import (
     TEXT_MODEL,
     is_colmap_model,
@@ -25,7 +25,6 @@ from ...database.colmap_model import (
 from ...database.images import (  # noqa: F401 (IMAGE_EXTENSIONS re-exported)
     IMAGE_EXTENSIONS,
     image_files,
-    image_size,
     name_key,
     shared_file_name,
     unique_by_key,
@@ -196,12 +195,9 @@ def load_inputs(
     if len(keep) < 2:
         raise InputError(f"only {len(keep)} image(s) have a pose; need at least 2", images)
     # the camera in these images' pixels: a calibration of the full-resolution frames rescaled to downscaled
-    # copies, another size refused naming the cameras file (it named an image, deep in the run: nu50)
-    try:
-        size = image_size(keep[0][1])
-    except InputError:  # unreadable: named where it is read (the pose check, the keyframes), as any other image
-        size = (cam.width, cam.height)
-    fitted = camera_for_images(cam, *size, sources["camera"])
+    # copies, another size refused naming the cameras file (it named an image, deep in the run: nu50); images of
+    # two sizes refused naming the odd one (every image's header is read: the first's alone decided, rev39)
+    fitted = camera_for_image_files(cam, [p for _, p in keep], sources["camera"])
     if fitted != cam:  # recorded in run.json beside the file it came from
         sources["camera_rescaled"] = f"{cam.width}x{cam.height} -> {fitted.width}x{fitted.height}"
         cam = fitted

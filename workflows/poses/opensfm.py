@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ...database.atomic import write_text_atomic
-from ...database.cameras import camera_for_images, format_cameras_txt
+from ...database.cameras import camera_for_image_files, format_cameras_txt
 from ...database.json_text import json_default
 from ...database.output_markers import fingerprint
 from ...database.outputs import open_output_dir
@@ -29,7 +29,6 @@ def opensfm_poses(project: str | Path, image_dir: str | Path | None = None
     reference_lla (a local frame without one), and its cameras in pixels of the images in `image_dir` (the
     project may have processed resized copies: same aspect, rescaled). Returns (poses, cameras by OpenSfM id,
     camera of each image, EPSG (0: local), what was done)."""
-    from ...database.images import image_size
     from ...database.opensfm import read_opensfm_reconstruction
     from ...plugin.geodesy import topocentric_to_grid
 
@@ -54,13 +53,14 @@ def opensfm_poses(project: str | Path, image_dir: str | Path | None = None
     if image_dir is not None:
         files = {p.name: p for p in list_images(image_dir)}
         for cam_id, cam in rec.cameras.items():
-            shot = next((n for n in poses.names if rec.camera_of_shot[n] == cam_id and Path(n).name in files), None)
-            if shot is None:
-                continue
-            w, h = image_size(files[Path(shot).name])
-            if (w, h) != (cam.width, cam.height):
-                cameras[cam_id] = camera_for_images(cam, w, h, rec.path, f"OpenSfM camera {cam_id!r}")
-                info.setdefault("rescaled_cameras", {})[cam_id] = [cam.width, cam.height, w, h]
+            # each camera fitted to the size its shots' images share (map's and check-poses' own decision)
+            shots = [files[Path(n).name] for n in poses.names
+                     if rec.camera_of_shot[n] == cam_id and Path(n).name in files]
+            fitted = camera_for_image_files(cam, shots, rec.path, f"OpenSfM camera {cam_id!r}")
+            if fitted != cam:
+                cameras[cam_id] = fitted
+                info.setdefault("rescaled_cameras", {})[cam_id] = [cam.width, cam.height, fitted.width,
+                                                                   fitted.height]
     return poses, cameras, dict(rec.camera_of_shot), epsg, info
 
 def run_opensfm(project: str | Path, out: str | Path, images: str | Path | None = None,
