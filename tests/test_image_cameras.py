@@ -114,14 +114,15 @@ def test_a_seven_by_six_crop_is_called_cropped_by_both_checks():
 
 
 def _jpeg(path: Path, size: tuple[int, int], exif_size: tuple[int, int], k: int,
-          dji: dict[str, str] | None = None, zoom: int = 1) -> None:
+          dji: dict[str, str] | None = None, zoom: int = 1, focal_mm: float | None = None, model: str = "FC") -> None:
     """A JPEG of the 1-inch camera's EXIF at `size`, north of 47 N by `k` seconds, with DJI XMP `dji`, its lens
-    zoomed optically by `zoom` (FocalLength and the 35 mm figure multiplied)."""
+    zoomed optically by `zoom` (FocalLength and the 35 mm figure multiplied), FocalLength `focal_mm` instead of
+    the camera's (the 35 mm figure kept), of DJI model `model`."""
     img = Image.fromarray(np.random.default_rng(k).integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
     exif = Image.Exif()
-    exif[0x010F], exif[0x0110] = "DJI", "FC"
+    exif[0x010F], exif[0x0110] = "DJI", model
     sub = exif.get_ifd(0x8769)
-    sub[0x920A] = IFDRational(round(FOCAL_MM * zoom * 100), 100)
+    sub[0x920A] = IFDRational(round((focal_mm or FOCAL_MM) * zoom * 100), 100)
     sub[0xA20E] = sub[0xA20F] = IFDRational(round(PX_PER_MM * 10 * 100), 100)  # px per cm
     sub[0xA210] = 3
     sub[0xA405] = int(F35) * zoom
@@ -297,10 +298,57 @@ def test_one_camera_at_two_focal_lengths_is_two_cameras():
     cameras_r, index_r, _, _ = camera_groups(metas[::-1], None, strict=True)
     assert [c.fx for c in cameras_r] == pytest.approx([TRUE_FX_640, 2 * TRUE_FX_640], rel=0.005)
     assert index_r.tolist() == [0, 1, 0, 1, 0, 1, 0]
-    # a chain of close zoom steps is not merged end to end: no camera spans more than the tolerance
-    chain = [_zoomed(_meta(640, 480, (640, 480)), 1.0 + 0.006 * k) for k in range(5)]
-    cameras, index, _, _ = camera_groups(chain, None, strict=True)
-    assert index.tolist() == [0, 0, 1, 1, 2]
+
+
+def _focal(focal_mm: float | None, f35: float | None, plane: bool = False) -> ImageMetadata:
+    return ImageMetadata(Path(f"/x/{focal_mm}_{f35}.jpg"), 640, 480, focal_mm=focal_mm,
+                         focal_plane_px_per_mm=(640 / 6.2, 640 / 6.2) if plane else None, focal_35mm=f35,
+                         exif_size=(640, 480), make="DJI", model="FC")
+
+
+def test_a_focal_length_tag_that_spreads_continuously_is_one_camera(caplog):
+    """rev39: FocalLength 4.91-4.97 mm (1.2 %, in steps of 0.2 %) of one camera was cut where a value first lay
+    1 % above the group's shortest: two cameras 0.7 % apart, and map refused the folder. Settings are split at
+    gaps only: the spread is one camera at the median, in any image order, with a warning naming the spread;
+    a gap of more than the tolerance between two such spreads is two settings."""
+    focals = [4.91 + 0.06 * k / 9 for k in (3, 0, 7, 9, 1, 5, 8, 2, 6, 4)]
+    metas = [_focal(f, None, plane=True) for f in focals]
+    fxs = [camera_from_metadata(m)[0].fx for m in metas]
+    for order in (metas, metas[::-1], metas[3:] + metas[:3]):
+        with caplog.at_level("WARNING", logger="sosmatch.workflows.image_cameras"):
+            cameras, index, _, _ = camera_groups(order, None, strict=True)
+        assert len(cameras) == 1 and set(index.tolist()) == {0}
+        assert cameras[0].fx == pytest.approx(float(np.median(fxs)), rel=1e-12)
+    assert any("focal lengths spread over" in r.getMessage() and "no gap between zoom settings" in r.getMessage()
+               for r in caplog.records)
+    # the same spread beside another 1.5 % above it (a gap): two settings, whatever the order
+    upper = [_focal(f * 1.015 * 1.012, None, plane=True) for f in focals]
+    cameras, index, _, _ = camera_groups(upper + metas, None, strict=True)
+    assert len(cameras) == 2 and index.tolist() == [0] * 10 + [1] * 10
+
+
+def test_a_35mm_figure_one_millimetre_apart_is_its_rounding_not_a_zoom_step(caplog):
+    """rev39: a 35 mm tag alternating 24/25 mm (one value, 24.5, rounded to whole millimetres) became two cameras.
+    A whole-millimetre figure is a value +-0.5 mm: one unit apart is one setting (one camera at the median), two
+    units apart are two. Where FocalLength (a rational) is there, it tells the settings apart instead."""
+    alternating = [_focal(None, 24 + k % 2) for k in range(6)]
+    with caplog.at_level("WARNING", logger="sosmatch.workflows.image_cameras"):
+        cameras, index, _, _ = camera_groups(alternating, None, strict=True)
+    assert len(cameras) == 1 and set(index.tolist()) == {0}
+    assert not caplog.records  # the tag's rounding, not a spread to warn of
+    with_focal = [_focal(4.5, 24 + k % 2) for k in range(6)]  # DJI: FocalLength 4.5 throughout
+    assert len(camera_groups(with_focal, None, strict=True)[0]) == 1
+    two_units = [_focal(None, 24 + 2 * (k % 2)) for k in range(6)]
+    cameras, index, _, _ = camera_groups(two_units, None, strict=True)
+    assert len(cameras) == 2 and index.tolist() == [0, 1] * 3
+    # FocalLength 4.5 / 4.7 mm (4.4 %) behind 35 mm figures 24 / 25: two settings
+    stepped = [_focal(4.5 + 0.2 * (k % 2), 24 + k % 2) for k in range(6)]
+    cameras, index, _, _ = camera_groups(stepped, None, strict=True)
+    assert len(cameras) == 2 and index.tolist() == [0, 1] * 3
+    # FocalLength 1.1 % apart behind one 35 mm figure: apart by FocalLength, of one fx: one camera, not two
+    same_fx = [_focal(4.5 + 0.05 * (k % 2), 25) for k in range(6)]
+    cameras, _, _, _ = camera_groups(same_fx, None, strict=True)
+    assert len(cameras) == 1
 
 
 def test_an_image_without_a_focal_length_beside_a_zoom_is_not_given_a_setting():
@@ -335,6 +383,41 @@ def test_poses_from_exif_refuses_a_zoomed_flight_instead_of_averaging_it(tmp_pat
     assert main(["map", "--images", str(images), "--out", str(tmp_path / "m")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "2 cameras (640x480 fx 502 px, 640x480 fx 1005 px)" in err[-1]
+
+
+NADIR = {"GimbalYawDegree": "0", "GimbalPitchDegree": "-90", "GimbalRollDegree": "0", "RelativeAltitude": "100"}
+
+
+def test_poses_from_exif_keeps_a_jittering_focal_length_one_camera_at_the_median(tmp_path, caplog):
+    """rev39 end to end: FocalLength jittering by 1.4 % became two cameras, poses-from-exif warned "2 camera
+    makes/models ... of one focal length" and wrote the first one's fx for all. Now one camera, the median."""
+    images = tmp_path / "images"
+    images.mkdir()
+    focals = [10.30, 10.44, 10.33, 10.41, 10.36, 10.38]
+    for k, f in enumerate(focals):
+        _jpeg(images / f"f{k}.jpg", (640, 480), (640, 480), k, NADIR, focal_mm=f)
+    out = tmp_path / "p" / "poses.csv"
+    assert main(["poses-from-exif", str(images), "--out", str(out)]) == 0
+    assert not any("makes/models" in r.getMessage() for r in caplog.records)
+    assert any("focal lengths spread over" in r.getMessage() for r in caplog.records)
+    fx = float((out.parent / "cameras.txt").read_text().split("PINHOLE")[1].split()[2])
+    assert fx == pytest.approx(float(np.median(focals)) * PX_PER_MM, rel=1e-3)
+
+
+def test_poses_from_exif_names_what_sets_cameras_of_one_focal_length_apart(tmp_path, caplog):
+    """Two models within the tolerance of one focal length: the warning names the models (not "of one focal
+    length" for what a zoom split) and the camera written is the images' median, not the first image's camera."""
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(5):
+        _jpeg(images / f"f{k}.jpg", (640, 480), (640, 480), k, NADIR, focal_mm=10.40 if k == 0 else None,
+              model="FC2" if k == 0 else "FC")
+    out = tmp_path / "p" / "poses.csv"
+    assert main(["poses-from-exif", str(images), "--out", str(out)]) == 0
+    assert any("2 camera makes/models (DJI FC, DJI FC2) in one folder, their focal lengths within 1 %"
+               in r.getMessage() for r in caplog.records)
+    fx = float((out.parent / "cameras.txt").read_text().split("PINHOLE")[1].split()[2])
+    assert fx == pytest.approx(TRUE_FX_640, rel=1e-3)
 
 
 def _canon(width: int, exif_width: int) -> ImageMetadata:

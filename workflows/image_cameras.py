@@ -258,38 +258,96 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
                      f"FocalLengthIn35mmFilm); {advice}", meta.path)
 
 
-# Images of one make, model and size whose focal lengths differ by more than this are cameras of their own: an
-# optical zoom, or another lens on the same body (a Zenmuse P1 with its 24 and 35 mm lenses: one model name, one
-# size). One camera at the median focal length was wrong for every image (rev38: a flight alternating 502 and
-# 1005 px became one camera of 749 px; structure from motion put the centres 34 m off, blaming the GPS). One
-# setting repeats its tags exactly (FocalLength a rational, the 35 mm figure whole millimetres), and the next
-# setting differs by at least a step of the tag (0.1 mm at 4.3 mm: 2.3 %; 1 mm at 27 mm: 3.7 %); what is left
-# within 1 % (float noise, a tag that jitters with focus) moves fx less than the lens marking's own 2 %
-# (EXIF_NOMINAL_FOCAL_SIGMA), so it stays one camera at the median.
+# Images of one make, model and size at focal lengths set apart by a gap of more than this are cameras of their
+# own: an optical zoom, or another lens on the same body (a Zenmuse P1 with its 24 and 35 mm lenses: one model
+# name, one size). One camera at the median focal length was wrong for every image (rev38: a flight alternating
+# 502 and 1005 px became one camera of 749 px; structure from motion put the centres 34 m off, blaming the GPS).
+# Settings are told apart by GAPS between the sorted values, never by how far a value lies from some first one:
+# a zoom's settings are discrete (the next is at least a step of the tag away, 0.1 mm at 4.3 mm: 2.3 %; and a
+# survey flies one or two of them, 2x apart), while one setting's tag repeats itself or spreads continuously (a
+# FocalLength rational that jitters with focus, 0.01 mm steps: 0.2 % at 4.5 mm). A rule "within 1 % of the
+# group's shortest" cut such a spread at an arbitrary value (rev39: FocalLength 4.91-4.97 mm became two cameras
+# 0.7 % apart, and map refused the folder). The gap sits between the two: above a jittering rational's steps,
+# below a zoom's. A spread within one camera of a couple of per cent moves fx less than the lens marking's own 2 %
+# (EXIF_NOMINAL_FOCAL_SIGMA); one beyond the tolerance is named (`focal_settings`).
 FOCAL_GROUP_TOLERANCE = 0.01
 
 
-def focal_clusters(fxs: list[float]) -> list[list[int]]:
-    """Indices into `fxs` (focal lengths, px) grouped into settings: in ascending order, a group takes focal
-    lengths within FOCAL_GROUP_TOLERANCE of its shortest, so no group spans more than that (a chain of close
-    zoom steps is not merged end to end), and the grouping does not depend on the images' order."""
-    order = sorted(range(len(fxs)), key=lambda i: (fxs[i], i))
+def focal_clusters(readings: list[tuple[float, float]]) -> list[list[int]]:
+    """Indices into `readings` (each image's focal length and the half-width of its tag's rounding, in one unit)
+    grouped into settings, in ascending order: sorted by their lowest possible value, a reading starts a new
+    group only where it lies more than FOCAL_GROUP_TOLERANCE above the highest possible value of every reading
+    before it (a gap), so a continuous spread stays one group, readings whose rounding intervals touch (35 mm
+    figures one millimetre apart) are one, and the grouping does not depend on the images' order."""
+    order = sorted(range(len(readings)), key=lambda i: (readings[i][0] - readings[i][1], readings[i][0], i))
     groups: list[list[int]] = []
+    reach = -math.inf
     for i in order:
-        if groups and fxs[i] <= fxs[groups[-1][0]] * (1.0 + FOCAL_GROUP_TOLERANCE):
+        value, half = readings[i]
+        if groups and value - half <= reach * (1.0 + FOCAL_GROUP_TOLERANCE):
             groups[-1].append(i)
+            reach = max(reach, value + half)
         else:
             groups.append([i])
+            reach = value + half
     return [sorted(g) for g in groups]
+
+
+def focal_readings(metas: list[ImageMetadata], cameras: list[Camera]) -> list[tuple[float, float]]:
+    """The focal length of each image (`cameras`: its camera from `camera_from_metadata`, all of one make, model,
+    size and digital zoom) as the finest tag it has, in pixels, with the half-width of the tag's rounding
+    (`focal_clusters`). FocalLength is a rational (0.01 mm or finer: taken as exact) and fx is proportional to it
+    on every route, so where an image has it, it is the reading, scaled to pixels by the images' median fx per
+    mm; a 35 mm equivalent alone is whole millimetres, so 24 and 25 may both be 24.5 (half a millimetre either
+    way; a DJI tag alternating 24/25 with FocalLength 4.5 throughout was two cameras)."""
+    per_mm = [c.fx / m.focal_mm for m, c in zip(metas, cameras) if m.focal_mm]
+    scale = float(np.median(per_mm)) if per_mm else 0.0
+    readings = []
+    for m, c in zip(metas, cameras):
+        if m.focal_mm:
+            readings.append((m.focal_mm * scale, 0.0))
+        else:  # only the 35 mm route gives a focal length without FocalLength
+            readings.append((c.fx, c.fx * 0.5 / m.focal_35mm if m.focal_35mm else 0.0))
+    return readings
+
+
+def focal_settings(metas: list[ImageMetadata], cameras: list[Camera]) -> list[list[int]]:
+    """Indices into `metas` (images of one make, model, size and digital zoom, `cameras` their cameras) grouped
+    into the settings of a zoom (`focal_clusters` of `focal_readings`), in ascending focal length. Neighbouring
+    settings whose median fx lie within FOCAL_GROUP_TOLERANCE are one camera: FocalLength can set apart two
+    settings whose fx, from one whole-millimetre 35 mm figure, is the same, and two cameras of one fx only make
+    map refuse the folder. Where a setting's readings and its fx spread beyond the tolerance (and the tags'
+    rounding), a warning names the spread (a zoom moved while flying is one camera at the median, off for the
+    ends)."""
+    readings = focal_readings(metas, cameras)
+    settings: list[list[int]] = []
+    for group in focal_clusters(readings):
+        if settings and (float(np.median([cameras[i].fx for i in group]))
+                         <= float(np.median([cameras[i].fx for i in settings[-1]])) * (1.0 + FOCAL_GROUP_TOLERANCE)):
+            settings[-1] = sorted(settings[-1] + group)
+        else:
+            settings.append(group)
+    for group in settings:
+        lowest_high = min(readings[i][0] + readings[i][1] for i in group)
+        highest_low = max(readings[i][0] - readings[i][1] for i in group)
+        m0, fxs = metas[group[0]], [cameras[i].fx for i in group]
+        if (highest_low > lowest_high * (1.0 + FOCAL_GROUP_TOLERANCE)
+                and max(fxs) > min(fxs) * (1.0 + FOCAL_GROUP_TOLERANCE)):
+            log.warning("%s (%dx%d): focal lengths spread over %.1f..%.1f px (%.1f %%) with no gap between zoom "
+                        "settings: one camera at the median (a tag that jitters, or a zoom moved while flying?)",
+                        make_model(m0) or "camera", m0.width, m0.height, min(fxs), max(fxs),
+                        100.0 * (max(fxs) / min(fxs) - 1.0))
+    return settings
 
 
 def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str], list[str]]:
-    """One camera per make + model + image size + digital zoom + focal length (`FOCAL_GROUP_TOLERANCE`: a zoom's
-    or swapped lens's settings are cameras of their own; the median focal length of its images), the camera of
-    every image and the intrinsics source of each camera, in the order of their first images. Images of a camera
-    whose EXIF gives no usable focal length share the others' (one warning counts them); where those others are
-    at several focal lengths, which is theirs is unknown: InputError when `strict`, else a camera of their own.
+    """One camera per make + model + image size + digital zoom + focal length setting (`focal_settings`: a
+    zoom's or swapped lens's settings, apart by gaps, are cameras of their own; the median focal length of its
+    images), the camera of every image and the intrinsics source of each camera, in the order of their first
+    images. Images of a camera whose EXIF gives no usable focal length share the others' (one warning counts
+    them); where those others are at several focal lengths, which is theirs is unknown: InputError when `strict`,
+    else a camera of their own.
     Without any for a camera, it gets COLMAP's default guess (1.2 x the longer side) with a warning (also
     returned, last), or InputError when `strict` (the first image's reason)."""
     by_key: dict[tuple, list[int]] = {}
@@ -304,7 +362,8 @@ def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
                 found.append((i, camera_from_metadata(metas[i], sensor_width_mm)))
             except InputError as exc:
                 failed.append((i, exc))
-        settings = [[found[k] for k in c] for c in focal_clusters([cam.fx for _, (cam, _) in found])]
+        settings = [[found[k] for k in c] for c in focal_settings([metas[i] for i, _ in found],
+                                                                  [cam for _, (cam, _) in found])]
         if len(settings) > 1:
             m0 = metas[members[0]]
             log.info("%s (%dx%d): images at %d focal lengths (fx %s px; a zoom or another lens): a camera for each",

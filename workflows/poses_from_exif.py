@@ -22,7 +22,7 @@ import logging
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import NoReturn
 
@@ -36,7 +36,7 @@ from ..database.xmp_sidecar import sidecars_with_gps
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.gps_track import OFF_NADIR_LIMIT_DEG, with_quantisation
-from .image_cameras import FOCAL_GROUP_TOLERANCE
+from .image_cameras import FOCAL_GROUP_TOLERANCE, make_model
 from .image_priors import (  # noqa: F401 (re-exported: the conventions' historical home)
     DEFAULT_MOUNT,
     DEFAULT_PITCH_SIGN,
@@ -140,9 +140,26 @@ def poses_from_images(
                          f"{', '.join(f'{f:.0f}' for f in focals)} px: another camera, zoom or digital zoom, e.g. "
                          f"{metas[0].path.name} and {first.path.name}): one camera per session; map each on its own",
                          first.path)
+    camera = priors.cameras[0]
     if len(priors.cameras) > 1:
-        log.warning("%d camera makes/models in one folder, of one focal length: using the first one's intrinsics "
-                    "for all", len(priors.cameras))
+        # cameras within the tolerance of each other: of one make and model, a zoom's settings are apart by more
+        # (`image_cameras.focal_settings`), so what sets these apart is the make/model or the digital zoom. One
+        # camera file is written: the images' median, not the first camera's (rev39: the first of a split spread)
+        firsts = [metas[int(np.flatnonzero(priors.camera_index == g)[0])] for g in range(len(priors.cameras))]
+        models = sorted({make_model(m) or "unnamed" for m in firsts})
+        zooms = sorted({m.digital_zoom or 1.0 for m in firsts})
+        if len(models) > 1:
+            what = f"{len(models)} camera makes/models ({', '.join(models)})"
+        elif len(zooms) > 1:
+            what = f"{models[0]} at {len(zooms)} digital zoom ratios ({', '.join(f'x{z:g}' for z in zooms)})"
+        else:
+            what = f"{len(firsts)} cameras of {models[0]}"
+        fx = np.array([priors.cameras[g].fx for g in priors.camera_index])
+        fy = np.array([priors.cameras[g].fy for g in priors.camera_index])
+        camera = replace(camera, fx=float(np.median(fx)), fy=float(np.median(fy)))
+        log.warning("%s in one folder, their focal lengths within %g %% (fx %s px): one camera at the images' "
+                    "median, fx %.1f px", what, 100 * FOCAL_GROUP_TOLERANCE,
+                    ", ".join(f"{f:.1f}" for f in focals), camera.fx)
     if priors.cameras[0].is_pinhole:
         # one line, not a warning: the tags never carry a lens model, and most survey lenses are near-rectilinear;
         # a strong one (a barrel k1 -0.2) put the ground 3.8 m low unrefined and, refined, bent the block (26th
@@ -151,7 +168,7 @@ def poses_from_images(
                  "(wide, fisheye, barrel) lens let structure from motion estimate it (`map --pose-source sfm`) or "
                  "give its cameras.txt (`poses-from-exif`, then `map --poses POSES.csv --camera cameras.txt`)")
     poses = Poses(priors.names, priors.rotations, priors.positions)
-    return ExifPoses(poses, priors.epsg, priors.cameras[0], priors.summary, ~priors.attitude_from_tags,
+    return ExifPoses(poses, priors.epsg, camera, priors.summary, ~priors.attitude_from_tags,
                      [m.capture_time_s for m in metas], bool(np.all(priors.attitude_kind == "gimbal")))
 
 
