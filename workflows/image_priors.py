@@ -14,7 +14,7 @@ lies on a zone boundary, where the first image's zone split them by where each s
 positions (GPSLatitude, GPSLongitude, GPSAltitude), where its row has them, take precedence over the image's own
 EXIF GPS: a file the user gives is their better positions (an autopilot's log, a PPK / RTK solution), as
 OpenDroneMap's geo.txt overrides the EXIF; how far it moves them is judged (`_telemetry_against_exif`: a warning
-beyond TELEMETRY_WARN_M, refused beyond TELEMETRY_REFUSE_M).
+beyond TELEMETRY_WARN_M, refused beyond TELEMETRY_REFUSE_M from most of the plausible EXIF fixes).
 Heights: the GPS altitude (metres, as the receiver reports it:
 for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
 vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off
@@ -130,11 +130,12 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
 # reason)
 TELEMETRY_NOTE_M = 1.0
 TELEMETRY_WARN_M = 50.0
-# Beyond this median disagreement the telemetry's positions are not these images' positions corrected: no GPS error
+# Beyond this disagreement the telemetry's position is not the image's position corrected: no GPS error
 # (metres; tens with multipath) or datum still met on a receiver or an autopilot's log (WGS84 against NAD27,
 # ED50, Pulkovo 1942: 0.1-0.2 km; against the Tokyo datum, the largest: ~0.5 km) moves a fix by a kilometre.
 # A whole flight moved further is a wrong file: another site's log under the same file names, coordinates without
-# their sign (rev38: Seneca posed in China, 14,000 km off, exit 0). Refused; between the two bounds, a warning.
+# their sign (rev38: Seneca posed in China, 14,000 km off, exit 0). Refused when most plausible EXIF fixes are so
+# far (`_telemetry_against_exif`: wrong EXIF fixes are so far on a subset only); between the two bounds, a warning.
 # Not relative to the flight's extent: neither a datum's shift nor a GPS error grows with the flight.
 TELEMETRY_REFUSE_M = 1000.0
 
