@@ -22,6 +22,7 @@ from sosmatch.plugin.gps_track import frozen_fix, gps_jumps, off_nadir_deg
 from sosmatch.plugin.params import Params
 from sosmatch.tools.cli import main
 from sosmatch.workflows import poses_from_exif as pfe
+from sosmatch.workflows.image_positions import doubtful_fixes
 from sosmatch.workflows.image_priors import read_image_priors
 
 
@@ -319,7 +320,7 @@ def test_telemetry_on_another_continent_is_refused_unless_the_exif_fixes_are_fro
     out = tmp_path / "o" / "poses.csv"
     assert main(["poses-from-exif", str(img), "--telemetry", str(tele), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and f"{tele}: its positions lie " in err and "remove its latitude" in err
+    assert len(err.splitlines()) == 1 and f"{tele}: its positions lie " in err and "drop its lat/lon columns" in err
     assert not out.exists() and not (out.parent / "cameras.txt").exists()
     frozen = tmp_path / "frozen"
     frozen.mkdir()
@@ -330,6 +331,57 @@ def test_telemetry_on_another_continent_is_refused_unless_the_exif_fixes_are_fro
     res = pfe.poses_from_images(frozen, telemetry=tele)
     assert res.summary["position_sources"] == {"telemetry CSV": 4}
     assert any("all lie at one point" in w for w in res.summary["warnings"])
+
+
+def test_telemetry_that_mends_partly_stale_exif_gps_is_taken_and_a_wrong_file_still_refused(tmp_path, capsys):
+    """rev39: the camera's receiver held a stale fix 5 km north for the first 6 of 10 images, then locked; the
+    autopilot's log, right everywhere, lay 5 km from the EXIF at the median and was refused, the remedy named
+    (dropping its positions) keeping the wrong ones. The EXIF fixes held while the telemetry moves are no
+    measurement: left out, the telemetry agrees with the rest and is taken, the warning counting the stale fixes.
+    A file with its longitudes unsigned disagrees with every plausible fix of the same images: still refused,
+    and the remedy for wrong EXIF GPS (copies of the images without GPS tags) takes the file."""
+    img, bare = tmp_path / "images", tmp_path / "bare"
+    img.mkdir()
+    bare.mkdir()
+    for k in range(10):
+        lat = 47.045 if k < 6 else 47.0 + k * 1e-4  # a stale fix 5 km north, then the receiver's lock
+        write_jpeg(img / f"f{k}.jpg", lat, -99.0, 500.0, when=f"2026:06:01 10:00:{2 * k:02d}")
+        write_jpeg(bare / f"f{k}.jpg", None, None, when=f"2026:06:01 10:00:{2 * k:02d}")
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,GPSLatitude,GPSLongitude,GPSAltitude\n"
+                    + "".join(f"f{k}.jpg,{47.0 + k * 1e-4!r},-99.0,500\n" for k in range(10)))
+    res = pfe.poses_from_images(img, telemetry=tele)
+    assert res.summary["position_sources"] == {"telemetry CSV": 10}
+    said = [w for w in res.summary["warnings"] if str(tele) in w]
+    assert len(said) == 1 and "6 of the images' own EXIF fixes lie more than 1000 m" in said[0]
+    assert "5 stale" in said[0] and "agrees with 4 of the 4 plausible" in said[0], said
+    unsigned = tmp_path / "unsigned.csv"
+    unsigned.write_text(tele.read_text().replace(",-99.0,", ",99.0,"))
+    out = tmp_path / "o" / "poses.csv"
+    assert main(["poses-from-exif", str(img), "--telemetry", str(unsigned), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{unsigned}: its positions lie " in err, err
+    assert "at 4 of 4 images (left out: 5 stale, 1 beyond a jump)" in err
+    assert err.endswith("copies of the images without GPS tags") and not out.exists()
+    res = pfe.poses_from_images(bare, telemetry=tele)  # that remedy: the file's positions are taken
+    assert res.summary["position_sources"] == {"telemetry CSV": 10}
+
+
+def test_doubtful_fixes_stale_runs_and_the_far_side_of_a_jump():
+    """`doubtful_fixes`: a run held at one point while the reference moves is stale after its first fix; with
+    capture times, the smaller part of a track cut by a jump the aircraft cannot fly is the doubtful one."""
+    ref = np.column_stack([np.zeros(10), np.arange(10) * 10.0])
+    t = np.arange(10) * 2.0
+    fixes = ref.copy()
+    fixes[:4] = [0.0, 5000.0]  # stale
+    stale, jumped = doubtful_fixes(fixes, ref, t)
+    assert stale.tolist() == [False, True, True, True] + [False] * 6 and jumped.tolist() == [True] + [False] * 9
+    fixes = ref + np.array([[3000.0, 0.0]] * 3 + [[0.0, 0.0]] * 7)  # three moving fixes 3 km east, then the right ones
+    stale, jumped = doubtful_fixes(fixes, ref, t)
+    assert not stale.any() and jumped.tolist() == [True] * 3 + [False] * 7
+    stale, jumped = doubtful_fixes(fixes, ref, np.full(10, np.nan))  # no times: no speed, no jump judged
+    assert not stale.any() and not jumped.any()
+    assert doubtful_fixes(np.zeros((5, 2)), ref[:5], t[:5])[0].all()  # all at one point
 
 
 def test_telemetry_rows_without_a_fix_leave_the_exif_gps(tmp_path, caplog):

@@ -1,8 +1,8 @@
 """Where a folder's images were taken, as one flight in one frame (pure numpy + pyproj; `image_priors` reads the
 tags): the flight's middle (`median_position`, antimeridian-safe), fixes outside the CRS they are projected into
 (`check_one_place`: a CRS of another place, or images of two places in one folder), heights of two sources in
-one vertical datum (`one_vertical_datum`), and what the track and the attitude tags say that no aircraft does
-(`track_checks`)."""
+one vertical datum (`one_vertical_datum`), what the track and the attitude tags say that no aircraft does
+(`track_checks`), and which EXIF fixes a telemetry file's track shows to be no measurement (`doubtful_fixes`)."""
 
 from __future__ import annotations
 
@@ -25,8 +25,37 @@ from ..plugin.gps_track import (
     quantisation,
     repeated_fixes,
 )
+from ..plugin.pose_check.gps import stale_fixes
 
 log = logging.getLogger(__name__)
+
+
+def doubtful_fixes(fixes: np.ndarray, reference: np.ndarray, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which of the images' own GPS fixes (K,2 metres, east-north) are no measurement of where they were, judged
+    against another track of the same images (`reference`, K,2: a telemetry file's) and their capture times (K,;
+    NaN where unknown, then name order and no speeds): (stale, jumped), two (K,) bool masks.
+    - stale: the fixes of a receiver holding one position while the reference moves (`pose_check.gps.stale_fixes`,
+      every fix after the first of such a run), or all of them when they lie at one point (`frozen_fix`);
+    - jumped: the others' fixes on the far side of a jump the aircraft cannot fly between two captures
+      (`gps_track.gps_jumps`, over the fixes that are not stale, whose zero speeds would lower the flight's):
+      the track cut at its jumps, every part but the one holding the most fixes (none with two such parts of one
+      size: no telling which is wrong). Without capture times no jump is judged."""
+    f, ref = np.asarray(fixes, np.float64).reshape(-1, 2), np.asarray(reference, np.float64).reshape(-1, 2)
+    t = np.asarray(times_s, np.float64).reshape(-1)
+    timed = len(t) > 0 and bool(np.all(np.isfinite(t)))
+    order = np.argsort(t, kind="stable") if timed else np.arange(len(f))
+    stale, jumped = np.zeros(len(f), bool), np.zeros(len(f), bool)
+    if frozen_fix(f[:, 0], f[:, 1]):
+        return ~stale, jumped
+    stale[order] = stale_fixes(ref[order], f[order])
+    if timed:
+        fresh = np.where(stale[order][:, None], np.nan, f[order])
+        cuts = [j for _, j, _, _ in gps_jumps(fresh[:, 0], fresh[:, 1], t[order])]
+        part = np.searchsorted(np.asarray(cuts, int), np.arange(len(f)), side="right")  # per ordered fix
+        sizes = np.bincount(part[~stale[order]], minlength=len(cuts) + 1)
+        if len(cuts) and np.sum(sizes == sizes.max()) == 1:
+            jumped[order] = (part != int(np.argmax(sizes))) & ~stale[order]
+    return stale, jumped
 
 # telemetry and EXIF altitudes of the same images differing by more than this are said to be of two datums
 HEIGHT_DATUM_NOTE_M = 1.0

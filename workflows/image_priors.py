@@ -14,7 +14,7 @@ lies on a zone boundary, where the first image's zone split them by where each s
 positions (GPSLatitude, GPSLongitude, GPSAltitude), where its row has them, take precedence over the image's own
 EXIF GPS: a file the user gives is their better positions (an autopilot's log, a PPK / RTK solution), as
 OpenDroneMap's geo.txt overrides the EXIF; how far it moves them is judged (`_telemetry_against_exif`: a warning
-beyond TELEMETRY_WARN_M, refused beyond TELEMETRY_REFUSE_M).
+beyond TELEMETRY_WARN_M, refused beyond TELEMETRY_REFUSE_M from most of the plausible EXIF fixes).
 Heights: the GPS altitude (metres, as the receiver reports it:
 for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
 vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off
@@ -90,7 +90,6 @@ from ..plugin.geodesy import (  # noqa: F401 (re-exported)
     utm_epsg,
 )
 from ..plugin.geometry import Camera
-from ..plugin.gps_track import frozen_fix
 from ..plugin.keyframes import flight_order, flight_order_message
 from .image_cameras import (  # noqa: F401 (re-exported: their home before image_cameras)
     EXIF_FOCAL_TOLERANCE,
@@ -101,7 +100,7 @@ from .image_cameras import (  # noqa: F401 (re-exported: their home before image
     make_model,
     turned_readout,
 )
-from .image_positions import check_one_place, median_position, one_vertical_datum, track_checks
+from .image_positions import check_one_place, doubtful_fixes, median_position, one_vertical_datum, track_checks
 from .image_rigs import one_image_per_capture, one_image_per_exposure
 
 log = logging.getLogger(__name__)
@@ -131,11 +130,12 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
 # reason)
 TELEMETRY_NOTE_M = 1.0
 TELEMETRY_WARN_M = 50.0
-# Beyond this median disagreement the telemetry's positions are not these images' positions corrected: no GPS error
+# Beyond this disagreement the telemetry's position is not the image's position corrected: no GPS error
 # (metres; tens with multipath) or datum still met on a receiver or an autopilot's log (WGS84 against NAD27,
 # ED50, Pulkovo 1942: 0.1-0.2 km; against the Tokyo datum, the largest: ~0.5 km) moves a fix by a kilometre.
 # A whole flight moved further is a wrong file: another site's log under the same file names, coordinates without
-# their sign (rev38: Seneca posed in China, 14,000 km off, exit 0). Refused; between the two bounds, a warning.
+# their sign (rev38: Seneca posed in China, 14,000 km off, exit 0). Refused when most plausible EXIF fixes are so
+# far (`_telemetry_against_exif`: wrong EXIF fixes are so far on a subset only); between the two bounds, a warning.
 # Not relative to the flight's extent: neither a datum's shift nor a GPS error grows with the flight.
 TELEMETRY_REFUSE_M = 1000.0
 
@@ -261,29 +261,64 @@ def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
     return idx, "capture order (no EXIF DateTimeOriginal)"
 
 
-def _telemetry_against_exif(telemetry: str | Path | None, moved: np.ndarray, exif_ll: np.ndarray) -> list[str]:
+def _local_metres(ll: np.ndarray) -> np.ndarray:
+    """(K,2) lat, lon (degrees) as east, north metres about their median (antimeridian-safe): tracks to compare."""
+    lat0, lon0 = median_position(ll[:, 0], ll[:, 1])
+    dlon = (ll[:, 1] - lon0 + 180.0) % 360.0 - 180.0
+    return np.column_stack([dlon * METRES_PER_DEGREE * np.cos(np.radians(ll[:, 0])),
+                            (ll[:, 0] - lat0) * METRES_PER_DEGREE])
+
+
+def _telemetry_against_exif(telemetry: str | Path | None, moved: np.ndarray, exif_ll: np.ndarray,
+                            tele_ll: np.ndarray, times_s: np.ndarray) -> list[str]:
     """Judge how far a telemetry CSV's positions moved the images' own EXIF fixes (`moved`, metres, per image with
-    both; `exif_ll` those fixes' lat, lon): logged beyond TELEMETRY_NOTE_M (median), a warning returned for the
-    summary beyond TELEMETRY_WARN_M (it was in the log only: poses.json and run.json never said it), an InputError
-    beyond TELEMETRY_REFUSE_M. Unless the EXIF fixes all lie at one point (`frozen_fix`: a camera whose receiver
-    had no lock, the case a telemetry file mends), then it is a warning whatever the distance."""
-    if not len(moved) or (median := float(np.median(moved))) <= TELEMETRY_NOTE_M:
+    both; `exif_ll`, `tele_ll` those fixes' lat, lon; `times_s` the images' capture times, NaN where unknown):
+    logged beyond TELEMETRY_NOTE_M (median), a warning returned for the summary beyond TELEMETRY_WARN_M (it was in
+    the log only: poses.json and run.json never said it) or where any image moved beyond TELEMETRY_REFUSE_M, an
+    InputError when the telemetry lies beyond TELEMETRY_REFUSE_M from most of the EXIF fixes that are plausible.
+
+    Why the majority of the plausible fixes (rev39: a receiver's stale fix 5 km off at 6 of 10 images put the
+    median beyond the bound, and the log that mends them was refused, the remedy named keeping the wrong
+    positions): a wrong file (another flight's log, coordinates without their sign) disagrees with the EXIF
+    track everywhere, wrong EXIF fixes only on a subset. The fixes the telemetry's own track shows to be no
+    measurement (`image_positions.doubtful_fixes`: held at one point while the telemetry moves, all at one point,
+    beyond a jump the aircraft cannot fly) are left out; of the rest, the telemetry is refused when more than half
+    lie beyond the bound, and taken with a warning counting the wrong EXIF fixes otherwise (none left: taken)."""
+    far = moved > TELEMETRY_REFUSE_M
+    if not len(moved) or ((median := float(np.median(moved))) <= TELEMETRY_NOTE_M and not far.any()):
         return []
     said = f"positions from {telemetry}, not the images' EXIF GPS: they differ by {median:.1f} m (median of " \
            f"{len(moved)} images)"
-    if median <= TELEMETRY_WARN_M:
+    if median <= TELEMETRY_WARN_M and not far.any():
         log.info("%s", said)
         return []
-    lat, lon = exif_ll[:, 0], exif_ll[:, 1]
-    frozen = frozen_fix(lon * METRES_PER_DEGREE * np.cos(np.radians(lat)), lat * METRES_PER_DEGREE)
-    if median > TELEMETRY_REFUSE_M and not frozen:
-        raise InputError(f"its positions lie {median:.0f} m from the images' own EXIF GPS (median of {len(moved)} "
-                         f"images), beyond any GPS error or datum shift ({TELEMETRY_REFUSE_M:.0f} m): the log of "
-                         "another flight under the same file names, or coordinates without their sign (a missing "
-                         "S/W, a GPSLongitudeRef column)? Fix the file, or remove its latitude/longitude columns "
-                         "to take only its attitude", telemetry)
-    said += (": the images' own fixes all lie at one point (a receiver without a lock), so the telemetry's are "
-             "taken" if frozen else ": the telemetry of another flight, or another datum?")
+    stale, jumped = doubtful_fixes(_local_metres(exif_ll), _local_metres(tele_ll), times_s)
+    plausible = ~(stale | jumped)
+    disagree = far & plausible
+    counts = [(int(stale.sum()), "stale"), (int(jumped.sum()), "beyond a jump")]
+    if 2 * int(disagree.sum()) > int(plausible.sum()):
+        # kept under errors.MAX_PROBLEM_CHARS (cut there): every remedy must reach the user
+        skipped = ", ".join(f"{k} {what}" for k, what in counts if k)
+        raise InputError(f"its positions lie {float(np.median(moved[plausible])):.0f} m from the images' own EXIF "
+                         f"GPS (median) at {int(disagree.sum())} of {int(plausible.sum())} images"
+                         + (f" (left out: {skipped})" if skipped else "")
+                         + f", beyond GPS error or datum ({TELEMETRY_REFUSE_M:.0f} m): another flight's log, or "
+                         "unsigned coordinates (add GPSLatitudeRef/GPSLongitudeRef columns)? Fix it, or drop its "
+                         "lat/lon columns to keep the images' GPS; if that GPS is wrong, use copies of the images "
+                         "without GPS tags", telemetry)
+    left_out = "; ".join(f"{k} {what}" for k, what in zip(
+        (k for k, _ in counts), ("stale, held at one point while the telemetry moves",
+                                 "beyond a jump the aircraft cannot fly")) if k)
+    if stale.all():
+        said += ": the images' own fixes all lie at one point (a receiver without a lock), so the telemetry's are " \
+                "taken"
+    elif far.any():
+        said += f": {int(far.sum())} of the images' own EXIF fixes lie more than {TELEMETRY_REFUSE_M:.0f} m from it" \
+                f" and it agrees with {int(plausible.sum() - disagree.sum())} of the {int(plausible.sum())} " \
+                f"plausible ones" + (f" (EXIF fixes {left_out})" if left_out else "") + ": wrong EXIF GPS, " \
+                "mended by the telemetry's positions"
+    else:
+        said += ": the telemetry of another flight, or another datum?"
     log.warning("%s", said)
     return [said]
 
@@ -349,7 +384,7 @@ def read_image_priors(
     alt_from_telemetry = np.zeros(n, bool)
     pos_src: Counter = Counter()
     moved = []  # telemetry positions against the same images' EXIF GPS (m, horizontal)
-    exif_ll = []  # ... and those EXIF fixes (lat, lon)
+    exif_ll, tele_ll, both_t = [], [], []  # ... and those EXIF fixes, the telemetry's (lat, lon), capture times
     for i, m in enumerate(metas):
         t = rows[i]
         if "lat" in t and "lon" in t:  # the user's file over the images' own tags (module doc)
@@ -360,6 +395,8 @@ def read_image_priors(
                 moved.append(math.hypot((t["lat"] - m.latitude) * METRES_PER_DEGREE, (t["lon"] - m.longitude)
                                         * METRES_PER_DEGREE * math.cos(math.radians(m.latitude))))
                 exif_ll.append((m.latitude, m.longitude))
+                tele_ll.append((t["lat"], t["lon"]))
+                both_t.append(m.capture_time_s if m.capture_time_s is not None else np.nan)
         elif m.has_gps:
             lat[i], lon[i] = m.latitude, m.longitude
             # an image without an EXIF altitude keeps its telemetry altitude (a row with an altitude but no fix)
@@ -367,7 +404,9 @@ def read_image_priors(
             pos_src["EXIF GPS"] += 1
         if np.isfinite(lat[i]):
             alt[i] = tele_alt[i] if alt_from_telemetry[i] else exif_alt[i]
-    tele_warnings = _telemetry_against_exif(telemetry, np.asarray(moved), np.asarray(exif_ll))
+    tele_warnings = _telemetry_against_exif(
+        telemetry, np.asarray(moved), np.asarray(exif_ll).reshape(-1, 2), np.asarray(tele_ll).reshape(-1, 2),
+        np.asarray(both_t, np.float64))
     alt = one_vertical_datum(alt, alt_from_telemetry & np.isfinite(alt), tele_alt, exif_alt, telemetry)
     has = np.isfinite(lat)
     east, north, north_az = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
