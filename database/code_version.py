@@ -3,10 +3,12 @@
 An output's identity keys its inputs and settings, not the code (an output of an earlier version with the same
 settings is the same output, and resumes: `database.output_markers.VersionedIdentity`). The package version alone
 does not tell two builds apart (it changes with releases, the code with every commit), so a run's record also
-holds `source_digest`: sha256 of the package's Python sources (path and contents; the tests and the benchmark
-scripts left out, as they make no output), read once per process (~230 files, ~10 ms of CPU). Deterministic: the
-same files give the same digest in any checkout or installation; a git commit would not see uncommitted changes
-and is missing from an installed package.
+holds `source_digest`: sha256 of the package's Python sources (path and contents of the .py files in its own
+folders, `PACKAGE_FOLDERS`, as setup.py installs them; the benchmark scripts left out, as they make no output),
+read once per process (~230 files, ~10 ms of CPU). Deterministic: the same sources give the same digest in a
+checkout, an editable or a regular installation, whatever lies beside the folders (setup.py, tests, build/, a
+venv) and with CRLF or LF line endings; a git commit would not see uncommitted changes and is missing from an
+installed package.
 
 `map` records both in run.json (`versions.sosmatch`, `versions.sosmatch_source`); `batch` warns once per session
 it keeps that another version made (`other_version`), and `--overwrite` maps it again.
@@ -20,22 +22,37 @@ from pathlib import Path
 from typing import Any
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
-# sources that make no output: a change to them is no other version of the outputs
-LEFT_OUT = ("tests", "tools/benchmarks")
+# The package's own folders, as setup.py's TOP_LEVEL installs them: in a checkout PACKAGE_DIR is the repository
+# root, which also holds setup.py, tests, perhaps build/ or a venv, none of them installed, so the same code would
+# get another digest installed than checked out. Top-level modules of the package (none today) would be hashed too.
+PACKAGE_FOLDERS = ("plugin", "database", "workflows", "tools")
+TOP_LEVEL_MODULES = ("__init__.py", "__main__.py")
+# sources inside those folders that make no output: a change to them is no other version of the outputs
+LEFT_OUT = ("tools/benchmarks",)
+
+
+def _package_sources(package_dir: Path) -> list[tuple[str, Path]]:
+    """(path inside the package, file) of each source `source_digest` hashes, in path order."""
+    found = [(name, package_dir / name) for name in TOP_LEVEL_MODULES if (package_dir / name).is_file()]
+    for folder in PACKAGE_FOLDERS:
+        for path in (package_dir / folder).rglob("*.py"):
+            rel = path.relative_to(package_dir).as_posix()
+            if any(p.startswith(".") or p == "__pycache__" for p in rel.split("/")) or any(
+                    rel == d or rel.startswith(d + "/") for d in LEFT_OUT):
+                continue
+            found.append((rel, path))
+    return sorted(found)
 
 
 @lru_cache(maxsize=1)
 def source_digest(package_dir: Path = PACKAGE_DIR) -> str:
     """The first 16 hex digits of the sha256 of the package's Python sources (each file's path inside the package
-    and the sha256 of its contents, in path order; hidden folders, caches and `LEFT_OUT` left out)."""
+    and the sha256 of its contents with CRLF / CR line endings read as LF, in path order; only the package's own
+    folders, `PACKAGE_FOLDERS`, without hidden folders, caches and `LEFT_OUT`)."""
     h = hashlib.sha256()
-    for path in sorted(package_dir.rglob("*.py")):
-        rel = path.relative_to(package_dir).as_posix()
-        parts = rel.split("/")
-        if any(p.startswith(".") or p == "__pycache__" for p in parts) or any(
-                rel == d or rel.startswith(d + "/") for d in LEFT_OUT):
-            continue
-        h.update(rel.encode() + b"\0" + hashlib.sha256(path.read_bytes()).digest())
+    for rel, path in _package_sources(package_dir):
+        text = path.read_bytes().replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        h.update(rel.encode() + b"\0" + hashlib.sha256(text).digest())
     return h.hexdigest()[:16]
 
 

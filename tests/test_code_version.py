@@ -4,10 +4,21 @@ of its sources, and a batch that keeps a session another version made says so, a
 
 from __future__ import annotations
 
+import ast
 import json
 import logging
+from pathlib import Path
 
-from sosmatch.database.code_version import code_versions, describe, other_version, source_digest
+import pytest
+
+from sosmatch.database.code_version import (
+    PACKAGE_DIR,
+    PACKAGE_FOLDERS,
+    code_versions,
+    describe,
+    other_version,
+    source_digest,
+)
 from sosmatch.tools.cli import main
 from sosmatch.workflows import batch
 from sosmatch.workflows.executors import LocalExecutor
@@ -24,6 +35,53 @@ def test_the_source_digest_follows_the_code_not_the_tests(tmp_path):
     assert source_digest.__wrapped__(tmp_path) == first
     (tmp_path / "plugin" / "a.py").write_text("x = 2\n")
     assert source_digest.__wrapped__(tmp_path) != first
+
+
+def _package(root: Path) -> None:
+    for folder in PACKAGE_FOLDERS:
+        (root / folder / "sub").mkdir(parents=True)
+        (root / folder / "__init__.py").write_text("")
+        (root / folder / "sub" / "m.py").write_text(f"NAME = {folder!r}\nVALUE = 1\n")
+    (root / "tools" / "benchmarks").mkdir()
+    (root / "tools" / "benchmarks" / "bench.py").write_text("print(1)\n")
+
+
+def test_the_source_digest_is_the_same_checked_out_and_installed(tmp_path):
+    """The digest hashed every .py below the repository root: a checkout (setup.py, build/, a venv/ inside, a stray
+    script) and the installed package of the same code had different digests, as had CRLF and LF checkouts, so a
+    batch resumed from the installed layout warned "kept as made by ..." and --overwrite re-mapped everything."""
+    installed, checkout = tmp_path / "site" / "sosmatch", tmp_path / "repo"
+    _package(installed)
+    _package(checkout)
+    first = source_digest.__wrapped__(installed)
+    (checkout / "setup.py").write_text("from setuptools import setup\nsetup()\n")
+    (checkout / "stray.py").write_text("print('a script beside the package')\n")
+    (checkout / "build" / "lib" / "sosmatch" / "plugin").mkdir(parents=True)
+    (checkout / "build" / "lib" / "sosmatch" / "plugin" / "m.py").write_text("OLD = 1\n")
+    (checkout / "venv" / "lib" / "site-packages" / "foo").mkdir(parents=True)
+    (checkout / "venv" / "lib" / "site-packages" / "foo" / "__init__.py").write_text("FOO = 1\n")
+    (checkout / "tests").mkdir()
+    (checkout / "tests" / "test_m.py").write_text("def test(): pass\n")
+    for path in (checkout / "plugin").rglob("*.py"):  # a Windows checkout (core.autocrlf)
+        path.write_bytes(path.read_bytes().replace(b"\n", b"\r\n"))
+    (checkout / "tools" / "benchmarks" / "bench.py").write_text("print(2)\n")
+    assert source_digest.__wrapped__(checkout) == first
+    (checkout / "plugin" / "sub" / "m.py").write_text("NAME = 'plugin'\nVALUE = 2\n")
+    assert source_digest.__wrapped__(checkout) != first
+    (installed / "__main__.py").write_text("print('run')\n")  # the package's own top-level module counts
+    assert source_digest.__wrapped__(installed) != first
+
+
+def test_the_digested_folders_are_the_installed_ones():
+    """PACKAGE_FOLDERS is setup.py's TOP_LEVEL (what an installation holds): a folder added to one only would make
+    the checkout's and the installed package's digests differ again."""
+    setup = PACKAGE_DIR / "setup.py"
+    if not setup.is_file():
+        pytest.skip("an installed package: no setup.py beside it")
+    tree = ast.parse(setup.read_text())
+    top = next(node.value for node in ast.walk(tree) if isinstance(node, ast.Assign)
+               and any(isinstance(t, ast.Name) and t.id == "TOP_LEVEL" for t in node.targets))
+    assert tuple(ast.literal_eval(top)) == PACKAGE_FOLDERS
 
 
 def test_other_version_names_the_maker():

@@ -202,12 +202,30 @@ def _graph_and_merge(
         )
     # a group with a session mapped again by this version (`batch.workflow._kept_session`) is merged again
     remerge = {key for key, task in merge_tasks.items() if set(task[1]) & set(renewed)}
+    # ... and one of another match of its tree's pairs (their maps and answers, `pair_made_from`)
+    tree_keys = {g["reference"]: list(g["tree"]) for g in groups if g["reference"] in merge_tasks}
+    each_pair, pair_unrecorded = pair_made_from({k for keys in tree_keys.values() for k in keys}, matches, state,
+                                                pair_fps)
     merged = run_stage(executor, merge_task, merge_tasks, merge_fps, state, "merge", out_dir, "merge groups",
-                        options.progress, _valid_merge, redo=remerge)
+                       options.progress, _valid_merge, redo=remerge,
+                       made_from={key: fingerprint([each_pair[k] for k in keys]) for key, keys in tree_keys.items()},
+                       unrecorded=lambda key, done: all(pair_unrecorded(k, done) for k in tree_keys[key]))
     for group in groups:
         if group["reference"] in merged:
             group.update(merged[group["reference"]])
     return groups
+
+
+def pair_made_from(keys: Iterable[str], matches: dict[str, MatchSummary], state: StateStore,
+                   pair_fps: dict[str, list[str | None]]) -> tuple[dict[str, str], Any]:
+    """`run_stage`'s `made_from` of a stage on accepted pairs (the control, the changes): each pair's match as it is
+    now (`match_io.match_content`: its maps and its answer), and its `unrecorded` test of a state an earlier
+    sosmatch saved: kept while the pair's own state is one too (made before any match was matched again for its
+    maps, `workflow._pairs_made_from`); a pair matched since (it names its maps) is newer than it."""
+    from ...database.match_io import match_content
+
+    return ({k: match_content(matches[k]) for k in keys},
+            lambda key, done: not state.names_its_inputs("match", key, pair_fps[key][0]))
 
 
 def of_sessions(keys: Iterable[str], renewed: Collection[str]) -> set[str]:
@@ -235,8 +253,9 @@ def _control_alignments(sims: dict[str, Sim3], sessions: dict[str, dict[str, Any
         fps[key] = _after_pair_fingerprints(pair_fps[key], transform, params)
         tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(pairs[key]["match"]), transform, params,
                       matches[key])
+    made_from, unrecorded = pair_made_from(tasks, matches, state, pair_fps)
     done = run_stage(executor, alignment_task, tasks, fps, state, "control", out_dir, "control alignments",
-                     options.progress, redo=of_sessions(tasks, renewed))
+                     options.progress, redo=of_sessions(tasks, renewed), made_from=made_from, unrecorded=unrecorded)
     for key, res in done.items():
         rec = pairs[key]
         rec.pop("refused", None), rec.pop("refused_by", None)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,7 @@ def fingerprint(obj: Any) -> str:
 
 
 PATH_KEYS = ("session", "match", "merged", "changes")  # result fields that hold paths
+MADE_FROM = "made_from"  # a state's digest of the inputs its task was made from (`run_stage`)
 
 
 class StateStore:
@@ -68,6 +69,12 @@ class StateStore:
         result = data.get("result")
         return self._absolute(result) if isinstance(result, dict) else None
 
+    def names_its_inputs(self, stage: str, key: str, fingerprint: str) -> bool:
+        """Whether the finished task's state records what it was made from (`run_stage`'s `made_from`); a task
+        without a state counts as one that does (it was not made by an earlier sosmatch)."""
+        done = self.get(stage, key, fingerprint)
+        return done is None or MADE_FROM in done
+
     def put(self, stage: str, key: str, fingerprint: str, result: dict[str, Any]) -> None:
         data = {"version": STATE_VERSION, "fingerprint": fingerprint, "result": self._relative(result)}
         write_text_atomic(self._path(stage, key), json.dumps(data, indent=1, sort_keys=True) + "\n")
@@ -86,6 +93,7 @@ def run_stage(
     executor: Executor, fn: Any, tasks: dict[str, tuple], fingerprints: dict[str, list[str | None]],
     state: StateStore, stage: str, out_dir: Path, desc: str, progress: bool, still_valid: Any = None,
     earlier: dict[str, list[str]] | None = None, redo: Collection[str] = (),
+    made_from: dict[str, str] | None = None, unrecorded: Callable[[str, dict[str, Any]], bool] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Skip tasks whose state matches, run the rest, save the state of those that succeed. The tasks `redo` run
     whatever their state (made from a session mapped again by this version: `batch.workflow._kept_session`).
@@ -93,7 +101,13 @@ def run_stage(
     `fingerprints`: each task's fingerprint per version of sosmatch (`plugin.params.build_versions`: today's
     first, then earlier versions', None where a version cannot have made it); `earlier`: further fingerprints an
     earlier version of the batch gave the same task. A state saved under an earlier one is taken as this one's and
-    re-saved under today's, so an output made before a fingerprint changed resumes."""
+    re-saved under today's, so an output made before a fingerprint changed resumes.
+
+    `made_from`: a digest of the inputs each task reads now (the maps of a pair, the match of a control); the
+    fingerprints key the settings and the flights, not what an earlier stage made of them, which a run killed
+    between two stages (`--overwrite` re-mapping a session) leaves changed under an unchanged fingerprint. Saved
+    in the task's state; a state of other inputs is run again. A state without one (an earlier sosmatch's) is
+    kept when `unrecorded(key, state)` says it is still about these inputs (no `unrecorded`: kept)."""
     records: dict[str, dict[str, Any]] = {}
     todo = {}
     today = {key: fingerprints[key][0] for key in tasks}
@@ -108,10 +122,15 @@ def run_stage(
                 break
             if old is not None and old != today[key]:
                 done, migrated = state.get(stage, key, old), True
+        if done is not None and made_from is not None and key in made_from:
+            if MADE_FROM in done:
+                done = done if done[MADE_FROM] == made_from[key] else None
+            elif unrecorded is not None and not unrecorded(key, done):
+                done = None
         if done is not None and (still_valid is None or still_valid(done)):
-            if migrated:  # re-saved under today's fingerprint
+            if migrated:  # re-saved under today's fingerprint (one without `made_from` stays without: unknown)
                 state.put(stage, key, today[key], done)
-            records[key] = {**done, "status": "done", "resumed": True}
+            records[key] = {**{k: v for k, v in done.items() if k != MADE_FROM}, "status": "done", "resumed": True}
         else:
             todo[key] = args
     if todo:
@@ -119,6 +138,7 @@ def run_stage(
         for key, res in results.items():
             rec = record_result(res, out_dir / "logs", stage, key)
             if res.ok:
-                state.put(stage, key, today[key], {k: v for k, v in rec.items() if k != "status"})
+                inputs = {MADE_FROM: made_from[key]} if made_from is not None and key in made_from else {}
+                state.put(stage, key, today[key], {**{k: v for k, v in rec.items() if k != "status"}, **inputs})
             records[key] = rec
     return {key: records[key] for key in tasks}

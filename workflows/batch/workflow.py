@@ -23,7 +23,7 @@ from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
 from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir, one_session_per_flight
-from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs, of_sessions
+from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs, of_sessions, pair_made_from
 from .pairs import flight_times, pairs_chosen_by
 from .report import BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
@@ -92,6 +92,40 @@ def _kept_session(out_dir: Path, overwrite: bool, renewed: set[str]) -> Any:
 
 def _valid_match(done: dict[str, Any]) -> bool:
     return Path(done.get("match", "")).is_file()
+
+
+def _map_prints(sessions: dict[str, dict[str, Any]], names: Collection[str]) -> dict[str, str | None]:
+    """Each session's landmark map as a match.json names it (`landmark_map.landmark_map_fingerprint`; None: it does
+    not read, and its pairs are matched again, which says why)."""
+    from ...database.landmark_map import landmark_map_fingerprint, read_landmark_map
+
+    prints: dict[str, str | None] = {}
+    for name in names:
+        try:
+            prints[name] = landmark_map_fingerprint(read_landmark_map(Path(sessions[name]["session"])
+                                                                      / "landmarks.sosmap"))
+        except InputError:
+            prints[name] = None
+    return prints
+
+
+def _pairs_made_from(keys: Collection[str], prints: dict[str, str | None]) -> tuple[dict[str, str], Any]:
+    """(`run_stage`'s `made_from` of the match stage: both maps of each pair as they are now, and its `unrecorded`
+    test of a pair an earlier sosmatch saved: the maps its match.json names are those). A session mapped again
+    whose pairs were not (a batch --overwrite killed between the stages) has another map than its pairs' match.json
+    names: they are matched again, and the stages made of them again after them (`graph.pair_made_from`)."""
+    from ...database.match_io import read_match
+
+    made_from = {k: json.dumps([prints[n] for n in k.split(PAIR_SEP)]) for k in keys}
+
+    def same_maps(key: str, done: dict[str, Any]) -> bool:
+        try:
+            m = read_match(done.get("match", ""))
+        except InputError:
+            return False
+        return json.dumps([m.map_a.fingerprint, m.map_b.fingerprint]) == made_from[key]
+
+    return made_from, same_maps
 
 
 def run(
@@ -204,8 +238,10 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
         if matcher is pair_task:
             pair_tasks[key] += (verify, True)  # the batch's own, as the sessions
+    pairs_from, same_maps = _pairs_made_from(pair_tasks, _map_prints(sessions, mapped))
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
-                       options.progress, _valid_match, redo=of_sessions(pair_tasks, renewed))
+                      options.progress, _valid_match, redo=of_sessions(pair_tasks, renewed), made_from=pairs_from,
+                      unrecorded=same_maps)
     for (a, b), why in chosen_by.items():  # said in report.json: why each pair was matched (a resumed pair too)
         pairs[f"{a}{PAIR_SEP}{b}"]["chosen_by"] = why
     _match_refusals(pairs)
@@ -406,8 +442,10 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
                       rec["transform"], params, True, rec.get("answer") == "verified",  # the batch's own, as merge
                       *(None if images[n] is None else str(images[n]) for n in (a, b)),
                       answer_gate(matches[key], params.association.distance_tolerance_m))
+    made_from, unrecorded = pair_made_from(tasks, matches, state, pair_fps)
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
-                     options.progress, _valid_changes, redo=of_sessions(tasks, renewed))
+                     options.progress, _valid_changes, redo=of_sessions(tasks, renewed), made_from=made_from,
+                     unrecorded=unrecorded)
     for key, rec in done.items():
         pairs[key]["changes_status"] = rec["status"]
         if rec["status"] == "done":
