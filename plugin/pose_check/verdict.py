@@ -114,9 +114,9 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
                           f"{s.condition_text}; a single straight line?): they are not checked")
         return v
     unchecked = (f"poses vs images: the checked pairs pin an attitude error shared by all cameras only to "
-                 f"+-{s.attitude_bias_sigma_deg:.1f} deg (they read {s.attitude_bias_deg:.1f} deg), so one below "
-                 f"{_unseen_deg(check):.1f} deg would go unseen "
-                 "(an oblique camera, whose images of other flight lines or several images apart do not match?): "
+                 f"+-{s.attitude_bias_sigma_deg:.1f} deg (they read {s.attitude_bias_deg:.1f} deg), too loosely to "
+                 "judge one of a few degrees (an oblique camera, whose images of other flight lines or several "
+                 "images apart do not match?): "
                  "the cameras' attitude is not checked")
     if not check.systematic_explains:
         # the poses' random errors, not a systematic one: the fit's parameters are no measurement (silent, as on
@@ -150,12 +150,6 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
         elif k == len(systematic) - 1 and not check.attitude_checked:
             v.warnings.append(unchecked)
     return v
-
-
-def _unseen_deg(check: PoseCheck) -> float:
-    """The smallest shared attitude error the check would warn about at its figures' precision: the warning limit
-    plus two standard deviations (`_beyond`)."""
-    return check.warn_attitude_bias_deg + 2.0 * check.systematic.attitude_bias_sigma_deg
 
 
 def poses_fit_images(check: PoseCheck, limits: PoseCheckParams) -> str:
