@@ -115,9 +115,10 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
         return v
     unchecked = (f"poses vs images: the checked pairs pin an attitude error shared by all cameras only to "
                  f"+-{s.attitude_bias_sigma_deg:.1f} deg (they read {s.attitude_bias_deg:.1f} deg), too loosely to "
-                 "judge one of a few degrees (an oblique camera, whose images of other flight lines or several "
-                 "images apart do not match?): "
-                 "the cameras' attitude is not checked")
+                 f"judge one of a few degrees ({sum(p.kind == 'next' for p in check.pairs)} of {check.pairs_checked} "
+                 "are consecutive images, whose short baselines show little of it: an oblique camera, whose other "
+                 "flight lines look at other ground, or a low flight where few other pairs match?): the cameras' "
+                 "attitude is not checked")
     if not check.systematic_explains:
         # the poses' random errors, not a systematic one: the fit's parameters are no measurement (silent, as on
         # exact poses, where there is nothing to explain either), unless the pairs cannot see the attitude at all:
