@@ -582,3 +582,34 @@ def test_one_position_read_with_rounding_is_still_one_position(flight, tmp_path,
     err = cli_error("check-poses", "--images", flight / "images", "--poses", same, "--camera",
                     flight / "cameras.txt")
     assert "at one position, but the images move by" in err and "180 deg" not in err, err
+
+
+def _pitched(poses: Poses, deg: float) -> Poses:
+    """Every camera turned `deg` back towards nadir about its own x axis (an oblique mount's pitch recorded short)."""
+    return Poses(poses.names, poses.rotations @ _rot("x", -deg), poses.centers)
+
+
+def test_an_oblique_flight_whose_shared_attitude_the_pairs_cannot_pin_says_it_is_not_checked(flight, tmp_path):
+    """nu51: a camera 35 deg forward matches only consecutive images (another flight line looks at other ground,
+    images several apart differ too much in perspective), whose 7 m baselines pin the shared attitude only to a
+    few degrees on EKF poses; a 10 deg pitch error was then "ok" without a word and its landmarks lay 24 m under
+    the ground. The check now says that it does not check the attitude, for the right poses and the wrong alike;
+    on the nadir flight, whose pairs pin it to a fraction of a degree, it does not, and warns of the same error."""
+    out = tmp_path / "oblique"
+    assert main(["synth", "--out", str(out), "--frames", "40", "--width", "320", "--height", "240", "--world-size",
+                 "500", "--line-length", "100", "--camera-tilt", "35", "-q"]) == 0
+    camera = next(iter(read_cameras_txt(out / "cameras.txt").values()))
+    ekf, _ = read_poses_csv(out / "poses_ekf.csv")
+    images = [out / "images" / n for n in ekf.names]
+    for poses in (ekf, _pitched(ekf, 10.0)):
+        result, verdict = pose_check.check(images, poses, camera, Params())
+        assert not result.attitude_checked and verdict.refusals == [], result.line()
+        assert any("the cameras' attitude is not checked" in w for w in verdict.warnings), verdict.warnings
+        assert "shared attitude not checked" in result.line()
+    images, _, camera = _inputs(flight)
+    nadir, _ = read_poses_csv(flight / "poses_ekf.csv")
+    result, verdict = pose_check.check(images, nadir, camera, Params())
+    assert result.attitude_checked and not any("not checked" in w for w in verdict.warnings), verdict.warnings
+    assert "attitude not checked" not in result.line()
+    result, verdict = pose_check.check(images, _pitched(nadir, 10.0), camera, Params())
+    assert any("share an attitude error of" in w for w in verdict.warnings + verdict.refusals), verdict.warnings

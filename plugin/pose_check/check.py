@@ -88,6 +88,9 @@ class PoseCheck:
     # (`PoseCheckParams.systematic_significance`, `min_systematic_share`)
     systematic_significance: float = 1.0
     min_systematic_share: float = 0.0
+    # the warning limit of the shared attitude error (`PoseCheckParams.warn_attitude_bias_deg`): the attitude is
+    # checked only where the fit pins it to half of it (`attitude_checked`)
+    warn_attitude_bias_deg: float = float("inf")
     # the share of the GPS fixes a camera path must follow for its scale to be judged (`min_gps_agreement`)
     min_gps_agreement: float = 0.5
     # the camera centres against the images' own GPS fixes (None: too few fixes, or not compared)
@@ -131,6 +134,18 @@ class PoseCheck:
         neither judged nor reported as a measurement."""
         s = self.systematic
         return not (s.explained_p > self.systematic_significance or s.explained_share < self.min_systematic_share)
+
+    @property
+    def attitude_checked(self) -> bool:
+        """Whether the checked pairs pin the attitude error shared by all cameras finely enough to see one at its
+        warning limit: its standard deviation at most half that limit (a warning needs the error beyond the limit by
+        two of them, so the errors warned about start at twice the limit at most). An oblique camera (30-35 deg
+        forward) matches only consecutive images along the track (not another flight line, which looks at other
+        ground, nor images several apart, whose perspective differs too much), and those short baselines measure
+        the pitch only as well as the poses' random height errors allow: +-2-4 deg on correct EKF poses, so a 5-10
+        deg pitch error was read as 4.3 +- 1.6 and 9.2 +- 3.1 deg and neither was warned (the 51st new-user sweep;
+        nadir flights +-0.1-0.4 deg). Unknown (NaN) counts as checked: a fit without figures says so itself."""
+        return not self.systematic.attitude_bias_sigma_deg > 0.5 * self.warn_attitude_bias_deg
 
     @property
     def epipolar_p50_deg(self) -> float:
@@ -187,6 +202,11 @@ class PoseCheck:
                      f"{100 * self.min_systematic_share:.0f} %), not judged; clearest: {_clearest_term(s)}")
         else:
             text += f"height drift {_fmt(s.height_drift_m, '+.1f')} m, tilt {_fmt(s.height_tilt_deg, '.1f')} deg"
+        if self.pairs_checked and self.systematic_separable and not self.attitude_checked:
+            # "nothing stands out" read as "the attitude was checked and found right" on an oblique flight whose
+            # pitch the pairs cannot see (nu51): said, with how loosely the pairs pin it
+            text += (f"; shared attitude not checked (the pairs pin it only to "
+                     f"+-{self.systematic.attitude_bias_sigma_deg:.1f} deg)")
         text += f", {self.reversed_pairs} reversed" if self.reversed_pairs else ""
         if self.gps is not None and self.gps.follows(self.min_gps_agreement):
             text += f"; lengths {self.gps.scale_text}x the images' GPS ({self.gps.fixes} fixes)"
@@ -353,7 +373,7 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         reversed_pairs=sum(c.reversed(gate_px) for c in checks), reversed_passes=reversed_passes,
         systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index,
         systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
-        min_gps_agreement=params.min_gps_agreement,
+        warn_attitude_bias_deg=params.warn_attitude_bias_deg, min_gps_agreement=params.min_gps_agreement,
         track_camera=tuple(float(v) for v in track_in_camera(poses)), **fixed_figures)
 
 

@@ -124,9 +124,18 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
                           f"and an attitude error shared by all cameras apart (condition index "
                           f"{s.condition_text}; a single straight line?): they are not checked")
         return v
+    unchecked = (f"poses vs images: the checked pairs pin an attitude error shared by all cameras only to "
+                 f"+-{s.attitude_bias_sigma_deg:.1f} deg (they read {s.attitude_bias_deg:.1f} deg), too loosely to "
+                 f"judge one of a few degrees ({sum(p.kind == 'next' for p in check.pairs)} of {check.pairs_checked} "
+                 "are consecutive images, whose short baselines show little of it: an oblique camera, whose other "
+                 "flight lines look at other ground, or a low flight where few other pairs match?): the cameras' "
+                 "attitude is not checked")
     if not check.systematic_explains:
         # the poses' random errors, not a systematic one: the fit's parameters are no measurement (silent, as on
-        # exact poses, where there is nothing to explain either)
+        # exact poses, where there is nothing to explain either), unless the pairs cannot see the attitude at all:
+        # silence would read as "checked and found right" (nu51: a 10 deg pitch error of an oblique flight)
+        if not check.attitude_checked:
+            v.warnings.append(unchecked)
         return v
     pitch = pitch_shown(check)
     systematic = [  # value, its sigma, refusal limit, warning limit, what, the refusal limit in words, likely cause
@@ -151,6 +160,8 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
                               f"{alternative}: {cause}")
         elif _beyond(value, sigma, warn):
             v.warnings.append(f"poses vs images: {what} against the images{alternative}")
+        elif k == len(systematic) - 1 and not check.attitude_checked:
+            v.warnings.append(unchecked)
     return v
 
 
