@@ -606,6 +606,15 @@ def test_an_oblique_flight_whose_shared_attitude_the_pairs_cannot_pin_says_it_is
         assert not result.attitude_checked and verdict.refusals == [], result.line()
         assert any("the cameras' attitude is not checked" in w for w in verdict.warnings), verdict.warnings
         assert "shared attitude not checked" in result.line()
+    # an error the loose fit explains and finds clearly beyond its limit was judged: the line does not call it
+    # unchecked beside its own warning (rev41, world 5252 at 30 deg, 10 deg short: "ok: ... shared attitude not
+    # checked (+-1.7 deg); WARNING: ... an attitude error of 9.3 deg (+-1.7)"); that fit's figures, on this check
+    judged = replace(result, systematic=replace(
+        result.systematic, attitude_bias_deg=9.3, attitude_bias_sigma_deg=1.7, explained_p=0.0, explained_share=0.9))
+    assert judged.systematic_explains and judged.attitude_checked and "not checked" not in judged.line()
+    verdict = judge_poses(judged, Params().pose_check)
+    assert any("share an attitude error of 9.3 deg" in w for w in verdict.warnings), verdict.warnings
+    assert not any("attitude is not checked" in w for w in verdict.warnings), verdict.warnings
     images, _, camera = _inputs(flight)
     nadir, _ = read_poses_csv(flight / "poses_ekf.csv")
     result, verdict = pose_check.check(images, nadir, camera, Params())

@@ -144,8 +144,15 @@ class PoseCheck:
         ground, nor images several apart, whose perspective differs too much), and those short baselines measure
         the pitch only as well as the poses' random height errors allow: +-2-4 deg on correct EKF poses, so a 5-10
         deg pitch error was read as 4.3 +- 1.6 and 9.2 +- 3.1 deg and neither was warned (the 51st new-user sweep;
-        nadir flights +-0.1-0.4 deg). Unknown (NaN) counts as checked: a fit without figures says so itself."""
-        return not self.systematic.attitude_bias_sigma_deg > 0.5 * self.warn_attitude_bias_deg
+        nadir flights +-0.1-0.4 deg). Unknown (NaN) counts as checked: a fit without figures says so itself. An
+        error the fit explains and finds beyond the warning limit by two of its standard deviations is checked too,
+        however loosely pinned: it was judged, and found wrong (rev41: the line said "not checked" beside the
+        warning or refusal of a 10-30 deg pitch error)."""
+        s = self.systematic
+        if not s.attitude_bias_sigma_deg > 0.5 * self.warn_attitude_bias_deg:
+            return True
+        return bool(self.systematic_explains
+                    and abs(s.attitude_bias_deg) - 2.0 * s.attitude_bias_sigma_deg > self.warn_attitude_bias_deg)
 
     @property
     def epipolar_p50_deg(self) -> float:

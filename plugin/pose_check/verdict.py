@@ -124,17 +124,21 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
                           f"and an attitude error shared by all cameras apart (condition index "
                           f"{s.condition_text}; a single straight line?): they are not checked")
         return v
+    consecutive = sum(p.kind == "next" for p in check.pairs)
+    # the likely reason only where the pairs show it (most of them consecutive images); otherwise just the fact
+    # (rev41: Seneca's wrong telemetry poses, 42 of 97 consecutive, were told "an oblique camera or a low flight?")
+    why = (": an oblique camera, whose other flight lines look at other ground, or a low flight where few other "
+           "pairs match?" if 2 * consecutive > check.pairs_checked else "")
     unchecked = (f"poses vs images: the checked pairs pin an attitude error shared by all cameras only to "
                  f"+-{s.attitude_bias_sigma_deg:.1f} deg (they read {s.attitude_bias_deg:.1f} deg), too loosely to "
-                 f"judge one of a few degrees ({sum(p.kind == 'next' for p in check.pairs)} of {check.pairs_checked} "
-                 "are consecutive images, whose short baselines show little of it: an oblique camera, whose other "
-                 "flight lines look at other ground, or a low flight where few other pairs match?): the cameras' "
-                 "attitude is not checked")
+                 f"judge one of a few degrees ({consecutive} of {check.pairs_checked} are consecutive images, whose "
+                 f"short baselines show little of it{why}): the cameras' attitude is not checked")
     if not check.systematic_explains:
         # the poses' random errors, not a systematic one: the fit's parameters are no measurement (silent, as on
         # exact poses, where there is nothing to explain either), unless the pairs cannot see the attitude at all:
-        # silence would read as "checked and found right" (nu51: a 10 deg pitch error of an oblique flight)
-        if not check.attitude_checked:
+        # silence would read as "checked and found right" (nu51: a 10 deg pitch error of an oblique flight). Not
+        # where the poses are refused already: they are wrong, and what was not checked of them is noise (rev41)
+        if not check.attitude_checked and not v.refusals:
             v.warnings.append(unchecked)
         return v
     pitch = pitch_shown(check)
