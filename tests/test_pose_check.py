@@ -605,7 +605,7 @@ def test_an_oblique_flight_whose_shared_attitude_the_pairs_cannot_pin_says_it_is
         result, verdict = pose_check.check(images, poses, camera, Params())
         assert not result.attitude_checked and verdict.refusals == [], result.line()
         assert any("the cameras' attitude is not checked" in w for w in verdict.warnings), verdict.warnings
-        assert "shared attitude not checked" in result.line()
+        assert "shared attitude not checked" in result.line() and result.to_dict()["attitude_checked"] is False
     # an error the loose fit explains and finds clearly beyond its limit was judged: the line does not call it
     # unchecked beside its own warning (rev41, world 5252 at 30 deg, 10 deg short: "ok: ... shared attitude not
     # checked (+-1.7 deg); WARNING: ... an attitude error of 9.3 deg (+-1.7)"); that fit's figures, on this check

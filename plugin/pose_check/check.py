@@ -176,6 +176,8 @@ class PoseCheck:
             "height_tilt_azimuth_deg": num(s.height_tilt_azimuth_deg),
             "attitude_bias_deg": num(s.attitude_bias_deg), "attitude_bias_sigma_deg": num(s.attitude_bias_sigma_deg),
             "attitude_bias_axis": [num(v) for v in s.attitude_bias_axis],
+            # whether the pairs judged the shared attitude (`attitude_checked`): "ok" alone cannot say (rev41)
+            "attitude_checked": self.attitude_checked,
             "systematic_condition_index": num(s.condition_index),
             "systematic_f": num(s.explained_f), "systematic_p": num(s.explained_p),
             "systematic_share": num(s.explained_share),
