@@ -153,6 +153,18 @@ def test_check_poses_command(flight, tmp_path, capsys, cli_error):
     assert err.split(": ")[2] == str(bad)  # the error names the wrong input, the pose file
 
 
+def test_warn_only_prints_why_the_poses_would_be_refused(flight, tmp_path, capsys):
+    """--warn-only keeps the exit code at 0, not the reason: the line said "REFUSED: <figures>" and nothing of what
+    was refused (rev41: all a user saw of a 29 deg pitch refusal was "shared attitude not checked")."""
+    _, poses, _ = _inputs(flight)
+    bad = tmp_path / "yaw.csv"
+    write_poses_csv(bad, _yaw_fault(poses, 1))
+    assert main(["check-poses", "--images", str(flight / "images"), "--poses", str(bad), "--camera",
+                 str(flight / "cameras.txt"), "--warn-only", "-q"]) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("REFUSED: ") and line.count("poses vs images:") >= 2, line
+
+
 def test_one_position_given_to_every_image_is_refused_not_ok(flight, tmp_path, capsys, cli_error):
     """Every pose at the first camera centre: no pair has a baseline, every epipolar distance is NaN. Before:
     `ok: poses vs images: epipolar nan px` (exit 0) after five numpy 'All-NaN slice' warnings on stderr."""

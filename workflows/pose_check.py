@@ -174,6 +174,8 @@ class CheckResult:
     def line(self) -> str:
         status = "ok" if self.verdict.ok else "REFUSED"
         text = f"{status}: {self.check.line()}"
+        if self.verdict.refusals:  # why (a refusal raised says it itself; --warn-only printed the figures alone, rev41)
+            text += f"; {'; '.join(self.verdict.refusals)}"
         if self.verdict.warnings:
             text += f"; WARNING: {'; '.join(self.verdict.warnings)}"
         return text
