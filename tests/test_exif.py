@@ -289,7 +289,7 @@ def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog)
         tele.write_text("FileName,Heading,PitchAngle,RollAngle,GPSLatitude,GPSLongitude,GPSAltitude\n" + rows)
 
     shifted(3.0)  # a PPK correction of 3 m north, 12.5 m in height
-    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_positions"):
         res = pfe.poses_from_images(img, telemetry=tele)
     assert res.summary["position_sources"] == {"telemetry CSV": 4}
     moved = res.poses.centers - exif.poses.centers
@@ -298,12 +298,12 @@ def test_telemetry_positions_take_precedence_over_the_exif_gps(tmp_path, caplog)
     assert any("differ by 3.0 m" in r.getMessage() and r.levelno == logging.INFO for r in caplog.records)
     caplog.clear()
     shifted(300.0)  # another datum, or the log of another flight with the same file names
-    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_priors"):
+    with caplog.at_level(logging.INFO, logger="sosmatch.workflows.image_positions"):
         res = pfe.poses_from_images(img, telemetry=tele)
     assert any("another flight" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
     # rev38: the warning was in the log only; the summary's warnings are what poses.json / run.json record
     assert any("differ by 300.0 m" in w and "another flight" in w for w in res.summary["warnings"])
-    shifted(2000.0)  # beyond any GPS error or datum: refused (image_priors.TELEMETRY_REFUSE_M)
+    shifted(2000.0)  # beyond any GPS error or datum: refused (image_positions.TELEMETRY_REFUSE_M)
     with pytest.raises(InputError, match=r"telemetry.csv: its positions lie 2000 m from the images' own EXIF GPS"):
         pfe.poses_from_images(img, telemetry=tele)
 

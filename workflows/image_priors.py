@@ -13,8 +13,9 @@ flight's median fix unless `epsg` is given: two flights of one site then take on
 lies on a zone boundary, where the first image's zone split them by where each started). A telemetry CSV's
 positions (GPSLatitude, GPSLongitude, GPSAltitude), where its row has them, take precedence over the image's own
 EXIF GPS: a file the user gives is their better positions (an autopilot's log, a PPK / RTK solution), as
-OpenDroneMap's geo.txt overrides the EXIF; how far it moves them is judged (`_telemetry_against_exif`: a warning
-beyond TELEMETRY_WARN_M, refused beyond TELEMETRY_REFUSE_M from most of the plausible EXIF fixes).
+OpenDroneMap's geo.txt overrides the EXIF; how far it moves them is judged
+(`image_positions.telemetry_against_exif`: a warning beyond TELEMETRY_WARN_M, refused beyond TELEMETRY_REFUSE_M from
+most of the plausible EXIF fixes).
 Heights: the GPS altitude (metres, as the receiver reports it:
 for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
 vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off
@@ -100,7 +101,13 @@ from .image_cameras import (  # noqa: F401 (re-exported: their home before image
     make_model,
     turned_readout,
 )
-from .image_positions import check_one_place, doubtful_fixes, median_position, one_vertical_datum, track_checks
+from .image_positions import (
+    check_one_place,
+    median_position,
+    one_vertical_datum,
+    telemetry_against_exif,
+    track_checks,
+)
 from .image_rigs import one_image_per_capture, one_image_per_exposure
 
 log = logging.getLogger(__name__)
@@ -123,21 +130,6 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
     return paths
 
 
-# A telemetry CSV's positions replace the EXIF GPS (module doc). A copy of the same receiver's agrees to
-# centimetres (Seneca: < 1 mm), a PPK / RTK solution moves a consumer fix by metres: beyond TELEMETRY_NOTE_M
-# (median) the log says by how much; beyond TELEMETRY_WARN_M, the distance another datum (100-200 m) or another
-# flight's log with the same file names puts them, it warns (the pose check's `warn_gps_offset_m` for the same
-# reason)
-TELEMETRY_NOTE_M = 1.0
-TELEMETRY_WARN_M = 50.0
-# Beyond this disagreement the telemetry's position is not the image's position corrected: no GPS error
-# (metres; tens with multipath) or datum still met on a receiver or an autopilot's log (WGS84 against NAD27,
-# ED50, Pulkovo 1942: 0.1-0.2 km; against the Tokyo datum, the largest: ~0.5 km) moves a fix by a kilometre.
-# A whole flight moved further is a wrong file: another site's log under the same file names, coordinates without
-# their sign (rev38: Seneca posed in China, 14,000 km off, exit 0). Refused when most plausible EXIF fixes are so
-# far (`_telemetry_against_exif`: wrong EXIF fixes are so far on a subset only); between the two bounds, a warning.
-# Not relative to the flight's extent: neither a datum's shift nor a GPS error grows with the flight.
-TELEMETRY_REFUSE_M = 1000.0
 
 
 def _course_from_neighbours(east: np.ndarray, north: np.ndarray) -> np.ndarray:
@@ -261,68 +253,6 @@ def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
     return idx, "capture order (no EXIF DateTimeOriginal)"
 
 
-def _local_metres(ll: np.ndarray) -> np.ndarray:
-    """(K,2) lat, lon (degrees) as east, north metres about their median (antimeridian-safe): tracks to compare."""
-    lat0, lon0 = median_position(ll[:, 0], ll[:, 1])
-    dlon = (ll[:, 1] - lon0 + 180.0) % 360.0 - 180.0
-    return np.column_stack([dlon * METRES_PER_DEGREE * np.cos(np.radians(ll[:, 0])),
-                            (ll[:, 0] - lat0) * METRES_PER_DEGREE])
-
-
-def _telemetry_against_exif(telemetry: str | Path | None, moved: np.ndarray, exif_ll: np.ndarray,
-                            tele_ll: np.ndarray, times_s: np.ndarray) -> list[str]:
-    """Judge how far a telemetry CSV's positions moved the images' own EXIF fixes (`moved`, metres, per image with
-    both; `exif_ll`, `tele_ll` those fixes' lat, lon; `times_s` the images' capture times, NaN where unknown):
-    logged beyond TELEMETRY_NOTE_M (median), a warning returned for the summary beyond TELEMETRY_WARN_M (it was in
-    the log only: poses.json and run.json never said it) or where any image moved beyond TELEMETRY_REFUSE_M, an
-    InputError when the telemetry lies beyond TELEMETRY_REFUSE_M from most of the EXIF fixes that are plausible.
-
-    Why the majority of the plausible fixes (rev39: a receiver's stale fix 5 km off at 6 of 10 images put the
-    median beyond the bound, and the log that mends them was refused, the remedy named keeping the wrong
-    positions): a wrong file (another flight's log, coordinates without their sign) disagrees with the EXIF
-    track everywhere, wrong EXIF fixes only on a subset. The fixes the telemetry's own track shows to be no
-    measurement (`image_positions.doubtful_fixes`: held at one point while the telemetry moves, all at one point,
-    beyond a jump the aircraft cannot fly) are left out; of the rest, the telemetry is refused when more than half
-    lie beyond the bound, and taken with a warning counting the wrong EXIF fixes otherwise (none left: taken)."""
-    far = moved > TELEMETRY_REFUSE_M
-    if not len(moved) or ((median := float(np.median(moved))) <= TELEMETRY_NOTE_M and not far.any()):
-        return []
-    said = f"positions from {telemetry}, not the images' EXIF GPS: they differ by {median:.1f} m (median of " \
-           f"{len(moved)} images)"
-    if median <= TELEMETRY_WARN_M and not far.any():
-        log.info("%s", said)
-        return []
-    stale, jumped = doubtful_fixes(_local_metres(exif_ll), _local_metres(tele_ll), times_s)
-    plausible = ~(stale | jumped)
-    disagree = far & plausible
-    counts = [(int(stale.sum()), "stale"), (int(jumped.sum()), "beyond a jump")]
-    if 2 * int(disagree.sum()) > int(plausible.sum()):
-        # kept under errors.MAX_PROBLEM_CHARS (cut there): every remedy must reach the user
-        skipped = ", ".join(f"{k} {what}" for k, what in counts if k)
-        raise InputError(f"its positions lie {float(np.median(moved[plausible])):.0f} m from the images' own EXIF "
-                         f"GPS (median) at {int(disagree.sum())} of {int(plausible.sum())} images"
-                         + (f" (left out: {skipped})" if skipped else "")
-                         + f", beyond GPS error or datum ({TELEMETRY_REFUSE_M:.0f} m): another flight's log, or "
-                         "unsigned coordinates (add GPSLatitudeRef/GPSLongitudeRef columns)? Fix it, or drop its "
-                         "lat/lon columns to keep the images' GPS; if that GPS is wrong, use copies of the images "
-                         "without GPS tags", telemetry)
-    left_out = "; ".join(f"{k} {what}" for k, what in zip(
-        (k for k, _ in counts), ("stale, held at one point while the telemetry moves",
-                                 "beyond a jump the aircraft cannot fly")) if k)
-    if stale.all():
-        said += ": the images' own fixes all lie at one point (a receiver without a lock), so the telemetry's are " \
-                "taken"
-    elif far.any():
-        said += f": {int(far.sum())} of the images' own EXIF fixes lie more than {TELEMETRY_REFUSE_M:.0f} m from it" \
-                f" and it agrees with {int(plausible.sum() - disagree.sum())} of the {int(plausible.sum())} " \
-                f"plausible ones" + (f" (EXIF fixes {left_out})" if left_out else "") + ": wrong EXIF GPS, " \
-                "mended by the telemetry's positions"
-    else:
-        said += ": the telemetry of another flight, or another datum?"
-    log.warning("%s", said)
-    return [said]
-
-
 def check_prior_options(mount: str | np.ndarray, sensor_width_mm: float | None, epsg: int | None,
                         takeoff_altitude_m: float | None) -> None:
     """Refuse (one-line InputError) options the images' metadata cannot be read with, before any image is read.
@@ -404,7 +334,7 @@ def read_image_priors(
             pos_src["EXIF GPS"] += 1
         if np.isfinite(lat[i]):
             alt[i] = tele_alt[i] if alt_from_telemetry[i] else exif_alt[i]
-    tele_warnings = _telemetry_against_exif(
+    tele_warnings = telemetry_against_exif(
         telemetry, np.asarray(moved), np.asarray(exif_ll).reshape(-1, 2), np.asarray(tele_ll).reshape(-1, 2),
         np.asarray(both_t, np.float64))
     alt = one_vertical_datum(alt, alt_from_telemetry & np.isfinite(alt), tele_alt, exif_alt, telemetry)
