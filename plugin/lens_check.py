@@ -90,6 +90,8 @@ class LensCheck:
     rms_fitted_px: float
     landmarks: int  # landmarks the refit used
     seconds: float = 0.0  # CPU time of the check
+    camera_kind: str = "file"  # where the camera came from (`camera_kind`): names the remedy
+    judged: bool = True  # the poses were found fitting the images, so the lens was judged (`judge_lens`)
 
     @property
     def z(self) -> float:
@@ -126,7 +128,8 @@ class LensCheck:
                 "height_shift_m": r(self.shift_m), "height_shift_se_m": r(self.shift_se_m), "z": r(self.z, 2),
                 "relative_shift": r(self.relative_shift, 4), "flying_height_m": r(self.flying_height_m, 2),
                 "edge_displacement_px": r(self.displacement_px, 2), "rms_given_px": r(self.rms_given_px),
-                "rms_fitted_px": r(self.rms_fitted_px), "landmarks": self.landmarks, "cpu_s": r(self.seconds)}
+                "rms_fitted_px": r(self.rms_fitted_px), "landmarks": self.landmarks, "cpu_s": r(self.seconds),
+                "camera_kind": self.camera_kind, "judged": self.judged}
 
 
 # what would give the right lens, by where the camera came from (`camera_kind`): a refusal that blamed "the camera

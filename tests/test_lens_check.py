@@ -59,6 +59,7 @@ def test_the_right_lens_is_not_called_wrong(flight):
     assert not any("lens" in w for w in run["verdict"]["warnings"])
     assert lens["camera_file"].endswith("right.txt") and lens["landmarks"] >= 16
     assert abs(lens["height_shift_m"]) < 0.02 * ALTITUDE
+    assert lens["camera_kind"] == "file" and lens["judged"] is True  # the toy flight's exact poses fit its images
 
 
 def test_flipped_distortion_is_refused_with_its_height_error(flight):

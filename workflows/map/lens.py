@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -149,6 +150,8 @@ def lens_stage(landmarks: Any, camera: Camera, camera_file: str, flying_height_m
     if check is None:
         log.info("the lens is not checked against the images: %s", f"{len(landmarks)} landmarks" if
                  camera.model in CHECKED_MODELS else f"a {camera.model} camera's terms are not fixed by a map")
+    if check is not None:
+        check = replace(check, camera_kind=kind, judged=poses_fit)
     q = params.quality
     warnings, refusals = judge_lens(check, q.lens_shift_margin, q.warn_lens_height_shift, q.max_lens_height_shift,
                                     kind, poses_fit)
