@@ -20,7 +20,7 @@ from sosmatch.plugin.lens_check import (
     lens_displacement_px,
     refit_camera,
 )
-from sosmatch.plugin.params import Params
+from sosmatch.plugin.params import Params, with_overrides
 from sosmatch.tools.toy_sessions import render_disc_flight
 from sosmatch.workflows import map as map_workflow
 from sosmatch.workflows.map import lens as lens_module
@@ -33,13 +33,13 @@ K = (0.8 * WIDTH, 0.8 * WIDTH, WIDTH / 2, HEIGHT / 2)
 LENS = Camera(WIDTH, HEIGHT, *K, "SIMPLE_RADIAL", (-0.18,))  # 64 deg wide, 15 px at the corners
 
 
-def _map(root: Path, name: str, camera: Camera) -> tuple[dict, bool]:
+def _map(root: Path, name: str, camera: Camera, params: Params | None = None) -> tuple[dict, bool]:
     """The map of the flight in `root` through `camera` (run.json, refused?)."""
     write_cameras_txt(root / f"{name}.txt", {1: camera})
     refused = False
     try:
-        map_workflow.run(Params(), map_workflow.load_inputs(root / "images", root / "poses.csv", root / f"{name}.txt"),
-                         root / name, progress=False)
+        inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / f"{name}.txt")
+        map_workflow.run(params or Params(), inputs, root / name, progress=False)
     except MapRefused:
         refused = True
     return json.loads((root / name / "run.json").read_text()), refused
@@ -172,3 +172,13 @@ def test_a_check_that_fails_keeps_the_map(flight, monkeypatch, caplog):
                                  "error": "RuntimeError: bundle adjustment failed"}
     assert any(w.startswith("lens not checked: RuntimeError") for w in run["verdict"]["warnings"])
     assert any("lens not checked" in r.getMessage() and r.levelname == "WARNING" for r in caplog.records)
+
+
+def test_without_the_pose_checks_word_a_wrong_lens_is_only_a_warning(flight):
+    """The map passes the pose check's finding to the lens check: with the pose check off nothing says the poses
+    fit the images, so the flipped lens (refused above) is a warning naming both causes, the map kept."""
+    flipped = Camera(WIDTH, HEIGHT, *K, "SIMPLE_RADIAL", (0.18,))
+    run, refused = _map(flight, "unjudged", flipped, with_overrides(Params(), {"pose_check.enabled": False}))
+    assert not refused and run["lens_check"]["judged"] is False and run["lens_check"]["relative_shift"] > 0.1
+    said = [w for w in run["verdict"]["warnings"] if "unjudged.txt puts the map" in w]
+    assert len(said) == 1 and said[0].startswith("the images fit another lens or other poses")
