@@ -9,19 +9,22 @@ import numpy as np
 import pytest
 
 from sosmatch.database.cameras import write_cameras_txt
+from sosmatch.plugin.errors import MAX_PROBLEM_CHARS
 from sosmatch.plugin.geometry import Camera
 from sosmatch.plugin.lens_check import (
     LensCheck,
+    camera_kind,
     jackknife_se,
     judge_lens,
     landmark_groups,
     lens_displacement_px,
     refit_camera,
 )
-from sosmatch.plugin.params import Params
+from sosmatch.plugin.params import Params, with_overrides
 from sosmatch.tools.toy_sessions import render_disc_flight
 from sosmatch.workflows import map as map_workflow
-from sosmatch.workflows.map.quality import MapRefused
+from sosmatch.workflows.map import lens as lens_module
+from sosmatch.workflows.map.quality import FIGURE, MapRefused
 
 pycolmap = pytest.importorskip("pycolmap")
 
@@ -30,13 +33,13 @@ K = (0.8 * WIDTH, 0.8 * WIDTH, WIDTH / 2, HEIGHT / 2)
 LENS = Camera(WIDTH, HEIGHT, *K, "SIMPLE_RADIAL", (-0.18,))  # 64 deg wide, 15 px at the corners
 
 
-def _map(root: Path, name: str, camera: Camera) -> tuple[dict, bool]:
+def _map(root: Path, name: str, camera: Camera, params: Params | None = None) -> tuple[dict, bool]:
     """The map of the flight in `root` through `camera` (run.json, refused?)."""
     write_cameras_txt(root / f"{name}.txt", {1: camera})
     refused = False
     try:
-        map_workflow.run(Params(), map_workflow.load_inputs(root / "images", root / "poses.csv", root / f"{name}.txt"),
-                         root / name, progress=False)
+        inputs = map_workflow.load_inputs(root / "images", root / "poses.csv", root / f"{name}.txt")
+        map_workflow.run(params or Params(), inputs, root / name, progress=False)
     except MapRefused:
         refused = True
     return json.loads((root / name / "run.json").read_text()), refused
@@ -56,6 +59,7 @@ def test_the_right_lens_is_not_called_wrong(flight):
     assert not any("lens" in w for w in run["verdict"]["warnings"])
     assert lens["camera_file"].endswith("right.txt") and lens["landmarks"] >= 16
     assert abs(lens["height_shift_m"]) < 0.02 * ALTITUDE
+    assert lens["camera_kind"] == "file" and lens["judged"] is True  # the toy flight's exact poses fit its images
 
 
 def test_flipped_distortion_is_refused_with_its_height_error(flight):
@@ -64,7 +68,7 @@ def test_flipped_distortion_is_refused_with_its_height_error(flight):
     lens = run["lens_check"]
     assert refused and run["verdict"]["status"] == "refused"
     said = [r for r in run["verdict"]["refusals"] if "flipped.txt" in r]
-    assert len(said) == 1 and "m lower than the lens the images fit" in said[0]
+    assert len(said) == 1 and " m lower (" in said[0] and "than the lens the images fit" in said[0]
     # the ground is z = 0: the map sits below it by about what the check says
     csv = [line for line in (flight / "flipped" / "landmarks.csv").read_text().splitlines() if not line.startswith("#")]
     z_col = csv[0].split(",").index("z")
@@ -80,7 +84,7 @@ def test_forgotten_distortion_is_said(flight):
     lens = run["lens_check"]
     assert not refused and lens["fitted"]["model"] == "OPENCV" and lens["height_shift_m"] > 0
     said = [w for w in run["verdict"]["warnings"] if "pinhole.txt puts the map" in w]
-    assert len(said) == 1 and "check the camera file's distortion" in said[0]
+    assert len(said) == 1 and "fix its distortion" in said[0] and "quality.lens_check=false" in said[0]
 
 
 def test_forgotten_distortion_is_refit_in_a_lens_model():
@@ -117,3 +121,64 @@ def test_judged_on_significance_and_consequence():
     assert not refusals and "cams.txt puts the map 7.0 m higher" in warnings[0]
     warnings, refusals = judge_lens(_check(25.0, 1.0), *args)
     assert not warnings and "cams.txt puts the map 25.0 m lower" in refusals[0]
+
+
+def test_a_lens_is_refused_only_on_poses_that_fit_the_images():
+    """rev40: the refit absorbs pose errors (a barrel lens k1 -0.27..-0.38 invented for a correct pinhole camera on
+    unrefined EXIF tag poses, heights 6.4-7.7 % of H; z up to 10.3 on correct lenses): without the pose check's
+    word that the poses fit the images, a large shift is a warning naming both causes, never a refusal."""
+    args = (5.0, 0.05, 0.10)
+    for shift in (7.0, 25.0):
+        warnings, refusals = judge_lens(_check(shift, 0.5), *args, "file", False)
+        assert not refusals and len(warnings) == 1
+        assert warnings[0].startswith("the images fit another lens or other poses: ")
+        assert "better poses, or fix its distortion" in warnings[0]
+    assert judge_lens(_check(3.0, 0.1), *args, "file", False) == ([], [])  # small: nothing either way
+
+
+def test_the_remedy_follows_where_the_camera_came_from():
+    """rev40 defect 2: a camera from EXIF (no file to edit, no --camera beside --pose-source exif) or from a
+    model was blamed on "the camera file"; each source names its own remedy and the switch off, in one cut line."""
+    assert camera_kind("EXIF of GEOW/images", "GEOW/images") == "EXIF"
+    assert camera_kind("model/sparse/0", "model/sparse/0") == "model"
+    assert camera_kind("P/cameras.txt", "P/poses.csv") == "file"
+    said = {}
+    for kind in ("file", "EXIF", "model"):
+        _, refusals = judge_lens(_check(25.0, 1.0), 5.0, 0.05, 0.10, kind)
+        said[kind] = refusals[0]
+        assert "--set quality.lens_check=false" in refusals[0]
+    assert "fix its distortion" in said["file"]
+    assert "poses-from-exif writes cameras.txt" in said["EXIF"] and "--poses/--camera" in said["EXIF"]
+    assert "model's camera" in said["model"] and "camera file" not in said["model"]
+    # the whole refusal line (raise_if_refused's wording) keeps the remedy and the pointer with a long path
+    long_path = "/data/surveys/2026-12-07/site-with-a-long-name/flight-03/exif-poses/camera-from-the-drone.txt"
+    check = LensCheck(long_path, LENS, LENS, 25.0, 1.0, 100.0, 5.0, 3.0, 2.0, 100)
+    for kind in said:
+        _, refusals = judge_lens(check, 5.0, 0.05, 0.10, kind)
+        assert refusals[0].count(long_path) == 1
+        assert len(f"map refused: {refusals[0]} (see {FIGURE} and run.json)") <= MAX_PROBLEM_CHARS
+
+
+def test_a_check_that_fails_keeps_the_map(flight, monkeypatch, caplog):
+    """rev40 defect 4: an error inside the refit (here the bundle adjustment raising, as a pycolmap error would)
+    threw away the finished map with a traceback; now the map is written, the failure warned and recorded."""
+    def broken(*_args, **_kwargs):
+        raise RuntimeError("bundle adjustment failed")
+
+    monkeypatch.setattr(lens_module, "_solve", broken)
+    run, refused = _map(flight, "broken", LENS)
+    assert not refused and (flight / "broken" / "landmarks.sosmap").is_file()
+    assert run["lens_check"] == {"camera_file": str(flight / "broken.txt"),
+                                 "error": "RuntimeError: bundle adjustment failed"}
+    assert any(w.startswith("lens not checked: RuntimeError") for w in run["verdict"]["warnings"])
+    assert any("lens not checked" in r.getMessage() and r.levelname == "WARNING" for r in caplog.records)
+
+
+def test_without_the_pose_checks_word_a_wrong_lens_is_only_a_warning(flight):
+    """The map passes the pose check's finding to the lens check: with the pose check off nothing says the poses
+    fit the images, so the flipped lens (refused above) is a warning naming both causes, the map kept."""
+    flipped = Camera(WIDTH, HEIGHT, *K, "SIMPLE_RADIAL", (0.18,))
+    run, refused = _map(flight, "unjudged", flipped, with_overrides(Params(), {"pose_check.enabled": False}))
+    assert not refused and run["lens_check"]["judged"] is False and run["lens_check"]["relative_shift"] > 0.1
+    said = [w for w in run["verdict"]["warnings"] if "unjudged.txt puts the map" in w]
+    assert len(said) == 1 and said[0].startswith("the images fit another lens or other poses")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -13,6 +14,7 @@ from ...plugin.geometry import Camera
 from ...plugin.lens_check import (
     CHECKED_MODELS,
     LensCheck,
+    LensNotChecked,
     jackknife_se,
     landmark_groups,
     lens_displacement_px,
@@ -127,20 +129,30 @@ def check_lens(rec: Any, camera: Camera, camera_file: str, flying_height_m: floa
                      _rms(whole, ids, loss), len(ids), time.process_time() - t0)
 
 
-def lens_stage(landmarks: Any, camera: Camera, camera_file: str, flying_height_m: float, params: Params
-               ) -> tuple[LensCheck | None, list[str], list[str]]:
+def lens_stage(landmarks: Any, camera: Camera, camera_file: str, flying_height_m: float, params: Params,
+               kind: str = "file", poses_fit: bool = True
+               ) -> tuple[LensCheck | LensNotChecked | None, list[str], list[str]]:
     """The map's lens check (`check_lens` on the triangulation's reconstruction) and its (warnings, refusals)
-    by `plugin.lens_check.judge_lens` at the map's `params.quality` limits; (None, [], []) for a map without the
-    landmarks to check it or with the check off (`quality.lens_check`)."""
+    by `plugin.lens_check.judge_lens` at the map's `params.quality` limits (`kind`: where the camera came from;
+    `poses_fit`: the pose check found the poses fitting the images); (None, [], []) for a map without the
+    landmarks to check it or with the check off (`quality.lens_check`). A check that fails keeps the map: a
+    warning and a `LensNotChecked` (rev40: a refit error threw away a finished map with a traceback)."""
     from ...plugin.lens_check import judge_lens
 
     rec = getattr(landmarks, "reconstruction", None)
     if not params.quality.lens_check or rec is None or not len(landmarks):
         return None, [], []
-    check = check_lens(rec, camera, camera_file, flying_height_m, params.triangulation.pixel_sigma_px)
+    try:
+        check = check_lens(rec, camera, camera_file, flying_height_m, params.triangulation.pixel_sigma_px)
+    except Exception as e:  # noqa: BLE001 -- a check, not the map: whatever the refit raises must not lose the map
+        failed = LensNotChecked(camera_file, f"{type(e).__name__}: {e}"[:200])
+        return failed, [failed.line()], []
     if check is None:
         log.info("the lens is not checked against the images: %s", f"{len(landmarks)} landmarks" if
                  camera.model in CHECKED_MODELS else f"a {camera.model} camera's terms are not fixed by a map")
+    if check is not None:
+        check = replace(check, camera_kind=kind, judged=poses_fit)
     q = params.quality
-    warnings, refusals = judge_lens(check, q.lens_shift_margin, q.warn_lens_height_shift, q.max_lens_height_shift)
+    warnings, refusals = judge_lens(check, q.lens_shift_margin, q.warn_lens_height_shift, q.max_lens_height_shift,
+                                    kind, poses_fit)
     return check, warnings, refusals

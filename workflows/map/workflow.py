@@ -24,6 +24,7 @@ from ...database.colmap_model import write_model, write_ply
 from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
 from ...database.outputs import OutputDir
 from ...database.segmentation_models import SegmentationModels, segmentation_models
+from ...plugin.lens_check import camera_kind
 from ...plugin.map_quality import MapQuality, Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
 from .inputs import (
@@ -421,8 +422,11 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     t = time.perf_counter()
     # the lens against the images with the poses fixed: a wrong distortion moves the whole map in height, which
     # nothing above sees when the flight recorded no height above take-off (`plugin.lens_check`)
-    lens, lens_warnings, lens_refusals = lens_stage(landmarks, camera, inputs.sources.get("camera", "the camera"),
-                                                    quality.flying_height_m, params)
+    # judged only on poses the pose check found fitting the images: the refit absorbs pose errors too (rev40)
+    camera_source = inputs.sources.get("camera", "the camera")
+    lens, lens_warnings, lens_refusals = lens_stage(landmarks, camera, camera_source, quality.flying_height_m, params,
+                                                    camera_kind(camera_source, inputs.sources.get("poses", "")),
+                                                    bool(poses_fit(checked, params)))
     for said in lens_warnings + lens_refusals:
         log.warning("%s: %s", out.path, said)
     verdict = joined(verdict, Verdict(refusals=lens_refusals, warnings=lens_warnings))
