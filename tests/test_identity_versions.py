@@ -99,7 +99,7 @@ def test_refusal_names_the_set_that_resumes_only_where_one_does(tmp_path):
     params = Params()  # today's output at the default: a user's value is refused, with the --set that resumes it
     _make_output(tmp_path / "out", identity(params).today)
     other = with_overrides(params, {"quality.min_jpeg_quality": 50.0})
-    with pytest.raises(InputError, match=r"quality.min_jpeg_quality \(d1c47fd: a warning\); --set "
+    with pytest.raises(InputError, match=r"quality.min_jpeg_quality=75.0 or before it \(d1c47fd: a warning\); --set "
                                          "quality.min_jpeg_quality=75.0 would accept it"):
         open_output_dir(tmp_path / "out", "changes", identity(other))
     other_maps = identity(other, ("a", "c"))
@@ -181,3 +181,15 @@ def test_a_file_of_an_earlier_version_is_this_output(tmp_path):
     other = with_overrides(params, {"quality.min_jpeg_quality": 50.0})
     with pytest.raises(InputError, match="quality.min_jpeg_quality=75.0 would accept it"):
         OutputFiles([tmp_path / "check.json"], "check-poses", identity(other))
+
+
+def test_the_note_names_the_value_an_output_was_made_with():
+    """A setting registered at its default (quality.lens_check: true) is omitted from identities at that value, so
+    a map refused at true and run again at false is "another output": the note said "the earlier behaviour of
+    quality.lens_check ... --set quality.lens_check=true would accept it", as if true were not today's default
+    (rev40). It names the value the output was made with."""
+    from sosmatch.plugin.params.identity import _BY_NAME, otherwise_note
+
+    note = otherwise_note([_BY_NAME["quality.lens_check"]])
+    assert note.startswith("one made with quality.lens_check=true or before it (9eab6db"), note
+    assert note.endswith("--set quality.lens_check=true would accept it"), note

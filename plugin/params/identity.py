@@ -195,6 +195,12 @@ def otherwise_note(changed: list[Added]) -> str:
     stuck = [a.name for a in changed if a.neutral is NO_NEUTRAL]
     how = (f"no value of {', '.join(stuck)} behaves as before" if stuck else
            " ".join(f"--set {a.name}={json.dumps(a.neutral)}" for a in changed) + " would accept it")
+    if len(changed) == 1 and not stuck:
+        # the value it was made with, which may be today's default (a setting registered at its default, as
+        # quality.lens_check: a map refused at true and run again at false read "the earlier behaviour of
+        # quality.lens_check ... --set quality.lens_check=true", as if true were not the default; rev40)
+        a = changed[0]
+        return f"one made with {a.name}={json.dumps(a.neutral)} or before it ({a.since}: {a.change}); {how}"
     return f"one made with the earlier behaviour of {said}; {how}"
 
 
