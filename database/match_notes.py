@@ -115,7 +115,7 @@ def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
         return None
     ver = doc.get("verification")
     if match.source != "verified" or not isinstance(ver, dict):
-        theta = "" if match.min_associations is None else f", fewer than theta_S {match.min_associations}"
+        theta = "" if match.min_associations is None else f", no more than theta_S {match.min_associations}"
         return f"no match, not verified (its best candidate holds {len(match.associations)} associations{theta})"
     chance = ver.get("chance") if isinstance(ver.get("chance"), dict) else {}
     p, mean = chance.get("p_value"), chance.get("mean")

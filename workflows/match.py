@@ -113,7 +113,7 @@ class MatchResult:
                     f"{self.out_dir / 'match.json'}")
         if s.consensus is not None and not s.consensus.accepted:
             return (f"{head}, no match: the consensus of {len(s.consensus.members)} agreeing hypotheses holds "
-                    f"{len(s.consensus.associations)} associations under its refitted transform, fewer than "
+                    f"{len(s.consensus.associations)} associations under its refitted transform, no more than "
                     f"theta_S; not verified ({self.times()}) -> {self.out_dir / 'match.json'}")
         if self.transform is None:
             return f"{head}, no match ({self.times()}) -> {self.out_dir / 'match.json'}"
