@@ -280,7 +280,7 @@ def parse_match(data: Any, path: str | Path = "<match>") -> MatchSummary:
     # hypothesis, else the largest one (then not accepted).
     if consensus is not None and consensus.get("transform") is not None:
         summary.source = "consensus"
-        # a consensus that holds fewer than theta_S associations is no answer (written since 2026-12-04)
+        # a consensus that holds no more than theta_S associations is no answer (written since 2026-12-04)
         summary.consensus_accepted = _bool(consensus.get("accepted", True), "consensus.accepted", path)
         summary.consensus_transform = _sim3(consensus["transform"], "consensus.transform", path)
         summary.consensus_associations = parse_associations(consensus.get("associations"), "consensus.associations",

@@ -74,7 +74,7 @@ def check_georeferences(match: MatchSummary, map_a: LandmarkMap, map_b: Landmark
 def no_match_text(best_support: int | None, runner_up: int, chance_p: float | None = None,
                   chance_mean: float | None = None, beyond_prior: bool = False, layout: str | None = None,
                   min_associations: int | None = None, tested_support: int | None = None,
-                  row_placements: float | None = None) -> str:
+                  row_placements: float | None = None, min_ratio: float | None = None) -> str:
     """What `sosmatch match` says of a verification that found no match: "verification: no match (the best
     candidate holds 13 associations, B placed elsewhere 13, chance p 1 (mean 12.3))"; `best_support` None: no
     candidate, because no window hypothesis held more than theta_S (`min_associations`, when known) associations.
@@ -86,7 +86,9 @@ def no_match_text(best_support: int | None, runner_up: int, chance_p: float | No
     when they differ: "holds 10 associations, B placed elsewhere 8, chance p 0.002" passes both documented tests
     on its face, and the ratio test refused 9 < 1.2 x 8 (nu44). `row_placements`: the chance test's placements laying
     a row of landmarks on a row (`plugin.row_placements`; match.json's `row_placements`), said when there were any:
-    "chance p 1 (mean 0.8)" of 22 pairs reads as a contradiction when rows laid on rows are what reach them."""
+    "chance p 1 (mean 0.8)" of 22 pairs reads as a contradiction when rows laid on rows are what reach them.
+    `min_ratio`: the verification's ratio test (match.json `method.min_ratio`); when the tested support beats the
+    runner-up by it, the layout did not refuse the candidate, so the refusal is not said to be the layout's."""
     if best_support is None:
         # said, not left bare: a user saw "no match" on maps of 3-6 landmarks and could not tell why (nu27)
         theta = "" if min_associations is None else f" = {min_associations}"
@@ -97,6 +99,11 @@ def no_match_text(best_support: int | None, runner_up: int, chance_p: float | No
     prior = ", beyond the position prior" if beyond_prior else ""
     tested = (f" ({tested_support} as tested, before its tilt refit)"
               if tested_support is not None and tested_support != best_support else "")
+    compared = best_support if tested_support is None else tested_support
+    if min_ratio is not None and compared >= min_ratio * runner_up:
+        # the ratio test passed: the chance test (or the prior) refused it. A tree line of 70 true pairs was said
+        # to repeat at "40 pairs against 70" while rows laid on rows had made its chance p 1 (rev42)
+        layout = None
     if layout and runner_up <= 2 * best_support:  # about as good: the site repeats itself
         return (f"verification: no match (the layout repeats: {layout} explains {runner_up} pairs against the best "
                 f"candidate's {best_support}{tested}{chance}{prior})")
@@ -115,7 +122,7 @@ def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
         return None
     ver = doc.get("verification")
     if match.source != "verified" or not isinstance(ver, dict):
-        theta = "" if match.min_associations is None else f", fewer than theta_S {match.min_associations}"
+        theta = "" if match.min_associations is None else f", no more than theta_S {match.min_associations}"
         return f"no match, not verified (its best candidate holds {len(match.associations)} associations{theta})"
     chance = ver.get("chance") if isinstance(ver.get("chance"), dict) else {}
     p, mean = chance.get("p_value"), chance.get("mean")
@@ -128,7 +135,8 @@ def refusal_note(doc: dict[str, Any], match: MatchSummary) -> str | None:
                          bool(ver.get("beyond_prior", False)), _layout_text(ver.get("layout_rival")),
                          match.min_associations,
                          tested if isinstance(tested, int) and not isinstance(tested, bool) else None,
-                         rows if isinstance(rows, (int, float)) and math.isfinite(rows) else None)
+                         rows if isinstance(rows, (int, float)) and math.isfinite(rows) else None,
+                         _number(ver.get("method"), "min_ratio"))
 
 
 def _layout_text(rival: Any) -> str | None:
@@ -140,3 +148,10 @@ def _layout_text(rival: Any) -> str | None:
     if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in (shift, turn)):
         return None
     return LayoutRival(0, float(shift), float(turn)).text()
+
+
+def _number(table: Any, key: str) -> float | None:
+    """table[key] when `table` is a dict and the value a finite number, else None (absent or malformed)."""
+    value = table.get(key) if isinstance(table, dict) else None
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return float(value) if ok else None

@@ -180,11 +180,12 @@ def test_peel_on_association_ids_equals_compact_then_peel(space_extra, k):
     assert np.array_equal(got_ids[f1], v1[sel]) and np.array_equal(got_ids[f2], v2[sel])
 
 
-def test_a_consensus_that_holds_fewer_than_theta_s_is_no_answer():
+def test_a_consensus_that_holds_no_more_than_theta_s_is_no_answer():
     """Two accepted window hypotheses of 8 associations each whose transforms agree (within theta_eps on the larger
     one's landmarks) but whose associations, refitted together, leave fewer than theta_S within theta_eps: the
     seventh new-user sweep's `match --no-verify` of two different worlds answered such a consensus of 5 (theta_S
-    7) as a match. The consensus must hold theta_S itself, the bar each hypothesis met."""
+    7) as a match. The consensus must hold more than theta_S itself (spec 2.6, |S| > theta_S), the bar each
+    hypothesis met: exactly theta_S was accepted until rev42."""
     from sosmatch.plugin.association.hypotheses import WindowHypothesis, consensus_transform
     from sosmatch.plugin.association.rigid import Transform
 
@@ -206,6 +207,8 @@ def test_a_consensus_that_holds_fewer_than_theta_s_is_no_answer():
     assert kept is not None and len(kept.associations) == 8 and kept.accepted
     few = consensus_transform(pa, b_with(5), [hyp(pairs[0]), hyp(pairs[1])], [0, 1], params)
     assert few is not None and len(few.associations) == 5 and not few.accepted
+    exact = consensus_transform(pa, b_with(7), [hyp(pairs[0]), hyp(pairs[1])], [0, 1], params)
+    assert exact is not None and len(exact.associations) == 7 and not exact.accepted
 
 
 def groups_by_definition(points_b, hyps, ranked, eps, max_turn_deg):

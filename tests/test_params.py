@@ -296,3 +296,40 @@ def test_the_segmenters_working_pixel_is_never_finer_than_its_ground_floor():
     inverted = with_overrides(p, {"segmentation.classical_min_ground_resolution_m": 0.5})
     side = for_ground_resolution(inverted, gsd, 640, 480).segmentation.classical_max_side
     assert gsd * 640 / side <= 0.5 and gsd * 640 / side >= p.segmentation.classical_ground_resolution_m
+
+
+@pytest.mark.parametrize("override, fragment", [
+    # rev42: each value within its range, together unusable, and once searched silently: theta_S 6 needs more than
+    # 6 associations from a window of 3 landmarks ("no match", exit 0), and stride 100 over windows of 50 never
+    # searched landmarks 50-99 of every 100
+    ("association.window_length=3", "window_length 3 is at most association.min_associations (theta_S) 6"),
+    ("association.window_length=6", "window_length 6 is at most association.min_associations (theta_S) 6"),
+    ("association.window_stride=100", "window_stride 100 exceeds association.window_length 50"),
+])
+def test_windows_that_cannot_work_are_refused(tmp_path, capsys, override, fragment):
+    import dataclasses
+
+    from sosmatch.plugin.params import AssociationParams
+    from sosmatch.tools.cli import main
+
+    assert main(["config", "check", "--set", override]) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and len(err.strip().splitlines()) == 1
+    cfg = tmp_path / "c.toml"
+    section, kv = override.split(".", 1)
+    cfg.write_text(f"[{section}]\n{kv}\n")
+    assert main(["config", "check", "--config", str(cfg)]) == 2
+    err = capsys.readouterr().err
+    assert str(cfg) in err and fragment in err
+    key, value = kv.split("=")
+    with pytest.raises(InputError, match=fragment.replace("(", r"\(").replace(")", r"\)")):
+        dataclasses.replace(AssociationParams(), **{key: int(value)})
+
+
+def test_windows_at_the_edge_of_working_are_kept(capsys):
+    from sosmatch.tools.cli import main
+
+    # a window one landmark longer than theta_S can hold a match; a stride equal to the length leaves no gap
+    assert main(["config", "check", "--set", "association.window_length=7", "--set",
+                 "association.window_stride=7"]) == 0
+    assert main(["config", "check", "--set", "association.min_associations=49"]) == 0

@@ -65,6 +65,7 @@ class MatchResult:
     cpu_seconds: float = float("nan")  # CPU time of the same (all threads): the honest figure on a shared machine
     # the accepted answer contradicts the two maps' georeferences (`match_answer.georeference_disagreement`)
     georeferences_disagree: bool = False
+    min_ratio: float | None = None  # the verification's ratio test (`no_match_text` names the refusal's cause)
 
     @property
     def accepted(self) -> bool:
@@ -99,7 +100,7 @@ class MatchResult:
                                      None if v.layout_rival is None else v.layout_rival.text(),
                                      None if ans.searched is None else ans.searched.min_associations,
                                      None if v.best is None else v.support,
-                                     None if v.chance is None else v.chance.row_placements)
+                                     None if v.chance is None else v.chance.row_placements, self.min_ratio)
                 return f"{head}, {said} ({self.times()}) -> {self.out_dir / 'match.json'}"
             _, _, yaw = roll_pitch_yaw_deg(self.transform.rotation)
             near = (f" within {ans.searched.position_prior_m:g} m (horizontally) of the georeference"
@@ -113,7 +114,7 @@ class MatchResult:
                     f"{self.out_dir / 'match.json'}")
         if s.consensus is not None and not s.consensus.accepted:
             return (f"{head}, no match: the consensus of {len(s.consensus.members)} agreeing hypotheses holds "
-                    f"{len(s.consensus.associations)} associations under its refitted transform, fewer than "
+                    f"{len(s.consensus.associations)} associations under its refitted transform, no more than "
                     f"theta_S; not verified ({self.times()}) -> {self.out_dir / 'match.json'}")
         if self.transform is None:
             return f"{head}, no match ({self.times()}) -> {self.out_dir / 'match.json'}"
@@ -470,6 +471,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
                              ans.transform if ans.accepted else None, 0.0, ans)
         result.georeferences_disagree = geo_warning is not None
+        result.min_ratio = params.verification.min_ratio
         result.seconds, result.cpu_seconds = time.perf_counter() - t0, time.process_time() - cpu0
         doc = match_to_json(result, params)
         doc["search_mode"]["derived"] = derivation.record

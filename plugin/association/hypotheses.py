@@ -53,8 +53,9 @@ class Consensus:
     transform: Transform
     associations: np.ndarray  # (k, 2) associations of the members that fit the consensus transform within eps
     rms_m: float  # residual of those associations under the consensus transform
-    # the consensus holds theta_S associations itself, the bar every window hypothesis met: agreeing chance
-    # hypotheses of two different worlds (8 associations each) refitted to 5 and were once the accepted answer
+    # the consensus holds more than theta_S associations itself, the bar every window hypothesis met (spec section
+    # 2.6, |S| > theta_S): agreeing chance hypotheses of two different worlds (8 associations each) refitted to 5 and
+    # were once the accepted answer; it was ">= theta_S" until rev42, one below the hypotheses' own bar
     accepted: bool = True
 
 
@@ -259,4 +260,4 @@ def consensus_transform(points_a: np.ndarray, points_b: np.ndarray, hyps: list[W
     res = np.linalg.norm(transform.apply(points_b[assoc[:, 1]]) - points_a[assoc[:, 0]], axis=1)
     inl = assoc[res <= eps]
     rms = float(np.sqrt(np.mean(res[res <= eps] ** 2))) if len(inl) else float("nan")
-    return Consensus(sorted(best), transform, inl, rms, bool(len(inl) >= params.min_associations))
+    return Consensus(sorted(best), transform, inl, rms, bool(len(inl) > params.min_associations))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..errors import InputError
 from .checks import (
     Checked,
     count,
@@ -95,6 +96,29 @@ class AssociationParams(Checked):
     # every summer-winter case of worlds 5, 11, 23, 42 reaches recall 0.90-1.00 at P >= 0.99 and NAIP matches
     # (BENCHMARKS.md, issue 16). The paper preset keeps the paper's values
     derive_from_maps: bool = flag(True)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_windows(self)
+
+
+def check_windows(p: AssociationParams) -> None:
+    """Refuse windows that cannot work, however the params are made (a config file, --set, `config check`,
+    direct construction): each field within its range is not enough. Both searches (`windows` "id" and "spatial")
+    and each map's window factor scale length and stride alike, so the configured pair decides."""
+    if p.window_length <= p.min_associations:
+        # a window hypothesis is accepted only with more than theta_S associations, each of a distinct landmark of
+        # the window: `--set association.window_length=3` searched 315 window pairs for a "no match", exit 0 (rev42)
+        raise InputError(f"association.window_length {p.window_length} is at most association.min_associations "
+                         f"(theta_S) {p.min_associations}: a window of {p.window_length} landmarks holds at most "
+                         f"{p.window_length} associations and a match needs more than {p.min_associations}; raise "
+                         "window_length or lower min_associations")
+    if p.window_stride > p.window_length:
+        # windows [0, 50), [100, 150), ... leave landmarks 50-99 of every 100 out of every search, silently (rev42).
+        # Refused rather than clamped: a clamped stride is a different search than the one asked for and recorded
+        raise InputError(f"association.window_stride {p.window_stride} exceeds association.window_length "
+                         f"{p.window_length}: the landmarks between windows would never be searched; set "
+                         "window_stride <= window_length")
 
 
 @dataclass(frozen=True)
