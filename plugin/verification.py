@@ -11,6 +11,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .association.rigid import tilt_deg
 from .chance import (
     ChanceModel,
     chance_pairs,
@@ -54,6 +55,9 @@ class Verification:
     # chance: B moved by a displacement that repeats in A's layout or turned by one of its symmetries (None: another
     # rival is, or chance reaches it)
     layout_rival: LayoutRival | None = None
+    # the answer is the free 6-DOF fit because the maps are tilted against each other (`maps_tilted`): the angle
+    # between their vertical axes, deg (None: the level fit, as for gravity-aligned maps)
+    tilted_deg: float | None = None
 
 
 class _NearTried:
@@ -129,7 +133,10 @@ def verify_alignments(
     is then observable, which one window's 8-20 inliers could not resolve, and the landmarks that the tilt kept
     out of the 4-DOF pairs join; with few or noisy heights the prior keeps the maps near level (a free 6-DOF
     refit fitted the EKF frames' local distortion: 1.5 deg of tilt between maps that agree within 0.4 deg).
-    None: keep the `dof` fit. `tilt_significance` (the F test of a tilt in those heights) is reported.
+    None: keep the `dof` fit. `tilt_significance` (the F test of a tilt in those heights) is reported. Maps tilted
+    against each other beyond what the prior lets through (`maps_tilted`: the test sees the tilt and the free 6-DOF
+    refit pairs clearly more landmarks) get that free fit as the answer (`Verification.tilted_deg`), and the rivals
+    and chance below judge it, with its freedom, as `with_scale` does for a scale.
     Chance (`sequential_chance`, `chance_test`): up to `chance_starts` refinements from random placements of B over A
     (the map of the smaller footprint over the other, `chance.placed_map_is_a`; within `prior_m` of where it is
     when both maps share one frame, 0: anywhere) measure the support chance
@@ -175,16 +182,23 @@ def verify_alignments(
     # are the same alignment caught on a slightly different set of chance pairs (seen across seasons: 2-3 m
     # apart with |support| within 1), i.e. its uncertainty, not a contradiction.
     support = len(best.associations)
-    rigid, winner_pairs, tilt_p = None, None, None
+    rigid, winner_pairs, tilt_p, tilted_deg = None, None, None, None
     if final_dof == 6 and dof != 6 and support >= 3:
         tilt_p = tilt_significance(pa_all, pb_all, best)
         rigid = tilted_alignment(pa_all, sizes_a, pb_all, sizes_b, best, gate_m, max_size_difference,
                                  tilt_prior_deg, z_weight, tree_a)
-        # the pairs of the rigid alignment the winner belongs to, over the whole overlap (the judge of which
-        # other refinements found the winner again; the answer keeps the fit above)
-        winner_pairs = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, rigid.transform, gate_m,
-                                        max_size_difference, dof=7 if with_scale else 6, z_weight=z_weight,
-                                        tree_a=tree_a).associations
+        # the rigid alignment the winner belongs to, over the whole overlap: its pairs judge which other
+        # refinements found the winner again; the answer keeps the fit above unless the maps are tilted
+        free = refine_alignment(pa_all, sizes_a, pb_all, sizes_b, rigid.transform, gate_m, max_size_difference,
+                                dof=7 if with_scale else 6, z_weight=z_weight, tree_a=tree_a)
+        winner_pairs = free.associations
+        if maps_tilted(tilt_p, free, rigid, min_ratio, false_alarm):
+            # the maps' vertical axes differ (frames not both gravity-aligned): the level fit with its 1 deg prior
+            # kept only the pairs near the centroid (rev42: roll 18 deg, 34 of 140 pairs, 15.9 m off at the far
+            # end). The answer is the free fit, and the rivals and chance below judge it, with its freedom.
+            best, rigid, fit_dof = free, None, 7 if with_scale else 6
+            support, probe = len(best.associations), pb_all[best.associations[:, 1]]
+            tilted_deg = tilt_deg(best.transform.rotation)
     # A rival counts the pairs the winner does not explain (`chance_pairs`), as the chance placements and the
     # displaced controls below do: a candidate refined to the edge of the winner's basin (turned a few degrees
     # about the winner's pairs) holds many of them and is no evidence that B lies elsewhere (a held-out world's
@@ -235,7 +249,29 @@ def verify_alignments(
             or chance_test(samples, layout_best.support, chance.trials, opportunities).p_value <= false_alarm):
         layout_rival = layout_best
     return Verification(best, runner_up, len(refined), bool(support > min_support and clear and not beyond),
-                        support, clear, chance, tilt_p, beyond, layout_rival)
+                        support, clear, chance, tilt_p, beyond, layout_rival, tilted_deg)
+
+
+def maps_tilted(tilt_p: float, free: Alignment, level: Alignment, min_ratio: float, false_alarm: float) -> bool:
+    """Whether the verification's answer is the free (6-DOF) refit rather than the level fit tilted within its prior
+    (`tilted_alignment`): the level fit's heights show a tilt (`tilt_significance` p <= `false_alarm`) and the free
+    fit pairs clearly more landmarks (at least `min_ratio` times as many, the verification's own "clearly beats").
+    Evidence, as the scale's refit is kept only with more pairs: two gravity-aligned maps (EKF frames within 1-2 deg)
+    pair about as many either way and keep the level fit; maps whose frames are tilted 10-22 deg against each other
+    (SLAM / VIO local frames, a COLMAP model not registered to gravity) lose most pairs to the level fit. Near 10 deg
+    the level fit still pairs nearly all (rev42: 139 of 140) but places the far ones beyond the gate (2.4 m): a free
+    fit at least as well supported whose tilt is beyond any two gravity-aligned frames' (`FREE_TILT_DEG`) is taken
+    too."""
+    if tilt_p > false_alarm:
+        return False
+    n_free, n_level = len(free.associations), len(level.associations)
+    return bool(n_free >= min_ratio * max(n_level, 1)
+                or (n_free >= n_level and tilt_deg(free.transform.rotation) >= FREE_TILT_DEG))
+
+
+# a relative tilt no two gravity-aligned maps show: EKF frames differ by 0.2-1.4 deg on the synthetic worlds, and a
+# free refit of such maps found at most 1.5 deg (`tilted_fit`); 6 x the default tilt prior
+FREE_TILT_DEG = 6.0
 
 
 def winner_chance(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b: np.ndarray, sizes_b: np.ndarray | None,

@@ -349,6 +349,17 @@ def _georeference_warning(ans: Any, path_b: str | Path, radius_m: float) -> str 
     return None
 
 
+def _tilt_warning(ans: Any, a: str | Path, b: str | Path) -> str | None:
+    """The warning when an accepted answer is the verification's free 6-DOF fit because the maps are tilted against
+    each other (`verification.maps_tilted`): a level fit would have lost most pairs. None otherwise."""
+    v = ans.verification
+    if not ans.accepted or v is None or v.tilted_deg is None:
+        return None
+    return (f"{b}: the maps' vertical axes differ by {v.tilted_deg:.1f} deg (not both gravity-aligned?): the answer "
+            f"is the free 6-DOF fit ({v.support} pairs; a level fit kept far fewer); {a} and {b} are not in one "
+            "gravity-aligned frame")
+
+
 def _height_datum_warning(ans: Any, points_b: np.ndarray, path_b: str | Path) -> str | None:
     """The warning when an accepted alignment of two maps in one EPSG moves B's landmarks vertically by more than
     two height datums can differ (MAX_DATUM_DIFFERENCE_M): the search and the prior are horizontal, so it still
@@ -464,6 +475,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         if common and ans.accepted:
             warn(_height_datum_warning(ans, lb.positions, b))
             warn(_takeoff_height_warning(ans, lb.positions, a, b))
+        warn(_tilt_warning(ans, a, b))
         if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
             warn(f"{b}: {ans.uncertainty.warning()}; merge and changes inherit that error")
         # a refused answer names no associations (match.json's verification keeps what was tried)
