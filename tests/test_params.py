@@ -145,6 +145,16 @@ def test_segmentation_backend_choices_are_the_registry():
     assert set(valid_values(SegmentationParams, "backend").choices) == set(BACKENDS)
 
 
+# rev42: each value within its range, together unusable, and once searched silently: theta_S 6 needs more than 6
+# associations from a window of 3 landmarks ("no match", exit 0), and stride 100 over windows of 50 never searched
+# landmarks 50-99 of every 100
+WINDOWS_THAT_CANNOT_WORK = [
+    ("association.window_length=3", "window_length 3 is at most association.min_associations (theta_S) 6"),
+    ("association.window_length=6", "window_length 6 is at most association.min_associations (theta_S) 6"),
+    ("association.window_stride=100", "window_stride 100 exceeds association.window_length 50"),
+]
+
+
 @pytest.mark.parametrize("override, fragment", [
     ("association.affinity_sigma_m=nan", "association.affinity_sigma_m must be within [0.001, 1000]"),
     # values the checks once let through into a MemoryError, a ZeroDivisionError, an OverflowError or 31 GiB
@@ -165,6 +175,7 @@ def test_segmentation_backend_choices_are_the_registry():
     ("segmentation.classical_median_ksize=4", "odd"),
     ("tracking.min_score=1.5", "within [0, 1]"),
     ("keyframes.interval_m=inf", "within (0, inf)"),
+    *WINDOWS_THAT_CANNOT_WORK,
 ])
 def test_out_of_range_values_are_refused_by_config_check(tmp_path, capsys, override, fragment):
     from sosmatch.tools.cli import main
@@ -298,30 +309,14 @@ def test_the_segmenters_working_pixel_is_never_finer_than_its_ground_floor():
     assert gsd * 640 / side <= 0.5 and gsd * 640 / side >= p.segmentation.classical_ground_resolution_m
 
 
-@pytest.mark.parametrize("override, fragment", [
-    # rev42: each value within its range, together unusable, and once searched silently: theta_S 6 needs more than
-    # 6 associations from a window of 3 landmarks ("no match", exit 0), and stride 100 over windows of 50 never
-    # searched landmarks 50-99 of every 100
-    ("association.window_length=3", "window_length 3 is at most association.min_associations (theta_S) 6"),
-    ("association.window_length=6", "window_length 6 is at most association.min_associations (theta_S) 6"),
-    ("association.window_stride=100", "window_stride 100 exceeds association.window_length 50"),
-])
-def test_windows_that_cannot_work_are_refused(tmp_path, capsys, override, fragment):
+@pytest.mark.parametrize("override, fragment", WINDOWS_THAT_CANNOT_WORK)
+def test_windows_that_cannot_work_are_refused_in_python_too(override, fragment):
+    """The check is the parameters' own: a Python user's AssociationParams is refused as the CLI's is."""
     import dataclasses
 
     from sosmatch.plugin.params import AssociationParams
-    from sosmatch.tools.cli import main
 
-    assert main(["config", "check", "--set", override]) == 2
-    err = capsys.readouterr().err
-    assert fragment in err and len(err.strip().splitlines()) == 1
-    cfg = tmp_path / "c.toml"
-    section, kv = override.split(".", 1)
-    cfg.write_text(f"[{section}]\n{kv}\n")
-    assert main(["config", "check", "--config", str(cfg)]) == 2
-    err = capsys.readouterr().err
-    assert str(cfg) in err and fragment in err
-    key, value = kv.split("=")
+    key, value = override.split(".", 1)[1].split("=")
     with pytest.raises(InputError, match=fragment.replace("(", r"\(").replace(")", r"\)")):
         dataclasses.replace(AssociationParams(), **{key: int(value)})
 
