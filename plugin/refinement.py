@@ -22,6 +22,13 @@ def yaw_matrix(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def tilt_of(rotation: np.ndarray) -> np.ndarray:
+    """The roll/pitch part T of a rotation R = Rz(yaw) T (yaw: the heading of R's x axis): what a yaw +
+    translation fit of B turned by T leaves as the rotation's tilt."""
+    yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
+    return yaw_matrix(-yaw) @ rotation
+
+
 def fit_yaw_translation(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
                         with_scale: bool = False) -> Sim3:
     """Weighted least-squares 4-DOF transform target ≈ Rz(yaw) source + t (gravity-aligned frames); with

@@ -31,6 +31,7 @@ from .refinement import (
     pairing_distance,
     pairing_tree,
     refine_alignment,
+    tilt_of,
     yaw_matrix,
 )
 from .row_placements import row_chance, with_rows
@@ -229,8 +230,17 @@ def verify_alignments(
         rivals.append(layout_best.support)
     chance = None
     if chance_starts > 0:
+        # chance places B level (random yaw and position); a tilted answer's chance is that of B in the answer's
+        # tilt, so B is judged turned by it (its transform then level): placed level, the chance refinements, local,
+        # never reached a 10-20 deg tilt and more freedom counted as less chance (rev43: two unrelated rows, B
+        # rolled 14 deg, p 1.7e-75 where the level pair's is 1.0)
+        chance_b, chance_probe, chance_winner = pb_all, probe, best.transform
+        if tilted_deg is not None:
+            tilt = tilt_of(best.transform.rotation)
+            chance_b, chance_probe = pb_all @ tilt.T, probe @ tilt.T
+            chance_winner = Sim3(best.transform.rotation @ tilt.T, best.transform.translation, best.transform.scale)
         chance, samples, opportunities = winner_chance(
-            pa_all, sizes_a, pb_all, sizes_b, best.transform, probe, support, gate_m, max_size_difference,
+            pa_all, sizes_a, chance_b, sizes_b, chance_winner, chance_probe, support, gate_m, max_size_difference,
             chance_starts, false_alarm, prior_m, fit_dof, z_weight, winner_pairs=winner_pairs, tree_a=tree_a)
         rivals.extend(int(s) for s in samples)
     runner_up = max(rivals, default=0)

@@ -63,3 +63,28 @@ def test_level_maps_keep_the_level_fit_and_no_warning(tmp_path):
     assert ver["accepted"] and ver["support"] == 140 and err.max() < 0.5
     assert not [w for w in doc["warnings"] if "vertical axes" in w]
     assert ver["support_dof"] == 140  # the level search's own support: the free fit was not taken
+
+
+def test_a_tilted_answer_meets_the_chance_a_level_one_does(tmp_path):
+    """Chance placed B level while the answer was tilted: the local chance refinements never reached a 14 deg tilt,
+    so the free fit's extra freedom counted as less chance, not more (rev43: two unrelated rows, 5 m apart along
+    each, B rolled 14 deg: chance p 1.7e-75 and only the ratio test refusing, where the level pair's p is 1.0).
+    Chance now judges B turned by the answer's tilt: the same p tilted or level."""
+    ra, rb = np.random.default_rng(31), np.random.default_rng(32)
+    pa = np.column_stack([np.arange(100) * 5.0, ra.normal(0, 0.2, 100), ra.normal(0, 0.2, 100)])
+    pb = np.column_stack([np.arange(70) * 5.0, rb.normal(0, 0.2, 70), rb.normal(0, 0.2, 70)])
+    pb = pb @ rotation_from_rpy_deg(0, 0, 37).T + np.array([7.0, -3.0, 1.0])
+    sa, sb = ra.lognormal(0.5, 0.5, 100), rb.lognormal(0.5, 0.5, 70)
+    write_landmark_map(tmp_path / "a.sosmap", LandmarkMap(pa, sa.astype(np.float32), np.zeros(3), 0))
+    chance = {}
+    for roll in (0.0, 14.0):
+        c = pb.mean(axis=0)
+        b = tmp_path / f"b{roll:.0f}.sosmap"
+        write_landmark_map(b, LandmarkMap((pb - c) @ rotation_from_rpy_deg(roll, 0, 0).T + c, sb.astype(np.float32),
+                                          np.zeros(3), 0))
+        out = tmp_path / f"m{roll:.0f}"
+        assert main(["match", str(tmp_path / "a.sosmap"), str(b), "--out", str(out), "--no-plot", "-q"]) == 0
+        ver = json.loads((out / "match.json").read_text())["verification"]
+        assert not ver["accepted"]
+        chance[roll] = ver["chance"]["p_value"]
+    assert chance[14.0] > 0.5 and chance[0.0] > 0.5, chance  # level: p 1.0; tilted, placed level: 1.7e-75

@@ -58,7 +58,7 @@ from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
 from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, associations_not_fused, fusion_groups
 from ..plugin.params import Params
-from ..plugin.refinement import Alignment, refine_alignment, yaw_matrix
+from ..plugin.refinement import Alignment, refine_alignment, tilt_of
 from ..plugin.verification import tilted_alignment
 from .changes import check_alignment
 from .merge_pairs import FusePair, distinct_flights, filter_associations, match_fuse_pair, session_fingerprint
@@ -383,7 +383,7 @@ def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: 
     dof, the final tilt and its prior, z_weight, coarse factor; the configured `params.verification` for any it
     does not record): `refinement.refine_alignment`, then for a 4-DOF fit `verification.tilted_alignment`; a
     similarity match a 6-DOF fit with scale. A 4-DOF fit runs from the answer levelled (as the verification's) and
-    from B turned by the answer's tilt (`_tilt_of`), each then tilted by what its pairs' heights show against the
+    from B turned by the answer's tilt (`tilt_of`), each then tilted by what its pairs' heights show against the
     recorded prior of level maps; the one with more pairs stands. Fewer than 3 supporting pairs: the answer's own
     transform, kept."""
     if match.transform is None:
@@ -400,7 +400,7 @@ def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: 
     # x: 130 / 99 / 53 pairs against 132 held), held, it kept a tilt the window consensus had fitted wrongly (rev33's
     # B and C: consensus 2.8 deg, verified 0.8 deg; held 2.0 deg, 125 pairs, C's landmarks 2.3 m from the truth;
     # levelled 0.8 deg, 127 pairs, 1.6 m). The one with more pairs, as `refine_alignment`'s two stages (ties: level)
-    helds = [np.eye(3)] + ([_tilt_of(match.transform.rotation)] if dof == 4 else [])
+    helds = [np.eye(3)] + ([tilt_of(match.transform.rotation)] if dof == 4 else [])
     fits = [_fit(a, b, match.transform, held, gate, vp, dof, with_scale) for held in helds]
     best = max(fits, key=lambda f: len(f.associations))
     if len(best.associations) < 3:
@@ -428,16 +428,9 @@ def _fit(a: LandmarkMap, b: LandmarkMap, start: Sim3, held: np.ndarray, gate: fl
 
 
 def _level(transform: Sim3, centre: np.ndarray) -> Sim3:
-    """`transform` without its roll and pitch (its yaw, `_tilt_of`), placing `centre` (B's frame) where it does."""
-    turn = transform.rotation @ _tilt_of(transform.rotation).T
+    """`transform` without its roll and pitch (its yaw, `tilt_of`), placing `centre` (B's frame) where it does."""
+    turn = transform.rotation @ tilt_of(transform.rotation).T
     return Sim3(turn, transform.apply(centre) - transform.scale * turn @ centre, transform.scale)
-
-
-def _tilt_of(rotation: np.ndarray) -> np.ndarray:
-    """The roll/pitch part T of a rotation R = Rz(yaw) T (yaw: the heading of R's x axis): what a yaw +
-    translation fit of B turned by T leaves as the answer's tilt."""
-    yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
-    return yaw_matrix(-yaw) @ rotation
 
 
 def run(
