@@ -16,6 +16,7 @@ from ...plugin.lens_check import (
     LensCheck,
     LensNotChecked,
     jackknife_se,
+    judge_lens,
     landmark_groups,
     lens_displacement_px,
     refit_camera,
@@ -73,12 +74,11 @@ def _rms(rec: Any, ids: list[int], loss_scale_px: float) -> float:
     err = []
     for pid in ids:
         p = rec.points3D[pid]
-        cam = rec.cameras[1]
         for el in p.track.elements:
             im = rec.images[el.image_id]
-            uv = cam.img_from_cam(im.cam_from_world() * p.xyz)
-            err.append(float(np.linalg.norm(np.asarray(uv) - im.points2D[el.point2D_idx].xy)) if uv is not None
-                       else np.inf)
+            uv = im.project_point(p.xyz)  # through the image's own camera, as `triangulation.mean_reprojection_error`
+            err.append(float(np.linalg.norm(np.asarray(uv).ravel() - im.points2D[el.point2D_idx].xy))
+                       if uv is not None else np.inf)
     e = np.minimum(np.asarray(err), 3.0 * loss_scale_px)
     return float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan")
 
@@ -137,8 +137,6 @@ def lens_stage(landmarks: Any, camera: Camera, camera_file: str, flying_height_m
     `poses_fit`: the pose check found the poses fitting the images); (None, [], []) for a map without the
     landmarks to check it or with the check off (`quality.lens_check`). A check that fails keeps the map: a
     warning and a `LensNotChecked` (rev40: a refit error threw away a finished map with a traceback)."""
-    from ...plugin.lens_check import judge_lens
-
     rec = getattr(landmarks, "reconstruction", None)
     if not params.quality.lens_check or rec is None or not len(landmarks):
         return None, [], []
@@ -150,7 +148,7 @@ def lens_stage(landmarks: Any, camera: Camera, camera_file: str, flying_height_m
     if check is None:
         log.info("the lens is not checked against the images: %s", f"{len(landmarks)} landmarks" if
                  camera.model in CHECKED_MODELS else f"a {camera.model} camera's terms are not fixed by a map")
-    if check is not None:
+    else:
         check = replace(check, camera_kind=kind, judged=poses_fit)
     q = params.quality
     warnings, refusals = judge_lens(check, q.lens_shift_margin, q.warn_lens_height_shift, q.max_lens_height_shift,
