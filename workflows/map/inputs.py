@@ -34,7 +34,7 @@ from ...database.output_markers import check_finished, sha256_file
 from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geodesy import ecef_to_grid, looks_like_ecef
-from ...plugin.geometry import Camera, Poses, position_groups
+from ...plugin.geometry import Camera, Poses, position_groups, rotation_angle_deg
 from ...plugin.keyframes import flight_order, flight_order_message
 
 log = logging.getLogger(__name__)
@@ -331,14 +331,6 @@ class Duplicates:
 TURN_IN_PLACE_DEG = 1.0  # recorded attitudes further apart than this: the camera turned at the position
 
 
-def _turn_deg(rotations: np.ndarray | None, a: int, b: int) -> float:
-    """The angle between two images' recorded rotations (degrees; 0 without rotations)."""
-    if rotations is None:
-        return 0.0
-    r = np.asarray(rotations[a], np.float64).T @ np.asarray(rotations[b], np.float64)
-    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.ndarray | None = None,
                           rotations: np.ndarray | None = None) -> Duplicates:
     """Images that are one picture under several names, said in one warning: byte-identical files (a copy made
@@ -372,7 +364,7 @@ def warn_duplicate_images(paths: list[Path], digests: list[str], centers: np.nda
                     same_as[j] = last
                     continue
                 if last is not None:
-                    turn = _turn_deg(rotations, last, j)
+                    turn = 0.0 if rotations is None else rotation_angle_deg(rotations[last], rotations[j])
                     if turn > TURN_IN_PLACE_DEG:  # the recorded attitudes differ: a hover turning in place, not
                         turned.append((j, last, turn))  # necessarily a wrong position (rev37)
                     else:
