@@ -151,8 +151,8 @@ class PoseCheck:
         s = self.systematic
         if not s.attitude_bias_sigma_deg > 0.5 * self.warn_attitude_bias_deg:
             return True
-        return bool(self.systematic_explains
-                    and abs(s.attitude_bias_deg) - 2.0 * s.attitude_bias_sigma_deg > self.warn_attitude_bias_deg)
+        return self.systematic_explains and beyond(s.attitude_bias_deg, s.attitude_bias_sigma_deg,
+                                                   self.warn_attitude_bias_deg)
 
     @property
     def epipolar_p50_deg(self) -> float:
@@ -384,6 +384,15 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
         warn_attitude_bias_deg=params.warn_attitude_bias_deg, min_gps_agreement=params.min_gps_agreement,
         track_camera=tuple(float(v) for v in track_in_camera(poses)), **fixed_figures)
+
+
+def beyond(value: float, sigma: float, limit: float) -> bool:
+    """|value| exceeds `limit` by more than two standard deviations (False for NaN): the verdict's test of a
+    systematic error (`verdict.judge_poses`), and what counts as an attitude judged however loosely pinned
+    (`PoseCheck.attitude_checked`)."""
+    if not (np.isfinite(value) and np.isfinite(limit)):
+        return False
+    return bool(abs(value) - 2.0 * (sigma if np.isfinite(sigma) else np.inf) > limit)
 
 
 def without_baseline(baselines_m: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..map_quality import Verdict
 from ..params import PoseCheckParams
-from .check import PoseCheck
+from .check import PoseCheck, beyond
 from .gps import GpsComparison
 
 # a mirrored similarity that explains this much of the fixes' spread (where the proper one does not) names the
@@ -159,10 +159,10 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
         # show a pitch (`pitch_shown`), which a lag cannot give
         alternative = ("" if k < len(systematic) - 1 else _as_pitch(pitch) if pitch is not None
                        else _or_lag(check.lag_along_track_m))
-        if _beyond(value, sigma, limit):
+        if beyond(value, sigma, limit):
             v.refusals.append(f"poses vs images: {what} against what the images show (at most {at_most})"
                               f"{alternative}: {cause}")
-        elif _beyond(value, sigma, warn):
+        elif beyond(value, sigma, warn):
             v.warnings.append(f"poses vs images: {what} against the images{alternative}")
         elif k == len(systematic) - 1 and not check.attitude_checked:
             v.warnings.append(unchecked)
@@ -240,13 +240,6 @@ def _or_lag(lag_m: float) -> str:
             "trigger latency or a log time offset: over flat ground the images cannot tell them apart)")
 
 
-def _beyond(value: float, sigma: float, limit: float) -> bool:
-    """|value| exceeds `limit` by more than two standard deviations (False for NaN)."""
-    if not (np.isfinite(value) and np.isfinite(limit)):
-        return False
-    return abs(value) - 2.0 * (sigma if np.isfinite(sigma) else np.inf) > limit
-
-
 def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
     """The camera centres against the images' own GPS fixes (`gps.compare_with_gps`): a warning for a georeference
     far from the fixes (measured without any fit, so always judged); then, for a path that follows the fixes, a
@@ -286,7 +279,7 @@ def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
         return v  # its scale is no measurement of the poses' unit
     # a few fixes measure their own noise too small (3 of 5 agreeing by chance: 0.5 m for a 3 m receiver refused
     # true poses 19 % of the time, the diff review): a refusal needs MIN_FIXES_TO_REFUSE inliers, fewer warn
-    off_scale = _beyond(float(np.log(gps.scale)), gps.scale_sigma, float(np.log1p(limits.max_gps_scale_error)))
+    off_scale = beyond(float(np.log(gps.scale)), gps.scale_sigma, float(np.log1p(limits.max_gps_scale_error)))
     if off_scale and gps.inliers < MIN_FIXES_TO_REFUSE:
         v.warnings.append(f"poses vs images' GPS: the camera path is {gps.scale_text} x as long as the images' own "
                           f"GPS track, but only {gps.inliers} fixes agree: too few to prove the poses' unit")
