@@ -130,8 +130,6 @@ def list_images(images: str | Path | Sequence[str | Path]) -> list[Path]:
     return paths
 
 
-
-
 def _course_from_neighbours(east: np.ndarray, north: np.ndarray) -> np.ndarray:
     """Azimuth of travel (degrees clockwise from grid north) at each image, from its neighbours with a position
     (NaN where an image has no neighbour with one)."""

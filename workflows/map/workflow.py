@@ -399,12 +399,13 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     stages.close()
 
     t = time.perf_counter()
+    fitting = poses_fit(checked, params)  # the pose check's word: the quality figures and the lens check take it
     long_tracks = int(np.count_nonzero(tracking.track_lengths() > tri.min_observations))
     quality, verdict = quality_stage(landmarks, kf_poses, camera, [inputs.image_paths[i] for i in keyframes],
                                      keypoints, long_tracks, params.quality, out.staged(FIGURE), str(out.path),
                                      params.association.min_associations + 1,
                                      checked.check.flying_height_m if checked is not None else float("nan"),
-                                     white, poses_fit(checked, params), images,
+                                     white, fitting, images,
                                      contrast.cause() if contrast is not None else "",
                                      params.triangulation.min_observations)
     # the poses' doubts (a georegistration leaving GPS fixes out, a lag corrected) are the map's too
@@ -426,7 +427,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     camera_source = inputs.sources.get("camera", "the camera")
     lens, lens_warnings, lens_refusals = lens_stage(landmarks, camera, camera_source, quality.flying_height_m, params,
                                                     camera_kind(camera_source, inputs.sources.get("poses", "")),
-                                                    bool(poses_fit(checked, params)))
+                                                    bool(fitting))
     for said in lens_warnings + lens_refusals:
         log.warning("%s: %s", out.path, said)
     verdict = joined(verdict, Verdict(refusals=lens_refusals, warnings=lens_warnings))
