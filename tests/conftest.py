@@ -75,3 +75,24 @@ def run_moved(capsys, monkeypatch):
         assert main(argv) == 0, capsys.readouterr().err
 
     return run
+
+
+@pytest.fixture
+def match_doc():
+    """match_doc(pairs, min_associations, tolerance_m, verification=None): the smallest match.json (a dict) that
+    `match_io.parse_match` reads: one accepted hypothesis and the consensus holding `pairs` at the identity, and
+    `verification` (a dict) when given, for the tests of what the notes say of a match."""
+    identity = {"rotation": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "translation": [0.0, 0.0, 0.0],
+                "scale": 1.0}
+
+    def build(pairs: list, min_associations: int, tolerance_m: float, verification: dict | None = None) -> dict:
+        doc = {"format": "sosmatch match v1", "map_a": {"path": "a"}, "map_b": {"path": "b"},
+               "params": {"association": {"min_associations": min_associations,
+                                          "distance_tolerance_m": tolerance_m}},
+               "transform_kind": "rigid", "best": 0, "consensus": {"transform": identity, "associations": pairs},
+               "hypotheses": [{"associations": pairs, "transform": identity, "accepted": True}]}
+        if verification is not None:
+            doc["verification"] = {"associations": pairs, **verification}
+        return doc
+
+    return build

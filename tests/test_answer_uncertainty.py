@@ -71,7 +71,7 @@ def test_too_few_pairs_give_nothing() -> None:
     assert answer_uncertainty(pa, pa, IDENTITY, np.array([[0, 0], [1, 1]]), 3.0) is None
 
 
-def test_match_json_records_it_for_merge_and_changes() -> None:
+def test_match_json_records_it_for_merge_and_changes(match_doc) -> None:
     """match.json "answer_uncertainty" reaches the consumers' reader: an imprecise answer gets a note, a precise one
     or a match.json without the field (an older sosmatch) none; a malformed field is refused."""
     import pytest
@@ -80,13 +80,8 @@ def test_match_json_records_it_for_merge_and_changes() -> None:
     from sosmatch.database.match_notes import imprecise_note
     from sosmatch.plugin.errors import InputError
 
-    t = {"rotation": np.eye(3).tolist(), "translation": [0.0, 0.0, 0.0], "scale": 1.0}
-    doc = {"format": "sosmatch match v1", "map_a": {"path": "a"}, "map_b": {"path": "b"},
-           "params": {"association": {"min_associations": 3, "distance_tolerance_m": 8.24}},
-           "transform_kind": "rigid", "best": 0,
-           "consensus": {"transform": t, "associations": [[0, 1], [2, 3], [4, 5]]},
-           "hypotheses": [{"associations": [[0, 1], [2, 3], [4, 5]], "transform": t, "accepted": True,
-                           "tilt_deg": 0.5}]}
+    doc = match_doc([[0, 1], [2, 3], [4, 5]], 3, 8.24)
+    doc["hypotheses"][0]["tilt_deg"] = 0.5
     assert imprecise_note(parse_match(doc)) is None
     doc["answer_uncertainty"] = {"predicted_max_m": 34.85, "gate_m": 8.24, "imprecise": True}
     note = imprecise_note(parse_match(doc))

@@ -110,22 +110,16 @@ def test_the_refusal_words():
                                      "elsewhere 12)")
 
 
-def test_the_refusal_says_the_support_its_tests_compared():
+def test_the_refusal_says_the_support_its_tests_compared(match_doc):
     """nu44: "holds 10 associations, B placed elsewhere 8, chance p 0.002" passes both documented tests on its face;
     the ratio test compared the `dof` fit's 9 (match.json `support_dof`) with 1.2 x 8. The tested figure is said
     beside the refit's when they differ, in match's line and batch's note alike (the same words)."""
     said = no_match_text(10, 8, 0.002, 0.6, tested_support=9)
     assert "holds 10 associations (9 as tested, before its tilt refit), B placed elsewhere 8, chance p 0.002" in said
     assert no_match_text(10, 8, tested_support=10) == no_match_text(10, 8)  # equal: said once
-    t = {"rotation": np.eye(3).tolist(), "translation": [0.0, 0.0, 0.0], "scale": 1.0}
-    pairs = [[i, i] for i in range(10)]
-    doc = {"format": "sosmatch match v1", "map_a": {"path": "a"}, "map_b": {"path": "b"},
-           "params": {"association": {"min_associations": 6, "distance_tolerance_m": 2.81}},
-           "transform_kind": "rigid", "best": 0, "consensus": {"transform": t, "associations": pairs},
-           "hypotheses": [{"associations": pairs, "transform": t, "accepted": True}],
-           "verification": {"accepted": False, "transform": None, "support": 10, "support_dof": 9,
-                            "runner_up_support": 8, "rms_m": 1.2, "associations": pairs,
-                            "chance": {"p_value": 0.002, "mean": 0.6}}}
+    doc = match_doc([[i, i] for i in range(10)], 6, 2.81, {
+        "accepted": False, "transform": None, "support": 10, "support_dof": 9, "runner_up_support": 8, "rms_m": 1.2,
+        "chance": {"p_value": 0.002, "mean": 0.6}})
     assert "holds 10 associations (9 as tested, before its tilt refit), B placed" in refusal_note(doc, parse_match(doc))
     del doc["verification"]["support_dof"]  # a match.json written before the field: as before
     assert refusal_note(doc, parse_match(doc)) == ("verification: no match (the best candidate holds 10 associations, "

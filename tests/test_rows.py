@@ -238,7 +238,7 @@ def test_find_rows_finds_every_row_of_an_orchard():
     assert all(len(r.members) == 40 for r in rows)
 
 
-def test_a_refusal_the_ratio_test_passed_is_not_blamed_on_the_layout():
+def test_a_refusal_the_ratio_test_passed_is_not_blamed_on_the_layout(match_doc):
     """rev42: a tree line of 70 true pairs was refused "the layout repeats: B moved 15 m and turned 180 deg explains
     40 pairs against the best candidate's 70", though 70 beats 1.2 x 40; rows laid on rows (chance p 1) refused it.
     With the ratio test's min_ratio known (match's line, match.json's method.min_ratio) the layout is not blamed."""
@@ -252,15 +252,8 @@ def test_a_refusal_the_ratio_test_passed_is_not_blamed_on_the_layout():
                     "chance p 1 (mean 0.0; 422 placements laying rows on rows))")
     # the layout still is the reason where its rival beat the ratio test
     assert "the layout repeats" in no_match_text(25, 24, 1e-9, 0.4, layout="B moved 20 m", min_ratio=1.2)
-    t = {"rotation": np.eye(3).tolist(), "translation": [0.0, 0.0, 0.0], "scale": 1.0}
-    pairs = [[i, i] for i in range(70)]
-    doc = {"format": "sosmatch match v1", "map_a": {"path": "a"}, "map_b": {"path": "b"},
-           "params": {"association": {"min_associations": 6, "distance_tolerance_m": 2.0}},
-           "transform_kind": "rigid", "best": 0, "consensus": {"transform": t, "associations": pairs},
-           "hypotheses": [{"associations": pairs, "transform": t, "accepted": True}],
-           "verification": {"accepted": False, "transform": None, "support": 70, "support_dof": 70,
-                            "runner_up_support": 40, "rms_m": 0.43, "associations": pairs,
-                            "layout_rival": {"support": 40, "shift_m": 15.0, "turn_deg": 180.0},
-                            "chance": {"p_value": 1.0, "mean": 0.0, "row_placements": 422},
-                            "method": {"min_ratio": 1.2}}}
+    doc = match_doc([[i, i] for i in range(70)], 6, 2.0, {
+        "accepted": False, "transform": None, "support": 70, "support_dof": 70, "runner_up_support": 40, "rms_m": 0.43,
+        "layout_rival": {"support": 40, "shift_m": 15.0, "turn_deg": 180.0},
+        "chance": {"p_value": 1.0, "mean": 0.0, "row_placements": 422}, "method": {"min_ratio": 1.2}})
     assert refusal_note(doc, parse_match(doc)) == said
