@@ -226,10 +226,11 @@ def local_metres(ll: np.ndarray) -> np.ndarray:
                             (ll[:, 0] - lat0) * METRES_PER_DEGREE])
 
 
-def telemetry_against_exif(telemetry: str | Path | None, moved: np.ndarray, exif_ll: np.ndarray,
-                            tele_ll: np.ndarray, times_s: np.ndarray) -> list[str]:
-    """Judge how far a telemetry CSV's positions moved the images' own EXIF fixes (`moved`, metres, per image with
-    both; `exif_ll`, `tele_ll` those fixes' lat, lon; `times_s` the images' capture times, NaN where unknown):
+def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: np.ndarray,
+                           times_s: np.ndarray) -> list[str]:
+    """Judge how far a telemetry CSV's positions moved the images' own EXIF fixes (`exif_ll`, `tele_ll`: the lat,
+    lon of each image with both; `times_s` the images' capture times, NaN where unknown; the horizontal distance in
+    metres at the EXIF fix's latitude):
     logged beyond TELEMETRY_NOTE_M (median), a warning returned for the summary beyond TELEMETRY_WARN_M (it was in
     the log only: poses.json and run.json never said it) or where any image moved beyond TELEMETRY_REFUSE_M, an
     InputError when the telemetry lies beyond TELEMETRY_REFUSE_M from most of the EXIF fixes that are plausible.
@@ -241,6 +242,8 @@ def telemetry_against_exif(telemetry: str | Path | None, moved: np.ndarray, exif
     measurement (`image_positions.doubtful_fixes`: held at one point while the telemetry moves, all at one point,
     beyond a jump the aircraft cannot fly) are left out; of the rest, the telemetry is refused when more than half
     lie beyond the bound, and taken with a warning counting the wrong EXIF fixes otherwise (none left: taken)."""
+    moved = np.hypot((tele_ll[:, 0] - exif_ll[:, 0]) * METRES_PER_DEGREE,
+                     (tele_ll[:, 1] - exif_ll[:, 1]) * METRES_PER_DEGREE * np.cos(np.radians(exif_ll[:, 0])))
     far = moved > TELEMETRY_REFUSE_M
     if not len(moved) or ((median := float(np.median(moved))) <= TELEMETRY_NOTE_M and not far.any()):
         return []

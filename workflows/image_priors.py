@@ -311,8 +311,8 @@ def read_image_priors(
     exif_alt = np.array([m.altitude if m.altitude is not None else np.nan for m in metas], dtype=np.float64)
     alt_from_telemetry = np.zeros(n, bool)
     pos_src: Counter = Counter()
-    moved = []  # telemetry positions against the same images' EXIF GPS (m, horizontal)
-    exif_ll, tele_ll, both_t = [], [], []  # ... and those EXIF fixes, the telemetry's (lat, lon), capture times
+    # the images with both: their EXIF fixes, the telemetry's (lat, lon) and capture times (`telemetry_against_exif`)
+    exif_ll, tele_ll, both_t = [], [], []
     for i, m in enumerate(metas):
         t = rows[i]
         if "lat" in t and "lon" in t:  # the user's file over the images' own tags (module doc)
@@ -320,8 +320,6 @@ def read_image_priors(
             alt_from_telemetry[i] = "alt" in t
             pos_src["telemetry CSV"] += 1
             if m.has_gps:
-                moved.append(math.hypot((t["lat"] - m.latitude) * METRES_PER_DEGREE, (t["lon"] - m.longitude)
-                                        * METRES_PER_DEGREE * math.cos(math.radians(m.latitude))))
                 exif_ll.append((m.latitude, m.longitude))
                 tele_ll.append((t["lat"], t["lon"]))
                 both_t.append(m.capture_time_s if m.capture_time_s is not None else np.nan)
@@ -333,7 +331,7 @@ def read_image_priors(
         if np.isfinite(lat[i]):
             alt[i] = tele_alt[i] if alt_from_telemetry[i] else exif_alt[i]
     tele_warnings = telemetry_against_exif(
-        telemetry, np.asarray(moved), np.asarray(exif_ll).reshape(-1, 2), np.asarray(tele_ll).reshape(-1, 2),
+        telemetry, np.asarray(exif_ll).reshape(-1, 2), np.asarray(tele_ll).reshape(-1, 2),
         np.asarray(both_t, np.float64))
     alt = one_vertical_datum(alt, alt_from_telemetry & np.isfinite(alt), tele_alt, exif_alt, telemetry)
     has = np.isfinite(lat)
