@@ -68,7 +68,7 @@ def describe(versions: dict[str, Any]) -> str:
     source = versions.get("sosmatch_source")
     if not versions.get("sosmatch"):
         return "an earlier sosmatch (its version was not recorded)"
-    return (f"sosmatch {versions.get('sosmatch', '?')} "
+    return (f"sosmatch {versions['sosmatch']} "
             f"({f'source {source}' if source else 'an earlier sosmatch: its source was not recorded'})")
 
 
