@@ -230,7 +230,7 @@ def test_match_names_a_vertical_move_that_inherits_a_maps_ground_off_its_recorde
     import json
 
     from sosmatch.workflows.map.recorded_height import takeoff_record
-    from sosmatch.workflows.match import _takeoff_height_warning
+    from sosmatch.workflows.match.answer_warnings import _takeoff_height_warning
 
     class Shift:
         def apply(self, p: np.ndarray) -> np.ndarray:

@@ -1,0 +1,132 @@
+"""`run`: load both maps, compute the match's answer, warn about it, and write match.json, associations.csv and
+match.png (the package docstring says what each holds)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ...database.atomic import write_bytes_atomic, write_text_atomic
+from ...database.landmark_map import check_two_maps, crs_disagreement, georeference_offset_m
+from ...database.map_loading import load_map, size_definition_disagreement
+from ...database.match_io import parse_match
+from ...database.output_markers import versioned_identity
+from ...database.outputs import open_output_dir
+from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
+from ...plugin.errors import InputError
+from ...plugin.map_noise import derived_search_params
+from ...plugin.match_answer import match_maps
+from ...plugin.params import Params
+from .answer_warnings import (
+    _georeference_warning,
+    _height_datum_warning,
+    _takeoff_height_warning,
+    _tilt_warning,
+)
+from .figure import alignment_png
+from .record import associations_csv, match_to_json
+from .result import MatchResult
+
+# the package's name, as before the split: the command's warnings still read "sosmatch.workflows.match: ..."
+log = logging.getLogger(__package__)
+
+
+def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
+        exhaustive: bool = False, plot: bool = True, overwrite: bool = False,
+        verify: bool | None = None) -> MatchResult:
+    """Match map `b` against map `a` and write match.json, associations.csv and match.png into `out_dir`.
+
+    a, b: session directories, .sosmap files or COLMAP models. workers: unused (the search runs in one process).
+    exhaustive: use the straightforward reference search (every window pair from scratch; slow, same result).
+    verify: verify the search's hypotheses on the full maps (default `params.verification.enabled`); off, the
+    answer is the window consensus. A position prior (`association.position_prior_m`) is used only when both maps
+    are georeferenced in one EPSG. overwrite: replace a complete match of other maps or settings in `out_dir` (see
+    `sosmatch.database.outputs` for what is never replaced). Raises InputError for unreadable or unusable maps.
+    """
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    out_dir = Path(out_dir)
+    map_a, map_b = load_map(a), load_map(b)
+    la, lb = map_a.lmap, map_b.lmap
+    prints = check_two_maps(a, b, la, lb, "match")
+    for m in (map_a, map_b):
+        # named here, at the edge: the search's own check knows the map only as "A" or "B" (nu27)
+        if len(m.lmap) < MIN_LANDMARKS_TO_ALIGN:
+            raise InputError(f"holds {len(m.lmap)} landmark(s); at least {MIN_LANDMARKS_TO_ALIGN} are needed to "
+                             "match it with another map (a rigid transform needs 3 points)", m.path)
+    said: list[str] = []  # every warning, logged and recorded in match.json `warnings`
+
+    def warn(text: str | None) -> None:
+        if text is not None:
+            log.warning("%s", text)
+            said.append(text)
+
+    warn(crs_disagreement(la, lb))
+    warn(size_definition_disagreement(map_a, map_b))
+    if verify is not None:
+        params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
+    # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
+    # (recorded in match.json's params and search_mode "derived"), searched first with the tighter of the
+    # derived and the configured tolerances (`match_answer`, module doc)
+    if params.association.derive_from_maps:
+        for name, m in (("A", map_a), ("B", map_b)):
+            if m.noise is None:
+                warn(f"map {name} ({m.path}) records no noise figures (a COLMAP model, or a .sosmap written before "
+                     "map files carried them): the configured tolerances are used, not ones derived from the "
+                     "maps; give its mapped session directory to derive them")
+    derivation = derived_search_params(params.association, map_a.noise, map_b.noise, la.positions, la.sizes,
+                                       lb.positions, lb.sizes)
+    first_try = derivation.first_try
+    params = dataclasses.replace(params, association=derivation.params)
+    identity = versioned_identity(lambda as_dict: {
+        "a": prints[0], "b": prints[1], "association": as_dict(params.association),
+        "first_try": None if first_try is None else as_dict(first_try),
+        # only when there is one: outputs of maps that get no wider search keep their identity
+        **({} if derivation.wider_try is None else {"wider_try": as_dict(derivation.wider_try)}),
+        **({} if derivation.near_try is None else {"near_try": as_dict(derivation.near_try)}),
+        "verification": as_dict(params.verification), "seed": params.seed, "exhaustive": exhaustive, "plot": plot})
+    with open_output_dir(out_dir, "match", identity, inputs=[a, b], overwrite=overwrite,
+                         legacy_record="match.json") as out:
+        common = la.epsg == lb.epsg != 0
+        if params.association.position_prior_m > 0 and not common:
+            warn(f"position prior ignored: the maps are not georeferenced in one EPSG (A: {la.epsg}, B: {lb.epsg})")
+        ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
+                         exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try,
+                         near_try=derivation.near_try)
+        if ans.accepted and not common and ans.transform is not None:
+            # two EPSG codes: where each puts B on the ground (`georeference_offset_m`; None without both codes),
+            # judged by the rule of one EPSG: a wrong label is a wrong georeference, one site in two zones is not
+            ans.georeference_off_m = georeference_offset_m(la, lb, ans.transform, ans.associations)
+        geo_warning = _georeference_warning(ans, b, params.association.georeference_prior_m) if ans.accepted else None
+        warn(geo_warning)
+        if common and ans.accepted:
+            warn(_height_datum_warning(ans, lb.positions, b))
+            warn(_takeoff_height_warning(ans, lb.positions, a, b))
+        warn(_tilt_warning(ans, a, b))
+        if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
+            warn(f"{b}: {ans.uncertainty.warning()}; merge and changes inherit that error")
+        # a refused answer names no associations (match.json's verification keeps what was tried)
+        result = MatchResult(out_dir, map_a, map_b, ans.search,
+                             ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
+                             ans.transform if ans.accepted else None, 0.0, ans)
+        result.georeferences_disagree = geo_warning is not None
+        result.min_ratio = params.verification.min_ratio
+        result.seconds, result.cpu_seconds = time.perf_counter() - t0, time.process_time() - cpu0
+        doc = match_to_json(result, params)
+        doc["search_mode"]["derived"] = derivation.record
+        doc["seconds_total"] = result.seconds
+        doc["cpu_seconds_total"] = result.cpu_seconds
+        doc["warnings"] = said
+        parse_match(doc, out_dir / "match.json")  # the reader's validation: never write what it would refuse
+        write_text_atomic(out_dir / "associations.csv", associations_csv(result))
+        if plot:
+            write_bytes_atomic(out.staged("match.png"), alignment_png(result))
+        # not plotted: a previous run's picture (of other maps, perhaps) is removed, not left beside this match.json
+        out.publish(["match.png"], optional=("match.png",))
+        write_text_atomic(out_dir / "match.json", json.dumps(doc, indent=1) + "\n")  # last: its presence = done
+        out.finish()
+    return result
