@@ -329,7 +329,7 @@ def test_one_site_in_two_utm_zones_is_not_called_a_wrong_label():
 
 def test_evaluate_does_not_count_a_winner_beyond_the_prior():
     # the diff review: evaluate took `clear` alone, so an answer the match refused as beyond its prior was scored
-    from sosmatch.workflows.evaluate.workflow import _clear_in_file
+    from sosmatch.workflows.evaluate.sosmatch_method import _clear_in_file
 
     doc = {"clear": True, "beyond_prior": True}
     assert not _clear_in_file(doc, 30, 5, Params())

@@ -22,7 +22,8 @@ bytes for the baselines.
 
 from .ground_truth import GroundTruthSession, load_ground_truth
 from .report import LABELS, format_table, limiting_stage, plot_overlay, plot_pr
-from .workflow import METHODS, demo_step, error_to_identity, run
+from .sosmatch_method import error_to_identity
+from .workflow import METHODS, demo_step, run
 
 __all__ = ["LABELS", "METHODS", "GroundTruthSession", "demo_step", "error_to_identity", "format_table",
            "limiting_stage", "load_ground_truth", "plot_overlay", "plot_pr", "run"]
