@@ -355,9 +355,10 @@ class PosesFromImages:
     def input_paths(self) -> list[Path]:
         return [Path(self.images)] + ([Path(self.telemetry)] if self.telemetry else [])
 
-    def resolve(self, out: Any) -> tuple[Any, tuple[str, ...]]:
-        """Poses (in OUT/.partial/poses_work, reused when an interrupted run finished them) -> map inputs; the
-        result directory is staged as OUT/.partial/poses."""
+    def resolve(self, out: Any, renew_other_versions: bool = False) -> tuple[Any, tuple[str, ...]]:
+        """Poses (in OUT/.partial/poses_work, reused when an interrupted run finished them; computed again when
+        another sosmatch did, with `renew_other_versions`) -> map inputs; the result directory is staged as
+        OUT/.partial/poses."""
         image_dir = Path(self.images)
         priors = read_image_priors(image_dir, self.telemetry, sensor_width_mm=self.sensor_width_mm,
                                    takeoff_altitude_m=self.takeoff_altitude_m, epsg=self.epsg)
@@ -366,7 +367,8 @@ class PosesFromImages:
             _refuse_cameras([f"{c.width}x{c.height} fx {c.fx:.0f} px" for c in priors.cameras], image_dir)
         work = out.staging / "poses_work"
         result = compute_poses(image_dir, work, self.params, self.identity(), self.telemetry,
-                               self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m, priors)
+                               self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m, priors,
+                               renew_other_versions)
         staged = out.staging / "poses"
         shutil.rmtree(staged, ignore_errors=True)
         shutil.copytree(result.out_dir, staged)  # the work copy stays for a resumed run until the map is done
