@@ -42,6 +42,9 @@ class OutputFiles:
             self._check(p, read_json_or_none(p.parent / FILES_REGISTRY) or {})
 
     def _check(self, path: Path, registry: Mapping[str, Any]) -> None:
+        if path.name in (FILES_REGISTRY, FILES_LOCK):  # the run writes them itself: an output there would be lost
+            raise InputError(f"output file name {path.name} is the record sosmatch keeps of the files it writes in "
+                             "that folder; choose another name", path)
         check_not_input(path, self.inputs)
         check_not_in_output_entry(path)
         if path.is_dir():

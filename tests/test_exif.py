@@ -926,8 +926,8 @@ def test_map_and_poses_take_the_projected_crs_of_the_poses(tmp_path, capsys, mon
     # structure from motion: the priors it georegisters on are read in the chosen CRS
     seen = []
 
-    def stop(image_dir, work, params, identity, *args):
-        seen.append(args[-1].epsg)
+    def stop(image_dir, work, params, identity, *args, **kwargs):
+        seen.append(args[-1].epsg)  # the priors, read in the chosen CRS
         raise InputError("stop here")
 
     monkeypatch.setattr(job, "compute_poses", stop)

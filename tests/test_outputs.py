@@ -287,6 +287,17 @@ def test_output_files_check_everything_before_any_work(tmp_path):
     assert not (tmp_path / "poses.csv").exists()
 
 
+def test_an_output_file_named_as_the_folder_s_registry_of_outputs_is_refused(toy, tmp_path, cli_error):
+    """`export --out DIR/.sosmatch-files.json` said it wrote the CSV, which the registry then wrote over; with
+    `.sosmatch-files.lock` it blamed the lock it had just made and left the new folder behind (rev45 D3)."""
+    _, a, _, _ = toy
+    for name in (".sosmatch-files.json", ".sosmatch-files.lock"):
+        out = tmp_path / "new" / name
+        assert f"output file name {name} is the record sosmatch keeps" in cli_error("export", "--csv", a, "--out",
+                                                                                     out)
+        assert not (tmp_path / "new").exists()
+
+
 def test_an_output_file_below_a_file_is_refused_before_any_work(toy, tmp_path, cli_error):
     """`--out afile/x.csv` where `afile` is a file: poses-from-exif did its whole refinement (14 s on 10 Seneca
     frames) and then said "cannot write output: File exists". The place is checked with the file, before any

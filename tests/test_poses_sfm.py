@@ -328,3 +328,52 @@ def test_poses_another_sosmatch_made_are_kept_with_a_word_and_remade_with_overwr
         poses_wf.run(flight / "images", out, _params(), overwrite=True)
     assert json.loads(record.read_text())["versions"] == code_versions()
     assert not [r for r in caplog.records if "kept as made by" in r.getMessage()]
+
+
+def test_stages_of_an_interrupted_run_another_sosmatch_made_are_said_or_redone(flight, tmp_path, caplog):
+    """An interrupted `poses` run resumes its finished stages (features and matches) and an extraction's database;
+    the identity keys the settings, not the code, so those another sosmatch made were reused without a word, and
+    --overwrite reused them too. Now: said once, and made again with `renew_other_versions` (--overwrite)."""
+    import logging
+
+    from sosmatch.database.code_version import code_versions
+
+    work = tmp_path / "work"
+    identity = poses_wf.identity_of(flight / "images", _params())
+    poses_wf.compute_poses(flight / "images", work, _params(), identity)
+    stages_file = work / "stages.json"
+    stages = json.loads(stages_file.read_text())
+    assert stages["match"]["versions"] == code_versions() == stages["database"]["versions"]
+
+    def interrupted_by_an_earlier_sosmatch() -> None:  # killed before the mapping, by a version that recorded none
+        for name in ("match", "database"):
+            stages[name].pop("versions", None)
+        stages.pop("result", None)
+        stages_file.write_text(json.dumps(stages))
+        shutil.copyfile(work / "result" / "database.db", work / "database.db")  # the run moves it when it ends
+
+    interrupted_by_an_earlier_sosmatch()
+    with caplog.at_level(logging.WARNING):
+        again = poses_wf.compute_poses(flight / "images", work, _params(), identity)
+    said = [r.getMessage() for r in caplog.records if "kept as made by" in r.getMessage()]
+    assert len(said) == 1 and "features and matches of an interrupted run" in said[0] and "--overwrite" in said[0]
+    assert "versions" not in json.loads(stages_file.read_text())["match"]  # reused: not extracted or matched again
+    assert len(again.poses.names) == 26 and "key" not in json.loads((again.out_dir / "poses.json").read_text())[
+        "matching"]
+
+    stages = json.loads(stages_file.read_text())
+    interrupted_by_an_earlier_sosmatch()
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        poses_wf.compute_poses(flight / "images", work, _params(), identity, renew_other_versions=True)
+    assert not [r for r in caplog.records if "kept as made by" in r.getMessage()]
+    stages = json.loads(stages_file.read_text())
+    assert stages["match"]["versions"] == code_versions() == stages["database"]["versions"]  # made again
+
+    # killed during the extraction by an earlier sosmatch (no record of its database): made again, not resumed
+    stages.pop("match"), stages.pop("result"), stages.pop("database")
+    stages_file.write_text(json.dumps(stages))
+    shutil.copyfile(work / "result" / "database.db", work / "database.db")
+    poses_wf.compute_poses(flight / "images", work, _params(), identity)
+    stages = json.loads(stages_file.read_text())
+    assert stages["database"]["versions"] == code_versions() == stages["match"]["versions"]

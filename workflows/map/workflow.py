@@ -62,8 +62,9 @@ class PosesSource(Protocol):
 
     def input_paths(self) -> list[Path]: ...
 
-    def resolve(self, out: OutputDir) -> tuple[MapInputs, tuple[str, ...]]:
-        """The map inputs, and the entries it staged in `out` to publish with the map."""
+    def resolve(self, out: OutputDir, renew_other_versions: bool = False) -> tuple[MapInputs, tuple[str, ...]]:
+        """The map inputs, and the entries it staged in `out` to publish with the map; stages of a killed run that
+        another sosmatch made are computed again with `renew_other_versions` (map's `overwrite`)."""
         ...
 
 
@@ -252,7 +253,7 @@ def run(
         extra: tuple[str, ...] = ()
         if source is not None:
             t = time.perf_counter()
-            inputs, extra = source.resolve(out)
+            inputs, extra = source.resolve(out, renew_other_versions=overwrite)
             inputs = in_flight_order(inputs)
             inputs, digests = distinct_images(inputs)
             require_keyframes(inputs, params.keyframes.interval_m)

@@ -99,7 +99,7 @@ def run(
         priors = read_image_priors(image_dir, telemetry, sensor_width_mm=sensor_width_mm,
                                    takeoff_altitude_m=takeoff_altitude_m, epsg=epsg)
         result = compute_poses(image_dir, taken.staging / "work", params, identity, telemetry, takeoff_altitude_m,
-                               sensor_width_mm, nominal_height_m, priors)
+                               sensor_width_mm, nominal_height_m, priors, renew_other_versions=overwrite)
         for name in (*OUTPUTS, RECORD):
             os.replace(result.out_dir / name, taken.staged(name))
         taken.publish(list(OUTPUTS), last=RECORD)
@@ -109,39 +109,62 @@ def run(
 def compute_poses(image_dir: Path, work: Path, params: Params, identity: str,
                   telemetry: str | Path | None = None, takeoff_altitude_m: float | None = None,
                   sensor_width_mm: float | None = None, nominal_height_m: float = NOMINAL_HEIGHT_M,
-                  priors: ImagePriors | None = None) -> PosesResult:
+                  priors: ImagePriors | None = None, renew_other_versions: bool = False) -> PosesResult:
     """The stages in directory `work` (created; features and matches of an interrupted run with the same
     `identity` are reused); the outputs end up in `work/result` (a finished result there is returned as is).
-    `priors`: the images' metadata when the caller has read it already (with these options)."""
+    `priors`: the images' metadata when the caller has read it already (with these options). A stage another
+    sosmatch finished is reused with a warning (the identity keys the settings, not the code), or done again with
+    `renew_other_versions` (`--overwrite`), as a finished output is (`run`)."""
     make_dirs(work)  # a taken output directory moved away under its run is not re-created
     result_dir = work / "result"
-    done = _stage_done(work, "result", identity)
+    done = _stage_done(work, "result", identity, renew_other_versions)
     if done is not None and (result_dir / RECORD).is_file():
         return load_result(result_dir)
     shutil.rmtree(result_dir, ignore_errors=True)
     if priors is None:
         priors = read_image_priors(image_dir, telemetry, sensor_width_mm=sensor_width_mm,
                                    takeoff_altitude_m=takeoff_altitude_m)
-    if _stage_done(work, "match", identity) is None:  # COLMAP's reader half-decodes a truncated JPEG quietly
+    matched = _stage_done(work, "match", identity, renew_other_versions)
+    if matched is None:  # COLMAP's reader half-decodes a truncated JPEG quietly
         check_images_decode(image_dir / n for n in priors.names)
-    result = _compute(image_dir, work, result_dir, priors, params, identity, nominal_height_m)
+        _drop_foreign_database(work, identity, renew_other_versions)
+    result = _compute(image_dir, work, result_dir, priors, params, identity, nominal_height_m, matched)
     _mark_stage(work, "result", identity, {})
     return result
 
-def _stage_done(work: Path, name: str, key: str) -> dict | None:
+def _stage_done(work: Path, name: str, key: str, renew_other_versions: bool = False) -> dict | None:
+    """The record of stage `name` of an interrupted run in `work` with the same `key` (inputs and settings), or
+    None. One another sosmatch finished is said once and reused, or None with `renew_other_versions`."""
     try:
         done = json.loads((work / "stages.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     entry = done.get(name)
-    return entry if isinstance(entry, dict) and entry.get("key") == key else None
+    if not (isinstance(entry, dict) and entry.get("key") == key):
+        return None
+    made_by = other_version(entry)
+    if made_by is not None:
+        if renew_other_versions:
+            return None
+        what = {"match": "features and matches", "database": "features"}.get(name, "the poses")
+        log.warning("%s", kept_message(f"{work}: {what} of an interrupted run", made_by, "computes them again"))
+    return {k: v for k, v in entry.items() if k not in ("key", "versions")}  # the stage's own figures
+
+def _drop_foreign_database(work: Path, key: str, renew_other_versions: bool) -> None:
+    """An interrupted extraction's database resumes only when this run's settings made it (and this sosmatch,
+    or another one said once, unless `renew_other_versions`); else it is removed (the run's own file) and made
+    again: COLMAP's extraction skips the images a database holds, whoever extracted them."""
+    db = work / "database.db"
+    if db.is_file() and _stage_done(work, "database", key, renew_other_versions) is None:
+        for path in (db, db.with_name(db.name + "-wal"), db.with_name(db.name + "-shm")):
+            path.unlink(missing_ok=True)
 
 def _mark_stage(work: Path, name: str, key: str, result: dict) -> None:
     try:
         done = json.loads((work / "stages.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         done = {}
-    done[name] = {"key": key, **result}
+    done[name] = {"key": key, "versions": code_versions(), **result}  # which sosmatch finished it
     write_text_atomic(work / "stages.json", json.dumps(done, indent=1, default=json_default) + "\n")
 
 @contextmanager
@@ -156,7 +179,7 @@ def _named_as(colmap_dir: Path, image_dir: Path) -> Iterator[None]:
 
 
 def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors, params: Params, key: str,
-             nominal_height_m: float) -> PosesResult:
+             nominal_height_m: float, matched: dict | None) -> PosesResult:
     """Features, pairs, matches (resumable), mapping, georegistration, comparison; the files into `result_dir`."""
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -172,9 +195,10 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
                          "overlapping images", image_dir)
     # COLMAP reads 8-bit images: data of more than 8 bits as white-levelled copies (also for the mapper's colours)
     colmap_dir = sfm.colmap_image_dir(image_dir, priors.names, work / "images8")
-    matched = _stage_done(work, "match", key)
-    if matched is None or not db.is_file():
-        sfm.create_database(db, priors, sp)  # kept from an interrupted run: extraction resumes
+    if matched is None or not db.is_file():  # `matched`: the match stage of an interrupted run (`_stage_done`)
+        if not db.is_file():  # else kept from an interrupted run (`_drop_foreign_database`): extraction resumes
+            sfm.create_database(db, priors, sp)
+            _mark_stage(work, "database", key, {})
         with _named_as(colmap_dir, image_dir):
             features = sfm.extract_features(db, colmap_dir, priors, sp)
         timings["features"] = features["seconds"]
@@ -331,9 +355,10 @@ class PosesFromImages:
     def input_paths(self) -> list[Path]:
         return [Path(self.images)] + ([Path(self.telemetry)] if self.telemetry else [])
 
-    def resolve(self, out: Any) -> tuple[Any, tuple[str, ...]]:
-        """Poses (in OUT/.partial/poses_work, reused when an interrupted run finished them) -> map inputs; the
-        result directory is staged as OUT/.partial/poses."""
+    def resolve(self, out: Any, renew_other_versions: bool = False) -> tuple[Any, tuple[str, ...]]:
+        """Poses (in OUT/.partial/poses_work, reused when an interrupted run finished them; computed again when
+        another sosmatch did, with `renew_other_versions`) -> map inputs; the result directory is staged as
+        OUT/.partial/poses."""
         image_dir = Path(self.images)
         priors = read_image_priors(image_dir, self.telemetry, sensor_width_mm=self.sensor_width_mm,
                                    takeoff_altitude_m=self.takeoff_altitude_m, epsg=self.epsg)
@@ -342,7 +367,8 @@ class PosesFromImages:
             _refuse_cameras([f"{c.width}x{c.height} fx {c.fx:.0f} px" for c in priors.cameras], image_dir)
         work = out.staging / "poses_work"
         result = compute_poses(image_dir, work, self.params, self.identity(), self.telemetry,
-                               self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m, priors)
+                               self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m, priors,
+                               renew_other_versions)
         staged = out.staging / "poses"
         shutil.rmtree(staged, ignore_errors=True)
         shutil.copytree(result.out_dir, staged)  # the work copy stays for a resumed run until the map is done
