@@ -166,3 +166,17 @@ def session_images_dir(session: str | Path | SessionFiles, images_dir: str | Pat
                          "images directory not found", images_dir)
     check_map_of_images(path, images_dir)
     return images_dir
+
+
+def compared_images_dirs(sessions: Sequence[str | Path | SessionFiles], given: Sequence[str | Path | None],
+                         wanted: bool = True) -> tuple[list[Path | None], list[int]]:
+    """The images directories change detection reads for each compared session (`session_images_dir`: the one
+    given, else the one its run.json records) and the positions of the sessions whose images are not available.
+    The surface evidence compares the sessions' images with each other, so with one session's missing none is
+    used (all None); none either when not `wanted` (`changes.surface_evidence` off). InputError as
+    `session_images_dir` (a given directory that is missing, or images the map was not made from)."""
+    if not wanted:
+        return [None] * len(sessions), []
+    dirs = [session_images_dir(s, g) for s, g in zip(sessions, given, strict=True)]
+    missing = [k for k, d in enumerate(dirs) if d is None]
+    return ([None] * len(dirs) if missing else dirs), missing

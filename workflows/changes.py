@@ -41,7 +41,7 @@ from ..database.match_io import answer_gate, check_match_maps, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import VersionedIdentity, fingerprint, versioned_identity
 from ..database.outputs import check_output_dir, open_output_dir
-from ..database.session_images import recorded_images_dir, session_images_dir
+from ..database.session_images import compared_images_dirs, recorded_images_dir
 from ..database.session_io import SessionFiles, read_map_record, read_session, read_session_observations
 from ..plugin import __version__
 from ..plugin.changes import (
@@ -140,7 +140,6 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         check_match_maps(match, files_a.landmarks, files_b.landmarks, match_json,
                          names=(str(session_a), str(session_b)))
     tracks = params.changes.unmapped_objects
-    dirs = [None, None]
     warnings = []  # said once every check has passed: a refused run prints its one-line error alone
     if match is not None and (note := check_georeferences(match, files_a.landmarks, files_b.landmarks, match_json,
                                                           trust_images, "compared", "compares them")) is not None:
@@ -152,15 +151,12 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if match is not None and not verified and (note := unverified_note(match)) is not None:
         warnings.append(f"{match_json}: {note}: its transform is used only because B's landmarks find "
                         "counterparts in A far more often than by chance; `sosmatch match` again verifies it")
-    if params.changes.surface_evidence:
-        dirs = [session_images_dir(files_a, images_a), session_images_dir(files_b, images_b)]
-        if None in dirs:
-            missing = " and ".join(f"{name} ({path})" for name, path, d in (("A", session_a, dirs[0]),
-                                                                            ("B", session_b, dirs[1])) if d is None)
-            warnings.append(f"the images of session {missing} are not available (no run.json recording them, or "
-                            f"the directory it records is gone; {images_advice}): no surface evidence, "
-                            f"the segments alone decide{untested_note(params.changes)}")
-            dirs = [None, None]
+    dirs, lacking = compared_images_dirs((files_a, files_b), (images_a, images_b), params.changes.surface_evidence)
+    if lacking:
+        missing = " and ".join(f"{'AB'[k]} ({(session_a, session_b)[k]})" for k in lacking)
+        warnings.append(f"the images of session {missing} are not available (no run.json recording them, or "
+                        f"the directory it records is gone; {images_advice}): no surface evidence, "
+                        f"the segments alone decide{untested_note(params.changes)}")
     obs_a = read_session_observations(files_a, with_tracks=tracks, images_dir=dirs[0])
     obs_b = read_session_observations(files_b, with_tracks=tracks, images_dir=dirs[1])
     for name, path, obs in (("A", session_a, obs_a), ("B", session_b, obs_b)):
@@ -413,7 +409,7 @@ def output_identity(run: ChangesRun, params: Params, plot: bool) -> VersionedIde
 
 def images_content(session: str | Path, images_dir: str | Path | None) -> str:
     """The images of a session in an identity: "" when none were read; else the digests of its keyframe images
-    the map records (run.json `keyframe_images`, which `session_images_dir` checked the directory against), not
+    the map records (run.json `keyframe_images`, which `compared_images_dirs` checked the directory against), not
     where they lie, so that a project moved whole is the same comparison (nu37 D1). A map without that record
     (an older sosmatch): the directory's path, as before."""
     if not images_dir:
@@ -452,11 +448,7 @@ def _identity_before(session_a: str | Path, session_b: str | Path, match_json: s
             return None
         files_a, files_b = read_session(session_a), read_session(session_b)
         prints = check_two_maps(session_a, session_b, files_a.landmarks, files_b.landmarks)
-        dirs: list[Path | None] = [None, None]
-        if params.changes.surface_evidence:
-            dirs = [session_images_dir(files_a, images_a), session_images_dir(files_b, images_b)]
-            if None in dirs:
-                dirs = [None, None]
+        dirs, _ = compared_images_dirs((files_a, files_b), (images_a, images_b), params.changes.surface_evidence)
     except InputError:
         return None
     return _identity(list(prints), match.transform, [session_a, session_b], dirs, params, plot)
