@@ -422,6 +422,33 @@ def test_a_session_record_with_entries_of_other_types_is_no_traceback(toy, tmp_p
     assert code == 0 and line.startswith("changes: ") and "Traceback" not in err
 
 
+def test_maps_whose_sizes_are_defined_differently_are_compared_with_a_warning(toy, tmp_path, capsys, caplog):
+    """rev44 D2: `match` warns when the maps' run.json record different size-defining settings, `changes` compared
+    them without a word, though its size_change_m and its counterparts' size test read the same sizes. The note is
+    match's (`size_definition_disagreement`), on stderr and in changes.json; none when the settings agree."""
+    root = toy[0]
+    said = {}
+    for case, b_estimator in (("same", "nadir"), ("other", "mean")):
+        sessions = []
+        for name, estimator in (("A", "nadir"), ("B", b_estimator)):
+            copy = tmp_path / f"{name}_{case}"
+            shutil.copytree(root / name, copy)
+            (copy / "run.json").write_text(json.dumps({"params": {"triangulation": {"size_estimator": estimator},
+                                                                  "segmentation": {"backend": "classical"}}}))
+            sessions.append(copy)
+        out = tmp_path / f"C_{case}"
+        caplog.clear()
+        code, _, err = run([*sessions, "--match", root / "AB" / "match.json", "--out", out, "--no-plot"], capsys)
+        assert code == 0, err
+        said[case] = [w for w in json.loads((out / "changes.json").read_text())["warnings"]
+                      if "define landmark sizes differently" in w]
+        logged = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        assert [w for w in logged if "define landmark sizes differently" in w] == said[case]
+    assert said["same"] == []
+    assert len(said["other"]) == 1 and "'nadir' in A, 'mean' in B" in said["other"][0]
+    assert "size_change_m" in said["other"][0]
+
+
 def test_an_unverified_match_is_said_and_out_may_not_lie_among_the_recorded_images(toy, tmp_path, cli_error, caplog):
     """The seventh new-user sweep: `changes` took a --no-verify match without a word (merge warns), and wrote its
     output into the images folder a session's run.json records, which it reads for the surface heights."""
