@@ -118,6 +118,19 @@ def test_the_run_s_warnings_are_kept_in_its_record_and_on_its_plot(toy, tmp_path
         parse_changes_record({**doc, "format": "sosmatch merge v1"})
 
 
+def test_the_summary_line_is_said_once(toy, tmp_path, capsys, caplog):
+    """rev44 D4: the summary went to stderr (INFO) and to stdout (the command's line); `match` says its line once."""
+    import logging
+
+    root = toy[0]
+    with caplog.at_level(logging.INFO):
+        code, line, _ = run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", tmp_path / "C",
+                             "--no-plot"], capsys)
+    assert code == 0 and line.startswith("changes: ")
+    summary = line.removeprefix("changes: ").split(" -> ")[0]
+    assert not [r for r in caplog.records if r.levelno >= logging.INFO and summary in r.getMessage()]
+
+
 def test_min_confidence_one_reports_no_change(toy, tmp_path, capsys):
     root = toy[0]
     out = tmp_path / "C"

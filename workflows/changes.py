@@ -487,5 +487,5 @@ def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, ou
                          legacy_record="changes.json") as out:
         write_outputs(changes, out.path, params, plot)
         out.finish()
-    log.info("%s", changes.summary())
+    log.debug("%s", changes.summary())  # the command prints it (rev44 D4: twice at INFO)
     return changes
