@@ -422,6 +422,9 @@ def test_a_session_without_its_database_is_said(toy, caplog):
     # named by their folders first (a batch's pair B--C has B as its "session A")
     assert f"{root / 'A'} (session A of the comparison) has no database.db" in caplog.text
     assert f"{root / 'B'} (session B of the comparison) has no database.db" in caplog.text
+    # and what that leaves: at the default --min-confidence no claim rests on a map alone (rev44 D3: unsaid)
+    assert "below --min-confidence 0.8: no gone claim comes from it" in caplog.text
+    assert "below --min-confidence 0.8: no new claim comes from it" in caplog.text
 
 
 def test_a_session_record_with_entries_of_other_types_is_no_traceback(toy, tmp_path, capsys):

@@ -61,7 +61,7 @@ from ..plugin.changes import (
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params import Params, params_to_dict
-from .changes_images import image_notes, untested_note
+from .changes_images import database_note, image_notes, untested_note
 
 log = logging.getLogger(__name__)
 
@@ -164,12 +164,10 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
                         f"the segments alone decide{untested_note(params.changes)}")
     obs_a = read_session_observations(files_a, with_tracks=tracks, images_dir=dirs[0])
     obs_b = read_session_observations(files_b, with_tracks=tracks, images_dir=dirs[1])
-    for name, path, obs in (("A", session_a, obs_a), ("B", session_b, obs_b)):
-        if obs.segments is None:
-            warnings.append(f"{path} (session {name} of the comparison) has no database.db: its own segments "
-                            "cannot say whether the other session's objects are there; its confidences come from the "
-                            "pair's re-observation rate")
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
+    for name, path, obs, other in (("A", session_a, obs_a, session_b), ("B", session_b, obs_b, session_a)):
+        if obs.segments is None:
+            warnings.append(database_note(result, name, path, other, params.changes))
     for name, path, files, d in (("A", session_a, files_a, dirs[0]), ("B", session_b, files_b, dirs[1])):
         warnings += image_notes(result, name, path, files.path, d, params.changes)
     for name in result.without_relief:
