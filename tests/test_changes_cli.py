@@ -175,6 +175,23 @@ def test_georeferenced_maps_give_geojson(toy, tmp_path, capsys, caplog, epsg):
     assert "often the ellipsoidal height for RTK" in fc["properties"]["height_reference"]
 
 
+def test_a_georeferenced_b_against_a_local_a_says_why_there_is_no_geojson(toy, tmp_path, capsys):
+    """rev44 D6: B in a CRS, A in a local frame: the verdicts are placed in A's frame, so no changes.geojson, and
+    nothing said why. One warning, recorded, naming the order that gives one."""
+    root = toy[0]
+    geo = tmp_path / "B"
+    shutil.copytree(root / "B", geo)
+    lmap = read_landmark_map(geo / "landmarks.sosmap")
+    write_landmark_map(geo / "landmarks.sosmap", type(lmap)(lmap.positions, lmap.sizes, lmap.origin, 27700))
+    match = toy_match_json(toy[2], load_toy_session(geo), tmp_path / "match.json")
+    out = tmp_path / "C"
+    code, _, err = run([root / "A", geo, "--match", match, "--out", out, "--no-plot"], capsys)
+    assert code == 0, err
+    assert not (out / "changes.geojson").exists()
+    said = [w for w in json.loads((out / "changes.json").read_text())["warnings"] if "no changes.geojson" in w]
+    assert len(said) == 1 and "EPSG:27700" in said[0] and "`sosmatch changes B A`" in said[0]
+
+
 def _refused(args, capsys, out, needle):
     code, line, err = run(args, capsys)
     assert code == 2 and not line and len(err.splitlines()) == 1 and needle in err, err

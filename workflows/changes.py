@@ -225,6 +225,10 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
                "images_a": str(dirs[0] or ""), "images_b": str(dirs[1] or ""),
                "map_a": prints[0], "map_b": prints[1]}
     epsg = int(files_a.landmarks.epsg)
+    if not epsg and files_b.landmarks.epsg:  # the verdicts are placed in A's frame (rev44 D6: no geojson, unsaid)
+        warnings.append(f"{session_b} (session B) is georeferenced (EPSG:{files_b.landmarks.epsg}) and {session_a} "
+                        "(A) is not: the verdicts are in A's local frame, so no changes.geojson; for one, compare "
+                        "them in the other order (`sosmatch match B A`, then `sosmatch changes B A`)")
     if epsg:
         try:  # the same plausibility test as `export`: a local frame stamped with a CRS has no place on Earth
             check_within_crs_area(epsg, files_a.landmarks.positions[:, :2], session_a)
