@@ -432,6 +432,24 @@ def test_an_added_object_that_was_never_mapped_is_found_from_its_track():
     assert len(mapped.unmapped_b) == 0 and mapped.b.label[0] == NEW
 
 
+def test_batch_counts_objects_never_mapped_as_objects_not_landmarks():
+    """rev44 D8: batch's pair row adds the claims of objects never mapped to `gone` / `new`, and its report called
+    them "landmarks gone, new". A pair whose one change is a bush B never mapped: no landmark is new, one object
+    is; the row and the report say objects."""
+    from pathlib import Path
+
+    from sosmatch.workflows.batch.report import BatchReport
+    from sosmatch.workflows.batch.tasks import pair_change_counts
+
+    a, b, _ = _unmapped_pair(mapped_in_b=False)
+    res = detect_changes(a, b, yaw_transform(0.0, (0.0, 0.0, 0.0)), ChangeParams(), 2.0)
+    assert res.counts()["new"] == 0 and res.counts()["new_unmapped"] == 1
+    row = pair_change_counts(res.counts())
+    assert row["new"] == 1 and row["gone"] == 0 and row["kept"] == res.a.count(KEPT)
+    report = BatchReport(Path("out"), pairs=[{"changes_status": "done", **row}])
+    assert report.changes_line() == "0 objects gone, 1 new in 1 pair(s)"
+
+
 def test_a_track_is_an_object_only_where_its_own_segments_show_it_and_its_place_is_fixed():
     a, b, bush = _unmapped_pair(mapped_in_b=False)
     same = yaw_transform(0.0, (0.0, 0.0, 0.0))
