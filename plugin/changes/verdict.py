@@ -63,6 +63,7 @@ class LandmarkChanges:
     height_above_ground_m: np.ndarray
 
     def count(self, label: str) -> int:
+        """How many landmarks have class `label` (kept, gone, new, unseen)."""
         return int(np.count_nonzero(self.label == label))
 
 
@@ -97,6 +98,7 @@ class ChangeResult:
 
     @property
     def common_area(self) -> object:
+        """The ground both sessions observed (shapely geometry in A's frame): the intersection of their areas."""
         import shapely
 
         return shapely.intersection(self.observed_a, self.observed_b)
