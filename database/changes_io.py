@@ -79,6 +79,9 @@ def change_rows(result: ChangeResult) -> list[list[str]]:
 
 
 def format_changes_csv(result: ChangeResult) -> str:
+    """changes.csv of a comparison as text: the header `CHANGE_COLUMNS`, one row per landmark of A then of B, then
+    one per object either session never mapped (`source` track); fixed decimals, so equal results give equal
+    bytes (`read_changes_csv` reads it back)."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(CHANGE_COLUMNS)

@@ -58,17 +58,16 @@ def size_definition(record: dict | None) -> dict[str, str] | None:
     return found or None
 
 
-def size_definition_disagreement(a: LoadedMap, b: LoadedMap) -> str | None:
-    """One line when both maps record how their sizes are defined and the definitions differ (the search compares
-    the two maps' sizes within theta_r: a few percent of systematic difference costs associations and, on a kind of
-    object, all of them), else None."""
-    if a.size_definition is None or b.size_definition is None:
+def size_definition_disagreement(a: dict[str, str] | None, b: dict[str, str] | None) -> str | None:
+    """One line when both maps record how their sizes are defined (`size_definition`, `LoadedMap.size_definition`)
+    and the definitions differ (the search compares the two maps' sizes within theta_r: a few percent of systematic
+    difference costs associations and, on a kind of object, all of them), else None."""
+    if a is None or b is None:
         return None
-    differ = [k for k in sorted(set(a.size_definition) & set(b.size_definition))
-              if a.size_definition[k] != b.size_definition[k]]
+    differ = [k for k in sorted(set(a) & set(b)) if a[k] != b[k]]
     if not differ:
         return None
-    said = ", ".join(f"{k} {a.size_definition[k]!r} in A, {b.size_definition[k]!r} in B" for k in differ)
+    said = ", ".join(f"{k} {a[k]!r} in A, {b[k]!r} in B" for k in differ)
     return (f"the maps define landmark sizes differently ({said}): the same object's size differs systematically "
             "between them, and the search compares sizes within a few tens of percent; map both sessions with the "
             "same setting (`--set " + differ[0] + "=...`)")

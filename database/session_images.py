@@ -127,7 +127,13 @@ def recorded_images_dir(session: str | Path) -> Path | None:
     when it exists: it moves with a project folder moved or copied whole (a copy whose absolute path still names
     the original's images read those, and edits there changed the copy's results). The absolute path otherwise:
     a session folder moved alone. Which images a map was made from is checked by the caller
-    (`check_map_of_images`)."""
+    (`check_map_of_images`).
+
+    The relative place is tried from the session as given (`map` computed it from the path it wrote to) and from
+    the folder it really is (a session reached through a symlink, `flights/M1 -> ../M1`: the OS reads
+    `flights/M1/../S1` as `M1/../S1`); the path returned is the one found to be a directory (rev44 D1: the
+    existence was tested on one and the other returned, so a batch over a folder of linked sessions compared
+    them without their images)."""
     try:
         record = read_map_record(Path(session)) or {}
         recorded = (record.get("inputs") or {}).get("images")
@@ -136,8 +142,12 @@ def recorded_images_dir(session: str | Path) -> Path | None:
         return None
     if not (isinstance(recorded, str) and recorded):
         return None
-    if isinstance(relative, str) and relative and (Path(session) / relative).is_dir():
-        return Path(os.path.normpath(Path(session).absolute() / relative))
+    if isinstance(relative, str) and relative:
+        given = Path(session).absolute()
+        for base in (given, given.resolve()):
+            candidate = Path(os.path.normpath(base / relative))
+            if candidate.is_dir():
+                return candidate
     return Path(recorded)
 
 
@@ -156,3 +166,17 @@ def session_images_dir(session: str | Path | SessionFiles, images_dir: str | Pat
                          "images directory not found", images_dir)
     check_map_of_images(path, images_dir)
     return images_dir
+
+
+def compared_images_dirs(sessions: Sequence[str | Path | SessionFiles], given: Sequence[str | Path | None],
+                         wanted: bool = True) -> tuple[list[Path | None], list[int]]:
+    """The images directories change detection reads for each compared session (`session_images_dir`: the one
+    given, else the one its run.json records) and the positions of the sessions whose images are not available.
+    The surface evidence compares the sessions' images with each other, so with one session's missing none is
+    used (all None); none either when not `wanted` (`changes.surface_evidence` off). InputError as
+    `session_images_dir` (a given directory that is missing, or images the map was not made from)."""
+    if not wanted:
+        return [None] * len(sessions), []
+    dirs = [session_images_dir(s, g) for s, g in zip(sessions, given, strict=True)]
+    missing = [k for k, d in enumerate(dirs) if d is None]
+    return ([None] * len(dirs) if missing else dirs), missing

@@ -1174,3 +1174,27 @@ def test_an_epsg_that_is_no_projected_crs_is_refused_whatever_the_flights(tmp_pa
         err = cli_error("batch", tmp_path / "F", "--out", tmp_path / "O", "--epsg", code)
         assert "--epsg: EPSG" in err
     assert not (tmp_path / "O").exists()
+
+
+def test_batch_takes_min_confidence_as_changes_does(tmp_path, cli_error, monkeypatch):
+    """rev44 D7: batch's warnings advise `--min-confidence`, which batch lacked (only `--set
+    changes.min_confidence=`). It has the option now, with the meaning, the check and the parameter of `changes`."""
+    from types import SimpleNamespace
+
+    from sosmatch.workflows import batch as batch_workflow
+
+    (tmp_path / "F").mkdir()
+    assert "--min-confidence must be between 0 and 1" in cli_error(
+        "batch", tmp_path / "F", "--out", tmp_path / "O", "--min-confidence", "2")
+    assert not (tmp_path / "O").exists()
+    given = {}
+
+    def record(flights_dir, out, params, executor, options):  # what the command hands the workflow
+        given["params"] = params
+        return SimpleNamespace(sessions=[], pairs=[], groups=[], warnings=[], failures=[], ok=True,
+                               changes_line=lambda: "")
+
+    monkeypatch.setattr(batch_workflow, "run", record)
+    assert main(["batch", str(tmp_path / "F"), "--out", str(tmp_path / "O"), "--workers", "0",
+                 "--min-confidence", "0.3"]) == 0
+    assert given["params"].changes.min_confidence == 0.3

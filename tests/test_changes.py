@@ -185,6 +185,35 @@ def test_logistic_fit_recovers_a_monotone_rate():
     assert np.all(np.isfinite(flat)) and predict_logistic(flat, x).min() > 0.9
 
 
+def test_without_the_other_session_s_segments_a_landmark_is_scored_by_a_fit_it_took_no_part_in(pair):
+    """rev44 D3: without B's database.db the fallback fitted the re-observation logistic on every compared landmark
+    of A, the ones B's map lacks as its negatives, and scored those same landmarks with it (their rate pulled low),
+    and wrote it as the confidence of kept landmarks too (the README: 0). Now each landmark's re-observation rate p
+    is held out (its own label does not move it), the claim's confidence is the probability of absence at prior
+    odds 1 given p, 1 / (2 - p) (an absent object always goes unmapped, a present one with 1 - p), and kept
+    landmarks keep 0."""
+    from dataclasses import replace
+
+    from sosmatch.plugin.changes import held_out_logistic
+
+    rng = np.random.default_rng(4)
+    x = rng.normal(0, 1, (60, 2))
+    y = rng.random(60) < 1 / (1 + np.exp(-(1.0 + 1.5 * x[:, 0])))
+    p = held_out_logistic(x, y)
+    for i in (0, 7, 33):
+        flipped = y.copy()
+        flipped[i] = ~flipped[i]
+        assert held_out_logistic(x, flipped)[i] == pytest.approx(p[i], abs=1e-12)  # its own label does not count
+    assert held_out_logistic(x[:1], y[:1])[0] == 0.5  # nothing else to fit on
+
+    *_, a, ids_a, b, ids_b, a_from_b = pair
+    res = detect_changes(a, replace(b, segments=None), a_from_b, ChangeParams(min_confidence=0.0), 2.0)
+    kept, judged = res.a.label == KEPT, res.a.label == GONE
+    assert kept.sum() >= 30 and judged.sum() >= 3
+    assert np.all(res.a.confidence[kept] == 0.0)
+    assert np.all((res.a.confidence[judged] >= 0.5) & (res.a.confidence[judged] < 1.0))
+
+
 def test_a_verified_alignment_needs_only_to_beat_chance():
     """match's verification answers whether the alignment is right; changes then refuses only a chance-level
     pairing. The audit's sparse summer/winter pair: 13 of 89 (15 %) against 6 % displaced, p 0.0015."""
@@ -401,6 +430,24 @@ def test_an_added_object_that_was_never_mapped_is_found_from_its_track():
     a2, b2, _ = _unmapped_pair(mapped_in_b=True)
     mapped = detect_changes(a2, b2, same, ChangeParams(), 2.0)
     assert len(mapped.unmapped_b) == 0 and mapped.b.label[0] == NEW
+
+
+def test_batch_counts_objects_never_mapped_as_objects_not_landmarks():
+    """rev44 D8: batch's pair row adds the claims of objects never mapped to `gone` / `new`, and its report called
+    them "landmarks gone, new". A pair whose one change is a bush B never mapped: no landmark is new, one object
+    is; the row and the report say objects."""
+    from pathlib import Path
+
+    from sosmatch.workflows.batch.report import BatchReport
+    from sosmatch.workflows.batch.tasks import pair_change_counts
+
+    a, b, _ = _unmapped_pair(mapped_in_b=False)
+    res = detect_changes(a, b, yaw_transform(0.0, (0.0, 0.0, 0.0)), ChangeParams(), 2.0)
+    assert res.counts()["new"] == 0 and res.counts()["new_unmapped"] == 1
+    row = pair_change_counts(res.counts())
+    assert row["new"] == 1 and row["gone"] == 0 and row["kept"] == res.a.count(KEPT)
+    report = BatchReport(Path("out"), pairs=[{"changes_status": "done", **row}])
+    assert report.changes_line() == "0 objects gone, 1 new in 1 pair(s)"
 
 
 def test_a_track_is_an_object_only_where_its_own_segments_show_it_and_its_place_is_fixed():

@@ -118,6 +118,19 @@ def test_the_run_s_warnings_are_kept_in_its_record_and_on_its_plot(toy, tmp_path
         parse_changes_record({**doc, "format": "sosmatch merge v1"})
 
 
+def test_the_summary_line_is_said_once(toy, tmp_path, capsys, caplog):
+    """rev44 D4: the summary went to stderr (INFO) and to stdout (the command's line); `match` says its line once."""
+    import logging
+
+    root = toy[0]
+    with caplog.at_level(logging.INFO):
+        code, line, _ = run([root / "A", root / "B", "--match", root / "AB" / "match.json", "--out", tmp_path / "C",
+                             "--no-plot"], capsys)
+    assert code == 0 and line.startswith("changes: ")
+    summary = line.removeprefix("changes: ").split(" -> ")[0]
+    assert not [r for r in caplog.records if r.levelno >= logging.INFO and summary in r.getMessage()]
+
+
 def test_min_confidence_one_reports_no_change(toy, tmp_path, capsys):
     root = toy[0]
     out = tmp_path / "C"
@@ -160,6 +173,23 @@ def test_georeferenced_maps_give_geojson(toy, tmp_path, capsys, caplog, epsg):
     assert "not converted to the WGS84 ellipsoidal height" in fc["properties"]["height_reference"]
     # nu34 D5: RTK receivers often report ellipsoidal heights: no claim that may be wrong
     assert "often the ellipsoidal height for RTK" in fc["properties"]["height_reference"]
+
+
+def test_a_georeferenced_b_against_a_local_a_says_why_there_is_no_geojson(toy, tmp_path, capsys):
+    """rev44 D6: B in a CRS, A in a local frame: the verdicts are placed in A's frame, so no changes.geojson, and
+    nothing said why. One warning, recorded, naming the order that gives one."""
+    root = toy[0]
+    geo = tmp_path / "B"
+    shutil.copytree(root / "B", geo)
+    lmap = read_landmark_map(geo / "landmarks.sosmap")
+    write_landmark_map(geo / "landmarks.sosmap", type(lmap)(lmap.positions, lmap.sizes, lmap.origin, 27700))
+    match = toy_match_json(toy[2], load_toy_session(geo), tmp_path / "match.json")
+    out = tmp_path / "C"
+    code, _, err = run([root / "A", geo, "--match", match, "--out", out, "--no-plot"], capsys)
+    assert code == 0, err
+    assert not (out / "changes.geojson").exists()
+    said = [w for w in json.loads((out / "changes.json").read_text())["warnings"] if "no changes.geojson" in w]
+    assert len(said) == 1 and "EPSG:27700" in said[0] and "`sosmatch changes B A`" in said[0]
 
 
 def _refused(args, capsys, out, needle):
@@ -409,6 +439,9 @@ def test_a_session_without_its_database_is_said(toy, caplog):
     # named by their folders first (a batch's pair B--C has B as its "session A")
     assert f"{root / 'A'} (session A of the comparison) has no database.db" in caplog.text
     assert f"{root / 'B'} (session B of the comparison) has no database.db" in caplog.text
+    # and what that leaves: at the default --min-confidence no claim rests on a map alone (rev44 D3: unsaid)
+    assert "below --min-confidence 0.8: no gone claim comes from it" in caplog.text
+    assert "below --min-confidence 0.8: no new claim comes from it" in caplog.text
 
 
 def test_a_session_record_with_entries_of_other_types_is_no_traceback(toy, tmp_path, capsys):
@@ -420,6 +453,33 @@ def test_a_session_record_with_entries_of_other_types_is_no_traceback(toy, tmp_p
     (b / "run.json").write_text(json.dumps({"inputs": ["x"], "keyframe_images": 5, "counts": 3}))
     code, line, err = run([root / "A", b, "--match", root / "AB" / "match.json", "--out", tmp_path / "C"], capsys)
     assert code == 0 and line.startswith("changes: ") and "Traceback" not in err
+
+
+def test_maps_whose_sizes_are_defined_differently_are_compared_with_a_warning(toy, tmp_path, capsys, caplog):
+    """rev44 D2: `match` warns when the maps' run.json record different size-defining settings, `changes` compared
+    them without a word, though its size_change_m and its counterparts' size test read the same sizes. The note is
+    match's (`size_definition_disagreement`), on stderr and in changes.json; none when the settings agree."""
+    root = toy[0]
+    said = {}
+    for case, b_estimator in (("same", "nadir"), ("other", "mean")):
+        sessions = []
+        for name, estimator in (("A", "nadir"), ("B", b_estimator)):
+            copy = tmp_path / f"{name}_{case}"
+            shutil.copytree(root / name, copy)
+            (copy / "run.json").write_text(json.dumps({"params": {"triangulation": {"size_estimator": estimator},
+                                                                  "segmentation": {"backend": "classical"}}}))
+            sessions.append(copy)
+        out = tmp_path / f"C_{case}"
+        caplog.clear()
+        code, _, err = run([*sessions, "--match", root / "AB" / "match.json", "--out", out, "--no-plot"], capsys)
+        assert code == 0, err
+        said[case] = [w for w in json.loads((out / "changes.json").read_text())["warnings"]
+                      if "define landmark sizes differently" in w]
+        logged = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        assert [w for w in logged if "define landmark sizes differently" in w] == said[case]
+    assert said["same"] == []
+    assert len(said["other"]) == 1 and "'nadir' in A, 'mean' in B" in said["other"][0]
+    assert "size_change_m" in said["other"][0]
 
 
 def test_an_unverified_match_is_said_and_out_may_not_lie_among_the_recorded_images(toy, tmp_path, cli_error, caplog):

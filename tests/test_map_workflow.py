@@ -668,6 +668,32 @@ def test_a_copied_project_reads_its_own_images_not_the_originals(tmp_path):
     assert recorded_images_dir(alone) == tmp_path / "project" / "images"
 
 
+def test_a_session_reached_through_a_symlinked_folder_finds_its_images(session, tmp_path):
+    """rev44 D1: `flights/M1 -> ../M1` with run.json recording `../S1/images`: the OS found `M1/../S1/images`, but
+    the lexical `flights/S1/images` was returned, which does not exist, and `changes` (and batch over such a
+    folder) compared the sessions without their images. The path returned is the one that exists; with the
+    relative place gone either way, the absolute path run.json records."""
+    from sosmatch.database.session_images import recorded_images_dir, session_images_dir
+
+    root, _, out, _ = session
+    flights = tmp_path / "flights"
+    flights.mkdir()
+    (flights / "mapped").symlink_to(out, target_is_directory=True)
+    record = json.loads((out / "run.json").read_text())
+    assert record["inputs_from_session"]["images"] == "../images"
+    found = recorded_images_dir(flights / "mapped")
+    assert found.is_dir() and found.samefile(root / "images")
+    assert session_images_dir(flights / "mapped") == found  # and they are the map's images
+
+    # the relative place exists neither from the link nor from the real folder: the absolute path recorded
+    project = tmp_path / "project"
+    (project / "mapped").mkdir(parents=True)
+    (project / "mapped" / "run.json").write_text(json.dumps({
+        "inputs": {"images": str(root / "images")}, "inputs_from_session": {"images": "../../nowhere/images"}}))
+    (flights / "linked").symlink_to(project / "mapped", target_is_directory=True)
+    assert recorded_images_dir(flights / "linked") == root / "images"
+
+
 def test_an_output_folder_moved_mid_run_stops_it_in_one_line_and_nothing_comes_back(session, tmp_path, capsys,
                                                                                     monkeypatch):
     """`mv OUT NEW` while map writes OUT: exit 2 with one line naming OUT and the new place, nothing re-created at

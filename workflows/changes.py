@@ -37,11 +37,12 @@ from ..database.changes_io import (
 )
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
+from ..database.map_loading import size_definition, size_definition_disagreement
 from ..database.match_io import answer_gate, check_match_maps, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import VersionedIdentity, fingerprint, versioned_identity
 from ..database.outputs import check_output_dir, open_output_dir
-from ..database.session_images import recorded_images_dir, session_images_dir
+from ..database.session_images import compared_images_dirs, recorded_images_dir
 from ..database.session_io import SessionFiles, read_map_record, read_session, read_session_observations
 from ..plugin import __version__
 from ..plugin.changes import (
@@ -60,7 +61,7 @@ from ..plugin.changes import (
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
 from ..plugin.params import Params, params_to_dict
-from .changes_images import image_notes, untested_note
+from .changes_images import database_note, image_notes, untested_note
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +141,6 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         check_match_maps(match, files_a.landmarks, files_b.landmarks, match_json,
                          names=(str(session_a), str(session_b)))
     tracks = params.changes.unmapped_objects
-    dirs = [None, None]
     warnings = []  # said once every check has passed: a refused run prints its one-line error alone
     if match is not None and (note := check_georeferences(match, files_a.landmarks, files_b.landmarks, match_json,
                                                           trust_images, "compared", "compares them")) is not None:
@@ -149,26 +149,25 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if match is not None and (note := imprecise_note(match)) is not None:
         warnings.append(f"{match_json}: {note}: objects near the far side of the common area may be compared "
                         "with the wrong partners")
+    if (note := size_definition_disagreement(*(size_definition(read_map_record(f.path)) for f in (files_a, files_b)))):
+        # match warns of it for its search; here the sizes are compared again (rev44 D2: silent before)
+        warnings.append(f"{note}; here size_change_m carries that difference, and kept objects whose sizes it "
+                        "pushes beyond changes.max_size_difference lose their counterpart (claimed gone or new)")
     if match is not None and not verified and (note := unverified_note(match)) is not None:
         warnings.append(f"{match_json}: {note}: its transform is used only because B's landmarks find "
                         "counterparts in A far more often than by chance; `sosmatch match` again verifies it")
-    if params.changes.surface_evidence:
-        dirs = [session_images_dir(files_a, images_a), session_images_dir(files_b, images_b)]
-        if None in dirs:
-            missing = " and ".join(f"{name} ({path})" for name, path, d in (("A", session_a, dirs[0]),
-                                                                            ("B", session_b, dirs[1])) if d is None)
-            warnings.append(f"the images of session {missing} are not available (no run.json recording them, or "
-                            f"the directory it records is gone; {images_advice}): no surface evidence, "
-                            f"the segments alone decide{untested_note(params.changes)}")
-            dirs = [None, None]
+    dirs, lacking = compared_images_dirs((files_a, files_b), (images_a, images_b), params.changes.surface_evidence)
+    if lacking:
+        missing = " and ".join(f"{'AB'[k]} ({(session_a, session_b)[k]})" for k in lacking)
+        warnings.append(f"the images of session {missing} are not available (no run.json recording them, or "
+                        f"the directory it records is gone; {images_advice}): no surface evidence, "
+                        f"the segments alone decide{untested_note(params.changes)}")
     obs_a = read_session_observations(files_a, with_tracks=tracks, images_dir=dirs[0])
     obs_b = read_session_observations(files_b, with_tracks=tracks, images_dir=dirs[1])
-    for name, path, obs in (("A", session_a, obs_a), ("B", session_b, obs_b)):
-        if obs.segments is None:
-            warnings.append(f"{path} (session {name} of the comparison) has no database.db: its own segments "
-                            "cannot say whether the other session's objects are there; its confidences come from the "
-                            "pair's re-observation rate")
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
+    for name, path, obs, other in (("A", session_a, obs_a, session_b), ("B", session_b, obs_b, session_a)):
+        if obs.segments is None:
+            warnings.append(database_note(result, name, path, other, params.changes))
     for name, path, files, d in (("A", session_a, files_a, dirs[0]), ("B", session_b, files_b, dirs[1])):
         warnings += image_notes(result, name, path, files.path, d, params.changes)
     for name in result.without_relief:
@@ -226,6 +225,10 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
                "images_a": str(dirs[0] or ""), "images_b": str(dirs[1] or ""),
                "map_a": prints[0], "map_b": prints[1]}
     epsg = int(files_a.landmarks.epsg)
+    if not epsg and files_b.landmarks.epsg:  # the verdicts are placed in A's frame (rev44 D6: no geojson, unsaid)
+        warnings.append(f"{session_b} (session B) is georeferenced (EPSG:{files_b.landmarks.epsg}) and {session_a} "
+                        "(A) is not: the verdicts are in A's local frame, so no changes.geojson; for one, compare "
+                        "them in the other order (`sosmatch match B A`, then `sosmatch changes B A`)")
     if epsg:
         try:  # the same plausibility test as `export`: a local frame stamped with a CRS has no place on Earth
             check_within_crs_area(epsg, files_a.landmarks.positions[:, :2], session_a)
@@ -413,7 +416,7 @@ def output_identity(run: ChangesRun, params: Params, plot: bool) -> VersionedIde
 
 def images_content(session: str | Path, images_dir: str | Path | None) -> str:
     """The images of a session in an identity: "" when none were read; else the digests of its keyframe images
-    the map records (run.json `keyframe_images`, which `session_images_dir` checked the directory against), not
+    the map records (run.json `keyframe_images`, which `compared_images_dirs` checked the directory against), not
     where they lie, so that a project moved whole is the same comparison (nu37 D1). A map without that record
     (an older sosmatch): the directory's path, as before."""
     if not images_dir:
@@ -452,11 +455,7 @@ def _identity_before(session_a: str | Path, session_b: str | Path, match_json: s
             return None
         files_a, files_b = read_session(session_a), read_session(session_b)
         prints = check_two_maps(session_a, session_b, files_a.landmarks, files_b.landmarks)
-        dirs: list[Path | None] = [None, None]
-        if params.changes.surface_evidence:
-            dirs = [session_images_dir(files_a, images_a), session_images_dir(files_b, images_b)]
-            if None in dirs:
-                dirs = [None, None]
+        dirs, _ = compared_images_dirs((files_a, files_b), (images_a, images_b), params.changes.surface_evidence)
     except InputError:
         return None
     return _identity(list(prints), match.transform, [session_a, session_b], dirs, params, plot)
@@ -490,5 +489,5 @@ def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, ou
                          legacy_record="changes.json") as out:
         write_outputs(changes, out.path, params, plot)
         out.finish()
-    log.info("%s", changes.summary())
+    log.debug("%s", changes.summary())  # the command prints it (rev44 D4: twice at INFO)
     return changes

@@ -1,8 +1,10 @@
-"""What the images of a session compared by `sosmatch changes` put in doubt: a flight heavily JPEG-compressed
-(`plugin.jpeg_quality`) or motion-blurred along its track (`plugin.motion_blur`) makes gone and new claims of
-artefacts, at confidences that cannot show it (they are calibrated on the pair's kept landmarks, which such
+"""What the inputs of a session compared by `sosmatch changes` put in doubt. Its images: a flight heavily
+JPEG-compressed (`plugin.jpeg_quality`) or motion-blurred along its track (`plugin.motion_blur`) makes gone and new
+claims of artefacts, at confidences that cannot show it (they are calibrated on the pair's kept landmarks, which such
 images leave alike); `image_notes` names those claims. Read from the session's run.json (`sosmatch map` records
-both), else, for the compression, from its images' headers.
+both), else, for the compression, from its images' headers. Its database (`database_note`): without its
+segments, claims against it rest on its map alone. Images missing or without relief (`untested_note`): claims
+untested for an object standing there.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..database.session_io import read_map_record
-from ..plugin.changes import GONE, NEW, ChangeResult
+from ..plugin.changes import GONE, LOW_CONFIDENCE, NEW, NO_EVIDENCE, ChangeResult
 from ..plugin.errors import InputError
 from ..plugin.jpeg_quality import FlightCompression
 from ..plugin.params.changes import ChangeParams
@@ -117,3 +119,24 @@ def untested_note(params: ChangeParams) -> str:
     return (f", and they cannot tell a change of looks (a moved shadow, ground texture) from an object that went: "
             f"each claim's confidence is P(absent | segments) x {rate:g} (changes.untested_object_rate, the share "
             f"of such claims on an object), {held}")
+
+
+def database_note(result: ChangeResult, name: str, path: str | Path, other: str | Path, params: ChangeParams) -> str:
+    """The warning for session `name` (A or B; `path` as the user gave it) compared without its database.db: its
+    segments cannot show the other session's (`other`) objects, so a claim that one of them went from it (gone of
+    A's landmarks against B, new of B's against A) rests on its map lacking the landmark alone; the confidence is
+    then the probability of absence given how often that map holds landmarks like it (`plugin.changes.verdict`).
+    Says the highest such confidence and how many claims pass `min_confidence` (rev44 D3: none could, unsaid)."""
+    verdict, change = (result.a, GONE) if name == "B" else (result.b, NEW)
+    judged = np.isin(verdict.evidence, (NO_EVIDENCE, LOW_CONFIDENCE)) | (verdict.label == change)
+    top = float(np.max(verdict.confidence[judged])) if np.any(judged) else 0.0
+    claimed = verdict.count(change)
+    held = (f"the highest here is {top:.2f}, below --min-confidence {params.min_confidence:g}: no {change} claim "
+            "comes from it (lower it to list the candidates)" if not claimed else
+            f"{claimed} {change} claim(s) reach --min-confidence {params.min_confidence:g} (highest {top:.2f})")
+    return (f"{path} (session {name} of the comparison) has no database.db: its segments cannot say whether "
+            f"{other}'s objects are there, so a {change} claim rests only on its map lacking the landmark; its "
+            "confidence is the probability of absence given how often that map holds landmarks like it (1 / (2 - p), "
+            "p the pair's re-observation rate, held out; times changes.untested_object_rate when nothing tested an "
+            f"object standing there), {held}; map the session again (or copy its database.db back) for its segments' "
+            "evidence")

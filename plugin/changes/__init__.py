@@ -46,8 +46,11 @@ log-likelihood ratio of the two binomials is divided by the dispersion of a coun
 neighbouring keyframes see an object alike, so n views are fewer independent looks) and turned
 into a probability at prior odds 1. A claim below `min_confidence` (0.8 by default) is reported as unseen: the
 other session's images do not say that the object went. Without the other session's database (no segments)
-the confidence falls back to the pair's re-observation rate of landmarks like this one (`confidence`: logistic
-in log size, log views, height above ground and support, fitted on the compared landmarks). A claim that could
+the only sign of absence is that its map lacks the landmark: the confidence is then the probability of absence
+at prior odds 1 given how often that map holds landmarks like this one, 1 / (2 - p), with p the pair's
+re-observation rate (`confidence`: logistic in log size, log views, height above ground and support, fitted on
+the compared landmarks, each landmark scored by a fit it took no part in: `held_out_logistic`); it reaches 0.8
+only where p >= 0.75. A claim that could
 not be tested for an object standing there (no images of either session, or images without relief) has its
 confidence multiplied by `untested_object_rate`, the measured ratio of such claims' precision to tested ones'
 (most are changes of looks), so the default `min_confidence` reports none of them.
@@ -75,7 +78,7 @@ often it shows present objects), `surface` (each session's surface height at a p
 `absence_probability`).
 """
 
-from .confidence import fit_logistic, predict_logistic, reobservation_features
+from .confidence import fit_logistic, held_out_logistic, predict_logistic, reobservation_features
 from .evidence import (
     absence_log_ratio,
     binomial_tail,
@@ -135,7 +138,8 @@ __all__ = ["BELOW_GROUND", "BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS"
            "TOO_FEW_VIEWS", "UNSEEN", "AlignmentSupport", "ChangeResult", "KeyframeSegments", "LandmarkChanges",
            "SessionObservations", "UnmappedObjects", "absence_log_ratio", "alignment_support", "below_the_ground",
            "binomial_tail", "counterpart_gate", "counterparts", "detect_changes", "dispersion", "fit_logistic",
-           "ground_height_field", "ground_sweep_noise", "height_log_ratio", "heights_above_ground", "holder_pairs",
+           "ground_height_field", "ground_sweep_noise", "height_log_ratio", "held_out_logistic", "heights_above_ground",
+           "holder_pairs",
            "implausible_alignment", "implausible_pair", "in_view", "inside_larger", "landmark_presence_rate",
            "no_unmapped_objects", "observed_area", "pair_support", "predict_logistic", "presence_rate",
            "reobservation_features", "segment_evidence",

@@ -44,5 +44,22 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, ridge: float = 1.0, iterations: i
 
 
 def predict_logistic(weights: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """P(y | x) for each row of `x` ((N, F) features) under the logistic regression `weights` of `fit_logistic`
+    (intercept first, then one slope per feature)."""
     x = np.asarray(x, dtype=np.float64).reshape(-1, len(weights) - 1)
     return 1.0 / (1.0 + np.exp(-(weights[0] + x @ weights[1:])))
+
+
+def held_out_logistic(x: np.ndarray, y: np.ndarray, folds: int = 10) -> np.ndarray:
+    """P(y | x) of every sample, each predicted by a logistic regression (`fit_logistic`) fitted on the samples of
+    the other folds (samples dealt to `folds` folds in turn: deterministic), so that no sample is scored by a fit
+    it took part in: a sample's own label would pull its prediction towards itself (rev44 D3: the landmarks the
+    other map lacks were the negatives of the fit that scored them). 1/2 for a sample with nothing else to fit on."""
+    y = np.asarray(y, dtype=bool)
+    x = np.asarray(x, dtype=np.float64).reshape(len(y), -1)
+    fold = np.arange(len(y)) % max(min(folds, len(y)), 1)
+    p = np.full(len(y), 0.5)
+    for k in np.unique(fold) if len(y) > 1 else ():
+        test = fold == k
+        p[test] = predict_logistic(fit_logistic(x[~test], y[~test]), x[test])
+    return p

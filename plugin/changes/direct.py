@@ -83,6 +83,8 @@ class DirectEvidence:
 
     @property
     def established(self) -> np.ndarray:
+        """Per landmark: the other session shows it directly (compared, and a counterpart landmark or its own
+        segments): what a link may rest on."""
         return self.compared & ((self.index >= 0) | self.by_segments)
 
 

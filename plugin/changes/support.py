@@ -24,6 +24,7 @@ class AlignmentSupport:
 
     @property
     def rate(self) -> float:
+        """The share of compared landmarks with a counterpart at the true alignment (0 when none was compared)."""
         return self.matched / self.compared if self.compared else 0.0
 
     def counterpart_log_ratio(self) -> float:

@@ -13,7 +13,7 @@ from ..evaluation.footprints import HeightField
 from ..multisession import Sim3
 from ..params import ChangeParams
 from .absence import REFERENCE_LIMIT, absence_probability, presence, probability  # noqa: F401
-from .confidence import fit_logistic, predict_logistic, reobservation_features
+from .confidence import held_out_logistic, reobservation_features
 from .direct import DirectEvidence, direct_evidence
 from .evidence import (
     Sensing,
@@ -63,6 +63,7 @@ class LandmarkChanges:
     height_above_ground_m: np.ndarray
 
     def count(self, label: str) -> int:
+        """How many landmarks have class `label` (kept, gone, new, unseen)."""
         return int(np.count_nonzero(self.label == label))
 
 
@@ -97,6 +98,7 @@ class ChangeResult:
 
     @property
     def common_area(self) -> object:
+        """The ground both sessions observed (shapely geometry in A's frame): the intersection of their areas."""
         import shapely
 
         return shapely.intersection(self.observed_a, self.observed_b)
@@ -185,12 +187,19 @@ def _judge(own: SessionObservations, own_pos: np.ndarray, own_h: np.ndarray, oth
         label[present] = KEPT
         evidence[present] = BY_SEGMENTS
         open_[present] = False
-    elif other.segments is None and np.any(compared):
-        # no segments of the other session: its re-observation rate of landmarks like this one
+    elif other.segments is None and np.any(open_):
+        # no segments of the other session: the only sign that the object went is that its map lacks it. How often
+        # that map holds a landmark like this one (`reobserved`: a logistic on the pair's compared landmarks, each
+        # scored by a fit it took no part in) gives the probability of absence at prior odds 1, as the segments'
+        # confidence does: a present object goes unmapped with 1 - p, an absent one always, so 1 / (2 - p). Kept
+        # landmarks keep confidence 0 (rev44 D3: they had p, and the open ones, negatives of the fit that scored
+        # them, a p pulled low)
         idx = np.flatnonzero(compared)
         feats = reobservation_features(own_h[idx], views[idx], heights[idx],
                                        None if own.support is None else own.support[idx])
-        confidence[idx] = predict_logistic(fit_logistic(feats, label[idx] == KEPT), feats)
+        reobserved = held_out_logistic(feats, label[idx] == KEPT)
+        scored = open_[idx]
+        confidence[idx[scored]] = 1.0 / (2.0 - reobserved[scored])
     if mine.flat is None:  # not tested for an object standing there: most such claims are changes of looks
         confidence[open_] *= params.untested_object_rate
     label[open_] = change_label

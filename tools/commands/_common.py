@@ -51,3 +51,25 @@ def params_from_args(args: argparse.Namespace) -> Params:
 
     overrides = dict(parse_override(text) for text in args.overrides)
     return load_params(args.config, overrides, getattr(args, "preset", None))
+
+
+def add_min_confidence_argument(parser: argparse.ArgumentParser) -> None:
+    """`--min-confidence` of change detection (`changes.min_confidence`), for `changes` and `batch` alike."""
+    parser.add_argument("--min-confidence", type=float, default=None,
+                        help="report gone / new only when the claim's confidence reaches this (0-1; below: unseen). "
+                             "The confidence is a score, not the chance that a claim is right: the probability that "
+                             "the object is absent from the other session at prior odds 1, from that session's "
+                             "segments and images, calibrated on the pair's own kept landmarks (README: the "
+                             "precision measured at each value). Default: changes.min_confidence (0.8)")
+
+
+def with_min_confidence(params: Params, args: argparse.Namespace) -> Params:
+    """`params` with `--min-confidence` as changes.min_confidence when it was given; InputError outside 0-1."""
+    from ...plugin.errors import InputError
+    from ...plugin.params import with_overrides
+
+    if args.min_confidence is None:
+        return params
+    if not 0.0 <= args.min_confidence <= 1.0:
+        raise InputError(f"--min-confidence must be between 0 and 1, got {args.min_confidence}")
+    return with_overrides(params, {"changes.min_confidence": float(args.min_confidence)})

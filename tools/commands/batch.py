@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_params_arguments, params_from_args
+from ._common import add_min_confidence_argument, add_params_arguments, params_from_args, with_min_confidence
 
 NAME = "batch"
 HELP = "map a folder of flights, match session pairs, merge each connected group into one model (resumable)"
@@ -31,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-merge", action="store_true", help="stop after the session graph")
     parser.add_argument("--no-changes", action="store_true",
                         help="skip change detection of the accepted pairs (pairs/A__B/changes/)")
+    add_min_confidence_argument(parser)  # the pairs' change detection, as `sosmatch changes`
     parser.add_argument("--epsg", type=int,
                         help="the projected CRS (EPSG code) of the flights of photos' poses (default: each flight's "
                              "UTM zone of its median GPS fix); flights of one site on either side of a UTM zone edge "
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 0, got {args.workers}")
     if args.nearest is not None and args.nearest < 1:
         raise InputError(f"--nearest must be >= 1, got {args.nearest}")
-    params = params_from_args(args)
+    params = with_min_confidence(params_from_args(args), args)
     if args.refine and not args.no_verify:
         raise InputError("--refine only applies with --no-verify (verification already refines its winner)")
     options = batch.BatchOptions(nearest=args.nearest, ekf=args.ekf, merge=not args.no_merge, refine=args.refine,

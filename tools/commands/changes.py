@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_params_arguments, params_from_args
+from ._common import add_min_confidence_argument, add_params_arguments, params_from_args, with_min_confidence
 
 NAME = "changes"
 HELP = ("object-level change detection between two aligned mapped sessions: changes.csv, changes.geojson, "
@@ -13,15 +13,13 @@ HELP = ("object-level change detection between two aligned mapped sessions: chan
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The command's arguments: the two sessions, their match, the output and the options of change detection."""
     parser.add_argument("session_a", type=Path, help="mapped session directory (the reference frame)")
     parser.add_argument("session_b", type=Path, help="mapped session directory, compared in A's frame")
     parser.add_argument("--match", type=Path, required=True,
                         help="match.json of `sosmatch match A B` (or of a batch pair) with an accepted transform")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--min-confidence", type=float, default=None,
-                        help="report gone / new only when the other session's images say the object is absent "
-                             "with at least this probability (0-1; below: unseen). Default: changes.min_confidence "
-                             "(0.8)")
+    add_min_confidence_argument(parser)
     parser.add_argument("--images-a", type=Path, default=None,
                         help="A's keyframe images (default: the directory A's run.json records, if it exists); "
                              "with B's, the images are evidence of what changed")
@@ -37,15 +35,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ...plugin.errors import InputError
-    from ...plugin.params import with_overrides
+    """Compare the two sessions, write the outputs and print the summary line; 0 on success (errors: InputError)."""
     from ...workflows.changes import run as run_changes
 
-    params = params_from_args(args)
-    if args.min_confidence is not None:
-        if not 0.0 <= args.min_confidence <= 1.0:
-            raise InputError(f"--min-confidence must be between 0 and 1, got {args.min_confidence}")
-        params = with_overrides(params, {"changes.min_confidence": float(args.min_confidence)})
+    params = with_min_confidence(params_from_args(args), args)
     result = run_changes(args.session_a, args.session_b, args.match, args.out, params, plot=not args.no_plot,
                          overwrite=args.overwrite, images_a=args.images_a, images_b=args.images_b,
                          trust_images=args.trust_images)

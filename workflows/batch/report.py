@@ -78,7 +78,7 @@ class BatchReport:
         if not ran and not failed:
             return "no changes detected (off, or no accepted pair)"
         gone, new = (sum(int(p.get(k) or 0) for p in ran) for k in ("gone", "new"))
-        line = f"{gone} landmarks gone, {new} new in {len(ran)} pair(s)"
+        line = f"{gone} objects gone, {new} new in {len(ran)} pair(s)"  # landmarks and objects never mapped
         return line + (f", change detection failed on {failed}" if failed else "")
 
 
@@ -178,7 +178,8 @@ def write_report(report: BatchReport) -> None:
         *(["## Warnings", "", *[f"- {w}" for w in report.warnings], ""] if report.warnings else []),
         "## Sessions", "", _table(session_rows, SESSION_COLUMNS), "",
         "## Pairs", "", "(transform a_from_b: yaw about z, how far it moves B's landmarks (median, max m), scale; "
-        "landmarks gone from A, new in B, kept (of A) and unseen by the other session: pairs/A__B/changes/)", "",
+        "objects gone from A and new in B (landmarks and objects never mapped), landmarks kept (of A) and unseen by "
+        "the other session: pairs/A__B/changes/)", "",
         _table(pair_rows, PAIR_COLUMNS), "",
         "## Groups (merged models)", "", _table(groups, GROUP_COLUMNS), "",
         "![session graph](session_graph.png)", "",
@@ -244,7 +245,7 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
     """Two panels, readable however much the flights overlap. Left, the geography: every session's keyframe
     ground footprints (outline, light fill) and flight path in one frame (`_placement`), one colour per session,
     named in the legend. Right, the graph: sessions on a circle (names outside it), accepted pairs solid green
-    labelled with |S| and the landmarks gone / new, pairs left out of the graph (`left_out`) orange dash-dot, rejected
+    labelled with |S| and the objects gone / new, pairs left out of the graph (`left_out`) orange dash-dot, rejected
     dashed grey, failed dotted red; a node's outline colour is its merged group."""
     import matplotlib
 
@@ -311,7 +312,7 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
         edge = "tab:red" if s["status"] != "done" else group_colours(group_of.get(s["name"], 0) % 8)
         graph.scatter([x], [y], s=260, color=colour[s["name"]], zorder=2, edgecolors=[edge], linewidths=2.5)
         graph.annotate(s["name"], (1.22 * x, 1.22 * y), fontsize=9, ha="center", va="center")
-    graph.set_title("session graph: accepted (|S|, landmarks gone / new), left out (orange),\n"
+    graph.set_title("session graph: accepted (|S|, objects gone / new), left out (orange),\n"
                     "rejected (dashed), failed (dotted red); node outline = merged group", fontsize=8)
     graph.set_xlim(-1.5, 1.5)
     graph.set_ylim(-1.5, 1.5)

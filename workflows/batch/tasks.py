@@ -205,8 +205,13 @@ def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, 
                          inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json") as out:
         changes.write_outputs(run, out.path, params)
         out.finish()
-    counts = run.result.counts()
-    return {"changes": str(Path(out_dir) / "changes.json"), "gone": counts["gone"] + counts["gone_unmapped"],
-            "new": counts["new"] + counts["new_unmapped"],
-            "kept": counts["kept_a"], "unseen": counts["unseen_a"] + counts["unseen_b"],
+    return {"changes": str(Path(out_dir) / "changes.json"), **pair_change_counts(run.result.counts()),
             "changes_summary": run.summary()}
+
+
+def pair_change_counts(counts: dict[str, int]) -> dict[str, int]:
+    """A pair's row of change counts from `ChangeResult.counts()`: `gone` and `new` are the objects claimed gone from
+    A and new in B, landmarks and objects never mapped alike (every claim changes.csv lists); `kept` A's kept
+    landmarks, `unseen` both maps' unseen landmarks (rev44 D8: the report called all four "landmarks")."""
+    return {"gone": counts["gone"] + counts["gone_unmapped"], "new": counts["new"] + counts["new_unmapped"],
+            "kept": counts["kept_a"], "unseen": counts["unseen_a"] + counts["unseen_b"]}
