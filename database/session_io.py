@@ -53,8 +53,11 @@ class SessionFiles:
 
     @property
     def is_merged(self) -> bool:
-        """A merged model (`sosmatch merge`'s output), not one flight's session."""
-        return (self.path / MERGE_RECORD).is_file()
+        """A merged model (`sosmatch merge`'s output), not one flight's session: its merge.json, or the folder's
+        own output marker naming `merge` (a merged session whose merge.json was lost is still one: rev45 D9)."""
+        from .output_markers import output_command
+
+        return (self.path / MERGE_RECORD).is_file() or output_command(self.path) == "merge"
 
 
 @dataclass

@@ -458,6 +458,22 @@ def test_a_flight_already_in_a_merged_map_is_not_merged_again(pair, tmp_path):
     assert not (tmp_path / "again").exists()
 
 
+def test_a_merged_session_that_lost_its_merge_json_is_refused_not_taken_for_one_flight(pair, tmp_path):
+    """rev45 D9: a merged session whose merge.json was deleted was taken for one flight (its flights are in
+    merge.json alone), so a flight it held was merged into it again, its photos twice, exit 0. Its output marker
+    still says `sosmatch merge` wrote it: refused, naming merge.json."""
+    root, world, a, b = pair
+    merge.run(a.path, b.path, toy_match_json(a, b, tmp_path / "match.json"), tmp_path / "M")
+    shutil.copytree(tmp_path / "M", tmp_path / "M5")
+    (tmp_path / "M5" / "merge.json").unlink()
+    damaged = read_session(tmp_path / "M5")
+    assert damaged.is_merged
+    with pytest.raises(InputError, match=r"merge\.json.*without its merge\.json"):
+        merge.merge_sessions([damaged, read_session(b.path)], [Sim3.identity(), Sim3.identity()], [],
+                             tmp_path / "again")
+    assert not (tmp_path / "again").exists()
+
+
 def test_a_transform_edited_away_from_its_own_associations_is_refused(pair, tmp_path, capsys):
     """The nineteenth sweep: a match.json whose transform was moved 50 m was merged (0 of 99 associations fused,
     exit 0), and moved 3 m it gave `changes` 8 gone / 21 new instead of 4 / 10. The answer's associations were

@@ -98,9 +98,15 @@ def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset())
     images (or, for a flight of an older merge.json, the names they are among: `name_overlap`). A flight without
     run.json (an older sosmatch): its map only. A merged session's as its merge.json records them
     (`flights`); of an older sosmatch, which recorded no images, as `older_merged_flights` recovers them.
-    InputError naming merge.json or run.json when it is unreadable: a merged session taken for one flight would let
-    a flight it holds be merged into it again."""
+    InputError naming merge.json or run.json when it is unreadable, or merge.json when a merged session
+    (`SessionFiles.is_merged`: its output marker) has lost it: a merged session taken for one flight would let a
+    flight it holds be merged into it again."""
     record = session.path / MERGE_RECORD
+    if session.is_merged and not record.is_file():
+        # its marker says `sosmatch merge` wrote it: taken for one flight, a flight it holds would be merged into
+        # it again (rev45 D9: 40 photos twice, exit 0); its flights are in merge.json alone
+        raise InputError("a merged session (its output marker says `sosmatch merge` wrote it) without its merge.json: "
+                         "damaged or copied in part; re-run `sosmatch merge` to make it again", record)
     if record.is_file():
         merged = read_user_json(record, "merge record", redo="re-run `sosmatch merge`")
         flights = merged.get("flights")
