@@ -591,3 +591,94 @@ def test_a_merge_in_a_project_moved_whole_is_the_same_merge(tmp_path, run_moved)
     run_moved(project, tmp_path / "moved", ["merge", os.path.relpath(a.path, project),
                                             os.path.relpath(b.path, project), "--match", "m12/match.json",
                                             "--out", "merged"])
+
+
+def _verified_match(a, b, path):
+    """A toy match.json whose answer is a verified one (`match_io`: source "verified")."""
+    data = json.loads(toy_match_json(a, b, path).read_text())
+    hyp = data["hypotheses"][0]
+    data["verification"] = {"accepted": True, "transform": hyp["transform"], "associations": hyp["associations"],
+                            "support": len(hyp["associations"]), "runner_up_support": 3}
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_session_labels_that_break_colmap_text_names_are_refused_before_any_work(pair, tmp_path):
+    """rev45 D2: a session folder `sum mer` gave image names `sum mer/frame_00000.jpg`, which COLMAP's images.txt
+    cuts at the blank (converted to TXT: 40 images all named `sum`); a label holding '/' parts wrongly. Refused in
+    one line naming the session, as `map --text` refuses such image names (`colmap_text_name_problem`)."""
+    root, world, a, b = pair
+    spaced = tmp_path / "sum mer"
+    shutil.copytree(a.path, spaced)
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    with pytest.raises(InputError, match=r"sum mer: session label 'sum mer' holds white space.*rename the session"):
+        merge.run(spaced, b.path, match, tmp_path / "M")
+    with pytest.raises(InputError, match=r"'winter/2' holds '/'.*give another label"):
+        merge.run(a.path, b.path, match, tmp_path / "M", labels=("summer", "winter/2"))
+    with pytest.raises(InputError, match="holds white space"):
+        merge.merge_sessions([read_session(a.path), read_session(b.path)], [Sim3.identity()] * 2, [],
+                             tmp_path / "M", labels=["summer flight", "B"])
+    assert not (tmp_path / "M").exists()
+    assert merge.label_problem("A") is None and merge.label_problem("s0") is None
+    # batch labels a merged model's images by the flight's folder name: refused before any mapping
+    from sosmatch.workflows import batch
+
+    (tmp_path / "flights").mkdir()
+    shutil.copytree(a.path, tmp_path / "flights" / "flight 1")
+    with pytest.raises(InputError, match="flight 1: session label 'flight 1' holds white space.*--no-merge"):
+        batch.run(tmp_path / "flights", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_bad_out_is_refused_in_one_line_before_the_analysis_and_its_warnings(pair, tmp_path, capsys, caplog):
+    """rev45 D4: a folder of the user's as --out was refused only after the analysis, below its warnings (an
+    unverified match's), so the refusal was not one line. Checked first, as `changes` does."""
+    root, world, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")  # a window consensus: merge warns it is unverified
+    (tmp_path / "user").mkdir()
+    (tmp_path / "user" / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    caplog.clear()
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "user")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "output directory is not empty" in err, err
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]
+    assert sorted(p.name for p in (tmp_path / "user").iterdir()) == ["notes.txt"]
+    # a complete merge of other inputs (here: another transform) is refused before the warnings too
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "M"), "-q"]) == 0
+    other = json.loads(match.read_text())
+    other["hypotheses"][0]["transform"]["translation"][0] += 0.01
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    capsys.readouterr()
+    caplog.clear()
+    assert main(["merge", str(a.path), str(b.path), "--match", str(tmp_path / "other.json"),
+                 "--out", str(tmp_path / "M")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "use --overwrite" in err, err
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]
+
+
+def test_merge_json_is_byte_identical_on_a_re_run_and_a_refine_that_keeps_the_answer_is_the_same_merge(
+        pair, tmp_path):
+    """rev45 D6: merge.json held the wall time (it differed between identical re-runs) and the sessions as typed
+    (relative) beside the match's resolved path; D5: `--refine` of a verified answer, which keeps it as it is,
+    was refused over the byte-identical merge without it ("use --overwrite")."""
+    root, world, a, b = pair
+    match = _verified_match(a, b, tmp_path / "match.json")
+    cwd = os.getcwd()
+    try:
+        os.chdir(a.path.parent)
+        merge.run(a.path.name, b.path, match, tmp_path / "M")
+    finally:
+        os.chdir(cwd)
+    first = (tmp_path / "M" / "merge.json").read_bytes()
+    record = json.loads(first)
+    assert "seconds" not in record
+    assert record["sessions"] == [str(a.path.resolve()), str(b.path.resolve())]
+    sparse = {p.name: p.read_bytes() for p in (tmp_path / "M" / "sparse").iterdir()}
+    merge.run(a.path, b.path, match, tmp_path / "M")
+    assert (tmp_path / "M" / "merge.json").read_bytes() == first
+    refined = merge.run(a.path, b.path, match, tmp_path / "M", refine=True)  # no --overwrite needed
+    assert not refined.refined
+    assert {p.name: p.read_bytes() for p in (tmp_path / "M" / "sparse").iterdir()} == sparse
+    assert json.loads((tmp_path / "M" / "merge.json").read_text())["refine"]["requested"] is True

@@ -40,13 +40,13 @@ from typing import Any
 import numpy as np
 
 from ..database.atomic import write_text_atomic
-from ..database.colmap_model import load_reconstruction
+from ..database.colmap_model import TEXT_MODEL, colmap_text_name_problem, load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, write_landmark_map
 from ..database.map_loading import session_map_noise
 from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
-from ..database.outputs import OutputDir, open_output_dir
+from ..database.outputs import OutputDir, check_output_dir, open_output_dir
 from ..database.session_io import (
     MERGE_RECORD,
     SessionFiles,
@@ -85,6 +85,7 @@ class MergeResult:
     # paired with several), or joining two landmarks of one session
     num_rejected: int = 0
     refined: bool = False
+    # wall time of the merge, for the caller; not in merge.json, which same inputs write byte for byte (rev45 D6)
     seconds: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -104,18 +105,37 @@ class MergeResult:
                 "rejected_associations": self.num_rejected,
             },
             "refined": self.refined,
-            "seconds": round(self.seconds, 3),
             **self.extra,
         }
 
 
+def label_problem(label: str) -> str | None:
+    """Why `label` cannot prefix a merged model's image names (`LABEL/name`), or None: white space, which COLMAP's
+    text model cannot hold (`colmap_model.colmap_text_name_problem`, as `map --text` refuses such image names: rev45
+    D2, a session folder `sum mer` converted to TXT read back as 40 images all named `sum`), or a '/', which would
+    make the label ambiguous in the names (`merge_pairs.older_merged_flights` parts them at the first '/')."""
+    if (problem := colmap_text_name_problem([f"{label}/"], TEXT_MODEL)) is not None:
+        return f"session label {label!r} holds white space, which {problem[1].partition(', which ')[2]}"
+    if "/" in label:
+        return f"session label {label!r} holds '/', which would part it from the image names wrongly"
+    return None
+
+
 def _labels(sessions: list[SessionFiles], labels: list[str] | None) -> list[str]:
+    """Each session's label, the prefix of its images' names in the merged model (`LABEL/frame_00000.jpg`): its
+    folder's name (`SessionFiles.name`), or its position (`s0`, `s1`, ...) when two folders share a name.
+    InputError for a label the names cannot carry (`label_problem`), naming the session: before any work."""
+    derived = labels is None
     if labels is None:
         labels = [s.name for s in sessions]
         if len(set(labels)) != len(labels):  # two sessions with the same folder name: fall back to positions
             labels = [f"s{i}" for i in range(len(sessions))]
     if len(labels) != len(sessions) or len(set(labels)) != len(labels) or any(not lb for lb in labels):
         raise InputError(f"session labels must be unique and non-empty, got {labels}")
+    for session, label in zip(sessions, labels):
+        if (problem := label_problem(label)) is not None:
+            raise InputError(f"{problem}: the merged model names its images LABEL/name; "
+                             f"{'rename the session folder' if derived else 'give another label'}", session.path)
     return list(labels)
 
 
@@ -143,6 +163,7 @@ def merge_sessions(
     earlier_records: Sequence[dict[str, Any]] = (),
     warnings: Sequence[str] = (),
     identity_record: dict[str, Any] | None = None,
+    say: Sequence[str] = (),
 ) -> MergeResult:
     """Combine sessions into one COLMAP model in the frame of `transforms` (reference_from_session each).
 
@@ -155,6 +176,7 @@ def merge_sessions(
     for the same merge (`outputs.open_output_dir`'s `earlier`). `warnings`: what was said of its inputs (merge.json
     `warnings`, e.g. that two maps' georeferences disagree), recorded beside the merge, not part of its identity.
     `identity_record`: the record as the identity holds it (default `record`), e.g. its inputs by their content.
+    `say`: warnings logged once the output directory is taken (after every refusal, so that a refusal is one line).
     """
     t0 = time.perf_counter()
     if len(sessions) != len(transforms) or not sessions:
@@ -169,13 +191,15 @@ def merge_sessions(
                             "eps": max_fuse_distance_m, "record": rec, "pairs": fused})
 
     identity = identity_of(record if identity_record is None else identity_record)
+    # an older merge.json's flights known by their names only: said (once the output is taken), never refused on
+    # names
     flights, notes = distinct_flights(sessions)
-    for note in notes:  # an older merge.json's flights known by their names only: said, never refused on names
-        log.warning("%s", note)
     warnings = [*warnings, *notes]
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
                          earlier=[identity_of(r) for r in earlier_records]) as out:
+        for text in [*say, *notes]:
+            log.warning("%s", text)
         # the flights it holds (their maps and images: `merge_pairs.session_flights`; `flight_maps` for an older
         # sosmatch) and the warnings go into merge.json (not into the identity: earlier merges keep theirs)
         said = {"warnings": list(warnings)} if warnings else {}
@@ -316,7 +340,8 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
     write_landmarks_csv(out.staged("landmarks.csv"), lmap, np.asarray(pids_out), np.asarray(nobs), names)
     result = MergeResult(
         out_dir=out_dir,
-        sessions=[str(s.path) for s in sessions],
+        # resolved, as the match is recorded (rev45 D6: typed relative paths meant little read from elsewhere)
+        sessions=[str(resolved_path(s.path)) for s in sessions],
         labels=labels,
         transforms=list(transforms),
         num_cameras=merged.num_cameras(),
@@ -457,7 +482,11 @@ def run(
     inputs in `out_dir`.
     """
     params = params or Params()
+    # a bad --out (a user's folder, an input, a file) is refused before any work and any warning (rev45 D4: after
+    # the analysis, below its warnings), as `changes` does; `open_output_dir` still decides the rest
+    check_output_dir(out_dir, "merge", inputs=[session_a, session_b, match_json], legacy_record=MERGE_RECORD)
     a, b = read_session(session_a), read_session(session_b)
+    names = _labels([a, b], list(labels) if labels else None)  # refused before any work (`label_problem`)
     match = read_match(match_json)
     check_match_maps(match, a.landmarks, b.landmarks, match_json, names=(str(session_a), str(session_b)))
     if not match.accepted or match.transform is None:
@@ -490,34 +519,38 @@ def run(
     # 20 m objects (NAIP, theta_eps 8 m) have no counterparts at the configured 2 m even at the true alignment;
     # said before any warning, so that a refusal is one line
     check_alignment(a, b, transform, params, match.source == "verified", gate, match_json, "nothing merged")
-    for text in said:
-        log.warning("%s", text)
-    if refinement is not None and refinement.note:
-        # --refine asked for and nothing refined: a warning, as match says of an option it ignores (at INFO, `-q`
-        # hid it and the output line alone did not tell it); after the control, so that a refusal is one line
-        log.warning("%s: %s", match_json, refinement.note)
+    # the warnings are said once the output directory is taken (`merge_sessions`' `say`), so that a refusal of it
+    # is one line too; --refine asked for and nothing refined: a warning, as match says of an option it ignores (at
+    # INFO, `-q` hid it and the output line alone did not tell it)
+    say = [*said, *([f"{match_json}: {refinement.note}"] if refinement is not None and refinement.note else [])]
     # the match file by its real path: another spelling of it is the same input (and the same merge)
     # merge.json records the match file by its real path; the identity names the match by its content (what it
     # says, `match_content`), so that a project moved or copied whole is the same merge (nu37 D1)
+    kept = refinement is not None and refinement.note is not None
     record = {"refined": bool(refine and used), "match": str(resolved_path(match_json)),
               "match_transform": match.transform.to_dict(),
               "refine": {"requested": refine, "associations_used": used, "dof": dof,
-                         **({"kept": refinement.note} if refinement is not None and refinement.note else {})}}
+                         **({"kept": refinement.note} if kept else {})}}
+    # a --refine that refined nothing (`refinement.note`) writes what the merge without it writes: the same output
+    # (rev45 D5: refused over a merge byte for byte the same); merge.json still says it was asked for
+    same = {**record, "refine": {"requested": False, "associations_used": 0, "dof": 0}} if kept else record
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],
         [match_fuse_pair(0, 1, match)],
         out_dir,
-        labels=list(labels) if labels else None,
+        labels=names,
         max_fuse_distance_m=gate,
         record=record,
         overwrite=overwrite,
         inputs=[match_json],
-        identity_record={**record, "match": match_content(match)},
+        identity_record={**same, "match": match_content(match)},
         # merges until nu37 named the match by its real path, before 2026-12-05 as it was spelt: the same merge
-        # when it lies there again
-        earlier_records=[record, {**record, "match": str(match_json)}],
+        # when it lies there again; a --refine that refined nothing until rev45 D5 had an identity of its own
+        earlier_records=[same, {**same, "match": str(match_json)},
+                         *([{**record, "match": match_content(match)}, record] if kept else [])],
         warnings=said,
+        say=say,
     )
     log.info(
         "merged %s + %s: %d images, %d points, %d fused landmarks",
