@@ -132,8 +132,9 @@ def test_refine_recovers_perturbed_transform_and_rejects_outliers(pair, tmp_path
     err_after = transform_error(refined.transforms[1], truth, pts)
     assert err_before[0] > 0.5 and err_before[1] > 0.5
     assert err_after[0] < 0.1 and err_after[1] < 0.1 and refined.refined
-    assert refined.num_rejected >= 5  # the random wrong associations are too far apart to fuse
-    assert refined.num_fused >= plain.num_fused
+    assert plain.num_rejected >= 5  # the random wrong associations are too far apart to fuse
+    # the refined merge fuses the pairs the refined transform supports (rev45 D1): the true ones, no wrong one
+    assert refined.num_fused == len(true_associations(a, b)) >= plain.num_fused
 
 
 def test_merged_model_passes_colmap_38_model_analyzer(pair, tmp_path):
@@ -682,3 +683,25 @@ def test_merge_json_is_byte_identical_on_a_re_run_and_a_refine_that_keeps_the_an
     assert not refined.refined
     assert {p.name: p.read_bytes() for p in (tmp_path / "M" / "sparse").iterdir()} == sparse
     assert json.loads((tmp_path / "M" / "merge.json").read_text())["refine"]["requested"] is True
+
+
+def test_a_refined_merge_fuses_the_pairs_its_refined_transform_supports(pair, tmp_path):
+    """rev45 D1: `merge --refine` refitted an unverified answer on 27 pairs but fused the consensus' own
+    associations re-judged against the refined transform: 11 fused, and 6 A-only / C-only landmark pairs within
+    2 m left as two points each. Here the answer holds half the true associations, 0.8 deg and 0.6 m off: the
+    refined merge fuses what the refinement pairs (every true association), not the answer's half."""
+    root, world, a, b = pair
+    truth = a.session_from_world.compose(b.session_from_world.inverse())
+    centre = read_session(a.path).landmarks.positions.mean(0)
+    about = Sim3(np.eye(3), centre).compose(yaw_transform(0.8, (0.4, -0.4, 0.2))).compose(Sim3(np.eye(3), -centre))
+    path = toy_match_json(a, b, tmp_path / "match.json", transform=about.compose(truth))
+    data = json.loads(path.read_text())
+    half = data["hypotheses"][0]["associations"][::2]
+    data["hypotheses"][0]["associations"] = half
+    path.write_text(json.dumps(data))
+    n_true = len(true_associations(a, b))
+    refined = merge.run(a.path, b.path, path, tmp_path / "R", refine=True)
+    record = json.loads((tmp_path / "R" / "merge.json").read_text())
+    assert refined.refined and record["refine"]["associations_used"] >= n_true - 1
+    assert refined.num_fused >= n_true - 1 > len(half)
+    assert refined.num_rejected == 0

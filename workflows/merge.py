@@ -58,7 +58,7 @@ from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
 from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, associations_not_fused, fusion_groups
 from ..plugin.params import Params
-from ..plugin.refinement import Alignment, refine_alignment, tilt_of
+from ..plugin.refinement import Alignment, mutual_nearest, refine_alignment, tilt_of
 from ..plugin.verification import tilted_alignment
 from .changes import check_alignment
 from .merge_pairs import FusePair, distinct_flights, filter_associations, match_fuse_pair, session_fingerprint
@@ -393,6 +393,11 @@ class Refinement:
     used: int  # the mutual nearest neighbours that support the refined transform (0: the answer's kept)
     dof: int  # 4: yaw + translation (then tilted by the pairs' heights), 6: rigid / similarity, 0: not refitted
     note: str | None = None  # why the answer's own transform was kept
+    # what a merge fuses under the refined transform (None: the answer's kept, its own associations are fused): the
+    # pairs it supports, by the pairing the refinement and the verification use (`mutual_nearest`, at the gate,
+    # size gate and height weight the refinement ran with); rev45 D1: the consensus' pairs re-judged against it
+    # fused 11 where the refinement found 27, and left 6 pairs of one object twice in the model
+    fuse: FusePair | None = None
 
 
 def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: Params) -> Refinement:
@@ -431,7 +436,10 @@ def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: 
     if len(best.associations) < 3:
         return Refinement(match.transform, 0, 0, f"the refinement found {len(best.associations)} supporting pairs: "
                           "the answer's transform is kept")
-    return Refinement(best.transform, len(best.associations), dof)
+    # the pairs under the transform that stands (the tilted fit's may have kept the pairs of its level start)
+    pairs, _ = mutual_nearest(a.positions, a.sizes, best.transform.apply(b.positions), b.sizes, gate,
+                              vp.max_size_difference, vp.z_weight)
+    return Refinement(best.transform, len(best.associations), dof, fuse=FusePair(0, 1, pairs, gate, vp.z_weight))
 
 
 def _fit(a: LandmarkMap, b: LandmarkMap, start: Sim3, held: np.ndarray, gate: float, vp: Any, dof: int,
@@ -472,8 +480,8 @@ def run(
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
     With `refine`, an unverified answer's transform is refined on the full maps as the match's verification
-    refines an alignment (`refined_answer`); a verified answer is that refinement already and is kept (said). The
-    hypothesis' associations are still the ones fused (those the refined transform explains within the gate).
+    refines an alignment (`refined_answer`); a verified answer is that refinement already and is kept (said). A
+    refined transform fuses the pairs it supports (`Refinement.fuse`), not the answer's associations.
     Raises InputError when match.json was computed for other maps (`match_io.check_match_maps`) or has no
     accepted hypothesis, or when its transform (refined or not) does not bring the maps together
     (`changes.check_alignment`), or when the images agree but the two maps' georeferences do not
@@ -537,7 +545,7 @@ def run(
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],
-        [match_fuse_pair(0, 1, match)],
+        [match_fuse_pair(0, 1, match) if refinement is None or refinement.fuse is None else refinement.fuse],
         out_dir,
         labels=names,
         max_fuse_distance_m=gate,
