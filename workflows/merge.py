@@ -43,25 +43,34 @@ from ..database.atomic import write_text_atomic
 from ..database.colmap_model import TEXT_MODEL, colmap_text_name_problem, load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, write_landmark_map
 from ..database.map_loading import session_map_noise
-from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
-from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
+from ..database.match_io import answer_gate, check_match_maps, match_content, read_match
+from ..database.match_notes import check_georeferences, imprecise_note, precision_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
 from ..database.outputs import OutputDir, check_output_dir, open_output_dir
 from ..database.session_io import (
     MERGE_RECORD,
     SessionFiles,
-    georeference_sigma_m,
     read_session,
     write_landmarks_csv,
 )
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
-from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, associations_not_fused, fusion_groups
+from ..plugin.multisession import Sim3, associations_not_fused, fusion_groups
 from ..plugin.params import Params
-from ..plugin.refinement import Alignment, mutual_nearest, refine_alignment, tilt_of
-from ..plugin.verification import tilted_alignment
 from .changes import check_alignment
-from .merge_pairs import FusePair, distinct_flights, filter_associations, match_fuse_pair, session_fingerprint
+from .merge_pairs import (
+    FusePair,
+    distinct_flights,
+    filter_associations,
+    maps_of,
+    match_fuse_pair,
+    session_fingerprint,
+)
+from .merge_refine import Refinement, refined_answer
+
+# importable from here as before the split (`merge_refine`, `match_notes`): batch, tests and benchmarks use them
+__all__ = ["MERGE_FORMAT", "MergeResult", "Refinement", "label_problem", "merge_sessions", "precision_note",
+           "refined_answer", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +99,7 @@ class MergeResult:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """merge.json's fields of the result (`_write_merge_record` adds the versions and the caller's record)."""
         return {
             "format": MERGE_FORMAT,
             "sessions": self.sessions,
@@ -204,7 +214,7 @@ def merge_sessions(
         # sosmatch) and the warnings go into merge.json (not into the identity: earlier merges keep theirs)
         said = {"warnings": list(warnings)} if warnings else {}
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
-                             {**(record or {}), "flight_maps": sorted({f["map"] for f in flights}),
+                             {**(record or {}), "flight_maps": maps_of(flights),
                               "flights": flights, **said}, t0)
         out.finish()
     return result
@@ -369,101 +379,6 @@ def _write_merge_record(path: Path, result: MergeResult, extra: dict[str, Any]) 
     data["versions"] = {"sosmatch": __version__, "pycolmap": pycolmap.__version__, "numpy": np.__version__}
     data.update(extra)
     write_text_atomic(path, json.dumps(data, indent=2) + "\n")
-
-
-def precision_note(a: SessionFiles, b: SessionFiles, label_a: str, label_b: str) -> str | None:
-    """What to say when B's georeference is much more precise than A's (`PRECISE_GEOREFERENCE_FACTOR`, measured
-    GPS noise of each, `session_io.georeference_sigma_m`): the merged model is in A's frame and keeps A's (nu34: an
-    RTK session merged into a 1.4 m GPS one, its landmarks 0.56 m off instead of 0.26, nothing said)."""
-    if not (a.landmarks.epsg and b.landmarks.epsg):
-        return None
-    sa, sb = georeference_sigma_m(a.path), georeference_sigma_m(b.path)
-    if sa is None or sb is None or sb * PRECISE_GEOREFERENCE_FACTOR > sa:
-        return None
-    return (f"{label_b}'s georeference is more precise (GPS noise {sb:.2f} m measured) than {label_a}'s "
-            f"({sa:.2f} m): the merged model keeps {label_a}'s; match and merge with {label_b} as the first session "
-            "to keep its georeference")
-
-
-@dataclass(frozen=True)
-class Refinement:
-    """An answer's transform refined on the full maps (`refined_answer`)."""
-
-    transform: Sim3  # a_from_b: the refined one, or the answer's own when it was kept
-    used: int  # the mutual nearest neighbours that support the refined transform (0: the answer's kept)
-    dof: int  # 4: yaw + translation (then tilted by the pairs' heights), 6: rigid / similarity, 0: not refitted
-    note: str | None = None  # why the answer's own transform was kept
-    # what a merge fuses under the refined transform (None: the answer's kept, its own associations are fused): the
-    # pairs it supports, by the pairing the refinement and the verification use (`mutual_nearest`, at the gate,
-    # size gate and height weight the refinement ran with); rev45 D1: the consensus' pairs re-judged against it
-    # fused 11 where the refinement found 27, and left 6 pairs of one object twice in the model
-    fuse: FusePair | None = None
-
-
-def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: Params) -> Refinement:
-    """`merge --refine` and `batch --refine`: the match's answer a_from_b refined on every landmark the two maps
-    share, by the match's own recorded settings. One answer for both (rev33: batch refitted once on the window
-    associations at the configured 2 m, merge refined at another size gate, and batch's changes used neither).
-
-    A verified answer is kept as it is: it is already the verification's fit on the full maps, and refitting it
-    with other settings only made it worse (rev33: merge refitted it yaw-only, dropping its tilt, at the default
-    size gate 0.2: 126 instead of 138 pairs, landmarks 2.03 -> 2.51 m from the truth). An unverified answer (the
-    window consensus, `match --no-verify`) is refined as the verification refines its winner: at the answer's gate
-    (`answer_gate`), with match.json's recorded verification settings (`MatchSummary.refinement`: size gate,
-    dof, the final tilt and its prior, z_weight, coarse factor; the configured `params.verification` for any it
-    does not record): `refinement.refine_alignment`, then for a 4-DOF fit `verification.tilted_alignment`; a
-    similarity match a 6-DOF fit with scale. A 4-DOF fit runs from the answer levelled (as the verification's) and
-    from B turned by the answer's tilt (`tilt_of`), each then tilted by what its pairs' heights show against the
-    recorded prior of level maps; the one with more pairs stands. Fewer than 3 supporting pairs: the answer's own
-    transform, kept."""
-    if match.transform is None:
-        raise ValueError("the match has no transform to refine")
-    if match.source == "verified":
-        return Refinement(match.transform, 0, 0, "the verified answer is already refined on the full maps (the "
-                          "match's verification): --refine keeps it as it is")
-    vp = dataclasses.replace(params.verification, **match.refinement)
-    gate = answer_gate(match, params.association.distance_tolerance_m)
-    with_scale = match.transform_kind == "similarity"
-    dof = 6 if with_scale else vp.dof
-    # the 4-DOF fit from the answer levelled (the verification's way) and from B turned by the answer's own tilt:
-    # levelled, the fit paired fewer the farther the maps are tilted (rev33's A and B turned 3 / 8 / 15 deg about
-    # x: 130 / 99 / 53 pairs against 132 held), held, it kept a tilt the window consensus had fitted wrongly (rev33's
-    # B and C: consensus 2.8 deg, verified 0.8 deg; held 2.0 deg, 125 pairs, C's landmarks 2.3 m from the truth;
-    # levelled 0.8 deg, 127 pairs, 1.6 m). The one with more pairs, as `refine_alignment`'s two stages (ties: level)
-    helds = [np.eye(3)] + ([tilt_of(match.transform.rotation)] if dof == 4 else [])
-    fits = [_fit(a, b, match.transform, held, gate, vp, dof, with_scale) for held in helds]
-    best = max(fits, key=lambda f: len(f.associations))
-    if len(best.associations) < 3:
-        return Refinement(match.transform, 0, 0, f"the refinement found {len(best.associations)} supporting pairs: "
-                          "the answer's transform is kept")
-    # the pairs under the transform that stands (the tilted fit's may have kept the pairs of its level start)
-    pairs, _ = mutual_nearest(a.positions, a.sizes, best.transform.apply(b.positions), b.sizes, gate,
-                              vp.max_size_difference, vp.z_weight)
-    return Refinement(best.transform, len(best.associations), dof, fuse=FusePair(0, 1, pairs, gate, vp.z_weight))
-
-
-def _fit(a: LandmarkMap, b: LandmarkMap, start: Sim3, held: np.ndarray, gate: float, vp: Any, dof: int,
-         with_scale: bool) -> Alignment:
-    """One refinement of `refined_answer`: `refine_alignment` of B turned by `held` (3x3) from `start`, then, for
-    a 4-DOF fit with the final tilt on, the tilt its pairs' heights show against the prior of level maps, from its
-    level version (`_level`: the verification's `tilted_alignment`). a_from_b in B's own frame."""
-    t = Sim3(start.rotation @ held.T, start.translation, start.scale)
-    aligned = refine_alignment(a.positions, a.sizes, b.positions @ held.T, b.sizes, t, gate, vp.max_size_difference,
-                               dof=dof, with_scale=with_scale, z_weight=vp.z_weight, coarse_factor=vp.coarse_factor)
-    t, pairs = aligned.transform, aligned.associations
-    refined = Sim3(t.rotation @ held, t.translation, t.scale)
-    if dof != 4 or vp.final_dof != 6 or len(pairs) < 3:
-        return Alignment(refined, pairs, aligned.rms_m, aligned.iterations)
-    level = _level(refined, b.positions[pairs[:, 1]].mean(axis=0))
-    return tilted_alignment(a.positions, a.sizes, b.positions, b.sizes,
-                            Alignment(level, pairs, aligned.rms_m, aligned.iterations), gate, vp.max_size_difference,
-                            vp.tilt_prior_deg, vp.z_weight)
-
-
-def _level(transform: Sim3, centre: np.ndarray) -> Sim3:
-    """`transform` without its roll and pitch (its yaw, `tilt_of`), placing `centre` (B's frame) where it does."""
-    turn = transform.rotation @ tilt_of(transform.rotation).T
-    return Sim3(turn, transform.apply(centre) - transform.scale * turn @ centre, transform.scale)
 
 
 def run(

@@ -86,7 +86,12 @@ IMAGE_DIGEST_CHARS = 16
 
 def flight_maps(session: SessionFiles) -> list[str]:
     """The landmark maps (content fingerprints) of the flights a session holds (`session_flights`' `map`)."""
-    return sorted({f["map"] for f in session_flights(session)})
+    return maps_of(session_flights(session))
+
+
+def maps_of(flights: Iterable[dict[str, Any]]) -> list[str]:
+    """The landmark maps of `flights` (`session_flights`), sorted and each once: merge.json's `flight_maps`."""
+    return sorted({f["map"] for f in flights})
 
 
 def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset()) -> list[dict[str, Any]]:
@@ -270,7 +275,7 @@ def refine_transform(
     a: SessionFiles, b: SessionFiles, associations: np.ndarray, initial: Sim3, with_scale: bool, gate_m: float
 ) -> tuple[Sim3, int]:
     """Re-estimate a_from_b by least squares on every association that `initial` already explains within gate_m:
-    one refit, not what `merge --refine` / `batch --refine` do (`merge.refined_answer`); kept as the baseline the
+    one refit, not what `merge --refine` / `batch --refine` do (`merge_refine.refined_answer`); kept as the baseline the
     batch benchmark's refinement table and a test compare that refinement with.
 
     Returns (transform, number of associations used); keeps `initial` when fewer than 3 survive the gate.

@@ -40,7 +40,8 @@ class BatchOptions:
     nearest: int | None = None  # match only the k nearest pairs (None: every pair)
     ekf: bool = False  # synth flights: map with the noisy poses_ekf.csv instead of the ground truth
     merge: bool = True
-    refine: bool = False  # (without verify) consensus transforms refined on the full maps (`merge.refined_answer`)
+    # (without verify) consensus transforms refined on the full maps (`merge_refine.refined_answer`)
+    refine: bool = False
     # Each match verifies its window hypotheses on the full maps (a stage of `sosmatch match`, settings in
     # Params.verification); off = the match's consensus as it is. BENCHMARKS.md, Multi-session, has what each
     # step does to the errors.
