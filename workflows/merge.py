@@ -429,7 +429,9 @@ def run(
         said.append(f"{session_b}: {note}; merged all the same (--trust-images): the model keeps {session_a}'s "
                     "georeference")
     if (note := unverified_note(match)) is not None:
-        said.append(f"{match_json}: {note}: merging its window consensus as it is; `sosmatch match` again verifies it")
+        how = "refining its window consensus on the full maps (--refine)" if refine else \
+            "merging its window consensus as it is"
+        said.append(f"{match_json}: {note}: {how}; `sosmatch match` again verifies it")
     transform = match.transform
     # the answer's own gate (recorded in match.json: the tolerance the match derived from the maps), for the
     # refinement, the control and the fusion alike; a match.json without it: the configured one

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..database.landmark_map import landmark_map_fingerprint
 from ..database.output_markers import fingerprint, sha256_file
-from ..database.session_io import MERGE_RECORD, SessionFiles, read_map_record
+from ..database.session_io import MERGE_RECORD, SessionFiles, is_merged_session, read_map_record
 from ..database.text_input import read_user_json
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3, one_to_one, umeyama
@@ -104,10 +104,10 @@ def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset())
     run.json (an older sosmatch): its map only. A merged session's as its merge.json records them
     (`flights`); of an older sosmatch, which recorded no images, as `older_merged_flights` recovers them.
     InputError naming merge.json or run.json when it is unreadable, or merge.json when a merged session
-    (`SessionFiles.is_merged`: its output marker) has lost it: a merged session taken for one flight would let a
+    (`session_io.is_merged_session`: its output marker) has lost it: a merged session taken for one flight would let a
     flight it holds be merged into it again."""
     record = session.path / MERGE_RECORD
-    if session.is_merged and not record.is_file():
+    if not record.is_file() and is_merged_session(session.path):
         # its marker says `sosmatch merge` wrote it: taken for one flight, a flight it holds would be merged into
         # it again (rev45 D9: 40 photos twice, exit 0); its flights are in merge.json alone
         raise InputError("a merged session (its output marker says `sosmatch merge` wrote it) without its merge.json: "
