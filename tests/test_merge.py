@@ -705,3 +705,19 @@ def test_a_refined_merge_fuses_the_pairs_its_refined_transform_supports(pair, tm
     assert refined.refined and record["refine"]["associations_used"] >= n_true - 1
     assert refined.num_fused >= n_true - 1 > len(half)
     assert refined.num_rejected == 0
+
+
+def test_two_sessions_of_one_folder_name_are_labelled_by_place_and_said(pair, tmp_path, caplog):
+    """rev45 D7: sessions p1/S and p2/S were labelled s0/ and s1/ without a word."""
+    root, world, a, b = pair
+    for where, src in (("p1", a.path), ("p2", b.path)):
+        shutil.copytree(src, tmp_path / where / "S")
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    data = json.loads(match.read_text())
+    data["map_a"]["path"], data["map_b"]["path"] = str(tmp_path / "p1" / "S"), str(tmp_path / "p2" / "S")
+    match.write_text(json.dumps(data))
+    caplog.clear()
+    res = merge.run(tmp_path / "p1" / "S", tmp_path / "p2" / "S", match, tmp_path / "M")
+    assert res.labels == ["s0", "s1"]
+    assert any("share the folder name 'S'" in r.getMessage() and "s0/..." in r.getMessage()
+               for r in caplog.records if r.levelname == "WARNING")

@@ -2,7 +2,8 @@
 
 `run(session_a, session_b, match_json, out_dir)` brings session B into A's frame with the accepted transform of
 match.json (rigid or similarity, applied with `pycolmap.Reconstruction.transform(pycolmap.Sim3d)`), optionally
-refines that transform on all associations, and writes one model. `merge_sessions(...)` is the general case used
+refines an unverified answer's transform on the full maps and fuses the pairs it supports (`merge_refine`), and
+writes one model. `merge_sessions(...)` is the general case used
 by batch: N sessions, each with its reference_from_session transform, and fusion groups of landmarks.
 
 How models are combined: every session's cameras, images and 3D points are copied into a new
@@ -448,6 +449,9 @@ def run(
     # is one line too; --refine asked for and nothing refined: a warning, as match says of an option it ignores (at
     # INFO, `-q` hid it and the output line alone did not tell it)
     say = [*said, *([f"{match_json}: {refinement.note}"] if refinement is not None and refinement.note else [])]
+    if not labels and names != [a.name, b.name]:  # the folder names fell back to places (`_labels`): said (rev45 D7)
+        say.append(f"{session_a} and {session_b} share the folder name {a.name!r}: their images are named "
+                   f"{names[0]}/... and {names[1]}/... in the merged model (merge.json `labels`)")
     # the match file by its real path: another spelling of it is the same input (and the same merge)
     # merge.json records the match file by its real path; the identity names the match by its content (what it
     # says, `match_content`), so that a project moved or copied whole is the same merge (nu37 D1)
