@@ -62,6 +62,7 @@ class LandmarkMap:
 
     @property
     def has_sizes(self) -> bool:
+        """Whether any landmark has a known size (sizes NaN: unknown)."""
         return bool(len(self.sizes)) and not bool(np.all(np.isnan(self.sizes)))
 
 

@@ -91,7 +91,7 @@ class MatchSummary:
     warnings: list[str] = field(default_factory=list)  # what `match` warned of (match.json "warnings", since fix15)
     # how the match refines an alignment on the full maps: its recorded verification section's dof, final_dof,
     # tilt_prior_deg, z_weight, max_size_difference and coarse_factor (params.verification; those missing: not
-    # recorded); `merge --refine` and batch refine an unverified answer with them (`merge.refined_answer`)
+    # recorded); `merge --refine` and batch refine an unverified answer with them (`merge_refine.refined_answer`)
     refinement: dict[str, float] = field(default_factory=dict)
 
 

@@ -11,8 +11,10 @@ from typing import Any
 
 from ..plugin.errors import InputError
 from ..plugin.layout_rivals import LayoutRival
+from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR
 from .landmark_map import LandmarkMap, georeference_offset_m
 from .match_io import MatchSummary
+from .session_io import SessionFiles, georeference_sigma_m
 
 
 def imprecise_note(match: MatchSummary) -> str | None:
@@ -155,3 +157,17 @@ def _number(table: Any, key: str) -> float | None:
     value = table.get(key) if isinstance(table, dict) else None
     ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     return float(value) if ok else None
+
+
+def precision_note(a: SessionFiles, b: SessionFiles, label_a: str, label_b: str) -> str | None:
+    """What to say when B's georeference is much more precise than A's (`PRECISE_GEOREFERENCE_FACTOR`, measured
+    GPS noise of each, `session_io.georeference_sigma_m`): the merged model is in A's frame and keeps A's (nu34: an
+    RTK session merged into a 1.4 m GPS one, its landmarks 0.56 m off instead of 0.26, nothing said)."""
+    if not (a.landmarks.epsg and b.landmarks.epsg):
+        return None
+    sa, sb = georeference_sigma_m(a.path), georeference_sigma_m(b.path)
+    if sa is None or sb is None or sb * PRECISE_GEOREFERENCE_FACTOR > sa:
+        return None
+    return (f"{label_b}'s georeference is more precise (GPS noise {sb:.2f} m measured) than {label_a}'s "
+            f"({sa:.2f} m): the merged model keeps {label_a}'s; match and merge with {label_b} as the first session "
+            "to keep its georeference")

@@ -234,6 +234,7 @@ class OutputDir:
         self._place.check()
 
     def clear_staging(self) -> None:
+        """Remove the staging area (`STAGING`) and what a run built in it, in the directory this run holds."""
         self.check_place()
         shutil.rmtree(self.path / STAGING, ignore_errors=True)
 

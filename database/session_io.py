@@ -53,8 +53,16 @@ class SessionFiles:
 
     @property
     def is_merged(self) -> bool:
-        """A merged model (`sosmatch merge`'s output), not one flight's session."""
-        return (self.path / MERGE_RECORD).is_file()
+        """A merged model (`sosmatch merge`'s output), not one flight's session (`is_merged_session`)."""
+        return is_merged_session(self.path)
+
+
+def is_merged_session(path: str | Path) -> bool:
+    """Whether the session directory `path` is a merged model (`sosmatch merge`'s output): its merge.json, or the
+    folder's own output marker naming `merge` (a merged session whose merge.json was lost is still one: rev45 D9)."""
+    from .output_markers import output_command
+
+    return (Path(path) / MERGE_RECORD).is_file() or output_command(path) == "merge"
 
 
 @dataclass

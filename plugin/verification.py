@@ -437,7 +437,7 @@ def tilted_alignment(pa: np.ndarray, sizes_a: np.ndarray | None, pb: np.ndarray,
     then its support the mutual nearest neighbours under that transform (`mutual_nearest`), when they are at
     least as many: landmarks the 4-DOF fit could not reach because the frames are tilted (1-2 deg between EKF
     frames is metres of height at the far end of a map) join it. Also `merge --refine`'s for an unverified
-    answer (`workflows.merge.refined_answer`): one refinement of an alignment on the full maps."""
+    answer (`workflows.merge_refine.refined_answer`): one refinement of an alignment on the full maps."""
     first = tilted_fit(pa, pb, aligned, prior_deg, z_weight)
     assoc, dist = mutual_nearest(pa, sizes_a, first.transform.apply(pb), sizes_b, gate_m, max_size_difference,
                                  z_weight, tree_a)

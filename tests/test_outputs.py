@@ -269,9 +269,11 @@ def test_output_path_that_is_a_file_or_cannot_be_made(toy, tmp_path, capsys, cli
     _, a, b, match = toy
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    for out, problem in ((blocker, "not a directory"), (blocker / "sub", "cannot create output directory")):
+    for out, problem, checked_first in ((blocker, "not a directory", "not a directory"),
+                                        (blocker / "sub", "cannot create output directory", "is a file, not a folder")):
         cli_error("match", a, b, "--out", out)
-        assert problem in cli_error("merge", a, b, "--match", match, "--out", out)
+        # merge checks its --out before any work, as changes does (rev45 D4): it names the file in the way
+        assert checked_first in cli_error("merge", a, b, "--match", match, "--out", out)
         assert problem in cli_error("synth", "--out", out, "--frames", "2")
         assert problem in cli_error("batch", a.parent, "--out", out)
     assert blocker.read_text() == "x"

@@ -15,6 +15,7 @@ import csv
 import io
 import logging
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -66,6 +67,8 @@ def ply_bytes(lmap: LandmarkMap, epsg: int) -> bytes:
 
 
 def csv_text(lmap: LandmarkMap, epsg: int) -> str:
+    """CSV of the landmarks: index, x, y, z (world frame, 0.1 mm) and size_m, with lon and lat (WGS84, from `epsg`)
+    when the map is georeferenced."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     lonlat = to_wgs84(lmap.positions[:, :2], epsg) if epsg and len(lmap) else None
@@ -86,7 +89,7 @@ def run(
     epsg: int | None = None,
     geometry: str = "point",
     overwrite: bool = False,
-) -> dict:
+) -> dict[str, Any]:
     """Export the landmarks of `source` (a .sosmap or a session directory) to the requested files (atomic).
 
     `epsg` gives the CRS code of maps saved with 0 whose frame is in fact that CRS (another code than the one a

@@ -2,7 +2,8 @@
 
 `run(session_a, session_b, match_json, out_dir)` brings session B into A's frame with the accepted transform of
 match.json (rigid or similarity, applied with `pycolmap.Reconstruction.transform(pycolmap.Sim3d)`), optionally
-refines that transform on all associations, and writes one model. `merge_sessions(...)` is the general case used
+refines an unverified answer's transform on the full maps and fuses the pairs it supports (`merge_refine`), and
+writes one model. `merge_sessions(...)` is the general case used
 by batch: N sessions, each with its reference_from_session transform, and fusion groups of landmarks.
 
 How models are combined: every session's cameras, images and 3D points are copied into a new
@@ -40,28 +41,37 @@ from typing import Any
 import numpy as np
 
 from ..database.atomic import write_text_atomic
-from ..database.colmap_model import load_reconstruction
+from ..database.colmap_model import TEXT_MODEL, colmap_text_name_problem, load_reconstruction
 from ..database.landmark_map import LandmarkMap, crs_disagreement, write_landmark_map
 from ..database.map_loading import session_map_noise
-from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
-from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
+from ..database.match_io import answer_gate, check_match_maps, match_content, read_match
+from ..database.match_notes import check_georeferences, imprecise_note, precision_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
-from ..database.outputs import OutputDir, open_output_dir
+from ..database.outputs import OutputDir, check_output_dir, open_output_dir
 from ..database.session_io import (
     MERGE_RECORD,
     SessionFiles,
-    georeference_sigma_m,
     read_session,
     write_landmarks_csv,
 )
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
-from ..plugin.multisession import PRECISE_GEOREFERENCE_FACTOR, Sim3, associations_not_fused, fusion_groups
+from ..plugin.multisession import Sim3, associations_not_fused, fusion_groups
 from ..plugin.params import Params
-from ..plugin.refinement import Alignment, refine_alignment, tilt_of
-from ..plugin.verification import tilted_alignment
 from .changes import check_alignment
-from .merge_pairs import FusePair, distinct_flights, filter_associations, match_fuse_pair, session_fingerprint
+from .merge_pairs import (
+    FusePair,
+    distinct_flights,
+    filter_associations,
+    maps_of,
+    match_fuse_pair,
+    session_fingerprint,
+)
+from .merge_refine import Refinement, refined_answer
+
+# importable from here as before the split (`merge_refine`, `match_notes`): batch, tests and benchmarks use them
+__all__ = ["MERGE_FORMAT", "MergeResult", "Refinement", "label_problem", "merge_sessions", "precision_note",
+           "refined_answer", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -85,10 +95,12 @@ class MergeResult:
     # paired with several), or joining two landmarks of one session
     num_rejected: int = 0
     refined: bool = False
+    # wall time of the merge, for the caller; not in merge.json, which same inputs write byte for byte (rev45 D6)
     seconds: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """merge.json's fields of the result (`_write_merge_record` adds the versions and the caller's record)."""
         return {
             "format": MERGE_FORMAT,
             "sessions": self.sessions,
@@ -104,18 +116,37 @@ class MergeResult:
                 "rejected_associations": self.num_rejected,
             },
             "refined": self.refined,
-            "seconds": round(self.seconds, 3),
             **self.extra,
         }
 
 
+def label_problem(label: str) -> str | None:
+    """Why `label` cannot prefix a merged model's image names (`LABEL/name`), or None: white space, which COLMAP's
+    text model cannot hold (`colmap_model.colmap_text_name_problem`, as `map --text` refuses such image names: rev45
+    D2, a session folder `sum mer` converted to TXT read back as 40 images all named `sum`), or a '/', which would
+    make the label ambiguous in the names (`merge_pairs.older_merged_flights` parts them at the first '/')."""
+    if (problem := colmap_text_name_problem([f"{label}/"], TEXT_MODEL)) is not None:
+        return f"session label {label!r} holds white space, which {problem[1].partition(', which ')[2]}"
+    if "/" in label:
+        return f"session label {label!r} holds '/', which would part it from the image names wrongly"
+    return None
+
+
 def _labels(sessions: list[SessionFiles], labels: list[str] | None) -> list[str]:
+    """Each session's label, the prefix of its images' names in the merged model (`LABEL/frame_00000.jpg`): its
+    folder's name (`SessionFiles.name`), or its position (`s0`, `s1`, ...) when two folders share a name.
+    InputError for a label the names cannot carry (`label_problem`), naming the session: before any work."""
+    derived = labels is None
     if labels is None:
         labels = [s.name for s in sessions]
         if len(set(labels)) != len(labels):  # two sessions with the same folder name: fall back to positions
             labels = [f"s{i}" for i in range(len(sessions))]
     if len(labels) != len(sessions) or len(set(labels)) != len(labels) or any(not lb for lb in labels):
         raise InputError(f"session labels must be unique and non-empty, got {labels}")
+    for session, label in zip(sessions, labels):
+        if (problem := label_problem(label)) is not None:
+            raise InputError(f"{problem}: the merged model names its images LABEL/name; "
+                             f"{'rename the session folder' if derived else 'give another label'}", session.path)
     return list(labels)
 
 
@@ -143,6 +174,7 @@ def merge_sessions(
     earlier_records: Sequence[dict[str, Any]] = (),
     warnings: Sequence[str] = (),
     identity_record: dict[str, Any] | None = None,
+    say: Sequence[str] = (),
 ) -> MergeResult:
     """Combine sessions into one COLMAP model in the frame of `transforms` (reference_from_session each).
 
@@ -155,6 +187,7 @@ def merge_sessions(
     for the same merge (`outputs.open_output_dir`'s `earlier`). `warnings`: what was said of its inputs (merge.json
     `warnings`, e.g. that two maps' georeferences disagree), recorded beside the merge, not part of its identity.
     `identity_record`: the record as the identity holds it (default `record`), e.g. its inputs by their content.
+    `say`: warnings logged once the output directory is taken (after every refusal, so that a refusal is one line).
     """
     t0 = time.perf_counter()
     if len(sessions) != len(transforms) or not sessions:
@@ -169,18 +202,20 @@ def merge_sessions(
                             "eps": max_fuse_distance_m, "record": rec, "pairs": fused})
 
     identity = identity_of(record if identity_record is None else identity_record)
+    # an older merge.json's flights known by their names only: said (once the output is taken), never refused on
+    # names
     flights, notes = distinct_flights(sessions)
-    for note in notes:  # an older merge.json's flights known by their names only: said, never refused on names
-        log.warning("%s", note)
     warnings = [*warnings, *notes]
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
                          earlier=[identity_of(r) for r in earlier_records]) as out:
+        for text in [*say, *notes]:
+            log.warning("%s", text)
         # the flights it holds (their maps and images: `merge_pairs.session_flights`; `flight_maps` for an older
         # sosmatch) and the warnings go into merge.json (not into the identity: earlier merges keep theirs)
         said = {"warnings": list(warnings)} if warnings else {}
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
-                             {**(record or {}), "flight_maps": sorted({f["map"] for f in flights}),
+                             {**(record or {}), "flight_maps": maps_of(flights),
                               "flights": flights, **said}, t0)
         out.finish()
     return result
@@ -316,7 +351,8 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
     write_landmarks_csv(out.staged("landmarks.csv"), lmap, np.asarray(pids_out), np.asarray(nobs), names)
     result = MergeResult(
         out_dir=out_dir,
-        sessions=[str(s.path) for s in sessions],
+        # resolved, as the match is recorded (rev45 D6: typed relative paths meant little read from elsewhere)
+        sessions=[str(resolved_path(s.path)) for s in sessions],
         labels=labels,
         transforms=list(transforms),
         num_cameras=merged.num_cameras(),
@@ -346,93 +382,6 @@ def _write_merge_record(path: Path, result: MergeResult, extra: dict[str, Any]) 
     write_text_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
-def precision_note(a: SessionFiles, b: SessionFiles, label_a: str, label_b: str) -> str | None:
-    """What to say when B's georeference is much more precise than A's (`PRECISE_GEOREFERENCE_FACTOR`, measured
-    GPS noise of each, `session_io.georeference_sigma_m`): the merged model is in A's frame and keeps A's (nu34: an
-    RTK session merged into a 1.4 m GPS one, its landmarks 0.56 m off instead of 0.26, nothing said)."""
-    if not (a.landmarks.epsg and b.landmarks.epsg):
-        return None
-    sa, sb = georeference_sigma_m(a.path), georeference_sigma_m(b.path)
-    if sa is None or sb is None or sb * PRECISE_GEOREFERENCE_FACTOR > sa:
-        return None
-    return (f"{label_b}'s georeference is more precise (GPS noise {sb:.2f} m measured) than {label_a}'s "
-            f"({sa:.2f} m): the merged model keeps {label_a}'s; match and merge with {label_b} as the first session "
-            "to keep its georeference")
-
-
-@dataclass(frozen=True)
-class Refinement:
-    """An answer's transform refined on the full maps (`refined_answer`)."""
-
-    transform: Sim3  # a_from_b: the refined one, or the answer's own when it was kept
-    used: int  # the mutual nearest neighbours that support the refined transform (0: the answer's kept)
-    dof: int  # 4: yaw + translation (then tilted by the pairs' heights), 6: rigid / similarity, 0: not refitted
-    note: str | None = None  # why the answer's own transform was kept
-
-
-def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: Params) -> Refinement:
-    """`merge --refine` and `batch --refine`: the match's answer a_from_b refined on every landmark the two maps
-    share, by the match's own recorded settings. One answer for both (rev33: batch refitted once on the window
-    associations at the configured 2 m, merge refined at another size gate, and batch's changes used neither).
-
-    A verified answer is kept as it is: it is already the verification's fit on the full maps, and refitting it
-    with other settings only made it worse (rev33: merge refitted it yaw-only, dropping its tilt, at the default
-    size gate 0.2: 126 instead of 138 pairs, landmarks 2.03 -> 2.51 m from the truth). An unverified answer (the
-    window consensus, `match --no-verify`) is refined as the verification refines its winner: at the answer's gate
-    (`answer_gate`), with match.json's recorded verification settings (`MatchSummary.refinement`: size gate,
-    dof, the final tilt and its prior, z_weight, coarse factor; the configured `params.verification` for any it
-    does not record): `refinement.refine_alignment`, then for a 4-DOF fit `verification.tilted_alignment`; a
-    similarity match a 6-DOF fit with scale. A 4-DOF fit runs from the answer levelled (as the verification's) and
-    from B turned by the answer's tilt (`tilt_of`), each then tilted by what its pairs' heights show against the
-    recorded prior of level maps; the one with more pairs stands. Fewer than 3 supporting pairs: the answer's own
-    transform, kept."""
-    if match.transform is None:
-        raise ValueError("the match has no transform to refine")
-    if match.source == "verified":
-        return Refinement(match.transform, 0, 0, "the verified answer is already refined on the full maps (the "
-                          "match's verification): --refine keeps it as it is")
-    vp = dataclasses.replace(params.verification, **match.refinement)
-    gate = answer_gate(match, params.association.distance_tolerance_m)
-    with_scale = match.transform_kind == "similarity"
-    dof = 6 if with_scale else vp.dof
-    # the 4-DOF fit from the answer levelled (the verification's way) and from B turned by the answer's own tilt:
-    # levelled, the fit paired fewer the farther the maps are tilted (rev33's A and B turned 3 / 8 / 15 deg about
-    # x: 130 / 99 / 53 pairs against 132 held), held, it kept a tilt the window consensus had fitted wrongly (rev33's
-    # B and C: consensus 2.8 deg, verified 0.8 deg; held 2.0 deg, 125 pairs, C's landmarks 2.3 m from the truth;
-    # levelled 0.8 deg, 127 pairs, 1.6 m). The one with more pairs, as `refine_alignment`'s two stages (ties: level)
-    helds = [np.eye(3)] + ([tilt_of(match.transform.rotation)] if dof == 4 else [])
-    fits = [_fit(a, b, match.transform, held, gate, vp, dof, with_scale) for held in helds]
-    best = max(fits, key=lambda f: len(f.associations))
-    if len(best.associations) < 3:
-        return Refinement(match.transform, 0, 0, f"the refinement found {len(best.associations)} supporting pairs: "
-                          "the answer's transform is kept")
-    return Refinement(best.transform, len(best.associations), dof)
-
-
-def _fit(a: LandmarkMap, b: LandmarkMap, start: Sim3, held: np.ndarray, gate: float, vp: Any, dof: int,
-         with_scale: bool) -> Alignment:
-    """One refinement of `refined_answer`: `refine_alignment` of B turned by `held` (3x3) from `start`, then, for
-    a 4-DOF fit with the final tilt on, the tilt its pairs' heights show against the prior of level maps, from its
-    level version (`_level`: the verification's `tilted_alignment`). a_from_b in B's own frame."""
-    t = Sim3(start.rotation @ held.T, start.translation, start.scale)
-    aligned = refine_alignment(a.positions, a.sizes, b.positions @ held.T, b.sizes, t, gate, vp.max_size_difference,
-                               dof=dof, with_scale=with_scale, z_weight=vp.z_weight, coarse_factor=vp.coarse_factor)
-    t, pairs = aligned.transform, aligned.associations
-    refined = Sim3(t.rotation @ held, t.translation, t.scale)
-    if dof != 4 or vp.final_dof != 6 or len(pairs) < 3:
-        return Alignment(refined, pairs, aligned.rms_m, aligned.iterations)
-    level = _level(refined, b.positions[pairs[:, 1]].mean(axis=0))
-    return tilted_alignment(a.positions, a.sizes, b.positions, b.sizes,
-                            Alignment(level, pairs, aligned.rms_m, aligned.iterations), gate, vp.max_size_difference,
-                            vp.tilt_prior_deg, vp.z_weight)
-
-
-def _level(transform: Sim3, centre: np.ndarray) -> Sim3:
-    """`transform` without its roll and pitch (its yaw, `tilt_of`), placing `centre` (B's frame) where it does."""
-    turn = transform.rotation @ tilt_of(transform.rotation).T
-    return Sim3(turn, transform.apply(centre) - transform.scale * turn @ centre, transform.scale)
-
-
 def run(
     session_a: str | Path,
     session_b: str | Path,
@@ -447,8 +396,8 @@ def run(
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
     With `refine`, an unverified answer's transform is refined on the full maps as the match's verification
-    refines an alignment (`refined_answer`); a verified answer is that refinement already and is kept (said). The
-    hypothesis' associations are still the ones fused (those the refined transform explains within the gate).
+    refines an alignment (`refined_answer`); a verified answer is that refinement already and is kept (said). A
+    refined transform fuses the pairs it supports (`Refinement.fuse`), not the answer's associations.
     Raises InputError when match.json was computed for other maps (`match_io.check_match_maps`) or has no
     accepted hypothesis, or when its transform (refined or not) does not bring the maps together
     (`changes.check_alignment`), or when the images agree but the two maps' georeferences do not
@@ -457,7 +406,11 @@ def run(
     inputs in `out_dir`.
     """
     params = params or Params()
+    # a bad --out (a user's folder, an input, a file) is refused before any work and any warning (rev45 D4: after
+    # the analysis, below its warnings), as `changes` does; `open_output_dir` still decides the rest
+    check_output_dir(out_dir, "merge", inputs=[session_a, session_b, match_json], legacy_record=MERGE_RECORD)
     a, b = read_session(session_a), read_session(session_b)
+    names = _labels([a, b], list(labels) if labels else None)  # refused before any work (`label_problem`)
     match = read_match(match_json)
     check_match_maps(match, a.landmarks, b.landmarks, match_json, names=(str(session_a), str(session_b)))
     if not match.accepted or match.transform is None:
@@ -477,7 +430,9 @@ def run(
         said.append(f"{session_b}: {note}; merged all the same (--trust-images): the model keeps {session_a}'s "
                     "georeference")
     if (note := unverified_note(match)) is not None:
-        said.append(f"{match_json}: {note}: merging its window consensus as it is; `sosmatch match` again verifies it")
+        how = "refining its window consensus on the full maps (--refine)" if refine else \
+            "merging its window consensus as it is"
+        said.append(f"{match_json}: {note}: {how}; `sosmatch match` again verifies it")
     transform = match.transform
     # the answer's own gate (recorded in match.json: the tolerance the match derived from the maps), for the
     # refinement, the control and the fusion alike; a match.json without it: the configured one
@@ -490,34 +445,41 @@ def run(
     # 20 m objects (NAIP, theta_eps 8 m) have no counterparts at the configured 2 m even at the true alignment;
     # said before any warning, so that a refusal is one line
     check_alignment(a, b, transform, params, match.source == "verified", gate, match_json, "nothing merged")
-    for text in said:
-        log.warning("%s", text)
-    if refinement is not None and refinement.note:
-        # --refine asked for and nothing refined: a warning, as match says of an option it ignores (at INFO, `-q`
-        # hid it and the output line alone did not tell it); after the control, so that a refusal is one line
-        log.warning("%s: %s", match_json, refinement.note)
+    # the warnings are said once the output directory is taken (`merge_sessions`' `say`), so that a refusal of it
+    # is one line too; --refine asked for and nothing refined: a warning, as match says of an option it ignores (at
+    # INFO, `-q` hid it and the output line alone did not tell it)
+    say = [*said, *([f"{match_json}: {refinement.note}"] if refinement is not None and refinement.note else [])]
+    if not labels and names != [a.name, b.name]:  # the folder names fell back to places (`_labels`): said (rev45 D7)
+        say.append(f"{session_a} and {session_b} share the folder name {a.name!r}: their images are named "
+                   f"{names[0]}/... and {names[1]}/... in the merged model (merge.json `labels`)")
     # the match file by its real path: another spelling of it is the same input (and the same merge)
     # merge.json records the match file by its real path; the identity names the match by its content (what it
     # says, `match_content`), so that a project moved or copied whole is the same merge (nu37 D1)
+    kept = refinement is not None and refinement.note is not None
     record = {"refined": bool(refine and used), "match": str(resolved_path(match_json)),
               "match_transform": match.transform.to_dict(),
               "refine": {"requested": refine, "associations_used": used, "dof": dof,
-                         **({"kept": refinement.note} if refinement is not None and refinement.note else {})}}
+                         **({"kept": refinement.note} if kept else {})}}
+    # a --refine that refined nothing (`refinement.note`) writes what the merge without it writes: the same output
+    # (rev45 D5: refused over a merge byte for byte the same); merge.json still says it was asked for
+    same = {**record, "refine": {"requested": False, "associations_used": 0, "dof": 0}} if kept else record
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],
-        [match_fuse_pair(0, 1, match)],
+        [match_fuse_pair(0, 1, match) if refinement is None or refinement.fuse is None else refinement.fuse],
         out_dir,
-        labels=list(labels) if labels else None,
+        labels=names,
         max_fuse_distance_m=gate,
         record=record,
         overwrite=overwrite,
         inputs=[match_json],
-        identity_record={**record, "match": match_content(match)},
+        identity_record={**same, "match": match_content(match)},
         # merges until nu37 named the match by its real path, before 2026-12-05 as it was spelt: the same merge
-        # when it lies there again
-        earlier_records=[record, {**record, "match": str(match_json)}],
+        # when it lies there again; a --refine that refined nothing until rev45 D5 had an identity of its own
+        earlier_records=[same, {**same, "match": str(match_json)},
+                         *([{**record, "match": match_content(match)}, record] if kept else [])],
         warnings=said,
+        say=say,
     )
     log.info(
         "merged %s + %s: %d images, %d points, %d fused landmarks",

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..database.landmark_map import landmark_map_fingerprint
 from ..database.output_markers import fingerprint, sha256_file
-from ..database.session_io import MERGE_RECORD, SessionFiles, read_map_record
+from ..database.session_io import MERGE_RECORD, SessionFiles, is_merged_session, read_map_record
 from ..database.text_input import read_user_json
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3, one_to_one, umeyama
@@ -86,7 +86,12 @@ IMAGE_DIGEST_CHARS = 16
 
 def flight_maps(session: SessionFiles) -> list[str]:
     """The landmark maps (content fingerprints) of the flights a session holds (`session_flights`' `map`)."""
-    return sorted({f["map"] for f in session_flights(session)})
+    return maps_of(session_flights(session))
+
+
+def maps_of(flights: Iterable[dict[str, Any]]) -> list[str]:
+    """The landmark maps of `flights` (`session_flights`), sorted and each once: merge.json's `flight_maps`."""
+    return sorted({f["map"] for f in flights})
 
 
 def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset()) -> list[dict[str, Any]]:
@@ -98,9 +103,15 @@ def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset())
     images (or, for a flight of an older merge.json, the names they are among: `name_overlap`). A flight without
     run.json (an older sosmatch): its map only. A merged session's as its merge.json records them
     (`flights`); of an older sosmatch, which recorded no images, as `older_merged_flights` recovers them.
-    InputError naming merge.json or run.json when it is unreadable: a merged session taken for one flight would let
-    a flight it holds be merged into it again."""
+    InputError naming merge.json or run.json when it is unreadable, or merge.json when a merged session
+    (`session_io.is_merged_session`: its output marker) has lost it: a merged session taken for one flight would let a
+    flight it holds be merged into it again."""
     record = session.path / MERGE_RECORD
+    if not record.is_file() and is_merged_session(session.path):
+        # its marker says `sosmatch merge` wrote it: taken for one flight, a flight it holds would be merged into
+        # it again (rev45 D9: 40 photos twice, exit 0); its flights are in merge.json alone
+        raise InputError("a merged session (its output marker says `sosmatch merge` wrote it) without its merge.json: "
+                         "damaged or copied in part; re-run `sosmatch merge` to make it again", record)
     if record.is_file():
         merged = read_user_json(record, "merge record", redo="re-run `sosmatch merge`")
         flights = merged.get("flights")
@@ -264,7 +275,7 @@ def refine_transform(
     a: SessionFiles, b: SessionFiles, associations: np.ndarray, initial: Sim3, with_scale: bool, gate_m: float
 ) -> tuple[Sim3, int]:
     """Re-estimate a_from_b by least squares on every association that `initial` already explains within gate_m:
-    one refit, not what `merge --refine` / `batch --refine` do (`merge.refined_answer`); kept as the baseline the
+    one refit, not what `merge --refine` / `batch --refine` do (`merge_refine.refined_answer`); kept as the baseline the
     batch benchmark's refinement table and a test compare that refinement with.
 
     Returns (transform, number of associations used); keeps `initial` when fewer than 3 survive the gate.

@@ -18,7 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory (sparse/, landmarks, merge.json)")
     parser.add_argument("--refine", action="store_true",
                         help="refine an unverified answer (match --no-verify) on the full maps as the "
-                        "match's verification refines its winner (a verified answer is kept: it is that already)")
+                        "match's verification refines its winner, and fuse the pairs the refined transform supports "
+                        "(a verified answer is kept: it is that already)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a complete `sosmatch merge` output of other inputs in --out")
     parser.add_argument("--trust-images", action="store_true",

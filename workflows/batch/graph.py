@@ -278,11 +278,11 @@ def _after_pair_fingerprints(pair: list[str | None], transform: dict[str, Any], 
 
 def _refine_pair(rec: dict[str, Any], session_a: str, session_b: str, m: MatchSummary, params: Params) -> None:
     """`--refine`: the pair's unverified answer refined on the full maps as `sosmatch merge --refine` refines it
-    (`merge.refined_answer`), into the pair's record: its `transform` is then the refined one, which the graph, the
-    control, the merge, the changes and the report all read (rev33: the graph and the merge used a refit, the
-    changes and the report the consensus, 0.5 m apart), and `refine` says what the fit used."""
+    (`merge_refine.refined_answer`), into the pair's record: its `transform` is then the refined one, which the
+    graph, the control, the merge, the changes and the report all read (rev33: the graph and the merge used a
+    refit, the changes and the report the consensus, 0.5 m apart), and `refine` says what the fit used."""
     from ...database.session_io import read_session
-    from ..merge import refined_answer
+    from ..merge_refine import refined_answer
 
     got = refined_answer(read_session(session_a).landmarks, read_session(session_b).landmarks, m, params)
     rec["refine"] = {"associations_used": got.used, "dof": got.dof, **({"kept": got.note} if got.note else {})}

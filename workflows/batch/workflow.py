@@ -22,6 +22,7 @@ from ...plugin.errors import InputError
 from ...plugin.params import Params, mapping_params, params_to_dict
 from ...plugin.params.identity import build_versions, each_version
 from ..executors import Executor, LocalExecutor
+from ..merge import label_problem
 from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir, one_session_per_flight
 from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs, of_sessions, pair_made_from
 from .pairs import flight_times, pairs_chosen_by
@@ -39,7 +40,8 @@ class BatchOptions:
     nearest: int | None = None  # match only the k nearest pairs (None: every pair)
     ekf: bool = False  # synth flights: map with the noisy poses_ekf.csv instead of the ground truth
     merge: bool = True
-    refine: bool = False  # (without verify) consensus transforms refined on the full maps (`merge.refined_answer`)
+    # (without verify) consensus transforms refined on the full maps (`merge_refine.refined_answer`)
+    refine: bool = False
     # Each match verifies its window hypotheses on the full maps (a stage of `sosmatch match`, settings in
     # Params.verification); off = the match's consensus as it is. BENCHMARKS.md, Multi-session, has what each
     # step does to the errors.
@@ -151,6 +153,11 @@ def run(
     own_executor = executor is None
     executor = executor or LocalExecutor(1)
     flights = discover_flights(flights_dir, exclude=(out_dir,))
+    if options.merge:  # a flight's name labels its images in a merged model: refused now, not after the mapping
+        for flight in flights:
+            if (problem := label_problem(flight.name)) is not None:
+                raise InputError(f"{problem}: a merged model names its images FLIGHT/name; rename the flight folder "
+                                 "(or --no-merge)", flight.path)
     pdict = params_to_dict(params)
     # the segmentation's model files, by their contents, when a flight is to be segmented (`map`'s identity holds
     # them too): another model named by the environment is another batch, and maps again
