@@ -66,7 +66,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
             said.append(text)
 
     warn(crs_disagreement(la, lb))
-    warn(size_definition_disagreement(map_a, map_b))
+    warn(size_definition_disagreement(map_a.size_definition, map_b.size_definition))
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
     # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
