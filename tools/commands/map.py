@@ -34,7 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "edge the same one, as `match` advises")
     parser.add_argument("--camera", type=Path,
                         help="intrinsics: cameras.txt, cameras.bin or a COLMAP model (default: from --poses)")
-    parser.add_argument("--out", type=Path, required=True, help="session directory to write")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="session directory to write: database.db, sparse/ (COLMAP model), landmarks.sosmap/.csv/"
+                        ".ply, quality.png, pose_check.json, run.json (and poses/ when poses come from structure from "
+                        "motion)")
     parser.add_argument("--convention", choices=["world_from_camera", "camera_from_world"],
                         help="pose convention of the CSV (overrides its '# convention:' comment)")
     parser.add_argument("--ekf", action="store_true", help="synth session: use the noisy poses_ekf.csv")
