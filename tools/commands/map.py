@@ -74,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     if args.poses is None:
         if args.images is None:
             raise InputError("give --poses, or --images (poses by structure from motion or from EXIF/XMP)")
+        map_workflow.warn_of_pose_file_beside(args.images)  # --poses forgotten? (structure from motion takes minutes)
         if args.text and Path(args.images).is_dir():  # before the poses are made (the map's own check: its inputs)
             from ...database.images import image_files
 
