@@ -1102,6 +1102,24 @@ def test_flights_without_a_usable_time_are_said_in_one_warning(tmp_path, caplog)
     assert "b (no image carries a capture time" in lines[0] and "c (its images' clocks were reset" in lines[0]
     assert "m (a mapped session" in lines[0]
     assert "d carry their cameras' clock times without a zone" in lines[1]
+    said = []
+    flight_times({"a": good, "b": none, "c": reset, "m": None, "d": clock}, said)
+    assert said == lines  # for report.json's warnings
+
+
+def test_flights_without_a_capture_time_are_a_warning_of_the_report(flights, tmp_path):
+    """nu54 M2: `batch --nearest` logged "no usable capture time" and report.json said `"warnings": []`, status
+    "ok"; README: status is "ok" only without failures and warnings."""
+    root, _ = flights
+    for name in "AB":
+        shutil.copytree(root / name, tmp_path / "fl" / name)
+    options = batch.BatchOptions(progress=False, changes=False, nearest=1)
+    report = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                       options=options)
+    data = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert any(w.startswith("--nearest: no usable capture time for A (") for w in data["warnings"])
+    assert data["status"] != "ok" and data["status"] == report.status and "warning(s)" in report.status
+    assert "no usable capture time" in (tmp_path / "out" / "report.md").read_text()
 
 
 def test_a_flight_s_camera_zone_comes_from_its_gps_times(tmp_path):

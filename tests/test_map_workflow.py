@@ -761,3 +761,21 @@ def test_masks_from_a_callable_object_are_named_by_its_class_not_its_address(ses
     assert json.loads((out / "run.json").read_text())["masks"] == "_NoMasks"
     again = map_workflow.run(params, inputs, out, progress=False, masks_for=_NoMasks())
     assert again.keyframes_from_cache == summary.num_keyframes > 0
+
+
+def test_map_without_poses_names_a_pose_file_beside_the_images(tmp_path, caplog):
+    """nu54 M6: `map --images flight/images` (--poses forgotten, flight/poses.csv beside) ran structure from motion
+    for minutes at a nominal scale, and nothing pointed at the pose file. One warning line names it now."""
+    flight = tmp_path / "flight"
+    (flight / "images").mkdir(parents=True)
+    (flight / "images" / "frame_00000.jpg").write_bytes(b"\xff\xd8 not really a jpeg")
+    (flight / "poses.csv").write_text("name,x,y,z,qw,qx,qy,qz\n")
+    assert map_workflow.pose_file_beside(flight / "images") == flight / "poses.csv"
+    assert map_workflow.pose_file_beside(flight) == flight / "poses.csv"  # a poses.csv inside the folder
+    with caplog.at_level("WARNING"):
+        main(["map", "--images", str(flight / "images"), "--out", str(tmp_path / "m")])  # then fails on the image
+    said = [r.getMessage() for r in caplog.records if "looks like this flight's poses" in r.getMessage()]
+    assert len(said) == 1 and f"pass --poses {flight / 'poses.csv'} to use them" in said[0], caplog.text
+    (flight / "session.json").write_text("{}")  # a synth session: its folder is what --poses takes
+    assert map_workflow.pose_file_beside(flight / "images") == flight
+    assert map_workflow.pose_file_beside(tmp_path) is None

@@ -47,6 +47,18 @@ def test_every_subcommand_has_help(capsys):
         assert "usage: sosmatch" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("name, outputs", [
+    ("map", ["database.db", "sparse/", "landmarks.sosmap", "quality.png", "pose_check.json", "run.json"]),
+    ("batch", ["sessions/", "pairs/", "merged/", "report.md", "session_graph.png"])])
+def test_the_help_of_map_and_batch_says_what_they_write(name, outputs, capsys):
+    """nu54 M5: `map --help` said "session directory to write", `batch --help` "output directory", and no more;
+    the other commands' help names their files."""
+    with pytest.raises(SystemExit):
+        main([name, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert all(item in text for item in outputs), text
+
+
 def test_user_error_is_one_line_exit_2(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[tracking]\nno_such_key = 1\n")

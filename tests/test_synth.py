@@ -598,3 +598,24 @@ def test_a_demo_too_short_to_map_is_refused_before_rendering(tmp_path, cli_error
         err = cli_error("demo", "--out", tmp_path / "d", "--frames", frames)
         assert f"--frames {frames} is too few to map" in err and f"give at least {theta_n + 1} frames" in err
         assert not (tmp_path / "d").exists()
+
+
+def test_demo_replaces_its_output_with_overwrite_as_every_command(tmp_path, cli_error, capsys):
+    """nu54 M3: `demo` took --force where every other command (and README's Errors section) takes --overwrite.
+    --overwrite now; --force still works (scripts), unlisted."""
+    from sosmatch.database.output_markers import fingerprint
+    from sosmatch.database.outputs import open_output_dir
+    from sosmatch.tools.cli import build_parser, main
+
+    with open_output_dir(tmp_path / "d", "demo", fingerprint({"frames": 99})) as taken:  # a demo of other frames
+        taken.finish()
+    err = cli_error("demo", "--out", tmp_path / "d", "--frames", 30)
+    assert "use --overwrite" in err and "--force" not in err
+    parser = build_parser()
+    for flag in ("--overwrite", "--force"):
+        assert parser.parse_args(["demo", flag]).overwrite is True
+    assert parser.parse_args(["demo"]).overwrite is False
+    with pytest.raises(SystemExit):
+        main(["demo", "--help"])
+    usage = capsys.readouterr().out
+    assert "--overwrite" in usage and "--force" not in usage

@@ -48,7 +48,7 @@ class DemoContext:
 
     out: Path
     frames: int = DEMO_FRAMES
-    overwrite: bool = False  # the steps replace their earlier outputs (--force, or the demo's settings changed)
+    overwrite: bool = False  # the steps replace their earlier outputs (--overwrite, or the demo's settings changed)
     summer: SynthConfig = field(init=False)
     winter: SynthConfig = field(init=False)
 
@@ -194,11 +194,13 @@ def fewest_frames(config: SynthConfig, params: Params) -> int:
     return theta_n * per_keyframe + 1
 
 
-def run_demo(out: str | Path, frames: int = DEMO_FRAMES, force: bool = False) -> list[tuple[str, str, float]]:
+def run_demo(out: str | Path, frames: int = DEMO_FRAMES, overwrite: bool = False,
+             force: bool = False) -> list[tuple[str, str, float]]:
     """Run every demo step into `out`; returns (step, "done" | "skipped", seconds) per step.
 
     `out` is taken through `sosmatch.database.outputs`; a demo made with another frame count is redone only
-    with `force` (which also re-runs every step)."""
+    with `overwrite` (which also re-runs every step; `force` is its earlier name)."""
+    force = overwrite or force
     from ..database.output_markers import fingerprint
     from ..database.outputs import open_output_dir
 
@@ -209,8 +211,7 @@ def run_demo(out: str | Path, frames: int = DEMO_FRAMES, force: bool = False) ->
         raise InputError(f"--frames {frames} is too few to map: {landmark_views()}, on the flight's first line; "
                          f"give at least {needed} frames")
     identity = fingerprint({"frames": frames})
-    with open_output_dir(out, "demo", identity, overwrite=force, legacy_record="sessions/summer/session.json",
-                         overwrite_flag="--force") as taken:
+    with open_output_dir(out, "demo", identity, overwrite=force, legacy_record="sessions/summer/session.json") as taken:
         redo = force or (taken.previous.state != "new" and taken.previous.identity != identity)
         ctx = DemoContext(taken.path, frames, overwrite=redo)
         report = []

@@ -26,6 +26,12 @@ kernel, on any path (a position prior, the paper preset, `--exhaustive`, the par
 calls a kernel directly), is read, compiled and written by one process at a time, and a second process that
 needs it waits, then loads what the first wrote. A warm cache costs one flock per top-level kernel a process loads
 (14 for a default match, ~1 ms); a file system without flock leaves numba unlocked, as before, with a debug log.
+
+The same listener times those spans (`kernel_seconds`): `search_clock()` is the search's clock, which stands still
+while the process compiles or loads a kernel (or waits for another process compiling one), so that a search's
+timings (match.json `search_seconds`) hold the search and not the one-off compile of a fresh install (minutes of
+CPU: a first match recorded 151 s for a search of 0.9 s, nu54); the match records that time apart
+(`kernel_compile_s`).
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ import logging
 import os
 import pkgutil
 import threading
+import time
 import types
 from pathlib import Path
 from typing import IO
@@ -197,11 +204,20 @@ class CompileLock(event.Listener):
         self._held: IO[str] | None = None
         self._pending: IO[str] | None = None  # the lock file opened by a wait not yet granted (`after_fork_in_child`)
         self._told = False
+        # the time spent inside numba's lock (`seconds`): its own guard, as `_guard` is held through a flock wait
+        self._clock = threading.Lock()
+        self._spent = 0.0
+        self._since: float | None = None  # perf_counter at the outermost start of the span in progress
 
     def on_start(self, event: object) -> None:  # noqa: ARG002 - numba's Listener interface
         with self._guard:
             if self._depth == 0:
-                self._held = self._acquire()  # before counting: an interrupted wait leaves the count as it was
+                self._span(True)  # a wait for another process's compile is counted too
+                try:
+                    self._held = self._acquire()  # before counting: an interrupted wait leaves the count as it was
+                except BaseException:
+                    self._span(False)
+                    raise
             self._depth += 1
 
     def on_end(self, event: object) -> None:  # noqa: ARG002 - numba's Listener interface
@@ -209,9 +225,28 @@ class CompileLock(event.Listener):
             if self._depth == 0:  # an end whose start came before the listener was registered
                 return
             self._depth -= 1
-            if self._depth == 0 and self._held is not None:
-                self._held.close()  # closing the descriptor releases the flock
-                self._held = None
+            if self._depth == 0:
+                if self._held is not None:
+                    self._held.close()  # closing the descriptor releases the flock
+                    self._held = None
+                self._span(False)
+
+    def _span(self, starts: bool) -> None:
+        """Start or end the process's span inside numba's lock (its outermost start and end)."""
+        now = time.perf_counter()
+        with self._clock:
+            if starts:
+                self._since = now
+            elif self._since is not None:
+                self._spent += now - self._since
+                self._since = None
+
+    def seconds(self, now: float | None = None) -> float:
+        """Seconds this process has spent inside numba's compiler lock (compiling or loading kernels, or waiting
+        for another process's compile), up to `now` (perf_counter; default: now)."""
+        now = time.perf_counter() if now is None else now
+        with self._clock:
+            return self._spent + (now - self._since if self._since is not None else 0.0)
 
     def _acquire(self) -> IO[str] | None:
         if self.path is None:
@@ -266,6 +301,8 @@ class CompileLock(event.Listener):
         self._held = self._pending = None
         self._depth = 0
         self._guard = threading.Lock()
+        self._clock = threading.Lock()
+        self._since = None  # a span of the parent's threads: not this process's
 
 
 def install_compile_lock() -> CompileLock:
@@ -305,6 +342,18 @@ def refresh(package_dir: Path = PACKAGE_DIR) -> None:
             logger.debug("removed %d stale compiled kernels from %s", removed, directory)
     except OSError as error:
         logger.debug("numba cache of %s not checked: %s", package_dir, error)
+
+
+def kernel_seconds() -> float:
+    """Seconds this process has spent compiling or loading numba kernels (any, on any thread; `CompileLock`)."""
+    return COMPILE_LOCK.seconds()
+
+
+def search_clock() -> float:
+    """A clock (seconds, like `time.perf_counter`) that stands still while this process compiles or loads numba
+    kernels: differences of it time a search without the one-off compile of a fresh install (module doc)."""
+    now = time.perf_counter()
+    return now - COMPILE_LOCK.seconds(now)
 
 
 refresh()

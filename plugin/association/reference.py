@@ -8,8 +8,6 @@ them (`kernels_graph.association_graph`: every pair of associations tested), and
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from ..params import AssociationParams
@@ -22,6 +20,7 @@ from .hypotheses import (
     in_window_order,
     make_hypotheses,
 )
+from .kernel_cache import search_clock
 from .kernels_graph import association_graph, putatives
 from .kernels_search import solve_window_pair
 from .windows import map_windows
@@ -38,7 +37,7 @@ def search_reference(points_a: np.ndarray, sizes_a: np.ndarray | None, points_b:
 
 def _reference(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
                params: AssociationParams) -> tuple[list[WindowHypothesis], np.ndarray, np.ndarray, dict]:
-    t0 = time.perf_counter()
+    t0 = search_clock()
     m = SearchMode.of(params)
     wins_a, wins_b = map_windows(len(pa), len(pb), params)
     ids, nput, ncore, score, slc, sel = [], [], [], [], [], []
@@ -60,7 +59,7 @@ def _reference(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
     flat = np.concatenate(sel) if sel else np.zeros((0, 2), np.int64)
     hyps = make_hypotheses(pa, pb, params, wins_a, wins_b, np.array(ids, np.int64), np.array(nput), np.array(ncore),
                            np.array(score), np.array(slc), off, flat[:, 0].copy(), flat[:, 1].copy())
-    return hyps, wins_a, wins_b, {"total_s": time.perf_counter() - t0}
+    return hyps, wins_a, wins_b, {"total_s": search_clock() - t0}
 
 
 def differences(fast: SearchResult, ref: SearchResult) -> list[str]:

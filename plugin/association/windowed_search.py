@@ -26,8 +26,6 @@ with the output of one block, not with the product of the map sizes.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from ..params import AssociationParams
@@ -40,6 +38,7 @@ from .hypotheses import (
     in_window_order,
     make_hypotheses,
 )
+from .kernel_cache import search_clock
 from .kernels_graph import gate_pairs
 from .kernels_join import edge_join, edge_pair_details, map_edges, size_cells, sorted_b_edges
 from .kernels_peel import peel_pairs_sliced, peeled_ids
@@ -105,7 +104,7 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
             params: AssociationParams) -> tuple[list[WindowHypothesis], np.ndarray, np.ndarray, dict]:
     m = SearchMode.of(params)
     timings: dict[str, float] = {}
-    t0 = time.perf_counter()
+    t0 = search_clock()
     wins_a, wins_b = map_windows(len(pa), len(pb), params)
     fa, la = window_span(len(pa), wins_a)
     fb, lb = window_span(len(pb), wins_b)
@@ -114,9 +113,9 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
     stats = {"consistent_pairs": 0, "incidences": 0, "blocks": 0, "direct_blocks": 0}
     if m.prior_m > 0:
         timings["edges_s"] = 0.0
-        t1 = time.perf_counter()
+        t1 = search_clock()
         pairs = _prior_pairs(pa, ha, pb, hb, fa, la, fb, lb, m)
-        timings["join_s"] = time.perf_counter() - t1
+        timings["join_s"] = search_clock() - t1
         _block(pairs, 0, len(wins_a), shared, records, stats, timings)
     else:
         (len_a, _), (len_b, _) = window_layouts(params)
@@ -125,7 +124,7 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
         cells_a, cells_b, ncell = size_cells(ha, hb, m.theta_r)
         sb = sorted_b_edges(eb, cells_b, ncell, hb)
         a_lo, a_hi = fa[ea[1]], la[ea[0]]  # A windows holding both endpoints of each A edge
-        timings["edges_s"] = time.perf_counter() - t0
+        timings["edges_s"] = search_clock() - t0
         all_edges = np.arange(len(ea[0]), dtype=np.int64)
         join_args = (ea, sb, cells_a, ncell, pa, ha, pb, m.consistency, m.eps, m.tan_tilt, m.eps_z, m.theta_r,
                      m.prior_m)
@@ -137,19 +136,19 @@ def _search(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.ndarray,
             blocks = _blocks(edge_join(all_edges, *join_args, True, 0)[-1], a_lo, a_hi, len(wins_a))
             estimate = 0
         for w0, w1 in blocks:
-            t1 = time.perf_counter()
+            t1 = search_clock()
             sel = all_edges[(a_lo <= w1 - 1) & (a_hi >= w0)]
             v1, v2, _ = edge_join(sel, *join_args, False, estimate or 1024)
-            timings["join_s"] = timings.get("join_s", 0.0) + time.perf_counter() - t1
+            timings["join_s"] = timings.get("join_s", 0.0) + search_clock() - t1
             _block(_EdgePairs(v1, v2, pa, pb, fa, la, fb, lb, w0, w1, m), w0, w1,
                    shared, records, stats, timings)
     timings.update({k: float(v) for k, v in stats.items()})
-    t1 = time.perf_counter()
+    t1 = search_clock()
     ids, nput, ncore, score, slc, off, sel_a, sel_b = records.arrays()
     hyps = make_hypotheses(pa, pb, params, wins_a, wins_b, ids, nput, ncore, score, slc, off, sel_a, sel_b)
-    timings["fit_s"] = time.perf_counter() - t1
+    timings["fit_s"] = search_clock() - t1
     timings["window_pairs_solved"] = float(len(hyps))
-    timings["total_s"] = time.perf_counter() - t0
+    timings["total_s"] = search_clock() - t0
     return hyps, wins_a, wins_b, timings
 
 
@@ -265,7 +264,7 @@ def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, re
     nbm = len(pb)
     stats["blocks"] += 1
     stats["consistent_pairs"] += len(pairs)
-    t0 = time.perf_counter()
+    t0 = search_clock()
     # the pairs the peel leaves (`sel`), their associations numbered 0 .. len(ids) - 1 (all of them used)
     ids, e1, e2, sel = pairs.peeled(m.k)
     cs, s0, ns = pairs.details(sel)
@@ -277,8 +276,8 @@ def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, re
     local = np.arange(len(sel), dtype=np.int64)
     inc = count_incidences(local, a_lo, a_hi, b_lo, b_hi)
     stats["incidences"] += inc
-    timings["peel_s"] = timings.get("peel_s", 0.0) + time.perf_counter() - t0
-    t0 = time.perf_counter()
+    timings["peel_s"] = timings.get("peel_s", 0.0) + search_clock() - t0
+    t0 = search_clock()
     if inc > DIRECT_MIN_INCIDENCES * (w1 - w0) * nwb:
         # dense maps: nearly every window pair keeps a core; computing them directly is cheaper than gathering
         stats["direct_blocks"] += 1
@@ -307,4 +306,4 @@ def _block(pairs: _EdgePairs | _ListedPairs, w0: int, w1: int, shared: tuple, re
     # window pairs without a result have empty ranges in the flat selections: keep the found ones' ends
     new_off = np.concatenate([[0], off[np.flatnonzero(found) + 1]]).astype(np.int64)
     records.add(ids_w, nput, ncore[found], score[found], slc[found], new_off, sel_a, sel_b)
-    timings["solve_s"] = timings.get("solve_s", 0.0) + time.perf_counter() - t0
+    timings["solve_s"] = timings.get("solve_s", 0.0) + search_clock() - t0

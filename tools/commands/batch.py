@@ -14,7 +14,10 @@ HELP = "map a folder of flights, match session pairs, merge each connected group
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("flights_dir", type=Path, help="one sub-folder per flight (images + poses.csv, geotagged "
                         "images, a synth session or an already mapped session)")
-    parser.add_argument("--out", type=Path, required=True, help="output directory (re-run the same command to resume)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="output directory (re-run the same command to resume): sessions/ (one map each), "
+                        "pairs/ (matches, changes), merged/ (one model per group), report.md/.json, sessions.csv, "
+                        "pairs.csv, session_graph.png, state/")
     parser.add_argument("--workers", type=int, default=1, help="local worker processes (0: run in this process)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the tasks on this Dask cluster")

@@ -34,7 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "edge the same one, as `match` advises")
     parser.add_argument("--camera", type=Path,
                         help="intrinsics: cameras.txt, cameras.bin or a COLMAP model (default: from --poses)")
-    parser.add_argument("--out", type=Path, required=True, help="session directory to write")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="session directory to write: database.db, sparse/ (COLMAP model), landmarks.sosmap/.csv/"
+                        ".ply, quality.png, pose_check.json, run.json (and poses/ when poses come from structure from "
+                        "motion)")
     parser.add_argument("--convention", choices=["world_from_camera", "camera_from_world"],
                         help="pose convention of the CSV (overrides its '# convention:' comment)")
     parser.add_argument("--ekf", action="store_true", help="synth session: use the noisy poses_ekf.csv")
@@ -71,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     if args.poses is None:
         if args.images is None:
             raise InputError("give --poses, or --images (poses by structure from motion or from EXIF/XMP)")
+        map_workflow.warn_of_pose_file_beside(args.images)  # --poses forgotten? (structure from motion takes minutes)
         if args.text and Path(args.images).is_dir():  # before the poses are made (the map's own check: its inputs)
             from ...database.images import image_files
 

@@ -22,8 +22,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mount", default=None,
                         help="body-to-camera mounting of a fixed camera: top_forward (default), right_forward, "
                              "top_backward, left_forward")
-    parser.add_argument("--pitch-sign", type=float, default=None, choices=[-1.0, 1.0])
-    parser.add_argument("--roll-sign", type=float, default=None, choices=[-1.0, 1.0])
+    parser.add_argument("--pitch-sign", type=float, default=None, choices=[-1.0, 1.0],
+                        help="sign of a fixed camera's airframe pitch tag (default 1: nose up positive; -1 flips it)")
+    parser.add_argument("--roll-sign", type=float, default=None, choices=[-1.0, 1.0],
+                        help="sign of a fixed camera's airframe roll tag (default 1: right wing down positive)")
     parser.add_argument("--sensor-width-mm", type=float,
                         help="the sensor's width, mm: its long side, whichever way the files are turned (when EXIF "
                              "has no focal-plane resolution)")

@@ -103,20 +103,26 @@ def read_flight_time(images: Path | None) -> FlightTime:
     return FlightTime(statistics.median(kept), utc=is_utc)
 
 
-def flight_times(images: dict[str, Path | None]) -> dict[str, float | None]:
+def flight_times(images: dict[str, Path | None], warnings: list[str] | None = None) -> dict[str, float | None]:
     """Each flight's time (`read_flight_time`) by name; the flights without one are said in one warning line
     with why (their neighbours in time are not chosen), and when some flights' times are UTC and others' only
-    their cameras' clocks (zone unknown), so is that their order within 14 h is uncertain."""
+    their cameras' clocks (zone unknown), so is that their order within 14 h is uncertain. Each warning is also
+    appended to `warnings` (batch's report.json `warnings`: a run that warned is not "ok", nu54)."""
     found = {name: read_flight_time(path) for name, path in images.items()}
+    said = []
     untimed = [f"{name} ({ft.why})" for name, ft in sorted(found.items()) if ft.seconds is None]
     if untimed:
-        log.warning("--nearest: no usable capture time for %s; no flight is chosen for them as their neighbour in "
-                    "time", "; ".join(untimed))
+        said.append(f"--nearest: no usable capture time for {'; '.join(untimed)}; no flight is chosen for them as "
+                    "their neighbour in time")
     timed = {name: ft for name, ft in found.items() if ft.seconds is not None}
     if any(ft.utc for ft in timed.values()) and (clock := sorted(n for n, ft in timed.items() if not ft.utc)):
-        log.warning("--nearest: %s carry their cameras' clock times without a zone (no OffsetTimeOriginal, no GPS "
-                    "time), taken as UTC: their order against the other flights within 14 h is uncertain",
-                    ", ".join(clock))
+        said.append(f"--nearest: {', '.join(clock)} carry their cameras' clock times without a zone (no "
+                    "OffsetTimeOriginal, no GPS time), taken as UTC: their order against the other flights within "
+                    "14 h is uncertain")
+    for text in said:
+        log.warning("%s", text)
+    if warnings is not None:
+        warnings.extend(said)
     return {name: ft.seconds for name, ft in found.items()}
 
 

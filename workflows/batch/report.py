@@ -28,6 +28,8 @@ class BatchReport:
     executor: str = ""
     seconds: float = 0.0
     stale_outputs: list[str] = field(default_factory=list)  # OUT's folders of no flight or group of this run
+    # what the run warned of that is no one session's or pair's (--nearest: flights without a capture time)
+    run_warnings: list[str] = field(default_factory=list)
 
     @property
     def failures(self) -> list[str]:
@@ -39,9 +41,9 @@ class BatchReport:
 
     @property
     def warnings(self) -> list[str]:
-        """What the batch's results say of its inputs without failing, each named by its session or pair
-        (`session_warnings`, `pair_warnings`), sessions first."""
-        return ([w for s in self.sessions for w in session_warnings(s)]
+        """What the batch's results say of its inputs without failing: the run's own (`run_warnings`), then each
+        named by its session or pair (`session_warnings`, `pair_warnings`), sessions first."""
+        return (list(self.run_warnings) + [w for s in self.sessions for w in session_warnings(s)]
                 + [w for p in self.pairs for w in pair_warnings(p)])
 
     @property

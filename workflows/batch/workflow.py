@@ -227,7 +227,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     # 3: match
     # with --nearest, each flight's neighbours in time are matched too (read only then: <= 9 EXIF headers a flight)
     times = flight_times({f.name: None if f.kind == "mapped" else images_dir(f.path) for f in flights
-                          if f.name in mapped}) if options.nearest is not None else {}
+                          if f.name in mapped}, report.run_warnings) if options.nearest is not None else {}
     chosen_by = pairs_chosen_by(mapped, sessions, options.nearest, times)
     chosen = list(chosen_by)
     matcher = pair_fn or pair_task

@@ -31,6 +31,10 @@ from .sosmatch_method import error_to_identity as error_to_identity  # re-export
 from .truth import landmark_truth
 
 log = logging.getLogger(__name__)
+# below the table of evaluation.md: what SOS-Match's search time holds (and what not)
+SEARCH_TIME_NOTE = ("SOS-Match's search time: its search and the verification on the full maps (wall), without the "
+                    "one-off compile or load of the numba kernels (minutes on the first match of an install; "
+                    "evaluation.json `kernel_compile_seconds`).")
 # keyframes tilted further than this from nadir (an oblique survey: `synth --camera-tilt`): the footprint-IoU
 # truth is named as the paper's nadir protocol (at 20 deg the oracle recall fell from 0.97 to 0.77, at 35 deg to 0.28)
 OBLIQUE_NOTE_DEG = 15.0
@@ -184,6 +188,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
         "methods": {m: _jsonable(res) for m, res in results.items()},
     }
     md = f"# Evaluation: {case}\n\n" + format_table(rows) + (
+        f"\n{SEARCH_TIME_NOTE}\n" if "sosmatch" in results else "") + (
         f"\nKeyframes {len(gt_a.names)} x {len(gt_b.names)}; {evaluation['protocol']['positive_pairs']} pairs with "
         f"IoU > {TP_IOU}, {evaluation['protocol']['negative_pairs']} with IoU < {FP_IOU}.\n\n"
         "![precision-recall](pr.png)\n\n![map overlay](overlay.png)\n")

@@ -29,7 +29,9 @@ from .inputs import (
     in_flight_order,
     input_fingerprints,
     load_inputs,
+    pose_file_beside,
     refuse_text_model_names,
+    warn_of_pose_file_beside,
 )
 from .keyframes import cached_descriptors, describe_keyframes
 from .output_dir import OUTPUTS, PARTIAL
@@ -38,5 +40,5 @@ from .workflow import MapSummary, map_origin, run
 __all__ = [
     "IMAGE_EXTENSIONS", "OUTPUTS", "PARTIAL", "InputError", "MapInputs", "MapSummary", "cached_descriptors",
     "describe_keyframes", "in_flight_order", "input_fingerprints", "load_inputs", "map_origin",
-    "refuse_text_model_names", "run",
+    "pose_file_beside", "refuse_text_model_names", "run", "warn_of_pose_file_beside",
 ]

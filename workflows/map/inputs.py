@@ -79,6 +79,30 @@ def _refuse_shared_images(keep: list[tuple[int, Path]], names: list[str], poses:
                          "map stores each image: map each folder on its own, or rename the images apart", images)
 
 
+def pose_file_beside(images: str | Path) -> Path | None:
+    """A pose source lying beside or inside an image folder that `map --images` got without --poses: a
+    `sosmatch synth` session holding the folder, or a poses.csv in the folder or its parent (a flight laid out as
+    `flight/images/` + `flight/poses.csv`, as `batch` reads it); None when there is none. Without --poses, map makes
+    poses by structure from motion (in a local frame at a nominal height, when the images carry no GPS), which a
+    user who forgot --poses does not want (nu54)."""
+    folder = Path(images)
+    for where in (folder.parent, folder):
+        if _is_synth_session(where) and where / "images" == folder:
+            return where
+        if (where / "poses.csv").is_file():
+            return where / "poses.csv"
+    return None
+
+
+def warn_of_pose_file_beside(images: str | Path) -> Path | None:
+    """Say in one warning line when `pose_file_beside` finds a pose source that map was not given; returns it."""
+    found = pose_file_beside(images)
+    if found is not None:
+        log.warning("%s looks like this flight's poses: pass --poses %s to use them (without --poses, map makes "
+                    "poses from the images)", found, found)
+    return found
+
+
 def refuse_text_model_names(image_paths: Sequence[Path]) -> None:
     """InputError naming the first image whose file name (the name the map stores it under) a COLMAP text model
     cannot hold (`colmap_model.colmap_text_name_problem`): `map --text` refuses it before any work. The map
