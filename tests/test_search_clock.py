@@ -12,7 +12,8 @@ from sosmatch.plugin import match_answer
 from sosmatch.plugin.association import kernel_cache
 from sosmatch.plugin.association.synthetic import survey_map_pair
 from sosmatch.plugin.params import Params
-from sosmatch.workflows.evaluate.workflow import SEARCH_TIME_NOTE, _kernel_compile_seconds
+from sosmatch.workflows.evaluate.sosmatch_method import _kernel_compile_seconds
+from sosmatch.workflows.evaluate.workflow import SEARCH_TIME_NOTE
 
 
 def _fresh_kernel():
