@@ -985,3 +985,35 @@ def test_an_empty_list_of_images_is_a_user_error():
 
     with pytest.raises(InputError, match="no images given"):
         poses_from_images([])
+
+
+def test_a_telemetry_log_joined_one_row_off_is_refused_naming_the_shift(tmp_path, capsys):
+    """nu53 H1: a log whose FileName column slipped one row gives every image its neighbour's position, a capture
+    step off (Seneca: 32.7 m), and was taken with an INFO line; the map was then published 32 m off, verdict ok.
+    Pairing the rows with the fixes one image away explains the offset to within the GPS noise: refused in one line
+    naming the shift. The same rows joined right, and a log offset by a receiver's bias, are taken."""
+    img = tmp_path / "images"
+    img.mkdir()
+    n, step_deg = 10, 2e-4  # 15 m steps flying east at 47 N, one capture every 2 s
+    for k in range(n):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * step_deg, 500.0,
+                   when=f"2024:05:01 10:00:{2 * k:02d}")
+    tele = tmp_path / "telemetry.csv"
+
+    def log(shift: int, north_m: float = 0.0) -> None:
+        rows = "".join(f"f{k}.jpg,{47.0 + north_m / 111_320.0!r},{-99.0 + ((k - shift) % n) * step_deg!r},500\n"
+                       for k in range(n))
+        tele.write_text("FileName,GPSLatitude,GPSLongitude,GPSAltitude\n" + rows)
+
+    log(1)  # each image holds the row of the image before it (the last row wraps to the first)
+    out = tmp_path / "o" / "poses.csv"
+    assert main(["poses-from-exif", str(img), "--telemetry", str(tele), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{tele}: its rows look shifted by 1 image(s)" in err
+    assert "1 earlier in capture order" in err and "by FileName" in err and not out.exists()
+    log(-2)
+    with pytest.raises(InputError, match="shifted by 2 image.* 2 later"):
+        pfe.poses_from_images(img, telemetry=tele)
+    for north_m in (0.0, 4.0):  # joined right; a PPK log 4 m off the camera's fixes
+        log(0, north_m)
+        assert pfe.poses_from_images(img, telemetry=tele).summary["position_sources"] == {"telemetry CSV": n}

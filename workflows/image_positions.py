@@ -3,7 +3,8 @@ tags): the flight's middle (`median_position`, antimeridian-safe), fixes outside
 (`check_one_place`: a CRS of another place, or images of two places in one folder), heights of two sources in
 one vertical datum (`one_vertical_datum`), what the track and the attitude tags say that no aircraft does
 (`track_checks`), which EXIF fixes a telemetry file's track shows to be no measurement (`doubtful_fixes`), and
-whether a telemetry file's positions mend the EXIF fixes or are another flight's (`telemetry_against_exif`)."""
+whether a telemetry file's positions mend the EXIF fixes or are another flight's (`telemetry_against_exif`), or
+its rows are joined to the images a whole number of images off (`rows_shifted`)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ from ..plugin.gps_track import (
     quantisation,
     repeated_fixes,
 )
-from ..plugin.pose_check.gps import stale_fixes
+from ..plugin.pose_check.gps import GNSS_WANDER_M, fix_jitter_m, stale_fixes
 
 log = logging.getLogger(__name__)
 
@@ -218,6 +219,39 @@ TELEMETRY_WARN_M = 50.0
 TELEMETRY_REFUSE_M = 1000.0
 
 
+# A log joined to the images by order, one row off, gives each image the position of its neighbour: the offset
+# is a whole number of capture steps along the track, and pairing each log row with the EXIF fix MAX_ROW_SHIFT
+# images away or fewer explains it. Said when that pairing leaves ROW_SHIFT_NOISES times less than the rows as
+# given, and the offset as given is beyond ROW_SHIFT_NOISES times the GPS noise (the larger of the shifted
+# pairing's own misfit, either track's jitter, and GNSS_WANDER_M: another receiver's log, a PPK solution beside a
+# consumer fix, differs by its bias, which a neighbour's fix can match on a straight line only by chance)
+MAX_ROW_SHIFT = 3
+ROW_SHIFT_NOISES = 4.0
+# fewer images with both positions: no shift is judged (the median of a handful of pairs is no measurement)
+MIN_ROW_SHIFT_IMAGES = 6
+
+
+def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) -> tuple[int, float, float, float]:
+    """Whether a telemetry log's rows are joined to the images a whole number of images off: the images' own EXIF
+    fixes and the log's positions (K,2 metres, one frame), `order` the capture order. Returns (shift, as given,
+    shifted, noise): the shift N (0: none; N > 0 means each image holds the row of the image N later), the median
+    distance of the log's positions from the images' own fixes and from the fixes N images later, and the GPS
+    noise they are judged against (constants above)."""
+    e, g = np.asarray(exif_xy, np.float64)[order], np.asarray(tele_xy, np.float64)[order]
+    n = len(e)
+    if n < MIN_ROW_SHIFT_IMAGES:
+        return 0, math.nan, math.nan, math.nan
+    by_shift = {k: float(np.median(np.linalg.norm(g[max(0, -k):n - max(0, k)] - e[max(0, k):n + min(0, k)],
+                                                  axis=1)))
+                for k in range(-MAX_ROW_SHIFT, MAX_ROW_SHIFT + 1) if n - abs(k) >= MIN_ROW_SHIFT_IMAGES}
+    best = min(by_shift, key=by_shift.get)
+    jitter = [v for v in (fix_jitter_m(e), fix_jitter_m(g)) if np.isfinite(v)]
+    noise = max([by_shift[best], GNSS_WANDER_M, *jitter])
+    if best == 0 or by_shift[0] <= ROW_SHIFT_NOISES * noise:
+        return 0, by_shift[0], by_shift[best], noise
+    return best, by_shift[0], by_shift[best], noise
+
+
 def local_metres(ll: np.ndarray) -> np.ndarray:
     """(K,2) lat, lon (degrees) as east, north metres about their median (antimeridian-safe): tracks to compare."""
     lat0, lon0 = median_position(ll[:, 0], ll[:, 1])
@@ -249,6 +283,8 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
         return []
     said = f"positions from {telemetry}, not the images' EXIF GPS: they differ by {median:.1f} m (median of " \
            f"{len(moved)} images)"
+    if not far.any():
+        refuse_shifted_rows(telemetry, exif_ll, tele_ll, times_s)
     if median <= TELEMETRY_WARN_M and not far.any():
         log.info("%s", said)
         return []
@@ -281,3 +317,24 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
         said += ": the telemetry of another flight, or another datum?"
     log.warning("%s", said)
     return [said]
+
+
+def refuse_shifted_rows(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: np.ndarray,
+                        times_s: np.ndarray) -> None:
+    """InputError naming `telemetry` when its rows are joined to the images a whole number of images off
+    (`rows_shifted`; arguments as `telemetry_against_exif`'s): every image would take its neighbour's position,
+    the poses and the map a capture step off their place, while the flight looks as smooth as a correct one
+    (nu53 H1: 32.7 m off, taken with an INFO line, the map's verdict "ok"). Capture order from `times_s` where
+    every image has one, else the order given."""
+    both = np.column_stack([exif_ll, tele_ll]).reshape(-1, 2)
+    xy = local_metres(both).reshape(-1, 4)  # one frame for the two tracks
+    t = np.asarray(times_s, np.float64).reshape(-1)
+    order = np.argsort(t, kind="stable") if len(t) and np.all(np.isfinite(t)) else np.arange(len(xy))
+    shift, given, shifted, noise = rows_shifted(xy[:, :2], xy[:, 2:], order)
+    if shift:
+        way = "later" if shift > 0 else "earlier"
+        raise InputError(f"its rows look shifted by {abs(shift)} image(s): each image gets the position of the image "
+                         f"{abs(shift)} {way} in capture order (its positions lie {given:.1f} m from the images' own "
+                         f"EXIF GPS, median; {shifted:.1f} m from those {way} images'; GPS noise {noise:.1f} m): "
+                         "join its rows to the images by FileName, not by order, or drop its lat/lon columns",
+                         telemetry)
