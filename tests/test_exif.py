@@ -1014,6 +1014,11 @@ def test_a_telemetry_log_joined_one_row_off_is_refused_naming_the_shift(tmp_path
     log(-2)
     with pytest.raises(InputError, match="shifted by 2 image.* 2 later"):
         pfe.poses_from_images(img, telemetry=tele)
-    for north_m in (0.0, 4.0):  # joined right; a PPK log 4 m off the camera's fixes
+    for north_m in (0.0, 4.0):  # joined right; a PPK log 4 m off the camera's fixes: taken, no warning
         log(0, north_m)
-        assert pfe.poses_from_images(img, telemetry=tele).summary["position_sources"] == {"telemetry CSV": n}
+        res = pfe.poses_from_images(img, telemetry=tele)
+        assert res.summary["position_sources"] == {"telemetry CSV": n}
+        assert not any("differ by" in w for w in res.summary["warnings"])
+    log(0, north_m=20.0)  # 20 m off, no whole number of rows: beyond the 10 m the noise explains, a warning
+    said = [w for w in pfe.poses_from_images(img, telemetry=tele).summary["warnings"] if "differ by 20.0 m" in w]
+    assert len(said) == 1 and "beyond the 10 m the GPS noise explains" in said[0]

@@ -205,7 +205,8 @@ def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times
 # A telemetry CSV's positions replace the EXIF GPS (module doc). A copy of the same receiver's agrees to
 # centimetres (Seneca: < 1 mm), a PPK / RTK solution moves a consumer fix by metres: beyond TELEMETRY_NOTE_M
 # (median) the log says by how much; beyond TELEMETRY_WARN_M, the distance another datum (100-200 m) or another
-# flight's log with the same file names puts them, it warns (the pose check's `warn_gps_offset_m` for the same
+# flight's log with the same file names puts them, it warns (below it, beyond what the GPS noise explains, where
+# it can be measured: ROW_SHIFT_NOISES) (the pose check's `warn_gps_offset_m` for the same
 # reason)
 TELEMETRY_NOTE_M = 1.0
 TELEMETRY_WARN_M = 50.0
@@ -221,12 +222,17 @@ TELEMETRY_REFUSE_M = 1000.0
 
 # A log joined to the images by order, one row off, gives each image the position of its neighbour: the offset
 # is a whole number of capture steps along the track, and pairing each log row with the EXIF fix MAX_ROW_SHIFT
-# images away or fewer explains it. Said when that pairing leaves ROW_SHIFT_NOISES times less than the rows as
-# given, and the offset as given is beyond ROW_SHIFT_NOISES times the GPS noise (the larger of the shifted
-# pairing's own misfit, either track's jitter, and GNSS_WANDER_M: another receiver's log, a PPK solution beside a
-# consumer fix, differs by its bias, which a neighbour's fix can match on a straight line only by chance)
+# images away or fewer explains it. Said when that pairing fits to within ROW_FIT_NOISES times the GPS noise
+# and the rows as given lie beyond ROW_SHIFT_NOISES times it (the noise: the larger of either track's jitter and
+# GNSS_WANDER_M; another receiver's log, a PPK solution beside a consumer fix, differs by its bias, which a
+# neighbour's fix can match on a straight line only by chance). Any
+# other offset beyond ROW_SHIFT_NOISES times the receivers' noise (at least 10 m; TELEMETRY_WARN_M before) is a
+# warning: no receiver's error puts a log that far from the camera's own fixes (a time offset, another datum)
 MAX_ROW_SHIFT = 3
 ROW_SHIFT_NOISES = 4.0
+# the shifted pairing explains the offset when it fits to within this many times the receivers' noise (a row shift
+# fits to the two tracks' noise: 0.0-4.9 m on Seneca's fixes with 0-4 m of noise added, noise 2.5-6.8 m)
+ROW_FIT_NOISES = 2.0
 # fewer images with both positions: no shift is judged (the median of a handful of pairs is no measurement)
 MIN_ROW_SHIFT_IMAGES = 6
 
@@ -235,8 +241,8 @@ def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) ->
     """Whether a telemetry log's rows are joined to the images a whole number of images off: the images' own EXIF
     fixes and the log's positions (K,2 metres, one frame), `order` the capture order. Returns (shift, as given,
     shifted, noise): the shift N (0: none; N > 0 means each image holds the row of the image N later), the median
-    distance of the log's positions from the images' own fixes and from the fixes N images later, and the GPS
-    noise they are judged against (constants above)."""
+    distance of the log's positions from the images' own fixes and from the fixes N images later (the nearest
+    pairing), and the receivers' noise (the larger of either track's jitter and GNSS_WANDER_M: constants above)."""
     e, g = np.asarray(exif_xy, np.float64)[order], np.asarray(tele_xy, np.float64)[order]
     n = len(e)
     if n < MIN_ROW_SHIFT_IMAGES:
@@ -245,9 +251,10 @@ def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) ->
                                                   axis=1)))
                 for k in range(-MAX_ROW_SHIFT, MAX_ROW_SHIFT + 1) if n - abs(k) >= MIN_ROW_SHIFT_IMAGES}
     best = min(by_shift, key=by_shift.get)
-    jitter = [v for v in (fix_jitter_m(e), fix_jitter_m(g)) if np.isfinite(v)]
-    noise = max([by_shift[best], GNSS_WANDER_M, *jitter])
-    if best == 0 or by_shift[0] <= ROW_SHIFT_NOISES * noise:
+    noise = max([GNSS_WANDER_M, *(v for v in (fix_jitter_m(e), fix_jitter_m(g)) if np.isfinite(v))])
+    # the shifted pairing must fit to within the noise (a time offset of 2.5 captures is no shift of rows) and the
+    # rows as given lie beyond ROW_SHIFT_NOISES x it
+    if best == 0 or by_shift[best] > ROW_FIT_NOISES * noise or by_shift[0] <= ROW_SHIFT_NOISES * noise:
         return 0, by_shift[0], by_shift[best], noise
     return best, by_shift[0], by_shift[best], noise
 
@@ -283,9 +290,10 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
         return []
     said = f"positions from {telemetry}, not the images' EXIF GPS: they differ by {median:.1f} m (median of " \
            f"{len(moved)} images)"
-    if not far.any():
-        refuse_shifted_rows(telemetry, exif_ll, tele_ll, times_s)
-    if median <= TELEMETRY_WARN_M and not far.any():
+    # below TELEMETRY_WARN_M the offset is judged against the GPS noise (`judge_row_shift`): a log joined a whole
+    # number of rows off is refused; another offset beyond what the noise explains is warned about
+    limit = judge_row_shift(telemetry, exif_ll, tele_ll, times_s) if not far.any() else TELEMETRY_WARN_M
+    if median <= min(limit, TELEMETRY_WARN_M) and not far.any():
         log.info("%s", said)
         return []
     stale, jumped = doubtful_fixes(local_metres(exif_ll), local_metres(tele_ll), times_s)
@@ -314,18 +322,21 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
                 f"plausible ones" + (f" (EXIF fixes {left_out})" if left_out else "") + ": wrong EXIF GPS, " \
                 "mended by the telemetry's positions"
     else:
-        said += ": the telemetry of another flight, or another datum?"
+        said += (": the telemetry of another flight, or another datum?" if median > TELEMETRY_WARN_M else
+                 f", beyond the {limit:.0f} m the GPS noise explains: a time offset between the log and the camera, "
+                 "another datum, or another flight's log?")
     log.warning("%s", said)
     return [said]
 
 
-def refuse_shifted_rows(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: np.ndarray,
-                        times_s: np.ndarray) -> None:
+def judge_row_shift(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: np.ndarray,
+                    times_s: np.ndarray) -> float:
     """InputError naming `telemetry` when its rows are joined to the images a whole number of images off
     (`rows_shifted`; arguments as `telemetry_against_exif`'s): every image would take its neighbour's position,
     the poses and the map a capture step off their place, while the flight looks as smooth as a correct one
     (nu53 H1: 32.7 m off, taken with an INFO line, the map's verdict "ok"). Capture order from `times_s` where
-    every image has one, else the order given."""
+    every image has one, else the order given. Otherwise the offset the GPS noise explains (ROW_SHIFT_NOISES x
+    `rows_shifted`'s noise; inf with too few images to measure it)."""
     both = np.column_stack([exif_ll, tele_ll]).reshape(-1, 2)
     xy = local_metres(both).reshape(-1, 4)  # one frame for the two tracks
     t = np.asarray(times_s, np.float64).reshape(-1)
@@ -338,3 +349,4 @@ def refuse_shifted_rows(telemetry: str | Path | None, exif_ll: np.ndarray, tele_
                          f"EXIF GPS, median; {shifted:.1f} m from those {way} images'; GPS noise {noise:.1f} m): "
                          "join its rows to the images by FileName, not by order, or drop its lat/lon columns",
                          telemetry)
+    return ROW_SHIFT_NOISES * noise if np.isfinite(noise) else math.inf
