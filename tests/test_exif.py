@@ -1022,3 +1022,23 @@ def test_a_telemetry_log_joined_one_row_off_is_refused_naming_the_shift(tmp_path
     log(0, north_m=20.0)  # 20 m off, no whole number of rows: beyond the 10 m the noise explains, a warning
     said = [w for w in pfe.poses_from_images(img, telemetry=tele).summary["warnings"] if "differ by 20.0 m" in w]
     assert len(said) == 1 and "beyond the 10 m the GPS noise explains" in said[0]
+
+
+def test_a_copied_log_one_row_off_is_seen_on_short_capture_steps():
+    """A log that copies the camera's own fixes (one receiver's values, joined to the wrong images) matches the
+    neighbours' fixes to the centimetre, so a shift of its rows is seen however short the step: a synthetic
+    session's 7.2 m steps with 2 m of GPS noise were below the 10 m a second receiver's noise would need. A second
+    receiver's log of the same flight (its own noise and a 3 m bias), joined right, is no shift."""
+    from sosmatch.workflows.image_positions import rows_shifted
+
+    rng = np.random.default_rng(7)
+    xs = np.arange(0.0, 60.0, 6.0)
+    truth = np.vstack([np.column_stack([xs if k % 2 == 0 else xs[::-1], np.full(len(xs), 30.0 * k)])
+                       for k in range(4)])
+    exif = truth + rng.normal(0.0, 2.0, truth.shape)
+    order = np.arange(len(truth))
+    assert rows_shifted(exif, np.roll(exif, 1, axis=0), order)[0] == -1  # each image holds the previous row
+    assert rows_shifted(exif, exif, order)[0] == 0
+    for seed in range(20):
+        other = truth + [3.0, 0.0] + np.random.default_rng(seed).normal(0.0, 0.5, truth.shape)
+        assert rows_shifted(exif, other, order)[0] == 0, seed

@@ -233,6 +233,9 @@ ROW_SHIFT_NOISES = 4.0
 # the shifted pairing explains the offset when it fits to within this many times the receivers' noise (a row shift
 # fits to the two tracks' noise: 0.0-4.9 m on Seneca's fixes with 0-4 m of noise added, noise 2.5-6.8 m)
 ROW_FIT_NOISES = 2.0
+# a log whose positions match the EXIF fixes of other images to this (a fix written to 6 decimals: 0.1 m) copies
+# them: one receiver's values, joined to the wrong images (two receivers' fixes differ by their noise, metres)
+COPIED_FIX_M = 0.1
 # fewer images with both positions: no shift is judged (the median of a handful of pairs is no measurement)
 MIN_ROW_SHIFT_IMAGES = 6
 
@@ -242,7 +245,8 @@ def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) ->
     fixes and the log's positions (K,2 metres, one frame), `order` the capture order. Returns (shift, as given,
     shifted, noise): the shift N (0: none; N > 0 means each image holds the row of the image N later), the median
     distance of the log's positions from the images' own fixes and from the fixes N images later (the nearest
-    pairing), and the receivers' noise (the larger of either track's jitter and GNSS_WANDER_M: constants above)."""
+    pairing), and the noise judged against: the receivers' (the larger of either track's jitter and GNSS_WANDER_M),
+    or for a shift of a log that copies the EXIF fixes, COPIED_FIX_M (constants above)."""
     e, g = np.asarray(exif_xy, np.float64)[order], np.asarray(tele_xy, np.float64)[order]
     n = len(e)
     if n < MIN_ROW_SHIFT_IMAGES:
@@ -252,11 +256,14 @@ def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) ->
                 for k in range(-MAX_ROW_SHIFT, MAX_ROW_SHIFT + 1) if n - abs(k) >= MIN_ROW_SHIFT_IMAGES}
     best = min(by_shift, key=by_shift.get)
     noise = max([GNSS_WANDER_M, *(v for v in (fix_jitter_m(e), fix_jitter_m(g)) if np.isfinite(v))])
+    # a log that copies the EXIF fixes (the same receiver's values, to COPIED_FIX_M) has no noise between the two:
+    # a shift of its rows is then judged against that, so short capture steps are seen too
+    judged = COPIED_FIX_M if by_shift[best] <= COPIED_FIX_M else noise
     # the shifted pairing must fit to within the noise (a time offset of 2.5 captures is no shift of rows) and the
     # rows as given lie beyond ROW_SHIFT_NOISES x it
-    if best == 0 or by_shift[best] > ROW_FIT_NOISES * noise or by_shift[0] <= ROW_SHIFT_NOISES * noise:
+    if best == 0 or by_shift[best] > ROW_FIT_NOISES * judged or by_shift[0] <= ROW_SHIFT_NOISES * judged:
         return 0, by_shift[0], by_shift[best], noise
-    return best, by_shift[0], by_shift[best], noise
+    return best, by_shift[0], by_shift[best], judged
 
 
 def local_metres(ll: np.ndarray) -> np.ndarray:
@@ -346,7 +353,9 @@ def judge_row_shift(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: 
         way = "later" if shift > 0 else "earlier"
         raise InputError(f"its rows look shifted by {abs(shift)} image(s): each image gets the position of the image "
                          f"{abs(shift)} {way} in capture order (its positions lie {given:.1f} m from the images' own "
-                         f"EXIF GPS, median; {shifted:.1f} m from those {way} images'; GPS noise {noise:.1f} m): "
+                         f"EXIF GPS, median; {shifted:.1f} m from those {way} images'"
+                         + (": their fixes, copied" if noise <= COPIED_FIX_M else f"; GPS noise {noise:.1f} m")
+                         + "): "
                          "join its rows to the images by FileName, not by order, or drop its lat/lon columns",
                          telemetry)
     return ROW_SHIFT_NOISES * noise if np.isfinite(noise) else math.inf
