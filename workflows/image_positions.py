@@ -205,9 +205,8 @@ def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times
 # A telemetry CSV's positions replace the EXIF GPS (module doc). A copy of the same receiver's agrees to
 # centimetres (Seneca: < 1 mm), a PPK / RTK solution moves a consumer fix by metres: beyond TELEMETRY_NOTE_M
 # (median) the log says by how much; beyond TELEMETRY_WARN_M, the distance another datum (100-200 m) or another
-# flight's log with the same file names puts them, it warns (below it, beyond what the GPS noise explains, where
-# it can be measured: ROW_SHIFT_NOISES) (the pose check's `warn_gps_offset_m` for the same
-# reason)
+# flight's log with the same file names puts them, it warns (the pose check's `warn_gps_offset_m` for the same
+# reason); below it, beyond what the GPS noise explains where it can be measured (ROW_SHIFT_NOISES)
 TELEMETRY_NOTE_M = 1.0
 TELEMETRY_WARN_M = 50.0
 # Beyond this disagreement the telemetry's position is not the image's position corrected: no GPS error
@@ -225,9 +224,9 @@ TELEMETRY_REFUSE_M = 1000.0
 # images away or fewer explains it. Said when that pairing fits to within ROW_FIT_NOISES times the GPS noise
 # and the rows as given lie beyond ROW_SHIFT_NOISES times it (the noise: the larger of either track's jitter and
 # GNSS_WANDER_M; another receiver's log, a PPK solution beside a consumer fix, differs by its bias, which a
-# neighbour's fix can match on a straight line only by chance). Any
-# other offset beyond ROW_SHIFT_NOISES times the receivers' noise (at least 10 m; TELEMETRY_WARN_M before) is a
-# warning: no receiver's error puts a log that far from the camera's own fixes (a time offset, another datum)
+# neighbour's fix can match on a straight line only by chance). Any other offset beyond ROW_SHIFT_NOISES times
+# the receivers' noise (at least 10 m; TELEMETRY_WARN_M before) is a warning: no receiver's error puts a log that
+# far from the camera's own fixes (a time offset, another datum)
 MAX_ROW_SHIFT = 3
 ROW_SHIFT_NOISES = 4.0
 # the shifted pairing explains the offset when it fits to within this many times the receivers' noise (a row shift
