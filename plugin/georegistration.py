@@ -244,6 +244,10 @@ class Georegistration:
     # users of the same positions downstream; None: nothing
     position_shift: np.ndarray | None = None
     lag_applied: bool = False  # the lag was significant, plausible and improved the fit: corrected
+    # the lag was significant and beyond one capture interval (`_lag_decision`): no trigger latency but a clock or
+    # log offset (a log joined to the images one row off), not corrected; the centres lie up to `lag.metres` off
+    # along the track, which makes a map of these poses unusable (`workflows.poses.result.registration_refusals`)
+    lag_beyond_interval: bool = False
 
     def to_dict(self) -> dict:
         h, v = self.horizontal, self.vertical
@@ -258,7 +262,8 @@ class Georegistration:
             "gps_altitudes_consistent": v.gps_consistent,
             "height_offset": self.height_offset.to_dict(),
             "gps_altitude_drift": None if self.gps_altitude is None else self.gps_altitude.to_dict(),
-            "gps_lag": None if self.lag is None else {**self.lag.to_dict(), "applied": self.lag_applied},
+            "gps_lag": None if self.lag is None else {**self.lag.to_dict(), "applied": self.lag_applied,
+                                                      "beyond_interval": self.lag_beyond_interval},
             "warnings": list(self.warnings),
         }
 
@@ -387,7 +392,8 @@ def georegister(
     if vert.images_contradicting and vert.source.startswith("attitude tags"):  # (off-nadir views are no fault)
         warnings.append(f"{len(vert.images_contradicting)} image(s) have attitude tags whose vertical contradicts "
                         "the others'")
-    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift, lag_applied)
+    beyond = lag is not None and lag.significant and _beyond_interval(lag, track)
+    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift, lag_applied, beyond)
 
 
 def _kept_count(fit: DriftFit) -> int:
@@ -400,6 +406,16 @@ def _image_at(times_s: np.ndarray, used: np.ndarray, fit: DriftFit) -> str:
     t = np.asarray(times_s, float)
     k = fit.first_at_step(used, t)
     return f"{int(np.sum(t < t[k])) + 1} of {len(t)}"
+
+
+def _interval(lag: LagFit, track: TrackVelocity) -> float:
+    """One capture interval in the lag's unit (LAG_MAX_S when the capture times do not tell it)."""
+    return 1.0 if lag.unit == "image" else (track.interval_s if math.isfinite(track.interval_s) else LAG_MAX_S)
+
+
+def _beyond_interval(lag: LagFit, track: TrackVelocity) -> bool:
+    """Whether a lag exceeds one capture interval (`_interval`): no trigger latency, a clock or log offset."""
+    return abs(lag.dt) > _interval(lag, track)
 
 
 def _lag_decision(lag: LagFit | None, track: TrackVelocity, levelled: np.ndarray, gps: np.ndarray,
@@ -419,8 +435,8 @@ def _lag_decision(lag: LagFit | None, track: TrackVelocity, levelled: np.ndarray
                        "may lie that far off along the track")
     if lag is None or not lag.significant:
         return False, ""
-    interval = 1.0 if lag.unit == "image" else (track.interval_s if math.isfinite(track.interval_s) else LAG_MAX_S)
-    if abs(lag.dt) > interval:
+    interval = _interval(lag, track)
+    if _beyond_interval(lag, track):
         limit = "one image interval" if lag.unit == "image" else (
             f"one capture interval ({interval:.2f} s)" if math.isfinite(track.interval_s) else f"{LAG_MAX_S:.0f} s")
         return False, (f"the GPS positions and the images disagree along the track by {abs(lag.metres):.1f} m "

@@ -985,3 +985,60 @@ def test_an_empty_list_of_images_is_a_user_error():
 
     with pytest.raises(InputError, match="no images given"):
         poses_from_images([])
+
+
+def test_a_telemetry_log_joined_one_row_off_is_refused_naming_the_shift(tmp_path, capsys):
+    """nu53 H1: a log whose FileName column slipped one row gives every image its neighbour's position, a capture
+    step off (Seneca: 32.7 m), and was taken with an INFO line; the map was then published 32 m off, verdict ok.
+    Pairing the rows with the fixes one image away explains the offset to within the GPS noise: refused in one line
+    naming the shift. The same rows joined right, and a log offset by a receiver's bias, are taken."""
+    img = tmp_path / "images"
+    img.mkdir()
+    n, step_deg = 10, 2e-4  # 15 m steps flying east at 47 N, one capture every 2 s
+    for k in range(n):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * step_deg, 500.0,
+                   when=f"2024:05:01 10:00:{2 * k:02d}")
+    tele = tmp_path / "telemetry.csv"
+
+    def log(shift: int, north_m: float = 0.0) -> None:
+        rows = "".join(f"f{k}.jpg,{47.0 + north_m / 111_320.0!r},{-99.0 + ((k - shift) % n) * step_deg!r},500\n"
+                       for k in range(n))
+        tele.write_text("FileName,GPSLatitude,GPSLongitude,GPSAltitude\n" + rows)
+
+    log(1)  # each image holds the row of the image before it (the last row wraps to the first)
+    out = tmp_path / "o" / "poses.csv"
+    assert main(["poses-from-exif", str(img), "--telemetry", str(tele), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{tele}: its rows look shifted by 1 image(s)" in err
+    assert "1 earlier in capture order" in err and "by FileName" in err and not out.exists()
+    log(-2)
+    with pytest.raises(InputError, match="shifted by 2 image.* 2 later"):
+        pfe.poses_from_images(img, telemetry=tele)
+    for north_m in (0.0, 4.0):  # joined right; a PPK log 4 m off the camera's fixes: taken, no warning
+        log(0, north_m)
+        res = pfe.poses_from_images(img, telemetry=tele)
+        assert res.summary["position_sources"] == {"telemetry CSV": n}
+        assert not any("differ by" in w for w in res.summary["warnings"])
+    log(0, north_m=20.0)  # 20 m off, no whole number of rows: beyond the 10 m the noise explains, a warning
+    said = [w for w in pfe.poses_from_images(img, telemetry=tele).summary["warnings"] if "differ by 20.0 m" in w]
+    assert len(said) == 1 and "beyond the 10 m the GPS noise explains" in said[0]
+
+
+def test_a_copied_log_one_row_off_is_seen_on_short_capture_steps():
+    """A log that copies the camera's own fixes (one receiver's values, joined to the wrong images) matches the
+    neighbours' fixes to the centimetre, so a shift of its rows is seen however short the step: a synthetic
+    session's 7.2 m steps with 2 m of GPS noise were below the 10 m a second receiver's noise would need. A second
+    receiver's log of the same flight (its own noise and a 3 m bias), joined right, is no shift."""
+    from sosmatch.workflows.image_positions import rows_shifted
+
+    rng = np.random.default_rng(7)
+    xs = np.arange(0.0, 60.0, 6.0)
+    truth = np.vstack([np.column_stack([xs if k % 2 == 0 else xs[::-1], np.full(len(xs), 30.0 * k)])
+                       for k in range(4)])
+    exif = truth + rng.normal(0.0, 2.0, truth.shape)
+    order = np.arange(len(truth))
+    assert rows_shifted(exif, np.roll(exif, 1, axis=0), order)[0] == -1  # each image holds the previous row
+    assert rows_shifted(exif, exif, order)[0] == 0
+    for seed in range(20):
+        other = truth + [3.0, 0.0] + np.random.default_rng(seed).normal(0.0, 0.5, truth.shape)
+        assert rows_shifted(exif, other, order)[0] == 0, seed

@@ -216,6 +216,47 @@ def test_a_lag_beyond_the_capture_interval_is_said_not_corrected():
     assert geo.to_dict()["gps_lag"]["applied"] is False
 
 
+def test_a_lag_beyond_the_capture_interval_refuses_the_map_of_those_poses(tmp_path):
+    """nu53 H1: a log joined one row off lagged the images by 1.08 intervals (35.8 m), said "not corrected", and
+    the map of those poses was published 32 m off with verdict "ok". The record marks such a lag, and a map of the
+    poses (run by `map`, or from the poses.csv beside its poses.json) refuses with it; a lag within one interval
+    (corrected) and a flight without lag refuse nothing."""
+    import json
+
+    from sosmatch.plugin.geometry import Camera, Poses
+    from sosmatch.workflows.map.inputs import MapInputs, in_flight_order
+    from sosmatch.workflows.poses.result import (
+        PosesResult,
+        map_inputs,
+        registration_refusals,
+        registration_warnings_beside,
+    )
+
+    centers, rots, times, vel = _lawnmower()
+    c_sfm, r_sfm = _sfm(centers, rots)
+    interval = float(np.median(np.diff(times)))
+    records = {}
+    for lag in (0.0, 0.5 * interval, 1.1 * interval):
+        geo = georegister(c_sfm, r_sfm, _gps(centers, vel, lag), rots, np.ones(len(rots), bool), times)
+        records[lag] = {"format": "sosmatch-poses", "georegistration": json.loads(json.dumps(geo.to_dict()))}
+    assert [bool(registration_refusals(r)) for r in records.values()] == [False, False, True]
+    refusal = registration_refusals(records[1.1 * interval])[0]
+    assert "more than one capture interval, not corrected" in refusal and "one row off" in refusal
+    (tmp_path / "img").mkdir()
+    for name in ("a.jpg", "b.jpg"):
+        (tmp_path / "img" / name).write_bytes(b"\xff\xd8\xff\xd9")
+    poses = Poses(["a.jpg", "b.jpg"], np.stack([np.eye(3)] * 2), np.array([[0.0, 0, 0], [5.0, 0, 0]]))
+    result = PosesResult(tmp_path / "p", poses, {1: Camera(320, 240, 250.0, 250.0, 160.0, 120.0)}, {}, 32632, [],
+                         records[1.1 * interval], [])
+    assert map_inputs(result, tmp_path / "img", "sfm").refusals == [refusal]
+    (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "poses.json").write_text(json.dumps(records[1.1 * interval]))
+    assert registration_warnings_beside(tmp_path / "p" / "poses.csv")[1] == [refusal]
+    kept = in_flight_order(MapInputs([tmp_path / "img" / "a.jpg", tmp_path / "img" / "b.jpg"], poses,
+                                     result.cameras[1], refusals=[refusal]))
+    assert kept.refusals == [refusal]
+
+
 def test_a_lag_that_does_not_improve_the_fit_is_not_applied():
     """The decision compares the robust fits of the raw and the corrected positions: a 'lag' the raw positions
     fit as well without is not applied."""

@@ -634,3 +634,23 @@ def test_an_oblique_flight_whose_shared_attitude_the_pairs_cannot_pin_says_it_is
     assert "attitude not checked" not in result.line()
     result, verdict = pose_check.check(images, _pitched(nadir, 10.0), camera, Params())
     assert any("share an attitude error of" in w for w in verdict.warnings + verdict.refusals), verdict.warnings
+
+
+def test_the_summary_of_unsteady_fixes_does_not_say_the_path_does_not_follow():
+    """nu53 M4: the warning said the path "follows the images' own GPS track (a similarity explains 100 %)" and the
+    summary line beside it "the path does not follow the images' GPS". The line names the reason of the verdict's
+    warning: few fixes within the noise for a path that explains their spread; "does not follow" only otherwise."""
+    from sosmatch.plugin.pose_check.gps import GpsComparison
+
+    def line(sigma_m: float, inliers: int) -> str:
+        gps = GpsComparison(fixes=40, inliers=inliers, scale=1.0, scale_sigma=0.03, yaw_deg=0.0, sigma_m=sigma_m,
+                            extent_m=70.0, fix_noise_m=2.5)
+        return PoseCheck(images=40, pairs_tried=10, pairs_checked=10, focal_px=830.0, gate_px=22.5,
+                         flying_height_m=65.0, epipolar_p50_px=0.4, epipolar_p90_px=1.0, epipolar_fit_p50_px=0.4,
+                         share_beyond_gate=0.0, reversed_pairs=0, gps=gps).line()
+
+    unsteady = line(2.5, 17)  # 99 % of the spread explained, 17 of 40 within the noise
+    assert "follows the images' GPS track, but only 17 of 40 fixes lie within its noise" in unsteady, unsteady
+    assert "does not follow" not in unsteady
+    assert "does not follow the images' GPS" in line(45.0, 17)  # 17 % explained: another flight's path
+    assert "lengths 1.00x the images' GPS (40 fixes)" in line(2.5, 38)

@@ -301,12 +301,13 @@ def test_unsteady_fixes_are_named_not_another_flight() -> None:
     """rev16: when most fixes scatter metres off (a receiver jumping between solutions, multipath) while the rest
     follow the path closely, fewer than half lay within the fit's noise although the path explained all of
     their spread, and the warning said "poses of another flight?". It names the unsteady fixes now; shuffled
-    poses still get "another flight"."""
+    poses still get "another flight". (The jumps are 25 m: the fit's noise is floored at a receiver's wander,
+    GNSS_WANDER_M, so jumps of 8 m lie within it and the unit is checked, nu53 M4.)"""
     truth = _lawnmower()
     rng = np.random.default_rng(0)
     fixes = truth[:, :2] + rng.normal(0.0, 0.3, (len(truth), 2))
     unsteady = rng.random(len(truth)) < 0.6
-    fixes[unsteady] += rng.normal(0.0, 8.0, (int(unsteady.sum()), 2))
+    fixes[unsteady] += rng.normal(0.0, 25.0, (int(unsteady.sum()), 2))
     gps = compare_with_gps(truth, fixes)
     warnings = judge_gps(gps, PoseCheckParams()).warnings
     assert gps is not None and gps.inliers < 0.5 * gps.fixes and gps.explained > 0.9
@@ -391,3 +392,38 @@ def test_a_corridor_with_receiver_jumps_is_not_refused_as_mirrored() -> None:
     gps = compare_with_gps(line, fixes)
     assert gps.explained > 0.9
     assert not judge_gps(gps, PoseCheckParams()).refusals
+
+
+def test_poses_a_capture_step_off_their_own_fixes_are_named_against_the_noise() -> None:
+    """nu53 H1: poses from a log joined one row off lay 32.5 m from the images' own fixes, 19 x their noise, and
+    the check was silent below its fixed 50 m. The offset is judged against the noise (4 x, never under 10 m):
+    every correct flight of 0.5-5 m receiver noise stays silent, a step of 20-30 m on a 2 m receiver is named."""
+    truth = _lawnmower() + np.array([500_000.0, 4_500_000.0, 0.0])  # steps of 13.6 m along 30 m-spaced lines
+    for sigma in (0.5, 2.0, 5.0):
+        for seed in range(5):
+            fixes = _fixes(truth, sigma, seed=seed, offset=(0.0, 0.0))
+            good = compare_with_gps(truth, fixes, fixes - sigma * np.array([0.7, 0.7]))  # plus a receiver's bias
+            assert good is not None and not judge_gps(good, PoseCheckParams()).warnings, (sigma, seed)
+    fixes = _fixes(truth, 2.0, offset=(0.0, 0.0))
+    for step in (20.0, 30.0):
+        shifted = compare_with_gps(truth + [step, 0.0, 0.0], fixes, fixes)
+        warning = judge_gps(shifted, PoseCheckParams()).warnings[0]
+        assert f"lie {step:.0f} m from the images' own GPS fixes" in warning and "one row off" in warning
+
+
+def test_poses_that_sit_exactly_on_some_fixes_are_checked_for_their_unit() -> None:
+    """nu53 M4: EXIF poses a refinement left at their priors sit exactly on their fixes, so the fit measured a
+    noise of 1 mm, counted every camera it moved by a metre an outlier, skipped the unit check and blamed
+    "unsteady fixes", while the summary said "does not follow". The fit's noise is floored at a receiver's
+    wander: the unit is checked (and refused in feet); the line names no contradiction."""
+    truth = _lawnmower()
+    fixes = _fixes(truth, 2.0, seed=3, offset=(0.0, 0.0))
+    refined = np.column_stack([fixes, truth[:, 2]])
+    moved = np.random.default_rng(4).random(len(truth)) < 0.6  # the refinement moved 60 % of them
+    refined[moved, :2] += np.random.default_rng(5).normal(0.0, 1.0, (int(moved.sum()), 2))
+    gps = compare_with_gps(refined, fixes)
+    assert gps is not None and gps.follows(PoseCheckParams().min_gps_agreement)
+    verdict = judge_gps(gps, PoseCheckParams())
+    assert not verdict.warnings and not verdict.refusals
+    feet = compare_with_gps(refined * 3.28084, fixes)
+    assert "poses in feet?" in judge_gps(feet, PoseCheckParams()).refusals[0]

@@ -3,7 +3,8 @@ tags): the flight's middle (`median_position`, antimeridian-safe), fixes outside
 (`check_one_place`: a CRS of another place, or images of two places in one folder), heights of two sources in
 one vertical datum (`one_vertical_datum`), what the track and the attitude tags say that no aircraft does
 (`track_checks`), which EXIF fixes a telemetry file's track shows to be no measurement (`doubtful_fixes`), and
-whether a telemetry file's positions mend the EXIF fixes or are another flight's (`telemetry_against_exif`)."""
+whether a telemetry file's positions mend the EXIF fixes or are another flight's (`telemetry_against_exif`), or
+its rows are joined to the images a whole number of images off (`rows_shifted`)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ from ..plugin.gps_track import (
     quantisation,
     repeated_fixes,
 )
-from ..plugin.pose_check.gps import stale_fixes
+from ..plugin.pose_check.gps import GNSS_WANDER_M, fix_jitter_m, stale_fixes
 
 log = logging.getLogger(__name__)
 
@@ -205,7 +206,7 @@ def track_checks(east: np.ndarray, north: np.ndarray, heights: np.ndarray, times
 # centimetres (Seneca: < 1 mm), a PPK / RTK solution moves a consumer fix by metres: beyond TELEMETRY_NOTE_M
 # (median) the log says by how much; beyond TELEMETRY_WARN_M, the distance another datum (100-200 m) or another
 # flight's log with the same file names puts them, it warns (the pose check's `warn_gps_offset_m` for the same
-# reason)
+# reason); below it, beyond what the GPS noise explains where it can be measured (ROW_SHIFT_NOISES)
 TELEMETRY_NOTE_M = 1.0
 TELEMETRY_WARN_M = 50.0
 # Beyond this disagreement the telemetry's position is not the image's position corrected: no GPS error
@@ -216,6 +217,52 @@ TELEMETRY_WARN_M = 50.0
 # far (`telemetry_against_exif`: wrong EXIF fixes are so far on a subset only); between the two bounds, a warning.
 # Not relative to the flight's extent: neither a datum's shift nor a GPS error grows with the flight.
 TELEMETRY_REFUSE_M = 1000.0
+
+
+# A log joined to the images by order, one row off, gives each image the position of its neighbour: the offset
+# is a whole number of capture steps along the track, and pairing each log row with the EXIF fix MAX_ROW_SHIFT
+# images away or fewer explains it. Said when that pairing fits to within ROW_FIT_NOISES times the GPS noise
+# and the rows as given lie beyond ROW_SHIFT_NOISES times it (the noise: the larger of either track's jitter and
+# GNSS_WANDER_M; another receiver's log, a PPK solution beside a consumer fix, differs by its bias, which a
+# neighbour's fix can match on a straight line only by chance). Any other offset beyond ROW_SHIFT_NOISES times
+# the receivers' noise (at least 10 m; TELEMETRY_WARN_M before) is a warning: no receiver's error puts a log that
+# far from the camera's own fixes (a time offset, another datum)
+MAX_ROW_SHIFT = 3
+ROW_SHIFT_NOISES = 4.0
+# the shifted pairing explains the offset when it fits to within this many times the receivers' noise (a row shift
+# fits to the two tracks' noise: 0.0-4.9 m on Seneca's fixes with 0-4 m of noise added, noise 2.5-6.8 m)
+ROW_FIT_NOISES = 2.0
+# a log whose positions match the EXIF fixes of other images to this (a fix written to 6 decimals: 0.1 m) copies
+# them: one receiver's values, joined to the wrong images (two receivers' fixes differ by their noise, metres)
+COPIED_FIX_M = 0.1
+# fewer images with both positions: no shift is judged (the median of a handful of pairs is no measurement)
+MIN_ROW_SHIFT_IMAGES = 6
+
+
+def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) -> tuple[int, float, float, float]:
+    """Whether a telemetry log's rows are joined to the images a whole number of images off: the images' own EXIF
+    fixes and the log's positions (K,2 metres, one frame), `order` the capture order. Returns (shift, as given,
+    shifted, noise): the shift N (0: none; N > 0 means each image holds the row of the image N later), the median
+    distance of the log's positions from the images' own fixes and from the fixes N images later (the nearest
+    pairing), and the noise judged against: the receivers' (the larger of either track's jitter and GNSS_WANDER_M),
+    or for a shift of a log that copies the EXIF fixes, COPIED_FIX_M (constants above)."""
+    e, g = np.asarray(exif_xy, np.float64)[order], np.asarray(tele_xy, np.float64)[order]
+    n = len(e)
+    if n < MIN_ROW_SHIFT_IMAGES:
+        return 0, math.nan, math.nan, math.nan
+    by_shift = {k: float(np.median(np.linalg.norm(g[max(0, -k):n - max(0, k)] - e[max(0, k):n + min(0, k)],
+                                                  axis=1)))
+                for k in range(-MAX_ROW_SHIFT, MAX_ROW_SHIFT + 1) if n - abs(k) >= MIN_ROW_SHIFT_IMAGES}
+    best = min(by_shift, key=by_shift.get)
+    noise = max([GNSS_WANDER_M, *(v for v in (fix_jitter_m(e), fix_jitter_m(g)) if np.isfinite(v))])
+    # a log that copies the EXIF fixes (the same receiver's values, to COPIED_FIX_M) has no noise between the two:
+    # a shift of its rows is then judged against that, so short capture steps are seen too
+    judged = COPIED_FIX_M if by_shift[best] <= COPIED_FIX_M else noise
+    # the shifted pairing must fit to within the noise (a time offset of 2.5 captures is no shift of rows) and the
+    # rows as given lie beyond ROW_SHIFT_NOISES x it
+    if best == 0 or by_shift[best] > ROW_FIT_NOISES * judged or by_shift[0] <= ROW_SHIFT_NOISES * judged:
+        return 0, by_shift[0], by_shift[best], noise
+    return best, by_shift[0], by_shift[best], judged
 
 
 def local_metres(ll: np.ndarray) -> np.ndarray:
@@ -249,7 +296,10 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
         return []
     said = f"positions from {telemetry}, not the images' EXIF GPS: they differ by {median:.1f} m (median of " \
            f"{len(moved)} images)"
-    if median <= TELEMETRY_WARN_M and not far.any():
+    # below TELEMETRY_WARN_M the offset is judged against the GPS noise (`judge_row_shift`): a log joined a whole
+    # number of rows off is refused; another offset beyond what the noise explains is warned about
+    limit = judge_row_shift(telemetry, exif_ll, tele_ll, times_s) if not far.any() else TELEMETRY_WARN_M
+    if median <= min(limit, TELEMETRY_WARN_M) and not far.any():
         log.info("%s", said)
         return []
     stale, jumped = doubtful_fixes(local_metres(exif_ll), local_metres(tele_ll), times_s)
@@ -278,6 +328,33 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
                 f"plausible ones" + (f" (EXIF fixes {left_out})" if left_out else "") + ": wrong EXIF GPS, " \
                 "mended by the telemetry's positions"
     else:
-        said += ": the telemetry of another flight, or another datum?"
+        said += (": the telemetry of another flight, or another datum?" if median > TELEMETRY_WARN_M else
+                 f", beyond the {limit:.0f} m the GPS noise explains: a time offset between the log and the camera, "
+                 "another datum, or another flight's log?")
     log.warning("%s", said)
     return [said]
+
+
+def judge_row_shift(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: np.ndarray,
+                    times_s: np.ndarray) -> float:
+    """InputError naming `telemetry` when its rows are joined to the images a whole number of images off
+    (`rows_shifted`; arguments as `telemetry_against_exif`'s): every image would take its neighbour's position,
+    the poses and the map a capture step off their place, while the flight looks as smooth as a correct one
+    (nu53 H1: 32.7 m off, taken with an INFO line, the map's verdict "ok"). Capture order from `times_s` where
+    every image has one, else the order given. Otherwise the offset the GPS noise explains (ROW_SHIFT_NOISES x
+    `rows_shifted`'s noise; inf with too few images to measure it)."""
+    both = np.column_stack([exif_ll, tele_ll]).reshape(-1, 2)
+    xy = local_metres(both).reshape(-1, 4)  # one frame for the two tracks
+    t = np.asarray(times_s, np.float64).reshape(-1)
+    order = np.argsort(t, kind="stable") if len(t) and np.all(np.isfinite(t)) else np.arange(len(xy))
+    shift, given, shifted, noise = rows_shifted(xy[:, :2], xy[:, 2:], order)
+    if shift:
+        way = "later" if shift > 0 else "earlier"
+        raise InputError(f"its rows look shifted by {abs(shift)} image(s): each image gets the position of the image "
+                         f"{abs(shift)} {way} in capture order (its positions lie {given:.1f} m from the images' own "
+                         f"EXIF GPS, median; {shifted:.1f} m from those {way} images'"
+                         + (": their fixes, copied" if noise <= COPIED_FIX_M else f"; GPS noise {noise:.1f} m")
+                         + "): "
+                         "join its rows to the images by FileName, not by order, or drop its lat/lon columns",
+                         telemetry)
+    return ROW_SHIFT_NOISES * noise if np.isfinite(noise) else math.inf

@@ -15,7 +15,8 @@ positions (GPSLatitude, GPSLongitude, GPSAltitude), where its row has them, take
 EXIF GPS: a file the user gives is their better positions (an autopilot's log, a PPK / RTK solution), as
 OpenDroneMap's geo.txt overrides the EXIF; how far it moves them is judged
 (`image_positions.telemetry_against_exif`: a warning beyond TELEMETRY_WARN_M, refused beyond TELEMETRY_REFUSE_M from
-most of the plausible EXIF fixes).
+most of the plausible EXIF fixes, and refused when its rows are joined to the images a whole number of images off,
+`image_positions.rows_shifted`).
 Heights: the GPS altitude (metres, as the receiver reports it:
 for most consumer receivers height above the ellipsoid or above mean sea level; either way one consistent
 vertical datum per flight), or, where DJI XMP gives `RelativeAltitude` (barometric height above the take-off

@@ -383,7 +383,8 @@ class PoseCheckParams(Checked):
     max_gps_scale_error: float = positive(0.1)
     # poses in a projected CRS whose centres lie farther than this from their own fixes (median): a warning (the
     # georeference search trusts a map's georeference to association.georeference_prior_m, 50 m; GPS puts a camera
-    # within metres, another datum 100-200 m off, another UTM zone or hemisphere hundreds of km)
+    # within metres, another datum 100-200 m off, another UTM zone or hemisphere hundreds of km). The bound for any
+    # noise: below it the offset is judged against the GPS noise (`pose_check.gps.OFFSET_NOISES`)
     warn_gps_offset_m: float = positive(50.0)
     # a camera path whose similarity explains less than this share of the fixes' spread, or keeps fewer of them
     # as inliers, does not follow them: a warning, and its scale and offset are not judged (poses of another

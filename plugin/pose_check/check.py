@@ -219,10 +219,13 @@ class PoseCheck:
         text += f", {self.reversed_pairs} reversed" if self.reversed_pairs else ""
         if self.gps is not None and self.gps.follows(self.min_gps_agreement):
             text += f"; lengths {self.gps.scale_text}x the images' GPS ({self.gps.fixes} fixes)"
-        elif self.gps is not None:  # its scale is no measurement (`verdict.judge_gps`)
-            text += (f"; the flight spans too little against its GPS's jitter ({self.gps.fix_noise_m:.1f} m) to check "
-                     "its lengths" if self.gps.too_small else "; lengths not checked (the path does not follow the "
-                     "images' GPS)")
+        elif self.gps is not None:  # its scale is no measurement (`verdict.judge_gps`), for the reason it names
+            g = self.gps
+            text += (f"; the flight spans too little against its GPS's jitter ({g.fix_noise_m:.1f} m) to check its "
+                     "lengths" if g.too_small else
+                     f"; lengths not checked (the path follows the images' GPS track, but only {g.inliers} of "
+                     f"{g.fixes} fixes lie within its noise)" if g.explained >= self.min_gps_agreement else
+                     "; lengths not checked (the path does not follow the images' GPS)")
         if self.fixed_in_frame_text:
             text += f"; {self.fixed_in_frame_text}"
         return text

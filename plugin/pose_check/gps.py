@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..georegistration import robust_horizontal_similarity
+from ..georegistration import HorizontalFit, robust_horizontal_similarity
 from ..gps_track import FROZEN_SPREAD_M, frozen_fix
 
 MIN_FIXES = 5  # fewer images with a fix: no comparison (the fit needs a few more points than its 4 unknowns)
@@ -55,6 +55,13 @@ STALE_MOVE_RATIO = 0.2
 # inliers the fit needs before its noise bounds the receiver's jitter (`GpsComparison.fit_noise_bound_m`; the
 # verdict's MIN_FIXES_TO_REFUSE for a unit refusal)
 MIN_FIT_INLIERS = 10
+# poses in a projected CRS whose centres lie farther from their own fixes (median) than this many times the GPS
+# noise (`GpsComparison.offset_limit_m`: the larger of the fit's bound on it, never below GNSS_WANDER_M, as an
+# uncorrected receiver's bias over a flight is no noise any fit measures, and the fixes' own jitter) are off their
+# georeference: 10 m at the least, where correct poses lie a
+# median 1.2 noises from their fixes. A one-row shift of a telemetry log (nu53 H1: 32.5 m, 19 noises) was said only
+# beyond the fixed `pose_check.warn_gps_offset_m` (50 m), which stays the bound for any noise
+OFFSET_NOISES = 4.0
 # consecutive fixes closer than this are one fix repeated (a GNSS fix is given to a millimetre or coarser), not a
 # second measurement of the receiver's jitter
 REPEATED_FIX_M = 1e-3
@@ -65,11 +72,11 @@ class GpsComparison:
     """The camera centres against the images' GPS fixes (module doc). Lengths in metres are the GPS's."""
 
     fixes: int  # images with a fresh fix that were compared
-    inliers: int  # fixes the similarity explains (within the 99 % radius of the measured noise)
+    inliers: int  # fixes the similarity explains (within the 99 % radius of the noise, at least GNSS_WANDER_M)
     scale: float  # the poses' length per ground metre (1 for poses in metres)
     scale_sigma: float  # the standard deviation of log(scale) (module doc)
     yaw_deg: float  # rotation of the poses' horizontal axes from the fixes' grid (meaningful for georeferenced poses)
-    sigma_m: float  # per-axis noise of the fixes about the fitted path
+    sigma_m: float  # per-axis noise of the fixes about the fitted path, measured on its inliers
     extent_m: float  # root mean square distance of the fixes from their centre
     offset_m: float = float("nan")  # georeferenced poses: median distance of the centres from their own fixes
     fix_noise_m: float = float("nan")  # the receiver's jitter per axis, from the fixes alone (`fix_jitter_m`)
@@ -109,6 +116,15 @@ class GpsComparison:
         if self.inliers < MIN_FIT_INLIERS:
             return math.inf
         return max(self.sigma_m, GNSS_WANDER_M) * math.sqrt(self.fixes / self.inliers)
+
+    @property
+    def offset_limit_m(self) -> float:
+        """How far the camera centres may lie from their own fixes (median) for GPS noise to explain it:
+        OFFSET_NOISES x the larger of what the fit bounds the noise by (`fit_noise_bound_m`: never below
+        GNSS_WANDER_M; none on fewer than MIN_FIT_INLIERS inliers, whose fit measures a 5 m receiver's noise at
+        2.3 m: then inf, and only `pose_check.warn_gps_offset_m` bounds the offset) and the fixes' own jitter."""
+        jitter = self.fix_noise_m if np.isfinite(self.fix_noise_m) else 0.0
+        return OFFSET_NOISES * max(self.fit_noise_bound_m, jitter)
 
     @property
     def scale_text(self) -> str:
@@ -155,10 +171,15 @@ def compare_with_gps(centers: np.ndarray, fixes: np.ndarray, crs_fixes: np.ndarr
         return None
     # the fit maps the poses onto the fixes: fixes = s R centres + t, s in GPS metres per pose unit
     dst = np.column_stack([fixes, np.zeros(len(fixes))])
+    # the fit's noise is floored at GNSS_WANDER_M, the least a receiver's fixes wander by: poses that sit exactly
+    # on some of their fixes (EXIF poses a refinement left at their priors) measured a noise of 1 mm, and every
+    # camera the refinement moved by a metre was an "outlier" of a path that follows the fixes (nu53 M4)
     try:
-        fit = robust_horizontal_similarity(np.column_stack([centers[:, :2], np.zeros(len(centers))]), dst)
+        fit = robust_horizontal_similarity(np.column_stack([centers[:, :2], np.zeros(len(centers))]), dst,
+                                           min_sigma_m=GNSS_WANDER_M)
         mirrored = robust_horizontal_similarity(np.column_stack([centers[:, 0], -centers[:, 1],
-                                                                 np.zeros(len(centers))]), dst)
+                                                                 np.zeros(len(centers))]), dst,
+                                                min_sigma_m=GNSS_WANDER_M)
     except ValueError:  # every centre at one place: nothing to measure a length with
         return None
     inl = fit.inliers
@@ -172,9 +193,9 @@ def compare_with_gps(centers: np.ndarray, fixes: np.ndarray, crs_fixes: np.ndarr
     return GpsComparison(
         fixes=len(fixes), inliers=int(inl.sum()), scale=1.0 / fit.transform.scale,
         scale_sigma=max(fit.sigma_m, GNSS_WANDER_M) / extent,
-        yaw_deg=math.degrees(math.atan2(rot[1, 0], rot[0, 0])), sigma_m=fit.sigma_m, extent_m=extent,
+        yaw_deg=math.degrees(math.atan2(rot[1, 0], rot[0, 0])), sigma_m=_measured_sigma(fit), extent_m=extent,
         offset_m=offset, fix_noise_m=fix_jitter_m(fixes, places[ok]),
-        mirrored_explained=_explained(mirrored.sigma_m, _rms_extent(fixes[mirrored.inliers])),
+        mirrored_explained=_explained(_measured_sigma(mirrored), _rms_extent(fixes[mirrored.inliers])),
         stale=int(stale.sum()))
 
 
@@ -223,6 +244,14 @@ def fix_jitter_m(fixes: np.ndarray, index: np.ndarray | None = None) -> float:
     a, b = (after / (before + after))[:, None], (before / (before + after))[:, None]  # weights of f[:-2], f[2:]
     departure = (f[1:-1] - a * f[:-2] - b * f[2:]) / np.sqrt(1.0 + a**2 + b**2)
     return float(1.4826 * np.median(np.abs(departure.ravel())))
+
+
+def _measured_sigma(fit: HorizontalFit) -> float:
+    """The per-axis noise of a fit's inliers about it as measured (the fit's own `sigma_m` is floored at
+    GNSS_WANDER_M, the radius its inliers were chosen in): the share of the fixes' spread a path explains
+    (`_explained`) is judged on what the fixes scatter by, or a true 15 m pass of a 1 m receiver "did not follow"."""
+    r = fit.residuals_m[fit.inliers]
+    return max(math.sqrt(float(np.sum(r**2)) / max(2 * len(r) - 4, 1)), REPEATED_FIX_M)
 
 
 def _rms_extent(xy: np.ndarray) -> float:

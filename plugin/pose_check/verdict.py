@@ -10,7 +10,7 @@ import numpy as np
 from ..map_quality import Verdict
 from ..params import PoseCheckParams
 from .check import PoseCheck, beyond
-from .gps import GpsComparison
+from .gps import GNSS_WANDER_M, GpsComparison
 
 # a mirrored similarity that explains this much of the fixes' spread (where the proper one does not) names the
 # poses mirrored: NED poses give 100 %, shuffled ones under 20 %
@@ -250,10 +250,13 @@ def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
     v = Verdict()
     if gps is None:
         return v
-    if np.isfinite(gps.offset_m) and gps.offset_m > limits.warn_gps_offset_m:
+    limit = min(limits.warn_gps_offset_m, gps.offset_limit_m)
+    if np.isfinite(gps.offset_m) and gps.offset_m > limit:
         v.warnings.append(f"poses vs images' GPS: the camera centres lie {_distance(gps.offset_m)} from the images' "
-                          f"own GPS fixes in the poses' CRS (median of {gps.fixes}): the map's georeference is that "
-                          "far off (another UTM zone or hemisphere, another datum, or a shifted origin?)")
+                          f"own GPS fixes in the poses' CRS (median of {gps.fixes}; their noise explains up to "
+                          f"{limit:.0f} m): the map's georeference is that far off (another UTM zone or hemisphere, "
+                          "another datum, a shifted origin, or positions from a log joined to the images one row "
+                          "off?)")
     agreement = limits.min_gps_agreement
     if not gps.follows(agreement):
         # only a mirror that fits clearly better than the proper fit names the frame (a straight corridor fits both
@@ -270,8 +273,9 @@ def judge_gps(gps: GpsComparison | None, limits: PoseCheckParams) -> Verdict:
             # jumping between solutions, multipath), not the poses of another flight (review rev16)
             v.warnings.append(f"poses vs images' GPS: the camera path follows the images' own GPS track (a "
                               f"similarity explains {gps.explained:.0%} of its spread), but only {gps.inliers} of "
-                              f"{gps.fixes} fixes lie within its {gps.sigma_m:.1f} m noise: unsteady fixes (a "
-                              "receiver jumping between solutions, multipath?), so the poses' unit is not checked")
+                              f"{gps.fixes} fixes lie within its {max(gps.sigma_m, GNSS_WANDER_M):.1f} m noise: "
+                              "unsteady fixes (a receiver jumping between solutions, multipath?), so the poses' unit "
+                              "is not checked")
         elif not gps.too_small:
             v.warnings.append(f"poses vs images' GPS: the camera path does not follow the images' own GPS track (a "
                               f"similarity explains {max(gps.explained, 0.0):.0%} of its spread, {gps.inliers} of "

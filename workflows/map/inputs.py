@@ -56,6 +56,9 @@ class MapInputs:
     # what the pose source found doubtful (the georegistration's warnings of structure from motion): the map's
     # verdict says them, run.json and the summary line, not only the poses' record; not part of the identity
     warnings: list[str] = field(default_factory=list)
+    # what the pose source found wrong enough to refuse a map of these poses (a GPS-image offset of more than one
+    # capture interval left uncorrected: `poses.result.registration_refusals`): the map's verdict refuses with it
+    refusals: list[str] = field(default_factory=list)
 
 
 def _is_synth_session(path: Path) -> bool:
@@ -228,12 +231,14 @@ def load_inputs(
     sub = pose_list.subset([i for i, _ in keep])
     sub.names = [p.name for _, p in keep]
     # a poses.csv of `sosmatch poses`: its georegistration's doubts are the map's, as when map runs SfM itself
-    doubts = []
+    doubts: list[str] = []
+    wrong: list[str] = []
     if sources.get("poses") == str(poses) and Path(poses).is_file():
         from ..poses.result import registration_warnings_beside
 
-        doubts = registration_warnings_beside(Path(poses))
-    inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources, warnings=doubts))
+        doubts, wrong = registration_warnings_beside(Path(poses))
+    inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources, warnings=doubts,
+                                       refusals=wrong))
     if (problem := focal_against_exif(inputs)) is not None:
         log.warning("%s", problem)
         # the map's verdict too (run.json, the summary line, a batch's report): landmark heights scale with it
@@ -313,7 +318,7 @@ def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | N
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     poses = inputs.poses.subset(order)
     return MapInputs([inputs.image_paths[i] for i in order], poses, inputs.camera, inputs.epsg,
-                     inputs.sources, inputs.remedy, inputs.warnings)
+                     inputs.sources, inputs.remedy, inputs.warnings, inputs.refusals)
 
 
 def image_digests(inputs: MapInputs) -> list[str]:
@@ -338,7 +343,7 @@ def distinct_images(inputs: MapInputs) -> tuple[MapInputs, list[str]]:
     out = set(found.left_out)
     keep = [i for i in range(len(digests)) if i not in out]
     return (MapInputs([inputs.image_paths[i] for i in keep], inputs.poses.subset(keep), inputs.camera, inputs.epsg,
-                      inputs.sources, inputs.remedy, [*inputs.warnings, *found.warnings]),
+                      inputs.sources, inputs.remedy, [*inputs.warnings, *found.warnings], inputs.refusals),
             [digests[i] for i in keep])
 
 

@@ -410,7 +410,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                      contrast.cause() if contrast is not None else "",
                                      params.triangulation.min_observations)
     # the poses' doubts (a georegistration leaving GPS fixes out, a lag corrected) are the map's too
-    verdict = joined(Verdict(warnings=list(inputs.warnings)), verdict, checked.verdict if checked is not None else None)
+    verdict = joined(Verdict(refusals=list(inputs.refusals), warnings=list(inputs.warnings)), verdict,
+                     checked.verdict if checked is not None else None)
     # the recorded height above take-off: a check of the focal scale independent of the images and pose source
     relative = recorded_heights([inputs.image_paths[i] for i in keyframes])
     # measured to the ground, not to the landmarks' median: tree tops and roofs would read a correct flight low

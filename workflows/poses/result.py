@@ -72,7 +72,7 @@ def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
     camera = next(iter(result.cameras.values()))
     return MapInputs([paths[n] for n in result.poses.names], result.poses, camera, result.epsg,
                      {"poses": source, "camera": source, "images": str(image_dir)},
-                     warnings=map_warnings(result))
+                     warnings=map_warnings(result), refusals=registration_refusals(result.report))
 
 
 def map_warnings(result: PosesResult) -> list[str]:
@@ -109,6 +109,24 @@ def registration_warnings(report: dict) -> list[str]:
     return [f"poses: {w}" for w in warnings if isinstance(w, str)]
 
 
+def registration_refusals(report: dict) -> list[str]:
+    """What a `poses` record (poses.json) holds that makes a map of its poses unusable, as the map's verdict says
+    it: a lag of the GPS positions behind the images beyond one capture interval, measured and not corrected
+    (`Georegistration.lag_beyond_interval`): no trigger latency but positions a whole capture off (a log joined to
+    the images one row off, a clock offset), so every camera, and the map, lies up to that far off along the track
+    (nu53 H1: 35.8 m, the map published with verdict "ok"). [] for anything else."""
+    geo = report.get("georegistration") if isinstance(report, dict) else None
+    lag = geo.get("gps_lag") if isinstance(geo, dict) else None
+    if not (isinstance(lag, dict) and lag.get("beyond_interval") is True):
+        return []
+    metres = lag.get("metres")
+    far = f"{abs(metres):.1f} m" if isinstance(metres, (int, float)) else "a capture step"
+    return [f"poses: the GPS positions and the images disagree along the track by {far}, more than one capture "
+            "interval, not corrected: the cameras and the map lie up to that far off their place (positions joined "
+            "to the images one row off, or a clock offset between the GPS log and the camera?); fix the log's rows "
+            "or times and re-run `sosmatch poses`"]
+
+
 def recorded_pose_warnings(out_dir: str | Path) -> list[str]:
     """Every warning a `poses` output recorded (OUT_DIR/poses.json `warnings`: images left out or repeated,
     lines off their tags, the georegistration's), for the stages that report on a session (batch); [] without a
@@ -124,18 +142,21 @@ def recorded_pose_warnings(out_dir: str | Path) -> list[str]:
     return list(said)
 
 
-def registration_warnings_beside(poses_csv: Path) -> list[str]:
-    """`map_warnings` of the `poses` output a poses.csv was taken from (its poses.json beside it); none
-    for a CSV of another origin or a record that cannot be read (the CSV itself is what the map uses)."""
+def registration_warnings_beside(poses_csv: Path) -> tuple[list[str], list[str]]:
+    """(`map_warnings`, `registration_refusals`) of the `poses` output a poses.csv was taken from (its poses.json
+    beside it); none for a CSV of another origin or a record that cannot be read (the CSV itself is what the map
+    uses)."""
     record = poses_csv.parent / RECORD
     if poses_csv.name != "poses.csv" or not record.is_file():
-        return []
+        return [], []
     try:
         report = read_user_json(record, "poses record")
     except InputError:
-        return []
-    ours = isinstance(report, dict) and report.get("format") == "sosmatch-poses"
-    return with_pose_warnings(registration_warnings(report), report.get("warnings")) if ours else []
+        return [], []
+    if not (isinstance(report, dict) and report.get("format") == "sosmatch-poses"):
+        return [], []
+    return (with_pose_warnings(registration_warnings(report), report.get("warnings")),
+            registration_refusals(report))
 
 def _refuse_cameras(listing: list[str], image_dir: Path) -> None:
     raise InputError(f"the images come from {len(listing)} cameras ({', '.join(listing)}); map takes one camera: "
