@@ -985,3 +985,19 @@ def test_an_empty_list_of_images_is_a_user_error():
 
     with pytest.raises(InputError, match="no images given"):
         poses_from_images([])
+
+
+def test_two_sizes_in_equal_numbers_name_both_groups_not_a_full_frame_as_the_odd_one(tmp_path):
+    """nu53 L3: frames with a 160x120 thumbnail beside each were refused naming a full frame as the odd image
+    ("IMG_0486.jpg: image is 1200x900 ... (40 160x120, 40 1200x900)"): on a tie each size is named with an example."""
+    for k in range(2):
+        write_jpeg(tmp_path / f"f{k}.jpg", 47.0 + k * 1e-4, -99.0)
+        write_jpeg(tmp_path / f"f{k}_thumb.jpg", 47.0 + k * 1e-4, -99.0, size=(160, 120))
+    with pytest.raises(InputError) as err:
+        pfe.poses_from_images(tmp_path)
+    said = str(err.value)
+    assert said.startswith(f"{tmp_path}: the folder's images are of 2 sizes, as many of each")
+    assert "2 400x300, e.g. f0.jpg" in said and "2 160x120, e.g. f0_thumb.jpg" in said
+    write_jpeg(tmp_path / "f2.jpg", 47.0 + 2e-4, -99.0)  # no tie: the odd one is named
+    with pytest.raises(InputError, match=r"f\d_thumb\.jpg: image is 160x120; .* \(3 400x300, 2 160x120\)"):
+        pfe.poses_from_images(tmp_path)

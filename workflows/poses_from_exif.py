@@ -123,7 +123,7 @@ def poses_from_images(
         raise InputError("image has GPS latitude/longitude but no GPSAltitude", metas[int(no_height[0])].path)
     sizes = Counter((m.width, m.height) for m in metas)
     if len(sizes) > 1:
-        (w0, h0), _ = sizes.most_common(1)[0]
+        (w0, h0), top = sizes.most_common(1)[0]
         odd = next(m for m in metas if (m.width, m.height) != (w0, h0))
         counts = ", ".join(f"{c} {w}x{h}" for (w, h), c in sizes.most_common())
         if len(sizes) == 2 and (odd.width, odd.height) == (h0, w0):
@@ -131,6 +131,15 @@ def poses_from_images(
                       "which would distort them)")
         else:
             advice = "map each camera's (or size's) images on their own, or bring them to one size"
+        tied = [size for size, c in sizes.items() if c == top]
+        if len(tied) > 1:
+            # no size is the odd one: naming one image of either would call a full frame the odd one out (nu53:
+            # 40 frames and their 40 thumbnails, a full-size frame named), so each group is named by an example
+            example = {size: next(m.path.name for m in metas if (m.width, m.height) == size) for size in tied}
+            groups = "; ".join(f"{top} {w}x{h}, e.g. {example[(w, h)]}" for w, h in tied)
+            raise InputError(f"the folder's images are of {len(sizes)} sizes, as many of each ({groups}"
+                             + (f"; and {counts} in all" if len(sizes) > len(tied) else "")
+                             + f"): one camera per session; {advice}", odd.path.parent)
         raise InputError(f"image is {odd.width}x{odd.height}; the folder's images are of {len(sizes)} sizes "
                          f"({counts}): one camera per session; {advice}", odd.path)
     focals = [c.fx for c in priors.cameras]
