@@ -634,3 +634,27 @@ def test_an_oblique_flight_whose_shared_attitude_the_pairs_cannot_pin_says_it_is
     assert "attitude not checked" not in result.line()
     result, verdict = pose_check.check(images, _pitched(nadir, 10.0), camera, Params())
     assert any("share an attitude error of" in w for w in verdict.warnings + verdict.refusals), verdict.warnings
+
+
+def test_a_refusal_names_an_exif_orientation_tag_the_images_carry(flight, tmp_path):
+    """nu53 L2: frames stored turned 180 deg with EXIF Orientation 3 were refused as "heights drift by -64 m",
+    "tilt 61 deg", the tag unnamed. sosmatch reads the stored pixels and does not apply the tag: a refusal of
+    images that carry one names it first (the refusal is cut at 400 characters)."""
+    from PIL import Image
+
+    images, poses, camera = _inputs(flight)
+    tagged = []
+    for k, path in enumerate(images):
+        tagged.append(tmp_path / path.name)
+        with Image.open(path) as img:
+            exif = Image.Exif()
+            exif[0x0112] = 3 if k % 2 else 1
+            img.save(tagged[-1], exif=exif.tobytes(), **({"quality": 95} if path.suffix == ".jpg" else {}))
+    with pytest.raises(pose_check.PosesRefused) as err:
+        pose_check.run(tagged, _yaw_fault(poses, 1), camera, Params())
+    said = str(err.value)
+    assert "poses refused: 20 of 40 images carry EXIF Orientation 3 (turned 180 deg by viewers)" in said
+    assert "which sosmatch does not apply" in said and "the images move the other way" in said
+    with pytest.raises(pose_check.PosesRefused) as plain:  # untagged images: as before
+        pose_check.run(images, _yaw_fault(poses, 1), camera, Params())
+    assert "Orientation" not in str(plain.value)

@@ -29,6 +29,7 @@ from typing import NoReturn
 import numpy as np
 
 from ..database.cameras import format_cameras_txt
+from ..database.exif import orientation_note
 from ..database.output_files import OutputFiles
 from ..database.output_markers import fingerprint
 from ..database.poses import format_poses_csv
@@ -73,6 +74,7 @@ class ExifPoses:
     # every image's attitude is a stabilised gimbal's absolute angles (DJI XMP Gimbal*Degree): its tilt off the
     # vertical is what the gimbal holds, so a refinement may not tilt the cameras far from it
     gimbal_attitudes: bool = False
+    orientations: list[int | None] | None = None  # (N,) EXIF Orientation tags as read (not applied)
 
 
 def poses_from_images(
@@ -178,7 +180,8 @@ def poses_from_images(
                  "give its cameras.txt (`poses-from-exif`, then `map --poses POSES.csv --camera cameras.txt`)")
     poses = Poses(priors.names, priors.rotations, priors.positions)
     return ExifPoses(poses, priors.epsg, camera, priors.summary, ~priors.attitude_from_tags,
-                     [m.capture_time_s for m in metas], bool(np.all(priors.attitude_kind == "gimbal")))
+                     [m.capture_time_s for m in metas], bool(np.all(priors.attitude_kind == "gimbal")),
+                     [m.orientation for m in metas])
 
 
 def run(
@@ -311,6 +314,11 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
                                                        tilt_sigma_deg=(GIMBAL_TILT_SIGMA_DEG if result.gimbal_attitudes
                                                                        else None))
     except (RefinementRejected, ValueError) as error:
+        note = orientation_note(result.orientations) if result.orientations else None
+        if not guessed and note and isinstance(error, RefinementRejected):
+            # pixels stored turned against their tags refuse as implausible turns and tilts (nu53): name the tag
+            head, _, rest = error.problem.partition(": ")
+            raise RefinementRejected(f"{head}: {note}; {rest}", error.path) from None
         if not guessed:
             raise
         _unsolved(result, images, guessed, str(error).split(";")[0])
