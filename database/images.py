@@ -195,10 +195,12 @@ def _read_cv2(path: Path) -> np.ndarray | None:
         return None
     if arr is None:
         return None
+    # OpenCV's channel order reversed by indexing, not cv2.cvtColor: that takes 8-, 16-bit and float32 data only
+    # (nu53: a float64 RGB TIFF was a cv2 traceback in `segment`); any depth is converted later (`to_rgb_u8`)
     if arr.ndim == 3 and arr.shape[2] == 3:
-        arr = cv2.cvtColor(arr, cv2.COLOR_BGR2RGB)
+        arr = np.ascontiguousarray(arr[..., ::-1])
     elif arr.ndim == 3 and arr.shape[2] == 4:
-        arr = cv2.cvtColor(arr, cv2.COLOR_BGRA2RGBA)
+        arr = np.ascontiguousarray(arr[..., [2, 1, 0, 3]])
     return arr
 
 
@@ -295,9 +297,14 @@ def read_gray(path: str | Path, white: Levels | int | None = None) -> np.ndarray
     _check_pixels(path)
     data = np.fromfile(path, dtype=np.uint8)
     flags = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION
-    gray = cv2.imdecode(data, flags) if data.size else None
+    try:
+        gray = cv2.imdecode(data, flags) if data.size else None
+    except cv2.error:
+        gray = None
     if gray is None:
-        raise InputError("unreadable image (not a supported image format, or corrupt)", path)
+        # OpenCV cannot turn some valid files to gray while decoding (a float64 RGB TIFF): read as every image
+        # is (`read_image`, which names a file nothing can read) and take its luminance
+        return cv2.cvtColor(read_image(path, white), cv2.COLOR_RGB2GRAY)
     try:
         return np.ascontiguousarray(to_u8(gray, white))
     except ValueError as exc:

@@ -25,7 +25,12 @@ on intrinsics (OpenSfM's has one, `exif_focal_sd`), so the prior is applied to i
   a focal length in pixels scales with a resize, and a crop changes the frame a 35 mm equivalent refers to) and
   the images' own value is taken (`exif_unrelated_probability`). Averaging two estimates 10-20 sigmas apart
   gives a value both sources exclude (nu42: photos resized by half, EXIF's width updated: 502 px against the
-  images' 247 +- 6 px, 315 px taken and the landmarks 22 m low).
+  images' 247 +- 6 px, 315 px taken and the landmarks 22 m low);
+- a camera of too few images for the jackknife (`checkable` false) has no honest sigma: the curvature's alone
+  is the overconfident figure the jackknife exists to correct, so such a measurement may neither set EXIF aside
+  nor pull it: the EXIF value is held and the images' optimum only reported (nu53: 3 frames exported at 800x600
+  measured 629 px +-1.2 % by the curvature against EXIF's right 555 px, EXIF set aside and the poses 5 m high;
+  one 12000x9000 frame 2299 px against EXIF's right 8326, its pose 45 m low).
 """
 
 from __future__ import annotations
@@ -110,6 +115,7 @@ class FocalEstimate:
     blocks: int = 0  # the blocks of that jackknife
     exif_unrelated: float = 0.0  # the probability that EXIF's value is not about these pixels at all
     exif_set_aside: bool = False  # it was the more probable: the images' value taken alone
+    exif_unchecked: bool = False  # too few images to know how well they know f: EXIF's value held, not checked
 
     @property
     def disagreement_sigmas(self) -> float:
@@ -125,6 +131,8 @@ class FocalEstimate:
     @property
     def images_weight(self) -> float:
         """The share of the images in the focal length taken (0: the EXIF value, 1: the images' optimum)."""
+        if self.exif_unchecked:
+            return 0.0
         if self.exif_set_aside:
             return 1.0
         if not math.isfinite(self.images_sigma_px):
@@ -143,16 +151,24 @@ class FocalEstimate:
 
 def combine_focal(camera_id: int, exif_px: float, exif_sigma_rel: float, images_px: float,
                   images_sigma_px: float, chi2_of_exif: float, blocks_sigma_px: float = math.nan,
-                  blocks: int = 0) -> FocalEstimate:
+                  blocks: int = 0, checkable: bool = True) -> FocalEstimate:
     """The focal length taken: the EXIF value (relative sigma `exif_sigma_rel`) and the images' optimum
     combined by their inverse variances. The images' sigma is the larger of the misfit curvature's
     (`images_sigma_px`, inf for none) and the blocks' jackknife (`blocks_sigma_px` over `blocks` blocks; NaN
     when it was not run). Where the two contradict each other so far that EXIF's value is more probably not
-    about these pixels at all (`exif_unrelated_probability` above one half), the images' value is taken alone."""
+    about these pixels at all (`exif_unrelated_probability` above one half), the images' value is taken alone.
+    `checkable` false: the camera has too few images for the jackknife, so the images' sigma cannot be known
+    (the curvature's understates it several times) and EXIF's value is held (`exif_unchecked`); the images'
+    optimum and the curvature's sigma are kept for the record (`disagreement_sigmas` on them says how far apart
+    the two lie if the curvature were honest) and EXIF's unrelated probability is not judged (NaN)."""
     curvature = images_sigma_px
     if not math.isnan(blocks_sigma_px):
         images_sigma_px = max(images_sigma_px, blocks_sigma_px)
     exif_sigma = abs(exif_px) * exif_sigma_rel
+    if not checkable:
+        return FocalEstimate(int(camera_id), float(exif_px), float(exif_sigma), float(images_px),
+                             float(images_sigma_px), float(exif_px), float(exif_sigma), float(chi2_of_exif),
+                             float(curvature), float(blocks_sigma_px), int(blocks), math.nan, False, True)
     unrelated = exif_unrelated_probability(exif_px, images_px, math.hypot(images_sigma_px, exif_sigma))
     set_aside = unrelated > 0.5
     if not math.isfinite(images_sigma_px):

@@ -36,12 +36,14 @@ def _dms(deg: float) -> tuple:
 
 def write_jpeg(path: Path, lat: float | None, lon: float | None, alt: float = 300.0, xmp: dict | None = None,
                size: tuple = (400, 300), focal: float = 4.3, fp_res: float = 16393.44, exif_size: tuple = (4000, 3000),
-               xmp_as_elements: bool = False, when: str | None = None) -> None:
+               xmp_as_elements: bool = False, when: str | None = None, orientation: int | None = None) -> None:
     rng = np.random.default_rng(zlib.crc32(path.name.encode()))  # different content per file name
     img = Image.fromarray(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
     exif = Image.Exif()
     exif[0x010F] = "TestMake"
     exif[0x0110] = "TestMake Cam"
+    if orientation is not None:
+        exif[0x0112] = orientation
     sub = exif.get_ifd(0x8769)
     sub[0x920A] = IFDRational(round(focal * 100), 100)
     sub[0xA20E] = IFDRational(round(fp_res * 100), 100)
@@ -899,6 +901,33 @@ def test_portrait_files_of_a_landscape_readout_do_not_take_its_attitude_tags(tmp
     assert list(priors.attitude_from_tags) == [True, False, True, False]
     assert any("2 of 4 images are their camera's readout turned by 90 degrees" in r.getMessage()
                for r in caplog.records)
+    assert "no EXIF Orientation tag" in caplog.text
+
+
+def test_portrait_files_with_an_orientation_tag_are_said_to_carry_it(tmp_path, caplog):
+    """nu53 L2: portrait files whose EXIF Orientation 8 turns them back to the readout's aspect in viewers were
+    warned about as "which way the pixels were turned is not recorded". The tag is named, and that sosmatch does
+    not apply it; a 180 deg tag is read and named in refusals (`orientation_note`)."""
+    from sosmatch.database.exif import orientation_note, read_orientation
+    from sosmatch.workflows.image_priors import read_image_priors
+
+    img = tmp_path / "images"
+    img.mkdir()
+    tags = {"Heading": "90", "PitchAngle": "0", "RollAngle": "0"}
+    for k in range(4):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0, tags, size=(300, 400) if k % 2 else (400, 300),
+                   orientation=8 if k % 2 else 1)
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img)
+    assert list(priors.attitude_from_tags) == [True, False, True, False]
+    assert [m.orientation for m in priors.metas] == [1, 8, 1, 8] and read_orientation(img / "f1.jpg") == 8
+    assert "their EXIF Orientation 8 turns them back to the readout's aspect in viewers, a turn sosmatch does not " \
+           "apply" in caplog.text and "not recorded" not in caplog.text
+    assert orientation_note([1, None, 1]) is None
+    assert orientation_note([3, 3, 1, 6]) == ("3 of 4 images carry EXIF Orientation 3 (turned 180 deg by viewers, 2), "
+                                              "6 (turned 90 deg clockwise by viewers, 1), which sosmatch does not "
+                                              "apply: pixels stored turned from the camera's view contradict their "
+                                              "tags and poses")
 
 
 def test_map_and_poses_take_the_projected_crs_of_the_poses(tmp_path, capsys, monkeypatch):
@@ -1042,3 +1071,19 @@ def test_a_copied_log_one_row_off_is_seen_on_short_capture_steps():
     for seed in range(20):
         other = truth + [3.0, 0.0] + np.random.default_rng(seed).normal(0.0, 0.5, truth.shape)
         assert rows_shifted(exif, other, order)[0] == 0, seed
+
+
+def test_two_sizes_in_equal_numbers_name_both_groups_not_a_full_frame_as_the_odd_one(tmp_path):
+    """nu53 L3: frames with a 160x120 thumbnail beside each were refused naming a full frame as the odd image
+    ("IMG_0486.jpg: image is 1200x900 ... (40 160x120, 40 1200x900)"): on a tie each size is named with an example."""
+    for k in range(2):
+        write_jpeg(tmp_path / f"f{k}.jpg", 47.0 + k * 1e-4, -99.0)
+        write_jpeg(tmp_path / f"f{k}_thumb.jpg", 47.0 + k * 1e-4, -99.0, size=(160, 120))
+    with pytest.raises(InputError) as err:
+        pfe.poses_from_images(tmp_path)
+    said = str(err.value)
+    assert said.startswith(f"{tmp_path}: the folder's images are of 2 sizes, as many of each")
+    assert "2 400x300, e.g. f0.jpg" in said and "2 160x120, e.g. f0_thumb.jpg" in said
+    write_jpeg(tmp_path / "f2.jpg", 47.0 + 2e-4, -99.0)  # no tie: the odd one is named
+    with pytest.raises(InputError, match=r"f\d_thumb\.jpg: image is 160x120; .* \(3 400x300, 2 160x120\)"):
+        pfe.poses_from_images(tmp_path)

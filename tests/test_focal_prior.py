@@ -10,7 +10,8 @@ import pycolmap
 import pytest
 
 from sosmatch.plugin.focal_prior import combine_focal, images_focal_sigma, residual_variance
-from sosmatch.plugin.geometry import Camera, project, rotvec_to_matrix
+from sosmatch.plugin.geometry import Camera, project, rotation_angle_deg, rotvec_to_matrix
+from sosmatch.workflows.poses.checks import focal_length_warnings
 from sosmatch.workflows.poses.focal import weigh_focal_lengths
 
 TRUE_F = 500.0
@@ -41,12 +42,13 @@ def _nadir(heading_deg: float) -> np.ndarray:
 
 
 def _block(relief_m: float, tilt_deg: float, model_f: float, seed: int = 0,
-           stretch_scale: tuple[float, ...] = ()) -> pycolmap.Reconstruction:
+           stretch_scale: tuple[float, ...] = (), second_camera: int = 0) -> pycolmap.Reconstruction:
     """Two flight lines at 80 m over points with `relief_m` of height spread, cameras tilted by `tilt_deg` (std),
     observed with 0.5 px noise by a camera of TRUE_F; the model holds the true poses and the camera at
     `model_f`, its points intersected with that focal length (as an SfM block that found `model_f`).
     `stretch_scale`: an error correlated along the flight, each contiguous stretch of images (as many as
-    values) seeing its image coordinates scaled about the centre by 1 + that value."""
+    values) seeing its image coordinates scaled about the centre by 1 + that value. `second_camera`: the first
+    that many images are of a camera 2 (the same intrinsics)."""
     rng = np.random.default_rng(seed)
     true_cam = Camera(640, 480, TRUE_F, TRUE_F, 320.0, 240.0)
     centers, rots = [], []
@@ -60,6 +62,9 @@ def _block(relief_m: float, tilt_deg: float, model_f: float, seed: int = 0,
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(pycolmap.Camera(model="SIMPLE_RADIAL", width=640, height=480,
                                                     params=[model_f, 320.0, 240.0, 0.0], camera_id=1))
+    if second_camera:
+        rec.add_camera_with_trivial_rig(pycolmap.Camera(model="SIMPLE_RADIAL", width=640, height=480,
+                                                        params=[model_f, 320.0, 240.0, 0.0], camera_id=2))
     obs: dict[int, list] = {}
     for i, (r, c) in enumerate(zip(rots, centers)):
         uv, depth = project(true_cam, r, c, pts)
@@ -67,7 +72,7 @@ def _block(relief_m: float, tilt_deg: float, model_f: float, seed: int = 0,
         uvn = uv[idx] + rng.normal(0, 0.5, (len(idx), 2))
         if stretch_scale:
             uvn = (uvn - [320.0, 240.0]) * (1.0 + stretch_scale[i * len(stretch_scale) // 28]) + [320.0, 240.0]
-        im = pycolmap.Image(name=f"f{i:03d}.jpg", camera_id=1, image_id=i + 1,
+        im = pycolmap.Image(name=f"f{i:03d}.jpg", camera_id=2 if i < second_camera else 1, image_id=i + 1,
                             points2D=pycolmap.Point2DList([pycolmap.Point2D(p) for p in uvn]))
         rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(pycolmap.Rotation3d(r.T), -r.T @ c))
         for k, j in enumerate(idx):
@@ -166,18 +171,65 @@ def test_a_camera_with_two_focal_lengths_keeps_its_aspect():
     assert changed and fx == pytest.approx(est.taken_px) and fy / fx == pytest.approx(1.01, abs=1e-9)
 
 
-def test_a_flight_too_short_for_the_jackknife_keeps_what_its_images_know():
-    """rev23: with fewer than 9 images the jackknife had no three stretches and returned an infinite sigma, so
-    the images' knowledge of f was thrown away: a wrong EXIF value was taken and the focal warning could not fire.
-    Too short a flight for the jackknife keeps the curvature's sigma."""
+def test_a_flight_too_short_for_the_jackknife_holds_exif_and_says_it_could_not_check_it():
+    """rev23: with fewer than 9 images the jackknife had no three stretches and returned an infinite sigma, so a
+    wrong EXIF value was taken and nothing said. A camera that short has no honest sigma for its focal length
+    (nu53's H2, below): EXIF's value is held, and the images' contradicting optimum is said, not taken."""
     rec = _block(relief_m=30.0, tilt_deg=4.0, model_f=TRUE_F)
     for image_id in sorted(rec.images)[8:]:
         rec.deregister_frame(rec.images[image_id].frame_id)
     wrong = Camera(640, 480, TRUE_F * 1.06, TRUE_F * 1.06, 320.0, 240.0)
-    (est,), _ = weigh_focal_lengths(rec, {1: (wrong, SOURCE)}, anchor_sigma_m=3.0)
-    assert est.blocks < 3 and math.isnan(est.blocks_sigma_px)
-    assert est.images_sigma_px == est.curvature_sigma_px and math.isfinite(est.images_sigma_px)
-    assert abs(est.taken_px / TRUE_F - 1) < 0.01 and est.disagreement_sigmas > 2.0
+    (est,), changed = weigh_focal_lengths(rec, {1: (wrong, SOURCE)}, anchor_sigma_m=3.0)
+    assert est.blocks == 0 and math.isnan(est.blocks_sigma_px) and est.exif_unchecked
+    assert est.images_sigma_px == est.curvature_sigma_px and abs(est.images_px / TRUE_F - 1) < 0.01
+    assert changed and est.taken_px == wrong.fx and rec.cameras[1].params[0] == pytest.approx(wrong.fx)
+    assert est.images_weight == 0.0 and est.disagreement_sigmas > 2.0 and est.to_dict()["exif_unrelated"] is None
+    (said,) = focal_length_warnings([est], {1: (wrong, SOURCE)}, {1: _cam(rec)}, 80.0)
+    assert "not enough images of this camera to check its EXIF focal length" in said
+    assert f"EXIF's {wrong.fx:.1f} px" in said and f"{est.images_px:.1f} px (-5." in said and "too low" in said
+    assert "probably resized" not in said and "does not describe" not in said
+
+
+def test_a_few_images_with_a_correlated_error_do_not_overrule_a_right_exif_focal_length():
+    """nu53 H2: 3 frames exported at 800x600 with their EXIF (right: 555 px) measured 629 px, +-1.2 % by the
+    misfit's curvature, too few images for the jackknife that would have shown the curvature optimistic: EXIF
+    was set aside as "probably resized" and the poses written 5 m high (one 12000x9000 frame: 45 m low). Here 8
+    images all see their frame scaled by +12 % (an error they share, as one short stretch of flight does): the
+    curvature claims a fraction of a per cent for a value 12 % off; EXIF's right value is kept."""
+    rec = _block(relief_m=30.0, tilt_deg=4.0, model_f=TRUE_F, stretch_scale=(0.12,))
+    for image_id in sorted(rec.images)[8:]:
+        rec.deregister_frame(rec.images[image_id].frame_id)
+    exif = Camera(640, 480, TRUE_F, TRUE_F, 320.0, 240.0)
+    (est,), changed = weigh_focal_lengths(rec, {1: (exif, SOURCE)}, anchor_sigma_m=3.0)
+    assert est.images_px / TRUE_F - 1 > 0.08 and est.curvature_sigma_px < 0.02 * TRUE_F  # confidently wrong
+    assert est.exif_unchecked and not est.exif_set_aside
+    assert changed and est.taken_px == TRUE_F and rec.cameras[1].params[0] == pytest.approx(TRUE_F)
+
+
+def test_a_few_images_held_at_their_exif_focal_length_move_in_depth_not_the_block():
+    """nu53 H2, one 12000 px frame among 1200 px ones: held at EXIF's focal length 3.6 times the one SfM had
+    left it at, with its centre tied where SfM had put it (45 m low), it tilted the whole block by 4 deg. A
+    camera of 2 images held at an EXIF value 20 % off their own: they move in depth, the other camera's 26
+    images stay where they were (tied: 3.8 deg, 1.3 m)."""
+    rec = _block(relief_m=30.0, tilt_deg=4.0, model_f=TRUE_F, second_camera=2)
+    before = {i: (im.cam_from_world().rotation.matrix(), im.projection_center()) for i, im in rec.images.items()}
+    exif = Camera(640, 480, TRUE_F, TRUE_F, 320.0, 240.0)
+    short = Camera(640, 480, 0.8 * TRUE_F, 0.8 * TRUE_F, 320.0, 240.0)
+    estimates, changed = weigh_focal_lengths(rec, {1: (exif, SOURCE), 2: (short, SOURCE)}, anchor_sigma_m=3.0)
+    one, two = estimates
+    assert not one.exif_unchecked and two.exif_unchecked and changed
+    assert rec.cameras[2].params[0] == pytest.approx(0.8 * TRUE_F) and abs(two.images_px / TRUE_F - 1) < 0.01
+    main = sorted(rec.images)[2:]
+    turn = rotation_angle_deg(np.stack([before[i][0] for i in main]),
+                              np.stack([rec.images[i].cam_from_world().rotation.matrix() for i in main]))
+    moved = [np.linalg.norm(before[i][1] - rec.images[i].projection_center()) for i in main]
+    assert np.max(turn) < 1.5 and np.median(moved) < 0.5
+    assert all(np.linalg.norm(before[i][1] - rec.images[i].projection_center()) > 8.0 for i in sorted(rec.images)[:2])
+
+
+def _cam(rec: pycolmap.Reconstruction) -> Camera:
+    f = float(rec.cameras[1].params[0])
+    return Camera(640, 480, f, f, 320.0, 240.0)
 
 
 @pytest.mark.parametrize("exif, exif_rel, images, images_sigma", [

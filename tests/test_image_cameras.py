@@ -460,3 +460,17 @@ def test_the_pair_distance_cap_is_the_widest_settings_footprint():
     for cameras in ([wide, long_], [long_, wide]):
         priors = SimpleNamespace(relative_altitude=rel, cameras=cameras)
         assert footprint_diagonal_m(priors) == pytest.approx(expected)
+
+
+def test_images_without_a_focal_length_are_said_once_without_advice_for_another_command():
+    """nu53 L3: `poses --telemetry` on images without EXIF warned "no usable focal length in EXIF (no usable
+    focal length in EXIF (...); ...: take poses and intrinsics from structure from motion (`sosmatch poses`) ...)"
+    while running `sosmatch poses`: the reason nested in itself and the refusal's advice in a warning."""
+    bare = ImageMetadata(Path("/x/bare.jpg"), 320, 240)
+    cameras, _, _, warnings = camera_groups([bare], None, strict=False)
+    (said,) = warnings
+    assert said.count("no usable focal length") == 1 and "EXIF stripped?" in said
+    assert "sosmatch poses" not in said and "starting from 384 px" in said and cameras[0].fx == 384.0
+    with pytest.raises(InputError, match=r"bare\.jpg: no usable focal length .*stripped\?\); take poses") as err:
+        camera_groups([bare], None, strict=True)
+    assert str(err.value).count("no usable focal length") == 1

@@ -226,3 +226,18 @@ def test_float_measurements_are_read_between_their_own_levels_above_zero_too(tmp
         assert isinstance(levels, Levels) and levels.black <= low + 0.5 and levels.white > low + 34.0
         grey = read_image(tmp_path / f"{name}.tif", levels)[:, :, 0].astype(int)
         assert grey.max() - grey.min() > 200
+
+
+def test_a_float64_colour_tiff_is_read_like_its_float32_copy(tmp_path):
+    """nu53 M2: a 3-channel float64 TIFF (reflectances 0..0.6) was a cv2 traceback in `segment` (cv2.cvtColor
+    takes no float64) and unreadable to `read_gray`. Read as its float32 copy is, in RGB order."""
+    rng = np.random.default_rng(0)
+    rgb = rng.random((60, 80, 3)) * 0.6
+    rgb[..., 0] *= 0.25  # a dark red channel: a swapped order shows
+    for dtype in ("float64", "float32"):
+        assert cv2.imwrite(str(tmp_path / f"{dtype}.tif"), rgb[..., ::-1].astype(dtype))  # OpenCV writes BGR
+    wide, narrow = read_image(tmp_path / "float64.tif"), read_image(tmp_path / "float32.tif")
+    assert wide.shape == (60, 80, 3) and wide.dtype == np.uint8
+    assert np.array_equal(wide, narrow)
+    assert wide[..., 0].mean() < 0.5 * wide[..., 2].mean()
+    assert np.array_equal(read_gray(tmp_path / "float64.tif"), read_gray(tmp_path / "float32.tif"))

@@ -654,3 +654,27 @@ def test_the_summary_of_unsteady_fixes_does_not_say_the_path_does_not_follow():
     assert "does not follow" not in unsteady
     assert "does not follow the images' GPS" in line(45.0, 17)  # 17 % explained: another flight's path
     assert "lengths 1.00x the images' GPS (40 fixes)" in line(2.5, 38)
+
+
+def test_a_refusal_names_an_exif_orientation_tag_the_images_carry(flight, tmp_path):
+    """nu53 L2: frames stored turned 180 deg with EXIF Orientation 3 were refused as "heights drift by -64 m",
+    "tilt 61 deg", the tag unnamed. sosmatch reads the stored pixels and does not apply the tag: a refusal of
+    images that carry one names it first (the refusal is cut at 400 characters)."""
+    from PIL import Image
+
+    images, poses, camera = _inputs(flight)
+    tagged = []
+    for k, path in enumerate(images):
+        tagged.append(tmp_path / path.name)
+        with Image.open(path) as img:
+            exif = Image.Exif()
+            exif[0x0112] = 3 if k % 2 else 1
+            img.save(tagged[-1], exif=exif.tobytes(), **({"quality": 95} if path.suffix == ".jpg" else {}))
+    with pytest.raises(pose_check.PosesRefused) as err:
+        pose_check.run(tagged, _yaw_fault(poses, 1), camera, Params())
+    said = str(err.value)
+    assert "poses refused: 20 of 40 images carry EXIF Orientation 3 (turned 180 deg by viewers)" in said
+    assert "which sosmatch does not apply" in said and "the images move the other way" in said
+    with pytest.raises(pose_check.PosesRefused) as plain:  # untagged images: as before
+        pose_check.run(images, _yaw_fault(poses, 1), camera, Params())
+    assert "Orientation" not in str(plain.value)

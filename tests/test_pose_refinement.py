@@ -359,6 +359,38 @@ def test_cameras_turned_far_from_their_priors_are_named():
     assert [n for n, _ in turned_images(before, after, 5.0, (9, 9, 3, 9, 40, 3))] == ["f2.jpg"]
 
 
+@pytest.mark.parametrize("half", [20, 22])
+def test_a_camera_turned_far_on_a_few_tie_points_keeps_its_starting_pose(tmp_path, half):
+    """nu53 M3: lossless PNG copies of frames whose JPEGs refined well: two cameras turned 154 and 75 deg on
+    fewer than 5 tie-point observations, "doubtful" said and the turned poses written and mapped. One frame here
+    keeps only a small patch of its texture (2-3 observations) and its prior is 20 deg off: the adjustment turns
+    it 30-125 deg and moves it tens of metres. A turn one wrong tie point can decide is not a refinement: the
+    camera keeps its starting pose, named, and the rest are refined."""
+    import cv2
+
+    from sosmatch.workflows.pose_refinement import refine_poses_from_images
+
+    paths, truth, cam, _ = _plane_views(tmp_path)
+    img = cv2.imread(str(paths[5]))
+    patch = np.full_like(img, 90)
+    cy, cx = img.shape[0] // 2, img.shape[1] // 2
+    patch[cy - half:cy + half, cx - half:cx + half] = img[cy - half:cy + half, cx - half:cx + half]
+    cv2.imwrite(str(paths[5]), patch)
+    rotations = truth.rotations.copy()
+    rotations[5] = rotvec_to_matrix(np.array([[0.0, 0.0, np.radians(20.0)]]))[0] @ rotations[5]
+    prior = Poses(truth.names, rotations, truth.centers)
+    refined, stats = refine_poses_from_images(paths, prior, cam, position_sigma_m=2.0, attitude_sigma_deg=2.0,
+                                              pixel_sigma_px=1.0, max_features=1500)
+    assert 0 < stats.observations_by_image[5] < 5
+    assert np.array_equal(refined.rotations[5], prior.rotations[5])
+    assert np.array_equal(refined.centers[5], prior.centers[5])
+    (said,) = [w for w in stats.warnings if truth.names[5] in w]
+    assert "1 of 16 cameras" in said and "their poses are the priors, unrefined" in said
+    assert stats.rotation_change_max_deg < 6.0 and stats.position_change_max_m < 10.0  # the poses written
+    others = np.arange(16) != 5
+    assert np.median(rotation_angle_deg(refined.rotations[others], truth.rotations[others])) < 1.0
+
+
 def test_tie_points_the_starting_poses_cannot_triangulate_still_judge_them():
     """The thirteenth sweep: Seneca's telemetry headings turned by 180 deg; 281 tie-point tracks, none triangulated
     with those poses, and the refinement passed them on as "no tie points: the poses are the priors" (exit 0, the

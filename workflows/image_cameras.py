@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -247,15 +248,24 @@ def _camera_before_zoom(meta: ImageMetadata, sensor_width_mm: float | None) -> t
             log.debug("%s: %s; the 35 mm equivalent focal length is used", meta.path.name, stale)
         return _by_35mm(meta), "FocalLengthIn35mmFilm (full-frame diagonal)"
     if stale:
-        raise InputError(f"{stale}: give the sensor width (--sensor-width-mm), or `map` a camera file (--camera)",
-                         meta.path)
+        raise NoFocalLength(stale, "give the sensor width (--sensor-width-mm), or `map` a camera file (--camera)",
+                            meta.path, sep=": ")
+    reason = "no usable focal length in EXIF (FocalLength with FocalPlaneXResolution, or FocalLengthIn35mmFilm)"
     if meta.focal_mm:
-        advice = "give the sensor width (--sensor-width-mm)"
-    else:  # a sensor width needs a focal length in mm to go with it: without one it cannot help
-        advice = ("the images carry no focal length at all (EXIF stripped?): take poses and intrinsics from "
-                  "structure from motion (`sosmatch poses`), or give `sosmatch map` a pose CSV and --camera")
-    raise InputError("no usable focal length in EXIF (FocalLength with FocalPlaneXResolution, or "
-                     f"FocalLengthIn35mmFilm); {advice}", meta.path)
+        raise NoFocalLength(reason, "give the sensor width (--sensor-width-mm)", meta.path)
+    # a sensor width needs a focal length in mm to go with it: without one it cannot help
+    raise NoFocalLength(f"{reason}: the images carry no focal length at all (EXIF stripped?)",
+                        "take poses and intrinsics from structure from motion (`sosmatch poses`), or give "
+                        "`sosmatch map` a pose CSV and --camera", meta.path)
+
+
+class NoFocalLength(InputError):
+    """An image whose EXIF gives no usable focal length: `reason` says why, and the message adds what the user can
+    do; a caller that can do without it (structure from motion starts from a guess) says the reason alone."""
+
+    def __init__(self, reason: str, advice: str, path: Path | None, sep: str = "; ") -> None:
+        super().__init__(f"{reason}{sep}{advice}", path)
+        self.reason = reason
 
 
 # Images of one make, model and size at focal lengths set apart by a gap of more than this are cameras of their
@@ -340,6 +350,11 @@ def focal_settings(metas: list[ImageMetadata], cameras: list[Camera]) -> list[li
     return settings
 
 
+def _reason(exc: InputError) -> str:
+    """Why an image has no usable focal length (`NoFocalLength.reason`; another InputError's problem)."""
+    return exc.reason if isinstance(exc, NoFocalLength) else exc.problem
+
+
 def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
                   strict: bool) -> tuple[list[Camera], np.ndarray, list[str], list[str]]:
     """One camera per make + model + image size + digital zoom + focal length setting (`focal_settings`: a
@@ -372,10 +387,10 @@ def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
         if failed and len(settings) > 1:
             if strict:
                 i, exc = failed[0]
-                raise InputError(f"no usable focal length in EXIF ({exc.problem}), and the other images of its "
-                                 f"camera are at {len(settings)} focal lengths (a zoom or another lens): which is "
-                                 f"its is unknown; give a camera file (map --camera) or let structure from motion "
-                                 f"estimate it (`sosmatch poses`)", metas[i].path)
+                raise InputError(f"{_reason(exc)}, and the other images of its camera are at {len(settings)} "
+                                 f"focal lengths (a zoom or another lens): which is its is unknown; give a camera "
+                                 f"file (map --camera) or let structure from motion estimate it (`sosmatch poses`)",
+                                 metas[i].path)
             groups += [([i for i, _ in s], [r for _, r in s], []) for s in settings]
             groups.append(([i for i, _ in failed], [], [e for _, e in failed]))
         elif settings:
@@ -395,8 +410,9 @@ def camera_groups(metas: list[ImageMetadata], sensor_width_mm: float | None,
             if strict:
                 raise failed_exc[0]
             f = 1.2 * max(w, h)
-            warnings.append(f"{name}: no usable focal length in EXIF ({failed_exc[0].problem}); starting from "
-                            f"{f:.0f} px (structure from motion estimates it)")
+            # the reason alone: the error's advice (run `sosmatch poses`) is for the callers that refuse (nu53)
+            warnings.append(f"{name}: {_reason(failed_exc[0])}; starting from {f:.0f} px (structure from motion "
+                            "estimates it)")
             log.warning("%s", warnings[-1])
             cameras.append(Camera(w, h, f, f, w / 2.0, h / 2.0))
             sources.append("none in EXIF (1.2 x the longer side)")

@@ -71,7 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..database.exif import ImageMetadata, read_image_metadata
+from ..database.exif import ImageMetadata, orientation_note, read_image_metadata
 from ..database.images import image_files, no_images_message
 from ..database.telemetry_io import read_telemetry_csv, telemetry_rows
 from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the tags are read with)
@@ -405,10 +405,19 @@ def read_image_priors(
             else:
                 att_src["nothing (level, nadir, heading unknown)"] += 1
     if turned.any():
+        # an Orientation tag says how viewers turn the file, not how the stored pixels lie against the readout the
+        # attitude tags describe (a camera writes 6 or 8 on unturned pixels): named, not applied (nu53)
+        tags = sorted({m.orientation or 1 for m, t in zip(metas, turned) if t})
+        if set(tags) <= {6, 8}:
+            how = (f"their EXIF Orientation {'/'.join(map(str, tags))} turns them back to the readout's aspect in "
+                   "viewers, a turn sosmatch does not apply (it reads the pixels as stored)")
+        else:
+            tagged = orientation_note([m.orientation for m, t in zip(metas, turned) if t])
+            how = f"which way the pixels were turned from it is not recorded ({tagged or 'no EXIF Orientation tag'})"
         log.warning("%d of %d images are their camera's readout turned by 90 degrees (portrait files, e.g. %s): their "
-                    "attitude tags describe the unturned camera and which way the pixels were turned is not "
-                    "recorded, so their headings are left to the images (as for images without tags)",
-                    int(turned.sum()), n, metas[int(np.flatnonzero(turned)[0])].path.name)
+                    "attitude tags describe the unturned camera and %s, so their headings are left to the images "
+                    "(as for images without tags)", int(turned.sum()), n,
+                    metas[int(np.flatnonzero(turned)[0])].path.name, how)
     rotations = np.empty((n, 3, 3))
     for k, m_name, ps, rs in (("gimbal", "gimbal", 1.0, 1.0), ("fixed", mount, pitch_sign, roll_sign),
                               ("course", mount, 1.0, 1.0)):

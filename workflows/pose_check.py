@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..database.exif import orientation_note, read_orientation
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.image_matching import OrbFeatures
@@ -232,8 +233,12 @@ def run(image_paths: Sequence[Path], poses: Poses, camera: Camera, params: Param
         # the error names the poses, the input that is wrong (their source as `load_inputs` recorded it), and
         # says where the figures are
         where = f" (figures in {out})" if out is not None else ""
-        raise PosesRefused("poses refused: " + "; ".join(r.removeprefix("poses vs images: ") for r in verdict.refusals)
-                           + where, (sources or {}).get("poses") or Path(image_paths[0]).parent)
+        # pixels stored turned against their poses refuse as a drift and a tilt (nu53: Orientation 3 frames, "64 m
+        # drift, 61 deg tilt"): a tag that says the files are turned is named with the refusal
+        note = orientation_note([read_orientation(p) for p in image_paths])
+        raise PosesRefused("poses refused: " + (f"{note}; " if note else "")
+                           + "; ".join(r.removeprefix("poses vs images: ") for r in verdict.refusals) + where,
+                           (sources or {}).get("poses") or Path(image_paths[0]).parent)
     return CheckResult(result, verdict, out)
 
 

@@ -29,6 +29,7 @@ from typing import NoReturn
 import numpy as np
 
 from ..database.cameras import format_cameras_txt
+from ..database.exif import orientation_note
 from ..database.output_files import OutputFiles
 from ..database.output_markers import fingerprint
 from ..database.poses import format_poses_csv
@@ -73,6 +74,7 @@ class ExifPoses:
     # every image's attitude is a stabilised gimbal's absolute angles (DJI XMP Gimbal*Degree): its tilt off the
     # vertical is what the gimbal holds, so a refinement may not tilt the cameras far from it
     gimbal_attitudes: bool = False
+    orientations: list[int | None] | None = None  # (N,) EXIF Orientation tags as read (not applied)
 
 
 def poses_from_images(
@@ -123,7 +125,7 @@ def poses_from_images(
         raise InputError("image has GPS latitude/longitude but no GPSAltitude", metas[int(no_height[0])].path)
     sizes = Counter((m.width, m.height) for m in metas)
     if len(sizes) > 1:
-        (w0, h0), _ = sizes.most_common(1)[0]
+        (w0, h0), top = sizes.most_common(1)[0]
         odd = next(m for m in metas if (m.width, m.height) != (w0, h0))
         counts = ", ".join(f"{c} {w}x{h}" for (w, h), c in sizes.most_common())
         if len(sizes) == 2 and (odd.width, odd.height) == (h0, w0):
@@ -131,6 +133,15 @@ def poses_from_images(
                       "which would distort them)")
         else:
             advice = "map each camera's (or size's) images on their own, or bring them to one size"
+        tied = [size for size, c in sizes.items() if c == top]
+        if len(tied) > 1:
+            # no size is the odd one: naming one image of either would call a full frame the odd one out (nu53:
+            # 40 frames and their 40 thumbnails, a full-size frame named), so each group is named by an example
+            example = {size: next(m.path.name for m in metas if (m.width, m.height) == size) for size in tied}
+            groups = "; ".join(f"{top} {w}x{h}, e.g. {example[(w, h)]}" for w, h in tied)
+            raise InputError(f"the folder's images are of {len(sizes)} sizes, as many of each ({groups}"
+                             + (f"; and {counts} in all" if len(sizes) > len(tied) else "")
+                             + f"): one camera per session; {advice}", odd.path.parent)
         raise InputError(f"image is {odd.width}x{odd.height}; the folder's images are of {len(sizes)} sizes "
                          f"({counts}): one camera per session; {advice}", odd.path)
     focals = [c.fx for c in priors.cameras]
@@ -169,7 +180,8 @@ def poses_from_images(
                  "give its cameras.txt (`poses-from-exif`, then `map --poses POSES.csv --camera cameras.txt`)")
     poses = Poses(priors.names, priors.rotations, priors.positions)
     return ExifPoses(poses, priors.epsg, camera, priors.summary, ~priors.attitude_from_tags,
-                     [m.capture_time_s for m in metas], bool(np.all(priors.attitude_kind == "gimbal")))
+                     [m.capture_time_s for m in metas], bool(np.all(priors.attitude_kind == "gimbal")),
+                     [m.orientation for m in metas])
 
 
 def run(
@@ -302,6 +314,11 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
                                                        tilt_sigma_deg=(GIMBAL_TILT_SIGMA_DEG if result.gimbal_attitudes
                                                                        else None))
     except (RefinementRejected, ValueError) as error:
+        note = orientation_note(result.orientations) if result.orientations else None
+        if not guessed and note and isinstance(error, RefinementRejected):
+            # pixels stored turned against their tags refuse as implausible turns and tilts (nu53): name the tag
+            head, _, rest = error.problem.partition(": ")
+            raise RefinementRejected(f"{head}: {note}; {rest}", error.path) from None
         if not guessed:
             raise
         _unsolved(result, images, guessed, str(error).split(";")[0])

@@ -13,7 +13,7 @@ from ...database.flight_levels import flight_white_level
 from ...database.images import read_gray
 from ...plugin.fixed_in_frame import FixedInFrame, learn_fixed_in_frame
 from ...plugin.geometry import Poses, rotation_angle_deg
-from .judge import RefinementRejected, RefinementStats, judge_refinement
+from .judge import RefinementRejected, RefinementStats, judge_refinement, pose_changes
 from .with_colmap import point_errors, poses_of_reconstruction, refine_poses_with_colmap
 from .with_priors import refine_poses_with_priors
 
@@ -328,6 +328,15 @@ def refine_poses_from_images(
         stats = replace(stats, position_change_mean_m=0.0, position_change_max_m=0.0, rotation_change_mean_deg=0.0,
                         rotation_change_max_deg=0.0, position_change_median_m=0.0,
                         tilt_change_median_deg=0.0)
+    # cameras a handful of tie points turned far from their priors: one wrong tie point decides such a turn (nu53:
+    # lossless PNG copies, 154 and 75 deg on 3-4 observations, written and mapped), so they keep the pose they
+    # started from, as cameras without any tie point do (the ninth sweep: two DJI frames of 3 observations 23-26
+    # deg off their gimbal tags, which agree with SfM within 2 deg); well-held cameras turn far too where the
+    # priors are poor, and rightly (Seneca's telemetry: 59 of 167 beyond 15 deg, after it 1-5 deg from SfM)
+    turned = turned_images(poses, refined, attitude_sigma_deg, observations_by_image(tie, len(poses)))
+    if turned:
+        refined = kept_starting_poses(poses, refined, [n for n, _ in turned])
+        stats = replace(stats, **pose_changes(poses.rotations, poses.centers, refined.rotations, refined.centers))
     explained, observed = explained_by_image(tie, refined, camera, 2.0 * pixel_sigma_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         per_image = np.where(observed > 0, explained / np.maximum(observed, 1), np.nan)
@@ -345,16 +354,12 @@ def refine_poses_from_images(
         warnings.append(f"{len(blind)} of {len(poses)} images share no tie point with the others "
                         f"({', '.join(blind[:4])}{', ...' if len(blind) > 4 else ''}): their poses are the priors, "
                         "unrefined")
-    turned = turned_images(poses, refined, attitude_sigma_deg, stats.observations_by_image)
     if turned and (accept_implausible or not errors):  # a rejected refinement: its rejection says more
-        # the mean turn (judge_refinement) hid cameras that a handful of tie points turned away from their priors
-        # (the ninth sweep: two DJI frames of 3 observations each 23-26 deg off their gimbal tags, which agree
-        # with SfM within 2 deg); well-held cameras turn far too where the priors are poor, and rightly (Seneca's
-        # telemetry: 59 of 167 beyond 15 deg, after it 1-5 deg from SfM)
-        warnings.append(f"{len(turned)} of {len(poses)} cameras turned more than 3 x the {attitude_sigma_deg:g} deg "
-                        f"attitude prior on fewer than {WEAK_OBSERVATIONS} tie-point observations (one wrong tie "
-                        "point decides): " + ", ".join(f"{n} {d:.0f} deg" for n, d in turned[:5])
-                        + (", ..." if len(turned) > 5 else "") + "; their orientations are doubtful")
+        warnings.append(f"{len(turned)} of {len(poses)} cameras were turned more than 3 x the "
+                        f"{attitude_sigma_deg:g} deg attitude prior by fewer than {WEAK_OBSERVATIONS} tie-point "
+                        "observations (one wrong tie point decides): " + ", ".join(f"{n} {d:.0f} deg" for n, d in
+                                                                                  turned[:5])
+                        + (", ..." if len(turned) > 5 else "") + "; their poses are the priors, unrefined")
     for w in warnings:
         log.warning("pose refinement: %s", w)
     stats = replace(stats, warnings=tuple(warnings))
@@ -385,6 +390,19 @@ def turned_images(before: Poses, after: Poses, attitude_sigma_deg: float,
     return [(before.names[i], float(turn[i])) for i in odd[np.argsort(-turn[odd], kind="stable")]]
 
 
+def kept_starting_poses(start: Poses, refined: Poses, names: list[str]) -> Poses:
+    """`refined` (same names and order as `start`) with the images `names` back at their poses in `start`."""
+    keep = np.isin(np.asarray(start.names, dtype=object), list(names))
+    return Poses(list(refined.names), np.where(keep[:, None, None], start.rotations, refined.rotations),
+                 np.where(keep[:, None], start.centers, refined.centers))
+
+
+def observations_by_image(tie: TiePoints, count: int) -> np.ndarray:
+    """Per image (0 .. `count`-1): how many tie-point observations it has."""
+    return np.bincount(tie.image_of()[np.concatenate(tie.tracks)] if tie.tracks else np.zeros(0, np.int64),
+                       minlength=count)
+
+
 def explained_by_image(tie: TiePoints, poses: Poses, camera: object, max_px: float) -> tuple[np.ndarray, np.ndarray]:
     """Per image: how many of its tie-point observations `poses` explain, and how many it has. Every track is
     triangulated with these poses (`reconstruction_of_tie_points`) and an observation is explained when it
@@ -396,5 +414,4 @@ def explained_by_image(tie: TiePoints, poses: Poses, camera: object, max_px: flo
         for image_id, _, err in point_errors(rec, point):
             if err <= max_px:
                 explained[image_id - 1] += 1
-    return explained, np.bincount(tie.image_of()[np.concatenate(tie.tracks)] if tie.tracks else
-                                  np.zeros(0, np.int64), minlength=len(poses))
+    return explained, observations_by_image(tie, len(poses))

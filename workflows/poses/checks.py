@@ -189,6 +189,9 @@ def focal_length_warnings(estimates: list[FocalEstimate], exif_cameras: dict[int
             continue
         _, source = exif_cameras[est.camera_id]
         f = cameras[est.camera_id].fx
+        if est.exif_unchecked:
+            out.append(_exif_unchecked_warning(est, source, f, height_m))
+            continue
         if est.exif_set_aside:
             out.append(_exif_set_aside_warning(est, source, f, height_m))
             continue
@@ -217,10 +220,7 @@ def _exif_set_aside_warning(est: FocalEstimate, source: str, f: float, height_m:
     """The warning for a camera whose EXIF focal length the images contradict so far that it was set aside
     (`FocalEstimate.exif_set_aside`): EXIF's value named as wrong, with the likely cause and what it would have
     done to the heights."""
-    change = est.exif_px / f - 1.0
-    where = "low" if change > 0 else "high"  # a longer focal length puts the ground farther: lower
-    at = (f"about {abs(change) * height_m:.1f} m too {where} at the cameras' {height_m:.0f} m above them"
-          if height_m else f"too {where} by {100 * abs(change):.1f} % of the cameras' height above them")
+    at = _height_error(est.exif_px / f - 1.0, height_m)
     return (f"camera {est.camera_id}: EXIF's focal length ({est.exif_px:.1f} px from {source or 'EXIF'}, known to "
             f"+-{100 * est.exif_sigma_px / est.exif_px:.1f} %) does not describe these images: they measure "
             f"{est.images_px:.1f} px +-{100 * est.images_sigma_px / est.images_px:.1f} % "
@@ -228,6 +228,29 @@ def _exif_set_aside_warning(est: FocalEstimate, source: str, f: float, height_m:
             f"together apart, so the images' {f:.1f} px was used; the files were probably resized or cropped after "
             f"capture (or the tag is another lens's or zoom setting's): with EXIF's value the landmarks would lie "
             f"{at}")
+
+
+def _height_error(change: float, height_m: float | None) -> str:
+    """Where the landmarks lie when the focal length used is `change` (relative) longer than the true one: a
+    longer focal length puts the ground farther, lower (at `height_m` of the cameras above it, when known)."""
+    where = "low" if change > 0 else "high"
+    return (f"about {abs(change) * height_m:.1f} m too {where} at the cameras' {height_m:.0f} m above them"
+            if height_m else f"too {where} by {100 * abs(change):.1f} % of the cameras' height above them")
+
+
+def _exif_unchecked_warning(est: FocalEstimate, source: str, f: float, height_m: float | None) -> str:
+    """The warning for a camera of too few images to check its EXIF focal length (`FocalEstimate.exif_unchecked`)
+    whose images' optimum lies far from it: EXIF's value was used, and the images' value is named with what it
+    would mean for the heights, without calling either wrong (how well a few images know f cannot be measured:
+    nu53, 3 frames whose curvature claimed +-1.2 % for a value 13 % off EXIF's right one)."""
+    from .focal import MIN_BLOCK_IMAGES, MIN_JACKKNIFE_BLOCKS
+
+    return (f"camera {est.camera_id}: not enough images of this camera to check its EXIF focal length (fewer "
+            f"than {MIN_BLOCK_IMAGES * MIN_JACKKNIFE_BLOCKS} registered, too few to measure how well they know it), "
+            f"so EXIF's {f:.1f} px ({source or 'EXIF'}) was used; the images alone put it at "
+            f"{est.images_px:.1f} px ({100 * (est.images_px / est.exif_px - 1.0):+.1f} %): if theirs is right "
+            f"(files resized or cropped after capture without their EXIF, another lens's tag), this camera's "
+            f"landmarks lie {_height_error(f / est.images_px - 1.0, height_m)}")
 
 
 def cropped_frames(cameras: Sequence[Camera]) -> list[str]:

@@ -42,6 +42,17 @@ APPLY_SIGMAS = 0.5
 JACKKNIFE_BLOCKS = 6
 # The fewest images of a block: with fewer, a block is not a stretch of flight whose correlated errors could show
 MIN_BLOCK_IMAGES = 3
+# The fewest blocks a scatter is measured over. A camera of fewer images than this many blocks has no honest
+# sigma for its focal length (the curvature's understates it several times), so its EXIF value is held and
+# only checked loosely (rev23: 8 images, EXIF 250 px against the images' 225 +- 2 px: then 250 taken and nothing
+# said, now said; nu53: 3 and 1 images whose curvature's +-1.2 % and +-32 % set EXIF's right value aside)
+MIN_JACKKNIFE_BLOCKS = 3
+
+
+def jackknife_blocks(images: int) -> int:
+    """The contiguous stretches a camera of `images` registered images is split into for the jackknife of its
+    focal length (`JACKKNIFE_BLOCKS`, fewer where a stretch would hold fewer than `MIN_BLOCK_IMAGES`)."""
+    return min(JACKKNIFE_BLOCKS, int(images) // MIN_BLOCK_IMAGES)
 
 
 def weigh_focal_lengths(rec: Any, exif_cameras: dict[int, tuple[Camera, str]], anchor_sigma_m: float,
@@ -52,7 +63,8 @@ def weigh_focal_lengths(rec: Any, exif_cameras: dict[int, tuple[Camera, str]], a
     value; and, unless the images' optimum lies so near the EXIF value that no sigma of theirs could move the
     block, the larger of that and the jackknife over `JACKKNIFE_BLOCKS` contiguous stretches of the flight in
     `order`, the image names in capture order, by name when None), combined with the EXIF one
-    (`combine_focal`, its uncertainty from `exif_focal_uncertainty`). Where
+    (`combine_focal`, its uncertainty from `exif_focal_uncertainty`); a camera of too few images for that
+    jackknife (`MIN_JACKKNIFE_BLOCKS`) holds the EXIF value (`FocalEstimate.exif_unchecked`). Where
     the EXIF prior pulls the combination away from the images' optimum (by more than `APPLY_SIGMAS` of its
     sigma), `rec` is adjusted again with it held (changed in place; the second value says whether it was).
     The camera centres are tied to where they are by Gaussian priors of `anchor_sigma_m` (the gauge: the block
@@ -74,15 +86,29 @@ def weigh_focal_lengths(rec: Any, exif_cameras: dict[int, tuple[Camera, str]], a
         chi2 = (sse_held - sse_free) / variance if variance > 0 else float("nan")
         exif_rel = exif_focal_uncertainty(exif, source)
         blocks_sigma, blocks = math.nan, 0
+        n_images = sum(1 for im in free.images.values() if im.has_pose and im.camera_id == k)
+        checkable = jackknife_blocks(n_images) >= MIN_JACKKNIFE_BLOCKS
         # the pull can exceed APPLY_SIGMAS of the taken sigma only where the images' optimum lies beyond that
         # many of EXIF's own sigmas from it (the limit as the images' sigma grows): nearer, the jackknife could
         # not change the block and is not run (B_nar60, H_high: 27-60 s of CPU saved)
         if abs(f_free - exif.fx) > APPLY_SIGMAS * exif_rel * exif.fx and math.isfinite(sigma):
-            blocks_sigma, blocks = _blocks_focal_sigma(free, k, order, anchor_sigma_m)
-        est = combine_focal(k, exif.fx, exif_rel, f_free, sigma, chi2, blocks_sigma, blocks)
-        if abs(est.taken_px - est.images_px) > APPLY_SIGMAS * est.taken_sigma_px:
-            _adjusted_misfit(rec, k, est.taken_px, anchor_sigma_m)
+            if checkable:
+                blocks_sigma, blocks = _blocks_focal_sigma(free, k, order, anchor_sigma_m)
+            else:
+                log.info("camera %d: %d images, too few for a jackknife over stretches of the flight: how well "
+                         "they know the focal length is unknown, EXIF's %.1f px held (the images alone %.1f)",
+                         k, n_images, exif.fx, f_free)
+        est = combine_focal(k, exif.fx, exif_rel, f_free, sigma, chi2, blocks_sigma, blocks, checkable)
+        adjusted = abs(est.taken_px - est.images_px) > APPLY_SIGMAS * est.taken_sigma_px
+        if adjusted:
+            # a few images held at an EXIF value far from their own optimum must move in depth (their distance
+            # to the ground traded against f: nu53's one 12000 px frame 45 m low at 2299 px for EXIF's 8326);
+            # tied to where SfM put them they tilted the whole block 4 deg instead. The other cameras' images
+            # keep the gauge; a camera that is the whole block keeps its ties.
+            loose = est.exif_unchecked and any(im.has_pose and im.camera_id != k for im in rec.images.values())
+            _adjusted_misfit(rec, k, est.taken_px, anchor_sigma_m, untied=loose)
             changed = True
+        if adjusted and not est.exif_unchecked:  # said above, and in the warning
             log.info("camera %d: the images know the focal length to +-%.1f %% (the misfit's curvature: +-%.1f %%, "
                      "holding the EXIF one costs chi-square %.1f): %.1f px taken (EXIF %.1f, images alone %.1f)",
                      k, 100 * est.images_sigma_px / exif.fx if math.isfinite(est.images_sigma_px) else math.inf,
@@ -97,17 +123,12 @@ def _blocks_focal_sigma(free: Any, camera_id: int, order: Sequence[str] | None,
     """The jackknife's sigma (px) of camera `camera_id`'s free focal length over contiguous stretches of the
     flight, and their number: `free` (adjusted with f free; not changed) adjusted again with each stretch's
     images left out (their frames deregistered: points seen by fewer than two others go with them). NaN (not run)
-    where the flight is too short for three stretches of `MIN_BLOCK_IMAGES`."""
+    where the flight is too short for `MIN_JACKKNIFE_BLOCKS` stretches of `MIN_BLOCK_IMAGES`."""
     images = [im for im in free.images.values() if im.has_pose and im.camera_id == camera_id]
     rank = {n: i for i, n in enumerate(order)} if order is not None else {}
     images.sort(key=lambda im: (rank.get(im.name, len(rank)), im.name))
-    count = min(JACKKNIFE_BLOCKS, len(images) // MIN_BLOCK_IMAGES)
-    if count < 3:
-        # too short a flight for a scatter of stretches: not run (NaN), so the curvature's sigma stands; an
-        # infinite one would throw away what the images know of f and silence the warning where EXIF is wrong
-        # (rev23: 8 images, EXIF 250 px against the images' 225 +- 2: 250 taken, nothing said)
-        log.info("camera %d: %d images, too few for a jackknife over stretches of the flight: the focal length's "
-                 "sigma from the misfit's curvature alone", camera_id, len(images))
+    count = jackknife_blocks(len(images))
+    if count < MIN_JACKKNIFE_BLOCKS:
         return math.nan, count
     block = contiguous_blocks(len(images), count)
     values = []
@@ -132,11 +153,12 @@ def exif_focal_priors(priors: ImagePriors) -> dict[int, tuple[Camera, str]]:
     return out
 
 
-def _adjusted_misfit(rec: Any, camera_id: int, focal_px: float | None,
-                     anchor_sigma_m: float) -> tuple[float, float, int, int]:
+def _adjusted_misfit(rec: Any, camera_id: int, focal_px: float | None, anchor_sigma_m: float,
+                     untied: bool = False) -> tuple[float, float, int, int]:
     """Bundle-adjust `rec` in place (poses, points, the camera's distortion; its focal length free when
     `focal_px` is None, else set to it and held; other cameras held), the camera centres tied to their current
-    places; returns (focal length, sum of squared reprojection errors px^2, observations, parameters)."""
+    places (`untied`: but those of camera `camera_id`'s images); returns (focal length, sum of squared
+    reprojection errors px^2, observations, parameters)."""
     import pycolmap
 
     image_ids = sorted(i for i, im in rec.images.items() if im.has_pose)
@@ -152,7 +174,7 @@ def _adjusted_misfit(rec: Any, camera_id: int, focal_px: float | None,
             params[idx] *= focal_px / params[idx[0]]
             camera.params = params
         priors = [position_prior(rec.images[i].projection_center(), anchor_sigma_m, rec.images[i].data_id)
-                  for i in image_ids]
+                  for i in image_ids if not (untied and rec.images[i].camera_id == camera_id)]
         options = pycolmap.BundleAdjustmentOptions()
         options.refine_focal_length = focal_px is None
         options.refine_principal_point = False
