@@ -39,6 +39,7 @@ from ..database.match_notes import no_match_text
 from ..database.output_markers import versioned_identity
 from ..database.outputs import open_output_dir
 from ..plugin import __version__
+from ..plugin.answer_uncertainty import refused_scale_note
 from ..plugin.association import SearchResult, Transform, WindowHypothesis, roll_pitch_yaw_deg
 from ..plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN, SearchMode
 from ..plugin.errors import InputError
@@ -478,6 +479,11 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         warn(_tilt_warning(ans, a, b))
         if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
             warn(f"{b}: {ans.uncertainty.warning()}; merge and changes inherit that error")
+        ver = ans.verification
+        if not ans.accepted and ver is not None and ver.best is not None:
+            # a refusal that a scale explains says so: a rigid search of two domed SfM maps was refused bare (nu54)
+            note = refused_scale_note(la.positions, lb.positions, ver.best.transform, ver.best.associations)
+            warn(None if note is None else f"{b}: {note}")
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
