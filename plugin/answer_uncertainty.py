@@ -209,6 +209,28 @@ def scale_check(placed_b: np.ndarray, partners_a: np.ndarray) -> tuple[float, fl
     return float(similar.scale), sd, float(f_dist.sf(max(rss_r - rss_s, 0.0) / (rss_s / dof), 1, dof))
 
 
+def refused_scale_note(points_a: np.ndarray, points_b: np.ndarray, transform: Any,
+                       associations: np.ndarray) -> str | None:
+    """What a refused verification's best candidate says of the maps' scales: its pairs (`associations`, (K, 2)
+    index pairs A, B, as `transform`, A_from_B, placed them) tested for a scale beyond the candidate's own
+    (`scale_check`); the sentence when it is significant (p <= SCALE_FALSE_ALARM), else None. Two maps whose
+    poses SfM computed from small images can each be domed, scaled by a few % about their centres (BENCHMARKS.md
+    "Two SfM maps of one place refused": 4 % between nu54's two flights); a rigid search at their tight derived
+    gate then finds too few pairs to verify, and the refusal alone did not say that a similarity would (nu54 M14)."""
+    pairs = np.asarray(associations, np.int64).reshape(-1, 2)
+    if len(pairs) == 0:
+        return None
+    pa = np.asarray(points_a, np.float64).reshape(-1, 3)
+    placed = transform.apply(np.asarray(points_b, np.float64).reshape(-1, 3)[pairs[:, 1]])
+    ratio, ratio_sd, scale_p = scale_check(placed, pa[pairs[:, 0]])
+    if scale_p > SCALE_FALSE_ALARM:
+        return None
+    return (f"the best candidate's {len(pairs)} pairs fit x {ratio:.4f} +- {ratio_sd:.2g} of its scale (p "
+            f"{scale_p:.1g}): the maps' scales disagree, which the search's gate does not absorb (maps from SfM on "
+            "small images can be domed, README \"Poses from a folder of photos\"); match with --set "
+            "association.transform=similarity, or check the poses' scale")
+
+
 def height_flip(placed_z: np.ndarray, partner_z: np.ndarray) -> tuple[float, float]:
     """Are two maps' heights upside down? (Spearman's rank r of B's placed heights against their partners' in A,
     the one-sided p of a negative r, by the t approximation). Same-way heights correlate positively (crowns,

@@ -17,6 +17,7 @@ from ...database.map_loading import load_map, size_definition_disagreement
 from ...database.match_io import parse_match
 from ...database.output_markers import versioned_identity
 from ...database.outputs import open_output_dir
+from ...plugin.answer_uncertainty import refused_scale_note
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
 from ...plugin.map_noise import derived_search_params
@@ -109,6 +110,11 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         warn(_tilt_warning(ans, a, b))
         if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
             warn(f"{b}: {ans.uncertainty.warning()}; merge and changes inherit that error")
+        ver = ans.verification
+        if not ans.accepted and ver is not None and ver.best is not None:
+            # a refusal that a scale explains says so: a rigid search of two domed SfM maps was refused bare (nu54)
+            note = refused_scale_note(la.positions, lb.positions, ver.best.transform, ver.best.associations)
+            warn(None if note is None else f"{b}: {note}")
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
