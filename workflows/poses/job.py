@@ -368,7 +368,7 @@ class PosesFromImages:
         work = out.staging / "poses_work"
         result = compute_poses(image_dir, work, self.params, self.identity(), self.telemetry,
                                self.takeoff_altitude_m, self.sensor_width_mm, self.nominal_height_m, priors,
-                               renew_other_versions)
+                               renew_other_versions=renew_other_versions)
         staged = out.staging / "poses"
         shutil.rmtree(staged, ignore_errors=True)
         shutil.copytree(result.out_dir, staged)  # the work copy stays for a resumed run until the map is done
