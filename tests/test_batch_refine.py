@@ -26,16 +26,33 @@ def off_consensus_task(session_a: str, session_b: str, pair_dir: str, params: ob
     return batch.summarise_match(toy_match_json(a, b, Path(pair_dir) / "match.json", transform=off.compose(truth)))
 
 
-def test_a_refined_pair_has_one_transform_in_graph_merge_changes_and_report(tmp_path):
+def window_consensus_task(session_a: str, session_b: str, pair_dir: str, params: object = None) -> dict:
+    """`off_consensus_task` whose answer pairs only 12 of the landmarks the maps share, as a window consensus does."""
+    off_consensus_task(session_a, session_b, pair_dir)
+    path = Path(pair_dir) / "match.json"
+    doc = json.loads(path.read_text())
+    doc["hypotheses"][0]["associations"] = doc["hypotheses"][0]["associations"][:12]
+    path.write_text(json.dumps(doc) + "\n")
+    return batch.summarise_match(path)
+
+
+def refined_batch(tmp_path: Path, pair_fn=off_consensus_task) -> tuple[batch.BatchReport, dict[str, Sim3]]:
+    """Two toy flights B, C batched with `--no-verify --refine` by `pair_fn` into tmp_path/out; the report and
+    each session's session_from_world."""
     world = make_world(400, extent_m=300, seed=5)
     boxes = {"B": ((20, 140, 20, 140), Sim3.identity()), "C": ((80, 200, 60, 180), turned(-60, (-30, 25, -2)))}
     truth = {}
     for k, (name, (box, tf)) in enumerate(boxes.items()):
         truth[name] = write_toy_session(tmp_path / "fl" / name, world, lawnmower(*box, 60, 35, 10), tf,
                                         seed=10 + k).session_from_world
-    out = tmp_path / "out"
-    report = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=off_consensus_task,
+    report = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0), pair_fn=pair_fn,
                        options=batch.BatchOptions(progress=False, verify=False, refine=True))
+    return report, truth
+
+
+def test_a_refined_pair_has_one_transform_in_graph_merge_changes_and_report(tmp_path):
+    report, truth = refined_batch(tmp_path)
+    out = tmp_path / "out"
     rec = {p["pair"]: p for p in report.pairs}["B__C"]
     assert rec["accepted"] and rec["in_graph"] and rec["refine"]["associations_used"] > 20
     pair = Sim3.from_dict(rec["transform"])
@@ -54,3 +71,20 @@ def test_a_refined_pair_has_one_transform_in_graph_merge_changes_and_report(tmp_
     assert merged["reference_from_session"] == [ref_from[n].to_dict() for n in group["members"]]
     changes = json.loads(Path(rec["changes"]).read_text())
     assert np.allclose(Sim3.from_dict(changes["a_from_b"]).matrix(), pair.matrix())
+
+
+def test_a_refined_group_fuses_what_merge_refine_fuses(tmp_path):
+    """rev46 D2: batch's merge of a refined pair fused the match's own associations under the refined transform
+    (9 where `merge --refine` of the same maps and match fused 18): it fuses the refined transform's pairs, and
+    merge.json records the refinement, as merge's does."""
+    report, _ = refined_batch(tmp_path, window_consensus_task)
+    rec = {p["pair"]: p for p in report.pairs}["B__C"]
+    group = report.groups[0]
+    alone = merge.run(tmp_path / "fl" / "B", tmp_path / "fl" / "C", rec["match"], tmp_path / "alone", refine=True)
+    assert alone.num_fused > 20
+    assert (group["fused"], group["rejected_associations"]) == (alone.num_fused, alone.num_rejected)
+    merged = json.loads((tmp_path / "out" / "merged" / group["reference"] / "merge.json").read_text())
+    refine = json.loads((tmp_path / "alone" / "merge.json").read_text())["refine"]
+    assert merged["refine"] == [{"pair": ["B", "C"], **rec["refine"]}]
+    assert {k: refine[k] for k in ("associations_used", "dof")} == {k: rec["refine"][k] for k in
+                                                                    ("associations_used", "dof")}

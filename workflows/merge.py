@@ -29,7 +29,6 @@ Output directory (a "merged session", readable by match/merge again):
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import logging
 import time
@@ -193,8 +192,7 @@ def merge_sessions(
     if len(sessions) != len(transforms) or not sessions:
         raise ValueError("need one transform per session and at least one session")
     labels = _labels(sessions, labels)
-    fused = [[p.a, p.b, hashlib.sha256(np.ascontiguousarray(p.associations, dtype="<i8").tobytes()).hexdigest(),
-              p.gate_m, p.z_weight] for p in (FusePair(*q) for q in pairs)]
+    fused = [FusePair(*q).identity() for q in pairs]
     prints = [session_fingerprint(s) for s in sessions]
 
     def identity_of(rec: dict[str, Any] | None) -> str:

@@ -36,6 +36,11 @@ class FusePair(NamedTuple):
     gate_m: float | None = None
     z_weight: float = 1.0
 
+    def identity(self) -> list[Any]:
+        """The pair as a merge's identity holds it: its sessions, its associations by their digest, its gate."""
+        digest = hashlib.sha256(np.ascontiguousarray(self.associations, dtype="<i8").tobytes()).hexdigest()
+        return [self.a, self.b, digest, self.gate_m, self.z_weight]
+
 
 def match_fuse_pair(a: int, b: int, match: Any) -> FusePair:
     """The FusePair of a match's answer (a `database.match_io.MatchSummary`) between sessions a and b."""

@@ -33,6 +33,11 @@ class Refinement:
     # fused 11 where the refinement found 27, and left 6 pairs of one object twice in the model
     fuse: FusePair | None = None
 
+    def record(self) -> dict[str, Any]:
+        """What the fit used, as batch records it (the pair's `refine`, merge.json's `refine` of a batch's group):
+        the supporting pairs, the degrees of freedom, and why the answer was kept, if it was."""
+        return {"associations_used": self.used, "dof": self.dof, **({"kept": self.note} if self.note else {})}
+
 
 def refined_answer(a: LandmarkMap, b: LandmarkMap, match: MatchSummary, params: Params) -> Refinement:
     """`merge --refine` and `batch --refine`: the match's answer a_from_b refined on every landmark the two maps

@@ -24,6 +24,7 @@ from .state import StateStore, fingerprint, run_stage
 from .tasks import alignment_task, merge_task
 
 if TYPE_CHECKING:
+    from ..merge_refine import Refinement
     from .workflow import BatchOptions
 
 log = logging.getLogger(__name__)
@@ -125,7 +126,7 @@ def _graph_and_merge(
     options: BatchOptions, params: Params, out_dir: Path, renewed: Collection[str] = (),
 ) -> list[dict[str, Any]]:
     index = {n: i for i, n in enumerate(names)}
-    sims = {}
+    sims, refined = {}, {}
     for key, rec in pairs.items():
         if rec["status"] != "done" or not rec["accepted"] or rec["transform"] is None:
             continue
@@ -134,7 +135,7 @@ def _graph_and_merge(
         a, b = key.split(PAIR_SEP)
         rec.pop("refine", None)
         if options.refine and rec.get("answer") != "verified":
-            _refine_pair(rec, sessions[a]["session"], sessions[b]["session"], matches[key], params)
+            refined[key] = _refine_pair(rec, sessions[a]["session"], sessions[b]["session"], matches[key], params)
         sims[key] = Sim3.from_dict(rec["transform"])
     _control_alignments(sims, sessions, pairs, matches, pair_fps, state, executor, options, params, out_dir, renewed)
     edges, edge_keys = [], {}
@@ -190,6 +191,12 @@ def _graph_and_merge(
         key = names[ref]
         group_fp = {"members": [names[m] for m in order], "transforms": [ref_from[m].to_dict() for m in order],
                     "eps": params.association.distance_tolerance_m}  # contents: in the pair fps
+        # --refine: each refined tree edge's fused pairs (rev46 D2: until then a refined group fused the match's own
+        # associations, 9 where merge --refine fused 18); a group with one has another fingerprint than the same
+        # group merged before, so an earlier batch's merge of it is made again; a group without one keeps its own
+        edge_refines = [refined.get(edge_keys[(e.a, e.b)]) for e in tree]
+        if any(r is not None for r in edge_refines):
+            group_fp["refine"] = [None if r is None else _refine_print(r) for r in edge_refines]
         merge_fps[key] = each_version(lambda *prints, g=group_fp: fingerprint({**g, "pairs": list(prints)}),
                                       *[pair_fps[edge_keys[(e.a, e.b)]] for e in tree])
         merge_tasks[key] = (
@@ -199,6 +206,7 @@ def _graph_and_merge(
             # added, removed or changed it is remade, as everything else that changed (a changed setting is
             # refused before any work by the batch's own identity unless --overwrite)
             params.association.distance_tolerance_m, True, [matches[edge_keys[(e.a, e.b)]] for e in tree],
+            edge_refines,
         )
     # a group with a session mapped again by this version (`batch.workflow._kept_session`) is merged again
     remerge = {key for key, task in merge_tasks.items() if set(task[1]) & set(renewed)}
@@ -276,14 +284,22 @@ def _after_pair_fingerprints(pair: list[str | None], transform: dict[str, Any], 
         pair, build_versions(lambda as_dict: as_dict(params.changes)))
 
 
-def _refine_pair(rec: dict[str, Any], session_a: str, session_b: str, m: MatchSummary, params: Params) -> None:
+def _refine_pair(rec: dict[str, Any], session_a: str, session_b: str, m: MatchSummary,
+                 params: Params) -> Refinement:
     """`--refine`: the pair's unverified answer refined on the full maps as `sosmatch merge --refine` refines it
     (`merge_refine.refined_answer`), into the pair's record: its `transform` is then the refined one, which the
     graph, the control, the merge, the changes and the report all read (rev33: the graph and the merge used a
-    refit, the changes and the report the consensus, 0.5 m apart), and `refine` says what the fit used."""
+    refit, the changes and the report the consensus, 0.5 m apart), and `refine` says what the fit used. Returns
+    the refinement, whose pairs (`Refinement.fuse`) the group's merge fuses, as merge --refine does."""
     from ...database.session_io import read_session
     from ..merge_refine import refined_answer
 
     got = refined_answer(read_session(session_a).landmarks, read_session(session_b).landmarks, m, params)
-    rec["refine"] = {"associations_used": got.used, "dof": got.dof, **({"kept": got.note} if got.note else {})}
+    rec["refine"] = got.record()
     rec["transform"] = got.transform.to_dict()
+    return got
+
+
+def _refine_print(r: Refinement) -> dict[str, Any]:
+    """A refined tree edge in its group's merge fingerprint: what the fit used and the pairs it fuses."""
+    return {**r.record(), "fuse": None if r.fuse is None else r.fuse.identity()}

@@ -15,6 +15,7 @@ from .discovery import images_dir
 
 if TYPE_CHECKING:
     from ...database.match_io import MatchSummary
+    from ..merge_refine import Refinement
 
 log = logging.getLogger(__name__)
 
@@ -148,10 +149,14 @@ def merge_task(
     max_fuse_distance_m: float,
     overwrite: bool = False,
     matches: list[MatchSummary] | None = None,
+    refinements: list[Refinement | None] | None = None,
 ) -> dict[str, Any]:
     """Merge one connected group: sessions in the reference frame, landmarks fused along the tree edges
     (a, b, match.json path); writes out_dir (see `sosmatch.workflows.merge`). `matches`: each edge's match.json
-    as `match_io.read_match` parsed it (batch reads each pair's once; None: read here)."""
+    as `match_io.read_match` parsed it (batch reads each pair's once; None: read here). `refinements`: each
+    edge's `merge_refine.refined_answer` under `batch --refine` (None: not refined): a refined edge fuses the pairs
+    its refined transform supports (`Refinement.fuse`), as `sosmatch merge --refine` does, and merge.json's
+    `refine` records each refined edge's fit."""
     from ...database.match_io import check_match_maps, read_match
     from ...database.match_notes import georeference_note
     from ...database.session_io import read_session
@@ -160,17 +165,23 @@ def merge_task(
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3.from_dict(t) for t in transforms]
-    pairs, warnings = [], []
+    pairs, warnings, refined = [], [], []
     # the pair's match must be about these two sessions; its answer fused at its own gate
     for k, (a, b, m) in enumerate(edges):
         match_json = Path(m)
         match = matches[k] if matches is not None else read_match(match_json)
         check_match_maps(match, sessions[a].landmarks, sessions[b].landmarks, match_json, names=(labels[a], labels[b]))
-        pairs.append(match_fuse_pair(a, b, match))
+        r = refinements[k] if refinements is not None else None
+        # refined: the pairs the refined transform supports (rev46 D2: the match's own fused 9 where merge --refine
+        # fused 18 of the same maps); kept (`Refinement.note`): the answer's own
+        pairs.append(match_fuse_pair(a, b, match) if r is None or r.fuse is None else r.fuse._replace(a=a, b=b))
+        if r is not None:
+            refined.append({"pair": [labels[a], labels[b]], **r.record()})
         if (note := georeference_note(match)) is not None:  # the merged model inherits it (merge.json)
             warnings.append(f"{labels[b]}: {note}")
     res = merge_sessions(sessions, sims, pairs, out_dir, labels=labels, max_fuse_distance_m=max_fuse_distance_m,
-                         record={"tree_edges": [[labels[a], labels[b], m] for a, b, m in edges]},
+                         record={"tree_edges": [[labels[a], labels[b], m] for a, b, m in edges],
+                                 **({"refine": refined} if refined else {})},
                          inputs=[m for _, _, m in edges], overwrite=overwrite, warnings=warnings)
     return {
         "merged": out_dir, "images": res.num_images, "points3D": res.num_points3d,
