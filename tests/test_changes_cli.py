@@ -515,7 +515,13 @@ def test_a_merged_model_is_refused(toy, tmp_path, cli_error):
     match = toy_match_json(a, b, tmp_path / "MB" / "match.json")
     out = tmp_path / "C"
     err = cli_error("changes", tmp_path / "M", root / "B", "--match", match, "--out", out)
-    assert f"{tmp_path / 'M'}: a merged model (merge.json)" in err and not out.exists()
+    assert f"{tmp_path / 'M'}: a merged model (`sosmatch merge`'s output)" in err and not out.exists()
+    # rev46 D4: one that lost its merge.json is refused alike, without naming the file it does not have
+    shutil.copytree(tmp_path / "M", tmp_path / "Mx")
+    (tmp_path / "Mx" / "merge.json").unlink()
+    err = cli_error("changes", tmp_path / "Mx", root / "B", "--match", match, "--out", out)
+    assert f"{tmp_path / 'Mx'}: a merged model (`sosmatch merge`'s output)" in err and "merge.json" not in err, err
+    assert not out.exists()
 
 
 def test_the_alignment_control_runs_at_the_match_s_gate_as_merge_runs_it(toy, tmp_path):

@@ -130,9 +130,10 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         if files.is_merged:
             # the evidence of change is each flight's own images and segments, which a merged model keeps
             # neither of (the eleventh sweep: a season map against one of its flights' neighbours claimed 79
-            # objects gone on 7.7 ha, 6 of them near any object, at confidence 0.98, exit 0)
-            raise InputError("a merged model (merge.json): change detection compares two flights by their own "
-                             "images and segments; give the mapped session of a flight", files.path)
+            # objects gone on 7.7 ha, 6 of them near any object, at confidence 0.98, exit 0); known by its output
+            # marker, so named for a folder that has lost its merge.json too (rev46 D4)
+            raise InputError("a merged model (`sosmatch merge`'s output): change detection compares two flights by "
+                             "their own images and segments; give the mapped session of a flight", files.path)
     prints = check_two_maps(session_a, session_b, files_a.landmarks, files_b.landmarks)
     for files in (files_a, files_b):
         if not len(files.landmarks):
