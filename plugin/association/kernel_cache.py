@@ -31,7 +31,8 @@ The same listener times those spans (`kernel_seconds`): `search_clock()` is the 
 while the process compiles or loads a kernel (or waits for another process compiling one), so that a search's
 timings (match.json `search_seconds`) hold the search and not the one-off compile of a fresh install (minutes of
 CPU: a first match recorded 151 s for a search of 0.9 s, nu54); the match records that time apart
-(`kernel_compile_s`).
+(`kernel_compile_s`). Both are per process, not per thread: see `search_clock` for what that means for searches
+that run concurrently as threads of one process.
 """
 
 from __future__ import annotations
@@ -345,13 +346,27 @@ def refresh(package_dir: Path = PACKAGE_DIR) -> None:
 
 
 def kernel_seconds() -> float:
-    """Seconds this process has spent compiling or loading numba kernels (any, on any thread; `CompileLock`)."""
+    """Seconds this process has spent compiling or loading numba kernels (any, on any thread; `CompileLock`): per
+    process, as `search_clock` (whose doc says what that means for concurrent searches)."""
     return COMPILE_LOCK.seconds()
 
 
 def search_clock() -> float:
     """A clock (seconds, like `time.perf_counter`) that stands still while this process compiles or loads numba
-    kernels: differences of it time a search without the one-off compile of a fresh install (module doc)."""
+    kernels: differences of it time a search without the one-off compile of a fresh install (module doc).
+
+    The clock is the process's, not the calling thread's (rev46 D3): while any thread of the process is inside
+    numba's compiler lock, it stands still for every thread. Searches that run concurrently as threads of one
+    process (batch on a Dask scheduler whose workers run several threads, `dask worker --nthreads N`) then
+    undercount: a search that compiles nothing loses the time another thread compiles (3 s of work timed 2.1 s while
+    another thread compiled three kernels), and its `kernel_compile_s` (`kernel_seconds`) holds that thread's
+    compile. Processes (batch's LocalExecutor, `--dask-local`: one thread per worker) are not affected, nor is one
+    search, one process (`match`, `evaluate`). Kept per process because a search's own compiles are not all on its
+    thread: the windowed search's thread pool (`windowed_search`, its parallel join) compiles its kernel on a pool
+    thread while the search's thread waits for it, and a per-thread clock would count that compile as search
+    time. A per-thread clock would not be exact either: numba compiles under one process-wide lock, so a thread
+    that needs a kernel while another compiles waits for that compile too (time its search also loses), and a
+    compile holds the GIL that a pure-Python search needs."""
     now = time.perf_counter()
     return now - COMPILE_LOCK.seconds(now)
 
