@@ -362,8 +362,9 @@ def search_clock() -> float:
     another thread compiled three kernels), and its `kernel_compile_s` (`kernel_seconds`) holds that thread's
     compile. Processes (batch's LocalExecutor, `--dask-local`: one thread per worker) are not affected, nor is one
     search, one process (`match`, `evaluate`). Kept per process because a search's own compiles are not all on its
-    thread: the windowed search's thread pool (`windowed_search`, its parallel join) compiles its kernel on a pool
-    thread while the search's thread waits for it, and a per-thread clock would count that compile as search
+    thread: on idle cores the windowed search computes a block's direct window pairs in a thread pool
+    (`windowed_search._direct_in_threads`), whose first call compiles the kernel on a pool thread while the
+    search's thread waits for it, and a per-thread clock would count that compile as search
     time. A per-thread clock would not be exact either: numba compiles under one process-wide lock, so a thread
     that needs a kernel while another compiles waits for that compile too (time its search also loses), and a
     compile holds the GIL that a pure-Python search needs."""
