@@ -36,15 +36,22 @@ def window_consensus_task(session_a: str, session_b: str, pair_dir: str, params:
     return batch.summarise_match(path)
 
 
-def refined_batch(tmp_path: Path, pair_fn=off_consensus_task) -> tuple[batch.BatchReport, dict[str, Sim3]]:
-    """Two toy flights B, C batched with `--no-verify --refine` by `pair_fn` into tmp_path/out; the report and
-    each session's session_from_world."""
+def toy_flights(tmp_path: Path) -> dict[str, Sim3]:
+    """Two toy flights B, C in tmp_path/fl; each session's session_from_world."""
     world = make_world(400, extent_m=300, seed=5)
     boxes = {"B": ((20, 140, 20, 140), Sim3.identity()), "C": ((80, 200, 60, 180), turned(-60, (-30, 25, -2)))}
     truth = {}
     for k, (name, (box, tf)) in enumerate(boxes.items()):
         truth[name] = write_toy_session(tmp_path / "fl" / name, world, lawnmower(*box, 60, 35, 10), tf,
                                         seed=10 + k).session_from_world
+    return truth
+
+
+def refined_batch(tmp_path: Path, pair_fn=off_consensus_task, flights: bool = True
+                  ) -> tuple[batch.BatchReport, dict[str, Sim3]]:
+    """The toy flights (`toy_flights`, unless `flights` is off: already there) batched with `--no-verify --refine`
+    by `pair_fn` into tmp_path/out; the report and each session's session_from_world."""
+    truth = toy_flights(tmp_path) if flights else {}
     report = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0), pair_fn=pair_fn,
                        options=batch.BatchOptions(progress=False, verify=False, refine=True))
     return report, truth
@@ -88,3 +95,22 @@ def test_a_refined_group_fuses_what_merge_refine_fuses(tmp_path):
     assert merged["refine"] == [{"pair": ["B", "C"], **rec["refine"]}]
     assert {k: refine[k] for k in ("associations_used", "dof")} == {k: rec["refine"][k] for k in
                                                                     ("associations_used", "dof")}
+
+
+def test_a_group_an_earlier_sosmatch_merged_from_the_consensus_pairs_is_merged_again(tmp_path, monkeypatch):
+    """A batch --refine of an earlier sosmatch fused a refined pair's consensus associations (rev46 D2): the same
+    batch run again merges its group again, with the refined pairs, instead of resuming the old model."""
+    from sosmatch.workflows.batch import graph
+
+    refine = graph._refine_pair
+    # the earlier sosmatch: the pair refined alike, its refinement's pairs not handed to the merge
+    monkeypatch.setattr(graph, "_refine_pair", lambda *args: refine(*args) and None)
+    before, _ = refined_batch(tmp_path, window_consensus_task)
+    assert before.groups[0]["fused"] == 12
+    monkeypatch.undo()
+    report, _ = refined_batch(tmp_path, window_consensus_task, flights=False)
+    group = report.groups[0]
+    assert not group.get("resumed") and group["fused"] > 20
+    assert "refine" in json.loads((tmp_path / "out" / "merged" / group["reference"] / "merge.json").read_text())
+    again, _ = refined_batch(tmp_path, window_consensus_task, flights=False)  # ... once: then it resumes
+    assert again.groups[0].get("resumed") and again.groups[0]["fused"] == group["fused"]
