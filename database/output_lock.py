@@ -1,4 +1,5 @@
-"""Who holds an output directory's lock, and whether that run is still going.
+"""An output directory's lock: taking and releasing it (`acquire_lock`, `release_lock`), who holds it, and
+whether that run is still going.
 
 A run that takes an output directory flocks `.sosmatch-output.lock` (`database.outputs`) and writes into it a
 record of its process (`lock_record`). The lock file is removed when the run ends, normally or on an error; a
@@ -23,6 +24,7 @@ folder moved while its run writes keeps its inode, and one path may be another m
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import re
@@ -175,3 +177,46 @@ def holder_state(holder: LockHolder | None) -> str:
     if state in ("Z", "X"):  # killed and not yet reaped by its parent: it writes nothing any more
         return "gone"
     return "running" if started == holder.started else "gone"
+
+
+def acquire_lock(lock_path: Path, what: str) -> int:
+    """flock `lock_path` exclusively without waiting; InputError naming the holder if another run has it.
+
+    The lock file is removed when released (`release_lock`); a lock taken on a file that was removed
+    meanwhile is not a lock, so the inode is checked after locking and the attempt repeated."""
+    while True:
+        try:
+            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise InputError(f"cannot write output directory: {exc.strerror or exc}", lock_path.parent) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = (read_lock_holder(lock_path) or LockHolder()).describe()
+            os.close(fd)
+            raise InputError(f"output directory is in use by {holder}; wait for it to finish (or stop it)",
+                             lock_path.parent) from None
+        try:
+            same = os.stat(lock_path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.write(fd, lock_record(what, lock_path.parent).encode())
+    return fd
+
+
+def release_lock(lock_path: Path, fd: int, dir_fd: int | None = None) -> None:
+    """Remove the lock file while still holding it (a waiting run then finds the file gone and retries), then
+    release it. `dir_fd`: the locked directory itself, where the file is looked up (the directory may have been
+    moved: the lock moved with it); only the file this run locked is removed, never another run's."""
+    name = lock_path.name if dir_fd is not None else lock_path
+    try:
+        st = os.stat(name, dir_fd=dir_fd)
+        if (st.st_dev, st.st_ino) == (os.fstat(fd).st_dev, os.fstat(fd).st_ino):
+            os.unlink(name, dir_fd=dir_fd)
+    except OSError:
+        pass
+    os.close(fd)

@@ -37,7 +37,6 @@ What an output directory is to its readers (the marker, `check_finished`, the id
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import os
 import shutil
@@ -56,7 +55,7 @@ from .output_entries import (
     merge_entry_records,
     recorded_entries,
 )
-from .output_lock import LockHolder, lock_record, read_lock_holder
+from .output_lock import acquire_lock, release_lock
 from .output_markers import (
     LOCK,
     MARKER,
@@ -135,49 +134,6 @@ def _previous(path: Path, command: str, legacy_record: str | None) -> PreviousOu
     if marker.get("complete"):
         return PreviousOutput("complete", marker.get("identity"))
     return PreviousOutput("incomplete", marker.get("identity"))
-
-
-def _acquire_lock(lock_path: Path, what: str) -> int:
-    """flock `lock_path` exclusively without waiting; InputError naming the holder if another run has it.
-
-    The lock file is removed when released (`_release_lock`); a lock taken on a file that was removed
-    meanwhile is not a lock, so the inode is checked after locking and the attempt repeated."""
-    while True:
-        try:
-            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise InputError(f"cannot write output directory: {exc.strerror or exc}", lock_path.parent) from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            holder = (read_lock_holder(lock_path) or LockHolder()).describe()
-            os.close(fd)
-            raise InputError(f"output directory is in use by {holder}; wait for it to finish (or stop it)",
-                             lock_path.parent) from None
-        try:
-            same = os.stat(lock_path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)
-    os.ftruncate(fd, 0)
-    os.write(fd, lock_record(what, lock_path.parent).encode())
-    return fd
-
-
-def _release_lock(lock_path: Path, fd: int, dir_fd: int | None = None) -> None:
-    """Remove the lock file while still holding it (a waiting run then finds the file gone and retries), then
-    release it. `dir_fd`: the locked directory itself, where the file is looked up (the directory may have been
-    moved: the lock moved with it); only the file this run locked is removed, never another run's."""
-    name = lock_path.name if dir_fd is not None else lock_path
-    try:
-        st = os.stat(name, dir_fd=dir_fd)
-        if (st.st_dev, st.st_ino) == (os.fstat(fd).st_dev, os.fstat(fd).st_ino):
-            os.unlink(name, dir_fd=dir_fd)
-    except OSError:
-        pass
-    os.close(fd)
 
 
 class OutputDir:
@@ -364,7 +320,7 @@ class OutputDir:
     def close(self) -> None:
         """Release the directory (idempotent)."""
         if self._lock_fd is not None:
-            _release_lock(self.path / LOCK, self._lock_fd, self._place.fd)
+            release_lock(self.path / LOCK, self._lock_fd, self._place.fd)
             self._lock_fd = None
         self._place.release()
 
@@ -445,7 +401,7 @@ def open_output_dir(
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create output directory: {exc.strerror or exc}", path) from None
-    fd = _acquire_lock(path / LOCK, command)
+    fd = acquire_lock(path / LOCK, command)
     out: OutputDir | None = None
     try:
         again = _previous(path, command, legacy_record)  # under the lock: a run that just finished counts
@@ -461,12 +417,12 @@ def open_output_dir(
             clean_stale_temporaries(path / STAGING, recursive=True)
         out._write_marker(complete=out.was_complete)
     except OSError as exc:
-        _release_lock(path / LOCK, fd)
+        release_lock(path / LOCK, fd)
         if out is not None:
             out._place.release()
         raise InputError(f"cannot write output directory: {exc.strerror or exc}", path) from None
     except BaseException:
-        _release_lock(path / LOCK, fd)
+        release_lock(path / LOCK, fd)
         if out is not None:
             out._place.release()
         for d in reversed(created):  # a refused run into a new directory leaves no trace
