@@ -1023,14 +1023,17 @@ def test_a_telemetry_log_joined_one_row_off_is_refused_naming_the_shift(tmp_path
     naming the shift. The same rows joined right, and a log offset by a receiver's bias, are taken."""
     img = tmp_path / "images"
     img.mkdir()
-    n, step_deg = 10, 2e-4  # 15 m steps flying east at 47 N, one capture every 2 s
+    # 15 m steps at 47 N, one capture every 2 s: a line east, then one back west 30 m north (a row shift moves the
+    # positions forward on both lines, a constant offset along one line backward on the other)
+    n, step_deg = 12, 2e-4
+    lat = [47.0 if k < n // 2 else 47.0 + 30.0 / 111_320.0 for k in range(n)]
+    lon = [-99.0 + (k if k < n // 2 else n - 1 - k) * step_deg for k in range(n)]
     for k in range(n):
-        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * step_deg, 500.0,
-                   when=f"2024:05:01 10:00:{2 * k:02d}")
+        write_jpeg(img / f"f{k}.jpg", lat[k], lon[k], 500.0, when=f"2024:05:01 10:00:{2 * k:02d}")
     tele = tmp_path / "telemetry.csv"
 
     def log(shift: int, north_m: float = 0.0) -> None:
-        rows = "".join(f"f{k}.jpg,{47.0 + north_m / 111_320.0!r},{-99.0 + ((k - shift) % n) * step_deg!r},500\n"
+        rows = "".join(f"f{k}.jpg,{lat[(k - shift) % n] + north_m / 111_320.0!r},{lon[(k - shift) % n]!r},500\n"
                        for k in range(n))
         tele.write_text("FileName,GPSLatitude,GPSLongitude,GPSAltitude\n" + rows)
 
@@ -1050,6 +1053,32 @@ def test_a_telemetry_log_joined_one_row_off_is_refused_naming_the_shift(tmp_path
         assert not any("differ by" in w for w in res.summary["warnings"])
     log(0, north_m=20.0)  # 20 m off, no whole number of rows: beyond the 10 m the noise explains, a warning
     said = [w for w in pfe.poses_from_images(img, telemetry=tele).summary["warnings"] if "differ by 20.0 m" in w]
+    assert len(said) == 1 and "beyond the 10 m the GPS noise explains" in said[0]
+
+
+def test_a_correct_log_beside_repeated_fixes_or_a_one_way_offset_is_no_row_shift():
+    """rev47: fixes repeating their predecessor (a 1 Hz receiver under a 2 Hz camera) matched the neighbour's row
+    at every other image, and a correct log was refused as shifted; so was an RTK log one step north of a
+    northbound corridor (a constant offset along a line flown one way is a shift to the positions). A repeated fix
+    is no measurement of its capture, and a shift is said only where lines flown both ways agree on it."""
+    from sosmatch.workflows.image_positions import flown_both_ways, rows_shifted
+
+    rng = np.random.default_rng(3)
+    track = np.column_stack([np.zeros(60), 6.0 * np.arange(60)]) + rng.normal(0.0, 1.0, (60, 2))
+    held = track.copy()
+    held[1::2] = held[0::2]  # each fix written on two images
+    order = np.arange(60)
+    assert rows_shifted(held, track, order)[0] == 0  # the log right beside them: no shift
+    assert rows_shifted(track, np.roll(track, 1, axis=0), order)[0] == -1  # the same log one row off: a shift
+    corridor = np.column_stack([np.zeros(40), 12.0 * np.arange(40)])
+    assert not flown_both_ways(corridor)
+    assert flown_both_ways(np.vstack([corridor, corridor[::-1] + [40.0, 0.0]]))
+    from sosmatch.workflows.image_positions import telemetry_against_exif
+
+    to_ll = np.array([1.0 / 111_320.0, 1.0 / (111_320.0 * np.cos(np.radians(47.0)))])
+    exif_ll = np.array([47.0, -99.0]) + (corridor + rng.normal(0.0, 1.0, corridor.shape))[:, ::-1] * to_ll
+    rtk_ll = np.array([47.0, -99.0]) + (corridor + [0.0, 12.0])[:, ::-1] * to_ll
+    said = telemetry_against_exif("rtk.csv", exif_ll, rtk_ll, np.arange(40.0))  # warned, not refused
     assert len(said) == 1 and "beyond the 10 m the GPS noise explains" in said[0]
 
 

@@ -28,7 +28,7 @@ from ..plugin.gps_track import (
     quantisation,
     repeated_fixes,
 )
-from ..plugin.pose_check.gps import GNSS_WANDER_M, fix_jitter_m, stale_fixes
+from ..plugin.pose_check.gps import GNSS_WANDER_M, fix_jitter_m, fresh_fixes, stale_fixes
 
 log = logging.getLogger(__name__)
 
@@ -237,6 +237,8 @@ ROW_FIT_NOISES = 2.0
 COPIED_FIX_M = 0.1
 # fewer images with both positions: no shift is judged (the median of a handful of pairs is no measurement)
 MIN_ROW_SHIFT_IMAGES = 6
+# a flight whose steps along its axis go this share each way at least is flown both ways (`flown_both_ways`)
+BOTH_WAYS_SHARE = 0.2
 
 
 def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) -> tuple[int, float, float, float]:
@@ -248,13 +250,20 @@ def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) ->
     or for a shift of a log that copies the EXIF fixes, COPIED_FIX_M (constants above)."""
     e, g = np.asarray(exif_xy, np.float64)[order], np.asarray(tele_xy, np.float64)[order]
     n = len(e)
-    if n < MIN_ROW_SHIFT_IMAGES:
+    # a fix repeating its predecessor (a receiver logging slower than the camera shoots, a held fix) was measured
+    # at another capture and cannot tell which image a row belongs to: a 1 Hz receiver under a 2 Hz camera matched
+    # its neighbour's row at every other image, and a correct log was refused as shifted (rev47)
+    fresh_e, fresh_g = fresh_fixes(e), fresh_fixes(g)
+    by_shift: dict[int, float] = {}
+    for k in range(-MAX_ROW_SHIFT, MAX_ROW_SHIFT + 1):
+        rows, fixes = slice(max(0, -k), n - max(0, k)), slice(max(0, k), n + min(0, k))
+        both = fresh_g[rows] & fresh_e[fixes]
+        if both.sum() >= MIN_ROW_SHIFT_IMAGES:
+            by_shift[k] = float(np.median(np.linalg.norm(g[rows][both] - e[fixes][both], axis=1)))
+    if 0 not in by_shift:
         return 0, math.nan, math.nan, math.nan
-    by_shift = {k: float(np.median(np.linalg.norm(g[max(0, -k):n - max(0, k)] - e[max(0, k):n + min(0, k)],
-                                                  axis=1)))
-                for k in range(-MAX_ROW_SHIFT, MAX_ROW_SHIFT + 1) if n - abs(k) >= MIN_ROW_SHIFT_IMAGES}
     best = min(by_shift, key=by_shift.get)
-    noise = max([GNSS_WANDER_M, *(v for v in (fix_jitter_m(e), fix_jitter_m(g)) if np.isfinite(v))])
+    noise = receivers_noise_m(e, g)
     # a log that copies the EXIF fixes (the same receiver's values, to COPIED_FIX_M) has no noise between the two:
     # a shift of its rows is then judged against that, so short capture steps are seen too
     judged = COPIED_FIX_M if by_shift[best] <= COPIED_FIX_M else noise
@@ -263,6 +272,28 @@ def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) ->
     if best == 0 or by_shift[best] > ROW_FIT_NOISES * judged or by_shift[0] <= ROW_SHIFT_NOISES * judged:
         return 0, by_shift[0], by_shift[best], noise
     return best, by_shift[0], by_shift[best], judged
+
+
+def receivers_noise_m(exif_xy: np.ndarray, tele_xy: np.ndarray) -> float:
+    """The noise two tracks of one flight (K,2 metres, capture order) are judged against: the larger of either
+    track's jitter (`fix_jitter_m`) and GNSS_WANDER_M."""
+    return max([GNSS_WANDER_M, *(v for v in (fix_jitter_m(exif_xy), fix_jitter_m(tele_xy)) if np.isfinite(v))])
+
+
+def flown_both_ways(fixes: np.ndarray) -> bool:
+    """Whether a flight's fixes (K,2 metres, capture order) hold steps flown both ways along its main axis (a
+    lawnmower, a line flown out and back): at least BOTH_WAYS_SHARE of the steps longer than GNSS_WANDER_M and
+    within 60 deg of the axis point each way. A constant offset along the track then cannot pass for a row shift,
+    which moves the positions forward on every line (`judge_row_shift`)."""
+    steps = np.diff(np.asarray(fixes, np.float64).reshape(-1, 2), axis=0)
+    length = np.linalg.norm(steps, axis=1)
+    steps = steps[length > GNSS_WANDER_M] / length[length > GNSS_WANDER_M, None]
+    if len(steps) < 2:
+        return False
+    axis = np.linalg.eigh(steps.T @ steps)[1][:, -1]  # the steps' main direction, either sense
+    along = steps @ axis
+    forward, back = int((along > 0.5).sum()), int((along < -0.5).sum())
+    return min(forward, back) >= BOTH_WAYS_SHARE * (forward + back)
 
 
 def local_metres(ll: np.ndarray) -> np.ndarray:
@@ -348,13 +379,19 @@ def judge_row_shift(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: 
     t = np.asarray(times_s, np.float64).reshape(-1)
     order = np.argsort(t, kind="stable") if len(t) and np.all(np.isfinite(t)) else np.arange(len(xy))
     shift, given, shifted, noise = rows_shifted(xy[:, :2], xy[:, 2:], order)
-    if shift:
+    # flown one way only (a corridor, lines all flown alike), a constant offset along the track (another datum, a
+    # time offset) is a row shift to the positions: a shift is said where lines flown both ways agree on it, and
+    # elsewhere the offset is only a warning beyond the noise (rev47: an RTK log 12 m north of a northbound
+    # corridor of 12 m steps was refused)
+    if shift and not flown_both_ways(xy[order, :2]):
+        noise = receivers_noise_m(xy[order, :2], xy[order, 2:])  # a copied log's 0.1 m judged the shift alone
+    elif shift:
         way = "later" if shift > 0 else "earlier"
         raise InputError(f"its rows look shifted by {abs(shift)} image(s): each image gets the position of the image "
                          f"{abs(shift)} {way} in capture order (its positions lie {given:.1f} m from the images' own "
                          f"EXIF GPS, median; {shifted:.1f} m from those {way} images'"
                          + (": their fixes, copied" if noise <= COPIED_FIX_M else f"; GPS noise {noise:.1f} m")
                          + "): "
-                         "join its rows to the images by FileName, not by order, or drop its lat/lon columns",
-                         telemetry)
+                         "join its rows to the images by FileName, not by order, or drop its lat/lon columns (or, "
+                         "if the log is right, the images' own EXIF fixes lag that many captures)", telemetry)
     return ROW_SHIFT_NOISES * noise if np.isfinite(noise) else math.inf

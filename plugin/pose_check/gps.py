@@ -224,6 +224,14 @@ def stale_fixes(centers: np.ndarray, fixes: np.ndarray) -> np.ndarray:
     return stale
 
 
+def fresh_fixes(fixes: np.ndarray) -> np.ndarray:
+    """(K,) True where a fix (K,2, capture order) is a measurement of its own, False where it repeats its
+    predecessor to REPEATED_FIX_M (a receiver logging slower than the camera shoots, a held fix); the first is
+    fresh."""
+    f = np.asarray(fixes, np.float64).reshape(-1, 2)
+    return np.r_[True, np.any(np.abs(np.diff(f, axis=0)) > REPEATED_FIX_M, axis=1)] if len(f) else np.zeros(0, bool)
+
+
 def fix_jitter_m(fixes: np.ndarray, index: np.ndarray | None = None) -> float:
     """A receiver's per-axis jitter from its fixes alone (K,2, capture order): the robust spread of each fix's
     departure from the line through its two neighbours, which a steady flight leaves near zero and white noise
@@ -235,9 +243,8 @@ def fix_jitter_m(fixes: np.ndarray, index: np.ndarray | None = None) -> float:
     fewer than 3 distinct fixes."""
     f = np.asarray(fixes, np.float64).reshape(-1, 2)
     at = np.arange(len(f), dtype=np.float64) if index is None else np.asarray(index, np.float64).reshape(-1)
-    if len(f) > 1:
-        fresh = np.r_[True, np.any(np.abs(np.diff(f, axis=0)) > REPEATED_FIX_M, axis=1)]
-        f, at = f[fresh], at[fresh]
+    fresh = fresh_fixes(f)
+    f, at = f[fresh], at[fresh]
     if len(f) < 3:
         return float("nan")
     before, after = at[1:-1] - at[:-2], at[2:] - at[1:-1]
