@@ -297,10 +297,14 @@ def read_gray(path: str | Path, white: Levels | int | None = None) -> np.ndarray
     _check_pixels(path)
     data = np.fromfile(path, dtype=np.uint8)
     flags = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION
-    try:
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # a decode it cannot do is read below: no
+    try:                                                               # "[ERROR] imdecode_" line per image (rev47)
         gray = cv2.imdecode(data, flags) if data.size else None
     except cv2.error:
         gray = None
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if gray is None:
         # OpenCV cannot turn some valid files to gray while decoding (a float64 RGB TIFF): read as every image
         # is (`read_image`, which names a file nothing can read) and take its luminance

@@ -228,9 +228,10 @@ def test_float_measurements_are_read_between_their_own_levels_above_zero_too(tmp
         assert grey.max() - grey.min() > 200
 
 
-def test_a_float64_colour_tiff_is_read_like_its_float32_copy(tmp_path):
+def test_a_float64_colour_tiff_is_read_like_its_float32_copy(tmp_path, capfd):
     """nu53 M2: a 3-channel float64 TIFF (reflectances 0..0.6) was a cv2 traceback in `segment` (cv2.cvtColor
-    takes no float64) and unreadable to `read_gray`. Read as its float32 copy is, in RGB order."""
+    takes no float64) and unreadable to `read_gray`. Read as its float32 copy is, in RGB order, and without the
+    "[ERROR] imdecode_" line OpenCV printed for every image it could not turn to gray while decoding (rev47)."""
     rng = np.random.default_rng(0)
     rgb = rng.random((60, 80, 3)) * 0.6
     rgb[..., 0] *= 0.25  # a dark red channel: a swapped order shows
@@ -240,4 +241,6 @@ def test_a_float64_colour_tiff_is_read_like_its_float32_copy(tmp_path):
     assert wide.shape == (60, 80, 3) and wide.dtype == np.uint8
     assert np.array_equal(wide, narrow)
     assert wide[..., 0].mean() < 0.5 * wide[..., 2].mean()
+    capfd.readouterr()
     assert np.array_equal(read_gray(tmp_path / "float64.tif"), read_gray(tmp_path / "float32.tif"))
+    assert "imdecode" not in capfd.readouterr().err
