@@ -392,7 +392,11 @@ def georegister(
     if vert.images_contradicting and vert.source.startswith("attitude tags"):  # (off-nadir views are no fault)
         warnings.append(f"{len(vert.images_contradicting)} image(s) have attitude tags whose vertical contradicts "
                         "the others'")
-    beyond = lag is not None and lag.significant and _beyond_interval(lag, track)
+    # the map is refused only for a lag beyond one interval by more than its error (LAG_BEYOND_SIGMAS x sigma_dt):
+    # a true lag of one interval, measured 0.97-1.04 +- 0.01-0.05, was refused on every other seed (rev47); between,
+    # it is not corrected and said (`_lag_decision`)
+    beyond = lag is not None and lag.significant and _beyond_interval(lag, track) and \
+        abs(lag.dt) - LAG_BEYOND_SIGMAS * lag.sigma_dt > _interval(lag, track)
     return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift, lag_applied, beyond)
 
 
@@ -411,6 +415,10 @@ def _image_at(times_s: np.ndarray, used: np.ndarray, fit: DriftFit) -> str:
 def _interval(lag: LagFit, track: TrackVelocity) -> float:
     """One capture interval in the lag's unit (LAG_MAX_S when the capture times do not tell it)."""
     return 1.0 if lag.unit == "image" else (track.interval_s if math.isfinite(track.interval_s) else LAG_MAX_S)
+
+
+# how many of its standard errors a lag must lie beyond one capture interval to refuse the map of its poses
+LAG_BEYOND_SIGMAS = 2.0
 
 
 def _beyond_interval(lag: LagFit, track: TrackVelocity) -> bool:

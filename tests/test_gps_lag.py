@@ -257,6 +257,21 @@ def test_a_lag_beyond_the_capture_interval_refuses_the_map_of_those_poses(tmp_pa
     assert kept.refusals == [refusal]
 
 
+def test_a_lag_of_one_interval_within_its_error_does_not_refuse_the_map():
+    """rev47 D3: the map's refusal cut at exactly one interval: a true lag of one interval, measured 0.97-1.04 +-
+    0.01-0.05 intervals, refused the map on half the seeds. Refused only beyond one interval by 2 standard errors;
+    a lag of 1.5 intervals still is, on every seed."""
+    centers, rots, times, vel = _lawnmower()
+    c_sfm, r_sfm = _sfm(centers, rots)
+    interval = float(np.median(np.diff(times)))
+    for frac, refused in ((1.0, False), (1.5, True)):
+        for seed in range(4):
+            gps = centers - frac * interval * vel + _wander(times, seed, white=0.3, std=1.0)
+            geo = georegister(c_sfm, r_sfm, gps, rots, np.ones(len(rots), bool), times)
+            assert geo.lag is not None and geo.lag.significant
+            assert geo.lag_beyond_interval is refused, (frac, seed, geo.lag.dt / interval)
+
+
 def test_a_lag_that_does_not_improve_the_fit_is_not_applied():
     """The decision compares the robust fits of the raw and the corrected positions: a 'lag' the raw positions
     fit as well without is not applied."""
