@@ -246,8 +246,8 @@ def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) ->
     fixes and the log's positions (K,2 metres, one frame), `order` the capture order. Returns (shift, as given,
     shifted, noise): the shift N (0: none; N > 0 means each image holds the row of the image N later), the median
     distance of the log's positions from the images' own fixes and from the fixes N images later (the nearest
-    pairing), and the noise judged against: the receivers' (the larger of either track's jitter and GNSS_WANDER_M),
-    or for a shift of a log that copies the EXIF fixes, COPIED_FIX_M (constants above)."""
+    pairing), and the receivers' noise (`receivers_noise_m`). A shift of a log that copies the EXIF fixes (shifted
+    within COPIED_FIX_M) is judged against COPIED_FIX_M instead (constants above)."""
     e, g = np.asarray(exif_xy, np.float64)[order], np.asarray(tele_xy, np.float64)[order]
     n = len(e)
     # a fix repeating its predecessor (a receiver logging slower than the camera shoots, a held fix) was measured
@@ -271,7 +271,7 @@ def rows_shifted(exif_xy: np.ndarray, tele_xy: np.ndarray, order: np.ndarray) ->
     # rows as given lie beyond ROW_SHIFT_NOISES x it
     if best == 0 or by_shift[best] > ROW_FIT_NOISES * judged or by_shift[0] <= ROW_SHIFT_NOISES * judged:
         return 0, by_shift[0], by_shift[best], noise
-    return best, by_shift[0], by_shift[best], judged
+    return best, by_shift[0], by_shift[best], noise
 
 
 def receivers_noise_m(exif_xy: np.ndarray, tele_xy: np.ndarray) -> float:
@@ -383,14 +383,12 @@ def judge_row_shift(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: 
     # time offset) is a row shift to the positions: a shift is said where lines flown both ways agree on it, and
     # elsewhere the offset is only a warning beyond the noise (rev47: an RTK log 12 m north of a northbound
     # corridor of 12 m steps was refused)
-    if shift and not flown_both_ways(xy[order, :2]):
-        noise = receivers_noise_m(xy[order, :2], xy[order, 2:])  # a copied log's 0.1 m judged the shift alone
-    elif shift:
+    if shift and flown_both_ways(xy[order, :2]):
         way = "later" if shift > 0 else "earlier"
         raise InputError(f"its rows look shifted by {abs(shift)} image(s): each image gets the position of the image "
                          f"{abs(shift)} {way} in capture order (its positions lie {given:.1f} m from the images' own "
                          f"EXIF GPS, median; {shifted:.1f} m from those {way} images'"
-                         + (": their fixes, copied" if noise <= COPIED_FIX_M else f"; GPS noise {noise:.1f} m")
+                         + (": their fixes, copied" if shifted <= COPIED_FIX_M else f"; GPS noise {noise:.1f} m")
                          + "): "
                          "join its rows to the images by FileName, not by order, or drop its lat/lon columns (or, "
                          "if the log is right, the images' own EXIF fixes lag that many captures)", telemetry)
