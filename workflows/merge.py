@@ -63,10 +63,9 @@ from .merge_pairs import (
     distinct_flights,
     filter_associations,
     maps_of,
-    match_fuse_pair,
     session_fingerprint,
 )
-from .merge_refine import Refinement, refined_answer
+from .merge_refine import Refinement, fused_pair, refined_answer
 
 # importable from here as before the split (`merge_refine`, `match_notes`): batch, tests and benchmarks use them
 __all__ = ["MERGE_FORMAT", "MergeResult", "Refinement", "label_problem", "merge_sessions", "precision_note",
@@ -464,7 +463,7 @@ def run(
     result = merge_sessions(
         [a, b],
         [Sim3.identity(), transform],
-        [match_fuse_pair(0, 1, match) if refinement is None or refinement.fuse is None else refinement.fuse],
+        [fused_pair(0, 1, match, refinement)],
         out_dir,
         labels=names,
         max_fuse_distance_m=gate,

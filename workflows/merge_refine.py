@@ -16,7 +16,7 @@ from ..plugin.multisession import Sim3
 from ..plugin.params import Params
 from ..plugin.refinement import Alignment, mutual_nearest, refine_alignment, tilt_of
 from ..plugin.verification import tilted_alignment
-from .merge_pairs import FusePair
+from .merge_pairs import FusePair, match_fuse_pair
 
 
 @dataclass(frozen=True)
@@ -104,3 +104,11 @@ def _level(transform: Sim3, centre: np.ndarray) -> Sim3:
     turn = transform.rotation @ tilt_of(transform.rotation).T
     return Sim3(turn, transform.apply(centre) - transform.scale * turn @ centre, transform.scale)
 
+
+def fused_pair(a: int, b: int, match: MatchSummary, refinement: Refinement | None) -> FusePair:
+    """What sessions a and b fuse, for `merge` and `batch` alike: under a refinement that found its own pairs
+    (`Refinement.fuse`, the pairs its refined transform supports) those, else the match's answer
+    (`match_fuse_pair`; a refinement that kept the answer, `Refinement.note`, has none)."""
+    if refinement is None or refinement.fuse is None:
+        return match_fuse_pair(a, b, match)
+    return refinement.fuse._replace(a=a, b=b)

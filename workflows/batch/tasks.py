@@ -161,7 +161,7 @@ def merge_task(
     from ...database.match_notes import georeference_note
     from ...database.session_io import read_session
     from ..merge import merge_sessions
-    from ..merge_pairs import match_fuse_pair
+    from ..merge_refine import fused_pair
 
     sessions = [read_session(p, lb) for p, lb in zip(session_dirs, labels)]
     sims = [Sim3.from_dict(t) for t in transforms]
@@ -174,7 +174,7 @@ def merge_task(
         r = refinements[k] if refinements is not None else None
         # refined: the pairs the refined transform supports (rev46 D2: the match's own fused 9 where merge --refine
         # fused 18 of the same maps); kept (`Refinement.note`): the answer's own
-        pairs.append(match_fuse_pair(a, b, match) if r is None or r.fuse is None else r.fuse._replace(a=a, b=b))
+        pairs.append(fused_pair(a, b, match, r))
         if r is not None:
             refined.append({"pair": [labels[a], labels[b]], **r.record()})
         if (note := georeference_note(match)) is not None:  # the merged model inherits it (merge.json)
