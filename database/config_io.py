@@ -26,10 +26,7 @@ def load_params(
     params = preset_params(preset) if preset else Params()
     if path is not None:
         path = Path(path)
-        try:
-            data = tomllib.loads(read_user_text(path, "config file"))
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"invalid TOML: {exc}", path) from None
+        data = _read_config(path)
         try:
             params = params_from_dict(data) if not preset else with_overrides(params, _dotted(data))
         except InputError as exc:
@@ -37,6 +34,27 @@ def load_params(
     if overrides:
         params = with_overrides(params, overrides)
     return params
+
+
+def _read_config(path: Path) -> dict[str, Any]:
+    try:
+        return tomllib.loads(read_user_text(path, "config file"))
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"invalid TOML: {exc}", path) from None
+
+
+def chosen_settings(
+    path: str | Path | None = None, overrides: dict[str, Any] | None = None, preset: str | None = None
+) -> set[str]:
+    """The dotted names of the settings the user chose (as `load_params` reads them: the preset's, the TOML file's
+    and the overrides'), whatever their values: a command whose default depends on its inputs
+    (`workflows.match.transform_choice`) leaves a chosen one as it is."""
+    from ..plugin.params import PRESETS
+
+    named = set(PRESETS.get(preset, {})) if preset else set()
+    if path is not None:
+        named |= set(_dotted(_read_config(Path(path))))
+    return named | set(overrides or {})
 
 
 def _dotted(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -7,8 +7,12 @@ Layout (little-endian; see docs/ARCHITECTURE.md):
 14 bytes per landmark plus 52 bytes (84 with the noise figures). Ids are implicit by order. The noise figures
 (`plugin.map_noise.MapNoise`: what the map measured about its own scatter) travel with the file, so a map copied
 out of its session is matched with the tolerances derived from them, as its session is; a map without them is
-written as version 1, byte for byte as before. The reader validates every field and raises `InputError` naming
-the file for anything wrong; it never returns a partial or wrong map.
+written as version 1, byte for byte as before. Flag 4 (`FLAG_SFM_POSES`, no bytes of its own) says the map's poses
+came from sosmatch's structure from motion (`sosmatch poses`, `map --images`): such a block may be domed, scaled by
+a few % about its centre, so `match` searches it with a similarity (`workflows.match.transform_choice`); maps of
+given poses do not set it and stay byte for byte as before (readers before the flag refuse a map that sets it).
+The reader validates every field and raises `InputError` naming the file for anything wrong; it never returns a
+partial or wrong map.
 """
 
 from __future__ import annotations
@@ -30,6 +34,11 @@ VERSION = 2  # the newest this reader knows; 1: no noise figures (written so whe
 VERSIONS = (1, 2)
 FLAG_SIZES = 1
 FLAG_NOISE = 2  # version 2: the noise block follows the records
+FLAG_SFM_POSES = 4  # the map's poses came from structure from motion (no bytes of its own; module doc)
+# where a map's poses came from, as run.json's `pose_source` says it: sosmatch's structure from motion (`sosmatch
+# poses`, `map --images`), or poses taken as given (a pose file or model, a synth session, EXIF/XMP tags)
+POSE_SOURCE_SFM = "structure from motion"
+POSE_SOURCE_GIVEN = "given"
 _HEADER = struct.Struct("<8sHHI3dII")
 _RECORD = np.dtype([("xyz", "<f4", (3,)), ("size", "<f2")])
 _NOISE = struct.Struct("<3dI4x")  # ground resolution m, residual m, size log std (NaN: unknown), landmarks
@@ -49,6 +58,8 @@ class LandmarkMap:
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
     epsg: int = 0  # 0: local frame; otherwise the world frame is this projected CRS
     noise: MapNoise | None = None  # what the map measured about its own scatter (`plugin.map_noise`); None: unknown
+    # its poses came from structure from motion (flag 4); False: given poses, or unknown (a map of an older version)
+    sfm_poses: bool = False
 
     def __post_init__(self) -> None:
         self.positions = np.asarray(self.positions, dtype=np.float64).reshape(-1, 3)
@@ -92,7 +103,7 @@ def landmark_map_problem(origin: np.ndarray, offsets: np.ndarray, stored_sizes: 
     known = stored_sizes[np.isfinite(stored_sizes)]
     if np.any(np.isinf(stored_sizes)) or np.any(known <= 0):
         return f"landmark map holds sizes that are not positive metres up to {MAX_SIZE_M:g} (zero, negative, infinite)"
-    if flags & ~(FLAG_SIZES | FLAG_NOISE):
+    if flags & ~(FLAG_SIZES | FLAG_NOISE | FLAG_SFM_POSES):
         return f"landmark map has unknown flags {flags:#x}"
     if bool(flags & FLAG_SIZES) != bool(len(known)):
         return "landmark map's size flag disagrees with its sizes"
@@ -249,7 +260,8 @@ def encode_landmark_map(lmap: LandmarkMap) -> bytes:
         records = np.zeros(len(lmap), dtype=_RECORD)
         records["xyz"] = offsets
         records["size"] = lmap.sizes
-    flags = (FLAG_SIZES if lmap.has_sizes else 0) | (FLAG_NOISE if lmap.noise is not None else 0)
+    flags = ((FLAG_SIZES if lmap.has_sizes else 0) | (FLAG_NOISE if lmap.noise is not None else 0)
+             | (FLAG_SFM_POSES if lmap.sfm_poses else 0))
     problem = landmark_map_problem(lmap.origin, offsets, records["size"].astype(np.float32), int(lmap.epsg), flags,
                                    lmap.noise)
     if problem is None and not np.all(np.isfinite(records["xyz"])):
@@ -302,7 +314,8 @@ def decode_landmark_map(data: bytes, source: str | Path = "<bytes>") -> Landmark
         raise InputError(problem, source)
     if not flags & FLAG_SIZES:
         sizes[:] = np.nan
-    return LandmarkMap(positions=offsets + origin, sizes=sizes, origin=origin, epsg=int(epsg), noise=noise)
+    return LandmarkMap(positions=offsets + origin, sizes=sizes, origin=origin, epsg=int(epsg), noise=noise,
+                       sfm_poses=bool(flags & FLAG_SFM_POSES))
 
 
 def write_landmark_map(path: str | Path, lmap: LandmarkMap) -> int:
@@ -315,6 +328,7 @@ def write_landmark_map(path: str | Path, lmap: LandmarkMap) -> int:
 def read_landmark_map(path: str | Path) -> LandmarkMap:
     """Read and validate a .sosmap file (version 1 or 2, see docs/ARCHITECTURE.md "Landmark map format"): world
     positions (origin + float32 offsets), sizes (NaN where the map has none), EPSG code and, in version 2, the
-    map's noise figures. A missing, unreadable, oversized (> 1 GiB) or malformed file raises InputError naming
-    `path`. A mapped session's folder or a COLMAP model: `database.map_loading.load_map`."""
+    map's noise figures, and whether its poses came from structure from motion (flag 4).
+    A missing, unreadable, oversized (> 1 GiB) or malformed file raises InputError naming `path`. A mapped
+    session's folder or a COLMAP model: `database.map_loading.load_map`."""
     return decode_landmark_map(read_user_bytes(path, "landmark map", LANDMARK_MAP_LIMIT_BYTES), path)

@@ -20,7 +20,7 @@ import numpy as np
 from ..plugin.errors import InputError
 from ..plugin.map_noise import MapNoise
 from .colmap_db import keypoint_sizes_px
-from .landmark_map import LandmarkMap, read_landmark_map
+from .landmark_map import POSE_SOURCE_SFM, LandmarkMap, read_landmark_map
 from .output_markers import check_input_finished
 
 if TYPE_CHECKING:
@@ -37,6 +37,8 @@ class LoadedMap:
     noise: MapNoise | None = None  # the map's own noise figures (its file's, or its session's run.json), None: unknown
     # the settings that define its landmarks' metric sizes (`size_definition`), None: unknown (a bare map file)
     size_definition: dict[str, str] | None = None
+    # its poses came from sosmatch's structure from motion (`recorded_sfm_poses`); False: given, or not known
+    sfm_poses: bool = False
 
 
 # mapping settings that change what a landmark's metric size measures, not only which landmarks there are: the
@@ -71,6 +73,30 @@ def size_definition_disagreement(a: dict[str, str] | None, b: dict[str, str] | N
     return (f"the maps define landmark sizes differently ({said}): the same object's size differs systematically "
             "between them, and the search compares sizes within a few tens of percent; map both sessions with the "
             "same setting (`--set " + differ[0] + "=...`)")
+
+
+# what `sosmatch map` recorded as run.json's inputs.poses for poses of its structure from motion before run.json
+# had `pose_source` (`workflows.poses.job`): such sessions are read as SfM-posed too
+_SFM_SOURCE_TEXT = "structure from motion of "
+
+
+def recorded_sfm_poses(record: dict | None) -> bool:
+    """Whether a map's run.json says its poses came from sosmatch's structure from motion: its `pose_source`; for a
+    record written before that field, its `inputs.poses`: the text it then held for SfM poses (`map --images`), or
+    a poses.csv that a `sosmatch poses` record (poses.json) still lies beside (`poses`, then `map --poses`).
+    False for any other record or none (a map of given poses; an older session whose poses.csv is gone: unknown,
+    taken as given)."""
+    if not isinstance(record, dict):
+        return False
+    if "pose_source" in record:
+        return record["pose_source"] == POSE_SOURCE_SFM
+    inputs = record.get("inputs")
+    source = inputs.get("poses") if isinstance(inputs, dict) else None
+    if not isinstance(source, str):
+        return False
+    from .session_io import poses_record_beside
+
+    return source.startswith(_SFM_SOURCE_TEXT) or poses_record_beside(Path(source)) is not None
 
 
 def session_map_noise(session: Path, lmap: LandmarkMap) -> MapNoise | None:
@@ -213,7 +239,7 @@ def load_map(path: str | Path) -> LoadedMap:
             return load_map(path.parent)
         if path.suffix == ".sosmap":
             lmap = read_landmark_map(path)
-            return LoadedMap(lmap, "sosmap", path, lmap.noise)
+            return LoadedMap(lmap, "sosmap", path, lmap.noise, sfm_poses=lmap.sfm_poses)
         if path.name.startswith("points3D."):
             return LoadedMap(read_colmap_points(path.parent), "colmap", path.parent)
         raise InputError("not a landmark map (.sosmap), session directory or COLMAP model", path)
@@ -228,8 +254,9 @@ def load_map(path: str | Path) -> LoadedMap:
         check_map_of_record(path, lmap)  # its noise figures (run.json) must be this map's
         from .session_io import read_map_record
 
+        record = read_map_record(path)
         return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap),
-                         size_definition(read_map_record(path)))
+                         size_definition(record), lmap.sfm_poses or recorded_sfm_poses(record))
     if (path / "run.json").is_file() and (path / "sparse").is_dir():  # landmarks.sosmap is not a file here
         # a session `sosmatch map` wrote has its map in landmarks.sosmap: matched from sparse/ instead, it lost its
         # sizes' noise figures and its checks, and every other command refused the folder (the nineteenth sweep)

@@ -192,6 +192,20 @@ def read_map_record(map_dir: str | Path) -> dict | None:
     return read_user_json(path, "session record", redo="re-run `sosmatch map`")
 
 
+def poses_record_beside(poses_csv: Path) -> dict | None:
+    """The record (poses.json, format "sosmatch-poses") of the `sosmatch poses` output a poses.csv was taken from:
+    its structure from motion made the CSV's poses; None for a CSV of another origin or a record that cannot be
+    read."""
+    record = Path(poses_csv).parent / "poses.json"
+    try:
+        if Path(poses_csv).name != "poses.csv" or not record.is_file():
+            return None
+        report = read_user_json(record, "poses record")
+    except (InputError, OSError):  # a path too long to be a file's (a record edited by hand): not one
+        return None
+    return report if isinstance(report, dict) and report.get("format") == "sosmatch-poses" else None
+
+
 def georeference_sigma_m(map_dir: str | Path) -> float | None:
     """The measured horizontal noise (m, per axis) of the GPS positions a session was georegistered on:
     MAP_DIR/poses/poses.json's `georegistration.gps_horizontal_sigma_m`, which `sosmatch map` of a folder of

@@ -53,6 +53,14 @@ def params_from_args(args: argparse.Namespace) -> Params:
     return load_params(args.config, overrides, getattr(args, "preset", None))
 
 
+def settings_from_args(args: argparse.Namespace) -> set[str]:
+    """The dotted names of the settings `--preset`, `--config` and `--set` chose (`config_io.chosen_settings`)."""
+    from ...database.config_io import chosen_settings, parse_override
+
+    overrides = dict(parse_override(text) for text in args.overrides)
+    return chosen_settings(args.config, overrides, getattr(args, "preset", None))
+
+
 def add_min_confidence_argument(parser: argparse.ArgumentParser) -> None:
     """`--min-confidence` of change detection (`changes.min_confidence`), for `changes` and `batch` alike."""
     parser.add_argument("--min-confidence", type=float, default=None,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_params_arguments, params_from_args
+from ._common import add_params_arguments, params_from_args, settings_from_args
 
 NAME = "match"
 HELP = "associate two landmark maps (sessions, .sosmap files or COLMAP models): match.json, associations.csv, PNG"
@@ -36,7 +36,10 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     params = params_from_args(args)
+    # a transform the user chose is used as it is; otherwise the maps' pose sources choose it (README "Matching")
+    chosen = "association.transform" in settings_from_args(args)
     result = run_match(params, args.a, args.b, args.out, workers=args.workers, exhaustive=args.exhaustive,
-                       plot=not args.no_plot, overwrite=args.overwrite, verify=False if args.no_verify else None)
+                       plot=not args.no_plot, overwrite=args.overwrite, verify=False if args.no_verify else None,
+                       transform_chosen=chosen)
     print(f"match: {result.summary()}")
     return 0

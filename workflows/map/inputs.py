@@ -29,6 +29,7 @@ from ...database.images import (  # noqa: F401 (IMAGE_EXTENSIONS re-exported)
     shared_file_name,
     unique_by_key,
 )
+from ...database.landmark_map import POSE_SOURCE_GIVEN, POSE_SOURCE_SFM
 from ...database.opensfm import is_opensfm
 from ...database.output_markers import check_finished, sha256_file
 from ...database.poses import read_poses_csv
@@ -59,6 +60,9 @@ class MapInputs:
     # what the pose source found wrong enough to refuse a map of these poses (a GPS-image offset of more than one
     # capture interval left uncorrected: `poses.result.registration_refusals`): the map's verdict refuses with it
     refusals: list[str] = field(default_factory=list)
+    # where the poses came from (`landmark_map.POSE_SOURCE_*`): run.json's `pose_source` and the map file's flag
+    # (`match` searches a map of SfM poses with a similarity: `workflows.match.transform_choice`)
+    pose_source: str = POSE_SOURCE_GIVEN
 
 
 def _is_synth_session(path: Path) -> bool:
@@ -233,12 +237,16 @@ def load_inputs(
     # a poses.csv of `sosmatch poses`: its georegistration's doubts are the map's, as when map runs SfM itself
     doubts: list[str] = []
     wrong: list[str] = []
+    source = POSE_SOURCE_GIVEN
     if sources.get("poses") == str(poses) and Path(poses).is_file():
+        from ...database.session_io import poses_record_beside
         from ..poses.result import registration_warnings_beside
 
         doubts, wrong = registration_warnings_beside(Path(poses))
+        if poses_record_beside(Path(poses)) is not None:  # README's photo workflow: `poses`, then `map --poses`
+            source = POSE_SOURCE_SFM
     inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources, warnings=doubts,
-                                       refusals=wrong))
+                                       refusals=wrong, pose_source=source))
     if (problem := focal_against_exif(inputs)) is not None:
         log.warning("%s", problem)
         # the map's verdict too (run.json, the summary line, a batch's report): landmark heights scale with it
@@ -318,7 +326,7 @@ def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | N
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     poses = inputs.poses.subset(order)
     return MapInputs([inputs.image_paths[i] for i in order], poses, inputs.camera, inputs.epsg,
-                     inputs.sources, inputs.remedy, inputs.warnings, inputs.refusals)
+                     inputs.sources, inputs.remedy, inputs.warnings, inputs.refusals, inputs.pose_source)
 
 
 def image_digests(inputs: MapInputs) -> list[str]:
@@ -343,7 +351,8 @@ def distinct_images(inputs: MapInputs) -> tuple[MapInputs, list[str]]:
     out = set(found.left_out)
     keep = [i for i in range(len(digests)) if i not in out]
     return (MapInputs([inputs.image_paths[i] for i in keep], inputs.poses.subset(keep), inputs.camera, inputs.epsg,
-                      inputs.sources, inputs.remedy, [*inputs.warnings, *found.warnings], inputs.refusals),
+                      inputs.sources, inputs.remedy, [*inputs.warnings, *found.warnings], inputs.refusals,
+                      inputs.pose_source),
             [digests[i] for i in keep])
 
 

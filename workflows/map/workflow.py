@@ -21,7 +21,13 @@ from ...database.colmap_db import (
     write_colmap_database,
 )
 from ...database.colmap_model import write_model, write_ply
-from ...database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map, write_landmark_map
+from ...database.landmark_map import (
+    POSE_SOURCE_SFM,
+    LandmarkMap,
+    landmark_map_fingerprint,
+    read_landmark_map,
+    write_landmark_map,
+)
 from ...database.outputs import OutputDir
 from ...database.segmentation_models import SegmentationModels, segmentation_models
 from ...plugin.lens_check import camera_kind
@@ -389,7 +395,9 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     if problem is not None:
         log.warning("the map's %s: not written into the map file", problem)
         noise = None
-    lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg, noise)
+    # the poses' source travels with the map file (flag 4), as its noise figures do: `match` chooses its transform
+    lmap = LandmarkMap(landmarks.positions, landmarks.sizes_m.astype(np.float32), origin, inputs.epsg, noise,
+                       sfm_poses=inputs.pose_source == POSE_SOURCE_SFM)
     map_bytes = write_landmark_map(out.staged("landmarks.sosmap"), lmap)
     write_ply(out.staged("landmarks.ply"), landmarks.positions - origin, landmarks.sizes_m, origin, inputs.epsg)
     image_names = [[kf_poses.names[k] for k in obs[:, 0]] for obs in landmarks.observations]
@@ -456,6 +464,8 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
         "format": "sosmatch-map-run", "version": 1,
         "params": pdict, "pixel_scale": pixel_scale(params, camera.width, camera.height), "versions": _versions(),
         "inputs": recorded_sources(inputs.sources),
+        # "structure from motion" or "given" (`landmark_map.POSE_SOURCE_*`): `match` searches SfM maps with a scale
+        "pose_source": inputs.pose_source,
         "inputs_from_session": sources_from_session(inputs.sources, out.path), "fingerprints": fps,
         "camera": {"model": camera.model, "width": camera.width, "height": camera.height, "params": camera.params,
                    "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},

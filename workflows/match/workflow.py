@@ -8,6 +8,7 @@ import json
 import logging
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -32,6 +33,7 @@ from .answer_warnings import (
 from .figure import alignment_png
 from .record import associations_csv, match_to_json
 from .result import MatchResult
+from .transform_choice import beyond_dome, choose_transform
 
 # the package's name, as before the split: the command's warnings still read "sosmatch.workflows.match: ..."
 log = logging.getLogger(__package__)
@@ -39,14 +41,16 @@ log = logging.getLogger(__package__)
 
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
         exhaustive: bool = False, plot: bool = True, overwrite: bool = False,
-        verify: bool | None = None) -> MatchResult:
+        verify: bool | None = None, transform_chosen: bool = False) -> MatchResult:
     """Match map `b` against map `a` and write match.json, associations.csv and match.png into `out_dir`.
 
     a, b: session directories, .sosmap files or COLMAP models. workers: unused (the search runs in one process).
     exhaustive: use the straightforward reference search (every window pair from scratch; slow, same result).
     verify: verify the search's hypotheses on the full maps (default `params.verification.enabled`); off, the
     answer is the window consensus. A position prior (`association.position_prior_m`) is used only when both maps
-    are georeferenced in one EPSG. overwrite: replace a complete match of other maps or settings in `out_dir` (see
+    are georeferenced in one EPSG. transform_chosen: the user chose `association.transform` (--set, --config,
+    --preset); else a map whose poses came from structure from motion is searched with a similarity
+    (`transform_choice`). overwrite: replace a complete match of other maps or settings in `out_dir` (see
     `sosmatch.database.outputs` for what is never replaced). Raises InputError for unreadable or unusable maps.
     """
     t0, cpu0 = time.perf_counter(), time.process_time()
@@ -70,6 +74,11 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     warn(size_definition_disagreement(map_a.size_definition, map_b.size_definition))
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
+    rigid_params = params  # the transform as configured: the answer when a similarity's scale is no dome's
+    choice = choose_transform(params, transform_chosen, map_a.sfm_poses, map_b.sfm_poses)
+    params = choice.params
+    if choice.note is not None:
+        log.info("%s", choice.note)
     # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
     # (recorded in match.json's params and search_mode "derived"), searched first with the tighter of the
     # derived and the configured tolerances (`match_answer`, module doc)
@@ -79,10 +88,13 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                 warn(f"map {name} ({m.path}) records no noise figures (a COLMAP model, or a .sosmap written before "
                      "map files carried them): the configured tolerances are used, not ones derived from the "
                      "maps; give its mapped session directory to derive them")
-    derivation = derived_search_params(params.association, map_a.noise, map_b.noise, la.positions, la.sizes,
-                                       lb.positions, lb.sizes)
+    def derive(params: Params) -> tuple[Params, Any]:
+        derivation = derived_search_params(params.association, map_a.noise, map_b.noise, la.positions, la.sizes,
+                                           lb.positions, lb.sizes)
+        return dataclasses.replace(params, association=derivation.params), derivation
+
+    params, derivation = derive(params)
     first_try = derivation.first_try
-    params = dataclasses.replace(params, association=derivation.params)
     identity = versioned_identity(lambda as_dict: {
         "a": prints[0], "b": prints[1], "association": as_dict(params.association),
         "first_try": None if first_try is None else as_dict(first_try),
@@ -98,6 +110,16 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
                          exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try,
                          near_try=derivation.near_try)
+        transform_note = choice.note
+        if choice.note is not None and ans.accepted and ans.transform is not None:
+            beyond = beyond_dome(float(ans.transform.scale))
+            if beyond is not None:  # no dome's scale: the rigid match answers, as it did before the choice
+                warn(f"{b}: {beyond}")
+                transform_note = f"{choice.note}; {beyond}"
+                params, derivation = derive(rigid_params)
+                ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
+                                 exhaustive=exhaustive, first_try=derivation.first_try,
+                                 wider_try=derivation.wider_try, near_try=derivation.near_try)
         if ans.accepted and not common and ans.transform is not None:
             # two EPSG codes: where each puts B on the ground (`georeference_offset_m`; None without both codes),
             # judged by the rule of one EPSG: a wrong label is a wrong georeference, one site in two zones is not
@@ -111,8 +133,9 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
             warn(f"{b}: {ans.uncertainty.warning()}; merge and changes inherit that error")
         ver = ans.verification
-        if not ans.accepted and ver is not None and ver.best is not None:
-            # a refusal that a scale explains says so: a rigid search of two domed SfM maps was refused bare (nu54)
+        if not ans.accepted and ver is not None and ver.best is not None and choice.note is None:
+            # a refusal that a scale explains says so: a rigid search of two domed SfM maps was refused bare (nu54);
+            # not after the maps' SfM poses chose a similarity (tried already, or its scale was no dome's)
             note = refused_scale_note(la.positions, lb.positions, ver.best.transform, ver.best.associations)
             warn(None if note is None else f"{b}: {note}")
         # a refused answer names no associations (match.json's verification keeps what was tried)
@@ -124,6 +147,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         result.seconds, result.cpu_seconds = time.perf_counter() - t0, time.process_time() - cpu0
         doc = match_to_json(result, params)
         doc["search_mode"]["derived"] = derivation.record
+        if transform_note is not None:  # only then: a match of maps of given poses keeps its bytes
+            doc["search_mode"]["transform_from_poses"] = transform_note
         doc["seconds_total"] = result.seconds
         doc["cpu_seconds_total"] = result.cpu_seconds
         doc["warnings"] = said

@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ...database.landmark_map import POSE_SOURCE_SFM
+from ...database.session_io import poses_record_beside
 from ...database.text_input import read_user_json
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
@@ -72,7 +74,8 @@ def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
     camera = next(iter(result.cameras.values()))
     return MapInputs([paths[n] for n in result.poses.names], result.poses, camera, result.epsg,
                      {"poses": source, "camera": source, "images": str(image_dir)},
-                     warnings=map_warnings(result), refusals=registration_refusals(result.report))
+                     warnings=map_warnings(result), refusals=registration_refusals(result.report),
+                     pose_source=POSE_SOURCE_SFM)
 
 
 def map_warnings(result: PosesResult) -> list[str]:
@@ -146,17 +149,12 @@ def registration_warnings_beside(poses_csv: Path) -> tuple[list[str], list[str]]
     """(`map_warnings`, `registration_refusals`) of the `poses` output a poses.csv was taken from (its poses.json
     beside it); none for a CSV of another origin or a record that cannot be read (the CSV itself is what the map
     uses)."""
-    record = poses_csv.parent / RECORD
-    if poses_csv.name != "poses.csv" or not record.is_file():
-        return [], []
-    try:
-        report = read_user_json(record, "poses record")
-    except InputError:
-        return [], []
-    if not (isinstance(report, dict) and report.get("format") == "sosmatch-poses"):
+    report = poses_record_beside(poses_csv)
+    if report is None:
         return [], []
     return (with_pose_warnings(registration_warnings(report), report.get("warnings")),
             registration_refusals(report))
+
 
 def _refuse_cameras(listing: list[str], image_dir: Path) -> None:
     raise InputError(f"the images come from {len(listing)} cameras ({', '.join(listing)}); map takes one camera: "
