@@ -8,7 +8,6 @@ import json
 import logging
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -21,7 +20,7 @@ from ...database.outputs import open_output_dir
 from ...plugin.answer_uncertainty import refused_scale_note
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
-from ...plugin.map_noise import derived_search_params
+from ...plugin.map_noise import DerivedSearch, derived_search_params
 from ...plugin.match_answer import match_maps
 from ...plugin.params import Params
 from .answer_warnings import (
@@ -88,10 +87,10 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                 warn(f"map {name} ({m.path}) records no noise figures (a COLMAP model, or a .sosmap written before "
                      "map files carried them): the configured tolerances are used, not ones derived from the "
                      "maps; give its mapped session directory to derive them")
-    def derive(params: Params) -> tuple[Params, Any]:
-        derivation = derived_search_params(params.association, map_a.noise, map_b.noise, la.positions, la.sizes,
+    def derive(given: Params) -> tuple[Params, DerivedSearch]:
+        derivation = derived_search_params(given.association, map_a.noise, map_b.noise, la.positions, la.sizes,
                                            lb.positions, lb.sizes)
-        return dataclasses.replace(params, association=derivation.params), derivation
+        return dataclasses.replace(given, association=derivation.params), derivation
 
     params, derivation = derive(params)
     first_try = derivation.first_try
