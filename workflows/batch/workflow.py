@@ -214,11 +214,11 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         log.warning("--epsg applies to flights of photos (poses from structure from motion); %s keep the CRS of "
                     "their poses or sessions", ", ".join(own))
     renewed: set[str] = set()  # sessions another sosmatch made, mapped again (--overwrite): all made of them too
+    by_name = {f.name: f for f in flights}
+    # what a flight mapped now was mapped from, recorded as its state is saved (an interrupted stage keeps both)
     sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
-                          options.progress, _kept_session(out_dir, options.overwrite, renewed), earlier)
-    for f in flights:
-        if sessions[f.name]["status"] == "done" and not sessions[f.name].get("resumed"):
-            record_contents(out_dir, f, *listings[f.name])
+                         options.progress, _kept_session(out_dir, options.overwrite, renewed), earlier,
+                         on_done=lambda name: record_contents(out_dir, by_name[name], *listings[name]))
     _session_warnings(sessions)
     # one session of each flight: two maps of one flight (other settings) would put its images twice into a model
     mapped = one_session_per_flight([f.name for f in flights if sessions[f.name]["status"] == "done"], sessions)
