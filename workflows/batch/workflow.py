@@ -270,7 +270,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
                       "error": "a session failed to map"}
                      for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
-    report.stale_outputs = _stale_outputs(out_dir, report, options.nearest)
+    report.stale_outputs = _stale_outputs(out_dir, report, options.nearest, options.merge)
     return report
 
 
