@@ -1,6 +1,8 @@
 """What batch is given and how it reads it (rev48): a flight given as the flights folder, the cause of a stale
 merged model after --no-merge, the record of a pair's comparison, --nearest on sessions without a shared frame."""
 
+from pathlib import Path
+
 import pytest
 
 from sosmatch.workflows import batch
@@ -50,20 +52,52 @@ def _toy_flights(root, boxes):
     return root
 
 
-def test_after_no_merge_an_earlier_merged_model_is_named_for_what_it_is(tmp_path, caplog):
-    """rev48 D3: after --no-merge the earlier run's merged/A was "made by an earlier run, whose reference A was;
-    its group is merged as A now": nothing is merged now."""
+@pytest.fixture(scope="module")
+def toy_batch(tmp_path_factory):
+    """Two overlapping toy flights batched (oracle matcher, changes on) from the folder above them, with the
+    flights folder and OUT given as relative paths; (that folder, the report)."""
     from sosmatch.tools.toy_sessions import oracle_pair_task
     from sosmatch.workflows.executors import LocalExecutor
 
-    flights = _toy_flights(tmp_path / "flights", {"A": (20, 140, 20, 140), "B": (60, 180, 40, 160)})
-    out = tmp_path / "out"
-    first = batch.run(flights, out, executor=LocalExecutor(0), pair_fn=oracle_pair_task,
-                      options=batch.BatchOptions(progress=False, changes=False))
-    assert [g["status"] for g in first.groups] == ["done"] and (out / "merged" / "A").is_dir()
+    root = tmp_path_factory.mktemp("toy_batch")
+    _toy_flights(root / "flights", {"A": (20, 140, 20, 140), "B": (60, 180, 40, 160)})
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        report = batch.run("flights", "out", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                           options=batch.BatchOptions(progress=False))
+    assert [g["status"] for g in report.groups] == ["done"] and (root / "out" / "merged" / "A").is_dir()
+    return root, report
+
+
+def test_a_batch_pair_s_comparison_records_its_match_and_absolute_paths(toy_batch):
+    """rev48 D4: a batch pair's changes.json said `"match": ""` and held the paths relative to the directory the
+    batch was started from; it names the pair's match.json, as `sosmatch changes --match` does, all absolute."""
+    import json
+
+    root, report = toy_batch
+    pair = next(p for p in report.pairs if p["pair"] == "A__B")
+    assert pair["changes_status"] == "done"
+    record = json.loads((root / "out" / "pairs" / "A__B" / "changes" / "changes.json").read_text())
+    assert record["match"] == str((root / "out" / "pairs" / "A__B" / "match.json").resolve())
+    # (toy flights are mapped sessions, used where they lie)
+    assert record["session_a"] == str((root / "flights" / "A").resolve())
+    assert record["session_b"] == str((root / "flights" / "B").resolve())
+    assert all(record[k] == "" or Path(record[k]).is_absolute() for k in ("images_a", "images_b"))
+
+
+def test_after_no_merge_an_earlier_merged_model_is_named_for_what_it_is(toy_batch, tmp_path, caplog):
+    """rev48 D3: after --no-merge the earlier run's merged/A was "made by an earlier run, whose reference A was;
+    its group is merged as A now": nothing is merged now."""
+    import shutil
+
+    from sosmatch.tools.toy_sessions import oracle_pair_task
+    from sosmatch.workflows.executors import LocalExecutor
+
+    root, _ = toy_batch
+    shutil.copytree(root / "out", tmp_path / "out")
     with caplog.at_level("WARNING"):
-        again = batch.run(flights, out, executor=LocalExecutor(0), pair_fn=oracle_pair_task,
-                          options=batch.BatchOptions(progress=False, changes=False, merge=False, overwrite=True))
+        again = batch.run(root / "flights", tmp_path / "out", executor=LocalExecutor(0), pair_fn=oracle_pair_task,
+                          options=batch.BatchOptions(progress=False, merge=False, overwrite=True))
     assert again.stale_outputs == ["merged/A"] and [g["status"] for g in again.groups] == ["not merged"]
     assert "merged/A (made by an earlier run; --no-merge: this run merges no group)" in caplog.text
     assert "merged as" not in caplog.text

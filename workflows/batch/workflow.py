@@ -430,6 +430,10 @@ def _match_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSu
                 log.warning("pair %s match: %s", key, text)
 
 
+def _absolute(path: str | Path) -> str:
+    return str(Path(path).resolve())
+
+
 def _valid_changes(done: dict[str, Any]) -> bool:
     return Path(done.get("changes", "")).is_file()
 
@@ -445,10 +449,13 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
             continue
         a, b = key.split(PAIR_SEP)
         fps[key] = _after_pair_fingerprints(pair_fps[key], rec["transform"], params)
-        tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
-                      rec["transform"], params, True, rec.get("answer") == "verified",  # the batch's own, as merge
-                      *(None if images[n] is None else str(images[n]) for n in (a, b)),
-                      answer_gate(matches[key], params.association.distance_tolerance_m))
+        # absolute, as `sosmatch changes` records them (rev48 D4: changes.json held paths relative to the cwd the
+        # batch was started from, where OUT is movable)
+        tasks[key] = (_absolute(sessions[a]["session"]), _absolute(sessions[b]["session"]),
+                      str(out_dir / "pairs" / key / "changes"), rec["transform"], params, True,
+                      rec.get("answer") == "verified",  # the batch's own, as merge
+                      *(None if images[n] is None else _absolute(images[n]) for n in (a, b)),
+                      answer_gate(matches[key], params.association.distance_tolerance_m), _absolute(rec["match"]))
     made_from, unrecorded = pair_made_from(tasks, matches, state, pair_fps)
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
                      options.progress, _valid_changes, redo=of_sessions(tasks, renewed), made_from=made_from,
