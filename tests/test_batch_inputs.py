@@ -101,3 +101,27 @@ def test_after_no_merge_an_earlier_merged_model_is_named_for_what_it_is(toy_batc
     assert again.stale_outputs == ["merged/A"] and [g["status"] for g in again.groups] == ["not merged"]
     assert "merged/A (made by an earlier run; --no-merge: this run merges no group)" in caplog.text
     assert "merged as" not in caplog.text
+
+
+def test_nearest_matches_a_session_in_a_local_frame_of_its_own_with_every_other(tmp_path, caplog):
+    """rev48 D5: every EPSG-0 session was taken to share one frame, so a flight of photos without GPS (structure
+    from motion: its own frame, origin under the flight) was "nearest" to whichever session lay near that origin."""
+    from sosmatch.workflows.batch.pairs import CHOSEN_OWN_FRAME, pairs_chosen_by
+
+    sessions = {n: {"kind": "synth", "center": [x, 0.0, 50.0], "epsg": 0, "session": str(tmp_path / n)}
+                for n, x in zip("ABCD", (0.0, 10.0, 100.0, 110.0))}
+    sessions["S"] = {"kind": "images", "center": [1.0, 0.0, 50.0], "epsg": 0, "session": str(tmp_path / "S")}
+    (tmp_path / "M" / "poses").mkdir(parents=True)  # an adopted map of such a flight: its poses' record in it
+    (tmp_path / "M" / "poses" / "poses.json").write_text("{}")
+    sessions["M"] = {"kind": "mapped", "center": [99.0, 0.0, 50.0], "epsg": 0, "session": str(tmp_path / "M")}
+    names = ["A", "B", "C", "D", "M", "S"]
+    with caplog.at_level("WARNING"):
+        chosen = pairs_chosen_by(names, sessions, 1)
+    nearest = "nearest by camera position (--nearest 1)"
+    assert {p: why for p, why in chosen.items() if why == nearest} == {("A", "B"): nearest, ("C", "D"): nearest}
+    assert [p for p, why in chosen.items() if why == CHOSEN_OWN_FRAME] == [
+        ("A", "M"), ("A", "S"), ("B", "M"), ("B", "S"), ("C", "M"), ("C", "S"), ("D", "M"), ("D", "S"), ("M", "S")]
+    assert "--nearest: M, S are each in a local frame of its own" in caplog.text
+    sessions["S"]["epsg"] = sessions["M"]["epsg"] = 32617  # with GPS: georeferenced, placed (another frame: all)
+    assert set(pairs_chosen_by(names, sessions, 1).values()) == {
+        "every pair (--nearest needs every session's position in one frame)"}
