@@ -208,8 +208,9 @@ def pairs_chosen_by(names: list[str], sessions: dict[str, dict[str, Any]], neare
     reasons = dict.fromkeys([(placed[i], placed[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)]
                             if len(placed) > 1 else [], f"{CHOSEN_NEAREST} (--nearest {nearest})")
     if alone:
-        log.warning("--nearest: %s %s in a local frame of its own (structure from motion without GPS): its position "
-                    "says nothing of where it lies against the others, so it is matched with every other session",
+        log.warning("--nearest: %s %s in a local frame of its own (poses by structure from motion, not georeferenced): "
+                    "its position says nothing of where it lies against the others, so it is matched with every other "
+                    "session",
                     ", ".join(alone), "is" if len(alone) == 1 else "are each")
         reasons.update(dict.fromkeys([p for p in all_pairs if set(p) & set(alone)], CHOSEN_OWN_FRAME))
     timed = [n for n in names if (times or {}).get(n) is not None]
