@@ -124,3 +124,34 @@ def test_a_local_cluster_closes_without_killing_workers_that_exit_slowly(caplog)
         with DaskExecutor(workers=1) as ex:
             assert ex.run(_slow_exit_task, {"k": ()}, progress=False)["k"].value is True
     assert "still alive" not in caplog.text and "killing" not in caplog.text, caplog.text
+
+
+def _exit_on(key: str, doomed: str) -> str:
+    import os
+
+    if key == doomed:
+        os._exit(9)  # as the OOM killer: the worker process is gone
+    return key
+
+
+def test_a_task_whose_worker_dies_fails_alone_and_each_result_is_handed_over_as_it_arrives():
+    """rev48 D1: a dead worker (BrokenProcessPool, Dask's KilledWorker) raised out of `run`, and the results that
+    had arrived were lost with it (batch saved no state of a finished map). Now it fails the tasks it took down,
+    the others go on, and `on_result` sees every result before `run` returns."""
+    import dask
+
+    from sosmatch.workflows.executors import WORKER_DIED
+
+    tasks = {k: (k, "t2") for k in ("t1", "t2", "t3")}
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):  # no retries of the doomed task
+        executors = [LocalExecutor(1), DaskExecutor(workers=1)]
+    for ex in executors:
+        seen = []
+        with ex:
+            res = ex.run(_exit_on, tasks, progress=False, on_result=seen.append)
+        assert sorted(r.key for r in seen) == list(tasks) and list(res) == list(tasks), ex
+        assert not res["t2"].ok and res["t2"].error == WORKER_DIED, ex
+        # locally one task runs a worker at a time: t2 alone was taken down (Dask's worker held the others too,
+        # and fails those the death took down by its own rule: `allowed-failures`)
+        for key in ("t1", "t3"):
+            assert res[key].value == key or isinstance(ex, DaskExecutor) and res[key].error == WORKER_DIED, ex

@@ -8,7 +8,10 @@
 Tasks are plain top-level functions with picklable arguments. Every task runs inside `call_task`, which catches
 its exception and returns a `TaskResult` (ok or the error text and traceback): one failing flight never stops
 the others, and no exception object has to survive pickling between machines. `run` returns results in the
-order of the task dict, whatever the order of completion, so outputs do not depend on the executor.
+order of the task dict, whatever the order of completion, so outputs do not depend on the executor; its
+`on_result` sees each result as it arrives (batch saves each task's state then: an interrupted stage keeps what
+finished). A worker that dies under a task (killed: most likely out of memory) fails the tasks it took down
+(`worker_died`), not the run: the other tasks go on.
 Worker processes are started with "spawn" (like Dask's nannies): forking a parent that already runs
 OpenMP/Ceres threads (pycolmap) can deadlock. Every local worker dies with its parent (`process_pool`): a
 killed batch or map leaves no worker (and so no multiprocessing resource tracker) behind.
@@ -23,7 +26,8 @@ import signal
 import time
 import traceback
 from collections.abc import Callable, Hashable
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
@@ -88,13 +92,30 @@ def call_task(key: Hashable, fn: Callable[..., Any], args: tuple) -> TaskResult:
     return TaskResult(key, True, value, "", "", time.perf_counter() - t0)
 
 
+# what a task taken down by the death of its worker process failed of (`worker_died`)
+WORKER_DIED = ("a worker process died while it ran this task (killed: most likely out of memory; the system log, "
+               "e.g. `dmesg`, says); re-run the same command to do it again (with fewer --workers if memory is short)")
+
+
+def worker_died(key: Hashable, error: BaseException) -> TaskResult:
+    """The failed result of a task whose worker process died under it (a broken process pool, Dask's
+    KilledWorker): one line for the report, the executor's own text as its traceback (OUT/logs/)."""
+    return TaskResult(key, False, None, WORKER_DIED, f"{type(error).__name__}: {error}\n")
+
+
+OnResult = Callable[[TaskResult], None]
+
+
 class Executor:
-    """Runs a dict of independent tasks and returns {key: TaskResult} in the dict's order."""
+    """Runs a dict of independent tasks and returns {key: TaskResult} in the dict's order; `on_result` (called in
+    this process) is handed each result as it arrives, so that a caller keeps what finished when the run is
+    interrupted (Ctrl-C raises out of `run`)."""
 
     name = "executor"
 
     def run(
-        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True
+        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True,
+        on_result: OnResult | None = None,
     ) -> dict[Hashable, TaskResult]:
         raise NotImplementedError
 
@@ -129,31 +150,61 @@ class LocalExecutor(Executor):
         return self._pool
 
     def run(
-        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True
+        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True,
+        on_result: OnResult | None = None,
     ) -> dict[Hashable, TaskResult]:
         results: dict[Hashable, TaskResult] = {}
         if not tasks:
             return results
+
+        def arrived(res: TaskResult) -> None:
+            results[res.key] = res
+            if on_result is not None:
+                on_result(res)
+            bar.update(1)
+
         with progress_bar(len(tasks), desc, "task", progress) as bar:
             if self.workers == 0:
                 for key, args in tasks.items():
-                    results[key] = call_task(key, fn, args)
-                    bar.update(1)
+                    arrived(call_task(key, fn, args))
             else:
-                pool = self._get_pool()
-                pending = {pool.submit(call_task, key, fn, args) for key, args in tasks.items()}
-                try:
-                    while pending:
-                        done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                        for fut in done:
-                            res = fut.result()  # call_task never raises; a dead worker (BrokenProcessPool) does
-                            results[res.key] = res
-                            bar.update(1)
-                except BaseException:  # Ctrl-C (or a broken pool): stop now, not after every running task
+                self._run_pooled(fn, tasks, arrived)
+        return {key: results[key] for key in tasks}
+
+    def _run_pooled(self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], arrived: OnResult) -> None:
+        """Run the tasks on the pool, at most one a worker at a time: the tasks in flight are the ones a dying
+        worker takes down (a broken pool fails every task it holds), so those fail (`worker_died`) and the rest
+        run on a new pool."""
+        queue = list(tasks.items())[::-1]
+        running: dict[Future, Hashable] = {}
+        pool = self._get_pool()
+        try:
+            while queue or running:
+                while queue and len(running) < self.workers:
+                    key, args = queue.pop()
+                    running[pool.submit(call_task, key, fn, args)] = key
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                broken = False
+                for fut in sorted(done, key=lambda f: str(running[f])):
+                    key = running.pop(fut)
+                    try:
+                        arrived(fut.result())  # call_task never raises; a dead worker (BrokenProcessPool) does
+                    except BrokenProcessPool as error:  # said by the caller, as any failed task
+                        broken = True
+                        arrived(worker_died(key, error))
+                if broken:  # every task still in flight was taken down with it: said as such, then a new pool
+                    for fut in sorted(wait(running)[0], key=lambda f: str(running[f])):
+                        key = running.pop(fut)
+                        error = fut.exception()
+                        arrived(worker_died(key, error) if isinstance(error, BrokenProcessPool) else fut.result())
                     self._pool = None
                     stop_pool(pool)
-                    raise
-        return {key: results[key] for key in tasks}
+                    if queue:
+                        pool = self._get_pool()
+        except BaseException:  # Ctrl-C: stop now, not after every running task
+            self._pool = None
+            stop_pool(pool)
+            raise
 
     def close(self) -> None:
         if self._pool is not None:
@@ -194,19 +245,26 @@ class DaskExecutor(Executor):
                 raise InputError(f"cannot reach the Dask scheduler {address}: {first}") from None
 
     def run(
-        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True
+        self, fn: Callable[..., Any], tasks: dict[Hashable, tuple], desc: str = "tasks", progress: bool = True,
+        on_result: OnResult | None = None,
     ) -> dict[Hashable, TaskResult]:
         from dask.distributed import as_completed
+        from distributed.scheduler import KilledWorker
 
         results: dict[Hashable, TaskResult] = {}
         if not tasks:
             return results
         # pure=False: a re-run of the same task after a fix must run again, not return a cached result.
-        futures = [self.client.submit(call_task, key, fn, args, pure=False) for key, args in tasks.items()]
+        futures = {self.client.submit(call_task, key, fn, args, pure=False): key for key, args in tasks.items()}
         with progress_bar(len(tasks), desc, "task", progress) as bar:
             for fut in as_completed(futures):
-                res = fut.result()
+                try:
+                    res = fut.result()
+                except KilledWorker as error:  # its workers died under it (Dask retried it on others first)
+                    res = worker_died(futures[fut], error)
                 results[res.key] = res
+                if on_result is not None:
+                    on_result(res)
                 bar.update(1)
         return {key: results[key] for key in tasks}
 

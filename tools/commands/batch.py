@@ -41,8 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "are mapped in one")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace outputs in --out made with other parameters or from changed flights (without "
-                             "it such a re-run is refused); also map again the sessions another sosmatch version made "
+                        help="replace outputs in --out made with other parameters (without it such a re-run is "
+                             "refused; a flight whose files changed is mapped again either way, and its pairs, merges "
+                             "and comparisons made again); also map again the sessions another sosmatch version made "
                              "(without it they are kept, with a warning)")
     add_params_arguments(parser)
 

@@ -13,7 +13,8 @@ processes, or a Dask cluster):
 2. map: each flight -> OUT/sessions/NAME (`sosmatch.workflows.map`);
 3. match: every pair of mapped sessions, or with `nearest=k` only pairs where one session is among the k
    nearest of the other (by mean camera position; needs all sessions in one frame: same EPSG code, or the
-   same local frame), and then also each flight with the flight flown before and the one after it among those
+   same local frame; a session in a local frame of its own, `pairs.own_frame`, is paired with every other), and
+   then also each flight with the flight flown before and the one after it among those
    that overlap it (by the EXIF capture time of its images, where they have one: `pairs.pairs_chosen_by`; the
    flights of one site all overlap, and consecutive surveys are the comparisons a site manager wants)
    -> OUT/pairs/A__B/match.json (`sosmatch match`, which, unless BatchOptions.verify is off,
@@ -36,7 +37,8 @@ processes, or a Dask cluster):
    kept and unseen landmarks go into the pair's row (`tasks.pair_change_counts`);
 6. report: OUT/report.json, OUT/report.md (a table per session and per pair), OUT/session_graph.png.
 
-Resume: every finished task writes OUT/state/STAGE/KEY.json atomically, holding a fingerprint of its inputs
+Resume: every finished task writes OUT/state/STAGE/KEY.json atomically as it finishes (`state.run_stage`),
+holding a fingerprint of its inputs
 (a flight's contents, the parameters its stage reads (`plugin.params.mapping_params` for a map), upstream
 fingerprints) and its result (paths relative to OUT, so a moved OUT resumes, and a moved flights folder too).
 A re-run skips tasks whose state matches and whose outputs still exist, so an interrupted batch continues

@@ -86,11 +86,28 @@ NOT_FLIGHTS = (".", "_")  # folder names that are never flights: hidden ones, an
 NOT_FLIGHT_OUTPUTS = ("batch", "match", "merge", "changes", "evaluate", "demo", "segment")
 
 
+# what each kind of flight folder is, in words (`discover_flights`' refusal of a flight given as the flights folder)
+KIND_NAMES = {"mapped": "a mapped session", "synth": "a `sosmatch synth` session", "poses": "images with poses.csv",
+              "opensfm": "images with an OpenSfM reconstruction", "images": "a folder of photos in images/"}
+
+
+def _itself_a_flight(root: Path) -> str | None:
+    """The kind of flight `root` itself is (`classify_flight`), or None. Photos loose in it with no pose file are
+    no flight of their own here: a folder of flights may hold a stray picture beside the flight folders."""
+    kind = classify_flight(root)
+    return None if kind == "images" and images_dir(root) == root else kind
+
+
 def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) -> list[Flight]:
     """Flights in the sub-folders of `flights_dir`, sorted by name; hidden folders and `exclude` are skipped."""
     root = Path(flights_dir)
     if not root.is_dir():
         raise InputError("flights directory not found", root)
+    if (kind := _itself_a_flight(root)) is not None:
+        # its images/ (and a synth session's labels/) would be taken for flights of photos, mapped by structure
+        # from motion in a made-up frame beside the poses the folder holds (rev48 D2)
+        raise InputError(f"is itself a flight ({KIND_NAMES[kind]}); give the folder that holds the flights, one "
+                         "sub-folder each", root)
     excluded = {p.resolve() for p in exclude}
     flights: list[Flight] = []
     seen: dict[Path, str] = {}  # resolved folder -> the flight name it is mapped as

@@ -44,12 +44,13 @@ def _valid_merge(done: dict[str, Any]) -> bool:
     return (Path(done.get("merged", "")) / MERGE_RECORD).is_file()
 
 
-def _stale_outputs(out_dir: Path, report: BatchReport, nearest: int | None = None) -> list[str]:
+def _stale_outputs(out_dir: Path, report: BatchReport, nearest: int | None = None, merging: bool = True) -> list[str]:
     """The batch's outputs (OUT/sessions/F, OUT/pairs/A__B, OUT/merged/R) that this run neither made nor read: of
     flights removed from the flights folder since an earlier run, pairs --nearest does not choose, or a group whose
     reference changed. They are left in place (a user may still want them) but named, each with its cause as this
     run knows it (`_stale_cause`), so that nobody reads them as part of this batch and nobody has to guess why
-    (nu40: merged/f1 left by a reference that moved, and the warning guessed at flights removed or --nearest)."""
+    (nu40: merged/f1 left by a reference that moved, and the warning guessed at flights removed or --nearest).
+    `merging`: whether this run merges its groups (off: --no-merge)."""
     current = {"sessions": {s["name"] for s in report.sessions}, "pairs": {p["pair"] for p in report.pairs},
                "merged": {g["reference"] for g in report.groups if g.get("status") not in ("single", "not merged")}}
     stale = []
@@ -58,15 +59,16 @@ def _stale_outputs(out_dir: Path, report: BatchReport, nearest: int | None = Non
             stale += [f"{folder}/{p.name}" for p in sorted((out_dir / folder).iterdir())
                       if p.is_dir() and p.name not in names]
     if stale:
-        causes = [f"{name} ({_stale_cause(name, report, nearest)})" for name in stale]
+        causes = [f"{name} ({_stale_cause(name, report, nearest, merging)})" for name in stale]
         log.warning("%d output(s) in %s belong to no flight, pair or group of this run: %s%s; left in place, not "
                     "part of this report", len(stale), out_dir, "; ".join(causes[:6]),
                     " ..." if len(causes) > 6 else "")
     return stale
 
 
-def _stale_cause(name: str, report: BatchReport, nearest: int | None) -> str:
-    """Why an output folder `name` (sessions/F, pairs/A__B, merged/R) is not part of this run."""
+def _stale_cause(name: str, report: BatchReport, nearest: int | None, merging: bool = True) -> str:
+    """Why an output folder `name` (sessions/F, pairs/A__B, merged/R) is not part of this run (`merging` off:
+    --no-merge, which merges no group)."""
     folder, item = name.split("/", 1)
     status = {s["name"]: s.get("status") for s in report.sessions}
     gone = [f for f in (item.split(PAIR_SEP) if folder == "pairs" else [item]) if f not in status]
@@ -75,6 +77,8 @@ def _stale_cause(name: str, report: BatchReport, nearest: int | None) -> str:
     if folder == "pairs":
         return f"--nearest {nearest} does not choose this pair" if nearest is not None else "not matched by this run"
     if folder == "merged":
+        if not merging:  # rev48 D3: the group was said to be "merged as R now"
+            return "made by an earlier run; --no-merge: this run merges no group"
         for g in report.groups:
             if item in g.get("reference_was", []):
                 return g["reference_note"]

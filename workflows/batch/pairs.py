@@ -167,6 +167,21 @@ CHOSEN_ALL = "every pair"
 CHOSEN_ALL_NO_FRAME = "every pair (--nearest needs every session's position in one frame)"
 CHOSEN_NEAREST = "nearest by camera position"
 CHOSEN_BY_TIME = "consecutive flights by capture time"
+CHOSEN_OWN_FRAME = "every pair of a session in a local frame of its own (--nearest cannot place it)"
+
+
+def own_frame(session: dict[str, Any]) -> bool:
+    """Whether a mapped session (its batch record) is in a local frame of its own, which no other session shares:
+    poses by structure from motion without GPS (its poses/poses.json in the session, EPSG 0: "origin on the
+    ground under the flight"), or an OpenSfM reconstruction without reference_lla. Its position says nothing of
+    where it lies against the others (rev48 D5: such sessions were "nearest" to whichever centre was nearest their
+    own origin). A local frame given with the poses (a synth world, a poses.csv in `crs: local`) is taken as
+    shared, as the user gave it."""
+    if session.get("epsg"):
+        return False
+    if session.get("kind") in ("images", "opensfm"):
+        return True
+    return bool(session.get("session")) and (Path(session["session"]) / "poses" / "poses.json").is_file()
 
 
 def pairs_chosen_by(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
@@ -176,17 +191,28 @@ def pairs_chosen_by(names: list[str], sessions: dict[str, dict[str, Any]], neare
     other by mean camera position, plus each flight's neighbours in time (`time_neighbour_pairs`; `times`: each
     flight's capture time, `flight_times`): the flights of one site all overlap, so the nearest by position are
     arbitrary among them (nu40, 6 flights, --nearest 2: 1-2..1-6, 2-6, 3-5, 3-6, 4-6 kept and 2-3, 3-4, 4-5, the
-    consecutive surveys, dropped)."""
+    consecutive surveys, dropped). A session in a local frame of its own (`own_frame`) is matched with every other
+    one."""
     all_pairs = list(combinations(names, 2))
     if nearest is None:
         return dict.fromkeys(all_pairs, CHOSEN_ALL)
-    centres = [sessions[n].get("center") for n in names]
-    epsgs = {sessions[n].get("epsg") for n in names}
+    # sessions in a local frame of their own are matched with every other one: nearness by position is no
+    # nearness for them (`own_frame`)
+    alone = [n for n in names if own_frame(sessions[n])]
+    placed = [n for n in names if n not in alone]
+    centres = [sessions[n].get("center") for n in placed]
+    epsgs = {sessions[n].get("epsg") for n in placed}
     if any(c is None for c in centres) or len(epsgs) > 1:
         log.warning("--nearest needs every session's position in one frame; matching all %d pairs", len(all_pairs))
         return dict.fromkeys(all_pairs, CHOSEN_ALL_NO_FRAME)
-    reasons = dict.fromkeys([(names[i], names[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)],
-                            f"{CHOSEN_NEAREST} (--nearest {nearest})")
+    reasons = dict.fromkeys([(placed[i], placed[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)]
+                            if len(placed) > 1 else [], f"{CHOSEN_NEAREST} (--nearest {nearest})")
+    if alone:
+        log.warning("--nearest: %s %s in a local frame of its own (poses by structure from motion, not georeferenced): "
+                    "its position says nothing of where it lies against the others, so it is matched with every other "
+                    "session",
+                    ", ".join(alone), "is" if len(alone) == 1 else "are each")
+        reasons.update(dict.fromkeys([p for p in all_pairs if set(p) & set(alone)], CHOSEN_OWN_FRAME))
     timed = [n for n in names if (times or {}).get(n) is not None]
     if len(timed) >= 2:
         footprints = {n: _footprint(sessions[n]["session"]) for n in timed if sessions[n].get("session")}

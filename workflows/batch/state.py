@@ -94,9 +94,13 @@ def run_stage(
     state: StateStore, stage: str, out_dir: Path, desc: str, progress: bool, still_valid: Any = None,
     earlier: dict[str, list[str]] | None = None, redo: Collection[str] = (),
     made_from: dict[str, str] | None = None, unrecorded: Callable[[str, dict[str, Any]], bool] | None = None,
+    on_done: Callable[[str], None] | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """Skip tasks whose state matches, run the rest, save the state of those that succeed. The tasks `redo` run
-    whatever their state (made from a session mapped again by this version: `batch.workflow._kept_session`).
+    """Skip tasks whose state matches, run the rest, save the state of each that succeeds as its result arrives
+    (then `on_done(key)`): Ctrl-C, or a worker killed under another task, loses only the tasks still running, and
+    the re-run resumes the others (rev48 D1: a stage's states were saved once all its tasks had returned, so an
+    interrupted stage was done again from its start). The tasks `redo` run whatever their state (made from a
+    session mapped again by this version: `batch.workflow._kept_session`).
 
     `fingerprints`: each task's fingerprint per version of sosmatch (`plugin.params.build_versions`: today's
     first, then earlier versions', None where a version cannot have made it); `earlier`: further fingerprints an
@@ -133,12 +137,17 @@ def run_stage(
             records[key] = {**{k: v for k, v in done.items() if k != MADE_FROM}, "status": "done", "resumed": True}
         else:
             todo[key] = args
+
+    def arrived(res: TaskResult) -> None:
+        key = str(res.key)
+        rec = record_result(res, out_dir / "logs", stage, key)
+        if res.ok:
+            inputs = {MADE_FROM: made_from[key]} if made_from is not None and key in made_from else {}
+            state.put(stage, key, today[key], {**{k: v for k, v in rec.items() if k != "status"}, **inputs})
+            if on_done is not None:
+                on_done(key)
+        records[key] = rec
+
     if todo:
-        results = executor.run(fn, todo, desc=desc, progress=progress)
-        for key, res in results.items():
-            rec = record_result(res, out_dir / "logs", stage, key)
-            if res.ok:
-                inputs = {MADE_FROM: made_from[key]} if made_from is not None and key in made_from else {}
-                state.put(stage, key, today[key], {**{k: v for k, v in rec.items() if k != "status"}, **inputs})
-            records[key] = rec
+        executor.run(fn, todo, desc=desc, progress=progress, on_result=arrived)
     return {key: records[key] for key in tasks}

@@ -198,19 +198,22 @@ BATCH_IMAGES_ADVICE = ("batch reads a mapped session's images in the directory i
 
 def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, params: Params,
                  overwrite: bool = False, verified: bool = True, images_a: str | None = None,
-                 images_b: str | None = None, answer_gate_m: float | None = None) -> dict[str, Any]:
+                 images_b: str | None = None, answer_gate_m: float | None = None,
+                 match_json: str | None = None) -> dict[str, Any]:
     """Change detection of one accepted pair with its alignment a_from_b into out_dir
     (`sosmatch.workflows.changes`); returns the counts for the report. `overwrite`: replace a complete changes
     output of other inputs there (BatchOptions.overwrite); `verified`: the match's answer is its verification's
     (`changes.compute` then trusts it unless its counterparts are at chance level). `images_a`, `images_b`: where
     the flights' images are now (a flights folder moved after mapping; None: where the session's run.json
     recorded them). `answer_gate_m`: the pair's match's theta_eps (`match_io.answer_gate`), the gate of the
-    alignment control as in `alignment_task` (None: the configured one)."""
+    alignment control as in `alignment_task` (None: the configured one). `match_json`: the pair's match, which
+    `changes.compute` checks and its record names as `sosmatch changes --match` does (rev48 D4: "match": "").
+    The paths are recorded as given: batch gives them absolute, as the standalone command records the images."""
     from ...database.outputs import open_output_dir
     from .. import changes
 
-    run = changes.compute(session_a, session_b, None, params, a_from_b=Sim3.from_dict(transform), verified=verified,
-                          images_a=images_a, images_b=images_b, answer_gate_m=answer_gate_m,
+    run = changes.compute(session_a, session_b, match_json, params, a_from_b=Sim3.from_dict(transform),
+                          verified=verified, images_a=images_a, images_b=images_b, answer_gate_m=answer_gate_m,
                           images_advice=BATCH_IMAGES_ADVICE)
     with open_output_dir(out_dir, "changes", changes.output_identity(run, params, True),
                          inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json") as out:

@@ -214,11 +214,11 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
         log.warning("--epsg applies to flights of photos (poses from structure from motion); %s keep the CRS of "
                     "their poses or sessions", ", ".join(own))
     renewed: set[str] = set()  # sessions another sosmatch made, mapped again (--overwrite): all made of them too
+    by_name = {f.name: f for f in flights}
+    # what a flight mapped now was mapped from, recorded as its state is saved (an interrupted stage keeps both)
     sessions = run_stage(executor, map_task, tasks, fps, state, "map", out_dir, "map flights",
-                          options.progress, _kept_session(out_dir, options.overwrite, renewed), earlier)
-    for f in flights:
-        if sessions[f.name]["status"] == "done" and not sessions[f.name].get("resumed"):
-            record_contents(out_dir, f, *listings[f.name])
+                         options.progress, _kept_session(out_dir, options.overwrite, renewed), earlier,
+                         on_done=lambda name: record_contents(out_dir, by_name[name], *listings[name]))
     _session_warnings(sessions)
     # one session of each flight: two maps of one flight (other settings) would put its images twice into a model
     mapped = one_session_per_flight([f.name for f in flights if sessions[f.name]["status"] == "done"], sessions)
@@ -270,7 +270,7 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     report.pairs += [{"pair": f"{a}{PAIR_SEP}{b}", "a": a, "b": b, "status": "skipped",
                       "error": "a session failed to map"}
                      for a, b in combinations([f.name for f in flights], 2) if a in failed or b in failed]
-    report.stale_outputs = _stale_outputs(out_dir, report, options.nearest)
+    report.stale_outputs = _stale_outputs(out_dir, report, options.nearest, options.merge)
     return report
 
 
@@ -430,6 +430,10 @@ def _match_warnings(pairs: dict[str, dict[str, Any]], matches: dict[str, MatchSu
                 log.warning("pair %s match: %s", key, text)
 
 
+def _absolute(path: str | Path) -> str:
+    return str(Path(path).resolve())
+
+
 def _valid_changes(done: dict[str, Any]) -> bool:
     return Path(done.get("changes", "")).is_file()
 
@@ -445,10 +449,13 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
             continue
         a, b = key.split(PAIR_SEP)
         fps[key] = _after_pair_fingerprints(pair_fps[key], rec["transform"], params)
-        tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key / "changes"),
-                      rec["transform"], params, True, rec.get("answer") == "verified",  # the batch's own, as merge
-                      *(None if images[n] is None else str(images[n]) for n in (a, b)),
-                      answer_gate(matches[key], params.association.distance_tolerance_m))
+        # absolute, as `sosmatch changes` records them (rev48 D4: changes.json held paths relative to the cwd the
+        # batch was started from, where OUT is movable)
+        tasks[key] = (_absolute(sessions[a]["session"]), _absolute(sessions[b]["session"]),
+                      str(out_dir / "pairs" / key / "changes"), rec["transform"], params, True,
+                      rec.get("answer") == "verified",  # the batch's own, as merge
+                      *(None if images[n] is None else _absolute(images[n]) for n in (a, b)),
+                      answer_gate(matches[key], params.association.distance_tolerance_m), _absolute(rec["match"]))
     made_from, unrecorded = pair_made_from(tasks, matches, state, pair_fps)
     done = run_stage(executor, changes_task, tasks, fps, state, "changes", out_dir, "detect changes",
                      options.progress, _valid_changes, redo=of_sessions(tasks, renewed), made_from=made_from,
