@@ -192,3 +192,16 @@ def test_a_scale_no_dome_makes_is_not_kept(survey, tmp_path: Path) -> None:
     assert "more than an SfM block's dome makes" in doc["search_mode"]["transform_from_poses"]
     assert any("dome makes" in w for w in doc["warnings"])
     assert not any("--set association.transform=similarity" in w for w in doc["warnings"])
+
+
+def test_a_batch_pair_keeps_the_transform_the_user_chose(survey, tmp_path: Path) -> None:
+    """`batch --set association.transform=rigid` (BatchOptions.transform_chosen): its pairs of SfM-posed flights
+    are matched rigidly as chosen; without the choice a batch pair is matched as `sosmatch match` would."""
+    from sosmatch.workflows.batch import pair_task
+
+    pa, sa = survey
+    a, b = _files(tmp_path, pa, sa, _domed(pa, 1.04), sfm_b=True)
+    pair_task(str(a), str(b), str(tmp_path / "chosen"), Params(), True, False, True)
+    pair_task(str(a), str(b), str(tmp_path / "free"), Params(), True, False)
+    kinds = [json.loads((tmp_path / d / "match.json").read_text())["transform_kind"] for d in ("chosen", "free")]
+    assert kinds == ["rigid", "similarity"]

@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_min_confidence_argument, add_params_arguments, params_from_args, with_min_confidence
+from ._common import (
+    add_min_confidence_argument,
+    add_params_arguments,
+    params_from_args,
+    settings_from_args,
+    with_min_confidence,
+)
 
 NAME = "batch"
 HELP = "map a folder of flights, match session pairs, merge each connected group into one model (resumable)"
@@ -62,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--refine only applies with --no-verify (verification already refines its winner)")
     options = batch.BatchOptions(nearest=args.nearest, ekf=args.ekf, merge=not args.no_merge, refine=args.refine,
                                  verify=not args.no_verify, changes=not args.no_changes, epsg=args.epsg,
-                                 progress=not (args.no_progress or args.quiet), overwrite=args.overwrite)
+                                 progress=not (args.no_progress or args.quiet), overwrite=args.overwrite,
+                                 transform_chosen="association.transform" in settings_from_args(args))
     with make_executor(args.workers, args.scheduler, args.dask_local) as executor:
         report = batch.run(args.flights_dir, args.out, params, executor, options)
     done = sum(s["status"] == "done" for s in report.sessions)

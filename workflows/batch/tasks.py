@@ -72,17 +72,20 @@ def map_task(name: str, kind: str, flight: str, session_dir: str, params: Params
 
 
 def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params, verify: bool = True,
-              overwrite: bool = False) -> dict[str, Any]:
+              overwrite: bool = False, transform_chosen: bool = False) -> dict[str, Any]:
     """Match two mapped sessions into pair_dir/match.json and summarise its answer.
 
     `sosmatch match` verifies the window hypotheses on the full maps unless `verify` is off (BatchOptions.verify);
     the summary's `accepted`, `transform` and `num_associations` are the answer's (the verified alignment's), the
     window consensus is kept as `match_accepted`, `match_transform`, `match_associations`.
     `overwrite`: replace a complete match of other maps or settings in pair_dir (BatchOptions.overwrite).
+    `transform_chosen`: the user chose `association.transform` (BatchOptions.transform_chosen); else a pair with a
+    flight of structure-from-motion poses is matched with a similarity, as `sosmatch match` does.
     """
     from .. import match as match_workflow
 
-    match_workflow.run(params, session_a, session_b, pair_dir, overwrite=overwrite, verify=verify)
+    match_workflow.run(params, session_a, session_b, pair_dir, overwrite=overwrite, verify=verify,
+                       transform_chosen=transform_chosen)
     return summarise_match(Path(pair_dir) / "match.json")
 
 

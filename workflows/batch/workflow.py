@@ -55,6 +55,10 @@ class BatchOptions:
     # replace complete outputs made with other parameters or options (OUT itself, and each session, pair and merged
     # model whose inputs changed); without it such a run is refused (sosmatch.database.outputs)
     overwrite: bool = False
+    # the user chose `association.transform` (--set, --config, --preset): every pair is matched with it; otherwise a
+    # pair holding a flight whose poses came from structure from motion is matched with a similarity, as `sosmatch
+    # match` does (`workflows.match.transform_choice`)
+    transform_chosen: bool = False
 
 
 def _valid_session(done: dict[str, Any]) -> bool:
@@ -167,7 +171,8 @@ def run(
     identity = keyed_by_models(lambda extra: versioned_identity(lambda as_dict: {
         "params": as_dict(params), "matcher": (pair_fn or pair_task).__qualname__,
         **{k: v for k, v in dataclasses.asdict(options).items()
-           if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)}, **extra}, fingerprint), models)
+           if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)
+           and not (k == "transform_chosen" and not v)}, **extra}, fingerprint), models)
     try:
         with open_output_dir(out_dir, "batch", identity, inputs=[f.path for f in flights],
                              overwrite=options.overwrite, legacy_record="report.json") as taken:
@@ -236,15 +241,18 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     pair_fps, pair_tasks = {}, {}
     # each version's association and verification sections: the same for every pair
     match_sections = build_versions(lambda as_dict: (as_dict(params.association), as_dict(params.verification)))
+    # (a chosen transform only when chosen: pairs matched before the option keep their fingerprint and resume)
+    chosen_transform = {"transform_chosen": True} if options.transform_chosen else {}
     for a, b in chosen:
         key = f"{a}{PAIR_SEP}{b}"
         # what `sosmatch match` depends on (its own identity: both maps, association, verification, seed)
         pair_fps[key] = each_version(lambda fa, fb, sections: fingerprint(
             {"a": fa, "b": fb, "association": sections[0], "verification": sections[1], "seed": pdict["seed"],
-             "matcher": matcher.__qualname__, "verify": verify}), fps[a], fps[b], match_sections)
+             "matcher": matcher.__qualname__, "verify": verify, **chosen_transform}), fps[a], fps[b],
+            match_sections)
         pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
         if matcher is pair_task:
-            pair_tasks[key] += (verify, True)  # the batch's own, as the sessions
+            pair_tasks[key] += (verify, True, options.transform_chosen)  # the batch's own, as the sessions
     pairs_from, same_maps = _pairs_made_from(pair_tasks, _map_prints(sessions, mapped))
     pairs = run_stage(executor, matcher, pair_tasks, pair_fps, state, "match", out_dir, "match pairs",
                       options.progress, _valid_match, redo=of_sessions(pair_tasks, renewed), made_from=pairs_from,
