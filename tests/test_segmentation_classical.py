@@ -79,6 +79,19 @@ def test_large_image_is_segmented_at_working_resolution():
     assert np.mean(iou.max(axis=1) >= 0.5) >= 0.8
 
 
+
+def test_images_too_narrow_are_refused_and_long_narrow_ones_keep_three_working_rows():
+    # 1 px high or wide: no region a mask could describe, a one-line user error (it crashed the watershed,
+    # rev50 D1); 1200 x 4 works at 400 x 3, not 400 x 1 (the working size kept too few rows and crashed too)
+    backend = get_backend("classical", SegmentationParams())
+    rng = np.random.default_rng(0)
+    for h, w in ((1, 300), (300, 1), (1, 1), (2, 50)):
+        with pytest.raises(InputError, match=f"{w}x{h} px is too small"):
+            backend(rng.integers(0, 255, (h, w, 3), dtype=np.uint8))
+    long = backend(rng.integers(0, 255, (4, 1200, 3), dtype=np.uint8))
+    assert long.shape == (4, 1200)
+    assert get_backend("classical", SegmentationParams())(np.zeros((3, 3, 3), np.uint8)).shape == (3, 3)
+
 def test_unknown_backend_is_a_user_error():
     with pytest.raises(InputError, match="unknown segmentation backend"):
         get_backend("nope", SegmentationParams())

@@ -31,6 +31,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from ..errors import InputError
 from ..params import SegmentationParams
 from .base import Backend, MaskSet
 
@@ -257,16 +258,29 @@ def _ward_merge(
     return roots
 
 
+# The fewest pixels on a side the pipeline works with: the watershed's border rows and columns are copied from
+# their inner neighbours and the filters (median, Sobel) are 3 px wide. A narrower image holds no region a mask
+# could describe (its covariance is flat along that side) and is no aerial frame: it is refused, one line.
+MIN_SIDE_PX = 3
+
+
 def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
-    """Segment an (H, W, 3) uint8 RGB image into non-overlapping object-like regions (see module doc)."""
+    """Segment an (H, W, 3) uint8 RGB image into non-overlapping object-like regions (see module doc).
+
+    Raises InputError for an image with fewer than MIN_SIDE_PX rows or columns."""
     c = {**default_conf, **(conf or {})}
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
     h, w = image.shape[:2]
+    if min(h, w) < MIN_SIDE_PX:
+        raise InputError(f"image of {w}x{h} px is too small to segment (at least {MIN_SIDE_PX} px on each side)")
     scale = min(1.0, c["max_side"] / max(h, w)) if c["max_side"] > 0 else 1.0
     small = image
     if scale < 1.0:
-        small = cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+        # a long, narrow image keeps MIN_SIDE_PX across (an 8000x29 image at 400 px was 1 px high and crashed
+        # the watershed, rev50 D1); the two scales may then differ, which the mapping back below allows
+        size = (max(MIN_SIDE_PX, round(w * scale)), max(MIN_SIDE_PX, round(h * scale)))
+        small = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
     sh, sw = small.shape[:2]
     px_area = (h * w) / (sh * sw)  # full-resolution pixels per working pixel
     smooth = np.ascontiguousarray(small)
