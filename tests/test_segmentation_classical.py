@@ -92,6 +92,24 @@ def test_images_too_narrow_are_refused_and_long_narrow_ones_keep_three_working_r
     assert long.shape == (4, 1200)
     assert get_backend("classical", SegmentationParams())(np.zeros((3, 3, 3), np.uint8)).shape == (3, 3)
 
+
+def test_masks_at_full_resolution_are_the_working_masks_upsampled_by_nearest_neighbour():
+    # at a non-integer scale (480 x 641 -> 300 x 400) every full-resolution row / column takes the mask of its
+    # nearest working row / column: a mask is constant on each such block and nothing beyond the working mask's
+    # blocks is set (mapped back window by window, the window's edge was copied one more row and column a side,
+    # rev50 D4)
+    img, _ = blob_scene(h=480, w=641, n=10, seed=3, radius=(15, 40))
+    masks = get_backend("classical", SegmentationParams())(img)
+    assert len(masks) >= 5
+    src_y = ((np.arange(480) + 0.5) / (480 / 300)).astype(np.int64)
+    src_x = ((np.arange(641) + 0.5) / (641 / 400)).astype(np.int64)
+    first_y = np.searchsorted(src_y, np.arange(300))
+    first_x = np.searchsorted(src_x, np.arange(400))
+    for k in range(len(masks)):
+        full = masks.mask(k)
+        working = full[first_y[:, None], first_x[None, :]]
+        assert np.array_equal(full, working[src_y[:, None], src_x[None, :]])
+
 def test_unknown_backend_is_a_user_error():
     with pytest.raises(InputError, match="unknown segmentation backend"):
         get_backend("nope", SegmentationParams())

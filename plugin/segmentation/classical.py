@@ -427,12 +427,13 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
     all_src_x = ((np.arange(w) + 0.5) / fx).astype(np.int64)
     for sy0, sx0, sm, con in small_masks:
         if scale < 1.0:
-            # map only the region's window back to full size (nearest neighbour, as for the whole image)
-            y0, y1 = int(sy0 * fy), min(h, int(np.ceil((sy0 + sm.shape[0]) * fy)))
-            x0, x1 = int(sx0 * fx), min(w, int(np.ceil((sx0 + sm.shape[1]) * fx)))
-            src_y = np.clip(all_src_y[y0:y1] - sy0, 0, sm.shape[0] - 1)
-            src_x = np.clip(all_src_x[x0:x1] - sx0, 0, sm.shape[1] - 1)
-            m = sm[src_y[:, None], src_x[None, :]]
+            # map only the region's window back to full size (nearest neighbour, as for the whole image): the
+            # full-resolution rows and columns whose working row / column lies in the window. The window's box
+            # scaled outward took up to one more row and column a side, filled with the window's edge (masks
+            # +0.7 % in size at median, rev50 D4)
+            y0, y1 = np.searchsorted(all_src_y, (sy0, sy0 + sm.shape[0])).tolist()
+            x0, x1 = np.searchsorted(all_src_x, (sx0, sx0 + sm.shape[1])).tolist()
+            m = sm[(all_src_y[y0:y1] - sy0)[:, None], (all_src_x[x0:x1] - sx0)[None, :]]
         else:
             y0, x0, m = sy0, sx0, sm
         rows = np.flatnonzero(m.any(axis=1))
