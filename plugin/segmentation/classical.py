@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import SegmentationParams
-from .base import Backend, MaskSet
+from .base import Backend, MaskSet, check_image_u8
 
 #: Defaults come from `SegmentationParams` (one source of truth: the `classical_*` fields and their comments).
 default_conf = {
@@ -267,7 +267,9 @@ MIN_SIDE_PX = 3
 def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
     """Segment an (H, W, 3) uint8 RGB image into non-overlapping object-like regions (see module doc).
 
-    Raises InputError for an image with fewer than MIN_SIDE_PX rows or columns."""
+    Raises InputError for an image with fewer than MIN_SIDE_PX rows or columns, ValueError for one that is not
+    uint8 RGB or gray (`check_image_u8`)."""
+    check_image_u8(image)
     c = {**default_conf, **(conf or {})}
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
