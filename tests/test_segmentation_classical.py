@@ -110,6 +110,45 @@ def test_masks_at_full_resolution_are_the_working_masks_upsampled_by_nearest_nei
         working = full[first_y[:, None], first_x[None, :]]
         assert np.array_equal(full, working[src_y[:, None], src_x[None, :]])
 
+
+def test_the_ward_merge_cost_is_bounded_on_a_flat_noisy_frame(monkeypatch):
+    # grey + sensor noise (snow, calm water): one region grows over the frame and every merge re-costed all its
+    # neighbours, n^2 / 5 heap pushes (45 s CPU at 800 px, rev50 D3). Past the budget of pushes per region a
+    # region too large to be a mask no longer re-costs them: the pushes stay near the budget (here set low)
+    import heapq
+
+    from sosmatch.plugin.segmentation import classical
+
+    img = np.clip(200 + np.random.default_rng(0).normal(0, 8, (300, 400, 3)), 0, 255).astype(np.uint8)
+    counts = {"pushes": 0, "regions": 0}
+    push, merge = heapq.heappush, classical._ward_merge
+
+    def counting_push(heap, item):
+        counts["pushes"] += 1
+        push(heap, item)
+
+    def counting_merge(area, *args, **kwargs):
+        counts["regions"] = len(area)
+        return merge(area, *args, **kwargs)
+
+    monkeypatch.setattr(heapq, "heappush", counting_push)
+    monkeypatch.setattr(classical, "_ward_merge", counting_merge)
+    monkeypatch.setattr(classical, "_FULL_REFRESH_PUSHES_PER_REGION", 5, raising=False)
+    masks = classical.segment_classical(img)
+    assert len(masks) == 0 and counts["regions"] > 500
+    assert counts["pushes"] < 10 * counts["regions"]  # 170 per region when every merge re-costs all neighbours
+
+
+def test_frames_within_the_merge_budget_keep_the_exact_merge(monkeypatch):
+    from sosmatch.plugin.segmentation import classical
+
+    img, _ = blob_scene(h=300, w=400, n=12, seed=5, radius=(10, 40))
+    masks = classical.segment_classical(img)
+    monkeypatch.setattr(classical, "_FULL_REFRESH_PUSHES_PER_REGION", 10**9)
+    exact = classical.segment_classical(img)
+    assert np.array_equal(masks.bboxes, exact.bboxes) and np.array_equal(masks.scores, exact.scores)
+    assert all(np.array_equal(masks.crop(k)[1], exact.crop(k)[1]) for k in range(len(masks)))
+
 def test_unknown_backend_is_a_user_error():
     with pytest.raises(InputError, match="unknown segmentation backend"):
         get_backend("nope", SegmentationParams())

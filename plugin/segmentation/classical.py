@@ -146,9 +146,18 @@ def _watershed_regions(
     return (*_relabel(ws, np.arange(ws.max() + 1)), grad)
 
 
+# Heap pushes per watershed region after which `_ward_merge` stops re-costing every neighbour of a region too large
+# to be a mask each time it grows. Seneca frames at 800 working px take 8-70 per region, synthetic sessions' 6-15,
+# the test's blobs on a noisy field 101 (BENCHMARKS, "The Ward merge's cost cliff"); near-uniform noisy frames
+# (snow, calm water, fog) at 600-800 px took up to 736 (n^2 / 5: one region grows over the whole frame, and every
+# merge re-costed all of its neighbours).
+_FULL_REFRESH_PUSHES_PER_REGION = 200
+
+
 def _ward_merge(
     area: np.ndarray, mean: np.ndarray, a: np.ndarray, b: np.ndarray, thresholds: list[float],
     length: np.ndarray | None = None, edge: np.ndarray | None = None, edge_weight: float = 0.0,
+    frozen_area: float = float("inf"),
 ) -> list[np.ndarray]:
     """Greedy Ward merging of adjacent regions: repeatedly join the adjacent pair with the smallest increase of
     the within-region sum of squares, n_a n_b / (n_a + n_b) * |mean_a - mean_b|^2, until it exceeds `threshold`.
@@ -158,6 +167,11 @@ def _ward_merge(
     nearly the same colour join at once. Ward costs never decrease along the merge sequence, so one pass gives
     every level: returns, per threshold (ascending), the root region of every input region. Deterministic
     (ties are broken by region index). Plain Python on a heap: a few thousand regions take a few tens of ms.
+
+    The cost is bounded: once the heap has taken `_FULL_REFRESH_PUSHES_PER_REGION` pushes per region, a region
+    larger than `frozen_area` (no mask can be that large) that grows costs only the pairs the absorbed region
+    brought; its other pairs keep the costs they had (its mean barely moves as it takes in small ones). Below the
+    budget the merge is exact, so ordinary frames keep their masks (rev50 D3: flat noisy frames took 7-45 s).
     """
     import heapq
     from math import dist
@@ -199,6 +213,8 @@ def _ward_merge(
     # variable, and the cost inlined (same arithmetic, in the same order, as `cost`).
     heappop, heappush = heapq.heappop, heapq.heappush
     next_level = levels[0] if levels else float("inf")
+    budget = _FULL_REFRESH_PUSHES_PER_REGION * n
+    pushes = 0
     while heap:
         c, i, j, vi, vj = heappop(heap)
         if c > next_level:
@@ -218,7 +234,8 @@ def _ward_merge(
         alive[j] = False
         parent[j] = i
         nb_i = nbrs[i]
-        for k in nbrs[j]:
+        nb_j = nbrs[j]
+        for k in nb_j:
             if k != i:
                 nbrs[k].discard(j)
                 nbrs[k].add(i)
@@ -230,9 +247,17 @@ def _ward_merge(
                     ik[1] += jk[1]
         nb_i.discard(j)
         nbrs[j] = set()
-        vi = version[i] + 1
-        version[i] = vi
-        for k in nb_i:
+        if ci > frozen_area and pushes > budget:
+            # past the budget a region too large to be a mask keeps its version, so its pairs' entries stay
+            # valid at their costs; only the pairs j brought (new neighbours, longer boundaries) are costed
+            vi = version[i]
+            targets = nb_j - {i}
+        else:
+            vi = version[i] + 1
+            version[i] = vi
+            targets = nb_i
+        pushes += len(targets)
+        for k in targets:
             ck = cnt[k]
             if ci <= 0 or ck <= 0:
                 ckost = 0.0
@@ -318,7 +343,7 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
     a0, b0, len0, edge0 = _adjacency(labels, n, grad)
     area0, mean0, _, _ = _stats_from_moments(mom)
     costs = [c["merge_cost"] * c["merge_level_factor"] ** k for k in range(max(1, c["merge_levels"]))]
-    roots = _ward_merge(area0, mean0, a0, b0, costs, len0, edge0, c["edge_weight"])
+    roots = _ward_merge(area0, mean0, a0, b0, costs, len0, edge0, c["edge_weight"], c["max_area_frac"] * sh * sw)
 
     # Object-like regions at every level of the merge hierarchy (a crown may be complete at one level and
     # split, or fused with its neighbour, at another: SAM's multimask output has the same nesting).
