@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .geometry import SAME_POSITION
+
 
 def select_keyframes(centers: np.ndarray, interval_m: float) -> np.ndarray:
     """Indices of the keyframes of a sequence of camera centres.
@@ -78,7 +80,11 @@ def next_frame_ranks(xy: np.ndarray) -> np.ndarray:
     # frames within the step, the frame itself included (a ball's edge is closed: frames at exactly the step's
     # distance are not nearer, so the radius is shrunk by a rounding margin)
     inside = tree.query_ball_point(xy[steps], np.maximum(dist * (1.0 - 1e-9) - 1e-9, 0.0), return_length=True)
-    return np.maximum(np.asarray(inside, dtype=np.int64) - 1, 0)
+    ranks = np.maximum(np.asarray(inside, dtype=np.int64) - 1, 0)
+    # A step that stays at its recorded position (a hover, a stalled GPS repeating one fix) has no frame strictly
+    # nearer; the radius-0 ball above still holds every frame at that position, which ranked a hover of M frames
+    # at M - 1 and had a stalled flight judged scrambled and reordered (rev50 D2).
+    return np.where(dist <= SAME_POSITION, 0, ranks)
 
 
 def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[np.ndarray, str]:

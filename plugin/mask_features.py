@@ -22,7 +22,7 @@ import numpy as np
 from .geometry import Camera
 from .landmark_size import border_sides
 from .params import SegmentationParams
-from .segmentation.base import MaskSet
+from .segmentation.base import MaskSet, check_image_u8
 
 
 @dataclass
@@ -106,12 +106,11 @@ class MaskFeatures:
 
 
 def to_gray_u8(image: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 gray of an (H, W) or (H, W, 3) uint8 RGB image."""
+    """(H, W) uint8 gray of an (H, W) or (H, W, 3) uint8 RGB image (ValueError for others: `check_image_u8`)."""
+    check_image_u8(image)
     if image.ndim == 2:
-        return np.ascontiguousarray(image, dtype=np.uint8)
-    if image.ndim == 3 and image.shape[2] == 3:
-        return cv2.cvtColor(np.ascontiguousarray(image, dtype=np.uint8), cv2.COLOR_RGB2GRAY)
-    raise ValueError(f"expected (H, W) or (H, W, 3) image, got {image.shape}")
+        return np.ascontiguousarray(image)
+    return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
 
 
 def mask_moments(masks: MaskSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -269,6 +268,7 @@ def describe_masks(
     Returns:
         MaskFeatures of the kept masks, in MaskSet order; `mask_ids` maps them back to `masks`.
     """
+    check_image_u8(image)
     if image.shape[:2] != masks.shape:
         raise ValueError(f"image shape {image.shape[:2]} != mask shape {masks.shape}")
     areas, cent, cov = mask_moments(masks)

@@ -219,6 +219,19 @@ def _predict_track_points(
     return out, points
 
 
+def _check_finite(features: Sequence[MaskFeatures], keyframe_poses: Poses) -> None:
+    """ValueError naming the first keyframe with a NaN or infinite pose, mask centroid or size: one NaN centre made
+    the track points' origin NaN and switched the point-transfer gate and ground band off for the whole flight
+    (twice the tracks, no error), one NaN centroid failed deep in an eigen-solver (rev50 D5)."""
+    finite = np.isfinite(keyframe_poses.centers).all(axis=1) & np.isfinite(keyframe_poses.rotations).all(axis=(1, 2))
+    bad_pose = ~finite
+    for t, feats in enumerate(features):
+        if bad_pose[t]:
+            raise ValueError(f"keyframe {t} ({keyframe_poses.names[t]}): NaN or infinite pose")
+        if not (np.isfinite(feats.centroids).all() and np.isfinite(feats.sizes).all()):
+            raise ValueError(f"keyframe {t} ({keyframe_poses.names[t]}): NaN or infinite mask centroid or size")
+
+
 def track_masks(
     features: Sequence[MaskFeatures],
     camera: Camera,
@@ -243,6 +256,9 @@ def track_masks(
 
     Returns:
         TrackingResult with a track id for every mask.
+
+    Raises:
+        ValueError: the inputs' lengths differ, or a keyframe has a NaN or infinite pose, centroid or size.
     """
     n_kf = len(features)
     if len(keyframe_poses) != n_kf or len(motion_stats) != n_kf:
@@ -250,6 +266,7 @@ def track_masks(
             f"features ({n_kf}), keyframe_poses ({len(keyframe_poses)}) and motion_stats ({len(motion_stats)}) "
             "must have one entry per keyframe"
         )
+    _check_finite(features, keyframe_poses)
     max_age = max(1, int(params.max_track_age_keyframes))
     point_gate = bool(params.point_transfer_gate)
     # Per track, the normal equations of the least-squares intersection of its observation rays,

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from sosmatch.plugin.keyframes import flight_order
+from sosmatch.plugin.keyframes import flight_order, next_frame_ranks
 from sosmatch.tools.toy_sessions import lawnmower
 
 
@@ -17,6 +17,18 @@ def test_a_flight_in_order_stays_as_given_and_hovering_is_no_jump():
     hover = np.repeat(c, 3, axis=0)  # three frames at every place: the nearest frame is at 0 m
     assert flight_order(hover)[1] == "given"
 
+
+
+def test_a_long_hover_or_gps_stall_before_a_line_is_no_scrambled_order():
+    # 20 frames at one recorded position (a hover, or a stalled GPS repeating one fix), then a 15-frame line:
+    # a step that stays put has no frame strictly nearer (rank 0); counting the coincident frames as nearer
+    # judged this flight scrambled and reversed it (rev50 D2)
+    line = np.c_[np.zeros(15), np.arange(1, 16) * 7.0, np.full(15, 100.0)]
+    c = np.r_[np.tile([0.0, 0.0, 100.0], (20, 1)), line]
+    assert next_frame_ranks(c[:, :2])[:19].tolist() == [0] * 19
+    order, how = flight_order(c)
+    assert how == "given" and np.array_equal(order, np.arange(len(c)))
+    assert flight_order(np.tile([0.0, 0.0, 100.0], (30, 1)))[1] == "given"  # a hover alone
 
 def test_a_shuffled_lawnmower_is_chained_back_along_its_lines():
     c = _lawnmower()

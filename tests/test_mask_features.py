@@ -146,3 +146,58 @@ def test_detection_beside_the_backend_gives_the_same_description():
         assert len(detect_sift(image, params).keypoints) > len(np.unique(ref.sift_xy, axis=0))
     with pytest.raises(ValueError, match="SIFT detection"):
         describe_masks(image, masks, params, detect_sift(image[:200], params))
+
+
+def test_images_other_than_8_bit_are_refused_not_cast():
+    # a cast kept a 16-bit value's low byte and zeroed a 0..1 float: no SIFT and no error (rev50 D6); the CLI reads
+    # every image to 8 bits by the flight's white level (database.images.to_rgb_u8)
+    import pytest
+
+    from sosmatch.plugin.mask_features import to_gray_u8
+    from sosmatch.plugin.segmentation.classical import segment_classical
+
+    image = _texture()
+    masks = MaskSet.from_masks([np.ones(image.shape[:2], bool)])
+    for other in (image.astype(np.uint16) * 256, image.astype(np.float32) / 255):
+        with pytest.raises(ValueError, match=f"image dtype {other.dtype}: expected uint8"):
+            describe_masks(other, masks, SegmentationParams())
+        with pytest.raises(ValueError, match="expected uint8"):
+            to_gray_u8(other)
+        with pytest.raises(ValueError, match="expected uint8"):
+            segment_classical(other)
+    rgba = np.concatenate([image, np.full(image.shape[:2] + (1,), 255, np.uint8)], axis=2)
+    with pytest.raises(ValueError, match=r"shape \(240, 320, 4\)"):
+        segment_classical(rgba)
+    assert len(describe_masks(image, masks, SegmentationParams()).sift_mask) > 0
+
+
+def test_label_images_of_any_integer_dtype_and_sparse_labels():
+    import pytest
+
+    rng = np.random.default_rng(0)
+    labels = rng.integers(0, 5, (60, 80))
+    ref = MaskSet.from_labels(labels.astype(np.int32))
+    # unsigned label images raised OverflowError (max with initial=-1); they have no background: 0 is a label
+    for dtype in (np.uint8, np.uint16, np.uint32, np.uint64):
+        assert np.array_equal(MaskSet.from_labels(labels.astype(dtype)).labels, ref.labels)
+    # a label far beyond the pixel count asked bincount for 64 GiB: renumbered alike
+    sparse = np.where(labels == 4, 2**33, labels)
+    sparse[0, 0] = -1
+    dense = np.where(labels == 4, 4, labels)
+    dense[0, 0] = -1
+    got = MaskSet.from_labels(sparse)
+    assert np.array_equal(got.labels, MaskSet.from_labels(dense).labels) and len(got) == 5
+    with pytest.raises(ValueError, match="NaN"):
+        MaskSet.from_labels(np.where(labels == 0, np.nan, labels))
+
+
+def test_no_masks_need_the_image_shape():
+    import pytest
+
+    image = _texture(60, 80)
+    with pytest.raises(ValueError, match="give the image's shape"):
+        MaskSet.from_masks([])
+    none = MaskSet.from_masks([], shape=(60, 80))
+    assert none.shape == (60, 80) and len(describe_masks(image, none, SegmentationParams())) == 0
+    with pytest.raises(ValueError, match=r"mask 1 has shape \(60, 81\)"):
+        MaskSet.from_masks([np.ones((60, 80), bool), np.ones((60, 81), bool)])

@@ -125,10 +125,12 @@ def test_cli_directory_run_skips_bad_files_and_exits_nonzero(tmp_path, capsys):
     Image.fromarray(_scene(seed=2)[:, :, 0]).save(src / "b_gray.png")
     Image.fromarray(np.zeros((120, 160, 3), np.uint8)).save(src / "c_black.png")  # no masks: not an error
     (src / "d_corrupt.jpg").write_bytes(b"\xff\xd8\xff\xe0 broken")
+    Image.fromarray(_scene(seed=3)[:1]).save(src / "e_one_row.png")  # refused by the backend (rev50 D1)
     out = tmp_path / "out"
     code = main(["segment", str(src), "--out", str(out), "-q"])
     err = capsys.readouterr().err
-    assert code == 2 and "d_corrupt.jpg" in err
+    assert code == 2 and "d_corrupt.jpg" in err and "e_one_row.png: image of 320x1 px is too small" in err
+    assert "Traceback" not in err
     for name in ("a.png", "b_gray.png", "c_black.png"):
         assert (out / f"{name}.png").is_file()
         doc = json.loads((out / f"{name}.json").read_text())
@@ -139,7 +141,7 @@ def test_cli_directory_run_skips_bad_files_and_exits_nonzero(tmp_path, capsys):
     assert min(np.hypot(m["centroid"][0] - 220.5, m["centroid"][1] - 150.5) for m in a["masks"]) < 1.5
     assert json.loads((out / "c_black.png.json").read_text())["masks"] == []
     rows = (out / "summary.csv").read_text().splitlines()
-    assert len(rows) == 5 and "d_corrupt.jpg" in rows[-1]
+    assert len(rows) == 6 and "d_corrupt.jpg" in rows[-2] and "too small" in rows[-1]
     overlay = cv2.imread(str(out / "a.png.png"))
     assert overlay.shape == (240, 320, 3) and not np.array_equal(overlay[..., ::-1], _scene(seed=1))
     # only good files: exit 0 (another set of images over a complete output needs --overwrite); a missing input is

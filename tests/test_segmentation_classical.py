@@ -79,6 +79,76 @@ def test_large_image_is_segmented_at_working_resolution():
     assert np.mean(iou.max(axis=1) >= 0.5) >= 0.8
 
 
+
+def test_images_too_narrow_are_refused_and_long_narrow_ones_keep_three_working_rows():
+    # 1 px high or wide: no region a mask could describe, a one-line user error (it crashed the watershed,
+    # rev50 D1); 1200 x 4 works at 400 x 3, not 400 x 1 (the working size kept too few rows and crashed too)
+    backend = get_backend("classical", SegmentationParams())
+    rng = np.random.default_rng(0)
+    for h, w in ((1, 300), (300, 1), (1, 1), (2, 50)):
+        with pytest.raises(InputError, match=f"{w}x{h} px is too small"):
+            backend(rng.integers(0, 255, (h, w, 3), dtype=np.uint8))
+    long = backend(rng.integers(0, 255, (4, 1200, 3), dtype=np.uint8))
+    assert long.shape == (4, 1200)
+    assert get_backend("classical", SegmentationParams())(np.zeros((3, 3, 3), np.uint8)).shape == (3, 3)
+
+
+def test_masks_at_full_resolution_are_the_working_masks_upsampled_by_nearest_neighbour():
+    # at a non-integer scale (480 x 641 -> 300 x 400) every full-resolution row / column takes the mask of its
+    # nearest working row / column: a mask is constant on each such block and nothing beyond the working mask's
+    # blocks is set (mapped back window by window, the window's edge was copied one more row and column a side,
+    # rev50 D4)
+    img, _ = blob_scene(h=480, w=641, n=10, seed=3, radius=(15, 40))
+    masks = get_backend("classical", SegmentationParams())(img)
+    assert len(masks) >= 5
+    src_y = ((np.arange(480) + 0.5) / (480 / 300)).astype(np.int64)
+    src_x = ((np.arange(641) + 0.5) / (641 / 400)).astype(np.int64)
+    first_y = np.searchsorted(src_y, np.arange(300))
+    first_x = np.searchsorted(src_x, np.arange(400))
+    for k in range(len(masks)):
+        full = masks.mask(k)
+        working = full[first_y[:, None], first_x[None, :]]
+        assert np.array_equal(full, working[src_y[:, None], src_x[None, :]])
+
+
+def test_the_ward_merge_cost_is_bounded_on_a_flat_noisy_frame(monkeypatch):
+    # grey + sensor noise (snow, calm water): one region grows over the frame and every merge re-costed all its
+    # neighbours, n^2 / 5 heap pushes (45 s CPU at 800 px, rev50 D3). Past the budget of pushes per region a
+    # region too large to be a mask no longer re-costs them: the pushes stay near the budget (here set low)
+    import heapq
+
+    from sosmatch.plugin.segmentation import classical
+
+    img = np.clip(200 + np.random.default_rng(0).normal(0, 8, (300, 400, 3)), 0, 255).astype(np.uint8)
+    counts = {"pushes": 0, "regions": 0}
+    push, merge = heapq.heappush, classical._ward_merge
+
+    def counting_push(heap, item):
+        counts["pushes"] += 1
+        push(heap, item)
+
+    def counting_merge(area, *args, **kwargs):
+        counts["regions"] = len(area)
+        return merge(area, *args, **kwargs)
+
+    monkeypatch.setattr(heapq, "heappush", counting_push)
+    monkeypatch.setattr(classical, "_ward_merge", counting_merge)
+    monkeypatch.setattr(classical, "_FULL_REFRESH_PUSHES_PER_REGION", 5, raising=False)
+    masks = classical.segment_classical(img)
+    assert len(masks) == 0 and counts["regions"] > 500
+    assert counts["pushes"] < 10 * counts["regions"]  # 170 per region when every merge re-costs all neighbours
+
+
+def test_frames_within_the_merge_budget_keep_the_exact_merge(monkeypatch):
+    from sosmatch.plugin.segmentation import classical
+
+    img, _ = blob_scene(h=300, w=400, n=12, seed=5, radius=(10, 40))
+    masks = classical.segment_classical(img)
+    monkeypatch.setattr(classical, "_FULL_REFRESH_PUSHES_PER_REGION", 10**9)
+    exact = classical.segment_classical(img)
+    assert np.array_equal(masks.bboxes, exact.bboxes) and np.array_equal(masks.scores, exact.scores)
+    assert all(np.array_equal(masks.crop(k)[1], exact.crop(k)[1]) for k in range(len(masks)))
+
 def test_unknown_backend_is_a_user_error():
     with pytest.raises(InputError, match="unknown segmentation backend"):
         get_backend("nope", SegmentationParams())

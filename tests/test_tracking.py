@@ -283,6 +283,23 @@ def test_empty_keyframes_and_input_checks():
         track_masks([MaskFeatures.empty()], CAM, poses, [(0, 0), (1, 1)], TrackingParams())
 
 
+
+def test_non_finite_poses_and_centroids_are_refused_naming_the_keyframe(scene):
+    # a NaN camera centre made every track point NaN (twice the tracks, no error); a NaN centroid failed in an
+    # eigen-solver (rev50 D5)
+    feats, poses, motion, _ = scene
+    feats, poses = feats[:6], poses.subset(range(6))
+    bad = Poses(poses.names, poses.rotations, poses.centers.copy())
+    bad.centers[4, 0] = np.nan
+    with pytest.raises(ValueError, match=f"keyframe 4 \\({poses.names[4]}\\): NaN or infinite pose"):
+        track_masks(feats, CAM, bad, motion[:6], TrackingParams())
+    cent = feats[3].centroids.copy()
+    cent[0, 1] = np.inf
+    broken = list(feats)
+    broken[3] = dataclasses.replace(feats[3], centroids=cent)
+    with pytest.raises(ValueError, match="keyframe 3 .*NaN or infinite mask centroid"):
+        track_masks(broken, CAM, poses, motion[:6], TrackingParams())
+
 def _three_views(decoy_dx_px: float, seed: int = 5):
     """One ground object seen from three nadir keyframes 20 m apart (rays meet at ~11 degrees); in keyframe 2 a
     decoy with the object's exact descriptors sits `decoy_dx_px` further along the epipolar line than the true

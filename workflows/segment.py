@@ -145,10 +145,10 @@ def run(
 ) -> SegmentReport:
     """Segment every image of `inputs` (files and/or directories) and write overlays and summaries to `out_dir`.
 
-    A bad image (unreadable, corrupt) is logged and recorded in the report; the others continue. The caller
-    decides the exit code from `report.failed`. Raises InputError if `inputs` names nothing that exists or
-    contains no image at all. `out_dir` is taken through `sosmatch.database.outputs` (`overwrite`: replace a
-    complete segmentation of other images or settings there).
+    A bad image (unreadable, corrupt, or refused by the backend: too small) is logged and recorded in the report;
+    the others continue. The caller decides the exit code from `report.failed`. Raises InputError if `inputs`
+    names nothing that exists or contains no image at all. `out_dir` is taken through `sosmatch.database.outputs`
+    (`overwrite`: replace a complete segmentation of other images or settings there).
     """
     params = params or Params()
     if backend is not None:
@@ -226,7 +226,12 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
             continue
         res.height, res.width = image.shape[:2]
         t0 = time.perf_counter()
-        masks = seg_backend(contrast[path.parent].apply(image))  # described and drawn on the image as read
+        try:
+            masks = seg_backend(contrast[path.parent].apply(image))  # described and drawn on the image as read
+        except InputError as exc:  # an image the backend refuses (too small): recorded like an unreadable one
+            res.error = str(InputError(exc.problem, path))
+            log.debug("%s", res.error)
+            continue
         t1 = time.perf_counter()
         feats = describe_masks(image, masks, params.segmentation)
         t2 = time.perf_counter()

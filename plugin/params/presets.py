@@ -21,7 +21,9 @@ PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"association.consistency": "distance", "association.windows": "id",
               "association.position_prior_m": 0.0, "association.georeference_prior_m": 0.0,
               "association.solver": "clipper",
-              # and the front end as published: every track its own landmark, the mean metric size
+              # and the front end as published: every track its own landmark, the mean metric size. Three tracking
+              # gates of ours stay on (README says so): the point-transfer gate (the paper gates every pair by the
+              # epipolar line and the motion gate), the cheirality check and the centroid noise in the motion gate
               "triangulation.size_estimator": "mean", "triangulation.fuse_radius_factor": 0.0,
               "tracking.ground_band_sigmas": 0.0, "association.derive_from_maps": False,
               "association.equal_area_windows": False, "triangulation.min_observations_from_views": False,

@@ -16,6 +16,18 @@ import numpy as np
 Backend = Callable[[np.ndarray], "MaskSet"]
 
 
+def check_image_u8(image: np.ndarray) -> None:
+    """ValueError unless `image` is an (H, W, 3) RGB or (H, W) gray uint8 array, the image every backend and the
+    mask description take. Other dtypes are not cast here: a cast keeps a 16-bit value's low byte and zeroes a
+    0..1 float (describe_masks then found no SIFT without an error, rev50 D6), and the right 8-bit image needs the
+    flight's white level, which `sosmatch.database.images.to_rgb_u8` applies (as `read_image` does)."""
+    if image.dtype != np.uint8:
+        raise ValueError(f"image dtype {image.dtype}: expected uint8 (8-bit RGB or gray; convert others with "
+                         "sosmatch.database.images.to_rgb_u8 and the flight's white level)")
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+        raise ValueError(f"image shape {image.shape}: expected (H, W, 3) RGB or (H, W) gray")
+
+
 @dataclass
 class MaskSet:
     """K binary masks over an image of `shape` (H, W), with a confidence score per mask.
@@ -55,20 +67,35 @@ class MaskSet:
     # -- construction --------------------------------------------------------------------------------------
     @classmethod
     def from_labels(cls, labels: np.ndarray, scores: np.ndarray | None = None) -> MaskSet:
-        """From a label image (negative = background). Labels need not be consecutive: present labels are
-        renumbered 0..K-1 in increasing order of their value; `scores`, if given, is indexed by the ORIGINAL
-        label value (length > max label) or already has one entry per present label."""
+        """From a label image of integers (or integral floats; negative = background, so an unsigned image has
+        none: its 0 is a label too). Labels need not be consecutive: present labels are renumbered 0..K-1 in
+        increasing order of their value; `scores`, if given, is indexed by the ORIGINAL label value (length > max
+        label) or already has one entry per present label. ValueError for NaN, infinite or non-numeric labels."""
         labels = np.asarray(labels)
-        top = int(labels.max(initial=-1))
+        if labels.dtype.kind not in "biuf":
+            raise ValueError(f"labels dtype {labels.dtype}: expected integers (negative = background)")
+        if labels.dtype.kind == "f" and not np.isfinite(labels).all():
+            raise ValueError("labels hold NaN or infinite values: mark the background with a negative label")
+        # max() with no initial: `initial=-1` does not fit an unsigned dtype (uint8 labels raised OverflowError)
+        top = int(labels.max()) if labels.size else -1
         if top < 0:
             return cls(labels.shape, np.zeros(0, np.float32), labels=np.full(labels.shape, -1, np.int32))
-        # bincount + lookup table instead of np.unique: no sort over millions of pixels
+        if top > np.iinfo(np.int64).max - 2:
+            raise ValueError(f"label {top} is too large (at most {np.iinfo(np.int64).max - 2})")
         shifted = labels.astype(np.int64, copy=False).ravel() + 1
         shifted[shifted < 0] = 0
-        present = np.flatnonzero(np.bincount(shifted, minlength=top + 2)[1:])
-        lut = np.full(top + 2, -1, np.int32)
-        lut[present + 1] = np.arange(len(present), dtype=np.int32)
-        out = lut[shifted].reshape(labels.shape)
+        if top < 2 * shifted.size + 1024:
+            # bincount + lookup table instead of np.unique: no sort over millions of pixels
+            present = np.flatnonzero(np.bincount(shifted, minlength=top + 2)[1:])
+            lut = np.full(top + 2, -1, np.int32)
+            lut[present + 1] = np.arange(len(present), dtype=np.int32)
+            out = lut[shifted].reshape(labels.shape)
+        else:
+            # sparse labels far beyond the pixel count (2^33 asked bincount for 64 GiB): sorted instead
+            uniq, inv = np.unique(shifted, return_inverse=True)
+            background = int(uniq[0] == 0)
+            present = uniq[background:] - 1
+            out = (inv.reshape(-1) - background).astype(np.int32).reshape(labels.shape)
         if scores is None:
             scores = np.ones(len(present), np.float32)
         else:
@@ -78,13 +105,27 @@ class MaskSet:
         return cls(labels.shape, scores, labels=out)
 
     @classmethod
-    def from_masks(cls, masks: np.ndarray | list[np.ndarray], scores: np.ndarray | None = None) -> MaskSet:
+    def from_masks(
+        cls, masks: np.ndarray | list[np.ndarray], scores: np.ndarray | None = None,
+        shape: tuple[int, int] | None = None,
+    ) -> MaskSet:
         """From full-size boolean masks (K, H, W) (or a list of them): cropped to their bounding boxes.
-        Empty masks are dropped (with their scores)."""
+        Empty masks are dropped (with their scores). `shape`: the image's (H, W), needed when there is no mask
+        (an empty list gave shape (0, 0), which no image matches); ValueError if the masks' shapes differ from
+        it or from each other."""
+        if shape is None and isinstance(masks, np.ndarray) and masks.ndim == 3:
+            shape = masks.shape[1:]
         masks = [np.asarray(m, dtype=bool) for m in masks]
         if scores is None:
             scores = np.ones(len(masks), np.float32)
-        shape = masks[0].shape if masks else (0, 0)
+        if shape is None:
+            if not masks:
+                raise ValueError("no masks: give the image's shape (from_masks([], shape=(H, W)))")
+            shape = masks[0].shape
+        shape = (int(shape[0]), int(shape[1]))
+        for k, m in enumerate(masks):
+            if m.shape != shape:
+                raise ValueError(f"mask {k} has shape {m.shape}, the image {shape}")
         boxes, crops, keep = [], [], []
         for k, m in enumerate(masks):
             rows = np.flatnonzero(m.any(axis=1))

@@ -31,8 +31,9 @@ import dataclasses
 import cv2
 import numpy as np
 
+from ..errors import InputError
 from ..params import SegmentationParams
-from .base import Backend, MaskSet
+from .base import Backend, MaskSet, check_image_u8
 
 #: Defaults come from `SegmentationParams` (one source of truth: the `classical_*` fields and their comments).
 default_conf = {
@@ -145,9 +146,18 @@ def _watershed_regions(
     return (*_relabel(ws, np.arange(ws.max() + 1)), grad)
 
 
+# Heap pushes per watershed region after which `_ward_merge` stops re-costing every neighbour of a region too large
+# to be a mask each time it grows. Seneca frames at 800 working px take 8-70 per region, synthetic sessions' 6-15,
+# the test's blobs on a noisy field 101 (BENCHMARKS, "The Ward merge's cost cliff"); near-uniform noisy frames
+# (snow, calm water, fog) at 600-800 px took up to 736 (n^2 / 5: one region grows over the whole frame, and every
+# merge re-costed all of its neighbours).
+_FULL_REFRESH_PUSHES_PER_REGION = 200
+
+
 def _ward_merge(
     area: np.ndarray, mean: np.ndarray, a: np.ndarray, b: np.ndarray, thresholds: list[float],
     length: np.ndarray | None = None, edge: np.ndarray | None = None, edge_weight: float = 0.0,
+    frozen_area: float = float("inf"),
 ) -> list[np.ndarray]:
     """Greedy Ward merging of adjacent regions: repeatedly join the adjacent pair with the smallest increase of
     the within-region sum of squares, n_a n_b / (n_a + n_b) * |mean_a - mean_b|^2, until it exceeds `threshold`.
@@ -157,6 +167,11 @@ def _ward_merge(
     nearly the same colour join at once. Ward costs never decrease along the merge sequence, so one pass gives
     every level: returns, per threshold (ascending), the root region of every input region. Deterministic
     (ties are broken by region index). Plain Python on a heap: a few thousand regions take a few tens of ms.
+
+    The cost is bounded: once the heap has taken `_FULL_REFRESH_PUSHES_PER_REGION` pushes per region, a region
+    larger than `frozen_area` (no mask can be that large) that grows costs only the pairs the absorbed region
+    brought; its other pairs keep the costs they had (its mean barely moves as it takes in small ones). Below the
+    budget the merge is exact, so ordinary frames keep their masks (rev50 D3: flat noisy frames took 7-45 s).
     """
     import heapq
     from math import dist
@@ -198,6 +213,8 @@ def _ward_merge(
     # variable, and the cost inlined (same arithmetic, in the same order, as `cost`).
     heappop, heappush = heapq.heappop, heapq.heappush
     next_level = levels[0] if levels else float("inf")
+    budget = _FULL_REFRESH_PUSHES_PER_REGION * n
+    pushes = 0
     while heap:
         c, i, j, vi, vj = heappop(heap)
         if c > next_level:
@@ -217,7 +234,8 @@ def _ward_merge(
         alive[j] = False
         parent[j] = i
         nb_i = nbrs[i]
-        for k in nbrs[j]:
+        nb_j = nbrs[j]
+        for k in nb_j:
             if k != i:
                 nbrs[k].discard(j)
                 nbrs[k].add(i)
@@ -229,9 +247,17 @@ def _ward_merge(
                     ik[1] += jk[1]
         nb_i.discard(j)
         nbrs[j] = set()
-        vi = version[i] + 1
-        version[i] = vi
-        for k in nb_i:
+        if ci > frozen_area and pushes > budget:
+            # past the budget a region too large to be a mask keeps its version, so its pairs' entries stay
+            # valid at their costs; only the pairs j brought (new neighbours, longer boundaries) are costed
+            vi = version[i]
+            targets = nb_j - {i}
+        else:
+            vi = version[i] + 1
+            version[i] = vi
+            targets = nb_i
+        pushes += len(targets)
+        for k in targets:
             ck = cnt[k]
             if ci <= 0 or ck <= 0:
                 ckost = 0.0
@@ -257,16 +283,31 @@ def _ward_merge(
     return roots
 
 
+# The fewest pixels on a side the pipeline works with: the watershed's border rows and columns are copied from
+# their inner neighbours and the filters (median, Sobel) are 3 px wide. A narrower image holds no region a mask
+# could describe (its covariance is flat along that side) and is no aerial frame: it is refused, one line.
+MIN_SIDE_PX = 3
+
+
 def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
-    """Segment an (H, W, 3) uint8 RGB image into non-overlapping object-like regions (see module doc)."""
+    """Segment an (H, W, 3) uint8 RGB image into non-overlapping object-like regions (see module doc).
+
+    Raises InputError for an image with fewer than MIN_SIDE_PX rows or columns, ValueError for one that is not
+    uint8 RGB or gray (`check_image_u8`)."""
+    check_image_u8(image)
     c = {**default_conf, **(conf or {})}
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
     h, w = image.shape[:2]
+    if min(h, w) < MIN_SIDE_PX:
+        raise InputError(f"image of {w}x{h} px is too small to segment (at least {MIN_SIDE_PX} px on each side)")
     scale = min(1.0, c["max_side"] / max(h, w)) if c["max_side"] > 0 else 1.0
     small = image
     if scale < 1.0:
-        small = cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+        # a long, narrow image keeps MIN_SIDE_PX across (an 8000x29 image at 400 px was 1 px high and crashed
+        # the watershed, rev50 D1); the two scales may then differ, which the mapping back below allows
+        size = (max(MIN_SIDE_PX, round(w * scale)), max(MIN_SIDE_PX, round(h * scale)))
+        small = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
     sh, sw = small.shape[:2]
     px_area = (h * w) / (sh * sw)  # full-resolution pixels per working pixel
     smooth = np.ascontiguousarray(small)
@@ -302,7 +343,7 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
     a0, b0, len0, edge0 = _adjacency(labels, n, grad)
     area0, mean0, _, _ = _stats_from_moments(mom)
     costs = [c["merge_cost"] * c["merge_level_factor"] ** k for k in range(max(1, c["merge_levels"]))]
-    roots = _ward_merge(area0, mean0, a0, b0, costs, len0, edge0, c["edge_weight"])
+    roots = _ward_merge(area0, mean0, a0, b0, costs, len0, edge0, c["edge_weight"], c["max_area_frac"] * sh * sw)
 
     # Object-like regions at every level of the merge hierarchy (a crown may be complete at one level and
     # split, or fused with its neighbour, at another: SAM's multimask output has the same nesting).
@@ -413,12 +454,13 @@ def segment_classical(image: np.ndarray, conf: dict | None = None) -> MaskSet:
     all_src_x = ((np.arange(w) + 0.5) / fx).astype(np.int64)
     for sy0, sx0, sm, con in small_masks:
         if scale < 1.0:
-            # map only the region's window back to full size (nearest neighbour, as for the whole image)
-            y0, y1 = int(sy0 * fy), min(h, int(np.ceil((sy0 + sm.shape[0]) * fy)))
-            x0, x1 = int(sx0 * fx), min(w, int(np.ceil((sx0 + sm.shape[1]) * fx)))
-            src_y = np.clip(all_src_y[y0:y1] - sy0, 0, sm.shape[0] - 1)
-            src_x = np.clip(all_src_x[x0:x1] - sx0, 0, sm.shape[1] - 1)
-            m = sm[src_y[:, None], src_x[None, :]]
+            # map only the region's window back to full size (nearest neighbour, as for the whole image): the
+            # full-resolution rows and columns whose working row / column lies in the window. The window's box
+            # scaled outward took up to one more row and column a side, filled with the window's edge (masks
+            # +0.7 % in size at median, rev50 D4)
+            y0, y1 = np.searchsorted(all_src_y, (sy0, sy0 + sm.shape[0])).tolist()
+            x0, x1 = np.searchsorted(all_src_x, (sx0, sx0 + sm.shape[1])).tolist()
+            m = sm[(all_src_y[y0:y1] - sy0)[:, None], (all_src_x[x0:x1] - sx0)[None, :]]
         else:
             y0, x0, m = sy0, sx0, sm
         rows = np.flatnonzero(m.any(axis=1))
