@@ -21,7 +21,7 @@ from ...database.cameras import format_cameras_txt
 from ...database.code_version import code_versions, kept_message, other_version
 from ...database.images import check_images_decode
 from ...database.json_text import json_default
-from ...database.output_markers import fingerprint, read_json_or_none
+from ...database.output_markers import fingerprint, input_identity, read_json_or_none
 from ...database.outputs import open_output_dir
 from ...database.poses import format_poses_csv
 from ...database.taken import make_dirs
@@ -55,13 +55,16 @@ def _image_identity(paths: Sequence[Path]) -> list[list[Any]]:
         out.append([p.name, st.st_size, st.st_mtime_ns])
     return out
 
-def identity_of(image_dir: Path, params: Params, **options: Any) -> str:
+def identity_of(image_dir: Path, params: Params, telemetry: str | Path | None = None, **options: Any) -> str:
     """What the poses of `image_dir` depend on: the image files (names, sizes, times), the SfM parameters, the
-    seed and `options` (telemetry, take-off altitude, ...). One version's identity only: no setting of the sfm
-    section is registered in `plugin.params.identity.ADDED` (tests/test_identity_versions.py fails when one is;
-    then build it with `versioned_identity`, also for the stages' marks in `compute_poses`)."""
+    seed, the `telemetry` file's content (`input_identity`) and `options` (take-off altitude, ...). One
+    version's identity only: no setting of the sfm section is registered in `plugin.params.identity.ADDED`
+    (tests/test_identity_versions.py fails when one is; then build it with `versioned_identity`, also for the
+    stages' marks in `compute_poses`)."""
     return fingerprint({"images": _image_identity(list_images(image_dir)), "sfm": params_to_dict(params.sfm),
-                        "seed": params.seed, **{k: str(v) for k, v in options.items()}})
+                        "seed": params.seed,
+                        **{k: str(v) for k, v in {"telemetry": input_identity(telemetry), **options}.items()}})
+
 
 def run(
     images: str | Path,
@@ -82,11 +85,11 @@ def run(
         raise InputError("image directory not found", image_dir)
     if not (math.isfinite(nominal_height_m) and nominal_height_m > 0):  # scales a block without GPS heights
         raise InputError(f"the nominal height must be a positive number of metres, got {nominal_height_m!r}")
-    options = {"telemetry": telemetry, "takeoff": takeoff_altitude_m, "sensor": sensor_width_mm,
+    options = {"takeoff": takeoff_altitude_m, "sensor": sensor_width_mm,
                "nominal_height_m": nominal_height_m,
                **({} if epsg is None else {"epsg": epsg})}  # only when chosen: earlier outputs keep their identity
     sfm.refuse_pair_list_names(list_images(image_dir))  # before anything is written
-    identity = identity_of(image_dir, params, **options)
+    identity = identity_of(image_dir, params, telemetry, **options)
     with open_output_dir(out, "poses", identity, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
         if taken.was_complete and (taken.path / RECORD).is_file():
             # the same inputs and settings: the outputs stand, also those of another sosmatch (the identity keys
@@ -341,7 +344,7 @@ class PosesFromImages:
 
     def _options(self) -> dict[str, Any]:
         # the CRS only when chosen: sessions mapped before the option keep their identity (and resume)
-        return {"telemetry": self.telemetry, "takeoff": self.takeoff_altitude_m, "sensor": self.sensor_width_mm,
+        return {"takeoff": self.takeoff_altitude_m, "sensor": self.sensor_width_mm,
                 "nominal_height_m": self.nominal_height_m, **({} if self.epsg is None else {"epsg": self.epsg})}
 
     def identity(self) -> str:
@@ -350,7 +353,7 @@ class PosesFromImages:
         if not Path(self.images).is_dir():
             raise InputError("image directory not found", self.images)
         sfm.refuse_pair_list_names(list_images(Path(self.images)))
-        return identity_of(Path(self.images), self.params, **self._options())
+        return identity_of(Path(self.images), self.params, self.telemetry, **self._options())
 
     def input_paths(self) -> list[Path]:
         return [Path(self.images)] + ([Path(self.telemetry)] if self.telemetry else [])
