@@ -4,13 +4,16 @@ structure from motion run where none is needed."""
 from __future__ import annotations
 
 import os
+import sqlite3
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 from PIL import Image
 
 from sosmatch.plugin.params import Params
 from sosmatch.workflows import poses as poses_wf
+from sosmatch.workflows import sfm as sfm_wf
 
 
 def _folder(tmp_path: Path) -> Path:
@@ -39,3 +42,38 @@ def test_an_edited_telemetry_changes_the_poses_identity_and_its_place_does_not(t
     moved.write_text("FileName,Heading\nf0.jpg,090\n")
     assert poses_wf.identity_of(images, Params(), moved) == before  # the same content elsewhere: the same input
     assert poses_wf.identity_of(images, Params()) != before
+
+
+def _database(path: Path, clears: int) -> None:
+    """One camera, and the pose priors cleared `clears` times, each by a run of its own (`sfm.write_pose_priors`:
+    once more in a run resumed after its match stage); each such opening bumps the schema cookie."""
+    db = pycolmap.Database.open(path)
+    try:
+        db.write_camera(pycolmap.Camera(model="PINHOLE", width=8, height=8, params=[8.0, 8.0, 4.0, 4.0],
+                                        camera_id=1), use_camera_id=True)
+    finally:
+        db.close()
+    for _ in range(clears):
+        db = pycolmap.Database.open(path)
+        try:
+            db.clear_pose_priors()
+        finally:
+            db.close()
+
+
+def test_the_published_database_does_not_count_the_schema_changes_of_its_run(tmp_path):
+    """rev49 D5: a run resumed after its match stage wrote the pose priors again, and COLMAP's clear_pose_priors
+    bumps SQLite's schema cookie, which VACUUM INTO copies: the published database.db differed from an
+    uninterrupted run's in one header byte. The same rows give the same bytes now."""
+    for name, clears in (("once", 1), ("resumed", 2)):
+        _database(tmp_path / f"{name}.db", clears)
+        sfm_wf.publish_database(tmp_path / f"{name}.db", tmp_path / f"{name}_published.db")
+        assert not (tmp_path / f"{name}.db").exists()
+    once, resumed = ((tmp_path / f"{n}_published.db").read_bytes() for n in ("once", "resumed"))
+    assert once == resumed
+    con = sqlite3.connect(tmp_path / "once_published.db")
+    try:
+        assert con.execute("PRAGMA integrity_check").fetchone() == ("ok",)
+        assert con.execute("SELECT COUNT(*) FROM cameras").fetchone() == (1,)
+    finally:
+        con.close()
