@@ -77,3 +77,14 @@ def test_the_published_database_does_not_count_the_schema_changes_of_its_run(tmp
         assert con.execute("SELECT COUNT(*) FROM cameras").fetchone() == (1,)
     finally:
         con.close()
+
+
+def test_images_in_several_separate_models_are_counted_once():
+    """rev49 D8: "2 separate model(s) hold 51 images" of 40 distinct ones: COLMAP put 11 in both models."""
+    from sosmatch.workflows.poses.job import unregistered_warning
+
+    a = [f"b{k:02d}.jpg" for k in range(40)]
+    model = sfm_wf.SfmModel(None, ["x.jpg"] * 3, a, other_models=[a, a[4:15]])
+    said = unregistered_warning(model, {n: 1 for n in a}, 43)
+    assert "2 separate model(s) hold 40 images" in said and said.startswith("40 of 43 images")
+

@@ -354,6 +354,12 @@ class SfmModel:
             return []
         return sorted(set(self.registered) - set(self.incremental_registered))
 
+    @property
+    def other_model_images(self) -> list[str]:
+        """The distinct images the smaller models hold, sorted: COLMAP may put an image in several of them (rev49:
+        2 models of 40 and 11 images, the 11 among the 40, said as "51 images")."""
+        return sorted(set().union(*self.other_models))
+
     def poses(self) -> tuple[list[str], np.ndarray, np.ndarray]:
         """(names, sfm_from_cam rotations (N,3,3), centres (N,3)) of the registered images, sorted by name."""
         rec = self.reconstruction

@@ -226,13 +226,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     links: dict[str, int] = {}
     if model.unregistered:
         links = sfm.strongest_links(db, model.unregistered, model.registered)
-        weak = sorted(model.unregistered, key=lambda n: (links[n], n))
-        warnings.append(f"{len(model.unregistered)} of {n_all} images could not be registered and are left out (too "
-                        "few verified matches with the registered images: at most "
-                        f"{max(links.values())} inliers with any one of them"
-                        + (f"; {len(model.other_models)} separate model(s) hold {sum(map(len, model.other_models))} "
-                           "images" if model.other_models else "") + "): "
-                        + _listing([f"{n} ({links[n]})" for n in weak]))
+        warnings.append(unregistered_warning(model, links, n_all))
 
     # Georegistration (or a local frame) of the registered images.
     t = time.perf_counter()
@@ -378,6 +372,16 @@ class PosesFromImages:
         self.result = load_result(staged)
         source = f"structure from motion of {image_dir} (SESSION_DIR/poses)"
         return map_inputs(self.result, image_dir, source), ("poses",)
+
+
+def unregistered_warning(model: sfm.SfmModel, links: dict[str, int], n_all: int) -> str:
+    """What is said of the images the largest model left out: each with its strongest link to it (`links`:
+    inliers), the weakest first, and the distinct images the separate models hold."""
+    weak = sorted(model.unregistered, key=lambda n: (links[n], n))
+    return (f"{len(model.unregistered)} of {n_all} images could not be registered and are left out (too few verified "
+            f"matches with the registered images: at most {max(links.values())} inliers with any one of them"
+            + (f"; {len(model.other_models)} separate model(s) hold {len(model.other_model_images)} images"
+               if model.other_models else "") + "): " + _listing([f"{n} ({links[n]})" for n in weak]))
 
 
 def _check_registered(count: int, n_all: int, sp: Any, image_dir: Path, how: str) -> None:
