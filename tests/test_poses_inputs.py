@@ -3,7 +3,9 @@ structure from motion run where none is needed."""
 
 from __future__ import annotations
 
+import logging
 import os
+import shutil
 import sqlite3
 from pathlib import Path
 
@@ -11,7 +13,8 @@ import numpy as np
 import pycolmap
 from PIL import Image
 
-from sosmatch.plugin.params import Params
+from sosmatch.plugin.params import Params, with_overrides
+from sosmatch.tools.cli import main
 from sosmatch.workflows import poses as poses_wf
 from sosmatch.workflows import sfm as sfm_wf
 
@@ -88,3 +91,20 @@ def test_images_in_several_separate_models_are_counted_once():
     said = unregistered_warning(model, {n: 1 for n in a}, 43)
     assert "2 separate model(s) hold 40 images" in said and said.startswith("40 of 43 images")
 
+
+def test_a_warning_of_the_images_metadata_is_logged_once(tmp_path, caplog):
+    """rev49 D9: the copies of images were named twice in the log, by the metadata's reader and again by `poses`,
+    which logged the reader's warnings with its own (poses.json counts them once, as before)."""
+    flight = tmp_path / "flight"
+    assert main(["synth", "--out", str(flight), "--frames", "4", "--width", "320", "--height", "240", "--geotags",
+                 "dji", "-q"]) == 0
+    images = tmp_path / "images"
+    images.mkdir()
+    for name in sorted(p.name for p in (flight / "images").iterdir())[:3]:
+        shutil.copy2(flight / "images" / name, images / name)
+    shutil.copy2(images / name, images / name.replace(".jpg", "-Edit.jpg"))
+    with caplog.at_level(logging.WARNING):
+        result = poses_wf.run(images, tmp_path / "poses", with_overrides(Params(), {"sfm.max_features": 1500}))
+    said = [r.getMessage() for r in caplog.records if "repeat another's exposure" in r.getMessage()]
+    assert len(said) == 1
+    assert sum("repeat another's exposure" in w for w in result.report["warnings"]) == 1

@@ -190,8 +190,10 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     sp = params.sfm
     # the receiver's sigma with the rounding of the fixes (`gps_track.with_quantisation`): one figure for the run
     gps_sigma_m = with_quantisation(sp.gps_sigma_m, priors.summary)
-    # the priors' own warnings count too (a camera without a focal length in EXIF was printed but not counted)
+    # the priors' own warnings count too (a camera without a focal length in EXIF was printed but not counted);
+    # the priors logged them when they were read: only those said here on are logged below (rev49 D9: twice)
     warnings: list[str] = list(priors.summary.get("warnings", []))
+    said_by_priors = len(warnings)
 
     if len(priors.names) < MIN_IMAGES:  # said before the work: COLMAP would report "0 registered", not why
         raise InputError(f"{len(priors.names)} image(s): structure from motion needs at least {MIN_IMAGES} "
@@ -284,7 +286,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     camera_of_image = {im.name: int(im.camera_id) for im in model.reconstruction.images.values() if im.has_pose}
     rec = model.reconstruction
     reprojection = float(np.mean([p.error for p in rec.points3D.values()])) if rec.num_points3D() else 0.0
-    for w in warnings:
+    for w in warnings[said_by_priors:]:
         log.warning("%s", w)
 
     # Outputs: model, database, pose CSV, cameras, then the record (last).
