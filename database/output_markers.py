@@ -127,6 +127,13 @@ def content_fingerprint(path: str | Path) -> str:
     return fingerprint(files)
 
 
+def input_identity(path: str | Path | None) -> str | None:
+    """An optional input file (a telemetry CSV) as an output's identity knows it: its content
+    (`content_fingerprint`), not its path or time (rev49 D4: keyed by its path, an edited telemetry gave back the
+    result of the old one); None without one."""
+    return None if path is None else content_fingerprint(path)
+
+
 def resolved_path(path: str | Path) -> Path:
     return Path(os.path.realpath(os.path.expanduser(str(path))))
 

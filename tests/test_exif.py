@@ -1116,3 +1116,29 @@ def test_two_sizes_in_equal_numbers_name_both_groups_not_a_full_frame_as_the_odd
     write_jpeg(tmp_path / "f2.jpg", 47.0 + 2e-4, -99.0)  # no tie: the odd one is named
     with pytest.raises(InputError, match=r"f\d_thumb\.jpg: image is 160x120; .* \(3 400x300, 2 160x120\)"):
         pfe.poses_from_images(tmp_path)
+
+
+def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_path):
+    """rev49 D4: the telemetry keyed an output by its size and time here, by its path in `poses`: an edit that kept
+    both (a copy with `cp -p`, a tool that restores the time) was the same input. Its content keys it now, as in
+    `poses` (`output_markers.input_identity`): the poses of the old file are not replaced without --overwrite."""
+    import os
+
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(3):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,090,0,0\n" for k in range(3)))
+    out = tmp_path / "out" / "poses.csv"
+    pfe.run(img, out, telemetry=tele)
+    before = out.read_text()
+    st = tele.stat()
+    tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,270,0,0\n" for k in range(3)))
+    os.utime(tele, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert tele.stat().st_size == st.st_size
+    with pytest.raises(InputError, match="overwrite"):
+        pfe.run(img, out, telemetry=tele)
+    assert out.read_text() == before
+    pfe.run(img, out, telemetry=tele, overwrite=True)
+    assert out.read_text() != before  # the headings of the edited file

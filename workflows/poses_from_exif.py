@@ -31,7 +31,7 @@ import numpy as np
 from ..database.cameras import format_cameras_txt
 from ..database.exif import orientation_note
 from ..database.output_files import OutputFiles
-from ..database.output_markers import fingerprint
+from ..database.output_markers import fingerprint, input_identity
 from ..database.poses import format_poses_csv
 from ..database.xmp_sidecar import sidecars_with_gps
 from ..plugin.errors import InputError
@@ -217,7 +217,7 @@ def run(
     cameras_path = Path(cameras_out) if cameras_out is not None else out.parent / "cameras.txt"
     sources = [Path(p) for p in ([images] if isinstance(images, (str, Path)) else images)]
     identity = fingerprint({"images": [[str(p.resolve()), *_stat(p)] for p in list_images(images)],
-                            "telemetry": _stat(telemetry) if telemetry else None,
+                            "telemetry": input_identity(telemetry or None),
                             "options": [mount, pitch_sign, roll_sign, sensor_width_mm, epsg, refine, position_sigma_m,
                                         attitude_sigma_deg, refine_method]})
     files = OutputFiles([out, cameras_path], "poses-from-exif", identity, inputs=[*sources, telemetry],

@@ -301,6 +301,11 @@ def write_pose_priors(database: Path, priors: ImagePriors, origin: np.ndarray, p
     return written
 
 
+# The schema cookie of every published database (`publish_database`): its bytes do not count the schema changes
+# of the run that made it.
+PUBLISHED_SCHEMA_VERSION = 1
+
+
 def publish_database(database: Path, target: Path) -> None:
     """Move COLMAP's database `database` to `target` as a compacted copy whose bytes depend on its content alone.
     COLMAP's extraction and matching threads write the rows in the order they finish, so the pages of the same
@@ -316,6 +321,15 @@ def publish_database(database: Path, target: Path) -> None:
             db.execute("VACUUM INTO ?", (str(tmp),))
         finally:
             db.close()
+        # VACUUM INTO copies the schema cookie, which counts the schema changes of the source's history: COLMAP's
+        # `clear_pose_priors` bumps it, and a run resumed after its match stage writes the pose priors again
+        # (rev49 D5: header byte 44, 22 vs 23). The copy's is set to one value; no connection has it open yet
+        copy = sqlite3.connect(tmp)
+        try:
+            copy.execute(f"PRAGMA schema_version = {PUBLISHED_SCHEMA_VERSION}")
+            copy.commit()
+        finally:
+            copy.close()
     database.unlink()
 
 
@@ -339,6 +353,12 @@ class SfmModel:
         if self.incremental_registered is None:
             return []
         return sorted(set(self.registered) - set(self.incremental_registered))
+
+    @property
+    def other_model_images(self) -> list[str]:
+        """The distinct images the smaller models hold, sorted: COLMAP may put an image in several of them (rev49:
+        2 models of 40 and 11 images, the 11 among the 40, said as "51 images")."""
+        return sorted(set().union(*self.other_models))
 
     def poses(self) -> tuple[list[str], np.ndarray, np.ndarray]:
         """(names, sfm_from_cam rotations (N,3,3), centres (N,3)) of the registered images, sorted by name."""

@@ -36,6 +36,9 @@ class RefinementStats:
     # those of the points the starting poses could triangulate and the adjustment kept
     explained_share: float = float("nan")
     explained_share_by_image: tuple[float, ...] = ()  # the same per image, of its own observations (NaN: none)
+    # per image: how far the refined poses turned the direction of gravity in the camera frame (`tilt_changes_deg`);
+    # judged against gimbal tags (`judge_refinement`)
+    tilt_change_by_image_deg: tuple[float, ...] = ()
     observations_by_image: tuple[int, ...] = ()  # how many tie-point observations each image has
     heading_turns_deg: tuple[float, ...] = ()  # per image: heading turned from the course by the image motion
     # regions fixed in the image frame (burned-in text, a logo, drone parts) whose tie points were left out: boxes
@@ -47,7 +50,7 @@ class RefinementStats:
         d = asdict(self)
         d["warnings"] = list(self.warnings)
         d["observations_by_image"] = [int(n) for n in self.observations_by_image]
-        for key in ("heading_turns_deg", "explained_share_by_image"):
+        for key in ("heading_turns_deg", "explained_share_by_image", "tilt_change_by_image_deg"):
             d[key] = [round(t, 3) if np.isfinite(t) else None for t in getattr(self, key)]
         return d
 
@@ -65,6 +68,16 @@ def pose_changes(before_r: np.ndarray, before_c: np.ndarray, after_r: np.ndarray
             "position_change_mean_m": float(dpos.mean()), "position_change_max_m": float(dpos.max()),
             "position_change_median_m": float(np.median(dpos)), "rotation_change_mean_deg": float(drot.mean()),
             "rotation_change_max_deg": float(drot.max()), "block_tilt_change_deg": tilt}
+
+
+def tilt_changes_deg(before_r: np.ndarray, after_r: np.ndarray) -> np.ndarray:
+    """(N,) per camera, degrees: how far the direction of gravity in the camera frame turned from `before_r` to
+    `after_r` (world_from_camera, z up), i.e. the turn of the camera less its turn about the vertical: what a
+    gimbal's pitch and roll tags give and its compass heading does not (0 for any heading turn, whatever the
+    camera's tilt)."""
+    up = np.einsum("nji,j->ni", np.asarray(after_r), [0.0, 0.0, 1.0])  # the world's up in each camera, after
+    up0 = np.einsum("nji,j->ni", np.asarray(before_r), [0.0, 0.0, 1.0])
+    return np.degrees(np.arccos(np.clip(np.sum(up * up0, axis=1), -1.0, 1.0)))
 
 
 def off_vertical_deg(rotations: np.ndarray) -> np.ndarray:
@@ -85,6 +98,24 @@ GIMBAL_TILT_SIGMA_DEG = 2.0
 # of one image is no evidence (Seneca's IMG_0506, at the end of a line, had a single tie point, and the whole
 # refinement of 167 images, 99.7 % explained, was refused for it); 0 of 7 is.
 CONTRADICTION_P = 0.01
+
+
+# A camera tilted beyond this many tilt sigmas off its gimbal tags is a gross error of the adjustment or of that
+# tag. The tags' pitch and roll are a 2-D Gaussian, so a good camera lands beyond it with probability exp(-k^2 / 2)
+# (1.1 % at 3): more such cameras than that rate explains (`CONTRADICTION_P`) say the adjustment turned them (rev49
+# D3: a non-converged refinement turned 17 of 40 well-held cameras 6-59 deg off tags good to 0.5 deg, published);
+# fewer are named and kept: one wrong tag the tie points correct (a tag 12 deg off on a plane's views: back within
+# 1 deg, its tie points 99.6 % explained; given its tag back, its own and its neighbour's tie points refused it).
+GROSS_TILT_SIGMAS = 3.0
+
+
+def tilted_beyond_chance(tilted: int, images: int) -> bool:
+    """Whether `tilted` of `images` cameras beyond GROSS_TILT_SIGMAS is more than good tags' noise explains:
+    P(at least that many | binomial at the rate exp(-k^2 / 2)) < CONTRADICTION_P."""
+    from scipy.stats import binom
+
+    rate = float(np.exp(-0.5 * GROSS_TILT_SIGMAS**2))
+    return tilted > 0 and float(binom.sf(tilted - 1, images, rate)) < CONTRADICTION_P
 
 
 def contradicted_images(share_by_image: tuple[float, ...] | np.ndarray,
@@ -126,7 +157,9 @@ def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[flo
     own where it has more than a few.
     `tilt_sigma_deg` (None: not judged): how well the priors give each camera's tilt off the vertical (a gimbal's,
     GIMBAL_TILT_SIGMA_DEG); a median change of that tilt beyond 3 of it is an error, the tie points bending the
-    block (a bowl or a dome: an unmodelled lens distortion) rather than correcting the tags."""
+    block (a bowl or a dome: an unmodelled lens distortion) rather than correcting the tags; so are more cameras
+    tilted beyond GROSS_TILT_SIGMAS of it than chance explains (`stats.tilt_change_by_image_deg`: a warning naming
+    fewer, and one when the tilts together lie beyond what the tags allow, `_judge_tilts`)."""
     sigma = float(np.max(np.atleast_1d(position_sigma_m)))
     errors: list[str] = []
     warnings: list[str] = []
@@ -162,6 +195,11 @@ def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[flo
                       f"gimbal tags give (held to {tilt_sigma_deg:g} deg; at most 3 sigma): the tie points bend the "
                       "block, e.g. a lens distortion the camera does not model (structure from motion estimates it: "
                       "`map --pose-source sfm`)")
+    if tilt_sigma_deg is not None and len(stats.tilt_change_by_image_deg):
+        errors_, warnings_ = _judge_tilts(np.asarray(stats.tilt_change_by_image_deg, np.float64), tilt_sigma_deg,
+                                          names)
+        errors += errors_
+        warnings += warnings_
     if stats.position_change_max_m > 5.0 * sigma:
         warnings.append(f"some cameras moved up to {stats.position_change_max_m:.1f} m (more than 5 x the "
                         f"{sigma:g} m prior): a wrong GPS fix or wrong tie points")
@@ -172,6 +210,39 @@ def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[flo
     if stats.points and 2 * stats.observations < 1.5 * unknowns:
         warnings.append(f"only {stats.points} tie points ({stats.observations} observations) for {stats.images} "
                         "images: the poses are barely constrained")
+    return errors, warnings
+
+
+def _judge_tilts(tilts: np.ndarray, tilt_sigma_deg: float, names: list[str] | None) -> tuple[list[str], list[str]]:
+    """(errors, warnings) of the refined cameras' tilt changes `tilts` (`tilt_changes_deg`) against gimbal tags of
+    `tilt_sigma_deg`: more cameras beyond GROSS_TILT_SIGMAS than chance explains is an error; fewer are named (a
+    wrong tag, or a wrong turn: the tie points decide); the others are a warning when their tilts together lie
+    beyond what the tags allow (sum of (tilt / sigma)^2 beyond the 99 % quantile of chi-square with 2 per camera:
+    each a small turn, all of them together a block bent off its gimbals)."""
+    from scipy.stats import chi2
+
+    errors: list[str] = []
+    warnings: list[str] = []
+    limit = GROSS_TILT_SIGMAS * tilt_sigma_deg
+    beyond = np.flatnonzero(tilts > limit)
+    worst = ", ".join(f"{names[i] if names is not None else f'image {i + 1}'} {tilts[i]:.0f} deg"
+                      for i in beyond[np.argsort(-tilts[beyond], kind="stable")][:4]) + (
+        ", ..." if len(beyond) > 4 else "")
+    if tilted_beyond_chance(len(beyond), len(tilts)):
+        errors.append(f"it tilted {len(beyond)} of {len(tilts)} cameras more than {limit:g} deg off the tilt their "
+                      f"gimbal tags give (held to {tilt_sigma_deg:g} deg: {GROSS_TILT_SIGMAS:g} sigma; good tags put "
+                      f"at most a few there by chance): {worst}")
+        return errors, warnings
+    if len(beyond):
+        warnings.append(f"{len(beyond)} of {len(tilts)} cameras were tilted more than {limit:g} deg off the tilt "
+                        f"their gimbal tags give ({GROSS_TILT_SIGMAS:g} x {tilt_sigma_deg:g} deg): {worst}; a wrong "
+                        "tag the tie points correct, or a wrong tie point")
+    kept = tilts[tilts <= limit]
+    statistic = float(np.sum((kept / tilt_sigma_deg) ** 2))
+    if len(kept) and statistic > chi2.ppf(0.99, 2 * len(kept)):
+        warnings.append(f"it tilted the cameras {float(np.sqrt(np.mean(kept**2))):.1f} deg (RMS of {len(kept)}) off "
+                        f"the tilt their gimbal tags give, more than tags of {tilt_sigma_deg:g} deg allow (chi-square "
+                        "99 %): the tie points may hold the cameras' tilt less well than the tags do")
     return errors, warnings
 
 

@@ -13,7 +13,13 @@ from ...database.flight_levels import flight_white_level
 from ...database.images import read_gray
 from ...plugin.fixed_in_frame import FixedInFrame, learn_fixed_in_frame
 from ...plugin.geometry import Poses, rotation_angle_deg
-from .judge import RefinementRejected, RefinementStats, judge_refinement, pose_changes
+from .judge import (
+    RefinementRejected,
+    RefinementStats,
+    judge_refinement,
+    pose_changes,
+    tilt_changes_deg,
+)
 from .with_colmap import point_errors, poses_of_reconstruction, refine_poses_with_colmap
 from .with_priors import refine_poses_with_priors
 
@@ -337,6 +343,9 @@ def refine_poses_from_images(
     if turned:
         refined = kept_starting_poses(poses, refined, [n for n, _ in turned])
         stats = replace(stats, **pose_changes(poses.rotations, poses.centers, refined.rotations, refined.centers))
+    # judged against gimbal tags (`judge_refinement`): cameras tilted far off them, whatever their tie points
+    stats = replace(stats, tilt_change_by_image_deg=tuple(float(t) for t in tilt_changes_deg(poses.rotations,
+                                                                                            refined.rotations)))
     explained, observed = explained_by_image(tie, refined, camera, 2.0 * pixel_sigma_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         per_image = np.where(observed > 0, explained / np.maximum(observed, 1), np.nan)

@@ -21,7 +21,7 @@ from ...database.cameras import format_cameras_txt
 from ...database.code_version import code_versions, kept_message, other_version
 from ...database.images import check_images_decode
 from ...database.json_text import json_default
-from ...database.output_markers import fingerprint, read_json_or_none
+from ...database.output_markers import fingerprint, input_identity, read_json_or_none
 from ...database.outputs import open_output_dir
 from ...database.poses import format_poses_csv
 from ...database.taken import make_dirs
@@ -55,13 +55,16 @@ def _image_identity(paths: Sequence[Path]) -> list[list[Any]]:
         out.append([p.name, st.st_size, st.st_mtime_ns])
     return out
 
-def identity_of(image_dir: Path, params: Params, **options: Any) -> str:
+def identity_of(image_dir: Path, params: Params, telemetry: str | Path | None = None, **options: Any) -> str:
     """What the poses of `image_dir` depend on: the image files (names, sizes, times), the SfM parameters, the
-    seed and `options` (telemetry, take-off altitude, ...). One version's identity only: no setting of the sfm
-    section is registered in `plugin.params.identity.ADDED` (tests/test_identity_versions.py fails when one is;
-    then build it with `versioned_identity`, also for the stages' marks in `compute_poses`)."""
+    seed, the `telemetry` file's content (`input_identity`) and `options` (take-off altitude, ...). One
+    version's identity only: no setting of the sfm section is registered in `plugin.params.identity.ADDED`
+    (tests/test_identity_versions.py fails when one is; then build it with `versioned_identity`, also for the
+    stages' marks in `compute_poses`)."""
     return fingerprint({"images": _image_identity(list_images(image_dir)), "sfm": params_to_dict(params.sfm),
-                        "seed": params.seed, **{k: str(v) for k, v in options.items()}})
+                        "seed": params.seed,
+                        **{k: str(v) for k, v in {"telemetry": input_identity(telemetry), **options}.items()}})
+
 
 def run(
     images: str | Path,
@@ -82,11 +85,11 @@ def run(
         raise InputError("image directory not found", image_dir)
     if not (math.isfinite(nominal_height_m) and nominal_height_m > 0):  # scales a block without GPS heights
         raise InputError(f"the nominal height must be a positive number of metres, got {nominal_height_m!r}")
-    options = {"telemetry": telemetry, "takeoff": takeoff_altitude_m, "sensor": sensor_width_mm,
+    options = {"takeoff": takeoff_altitude_m, "sensor": sensor_width_mm,
                "nominal_height_m": nominal_height_m,
                **({} if epsg is None else {"epsg": epsg})}  # only when chosen: earlier outputs keep their identity
     sfm.refuse_pair_list_names(list_images(image_dir))  # before anything is written
-    identity = identity_of(image_dir, params, **options)
+    identity = identity_of(image_dir, params, telemetry, **options)
     with open_output_dir(out, "poses", identity, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
         if taken.was_complete and (taken.path / RECORD).is_file():
             # the same inputs and settings: the outputs stand, also those of another sosmatch (the identity keys
@@ -187,8 +190,10 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     sp = params.sfm
     # the receiver's sigma with the rounding of the fixes (`gps_track.with_quantisation`): one figure for the run
     gps_sigma_m = with_quantisation(sp.gps_sigma_m, priors.summary)
-    # the priors' own warnings count too (a camera without a focal length in EXIF was printed but not counted)
+    # the priors' own warnings count too (a camera without a focal length in EXIF was printed but not counted);
+    # the priors logged them when they were read: only those said here on are logged below (rev49 D9: twice)
     warnings: list[str] = list(priors.summary.get("warnings", []))
+    said_by_priors = len(warnings)
 
     if len(priors.names) < MIN_IMAGES:  # said before the work: COLMAP would report "0 registered", not why
         raise InputError(f"{len(priors.names)} image(s): structure from motion needs at least {MIN_IMAGES} "
@@ -223,13 +228,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     links: dict[str, int] = {}
     if model.unregistered:
         links = sfm.strongest_links(db, model.unregistered, model.registered)
-        weak = sorted(model.unregistered, key=lambda n: (links[n], n))
-        warnings.append(f"{len(model.unregistered)} of {n_all} images could not be registered and are left out (too "
-                        "few verified matches with the registered images: at most "
-                        f"{max(links.values())} inliers with any one of them"
-                        + (f"; {len(model.other_models)} separate model(s) hold {sum(map(len, model.other_models))} "
-                           "images" if model.other_models else "") + "): "
-                        + _listing([f"{n} ({links[n]})" for n in weak]))
+        warnings.append(unregistered_warning(model, links, n_all))
 
     # Georegistration (or a local frame) of the registered images.
     t = time.perf_counter()
@@ -287,7 +286,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     camera_of_image = {im.name: int(im.camera_id) for im in model.reconstruction.images.values() if im.has_pose}
     rec = model.reconstruction
     reprojection = float(np.mean([p.error for p in rec.points3D.values()])) if rec.num_points3D() else 0.0
-    for w in warnings:
+    for w in warnings[said_by_priors:]:
         log.warning("%s", w)
 
     # Outputs: model, database, pose CSV, cameras, then the record (last).
@@ -341,7 +340,7 @@ class PosesFromImages:
 
     def _options(self) -> dict[str, Any]:
         # the CRS only when chosen: sessions mapped before the option keep their identity (and resume)
-        return {"telemetry": self.telemetry, "takeoff": self.takeoff_altitude_m, "sensor": self.sensor_width_mm,
+        return {"takeoff": self.takeoff_altitude_m, "sensor": self.sensor_width_mm,
                 "nominal_height_m": self.nominal_height_m, **({} if self.epsg is None else {"epsg": self.epsg})}
 
     def identity(self) -> str:
@@ -350,7 +349,7 @@ class PosesFromImages:
         if not Path(self.images).is_dir():
             raise InputError("image directory not found", self.images)
         sfm.refuse_pair_list_names(list_images(Path(self.images)))
-        return identity_of(Path(self.images), self.params, **self._options())
+        return identity_of(Path(self.images), self.params, self.telemetry, **self._options())
 
     def input_paths(self) -> list[Path]:
         return [Path(self.images)] + ([Path(self.telemetry)] if self.telemetry else [])
@@ -375,6 +374,16 @@ class PosesFromImages:
         self.result = load_result(staged)
         source = f"structure from motion of {image_dir} (SESSION_DIR/poses)"
         return map_inputs(self.result, image_dir, source), ("poses",)
+
+
+def unregistered_warning(model: sfm.SfmModel, links: dict[str, int], n_all: int) -> str:
+    """What is said of the images the largest model left out: each with its strongest link to it (`links`:
+    inliers), the weakest first, and the distinct images the separate models hold."""
+    weak = sorted(model.unregistered, key=lambda n: (links[n], n))
+    return (f"{len(model.unregistered)} of {n_all} images could not be registered and are left out (too few verified "
+            f"matches with the registered images: at most {max(links.values())} inliers with any one of them"
+            + (f"; {len(model.other_models)} separate model(s) hold {len(model.other_model_images)} images"
+               if model.other_models else "") + "): " + _listing([f"{n} ({links[n]})" for n in weak]))
 
 
 def _check_registered(count: int, n_all: int, sp: Any, image_dir: Path, how: str) -> None:
