@@ -8,7 +8,6 @@ so that `sosmatch --help` stays instant.
 from __future__ import annotations
 
 import argparse
-import errno
 import importlib
 import logging
 import os
@@ -25,8 +24,6 @@ from .interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED, Terminated, interrupt
 # first seconds of a run (start-up takes seconds on a loaded machine) is then the one line, not a traceback
 
 EXIT_USER_ERROR = 2
-# a device or quota that is full: the user frees space and re-runs (the run resumes)
-FULL_DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 log = logging.getLogger("sosmatch")
 
 
@@ -166,6 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(argv: list[str], run: dict[str, str | None]) -> int:
+    from ..database.full_disk import FULL_DISK_ERRNOS
     from ..plugin.errors import InputError
 
     parser = build_parser()
