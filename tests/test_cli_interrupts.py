@@ -28,6 +28,7 @@ def test_ctrl_c_during_start_up_is_the_one_line(module, tmp_path):
     printed a traceback."""
     result = _run_script(f"""
         import os, signal, sys
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a background job of a shell inherits it ignored
         def hook(event, args):
             if event == "import" and args[0] == {module!r}:
                 os.kill(os.getpid(), signal.SIGINT)
