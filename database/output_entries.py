@@ -19,7 +19,10 @@ from .output_markers import STAGING, output_marker, resolved_path, sha256_file
 
 def entry_names(folder: Path) -> list[str]:
     """The relative paths of every file below `folder` (the layout of an entry a run publishes)."""
-    return [(Path(root) / name).relative_to(folder).as_posix() for root, _, names in os.walk(folder) for name in names]
+    # sorted: the marker records them in this order, and its bytes must not depend on the file system (os.walk
+    # yields directory order: ext4 and tmpfs differ)
+    return sorted((Path(root) / name).relative_to(folder).as_posix() for root, _, names in os.walk(folder)
+                  for name in names)
 
 
 def entry_files(folder: Path) -> dict[str, str]:

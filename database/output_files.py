@@ -53,9 +53,8 @@ class OutputFiles:
         if not (path.exists() or path.is_symlink()):
             return
         entry = (registry.get("files") or {}).get(path.name) if isinstance(registry.get("files"), dict) else None
-        ours = (isinstance(entry, dict) and entry.get("command") == self.command and not path.is_symlink()
-                and entry.get("sha256") == _sha256_or_none(path))
-        if not ours:
+        entry = None if path.is_symlink() else _matching_record(entry, self.command, _sha256_or_none(path))
+        if entry is None:
             raise InputError(f"output file exists and was not written by `sosmatch {self.command}` (or was changed "
                              "since); sosmatch never replaces what it did not create: remove it or choose another "
                              "name", path)
@@ -81,17 +80,39 @@ class OutputFiles:
             fcntl.flock(fd, fcntl.LOCK_EX)  # short: other writers of this directory wait
             registry = read_json_or_none(path.parent / FILES_REGISTRY) or {}
             self._check(path, registry)
+            files = registry.get("files") if isinstance(registry.get("files"), dict) else {}
+            record = {"command": self.command, "identity": self.identity,
+                      "sha256": hashlib.sha256(payload).hexdigest()}
+            # The registry must know the new file before it is in place, and keep knowing the old one until it
+            # is: a failure at any step (a full disk, a kill) then leaves a file the re-run recognises as its own.
+            # So: new bytes to a temporary; the record as "pending" beside the old one; rename; the final record.
             with atomic_path(path) as tmp:
                 tmp.write_bytes(payload)
-            files = registry.get("files") if isinstance(registry.get("files"), dict) else {}
-            files[path.name] = {"command": self.command, "identity": self.identity,
-                                "sha256": hashlib.sha256(payload).hexdigest()}
-            write_text_atomic(path.parent / FILES_REGISTRY,
-                              json.dumps({"format": FILES_FORMAT, "files": files}, indent=1, sort_keys=True) + "\n")
+                old = files.get(path.name)
+                kept = {k: v for k, v in old.items() if k != "pending"} if isinstance(old, dict) else {}
+                _write_registry(path.parent, {**files, path.name: {**kept, "pending": record}})
+            files[path.name] = record
+            _write_registry(path.parent, files)
         except OSError as exc:
             raise InputError(f"cannot write output: {exc.strerror or exc}", path) from None
         finally:
             os.close(fd)
+
+
+def _write_registry(folder: Path, files: Mapping[str, Any]) -> None:
+    write_text_atomic(folder / FILES_REGISTRY,
+                      json.dumps({"format": FILES_FORMAT, "files": files}, indent=1, sort_keys=True) + "\n")
+
+
+def _matching_record(entry: Any, command: str, sha256: str | None) -> dict[str, Any] | None:
+    """The registry record (the entry, or the write it had pending when interrupted) of `command` whose sha256
+    is the file's; None when the file is not one `command` wrote."""
+    if not isinstance(entry, dict) or sha256 is None:
+        return None
+    for record in (entry, entry.get("pending")):
+        if isinstance(record, dict) and record.get("command") == command and record.get("sha256") == sha256:
+            return record
+    return None
 
 
 def _sha256_or_none(path: Path) -> str | None:

@@ -155,3 +155,24 @@ def test_a_task_whose_worker_dies_fails_alone_and_each_result_is_handed_over_as_
         # and fails those the death took down by its own rule: `allowed-failures`)
         for key in ("t1", "t3"):
             assert res[key].value == key or isinstance(ex, DaskExecutor) and res[key].error == WORKER_DIED, ex
+
+
+def _write_mib(path: str) -> int:
+    with open(path, "wb") as f:
+        return f.write(b"\0" * (1 << 20))
+
+
+def test_a_full_disk_stops_the_run_instead_of_failing_each_task(tmp_path, small_disk):
+    """A task that meets a full disk raises it (the CLI's full-disk line, exit 2) and the executor stops: before,
+    each flight of a batch was reported failed with "OSError: [Errno 28]" and the batch went on, exit 1 (nu56 D6).
+    Another OSError stays the task's own failure."""
+    import errno
+
+    tasks = {"a": (str(small_disk / "a"),), "b": (str(small_disk / "b"),)}
+    for workers in (0, 1):
+        with LocalExecutor(workers) as ex, pytest.raises(OSError) as raised:
+            ex.run(_write_mib, tasks, progress=False)
+        assert raised.value.errno == errno.ENOSPC
+        assert workers or not (small_disk / "b").exists()  # inline: stopped at the first task, b never started
+    other = LocalExecutor(0).run(_write_mib, {"x": (str(tmp_path / "missing" / "x"),)}, progress=False)
+    assert not other["x"].ok and other["x"].error.startswith("FileNotFoundError")

@@ -143,3 +143,15 @@ def test_an_older_outputs_entry_of_another_layout_is_ours_by_its_names(tmp_path)
     images.mkdir()
     (images / "frame_00023.jpg").write_bytes(b"x")
     check_entry_ours(images, "synth", None, {"frame_00000.jpg"})
+
+
+def test_an_entry_s_files_are_recorded_in_an_order_of_their_names_not_of_the_file_system(tmp_path):
+    """The marker's record of an entry lists its files in os.walk order, which is the file system's (tmpfs: newest
+    first, ext4: by hash): a project re-made on another disk had other marker bytes (nu56 D7)."""
+    from sosmatch.database.output_entries import entry_files
+
+    names = [f"{c}{i}.bin" for i in range(12) for c in "zam"] + ["sub/b.txt", "sub/a.txt", "a/z.txt"]
+    for name in names:  # created in an order that is not a sorted one
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_bytes(name.encode())
+    assert list(entry_files(tmp_path)) == sorted(names)

@@ -8,7 +8,6 @@ so that `sosmatch --help` stays instant.
 from __future__ import annotations
 
 import argparse
-import errno
 import importlib
 import logging
 import os
@@ -19,18 +18,18 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from ..plugin import __version__
-from ..plugin.errors import InputError
-from . import commands
-from .commands._common import user_path
+from .interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED, Terminated, interruption, stop_as_interrupt
+
+# sosmatch's own modules (numpy, every command) are imported inside `main`'s handler of Ctrl-C: a Ctrl-C in the
+# first seconds of a run (start-up takes seconds on a loaded machine) is then the one line, not a traceback
 
 EXIT_USER_ERROR = 2
-# a device or quota that is full: the user frees space and re-runs (the run resumes)
-FULL_DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 log = logging.getLogger("sosmatch")
 
 
 def _command_modules() -> list:
+    from . import commands
+
     modules = []
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
         if info.name.startswith("_"):
@@ -48,6 +47,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..plugin import __version__
+    from .commands._common import user_path
+
     parser = _Parser(
         prog="sosmatch",
         description="Open-set segment landmark maps and cross-session correspondence search (SOS-Match).",
@@ -145,9 +147,28 @@ def _command_takes_value(parser: argparse.ArgumentParser, argv: Sequence[str]) -
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `sosmatch` console script. Returns the exit code."""
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
+    run = {"command": next((t for t in argv if not t.startswith("-")), None)}  # named before it is parsed
+    try:
+        with stop_as_interrupt():
+            return _main(argv, run)
+    except BaseException as exc:  # noqa: BLE001 - only an interruption is handled here, the rest re-raised
+        stop = interruption(exc)
+        if stop is None:
+            raise
+        what = "terminated" if isinstance(stop, Terminated) else "interrupted"
+        name = f"sosmatch {run['command']}" if run["command"] else "sosmatch"
+        print(f"{name}: {what} (re-run the same command to resume)", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(stop, Terminated) else EXIT_INTERRUPTED
+
+
+def _main(argv: list[str], run: dict[str, str | None]) -> int:
+    from ..database.full_disk import FULL_DISK_ERRNOS
+    from ..plugin.errors import InputError
+
+    parser = build_parser()
     args, unknown = parser.parse_known_args(join_negative_numbers(argv, _command_takes_value(parser, argv)))
+    run["command"] = args.command
     if unknown:  # argparse leaves a command's unknown flags to the top-level parser, whose help lists no flags
         # -q / -v are every command's own options: given before the command they reach no parser that knows them
         early = [t for t in unknown if t in ("-q", "--quiet", "--verbose") or re.fullmatch(r"-v+", t)]
@@ -162,11 +183,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             log.exception("user error")
         print(f"sosmatch {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print(f"sosmatch {args.command}: interrupted (re-run the same command to resume)", file=sys.stderr)
-        return 130
     except OSError as exc:
-        if exc.errno not in FULL_DISK_ERRNOS:
+        if exc.errno not in FULL_DISK_ERRNOS or interruption(exc) is not None:
             raise
         # a full disk or quota mid-run is the user's to fix, like a bad input: one line, and the run resumes (every
         # output is written atomically; the temporaries of this one are removed by the next run)

@@ -7,11 +7,17 @@
 
 Tasks are plain top-level functions with picklable arguments. Every task runs inside `call_task`, which catches
 its exception and returns a `TaskResult` (ok or the error text and traceback): one failing flight never stops
+<<<<<<< HEAD
 the others, and no exception object has to survive pickling between machines. `run` returns results in the
 order of the task dict, whatever the order of completion, so outputs do not depend on the executor; its
 `on_result` sees each result as it arrives (batch saves each task's state then: an interrupted stage keeps what
 finished). A worker that dies under a task (killed: most likely out of memory) fails the tasks it took down
 (`worker_died`), not the run: the other tasks go on.
+=======
+the others (a full disk does: it is raised, see `call_task`), and no exception object has to survive pickling
+between machines. `run` returns results in the order of the task dict, whatever the order of completion, so
+outputs do not depend on the executor.
+>>>>>>> fix132
 Worker processes are started with "spawn" (like Dask's nannies): forking a parent that already runs
 OpenMP/Ceres threads (pycolmap) can deadlock. Every local worker dies with its parent (`process_pool`): a
 killed batch or map leaves no worker (and so no multiprocessing resource tracker) behind.
@@ -31,6 +37,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
+from ..database.full_disk import FULL_DISK_ERRNOS
 from ..plugin.processes import exit_with_parent
 from .progress import progress_bar
 
@@ -86,6 +93,14 @@ def call_task(key: Hashable, fn: Callable[..., Any], args: tuple) -> TaskResult:
     t0 = time.perf_counter()
     try:
         value = fn(*args)
+    except OSError as exc:
+        if exc.errno not in FULL_DISK_ERRNOS:
+            return TaskResult(key, False, None, f"{type(exc).__name__}: {exc}", traceback.format_exc(),
+                              time.perf_counter() - t0)
+        # A full disk is no task's failure but the run's: every further task would meet it too, and the user frees
+        # space and re-runs (nu56 D6: each flight was reported failed, exit 1). A plain OSError: it crosses
+        # processes and machines (errno and file name pickle), stops the executor and reaches the CLI's one line.
+        raise OSError(exc.errno, exc.strerror, exc.filename) from None
     except Exception as exc:  # noqa: BLE001 (a task's failure is data, reported per task)
         return TaskResult(key, False, None, f"{type(exc).__name__}: {exc}", traceback.format_exc(),
                           time.perf_counter() - t0)

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..database.colmap_model import PAIR_LIST, colmap_text_name_problem, refuse_names_colmap_cannot_hold
+from ..database.full_disk import full_disk_reported
 from ..database.taken import make_dirs
 from ..plugin.errors import InputError
 from ..plugin.image_pairs import line_spacing_m, overlap_cap_m, select_pairs
@@ -62,6 +63,7 @@ def _initial_camera(cam: Any, camera_id: int, model: str) -> Any:
                            params=[float(v) for v in [*focal, cam.cx, cam.cy, *extra]])
 
 
+@full_disk_reported
 def create_database(database: Path, priors: ImagePriors, params: SfmParams) -> None:
     """A COLMAP database with one camera (and rig) per make + model + size, starting from the EXIF intrinsics,
     and every image in name order with fixed ids (1, 2, ...): the ids, and so everything after, do not depend
@@ -146,6 +148,7 @@ def colmap_image_dir(image_dir: Path, names: list[str], work_dir: Path) -> Path:
     return work_dir
 
 
+@full_disk_reported
 def extract_features(database: Path, image_dir: Path, priors: ImagePriors, params: SfmParams) -> dict[str, Any]:
     """SIFT features of every image of the database (`create_database` first): images downscaled to
     `max_image_size_px`, at most `max_features` each. Images that have features already keep them (COLMAP skips
@@ -240,6 +243,7 @@ def write_pairs(path: Path, priors: ImagePriors, params: SfmParams) -> tuple[np.
     return pairs, how
 
 
+@full_disk_reported
 def match_pairs(database: Path, pairs_txt: Path, params: SfmParams, seed: int = 0) -> dict[str, Any]:
     """SIFT matching of the listed pairs and their two-view geometry (RANSAC seeded), in one thread: the same
     matches whatever the thread timing."""
@@ -269,6 +273,7 @@ def match_pairs(database: Path, pairs_txt: Path, params: SfmParams, seed: int = 
     return {"pairs_matched": int(matched), "pairs_verified": int(verified), "seconds": time.perf_counter() - t0}
 
 
+@full_disk_reported
 def write_pose_priors(database: Path, priors: ImagePriors, origin: np.ndarray, params: SfmParams) -> int:
     """GPS positions (minus `origin`) as COLMAP pose priors of the images with a fix: horizontal sigma
     `gps_sigma_m` (with the rounding of fixes written to a coarse grid added: `gps_track.with_quantisation`);

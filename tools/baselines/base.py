@@ -86,11 +86,21 @@ def match_pair(fa: Features, i: int, fb: Features, j: int, config: BaselineConfi
     order = np.argsort(dist, kind="stable")[:keep]
     qi = np.fromiter((matches[k].queryIdx for k in order), dtype=np.int64, count=len(order))
     ti = np.fromiter((matches[k].trainIdx for k in order), dtype=np.int64, count=len(order))
-    pa, pb = fa.keypoints[i][qi], fb.keypoints[j][ti]
+    return fundamental_inliers(fa.keypoints[i][qi], fb.keypoints[j][ti], config)
+
+
+def fundamental_inliers(pa: np.ndarray, pb: np.ndarray, config: BaselineConfig) -> int:
+    """RANSAC inlier count of a fundamental matrix between the matched points `pa` (N,2) and `pb` (N,2).
+
+    0 when OpenCV finds no model: it then returns its inlier mask without writing it (uninitialised memory: 29,
+    or the ones of an earlier call's freed mask), so a degenerate pair (SIFT's keypoints repeated at one spot
+    with other orientations) was scored by what was in memory: evaluate's SIFT curve changed between identical
+    runs (nu56 D9). The mask is also given zeroed, so no entry is ever read unwritten."""
     cv2.setRNGSeed(config.seed)
-    _, mask = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, config.ransac_threshold_px, config.ransac_confidence,
-                                     config.ransac_iterations)
-    return 0 if mask is None else int(mask.sum())
+    mask = np.zeros((len(pa), 1), dtype=np.uint8)
+    fundamental, mask = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, config.ransac_threshold_px,
+                                               config.ransac_confidence, config.ransac_iterations, mask=mask)
+    return 0 if fundamental is None or mask is None else int(np.count_nonzero(mask))
 
 
 def match_all(fa: Features, fb: Features, config: BaselineConfig | None = None) -> tuple[np.ndarray, float]:
