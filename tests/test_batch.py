@@ -857,7 +857,7 @@ def test_a_batch_of_a_version_before_the_jpeg_settings_resumes(flights, tmp_path
         del params[section][key]
     earlier = fingerprint({"params": params, "matcher": oracle_pair_task.__qualname__,
                            **{k: v for k, v in dataclasses.asdict(options).items()
-                              if k not in ("progress", "overwrite", "epsg")}})
+                              if k not in ("progress", "overwrite", "epsg", "transform_chosen")}})
     marker = json.loads((out / MARKER).read_text())
     today = marker["identity"]
     assert earlier != today
