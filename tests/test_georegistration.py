@@ -343,3 +343,18 @@ def test_frozen_gps_is_refused_before_the_work(tmp_path):
     refuse_frozen_gps(types.SimpleNamespace(summary={"gps_frozen": False}, positions=positions), tmp_path)
 
 
+
+
+@pytest.mark.parametrize("seed", [1, 5])
+def test_corridor_with_tags_is_registered_with_the_tags_roll(seed):
+    """A corridor with (noisy) gimbal tags: not refused, the cameras' world rotations within the tags' accuracy
+    (rev49 D1: the block rolled 1.7-23.5 deg about the line, claimed 0.5 deg)."""
+    centers, rots = _line(n=50, seed=seed)
+    rng = np.random.default_rng(8 + seed)
+    sfm_c, sfm_r, _ = _to_sfm(centers, rots, seed=seed)
+    tags = Rotation.from_rotvec(np.radians(rng.normal(0, 0.5, (len(rots), 3)))).as_matrix() @ rots
+    gps = centers + np.c_[rng.normal(0, 1.0, (len(centers), 2)), rng.normal(0, 1.5, len(centers))]
+    geo = georegister(sfm_c, sfm_r, gps, tags, np.ones(len(rots), bool), np.arange(len(rots)) * 2.0)
+    assert not getattr(geo, "refusals", [])
+    world_r = np.einsum("ij,njk->nik", geo.transform.rotation, sfm_r)
+    assert np.median(rotation_angle_deg(world_r, rots)) < 0.5
