@@ -108,9 +108,10 @@ def refuse_frozen_gps(priors: ImagePriors, image_dir: Path) -> None:
     whole structure from motion)."""
     if priors.summary.get("gps_frozen"):
         fixed = int(np.sum(np.all(np.isfinite(priors.positions[:, :2]), axis=1)))
-        raise InputError(f"the GPS fixes of all {fixed} images with one lie at one point (a receiver without a lock "
-                         "repeats its last fix): no georegistration from them; give the positions in a telemetry "
-                         "CSV (--telemetry), or remove the images' GPS tags for poses in a local frame", image_dir)
+        raise InputError(f"the GPS fixes of all {fixed} images that have one lie at one point (a receiver without a "
+                         "lock repeats its last fix): no georegistration from them; give the positions in a "
+                         "telemetry CSV (--telemetry), or remove the images' GPS tags for poses in a local frame",
+                         image_dir)
 
 
 def lag_corrected(priors: ImagePriors, index: np.ndarray, geo: Any) -> ImagePriors:
