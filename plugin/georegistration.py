@@ -9,9 +9,12 @@ each part:
 1. **Vertical** (`vertical_in_frame`): the world's up direction expressed in the SfM frame, per image
    R_sfm_from_cam R_prior_from_cam^T e_z from the prior attitude (the IMU's gravity; a yaw error does not
    change it), averaged robustly. Without attitude tags the prior is a level nadir camera, the survey
-   assumption, with a systematic uncertainty of `NADIR_ASSUMPTION_SIGMA_DEG`. The up direction of a 3-D fit to
-   the GPS positions is compared with it: when they agree within their uncertainties the two are combined
-   (inverse-variance), otherwise the GPS altitudes are inconsistent with the block (drift) and are not followed.
+   assumption, with a systematic uncertainty of `NADIR_ASSUMPTION_SIGMA_DEG`. The GPS heights' plane over the
+   block levelled by it (`_gps_slopes`: its slopes are the vertical's tangent-plane coordinates about the prior's,
+   with their information, none across a single straight line) is compared with it: when they agree within their
+   uncertainties the two are combined (information-weighted, rebuilt exactly), otherwise the GPS altitudes are
+   inconsistent with the block (drift) and are not followed. Without tags, heights that cannot check the nadir
+   assumption about some axis (a single line's roll) make the registration unusable (`Georegistration.refusals`).
 2. **Horizontal** (`robust_horizontal_similarity`): scale, yaw and east/north offset of the levelled block on
    the GPS positions, by least median of squares over 2-point samples (no threshold needed), then the noise
    sigma measured from the median residual, inliers within the 99 % chi-square(2) radius, least squares on
@@ -162,7 +165,7 @@ def vertical_in_frame(
     `sfm_from_cam` (N,3,3) are the SfM rotations, `prior_world_from_cam` the tags' (or a level nadir camera's),
     `attitude_from_tags` (N,) which priors came from tags: when at least 3 did, only those are used, with a
     systematic uncertainty of `tag_systematic_deg` (a gimbal's; `AIRFRAME_SYSTEMATIC_SIGMA_DEG` for a fixed camera).
-    `gps` (N,3) may hold NaN rows (no fix)."""
+    `gps` (N,3) may hold NaN rows (no fix); fewer than MIN_FIXES full fixes do not check the vertical."""
     tags = np.asarray(attitude_from_tags, bool)
     use = tags if tags.sum() >= 3 else np.ones(len(tags), bool)
     e_z = np.array([0.0, 0.0, 1.0])
