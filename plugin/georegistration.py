@@ -9,9 +9,12 @@ each part:
 1. **Vertical** (`vertical_in_frame`): the world's up direction expressed in the SfM frame, per image
    R_sfm_from_cam R_prior_from_cam^T e_z from the prior attitude (the IMU's gravity; a yaw error does not
    change it), averaged robustly. Without attitude tags the prior is a level nadir camera, the survey
-   assumption, with a systematic uncertainty of `NADIR_ASSUMPTION_SIGMA_DEG`. The up direction of a 3-D fit to
-   the GPS positions is compared with it: when they agree within their uncertainties the two are combined
-   (inverse-variance), otherwise the GPS altitudes are inconsistent with the block (drift) and are not followed.
+   assumption, with a systematic uncertainty of `NADIR_ASSUMPTION_SIGMA_DEG`. The GPS heights' plane over the
+   block levelled by it (`_gps_slopes`: its slopes are the vertical's tangent-plane coordinates about the prior's,
+   with their information, none across a single straight line) is compared with it: when they agree within their
+   uncertainties the two are combined (information-weighted, rebuilt exactly), otherwise the GPS altitudes are
+   inconsistent with the block (drift) and are not followed. Without tags, heights that cannot check the nadir
+   assumption about some axis (a single line's roll) make the registration unusable (`Georegistration.refusals`).
 2. **Horizontal** (`robust_horizontal_similarity`): scale, yaw and east/north offset of the levelled block on
    the GPS positions, by least median of squares over 2-point samples (no threshold needed), then the noise
    sigma measured from the median residual, inliers within the 99 % chi-square(2) radius, least squares on
@@ -35,9 +38,10 @@ import numpy as np
 
 from .gps_lag import LagFit, TrackVelocity, corrected, fit_lag, track_velocity
 from .height_drift import MIN_HEIGHT_DRIFT_M, DriftFit, _robust_sigma, fit_drift  # noqa: F401 (also read from here)
-from .multisession import Sim3, umeyama
+from .multisession import Sim3
 from .refinement import fit_yaw_translation
 from .robust_fit import (  # noqa: F401 (the constants are also read from here)
+    CHI2_1DOF_9973,
     CHI2_2DOF_99,
     CHI2_2DOF_9973,
     CHI2_2DOF_9999,
@@ -53,6 +57,13 @@ NADIR_ASSUMPTION_SIGMA_DEG = 3.0
 # uncertain as the nadir assumption.
 ATTITUDE_SYSTEMATIC_SIGMA_DEG = 0.5
 AIRFRAME_SYSTEMATIC_SIGMA_DEG = NADIR_ASSUMPTION_SIGMA_DEG
+# fewer fixes measure no noise: a fit of 4 unknowns (the horizontal similarity) or 3 (the heights' plane) on them
+# has too few degrees of freedom left (rev49 D7: 3 fixes, "noise 0.00 m", an ordinary fix called an outlier, the
+# GPS heights' plane through 3 points taken as exact and the block tilted 10 deg); `pose_check.gps` reads it too
+MIN_FIXES = 5
+# more than this share of the fixes off the block by more than their noise's 1-in-10^4 radius makes the
+# registration unusable (`_refusals`); below, they are wrong fixes, left out and listed
+MAX_WRONG_FIX_SHARE = 0.25
 # a GPS lag is corrected only when the corrected positions fit the block materially better (`_lag_decision`): a
 # per-axis sigma this much lower, or this fraction of the positions more among the inliers (at least 2)
 LAG_MIN_SIGMA_GAIN = 0.10
@@ -98,6 +109,9 @@ class Vertical:
     images_rejected: list[int] = field(default_factory=list)  # left out of the mean (beyond 3 robust sigmas)
     # of those, the ones whose tags contradict the others' vertical: beyond the 1-in-10^4 radius of the spread
     images_contradicting: list[int] = field(default_factory=list)
+    # the horizontal axis (SfM frame) about which the GPS heights know the tilt least (`gps_sigma_deg` is about
+    # it): across a single straight line, its roll; None without GPS heights
+    gps_weakest_axis: np.ndarray | None = None
 
 
 def level_rotation(up: np.ndarray) -> np.ndarray:
@@ -113,6 +127,31 @@ def level_rotation(up: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * kx + (1.0 - c) * kx @ kx
 
 
+def _gps_slopes(centers: np.ndarray, gps: np.ndarray,
+                prior_up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The GPS heights' measure of the vertical against `prior_up`: the block levelled by it and turned and scaled
+    onto the GPS positions on x, y (`fit_yaw_translation`), the heights' offset from it fitted as a plane z = a x +
+    b y + c. Returns the slopes (a, b) (least squares, the least-norm solution where the positions do not
+    determine them), their information matrix X^T X / sigma^2 (sigma of the heights about the plane, measured), and
+    the rotation from that levelled GPS-aligned frame to the SfM frame. World up is the height's gradient, so in
+    the SfM frame it is along rotation @ (a, b, 1). None when the positions have no horizontal spread."""
+    level = level_rotation(prior_up)
+    levelled = centers @ level.T
+    try:
+        fit = fit_yaw_translation(levelled, gps, with_scale=True)
+    except ValueError:
+        return None
+    q = fit.apply(levelled)
+    xy = q[:, :2] - q[:, :2].mean(0)
+    dz = gps[:, 2] - q[:, 2]
+    dz = dz - dz.mean()
+    slopes = np.linalg.lstsq(xy, dz, rcond=None)[0]
+    n = len(dz)
+    # the MAD of the residuals, widened for the plane's 3 fitted unknowns
+    sigma_v = max(_robust_sigma(dz - xy @ slopes) * math.sqrt(n / max(n - 3, 1)), 1e-3)
+    return slopes, xy.T @ xy / sigma_v**2, level.T @ fit.rotation.T
+
+
 def vertical_in_frame(
     sfm_from_cam: np.ndarray,
     prior_world_from_cam: np.ndarray,
@@ -126,7 +165,7 @@ def vertical_in_frame(
     `sfm_from_cam` (N,3,3) are the SfM rotations, `prior_world_from_cam` the tags' (or a level nadir camera's),
     `attitude_from_tags` (N,) which priors came from tags: when at least 3 did, only those are used, with a
     systematic uncertainty of `tag_systematic_deg` (a gimbal's; `AIRFRAME_SYSTEMATIC_SIGMA_DEG` for a fixed camera).
-    `gps` (N,3) may hold NaN rows (no fix)."""
+    `gps` (N,3) may hold NaN rows (no fix); fewer than MIN_FIXES full fixes do not check the vertical."""
     tags = np.asarray(attitude_from_tags, bool)
     use = tags if tags.sum() >= 3 else np.ones(len(tags), bool)
     e_z = np.array([0.0, 0.0, 1.0])
@@ -145,43 +184,42 @@ def vertical_in_frame(
     source = "attitude tags" if tags.sum() >= 3 else "nadir assumption"
 
     gps_up, gps_sigma, tilt, consistent = None, math.inf, math.nan, False
-    up, sigma = prior_up, prior_sigma
+    up, sigma, weakest = prior_up, prior_sigma, None
     if gps is not None and sfm_centers is not None:
         ok = np.all(np.isfinite(gps), axis=1)
-        if ok.sum() >= 3:
-            try:
-                fit = umeyama(sfm_centers[ok], gps[ok], with_scale=True)
-            except ValueError:  # collinear centres: the roll about the line is not observable from positions
-                fit = None
-            if fit is not None:
-                gps_up = fit.rotation.T @ e_z
-                resid = gps[ok] - fit.apply(sfm_centers[ok])
-                sigma_v = max(_robust_sigma(resid[:, 2]), 1e-3)
-                # The GPS vertical is the normal of a plane fitted to the heights: its tilt about the block's long
-                # axis is known only from the short axis's width. A scalar from the mean extent made a 31 x 160 m
-                # block's GPS tilt (1.1 deg across the lines from 1.9 m height noise) look 0.3 deg certain, and
-                # its 2.1 deg (1.8 sigma) a drift. Covariance of the plane's slopes in the GPS frame (rad^2):
-                xy = fit.apply(sfm_centers[ok])[:, :2]
-                xy = xy - xy.mean(0)
-                normal = xy.T @ xy
-                if np.linalg.cond(normal) < 1e12:
-                    cov_g = sigma_v**2 * np.linalg.inv(normal)
-                    gps_sigma = math.degrees(math.sqrt(float(np.linalg.eigvalsh(cov_g).max())))
-                    tilt = float(np.degrees(np.arccos(np.clip(gps_up @ prior_up, -1.0, 1.0))))
-                    # the prior's up in the GPS frame: its x, y are its tilt from the GPS vertical (small angles)
-                    d = (fit.rotation @ prior_up)[:2]
-                    cov_p = math.radians(prior_sigma) ** 2 * np.eye(2)
-                    # 3 sigma in one dimension is the 99.73 % quantile; in two, chi-square(2) at that level
-                    consistent = float(d @ np.linalg.solve(cov_p + cov_g, d)) <= CHI2_2DOF_9973
-                    if consistent:  # inverse-covariance mean of the two tilts (the GPS's at 0 in its frame)
-                        info = np.linalg.inv(cov_p) + np.linalg.inv(cov_g)
-                        t = np.linalg.solve(info, np.linalg.solve(cov_p, d))
-                        up = fit.rotation.T @ np.r_[t, 1.0]
-                        up /= np.linalg.norm(up)
-                        sigma = math.degrees(math.sqrt(float(np.linalg.eigvalsh(np.linalg.inv(info)).max())))
-                        source += " + GPS altitudes"
+        slopes = _gps_slopes(sfm_centers[ok], gps[ok], prior_up) if ok.sum() >= MIN_FIXES else None
+        if slopes is not None:
+            # Everything in the gnomonic chart centred on the prior's up (in the GPS-aligned levelled frame): a
+            # direction u is (u_x / u_z, u_y / u_z), exactly the slopes of the plane it is the normal of, the prior
+            # is at 0 with its isotropic sigma (exact at the chart's centre), and the GPS heights measure the slopes
+            # linearly with the information `info_g` -- rank-deficient for a straight line, whose heights say
+            # nothing of the roll about it (rev49 D1: an SVD fit's arbitrary roll about a line, combined in a
+            # small-angle rebuild, turned a line's cameras 126 deg; information form needs no inverse of it).
+            g, info_g, to_sfm = slopes
+            gps_up = to_sfm @ np.r_[g, 1.0]
+            gps_up /= np.linalg.norm(gps_up)
+            tilt = float(np.degrees(np.arccos(np.clip(gps_up @ prior_up, -1.0, 1.0))))
+            ev, vecs = np.linalg.eigh(info_g)
+            gps_sigma = math.degrees(math.atan(1.0 / math.sqrt(ev[0]))) if ev[0] > 0 else 90.0
+            weakest = to_sfm @ np.r_[vecs[:, 0], 0.0]  # the direction of tilt the GPS heights know least
+            info_p = np.eye(2) / math.radians(prior_sigma) ** 2
+            info = info_p + info_g
+            # the GPS slopes against the prior (0) in the directions the heights determine: chi-square with as
+            # many degrees of freedom (3 sigma: the 99.73 % quantile); (cov_p + cov_g)^-1 = I_g (I_p + I_g)^-1 I_p
+            eta = info_g @ g
+            chi2 = float(eta @ np.linalg.solve(info, info_p @ g))
+            # degrees of freedom the heights add: the trace of their share of the information (2 for a block, 1
+            # for a line, whose roll the heights know far less than the prior does)
+            known = float(np.trace(np.linalg.solve(info, info_g)))
+            consistent = chi2 <= (CHI2_2DOF_9973 if known >= 1.5 else CHI2_1DOF_9973)
+            if consistent:  # the information-weighted mean, rebuilt exactly from the chart
+                t = np.linalg.solve(info, eta)
+                up = to_sfm @ np.r_[t, 1.0]
+                up /= np.linalg.norm(up)
+                sigma = math.degrees(math.atan(1.0 / math.sqrt(float(np.linalg.eigvalsh(info)[0]))))
+                source += " + GPS altitudes"
     return Vertical(up, source, sigma, prior_up, prior_sigma, gps_up, gps_sigma, tilt, consistent,
-                    int(keep.sum()), rejected, contradicting)
+                    int(keep.sum()), rejected, contradicting, weakest)
 
 
 @dataclass
@@ -190,12 +228,14 @@ class HorizontalFit:
     inliers: np.ndarray  # bool (N,)
     sigma_m: float  # per-axis noise of the target positions, measured
     residuals_m: np.ndarray  # horizontal distance per point
+    measured: bool = True  # False: fewer than MIN_FIXES points; sigma_m is the floor, every point an inlier
 
 
 def robust_horizontal_similarity(src: np.ndarray, dst: np.ndarray, seed: int = 0,
                                  samples: int = 500, min_sigma_m: float = 1e-3) -> HorizontalFit:
     """Scale, yaw and translation of levelled points `src` (N,3) onto `dst` (N,3) on x, y: least median of
-    squares over 2-point samples, then least squares on the 99 % inliers of the measured sigma, iterated."""
+    squares over 2-point samples, then least squares on the 99 % inliers of the measured sigma, iterated. With fewer
+    than MIN_FIXES points, least squares on all of them and the noise not measured (`HorizontalFit.measured`)."""
     src, dst = np.asarray(src, float), np.asarray(dst, float)
     n = len(src)
     if n < 2:
@@ -218,6 +258,16 @@ def robust_horizontal_similarity(src: np.ndarray, dst: np.ndarray, seed: int = 0
             return None
         return cand if cand.scale > 0 else None
 
+    if n < MIN_FIXES:
+        # a fit of 4 unknowns on 2-4 points: its residuals measure no noise (3 points left 2 degrees of freedom:
+        # "noise 0.00 m", and an ordinary fix an outlier), so all are used and the noise is the receiver's wander
+        from .pose_check.gps import GNSS_WANDER_M
+
+        try:
+            fit = fit_yaw_translation(src, dst, with_scale=True)
+        except ValueError:
+            raise ValueError("the positions have no horizontal spread") from None
+        return HorizontalFit(fit, np.ones(n, bool), max(GNSS_WANDER_M, min_sigma_m), residuals(fit), False)
     fitted = lmeds_then_least_squares(
         (candidate(i, j) for i, j in pairs),
         lambda inl: fit_yaw_translation(src[inl], dst[inl], with_scale=True),
@@ -248,6 +298,10 @@ class Georegistration:
     # log offset (a log joined to the images one row off), not corrected; the centres lie up to `lag.metres` off
     # along the track, which makes a map of these poses unusable (`workflows.poses.result.registration_refusals`)
     lag_beyond_interval: bool = False
+    # what makes these poses unusable (one line each; `workflows.poses.checks._register` refuses with them): the
+    # vertical resting on the nadir assumption alone about an axis the GPS heights do not fix (a single line), or
+    # a share of the fixes off the block that no receiver's wrong fixes explain (a mirrored or deformed block)
+    refusals: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         h, v = self.horizontal, self.vertical
@@ -255,7 +309,7 @@ class Georegistration:
             "transform": self.transform.to_dict(),
             "images_with_gps": int(len(self.gps_indices)),
             "gps_inliers": int(h.inliers.sum()),
-            "gps_horizontal_sigma_m": h.sigma_m,
+            "gps_horizontal_sigma_m": h.sigma_m, "gps_noise_measured": h.measured,
             "gps_horizontal_residual_median_m": float(np.median(h.residuals_m[h.inliers])),
             "vertical_source": v.source, "vertical_sigma_deg": v.sigma_deg,
             "gps_block_tilt_deg": None if math.isnan(v.gps_tilt_deg) else v.gps_tilt_deg,
@@ -383,9 +437,13 @@ def georegister(
                         + ("" if reference_heights is None else "; heights from the relative altitude")
                         + ("; heights referenced to the start of the flight" if offset.significant else ""))
     far = idx[hfit.residuals_m[np.arange(len(idx))] ** 2 > CHI2_2DOF_9999 * hfit.sigma_m**2]
-    if len(far):  # beyond the 99 % radius are left out; beyond 1 in 10^4 they are wrong fixes, not noise
+    if not hfit.measured:
+        warnings.append(f"only {len(idx)} image(s) have a GPS fix: too few to measure the GPS noise (taken as "
+                        f"{hfit.sigma_m:g} m) or to call a fix wrong, and the GPS heights do not check the vertical")
+    elif len(far):  # beyond the 99 % radius are left out; beyond 1 in 10^4 they are wrong fixes, not noise
         warnings.append(f"{len(far)} GPS position(s) are off the reconstruction by more than 4.3 sigma of the "
                         f"measured {hfit.sigma_m:.2f} m noise (left out of the fit)")
+    refusals = _refusals(vert, hfit, levelled[idx], gps[idx], seed)
     if hfit.inliers.sum() < 0.5 * len(idx):
         warnings.append(f"only {int(hfit.inliers.sum())} of {len(idx)} GPS positions fit the reconstruction: "
                         "the georegistration is doubtful")
@@ -397,7 +455,50 @@ def georegister(
     # it is not corrected and said (`_lag_decision`)
     beyond = lag is not None and lag.significant and _beyond_interval(lag, track) and \
         abs(lag.dt) - LAG_BEYOND_SIGMAS * lag.sigma_dt > _interval(lag, track)
-    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift, lag_applied, beyond)
+    return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift, lag_applied, beyond,
+                           refusals)
+
+
+def _refusals(vert: Vertical, hfit: HorizontalFit, levelled: np.ndarray, gps: np.ndarray, seed: int) -> list[str]:
+    """What makes a registration unusable (`Georegistration.refusals`), from its vertical and horizontal fit of the
+    `levelled` centres (K,3) on `gps` (K,3)."""
+    from .pose_check.gps import GNSS_WANDER_M
+
+    out = []
+    if vert.source == "nadir assumption + GPS altitudes" or vert.source == "nadir assumption":
+        if vert.gps_sigma_deg > NADIR_ASSUMPTION_SIGMA_DEG:
+            # the heights know the tilt about one axis worse than the assumption does: it alone sets it, unchecked
+            # (rev49 D1: a single line's roll, the block turned about it; with tags their roll is measured)
+            out.append(f"no attitude tags, and the GPS heights fix the tilt about the flight's long axis only to "
+                       f"+-{vert.gps_sigma_deg:.0f} deg (a single straight line does not fix the roll about it): "
+                       "the poses would rest on the nadir assumption alone; give attitude tags (--telemetry) or "
+                       "fly a second line beside it")
+    if not hfit.measured:
+        return out
+    # The handedness: a proper similarity is all the fit takes, but the images may be mirrored (a camera or a
+    # converter set to flip them: the reconstruction is then the mirror world's); the best fit of the mirrored
+    # block fitting clearly more fixes (within the 1-in-10^4 radius of the better one's noise, at least
+    # GNSS_WANDER_M, what an uncorrected receiver wanders by) says so (rev49 D2: 22 of 40 fitted, 18 cameras up to
+    # 61 m off, exit 0; a symmetric lawnmower fits none). A line is its own mirror image: never more.
+    mirror = robust_horizontal_similarity(levelled * [1.0, -1.0, 1.0], gps, seed)
+    radius = math.sqrt(CHI2_2DOF_9999) * max(min(hfit.sigma_m, mirror.sigma_m), GNSS_WANDER_M)
+    fits, mirror_fits = int(np.sum(hfit.residuals_m <= radius)), int(np.sum(mirror.residuals_m <= radius))
+    if mirror_fits >= fits + max(2, 0.1 * len(gps)):
+        out.append(f"only {fits} of {len(gps)} GPS positions lie within {radius:.1f} m of the reconstruction, its "
+                   f"mirror image fits {mirror_fits}: the images are mirrored (a camera or converter set to flip "
+                   "them?); the poses are unusable")
+        return out
+    # Wrong fixes of a receiver are single glitches: noise puts 1 in 10^4 beyond 4.3 sigma (a block bent by a
+    # decimetre under RTK fixes is no wrong fix: the noise at least GNSS_WANDER_M). A quarter of the flight that
+    # far off is a block that is not the place the fixes say (another place, a folded reconstruction): least
+    # median of squares follows the largest part up to half and places the rest wherever it lands.
+    radius = math.sqrt(CHI2_2DOF_9999) * max(hfit.sigma_m, GNSS_WANDER_M)
+    far = int(np.sum(hfit.residuals_m > radius))
+    if far > MAX_WRONG_FIX_SHARE * len(gps):
+        out.append(f"{far} of {len(gps)} GPS positions lie more than {radius:.1f} m off the reconstruction, more "
+                   "than a receiver's wrong fixes explain (a deformed reconstruction, or images of another place "
+                   "among them?): the poses are unusable")
+    return out
 
 
 def _kept_count(fit: DriftFit) -> int:

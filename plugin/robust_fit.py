@@ -19,6 +19,7 @@ CHI2_2DOF_99 = 9.2103  # 99 %: the inlier radius
 CHI2_2DOF_MEDIAN = 1.3863  # the median: sigma from the least median of squares
 CHI2_2DOF_9999 = 18.4207  # 99.99 %: beyond it a measurement is wrong, not noisy
 CHI2_2DOF_9973 = 11.8290  # 99.73 % (3 sigma in one dimension)
+CHI2_1DOF_9973 = 9.0  # (3 sigma)^2: the same level in one dimension
 
 Model = TypeVar("Model")
 

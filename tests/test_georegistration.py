@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -9,10 +11,12 @@ from scipy.spatial.transform import Rotation
 from sosmatch.plugin.flight_lines import compare_with_priors, flight_lines
 from sosmatch.plugin.geometry import rotation_angle_deg
 from sosmatch.plugin.georegistration import (
+    MAX_WRONG_FIX_SHARE,
     fit_drift,
     georegister,
     level_rotation,
     robust_horizontal_similarity,
+    vertical_in_frame,
 )
 from sosmatch.plugin.multisession import Sim3
 
@@ -188,7 +192,6 @@ def test_attitude_tags_contradict_the_vertical_only_beyond_noise():
     """A sound flight's tags scatter about the vertical; the largest of 60 often lies beyond 3 sigmas (left out of
     the mean) without being wrong. Only a tag beyond the 1-in-10^4 radius contradicts the others (nu32: a flight
     with 0.58 deg of spread was told one image's tags contradicted the vertical for 2.1 deg)."""
-    from sosmatch.plugin.georegistration import vertical_in_frame
 
     centers, rots, _, _ = _block()
     sfm_c, sfm_r, _ = _to_sfm(centers, rots)
@@ -203,3 +206,155 @@ def test_attitude_tags_contradict_the_vertical_only_beyond_noise():
     geo = georegister(sfm_c, sfm_r, centers + rng.normal(0, 0.3, centers.shape), prior, np.ones(len(rots), bool),
                       np.arange(len(rots)) * 2.0)
     assert sum("contradicts" in w for w in geo.warnings) == 1 and "1 image(s)" in " ".join(geo.warnings)
+
+
+# rev49 D1, D2, D7: a single straight line, a mirrored block, a handful of fixes
+
+
+def _line(n: int = 40, seed: int = 0):
+    """A single straight line flown north: true centres (a little lateral wander) and nadir rotations."""
+    rng = np.random.default_rng(seed)
+    centers = np.c_[rng.normal(0, 0.3, n), np.arange(n) * 7.0, 100 + rng.normal(0, 0.2, n)]
+    rots = np.repeat(_nadir(np.pi / 2)[None], n, 0)
+    return centers + [500000.0, 5200000.0, 300.0], rots
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_exact_tags_on_a_straight_line_keep_their_vertical(seed):
+    """The GPS heights of a line know nothing of the roll about it: exact tags must come back within the claimed
+    sigma, not turned by the heights' noise (rev49 D1: 2.4-8.8 deg off, claimed 0.5; the small-angle rebuild)."""
+    centers, rots = _line(seed=seed)
+    rng = np.random.default_rng(100 + seed)
+    sfm_c, sfm_r, sfm_from_world = _to_sfm(centers, rots, seed=seed)
+    gps = centers + np.c_[rng.normal(0, 1.0, (len(centers), 2)), rng.normal(0, 1.5, len(centers))]
+    vert = vertical_in_frame(sfm_r, rots, np.ones(len(rots), bool), sfm_c, gps)
+    true_up = sfm_from_world.rotation @ [0.0, 0.0, 1.0]
+    assert _angle_deg(vert.up, true_up) < vert.sigma_deg
+    # heights that agree exactly with the block leave exact tags exact
+    exact = vertical_in_frame(sfm_r, rots, np.ones(len(rots), bool), sfm_c, centers)
+    assert exact.gps_consistent and _angle_deg(exact.up, true_up) < 1e-6
+
+
+def test_gps_heights_tilt_the_vertical_exactly_along_a_line():
+    """Along the line the heights do measure the tilt: a block whose SfM vertical is off by 2 deg about the
+    across-line axis is brought back by the heights (the information-weighted mean, rebuilt from the chart)."""
+    centers, rots = _line(n=60)
+    sfm_c, sfm_r, sfm_from_world = _to_sfm(centers, rots)
+    tilted = Rotation.from_euler("x", 2.0, degrees=True).as_matrix() @ rots  # pitch along the northbound line
+    vert = vertical_in_frame(sfm_r, tilted, np.zeros(len(rots), bool), sfm_c, centers + [0, 0, 0])
+    true_up = sfm_from_world.rotation @ [0.0, 0.0, 1.0]
+    assert "GPS altitudes" in vert.source and _angle_deg(vert.up, true_up) < 0.05
+
+
+def test_gps_only_straight_line_is_refused_and_never_looks_up():
+    """Without tags the roll about a single line rests on the nadir assumption alone: refused (rev49 D1: the
+    block rolled 126 deg, cameras looking up, exit 0)."""
+    centers, rots = _line()
+    rng = np.random.default_rng(1)
+    sfm_c, sfm_r, sfm_from_world = _to_sfm(centers, rots)
+    gps = centers + np.c_[rng.normal(0, 1.0, (len(centers), 2)), rng.normal(0, 1.5, len(centers))]
+    geo = georegister(sfm_c, sfm_r, gps, rots, np.zeros(len(rots), bool), np.arange(len(rots)) * 2.0)
+    assert len(geo.refusals) == 1 and "single straight line" in geo.refusals[0]
+    world_r = np.einsum("ij,njk->nik", geo.transform.rotation, sfm_r)
+    assert np.all(world_r[:, 2, 2] < -0.9)  # the optical axes look down
+
+
+def test_gps_only_lawnmower_is_not_refused():
+    centers, rots, _, times = _block()
+    rng = np.random.default_rng(2)
+    sfm_c, sfm_r, _ = _to_sfm(centers, rots)
+    gps = centers + np.c_[rng.normal(0, 1.0, (len(centers), 2)), rng.normal(0, 1.5, len(centers))]
+    geo = georegister(sfm_c, sfm_r, gps, rots, np.zeros(len(rots), bool), times)
+    assert geo.refusals == [] and "GPS altitudes" in geo.vertical.source
+
+
+def test_mirrored_block_is_refused_and_named():
+    """A reconstruction of mirrored images (a proper block of the mirror world) fits only part of its fixes with
+    a proper similarity: refused, naming the mirror (rev49 D2: 22 of 40 fitted, 18 cameras up to 61 m off)."""
+    centers, rots, _, times = _block()
+    mirror = np.diag([-1.0, 1.0, 1.0])
+    sfm_c, sfm_r, _ = _to_sfm(centers @ mirror, np.einsum("ij,njk,kl->nil", mirror, rots, mirror))
+    rng = np.random.default_rng(4)
+    gps = centers + rng.normal(0, 0.7, centers.shape)
+    geo = georegister(sfm_c, sfm_r, gps, rots, np.ones(len(rots), bool), times)
+    assert len(geo.refusals) == 1 and "mirror" in geo.refusals[0]
+    sound = georegister(*_to_sfm(centers, rots)[:2], gps, rots, np.ones(len(rots), bool), times)
+    assert sound.refusals == []
+
+
+def test_a_few_wrong_fixes_are_left_out_not_refused():
+    centers, rots, _, times = _block()
+    sfm_c, sfm_r, _ = _to_sfm(centers, rots)
+    rng = np.random.default_rng(6)
+    gps = centers + rng.normal(0, 0.7, centers.shape)
+    wrong = rng.choice(len(gps), int(MAX_WRONG_FIX_SHARE * len(gps)), replace=False)
+    gps[wrong, :2] += rng.uniform(30, 60, (len(wrong), 2))
+    geo = georegister(sfm_c, sfm_r, gps, rots, np.ones(len(rots), bool), times)
+    assert geo.refusals == [] and not geo.horizontal.inliers[wrong].any()
+    gps[rng.choice(np.setdiff1d(np.arange(len(gps)), wrong), 2, replace=False), :2] += 80.0
+    assert georegister(sfm_c, sfm_r, gps, rots, np.ones(len(rots), bool), times).refusals
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_too_few_fixes_measure_no_noise_and_call_no_outlier(n):
+    """3-4 fixes leave a 4-unknown fit no degrees of freedom to measure noise with (rev49 D7: "GPS noise 0.00 m",
+    an ordinary fix an outlier, the heights' plane through 3 points taken as exact: 10 deg off)."""
+    from sosmatch.plugin.pose_check.gps import GNSS_WANDER_M
+
+    centers, rots, _, times = _block()
+    pick = np.array([0, 1, 2, 3])[:n]
+    rng = np.random.default_rng(7)
+    sfm_c, sfm_r, sfm_from_world = _to_sfm(centers[pick], rots[pick])
+    gps = centers[pick] + rng.normal(0, 1.0, (n, 3))
+    geo = georegister(sfm_c, sfm_r, gps, rots[pick], np.ones(n, bool), times[pick])
+    assert not geo.horizontal.measured and geo.horizontal.sigma_m == GNSS_WANDER_M
+    assert geo.horizontal.inliers.all() and not geo.refusals
+    assert geo.vertical.source == "attitude tags"  # the heights of 3-4 fixes do not tilt it
+    assert any("too few to measure the GPS noise" in w for w in geo.warnings)
+    assert not any("4.3 sigma" in w for w in geo.warnings)
+    assert geo.to_dict()["gps_noise_measured"] is False
+
+
+def test_poses_line_says_noise_not_measured(tmp_path):
+    from sosmatch.plugin.geometry import Poses
+    from sosmatch.workflows.poses.result import PosesResult
+
+    poses = Poses(["a.jpg"], np.eye(3)[None], np.zeros((1, 3)))
+    result = PosesResult(tmp_path, poses, {}, {}, 32632, [], {"georegistration": {
+        "gps_horizontal_sigma_m": 2.5, "gps_noise_measured": False}})
+    assert "GPS noise not measured" in result.line() and "2.50" not in result.line()
+
+
+def test_frozen_gps_is_refused_before_the_work(tmp_path):
+    """Every fix at one point (a receiver repeating its last fix): one line naming the folder, before the
+    structure from motion (rev49 D6: a ValueError traceback after it)."""
+    from sosmatch.plugin.errors import InputError
+    from sosmatch.workflows.poses.checks import refuse_frozen_gps
+
+    positions = np.tile([500000.0, 5200000.0, 100.0], (5, 1))
+    priors = types.SimpleNamespace(summary={"gps_frozen": True}, positions=positions)
+    with pytest.raises(InputError, match="lie at one point") as err:
+        refuse_frozen_gps(priors, tmp_path)
+    assert str(tmp_path) in str(err.value)
+    refuse_frozen_gps(types.SimpleNamespace(summary={"gps_frozen": False}, positions=positions), tmp_path)
+
+
+
+
+@pytest.mark.parametrize("seed", [1, 5])
+def test_corridor_with_tags_is_registered_with_the_tags_roll(seed):
+    """A corridor with (noisy) gimbal tags: not refused, the cameras' world rotations within the tags' accuracy
+    (rev49 D1: the block rolled 1.7-23.5 deg about the line, claimed 0.5 deg)."""
+    centers, rots = _line(n=50, seed=seed)
+    rng = np.random.default_rng(8 + seed)
+    sfm_c, sfm_r, _ = _to_sfm(centers, rots, seed=seed)
+    tags = Rotation.from_rotvec(np.radians(rng.normal(0, 0.5, (len(rots), 3)))).as_matrix() @ rots
+    gps = centers + np.c_[rng.normal(0, 1.0, (len(centers), 2)), rng.normal(0, 1.5, len(centers))]
+    geo = georegister(sfm_c, sfm_r, gps, tags, np.ones(len(rots), bool), np.arange(len(rots)) * 2.0)
+    assert not getattr(geo, "refusals", [])
+    world_r = np.einsum("ij,njk->nik", geo.transform.rotation, sfm_r)
+    assert np.median(rotation_angle_deg(world_r, rots)) < 0.5

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ...database.xmp_sidecar import sidecars_with_gps
+from ...plugin.errors import InputError
 from ...plugin.focal_prior import FocalEstimate
 from ...plugin.geometry import Camera, Poses
 from ...plugin.gps_track import with_quantisation
@@ -57,8 +59,15 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
     relative = "RelativeAltitude" in str(priors.summary.get("altitude_source", ""))
     reference = priors.positions[index, 2] if relative else None
     if np.sum(np.all(np.isfinite(gps[:, :2]), axis=1)) >= 2:
-        geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference, seed,
-                          systematic, priors.times_known)
+        folder = Path(priors.paths[int(index[0])]).parent
+        try:
+            geo = georegister(c_sfm, r_sfm, gps, priors.rotations[index], tags, priors.times_s[index], reference,
+                              seed, systematic, priors.times_known)
+        except ValueError as exc:  # (fixes without spread are refused before the work: `refuse_frozen_gps`)
+            raise InputError(f"the GPS positions of the registered images cannot georegister them: {exc}",
+                             folder) from None
+        if geo.refusals:  # unusable poses are not published (the work directory keeps the features and matches)
+            raise InputError("; ".join(geo.refusals), folder)
         warnings.extend(geo.warnings)
         # the fit of the block to the GPS: also the map's doubt (`result.registration_warnings` reads the
         # record's georegistration warnings), not only this command's; rounded fixes scatter by their grid too
@@ -92,6 +101,18 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
     warnings.append(f"no GPS positions: the poses are in a local frame (levelled by the {vert.source}, "
                     f"origin on the ground under the flight, scale {how})" + (f"; {sidecars}" if sidecars else ""))
     return transform, {"frame": "local", "scale_from": how, "vertical_source": vert.source}, None
+
+def refuse_frozen_gps(priors: ImagePriors, image_dir: Path) -> None:
+    """InputError before any work when the images' GPS fixes all lie at one point (`priors.summary["gps_frozen"]`,
+    a receiver repeating its last fix): no georegistration can come from them (rev49 D6: a traceback after the
+    whole structure from motion)."""
+    if priors.summary.get("gps_frozen"):
+        fixed = int(np.sum(np.all(np.isfinite(priors.positions[:, :2]), axis=1)))
+        raise InputError(f"the GPS fixes of all {fixed} images that have one lie at one point (a receiver without a "
+                         "lock repeats its last fix): no georegistration from them; give the positions in a "
+                         "telemetry CSV (--telemetry), or remove the images' GPS tags for poses in a local frame",
+                         image_dir)
+
 
 def lag_corrected(priors: ImagePriors, index: np.ndarray, geo: Any) -> ImagePriors:
     """`priors` with the GPS lag the georegistration corrected (`Georegistration.position_shift`, for the images

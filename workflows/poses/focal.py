@@ -106,7 +106,9 @@ def weigh_focal_lengths(rec: Any, exif_cameras: dict[int, tuple[Camera, str]], a
             # tied to where SfM put them they tilted the whole block 4 deg instead. The other cameras' images
             # keep the gauge; a camera that is the whole block keeps its ties.
             loose = est.exif_unchecked and any(im.has_pose and im.camera_id != k for im in rec.images.values())
+            before = _attitudes(rec)
             _adjusted_misfit(rec, k, est.taken_px, anchor_sigma_m, untied=loose)
+            _restore_attitude(rec, before)
             changed = True
         if adjusted and not est.exif_unchecked:  # said above, and in the warning
             log.info("camera %d: the images know the focal length to +-%.1f %% (the misfit's curvature: +-%.1f %%, "
@@ -116,6 +118,30 @@ def weigh_focal_lengths(rec: Any, exif_cameras: dict[int, tuple[Camera, str]], a
                      f_free)
         estimates.append(est)
     return estimates, changed
+
+
+def _attitudes(rec: Any) -> dict[int, np.ndarray]:
+    """world_from_camera rotations of the registered images of a pycolmap Reconstruction, by image id."""
+    return {int(i): np.asarray(im.cam_from_world().rotation.matrix()).T
+            for i, im in rec.images.items() if im.has_pose}
+
+
+def _restore_attitude(rec: Any, before: dict[int, np.ndarray]) -> None:
+    """Turn `rec` back by the common rotation an adjustment gave its images (the chordal mean of R_after
+    R_before^T), about the camera centres' centroid. The centre ties hold the gauge of a block but not a single
+    line's roll about itself: a corridor's held-focal adjustment turned it 2.7 deg off the vertical the
+    georegistration had set (rev49 D1, s_line); a focal length moves the depths, never the block's attitude."""
+    import pycolmap
+
+    ids = [i for i in before if rec.images[i].has_pose]
+    if not ids:
+        return
+    after = _attitudes(rec)
+    u, _, vt = np.linalg.svd(sum(after[i] @ before[i].T for i in ids))
+    turn = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    centre = np.mean([np.asarray(rec.images[i].projection_center()) for i in ids], axis=0)
+    back = turn.T
+    rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(back), centre - back @ centre))
 
 
 def _blocks_focal_sigma(free: Any, camera_id: int, order: Sequence[str] | None,

@@ -40,6 +40,7 @@ from .checks import (
     flying_height_m,
     focal_length_warnings,
     lag_corrected,
+    refuse_frozen_gps,
 )
 from .focal import exif_focal_priors, weigh_focal_lengths
 from .result import OUTPUTS, RECORD, PosesResult, _listing, _refuse_cameras, load_result, map_inputs
@@ -198,6 +199,7 @@ def _compute(image_dir: Path, work: Path, result_dir: Path, priors: ImagePriors,
     if len(priors.names) < MIN_IMAGES:  # said before the work: COLMAP would report "0 registered", not why
         raise InputError(f"{len(priors.names)} image(s): structure from motion needs at least {MIN_IMAGES} "
                          "overlapping images", image_dir)
+    refuse_frozen_gps(priors, image_dir)  # (the intake knows it: before the work, not a traceback after it)
     # COLMAP reads 8-bit images: data of more than 8 bits as white-levelled copies (also for the mapper's colours)
     colmap_dir = sfm.colmap_image_dir(image_dir, priors.names, work / "images8")
     if matched is None or not db.is_file():  # `matched`: the match stage of an interrupted run (`_stage_done`)

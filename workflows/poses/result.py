@@ -43,7 +43,9 @@ class PosesResult:
         total = self.report.get("images", len(self.poses) + len(self.unregistered))
         text = f"{self.out_dir}: {len(self.poses)} of {total} images registered ({frame}"
         sigma = geo.get("gps_horizontal_sigma_m")  # absent in a local frame (no GPS to measure the noise of)
-        if isinstance(sigma, (int, float)):
+        if geo.get("gps_noise_measured") is False:  # too few fixes (`HorizontalFit.measured`)
+            text += ", GPS noise not measured"
+        elif isinstance(sigma, (int, float)):
             text += f", GPS noise {sigma:.2f} m"
         text += f"), {self.report.get('points', 0)} points at {self.report.get('reprojection_px', 0.0):.2f} px"
         if self.warnings:
