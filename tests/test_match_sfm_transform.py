@@ -58,13 +58,19 @@ def test_the_map_file_carries_the_pose_source(tmp_path: Path, noise: MapNoise | 
 
 
 def test_an_unknown_flag_is_still_refused() -> None:
+    """rev51 D5: as a map of a newer sosmatch (update), not as a damaged file."""
     import struct
     import zlib
 
     data = bytearray(encode_landmark_map(_map(True)))
     data[10:12] = struct.pack("<H", int.from_bytes(data[10:12], "little") | 8)
     data[-4:] = struct.pack("<I", zlib.crc32(bytes(data[:-4])))
-    with pytest.raises(InputError, match="unknown flags"):
+    with pytest.raises(InputError, match="0x8 this sosmatch does not know: it was probably written by a newer "
+                                         "sosmatch; update sosmatch"):
+        decode_landmark_map(bytes(data), "x.sosmap")
+    data[8:10] = struct.pack("<H", 3)  # a newer version too: said so, not only "unsupported"
+    data[-4:] = struct.pack("<I", zlib.crc32(bytes(data[:-4])))
+    with pytest.raises(InputError, match="version 3 .*newer sosmatch: update sosmatch"):
         decode_landmark_map(bytes(data), "x.sosmap")
 
 
