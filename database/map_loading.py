@@ -83,7 +83,8 @@ _SFM_SOURCE_TEXT = "structure from motion of "
 def recorded_sfm_poses(record: dict | None) -> bool:
     """Whether a map's run.json says its poses came from sosmatch's structure from motion: its `pose_source`; for a
     record written before that field, its `inputs.poses`: the text it then held for SfM poses (`map --images`), or
-    a poses.csv that a `sosmatch poses` record (poses.json) still lies beside (`poses`, then `map --poses`).
+    a poses.csv that a `sosmatch poses` record (poses.json) of its own SfM, not of an imported OpenSfM model, still
+    lies beside (`poses`, then `map --poses`; `session_io.poses_of_own_sfm`).
     False for any other record or none (a map of given poses; an older session whose poses.csv is gone: unknown,
     taken as given)."""
     if not isinstance(record, dict):
@@ -94,9 +95,9 @@ def recorded_sfm_poses(record: dict | None) -> bool:
     source = inputs.get("poses") if isinstance(inputs, dict) else None
     if not isinstance(source, str):
         return False
-    from .session_io import poses_record_beside
+    from .session_io import poses_of_own_sfm
 
-    return source.startswith(_SFM_SOURCE_TEXT) or poses_record_beside(Path(source)) is not None
+    return source.startswith(_SFM_SOURCE_TEXT) or poses_of_own_sfm(Path(source))
 
 
 def session_sfm_poses(session: str | Path, lmap: LandmarkMap | None = None) -> bool:
