@@ -211,3 +211,36 @@ def test_a_batch_pair_keeps_the_transform_the_user_chose(survey, tmp_path: Path)
     pair_task(str(a), str(b), str(tmp_path / "free"), Params(), True, False)
     kinds = [json.loads((tmp_path / d / "match.json").read_text())["transform_kind"] for d in ("chosen", "free")]
     assert kinds == ["rigid", "similarity"]
+
+
+def test_after_the_fallback_the_output_is_the_rigid_match_it_records(survey, tmp_path: Path, monkeypatch) -> None:
+    """rev51 D6: when the similarity's scale is no dome's (forced here: a dome's limit of 1 % against B scaled
+    by 1.03) the rigid answer is recorded, and the output is that rigid match's: re-running with the settings
+    match.json records (`association.transform=rigid` chosen) into the same folder is the same output, as is the
+    same command; a chosen similarity (another answer) is refused there. Its imprecise warning does not advise the
+    similarity just not kept."""
+    import dataclasses
+
+    from sosmatch.workflows import match
+    from sosmatch.workflows.match import transform_choice
+
+    monkeypatch.setattr(transform_choice, "MAX_DOME_SCALE", 0.01)
+    pa, sa = survey
+    a, b = _files(tmp_path, pa, sa, _domed(pa, 1.03), sfm_b=True)
+    out = tmp_path / "m"
+    match.run(Params(), a, b, out, plot=False)
+    doc = json.loads((out / "match.json").read_text())
+    assert doc["transform_kind"] == "rigid" and doc["params"]["association"]["transform"] == "rigid"
+    assert doc["answer_uncertainty"]["imprecise"] and any("imprecise answer" in w for w in doc["warnings"])
+    assert not any("association.transform=similarity" in w for w in doc["warnings"])
+    assert "association.transform=similarity" not in doc["answer_uncertainty"]["reason"]
+    rigid = match.run(Params(), a, b, out, plot=False, transform_chosen=True)  # as recorded: the same output
+    assert rigid.accepted and json.loads((out / "match.json").read_text())["transform_kind"] == "rigid"
+    match.run(Params(), a, b, out, plot=False)  # the same command again: the same output
+    similarity = dataclasses.replace(Params().association, transform="similarity")
+    before = (out / "match.json").read_bytes()
+    with pytest.raises(InputError, match="other inputs or settings"):
+        match.run(dataclasses.replace(Params(), association=similarity), a, b, out, plot=False,
+                  transform_chosen=True)
+    assert (out / "match.json").read_bytes() == before
+    assert json.loads((out / ".sosmatch-output.json").read_text())["complete"]  # left as it was
