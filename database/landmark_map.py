@@ -35,6 +35,7 @@ VERSIONS = (1, 2)
 FLAG_SIZES = 1
 FLAG_NOISE = 2  # version 2: the noise block follows the records
 FLAG_SFM_POSES = 4  # the map's poses came from structure from motion (no bytes of its own; module doc)
+KNOWN_FLAGS = FLAG_SIZES | FLAG_NOISE | FLAG_SFM_POSES
 # where a map's poses came from, as run.json's `pose_source` says it: sosmatch's structure from motion (`sosmatch
 # poses`, `map --images`), or poses taken as given (a pose file or model, a synth session, EXIF/XMP tags)
 POSE_SOURCE_SFM = "structure from motion"
@@ -103,8 +104,11 @@ def landmark_map_problem(origin: np.ndarray, offsets: np.ndarray, stored_sizes: 
     known = stored_sizes[np.isfinite(stored_sizes)]
     if np.any(np.isinf(stored_sizes)) or np.any(known <= 0):
         return f"landmark map holds sizes that are not positive metres up to {MAX_SIZE_M:g} (zero, negative, infinite)"
-    if flags & ~(FLAG_SIZES | FLAG_NOISE | FLAG_SFM_POSES):
-        return f"landmark map has unknown flags {flags:#x}"
+    if unknown := flags & ~KNOWN_FLAGS:
+        # a flag this reader does not know is one a newer sosmatch writes (as flag 4 was to readers before it): said
+        # so, not as a damaged file (rev51 D5)
+        return (f"landmark map has flags {flags:#x}, of which {unknown:#x} this sosmatch does not know: it was "
+                "probably written by a newer sosmatch; update sosmatch to read it")
     if bool(flags & FLAG_SIZES) != bool(len(known)):
         return "landmark map's size flag disagrees with its sizes"
     problem = None if noise is None else noise.problem()
@@ -285,8 +289,9 @@ def decode_landmark_map(data: bytes, source: str | Path = "<bytes>") -> Landmark
     if magic != MAGIC:
         raise InputError("not a landmark map (bad magic bytes)", source)
     if version not in VERSIONS:
+        newer = "; probably written by a newer sosmatch: update sosmatch to read it" if version > VERSION else ""
         raise InputError(f"unsupported landmark map version {version} (this reader knows "
-                         f"{', '.join(map(str, VERSIONS))})", source)
+                         f"{', '.join(map(str, VERSIONS))}){newer}", source)
     if flags & FLAG_NOISE and version < 2:
         raise InputError(f"landmark map has unknown flags {flags:#x} for version {version}", source)
     if version == 2 and not flags & FLAG_NOISE:

@@ -83,7 +83,8 @@ _SFM_SOURCE_TEXT = "structure from motion of "
 def recorded_sfm_poses(record: dict | None) -> bool:
     """Whether a map's run.json says its poses came from sosmatch's structure from motion: its `pose_source`; for a
     record written before that field, its `inputs.poses`: the text it then held for SfM poses (`map --images`), or
-    a poses.csv that a `sosmatch poses` record (poses.json) still lies beside (`poses`, then `map --poses`).
+    a poses.csv that a `sosmatch poses` record (poses.json) of its own SfM, not of an imported OpenSfM model, still
+    lies beside (`poses`, then `map --poses`; `session_io.poses_of_own_sfm`).
     False for any other record or none (a map of given poses; an older session whose poses.csv is gone: unknown,
     taken as given)."""
     if not isinstance(record, dict):
@@ -94,9 +95,28 @@ def recorded_sfm_poses(record: dict | None) -> bool:
     source = inputs.get("poses") if isinstance(inputs, dict) else None
     if not isinstance(source, str):
         return False
-    from .session_io import poses_record_beside
+    from .session_io import poses_of_own_sfm
 
-    return source.startswith(_SFM_SOURCE_TEXT) or poses_record_beside(Path(source)) is not None
+    return source.startswith(_SFM_SOURCE_TEXT) or poses_of_own_sfm(Path(source))
+
+
+def session_sfm_poses(session: str | Path, lmap: LandmarkMap | None = None) -> bool:
+    """Whether a mapped (or merged) session's poses came from sosmatch's structure from motion: its map file's flag
+    (`lmap`, read from it when None), else its record (`recorded_sfm_poses`): run.json, or for a merged session
+    merge.json (whose `pose_source` `sosmatch merge` writes). The one reading for `match`, `merge` and `evaluate`.
+    InputError naming a record that does not read."""
+    from .session_io import MERGE_RECORD, read_map_record
+    from .text_input import read_user_json
+
+    session = Path(session)
+    if lmap is None and (session / "landmarks.sosmap").is_file():
+        lmap = read_landmark_map(session / "landmarks.sosmap")
+    if lmap is not None and lmap.sfm_poses:
+        return True
+    record = read_map_record(session)
+    if record is None and (session / MERGE_RECORD).is_file():
+        record = read_user_json(session / MERGE_RECORD, "merge record", redo="re-run `sosmatch merge`")
+    return recorded_sfm_poses(record)
 
 
 def session_map_noise(session: Path, lmap: LandmarkMap) -> MapNoise | None:
@@ -254,9 +274,8 @@ def load_map(path: str | Path) -> LoadedMap:
         check_map_of_record(path, lmap)  # its noise figures (run.json) must be this map's
         from .session_io import read_map_record
 
-        record = read_map_record(path)
         return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap),
-                         size_definition(record), lmap.sfm_poses or recorded_sfm_poses(record))
+                         size_definition(read_map_record(path)), session_sfm_poses(path, lmap))
     if (path / "run.json").is_file() and (path / "sparse").is_dir():  # landmarks.sosmap is not a file here
         # a session `sosmatch map` wrote has its map in landmarks.sosmap: matched from sparse/ instead, it lost its
         # sizes' noise figures and its checks, and every other command refused the folder (the nineteenth sweep)

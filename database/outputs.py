@@ -311,6 +311,22 @@ class OutputDir:
             raise InputError(f"is a directory where `sosmatch {self.command}` writes a file; not removed", dst)
         dst.unlink(missing_ok=True)
 
+    def settle(self, identity: str | VersionedIdentity, overwrite: bool = False,
+               overwrite_flag: str = OVERWRITE_HINT) -> None:
+        """The output's identity when the work decided it (`match`: the rigid answer after a similarity's scale no
+        dome makes), the directory taken for any of those it could be (`open_output_dir`'s `earlier`): a complete
+        previous output of another identity is refused now, as `open_output_dir` refuses it (unless `overwrite`;
+        the marker restored as the run found it), and the marker names `identity`. Call before writing anything."""
+        versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
+        try:
+            _refuse_another(self.path, self.command, self.previous, versions, {versions.today, *versions.same_as},
+                            overwrite, overwrite_flag)
+        except InputError:
+            self.restore_previous()
+            raise
+        self.identity, self._same_as = versions.today, frozenset(versions.same_as)
+        self._write_marker(complete=self.was_complete)
+
     def finish(self, keep_staging: bool = False) -> None:
         """Mark the output complete (a later run with another identity then needs overwrite)."""
         if not keep_staging:

@@ -206,6 +206,19 @@ def poses_record_beside(poses_csv: Path) -> dict | None:
     return report if isinstance(report, dict) and report.get("format") == "sosmatch-poses" else None
 
 
+# the `source` of a `poses` record of a model imported, not made by sosmatch's structure from motion (`poses
+# --opensfm`): its poses are taken as given, as the same model given to `map --poses` is (README "Poses from a folder
+# of photos"; rev51 D4: one model was "given" or "structure from motion" by the path taken)
+IMPORTED_POSE_SOURCES = ("opensfm",)
+
+
+def poses_of_own_sfm(poses_csv: Path) -> bool:
+    """Whether a poses.csv was made by sosmatch's own structure from motion: the `sosmatch poses` record beside it
+    (`poses_record_beside`) is not one of an imported model (`IMPORTED_POSE_SOURCES`)."""
+    report = poses_record_beside(poses_csv)
+    return report is not None and report.get("source") not in IMPORTED_POSE_SOURCES
+
+
 def georeference_sigma_m(map_dir: str | Path) -> float | None:
     """The measured horizontal noise (m, per axis) of the GPS positions a session was georegistered on:
     MAP_DIR/poses/poses.json's `georegistration.gps_horizontal_sigma_m`, which `sosmatch map` of a folder of

@@ -43,7 +43,7 @@ gate, which keeps only the heights a flip happens to leave in place).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -54,6 +54,9 @@ CHI2_2D_95 = 5.991  # the 95 % quantile of chi-square with 2 degrees of freedom
 MAX_SIGMA_GATES = 10.0  # the truncated fit's sigma is searched up to this many gates (beyond: residuals uniform)
 SCALE_FALSE_ALARM = 1e-3  # p of the scale test below which a scale disagreement is measured, not noise
 HEIGHT_FALSE_ALARM = 1e-3  # p of anti-correlated heights below which one map is upside down
+# what an imprecise answer whose scales disagree advises; after a similarity was tried and its scale not kept
+# (`workflows.match.transform_choice`), `without_similarity_advice` advises the rest alone
+SIMILARITY_ADVICE = "match with --set association.transform=similarity, or check the poses' scale"
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,15 @@ class AnswerUncertainty:
         return (f"imprecise answer: B's {self.landmarks} landmarks in the common area may lie up to "
                 f"{self.predicted_max_m:.1f} m (median {self.predicted_median_m:.1f} m, 95 %) from where it puts "
                 f"them, beyond its {self.gate_m:g} m gate ({self.reason})")
+
+
+def without_similarity_advice(uncertainty: AnswerUncertainty) -> AnswerUncertainty:
+    """`uncertainty` whose reason does not advise a similarity: the answer of a rigid match made after a
+    similarity's answer was not kept (its scale no dome's), where that advice names the transform just rejected
+    (rev51 D6)."""
+    reason = uncertainty.reason.replace(SIMILARITY_ADVICE, "check the poses' scale (a similarity's answer was not "
+                                        "kept: its scale is more than an SfM block's dome makes)")
+    return replace(uncertainty, reason=reason)
 
 
 def truncated_sigma(distances: np.ndarray, gate_m: float) -> float:
@@ -169,8 +181,8 @@ def answer_uncertainty(points_a: np.ndarray, points_b: np.ndarray, transform: An
     reasons = []
     if scale_error > 0.0 and worst > gate_m:
         reasons.append(f"the maps' scales disagree: B's pairs fit x {ratio:.4f} +- {ratio_sd:.2g} of the answer's "
-                       f"scale (p {scale_p:.1g}), at least {scale_error:.1f} m at B's far landmarks; match with --set "
-                       "association.transform=similarity, or check the poses' scale")
+                       f"scale (p {scale_p:.1g}), at least {scale_error:.1f} m at B's far landmarks; "
+                       + SIMILARITY_ADVICE)
     elif worst > gate_m:
         reasons.append(f"pair noise {sigma:.1f} m, yaw +- {np.degrees(sigma / np.sqrt(spread)):.2f} deg")
     if flipped:
@@ -227,8 +239,7 @@ def refused_scale_note(points_a: np.ndarray, points_b: np.ndarray, transform: An
         return None
     return (f"the best candidate's {len(pairs)} pairs fit x {ratio:.4f} +- {ratio_sd:.2g} of its scale (p "
             f"{scale_p:.1g}): the maps' scales disagree, which the search's gate does not absorb (maps from SfM on "
-            "small images can be domed, README \"Poses from a folder of photos\"); match with --set "
-            "association.transform=similarity, or check the poses' scale")
+            f"small images can be domed, README \"Poses from a folder of photos\"); {SIMILARITY_ADVICE}")
 
 
 def height_flip(placed_z: np.ndarray, partner_z: np.ndarray) -> tuple[float, float]:

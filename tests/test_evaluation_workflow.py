@@ -438,3 +438,30 @@ def test_no_method_is_a_user_error(tmp_path, cli_error):
     """nu45: `evaluate --methods ''` evaluated nothing, wrote an evaluation without a row and exited 0."""
     err = cli_error("evaluate", tmp_path / "A", tmp_path / "B", "--out", tmp_path / "eval", "--methods", "")
     assert "no method to evaluate" in err and list(tmp_path.iterdir()) == []
+
+
+def test_evaluate_searches_an_sfm_posed_map_as_match_does(sessions, tmp_path):
+    """rev51 D3: a map whose poses came from structure from motion is searched with the similarity `sosmatch
+    match` chooses for it (one `plan_search` / `answer_plan`), and a transform the user chose is kept, as in match;
+    before, evaluate scored the rigid search whatever match would answer."""
+    import shutil
+
+    from sosmatch.database.landmark_map import read_landmark_map
+    from sosmatch.workflows import match
+
+    _, a, b, _ = sessions
+    b_sfm = tmp_path / "B"
+    shutil.copytree(b, b_sfm)
+    lmap = read_landmark_map(b_sfm / "landmarks.sosmap")
+    lmap.sfm_poses = True
+    write_landmark_map(b_sfm / "landmarks.sosmap", lmap)
+    ev = run(Params(), a, b_sfm, tmp_path / "ev", case="sfm", repeats=1, methods=["sosmatch"])
+    ours = ev["methods"]["sosmatch"]
+    matched = json.loads((match.run(Params(), a, b_sfm, tmp_path / "m", plot=False).out_dir / "match.json")
+                         .read_text())
+    assert ours["association"]["transform"] == "similarity" == matched["transform_kind"]
+    assert ours["transform_from_poses"] == matched["search_mode"]["transform_from_poses"]
+    assert ours["verification"]["accepted"] and ours["verification"]["support"] == matched["verification"]["support"]
+    chosen = run(Params(), a, b_sfm, tmp_path / "ev_rigid", case="sfm", repeats=1, methods=["sosmatch"],
+                 transform_chosen=True)["methods"]["sosmatch"]
+    assert chosen["association"]["transform"] == "rigid" and "transform_from_poses" not in chosen

@@ -58,13 +58,19 @@ def test_the_map_file_carries_the_pose_source(tmp_path: Path, noise: MapNoise | 
 
 
 def test_an_unknown_flag_is_still_refused() -> None:
+    """rev51 D5: as a map of a newer sosmatch (update), not as a damaged file."""
     import struct
     import zlib
 
     data = bytearray(encode_landmark_map(_map(True)))
     data[10:12] = struct.pack("<H", int.from_bytes(data[10:12], "little") | 8)
     data[-4:] = struct.pack("<I", zlib.crc32(bytes(data[:-4])))
-    with pytest.raises(InputError, match="unknown flags"):
+    with pytest.raises(InputError, match="0x8 this sosmatch does not know: it was probably written by a newer "
+                                         "sosmatch; update sosmatch"):
+        decode_landmark_map(bytes(data), "x.sosmap")
+    data[8:10] = struct.pack("<H", 3)  # a newer version too: said so, not only "unsupported"
+    data[-4:] = struct.pack("<I", zlib.crc32(bytes(data[:-4])))
+    with pytest.raises(InputError, match="version 3 .*newer sosmatch: update sosmatch"):
         decode_landmark_map(bytes(data), "x.sosmap")
 
 
@@ -205,3 +211,36 @@ def test_a_batch_pair_keeps_the_transform_the_user_chose(survey, tmp_path: Path)
     pair_task(str(a), str(b), str(tmp_path / "free"), Params(), True, False)
     kinds = [json.loads((tmp_path / d / "match.json").read_text())["transform_kind"] for d in ("chosen", "free")]
     assert kinds == ["rigid", "similarity"]
+
+
+def test_after_the_fallback_the_output_is_the_rigid_match_it_records(survey, tmp_path: Path, monkeypatch) -> None:
+    """rev51 D6: when the similarity's scale is no dome's (forced here: a dome's limit of 1 % against B scaled
+    by 1.03) the rigid answer is recorded, and the output is that rigid match's: re-running with the settings
+    match.json records (`association.transform=rigid` chosen) into the same folder is the same output, as is the
+    same command; a chosen similarity (another answer) is refused there. Its imprecise warning does not advise the
+    similarity just not kept."""
+    import dataclasses
+
+    from sosmatch.workflows import match
+    from sosmatch.workflows.match import transform_choice
+
+    monkeypatch.setattr(transform_choice, "MAX_DOME_SCALE", 0.01)
+    pa, sa = survey
+    a, b = _files(tmp_path, pa, sa, _domed(pa, 1.03), sfm_b=True)
+    out = tmp_path / "m"
+    match.run(Params(), a, b, out, plot=False)
+    doc = json.loads((out / "match.json").read_text())
+    assert doc["transform_kind"] == "rigid" and doc["params"]["association"]["transform"] == "rigid"
+    assert doc["answer_uncertainty"]["imprecise"] and any("imprecise answer" in w for w in doc["warnings"])
+    assert not any("association.transform=similarity" in w for w in doc["warnings"])
+    assert "association.transform=similarity" not in doc["answer_uncertainty"]["reason"]
+    rigid = match.run(Params(), a, b, out, plot=False, transform_chosen=True)  # as recorded: the same output
+    assert rigid.accepted and json.loads((out / "match.json").read_text())["transform_kind"] == "rigid"
+    match.run(Params(), a, b, out, plot=False)  # the same command again: the same output
+    similarity = dataclasses.replace(Params().association, transform="similarity")
+    before = (out / "match.json").read_bytes()
+    with pytest.raises(InputError, match="other inputs or settings"):
+        match.run(dataclasses.replace(Params(), association=similarity), a, b, out, plot=False,
+                  transform_chosen=True)
+    assert (out / "match.json").read_bytes() == before
+    assert json.loads((out / ".sosmatch-output.json").read_text())["complete"]  # left as it was

@@ -721,3 +721,26 @@ def test_two_sessions_of_one_folder_name_are_labelled_by_place_and_said(pair, tm
     assert res.labels == ["s0", "s1"]
     assert any("share the folder name 'S'" in r.getMessage() and "s0/..." in r.getMessage()
                for r in caplog.records if r.levelname == "WARNING")
+
+
+def test_a_merged_map_of_an_sfm_posed_session_stays_sfm_posed(pair, tmp_path):
+    """rev51 D2: a merged map of any session whose poses came from structure from motion carries the flag (its
+    landmarks keep that block's dome) and merge.json says so (`pose_source`), so that `match` fits a scale to it
+    as to its sessions; a merge of sessions of given poses is "given"."""
+    from sosmatch.database.landmark_map import POSE_SOURCE_GIVEN, POSE_SOURCE_SFM, write_landmark_map
+    from sosmatch.database.map_loading import load_map
+
+    root, world, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    merge.run(a.path, b.path, match, tmp_path / "given")
+    assert json.loads((tmp_path / "given" / "merge.json").read_text())["pose_source"] == POSE_SOURCE_GIVEN
+    assert not load_map(tmp_path / "given").sfm_poses
+    b_sfm = tmp_path / "B"
+    shutil.copytree(b.path, b_sfm)
+    lmap = read_landmark_map(b_sfm / "landmarks.sosmap")
+    lmap.sfm_poses = True
+    write_landmark_map(b_sfm / "landmarks.sosmap", lmap)
+    merge.run(a.path, b_sfm, toy_match_json(a, b, tmp_path / "match_sfm.json"), tmp_path / "sfm")
+    assert json.loads((tmp_path / "sfm" / "merge.json").read_text())["pose_source"] == POSE_SOURCE_SFM
+    assert read_landmark_map(tmp_path / "sfm" / "landmarks.sosmap").sfm_poses
+    assert load_map(tmp_path / "sfm").sfm_poses and load_map(tmp_path / "sfm" / "landmarks.sosmap").sfm_poses

@@ -135,6 +135,14 @@ def test_poses_from_an_odm_project_are_in_utm(tmp_path, capsys):
     inputs = load_inputs(images, project / "opensfm" / "reconstruction.json")
     assert inputs.epsg == epsg and inputs.camera.width == 640 and inputs.camera.model == "OPENCV"
     np.testing.assert_allclose(inputs.poses.centers, centers, atol=1e-3)
+    # an imported model's poses are given by either path (rev51 D4: through `poses --opensfm` they were flagged
+    # "structure from motion", so match chose another transform for the same poses)
+    from sosmatch.database.landmark_map import POSE_SOURCE_GIVEN
+    from sosmatch.database.map_loading import recorded_sfm_poses
+
+    assert inputs.pose_source == POSE_SOURCE_GIVEN
+    assert load_inputs(images, tmp_path / "p" / "poses.csv").pose_source == POSE_SOURCE_GIVEN
+    assert not recorded_sfm_poses({"inputs": {"poses": str(tmp_path / "p" / "poses.csv")}})
 
 
 def test_damaged_reconstruction_is_a_clear_error(tmp_path):

@@ -41,8 +41,14 @@ import numpy as np
 
 from ..database.atomic import write_text_atomic
 from ..database.colmap_model import TEXT_MODEL, colmap_text_name_problem, load_reconstruction
-from ..database.landmark_map import LandmarkMap, crs_disagreement, write_landmark_map
-from ..database.map_loading import session_map_noise
+from ..database.landmark_map import (
+    POSE_SOURCE_GIVEN,
+    POSE_SOURCE_SFM,
+    LandmarkMap,
+    crs_disagreement,
+    write_landmark_map,
+)
+from ..database.map_loading import session_map_noise, session_sfm_poses
 from ..database.match_io import answer_gate, check_match_maps, match_content, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, precision_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
@@ -93,6 +99,9 @@ class MergeResult:
     # paired with several), or joining two landmarks of one session
     num_rejected: int = 0
     refined: bool = False
+    # where its poses came from (`landmark_map.POSE_SOURCE_*`, as run.json's `pose_source`): structure from motion
+    # when any session's did (its landmarks carry that block's dome), so that `match` fits a scale to it too
+    pose_source: str = POSE_SOURCE_GIVEN
     # wall time of the merge, for the caller; not in merge.json, which same inputs write byte for byte (rev45 D6)
     seconds: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
@@ -114,6 +123,7 @@ class MergeResult:
                 "rejected_associations": self.num_rejected,
             },
             "refined": self.refined,
+            "pose_source": self.pose_source,
             **self.extra,
         }
 
@@ -338,8 +348,11 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
             sizes.append(size)
             pids_out.append(pid)
     ref = sessions[0].landmarks
+    # a merged map of any SfM-posed session is SfM-posed: its landmarks keep that block's dome (rev51 D2: without
+    # the flag the merged map was matched rigidly again, "imprecise")
+    sfm = any(session_sfm_poses(s.path, s.landmarks) for s in sessions)
     lmap = LandmarkMap(np.asarray(positions).reshape(-1, 3), np.asarray(sizes), ref.origin, ref.epsg,
-                       _merged_noise(sessions, transforms))
+                       _merged_noise(sessions, transforms), sfm_poses=sfm)
 
     sparse = out.staged("sparse")
     sparse.mkdir()
@@ -358,6 +371,7 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
         num_landmarks=len(lmap),
         num_fused=num_fused,
         num_rejected=rejected,
+        pose_source=POSE_SOURCE_SFM if sfm else POSE_SOURCE_GIVEN,
     )
     record = dict(record)
     result.refined = bool(record.pop("refined", False))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_params_arguments, params_from_args
+from ._common import add_params_arguments, params_from_args, settings_from_args
 
 NAME = "evaluate"
 HELP = "score SOS-Match and the ORB/SIFT+RANSAC baselines against footprint-IoU ground truth (table + PR plot)"
@@ -55,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
         ground_height=args.ground_height, sweep_floor=args.sweep_floor, repeats=args.repeats,
         max_observers=args.max_observers, baseline_threads=args.baseline_threads,
         overwrite=args.overwrite, overlap_test=not args.no_overlap_test,
+        # a transform the user chose is searched as it is; else the maps' pose sources choose it, as in `match`
+        transform_chosen="association.transform" in settings_from_args(args),
     )
     print((Path(args.out) / "evaluation.md").read_text(encoding="utf-8"), end="")
     return 0 if result["rows"] is not None else 1

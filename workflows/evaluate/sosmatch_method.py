@@ -14,12 +14,11 @@ from typing import Any
 import numpy as np
 
 from ...database.evaluation_io import read_match_hypotheses
-from ...database.map_loading import read_map_noise, session_map_noise
+from ...database.map_loading import read_map_noise, session_map_noise, session_sfm_poses
 from ...database.match_io import check_match_maps, read_match_json
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import Hypothesis, claim_scores, observer_geometry
-from ...plugin.map_noise import derived_search_params
 from ...plugin.multisession import Sim3
 from ...plugin.params import Params, params_to_dict
 from ...plugin.verification import hypothesis_agrees
@@ -31,9 +30,9 @@ log = logging.getLogger(__name__)
 
 def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSession, map_a: Path, map_b: Path,
                   match_dir: Path | None, sweep_floor: int | None, repeats: int, max_observers: int | None,
-                  separation: float | None = None) -> dict:
+                  separation: float | None = None, transform_chosen: bool = False) -> dict:
     from ...plugin.association.windowed_search import search
-    from ...plugin.match_answer import match_maps
+    from ..match.transform_choice import answer_plan, plan_search
 
     pa, ha, bytes_a, lmap_a = _map_arrays(map_a)
     pb, hb, bytes_b, lmap_b = _map_arrays(map_b)
@@ -48,9 +47,13 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         raise InputError("landmarks.csv and landmarks.sosmap disagree on the number of landmarks", map_a)
     noise = [read_map_noise(m) if lm is None else session_map_noise(m, lm)
              for m, lm in ((map_a, lmap_a), (map_b, lmap_b))]
-    derivation = derived_search_params(params.association, *noise, pa, ha, pb, hb)  # as `sosmatch match` does
+    # the searches `sosmatch match` runs: the transform the maps' pose sources choose unless the user chose it
+    # (rev51 D3: evaluate searched SfM maps rigidly where match fits a similarity); a match file is scored as it is
+    plan = plan_search(params, transform_chosen or match_dir is not None,
+                       *(session_sfm_poses(m, lm) for m, lm in ((map_a, lmap_a), (map_b, lmap_b))), *noise,
+                       pa, ha, pb, hb)
+    derivation = plan.first.derivation
     assoc_params = derivation.params
-    first_try = derivation.first_try
     out: dict[str, Any] = {"map_bytes": [bytes_a, bytes_b], "landmarks": [len(pa), len(pb)],
                            "association": params_to_dict(assoc_params), "derived": derivation.record,
                            "map_noise": [None if n is None else n.to_dict() for n in noise]}
@@ -94,15 +97,20 @@ def _run_sosmatch(params: Params, gt_a: GroundTruthSession, gt_b: GroundTruthSes
         times = []
         answer = None
         compile_s = 0.0
+        common = bool(lmap_a is not None and lmap_b is not None and lmap_a.epsg == lmap_b.epsg != 0)
         for _ in range(max(1, repeats)):
-            common = bool(lmap_a is not None and lmap_b is not None and lmap_a.epsg == lmap_b.epsg != 0)
-            answer = match_maps(pa, ha, pb, hb, dataclasses.replace(params, association=assoc_params),
-                                common_frame=common, first_try=first_try, wider_try=derivation.wider_try,
-                                near_try=derivation.near_try)
+            planned = answer_plan(plan, pa, ha, pb, hb, common_frame=common)
+            answer = planned.answer
+            # the search the answer was made with (the rigid one after a similarity's scale no dome makes)
+            derivation = planned.search.derivation
+            assoc_params = derivation.params
             times.append(answer.timings["total_s"])
             compile_s += answer.timings["kernel_compile_s"]
             _check_sweep_floor(sweep_floor, (answer.searched or assoc_params).min_associations)
         result = answer.search
+        out.update(association=params_to_dict(assoc_params), derived=derivation.record)
+        if planned.note is not None:  # as match.json's search_mode
+            out["transform_from_poses"] = planned.note
         # the parameters of the search whose hypotheses these are: the first of two searches keeps the configured
         # windows and theta_S (`first_search_params`), so its operating point is the configured theta_S
         searched = answer.searched or assoc_params

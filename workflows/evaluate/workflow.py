@@ -58,7 +58,8 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         methods: Sequence[str] = METHODS, case: str | None = None, dem: str | Path | None = None,
         ground_height: float = 0.0, sweep_floor: int | None = None, repeats: int | None = None,
         max_observers: int | None = None,
-        overlap_test: bool = True, baseline_threads: int = 0, overwrite: bool = False) -> dict:
+        overlap_test: bool = True, baseline_threads: int = 0, overwrite: bool = False,
+        transform_chosen: bool = False) -> dict:
     """Evaluate SOS-Match and the baselines on one session pair; returns the evaluation dict (also written).
 
     Args:
@@ -82,6 +83,9 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         baseline_threads: worker threads of the baselines over keyframe pairs (0: one per core).
         overwrite: replace a complete evaluation of other inputs or settings in `out_dir` (taken through
             `sosmatch.database.outputs`).
+        transform_chosen: the user chose `association.transform` (--set, --config, --preset); else the search of
+            maps whose poses came from structure from motion fits a similarity, as `sosmatch match` does
+            (`workflows.match.transform_choice`).
     """
     session_a, session_b, out_dir = Path(session_a), Path(session_b), Path(out_dir)
     unknown = [m for m in methods if m not in METHODS]
@@ -100,7 +104,9 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         return versioned_identity(lambda as_dict: {
             "inputs": named, "params": as_dict(params), "methods": list(methods), "case": case,
             "ground_height": ground_height, "sweep_floor": sweep_floor, "repeats": repeats,
-            "max_observers": max_observers, "overlap_test": overlap_test})
+            "max_observers": max_observers, "overlap_test": overlap_test,
+            # only when chosen: evaluations without the choice keep their identity
+            **({"transform_chosen": True} if transform_chosen else {})})
 
     # the inputs by what they hold, so that a project moved or copied whole is the same evaluation (nu37 D1);
     # until then by their real paths: such an output (not moved) is this one too
@@ -111,7 +117,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
         try:
             evaluation, write = _evaluate(params, session_a, session_b, out_dir, map_a, map_b, match_dir, methods,
                                           case, dem, ground_height, sweep_floor, repeats, max_observers,
-                                          baseline_threads, overlap_test)
+                                          baseline_threads, overlap_test, transform_chosen)
         except InputError:
             # refused before anything is written (a --sweep-floor above the theta_S known only after the search,
             # a match file of other maps): an evaluation this one was to --overwrite stands, complete, as it was
@@ -126,7 +132,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
               map_b: str | Path | None, match_dir: str | Path | None, methods: Sequence[str], case: str,
               dem: str | Path | None, ground_height: float, sweep_floor: int | None, repeats: int,
               max_observers: int | None, baseline_threads: int,
-              overlap_test: bool = True) -> tuple[dict, Callable[[], None]]:
+              overlap_test: bool = True, transform_chosen: bool = False) -> tuple[dict, Callable[[], None]]:
     """`run` inside its taken output directory: the evaluation, and what writes it (evaluation.json / .md, pr.png,
     overlay.png). Nothing is written before the call: a refusal (InputError) leaves the directory untouched."""
     from ...tools.baselines.base import BaselineConfig
@@ -154,7 +160,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
         cam = gt_a.camera
         separation = separation_ratio(cam.width, cam.height, float(np.sqrt(cam.fx * cam.fy))) if overlap_test else None
         results["sosmatch"] = _run_sosmatch(params, gt_a, gt_b, ma, mb, Path(match_dir) if match_dir else None,
-                                            sweep_floor, repeats, max_observers, separation)
+                                            sweep_floor, repeats, max_observers, separation, transform_chosen)
     baselines = [m for m in methods if m != "sosmatch"]
     if baselines:
         images_a, images_b = _load_images(gt_a, session_a / "images"), _load_images(gt_b, session_b / "images")

@@ -15,13 +15,11 @@ from ...database.atomic import write_bytes_atomic, write_text_atomic
 from ...database.landmark_map import check_two_maps, crs_disagreement, georeference_offset_m
 from ...database.map_loading import load_map, size_definition_disagreement
 from ...database.match_io import parse_match
-from ...database.output_markers import versioned_identity
+from ...database.output_markers import VersionedIdentity, versioned_identity
 from ...database.outputs import open_output_dir
-from ...plugin.answer_uncertainty import refused_scale_note
+from ...plugin.answer_uncertainty import refused_scale_note, without_similarity_advice
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
-from ...plugin.map_noise import DerivedSearch, derived_search_params
-from ...plugin.match_answer import match_maps
 from ...plugin.params import Params
 from .answer_warnings import (
     _georeference_warning,
@@ -32,7 +30,7 @@ from .answer_warnings import (
 from .figure import alignment_png
 from .record import associations_csv, match_to_json
 from .result import MatchResult
-from .transform_choice import beyond_dome, choose_transform
+from .transform_choice import Search, answer_plan, plan_search
 
 # the package's name, as before the split: the command's warnings still read "sosmatch.workflows.match: ..."
 log = logging.getLogger(__package__)
@@ -73,52 +71,50 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     warn(size_definition_disagreement(map_a.size_definition, map_b.size_definition))
     if verify is not None:
         params = dataclasses.replace(params, verification=dataclasses.replace(params.verification, enabled=verify))
-    rigid_params = params  # the transform as configured: the answer when a similarity's scale is no dome's
-    choice = choose_transform(params, transform_chosen, map_a.sfm_poses, map_b.sfm_poses)
-    params = choice.params
-    if choice.note is not None:
-        log.info("%s", choice.note)
-    # tolerances from the maps' own noise and windows from their geometry when `association.derive_from_maps`
-    # (recorded in match.json's params and search_mode "derived"), searched first with the tighter of the
-    # derived and the configured tolerances (`match_answer`, module doc)
+    # the searches: the transform the maps' pose sources choose (unless the user chose it), each with tolerances
+    # from the maps' own noise and windows from their geometry when `association.derive_from_maps` (recorded in
+    # match.json's params and search_mode "derived"), searched first with the tighter of the derived and the
+    # configured tolerances (`match_answer`, module doc)
+    plan = plan_search(params, transform_chosen, map_a.sfm_poses, map_b.sfm_poses, map_a.noise, map_b.noise,
+                       la.positions, la.sizes, lb.positions, lb.sizes)
+    if plan.note is not None:
+        log.info("%s", plan.note)
     if params.association.derive_from_maps:
         for name, m in (("A", map_a), ("B", map_b)):
             if m.noise is None:
                 warn(f"map {name} ({m.path}) records no noise figures (a COLMAP model, or a .sosmap written before "
                      "map files carried them): the configured tolerances are used, not ones derived from the "
                      "maps; give its mapped session directory to derive them")
-    def derive(given: Params) -> tuple[Params, DerivedSearch]:
-        derivation = derived_search_params(given.association, map_a.noise, map_b.noise, la.positions, la.sizes,
-                                           lb.positions, lb.sizes)
-        return dataclasses.replace(given, association=derivation.params), derivation
 
-    params, derivation = derive(params)
-    first_try = derivation.first_try
-    identity = versioned_identity(lambda as_dict: {
-        "a": prints[0], "b": prints[1], "association": as_dict(params.association),
-        "first_try": None if first_try is None else as_dict(first_try),
-        # only when there is one: outputs of maps that get no wider search keep their identity
-        **({} if derivation.wider_try is None else {"wider_try": as_dict(derivation.wider_try)}),
-        **({} if derivation.near_try is None else {"near_try": as_dict(derivation.near_try)}),
-        "verification": as_dict(params.verification), "seed": params.seed, "exhaustive": exhaustive, "plot": plot})
-    with open_output_dir(out_dir, "match", identity, inputs=[a, b], overwrite=overwrite,
-                         legacy_record="match.json") as out:
+    def identity_of(search: Search) -> VersionedIdentity:
+        """The output's identity: the maps and the parameters of the search its answer was made with."""
+        p, d = search.params, search.derivation
+        return versioned_identity(lambda as_dict: {
+            "a": prints[0], "b": prints[1], "association": as_dict(p.association),
+            "first_try": None if d.first_try is None else as_dict(d.first_try),
+            # only when there is one: outputs of maps that get no wider search keep their identity
+            **({} if d.wider_try is None else {"wider_try": as_dict(d.wider_try)}),
+            **({} if d.near_try is None else {"near_try": as_dict(d.near_try)}),
+            "verification": as_dict(p.verification), "seed": p.seed, "exhaustive": exhaustive, "plot": plot})
+
+    # the answer decides which search made it (the rigid one after a similarity's scale no dome makes): the
+    # directory is taken for either, and settled on the one that answered before anything is written (rev51 D6:
+    # the identity was the similarity's while match.json recorded the rigid params the answer was made with)
+    fallback = None if plan.fallback is None else identity_of(plan.fallback)
+    with open_output_dir(out_dir, "match", identity_of(plan.first), inputs=[a, b], overwrite=overwrite,
+                         legacy_record="match.json",
+                         earlier=() if fallback is None else (fallback.today, *fallback.same_as)) as out:
         common = la.epsg == lb.epsg != 0
         if params.association.position_prior_m > 0 and not common:
             warn(f"position prior ignored: the maps are not georeferenced in one EPSG (A: {la.epsg}, B: {lb.epsg})")
-        ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
-                         exhaustive=exhaustive, first_try=first_try, wider_try=derivation.wider_try,
-                         near_try=derivation.near_try)
-        transform_note = choice.note
-        if choice.note is not None and ans.accepted and ans.transform is not None:
-            beyond = beyond_dome(float(ans.transform.scale))
-            if beyond is not None:  # no dome's scale: the rigid match answers, as it did before the choice
-                warn(f"{b}: {beyond}")
-                transform_note = f"{choice.note}; {beyond}"
-                params, derivation = derive(rigid_params)
-                ans = match_maps(la.positions, la.sizes, lb.positions, lb.sizes, params, common_frame=common,
-                                 exhaustive=exhaustive, first_try=derivation.first_try,
-                                 wider_try=derivation.wider_try, near_try=derivation.near_try)
+        planned = answer_plan(plan, la.positions, la.sizes, lb.positions, lb.sizes, common_frame=common,
+                              exhaustive=exhaustive)
+        out.settle(identity_of(planned.search), overwrite)
+        ans, params, derivation = planned.answer, planned.search.params, planned.search.derivation
+        if planned.beyond is not None:
+            warn(f"{b}: {planned.beyond}")
+            if ans.uncertainty is not None:  # nor does it advise the similarity just not kept (rev51 D6)
+                ans.uncertainty = without_similarity_advice(ans.uncertainty)
         if ans.accepted and not common and ans.transform is not None:
             # two EPSG codes: where each puts B on the ground (`georeference_offset_m`; None without both codes),
             # judged by the rule of one EPSG: a wrong label is a wrong georeference, one site in two zones is not
@@ -132,7 +128,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         if ans.accepted and ans.uncertainty is not None and ans.uncertainty.imprecise:
             warn(f"{b}: {ans.uncertainty.warning()}; merge and changes inherit that error")
         ver = ans.verification
-        if not ans.accepted and ver is not None and ver.best is not None and choice.note is None:
+        if not ans.accepted and ver is not None and ver.best is not None and planned.note is None:
             # a refusal that a scale explains says so: a rigid search of two domed SfM maps was refused bare (nu54);
             # not after the maps' SfM poses chose a similarity (tried already, or its scale was no dome's)
             note = refused_scale_note(la.positions, lb.positions, ver.best.transform, ver.best.associations)
@@ -146,8 +142,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         result.seconds, result.cpu_seconds = time.perf_counter() - t0, time.process_time() - cpu0
         doc = match_to_json(result, params)
         doc["search_mode"]["derived"] = derivation.record
-        if transform_note is not None:  # only then: a match of maps of given poses keeps its bytes
-            doc["search_mode"]["transform_from_poses"] = transform_note
+        if planned.note is not None:  # only then: a match of maps of given poses keeps its bytes
+            doc["search_mode"]["transform_from_poses"] = planned.note
         doc["seconds_total"] = result.seconds
         doc["cpu_seconds_total"] = result.cpu_seconds
         doc["warnings"] = said
