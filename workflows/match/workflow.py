@@ -20,7 +20,7 @@ from ...database.outputs import open_output_dir
 from ...plugin.answer_uncertainty import refused_scale_note
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
-from ...plugin.map_noise import derived_search_params
+from ...plugin.map_noise import derived_search_params, resolution_gap
 from ...plugin.match_answer import match_maps
 from ...plugin.params import Params
 from .answer_warnings import (
@@ -115,6 +115,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
             # a refusal that a scale explains says so: a rigid search of two domed SfM maps was refused bare (nu54)
             note = refused_scale_note(la.positions, lb.positions, ver.best.transform, ver.best.associations)
             warn(None if note is None else f"{b}: {note}")
+        if not ans.accepted:  # a refusal names a cause both maps record: resolutions too different (nu57 D2)
+            warn(resolution_gap(map_a.noise, map_b.noise, params.association.max_size_difference))
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
