@@ -94,7 +94,9 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
     seconds under bursts of several frames a second, a tool that rewrote the dates) are in no order by it: within
     each such time they keep their given order unless a path through their camera centres is shorter
     (`_paths_within_equal_times`; "capture time + path"). Times that are all one carry no order at all and count
-    as none. Without times the given order stands unless it is evidently not a flight (horizontally, the median
+    as none. A capture-time order that is not a flight (`reads_as_flight`: times of two flights that overlap)
+    is kept, as "capture time, not a flight", for the caller to warn of. Without times the given order stands
+    unless it is evidently not a flight (horizontally, the median
     `next_frame_ranks` is more than SCRAMBLED_NEXT_RANK: most steps go past the frames nearest to the current
     one); then the frames are chained from an end of the survey (the frame farthest from the centroid) to the
     nearest frame not yet taken, which retraces a survey's lines and turns ("path"). A flight that passes over
@@ -116,6 +118,11 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
         if np.ptp(t) > 0:
             order = np.argsort(t, kind="stable").astype(np.int64)
             order, path_within = _paths_within_equal_times(centers[:, :2], t, order)
+            # capture times that interleave frames far apart (two flights at once in one folder, a camera clock
+            # reset between batteries) are no flight either (nu57: -24 % landmarks, blamed on whole seconds)
+            # (as listed already: said where it was put so; the map calls this again on its ordered inputs)
+            if n >= 3 and np.all(np.isfinite(centers)) and not reads_as_flight(centers[order, :2]):
+                return order, ("given" if np.array_equal(order, identity) else "capture time, not a flight")
             if path_within:
                 return order, "capture time + path"
             return order, ("given" if np.array_equal(order, identity) else "capture time")
@@ -124,15 +131,24 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
     if n < 3 or not np.all(np.isfinite(centers)):
         return identity, "given"
     xy = centers[:, :2]
-    if np.median(next_frame_ranks(xy)) <= SCRAMBLED_NEXT_RANK:
+    if reads_as_flight(xy):
         return identity, "given"
     current = int(np.argmax(np.linalg.norm(xy - xy.mean(axis=0), axis=1)))
     return np.asarray(_chain(xy, np.arange(n), current), dtype=np.int64), "path"
 
 
 # How `flight_order` found the order: as listed, by capture time, by capture time with the frames of one time along
-# the path through their centres, or along that path alone.
-FLIGHT_ORDER_HOWS = ("given", "capture time", "capture time + path", "path")
+# the path through their centres, along that path alone, or by capture times that are no flight's order.
+FLIGHT_ORDER_HOWS = ("given", "capture time", "capture time + path", "path", "capture time, not a flight")
+
+
+def reads_as_flight(xy: np.ndarray) -> bool:
+    """Whether frames in this order (horizontal centres (N, 2), finite) read as one flight: the median
+    `next_frame_ranks` is at most SCRAMBLED_NEXT_RANK (most steps go to one of the frames nearest the current
+    one). Fewer than 3 frames always do. The test `flight_order` applies to a listed order and a capture-time
+    order, and the map applies to its keyframes before it takes a pass length from them (`workflows.map`)."""
+    xy = np.asarray(xy, dtype=np.float64)
+    return len(xy) < 3 or bool(np.median(next_frame_ranks(xy)) <= SCRAMBLED_NEXT_RANK)
 
 
 def _chain(xy: np.ndarray, members: np.ndarray, start: int) -> list[int]:
@@ -215,6 +231,11 @@ def flight_order_message(how: str, times: np.ndarray | None) -> tuple[bool, str]
                       "in whole seconds without SubSecTimeOriginal, or dates rewritten by a tool?) and are not "
                       "listed in flight order within it: they are ordered by capture time, and the frames of one "
                       "time along a path through their camera centres")
+    if how == "capture time, not a flight":
+        return True, ("the frames' capture times interleave frames far apart (consecutive times jump across the "
+                      "survey): two flights in one folder whose capture times overlap (two drones at once, or a "
+                      "camera clock reset between batteries?); they are ordered by capture time, which breaks "
+                      "tracks at every jump: map each flight separately")
     if times is not None and len(times) > 0 and bool(np.all(np.isfinite(times))):
         why = f"and all {len(times)} images carry one capture time, which orders nothing"
     else:

@@ -155,6 +155,28 @@ def derived_association_params(base: AssociationParams, noise_a: MapNoise | None
                                max_size_difference=round(theta_r, 3))
 
 
+def resolution_gap(noise_a: MapNoise | None, noise_b: MapNoise | None, size_gate: float) -> str | None:
+    """Why two maps' landmarks may be other objects, when their ground resolutions (`MapNoise.ground_resolution_m`)
+    differ by more than the size gate admits between two sizes (`association.gates.size_ratio` of the
+    resolutions above `size_gate`, theta_r): a segment one working pixel across covers that much more ground in
+    one map, so its segmenter merges what the other splits (nu57: 150 m against 60 m, 0.59 and 0.24 m per pixel,
+    10 of 85 landmarks within 2 m of one of the other map). None: within the gate, or a figure unknown."""
+    from .association.gates import size_ratio
+
+    if noise_a is None or noise_b is None:
+        return None
+    ga, gb = noise_a.ground_resolution_m, noise_b.ground_resolution_m
+    if not (ga > 0 and gb > 0):
+        return None
+    r = float(size_ratio(np.array([ga]), np.array([gb]))[0])
+    if not r > size_gate:
+        return None
+    return (f"the maps were made at {ga:.2f} and {gb:.2f} m of ground per pixel (x{max(ga, gb) / min(ga, gb):.1f}: "
+            f"flown at other heights, or with other lenses?), further apart than the size gate admits (r {r:.2f} > "
+            f"theta_r {size_gate:.3g}): their segmenters see different objects, which alone can leave no match; "
+            "match maps of similar ground resolution")
+
+
 @dataclass(frozen=True)
 class DerivedSearch:
     """The association parameters two maps get (`derived_search_params`) and what they were derived from."""

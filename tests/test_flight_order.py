@@ -158,3 +158,37 @@ def test_the_order_is_told_in_the_log():
     warn, text = flight_order_message("path", np.zeros(4))
     assert warn and "not listed in flight order" in text and "all 4 images carry one capture time" in text
     assert "not every image carries a capture time" in flight_order_message("path", None)[1]
+
+
+def test_capture_times_of_two_flights_flown_at_once_are_no_flight_and_do_not_lower_theta_n(caplog):
+    """nu57 D3: two batteries whose clocks overlap (a clock reset, or two drones at once) in one folder were
+    ordered by capture time alone, alternating between flights 40 m apart: tracks broke at every jump and the
+    pass length measured on those steps lowered theta_n 5 -> 2, with an INFO line. The capture-time order gets
+    the flight test a listed order gets, and its warning names the overlap; the map keeps theta_n for
+    keyframes in no flight's order. A single flight by its times is unchanged."""
+    import logging
+
+    from sosmatch.plugin.keyframes import flight_order_message
+    from sosmatch.plugin.params import Params, for_flight
+    from sosmatch.workflows.map.workflow import flown_params
+
+    one = _lawnmower(lines=2, per_line=15)
+    two = one + [15.0, 40.0, 0.0]
+    both = np.concatenate([one, two])
+    t = np.r_[np.arange(len(one)) * 2.0, np.arange(len(two)) * 2.0 + 1.0]  # interleaved, every time distinct
+    order, how = flight_order(both, t)
+    assert how == "capture time, not a flight" and np.array_equal(order, np.argsort(t))
+    warn, text = flight_order_message(how, t)
+    assert warn and "capture times overlap" in text and "map each flight separately" in text
+    assert flight_order(both[order], t[order])[1] == "given"  # ordered already: said once, where it was ordered
+    # one flight in time order, and the two flights one after the other: as before
+    assert flight_order(one[::-1], np.arange(len(one))[::-1] * 2.0)[1] == "capture time"
+    assert flight_order(both, np.r_[t[: len(one)], t[len(one):] + 1000.0])[1] == "given"
+    params = Params()
+    assert for_flight(params, 3.3) is not params  # the 3.3 views of the interleaved order would lower it
+    with caplog.at_level(logging.WARNING):
+        assert flown_params(params, 3.3, both[order]) is params
+    assert "not in the order of one flight: theta_n stays 5 (not lowered to 2" in caplog.text
+    caplog.clear()
+    lowered = flown_params(params, 3.3, one)  # one flight's keyframes: lowered as before, without a warning
+    assert lowered.triangulation.min_observations == 2 and not caplog.text

@@ -273,6 +273,30 @@ def test_map_files_carrying_their_noise_figures_are_matched_with_derived_toleran
     assert doc["answer"] == "verified" and doc["verification"]["accepted"]
 
 
+def test_a_refusal_of_maps_made_at_very_different_ground_resolutions_names_them(tmp_path):
+    """nu57 D2: a 150 m map against a 60 m one said "no match" with no reason, though both maps record their
+    ground resolution (0.59 and 0.24 m per pixel: 2.4x, far beyond the size gate) and `evaluate` names the height
+    ratio. A refusal of such maps names the resolutions; maps of one resolution are refused without that line."""
+    from sosmatch.plugin.map_noise import MapNoise
+
+    rng = np.random.default_rng(5)
+    for name, gsd in (("a", 0.59), ("b", 0.24), ("c", 0.59)):
+        pts = rng.uniform(0.0, 300.0, (30, 3)) * [1.0, 1.0, 0.02]
+        noise = MapNoise(ground_resolution_m=gsd, residual_m=0.95, size_log_std=0.08, landmarks=len(pts))
+        write_landmark_map(tmp_path / f"{name}.sosmap", LandmarkMap(pts, rng.uniform(1.0, 6.0, 30), np.zeros(3),
+                                                                   noise=noise))
+    docs = {}
+    for b in ("b", "c"):
+        out = tmp_path / f"a_{b}"
+        assert main(["match", str(tmp_path / "a.sosmap"), str(tmp_path / f"{b}.sosmap"), "--out", str(out),
+                     "--no-plot", "-q"]) == 0
+        docs[b] = json.loads((out / "match.json").read_text())
+        assert not (docs[b]["verification"] or {}).get("accepted")  # no match
+    said = [w for w in docs["b"]["warnings"] if "m of ground per pixel" in w]
+    assert len(said) == 1 and "0.59 and 0.24 m" in said[0] and "x2.5" in said[0], docs["b"]["warnings"]
+    assert not [w for w in docs["c"]["warnings"] if "m of ground per pixel" in w], docs["c"]["warnings"]
+
+
 def test_a_match_without_picture_leaves_no_previous_picture_beside_it(maps, tmp_path):
     d, _ = maps
     out = tmp_path / "AB"

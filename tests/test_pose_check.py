@@ -387,6 +387,36 @@ def test_the_summary_never_says_nothing_stands_out_of_a_significant_fit():
     assert "tilt 14.6 deg" in check(0.0, 0.9).line()  # explained: judged and reported as before
 
 
+def test_a_fit_no_better_than_the_random_errors_is_not_quoted_as_a_reading():
+    """nu57 D1: an oblique flight on correct EKF poses was warned "the checked pairs pin an attitude error ... only
+    to +-5.7 deg (they read 18.8 deg)" from a fit at F 1.3, p 0.27, which the check itself holds to be no
+    measurement; pose_check.json kept its 38.6 m drift and 9.3 deg tilt beside it. The warning now says the fit is
+    no better than the random errors, and the json leaves that fit's values out; a significant fit is quoted."""
+    def check(p: float) -> PoseCheck:
+        s = SystematicErrors(height_drift_m=38.6, height_drift_sigma_m=20.0, height_tilt_deg=9.3,
+                             height_tilt_sigma_deg=6.0, attitude_bias_deg=18.8, attitude_bias_sigma_deg=5.7,
+                             condition_index=4.3, explained_f=1.3, explained_p=p, explained_share=0.18)
+        return PoseCheck(images=40, pairs_tried=40, pairs_checked=39, focal_px=251.0, gate_px=6.0,
+                         flying_height_m=100.0, epipolar_p50_px=0.5, epipolar_p90_px=1.0, epipolar_fit_p50_px=0.4,
+                         share_beyond_gate=0.0, reversed_pairs=0, systematic=s, max_condition_index=30.0,
+                         systematic_significance=0.01, min_systematic_share=0.5,
+                         warn_attitude_bias_deg=Params().pose_check.warn_attitude_bias_deg)
+
+    noise = check(0.27)
+    assert not noise.systematic_significant and not noise.attitude_checked
+    warned = [w for w in judge_poses(noise, Params().pose_check).warnings if "attitude is not checked" in w]
+    assert len(warned) == 1 and "18.8" not in warned[0] and "F 1.3, p 0.27" in warned[0], warned
+    record = json.loads(json.dumps(noise.to_dict()))
+    assert record["systematic_significant"] is False and record["attitude_bias_sigma_deg"] == 5.7
+    assert record["attitude_bias_deg"] is None and record["height_drift_m"] is None
+    assert record["height_tilt_deg"] is None
+    # significant (though too small a share to judge): its reading is a measurement, quoted and recorded
+    shown = check(0.001)
+    warned = [w for w in judge_poses(shown, Params().pose_check).warnings if "attitude is not checked" in w]
+    assert len(warned) == 1 and "(they read 18.8 deg)" in warned[0], warned
+    assert shown.to_dict()["attitude_bias_deg"] == 18.8 and shown.to_dict()["systematic_significant"] is True
+
+
 def _lagging(poses: Poses, metres: float) -> Poses:
     """Positions `metres` behind along the track, attitudes exact (a log time offset or a trigger latency)."""
     step = np.gradient(poses.centers[:, :2], axis=0)

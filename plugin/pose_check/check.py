@@ -136,6 +136,13 @@ class PoseCheck:
         return not (s.explained_p > self.systematic_significance or s.explained_share < self.min_systematic_share)
 
     @property
+    def systematic_significant(self) -> bool:
+        """Whether the fitted systematic errors explain the pairs significantly better than the poses as given
+        (`SystematicErrors.explained_p` at most the level): otherwise the fit's figures are no measurement and are
+        neither quoted nor written as one (nu57: "they read 18.8 deg" of a fit at F 1.3, p 0.27)."""
+        return bool(self.systematic.explained_p <= self.systematic_significance)
+
+    @property
     def attitude_checked(self) -> bool:
         """Whether the checked pairs pin the attitude error shared by all cameras finely enough to see one at its
         warning limit: its standard deviation at most half that limit (a warning needs the error beyond the limit by
@@ -163,6 +170,8 @@ class PoseCheck:
             return round(float(v), 4) if np.isfinite(v) else None
 
         s = self.systematic
+        # a fit no better than the random errors measured nothing: its values are left out (null), their sigmas kept
+        fit = num if self.systematic_significant else (lambda v: None)
         out = {
             "images": self.images, "pairs_tried": self.pairs_tried, "pairs_checked": self.pairs_checked,
             "wide_offset": self.wide_offset, "focal_px": num(self.focal_px), "gate_px": num(self.gate_px),
@@ -171,11 +180,13 @@ class PoseCheck:
             "epipolar_fit_p50_px": num(self.epipolar_fit_p50_px), "share_beyond_gate": num(self.share_beyond_gate),
             "matches_beyond_gate": num(self.matches_beyond_gate),
             "reversed_pairs": self.reversed_pairs, "reversed_passes": self.reversed_passes,
-            "height_drift_m": num(s.height_drift_m), "height_drift_sigma_m": num(s.height_drift_sigma_m),
-            "height_tilt_deg": num(s.height_tilt_deg), "height_tilt_sigma_deg": num(s.height_tilt_sigma_deg),
-            "height_tilt_azimuth_deg": num(s.height_tilt_azimuth_deg),
-            "attitude_bias_deg": num(s.attitude_bias_deg), "attitude_bias_sigma_deg": num(s.attitude_bias_sigma_deg),
-            "attitude_bias_axis": [num(v) for v in s.attitude_bias_axis],
+            "height_drift_m": fit(s.height_drift_m), "height_drift_sigma_m": num(s.height_drift_sigma_m),
+            "height_tilt_deg": fit(s.height_tilt_deg), "height_tilt_sigma_deg": num(s.height_tilt_sigma_deg),
+            "height_tilt_azimuth_deg": fit(s.height_tilt_azimuth_deg),
+            "attitude_bias_deg": fit(s.attitude_bias_deg), "attitude_bias_sigma_deg": num(s.attitude_bias_sigma_deg),
+            "attitude_bias_axis": [fit(v) for v in s.attitude_bias_axis],
+            # false: the fit is no better than the poses' random errors, and its values above are null
+            "systematic_significant": self.systematic_significant,
             # whether the pairs judged the shared attitude (`attitude_checked`): "ok" alone cannot say (rev41)
             "attitude_checked": self.attitude_checked,
             "systematic_condition_index": num(s.condition_index),
@@ -199,7 +210,7 @@ class PoseCheck:
             text = f"poses vs images: no pair of {self.pairs_tried} matched"
         elif not self.systematic_separable:  # the fit's figures mean nothing here (one straight line): do not print
             text += f"height drift and tilt not separable on this flight (condition index {s.condition_text})"
-        elif not s.explained_p <= self.systematic_significance:  # nor here: no better than random errors would
+        elif not self.systematic_significant:  # nor here: no better than random errors would
             text += (f"no systematic error stands out of the random ones (F {_fmt(s.explained_f, '.1f')}, "
                      f"{_fmt(100 * s.explained_share, '.0f')} % of the misfit)")
         elif not self.systematic_explains:

@@ -129,8 +129,12 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
     # (rev41: Seneca's wrong telemetry poses, 42 of 97 consecutive, were told "an oblique camera or a low flight?")
     why = (": an oblique camera, whose other flight lines look at other ground, or a low flight where few other "
            "pairs match?" if 2 * consecutive > check.pairs_checked else "")
+    # the reading only from a fit that measured something (`systematic_significant`): a reading of one no better
+    # than the random errors read as a measured gimbal error (nu57: "18.8 deg" at F 1.3, p 0.27)
+    read = (f" (they read {s.attitude_bias_deg:.1f} deg)" if check.systematic_significant else
+            f" (the fit is no better than the poses' random errors: F {s.explained_f:.1f}, p {s.explained_p:.2f})")
     unchecked = (f"poses vs images: the checked pairs pin an attitude error shared by all cameras only to "
-                 f"+-{s.attitude_bias_sigma_deg:.1f} deg (they read {s.attitude_bias_deg:.1f} deg), too loosely to "
+                 f"+-{s.attitude_bias_sigma_deg:.1f} deg{read}, too loosely to "
                  f"judge one of a few degrees ({consecutive} of {check.pairs_checked} are consecutive images, whose "
                  f"short baselines show little of it{why}): the cameras' attitude is not checked")
     if not check.systematic_explains:

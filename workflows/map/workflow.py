@@ -135,6 +135,22 @@ def flight_views(kf_poses: Any, motion: list[tuple[float, float]], camera: Any) 
     return views_per_pass(np.array([m[0] for m in motion[1:]]), in_cam[:, :2], camera.width, camera.height)
 
 
+def flown_params(params: Params, views: float, kf_centers: np.ndarray) -> Params:
+    """`plugin.params.for_flight` of the keyframes' `views` per pass, unless the keyframes (centres in their order)
+    are not in one flight's order (`plugin.keyframes.reads_as_flight`): keyframes that jump across the survey
+    (flights interleaved by overlapping capture times) see an object on fewer steps than a pass does, so their
+    pass length is no measurement (nu57: theta_n lowered 5 -> 2 without a word); `params` then, with a warning."""
+    from ...plugin.keyframes import reads_as_flight
+
+    flown = for_flight(params, views)
+    if flown is params or reads_as_flight(np.asarray(kf_centers)[:, :2]):
+        return flown
+    log.warning("the keyframes are not in the order of one flight: theta_n stays %d (not lowered to %d from the "
+                "%.1f keyframes an object is in on their steps)", params.triangulation.min_observations,
+                flown.triangulation.min_observations, views)
+    return params
+
+
 def working_resolution(params: Params, checked: Any, camera: Any) -> tuple[Params, float]:
     """(`params` with the classical segmenter's working size raised where the ground resolution the pose check
     measured (its flying height over the focal length) would make a working pixel coarser than its target
@@ -350,7 +366,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
     gate_features = [undistort_features(f, camera) for f in features]
     tracking = track_masks(gate_features, gate_camera, kf_poses, motion, params.tracking, descriptors)
     views = flight_views(kf_poses, motion, camera)
-    flown = for_flight(params, views)
+    flown = flown_params(params, views, kf_poses.centers)
     if flown is not params:
         log.info("an object is in %.1f keyframes of a pass: a landmark needs more than %d observations (theta_n %d "
                  "is more than half of them); landmarks %g robust sigmas off their neighbours' ground are dropped",

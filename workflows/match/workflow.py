@@ -20,6 +20,7 @@ from ...database.outputs import open_output_dir
 from ...plugin.answer_uncertainty import refused_scale_note, without_similarity_advice
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
+from ...plugin.map_noise import resolution_gap
 from ...plugin.params import Params
 from .answer_warnings import (
     _georeference_warning,
@@ -133,6 +134,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
             # not after the maps' SfM poses chose a similarity (tried already, or its scale was no dome's)
             note = refused_scale_note(la.positions, lb.positions, ver.best.transform, ver.best.associations)
             warn(None if note is None else f"{b}: {note}")
+        if not ans.accepted:  # a refusal names a cause both maps record: resolutions too different (nu57 D2)
+            warn(resolution_gap(map_a.noise, map_b.noise, params.association.max_size_difference))
         # a refused answer names no associations (match.json's verification keeps what was tried)
         result = MatchResult(out_dir, map_a, map_b, ans.search,
                              ans.associations if ans.accepted else np.zeros((0, 2), np.int64),
