@@ -7,17 +7,11 @@
 
 Tasks are plain top-level functions with picklable arguments. Every task runs inside `call_task`, which catches
 its exception and returns a `TaskResult` (ok or the error text and traceback): one failing flight never stops
-<<<<<<< HEAD
-the others, and no exception object has to survive pickling between machines. `run` returns results in the
-order of the task dict, whatever the order of completion, so outputs do not depend on the executor; its
-`on_result` sees each result as it arrives (batch saves each task's state then: an interrupted stage keeps what
-finished). A worker that dies under a task (killed: most likely out of memory) fails the tasks it took down
-(`worker_died`), not the run: the other tasks go on.
-=======
 the others (a full disk does: it is raised, see `call_task`), and no exception object has to survive pickling
 between machines. `run` returns results in the order of the task dict, whatever the order of completion, so
-outputs do not depend on the executor.
->>>>>>> fix132
+outputs do not depend on the executor; its `on_result` sees each result as it arrives (batch saves each task's
+state then: an interrupted stage keeps what finished). A worker that dies under a task (killed: most likely out
+of memory) fails the tasks it took down (`worker_died`), not the run: the other tasks go on.
 Worker processes are started with "spawn" (like Dask's nannies): forking a parent that already runs
 OpenMP/Ceres threads (pycolmap) can deadlock. Every local worker dies with its parent (`process_pool`): a
 killed batch or map leaves no worker (and so no multiprocessing resource tracker) behind.
