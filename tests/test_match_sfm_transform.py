@@ -244,3 +244,21 @@ def test_after_the_fallback_the_output_is_the_rigid_match_it_records(survey, tmp
                   transform_chosen=True)
     assert (out / "match.json").read_bytes() == before
     assert json.loads((out / ".sosmatch-output.json").read_text())["complete"]  # left as it was
+
+
+def test_a_batch_pair_is_keyed_by_the_transform_its_match_searches_with(tmp_path: Path) -> None:
+    """rev52 D4 / D5: a pair of an SfM-posed flight gets "similarity" in its fingerprint unless the user chose the
+    transform (a batch matched rigidly before the choice existed is matched again, as `match` refuses that
+    output); pairs of given poses, and pairs whose transform was chosen (a `config dump` file names it), keep the
+    fingerprint they had, so such batches resume."""
+    from sosmatch.workflows.batch import BatchOptions
+    from sosmatch.workflows.batch.workflow import _searched_transform
+
+    for name, sfm in (("sfm", True), ("given", False), ("given2", False)):
+        (tmp_path / name).mkdir()
+        write_landmark_map(tmp_path / name / "landmarks.sosmap", _map(sfm))
+    free, chosen = BatchOptions(), BatchOptions(transform_chosen=True)
+    sfm, given, given2 = (str(tmp_path / n) for n in ("sfm", "given", "given2"))
+    assert _searched_transform(Params(), free, given, sfm) == {"transform": "similarity"}
+    assert _searched_transform(Params(), chosen, given, sfm) == {}
+    assert _searched_transform(Params(), free, given, given2) == {}

@@ -61,6 +61,21 @@ class BatchOptions:
     transform_chosen: bool = False
 
 
+def _searched_transform(params: Params, options: BatchOptions, session_a: str, session_b: str) -> dict[str, str]:
+    """{"transform": "similarity"} when `sosmatch match` will search the pair with a similarity that the flights'
+    pose sources chose (`transform_choice.choose_transform`: either flight's poses came from structure from motion
+    and the user did not choose the transform), else {}: a pair's fingerprint then follows the transform its match
+    uses, so a pair matched rigidly before the choice existed is matched again (as `match` refuses that output),
+    while pairs of given poses, and any pair whose transform the user chose, keep their fingerprint and resume
+    (rev52 D4, D5)."""
+    from ...database.map_loading import session_sfm_poses
+    from ..match.transform_choice import choose_transform
+
+    choice = choose_transform(params, options.transform_chosen, session_sfm_poses(session_a),
+                              session_sfm_poses(session_b))
+    return {} if choice.note is None else {"transform": choice.params.association.transform}
+
+
 def _valid_session(done: dict[str, Any]) -> bool:
     p = Path(done.get("session", ""))
     return (p / "landmarks.sosmap").is_file() and (p / "sparse").is_dir()
@@ -171,8 +186,8 @@ def run(
     identity = keyed_by_models(lambda extra: versioned_identity(lambda as_dict: {
         "params": as_dict(params), "matcher": (pair_fn or pair_task).__qualname__,
         **{k: v for k, v in dataclasses.asdict(options).items()
-           if k not in ("progress", "overwrite") and not (k == "epsg" and v is None)
-           and not (k == "transform_chosen" and not v)}, **extra}, fingerprint), models)
+           if k not in ("progress", "overwrite", "transform_chosen") and not (k == "epsg" and v is None)},
+        **extra}, fingerprint), models)
     try:
         with open_output_dir(out_dir, "batch", identity, inputs=[f.path for f in flights],
                              overwrite=options.overwrite, legacy_record="report.json") as taken:
@@ -241,15 +256,15 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     pair_fps, pair_tasks = {}, {}
     # each version's association and verification sections: the same for every pair
     match_sections = build_versions(lambda as_dict: (as_dict(params.association), as_dict(params.verification)))
-    # (a chosen transform only when chosen: pairs matched before the option keep their fingerprint and resume)
-    chosen_transform = {"transform_chosen": True} if options.transform_chosen else {}
     for a, b in chosen:
         key = f"{a}{PAIR_SEP}{b}"
-        # what `sosmatch match` depends on (its own identity: both maps, association, verification, seed)
-        pair_fps[key] = each_version(lambda fa, fb, sections: fingerprint(
+        # what `sosmatch match` depends on (its own identity: both maps, association, verification, seed), with
+        # the transform it searches with when the flights' poses chose it (`_searched_transform`)
+        searched = _searched_transform(params, options, sessions[a]["session"], sessions[b]["session"]) \
+            if matcher is pair_task else {}
+        pair_fps[key] = each_version(lambda fa, fb, sections, searched=searched: fingerprint(
             {"a": fa, "b": fb, "association": sections[0], "verification": sections[1], "seed": pdict["seed"],
-             "matcher": matcher.__qualname__, "verify": verify, **chosen_transform}), fps[a], fps[b],
-            match_sections)
+             "matcher": matcher.__qualname__, "verify": verify, **searched}), fps[a], fps[b], match_sections)
         pair_tasks[key] = (sessions[a]["session"], sessions[b]["session"], str(out_dir / "pairs" / key), params)
         if matcher is pair_task:
             pair_tasks[key] += (verify, True, options.transform_chosen)  # the batch's own, as the sessions
