@@ -1142,3 +1142,34 @@ def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_pat
     assert out.read_text() == before
     pfe.run(img, out, telemetry=tele, overwrite=True)
     assert out.read_text() != before  # the headings of the edited file
+
+
+def test_poses_an_earlier_sosmatch_keyed_by_the_telemetry_size_and_time_are_this_output(tmp_path):
+    """rev52 D2: the files of `poses-from-exif --telemetry` an earlier sosmatch recorded with the telemetry keyed
+    by its size and time (until fix130) were refused after the upgrade as made "from other inputs or settings".
+    They are this output: written again, recorded under today's identity."""
+    from sosmatch.database.output_files import FILES_REGISTRY
+    from sosmatch.database.output_markers import fingerprint
+    from sosmatch.workflows.image_priors import list_images
+
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(3):
+        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,090,0,0\n" for k in range(3)))
+    out = tmp_path / "out" / "poses.csv"
+    pfe.run(img, out, telemetry=tele)
+    registry = out.parent / FILES_REGISTRY
+    today = json.loads(registry.read_text())["files"]["poses.csv"]["identity"]
+    st = tele.stat()
+    old = fingerprint({"images": [[str(p.resolve()), p.stat().st_size, p.stat().st_mtime_ns] for p in list_images(img)],
+                       "telemetry": [st.st_size, st.st_mtime_ns],
+                       "options": [pfe.DEFAULT_MOUNT, pfe.DEFAULT_PITCH_SIGN, pfe.DEFAULT_ROLL_SIGN, None, None, False,
+                                   3.0, 5.0, "colmap"]})
+    record = json.loads(registry.read_text())
+    for entry in record["files"].values():  # as that version recorded them
+        entry["identity"] = old
+    registry.write_text(json.dumps(record))
+    pfe.run(img, out, telemetry=tele)  # refused before
+    assert {e["identity"] for e in json.loads(registry.read_text())["files"].values()} == {today}
