@@ -1118,12 +1118,8 @@ def test_two_sizes_in_equal_numbers_name_both_groups_not_a_full_frame_as_the_odd
         pfe.poses_from_images(tmp_path)
 
 
-def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_path):
-    """rev49 D4: the telemetry keyed an output by its size and time here, by its path in `poses`: an edit that kept
-    both (a copy with `cp -p`, a tool that restores the time) was the same input. Its content keys it now, as in
-    `poses` (`output_markers.input_identity`): the poses of the old file are not replaced without --overwrite."""
-    import os
-
+def _telemetry_poses(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """Three geotagged images, a telemetry CSV of their attitudes, and `poses-from-exif --telemetry` of them."""
     img = tmp_path / "images"
     img.mkdir()
     for k in range(3):
@@ -1132,6 +1128,16 @@ def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_pat
     tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,090,0,0\n" for k in range(3)))
     out = tmp_path / "out" / "poses.csv"
     pfe.run(img, out, telemetry=tele)
+    return img, tele, out
+
+
+def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_path):
+    """rev49 D4: the telemetry keyed an output by its size and time here, by its path in `poses`: an edit that kept
+    both (a copy with `cp -p`, a tool that restores the time) was the same input. Its content keys it now, as in
+    `poses` (`output_markers.input_identity`): the poses of the old file are not replaced without --overwrite."""
+    import os
+
+    img, tele, out = _telemetry_poses(tmp_path)
     before = out.read_text()
     st = tele.stat()
     tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,270,0,0\n" for k in range(3)))
@@ -1152,14 +1158,7 @@ def test_poses_an_earlier_sosmatch_keyed_by_the_telemetry_size_and_time_are_this
     from sosmatch.database.output_markers import fingerprint
     from sosmatch.workflows.image_priors import list_images
 
-    img = tmp_path / "images"
-    img.mkdir()
-    for k in range(3):
-        write_jpeg(img / f"f{k}.jpg", 47.0, -99.0 + k * 1e-4, 500.0)
-    tele = tmp_path / "telemetry.csv"
-    tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,090,0,0\n" for k in range(3)))
-    out = tmp_path / "out" / "poses.csv"
-    pfe.run(img, out, telemetry=tele)
+    img, tele, out = _telemetry_poses(tmp_path)
     registry = out.parent / FILES_REGISTRY
     today = json.loads(registry.read_text())["files"]["poses.csv"]["identity"]
     st = tele.stat()
