@@ -176,3 +176,79 @@ def test_a_full_disk_stops_the_run_instead_of_failing_each_task(tmp_path, small_
         assert workers or not (small_disk / "b").exists()  # inline: stopped at the first task, b never started
     other = LocalExecutor(0).run(_write_mib, {"x": (str(tmp_path / "missing" / "x"),)}, progress=False)
     assert not other["x"].ok and other["x"].error.startswith("FileNotFoundError")
+
+
+def _full_disk_or_value(key: str, flags: str) -> str:
+    """Task `a` meets a full disk, the others return their key; each leaves a flag file when it is done, `a` and
+    `b` once the parent has been handed `0` (flag `handed`)."""
+    import errno
+    from pathlib import Path
+
+    while key != "0" and not (Path(flags) / "handed").exists():
+        time.sleep(0.05)
+    (Path(flags) / key).touch()
+    if key == "a":
+        raise OSError(errno.ENOSPC, "No space left on device", str(Path(flags) / key))
+    return key
+
+
+def test_the_results_that_arrive_with_a_full_disk_are_handed_over_before_it_stops_the_run(tmp_path):
+    """rev52 D6: the results of one `wait` were handed over in key order and a full disk raised at the first: a
+    task that finished alongside (`b`) was never handed to `on_result`, so a batch saved no state of it and the
+    re-run did it again. Every result that arrived is handed over, then the full disk is raised."""
+    import errno
+    from pathlib import Path
+
+    flags = tmp_path / "flags"
+    flags.mkdir()
+    seen = []
+
+    def on_result(res) -> None:
+        seen.append(res.key)
+        if res.key == "0":  # keep the parent busy until `a` and `b` are done: both in the next `wait`
+            (flags / "handed").touch()
+            while not ((flags / "a").exists() and (flags / "b").exists()):
+                time.sleep(0.05)
+            time.sleep(1.0)  # (their results cross the pipe)
+
+    tasks = {k: (k, str(flags)) for k in ("0", "a", "b")}
+    with LocalExecutor(3) as ex, pytest.raises(OSError) as raised:
+        ex.run(_full_disk_or_value, tasks, progress=False, on_result=on_result)
+    assert raised.value.errno == errno.ENOSPC and Path(raised.value.filename).name == "a"
+    assert seen == ["0", "b"]
+
+
+STOPPED_MID_TASK = '''
+import errno, sys, time
+from sosmatch.workflows.executors import LocalExecutor
+from sosmatch.workflows.progress import progress_bar
+
+def task(key):
+    with progress_bar(1, key, "task", False):  # (a disabled bar, as a batch's worker makes)
+        pass
+    if key == "a":
+        time.sleep(0.5)
+        raise OSError(errno.ENOSPC, "No space left on device", key)
+    time.sleep(60)
+
+if __name__ == "__main__":
+    try:
+        with LocalExecutor(2) as ex:
+            ex.run(task, {"a": ("a",), "b": ("b",), "c": ("c",)}, progress=False)
+    except OSError as error:
+        sys.exit(f"stopped: {error}")
+'''
+
+
+def test_workers_stopped_mid_task_leave_no_semaphore_for_the_tracker_to_report(tmp_path):
+    """rev52 D3: a run stopped with its workers mid-task (a full disk, SIGTERM, a killed worker) ended with its
+    one line and then Python's resource tracker's two: "There appear to be 2 leaked semaphore objects" (each
+    killed worker's tqdm lock, a multiprocessing RLock). The workers make no such semaphore now."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "stopped.py"
+    script.write_text(STOPPED_MID_TASK)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1 and done.stderr.strip().startswith("stopped: [Errno 28]"), done.stderr
+    assert "leaked" not in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr

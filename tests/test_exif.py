@@ -1118,12 +1118,8 @@ def test_two_sizes_in_equal_numbers_name_both_groups_not_a_full_frame_as_the_odd
         pfe.poses_from_images(tmp_path)
 
 
-def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_path):
-    """rev49 D4: the telemetry keyed an output by its size and time here, by its path in `poses`: an edit that kept
-    both (a copy with `cp -p`, a tool that restores the time) was the same input. Its content keys it now, as in
-    `poses` (`output_markers.input_identity`): the poses of the old file are not replaced without --overwrite."""
-    import os
-
+def _telemetry_poses(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """Three geotagged images, a telemetry CSV of their attitudes, and `poses-from-exif --telemetry` of them."""
     img = tmp_path / "images"
     img.mkdir()
     for k in range(3):
@@ -1132,6 +1128,16 @@ def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_pat
     tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,090,0,0\n" for k in range(3)))
     out = tmp_path / "out" / "poses.csv"
     pfe.run(img, out, telemetry=tele)
+    return img, tele, out
+
+
+def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_path):
+    """rev49 D4: the telemetry keyed an output by its size and time here, by its path in `poses`: an edit that kept
+    both (a copy with `cp -p`, a tool that restores the time) was the same input. Its content keys it now, as in
+    `poses` (`output_markers.input_identity`): the poses of the old file are not replaced without --overwrite."""
+    import os
+
+    img, tele, out = _telemetry_poses(tmp_path)
     before = out.read_text()
     st = tele.stat()
     tele.write_text("FileName,Heading,PitchAngle,RollAngle\n" + "".join(f"f{k}.jpg,270,0,0\n" for k in range(3)))
@@ -1142,3 +1148,27 @@ def test_an_edited_telemetry_is_another_input_whatever_its_size_and_time(tmp_pat
     assert out.read_text() == before
     pfe.run(img, out, telemetry=tele, overwrite=True)
     assert out.read_text() != before  # the headings of the edited file
+
+
+def test_poses_an_earlier_sosmatch_keyed_by_the_telemetry_size_and_time_are_this_output(tmp_path):
+    """rev52 D2: the files of `poses-from-exif --telemetry` an earlier sosmatch recorded with the telemetry keyed
+    by its size and time (until fix130) were refused after the upgrade as made "from other inputs or settings".
+    They are this output: written again, recorded under today's identity."""
+    from sosmatch.database.output_files import FILES_REGISTRY
+    from sosmatch.database.output_markers import fingerprint
+    from sosmatch.workflows.image_priors import list_images
+
+    img, tele, out = _telemetry_poses(tmp_path)
+    registry = out.parent / FILES_REGISTRY
+    today = json.loads(registry.read_text())["files"]["poses.csv"]["identity"]
+    st = tele.stat()
+    old = fingerprint({"images": [[str(p.resolve()), p.stat().st_size, p.stat().st_mtime_ns] for p in list_images(img)],
+                       "telemetry": [st.st_size, st.st_mtime_ns],
+                       "options": [pfe.DEFAULT_MOUNT, pfe.DEFAULT_PITCH_SIGN, pfe.DEFAULT_ROLL_SIGN, None, None, False,
+                                   3.0, 5.0, "colmap"]})
+    record = json.loads(registry.read_text())
+    for entry in record["files"].values():  # as that version recorded them
+        entry["identity"] = old
+    registry.write_text(json.dumps(record))
+    pfe.run(img, out, telemetry=tele)  # refused before
+    assert {e["identity"] for e in json.loads(registry.read_text())["files"].values()} == {today}

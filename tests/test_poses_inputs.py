@@ -3,6 +3,7 @@ structure from motion run where none is needed."""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import shutil
@@ -11,8 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pycolmap
+import pytest
 from PIL import Image
 
+from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.params import Params, with_overrides
 from sosmatch.tools.cli import main
 from sosmatch.workflows import poses as poses_wf
@@ -45,6 +48,55 @@ def test_an_edited_telemetry_changes_the_poses_identity_and_its_place_does_not(t
     moved.write_text("FileName,Heading\nf0.jpg,090\n")
     assert poses_wf.identity_of(images, Params(), moved) == before  # the same content elsewhere: the same input
     assert poses_wf.identity_of(images, Params()) != before
+
+
+
+def _fd8d3d3_identity(images: Path, tele: Path, **options: object) -> str:
+    """The identity sosmatch gave a `poses --telemetry` output until fix130: the telemetry by its path as given."""
+    from sosmatch.database.output_markers import fingerprint
+    from sosmatch.plugin.params import params_to_dict
+
+    return fingerprint({"images": [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in sorted(images.iterdir())],
+                        "sfm": params_to_dict(Params().sfm), "seed": Params().seed,
+                        **{k: str(v) for k, v in {"telemetry": tele, **options}.items()}})
+
+
+def test_a_poses_output_an_earlier_sosmatch_keyed_by_the_telemetry_path_resumes(tmp_path):
+    """rev52 D2: fix130 keyed the telemetry by its content, so every `poses --telemetry` output of the version
+    before (keyed by its path) was refused as made "from other inputs or settings": an upgrade meant --overwrite
+    and the structure from motion again. It is this output: kept, and its marker re-written under today's
+    identity (`map --images --telemetry` likewise accepts the map made of it)."""
+    from sosmatch.database.code_version import code_versions
+    from sosmatch.database.output_markers import output_marker
+    from sosmatch.database.outputs import open_output_dir
+    from sosmatch.database.poses import format_poses_csv
+    from sosmatch.plugin.geometry import Poses
+
+    images = _folder(tmp_path)
+    tele = tmp_path / "tele.csv"
+    tele.write_text("FileName,Heading\nf0.jpg,090\n")
+    options = {"takeoff": None, "sensor": None, "nominal_height_m": poses_wf.NOMINAL_HEIGHT_M}
+    old = _fd8d3d3_identity(images, tele, **options)
+    today = poses_wf.identity_of(images, Params(), tele, **options)
+    assert old != today
+    out = tmp_path / "poses"
+    with open_output_dir(out, "poses", old) as taken:  # a finished output as that version marked it
+        names = [f"f{k}.jpg" for k in range(3)]
+        (out / "poses.csv").write_text(format_poses_csv(Poses(names, np.stack([np.eye(3)] * 3),
+                                                              np.arange(9.0).reshape(3, 3)), 32618))
+        (out / "cameras.txt").write_text("1 PINHOLE 8 8 8 8 4 4\n")
+        (out / "poses.json").write_text(f'{{"versions": {json.dumps(code_versions())}}}')
+        taken.finish()
+    assert output_marker(out)["identity"] == old
+    result = poses_wf.run(images, out, Params(), telemetry=tele)  # refused before: "other inputs or settings"
+    assert result.poses.names == names and output_marker(out)["complete"]
+    assert output_marker(out)["identity"] == today
+    tele.write_text("FileName,Heading\nf0.jpg,270\n")  # an edit now is another input, as since fix130
+    with pytest.raises(InputError, match="overwrite"):
+        poses_wf.run(images, out, Params(), telemetry=tele)
+    source = poses_wf.PosesFromImages(images, Params(), telemetry=tele)  # `map --images --telemetry`
+    assert source.earlier_identities() == (_fd8d3d3_identity(images, tele, **options),)
+    assert poses_wf.PosesFromImages(images, Params()).earlier_identities() == ()
 
 
 def _database(path: Path, clears: int) -> None:

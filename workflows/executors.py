@@ -23,6 +23,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable, Hashable
@@ -47,6 +48,13 @@ def _init_worker(parent_pid: int, initializer: Callable[[], None] | None) -> Non
     # larger than the pipe's buffer left `map --workers 2` waiting for it forever (twelfth sweep, 1 in 28 tries),
     # and `batch` printed each worker's KeyboardInterrupt traceback.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # tqdm's first bar (a disabled one too) makes a multiprocessing RLock, a named semaphore the parent's resource
+    # tracker counts; a worker `stop_pool` kills never unlinks it, and the tracker then added "There appear to be
+    # 2 leaked semaphore objects" after the run's one-line message (rev52 D3). A worker's bars share no lock with
+    # another process (the spawned worker's own RLock guards nothing across processes): a thread lock suffices.
+    from tqdm.std import tqdm
+
+    tqdm.set_lock(threading.RLock())
     if initializer is not None:
         initializer()
 
@@ -194,18 +202,33 @@ class LocalExecutor(Executor):
                     running[pool.submit(call_task, key, fn, args)] = key
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False
+                full_disk: OSError | None = None
                 for fut in sorted(done, key=lambda f: str(running[f])):
                     key = running.pop(fut)
                     try:
-                        arrived(fut.result())  # call_task never raises; a dead worker (BrokenProcessPool) does
+                        res = fut.result()  # call_task raises only a full disk; a dead worker (BrokenProcessPool)
                     except BrokenProcessPool as error:  # said by the caller, as any failed task
                         broken = True
-                        arrived(worker_died(key, error))
+                        res = worker_died(key, error)
+                    except OSError as error:  # the run stops, after the results that arrived with it (below)
+                        full_disk = full_disk or error
+                        continue
+                    arrived(res)
                 if broken:  # every task still in flight was taken down with it: said as such, then a new pool
                     for fut in sorted(wait(running)[0], key=lambda f: str(running[f])):
                         key = running.pop(fut)
                         error = fut.exception()
-                        arrived(worker_died(key, error) if isinstance(error, BrokenProcessPool) else fut.result())
+                        if isinstance(error, BrokenProcessPool):
+                            arrived(worker_died(key, error))
+                        elif isinstance(error, OSError):
+                            full_disk = full_disk or error
+                        else:
+                            arrived(fut.result())
+                if full_disk is not None:
+                    # every other task that finished alongside was handed over (its state saved: not redone on
+                    # the re-run, rev52 D6); the full disk stops the run now
+                    raise full_disk
+                if broken:
                     self._pool = None
                     stop_pool(pool)
                     if queue:
@@ -265,16 +288,24 @@ class DaskExecutor(Executor):
             return results
         # pure=False: a re-run of the same task after a fix must run again, not return a cached result.
         futures = {self.client.submit(call_task, key, fn, args, pure=False): key for key, args in tasks.items()}
+        def arrived(res: TaskResult) -> None:
+            results[res.key] = res
+            if on_result is not None:
+                on_result(res)
+            bar.update(1)
+
         with progress_bar(len(tasks), desc, "task", progress) as bar:
             for fut in as_completed(futures):
                 try:
                     res = fut.result()
                 except KilledWorker as error:  # its workers died under it (Dask retried it on others first)
                     res = worker_died(futures[fut], error)
-                results[res.key] = res
-                if on_result is not None:
-                    on_result(res)
-                bar.update(1)
+                except OSError:  # a full disk (`call_task`): the run stops, after the tasks that finished too
+                    for other in futures:  # (handed over: not redone on the re-run, rev52 D6)
+                        if other.status == "finished" and futures[other] not in results:
+                            arrived(other.result())
+                    raise
+                arrived(res)
         return {key: results[key] for key in tasks}
 
     def close(self) -> None:

@@ -24,14 +24,14 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 
 from ..database.cameras import format_cameras_txt
 from ..database.exif import orientation_note
 from ..database.output_files import OutputFiles
-from ..database.output_markers import fingerprint, input_identity
+from ..database.output_markers import VersionedIdentity, fingerprint, input_identity
 from ..database.poses import format_poses_csv
 from ..database.xmp_sidecar import sidecars_with_gps
 from ..plugin.errors import InputError
@@ -216,10 +216,18 @@ def run(
     out = Path(out)
     cameras_path = Path(cameras_out) if cameras_out is not None else out.parent / "cameras.txt"
     sources = [Path(p) for p in ([images] if isinstance(images, (str, Path)) else images)]
-    identity = fingerprint({"images": [[str(p.resolve()), *_stat(p)] for p in list_images(images)],
-                            "telemetry": input_identity(telemetry or None),
+    image_files = [[str(p.resolve()), *_stat(p)] for p in list_images(images)]
+
+    def identity(tele: Any) -> str:
+        return fingerprint({"images": image_files,
+                            "telemetry": tele,
                             "options": [mount, pitch_sign, roll_sign, sensor_width_mm, epsg, refine, position_sigma_m,
                                         attitude_sigma_deg, refine_method]})
+
+    # the telemetry by its content; until fix130 by its size and time (rev52 D2): such files are this output
+    # (an upgrade re-writes them under today's identity rather than refusing them)
+    identity = VersionedIdentity(identity(input_identity(telemetry or None)),
+                                 (identity(_stat(telemetry)),) if telemetry else ())
     files = OutputFiles([out, cameras_path], "poses-from-exif", identity, inputs=[*sources, telemetry],
                         overwrite=overwrite)
     result = poses_from_images(images, telemetry, mount, pitch_sign, roll_sign, sensor_width_mm, epsg)

@@ -66,6 +66,8 @@ class PosesSource(Protocol):
 
     def identity(self) -> str: ...
 
+    def earlier_identities(self) -> tuple[str, ...]: ...
+
     def input_paths(self) -> list[Path]: ...
 
     def resolve(self, out: OutputDir, renew_other_versions: bool = False) -> tuple[MapInputs, tuple[str, ...]]:
@@ -271,6 +273,9 @@ def run(
         gps = None  # poses made from the images' own GPS: their unit is the GPS's
     # what the outputs depend on: a complete session of another identity is replaced only with `overwrite`
     identity = map_identity(what, params, text_model, masks_source, models)
+    for earlier in () if source is None else source.earlier_identities():
+        # the same poses' source as an earlier sosmatch named it (rev52 D2): a map made of it is this one
+        identity = identity.accepting(map_identity(earlier, params, text_model, masks_source, models))
     with take_output_dir(out_dir, identity, paths, overwrite) as out:
         extra: tuple[str, ...] = ()
         if source is not None:

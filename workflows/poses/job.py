@@ -21,7 +21,7 @@ from ...database.cameras import format_cameras_txt
 from ...database.code_version import code_versions, kept_message, other_version
 from ...database.images import check_images_decode
 from ...database.json_text import json_default
-from ...database.output_markers import fingerprint, input_identity, read_json_or_none
+from ...database.output_markers import VersionedIdentity, fingerprint, input_identity, read_json_or_none
 from ...database.outputs import open_output_dir
 from ...database.poses import format_poses_csv
 from ...database.taken import make_dirs
@@ -59,12 +59,29 @@ def _image_identity(paths: Sequence[Path]) -> list[list[Any]]:
 def identity_of(image_dir: Path, params: Params, telemetry: str | Path | None = None, **options: Any) -> str:
     """What the poses of `image_dir` depend on: the image files (names, sizes, times), the SfM parameters, the
     seed, the `telemetry` file's content (`input_identity`) and `options` (take-off altitude, ...). One
-    version's identity only: no setting of the sfm section is registered in `plugin.params.identity.ADDED`
-    (tests/test_identity_versions.py fails when one is; then build it with `versioned_identity`, also for the
-    stages' marks in `compute_poses`)."""
+    version's identity of the settings only: no setting of the sfm section is registered in
+    `plugin.params.identity.ADDED` (tests/test_identity_versions.py fails when one is; then build it with
+    `versioned_identity`, also for the stages' marks in `compute_poses`); `versions_of` adds the identity an
+    earlier sosmatch gave the same telemetry."""
+    return _identity(image_dir, params, input_identity(telemetry), options)
+
+
+def versions_of(image_dir: Path, params: Params, telemetry: str | Path | None = None,
+                **options: Any) -> VersionedIdentity:
+    """`identity_of`, and with a telemetry file also the identity sosmatch gave these poses until fix130 (the
+    telemetry keyed by its path as given, not its content; rev52 D2): such an output is this one (an upgrade
+    resumes it, re-marked under today's identity). The old form was blind to an edited file; the content is
+    what tells now, and the one-time acceptance takes an output made of that path's file as it was then."""
+    today = identity_of(image_dir, params, telemetry, **options)
+    if telemetry is None:
+        return VersionedIdentity(today)
+    return VersionedIdentity(today, (_identity(image_dir, params, telemetry, options),))
+
+
+def _identity(image_dir: Path, params: Params, telemetry: Any, options: dict[str, Any]) -> str:
     return fingerprint({"images": _image_identity(list_images(image_dir)), "sfm": params_to_dict(params.sfm),
                         "seed": params.seed,
-                        **{k: str(v) for k, v in {"telemetry": input_identity(telemetry), **options}.items()}})
+                        **{k: str(v) for k, v in {"telemetry": telemetry, **options}.items()}})
 
 
 def run(
@@ -90,8 +107,9 @@ def run(
                "nominal_height_m": nominal_height_m,
                **({} if epsg is None else {"epsg": epsg})}  # only when chosen: earlier outputs keep their identity
     sfm.refuse_pair_list_names(list_images(image_dir))  # before anything is written
-    identity = identity_of(image_dir, params, telemetry, **options)
-    with open_output_dir(out, "poses", identity, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
+    versions = versions_of(image_dir, params, telemetry, **options)
+    identity = versions.today
+    with open_output_dir(out, "poses", versions, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
         if taken.was_complete and (taken.path / RECORD).is_file():
             # the same inputs and settings: the outputs stand, also those of another sosmatch (the identity keys
             # the settings, not the code), said once; --overwrite computes them again with this one
@@ -352,6 +370,11 @@ class PosesFromImages:
             raise InputError("image directory not found", self.images)
         sfm.refuse_pair_list_names(list_images(Path(self.images)))
         return identity_of(Path(self.images), self.params, self.telemetry, **self._options())
+
+    def earlier_identities(self) -> tuple[str, ...]:
+        """The identities earlier sosmatch versions gave these same poses (`versions_of`): a map made of them is
+        this map."""
+        return versions_of(Path(self.images), self.params, self.telemetry, **self._options()).same_as
 
     def input_paths(self) -> list[Path]:
         return [Path(self.images)] + ([Path(self.telemetry)] if self.telemetry else [])
