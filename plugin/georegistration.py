@@ -64,6 +64,8 @@ MIN_FIXES = 5
 # more than this share of the fixes off the block by more than their noise's 1-in-10^4 radius makes the
 # registration unusable (`_refusals`); below, they are wrong fixes, left out and listed
 MAX_WRONG_FIX_SHARE = 0.25
+# the fewest fixes whose measured noise can refuse a registration (`_refusals`)
+REFUSE_FROM_FIXES = 2 * MIN_FIXES
 # a GPS lag is corrected only when the corrected positions fit the block materially better (`_lag_decision`): a
 # per-axis sigma this much lower, or this fraction of the positions more among the inliers (at least 2)
 LAG_MIN_SIGMA_GAIN = 0.10
@@ -444,6 +446,15 @@ def georegister(
         warnings.append(f"{len(far)} GPS position(s) are off the reconstruction by more than 4.3 sigma of the "
                         f"measured {hfit.sigma_m:.2f} m noise (left out of the fit)")
     refusals = _refusals(vert, hfit, levelled[idx], gps[idx], seed)
+    if vert.source == "nadir assumption + GPS altitudes" and vert.gps_sigma_deg > NADIR_ASSUMPTION_SIGMA_DEG:
+        # the heights know the tilt about one axis (a single line's roll) worse than the assumption does: it alone
+        # sets it, exactly (the information-weighted vertical), so said, not refused: rev53 found a two-line
+        # survey 16 m apart refused whose poses were 0.9 deg right; rev49 D1's 126 deg roll was the small-angle
+        # rebuild's, not the assumption's
+        warnings.append(f"no attitude tags, and the GPS heights fix the tilt about the flight's long axis only to "
+                        f"+-{vert.gps_sigma_deg:.0f} deg (more than the {NADIR_ASSUMPTION_SIGMA_DEG:g} deg of the "
+                        "nadir assumption): that tilt rests on the camera looking straight down; for a tilted "
+                        "camera give attitude tags (--telemetry)")
     if hfit.inliers.sum() < 0.5 * len(idx):
         warnings.append(f"only {int(hfit.inliers.sum())} of {len(idx)} GPS positions fit the reconstruction: "
                         "the georegistration is doubtful")
@@ -464,16 +475,11 @@ def _refusals(vert: Vertical, hfit: HorizontalFit, levelled: np.ndarray, gps: np
     `levelled` centres (K,3) on `gps` (K,3)."""
     from .pose_check.gps import GNSS_WANDER_M
 
-    out = []
-    if vert.source == "nadir assumption + GPS altitudes" or vert.source == "nadir assumption":
-        if vert.gps_sigma_deg > NADIR_ASSUMPTION_SIGMA_DEG:
-            # the heights know the tilt about one axis worse than the assumption does: it alone sets it, unchecked
-            # (rev49 D1: a single line's roll, the block turned about it; with tags their roll is measured)
-            out.append(f"no attitude tags, and the GPS heights fix the tilt about the flight's long axis only to "
-                       f"+-{vert.gps_sigma_deg:.0f} deg (a single straight line does not fix the roll about it): "
-                       "the poses would rest on the nadir assumption alone; give attitude tags (--telemetry) or "
-                       "fly a second line beside it")
-    if not hfit.measured:
+    out: list[str] = []
+    # Refused only on what the fixes measure, and only from enough of them: from 5-7 fixes of a correct block at
+    # 3 m noise the two rules below refused 3-7 % (rev53 D3: the noise measured on so few is itself unsure), from
+    # 10-16 at most 1 in 400
+    if not hfit.measured or len(gps) < REFUSE_FROM_FIXES:
         return out
     # The handedness: a proper similarity is all the fit takes, but the images may be mirrored (a camera or a
     # converter set to flip them: the reconstruction is then the mirror world's); the best fit of the mirrored

@@ -250,15 +250,16 @@ def test_gps_heights_tilt_the_vertical_exactly_along_a_line():
     assert "GPS altitudes" in vert.source and _angle_deg(vert.up, true_up) < 0.05
 
 
-def test_gps_only_straight_line_is_refused_and_never_looks_up():
-    """Without tags the roll about a single line rests on the nadir assumption alone: refused (rev49 D1: the
-    block rolled 126 deg, cameras looking up, exit 0)."""
+def test_gps_only_straight_line_rests_on_the_nadir_assumption_said_and_never_looks_up():
+    """Without tags the roll about a single line rests on the nadir assumption alone: said in a warning, the
+    cameras looking down (rev49 D1: the block rolled 126 deg, cameras looking up, exit 0; a refusal of such
+    blocks turned away a sound two-line survey, rev53 D1)."""
     centers, rots = _line()
     rng = np.random.default_rng(1)
     sfm_c, sfm_r, sfm_from_world = _to_sfm(centers, rots)
     gps = centers + np.c_[rng.normal(0, 1.0, (len(centers), 2)), rng.normal(0, 1.5, len(centers))]
     geo = georegister(sfm_c, sfm_r, gps, rots, np.zeros(len(rots), bool), np.arange(len(rots)) * 2.0)
-    assert len(geo.refusals) == 1 and "single straight line" in geo.refusals[0]
+    assert geo.refusals == [] and any("nadir assumption" in w and "long axis" in w for w in geo.warnings)
     world_r = np.einsum("ij,njk->nik", geo.transform.rotation, sfm_r)
     assert np.all(world_r[:, 2, 2] < -0.9)  # the optical axes look down
 
@@ -358,3 +359,19 @@ def test_corridor_with_tags_is_registered_with_the_tags_roll(seed):
     assert not getattr(geo, "refusals", [])
     world_r = np.einsum("ij,njk->nik", geo.transform.rotation, sfm_r)
     assert np.median(rotation_angle_deg(world_r, rots)) < 0.5
+
+
+def test_a_correct_block_of_a_few_noisy_fixes_is_not_refused():
+    """A correct block of 6 fixes at 3 m noise (two short lines): the heights' tilt, unsure on so few, is said, not
+    refused (58 of these 60 were), and the noise-measured refusals (a mirror image fitting more, a quarter of the
+    fixes far off), which turned away 3-7 % of correct blocks of 5-7 fixes (rev53 D3: a reconstruction 0.23 m from
+    the truth refused as "a deformed reconstruction"), apply from REFUSE_FROM_FIXES fixes."""
+    refused = 0
+    for seed in range(60):
+        centers, rots, _, times = _block(n_lines=2, per_line=3, seed=seed)
+        rng = np.random.default_rng(100 + seed)
+        sfm_c, sfm_r, _ = _to_sfm(centers, rots, seed=seed)
+        gps = centers + rng.normal(0, 3.0, centers.shape)
+        geo = georegister(sfm_c, sfm_r, gps, rots, np.zeros(len(rots), bool), times)
+        refused += bool(geo.refusals)
+    assert refused == 0
