@@ -452,7 +452,7 @@ def georegister(
         # survey 16 m apart refused whose poses were 0.9 deg right; rev49 D1's 126 deg roll was the small-angle
         # rebuild's, not the assumption's
         warnings.append(f"no attitude tags, and the GPS heights fix the tilt about the flight's long axis only to "
-                        f"+-{vert.gps_sigma_deg:.0f} deg (more than the {NADIR_ASSUMPTION_SIGMA_DEG:g} deg of the "
+                        f"+-{vert.gps_sigma_deg:.1f} deg (more than the {NADIR_ASSUMPTION_SIGMA_DEG:g} deg of the "
                         "nadir assumption): that tilt rests on the camera looking straight down; for a tilted "
                         "camera give attitude tags (--telemetry)")
     if hfit.inliers.sum() < 0.5 * len(idx):
