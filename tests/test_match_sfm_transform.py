@@ -251,6 +251,7 @@ def test_a_batch_pair_is_keyed_by_the_transform_its_match_searches_with(tmp_path
     transform (a batch matched rigidly before the choice existed is matched again, as `match` refuses that
     output); pairs of given poses, and pairs whose transform was chosen (a `config dump` file names it), keep the
     fingerprint they had, so such batches resume."""
+    from sosmatch.database.map_loading import session_sfm_poses
     from sosmatch.workflows.batch import BatchOptions
     from sosmatch.workflows.batch.workflow import _searched_transform
 
@@ -258,7 +259,7 @@ def test_a_batch_pair_is_keyed_by_the_transform_its_match_searches_with(tmp_path
         (tmp_path / name).mkdir()
         write_landmark_map(tmp_path / name / "landmarks.sosmap", _map(sfm))
     free, chosen = BatchOptions(), BatchOptions(transform_chosen=True)
-    sfm, given, given2 = (str(tmp_path / n) for n in ("sfm", "given", "given2"))
+    sfm, given, given2 = (session_sfm_poses(tmp_path / n) for n in ("sfm", "given", "given2"))
     assert _searched_transform(Params(), free, given, sfm) == {"transform": "similarity"}
     assert _searched_transform(Params(), chosen, given, sfm) == {}
     assert _searched_transform(Params(), free, given, given2) == {}

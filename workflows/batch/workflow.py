@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ...database.atomic import write_text_atomic
+from ...database.map_loading import session_sfm_poses
 from ...database.match_io import MatchSummary, answer_gate
 from ...database.output_markers import versioned_identity
 from ...database.outputs import open_output_dir
@@ -61,18 +62,16 @@ class BatchOptions:
     transform_chosen: bool = False
 
 
-def _searched_transform(params: Params, options: BatchOptions, session_a: str, session_b: str) -> dict[str, str]:
+def _searched_transform(params: Params, options: BatchOptions, sfm_a: bool, sfm_b: bool) -> dict[str, str]:
     """{"transform": "similarity"} when `sosmatch match` will search the pair with a similarity that the flights'
     pose sources chose (`transform_choice.choose_transform`: either flight's poses came from structure from motion
-    and the user did not choose the transform), else {}: a pair's fingerprint then follows the transform its match
-    uses, so a pair matched rigidly before the choice existed is matched again (as `match` refuses that output),
-    while pairs of given poses, and any pair whose transform the user chose, keep their fingerprint and resume
-    (rev52 D4, D5)."""
-    from ...database.map_loading import session_sfm_poses
+    (`sfm_a`, `sfm_b`: `map_loading.session_sfm_poses`) and the user did not choose the transform), else {}: a pair's
+    fingerprint then follows the transform its match uses, so a pair matched rigidly before the choice existed is
+    matched again (as `match` refuses that output), while pairs of given poses, and any pair whose transform the
+    user chose, keep their fingerprint and resume (rev52 D4, D5)."""
     from ..match.transform_choice import choose_transform
 
-    choice = choose_transform(params, options.transform_chosen, session_sfm_poses(session_a),
-                              session_sfm_poses(session_b))
+    choice = choose_transform(params, options.transform_chosen, sfm_a, sfm_b)
     return {} if choice.note is None else {"transform": choice.params.association.transform}
 
 
@@ -256,12 +255,13 @@ def _run_batch(flights: list, out_dir: Path, params: Params, pdict: dict[str, An
     pair_fps, pair_tasks = {}, {}
     # each version's association and verification sections: the same for every pair
     match_sections = build_versions(lambda as_dict: (as_dict(params.association), as_dict(params.verification)))
+    # where each session's poses came from, read once (a session's map file and record; not once per pair)
+    sfm = {n: session_sfm_poses(sessions[n]["session"]) for n in mapped} if matcher is pair_task else {}
     for a, b in chosen:
         key = f"{a}{PAIR_SEP}{b}"
         # what `sosmatch match` depends on (its own identity: both maps, association, verification, seed), with
         # the transform it searches with when the flights' poses chose it (`_searched_transform`)
-        searched = _searched_transform(params, options, sessions[a]["session"], sessions[b]["session"]) \
-            if matcher is pair_task else {}
+        searched = _searched_transform(params, options, sfm[a], sfm[b]) if matcher is pair_task else {}
         pair_fps[key] = each_version(lambda fa, fb, sections, searched=searched: fingerprint(
             {"a": fa, "b": fb, "association": sections[0], "verification": sections[1], "seed": pdict["seed"],
              "matcher": matcher.__qualname__, "verify": verify, **searched}), fps[a], fps[b], match_sections)
