@@ -47,16 +47,30 @@ def select_keyframes(centers: np.ndarray, interval_m: float) -> np.ndarray:
 
 # A flight steps to one of the frames nearest to where it is; frames listed in another order (file names that do not
 # follow the capture order: renamed files, counters that wrapped, a model exported by name) step across the survey,
-# as a random order of the same centres does. The listed order is judged scrambled when, for most steps, the next
-# frame is not among the SCRAMBLED_NEXT_RANK frames nearest to the current one (its rank: how many frames are
-# strictly nearer than it). The rank is local and scale-free. Two earlier rules compared the median step with one
-# scale of the whole set: with the nearest-frame distance, a flight that revisits its ground (every frame with a
-# twin 0-1.5 m away) was "scrambled" at its 7 m steps (new-user sweep 22); with a random order's step (the site's
-# scale), two blocks 2 km apart, each shuffled within, were kept as given (119 m steps against 1850 m; review 20).
-# A flight over its ground again P times has ranks up to about 2P (the twins of this frame and the next): 8 keeps
-# four passes; a shuffled block of M frames has ranks about M/2, so a list of up to ~2 x 8 frames is never judged
-# scrambled (a line of 4 frames in order stays).
+# as a random order of the same centres does, and capture times that interleave flights (two drones at once, a
+# camera clock reset between batteries, both in one folder) step back and forth between them. Either order jumps
+# (`order_jumps`): a step more than JUMP_STEPS of the flight's steps long (`flight_step`) that goes past the
+# SCRAMBLED_NEXT_RANK frames nearest to the current one (its rank: how many frames are strictly nearer than the next
+# one) to a frame JUMP_RATIO times nearer to one of the JUMP_LOOKBACK - 1 frames before the current one than to
+# the current one: the order left a place and came back to it. A flight has no such steps, however often it passes
+# over its ground: its steps are flight steps, and a turn onto a line far away goes to a new place. Before, the
+# median rank alone judged an order (more than 8: no flight): a flight over its ground again has high ranks (the
+# twins of this frame and the next are nearer, about 2 a pass), so a corridor flown out and back 3 times in its own
+# order was "not in the order of one flight" (rev53 D4), and listed without times it was reordered along the path;
+# and capture times that interleave two flights in runs of a few frames have a median rank of 1 (nu57 D3: BATT, a
+# third of its steps jump). Measured on shuffled lists (50 shuffles each): 8-21 % of a 80-frame lawnmower's steps
+# jump, 14-22 % of a 240-frame one's, 11-24 % of 200 uniform random points'; a line of up to ~20 frames in a random
+# order may read as a flight. Earlier still, rules compared the median step with one scale of the whole set: with
+# the nearest-frame distance, a flight that revisits its ground was "scrambled" at its 7 m steps (new-user sweep
+# 22); with a random order's step (the site's scale), two blocks 2 km apart, each shuffled within, were kept as
+# given (review 20).
 SCRAMBLED_NEXT_RANK = 8
+JUMP_STEPS = 2.0
+JUMP_RATIO = 3.0
+JUMP_LOOKBACK = 4  # the frame before and the 3 before it: up to 4 flights interleaved at one rate are told apart
+# An order reads as one flight with at most this share of its steps jumps (and always with one: a GPS fix gone
+# astray for a frame and back is one), so a flight's odd outliers do not make it "no flight".
+JUMP_SHARE_MAX = 0.05
 # The ranks of at most this many steps (evenly spaced, deterministic): each costs up to one pass over the frames.
 _RANK_STEPS_MAX = 1000
 
@@ -68,13 +82,26 @@ def next_frame_ranks(xy: np.ndarray) -> np.ndarray:
         xy: (N, 2) horizontal camera centres in metres, in the listed order, N >= 2.
 
     Returns:
-        (S,) int64 ranks, for every step (N - 1 <= _RANK_STEPS_MAX), else for that many evenly spaced ones.
+        (S,) int64 ranks, for every step (N - 1 <= _RANK_STEPS_MAX), else for that many evenly spaced ones
+        (`_ranked_steps`).
     """
+    return _step_ranks(np.asarray(xy, dtype=np.float64), _ranked_steps(len(xy)))
+
+
+def _ranked_steps(n: int) -> np.ndarray:
+    """The steps `next_frame_ranks` ranks in an order of n frames."""
+    steps = np.arange(max(n - 1, 0))
+    if len(steps) > _RANK_STEPS_MAX:
+        steps = np.unique(np.linspace(0, n - 2, _RANK_STEPS_MAX).astype(np.int64))
+    return steps
+
+
+def _step_ranks(xy: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """`next_frame_ranks` of the steps `steps` (indices i of steps i -> i+1)."""
     from scipy.spatial import cKDTree
 
-    steps = np.arange(len(xy) - 1)
-    if len(steps) > _RANK_STEPS_MAX:
-        steps = np.unique(np.linspace(0, len(xy) - 2, _RANK_STEPS_MAX).astype(np.int64))
+    if len(steps) == 0:
+        return np.zeros(0, dtype=np.int64)
     dist = np.linalg.norm(xy[steps + 1] - xy[steps], axis=1)
     tree = cKDTree(xy)
     # frames within the step, the frame itself included (a ball's edge is closed: frames at exactly the step's
@@ -87,6 +114,54 @@ def next_frame_ranks(xy: np.ndarray) -> np.ndarray:
     return np.where(dist <= SAME_POSITION, 0, ranks)
 
 
+def _lookback(xy: np.ndarray, first_lag: int) -> np.ndarray:
+    """Per frame j >= 1 of the order (entry j - 1): the distance to the nearest of the frames j - first_lag ..
+    j - JUMP_LOOKBACK before it (inf where there is none)."""
+    n = len(xy)
+    near = np.full(max(n - 1, 0), np.inf)
+    for lag in range(first_lag, JUMP_LOOKBACK + 1):
+        j = np.arange(lag, n)
+        near[j - 1] = np.minimum(near[j - 1], np.linalg.norm(xy[j] - xy[j - lag], axis=1))
+    return near
+
+
+def flight_step(xy: np.ndarray) -> float:
+    """The step of the flight (m) whose frames are in this order (horizontal centres (N, 2), finite): the median
+    distance of a frame to the nearest of the JUMP_LOOKBACK frames before it (the frame before, in a flight;
+    its own flight's previous frame, where up to that many flights are interleaved); frames at the position of
+    one of them (a hover) count not. 0 when nothing moves."""
+    near = _lookback(np.asarray(xy, dtype=np.float64), 1)
+    moving = near[np.isfinite(near) & (near > SAME_POSITION)]
+    return float(np.median(moving)) if len(moving) else 0.0
+
+
+def order_jumps(xy: np.ndarray) -> np.ndarray:
+    """Which steps i -> i+1 of the order jump: the step is more than JUMP_STEPS flight steps long (`flight_step`),
+    its next frame is not among the SCRAMBLED_NEXT_RANK nearest to frame i (`next_frame_ranks`), and it lies more
+    than JUMP_RATIO times nearer to one of the frames before frame i (up to JUMP_LOOKBACK back) than to frame i:
+    the order left a place and came back to it. A flight's own steps are none of these: a turn onto a line far
+    away goes to a new place, a step back over the ground just flown (a corridor's out-and-back turn) is one
+    flight step long.
+
+    Args:
+        xy: (N, 2) horizontal camera centres in metres, finite, in the order to judge.
+
+    Returns:
+        (N - 1,) bool.
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    if len(xy) < 3:
+        return np.zeros(max(len(xy) - 1, 0), dtype=bool)
+    step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    # step i -> i+1 against frame i+1's distance to frames i-1 .. (lag 2 and more from frame i+1)
+    back = _lookback(xy, 2)
+    candidate = np.flatnonzero((step > JUMP_RATIO * back) & (step > JUMP_STEPS * flight_step(xy)))
+    jumps = np.zeros(len(step), dtype=bool)
+    # ranks of the candidates only: a flight has few, so the test stays O(N) where it passes
+    jumps[candidate] = _step_ranks(xy, candidate) > SCRAMBLED_NEXT_RANK
+    return jumps
+
+
 def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[np.ndarray, str]:
     """The order in which the frames were taken, and how it was found (`FLIGHT_ORDER_HOWS`).
 
@@ -94,17 +169,18 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
     seconds under bursts of several frames a second, a tool that rewrote the dates) are in no order by it: within
     each such time they keep their given order unless a path through their camera centres is shorter
     (`_paths_within_equal_times`; "capture time + path"). Times that are all one carry no order at all and count
-    as none. A capture-time order that is not a flight (`reads_as_flight`: times of two flights that overlap)
-    is kept, as "capture time, not a flight", for the caller to warn of. Without times the given order stands
-    unless it is evidently not a flight (horizontally, the median
-    `next_frame_ranks` is more than SCRAMBLED_NEXT_RANK: most steps go past the frames nearest to the current
-    one); then the frames are chained from an end of the survey (the frame farthest from the centroid) to the
-    nearest frame not yet taken, which retraces a survey's lines and turns ("path"). A flight that passes over
-    its ground again stays as given: its next frame is among the few nearest (its twins are the others).
+    as none. A capture-time order that is no flight (`reads_as_flight`: the times interleave flights whose times
+    overlap, and the order jumps back and forth between them) is split into the paths the times interleave
+    (`flights_in_time_order`), each kept in time order, one after the other ("capture time, per flight"). Without
+    times the given order stands unless it is no flight either (`reads_as_flight`); then the frames are chained
+    from an end of the survey (the frame farthest from the centroid) to the nearest frame not yet taken, which
+    retraces a survey's lines and turns ("path"). A flight that passes over its ground again stays as given: its
+    next frame is the one nearest to where it just was.
 
     Args:
         centers: (N, 3) camera centres in metres, in the given order (only the horizontal ones are used; frames
-            of one time keep their given order when any centre is not finite).
+            of one time keep their given order, and overlapping times their time order, when any centre is not
+            finite).
         times: (N,) capture times in seconds, or None.
 
     Returns:
@@ -118,11 +194,12 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
         if np.ptp(t) > 0:
             order = np.argsort(t, kind="stable").astype(np.int64)
             order, path_within = _paths_within_equal_times(centers[:, :2], t, order)
-            # capture times that interleave frames far apart (two flights at once in one folder, a camera clock
-            # reset between batteries) are no flight either (nu57: -24 % landmarks, blamed on whole seconds)
+            # capture times that interleave flights far apart (two drones at once in one folder, a camera clock
+            # reset between batteries) jump back and forth: tracks broke at every jump (nu57 D3: -24 % landmarks)
             # (as listed already: said where it was put so; the map calls this again on its ordered inputs)
             if n >= 3 and np.all(np.isfinite(centers)) and not reads_as_flight(centers[order, :2]):
-                return order, ("given" if np.array_equal(order, identity) else "capture time, not a flight")
+                order = flights_in_time_order(centers[:, :2], t)[0]
+                return order, ("given" if np.array_equal(order, identity) else "capture time, per flight")
             if path_within:
                 return order, "capture time + path"
             return order, ("given" if np.array_equal(order, identity) else "capture time")
@@ -138,17 +215,73 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
 
 
 # How `flight_order` found the order: as listed, by capture time, by capture time with the frames of one time along
-# the path through their centres, along that path alone, or by capture times that are no flight's order.
-FLIGHT_ORDER_HOWS = ("given", "capture time", "capture time + path", "path", "capture time, not a flight")
+# the path through their centres, along that path alone, or by capture time per flight where the times interleave
+# flights.
+FLIGHT_ORDER_HOWS = ("given", "capture time", "capture time + path", "path", "capture time, per flight")
 
 
 def reads_as_flight(xy: np.ndarray) -> bool:
-    """Whether frames in this order (horizontal centres (N, 2), finite) read as one flight: the median
-    `next_frame_ranks` is at most SCRAMBLED_NEXT_RANK (most steps go to one of the frames nearest the current
-    one). Fewer than 3 frames always do. The test `flight_order` applies to a listed order and a capture-time
-    order, and the map applies to its keyframes before it takes a pass length from them (`workflows.map`)."""
+    """Whether frames in this order (horizontal centres (N, 2), finite) read as one flight: at most one of its
+    steps, or JUMP_SHARE_MAX of them, jump (`order_jumps`: go back to a place the order left a few frames before,
+    past the frames nearest). The one test of an order: `flight_order` applies it to a listed order and a
+    capture-time order, and the map to its keyframes before it takes a pass length from them (`workflows.map`)."""
     xy = np.asarray(xy, dtype=np.float64)
-    return len(xy) < 3 or bool(np.median(next_frame_ranks(xy)) <= SCRAMBLED_NEXT_RANK)
+    if len(xy) < 3:
+        return True
+    jumps = int(np.count_nonzero(order_jumps(xy)))
+    return jumps <= max(1.0, JUMP_SHARE_MAX * (len(xy) - 1))
+
+
+def flights_in_time_order(xy: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, int]:
+    """The frames split into the flights their capture times interleave, each flight in time order (the frames of
+    one time along the path where their given order is not: `_paths_within_equal_times`), one flight after the
+    other in the order they started; and how many paths that makes (a flight whose turn onto its next line is as
+    long as a jump is two).
+
+    Consecutive frames of one flight are near each other in space and time. In time order, each frame continues
+    the flight whose latest frame is nearest to it, unless every flight's latest frame is more than JUMP_RATIO
+    flight steps (`flight_step` of the time order) away: then it starts a flight (the first frame of a flight whose
+    times overlap another's, or of a part of a flight after a jump as long). Deterministic; the split depends on
+    the frames' centres and times, not on how they are listed, but for the order of frames of one time, so that
+    the result given again comes back as it is.
+
+    Args:
+        xy: (N, 2) horizontal camera centres in metres, finite, in the given order.
+        t: (N,) capture times in seconds, finite.
+
+    Returns:
+        ((N,) int64 permutation into the given order, the number of paths).
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    n = len(xy)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), 0
+    timed = np.argsort(t, kind="stable").astype(np.int64)
+    timed, _ = _paths_within_equal_times(xy, t, timed)
+    gate = JUMP_RATIO * flight_step(xy[timed])
+    flight_of = np.zeros(n, dtype=np.int64)
+    tails: list[int] = []  # per flight, its latest frame
+    for f in timed.tolist():
+        if tails:
+            d = np.linalg.norm(xy[tails] - xy[f], axis=1)
+            k = int(np.argmin(d))  # ties: the flight that started first
+            if d[k] <= gate:
+                flight_of[f] = k
+                tails[k] = f
+                continue
+        flight_of[f] = len(tails)
+        tails.append(f)
+    out: list[np.ndarray] = []
+    for k in range(len(tails)):
+        members = np.flatnonzero(flight_of == k)  # in the given order: frames of one time keep it, as above
+        own = members[np.argsort(t[members], kind="stable")]
+        out.append(_paths_within_equal_times(xy, t, own)[0])
+    # flights that start at one time (batteries whose clocks both restarted at one instant): the one whose first
+    # frame lies west-most, then south-most, first, whatever the listing
+    first = np.array([[t[o[0]], xy[o[0], 0], xy[o[0], 1]] for o in out])
+    rank = np.lexsort((first[:, 2], first[:, 1], first[:, 0]))
+    return np.concatenate([out[k] for k in rank]).astype(np.int64), len(tails)
 
 
 def _chain(xy: np.ndarray, members: np.ndarray, start: int) -> list[int]:
@@ -216,9 +349,11 @@ def _paths_within_equal_times(xy: np.ndarray, t: np.ndarray, order: np.ndarray) 
     return out, changed
 
 
-def flight_order_message(how: str, times: np.ndarray | None) -> tuple[bool, str] | None:
+def flight_order_message(how: str, times: np.ndarray | None,
+                         centers: np.ndarray | None = None) -> tuple[bool, str] | None:
     """What the log says of `flight_order`'s `how` (None: nothing, the order is as listed), and whether it is a
-    warning (an order found along the camera path is a guess). `times`: the capture times it was given."""
+    warning (an order found along the camera path is a guess). `times`, `centers`: the capture times and camera
+    centres it was given (the centres name how many flights the times interleave)."""
     if how == "given":
         return None
     if how == "capture time":
@@ -231,11 +366,18 @@ def flight_order_message(how: str, times: np.ndarray | None) -> tuple[bool, str]
                       "in whole seconds without SubSecTimeOriginal, or dates rewritten by a tool?) and are not "
                       "listed in flight order within it: they are ordered by capture time, and the frames of one "
                       "time along a path through their camera centres")
-    if how == "capture time, not a flight":
-        return True, ("the frames' capture times interleave frames far apart (consecutive times jump across the "
-                      "survey): two flights in one folder whose capture times overlap (two drones at once, or a "
-                      "camera clock reset between batteries?); they are ordered by capture time, which breaks "
-                      "tracks at every jump: map each flight separately")
+    if how == "capture time, per flight":
+        t = np.asarray(times, dtype=np.float64)
+        said = ""
+        if centers is not None:
+            xy = np.asarray(centers, dtype=np.float64)[:, :2]
+            timed = _paths_within_equal_times(xy, t, np.argsort(t, kind="stable"))[0]
+            said = (f" ({int(np.count_nonzero(order_jumps(xy[timed])))} of the {len(t) - 1} steps in capture-time "
+                    f"order jump between them; split into {flights_in_time_order(xy, t)[1]} paths)")
+        return True, ("the frames' capture times interleave flights far apart (two drones at once, or a camera clock "
+                      "reset between batteries, in one folder?), which would break tracks at every jump: they are "
+                      "ordered per flight along the camera path, each path by capture time, one after the other"
+                      f"{said}; map each flight separately if they are separate surveys")
     if times is not None and len(times) > 0 and bool(np.all(np.isfinite(times))):
         why = f"and all {len(times)} images carry one capture time, which orders nothing"
     else:

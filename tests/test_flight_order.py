@@ -160,35 +160,111 @@ def test_the_order_is_told_in_the_log():
     assert "not every image carries a capture time" in flight_order_message("path", None)[1]
 
 
-def test_capture_times_of_two_flights_flown_at_once_are_no_flight_and_do_not_lower_theta_n(caplog):
+def _two_flights_at_once(whole_seconds=False, line_gap=14.0):
+    """Two 30-frame lawnmowers (2 lines, 7 m steps) 43 m apart (the second shifted 15, 40 m), flown at once:
+    frames 2 s apart each, the second's 1 s after the first's (or both stamped in whole seconds, 1.4 s apart, the
+    second's from 0.3 s)."""
+    one = _lawnmower(lines=2, per_line=15, line_gap=line_gap)
+    two = one + [15.0, 40.0, 0.0]
+    if whole_seconds:  # nu57's BATT: 1.4 s between frames, several frames of both flights in one second
+        t = np.r_[np.floor(np.arange(len(one)) * 1.4), np.floor(np.arange(len(two)) * 1.4 + 0.3)]
+    else:
+        t = np.r_[np.arange(len(one)) * 2.0, np.arange(len(two)) * 2.0 + 1.0]
+    return one, two, np.concatenate([one, two]), t
+
+
+def test_capture_times_of_two_flights_flown_at_once_are_ordered_per_flight(caplog):
     """nu57 D3: two batteries whose clocks overlap (a clock reset, or two drones at once) in one folder were
-    ordered by capture time alone, alternating between flights 40 m apart: tracks broke at every jump and the
-    pass length measured on those steps lowered theta_n 5 -> 2, with an INFO line. The capture-time order gets
-    the flight test a listed order gets, and its warning names the overlap; the map keeps theta_n for
-    keyframes in no flight's order. A single flight by its times is unchanged."""
+    ordered by capture time alone, alternating between flights 43 m apart: tracks broke at every jump (-24 %
+    landmarks) and the pass length measured on those steps lowered theta_n 5 -> 2. fix135 warned and kept theta_n
+    but kept the interleaved order. Now the frames are split into the flights the times interleave, each in time
+    order, one after the other, with one warning that says so; from any listing, the same order (deterministic,
+    and given again it stays: the map orders its inputs twice); the map's keyframes read as one flight and theta_n
+    follows their views as for the flights one after the other."""
     import logging
 
-    from sosmatch.plugin.keyframes import flight_order_message
+    from sosmatch.plugin.keyframes import flight_order_message, reads_as_flight
     from sosmatch.plugin.params import Params, for_flight
     from sosmatch.workflows.map.workflow import flown_params
 
-    one = _lawnmower(lines=2, per_line=15)
-    two = one + [15.0, 40.0, 0.0]
-    both = np.concatenate([one, two])
-    t = np.r_[np.arange(len(one)) * 2.0, np.arange(len(two)) * 2.0 + 1.0]  # interleaved, every time distinct
-    order, how = flight_order(both, t)
-    assert how == "capture time, not a flight" and np.array_equal(order, np.argsort(t))
-    warn, text = flight_order_message(how, t)
-    assert warn and "capture times overlap" in text and "map each flight separately" in text
-    assert flight_order(both[order], t[order])[1] == "given"  # ordered already: said once, where it was ordered
+    for whole_seconds in (False, True):
+        one, two, both, t = _two_flights_at_once(whole_seconds)
+        per_flight = np.arange(len(both))  # the first flight in time order, then the second
+        assert not reads_as_flight(both[np.argsort(t, kind="stable"), :2])  # the times' order jumps
+        for seed in range(5):
+            listed = np.random.default_rng(seed).permutation(len(both))
+            order, how = flight_order(both[listed], t[listed])
+            assert how == "capture time, per flight", whole_seconds
+            assert np.array_equal(listed[order], per_flight), whole_seconds
+            assert flight_order(both, t)[1] == "given"  # given again, it stays
+        warn, text = flight_order_message(how, t[listed], both[listed])
+        assert warn and "capture times interleave flights far apart" in text
+        assert "ordered per flight along the camera path, each path by capture time" in text
+        assert "jump between them; split into 2 paths" in text
+    # turns onto the next line 30 m away (no frame in the turn) are as long as the jumps between the flights: each
+    # line is a path, the paths one after the other as they started; no step jumps back any more
+    _, _, both, t = _two_flights_at_once(line_gap=30.0)
+    orders = set()
+    for seed in range(5):
+        listed = np.random.default_rng(seed).permutation(len(both))
+        order, how = flight_order(both[listed], t[listed])
+        assert how == "capture time, per flight" and reads_as_flight(both[listed[order], :2])
+        orders.add(tuple(listed[order]))
+        assert flight_order(both[listed[order]], t[listed[order]])[1] == "given"
+    assert len(orders) == 1
     # one flight in time order, and the two flights one after the other: as before
     assert flight_order(one[::-1], np.arange(len(one))[::-1] * 2.0)[1] == "capture time"
     assert flight_order(both, np.r_[t[: len(one)], t[len(one):] + 1000.0])[1] == "given"
     params = Params()
-    assert for_flight(params, 3.3) is not params  # the 3.3 views of the interleaved order would lower it
+    assert for_flight(params, 3.3) is not params  # lowers theta_n to 2 from 3.3 views a pass
     with caplog.at_level(logging.WARNING):
-        assert flown_params(params, 3.3, both[order]) is params
-    assert "not in the order of one flight: theta_n stays 5 (not lowered to 2" in caplog.text
-    caplog.clear()
-    lowered = flown_params(params, 3.3, one)  # one flight's keyframes: lowered as before, without a warning
+        lowered = flown_params(params, 3.3, both)  # keyframes per flight: lowered as for one flight, no word
     assert lowered.triangulation.min_observations == 2 and not caplog.text
+    # keyframes that still jump back and forth (a listed order, no times): theta_n kept, said with the count
+    with caplog.at_level(logging.WARNING):
+        assert flown_params(params, 3.3, both[np.argsort(t)]) is params
+    assert "of the 59 steps between keyframes jump back and forth" in caplog.text
+    assert "theta_n stays 5 (not lowered to 2" in caplog.text
+
+
+def test_a_corridor_flown_in_many_passes_is_one_flight(caplog):
+    """rev53 D4: a corridor flown out and back up to 20 times in its own order (frames 10 m apart, 1 m GPS
+    noise). Its median next-frame rank grows about 2 a pass (10 at 6 passes): the map warned its keyframes "are
+    not in the order of one flight" and kept theta_n, and listed without capture times it was reordered along the
+    path, interleaving the passes. A flight whose steps are all flight steps is one flight, however often it passes
+    over its ground."""
+    import logging
+
+    from sosmatch.plugin.keyframes import order_jumps, reads_as_flight
+    from sosmatch.plugin.params import Params
+    from sosmatch.workflows.map.workflow import flown_params
+
+    rng = np.random.default_rng(0)
+    for passes in (6, 8, 20):
+        x = np.concatenate([np.arange(0, 300, 10.0)[:: 1 if i % 2 == 0 else -1] for i in range(passes)])
+        c = np.c_[x + rng.normal(0, 1, len(x)), rng.normal(0, 1.4, len(x)), np.full(len(x), 100.0)]
+        assert np.median(next_frame_ranks(c[:, :2])) > 8, passes  # what judged it before
+        assert reads_as_flight(c[:, :2]) and not np.any(order_jumps(c[:, :2])), passes
+        assert flight_order(c)[1] == "given", passes
+        assert flight_order(c, np.arange(len(c)) * 2.0)[1] == "given", passes
+        with caplog.at_level(logging.WARNING):
+            assert flown_params(Params(), 3.3, c).triangulation.min_observations == 2
+        assert not caplog.text, passes
+        # the same corridor listed in a random order still jumps, and is chained along the path
+        assert flight_order(c[rng.permutation(len(c))])[1] == "path", passes
+
+
+def test_flights_one_after_another_and_turns_onto_far_lines_are_no_jumps():
+    """Steps that go to a new place are no jumps: a lawnmower whose lines are 5 spacings apart (a turn without
+    frames), two batteries one after the other with the second starting 40 m away, a GPS fix astray for one frame.
+    Only steps back to a place left a few frames before are, and an order of up to one such step, or 5 % of its
+    steps, is a flight."""
+    from sosmatch.plugin.keyframes import order_jumps, reads_as_flight
+
+    far_lines = _lawnmower(lines=6, per_line=6, line_gap=35.0)
+    assert not np.any(order_jumps(far_lines[:, :2])) and flight_order(far_lines)[1] == "given"
+    one, two, both, _ = _two_flights_at_once()
+    assert not np.any(order_jumps(both[:, :2])) and reads_as_flight(both[:, :2])
+    astray = _lawnmower().copy()
+    astray[30, :2] += [60.0, 0.0]  # there and back: the step back is a jump
+    assert np.count_nonzero(order_jumps(astray[:, :2])) == 1 and flight_order(astray)[1] == "given"

@@ -569,6 +569,40 @@ def test_frames_whose_names_do_not_follow_the_flight_are_mapped_in_flight_order(
     assert mixed.num_landmarks >= 0.9 * summary.num_landmarks, (mixed.num_landmarks, summary.num_landmarks)
 
 
+def test_two_flights_whose_capture_times_overlap_are_mapped_one_after_the_other(session, tmp_path, caplog):
+    """nu57 D3 end to end: the session's line as two flights (frames 0-12 and 13-24, 26 m further on) whose camera
+    clocks overlap (EXIF times 2 s apart each, the second's 1 s after the first's), as two batteries after a
+    clock reset or two drones at once put in one folder. Ordered by capture time the keyframes alternated between
+    the flights (tracks broken at every jump: -24 % landmarks on nu57's BATT); now each flight in time order, one
+    after the other: the keyframes and the map of the flight listed in order, and one warning saying so."""
+    import datetime
+    import logging
+
+    from sosmatch.database.exif import ImageMetadata
+    from sosmatch.database.exif_write import embed_metadata
+
+    root, _, out, summary = session
+    names = json.loads((out / "run.json").read_text())["keyframes"]
+    poses = map_workflow.load_inputs(root / "images", root / "poses.csv", root / "cameras.txt").poses
+    (tmp_path / "images").mkdir()
+    start = datetime.datetime(2024, 5, 1, 10, 0, 0)
+    seconds = np.array([2 * k if k < 13 else 2 * (k - 13) + 1 for k in range(len(poses.names))])
+    for name, second in zip(poses.names, seconds):
+        stamp = (start + datetime.timedelta(seconds=int(second))).strftime("%Y:%m:%d %H:%M:%S")
+        meta = ImageMetadata(Path(name), 320, 240, datetime_original=stamp)
+        (tmp_path / "images" / name).write_bytes(embed_metadata((root / "images" / name).read_bytes(), meta))
+    by_time = np.argsort(seconds)  # the pose file in capture-time order, as an export sorted by time lists it
+    write_poses_csv(tmp_path / "poses.csv", Poses([poses.names[i] for i in by_time], poses.rotations[by_time],
+                                                  poses.centers[by_time]))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.map"):
+        inputs = map_workflow.load_inputs(tmp_path / "images", tmp_path / "poses.csv", root / "cameras.txt")
+        two = map_workflow.run(Params(), inputs, tmp_path / "mapped", progress=False)
+    said = [r.getMessage() for r in caplog.records if "capture times interleave flights" in r.getMessage()]
+    assert len(said) == 1 and "ordered per flight along the camera path" in said[0]
+    assert json.loads((tmp_path / "mapped" / "run.json").read_text())["keyframes"] == names
+    assert two.num_landmarks == summary.num_landmarks
+
+
 def test_a_low_flight_keeps_the_landmarks_its_views_allow(tmp_path, capsys):
     """40 m above ground with frames 7 m apart, an object is in ~5 keyframes of a pass, so no track could have the
     6 observations theta_n = 5 asks for: 24 and 31 landmarks on two worlds against 238 and 225 at 100 m. theta_n

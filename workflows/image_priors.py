@@ -225,7 +225,7 @@ def _capture_order(metas: list[ImageMetadata], centers: np.ndarray) -> np.ndarra
     stamps = [m.capture_time_s for m in metas]
     times = None if None in stamps else np.asarray(stamps, dtype=np.float64)
     order, how = flight_order(centers, times)
-    said = flight_order_message(how, times)
+    said = flight_order_message(how, times, centers)
     if said is None:
         return None
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])

@@ -320,7 +320,7 @@ def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | N
             times.append(None)
     t = None if any(x is None for x in times) else np.asarray(times, dtype=np.float64)
     order, how = flight_order(inputs.poses.centers, t)
-    said = flight_order_message(how, t)
+    said = flight_order_message(how, t, inputs.poses.centers)
     if said is None:
         return inputs
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])

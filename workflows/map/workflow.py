@@ -139,17 +139,21 @@ def flight_views(kf_poses: Any, motion: list[tuple[float, float]], camera: Any) 
 
 def flown_params(params: Params, views: float, kf_centers: np.ndarray) -> Params:
     """`plugin.params.for_flight` of the keyframes' `views` per pass, unless the keyframes (centres in their order)
-    are not in one flight's order (`plugin.keyframes.reads_as_flight`): keyframes that jump across the survey
-    (flights interleaved by overlapping capture times) see an object on fewer steps than a pass does, so their
-    pass length is no measurement (nu57: theta_n lowered 5 -> 2 without a word); `params` then, with a warning."""
-    from ...plugin.keyframes import reads_as_flight
+    are not in one flight's order (`plugin.keyframes.reads_as_flight`): keyframes that jump back and forth across
+    the survey (flights interleaved in a listed order) see an object on fewer steps than a pass does, so their pass
+    length is no measurement (nu57: theta_n lowered 5 -> 2 without a word); `params` then, with a warning. A flight
+    over its ground again in many passes is one flight (rev53 D4: 6 passes were told "not in the order of one
+    flight")."""
+    from ...plugin.keyframes import order_jumps, reads_as_flight
 
     flown = for_flight(params, views)
-    if flown is params or reads_as_flight(np.asarray(kf_centers)[:, :2]):
+    xy = np.asarray(kf_centers)[:, :2]
+    if flown is params or reads_as_flight(xy):
         return flown
-    log.warning("the keyframes are not in the order of one flight: theta_n stays %d (not lowered to %d from the "
-                "%.1f keyframes an object is in on their steps)", params.triangulation.min_observations,
-                flown.triangulation.min_observations, views)
+    log.warning("%d of the %d steps between keyframes jump back and forth between places far apart (the order of "
+                "no one flight): theta_n stays %d (not lowered to %d from the %.1f keyframes an object is in on "
+                "their steps)", int(np.count_nonzero(order_jumps(xy))), len(xy) - 1,
+                params.triangulation.min_observations, flown.triangulation.min_observations, views)
     return params
 
 
