@@ -58,12 +58,12 @@ def select_keyframes(centers: np.ndarray, interval_m: float) -> np.ndarray:
 # twins of this frame and the next are nearer, about 2 a pass), so a corridor flown out and back 3 times in its own
 # order was "not in the order of one flight" (rev53 D4), and listed without times it was reordered along the path;
 # and capture times that interleave two flights in runs of a few frames have a median rank of 1 (nu57 D3: BATT, a
-# third of its steps jump). Measured on shuffled lists (50 shuffles each): 8-21 % of a 80-frame lawnmower's steps
-# jump, 14-22 % of a 240-frame one's, 11-24 % of 200 uniform random points'; a line of up to ~20 frames in a random
-# order may read as a flight. Earlier still, rules compared the median step with one scale of the whole set: with
-# the nearest-frame distance, a flight that revisits its ground was "scrambled" at its 7 m steps (new-user sweep
-# 22); with a random order's step (the site's scale), two blocks 2 km apart, each shuffled within, were kept as
-# given (review 20).
+# third of its steps jump). Measured on shuffled lists (50 shuffles each, least / median): 8 / 16 % of a 80-frame
+# lawnmower's steps jump, 12 / 19 % of a 240-frame one's, 10 / 18 % of 200 uniform random points'; a dozen frames
+# in a random order may read as a flight (a 12-frame line: 34 shuffles of 50; a 20-frame one: none). Earlier
+# still, rules compared the median step with one scale of the whole set: with the nearest-frame distance, a flight
+# that revisits its ground was "scrambled" at its 7 m steps (new-user sweep 22); with a random order's step (the
+# site's scale), two blocks 2 km apart, each shuffled within, were kept as given (review 20).
 SCRAMBLED_NEXT_RANK = 8
 JUMP_STEPS = 2.0
 JUMP_RATIO = 3.0
@@ -353,7 +353,7 @@ def flight_order_message(how: str, times: np.ndarray | None,
                          centers: np.ndarray | None = None) -> tuple[bool, str] | None:
     """What the log says of `flight_order`'s `how` (None: nothing, the order is as listed), and whether it is a
     warning (an order found along the camera path is a guess). `times`, `centers`: the capture times and camera
-    centres it was given (the centres name how many flights the times interleave)."""
+    centres it was given (with the centres, the warning counts the jumps and the paths)."""
     if how == "given":
         return None
     if how == "capture time":
