@@ -12,10 +12,11 @@ each part:
    assumption, with a systematic uncertainty of `NADIR_ASSUMPTION_SIGMA_DEG`. The GPS heights' plane over the
    block levelled by it (`_gps_slopes`: its slopes are the vertical's tangent-plane coordinates about the prior's,
    with their information, none across a single straight line; fitted with a drift in capture time, marginalised,
-   since a survey flown line after line confounds a drift with a tilt across its lines) is compared with it: when they agree within their
-   uncertainties the two are combined (information-weighted, rebuilt exactly), otherwise the GPS altitudes are
-   inconsistent with the block (drift) and are not followed. Without tags, heights that cannot check the nadir
-   assumption about some axis (a single line's roll) make the registration unusable (`Georegistration.refusals`).
+   since a survey flown line after line confounds a drift with a tilt across its lines) is compared with it: when
+   they agree within their uncertainties the two are combined (information-weighted, rebuilt exactly), otherwise
+   the GPS altitudes are inconsistent with the block (a jump, a bent reconstruction) and are not followed. Without
+   tags, a tilt the heights fix worse than the nadir assumption (a single line's roll, the axis a drift hides)
+   rests on the assumption, said in a warning.
 2. **Horizontal** (`robust_horizontal_similarity`): scale, yaw and east/north offset of the levelled block on
    the GPS positions, by least median of squares over 2-point samples (no threshold needed), then the noise
    sigma measured from the median residual, inliers within the 99 % chi-square(2) radius, least squares on
