@@ -11,10 +11,12 @@ each part:
    change it), averaged robustly. Without attitude tags the prior is a level nadir camera, the survey
    assumption, with a systematic uncertainty of `NADIR_ASSUMPTION_SIGMA_DEG`. The GPS heights' plane over the
    block levelled by it (`_gps_slopes`: its slopes are the vertical's tangent-plane coordinates about the prior's,
-   with their information, none across a single straight line) is compared with it: when they agree within their
-   uncertainties the two are combined (information-weighted, rebuilt exactly), otherwise the GPS altitudes are
-   inconsistent with the block (drift) and are not followed. Without tags, heights that cannot check the nadir
-   assumption about some axis (a single line's roll) make the registration unusable (`Georegistration.refusals`).
+   with their information, none across a single straight line; fitted with a drift in capture time, marginalised,
+   since a survey flown line after line confounds a drift with a tilt across its lines) is compared with it: when
+   they agree within their uncertainties the two are combined (information-weighted, rebuilt exactly), otherwise
+   the GPS altitudes are inconsistent with the block (a jump, a bent reconstruction) and are not followed. Without
+   tags, a tilt the heights fix worse than the nadir assumption (a single line's roll, the axis a drift hides)
+   rests on the assumption, said in a warning.
 2. **Horizontal** (`robust_horizontal_similarity`): scale, yaw and east/north offset of the levelled block on
    the GPS positions, by least median of squares over 2-point samples (no threshold needed), then the noise
    sigma measured from the median residual, inliers within the 99 % chi-square(2) radius, least squares on
@@ -31,6 +33,7 @@ flight lines whose tags contradict the images (a 180 degree yaw).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -114,6 +117,9 @@ class Vertical:
     # the horizontal axis (SfM frame) about which the GPS heights know the tilt least (`gps_sigma_deg` is about
     # it): across a single straight line, its roll; None without GPS heights
     gps_weakest_axis: np.ndarray | None = None
+    # `gps_sigma_deg` if the GPS altitude did not drift over the flight (the heights' plane without its drift term):
+    # far below it, the drift is what the heights cannot tell from a tilt (a survey flown line after line)
+    gps_sigma_without_drift_deg: float = math.inf
 
 
 def level_rotation(up: np.ndarray) -> np.ndarray:
@@ -129,14 +135,32 @@ def level_rotation(up: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * kx + (1.0 - c) * kx @ kx
 
 
-def _gps_slopes(centers: np.ndarray, gps: np.ndarray,
-                prior_up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+@dataclass
+class _HeightsPlane:
+    """The GPS heights' plane against a levelled block (`_gps_slopes`)."""
+
+    slopes: np.ndarray  # (a, b): z = a x + b y (+ c + d t) in the levelled GPS-aligned frame
+    info: np.ndarray  # (2,2) information of (a, b), a drift in time marginalised out (when times are given)
+    info_without_drift: np.ndarray  # (2,2) the information (a, b) would have if the heights did not drift
+    to_sfm: np.ndarray  # (3,3) rotation from the levelled GPS-aligned frame to the SfM frame
+
+
+def _gps_slopes(centers: np.ndarray, gps: np.ndarray, prior_up: np.ndarray,
+                times: np.ndarray | None = None) -> _HeightsPlane | None:
     """The GPS heights' measure of the vertical against `prior_up`: the block levelled by it and turned and scaled
     onto the GPS positions on x, y (`fit_yaw_translation`), the heights' offset from it fitted as a plane z = a x +
-    b y + c. Returns the slopes (a, b) (least squares, the least-norm solution where the positions do not
-    determine them), their information matrix X^T X / sigma^2 (sigma of the heights about the plane, measured), and
-    the rotation from that levelled GPS-aligned frame to the SfM frame. World up is the height's gradient, so in
-    the SfM frame it is along rotation @ (a, b, 1). None when the positions have no horizontal spread."""
+    b y + c, plus a drift d t when capture `times` (seconds, or the capture order) are given. Returns the slopes
+    (a, b) (least squares, the least-norm solution where the positions do not determine them), their information
+    matrix with d marginalised out (the Schur complement, X^T X - X^T t t^T X / t^T t, over sigma^2: sigma of the
+    heights about the fit, measured), the information without the drift term, and the rotation from that levelled
+    GPS-aligned frame to the SfM frame. World up is the height's gradient, so in the SfM frame it is along
+    rotation @ (a, b, 1). None when the positions have no horizontal spread.
+
+    Why the drift: a GPS altitude drifts over a flight (the module doc), and a survey flown line after line puts
+    its capture time along its cross-track position, so a drift reads exactly as a tilt across the lines (rev53 D2:
+    6 m over a two-line flight tilted the block 4.6 deg about its lines while 1.2 deg was claimed). Marginalised,
+    the heights know the tilt only as far as time and position differ (the lines flown back and forth, the time
+    along each line); about the rest the attitude priors decide."""
     level = level_rotation(prior_up)
     levelled = centers @ level.T
     try:
@@ -147,11 +171,25 @@ def _gps_slopes(centers: np.ndarray, gps: np.ndarray,
     xy = q[:, :2] - q[:, :2].mean(0)
     dz = gps[:, 2] - q[:, 2]
     dz = dz - dz.mean()
-    slopes = np.linalg.lstsq(xy, dz, rcond=None)[0]
     n = len(dz)
-    # the MAD of the residuals, widened for the plane's 3 fitted unknowns
-    sigma_v = max(_robust_sigma(dz - xy @ slopes) * math.sqrt(n / max(n - 3, 1)), 1e-3)
-    return slopes, xy.T @ xy / sigma_v**2, level.T @ fit.rotation.T
+    t = None if times is None else np.asarray(times, np.float64)
+    if t is not None and np.all(np.isfinite(t)) and float(np.ptp(t)) > 0:
+        t = t - t.mean()
+    else:
+        t = None
+    unknowns = 3 if t is None else 4  # (with the offset c)
+    # the drift marginalised: x, y and z with their part along t taken out, (a, b) by least squares on those (the
+    # least-norm solution where time and position are collinear: one line flown one way, lines all flown the same
+    # way, whose heights then say nothing of that tilt)
+    xp = xy if t is None else xy - np.outer(t, xy.T @ t) / float(t @ t)
+    zp = dz if t is None else dz - t * float(t @ dz) / float(t @ t)
+    slopes = np.linalg.lstsq(xp, zp, rcond=1e-9)[0]
+    # the MAD of the residuals, widened for the fit's unknowns
+    sigma_v = max(_robust_sigma(zp - xp @ slopes) * math.sqrt(n / max(n - unknowns, 1)), 1e-3)
+    ev, vecs = np.linalg.eigh(xp.T @ xp)
+    ev[ev <= 1e-9 * max(float(ev.max()), 1e-300)] = 0.0  # (collinear: rounding, not information)
+    info = (vecs * ev) @ vecs.T
+    return _HeightsPlane(slopes, info / sigma_v**2, xy.T @ xy / sigma_v**2, level.T @ fit.rotation.T)
 
 
 def vertical_in_frame(
@@ -161,13 +199,16 @@ def vertical_in_frame(
     sfm_centers: np.ndarray | None = None,
     gps: np.ndarray | None = None,
     tag_systematic_deg: float = ATTITUDE_SYSTEMATIC_SIGMA_DEG,
+    times: np.ndarray | None = None,
 ) -> Vertical:
     """World up in the SfM frame from the prior attitudes, checked against (and combined with) the GPS positions.
 
     `sfm_from_cam` (N,3,3) are the SfM rotations, `prior_world_from_cam` the tags' (or a level nadir camera's),
     `attitude_from_tags` (N,) which priors came from tags: when at least 3 did, only those are used, with a
     systematic uncertainty of `tag_systematic_deg` (a gimbal's; `AIRFRAME_SYSTEMATIC_SIGMA_DEG` for a fixed camera).
-    `gps` (N,3) may hold NaN rows (no fix); fewer than MIN_FIXES full fixes do not check the vertical."""
+    `gps` (N,3) may hold NaN rows (no fix); fewer than MIN_FIXES full fixes do not check the vertical. `times` (N,)
+    capture times (seconds, or the capture order): the heights' plane is fitted with a drift in time, which the
+    heights then do not take for a tilt (`_gps_slopes`); None: no drift term."""
     tags = np.asarray(attitude_from_tags, bool)
     use = tags if tags.sum() >= 3 else np.ones(len(tags), bool)
     e_z = np.array([0.0, 0.0, 1.0])
@@ -185,24 +226,26 @@ def vertical_in_frame(
     prior_sigma = math.hypot(spread / math.sqrt(max(int(keep.sum()), 1)), systematic)
     source = "attitude tags" if tags.sum() >= 3 else "nadir assumption"
 
-    gps_up, gps_sigma, tilt, consistent = None, math.inf, math.nan, False
+    gps_up, gps_sigma, tilt, consistent, still = None, math.inf, math.nan, False, math.inf
     up, sigma, weakest = prior_up, prior_sigma, None
     if gps is not None and sfm_centers is not None:
         ok = np.all(np.isfinite(gps), axis=1)
-        slopes = _gps_slopes(sfm_centers[ok], gps[ok], prior_up) if ok.sum() >= MIN_FIXES else None
-        if slopes is not None:
+        when = None if times is None else np.asarray(times, np.float64)[ok]
+        plane = _gps_slopes(sfm_centers[ok], gps[ok], prior_up, when) if ok.sum() >= MIN_FIXES else None
+        if plane is not None:
             # Everything in the gnomonic chart centred on the prior's up (in the GPS-aligned levelled frame): a
             # direction u is (u_x / u_z, u_y / u_z), exactly the slopes of the plane it is the normal of, the prior
             # is at 0 with its isotropic sigma (exact at the chart's centre), and the GPS heights measure the slopes
             # linearly with the information `info_g` -- rank-deficient for a straight line, whose heights say
             # nothing of the roll about it (rev49 D1: an SVD fit's arbitrary roll about a line, combined in a
             # small-angle rebuild, turned a line's cameras 126 deg; information form needs no inverse of it).
-            g, info_g, to_sfm = slopes
+            g, info_g, to_sfm = plane.slopes, plane.info, plane.to_sfm
             gps_up = to_sfm @ np.r_[g, 1.0]
             gps_up /= np.linalg.norm(gps_up)
             tilt = float(np.degrees(np.arccos(np.clip(gps_up @ prior_up, -1.0, 1.0))))
             ev, vecs = np.linalg.eigh(info_g)
-            gps_sigma = math.degrees(math.atan(1.0 / math.sqrt(ev[0]))) if ev[0] > 0 else 90.0
+            gps_sigma = _weakest_sigma_deg(ev[0])
+            still = _weakest_sigma_deg(float(np.linalg.eigvalsh(plane.info_without_drift)[0]))
             weakest = to_sfm @ np.r_[vecs[:, 0], 0.0]  # the direction of tilt the GPS heights know least
             info_p = np.eye(2) / math.radians(prior_sigma) ** 2
             info = info_p + info_g
@@ -221,7 +264,12 @@ def vertical_in_frame(
                 sigma = math.degrees(math.atan(1.0 / math.sqrt(float(np.linalg.eigvalsh(info)[0]))))
                 source += " + GPS altitudes"
     return Vertical(up, source, sigma, prior_up, prior_sigma, gps_up, gps_sigma, tilt, consistent,
-                    int(keep.sum()), rejected, contradicting, weakest)
+                    int(keep.sum()), rejected, contradicting, weakest, still)
+
+
+def _weakest_sigma_deg(eigenvalue: float) -> float:
+    """The angle (deg) a slope information `eigenvalue` (1/rad^2, in the gnomonic chart) knows the tilt to."""
+    return math.degrees(math.atan(1.0 / math.sqrt(eigenvalue))) if eigenvalue > 0 else 90.0
 
 
 @dataclass
@@ -380,7 +428,9 @@ def georegister(
     hfit = robust_horizontal_similarity(levelled_first, gps[idx], seed)
     checked = np.full_like(gps, np.nan)
     checked[idx[hfit.inliers]] = gps[idx[hfit.inliers]]
-    vert = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags, c, checked, tag_systematic_deg)
+    # (the capture times, or order, let the heights' plane tell a drift of the GPS altitude from a tilt)
+    vert = vertical_in_frame(sfm_from_cam, prior_world_from_cam, attitude_from_tags, c, checked, tag_systematic_deg,
+                             np.asarray(times_s, float))
     level = level_rotation(vert.up)
     levelled = c @ level.T
     hfit = robust_horizontal_similarity(levelled[idx], gps[idx], seed)
@@ -395,11 +445,14 @@ def georegister(
         warnings.append("no image has a height reference: heights are relative to the SfM origin")
     else:
         offset = fit_drift(times_s[use], heights[use] - block_z[use], MIN_HEIGHT_DRIFT_M)
+        if reference_heights is None:  # the GPS altitude: the drift `gps_alt` measures below, one answer
+            offset = _tilt_widened(offset, times_s[use], (c[use] @ r.T)[:, :2] * s, vert, r)
     transform = Sim3(r, np.array([hfit.transform.translation[0], hfit.transform.translation[1],
                                   offset.reference]), s)
     registered_z = transform.apply(c)[:, 2]
     alt = inl[np.isfinite(gps[inl, 2])]
-    gps_alt = fit_drift(times_s[alt], gps[alt, 2] - registered_z[alt], MIN_HEIGHT_DRIFT_M) if len(alt) else None
+    gps_alt = _tilt_widened(fit_drift(times_s[alt], gps[alt, 2] - registered_z[alt], MIN_HEIGHT_DRIFT_M),
+                            times_s[alt], (c[alt] @ r.T)[:, :2] * s, vert, r) if len(alt) else None
     if not vert.gps_consistent and vert.gps_up is not None:
         # what was measured: a plane through the GPS heights against the block's camera centres; either the GPS
         # altitude drifts in the flight or the reconstruction is bent (its centres against its orientations)
@@ -451,10 +504,7 @@ def georegister(
         # sets it, exactly (the information-weighted vertical), so said, not refused: rev53 found a two-line
         # survey 16 m apart refused whose poses were 0.9 deg right; rev49 D1's 126 deg roll was the small-angle
         # rebuild's, not the assumption's
-        warnings.append(f"no attitude tags, and the GPS heights fix the tilt about the flight's long axis only to "
-                        f"+-{vert.gps_sigma_deg:.1f} deg (more than the {NADIR_ASSUMPTION_SIGMA_DEG:g} deg of the "
-                        "nadir assumption): that tilt rests on the camera looking straight down; for a tilted "
-                        "camera give attitude tags (--telemetry)")
+        warnings.append(_weak_heights_warning(vert))
     if hfit.inliers.sum() < 0.5 * len(idx):
         warnings.append(f"only {int(hfit.inliers.sum())} of {len(idx)} GPS positions fit the reconstruction: "
                         "the georegistration is doubtful")
@@ -468,6 +518,44 @@ def georegister(
         abs(lag.dt) - LAG_BEYOND_SIGMAS * lag.sigma_dt > _interval(lag, track)
     return Georegistration(transform, vert, hfit, offset, gps_alt, idx, warnings, lag, shift, lag_applied, beyond,
                            refusals)
+
+
+def _tilt_widened(fit: DriftFit, times_s: np.ndarray, plan: np.ndarray, vert: Vertical,
+                  world_from_sfm: np.ndarray) -> DriftFit:
+    """A `fit_drift` line of heights against the registered block, its change's standard error widened by the
+    vertical's uncertainty: a tilt of the block about its weakest axis moves the heights in proportion to the
+    position across that axis, which over a survey flown line after line grows with time, so an error of the
+    vertical within its sigma reads as a drift (a sound six-line survey: -3.7 m "+-0.6", its vertical 1.4 deg off,
+    claimed 1.6). `plan` (K,2): the images' registered horizontal positions (m). Steps are left as they are."""
+    axis = vert.gps_weakest_axis
+    t = np.asarray(times_s, float)
+    if fit.kind == "step" or axis is None or len(t) < 3 or float(np.ptp(t)) <= 0:
+        return fit
+    # the horizontal direction along which the weakest tilt changes the heights (the chart's slope direction)
+    d = (world_from_sfm @ axis)[:2]
+    if float(np.linalg.norm(d)) < 1e-9:
+        return fit
+    across = plan @ (d / np.linalg.norm(d))
+    tc = t - t.mean()
+    rate = float(tc @ (across - across.mean()) / (tc @ tc))  # metres across per second, by least squares
+    tilt = math.tan(math.radians(min(vert.sigma_deg, 89.0)))
+    widened = math.hypot(fit.change_sigma, rate * float(np.ptp(t)) * tilt)
+    significant = bool(abs(fit.change) > max(3.0 * widened, 2.0 * fit.sigma, MIN_HEIGHT_DRIFT_M))
+    return dataclasses.replace(fit, change_sigma=widened, significant=significant)
+
+
+def _weak_heights_warning(vert: Vertical) -> str:
+    """The warning for a vertical the nadir assumption alone sets about one axis: a single line's roll, or the tilt
+    a drift of the GPS altitude over the flight cannot be told from (`_gps_slopes`)."""
+    rests = (f"(more than the {NADIR_ASSUMPTION_SIGMA_DEG:g} deg of the nadir assumption): that tilt rests on the "
+             "camera looking straight down; for a tilted camera give attitude tags (--telemetry)")
+    if vert.gps_sigma_without_drift_deg > NADIR_ASSUMPTION_SIGMA_DEG:
+        return (f"no attitude tags, and the GPS heights fix the tilt about the flight's long axis only to "
+                f"+-{vert.gps_sigma_deg:.1f} deg {rests}")
+    return (f"no attitude tags, and the GPS heights fix the tilt about one horizontal axis only to "
+            f"+-{vert.gps_sigma_deg:.1f} deg, their altitude allowed to drift over the flight (+-"
+            f"{vert.gps_sigma_without_drift_deg:.1f} deg if it did not: a survey flown line after line advances "
+            f"across its lines with time, so a drift reads as a tilt about them) {rests}")
 
 
 def _refusals(vert: Vertical, hfit: HorizontalFit, levelled: np.ndarray, gps: np.ndarray, seed: int) -> list[str]:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from sosmatch.plugin.geometry import rotation_angle_deg
 from sosmatch.plugin.georegistration import georegister
 from sosmatch.plugin.gps_lag import fit_lag, track_velocity
 from sosmatch.plugin.multisession import Sim3
@@ -80,8 +81,13 @@ def test_georegister_corrects_a_lag_and_says_so():
     gps = _gps(centers, vel, 0.9)  # 4.5 m behind: the flip between lines is 9 m
     c_sfm, r_sfm = _sfm(centers, rots)
     geo = georegister(c_sfm, r_sfm, gps, rots, np.ones(len(rots), bool), times)
-    err = np.linalg.norm(geo.transform.apply(c_sfm) - centers, axis=1)
+    # horizontally: the lag is along the track. (The heights' plane allows the GPS altitude a drift in time, which
+    # lines flown one after the other confound with a tilt across them, rev53 D2: the vertical is then known to
+    # its sigma, not exactly, and the heights feel that over the block.)
+    err = np.linalg.norm((geo.transform.apply(c_sfm) - centers)[:, :2], axis=1)
     assert np.median(err) < 0.3 and err.max() < 1.0  # uncorrected: the whole block ~4.5 m off
+    world_r = np.einsum("ij,njk->nik", geo.transform.rotation, r_sfm)
+    assert np.median(rotation_angle_deg(world_r, rots)) < 1.0
     assert geo.horizontal.inliers.sum() >= 0.9 * len(centers)
     assert geo.lag is not None and geo.lag.significant and geo.lag.dt == pytest.approx(0.9, abs=0.1)
     assert any(w.startswith("the GPS positions lag the images by 0.8") and "corrected" in w for w in geo.warnings)

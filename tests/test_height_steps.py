@@ -105,7 +105,10 @@ def test_georegister_holds_the_block_to_one_side_of_a_step_in_the_heights():
     gps[35:, 2] -= 30.0
     geo = georegister(sfm_c, sfm_r, gps, rots, np.ones(n, bool), times)
     dz = geo.transform.apply(sfm_c)[:, 2] - centers[:, 2]
-    assert np.abs(dz).max() < 0.3
+    # (0.3 before rev53 D2's mend: the heights' plane now has a drift in time, which takes up part of the step, and
+    # on three lines flown one way time is a linear function of position: the vertical is the tags', 0.5 deg, and
+    # the heights' remains tilt it by ~0.3 deg, 0.48 m at the block's edge, within that sigma)
+    assert np.abs(dz).max() < 0.6
     assert geo.height_offset.kind == "step"
     assert any("GPS altitude jumps by -30" in w and "36 of 60" in w for w in geo.warnings)
     assert not any("drifts by" in w for w in geo.warnings)
