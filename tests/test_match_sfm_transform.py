@@ -239,7 +239,7 @@ def test_after_the_fallback_the_output_is_the_rigid_match_it_records(survey, tmp
     match.run(Params(), a, b, out, plot=False)  # the same command again: the same output
     similarity = dataclasses.replace(Params().association, transform="similarity")
     before = (out / "match.json").read_bytes()
-    with pytest.raises(InputError, match="other inputs or settings"):
+    with pytest.raises(InputError, match='made with association.transform "rigid", this run\'s "similarity";'):
         match.run(dataclasses.replace(Params(), association=similarity), a, b, out, plot=False,
                   transform_chosen=True)
     assert (out / "match.json").read_bytes() == before
@@ -263,3 +263,24 @@ def test_a_batch_pair_is_keyed_by_the_transform_its_match_searches_with(tmp_path
     assert _searched_transform(Params(), free, given, sfm) == {"transform": "similarity"}
     assert _searched_transform(Params(), chosen, given, sfm) == {}
     assert _searched_transform(Params(), free, given, given2) == {}
+
+
+def test_a_rigid_match_of_an_earlier_version_is_refused_naming_the_transform(survey, tmp_path: Path) -> None:
+    """An earlier sosmatch matched a photo-mapped flight rigidly; re-run now (a similarity by default) into the
+    same folder, the refusal says the transform changed and why, not only "other inputs or settings"; the
+    earlier output is left as it was. A setting the record does not keep otherwise is not named."""
+    from sosmatch.database.output_markers import settings_differences
+    from sosmatch.workflows import match
+
+    pa, sa = survey
+    a, b = _files(tmp_path, pa, sa, _domed(pa, 1.04), sfm_b=True)
+    out = tmp_path / "m"
+    match.run(Params(), a, b, out, plot=False, transform_chosen=True)  # as the earlier version: rigid
+    before = (out / "match.json").read_bytes()
+    with pytest.raises(InputError, match=r'made with association.transform "rigid", this run\'s "similarity" '
+                                         r"\(map B's poses came from structure from motion"):
+        match.run(Params(), a, b, out, plot=False)
+    assert (out / "match.json").read_bytes() == before
+    assert settings_differences({"a": {"b": 1, "c": 2}}, {"a": {"b": 1, "c": 2, "new": 3}}) is None
+    many = settings_differences({"a": {"b": 1, "c": 2}, "d": 3, "e": 4}, {"a": {"b": 0, "c": 0}, "d": 0, "e": 0})
+    assert many == 'made with a.b 1, this run\'s 0; a.c 2, this run\'s 0; d 3, this run\'s 0 and 1 more setting(s)'
