@@ -284,3 +284,29 @@ def test_a_rigid_match_of_an_earlier_version_is_refused_naming_the_transform(sur
     assert settings_differences({"a": {"b": 1, "c": 2}}, {"a": {"b": 1, "c": 2, "new": 3}}) is None
     many = settings_differences({"a": {"b": 1, "c": 2}, "d": 3, "e": 4}, {"a": {"b": 0, "c": 0}, "d": 0, "e": 0})
     assert many == 'made with a.b 1, this run\'s 0; a.c 2, this run\'s 0; d 3, this run\'s 0 and 1 more setting(s)'
+
+
+def test_the_georeference_benchmark_answers_as_match_does(survey, tmp_path: Path) -> None:
+    """Benchmarks answer a pair with the function `match` calls (`answer_plan`): a photo-mapped (domed) B is
+    matched with a similarity there too (it timed only the rigid search); on maps of given poses the row is the
+    one `match_maps` with the derived parameters gave before, figure for figure."""
+    import dataclasses
+
+    from sosmatch.plugin.map_noise import derived_search_params
+    from sosmatch.plugin.match_answer import match_maps
+    from sosmatch.tools.benchmarks.bench_georeference import answer_row
+
+    pa, sa = survey
+    pb = _domed(pa, 1.04)
+    a, b = (read_landmark_map(p) for p in _files(tmp_path, pa, sa, pb, sfm_b=True))
+    row = answer_row(a, b, b.positions, pa, False)
+    assert row["accepted"] and row["error_m"] < 1.0, row  # the similarity: B's landmarks back on A's
+
+    a, b = (read_landmark_map(p) for p in _files(tmp_path, pa, sa, pb, sfm_b=False))
+    row = answer_row(a, b, b.positions, pa, False)
+    d = derived_search_params(Params().association, a.noise, b.noise, a.positions, a.sizes, b.positions, b.sizes)
+    before = match_maps(a.positions, a.sizes, b.positions, b.sizes,
+                        dataclasses.replace(Params(), association=d.params), first_try=d.first_try,
+                        wider_try=d.wider_try, near_try=d.near_try)
+    assert row["accepted"] == before.accepted and row["search"] == before.tolerances
+    assert row["support"] == (0 if before.verification.best is None else len(before.verification.best.associations))
