@@ -357,9 +357,8 @@ def test_a_poses_csv_of_a_poses_output_brings_its_registrations_warnings(tmp_pat
     import json
 
     from sosmatch.database import session_io
-    from sosmatch.database.landmark_map import POSE_SOURCE_GIVEN, POSE_SOURCE_SFM
-
     from sosmatch.database.cameras import write_cameras_txt
+    from sosmatch.database.landmark_map import POSE_SOURCE_GIVEN, POSE_SOURCE_SFM
     from sosmatch.database.poses import write_poses_csv
     from sosmatch.plugin.geometry import Camera, Poses
     from sosmatch.workflows.map.inputs import load_inputs
