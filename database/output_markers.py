@@ -92,6 +92,38 @@ def read_settings_identity(envelope: Callable[[dict[str, Any]], Any], params: An
     return VersionedIdentity(identity.today, same, notes)
 
 
+def _flat(settings: Any, prefix: str = "") -> dict[str, Any]:
+    """A nested settings dict as dotted names -> JSON values ("association.transform" -> "rigid")."""
+    if not isinstance(settings, dict):
+        return {prefix: settings}
+    flat: dict[str, Any] = {}
+    for key, value in settings.items():
+        flat.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
+    return flat
+
+
+def settings_differences(recorded: Any, now: dict[str, Any], why: dict[str, str] | None = None,
+                         shown: int = 3) -> str | None:
+    """What the refusal of a complete output says of the settings its record keeps (`recorded`, the record's
+    "params") against this run's (`now`, as the record would keep them): 'made with association.transform "rigid";
+    this run's is "similarity" (WHY)', up to `shown` settings, `why` a reason by dotted name; None when the record
+    keeps no settings or the same ones (then the inputs differ, or the version). A setting only one of them names
+    (added or retired since) is no difference: an earlier version's output holds no value for it."""
+    if not isinstance(recorded, dict) or not recorded:
+        return None
+    before, after = _flat(recorded), _flat(json.loads(json.dumps(now, default=str)))
+    changed = [k for k in sorted(before.keys() & after.keys()) if before[k] != after[k]]
+    if not changed:
+        return None
+    said = []
+    for key in changed[:shown]:
+        reason = (why or {}).get(key)
+        said.append(f"{key} {json.dumps(before[key])}, this run's {json.dumps(after[key])}"
+                    + (f" ({reason})" if reason else ""))
+    more = f" and {len(changed) - shown} more setting(s)" if len(changed) > shown else ""
+    return "made with " + "; ".join(said) + more
+
+
 def hash_file_into(h: Any, path: str | Path) -> int:
     """Feed the bytes of `path` to the hash `h` in 1 MiB chunks (bounded memory on a file of any size); the
     number of bytes read. OSError when it does not read."""

@@ -41,7 +41,7 @@ import json
 import os
 import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +65,7 @@ from .output_markers import (
     check_not_input,
     output_marker,
     read_json_or_none,
+    settings_differences,
 )
 from .taken import OutputMoved, Place, check_place
 
@@ -73,6 +74,17 @@ from .taken import OutputMoved, Place, check_place
 OVERWRITE_HINT = "--overwrite (overwrite=True in Python)"
 
 _OURS = {MARKER, LOCK}  # present in a directory that is otherwise empty: still empty
+
+
+@dataclass(frozen=True)
+class RecordedSettings:
+    """This run's settings as the command's record (`legacy_record`) keeps them under "params" (`now`), and why
+    some of them are what they are (`why`: dotted name -> reason, e.g. a transform the maps chose): the refusal of
+    a complete output then names the settings it was made with that differ (`settings_differences`), not only
+    "other inputs or settings" (an upgrade whose defaults changed was refused without saying so)."""
+
+    now: dict[str, Any]
+    why: dict[str, str] = field(default_factory=dict)
 
 
 def _holds_files(folder: Path) -> bool:
@@ -140,12 +152,13 @@ class OutputDir:
     """An output directory taken by one run of one command (see the module doc); use `open_output_dir`."""
 
     def __init__(self, path: Path, command: str, identity: str, previous: PreviousOutput, lock_fd: int,
-                 created: Sequence[Path] = (), same_as: Iterable[str] = ()) -> None:
+                 created: Sequence[Path] = (), same_as: Iterable[str] = (), record: str | None = None) -> None:
         self.path = path
         self.command = command
         self.identity = identity
         self.previous = previous
         self._same_as = frozenset(same_as)  # earlier versions' identities of this very output
+        self._record = record  # the command's record (`legacy_record`): the settings a refusal compares
         self._lock_fd: int | None = lock_fd
         self._created = list(created)  # directories this run created, outermost first
         # what sosmatch wrote in each directory entry (kept in the marker across runs): all a replacement may delete
@@ -312,15 +325,16 @@ class OutputDir:
         dst.unlink(missing_ok=True)
 
     def settle(self, identity: str | VersionedIdentity, overwrite: bool = False,
-               overwrite_flag: str = OVERWRITE_HINT) -> None:
+               overwrite_flag: str = OVERWRITE_HINT, settings: RecordedSettings | None = None) -> None:
         """The output's identity when the work decided it (`match`: the rigid answer after a similarity's scale no
         dome makes), the directory taken for any of those it could be (`open_output_dir`'s `earlier`): a complete
         previous output of another identity is refused now, as `open_output_dir` refuses it (unless `overwrite`;
-        the marker restored as the run found it), and the marker names `identity`. Call before writing anything."""
+        the marker restored as the run found it), and the marker names `identity`. Call before writing anything.
+        `settings`: the settings of that answer, which a refusal compares with the record's (`open_output_dir`)."""
         versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
         try:
             _refuse_another(self.path, self.command, self.previous, versions, {versions.today, *versions.same_as},
-                            overwrite, overwrite_flag)
+                            overwrite, overwrite_flag, settings, self._record)
         except InputError:
             self.restore_previous()
             raise
@@ -387,6 +401,7 @@ def open_output_dir(
     overwrite_flag: str = OVERWRITE_HINT,
     earlier: Iterable[str] = (),
     before_taking: Callable[[Path], None] | None = None,
+    settings: RecordedSettings | None = None,
 ) -> OutputDir:
     """Take directory `path` for one run of `command` producing the output `identity` (see the module doc).
 
@@ -401,7 +416,9 @@ def open_output_dir(
     output is this one (resumed, its marker re-written under today's identity); and what a refusal says of an
     earlier version's output whose settings behave otherwise today. `before_taking(path)`: the command's own checks
     that may refuse (InputError), run under the lock before the marker changes, so that a refused run leaves a
-    previous output as it was. Returns the taken directory (a context manager that releases the lock).
+    previous output as it was. `settings`: this run's settings as `legacy_record` keeps them; the refusal of a
+    complete output of another identity names those its record keeps otherwise (`RecordedSettings`). Returns the
+    taken directory (a context manager that releases the lock).
     """
     path = Path(path)
     versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
@@ -410,7 +427,7 @@ def open_output_dir(
     check_not_in_output_entry(path)
     previous = _previous(path, command, legacy_record)
     same = {identity, *earlier, *same_as}
-    _refuse_another(path, command, previous, versions, same, overwrite, overwrite_flag)
+    _refuse_another(path, command, previous, versions, same, overwrite, overwrite_flag, settings, legacy_record)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
     check_place(path)  # inside another run's output (batch's maps) that was moved away: not re-created
     try:
@@ -424,7 +441,7 @@ def open_output_dir(
         if again != previous and again.state == "complete" and again.identity not in same and not overwrite:
             raise InputError(f"output directory now holds a complete `sosmatch {command}` output made from other "
                              f"inputs or settings; use {overwrite_flag} to replace it", path)
-        out = OutputDir(path, command, identity, again, fd, created, same_as)
+        out = OutputDir(path, command, identity, again, fd, created, same_as, legacy_record)
         out._check_entries()  # a user's file inside e.g. sparse/ is refused now, not when the run publishes
         if before_taking is not None:
             before_taking(path)
@@ -449,15 +466,25 @@ def open_output_dir(
 
 
 def _refuse_another(path: Path, command: str, previous: Any, versions: VersionedIdentity, same: set[str],
-                    overwrite: bool, overwrite_flag: str) -> None:
-    """InputError when `path` holds a complete output of an identity not in `same`, unless `overwrite`."""
+                    overwrite: bool, overwrite_flag: str, settings: RecordedSettings | None = None,
+                    record: str | None = None) -> None:
+    """InputError when `path` holds a complete output of an identity not in `same`, unless `overwrite`; it names
+    the settings `record` (the command's record in `path`) keeps otherwise than `settings` when it can."""
     if previous.state == "complete" and previous.identity not in same and not overwrite:
         # identities of earlier versions' same outputs are in `same_as` (nu36): what is left is another output,
         # or one of a version that behaved otherwise: said, so that nobody hunts for a changed input
-        what = versions.refusal_note(previous.identity) or ("an output made from other inputs or settings, or by "
-                                                            "another version of sosmatch")
+        what = versions.refusal_note(previous.identity) or _recorded_difference(path, record, settings) or (
+            "an output made from other inputs or settings, or by another version of sosmatch")
         raise InputError(f"output directory holds a complete `sosmatch {command}` output: {what}; use "
                          f"{overwrite_flag} to replace it (or choose another directory)", path)
+
+
+def _recorded_difference(path: Path, record: str | None, settings: RecordedSettings | None) -> str | None:
+    """The settings the record `path/record` keeps otherwise than `settings` (`settings_differences`), else None."""
+    if record is None or settings is None:
+        return None
+    kept = read_json_or_none(path / record) or {}
+    return settings_differences(kept.get("params"), settings.now, settings.why)
 
 
 def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | Path | None] = (),

@@ -215,7 +215,12 @@ IMPORTED_POSE_SOURCES = ("opensfm",)
 def poses_of_own_sfm(poses_csv: Path) -> bool:
     """Whether a poses.csv was made by sosmatch's own structure from motion: the `sosmatch poses` record beside it
     (`poses_record_beside`) is not one of an imported model (`IMPORTED_POSE_SOURCES`)."""
-    report = poses_record_beside(poses_csv)
+    return record_of_own_sfm(poses_record_beside(poses_csv))
+
+
+def record_of_own_sfm(report: dict | None) -> bool:
+    """Whether a `sosmatch poses` record (`poses_record_beside`; None: none) is of sosmatch's own structure from
+    motion, not of an imported model (`IMPORTED_POSE_SOURCES`)."""
     return report is not None and report.get("source") not in IMPORTED_POSE_SOURCES
 
 

@@ -499,12 +499,8 @@ def georegister(
         warnings.append(f"{len(far)} GPS position(s) are off the reconstruction by more than 4.3 sigma of the "
                         f"measured {hfit.sigma_m:.2f} m noise (left out of the fit)")
     refusals = _refusals(vert, hfit, levelled[idx], gps[idx], seed)
-    if vert.source == "nadir assumption + GPS altitudes" and vert.gps_sigma_deg > NADIR_ASSUMPTION_SIGMA_DEG:
-        # the heights know the tilt about one axis (a single line's roll) worse than the assumption does: it alone
-        # sets it, exactly (the information-weighted vertical), so said, not refused: rev53 found a two-line
-        # survey 16 m apart refused whose poses were 0.9 deg right; rev49 D1's 126 deg roll was the small-angle
-        # rebuild's, not the assumption's
-        warnings.append(_weak_heights_warning(vert))
+    if (nadir := nadir_tilt_warning(vert)) is not None:
+        warnings.append(nadir)
     if hfit.inliers.sum() < 0.5 * len(idx):
         warnings.append(f"only {int(hfit.inliers.sum())} of {len(idx)} GPS positions fit the reconstruction: "
                         "the georegistration is doubtful")
@@ -556,6 +552,22 @@ def _weak_heights_warning(vert: Vertical) -> str:
             f"+-{vert.gps_sigma_deg:.1f} deg, their altitude allowed to drift over the flight (+-"
             f"{vert.gps_sigma_without_drift_deg:.1f} deg if it did not: a survey flown line after line advances "
             f"across its lines with time, so a drift reads as a tilt about them) {rests}")
+
+
+def nadir_tilt_warning(vert: Vertical) -> str | None:
+    """What to say when `vert` (no attitude tags) rests on the nadir assumption about an axis the GPS heights fix
+    worse than it does (a single line's roll), else None: one rule for every pose source that decides the
+    attitudes of untagged images (`georegister`, `poses-from-exif`'s refinement). Heights found inconsistent with
+    the assumption leave it alone, so it rests on it as much (fix139: a corridor's noisy heights across a line of
+    0.5 m cross-track spread, 39 deg off +-11, were not followed and nothing was said)."""
+    if (vert.source.startswith("nadir assumption") and vert.gps_up is not None
+            and vert.gps_sigma_deg > NADIR_ASSUMPTION_SIGMA_DEG):
+        # the heights know the tilt about one axis (a single line's roll) worse than the assumption does: it alone
+        # sets it, exactly (the information-weighted vertical), so said, not refused: rev53 found a two-line
+        # survey 16 m apart refused whose poses were 0.9 deg right; rev49 D1's 126 deg roll was the small-angle
+        # rebuild's, not the assumption's
+        return _weak_heights_warning(vert)
+    return None
 
 
 def _refusals(vert: Vertical, hfit: HorizontalFit, levelled: np.ndarray, gps: np.ndarray, seed: int) -> list[str]:

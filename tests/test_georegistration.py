@@ -266,6 +266,23 @@ def test_gps_only_straight_line_rests_on_the_nadir_assumption_said_and_never_loo
     assert np.all(world_r[:, 2, 2] < -0.9)  # the optical axes look down
 
 
+def test_gps_only_straight_line_whose_heights_disagree_still_says_it_rests_on_the_nadir_assumption():
+    """Heights across a line found inconsistent with the nadir assumption (a cross slope from its lateral wander:
+    noise) are not followed: the roll then rests on the assumption alone, said as when they agree (fix139: such a
+    corridor was silent)."""
+    from sosmatch.plugin.georegistration import nadir_tilt_warning
+
+    centers, rots = _line()
+    sfm_c, sfm_r, _ = _to_sfm(centers, rots)
+    gps = centers.copy()
+    gps[:, 2] += 3.0 * (centers[:, 0] - centers[:, 0].mean()) + np.random.default_rng(3).normal(0, 0.3, len(gps))
+    vert = vertical_in_frame(sfm_r, rots, np.zeros(len(rots), bool), sfm_c, gps)
+    assert vert.source == "nadir assumption" and not vert.gps_consistent  # not followed
+    assert "rests on the camera looking straight down" in (nadir_tilt_warning(vert) or "")
+    geo = georegister(sfm_c, sfm_r, gps, rots, np.zeros(len(rots), bool), np.arange(len(rots)) * 2.0)
+    assert any("long axis" in w for w in geo.warnings)
+
+
 def test_gps_only_lawnmower_is_not_refused():
     centers, rots, _, times = _block()
     rng = np.random.default_rng(2)

@@ -356,12 +356,15 @@ def test_a_lag_that_fits_fewer_positions_tighter_is_not_applied():
     assert _lag_decision(fit, track, centers - centers.mean(0), gps, 0) == (False, "")
 
 
-def test_a_poses_csv_of_a_poses_output_brings_its_registrations_warnings(tmp_path):
+def test_a_poses_csv_of_a_poses_output_brings_its_registrations_warnings(tmp_path, monkeypatch):
     """rev22: `map --poses DIR/poses.csv` (the poses of a `sosmatch poses` run) lost the georegistration's
-    warnings that `map --images` (SfM inline) puts in the map's verdict; a CSV of another origin brings none."""
+    warnings that `map --images` (SfM inline) puts in the map's verdict; a CSV of another origin brings none. The
+    record is read once for its warnings and for whose poses these are (fix139: twice)."""
     import json
 
+    from sosmatch.database import session_io
     from sosmatch.database.cameras import write_cameras_txt
+    from sosmatch.database.landmark_map import POSE_SOURCE_GIVEN, POSE_SOURCE_SFM
     from sosmatch.database.poses import write_poses_csv
     from sosmatch.plugin.geometry import Camera, Poses
     from sosmatch.workflows.map.inputs import load_inputs
@@ -379,7 +382,11 @@ def test_a_poses_csv_of_a_poses_output_brings_its_registrations_warnings(tmp_pat
     (out / "poses.json").write_text(json.dumps({"format": "sosmatch-poses", "version": 1,
                                                 "georegistration": {"warnings": [said]},
                                                 "warnings": [said, "another image warning"]}))
+    reads = []
+    read = session_io.read_user_json
+    monkeypatch.setattr(session_io, "read_user_json", lambda path, *a, **k: reads.append(path) or read(path, *a, **k))
     inputs = load_inputs(tmp_path / "img", out / "poses.csv", None)
+    assert reads.count(out / "poses.json") == 1 and inputs.pose_source == POSE_SOURCE_SFM
     # rev26: the record's other warnings are the map's too (README), each once
     assert inputs.warnings == [f"poses: {said}", "poses: another image warning"]
     other = tmp_path / "other"
@@ -387,3 +394,4 @@ def test_a_poses_csv_of_a_poses_output_brings_its_registrations_warnings(tmp_pat
     (other / "poses.csv").write_bytes((out / "poses.csv").read_bytes())
     (other / "cameras.txt").write_bytes((out / "cameras.txt").read_bytes())
     assert load_inputs(tmp_path / "img", other / "poses.csv", None).warnings == []
+    assert load_inputs(tmp_path / "img", other / "poses.csv", None).pose_source == POSE_SOURCE_GIVEN

@@ -239,7 +239,7 @@ def test_after_the_fallback_the_output_is_the_rigid_match_it_records(survey, tmp
     match.run(Params(), a, b, out, plot=False)  # the same command again: the same output
     similarity = dataclasses.replace(Params().association, transform="similarity")
     before = (out / "match.json").read_bytes()
-    with pytest.raises(InputError, match="other inputs or settings"):
+    with pytest.raises(InputError, match='made with association.transform "rigid", this run\'s "similarity";'):
         match.run(dataclasses.replace(Params(), association=similarity), a, b, out, plot=False,
                   transform_chosen=True)
     assert (out / "match.json").read_bytes() == before
@@ -263,3 +263,50 @@ def test_a_batch_pair_is_keyed_by_the_transform_its_match_searches_with(tmp_path
     assert _searched_transform(Params(), free, given, sfm) == {"transform": "similarity"}
     assert _searched_transform(Params(), chosen, given, sfm) == {}
     assert _searched_transform(Params(), free, given, given2) == {}
+
+
+def test_a_rigid_match_of_an_earlier_version_is_refused_naming_the_transform(survey, tmp_path: Path) -> None:
+    """An earlier sosmatch matched a photo-mapped flight rigidly; re-run now (a similarity by default) into the
+    same folder, the refusal says the transform changed and why, not only "other inputs or settings"; the
+    earlier output is left as it was. A setting the record does not keep otherwise is not named."""
+    from sosmatch.database.output_markers import settings_differences
+    from sosmatch.workflows import match
+
+    pa, sa = survey
+    a, b = _files(tmp_path, pa, sa, _domed(pa, 1.04), sfm_b=True)
+    out = tmp_path / "m"
+    match.run(Params(), a, b, out, plot=False, transform_chosen=True)  # as the earlier version: rigid
+    before = (out / "match.json").read_bytes()
+    with pytest.raises(InputError, match=r'made with association.transform "rigid", this run\'s "similarity" '
+                                         r"\(map B's poses came from structure from motion"):
+        match.run(Params(), a, b, out, plot=False)
+    assert (out / "match.json").read_bytes() == before
+    assert settings_differences({"a": {"b": 1, "c": 2}}, {"a": {"b": 1, "c": 2, "new": 3}}) is None
+    many = settings_differences({"a": {"b": 1, "c": 2}, "d": 3, "e": 4}, {"a": {"b": 0, "c": 0}, "d": 0, "e": 0})
+    assert many == 'made with a.b 1, this run\'s 0; a.c 2, this run\'s 0; d 3, this run\'s 0 and 1 more setting(s)'
+
+
+def test_the_georeference_benchmark_answers_as_match_does(survey, tmp_path: Path) -> None:
+    """Benchmarks answer a pair with the function `match` calls (`answer_plan`): a photo-mapped (domed) B is
+    matched with a similarity there too (it timed only the rigid search); on maps of given poses the row is the
+    one `match_maps` with the derived parameters gave before, figure for figure."""
+    import dataclasses
+
+    from sosmatch.plugin.map_noise import derived_search_params
+    from sosmatch.plugin.match_answer import match_maps
+    from sosmatch.tools.benchmarks.bench_georeference import answer_row
+
+    pa, sa = survey
+    pb = _domed(pa, 1.04)
+    a, b = (read_landmark_map(p) for p in _files(tmp_path, pa, sa, pb, sfm_b=True))
+    row = answer_row(a, b, b.positions, pa, False)
+    assert row["accepted"] and row["error_m"] < 1.0, row  # the similarity: B's landmarks back on A's
+
+    a, b = (read_landmark_map(p) for p in _files(tmp_path, pa, sa, pb, sfm_b=False))
+    row = answer_row(a, b, b.positions, pa, False)
+    d = derived_search_params(Params().association, a.noise, b.noise, a.positions, a.sizes, b.positions, b.sizes)
+    before = match_maps(a.positions, a.sizes, b.positions, b.sizes,
+                        dataclasses.replace(Params(), association=d.params), first_try=d.first_try,
+                        wider_try=d.wider_try, near_try=d.near_try)
+    assert row["accepted"] == before.accepted and row["search"] == before.tolerances
+    assert row["support"] == (0 if before.verification.best is None else len(before.verification.best.associations))

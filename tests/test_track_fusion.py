@@ -132,3 +132,24 @@ def test_neighbour_search_follows_each_pieces_own_size():
     assert len(groups) == n
     assert keep.sum() < n and not keep[1:][np.linalg.norm(xy[1:] - xy[0], axis=1) <= 1600.0].any()
     assert peak < 60e6  # the pairs some piece's own radius admits: ~n for the outlier, a few per 2 m piece
+
+
+def test_a_fused_group_keeps_its_sizes_within_the_tolerance():
+    """rev50 D8: pieces of one object sized 1.0, 1.25 and 1.55 m, tolerance 0.25: each neighbouring pair agrees
+    (0.22, 0.21), the extremes do not (0.43); compared pair by pair the group chained past the tolerance, now its
+    smallest and largest size are compared too."""
+    rng = np.random.default_rng(0)
+    poses = two_passes()
+    obs = observe(poses, np.array([[15.0, 30.0, 8.0]]), 1.0, rng)
+    n = len(poses) // 2
+    seen = [k for k in range(len(poses)) if 0 in obs[k][0]]
+    pieces = []
+    for frames, size in ((range(n // 2), 1.0), (range(n // 2, n), 1.25), (range(n, 2 * n), 1.55)):
+        kf = np.array([k for k in seen if k in frames])
+        px = np.array([obs[k][1][0] for k in kf])
+        pieces.append(TrackPiece(kf, px, intersect_rays(CAM, poses, kf, px), size))
+    groups = fuse_tracks(pieces, CAM, poses, radius_factor=2.0, size_tolerance=0.25, max_error_px=10.0)
+    sizes = [[pieces[k].size_m for k in g] for g in groups]
+    assert all(2 * (max(s) - min(s)) / (max(s) + min(s)) <= 0.25 for s in sizes), groups
+    assert len(groups) == 2  # one pair still fused
+    assert fuse_tracks(pieces, CAM, poses, 2.0, 0.5, 10.0) == [[0, 1, 2]]  # within a wider tolerance: one

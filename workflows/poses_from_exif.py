@@ -315,6 +315,7 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
     # fixes rounded to a coarse grid are that much noisier: the prior must not hold the cameras to the grid
     # (`image_positions.coarse_fixes`)
     position_sigma_m = with_quantisation(position_sigma_m, result.summary)
+    prior = result.poses
     try:
         result.poses, stats = refine_poses_from_images(_image_paths(images, result.poses), result.poses,
                                                        result.camera, position_sigma_m, attitude_sigma_deg,
@@ -337,13 +338,34 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
         # (seen: 4 of 40 Seneca frames, 24-26 deg off their SfM attitudes, with no word said)
         blind = [n for n, k in zip(result.poses.names, stats.observations_by_image) if k == 0]
         if blind:
-            text = (f"{len(blind)} of {len(result.poses)} images share no tie point with the others "
-                    f"({', '.join(blind[:4])}{', ...' if len(blind) > 4 else ''}): their orientations are guesses from "
-                    "the course over ground, not solved; take poses from structure from motion (`sosmatch poses`) "
-                    "if they matter")
-            log.warning("%s", text)
-            result.summary.setdefault("warnings", []).append(text)
+            _warn(result, f"{len(blind)} of {len(result.poses)} images share no tie point with the others "
+                          f"({', '.join(blind[:4])}{', ...' if len(blind) > 4 else ''}): their orientations are "
+                          "guesses from the course over ground, not solved; take poses from structure from motion "
+                          "(`sosmatch poses`) if they matter")
+        _warn(result, _rests_on_nadir(prior, result.poses, result.headings_guessed))
     return stats
+
+
+def _warn(result: ExifPoses, text: str | None) -> None:
+    """Log `text` as a warning and keep it in the summary (a map's verdict reads it: `map_inputs_from_images`)."""
+    if text is not None:
+        log.warning("%s", text)
+        result.summary.setdefault("warnings", []).append(text)
+
+
+def _rests_on_nadir(prior: Poses, refined: Poses, guessed: np.ndarray | None) -> str | None:
+    """`sosmatch poses`' rule for images without attitude tags (`georegistration.nadir_tilt_warning`), asked of
+    the refinement: the tilt the GPS heights fix worse than the nadir assumption (a corridor's roll about its line,
+    which the position priors leave free and `level_free_roll` takes from the level nadir priors) rests on the
+    camera looking straight down. The refined poses are in the world frame (their "SfM frame" is the world's); the
+    GPS fixes are the prior centres."""
+    from ..plugin.georegistration import nadir_tilt_warning, vertical_in_frame
+
+    at = {name: k for k, name in enumerate(prior.names)}
+    order = [at[name] for name in refined.names]
+    tags = np.zeros(len(order), bool) if guessed is None else ~np.asarray(guessed, bool)[order]
+    vert = vertical_in_frame(refined.rotations, prior.rotations[order], tags, refined.centers, prior.centers[order])
+    return nadir_tilt_warning(vert)
 
 
 def _unsolved(result: ExifPoses, images: str | Path, guessed: int, why: str) -> NoReturn:

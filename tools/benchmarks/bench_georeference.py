@@ -6,16 +6,16 @@ against the search over every alignment, on bench_seasons' maps.
 
 Sessions of one synthetic world share its frame (up to each map's EKF drift of 1-2 m), as two GNSS-georeferenced
 maps of one place do: every pair of one world is a positive (truth: the identity), every pair of two worlds a
-negative (nothing may be accepted). Each pair is answered as `sosmatch match` answers it (the derived search
-parameters, `match_answer.match_maps`) twice: as maps in unrelated frames and as maps in one frame. `--move`
-moves B by a rigid motion (metres, degrees about the frame's origin) first: a georeference that is that wrong.
+negative (nothing may be accepted). Each pair is answered as `sosmatch match` answers it (the transform its maps'
+pose sources choose and the derived search parameters, `workflows.match.transform_choice.answer_plan`) twice:
+as maps in unrelated frames and as maps in one frame. `--move` moves B by a rigid motion (metres, degrees about
+the frame's origin) first: a georeference that is that wrong.
 Prints one row per pair and a summary (accepted, worst error to the truth in metres, CPU seconds).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import itertools
 import time
 from pathlib import Path
@@ -23,9 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from ...database.landmark_map import LandmarkMap, read_landmark_map
-from ...plugin.map_noise import derived_search_params
-from ...plugin.match_answer import match_maps
 from ...plugin.params import Params
+from ...workflows.match.transform_choice import answer_plan, plan_search
 from .machine import machine_summary
 
 SESSIONS = ("summer", "winter", "winter-x45", "winter-x90", "winter-130", "summer-130", "spring", "autumn",
@@ -40,11 +39,12 @@ def moved(points: np.ndarray, dx: float, dy: float, yaw_deg: float) -> np.ndarra
 def answer_row(a: LandmarkMap, b: LandmarkMap, points_b: np.ndarray, truth_b: np.ndarray, common: bool) -> dict:
     """One answer as `sosmatch match` gives it; its error: the horizontal RMS distance of B's landmarks moved by
     the answer from where the truth puts them."""
-    params = Params()
-    d = derived_search_params(params.association, a.noise, b.noise, a.positions, a.sizes, points_b, b.sizes)
+    # (the plan, derivation included, outside the timing as before; a photo-mapped map is searched with a
+    # similarity as `match` searches it, its rigid fallback timed with it)
+    plan = plan_search(Params(), False, a.sfm_poses, b.sfm_poses, a.noise, b.noise, a.positions, a.sizes, points_b,
+                       b.sizes)
     t0 = time.process_time()
-    ans = match_maps(a.positions, a.sizes, points_b, b.sizes, dataclasses.replace(params, association=d.params),
-                     common_frame=common, first_try=d.first_try, wider_try=d.wider_try, near_try=d.near_try)
+    ans = answer_plan(plan, a.positions, a.sizes, points_b, b.sizes, common_frame=common).answer
     cpu = time.process_time() - t0
     v = ans.verification
     err = None

@@ -19,7 +19,6 @@ Problems: `match_problems.py` (deterministic in their seeds; each documented the
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import subprocess
 import sys
@@ -31,9 +30,10 @@ import numpy as np
 from ...plugin.association import search_reference
 from ...plugin.association.reference import differences
 from ...plugin.association.synthetic import survey_map_pair
-from ...plugin.map_noise import MapNoise, derived_association_params, derived_search_params
+from ...plugin.map_noise import MapNoise, derived_association_params
 from ...plugin.match_answer import match_maps
 from ...plugin.params import Params, preset_params, with_overrides
+from ...workflows.match.transform_choice import answer_plan, plan_search
 from .bench_match_real import bench_evaluation, bench_naip
 from .machine import machine_summary
 from .match_clipper import bench_clipper
@@ -88,13 +88,12 @@ def timed_default_match(pa: np.ndarray, ha: np.ndarray, pb: np.ndarray, hb: np.n
                         repeats: int) -> tuple:
     """`timed_match` of what `sosmatch match` runs on two mapped sessions (`workflows.match.run`): the parameters
     derived from the maps' noise figures and geometry, the first search with the tighter tolerances, the derived
-    one only when its verification refuses (`match_answer.match_maps`). The derivation is timed with the match."""
+    one only when its verification refuses (`transform_choice.answer_plan`, the function `match` calls; the maps
+    are of given poses: searched rigidly). The derivation is timed with the match."""
     base = Params()
 
     def once(a: np.ndarray, sa: np.ndarray, b: np.ndarray, sb: np.ndarray) -> object:
-        derived = derived_search_params(base.association, noise, noise, a, sa, b, sb)
-        return match_maps(a, sa, b, sb, dataclasses.replace(base, association=derived.params),
-                          first_try=derived.first_try, wider_try=derived.wider_try)
+        return answer_plan(plan_search(base, False, False, False, noise, noise, a, sa, b, sb), a, sa, b, sb).answer
 
     return timed(once, pa, ha, pb, hb, repeats)
 

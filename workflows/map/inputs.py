@@ -239,11 +239,12 @@ def load_inputs(
     wrong: list[str] = []
     source = POSE_SOURCE_GIVEN
     if sources.get("poses") == str(poses) and Path(poses).is_file():
-        from ...database.session_io import poses_of_own_sfm
-        from ..poses.result import registration_warnings_beside
+        from ...database.session_io import poses_record_beside, record_of_own_sfm
+        from ..poses.result import registration_findings
 
-        doubts, wrong = registration_warnings_beside(Path(poses))
-        if poses_of_own_sfm(Path(poses)):  # README's photo workflow: `poses`, then `map --poses`; not an import
+        record = poses_record_beside(Path(poses))  # read once: its doubts, and whose poses these are
+        doubts, wrong = registration_findings(record)
+        if record_of_own_sfm(record):  # README's photo workflow: `poses`, then `map --poses`; not an import
             source = POSE_SOURCE_SFM
     inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources, warnings=doubts,
                                        refusals=wrong, pose_source=source))

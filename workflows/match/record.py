@@ -109,6 +109,12 @@ def _agreement(result: MatchResult, params: Params) -> list[bool | None]:
     return [hypothesis_agrees(h.associations, ans.transform, pa, pb, tol) for h in hyps]
 
 
+def params_record(params: Params) -> dict[str, Any]:
+    """The settings match.json keeps under "params" (those the search and verification read)."""
+    return {"association": params_to_dict(params.association), "verification": params_to_dict(params.verification),
+            "seed": params.seed}
+
+
 def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
     """The match.json document (see README.md for the schema)."""
     s = result.search
@@ -127,8 +133,7 @@ def match_to_json(result: MatchResult, params: Params) -> dict[str, Any]:
         "version": __version__,
         "map_a": source(result.map_a),
         "map_b": source(result.map_b),
-        "params": {"association": params_to_dict(params.association),
-                   "verification": params_to_dict(params.verification), "seed": params.seed},
+        "params": params_record(params),
         "search_mode": search_mode_json(params, result.answer),
         "map_noise": [None if m.noise is None else m.noise.to_dict() for m in (result.map_a, result.map_b)],
         "transform_kind": params.association.transform,

@@ -16,7 +16,7 @@ from ...database.landmark_map import check_two_maps, crs_disagreement, georefere
 from ...database.map_loading import load_map, size_definition_disagreement
 from ...database.match_io import parse_match
 from ...database.output_markers import VersionedIdentity, versioned_identity
-from ...database.outputs import open_output_dir
+from ...database.outputs import RecordedSettings, open_output_dir
 from ...plugin.answer_uncertainty import refused_scale_note, without_similarity_advice
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
@@ -29,7 +29,7 @@ from .answer_warnings import (
     _tilt_warning,
 )
 from .figure import alignment_png
-from .record import associations_csv, match_to_json
+from .record import associations_csv, match_to_json, params_record
 from .result import MatchResult
 from .transform_choice import Search, answer_plan, plan_search
 
@@ -98,19 +98,31 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
             **({} if d.near_try is None else {"near_try": as_dict(d.near_try)}),
             "verification": as_dict(p.verification), "seed": p.seed, "exhaustive": exhaustive, "plot": plot})
 
+    # why this run's transform is what it is: named when an earlier output in the folder was made with another
+    # (an upgrade's rigid match of a photo-mapped flight is refused with the reason, not bare)
+    sfm_maps = " and ".join(n for n, m in (("A", map_a), ("B", map_b)) if m.sfm_poses)
+    why = {} if plan.note is None else {"association.transform": (
+        f"map {sfm_maps}'s poses came from structure from motion: a similarity is searched unless "
+        "association.transform is set")}
+
+    def settings_of(search: Search) -> RecordedSettings:
+        """The search's settings as match.json records them, for a refusal to compare with the record's."""
+        return RecordedSettings(params_record(search.params), why)
+
     # the answer decides which search made it (the rigid one after a similarity's scale no dome makes): the
     # directory is taken for either, and settled on the one that answered before anything is written (rev51 D6:
     # the identity was the similarity's while match.json recorded the rigid params the answer was made with)
     fallback = None if plan.fallback is None else identity_of(plan.fallback)
     with open_output_dir(out_dir, "match", identity_of(plan.first), inputs=[a, b], overwrite=overwrite,
                          legacy_record="match.json",
-                         earlier=() if fallback is None else (fallback.today, *fallback.same_as)) as out:
+                         earlier=() if fallback is None else (fallback.today, *fallback.same_as),
+                         settings=settings_of(plan.first)) as out:
         common = la.epsg == lb.epsg != 0
         if params.association.position_prior_m > 0 and not common:
             warn(f"position prior ignored: the maps are not georeferenced in one EPSG (A: {la.epsg}, B: {lb.epsg})")
         planned = answer_plan(plan, la.positions, la.sizes, lb.positions, lb.sizes, common_frame=common,
                               exhaustive=exhaustive)
-        out.settle(identity_of(planned.search), overwrite)
+        out.settle(identity_of(planned.search), overwrite, settings=settings_of(planned.search))
         ans, params, derivation = planned.answer, planned.search.params, planned.search.derivation
         if planned.beyond is not None:
             warn(f"{b}: {planned.beyond}")

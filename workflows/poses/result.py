@@ -151,7 +151,12 @@ def registration_warnings_beside(poses_csv: Path) -> tuple[list[str], list[str]]
     """(`map_warnings`, `registration_refusals`) of the `poses` output a poses.csv was taken from (its poses.json
     beside it); none for a CSV of another origin or a record that cannot be read (the CSV itself is what the map
     uses)."""
-    report = poses_record_beside(poses_csv)
+    return registration_findings(poses_record_beside(poses_csv))
+
+
+def registration_findings(report: dict | None) -> tuple[list[str], list[str]]:
+    """(`map_warnings`, `registration_refusals`) of a `poses` record already read (`poses_record_beside`; None:
+    none, nothing to say)."""
     if report is None:
         return [], []
     return (with_pose_warnings(registration_warnings(report), report.get("warnings")),
