@@ -49,7 +49,7 @@ from ..database.landmark_map import (
     write_landmark_map,
 )
 from ..database.map_loading import session_map_noise, session_sfm_poses
-from ..database.match_io import answer_gate, check_match_maps, match_content, read_match
+from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, precision_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
 from ..database.outputs import OutputDir, check_output_dir, open_output_dir
@@ -393,6 +393,28 @@ def _write_merge_record(path: Path, result: MergeResult, extra: dict[str, Any]) 
     write_text_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
+def _precision_of(match: MatchSummary, refinement: Refinement | None, a: LandmarkMap, b: LandmarkMap,
+                  gate: float) -> str | None:
+    """Why the transform the merge uses may place B's landmarks beyond `gate` (None: it is precise): the match's
+    answer's imprecision (`imprecise_note`), or, when --refine replaced the answer (`Refinement.fuse`), the refined
+    fit's own (`answer_uncertainty` on the pairs it fitted, as `match` measures its answer). rev54 D1: a refined
+    transform 2.4 m at most from the truth inside a 3.2 m gate was said and recorded to "inherit" the unrefined
+    answer's 4.9 m."""
+    if refinement is None or refinement.fuse is None:
+        return imprecise_note(match)
+    from ..plugin.answer_uncertainty import answer_uncertainty
+
+    unc = answer_uncertainty(a.positions, b.positions, refinement.transform, refinement.fuse.associations,
+                             gate)
+    if match.imprecise and unc is not None:
+        log.info("the match's answer was imprecise; the refined transform (%d pairs) may place B's landmarks up to "
+                 "%.1f m from where they belong (95 %%), its gate %g m", refinement.used, unc.predicted_max_m, gate)
+    if unc is None or not unc.imprecise:
+        return None
+    return (f"the refined transform ({refinement.used} pairs) is imprecise: "
+            f"{unc.warning().removeprefix('imprecise answer: ')}")
+
+
 def run(
     session_a: str | Path,
     session_b: str | Path,
@@ -433,8 +455,7 @@ def run(
                     "its georeference")
     if (note := precision_note(a, b, str(session_a), str(session_b))) is not None:
         said.append(note)
-    if (note := imprecise_note(match)) is not None:
-        said.append(f"{match_json}: {note}: the merged model inherits that error")
+    imprecise_at = len(said)  # the answer's precision is said once the transform used is known (`_precision_of`)
     # a probably wrong result is no success: the user decides which georeference stands
     if (note := check_georeferences(match, a.landmarks, b.landmarks, match_json, trust_images, "merged",
                                     "merges it")) is not None:
@@ -452,6 +473,8 @@ def run(
     used, dof = 0, 0
     if refinement is not None:
         transform, used, dof = refinement.transform, refinement.used, refinement.dof
+    if (note := _precision_of(match, refinement, a.landmarks, b.landmarks, gate)) is not None:
+        said.insert(imprecise_at, f"{match_json}: {note}: the merged model inherits that error")
     # the control of `changes` (a merge never fuses what it refuses as chance), at the answer's own gate: maps of
     # 20 m objects (NAIP, theta_eps 8 m) have no counterparts at the configured 2 m even at the true alignment;
     # said before any warning, so that a refusal is one line
