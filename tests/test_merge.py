@@ -744,3 +744,23 @@ def test_a_merged_map_of_an_sfm_posed_session_stays_sfm_posed(pair, tmp_path):
     assert json.loads((tmp_path / "sfm" / "merge.json").read_text())["pose_source"] == POSE_SOURCE_SFM
     assert read_landmark_map(tmp_path / "sfm" / "landmarks.sosmap").sfm_poses
     assert load_map(tmp_path / "sfm").sfm_poses and load_map(tmp_path / "sfm" / "landmarks.sosmap").sfm_poses
+
+
+def test_settings_merge_does_not_use_are_said_not_silently_ignored(pair, tmp_path, caplog):
+    """rev54 D3: `merge --set association.distance_tolerance_m=0.1` (and `--preset`) wrote the same merge as without
+    it, without a word: merge fuses at the gate match.json records. Said, naming the setting; a setting it uses
+    (changes.*, its alignment control) is not."""
+    _, _, a, b = pair
+    match = _verified_match(a, b, tmp_path / "match.json")
+    doc = json.loads(match.read_text())
+    doc["verification"]["method"] = {"gate_m": 2.0}
+    match.write_text(json.dumps(doc))
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "M"), "-q",
+                 "--set", "association.distance_tolerance_m=0.1", "--set", "changes.min_views=2"]) == 0
+    said = [r.getMessage() for r in caplog.records if "not used by merge" in r.getMessage()]
+    assert len(said) == 1 and "association.distance_tolerance_m" in said[0] and "changes.min_views" not in said[0]
+    assert "2 m" in said[0]
+    caplog.clear()
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "N"), "-q",
+                 "--set", "changes.min_views=2"]) == 0
+    assert not [r for r in caplog.records if "not used by merge" in r.getMessage()]

@@ -32,7 +32,7 @@ import dataclasses
 import json
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -75,7 +75,7 @@ from .merge_refine import Refinement, fused_pair, refined_answer
 
 # importable from here as before the split (`merge_refine`, `match_notes`): batch, tests and benchmarks use them
 __all__ = ["MERGE_FORMAT", "MergeResult", "Refinement", "label_problem", "merge_sessions", "precision_note",
-           "refined_answer", "run"]
+           "ignored_settings", "refined_answer", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -415,6 +415,21 @@ def _precision_of(match: MatchSummary, refinement: Refinement | None, a: Landmar
             f"{unc.warning().removeprefix('imprecise answer: ')}")
 
 
+def ignored_settings(chosen: Collection[str], match: MatchSummary, refine: bool) -> str:
+    """The chosen settings (dotted names) a merge of `match` does not use, as one text ("" when none): it uses the
+    changes section (its alignment control, `changes.check_alignment`), association.distance_tolerance_m only for
+    a match.json that records no gate (`answer_gate`), and, with --refine of an unverified answer, the verification
+    settings match.json does not record (`refined_answer`). rev54 D3: `--set association.distance_tolerance_m=0.1`
+    and `--preset paper` wrote the same bytes as without them, without a word."""
+    refining = refine and match.source != "verified"
+    used = {name for name in chosen if name.startswith("changes.")
+            or (name == "association.distance_tolerance_m" and match.gate_m is None)
+            or (refining and name.startswith("verification.") and name.partition(".")[2] not in match.refinement)}
+    ignored = sorted(set(chosen) - used)
+    shown = ", ".join(ignored[:6]) + (f" and {len(ignored) - 6} more" if len(ignored) > 6 else "")
+    return shown
+
+
 def run(
     session_a: str | Path,
     session_b: str | Path,
@@ -425,6 +440,7 @@ def run(
     labels: tuple[str, str] | None = None,
     overwrite: bool = False,
     trust_images: bool = False,
+    chosen: Collection[str] = (),
 ) -> MergeResult:
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
@@ -436,7 +452,8 @@ def run(
     (`changes.check_alignment`), or when the images agree but the two maps' georeferences do not
     (`match_notes.georeference_note`: one of them is wrong, and the merged model would place B's landmarks by A's)
     unless `trust_images` (then said, and recorded in merge.json). `overwrite`: replace a complete merge of other
-    inputs in `out_dir`.
+    inputs in `out_dir`. `chosen`: the settings the user chose (`config_io.chosen_settings`): those the merge does
+    not use are said (`ignored_settings`).
     """
     params = params or Params()
     # a bad --out (a user's folder, an input, a file) is refused before any work and any warning (rev45 D4: after
@@ -483,6 +500,10 @@ def run(
     # is one line too; --refine asked for and nothing refined: a warning, as match says of an option it ignores (at
     # INFO, `-q` hid it and the output line alone did not tell it)
     say = [*said, *([f"{match_json}: {refinement.note}"] if refinement is not None and refinement.note else [])]
+    if (ignored := ignored_settings(chosen, match, refine)):
+        say.append(f"{ignored}: not used by merge, ignored (it fuses at the match's own gate, {gate:g} m, refines by "
+                   "the settings match.json records, and takes only changes.* for its alignment control; mapping "
+                   "and search settings act in `map` and `match`)")
     if not labels and names != [a.name, b.name]:  # the folder names fell back to places (`_labels`): said (rev45 D7)
         say.append(f"{session_a} and {session_b} share the folder name {a.name!r}: their images are named "
                    f"{names[0]}/... and {names[1]}/... in the merged model (merge.json `labels`)")
