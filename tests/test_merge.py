@@ -764,3 +764,36 @@ def test_settings_merge_does_not_use_are_said_not_silently_ignored(pair, tmp_pat
     assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "N"), "-q",
                  "--set", "changes.min_views=2"]) == 0
     assert not [r for r in caplog.records if "not used by merge" in r.getMessage()]
+
+
+def test_a_merged_map_keeps_its_size_definition_and_a_merge_of_two_definitions_is_said(pair, tmp_path, caplog):
+    """rev54 D2: a merged map had no run.json, so `match` of it against a map of another size estimator said
+    nothing; and merge averaged a 'nadir' and a 'mean' landmark's sizes without a word. merge.json records the
+    definition (mixed when the flights' differ), `load_map` reads it back, and merge warns naming both maps."""
+    from sosmatch.database.map_loading import load_map, size_definition_disagreement
+
+    _, _, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    sessions = {}
+    for name, src, estimator in (("A", a.path, "nadir"), ("B", b.path, "nadir"), ("Bm", b.path, "mean")):
+        shutil.copytree(src, tmp_path / name)
+        (tmp_path / name / "run.json").write_text(json.dumps({"params": {"triangulation": {
+            "size_estimator": estimator}}}))
+        sessions[name] = tmp_path / name
+    key = "triangulation.size_estimator"
+    assert merge.run(sessions["A"], sessions["B"], match, tmp_path / "M").num_fused > 0
+    assert not [r for r in caplog.records if "sizes differently" in r.getMessage()]
+    merged = load_map(tmp_path / "M")
+    assert merged.size_definition == {key: "nadir"}
+    # matched against a 'mean' map, the merged map is warned of as its flights are
+    assert size_definition_disagreement(merged.size_definition, {key: "mean"}) is not None
+    merge.run(sessions["A"], sessions["Bm"], match, tmp_path / "X")
+    said = [r.getMessage() for r in caplog.records if "sizes differently" in r.getMessage()]
+    assert len(said) == 1 and str(sessions["A"]) in said[0] and str(sessions["Bm"]) in said[0]
+    record = json.loads((tmp_path / "X" / "merge.json").read_text())
+    assert record["size_definition"] == {key: "mixed (mean, nadir)"}
+    assert any("sizes differently" in w for w in record["warnings"])
+    # a map of mixed sizes differs from every map, one mixed alike included
+    mixed = load_map(tmp_path / "X").size_definition
+    assert size_definition_disagreement(mixed, mixed) is not None
+    assert size_definition_disagreement(mixed, {key: "nadir"}) is not None

@@ -48,7 +48,13 @@ from ..database.landmark_map import (
     crs_disagreement,
     write_landmark_map,
 )
-from ..database.map_loading import session_map_noise, session_sfm_poses
+from ..database.map_loading import (
+    merged_size_definition,
+    session_map_noise,
+    session_sfm_poses,
+    session_size_definition,
+    size_definitions_differ,
+)
 from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, precision_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
@@ -212,6 +218,13 @@ def merge_sessions(
     # an older merge.json's flights known by their names only: said (once the output is taken), never refused on
     # names
     flights, notes = distinct_flights(sessions)
+    # the merged map's size definition, from its flights' (read back by `session_size_definition`): fused landmarks
+    # average their members' sizes, so maps of two definitions make one of mixed sizes; said (rev54 D2: silent)
+    defs = [session_size_definition(s.path) for s in sessions]
+    if (differ := size_definitions_differ(defs, [str(s.path) for s in sessions])) is not None:
+        notes = [*notes, f"the sessions define landmark sizes differently ({differ}): the merged map's sizes mix "
+                 "the definitions (fused landmarks average them), which the size gate of `match` and `changes` "
+                 "compares as one; map the sessions with the same setting to merge sizes of one definition"]
     warnings = [*warnings, *notes]
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
@@ -222,8 +235,8 @@ def merge_sessions(
         # sosmatch) and the warnings go into merge.json (not into the identity: earlier merges keep theirs)
         said = {"warnings": list(warnings)} if warnings else {}
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
-                             {**(record or {}), "flight_maps": maps_of(flights),
-                              "flights": flights, **said}, t0)
+                             {**(record or {}), "flight_maps": maps_of(flights), "flights": flights,
+                              "size_definition": merged_size_definition(defs), **said}, t0)
         out.finish()
     return result
 
