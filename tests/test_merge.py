@@ -797,3 +797,47 @@ def test_a_merged_map_keeps_its_size_definition_and_a_merge_of_two_definitions_i
     mixed = load_map(tmp_path / "X").size_definition
     assert size_definition_disagreement(mixed, mixed) is not None
     assert size_definition_disagreement(mixed, {key: "nadir"}) is not None
+
+
+_KILL_AT_PUBLISH = """
+import os, signal, sys
+from pathlib import Path
+target = str(Path(sys.argv[1]).absolute() / "landmarks.sosmap")
+def hook(event, args):
+    # the process killed (as by the OOM killer or a power cut) as it publishes its second entry: sparse/ is the new
+    # run's, the rest (and merge.json) not yet
+    if event == "os.rename" and os.path.abspath(str(args[1])) == target:
+        os.kill(os.getpid(), signal.SIGKILL)
+sys.addaudithook(hook)
+from sosmatch.tools.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def test_a_merge_overwrite_killed_while_it_publishes_is_refused_by_readers_and_repaired_by_a_re_run(pair, tmp_path,
+                                                                                                      cli_error):
+    """rev54 (unverified there): a `merge --overwrite` interrupted while publishing left the new sparse/ beside the
+    old landmarks without merge.json. Killed at that very point (a real SIGKILL, placed by an audit hook): readers
+    refuse the folder in one line, and the same command run again finishes it, byte for byte the merge of an
+    uninterrupted run."""
+    import subprocess
+    import sys
+
+    _, _, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    out, fresh = tmp_path / "M", tmp_path / "F"
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(out), "-q"]) == 0
+    argv = ["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(out), "--refine", "--overwrite",
+            "-q"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    killed = subprocess.run([sys.executable, "-c", _KILL_AT_PUBLISH, str(out), *argv], env=env, capture_output=True,
+                            text=True, timeout=300)
+    assert killed.returncode == -9, killed.stderr
+    assert not (out / "merge.json").exists()  # half published: the new sparse/, the old landmarks
+    assert "has not finished" in cli_error("export", "--csv", out, "--out", tmp_path / "x.csv")
+    assert main(argv) == 0  # the same command resumes and finishes it
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(fresh), "--refine",
+                 "-q"]) == 0
+    for rel in ("merge.json", "landmarks.sosmap", "landmarks.csv",
+                *(f"sparse/{p.name}" for p in sorted((fresh / "sparse").iterdir()))):
+        assert (out / rel).read_bytes() == (fresh / rel).read_bytes(), rel
