@@ -11,6 +11,7 @@ in its cameras' UTM zone. Every problem raises InputError naming the path.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -60,13 +61,63 @@ def size_definition(record: dict | None) -> dict[str, str] | None:
     return found or None
 
 
+# the value of a size-defining setting in a merged map whose flights differ in it (`merged_size_definition`):
+# "mixed (mean, nadir)"; such a map's sizes are of two definitions, unlike any other map's, its own kind included
+MIXED = "mixed"
+
+
+def _is_mixed(value: str) -> bool:
+    return value.startswith(MIXED + " (")
+
+
+def session_size_definition(session: str | Path) -> dict[str, str] | None:
+    """The size definition of a mapped session (its run.json's params: `size_definition`) or of a merged one (its
+    merge.json's `size_definition`, which `sosmatch merge` records from its flights': `merged_size_definition`);
+    None when neither records it. The one reading for `match`, `changes` and `merge` (rev54 D2: a merged map, which
+    has no run.json, was matched against a map of another size estimator without the warning its flights got)."""
+    record = _session_record(Path(session))
+    if record is None or "params" in record:
+        return size_definition(record)
+    found = record.get("size_definition")
+    if not isinstance(found, dict) or not found or not all(isinstance(v, str) for v in found.values()):
+        return None
+    return {str(k): v for k, v in found.items()}
+
+
+def merged_size_definition(parts: Sequence[dict[str, str] | None]) -> dict[str, str] | None:
+    """The size definition of a merge of maps of `parts` (`session_size_definition` each): each setting they all
+    record, its value where they agree, else "mixed (a, b)" (`MIXED`); None when any part's is unknown."""
+    if not parts or any(p is None for p in parts):
+        return None
+    merged = {}
+    for key in sorted(set.intersection(*(set(p) for p in parts))):
+        values = sorted({v for p in parts for v in (p[key][len(MIXED) + 2:-1].split(", ") if _is_mixed(p[key])
+                                                    else [p[key]])})
+        merged[key] = values[0] if len(values) == 1 else f"{MIXED} ({', '.join(values)})"
+    return merged or None
+
+
+def size_definitions_differ(parts: Sequence[dict[str, str] | None], names: Sequence[str]) -> str | None:
+    """What differs between the size definitions `parts` of the maps `names` ("key 'x' in NAME, 'y' in NAME2"),
+    for the settings all of them record; a mixed value always differs (`MIXED`); None when they agree or any is
+    unknown."""
+    if not parts or any(p is None for p in parts):
+        return None
+    said = []
+    for key in sorted(set.intersection(*(set(p) for p in parts))):
+        values = [p[key] for p in parts]
+        if len(set(values)) > 1 or any(_is_mixed(v) for v in values):
+            said.append(f"{key} " + ", ".join(f"{v!r} in {n}" for v, n in zip(values, names)))
+    return "; ".join(said) or None
+
+
 def size_definition_disagreement(a: dict[str, str] | None, b: dict[str, str] | None) -> str | None:
     """One line when both maps record how their sizes are defined (`size_definition`, `LoadedMap.size_definition`)
     and the definitions differ (the search compares the two maps' sizes within theta_r: a few percent of systematic
     difference costs associations and, on a kind of object, all of them), else None."""
     if a is None or b is None:
         return None
-    differ = [k for k in sorted(set(a) & set(b)) if a[k] != b[k]]
+    differ = [k for k in sorted(set(a) & set(b)) if a[k] != b[k] or _is_mixed(a[k])]
     if not differ:
         return None
     said = ", ".join(f"{k} {a[k]!r} in A, {b[k]!r} in B" for k in differ)
@@ -105,18 +156,24 @@ def session_sfm_poses(session: str | Path, lmap: LandmarkMap | None = None) -> b
     (`lmap`, read from it when None), else its record (`recorded_sfm_poses`): run.json, or for a merged session
     merge.json (whose `pose_source` `sosmatch merge` writes). The one reading for `match`, `merge` and `evaluate`.
     InputError naming a record that does not read."""
-    from .session_io import MERGE_RECORD, read_map_record
-    from .text_input import read_user_json
-
     session = Path(session)
     if lmap is None and (session / "landmarks.sosmap").is_file():
         lmap = read_landmark_map(session / "landmarks.sosmap")
     if lmap is not None and lmap.sfm_poses:
         return True
+    return recorded_sfm_poses(_session_record(session))
+
+
+def _session_record(session: Path) -> dict | None:
+    """A session's record: run.json (`session_io.read_map_record`), else a merged session's merge.json; None when
+    it has neither. InputError naming a record that does not read."""
+    from .session_io import MERGE_RECORD, read_map_record
+    from .text_input import read_user_json
+
     record = read_map_record(session)
     if record is None and (session / MERGE_RECORD).is_file():
         record = read_user_json(session / MERGE_RECORD, "merge record", redo="re-run `sosmatch merge`")
-    return recorded_sfm_poses(record)
+    return record
 
 
 def session_map_noise(session: Path, lmap: LandmarkMap) -> MapNoise | None:
@@ -272,10 +329,8 @@ def load_map(path: str | Path) -> LoadedMap:
         check_session_usable(path)
         lmap = read_landmark_map(path / "landmarks.sosmap")
         check_map_of_record(path, lmap)  # its noise figures (run.json) must be this map's
-        from .session_io import read_map_record
-
         return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap),
-                         size_definition(read_map_record(path)), session_sfm_poses(path, lmap))
+                         session_size_definition(path), session_sfm_poses(path, lmap))
     if (path / "run.json").is_file() and (path / "sparse").is_dir():  # landmarks.sosmap is not a file here
         # a session `sosmatch map` wrote has its map in landmarks.sosmap: matched from sparse/ instead, it lost its
         # sizes' noise figures and its checks, and every other command refused the folder (the nineteenth sweep)

@@ -744,3 +744,100 @@ def test_a_merged_map_of_an_sfm_posed_session_stays_sfm_posed(pair, tmp_path):
     assert json.loads((tmp_path / "sfm" / "merge.json").read_text())["pose_source"] == POSE_SOURCE_SFM
     assert read_landmark_map(tmp_path / "sfm" / "landmarks.sosmap").sfm_poses
     assert load_map(tmp_path / "sfm").sfm_poses and load_map(tmp_path / "sfm" / "landmarks.sosmap").sfm_poses
+
+
+def test_settings_merge_does_not_use_are_said_not_silently_ignored(pair, tmp_path, caplog):
+    """rev54 D3: `merge --set association.distance_tolerance_m=0.1` (and `--preset`) wrote the same merge as without
+    it, without a word: merge fuses at the gate match.json records. Said, naming the setting; a setting it uses
+    (changes.*, its alignment control) is not."""
+    _, _, a, b = pair
+    match = _verified_match(a, b, tmp_path / "match.json")
+    doc = json.loads(match.read_text())
+    doc["verification"]["method"] = {"gate_m": 2.0}
+    match.write_text(json.dumps(doc))
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "M"), "-q",
+                 "--set", "association.distance_tolerance_m=0.1", "--set", "changes.min_views=2"]) == 0
+    said = [r.getMessage() for r in caplog.records if "not used by merge" in r.getMessage()]
+    assert len(said) == 1 and "association.distance_tolerance_m" in said[0] and "changes.min_views" not in said[0]
+    assert "2 m" in said[0]
+    caplog.clear()
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(tmp_path / "N"), "-q",
+                 "--set", "changes.min_views=2"]) == 0
+    assert not [r for r in caplog.records if "not used by merge" in r.getMessage()]
+
+
+def test_a_merged_map_keeps_its_size_definition_and_a_merge_of_two_definitions_is_said(pair, tmp_path, caplog):
+    """rev54 D2: a merged map had no run.json, so `match` of it against a map of another size estimator said
+    nothing; and merge averaged a 'nadir' and a 'mean' landmark's sizes without a word. merge.json records the
+    definition (mixed when the flights' differ), `load_map` reads it back, and merge warns naming both maps."""
+    from sosmatch.database.map_loading import load_map, size_definition_disagreement
+
+    _, _, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    sessions = {}
+    for name, src, estimator in (("A", a.path, "nadir"), ("B", b.path, "nadir"), ("Bm", b.path, "mean")):
+        shutil.copytree(src, tmp_path / name)
+        (tmp_path / name / "run.json").write_text(json.dumps({"params": {"triangulation": {
+            "size_estimator": estimator}}}))
+        sessions[name] = tmp_path / name
+    key = "triangulation.size_estimator"
+    assert merge.run(sessions["A"], sessions["B"], match, tmp_path / "M").num_fused > 0
+    assert not [r for r in caplog.records if "sizes differently" in r.getMessage()]
+    merged = load_map(tmp_path / "M")
+    assert merged.size_definition == {key: "nadir"}
+    # matched against a 'mean' map, the merged map is warned of as its flights are
+    assert size_definition_disagreement(merged.size_definition, {key: "mean"}) is not None
+    merge.run(sessions["A"], sessions["Bm"], match, tmp_path / "X")
+    said = [r.getMessage() for r in caplog.records if "sizes differently" in r.getMessage()]
+    assert len(said) == 1 and str(sessions["A"]) in said[0] and str(sessions["Bm"]) in said[0]
+    record = json.loads((tmp_path / "X" / "merge.json").read_text())
+    assert record["size_definition"] == {key: "mixed (mean, nadir)"}
+    assert any("sizes differently" in w for w in record["warnings"])
+    # a map of mixed sizes differs from every map, one mixed alike included
+    mixed = load_map(tmp_path / "X").size_definition
+    assert size_definition_disagreement(mixed, mixed) is not None
+    assert size_definition_disagreement(mixed, {key: "nadir"}) is not None
+
+
+_KILL_AT_PUBLISH = """
+import os, signal, sys
+from pathlib import Path
+target = str(Path(sys.argv[1]).absolute() / "landmarks.sosmap")
+def hook(event, args):
+    # the process killed (as by the OOM killer or a power cut) as it publishes its second entry: sparse/ is the new
+    # run's, the rest (and merge.json) not yet
+    if event == "os.rename" and os.path.abspath(str(args[1])) == target:
+        os.kill(os.getpid(), signal.SIGKILL)
+sys.addaudithook(hook)
+from sosmatch.tools.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def test_a_merge_overwrite_killed_while_it_publishes_is_refused_by_readers_and_repaired_by_a_re_run(pair, tmp_path,
+                                                                                                      cli_error):
+    """rev54 (unverified there): a `merge --overwrite` interrupted while publishing left the new sparse/ beside the
+    old landmarks without merge.json. Killed at that very point (a real SIGKILL, placed by an audit hook): readers
+    refuse the folder in one line, and the same command run again finishes it, byte for byte the merge of an
+    uninterrupted run."""
+    import subprocess
+    import sys
+
+    _, _, a, b = pair
+    match = toy_match_json(a, b, tmp_path / "match.json")
+    out, fresh = tmp_path / "M", tmp_path / "F"
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(out), "-q"]) == 0
+    argv = ["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(out), "--refine", "--overwrite",
+            "-q"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    killed = subprocess.run([sys.executable, "-c", _KILL_AT_PUBLISH, str(out), *argv], env=env, capture_output=True,
+                            text=True, timeout=300)
+    assert killed.returncode == -9, killed.stderr
+    assert not (out / "merge.json").exists()  # half published: the new sparse/, the old landmarks
+    assert "has not finished" in cli_error("export", "--csv", out, "--out", tmp_path / "x.csv")
+    assert main(argv) == 0  # the same command resumes and finishes it
+    assert main(["merge", str(a.path), str(b.path), "--match", str(match), "--out", str(fresh), "--refine",
+                 "-q"]) == 0
+    for rel in ("merge.json", "landmarks.sosmap", "landmarks.csv",
+                *(f"sparse/{p.name}" for p in sorted((fresh / "sparse").iterdir()))):
+        assert (out / rel).read_bytes() == (fresh / rel).read_bytes(), rel

@@ -160,3 +160,24 @@ def test_recorded_settings_are_valid_as_the_params_declare_them(tilted_pair, tmp
         with pytest.raises(InputError, match=f"params.verification.{name}") as refused:
             read_match(match)
         assert "match.json" in str(refused.value)
+
+
+def test_a_refined_merge_says_the_precision_of_the_transform_it_uses_not_the_answer_it_replaced(tilted_pair,
+                                                                                                  tmp_path, caplog):
+    """rev54 D1: merge --refine said (and recorded in merge.json) that the merged model "inherits" the imprecise
+    answer's error when the refinement had replaced that answer with a precise fit; without --refine it still
+    says it."""
+    a, b, truth = tilted_pair
+    match = _recorded(toy_match_json(a, b, tmp_path / "match.json", transform=_consensus(a, truth)))
+    doc = json.loads(match.read_text())
+    doc["answer_uncertainty"] = {"imprecise": True, "predicted_max_m": 4.9, "reason": "pair noise 2.1 m"}
+    match.write_text(json.dumps(doc))
+    with caplog.at_level(logging.WARNING, logger="sosmatch"):
+        res = merge.run(a.path, b.path, match, tmp_path / "R", refine=True)
+    assert res.refined
+    said = [r.getMessage() for r in caplog.records if "imprecise" in r.getMessage()]
+    assert not said, said
+    assert not any("imprecise" in w for w in json.loads((tmp_path / "R" / "merge.json").read_text()).get(
+        "warnings", []))
+    merge.run(a.path, b.path, match, tmp_path / "U")  # not refined: the answer's imprecision stands, said
+    assert any("inherits that error" in w for w in json.loads((tmp_path / "U" / "merge.json").read_text())["warnings"])

@@ -37,7 +37,7 @@ from ..database.changes_io import (
 )
 from ..database.geojson import check_within_crs_area
 from ..database.landmark_map import check_two_maps
-from ..database.map_loading import size_definition, size_definition_disagreement
+from ..database.map_loading import session_size_definition, size_definition_disagreement
 from ..database.match_io import answer_gate, check_match_maps, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_markers import VersionedIdentity, fingerprint, versioned_identity
@@ -150,7 +150,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if match is not None and (note := imprecise_note(match)) is not None:
         warnings.append(f"{match_json}: {note}: objects near the far side of the common area may be compared "
                         "with the wrong partners")
-    if (note := size_definition_disagreement(*(size_definition(read_map_record(f.path)) for f in (files_a, files_b)))):
+    if (note := size_definition_disagreement(*(session_size_definition(f.path) for f in (files_a, files_b)))):
         # match warns of it for its search; here the sizes are compared again (rev44 D2: silent before)
         warnings.append(f"{note}; here size_change_m carries that difference, and kept objects whose sizes it "
                         "pushes beyond changes.max_size_difference lose their counterpart (claimed gone or new)")

@@ -32,7 +32,7 @@ import dataclasses
 import json
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,8 +48,14 @@ from ..database.landmark_map import (
     crs_disagreement,
     write_landmark_map,
 )
-from ..database.map_loading import session_map_noise, session_sfm_poses
-from ..database.match_io import answer_gate, check_match_maps, match_content, read_match
+from ..database.map_loading import (
+    merged_size_definition,
+    session_map_noise,
+    session_sfm_poses,
+    session_size_definition,
+    size_definitions_differ,
+)
+from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, precision_note, unverified_note
 from ..database.output_markers import fingerprint, resolved_path
 from ..database.outputs import OutputDir, check_output_dir, open_output_dir
@@ -75,7 +81,7 @@ from .merge_refine import Refinement, fused_pair, refined_answer
 
 # importable from here as before the split (`merge_refine`, `match_notes`): batch, tests and benchmarks use them
 __all__ = ["MERGE_FORMAT", "MergeResult", "Refinement", "label_problem", "merge_sessions", "precision_note",
-           "refined_answer", "run"]
+           "ignored_settings", "refined_answer", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -212,6 +218,13 @@ def merge_sessions(
     # an older merge.json's flights known by their names only: said (once the output is taken), never refused on
     # names
     flights, notes = distinct_flights(sessions)
+    # the merged map's size definition, from its flights' (read back by `session_size_definition`): fused landmarks
+    # average their members' sizes, so maps of two definitions make one of mixed sizes; said (rev54 D2: silent)
+    defs = [session_size_definition(s.path) for s in sessions]
+    if (differ := size_definitions_differ(defs, [str(s.path) for s in sessions])) is not None:
+        notes = [*notes, f"the sessions define landmark sizes differently ({differ}): the merged map's sizes mix "
+                 "the definitions (fused landmarks average them), which the size gate of `match` and `changes` "
+                 "compares as one; map the sessions with the same setting to merge sizes of one definition"]
     warnings = [*warnings, *notes]
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
@@ -222,8 +235,8 @@ def merge_sessions(
         # sosmatch) and the warnings go into merge.json (not into the identity: earlier merges keep theirs)
         said = {"warnings": list(warnings)} if warnings else {}
         result = _merge_into(out, sessions, transforms, pairs, labels, max_fuse_distance_m,
-                             {**(record or {}), "flight_maps": maps_of(flights),
-                              "flights": flights, **said}, t0)
+                             {**(record or {}), "flight_maps": maps_of(flights), "flights": flights,
+                              "size_definition": merged_size_definition(defs), **said}, t0)
         out.finish()
     return result
 
@@ -393,6 +406,43 @@ def _write_merge_record(path: Path, result: MergeResult, extra: dict[str, Any]) 
     write_text_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
+def _precision_of(match: MatchSummary, refinement: Refinement | None, a: LandmarkMap, b: LandmarkMap,
+                  gate: float) -> str | None:
+    """Why the transform the merge uses may place B's landmarks beyond `gate` (None: it is precise): the match's
+    answer's imprecision (`imprecise_note`), or, when --refine replaced the answer (`Refinement.fuse`), the refined
+    fit's own (`answer_uncertainty` on the pairs it fitted, as `match` measures its answer). rev54 D1: a refined
+    transform 2.4 m at most from the truth inside a 3.2 m gate was said and recorded to "inherit" the unrefined
+    answer's 4.9 m."""
+    if refinement is None or refinement.fuse is None:
+        return imprecise_note(match)
+    from ..plugin.answer_uncertainty import answer_uncertainty
+
+    unc = answer_uncertainty(a.positions, b.positions, refinement.transform, refinement.fuse.associations,
+                             gate)
+    if match.imprecise and unc is not None:
+        log.info("the match's answer was imprecise; the refined transform (%d pairs) may place B's landmarks up to "
+                 "%.1f m from where they belong (95 %%), its gate %g m", refinement.used, unc.predicted_max_m, gate)
+    if unc is None or not unc.imprecise:
+        return None
+    return (f"the refined transform ({refinement.used} pairs) is imprecise: "
+            f"{unc.warning().removeprefix('imprecise answer: ')}")
+
+
+def ignored_settings(chosen: Collection[str], match: MatchSummary, refine: bool) -> str:
+    """The chosen settings (dotted names) a merge of `match` does not use, as one text ("" when none): it uses the
+    changes section (its alignment control, `changes.check_alignment`), association.distance_tolerance_m only for
+    a match.json that records no gate (`answer_gate`), and, with --refine of an unverified answer, the verification
+    settings match.json does not record (`refined_answer`). rev54 D3: `--set association.distance_tolerance_m=0.1`
+    and `--preset paper` wrote the same bytes as without them, without a word."""
+    refining = refine and match.source != "verified"
+    used = {name for name in chosen if name.startswith("changes.")
+            or (name == "association.distance_tolerance_m" and match.gate_m is None)
+            or (refining and name.startswith("verification.") and name.partition(".")[2] not in match.refinement)}
+    ignored = sorted(set(chosen) - used)
+    shown = ", ".join(ignored[:6]) + (f" and {len(ignored) - 6} more" if len(ignored) > 6 else "")
+    return shown
+
+
 def run(
     session_a: str | Path,
     session_b: str | Path,
@@ -403,6 +453,7 @@ def run(
     labels: tuple[str, str] | None = None,
     overwrite: bool = False,
     trust_images: bool = False,
+    chosen: Collection[str] = (),
 ) -> MergeResult:
     """Merge session B into session A's frame using match.json's accepted hypothesis; see the module docstring.
 
@@ -414,7 +465,8 @@ def run(
     (`changes.check_alignment`), or when the images agree but the two maps' georeferences do not
     (`match_notes.georeference_note`: one of them is wrong, and the merged model would place B's landmarks by A's)
     unless `trust_images` (then said, and recorded in merge.json). `overwrite`: replace a complete merge of other
-    inputs in `out_dir`.
+    inputs in `out_dir`. `chosen`: the settings the user chose (`config_io.chosen_settings`): those the merge does
+    not use are said (`ignored_settings`).
     """
     params = params or Params()
     # a bad --out (a user's folder, an input, a file) is refused before any work and any warning (rev45 D4: after
@@ -433,8 +485,7 @@ def run(
                     "its georeference")
     if (note := precision_note(a, b, str(session_a), str(session_b))) is not None:
         said.append(note)
-    if (note := imprecise_note(match)) is not None:
-        said.append(f"{match_json}: {note}: the merged model inherits that error")
+    imprecise_at = len(said)  # the answer's precision is said once the transform used is known (`_precision_of`)
     # a probably wrong result is no success: the user decides which georeference stands
     if (note := check_georeferences(match, a.landmarks, b.landmarks, match_json, trust_images, "merged",
                                     "merges it")) is not None:
@@ -452,6 +503,8 @@ def run(
     used, dof = 0, 0
     if refinement is not None:
         transform, used, dof = refinement.transform, refinement.used, refinement.dof
+    if (note := _precision_of(match, refinement, a.landmarks, b.landmarks, gate)) is not None:
+        said.insert(imprecise_at, f"{match_json}: {note}: the merged model inherits that error")
     # the control of `changes` (a merge never fuses what it refuses as chance), at the answer's own gate: maps of
     # 20 m objects (NAIP, theta_eps 8 m) have no counterparts at the configured 2 m even at the true alignment;
     # said before any warning, so that a refusal is one line
@@ -460,6 +513,10 @@ def run(
     # is one line too; --refine asked for and nothing refined: a warning, as match says of an option it ignores (at
     # INFO, `-q` hid it and the output line alone did not tell it)
     say = [*said, *([f"{match_json}: {refinement.note}"] if refinement is not None and refinement.note else [])]
+    if (ignored := ignored_settings(chosen, match, refine)):
+        say.append(f"{ignored}: not used by merge, ignored (it fuses at the match's own gate, {gate:g} m, refines by "
+                   "the settings match.json records, and takes only changes.* for its alignment control; mapping "
+                   "and search settings act in `map` and `match`)")
     if not labels and names != [a.name, b.name]:  # the folder names fell back to places (`_labels`): said (rev45 D7)
         say.append(f"{session_a} and {session_b} share the folder name {a.name!r}: their images are named "
                    f"{names[0]}/... and {names[1]}/... in the merged model (merge.json `labels`)")

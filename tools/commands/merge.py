@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_params_arguments, params_from_args
+from ._common import add_params_arguments, params_from_args, settings_from_args
 
 NAME = "merge"
 HELP = "merge session B into session A's frame with the accepted transform of a match (one COLMAP model)"
@@ -33,7 +33,8 @@ def run(args: argparse.Namespace) -> int:
     from ...workflows import merge
 
     res = merge.run(args.session_a, args.session_b, args.match, args.out, params_from_args(args), refine=args.refine,
-                    overwrite=args.overwrite, trust_images=args.trust_images)
+                    overwrite=args.overwrite, trust_images=args.trust_images,
+                    chosen=settings_from_args(args))
     print(
         f"{args.out}: {res.num_images} images, {res.num_points3d} points, {res.num_landmarks} landmarks "
         f"({res.num_fused} fused, {res.num_rejected} {'association' if res.num_rejected == 1 else 'associations'} "
