@@ -172,6 +172,38 @@ def test_a_camera_clock_reset_is_named(tmp_path, caplog):
     assert "jump back by 8918.4 days from f03.jpg to f04.jpg (a camera clock reset?)" in caplog.text
 
 
+def test_dji_xmp_position_is_read_where_the_exif_gps_was_stripped(tmp_path, caplog):
+    """nu58 D3: DJI images whose EXIF GPS an editor stripped still carry drone-dji:GpsLatitude/GpsLongitude
+    (some firmware: "GpsLongtitude") and AbsoluteAltitude; they were called "no GPS position" and `poses` built
+    an ungeoreferenced frame. Where both exist and part by more than a few metres, it is said."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(6):
+        lon_tag = "GpsLongtitude" if k == 5 else "GpsLongitude"
+        meta = _meta(img / f"f{k:02d}.jpg", latitude=None, longitude=None, altitude=None,
+                     datetime_original=f"2024:06:01 10:00:{2 * k:02d}", subsec_original="",
+                     xmp={"GpsLatitude": f"{47.0 + k * 1e-4:+.10f}", lon_tag: "-8.5000000000",
+                          "AbsoluteAltitude": "+512.300", "RelativeAltitude": "+80.10", "GimbalYawDegree": "0",
+                          "GimbalPitchDegree": "-90", "GimbalRollDegree": "0"})
+        (img / f"f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
+    back = read_image_metadata(img / "f05.jpg")
+    assert (back.latitude, back.longitude, back.altitude) == (pytest.approx(47.0005), -8.5, 512.3)
+    assert back.sources["position"] == "XMP drone-dji:GpsLatitude/GpsLongitude"
+    priors = read_image_priors(img)
+    assert priors.summary["position_sources"] == {"XMP drone-dji:GpsLatitude/GpsLongitude": 6}
+    assert priors.summary["crs"] == "EPSG:32629" and np.isfinite(priors.positions).all()
+    # the EXIF GPS is kept where both are; 30 m between them is named
+    meta = _meta(img / "f00.jpg", latitude=47.0, longitude=-8.5 + 4e-4, altitude=512.3,
+                 datetime_original="2024:06:01 10:00:00", subsec_original="",
+                 xmp={"GpsLatitude": "+47.0", "GpsLongitude": "-8.5", "GimbalYawDegree": "0",
+                      "GimbalPitchDegree": "-90", "GimbalRollDegree": "0"})
+    (img / "f00.jpg").write_bytes(embed_metadata(_jpeg(0), meta))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img)
+    assert priors.summary["position_sources"] == {"EXIF GPS": 1, "XMP drone-dji:GpsLatitude/GpsLongitude": 5}
+    assert "1 of 1 images hold a DJI XMP position" in caplog.text and "(up to 30.4 m, f00.jpg)" in caplog.text
+
+
 def test_mixed_cameras_are_grouped_and_gps_is_optional(tmp_path):
     img = tmp_path / "images"
     img.mkdir()

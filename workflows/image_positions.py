@@ -4,7 +4,8 @@ tags): the flight's middle (`median_position`, antimeridian-safe), fixes outside
 one vertical datum (`one_vertical_datum`), what the track and the attitude tags say that no aircraft does
 (`track_checks`), which EXIF fixes a telemetry file's track shows to be no measurement (`doubtful_fixes`), and
 whether a telemetry file's positions mend the EXIF fixes or are another flight's (`telemetry_against_exif`), or
-its rows are joined to the images a whole number of images off (`rows_shifted`)."""
+its rows are joined to the images a whole number of images off (`rows_shifted`), and whether DJI's XMP position
+and the EXIF GPS of the same images part (`xmp_against_exif`)."""
 
 from __future__ import annotations
 
@@ -15,8 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from ..database.exif import ImageMetadata
 from ..plugin.errors import InputError
-from ..plugin.geodesy import METRES_PER_DEGREE, utm_epsg
+from ..plugin.geodesy import METRES_PER_DEGREE, geographic_to_grid, utm_epsg
 from ..plugin.gps_track import (
     FROZEN_SPREAD_M,
     MOVING_STEP_M,
@@ -393,3 +395,26 @@ def judge_row_shift(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: 
                          "join its rows to the images by FileName, not by order, or drop its lat/lon columns (or, "
                          "if the log is right, the images' own EXIF fixes lag that many captures)", telemetry)
     return ROW_SHIFT_NOISES * noise if np.isfinite(noise) else math.inf
+
+
+XMP_EXIF_TOLERANCE_M = 5.0  # two records of one fix; a consumer receiver's noise is metres, not tens
+
+
+def xmp_against_exif(metas: list[ImageMetadata], east: np.ndarray, north: np.ndarray, epsg: int) -> str | None:
+    """A warning when images hold a DJI XMP position (`ImageMetadata.xmp_position`) more than
+    `XMP_EXIF_TOLERANCE_M` from their EXIF GPS position (`east`, `north`: the EXIF ones in `epsg`), else None: one
+    of the two was edited (a geotagging tool rewrote the EXIF only) and the EXIF one is used."""
+    idx = [i for i, m in enumerate(metas) if m.xmp_position is not None and np.isfinite(east[i])]
+    if not idx:
+        return None
+    xe, xn, _ = geographic_to_grid(np.array([metas[i].xmp_position[0] for i in idx]),  # type: ignore[index]
+                                   np.array([metas[i].xmp_position[1] for i in idx]), epsg)  # type: ignore[index]
+    gap = np.hypot(xe - east[idx], xn - north[idx])
+    far = gap > XMP_EXIF_TOLERANCE_M
+    if not far.any():
+        return None
+    worst = int(np.argmax(gap))
+    return (f"{int(far.sum())} of {len(idx)} images hold a DJI XMP position (drone-dji:GpsLatitude/GpsLongitude) "
+            f"more than {XMP_EXIF_TOLERANCE_M:.0f} m from their EXIF GPS position (up to {gap[worst]:.1f} m, "
+            f"{metas[idx[worst]].path.name}): the EXIF one is used; if a tool rewrote it, check which is right")
+

@@ -108,6 +108,7 @@ from .image_positions import (
     one_vertical_datum,
     telemetry_against_exif,
     track_checks,
+    xmp_against_exif,
 )
 from .image_rigs import one_image_per_capture, one_image_per_exposure
 
@@ -328,7 +329,8 @@ def read_image_priors(
             lat[i], lon[i] = m.latitude, m.longitude
             # an image without an EXIF altitude keeps its telemetry altitude (a row with an altitude but no fix)
             alt_from_telemetry[i] = not np.isfinite(exif_alt[i]) and "alt" in t
-            pos_src["EXIF GPS"] += 1
+            # EXIF GPS, else DJI's XMP position (an image whose EXIF GPS was stripped: `database.exif`)
+            pos_src["EXIF GPS" if m.sources.get("position", "").startswith("EXIF") else m.sources["position"]] += 1
         if np.isfinite(lat[i]):
             alt[i] = tele_alt[i] if alt_from_telemetry[i] else exif_alt[i]
     tele_warnings = telemetry_against_exif(
@@ -343,6 +345,8 @@ def read_image_priors(
         east[has], north[has], north_az[has] = geographic_to_grid(lat[has], lon[has], epsg)
         north_az[~has] = float(np.mean(north_az[has]))
         check_one_place(lat, lon, east, north, int(epsg), [m.path.name for m in metas], images)
+        if (text := xmp_against_exif(metas, east, north, int(epsg))) is not None:
+            log.warning("%s", text)
         # the pose reader refuses a CRS that stretches distances at the flight (Web Mercator, a polar
         # stereographic of another standard parallel): refused here, before poses are written that `map` refuses
         if (stretched := crs_scale_problem(int(epsg), np.column_stack([east[has], north[has]]))) is not None:

@@ -104,7 +104,8 @@ def poses_from_images(
         # GPS kept in sidecars by a photo editor: say where it is (nu42 D6: "50 of 50 ... no GPS", not a word
         # of the 50 .xmp files beside them)
         sidecars = sidecars_with_gps([metas[int(i)].path for i in no_fix])
-        raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude"
+        raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude, DJI XMP "
+                         "drone-dji:GpsLatitude/GpsLongitude"
                          + (", here without its N/S/E/W refs" if hemisphere else "")
                          + (f", here {empty}" if empty else "") + f"), e.g. {first.path.name}; "
                          + (f"{sidecars}; or " if sidecars else "")
