@@ -72,6 +72,7 @@ from pathlib import Path
 import numpy as np
 
 from ..database.exif import ImageMetadata, orientation_note, read_image_metadata
+from ..database.geo_txt import geo_txt_hint
 from ..database.images import image_files, no_images_message
 from ..database.telemetry_io import read_telemetry_csv, telemetry_rows
 from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the tags are read with)
@@ -338,6 +339,9 @@ def read_image_priors(
         np.asarray(both_t, np.float64))
     alt = one_vertical_datum(alt, alt_from_telemetry & np.isfinite(alt), tele_alt, exif_alt, telemetry)
     has = np.isfinite(lat)
+    if telemetry is None and has.any() and (geo_txt := geo_txt_hint(paths[0].parent)) is not None:
+        # OpenDroneMap would take it over the images' own GPS (an RTK/PPK solution): said, not silently skipped
+        log.warning("the positions are the images' own GPS; %s", geo_txt)
     east, north, north_az = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
     if has.any():
         if epsg is None:
