@@ -416,3 +416,24 @@ def test_a_yaw_fault_on_a_line_the_flight_does_not_have_is_refused(tmp_path, cli
                     "--world-size", "400", "--geotags", "dji", "--yaw-fault-lines", "0,99")
     assert "--yaw-fault-lines 99: the flight has no such line" in err and "flight line(s): 0)" in err
     assert not (tmp_path / "S").exists()
+
+
+def test_the_same_place_flown_a_day_later_in_one_folder_is_two_flights_not_a_clock_reset(tmp_path, caplog):
+    """nu58 D6: a folder holding the flight and its repeat the next day (the repeat's files named B_*, so listed
+    first) was warned of as "a camera clock reset?" with "fix the dates". The time order is right there: it is two
+    flights of one place, which are named, with how to map them apart. (A clock reset mid-flight, whose later
+    frames carry on over new ground, keeps its wording: `test_a_camera_clock_reset_is_named`.)"""
+    img = tmp_path / "images"
+    img.mkdir()
+    for day, prefix in ((1, ""), (2, "B_")):
+        for k in range(6):
+            meta = _meta(img / f"{prefix}f{k:02d}.jpg", latitude=47.0 + k * 1e-4 + day * 1e-6, longitude=8.0,
+                         datetime_original=f"2024:06:0{day} 10:00:{2 * k:02d}", subsec_original="")
+            (img / f"{prefix}f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img)
+    assert "clock reset" not in caplog.text and "fix the dates" not in caplog.text
+    assert ("the folder holds 2 flights of one place (2024-06-01 10:00, 2024-06-02 10:00, camera clock; 6 + 6 "
+            "images, e.g. f00.jpg and B_f00.jpg)") in caplog.text
+    assert "put each flight in its own folder" in caplog.text
+    assert [p.name for p in priors.paths[:2]] == ["f00.jpg", "f01.jpg"]  # ordered by capture time, as before

@@ -105,6 +105,7 @@ from .image_cameras import (  # noqa: F401 (re-exported: their home before image
 )
 from .image_positions import (
     check_one_place,
+    flights_of_one_place,
     median_position,
     one_vertical_datum,
     telemetry_against_exif,
@@ -233,7 +234,10 @@ def _capture_order(metas: list[ImageMetadata], centers: np.ndarray) -> np.ndarra
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     if times is not None and how != "path":
         back = np.flatnonzero(np.diff(times) < -CLOCK_RESET_S)
-        if len(back):  # the nu20 sweep: a camera clock reset to 2000-01-01 reordered the flight with no word
+        flights = flights_of_one_place(times, centers, [m.path.name for m in metas], CLOCK_RESET_S)
+        if flights is not None:  # the same ground flown again days later: no clock fault (nu58 D6)
+            log.warning("%s", flights)
+        elif len(back):  # the nu20 sweep: a camera clock reset to 2000-01-01 reordered the flight with no word
             k = int(back[0])
             log.warning("the capture times jump back by %.1f days from %s to %s (a camera clock reset?): the images "
                         "are ordered by them, which puts the later ones first; fix the dates if that is wrong",
