@@ -202,6 +202,14 @@ def test_dji_xmp_position_is_read_where_the_exif_gps_was_stripped(tmp_path, capl
         priors = read_image_priors(img)
     assert priors.summary["position_sources"] == {"EXIF GPS": 1, "XMP drone-dji:GpsLatitude/GpsLongitude": 5}
     assert "1 of 1 images hold a DJI XMP position" in caplog.text and "(up to 30.4 m, f00.jpg)" in caplog.text
+    assert any("hold a DJI XMP position" in w for w in priors.summary["warnings"])
+    # where a telemetry file's row gives the position, the XMP is not held against it as "EXIF GPS"
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,GPSLatitude,GPSLongitude,GPSAltitude\nf00.jpg,47.0,-8.4996,512.3\n")
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img, telemetry=tele)
+    assert "DJI XMP position" not in caplog.text
 
 
 def test_mixed_cameras_are_grouped_and_gps_is_optional(tmp_path):

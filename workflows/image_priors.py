@@ -353,8 +353,11 @@ def read_image_priors(
         east[has], north[has], north_az[has] = geographic_to_grid(lat[has], lon[has], epsg)
         north_az[~has] = float(np.mean(north_az[has]))
         check_one_place(lat, lon, east, north, int(epsg), [m.path.name for m in metas], images)
-        if (text := xmp_against_exif(metas, east, north, int(epsg))) is not None:
+        # the images whose position is their EXIF one (a telemetry file's rows take precedence)
+        exif_pos = ~np.array(["lat" in r and "lon" in r for r in rows], dtype=bool)
+        if (text := xmp_against_exif(metas, np.where(exif_pos, east, np.nan), north, int(epsg))) is not None:
             log.warning("%s", text)
+            tele_warnings.append(text)  # the summary's warnings: poses.json records it
         # the pose reader refuses a CRS that stretches distances at the flight (Web Mercator, a polar
         # stereographic of another standard parallel): refused here, before poses are written that `map` refuses
         if (stretched := crs_scale_problem(int(epsg), np.column_stack([east[has], north[has]]))) is not None:
