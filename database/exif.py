@@ -125,6 +125,7 @@ class ImageMetadata:
     orientation: int | None = None  # EXIF Orientation 1-8 (`ORIENTATION_SHOWN`); not applied to the pixels
     gps_time_utc_s: float | None = None  # EXIF GPSDateStamp + GPSTimeStamp: the receiver's UTC (seconds since 1970)
     xmp: dict[str, str] = field(default_factory=dict)
+    xmp_position: tuple[float, float] | None = None  # DJI XMP's (lat, lon) where EXIF GPS's position was taken
     sources: dict[str, str] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)  # damaged or implausible metadata that was left out
 
@@ -390,6 +391,30 @@ def orientation_note(orientations: list[int | None]) -> str | None:
             "apply: pixels stored turned from the camera's view contradict their tags and poses")
 
 
+# DJI's position tags in its XMP (signed decimal degrees; some firmware spells the longitude "GpsLongtitude") and
+# its altitude (the receiver's, as EXIF GPSAltitude): an image whose EXIF GPS was stripped by an editor or an
+# uploader still carries them, and a flight read without them was put in a local frame although every image says
+# where it was (nu58 D3)
+XMP_POSITION_TAGS = (("GpsLatitude",), ("GpsLongitude", "GpsLongtitude"))
+XMP_ALTITUDE_TAG = "AbsoluteAltitude"
+XMP_POSITION_SOURCE = "XMP drone-dji:GpsLatitude/GpsLongitude"
+
+
+def _position_from_xmp(meta: ImageMetadata) -> None:
+    """Take DJI's XMP position (and AbsoluteAltitude) where EXIF gives none; where both give one, keep EXIF's and
+    keep the XMP's in `xmp_position` (the two should be one fix: `workflows.image_priors` says where they part)."""
+    lat, lon = meta.xmp_float(*XMP_POSITION_TAGS[0]), meta.xmp_float(*XMP_POSITION_TAGS[1])
+    if lat is None or lon is None:
+        return
+    if meta.latitude is None or meta.longitude is None:
+        meta.latitude, meta.longitude = lat[0], lon[0]
+        meta.sources["position"] = XMP_POSITION_SOURCE
+        if meta.altitude is None and (alt := meta.xmp_float(XMP_ALTITUDE_TAG)) is not None:
+            meta.altitude = alt[0]
+            meta.sources["altitude"] = f"XMP drone-dji:{XMP_ALTITUDE_TAG}"
+    elif abs(lat[0]) <= 90 and abs(lon[0]) <= 180 and (lat[0], lon[0]) != (0.0, 0.0):
+        meta.xmp_position = (lat[0], lon[0])
+
 def read_image_metadata(path: str | Path) -> ImageMetadata:
     """Read GPS, camera and XMP metadata of one image (no pixel decoding). Unreadable images raise InputError;
     damaged metadata is left out and listed in `problems` (see the module doc)."""
@@ -440,6 +465,22 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
         meta.sources["altitude"] = "EXIF GPSAltitude"
     meta.gps_track_deg = _float(gps.get(GPS_TRACK))
 
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read image: {exc.strerror}", path) from None
+    if not exif and data[:2] == b"\xff\xd8" and any(len(p) > 8 for p in app1_payloads(data, EXIF_APP1_HEADER)):
+        problems.append("EXIF: the EXIF segment is unreadable")
+    for packet in xmp_packets(data):
+        try:
+            properties = parse_xmp(packet)
+        except ValueError as exc:
+            problems.append(str(exc))
+            continue
+        for key, value in properties.items():
+            meta.xmp.setdefault(key, value)
+    _position_from_xmp(meta)
+
     meta.focal_mm = _float(sub.get(TAG_FOCAL_LENGTH))
     meta.focal_35mm = _float(sub.get(TAG_FOCAL_35MM))
     for problem in check_metadata(meta):
@@ -472,20 +513,6 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
     if isinstance(ew, int) and isinstance(eh, int) and ew > 0 and eh > 0:
         meta.exif_size = (ew, eh)
 
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"cannot read image: {exc.strerror}", path) from None
-    if not exif and data[:2] == b"\xff\xd8" and any(len(p) > 8 for p in app1_payloads(data, EXIF_APP1_HEADER)):
-        problems.append("EXIF: the EXIF segment is unreadable")
-    for packet in xmp_packets(data):
-        try:
-            properties = parse_xmp(packet)
-        except ValueError as exc:
-            problems.append(str(exc))
-            continue
-        for key, value in properties.items():
-            meta.xmp.setdefault(key, value)
     for name in XMP_ANGLE_TAGS:  # a damaged attitude tag is left out (the image falls back to the other sources)
         if name in meta.xmp and _bad_angle(meta.xmp[name]):
             problems.append(f"XMP {name} {meta.xmp.pop(name)} is not an angle")

@@ -1,6 +1,7 @@
 """Telemetry CSVs: per-image attitude (and position) logged by the autopilot beside the images, as senseFly's
 eMotion exports it (Seneca's telemetry.csv: FileName, Heading, PitchAngle, RollAngle, GPSLatitude, ...). Read
-by `workflows.image_priors` where the images' own tags carry no attitude."""
+by `workflows.image_priors` where the images' own tags carry no attitude. A file laid out as OpenDroneMap's geo.txt
+(a CRS on its first line: `database.geo_txt`) is read as one, for its positions."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
+from .geo_txt import looks_like_geo_txt, read_geo_txt
 from .images import name_key, unique_by_key
 from .text_input import read_user_text
 
@@ -65,6 +67,8 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
     or E, is an InputError naming the line."""
     path = Path(path)
     text = read_user_text(path, "telemetry file")
+    if looks_like_geo_txt(text):  # OpenDroneMap's image positions (nu58 D4: refused for want of a name column)
+        return read_geo_txt(path)
     lines = text.splitlines()
     first = next((ln for ln in lines if ln.strip()), "")
     # spreadsheets in many locales export ';' (a ',' is their decimal mark), others tabs

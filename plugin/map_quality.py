@@ -393,7 +393,8 @@ def landmark_views(theta_n: int | None = None) -> str:
 
 def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
           images_flying_height_m: float = float("nan"), poses_fit: str = "",
-          images: FlightImages | None = None, contrast: str = "", min_observations: int = 0) -> Verdict:
+          images: FlightImages | None = None, contrast: str = "", min_observations: int = 0,
+          remedy: str = "") -> Verdict:
     """Refusals and warnings for a map's figures (limits and their reasons: `QualityParams`). `min_landmarks`:
     fewer make no usable map (`sosmatch map` passes association.min_associations + 1: a match needs more than
     theta_S landmarks in common). `images_flying_height_m`: the flying height the pose check's own matches
@@ -403,7 +404,9 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
     (blank keyframes, noise, blur) rather than the poses. `contrast`: the flight's low contrast as a cause
     (`FlightContrast.cause`, "" when it was normal), said when the map is thin. `min_observations`: the theta_n the
     map was made with (0: unknown); a map of no more keyframes than that can hold no landmark, which is said as the
-    cause."""
+    cause. `remedy`: what the flight's own figures say would map it better (`params.survey_preset_remedy`), said
+    with a thin, empty or refused-as-too-small map (nu58 D5: the refusal blamed the ground and the images only)."""
+    tail = f"; {remedy}" if remedy else ""
     v = Verdict()
     causes = image_causes(images, limits.min_image_contrast_to_noise, limits.min_image_sharpness,
                           limits.min_jpeg_quality, limits.max_motion_smear_px)
@@ -418,20 +421,21 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
     if q.landmarks == 0:
         said = causes + ([contrast] if contrast else [])
         v.refusals.append("the map has no landmarks" + (f" ({'; '.join(said)})" if said else "")
-                          + (f" ({blank.split(' (')[0]})" if blank else ""))
+                          + (f" ({blank.split(' (')[0]})" if blank else "") + tail)
         return v
     # a thin map may still match, but the user must know it is thin, and why, before trusting a "no match"
     thin = 0 < q.landmarks_per_keyframe < limits.warn_landmarks_per_keyframe
     said = causes + ([contrast] if contrast and thin else [])
     if said:
         v.warnings.append(f"{'; '.join(said)}: expect a thin map (here {q.landmarks_per_keyframe:.2f} landmarks "
-                          f"per keyframe, {q.landmarks} in all)")
+                          f"per keyframe, {q.landmarks} in all){tail}")
     elif thin:
         v.warnings.append(f"a thin map: {q.landmarks_per_keyframe:.2f} landmarks per keyframe, {q.landmarks} in "
                           f"all (normal maps have {limits.warn_landmarks_per_keyframe:g} or more): few distinct "
-                          "objects on the ground, or images that do not show them (see the figure)")
+                          "objects on the ground, or images that do not show them (see the figure)" + tail)
     if q.landmarks < min_landmarks:
-        v.refusals.append(f"only {q.landmarks} landmark(s): a map needs at least {min_landmarks} to be matched")
+        v.refusals.append(f"only {q.landmarks} landmark(s): a map needs at least {min_landmarks} to be matched"
+                          + tail)
     if q.landmarks_under_cameras and \
             q.landmarks_above_cameras / q.landmarks_under_cameras > limits.max_share_above_cameras:
         v.refusals.append(f"{q.landmarks_above_cameras} of the {q.landmarks_under_cameras} landmarks under the flight "

@@ -172,6 +172,46 @@ def test_a_camera_clock_reset_is_named(tmp_path, caplog):
     assert "jump back by 8918.4 days from f03.jpg to f04.jpg (a camera clock reset?)" in caplog.text
 
 
+def test_dji_xmp_position_is_read_where_the_exif_gps_was_stripped(tmp_path, caplog):
+    """nu58 D3: DJI images whose EXIF GPS an editor stripped still carry drone-dji:GpsLatitude/GpsLongitude
+    (some firmware: "GpsLongtitude") and AbsoluteAltitude; they were called "no GPS position" and `poses` built
+    an ungeoreferenced frame. Where both exist and part by more than a few metres, it is said."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(6):
+        lon_tag = "GpsLongtitude" if k == 5 else "GpsLongitude"
+        meta = _meta(img / f"f{k:02d}.jpg", latitude=None, longitude=None, altitude=None,
+                     datetime_original=f"2024:06:01 10:00:{2 * k:02d}", subsec_original="",
+                     xmp={"GpsLatitude": f"{47.0 + k * 1e-4:+.10f}", lon_tag: "-8.5000000000",
+                          "AbsoluteAltitude": "+512.300", "RelativeAltitude": "+80.10", "GimbalYawDegree": "0",
+                          "GimbalPitchDegree": "-90", "GimbalRollDegree": "0"})
+        (img / f"f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
+    back = read_image_metadata(img / "f05.jpg")
+    assert (back.latitude, back.longitude, back.altitude) == (pytest.approx(47.0005), -8.5, 512.3)
+    assert back.sources["position"] == "XMP drone-dji:GpsLatitude/GpsLongitude"
+    priors = read_image_priors(img)
+    assert priors.summary["position_sources"] == {"XMP drone-dji:GpsLatitude/GpsLongitude": 6}
+    assert priors.summary["crs"] == "EPSG:32629" and np.isfinite(priors.positions).all()
+    # the EXIF GPS is kept where both are; 30 m between them is named
+    meta = _meta(img / "f00.jpg", latitude=47.0, longitude=-8.5 + 4e-4, altitude=512.3,
+                 datetime_original="2024:06:01 10:00:00", subsec_original="",
+                 xmp={"GpsLatitude": "+47.0", "GpsLongitude": "-8.5", "GimbalYawDegree": "0",
+                      "GimbalPitchDegree": "-90", "GimbalRollDegree": "0"})
+    (img / "f00.jpg").write_bytes(embed_metadata(_jpeg(0), meta))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img)
+    assert priors.summary["position_sources"] == {"EXIF GPS": 1, "XMP drone-dji:GpsLatitude/GpsLongitude": 5}
+    assert "1 of 1 images hold a DJI XMP position" in caplog.text and "(up to 30.4 m, f00.jpg)" in caplog.text
+    assert any("hold a DJI XMP position" in w for w in priors.summary["warnings"])
+    # where a telemetry file's row gives the position, the XMP is not held against it as "EXIF GPS"
+    tele = tmp_path / "telemetry.csv"
+    tele.write_text("FileName,GPSLatitude,GPSLongitude,GPSAltitude\nf00.jpg,47.0,-8.4996,512.3\n")
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img, telemetry=tele)
+    assert "DJI XMP position" not in caplog.text
+
+
 def test_mixed_cameras_are_grouped_and_gps_is_optional(tmp_path):
     img = tmp_path / "images"
     img.mkdir()
@@ -386,3 +426,24 @@ def test_a_yaw_fault_on_a_line_the_flight_does_not_have_is_refused(tmp_path, cli
                     "--world-size", "400", "--geotags", "dji", "--yaw-fault-lines", "0,99")
     assert "--yaw-fault-lines 99: the flight has no such line" in err and "flight line(s): 0)" in err
     assert not (tmp_path / "S").exists()
+
+
+def test_the_same_place_flown_a_day_later_in_one_folder_is_two_flights_not_a_clock_reset(tmp_path, caplog):
+    """nu58 D6: a folder holding the flight and its repeat the next day (the repeat's files named B_*, so listed
+    first) was warned of as "a camera clock reset?" with "fix the dates". The time order is right there: it is two
+    flights of one place, which are named, with how to map them apart. (A clock reset mid-flight, whose later
+    frames carry on over new ground, keeps its wording: `test_a_camera_clock_reset_is_named`.)"""
+    img = tmp_path / "images"
+    img.mkdir()
+    for day, prefix in ((1, ""), (2, "B_")):
+        for k in range(6):
+            meta = _meta(img / f"{prefix}f{k:02d}.jpg", latitude=47.0 + k * 1e-4 + day * 1e-6, longitude=8.0,
+                         datetime_original=f"2024:06:0{day} 10:00:{2 * k:02d}", subsec_original="")
+            (img / f"{prefix}f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
+    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+        priors = read_image_priors(img)
+    assert "clock reset" not in caplog.text and "fix the dates" not in caplog.text
+    assert ("the folder holds 2 flights of one place (2024-06-01 10:00, 2024-06-02 10:00, camera clock; 6 + 6 "
+            "images, e.g. f00.jpg and B_f00.jpg)") in caplog.text
+    assert "put each flight in its own folder" in caplog.text
+    assert [p.name for p in priors.paths[:2]] == ["f00.jpg", "f01.jpg"]  # ordered by capture time, as before

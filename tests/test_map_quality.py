@@ -453,3 +453,24 @@ def test_a_thin_map_is_said_with_the_cause_the_map_knows():
     assert not any("thin map" in w for w in judge(thin, replace(QualityParams(), warn_landmarks_per_keyframe=0.0),
                                                   contrast=low.cause()).warnings)
     assert contrast_of([(0.0, 150.0)] * 5, 70.0).cause() == ""  # normal contrast is no cause
+
+
+def test_a_thin_or_refused_map_of_a_survey_spaced_flight_names_the_survey_preset():
+    """nu58 D5: the default `map` on the real Seneca subset refused "only 5 landmark(s)" and blamed the ground or
+    the images; `--preset survey` maps 58. The flight's own figures (an object in 2.4 keyframes of a pass) say
+    that it is the preset's kind of flight, and the refusal now says so; a flight seen more often, or a map already
+    made with the preset, is not told."""
+    from sosmatch.plugin.params import Params, preset_params, survey_preset_remedy
+
+    remedy = survey_preset_remedy(Params(), 2.37, 34.6, 61.6)
+    assert remedy == ("an object is in 2.4 keyframes of a pass (frames 35 m apart, 62 m above the ground): the kind "
+                      "of flight the survey preset is made for (an object in 2-3 frames of a line); try --preset "
+                      "survey")
+    assert survey_preset_remedy(Params(), 5.3, 7.0, 40.0) == ""  # the defaults map such flights
+    assert survey_preset_remedy(Params(), float("nan"), 7.0, 40.0) == ""  # views unknown: no guess
+    assert survey_preset_remedy(preset_params("survey"), 2.37, 34.6, 61.6) == ""
+    q = _thin_quality()
+    v = judge(q, QualityParams(), min_landmarks=q.landmarks + 1, remedy=remedy)
+    assert any(r.startswith(f"only {q.landmarks} landmark(s)") and r.endswith("try --preset survey")
+               for r in v.refusals)
+    assert not any("--preset" in r for r in judge(q, QualityParams(), min_landmarks=q.landmarks + 1).refusals)

@@ -4,19 +4,23 @@ tags): the flight's middle (`median_position`, antimeridian-safe), fixes outside
 one vertical datum (`one_vertical_datum`), what the track and the attitude tags say that no aircraft does
 (`track_checks`), which EXIF fixes a telemetry file's track shows to be no measurement (`doubtful_fixes`), and
 whether a telemetry file's positions mend the EXIF fixes or are another flight's (`telemetry_against_exif`), or
-its rows are joined to the images a whole number of images off (`rows_shifted`)."""
+its rows are joined to the images a whole number of images off (`rows_shifted`), whether DJI's XMP position
+and the EXIF GPS of the same images part (`xmp_against_exif`), and whether capture times that jump back by days
+split the folder into flights of one place (`flights_of_one_place`)."""
 
 from __future__ import annotations
 
 import logging
 import math
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..database.exif import ImageMetadata
 from ..plugin.errors import InputError
-from ..plugin.geodesy import METRES_PER_DEGREE, utm_epsg
+from ..plugin.geodesy import METRES_PER_DEGREE, geographic_to_grid, utm_epsg
 from ..plugin.gps_track import (
     FROZEN_SPREAD_M,
     MOVING_STEP_M,
@@ -28,6 +32,7 @@ from ..plugin.gps_track import (
     quantisation,
     repeated_fixes,
 )
+from ..plugin.keyframes import reads_as_flight
 from ..plugin.pose_check.gps import GNSS_WANDER_M, fix_jitter_m, fresh_fixes, stale_fixes
 
 log = logging.getLogger(__name__)
@@ -393,3 +398,65 @@ def judge_row_shift(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: 
                          "join its rows to the images by FileName, not by order, or drop its lat/lon columns (or, "
                          "if the log is right, the images' own EXIF fixes lag that many captures)", telemetry)
     return ROW_SHIFT_NOISES * noise if np.isfinite(noise) else math.inf
+
+
+XMP_EXIF_TOLERANCE_M = 5.0  # two records of one fix; a consumer receiver's noise is metres, not tens
+
+
+def xmp_against_exif(metas: list[ImageMetadata], east: np.ndarray, north: np.ndarray, epsg: int) -> str | None:
+    """A warning when images hold a DJI XMP position (`ImageMetadata.xmp_position`) more than
+    `XMP_EXIF_TOLERANCE_M` from their EXIF GPS position (`east`, `north`: the EXIF ones in `epsg`), else None: one
+    of the two was edited (a geotagging tool rewrote the EXIF only) and the EXIF one is used."""
+    idx = [i for i, m in enumerate(metas) if m.xmp_position is not None and np.isfinite(east[i])]
+    if not idx:
+        return None
+    xe, xn, _ = geographic_to_grid(np.array([metas[i].xmp_position[0] for i in idx]),  # type: ignore[index]
+                                   np.array([metas[i].xmp_position[1] for i in idx]), epsg)  # type: ignore[index]
+    gap = np.hypot(xe - east[idx], xn - north[idx])
+    far = gap > XMP_EXIF_TOLERANCE_M
+    if not far.any():
+        return None
+    worst = int(np.argmax(gap))
+    return (f"{int(far.sum())} of {len(idx)} images hold a DJI XMP position (drone-dji:GpsLatitude/GpsLongitude) "
+            f"more than {XMP_EXIF_TOLERANCE_M:.0f} m from their EXIF GPS position (up to {gap[worst]:.1f} m, "
+            f"{metas[idx[worst]].path.name}): the EXIF one is used; if a tool rewrote it, check which is right")
+
+
+# Flights of one folder apart by at least this much (s) are separate flights, not a pause between batteries
+SEPARATE_FLIGHTS_GAP_S = 3600.0
+
+
+def flights_of_one_place(times: np.ndarray, centers: np.ndarray, names: list[str], jump_s: float) -> str | None:
+    """A warning when capture times that jump back by more than `jump_s` from one image to the next (`times`,
+    `centers` (N, >=2) and `names` in the listed order) split the folder into groups that are flights of one place:
+    each group's times apart from the others' by SEPARATE_FLIGHTS_GAP_S or more (and each shorter than that gap),
+    each in its time order one flight (`plugin.keyframes.reads_as_flight`), and each later group's frames, at the
+    median, within one flight step of the first group's (the same ground again). None otherwise, e.g. for a camera
+    clock reset mid-flight, whose later frames carry on over new ground (`image_priors` names that as such).
+    nu58 D6: the same place flown a day apart, in one folder, was called "a camera clock reset?", "fix the dates"."""
+    t = np.asarray(times, dtype=np.float64)
+    xy = np.asarray(centers, dtype=np.float64)[:, :2]
+    cuts = np.flatnonzero(np.diff(t) < -jump_s) + 1
+    if not len(cuts) or not np.isfinite(xy).all():
+        return None
+    groups = sorted(np.split(np.arange(len(t)), cuts), key=lambda g: float(t[g].min()))
+    spans = [(float(t[g].min()), float(t[g].max())) for g in groups]
+    gaps = [b[0] - a[1] for a, b in zip(spans, spans[1:])]
+    if min(gaps) < max(SEPARATE_FLIGHTS_GAP_S, max(e - s for s, e in spans)):
+        return None
+    ordered = [g[np.argsort(t[g], kind="stable")] for g in groups]
+    if any(len(g) < 3 or not reads_as_flight(xy[g]) for g in ordered):
+        return None
+    steps = np.concatenate([np.linalg.norm(np.diff(xy[g], axis=0), axis=1) for g in ordered])
+    step = float(np.median(steps))
+    first = xy[ordered[0]]
+    for g in ordered[1:]:
+        nearest = np.min(np.linalg.norm(xy[g][:, None, :] - first[None, :, :], axis=2), axis=1)
+        if not np.median(nearest) <= step:
+            return None
+    dates = ", ".join(time.strftime("%Y-%m-%d %H:%M", time.gmtime(s)) for s, _ in spans)
+    sizes = " + ".join(str(len(g)) for g in groups)
+    return (f"the folder holds {len(groups)} flights of one place ({dates}, camera clock; {sizes} images, e.g. "
+            f"{names[int(ordered[0][0])]} and {names[int(ordered[1][0])]}): they are ordered by capture time and "
+            "mapped as one flight; to map each on its own, or to compare them (changes between the dates), put "
+            "each flight in its own folder (`sosmatch batch` takes a folder of such flight folders)")

@@ -72,6 +72,7 @@ from pathlib import Path
 import numpy as np
 
 from ..database.exif import ImageMetadata, orientation_note, read_image_metadata
+from ..database.geo_txt import geo_txt_hint
 from ..database.images import image_files, no_images_message
 from ..database.telemetry_io import read_telemetry_csv, telemetry_rows
 from ..plugin.attitude import (  # noqa: F401 (re-exported: the conventions the tags are read with)
@@ -104,10 +105,12 @@ from .image_cameras import (  # noqa: F401 (re-exported: their home before image
 )
 from .image_positions import (
     check_one_place,
+    flights_of_one_place,
     median_position,
     one_vertical_datum,
     telemetry_against_exif,
     track_checks,
+    xmp_against_exif,
 )
 from .image_rigs import one_image_per_capture, one_image_per_exposure
 
@@ -231,7 +234,10 @@ def _capture_order(metas: list[ImageMetadata], centers: np.ndarray) -> np.ndarra
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     if times is not None and how != "path":
         back = np.flatnonzero(np.diff(times) < -CLOCK_RESET_S)
-        if len(back):  # the nu20 sweep: a camera clock reset to 2000-01-01 reordered the flight with no word
+        flights = flights_of_one_place(times, centers, [m.path.name for m in metas], CLOCK_RESET_S)
+        if flights is not None:  # the same ground flown again days later: no clock fault (nu58 D6)
+            log.warning("%s", flights)
+        elif len(back):  # the nu20 sweep: a camera clock reset to 2000-01-01 reordered the flight with no word
             k = int(back[0])
             log.warning("the capture times jump back by %.1f days from %s to %s (a camera clock reset?): the images "
                         "are ordered by them, which puts the later ones first; fix the dates if that is wrong",
@@ -328,7 +334,8 @@ def read_image_priors(
             lat[i], lon[i] = m.latitude, m.longitude
             # an image without an EXIF altitude keeps its telemetry altitude (a row with an altitude but no fix)
             alt_from_telemetry[i] = not np.isfinite(exif_alt[i]) and "alt" in t
-            pos_src["EXIF GPS"] += 1
+            # EXIF GPS, else DJI's XMP position (an image whose EXIF GPS was stripped: `database.exif`)
+            pos_src["EXIF GPS" if m.sources.get("position", "").startswith("EXIF") else m.sources["position"]] += 1
         if np.isfinite(lat[i]):
             alt[i] = tele_alt[i] if alt_from_telemetry[i] else exif_alt[i]
     tele_warnings = telemetry_against_exif(
@@ -336,6 +343,9 @@ def read_image_priors(
         np.asarray(both_t, np.float64))
     alt = one_vertical_datum(alt, alt_from_telemetry & np.isfinite(alt), tele_alt, exif_alt, telemetry)
     has = np.isfinite(lat)
+    if telemetry is None and has.any() and (geo_txt := geo_txt_hint(paths[0].parent)) is not None:
+        # OpenDroneMap would take it over the images' own GPS (an RTK/PPK solution): said, not silently skipped
+        log.warning("the positions are the images' own GPS; %s", geo_txt)
     east, north, north_az = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
     if has.any():
         if epsg is None:
@@ -343,6 +353,11 @@ def read_image_priors(
         east[has], north[has], north_az[has] = geographic_to_grid(lat[has], lon[has], epsg)
         north_az[~has] = float(np.mean(north_az[has]))
         check_one_place(lat, lon, east, north, int(epsg), [m.path.name for m in metas], images)
+        # the images whose position is their EXIF one (a telemetry file's rows take precedence)
+        exif_pos = ~np.array(["lat" in r and "lon" in r for r in rows], dtype=bool)
+        if (text := xmp_against_exif(metas, np.where(exif_pos, east, np.nan), north, int(epsg))) is not None:
+            log.warning("%s", text)
+            tele_warnings.append(text)  # the summary's warnings: poses.json records it
         # the pose reader refuses a CRS that stretches distances at the flight (Web Mercator, a polar
         # stereographic of another standard parallel): refused here, before poses are written that `map` refuses
         if (stretched := crs_scale_problem(int(epsg), np.column_stack([east[has], north[has]]))) is not None:

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..database.cameras import format_cameras_txt
 from ..database.exif import orientation_note
+from ..database.geo_txt import geo_txt_hint
 from ..database.output_files import OutputFiles
 from ..database.output_markers import VersionedIdentity, fingerprint, input_identity
 from ..database.poses import format_poses_csv
@@ -104,10 +105,12 @@ def poses_from_images(
         # GPS kept in sidecars by a photo editor: say where it is (nu42 D6: "50 of 50 ... no GPS", not a word
         # of the 50 .xmp files beside them)
         sidecars = sidecars_with_gps([metas[int(i)].path for i in no_fix])
-        raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude"
+        geo_txt = geo_txt_hint(first.path.parent) if telemetry is None else None  # ODM's positions file (nu58 D4)
+        raise InputError(f"{len(no_fix)} of {n} images have no GPS position (EXIF GPSLatitude/GPSLongitude, DJI XMP "
+                         "drone-dji:GpsLatitude/GpsLongitude"
                          + (", here without its N/S/E/W refs" if hemisphere else "")
                          + (f", here {empty}" if empty else "") + f"), e.g. {first.path.name}; "
-                         + (f"{sidecars}; or " if sidecars else "")
+                         + (f"{sidecars}; or " if sidecars else "") + (f"{geo_txt}; or " if geo_txt else "")
                          + "give a telemetry CSV with positions or a poses.csv", first.path)
     # the GPS positions and tags are these poses: where no aircraft flies or looks like that, they are unusable
     if priors.summary.get("gps_frozen"):

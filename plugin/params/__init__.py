@@ -47,6 +47,7 @@ from .presets import (
     for_image,
     pixel_scale,
     preset_params,
+    survey_preset_remedy,
 )
 from .tree import (
     LATER_SECTIONS,
@@ -99,6 +100,7 @@ __all__ = [
     "pixel_scale",
     "positive",
     "preset_params",
+    "survey_preset_remedy",
     "text",
     "valid_values",
     "with_overrides",

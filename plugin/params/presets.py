@@ -194,3 +194,30 @@ def for_flight(params: Params, views_per_pass: float) -> Params:
     if tri.height_outlier_sigmas <= 0:
         changes["triangulation.height_outlier_sigmas"] = FEW_VIEWS_HEIGHT_OUTLIER_SIGMAS
     return with_overrides(params, changes)
+
+
+# The survey preset's regime, measured: an object in 2-3 keyframes of a pass (Seneca 2.4: the defaults map 5
+# landmarks, the preset 58; nu58 D5). The defaults still map flights of 5 and more (40 m synthetic flights, 5.3:
+# 194 landmarks; BENCHMARKS.md "40 m flights map poorly"), so the remedy is named below 4 only.
+SURVEY_VIEWS_PER_PASS = 4.0
+# the survey preset's own tracking settings, which neither `for_image` nor `for_flight` changes: a map made with
+# all of them is a survey-preset map whatever else was set
+_SURVEY_TRACKING = ("tracking.size_tolerance", "tracking.motion_gate_sigmas", "tracking.max_track_age_keyframes")
+
+
+def survey_preset_remedy(params: Params, views_per_pass: float, spacing_m: float, flying_height_m: float) -> str:
+    """The clause naming `--preset survey` for a thin or refused map, from what the flight measured: an object in
+    fewer than SURVEY_VIEWS_PER_PASS keyframes of a pass (`plugin.motion.views_per_pass`), frames `spacing_m`
+    apart (median keyframe step) at `flying_height_m` above the ground; "" when the flight sees objects more often,
+    the views are unknown (NaN), or `params` already hold the survey preset's tracking settings."""
+    if not views_per_pass < SURVEY_VIEWS_PER_PASS:
+        return ""
+    survey = PRESETS["survey"]
+    if all(getattr(getattr(params, key.split(".")[0]), key.split(".")[1]) == survey[key] for key in _SURVEY_TRACKING):
+        return ""
+    where = ", ".join(f for f in (f"frames {spacing_m:.0f} m apart" if np.isfinite(spacing_m) else "",
+                                  f"{flying_height_m:.0f} m above the ground" if np.isfinite(flying_height_m) else "")
+                      if f)
+    return (f"an object is in {views_per_pass:.1f} keyframes of a pass" + (f" ({where})" if where else "")
+            + ": the kind of flight the survey preset is made for (an object in 2-3 frames of a line); try "
+            "--preset survey")

@@ -19,7 +19,7 @@ from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses, pixel_rays
 from ...plugin.image_quality import FlightImages
 from ...plugin.map_quality import MapQuality, Verdict, assess_map, isolated_cameras, judge
-from ...plugin.params import QualityParams
+from ...plugin.params import QualityParams, survey_preset_remedy
 
 if TYPE_CHECKING:
     from ...database.images import Levels
@@ -89,15 +89,20 @@ def quality_stage(
     long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
     images_flying_height_m: float = float("nan"), white: Levels | int | None = None, poses_fit: str = "",
     images: FlightImages | None = None, contrast: str = "", min_observations: int = 0,
+    views_per_pass: float = float("nan"), params: Any = None,
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
     for the picture (`database.flight_levels.flight_white_level`); `poses_fit`, `images`: the pose check's phrase
     when it found the poses fitting, and the keyframes' image figures (`judge`); `contrast`: the flight's low contrast
-    as a cause (`FlightContrast.cause`); `min_observations`: the map's theta_n (`judge`)."""
+    as a cause (`FlightContrast.cause`); `min_observations`: the map's theta_n (`judge`); `views_per_pass` (the
+    flight's, `plugin.motion.views_per_pass`) and the map's `params`: whether to name the survey preset
+    (`plugin.params.survey_preset_remedy`)."""
     quality = assess(landmarks, poses, long_tracks, camera, keypoints, limits)
+    spacing = float(np.median(np.linalg.norm(np.diff(poses.centers, axis=0), axis=1))) if len(poses) > 1 else np.nan
+    remedy = survey_preset_remedy(params, views_per_pass, spacing, quality.flying_height_m) if params else ""
     verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images, contrast,
-                    min_observations)
+                    min_observations, remedy)
     alone = isolated_cameras(poses.centers, quality.flying_height_m, 0.5 * float(np.hypot(camera.width, camera.height)),
                              float(camera.fx))
     if len(alone):

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ...database.geo_txt import geo_txt_hint
 from ...database.xmp_sidecar import sidecars_with_gps
 from ...plugin.errors import InputError
 from ...plugin.focal_prior import FocalEstimate
@@ -98,8 +99,10 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
     centre = np.r_[np.median(cams[:, :2], axis=0), ground]
     transform = Sim3(level, -scale * centre, scale)
     sidecars = sidecars_with_gps(priors.paths)  # GPS a photo editor kept beside the images
+    geo_txt = geo_txt_hint(priors.paths[0].parent)  # OpenDroneMap's positions file beside them (nu58 D4)
     warnings.append(f"no GPS positions: the poses are in a local frame (levelled by the {vert.source}, "
-                    f"origin on the ground under the flight, scale {how})" + (f"; {sidecars}" if sidecars else ""))
+                    f"origin on the ground under the flight, scale {how})" + (f"; {sidecars}" if sidecars else "")
+                    + (f"; {geo_txt}" if geo_txt else ""))
     return transform, {"frame": "local", "scale_from": how, "vertical_source": vert.source}, None
 
 def refuse_frozen_gps(priors: ImagePriors, image_dir: Path) -> None:
