@@ -455,6 +455,15 @@ def georegister(
                         f"+-{vert.gps_sigma_deg:.1f} deg (more than the {NADIR_ASSUMPTION_SIGMA_DEG:g} deg of the "
                         "nadir assumption): that tilt rests on the camera looking straight down; for a tilted "
                         "camera give attitude tags (--telemetry)")
+    if vert.source == "nadir assumption":
+        # nothing measured the vertical: no attitude tags and no GPS heights that could check it; a fixed-wing
+        # camera is often not nadir on average (Seneca: 6.6 deg nose-up; nu58 D1: the block 4.8 deg off, landmarks
+        # 4 m off, heights tilted 5 deg, said nowhere), so the user is told what the vertical rests on and its sigma
+        warnings.append(f"no attitude tags and no GPS heights: the vertical (the block's tilt) rests on the camera "
+                        f"looking straight down on average, +-{vert.sigma_deg:.1f} deg, unchecked (a camera tilted "
+                        "on average, e.g. a fixed-wing's pitch, tilts the whole block: positions off by about the "
+                        "flying height x tan(tilt), heights on a tilted plane); give attitude tags (--telemetry) "
+                        "or the GPS altitudes")
     if hfit.inliers.sum() < 0.5 * len(idx):
         warnings.append(f"only {int(hfit.inliers.sum())} of {len(idx)} GPS positions fit the reconstruction: "
                         "the georegistration is doubtful")
