@@ -501,6 +501,16 @@ def georegister(
     refusals = _refusals(vert, hfit, levelled[idx], gps[idx], seed)
     if (nadir := nadir_tilt_warning(vert)) is not None:
         warnings.append(nadir)
+    if vert.source == "nadir assumption" and vert.gps_up is None:
+        # nothing measured the vertical: no attitude tags and no GPS heights that could check it (heights that
+        # contradict the assumption have their own warning above); a fixed-wing
+        # camera is often not nadir on average (Seneca: 6.6 deg nose-up; nu58 D1: the block 4.8 deg off, landmarks
+        # 4 m off, heights tilted 5 deg, said nowhere), so the user is told what the vertical rests on and its sigma
+        warnings.append(f"no attitude tags and no GPS heights: the vertical (the block's tilt) rests on the camera "
+                        f"looking straight down on average, +-{vert.sigma_deg:.1f} deg, unchecked (a camera tilted "
+                        "on average, e.g. a fixed-wing's pitch, tilts the whole block: positions off by about the "
+                        "flying height x tan(tilt), heights on a tilted plane); give attitude tags (--telemetry) "
+                        "or the GPS altitudes")
     if hfit.inliers.sum() < 0.5 * len(idx):
         warnings.append(f"only {int(hfit.inliers.sum())} of {len(idx)} GPS positions fit the reconstruction: "
                         "the georegistration is doubtful")

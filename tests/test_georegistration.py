@@ -476,3 +476,18 @@ def test_a_sound_wide_survey_is_not_told_its_gps_altitude_drifts():
         sfm_c, sfm_r, gps, prior, tags, times, _ = _drifting(6, 10, 30.0, 0.0, seed, height_sigma=1.5)
         geo = georegister(sfm_c, sfm_r, gps, prior, tags, times)
         assert not any("drifts by" in w for w in geo.warnings), geo.warnings
+
+
+def test_no_gps_heights_no_tags_the_vertical_on_the_nadir_assumption_alone_is_said():
+    """Latitude/longitude without altitude and no attitude tags: the block is levelled on the nadir assumption
+    alone; a fixed-wing camera pitched 6.6 deg tilts it so, unchecked (nu58 D1: 4.8 deg, landmarks 4 m off, no
+    word): the warning says what the vertical rests on and its sigma."""
+    centers, rots, _, times = _block()
+    pitched = rots @ Rotation.from_euler("x", 6.6, degrees=True).as_matrix()  # the camera's own pitch offset
+    sfm_c, sfm_r, _ = _to_sfm(centers, pitched)
+    gps = centers.copy()
+    gps[:, 2] = np.nan  # no GPS altitude
+    geo = georegister(sfm_c, sfm_r, gps, rots, np.zeros(len(rots), bool), times)
+    said = [w for w in geo.warnings if "rests on the camera looking straight down" in w]
+    assert said and f"+-{geo.vertical.sigma_deg:.1f} deg" in said[0]
+    assert geo.vertical.sigma_deg >= 3.0  # the assumption's sigma, not a measured-looking figure

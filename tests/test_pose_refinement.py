@@ -563,3 +563,23 @@ def test_one_gimbal_tag_far_off_is_corrected_by_the_tie_points_and_named(tmp_pat
                            f"deg): {truth.names[5]} ")
     assert np.median(rotation_angle_deg(refined.rotations, truth.rotations)) < 1.0
     assert rotation_angle_deg(refined.rotations[5:6], truth.rotations[5:6])[0] < 2.0
+
+
+def test_an_image_below_half_of_its_own_tie_points_within_chance_is_named():
+    """nu58 D2: two cameras ~140 deg off their heading explained 7 of 17 / 7 of 18 of their own tie points (below
+    half, within chance: not refused) and were named nowhere; they are named in a warning."""
+    from sosmatch.workflows.pose_refinement.judge import RefinementStats, judge_refinement
+
+    nan = float("nan")
+    stats = RefinementStats(images=4, points=200, observations=900, reprojection_rmse_before_px=3.0,
+                            reprojection_rmse_after_px=0.6, reprojection_median_before_px=2.0,
+                            reprojection_median_after_px=0.4, position_change_mean_m=1.0, position_change_max_m=2.0,
+                            rotation_change_mean_deg=1.0, rotation_change_max_deg=2.0, iterations=2, seconds=1.0,
+                            converged=True, position_change_median_m=1.0, block_tilt_change_deg=0.5,
+                            explained_share=0.95, explained_share_by_image=(0.98, 7 / 17, 0.0, nan),
+                            observations_by_image=(300, 17, 3, 0))
+    errors, warnings = judge_refinement(stats, 3.0, 5.0, names=["a.jpg", "b.jpg", "c.jpg", "d.jpg"])
+    assert errors == []
+    named = [w for w in warnings if "less than half of their own tie points" in w]
+    assert len(named) == 1 and "b.jpg 41%" in named[0] and all(n not in named[0] for n in ("a.jpg", "c.jpg", "d.jpg"))
+    # (c.jpg: 3 observations, too few to judge; such a camera keeps its starting pose and is named for that)

@@ -14,6 +14,7 @@ from ...database.images import read_gray
 from ...plugin.fixed_in_frame import FixedInFrame, learn_fixed_in_frame
 from ...plugin.geometry import Poses, rotation_angle_deg
 from .judge import (
+    WEAK_OBSERVATIONS,
     RefinementRejected,
     RefinementStats,
     judge_refinement,
@@ -382,9 +383,6 @@ def refine_poses_from_images(
     return refined, stats
 
 
-# A camera's own tie points constrain its 6 unknowns when they give at least 1.5 measured coordinates per unknown
-# (the block-level rule of `judge_refinement`): 5 observations; with fewer one wrong tie point decides its turn.
-WEAK_OBSERVATIONS = 5
 
 
 def turned_images(before: Poses, after: Poses, attitude_sigma_deg: float,
