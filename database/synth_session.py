@@ -270,6 +270,17 @@ def ground_truth_crs(path: str | Path) -> tuple[int, np.ndarray] | None:
     return epsg, offset
 
 
+def rendered_by_synth(path: str | Path) -> bool:
+    """Whether the session at PATH says (session.json) it was rendered by `sosmatch synth` from a procedural world,
+    which always writes its object truth (objects.csv, frames.json, labels/); False for an orthophoto session
+    (no object truth) and a directory without session.json (a real flight)."""
+    path = Path(path)
+    if not (path / "session.json").is_file():
+        return False
+    meta = _read_json(path / "session.json", dict)
+    return meta.get("format") == SESSION_FORMAT and meta.get("source") != "orthophoto"
+
+
 def ground_truth_frame(path: str | Path) -> str | None:
     """What a synthetic session's ground truth (poses.csv, objects.csv, terrain.npz) is expressed in: its procedural
     world ("world seed 61, 600 m at 0.15 m") or its orthophoto's CRS ("orthophoto in EPSG:32618"); None for a
