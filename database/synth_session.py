@@ -271,14 +271,16 @@ def ground_truth_crs(path: str | Path) -> tuple[int, np.ndarray] | None:
 
 
 def rendered_by_synth(path: str | Path) -> bool:
-    """Whether the session at PATH says (session.json) it was rendered by `sosmatch synth` from a procedural world,
-    which always writes its object truth (objects.csv, frames.json, labels/); False for an orthophoto session
-    (no object truth) and a directory without session.json (a real flight)."""
+    """Whether the session at PATH says (session.json's generator) it was rendered by `sosmatch synth` from a
+    procedural world, which always writes its object truth (objects.csv, frames.json, labels/); False for an
+    orthophoto session (no object truth), a directory without session.json (a real flight) and a session.json
+    written by other means."""
     path = Path(path)
     if not (path / "session.json").is_file():
         return False
     meta = _read_json(path / "session.json", dict)
-    return meta.get("format") == SESSION_FORMAT and meta.get("source") != "orthophoto"
+    return (meta.get("format") == SESSION_FORMAT and meta.get("source") != "orthophoto"
+            and str(meta.get("generator", "")).startswith("sosmatch "))
 
 
 def ground_truth_frame(path: str | Path) -> str | None:
