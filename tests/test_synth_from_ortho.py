@@ -122,6 +122,20 @@ def test_a_few_frames_of_a_plan_beyond_the_limit_are_made(kind):
         plan_path(bounds, cam, 0.5 * cam.fx, kind, max_frames=170, max_plan_frames=160)
 
 
+def test_a_gsd_far_finer_than_the_raster_is_warned_of(tmp_path, caplog):
+    """rev55 D7: --gsd 0.1 on a 5 m/px raster (50x upsampling) rendered without a word; at 2x (the default's
+    ratio) nothing is said."""
+    tif = write_geotiff(tmp_path / "geo.tif")
+    args = dict(path="line", width=160, height=120, frames=2)
+    with caplog.at_level("WARNING"):
+        synth_from_ortho(tif, tmp_path / "fine", gsd_m=0.5, **args)
+    assert "views at 0.5 m/px upsample the orthophoto's 5 m/px 10x" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        synth_from_ortho(tif, tmp_path / "ok", gsd_m=2.5, **args)
+    assert "upsample" not in caplog.text
+
+
 def test_errors_are_user_errors(tmp_path, capsys):
     tif = write_geotiff(tmp_path / "geo.tif", crs="EPSG:4326")
     with pytest.raises(InputError, match="projected CRS"):
