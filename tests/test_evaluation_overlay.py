@@ -20,7 +20,7 @@ def test_a_refused_match_s_associations_are_not_drawn_as_associated():
     assert verification_refused(refused)
     layers = association_layers(refused)
     assert [len(a) for a, *_ in layers] == [2, 1]
-    assert all("refused" in label and "verification support 5" in label for *_, label in layers)
+    assert all("refused" in label and "window hypotheses, support 5" in label for *_, label in layers)
     assert "limegreen" not in [color for _, _, color, _ in layers]
     accepted = _sos({"accepted": True, "support": 2, "associations": [[0, 0], [1, 1]]})
     assert not verification_refused(accepted) and not verification_refused(_sos(None))

@@ -156,9 +156,8 @@ def association_layers(sos: dict) -> list[tuple[np.ndarray, np.ndarray, str, str
     far = np.linalg.norm(pa[pairs[:, 0]] - pb[pairs[:, 1]], axis=1) > WRONG_ASSOCIATION_M
     n_hyp = len(sos.get("accepted", []))
     if verification_refused(sos):
-        groups = [(~far, "0.55", "window hypotheses' associations, refused by the verification"),
-                  (far, "red", "window hypotheses' associations, refused, wrong")]
-        what = f"{n_hyp} window hypotheses; verification support {ver.get('support')}"
+        groups = [(~far, "0.55", "refused by the verification"), (far, "red", "refused, wrong")]
+        what = f"{n_hyp} window hypotheses, support {ver.get('support')}"
     else:
         groups = [(~far, "limegreen", "associated"), (far, "red", "associated, wrong")]
         what = f"{n_hyp} accepted hypotheses" + (f" + verified alignment of {ver['support']}"
