@@ -63,8 +63,26 @@ def read_terrain_npz(path: str | Path) -> HeightField:
         raise InputError(str(exc), path) from None
 
 
-def read_dem(path: str | Path) -> HeightField:
-    """A north-up elevation raster (GeoTIFF etc., via rasterio) as a height field in the raster's CRS."""
+def crs_name(epsg: int) -> str:
+    """How an EPSG code (0: none) reads in a message."""
+    return f"EPSG:{epsg}" if epsg else "a local frame (no CRS)"
+
+
+def check_same_crs(what: str, epsg: int, truth: str, truth_epsg: int, path: Path) -> None:
+    """Refuse WHAT (at PATH) georeferenced in EPSG (0: none) against a ground truth TRUTH in TRUTH_EPSG: no rigid
+    transform relates two frames, so its coordinates would be read as the other's (a map scored 5.2e6 m off, a
+    DEM covering none of the flights)."""
+    if epsg != truth_epsg:
+        raise InputError(f"{what} is in {crs_name(epsg)} but {truth} is in {crs_name(truth_epsg)}: no rigid "
+                         "transform relates them", path)
+
+
+def read_dem(path: str | Path, poses_epsg: int = 0, cameras_xy: np.ndarray | None = None,
+             poses_path: Path | None = None) -> HeightField:
+    """A north-up elevation raster (GeoTIFF etc., via rasterio) as a height field in the raster's CRS, which must
+    be the poses' (POSES_EPSG, 0 for a local frame: a raster without CRS) and cover their cameras (CAMERAS_XY,
+    (N, 2)), as POSES_PATH names them: a DEM of another frame gave every footprint 0 m^2 and the refusal blamed
+    the flights ("do not overlap")."""
     import rasterio
 
     path = Path(path)
@@ -73,8 +91,15 @@ def read_dem(path: str | Path) -> HeightField:
             z = src.read(1).astype(np.float64)
             tr = src.transform
             nodata = src.nodata
+            crs = src.crs
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(f"cannot read elevation raster: {exc}", path) from None
+    epsg = 0 if crs is None else crs.to_epsg()
+    if epsg is None:
+        raise InputError(f"elevation raster's CRS has no EPSG code ({crs}): reproject it to the poses' "
+                         f"{crs_name(poses_epsg)}", path)
+    check_same_crs("elevation raster", epsg, str(poses_path or "the poses"), poses_epsg,
+                   path)
     if tr.b != 0 or tr.d != 0:
         raise InputError("rotated rasters are not supported", path)
     if nodata is not None:
@@ -82,15 +107,26 @@ def read_dem(path: str | Path) -> HeightField:
     if np.isnan(z).all():
         raise InputError("elevation raster holds no data", path)
     z = np.where(np.isnan(z), np.nanmedian(z), z)
+    if cameras_xy is not None and len(cameras_xy):
+        xs, ys = sorted((tr.c, tr.c + tr.a * z.shape[1])), sorted((tr.f, tr.f + tr.e * z.shape[0]))
+        out = ~((cameras_xy[:, 0] >= xs[0]) & (cameras_xy[:, 0] <= xs[1]) & (cameras_xy[:, 1] >= ys[0]) &
+                (cameras_xy[:, 1] <= ys[1]))
+        if out.any():
+            x, y = cameras_xy[np.flatnonzero(out)[0]]
+            raise InputError(f"elevation raster (x {xs[0]:.6g}..{xs[1]:.6g}, y {ys[0]:.6g}..{ys[1]:.6g}) does not "
+                             f"cover {int(out.sum())} of the {len(out)} cameras of "
+                             f"{poses_path or 'the poses'}, e.g. at ({x:.6g}, {y:.6g})", path)
     # Pixel centres: x = c + a (col + 0.5), y = f + e (row + 0.5).
     return HeightField(z, tr.c + 0.5 * tr.a, tr.f + 0.5 * tr.e, tr.a, tr.e)
 
 
-def terrain_of_session(session: Path, dem: str | Path | None = None, ground_height: float = 0.0
-                       ) -> FlatGround | HeightField:
-    """The terrain for ground truth: `dem` if given, else SESSION/terrain.npz if present, else a flat ground."""
+def terrain_of_session(session: Path, dem: str | Path | None = None, ground_height: float = 0.0,
+                       poses_epsg: int = 0, cameras_xy: np.ndarray | None = None,
+                       poses_path: Path | None = None) -> FlatGround | HeightField:
+    """The terrain for ground truth: `dem` if given (checked against the poses' CRS and cameras: `read_dem`), else
+    SESSION/terrain.npz if present, else a flat ground."""
     if dem is not None:
-        return read_dem(dem)
+        return read_dem(dem, poses_epsg, cameras_xy, poses_path)
     npz = Path(session) / "terrain.npz"
     if npz.exists():
         return read_terrain_npz(npz)

@@ -270,6 +270,19 @@ def ground_truth_crs(path: str | Path) -> tuple[int, np.ndarray] | None:
     return epsg, offset
 
 
+def rendered_by_synth(path: str | Path) -> bool:
+    """Whether the session at PATH says (session.json's generator) it was rendered by `sosmatch synth` from a
+    procedural world, which always writes its object truth (objects.csv, frames.json, labels/); False for an
+    orthophoto session (no object truth), a directory without session.json (a real flight) and a session.json
+    written by other means."""
+    path = Path(path)
+    if not (path / "session.json").is_file():
+        return False
+    meta = _read_json(path / "session.json", dict)
+    return (meta.get("format") == SESSION_FORMAT and meta.get("source") != "orthophoto"
+            and str(meta.get("generator", "")).startswith("sosmatch "))
+
+
 def ground_truth_frame(path: str | Path) -> str | None:
     """What a synthetic session's ground truth (poses.csv, objects.csv, terrain.npz) is expressed in: its procedural
     world ("world seed 61, 600 m at 0.15 m") or its orthophoto's CRS ("orthophoto in EPSG:32618"); None for a

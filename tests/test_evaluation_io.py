@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sosmatch.database.evaluation_io import (
+    read_dem,
     read_landmark_table,
     read_match_hypotheses,
     read_terrain_npz,
@@ -13,6 +14,34 @@ from sosmatch.database.evaluation_io import (
 )
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.evaluation.footprints import FlatGround
+
+
+def _dem(path, epsg):
+    import rasterio
+    from affine import Affine
+
+    with rasterio.open(path, "w", driver="GTiff", width=10, height=8, count=1, dtype="float32",
+                       crs=f"EPSG:{epsg}" if epsg else None,
+                       transform=Affine(10.0, 0.0, 500000.0, 0.0, -10.0, 5200080.0)) as d:
+        d.write(np.full((1, 8, 10), 300.0, np.float32))
+    return path
+
+
+def test_a_dem_of_another_crs_or_area_than_the_poses_is_refused_naming_it(tmp_path):
+    """rev55 D4: `evaluate --dem` with a raster in another CRS than the poses (or none), or beside the flights, gave
+    every footprint 0 m^2 and the refusal blamed the flights ("do not overlap")."""
+    utm, local = _dem(tmp_path / "utm.tif", 26914), _dem(tmp_path / "local.tif", 0)
+    inside = np.array([[500010.0, 5200010.0], [500090.0, 5200070.0]])
+    assert read_dem(utm, 26914, inside).z_range == (300.0, 300.0)
+    assert read_dem(local, 0, inside).z_range == (300.0, 300.0)  # a local DEM for local poses
+    for dem, epsg, said in ((utm, 0, "utm.tif: elevation raster is in EPSG:26914 but P is in a local"),
+                            (utm, 32618, "is in EPSG:26914 but P is in EPSG:32618"),
+                            (local, 26914, r"local.tif: elevation raster is in a local frame \(no CRS\) but")):
+        with pytest.raises(InputError, match=said):
+            read_dem(dem, epsg, inside, "P")
+    with pytest.raises(InputError, match=r"utm.tif: elevation raster .* does not cover 1 of the 2 cameras of P, "
+                                         r"e.g. at \(0, 0\)"):
+        read_dem(utm, 26914, np.array([[500010.0, 5200010.0], [0.0, 0.0]]), "P")
 
 
 def test_synth_terrain_layout(tmp_path):

@@ -166,6 +166,23 @@ def test_sessions_of_two_worlds_are_refused(sessions, tmp_path, cli_error):
     assert main([str(x) for x in (*args, "--out", tmp_path / "e2")]) == 0
 
 
+def test_a_synth_session_missing_its_object_truth_is_refused(sessions, tmp_path, cli_error):
+    """rev55 D2: a `sosmatch synth` session (session.json says so) without objects.csv was scored with its object
+    columns silently '-', as if it had no object truth; `synth` always writes it, so the session is incomplete.
+    The fixture's sessions (no session.json: real flights) are scored without object truth as before."""
+    import shutil
+
+    root, a0, b0, _ = sessions
+    a, b = tmp_path / "A", tmp_path / "B"
+    config = {"world_seed": 61, "world_size_m": 600.0, "world_resolution_m": 0.15}
+    for src, dst in ((a0, a), (b0, b)):
+        shutil.copytree(src, dst)
+        (dst / "session.json").write_text(json.dumps({"format": "sosmatch-synth-session", "version": 1,
+                                                      "generator": "sosmatch 0.1.0", "config": config}))
+    err = cli_error("evaluate", a, b, "--methods", "sosmatch", "--repeats", "1", "--out", tmp_path / "e")
+    assert "A/objects.csv: file not found" in err and "sosmatch synth" in err and not (tmp_path / "e").exists()
+
+
 def test_a_pair_without_positive_keyframe_pairs_is_refused(sessions, tmp_path, cli_error):
     """New-user sweep: flights at 80 m and 150 m have no keyframe pair of IoU > 1/3 (IoU is at most the ratio of
     the footprints' areas), so recall and F1 are undefined; evaluate reported 0.000 with exit 0 for a right

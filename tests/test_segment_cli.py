@@ -151,6 +151,8 @@ def test_cli_directory_run_skips_bad_files_and_exits_nonzero(tmp_path, capsys):
     assert main(["segment", str(src / "a.png"), "--out", str(out), "-q", "--overwrite"]) == 0
     assert main(["segment", str(tmp_path / "nothing"), "--out", str(out), "-q"]) == 2
     assert main(["segment", str(src / "a.png"), "--out", str(out), "--backend", "nope", "-q"]) == 2
+    # rev55 D8: the option and its choices, not the internal SegmentationParams.backend
+    assert "error: --backend must be one of 'classical', 'sam-onnx', got 'nope'" in capsys.readouterr().err
 
 
 def test_images_of_one_stem_keep_their_own_outputs_and_summary_rows_are_csv(tmp_path):

@@ -105,6 +105,37 @@ def test_plan_keeps_footprints_inside_and_overlapping():
     assert seen >= 6
 
 
+@pytest.mark.parametrize("kind", ["lawnmower", "line", "cross"])
+def test_a_few_frames_of_a_plan_beyond_the_limit_are_made(kind):
+    """rev55 D3: `--gsd 0.1 --frames 3` on a NAIP raster was refused for the ~3.5e5 frames of the whole plan; the
+    limit is on the frames made, which are the first ones of the plan (cut without building the rest)."""
+    from sosmatch.tools.ortho_session import camera_for
+
+    cam = camera_for(320, 240, 60.0)
+    bounds = (0.0, 0.0, 4670.0, 3620.0)
+    full, full_heads = plan_path(bounds, cam, 0.5 * cam.fx, kind)
+    assert len(full) > 200
+    for frames in (3, 150):
+        centers, heads = plan_path(bounds, cam, 0.5 * cam.fx, kind, max_frames=frames, max_plan_frames=160)
+        assert np.array_equal(centers, full[:frames]) and np.array_equal(heads, full_heads[:frames])
+    with pytest.raises(ValueError, match="would hold"):
+        plan_path(bounds, cam, 0.5 * cam.fx, kind, max_frames=170, max_plan_frames=160)
+
+
+def test_a_gsd_far_finer_than_the_raster_is_warned_of(tmp_path, caplog):
+    """rev55 D7: --gsd 0.1 on a 5 m/px raster (50x upsampling) rendered without a word; at 2x (the default's
+    ratio) nothing is said."""
+    tif = write_geotiff(tmp_path / "geo.tif")
+    args = dict(path="line", width=160, height=120, frames=2)
+    with caplog.at_level("WARNING"):
+        synth_from_ortho(tif, tmp_path / "fine", gsd_m=0.5, **args)
+    assert "views at 0.5 m/px upsample the orthophoto's 5 m/px 10x" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        synth_from_ortho(tif, tmp_path / "ok", gsd_m=2.5, **args)
+    assert "upsample" not in caplog.text
+
+
 def test_errors_are_user_errors(tmp_path, capsys):
     tif = write_geotiff(tmp_path / "geo.tif", crs="EPSG:4326")
     with pytest.raises(InputError, match="projected CRS"):

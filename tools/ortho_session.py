@@ -88,8 +88,8 @@ def plan_path(
     "cross" (two lines through the centre, the second perpendicular). Lines run along the longer side unless
     `heading_deg` (0 = north, 90 = east) says otherwise. Defaults: frames every 1/8 of the footprint length
     (a ground point is seen in ~8 consecutive frames per line), lines every half footprint width (50% sidelap).
-    `offset_m` shifts the lines sideways (a second session on a parallel path). `max_plan_frames`: a plan that would
-    hold more frames than this (before `max_frames` takes the first ones) is a ValueError, not an allocation.
+    `offset_m` shifts the lines sideways (a second session on a parallel path). `max_frames`: only the first frames
+    of the plan; `max_plan_frames`: more frames made than this is a ValueError, not an allocation.
     """
     gsd = altitude_m / camera.fx
     along_len, across_len = camera.height * gsd, camera.width * gsd  # image top points along the track
@@ -111,14 +111,24 @@ def plan_path(
         raise ValueError("the area is smaller than one footprint: lower the altitude or the field of view")
     planned = (2 * half_a / frame_spacing_m + 1) * (2 * max(half_c, 0.0) / line_spacing_m + 1 if kind == "lawnmower"
                                                      else 2.0)
-    if max_plan_frames is not None and planned > max_plan_frames:
+    # the frames made: the first max_frames of the plan (a short high-resolution test session of a large raster
+    # was refused for the size of the plan it cut)
+    made = planned if max_frames is None else min(planned, max_frames)
+    if max_plan_frames is not None and made > max_plan_frames:
         raise ValueError(f"the flight plan would hold ~{planned:.3g} frames, more than {max_plan_frames}: a larger "
-                         "frame or line spacing")
-    steps = np.arange(-half_a, half_a + 1e-9, frame_spacing_m)
-    steps += (half_a - steps[-1]) / 2.0  # centre the frames on the track
+                         "frame or line spacing, or fewer frames")
+    cap = max_frames if max_frames is not None else math.inf
+    n_steps = math.ceil((2 * half_a + 1e-9) / frame_spacing_m)  # np.arange's length
+    if n_steps <= cap:
+        steps = np.arange(-half_a, half_a + 1e-9, frame_spacing_m)
+        steps += (half_a - steps[-1]) / 2.0  # centre the frames on the track
+    else:  # only the frames made along the first line
+        steps = -half_a + np.arange(int(cap)) * frame_spacing_m
+        steps += (half_a - (-half_a + (n_steps - 1) * frame_spacing_m)) / 2.0
+    lines_made = max(1, math.ceil(cap / len(steps))) if cap < math.inf else None
     if kind == "lawnmower":
         n_lines = max(1, int(math.floor(2 * max(half_c, 0.0) / line_spacing_m)) + 1)
-        across = (np.arange(n_lines) - (n_lines - 1) / 2.0) * line_spacing_m + offset_m
+        across = (np.arange(min(n_lines, lines_made or n_lines)) - (n_lines - 1) / 2.0) * line_spacing_m + offset_m
         lines = [(a, 1.0 if k % 2 == 0 else -1.0) for k, a in enumerate(across)]
         heads = [heading_deg, heading_deg + 180.0]
         segs = [(centre + a * v, u * d, heads[0 if d > 0 else 1]) for a, d in lines]
@@ -127,8 +137,9 @@ def plan_path(
     elif kind == "cross":
         segs = [(centre + offset_m * v, u, heading_deg)]
         half_v = np.abs(corners @ v).max() - 0.5 * along_len
-        perp = np.arange(-half_v, half_v + 1e-9, frame_spacing_m)
-        perp += (half_v - perp[-1]) / 2.0
+        perp = np.arange(-half_v, half_v + 1e-9, frame_spacing_m) if len(steps) < cap else np.zeros(0)
+        if len(perp):
+            perp += (half_v - perp[-1]) / 2.0
     else:
         raise ValueError(f"unknown path {kind!r} (lawnmower, line, cross)")
     centers, headings = [], []

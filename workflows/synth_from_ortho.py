@@ -65,6 +65,7 @@ def noisy_poses(poses: Poses, position_sigma_m: float, attitude_sigma_deg: float
 MAX_PLAN_FRAMES = 100_000  # as `sosmatch synth`: a plan beyond this is a wrong spacing, not a survey
 MAX_TILT_DEG = 45.0
 DEFAULT_GSD_M = 2.5  # m/px when neither the altitude nor the GSD is given
+MAX_UPSAMPLING = 4.0  # raster pixel / GSD beyond which the views are warned of (module docstring: 2x is the default)
 
 
 def check_settings(altitude_m: float | None, gsd_m: float | None, width: int, height: int, hfov_deg: float,
@@ -196,6 +197,12 @@ def run(
     camera = osess.camera_for(width, height, hfov_deg)
     if altitude_m is None:
         altitude_m = (DEFAULT_GSD_M if gsd_m is None else gsd_m) * camera.fx
+    gsd, raster_m = altitude_m / camera.fx, min(abs(ortho.dx), abs(ortho.dy))
+    if gsd * MAX_UPSAMPLING < raster_m:  # each raster cell spread over many pixels: blurred blocks, no detail
+        log.warning("%s: views at %.3g m/px upsample the orthophoto's %.3g m/px %.0fx (more than %gx): each image "
+                    "shows a few blurred raster cells, which segmentation and matching cannot use; a GSD of "
+                    "%.3g m/px or more keeps the detail the raster has", geotiff, gsd, raster_m, raster_m / gsd,
+                    MAX_UPSAMPLING, raster_m / 2.0)
     try:
         # Tilted views shift their footprint by up to altitude * tan(tilt) per axis: keep that margin too.
         margin = altitude_m * math.tan(math.radians(max(max_tilt_deg, 0.0))) * math.sqrt(2.0)

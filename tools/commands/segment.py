@@ -23,9 +23,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ...plugin.errors import InputError
+    from ...plugin.params.checks import valid_values
+    from ...plugin.params.mapping import SegmentationParams
     from ...workflows import segment
 
     params = params_from_args(args)
+    valid = valid_values(SegmentationParams, "backend")
+    if args.backend is not None and valid is not None and not valid.accepts(args.backend):
+        # the option's name, not the params class's (`--set segmentation.backend=` names its key likewise)
+        raise InputError(f"--backend must be {valid.describe()}, got {args.backend!r}")
     report = segment.run(args.inputs, args.out, params, backend=args.backend, write_overlays=not args.no_overlays,
                          overwrite=args.overwrite)
     ok = [r for r in report.images if r.error is None]

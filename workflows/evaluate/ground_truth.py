@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ...database.cameras import read_cameras_txt
-from ...database.evaluation_io import read_landmark_table, terrain_of_session
+from ...database.evaluation_io import check_same_crs, read_landmark_table, terrain_of_session
 from ...database.landmark_map import LandmarkMap, read_landmark_map
 from ...database.poses import read_poses_csv
 from ...database.session_io import read_map_record
@@ -46,13 +46,13 @@ def load_ground_truth(params: Params, session: str | Path, dem: str | Path | Non
                       ground_height: float = 0.0, poses_file: str = "poses.csv") -> GroundTruthSession:
     """Keyframes (by travel on the ground-truth poses) and their footprints for one session directory."""
     session = Path(session)
-    poses, _ = read_poses_csv(session / poses_file)
+    poses, epsg = read_poses_csv(session / poses_file)
     if len(poses) == 0:
         raise InputError("no poses", session / poses_file)
     cameras = read_cameras_txt(session / "cameras.txt")
     camera = cameras[min(cameras)]
     keys = select_keyframes(poses.centers, params.keyframes.interval_m)
-    terrain = terrain_of_session(session, dem, ground_height)
+    terrain = terrain_of_session(session, dem, ground_height, epsg, poses.centers[:, :2], session / poses_file)
     polys = footprint_polygons(camera, poses.rotations[keys], poses.centers[keys], terrain)
     from ...plugin.gps_track import off_nadir_deg
 
@@ -150,10 +150,7 @@ def world_from_map(session: Path, map_dir: Path, epsg: int) -> Sim3:
     if crs is None or not epsg:
         return Sim3.identity()
     truth_epsg, offset = crs
-    if epsg != truth_epsg:
-        truth = f"EPSG:{truth_epsg}" if truth_epsg else "its local world frame"
-        raise InputError(f"map is georeferenced in EPSG:{epsg} but the ground truth of {session} is in {truth}: "
-                         "no rigid transform relates them", map_dir / "landmarks.sosmap")
+    check_same_crs("map", epsg, f"the ground truth of {session}", truth_epsg, map_dir / "landmarks.sosmap")
     return Sim3(np.eye(3), -offset)
 
 

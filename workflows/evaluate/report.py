@@ -134,6 +134,38 @@ def plot_pr(curves: dict[str, PRCurve], path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def verification_refused(sos: dict) -> bool:
+    """Whether the full-map verification ran and refused the match (`sosmatch match` answers "no match")."""
+    ver = sos.get("verification") or {}
+    return bool(ver) and not ver.get("accepted")
+
+
+def association_layers(sos: dict) -> list[tuple[np.ndarray, np.ndarray, str, str]]:
+    """The overlay's association rings: (A positions, B positions, colour, legend label) per group. Green: the
+    accepted window hypotheses' and the verified alignment's associations; red: those more than
+    WRONG_ASSOCIATION_M apart in the world frame; grey: the window hypotheses' when the verification refused
+    them (a refused match drawn green read as a found one)."""
+    pa, pb = sos["positions"]
+    assoc = [a for a, _ in sos.get("accepted", [])]
+    ver = sos.get("verification") or {}
+    if ver.get("accepted"):
+        assoc.append(np.asarray(ver["associations"], dtype=int).reshape(-1, 2))
+    if not assoc:
+        return []
+    pairs = np.unique(np.concatenate(assoc).reshape(-1, 2), axis=0)
+    far = np.linalg.norm(pa[pairs[:, 0]] - pb[pairs[:, 1]], axis=1) > WRONG_ASSOCIATION_M
+    n_hyp = len(sos.get("accepted", []))
+    if verification_refused(sos):
+        groups = [(~far, "0.55", "refused by the verification"), (far, "red", "refused, wrong")]
+        what = f"{n_hyp} window hypotheses, support {ver.get('support')}"
+    else:
+        groups = [(~far, "limegreen", "associated"), (far, "red", "associated, wrong")]
+        what = f"{n_hyp} accepted hypotheses" + (f" + verified alignment of {ver['support']}"
+                                                 if ver.get("accepted") else "")
+    return [(pa[pairs[sel, 0]], pb[pairs[sel, 1]], color, f"{label} ({int(sel.sum())}; {what})")
+            for sel, color, label in groups if sel.any()]
+
+
 def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict | None, path: Path, title: str) -> None:
     """Both flights' keyframe footprints and paths, both landmark maps, and the best hypothesis' associations."""
     import matplotlib
@@ -160,23 +192,13 @@ def plot_overlay(gt_a: GroundTruthSession, gt_b: GroundTruthSession, sos: dict |
             ax.scatter(pa[common, 0], pa[common, 1], s=70, facecolors="none", edgecolors="0.35", marker="s", lw=0.8,
                        label=f"common landmarks (truth: {len(common)})")
         # Associations of the accepted hypotheses, drawn as rings (a right one joins two landmarks ~1 m apart,
-        # invisible as a segment on a plot hundreds of metres wide); red: more than 5 m apart in the world frame
-        assoc = [a for a, _ in sos.get("accepted", [])]
-        ver = sos.get("verification") or {}
-        if ver.get("accepted"):
-            assoc.append(np.asarray(ver["associations"], dtype=int).reshape(-1, 2))
-        if assoc:
-            pairs = np.unique(np.concatenate(assoc).reshape(-1, 2), axis=0)
-            far = np.linalg.norm(pa[pairs[:, 0]] - pb[pairs[:, 1]], axis=1) > WRONG_ASSOCIATION_M
-            for sel, color, label in ((~far, "limegreen", "associated"), (far, "red", "associated, wrong")):
-                if sel.any():
-                    a, b = pa[pairs[sel, 0]], pb[pairs[sel, 1]]
-                    what = f"{len(sos.get('accepted', []))} accepted hypotheses" + (
-                        f" + verified alignment of {ver['support']}" if ver.get("accepted") else "")
-                    ax.scatter(a[:, 0], a[:, 1], s=40, facecolors="none", edgecolors=color, lw=1.6,
-                               label=f"{label} ({int(sel.sum())}; {what})")
-                    for u, v in zip(a, b):
-                        ax.plot([u[0], v[0]], [u[1], v[1]], color=color, lw=1.6)
+        # invisible as a segment on a plot hundreds of metres wide)
+        for a, b, color, label in association_layers(sos):
+            ax.scatter(a[:, 0], a[:, 1], s=40, facecolors="none", edgecolors=color, lw=1.6, label=label)
+            for u, v in zip(a, b):
+                ax.plot([u[0], v[0]], [u[1], v[1]], color=color, lw=1.6)
+        if verification_refused(sos):
+            title = f"{title} (verification refused: no match)"
         best = sos.get("best")
         if best:
             ab = np.asarray(best["associations"], dtype=int).reshape(-1, 2)

@@ -10,11 +10,24 @@ from pathlib import Path
 import numpy as np
 
 from ...database.session_io import map_keyframe_names, map_min_observations
+from ...plugin.errors import InputError
 from ...plugin.params import Params
+
+OBJECT_TRUTH_FILES = ("objects.csv", "frames.json", "labels")
 
 
 def has_object_truth(session: Path) -> bool:
-    return all((session / f).exists() for f in ("objects.csv", "frames.json", "labels"))
+    """Whether SESSION holds object truth (objects.csv, frames.json, labels/): an orthophoto session or a real
+    flight may lack it (their objects are then not scored); a session rendered by `sosmatch synth` always has it,
+    so one missing there is an incomplete session, refused (InputError naming the file) rather than scored
+    without its object columns."""
+    from ...database.synth_session import rendered_by_synth
+
+    missing = [f for f in OBJECT_TRUTH_FILES if not (session / f).exists()]
+    if missing and rendered_by_synth(session):
+        raise InputError("file not found: a session rendered by `sosmatch synth` has it (an incomplete copy? "
+                         "render it again)", session / missing[0])
+    return not missing
 
 
 def keyframes_for_a_landmark(params: Params, map_dir: Path) -> int:

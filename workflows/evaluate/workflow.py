@@ -28,7 +28,7 @@ from .ground_truth import check_positive_pairs, check_same_ground_truth_frame, l
 from .report import format_table, plot_overlay, plot_pr, row_of
 from .sosmatch_method import _run_sosmatch
 from .sosmatch_method import error_to_identity as error_to_identity  # re-exported: its home before the split
-from .truth import landmark_truth
+from .truth import has_object_truth, landmark_truth
 
 log = logging.getLogger(__name__)
 # below the table of evaluation.md: what SOS-Match's search time holds (and what not)
@@ -139,6 +139,9 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
 
     t0 = time.perf_counter()
     check_same_ground_truth_frame(session_a, session_b)
+    if "sosmatch" in methods:  # an incomplete synth session refused now, not after the search
+        for session in (session_a, session_b):
+            has_object_truth(session)
     gt_a = load_ground_truth(params, session_a, dem, ground_height)
     gt_b = load_ground_truth(params, session_b, dem, ground_height)
     iou = iou_matrix(gt_a.footprints, gt_b.footprints)
