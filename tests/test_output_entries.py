@@ -189,3 +189,39 @@ def test_an_entry_of_the_other_kind_is_refused_before_anything_is_published(merg
     assert main(other) == 0
     assert (out / obstacle).exists() and (out / "merge.json").is_file()
     assert json.loads((out / MARKER).read_text())["complete"] is True
+
+
+def test_an_interrupted_publish_refused_for_an_obstacle_still_resumes(merged, monkeypatch, cli_error, capsys):
+    """A run killed while it publishes (marker incomplete, sparse/ new, merge.json gone) then refused for a user's
+    directory where landmarks.csv goes leaves the half-published folder as it was; once the directory is moved
+    away the same command finishes it."""
+    from sosmatch.database.outputs import OutputDir
+
+    out, other = merged
+
+    class Killed(BaseException):
+        pass
+
+    real = OutputDir._replace_entry
+
+    def kill_at_second(self, src, name, checked=False):
+        if name == "landmarks.sosmap":
+            raise Killed
+        return real(self, src, name, checked)
+
+    monkeypatch.setattr(OutputDir, "_replace_entry", kill_at_second)
+    with pytest.raises(Killed):
+        main(other)
+    monkeypatch.setattr(OutputDir, "_replace_entry", real)
+    capsys.readouterr()
+    assert json.loads((out / MARKER).read_text())["complete"] is False and not (out / "merge.json").exists()
+    (out / "landmarks.csv").unlink()
+    (out / "landmarks.csv").mkdir()
+    (out / "landmarks.csv" / "notes.txt").write_text("the user's")
+    before = {k: v for k, v in _tree(out).items() if not k.startswith(".partial")}
+    assert "landmarks.csv" in cli_error(*other)
+    assert {k: v for k, v in _tree(out).items() if not k.startswith(".partial")} == before
+    (out / "landmarks.csv" / "notes.txt").unlink()
+    (out / "landmarks.csv").rmdir()
+    assert main(other) == 0
+    assert json.loads((out / MARKER).read_text())["complete"] is True and (out / "merge.json").is_file()
