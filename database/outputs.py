@@ -253,10 +253,7 @@ class OutputDir:
         dst = self.path / name
         exists = dst.exists() or dst.is_symlink()
         is_dir = src.is_dir()
-        if exists and (dst.is_dir() and not dst.is_symlink()) != src.is_dir():
-            found, wanted = ("a directory", "a file") if dst.is_dir() else ("a file", "a directory")
-            raise InputError(f"is {found} where `sosmatch {self.command}` writes {wanted}; not replaced (remove it "
-                             "or choose another output directory)", dst)
+        self._check_kind(name, is_dir)
         if is_dir:
             new = entry_files(src)
             if exists and not checked:  # `publish` checked every entry before replacing any; replace_dir did not
@@ -278,6 +275,38 @@ class OutputDir:
         if is_dir:
             self._entries[name] = new
             self._write_marker(self._complete)
+
+    def _check_kind(self, name: str, is_dir: bool, verb: str = "replaced") -> None:
+        """Refuse (InputError naming OUT/NAME) an entry of the other kind than the one the command writes there (a
+        directory where it writes a file, or a file or link where it writes a directory): not this command's."""
+        dst = self.path / name
+        if not (dst.exists() or dst.is_symlink()):
+            return
+        found_dir = dst.is_dir() and not dst.is_symlink()
+        if found_dir != is_dir:
+            found, wanted = ("a directory", "a file") if found_dir else ("a file", "a directory")
+            raise InputError(f"is {found} where `sosmatch {self.command}` writes {wanted}; not {verb} (remove it "
+                             "or choose another output directory)", dst)
+
+    def _check_targets(self, staging: Path, names: Sequence[str], optional: Sequence[str]) -> None:
+        """Everything `publish` will rename or remove, checked before the first change, so that a refusal leaves
+        the directory as it was (fix149: a user's directory named landmarks.csv was refused only after sparse/ and
+        landmarks.sosmap had been swapped in): each target of the kind the run stages (a file that is not staged
+        and is optional is removed: it must be a file), and the places a rename writes (the output directory;
+        a directory entry moved aside, whose '..' changes) writable."""
+        if not os.access(self.path, os.W_OK | os.X_OK):
+            raise InputError("cannot write output directory: it is read-only or not writable", self.path)
+        for name in names:
+            src = staging / name
+            if src.exists() or src.is_symlink():
+                self._check_kind(name, src.is_dir() and not src.is_symlink())
+            elif name in optional:
+                self._check_kind(name, False, "removed")
+            else:  # a required output that was not staged is a bug: said before anything moved
+                raise FileNotFoundError(f"{src} was not staged")
+            dst = self.path / name
+            if dst.is_dir() and not dst.is_symlink() and not os.access(dst, os.W_OK | os.X_OK):
+                raise InputError("cannot replace this directory: it is read-only", dst)
 
     @contextlib.contextmanager
     def replace_dir(self, name: str) -> Iterator[Path]:
@@ -302,8 +331,9 @@ class OutputDir:
         self.check_place()
         staging = self.path / STAGING
         layouts = {name: set(entry_names(staging / name)) for name in names if (staging / name).is_dir()}
-        try:  # every directory entry checked before any is replaced: a refusal changes nothing
+        try:  # every entry checked before any is replaced or removed: a refusal changes nothing
             self._check_entries(layouts)
+            self._check_targets(staging, [*names, *([last] if last else [])], optional)
         except InputError:
             if self.previous.state == "complete":  # untouched: the previous output stands, complete as it was
                 self.restore_previous()
@@ -319,10 +349,8 @@ class OutputDir:
 
     def _remove_entry(self, name: str) -> None:
         """Remove OUT/NAME, an entry of this command's output (a file; a directory of another kind is refused)."""
-        dst = self.path / name
-        if dst.is_dir() and not dst.is_symlink():
-            raise InputError(f"is a directory where `sosmatch {self.command}` writes a file; not removed", dst)
-        dst.unlink(missing_ok=True)
+        self._check_kind(name, False, "removed")
+        (self.path / name).unlink(missing_ok=True)
 
     def settle(self, identity: str | VersionedIdentity, overwrite: bool = False,
                overwrite_flag: str = OVERWRITE_HINT, settings: RecordedSettings | None = None) -> None:

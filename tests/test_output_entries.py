@@ -155,3 +155,73 @@ def test_an_entry_s_files_are_recorded_in_an_order_of_their_names_not_of_the_fil
         (tmp_path / name).parent.mkdir(exist_ok=True)
         (tmp_path / name).write_bytes(name.encode())
     assert list(entry_files(tmp_path)) == sorted(names)
+
+
+@pytest.mark.parametrize("obstacle", ["landmarks.csv", "sparse"])
+def test_an_entry_of_the_other_kind_is_refused_before_anything_is_published(merged, cli_error, obstacle):
+    """fix149: a user's directory where the run writes a file (landmarks.csv) was refused only after sparse/ and
+    landmarks.sosmap had been swapped in (and merge.json removed); likewise a file where it writes a directory.
+    Every target is now checked before the first rename: the folder is as it was, and a re-run once the user
+    moved the obstacle away publishes."""
+    out, other = merged
+    target = out / obstacle
+    kept = target.with_name(obstacle + ".kept")
+    target.rename(kept)  # sosmatch's own, moved aside by the user
+    if obstacle == "sparse":
+        target.write_text("the user's notes")  # a file where merge writes a directory
+    else:
+        target.mkdir()  # a directory where merge writes a file
+        (target / "notes.txt").write_text("the user's notes")
+
+    def everything():  # every file's bytes but the staging area (the run's work, kept for its retry)
+        return {k: v for k, v in _tree(out).items() if not k.startswith(".partial")}
+
+    before = everything()
+    err = cli_error(*other)
+    assert obstacle in err and "where `sosmatch merge` writes" in err
+    assert everything() == before  # nothing swapped in, merge.json still there, the marker as it was
+    assert json.loads((out / MARKER).read_text())["complete"] is True
+    if target.is_dir():
+        target.joinpath("notes.txt").unlink()
+        target.rmdir()
+    else:
+        target.unlink()
+    assert main(other) == 0
+    assert (out / obstacle).exists() and (out / "merge.json").is_file()
+    assert json.loads((out / MARKER).read_text())["complete"] is True
+
+
+def test_an_interrupted_publish_refused_for_an_obstacle_still_resumes(merged, monkeypatch, cli_error, capsys):
+    """A run killed while it publishes (marker incomplete, sparse/ new, merge.json gone) then refused for a user's
+    directory where landmarks.csv goes leaves the half-published folder as it was; once the directory is moved
+    away the same command finishes it."""
+    from sosmatch.database.outputs import OutputDir
+
+    out, other = merged
+
+    class Killed(BaseException):
+        pass
+
+    real = OutputDir._replace_entry
+
+    def kill_at_second(self, src, name, checked=False):
+        if name == "landmarks.sosmap":
+            raise Killed
+        return real(self, src, name, checked)
+
+    monkeypatch.setattr(OutputDir, "_replace_entry", kill_at_second)
+    with pytest.raises(Killed):
+        main(other)
+    monkeypatch.setattr(OutputDir, "_replace_entry", real)
+    capsys.readouterr()
+    assert json.loads((out / MARKER).read_text())["complete"] is False and not (out / "merge.json").exists()
+    (out / "landmarks.csv").unlink()
+    (out / "landmarks.csv").mkdir()
+    (out / "landmarks.csv" / "notes.txt").write_text("the user's")
+    before = {k: v for k, v in _tree(out).items() if not k.startswith(".partial")}
+    assert "landmarks.csv" in cli_error(*other)
+    assert {k: v for k, v in _tree(out).items() if not k.startswith(".partial")} == before
+    (out / "landmarks.csv" / "notes.txt").unlink()
+    (out / "landmarks.csv").rmdir()
+    assert main(other) == 0
+    assert json.loads((out / MARKER).read_text())["complete"] is True and (out / "merge.json").is_file()
