@@ -58,7 +58,8 @@ def directions_of_motion(x_a: np.ndarray, x_b: np.ndarray) -> tuple[np.ndarray, 
 
 
 def heading_corrections(rotations: np.ndarray, centers: np.ndarray,
-                        pairs: list[tuple[int, int, np.ndarray, np.ndarray, float]]) -> np.ndarray:
+                        pairs: list[tuple[int, int, np.ndarray, np.ndarray, float]],
+                        position_sigma_m: float = 0.0) -> np.ndarray:
     """(N,) turn about the world vertical (radians, counter-clockwise seen from above; world z up) that brings each
     camera's prior rotation (world_from_camera) onto the images' direction of motion, NaN for images in no pair
     and for images whose pairs disagree.
@@ -68,14 +69,20 @@ def heading_corrections(rotations: np.ndarray, centers: np.ndarray,
     C_b - C_a, the prior rotation says along R_a [d_a, 0]; the difference of their azimuths is a's heading error.
     Per image, a robust mean of its pairs' turns (`robust_circular_mean`): a homography of a dozen matches can
     decompose into a direction 180 degrees off, and one such pair must not turn an image that its other pairs
-    place."""
+    place.
+    `position_sigma_m`: the GPS fixes' sigma per horizontal axis. The GPS direction of a pair is then known to
+    about sqrt(2) sigma / baseline (radians); a pair whose baseline leaves it uncertain beyond OUTLIER_TURN_RAD says
+    nothing about the heading, however many matches it has, and is not used (nu58 D2: Seneca's IMG_0521 and
+    IMG_0527, from two lines 5.7 m apart, 342 matches, turned each other -156 / -173 deg against their other pairs'
+    -5..+9 / -28..-18 deg at 21-34 m; the weight of the matches outvoted them and both were mapped ~140 deg off)."""
+    min_baseline = np.sqrt(2.0) * position_sigma_m / np.tan(OUTLIER_TURN_RAD)
     per_image: list[list[tuple[float, float]]] = [[] for _ in range(len(rotations))]
     for a, b, d_a, d_b, weight in pairs:
         for i, j, d in ((a, b, d_a), (b, a, d_b)):
             g = centers[j, :2] - centers[i, :2]
             w = rotations[i] @ np.array([d[0], d[1], 0.0])
-            if np.hypot(w[0], w[1]) < 1e-6 or np.hypot(g[0], g[1]) < 1e-6:
-                continue  # no horizontal direction to compare (a camera looking along the ground; a hover)
+            if np.hypot(w[0], w[1]) < 1e-6 or np.hypot(g[0], g[1]) < max(1e-6, min_baseline):
+                continue  # no horizontal direction to compare (a camera looking along the ground; a hover; GPS noise)
             per_image[i].append((float(np.arctan2(g[1], g[0]) - np.arctan2(w[1], w[0])), float(weight)))
     out = np.full(len(rotations), np.nan)
     for i, found in enumerate(per_image):

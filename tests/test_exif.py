@@ -1172,3 +1172,36 @@ def test_poses_an_earlier_sosmatch_keyed_by_the_telemetry_size_and_time_are_this
     registry.write_text(json.dumps(record))
     pfe.run(img, out, telemetry=tele)  # refused before
     assert {e["identity"] for e in json.loads(registry.read_text())["files"].values()} == {today}
+
+
+def test_images_below_half_of_their_own_tie_points_are_left_out_of_the_poses_and_named(tmp_path):
+    """nu58 D2: two Seneca cameras ~140 deg off their heading explained 7 of 17 / 7 of 18 of their own tie points
+    (below half, within chance: the refinement stands) and were written to poses.csv and mapped with a warning
+    only; such images are left out (their per-image lists too) and named. An image on fewer than 5 observations
+    (it keeps its starting pose) and one without any are kept."""
+    from sosmatch.plugin.geometry import Camera, Poses
+    from sosmatch.workflows.pose_refinement.judge import RefinementStats
+
+    names = [f"IMG_{k}.jpg" for k in range(5)]
+    centers = np.column_stack([np.arange(5) * 20.0, np.zeros(5), np.full(5, 100.0)])
+    result = pfe.ExifPoses(Poses(names, np.repeat(np.eye(3)[None], 5, axis=0), centers), 32618,
+                           Camera(400, 300, 300.0, 300.0, 200.0, 150.0), {"images_without_attitude": 5},
+                           headings_guessed=np.ones(5, bool), capture_times=[0.0, 1.0, 2.0, 3.0, 4.0],
+                           orientations=[1, 1, 1, 1, None])
+    nan = float("nan")
+    stats = RefinementStats(images=5, points=200, observations=900, reprojection_rmse_before_px=3.0,
+                            reprojection_rmse_after_px=0.6, reprojection_median_before_px=2.0,
+                            reprojection_median_after_px=0.4, position_change_mean_m=1.0, position_change_max_m=2.0,
+                            rotation_change_mean_deg=1.0, rotation_change_max_deg=2.0, iterations=2, seconds=1.0,
+                            converged=True, explained_share=0.95,
+                            explained_share_by_image=(0.98, 7 / 17, 0.0, nan, 0.39),
+                            observations_by_image=(300, 17, 3, 0, 18))
+    left = pfe.leave_out_unexplained(result, stats, tmp_path)
+    assert left == ["IMG_1.jpg", "IMG_4.jpg"] and result.summary["left_out"] == left
+    assert result.poses.names == ["IMG_0.jpg", "IMG_2.jpg", "IMG_3.jpg"]
+    assert np.allclose(result.poses.centers[:, 0], [0.0, 40.0, 60.0])
+    assert result.capture_times == [0.0, 2.0, 3.0] and result.orientations == [1, 1, 1]
+    assert len(result.headings_guessed) == 3
+    (said,) = result.summary["warnings"]
+    assert said.startswith("2 of 5 images left out: their refined poses explain less than half of their own tie "
+                           "points (IMG_1.jpg (41% of 17), IMG_4.jpg (39% of 18))")

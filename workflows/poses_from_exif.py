@@ -346,7 +346,43 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
                           "guesses from the course over ground, not solved; take poses from structure from motion "
                           "(`sosmatch poses`) if they matter")
         _warn(result, _rests_on_nadir(prior, result.poses, result.headings_guessed))
+    leave_out_unexplained(result, stats, images)
     return stats
+
+
+def leave_out_unexplained(result: ExifPoses, stats: object, images: str | Path) -> list[str]:
+    """Leave out of `result` (in place: its poses and per-image lists) the images whose refined poses explain less
+    than half of their own tie points (`judge.unexplained_images`; `stats`: the refinement's, in the order of
+    `result.poses`), with a warning naming them; returns their names. Neither the poses CSV nor a map gets such a
+    pose (nu58 D2: two Seneca cameras ~140 deg off their heading and 25-34 deg tilted, 41 % / 39 % of their own
+    tie points explained, written and mapped with a warning only); `map --poses` of the CSV skips them as images
+    without a pose. The judge refuses the refinement where they are many (`judge_refinement`); fewer than two
+    images left is the error that the orientations could not be solved."""
+    from .pose_refinement.judge import unexplained_images
+
+    odd = unexplained_images(stats.explained_share_by_image, stats.observations_by_image)
+    if not len(odd):
+        return []
+    names = [result.poses.names[int(i)] for i in odd]
+    keep = np.setdiff1d(np.arange(len(result.poses)), odd)
+    if len(keep) < 2:
+        _unsolved(result, images, int(result.summary.get("images_without_attitude", 0)) or len(result.poses),
+                  f"the refined poses of {len(odd)} of {len(result.poses)} images explain less than half of their "
+                  "own tie points")
+    share = stats.explained_share_by_image
+    counted = stats.observations_by_image
+    listed = ", ".join(f"{result.poses.names[int(i)]} ({share[int(i)]:.0%} of {counted[int(i)]})" for i in odd[:8])
+    _warn(result, f"{len(odd)} of {len(result.poses)} images left out: their refined poses explain less than half "
+                  f"of their own tie points ({listed}{', ...' if len(odd) > 8 else ''}), a heading or tilt the "
+                  "images contradict; take poses from structure from motion (`sosmatch poses`) if they matter")
+    result.poses = result.poses.subset(keep.tolist())
+    if result.headings_guessed is not None:
+        result.headings_guessed = np.asarray(result.headings_guessed)[keep]
+    for attr in ("capture_times", "orientations"):
+        if (values := getattr(result, attr)) is not None:
+            setattr(result, attr, [values[int(i)] for i in keep])
+    result.summary["left_out"] = names
+    return names
 
 
 def _warn(result: ExifPoses, text: str | None) -> None:

@@ -138,6 +138,19 @@ def contradicted_images(share_by_image: tuple[float, ...] | np.ndarray,
     return np.flatnonzero(below & (binom.cdf(explained, n, 0.5) < CONTRADICTION_P))
 
 
+def unexplained_images(share_by_image: tuple[float, ...] | np.ndarray,
+                       observations_by_image: tuple[int, ...] | np.ndarray = ()) -> np.ndarray:
+    """Indices of the images whose refined poses explain less than half of their own tie points, on at least
+    WEAK_OBSERVATIONS of them (fewer: the image keeps its starting pose and is named for that), beyond chance
+    (`contradicted_images`, an error) or not. Such a pose is not used to build anything (README: less than half of
+    an image's own is not a pose): nu58 D2's two Seneca cameras ~140 deg off their heading explained 7 of 17 / 7 of
+    18 and were mapped. Without the counts every image below half counts; NaN (no tie points) is not judged."""
+    share = np.asarray(share_by_image, dtype=np.float64)
+    counted = np.asarray(observations_by_image, dtype=np.int64)
+    enough = counted >= WEAK_OBSERVATIONS if len(counted) == len(share) else np.ones(len(share), bool)
+    return np.flatnonzero((share < 0.5) & enough)
+
+
 def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[float, float, float],
                      attitude_sigma_deg: float, names: list[str] | None = None,
                      tilt_sigma_deg: float | None = None) -> tuple[list[str], list[str]]:
@@ -192,9 +205,7 @@ def judge_refinement(stats: RefinementStats, position_sigma_m: float | tuple[flo
                       "images show")
     # below half but within chance (7 of 17 explained: p 0.31): not refused, but named -- nu58 D2's two Seneca
     # cameras ~140 deg off their heading explained 41 % / 39 % of their tie points and were named nowhere
-    counted = np.asarray(stats.observations_by_image, dtype=np.int64)
-    enough = counted >= WEAK_OBSERVATIONS if len(counted) == len(share) else np.ones(len(share), bool)
-    weak = np.setdiff1d(np.flatnonzero((share < 0.5) & enough), odd)
+    weak = np.setdiff1d(unexplained_images(share, stats.observations_by_image), odd)
     if len(weak):
         listed = ", ".join((names[int(i)] if names is not None else f"image {int(i) + 1}") + f" {share[i]:.0%}"
                            for i in weak[:8]) + (", ..." if len(weak) > 8 else "")

@@ -243,13 +243,14 @@ def tie_point_reconstruction(image_paths: list, poses: Poses, camera: object, ma
     return reconstruction_of_tie_points(tie, poses, camera)
 
 
-def headings_from_image_motion(tie: TiePoints, poses: Poses, camera: object, unknown: np.ndarray
-                               ) -> tuple[Poses, np.ndarray]:
+def headings_from_image_motion(tie: TiePoints, poses: Poses, camera: object, unknown: np.ndarray,
+                               position_sigma_m: float = 0.0) -> tuple[Poses, np.ndarray]:
     """The poses with the headings of the images marked `unknown` (no attitude tags) turned to what the images'
     motion and the GPS say (`plugin.heading`), and the turn of every image in degrees (NaN: not turned). An unknown
     image in no matched pair, or whose pairs disagree, keeps its prior turned by the mean turn of the others (the
     camera's mounting relative to the course is one per flight as often as not); the rest is left to the
-    refinement."""
+    refinement. `position_sigma_m`: the GPS sigma; pairs too close for the GPS to give their direction are not
+    used (`heading_corrections`)."""
     from ...plugin.heading import directions_of_motion, heading_corrections, turned_about_vertical
 
     unknown = np.asarray(unknown, dtype=bool)
@@ -262,7 +263,7 @@ def headings_from_image_motion(tie: TiePoints, poses: Poses, camera: object, unk
         found = directions_of_motion(x_a, x_b)
         if found is not None:
             pairs.append((i, j, *found, float(len(m))))
-    turns = np.where(unknown, heading_corrections(poses.rotations, poses.centers, pairs), np.nan)
+    turns = np.where(unknown, heading_corrections(poses.rotations, poses.centers, pairs, position_sigma_m), np.nan)
     solved = np.isfinite(turns)
     if solved.any():
         typical = float(np.angle(np.mean(np.exp(1j * turns[solved]))))
@@ -306,7 +307,8 @@ def refine_poses_from_images(
     pixel_sigma_px *= tie.pixel_scale  # given at the tie points' detection size; the adjustment is in full pixels
     turns = np.full(len(poses), np.nan)
     if unknown_headings is not None and np.any(unknown_headings):
-        poses, turns = headings_from_image_motion(tie, poses, camera, unknown_headings)
+        poses, turns = headings_from_image_motion(tie, poses, camera, unknown_headings,
+                                                  float(np.max(np.atleast_1d(position_sigma_m))))
         solved = turns[np.isfinite(turns)]
         if len(solved):
             log.info("headings of %d images without attitude tags from the image motion: turned %.1f deg from the "
