@@ -147,8 +147,11 @@ def replaced_settings(configured: AssociationParams, used: AssociationParams, ch
     """What a warning says when settings the user chose (`chosen`: dotted names, `config_io.chosen_settings`) among
     the tolerances derived from the maps (`configured` as given, `used` as derived) are not what the answer was
     searched and verified with, else None (rev56 D8: `--set association.distance_tolerance_m=5` was replaced by
-    the derived 3.22 without a word). A tighter value given runs only the first of two searches
-    (`first_search_params`), the derived one verifies and answers after it; a looser one is not used at all."""
+    the derived 3.22 without a word); none when `association.derive_from_maps` is chosen too. A tighter value
+    given runs only the first of two searches (`first_search_params`), the derived one verifies and answers after
+    it; a looser one is not used at all."""
+    if "association.derive_from_maps" in chosen:
+        return None  # asked for (a `config dump` file names every setting): the derivation is what was chosen
     said = []
     for name in DERIVED_TOLERANCES:
         given, derived = getattr(configured, name), getattr(used, name)
