@@ -111,7 +111,8 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     # (`map_noise.derived_search_params`), so a refusal names a change of them (rev56 D8)
     configured = params.association
     given = {f"association.{name}": getattr(configured, name) for name in DERIVED_TOLERANCES}
-    why |= {name: "association.derive_from_maps replaces it by the value derived from the maps" for name in given}
+    if plan.first.derivation.record["tolerances"] != "configured":  # this run's values are the derived ones
+        why |= {name: "association.derive_from_maps replaces it by the value derived from the maps" for name in given}
 
     def settings_of(search: Search) -> RecordedSettings:
         """The search's settings as match.json records them, for a refusal to compare with the record's."""
