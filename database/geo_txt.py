@@ -15,12 +15,15 @@ positions from the images or from the file given, so a file beside them is named
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from pathlib import Path
 
 from ..plugin.errors import InputError
 from .text_input import read_user_text
+
+log = logging.getLogger(__name__)
 
 GEO_TXT_NAME = "geo.txt"
 _UTM_RE = re.compile(r"^WGS84\s+UTM\s+(\d{1,2})\s*([NS])$", re.IGNORECASE)
@@ -108,6 +111,11 @@ def read_geo_txt(path: str | Path) -> dict[str, dict[str, float]]:
             swapped = " (geo_x is the longitude: latitude and longitude swapped?)" if crs == "EPSG:4326" else ""
             raise InputError(f"position of {name} is off the globe in {crs}{swapped}", path, lineno)
         out[name] = {"lat": lat, "lon": lon} | ({"alt": z} if math.isfinite(z) else {})
+    # latitude and longitude swapped read as another place whenever both are within +-90 (rev56 D7): only the
+    # images' own GPS can tell (`image_positions.swapped_columns`); without it the place is said, to be looked at
+    first_row = out[names[0]]
+    log.info("%s: %d image positions in %s, %s at lat %.6f, lon %.6f", path, len(out), crs, names[0],
+             first_row["lat"], first_row["lon"])
     return out
 
 

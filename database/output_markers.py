@@ -103,23 +103,33 @@ def _flat(settings: Any, prefix: str = "") -> dict[str, Any]:
 
 
 def settings_differences(recorded: Any, now: dict[str, Any], why: dict[str, str] | None = None,
-                         shown: int = 3) -> str | None:
+                         shown: int = 3, given: tuple[dict[str, Any], dict[str, Any]] = ({}, {})) -> str | None:
     """What the refusal of a complete output says of the settings its record keeps (`recorded`, the record's
     "params") against this run's (`now`, as the record would keep them): 'made with association.transform "rigid";
     this run's is "similarity" (WHY)', up to `shown` settings, `why` a reason by dotted name; None when the record
     keeps no settings or the same ones (then the inputs differ, or the version). A setting only one of them names
-    (added or retired since) is no difference: an earlier version's output holds no value for it."""
+    (added or retired since) is no difference: an earlier version's output holds no value for it. `given`: the
+    values given (dotted name -> value: the record's, this run's) of settings the command replaced by others
+    (`outputs.RecordedSettings.given`), said as 'set to' where the values used agree."""
     if not isinstance(recorded, dict) or not recorded:
         return None
     before, after = _flat(recorded), _flat(json.loads(json.dumps(now, default=str)))
     changed = [k for k in sorted(before.keys() & after.keys()) if before[k] != after[k]]
-    if not changed:
+    kept_given, now_given = given
+    set_to = [k for k in sorted(kept_given.keys() & now_given.keys())
+              if kept_given[k] != now_given[k] and k not in changed]
+    if not changed and not set_to:
         return None
     said = []
     for key in changed[:shown]:
         reason = (why or {}).get(key)
         said.append(f"{key} {json.dumps(before[key])}, this run's {json.dumps(after[key])}"
                     + (f" ({reason})" if reason else ""))
+    for key in set_to[:max(0, shown - len(said))]:
+        used = f"; both used {json.dumps(after[key])}" if key in after else ""
+        said.append(f"{key} set to {json.dumps(kept_given[key])}, this run's {json.dumps(now_given[key])} "
+                    f"({(why or {}).get(key, 'replaced')}{used})")
+    changed = changed + set_to
     more = f" and {len(changed) - shown} more setting(s)" if len(changed) > shown else ""
     return "made with " + "; ".join(said) + more
 

@@ -85,6 +85,11 @@ class RecordedSettings:
 
     now: dict[str, Any]
     why: dict[str, str] = field(default_factory=dict)
+    # settings this run was given and replaced by others (match's tolerances derived from the maps: `now` holds
+    # the values used): dotted name -> the value given, and the keys down to where the record keeps the values
+    # given by their last name (rev56 D8: a change of a replaced setting was refused without naming it)
+    given: dict[str, Any] = field(default_factory=dict)
+    given_at: tuple[str, ...] = ()
 
 
 def _holds_files(folder: Path) -> bool:
@@ -512,7 +517,13 @@ def _recorded_difference(path: Path, record: str | None, settings: RecordedSetti
     if record is None or settings is None:
         return None
     kept = read_json_or_none(path / record) or {}
-    return settings_differences(kept.get("params"), settings.now, settings.why)
+    given: Any = kept
+    for key in settings.given_at:
+        given = given.get(key) if isinstance(given, dict) else None
+    kept_given = {name: given[name.rsplit(".", 1)[-1]] for name in settings.given
+                  if isinstance(given, dict) and name.rsplit(".", 1)[-1] in given}
+    return settings_differences(kept.get("params"), settings.now, settings.why,
+                                given=(kept_given, settings.given))
 
 
 def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | Path | None] = (),

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -138,6 +139,31 @@ def measure_map_noise(camera: Camera, rotations_wc: np.ndarray, centers: np.ndar
                     float(np.median(spread)) if spread else float("nan"), len(gsd))
 
 
+# the association settings `derived_association_params` replaces (theta_eps, sigma, theta_r)
+DERIVED_TOLERANCES = ("distance_tolerance_m", "affinity_sigma_m", "max_size_difference")
+
+
+def replaced_settings(configured: AssociationParams, used: AssociationParams, chosen: Collection[str]) -> str | None:
+    """What a warning says when settings the user chose (`chosen`: dotted names, `config_io.chosen_settings`) among
+    the tolerances derived from the maps (`configured` as given, `used` as derived) are not what the answer was
+    searched and verified with, else None (rev56 D8: `--set association.distance_tolerance_m=5` was replaced by
+    the derived 3.22 without a word); none when `association.derive_from_maps` is chosen too. A tighter value
+    given runs only the first of two searches (`first_search_params`), the derived one verifies and answers after
+    it; a looser one is not used at all."""
+    if "association.derive_from_maps" in chosen:
+        return None  # asked for (a `config dump` file names every setting): the derivation is what was chosen
+    said = []
+    for name in DERIVED_TOLERANCES:
+        given, derived = getattr(configured, name), getattr(used, name)
+        if f"association.{name}" in chosen and given != derived:
+            said.append(f"association.{name}={given:g} " + (
+                f"replaced by {derived:g} derived from the maps" if given > derived else
+                f"searched first, then {derived:g} derived from the maps, which verifies the answer"))
+    if not said:
+        return None
+    return "; ".join(said) + " (association.derive_from_maps): set association.derive_from_maps=false to keep yours"
+
+
 def derived_association_params(base: AssociationParams, noise_a: MapNoise | None,
                                noise_b: MapNoise | None) -> AssociationParams:
     """The association parameters for two maps: with `base.derive_from_maps`, theta_eps, sigma and theta_r
@@ -209,9 +235,9 @@ def derived_search_params(base: AssociationParams, noise_a: MapNoise | None, noi
     from .association.window_chance import derived_windows
 
     record: dict = {"tolerances": {"from": "map noise (residual_m, size_log_std)",
-                                   "distance_tolerance_m": tolerances.distance_tolerance_m,
-                                   "affinity_sigma_m": tolerances.affinity_sigma_m,
-                                   "max_size_difference": tolerances.max_size_difference}}
+                                   **{name: getattr(tolerances, name) for name in DERIVED_TOLERANCES},
+                                   # what they replaced: a refusal of this output names a change of them (rev56 D8)
+                                   "configured": {name: getattr(base, name) for name in DERIVED_TOLERANCES}}}
     windows = derived_windows(points_a, sizes_a, points_b, sizes_b, tolerances)
     record["windows"] = {"from": "landmark density, size-gate fraction and theta_eps (chance model, "
                                  "association.window_chance)", **windows.to_dict()}

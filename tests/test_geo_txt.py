@@ -69,3 +69,29 @@ def test_geo_txt_beside_images_without_gps_is_named_and_taken_when_given(tmp_pat
         write_jpeg(img / f"f{k}.jpg", LATS[k], LONS[k], 500.0)
     pfe.poses_from_images(img)
     assert "the positions are the images' own GPS; " in caplog.text and "give it with --telemetry" in caplog.text
+
+
+def test_a_geo_txt_with_latitude_and_longitude_swapped_is_refused_when_the_images_gps_says_so(tmp_path, cli_error):
+    """rev56 D7: EPSG:4326 rows written latitude first (47 8: Switzerland) read as a point off Somalia whenever
+    both are within +-90. The images' own GPS tells: read the other way round, the rows lie on it."""
+    img = tmp_path / "images"
+    img.mkdir()
+    lats, lons = [47.0 + k * 1e-4 for k in range(8)], [8.0 + (k % 2) * 2e-4 for k in range(8)]
+    for k in range(8):
+        write_jpeg(img / f"f{k}.jpg", lats[k], lons[k], 500.0)
+    geo = tmp_path / "geo.txt"
+    geo.write_text("EPSG:4326\n" + "".join(f"f{k}.jpg {lats[k]!r} {lons[k]!r} 500.0\n" for k in range(8)))
+    err = cli_error("poses-from-exif", img, "--telemetry", geo, "--out", tmp_path / "p.csv")
+    assert "geo.txt" in err and "latitude and longitude look swapped" in err and "longitude first" in err
+    # in the right order it is taken
+    geo.write_text("EPSG:4326\n" + "".join(f"f{k}.jpg {lons[k]!r} {lats[k]!r} 500.0\n" for k in range(8)))
+    assert pfe.poses_from_images(img, telemetry=geo).summary["position_sources"] == {"telemetry CSV": 8}
+
+
+def test_a_geo_txt_read_says_where_its_first_image_lies(tmp_path, caplog):
+    """Without the images' own GPS nothing tells a swapped EPSG:4326 file (rev56 D7): the log says the place."""
+    geo = tmp_path / "geo.txt"
+    geo.write_text("EPSG:4326\nf0.jpg 47.0 8.0 520\n")
+    with caplog.at_level("INFO"):
+        read_geo_txt(geo)
+    assert "1 image positions in EPSG:4326, f0.jpg at lat 8.000000, lon 47.000000" in caplog.text

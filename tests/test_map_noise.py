@@ -9,7 +9,13 @@ import pytest
 from sosmatch.database.map_loading import load_map, read_map_noise
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.geometry import Camera, project
-from sosmatch.plugin.map_noise import MapNoise, derived_association_params, first_search_params, measure_map_noise
+from sosmatch.plugin.map_noise import (
+    MapNoise,
+    derived_association_params,
+    first_search_params,
+    measure_map_noise,
+    replaced_settings,
+)
 from sosmatch.plugin.params import AssociationParams
 
 CAM = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
@@ -140,3 +146,17 @@ def test_two_step_search_falls_back_to_the_derived_tolerances():
     assert two.tolerances == "derived" and one.accepted
     assert two.accepted and np.array_equal(two.associations, one.associations)
     assert two.search.timings["consistent_pairs"] == one.search.timings["consistent_pairs"]
+
+
+def test_a_chosen_tolerance_the_derivation_replaces_is_named():
+    """rev56 D8: a tolerance the user set and the maps' derivation replaced went without a word. Named (looser:
+    not used; tighter: the first search only), unless not chosen, or the derivation itself was chosen."""
+    used = dataclasses.replace(AssociationParams(), distance_tolerance_m=3.22, affinity_sigma_m=1.61)
+    looser = dataclasses.replace(AssociationParams(), distance_tolerance_m=5.0)
+    said = replaced_settings(looser, used, {"association.distance_tolerance_m"})
+    assert said is not None and said.startswith("association.distance_tolerance_m=5 replaced by 3.22 derived")
+    assert "affinity_sigma_m" not in said and said.endswith("set association.derive_from_maps=false to keep yours")
+    tighter = dataclasses.replace(AssociationParams(), distance_tolerance_m=1.0)
+    assert "=1 searched first, then 3.22" in replaced_settings(tighter, used, {"association.distance_tolerance_m"})
+    assert replaced_settings(looser, used, {"association.seed"}) is None
+    assert replaced_settings(looser, used, {"association.distance_tolerance_m", "association.derive_from_maps"}) is None

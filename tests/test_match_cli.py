@@ -273,6 +273,31 @@ def test_map_files_carrying_their_noise_figures_are_matched_with_derived_toleran
     assert doc["answer"] == "verified" and doc["verification"]["accepted"]
 
 
+def test_a_tolerance_set_and_replaced_by_the_derived_one_is_said_and_named_by_the_refusal(maps, tmp_path,
+                                                                                          cli_error):
+    """rev56 D8: `--set association.distance_tolerance_m=5` was replaced by the value derived from the maps without
+    a word, and into an existing match the refusal did not name the setting (match.json kept the derived value
+    both times). The run warns naming the setting and the remedy; the refusal names the value set."""
+    from sosmatch.plugin.map_noise import MapNoise
+
+    d, s = maps
+    for name, pts, sizes in (("a", s.points_a, s.sizes_a), ("b", s.points_b, s.sizes_b)):
+        noise = MapNoise(ground_resolution_m=0.16, residual_m=0.95, size_log_std=0.08, landmarks=len(pts))
+        write_landmark_map(tmp_path / f"{name}.sosmap", LandmarkMap(pts, sizes, pts.mean(0).round(), noise=noise))
+    a, b, out = tmp_path / "a.sosmap", tmp_path / "b.sosmap", tmp_path / "out"
+    assert main(["match", str(a), str(b), "--out", str(out), "--no-plot", "-q"]) == 0
+    doc = json.loads((out / "match.json").read_text())
+    derived = doc["params"]["association"]["distance_tolerance_m"]
+    assert derived != 5 and not [w for w in doc["warnings"] if "derive_from_maps" in w]  # nothing set: no word
+    err = cli_error("match", a, b, "--out", out, "--no-plot", "--set", "association.distance_tolerance_m=5")
+    assert "association.distance_tolerance_m set to 2.0, this run's 5" in err and f"both used {derived}" in err
+    assert main(["match", str(a), str(b), "--out", str(tmp_path / "out5"), "--no-plot", "-q",
+                 "--set", "association.distance_tolerance_m=5"]) == 0
+    said = json.loads((tmp_path / "out5" / "match.json").read_text())["warnings"]
+    assert f"association.distance_tolerance_m=5 replaced by {derived:g} derived from the maps" in " ".join(said)
+    assert "set association.derive_from_maps=false to keep yours" in " ".join(said)
+
+
 def test_a_refusal_of_maps_made_at_very_different_ground_resolutions_names_them(tmp_path):
     """nu57 D2: a 150 m map against a 60 m one said "no match" with no reason, though both maps record their
     ground resolution (0.59 and 0.24 m per pixel: 2.4x, far beyond the size gate) and `evaluate` names the height

@@ -325,8 +325,7 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
     measurement (`image_positions.doubtful_fixes`: held at one point while the telemetry moves, all at one point,
     beyond a jump the aircraft cannot fly) are left out; of the rest, the telemetry is refused when more than half
     lie beyond the bound, and taken with a warning counting the wrong EXIF fixes otherwise (none left: taken)."""
-    moved = np.hypot((tele_ll[:, 0] - exif_ll[:, 0]) * METRES_PER_DEGREE,
-                     (tele_ll[:, 1] - exif_ll[:, 1]) * METRES_PER_DEGREE * np.cos(np.radians(exif_ll[:, 0])))
+    moved = distances_from_fixes(exif_ll, tele_ll)
     far = moved > TELEMETRY_REFUSE_M
     if not len(moved) or ((median := float(np.median(moved))) <= TELEMETRY_NOTE_M and not far.any()):
         return []
@@ -343,6 +342,9 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
     disagree = far & plausible
     counts = [(int(stale.sum()), "stale"), (int(jumped.sum()), "beyond a jump")]
     if 2 * int(disagree.sum()) > int(plausible.sum()):
+        swapped = swapped_columns(exif_ll[plausible], tele_ll[plausible])
+        if swapped is not None:
+            raise InputError(swapped, telemetry)
         # kept under errors.MAX_PROBLEM_CHARS (cut there): every remedy must reach the user
         skipped = ", ".join(f"{k} {what}" for k, what in counts if k)
         raise InputError(f"its positions lie {float(np.median(moved[plausible])):.0f} m from the images' own EXIF "
@@ -369,6 +371,34 @@ def telemetry_against_exif(telemetry: str | Path | None, exif_ll: np.ndarray, te
                  "another datum, or another flight's log?")
     log.warning("%s", said)
     return [said]
+
+
+def swapped_columns(exif_ll: np.ndarray, tele_ll: np.ndarray) -> str | None:
+    """Why a telemetry file far from the images' own EXIF fixes (`exif_ll`, `tele_ll`: lat, lon of the images
+    with both) is wrong, when its latitude and longitude read the other way round lie within TELEMETRY_REFUSE_M of
+    most of them: its columns are swapped (rev56 D7: an ODM geo.txt in EPSG:4326 holds the longitude first, and a
+    file written latitude first reads as a place on the other side of the globe whenever both are within +-90).
+    Else None. The images' own GPS is the only evidence: a swapped flight's shape and spacing are as plausible."""
+    if not len(exif_ll):
+        return None
+    turned = np.asarray(tele_ll, np.float64)[:, ::-1]
+    if not (np.abs(turned[:, 0]) <= 90.0).all():
+        return None
+    gap = distances_from_fixes(exif_ll, turned)
+    if 2 * int((gap <= TELEMETRY_REFUSE_M).sum()) <= len(gap):
+        return None
+    given_km = float(np.median(distances_from_fixes(exif_ll, tele_ll))) / 1000.0
+    return (f"its latitude and longitude look swapped: read the other way round, its positions lie "
+            f"{float(np.median(gap)):.0f} m from the images' own EXIF GPS (median of {len(gap)} images), as given "
+            f"{given_km:.0f} km. Swap its columns (an ODM geo.txt in EPSG:4326 gives the longitude first: "
+            "image_name lon lat [alt])")
+
+
+def distances_from_fixes(exif_ll: np.ndarray, other_ll: np.ndarray) -> np.ndarray:
+    """Horizontal distances (metres) of positions `other_ll` from the images' EXIF fixes `exif_ll` (lat, lon rows,
+    degrees), at the EXIF fix's latitude: how far a telemetry file moves them."""
+    return np.hypot((other_ll[:, 0] - exif_ll[:, 0]) * METRES_PER_DEGREE,
+                    (other_ll[:, 1] - exif_ll[:, 1]) * METRES_PER_DEGREE * np.cos(np.radians(exif_ll[:, 0])))
 
 
 def judge_row_shift(telemetry: str | Path | None, exif_ll: np.ndarray, tele_ll: np.ndarray,

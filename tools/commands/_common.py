@@ -53,12 +53,13 @@ def params_from_args(args: argparse.Namespace) -> Params:
     return load_params(args.config, overrides, getattr(args, "preset", None))
 
 
-def settings_from_args(args: argparse.Namespace) -> set[str]:
-    """The dotted names of the settings `--preset`, `--config` and `--set` chose (`config_io.chosen_settings`)."""
+def settings_from_args(args: argparse.Namespace, preset: bool = True) -> set[str]:
+    """The dotted names of the settings `--preset` (unless not `preset`), `--config` and `--set` chose
+    (`config_io.chosen_settings`)."""
     from ...database.config_io import chosen_settings, parse_override
 
     overrides = dict(parse_override(text) for text in args.overrides)
-    return chosen_settings(args.config, overrides, getattr(args, "preset", None))
+    return chosen_settings(args.config, overrides, getattr(args, "preset", None) if preset else None)
 
 
 def add_min_confidence_argument(parser: argparse.ArgumentParser) -> None:

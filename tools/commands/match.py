@@ -37,9 +37,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     params = params_from_args(args)
     # a transform the user chose is used as it is; otherwise the maps' pose sources choose it (README "Matching")
-    chosen = "association.transform" in settings_from_args(args)
+    chosen = settings_from_args(args)
     result = run_match(params, args.a, args.b, args.out, workers=args.workers, exhaustive=args.exhaustive,
                        plot=not args.no_plot, overwrite=args.overwrite, verify=False if args.no_verify else None,
-                       transform_chosen=chosen)
+                       transform_chosen="association.transform" in chosen,
+                       # a preset's tolerances are the starting point the derivation refines (README), not a choice
+                       chosen=settings_from_args(args, preset=False))
     print(f"match: {result.summary()}")
     return 0

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import logging
 import time
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from ...database.outputs import RecordedSettings, open_output_dir
 from ...plugin.answer_uncertainty import refused_scale_note, without_similarity_advice
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
-from ...plugin.map_noise import resolution_gap
+from ...plugin.map_noise import DERIVED_TOLERANCES, replaced_settings, resolution_gap
 from ...plugin.params import Params
 from .answer_warnings import (
     _georeference_warning,
@@ -39,7 +40,7 @@ log = logging.getLogger(__package__)
 
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
         exhaustive: bool = False, plot: bool = True, overwrite: bool = False,
-        verify: bool | None = None, transform_chosen: bool = False) -> MatchResult:
+        verify: bool | None = None, transform_chosen: bool = False, chosen: Collection[str] = ()) -> MatchResult:
     """Match map `b` against map `a` and write match.json, associations.csv and match.png into `out_dir`.
 
     a, b: session directories, .sosmap files or COLMAP models. workers: unused (the search runs in one process).
@@ -49,7 +50,9 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     are georeferenced in one EPSG. transform_chosen: the user chose `association.transform` (--set, --config,
     --preset); else a map whose poses came from structure from motion is searched with a similarity
     (`transform_choice`). overwrite: replace a complete match of other maps or settings in `out_dir` (see
-    `sosmatch.database.outputs` for what is never replaced). Raises InputError for unreadable or unusable maps.
+    `sosmatch.database.outputs` for what is never replaced). chosen: the settings the user chose (dotted names,
+    `config_io.chosen_settings`): those among the tolerances the maps' derivation replaced are warned about
+    (`map_noise.replaced_settings`). Raises InputError for unreadable or unusable maps.
     """
     t0, cpu0 = time.perf_counter(), time.process_time()
     out_dir = Path(out_dir)
@@ -104,10 +107,17 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     why = {} if plan.note is None else {"association.transform": (
         f"map {sfm_maps}'s poses came from structure from motion: a similarity is searched unless "
         "association.transform is set")}
+    # the tolerances given, which the maps' derivation replaces: match.json keeps them in search_mode.derived
+    # (`map_noise.derived_search_params`), so a refusal names a change of them (rev56 D8)
+    configured = params.association
+    given = {f"association.{name}": getattr(configured, name) for name in DERIVED_TOLERANCES}
+    if plan.first.derivation.record["tolerances"] != "configured":  # this run's values are the derived ones
+        why |= {name: "association.derive_from_maps replaces it by the value derived from the maps" for name in given}
 
     def settings_of(search: Search) -> RecordedSettings:
         """The search's settings as match.json records them, for a refusal to compare with the record's."""
-        return RecordedSettings(params_record(search.params), why)
+        return RecordedSettings(params_record(search.params), why, given,
+                                ("search_mode", "derived", "tolerances", "configured"))
 
     # the answer decides which search made it (the rigid one after a similarity's scale no dome makes): the
     # directory is taken for either, and settled on the one that answered before anything is written (rev51 D6:
@@ -124,6 +134,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
                               exhaustive=exhaustive)
         out.settle(identity_of(planned.search), overwrite, settings=settings_of(planned.search))
         ans, params, derivation = planned.answer, planned.search.params, planned.search.derivation
+        warn(replaced_settings(configured, params.association, chosen))
         if planned.beyond is not None:
             warn(f"{b}: {planned.beyond}")
             if ans.uncertainty is not None:  # nor does it advise the similarity just not kept (rev51 D6)
