@@ -55,6 +55,9 @@ from .robust_fit import (  # noqa: F401 (the constants are also read from here)
 # A level nadir camera is what survey flights aim for; fixed-wing airframes fly a few degrees nose-up and
 # multirotor gimbals hold nadir to a degree: the uncertainty of the mean view direction as the vertical.
 NADIR_ASSUMPTION_SIGMA_DEG = 3.0
+# `Vertical.source` of a vertical resting on that assumption alone (no attitude tags; " + GPS altitudes" when the
+# heights' plane joins it): what poses.json records, and what a map of those poses reads (`plugin.map_quality`)
+NADIR_SOURCE = "nadir assumption"
 # Gimbal/IMU tilt calibration: an error common to all images that averaging does not remove. A camera fixed to an
 # airframe adds its unknown mounting and the airframe's flying attitude (a fixed wing's few degrees nose-up), as
 # uncertain as the nadir assumption.
@@ -224,7 +227,7 @@ def vertical_in_frame(
     contradicting = [int(i) for i in np.flatnonzero(use)[beyond]]
     systematic = tag_systematic_deg if tags.sum() >= 3 else NADIR_ASSUMPTION_SIGMA_DEG
     prior_sigma = math.hypot(spread / math.sqrt(max(int(keep.sum()), 1)), systematic)
-    source = "attitude tags" if tags.sum() >= 3 else "nadir assumption"
+    source = "attitude tags" if tags.sum() >= 3 else NADIR_SOURCE
 
     gps_up, gps_sigma, tilt, consistent, still = None, math.inf, math.nan, False, math.inf
     up, sigma, weakest = prior_up, prior_sigma, None
@@ -501,7 +504,7 @@ def georegister(
     refusals = _refusals(vert, hfit, levelled[idx], gps[idx], seed)
     if (nadir := nadir_tilt_warning(vert)) is not None:
         warnings.append(nadir)
-    if vert.source == "nadir assumption" and vert.gps_up is None:
+    if vert.source == NADIR_SOURCE and vert.gps_up is None:
         # nothing measured the vertical: no attitude tags and no GPS heights that could check it (heights that
         # contradict the assumption have their own warning above); a fixed-wing
         # camera is often not nadir on average (Seneca: 6.6 deg nose-up; nu58 D1: the block 4.8 deg off, landmarks
@@ -570,7 +573,7 @@ def nadir_tilt_warning(vert: Vertical) -> str | None:
     attitudes of untagged images (`georegister`, `poses-from-exif`'s refinement). Heights found inconsistent with
     the assumption leave it alone, so it rests on it as much (fix139: a corridor's noisy heights across a line of
     0.5 m cross-track spread, 39 deg off +-11, were not followed and nothing was said)."""
-    if (vert.source.startswith("nadir assumption") and vert.gps_up is not None
+    if (vert.source.startswith(NADIR_SOURCE) and vert.gps_up is not None
             and vert.gps_sigma_deg > NADIR_ASSUMPTION_SIGMA_DEG):
         # the heights know the tilt about one axis (a single line's roll) worse than the assumption does: it alone
         # sets it, exactly (the information-weighted vertical), so said, not refused: rev53 found a two-line

@@ -35,12 +35,19 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .georegistration import NADIR_SOURCE
 from .image_quality import FlightImages, blank_warning, image_causes
 from .landmark_filters import neighbour_height_residuals
 from .params import QualityParams
 from .pass_heights import PassOffset, pass_height_offset
 
 _UP = np.array([0.0, 0.0, 1.0])
+
+# a ground tilted beyond this many of that vertical's sigmas is said (`judge`): level ground reads the vertical
+# too, and the two readings disagree. Real sites slope 1-2 deg (synthetic and real maps); the nadir sigma is 3 deg,
+# so only a ground past 4.5 deg is said. Seneca without GPS altitude (a camera 6.6 deg nose-up, the block 4.8 deg
+# off): 5.2 deg, 1.7 sigmas; its reference map's ground 1.5 deg (nu58 D1)
+NADIR_GROUND_TILT_SIGMAS = 1.5
 
 
 @dataclass(frozen=True)
@@ -72,6 +79,12 @@ class MapQuality:
     pass_height_offset_z: float = float("nan")
     # the pass disagreement the pairs prove (`PassDisagreement.ratio_low`): what `judge` weighs
     pass_disagreement_low: float = float("nan")
+    # what the poses' vertical rests on and its sigma, from their `sosmatch poses` record (poses.json's
+    # `vertical_source`, `vertical_sigma_deg`; "" / NaN: not known). The tilts above are measured against that
+    # vertical, so none of them can see its error; with the nadir assumption alone (`NADIR_SOURCE`), `judge`
+    # weighs the ground's tilt against the sigma (nu58 D1)
+    vertical_source: str = ""
+    vertical_sigma_deg: float = float("nan")
 
     def to_dict(self) -> dict[str, float | int]:
         return {k: (round(v, 4) if isinstance(v, float) and np.isfinite(v) else v if not isinstance(v, float)
@@ -82,10 +95,17 @@ class MapQuality:
         def fmt(v: float, spec: str) -> str:
             return format(v, spec) if np.isfinite(v) else "n/a"
 
+        # the tilts are against the poses' own vertical: "block tilt" alone read as the block's error against
+        # gravity, which no figure of the map can see (nu58 D1: "block tilt 1 deg" on a block 4.8 deg off)
+        vertical = "the poses' vertical"
+        if self.vertical_source:
+            sigma = f" +-{self.vertical_sigma_deg:.1f} deg" if np.isfinite(self.vertical_sigma_deg) else ""
+            vertical += f" ({self.vertical_source}{sigma})"
         return (f"reprojection p50/p90 {fmt(self.reprojection_p50_px, '.1f')}/{fmt(self.reprojection_p90_px, '.1f')}"
                 f" px, {fmt(self.landmarks_per_keyframe, '.1f')} landmarks/keyframe, height spread "
-                f"{fmt(self.height_spread, '.2f')} H (H {fmt(self.flying_height_m, '.0f')} m), block tilt "
-                f"{fmt(self.block_tilt_deg, '.0f')} deg")
+                f"{fmt(self.height_spread, '.2f')} H (H {fmt(self.flying_height_m, '.0f')} m), tilt against "
+                f"{vertical}: ground {fmt(self.ground_tilt_deg, '.0f')} deg, views {fmt(self.view_tilt_deg, '.0f')} "
+                f"deg, both together {fmt(self.block_tilt_deg, '.0f')} deg")
 
 
 @dataclass
@@ -385,6 +405,25 @@ def _likely_cause(poses: str, poses_fit: str, causes: list[str]) -> str:
     return poses
 
 
+def _nadir_ground_tilt(q: MapQuality) -> str:
+    """A warning when the poses' vertical rests on the nadir assumption alone (`georegistration.NADIR_SOURCE`) and
+    the mapped ground tilts more than `NADIR_GROUND_TILT_SIGMAS` of its sigma against it; "" otherwise. Level
+    ground is a reading of the vertical too, and neither is measured: the site may slope, or the cameras were
+    tilted on average (a fixed-wing's pitch) and the whole block with them. Both are said; nothing is corrected."""
+    sigma = q.vertical_sigma_deg
+    if q.vertical_source != NADIR_SOURCE or not (np.isfinite(sigma) and sigma > 0) or \
+            not (np.isfinite(q.ground_tilt_deg) and q.ground_tilt_deg > NADIR_GROUND_TILT_SIGMAS * sigma):
+        return ""
+    return (f"the mapped ground tilts {q.ground_tilt_deg:.1f} deg against the poses' vertical, "
+            f"{q.ground_tilt_deg / sigma:.1f} x the +-{sigma:.1f} deg of the nadir assumption it rests on (no "
+            "attitude tags, no GPS heights): either the site slopes that much, or the cameras looked that far off "
+            "straight down on average (a fixed-wing's pitch) and the whole map is tilted with them, positions off "
+            f"by about the flying height x tan({q.ground_tilt_deg:.1f} deg)"
+            + (f" = {abs(q.flying_height_m) * np.tan(np.radians(q.ground_tilt_deg)):.0f} m"
+               if np.isfinite(q.flying_height_m) else "")
+            + "; not corrected: give attitude tags (--telemetry) or the GPS altitudes to measure the vertical")
+
+
 def landmark_views(theta_n: int | None = None) -> str:
     """What a landmark needs, in words: the demo's refusal of too few frames and the map's of no landmarks on too
     few keyframes say it alike (`theta_n`: the value, when known)."""
@@ -476,7 +515,10 @@ def judge(q: MapQuality, limits: QualityParams, min_landmarks: int = 1,
                           f"{q.pass_height_offset_m:.1f} m apart in height ({q.pass_height_offset_z:.0f} standard "
                           f"errors; at most {offset_limit:.1f} m, {limits.max_pass_offset:.0%} of the flying "
                           "height): the passes' poses disagree in height (altitude drift, tilted or offset heights)")
-    if np.isfinite(q.ground_tilt_deg) and q.ground_tilt_deg > limits.warn_ground_tilt_deg and \
+    nadir_doubt = _nadir_ground_tilt(q)
+    if nadir_doubt:
+        v.warnings.append(nadir_doubt)
+    elif np.isfinite(q.ground_tilt_deg) and q.ground_tilt_deg > limits.warn_ground_tilt_deg and \
             not (np.isfinite(q.block_tilt_deg) and q.block_tilt_deg > limits.max_block_tilt_deg):
         v.warnings.append(f"the ground tilts {q.ground_tilt_deg:.0f} deg under cameras tilted "
                           f"{q.view_tilt_deg:.0f} deg: a steep site, or GPS heights that drift along the flight")

@@ -474,3 +474,67 @@ def test_a_thin_or_refused_map_of_a_survey_spaced_flight_names_the_survey_preset
     assert any(r.startswith(f"only {q.landmarks} landmark(s)") and r.endswith("try --preset survey")
                for r in v.refusals)
     assert not any("--preset" in r for r in judge(q, QualityParams(), min_landmarks=q.landmarks + 1).refusals)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Poses whose vertical rests on the nadir assumption alone (nu58 D1)
+# ---------------------------------------------------------------------------------------------------------------
+def _nadir_judged(ground_tilt_deg: float, source: str = "nadir assumption", sigma: float = 3.15):
+    q = replace(assess_map(*_toy_map_args()), vertical_source=source, vertical_sigma_deg=sigma)
+    return judge(replace(q, ground_tilt_deg=ground_tilt_deg), QualityParams())
+
+
+def _toy_map_args():
+    positions, sizes, obs, centers, axes = toy_flight()
+    return positions, sizes, np.full(len(positions), 2.0), obs, centers, axes, len(positions)
+
+
+def test_a_ground_tilted_beyond_the_nadir_assumptions_sigma_is_said_with_both_causes():
+    """nu58 D1: Seneca without GPS altitude or attitude tags, the camera 6.6 deg nose-up: its block 4.8 deg off,
+    the map's ground 5.2 deg (1.7 sigma of the nadir assumption's 3.15 deg), "block tilt 1 deg" and no word. The
+    ground's tilt is said against that sigma, naming the slope and the vertical; a level ground, a vertical that
+    rests on measurements, or one not known is not."""
+    said = [w for w in _nadir_judged(5.23).warnings if "nadir assumption" in w]
+    assert len(said) == 1 and "5.2 deg" in said[0] and "1.7 x the +-3.1 deg" in said[0]
+    assert "slopes" in said[0] and "tilted with them" in said[0] and "--telemetry" in said[0]
+    assert not [w for w in _nadir_judged(1.47).warnings if "nadir assumption" in w]
+    for source, sigma in (("nadir assumption + GPS altitudes", 0.22), ("attitude tags", 1.0), ("", float("nan"))):
+        assert not [w for w in _nadir_judged(5.23, source, sigma).warnings if "nadir assumption" in w]
+
+
+def test_the_summary_says_the_tilts_are_against_the_poses_vertical():
+    q = replace(assess_map(*_toy_map_args()), vertical_source="nadir assumption", vertical_sigma_deg=3.15)
+    line = q.line()
+    assert "block tilt" not in line
+    assert "tilt against the poses' vertical (nadir assumption +-3.1 deg): ground 0 deg, views 0 deg" in line
+    assert q.to_dict()["vertical_source"] == "nadir assumption" and q.to_dict()["vertical_sigma_deg"] == 3.15
+
+
+def test_map_of_tilted_poses_on_the_nadir_assumption_says_its_ground_tilt(tmp_path):
+    """End to end: a nadir line whose poses were rolled 6 deg about the line (the vertical 6 deg off), beside a
+    poses.json of `sosmatch poses` saying the vertical rests on the nadir assumption, +-3 deg: `map` keeps the map
+    (the site could slope) but its run.json records the vertical and warns of the ground's tilt against it."""
+    import json
+
+    from sosmatch.database.poses import read_poses_csv, write_poses_csv
+    from sosmatch.plugin.geometry import Camera, Poses
+    from sosmatch.tools.cli import main
+    from sosmatch.tools.toy_sessions import render_disc_flight
+
+    root = tmp_path / "F"
+    render_disc_flight(root, Camera(320, 240, 256.0, 256.0, 160.0, 120.0), frames=16)
+    poses, _ = read_poses_csv(root / "poses.csv")
+    r = _rot("x", 6.0)
+    m = poses.centers.mean(axis=0)
+    write_poses_csv(root / "poses.csv", Poses(poses.names, r @ poses.rotations, (poses.centers - m) @ r.T + m))
+    (root / "poses.json").write_text(json.dumps({
+        "format": "sosmatch-poses", "version": 1, "warnings": [],
+        "georegistration": {"vertical_source": "nadir assumption", "vertical_sigma_deg": 3.0, "warnings": []}}))
+    out = tmp_path / "map"
+    assert main(["map", "--no-progress", "--images", str(root / "images"), "--poses", str(root / "poses.csv"),
+                 "--out", str(out)]) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert run["quality"]["vertical_source"] == "nadir assumption" and run["quality"]["vertical_sigma_deg"] == 3.0
+    assert run["quality"]["ground_tilt_deg"] > 4.5
+    said = [w for w in run["verdict"]["warnings"] if "the mapped ground tilts" in w]
+    assert len(said) == 1 and "+-3.0 deg of the nadir assumption" in said[0]

@@ -175,6 +175,9 @@ def test_images_without_gps_give_a_local_frame(flight, tmp_path, caplog):
     assert result.epsg == 0 and "# crs: local" in (tmp_path / "poses" / "poses.csv").read_text()
     assert any("no GPS positions" in w for w in result.warnings)
     assert "registered (local frame)" in result.line()  # the summary `sosmatch poses` prints (once a KeyError)
+    # what the vertical rests on and its sigma, as a map of these poses reads them (`poses.result.poses_vertical`)
+    source, sigma = poses_wf.result.poses_vertical(result.report)
+    assert source and sigma > 0
     # levelled (nadir cameras look down) and metric by the nominal flight height
     assert np.all(result.poses.rotations[:, 2, 2] < -0.98)
     truth, _ = read_poses_csv(flight / "poses.csv")

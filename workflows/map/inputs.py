@@ -3,6 +3,7 @@ fingerprints."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -63,6 +64,9 @@ class MapInputs:
     # where the poses came from (`landmark_map.POSE_SOURCE_*`): run.json's `pose_source` and the map file's flag
     # (`match` searches a map of SfM poses with a similarity: `workflows.match.transform_choice`)
     pose_source: str = POSE_SOURCE_GIVEN
+    # what the poses' vertical rests on and its sigma (deg), from their `sosmatch poses` record
+    # (`poses.result.poses_vertical`; "", NaN: not known): the map's quality weighs its ground's tilt against it
+    vertical: tuple[str, float] = ("", float("nan"))
 
 
 def _is_synth_session(path: Path) -> bool:
@@ -238,16 +242,18 @@ def load_inputs(
     doubts: list[str] = []
     wrong: list[str] = []
     source = POSE_SOURCE_GIVEN
+    vertical: tuple[str, float] = ("", float("nan"))
     if sources.get("poses") == str(poses) and Path(poses).is_file():
         from ...database.session_io import poses_record_beside, record_of_own_sfm
-        from ..poses.result import registration_findings
+        from ..poses.result import poses_vertical, registration_findings
 
-        record = poses_record_beside(Path(poses))  # read once: its doubts, and whose poses these are
+        record = poses_record_beside(Path(poses))  # read once: its doubts, its vertical, and whose poses these are
         doubts, wrong = registration_findings(record)
+        vertical = poses_vertical(record)
         if record_of_own_sfm(record):  # README's photo workflow: `poses`, then `map --poses`; not an import
             source = POSE_SOURCE_SFM
     inputs = in_flight_order(MapInputs([p for _, p in keep], sub, cam, epsg, sources, warnings=doubts,
-                                       refusals=wrong, pose_source=source))
+                                       refusals=wrong, pose_source=source, vertical=vertical))
     if (problem := focal_against_exif(inputs)) is not None:
         log.warning("%s", problem)
         # the map's verdict too (run.json, the summary line, a batch's report): landmark heights scale with it
@@ -326,8 +332,8 @@ def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | N
         return inputs
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     poses = inputs.poses.subset(order)
-    return MapInputs([inputs.image_paths[i] for i in order], poses, inputs.camera, inputs.epsg,
-                     inputs.sources, inputs.remedy, inputs.warnings, inputs.refusals, inputs.pose_source)
+    # every other field as it was (the pose source's doubts and vertical: a field listed here by hand was lost)
+    return dataclasses.replace(inputs, image_paths=[inputs.image_paths[i] for i in order], poses=poses)
 
 
 def image_digests(inputs: MapInputs) -> list[str]:
@@ -351,9 +357,8 @@ def distinct_images(inputs: MapInputs) -> tuple[MapInputs, list[str]]:
         return inputs, digests
     out = set(found.left_out)
     keep = [i for i in range(len(digests)) if i not in out]
-    return (MapInputs([inputs.image_paths[i] for i in keep], inputs.poses.subset(keep), inputs.camera, inputs.epsg,
-                      inputs.sources, inputs.remedy, [*inputs.warnings, *found.warnings], inputs.refusals,
-                      inputs.pose_source),
+    return (dataclasses.replace(inputs, image_paths=[inputs.image_paths[i] for i in keep],
+                                poses=inputs.poses.subset(keep), warnings=[*inputs.warnings, *found.warnings]),
             [digests[i] for i in keep])
 
 

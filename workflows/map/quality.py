@@ -9,6 +9,7 @@ verdict, `sosmatch map` ends with a one-line error and a non-zero exit, and the 
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -89,7 +90,7 @@ def quality_stage(
     long_tracks: int, limits: QualityParams, figure: Path | None, title: str = "", min_landmarks: int = 1,
     images_flying_height_m: float = float("nan"), white: Levels | int | None = None, poses_fit: str = "",
     images: FlightImages | None = None, contrast: str = "", min_observations: int = 0,
-    views_per_pass: float = float("nan"), params: Any = None,
+    views_per_pass: float = float("nan"), params: Any = None, vertical: tuple[str, float] = ("", float("nan")),
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
     `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
@@ -97,8 +98,10 @@ def quality_stage(
     when it found the poses fitting, and the keyframes' image figures (`judge`); `contrast`: the flight's low contrast
     as a cause (`FlightContrast.cause`); `min_observations`: the map's theta_n (`judge`); `views_per_pass` (the
     flight's, `plugin.motion.views_per_pass`) and the map's `params`: whether to name the survey preset
-    (`plugin.params.survey_preset_remedy`)."""
-    quality = assess(landmarks, poses, long_tracks, camera, keypoints, limits)
+    (`plugin.params.survey_preset_remedy`). `vertical`: what the poses' vertical rests on and its sigma
+    (`MapInputs.vertical`), recorded with the figures and weighed against the ground's tilt (`judge`)."""
+    quality = replace(assess(landmarks, poses, long_tracks, camera, keypoints, limits),
+                      vertical_source=vertical[0], vertical_sigma_deg=float(vertical[1]))
     spacing = float(np.median(np.linalg.norm(np.diff(poses.centers, axis=0), axis=1))) if len(poses) > 1 else np.nan
     remedy = survey_preset_remedy(params, views_per_pass, spacing, quality.flying_height_m) if params else ""
     verdict = judge(quality, limits, min_landmarks, images_flying_height_m, poses_fit, images, contrast,

@@ -441,7 +441,7 @@ def _map_into(out: OutputDir, params: Params, inputs: MapInputs, fps: dict[str, 
                                      checked.check.flying_height_m if checked is not None else float("nan"),
                                      white, fitting, images,
                                      contrast.cause() if contrast is not None else "",
-                                     params.triangulation.min_observations, views, params)
+                                     params.triangulation.min_observations, views, params, inputs.vertical)
     # the poses' doubts (a georegistration leaving GPS fixes out, a lag corrected) are the map's too
     verdict = joined(Verdict(refusals=list(inputs.refusals), warnings=list(inputs.warnings)), verdict,
                      checked.verdict if checked is not None else None)

@@ -103,7 +103,8 @@ def _register(priors: ImagePriors, index: np.ndarray, r_sfm: np.ndarray, c_sfm: 
     warnings.append(f"no GPS positions: the poses are in a local frame (levelled by the {vert.source}, "
                     f"origin on the ground under the flight, scale {how})" + (f"; {sidecars}" if sidecars else "")
                     + (f"; {geo_txt}" if geo_txt else ""))
-    return transform, {"frame": "local", "scale_from": how, "vertical_source": vert.source}, None
+    return transform, {"frame": "local", "scale_from": how, "vertical_source": vert.source,
+                       "vertical_sigma_deg": vert.sigma_deg}, None
 
 def refuse_frozen_gps(priors: ImagePriors, image_dir: Path) -> None:
     """InputError before any work when the images' GPS fixes all lie at one point (`priors.summary["gps_frozen"]`,

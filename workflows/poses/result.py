@@ -77,7 +77,7 @@ def map_inputs(result: PosesResult, image_dir: Path, source: str) -> Any:
     return MapInputs([paths[n] for n in result.poses.names], result.poses, camera, result.epsg,
                      {"poses": source, "camera": source, "images": str(image_dir)},
                      warnings=map_warnings(result), refusals=registration_refusals(result.report),
-                     pose_source=POSE_SOURCE_SFM)
+                     pose_source=POSE_SOURCE_SFM, vertical=poses_vertical(result.report))
 
 
 def map_warnings(result: PosesResult) -> list[str]:
@@ -112,6 +112,18 @@ def registration_warnings(report: dict) -> list[str]:
     focal = report.get("focal_length_warnings", [])
     warnings += focal if isinstance(focal, list) else []
     return [f"poses: {w}" for w in warnings if isinstance(w, str)]
+
+
+def poses_vertical(report: dict | None) -> tuple[str, float]:
+    """(what the poses' vertical rests on, its sigma in deg) as a `poses` record (poses.json) holds them
+    (`georegistration.vertical_source` / `vertical_sigma_deg`, or the local frame's); ("", NaN) where the record
+    says nothing (a CSV of another origin, an imported model). A map of the poses weighs its ground's tilt against
+    a vertical that rests on the nadir assumption alone (`plugin.map_quality.judge`)."""
+    geo = report.get("georegistration") if isinstance(report, dict) else None
+    source = geo.get("vertical_source") if isinstance(geo, dict) else None
+    sigma = geo.get("vertical_sigma_deg") if isinstance(geo, dict) else None
+    return (source if isinstance(source, str) else "",
+            float(sigma) if isinstance(sigma, (int, float)) and not isinstance(sigma, bool) else float("nan"))
 
 
 def registration_refusals(report: dict) -> list[str]:
