@@ -235,13 +235,13 @@ def reads_as_flight(xy: np.ndarray) -> bool:
 def flights_in_time_order(xy: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, int]:
     """The frames split into the flights their capture times interleave, each flight in time order (the frames of
     one time along the path where their given order is not: `_paths_within_equal_times`), one flight after the
-    other in the order they started; and how many paths that makes (a flight whose turn onto its next line is as
-    long as a jump is two).
+    other in the order they started; and how many flights that makes.
 
     Consecutive frames of one flight are near each other in space and time. In time order, each frame continues
-    the flight whose latest frame is nearest to it, unless every flight's latest frame is more than JUMP_RATIO
-    flight steps (`flight_step` of the time order) away: then it starts a flight (the first frame of a flight whose
-    times overlap another's, or of a part of a flight after a jump as long). Deterministic; the split depends on
+    the path whose latest frame is nearest to it, unless every path's latest frame is more than JUMP_RATIO
+    flight steps (`flight_step` of the time order) away: then it starts a path (the first frame of a flight whose
+    times overlap another's, or of a part of a flight after a turn or a jump as long). Paths that continue one
+    another are then joined into one flight (`_join_continuations`). Deterministic; the split depends on
     the frames' centres and times, not on how they are listed, but for the order of frames of one time, so that
     the result given again comes back as it is.
 
@@ -250,7 +250,7 @@ def flights_in_time_order(xy: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, in
         t: (N,) capture times in seconds, finite.
 
     Returns:
-        ((N,) int64 permutation into the given order, the number of paths).
+        ((N,) int64 permutation into the given order, the number of flights: paths after joining).
     """
     xy = np.asarray(xy, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
@@ -281,7 +281,59 @@ def flights_in_time_order(xy: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, in
     # frame lies west-most, then south-most, first, whatever the listing
     first = np.array([[t[o[0]], xy[o[0], 0], xy[o[0], 1]] for o in out])
     rank = np.lexsort((first[:, 2], first[:, 1], first[:, 0]))
-    return np.concatenate([out[k] for k in rank]).astype(np.int64), len(tails)
+    flights = _join_continuations(xy, t, [out[k] for k in rank])
+    return np.concatenate(flights).astype(np.int64), len(flights)
+
+
+def _join_continuations(xy: np.ndarray, t: np.ndarray, paths: list[np.ndarray]) -> list[np.ndarray]:
+    """`paths` (each in time order, listed by start) joined where one continues another, as flights listed by
+    their first path's start.
+
+    A flight whose turn onto its next line is longer than the split's gate comes out of it in pieces, and listed
+    by start the other flight's pieces fell between them (rev56 D4: A's first line, all of B, then A's other
+    lines; tracks across A's turn broken). A path continues the one that holds the frame nearest to its first
+    frame among all frames taken before it, when that path ended before it started (one aircraft is in one place
+    at a time: paths whose times overlap are different flights), its last frame is no farther from that first
+    frame than any other path's frame taken before, and no path continues it yet. Paths left unjoined keep their
+    start order, as before."""
+    if len(paths) < 2:
+        return paths
+    path_of = np.empty(len(t), dtype=np.int64)
+    for k, p in enumerate(paths):
+        path_of[p] = k
+    starts = np.array([t[p[0]] for p in paths])
+    ends = np.array([t[p[-1]] for p in paths])
+    after: dict[int, int] = {}  # a path -> the path that continues it
+    flight_of = np.arange(len(paths))  # a path -> the first path of its flight
+    continued = set()
+    for q in range(1, len(paths)):
+        f = int(paths[q][0])
+        earlier = np.flatnonzero(t < starts[q])
+        if not len(earlier):  # starts with the first (frames of one time)
+            continue
+        d = np.linalg.norm(xy[earlier] - xy[f], axis=1)
+        p = int(np.min(path_of[earlier[d == d.min()]]))  # ties: the path that started first, whatever the listing
+        if ends[p] >= starts[q] or p in after:
+            continue
+        # from p's end, not only from its ground: a path that starts where p started, a line length from p's end,
+        # after other flights' frames nearer, is no step of p's (Seneca's halves at once: a 265 m step); frames of
+        # the paths p continues are p's flight's own
+        others = flight_of[path_of[earlier]] != flight_of[p]
+        reach = float(np.linalg.norm(xy[int(paths[p][-1])] - xy[f]))
+        if not np.any(others) or reach <= float(np.min(d[others])):
+            after[p] = q
+            continued.add(q)
+            flight_of[q] = flight_of[p]
+    flights = []
+    for k in range(len(paths)):
+        if k in continued:
+            continue
+        chain = [paths[k]]
+        while k in after:
+            k = after[k]
+            chain.append(paths[k])
+        flights.append(np.concatenate(chain))
+    return flights
 
 
 def _chain(xy: np.ndarray, members: np.ndarray, start: int) -> list[int]:

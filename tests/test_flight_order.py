@@ -268,3 +268,32 @@ def test_flights_one_after_another_and_turns_onto_far_lines_are_no_jumps():
     astray = _lawnmower().copy()
     astray[30, :2] += [60.0, 0.0]  # there and back: the step back is a jump
     assert np.count_nonzero(order_jumps(astray[:, :2])) == 1 and flight_order(astray)[1] == "given"
+
+
+def test_a_flight_cut_at_its_turns_stays_together_between_the_other_flights_paths():
+    """rev56 D4: two lawnmowers 150 m apart flown at once (capture times interleaved), lines 40 m apart with no
+    frame in the turns: every turn is longer than the split's gate (3 flight steps), so each line came out as a
+    path and the paths were listed by start, A0 B0 A1 B1 A2 B2: tracks broke at every line for no reason. Paths
+    that continue one another (the next starts nearest the previous one's frames, after it ended, no other
+    flight's frame nearer than its end) are one flight; from any listing, A's lines, then B's. Lines all flown
+    one way (a frameless return leg along the line: the next line starts a line length from the last end) are
+    joined the same way where no other flight's frame is nearer: A's are (B lies beyond their ends); B's return
+    legs start nearer to A's line ends than to B's own and stay paths of their own, listed by start after A."""
+    from sosmatch.plugin.keyframes import flight_order_message, flights_in_time_order, reads_as_flight
+
+    rng = np.random.default_rng(3)
+    one = _lawnmower(lines=3, per_line=11, spacing=10.0, line_gap=40.0)
+    racetrack = one.copy()
+    racetrack[11:22, 0] = racetrack[11:22, 0][::-1]  # the middle line flown the way the others are
+    for a, flights in ((one, 2), (racetrack, 4)):
+        both = np.concatenate([a, a + [150.0, 0.0, 0.0]])
+        both[:, :2] += rng.normal(0.0, 1.0, (len(both), 2))
+        t = np.r_[np.arange(len(a)) * 2.0, np.arange(len(a)) * 2.0 + 0.5]
+        for seed in range(4):
+            listed = np.random.default_rng(seed).permutation(len(both))
+            order, how = flight_order(both[listed], t[listed])
+            assert how == "capture time, per flight"
+            assert np.array_equal(listed[order], np.arange(len(both)))  # A in time order, then B
+            assert reads_as_flight(both[listed[order], :2])
+            assert flights_in_time_order(both[listed, :2], t[listed])[1] == flights
+        assert f"split into {flights} paths" in flight_order_message(how, t[listed], both[listed])[1]

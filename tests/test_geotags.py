@@ -432,18 +432,29 @@ def test_the_same_place_flown_a_day_later_in_one_folder_is_two_flights_not_a_clo
     """nu58 D6: a folder holding the flight and its repeat the next day (the repeat's files named B_*, so listed
     first) was warned of as "a camera clock reset?" with "fix the dates". The time order is right there: it is two
     flights of one place, which are named, with how to map them apart. (A clock reset mid-flight, whose later
-    frames carry on over new ground, keeps its wording: `test_a_camera_clock_reset_is_named`.)"""
-    img = tmp_path / "images"
-    img.mkdir()
-    for day, prefix in ((1, ""), (2, "B_")):
-        for k in range(6):
-            meta = _meta(img / f"{prefix}f{k:02d}.jpg", latitude=47.0 + k * 1e-4 + day * 1e-6, longitude=8.0,
-                         datetime_original=f"2024:06:0{day} 10:00:{2 * k:02d}", subsec_original="")
-            (img / f"{prefix}f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
-    with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
-        priors = read_image_priors(img)
-    assert "clock reset" not in caplog.text and "fix the dates" not in caplog.text
-    assert ("the folder holds 2 flights of one place (2024-06-01 10:00, 2024-06-02 10:00, camera clock; 6 + 6 "
-            "images, e.g. f00.jpg and B_f00.jpg)") in caplog.text
-    assert "put each flight in its own folder" in caplog.text
-    assert [p.name for p in priors.paths[:2]] == ["f00.jpg", "f01.jpg"]  # ordered by capture time, as before
+    frames carry on over new ground, keeps its wording: `test_a_camera_clock_reset_is_named`.) rev56 D3: the same
+    folder with the repeat named so that it is listed last (times in the listed order) said nothing and was
+    mapped as one flight: the warning is the same whatever the names."""
+    for first, prefix in (("f00.jpg", "B_"), ("f00.jpg", "z_")):
+        img = tmp_path / prefix / "images"
+        img.mkdir(parents=True)
+        for day, pre in ((1, ""), (2, prefix)):
+            for k in range(6):
+                meta = _meta(img / f"{pre}f{k:02d}.jpg", latitude=47.0 + k * 1e-4 + day * 1e-6, longitude=8.0,
+                             datetime_original=f"2024:06:0{day} 10:00:{2 * k:02d}", subsec_original="")
+                (img / f"{pre}f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="sosmatch.workflows.image_priors"):
+            priors = read_image_priors(img)
+        assert "clock reset" not in caplog.text and "fix the dates" not in caplog.text
+        assert ("the folder holds 2 flights of one place (2024-06-01 10:00, 2024-06-02 10:00, camera clock; 6 + 6 "
+                f"images, e.g. {first} and {prefix}f00.jpg)") in caplog.text, prefix
+        assert "put each flight in its own folder" in caplog.text
+        assert [p.name for p in priors.paths[:2]] == ["f00.jpg", "f01.jpg"]  # ordered by capture time, as before
+    # one flight with a pause of hours that goes on over new ground: no flights of one place
+    from sosmatch.workflows.image_positions import flights_of_one_place
+
+    xy = np.c_[np.arange(20) * 10.0, np.zeros(20)]
+    t = np.r_[np.arange(10) * 2.0, np.arange(10) * 2.0 + 7200.0]
+    assert flights_of_one_place(t, xy, [f"f{k}" for k in range(20)]) is None
+    assert flights_of_one_place(t, np.r_[xy[:10], xy[:10]], [f"f{k}" for k in range(20)]) is not None

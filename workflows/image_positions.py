@@ -456,25 +456,30 @@ def xmp_against_exif(metas: list[ImageMetadata], east: np.ndarray, north: np.nda
 SEPARATE_FLIGHTS_GAP_S = 3600.0
 
 
-def flights_of_one_place(times: np.ndarray, centers: np.ndarray, names: list[str], jump_s: float) -> str | None:
-    """A warning when capture times that jump back by more than `jump_s` from one image to the next (`times`,
-    `centers` (N, >=2) and `names` in the listed order) split the folder into groups that are flights of one place:
-    each group's times apart from the others' by SEPARATE_FLIGHTS_GAP_S or more (and each shorter than that gap),
-    each in its time order one flight (`plugin.keyframes.reads_as_flight`), and each later group's frames, at the
-    median, within one flight step of the first group's (the same ground again). None otherwise, e.g. for a camera
-    clock reset mid-flight, whose later frames carry on over new ground (`image_priors` names that as such).
-    nu58 D6: the same place flown a day apart, in one folder, was called "a camera clock reset?", "fix the dates"."""
+def flights_of_one_place(times: np.ndarray, centers: np.ndarray, names: list[str]) -> str | None:
+    """A warning when the capture times (`times`, `centers` (N, >=2) and `names` in the listed order), sorted, fall
+    into groups apart by SEPARATE_FLIGHTS_GAP_S or more (and by more than any group lasts) that are flights of one
+    place: each group in its time order one flight (`plugin.keyframes.reads_as_flight`), and each later group's
+    frames, at the median, within one flight step of the first group's (the same ground again). None otherwise,
+    e.g. for a camera clock reset mid-flight, whose later frames carry on over new ground (`image_priors` names
+    that as such). nu58 D6: the same place flown a day apart, in one folder, was called "a camera clock reset?",
+    "fix the dates"; rev56 D3: the groups are cut where the sorted times part, whatever order the names list
+    them in (they were cut only where the listed times went back, so the same folder named in time order was
+    mapped as one flight without a word)."""
     t = np.asarray(times, dtype=np.float64)
     xy = np.asarray(centers, dtype=np.float64)[:, :2]
-    cuts = np.flatnonzero(np.diff(t) < -jump_s) + 1
-    if not len(cuts) or not np.isfinite(xy).all():
+    if len(t) < 2 or not np.isfinite(t).all() or not np.isfinite(xy).all():
         return None
-    groups = sorted(np.split(np.arange(len(t)), cuts), key=lambda g: float(t[g].min()))
+    timed = np.argsort(t, kind="stable")
+    cuts = np.flatnonzero(np.diff(t[timed]) >= SEPARATE_FLIGHTS_GAP_S) + 1
+    if not len(cuts):
+        return None
+    groups = np.split(timed, cuts)
     spans = [(float(t[g].min()), float(t[g].max())) for g in groups]
     gaps = [b[0] - a[1] for a, b in zip(spans, spans[1:])]
-    if min(gaps) < max(SEPARATE_FLIGHTS_GAP_S, max(e - s for s, e in spans)):
+    if min(gaps) < max(e - s for s, e in spans):
         return None
-    ordered = [g[np.argsort(t[g], kind="stable")] for g in groups]
+    ordered = groups  # each in time order already
     if any(len(g) < 3 or not reads_as_flight(xy[g]) for g in ordered):
         return None
     steps = np.concatenate([np.linalg.norm(np.diff(xy[g], axis=0), axis=1) for g in ordered])

@@ -229,12 +229,12 @@ def _capture_order(metas: list[ImageMetadata], centers: np.ndarray) -> np.ndarra
     times = None if None in stamps else np.asarray(stamps, dtype=np.float64)
     order, how = flight_order(centers, times)
     said = flight_order_message(how, times, centers)
-    if said is None:
-        return None
-    log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
-    if times is not None and how != "path":
+    if said is not None:
+        log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
+    if times is not None and np.ptp(times) > 0:
+        # whatever the names' order (rev56 D3: listed in time order, two dates were mapped as one flight unsaid)
+        flights = flights_of_one_place(times, centers, [m.path.name for m in metas])
         back = np.flatnonzero(np.diff(times) < -CLOCK_RESET_S)
-        flights = flights_of_one_place(times, centers, [m.path.name for m in metas], CLOCK_RESET_S)
         if flights is not None:  # the same ground flown again days later: no clock fault (nu58 D6)
             log.warning("%s", flights)
         elif len(back):  # the nu20 sweep: a camera clock reset to 2000-01-01 reordered the flight with no word
@@ -242,7 +242,7 @@ def _capture_order(metas: list[ImageMetadata], centers: np.ndarray) -> np.ndarra
             log.warning("the capture times jump back by %.1f days from %s to %s (a camera clock reset?): the images "
                         "are ordered by them, which puts the later ones first; fix the dates if that is wrong",
                         (times[k] - times[k + 1]) / 86400.0, metas[k].path.name, metas[k + 1].path.name)
-    return order
+    return None if said is None else order
 
 
 def _capture_times(metas: list[ImageMetadata]) -> tuple[np.ndarray, str]:
