@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..database.exif import ImageMetadata
 from ..plugin.errors import InputError
@@ -484,9 +485,9 @@ def flights_of_one_place(times: np.ndarray, centers: np.ndarray, names: list[str
         return None
     steps = np.concatenate([np.linalg.norm(np.diff(xy[g], axis=0), axis=1) for g in ordered])
     step = float(np.median(steps))
-    first = xy[ordered[0]]
+    first = cKDTree(xy[ordered[0]])  # a tree, not a dense distance array: memory stays linear in the images
     for g in ordered[1:]:
-        nearest = np.min(np.linalg.norm(xy[g][:, None, :] - first[None, :, :], axis=2), axis=1)
+        nearest = first.query(xy[g])[0]
         if not np.median(nearest) <= step:
             return None
     dates = ", ".join(time.strftime("%Y-%m-%d %H:%M", time.gmtime(s)) for s, _ in spans)
