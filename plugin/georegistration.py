@@ -453,13 +453,15 @@ def georegister(
     alt = inl[np.isfinite(gps[inl, 2])]
     gps_alt = _tilt_widened(fit_drift(times_s[alt], gps[alt, 2] - registered_z[alt], MIN_HEIGHT_DRIFT_M),
                             times_s[alt], (c[alt] @ r.T)[:, :2] * s, vert, r) if len(alt) else None
-    if not vert.gps_consistent and vert.gps_up is not None:
-        # what was measured: a plane through the GPS heights against the block's camera centres; either the GPS
-        # altitude drifts in the flight or the reconstruction is bent (its centres against its orientations)
+    tilt_unfollowed = not vert.gps_consistent and vert.gps_up is not None
+    if tilt_unfollowed:
+        # what was measured: a plane through the GPS heights against the block's camera centres, fitted with a drift
+        # in time (`_gps_slopes`), so a linear drift cannot be its cause (rev56 D6): the GPS altitude jumps, or the
+        # reconstruction is bent (its centres against its orientations)
         warnings.append(f"the GPS altitudes, fitted to the block's camera centres, tilt it by {vert.gps_tilt_deg:.1f} "
                         f"deg against the vertical of the {vert.source}, beyond both uncertainties (GPS heights "
                         f"+-{vert.gps_sigma_deg:.1f} deg across the block, {vert.prior_sigma_deg:.1f} deg): not "
-                        "followed; the GPS altitude drifts or the reconstruction is bent")
+                        "followed; the GPS altitude jumps or the reconstruction is bent")
     source = "GPS altitude jumps" if reference_heights is None else "reference heights (RelativeAltitude-based) jump"
     if offset.kind == "step":
         # one datum for the block: the kept segment's level, not a line through the step (nu34 mAmix2)
@@ -486,9 +488,12 @@ def georegister(
             warnings.append(f"the GPS altitude jumps by {gps_alt.change:+.1f} m at image {at} against the "
                             "reconstruction (another height datum of the receiver?): measured, not followed"
                             + ("" if reference_heights is None else "; heights from the relative altitude"))
-    elif gps_alt is not None and gps_alt.significant:
+    elif gps_alt is not None and gps_alt.significant and not tilt_unfollowed:
+        # (a tilt not followed, above, reads along time as a drift over a survey flown line after line: one cause,
+        # said once, rev56 D6; without capture times `times_s` is the image order: the change only, no rate, D5)
+        rate = f" ({gps_alt.slope_per_s * 60:+.2f} m/min)" if times_known else ""
         warnings.append(f"the GPS altitude drifts by {gps_alt.change:+.1f} m over the flight against the "
-                        f"reconstruction ({gps_alt.slope_per_s * 60:+.2f} m/min): measured, not followed"
+                        f"reconstruction{rate}: measured, not followed"
                         + ("" if reference_heights is None else "; heights from the relative altitude")
                         + ("; heights referenced to the start of the flight" if offset.significant else ""))
     far = idx[hfit.residuals_m[np.arange(len(idx))] ** 2 > CHI2_2DOF_9999 * hfit.sigma_m**2]

@@ -491,3 +491,26 @@ def test_no_gps_heights_no_tags_the_vertical_on_the_nadir_assumption_alone_is_sa
     said = [w for w in geo.warnings if "rests on the camera looking straight down" in w]
     assert said and f"+-{geo.vertical.sigma_deg:.1f} deg" in said[0]
     assert geo.vertical.sigma_deg >= 3.0  # the assumption's sigma, not a measured-looking figure
+
+
+def test_heights_tilted_against_the_block_are_one_cause_said_once():
+    """GPS heights on a plane 20 deg off the block's nadir vertical, no drift: the heights' plane is fitted with a
+    drift term, so the warning names a jump or a bent reconstruction (not a drift), and the same tilt, read along
+    time over lines flown one after the other, is not told again as a drift (rev56 D6: "+40.3 m over the flight")."""
+    sfm_c, sfm_r, gps, prior, tags, times, _ = _drifting(4, 15, 30.0, 0.0, 0, height_sigma=0.3)
+    gps[:, 2] += np.tan(np.radians(20.0)) * (gps[:, 0] - gps[0, 0])  # across the lines (`_block`: lines along y)
+    geo = georegister(sfm_c, sfm_r, gps, prior, tags, times)
+    tilted = [w for w in geo.warnings if "tilt it by" in w]
+    assert len(tilted) == 1 and "jumps or the reconstruction is bent" in tilted[0] and "drifts" not in tilted[0]
+    assert not any("drifts by" in w for w in geo.warnings), geo.warnings
+
+
+def test_drift_without_capture_times_is_told_as_a_change_not_a_rate():
+    """Without capture times the drift is fitted against the image order: the warning gives the change over the
+    flight, not a rate per minute taken from image indices as seconds (rev56 D5)."""
+    sfm_c, sfm_r, gps, prior, tags, times, _ = _drifting(2, 18, 30.0, 12.0, 0, height_sigma=0.5)
+    timed = georegister(sfm_c, sfm_r, gps, prior, tags, times)
+    assert any("drifts by +" in w and "m/min" in w for w in timed.warnings), timed.warnings
+    untimed = georegister(sfm_c, sfm_r, gps, prior, tags, np.arange(len(times), dtype=float), times_known=False)
+    said = [w for w in untimed.warnings if "drifts by +" in w]
+    assert said and "m/min" not in said[0]
