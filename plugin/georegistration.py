@@ -11,10 +11,11 @@ each part:
    change it), averaged robustly. Without attitude tags the prior is a level nadir camera, the survey
    assumption, with a systematic uncertainty of `NADIR_ASSUMPTION_SIGMA_DEG`. The GPS heights' plane over the
    block levelled by it (`_gps_slopes`: its slopes are the vertical's tangent-plane coordinates about the prior's,
-   with their information, none across a single straight line; fitted with a drift in capture time, marginalised,
-   since a survey flown line after line confounds a drift with a tilt across its lines) is compared with it: when
+   with their information, none across a single straight line; fitted with a drift in capture time, and a jump
+   where the heights against the prior-levelled block show one, both marginalised, since a survey flown line after
+   line confounds a drift or a jump between lines with a tilt across its lines) is compared with it: when
    they agree within their uncertainties the two are combined (information-weighted, rebuilt exactly), otherwise
-   the GPS altitudes are inconsistent with the block (a jump, a bent reconstruction) and are not followed. Without
+   the GPS altitudes are inconsistent with the block (a bent reconstruction) and are not followed. Without
    tags, a tilt the heights fix worse than the nadir assumption (a single line's roll, the axis a drift hides)
    rests on the assumption, said in a warning.
 2. **Horizontal** (`robust_horizontal_similarity`): scale, yaw and east/north offset of the levelled block on
@@ -152,7 +153,8 @@ def _gps_slopes(centers: np.ndarray, gps: np.ndarray, prior_up: np.ndarray,
                 times: np.ndarray | None = None) -> _HeightsPlane | None:
     """The GPS heights' measure of the vertical against `prior_up`: the block levelled by it and turned and scaled
     onto the GPS positions on x, y (`fit_yaw_translation`), the heights' offset from it fitted as a plane z = a x +
-    b y + c, plus a drift d t when capture `times` (seconds, or the capture order) are given. Returns the slopes
+    b y + c, plus a drift d t when capture `times` (seconds, or the capture order) are given, and a jump e [t >= t_j]
+    where `fit_drift` of the heights against the levelled block finds one (rev56 D2). Returns the slopes
     (a, b) (least squares, the least-norm solution where the positions do not determine them), their information
     matrix with d marginalised out (the Schur complement, X^T X - X^T t t^T X / t^T t, over sigma^2: sigma of the
     heights about the fit, measured), the information without the drift term, and the rotation from that levelled
@@ -180,12 +182,22 @@ def _gps_slopes(centers: np.ndarray, gps: np.ndarray, prior_up: np.ndarray,
         t = t - t.mean()
     else:
         t = None
-    unknowns = 3 if t is None else 4  # (with the offset c)
-    # the drift marginalised: x, y and z with their part along t taken out, (a, b) by least squares on those (the
-    # least-norm solution where time and position are collinear: one line flown one way, lines all flown the same
-    # way, whose heights then say nothing of that tilt)
-    xp = xy if t is None else xy - np.outer(t, xy.T @ t) / float(t @ t)
-    zp = dz if t is None else dz - t * float(t @ dz) / float(t @ t)
+    nuisance = [] if t is None else [t]
+    if t is not None and (jump := fit_drift(times, dz, MIN_HEIGHT_DRIFT_M)).kind == "step":
+        # a jump of the GPS altitude (another datum) between lines is half a tilt across them for the plane: its
+        # level is a nuisance too, else the rest tilts the block (rev56 D2: +8 m at a line change, 3.6 deg off
+        # "+-1.8", no word); found against the prior-levelled block, where a jump stands out of a line
+        after = (np.asarray(times, np.float64) >= jump.step_time).astype(np.float64)
+        nuisance.append(after - after.mean())
+    unknowns = 3 + len(nuisance)  # (with the offset c)
+    # the drift (and a jump) marginalised: x, y and z with their part in the span of those taken out, (a, b) by least
+    # squares on those (the least-norm solution where time and position are collinear: one line flown one way,
+    # lines all flown the same way, whose heights then say nothing of that tilt)
+    if nuisance:
+        basis = np.linalg.qr(np.column_stack(nuisance))[0]
+        xp, zp = xy - basis @ (basis.T @ xy), dz - basis @ (basis.T @ dz)
+    else:
+        xp, zp = xy, dz
     slopes = np.linalg.lstsq(xp, zp, rcond=1e-9)[0]
     # the MAD of the residuals, widened for the fit's unknowns
     sigma_v = max(_robust_sigma(zp - xp @ slopes) * math.sqrt(n / max(n - unknowns, 1)), 1e-3)
@@ -456,13 +468,15 @@ def georegister(
     alt = inl[np.isfinite(gps[inl, 2])]
     gps_alt = _tilt_widened(fit_drift(times_s[alt], gps[alt, 2] - registered_z[alt], MIN_HEIGHT_DRIFT_M),
                             times_s[alt], (c[alt] @ r.T)[:, :2] * s, vert, r) if len(alt) else None
-    if not vert.gps_consistent and vert.gps_up is not None:
-        # what was measured: a plane through the GPS heights against the block's camera centres; either the GPS
-        # altitude drifts in the flight or the reconstruction is bent (its centres against its orientations)
+    tilt_unfollowed = not vert.gps_consistent and vert.gps_up is not None
+    if tilt_unfollowed:
+        # what was measured: a plane through the GPS heights against the block's camera centres, fitted with a drift
+        # in time (`_gps_slopes`), so a linear drift cannot be its cause (rev56 D6): the GPS altitude jumps, or the
+        # reconstruction is bent (its centres against its orientations)
         warnings.append(f"the GPS altitudes, fitted to the block's camera centres, tilt it by {vert.gps_tilt_deg:.1f} "
                         f"deg against the vertical of the {vert.source}, beyond both uncertainties (GPS heights "
                         f"+-{vert.gps_sigma_deg:.1f} deg across the block, {vert.prior_sigma_deg:.1f} deg): not "
-                        "followed; the GPS altitude drifts or the reconstruction is bent")
+                        "followed; the GPS altitude jumps or the reconstruction is bent")
     source = "GPS altitude jumps" if reference_heights is None else "reference heights (RelativeAltitude-based) jump"
     if offset.kind == "step":
         # one datum for the block: the kept segment's level, not a line through the step (nu34 mAmix2)
@@ -489,9 +503,12 @@ def georegister(
             warnings.append(f"the GPS altitude jumps by {gps_alt.change:+.1f} m at image {at} against the "
                             "reconstruction (another height datum of the receiver?): measured, not followed"
                             + ("" if reference_heights is None else "; heights from the relative altitude"))
-    elif gps_alt is not None and gps_alt.significant:
+    elif gps_alt is not None and gps_alt.significant and not tilt_unfollowed:
+        # (a tilt not followed, above, reads along time as a drift over a survey flown line after line: one cause,
+        # said once, rev56 D6; without capture times `times_s` is the image order: the change only, no rate, D5)
+        rate = f" ({gps_alt.slope_per_s * 60:+.2f} m/min)" if times_known else ""
         warnings.append(f"the GPS altitude drifts by {gps_alt.change:+.1f} m over the flight against the "
-                        f"reconstruction ({gps_alt.slope_per_s * 60:+.2f} m/min): measured, not followed"
+                        f"reconstruction{rate}: measured, not followed"
                         + ("" if reference_heights is None else "; heights from the relative altitude")
                         + ("; heights referenced to the start of the flight" if offset.significant else ""))
     far = idx[hfit.residuals_m[np.arange(len(idx))] ** 2 > CHI2_2DOF_9999 * hfit.sigma_m**2]

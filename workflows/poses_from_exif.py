@@ -24,7 +24,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
@@ -56,6 +56,9 @@ from .image_priors import (  # noqa: F401 (re-exported: the conventions' histori
     read_image_priors,
     utm_epsg,
 )
+
+if TYPE_CHECKING:
+    from ..plugin.georegistration import Vertical
 
 log = logging.getLogger(__name__)
 
@@ -345,7 +348,8 @@ def _refine(result: ExifPoses, images: str | Path, position_sigma_m: float, atti
                           f"({', '.join(blind[:4])}{', ...' if len(blind) > 4 else ''}): their orientations are "
                           "guesses from the course over ground, not solved; take poses from structure from motion "
                           "(`sosmatch poses`) if they matter")
-        _warn(result, _rests_on_nadir(prior, result.poses, result.headings_guessed))
+        for said in _rests_on_nadir(prior, result.poses, result.headings_guessed, result.capture_times):
+            _warn(result, said)
     leave_out_unexplained(result, stats, images)
     return stats
 
@@ -392,19 +396,56 @@ def _warn(result: ExifPoses, text: str | None) -> None:
         result.summary.setdefault("warnings", []).append(text)
 
 
-def _rests_on_nadir(prior: Poses, refined: Poses, guessed: np.ndarray | None) -> str | None:
+def _rests_on_nadir(prior: Poses, refined: Poses, guessed: np.ndarray | None,
+                    capture_times: Sequence[float | None] | None = None) -> list[str]:
     """`sosmatch poses`' rule for images without attitude tags (`georegistration.nadir_tilt_warning`), asked of
     the refinement: the tilt the GPS heights fix worse than the nadir assumption (a corridor's roll about its line,
     which the position priors leave free and `level_free_roll` takes from the level nadir priors) rests on the
     camera looking straight down. The refined poses are in the world frame (their "SfM frame" is the world's); the
-    GPS fixes are the prior centres."""
+    GPS fixes are the prior centres; `capture_times` (in `prior`'s order; the capture order where one is missing)
+    let the heights' plane tell a drift from a tilt, as in `georegister`. Then `_tilted_by_drift`."""
     from ..plugin.georegistration import nadir_tilt_warning, vertical_in_frame
 
     at = {name: k for k, name in enumerate(prior.names)}
     order = [at[name] for name in refined.names]
     tags = np.zeros(len(order), bool) if guessed is None else ~np.asarray(guessed, bool)[order]
-    vert = vertical_in_frame(refined.rotations, prior.rotations[order], tags, refined.centers, prior.centers[order])
-    return nadir_tilt_warning(vert)
+    stamps = None if capture_times is None else [capture_times[k] for k in order]
+    times = np.asarray(order if stamps is None or None in stamps else stamps, np.float64)
+    gps = prior.centers[order]
+    vert = vertical_in_frame(refined.rotations, prior.rotations[order], tags, refined.centers, gps, times=times)
+    return [w for w in (nadir_tilt_warning(vert), _tilted_by_drift(vert, refined.centers, gps, times))
+            if w is not None]
+
+
+def _tilted_by_drift(vert: Vertical, centers: np.ndarray, gps: np.ndarray, times: np.ndarray) -> str | None:
+    """What to say when the refinement tilted a block without attitude tags away from its cameras' nadir vertical
+    to follow GPS heights that, against the block levelled on its cameras, change over the flight. The refinement
+    holds the centres to the heights as they are (no drift term), so a drifting GPS altitude over lines flown one
+    after the other tilts the whole block, cameras with it (rev56 D1: two lines, 12 m of drift, the block 7-12
+    deg off and nothing said); the refined block then agrees with its own heights, so only the cameras' vertical
+    (the nadir assumption's, `vert.prior_up`) against the world's tells it. None when the tilt is within the
+    assumption's sigma or the levelled heights do not change."""
+    from ..plugin.georegistration import MIN_HEIGHT_DRIFT_M, NADIR_ASSUMPTION_SIGMA_DEG, level_rotation
+    from ..plugin.height_drift import fit_drift
+
+    if not vert.source.startswith("nadir assumption"):
+        return None
+    tilt = math.degrees(math.acos(float(np.clip(vert.prior_up[2], -1.0, 1.0))))
+    ok = np.all(np.isfinite(gps), axis=1)
+    if tilt <= NADIR_ASSUMPTION_SIGMA_DEG or ok.sum() < 3:
+        return None
+    levelled = (centers[ok] - centers[ok].mean(0)) @ level_rotation(vert.prior_up).T
+    fit = fit_drift(times[ok], gps[ok, 2] - levelled[:, 2], MIN_HEIGHT_DRIFT_M)
+    if not (fit.significant or fit.kind == "step"):
+        return None
+    how = "jump by" if fit.kind == "step" else "drift by"
+    # both readings said: the heights cannot tell a drift from a tilted mount here (the refined centres follow them)
+    return (f"the refined cameras look {tilt:.1f} deg off the vertical on average, beyond the nadir assumption's +-"
+            f"{NADIR_ASSUMPTION_SIGMA_DEG:g} deg, and against the block levelled on them the GPS heights {how} "
+            f"{fit.change:+.1f} m over the flight: either the camera is mounted tilted (give attitude tags, "
+            "--telemetry), or the GPS altitude drifts or jumps and the refinement, which takes the heights as they "
+            "are, tilted the block with its cameras to follow it; `sosmatch poses` fits the drift and keeps the "
+            "nadir vertical")
 
 
 def _unsolved(result: ExifPoses, images: str | Path, guessed: int, why: str) -> NoReturn:
