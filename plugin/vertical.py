@@ -29,22 +29,19 @@ from .robust_fit import CHI2_1DOF_9973, CHI2_2DOF_9973, CHI2_2DOF_9999
 # A level nadir camera is what survey flights aim for; fixed-wing airframes fly a few degrees nose-up and
 # multirotor gimbals hold nadir to a degree: the uncertainty of the mean view direction as the vertical.
 NADIR_ASSUMPTION_SIGMA_DEG = 3.0
-
 # `Vertical.source` of a vertical resting on that assumption alone (no attitude tags; " + GPS altitudes" when the
 # heights' plane joins it): what poses.json records, and what a map of those poses reads (`plugin.map_quality`)
 NADIR_SOURCE = "nadir assumption"
-
 # Gimbal/IMU tilt calibration: an error common to all images that averaging does not remove. A camera fixed to an
 # airframe adds its unknown mounting and the airframe's flying attitude (a fixed wing's few degrees nose-up), as
 # uncertain as the nadir assumption.
 ATTITUDE_SYSTEMATIC_SIGMA_DEG = 0.5
-
 AIRFRAME_SYSTEMATIC_SIGMA_DEG = NADIR_ASSUMPTION_SIGMA_DEG
-
 # fewer fixes measure no noise: a fit of 4 unknowns (the horizontal similarity) or 3 (the heights' plane) on them
 # has too few degrees of freedom left (rev49 D7: 3 fixes, "noise 0.00 m", an ordinary fix called an outlier, the
 # GPS heights' plane through 3 points taken as exact and the block tilted 10 deg); `pose_check.gps` reads it too
 MIN_FIXES = 5
+
 
 def _mean_direction(vectors: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, np.ndarray, float]:
     """Robust mean of unit vectors (N,3): (mean, inlier mask, per-vector angular sigma in degrees). Vectors
@@ -64,6 +61,7 @@ def _mean_direction(vectors: np.ndarray, iterations: int = 5) -> tuple[np.ndarra
             break
         keep = new
     return mean, keep, sigma
+
 
 @dataclass
 class Vertical:
@@ -89,6 +87,7 @@ class Vertical:
     # far below it, the drift is what the heights cannot tell from a tilt (a survey flown line after line)
     gps_sigma_without_drift_deg: float = math.inf
 
+
 def level_rotation(up: np.ndarray) -> np.ndarray:
     """The smallest rotation R with R @ up = e_z."""
     u = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
@@ -101,6 +100,7 @@ def level_rotation(up: np.ndarray) -> np.ndarray:
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
     return np.eye(3) + s * kx + (1.0 - c) * kx @ kx
 
+
 @dataclass
 class _HeightsPlane:
     """The GPS heights' plane against a levelled block (`_gps_slopes`)."""
@@ -109,6 +109,7 @@ class _HeightsPlane:
     info: np.ndarray  # (2,2) information of (a, b), a drift in time marginalised out (when times are given)
     info_without_drift: np.ndarray  # (2,2) the information (a, b) would have if the heights did not drift
     to_sfm: np.ndarray  # (3,3) rotation from the levelled GPS-aligned frame to the SfM frame
+
 
 def _gps_slopes(centers: np.ndarray, gps: np.ndarray, prior_up: np.ndarray,
                 times: np.ndarray | None = None) -> _HeightsPlane | None:
@@ -166,6 +167,7 @@ def _gps_slopes(centers: np.ndarray, gps: np.ndarray, prior_up: np.ndarray,
     ev[ev <= 1e-9 * max(float(ev.max()), 1e-300)] = 0.0  # (collinear: rounding, not information)
     info = (vecs * ev) @ vecs.T
     return _HeightsPlane(slopes, info / sigma_v**2, xy.T @ xy / sigma_v**2, level.T @ fit.rotation.T)
+
 
 def vertical_in_frame(
     sfm_from_cam: np.ndarray,
@@ -241,9 +243,11 @@ def vertical_in_frame(
     return Vertical(up, source, sigma, prior_up, prior_sigma, gps_up, gps_sigma, tilt, consistent,
                     int(keep.sum()), rejected, contradicting, weakest, still)
 
+
 def _weakest_sigma_deg(eigenvalue: float) -> float:
     """The angle (deg) a slope information `eigenvalue` (1/rad^2, in the gnomonic chart) knows the tilt to."""
     return math.degrees(math.atan(1.0 / math.sqrt(eigenvalue))) if eigenvalue > 0 else 90.0
+
 
 def _tilt_widened(fit: DriftFit, times_s: np.ndarray, plan: np.ndarray, vert: Vertical,
                   world_from_sfm: np.ndarray) -> DriftFit:
@@ -268,6 +272,7 @@ def _tilt_widened(fit: DriftFit, times_s: np.ndarray, plan: np.ndarray, vert: Ve
     significant = bool(abs(fit.change) > max(3.0 * widened, 2.0 * fit.sigma, MIN_HEIGHT_DRIFT_M))
     return dataclasses.replace(fit, change_sigma=widened, significant=significant)
 
+
 def _weak_heights_warning(vert: Vertical) -> str:
     """The warning for a vertical the nadir assumption alone sets about one axis: a single line's roll, or the tilt
     a drift of the GPS altitude over the flight cannot be told from (`_gps_slopes`)."""
@@ -280,6 +285,7 @@ def _weak_heights_warning(vert: Vertical) -> str:
             f"+-{vert.gps_sigma_deg:.1f} deg, their altitude allowed to drift over the flight (+-"
             f"{vert.gps_sigma_without_drift_deg:.1f} deg if it did not: a survey flown line after line advances "
             f"across its lines with time, so a drift reads as a tilt about them) {rests}")
+
 
 def nadir_tilt_warning(vert: Vertical) -> str | None:
     """What to say when `vert` (no attitude tags) rests on the nadir assumption about an axis the GPS heights fix
