@@ -84,13 +84,28 @@ def session_size_definition(session: str | Path) -> dict[str, str] | None:
     return {str(k): v for k, v in found.items()}
 
 
+def _shared_settings(parts: Sequence[dict[str, str] | None]) -> list[str] | None:
+    """The settings every one of the size definitions `parts` records, sorted; None when there are none or any
+    part's is unknown."""
+    if not parts or any(p is None for p in parts):
+        return None
+    return sorted(set.intersection(*(set(p) for p in parts)))
+
+
+def _differing_settings(parts: Sequence[dict[str, str] | None]) -> list[str]:
+    """Those of `_shared_settings` whose values differ between `parts`, or are mixed (a mixed value differs from
+    any other map's, its own kind included)."""
+    return [key for key in _shared_settings(parts) or ()
+            if len({p[key] for p in parts}) > 1 or any(_is_mixed(p[key]) for p in parts)]
+
+
 def merged_size_definition(parts: Sequence[dict[str, str] | None]) -> dict[str, str] | None:
     """The size definition of a merge of maps of `parts` (`session_size_definition` each): each setting they all
     record, its value where they agree, else "mixed (a, b)" (`MIXED`); None when any part's is unknown."""
-    if not parts or any(p is None for p in parts):
+    if (shared := _shared_settings(parts)) is None:
         return None
     merged = {}
-    for key in sorted(set.intersection(*(set(p) for p in parts))):
+    for key in shared:
         values = sorted({v for p in parts for v in (p[key][len(MIXED) + 2:-1].split(", ") if _is_mixed(p[key])
                                                     else [p[key]])})
         merged[key] = values[0] if len(values) == 1 else f"{MIXED} ({', '.join(values)})"
@@ -101,13 +116,8 @@ def size_definitions_differ(parts: Sequence[dict[str, str] | None], names: Seque
     """What differs between the size definitions `parts` of the maps `names` ("key 'x' in NAME, 'y' in NAME2"),
     for the settings all of them record; a mixed value always differs (`MIXED`); None when they agree or any is
     unknown."""
-    if not parts or any(p is None for p in parts):
-        return None
-    said = []
-    for key in sorted(set.intersection(*(set(p) for p in parts))):
-        values = [p[key] for p in parts]
-        if len(set(values)) > 1 or any(_is_mixed(v) for v in values):
-            said.append(f"{key} " + ", ".join(f"{v!r} in {n}" for v, n in zip(values, names)))
+    said = [f"{key} " + ", ".join(f"{p[key]!r} in {n}" for p, n in zip(parts, names))
+            for key in _differing_settings(parts)]
     return "; ".join(said) or None
 
 
@@ -115,9 +125,7 @@ def size_definition_disagreement(a: dict[str, str] | None, b: dict[str, str] | N
     """One line when both maps record how their sizes are defined (`size_definition`, `LoadedMap.size_definition`)
     and the definitions differ (the search compares the two maps' sizes within theta_r: a few percent of systematic
     difference costs associations and, on a kind of object, all of them), else None."""
-    if a is None or b is None:
-        return None
-    differ = [k for k in sorted(set(a) & set(b)) if a[k] != b[k] or _is_mixed(a[k])]
+    differ = _differing_settings([a, b])
     if not differ:
         return None
     said = ", ".join(f"{k} {a[k]!r} in A, {b[k]!r} in B" for k in differ)

@@ -229,13 +229,14 @@ def test_a_lag_beyond_the_capture_interval_refuses_the_map_of_those_poses(tmp_pa
     (corrected) and a flight without lag refuse nothing."""
     import json
 
+    from sosmatch.database.session_io import poses_record_beside
     from sosmatch.plugin.geometry import Camera, Poses
     from sosmatch.workflows.map.inputs import MapInputs, in_flight_order
     from sosmatch.workflows.poses.result import (
         PosesResult,
         map_inputs,
+        registration_findings,
         registration_refusals,
-        registration_warnings_beside,
     )
 
     centers, rots, times, vel = _lawnmower()
@@ -257,7 +258,7 @@ def test_a_lag_beyond_the_capture_interval_refuses_the_map_of_those_poses(tmp_pa
     assert map_inputs(result, tmp_path / "img", "sfm").refusals == [refusal]
     (tmp_path / "p").mkdir()
     (tmp_path / "p" / "poses.json").write_text(json.dumps(records[1.1 * interval]))
-    assert registration_warnings_beside(tmp_path / "p" / "poses.csv")[1] == [refusal]
+    assert registration_findings(poses_record_beside(tmp_path / "p" / "poses.csv"))[1] == [refusal]
     kept = in_flight_order(MapInputs([tmp_path / "img" / "a.jpg", tmp_path / "img" / "b.jpg"], poses,
                                      result.cameras[1], refusals=[refusal]))
     assert kept.refusals == [refusal]

@@ -439,8 +439,7 @@ def ignored_settings(chosen: Collection[str], match: MatchSummary, refine: bool)
             or (name == "association.distance_tolerance_m" and match.gate_m is None)
             or (refining and name.startswith("verification.") and name.partition(".")[2] not in match.refinement)}
     ignored = sorted(set(chosen) - used)
-    shown = ", ".join(ignored[:6]) + (f" and {len(ignored) - 6} more" if len(ignored) > 6 else "")
-    return shown
+    return ", ".join(ignored[:6]) + (f" and {len(ignored) - 6} more" if len(ignored) > 6 else "")
 
 
 def run(

@@ -37,10 +37,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..georegistration import MIN_FIXES, HorizontalFit, robust_horizontal_similarity  # noqa: F401
+from ..georegistration import MIN_FIXES, HorizontalFit, robust_horizontal_similarity
 from ..gps_track import FROZEN_SPREAD_M, frozen_fix
 
-# (MIN_FIXES, from georegistration: fewer images with a fix, no comparison)
 # the least error an uncorrected GNSS receiver's fixes wander by over a flight, per axis (consumer receivers
 # state 2-5 m CEP; RTK/PPK fixes do better, and then only a scale error of a few tens of percent on a small site
 # goes unproven): the floor of the scale's uncertainty (module doc)

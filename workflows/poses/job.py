@@ -72,10 +72,15 @@ def versions_of(image_dir: Path, params: Params, telemetry: str | Path | None = 
     telemetry keyed by its path as given, not its content; rev52 D2): such an output is this one (an upgrade
     resumes it, re-marked under today's identity). The old form was blind to an edited file; the content is
     what tells now, and the one-time acceptance takes an output made of that path's file as it was then."""
-    today = identity_of(image_dir, params, telemetry, **options)
-    if telemetry is None:
-        return VersionedIdentity(today)
-    return VersionedIdentity(today, (_identity(image_dir, params, telemetry, options),))
+    return VersionedIdentity(identity_of(image_dir, params, telemetry, **options),
+                             earlier_identities_of(image_dir, params, telemetry, **options))
+
+
+def earlier_identities_of(image_dir: Path, params: Params, telemetry: str | Path | None = None,
+                          **options: Any) -> tuple[str, ...]:
+    """`versions_of`'s earlier identities alone (none without a telemetry file), for a caller that has today's
+    already: a map's start asks for both, and today's lists and stats every image and hashes the telemetry."""
+    return () if telemetry is None else (_identity(image_dir, params, telemetry, options),)
 
 
 def _identity(image_dir: Path, params: Params, telemetry: Any, options: dict[str, Any]) -> str:
@@ -374,7 +379,7 @@ class PosesFromImages:
     def earlier_identities(self) -> tuple[str, ...]:
         """The identities earlier sosmatch versions gave these same poses (`versions_of`): a map made of them is
         this map."""
-        return versions_of(Path(self.images), self.params, self.telemetry, **self._options()).same_as
+        return earlier_identities_of(Path(self.images), self.params, self.telemetry, **self._options())
 
     def input_paths(self) -> list[Path]:
         return [Path(self.images)] + ([Path(self.telemetry)] if self.telemetry else [])

@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 from ...database.landmark_map import POSE_SOURCE_SFM
-from ...database.session_io import poses_record_beside
 from ...database.text_input import read_user_json
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses
@@ -157,13 +156,6 @@ def recorded_pose_warnings(out_dir: str | Path) -> list[str]:
     if not isinstance(said, list) or not all(isinstance(w, str) for w in said):
         raise InputError("poses record's `warnings` is not a list of texts", record)
     return list(said)
-
-
-def registration_warnings_beside(poses_csv: Path) -> tuple[list[str], list[str]]:
-    """(`map_warnings`, `registration_refusals`) of the `poses` output a poses.csv was taken from (its poses.json
-    beside it); none for a CSV of another origin or a record that cannot be read (the CSV itself is what the map
-    uses)."""
-    return registration_findings(poses_record_beside(poses_csv))
 
 
 def registration_findings(report: dict | None) -> tuple[list[str], list[str]]:
