@@ -295,6 +295,16 @@ def _bad_angle(value: object) -> bool:
     return not (math.isfinite(number) and abs(number) <= 360.0)
 
 
+def _position_problem(lat: float, lon: float) -> str | None:
+    """What is wrong with a GPS position (off the globe, or 0, 0: a receiver without a fix), else None: the one
+    test for an EXIF position (`check_metadata`) and an XMP one (`_position_from_xmp`)."""
+    if not (abs(lat) <= 90 and abs(lon) <= 180):
+        return f"GPS position {lat:.6f}, {lon:.6f} is off the globe"
+    if lat == 0 and lon == 0:
+        return "GPS position 0, 0 (receiver without a fix)"
+    return None
+
+
 def check_metadata(meta: ImageMetadata) -> list[str]:
     """The problems of `meta`'s values (empty if none): a position off the globe or (0, 0) (a receiver without a
     fix), a non-finite altitude, a non-positive focal length, a GPS track or an XMP attitude angle beyond one
@@ -302,11 +312,9 @@ def check_metadata(meta: ImageMetadata) -> list[str]:
     problems = []
     if (meta.latitude is None) != (meta.longitude is None):
         problems.append("GPS latitude without longitude (or the reverse)")
-    elif meta.latitude is not None and meta.longitude is not None:
-        if not (abs(meta.latitude) <= 90 and abs(meta.longitude) <= 180):
-            problems.append(f"GPS position {meta.latitude:.6f}, {meta.longitude:.6f} is off the globe")
-        elif meta.latitude == 0 and meta.longitude == 0:
-            problems.append("GPS position 0, 0 (receiver without a fix)")
+    elif meta.latitude is not None and meta.longitude is not None and (
+            position := _position_problem(meta.latitude, meta.longitude)) is not None:
+        problems.append(position)
     if meta.altitude is not None and not math.isfinite(meta.altitude):
         problems.append("GPS altitude is not a number")
     for name in ("focal_mm", "focal_35mm"):
@@ -412,8 +420,9 @@ def _position_from_xmp(meta: ImageMetadata) -> None:
         if meta.altitude is None and (alt := meta.xmp_float(XMP_ALTITUDE_TAG)) is not None:
             meta.altitude = alt[0]
             meta.sources["altitude"] = f"XMP drone-dji:{XMP_ALTITUDE_TAG}"
-    elif abs(lat[0]) <= 90 and abs(lon[0]) <= 180 and (lat[0], lon[0]) != (0.0, 0.0):
+    elif _position_problem(lat[0], lon[0]) is None:
         meta.xmp_position = (lat[0], lon[0])
+
 
 def read_image_metadata(path: str | Path) -> ImageMetadata:
     """Read GPS, camera and XMP metadata of one image (no pixel decoding). Unreadable images raise InputError;

@@ -64,12 +64,13 @@ def _to_lonlat(crs: str, xs: list[float], ys: list[float], path: Path) -> tuple[
     return [float(v) for v in lon], [float(v) for v in lat]
 
 
-def read_geo_txt(path: str | Path) -> dict[str, dict[str, float]]:
-    """Per image name: `lat`, `lon` (degrees, signed) and `alt` (geo_z, where given) of an ODM geo.txt. A first
-    line that is no CRS, a row with fewer than three fields, a coordinate that is not a number, a name given
-    twice or a position off the globe is an InputError naming the line."""
+def read_geo_txt(path: str | Path, text: str | None = None) -> dict[str, dict[str, float]]:
+    """Per image name: `lat`, `lon` (degrees, signed) and `alt` (geo_z, where given) of an ODM geo.txt (`text`:
+    its content when the caller has read it already). A first line that is no CRS, a row with fewer than three
+    fields, a coordinate that is not a number, a name given twice or a position off the globe is an InputError
+    naming the line."""
     path = Path(path)
-    text = read_user_text(path, "geo.txt")
+    text = read_user_text(path, "geo.txt") if text is None else text
     numbered = [(k, ln.split()) for k, ln in enumerate(text.splitlines(), start=1) if ln.strip()
                 and not ln.lstrip().startswith("#")]
     if not numbered:
@@ -79,8 +80,7 @@ def read_geo_txt(path: str | Path) -> dict[str, dict[str, float]]:
     if crs is None:
         raise InputError(f"the first line of a geo.txt names the coordinates' CRS (EPSG:4326, a +proj string or "
                          f"'WGS84 UTM 16N'), not {' '.join(first)[:40]!r}", path, first_no)
-    names: list[str] = []
-    lines: list[int] = []
+    line_of: dict[str, int] = {}  # name -> its line (a dict: a name given twice is found at once on any length)
     xs: list[float] = []
     ys: list[float] = []
     zs: list[float] = []
@@ -95,13 +95,13 @@ def read_geo_txt(path: str | Path) -> dict[str, dict[str, float]]:
             raise InputError(f"non-numeric coordinate in {' '.join(fields[1:4])!r}", path, lineno) from None
         if not (math.isfinite(x) and math.isfinite(y)):
             raise InputError(f"coordinate {fields[1]} {fields[2]} is not a number", path, lineno)
-        if fields[0] in names:
-            raise InputError(f"{fields[0]} is given twice (also line {lines[names.index(fields[0])]})", path, lineno)
-        names.append(fields[0])
-        lines.append(lineno)
+        if (earlier := line_of.get(fields[0])) is not None:
+            raise InputError(f"{fields[0]} is given twice (also line {earlier})", path, lineno)
+        line_of[fields[0]] = lineno
         xs.append(x)
         ys.append(y)
         zs.append(z)
+    names, lines = list(line_of), list(line_of.values())
     if not names:
         raise InputError("geo.txt has a CRS line but no image rows", path)
     lons, lats = _to_lonlat(crs, xs, ys, path)

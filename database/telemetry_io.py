@@ -68,7 +68,7 @@ def read_telemetry_csv(path: str | Path) -> dict[str, dict[str, float]]:
     path = Path(path)
     text = read_user_text(path, "telemetry file")
     if looks_like_geo_txt(text):  # OpenDroneMap's image positions (nu58 D4: refused for want of a name column)
-        return read_geo_txt(path)
+        return read_geo_txt(path, text)
     lines = text.splitlines()
     first = next((ln for ln in lines if ln.strip()), "")
     # spreadsheets in many locales export ';' (a ',' is their decimal mark), others tabs

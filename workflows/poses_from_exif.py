@@ -425,10 +425,10 @@ def _tilted_by_drift(vert: Vertical, centers: np.ndarray, gps: np.ndarray, times
     deg off and nothing said); the refined block then agrees with its own heights, so only the cameras' vertical
     (the nadir assumption's, `vert.prior_up`) against the world's tells it. None when the tilt is within the
     assumption's sigma or the levelled heights do not change."""
-    from ..plugin.georegistration import MIN_HEIGHT_DRIFT_M, NADIR_ASSUMPTION_SIGMA_DEG, level_rotation
+    from ..plugin.georegistration import MIN_HEIGHT_DRIFT_M, NADIR_ASSUMPTION_SIGMA_DEG, NADIR_SOURCE, level_rotation
     from ..plugin.height_drift import fit_drift
 
-    if not vert.source.startswith("nadir assumption"):
+    if not vert.source.startswith(NADIR_SOURCE):
         return None
     tilt = math.degrees(math.acos(float(np.clip(vert.prior_up[2], -1.0, 1.0))))
     ok = np.all(np.isfinite(gps), axis=1)
