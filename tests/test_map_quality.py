@@ -6,16 +6,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from sosmatch.plugin.ground_plane import shared_tilt_deg
 from sosmatch.plugin.image_quality import flight_images, image_figures
-from sosmatch.plugin.map_quality import (
-    assess_map,
-    flight_passes,
-    isolated_cameras,
-    judge,
-    pass_disagreement,
-    shared_tilt_deg,
-)
+from sosmatch.plugin.map_quality import assess_map, isolated_cameras
+from sosmatch.plugin.map_verdict import judge
 from sosmatch.plugin.params import QualityParams
+from sosmatch.plugin.pass_heights import flight_passes, pass_disagreement
 
 
 def _rot(axis: str, deg: float) -> np.ndarray:
@@ -216,7 +212,7 @@ def test_the_ground_plane_of_a_narrow_strip_with_deep_outliers_is_level():
     """Seneca on the default parameters: landmarks along a strip of fields, a few of them hundreds of metres below
     (wrong tracks). From uniform weights the fit took a vertical plane (89 deg "ground tilt" over flat land); a
     real slope is still found."""
-    from sosmatch.plugin.map_quality import robust_plane_normal
+    from sosmatch.plugin.ground_plane import robust_plane_normal
 
     rng = np.random.default_rng(3)
     along = rng.uniform(-180, 180, 90)
@@ -278,7 +274,7 @@ def test_the_figure_shows_native_resolution_keyframes_at_about_its_panel_size(tm
     from matplotlib.axes import Axes
 
     from sosmatch.plugin.geometry import Camera, Poses
-    from sosmatch.plugin.map_quality import Verdict
+    from sosmatch.plugin.map_verdict import Verdict
     from sosmatch.workflows.map import figure
 
     camera = Camera(4000, 3000, 3000.0, 3000.0, 2000.0, 1500.0)

@@ -6,9 +6,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from sosmatch.plugin.map_quality import assess_map, flight_passes, judge
+from sosmatch.plugin.map_quality import assess_map
+from sosmatch.plugin.map_verdict import judge
 from sosmatch.plugin.params import QualityParams
-from sosmatch.plugin.pass_heights import pass_height_offset, single_pass_heights
+from sosmatch.plugin.pass_heights import flight_passes, pass_height_offset, single_pass_heights
 
 
 def hilly_flight(relief_m: float, tilt_deg: float = 0.0, seed: int = 0, altitude: float = 110.0):

@@ -15,8 +15,8 @@ import pytest
 from sosmatch.database.cameras import read_cameras_txt
 from sosmatch.database.poses import read_poses_csv, write_poses_csv
 from sosmatch.plugin.geometry import Poses
-from sosmatch.plugin.map_quality import flight_passes
 from sosmatch.plugin.params import Params, with_overrides
+from sosmatch.plugin.pass_heights import flight_passes
 from sosmatch.plugin.pose_check import (
     PoseCheck,
     SystematicErrors,
@@ -349,7 +349,7 @@ def test_a_refused_map_says_the_remedy_of_loose_poses(tmp_path):
     loose) to the refusal."""
     from types import SimpleNamespace
 
-    from sosmatch.plugin.map_quality import Verdict
+    from sosmatch.plugin.map_verdict import Verdict
     from sosmatch.workflows.map.quality import MapRefused, raise_if_refused
     from sosmatch.workflows.map.workflow import pose_remedy
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..database.atomic import write_bytes_atomic
 from ..plugin.errors import InputError
-from ..plugin.map_quality import landmark_views
+from ..plugin.map_verdict import landmark_views
 from ..plugin.params import Params
 from ..tools.synth.config import SynthConfig
 

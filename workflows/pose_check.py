@@ -23,7 +23,7 @@ from ..database.exif import orientation_note, read_orientation
 from ..plugin.errors import InputError
 from ..plugin.geometry import Camera, Poses
 from ..plugin.image_matching import OrbFeatures
-from ..plugin.map_quality import Verdict
+from ..plugin.map_verdict import Verdict
 from ..plugin.params import Params, PoseCheckParams, for_image
 from ..plugin.pose_check import PoseCheck, check_poses, judge_poses
 

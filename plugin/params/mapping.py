@@ -236,13 +236,13 @@ class TriangulationParams(Checked):
 
 @dataclass(frozen=True)
 class QualityParams(Checked):
-    # (ours) plausibility limits of a map (`plugin.map_quality.judge`): beyond them `sosmatch map` refuses it
+    # (ours) plausibility limits of a map (`plugin.map_verdict.judge`): beyond them `sosmatch map` refuses it
     # landmarks higher than a camera that flew over them (within their footprint), of those under the flight path:
     # the aircraft would have flown through the object; 0 in every consistent map measured
     max_share_above_cameras: float = fraction(0.05)
     max_block_tilt_deg: float = within(20.0, 0.0, 90.0)  # tilt that the ground and the cameras share
     # the worst pair of passes: lower quartile of |dz| of their neighbouring landmarks over that of one pass's
-    # (`map_quality.pass_disagreement`): consistent maps 1.0-3.5 (32 synthetic and real maps), a 50 m altitude
+    # (`pass_heights.pass_disagreement`): consistent maps 1.0-3.5 (32 synthetic and real maps), a 50 m altitude
     # drift 26, flight lines 30 m apart in height 34. Judged on the ratio the pairs prove (its quartiles' 2-sigma
     # bounds, `PassDisagreement.ratio_low`): correct poses 0.03-2.5 (76 maps of nu21/22/28/38; 3.9 on nu23's
     # dust-veiled images), 30 m altitude drifts 7.6-9.3

@@ -12,8 +12,8 @@ import numpy as np
 from ..fixed_in_frame import FixedInFrame, learn_fixed_in_frame
 from ..geometry import SAME_POSITION, Camera, Poses
 from ..image_matching import OrbFeatures, ratio_matches
-from ..map_quality import flight_passes
 from ..params import PoseCheckParams
+from ..pass_heights import flight_passes
 from .gps import GpsComparison
 from .matches import PairMatches, match_pair
 from .systematic import SystematicErrors, fit_systematic_errors, lag_along_track_m, pair_sampson_px, track_in_camera
@@ -457,7 +457,7 @@ def _working_scale(camera: Camera, params: PoseCheckParams) -> float:
 
 
 def _reversed_passes(checks: list[PairCheck], poses: Poses, gate_px: float) -> list[dict]:
-    """Passes of the flight (`map_quality.flight_passes`) most of whose checked pairs inside the pass (at least
+    """Passes of the flight (`pass_heights.flight_passes`) most of whose checked pairs inside the pass (at least
     two) are reversed: the poses say those images moved the other way. Pairs without the parallax to tell the
     direction (`PairCheck.sees_direction`) do not vote either way."""
     passes = flight_passes(poses.centers)

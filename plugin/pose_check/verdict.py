@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..map_quality import Verdict
+from ..map_verdict import Verdict
 from ..params import PoseCheckParams
 from .check import PoseCheck, beyond
 from .gps import GNSS_WANDER_M, GpsComparison

@@ -96,7 +96,7 @@ def _rotated(poses: Any, deg: float) -> Any:
 
 def _line_offsets(poses: Any, offset_m: float) -> Any:
     from ...plugin.geometry import Poses
-    from ...plugin.map_quality import flight_passes
+    from ...plugin.pass_heights import flight_passes
 
     passes = flight_passes(poses.centers)
     centers = poses.centers.copy()
@@ -242,9 +242,10 @@ def mapped_row(path: Path, good: bool = True) -> dict[str, Any]:
 
 def rejudge(row: dict[str, Any]) -> dict[str, Any]:
     """The verdict of a row under the current code: figures recomputed from its map (when it is still there),
-    then `map_quality.judge` with the default limits joined with the row's pose check, so the table always shows
+    then `map_verdict.judge` with the default limits joined with the row's pose check, so the table always shows
     what `sosmatch map` would say."""
-    from ...plugin.map_quality import MapQuality, Verdict, judge
+    from ...plugin.map_quality import MapQuality
+    from ...plugin.map_verdict import Verdict, judge
     from ...plugin.params import Params
     from ...workflows.map.quality import joined
 

@@ -40,7 +40,7 @@ def _rot(axis: str, deg: float) -> np.ndarray:
 def faulty(poses: Any, kind: str, seed: int = 0) -> Any:
     """`poses` with one deliberate fault (module doc)."""
     from ...plugin.geometry import Poses
-    from ...plugin.map_quality import flight_passes
+    from ...plugin.pass_heights import flight_passes
 
     rng = np.random.default_rng(seed)
     r, c = poses.rotations.copy(), poses.centers.copy()

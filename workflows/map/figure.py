@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...plugin.geometry import Camera, Poses, project
-from ...plugin.map_quality import MapQuality, Verdict, robust_plane_normal
+from ...plugin.ground_plane import robust_plane_normal
+from ...plugin.map_quality import MapQuality
+from ...plugin.map_verdict import Verdict
 
 if TYPE_CHECKING:
     from ...database.images import Levels

@@ -1,5 +1,5 @@
 """The map's quality stages: the poses against the images (`workflows.pose_check`, before anything is mapped),
-then the map's figures (`plugin.map_quality.assess_map`), verdict (`judge`) and the picture.
+then the map's figures (`plugin.map_quality.assess_map`), verdict (`plugin.map_verdict.judge`) and the picture.
 
 A refused map is still written (so that its picture and run.json can be looked at) but run.json records the
 verdict, `sosmatch map` ends with a one-line error and a non-zero exit, and the readers of mapped sessions
@@ -19,7 +19,8 @@ from ...database.atomic import atomic_path
 from ...plugin.errors import InputError
 from ...plugin.geometry import Camera, Poses, pixel_rays
 from ...plugin.image_quality import FlightImages
-from ...plugin.map_quality import MapQuality, Verdict, assess_map, isolated_cameras, judge
+from ...plugin.map_quality import MapQuality, assess_map, isolated_cameras
+from ...plugin.map_verdict import Verdict, judge
 from ...plugin.params import QualityParams, survey_preset_remedy
 
 if TYPE_CHECKING:
@@ -93,7 +94,7 @@ def quality_stage(
     views_per_pass: float = float("nan"), params: Any = None, vertical: tuple[str, float] = ("", float("nan")),
 ) -> tuple[MapQuality, Verdict]:
     """Figures, verdict and (when `figure` is a path) the picture, written atomically. Warnings are logged.
-    `images_flying_height_m`: the pose check's (`plugin.map_quality.judge`); `white`: the flight's white level
+    `images_flying_height_m`: the pose check's (`plugin.map_verdict.judge`); `white`: the flight's white level
     for the picture (`database.flight_levels.flight_white_level`); `poses_fit`, `images`: the pose check's phrase
     when it found the poses fitting, and the keyframes' image figures (`judge`); `contrast`: the flight's low contrast
     as a cause (`FlightContrast.cause`); `min_observations`: the map's theta_n (`judge`); `views_per_pass` (the

@@ -31,7 +31,8 @@ from ...database.landmark_map import (
 from ...database.outputs import OutputDir
 from ...database.segmentation_models import SegmentationModels, segmentation_models
 from ...plugin.lens_check import camera_kind
-from ...plugin.map_quality import MapQuality, Verdict
+from ...plugin.map_quality import MapQuality
+from ...plugin.map_verdict import Verdict
 from ...plugin.params import Params, for_flight, for_ground_resolution, for_image, params_to_dict, pixel_scale
 from .inputs import (
     MapInputs,

@@ -117,7 +117,7 @@ def poses_vertical(report: dict | None) -> tuple[str, float]:
     """(what the poses' vertical rests on, its sigma in deg) as a `poses` record (poses.json) holds them
     (`georegistration.vertical_source` / `vertical_sigma_deg`, or the local frame's); ("", NaN) where the record
     says nothing (a CSV of another origin, an imported model). A map of the poses weighs its ground's tilt against
-    a vertical that rests on the nadir assumption alone (`plugin.map_quality.judge`)."""
+    a vertical that rests on the nadir assumption alone (`plugin.map_verdict.judge`)."""
     geo = report.get("georegistration") if isinstance(report, dict) else None
     source = geo.get("vertical_source") if isinstance(geo, dict) else None
     sigma = geo.get("vertical_sigma_deg") if isinstance(geo, dict) else None
