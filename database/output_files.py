@@ -14,9 +14,9 @@ from typing import Any
 
 from ..plugin.errors import InputError
 from .atomic import atomic_path, write_text_atomic
+from .output_checks import OVERWRITE_HINT, check_writable_place
 from .output_entries import check_not_in_output_entry
 from .output_markers import VersionedIdentity, check_not_input, read_json_or_none, resolved_path, sha256_file
-from .outputs import OVERWRITE_HINT, check_writable_place
 
 FILES_REGISTRY = ".sosmatch-files.json"
 FILES_LOCK = ".sosmatch-files.lock"

@@ -110,7 +110,7 @@ def settings_differences(recorded: Any, now: dict[str, Any], why: dict[str, str]
     keeps no settings or the same ones (then the inputs differ, or the version). A setting only one of them names
     (added or retired since) is no difference: an earlier version's output holds no value for it. `given`: the
     values given (dotted name -> value: the record's, this run's) of settings the command replaced by others
-    (`outputs.RecordedSettings.given`), said as 'set to' where the values used agree."""
+    (`output_checks.RecordedSettings.given`), said as 'set to' where the values used agree."""
     if not isinstance(recorded, dict) or not recorded:
         return None
     before, after = _flat(recorded), _flat(json.loads(json.dumps(now, default=str)))

@@ -31,7 +31,9 @@ Python:
     files.write(geojson, text)                                             # checked before any work
 
 What an output directory is to its readers (the marker, `check_finished`, the identities `fingerprint` and
-`sha256_file`, `check_not_input`) is `database.output_markers`; this module takes and writes them.
+`sha256_file`, `check_not_input`) is `database.output_markers`; whether a run may take one (what it holds now, the
+refusal of another complete output, the checks a command makes before its work) is `database.output_checks`;
+this module takes the directory, writes the marker and publishes the entries.
 """
 
 from __future__ import annotations
@@ -41,12 +43,11 @@ import json
 import os
 import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from ..plugin.errors import InputError
 from .atomic import clean_stale_temporaries, locked_temp_dir, write_bytes_atomic, write_text_atomic
+from .output_checks import OURS, OVERWRITE_HINT, PreviousOutput, RecordedSettings, previous_output, refuse_another
 from .output_entries import (
     check_entry_ours,
     check_not_in_output_entry,
@@ -64,32 +65,8 @@ from .output_markers import (
     VersionedIdentity,
     check_not_input,
     output_marker,
-    read_json_or_none,
-    settings_differences,
 )
 from .taken import OutputMoved, Place, check_place
-
-# how a refusal names the option that replaces another output: the same refusal reaches the command line
-# (`--overwrite`) and Python callers of the workflows (`overwrite=True`)
-OVERWRITE_HINT = "--overwrite (overwrite=True in Python)"
-
-_OURS = {MARKER, LOCK}  # present in a directory that is otherwise empty: still empty
-
-
-@dataclass(frozen=True)
-class RecordedSettings:
-    """This run's settings as the command's record (`legacy_record`) keeps them under "params" (`now`), and why
-    some of them are what they are (`why`: dotted name -> reason, e.g. a transform the maps chose): the refusal of
-    a complete output then names the settings it was made with that differ (`settings_differences`), not only
-    "other inputs or settings" (an upgrade whose defaults changed was refused without saying so)."""
-
-    now: dict[str, Any]
-    why: dict[str, str] = field(default_factory=dict)
-    # settings this run was given and replaced by others (match's tolerances derived from the maps: `now` holds
-    # the values used): dotted name -> the value given, and the keys down to where the record keeps the values
-    # given by their last name (rev56 D8: a change of a replaced setting was refused without naming it)
-    given: dict[str, Any] = field(default_factory=dict)
-    given_at: tuple[str, ...] = ()
 
 
 def _holds_files(folder: Path) -> bool:
@@ -113,44 +90,6 @@ def _bytes_or_none(path: Path) -> bytes | None:
         return path.read_bytes()
     except FileNotFoundError:
         return None
-
-
-@dataclass(frozen=True)
-class PreviousOutput:
-    """What an output directory held when a run took it."""
-
-    state: str  # "new" (absent or empty), "incomplete" (ours, unfinished), "complete" (ours, finished)
-    identity: str | None = None  # the identity of the complete output (None: unknown, from an older sosmatch)
-
-
-def _previous(path: Path, command: str, legacy_record: str | None) -> PreviousOutput:
-    """Classify `path` for `command` without changing anything; InputError when it is not ours to write."""
-    if not path.exists():
-        return PreviousOutput("new")
-    if not path.is_dir():
-        raise InputError("output path exists and is not a directory", path)
-    marker = read_json_or_none(path / MARKER)
-    if marker is None:
-        try:
-            names = sorted(p.name for p in path.iterdir() if p.name not in _OURS)
-        except OSError as exc:
-            raise InputError(f"cannot read output directory: {exc.strerror or exc}", path) from None
-        if not names:
-            return PreviousOutput("new")
-        if legacy_record is not None:
-            record = read_json_or_none(path / legacy_record)
-            if record and str(record.get("format", "")).startswith("sosmatch"):
-                return PreviousOutput("complete", None)  # written before markers existed: complete, identity unknown
-        raise InputError(f"output directory is not empty and is not a `sosmatch {command}` output ({names[0]}, ...);"
-                         " sosmatch never replaces what it did not create: choose a new or empty directory", path)
-    if marker.get("format") != MARKER_FORMAT or not isinstance(marker.get("command"), str):
-        raise InputError(f"unreadable output marker {MARKER}; choose a new or empty directory", path)
-    if marker["command"] != command:
-        raise InputError(f"output directory holds a `sosmatch {marker['command']}` output; `sosmatch {command}` "
-                         "never replaces it: choose a new or empty directory", path)
-    if marker.get("complete"):
-        return PreviousOutput("complete", marker.get("identity"))
-    return PreviousOutput("incomplete", marker.get("identity"))
 
 
 class OutputDir:
@@ -366,7 +305,7 @@ class OutputDir:
         `settings`: the settings of that answer, which a refusal compares with the record's (`open_output_dir`)."""
         versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
         try:
-            _refuse_another(self.path, self.command, self.previous, versions, {versions.today, *versions.same_as},
+            refuse_another(self.path, self.command, self.previous, versions, {versions.today, *versions.same_as},
                             overwrite, overwrite_flag, settings, self._record)
         except InputError:
             self.restore_previous()
@@ -399,7 +338,7 @@ class OutputDir:
             left = {p.name for p in self.path.iterdir()}
         except OSError:
             return
-        if left <= _OURS:
+        if left <= OURS:
             (self.path / MARKER).unlink(missing_ok=True)
             self.close()
             for d in reversed(self._created):
@@ -458,9 +397,9 @@ def open_output_dir(
     identity, same_as = versions.today, frozenset(versions.same_as)  # earlier versions' identities of this output
     check_not_input(path, list(inputs))
     check_not_in_output_entry(path)
-    previous = _previous(path, command, legacy_record)
+    previous = previous_output(path, command, legacy_record)
     same = {identity, *earlier, *same_as}
-    _refuse_another(path, command, previous, versions, same, overwrite, overwrite_flag, settings, legacy_record)
+    refuse_another(path, command, previous, versions, same, overwrite, overwrite_flag, settings, legacy_record)
     created = [p for p in [*reversed(path.absolute().parents), path.absolute()] if not p.exists()]
     check_place(path)  # inside another run's output (batch's maps) that was moved away: not re-created
     try:
@@ -470,7 +409,7 @@ def open_output_dir(
     fd = acquire_lock(path / LOCK, command)
     out: OutputDir | None = None
     try:
-        again = _previous(path, command, legacy_record)  # under the lock: a run that just finished counts
+        again = previous_output(path, command, legacy_record)  # under the lock: a run that just finished counts
         if again != previous and again.state == "complete" and again.identity not in same and not overwrite:
             raise InputError(f"output directory now holds a complete `sosmatch {command}` output made from other "
                              f"inputs or settings; use {overwrite_flag} to replace it", path)
@@ -496,66 +435,3 @@ def open_output_dir(
                 d.rmdir()
         raise
     return out
-
-
-def _refuse_another(path: Path, command: str, previous: Any, versions: VersionedIdentity, same: set[str],
-                    overwrite: bool, overwrite_flag: str, settings: RecordedSettings | None = None,
-                    record: str | None = None) -> None:
-    """InputError when `path` holds a complete output of an identity not in `same`, unless `overwrite`; it names
-    the settings `record` (the command's record in `path`) keeps otherwise than `settings` when it can."""
-    if previous.state == "complete" and previous.identity not in same and not overwrite:
-        # identities of earlier versions' same outputs are in `same_as` (nu36): what is left is another output,
-        # or one of a version that behaved otherwise: said, so that nobody hunts for a changed input
-        what = versions.refusal_note(previous.identity) or _recorded_difference(path, record, settings) or (
-            "an output made from other inputs or settings, or by another version of sosmatch")
-        raise InputError(f"output directory holds a complete `sosmatch {command}` output: {what}; use "
-                         f"{overwrite_flag} to replace it (or choose another directory)", path)
-
-
-def _recorded_difference(path: Path, record: str | None, settings: RecordedSettings | None) -> str | None:
-    """The settings the record `path/record` keeps otherwise than `settings` (`settings_differences`), else None."""
-    if record is None or settings is None:
-        return None
-    kept = read_json_or_none(path / record) or {}
-    given: Any = kept
-    for key in settings.given_at:
-        given = given.get(key) if isinstance(given, dict) else None
-    kept_given = {name: given[name.rsplit(".", 1)[-1]] for name in settings.given
-                  if isinstance(given, dict) and name.rsplit(".", 1)[-1] in given}
-    return settings_differences(kept.get("params"), settings.now, settings.why,
-                                given=(kept_given, settings.given))
-
-
-def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | Path | None] = (),
-                     legacy_record: str | None = None, identity: str | VersionedIdentity | None = None,
-                     overwrite: bool = False, overwrite_flag: str = OVERWRITE_HINT) -> None:
-    """What `open_output_dir` refuses whatever the run produces, checked before any work and changing nothing:
-    an input (or inside one, or holding one), a path that is a file, a non-empty directory that is not this
-    command's output, or a new directory that cannot be made (a file or a read-only folder on its way). A command
-    whose output identity is known only after its work (`sosmatch changes`) calls this first, so a bad `--out`
-    is refused at once; `open_output_dir` still decides (overwrite, the lock) when the work is done. `identity`:
-    the output's, when the command can know it before its work: a complete output of another one is refused
-    now too (unless `overwrite`), as `open_output_dir` would refuse it after the work."""
-    path = Path(path)
-    check_not_input(path, list(inputs))
-    check_not_in_output_entry(path)
-    previous = _previous(path, command, legacy_record)
-    if identity is not None:
-        versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
-        _refuse_another(path, command, previous, versions, {versions.today, *versions.same_as}, overwrite,
-                        overwrite_flag)
-    if previous.state == "new" and not path.exists():
-        check_writable_place(path)
-
-
-def check_writable_place(path: Path) -> None:
-    """The folder that will hold `path` (its nearest existing ancestor, when it is still to be made) is a directory
-    this process may write: checked before any work, so that a run of minutes does not end on "cannot write
-    output: File exists" (a file where a folder of the path should be) or a read-only file system."""
-    folder = path.parent
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    if not folder.is_dir():
-        raise InputError(f"cannot write output: {folder} is a file, not a folder", path)
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise InputError(f"cannot write output: {folder} is read-only or not writable", path)

@@ -40,8 +40,9 @@ from ..database.landmark_map import check_two_maps
 from ..database.map_loading import session_size_definition, size_definition_disagreement
 from ..database.match_io import answer_gate, check_match_maps, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
+from ..database.output_checks import check_output_dir
 from ..database.output_markers import VersionedIdentity, fingerprint, versioned_identity
-from ..database.outputs import check_output_dir, open_output_dir
+from ..database.outputs import open_output_dir
 from ..database.session_images import compared_images_dirs, recorded_images_dir
 from ..database.session_io import SessionFiles, read_map_record, read_session, read_session_observations
 from ..plugin import __version__

@@ -57,8 +57,9 @@ from ..database.map_loading import (
 )
 from ..database.match_io import MatchSummary, answer_gate, check_match_maps, match_content, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, precision_note, unverified_note
+from ..database.output_checks import check_output_dir
 from ..database.output_markers import fingerprint, resolved_path
-from ..database.outputs import OutputDir, check_output_dir, open_output_dir
+from ..database.outputs import OutputDir, open_output_dir
 from ..database.session_io import (
     MERGE_RECORD,
     SessionFiles,

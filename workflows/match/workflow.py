@@ -16,8 +16,9 @@ from ...database.atomic import write_bytes_atomic, write_text_atomic
 from ...database.landmark_map import check_two_maps, crs_disagreement, georeference_offset_m
 from ...database.map_loading import load_map, size_definition_disagreement
 from ...database.match_io import parse_match
+from ...database.output_checks import RecordedSettings
 from ...database.output_markers import VersionedIdentity, versioned_identity
-from ...database.outputs import RecordedSettings, open_output_dir
+from ...database.outputs import open_output_dir
 from ...plugin.answer_uncertainty import refused_scale_note, without_similarity_advice
 from ...plugin.association.hypotheses import MIN_LANDMARKS_TO_ALIGN
 from ...plugin.errors import InputError
