@@ -71,33 +71,11 @@ JUMP_LOOKBACK = 4  # the frame before and the 3 before it: up to 4 flights inter
 # An order reads as one flight with at most this share of its steps jumps (and always with one: a GPS fix gone
 # astray for a frame and back is one), so a flight's odd outliers do not make it "no flight".
 JUMP_SHARE_MAX = 0.05
-# The ranks of at most this many steps (evenly spaced, deterministic): each costs up to one pass over the frames.
-_RANK_STEPS_MAX = 1000
-
-
-def next_frame_ranks(xy: np.ndarray) -> np.ndarray:
-    """For steps i -> i+1 of the listed order: how many frames are strictly nearer to frame i than frame i+1 is.
-
-    Args:
-        xy: (N, 2) horizontal camera centres in metres, in the listed order, N >= 2.
-
-    Returns:
-        (S,) int64 ranks, for every step (N - 1 <= _RANK_STEPS_MAX), else for that many evenly spaced ones
-        (`_ranked_steps`).
-    """
-    return _step_ranks(np.asarray(xy, dtype=np.float64), _ranked_steps(len(xy)))
-
-
-def _ranked_steps(n: int) -> np.ndarray:
-    """The steps `next_frame_ranks` ranks in an order of n frames."""
-    steps = np.arange(max(n - 1, 0))
-    if len(steps) > _RANK_STEPS_MAX:
-        steps = np.unique(np.linspace(0, n - 2, _RANK_STEPS_MAX).astype(np.int64))
-    return steps
 
 
 def _step_ranks(xy: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """`next_frame_ranks` of the steps `steps` (indices i of steps i -> i+1)."""
+    """For the steps `steps` (indices i of steps i -> i+1) of the order of horizontal centres `xy` (N, 2): how many
+    frames are strictly nearer to frame i than frame i+1 is (int64)."""
     from scipy.spatial import cKDTree
 
     if len(steps) == 0:
@@ -137,7 +115,7 @@ def flight_step(xy: np.ndarray) -> float:
 
 def order_jumps(xy: np.ndarray) -> np.ndarray:
     """Which steps i -> i+1 of the order jump: the step is more than JUMP_STEPS flight steps long (`flight_step`),
-    its next frame is not among the SCRAMBLED_NEXT_RANK nearest to frame i (`next_frame_ranks`), and it lies more
+    its next frame is not among the SCRAMBLED_NEXT_RANK nearest to frame i (`_step_ranks`), and it lies more
     than JUMP_RATIO times nearer to one of the frames before frame i (up to JUMP_LOOKBACK back) than to frame i:
     the order left a place and came back to it. A flight's own steps are none of these: a turn onto a line far
     away goes to a new place, a step back over the ground just flown (a corridor's out-and-back turn) is one

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from sosmatch.plugin.keyframes import flight_order, next_frame_ranks
+from sosmatch.plugin.keyframes import _step_ranks, flight_order
 from sosmatch.tools.toy_sessions import lawnmower
 
 
@@ -25,7 +25,7 @@ def test_a_long_hover_or_gps_stall_before_a_line_is_no_scrambled_order():
     # judged this flight scrambled and reversed it (rev50 D2)
     line = np.c_[np.zeros(15), np.arange(1, 16) * 7.0, np.full(15, 100.0)]
     c = np.r_[np.tile([0.0, 0.0, 100.0], (20, 1)), line]
-    assert next_frame_ranks(c[:, :2])[:19].tolist() == [0] * 19
+    assert _step_ranks(c[:, :2], np.arange(19)).tolist() == [0] * 19  # the rank order_jumps reads
     order, how = flight_order(c)
     assert how == "given" and np.array_equal(order, np.arange(len(c)))
     assert flight_order(np.tile([0.0, 0.0, 100.0], (30, 1)))[1] == "given"  # a hover alone
@@ -243,7 +243,7 @@ def test_a_corridor_flown_in_many_passes_is_one_flight(caplog):
     for passes in (6, 8, 20):
         x = np.concatenate([np.arange(0, 300, 10.0)[:: 1 if i % 2 == 0 else -1] for i in range(passes)])
         c = np.c_[x + rng.normal(0, 1, len(x)), rng.normal(0, 1.4, len(x)), np.full(len(x), 100.0)]
-        assert np.median(next_frame_ranks(c[:, :2])) > 8, passes  # what judged it before
+        assert np.median(_step_ranks(c[:, :2], np.arange(len(c) - 1))) > 8, passes  # what judged it before
         assert reads_as_flight(c[:, :2]) and not np.any(order_jumps(c[:, :2])), passes
         assert flight_order(c)[1] == "given", passes
         assert flight_order(c, np.arange(len(c)) * 2.0)[1] == "given", passes
