@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .geometry import SAME_POSITION
@@ -164,6 +166,23 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
     Returns:
         ((N,) int64 permutation into the given order, how).
     """
+    order, how, _ = ordered_flight(centers, times)
+    return order, how
+
+
+class FlightSplit(NamedTuple):
+    """How `flight_order` split a capture-time order that is no flight ("capture time, per flight"): `jumps` of its
+    `steps` jump (`order_jumps`), and `paths`, the flights it was split into (`flights_in_time_order`)."""
+
+    jumps: int
+    steps: int
+    paths: int
+
+
+def ordered_flight(centers: np.ndarray,
+                   times: np.ndarray | None = None) -> tuple[np.ndarray, str, FlightSplit | None]:
+    """`flight_order`, and for "capture time, per flight" the split it made (`FlightSplit`; None otherwise): what
+    `flight_order_message` counts, found once."""
     centers = np.asarray(centers, dtype=np.float64)
     n = len(centers)
     identity = np.arange(n, dtype=np.int64)
@@ -175,21 +194,25 @@ def flight_order(centers: np.ndarray, times: np.ndarray | None = None) -> tuple[
             # capture times that interleave flights far apart (two drones at once in one folder, a camera clock
             # reset between batteries) jump back and forth: tracks broke at every jump (nu57 D3: -24 % landmarks)
             # (as listed already: said where it was put so; the map calls this again on its ordered inputs)
-            if n >= 3 and np.all(np.isfinite(centers)) and not reads_as_flight(centers[order, :2]):
-                order = flights_in_time_order(centers[:, :2], t)[0]
-                return order, ("given" if np.array_equal(order, identity) else "capture time, per flight")
+            jumps = int(np.count_nonzero(order_jumps(centers[order, :2]))) \
+                if n >= 3 and np.all(np.isfinite(centers)) else 0
+            if not _few_jumps(jumps, n):
+                order, paths = flights_in_time_order(centers[:, :2], t)
+                if np.array_equal(order, identity):
+                    return order, "given", None
+                return order, "capture time, per flight", FlightSplit(jumps, n - 1, paths)
             if path_within:
-                return order, "capture time + path"
-            return order, ("given" if np.array_equal(order, identity) else "capture time")
+                return order, "capture time + path", None
+            return order, ("given" if np.array_equal(order, identity) else "capture time"), None
         # one time on every frame (the nu25 sweep: mapped in the shuffled names' order, 64 landmarks of 75, no
         # word): no order in it, as without times
     if n < 3 or not np.all(np.isfinite(centers)):
-        return identity, "given"
+        return identity, "given", None
     xy = centers[:, :2]
     if reads_as_flight(xy):
-        return identity, "given"
+        return identity, "given", None
     current = int(np.argmax(np.linalg.norm(xy - xy.mean(axis=0), axis=1)))
-    return np.asarray(_chain(xy, np.arange(n), current), dtype=np.int64), "path"
+    return np.asarray(_chain(xy, np.arange(n), current), dtype=np.int64), "path", None
 
 
 # How `flight_order` found the order: as listed, by capture time, by capture time with the frames of one time along
@@ -206,8 +229,12 @@ def reads_as_flight(xy: np.ndarray) -> bool:
     xy = np.asarray(xy, dtype=np.float64)
     if len(xy) < 3:
         return True
-    jumps = int(np.count_nonzero(order_jumps(xy)))
-    return jumps <= max(1.0, JUMP_SHARE_MAX * (len(xy) - 1))
+    return _few_jumps(int(np.count_nonzero(order_jumps(xy))), len(xy))
+
+
+def _few_jumps(jumps: int, n: int) -> bool:
+    """Whether an order of n frames with `jumps` jumping steps reads as one flight (`reads_as_flight`)."""
+    return jumps <= max(1.0, JUMP_SHARE_MAX * (n - 1))
 
 
 def flights_in_time_order(xy: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, int]:
@@ -380,10 +407,10 @@ def _paths_within_equal_times(xy: np.ndarray, t: np.ndarray, order: np.ndarray) 
 
 
 def flight_order_message(how: str, times: np.ndarray | None,
-                         centers: np.ndarray | None = None) -> tuple[bool, str] | None:
+                         split: FlightSplit | None = None) -> tuple[bool, str] | None:
     """What the log says of `flight_order`'s `how` (None: nothing, the order is as listed), and whether it is a
-    warning (an order found along the camera path is a guess). `times`, `centers`: the capture times and camera
-    centres it was given (with the centres, the warning counts the jumps and the paths)."""
+    warning (an order found along the camera path is a guess). `times`: the capture times it was given; `split`:
+    the split it made of them (`ordered_flight`; with it, the warning counts the jumps and the paths)."""
     if how == "given":
         return None
     if how == "capture time":
@@ -397,13 +424,8 @@ def flight_order_message(how: str, times: np.ndarray | None,
                       "listed in flight order within it: they are ordered by capture time, and the frames of one "
                       "time along a path through their camera centres")
     if how == "capture time, per flight":
-        t = np.asarray(times, dtype=np.float64)
-        said = ""
-        if centers is not None:
-            xy = np.asarray(centers, dtype=np.float64)[:, :2]
-            timed = _paths_within_equal_times(xy, t, np.argsort(t, kind="stable"))[0]
-            said = (f" ({int(np.count_nonzero(order_jumps(xy[timed])))} of the {len(t) - 1} steps in capture-time "
-                    f"order jump between them; split into {flights_in_time_order(xy, t)[1]} paths)")
+        said = "" if split is None else (f" ({split.jumps} of the {split.steps} steps in capture-time order jump "
+                                         f"between them; split into {split.paths} paths)")
         return True, ("the frames' capture times interleave flights far apart (two drones at once, or a camera clock "
                       "reset between batteries, in one folder?), which would break tracks at every jump: they are "
                       "ordered per flight along the camera path, each path by capture time, one after the other"

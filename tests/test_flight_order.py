@@ -183,7 +183,7 @@ def test_capture_times_of_two_flights_flown_at_once_are_ordered_per_flight(caplo
     follows their views as for the flights one after the other."""
     import logging
 
-    from sosmatch.plugin.keyframes import flight_order_message, reads_as_flight
+    from sosmatch.plugin.keyframes import flight_order_message, ordered_flight, reads_as_flight
     from sosmatch.plugin.params import Params, for_flight
     from sosmatch.workflows.map.workflow import flown_params
 
@@ -197,7 +197,8 @@ def test_capture_times_of_two_flights_flown_at_once_are_ordered_per_flight(caplo
             assert how == "capture time, per flight", whole_seconds
             assert np.array_equal(listed[order], per_flight), whole_seconds
             assert flight_order(both, t)[1] == "given"  # given again, it stays
-        warn, text = flight_order_message(how, t[listed], both[listed])
+        _, how, split = ordered_flight(both[listed], t[listed])
+        warn, text = flight_order_message(how, t[listed], split)
         assert warn and "capture times interleave flights far apart" in text
         assert "ordered per flight along the camera path, each path by capture time" in text
         assert "jump between them; split into 2 paths" in text
@@ -279,7 +280,7 @@ def test_a_flight_cut_at_its_turns_stays_together_between_the_other_flights_path
     one way (a frameless return leg along the line: the next line starts a line length from the last end) are
     joined the same way where no other flight's frame is nearer: A's are (B lies beyond their ends); B's return
     legs start nearer to A's line ends than to B's own and stay paths of their own, listed by start after A."""
-    from sosmatch.plugin.keyframes import flight_order_message, flights_in_time_order, reads_as_flight
+    from sosmatch.plugin.keyframes import flight_order_message, flights_in_time_order, ordered_flight, reads_as_flight
 
     rng = np.random.default_rng(3)
     one = _lawnmower(lines=3, per_line=11, spacing=10.0, line_gap=40.0)
@@ -296,4 +297,5 @@ def test_a_flight_cut_at_its_turns_stays_together_between_the_other_flights_path
             assert np.array_equal(listed[order], np.arange(len(both)))  # A in time order, then B
             assert reads_as_flight(both[listed[order], :2])
             assert flights_in_time_order(both[listed, :2], t[listed])[1] == flights
-        assert f"split into {flights} paths" in flight_order_message(how, t[listed], both[listed])[1]
+        _, how, split = ordered_flight(both[listed], t[listed])
+        assert f"split into {flights} paths" in flight_order_message(how, t[listed], split)[1]

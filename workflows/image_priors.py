@@ -93,7 +93,7 @@ from ..plugin.geodesy import (  # noqa: F401 (re-exported)
     utm_epsg,
 )
 from ..plugin.geometry import Camera
-from ..plugin.keyframes import flight_order, flight_order_message
+from ..plugin.keyframes import flight_order_message, ordered_flight
 from .image_cameras import (  # noqa: F401 (re-exported: their home before image_cameras)
     EXIF_FOCAL_TOLERANCE,
     FULL_FRAME_DIAGONAL_MM,
@@ -227,8 +227,8 @@ def _capture_order(metas: list[ImageMetadata], centers: np.ndarray) -> np.ndarra
     NaN without a fix), said in the log; None: as listed."""
     stamps = [m.capture_time_s for m in metas]
     times = None if None in stamps else np.asarray(stamps, dtype=np.float64)
-    order, how = flight_order(centers, times)
-    said = flight_order_message(how, times, centers)
+    order, how, split = ordered_flight(centers, times)
+    said = flight_order_message(how, times, split)
     if said is not None:
         log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
     if times is not None and np.ptp(times) > 0:

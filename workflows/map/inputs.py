@@ -37,7 +37,7 @@ from ...database.poses import read_poses_csv
 from ...plugin.errors import InputError
 from ...plugin.geodesy import ecef_to_grid, looks_like_ecef
 from ...plugin.geometry import Camera, Poses, position_groups, rotation_angle_deg
-from ...plugin.keyframes import flight_order, flight_order_message
+from ...plugin.keyframes import flight_order_message, ordered_flight
 
 log = logging.getLogger(__name__)
 
@@ -326,8 +326,8 @@ def in_flight_order(inputs: MapInputs, capture_times: Sequence[float | None] | N
         except InputError:  # an unreadable image is named where its pixels are read (the run resumes from there)
             times.append(None)
     t = None if any(x is None for x in times) else np.asarray(times, dtype=np.float64)
-    order, how = flight_order(inputs.poses.centers, t)
-    said = flight_order_message(how, t, inputs.poses.centers)
+    order, how, split = ordered_flight(inputs.poses.centers, t)
+    said = flight_order_message(how, t, split)
     if said is None:
         return inputs
     log.log(logging.WARNING if said[0] else logging.INFO, "%s", said[1])
