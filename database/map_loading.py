@@ -27,6 +27,8 @@ from .output_markers import check_input_finished
 if TYPE_CHECKING:
     import pycolmap
 
+    from .session_io import MapRecord
+
 log = logging.getLogger(__name__)
 
 
@@ -70,15 +72,16 @@ def _is_mixed(value: str) -> bool:
     return value.startswith(MIXED + " (")
 
 
-def session_size_definition(session: str | Path) -> dict[str, str] | None:
+def session_size_definition(session: str | Path, record: MapRecord | None = None) -> dict[str, str] | None:
     """The size definition of a mapped session (its run.json's params: `size_definition`) or of a merged one (its
     merge.json's `size_definition`, which `sosmatch merge` records from its flights': `merged_size_definition`);
     None when neither records it. The one reading for `match`, `changes` and `merge` (rev54 D2: a merged map, which
-    has no run.json, was matched against a map of another size estimator without the warning its flights got)."""
-    record = _session_record(Path(session))
-    if record is None or "params" in record:
-        return size_definition(record)
-    found = record.get("size_definition")
+    has no run.json, was matched against a map of another size estimator without the warning its flights got).
+    `record`: its run.json when read already (`session_io.map_record_of`)."""
+    kept = _session_record(Path(session), record)
+    if kept is None or "params" in kept:
+        return size_definition(kept)
+    found = kept.get("size_definition")
     if not isinstance(found, dict) or not found or not all(isinstance(v, str) for v in found.values()):
         return None
     return {str(k): v for k, v in found.items()}
@@ -159,43 +162,45 @@ def recorded_sfm_poses(record: dict | None) -> bool:
     return source.startswith(_SFM_SOURCE_TEXT) or poses_of_own_sfm(Path(source))
 
 
-def session_sfm_poses(session: str | Path, lmap: LandmarkMap | None = None) -> bool:
+def session_sfm_poses(session: str | Path, lmap: LandmarkMap | None = None, record: MapRecord | None = None) -> bool:
     """Whether a mapped (or merged) session's poses came from sosmatch's structure from motion: its map file's flag
     (`lmap`, read from it when None), else its record (`recorded_sfm_poses`): run.json, or for a merged session
     merge.json (whose `pose_source` `sosmatch merge` writes). The one reading for `match`, `merge` and `evaluate`.
-    InputError naming a record that does not read."""
+    InputError naming a record that does not read. `record`: its run.json when read already."""
     session = Path(session)
     if lmap is None and (session / "landmarks.sosmap").is_file():
         lmap = read_landmark_map(session / "landmarks.sosmap")
     if lmap is not None and lmap.sfm_poses:
         return True
-    return recorded_sfm_poses(_session_record(session))
+    return recorded_sfm_poses(_session_record(session, record))
 
 
-def _session_record(session: Path) -> dict | None:
-    """A session's record: run.json (`session_io.read_map_record`), else a merged session's merge.json; None when
-    it has neither. InputError naming a record that does not read."""
-    from .session_io import MERGE_RECORD, read_map_record
+def _session_record(session: Path, run: MapRecord | None = None) -> dict | None:
+    """A session's record: run.json (`run` when read already, else `session_io.read_map_record`), else a merged
+    session's merge.json; None when it has neither. InputError naming a record that does not read."""
+    from .session_io import MERGE_RECORD, map_record_of
     from .text_input import read_user_json
 
-    record = read_map_record(session)
+    record = (map_record_of(session) if run is None else run).get()
     if record is None and (session / MERGE_RECORD).is_file():
         record = read_user_json(session / MERGE_RECORD, "merge record", redo="re-run `sosmatch merge`")
     return record
 
 
-def session_map_noise(session: Path, lmap: LandmarkMap) -> MapNoise | None:
+def session_map_noise(session: Path, lmap: LandmarkMap, record: MapRecord | None = None) -> MapNoise | None:
     """A mapped session's noise figures: those its map file carries (`landmark_map`, version 2), else those its
-    run.json records (sessions mapped before map files carried them; the same figures of the same run)."""
-    return lmap.noise if lmap.noise is not None else read_map_noise(session)
+    run.json records (sessions mapped before map files carried them; the same figures of the same run). `record`:
+    that run.json when read already."""
+    return lmap.noise if lmap.noise is not None else read_map_noise(session, record)
 
 
-def read_map_noise(session: Path) -> MapNoise | None:
-    """The noise figures `sosmatch map` recorded in SESSION/run.json (`plugin.map_noise`); None when the session
-    has no run.json or the run predates them. A run.json that is not JSON is an InputError naming it."""
-    from .session_io import read_map_record
+def read_map_noise(session: Path, run: MapRecord | None = None) -> MapNoise | None:
+    """The noise figures `sosmatch map` recorded in SESSION/run.json (`run` when read already, `plugin.map_noise`);
+    None when the session has no run.json or the run predates them. A run.json that is not JSON is an InputError
+    naming it."""
+    from .session_io import map_record_of
 
-    record = read_map_record(session)
+    record = (map_record_of(session) if run is None else run).get()
     noise = None if record is None else record.get("noise")
     if not isinstance(noise, dict):
         return None
@@ -332,13 +337,14 @@ def load_map(path: str | Path) -> LoadedMap:
         raise InputError("not a file or directory (a device or a pipe?): a landmark map (.sosmap), session "
                          "directory or COLMAP model is expected", path)
     if (path / "landmarks.sosmap").is_file():
-        from .session_io import check_map_of_record, check_session_usable
+        from .session_io import check_map_of_record, check_session_usable, map_record_of
 
-        check_session_usable(path)
+        record = map_record_of(path)  # read once, for every check and figure below
+        check_session_usable(path, record)
         lmap = read_landmark_map(path / "landmarks.sosmap")
-        check_map_of_record(path, lmap)  # its noise figures (run.json) must be this map's
-        return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap),
-                         session_size_definition(path), session_sfm_poses(path, lmap))
+        check_map_of_record(path, lmap, record)  # its noise figures (run.json) must be this map's
+        return LoadedMap(lmap, "session", path / "landmarks.sosmap", session_map_noise(path, lmap, record),
+                         session_size_definition(path, record), session_sfm_poses(path, lmap, record))
     if (path / "run.json").is_file() and (path / "sparse").is_dir():  # landmarks.sosmap is not a file here
         # a session `sosmatch map` wrote has its map in landmarks.sosmap: matched from sparse/ instead, it lost its
         # sizes' noise figures and its checks, and every other command refused the folder (the nineteenth sweep)

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..plugin.errors import InputError
 from ..plugin.sampling import evenly_spaced
-from .session_io import SessionFiles, read_map_record
+from .session_io import MapRecord, SessionFiles, map_record_of, read_map_record
 
 if TYPE_CHECKING:
     from .images import Levels
@@ -99,16 +99,17 @@ def levels_record(levels: Levels | int | None) -> list[float] | None:
     return [levels.black, levels.white] if isinstance(levels, Levels) else [0, int(levels)]
 
 
-def recorded_levels(session: str | Path) -> Levels | int | None:
+def recorded_levels(session: str | Path, run: MapRecord | None = None) -> Levels | int | None:
     """What `sosmatch map` read the session's images beyond 8 bits between (run.json "image_levels", the one
     measurement of `flight_levels.flight_white_level`): `Levels` for data offset from zero, the white level for others,
-    None for 8-bit images or a record without it (an earlier map: each image read by its own white level)."""
+    None for 8-bit images or a record without it (an earlier map: each image read by its own white level). `run`:
+    the session's run.json when read already (`session_io.map_record_of`)."""
     from .images import Levels
 
-    try:
-        record = read_map_record(session)
-    except InputError:
+    run = map_record_of(session) if run is None else run
+    if run.error is not None:
         return None
+    record = run.record
     levels = record.get("image_levels") if isinstance(record, dict) else None
     if not (isinstance(levels, list) and len(levels) == 2
             and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in levels)):

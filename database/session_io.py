@@ -46,6 +46,7 @@ class SessionFiles:
     name: str
     landmarks: LandmarkMap
     point3d_ids: np.ndarray  # (N,) COLMAP point3D id of landmark i (-1 when the landmark has no 3D point)
+    record: MapRecord  # its run.json, read once for every stage that consults it (`map_record_of`)
 
     @property
     def sparse_dir(self) -> Path:
@@ -192,6 +193,32 @@ def read_map_record(map_dir: str | Path) -> dict | None:
     return read_user_json(path, "session record", redo="re-run `sosmatch map`")
 
 
+@dataclass(frozen=True)
+class MapRecord:
+    """A session's run.json as read once (`map_record_of`), handed to every reader of one load (the checks of
+    `read_session` and `load_map`, the noise, size definition and pose source, merge's flights): `record` (None:
+    the session has none), or `error`, the InputError reading it raised. An unreadable record decides nothing for
+    the checks that pass it (`check_session_usable`, `check_map_of_record`); the readers that need it raise that
+    error (`get`), as `read_map_record` raised it to each."""
+
+    record: dict | None
+    error: InputError | None = None
+
+    def get(self) -> dict | None:
+        """The record (None: the session has none); the InputError naming run.json when it does not read."""
+        if self.error is not None:
+            raise self.error
+        return self.record
+
+
+def map_record_of(map_dir: str | Path) -> MapRecord:
+    """MAP_DIR/run.json read once (`read_map_record`), its InputError kept for the readers that need it."""
+    try:
+        return MapRecord(read_map_record(map_dir))
+    except InputError as exc:
+        return MapRecord(None, exc)
+
+
 def poses_record_beside(poses_csv: Path) -> dict | None:
     """The record (poses.json, format "sosmatch-poses") of the `sosmatch poses` output a poses.csv was taken from:
     its structure from motion made the CSV's poses; None for a CSV of another origin or a record that cannot be
@@ -254,31 +281,31 @@ def map_keyframe_names(map_dir: str | Path) -> list[str] | None:
     return names
 
 
-def map_min_observations(map_dir: str | Path) -> int | None:
+def map_min_observations(map_dir: str | Path, record: MapRecord | None = None) -> int | None:
     """theta_n (`triangulation.min_observations`) the map in MAP_DIR was made with: run.json's
     counts.min_observations, which the flight's views may have lowered below the configured one
     (`params.for_flight`); None for maps without it (merged models, older runs: the configured one is the best
     guess). A landmark there needed more than this many observations. InputError naming run.json when it is
-    unreadable; a record whose `counts` is not an object (edited by hand) says nothing of it."""
-    counts = (read_map_record(map_dir) or {}).get("counts")
+    unreadable; a record whose `counts` is not an object (edited by hand) says nothing of it. `record`: the
+    run.json when read already (`map_record_of`)."""
+    counts = ((map_record_of(map_dir) if record is None else record).get() or {}).get("counts")
     value = counts.get("min_observations") if isinstance(counts, dict) else None
     return value if isinstance(value, int) and not isinstance(value, bool) and value >= 1 else None
 
 
-def check_session_usable(path: str | Path) -> None:
+def check_session_usable(path: str | Path, record: MapRecord | None = None) -> None:
     """InputError when `sosmatch map` refused the session directory `path` (run.json's verdict): its map is
     implausible or empty and no later stage may use it. Directories without a verdict (merged models, older
     sessions) pass. Also when a run of sosmatch into `path` has not finished (interrupted, or running now): what
     the directory holds may be an earlier run's, from other inputs (a killed `map --overwrite` leaves the old
-    map beside its unfinished successor)."""
+    map beside its unfinished successor). `record`: its run.json when read already (`map_record_of`)."""
     from .output_markers import check_finished
 
     check_finished(path)
-    try:
-        record = read_map_record(path)
-    except InputError:  # an unreadable record decides nothing here; the stage that needs it says so
+    record = map_record_of(path) if record is None else record
+    if record.error is not None:  # an unreadable record decides nothing here; the stage that needs it says so
         return
-    verdict = (record or {}).get("verdict") or {}
+    verdict = (record.record or {}).get("verdict") or {}
     if isinstance(verdict, dict) and verdict.get("status") == "refused":
         reasons = "; ".join(str(r) for r in verdict.get("refusals", [])) or "no reason recorded"
         # the advice is the refusal's own: it may lie in the images (no landmarks at low contrast or blur) as
@@ -295,26 +322,27 @@ def read_session(path: str | Path, name: str | None = None) -> SessionFiles:
     if not path.is_dir():
         raise InputError("is a file, not a session directory (give the folder `sosmatch map` wrote)"
                          if path.exists() else "session directory not found", path)
-    check_session_usable(path)
+    record = map_record_of(path)  # read once: the checks below, and the stages that take the session (`record`)
+    check_session_usable(path, record)
     sparse = path / "sparse"
     if not (sparse / "images.bin").exists() and not (sparse / "images.txt").exists():
         raise InputError("session has no COLMAP model in sparse/ (was it mapped?)", path)
     lmap = read_landmark_map(path / "landmarks.sosmap")
-    check_map_of_record(path, lmap)
+    check_map_of_record(path, lmap, record)
     ids = read_landmark_point_ids(path / "landmarks.csv", len(lmap))
     check_model_of_landmarks(path, lmap, ids)
-    return SessionFiles(path=path, name=name or path.resolve().name, landmarks=lmap, point3d_ids=ids)
+    return SessionFiles(path=path, name=name or path.resolve().name, landmarks=lmap, point3d_ids=ids, record=record)
 
 
-def check_map_of_record(path: str | Path, lmap: LandmarkMap) -> None:
+def check_map_of_record(path: str | Path, lmap: LandmarkMap, record: MapRecord | None = None) -> None:
     """InputError when the session's run.json records another landmark map than its landmarks.sosmap (files of
     two sessions mixed in one folder: the map of one, the model and database of the other). Records without the
-    fingerprint (merged models, older runs) and unreadable ones (the stage that needs them says so) pass."""
-    try:
-        record = read_map_record(path)
-    except InputError:
+    fingerprint (merged models, older runs) and unreadable ones (the stage that needs them says so) pass.
+    `record`: its run.json when read already (`map_record_of`)."""
+    record = map_record_of(path) if record is None else record
+    if record.error is not None:
         return
-    recorded = (record or {}).get("landmarks_fingerprint")
+    recorded = (record.record or {}).get("landmarks_fingerprint")
     if isinstance(recorded, str) and recorded != landmark_map_fingerprint(lmap):
         raise InputError("is not the landmark map this session's run.json was written with (files of two sessions "
                          "mixed in one folder?); map the session again or copy its own landmarks.sosmap back",
@@ -454,9 +482,9 @@ def read_session_observations(session: str | Path | SessionFiles, with_segments:
     cams = tuple(cameras[camera_of[n]] for n in poses.names)
     images = None if images_dir is None else KeyframeImages(Path(images_dir), poses.names,
                                                              [(c.width, c.height) for c in cams],
-                                                             levels=recorded_levels(session.path))
+                                                             levels=recorded_levels(session.path, session.record))
     return SessionObservations(lmap.positions, lmap.sizes.astype(np.float64), poses, cams, segments, support,
-                               tracks, images, map_min_observations(session.path))
+                               tracks, images, map_min_observations(session.path, session.record))
 
 
 def _unmapped_tracks(session: SessionFiles, database: Path, names: list[str], segments: tuple) -> tuple:

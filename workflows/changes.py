@@ -151,7 +151,7 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
     if match is not None and (note := imprecise_note(match)) is not None:
         warnings.append(f"{match_json}: {note}: objects near the far side of the common area may be compared "
                         "with the wrong partners")
-    if (note := size_definition_disagreement(*(session_size_definition(f.path) for f in (files_a, files_b)))):
+    if (note := size_definition_disagreement(*(session_size_definition(f.path, f.record) for f in (files_a, files_b)))):
         # match warns of it for its search; here the sizes are compared again (rev44 D2: silent before)
         warnings.append(f"{note}; here size_change_m carries that difference, and kept objects whose sizes it "
                         "pushes beyond changes.max_size_difference lose their counterpart (claimed gone or new)")

@@ -170,7 +170,7 @@ def _merged_noise(sessions: Sequence[SessionFiles], transforms: Sequence[Sim3]) 
     (a similarity transform's scale), so that matching the merged map derives its tolerances as for its parts."""
     parts = []
     for s, t in zip(sessions, transforms):
-        n = session_map_noise(s.path, s.landmarks)
+        n = session_map_noise(s.path, s.landmarks, s.record)
         parts.append(None if n is None else dataclasses.replace(
             n, ground_resolution_m=n.ground_resolution_m * t.scale, residual_m=n.residual_m * t.scale))
     return MapNoise.of_merged(parts)
@@ -221,7 +221,7 @@ def merge_sessions(
     flights, notes = distinct_flights(sessions)
     # the merged map's size definition, from its flights' (read back by `session_size_definition`): fused landmarks
     # average their members' sizes, so maps of two definitions make one of mixed sizes; said (rev54 D2: silent)
-    defs = [session_size_definition(s.path) for s in sessions]
+    defs = [session_size_definition(s.path, s.record) for s in sessions]
     if (differ := size_definitions_differ(defs, [str(s.path) for s in sessions])) is not None:
         notes = [*notes, f"the sessions define landmark sizes differently ({differ}): the merged map's sizes mix "
                  "the definitions (fused landmarks average them), which the size gate of `match` and `changes` "
@@ -364,7 +364,7 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
     ref = sessions[0].landmarks
     # a merged map of any SfM-posed session is SfM-posed: its landmarks keep that block's dome (rev51 D2: without
     # the flag the merged map was matched rigidly again, "imprecise")
-    sfm = any(session_sfm_poses(s.path, s.landmarks) for s in sessions)
+    sfm = any(session_sfm_poses(s.path, s.landmarks, s.record) for s in sessions)
     lmap = LandmarkMap(np.asarray(positions).reshape(-1, 3), np.asarray(sizes), ref.origin, ref.epsg,
                        _merged_noise(sessions, transforms), sfm_poses=sfm)
 

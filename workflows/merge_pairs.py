@@ -16,7 +16,7 @@ import numpy as np
 
 from ..database.landmark_map import landmark_map_fingerprint
 from ..database.output_markers import fingerprint, sha256_file
-from ..database.session_io import MERGE_RECORD, SessionFiles, is_merged_session, read_map_record
+from ..database.session_io import MERGE_RECORD, SessionFiles, is_merged_session
 from ..database.text_input import read_user_json
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3, one_to_one, umeyama
@@ -126,7 +126,7 @@ def session_flights(session: SessionFiles, _seen: frozenset[Path] = frozenset())
                      "keyframes": sorted(str(k) for k in f.get("keyframes") or []),
                      "names": sorted(str(n) for n in f.get("names") or [])} for f in flights]
         return older_merged_flights(session, merged, _seen | {session.path.resolve()})
-    run = read_map_record(session.path) or {}
+    run = session.record.get() or {}  # run.json as `read_session` read it
     images = (run.get("fingerprints") or {}).get("images") if isinstance(run.get("fingerprints"), dict) else None
     keyframes = run.get("keyframe_images") if isinstance(run.get("keyframe_images"), dict) else {}
     return [{"map": landmark_map_fingerprint(session.landmarks), "images": images if isinstance(images, str) else None,
