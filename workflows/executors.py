@@ -123,6 +123,28 @@ def worker_died(key: Hashable, error: BaseException) -> TaskResult:
 OnResult = Callable[[TaskResult], None]
 
 
+def _hand_over(finished: set[Future], running: dict[Future, Hashable],
+               arrived: OnResult) -> tuple[bool, OSError | None]:
+    """Hand the results of the `finished` futures (in the order of their keys) to `arrived`, taking them out of
+    `running`: a task a dying worker took down (BrokenProcessPool) as failed (`worker_died`). Returns whether the
+    pool broke, and the first full disk (the only error `call_task` raises), whose task hands over nothing. One
+    loop for the tasks that finished and for those a broken pool took down with them, so both are said alike."""
+    broken = False
+    full_disk: OSError | None = None
+    for fut in sorted(finished, key=lambda f: str(running[f])):
+        key = running.pop(fut)
+        try:
+            res = fut.result()
+        except BrokenProcessPool as error:  # said by the caller, as any failed task
+            broken = True
+            res = worker_died(key, error)
+        except OSError as error:  # the run stops, after the results that arrived with it
+            full_disk = full_disk or error
+            continue
+        arrived(res)
+    return broken, full_disk
+
+
 class Executor:
     """Runs a dict of independent tasks and returns {key: TaskResult} in the dict's order; `on_result` (called in
     this process) is handed each result as it arrives, so that a caller keeps what finished when the run is
@@ -201,29 +223,10 @@ class LocalExecutor(Executor):
                     key, args = queue.pop()
                     running[pool.submit(call_task, key, fn, args)] = key
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
-                broken = False
-                full_disk: OSError | None = None
-                for fut in sorted(done, key=lambda f: str(running[f])):
-                    key = running.pop(fut)
-                    try:
-                        res = fut.result()  # call_task raises only a full disk; a dead worker (BrokenProcessPool)
-                    except BrokenProcessPool as error:  # said by the caller, as any failed task
-                        broken = True
-                        res = worker_died(key, error)
-                    except OSError as error:  # the run stops, after the results that arrived with it (below)
-                        full_disk = full_disk or error
-                        continue
-                    arrived(res)
+                broken, full_disk = _hand_over(done, running, arrived)
                 if broken:  # every task still in flight was taken down with it: said as such, then a new pool
-                    for fut in sorted(wait(running)[0], key=lambda f: str(running[f])):
-                        key = running.pop(fut)
-                        error = fut.exception()
-                        if isinstance(error, BrokenProcessPool):
-                            arrived(worker_died(key, error))
-                        elif isinstance(error, OSError):
-                            full_disk = full_disk or error
-                        else:
-                            arrived(fut.result())
+                    _, more = _hand_over(wait(running)[0], running, arrived)
+                    full_disk = full_disk or more
                 if full_disk is not None:
                     # every other task that finished alongside was handed over (its state saved: not redone on
                     # the re-run, rev52 D6); the full disk stops the run now
