@@ -358,9 +358,9 @@ def test_a_refused_map_says_the_remedy_of_loose_poses(tmp_path):
 
     params = Params()
     tight = SimpleNamespace(check=SimpleNamespace(pairs_checked=100, epipolar_p50_px=1.0, gate_px=12.0, pairs=[],
-                                                  matches_beyond_gate=0.002))
+                                                  matches_beyond_gate=0.002, exchanges=[]))
     loose = SimpleNamespace(check=SimpleNamespace(pairs_checked=100, epipolar_p50_px=11.7, gate_px=12.0, pairs=[],
-                                                  matches_beyond_gate=0.45))
+                                                  matches_beyond_gate=0.45, exchanges=[]))
     inputs = SimpleNamespace(remedy="try --refine")
     assert pose_remedy(inputs, tight, params) == "" and pose_remedy(inputs, None, params) == ""
     assert pose_remedy(SimpleNamespace(remedy=""), loose, params) == ""

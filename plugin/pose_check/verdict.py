@@ -228,12 +228,14 @@ def wrong_cameras(check: PoseCheck) -> list[tuple[int, int, list[float]]]:
     (`judge_poses`), or with its partner in an exchange (`swaps`)."""
     if check.pairs_checked < 2 or not np.isfinite(check.epipolar_p50_px):
         return []
-    limit = check.camera_limit_px
     errors: dict[int, list[tuple[int, float]]] = {}
     for p in check.pairs:
         if np.isfinite(p.epipolar_px):
             errors.setdefault(p.a, []).append((p.b, p.epipolar_px))
             errors.setdefault(p.b, []).append((p.a, p.epipolar_px))
+    if not errors:
+        return []
+    limit = check.camera_limit_px
 
     def partner_fits(partner: int, c: int) -> bool:
         other = [e for q, e in errors.get(partner, []) if q != c]
