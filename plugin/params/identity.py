@@ -106,6 +106,10 @@ ADDED: tuple[Added, ...] = (
     Added("quality.lens_shift_margin", "9eab6db", 5.0, "the lens check's significance"),
     Added("quality.max_lens_height_shift", "9eab6db", 0.10, "the lens check's refusal"),
     Added("quality.warn_lens_height_shift", "9eab6db", 0.06, "a warning"),
+    # module constants of plugin.pose_check.verdict until fix155, at these values: at them the check behaves as
+    # before the settings existed (the refusal of exchanged cameras that came with them has no setting)
+    Added("pose_check.camera_median_factor", "fb3c401", 10.0, "the cameras a pose check refuses"),
+    Added("pose_check.camera_gate_fraction", "fb3c401", 0.5, "the cameras a pose check refuses"),
 )
 
 _BY_NAME = {a.name: a for a in ADDED}

@@ -359,6 +359,13 @@ class PoseCheckParams(Checked):
     # wrong where the flight's median hides them; good EKF poses: at most 13 px on a 12 px gate, in 1 of 185-224
     # pairs; EXIF poses whose attitudes the tie points could not solve: 271 px on a 22 px gate)
     warn_pair_gate_fraction: float = positive(2.0)
+    # a pair counts against its cameras (`verdict.wrong_cameras`: the cameras whose pose misses every pair it is
+    # in are refused; `swaps.exchanged_cameras`: two cameras whose poses fit exchanged) beyond this many times the
+    # flight's median pair error, and at least this fraction of the tracker's gate (a floor for flights whose median
+    # sits at the feature noise). Measured (BENCHMARKS.md, "Cameras whose poses miss every pair"): sound poses'
+    # worst pairs 0.47-8.1 px against limits of 6-20 px; a swapped pair of cameras 48-72 px, a 90 deg yaw 26-37 px
+    camera_median_factor: float = positive(10.0)
+    camera_gate_fraction: float = positive(0.5)
     max_height_drift: float = positive(0.2)  # heights drifting over the flight, as a fraction of the flying height
     warn_height_drift: float = positive(0.05)
     max_height_tilt_deg: float = within(20.0, 0.0, 90.0)  # the same limit as the map's block tilt

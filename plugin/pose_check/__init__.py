@@ -29,19 +29,22 @@ relative geometry is asked to explain those matches:
   independent evidence. The epipolar error left after the fit is the random part of the pose errors.
 
 The package, in the order of the data: `two_view` (the poses' epipolar geometry), `matches` (one pair's
-pose-free matches), `systematic` (the joint fit of the systematic errors), `check` (pair selection and the
+pose-free matches), `systematic` (the joint fit of the systematic errors), `swaps` (cameras whose poses fit the
+images exchanged: the sign of a baseline, which the epipolar error cannot see), `check` (pair selection and the
 figures), `verdict` (`judge_poses`: refusals and warnings; limits and reasons in `params.PoseCheckParams`).
 Everything here is numpy + OpenCV on arrays; reading the images is the caller's (`workflows.pose_check`).
 """
 
 from .check import PairCheck, PoseCheck, anchor_images, check_poses, cross_partners, wide_offset
 from .matches import PairMatches, match_pair
+from .swaps import Exchange, exchanged_cameras
 from .systematic import SystematicErrors, fit_systematic_errors, pair_sampson_px
 from .two_view import essential_matrices, relative_poses, sampson_distances, triangulation_depths
 from .verdict import judge_poses, poses_fit_images, poses_loose
 
 __all__ = [
-    "PairCheck", "PairMatches", "PoseCheck", "SystematicErrors", "anchor_images", "check_poses", "cross_partners",
-    "essential_matrices", "fit_systematic_errors", "judge_poses", "match_pair", "pair_sampson_px", "poses_fit_images",
-    "poses_loose", "relative_poses", "sampson_distances", "triangulation_depths", "wide_offset",
+    "Exchange", "PairCheck", "PairMatches", "PoseCheck", "SystematicErrors", "anchor_images", "check_poses",
+    "cross_partners", "essential_matrices", "exchanged_cameras", "fit_systematic_errors", "judge_poses",
+    "match_pair", "pair_sampson_px", "poses_fit_images", "poses_loose", "relative_poses", "sampson_distances",
+    "triangulation_depths", "wide_offset",
 ]

@@ -16,6 +16,7 @@ from ..params import PoseCheckParams
 from ..pass_heights import flight_passes
 from .gps import GpsComparison
 from .matches import PairMatches, match_pair
+from .swaps import Exchange, exchanged_cameras
 from .systematic import SystematicErrors, fit_systematic_errors, lag_along_track_m, pair_sampson_px, track_in_camera
 from .two_view import ray_angles, relative_poses, triangulation_depths
 
@@ -102,6 +103,18 @@ class PoseCheck:
     # in full-size pixels, and the line that names them ('' when none)
     fixed_in_frame: list[tuple[int, int, int, int]] = field(default_factory=list)
     fixed_in_frame_text: str = ""
+    # a pair fails against its cameras beyond max(camera_median_factor x the median pair error, camera_gate_fraction
+    # x the gate) (`camera_limit_px`; `PoseCheckParams`)
+    camera_median_factor: float = 10.0
+    camera_gate_fraction: float = 0.5
+    # cameras whose poses fit the images exchanged (`swaps.exchanged_cameras`)
+    exchanges: list[Exchange] = field(default_factory=list)
+
+    @property
+    def camera_limit_px(self) -> float:
+        """The pair error beyond which a pair counts against its cameras (`verdict.wrong_cameras`)."""
+        return camera_limit_px(self.epipolar_p50_px, self.gate_px, self.camera_median_factor,
+                               self.camera_gate_fraction)
 
     @property
     def matches_beyond_gate(self) -> float:
@@ -197,6 +210,7 @@ class PoseCheck:
             "pairs": [p.to_list() for p in self.pairs],
             "gps": self.gps.to_dict() if self.gps is not None else None,
             "fixed_in_frame_px": [list(b) for b in self.fixed_in_frame],
+            "exchanges": [e.to_dict(names) for e in self.exchanges],
         }
         if names is not None:
             out["images_checked"] = sorted({names[i] for p in self.pairs for i in (p.a, p.b)})
@@ -389,6 +403,11 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         p50, p90, fit_p50 = (float(np.nanmedian(med)), float(np.nanpercentile(med, 90)),
                              float(np.nanmedian(fit_med)))
     reversed_passes = _reversed_passes(checks, poses, gate_px)
+    # the pair error is blind to the sign of a baseline: two consecutive cameras' poses exchanged pass it
+    # (`swaps`); asked directly, the images say whether the poses fit better exchanged
+    limit = camera_limit_px(p50, gate_px, params.camera_median_factor, params.camera_gate_fraction)
+    exchanges = exchanged_cameras(poses, matched, med, np.array([c.in_front for c in checks]),
+                                  np.array([c.sees_direction for c in checks]), focal, limit, p50)
     return PoseCheck(
         images=n, pairs_tried=len(tried), pairs_checked=len(checks), focal_px=focal, gate_px=gate_px,
         flying_height_m=flying, epipolar_p50_px=p50, epipolar_p90_px=p90, epipolar_fit_p50_px=fit_p50,
@@ -397,7 +416,17 @@ def check_poses(poses: Poses, camera: Camera, features: Callable[[int], OrbFeatu
         systematic=systematic, wide_offset=k, pairs=checks, max_condition_index=params.max_condition_index,
         systematic_significance=params.systematic_significance, min_systematic_share=params.min_systematic_share,
         warn_attitude_bias_deg=params.warn_attitude_bias_deg, min_gps_agreement=params.min_gps_agreement,
-        track_camera=tuple(float(v) for v in track_in_camera(poses)), **fixed_figures)
+        track_camera=tuple(float(v) for v in track_in_camera(poses)),
+        camera_median_factor=params.camera_median_factor, camera_gate_fraction=params.camera_gate_fraction,
+        exchanges=exchanges, **fixed_figures)
+
+
+def camera_limit_px(flight_px: float, gate_px: float, median_factor: float, gate_fraction: float) -> float:
+    """The pair error beyond which a pair counts against its cameras: `median_factor` times the flight's median
+    pair error `flight_px`, at least `gate_fraction` of the tracker's gate (a floor for flights whose median sits at
+    the feature noise; the gate scales with the image). Relative to the flight's own residuals, not to the gate
+    alone: with tracking.epipolar_margin_px=40 a swapped camera's 48-72 px passed 2 x the gate unsaid (rev55)."""
+    return float(max(median_factor * flight_px, gate_fraction * gate_px))
 
 
 def beyond(value: float, sigma: float, limit: float) -> bool:

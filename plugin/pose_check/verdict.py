@@ -41,13 +41,14 @@ def median_loose(check: PoseCheck, limits: PoseCheckParams) -> bool:
 
 def poses_loose(check: PoseCheck, limits: PoseCheckParams) -> bool:
     """The check saw enough to say that the poses fit the images loosely or not at all: the flight's matches
-    loose (`median_loose`), or a pair beyond its warning limit."""
+    loose (`median_loose`), a pair beyond its warning limit, a camera whose pose misses its pairs
+    (`wrong_cameras`) or two whose poses fit exchanged (`PoseCheck.exchanges`)."""
     if check.pairs_checked < limits.min_pairs or not np.isfinite(check.epipolar_p50_px):
         return False
     gate = check.gate_px
     return bool(median_loose(check, limits)
                 or any(p.epipolar_px > limits.warn_pair_gate_fraction * gate for p in check.pairs)
-                or wrong_cameras(check))
+                or wrong_cameras(check) or bool(check.exchanges))
 
 
 def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] | None = None,
@@ -125,20 +126,29 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
     if not refused_before:
         # cameras whose pose misses every pair they are in, though their partners fit elsewhere: named and refused
         # (rev55 D1: two swapped cameras and one yawed 90 deg passed as "ok", the median deciding alone)
-        wrong = wrong_cameras(check)
+        if check.exchanges:
+            # the epipolar error is blind to the sign of a baseline: two consecutive cameras exchanged passed "ok"
+            # (fix155); the images were asked whether the poses fit better exchanged (`swaps`), and they do
+            shown = ", ".join(f"{name(e.a)} and {name(e.b)} ({e.pairs} pairs: {e.given_px:.1f} px as given, "
+                              f"{e.exchanged_px:.1f} px exchanged)" for e in check.exchanges[:3])
+            more = f" and {len(check.exchanges) - 3} more" if len(check.exchanges) > 3 else ""
+            v.refusals.append(f"poses vs images: the poses of {shown}{more} fit the images exchanged (the flight's "
+                              f"median pair error is {check.epipolar_p50_px:.1f} px): those rows are swapped (a pose "
+                              "table joined to its images out of order?); fix them or leave those images out")
+        exchanged = {c for e in check.exchanges for c in (e.a, e.b)}
+        wrong = [w for w in wrong_cameras(check) if w[0] not in exchanged]  # named above already
         if wrong:
-            limit = camera_limit_px(check)
+            limit = check.camera_limit_px
             shown = ", ".join(f"{name(c)} ({len(m)} of {n} pairs, {min(m):.0f}-{max(m):.0f} px)"
                               for c, n, m in wrong[:5])
             more = f" and {len(wrong) - 5} more" if len(wrong) > 5 else ""
             # the names first: a refusal is cut at 400 characters (`plugin.errors.one_line`)
             v.refusals.append(
                 f"poses vs images: the poses of {shown}{more} miss the matches of every pair they are in by more "
-                f"than {limit:.0f} px ({CAMERA_MEDIAN_FACTOR:g} x the flight's median pair error of "
-                f"{check.epipolar_p50_px:.1f} px, at least {CAMERA_GATE_FRACTION:g} x the tracker's {gate:.0f} px "
-                "gate), while their partners fit their "
-                "other pairs: those poses are wrong (swapped with another image's, or a wrong attitude?); fix "
-                "them or leave those images out")
+                f"than {limit:.0f} px ({check.camera_median_factor:g} x the flight's median pair error of "
+                f"{check.epipolar_p50_px:.1f} px, at least {check.camera_gate_fraction:g} x the tracker's "
+                f"{gate:.0f} px gate), while their partners fit their other pairs: those poses are wrong (swapped "
+                "with another image's, or a wrong attitude?); fix them or leave those images out")
     if far and not refused_before:
         shown = ", ".join(f"{name(p.a)} / {name(p.b)} {p.epipolar_px:.0f} px" for p in far[:3])
         more = ", ..." if len(far) > 3 else ""
@@ -200,38 +210,32 @@ def judge_poses(check: PoseCheck, limits: PoseCheckParams, names: Sequence[str] 
     return v
 
 
-# a camera's pose is wrong (`wrong_cameras`) when it misses its pairs' matches by more than this many times the
-# flight's median pair error (and at least CAMERA_GATE_FRACTION of the tracker's gate, a floor for flights whose
-# median sits at the feature noise; the gate scales with the image), in at least
-# CAMERA_MIN_PAIRS pairs and CAMERA_SHARE of the checked pairs it is in, where the partner fits its other pairs.
-# Limits relative to the flight's own residuals, not to the gate alone: with tracking.epipolar_margin_px=40 a
-# swapped camera's 48-72 px passed 2 x the gate unsaid (rev55). Measured (BENCHMARKS.md, "Cameras whose poses
-# miss their pairs"): a swapped pair of cameras 48-72 px and a 90 deg yaw 26-37 px at a median of 0.3 px
-CAMERA_MEDIAN_FACTOR = 10.0
+# a camera's pose is wrong (`wrong_cameras`) when it misses its pairs' matches beyond the camera limit
+# (`PoseCheck.camera_limit_px`: PoseCheckParams.camera_median_factor x the flight's median pair error, at least
+# camera_gate_fraction of the tracker's gate) in at least CAMERA_MIN_PAIRS pairs and CAMERA_SHARE of the checked
+# pairs it is in, where the partner fits its other pairs. Measured (BENCHMARKS.md, "Cameras whose poses miss
+# their pairs"): a swapped pair of cameras 48-72 px and a 90 deg yaw 26-37 px at a median of 0.3 px
 CAMERA_MIN_PAIRS = 2
 CAMERA_SHARE = 2 / 3
-CAMERA_GATE_FRACTION = 0.5
-
-
-def camera_limit_px(check: PoseCheck) -> float:
-    """The pair error beyond which a pair counts against its cameras (`wrong_cameras`)."""
-    return float(max(CAMERA_MEDIAN_FACTOR * check.epipolar_p50_px, CAMERA_GATE_FRACTION * check.gate_px))
 
 
 def wrong_cameras(check: PoseCheck) -> list[tuple[int, int, list[float]]]:
     """The cameras whose poses contradict their images: (index, checked pairs it is in, the errors of its failing
-    pairs whose partner fits), worst first. A pair fails beyond `camera_limit_px`; it counts against camera c when
-    its partner has other pairs and at most half of them fail (the partner's pose fits: the fault is c's). A camera
-    is wrong with at least CAMERA_MIN_PAIRS such pairs and CAMERA_SHARE of its pairs failing. A single failing pair
-    cannot be attributed (either camera may be off): it is only named among the pairs (`judge_poses`)."""
+    pairs whose partner fits), worst first. A pair fails beyond `PoseCheck.camera_limit_px`; it counts against
+    camera c when its partner has other pairs and at most half of them fail (the partner's pose fits: the fault is
+    c's). A camera is wrong with at least CAMERA_MIN_PAIRS such pairs and CAMERA_SHARE of its pairs failing. A
+    single failing pair cannot be attributed (either camera may be off): it is only named among the pairs
+    (`judge_poses`), or with its partner in an exchange (`swaps`)."""
     if check.pairs_checked < 2 or not np.isfinite(check.epipolar_p50_px):
         return []
-    limit = camera_limit_px(check)
     errors: dict[int, list[tuple[int, float]]] = {}
     for p in check.pairs:
         if np.isfinite(p.epipolar_px):
             errors.setdefault(p.a, []).append((p.b, p.epipolar_px))
             errors.setdefault(p.b, []).append((p.a, p.epipolar_px))
+    if not errors:
+        return []
+    limit = check.camera_limit_px
 
     def partner_fits(partner: int, c: int) -> bool:
         other = [e for q, e in errors.get(partner, []) if q != c]
