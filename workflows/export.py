@@ -115,8 +115,9 @@ def run(
     code = int(epsg or lmap.epsg)
     if code:
         check_projected_crs(code, source if not epsg else None)
-        if "geojson" in targets or "csv" in targets:  # the formats that carry lon/lat
-            check_within_crs_area(code, lmap.positions[:, :2], source)
+        # every format records the CRS (PLY in its header): a local map stamped with one is refused for all
+        # (rev58 D2: --ply wrote "crs EPSG:32632" for coordinates of a few hundred metres, --csv refused)
+        check_within_crs_area(code, lmap.positions[:, :2], source)
     elif "geojson" in targets:  # said here, where the map's name is known
         raise InputError("the landmark map has no geographic reference (EPSG 0, a local frame): give --epsg CODE "
                          "of its world frame if it has one", source)
