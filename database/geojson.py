@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 from ..plugin.errors import InputError
-from .atomic import write_text_atomic
 from .landmark_map import LandmarkMap
 
 
@@ -58,33 +57,38 @@ def check_within_crs_area(epsg: int, xy: np.ndarray, source: str | Path | None =
     """Refuse (InputError naming `source`) coordinates more than CRS_AREA_MARGIN_M outside the projected
     bounds of the CRS's area of use: a local map stamped with a CRS (a synthetic session's 300 m coordinates as
     UTM zone 33N) converts to lon/lat without complaint, in the Gulf of Guinea. A CRS without a recorded or
-    projectable area (Web Mercator's is the world) is not checked."""
+    projectable area (Web Mercator's is the world) is not checked; points without finite coordinates are not
+    judged here."""
     from pyproj import CRS
 
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
     bounds = crs_area_bounds(epsg)
-    if bounds is None or not len(xy):
+    if bounds is None or not _beyond(bounds, xy).any():
         return
     x0, y0, x1, y1 = bounds
     lo, hi, m = xy.min(axis=0), xy.max(axis=0), CRS_AREA_MARGIN_M
-    if lo[0] < x0 - m or hi[0] > x1 + m or lo[1] < y0 - m or hi[1] > y1 + m:
-        raise InputError(f"{what} lie at x {lo[0]:.0f}..{hi[0]:.0f}, y {lo[1]:.0f}..{hi[1]:.0f} m, more than "
-                         f"{m / 1000:.0f} km outside where EPSG:{epsg} ({CRS.from_epsg(int(epsg)).name}) is used "
-                         f"(x {x0:.0f}..{x1:.0f}, y {y0:.0f}..{y1:.0f}): a local frame given a CRS?", source)
+    raise InputError(f"{what} lie at x {lo[0]:.0f}..{hi[0]:.0f}, y {lo[1]:.0f}..{hi[1]:.0f} m, more than "
+                     f"{m / 1000:.0f} km outside where EPSG:{epsg} ({CRS.from_epsg(int(epsg)).name}) is used "
+                     f"(x {x0:.0f}..{x1:.0f}, y {y0:.0f}..{y1:.0f}): a local frame given a CRS?", source)
 
 
 def outside_crs_area(epsg: int, xy: np.ndarray) -> np.ndarray:
     """(N,) True for the points of `xy` (projected coordinates of EPSG:`epsg`) more than CRS_AREA_MARGIN_M
-    outside the projected bounds of the CRS's area of use (all False where it has none)."""
+    outside the projected bounds of the CRS's area of use, or not finite (all False where it has no area)."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     bounds = crs_area_bounds(epsg)
     if bounds is None:
         return np.zeros(len(xy), bool)
+    with np.errstate(invalid="ignore"):
+        return _beyond(bounds, xy) | ~np.all(np.isfinite(xy), axis=1)
+
+
+def _beyond(bounds: tuple[float, float, float, float], xy: np.ndarray) -> np.ndarray:
+    """(N,) True for the points of `xy` more than CRS_AREA_MARGIN_M outside `bounds` (x0, y0, x1, y1)."""
     x0, y0, x1, y1 = bounds
     m = CRS_AREA_MARGIN_M
-    with np.errstate(invalid="ignore"):
-        return ((xy[:, 0] < x0 - m) | (xy[:, 0] > x1 + m) | (xy[:, 1] < y0 - m) | (xy[:, 1] > y1 + m)
-                | ~np.all(np.isfinite(xy), axis=1))
+    return (xy[:, 0] < x0 - m) | (xy[:, 0] > x1 + m) | (xy[:, 1] < y0 - m) | (xy[:, 1] > y1 + m)
 
 
 def crs_area_bounds(epsg: int) -> tuple[float, float, float, float] | None:
@@ -218,9 +222,3 @@ def geojson_text(lmap: LandmarkMap, epsg: int | None = None, geometry: str = "po
     """The FeatureCollection as compact GeoJSON text."""
     return json.dumps(landmarks_feature_collection(lmap, epsg, geometry, extras), separators=(",", ":")) + "\n"
 
-
-def write_landmarks_geojson(path: str | Path, lmap: LandmarkMap, epsg: int | None = None, geometry: str = "point",
-                            extras: dict[str, np.ndarray] | None = None) -> int:
-    """Write the FeatureCollection atomically; returns the number of landmarks."""
-    write_text_atomic(path, geojson_text(lmap, epsg, geometry, extras))
-    return len(lmap)

@@ -921,6 +921,9 @@ def test_a_flight_whose_images_changed_is_mapped_again_not_failed(tmp_path):
     for k in (1, 2):
         assert main(["synth", "-q", "--world-seed", "7", "--session-seed", str(k), "--frames", "24", "--width", "320",
                      "--height", "240", "--out", str(tmp_path / "fl" / f"F{k}")]) == 0
+    # rev58 D1: F2's photos lie elsewhere, its images/ a link to them (the listing did not enter it: F2 resumed)
+    (tmp_path / "fl" / "F2" / "images").rename(tmp_path / "photos")
+    (tmp_path / "fl" / "F2" / "images").symlink_to(tmp_path / "photos", target_is_directory=True)
     options = batch.BatchOptions(progress=False, merge=False, changes=False)
     first = batch.run(tmp_path / "fl", tmp_path / "out", executor=LocalExecutor(0), options=options)
     assert not first.failures and all(s["status"] == "done" for s in first.sessions)
@@ -931,6 +934,35 @@ def test_a_flight_whose_images_changed_is_mapped_again_not_failed(tmp_path):
     status = {s["name"]: (s["status"], bool(s.get("resumed"))) for s in again.sessions}
     assert status == {"F1": ("done", True), "F2": ("done", False)}
     assert again.pairs and all(p["status"] == "done" and not p.get("resumed") for p in again.pairs)
+
+
+def test_a_flights_listing_follows_links_and_stops_at_a_loop(tmp_path, caplog):
+    """rev58 D1: `flight_signature` did not enter a linked images/ folder, so replacing photos there left the
+    listing (and the map's fingerprint) as it was and the batch resumed the old map. A linked file counts with its
+    target; a link to a folder it lies in is a loop, left out with a warning, not listed without end."""
+    from sosmatch.workflows.batch.discovery import flight_signature
+
+    photos, flight = tmp_path / "photos", tmp_path / "F"
+    photos.mkdir()
+    flight.mkdir()
+    (photos / "a.jpg").write_bytes(b"1" * 10)
+    (tmp_path / "poses.csv").write_text("name,x\n")
+    (flight / "images").symlink_to(photos, target_is_directory=True)
+    (flight / "poses.csv").symlink_to(tmp_path / "poses.csv")
+    (flight / "gone.txt").symlink_to(tmp_path / "nothing")  # dangling: not listed, as before
+    before = flight_signature(flight)
+    assert [e[:2] for e in before] == [("images/a.jpg", 10), ("poses.csv", 7)]
+    (photos / "a.jpg").write_bytes(b"2" * 11)  # a photo replaced behind the link
+    assert flight_signature(flight) != before
+    st = (tmp_path / "poses.csv").stat()
+    (tmp_path / "poses.csv").write_text("name,y\n")  # a linked file's content changed
+    os.utime(tmp_path / "poses.csv", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert flight_signature(flight)[1][2] == st.st_mtime_ns + 10**9
+    (photos / "up").symlink_to(flight, target_is_directory=True)  # F/images/up -> F: a loop
+    with caplog.at_level(logging.WARNING):
+        looped = flight_signature(flight)
+    assert [e[0] for e in looped] == ["images/a.jpg", "poses.csv"]
+    assert "a loop" in caplog.text and "images/up" in caplog.text
 
 
 def test_a_group_keeps_its_reference_as_flights_are_added(flights, tmp_path, caplog):

@@ -2,6 +2,7 @@
 
 from itertools import combinations, product
 
+import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
@@ -48,3 +49,28 @@ def test_labels_without_room_are_left_off_and_said(tmp_path, monkeypatch):
     left = [t for t in texts if "pair labels left off" in t]
     assert len(left) == 1 and len(boxes) < 120 and left[0].startswith(f"{120 - len(boxes)} of 120")
     assert not any(a != b and (a.x0, a.y0) == (b.x0, b.y0) for a, b in product(boxes, boxes))
+
+
+def test_the_map_draws_sessions_of_one_local_frame_and_names_those_it_leaves_out(tmp_path):
+    """rev58 D3: the map took only one shared EPSG code for a shared frame; sessions of one local frame (a synth
+    world) outside the largest merged group were left off, nothing said. The frame is read as `--nearest` reads it
+    (`pairs.frame_of`), and a mapped session not drawn is named with why."""
+    from sosmatch.plugin.multisession import Sim3
+    from sosmatch.workflows.batch.report import _not_drawn_note, _placement
+
+    shift = Sim3(np.eye(3), np.array([5.0, 0.0, 0.0])).to_dict()
+    report = BatchReport(tmp_path)
+    report.sessions = [{"name": n, "kind": "synth", "status": "done", "epsg": 0} for n in "ABC"]
+    report.groups = [{"reference": "A", "members": ["A", "B"], "status": "done",
+                      "reference_from_session": {"A": Sim3.identity().to_dict(), "B": shift}}]
+    placed, caption = _placement(report)
+    assert sorted(placed) == ["A", "B", "C"] and caption == "one shared local frame"
+    # D: poses by structure from motion, a local frame of its own: the group's frame, D and nothing else left out
+    report.sessions.append({"name": "D", "kind": "images", "status": "done", "epsg": 0})
+    report.sessions.append({"name": "E", "kind": "images", "status": "failed"})
+    placed, caption = _placement(report)
+    assert sorted(placed) == ["A", "B", "C"] and caption == "frame of A (its merged group)"
+    assert np.allclose(placed["B"].apply(np.zeros((1, 3))), [[5, 0, 0]])
+    note = _not_drawn_note(report, {"A", "B"}, placed)
+    assert "D (in no frame shared with those drawn)" in note and "C (its session does not read)" in note
+    assert "E" not in note and _not_drawn_note(report, {"A", "B", "C", "D"}, placed) == ""

@@ -109,8 +109,11 @@ def test_a_local_map_given_a_crs_it_cannot_lie_in_is_refused(tmp_path, cli_error
         assert f"{path}: the landmarks lie at x 250..3" in err and f"outside where EPSG:{code}" in err
         err = cli_error("export", "--csv", path, "--epsg", code, "--out", tmp_path / "l.csv")
         assert "a local frame given a CRS?" in err
-    assert not (tmp_path / "l.geojson").exists() and not (tmp_path / "l.csv").exists()
-    assert main(["export", "--ply", str(path), "--epsg", "32633", "--out", str(tmp_path / "l.ply")]) == 0  # no lon/lat
+        # rev58 D2: PLY records the CRS in its header, and wrote it unchecked (exit 0) where --csv refused
+        err = cli_error("export", "--ply", path, "--epsg", code, "--out", tmp_path / "l.ply")
+        assert "a local frame given a CRS?" in err
+    assert not any((tmp_path / f"l.{ext}").exists() for ext in ("geojson", "csv", "ply"))
+    assert main(["export", "--ply", str(path), "--out", str(tmp_path / "l.ply")]) == 0  # no CRS claimed: written
     # UTM zone 14N at x 900 km: 66 km past the east edge of the zone's projected box (834 km), is exported
     edge = _map()
     pos = edge.positions + [-486000 + 900000, 0, 0]
@@ -185,3 +188,15 @@ def test_polygon_geometry_keeps_other_rings_and_closes_a_polar_cap():
     assert s.bounds[0] == -180.0 and s.bounds[2] == 180.0 and s.bounds[1] == -90.0
     # UPS grid metres are 0.994 ground metres at the pole (its scale factor)
     assert _geodesic_area(cap) == pytest.approx(0.5 * 24 * np.sin(2 * np.pi / 24) * 16.0 / 0.994**2, rel=0.01)
+
+
+def test_the_crs_area_check_and_the_per_point_test_agree():
+    """One bounds test behind both (rev58 D4). A point without finite coordinates no longer hides the others from
+    the refusal (the min/max over the points were NaN, and every comparison false)."""
+    from sosmatch.database.geojson import check_within_crs_area, outside_crs_area
+
+    xy = np.array([[500_000.0, 4_000_000.0], [300.0, 250.0], [np.nan, 1.0]])
+    assert outside_crs_area(32614, xy).tolist() == [False, True, True]
+    check_within_crs_area(32614, xy[:1])
+    with pytest.raises(InputError, match="a local frame given a CRS"):
+        check_within_crs_area(32614, xy[1:])

@@ -115,7 +115,10 @@ def run(
     code = int(epsg or lmap.epsg)
     if code:
         check_projected_crs(code, source if not epsg else None)
-        if "geojson" in targets or "csv" in targets:  # the formats that carry lon/lat
+        # a CRS given here is a claim every format records (PLY in its header): a local map stamped with one is
+        # refused for all (rev58 D2: --ply wrote "crs EPSG:32632" for coordinates of a few hundred metres, --csv
+        # refused); the map's own CRS is checked where it is converted to lon/lat, and a PLY copies it as it is
+        if epsg or "geojson" in targets or "csv" in targets:
             check_within_crs_area(code, lmap.positions[:, :2], source)
     elif "geojson" in targets:  # said here, where the map's name is known
         raise InputError("the landmark map has no geographic reference (EPSG 0, a local frame): give --epsg CODE "

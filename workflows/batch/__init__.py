@@ -57,12 +57,12 @@ from __future__ import annotations
 from .discovery import PAIR_SEP, Flight, classify_flight, discover_flights
 from .report import BatchReport, pair_warnings, plot_session_graph, session_warnings, write_report
 from .state import StateStore
-from .tasks import changes_task, map_task, merge_task, pair_task, read_associations, summarise_match
+from .tasks import changes_task, map_task, merge_task, pair_task, summarise_match
 from .workflow import BatchOptions, run
 
 __all__ = [
     "PAIR_SEP", "BatchOptions", "BatchReport", "Flight", "StateStore", "changes_task", "classify_flight",
     "discover_flights",
-    "map_task", "merge_task", "pair_task", "pair_warnings", "plot_session_graph", "read_associations", "run",
+    "map_task", "merge_task", "pair_task", "pair_warnings", "plot_session_graph", "run",
     "session_warnings", "summarise_match", "write_report",
 ]

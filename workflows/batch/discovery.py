@@ -54,16 +54,41 @@ def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
     mapped session changed (and every pair, merge and comparison of it) instead of resuming stale results. A
     listing, not a digest: re-reading every image on every re-run would cost what the skip saves; a listing that
     differs only in mtimes (a tar, zip or FAT copy, `cp` without -p) is checked by content (`flight_digest`,
-    `workflow.contents_seen`) before the flight is mapped again."""
+    `workflow.contents_seen`) before the flight is mapped again.
+
+    Links are followed, as the map stage follows them: a flight's `images/` is often a link to where the photos
+    lie (rev58 D1: `Path.rglob` does not enter a linked folder, so the listing held no image and a flight whose
+    photos were replaced resumed its old map); a linked file counts with its target's size and mtime. A link back
+    to a folder it lies in is left out with a warning (it would list the folder without end)."""
     entries = []
-    for path in sorted(folder.rglob("*")):
+    for path in sorted(_files_under(folder, folder, frozenset({os.path.realpath(folder)}))):
         try:
             st = path.stat()
         except OSError:
-            continue  # a dangling link: the map stage reports what it cannot read
-        if path.is_file():
-            entries.append((path.relative_to(folder).as_posix(), st.st_size, st.st_mtime_ns))
+            continue  # gone since it was listed: the map stage reports what it cannot read
+        entries.append((path.relative_to(folder).as_posix(), st.st_size, st.st_mtime_ns))
     return entries
+
+
+def _files_under(folder: Path, top: Path, above: frozenset[str]) -> Iterator[Path]:
+    """Every regular file under `folder`, through links (a dangling one is left out: the map stage reports what
+    it cannot read); `above`: the real paths of the folders it lies in, a link to one of which is a loop (skipped,
+    said)."""
+    try:
+        children = list(folder.iterdir())
+    except OSError:
+        return  # unreadable: the map stage reports what it cannot read
+    for child in children:
+        if not child.is_dir():  # is_dir and is_file follow links
+            if child.is_file():
+                yield child
+            continue
+        real = os.path.realpath(child)
+        if real in above:
+            log.warning("%s: a link to %s, a folder it lies in (a loop); what is under it is not part of flight %s",
+                        child, real, top)
+            continue
+        yield from _files_under(child, top, above | {real})
 
 
 def flight_digest(folder: Path, listing: list) -> str | None:

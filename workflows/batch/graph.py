@@ -35,11 +35,6 @@ UNCORROBORATED = ("imprecise answer, uncorroborated: kept apart (no other accept
                   "`sosmatch merge` it by hand if you trust it")
 
 
-def _associations_file(rec: dict[str, Any]) -> str:
-    """The file whose answer a merge fuses: the pair's match.json (its verified alignment, unless unverified)."""
-    return rec["match"]
-
-
 def _valid_merge(done: dict[str, Any]) -> bool:
     return (Path(done.get("merged", "")) / MERGE_RECORD).is_file()
 
@@ -191,7 +186,8 @@ def _graph_and_merge(
             group["status"] = "single" if len(members) < 2 else "not merged"
             continue
         pos = {m: k for k, m in enumerate(order)}
-        tree_edges = [(pos[e.a], pos[e.b], _associations_file(pairs[edge_keys[(e.a, e.b)]])) for e in tree]
+        # each tree edge's answer a merge fuses: the pair's match.json (its verified alignment, unless unverified)
+        tree_edges = [(pos[e.a], pos[e.b], pairs[edge_keys[(e.a, e.b)]]["match"]) for e in tree]
         key = names[ref]
         group_fp = {"members": [names[m] for m in order], "transforms": [ref_from[m].to_dict() for m in order],
                     "eps": params.association.distance_tolerance_m}  # contents: in the pair fps

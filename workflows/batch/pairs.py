@@ -184,6 +184,14 @@ def own_frame(session: dict[str, Any]) -> bool:
     return bool(session.get("session")) and (Path(session["session"]) / "poses" / "poses.json").is_file()
 
 
+def frame_of(session: dict[str, Any]) -> int | None:
+    """The frame a mapped session (its batch record) lies in, as both the choice of pairs by position and the
+    session graph's map read it: its EPSG code, 0 for a local frame shared with the other sessions in one (a synth
+    world, a poses.csv in `crs: local`), None for a local frame of its own (`own_frame`), which it shares with
+    none."""
+    return None if own_frame(session) else int(session.get("epsg") or 0)
+
+
 def pairs_chosen_by(names: list[str], sessions: dict[str, dict[str, Any]], nearest: int | None,
                     times: dict[str, float | None] | None = None) -> dict[tuple[str, str], str]:
     """The session pairs to match, in the order of `combinations(names, 2)`, each with why it was chosen (one of
@@ -201,8 +209,7 @@ def pairs_chosen_by(names: list[str], sessions: dict[str, dict[str, Any]], neare
     alone = [n for n in names if own_frame(sessions[n])]
     placed = [n for n in names if n not in alone]
     centres = [sessions[n].get("center") for n in placed]
-    epsgs = {sessions[n].get("epsg") for n in placed}
-    if any(c is None for c in centres) or len(epsgs) > 1:
+    if any(c is None for c in centres) or len({frame_of(sessions[n]) for n in placed}) > 1:
         log.warning("--nearest needs every session's position in one frame; matching all %d pairs", len(all_pairs))
         return dict.fromkeys(all_pairs, CHOSEN_ALL_NO_FRAME)
     reasons = dict.fromkeys([(placed[i], placed[j]) for i, j in nearest_pairs(np.asarray(centres), nearest)]

@@ -226,21 +226,42 @@ def session_outline(session_dir: str | Path) -> tuple[np.ndarray, Any] | None:
 
 
 def _placement(report: BatchReport) -> tuple[dict[str, Any], str]:
-    """How to put every session into one map: {name: reference_from_session Sim3} and a caption. Sessions that
-    share a georeferenced (or one local) frame stay where they are; otherwise the largest merged group is drawn
-    in its reference session's frame and the others are left out."""
+    """How to put the mapped sessions into one map: {name: reference_from_session Sim3} and a caption. Sessions
+    that all lie in one frame (`pairs.frame_of`: one EPSG code, or one shared local frame) stay where they are;
+    otherwise the largest merged group is drawn in its reference session's frame, with the sessions outside it
+    that share that frame, and the others are left out (the figure names them: `plot_session_graph`). rev58 D3:
+    only a shared EPSG code counted here, so sessions of one local frame outside the group were left off unsaid."""
     from ...plugin.multisession import Sim3
+    from .pairs import frame_of
 
-    names = [s["name"] for s in report.sessions if s["status"] == "done"]
-    epsgs = {s.get("epsg") for s in report.sessions if s["status"] == "done"}
-    if len(epsgs) == 1 and next(iter(epsgs)):
-        return {n: Sim3.identity() for n in names}, f"EPSG:{next(iter(epsgs))}"
+    done = [s for s in report.sessions if s["status"] == "done"]
+    frames = {frame_of(s) for s in done}
+    if len(frames) == 1 and None not in frames:
+        code = frames.pop()
+        return {s["name"]: Sim3.identity() for s in done}, f"EPSG:{code}" if code else "one shared local frame"
     groups = sorted(report.groups, key=lambda g: -len(g.get("members", [])))
     if groups and len(groups[0]["members"]) > 1:
         g = groups[0]
-        return ({n: Sim3.from_dict(t) for n, t in g["reference_from_session"].items()},
-                f"frame of {g['reference']} (its merged group)")
-    return {n: Sim3.identity() for n in names}, "each session's own frame"
+        placed = {n: Sim3.from_dict(t) for n, t in g["reference_from_session"].items()}
+        ref = next((frame_of(s) for s in done if s["name"] == g["reference"]), None)
+        if ref is not None:  # in the reference's frame as they are
+            placed.update({s["name"]: Sim3.identity() for s in done
+                           if s["name"] not in placed and frame_of(s) == ref})
+        return placed, f"frame of {g['reference']} (its merged group)"
+    return {s["name"]: Sim3.identity() for s in done}, "each session's own frame"
+
+
+def _not_drawn_note(report: BatchReport, drawn: set[str], placed: dict[str, Any]) -> str:
+    """The mapped sessions the map leaves out, named with why ("" when none is)."""
+    import textwrap
+
+    left = [s["name"] for s in report.sessions if s["status"] == "done" and s["name"] not in drawn]
+    if not left:
+        return ""
+    parts = [f"{', '.join(names)} ({why})" for names, why in (
+        ([n for n in left if n not in placed], "in no frame shared with those drawn"),
+        ([n for n in left if n in placed], "its session does not read")) if names]
+    return "\n" + textwrap.fill("not drawn: " + "; ".join(parts), 110)
 
 
 def plot_session_graph(report: BatchReport, path: Path) -> None:
@@ -265,7 +286,7 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
     fig, (geo, graph) = plt.subplots(1, 2, figsize=(13, 6.2), gridspec_kw={"width_ratios": [1.15, 1.0]})
 
     placement, caption = _placement(report)
-    drawn = 0
+    drawn: set[str] = set()
     for s in report.sessions:
         t = placement.get(s["name"])
         outline = session_outline(s["session"]) if t is not None and s.get("session") else None
@@ -281,8 +302,9 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
         geo.plot(c[:, 0], c[:, 1], "-", color=colour[s["name"]], lw=0.8, alpha=0.8,
                  label=f"{s['name']} ({s.get('landmarks', '?')} landmarks)")
         geo.plot(c[:1, 0], c[:1, 1], "o", color=colour[s["name"]], ms=4)
-        drawn += 1
-    geo.set_title(f"flights: keyframe footprints and paths ({caption})", fontsize=9)
+        drawn.add(s["name"])
+    geo.set_title(f"flights: keyframe footprints and paths ({caption})"
+                  f"{_not_drawn_note(report, drawn, placement)}", fontsize=9)
     geo.set_aspect("equal", adjustable="datalim")
     geo.set_xlabel("x [m]")
     geo.set_ylabel("y [m]")

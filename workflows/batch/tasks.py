@@ -89,13 +89,6 @@ def pair_task(session_a: str, session_b: str, pair_dir: str, params: Params, ver
     return summarise_match(Path(pair_dir) / "match.json")
 
 
-def read_associations(path: str | Path) -> np.ndarray:
-    """(K,2) landmark associations of a pair's answer (match.json, read by `match_io.read_match`)."""
-    from ...database.match_io import read_match
-
-    return read_match(path).associations
-
-
 def summarise_match(match_json: Path) -> dict[str, Any]:
     """The part of a match.json the batch report and the session graph need: the answer (verified unless the
     match ran without verification) and the window consensus it came from."""
