@@ -93,6 +93,34 @@ def test_an_attitude_tag_beyond_one_turn_is_dropped_not_taken_as_a_heading(tmp_p
     assert "f2.jpg" in priors.summary["damaged_metadata"] and "f2.jpg: XMP GimbalYawDegree" in caplog.text
 
 
+@pytest.mark.parametrize("damage, said", [
+    (b'"abc   "', "GimbalPitchDegree abc is not an angle"),  # was left out without a word
+    (b'"+87.90"', "GimbalPitchDegree +87.9 puts the camera above the horizon"),  # was taken without a word
+    (b'"nan   "', "GimbalPitchDegree nan is not an angle"),
+])
+def test_every_dropped_or_implausible_gimbal_pitch_is_named_the_same_way(tmp_path, caplog, damage, said):
+    """nu59 D3: of three damaged pitch tags only the NaN was named; a non-number fell back to the airframe's
+    angles silently and a camera looking at the sky was taken. One test now names each, image and tag."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(4):
+        meta = _meta(img / f"f{k}.jpg", latitude=47.0 + k * 1e-4, longitude=8.0, altitude=480.0,
+                     datetime_original=f"2024:06:01 10:00:{2 * k:02d}", subsec_original="",
+                     xmp={"GimbalYawDegree": "0", "GimbalPitchDegree": "-87.90", "GimbalRollDegree": "0",
+                          "FlightYawDegree": "0", "FlightPitchDegree": "0", "FlightRollDegree": "0"})
+        data = embed_metadata(_jpeg(k), meta)
+        if k == 2:  # the writer refuses these, so damage the file in place as a faulty firmware would
+            data = data.replace(b'"-87.90"', damage)
+        (img / f"f{k}.jpg").write_bytes(data)
+    assert "GimbalPitchDegree" not in read_image_metadata(img / "f2.jpg").xmp
+    with caplog.at_level(logging.WARNING):
+        priors = read_image_priors(img)
+    assert f"f2.jpg: XMP {said}" in caplog.text
+    assert any(said in q for q in priors.summary["damaged_metadata"]["f2.jpg"])
+    with pytest.raises(ValueError, match="above the horizon"):
+        embed_metadata(_jpeg(), _meta(tmp_path / "x.jpg", xmp={"GimbalPitchDegree": "45"}))
+
+
 def test_35mm_equivalent_refers_to_the_full_sensor_frame():
     # DJI 16:9 stills are the full-width band of a 4:3 sensor: the 4:3 diagonal, not the 16:9 one
     assert full_frame_diagonal_px(4000, 2250) == pytest.approx(5000.0)
