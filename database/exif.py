@@ -287,12 +287,31 @@ XMP_ANGLE_TAGS = ("GimbalYawDegree", "GimbalPitchDegree", "GimbalRollDegree", "C
                   "PitchAngle", "RollAngle")
 
 
+# DJI's (and Parrot's) camera pitch: -90 straight down, 0 at the horizon, positive above it. A survey camera looks
+# down; a few degrees above the horizon is gimbal play on a level shot, beyond this the picture is mostly sky, which
+# no survey takes: a damaged or sign-flipped tag (nu59: +87.9 was taken as the attitude without a word)
+UP_PITCH_MAX_DEG = 10.0
+UP_PITCH_TAGS = ("GimbalPitchDegree", "CameraPitchDegree")
+
+
 def _bad_angle(value: object) -> bool:
+    """A tag value that is no angle: not a number, not finite, or beyond one turn."""
     try:
         number = float(str(value).strip())
     except ValueError:
-        return False  # not a number at all: `xmp_float` skips it already
+        return True  # "abc": the reader left it out silently before nu59 (the image fell back to other tags)
     return not (math.isfinite(number) and abs(number) <= 360.0)
+
+
+def xmp_angle_problem(name: str, value: str) -> str | None:
+    """What is wrong with the XMP attitude tag `name` = `value` (None if nothing): the one test the reader drops
+    a tag by and the writer refuses one by, so every dropped angle is named the same way."""
+    if _bad_angle(value):
+        return f"XMP {name} {str(value).strip()} is not an angle"
+    if name in UP_PITCH_TAGS and float(value) > UP_PITCH_MAX_DEG:
+        return (f"XMP {name} {float(value):+g} puts the camera above the horizon (-90 looks straight down), "
+                "implausible for a survey")
+    return None
 
 
 def _position_problem(lat: float, lon: float) -> str | None:
@@ -323,9 +342,8 @@ def check_metadata(meta: ImageMetadata) -> list[str]:
             problems.append(f"{name} {value} is not positive")
     if meta.gps_track_deg is not None and _bad_angle(meta.gps_track_deg):
         problems.append(f"GPS track {meta.gps_track_deg} is not an angle")
-    for name in XMP_ANGLE_TAGS:
-        if name in meta.xmp and _bad_angle(meta.xmp[name]):
-            problems.append(f"XMP {name} {meta.xmp[name]} is not an angle")
+    problems += [p for name in XMP_ANGLE_TAGS if name in meta.xmp
+                 and (p := xmp_angle_problem(name, meta.xmp[name])) is not None]
     return problems
 
 
@@ -523,7 +541,8 @@ def read_image_metadata(path: str | Path) -> ImageMetadata:
         meta.exif_size = (ew, eh)
 
     for name in XMP_ANGLE_TAGS:  # a damaged attitude tag is left out (the image falls back to the other sources)
-        if name in meta.xmp and _bad_angle(meta.xmp[name]):
-            problems.append(f"XMP {name} {meta.xmp.pop(name)} is not an angle")
+        if name in meta.xmp and (problem := xmp_angle_problem(name, meta.xmp[name])) is not None:
+            problems.append(problem)
+            del meta.xmp[name]
     meta.problems = problems
     return meta

@@ -449,10 +449,13 @@ def check_match_maps(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap
     if (ref_a, ref_b) == (fb, fa):
         raise InputError(f"match file was computed for these maps in the other order (its map A is {names[1]}); "
                          "give them as the match had them", path)
-    which = [n for n, ref, fp in ((names[0], ref_a, fa), (names[1], ref_b, fb)) if ref != fp]
-    verb = "differs" if len(which) == 1 else "differ"
-    raise InputError(f"match file was computed for other maps (map {' and '.join(which)} {verb} from the ones "
-                     "given); re-run `sosmatch match` on these", path)
+    # which side differs, by its letter, the map given and the match's own (nu59 D5: "map M1 differs" for
+    # `merge M1 M1` left the reader to guess whether the given M1 or the match's M1 was meant)
+    which = [f"map {side} given ({given}) is not the match's map {side} ({ref.path or 'a map without a path'})"
+             for side, given, ref, fp in (("A", names[0], match.map_a, fa), ("B", names[1], match.map_b, fb))
+             if ref.fingerprint != fp]
+    raise InputError(f"match file was computed for other maps: {'; '.join(which)}; re-run `sosmatch match` on "
+                     "these", path)
 
 
 def _check_answer_brings_its_pairs_together(match: MatchSummary, map_a: LandmarkMap, map_b: LandmarkMap,

@@ -32,7 +32,11 @@ def test_merge_refuses_a_match_of_other_sessions(toy, tmp_path, cli_error):
     root, a, b, c = toy
     ab = toy_match_json(a, b, tmp_path / "ab.json")
     err = cli_error("merge", a.path, c.path, "--match", ab, "--out", tmp_path / "M")
-    assert "computed for other maps (map" in err and "C" in err
+    assert "computed for other maps" in err
+    # nu59 D5: it said "map <C> differs", not which side nor what the match had there
+    assert f"map B given ({c.path}) is not the match's map B (" in err and str(b.path.name) in err
+    same = cli_error("merge", a.path, a.path, "--match", ab, "--out", tmp_path / "M")
+    assert f"map B given ({a.path}) is not the match's map B (" in same and "map A given" not in same
     assert "other order" in cli_error("merge", b.path, a.path, "--match", ab, "--out", tmp_path / "M")
     legacy = json.loads(ab.read_text())
     del legacy["map_a"], legacy["map_b"]

@@ -35,6 +35,17 @@ def test_a_flight_given_as_the_flights_folder_is_refused(tmp_path, cli_error, ki
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("inside", ["out", "f1/out"])
+def test_an_output_inside_the_flights_folder_is_refused(tmp_path, cli_error, inside):
+    """nu59 D6: `batch F --out F/out` was taken (the README: an output is never inside an input directory), left
+    out of its own discovery and skipped, with a warning, by every other batch of F."""
+    root = tmp_path / "flights"
+    _flight(root / "f1")
+    err = cli_error("batch", root, "--out", root / inside)
+    assert f"output is inside the input {root}" in err, err
+    assert not (root / inside).exists()
+
+
 def test_a_stray_photo_beside_the_flight_folders_does_not_make_the_flights_folder_a_flight(tmp_path):
     root = tmp_path / "flights"
     _flight(root / "f1")

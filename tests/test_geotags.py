@@ -93,6 +93,34 @@ def test_an_attitude_tag_beyond_one_turn_is_dropped_not_taken_as_a_heading(tmp_p
     assert "f2.jpg" in priors.summary["damaged_metadata"] and "f2.jpg: XMP GimbalYawDegree" in caplog.text
 
 
+@pytest.mark.parametrize("damage, said", [
+    (b'"abc   "', "GimbalPitchDegree abc is not an angle"),  # was left out without a word
+    (b'"+87.90"', "GimbalPitchDegree +87.9 puts the camera above the horizon"),  # was taken without a word
+    (b'"nan   "', "GimbalPitchDegree nan is not an angle"),
+])
+def test_every_dropped_or_implausible_gimbal_pitch_is_named_the_same_way(tmp_path, caplog, damage, said):
+    """nu59 D3: of three damaged pitch tags only the NaN was named; a non-number fell back to the airframe's
+    angles silently and a camera looking at the sky was taken. One test now names each, image and tag."""
+    img = tmp_path / "images"
+    img.mkdir()
+    for k in range(4):
+        meta = _meta(img / f"f{k}.jpg", latitude=47.0 + k * 1e-4, longitude=8.0, altitude=480.0,
+                     datetime_original=f"2024:06:01 10:00:{2 * k:02d}", subsec_original="",
+                     xmp={"GimbalYawDegree": "0", "GimbalPitchDegree": "-87.90", "GimbalRollDegree": "0",
+                          "FlightYawDegree": "0", "FlightPitchDegree": "0", "FlightRollDegree": "0"})
+        data = embed_metadata(_jpeg(k), meta)
+        if k == 2:  # the writer refuses these, so damage the file in place as a faulty firmware would
+            data = data.replace(b'"-87.90"', damage)
+        (img / f"f{k}.jpg").write_bytes(data)
+    assert "GimbalPitchDegree" not in read_image_metadata(img / "f2.jpg").xmp
+    with caplog.at_level(logging.WARNING):
+        priors = read_image_priors(img)
+    assert f"f2.jpg: XMP {said}" in caplog.text
+    assert any(said in q for q in priors.summary["damaged_metadata"]["f2.jpg"])
+    with pytest.raises(ValueError, match="above the horizon"):
+        embed_metadata(_jpeg(), _meta(tmp_path / "x.jpg", xmp={"GimbalPitchDegree": "45"}))
+
+
 def test_35mm_equivalent_refers_to_the_full_sensor_frame():
     # DJI 16:9 stills are the full-width band of a 4:3 sensor: the 4:3 diagonal, not the 16:9 one
     assert full_frame_diagonal_px(4000, 2250) == pytest.approx(5000.0)
@@ -121,6 +149,36 @@ def test_heights_from_relative_altitude_and_drift_against_it(tmp_path, caplog):
     assert "drift apart by +33.0 m" in caplog.text  # which of the two moves, only the block can tell
     given = read_image_priors(img, takeoff_altitude_m=100.0)
     np.testing.assert_allclose(given.positions[:, 2], 180.0)
+
+
+@pytest.mark.parametrize("end", [False, True])
+def test_one_damaged_relative_altitude_is_named_and_replaced_not_a_camera_10_km_down(tmp_path, caplog, end):
+    """nu59 D4: RelativeAltitude -9999 in one image put its camera at z -9581 m, exit 0, and the only warning blamed
+    the GPS ("jumps 2 times ... wrong fixes"). The barometric value is now judged against its neighbours and the
+    GPS altitude, named, and replaced by its neighbours'; a climb the GPS follows is no damage."""
+    img = tmp_path / "images"
+    img.mkdir()
+    bad = 11 if end else 5
+    for k in range(12):
+        climb = 45.0 if k == 8 else 0.0  # one image 45 m higher: the GPS says so too, no damage
+        rel = -9999.0 if k == bad else 80.0 + climb
+        meta = _meta(img / f"f{k:02d}.jpg", latitude=47.0 + k * 1e-4, longitude=8.0, altitude=480.0 + climb,
+                     datetime_original=f"2024:06:01 10:00:{2 * k:02d}", subsec_original="",
+                     xmp={"GimbalYawDegree": "0", "GimbalPitchDegree": "-90", "GimbalRollDegree": "0",
+                          "RelativeAltitude": f"{rel:+.2f}"})
+        (img / f"f{k:02d}.jpg").write_bytes(embed_metadata(_jpeg(k), meta))
+    with caplog.at_level(logging.WARNING):
+        priors = read_image_priors(img)
+    expected = np.where(np.arange(12) == 8, 525.0, 480.0)
+    np.testing.assert_allclose(priors.positions[:, 2], expected, atol=1e-6)
+    assert "RelativeAltitude" in priors.summary["altitude_source"]
+    rel_said = [r.getMessage() for r in caplog.records if "RelativeAltitude (barometric) far off" in r.getMessage()]
+    assert len(rel_said) == 1 and f"f{bad:02d}.jpg (-9999 m against 80, 80 m)" in rel_said[0]
+    assert "f08.jpg" not in rel_said[0]  # (the 45 m climb in 2 s is the track check's to name, GPS and all)
+    assert not any(f"f{bad:02d}.jpg" in r.getMessage() for r in caplog.records if "GPS jumps" in r.getMessage())
+    assert any(f"f{bad:02d}.jpg" in w for w in priors.summary["warnings"])
+    given = read_image_priors(img, takeoff_altitude_m=400.0)  # the take-off altitude given: the same value taken
+    np.testing.assert_allclose(given.positions[:, 2], expected, atol=1e-6)
 
 
 @pytest.mark.parametrize("home_step", [15.0, 0.0])

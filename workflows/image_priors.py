@@ -292,7 +292,7 @@ def read_image_priors(
     attitude sources and the heights). Damaged or implausible tags are left out with one warning naming the
     images; an unreadable image file is an InputError."""
     from ..database.poses import crs_scale_problem
-    from .prior_heights import prior_heights, rtk_tags
+    from .prior_heights import prior_heights, relative_altitude_spikes, rtk_tags
 
     check_prior_options(mount, sensor_width_mm, epsg, takeoff_altitude_m)
     paths = list_images(images)
@@ -373,6 +373,10 @@ def read_image_priors(
     # Heights: DJI RelativeAltitude + take-off altitude where every fixed image has it (an RTK fixed altitude over
     # it), else the GPS altitude (`prior_heights`).
     rel = np.array([v[0] if (v := m.xmp_float("RelativeAltitude")) else np.nan for m in metas])
+    rel, rel_warning = relative_altitude_spikes(rel, alt, times, [m.path.name for m in metas])
+    if rel_warning is not None:
+        log.warning("%s", rel_warning)
+        tele_warnings.append(rel_warning)  # the summary's warnings: poses.json records it
     rtk_flags, rtk_sigma = rtk_tags(metas)
     ph = prior_heights(alt, rel, has, times, [m.path.name for m in metas], rtk_flags, rtk_sigma, takeoff_altitude_m)
     for text in ph.warnings:

@@ -44,6 +44,54 @@ def rtk_tags(metas: Sequence[ImageMetadata]) -> tuple[np.ndarray, np.ndarray]:
     return flags, sigma
 
 
+# How far a RelativeAltitude may move between two images before it is no flight: a survey drone climbs and sinks
+# at under 10 m/s (twice that as the bound), and below SPIKE_MIN_M the barometer's own noise and a gust.
+MAX_VERTICAL_SPEED_MPS = 20.0
+SPIKE_MIN_M = 30.0
+
+
+def _neighbours(ok: np.ndarray, i: int) -> list[int]:
+    """The nearest images with a value before and after image `i` (in capture order); at an end, the two nearest
+    on its one side, so that an end image is judged against two as well."""
+    before, after = np.flatnonzero(ok[:i])[::-1], np.flatnonzero(ok[i + 1:]) + i + 1
+    picked = [int(k) for k in (*before[:1], *after[:1])]
+    return picked if len(picked) == 2 else [int(k) for k in (*before[:2], *after[:2])]
+
+
+def relative_altitude_spikes(rel: np.ndarray, alt: np.ndarray, times: np.ndarray,
+                             names: Sequence[str]) -> tuple[np.ndarray, str | None]:
+    """`rel` (RelativeAltitude, capture order) with the values of images that jump away from both neighbours by
+    more than the drone could climb or sink in between (`MAX_VERTICAL_SPEED_MPS`), the same way on both sides,
+    while their GPS altitude `alt` does not follow, replaced by their neighbours' (interpolated in `times`); and a
+    warning naming them (None when there are none). A barometer that resets moves every image after it, a
+    step `prior_heights` keeps; one damaged value is no step (nu59 D4: -9999 put one camera at z -9581 m and
+    the warning blamed the GPS for jumping there and back)."""
+    rel = np.asarray(rel, np.float64).copy()
+    ok = np.isfinite(rel)
+    if ok.sum() < 3:
+        return rel, None
+    bad = []
+    for i in np.flatnonzero(ok):
+        jumps = []
+        for k in _neighbours(ok, int(i)):
+            jump, bound = rel[i] - rel[k], max(SPIKE_MIN_M, MAX_VERTICAL_SPEED_MPS * abs(times[i] - times[k]))
+            gps = alt[i] - alt[k]  # NaN where either has no GPS altitude: the barometer alone judges
+            jumps.append(jump if abs(jump) > bound and not abs(jump - gps) <= bound else 0.0)
+        if len(jumps) == 2 and jumps[0] * jumps[1] > 0:
+            bad.append(int(i))
+    if not bad:
+        return rel, None
+    said = [f"{names[i]} ({rel[i]:g} m against {', '.join(f'{rel[k]:g}' for k in _neighbours(ok, i))} m)"
+            for i in bad[:3]]
+    good = ok.copy()
+    good[bad] = False
+    rel[bad] = np.interp(times[bad], times[good], rel[good])
+    return rel, (f"{len(bad)} image(s) have an XMP RelativeAltitude (barometric) far off their neighbours' while "
+                 f"their GPS altitude is not, a damaged value: {'; '.join(said)}"
+                 + (f" ... ({len(bad)} in all)" if len(bad) > 3 else "")
+                 + "; replaced by their neighbours' RelativeAltitude (interpolated in capture time)")
+
+
 @dataclass
 class PriorHeights:
     """What `prior_heights` decided."""

@@ -123,8 +123,9 @@ def _itself_a_flight(root: Path) -> str | None:
     return None if kind == "images" and images_dir(root) == root else kind
 
 
-def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) -> list[Flight]:
-    """Flights in the sub-folders of `flights_dir`, sorted by name; hidden folders and `exclude` are skipped."""
+def discover_flights(flights_dir: str | Path) -> list[Flight]:
+    """Flights in the sub-folders of `flights_dir`, sorted by name; hidden folders are skipped (the batch's own
+    output is never among them: `run` refuses it there)."""
     root = Path(flights_dir)
     if not root.is_dir():
         raise InputError("flights directory not found", root)
@@ -133,7 +134,6 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
         # from motion in a made-up frame beside the poses the folder holds (rev48 D2)
         raise InputError(f"is itself a flight ({KIND_NAMES[kind]}); give the folder that holds the flights, one "
                          "sub-folder each", root)
-    excluded = {p.resolve() for p in exclude}
     flights: list[Flight] = []
     seen: dict[Path, str] = {}  # resolved folder -> the flight name it is mapped as
     for link in sorted(p for p in root.iterdir() if p.is_symlink() and not p.exists()):
@@ -141,7 +141,7 @@ def discover_flights(flights_dir: str | Path, exclude: tuple[Path, ...] = ()) ->
             log.warning("%s: a link to %s, which does not exist; not a flight of this batch", link,
                         os.readlink(link))
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
-        if folder.name.startswith(NOT_FLIGHTS) or folder.resolve() in excluded:
+        if folder.name.startswith(NOT_FLIGHTS):
             continue
         try:  # names go into JSON state, reports and pair names: they must be text
             folder.name.encode("utf-8")

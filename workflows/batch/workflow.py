@@ -15,7 +15,7 @@ from typing import Any
 from ...database.atomic import write_text_atomic
 from ...database.map_loading import session_sfm_poses
 from ...database.match_io import MatchSummary, answer_gate
-from ...database.output_markers import versioned_identity
+from ...database.output_markers import check_not_input, versioned_identity
 from ...database.outputs import open_output_dir
 from ...database.poses import crs_problem
 from ...database.segmentation_models import SegmentationModels, keyed_by_models, segmentation_models
@@ -170,7 +170,10 @@ def run(
     out_dir = Path(out_dir)
     own_executor = executor is None
     executor = executor or LocalExecutor(1)
-    flights = discover_flights(flights_dir, exclude=(out_dir,))
+    # an output is never inside an input directory (README "Errors"), and FLIGHTS is the batch's: OUT inside it
+    # was taken and left out of discovery, and every other batch of the folder skipped it with a warning (nu59 D6)
+    check_not_input(out_dir, [flights_dir])
+    flights = discover_flights(flights_dir)
     if options.merge:  # a flight's name labels its images in a merged model: refused now, not after the mapping
         for flight in flights:
             if (problem := label_problem(flight.name)) is not None:
