@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -303,19 +304,90 @@ def _iterative_undistortion(fn: DistortionFn, x0: Array, y0: Array, extra: tuple
     return x, y
 
 
+def _plane_from_normalized(model: CameraModel, extra: tuple[float, ...], u: Array, v: Array) -> tuple[Array, Array]:
+    """The model's map from normalised coordinates to the focal-scaled image plane (before focal and centre)."""
+    if model.forward is not None:
+        return model.forward(u, v, extra)
+    x, y = _fisheye_from_normal(u, v) if model.fisheye else (u, v)
+    if model.distortion is not None:
+        du, dv = model.distortion(x, y, extra)
+        x, y = x + du, y + dv
+    return x, y
+
+
+# The fold search runs out to this normalised radius (a ray 89.94 deg off the axis): a lens that turns only beyond
+# it turns where no survey camera looks, and is taken as one that never does.
+_FOLD_SEARCH_RADIUS = 1e3
+_FOLD_SAMPLES = 4000  # radii, log-spaced from 1e-4 to the search radius: 0.3 % apart
+_FOLD_DIRECTIONS = 32  # the tangential and thin-prism terms make the turn depend on the direction
+
+
+@lru_cache(maxsize=256)
+def _fold_radius(name: str, extra: tuple[float, ...]) -> float:
+    model = CAMERA_MODELS[name]
+    if model.is_identity(extra):
+        return float("inf")
+    angle = np.arange(_FOLD_DIRECTIONS) * (2.0 * np.pi / _FOLD_DIRECTIONS)
+    c, s = np.cos(angle), np.sin(angle)
+
+    def keeps_orientation(r: Array) -> Array:
+        # the sign of the map's Jacobian determinant at radius r (D, n) along each direction (central
+        # differences, relative step): positive while the map is one-to-one there; NaN (no image) is a fold too
+        h = np.maximum(r * 1e-6, 1e-9)
+        u, v = r * c[:, None], r * s[:, None]
+        with np.errstate(all="ignore"):
+            xp, yp = _plane_from_normalized(model, extra, u + h, v)
+            xm, ym = _plane_from_normalized(model, extra, u - h, v)
+            xq, yq = _plane_from_normalized(model, extra, u, v + h)
+            xn, yn = _plane_from_normalized(model, extra, u, v - h)
+            return ((xp - xm) * (yq - yn) - (xq - xn) * (yp - ym)) > 0
+
+    radii = np.geomspace(1e-4, _FOLD_SEARCH_RADIUS, _FOLD_SAMPLES)
+    bad = ~keeps_orientation(np.broadcast_to(radii, (len(angle), len(radii))))
+    if not bad.any():
+        return float("inf")
+    first = np.where(bad.any(1), bad.argmax(1), len(radii) - 1)
+    hi = np.where(bad.any(1), radii[first], np.inf)
+    lo = np.where(first > 0, radii[np.maximum(first - 1, 0)], 0.0)
+    turning = np.isfinite(hi)
+    lo, hi = lo[turning], hi[turning]
+    c, s = c[turning], s[turning]
+    for _ in range(50):  # bisection to the turn along each direction that has one
+        mid = 0.5 * (lo + hi)
+        ok = keeps_orientation(mid[:, None])[:, 0]
+        lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+    return float(lo.min())
+
+
+def fold_radius(model: CameraModel, extra: tuple[float, ...]) -> float:
+    """The normalised radius sqrt((X/Z)^2 + (Y/Z)^2) below which the model's projection is one-to-one (inf when it
+    never folds within 89.94 deg of the axis).
+
+    A polynomial lens model is a fit over the sensor; beyond it the polynomial turns back (r (1 + k1 r^2) with
+    k1 = -0.1 peaks at r = 1.83, 61 deg off the axis) and maps rays far outside the view onto pixels inside the
+    image. Found where the Jacobian determinant of the map from normalised coordinates to the image plane first
+    stops being positive along any of 32 directions (the tangential and thin-prism terms make it depend on the
+    direction), or the model has no image of the point (division, EUCM), then bisected; cached per model and
+    parameters. Every projection (`img_from_normalized`) is NaN at and beyond it."""
+    return _fold_radius(model.name, tuple(float(e) for e in extra))
+
+
 def img_from_normalized(model: CameraModel, focal: tuple[float, float], principal: tuple[float, float],
                         extra: tuple[float, ...], u: Array, v: Array) -> tuple[Array, Array]:
-    """Pixels (COLMAP convention) of normalised camera coordinates (u, v) = (X/Z, Y/Z)."""
+    """Pixels (COLMAP convention) of normalised camera coordinates (u, v) = (X/Z, Y/Z); NaN at and beyond the
+    model's `fold_radius`, where the lens model has turned back and its pixel is not where the ray lands (COLMAP
+    projects there regardless, onto pixels inside the image)."""
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
-    if model.forward is not None:
-        x, y = model.forward(u, v, extra)
-    else:
-        x, y = _fisheye_from_normal(u, v) if model.fisheye else (u, v)
-        if model.distortion is not None:
-            du, dv = model.distortion(x, y, extra)
-            x, y = x + du, y + dv
+    x, y = _plane_from_normalized(model, extra, u, v)
+    turn = fold_radius(model, extra)
+    if np.isfinite(turn):
+        with np.errstate(invalid="ignore"):
+            folded = ~(u * u + v * v < turn * turn)
+        x, y = np.where(folded, np.nan, x), np.where(folded, np.nan, y)
     return focal[0] * x + principal[0], focal[1] * y + principal[1]
+
+
 
 
 def normalized_from_img(model: CameraModel, focal: tuple[float, float], principal: tuple[float, float],

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera_models import camera_model, img_from_normalized, normalized_from_img
+from .camera_models import camera_model, fold_radius, img_from_normalized, normalized_from_img
 
 
 @dataclass(frozen=True)
@@ -73,9 +73,10 @@ class Camera:
 
     def lens_folds(self) -> bool:
         """True when the distortion folds the image over: some pixel inside the sensor does not lift to one ray
-        and back, or the radius bends back before the corners (a strong negative k1: 480x360, f 377, k -0.6).
-        Judged for the additive radial-tangential models only (SIMPLE_RADIAL .. FULL_OPENCV); the fisheye and
-        closed-form models (FOV, division, EUCM) are taken as given."""
+        and back, or lifts beyond the radius where the lens model turns back (`camera_models.fold_radius`; a
+        strong negative k1: 480x360, f 377, k -0.6). Judged for the additive radial-tangential models only
+        (SIMPLE_RADIAL .. FULL_OPENCV); the fisheye and closed-form models (FOV, division, EUCM) are taken as
+        given."""
         spec = camera_model(self.model)
         if self.is_pinhole or spec.fisheye or spec.forward is not None:
             return False
@@ -83,13 +84,16 @@ class Camera:
         grid = np.stack(np.meshgrid(t * self.width, t * self.height), -1).reshape(-1, 2)
         with np.errstate(all="ignore"):
             normal = self.cam_from_img(grid)
-            if not np.all(np.isfinite(normal)) or np.abs(self.img_from_cam(normal) - grid).max() > 1e-3:
+            # NaN: no lift, or a lift beyond the turn (`img_from_cam` has no pixel there)
+            if not np.all(np.abs(self.img_from_cam(normal) - grid) <= 1e-3):
                 return True
-            # the forward map must keep its orientation (positive Jacobian) out to the corners' radius
-            radius = np.hypot(normal[:, 0], normal[:, 1]).max()
-            r = np.linspace(0.0, radius, 200)[1:]
-            ring = self.img_from_cam(np.stack([r, np.zeros_like(r)], 1))[:, 0] - self.cx
-        return not bool(np.all(np.diff(ring) > 0))
+        return bool(np.hypot(normal[:, 0], normal[:, 1]).max() >= self.fold_radius)
+
+    @property
+    def fold_radius(self) -> float:
+        """The normalised radius from the axis where the lens model turns back (`camera_models.fold_radius`):
+        world points beyond it have no pixel (`img_from_cam` gives NaN). inf for a pinhole."""
+        return fold_radius(camera_model(self.model), self.extra)
 
     @property
     def K(self) -> np.ndarray:  # noqa: N802 (the usual name)

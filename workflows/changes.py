@@ -22,7 +22,7 @@ import json
 import logging
 import textwrap
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -53,15 +53,17 @@ from ..plugin.changes import (
     UNSEEN,
     AlignmentSupport,
     ChangeResult,
+    SessionObservations,
     counterpart_gate,
     detect_changes,
     implausible_alignment,
     implausible_pair,
     pair_support,
+    smallest_mask_area,
 )
 from ..plugin.errors import InputError
 from ..plugin.multisession import Sim3
-from ..plugin.params import Params, params_to_dict
+from ..plugin.params import Params, for_image, params_to_dict
 from .changes_images import database_note, image_notes, untested_note
 
 log = logging.getLogger(__name__)
@@ -164,8 +166,8 @@ def compute(session_a: str | Path, session_b: str | Path, match_json: str | Path
         warnings.append(f"the images of session {missing} are not available (no run.json recording them, or "
                         f"the directory it records is gone; {images_advice}): no surface evidence, "
                         f"the segments alone decide{untested_note(params.changes)}")
-    obs_a = read_session_observations(files_a, with_tracks=tracks, images_dir=dirs[0])
-    obs_b = read_session_observations(files_b, with_tracks=tracks, images_dir=dirs[1])
+    obs_a = compared_observations(files_a, params, with_tracks=tracks, images_dir=dirs[0])
+    obs_b = compared_observations(files_b, params, with_tracks=tracks, images_dir=dirs[1])
     result = detect_changes(obs_a, obs_b, a_from_b, params.changes, params.association.distance_tolerance_m)
     for name, path, obs, other in (("A", session_a, obs_a, session_b), ("B", session_b, obs_b, session_a)):
         if obs.segments is None:
@@ -262,6 +264,25 @@ def sensing_notes(result: ChangeResult, session_a: str, session_b: str) -> list[
     return notes
 
 
+def compared_observations(session: str | Path | SessionFiles, params: Params, **read: Any) -> SessionObservations:
+    """The session as change detection sees it (`read_session_observations`, keywords `read`), with the smallest
+    mask its segmentation kept (`SessionObservations.smallest_mask_px`): the one its run.json records (the
+    segmentation parameters as scaled to its images and ground resolution), else `params`' scaled to its largest
+    camera (a session mapped by an older sosmatch, or a toy one)."""
+    files = session if isinstance(session, SessionFiles) else read_session(session)
+    obs = read_session_observations(files, **read)
+    recorded = ((read_map_record(files.path) or {}).get("params") or {}).get("segmentation")
+    names = ("backend", "min_mask_area_px", "classical_min_area_px")
+    if isinstance(recorded, dict) and all(isinstance(recorded.get(k), str if k == "backend" else (int, float))
+                                          for k in names):
+        seg = [recorded[k] for k in names]
+    else:
+        cam = max(obs.cameras, key=lambda c: c.width * c.height)
+        scaled = for_image(params, cam.width, cam.height).segmentation
+        seg = [scaled.backend, scaled.min_mask_area_px, scaled.classical_min_area_px]
+    return replace(obs, smallest_mask_px=smallest_mask_area(*seg))
+
+
 def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: Sim3, params: Params, verified: bool,
                     association_tolerance_m: float, where: str | Path, refusing: str) -> None:
     """InputError naming `where` (then `refusing`: what the caller did not do) when `a_from_b` does not bring the
@@ -272,8 +293,8 @@ def check_alignment(session_a: SessionFiles, session_b: SessionFiles, a_from_b: 
     `verified`: match's verification decided the alignment). For a transform used without change detection
     (`merge`: an unverified consensus 181 m off was merged, 6 landmarks fused wrongly, exit 0, where `changes`
     refused it as chance)."""
-    obs_a = read_session_observations(session_a, with_segments=False)
-    obs_b = read_session_observations(session_b, with_segments=False)
+    obs_a = compared_observations(session_a, params, with_segments=False)
+    obs_b = compared_observations(session_b, params, with_segments=False)
     gate = counterpart_gate(params.changes, association_tolerance_m)
     if (why := implausible_pair(pair_support(obs_a, obs_b, a_from_b, gate, params.changes), gate, verified)):
         raise InputError(f"{why}; {refusing}", where)

@@ -4,8 +4,10 @@ Two sessions A and B of one place, B brought into A's frame by the accepted tran
 landmark of either map gets one class:
 
 - `unseen`: the other session cannot tell. Its keyframes should have seen the landmark (the landmark projected
-  into the image with its own footprint, radius 2 h, as margin) fewer than `min_views` times: outside the
-  other's flight, at the edge of it, or seen too rarely to have been mapped there. A landmark outside the
+  into the image with its own footprint, radius 2 h, as margin, within the lens model's reach, and near enough
+  that its mask reaches the smallest its segmenter keeps: `in_view`) fewer than `min_views` times: outside the
+  other's flight, at the edge of it, too far away in an oblique view, or seen too rarely to have been mapped
+  there. A landmark outside the
   common area is therefore never a change.
 - `kept`: the other map has a counterpart, a landmark within the counterpart gate (`tolerance_factor` x
   theta_eps, distance in x, y and z_weight x z) of a compatible size (size ratio r <= `max_size_difference`);
@@ -100,6 +102,8 @@ from .observations import (
     ground_height_field,
     in_view,
     observed_area,
+    resolution_depth,
+    smallest_mask_area,
 )
 from .support import (
     CONTROL_SHIFT,
@@ -142,5 +146,6 @@ __all__ = ["BELOW_GROUND", "BY_LANDMARK", "BY_NESTING", "BY_PART", "BY_SEGMENTS"
            "holder_pairs",
            "implausible_alignment", "implausible_pair", "in_view", "inside_larger", "landmark_presence_rate",
            "no_unmapped_objects", "observed_area", "pair_support", "predict_logistic", "presence_rate",
-           "reobservation_features", "segment_evidence",
-           "segment_hits", "stands_above_ground", "tracks_from_matches", "unmapped_objects", "view_correlation"]
+           "reobservation_features", "resolution_depth", "segment_evidence",
+           "segment_hits", "smallest_mask_area", "stands_above_ground", "tracks_from_matches", "unmapped_objects",
+           "view_correlation"]

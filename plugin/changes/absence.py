@@ -55,14 +55,14 @@ def presence(sizes: np.ndarray, views: np.ndarray, ref_positions: np.ndarray, re
     ref = np.asarray(evenly_spaced(len(ref_positions), REFERENCE_LIMIT), dtype=np.int64)
     ref_h = ref_sizes[ref]
     ref_hits, ref_views = segment_hits(ref_positions[ref], ref_h, other.poses, other.cameras, other.segments,
-                                       gate_m, params.max_size_difference)
+                                       gate_m, params.max_size_difference, other.smallest_mask_px)
     bw = params.presence_bandwidth
     if own is not None and own.segments is not None and positions is not None:
         # the presence rate of each landmark from how often its own session shows it (the references' too)
         ref_own = segment_hits(ref_positions[ref], ref_h, own.poses, own.cameras, own.segments, gate_m,
-                               params.max_size_difference)
+                               params.max_size_difference, own.smallest_mask_px)
         mine = segment_hits(positions, sizes, own.poses, own.cameras, own.segments, gate_m,
-                            params.max_size_difference)
+                            params.max_size_difference, own.smallest_mask_px)
         ref_rate = landmark_presence_rate(ref_h, *ref_own, ref_h, ref_hits, ref_views, *ref_own, bw)
         rate = landmark_presence_rate(sizes, *mine, ref_h, ref_hits, ref_views, *ref_own, bw)
     else:

@@ -106,7 +106,8 @@ def direct_evidence(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObserv
     is none. `visible`: per size, the share of present objects without a counterpart that the other session sees
     (`visible_share`); None: every one (the pair's landmarks are `reweigh`ed once both directions are measured)."""
     n = len(own_pos)
-    seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras)
+    seen, _, _ = in_view(own_pos, own_h, other.poses, other.cameras, min_area_px=other.smallest_mask_px,
+                         size_tolerance=params.max_size_difference)
     views = seen.sum(0)
     compared = views >= other.views_needed(params.min_views)
     if deep is not None:
@@ -196,7 +197,7 @@ def direct_evidence(own_pos: np.ndarray, own_h: np.ndarray, other: SessionObserv
         idx = np.flatnonzero(tested)
         hits[idx], trials[idx], chance[idx] = segment_evidence(
             own_pos[idx], own_h[idx], other.poses, other.cameras, other.segments, gate_m,
-            params.max_size_difference, params.probe_count, params.probe_radius_factor)
+            params.max_size_difference, params.probe_count, params.probe_radius_factor, other.smallest_mask_px)
         rate[idx], spread[idx] = presence(own_h[idx], trials[idx], *references, other, gate_m, params, own,
                                            own_pos[idx])
         absent[idx] = probability(hits[idx], trials[idx], chance[idx], rate[idx], spread[idx], surface[idx],

@@ -96,7 +96,8 @@ def inside_larger(points: np.ndarray, sizes: np.ndarray, other_points: np.ndarra
 
 def segment_evidence(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequence[Camera],
                      segments: Sequence[KeyframeSegments], gate_m: float, max_size_difference: float,
-                     probe_count: int, probe_radius_factor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     probe_count: int, probe_radius_factor: float, min_area_px: float = 0.0,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How often another session's segments show something like each landmark where it should be.
 
     In every keyframe that should have seen the landmark (`in_view`), a hit is a segment whose centroid lies
@@ -115,7 +116,7 @@ def segment_evidence(points: np.ndarray, sizes: np.ndarray, poses: Poses, camera
     probes = (pts[:, None, :] + radius[:, None, None] * offsets[None]).reshape(-1, 3)
     all_pts = np.vstack([pts, probes])
     all_h = np.concatenate([h, np.repeat(h, probe_count)])
-    hits, views = segment_hits(all_pts, all_h, poses, cameras, segments, gate_m, max_size_difference)
+    hits, views = segment_hits(all_pts, all_h, poses, cameras, segments, gate_m, max_size_difference, min_area_px)
     probe_hits = hits[n:].reshape(n, probe_count).sum(1)
     probe_views = views[n:].reshape(n, probe_count).sum(1)
     chance = (probe_hits + 1.0) / (probe_views + 2.0)
@@ -124,14 +125,16 @@ def segment_evidence(points: np.ndarray, sizes: np.ndarray, poses: Poses, camera
 
 def segment_hits(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequence[Camera],
                  segments: Sequence[KeyframeSegments], gate_m: float, max_size_difference: float,
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 min_area_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Per point: in how many keyframes that should have seen it (`in_view`) a segment of compatible size lies
-    within the projected gate of its projection (hits), and in how many keyframes it was in view (views)."""
+    within the projected gate of its projection (hits), and in how many keyframes it was in view (views; with
+    `min_area_px`, the segmenter's smallest mask, as `in_view` counts them)."""
     from scipy.spatial import cKDTree
 
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     sizes = np.asarray(sizes, dtype=np.float64).reshape(-1)
-    seen, uv, depth = in_view(points, sizes, poses, cameras)
+    seen, uv, depth = in_view(points, sizes, poses, cameras, min_area_px=min_area_px,
+                              size_tolerance=max_size_difference)
     hits = np.zeros(len(points), dtype=np.int64)
     for k, seg in enumerate(segments):
         idx = np.flatnonzero(seen[k])

@@ -52,6 +52,10 @@ class SessionObservations:
     # theta_n the session's map was made with (run.json; the flight's views may have lowered the configured one,
     # `params.for_flight`); None: unknown, changes.min_views alone decides (`views_needed`)
     min_observations: int | None = None
+    # the smallest mask (pixels of its cameras) its segmentation kept (`smallest_mask_area`, from run.json's
+    # params): a place it looked at from so far that an object there gives a smaller mask was not seen (`in_view`);
+    # 0: no limit
+    smallest_mask_px: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "positions", np.asarray(self.positions, dtype=np.float64).reshape(-1, 3))
@@ -85,12 +89,21 @@ class SessionObservations:
 
 
 def in_view(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequence[Camera],
-            margin_factor: float = FOOTPRINT_MARGIN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Which keyframes should have seen each point: the point in front of the camera and inside the image with
-    its footprint (radius margin_factor x h, projected) as margin, so that a segment of it would not touch the
-    image border. Returns (K, N) bool, (K, N, 2) pixels and (K, N) depths."""
+            margin_factor: float = FOOTPRINT_MARGIN, min_area_px: float = 0.0, size_tolerance: float = 0.0,
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which keyframes should have seen each point: the point in front of the camera, within the lens model's
+    reach (`Camera.fold_radius`: beyond it the model turns back and puts far-away points inside the image; the
+    projection is NaN there), inside the image with its footprint (radius margin_factor x h, projected) as margin
+    so that a segment of it would not touch the image border, and near enough to be segmented: the largest mask
+    that would still be taken for the object (a disc of radius 2 h', projected, h' the largest size within the
+    size ratio `size_tolerance` of h: `changes.max_size_difference`) covers at least `min_area_px` pixels (the
+    smallest mask the keyframes' segmenter keeps, `SessionObservations.smallest_mask_px`; a point of unknown size
+    is not held to it). Returns (K, N) bool, (K, N, 2) pixels and (K, N) depths."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    h = np.nan_to_num(np.asarray(sizes, dtype=np.float64).reshape(-1), nan=0.0)
+    sizes = np.asarray(sizes, dtype=np.float64).reshape(-1)
+    h = np.nan_to_num(sizes, nan=0.0)
+    # r = 2 |s - h| / (s + h) <= tolerance reaches s = h (2 + r) / (2 - r); r >= 2 admits any size: no limit
+    largest = h * (2.0 + size_tolerance) / (2.0 - size_tolerance) if size_tolerance < 2.0 else np.full_like(h, np.inf)
     k_count = len(poses)
     seen = np.zeros((k_count, len(pts)), dtype=bool)
     uv = np.zeros((k_count, len(pts), 2))
@@ -101,9 +114,28 @@ def in_view(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequen
         d = depth[k]
         with np.errstate(divide="ignore", invalid="ignore"):
             r = margin_factor * h * np.sqrt(cam.fx * cam.fy) / d
+            resolved = ~np.isfinite(sizes) | (np.pi * (2.0 * largest * np.sqrt(cam.fx * cam.fy) / d) ** 2
+                                              >= min_area_px)
         u, v = uv[k, :, 0], uv[k, :, 1]
-        seen[k] = (d > 0) & (u >= r) & (u <= cam.width - r) & (v >= r) & (v <= cam.height - r)
+        seen[k] = (d > 0) & (u >= r) & (u <= cam.width - r) & (v >= r) & (v <= cam.height - r) & resolved
     return seen, uv, depth
+
+
+def smallest_mask_area(backend: str, min_mask_area_px: float, classical_min_area_px: float) -> float:
+    """The smallest mask (full-resolution pixels) a segmentation keeps: `segmentation.min_mask_area_px` for every
+    backend, and the classical backend's `classical_min_area_px` too (both as scaled to the image, `for_image`,
+    and to the ground resolution, `for_ground_resolution`: as a map's run.json records them)."""
+    return float(max(min_mask_area_px, classical_min_area_px if backend == "classical" else 0.0))
+
+
+def resolution_depth(size_m: float, camera: Camera, min_area_px: float, size_tolerance: float = 0.0) -> float:
+    """The depth beyond which an object of size `size_m` (h = sqrt(lambda_max)) gives no mask of `min_area_px`
+    pixels in `camera` that would be taken for it (the `in_view` limit solved for depth); inf without a limit or
+    a size."""
+    if not min_area_px > 0 or not np.isfinite(size_m) or size_m <= 0 or size_tolerance >= 2.0:
+        return float("inf")
+    largest = size_m * (2.0 + size_tolerance) / (2.0 - size_tolerance)
+    return float(2.0 * largest * np.sqrt(camera.fx * camera.fy) * np.sqrt(np.pi / min_area_px))
 
 
 def ground_height_field(points: np.ndarray, cell_m: float = GROUND_CELL_M, neighbours: int = GROUND_NEIGHBOURS,
@@ -206,8 +238,13 @@ def above_the_surface(heights: np.ndarray, surface: np.ndarray, map_heights: np.
         return np.isfinite(h) & np.isfinite(top) & np.isfinite(scale) & (h - top > max_sigmas * scale)
 
 
-def observed_area(poses: Poses, cameras: Sequence[Camera], ground: HeightField) -> object:
-    """Union of the keyframes' ground footprints (shapely geometry, world x, y)."""
+def observed_area(poses: Poses, cameras: Sequence[Camera], ground: HeightField, size_m: float = float("nan"),
+                  min_area_px: float = 0.0, size_tolerance: float = 0.0) -> object:
+    """Union of the keyframes' ground footprints (shapely geometry, world x, y), each cut where an object of
+    `size_m` (the session's typical landmark) would no longer give a mask of `min_area_px` pixels taken for it
+    (`resolution_depth`: the same limit as `in_view`'s, `size_tolerance` as there), so that an oblique view's
+    footprint does not run out to ground it saw at a fraction of a pixel; without a size or a limit at
+    `footprint_points`' default range."""
     import shapely
 
     if not len(poses):
@@ -215,5 +252,7 @@ def observed_area(poses: Poses, cameras: Sequence[Camera], ground: HeightField) 
     polys = []
     for cam in dict.fromkeys(cameras):  # footprints per distinct camera
         idx = [k for k, c in enumerate(cameras) if c == cam]
-        polys.extend(footprint_polygons(cam, poses.rotations[idx], poses.centers[idx], ground, per_side=4))
+        depth = resolution_depth(size_m, cam, min_area_px, size_tolerance)
+        polys.extend(footprint_polygons(cam, poses.rotations[idx], poses.centers[idx], ground, per_side=4,
+                                        max_depth_m=depth if np.isfinite(depth) else None))
     return shapely.union_all(polys)

@@ -107,7 +107,8 @@ def alignment_support(a: SessionObservations, b_in_a: SessionObservations, gate_
     """Counterpart rate of A's compared landmarks with B as given and with B displaced horizontally by
     CONTROL_SHIFT x the gate in 6 directions (a control: the same maps, no true pairs). A wrong transform (an
     accepted match of the wrong place, a mirrored map) gives as many counterparts as the control."""
-    seen, _, _ = in_view(a.positions, a.sizes, b_in_a.poses, b_in_a.cameras)
+    seen, _, _ = in_view(a.positions, a.sizes, b_in_a.poses, b_in_a.cameras, min_area_px=b_in_a.smallest_mask_px,
+                         size_tolerance=params.max_size_difference)
     compared = np.flatnonzero(seen.sum(0) >= b_in_a.views_needed(params.min_views))
     pa, ha = a.positions[compared], a.sizes[compared]
 

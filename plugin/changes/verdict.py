@@ -260,8 +260,11 @@ def detect_changes(a: SessionObservations, b: SessionObservations, a_from_b: Sim
     return ChangeResult(
         a=res_a, b=res_b, positions_a=a.positions, positions_b=b_in_a.positions, sizes_a=a.sizes,
         sizes_b=b_in_a.sizes, tolerance_m=gate, ground=ground,
-        observed_a=observed_area(a.poses, a.cameras, ground),
-        observed_b=observed_area(b_in_a.poses, b_in_a.cameras, ground), params=params,
+        observed_a=observed_area(a.poses, a.cameras, ground, _median(a.sizes), a.smallest_mask_px,
+                                 params.max_size_difference),
+        observed_b=observed_area(b_in_a.poses, b_in_a.cameras, ground, _median(b_in_a.sizes),
+                                 b_in_a.smallest_mask_px, params.max_size_difference),
+        params=params,
         support=support, unmapped_a=unmapped_a, unmapped_b=unmapped_b,
         tracks_a=tracks_a, tracks_b=tracks_b,
         without_relief=tuple(name for name, d in (("A", direct_a), ("B", direct_b)) if d.relief is False),
@@ -316,3 +319,10 @@ def _unmapped(own: SessionObservations, other: SessionObservations, mine: Direct
 def _above(ground: HeightField, points: np.ndarray) -> np.ndarray:
     """Heights of `points` above the ground height field."""
     return points[:, 2] - ground(points[:, 0], points[:, 1])
+
+
+def _median(sizes: np.ndarray) -> float:
+    """The median of the known sizes (the session's typical landmark, for its footprints' reach); NaN if none."""
+    known = np.asarray(sizes, dtype=np.float64)
+    known = known[np.isfinite(known)]
+    return float(np.median(known)) if len(known) else float("nan")

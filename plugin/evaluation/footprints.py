@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from ..geometry import Camera
+from ..geometry import Camera, pixel_rays
 
 #: A terrain sampler: vectorised height z(x, y) in the world frame (metres).
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -86,7 +86,7 @@ def border_pixels(camera: Camera, per_side: int = 8) -> np.ndarray:
 
 
 def intersect_rays(
-    origins: np.ndarray, directions: np.ndarray, terrain: HeightFn, max_range_m: float,
+    origins: np.ndarray, directions: np.ndarray, terrain: HeightFn, max_range_m: float | np.ndarray,
     z_range: tuple[float, float] | None = None, steps: int = 64, iterations: int = 40,
 ) -> np.ndarray:
     """First intersection of rays with the terrain: (..., 3) points; rays that miss stop at `max_range_m`.
@@ -94,7 +94,8 @@ def intersect_rays(
     Args:
         origins: (..., 3) ray origins; directions: (..., 3) ray directions (any length).
         terrain: height sampler z(x, y); `FlatGround` is solved exactly.
-        max_range_m: horizontal-or-not distance along the ray where a miss is cut.
+        max_range_m: horizontal-or-not distance along the ray where a miss (and a farther hit) is cut; one for
+            every ray, or an array that broadcasts against the rays' shape (...,).
         z_range: (min, max) terrain height bounding the search (taken from the terrain if it has `z_range`).
         steps: samples of the coarse march between the heights z_max and z_min; iterations: bisection steps.
     """
@@ -148,31 +149,40 @@ def intersect_rays(
 
 def footprint_points(
     camera: Camera, rotations: np.ndarray, centers: np.ndarray, terrain: HeightFn, per_side: int = 8,
-    max_range_m: float | None = None,
+    max_range_m: float | None = None, max_depth_m: float | None = None,
 ) -> np.ndarray:
-    """(N, 4 * per_side, 3) ground points seen along the border of each of N cameras.
+    """(N, M, 3) ground points seen along the border of each of N cameras: M = 4 * per_side border pixels, less
+    any that the camera's lens model cannot lift to a ray.
 
     `rotations` are world_from_camera (N, 3, 3), `centers` (N, 3). `max_range_m` defaults to 20 x the largest
-    height of a camera above the lowest terrain point.
+    height of a camera above the lowest terrain point. `max_depth_m`: rays are cut as well where their depth
+    (distance along the optical axis) reaches it.
     """
     rotations = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
     centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
     uv = border_pixels(camera, per_side)
-    d_cam = np.stack([(uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy, np.ones(len(uv))], 1)
+    # through the lens model: a barrel lens sees farther out at its border than the pinhole of its focal length
+    d_cam = pixel_rays(camera, uv, np.eye(3))
+    d_cam = d_cam[np.all(np.isfinite(d_cam), axis=1)]  # border pixels the model cannot lift have no ray
     dirs = np.einsum("nij,mj->nmi", rotations, d_cam)
     z_range = getattr(terrain, "z_range", None)
     if max_range_m is None:
         floor = z_range[0] if z_range is not None else 0.0
         max_range_m = 20.0 * max(float(np.max(centers[:, 2] - floor, initial=1.0)), 1.0)
-    return intersect_rays(centers[:, None, :], dirs, terrain, max_range_m, z_range)
+    reach: float | np.ndarray = max_range_m
+    if max_depth_m is not None:  # d_cam has unit depth: a ray reaches depth D at D x its length
+        reach = np.minimum(max_range_m, max_depth_m * np.linalg.norm(d_cam, axis=1))
+    return intersect_rays(centers[:, None, :], dirs, terrain, reach, z_range)
 
 
 def footprint_polygons(
     camera: Camera, rotations: np.ndarray, centers: np.ndarray, terrain: HeightFn, per_side: int = 8,
-    max_range_m: float | None = None,
+    max_range_m: float | None = None, max_depth_m: float | None = None,
 ) -> np.ndarray:
     """Footprints of N cameras as an (N,) array of shapely polygons in world x, y (valid, possibly empty)."""
-    pts = footprint_points(camera, rotations, centers, terrain, per_side, max_range_m)
+    pts = footprint_points(camera, rotations, centers, terrain, per_side, max_range_m, max_depth_m)
+    if pts.shape[1] < 3:  # no border the lens model can lift: no footprint
+        return np.array([shapely.Polygon() for _ in range(len(pts))], dtype=object)
     polys = shapely.polygons(pts[..., :2])
     # Terrain occlusion or extreme obliquity can make the ring self-intersect; make_valid keeps the area.
     invalid = ~shapely.is_valid(polys)
