@@ -133,3 +133,18 @@ def test_a_run_killed_between_recording_and_renaming_its_files_resumes(tmp_path,
     assert (out / "run.json").read_text() == "new record"
     assert all(isinstance(h, str) for h in json.loads((out / MARKER).read_text())["files"].values())
 
+
+def test_changes_refuses_a_users_file_where_it_wrote_no_geojson_before_its_work(toy_sessions, tmp_path, capsys,
+                                                                              cli_error):
+    """(a) by the command line: the toy maps are not georeferenced, so `changes` writes no changes.geojson, and a
+    re-run removes one an earlier run left; the user's changes.geojson is neither removed (--no-plot, --overwrite)
+    nor kept beside a new run's tables, and the refusal comes before the comparison, nothing changed."""
+    a, b, match = toy_sessions.a.path, toy_sessions.b.path, toy_sessions.match
+    out = tmp_path / "C"
+    argv = ["changes", a, b, "--match", match, "--out", out]
+    assert main([str(x) for x in argv]) == 0 and not (out / "changes.geojson").exists()
+    (out / "changes.geojson").write_text('{"type": "FeatureCollection", "features": []}\n')
+    before = _tree(out)
+    for extra in ((), ("--overwrite", "--no-plot")):
+        assert "changes.geojson: was not written by `sosmatch changes`" in cli_error(*argv, *extra)
+        assert _tree(out) == before
