@@ -16,13 +16,14 @@ from pathlib import Path
 from typing import Any
 
 from ..plugin.errors import InputError
-from .output_entries import check_not_in_output_entry
+from .output_entries import check_file_ours, check_not_in_output_entry, recorded_files
 from .output_markers import (
     LOCK,
     MARKER,
     MARKER_FORMAT,
     VersionedIdentity,
     check_not_input,
+    output_marker,
     read_json_or_none,
     settings_differences,
 )
@@ -118,14 +119,15 @@ def _recorded_difference(path: Path, record: str | None, settings: RecordedSetti
 
 def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | Path | None] = (),
                      legacy_record: str | None = None, identity: str | VersionedIdentity | None = None,
-                     overwrite: bool = False, overwrite_flag: str = OVERWRITE_HINT) -> None:
+                     overwrite: bool = False, overwrite_flag: str = OVERWRITE_HINT, files: Iterable[str] = ()) -> None:
     """What `open_output_dir` refuses whatever the run produces, checked before any work and changing nothing:
     an input (or inside one, or holding one), a path that is a file, a non-empty directory that is not this
     command's output, or a new directory that cannot be made (a file or a read-only folder on its way). A command
     whose output identity is known only after its work (`sosmatch changes`) calls this first, so a bad `--out`
     is refused at once; `open_output_dir` still decides (overwrite, the lock) when the work is done. `identity`:
     the output's, when the command can know it before its work: a complete output of another one is refused
-    now too (unless `overwrite`), as `open_output_dir` would refuse it after the work."""
+    now too (unless `overwrite`), as `open_output_dir` would refuse it after the work; and a file at one of `files`
+    (those the command writes there) that it did not write, or that was changed since (`OutputDir.check_files`)."""
     path = Path(path)
     check_not_input(path, list(inputs))
     check_not_in_output_entry(path)
@@ -134,6 +136,9 @@ def check_output_dir(path: str | Path, command: str, *, inputs: Iterable[str | P
         versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
         refuse_another(path, command, previous, versions, {versions.today, *versions.same_as}, overwrite,
                         overwrite_flag)
+    record = recorded_files(output_marker(path))
+    for name in files:
+        check_file_ours(path / name, command, record)
     if previous.state == "new" and not path.exists():
         check_writable_place(path)
 

@@ -1,9 +1,13 @@
-"""What sosmatch wrote inside the directory entries of an output directory (e.g. a session's `sparse/`), so that
-replacing an entry removes only that (rule 1 of `database.outputs`).
+"""What sosmatch wrote in an output directory: inside its directory entries (e.g. a session's `sparse/`) and as its
+files (match.json), so that replacing one replaces only that (rule 1 of `database.outputs`).
 
 The output's marker `.sosmatch-output.json` keeps, under "entries", each published directory entry's files (path
-relative to the entry, sha256). An entry found holding anything else (a user's README.txt, another command's
-output put inside, a file changed since) is not sosmatch's to delete: the run is refused, naming that file."""
+relative to the entry, sha256), and under "files" each file the command wrote at the top of the directory (name ->
+sha256; two while a run replaces it). An entry found holding anything else (a user's README.txt, another command's
+output put inside, a file changed since), or a file at a name the command writes that it did not write there (an
+optional output an earlier run skipped, then the user's) or that was changed since, is not sosmatch's to replace
+or delete: the run is refused, naming that file. A marker without "files" (an older sosmatch's) is read as before
+files were recorded: see `recorded_files`."""
 
 from __future__ import annotations
 
@@ -70,6 +74,55 @@ def merge_entry_records(old: Mapping[str, Any], new: Mapping[str, str]) -> dict[
             hashes.append(new[rel])
         merged[rel] = hashes[0] if len(hashes) == 1 else hashes
     return merged
+
+
+def recorded_files(marker: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """The marker's record of the files the command wrote at the top of its directory (name -> sha256, or a list of
+    two while a run replaces one), {} for a malformed one; None when the marker keeps none (an older sosmatch wrote
+    it, or there is no marker: an output made before markers existed), see `check_file_ours`."""
+    files = (marker or {}).get("files")
+    if files is None:
+        return None
+    if not isinstance(files, dict):
+        return {}
+    return {name: value for name, value in files.items() if isinstance(name, str) and _hashes(value) is not None}
+
+
+def check_file_ours(path: Path, command: str, record: Mapping[str, Any] | None) -> None:
+    """InputError naming `path`, a name at the top of an output directory that the command writes or removes, when
+    something stands there that the command did not write (not in `record`, a link or a directory: sosmatch
+    writes neither there) or that was changed since (sha256). `record` None (an older sosmatch's marker, which
+    recorded no files): whatever file stands there is taken as ours, as that sosmatch took it: its files are not
+    told from a user's, and refusing them would refuse every re-run of every output made before the upgrade;
+    the run then records them (`database.outputs.open_output_dir`), and from there on they are told apart."""
+    if not (path.exists() or path.is_symlink()):
+        return
+    if path.is_dir() and not path.is_symlink():
+        return  # of the other kind: `OutputDir._check_kind` names it as such
+    if record is None and not path.is_symlink():
+        return
+    try:
+        ours = (record is not None and path.name in record and not path.is_symlink()
+                and sha256_file(path) in (_hashes(record[path.name]) or []))
+    except OSError as exc:
+        raise InputError(f"cannot read output file: {exc.strerror or exc}", path) from None
+    if not ours:
+        changed = record is not None and path.name in record and not path.is_symlink()
+        why = (f"was changed since `sosmatch {command}` wrote it" if changed else
+               f"was not written by `sosmatch {command}`")
+        raise InputError(f"{why}, and a run of it replaces or removes {path.name}; sosmatch never replaces what it "
+                         f"did not create: move it out of {path.parent} (or choose another output directory)", path)
+
+
+def adopted_files(folder: Path) -> dict[str, str]:
+    """name -> sha256 of every file at the top of `folder` (hidden ones, the marker's and the lock's, left out): an
+    output an older sosmatch made, whose files are taken as ours as that sosmatch took them (`check_file_ours`)."""
+    try:
+        names = sorted(p.name for p in folder.iterdir()
+                       if not p.name.startswith(".") and p.is_file() and not p.is_symlink())
+        return {name: sha256_file(folder / name) for name in names}
+    except OSError as exc:
+        raise InputError(f"cannot read output directory: {exc.strerror or exc}", folder) from None
 
 
 def check_entry_ours(entry: Path, command: str, record: Mapping[str, str] | None,

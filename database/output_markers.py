@@ -2,7 +2,11 @@
 writes them; its module doc has the rules).
 
 An output directory holds the marker `.sosmatch-output.json` (format `MARKER_FORMAT`: the command, the output's
-identity, whether the run finished, the files of its directory entries), written by the command that took it.
+identity, whether the run finished, the files of its directory entries ("entries": entry -> path -> sha256) and
+the files it wrote at the top ("files": name -> sha256, a list of two while a run replaces one)), written by the
+command that took it. "files" came later within the same format: a marker without it (an older sosmatch's) is
+read as recording none, whose files are then taken as ours (`output_entries.recorded_files`); an older sosmatch
+ignores it (and re-writes the marker without it: then read so again).
 Here: the marker's names and reading (`output_marker`, `output_command`, `unfinished_run`: with the lock file,
 `database.output_lock`, whether it is being written now or was interrupted), the check every reader of a
 sosmatch output makes before using it (`check_finished`, `check_input_finished`: a run into it that has not

@@ -5,8 +5,11 @@ The rules (README "Errors"; tests/test_outputs.py keeps them):
    previous output of the same command: its marker file `.sosmatch-output.json`, written by sosmatch when it
    takes the directory, names the command. An output file is new, or a file the same command wrote before
    and nobody changed since: the directory's registry `.sosmatch-files.json` lists it with its sha256
-   (`database.output_files.OutputFiles`). A directory entry the command publishes (a session's sparse/) is
-   replaced only while it holds just the files the marker records under "entries" (`database.output_entries`).
+   (`database.output_files.OutputFiles`). Inside an output directory, a file the command writes (match.json) is
+   replaced or removed only while it is the one the marker records under "files" (sha256, recorded when written),
+   and a directory entry it publishes (a session's sparse/) only while it holds just the files the marker records
+   under "entries" (`database.output_entries`): a user's file at such a name refuses the run, nothing changed.
+   Every file goes through `OutputDir.publish` (or `write_file`), which records it.
 2. An output is never an input, never inside an input, and never holds one (compared as resolved paths).
 3. Replacing a previous *complete* output of the same command made from other inputs or settings (another
    `identity`) needs `overwrite=True` (`--overwrite`). An incomplete one (a killed or failed run) is resumed or
@@ -49,12 +52,15 @@ from ..plugin.errors import InputError
 from .atomic import clean_stale_temporaries, locked_temp_dir, write_bytes_atomic, write_text_atomic
 from .output_checks import OURS, OVERWRITE_HINT, PreviousOutput, RecordedSettings, previous_output, refuse_another
 from .output_entries import (
+    adopted_files,
     check_entry_ours,
+    check_file_ours,
     check_not_in_output_entry,
     entry_files,
     entry_names,
     merge_entry_records,
     recorded_entries,
+    recorded_files,
 )
 from .output_lock import acquire_lock, release_lock
 from .output_markers import (
@@ -65,6 +71,7 @@ from .output_markers import (
     VersionedIdentity,
     check_not_input,
     output_marker,
+    sha256_file,
 )
 from .taken import OutputMoved, Place, check_place
 
@@ -105,8 +112,12 @@ class OutputDir:
         self._record = record  # the command's record (`legacy_record`): the settings a refusal compares
         self._lock_fd: int | None = lock_fd
         self._created = list(created)  # directories this run created, outermost first
+        marker = output_marker(path)
         # what sosmatch wrote in each directory entry (kept in the marker across runs): all a replacement may delete
-        self._entries = recorded_entries(output_marker(path))
+        self._entries = recorded_entries(marker)
+        # and the files it wrote at the top (name -> sha256): all it may replace or remove there; None: an older
+        # sosmatch's marker, which recorded none (`open_output_dir` takes its files as ours, as that one did)
+        self._files = recorded_files(marker)
         self._complete = previous.state == "complete"
         self._place = Place(path, command)  # the directory itself: a move under the run is noticed (`taken`)
         # the marker as the run found it (read under the lock, before the run re-writes it): `restore_previous`
@@ -159,7 +170,8 @@ class OutputDir:
         self._complete = complete
         write_text_atomic(self.path / MARKER, json.dumps(
             {"format": MARKER_FORMAT, "command": self.command, "identity": self.identity,
-             "complete": complete, "sosmatch": __version__, "entries": self._entries}, indent=1) + "\n")
+             "complete": complete, "sosmatch": __version__, "entries": self._entries,
+             "files": self._files if self._files is not None else {}}, indent=1) + "\n")
 
     def restore_previous(self) -> None:
         """For a run refused (a user error) before it wrote anything into the directory: put back the marker as the
@@ -187,6 +199,30 @@ class OutputDir:
                 check_entry_ours(dst, self.command, self._entries[name])
             elif layouts is not None and name in layouts:
                 check_entry_ours(dst, self.command, None, layouts[name])
+
+    def check_files(self, names: Iterable[str]) -> None:
+        """Refuse (InputError naming the file) a file at one of `names` (the files the command writes at the top
+        of the directory) that the command did not write there or that was changed since (the marker's "files",
+        `output_entries.check_file_ours`): checked when the directory is taken, before anything changes, and again
+        by `publish` before its first rename."""
+        for name in names:
+            self._check_kind(name, False)
+            check_file_ours(self.path / name, self.command, self._files)
+
+    def write_file(self, name: str, data: bytes | str) -> None:
+        """Write OUT/NAME (a file of the output; text as UTF-8) through the staging area and `publish`: refused when
+        a file stands there that the command did not write, else written atomically and recorded."""
+        self.check_files([name])  # before it is staged: a refusal leaves the directory as it was
+        write_bytes_atomic(self.staged(name), data.encode("utf-8") if isinstance(data, str) else data)
+        self.publish([name])
+
+    def remove_file(self, name: str) -> None:
+        """Remove OUT/NAME, a file the command wrote there (InputError, nothing removed, when it did not write it or
+        it was changed since: `check_files`)."""
+        if (self.path / name).exists() or (self.path / name).is_symlink():
+            self.check_files([name])
+            self._remove_entry(name)
+            self._write_marker(self._complete)
 
     def _replace_entry(self, src: Path, name: str, checked: bool = False) -> None:
         """Move `src` onto OUT/NAME; an existing directory there (ours: this is our output) is swapped out
@@ -243,9 +279,13 @@ class OutputDir:
         for name in names:
             src = staging / name
             if src.exists() or src.is_symlink():
-                self._check_kind(name, src.is_dir() and not src.is_symlink())
+                staged_dir = src.is_dir() and not src.is_symlink()
+                self._check_kind(name, staged_dir)
+                if not staged_dir:
+                    check_file_ours(self.path / name, self.command, self._files)
             elif name in optional:
                 self._check_kind(name, False, "removed")
+                check_file_ours(self.path / name, self.command, self._files)
             else:  # a required output that was not staged is a bug: said before anything moved
                 raise FileNotFoundError(f"{src} was not staged")
             dst = self.path / name
@@ -282,19 +322,30 @@ class OutputDir:
             if self.previous.state == "complete":  # untouched: the previous output stands, complete as it was
                 self.restore_previous()
             raise
+        targets = [*names, *([last] if last else [])]
+        files = {name: sha256_file(staging / name) for name in targets
+                 if (staging / name).is_file() and not (staging / name).is_symlink()}
+        # the files recorded before they are renamed (the old hash and the new both: a run killed in between leaves
+        # either, and its next run must find it ours), then only the new ones: one marker write each, for them all
+        self._files = merge_entry_records(self._files or {}, files)
+        self._write_marker(self._complete)
         if last:
             self._remove_entry(last)  # absent while entries are swapped: what stands beside it is complete
-        for name in [*names, *([last] if last else [])]:
+        for name in targets:
             src = staging / name
             if name in optional and not (src.exists() or src.is_symlink()):
                 self._remove_entry(name)
                 continue
             self._replace_entry(src, name, checked=True)
+        self._files.update(files)
+        self._write_marker(self._complete)
 
     def _remove_entry(self, name: str) -> None:
         """Remove OUT/NAME, an entry of this command's output (a file; a directory of another kind is refused)."""
         self._check_kind(name, False, "removed")
         (self.path / name).unlink(missing_ok=True)
+        if self._files is not None:
+            self._files.pop(name, None)
 
     def settle(self, identity: str | VersionedIdentity, overwrite: bool = False,
                overwrite_flag: str = OVERWRITE_HINT, settings: RecordedSettings | None = None) -> None:
@@ -374,6 +425,7 @@ def open_output_dir(
     earlier: Iterable[str] = (),
     before_taking: Callable[[Path], None] | None = None,
     settings: RecordedSettings | None = None,
+    files: Iterable[str] = (),
 ) -> OutputDir:
     """Take directory `path` for one run of `command` producing the output `identity` (see the module doc).
 
@@ -389,8 +441,10 @@ def open_output_dir(
     earlier version's output whose settings behave otherwise today. `before_taking(path)`: the command's own checks
     that may refuse (InputError), run under the lock before the marker changes, so that a refused run leaves a
     previous output as it was. `settings`: this run's settings as `legacy_record` keeps them; the refusal of a
-    complete output of another identity names those its record keeps otherwise (`RecordedSettings`). Returns the
-    taken directory (a context manager that releases the lock).
+    complete output of another identity names those its record keeps otherwise (`RecordedSettings`). `files`: the
+    files the command writes at the top of `path`, as far as it knows them before its work: one standing there that
+    it did not write, or that was changed since, is refused now, nothing changed (`OutputDir.check_files`). Returns
+    the taken directory (a context manager that releases the lock).
     """
     path = Path(path)
     versions = identity if isinstance(identity, VersionedIdentity) else VersionedIdentity(identity)
@@ -415,8 +469,11 @@ def open_output_dir(
                              f"inputs or settings; use {overwrite_flag} to replace it", path)
         out = OutputDir(path, command, identity, again, fd, created, same_as, legacy_record)
         out._check_entries()  # a user's file inside e.g. sparse/ is refused now, not when the run publishes
+        out.check_files(files)  # and one at a name the run writes: before a run of minutes, not after it
         if before_taking is not None:
             before_taking(path)
+        if out._files is None:  # an older sosmatch's output: its files are ours, as they were to it (recorded_files)
+            out._files = adopted_files(path)
         clean_stale_temporaries(path)
         if (path / STAGING).is_dir():
             clean_stale_temporaries(path / STAGING, recursive=True)

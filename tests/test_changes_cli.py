@@ -10,6 +10,7 @@ import pytest
 
 from sosmatch.database.changes_io import CHANGE_COLUMNS, read_changes_csv
 from sosmatch.database.landmark_map import read_landmark_map, write_landmark_map
+from sosmatch.database.outputs import open_output_dir
 from sosmatch.plugin.errors import InputError
 from sosmatch.plugin.multisession import Sim3
 from sosmatch.tools.cli import main
@@ -561,8 +562,9 @@ def test_the_alignment_control_runs_at_the_match_s_gate_as_merge_runs_it(toy, tm
     near, _ = match_off(1.5)  # within both gates: compared at 3 m, its control at the match's 5.25 m
     run = changes.compute(a.path, b.path, near)
     assert run.control_gate_m == 5.25 and run.control.rate > 0.9 and run.result.tolerance_m == 3.0
-    changes.write_outputs(run, tmp_path, Params())
-    record = json.loads((tmp_path / "changes.json").read_text())
+    with open_output_dir(tmp_path / "out", "changes", "x") as out:
+        changes.write_outputs(run, out, Params())
+    record = json.loads((tmp_path / "out" / "changes.json").read_text())
     assert record["alignment_control"]["gate_m"] == 5.25 and record["counterpart_gate_m"] == 3.0
 
 

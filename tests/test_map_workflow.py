@@ -487,12 +487,19 @@ def test_a_failed_map_does_not_block_its_own_retry(session, tmp_path, capsys):
     assert code == 0, cap.err
 
 
-def test_database_that_is_a_directory_is_refused_a_corrupt_one_replaced(session, tmp_path, capsys):
+def test_database_that_is_a_directory_or_damaged_is_refused(session, tmp_path, capsys):
     root, _, ref, _ = session
     args = ["--images", root / "images", "--poses", root / "poses.csv", "--camera", root / "cameras.txt"]
     out = tmp_path / "s"
     shutil.copytree(ref, out)
-    (out / "database.db").write_bytes(os.urandom(4096))  # our own output, damaged: replaced by the re-run
+    damaged = os.urandom(4096)
+    # our own output, damaged: not told from a user's file put there (its sha256 is not the one recorded), so it is
+    # refused, not replaced; removed, the re-run writes it again
+    (out / "database.db").write_bytes(damaged)
+    code, cap = _cli(capsys, *args, "--out", out)
+    assert code == 2 and "database.db: was changed since `sosmatch map` wrote it" in cap.err
+    assert (out / "database.db").read_bytes() == damaged
+    (out / "database.db").unlink()
     code, cap = _cli(capsys, *args, "--out", out)
     assert code == 0, cap.err
     pycolmap.Database.open(str(out / "database.db")).close()

@@ -79,8 +79,9 @@ def test_an_output_inside_another_outputs_directory_entry_is_refused(merged, toy
 def test_a_map_refused_for_a_locked_database_leaves_the_previous_map_complete(tmp_path):
     out = tmp_path / "MB"
     with open_output_dir(out, "map", "old map") as taken:
-        sqlite3.connect(out / "database.db").close()
-        write_text_atomic(out / "run.json", "{}")
+        sqlite3.connect(taken.staged("database.db")).close()
+        write_text_atomic(taken.staged("run.json"), "{}")
+        taken.publish(["database.db"], last="run.json")  # (recorded as the map's: what the new map replaces)
         taken.finish()
     before = (out / MARKER).read_text()
     holder = sqlite3.connect(out / "database.db", isolation_level=None)  # e.g. COLMAP's GUI

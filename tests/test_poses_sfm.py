@@ -160,8 +160,13 @@ def test_outputs_do_not_depend_on_the_order_colmap_threads_finish(flight, tmp_pa
     for run in ("a", "b"):
         assert _matches_off_the_exact_rule(tmp_path / run / "database.db") == {}, run
     for path in sorted((tmp_path / "a").rglob("*")):
-        if path.is_file() and path.name != "poses.json":  # poses.json records the stages' timings
+        # poses.json records the stages' timings, and the output's marker its sha256 (beside those of the others)
+        if path.is_file() and path.name not in ("poses.json", ".sosmatch-output.json"):
             assert path.read_bytes() == (tmp_path / "b" / path.relative_to(tmp_path / "a")).read_bytes(), path.name
+    # (the marker, but for poses.json's sha256, as well)
+    a, b = (json.loads((tmp_path / run / ".sosmatch-output.json").read_text()) for run in ("a", "b"))
+    a["files"].pop("poses.json"), b["files"].pop("poses.json")
+    assert a == b
     assert first.poses.names == poses_wf.load_result(tmp_path / "b").poses.names
 
 
@@ -321,6 +326,9 @@ def test_poses_another_sosmatch_made_are_kept_with_a_word_and_remade_with_overwr
     assert report["versions"] == code_versions()
     del report["versions"]  # as poses.json of sosmatch before it recorded its maker
     record.write_text(json.dumps(report))
+    marker = json.loads((out / ".sosmatch-output.json").read_text())
+    del marker["files"]  # nor did its marker record the files (else the edit above is a change of poses.json)
+    (out / ".sosmatch-output.json").write_text(json.dumps(marker))
     with caplog.at_level(logging.WARNING):
         poses_wf.run(flight / "images", out, _params())
     said = [r.getMessage() for r in caplog.records if "kept as made by" in r.getMessage()]

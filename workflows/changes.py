@@ -42,7 +42,7 @@ from ..database.match_io import answer_gate, check_match_maps, read_match
 from ..database.match_notes import check_georeferences, imprecise_note, unverified_note
 from ..database.output_checks import check_output_dir
 from ..database.output_markers import VersionedIdentity, fingerprint, versioned_identity
-from ..database.outputs import open_output_dir
+from ..database.outputs import OutputDir, open_output_dir
 from ..database.session_images import compared_images_dirs, recorded_images_dir
 from ..database.session_io import SessionFiles, read_map_record, read_session, read_session_observations
 from ..plugin import __version__
@@ -403,30 +403,22 @@ def check_output_entries(out_dir: str | Path) -> None:
                              "choose another output directory)", path)
 
 
-def write_outputs(run: ChangesRun, out_dir: str | Path, params: Params, plot: bool = True) -> list[Path]:
-    """Write changes.csv, changes.geojson (georeferenced maps), changes.png and changes.json (last) into a directory
-    the caller has taken (`database.outputs.open_output_dir`); outputs of an earlier run that this one does not
-    produce (a geojson, a plot) are removed, so the directory never mixes two runs."""
-    out_dir = Path(out_dir)
-    check_output_entries(out_dir)  # before anything is replaced: a refusal leaves the earlier output whole
-    # the record goes first and comes back last: a run that fails half-way never leaves an earlier run's record
-    # beside its own tables (the output directory's marker says it is unfinished; a re-run completes it)
-    (out_dir / "changes.json").unlink(missing_ok=True)
-    written = [out_dir / "changes.csv"]
-    write_text_atomic(written[-1], format_changes_csv(run.result))
+def write_outputs(run: ChangesRun, out: OutputDir, params: Params, plot: bool = True) -> list[Path]:
+    """Write changes.csv, changes.geojson (georeferenced maps), changes.png and changes.json (last) into the directory
+    `out` the caller has taken (`database.outputs.open_output_dir`), through its staging area: outputs of an earlier
+    run that this one does not produce (a geojson, a plot) are removed, so the directory never mixes two runs, and
+    a file at one of their names that sosmatch did not write there is refused before anything changes (`publish`)."""
+    write_text_atomic(out.staged("changes.csv"), format_changes_csv(run.result))
     if run.epsg:
-        written.append(out_dir / "changes.geojson")
-        write_text_atomic(written[-1], json.dumps(changes_feature_collection(run.result, run.epsg),
-                                                  separators=(",", ":")) + "\n")
+        write_text_atomic(out.staged("changes.geojson"), json.dumps(changes_feature_collection(run.result, run.epsg),
+                                                                   separators=(",", ":")) + "\n")
     if plot:
-        written.append(out_dir / "changes.png")
-        write_bytes_atomic(written[-1], changes_png(run.result, png_title(run.result, run.warnings)))
-    for stale in OUTPUT_FILES:
-        if out_dir / stale not in written and stale != "changes.json":
-            (out_dir / stale).unlink(missing_ok=True)
-    written.append(out_dir / "changes.json")
-    write_text_atomic(written[-1], json.dumps(changes_record(run, params), indent=1) + "\n")
-    return written
+        write_bytes_atomic(out.staged("changes.png"), changes_png(run.result, png_title(run.result, run.warnings)))
+    write_text_atomic(out.staged("changes.json"), json.dumps(changes_record(run, params), indent=1) + "\n")
+    # the record is removed first and comes back last: a run that fails half-way never leaves an earlier run's
+    # record beside its own tables (the marker says it is unfinished; a re-run completes it)
+    out.publish(OUTPUT_FILES[:-1], last=OUTPUT_FILES[-1], optional=("changes.geojson", "changes.png"))
+    return [out.path / name for name in OUTPUT_FILES if (out.path / name).is_file()]
 
 
 def output_identity(run: ChangesRun, params: Params, plot: bool) -> VersionedIdentity:
@@ -503,14 +495,14 @@ def run(session_a: str | Path, session_b: str | Path, match_json: str | Path, ou
     check_output_dir(out_dir, "changes", legacy_record="changes.json",
                      inputs=[p for p in (session_a, session_b, match_json, *images) if p is not None],
                      identity=_identity_before(session_a, session_b, match_json, params, plot, images_a, images_b),
-                     overwrite=overwrite)
+                     overwrite=overwrite, files=OUTPUT_FILES)
     check_output_entries(out_dir)
     changes = compute(session_a, session_b, match_json, params, images_a=images_a, images_b=images_b,
                       trust_images=trust_images)
     with open_output_dir(out_dir, "changes", output_identity(changes, params, plot),
                          inputs=[session_a, session_b, match_json], overwrite=overwrite,
-                         legacy_record="changes.json") as out:
-        write_outputs(changes, out.path, params, plot)
+                         legacy_record="changes.json", files=OUTPUT_FILES) as out:
+        write_outputs(changes, out, params, plot)
         out.finish()
     log.debug("%s", changes.summary())  # the command prints it (rev44 D4: twice at INFO)
     return changes

@@ -87,6 +87,9 @@ __all__ = ["MERGE_FORMAT", "MergeResult", "Refinement", "label_problem", "merge_
 log = logging.getLogger(__name__)
 
 MERGE_FORMAT = "sosmatch merge v1"
+# the files a merge writes beside sparse/, its record last: checked when it takes the folder (a user's file there is
+# refused before the merge, not after it)
+MERGE_FILES = ("landmarks.sosmap", "landmarks.csv", MERGE_RECORD)
 
 
 @dataclass
@@ -229,7 +232,7 @@ def merge_sessions(
     warnings = [*warnings, *notes]
     with open_output_dir(out_dir, "merge", identity, inputs=[*(s.path for s in sessions), *inputs],
                          overwrite=overwrite, legacy_record=MERGE_RECORD,
-                         earlier=[identity_of(r) for r in earlier_records]) as out:
+                         earlier=[identity_of(r) for r in earlier_records], files=MERGE_FILES) as out:
         for text in [*say, *notes]:
             log.warning("%s", text)
         # the flights it holds (their maps and images: `merge_pairs.session_flights`; `flight_maps` for an older
@@ -391,7 +394,7 @@ def _merge_into(out: OutputDir, sessions: list[SessionFiles], transforms: list[S
     result.refined = bool(record.pop("refined", False))
     result.seconds = time.perf_counter() - t0
     _write_merge_record(out.staged(MERGE_RECORD), result, record)
-    out.publish(["sparse", "landmarks.sosmap", "landmarks.csv"], last=MERGE_RECORD)
+    out.publish(["sparse", *MERGE_FILES[:-1]], last=MERGE_RECORD)
     return result
 
 

@@ -16,6 +16,7 @@ settings replaces them (other ones need `overwrite`). A backend's model files co
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -28,10 +29,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..database.atomic import atomic_path, write_text_atomic
+from ..database.atomic import write_bytes_atomic, write_text_atomic
 from ..database.images import list_images, no_images_message, read_image, shared_file_name
 from ..database.output_markers import versioned_identity
-from ..database.outputs import open_output_dir
+from ..database.outputs import OutputDir, open_output_dir
 from ..database.segmentation_models import keyed_by_models, segmentation_models
 from ..plugin.errors import InputError
 from ..plugin.mask_features import MaskFeatures, describe_masks, segment_and_describe
@@ -167,8 +168,11 @@ def run(
     identity = keyed_by_models(lambda extra: versioned_identity(lambda as_dict: {
         "images": images, "overlays": write_overlays, "segmentation": as_dict(params.segmentation), **extra}), models)
     seg_backend = get_backend(params.segmentation.backend, models.params(params.segmentation))
-    with open_output_dir(out_dir, "segment", identity, inputs=inputs, overwrite=overwrite) as taken:
-        report = _segment_into(taken.path, paths, params, seg_backend, write_overlays, models.record())
+    # every file it writes, checked when the folder is taken: a user's file at one of their names is refused before
+    # the first image is segmented, not after
+    files = [*(f"{p.name}.{ext}" for p in paths for ext in ("json", "png")[:1 + write_overlays]), "summary.csv"]
+    with open_output_dir(out_dir, "segment", identity, inputs=inputs, overwrite=overwrite, files=files) as taken:
+        report = _segment_into(taken, paths, params, seg_backend, write_overlays, models.record())
         taken.finish()
     return report
 
@@ -194,7 +198,7 @@ def _stat(path: Path) -> list[int]:
     return [st.st_size, st.st_mtime_ns]
 
 
-def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend: Any,
+def _segment_into(taken: OutputDir, paths: list[Path], params: Params, seg_backend: Any,
                   write_overlays: bool, models: dict[str, Any] | None = None) -> SegmentReport:
     """`run` inside its taken output directory (`models`: the backend's model files as NAME.EXT.json records them)."""
     report = SegmentReport()
@@ -241,25 +245,29 @@ def _segment_into(out_dir: Path, paths: list[Path], params: Params, seg_backend:
             res.median_size_px = float(np.median(feats.sizes))
         # named by the whole file name, as COLMAP names an image's outputs (stereo/depth_maps/x.jpg.geometric.bin):
         # by the stem, x.jpg's and x.png's were one file holding the second image's
-        write_text_atomic(out_dir / f"{path.name}.json",
+        written = [f"{path.name}.json"]
+        write_text_atomic(taken.staged(written[0]),
                           _features_json(path.name, feats, res.width, res.height, params.segmentation.backend,
                                          models))
         if write_overlays:
             overlay = render_overlay(image, masks, feats)
-            with atomic_path(out_dir / f"{path.name}.png") as tmp:
-                ok, buf = cv2.imencode(".png", cv2.cvtColor(overlay, cv2.COLOR_RGB2BGR))
-                tmp.write_bytes(buf.tobytes())
-        _remove_stem_named_outputs(out_dir, path.name)
+            written.append(f"{path.name}.png")
+            ok, buf = cv2.imencode(".png", cv2.cvtColor(overlay, cv2.COLOR_RGB2BGR))
+            write_bytes_atomic(taken.staged(written[-1]), buf.tobytes())
+        taken.publish(written)
+        _remove_stem_named_outputs(taken, path.name)
         log.info("%s: %d masks, %d SIFT, %.2f s", path.name, res.num_masks, res.num_sift, t2 - t0)
-    write_text_atomic(out_dir / "summary.csv", _summary_csv(report))
+    taken.write_file("summary.csv", _summary_csv(report))
     return report
 
 
-def _remove_stem_named_outputs(out_dir: Path, image_name: str) -> None:
+def _remove_stem_named_outputs(taken: OutputDir, image_name: str) -> None:
     """Remove this image's outputs as an earlier sosmatch named them (`STEM.json`, `STEM.png`) once its outputs
     under the whole file name are written: a re-run replaces an image's outputs, and the older ones would stay
     beside the new (rev36). Only a `STEM.json` that segment wrote for this very image goes (its "image" field
-    names it; the folder is segment's own, taken by its marker), with the overlay beside it."""
+    names it, and the marker records it as segment's, unchanged: a user's file is left as it is), with the overlay
+    beside it."""
+    out_dir = taken.path
     stem = Path(image_name).stem
     old = out_dir / f"{stem}.json"
     if stem == image_name or not old.is_file():
@@ -270,10 +278,10 @@ def _remove_stem_named_outputs(out_dir: Path, image_name: str) -> None:
         return  # not a segment output this run can recognise: left as it is
     if made_for != image_name:
         return
-    overlay = out_dir / f"{stem}.png"  # never the new overlay, NAME.EXT.png: the stem differs from the name
-    old.unlink()
-    if overlay.is_file():
-        overlay.unlink()
+    overlay = f"{stem}.png"  # never the new overlay, NAME.EXT.png: the stem differs from the name
+    for name in (old.name, overlay):
+        with contextlib.suppress(InputError):  # not segment's (the user's, or changed since): left as it is
+            taken.remove_file(name)
 
 
 def _summary_csv(report: SegmentReport) -> str:

@@ -122,6 +122,9 @@ def _encode_png16(labels: np.ndarray) -> bytes:
 SESSION_FILES = ("images", "labels", "cameras.txt", "poses.csv", "poses_ekf.csv", "objects.csv", "frames.json",
                  "terrain.npz")
 SESSION_RECORD = "session.json"  # published last
+# the files of a session (the record last; images/ and labels/ are directory entries): a user's file at one of
+# their names is refused when the folder is taken
+SESSION_FILE_NAMES = (*(n for n in SESSION_FILES if n not in ("images", "labels")), SESSION_RECORD)
 
 
 def run(out: str | Path, config: SynthConfig, progress: bool = False, workers: int | None = None,
@@ -135,7 +138,7 @@ def run(out: str | Path, config: SynthConfig, progress: bool = False, workers: i
     config.validate()
     out = Path(out)
     with open_output_dir(out, "synth", fingerprint(config.to_dict()), overwrite=overwrite,
-                         legacy_record=SESSION_RECORD) as taken:
+                         legacy_record=SESSION_RECORD, files=SESSION_FILE_NAMES) as taken:
         taken.clear_staging()  # a killed render is redone from scratch (it is deterministic)
         summary = _render(taken, out, config, progress, workers)
         taken.finish()

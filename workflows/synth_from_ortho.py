@@ -49,6 +49,10 @@ log = logging.getLogger(__name__)
 SESSION_FORMAT = "sosmatch-synth-session"
 SESSION_VERSION = 1
 OBJECT_COLUMNS = ["id", "kind", "x", "y", "z", "radius", "height", "present"]
+# the files it publishes beside images/, its record last: a user's file at one of their names is refused when the
+# folder is taken
+ORTHO_FILES = ("cameras.txt", "poses.csv", "poses_ekf.csv", "objects.csv", "frames.json", "terrain.npz",
+               "session.json")
 
 
 def noisy_poses(poses: Poses, position_sigma_m: float, attitude_sigma_deg: float, seed: int) -> Poses:
@@ -224,7 +228,7 @@ def run(
                             "max_tilt_deg": max_tilt_deg, "seed": seed, "jpeg_quality": jpeg_quality,
                             "ekf": [ekf_position_sigma_m, ekf_attitude_sigma_deg]})
     with open_output_dir(out, "synth-from-ortho", identity, inputs=[geotiff], overwrite=overwrite,
-                         legacy_record="session.json") as taken:
+                         legacy_record="session.json", files=ORTHO_FILES) as taken:
         taken.clear_staging()
         tmp = taken.staging
         records = []
@@ -259,8 +263,7 @@ def run(
             "ekf": {"position_sigma_m": ekf_position_sigma_m, "attitude_sigma_deg": ekf_attitude_sigma_deg},
         }
         (tmp / "session.json").write_text(json.dumps(session, indent=2), encoding="utf-8")
-        taken.publish(["images", "cameras.txt", "poses.csv", "poses_ekf.csv", "objects.csv", "frames.json",
-                       "terrain.npz"], last="session.json")
+        taken.publish(["images", *ORTHO_FILES[:-1]], last=ORTHO_FILES[-1])
         taken.finish()
     along = height * altitude_m / camera.fx
     spacing = float(np.median(np.linalg.norm(np.diff(centers[:, :2], axis=0), axis=1))) if len(centers) > 1 else 0.0

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ...database.atomic import write_text_atomic
+from ...database.outputs import OutputDir
 
 log = logging.getLogger(__name__)
 
@@ -164,10 +165,15 @@ PAIR_COLUMNS = ["pair", "status", "warnings", "accepted", "in_graph", "num_assoc
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]
 
 
-def write_report(report: BatchReport) -> None:
-    """OUT/report.json, OUT/report.md, OUT/sessions.csv, OUT/pairs.csv and OUT/session_graph.png."""
-    out = report.out_dir
-    write_text_atomic(out / "report.json", json.dumps(report.to_dict(), indent=2) + "\n")
+# the files a batch writes at the top of its folder, its report.json (the record) last: a user's file at one of
+# their names is refused when the folder is taken, before the batch
+REPORT_FILES = ("report.md", "sessions.csv", "pairs.csv", "session_graph.png", "report.json")
+
+
+def write_report(report: BatchReport, out: OutputDir) -> None:
+    """OUT/report.json, OUT/report.md, OUT/sessions.csv, OUT/pairs.csv and OUT/session_graph.png, into the batch's
+    taken folder `out` (through its staging area and `publish`: each recorded as the batch's)."""
+    write_text_atomic(out.staged("report.json"), json.dumps(report.to_dict(), indent=2) + "\n")
     # each row's number of warnings (the texts: report.md's Warnings, report.json's records)
     pair_rows = [{**p, "warnings": len(pair_warnings(p))} for p in _pair_rows(report)]
     session_rows = [{**s, "warnings": len(session_warnings(s))} for s in report.sessions]
@@ -189,15 +195,16 @@ def write_report(report: BatchReport) -> None:
     if report.stale_outputs:
         md += ["## Outputs of no flight or group of this run (left in place, not read)", "",
                *[f"- {name}" for name in report.stale_outputs], ""]
-    write_text_atomic(out / "report.md", "\n".join(md))
+    write_text_atomic(out.staged("report.md"), "\n".join(md))
     tables = (("sessions.csv", session_rows, SESSION_COLUMNS), ("pairs.csv", pair_rows, PAIR_COLUMNS))
     for name, rows, cols in tables:
         buf = io.StringIO()
         w = csv.DictWriter(buf, cols, extrasaction="ignore", lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
-        write_text_atomic(out / name, buf.getvalue())
-    plot_session_graph(report, out / "session_graph.png")
+        write_text_atomic(out.staged(name), buf.getvalue())
+    plot_session_graph(report, out.staged("session_graph.png"))
+    out.publish(REPORT_FILES[:-1], last=REPORT_FILES[-1])
 
 
 def session_outline(session_dir: str | Path) -> tuple[np.ndarray, Any] | None:

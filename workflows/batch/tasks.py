@@ -212,8 +212,9 @@ def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, 
                           verified=verified, images_a=images_a, images_b=images_b, answer_gate_m=answer_gate_m,
                           images_advice=BATCH_IMAGES_ADVICE)
     with open_output_dir(out_dir, "changes", changes.output_identity(run, params, True),
-                         inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json") as out:
-        changes.write_outputs(run, out.path, params)
+                         inputs=[session_a, session_b], overwrite=overwrite, legacy_record="changes.json",
+                         files=changes.OUTPUT_FILES) as out:
+        changes.write_outputs(run, out, params)
         out.finish()
     return {"changes": str(Path(out_dir) / "changes.json"), **pair_change_counts(run.result.counts()),
             "changes_summary": run.summary()}

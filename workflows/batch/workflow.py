@@ -27,7 +27,7 @@ from ..merge import label_problem
 from .discovery import PAIR_SEP, discover_flights, flight_digest, flight_signature, images_dir, one_session_per_flight
 from .graph import _after_pair_fingerprints, _graph_and_merge, _stale_outputs, of_sessions, pair_made_from
 from .pairs import flight_times, pairs_chosen_by
-from .report import BatchReport, write_report
+from .report import REPORT_FILES, BatchReport, write_report
 from .state import StateStore, fingerprint, run_stage
 from .tasks import changes_task, map_task, pair_task
 
@@ -192,10 +192,10 @@ def run(
         **extra}, fingerprint), models)
     try:
         with open_output_dir(out_dir, "batch", identity, inputs=[f.path for f in flights],
-                             overwrite=options.overwrite, legacy_record="report.json") as taken:
+                             overwrite=options.overwrite, legacy_record="report.json", files=REPORT_FILES) as taken:
             report = _run_batch(flights, out_dir, params, pdict, executor, options, pair_fn, models)
             report.seconds = time.perf_counter() - t0
-            write_report(report)
+            write_report(report, taken)
             taken.finish()
     finally:
         if own_executor:

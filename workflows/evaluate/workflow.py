@@ -15,7 +15,7 @@ import numpy as np
 from ...database.atomic import write_text_atomic
 from ...database.json_text import json_default
 from ...database.output_markers import VersionedIdentity, content_fingerprint, versioned_identity
-from ...database.outputs import open_output_dir
+from ...database.outputs import OutputDir, open_output_dir
 from ...database.session_images import check_map_of_images
 from ...plugin.errors import InputError
 from ...plugin.evaluation.claims import separation_ratio
@@ -40,6 +40,9 @@ SEARCH_TIME_NOTE = ("SOS-Match's search time: its search and the verification on
 OBLIQUE_NOTE_DEG = 15.0
 # timing repeats of evaluate's own search when none are given (`run(repeats=None)`, `evaluate` without --repeats)
 DEFAULT_REPEATS = 3
+# the files an evaluation writes, its record last: a user's file at one of their names is refused when the folder
+# is taken, before the evaluation
+EVALUATION_FILES = ("pr.png", "overlay.png", "evaluation.md", "evaluation.json")
 
 
 def _jsonable(res: dict) -> dict:
@@ -113,7 +116,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
     identity = identity_of([None if p is None else content_fingerprint(p) for p in inputs]).accepting(
         identity_of([None if p is None else str(Path(p).resolve()) for p in inputs]))
     with open_output_dir(out_dir, "evaluate", identity, inputs=inputs, overwrite=overwrite,
-                         legacy_record="evaluation.json") as taken:
+                         legacy_record="evaluation.json", files=EVALUATION_FILES) as taken:
         try:
             evaluation, write = _evaluate(params, session_a, session_b, out_dir, map_a, map_b, match_dir, methods,
                                           case, dem, ground_height, sweep_floor, repeats, max_observers,
@@ -123,7 +126,7 @@ def run(params: Params, session_a: str | Path, session_b: str | Path, out_dir: s
             # a match file of other maps): an evaluation this one was to --overwrite stands, complete, as it was
             taken.restore_previous()
             raise
-        write()
+        write(taken)
         taken.finish()
     return evaluation
 
@@ -132,7 +135,7 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
               map_b: str | Path | None, match_dir: str | Path | None, methods: Sequence[str], case: str,
               dem: str | Path | None, ground_height: float, sweep_floor: int | None, repeats: int,
               max_observers: int | None, baseline_threads: int,
-              overlap_test: bool = True, transform_chosen: bool = False) -> tuple[dict, Callable[[], None]]:
+              overlap_test: bool = True, transform_chosen: bool = False) -> tuple[dict, Callable[[OutputDir], None]]:
     """`run` inside its taken output directory: the evaluation, and what writes it (evaluation.json / .md, pr.png,
     overlay.png). Nothing is written before the call: a refusal (InputError) leaves the directory untouched."""
     from ...tools.baselines.base import BaselineConfig
@@ -202,11 +205,13 @@ def _evaluate(params: Params, session_a: Path, session_b: Path, out_dir: Path, m
         f"IoU > {TP_IOU}, {evaluation['protocol']['negative_pairs']} with IoU < {FP_IOU}.\n\n"
         "![precision-recall](pr.png)\n\n![map overlay](overlay.png)\n")
 
-    def write() -> None:
-        plot_pr({m: r["curve"] for m, r in results.items()}, out_dir / "pr.png", case)
-        plot_overlay(gt_a, gt_b, results.get("sosmatch"), out_dir / "overlay.png", case)
-        write_text_atomic(out_dir / "evaluation.md", md)
-        write_text_atomic(out_dir / "evaluation.json", json.dumps(evaluation, indent=1, default=json_default) + "\n")
+    def write(out: OutputDir) -> None:
+        plot_pr({m: r["curve"] for m, r in results.items()}, out.staged("pr.png"), case)
+        plot_overlay(gt_a, gt_b, results.get("sosmatch"), out.staged("overlay.png"), case)
+        write_text_atomic(out.staged("evaluation.md"), md)
+        write_text_atomic(out.staged("evaluation.json"),
+                          json.dumps(evaluation, indent=1, default=json_default) + "\n")
+        out.publish(EVALUATION_FILES[:-1], last=EVALUATION_FILES[-1])  # the record last: its presence = done
 
     return evaluation, write
 

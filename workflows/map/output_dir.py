@@ -22,6 +22,8 @@ RECORD = "run.json"  # written last: the run's record (parameters, fingerprints,
 PARTIAL = ".partial"
 POSE_CHECK = "pose_check.json"  # the poses against the images (`workflows.pose_check`); absent when disabled
 OUTPUTS = ("database.db", "sparse", "landmarks.sosmap", "landmarks.ply", "landmarks.csv", "quality.png", POSE_CHECK)
+# the files among them and the record: a user's file at one of their names is refused when the folder is taken
+FILES = (*(name for name in OUTPUTS if name != "sparse"), RECORD)
 
 
 def take_output_dir(out_dir: str | Path, identity: str | VersionedIdentity, inputs: Iterable[Path],
@@ -30,7 +32,7 @@ def take_output_dir(out_dir: str | Path, identity: str | VersionedIdentity, inpu
     another process (e.g. COLMAP's GUI) has locked, before the directory is taken: a refused run leaves a previous
     map complete, as it was."""
     return open_output_dir(out_dir, COMMAND, identity, inputs=inputs, overwrite=overwrite, legacy_record=RECORD,
-                           before_taking=lambda path: check_database_writable(path / "database.db"))
+                           before_taking=lambda path: check_database_writable(path / "database.db"), files=FILES)
 
 
 def map_identity(inputs: Any, params: Params, text_model: bool, masks: str,

@@ -37,6 +37,9 @@ from .transform_choice import Search, answer_plan, plan_search
 
 # the package's name, as before the split: the command's warnings still read "sosmatch.workflows.match: ..."
 log = logging.getLogger(__package__)
+# the files a match writes, match.json (its presence = done) last: a user's file at one of their names is refused
+# when the folder is taken, before the search
+MATCH_FILES = ("associations.csv", "match.png", "match.json")
 
 
 def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, workers: int | None = None,
@@ -127,7 +130,7 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
     with open_output_dir(out_dir, "match", identity_of(plan.first), inputs=[a, b], overwrite=overwrite,
                          legacy_record="match.json",
                          earlier=() if fallback is None else (fallback.today, *fallback.same_as),
-                         settings=settings_of(plan.first)) as out:
+                         settings=settings_of(plan.first), files=MATCH_FILES) as out:
         common = la.epsg == lb.epsg != 0
         if params.association.position_prior_m > 0 and not common:
             warn(f"position prior ignored: the maps are not georeferenced in one EPSG (A: {la.epsg}, B: {lb.epsg})")
@@ -175,11 +178,12 @@ def run(params: Params, a: str | Path, b: str | Path, out_dir: str | Path, worke
         doc["cpu_seconds_total"] = result.cpu_seconds
         doc["warnings"] = said
         parse_match(doc, out_dir / "match.json")  # the reader's validation: never write what it would refuse
-        write_text_atomic(out_dir / "associations.csv", associations_csv(result))
+        write_text_atomic(out.staged("associations.csv"), associations_csv(result))
         if plot:
             write_bytes_atomic(out.staged("match.png"), alignment_png(result))
-        # not plotted: a previous run's picture (of other maps, perhaps) is removed, not left beside this match.json
-        out.publish(["match.png"], optional=("match.png",))
-        write_text_atomic(out_dir / "match.json", json.dumps(doc, indent=1) + "\n")  # last: its presence = done
+        write_text_atomic(out.staged("match.json"), json.dumps(doc, indent=1) + "\n")
+        # not plotted: a previous run's picture (of other maps, perhaps) is removed, not left beside this match.json;
+        # match.json last: its presence = done
+        out.publish(MATCH_FILES[:-1], last=MATCH_FILES[-1], optional=("match.png",))
         out.finish()
     return result

@@ -43,7 +43,7 @@ from .checks import (
     refuse_frozen_gps,
 )
 from .focal import exif_focal_priors, weigh_focal_lengths
-from .result import OUTPUTS, RECORD, PosesResult, _listing, _refuse_cameras, load_result, map_inputs
+from .result import FILES, OUTPUTS, RECORD, PosesResult, _listing, _refuse_cameras, load_result, map_inputs
 
 log = logging.getLogger(__name__)
 MIN_IMAGES = 3  # the fewest images an incremental reconstruction (two-view start + one more) can pose
@@ -114,7 +114,8 @@ def run(
     sfm.refuse_pair_list_names(list_images(image_dir))  # before anything is written
     versions = versions_of(image_dir, params, telemetry, **options)
     identity = versions.today
-    with open_output_dir(out, "poses", versions, inputs=[image_dir, telemetry], overwrite=overwrite) as taken:
+    with open_output_dir(out, "poses", versions, inputs=[image_dir, telemetry], overwrite=overwrite,
+                         files=FILES) as taken:
         if taken.was_complete and (taken.path / RECORD).is_file():
             # the same inputs and settings: the outputs stand, also those of another sosmatch (the identity keys
             # the settings, not the code), said once; --overwrite computes them again with this one

@@ -19,7 +19,7 @@ from ...database.poses import format_poses_csv
 from ...plugin.geometry import Camera, Poses
 from ..image_priors import list_images
 from .job import _image_identity
-from .result import RECORD, PosesResult, load_result
+from .result import FILES, RECORD, PosesResult, load_result
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +73,8 @@ def run_opensfm(project: str | Path, out: str | Path, images: str | Path | None 
     path = find_reconstruction(project)
     identity = fingerprint({"opensfm": [str(path.resolve()), *_image_identity([path])[0][1:]],
                             "images": _image_identity(list_images(images)) if images else None})
-    with open_output_dir(out, "poses", identity, inputs=[path, images], overwrite=overwrite) as taken:
+    with open_output_dir(out, "poses", identity, inputs=[path, images], overwrite=overwrite,
+                         files=FILES) as taken:
         poses, cameras, cam_of, epsg, info = opensfm_poses(path, images)
         import pycolmap
 

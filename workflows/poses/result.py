@@ -20,6 +20,8 @@ log = logging.getLogger(__name__)
 RECORD = "poses.json"
 
 OUTPUTS = ("poses.csv", "cameras.txt", "sparse", "database.db")
+# the files among them and the record: a user's file at one of their names is refused when the folder is taken
+FILES = (*(name for name in OUTPUTS if name != "sparse"), RECORD)
 
 
 @dataclass
