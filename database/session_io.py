@@ -293,6 +293,21 @@ def map_min_observations(map_dir: str | Path, record: MapRecord | None = None) -
     return value if isinstance(value, int) and not isinstance(value, bool) and value >= 1 else None
 
 
+def check_not_batch_output(path: str | Path) -> None:
+    """InputError when `path` is the output folder of `sosmatch batch` (its marker), which holds sessions and
+    merged models but is none: naming what in it is one (nu60 D3: export said its landmarks.sosmap was not found)."""
+    from .output_markers import output_command
+
+    path = Path(path)
+    if output_command(path) != "batch":
+        return
+    inside = [f"{path / kind / p.name}" for kind in ("merged", "sessions") if (path / kind).is_dir()
+              for p in sorted((path / kind).iterdir()) if p.is_dir()]
+    shown = ", ".join(inside[:4]) + (f" (and {len(inside) - 4} more)" if len(inside) > 4 else "")
+    raise InputError("is the output folder of `sosmatch batch`, not a session: give one of its merged models "
+                     f"(merged/REFERENCE) or mapped sessions (sessions/NAME){': ' + shown if shown else ''}", path)
+
+
 def check_session_usable(path: str | Path, record: MapRecord | None = None) -> None:
     """InputError when `sosmatch map` refused the session directory `path` (run.json's verdict): its map is
     implausible or empty and no later stage may use it. Directories without a verdict (merged models, older
@@ -301,6 +316,7 @@ def check_session_usable(path: str | Path, record: MapRecord | None = None) -> N
     map beside its unfinished successor). `record`: its run.json when read already (`map_record_of`)."""
     from .output_markers import check_finished
 
+    check_not_batch_output(path)
     check_finished(path)
     record = map_record_of(path) if record is None else record
     if record.error is not None:  # an unreadable record decides nothing here; the stage that needs it says so

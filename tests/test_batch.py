@@ -1,6 +1,7 @@
 """Batch: discovery, map/match/merge stages over several flights, failures reported per flight, resume,
 the session graph (groups, spanning-tree transforms) and identical results on a Dask LocalCluster."""
 
+import csv
 import io
 import json
 import logging
@@ -152,9 +153,17 @@ def test_batch_stages_failures_and_groups(flights, local_run):
     n_images = sum(pycolmap.Reconstruction(str(root / n / "sparse")).num_images() for n in "ABC")
     assert rec.num_images() == big["images"] == n_images and big["fused"] > 20
     # change detection of every pair in the graph: the toy world did not change, so nothing is gone or new
+    # nu60 D2: pairs.csv's `kept` counted A's landmarks where `unseen` added A's and B's; now every count of
+    # `sosmatch changes` (changes.json `counts`), each of one map, named as there
+    rows = {r["pair"]: r for r in csv.DictReader((out / "pairs.csv").open())}
+    assert "kept" not in rows["A__B"] and "unseen" not in rows["A__B"]
     for key in ("A__B", "B__C"):
         assert (out / "pairs" / key / "changes" / "changes.csv").is_file()
-        assert done[key]["kept"] > 0 and done[key]["gone"] == done[key]["new"] == 0
+        counts = json.loads((out / "pairs" / key / "changes" / "changes.json").read_text())["counts"]
+        assert counts["kept_a"] > 0 and counts["kept_b"] > 0 and counts["gone"] == counts["new"] == 0
+        assert {k: done[key][k] for k in counts} == counts
+        columns = ("gone", "new", "kept_a", "kept_b", "unseen_a", "unseen_b", "gone_unmapped", "new_unmapped")
+        assert {k: int(rows[key][k]) for k in columns} == {k: counts[k] for k in columns}
     assert not (out / "pairs" / "A__D" / "changes").exists()
     # what change detection warned of (the toy sessions record no images) is the pair's and the report's
     for key in ("A__B", "B__C"):
@@ -591,7 +600,7 @@ def test_outputs_of_a_removed_flight_are_named_and_skipped_changes_are_not_zero(
     out = tmp_path / "out"
     options = batch.BatchOptions(progress=False)
     first = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)
-    assert first.stale_outputs == [] and "in 2 pair(s)" in first.changes_line()
+    assert first.stale_outputs == [] and first.changes_line().startswith("changes summed over 2 pair(s): ")
     assert {p["changes_status"] for p in first.pairs if p.get("in_graph")} == {"done"}
     shutil.rmtree(tmp_path / "fl" / "C")
     again = batch.run(tmp_path / "fl", out, executor=LocalExecutor(0), pair_fn=oracle_pair_task, options=options)

@@ -101,3 +101,29 @@ def test_a_batch_whose_worker_dies_reports_the_pair_failed_and_resumes_the_other
     resumed = {p["pair"]: bool(p.get("resumed")) for p in again.pairs}
     assert resumed == {"A__B": True, "A__C": False, "B__C": True} and again.ok
     assert all(s.get("resumed") for s in again.sessions)
+
+
+def test_a_pairs_counts_are_read_from_its_changes_record_and_an_earlier_ones_are_not_summed(tmp_path):
+    """nu60 D1/D2: a pair's counts come from its changes.json (`workflow._changes_record`), also of a comparison
+    a resumed batch finds finished whose state an earlier version wrote (then `gone` summed landmarks and objects
+    never mapped); a record without every count is said and left out of the sums, not read as zeros."""
+    from sosmatch.database.changes_io import CHANGES_FORMAT
+    from sosmatch.plugin.changes import COUNT_KEYS
+    from sosmatch.workflows.batch.report import BatchReport
+    from sosmatch.workflows.batch.workflow import _changes_record
+
+    counts = {k: i + 1 for i, k in enumerate(COUNT_KEYS)}
+    pairs = []
+    for key, held in (("A__B", counts), ("A__C", {k: v for k, v in counts.items() if k != "flat_a"})):
+        path = tmp_path / key / "changes.json"
+        path.parent.mkdir()
+        path.write_text(json.dumps({"format": CHANGES_FORMAT, "counts": held, "warnings": []}))
+        # the state of an earlier version: `gone` of landmarks and objects never mapped, `kept` of A alone
+        rec = {"pair": key, "changes_status": "done", "changes": str(path), "gone": 99, "kept": 99}
+        _changes_record(key, rec)
+        pairs.append(rec)
+    assert {k: pairs[0][k] for k in COUNT_KEYS} == counts and not pairs[0].get("changes_warnings")
+    assert "gone" not in pairs[1] and "holds no counts of" in pairs[1]["changes_warnings"][0]
+    line = BatchReport(tmp_path, pairs=pairs).changes_line()
+    assert line.startswith(f"changes summed over 1 pair(s): {counts['gone']} gone,")
+    assert line.endswith("; 1 pair(s) without counts")

@@ -432,22 +432,29 @@ def test_an_added_object_that_was_never_mapped_is_found_from_its_track():
     assert len(mapped.unmapped_b) == 0 and mapped.b.label[0] == NEW
 
 
-def test_batch_counts_objects_never_mapped_as_objects_not_landmarks():
-    """rev44 D8: batch's pair row adds the claims of objects never mapped to `gone` / `new`, and its report called
-    them "landmarks gone, new". A pair whose one change is a bush B never mapped: no landmark is new, one object
-    is; the row and the report say objects."""
+def test_batch_counts_and_words_are_those_of_sosmatch_changes():
+    """rev44 D8: batch's pair row added the claims of objects never mapped to `gone` / `new` and its report called
+    them "landmarks gone, new"; nu60 D1: it then called the sum "objects gone", where one tree is often two
+    landmarks and again in another pair. The batch's line is now `sosmatch changes`'s line of the counts summed
+    over its pairs: landmarks and objects never mapped apart, each as what it is."""
     from pathlib import Path
 
+    from sosmatch.plugin.changes import COUNT_KEYS, counts_summary
     from sosmatch.workflows.batch.report import BatchReport
-    from sosmatch.workflows.batch.tasks import pair_change_counts
 
     a, b, _ = _unmapped_pair(mapped_in_b=False)
     res = detect_changes(a, b, yaw_transform(0.0, (0.0, 0.0, 0.0)), ChangeParams(), 2.0)
-    assert res.counts()["new"] == 0 and res.counts()["new_unmapped"] == 1
-    row = pair_change_counts(res.counts())
-    assert row["new"] == 1 and row["gone"] == 0 and row["kept"] == res.a.count(KEPT)
-    report = BatchReport(Path("out"), pairs=[{"changes_status": "done", **row}])
-    assert report.changes_line() == "0 objects gone, 1 new in 1 pair(s)"
+    c = res.counts()
+    assert c["new"] == 0 and c["new_unmapped"] == 1 and set(c) == set(COUNT_KEYS)
+    one = BatchReport(Path("out"), pairs=[{"changes_status": "done", **c}])
+    # the one-pair line is the command's, without the area seen by both
+    assert one.changes_line() == f"changes summed over 1 pair(s): {res.summary().rsplit('; ', 1)[0]}"
+    assert "0 gone, 1 new of" in one.changes_line() and "objects gone" not in one.changes_line()
+    other = {k: 2 * v + 1 for k, v in c.items()}
+    two = BatchReport(Path("out"), pairs=[{"changes_status": "done", **c}, {"changes_status": "done", **other},
+                                          {"changes_status": "failed"}])
+    assert two.changes_line() == (f"changes summed over 2 pair(s): {counts_summary({k: 3 * c[k] + 1 for k in c})}; "
+                                  "change detection failed on 1 pair(s)")
 
 
 def test_a_track_is_an_object_only_where_its_own_segments_show_it_and_its_place_is_fixed():

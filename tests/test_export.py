@@ -200,3 +200,24 @@ def test_the_crs_area_check_and_the_per_point_test_agree():
     check_within_crs_area(32614, xy[:1])
     with pytest.raises(InputError, match="a local frame given a CRS"):
         check_within_crs_area(32614, xy[1:])
+
+
+def test_a_batch_output_folder_is_named_as_one_with_what_in_it_to_give(tmp_path, cli_error):
+    """nu60 D3: `export B1 --csv` of a batch's output folder said "B1/landmarks.sosmap: landmark map not found".
+    It is no session; the error says so and names its merged models and sessions, which export as before."""
+    from sosmatch.database.outputs import open_output_dir
+    from sosmatch.database.session_io import read_session
+
+    batch = tmp_path / "B1"
+    with open_output_dir(batch, "batch", "identity") as out:
+        for name in ("merged/a1", "sessions/a1", "sessions/a2"):
+            (batch / name).mkdir(parents=True)
+            write_landmark_map(batch / name / "landmarks.sosmap", _map())
+        out.finish()
+    err = cli_error("export", "--csv", batch, "--out", tmp_path / "x.csv")
+    assert f"{batch}: is the output folder of `sosmatch batch`, not a session" in err
+    assert f"{batch / 'merged' / 'a1'}, {batch / 'sessions' / 'a1'}, {batch / 'sessions' / 'a2'}" in err
+    assert not (tmp_path / "x.csv").exists()
+    with pytest.raises(InputError, match="output folder of `sosmatch batch`"):  # match, merge, changes read so
+        read_session(batch)
+    assert main(["export", "--csv", str(batch / "merged" / "a1"), "--out", str(tmp_path / "m.csv")]) == 0

@@ -116,14 +116,26 @@ class ChangeResult:
                 "new_unmapped": self.tracks_b.count(NEW) if self.tracks_b is not None else 0}
 
     def summary(self) -> str:
-        """One line: counts per class and the common area."""
-        c = self.counts()
-        area_ha = float(self.common_area.area) / 1e4
-        flat = (f" ({c['flat_a']} + {c['flat_b']} of them flat: a change of looks, no object standing there)"
-                if c["flat_a"] + c["flat_b"] else "")
-        return (f"{c['gone']} gone, {c['new']} new, {c['kept_a']} + {c['kept_b']} kept, {c['unseen_a']} + "
-                f"{c['unseen_b']} unseen landmarks (A + B){flat}; {c['gone_unmapped']} gone, {c['new_unmapped']} new "
-                f"of {c['unmapped_a']} + {c['unmapped_b']} objects never mapped; {area_ha:.1f} ha seen by both")
+        """One line: counts per class and the common area (`counts_summary`)."""
+        return counts_summary(self.counts(), float(self.common_area.area) / 1e4)
+
+
+# the keys of `ChangeResult.counts()`, each a count that adds up over pairs (batch sums them: `counts_summary`)
+COUNT_KEYS = ("kept_a", "kept_b", "gone", "new", "unseen_a", "unseen_b", "flat_a", "flat_b", "unmapped_a",
+              "unmapped_b", "gone_unmapped", "new_unmapped")
+
+
+def counts_summary(c: dict[str, int], area_ha: float | None = None) -> str:
+    """The one line `sosmatch changes` prints of `ChangeResult.counts()` `c`, and batch of their sums over its pairs
+    (nu60 D1: batch added landmarks and objects never mapped into "objects gone", where one tree is often two
+    landmarks): landmarks and objects never mapped counted apart, as what they are. `area_ha`: the ground seen by
+    both (None: not said; a sum over pairs of overlapping ground is no area)."""
+    flat = (f" ({c['flat_a']} + {c['flat_b']} of them flat: a change of looks, no object standing there)"
+            if c["flat_a"] + c["flat_b"] else "")
+    return (f"{c['gone']} gone, {c['new']} new, {c['kept_a']} + {c['kept_b']} kept, {c['unseen_a']} + "
+            f"{c['unseen_b']} unseen landmarks (A + B){flat}; {c['gone_unmapped']} gone, {c['new_unmapped']} new "
+            f"of {c['unmapped_a']} + {c['unmapped_b']} objects never mapped"
+            + ("" if area_ha is None else f"; {area_ha:.1f} ha seen by both"))
 
 
 

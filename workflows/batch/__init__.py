@@ -33,8 +33,10 @@ processes, or a Dask cluster):
    -> OUT/merged/REFERENCE/;
 5. changes (BatchOptions.changes, on by default): every accepted pair in the graph is compared object by object
    with its alignment (`sosmatch.workflows.changes`) -> OUT/pairs/A__B/changes/ (changes.csv, .geojson when
-   georeferenced, .png, .json); the counts of objects gone and new (landmarks and objects never mapped) and of
-   kept and unseen landmarks go into the pair's row (`tasks.pair_change_counts`);
+   georeferenced, .png, .json); its counts (changes.json `counts`, `ChangeResult.counts()`: landmarks gone, new,
+   kept and unseen of A and of B, objects never mapped gone and new) go into the pair's row
+   (`workflow._changes_record`), their sums into the one-line summary in `sosmatch changes`'s words
+   (`plugin.changes.counts_summary`);
 6. report: OUT/report.json, OUT/report.md (a table per session and per pair), OUT/session_graph.png.
 
 Resume: every finished task writes OUT/state/STAGE/KEY.json atomically as it finishes (`state.run_stage`),

@@ -76,13 +76,20 @@ class BatchReport:
     def changes_line(self) -> str:
         """What the pairs' change detection found, for a one-line summary: the counts of the pairs it ran on,
         and which it did not (a pair without changes is no pair where nothing changed)."""
+        from ...plugin.changes import COUNT_KEYS, counts_summary
+
         ran = [p for p in self.pairs if p.get("changes_status") == "done"]
         failed = sum(p.get("changes_status") == "failed" for p in self.pairs)
         if not ran and not failed:
             return "no changes detected (off, or no accepted pair)"
-        gone, new = (sum(int(p.get(k) or 0) for p in ran) for k in ("gone", "new"))
-        line = f"{gone} objects gone, {new} new in {len(ran)} pair(s)"  # landmarks and objects never mapped
-        return line + (f", change detection failed on {failed}" if failed else "")
+        # `sosmatch changes`'s count and words (nu60 D1: "15 objects gone" added landmarks, often two of one tree,
+        # and objects never mapped), summed over the pairs whose record holds them (`workflow._changes_record`)
+        counted = [p for p in ran if all(k in p for k in COUNT_KEYS)]
+        total = {k: sum(int(p[k]) for p in counted) for k in COUNT_KEYS}
+        said = [f"summed over {len(counted)} pair(s): {counts_summary(total)}"] if counted else []
+        said += [f"{len(ran) - len(counted)} pair(s) without counts"] if len(counted) < len(ran) else []
+        said += [f"change detection failed on {failed} pair(s)"] if failed else []
+        return "changes " + "; ".join(said)
 
 
 def session_warnings(session: dict[str, Any]) -> list[str]:
@@ -160,7 +167,8 @@ def _pair_rows(report: BatchReport) -> list[dict[str, Any]]:
 
 SESSION_COLUMNS = ["name", "kind", "status", "warnings", "images", "points3D", "landmarks", "seconds", "error"]
 PAIR_COLUMNS = ["pair", "status", "warnings", "accepted", "in_graph", "num_associations", "refused_support", "refused",
-                "yaw_deg", "moved_median_m", "moved_max_m", "scale", "changes_status", "gone", "new", "kept", "unseen",
+                "yaw_deg", "moved_median_m", "moved_max_m", "scale", "changes_status", "gone", "new",
+                "kept_a", "kept_b", "unseen_a", "unseen_b", "gone_unmapped", "new_unmapped",
                 "seconds", "error"]
 GROUP_COLUMNS = ["reference", "members", "status", "images", "points3D", "landmarks", "fused", "merged", "error"]
 
@@ -186,8 +194,9 @@ def write_report(report: BatchReport, out: OutputDir) -> None:
         *(["## Warnings", "", *[f"- {w}" for w in report.warnings], ""] if report.warnings else []),
         "## Sessions", "", _table(session_rows, SESSION_COLUMNS), "",
         "## Pairs", "", "(transform a_from_b: yaw about z, how far it moves B's landmarks (median, max m), scale; "
-        "objects gone from A and new in B (landmarks and objects never mapped), landmarks kept (of A) and unseen by "
-        "the other session: pairs/A__B/changes/)", "",
+        "the counts of `sosmatch changes` (pairs/A__B/changes/changes.json `counts`): landmarks gone from A and new "
+        "in B, landmarks of A and of B kept and unseen by the other session, objects never mapped gone from A and new "
+        "in B)", "",
         _table(pair_rows, PAIR_COLUMNS), "",
         "## Groups (merged models)", "", _table(groups, GROUP_COLUMNS), "",
         "![session graph](session_graph.png)", "",
@@ -275,8 +284,8 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
     """Two panels, readable however much the flights overlap. Left, the geography: every session's keyframe
     ground footprints (outline, light fill) and flight path in one frame (`_placement`), one colour per session,
     named in the legend. Right, the graph: sessions on a circle (names outside it), accepted pairs solid green
-    labelled with |S| and the objects gone / new, pairs left out of the graph (`left_out`) orange dash-dot, rejected
-    dashed grey, failed dotted red; a node's outline colour is its merged group."""
+    labelled with |S| and the landmarks gone / new (objects never mapped), pairs left out of the graph (`left_out`)
+    orange dash-dot, rejected dashed grey, failed dotted red; a node's outline colour is its merged group."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -330,8 +339,9 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
         elif p["status"] == "done" and p.get("accepted"):
             graph.plot([x0, x1], [y0, y1], "-", color="tab:green", lw=2, zorder=1)
             text = f"|S| {p.get('num_associations', '')}"
-            if p.get("gone") is not None:
-                text += f"\n-{p['gone']} +{p['new']}"
+            if p.get("gone") is not None:  # landmarks, then objects never mapped (nu60 D1: summed as "objects")
+                text += f"\n-{p['gone']} +{p['new']}" + (f" (-{p['gone_unmapped']} +{p['new_unmapped']})"
+                                                          if p.get("gone_unmapped") or p.get("new_unmapped") else "")
             labels.append((text, np.array([x0, y0]), np.array([x1, y1])))
         elif p["status"] == "done":
             graph.plot([x0, x1], [y0, y1], "--", color="0.7", lw=1, zorder=0)
@@ -343,8 +353,9 @@ def plot_session_graph(report: BatchReport, path: Path) -> None:
         edge = "tab:red" if s["status"] != "done" else group_colours(group_of.get(s["name"], 0) % 8)
         graph.scatter([x], [y], s=260, color=colour[s["name"]], zorder=2, edgecolors=[edge], linewidths=2.5)
         graph.annotate(s["name"], (1.22 * x, 1.22 * y), fontsize=9, ha="center", va="center")
-    graph.set_title("session graph: accepted (|S|, objects gone / new), left out (orange),\n"
-                    "rejected (dashed), failed (dotted red); node outline = merged group", fontsize=8)
+    graph.set_title("session graph: accepted (|S|, landmarks gone / new (objects never mapped)),\n"
+                    "left out (orange), rejected (dashed), failed (dotted red); node outline = merged group",
+                    fontsize=8)
     graph.set_xlim(-1.5, 1.5)
     graph.set_ylim(-1.5, 1.5)
     graph.set_aspect("equal")

@@ -197,7 +197,7 @@ def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, 
                  images_b: str | None = None, answer_gate_m: float | None = None,
                  match_json: str | None = None) -> dict[str, Any]:
     """Change detection of one accepted pair with its alignment a_from_b into out_dir
-    (`sosmatch.workflows.changes`); returns the counts for the report. `overwrite`: replace a complete changes
+    (`sosmatch.workflows.changes`); returns its record and summary. `overwrite`: replace a complete changes
     output of other inputs there (BatchOptions.overwrite); `verified`: the match's answer is its verification's
     (`changes.compute` then trusts it unless its counterparts are at chance level). `images_a`, `images_b`: where
     the flights' images are now (a flights folder moved after mapping; None: where the session's run.json
@@ -216,13 +216,6 @@ def changes_task(session_a: str, session_b: str, out_dir: str, transform: dict, 
                          files=changes.OUTPUT_FILES) as out:
         changes.write_outputs(run, out, params)
         out.finish()
-    return {"changes": str(Path(out_dir) / "changes.json"), **pair_change_counts(run.result.counts()),
-            "changes_summary": run.summary()}
-
-
-def pair_change_counts(counts: dict[str, int]) -> dict[str, int]:
-    """A pair's row of change counts from `ChangeResult.counts()`: `gone` and `new` are the objects claimed gone from
-    A and new in B, landmarks and objects never mapped alike (every claim changes.csv lists); `kept` A's kept
-    landmarks, `unseen` both maps' unseen landmarks (rev44 D8: the report called all four "landmarks")."""
-    return {"gone": counts["gone"] + counts["gone_unmapped"], "new": counts["new"] + counts["new_unmapped"],
-            "kept": counts["kept_a"], "unseen": counts["unseen_a"] + counts["unseen_b"]}
+    # the counts the batch reports are read from changes.json (`workflow._changes_record`), also of a comparison a
+    # resumed batch finds finished
+    return {"changes": str(Path(out_dir) / "changes.json"), "changes_summary": run.summary()}

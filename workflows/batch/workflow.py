@@ -489,25 +489,36 @@ def _changes(sessions: dict[str, dict[str, Any]], pairs: dict[str, dict[str, Any
     for key, rec in done.items():
         pairs[key]["changes_status"] = rec["status"]
         if rec["status"] == "done":
-            pairs[key].update({k: rec[k] for k in ("changes", "gone", "new", "kept", "unseen", "changes_summary")})
-            _changes_warnings(key, pairs[key])
+            pairs[key].update({k: rec[k] for k in ("changes", "changes_summary")})
+            _changes_record(key, pairs[key])
         else:
             pairs[key]["changes_error"] = rec.get("error", "")
 
 
-def _changes_warnings(key: str, rec: dict[str, Any]) -> None:
-    """Repeat what a pair's change detection warned of (changes.json `warnings`, `changes_io.read_changes_record`)
-    into its record (`changes_warnings`, report.json / .md) and the batch's log, for a comparison run now (its
-    worker's log is not the batch's) and one a resumed batch reads finished (the twenty-fourth sweep: B's images
-    "show no relief", its 5 "new" claims all false, and report.json said "warnings": [])."""
+def _changes_record(key: str, rec: dict[str, Any]) -> None:
+    """What a pair's changes.json (`changes_io.read_changes_record`) says, into its record (report.json / .md,
+    pairs.csv): its counts (`ChangeResult.counts()`, the counts `sosmatch changes` prints; read from the record,
+    as of a comparison a resumed batch finds finished, whose state an earlier version may have written with other
+    counts), and what it warned of (`changes_warnings`), repeated into the batch's log for a comparison run now
+    (its worker's log is not the batch's) and one a resumed batch reads finished (the twenty-fourth sweep: B's
+    images "show no relief", its 5 "new" claims all false, and report.json said "warnings": [])."""
     from ...database.changes_io import read_changes_record
+    from ...plugin.changes import COUNT_KEYS
     from ...plugin.errors import InputError
 
-    rec.pop("changes_warnings", None)
+    for k in ("changes_warnings", *COUNT_KEYS):
+        rec.pop(k, None)
     try:
-        warnings = read_changes_record(rec["changes"])["warnings"]
+        record = read_changes_record(rec["changes"])
+        warnings = record["warnings"]
     except InputError as e:  # the record was there a moment ago (`_valid_changes`): say what is wrong with it now
-        warnings = [f"its changes record cannot be read: {e}"]
+        record, warnings = {}, [f"its changes record cannot be read: {e}"]
+    counts = record.get("counts")
+    if isinstance(counts, dict) and all(type(counts.get(k)) is int and counts[k] >= 0 for k in COUNT_KEYS):
+        rec.update({k: counts[k] for k in COUNT_KEYS})
+    elif record:  # its counts are then summed with no other pair's (`BatchReport.changes_line`)
+        warnings = [*warnings, f"its changes record {rec['changes']} holds no counts of "
+                               f"{', '.join(COUNT_KEYS)} (an earlier version's?): its counts are not reported"]
     if warnings:
         rec["changes_warnings"] = warnings
         for text in warnings:
