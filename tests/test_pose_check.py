@@ -813,3 +813,24 @@ def test_two_swapped_cameras_are_both_named_when_one_has_a_single_pair():
             assert any("f05.jpg and f17.jpg" in r and "exchanged" in r for r in verdict.refusals), verdict.refusals
         else:
             assert not verdict.refusals, verdict.refusals
+
+
+def _shifted(poses: Poses, rows: int) -> Poses:
+    """Each image given the pose `rows` images later (a pose table joined to its images `rows` rows off); the last
+    images keep their own."""
+    order = np.minimum(np.arange(len(poses)) + rows, len(poses) - 1)
+    order[len(poses) - rows:] = np.arange(len(poses) - rows, len(poses))
+    return Poses(poses.names, poses.rotations[order], poses.centers[order])
+
+
+def test_poses_one_row_off_are_refused_by_the_share_of_pairs_they_miss(flight, tmp_path, cli_error):
+    """nu59 D1: each image given its neighbour's pose passed check-poses "ok" (exit 0): the straight passes'
+    consecutive pairs keep their relative pose, and the share of pairs beyond the gate was only warned. Sound poses
+    miss a pair beyond the gate in at most ~1 % of pairs (`verdict.SOUND_MISS_RATES`); this flight misses ~half."""
+    _, poses, _ = _inputs(flight)
+    bad = tmp_path / "shift1.csv"
+    write_poses_csv(bad, _shifted(poses, 1))
+    err = cli_error("check-poses", "--images", flight / "images", "--poses", bad, "--camera",
+                    flight / "cameras.txt")
+    assert re.search(r"\d+ of \d+ checked pairs \(\d+%\) miss their matches by more than", err), err
+    assert err.split(": ")[2] == str(bad)  # the error names the pose file
