@@ -815,6 +815,26 @@ def test_two_swapped_cameras_are_both_named_when_one_has_a_single_pair():
             assert not verdict.refusals, verdict.refusals
 
 
+
+def test_a_slightly_wrong_camera_beside_a_pairless_one_is_not_called_swapped():
+    """rev59 D1: a long flight's pairs are drawn from anchors, so many cameras have no checked pair. One camera's
+    pose a little off (here 1.5 deg; its pairs a few px, under the camera limit) fits its images better given the
+    pairless neighbour's pose, and was refused as "swapped" with it. Without a pair of its own the neighbour cannot
+    tell a swap from a slightly wrong pose: an exchange is claimed there only where the given poses fail a pair."""
+    true, world = _survey()
+    n = len(true)
+    links = [(i, i + 1) for i in range(n - 1) if 6 not in (i, i + 1)] + [(5, 7)]  # camera 6: no checked pair
+    off = Poses(true.names, true.rotations.copy(), true.centers)
+    off.rotations[5] = off.rotations[5] @ _rot("y", 1.5)
+    pairs = [_matches(off, world, a, b, true) for a, b in links]
+    focal, gate = 500.0, 12.0
+    med, front = pair_figures(off, pairs, focal)
+    p50 = float(np.nanmedian(med))
+    limit = camera_limit_px(p50, gate, 10.0, 0.5)
+    given = [m for p, m in zip(pairs, med) if 5 in (p.a, p.b)]
+    assert max(given) < limit and min(given) > 3 * p50  # misfit, but no pair fails
+    assert exchanged_cameras(off, pairs, med, front, np.ones(len(pairs), bool), focal, limit, p50) == []
+
 def _shifted(poses: Poses, rows: int) -> Poses:
     """Each image given the pose `rows` images later (a pose table joined to its images `rows` rows off); the last
     images keep their own."""

@@ -93,9 +93,16 @@ def exchanged_cameras(poses: Poses, pairs: list[PairMatches], epipolar_px: np.nd
     `pairs`: the checked pairs' matches; `epipolar_px`, `in_front`, `sees_direction`: their figures on `poses`
     (`PairCheck`); `limit_px`: the pair error beyond which a pair fails (`verdict.camera_limit_px`); `flight_px`:
     the flight's median pair error."""
+    checked = {c for p in pairs for c in (p.a, p.b)}
+    # a camera without a checked pair of its own cannot tell an exchange from the other camera's pose being a
+    # little off: its pose, given to the other's images, fits them better for either reason (rev59 D1: one frame
+    # turned 1 deg on a 250-frame flight, whose pairs are drawn from 80 anchors, was refused as swapped with its
+    # pairless neighbour, 5.1 px as given). There the given poses must fail a pair outright (the camera limit, or
+    # a reversed pair), as a swap's do
     found = [e for e in exchange_trials(poses, pairs, epipolar_px, in_front, sees_direction, focal_px, limit_px)
              if e.exchanged_fit and e.exchanged_px <= EXCHANGE_GAIN * e.given_px
-             and e.given_px > EXCHANGE_MISFIT * flight_px]
+             and e.given_px > EXCHANGE_MISFIT * flight_px
+             and (e.failing > 0 or (e.a in checked and e.b in checked))]
     out, used = [], set()
     for e in sorted(found, key=lambda e: (e.exchanged_px / e.given_px, e.a, e.b)):
         if e.a not in used and e.b not in used:
