@@ -181,6 +181,18 @@ def test_one_damaged_relative_altitude_is_named_and_replaced_not_a_camera_10_km_
     np.testing.assert_allclose(given.positions[:, 2], expected, atol=1e-6)
 
 
+
+def test_a_damaged_relative_altitude_of_interleaved_flights_takes_its_own_neighbours():
+    """rev59 D2: two flights whose capture times interleave are ordered one after the other, so the times are not
+    increasing; interpolating in them over all images gave the damaged image the other flight's value (100 m)."""
+    from sosmatch.workflows.prior_heights import relative_altitude_spikes
+
+    rel = np.array([100.0, 100.0, 100.0, 100.0, 60.0, -9999.0, 60.0, 60.0])
+    times = np.array([0.0, 2.0, 4.0, 6.0, 1.0, 3.0, 5.0, 7.0])
+    fixed, said = relative_altitude_spikes(rel, np.full(8, 500.0), times, [f"f{k}" for k in range(8)])
+    assert said is not None and "f5" in said
+    np.testing.assert_allclose(fixed, [100, 100, 100, 100, 60, 60, 60, 60])
+
 @pytest.mark.parametrize("home_step", [15.0, 0.0])
 def test_two_batteries_from_two_home_points_take_their_own_take_off_altitude(tmp_path, caplog, home_step):
     """The nu20 sweep: a folder of two batteries, the second taken off from ground 15 m higher (its

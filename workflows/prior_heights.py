@@ -58,11 +58,20 @@ def _neighbours(ok: np.ndarray, i: int) -> list[int]:
     return picked if len(picked) == 2 else [int(k) for k in (*before[:2], *after[:2])]
 
 
+def _between(rel: np.ndarray, times: np.ndarray, i: int, around: list[int]) -> float:
+    """Image `i`'s value from its neighbours `around` (`_neighbours`): interpolated in time where they lie on
+    either side of it in time as in order, else their mean."""
+    if len(around) == 2 and around[0] < i < around[1] and times[around[0]] < times[i] < times[around[1]]:
+        a, b = around
+        return float(rel[a] + (rel[b] - rel[a]) * (times[i] - times[a]) / (times[b] - times[a]))
+    return float(np.mean(rel[around]))
+
+
 def relative_altitude_spikes(rel: np.ndarray, alt: np.ndarray, times: np.ndarray,
                              names: Sequence[str]) -> tuple[np.ndarray, str | None]:
     """`rel` (RelativeAltitude, capture order) with the values of images that jump away from both neighbours by
     more than the drone could climb or sink in between (`MAX_VERTICAL_SPEED_MPS`), the same way on both sides,
-    while their GPS altitude `alt` does not follow, replaced by their neighbours' (interpolated in `times`); and a
+    while their GPS altitude `alt` does not follow, replaced by their two neighbours' (interpolated in `times`); and a
     warning naming them (None when there are none). A barometer that resets moves every image after it, a
     step `prior_heights` keeps; one damaged value is no step (nu59 D4: -9999 put one camera at z -9581 m and
     the warning blamed the GPS for jumping there and back)."""
@@ -85,7 +94,10 @@ def relative_altitude_spikes(rel: np.ndarray, alt: np.ndarray, times: np.ndarray
             for i in bad[:3]]
     good = ok.copy()
     good[bad] = False
-    rel[bad] = np.interp(times[bad], times[good], rel[good])
+    # each from its own two neighbours in capture order: `np.interp` over all of them needs increasing times, which
+    # the capture order of interleaved flights (one flight after the other) does not have (rev59 D2: a value of the
+    # other flight's was taken)
+    rel[bad] = [_between(rel, times, i, _neighbours(good, i)) for i in bad]
     return rel, (f"{len(bad)} image(s) have an XMP RelativeAltitude (barometric) far off their neighbours' while "
                  f"their GPS altitude is not, a damaged value: {'; '.join(said)}"
                  + (f" ... ({len(bad)} in all)" if len(bad) > 3 else "")
