@@ -46,6 +46,21 @@ def test_an_output_inside_the_flights_folder_is_refused(tmp_path, cli_error, ins
     assert not (root / inside).exists()
 
 
+
+def test_a_batch_output_an_earlier_version_took_inside_the_flights_is_told_to_move(tmp_path, cli_error):
+    """rev59 D3: a batch output inside FLIGHTS, taken before that was refused, was refused on its re-run with no word
+    that moving it keeps its results (its state's paths are relative to it)."""
+    from sosmatch.database.outputs import open_output_dir
+
+    root = tmp_path / "flights"
+    _flight(root / "f1")
+    with open_output_dir(root / "out", "batch", "identity") as out:
+        out.finish()
+    before = sorted(p.name for p in (root / "out").iterdir())
+    err = cli_error("batch", root, "--out", root / "out")
+    assert f"output is inside the input {root}" in err and "move the folder out" in err, err
+    assert sorted(p.name for p in (root / "out").iterdir()) == before
+
 def test_a_stray_photo_beside_the_flight_folders_does_not_make_the_flights_folder_a_flight(tmp_path):
     root = tmp_path / "flights"
     _flight(root / "f1")

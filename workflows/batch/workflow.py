@@ -15,7 +15,7 @@ from typing import Any
 from ...database.atomic import write_text_atomic
 from ...database.map_loading import session_sfm_poses
 from ...database.match_io import MatchSummary, answer_gate
-from ...database.output_markers import check_not_input, versioned_identity
+from ...database.output_markers import check_not_input, output_command, versioned_identity
 from ...database.outputs import open_output_dir
 from ...database.poses import crs_problem
 from ...database.segmentation_models import SegmentationModels, keyed_by_models, segmentation_models
@@ -172,7 +172,14 @@ def run(
     executor = executor or LocalExecutor(1)
     # an output is never inside an input directory (README "Errors"), and FLIGHTS is the batch's: OUT inside it
     # was taken and left out of discovery, and every other batch of the folder skipped it with a warning (nu59 D6)
-    check_not_input(out_dir, [flights_dir])
+    try:
+        check_not_input(out_dir, [flights_dir])
+    except InputError as exc:
+        if output_command(out_dir) == "batch":  # one an earlier version took there (rev59 D3): it moves whole
+            raise InputError(f"{exc.problem}; an earlier sosmatch took this batch output there: move the folder "
+                             f"out of {flights_dir} and give its new place as OUT, the batch resumes there",
+                             out_dir) from None
+        raise
     flights = discover_flights(flights_dir)
     if options.merge:  # a flight's name labels its images in a merged model: refused now, not after the mapping
         for flight in flights:
