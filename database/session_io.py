@@ -295,17 +295,19 @@ def map_min_observations(map_dir: str | Path, record: MapRecord | None = None) -
 
 def check_not_batch_output(path: str | Path) -> None:
     """InputError when `path` is the output folder of `sosmatch batch` (its marker), which holds sessions and
-    merged models but is none: naming what in it is one (nu60 D3: export said its landmarks.sosmap was not found)."""
+    merged models but is none: naming what in it is one, relative to it (an error is cut at 400 characters; nu60
+    D3: export said its landmarks.sosmap was not found)."""
     from .output_markers import output_command
 
     path = Path(path)
     if output_command(path) != "batch":
         return
-    inside = [f"{path / kind / p.name}" for kind in ("merged", "sessions") if (path / kind).is_dir()
+    inside = [f"{kind}/{p.name}" for kind in ("merged", "sessions") if (path / kind).is_dir()
               for p in sorted((path / kind).iterdir()) if p.is_dir()]
     shown = ", ".join(inside[:4]) + (f" (and {len(inside) - 4} more)" if len(inside) > 4 else "")
     raise InputError("is the output folder of `sosmatch batch`, not a session: give one of its merged models "
-                     f"(merged/REFERENCE) or mapped sessions (sessions/NAME){': ' + shown if shown else ''}", path)
+                     f"(merged/REFERENCE) or mapped sessions (sessions/NAME) in it{': ' + shown if shown else ''}",
+                     path)
 
 
 def check_session_usable(path: str | Path, record: MapRecord | None = None) -> None:

@@ -330,11 +330,13 @@ def _fold_radius(name: str, extra: tuple[float, ...]) -> float:
     angle = np.arange(_FOLD_DIRECTIONS) * (2.0 * np.pi / _FOLD_DIRECTIONS)
     c, s = np.cos(angle), np.sin(angle)
 
-    def keeps_orientation(r: Array) -> Array:
-        # the sign of the map's Jacobian determinant at radius r (D, n) along each direction (central
-        # differences, relative step): positive while the map is one-to-one there; NaN (no image) is a fold too
+    def keeps_orientation(r: Array, direction: int | None = None) -> Array:
+        # the sign of the map's Jacobian determinant at radius r (D, n) along each direction (or (1, n) along
+        # `direction`; central differences, relative step): positive while the map is one-to-one there; NaN (no
+        # image) is a fold too
         h = np.maximum(r * 1e-6, 1e-9)
-        u, v = r * c[:, None], r * s[:, None]
+        cs, sn = (c, s) if direction is None else (c[direction:direction + 1], s[direction:direction + 1])
+        u, v = r * cs[:, None], r * sn[:, None]
         with np.errstate(all="ignore"):
             xp, yp = _plane_from_normalized(model, extra, u + h, v)
             xm, ym = _plane_from_normalized(model, extra, u - h, v)
@@ -343,7 +345,9 @@ def _fold_radius(name: str, extra: tuple[float, ...]) -> float:
             return ((xp - xm) * (yq - yn) - (xq - xn) * (yp - ym)) > 0
 
     radii = np.geomspace(1e-4, _FOLD_SEARCH_RADIUS, _FOLD_SAMPLES)
-    bad = ~keeps_orientation(np.broadcast_to(radii, (len(angle), len(radii))))
+    # one direction at a time: all 32 at once held ~20 arrays of 32 x 4000 (18 MB) for a reader of a 91-byte
+    # cameras.txt (the readers' bounded-memory fuzz test)
+    bad = np.stack([~keeps_orientation(radii[None, :], k)[0] for k in range(len(angle))])
     if not bad.any():
         return float("inf")
     first = np.where(bad.any(1), bad.argmax(1), len(radii) - 1)

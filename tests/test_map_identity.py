@@ -27,7 +27,7 @@ def _full_identity(params: Params) -> str:
 
 def _made(path: Path, identity: object) -> Path:
     with take_output_dir(path, identity, [], False) as out:
-        (out.path / "run.json").write_text("{}")
+        out.write_file("run.json", "{}")  # through the folder, as `map` writes it: recorded as the map's own
         out.finish()
     return path
 
