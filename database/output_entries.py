@@ -101,14 +101,13 @@ def check_file_ours(path: Path, command: str, record: Mapping[str, Any] | None) 
         return  # of the other kind: `OutputDir._check_kind` names it as such
     if record is None and not path.is_symlink():
         return
+    recorded = record is not None and path.name in record and not path.is_symlink()
     try:
-        ours = (record is not None and path.name in record and not path.is_symlink()
-                and sha256_file(path) in (_hashes(record[path.name]) or []))
+        ours = recorded and sha256_file(path) in (_hashes(record[path.name]) or [])
     except OSError as exc:
         raise InputError(f"cannot read output file: {exc.strerror or exc}", path) from None
     if not ours:
-        changed = record is not None and path.name in record and not path.is_symlink()
-        why = (f"was changed since `sosmatch {command}` wrote it" if changed else
+        why = (f"was changed since `sosmatch {command}` wrote it" if recorded else
                f"was not written by `sosmatch {command}`")
         raise InputError(f"{why}, and a run of it replaces or removes {path.name}; sosmatch never replaces what it "
                          f"did not create: move it out of {path.parent} (or choose another output directory)", path)

@@ -271,7 +271,7 @@ def compared_observations(session: str | Path | SessionFiles, params: Params, **
     camera (a session mapped by an older sosmatch, or a toy one)."""
     files = session if isinstance(session, SessionFiles) else read_session(session)
     obs = read_session_observations(files, **read)
-    recorded = ((read_map_record(files.path) or {}).get("params") or {}).get("segmentation")
+    recorded = ((files.record.get() or {}).get("params") or {}).get("segmentation")  # run.json, read once
     names = ("backend", "min_mask_area_px", "classical_min_area_px")
     if isinstance(recorded, dict) and all(isinstance(recorded.get(k), str if k == "backend" else (int, float))
                                           for k in names):
