@@ -388,7 +388,8 @@ def img_from_normalized(model: CameraModel, focal: tuple[float, float], principa
     if np.isfinite(turn):
         with np.errstate(invalid="ignore"):
             folded = ~(u * u + v * v < turn * turn)
-        x, y = np.where(folded, np.nan, x), np.where(folded, np.nan, y)
+        if folded.any():  # copies only where a point lies beyond (single-point calls are many: track fusion)
+            x, y = np.where(folded, np.nan, x), np.where(folded, np.nan, y)
     return focal[0] * x + principal[0], focal[1] * y + principal[1]
 
 

@@ -102,8 +102,7 @@ def in_view(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequen
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     sizes = np.asarray(sizes, dtype=np.float64).reshape(-1)
     h = np.nan_to_num(sizes, nan=0.0)
-    # r = 2 |s - h| / (s + h) <= tolerance reaches s = h (2 + r) / (2 - r); r >= 2 admits any size: no limit
-    largest = h * (2.0 + size_tolerance) / (2.0 - size_tolerance) if size_tolerance < 2.0 else np.full_like(h, np.inf)
+    largest = _largest_size(h, size_tolerance) if size_tolerance < 2.0 else np.full_like(h, np.inf)
     k_count = len(poses)
     seen = np.zeros((k_count, len(pts)), dtype=bool)
     uv = np.zeros((k_count, len(pts), 2))
@@ -114,11 +113,18 @@ def in_view(points: np.ndarray, sizes: np.ndarray, poses: Poses, cameras: Sequen
         d = depth[k]
         with np.errstate(divide="ignore", invalid="ignore"):
             r = margin_factor * h * np.sqrt(cam.fx * cam.fy) / d
-            resolved = ~np.isfinite(sizes) | (np.pi * (2.0 * largest * np.sqrt(cam.fx * cam.fy) / d) ** 2
-                                              >= min_area_px)
+            # without a smallest mask every point in front is resolved: the (K, N) test is skipped
+            resolved = (~np.isfinite(sizes) | (np.pi * (2.0 * largest * np.sqrt(cam.fx * cam.fy) / d) ** 2
+                                               >= min_area_px)) if min_area_px > 0 else True
         u, v = uv[k, :, 0], uv[k, :, 1]
         seen[k] = (d > 0) & (u >= r) & (u <= cam.width - r) & (v >= r) & (v <= cam.height - r) & resolved
     return seen, uv, depth
+
+
+def _largest_size(h: np.ndarray | float, size_tolerance: float) -> np.ndarray | float:
+    """The largest size s still taken for an object of size h: r = 2 |s - h| / (s + h) <= tolerance reaches
+    s = h (2 + r) / (2 - r) (a tolerance of 2 or more admits any size: the callers take no limit there)."""
+    return h * (2.0 + size_tolerance) / (2.0 - size_tolerance)
 
 
 def smallest_mask_area(backend: str, min_mask_area_px: float, classical_min_area_px: float) -> float:
@@ -134,7 +140,7 @@ def resolution_depth(size_m: float, camera: Camera, min_area_px: float, size_tol
     a size."""
     if not min_area_px > 0 or not np.isfinite(size_m) or size_m <= 0 or size_tolerance >= 2.0:
         return float("inf")
-    largest = size_m * (2.0 + size_tolerance) / (2.0 - size_tolerance)
+    largest = _largest_size(size_m, size_tolerance)
     return float(2.0 * largest * np.sqrt(camera.fx * camera.fy) * np.sqrt(np.pi / min_area_px))
 
 

@@ -91,7 +91,7 @@ def exchanged_cameras(poses: Poses, pairs: list[PairMatches], epipolar_px: np.nd
                       ) -> list[Exchange]:
     """The cameras whose poses fit the images exchanged (module doc), best gain first, each camera at most once.
     `pairs`: the checked pairs' matches; `epipolar_px`, `in_front`, `sees_direction`: their figures on `poses`
-    (`PairCheck`); `limit_px`: the pair error beyond which a pair fails (`verdict.camera_limit_px`); `flight_px`:
+    (`PairCheck`); `limit_px`: the pair error beyond which a pair fails (`check.camera_limit_px`); `flight_px`:
     the flight's median pair error."""
     checked = {c for p in pairs for c in (p.a, p.b)}
     # a camera without a checked pair of its own cannot tell an exchange from the other camera's pose being a
