@@ -356,5 +356,8 @@ def load_map(path: str | Path) -> LoadedMap:
     if (path / "session.json").is_file() and (path / "images").is_dir():
         raise InputError("a synthetic session that is not mapped yet (no landmarks.sosmap): map it first "
                          f"(`sosmatch map --poses {path} --out MAPPED`) and give MAPPED", path)
+    from .session_io import check_not_batch_output
+
+    check_not_batch_output(path)  # it holds no landmarks.sosmap: `check_session_usable` above never saw it
     raise InputError("directory holds neither landmarks.sosmap nor a COLMAP model (points3D.bin/.txt): a mapped "
                      "session (`sosmatch map --out`) is expected", path)

@@ -205,6 +205,7 @@ def test_the_crs_area_check_and_the_per_point_test_agree():
 def test_a_batch_output_folder_is_named_as_one_with_what_in_it_to_give(tmp_path, cli_error):
     """nu60 D3: `export B1 --csv` of a batch's output folder said "B1/landmarks.sosmap: landmark map not found".
     It is no session; the error says so and names its merged models and sessions, which export as before."""
+    from sosmatch.database.map_loading import load_map
     from sosmatch.database.outputs import open_output_dir
     from sosmatch.database.session_io import read_session
 
@@ -220,4 +221,6 @@ def test_a_batch_output_folder_is_named_as_one_with_what_in_it_to_give(tmp_path,
     assert not (tmp_path / "x.csv").exists()
     with pytest.raises(InputError, match="output folder of `sosmatch batch`"):  # match, merge, changes read so
         read_session(batch)
+    with pytest.raises(InputError, match="output folder of `sosmatch batch`"):  # and match's and merge's loader
+        load_map(batch)
     assert main(["export", "--csv", str(batch / "merged" / "a1"), "--out", str(tmp_path / "m.csv")]) == 0

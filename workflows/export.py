@@ -23,7 +23,7 @@ from ..database.geojson import check_projected_crs, check_within_crs_area, geojs
 from ..database.landmark_map import LandmarkMap, landmark_map_fingerprint, read_landmark_map
 from ..database.output_files import OutputFiles
 from ..database.output_markers import check_input_finished, fingerprint
-from ..database.session_io import check_map_of_record, check_session_usable, read_landmark_table
+from ..database.session_io import check_map_of_record, check_session_usable, map_record_of, read_landmark_table
 from ..plugin.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -33,9 +33,10 @@ def load_map(source: str | Path) -> tuple[LandmarkMap, dict[str, np.ndarray]]:
     """The landmark map of a .sosmap file or a session directory, and per-landmark extras from landmarks.csv."""
     source = Path(source)
     if source.is_dir():
-        check_session_usable(source)
+        record = map_record_of(source)  # run.json read once for both checks
+        check_session_usable(source, record)
         lmap = read_landmark_map(source / "landmarks.sosmap")
-        check_map_of_record(source, lmap)
+        check_map_of_record(source, lmap, record)
         extras: dict[str, np.ndarray] = {}
         table_path = source / "landmarks.csv"
         if table_path.exists():

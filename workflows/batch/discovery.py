@@ -48,7 +48,7 @@ def classify_flight(folder: Path) -> str | None:
     return "opensfm" if (folder / "opensfm" / "reconstruction.json").is_file() else "images"
 
 
-def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
+def flight_signature(folder: Path, warn: bool = True) -> list[tuple[str, int, int]]:
     """(relative path, size, mtime in ns) of every file under a flight folder, sorted: what the map stage's
     fingerprint knows of the flight's contents, so that re-running a batch redoes a flight whose images, poses or
     mapped session changed (and every pair, merge and comparison of it) instead of resuming stale results. A
@@ -59,9 +59,10 @@ def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
     Links are followed, as the map stage follows them: a flight's `images/` is often a link to where the photos
     lie (rev58 D1: `Path.rglob` does not enter a linked folder, so the listing held no image and a flight whose
     photos were replaced resumed its old map); a linked file counts with its target's size and mtime. A link back
-    to a folder it lies in is left out with a warning (it would list the folder without end)."""
+    to a folder it lies in is left out with a warning (it would list the folder without end; `warn` False: not
+    said again by a second listing of one run)."""
     entries = []
-    for path in sorted(_files_under(folder, folder, frozenset({os.path.realpath(folder)}))):
+    for path in sorted(_files_under(folder, folder, frozenset({os.path.realpath(folder)}), warn)):
         try:
             st = path.stat()
         except OSError:
@@ -70,7 +71,7 @@ def flight_signature(folder: Path) -> list[tuple[str, int, int]]:
     return entries
 
 
-def _files_under(folder: Path, top: Path, above: frozenset[str]) -> Iterator[Path]:
+def _files_under(folder: Path, top: Path, above: frozenset[str], warn: bool = True) -> Iterator[Path]:
     """Every regular file under `folder`, through links (a dangling one is left out: the map stage reports what
     it cannot read); `above`: the real paths of the folders it lies in, a link to one of which is a loop (skipped,
     said)."""
@@ -85,10 +86,11 @@ def _files_under(folder: Path, top: Path, above: frozenset[str]) -> Iterator[Pat
             continue
         real = os.path.realpath(child)
         if real in above:
-            log.warning("%s: a link to %s, a folder it lies in (a loop); what is under it is not part of flight %s",
-                        child, real, top)
+            if warn:
+                log.warning("%s: a link to %s, a folder it lies in (a loop); what is under it is not part of flight "
+                            "%s", child, real, top)
             continue
-        yield from _files_under(child, top, above | {real})
+        yield from _files_under(child, top, above | {real}, warn)
 
 
 def flight_digest(folder: Path, listing: list) -> str | None:

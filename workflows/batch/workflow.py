@@ -349,7 +349,7 @@ def record_contents(out_dir: Path, flight: Any, mapped: list[list[Any]], now: li
     if mapped != now:  # mapped again for another reason (settings) from a listing verified by content
         return  # its record (`contents_seen`) holds both listings already
     digest = flight_digest(flight.path, now)
-    if digest is None or [list(e) for e in flight_signature(flight.path)] != now:
+    if digest is None or [list(e) for e in flight_signature(flight.path, warn=False)] != now:  # said once already
         _contents_path(out_dir, flight.name).unlink(missing_ok=True)
         return
     write_text_atomic(_contents_path(out_dir, flight.name), json.dumps({"listing": now, "sha256": digest}) + "\n")
